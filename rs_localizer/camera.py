@@ -1,0 +1,233 @@
+"""Camera intrinsics, lens distortion and rolling-shutter timing.
+
+A :class:`CameraModel` turns measured (distorted) pixel coordinates into what the solvers take:
+calibrated image points ``x`` (undistorted, normalized) and the RS coordinate ``r`` of each
+observation. ``r`` is the **measured** pixel coordinate along the readout axis, in normalized
+units: for top-to-bottom readout ``r = (v_px - cy) / fy``. So ``r - r0`` is proportional to the
+capture time relative to the reference row::
+
+    t_i - t_ref = (r_i - r0) * seconds_per_unit_r,   seconds_per_unit_r = line_delay * fy
+
+(``fx`` for horizontal readout). Without distortion ``r = d . x`` exactly (``d`` the readout
+direction of :mod:`rs_localizer.geometry`); with distortion ``r`` differs from ``d . x`` by a
+per-point offset that :meth:`CameraModel.normalize` returns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = ["CameraModel", "READOUT_DIRECTIONS", "DISTORTION_MODELS"]
+
+#: readout direction name -> (image axis: 0 = u/columns, 1 = v/rows; sign; direction vector d)
+READOUT_DIRECTIONS = {
+    "top_to_bottom": (1, 1.0, (0.0, 1.0)),
+    "bottom_to_top": (1, -1.0, (0.0, -1.0)),
+    "left_to_right": (0, 1.0, (1.0, 0.0)),
+    "right_to_left": (0, -1.0, (-1.0, 0.0)),
+}
+
+#: sensor_msgs/CameraInfo distortion models we support and their coefficient counts.
+DISTORTION_MODELS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (0, 4, 5, 8),
+                     "equidistant": (0, 4), "none": (0,)}
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole camera with OpenCV distortion and rolling-shutter timing.
+
+    Attributes:
+        K: (3, 3) intrinsic matrix in pixels.
+        D: (n,) distortion coefficients in the order of sensor_msgs/CameraInfo (OpenCV order):
+            plumb_bob / rational_polynomial ``k1 k2 p1 p2 [k3 [k4 k5 k6]]``, equidistant
+            ``k1 k2 k3 k4``. Empty or all zeros: no distortion.
+        width, height: image size in pixels.
+        line_delay: seconds between the exposure of consecutive lines (rows for vertical
+            readout). 0 means a global shutter.
+        readout: one of ``top_to_bottom`` (default), ``bottom_to_top``, ``left_to_right``,
+            ``right_to_left``.
+        reference_row: pixel coordinate along the readout axis (a row for vertical readout) at
+            which the pose is estimated (``r0``); ``None`` means the image centre line.
+        distortion_model: ``plumb_bob``, ``rational_polynomial``, ``equidistant`` or ``none``.
+
+    Raises:
+        ValueError: for a non-finite or singular K, non-positive size, negative line delay,
+            unknown readout or distortion model, or a coefficient count the model does not take.
+    """
+
+    K: np.ndarray
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    width: int = 640
+    height: int = 480
+    line_delay: float = 0.0
+    readout: str = "top_to_bottom"
+    reference_row: float | None = None
+    distortion_model: str = "plumb_bob"
+
+    def __post_init__(self):
+        K = np.array(self.K, dtype=np.float64).reshape(3, 3)
+        D = np.array(self.D, dtype=np.float64).ravel()
+        if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1.0:
+            raise ValueError(f"invalid camera matrix K={K.tolist()}: need fx, fy > 0, K[2,2] = 1")
+        if not np.isfinite(D).all():
+            raise ValueError("distortion coefficients contain NaN or inf")
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"invalid image size {self.width}x{self.height}")
+        if not np.isfinite(self.line_delay) or self.line_delay < 0:
+            raise ValueError(f"line_delay must be finite and >= 0, got {self.line_delay}")
+        if self.readout not in READOUT_DIRECTIONS:
+            raise ValueError(f"unknown readout direction {self.readout!r}; "
+                             f"expected one of {sorted(READOUT_DIRECTIONS)}")
+        model = self.distortion_model or "plumb_bob"
+        if model not in DISTORTION_MODELS:
+            raise ValueError(f"unsupported distortion model {model!r}; "
+                             f"expected one of {sorted(DISTORTION_MODELS)}")
+        if np.any(D != 0) and len(D) not in DISTORTION_MODELS[model]:
+            raise ValueError(f"{model} takes {DISTORTION_MODELS[model]} coefficients, got {len(D)}")
+        if self.reference_row is not None and not np.isfinite(self.reference_row):
+            raise ValueError("reference_row must be finite or None")
+        K.setflags(write=False)
+        D.setflags(write=False)
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "D", D)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "line_delay", float(self.line_delay))
+        object.__setattr__(self, "distortion_model", model)
+
+    # ---------------------------------------------------------------- construction helpers
+    @classmethod
+    def from_readout_time(cls, K, readout_time: float, width: int, height: int, **kw):
+        """Build from the time to read one whole frame (s): ``line_delay = readout_time / lines``,
+        ``lines`` = height for vertical readout, width for horizontal."""
+        readout = kw.get("readout", "top_to_bottom")
+        if readout not in READOUT_DIRECTIONS:
+            raise ValueError(f"unknown readout direction {readout!r}")
+        lines = height if READOUT_DIRECTIONS[readout][0] == 1 else width
+        if not np.isfinite(readout_time) or readout_time < 0:
+            raise ValueError(f"readout_time must be finite and >= 0, got {readout_time}")
+        return cls(K=K, width=width, height=height, line_delay=readout_time / lines, **kw)
+
+    # ---------------------------------------------------------------- properties
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.D != 0)) and self.distortion_model != "none"
+
+    @property
+    def readout_vector(self) -> np.ndarray:
+        """(2,) direction ``d`` with ``r = d . x`` for undistorted normalized points ``x``."""
+        return np.array(READOUT_DIRECTIONS[self.readout][2])
+
+    @property
+    def _axis(self) -> int:
+        return READOUT_DIRECTIONS[self.readout][0]
+
+    @property
+    def focal(self) -> float:
+        """Focal length (px) along the readout axis: the pixel size of one unit of ``r``."""
+        return float(self.K[self._axis, self._axis])
+
+    @property
+    def mean_focal(self) -> float:
+        """Mean of fx and fy (px): converts normalized reprojection errors to pixels."""
+        return 0.5 * float(self.K[0, 0] + self.K[1, 1])
+
+    @property
+    def lines(self) -> int:
+        """Number of lines read out (rows for vertical readout, columns for horizontal)."""
+        return self.height if self._axis == 1 else self.width
+
+    @property
+    def readout_time(self) -> float:
+        """Seconds to read the whole frame (``line_delay * lines``)."""
+        return self.line_delay * self.lines
+
+    @property
+    def reference_line(self) -> float:
+        """Reference pixel coordinate along the readout axis (default: image centre line)."""
+        return (self.lines - 1) / 2.0 if self.reference_row is None else float(self.reference_row)
+
+    @property
+    def r0(self) -> float:
+        """Reference RS coordinate in normalized units (see :meth:`rs_coordinate`)."""
+        return float(self.rs_coordinate_of_line(self.reference_line))
+
+    @property
+    def seconds_per_unit_r(self) -> float:
+        """Capture-time difference (s) per unit of ``r``: ``line_delay * focal``."""
+        return self.line_delay * self.focal
+
+    # ---------------------------------------------------------------- conversions
+    def rs_coordinate_of_line(self, line):
+        """Pixel coordinate along the readout axis -> RS coordinate ``r`` (normalized)."""
+        a = self._axis
+        sign = READOUT_DIRECTIONS[self.readout][1]
+        return sign * (np.asarray(line, dtype=float) - self.K[a, 2]) / self.K[a, a]
+
+    def rs_coordinate(self, points_px) -> np.ndarray:
+        """(N, 2) measured pixels -> (N,) RS coordinates of their capture lines (normalized)."""
+        return self.rs_coordinate_of_line(np.asarray(points_px, dtype=float)[:, self._axis])
+
+    def line_time(self, line) -> np.ndarray:
+        """Capture time (s) of a pixel line relative to the first line read out."""
+        a = self._axis
+        sign = READOUT_DIRECTIONS[self.readout][1]
+        n = self.lines
+        line = np.asarray(line, dtype=float)
+        return (line if sign > 0 else (n - 1) - line) * self.line_delay
+
+    def time_offset(self, from_line: float, to_line: float) -> float:
+        """Capture time of ``to_line`` minus that of ``from_line`` (s)."""
+        return float(self.line_time(to_line) - self.line_time(from_line))
+
+    def undistort(self, points_px) -> np.ndarray:
+        """(N, 2) measured pixels -> (N, 2) undistorted normalized coordinates (OpenCV)."""
+        p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
+        if len(p) == 0:
+            return np.zeros((0, 2))
+        if not self.has_distortion:
+            out = (p.reshape(-1, 2) - self.K[:2, 2]) / np.diag(self.K)[:2]
+            out[:, 0] -= self.K[0, 1] * out[:, 1] / self.K[0, 0]
+            return out
+        if self.distortion_model == "equidistant":
+            return cv2.fisheye.undistortPoints(p, self.K, self.D[:4]).reshape(-1, 2)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
+        return cv2.undistortPointsIter(p, self.K, self.D, None, None, crit).reshape(-1, 2)
+
+    def distort(self, xn) -> np.ndarray:
+        """(N, 2) undistorted normalized coordinates -> (N, 2) pixels (OpenCV projection)."""
+        xn = np.ascontiguousarray(xn, dtype=np.float64)
+        if len(xn) == 0:
+            return np.zeros((0, 2))
+        if not self.has_distortion:
+            return xn @ self.K[:2, :2].T + self.K[:2, 2]
+        P = np.concatenate([xn, np.ones((len(xn), 1))], axis=1).reshape(-1, 1, 3)
+        z = np.zeros(3)
+        if self.distortion_model == "equidistant":
+            out, _ = cv2.fisheye.projectPoints(P, z, z, self.K, self.D[:4])
+        else:
+            out, _ = cv2.projectPoints(P, z, z, self.K, self.D)
+        return out.reshape(-1, 2)
+
+    def normalize(self, points_px):
+        """Everything the solvers need from measured pixels.
+
+        Returns:
+            (x, r, r0_eff): (N, 2) undistorted normalized points, (N,) RS coordinates of the
+            measured lines, and (N,) per-point reference coordinate ``r0 - (r - d.x)`` to pass to
+            :func:`rs_localizer.geometry.rs_project_first_order` so that the closed-form
+            projection uses the distorted line as the capture time (equal to ``r0`` without
+            distortion).
+        """
+        x = self.undistort(points_px)
+        r = self.rs_coordinate(points_px)
+        return x, r, self.r0 - (r - x @ self.readout_vector)
+
+    def in_image(self, points_px, margin: float = 0.0) -> np.ndarray:
+        """(N,) bool: pixel inside ``[-margin, size - 1 + margin]``."""
+        p = np.asarray(points_px, dtype=float)
+        return ((p[:, 0] >= -margin) & (p[:, 0] <= self.width - 1 + margin)
+                & (p[:, 1] >= -margin) & (p[:, 1] <= self.height - 1 + margin))

@@ -1,0 +1,126 @@
+"""R9P: the linear non-iterative 9-point RS solver (paper sec. 3.4, eq. 8).
+
+Eq. 5 rewritten as eq. 8 and with ``[w]x (I + [v]x)`` replaced by a general 3x3 ``R_rs``::
+
+    lambda_i x_hat_i = (I + [v]x) X_i + C + tau_i (R_rs X_i + t)
+
+is linear in 18 unknowns (v, C, t and the 9 entries of R_rs); two independent equations per
+point need N >= 9. Coefficient rows for each elimination row E (see ``_linear``)::
+
+    [X x E | E | tau E | tau (E (x) X)] . [v; C; t; vec(R_rs)] = -E . X
+
+(``vec`` row-major). The paper stops at R_rs; we also recover the angular velocity: since
+``R_rs = [w]x (I + [v]x)``, ``[w]x ~ R_rs (I + [v]x)^-1`` and ``w`` is the vector of the
+projection of that matrix onto the skew-symmetric matrices, ``(M - M^T) / 2``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._linear import cross_into, lstsq, rows_E, run_batch, run_single
+
+__all__ = ["r9p", "r9p_batch"]
+
+
+@njit(cache=True)
+def _eq8_error(x, X, r, r0, u):
+    n = x.shape[0]
+    acc = 0.0
+    for i in range(n):
+        tau = r[i] - r0
+        X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+        p = np.empty(3)
+        p[0] = X0 + u[1] * X2 - u[2] * X1 + u[3] + tau * (u[12] * X0 + u[13] * X1 + u[14] * X2 + u[6])
+        p[1] = X1 + u[2] * X0 - u[0] * X2 + u[4] + tau * (u[15] * X0 + u[16] * X1 + u[17] * X2 + u[7])
+        p[2] = X2 + u[0] * X1 - u[1] * X0 + u[5] + tau * (u[18] * X0 + u[19] * X1 + u[20] * X2 + u[8])
+        e1 = -p[1] + x[i, 1] * p[2]
+        e2 = p[0] - x[i, 0] * p[2]
+        acc += e1 * e1 + e2 * e2
+    return np.sqrt(acc / n)
+
+
+@njit(cache=True)
+def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    K, N = x.shape[0], x.shape[1]
+    A = np.empty((2 * N, 18))
+    b = np.empty(2 * N)
+    s = np.zeros(18)
+    u = np.zeros(21)  # v, C, t, R_rs (solver order) -> out order v, C, w, t, R_rs
+    E = np.empty((2, 3))
+    for k in range(K):
+        ok[k] = False
+        its[k] = 0
+        for i in range(N):
+            tau = r[k, i] - r0
+            X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+            rows_E(x[k], i, E)
+            for q in range(2):
+                row = A[2 * i + q]
+                e0, e1, e2 = E[q, 0], E[q, 1], E[q, 2]
+                cross_into(X0, X1, X2, e0, e1, e2, row, 0)
+                row[3] = e0
+                row[4] = e1
+                row[5] = e2
+                row[6] = tau * e0
+                row[7] = tau * e1
+                row[8] = tau * e2
+                for j in range(3):
+                    ej = tau * E[q, j]
+                    row[9 + 3 * j] = ej * X0
+                    row[10 + 3 * j] = ej * X1
+                    row[11 + 3 * j] = ej * X2
+                b[2 * i + q] = -(e0 * X0 + e1 * X1 + e2 * X2)
+        if not lstsq(A, b, s):
+            err[k] = np.inf
+            continue
+        # reorder: u = [v, C, t, (unused 3), R_rs] for _eq8_error
+        u[0:9] = s[0:9]
+        u[12:21] = s[9:18]
+        err[k] = _eq8_error(x[k], X[k], r[k], r0, u)
+        v0, v1, v2 = s[0], s[1], s[2]
+        # M = R_rs (I + [v]x)^-1 ; solve (I + [v]x)^T M^T = R_rs^T column by column
+        Vt = np.empty((3, 3))
+        Vt[0, 0] = 1.0
+        Vt[0, 1] = v2
+        Vt[0, 2] = -v1
+        Vt[1, 0] = -v2
+        Vt[1, 1] = 1.0
+        Vt[1, 2] = v0
+        Vt[2, 0] = v1
+        Vt[2, 1] = -v0
+        Vt[2, 2] = 1.0
+        Rrs = s[9:18].reshape(3, 3)
+        M = np.linalg.solve(Vt, Rrs.T).T
+        out[k, 0:3] = s[0:3]
+        out[k, 3:6] = s[3:6]
+        out[k, 6] = 0.5 * (M[2, 1] - M[1, 2])
+        out[k, 7] = 0.5 * (M[0, 2] - M[2, 0])
+        out[k, 8] = 0.5 * (M[1, 0] - M[0, 1])
+        out[k, 9:12] = s[6:9]
+        out[k, 12:21] = s[9:18]
+        ok[k] = True
+
+
+def r9p(x, X, r=None, r0: float = 0.0):
+    """R9P (paper sec. 3.4, eq. 8): linear, non-iterative, 9 or more correspondences.
+
+    Args:
+        x: (N, 2) calibrated image points, N >= 9 (least squares for N > 9).
+        X: (N, 3) world points. r: (N,) RS coordinates (default ``x[:, 1]``). r0: reference.
+    Returns:
+        :class:`RSSolution` with v, C, t, the general (3, 3) ``R_rs`` of eq. 8, and ``w``
+        recovered as the skew-symmetric part of ``R_rs (I + [v]x)^-1``; ``algebraic_error`` is
+        the RMS residual of eq. 8.
+    Raises:
+        ValueError: wrong shapes, N < 9, NaN/inf.
+        DegenerateInputError (a ValueError): rank-deficient 2N x 18 system.
+    """
+    return run_single(_kernel, "r9p", 21, 9, x, X, r, r0, 1, 0.0, None, with_R_rs=True)
+
+
+def r9p_batch(x, X, r=None, r0: float = 0.0):
+    """Batched :func:`r9p`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch` with
+    ``R_rs`` (K, 3, 3); invalid problems flagged in ``valid``. Raises ValueError on bad shapes."""
+    return run_batch(_kernel, "r9p", 21, 9, x, X, r, r0, 1, 0.0, None, with_R_rs=True)
