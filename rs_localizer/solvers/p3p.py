@@ -18,7 +18,7 @@ try:  # PoseLib is a hard dependency of the package, but keep OpenCV as a workin
 except ImportError:  # pragma: no cover - exercised by test_p3p_opencv_backend
     _poselib = None
 
-__all__ = ["P3PSolution", "p3p", "p3p_opencv"]
+__all__ = ["P3PSolution", "p3p", "p3p_opencv", "p3p_batch"]
 
 
 @dataclass(frozen=True)
@@ -76,3 +76,31 @@ def p3p_opencv(x, X) -> list[P3PSolution]:
         if np.isfinite(R).all() and np.isfinite(C).all():
             out.append(P3PSolution(R, C))
     return out
+
+
+def p3p_batch(bearings, X):
+    """P3P on K triplets at once (RANSAC): bearings (K, 3, 3) unit rays, X (K, 3, 3).
+
+    Returns:
+        (R (M, 3, 3), C (M, 3), owner (M,)): all M finite solutions and the triplet each came
+        from. No validation (hot path): callers pass finite, well-shaped arrays.
+    """
+    Rs, Cs, owner = [], [], []
+    if _poselib is not None:
+        for k in range(len(bearings)):
+            for pose in _poselib.p3p(bearings[k], X[k]):
+                Rs.append(pose.R)
+                Cs.append(pose.t)
+                owner.append(k)
+    else:
+        for k in range(len(bearings)):
+            xk = bearings[k][:, :2] / bearings[k][:, 2:3]
+            for sol in p3p_opencv(xk, X[k]):
+                Rs.append(sol.R)
+                Cs.append(sol.C)
+                owner.append(k)
+    if not Rs:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    R, C, own = np.array(Rs), np.array(Cs), np.array(owner)
+    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
+    return R[ok], C[ok], own[ok]

@@ -1,0 +1,523 @@
+"""Robust rolling-shutter pose estimation: RANSAC + local optimization + refinement.
+
+Entry point: :func:`estimate_rs_pose` (in the spirit of PoseLib's ``estimate_absolute_pose``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._scoring import errors2, msac_scores
+from .camera import CameraModel
+from .geometry import camera_position, rotvec_to_matrix, skew
+from .refine import exact_errors, refine_rs_pose
+from .solvers import (RSBatch, p3p_batch, r6p, r6p_1lin_batch, r6p_vC_wt_batch, r6p_vCt_w_batch,
+                      r6p_vCt_wt_batch, r9p_batch)
+
+__all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
+           "physical_velocities"]
+
+SOLVERS = ("p3p", "r6p", "r6p_1lin", "r6p_vC_wt", "r6p_vCt_w", "r6p_vCt_wt", "r9p", "r6p_joined")
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """Options of :func:`estimate_rs_pose`.
+
+    Attributes:
+        threshold_px: inlier threshold on the RS reprojection error (pixels).
+        max_iterations / min_iterations: RANSAC iteration bounds (hypothesis samples).
+        confidence: adaptive termination confidence in (0, 1).
+        min_inliers: fewest inliers for success (at least the solver's sample size).
+        seed: RNG seed (deterministic for a fixed seed).
+        refine: run nonlinear least-squares refinement on the exact constant-velocity model.
+        solver_iterations: linear iterations of the iterative 6-point solvers.
+        nonminimal: local optimization re-runs the RS solver on all inliers (else only the
+            exact-model refinement polishes a new best).
+        lo_refine_iterations: LM iterations of each local optimization round.
+        batch_size: hypotheses solved at once by the batched solvers.
+        local_optimization_steps: maximum re-solves on the inliers.
+        prosac_growth: with scores, the sampling pool reaches all points after this many
+            hypotheses (it starts at the best-scored ``2 * sample size``).
+        max_point_norm: 3D points farther than this from the origin (m) are dropped as
+            points at infinity.
+        pretest_points: T(d,d)-style pre-test size: a hypothesis with fewer than half the
+            inliers the best model predicts among this many (shuffled) points is rejected
+            early. 0 disables it.
+    """
+
+    threshold_px: float = 2.0
+    max_iterations: int = 1000
+    min_iterations: int = 20
+    confidence: float = 0.9999
+    min_inliers: int = 12
+    seed: int = 0
+    refine: bool = True
+    solver_iterations: int = 5
+    nonminimal: bool = True
+    batch_size: int = 32
+    local_optimization_steps: int = 4
+    lo_refine_iterations: int = 5
+    prosac_growth: int = 200
+    max_point_norm: float = 1e6
+    pretest_points: int = 24
+
+
+@dataclass(frozen=True)
+class RSPoseEstimate:
+    """Result of :func:`estimate_rs_pose`. Frames: world/map, camera optical frame (REP 103).
+
+    Attributes:
+        success: a pose was found with at least ``min_inliers`` inliers.
+        failure: reason code when not successful (``invalid_input``, ``too_few_points``,
+            ``no_hypothesis``, ``too_few_inliers``), else ``None``.
+        solver: solver name used.
+        R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
+        w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
+        orientation, position: (3, 3), (3,) camera -> world rotation (``R^T``) and camera
+            centre in the world (m).
+        angular_velocity, linear_velocity: (3,) camera's own velocity in its optical frame
+            (rad/s, m/s).
+        angular_velocity_world, linear_velocity_world: (3,) the same in the world frame.
+        inliers: (N,) bool over the input rows (invalid rows are False).
+        num_valid: rows that passed validation; num_dropped: rows dropped (NaN/inf, behind...).
+        ransac_iterations: hypotheses drawn. timings: stage -> seconds.
+        covariance: (12, 12) over (rotation of the camera in the world [rad, world axes],
+            position [m, world], angular velocity [rad/s, camera frame], linear velocity [m/s,
+            camera frame]), or ``None``.
+        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame.
+        twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera frame.
+        rmse_px: RMS reprojection error of the inliers (pixels).
+    """
+
+    success: bool
+    failure: str | None = None
+    solver: str = ""
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    C: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    orientation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    linear_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    num_valid: int = 0
+    num_dropped: int = 0
+    ransac_iterations: int = 0
+    timings: dict = field(default_factory=dict)
+    covariance: np.ndarray | None = None
+    pose_covariance: np.ndarray | None = None
+    twist_covariance: np.ndarray | None = None
+    rmse_px: float = float("nan")
+
+    @property
+    def num_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+
+
+
+# ------------------------------------------------------------------------------------ solvers
+_SAMPLE_SIZE = {"p3p": 3, "r6p": 6, "r9p": 9}
+
+
+def sample_size(solver: str) -> int:
+    """Minimal sample size of a solver by name (3 for P3P, 9 for R9P, 6 otherwise)."""
+    return _SAMPLE_SIZE.get(solver, 6)
+
+
+def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
+    """Run an RS solver on K pre-rotated samples; returns a list of RSBatch (2 for joined)."""
+    if solver == "r6p_1lin":
+        return [r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
+    if solver == "r6p_vC_wt":
+        return [r6p_vC_wt_batch(xs, Xs, rs, r0, iterations=iterations)]
+    if solver == "r6p_vCt_w":
+        return [r6p_vCt_w_batch(xs, Xs, rs, r0, iterations=iterations)]
+    if solver == "r6p_vCt_wt":
+        return [r6p_vCt_wt_batch(xs, Xs, rs, r0, iterations=iterations)]
+    if solver == "r9p":
+        return [r9p_batch(xs, Xs, rs, r0)]
+    if solver == "r6p_joined":
+        return [r6p_vCt_w_batch(xs, Xs, rs, r0, iterations=iterations),
+                r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
+    if solver == "r6p":
+        v, C, w, t = [], [], [], []
+        for k in range(len(xs)):
+            try:
+                sols = r6p(xs[k], Xs[k], rs[k], r0)
+            except ValueError:
+                sols = []
+            for s in sols:
+                v.append(s.v), C.append(s.C), w.append(s.w), t.append(s.t)
+        n = len(v)
+        z = np.zeros((n, 3))
+        return [RSBatch(np.array(v).reshape(n, 3), np.array(C).reshape(n, 3),
+                        np.array(w).reshape(n, 3), np.array(t).reshape(n, 3),
+                        np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64), z[:, 0])]
+    raise ValueError(f"unknown solver {solver!r}")
+
+
+# ---------------------------------------------------------------------------- the estimator
+class _Frame:
+    """Validated, normalized correspondences of one frame."""
+
+    def __init__(self, x, X, r, r0e, r0, d, f):
+        self.x, self.X, self.r, self.r0e, self.r0, self.d, self.f = x, X, r, r0e, r0, d, f
+        b = np.concatenate([x, np.ones((len(x), 1))], axis=1)
+        self.bearings = b / np.linalg.norm(b, axis=1, keepdims=True)
+
+
+def _hypothesis_arrays(batches, R_pre):
+    """Stack RSBatch results (pre-rotated by R_pre per sample) into rotation/velocity arrays."""
+    Rs, Cs, ws, ts, ok = [], [], [], [], []
+    for b, Rp in zip(batches, R_pre):
+        Rs.append(rotvec_to_matrix(b.v) @ Rp)
+        Cs.append(b.C), ws.append(b.w), ts.append(b.t), ok.append(b.valid)
+    return (np.concatenate(Rs), np.concatenate(Cs), np.concatenate(ws), np.concatenate(ts),
+            np.concatenate(ok))
+
+
+def _p3p_prerotations(fr: _Frame, samples):
+    """P3P on the first 3 points of every sample; the solution with the lowest global-shutter
+    error on the sample's other points is the pre-rotation (paper sec. 4, "P3P as initial
+    estimate"). Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
+    K, s = samples.shape
+    R, C, owner = p3p_batch(fr.bearings[samples[:, :3]], fr.X[samples[:, :3]])
+    Rout = np.tile(np.eye(3), (K, 1, 1))
+    Cout = np.zeros((K, 3))
+    ok = np.zeros(K, dtype=bool)
+    if len(R) == 0:
+        return Rout, Cout, ok
+    rest = samples[owner, 3:] if s > 3 else samples[owner]
+    Pc = np.einsum("mij,mnj->mni", R, fr.X[rest]) + C[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        err = np.sum((Pc[..., :2] / Pc[..., 2:3] - fr.x[rest]) ** 2, axis=(1, 2))
+    err = np.where((Pc[..., 2] > 0).all(axis=1) & np.isfinite(err), err, np.inf)
+    pick = np.lexsort((err, owner))
+    first = pick[np.r_[True, owner[pick][1:] != owner[pick][:-1]]]
+    first = first[np.isfinite(err[first])]
+    Rout[owner[first]] = R[first]
+    Cout[owner[first]] = C[first]
+    ok[owner[first]] = True
+    return Rout, Cout, ok
+
+
+def _draw_samples(rng, pool: int, s: int, K: int) -> np.ndarray:
+    """K samples of s distinct indices from range(pool) (rows with repeats are redrawn)."""
+    out = rng.integers(0, pool, size=(K, s))
+    for _ in range(100):
+        srt = np.sort(out, axis=1)
+        bad = (srt[:, 1:] == srt[:, :-1]).any(axis=1)
+        if not bad.any():
+            return out
+        out[bad] = rng.integers(0, pool, size=(int(bad.sum()), s))
+    return np.array([rng.choice(pool, s, replace=False) for _ in range(K)])
+
+
+def _required_iterations(inlier_ratio: float, s: int, confidence: float) -> float:
+    if inlier_ratio <= 0:
+        return np.inf
+    p = inlier_ratio**s
+    if p >= 1:
+        return 0
+    return np.log(1 - confidence) / np.log1p(-p)
+
+
+def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
+    """Hypotheses (R, C, w, t, valid) from a batch of samples."""
+    R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
+    if solver == "p3p":
+        z = np.zeros((len(samples), 3))
+        return R_p, C_p, z, z.copy(), ok_p
+    Xs = np.einsum("kij,knj->kni", R_p, fr.X[samples])
+    batches = _batched_rs(solver, fr.x[samples], Xs, fr.r[samples], fr.r0,
+                          opts.solver_iterations)
+    if solver == "r6p":  # variable number of roots per sample: pre-rotate each root
+        R_all, C_all, w_all, t_all = [], [], [], []
+        for k in range(len(samples)):
+            if not ok_p[k]:
+                continue
+            b = _batched_rs("r6p", fr.x[samples[k:k + 1]], Xs[k:k + 1], fr.r[samples[k:k + 1]],
+                            fr.r0, 1)[0]
+            if len(b):
+                R_all.append(rotvec_to_matrix(b.v) @ R_p[k])
+                C_all.append(b.C), w_all.append(b.w), t_all.append(b.t)
+        if not R_all:
+            return np.zeros((0, 3, 3)), *(np.zeros((0, 3)),) * 3, np.zeros(0, dtype=bool)
+        R_all = np.concatenate(R_all)
+        return (R_all, np.concatenate(C_all), np.concatenate(w_all), np.concatenate(t_all),
+                np.ones(len(R_all), dtype=bool))
+    Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, [R_p] * len(batches))
+    ok &= np.tile(ok_p, len(batches))
+    return Rs, Cs, ws, ts, ok
+
+
+def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
+    """Local optimization: the RS solver on all inliers, pre-rotated by the current R.
+
+    R6P (minimal only) uses R6P_{v,C,w,t}^{[v]x} here; P3P has no RS local optimization."""
+    if solver == "p3p" or inl.sum() < 6:
+        return []
+    Xr = fr.X[inl] @ R.T
+    names = {"r6p": ["r6p_1lin"], "r6p_joined": ["r6p_vCt_w", "r6p_1lin"],
+             "r9p": ["r9p"] if inl.sum() >= 9 else ["r6p_1lin"]}.get(solver, [solver])
+    out = []
+    for name in names:
+        b = _batched_rs(name, fr.x[inl][None], Xr[None], fr.r[inl][None], fr.r0,
+                        max(opts.solver_iterations, 5))[0]
+        if b.valid[0]:
+            out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
+    return out
+
+
+def _local_optimization(fr: _Frame, solver: str, best, best_score, th2, opts: EstimateOptions):
+    """LO step of LO-RANSAC on a new best hypothesis.
+
+    Each round re-solves with the (nonminimal) RS solver on the current inliers from the
+    current rotation, then runs a few Levenberg-Marquardt iterations of the exact model on all
+    points with a truncated Huber loss (points beyond twice the threshold are ignored, so the
+    inlier set is re-selected at every iteration; the linear solvers alone fit the linearized
+    model, which is biased on fast motion). Rounds continue while the MSAC score improves and
+    the inlier set grows (at most ``opts.local_optimization_steps``). P3P only gets the
+    global-shutter refinement. Returns (score, (R, C, w, t)).
+    """
+    th = np.sqrt(th2)
+    rolling = solver != "p3p"
+    tau = fr.r - fr.r0
+    for _ in range(opts.local_optimization_steps):
+        inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
+        n_before = int(inl.sum())
+        if n_before < 6:
+            break
+        start, start_score = best, best_score
+        for cand in (_nonminimal(fr, solver, inl, best[0], opts) if opts.nonminimal else []):
+            if all(np.isfinite(c).all() for c in cand):
+                sc = float(np.minimum(errors2(fr.x, fr.X, fr.r0e, fr.d, *cand), th2).sum())
+                if sc < start_score:
+                    start, start_score = cand, sc
+        ref = refine_rs_pose(*start, fr.X, fr.x, tau, th, rolling_shutter=rolling,
+                             max_iterations=opts.lo_refine_iterations, covariance=False,
+                             cutoff=2.0 * th)
+        cand = (ref.R, ref.C, ref.w, ref.t)
+        if all(np.isfinite(c).all() for c in cand):
+            sc = float(np.minimum(errors2(fr.x, fr.X, fr.r0e, fr.d, *cand), th2).sum())
+            if sc < start_score:
+                start, start_score = cand, sc
+        if start_score >= best_score:
+            break
+        best, best_score = start, start_score
+        if int(np.count_nonzero(errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2)) <= n_before:
+            break
+    return best_score, best
+
+
+def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
+    return RSPoseEstimate(success=False, failure=reason, solver=solver,
+                          inliers=np.zeros(n, dtype=bool), num_valid=n_valid,
+                          num_dropped=n_dropped, ransac_iterations=iters,
+                          timings=timings or {})
+
+
+def physical_velocities(R, C, w, t, seconds_per_unit_r: float):
+    """Model velocities (per unit r) -> the camera's own velocities.
+
+    With ``X_cam = R(tau) X + C(tau)``, ``R(tau) = (I + tau [w]x) R``, ``C(tau) = C + tau t`` and
+    ``tau = time / seconds_per_unit_r``, the camera orientation ``R^T`` changes as
+    ``d(R^T)/dtau = -R^T [w]x``, so its angular velocity in its own frame is ``-w`` per unit r,
+    and the centre ``c = -R^T C`` moves with ``dc/dtau = R^T (w x C - t)``.
+
+    Returns:
+        (omega_cam rad/s, v_cam m/s, omega_world, v_world), each (3,); zeros for a global
+        shutter (``seconds_per_unit_r == 0``).
+    """
+    if seconds_per_unit_r <= 0:
+        z = np.zeros(3)
+        return z, z.copy(), z.copy(), z.copy()
+    om = -np.asarray(w) / seconds_per_unit_r
+    vc = (np.cross(w, C) - t) / seconds_per_unit_r
+    return om, vc, R.T @ om, R.T @ vc
+
+
+def _output_covariance(cov12, R, C, w, seconds_per_unit_r):
+    """Propagate the (delta, C, w, t) covariance to (camera rotation in world, position,
+    omega_cam, v_cam) and to the ROS pose/twist blocks."""
+    s = seconds_per_unit_r
+    J = np.zeros((12, 12))
+    # R = expm(delta) R0 -> camera orientation R^T = R0^T expm(-delta): world-axis
+    # rotation perturbation phi = -R^T delta
+    J[0:3, 0:3] = -R.T
+    # position c = -R^T C: dc/ddelta = -R^T [C]x, dc/dC = -R^T
+    J[3:6, 0:3] = -R.T @ skew(C)
+    J[3:6, 3:6] = -R.T
+    if s > 0:
+        J[6:9, 6:9] = -np.eye(3) / s
+        J[9:12, 6:9] = -skew(C) / s
+        J[9:12, 3:6] = skew(w) / s
+        J[9:12, 9:12] = -np.eye(3) / s
+    out = J @ cov12 @ J.T
+    pose = np.zeros((6, 6))
+    order = [3, 4, 5, 0, 1, 2]
+    pose[:] = out[np.ix_(order, order)]
+    twist = out[np.ix_([9, 10, 11, 6, 7, 8], [9, 10, 11, 6, 7, 8])] if s > 0 else None
+    return out, pose, twist
+
+
+def _prepare(points2d_px, points3d, camera, max_point_norm, rng=None):
+    """Validate shapes and rows; returns (_Frame, rows) where ``rows`` are the input row
+    indices of the frame's points (valid rows, shuffled by ``rng`` so that any prefix is a
+    random subset for the pre-test). Raises ValueError for wrong array shapes."""
+    u = np.asarray(points2d_px, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
+    keep = np.isfinite(u).all(axis=1) & np.isfinite(X).all(axis=1)
+    keep &= np.linalg.norm(np.where(np.isfinite(X), X, 0), axis=1) <= max_point_norm
+    x, r, r0e = camera.normalize(u[keep])
+    good = np.isfinite(x).all(axis=1) & np.isfinite(r)
+    idx = np.flatnonzero(keep)[good]
+    perm = np.arange(len(idx)) if rng is None else rng.permutation(len(idx))
+    sel = np.flatnonzero(good)[perm]
+    fr = _Frame(np.ascontiguousarray(x[sel]), np.ascontiguousarray(X[idx[perm]]),
+                np.ascontiguousarray(r[sel]), np.ascontiguousarray(r0e[sel]), camera.r0,
+                camera.readout_vector, camera.mean_focal)
+    return fr, idx[perm]
+
+
+def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "r6p_1lin",
+                     options: EstimateOptions | None = None, scores=None) -> RSPoseEstimate:
+    """Robust rolling-shutter absolute pose from 2D-3D correspondences.
+
+    Pipeline: validate and normalize (OpenCV undistortion; RS time from the measured, distorted
+    line) -> RANSAC over minimal samples (P3P pre-rotation per sample, batched RS solver, MSAC
+    score on the closed-form RS reprojection error of eq. 4/5, adaptive termination,
+    PROSAC-style ordering when ``scores`` are given) -> local optimization (the RS solver on
+    all inliers) -> robust refinement on the exact constant-velocity model with covariance.
+
+    Args:
+        points2d_px: (N, 2) measured (distorted) pixel coordinates.
+        points3d: (N, 3) world (map) points in metres.
+        camera: :class:`~rs_localizer.camera.CameraModel` (intrinsics, distortion, RS timing).
+        solver: one of :data:`SOLVERS`; ``p3p`` is the global-shutter baseline (w = t = 0).
+        options: :class:`EstimateOptions`.
+        scores: optional (N,) match quality, higher is better (PROSAC-style sample ordering).
+    Returns:
+        :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
+        degenerate geometry) give ``success=False`` with a ``failure`` reason, never an
+        exception or a NaN pose. Rows that fail validation are counted in ``num_dropped``.
+    Raises:
+        ValueError: unknown solver name, or arrays that are not (N, 2) / (N, 3) / (N,).
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
+    opts = options or EstimateOptions()
+    t_start = time.perf_counter()
+    timings = {}
+    rng = np.random.default_rng(opts.seed)
+    fr, rows = _prepare(points2d_px, points3d, camera, opts.max_point_norm, rng)
+    N = len(fr.x)
+    n_in = len(np.asarray(points2d_px))
+    n_dropped = n_in - N
+    if scores is not None:
+        scores = np.asarray(scores, dtype=float)
+        if scores.shape != (n_in,):
+            raise ValueError(f"scores must have shape ({n_in},), got {scores.shape}")
+    s = sample_size(solver)
+    min_inl = max(opts.min_inliers, s + 1)
+    timings["prepare"] = time.perf_counter() - t_start
+    if N < min_inl:
+        return _fail("too_few_points", solver, n_in, N, n_dropped, 0, timings)
+
+    # PROSAC-style ordering: sample from the best-scored points first, growing the pool
+    order = np.arange(N)
+    if scores is not None:
+        sc = np.where(np.isfinite(scores[rows]), scores[rows], -np.inf)
+        order = np.argsort(-sc, kind="stable")
+    th = opts.threshold_px / fr.f
+    th2 = th * th
+    best = None  # (score, R, C, w, t)
+    best_score = np.inf
+    best_count = 0
+    iters = 0
+    needed = float(opts.max_iterations)
+    t_local = 0.0
+    t0 = time.perf_counter()
+    while iters < min(needed, opts.max_iterations) or iters < opts.min_iterations:
+        if iters >= opts.max_iterations:
+            break
+        K = min(opts.batch_size, opts.max_iterations - iters)
+        pool = N
+        if scores is not None:
+            pool = int(min(N, max(2 * s, np.ceil(N * (iters + K) / max(opts.prosac_growth, 1)))))
+        samples = order[_draw_samples(rng, pool, s, K)]
+        iters += K
+        Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
+        if not ok.any():
+            continue
+        pre_min = int(0.5 * opts.pretest_points * best_count / N)
+        sc, cnt = msac_scores(fr.x, fr.X, fr.r0e, fr.d, np.ascontiguousarray(Rs),
+                              np.ascontiguousarray(Cs), np.ascontiguousarray(ws),
+                              np.ascontiguousarray(ts), th2, ok, best_score, True,
+                              opts.pretest_points, pre_min)
+        h = int(np.argmin(sc))
+        if sc[h] < best_score:
+            best_score, best = sc[h], (Rs[h], Cs[h], ws[h], ts[h])
+            t_lo = time.perf_counter()  # LO-RANSAC: polish every new best on its inliers
+            best_score, best = _local_optimization(fr, solver, best, best_score, th2, opts)
+            t_local += time.perf_counter() - t_lo
+            best_count = int(np.count_nonzero(errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2))
+            needed = _required_iterations(best_count / N, s, opts.confidence)
+    timings["ransac"] = time.perf_counter() - t0 - t_local
+    timings["local_optimization"] = t_local
+    if best is None:
+        return _fail("no_hypothesis", solver, n_in, N, n_dropped, iters, timings)
+
+    inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
+    if inl.sum() < min_inl:
+        return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
+    R, C, w, t = (np.array(a, dtype=float) for a in best)
+    rolling = solver != "p3p"
+    cov12 = None
+    t0 = time.perf_counter()
+    tau = fr.r - fr.r0
+    if opts.refine:
+        ref = refine_rs_pose(R, C, w, t, fr.X[inl], fr.x[inl], tau[inl], th,
+                             rolling_shutter=rolling)
+        cand = (ref.R, ref.C, ref.w, ref.t)
+        if all(np.isfinite(c).all() for c in cand):
+            R, C, w, t = cand
+            cov12 = ref.covariance if np.isfinite(ref.covariance).all() else None
+        # final inliers on the refined exact model (errors at the measured capture time)
+        e = exact_errors(R, C, w, t, fr.X, fr.x, tau)
+        inl_ref = np.isfinite(e) & (e < th)
+        if inl_ref.sum() >= min_inl:
+            inl = inl_ref
+        else:
+            return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
+        rmse = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
+    else:
+        rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t)[inl])) * fr.f)
+    timings["refine"] = time.perf_counter() - t0
+
+    spr = camera.seconds_per_unit_r
+    om, vc, om_w, vc_w = physical_velocities(R, C, w, t, spr)
+    cov, pose_cov, twist_cov = (None, None, None)
+    if cov12 is not None:
+        cov, pose_cov, twist_cov = _output_covariance(cov12, R, C, w, spr)
+        if not rolling:
+            twist_cov = None
+    inliers = np.zeros(n_in, dtype=bool)
+    inliers[rows[inl]] = True
+    timings["total"] = time.perf_counter() - t_start
+    return RSPoseEstimate(
+        success=True, failure=None, solver=solver, R=R, C=C, w=w, t=t, orientation=R.T,
+        position=camera_position(R, C), angular_velocity=om, linear_velocity=vc,
+        angular_velocity_world=om_w, linear_velocity_world=vc_w, inliers=inliers,
+        num_valid=N, num_dropped=n_dropped, ransac_iterations=iters, timings=timings,
+        covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse)
