@@ -195,7 +195,9 @@ class CameraModel:
         if self.distortion_model == "equidistant":
             return cv2.fisheye.undistortPoints(p, self.K, self.D[:4]).reshape(-1, 2)
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
-        return cv2.undistortPointsIter(p, self.K, self.D, None, None, crit).reshape(-1, 2)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+            return cv2.undistortPointsIter(p, self.K, self.D, None, None, crit).reshape(-1, 2)
+        return cv2.undistortPoints(p, self.K, self.D, None, None, None, crit).reshape(-1, 2)
 
     def distort(self, xn) -> np.ndarray:
         """(N, 2) undistorted normalized coordinates -> (N, 2) pixels (OpenCV projection)."""

@@ -72,8 +72,9 @@ class RSPoseEstimate:
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
-        failure: reason code when not successful (``invalid_input``, ``too_few_points``,
-            ``no_hypothesis``, ``too_few_inliers``), else ``None``.
+        failure: reason code when not successful (``too_few_points``,
+            ``no_hypothesis``, ``too_few_inliers``, ``degenerate_geometry`` for inliers on a
+            3D line), else ``None``.
         solver: solver name used.
         R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
         w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
@@ -318,6 +319,12 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, th2, opts: Es
     return best_score, best
 
 
+def _collinear(X, tol: float = 1e-3) -> bool:
+    """True if the 3D points lie (nearly) on a line: the pose about that line is then free."""
+    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
+    return bool(s[0] == 0 or s[1] < tol * s[0])
+
+
 def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
     return RSPoseEstimate(success=False, failure=reason, solver=solver,
                           inliers=np.zeros(n, dtype=bool), num_valid=n_valid,
@@ -378,7 +385,7 @@ def _prepare(points2d_px, points3d, camera, max_point_norm, rng=None):
     if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
         raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
     keep = np.isfinite(u).all(axis=1) & np.isfinite(X).all(axis=1)
-    keep &= np.linalg.norm(np.where(np.isfinite(X), X, 0), axis=1) <= max_point_norm
+    keep &= np.abs(np.where(np.isfinite(X), X, 0)).max(axis=1, initial=0.0) <= max_point_norm
     x, r, r0e = camera.normalize(u[keep])
     good = np.isfinite(x).all(axis=1) & np.isfinite(r)
     idx = np.flatnonzero(keep)[good]
@@ -481,6 +488,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
     if inl.sum() < min_inl:
         return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
+    if _collinear(fr.X[inl]):
+        return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
     rolling = solver != "p3p"
     cov12 = None

@@ -62,7 +62,8 @@ def exact_jacobian(theta, R0, X, x, tau) -> np.ndarray:
     dpi[:, 0, 2] = -p[:, 0] / z**2
     dpi[:, 1, 2] = -p[:, 1] / z**2
     J = np.empty((n, 3, 12))
-    J[:, :, 0:3] = -A @ skew(q)                       # d(A R X)/d delta, R = expm(delta) R0
+    # d(A R X)/d delta with R = expm([delta]x) R0: -A [q]x J_l(delta)
+    J[:, :, 0:3] = -A @ skew(q) @ _left_jacobian(theta[:3])
     J[:, :, 3:6] = np.eye(3)
     J[:, :, 6:9] = -(skew(Aq) @ _left_jacobian(tau[:, None] * theta[6:9])) * tau[:, None, None]
     J[:, :, 9:12] = np.eye(3) * tau[:, None, None]

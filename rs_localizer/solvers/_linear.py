@@ -19,6 +19,8 @@ from numba import njit
 from ._common import RSBatch, RSSolution, DegenerateInputError, check_batch, check_inputs
 
 RANK_TOL = 1e-10
+#: iterations without a new lowest algebraic error before an iterative solver stops
+PATIENCE = 3
 
 
 @njit(cache=True, inline="always")
@@ -251,7 +253,7 @@ def alternate(x, X, r, r0, iterations, tol, pose_t, motion_t, out, ok, its, err)
         w[:] = 0.0
         t[:] = 0.0
         best = np.inf
-        prev = np.inf
+        stale = 0
         ok[k] = False
         its[k] = 0
         for it in range(iterations):
@@ -270,6 +272,9 @@ def alternate(x, X, r, r0, iterations, tol, pose_t, motion_t, out, ok, its, err)
                 t[:] = u2[3:6]
             e = eq5_error(x[k], X[k], r[k], r0, v, C, w, t)
             its[k] = it + 1
+            # stop when converged, or when the error has not improved on the best by more than
+            # tol for PATIENCE iterations (the fixed-point error is not always monotone)
+            stale = 0 if e < best - tol else stale + 1
             if e < best:
                 best = e
                 out[k, 0:3] = v
@@ -277,7 +282,6 @@ def alternate(x, X, r, r0, iterations, tol, pose_t, motion_t, out, ok, its, err)
                 out[k, 6:9] = w
                 out[k, 9:12] = t
                 ok[k] = True
-            if e <= tol or prev - e <= tol:
+            if e <= tol or stale >= PATIENCE:
                 break
-            prev = e
         err[k] = best

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._linear import cross_into, eq5_error, lstsq, rows_E, run_batch, run_single
+from ._linear import PATIENCE, cross_into, eq5_error, lstsq, rows_E, run_batch, run_single
 
 __all__ = ["r6p_1lin", "r6p_1lin_batch"]
 
@@ -33,7 +33,7 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     for k in range(K):
         vhat[:] = v_init[k]
         best = np.inf
-        prev = np.inf
+        stale = 0
         ok[k] = False
         its[k] = 0
         for it in range(iterations):
@@ -63,14 +63,16 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
                 break
             e = eq5_error(x[k], X[k], r[k], r0, u[0:3], u[3:6], u[6:9], u[9:12])
             its[k] = it + 1
+            # stop when converged, or when the error has not improved on the best by more than
+            # tol for PATIENCE iterations (the fixed-point error is not always monotone)
+            stale = 0 if e < best - tol else stale + 1
             if e < best:
                 best = e
                 out[k, :12] = u
                 ok[k] = True
             vhat[:] = u[0:3]
-            if e <= tol or prev - e <= tol:
+            if e <= tol or stale >= PATIENCE:
                 break
-            prev = e
         err[k] = best
 
 
@@ -85,10 +87,16 @@ def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, to
         r0: reference RS coordinate; all equations use ``r - r0``.
         iterations: maximum linear iterations (each one 2N x 12 system).
         v_init: (3,) initial ``v_hat`` for the nonlinear term (default zeros, as in the paper).
-        tol: stop when the RMS algebraic error of eq. 5 is <= tol or decreased by <= tol.
+        tol: stop when the RMS algebraic error of eq. 5 is <= tol, or when it has not
+            decreased by more than tol for 3 iterations (it need not fall monotonically).
     Returns:
         :class:`RSSolution` with v (rad), C, w (rad per unit r), t (per unit r), the iterations
         that ran and the algebraic error of eq. 5; the iterate with the lowest error is kept.
+
+    Convergence: on noise-free minimal data the fixed point is the exact solution of eq. 5.
+    The iteration converges in about 10 steps for moderate motion; for fast motion
+    (|w| ~ 0.5 rad per unit r) a few percent of minimal instances converge slowly or not at
+    all (measured in ``test_solvers.py``); RANSAC absorbs those.
     Raises:
         ValueError: wrong shapes, N < 6, NaN/inf input, iterations < 1.
         DegenerateInputError (a ValueError): rank-deficient system (collinear, duplicated points).

@@ -12,6 +12,12 @@ point need N >= 9. Coefficient rows for each elimination row E (see ``_linear``)
 (``vec`` row-major). The paper stops at R_rs; we also recover the angular velocity: since
 ``R_rs = [w]x (I + [v]x)``, ``[w]x ~ R_rs (I + [v]x)^-1`` and ``w`` is the vector of the
 projection of that matrix onto the skew-symmetric matrices, ``(M - M^T) / 2``.
+
+Degeneracy (not in the paper): on global-shutter data (no motion) every
+``R_rs = b (I + [v]x), t = b C`` explains the observations for any scalar ``b`` (the RS term is
+then parallel to the point itself and only rescales lambda), so the system loses rank. v, C
+and the recovered w (the skew part of ``b I`` is zero) are still determined; t is not. Exact
+global-shutter input raises :class:`DegenerateInputError`; near it, t is noise-driven.
 """
 
 from __future__ import annotations
