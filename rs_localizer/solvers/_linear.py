@@ -31,12 +31,61 @@ def cross_into(a0, a1, a2, b0, b1, b2, out, j):
 
 
 @njit(cache=True)
+def solve_square(A, b, u):
+    """Gaussian elimination with partial pivoting for square A (n, n); A, b overwritten.
+
+    Returns False (u untouched) if a pivot is below ``RANK_TOL`` times the largest entry.
+    """
+    n = A.shape[0]
+    amax = 0.0
+    for i in range(n):
+        for j in range(n):
+            if abs(A[i, j]) > amax:
+                amax = abs(A[i, j])
+    if amax == 0.0:
+        return False
+    for k in range(n):
+        p = k
+        pv = abs(A[k, k])
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > pv:
+                pv = abs(A[i, k])
+                p = i
+        if pv <= RANK_TOL * amax:
+            return False
+        if p != k:
+            for j in range(k, n):
+                tmp = A[k, j]
+                A[k, j] = A[p, j]
+                A[p, j] = tmp
+            tmp = b[k]
+            b[k] = b[p]
+            b[p] = tmp
+        inv = 1.0 / A[k, k]
+        for i in range(k + 1, n):
+            f = A[i, k] * inv
+            if f != 0.0:
+                for j in range(k + 1, n):
+                    A[i, j] -= f * A[k, j]
+                b[i] -= f * b[k]
+    for k in range(n - 1, -1, -1):
+        s = b[k]
+        for j in range(k + 1, n):
+            s -= A[k, j] * u[j]
+        u[k] = s / A[k, k]
+    return True
+
+
+@njit(cache=True)
 def lstsq(A, b, u):
-    """Householder QR least squares ``min |A u - b|``; A (m, n), m >= n, overwritten.
+    """Least squares ``min |A u - b|`` for A (m, n), m >= n (A, b overwritten): Gaussian
+    elimination when square (minimal samples), Householder QR otherwise.
 
     Returns False (u untouched) if the numerical rank is below n.
     """
     m, n = A.shape
+    if m == n:
+        return solve_square(A, b, u)
     rmax = 0.0
     for k in range(n):
         # Householder vector for column k

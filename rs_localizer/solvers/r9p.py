@@ -34,10 +34,10 @@ __all__ = ["r9p", "r9p_batch"]
 def _eq8_error(x, X, r, r0, u):
     n = x.shape[0]
     acc = 0.0
+    p = np.empty(3)
     for i in range(n):
         tau = r[i] - r0
         X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-        p = np.empty(3)
         p[0] = X0 + u[1] * X2 - u[2] * X1 + u[3] + tau * (u[12] * X0 + u[13] * X1 + u[14] * X2 + u[6])
         p[1] = X1 + u[2] * X0 - u[0] * X2 + u[4] + tau * (u[15] * X0 + u[16] * X1 + u[17] * X2 + u[7])
         p[2] = X2 + u[0] * X1 - u[1] * X0 + u[5] + tau * (u[18] * X0 + u[19] * X1 + u[20] * X2 + u[8])
@@ -55,6 +55,8 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     s = np.zeros(18)
     u = np.zeros(21)  # v, C, t, R_rs (solver order) -> out order v, C, w, t, R_rs
     E = np.empty((2, 3))
+    Vi = np.empty((3, 3))
+    M = np.empty((3, 3))
     for k in range(K):
         ok[k] = False
         its[k] = 0
@@ -85,20 +87,23 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         u[0:9] = s[0:9]
         u[12:21] = s[9:18]
         err[k] = _eq8_error(x[k], X[k], r[k], r0, u)
+        # M = R_rs (I + [v]x)^-1, with the closed-form inverse of V = I + [v]x:
+        # V^-1 = (I - [v]x + v v^T) / (1 + |v|^2)
         v0, v1, v2 = s[0], s[1], s[2]
-        # M = R_rs (I + [v]x)^-1 ; solve (I + [v]x)^T M^T = R_rs^T column by column
-        Vt = np.empty((3, 3))
-        Vt[0, 0] = 1.0
-        Vt[0, 1] = v2
-        Vt[0, 2] = -v1
-        Vt[1, 0] = -v2
-        Vt[1, 1] = 1.0
-        Vt[1, 2] = v0
-        Vt[2, 0] = v1
-        Vt[2, 1] = -v0
-        Vt[2, 2] = 1.0
-        Rrs = s[9:18].reshape(3, 3)
-        M = np.linalg.solve(Vt, Rrs.T).T
+        den = 1.0 + v0 * v0 + v1 * v1 + v2 * v2
+        Vi[0, 0] = (1.0 + v0 * v0) / den
+        Vi[0, 1] = (v2 + v0 * v1) / den
+        Vi[0, 2] = (-v1 + v0 * v2) / den
+        Vi[1, 0] = (-v2 + v1 * v0) / den
+        Vi[1, 1] = (1.0 + v1 * v1) / den
+        Vi[1, 2] = (v0 + v1 * v2) / den
+        Vi[2, 0] = (v1 + v2 * v0) / den
+        Vi[2, 1] = (-v0 + v2 * v1) / den
+        Vi[2, 2] = (1.0 + v2 * v2) / den
+        for i in range(3):
+            for j in range(3):
+                M[i, j] = (s[9 + 3 * i] * Vi[0, j] + s[10 + 3 * i] * Vi[1, j]
+                           + s[11 + 3 * i] * Vi[2, j])
         out[k, 0:3] = s[0:3]
         out[k, 3:6] = s[3:6]
         out[k, 6] = 0.5 * (M[2, 1] - M[1, 2])
