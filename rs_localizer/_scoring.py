@@ -142,3 +142,72 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True):
                                 R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2,
                                 C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2], exact)
     return out
+
+
+@njit(cache=True)
+def select_prerotations(R, C, owner, samples, X, x, K):
+    """For each of K samples pick, among its P3P solutions (R (M,3,3), C (M,3), owner (M,)),
+    the one with the lowest global-shutter reprojection error on the sample's points beyond
+    the first three (all of them for 3-point samples), ignoring solutions with a point behind
+    the camera. Returns (R (K,3,3), C (K,3), ok (K,))."""
+    Rout = np.zeros((K, 3, 3))
+    Cout = np.zeros((K, 3))
+    ok = np.zeros(K, dtype=np.bool_)
+    best = np.full(K, np.inf)
+    s = samples.shape[1]
+    first = 3 if s > 3 else 0
+    for m in range(R.shape[0]):
+        k = owner[m]
+        e = 0.0
+        for j in range(first, s):
+            i = samples[k, j]
+            p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
+            p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
+            p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
+            if not p2 > 0.0:
+                e = np.inf
+                break
+            dx = p0 / p2 - x[i, 0]
+            dy = p1 / p2 - x[i, 1]
+            e += dx * dx + dy * dy
+        if e < best[k]:
+            best[k] = e
+            Rout[k] = R[m]
+            Cout[k] = C[m]
+            ok[k] = True
+    for k in range(K):
+        if not ok[k]:
+            for a in range(3):
+                Rout[k, a, a] = 1.0
+    return Rout, Cout, ok
+
+
+@njit(cache=True)
+def compose_rotvec(v, R_pre):
+    """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
+    on top of the pre-rotation."""
+    K = v.shape[0]
+    out = np.empty((K, 3, 3))
+    E = np.empty((3, 3))
+    for k in range(K):
+        a0, a1, a2 = v[k, 0], v[k, 1], v[k, 2]
+        th2 = a0 * a0 + a1 * a1 + a2 * a2
+        if th2 < 1e-12:
+            sa, ca = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+        else:
+            th = np.sqrt(th2)
+            sa, ca = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+        E[0, 0] = 1.0 - ca * (a1 * a1 + a2 * a2)
+        E[1, 1] = 1.0 - ca * (a0 * a0 + a2 * a2)
+        E[2, 2] = 1.0 - ca * (a0 * a0 + a1 * a1)
+        E[0, 1] = -sa * a2 + ca * a0 * a1
+        E[1, 0] = sa * a2 + ca * a0 * a1
+        E[0, 2] = sa * a1 + ca * a0 * a2
+        E[2, 0] = -sa * a1 + ca * a0 * a2
+        E[1, 2] = -sa * a0 + ca * a1 * a2
+        E[2, 1] = sa * a0 + ca * a1 * a2
+        for i in range(3):
+            for j in range(3):
+                out[k, i, j] = (E[i, 0] * R_pre[k, 0, j] + E[i, 1] * R_pre[k, 1, j]
+                                + E[i, 2] * R_pre[k, 2, j])
+    return out

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._scoring import errors2, msac_scores
+from ._scoring import compose_rotvec, errors2, msac_scores, select_prerotations
 from .camera import CameraModel
 from .geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose
@@ -177,37 +177,18 @@ class _Frame:
 
 def _hypothesis_arrays(batches, R_pre):
     """Stack RSBatch results (pre-rotated by R_pre per sample) into rotation/velocity arrays."""
-    Rs, Cs, ws, ts, ok = [], [], [], [], []
-    for b, Rp in zip(batches, R_pre):
-        Rs.append(rotvec_to_matrix(b.v) @ Rp)
-        Cs.append(b.C), ws.append(b.w), ts.append(b.t), ok.append(b.valid)
-    return (np.concatenate(Rs), np.concatenate(Cs), np.concatenate(ws), np.concatenate(ts),
-            np.concatenate(ok))
+    Rs = [compose_rotvec(np.ascontiguousarray(b.v), R_pre) for b in batches]
+    return (np.concatenate(Rs), np.concatenate([b.C for b in batches]),
+            np.concatenate([b.w for b in batches]), np.concatenate([b.t for b in batches]),
+            np.concatenate([b.valid for b in batches]))
 
 
 def _p3p_prerotations(fr: _Frame, samples):
     """P3P on the first 3 points of every sample; the solution with the lowest global-shutter
     error on the sample's other points is the pre-rotation (paper sec. 4, "P3P as initial
     estimate"). Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
-    K, s = samples.shape
     R, C, owner = p3p_batch(fr.bearings[samples[:, :3]], fr.X[samples[:, :3]])
-    Rout = np.tile(np.eye(3), (K, 1, 1))
-    Cout = np.zeros((K, 3))
-    ok = np.zeros(K, dtype=bool)
-    if len(R) == 0:
-        return Rout, Cout, ok
-    rest = samples[owner, 3:] if s > 3 else samples[owner]
-    Pc = np.einsum("mij,mnj->mni", R, fr.X[rest]) + C[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        err = np.sum((Pc[..., :2] / Pc[..., 2:3] - fr.x[rest]) ** 2, axis=(1, 2))
-    err = np.where((Pc[..., 2] > 0).all(axis=1) & np.isfinite(err), err, np.inf)
-    pick = np.lexsort((err, owner))
-    first = pick[np.r_[True, owner[pick][1:] != owner[pick][:-1]]]
-    first = first[np.isfinite(err[first])]
-    Rout[owner[first]] = R[first]
-    Cout[owner[first]] = C[first]
-    ok[owner[first]] = True
-    return Rout, Cout, ok
+    return select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
 
 
 def _draw_samples(rng, pool: int, s: int, K: int) -> np.ndarray:
@@ -255,7 +236,7 @@ def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
         R_all = np.concatenate(R_all)
         return (R_all, np.concatenate(C_all), np.concatenate(w_all), np.concatenate(t_all),
                 np.ones(len(R_all), dtype=bool))
-    Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, [R_p] * len(batches))
+    Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
     ok &= np.tile(ok_p, len(batches))
     return Rs, Cs, ws, ts, ok
 

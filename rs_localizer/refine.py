@@ -18,6 +18,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
+from ._scoring import compose_rotvec
 from .geometry import rotvec_to_matrix, skew
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
@@ -262,7 +263,7 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
             step = -np.linalg.solve(H + lam * np.diag(np.diag(H) + 1e-12), g)
         except np.linalg.LinAlgError:
             break
-        Rn = rotvec_to_matrix(step[:3]) @ R
+        Rn = compose_rotvec(step[None, :3], R[None])[0]
         Cn = C + step[3:6]
         wn, tn = (w + step[6:9], t + step[9:12]) if rolling_shutter else (w, t)
         Hn, gn, cn = _normal_equations(Rn, Cn, wn, tn, X, x, tau, k, nf, cutoff)

@@ -86,44 +86,47 @@ def lstsq(A, b, u):
     m, n = A.shape
     if m == n:
         return solve_square(A, b, u)
+    # Householder on the transpose so that every inner loop runs over contiguous memory
+    At = np.ascontiguousarray(A.T)
     rmax = 0.0
     for k in range(n):
-        # Householder vector for column k
+        col = At[k]
         s = 0.0
         for i in range(k, m):
-            s += A[i, k] * A[i, k]
+            s += col[i] * col[i]
         nrm = np.sqrt(s)
         if nrm == 0.0:
             return False
-        alpha = -nrm if A[k, k] > 0 else nrm
-        v0 = A[k, k] - alpha
-        vnorm2 = s - A[k, k] * A[k, k] + v0 * v0
-        A[k, k] = v0
+        alpha = -nrm if col[k] > 0 else nrm
+        v0 = col[k] - alpha
+        vnorm2 = s - col[k] * col[k] + v0 * v0
+        col[k] = v0
         if vnorm2 > 0.0:
             for j in range(k + 1, n):
+                cj = At[j]
                 d = 0.0
                 for i in range(k, m):
-                    d += A[i, k] * A[i, j]
+                    d += col[i] * cj[i]
                 f = 2.0 * d / vnorm2
                 for i in range(k, m):
-                    A[i, j] -= f * A[i, k]
+                    cj[i] -= f * col[i]
             d = 0.0
             for i in range(k, m):
-                d += A[i, k] * b[i]
+                d += col[i] * b[i]
             f = 2.0 * d / vnorm2
             for i in range(k, m):
-                b[i] -= f * A[i, k]
-        A[k, k] = alpha
+                b[i] -= f * col[i]
+        col[k] = alpha
         if abs(alpha) > rmax:
             rmax = abs(alpha)
     for k in range(n):
-        if abs(A[k, k]) <= RANK_TOL * rmax:
+        if abs(At[k, k]) <= RANK_TOL * rmax:
             return False
     for k in range(n - 1, -1, -1):
         s = b[k]
         for j in range(k + 1, n):
-            s -= A[k, j] * u[j]
-        u[k] = s / A[k, k]
+            s -= At[j, k] * u[j]
+        u[k] = s / At[k, k]
     return True
 
 

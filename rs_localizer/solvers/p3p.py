@@ -85,22 +85,21 @@ def p3p_batch(bearings, X):
         (R (M, 3, 3), C (M, 3), owner (M,)): all M finite solutions and the triplet each came
         from. No validation (hot path): callers pass finite, well-shaped arrays.
     """
-    Rs, Cs, owner = [], [], []
+    Rts, owner = [], []
     if _poselib is not None:
         for k in range(len(bearings)):
             for pose in _poselib.p3p(bearings[k], X[k]):
-                Rs.append(pose.R)
-                Cs.append(pose.t)
+                Rts.append(pose.Rt)
                 owner.append(k)
     else:
         for k in range(len(bearings)):
             xk = bearings[k][:, :2] / bearings[k][:, 2:3]
             for sol in p3p_opencv(xk, X[k]):
-                Rs.append(sol.R)
-                Cs.append(sol.C)
+                Rts.append(np.c_[sol.R, sol.C])
                 owner.append(k)
-    if not Rs:
+    if not Rts:
         return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-    R, C, own = np.array(Rs), np.array(Cs), np.array(owner)
-    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
-    return R[ok], C[ok], own[ok]
+    Rt = np.array(Rts)
+    own = np.array(owner, dtype=np.int64)
+    ok = np.isfinite(Rt).all(axis=(1, 2))
+    return np.ascontiguousarray(Rt[ok, :, :3]), np.ascontiguousarray(Rt[ok, :, 3]), own[ok]
