@@ -38,6 +38,7 @@ class EstimateOptions:
         nonminimal: local optimization re-runs the RS solver on all inliers (else only the
             exact-model refinement polishes a new best).
         lo_refine_iterations: LM iterations of each local optimization round.
+        lo_max_points: local optimization works on a random subset of this many points.
         batch_size: hypotheses solved at once by the batched solvers.
         local_optimization_steps: maximum re-solves on the inliers.
         prosac_growth: with scores, the sampling pool reaches all points after this many
@@ -61,6 +62,7 @@ class EstimateOptions:
     batch_size: int = 32
     local_optimization_steps: int = 4
     lo_refine_iterations: int = 5
+    lo_max_points: int = 150
     prosac_growth: int = 200
     max_point_norm: float = 1e6
     pretest_points: int = 24
@@ -171,8 +173,14 @@ class _Frame:
 
     def __init__(self, x, X, r, r0e, r0, d, f):
         self.x, self.X, self.r, self.r0e, self.r0, self.d, self.f = x, X, r, r0e, r0, d, f
-        b = np.concatenate([x, np.ones((len(x), 1))], axis=1)
-        self.bearings = b / np.linalg.norm(b, axis=1, keepdims=True)
+
+    @property
+    def bearings(self):
+        """(N, 3) unit rays of the normalized points (for P3P), computed once."""
+        if not hasattr(self, "_bearings"):
+            b = np.concatenate([self.x, np.ones((len(self.x), 1))], axis=1)
+            self._bearings = b / np.linalg.norm(b, axis=1, keepdims=True)
+        return self._bearings
 
 
 def _hypothesis_arrays(batches, R_pre):
@@ -272,19 +280,24 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, th2, opts: Es
     """
     th = np.sqrt(th2)
     rolling = solver != "p3p"
-    tau = fr.r - fr.r0
+    # the frame's points are shuffled: its first M points are a random subset (LO-RANSAC's
+    # bounded inner sample); the final refinement uses every inlier
+    M = min(len(fr.x), max(opts.lo_max_points, 2 * sample_size(solver)))
+    sub = _Frame(fr.x[:M], fr.X[:M], fr.r[:M], fr.r0e[:M], fr.r0, fr.d, fr.f)
+    tau = sub.r - sub.r0
     for _ in range(opts.local_optimization_steps):
         inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
         n_before = int(inl.sum())
         if n_before < 6:
             break
         start, start_score = best, best_score
-        for cand in (_nonminimal(fr, solver, inl, best[0], opts) if opts.nonminimal else []):
+        inl_sub = inl[:M]
+        for cand in (_nonminimal(sub, solver, inl_sub, best[0], opts) if opts.nonminimal else []):
             if all(np.isfinite(c).all() for c in cand):
                 sc = float(np.minimum(errors2(fr.x, fr.X, fr.r0e, fr.d, *cand), th2).sum())
                 if sc < start_score:
                     start, start_score = cand, sc
-        ref = refine_rs_pose(*start, fr.X, fr.x, tau, th, rolling_shutter=rolling,
+        ref = refine_rs_pose(*start, sub.X, sub.x, tau, th, rolling_shutter=rolling,
                              max_iterations=opts.lo_refine_iterations, covariance=False,
                              cutoff=2.0 * th)
         cand = (ref.R, ref.C, ref.w, ref.t)
