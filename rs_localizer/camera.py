@@ -173,7 +173,6 @@ class CameraModel:
 
     def line_time(self, line) -> np.ndarray:
         """Capture time (s) of a pixel line relative to the first line read out."""
-        a = self._axis
         sign = READOUT_DIRECTIONS[self.readout][1]
         n = self.lines
         line = np.asarray(line, dtype=float)

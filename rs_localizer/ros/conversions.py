@@ -1,0 +1,275 @@
+"""ROS message <-> rs_localizer conversions (CameraInfo, stamps, estimates, quaternions).
+
+Frames: the estimate's ``orientation``/``position`` are the camera optical frame's pose in the map
+(camera -> map), so they go into ``PoseStamped`` as they are; velocities are in the camera optical
+frame (REP 103: z forward, x right, y down). Covariances are 6x6 in ROS order
+(x, y, z, rot x, rot y, rot z) / (vx, vy, vz, wx, wy, wz), row-major.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..camera import DISTORTION_MODELS, CameraModel
+
+__all__ = [
+    "quaternion_from_matrix", "matrix_from_quaternion", "stamp_to_ns", "ns_to_stamp",
+    "camera_model", "camera_model_from_camera_info", "pose_stamped", "twist_stamped",
+    "pose_with_covariance_stamped", "odometry", "tf_message", "have_tf2_msgs", "covariance36",
+    "camera_info_msg", "pose_from_msg", "twist_from_msg",
+]
+
+_NS = 1_000_000_000
+
+
+# ---------------------------------------------------------------- rotations
+def quaternion_from_matrix(R) -> np.ndarray:
+    """(3, 3) rotation -> (4,) unit quaternion ``(x, y, z, w)`` (ROS order) with ``w >= 0``,
+    via SciPy (a non-orthonormal input is projected onto SO(3) by SciPy first)."""
+    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
+    return -q if q[3] < 0 else q
+
+
+def matrix_from_quaternion(q) -> np.ndarray:
+    """(4,) quaternion ``(x, y, z, w)`` (normalized here) -> (3, 3) rotation."""
+    q = np.asarray(q, dtype=float)
+    n = np.linalg.norm(q)
+    if not np.isfinite(n) or n < 1e-12:
+        raise ValueError(f"invalid quaternion {q.tolist()}")
+    return Rotation.from_quat(q / n).as_matrix()
+
+
+# ---------------------------------------------------------------- time
+def stamp_to_ns(stamp) -> int:
+    """``builtin_interfaces/Time`` (rclpy or rosbags) -> integer nanoseconds."""
+    return int(stamp.sec) * _NS + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int):
+    """Integer nanoseconds -> rclpy ``builtin_interfaces/Time`` (negative clamps to 0)."""
+    from builtin_interfaces.msg import Time
+
+    ns = max(int(ns), 0)
+    sec, nsec = divmod(ns, _NS)
+    return Time(sec=sec, nanosec=nsec)
+
+
+# ---------------------------------------------------------------- cameras
+def camera_model(K, D, width, height, distortion_model="plumb_bob", line_delay=0.0,
+                 readout_time=0.0, readout="top_to_bottom", reference_row=None) -> CameraModel:
+    """CameraModel with RS timing: ``readout_time > 0`` (s/frame) wins over ``line_delay``
+    (s/line). ``reference_row`` < 0 or None = image centre line."""
+    if reference_row is not None and reference_row < 0:
+        reference_row = None
+    D = _normalize_distortion(np.asarray(D, dtype=float).ravel(), distortion_model)
+    model = distortion_model or ("plumb_bob" if len(D) else "none")
+    kw = dict(D=D, readout=readout, reference_row=reference_row, distortion_model=model)
+    if readout_time and readout_time > 0:
+        return CameraModel.from_readout_time(K, float(readout_time), int(width), int(height), **kw)
+    return CameraModel(K=K, width=int(width), height=int(height), line_delay=float(line_delay),
+                       **kw)
+
+
+def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
+    """Trim trailing zero coefficients the model does not take (e.g. 14-vector with zeros)."""
+    model = model or "plumb_bob"
+    if model not in DISTORTION_MODELS:
+        raise ValueError(f"unsupported distortion model {model!r}; supported: "
+                         f"{sorted(DISTORTION_MODELS)}")
+    if not np.any(D):
+        return np.zeros(0)
+    allowed = DISTORTION_MODELS[model]
+    if len(D) in allowed:
+        return D
+    bigger = [n for n in allowed if n >= len(D)]
+    if bigger:  # pad with zeros (e.g. 3 coefficients k1 k2 p1 -> 4)
+        return np.concatenate([D, np.zeros(bigger[0] - len(D))])
+    keep = max(allowed)
+    if np.any(D[keep:]):
+        raise ValueError(f"{model}: {len(D)} coefficients with non-zero terms beyond the first "
+                         f"{keep} are not supported")
+    return D[:keep]
+
+
+def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
+                                  readout="top_to_bottom", reference_row=None) -> CameraModel:
+    """``sensor_msgs/CameraInfo`` (rclpy or rosbags) -> :class:`CameraModel`.
+
+    Uses K, D and ``distortion_model`` (pixels are measured, i.e. distorted: P/R are not used),
+    and applies binning and ROI (REP 104) so that K matches the delivered image.
+
+    Raises:
+        ValueError: uncalibrated (zero) K, unsupported distortion model or coefficients, bad size.
+    """
+    K = np.asarray(info.k, dtype=float).reshape(3, 3).copy()
+    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ValueError("camera_info is uncalibrated (K has fx or fy <= 0)")
+    width, height = int(info.width), int(info.height)
+    bx = max(int(getattr(info, "binning_x", 0)), 1)
+    by = max(int(getattr(info, "binning_y", 0)), 1)
+    roi = getattr(info, "roi", None)
+    if roi is not None and int(roi.width) > 0 and int(roi.height) > 0 and (
+            int(roi.width) != width or int(roi.height) != height):
+        K[0, 2] -= int(roi.x_offset)
+        K[1, 2] -= int(roi.y_offset)
+        width, height = int(roi.width), int(roi.height)
+    if bx > 1 or by > 1:
+        K[0, :] /= bx
+        K[1, :] /= by
+        width, height = width // bx, height // by
+    model = str(info.distortion_model or "")
+    D = np.asarray(info.d, dtype=float).ravel()
+    if not model:
+        model = "plumb_bob" if np.any(D) else "none"
+    return camera_model(K, D, width, height, model, line_delay, readout_time, readout,
+                        reference_row)
+
+
+def camera_info_msg(camera: CameraModel, frame_id="", stamp_ns: int = 0):
+    """:class:`CameraModel` -> rclpy ``sensor_msgs/CameraInfo`` (P = [K | 0], R = I)."""
+    from sensor_msgs.msg import CameraInfo
+
+    msg = CameraInfo()
+    msg.header.frame_id = frame_id
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.width, msg.height = camera.width, camera.height
+    msg.distortion_model = camera.distortion_model if camera.has_distortion else "plumb_bob"
+    D = np.asarray(camera.D, dtype=float)
+    if msg.distortion_model == "plumb_bob" and len(D) < 5:
+        D = np.concatenate([D, np.zeros(5 - len(D))])
+    msg.d = [float(x) for x in D]
+    msg.k = [float(x) for x in camera.K.ravel()]
+    msg.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    P = np.zeros((3, 4))
+    P[:, :3] = camera.K
+    msg.p = [float(x) for x in P.ravel()]
+    return msg
+
+
+# ---------------------------------------------------------------- estimates -> messages
+def covariance36(C) -> np.ndarray:
+    """6x6 covariance -> (36,) float64 row-major; ``None``/non-finite -> zeros (unknown)."""
+    if C is None:
+        return np.zeros(36)
+    C = np.asarray(C, dtype=np.float64).reshape(36)
+    if not np.isfinite(C).all():
+        return np.zeros(36)
+    return np.ascontiguousarray(C)
+
+
+def _quaternion(est):
+    """Quaternion of ``est.orientation``, computed once per estimate."""
+    cache = _quaternion.cache
+    if cache[0] is not est:
+        cache[:] = [est, quaternion_from_matrix(est.orientation)]
+    return cache[1]
+
+
+_quaternion.cache = [None, None]
+
+
+def _fill_pose(pose, est):
+    q = _quaternion(est)
+    p = np.asarray(est.position, dtype=float)
+    pose.position.x, pose.position.y, pose.position.z = (float(x) for x in p)
+    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
+     pose.orientation.w) = (float(x) for x in q)
+    return pose
+
+
+def _fill_twist(twist, est):
+    w = np.asarray(est.angular_velocity, dtype=float)
+    v = np.asarray(est.linear_velocity, dtype=float)
+    twist.linear.x, twist.linear.y, twist.linear.z = (float(x) for x in v)
+    twist.angular.x, twist.angular.y, twist.angular.z = (float(x) for x in w)
+    return twist
+
+
+def pose_stamped(est, stamp_ns: int, map_frame: str):
+    """Camera optical frame pose in ``map_frame`` at the reference row."""
+    from geometry_msgs.msg import PoseStamped
+
+    msg = PoseStamped()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = map_frame
+    _fill_pose(msg.pose, est)
+    return msg
+
+
+def twist_stamped(est, stamp_ns: int, camera_frame: str):
+    """Camera velocity (rad/s, m/s) in its own optical frame."""
+    from geometry_msgs.msg import TwistStamped
+
+    msg = TwistStamped()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = camera_frame
+    _fill_twist(msg.twist, est)
+    return msg
+
+
+def pose_with_covariance_stamped(est, stamp_ns: int, map_frame: str):
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = map_frame
+    _fill_pose(msg.pose.pose, est)
+    msg.pose.covariance = covariance36(est.pose_covariance)
+    return msg
+
+
+def odometry(est, stamp_ns: int, map_frame: str, camera_frame: str):
+    """nav_msgs/Odometry: pose in ``map_frame``, twist in ``camera_frame`` (child frame)."""
+    from nav_msgs.msg import Odometry
+
+    msg = Odometry()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = map_frame
+    msg.child_frame_id = camera_frame
+    _fill_pose(msg.pose.pose, est)
+    msg.pose.covariance = covariance36(est.pose_covariance)
+    _fill_twist(msg.twist.twist, est)
+    msg.twist.covariance = covariance36(est.twist_covariance)
+    return msg
+
+
+def have_tf2_msgs() -> bool:
+    try:
+        import tf2_msgs.msg  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def tf_message(est, stamp_ns: int, map_frame: str, camera_frame: str):
+    """tf2_msgs/TFMessage with the transform map -> camera. Raises ImportError without
+    tf2_msgs (not in the PyPI wheels)."""
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+
+    tr = TransformStamped()
+    tr.header.stamp = ns_to_stamp(stamp_ns)
+    tr.header.frame_id = map_frame
+    tr.child_frame_id = camera_frame
+    q = _quaternion(est)
+    p = np.asarray(est.position, dtype=float)
+    (tr.transform.translation.x, tr.transform.translation.y,
+     tr.transform.translation.z) = (float(x) for x in p)
+    (tr.transform.rotation.x, tr.transform.rotation.y, tr.transform.rotation.z,
+     tr.transform.rotation.w) = (float(x) for x in q)
+    return TFMessage(transforms=[tr])
+
+
+def pose_from_msg(pose):
+    """geometry_msgs/Pose (rclpy or rosbags) -> (orientation (3, 3), position (3,))."""
+    q = [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]
+    p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
+    return matrix_from_quaternion(q), p
+
+
+def twist_from_msg(twist):
+    """geometry_msgs/Twist -> (angular (3,), linear (3,))."""
+    w = np.array([twist.angular.x, twist.angular.y, twist.angular.z], dtype=float)
+    v = np.array([twist.linear.x, twist.linear.y, twist.linear.z], dtype=float)
+    return w, v

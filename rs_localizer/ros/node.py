@@ -1,0 +1,538 @@
+"""``rs_localizer_node``: rolling-shutter camera localization from 2D-3D correspondences.
+
+A thin layer over :func:`rs_localizer.estimate.estimate_rs_pose` (no solver logic here):
+decode the input, pick the camera model, call the estimator, publish, count.
+
+Subscriptions (sensor-data QoS, overridable with ``qos_overrides.<topic>.subscription.*``):
+    correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
+                                              (+ id uint32, + score float32)
+    keypoints        sensor_msgs/PointCloud2  u, v, id; 3D points from ``landmarks_file``
+    camera_info      sensor_msgs/CameraInfo
+Publications (reliable, depth 10):
+    pose                  geometry_msgs/PoseStamped              map_frame, reference-row time
+    twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s
+    pose_with_covariance  geometry_msgs/PoseWithCovarianceStamped
+    odom                  nav_msgs/Odometry
+    /tf                   tf2_msgs/TFMessage (if importable and publish_tf)
+    /diagnostics          diagnostic_msgs/DiagnosticArray
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections import Counter, deque
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, PointCloud2
+
+from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..estimate import SOLVERS, EstimateOptions, estimate_rs_pose
+from ..trajectory import load_landmarks_csv
+from . import conversions as cv
+from .pointcloud import CloudError, read_correspondences, read_keypoints
+
+__all__ = ["RSLocalizerNode", "main", "PARAMETERS"]
+
+_D = ParameterDescriptor
+_F = FloatingPointRange
+_I = IntegerRange
+
+#: name -> (default, description, range or None, read_only). Mirrors config/rs_localizer.yaml.
+PARAMETERS = {
+    "solver": ("r6p_1lin", f"minimal solver: one of {', '.join(SOLVERS)} (p3p = global shutter)",
+               None, False),
+    "ransac.threshold_px": (2.0, "RANSAC inlier threshold on the reprojection error (px)",
+                            _F(from_value=0.05, to_value=100.0, step=0.0), False),
+    "ransac.max_iterations": (1000, "RANSAC iteration cap",
+                              _I(from_value=1, to_value=1_000_000, step=1), False),
+    "ransac.confidence": (0.9999, "RANSAC adaptive-termination confidence",
+                          _F(from_value=0.5, to_value=0.999999999, step=0.0), False),
+    "ransac.min_inliers": (12, "fewest inliers for a pose", _I(from_value=3, to_value=100_000,
+                                                               step=1), False),
+    "ransac.seed": (0, "RANSAC random seed (deterministic)",
+                    _I(from_value=0, to_value=2_147_483_647, step=1), False),
+    "refine": (True, "nonlinear refinement on the exact constant-velocity model", None, False),
+    "rs.line_delay": (3.0e-5, "time between consecutive image lines (s/line); 0 = global "
+                      "shutter", _F(from_value=0.0, to_value=0.01, step=0.0), False),
+    "rs.readout_time": (0.0, "time to read the whole frame (s); if > 0 it wins over "
+                        "rs.line_delay (line_delay = readout_time / lines)",
+                        _F(from_value=0.0, to_value=1.0, step=0.0), False),
+    "rs.direction": ("top_to_bottom", "readout direction: " + ", ".join(READOUT_DIRECTIONS),
+                     None, False),
+    "rs.reference_row": (-1.0, "line (px) at which the pose is estimated; -1 = image centre",
+                         _F(from_value=-1.0, to_value=100_000.0, step=0.0), False),
+    "rs.stamp_row": (0.0, "line (px) whose capture time is the input header.stamp",
+                     _F(from_value=0.0, to_value=100_000.0, step=0.0), False),
+    "map_frame": ("map", "frame of the published pose", None, True),
+    "camera_frame": ("", "camera optical frame of the outputs; empty = input header.frame_id",
+                     None, False),
+    "publish_tf": (True, "publish map -> camera on /tf (needs tf2_msgs)", None, True),
+    "landmarks_file": ("", "CSV id,x,y,z for the keypoints topic (reloaded on change)", None,
+                       False),
+    "max_points": (5000, "clouds with more points are capped (highest scores, else evenly "
+                   "spaced), with a warning", _I(from_value=10, to_value=10_000_000, step=1),
+                   False),
+    "time_reset_threshold": (1.0, "a stamp older than the last one by more than this (s) is a "
+                             "restart (accepted); smaller steps back are out_of_order",
+                             _F(from_value=0.0, to_value=1e6, step=0.0), False),
+    "diagnostics_period": (1.0, "period of /diagnostics (s)",
+                           _F(from_value=0.05, to_value=60.0, step=0.0), True),
+    "warmup": (True, "solve a synthetic problem at start (JIT compilation)", None, True),
+    "camera.fx": (0.0, "fallback intrinsics until camera_info arrives; fx <= 0 = wait for "
+                  "camera_info", _F(from_value=0.0, to_value=1e6, step=0.0), False),
+    "camera.fy": (0.0, "fallback fy (px)", _F(from_value=0.0, to_value=1e6, step=0.0), False),
+    "camera.cx": (0.0, "fallback cx (px)", _F(from_value=-1e6, to_value=1e6, step=0.0), False),
+    "camera.cy": (0.0, "fallback cy (px)", _F(from_value=-1e6, to_value=1e6, step=0.0), False),
+    "camera.width": (0, "fallback image width (px)", _I(from_value=0, to_value=100_000, step=1),
+                     False),
+    "camera.height": (0, "fallback image height (px)",
+                      _I(from_value=0, to_value=100_000, step=1), False),
+    "camera.distortion_model": ("plumb_bob", "fallback distortion model: plumb_bob, "
+                                "rational_polynomial, equidistant or none", None, False),
+    "camera.d": ([0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)",
+                 None, False),
+}
+
+_LOG_PERIOD = 2.0  # s, per failure reason
+
+
+class RSLocalizerNode(Node):
+    """The localizer node. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`."""
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, desc, rng, ro) in PARAMETERS.items():
+            d = _D(description=desc, read_only=ro)
+            if isinstance(rng, FloatingPointRange):
+                d.floating_point_range = [rng]
+            elif isinstance(rng, IntegerRange):
+                d.integer_range = [rng]
+            try:
+                self.declare_parameter(name, default, d)
+            except InvalidParameterValueException as e:
+                raise RuntimeError(f"parameter {name!r}: {e} ({desc})") from None
+            except InvalidParameterTypeException as e:
+                kind = type(default).__name__
+                raise RuntimeError(
+                    f"parameter {name!r} must be of type {kind}"
+                    + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
+                    + f": {e}") from None
+
+        self.counts = Counter()      # frames received / solved / failed.<reason> / ...
+        self.latencies = deque(maxlen=1000)  # s, callback entry -> published
+        self.stage_times = {k: deque(maxlen=1000) for k in ("decode", "estimate", "publish")}
+        self.inliers = deque(maxlen=1000)
+        self.messages_lost = 0       # QoS message_lost events over the frame subscriptions
+        self._lost = {}
+        self._last_log = {}
+        self._last_stamp = None
+        self._camera_info = None     # latest camera_info (message)
+        self._camera_info_key = None
+        self._camera = None          # CameraModel from camera_info (with RS timing)
+        self._landmarks = None       # (sorted ids, points)
+        self._tf_pub = None
+
+        cfg = self._build_config({})
+        if isinstance(cfg, str):
+            raise RuntimeError(f"invalid parameters: {cfg}")
+        self._apply_config(cfg)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        if self.get_parameter("warmup").value:
+            self._warmup(self.cfg["solver"])
+
+        rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_pose = self.create_publisher(PoseStamped, "pose", rel)
+        self.pub_twist = self.create_publisher(TwistStamped, "twist", rel)
+        self.pub_pwc = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
+                                             rel)
+        self.pub_odom = self.create_publisher(Odometry, "odom", rel)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", rel)
+        if self.get_parameter("publish_tf").value:
+            if cv.have_tf2_msgs():
+                from tf2_msgs.msg import TFMessage
+
+                self._tf_pub = self.create_publisher(TFMessage, "/tf", rel)
+            else:
+                self.get_logger().warning(
+                    "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
+                    "wheels): not publishing /tf")
+
+        self.sub_corr = self.create_subscription(
+            PointCloud2, "correspondences", self._on_correspondences, qos_profile_sensor_data,
+            event_callbacks=self._lost_events("correspondences"),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.sub_kp = self.create_subscription(
+            PointCloud2, "keypoints", self._on_keypoints, qos_profile_sensor_data,
+            event_callbacks=self._lost_events("keypoints"),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.sub_info = self.create_subscription(
+            CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.create_timer(float(self.get_parameter("diagnostics_period").value),
+                          self.publish_diagnostics)
+        if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
+            self.get_logger().warning("rs.line_delay and rs.readout_time are 0: global-shutter "
+                                      "timing, the published twist will be zero")
+        self.get_logger().info(
+            f"ready: solver {self.cfg['solver']}, line delay "
+            f"{self.cfg['line_delay'] * 1e6:.2f} us/line"
+            + (f", readout {self.cfg['readout_time'] * 1e3:.2f} ms"
+               if self.cfg["readout_time"] > 0 else "")
+            + f", intrinsics from {'parameters' if self.cfg['fallback'] else 'camera_info'}"
+            + (f", {len(self._landmarks[0])} landmarks from {self.cfg['landmarks_file']}"
+               if self._landmarks else ""))
+
+    # ------------------------------------------------------------------ parameters
+    def _param_values(self, overrides: dict) -> dict:
+        vals = {}
+        for name in PARAMETERS:
+            if name in overrides:
+                vals[name] = overrides[name]
+            else:
+                vals[name] = self.get_parameter(name).value
+        return vals
+
+    def _build_config(self, overrides: dict):
+        """Everything derived from the parameters, or an error string."""
+        p = self._param_values(overrides)
+        if p["solver"] not in SOLVERS:
+            return f"unknown solver {p['solver']!r}; expected one of {list(SOLVERS)}"
+        if p["rs.direction"] not in READOUT_DIRECTIONS:
+            return (f"unknown rs.direction {p['rs.direction']!r}; expected one of "
+                    f"{list(READOUT_DIRECTIONS)}")
+        try:
+            opts = EstimateOptions(threshold_px=float(p["ransac.threshold_px"]),
+                                   max_iterations=int(p["ransac.max_iterations"]),
+                                   confidence=float(p["ransac.confidence"]),
+                                   min_inliers=int(p["ransac.min_inliers"]),
+                                   seed=int(p["ransac.seed"]), refine=bool(p["refine"]))
+        except (TypeError, ValueError) as e:
+            return f"invalid RANSAC options: {e}"
+        ref = float(p["rs.reference_row"])
+        cfg = {"solver": p["solver"], "options": opts, "line_delay": float(p["rs.line_delay"]),
+               "readout_time": float(p["rs.readout_time"]), "direction": p["rs.direction"],
+               "reference_row": None if ref < 0 else ref, "stamp_row": float(p["rs.stamp_row"]),
+               "map_frame": p["map_frame"], "camera_frame": p["camera_frame"],
+               "max_points": int(p["max_points"]),
+               "time_reset_ns": int(float(p["time_reset_threshold"]) * 1e9),
+               "landmarks_file": p["landmarks_file"], "fallback": None}
+        if float(p["camera.fx"]) > 0:
+            d = p["camera.d"] if p["camera.d"] is not None else []
+            K = np.array([[p["camera.fx"], 0.0, p["camera.cx"]],
+                          [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
+                          [0.0, 0.0, 1.0]], dtype=float)
+            try:
+                cfg["fallback"] = cv.camera_model(
+                    K, list(d), p["camera.width"], p["camera.height"],
+                    p["camera.distortion_model"], cfg["line_delay"], cfg["readout_time"],
+                    cfg["direction"], cfg["reference_row"])
+            except ValueError as e:
+                return f"invalid fallback camera parameters: {e}"
+        try:
+            self._with_timing(CameraModel(K=np.eye(3), width=10, height=10), cfg)
+        except ValueError as e:
+            return f"invalid rolling-shutter parameters: {e}"
+        path = p["landmarks_file"]
+        cfg["landmarks"] = None
+        if path:
+            try:
+                ids, pts = load_landmarks_csv(os.path.expanduser(path))
+            except (OSError, ValueError) as e:
+                return f"cannot load landmarks_file {path!r}: {e}"
+            order = np.argsort(ids, kind="stable")
+            cfg["landmarks"] = (ids[order], pts[order])
+        return cfg
+
+    @staticmethod
+    def _with_timing(camera: CameraModel, cfg) -> CameraModel:
+        return cv.camera_model(camera.K, camera.D, camera.width, camera.height,
+                               camera.distortion_model, cfg["line_delay"], cfg["readout_time"],
+                               cfg["direction"], cfg["reference_row"])
+
+    def _apply_config(self, cfg):
+        self.cfg = cfg
+        self._landmarks = cfg["landmarks"]
+        if self._camera_info is not None:
+            try:
+                self._camera = self._camera_from_info(self._camera_info)
+            except ValueError as e:
+                self.get_logger().error(f"camera_info unusable with the new parameters: {e}")
+                self._camera = None
+                self._camera_info_key = None
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
+        if not overrides:
+            return SetParametersResult(successful=True)
+        cfg = self._build_config(overrides)
+        if isinstance(cfg, str):
+            self.get_logger().warning(f"rejected parameter change: {cfg}")
+            return SetParametersResult(successful=False, reason=cfg)
+        if "solver" in overrides and overrides["solver"] != self.cfg["solver"]:
+            self.get_logger().info(f"solver: {self.cfg['solver']} -> {overrides['solver']}")
+            if self.get_parameter("warmup").value:
+                self._warmup(overrides["solver"], cfg)
+        self._apply_config(cfg)
+        if overrides.get("landmarks_file") and cfg["landmarks"] is not None:
+            self.get_logger().info(f"reloaded {len(cfg['landmarks'][0])} landmarks from "
+                                   f"{cfg['landmarks_file']}")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ warm-up
+    def _warmup(self, solver, cfg=None):
+        """Run the estimator on a small synthetic RS problem so that the numba JIT compiles
+        before the first real frame (the compiled code is cached on disk)."""
+        cfg = cfg or self.cfg
+        tic = time.perf_counter()
+        rng = np.random.default_rng(1)
+        cam = cv.camera_model(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
+                              [0.05, -0.05, 0.0, 0.0, 0.0], 640, 480, "plumb_bob",
+                              line_delay=5e-5)
+        n = 60
+        uv = rng.uniform([0, 0], [639, 479], (n, 2))
+        depth = rng.uniform(3, 8, n)
+        xn = cam.undistort(uv)
+        X = np.concatenate([xn, np.ones((n, 1))], axis=1) * depth[:, None]
+        try:
+            est = estimate_rs_pose(uv, X, cam, solver=solver, options=cfg["options"])
+            self.get_logger().info(f"warm-up ({solver}): {time.perf_counter() - tic:.2f} s, "
+                                   f"{'ok' if est.success else est.failure}")
+        except Exception as e:  # noqa: BLE001 - never die in warm-up
+            self.get_logger().warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+
+    # ------------------------------------------------------------------ callbacks
+    def _lost_events(self, topic):
+        def on_lost(status):
+            self._lost[topic] = int(status.total_count)
+            self.messages_lost = sum(self._lost.values())
+        return SubscriptionEventCallbacks(message_lost=on_lost)
+
+    def _camera_from_info(self, msg) -> CameraModel:
+        cam = cv.camera_model_from_camera_info(
+            msg, self.cfg["line_delay"], self.cfg["readout_time"], self.cfg["direction"],
+            self.cfg["reference_row"])
+        return cam
+
+    def _on_camera_info(self, msg: CameraInfo):
+        key = (tuple(msg.k), tuple(msg.d), msg.distortion_model, msg.width, msg.height,
+               msg.binning_x, msg.binning_y, msg.roi.x_offset, msg.roi.y_offset,
+               msg.roi.width, msg.roi.height)
+        if key == self._camera_info_key:
+            return
+        try:
+            cam = self._camera_from_info(msg)
+        except ValueError as e:
+            self.counts["camera_info_rejected"] += 1
+            self._log_throttled("camera_info", f"ignoring camera_info: {e}")
+            return
+        if self._camera is None:
+            self.get_logger().info(
+                f"camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
+                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}")
+        self._camera_info, self._camera_info_key, self._camera = msg, key, cam
+
+    def _on_correspondences(self, msg: PointCloud2):
+        self._safe_handle(msg, keypoints=False)
+
+    def _on_keypoints(self, msg: PointCloud2):
+        self._safe_handle(msg, keypoints=True)
+
+    def _safe_handle(self, msg, keypoints):
+        try:
+            self._handle(msg, keypoints)
+        except Exception as e:  # noqa: BLE001 - a bug for one frame must not stop the node
+            self._fail("internal_error", f"{type(e).__name__}: {e}")
+
+    def _fail(self, reason: str, detail: str):
+        self.counts["failed"] += 1
+        self.counts[f"failed.{reason}"] += 1
+        self._log_throttled(reason, f"frame dropped ({reason}): {detail}")
+
+    def _log_throttled(self, key, text):
+        now = time.monotonic()
+        if now - self._last_log.get(key, -1e9) >= _LOG_PERIOD:
+            self._last_log[key] = now
+            n = self.counts.get(f"failed.{key}", 0)
+            self.get_logger().warning(text + (f" [{n} so far]" if n > 1 else ""))
+
+    def _handle(self, msg: PointCloud2, keypoints: bool):
+        tic = time.perf_counter()
+        self.counts["received"] += 1
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        cfg = self.cfg
+        if int(msg.width) * int(msg.height) == 0:
+            return self._fail("empty_cloud", "cloud has no points")
+        camera = self._camera or cfg["fallback"]
+        if camera is None:
+            return self._fail("no_camera_info", "no camera_info received yet and no fallback "
+                              "intrinsics (camera.fx <= 0)")
+        if self._last_stamp is not None and stamp < self._last_stamp:
+            if self._last_stamp - stamp <= cfg["time_reset_ns"]:
+                return self._fail("out_of_order", f"stamp {stamp * 1e-9:.6f} is older than the "
+                                  f"last frame {self._last_stamp * 1e-9:.6f}")
+            self.get_logger().warning("time jumped back by "
+                                      f"{(self._last_stamp - stamp) * 1e-9:.3f} s: restart")
+        try:
+            if keypoints:
+                uv, xyz, scores = self._keypoints(msg)
+                if uv is None:
+                    return
+            else:
+                c = read_correspondences(msg)
+                uv, xyz, scores = c.uv, c.xyz, c.scores
+        except CloudError as e:
+            return self._fail(e.reason, str(e))
+        except ValueError as e:
+            return self._fail("bad_cloud", str(e))
+        if len(uv) > cfg["max_points"]:
+            self.counts["capped_clouds"] += 1
+            self.counts["capped_points"] += len(uv) - cfg["max_points"]
+            if scores is not None and np.isfinite(scores).any():
+                keep = np.argsort(-np.nan_to_num(scores, nan=-np.inf),
+                                  kind="stable")[: cfg["max_points"]]
+                keep.sort()
+            else:
+                keep = np.linspace(0, len(uv) - 1, cfg["max_points"]).astype(int)
+            self._log_throttled("capped", f"cloud of {len(uv)} points capped to max_points "
+                                f"{cfg['max_points']}")
+            uv, xyz = uv[keep], xyz[keep]
+            scores = None if scores is None else scores[keep]
+        self._last_stamp = stamp
+        t_decoded = time.perf_counter()
+        try:
+            est = estimate_rs_pose(uv, xyz, camera, solver=cfg["solver"],
+                                   options=cfg["options"], scores=scores)
+        except Exception as e:  # noqa: BLE001 - the node must stay up
+            return self._fail("estimator_error", f"{type(e).__name__}: {e}")
+        t_estimated = time.perf_counter()
+        self.counts["points_dropped"] += int(est.num_dropped)
+        if not est.success:
+            return self._fail(est.failure or "unknown",
+                              f"{len(uv)} points, {est.num_inliers} inliers, solver "
+                              f"{cfg['solver']}")
+        out_stamp = stamp + int(round(
+            camera.time_offset(cfg["stamp_row"], camera.reference_line) * 1e9))
+        frame = cfg["camera_frame"] or msg.header.frame_id or "camera"
+        mf = cfg["map_frame"]
+        # (messages nobody subscribes to are not even built: ~0.1 ms each)
+        self.pub_pose.publish(cv.pose_stamped(est, out_stamp, mf))
+        if self.pub_twist.get_subscription_count():
+            self.pub_twist.publish(cv.twist_stamped(est, out_stamp, frame))
+        if self.pub_pwc.get_subscription_count():
+            self.pub_pwc.publish(cv.pose_with_covariance_stamped(est, out_stamp, mf))
+        if self.pub_odom.get_subscription_count():
+            self.pub_odom.publish(cv.odometry(est, out_stamp, mf, frame))
+        if self._tf_pub is not None and self._tf_pub.get_subscription_count():
+            self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
+        self.counts["solved"] += 1
+        self.inliers.append(est.num_inliers)
+        toc = time.perf_counter()
+        self.latencies.append(toc - tic)
+        self.stage_times["decode"].append(t_decoded - tic)
+        self.stage_times["estimate"].append(t_estimated - t_decoded)
+        self.stage_times["publish"].append(toc - t_estimated)
+
+    def _keypoints(self, msg):
+        if self._landmarks is None:
+            self._fail("no_landmarks", "keypoints received but no landmarks_file is loaded")
+            return None, None, None
+        kp = read_keypoints(msg)
+        ids, pts = self._landmarks
+        j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
+        known = ids[j] == kp.ids
+        n_unknown = int(np.count_nonzero(~known))
+        if n_unknown:
+            self.counts["unknown_landmark_ids"] += n_unknown
+        if not known.any():
+            self._fail("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
+            return None, None, None
+        scores = None if kp.scores is None else kp.scores[known]
+        return kp.uv[known], pts[j[known]], scores
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics_status(self) -> DiagnosticStatus:
+        c = self.counts
+        lat = np.array(self.latencies) * 1e3
+        st = DiagnosticStatus()
+        st.name = f"rs_localizer: {self.get_fully_qualified_name()}"
+        st.hardware_id = self.cfg["camera_frame"] or "camera"
+        failed = {k[7:]: v for k, v in sorted(c.items()) if k.startswith("failed.")}
+        if c["received"] and not c["solved"]:
+            st.level = DiagnosticStatus.ERROR
+            st.message = "no frame solved" + (f" ({failed})" if failed else "")
+        elif c["failed"] or self.messages_lost:
+            st.level = DiagnosticStatus.WARN
+            st.message = f"{c['solved']}/{c['received']} frames solved"
+        else:
+            st.level = DiagnosticStatus.OK
+            st.message = (f"{c['solved']}/{c['received']} frames solved" if c["received"]
+                          else "waiting for frames")
+        values = {
+            "solver": self.cfg["solver"],
+            "camera": ("camera_info" if self._camera is not None else
+                       "parameters" if self.cfg["fallback"] is not None else "missing"),
+            "frames_received": c["received"],
+            "frames_solved": c["solved"],
+            "frames_failed": c["failed"],
+            "messages_lost": self.messages_lost,
+            "points_dropped": c["points_dropped"],
+            "clouds_capped": c["capped_clouds"],
+            "unknown_landmark_ids": c["unknown_landmark_ids"],
+            "camera_info_rejected": c["camera_info_rejected"],
+            "inliers_last": self.inliers[-1] if self.inliers else 0,
+            "inliers_mean": f"{np.mean(self.inliers):.1f}" if self.inliers else "0",
+            "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
+            "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
+            "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
+        }
+        for k, d in self.stage_times.items():
+            values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
+        values.update({f"failed.{k}": v for k, v in failed.items()})
+        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        return st
+
+    def publish_diagnostics(self):
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self.diagnostics_status()]
+        self.pub_diag.publish(msg)
+
+
+def main(args=None):
+    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``)."""
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=sys.argv if args is None else args)
+    node = None
+    try:
+        node = RSLocalizerNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError as e:  # invalid parameters at start: a clear message, no traceback
+        print(f"rs_localizer_node: error: {e}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

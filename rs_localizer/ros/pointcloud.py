@@ -1,0 +1,322 @@
+"""sensor_msgs/PointCloud2 <-> NumPy structured arrays, without sensor_msgs_py.
+
+The readers take any object with the PointCloud2 attributes (``fields``, ``point_step``,
+``row_step``, ``width``, ``height``, ``is_bigendian``, ``data``): rclpy messages and rosbags
+messages alike. Every inconsistency raises :class:`ValueError` with a readable message, never a
+NumPy error deep inside.
+
+Correspondence clouds (topic ``correspondences``): fields ``u, v`` (measured, i.e. distorted,
+pixel coordinates) and ``x, y, z`` (map frame, metres), float32 or float64; optional ``id``
+(uint32) and ``score`` (float32/float64, higher is better). Keypoint clouds (topic
+``keypoints``): ``u, v`` and ``id``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "INT8", "UINT8", "INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64",
+    "DATATYPE_NAMES", "fields_to_dtype", "dtype_to_fields", "cloud_to_array", "array_to_cloud",
+    "pack_cloud", "CloudError", "Correspondences", "Keypoints", "read_correspondences",
+    "read_keypoints", "correspondence_array", "keypoint_array", "correspondence_cloud",
+    "keypoint_cloud",
+]
+
+# sensor_msgs/PointField datatypes
+INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
+_DT_TO_NP = {INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", INT32: "i4", UINT32: "u4",
+             FLOAT32: "f4", FLOAT64: "f8"}
+_NP_TO_DT = {v: k for k, v in _DT_TO_NP.items()}
+DATATYPE_NAMES = {INT8: "int8", UINT8: "uint8", INT16: "int16", UINT16: "uint16",
+                  INT32: "int32", UINT32: "uint32", FLOAT32: "float32", FLOAT64: "float64"}
+
+FLOAT_TYPES = (FLOAT32, FLOAT64)
+INDEX_TYPES = (UINT32, INT32, UINT16, UINT8)
+
+
+class CloudError(ValueError):
+    """A PointCloud2 that cannot be decoded. ``reason``: ``missing_fields``,
+    ``wrong_field_type``, ``truncated`` or ``bad_layout``."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+def _dt_name(dt: int) -> str:
+    return DATATYPE_NAMES.get(dt, f"unknown({dt})")
+
+
+def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.dtype:
+    """Structured dtype (itemsize ``point_step``) from a list of PointField-like objects.
+
+    Raises:
+        ValueError: unknown datatype, duplicate or empty name, a field beyond ``point_step``.
+    """
+    point_step = int(point_step)
+    if point_step <= 0:
+        raise CloudError("bad_layout", f"point_step must be > 0, got {point_step}")
+    order = ">" if is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for f in fields:
+        name = str(f.name)
+        if not name:
+            raise CloudError("bad_layout", "PointCloud2 field with an empty name")
+        if name in names:
+            raise CloudError("bad_layout", f"duplicate PointCloud2 field {name!r}")
+        dt = int(f.datatype)
+        if dt not in _DT_TO_NP:
+            raise CloudError("wrong_field_type",
+                             f"field {name!r} has unknown PointField datatype {dt}")
+        count = max(int(f.count), 1)
+        base = np.dtype(order + _DT_TO_NP[dt])
+        fmt = base if count == 1 else np.dtype((base, (count,)))
+        offset = int(f.offset)
+        if offset < 0 or offset + fmt.itemsize > point_step:
+            raise CloudError("bad_layout", f"field {name!r} (offset {offset}, {fmt.itemsize} "
+                             f"bytes) does not fit in point_step {point_step}")
+        names.append(name)
+        formats.append(fmt)
+        offsets.append(offset)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets,
+                     "itemsize": point_step})
+
+
+def dtype_to_fields(dtype: np.dtype):
+    """Structured dtype -> list of ``(name, offset, datatype, count)`` tuples.
+
+    Raises:
+        ValueError: a field type PointCloud2 cannot carry (e.g. int64, complex, strings).
+    """
+    out = []
+    for name in dtype.names or ():
+        fmt, offset = dtype.fields[name][:2]
+        count = 1
+        if fmt.subdtype is not None:
+            fmt, shape = fmt.subdtype
+            count = int(np.prod(shape))
+        key = fmt.kind + str(fmt.itemsize)
+        if key not in _NP_TO_DT:
+            raise ValueError(f"field {name!r}: dtype {fmt} cannot be stored in a PointCloud2")
+        out.append((name, int(offset), _NP_TO_DT[key], count))
+    return out
+
+
+def cloud_to_array(msg) -> np.ndarray:
+    """PointCloud2 (rclpy or rosbags) -> 1-D structured array of ``width * height`` points.
+
+    Raises:
+        ValueError: inconsistent sizes (truncated data, row_step too small), bad fields.
+    """
+    width, height = int(msg.width), int(msg.height)
+    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    n = width * height
+    if width < 0 or height < 0:
+        raise CloudError("bad_layout", f"invalid cloud size {width}x{height}")
+    data = msg.data
+    if isinstance(data, np.ndarray):
+        buf = np.ascontiguousarray(data, dtype=np.uint8).reshape(-1)
+    elif isinstance(data, (bytes, bytearray, memoryview)) or hasattr(data, "buffer_info"):
+        buf = np.frombuffer(memoryview(data).cast("B"), dtype=np.uint8)
+    else:  # a list of ints
+        buf = np.asarray(data, dtype=np.uint8).reshape(-1)
+    if n == 0:
+        if point_step <= 0:  # an empty cloud may come with an empty layout
+            return np.zeros(0, dtype=[("u", "f4"), ("v", "f4")])
+        return np.zeros(0, dtype=fields_to_dtype(msg.fields, point_step, msg.is_bigendian))
+    dtype = fields_to_dtype(msg.fields, point_step, bool(msg.is_bigendian))
+    if row_step < width * point_step:
+        raise CloudError("bad_layout",
+                         f"row_step {row_step} < width {width} * point_step {point_step}")
+    need = row_step * (height - 1) + width * point_step
+    if len(buf) < need:
+        raise CloudError("truncated", f"truncated PointCloud2: {len(buf)} bytes of data, "
+                         f"expected {row_step * height} ({height} rows x row_step {row_step})")
+    if row_step == width * point_step:
+        return np.frombuffer(buf[: n * point_step].tobytes(), dtype=dtype, count=n)
+    rows = [buf[i * row_step: i * row_step + width * point_step] for i in range(height)]
+    return np.frombuffer(np.concatenate(rows).tobytes(), dtype=dtype, count=n)
+
+
+@dataclass
+class PackedCloud:
+    """Layout and bytes of a PointCloud2 (for building rclpy or rosbags messages)."""
+
+    fields: list  # (name, offset, datatype, count)
+    point_step: int
+    width: int
+    data: bytes
+
+    @property
+    def row_step(self) -> int:
+        return self.point_step * self.width
+
+
+def pack_cloud(arr: np.ndarray) -> PackedCloud:
+    """Structured array -> little-endian packed fields and bytes (height 1)."""
+    arr = np.asarray(arr).reshape(-1)
+    if arr.dtype.names is None:
+        raise ValueError("pack_cloud needs a structured array")
+    dtype = arr.dtype
+    le = np.dtype({"names": list(dtype.names),
+                   "formats": [dtype.fields[nm][0].newbyteorder("<") for nm in dtype.names],
+                   "offsets": [dtype.fields[nm][1] for nm in dtype.names],
+                   "itemsize": dtype.itemsize})
+    arr = arr.astype(le, copy=False)
+    return PackedCloud(dtype_to_fields(le), le.itemsize, len(arr), arr.tobytes())
+
+
+def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp=None):
+    """Structured array -> rclpy ``sensor_msgs/PointCloud2`` (height 1, little endian, dense
+    only if every float is finite). ``stamp``: a ``builtin_interfaces/Time`` or int nanoseconds."""
+    from sensor_msgs.msg import PointCloud2, PointField
+
+    packed = pack_cloud(arr)
+    msg = PointCloud2()
+    msg.header.frame_id = frame_id
+    if stamp is not None:
+        if isinstance(stamp, (int, np.integer)):
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp), 1_000_000_000)
+        else:
+            msg.header.stamp = stamp
+    msg.height = 1
+    msg.width = packed.width
+    msg.fields = [PointField(name=nm, offset=off, datatype=dt, count=c)
+                  for nm, off, dt, c in packed.fields]
+    msg.is_bigendian = False
+    msg.point_step = packed.point_step
+    msg.row_step = packed.row_step
+    msg.data = packed.data
+    msg.is_dense = _is_dense(arr)
+    return msg
+
+
+def _is_dense(arr) -> bool:
+    for nm in arr.dtype.names:
+        if arr.dtype.fields[nm][0].kind == "f" and not np.isfinite(arr[nm]).all():
+            return False
+    return True
+
+
+# ---------------------------------------------------------------- typed views
+@dataclass
+class Correspondences:
+    """Decoded ``correspondences`` cloud. Arrays are float64 (ids uint32/int64)."""
+
+    uv: np.ndarray          # (N, 2) measured pixels
+    xyz: np.ndarray         # (N, 3) map frame, metres
+    ids: np.ndarray | None  # (N,)
+    scores: np.ndarray | None  # (N,)
+
+    def __len__(self):
+        return len(self.uv)
+
+
+@dataclass
+class Keypoints:
+    """Decoded ``keypoints`` cloud."""
+
+    uv: np.ndarray   # (N, 2)
+    ids: np.ndarray  # (N,) int64
+    scores: np.ndarray | None
+
+    def __len__(self):
+        return len(self.uv)
+
+
+def _field_types(msg) -> dict:
+    return {str(f.name): int(f.datatype) for f in msg.fields}
+
+
+def _check_fields(msg, required: dict, optional: dict) -> dict:
+    types = _field_types(msg)
+    missing = [nm for nm in required if nm not in types]
+    if missing:
+        raise CloudError("missing_fields",
+                         f"missing field(s) {missing}; the cloud has {sorted(types)}")
+    for spec in (required, optional):
+        for nm, allowed in spec.items():
+            if nm in types and types[nm] not in allowed:
+                raise CloudError(
+                    "wrong_field_type", f"field {nm!r} has type {_dt_name(types[nm])}; "
+                    f"expected one of {[_dt_name(a) for a in allowed]}")
+    return types
+
+
+def _column(arr, name):
+    col = arr[name]
+    if col.ndim > 1:  # count > 1: take the first element
+        col = col[:, 0]
+    return col
+
+
+def read_correspondences(msg) -> Correspondences:
+    """Decode a correspondences cloud. Raises ValueError for missing fields, wrong field types
+    and truncated data. Non-finite rows are kept (the estimator drops and counts them)."""
+    types = _check_fields(msg, {k: FLOAT_TYPES for k in "uvxyz"},
+                          {"id": INDEX_TYPES, "score": FLOAT_TYPES})
+    arr = cloud_to_array(msg)
+    uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
+    xyz = np.stack([_column(arr, k) for k in "xyz"], axis=1).astype(np.float64)
+    ids = _column(arr, "id").astype(np.int64) if "id" in types else None
+    scores = _column(arr, "score").astype(np.float64) if "score" in types else None
+    return Correspondences(uv, xyz, ids, scores)
+
+
+def read_keypoints(msg) -> Keypoints:
+    """Decode a keypoints cloud (``u, v, id`` [+ ``score``]). Raises ValueError like
+    :func:`read_correspondences`."""
+    types = _check_fields(msg, {"u": FLOAT_TYPES, "v": FLOAT_TYPES, "id": INDEX_TYPES},
+                          {"score": FLOAT_TYPES})
+    arr = cloud_to_array(msg)
+    uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
+    ids = _column(arr, "id").astype(np.int64)
+    scores = _column(arr, "score").astype(np.float64) if "score" in types else None
+    return Keypoints(uv, ids, scores)
+
+
+def correspondence_array(uv, xyz, ids=None, scores=None, dtype="f4") -> np.ndarray:
+    """Build the structured array of a correspondences cloud (u, v, x, y, z [, id] [, score])."""
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    if len(uv) != len(xyz):
+        raise ValueError(f"{len(uv)} pixels but {len(xyz)} points")
+    fields = [(k, dtype) for k in "uvxyz"]
+    if ids is not None:
+        fields.append(("id", "<u4"))
+    if scores is not None:
+        fields.append(("score", "<f4"))
+    arr = np.zeros(len(uv), dtype=fields)
+    arr["u"], arr["v"] = uv[:, 0], uv[:, 1]
+    arr["x"], arr["y"], arr["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    if ids is not None:
+        arr["id"] = ids
+    if scores is not None:
+        arr["score"] = scores
+    return arr
+
+
+def keypoint_array(uv, ids, scores=None, dtype="f4") -> np.ndarray:
+    """Structured array of a keypoints cloud (u, v, id [, score])."""
+    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+    fields = [("u", dtype), ("v", dtype), ("id", "<u4")]
+    if scores is not None:
+        fields.append(("score", "<f4"))
+    arr = np.zeros(len(uv), dtype=fields)
+    arr["u"], arr["v"], arr["id"] = uv[:, 0], uv[:, 1], ids
+    if scores is not None:
+        arr["score"] = scores
+    return arr
+
+
+def correspondence_cloud(uv, xyz, ids=None, scores=None, frame_id="", stamp=None, dtype="f4"):
+    """rclpy PointCloud2 of correspondences."""
+    return array_to_cloud(correspondence_array(uv, xyz, ids, scores, dtype), frame_id, stamp)
+
+
+def keypoint_cloud(uv, ids, scores=None, frame_id="", stamp=None, dtype="f4"):
+    """rclpy PointCloud2 of keypoints."""
+    return array_to_cloud(keypoint_array(uv, ids, scores, dtype), frame_id, stamp)

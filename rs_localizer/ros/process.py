@@ -1,0 +1,157 @@
+"""Run ``rs_localizer_node`` as a subprocess (demo, tests, benchmark; no ros2 launch needed)."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file"]
+
+
+def random_domain_id() -> int:
+    """A random ROS domain id in [1, 101] (valid on every platform)."""
+    return random.SystemRandom().randint(1, 101)
+
+
+def ros_env(domain_id: int | None = None, base=None) -> dict:
+    """Environment for isolated local ROS processes: ``ROS_DOMAIN_ID`` and localhost-only
+    discovery. Also applies them to ``os.environ`` of the caller when ``base`` is None."""
+    env = dict(os.environ if base is None else base)
+    if domain_id is None:
+        domain_id = int(env.get("ROS_DOMAIN_ID", "0") or 0)
+    env["ROS_DOMAIN_ID"] = str(domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
+    return env
+
+
+def _yaml_value(v) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (float, np.floating)):
+        r = repr(float(v))
+        return r if ("." in r or "e" in r or "n" in r) else r + ".0"
+    if isinstance(v, np.integer):
+        return str(int(v))
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_yaml_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return '"' + v.replace('"', '\\"') + '"'
+    return str(v)
+
+
+def write_params_yaml(path, params: dict | None = None, reliable_topics=(),
+                      node: str = "/**") -> Path:
+    """Write a ROS 2 parameter file: ``params`` (flat dotted names) and, for each topic in
+    ``reliable_topics`` (fully qualified), a QoS override making its subscription reliable."""
+    lines = [f"{node}:", "  ros__parameters:"]
+    for k, v in (params or {}).items():
+        lines.append(f"    {k}: {_yaml_value(v)}")
+    if reliable_topics:
+        lines.append("    qos_overrides:")
+        for t in reliable_topics:
+            lines += [f"      {t}:", "        subscription:", "          reliability: reliable",
+                      "          depth: 100"]
+    path = Path(path)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def repo_file(*parts) -> Path | None:
+    """A file of the source tree (``data/sample``, ``config/...``): looked up from the current
+    directory, then next to the package, then in ``share/rs_localizer`` of the environment."""
+    rel = Path(*parts)
+    here = Path(__file__).resolve().parents[2]
+    for base in (Path.cwd(), here, Path(sys.prefix) / "share" / "rs_localizer"):
+        if (base / rel).exists():
+            return base / rel
+    return None
+
+
+class NodeProcess:
+    """``python -m rs_localizer.ros.node --ros-args ...`` in a subprocess.
+
+    Args:
+        params_files: parameter files in order (later ones win).
+        namespace: ``__ns`` remap; node_name: ``__node`` remap; remaps: ``{from: to}``.
+        params: ``-p name:=value`` extra parameters.
+        env: environment (see :func:`ros_env`). log: file for stdout+stderr (default: temp).
+        cpus: pin the process (and all its threads) to these CPU ids (Linux).
+    """
+
+    def __init__(self, params_files=(), namespace="/camera", node_name=None, remaps=None,
+                 params=None, env=None, log=None, cpus=None):
+        args = [sys.executable, "-m", "rs_localizer.ros.node", "--ros-args"]
+        for f in params_files:
+            args += ["--params-file", str(f)]
+        if namespace:
+            args += ["-r", f"__ns:={namespace}"]
+        if node_name:
+            args += ["-r", f"__node:={node_name}"]
+        for a, b in (remaps or {}).items():
+            args += ["-r", f"{a}:={b}"]
+        for k, v in (params or {}).items():
+            args += ["-p", f"{k}:={_yaml_value(v)}"]
+        self.args = args
+        self.env = env or ros_env()
+        if log is None:
+            fd, log = tempfile.mkstemp(prefix="rs_localizer_node_", suffix=".log")
+            os.close(fd)
+        self.log_path = Path(log)
+        self._log = open(self.log_path, "w")
+        preexec = None
+        if cpus is not None and hasattr(os, "sched_setaffinity"):
+            cpu_set = set(cpus)
+            preexec = lambda: os.sched_setaffinity(0, cpu_set)  # noqa: E731
+        self.proc = subprocess.Popen(args, env=self.env, stdout=self._log,
+                                     stderr=subprocess.STDOUT, start_new_session=True,
+                                     preexec_fn=preexec)
+
+    @property
+    def log(self) -> str:
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def wait_ready(self, timeout: float = 60.0) -> bool:
+        """Wait for the node's ``ready`` log line (after warm-up)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if "] ready:" in self.log or "]: ready:" in self.log:
+                return True
+            if not self.alive():
+                return False
+            time.sleep(0.05)
+        return False
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT, then SIGKILL after ``timeout``. Returns the exit code."""
+        if self.alive():
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        if not self._log.closed:
+            self._log.close()
+        return self.proc.returncode
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()

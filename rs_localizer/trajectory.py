@@ -1,0 +1,308 @@
+"""Synthetic rolling-shutter sequences (ROS-free): trajectory, scene, exact RS projection.
+
+A camera moves along a smooth continuous-time trajectory (a walk at 1.2 m/s with sway and bob,
+a quick look-around pan and tilt with slight hand shake: angular speeds up to ~1.7 rad/s, like a
+hand-held phone or a head-mounted action camera) through a corridor of landmarks. Every
+landmark is projected with the camera pose **at the capture time of its own line**: the line
+constraint ``line = image_line(project(X, pose(t0 + line_time(line))))`` is solved by
+fixed-point iteration, through the lens distortion (:meth:`CameraModel.distort`),
+so the pixels are what a real RS sensor would measure. Ground truth per frame: the pose at the
+reference line (camera -> world orientation, camera centre in the world) and the camera's angular
+and linear velocity in its own optical frame, obtained by numerically differentiating the
+trajectory (independent of any solver formula).
+
+World frame: z up (ROS ``map`` convention). Camera optical frame (REP 103): z forward, x right,
+y down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import CameraModel
+from .geometry import matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = ["default_camera", "Trajectory", "Scene", "Frame", "SequenceConfig", "make_scene",
+           "generate_sequence", "project_rs", "ground_truth"]
+
+#: camera looking along world +x with z up: columns are the camera x (right), y (down),
+#: z (forward) axes in world coordinates
+R_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def default_camera(line_delay: float = 30e-6, reference_row=None, distortion=True,
+                   readout="top_to_bottom") -> CameraModel:
+    """A 1280x720 phone/action camera: fx ~ 1000 px (~65 deg horizontal FOV), mild barrel
+    plumb_bob distortion, 30 us/row line delay (21.6 ms readout)."""
+    K = np.array([[1002.5, 0.0, 641.3], [0.0, 1001.8, 358.2], [0.0, 0.0, 1.0]])
+    D = np.array([0.062, -0.118, 4e-4, -3e-4, 0.041]) if distortion else np.zeros(0)
+    return CameraModel(K=K, D=D, width=1280, height=720, line_delay=line_delay,
+                       readout=readout, reference_row=reference_row,
+                       distortion_model="plumb_bob")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Smooth camera motion: ``p(t)`` (camera centre, world) and ``R(t)`` (camera -> world).
+
+    ``p(t) = p0 + v t + sway/bob sinusoids``;
+    ``R(t) = R_FORWARD expm([a(t)]x)`` with ``a(t)`` a sum of sinusoids per camera axis (slow
+    pan/tilt/roll plus a slight fast shake; angular accelerations stay below ~10 rad/s^2, so
+    the velocity is nearly constant during one 22 ms readout). ``scale`` multiplies all rotation
+    amplitudes.
+    """
+
+    p0: tuple = (0.0, 0.0, 1.5)
+    velocity: tuple = (1.2, 0.0, 0.0)           # m/s, world
+    sway: tuple = (0.0, 0.12, 0.05)             # m amplitude per world axis
+    sway_hz: tuple = (0.0, 0.8, 1.8)
+    rot_amp: tuple = (0.15, 0.60, 0.15)         # rad about camera x (tilt), y (pan), z (roll)
+    rot_hz: tuple = (0.5, 0.4, 0.45)
+    shake_amp: tuple = (0.003, 0.004, 0.002)    # rad, hand shake
+    shake_hz: tuple = (6.3, 5.1, 7.7)
+    phase: tuple = (0.3, -0.6, 2.0, 0.7, 1.9, 0.4)
+    scale: float = 1.0
+
+    def _angles(self, t):
+        t = np.asarray(t, dtype=float)[..., None]
+        ph = np.asarray(self.phase)
+        a = (np.asarray(self.rot_amp) * np.sin(2 * np.pi * np.asarray(self.rot_hz) * t + ph[:3])
+             + np.asarray(self.shake_amp)
+             * np.sin(2 * np.pi * np.asarray(self.shake_hz) * t + ph[3:]))
+        return self.scale * a
+
+    def position(self, t) -> np.ndarray:
+        """(..., 3) camera centre in the world (m)."""
+        t = np.asarray(t, dtype=float)[..., None]
+        return (np.asarray(self.p0) + np.asarray(self.velocity) * t
+                + np.asarray(self.sway) * np.sin(2 * np.pi * np.asarray(self.sway_hz) * t
+                                                 + np.asarray(self.phase[:3])))
+
+    def orientation(self, t) -> np.ndarray:
+        """(..., 3, 3) camera -> world rotation."""
+        return R_FORWARD @ rotvec_to_matrix(self._angles(t))
+
+    def pose(self, t):
+        return self.orientation(t), self.position(t)
+
+    def velocity_body(self, t, h: float = 1e-5):
+        """Angular (rad/s) and linear (m/s) velocity of the camera in its optical frame by
+        central differences of the trajectory: ``w = log(R(t-h)^T R(t+h)) / 2h``,
+        ``v = R(t)^T (p(t+h) - p(t-h)) / 2h``."""
+        t = np.asarray(t, dtype=float)
+        Ra, Rb = self.orientation(t - h), self.orientation(t + h)
+        w = matrix_to_rotvec(np.swapaxes(Ra, -1, -2) @ Rb) / (2 * h)
+        dp = (self.position(t + h) - self.position(t - h)) / (2 * h)
+        v = np.einsum("...ji,...j->...i", self.orientation(t), dp)
+        return w, v
+
+
+@dataclass
+class Scene:
+    """Landmarks (M, 3) in the world (m) with integer ids (M,)."""
+
+    points: np.ndarray
+    ids: np.ndarray
+
+    def lookup(self, ids) -> np.ndarray:
+        index = {int(i): k for k, i in enumerate(self.ids)}
+        return self.points[[index[int(i)] for i in ids]]
+
+
+def make_scene(rng, num_landmarks: int = 6000, length: float = 40.0, x0: float = -2.0,
+               half_width: float = 3.0, floor: float = -0.2, ceiling: float = 4.0,
+               clutter: float = 0.25) -> Scene:
+    """A corridor along world x: landmarks on the two walls, floor and ceiling, plus clutter
+    (a fraction ``clutter`` of points) inside it, away from the walking line. Coordinates are
+    rounded to 0.1 mm so that float32 clouds and CSV files carry them without loss that matters.
+    """
+    n_clutter = int(clutter * num_landmarks)
+    n_surf = num_landmarks - n_clutter
+    face = rng.integers(0, 4, n_surf)
+    x = rng.uniform(x0, x0 + length, n_surf)
+    y = rng.uniform(-half_width, half_width, n_surf)
+    z = rng.uniform(floor, ceiling, n_surf)
+    y = np.where(face == 0, -half_width, np.where(face == 1, half_width, y))
+    z = np.where(face == 2, floor, np.where(face == 3, ceiling, z))
+    surf = np.stack([x, y, z], axis=1) + rng.normal(0, 0.05, (n_surf, 3))  # wall relief
+    cx = rng.uniform(x0, x0 + length, n_clutter)
+    cy = rng.uniform(-half_width, half_width, n_clutter)
+    cz = rng.uniform(floor, ceiling, n_clutter)
+    away = np.abs(cy) > 1.2  # keep a free walking lane
+    clut = np.stack([cx, cy, cz], axis=1)[away]
+    pts = np.round(np.concatenate([surf, clut]), 4)
+    ids = np.arange(1, len(pts) + 1, dtype=np.int64) * 7 + 100  # non-contiguous ids
+    return Scene(pts, ids)
+
+
+def project_rs(camera: CameraModel, trajectory: Trajectory, t_first_line: float, X,
+               iterations: int = 30, tol: float = 1e-9):
+    """Exact RS projection of world points ``X`` (N, 3) for the frame whose first line is read
+    at ``t_first_line`` (s).
+
+    Solves ``line = pixel_line(distort(project(X, pose(t_first_line + line_time(line)))))`` by
+    fixed-point iteration (a contraction: the image moves far less than one line per line delay).
+
+    Returns:
+        (uv, ok): (N, 2) pixels and (N,) bool (in front of the camera, converged, inside image).
+    """
+    X = np.asarray(X, dtype=float)
+    axis = 1 if camera.readout in ("top_to_bottom", "bottom_to_top") else 0
+    line = np.full(len(X), camera.reference_line)
+    uv = np.full((len(X), 2), np.nan)
+    ok = np.ones(len(X), dtype=bool)
+    lim = np.array([camera.width, camera.height]) / np.diag(camera.K)[:2]
+    for _ in range(iterations):
+        t = t_first_line + camera.line_time(np.clip(line, -camera.lines, 2 * camera.lines))
+        R, p = trajectory.pose(t)
+        Xc = np.einsum("nji,nj->ni", R, X - p)  # R^T (X - p)
+        z = Xc[:, 2]
+        ok &= z > 0.2
+        xn = Xc[:, :2] / np.where(ok, z, 1.0)[:, None]
+        ok &= np.all(np.abs(xn) < 1.3 * lim, axis=1)  # keep cv2 away from wild extrapolation
+        xn[~ok] = 0.0
+        uv = camera.distort(xn)
+        new_line = uv[:, axis]
+        delta = np.abs(new_line - line)
+        line = new_line
+        if np.all(delta[ok] < tol):
+            break
+    ok &= np.isfinite(uv).all(axis=1) & (delta < 1e-6)
+    ok &= camera.in_image(uv)
+    uv[~ok] = np.nan
+    return uv, ok
+
+
+@dataclass
+class Frame:
+    """One synthetic image: correspondences and ground truth.
+
+    ``stamp_ns``: capture time of line ``stamp_row`` (the header stamp); ``t_ref_ns``: capture
+    time of the reference line (the ground-truth stamp). ``orientation``/``position``: camera ->
+    world at the reference line; ``angular_velocity``/``linear_velocity``: camera optical frame
+    (rad/s, m/s). ``inlier``: (N,) False for the synthetic outliers.
+    """
+
+    index: int
+    stamp_ns: int
+    t_ref_ns: int
+    uv: np.ndarray
+    xyz: np.ndarray
+    ids: np.ndarray
+    scores: np.ndarray
+    inlier: np.ndarray
+    orientation: np.ndarray
+    position: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    uv_clean: np.ndarray = field(default=None, repr=False)
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """Parameters of :func:`generate_sequence`."""
+
+    num_frames: int = 40
+    num_points: int = 500
+    fps: float = 30.0
+    noise_px: float = 0.5
+    outlier_ratio: float = 0.2
+    seed: int = 0
+    t0_ns: int = 1_700_000_000_000_000_000
+    stamp_row: float = 0.0
+    motion_scale: float = 1.0
+    num_landmarks: int = 6000
+
+
+def ground_truth(camera: CameraModel, trajectory: Trajectory, t_first_line: float):
+    """(orientation, position, angular_velocity, linear_velocity, t_ref) at the reference line."""
+    t_ref = t_first_line + float(camera.line_time(camera.reference_line))
+    R, p = trajectory.pose(t_ref)
+    w, v = trajectory.velocity_body(t_ref)
+    return R, p, w, v, t_ref
+
+
+def generate_sequence(config: SequenceConfig = SequenceConfig(), camera: CameraModel | None = None,
+                      trajectory: Trajectory | None = None, scene: Scene | None = None):
+    """Generate ``config.num_frames`` frames. Returns ``(frames, scene, camera, trajectory)``.
+
+    Per frame: all landmarks visible in the RS image are projected exactly, ``num_points`` of
+    them are drawn at random, Gaussian pixel noise ``noise_px`` is added, and a fraction
+    ``outlier_ratio`` get a uniformly random pixel (wrong matches). Scores are higher for inliers
+    on average (like descriptor match scores), but overlap.
+    """
+    rng = np.random.default_rng(config.seed)
+    camera = camera or default_camera()
+    trajectory = trajectory or Trajectory(scale=config.motion_scale)
+    scene = scene or make_scene(rng, config.num_landmarks)
+    frames = []
+    period = 1.0 / config.fps
+    for k in range(config.num_frames):
+        t_first = k * period
+        R, p, w, v, t_ref = ground_truth(camera, trajectory, t_first)
+        # cheap pre-selection with the reference pose, then the exact projection
+        Xc = (scene.points - p) @ R
+        pre = (Xc[:, 2] > 0.3) & (Xc[:, 2] < 25.0)
+        cand = np.flatnonzero(pre)
+        uv, ok = project_rs(camera, trajectory, t_first, scene.points[cand])
+        vis = cand[ok]
+        uv = uv[ok]
+        n = min(config.num_points, len(vis))
+        pick = rng.choice(len(vis), n, replace=False)
+        ids = scene.ids[vis[pick]]
+        xyz = scene.points[vis[pick]]
+        clean = uv[pick]
+        noisy = clean + rng.normal(0.0, config.noise_px, clean.shape)
+        noisy[:, 0] = np.clip(noisy[:, 0], 0, camera.width - 1)
+        noisy[:, 1] = np.clip(noisy[:, 1], 0, camera.height - 1)
+        n_out = int(round(config.outlier_ratio * n))
+        inlier = np.ones(n, dtype=bool)
+        out_idx = rng.choice(n, n_out, replace=False)
+        inlier[out_idx] = False
+        noisy[out_idx] = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], (n_out, 2))
+        scores = np.where(inlier, rng.uniform(0.3, 1.0, n), rng.uniform(0.0, 0.7, n))
+        stamp = t_first + float(camera.line_time(config.stamp_row))
+        frames.append(Frame(
+            index=k, stamp_ns=config.t0_ns + int(round(stamp * 1e9)),
+            t_ref_ns=config.t0_ns + int(round(t_ref * 1e9)), uv=noisy, xyz=xyz, ids=ids,
+            scores=scores, inlier=inlier, orientation=R, position=p, angular_velocity=w,
+            linear_velocity=v, uv_clean=clean))
+    return frames, scene, camera, trajectory
+
+
+def save_landmarks_csv(path, ids, points):
+    """Write a landmark map ``id,x,y,z`` (header line, metres)."""
+    with open(path, "w") as f:
+        f.write("id,x,y,z\n")
+        for i, (x, y, z) in zip(ids, points):
+            f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
+
+
+def load_landmarks_csv(path):
+    """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
+    points (M, 3)). Raises ValueError for malformed rows or duplicate ids."""
+    ids, pts = [], []
+    with open(path) as f:
+        for lineno, line in enumerate(f, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = [s.strip() for s in line.split(",")]
+            if lineno == 1 and parts[0].lower() == "id":
+                continue
+            if len(parts) != 4:
+                raise ValueError(f"{path}:{lineno}: expected 'id,x,y,z', got {line!r}")
+            try:
+                ids.append(int(parts[0]))
+                pts.append([float(s) for s in parts[1:]])
+            except ValueError as e:
+                raise ValueError(f"{path}:{lineno}: {e}") from None
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(np.unique(ids)) != len(ids):
+        raise ValueError(f"{path}: duplicate landmark ids")
+    pts = np.asarray(pts, dtype=float).reshape(-1, 3)
+    if not np.isfinite(pts).all():
+        raise ValueError(f"{path}: non-finite coordinates")
+    return ids, pts

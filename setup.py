@@ -1,0 +1,44 @@
+"""ament_python package rs_localizer (works with colcon and with plain pip).
+
+pip:    pip install -e '.[ros]'   (ROS 2 Jazzy wheels from PyPI + rosbags)
+colcon: colcon build --packages-select rs_localizer   (executables in lib/rs_localizer/)
+"""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "rs_localizer"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(include=[package_name, f"{package_name}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
+        (f"share/{package_name}", ["package.xml"]),
+        (f"share/{package_name}/config", glob("config/*.yaml")),
+        (f"share/{package_name}/launch", glob("launch/*.launch.py")),
+    ],
+    python_requires=">=3.10",
+    install_requires=["setuptools", "numpy", "scipy", "opencv-python-headless", "numba"],
+    extras_require={
+        # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)
+        "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp",
+                "rosbags>=0.10"],
+        "bench": ["poselib", "threadpoolctl"],
+        "test": ["pytest"],
+    },
+    tests_require=["pytest"],
+    zip_safe=True,
+    maintainer="rs_localizer maintainers",
+    maintainer_email="maintainer@example.com",
+    description="Rolling-shutter camera localization from 2D-3D correspondences for ROS 2",
+    license="BSD-3-Clause",
+    entry_points={
+        "console_scripts": [
+            "rs_localizer_node = rs_localizer.ros.node:main",
+            "rs-localizer = rs_localizer.cli:main",
+        ],
+    },
+)

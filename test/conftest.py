@@ -1,0 +1,173 @@
+"""Shared fixtures for the ROS tests (test_node.py, test_bag.py).
+
+Nothing here imports rclpy at collection time, so the non-ROS tests run without ROS.
+
+Isolation: one random ``ROS_DOMAIN_ID`` (1..101) per test session, localhost-only discovery,
+one ``rclpy.Context`` per test. Node processes get QoS overrides making their subscriptions
+reliable, so lock-step replay loses nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_BAG = ROOT / "data" / "sample"
+KEYPOINTS_BAG = ROOT / "test" / "data" / "keypoints"
+CONFIG = ROOT / "config" / "rs_localizer.yaml"
+
+
+@pytest.fixture(scope="session")
+def ros_domain():
+    """Random domain id for this session, exported to os.environ (restored afterwards)."""
+    pytest.importorskip("rclpy")
+    from rs_localizer.ros.process import random_domain_id
+
+    keys = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOCALHOST_ONLY")
+    saved = {k: os.environ.get(k) for k in keys}
+    domain = random_domain_id()
+    os.environ["ROS_DOMAIN_ID"] = str(domain)
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    os.environ.pop("ROS_LOCALHOST_ONLY", None)
+    yield domain
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+@pytest.fixture
+def ros_context(ros_domain):
+    """A fresh, initialized rclpy Context for one test."""
+    import rclpy
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=ros_domain)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+@pytest.fixture(scope="session")
+def sample_bag():
+    if not (SAMPLE_BAG / "metadata.yaml").exists():
+        pytest.skip("data/sample missing (make sample-bag)")
+    return SAMPLE_BAG
+
+
+@pytest.fixture(scope="session")
+def keypoints_bag():
+    if not (KEYPOINTS_BAG / "metadata.yaml").exists():
+        pytest.skip("test/data/keypoints missing (make sample-bag)")
+    return KEYPOINTS_BAG
+
+
+def start_node(tmp_path, params=None, namespace="/camera", name="node", ready_timeout=120.0):
+    """Start rs_localizer_node (config/rs_localizer.yaml + ``params`` + reliable input QoS)."""
+    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+
+    topics = [f"{namespace}/{t}" for t in ("correspondences", "keypoints", "camera_info")]
+    overlay = write_params_yaml(tmp_path / f"{name}_params.yaml", params or {},
+                                reliable_topics=topics)
+    node = NodeProcess([CONFIG, overlay], namespace=namespace, env=ros_env(),
+                       log=tmp_path / f"{name}.log")
+    if not node.wait_ready(ready_timeout):
+        log = node.log
+        node.stop()
+        pytest.fail(f"node did not become ready:\n{log}")
+    return node
+
+
+class Probe:
+    """Test-side ROS node: publishes inputs (reliable) and records the node's outputs."""
+
+    def __init__(self, context, namespace="/camera"):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import CameraInfo, PointCloud2
+
+        self.ns = namespace
+        self.node = rclpy.create_node("rs_localizer_test_probe", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_corr = self.node.create_publisher(PointCloud2, f"{namespace}/correspondences",
+                                                   qos)
+        self.pub_kp = self.node.create_publisher(PointCloud2, f"{namespace}/keypoints", qos)
+        self.pub_info = self.node.create_publisher(CameraInfo, f"{namespace}/camera_info", qos)
+        self.outputs = {"pose": [], "twist": [], "odom": [], "pose_with_covariance": []}
+        types = {"pose": PoseStamped, "twist": TwistStamped, "odom": Odometry,
+                 "pose_with_covariance": PoseWithCovarianceStamped}
+        for k, t in types.items():
+            self.node.create_subscription(t, f"{namespace}/{k}",
+                                          lambda m, k=k: self.outputs[k].append(m), qos)
+        self.diag = {}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos)
+
+    def _on_diag(self, msg):
+        for st in msg.status:
+            self.diag[st.name] = (st, {kv.key: kv.value for kv in st.values})
+
+    def spin(self, seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=min(0.02, max(end - time.monotonic(), 0)))
+
+    def wait(self, predicate, timeout=10.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.02)
+        return predicate()
+
+    def wait_matched(self, timeout=30.0):
+        ok = self.wait(lambda: all(p.get_subscription_count() > 0 for p in
+                                   (self.pub_corr, self.pub_kp, self.pub_info))
+                       and self.node.count_publishers(f"{self.ns}/pose") > 0
+                       and self.node.count_publishers("/diagnostics") > 0, timeout)
+        assert ok, "node did not match the probe's topics"
+
+    def pose_near(self, stamp_ns, tol_ns=1_000):
+        from rs_localizer.ros.conversions import stamp_to_ns
+
+        for m in self.outputs["pose"]:
+            if abs(stamp_to_ns(m.header.stamp) - stamp_ns) <= tol_ns:
+                return m
+        return None
+
+    def wait_pose(self, stamp_ns, timeout=10.0):
+        """Wait for a pose stamped ``stamp_ns`` (+-1 us); returns it or None."""
+        self.wait(lambda: self.pose_near(stamp_ns) is not None, timeout)
+        return self.pose_near(stamp_ns)
+
+    def node_diag(self):
+        for name, (st, values) in self.diag.items():
+            if name.startswith("rs_localizer:") and name.endswith(f"{self.ns}/rs_localizer"):
+                return st, values
+        return None, {}
+
+    def wait_diag(self, predicate, timeout=10.0):
+        """Wait until the node's latest diagnostics values satisfy ``predicate(values)``."""
+        self.wait(lambda: predicate(self.node_diag()[1]), timeout)
+        return self.node_diag()
+
+    def close(self):
+        self.executor.remove_node(self.node)
+        self.node.destroy_node()
+        self.executor.shutdown()
+
+
+@pytest.fixture
+def probe(ros_context):
+    p = Probe(ros_context)
+    yield p
+    p.close()

@@ -1,0 +1,185 @@
+"""CameraInfo handling, stamps, quaternions and estimate -> message conversions."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("sensor_msgs.msg")
+
+from rs_localizer.camera import CameraModel  # noqa: E402
+from rs_localizer.estimate import RSPoseEstimate  # noqa: E402
+from rs_localizer.geometry import rotvec_to_matrix  # noqa: E402
+from rs_localizer.ros import conversions as cv  # noqa: E402
+from sensor_msgs.msg import CameraInfo  # noqa: E402
+
+
+def _info(model="plumb_bob", d=(0.1, -0.2, 0.001, 0.002, 0.05), w=1280, h=720):
+    msg = CameraInfo()
+    msg.width, msg.height = w, h
+    msg.k = [1000.0, 0.0, 640.0, 0.0, 990.0, 360.0, 0.0, 0.0, 1.0]
+    msg.d = list(d)
+    msg.distortion_model = model
+    return msg
+
+
+def test_quaternion_roundtrip_and_convention():
+    q = cv.quaternion_from_matrix(rotvec_to_matrix(np.array([0.0, 0.0, np.pi / 2])))
+    np.testing.assert_allclose(q, [0, 0, np.sqrt(0.5), np.sqrt(0.5)], atol=1e-12)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        R = rotvec_to_matrix(rng.normal(0, 1.5, 3))
+        q = cv.quaternion_from_matrix(R)
+        assert q[3] >= 0 and abs(np.linalg.norm(q) - 1) < 1e-12
+        np.testing.assert_allclose(cv.matrix_from_quaternion(q), R, atol=1e-12)
+        np.testing.assert_allclose(cv.matrix_from_quaternion(-3 * q), R, atol=1e-12)
+    with pytest.raises(ValueError):
+        cv.matrix_from_quaternion([0, 0, 0, 0])
+
+
+def test_stamps():
+    ns = 1_700_000_123_456_789_012
+    st = cv.ns_to_stamp(ns)
+    assert (st.sec, st.nanosec) == (1_700_000_123, 456_789_012)
+    assert cv.stamp_to_ns(st) == ns
+    assert cv.stamp_to_ns(cv.ns_to_stamp(-5)) == 0
+
+
+def test_camera_info_plumb_bob():
+    cam = cv.camera_model_from_camera_info(_info(), line_delay=30e-6)
+    assert isinstance(cam, CameraModel)
+    assert (cam.width, cam.height) == (1280, 720)
+    np.testing.assert_array_equal(cam.K, [[1000, 0, 640], [0, 990, 360], [0, 0, 1]])
+    np.testing.assert_array_equal(cam.D, [0.1, -0.2, 0.001, 0.002, 0.05])
+    assert cam.distortion_model == "plumb_bob" and cam.has_distortion
+    assert cam.line_delay == 30e-6 and cam.reference_row is None
+    assert cam.reference_line == pytest.approx(359.5)
+
+
+def test_camera_info_timing_options():
+    cam = cv.camera_model_from_camera_info(_info(), line_delay=1e-3, readout_time=0.018,
+                                           readout="bottom_to_top", reference_row=100.0)
+    assert cam.line_delay == pytest.approx(0.018 / 720)  # readout_time wins
+    assert cam.readout == "bottom_to_top" and cam.reference_line == 100.0
+    cam = cv.camera_model_from_camera_info(_info(), readout_time=0.0128,
+                                           readout="left_to_right")
+    assert cam.line_delay == pytest.approx(0.0128 / 1280)
+    assert cv.camera_model_from_camera_info(_info(), reference_row=-1.0).reference_row is None
+
+
+@pytest.mark.parametrize("model,d,expect", [
+    ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001], 8),
+    ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001] + [0.0] * 6, 8),
+    ("equidistant", [0.1, 0.01, 0.001, 0.0001], 4),
+    ("plumb_bob", [0.1, 0.01, 0.0, 0.0], 4),
+    ("plumb_bob", [0.0] * 5, 0),
+    ("", [], 0),
+    ("", [0.1, 0.0, 0.0, 0.0, 0.0], 5),
+])
+def test_camera_info_distortion_models(model, d, expect):
+    cam = cv.camera_model_from_camera_info(_info(model, d))
+    assert len(cam.D) == expect
+    assert cam.has_distortion == (expect > 0)
+    # undistort/distort round trip works for the produced model
+    p = np.array([[100.0, 100.0], [640.0, 360.0], [1200.0, 700.0]])
+    np.testing.assert_allclose(cam.distort(cam.undistort(p)), p, atol=1e-6)
+
+
+def test_camera_info_errors():
+    bad = _info()
+    bad.k = [0.0] * 9
+    with pytest.raises(ValueError, match="uncalibrated"):
+        cv.camera_model_from_camera_info(bad)
+    with pytest.raises(ValueError, match="unsupported distortion model"):
+        cv.camera_model_from_camera_info(_info("fisheye_magic"))
+    with pytest.raises(ValueError, match="beyond"):
+        cv.camera_model_from_camera_info(_info("rational_polynomial", [0.1] * 14))
+    with pytest.raises(ValueError, match="image size"):
+        cv.camera_model_from_camera_info(_info(w=0))
+
+
+def test_camera_info_binning_and_roi():
+    info = _info(d=[0.0] * 5)
+    info.binning_x = info.binning_y = 2
+    cam = cv.camera_model_from_camera_info(info)
+    assert (cam.width, cam.height) == (640, 360)
+    np.testing.assert_allclose(cam.K, [[500, 0, 320], [0, 495, 180], [0, 0, 1]])
+    info = _info(d=[0.0] * 5)
+    info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 100, 50, 640, 480
+    cam = cv.camera_model_from_camera_info(info)
+    assert (cam.width, cam.height) == (640, 480)
+    np.testing.assert_allclose(cam.K[:2, 2], [540, 310])
+    # full-size ROI is a no-op
+    info = _info(d=[0.0] * 5)
+    info.roi.width, info.roi.height = 1280, 720
+    assert cv.camera_model_from_camera_info(info).K[0, 2] == 640
+
+
+def test_camera_info_msg_roundtrip():
+    cam = cv.camera_model(np.array([[900.0, 0, 600], [0, 905, 350], [0, 0, 1]]),
+                          [0.05, -0.1, 0.0, 0.0, 0.02], 1200, 700, "plumb_bob", line_delay=2e-5)
+    info = cv.camera_info_msg(cam, "cam", 123)
+    assert info.header.frame_id == "cam" and info.header.stamp.nanosec == 123
+    back = cv.camera_model_from_camera_info(info, line_delay=2e-5)
+    np.testing.assert_array_equal(back.K, cam.K)
+    np.testing.assert_array_equal(back.D, cam.D)
+    assert (back.width, back.height) == (1200, 700)
+    np.testing.assert_array_equal(np.reshape(info.p, (3, 4))[:, :3], cam.K)
+
+
+def test_camera_info_from_rosbags_type():
+    pytest.importorskip("rosbags")
+    from rclpy.serialization import serialize_message
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    msg = ts.deserialize_cdr(serialize_message(_info()), "sensor_msgs/msg/CameraInfo")
+    cam = cv.camera_model_from_camera_info(msg)
+    assert cam.K[0, 0] == 1000 and len(cam.D) == 5
+
+
+def _estimate():
+    R = rotvec_to_matrix(np.array([0.1, -0.2, 0.3]))
+    pc = np.arange(36, dtype=float).reshape(6, 6)
+    tc = np.eye(6) * 0.01
+    return RSPoseEstimate(success=True, solver="r6p_1lin", orientation=R,
+                          position=np.array([1.0, 2.0, 3.0]),
+                          angular_velocity=np.array([0.1, 0.2, 0.3]),
+                          linear_velocity=np.array([-1.0, -2.0, -3.0]),
+                          pose_covariance=pc, twist_covariance=tc), R
+
+
+def test_estimate_messages():
+    est, R = _estimate()
+    ns = 1_000_000_000 * 42 + 7
+    pose = cv.pose_stamped(est, ns, "map")
+    assert pose.header.frame_id == "map" and cv.stamp_to_ns(pose.header.stamp) == ns
+    Rb, p = cv.pose_from_msg(pose.pose)
+    np.testing.assert_allclose(Rb, R, atol=1e-12)
+    np.testing.assert_array_equal(p, [1, 2, 3])
+    tw = cv.twist_stamped(est, ns, "cam")
+    assert tw.header.frame_id == "cam"
+    w, v = cv.twist_from_msg(tw.twist)
+    np.testing.assert_array_equal(w, [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(v, [-1, -2, -3])
+    pwc = cv.pose_with_covariance_stamped(est, ns, "map")
+    assert list(pwc.pose.covariance) == list(range(36))
+    odom = cv.odometry(est, ns, "map", "cam")
+    assert odom.header.frame_id == "map" and odom.child_frame_id == "cam"
+    assert odom.twist.covariance[0] == 0.01 and odom.twist.covariance[1] == 0.0
+    assert odom.pose.covariance[6] == 6.0  # row-major
+    np.testing.assert_allclose(cv.twist_from_msg(odom.twist.twist)[1], [-1, -2, -3])
+
+
+def test_covariance_unknown():
+    np.testing.assert_array_equal(cv.covariance36(None), np.zeros(36))
+    np.testing.assert_array_equal(cv.covariance36(np.full((6, 6), np.nan)), np.zeros(36))
+
+
+
+def test_tf_message_availability():
+    est, _ = _estimate()
+    if cv.have_tf2_msgs():
+        tf = cv.tf_message(est, 5, "map", "cam")
+        assert tf.transforms[0].child_frame_id == "cam"
+    else:
+        with pytest.raises(ImportError):
+            cv.tf_message(est, 5, "map", "cam")

@@ -1,0 +1,415 @@
+"""Integration tests: the real node in a subprocess, committed bags replayed over DDS in lock-step.
+
+Accuracy thresholds (sample bag: 1280x720, fx ~1000, 30 us/row, angular speed 0.4-1.7 rad/s,
+walking at 1.3 m/s, 0.5 px noise, 20 % outliers, 500 correspondences, depths 3-25 m, median
+~14 m). With 400 inliers at 0.5 px the pose is determined to ~0.01 deg and ~2 mm; the
+velocities come from how the image changes during one 21.6 ms readout: the rotation during the
+readout (~2 deg) is seen across all points and gives the angular velocity to ~0.05 rad/s, but the
+translation during the readout is only ~3 cm seen from ~14 m (~2 px of parallax), so the linear
+velocity is weakly observable (typically 0.3 m/s error, up to ~0.6). The limits below are ~3x
+the typical values so that they catch real regressions (a wrong sign, frame or time scale
+gives errors of the size of the motion itself: >1 rad/s, >0.5 deg or >5 cm) without
+flakiness. The global-shutter p3p baseline has ~50x larger pose errors on this motion.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+pytest.importorskip("rosbags")
+
+from conftest import Probe, start_node  # noqa: E402
+
+LIMITS = {  # key: (median, max); typical on the sample bag: 0.010/0.06 deg, 1.8/4 mm,
+    "rot_deg": (0.03, 0.2),      # 0.04/0.12 rad/s, 0.28/0.58 m/s
+    "pos_m": (0.01, 0.03),
+    "angvel": (0.15, 0.4),
+    "linvel": (0.8, 1.5),
+}
+OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_covariance")
+
+
+def _check_accuracy(errs, limits=LIMITS, label=""):
+    from rs_localizer.ros.bag import summarize_errors
+
+    s = summarize_errors(errs)
+    for key, (med, mx) in limits.items():
+        assert s[key]["median"] < med, f"{label} {key} median {s[key]['median']:.4g} >= {med}"
+        assert s[key]["max"] < mx, f"{label} {key} max {s[key]['max']:.4g} >= {mx}"
+    return s
+
+
+@pytest.fixture(scope="module")
+def node(tmp_path_factory, keypoints_bag):
+    tmp = tmp_path_factory.mktemp("node")
+    n = start_node(tmp, {"diagnostics_period": 0.2,
+                         "landmarks_file": str(keypoints_bag / "landmarks.csv")})
+    yield n
+    alive = n.alive()
+    rc = n.stop()
+    assert alive, f"node died:\n{n.log}"
+    assert rc == 0, f"node exit code {rc}:\n{n.log}"
+
+
+def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=None):
+    from rs_localizer.ros.bag import load_ground_truth, play
+    from rs_localizer.ros.demo import evaluate_outputs
+
+    res = play(bag, lockstep=True, output_topics=outputs, context=ros_context, timeout=5.0,
+               topics=topics, stamp_offset_ns=int(offset_s * 1e9), limit=limit, log=print)
+    gt = load_ground_truth(bag)
+    if offset_s:  # shift ground truth like the inputs
+        shift = int(offset_s * 1e9)
+        for d in (gt.orientation, gt.position, gt.angular_velocity, gt.linear_velocity):
+            for k in list(d):
+                d[k + shift] = d.pop(k)
+        gt.stamps = gt.stamps + shift
+    return res, gt, evaluate_outputs(res.frames, gt, ["/camera"])["/camera"]
+
+
+def test_sample_bag_accuracy(node, ros_context, sample_bag):
+    from rs_localizer.ros.conversions import stamp_to_ns
+
+    res, gt, errs = _play(ros_context, sample_bag,
+                          topics=["/camera/correspondences", "/camera/camera_info"])
+    assert len(res.frames) == 30 and res.answered == 30, node.log
+    s = _check_accuracy(errs)
+    print("sample bag accuracy:", s)
+    for f in res.frames:
+        pose = f["outputs"]["/camera/pose"][1]
+        twist = f["outputs"]["/camera/twist"][1]
+        odom = f["outputs"]["/camera/odom"][1]
+        pwc = f["outputs"]["/camera/pose_with_covariance"][1]
+        # stamped at the reference (centre) row: exactly the ground-truth stamp
+        stamp = stamp_to_ns(pose.header.stamp)
+        assert stamp in gt.orientation
+        assert stamp - f["stamp"] == round(359.5 * 30e-6 * 1e9)
+        assert pose.header.frame_id == "map" and odom.header.frame_id == "map"
+        assert twist.header.frame_id == "camera_optical_frame"
+        assert odom.child_frame_id == "camera_optical_frame"
+        for cov in (np.reshape(pwc.pose.covariance, (6, 6)),
+                    np.reshape(odom.pose.covariance, (6, 6)),
+                    np.reshape(odom.twist.covariance, (6, 6))):
+            assert np.isfinite(cov).all() and (np.diag(cov) > 0).all()
+            np.testing.assert_allclose(cov, cov.T, atol=1e-12 + 1e-9 * np.abs(cov).max())
+    # position covariance is consistent with the actual error (within a factor ~10)
+    sig = [np.sqrt(np.trace(np.reshape(f["outputs"]["/camera/pose_with_covariance"][1]
+                                       .pose.covariance, (6, 6))[:3, :3]))
+           for f in res.frames]
+    ratio = s["pos_m"]["median"] / np.median(sig)
+    assert 0.1 < ratio < 10, f"position error / predicted sigma = {ratio:.3g}"
+
+
+def test_keypoints_with_landmark_map(node, ros_context, keypoints_bag):
+    res, gt, errs = _play(ros_context, keypoints_bag, outputs=OUTPUTS[:2])
+    assert res.answered == len(res.frames) == 10, node.log
+    _check_accuracy(errs, label="keypoints")
+
+
+class ParamClient:
+    """Sets parameters through the node's ``set_parameters`` service."""
+
+    def __init__(self, ctx, node_name):
+        import rclpy
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.node = rclpy.create_node("rs_localizer_test_param_client", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        self.ex.add_node(self.node)
+        self.cli = self.node.create_client(SetParameters, f"{node_name}/set_parameters")
+        assert self.cli.wait_for_service(timeout_sec=20.0)
+
+    def set(self, **values):
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+
+        req = SetParameters.Request()
+        req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+        fut = self.cli.call_async(req)
+        self.ex.spin_until_future_complete(fut, timeout_sec=30.0)
+        assert fut.done()
+        return fut.result().results
+
+    def close(self):
+        self.ex.remove_node(self.node)
+        self.node.destroy_node()
+        self.ex.shutdown()
+
+
+def test_solver_switch_at_runtime(node, ros_context, sample_bag, keypoints_bag):
+    topics = ["/camera/correspondences", "/camera/camera_info"]
+    params = ParamClient(ros_context, "/camera/rs_localizer")
+    try:
+        (r,) = params.set(solver="p3p")
+        assert r.successful, r.reason
+        res, gt, errs = _play(ros_context, sample_bag, offset_s=300.0, limit=10, topics=topics)
+        assert res.answered == 10, node.log
+        for f in res.frames:  # global shutter: no velocity
+            tw = f["outputs"]["/camera/twist"][1].twist
+            assert tw.angular.x == tw.angular.y == tw.angular.z == 0.0
+        p3p_rot = np.median([e["rot_deg"] for e in errs])
+
+        # rejected changes leave the node as it was
+        (r,) = params.set(solver="r7p_magic")
+        assert not r.successful and "unknown solver" in r.reason
+        (r,) = params.set(map_frame="world")
+        assert not r.successful  # read-only
+        (r,) = params.set(**{"rs.line_delay": -1.0})
+        assert not r.successful  # out of range
+        (r,) = params.set(**{"rs.direction": "diagonal"})
+        assert not r.successful
+        (r,) = params.set(landmarks_file="/nonexistent/landmarks.csv")
+        assert not r.successful and "cannot load landmarks_file" in r.reason
+        (r,) = params.set(landmarks_file=str(keypoints_bag / "landmarks.csv"))  # reload
+        assert r.successful
+
+        (r,) = params.set(solver="r6p_1lin")
+        assert r.successful
+    finally:
+        params.close()
+    res, gt, errs = _play(ros_context, sample_bag, offset_s=400.0, limit=10, topics=topics)
+    assert res.answered == 10
+    _check_accuracy(errs, label="after switching back")
+    rs_rot = np.median([e["rot_deg"] for e in errs])
+    assert p3p_rot > 3 * rs_rot, (p3p_rot, rs_rot)
+    assert node.alive()
+
+
+def test_diagnostics(node, ros_context, sample_bag):
+    res, _, _ = _play(ros_context, sample_bag, offset_s=500.0, limit=5,
+                      topics=["/camera/correspondences", "/camera/camera_info"])
+    assert res.answered == 5
+    probe = Probe(ros_context)
+    try:
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 5, timeout=10)
+        assert st is not None, "no diagnostics from the node"
+        for key in ("frames_received", "frames_solved", "frames_failed", "messages_lost",
+                    "inliers_last", "inliers_mean", "latency_ms_median", "latency_ms_p99",
+                    "solver", "camera"):
+            assert key in v, key
+        assert v["solver"] == "r6p_1lin" and v["camera"] == "camera_info"
+        assert int(v["frames_received"]) >= int(v["frames_solved"]) >= 5
+        assert 300 < float(v["inliers_mean"]) <= 500
+        assert 0 < float(v["latency_ms_median"]) <= float(v["latency_ms_p99"]) < 5000
+    finally:
+        probe.close()
+
+
+# ---------------------------------------------------------------------------- bad input
+@pytest.fixture(scope="module")
+def frames():
+    from rs_localizer.trajectory import SequenceConfig, generate_sequence
+
+    fr, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=16, num_points=300, seed=5,
+                                                         t0_ns=1_800_000_000_000_000_000))
+    return fr, scene, cam
+
+
+def test_bad_inputs(tmp_path, ros_context, frames):
+    """Every bad input is dropped with its reason counted; valid frames after it still solve."""
+    from rs_localizer.ros import pointcloud as pc
+    from rs_localizer.ros.conversions import camera_info_msg
+    from rs_localizer.trajectory import save_landmarks_csv
+    from sensor_msgs.msg import PointField
+
+    fr, scene, cam = frames
+    lm = tmp_path / "landmarks.csv"
+    save_landmarks_csv(lm, scene.ids, scene.points)
+    node = start_node(tmp_path, {"diagnostics_period": 0.2, "max_points": 2000,
+                                 "landmarks_file": str(lm)}, namespace="/bad", name="bad")
+    probe = Probe(ros_context, namespace="/bad")
+    try:
+        probe.wait_matched()
+        it = iter(fr)
+        expected = {}
+        received = 0
+
+        def cloud(f, stamp=None, **kw):
+            return pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam",
+                                           stamp=f.stamp_ns if stamp is None else stamp, **kw)
+
+        def bad(msg, reason, topic="corr"):
+            nonlocal received
+            (probe.pub_corr if topic == "corr" else probe.pub_kp).publish(msg)
+            received += 1
+            if reason:
+                expected[reason] = expected.get(reason, 0) + 1
+
+        def good(f=None, msg=None, topic="corr"):
+            nonlocal received
+            f = f or next(it)
+            (probe.pub_corr if topic == "corr" else probe.pub_kp).publish(msg or cloud(f))
+            received += 1
+            pose = probe.wait_pose(f.t_ref_ns, timeout=20)
+            assert pose is not None, f"no pose for a valid frame after {expected}:\n{node.log}"
+            return f
+
+        # no camera_info yet (and no fallback intrinsics)
+        f0 = next(it)
+        bad(cloud(f0), "no_camera_info")
+        st, v = probe.wait_diag(lambda v: v.get("failed.no_camera_info") == "1")
+        assert v.get("failed.no_camera_info") == "1" and v["camera"] == "missing", v
+        probe.pub_info.publish(camera_info_msg(cam, "cam", f0.stamp_ns))
+        probe.wait_diag(lambda v: v.get("camera") == "camera_info")
+        last = good(f0)
+
+        # missing fields
+        f = next(it)
+        arr = pc.correspondence_array(f.uv, f.xyz)
+        no_z = arr[["u", "v", "x", "y"]]
+        bad(pc.array_to_cloud(np.ascontiguousarray(no_z), "cam", f.stamp_ns - 1),
+            "missing_fields")
+        last = good(f)
+        # wrong field types
+        f = next(it)
+        m = cloud(f, stamp=f.stamp_ns - 1)
+        m.fields[0] = PointField(name="u", offset=0, datatype=PointField.UINT32, count=1)
+        bad(m, "wrong_field_type")
+        last = good(f)
+        # truncated data
+        f = next(it)
+        m = cloud(f, stamp=f.stamp_ns - 1)
+        m.data = bytes(m.data)[:-7]
+        bad(m, "truncated")
+        last = good(f)
+        # empty cloud
+        bad(pc.correspondence_cloud(np.zeros((0, 2)), np.zeros((0, 3)), stamp=last.stamp_ns + 1),
+            "empty_cloud")
+        # NaN/inf rows: dropped by the estimator, frame still solved
+        f = next(it)
+        uv = f.uv.copy()
+        uv[:20, 0] = np.nan
+        uv[20:30, 1] = np.inf
+        xyz = f.xyz.copy()
+        xyz[30:40, 2] = -np.inf
+        last = good(f, pc.correspondence_cloud(uv, xyz, frame_id="cam", stamp=f.stamp_ns))
+        probe.wait_diag(lambda v: int(v.get("points_dropped", 0)) >= 40)
+        assert int(probe.node_diag()[1]["points_dropped"]) >= 40
+        # only NaN rows
+        f = next(it)
+        bad(pc.correspondence_cloud(np.full((50, 2), np.nan), f.xyz[:50], stamp=f.stamp_ns - 1),
+            None)
+        last = good(f)
+        # fewer than the minimum
+        f = next(it)
+        bad(pc.correspondence_cloud(f.uv[:4], f.xyz[:4], stamp=f.stamp_ns - 1), None)
+        last = good(f)
+        # all outliers
+        f = next(it)
+        rng = np.random.default_rng(0)
+        bad(pc.correspondence_cloud(rng.uniform([0, 0], [1279, 719], (300, 2)), f.xyz,
+                                    stamp=f.stamp_ns - 1), None)
+        last = good(f)
+        # out-of-order stamp (older than the last frame, by less than time_reset_threshold)
+        f = next(it)
+        bad(cloud(f, stamp=last.stamp_ns - 10_000_000), "out_of_order")
+        last = good(f)
+        # unknown landmark ids: some (dropped, counted, solved) and all (failure)
+        f = next(it)
+        ids = f.ids.copy()
+        ids[:50] = 999_999_999
+        last = good(f, pc.keypoint_cloud(f.uv, ids, frame_id="cam", stamp=f.stamp_ns), "kp")
+        probe.wait_diag(lambda v: int(v.get("unknown_landmark_ids", 0)) >= 50)
+        f = next(it)
+        bad(pc.keypoint_cloud(f.uv, np.arange(300) + 3_000_000_000, stamp=f.stamp_ns - 1),
+            "unknown_landmarks", "kp")
+        # (another topic: wait until it is processed before the next frame)
+        probe.wait_diag(lambda v: v.get("failed.unknown_landmarks") == "1")
+        last = good(f)
+        # huge cloud: capped to max_points, still solved
+        f = next(it)
+        reps = 40
+        uv = np.tile(f.uv, (reps, 1)) + rng.normal(0, 0.05, (reps * len(f.uv), 2))
+        last = good(f, pc.correspondence_cloud(uv, np.tile(f.xyz, (reps, 1)), frame_id="cam",
+                                               stamp=f.stamp_ns))
+        expected_capped = 1
+
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_received", 0)) == received)
+        assert int(v["frames_received"]) == received, v
+        for reason, n in expected.items():
+            assert int(v.get(f"failed.{reason}", 0)) == n, (reason, v)
+        # the estimator's own reasons for the three data-limited frames
+        est_reasons = {k: int(x) for k, x in v.items() if k.startswith("failed.")
+                       and k[7:] in ("invalid_input", "too_few_points", "no_hypothesis",
+                                     "too_few_inliers")}
+        assert sum(est_reasons.values()) == 3, v
+        assert int(v["frames_failed"]) == sum(expected.values()) + 3
+        assert int(v["clouds_capped"]) == expected_capped
+        assert int(v["frames_solved"]) == len(probe.outputs["pose"])
+        assert st.level == st.WARN
+        assert node.alive()
+        log = node.log
+        for reason in expected:
+            assert f"frame dropped ({reason})" in log, reason
+        assert "capped to max_points 2000" in log
+    finally:
+        probe.close()
+        alive = node.alive()
+        rc = node.stop()
+    assert alive and rc == 0, node.log
+
+
+def test_fallback_intrinsics_without_camera_info(tmp_path, ros_context, frames):
+    from rs_localizer.ros import pointcloud as pc
+
+    fr, _, cam = frames
+    K, D = cam.K, cam.D
+    node = start_node(tmp_path, {
+        "camera.fx": K[0, 0], "camera.fy": K[1, 1], "camera.cx": K[0, 2], "camera.cy": K[1, 2],
+        "camera.width": cam.width, "camera.height": cam.height,
+        "camera.distortion_model": "plumb_bob", "camera.d": [float(x) for x in D],
+        "rs.readout_time": cam.readout_time, "rs.line_delay": 0.0}, namespace="/fallback",
+        name="fallback")
+    probe = Probe(ros_context, namespace="/fallback")
+    try:
+        probe.wait_matched()
+        for f in fr[:3]:
+            probe.pub_corr.publish(pc.correspondence_cloud(f.uv, f.xyz, stamp=f.stamp_ns))
+            assert probe.wait_pose(f.t_ref_ns) is not None, node.log
+        from rs_localizer.geometry import rotation_angle_deg
+        from rs_localizer.ros.conversions import pose_from_msg
+
+        R, p = pose_from_msg(probe.pose_near(fr[2].t_ref_ns).pose)
+        assert rotation_angle_deg(R, fr[2].orientation) < LIMITS["rot_deg"][1]
+        assert np.linalg.norm(p - fr[2].position) < LIMITS["pos_m"][1]
+        st, v = probe.wait_diag(lambda v: v.get("camera") == "parameters")
+        assert v["camera"] == "parameters"
+    finally:
+        probe.close()
+        node.stop()
+
+
+def test_yaml_integer_for_double_is_a_clear_error(tmp_path, ros_domain):
+    from rs_localizer.ros.process import NodeProcess, ros_env
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**:\n  ros__parameters:\n    ransac:\n      threshold_px: 2\n")
+    n = NodeProcess([bad], namespace="/yaml", env=ros_env(), log=tmp_path / "bad.log")
+    t0 = time.monotonic()
+    while n.alive() and time.monotonic() - t0 < 60:
+        time.sleep(0.1)
+    assert not n.alive()
+    n.stop()
+    assert "ransac.threshold_px" in n.log and "0.0" in n.log
+
+
+def test_demo_command(ros_domain):
+    """`make demo`'s command: two nodes (RS solver and p3p), the sample bag, a summary."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    pytest.importorskip("rosbags")
+    if not (ROOT / "data" / "sample" / "metadata.yaml").exists():
+        pytest.skip("no sample bag")
+    out = subprocess.run([sys.executable, "-m", "rs_localizer", "demo", "--summary-only"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "r6p_1lin: 30/30 frames" in out.stdout and "p3p: 30/30 frames" in out.stdout
+    assert "smaller" in out.stdout
