@@ -20,7 +20,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install -e '.[ros,test]'
+	$(PY) -m pip install -e '.[ros,test,bench]'
 	touch $@
 
 demo: venv

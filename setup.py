@@ -21,12 +21,14 @@ setup(
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
     ],
     python_requires=">=3.10",
-    install_requires=["setuptools", "numpy", "scipy", "opencv-python-headless", "numba"],
+    # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots
+    install_requires=["setuptools", "numpy", "scipy", "opencv-python-headless", "numba",
+                      "poselib", "matplotlib"],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp",
                 "rosbags>=0.10"],
-        "bench": ["poselib", "threadpoolctl"],
+        "bench": ["threadpoolctl"],
         "test": ["pytest"],
     },
     tests_require=["pytest"],
