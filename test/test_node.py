@@ -335,7 +335,7 @@ def test_bad_inputs(tmp_path, ros_context, frames):
             assert int(v.get(f"failed.{reason}", 0)) == n, (reason, v)
         # the estimator's own reasons for the three data-limited frames
         est_reasons = {k: int(x) for k, x in v.items() if k.startswith("failed.")
-                       and k[7:] in ("invalid_input", "too_few_points", "no_hypothesis",
+                       and k[7:] in ("degenerate_geometry", "too_few_points", "no_hypothesis",
                                      "too_few_inliers")}
         assert sum(est_reasons.values()) == 3, v
         assert int(v["frames_failed"]) == sum(expected.values()) + 3

@@ -17,7 +17,12 @@ Degeneracy (not in the paper): on global-shutter data (no motion) every
 ``R_rs = b (I + [v]x), t = b C`` explains the observations for any scalar ``b`` (the RS term is
 then parallel to the point itself and only rescales lambda), so the system loses rank. v, C
 and the recovered w (the skew part of ``b I`` is zero) are still determined; t is not. Exact
-global-shutter input raises :class:`DegenerateInputError`; near it, t is noise-driven.
+global-shutter input raises :class:`DegenerateInputError`. Near it the least-squares solution
+drifts along that line with the noise, so by default we return the member of the line
+``(R_rs + b (I + [v]x), t + b C)`` with ``trace(R_rs (I + [v]x)^-1) = 0``, which the model
+``R_rs = [w]x (I + [v]x)`` satisfies exactly (a gauge choice: on moving cameras the shift is at
+the noise level; near a global shutter it removes the noise-driven t).
+``gauge_fix=False`` returns the raw least-squares solution of eq. 8.
 """
 
 from __future__ import annotations
@@ -49,6 +54,16 @@ def _eq8_error(x, X, r, r0, u):
 
 @njit(cache=True)
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    _solve(x, X, r, r0, True, out, ok, its, err)
+
+
+@njit(cache=True)
+def _kernel_raw(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    _solve(x, X, r, r0, False, out, ok, its, err)
+
+
+@njit(cache=True)
+def _solve(x, X, r, r0, gauge_fix, out, ok, its, err):
     K, N = x.shape[0], x.shape[1]
     A = np.empty((2 * N, 18))
     b = np.empty(2 * N)
@@ -111,15 +126,30 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         out[k, 8] = 0.5 * (M[1, 0] - M[0, 1])
         out[k, 9:12] = s[6:9]
         out[k, 12:21] = s[9:18]
+        if gauge_fix:
+            # move along (R_rs + b V, t + b C) to trace(R_rs V^-1) = 0 (module docstring)
+            beta = -(M[0, 0] + M[1, 1] + M[2, 2]) / 3.0
+            out[k, 9:12] += beta * s[3:6]
+            out[k, 12] += beta
+            out[k, 13] += beta * v2 * -1.0
+            out[k, 14] += beta * v1
+            out[k, 15] += beta * v2
+            out[k, 16] += beta
+            out[k, 17] += beta * -v0
+            out[k, 18] += beta * -v1
+            out[k, 19] += beta * v0
+            out[k, 20] += beta
         ok[k] = True
 
 
-def r9p(x, X, r=None, r0: float = 0.0):
+def r9p(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
     """R9P (paper sec. 3.4, eq. 8): linear, non-iterative, 9 or more correspondences.
 
     Args:
         x: (N, 2) calibrated image points, N >= 9 (least squares for N > 9).
         X: (N, 3) world points. r: (N,) RS coordinates (default ``x[:, 1]``). r0: reference.
+        gauge_fix: return the trace-free member of the near-degenerate line (module
+            docstring); False gives the raw least-squares solution of eq. 8.
     Returns:
         :class:`RSSolution` with v, C, t, the general (3, 3) ``R_rs`` of eq. 8, and ``w``
         recovered as the skew-symmetric part of ``R_rs (I + [v]x)^-1``; ``algebraic_error`` is
@@ -128,10 +158,12 @@ def r9p(x, X, r=None, r0: float = 0.0):
         ValueError: wrong shapes, N < 9, NaN/inf.
         DegenerateInputError (a ValueError): rank-deficient 2N x 18 system.
     """
-    return run_single(_kernel, "r9p", 21, 9, x, X, r, r0, 1, 0.0, None, with_R_rs=True)
+    return run_single(_kernel if gauge_fix else _kernel_raw, "r9p", 21, 9, x, X, r, r0, 1, 0.0,
+                      None, with_R_rs=True)
 
 
-def r9p_batch(x, X, r=None, r0: float = 0.0):
+def r9p_batch(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
     """Batched :func:`r9p`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch` with
     ``R_rs`` (K, 3, 3); invalid problems flagged in ``valid``. Raises ValueError on bad shapes."""
-    return run_batch(_kernel, "r9p", 21, 9, x, X, r, r0, 1, 0.0, None, with_R_rs=True)
+    return run_batch(_kernel if gauge_fix else _kernel_raw, "r9p", 21, 9, x, X, r, r0, 1, 0.0,
+                     None, with_R_rs=True)
