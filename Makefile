@@ -37,6 +37,7 @@ sample-bag: venv
 		--overwrite
 	$(RSL) make-bag test/data/keypoints --frames 10 --points 300 --no-correspondences \
 		--seed 1 --start-time 1700000100 --overwrite
+	$(RSL) render-bag data/sample_images --frames 20 --mono --overwrite
 
 bench-node: venv
 	$(PY) -m rs_localizer.bench_node --frames 300 --solver r6p_1lin

@@ -14,6 +14,7 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(include=[package_name, f"{package_name}.*"]),
+    package_data={"rs_localizer.render": ["scenes/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
@@ -21,9 +22,10 @@ setup(
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
     ],
     python_requires=">=3.10",
-    # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots
+    # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots;
+    # pyyaml: render scenes; scikit-image: the photographs on the textured_room walls
     install_requires=["setuptools", "numpy", "scipy", "opencv-python-headless", "numba",
-                      "poselib", "matplotlib"],
+                      "poselib", "matplotlib", "pyyaml", "scikit-image"],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp",

@@ -4,6 +4,8 @@
     rs-localizer play BAG [--rate 1.0 | --lockstep] [--topics ...] [--remap FROM:=TO ...]
     rs-localizer replay BAG [--solver r6p_1lin] [--out DIR] [--csv FILE]
     rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml]
+    rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
+    rs-localizer experiments [--quick] [--out docs/experiments]
 """
 
 from __future__ import annotations
@@ -112,6 +114,18 @@ def _demo(args) -> int:
                     per_frame=not args.summary_only, timeout=args.timeout)
 
 
+def _render_bag(args) -> int:
+    from .render import bagout
+
+    return int(bagout.run_from_args(args) or 0)
+
+
+def _experiments(args) -> int:
+    from .experiments import run
+
+    return run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="rs-localizer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -197,6 +211,20 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--summary-only", action="store_true")
     d.add_argument("--timeout", type=float, default=5.0)
     d.set_defaults(func=_demo)
+
+    from .render import bagout
+
+    rb = sub.add_parser("render-bag", help="render a rolling-shutter image sequence to a bag "
+                        "(images, camera_info, front-end correspondences, ground truth)")
+    bagout.add_arguments(rb, positional_out=True)
+    rb.set_defaults(func=_render_bag)
+
+    from .experiments import add_arguments as experiment_arguments
+
+    ex = sub.add_parser("experiments", help="reproduce the paper's synthetic experiments "
+                        "(PNG plots + markdown report)")
+    experiment_arguments(ex)
+    ex.set_defaults(func=_experiments)
     return p
 
 

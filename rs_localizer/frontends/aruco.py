@@ -1,0 +1,110 @@
+"""ArUco front end: marker corners -> 2D-3D correspondences.
+
+OpenCV's ``cv2.aruco.ArucoDetector`` finds the markers (subpixel corner refinement); each corner
+``k`` (top-left, top-right, bottom-right, bottom-left) of marker ``id`` found in the marker map
+becomes a correspondence with id ``4 * id + k`` and the corner's 3D position. Markers not in the
+map are ignored.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..camera import CameraModel
+
+__all__ = ["ArucoFrontend", "to_gray"]
+
+
+def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
+    """(H, W) uint8 grayscale from mono8 / rgb8 / bgr8 / rgba8 / bgra8 arrays."""
+    img = np.asarray(image)
+    if img.ndim == 2:
+        return np.ascontiguousarray(img, dtype=np.uint8)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return np.ascontiguousarray(img[:, :, 0], dtype=np.uint8)
+    enc = encoding.lower()
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ValueError(f"expected an (H, W), (H, W, 3) or (H, W, 4) image, got {img.shape}")
+    code = {("bgr", 3): cv2.COLOR_BGR2GRAY, ("bgr", 4): cv2.COLOR_BGRA2GRAY,
+            ("rgb", 3): cv2.COLOR_RGB2GRAY, ("rgb", 4): cv2.COLOR_RGBA2GRAY}
+    kind = "bgr" if enc.startswith("bgr") else "rgb"
+    return cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), code[(kind, img.shape[2])])
+
+
+class ArucoFrontend:
+    """Detect ArUco markers and emit correspondences to their mapped 3D corners.
+
+    Args:
+        marker_corners: {marker id: (4, 3) world corners in ArUco order}.
+        dictionary: cv2.aruco predefined dictionary name (e.g. ``DICT_4X4_250``).
+        subpix_window: half size (px) of the subpixel corner refinement window (at most one
+            marker cell is used).
+        min_marker_perimeter: smallest marker perimeter as a fraction of the image's larger
+            side (OpenCV ``minMarkerPerimeterRate``).
+
+    ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,) int64)``.
+    """
+
+    name = "aruco"
+
+    def __init__(self, marker_corners: dict, dictionary: str = "DICT_4X4_250",
+                 subpix_window: int = 3, min_marker_perimeter: float = 0.02):
+        from ..render.scene import marker_dictionary
+
+        self.dictionary = dictionary
+        self.marker_corners = {int(k): np.asarray(v, dtype=float).reshape(4, 3)
+                               for k, v in marker_corners.items()}
+        params = cv2.aruco.DetectorParameters()
+        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        params.cornerRefinementWinSize = int(subpix_window)
+        params.cornerRefinementMaxIterations = 50
+        params.cornerRefinementMinAccuracy = 0.01
+        if hasattr(params, "relativeCornerRefinmentWinSize"):  # OpenCV >= 4.9 (sic)
+            # window up to one marker cell (default 0.3 cell: ~0.27 px median error on rendered
+            # 30-40 px markers; 1.0: ~0.22 px)
+            params.relativeCornerRefinmentWinSize = 1.0
+        params.minMarkerPerimeterRate = float(min_marker_perimeter)
+        self.params = params
+        self.detector = cv2.aruco.ArucoDetector(marker_dictionary(dictionary), params)
+        self.last_rejected = 0
+        self.last_scores = None  # no match scores (FeatureFrontend has them)
+
+    @classmethod
+    def from_scene(cls, scene, **kw) -> "ArucoFrontend":
+        return cls(scene.marker_corners(), scene.dictionary, **kw)
+
+    @classmethod
+    def from_file(cls, path, **kw) -> "ArucoFrontend":
+        """From a marker map YAML (:func:`rs_localizer.render.scene.save_marker_map`) or a scene
+        YAML / built-in scene name."""
+        from ..render.scene import load_marker_map
+
+        dictionary, corners = load_marker_map(Path(str(path)))
+        return cls(corners, dictionary, **kw)
+
+    def detect(self, image: np.ndarray, encoding: str = "rgb8"):
+        """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
+        gray = to_gray(image, encoding)
+        corners, ids, rejected = self.detector.detectMarkers(gray)
+        self.last_rejected = 0 if rejected is None else len(rejected)
+        if ids is None or len(ids) == 0:
+            return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
+        return (np.asarray(corners, dtype=float).reshape(-1, 4, 2),
+                np.asarray(ids, dtype=np.int64).ravel())
+
+    def process(self, image: np.ndarray, camera: CameraModel | None = None,
+                encoding: str = "rgb8"):
+        """Correspondences of one image: ``(points_px (N, 2), points3d (N, 3), ids (N,))``
+        with ``ids = 4 * marker_id + corner``. ``camera`` is not needed (pixels stay
+        distorted, as the estimator expects) but accepted for a uniform front-end API."""
+        corners, mids = self.detect(image, encoding)
+        keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
+        if not keep:
+            return np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64)
+        uv = corners[keep].reshape(-1, 2)
+        X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
+        ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
+        return uv, X, ids.astype(np.int64)

@@ -1,0 +1,237 @@
+"""Natural-feature front end following the paper's real-data protocol (sec. 4.2).
+
+1. :func:`build_feature_map`: reconstruct the scene with a *global-shutter* camera: render
+   views from known poses, detect ORB or SIFT features, and give every keypoint its 3D point by
+   casting its ray into the scene (known depth). Keypoints near depth discontinuities are
+   dropped; observations of the same 3D point (within ``merge_radius``) share a landmark id.
+2. :class:`FeatureFrontend`: detect the same kind of features in each rolling-shutter frame and
+   match them to the map descriptors with Lowe's ratio test (the second neighbour is the best
+   descriptor of a *different* landmark), one match per landmark, emitting correspondences
+   ``(pixel, landmark 3D point, landmark id)``.
+
+The map is an ``.npz`` file (:meth:`FeatureMap.save` / :meth:`FeatureMap.load`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..camera import CameraModel
+from .aruco import to_gray
+
+__all__ = ["FeatureMap", "FeatureFrontend", "build_feature_map", "make_detector"]
+
+
+def make_detector(kind: str = "orb", n_features: int = 2000):
+    """OpenCV feature detector/descriptor: ``orb`` (binary, Hamming) or ``sift`` (float, L2)."""
+    kind = kind.lower()
+    if kind == "orb":
+        return cv2.ORB_create(nfeatures=int(n_features), scaleFactor=1.2, nlevels=8,
+                              fastThreshold=10)
+    if kind == "sift":
+        return cv2.SIFT_create(nfeatures=int(n_features))
+    raise ValueError(f"unknown feature type {kind!r}; expected 'orb' or 'sift'")
+
+
+def _norm(kind: str) -> int:
+    return cv2.NORM_HAMMING if kind.lower() == "orb" else cv2.NORM_L2
+
+
+@dataclass
+class FeatureMap:
+    """3D landmarks with descriptors: ``points`` (M, 3) world (m), ``descriptors`` (M, D)
+    (uint8 ORB / float32 SIFT), ``landmark_ids`` (M,) int64 (several descriptors, seen from
+    different views, may share one landmark and its 3D point), ``kind`` ``orb``/``sift``."""
+
+    points: np.ndarray
+    descriptors: np.ndarray
+    landmark_ids: np.ndarray
+    kind: str = "orb"
+
+    def __len__(self):
+        return len(self.points)
+
+    @property
+    def num_landmarks(self) -> int:
+        return int(len(np.unique(self.landmark_ids)))
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        np.savez_compressed(path, points=self.points, descriptors=self.descriptors,
+                            landmark_ids=self.landmark_ids, kind=np.array(self.kind))
+        return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+
+    @classmethod
+    def load(cls, path) -> "FeatureMap":
+        """Raises ValueError for a file that is not a feature map."""
+        with np.load(Path(path), allow_pickle=False) as z:
+            missing = {"points", "descriptors", "landmark_ids", "kind"} - set(z.files)
+            if missing:
+                raise ValueError(f"{path}: not a feature map (missing {sorted(missing)})")
+            fm = cls(z["points"].astype(float), z["descriptors"],
+                     z["landmark_ids"].astype(np.int64), str(z["kind"]))
+        if fm.points.shape != (len(fm.descriptors), 3) or len(fm.landmark_ids) != len(fm.points):
+            raise ValueError(f"{path}: inconsistent feature map arrays")
+        return fm
+
+
+def _merge_landmarks(points: np.ndarray, radius: float) -> np.ndarray:
+    """Landmark id per point: connected components of the ``radius`` neighbourhood graph."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, labels = connected_components(g, directed=False)
+    return labels.astype(np.int64)
+
+
+def build_feature_map(scene, camera: CameraModel, poses, kind: str = "orb",
+                      n_features: int = 2000, merge_radius: float = 0.004,
+                      edge_margin_px: float = 2.0, supersample: int = 2,
+                      descriptors_per_landmark: int = 1) -> FeatureMap:
+    """Reconstruct a feature map from global-shutter renders at known ``poses``.
+
+    Args:
+        scene: :class:`~rs_localizer.render.scene.Scene`. camera: its intrinsics/distortion
+            (the line delay is ignored: the map views are global shutter).
+        poses: iterable of (orientation camera -> world (3, 3), position (3,)); or a motion
+            with ``pose(t)`` plus times: ``(motion, times)``.
+        kind: ``orb`` or ``sift``. n_features: features per view.
+        merge_radius: observations closer than this (m) become one landmark.
+        edge_margin_px: drop keypoints whose neighbours this far away hit another quad or
+            nothing (depth discontinuities, silhouettes).
+        descriptors_per_landmark: keep this many medoid descriptors per landmark (0 = all
+            observations; more makes matching slower, rarely better for nearby views).
+    Returns:
+        :class:`FeatureMap`.
+    """
+    from ..render.renderer import Renderer
+
+    if isinstance(poses, tuple) and len(poses) == 2 and hasattr(poses[0], "pose"):
+        motion, times = poses
+        R, p = motion.pose(np.asarray(times, dtype=float))
+        poses = list(zip(R, p))
+    renderer = Renderer(scene, camera, supersample=supersample)
+    det = make_detector(kind, n_features)
+    pts, descs = [], []
+    m = float(edge_margin_px)
+    offsets = np.array([[0, 0], [m, 0], [-m, 0], [0, m], [0, -m]])
+    for R, p in poses:
+        gray = renderer.render_pose(R, p, mono=True)
+        kps, des = det.detectAndCompute(gray, None)
+        if des is None or not kps:
+            continue
+        uv = np.array([k.pt for k in kps], dtype=float)
+        probe = (uv[:, None, :] + offsets[None]).reshape(-1, 2)
+        X, quad, _ = renderer.cast(probe, pose=(R, p))
+        X = X.reshape(len(uv), 5, 3)
+        quad = quad.reshape(len(uv), 5)
+        ok = (quad[:, 0] >= 0) & (quad == quad[:, :1]).all(axis=1)
+        pts.append(X[ok, 0])
+        descs.append(des[ok])
+    if not pts:
+        raise ValueError("no features found in the map views")
+    points = np.concatenate(pts)
+    descriptors = np.concatenate(descs)
+    labels = _merge_landmarks(points, merge_radius)
+    if descriptors_per_landmark:
+        keep = _representatives(descriptors, labels, int(descriptors_per_landmark), kind)
+        points, descriptors, labels = points[keep], descriptors[keep], labels[keep]
+    return FeatureMap(points, descriptors, labels, kind.lower())
+
+
+def _representatives(des: np.ndarray, labels: np.ndarray, k: int, kind: str) -> np.ndarray:
+    """Indices of up to ``k`` medoid descriptors per landmark (smallest summed distance to the
+    landmark's other descriptors); observations' 3D points are averaged into the medoid's."""
+    order = np.argsort(labels, kind="stable")
+    bounds = np.flatnonzero(np.diff(labels[order])) + 1
+    keep = []
+    binary = kind.lower() == "orb"
+    for grp in np.split(order, bounds):
+        if len(grp) <= k:
+            keep.extend(grp.tolist())
+            continue
+        d = des[grp]
+        if binary:
+            bits = np.unpackbits(d, axis=1).astype(np.int16)
+            D = (bits[:, None, :] != bits[None, :, :]).sum(axis=2)
+        else:
+            D = np.linalg.norm(d[:, None, :].astype(float) - d[None, :, :], axis=2)
+        keep.extend(grp[np.argsort(D.sum(axis=1), kind="stable")[:k]].tolist())
+    return np.sort(np.array(keep, dtype=np.int64))
+
+
+class FeatureFrontend:
+    """Match each image's features to a :class:`FeatureMap` (ratio test, one match per
+    landmark).
+
+    Args:
+        feature_map: the map (or a path to its ``.npz``).
+        ratio: Lowe's ratio (best distance < ratio * best distance to another landmark).
+        n_features: features detected per image. knn: neighbours searched per feature.
+
+    ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``; the ids are
+    landmark ids, ``last_scores`` holds ``1 - ratio`` per match (higher is better).
+    """
+
+    name = "features"
+
+    def __init__(self, feature_map, ratio: float = 0.8, n_features: int = 2000, knn: int = 3):
+        if not isinstance(feature_map, FeatureMap):
+            feature_map = FeatureMap.load(feature_map)
+        self.map = feature_map
+        self.ratio = float(ratio)
+        self.knn = int(knn)
+        self.detector = make_detector(feature_map.kind, n_features)
+        self.matcher = cv2.BFMatcher(_norm(feature_map.kind), crossCheck=False)
+        self.train = np.ascontiguousarray(feature_map.descriptors)
+        self.last_scores = np.zeros(0)
+
+    @classmethod
+    def from_file(cls, path, **kw) -> "FeatureFrontend":
+        return cls(FeatureMap.load(path), **kw)
+
+    def process(self, image: np.ndarray, camera: CameraModel | None = None,
+                encoding: str = "rgb8"):
+        """Correspondences of one image (pixels stay distorted; ``camera`` is unused)."""
+        empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+        self.last_scores = np.zeros(0)
+        gray = to_gray(image, encoding)
+        kps, des = self.detector.detectAndCompute(gray, None)
+        if des is None or not kps:
+            return empty
+        lm = self.map.landmark_ids
+        best_q, best_t, best_s = [], [], []
+        for q, nbrs in enumerate(self.matcher.knnMatch(des, self.train, k=self.knn)):
+            if not nbrs:
+                continue
+            first = nbrs[0]
+            second = next((n for n in nbrs[1:] if lm[n.trainIdx] != lm[first.trainIdx]), None)
+            if second is None or second.distance <= 0:
+                continue
+            r = first.distance / second.distance
+            if r < self.ratio:
+                best_q.append(q)
+                best_t.append(first.trainIdx)
+                best_s.append(1.0 - r)
+        if not best_q:
+            return empty
+        q = np.array(best_q)
+        t = np.array(best_t)
+        s = np.array(best_s)
+        # one match per landmark: keep the best-scored
+        order = np.argsort(-s, kind="stable")
+        _, first = np.unique(lm[t[order]], return_index=True)
+        keep = np.sort(order[first])
+        uv = np.array([kps[i].pt for i in q[keep]], dtype=float)
+        self.last_scores = s[keep]
+        return uv, self.map.points[t[keep]], lm[t[keep]]

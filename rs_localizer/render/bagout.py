@@ -1,0 +1,328 @@
+"""Rendered rolling-shutter sequences as ROS 2 bags (rosbags only: no ROS installation needed).
+
+:func:`render_bag` writes ``<ns>/image_raw`` (``sensor_msgs/Image``, rgb8 or mono8),
+``<ns>/camera_info``, ``/ground_truth/pose`` (``PoseStamped``: camera optical frame in the map
+at the reference line), ``/ground_truth/twist`` (``TwistStamped``: camera frame, rad/s and m/s)
+and, with a front end, ``<ns>/correspondences`` (``PointCloud2``: u, v float32 pixels, x, y, z
+float32 metres, id uint32) -- what the front end makes of each image. The bag directory also
+gets ``sequence.json`` (topics, camera, RS timing, settings: the schema of ``make-bag``) and the
+front end's map (``markers.yaml`` for ArUco, ``feature_map.npz`` for features).
+
+Stamps: an image's header stamp is the capture time of its first line (``rs.stamp_row = 0``);
+the ground truth is stamped with the reference line's capture time.
+
+    python -m rs_localizer.render.bagout --out data/sample_images --frames 20 --mono
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import CameraModel
+
+__all__ = ["render_bag", "add_arguments", "run_from_args", "main", "IMAGE", "CAMERA_INFO",
+           "POINTCLOUD2", "POSE", "TWIST"]
+
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
+POSE = "geometry_msgs/msg/PoseStamped"
+TWIST = "geometry_msgs/msg/TwistStamped"
+GT_POSE = "/ground_truth/pose"
+GT_TWIST = "/ground_truth/twist"
+_NS = 1_000_000_000
+
+
+class _Msgs:
+    """rosbags message builders (ROS 2 Jazzy typestore)."""
+
+    def __init__(self):
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = get_typestore(Stores.ROS2_JAZZY)
+        self.T = self.ts.types
+
+    def header(self, stamp_ns: int, frame_id: str):
+        sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
+        return self.T["std_msgs/msg/Header"](
+            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
+
+    def image(self, img: np.ndarray, stamp_ns, frame_id):
+        from ..frontends.image import image_fields
+
+        return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
+
+    def camera_info(self, cam: CameraModel, stamp_ns, frame_id):
+        D = np.asarray(cam.D, dtype=float)
+        model = cam.distortion_model if cam.has_distortion else "plumb_bob"
+        if model == "plumb_bob" and len(D) < 5:
+            D = np.concatenate([D, np.zeros(5 - len(D))])
+        P = np.zeros((3, 4))
+        P[:, :3] = cam.K
+        roi = self.T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                          width=0, do_rectify=False)
+        return self.T[CAMERA_INFO](
+            header=self.header(stamp_ns, frame_id), height=cam.height, width=cam.width,
+            distortion_model=model, d=D, k=cam.K.ravel().copy(), r=np.eye(3).ravel(),
+            p=P.ravel(), binning_x=0, binning_y=0, roi=roi)
+
+    def cloud(self, uv, xyz, ids, stamp_ns, frame_id):
+        from ..ros.pointcloud import correspondence_array, pack_cloud
+
+        packed = pack_cloud(correspondence_array(uv, xyz, ids))
+        PF = self.T["sensor_msgs/msg/PointField"]
+        return self.T[POINTCLOUD2](
+            header=self.header(stamp_ns, frame_id), height=1, width=packed.width,
+            fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
+            is_bigendian=False, point_step=packed.point_step, row_step=packed.row_step,
+            data=np.frombuffer(packed.data, dtype=np.uint8),
+            is_dense=bool(np.isfinite(uv).all() and np.isfinite(xyz).all()))
+
+    def pose(self, R, p, stamp_ns, frame_id):
+        from ..ros.conversions import quaternion_from_matrix
+
+        q = quaternion_from_matrix(R)
+        T = self.T
+        return T[POSE](header=self.header(stamp_ns, frame_id), pose=T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
+                                                          z=float(q[2]), w=float(q[3]))))
+
+    def twist(self, w, v, stamp_ns, frame_id):
+        T = self.T
+        V = T["geometry_msgs/msg/Vector3"]
+        return T[TWIST](header=self.header(stamp_ns, frame_id), twist=T["geometry_msgs/msg/Twist"](
+            linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
+            angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2]))))
+
+    def cdr(self, msg, msgtype) -> bytes:
+        return self.ts.serialize_cdr(msg, msgtype)
+
+
+def _make_frontend(frontend, scene, camera, motion, duration, bag_dir: Path, feature_map,
+                   n_map_views: int = 12):
+    """Front end object + metadata; writes its map file into the bag directory."""
+    from ..frontends import ArucoFrontend
+
+    if frontend is None or frontend == "none":
+        return None, {"kind": "none"}
+    if frontend == "aruco":
+        from .scene import save_marker_map
+
+        save_marker_map(bag_dir / "markers.yaml", scene)
+        return ArucoFrontend.from_scene(scene), {"kind": "aruco", "map": "markers.yaml",
+                                                 "dictionary": scene.dictionary}
+    if frontend == "features":
+        from ..frontends.features import FeatureFrontend, FeatureMap, build_feature_map
+
+        if feature_map is None:
+            fm = build_feature_map(scene, camera, (motion, np.linspace(0, duration,
+                                                                       n_map_views)))
+        elif isinstance(feature_map, FeatureMap):
+            fm = feature_map
+        else:
+            fm = FeatureMap.load(feature_map)
+        fm.save(bag_dir / "feature_map.npz")
+        return FeatureFrontend(fm), {"kind": "features", "map": "feature_map.npz",
+                                     "descriptor": fm.kind, "landmarks": fm.num_landmarks}
+    if hasattr(frontend, "process"):
+        return frontend, {"kind": getattr(frontend, "name", type(frontend).__name__)}
+    raise ValueError(f"unknown front end {frontend!r}; expected aruco, features, none or an "
+                     "object with process(image, camera)")
+
+
+def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
+               camera="vga", fps: float = 30.0, frontend="aruco", feature_map=None,
+               mono: bool = False, noise: bool = True, exposure: float = 0.0,
+               supersample: int = 2, shutter: str = "rolling", seed: int = 0,
+               start_time: float = 1_700_000_000.0, namespace: str = "/camera",
+               camera_frame: str = "camera_optical_frame", map_frame: str = "map",
+               storage: str = "mcap", compress: bool = True, overwrite: bool = False,
+               progress=None) -> Path:
+    """Render a sequence into a ROS 2 bag directory; returns its path.
+
+    Args:
+        path: bag directory to create.
+        scene: built-in scene name, YAML path or :class:`~rs_localizer.render.scene.Scene`.
+        motion: preset name (:data:`~rs_localizer.render.motion.MOTIONS`) or a motion object
+            with ``pose(t)``/``velocity_body(t)``.
+        frames, fps: sequence length; frame ``k``'s first line is read at ``k / fps``.
+        camera: preset name (``vga``, ``hd``) or a :class:`CameraModel`.
+        frontend: ``aruco``, ``features``, ``none``/None, or an object with
+            ``process(image, camera) -> (uv, xyz, ids)``; its correspondences go to
+            ``<ns>/correspondences``. feature_map: a :class:`FeatureMap` or ``.npz`` path for
+            ``features`` (default: built from 12 global-shutter views along the motion).
+        mono: mono8 images (else rgb8). noise: sensor noise. exposure: exposure time (s) for
+            motion blur. supersample: anti-aliasing samples per axis. shutter: ``rolling`` or
+            ``global``.
+        start_time: time (s since the epoch) of frame 0. storage: ``mcap`` or ``sqlite3``;
+            compress: zstd (mcap chunk compression / sqlite3 per-message).
+        progress: callable ``(k, frames, n_correspondences)`` or None.
+    Raises:
+        FileExistsError: ``path`` exists and not ``overwrite``. ValueError: bad arguments.
+    """
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    from .motion import make_motion
+    from .renderer import NoiseModel, Renderer, camera_preset, frame_times
+    from .scene import Scene, load_scene
+
+    path = Path(path)
+    if path.exists():
+        if not overwrite:
+            raise FileExistsError(f"{path} exists (use overwrite)")
+        shutil.rmtree(path)
+    if storage not in ("mcap", "sqlite3"):
+        raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3")
+    if frames < 1:
+        raise ValueError("frames must be >= 1")
+    sc = scene if isinstance(scene, Scene) else load_scene(scene)
+    cam = camera if isinstance(camera, CameraModel) else camera_preset(str(camera))
+    duration = frames / fps
+    mot = make_motion(motion, sc, duration=duration) if isinstance(motion, str) else motion
+    renderer = Renderer(sc, cam, supersample=supersample, exposure=exposure,
+                        noise=NoiseModel() if noise else None)
+    tmp_dir = path.parent / (path.name + ".meta.tmp")
+    if tmp_dir.exists():
+        shutil.rmtree(tmp_dir)
+    tmp_dir.mkdir(parents=True)
+    fe, fe_meta = _make_frontend(frontend, sc, cam, mot, duration, tmp_dir, feature_map)
+    M = _Msgs()
+    ns = namespace.rstrip("/")
+    topics = {"image": f"{ns}/image_raw", "camera_info": f"{ns}/camera_info",
+              "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
+    if fe is not None:
+        topics["correspondences"] = f"{ns}/correspondences"
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE if storage == "mcap"
+                               else CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    t0_ns = int(round(start_time * 1e9))
+    counts = []
+    tic = time.perf_counter()
+    with writer as w:
+        c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=M.ts)
+        c_img = w.add_connection(topics["image"], IMAGE, typestore=M.ts)
+        c_corr = (w.add_connection(topics["correspondences"], POINTCLOUD2, typestore=M.ts)
+                  if fe is not None else None)
+        c_gtp = w.add_connection(GT_POSE, POSE, typestore=M.ts)
+        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
+        for k in range(int(frames)):
+            t_first = float(frame_times(k, fps))
+            fr = renderer.render(mot, t_first, index=k, shutter=shutter, mono=mono,
+                                 rng=np.random.default_rng([seed, k]))
+            stamp = fr.stamp_ns(t0_ns)
+            t_ref_ns = t0_ns + int(round(fr.t_ref * 1e9))
+            t_log = stamp + 1_000_000
+            w.write(c_info, t_log, M.cdr(M.camera_info(cam, stamp, camera_frame), CAMERA_INFO))
+            t_log += 1_000_000
+            w.write(c_img, t_log, M.cdr(M.image(fr.image, stamp, camera_frame), IMAGE))
+            if fe is not None:
+                uv, xyz, ids = fe.process(fr.image, cam)
+                counts.append(len(uv))
+                w.write(c_corr, t_log, M.cdr(M.cloud(uv, xyz, ids, stamp, camera_frame),
+                                             POINTCLOUD2))
+            w.write(c_gtp, t_log, M.cdr(M.pose(fr.orientation, fr.position, t_ref_ns,
+                                               map_frame), POSE))
+            w.write(c_gtt, t_log, M.cdr(M.twist(fr.angular_velocity, fr.linear_velocity,
+                                                t_ref_ns, camera_frame), TWIST))
+            if progress:
+                progress(k, frames, counts[-1] if counts else 0)
+    for f in tmp_dir.iterdir():
+        shutil.move(str(f), str(path / f.name))
+    tmp_dir.rmdir()
+    meta = {
+        "generator": "rs-localizer render-bag",
+        "topics": topics,
+        "frames": int(frames),
+        "camera_frame": camera_frame,
+        "map_frame": map_frame,
+        "camera": {"K": cam.K.tolist(), "D": cam.D.tolist(), "width": cam.width,
+                   "height": cam.height, "distortion_model": cam.distortion_model},
+        "rs": {"line_delay": cam.line_delay if shutter == "rolling" else 0.0,
+               "readout_time": cam.readout_time if shutter == "rolling" else 0.0,
+               "direction": cam.readout, "reference_row": cam.reference_line,
+               "stamp_row": 0.0},
+        "frontend": fe_meta,
+        "settings": {"scene": sc.name, "motion": getattr(mot, "name", str(motion)),
+                     "fps": fps, "shutter": shutter, "encoding": "mono8" if mono else "rgb8",
+                     "noise": bool(noise), "exposure": exposure, "supersample": supersample,
+                     "seed": seed, "start_time": start_time,
+                     "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
+                     "render_seconds": round(time.perf_counter() - tic, 2)},
+    }
+    (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+# ------------------------------------------------------------------------------ CLI
+def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
+    """Add the render-bag options to a parser (for ``rs-localizer render-bag``): the bag
+    directory as ``--out/-o`` or, with ``positional_out``, as a positional ``out``."""
+    from .motion import motion_names
+    from .renderer import CAMERA_PRESETS
+
+    if positional_out:
+        p.add_argument("out", help="bag directory to write")
+    else:
+        p.add_argument("--out", "-o", required=True, help="bag directory to write")
+    p.add_argument("--scene", default="aruco_room",
+                   help="built-in scene (aruco_room, textured_room) or scene YAML")
+    p.add_argument("--motion", default="shake", choices=motion_names())
+    p.add_argument("--frames", type=int, default=30)
+    p.add_argument("--fps", type=float, default=30.0)
+    p.add_argument("--camera", default="vga", choices=sorted(CAMERA_PRESETS))
+    p.add_argument("--frontend", default="aruco", choices=("aruco", "features", "none"))
+    p.add_argument("--feature-map", default=None, help="feature map .npz (features front end)")
+    p.add_argument("--mono", action="store_true", help="mono8 images (default rgb8)")
+    p.add_argument("--no-noise", action="store_true", help="no sensor noise")
+    p.add_argument("--exposure", type=float, default=0.0, help="exposure time [s] (motion blur)")
+    p.add_argument("--supersample", type=int, default=2)
+    p.add_argument("--global-shutter", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--start-time", type=float, default=1_700_000_000.0)
+    p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"))
+    p.add_argument("--no-compression", action="store_true")
+    p.add_argument("--overwrite", action="store_true")
+    return p
+
+
+def run_from_args(a, stream=sys.stderr) -> int:
+    """Run :func:`render_bag` from parsed :func:`add_arguments` options."""
+    def prog(k, n, nc):
+        stream.write(f"\rframe {k + 1}/{n}: {nc} correspondences")
+        if k + 1 == n:
+            stream.write("\n")
+        stream.flush()
+    try:
+        path = render_bag(a.out, a.scene, a.motion, a.frames, camera=a.camera, fps=a.fps,
+                          frontend=a.frontend, feature_map=a.feature_map, mono=a.mono,
+                          noise=not a.no_noise, exposure=a.exposure, supersample=a.supersample,
+                          shutter="global" if a.global_shutter else "rolling", seed=a.seed,
+                          start_time=a.start_time, storage=a.storage,
+                          compress=not a.no_compression, overwrite=a.overwrite, progress=prog)
+    except (FileExistsError, FileNotFoundError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    size = sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
+    print(f"wrote {path} ({size / 1e6:.1f} MB)")
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m rs_localizer.render.bagout",
+                                description="Render a rolling-shutter image sequence to a bag")
+    add_arguments(p)
+    return run_from_args(p.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
