@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._so3 import so3_coefficients
+
 
 @njit(cache=True, inline="always")
 def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, exact):
@@ -51,13 +53,7 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
     tau = r - r0
     if exact:
         a0, a1, a2 = tau * w0, tau * w1, tau * w2
-        th2 = a0 * a0 + a1 * a1 + a2 * a2
-        if th2 < 0.25:  # Taylor to theta^4: relative error < 3e-6 for theta < 0.5 rad
-            sa = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0)
-            ca = 0.5 - th2 / 24.0 * (1.0 - th2 / 30.0)
-        else:
-            th = np.sqrt(th2)
-            sa, ca = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
         c0 = a1 * q2 - a2 * q1
         c1 = a2 * q0 - a0 * q2
         c2 = a0 * q1 - a1 * q0
@@ -180,34 +176,3 @@ def select_prerotations(R, C, owner, samples, X, x, K):
             for a in range(3):
                 Rout[k, a, a] = 1.0
     return Rout, Cout, ok
-
-
-@njit(cache=True)
-def compose_rotvec(v, R_pre):
-    """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
-    on top of the pre-rotation."""
-    K = v.shape[0]
-    out = np.empty((K, 3, 3))
-    E = np.empty((3, 3))
-    for k in range(K):
-        a0, a1, a2 = v[k, 0], v[k, 1], v[k, 2]
-        th2 = a0 * a0 + a1 * a1 + a2 * a2
-        if th2 < 1e-12:
-            sa, ca = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
-        else:
-            th = np.sqrt(th2)
-            sa, ca = np.sin(th) / th, (1.0 - np.cos(th)) / th2
-        E[0, 0] = 1.0 - ca * (a1 * a1 + a2 * a2)
-        E[1, 1] = 1.0 - ca * (a0 * a0 + a2 * a2)
-        E[2, 2] = 1.0 - ca * (a0 * a0 + a1 * a1)
-        E[0, 1] = -sa * a2 + ca * a0 * a1
-        E[1, 0] = sa * a2 + ca * a0 * a1
-        E[0, 2] = sa * a1 + ca * a0 * a2
-        E[2, 0] = -sa * a1 + ca * a0 * a2
-        E[1, 2] = -sa * a0 + ca * a1 * a2
-        E[2, 1] = sa * a0 + ca * a1 * a2
-        for i in range(3):
-            for j in range(3):
-                out[k, i, j] = (E[i, 0] * R_pre[k, 0, j] + E[i, 1] * R_pre[k, 1, j]
-                                + E[i, 2] * R_pre[k, 2, j])
-    return out

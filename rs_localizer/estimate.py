@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._scoring import compose_rotvec, errors2, msac_scores, select_prerotations
+from ._scoring import errors2, msac_scores, select_prerotations
+from ._so3 import compose_rotvec
 from .camera import CameraModel
 from .geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose

@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ._scoring import compose_rotvec
+from ._so3 import compose_rotvec, so3_coefficients
 from .geometry import rotvec_to_matrix, skew
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
@@ -117,13 +117,7 @@ def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff):
         q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
         ti = tau[i]
         a0, a1, a2 = ti * w[0], ti * w[1], ti * w[2]
-        th2 = a0 * a0 + a1 * a1 + a2 * a2
-        if th2 < 1e-12:
-            sa, ca, cb = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0
-        else:
-            th = np.sqrt(th2)
-            sa, ca = np.sin(th) / th, (1.0 - np.cos(th)) / th2
-            cb = (th - np.sin(th)) / (th2 * th)
+        sa, ca, cb = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
         # A = expm([a]x) = I + sa S + ca S^2 (Rodrigues); Jl = I + ca S + cb S^2 (left Jacobian)
         _skew_into(a0, a1, a2, S)
         _mat3_mul(S, S, S2)
@@ -194,12 +188,7 @@ def exact_errors(R, C, w, t, X, x, tau):
         q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
         ti = tau[i]
         a0, a1, a2 = ti * w[0], ti * w[1], ti * w[2]
-        th2 = a0 * a0 + a1 * a1 + a2 * a2
-        if th2 < 1e-12:
-            sa, ca = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
-        else:
-            th = np.sqrt(th2)
-            sa, ca = np.sin(th) / th, (1.0 - np.cos(th)) / th2
+        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
         c0 = a1 * q2 - a2 * q1
         c1 = a2 * q0 - a0 * q2
         c2 = a0 * q1 - a1 * q0

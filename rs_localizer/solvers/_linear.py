@@ -31,10 +31,12 @@ def cross_into(a0, a1, a2, b0, b1, b2, out, j):
 
 
 @njit(cache=True)
-def solve_square(A, b, u):
-    """Gaussian elimination with partial pivoting for square A (n, n); A, b overwritten.
+def solve_square(A, b, u, tol):
+    """Gaussian elimination with partial pivoting for square A (n, n); A, b overwritten; the
+    solution goes to u (which may be b itself).
 
-    Returns False (u untouched) if a pivot is below ``RANK_TOL`` times the largest entry.
+    Returns False if a pivot is at or below ``tol`` times the largest entry (``tol = 0``: only
+    an exactly zero pivot fails).
     """
     n = A.shape[0]
     amax = 0.0
@@ -51,7 +53,7 @@ def solve_square(A, b, u):
             if abs(A[i, k]) > pv:
                 pv = abs(A[i, k])
                 p = i
-        if pv <= RANK_TOL * amax:
+        if pv <= tol * amax:
             return False
         if p != k:
             for j in range(k, n):
@@ -85,7 +87,7 @@ def lstsq(A, b, u):
     """
     m, n = A.shape
     if m == n:
-        return solve_square(A, b, u)
+        return solve_square(A, b, u, RANK_TOL)
     # Householder on the transpose so that every inner loop runs over contiguous memory
     At = np.ascontiguousarray(A.T)
     rmax = 0.0

@@ -51,6 +51,7 @@ import numpy as np
 from numba import njit
 
 from ._common import RSSolution, DegenerateInputError, check_inputs
+from ._linear import solve_square
 
 __all__ = ["r6p"]
 
@@ -367,53 +368,6 @@ def _finite(a):
 
 # ---------------------------------------------------------------------------------------------
 # Small dense linear algebra (hand-written: LAPACK call overhead dominates at these sizes)
-@njit(cache=True)
-def _gauss_solve(A, b, rel_tol):
-    """Solve A y = b (A (n, n) and b (n,) overwritten, y returned in b) by Gaussian elimination
-    with partial pivoting. Pivots below ``rel_tol * max|A|`` are replaced by that value (as in
-    inverse iteration) if rel_tol > 0; returns False on a zero pivot when rel_tol == 0."""
-    n = A.shape[0]
-    amax = 0.0
-    for i in range(n):
-        for j in range(n):
-            amax = max(amax, abs(A[i, j]))
-    if amax == 0.0:
-        return False
-    floor = rel_tol * amax
-    for k in range(n):
-        piv = k
-        best = abs(A[k, k])
-        for i in range(k + 1, n):
-            if abs(A[i, k]) > best:
-                best = abs(A[i, k])
-                piv = i
-        if piv != k:
-            for j in range(k, n):
-                tmp = A[k, j]
-                A[k, j] = A[piv, j]
-                A[piv, j] = tmp
-            tmp = b[k]
-            b[k] = b[piv]
-            b[piv] = tmp
-        if best <= floor or best == 0.0:
-            if rel_tol <= 0.0 or floor == 0.0:
-                return False
-            A[k, k] = floor
-        inv = 1.0 / A[k, k]
-        for i in range(k + 1, n):
-            f = A[i, k] * inv
-            if f != 0.0:
-                for j in range(k + 1, n):
-                    A[i, j] -= f * A[k, j]
-                b[i] -= f * b[k]
-    for k in range(n - 1, -1, -1):
-        sm = b[k]
-        for j in range(k + 1, n):
-            sm -= A[k, j] * b[j]
-        b[k] = sm / A[k, k]
-    return True
-
-
 @njit(cache=True)
 def _balance(a, D):
     """Balance a square matrix in place (EISPACK balanc, radix 2), 1-based arrays:
@@ -792,7 +746,7 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
                 for i in range(6):
                     sm += A1[i, j] * A1[i, l]
                 N3[j, l] = sm
-        if not _gauss_solve(N3, v, 0.0):
+        if not solve_square(N3, v, v, 0.0):
             continue
         # C, t: evaluate the (v, w) part of the 12 equations (C = t = 0), then QR of B
         for i in range(12):
@@ -816,7 +770,7 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
                 break
             for i in range(12):
                 dz[i] = -F[i]
-            if not _gauss_solve(J, dz, 0.0):
+            if not solve_square(J, dz, dz, 0.0):
                 break
             # a step at rounding level ends the iteration; far from the root the step is halved
             # (up to 4 times) until the residual decreases

@@ -1,0 +1,50 @@
+"""Numba helpers for SO(3) shared by the RANSAC scoring and the refinement kernels."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def so3_coefficients(th2):
+    """Rodrigues/left-Jacobian coefficients for an angle t with ``t^2 = th2``:
+    ``(sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3)``, so that
+    ``expm([a]x) = I + c1 [a]x + c2 [a]x^2`` and ``J_l(a) = I + c2 [a]x + c3 [a]x^2``.
+    Taylor series to t^8 below t = 0.2 (exact to rounding there), trigonometry above."""
+    if th2 < 0.04:
+        c1 = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0)))
+        c2 = 0.5 * (1.0 - th2 / 12.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0
+                                                              * (1.0 - th2 / 90.0))))
+        c3 = (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0
+                                                      * (1.0 - th2 / 110.0)))) / 6.0
+        return c1, c2, c3
+    th = np.sqrt(th2)
+    s = np.sin(th)
+    return s / th, (1.0 - np.cos(th)) / th2, (th - s) / (th2 * th)
+
+
+@njit(cache=True)
+def compose_rotvec(v, R_pre):
+    """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
+    on top of the pre-rotation."""
+    K = v.shape[0]
+    out = np.empty((K, 3, 3))
+    E = np.empty((3, 3))
+    for k in range(K):
+        a0, a1, a2 = v[k, 0], v[k, 1], v[k, 2]
+        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
+        E[0, 0] = 1.0 - ca * (a1 * a1 + a2 * a2)
+        E[1, 1] = 1.0 - ca * (a0 * a0 + a2 * a2)
+        E[2, 2] = 1.0 - ca * (a0 * a0 + a1 * a1)
+        E[0, 1] = -sa * a2 + ca * a0 * a1
+        E[1, 0] = sa * a2 + ca * a0 * a1
+        E[0, 2] = sa * a1 + ca * a0 * a2
+        E[2, 0] = -sa * a1 + ca * a0 * a2
+        E[1, 2] = -sa * a0 + ca * a1 * a2
+        E[2, 1] = sa * a0 + ca * a1 * a2
+        for i in range(3):
+            for j in range(3):
+                out[k, i, j] = (E[i, 0] * R_pre[k, 0, j] + E[i, 1] * R_pre[k, 1, j]
+                                + E[i, 2] * R_pre[k, 2, j])
+    return out
