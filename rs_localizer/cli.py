@@ -3,7 +3,7 @@
     rs-localizer make-bag OUT [--frames 40 --points 500 --storage mcap ...]
     rs-localizer play BAG [--rate 1.0 | --lockstep] [--topics ...] [--remap FROM:=TO ...]
     rs-localizer replay BAG [--solver r6p_1lin] [--out DIR] [--csv FILE]
-    rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml]
+    rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-images]
     rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
     rs-localizer experiments [--quick] [--out docs/experiments]
 """
@@ -111,7 +111,8 @@ def _demo(args) -> int:
     from .ros.demo import run_demo
 
     return run_demo(bag=args.bag, params=args.params, compare=args.compare,
-                    per_frame=not args.summary_only, timeout=args.timeout)
+                    per_frame=not args.summary_only, timeout=args.timeout,
+                    images=args.images, image_bag=args.image_bag)
 
 
 def _render_bag(args) -> int:
@@ -210,6 +211,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--compare", default="p3p", help="second solver ('' to skip)")
     d.add_argument("--summary-only", action="store_true")
     d.add_argument("--timeout", type=float, default=5.0)
+    d.add_argument("--images", action=argparse.BooleanOptionalAction, default=True,
+                   help="also run the image-mode demo (front end in the node)")
+    d.add_argument("--image-bag", default=None, help="default: data/sample_images")
     d.set_defaults(func=_demo)
 
     from .render import bagout

@@ -19,6 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_BAG = ROOT / "data" / "sample"
 KEYPOINTS_BAG = ROOT / "test" / "data" / "keypoints"
 CONFIG = ROOT / "config" / "rs_localizer.yaml"
+IMAGES_CONFIG = ROOT / "config" / "rs_localizer_images.yaml"
+SAMPLE_IMAGES_BAG = ROOT / "data" / "sample_images"
 
 
 @pytest.fixture(scope="session")
@@ -60,20 +62,29 @@ def sample_bag():
 
 
 @pytest.fixture(scope="session")
+def sample_images_bag():
+    if not (SAMPLE_IMAGES_BAG / "metadata.yaml").exists():
+        pytest.skip("data/sample_images missing (make sample-bag)")
+    return SAMPLE_IMAGES_BAG
+
+
+@pytest.fixture(scope="session")
 def keypoints_bag():
     if not (KEYPOINTS_BAG / "metadata.yaml").exists():
         pytest.skip("test/data/keypoints missing (make sample-bag)")
     return KEYPOINTS_BAG
 
 
-def start_node(tmp_path, params=None, namespace="/camera", name="node", ready_timeout=120.0):
-    """Start rs_localizer_node (config/rs_localizer.yaml + ``params`` + reliable input QoS)."""
+def start_node(tmp_path, params=None, namespace="/camera", name="node", ready_timeout=120.0,
+               config=(CONFIG,)):
+    """Start rs_localizer_node (``config`` files + ``params`` + reliable input QoS)."""
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
-    topics = [f"{namespace}/{t}" for t in ("correspondences", "keypoints", "camera_info")]
+    topics = [f"{namespace}/{t}" for t in ("correspondences", "keypoints", "camera_info",
+                                           "image")]
     overlay = write_params_yaml(tmp_path / f"{name}_params.yaml", params or {},
                                 reliable_topics=topics)
-    node = NodeProcess([CONFIG, overlay], namespace=namespace, env=ros_env(),
+    node = NodeProcess([*config, overlay], namespace=namespace, env=ros_env(),
                        log=tmp_path / f"{name}.log")
     if not node.wait_ready(ready_timeout):
         log = node.log

@@ -399,7 +399,8 @@ def test_yaml_integer_for_double_is_a_clear_error(tmp_path, ros_domain):
 
 
 def test_demo_command(ros_domain):
-    """`make demo`'s command: two nodes (RS solver and p3p), the sample bag, a summary."""
+    """`make demo`'s command: two nodes (RS solver and p3p) on the sample bag, then two nodes
+    in image mode (ArUco front end) on the rendered sample, each with a summary."""
     import subprocess
     import sys
 
@@ -411,5 +412,10 @@ def test_demo_command(ros_domain):
     out = subprocess.run([sys.executable, "-m", "rs_localizer", "demo", "--summary-only"],
                          cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
-    assert "r6p_1lin: 30/30 frames" in out.stdout and "p3p: 30/30 frames" in out.stdout
-    assert "smaller" in out.stdout
+    corr, _, images = out.stdout.partition("rs_localizer demo (image mode)")
+    assert "r6p_1lin: 30/30 frames" in corr and "p3p: 30/30 frames" in corr
+    assert "smaller" in corr
+    assert images, out.stdout
+    assert "aruco front end" in images and "marker corners per image" in images
+    assert "r6p_1lin: 20/20 frames" in images and "p3p: 20/20 frames" in images
+    assert "smaller" in images

@@ -38,11 +38,12 @@ __all__ = ["write_sequence_bag", "read_bag_info", "load_ground_truth", "iter_mes
 
 PC2 = "sensor_msgs/msg/PointCloud2"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+IMAGE = "sensor_msgs/msg/Image"
 POSE = "geometry_msgs/msg/PoseStamped"
 TWIST = "geometry_msgs/msg/TwistStamped"
 GT_POSE = "/ground_truth/pose"
 GT_TWIST = "/ground_truth/twist"
-FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")
+FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 OUT_TYPES = {"pose": POSE, "twist": TWIST,
              "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
              "odom": "nav_msgs/msg/Odometry"}
@@ -269,9 +270,12 @@ def output_type(topic: str):
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
     from nav_msgs.msg import Odometry
 
+    from sensor_msgs.msg import PointCloud2
+
     last = topic.rstrip("/").rsplit("/", 1)[-1]
     return {"twist": TwistStamped, "odom": Odometry,
-            "pose_with_covariance": PoseWithCovarianceStamped}.get(last, PoseStamped)
+            "pose_with_covariance": PoseWithCovarianceStamped,
+            "correspondences_out": PointCloud2}.get(last, PoseStamped)
 
 
 def _msg_class(msgtype: str):
@@ -300,8 +304,10 @@ class PlayResult:
         return np.array(out)
 
 
-def is_frame_topic(topic: str) -> bool:
-    return topic.rstrip("/").rsplit("/", 1)[-1] in FRAME_TOPIC_SUFFIXES
+def is_frame_topic(topic: str, msgtype: str | None = None) -> bool:
+    """A topic carrying one frame per message: ``*/correspondences``, ``*/keypoints`` or an
+    image (``sensor_msgs/msg/Image``)."""
+    return topic.rstrip("/").rsplit("/", 1)[-1] in FRAME_TOPIC_SUFFIXES or msgtype == IMAGE
 
 
 def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=None,
@@ -314,7 +320,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
     Args:
         path: bag directory.
         rate: time scale of the original timing (ignored in lock-step).
-        lockstep: after each frame (a ``*/correspondences`` or ``*/keypoints`` message) wait
+        lockstep: after each frame (a ``*/correspondences``, ``*/keypoints`` or image message) wait
             until every ``output_topics`` topic delivered a message stamped within 1 s of the
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
             subscription may drop a sample) before moving on.
@@ -368,7 +374,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         if lockstep:
             for t in output_topics:
                 outputs[t] = node.create_subscription(output_type(t), t, make_cb(t), qos)
-        frame_topics = [t for t in pubs if is_frame_topic(t)]
+        frame_topics = [t for t in pubs if is_frame_topic(t, types[t])]
         deadline = time.monotonic() + wait_subscribers
         while any(pubs[t].get_subscription_count() == 0 for t in frame_topics) or (
                 lockstep and any(node.count_publishers(t) == 0 for t in output_topics)):
@@ -387,7 +393,8 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         n_frames = 0
         last_pub = {}
         if lockstep:  # best-effort subscribers drop early samples: prime the camera_info
-            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0])), len(msgs))
+            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])),
+                         len(msgs))
             for _ in range(3):
                 for topic, msgtype, _, raw in msgs[:first]:
                     pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
@@ -409,7 +416,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
                 pubs[topic].publish(raw)
                 last_pub[topic] = raw
                 result.published += 1
-                if not is_frame_topic(topic):
+                if not is_frame_topic(topic, msgtype):
                     continue
                 n_frames += 1
                 frame = {"index": n_frames - 1, "topic": topic, "stamp": _header_stamp(raw),
@@ -466,7 +473,7 @@ def _header_stamp(raw: bytes) -> int:
 
 def _shift_stamp(raw: bytes, msgtype: str, shift_ns: int) -> bytes:
     """Shift the header stamp of a CDR message that starts with a Header (all our types)."""
-    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST):
+    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE):
         return raw
     order = "<" if raw[1] == 1 else ">"
     s = _header_stamp(raw) + shift_ns

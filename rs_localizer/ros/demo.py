@@ -1,13 +1,19 @@
-"""``rs-localizer demo`` (``make demo``): the node on the sample bag over real DDS.
+"""``rs-localizer demo`` (``make demo``): the node on the sample bags over real DDS.
 
-Starts two node processes with ``config/rs_localizer.yaml``: the configured RS solver in
-namespace ``/camera`` and, for comparison, the global-shutter ``p3p`` solver in ``/p3p`` (same
-inputs, remapped). Plays the bag in lock-step (each frame waits for both poses and twists),
-then prints per-frame and summary accuracy against the bag's ground truth.
+Two parts, each with two node processes: the configured RS solver in namespace ``/camera`` and,
+for comparison, the global-shutter ``p3p`` solver in ``/p3p`` (same inputs, remapped). Each bag
+is played in lock-step (each frame waits for both poses and twists), then per-frame and summary
+accuracy against the bag's ground truth is printed.
+
+1. Correspondences (``data/sample``, ``config/rs_localizer.yaml``): synthetic 2D-3D clouds.
+2. Images (``data/sample_images``, plus ``config/rs_localizer_images.yaml``): rendered
+   rolling-shutter images; the nodes run the front end named in the bag's ``sequence.json``
+   (ArUco markers, map file next to the bag) on every image, then the same estimator.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
@@ -15,15 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_demo", "evaluate_outputs"]
+__all__ = ["run_demo", "run_bag_demo", "evaluate_outputs"]
 
 
-def _solver_from_yaml(path) -> str:
-    for line in Path(path).read_text().splitlines():
-        s = line.split("#", 1)[0].strip()
-        if s.startswith("solver:"):
-            return s.split(":", 1)[1].strip().strip("'\"")
-    return "r6p_1lin"
+def _solver_from_yaml(*paths) -> str:
+    """The ``solver`` parameter of the last file that sets it (a plain line scan)."""
+    solver = "r6p_1lin"
+    for path in paths:
+        for line in Path(path).read_text().splitlines():
+            s = line.split("#", 1)[0].strip()
+            if s.startswith("solver:"):
+                solver = s.split(":", 1)[1].strip().strip("'\"")
+    return solver
 
 
 def evaluate_outputs(frames, gt, namespaces):
@@ -55,41 +64,70 @@ def _fmt(e, key, scale=1.0, width=7, prec=3):
     return f"{e[key] * scale:{width}.{prec}f}"
 
 
-def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True,
-             timeout: float = 5.0, out=sys.stdout) -> int:
-    from .bag import format_summary, load_ground_truth, play, read_bag_info, summarize_errors
-    from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
+def _image_setup(bag: Path, info: dict):
+    """Node parameters and remaps for image mode from the bag's ``sequence.json``: the front
+    end and its map file (next to the bag), the RS timing of the rendered camera."""
+    topics = info.get("topics", {})
+    image = topics.get("image", "/camera/image_raw")
+    params = {"republish_correspondences": True}
+    fe = info.get("frontend") or {}
+    if fe.get("kind") in ("aruco", "features") and fe.get("map"):
+        params["frontend"] = fe["kind"]
+        params["frontend_map"] = str((bag / fe["map"]).resolve())
+    rs = info.get("rs") or {}
+    if rs.get("line_delay") is not None:
+        params["rs.line_delay"] = float(rs["line_delay"])
+        params["rs.readout_time"] = 0.0
+    if rs.get("stamp_row") is not None:
+        params["rs.stamp_row"] = float(rs["stamp_row"])
+    return image, params
 
-    bag = Path(bag) if bag else repo_file("data", "sample")
-    params = Path(params) if params else repo_file("config", "rs_localizer.yaml")
-    if bag is None or not Path(bag).exists():
-        print("sample bag not found (run `make sample-bag`)", file=sys.stderr)
-        return 2
-    if params is None or not Path(params).exists():
-        print("config/rs_localizer.yaml not found", file=sys.stderr)
-        return 2
+
+def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p",
+                 per_frame: bool = True, timeout: float = 5.0, out=sys.stdout) -> int:
+    """One demo part: two nodes (RS solver, ``compare``) on one bag, lock-step, accuracy.
+
+    ``images``: feed the bag's ``image`` topic (the nodes run the front end of its
+    ``sequence.json``) instead of its ``correspondences``. Returns 0 when the RS node answered
+    every frame."""
+    from .bag import format_summary, load_ground_truth, play, read_bag_info, summarize_errors
+    from .process import NodeProcess, random_domain_id, ros_env, write_params_yaml
+
+    bag = Path(bag)
     info = read_bag_info(bag)
     topics = info.get("topics", {})
-    corr = topics.get("correspondences", "/camera/correspondences")
     cinfo = topics.get("camera_info", "/camera/camera_info")
-    solver = _solver_from_yaml(params)
+    extra = {}
+    if images:
+        frame_topic, extra = _image_setup(bag, info)
+        remap_key = "image"
+    else:
+        frame_topic = topics.get("correspondences", "/camera/correspondences")
+        remap_key = "correspondences"
+    solver = _solver_from_yaml(*params_files)
     domain = random_domain_id()
     env = ros_env(domain)
-    import os
-
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     os.environ.pop("ROS_LOCALHOST_ONLY", None)
     tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_demo_"))
-    qos = write_params_yaml(tmp / "qos.yaml", reliable_topics=[corr, cinfo])
-    print(f"rs_localizer demo: bag {bag} ({info.get('frames', '?')} frames), params {params}, "
-          f"ROS_DOMAIN_ID={domain}", file=out)
-    nodes = {"/camera": NodeProcess([params, qos], namespace="/camera", env=env,
-                                    log=tmp / "node_rs.log")}
+    qos = write_params_yaml(tmp / "qos.yaml", reliable_topics=[frame_topic, cinfo])
+    files = [*params_files, qos]
+    mode = "image mode" if images else "correspondences"
+    print(f"rs_localizer demo ({mode}): bag {bag} ({info.get('frames', '?')} frames), params "
+          + ", ".join(str(f) for f in params_files) + f", ROS_DOMAIN_ID={domain}", file=out)
+    if images:
+        print(f"  {frame_topic} -> {extra.get('frontend', 'configured')} front end (map "
+              f"{extra.get('frontend_map', 'from the parameter files')}), line delay "
+              f"{extra.get('rs.line_delay', float('nan')) * 1e6:.2f} us/line", file=out)
+    remaps = {remap_key: frame_topic, "camera_info": cinfo}
+    nodes = {"/camera": NodeProcess(files, namespace="/camera", env=env, remaps=remaps,
+                                    params=extra, log=tmp / "node_rs.log")}
     if compare:
         nodes["/p3p"] = NodeProcess(
-            [params, qos], namespace="/p3p", node_name="rs_localizer_" + compare, env=env,
-            remaps={"correspondences": corr, "camera_info": cinfo},
-            params={"solver": compare}, log=tmp / "node_compare.log")
+            files, namespace="/p3p", node_name="rs_localizer_" + compare, env=env,
+            remaps=remaps, params={**extra, "solver": compare,
+                                   "republish_correspondences": False},
+            log=tmp / "node_compare.log")
     names = {"/camera": solver, "/p3p": compare}
     try:
         t0 = time.monotonic()
@@ -100,15 +138,22 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
         print(f"nodes ready in {time.monotonic() - t0:.1f} s (JIT warm-up included); playing "
               "in lock-step over DDS ...", file=out)
         outs = tuple(f"{ns}/{k}" for ns in nodes for k in ("pose", "twist"))
-        res = play(bag, lockstep=True, topics=[corr, cinfo], output_topics=outs,
-                   timeout=timeout, retries=1, log=lambda m: print(m, file=out))
+        if images:
+            outs += ("/camera/correspondences_out",)
+        res = play(bag, lockstep=True, topics=[frame_topic, cinfo], output_topics=outs,
+                   timeout=timeout, retries=1, domain_id=domain,
+                   log=lambda m: print(m, file=out))
         gt = load_ground_truth(bag)
         errs = evaluate_outputs(res.frames, gt, list(nodes))
         n = len(res.frames)
+        npts = [f["outputs"]["/camera/correspondences_out"][1].width
+                if "/camera/correspondences_out" in f["outputs"] else None for f in res.frames]
         if per_frame:
             head = f"{'frame':>5} | {solver + ': rot[deg] pos[cm] w[rad/s] v[m/s]':<44}"
             if compare:
                 head += f" | {compare + ': rot[deg] pos[cm]':<28} | gt |w| [rad/s]"
+            if images:
+                head += " | corners"
             print(head, file=out)
             for i, f in enumerate(res.frames):
                 e = errs["/camera"][i]
@@ -123,18 +168,26 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
                     line = f"{line:<84}"
                     ref = e or c
                     line += f" | {_fmt(ref, 'angvel_gt', 1, 5, 2)}"
-                print(line, file=out)
+                    line = f"{line:<100}"
+                if images:
+                    line += f" | {'-' if npts[i] is None else npts[i]:>7}"
+                print(line.rstrip(), file=out)
         print("", file=out)
-        print("summary (errors vs ground truth; the pose is at the image centre row):", file=out)
+        print(f"summary ({mode}; errors vs ground truth; the pose is at the image centre row):",
+              file=out)
         summaries = {}
         for ns in nodes:
             summaries[ns] = summarize_errors(errs[ns])
             print("  " + format_summary(names[ns], summaries[ns], n), file=out)
+        got = [k for k in npts if k is not None]
+        if images and got:
+            print(f"  front end: {np.mean(got):.0f} marker corners per image "
+                  f"(min {min(got)}, max {max(got)})", file=out)
         lat = res.latencies
         if len(lat):
             print(f"  lock-step round trip (publish -> all outputs): median "
-                  f"{np.median(lat) * 1e3:.1f} ms, p99 {np.percentile(lat, 99) * 1e3:.1f} ms",
-                  file=out)
+                  f"{np.median(lat) * 1e3:.1f} ms, p99 {np.percentile(lat, 99) * 1e3:.1f} ms"
+                  + (" (front end included)" if images else ""), file=out)
         rs = summaries["/camera"]
         if compare and rs.get("rot_deg") and summaries["/p3p"].get("rot_deg"):
             a, b = rs["rot_deg"]["median"], summaries["/p3p"]["rot_deg"]["median"]
@@ -150,3 +203,43 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
     finally:
         for nd in nodes.values():
             nd.stop()
+
+
+def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True,
+             timeout: float = 5.0, out=sys.stdout, images: bool = True, image_bag=None,
+             image_params=None, correspondences: bool = True) -> int:
+    """``make demo``: the correspondence demo on ``bag`` (default ``data/sample``) and, with
+    ``images``, the image-mode demo on ``image_bag`` (default ``data/sample_images``) with
+    ``params`` + ``image_params`` (default ``config/rs_localizer_images.yaml``).
+    Returns 0 when every part succeeded, 2 when a bag or parameter file is missing."""
+    from .process import repo_file
+
+    params = Path(params) if params else repo_file("config", "rs_localizer.yaml")
+    if params is None or not Path(params).exists():
+        print("config/rs_localizer.yaml not found", file=sys.stderr)
+        return 2
+    parts = []
+    if correspondences:
+        bag = Path(bag) if bag else repo_file("data", "sample")
+        if bag is None or not Path(bag).exists():
+            print("sample bag not found (run `make sample-bag`)", file=sys.stderr)
+            return 2
+        parts.append((bag, [params], False))
+    if images:
+        ibag = Path(image_bag) if image_bag else repo_file("data", "sample_images")
+        iparams = (Path(image_params) if image_params
+                   else repo_file("config", "rs_localizer_images.yaml"))
+        if ibag is None or not Path(ibag).exists():
+            print("image sample bag not found (run `make sample-bag`)", file=sys.stderr)
+            return 2
+        if iparams is None or not Path(iparams).exists():
+            print("config/rs_localizer_images.yaml not found", file=sys.stderr)
+            return 2
+        parts.append((ibag, [params, iparams], True))
+    rc = 0
+    for k, (b, files, img) in enumerate(parts):
+        if k:
+            print("", file=out)
+        rc = max(rc, run_bag_demo(b, files, images=img, compare=compare, per_frame=per_frame,
+                                  timeout=timeout, out=out))
+    return rc

@@ -1,13 +1,17 @@
 """``rs_localizer_node``: rolling-shutter camera localization from 2D-3D correspondences.
 
 A thin layer over :func:`rs_localizer.estimate.estimate_rs_pose` (no solver logic here):
-decode the input, pick the camera model, call the estimator, publish, count.
+decode the input, pick the camera model, call the estimator, publish, count. Images go through
+an image front end (:mod:`rs_localizer.frontends`: ArUco markers or natural features against a
+map) first, then down the same path as a correspondence cloud.
 
 Subscriptions (sensor-data QoS, overridable with ``qos_overrides.<topic>.subscription.*``):
     correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
                                               (+ id uint32, + score float32)
     keypoints        sensor_msgs/PointCloud2  u, v, id; 3D points from ``landmarks_file``
     camera_info      sensor_msgs/CameraInfo
+    image            sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), only when ``frontend`` is
+                     ``aruco`` or ``features``; header.stamp = capture time of ``rs.stamp_row``
 Publications (reliable, depth 10):
     pose                  geometry_msgs/PoseStamped              map_frame, reference-row time
     twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s
@@ -15,6 +19,8 @@ Publications (reliable, depth 10):
     odom                  nav_msgs/Odometry
     /tf                   tf2_msgs/TFMessage (if importable and publish_tf)
     /diagnostics          diagnostic_msgs/DiagnosticArray
+    correspondences_out   sensor_msgs/PointCloud2 (image mode, ``republish_correspondences``):
+                          the front end's u, v, x, y, z, id (+ score), stamped like the image
 """
 
 from __future__ import annotations
@@ -36,13 +42,14 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimate import SOLVERS, EstimateOptions, estimate_rs_pose
+from ..estimate import SOLVERS, EstimateOptions, estimate_rs_pose, sample_size
 from ..trajectory import load_landmarks_csv
 from . import conversions as cv
-from .pointcloud import CloudError, read_correspondences, read_keypoints
+from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
+                         read_keypoints)
 
 __all__ = ["RSLocalizerNode", "main", "PARAMETERS"]
 
@@ -104,9 +111,28 @@ PARAMETERS = {
                                 "rational_polynomial, equidistant or none", None, False),
     "camera.d": ([0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)",
                  None, False),
+    "frontend": ("none", "image front end: none (no image subscription), aruco or features",
+                 None, True),
+    "frontend_map": ("", "map of the front end: aruco: marker map YAML, scene YAML or a "
+                     "built-in scene name (aruco_room); features: feature map .npz (reloaded "
+                     "on change)", None, False),
+    "republish_correspondences": (False, "publish the front end's correspondences on "
+                                  "correspondences_out (PointCloud2) for inspection", None,
+                                  False),
 }
 
+#: values of the ``frontend`` parameter
+FRONTEND_KINDS = ("none", "aruco", "features")
+
 _LOG_PERIOD = 2.0  # s, per failure reason
+
+
+class _Drop(ValueError):
+    """A frame dropped by an input stage: ``reason`` is counted as ``failed.<reason>``."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
 
 
 class RSLocalizerNode(Node):
@@ -133,7 +159,8 @@ class RSLocalizerNode(Node):
 
         self.counts = Counter()      # frames received / solved / failed.<reason> / ...
         self.latencies = deque(maxlen=1000)  # s, callback entry -> published
-        self.stage_times = {k: deque(maxlen=1000) for k in ("decode", "estimate", "publish")}
+        self.stage_times = {k: deque(maxlen=1000)
+                            for k in ("decode", "frontend", "estimate", "publish")}
         self.inliers = deque(maxlen=1000)
         self.messages_lost = 0       # QoS message_lost events over the frame subscriptions
         self._lost = {}
@@ -143,7 +170,12 @@ class RSLocalizerNode(Node):
         self._camera_info_key = None
         self._camera = None          # CameraModel from camera_info (with RS timing)
         self._landmarks = None       # (sorted ids, points)
+        self._frontend = None        # image front end (frontend != none)
+        self._frontend_key = None    # (kind, map path) it was built from
+        self._frontend_last = 0      # correspondences the front end made of the last image
+        self._t_frontend = 0.0       # s in the front end for the current frame
         self._tf_pub = None
+        self.pub_corr_out = None     # correspondences_out, created when first needed
 
         cfg = self._build_config({})
         if isinstance(cfg, str):
@@ -182,6 +214,14 @@ class RSLocalizerNode(Node):
         self.sub_info = self.create_subscription(
             CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self.sub_image = None
+        if self._frontend is not None:
+            self.sub_image = self.create_subscription(
+                Image, "image", self._on_image, qos_profile_sensor_data,
+                event_callbacks=self._lost_events("image"),
+                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            if self.cfg["republish"]:
+                self._corr_out_publisher()
         self.create_timer(float(self.get_parameter("diagnostics_period").value),
                           self.publish_diagnostics)
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
@@ -194,7 +234,9 @@ class RSLocalizerNode(Node):
                if self.cfg["readout_time"] > 0 else "")
             + f", intrinsics from {'parameters' if self.cfg['fallback'] else 'camera_info'}"
             + (f", {len(self._landmarks[0])} landmarks from {self.cfg['landmarks_file']}"
-               if self._landmarks else ""))
+               if self._landmarks else "")
+            + (f", {self.cfg['frontend']} front end on {self.sub_image.topic_name} (map "
+               f"{self.cfg['frontend_map']})" if self.sub_image is not None else ""))
 
     # ------------------------------------------------------------------ parameters
     def _param_values(self, overrides: dict) -> dict:
@@ -255,6 +297,25 @@ class RSLocalizerNode(Node):
                 return f"cannot load landmarks_file {path!r}: {e}"
             order = np.argsort(ids, kind="stable")
             cfg["landmarks"] = (ids[order], pts[order])
+        kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
+        if kind not in FRONTEND_KINDS:
+            return f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
+        cfg.update(frontend=kind, frontend_map=fmap, republish=bool(p["republish_correspondences"]),
+                   frontend_obj=None)
+        if kind != "none":
+            if not fmap:
+                return f"frontend {kind} needs frontend_map (" + (
+                    "marker map YAML, scene YAML or aruco_room)" if kind == "aruco"
+                    else "feature map .npz)")
+            if (kind, fmap) == self._frontend_key:
+                cfg["frontend_obj"] = self._frontend
+            else:
+                from ..frontends import make_frontend
+
+                try:
+                    cfg["frontend_obj"] = make_frontend(kind, os.path.expanduser(fmap))
+                except Exception as e:  # noqa: BLE001 - OSError, ValueError, yaml errors
+                    return f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
         return cfg
 
     @staticmethod
@@ -266,6 +327,14 @@ class RSLocalizerNode(Node):
     def _apply_config(self, cfg):
         self.cfg = cfg
         self._landmarks = cfg["landmarks"]
+        if cfg["frontend_obj"] is not self._frontend:
+            if self._frontend is not None:
+                self.get_logger().info(f"reloaded the {cfg['frontend']} front end from "
+                                       f"{cfg['frontend_map']}")
+            self._frontend = cfg["frontend_obj"]
+            self._frontend_key = (cfg["frontend"], cfg["frontend_map"])
+        if cfg["republish"] and self._frontend is not None and hasattr(self, "pub_pose"):
+            self._corr_out_publisher()
         if self._camera_info is not None:
             try:
                 self._camera = self._camera_from_info(self._camera_info)
@@ -346,16 +415,27 @@ class RSLocalizerNode(Node):
         self._camera_info, self._camera_info_key, self._camera = msg, key, cam
 
     def _on_correspondences(self, msg: PointCloud2):
-        self._safe_handle(msg, keypoints=False)
+        self._safe_handle(msg, self._from_correspondences)
 
     def _on_keypoints(self, msg: PointCloud2):
-        self._safe_handle(msg, keypoints=True)
+        self._safe_handle(msg, self._from_keypoints)
 
-    def _safe_handle(self, msg, keypoints):
+    def _on_image(self, msg: Image):
+        self.counts["image_frames"] += 1
+        self._safe_handle(msg, self._from_image)
+
+    def _safe_handle(self, msg, extract):
         try:
-            self._handle(msg, keypoints)
+            self._handle(msg, extract)
         except Exception as e:  # noqa: BLE001 - a bug for one frame must not stop the node
             self._fail("internal_error", f"{type(e).__name__}: {e}")
+
+    def _corr_out_publisher(self):
+        if self.pub_corr_out is None:
+            self.pub_corr_out = self.create_publisher(
+                PointCloud2, "correspondences_out",
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        return self.pub_corr_out
 
     def _fail(self, reason: str, detail: str):
         self.counts["failed"] += 1
@@ -369,12 +449,16 @@ class RSLocalizerNode(Node):
             n = self.counts.get(f"failed.{key}", 0)
             self.get_logger().warning(text + (f" [{n} so far]" if n > 1 else ""))
 
-    def _handle(self, msg: PointCloud2, keypoints: bool):
+    def _handle(self, msg, extract):
+        """The pipeline of every frame: checks, ``extract(msg, camera, stamp) -> (uv, xyz,
+        scores)`` (raises :class:`_Drop` or :class:`CloudError` for a bad frame), cap,
+        estimate, publish, count."""
         tic = time.perf_counter()
+        self._t_frontend = 0.0
         self.counts["received"] += 1
         stamp = cv.stamp_to_ns(msg.header.stamp)
         cfg = self.cfg
-        if int(msg.width) * int(msg.height) == 0:
+        if isinstance(msg, PointCloud2) and int(msg.width) * int(msg.height) == 0:
             return self._fail("empty_cloud", "cloud has no points")
         camera = self._camera or cfg["fallback"]
         if camera is None:
@@ -387,14 +471,8 @@ class RSLocalizerNode(Node):
             self.get_logger().warning("time jumped back by "
                                       f"{(self._last_stamp - stamp) * 1e-9:.3f} s: restart")
         try:
-            if keypoints:
-                uv, xyz, scores = self._keypoints(msg)
-                if uv is None:
-                    return
-            else:
-                c = read_correspondences(msg)
-                uv, xyz, scores = c.uv, c.xyz, c.scores
-        except CloudError as e:
+            uv, xyz, scores = extract(msg, camera, stamp)
+        except (_Drop, CloudError) as e:
             return self._fail(e.reason, str(e))
         except ValueError as e:
             return self._fail("bad_cloud", str(e))
@@ -442,14 +520,17 @@ class RSLocalizerNode(Node):
         self.inliers.append(est.num_inliers)
         toc = time.perf_counter()
         self.latencies.append(toc - tic)
-        self.stage_times["decode"].append(t_decoded - tic)
+        self.stage_times["decode"].append(t_decoded - tic - self._t_frontend)
         self.stage_times["estimate"].append(t_estimated - t_decoded)
         self.stage_times["publish"].append(toc - t_estimated)
 
-    def _keypoints(self, msg):
+    def _from_correspondences(self, msg, camera, stamp):
+        c = read_correspondences(msg)
+        return c.uv, c.xyz, c.scores
+
+    def _from_keypoints(self, msg, camera, stamp):
         if self._landmarks is None:
-            self._fail("no_landmarks", "keypoints received but no landmarks_file is loaded")
-            return None, None, None
+            raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
         kp = read_keypoints(msg)
         ids, pts = self._landmarks
         j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
@@ -458,10 +539,52 @@ class RSLocalizerNode(Node):
         if n_unknown:
             self.counts["unknown_landmark_ids"] += n_unknown
         if not known.any():
-            self._fail("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
-            return None, None, None
+            raise _Drop("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
         scores = None if kp.scores is None else kp.scores[known]
         return kp.uv[known], pts[j[known]], scores
+
+    def _from_image(self, msg, camera, stamp):
+        """Decode, run the front end, optionally republish its correspondences."""
+        from ..frontends.image import image_from_msg
+
+        fe = self._frontend
+        if fe is None:  # (the subscription exists only with a front end)
+            raise _Drop("no_frontend", "image received but frontend is none")
+        h, w = int(msg.height), int(msg.width)
+        if h * w == 0:
+            raise _Drop("bad_image", f"empty image ({w}x{h})")
+        try:
+            img, enc = image_from_msg(msg)
+        except ValueError as e:
+            raise _Drop("bad_image", str(e)) from None
+        if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
+            raise _Drop("image_size_mismatch", f"image is {w}x{h}, the camera model "
+                        f"{camera.width}x{camera.height}")
+        t0 = time.perf_counter()
+        try:
+            uv, xyz, ids = fe.process(img, camera, encoding=enc)
+        except Exception as e:  # noqa: BLE001 - cv2.error and friends: drop the frame
+            raise _Drop("frontend_error", f"{self.cfg['frontend']}: {type(e).__name__}: "
+                        f"{e}") from None
+        self._t_frontend = time.perf_counter() - t0
+        self.stage_times["frontend"].append(self._t_frontend)
+        scores = getattr(fe, "last_scores", None)
+        if scores is not None and len(scores) != len(uv):
+            scores = None
+        self.counts["frontend_runs"] += 1
+        self.counts["frontend_points"] += len(uv)
+        self._frontend_last = len(uv)
+        if self.cfg["republish"]:
+            frame = self.cfg["camera_frame"] or msg.header.frame_id or "camera"
+            self._corr_out_publisher().publish(correspondence_cloud(
+                uv, xyz, ids, scores, frame_id=frame, stamp=stamp))
+        need = max(self.cfg["options"].min_inliers, sample_size(self.cfg["solver"]) + 1)
+        if len(uv) < need:
+            what = (f"{len(uv) // 4} markers" if self.cfg["frontend"] == "aruco"
+                    else f"{len(uv)} matches")
+            raise _Drop("frontend_too_few_points", f"{self.cfg['frontend']} front end found "
+                        f"{what}: {len(uv)} correspondences, {need} needed")
+        return uv, xyz, scores
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
@@ -500,7 +623,20 @@ class RSLocalizerNode(Node):
             "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
         }
         for k, d in self.stage_times.items():
+            if k == "frontend" and self._frontend is None:
+                continue
             values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
+        if self._frontend is not None:
+            fe_ms = self.stage_times["frontend"]
+            values.update({
+                "frontend": self.cfg["frontend"],
+                "image_frames": c["image_frames"],
+                "frontend_ms_last": f"{fe_ms[-1] * 1e3:.3f}" if fe_ms else "nan",
+                "frontend_correspondences_last": self._frontend_last,
+                "frontend_correspondences_mean": (
+                    f"{c['frontend_points'] / c['frontend_runs']:.1f}"
+                    if c["frontend_runs"] else "0"),
+            })
         values.update({f"failed.{k}": v for k, v in failed.items()})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
