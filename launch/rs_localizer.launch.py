@@ -1,9 +1,10 @@
 """Launch rs_localizer_node on a ROS 2 install (after `colcon build`).
 
     ros2 launch rs_localizer rs_localizer.launch.py [namespace:=camera]
-        [params_file:=/path/to/params.yaml] [log_level:=info]
+        [params_file:=/path/to/params.yaml] [image_topic:=image_raw] [log_level:=info]
 
-Inputs are <namespace>/correspondences, <namespace>/keypoints and <namespace>/camera_info.
+Inputs are <namespace>/correspondences, <namespace>/keypoints, <namespace>/camera_info and,
+with ``frontend: aruco|features`` in the parameter file, <namespace>/<image_topic>.
 """
 
 from launch import LaunchDescription
@@ -21,6 +22,8 @@ def generate_launch_description():
                               description="namespace of the input and output topics"),
         DeclareLaunchArgument("params_file", default_value=default_params,
                               description="parameter file (see config/rs_localizer.yaml)"),
+        DeclareLaunchArgument("image_topic", default_value="image_raw",
+                              description="image topic (used when the frontend parameter is set)"),
         DeclareLaunchArgument("log_level", default_value="info"),
         Node(
             package="rs_localizer",
@@ -28,6 +31,7 @@ def generate_launch_description():
             name="rs_localizer",
             namespace=LaunchConfiguration("namespace"),
             parameters=[LaunchConfiguration("params_file")],
+            remappings=[("image", LaunchConfiguration("image_topic"))],
             arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
             output="screen",
             emulate_tty=True,
