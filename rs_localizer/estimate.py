@@ -35,7 +35,10 @@ class EstimateOptions:
         min_inliers: fewest inliers for success (at least the solver's sample size).
         seed: RNG seed (deterministic for a fixed seed).
         refine: run nonlinear least-squares refinement on the exact constant-velocity model.
-        solver_iterations: linear iterations of the iterative 6-point solvers.
+        solver_iterations: linear iterations of the iterative 6-point solvers on RANSAC's
+            minimal samples; ``None``: 1 for ``r6p_1lin`` (after the P3P pre-rotation one
+            iteration is as good as R6P, paper Fig. 6) and 5 for the alternating solvers
+            (paper default; they need them). Local optimization always runs at least 5.
         nonminimal: local optimization re-runs the RS solver on all inliers (else only the
             exact-model refinement polishes a new best).
         lo_refine_iterations: LM iterations of each local optimization round.
@@ -58,7 +61,7 @@ class EstimateOptions:
     min_inliers: int = 12
     seed: int = 0
     refine: bool = True
-    solver_iterations: int = 5
+    solver_iterations: int | None = None
     nonminimal: bool = True
     batch_size: int = 32
     local_optimization_steps: int = 4
@@ -134,6 +137,13 @@ _SAMPLE_SIZE = {"p3p": 3, "r6p": 6, "r9p": 9}
 def sample_size(solver: str) -> int:
     """Minimal sample size of a solver by name (3 for P3P, 9 for R9P, 6 otherwise)."""
     return _SAMPLE_SIZE.get(solver, 6)
+
+
+def _hypothesis_iterations(solver: str, opts) -> int:
+    """Linear iterations per minimal sample (see ``EstimateOptions.solver_iterations``)."""
+    if opts.solver_iterations is not None:
+        return int(opts.solver_iterations)
+    return 1 if solver == "r6p_1lin" else 5
 
 
 def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
@@ -229,7 +239,7 @@ def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
         return R_p, C_p, z, z.copy(), ok_p
     Xs = np.einsum("kij,knj->kni", R_p, fr.X[samples])
     batches = _batched_rs(solver, fr.x[samples], Xs, fr.r[samples], fr.r0,
-                          opts.solver_iterations)
+                          _hypothesis_iterations(solver, opts))
     if solver == "r6p":  # variable number of roots per sample: pre-rotate each root
         R_all, C_all, w_all, t_all = [], [], [], []
         for k in range(len(samples)):
@@ -262,7 +272,7 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
     out = []
     for name in names:
         b = _batched_rs(name, fr.x[inl][None], Xr[None], fr.r[inl][None], fr.r0,
-                        max(opts.solver_iterations, 5))[0]
+                        max(_hypothesis_iterations(solver, opts), 5))[0]
         if b.valid[0]:
             out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
     return out
