@@ -15,7 +15,7 @@ from ._so3 import compose_rotvec
 from .camera import CameraModel
 from .geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose
-from .solvers import (RSBatch, p3p_batch, r6p, r6p_1lin_batch, r6p_vC_wt_batch, r6p_vCt_w_batch,
+from .solvers import (p3p_batch, r6p, r6p_1lin_batch, r6p_vC_wt_batch, r6p_vCt_w_batch,
                       r6p_vCt_wt_batch, r9p_batch)
 
 __all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
@@ -147,7 +147,8 @@ def _hypothesis_iterations(solver: str, opts) -> int:
 
 
 def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
-    """Run an RS solver on K pre-rotated samples; returns a list of RSBatch (2 for joined)."""
+    """Run a batched RS solver on K pre-rotated samples; returns a list of RSBatch (2 for the
+    joined solver). R6P, with a variable number of roots, goes through :func:`_r6p_hypotheses`."""
     if solver == "r6p_1lin":
         return [r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
     if solver == "r6p_vC_wt":
@@ -161,20 +162,6 @@ def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
     if solver == "r6p_joined":
         return [r6p_vCt_w_batch(xs, Xs, rs, r0, iterations=iterations),
                 r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
-    if solver == "r6p":
-        v, C, w, t = [], [], [], []
-        for k in range(len(xs)):
-            try:
-                sols = r6p(xs[k], Xs[k], rs[k], r0)
-            except ValueError:
-                sols = []
-            for s in sols:
-                v.append(s.v), C.append(s.C), w.append(s.w), t.append(s.t)
-        n = len(v)
-        z = np.zeros((n, 3))
-        return [RSBatch(np.array(v).reshape(n, 3), np.array(C).reshape(n, 3),
-                        np.array(w).reshape(n, 3), np.array(t).reshape(n, 3),
-                        np.ones(n, dtype=bool), np.zeros(n, dtype=np.int64), z[:, 0])]
     raise ValueError(f"unknown solver {solver!r}")
 
 
@@ -238,26 +225,30 @@ def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
         z = np.zeros((len(samples), 3))
         return R_p, C_p, z, z.copy(), ok_p
     Xs = np.einsum("kij,knj->kni", R_p, fr.X[samples])
+    if solver == "r6p":
+        return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
     batches = _batched_rs(solver, fr.x[samples], Xs, fr.r[samples], fr.r0,
                           _hypothesis_iterations(solver, opts))
-    if solver == "r6p":  # variable number of roots per sample: pre-rotate each root
-        R_all, C_all, w_all, t_all = [], [], [], []
-        for k in range(len(samples)):
-            if not ok_p[k]:
-                continue
-            b = _batched_rs("r6p", fr.x[samples[k:k + 1]], Xs[k:k + 1], fr.r[samples[k:k + 1]],
-                            fr.r0, 1)[0]
-            if len(b):
-                R_all.append(rotvec_to_matrix(b.v) @ R_p[k])
-                C_all.append(b.C), w_all.append(b.w), t_all.append(b.t)
-        if not R_all:
-            return np.zeros((0, 3, 3)), *(np.zeros((0, 3)),) * 3, np.zeros(0, dtype=bool)
-        R_all = np.concatenate(R_all)
-        return (R_all, np.concatenate(C_all), np.concatenate(w_all), np.concatenate(t_all),
-                np.ones(len(R_all), dtype=bool))
     Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
     ok &= np.tile(ok_p, len(batches))
     return Rs, Cs, ws, ts, ok
+
+
+def _r6p_hypotheses(fr: _Frame, samples, Xs, R_p, ok_p):
+    """Every real root of R6P for each sample whose P3P pre-rotation succeeded (a variable
+    number per sample), composed with that sample's pre-rotation."""
+    R_all, C_all, w_all, t_all = [], [], [], []
+    for k in np.flatnonzero(ok_p):
+        try:
+            roots = r6p(fr.x[samples[k]], Xs[k], fr.r[samples[k]], fr.r0)
+        except ValueError:  # degenerate sample
+            continue
+        for sol in roots:
+            R_all.append(rotvec_to_matrix(sol.v) @ R_p[k])
+            C_all.append(sol.C), w_all.append(sol.w), t_all.append(sol.t)
+    n = len(R_all)
+    return (np.array(R_all).reshape(n, 3, 3), np.array(C_all).reshape(n, 3),
+            np.array(w_all).reshape(n, 3), np.array(t_all).reshape(n, 3), np.ones(n, dtype=bool))
 
 
 def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
