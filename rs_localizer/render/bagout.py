@@ -17,7 +17,6 @@ the ground truth is stamped with the reference line's capture time.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
+from ..ros.bag import write_sequence_json
 
 __all__ = ["render_bag", "add_arguments", "run_from_args", "main", "IMAGE", "CAMERA_INFO",
            "POINTCLOUD2", "POSE", "TWIST"]
@@ -239,27 +239,15 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
     for f in tmp_dir.iterdir():
         shutil.move(str(f), str(path / f.name))
     tmp_dir.rmdir()
-    meta = {
-        "generator": "rs-localizer render-bag",
-        "topics": topics,
-        "frames": int(frames),
-        "camera_frame": camera_frame,
-        "map_frame": map_frame,
-        "camera": {"K": cam.K.tolist(), "D": cam.D.tolist(), "width": cam.width,
-                   "height": cam.height, "distortion_model": cam.distortion_model},
-        "rs": {"line_delay": cam.line_delay if shutter == "rolling" else 0.0,
-               "readout_time": cam.readout_time if shutter == "rolling" else 0.0,
-               "direction": cam.readout, "reference_row": cam.reference_line,
-               "stamp_row": 0.0},
-        "frontend": fe_meta,
-        "settings": {"scene": sc.name, "motion": getattr(mot, "name", str(motion)),
-                     "fps": fps, "shutter": shutter, "encoding": "mono8" if mono else "rgb8",
-                     "noise": bool(noise), "exposure": exposure, "supersample": supersample,
-                     "seed": seed, "start_time": start_time,
-                     "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
-                     "render_seconds": round(time.perf_counter() - tic, 2)},
-    }
-    (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+    write_sequence_json(
+        path, "rs-localizer render-bag", topics, frames, cam, camera_frame, map_frame, 0.0,
+        rolling_shutter=shutter == "rolling", frontend=fe_meta,
+        settings={"scene": sc.name, "motion": getattr(mot, "name", str(motion)),
+                  "fps": fps, "shutter": shutter, "encoding": "mono8" if mono else "rgb8",
+                  "noise": bool(noise), "exposure": exposure, "supersample": supersample,
+                  "seed": seed, "start_time": start_time,
+                  "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
+                  "render_seconds": round(time.perf_counter() - tic, 2)})
     return path
 
 

@@ -129,21 +129,33 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
                                        TWIST, ts))
     if keypoints and len(used):
         save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
+    write_sequence_json(path, "rs-localizer make-bag", topics, len(frames), camera,
+                        camera_frame, map_frame, stamp_row, settings=settings or {})
+    return path
+
+
+def write_sequence_json(path, generator: str, topics, frames: int, camera: CameraModel,
+                        camera_frame: str, map_frame: str, stamp_row: float,
+                        rolling_shutter: bool = True, **extra) -> None:
+    """Write a bag's ``sequence.json`` (the schema :func:`load_sequence_info` and the demo read):
+    topics, frame count, frames, camera (K, D, size, distortion model) and RS timing, plus
+    ``extra`` top-level entries (``settings``, ``frontend``, ...). ``rolling_shutter=False``
+    records a global-shutter sequence (zero line delay and readout time)."""
     meta = {
-        "generator": "rs-localizer make-bag",
+        "generator": generator,
         "topics": topics,
-        "frames": len(frames),
+        "frames": int(frames),
         "camera_frame": camera_frame,
         "map_frame": map_frame,
         "camera": {"K": camera.K.tolist(), "D": camera.D.tolist(), "width": camera.width,
                    "height": camera.height, "distortion_model": camera.distortion_model},
-        "rs": {"line_delay": camera.line_delay, "readout_time": camera.readout_time,
+        "rs": {"line_delay": camera.line_delay if rolling_shutter else 0.0,
+               "readout_time": camera.readout_time if rolling_shutter else 0.0,
                "direction": camera.readout, "reference_row": camera.reference_line,
                "stamp_row": float(stamp_row)},
-        "settings": settings or {},
+        **extra,
     }
-    (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
-    return path
+    (Path(path) / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
 @dataclass
