@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import CameraModel
-from .geometry import camera_position, matrix_to_rotvec, rotvec_to_matrix, rs_project_exact
+from .geometry import (camera_position, matrix_to_rotvec, nearest_rotation, rotvec_to_matrix,
+                       rs_project_exact)
 from .geometry import rs_project_linear, skew
 
 __all__ = ["FOV_DEG", "IMAGE_SIZE", "FOCAL_PX", "FRAME_SPAN", "SyntheticFrame", "make_frame",
@@ -183,16 +184,10 @@ def make_frame(rng: np.random.Generator | int = 0, n_points: int = 100, rs_speed
         inlier[idx] = False
     cam = paper_camera(readout_time)
     spr = cam.seconds_per_unit_r
-    Rm = R if model == "exact" else rotvec_to_matrix(matrix_to_rotvec_safe(R))
+    Rm = R if model == "exact" else nearest_rotation(R)  # I + [v]x is not a rotation
     omega, vel = _physical_velocities(Rm, C, w, t, spr)
     return SyntheticFrame(x=x, X=X, r=x[:, 1].copy(), r0=float(r0), R=R, C=C, w=w, t=t,
                           inlier=inlier, points_px=cam.distort(x), seconds_per_unit_r=spr,
                           angular_velocity=omega, linear_velocity=vel,
                           position=camera_position(Rm, C))
 
-
-def matrix_to_rotvec_safe(M: np.ndarray) -> np.ndarray:
-    """Rotation vector of the rotation nearest to ``M`` (for ``I + [v]x`` matrices)."""
-    from .geometry import nearest_rotation
-
-    return matrix_to_rotvec(nearest_rotation(M))

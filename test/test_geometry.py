@@ -5,7 +5,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.geometry import (camera_position, nearest_rotation, reprojection_errors,
+from rs_localizer.geometry import (camera_position, compose, invert, nearest_rotation, reprojection_errors,
                                    rotation_angle_deg, rotvec_to_matrix, rs_project_exact,
                                    rs_project_first_order, rs_project_linear, skew, vee)
 
@@ -109,3 +109,14 @@ def test_camera_position():
     R = rotvec_to_matrix([0.2, 0.3, -0.1])
     c = np.array([1.0, 2.0, -3.0])
     assert np.allclose(camera_position(R, -R @ c), c)
+
+
+def test_compose_and_invert_match_homogeneous_matrices():
+    def T(R, C):
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = R, C
+        return M
+    R1, R2 = rotvec_to_matrix([0.1, 0.2, 0.3]), rotvec_to_matrix([-0.4, 0.0, 0.2])
+    C1, C2 = np.array([1.0, 2.0, 3.0]), np.array([-0.5, 0.1, 0.2])
+    np.testing.assert_allclose(T(*compose(R1, C1, R2, C2)), T(R1, C1) @ T(R2, C2), atol=1e-14)
+    np.testing.assert_allclose(T(*invert(R1, C1)), np.linalg.inv(T(R1, C1)), atol=1e-14)
