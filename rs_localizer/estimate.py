@@ -444,16 +444,15 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         order = np.argsort(-sc, kind="stable")
     th = opts.threshold_px / fr.f
     th2 = th * th
-    best = None  # (score, R, C, w, t)
+    best = None  # (R, C, w, t)
     best_score = np.inf
+    best_inl = np.zeros(N, dtype=bool)
     best_count = 0
     iters = 0
     needed = float(opts.max_iterations)
     t_local = 0.0
     t0 = time.perf_counter()
-    while iters < min(needed, opts.max_iterations) or iters < opts.min_iterations:
-        if iters >= opts.max_iterations:
-            break
+    while iters < opts.max_iterations and (iters < needed or iters < opts.min_iterations):
         K = min(opts.batch_size, opts.max_iterations - iters)
         pool = N
         if scores is not None:
@@ -474,15 +473,16 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             t_lo = time.perf_counter()  # LO-RANSAC: polish every new best on its inliers
             best_score, best = _local_optimization(fr, solver, best, best_score, th2, opts)
             t_local += time.perf_counter() - t_lo
-            best_count = int(np.count_nonzero(errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2))
+            best_inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
+            best_count = int(np.count_nonzero(best_inl))
             needed = _required_iterations(best_count / N, s, opts.confidence)
     timings["ransac"] = time.perf_counter() - t0 - t_local
     timings["local_optimization"] = t_local
     if best is None:
         return _fail("no_hypothesis", solver, n_in, N, n_dropped, iters, timings)
 
-    inl = errors2(fr.x, fr.X, fr.r0e, fr.d, *best) < th2
-    if inl.sum() < min_inl:
+    inl = best_inl
+    if best_count < min_inl:
         return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
     if _collinear(fr.X[inl]):
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
