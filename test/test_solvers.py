@@ -215,6 +215,27 @@ def test_p3p_poselib_and_opencv_agree():
     assert any(rotation_angle_deg(s.R, f.R) < 1e-6 for s in a)
 
 
+@pytest.mark.parametrize("backend", ["poselib", "opencv"])
+def test_p3p_batch_contains_ground_truth(backend, monkeypatch):
+    """Every triplet's true pose is among its batched P3P solutions, with the right owner."""
+    import sys
+
+    P = sys.modules["rs_localizer.solvers.p3p"]  # the package exports a function of that name
+    if backend == "opencv":
+        monkeypatch.setattr(P, "_poselib", None)
+    rng = np.random.default_rng(9)
+    frames = [make_frame(rng, 3, rs_speed=0.0) for _ in range(20)]
+    b = np.array([np.c_[f.x, np.ones(3)] for f in frames])
+    b /= np.linalg.norm(b, axis=2, keepdims=True)
+    R, C, owner = P.p3p_batch(b, np.array([f.X for f in frames]))
+    assert R.shape == (len(owner), 3, 3) and C.shape == (len(owner), 3)
+    assert np.all(np.diff(owner) >= 0)
+    for k, f in enumerate(frames):
+        mine = owner == k
+        assert 1 <= mine.sum() <= 4
+        assert min(rotation_angle_deg(Rm, f.R) for Rm in R[mine]) < 1e-5
+
+
 BAD_SHAPES = [(np.zeros((6, 3)), np.zeros((6, 3))), (np.zeros((6, 2)), np.zeros((5, 3))),
               (np.zeros((5, 2)), np.zeros((5, 3))), (np.zeros(12), np.zeros(18))]
 

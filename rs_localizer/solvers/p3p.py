@@ -85,21 +85,20 @@ def p3p_batch(bearings, X):
         (R (M, 3, 3), C (M, 3), owner (M,)): all M finite solutions and the triplet each came
         from. No validation (hot path): callers pass finite, well-shaped arrays.
     """
-    Rts, owner = [], []
+    K = len(bearings)
     if _poselib is not None:
-        for k in range(len(bearings)):
-            for pose in _poselib.p3p(bearings[k], X[k]):
-                Rts.append(pose.Rt)
-                owner.append(k)
+        poses = [_poselib.p3p(b, Xk) for b, Xk in zip(bearings, X)]
+        Rts = [p.Rt for ps in poses for p in ps]
+        counts = [len(ps) for ps in poses]
     else:
-        for k in range(len(bearings)):
-            xk = bearings[k][:, :2] / bearings[k][:, 2:3]
-            for sol in p3p_opencv(xk, X[k]):
-                Rts.append(np.c_[sol.R, sol.C])
-                owner.append(k)
+        sols = [p3p_opencv(b[:, :2] / b[:, 2:3], Xk) for b, Xk in zip(bearings, X)]
+        Rts = [np.c_[s.R, s.C] for ss in sols for s in ss]
+        counts = [len(ss) for ss in sols]
     if not Rts:
         return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     Rt = np.array(Rts)
-    own = np.array(owner, dtype=np.int64)
-    ok = np.isfinite(Rt).all(axis=(1, 2))
-    return np.ascontiguousarray(Rt[ok, :, :3]), np.ascontiguousarray(Rt[ok, :, 3]), own[ok]
+    own = np.repeat(np.arange(K, dtype=np.int64), counts)
+    if not np.isfinite(Rt).all():  # rare: drop non-finite solutions
+        ok = np.isfinite(Rt).all(axis=(1, 2))
+        Rt, own = Rt[ok], own[ok]
+    return np.ascontiguousarray(Rt[:, :, :3]), np.ascontiguousarray(Rt[:, :, 3]), own
