@@ -131,11 +131,12 @@ def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
     rows = []
     for name, fn in methods.items():
         fn(data[0])  # warm-up
-        ts, rot, pos, inl = [], [], [], []
+        ts, rot, pos, inl, stages = [], [], [], [], []
         for f in data:
             t0 = time.perf_counter()
-            R, C, n = fn(f)
+            R, C, n, *st = fn(f)
             ts.append(time.perf_counter() - t0)
+            stages += st
             if R is None:
                 rot.append(180.0)
                 pos.append(100.0)
@@ -146,15 +147,21 @@ def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
             inl.append(n)
         rows.append(dict(method=name, ms_median=1e3 * np.median(ts),
                          ms_p95=1e3 * np.percentile(ts, 95), rot_deg=np.median(rot),
-                         pos_pct=np.median(pos), inliers=np.median(inl)))
+                         pos_pct=np.median(pos), inliers=np.median(inl),
+                         stages_ms={k: 1e3 * np.median([d.get(k, 0.0) for d in stages])
+                                    for k in STAGES} if stages else None))
     return rows
+
+
+#: stages of :attr:`RSPoseEstimate.timings` reported by ``bench estimate``
+STAGES = ("prepare", "ransac", "local_optimization", "refine")
 
 
 def _ours(f, cam, solver, opts):
     e = estimate_rs_pose(f.points_px, f.X, cam, solver, opts)
     if not e.success:
-        return None, None, 0
-    return e.R, e.C, e.num_inliers
+        return None, None, 0, e.timings
+    return e.R, e.C, e.num_inliers, e.timings
 
 
 def _fmt(v, spec):
@@ -202,6 +209,11 @@ def main(argv=None) -> int:
                 print(f"{r['method']:<38}{r['ms_median']:10.2f}{r['ms_p95']:9.2f}"
                       f"{r['ms_median'] / ref['ms_median']:11.2f}{r['rot_deg']:10.3f}"
                       f"{r['pos_pct']:8.2f}{r['inliers']:9.0f}")
+            print("\nmedian ms per stage (ours): " + ", ".join(STAGES))
+            for r in rows:
+                if r["stages_ms"]:
+                    print(f"{r['method']:<38}" + "".join(f"{r['stages_ms'][k]:10.2f}"
+                                                         for k in STAGES))
     finally:
         if ctx is not None:
             ctx.unregister() if hasattr(ctx, "unregister") else None
