@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._so3 import so3_coefficients
+from ._so3 import FMA, so3_coefficients
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", fastmath=FMA)
 def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, exact):
     """Squared reprojection error of one point whose rotated world point is ``q = R X``.
 
@@ -71,60 +71,96 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
     return ex * ex + ey * ey
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always", fastmath=FMA)
+def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact):
+    """Squared reprojection error of point i under hypothesis h (see :func:`project_error2`)."""
+    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+    return project_error2(x[i, 0], x[i, 1], d0, d1, r0e[i],
+                          Rs[h, 0, 0] * X0 + Rs[h, 0, 1] * X1 + Rs[h, 0, 2] * X2,
+                          Rs[h, 1, 0] * X0 + Rs[h, 1, 1] * X1 + Rs[h, 1, 2] * X2,
+                          Rs[h, 2, 0] * X0 + Rs[h, 2, 1] * X1 + Rs[h, 2, 2] * X2,
+                          Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+                          ts[h, 0], ts[h, 1], ts[h, 2], exact)
+
+
+@njit(cache=True, fastmath=FMA)
 def msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, exact=True, pretest_n=0,
-                pretest_min=0):
-    """MSAC scores of H hypotheses on N points.
+                pretest_min=0, pretest_fraction=0.5):
+    """MSAC scores of H hypotheses on N points, evaluated preemptively.
+
+    Every valid hypothesis is first scored on the first ``pretest_n`` points (callers shuffle
+    the points, so they are a random subset); the survivors are then completed in order of
+    decreasing pre-test inlier count. Each completed score becomes the bail-out bound of the
+    following hypotheses and raises the T(d,d)-style pre-test bound (Matas and Chum) to
+    ``pretest_fraction`` of the inliers it predicts among the pre-test points, so a batch
+    costs about one full evaluation plus ``pretest_n`` points per other hypothesis, and the
+    best hypothesis of the batch gets its exact score.
 
     Args:
         x (N, 2), X (N, 3), r0e (N,) per-point reference coordinate, d (2,) readout direction,
         Rs (H, 3, 3), Cs, ws, ts (H, 3), th2 squared threshold (normalized units), valid (H,),
-        bail: stop scoring a hypothesis once its partial score exceeds this (best so far).
+        bail: the best score so far (hypotheses that cannot beat it are dropped).
         exact: see :func:`project_error2`.
-        pretest_n, pretest_min: T(d,d)-style pre-test (Matas and Chum): a hypothesis with fewer
-            than ``pretest_min`` inliers among the first ``pretest_n`` points (callers shuffle
-            the points) is rejected without scoring the rest.
+        pretest_n, pretest_min: pre-test size and the smallest inlier count among those points
+            for a hypothesis to be completed (raised by every completed hypothesis).
     Returns:
-        (scores (H,), inlier counts (H,)); invalid, pre-test-rejected or bailed hypotheses
-        score ``inf``.
+        (scores (H,), inlier counts (H,)): the MSAC score of every hypothesis that beat all
+        hypotheses completed before it, ``inf`` for invalid, pre-test-rejected or bailed ones;
+        ``argmin(scores)`` is the batch's best hypothesis.
     """
     H, N = Rs.shape[0], x.shape[0]
     scores = np.full(H, np.inf)
     counts = np.zeros(H, dtype=np.int64)
     d0, d1 = d[0], d[1]
+    n_pre = min(pretest_n, N)
+    part = np.zeros(H)
+    pre_cnt = np.full(H, -1, dtype=np.int64)
     for h in range(H):
         if not valid[h]:
             continue
-        R00, R01, R02 = Rs[h, 0, 0], Rs[h, 0, 1], Rs[h, 0, 2]
-        R10, R11, R12 = Rs[h, 1, 0], Rs[h, 1, 1], Rs[h, 1, 2]
-        R20, R21, R22 = Rs[h, 2, 0], Rs[h, 2, 1], Rs[h, 2, 2]
-        C0, C1, C2 = Cs[h, 0], Cs[h, 1], Cs[h, 2]
-        w0, w1, w2 = ws[h, 0], ws[h, 1], ws[h, 2]
-        t0, t1, t2 = ts[h, 0], ts[h, 1], ts[h, 2]
         s = 0.0
         c = 0
-        for i in range(N):
-            X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-            e2 = project_error2(x[i, 0], x[i, 1], d0, d1, r0e[i],
-                                R00 * X0 + R01 * X1 + R02 * X2,
-                                R10 * X0 + R11 * X1 + R12 * X2,
-                                R20 * X0 + R21 * X1 + R22 * X2,
-                                C0, C1, C2, w0, w1, w2, t0, t1, t2, exact)
+        for i in range(n_pre):
+            e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact)
             if e2 < th2:
                 s += e2
                 c += 1
             else:
                 s += th2
-            if s > bail or (i + 1 == pretest_n and c < pretest_min):
-                s = np.inf
+            # stop once the hypothesis can no longer pass the pre-test or beat the bound
+            if s > bail or c + (n_pre - 1 - i) < pretest_min:
+                break
+        else:
+            part[h] = s
+            pre_cnt[h] = c
+    order = np.argsort(-pre_cnt, kind="mergesort")
+    for j in range(H):
+        h = order[j]
+        if pre_cnt[h] < 0:
+            break
+        if pre_cnt[h] < pretest_min or part[h] > bail:
+            continue
+        s = part[h]
+        c = pre_cnt[h]
+        for i in range(n_pre, N):
+            e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact)
+            if e2 < th2:
+                s += e2
+                c += 1
+            else:
+                s += th2
+            if s > bail:
                 break
         if s <= bail:
             scores[h] = s
             counts[h] = c
+            bail = s
+            if N > 0:
+                pretest_min = max(pretest_min, int(pretest_fraction * n_pre * c / N))
     return scores, counts
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def errors2(x, X, r0e, d, R, C, w, t, exact=True):
     """(N,) squared reprojection errors of one hypothesis (``inf`` where invalid); see
     :func:`project_error2`."""
@@ -140,39 +176,29 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True):
     return out
 
 
-@njit(cache=True)
-def select_prerotations(R, C, owner, samples, X, x, K):
-    """For each of K samples pick, among its P3P solutions (R (M,3,3), C (M,3), owner (M,)),
-    the one with the lowest global-shutter reprojection error on the sample's points beyond
-    the first three (all of them for 3-point samples), ignoring solutions with a point behind
-    the camera. Returns (R (K,3,3), C (K,3), ok (K,))."""
-    Rout = np.zeros((K, 3, 3))
-    Cout = np.zeros((K, 3))
-    ok = np.zeros(K, dtype=np.bool_)
-    best = np.full(K, np.inf)
-    s = samples.shape[1]
-    first = 3 if s > 3 else 0
-    for m in range(R.shape[0]):
-        k = owner[m]
-        e = 0.0
-        for j in range(first, s):
-            i = samples[k, j]
-            p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
-            p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
-            p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
-            if not p2 > 0.0:
-                e = np.inf
-                break
-            dx = p0 / p2 - x[i, 0]
-            dy = p1 / p2 - x[i, 1]
-            e += dx * dx + dy * dy
-        if e < best[k]:
-            best[k] = e
-            Rout[k] = R[m]
-            Cout[k] = C[m]
-            ok[k] = True
-    for k in range(K):
-        if not ok[k]:
-            for a in range(3):
-                Rout[k, a, a] = 1.0
-    return Rout, Cout, ok
+@njit(cache=True, fastmath=FMA)
+def msac_evaluate(x, X, r0e, d, R, C, w, t, th2):
+    """MSAC score, inlier mask and inlier count of one model on all N points.
+
+    Args as :func:`errors2` (R (3, 3); C, w, t (3,)) plus th2, the squared threshold.
+    Returns:
+        (score, inliers (N,) bool, count); ``(inf, all False, 0)`` if a model parameter is not
+        finite.
+    """
+    N = x.shape[0]
+    inl = np.zeros(N, dtype=np.bool_)
+    for a in range(3):
+        if not (np.isfinite(C[a]) and np.isfinite(w[a]) and np.isfinite(t[a])
+                and np.isfinite(R[a, 0]) and np.isfinite(R[a, 1]) and np.isfinite(R[a, 2])):
+            return np.inf, inl, 0
+    e2 = errors2(x, X, r0e, d, R, C, w, t, True)
+    s = 0.0
+    c = 0
+    for i in range(N):
+        if e2[i] < th2:
+            s += e2[i]
+            inl[i] = True
+            c += 1
+        else:
+            s += th2
+    return s, inl, c

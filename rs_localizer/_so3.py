@@ -5,8 +5,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+#: numba fast-math flags of the hot kernels: fused multiply-add only (no reassociation, and
+#: NaN/inf semantics are kept, which the kernels rely on); ~30% faster scoring, results
+#: change in the last bits only
+FMA = {"contract"}
 
-@njit(cache=True, inline="always")
+
+@njit(cache=True, inline="always", fastmath=FMA)
 def so3_coefficients(th2):
     """Rodrigues/left-Jacobian coefficients for an angle t with ``t^2 = th2``:
     ``(sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3)``, so that
@@ -24,7 +29,7 @@ def so3_coefficients(th2):
     return s / th, (1.0 - np.cos(th)) / th2, (th - s) / (th2 * th)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def compose_rotvec(v, R_pre):
     """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
     on top of the pre-rotation."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 
 __all__ = ["CameraModel", "READOUT_DIRECTIONS", "DISTORTION_MODELS"]
 
@@ -97,6 +98,8 @@ class CameraModel:
         object.__setattr__(self, "height", int(self.height))
         object.__setattr__(self, "line_delay", float(self.line_delay))
         object.__setattr__(self, "distortion_model", model)
+        # derived once (the per-frame path reads them): not dataclass fields
+        object.__setattr__(self, "_distorted", bool(np.any(D != 0)) and model != "none")
 
     # ---------------------------------------------------------------- construction helpers
     @classmethod
@@ -114,7 +117,7 @@ class CameraModel:
     # ---------------------------------------------------------------- properties
     @property
     def has_distortion(self) -> bool:
-        return bool(np.any(self.D != 0)) and self.distortion_model != "none"
+        return self._distorted
 
     @property
     def readout_vector(self) -> np.ndarray:
@@ -188,9 +191,7 @@ class CameraModel:
         if len(p) == 0:
             return np.zeros((0, 2))
         if not self.has_distortion:
-            out = (p.reshape(-1, 2) - self.K[:2, 2]) / np.diag(self.K)[:2]
-            out[:, 0] -= self.K[0, 1] * out[:, 1] / self.K[0, 0]
-            return out
+            return _pinhole_normalize(p.reshape(-1, 2), self.K)
         if self.distortion_model == "equidistant":
             return cv2.fisheye.undistortPoints(p, self.K, self.D[:4]).reshape(-1, 2)
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
@@ -223,12 +224,38 @@ class CameraModel:
             projection uses the distorted line as the capture time (equal to ``r0`` without
             distortion).
         """
-        x = self.undistort(points_px)
-        r = self.rs_coordinate(points_px)
-        return x, r, self.r0 - (r - x @ self.readout_vector)
+        p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
+        x = self.undistort(p)
+        axis, sign, d = READOUT_DIRECTIONS[self.readout]
+        r, r0e = _rs_coordinates(p, x, self.K, axis, sign, d[0], d[1], self.r0)
+        return x, r, r0e
 
     def in_image(self, points_px, margin: float = 0.0) -> np.ndarray:
         """(N,) bool: pixel inside ``[-margin, size - 1 + margin]``."""
         p = np.asarray(points_px, dtype=float)
         return ((p[:, 0] >= -margin) & (p[:, 0] <= self.width - 1 + margin)
                 & (p[:, 1] >= -margin) & (p[:, 1] <= self.height - 1 + margin))
+
+
+@njit(cache=True)
+def _pinhole_normalize(p, K):
+    """(N, 2) pixels -> normalized coordinates ``K^-1 [u, v, 1]`` (upper-triangular K)."""
+    out = np.empty((p.shape[0], 2))
+    for i in range(p.shape[0]):
+        y = (p[i, 1] - K[1, 2]) / K[1, 1]
+        out[i, 0] = (p[i, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+        out[i, 1] = y
+    return out
+
+
+@njit(cache=True)
+def _rs_coordinates(p, x, K, axis, sign, d0, d1, r0):
+    """RS coordinates ``r`` of the measured pixels p (N, 2) and the per-point reference
+    ``r0 - (r - d . x)`` of :meth:`CameraModel.normalize` (x the undistorted points)."""
+    n = p.shape[0]
+    r = np.empty(n)
+    r0e = np.empty(n)
+    for i in range(n):
+        r[i] = sign * (p[i, axis] - K[axis, 2]) / K[axis, axis]
+        r0e[i] = r0 - (r[i] - (d0 * x[i, 0] + d1 * x[i, 1]))
+    return r, r0e
