@@ -17,12 +17,13 @@ def so3_coefficients(th2):
     ``(sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3)``, so that
     ``expm([a]x) = I + c1 [a]x + c2 [a]x^2`` and ``J_l(a) = I + c2 [a]x + c3 [a]x^2``.
     Taylor series to t^8 below t = 0.2 (exact to rounding there), trigonometry above."""
-    if th2 < 0.04:
-        c1 = 1.0 - th2 / 6.0 * (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0)))
-        c2 = 0.5 * (1.0 - th2 / 12.0 * (1.0 - th2 / 30.0 * (1.0 - th2 / 56.0
-                                                              * (1.0 - th2 / 90.0))))
-        c3 = (1.0 - th2 / 20.0 * (1.0 - th2 / 42.0 * (1.0 - th2 / 72.0
-                                                      * (1.0 - th2 / 110.0)))) / 6.0
+    if th2 < 0.04:  # divisions by constants written as multiplications (hot path)
+        c1 = 1.0 - th2 * (1.0 / 6.0) * (1.0 - th2 * (1.0 / 20.0) * (
+            1.0 - th2 * (1.0 / 42.0) * (1.0 - th2 * (1.0 / 72.0))))
+        c2 = 0.5 * (1.0 - th2 * (1.0 / 12.0) * (1.0 - th2 * (1.0 / 30.0) * (
+            1.0 - th2 * (1.0 / 56.0) * (1.0 - th2 * (1.0 / 90.0)))))
+        c3 = (1.0 - th2 * (1.0 / 20.0) * (1.0 - th2 * (1.0 / 42.0) * (
+            1.0 - th2 * (1.0 / 72.0) * (1.0 - th2 * (1.0 / 110.0))))) * (1.0 / 6.0)
         return c1, c2, c3
     th = np.sqrt(th2)
     s = np.sin(th)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.refine import (exact_errors, exact_jacobian, exact_residuals, refine_rs_pose,
+from rs_localizer.refine import (_normal_equations, _solve_symmetric, exact_errors,
+                                 exact_jacobian, exact_residuals, refine_rs_pose,
                                  refine_rs_pose_scipy)
 from rs_localizer.synthetic import make_frame
 
@@ -58,3 +59,113 @@ def test_recovers_ground_truth_with_outliers_and_reports_covariance():
     np.testing.assert_allclose(e, np.linalg.norm(exact_residuals(
         np.r_[np.zeros(3), ref.C, ref.w, ref.t], ref.R, f.X, f.x, f.r - f.r0).reshape(-1, 2),
         axis=1))
+
+
+def reference_normal_equations(R, C, w, t, X, x, tau, k, cutoff, n_free):
+    """H = J^T W J, g = J^T W r and the truncated Huber cost from exact_jacobian and
+    exact_residuals in plain NumPy; also the mask of the points used and the errors."""
+    n = len(X)
+    theta = np.r_[np.zeros(3), C, w, t]
+    r = exact_residuals(theta, R, X, x, tau).reshape(n, 2)
+    J = exact_jacobian(theta, R, X, x, tau).reshape(n, 2, 12)[:, :, :n_free]
+    z = (rotvec_to_matrix(tau[:, None] * w) @ (X @ R.T)[:, :, None])[:, 2, 0] + C[2] + tau * t[2]
+    e = np.linalg.norm(r, axis=1)
+    used = (z > 1e-12) & (e <= cutoff)
+    wt = np.where(e <= k, 1.0, k / e)[used]
+    H = np.einsum("n,nia,nib->ab", wt, J[used], J[used])
+    g = np.einsum("n,nia,ni->a", wt, J[used], r[used])
+
+    def rho(s):
+        return np.where(s <= k, s * s, 2 * k * s - k * k)
+
+    cost = rho(e[used]).sum() + (n - used.sum()) * rho(cutoff)
+    return H, g, cost, used, e
+
+
+@pytest.mark.parametrize("rolling", [True, False])
+@pytest.mark.parametrize("w_scale", [1.0, 2.5])  # 2.5: some |tau w| beyond the series' range
+def test_normal_equations_match_numpy_reference(rolling, w_scale):
+    rng = np.random.default_rng(4)
+    f = make_frame(rng, 61, rs_speed=1.0, noise_px=1.0, outlier_ratio=0.15)  # odd N
+    R, C, w, t = perturbed_start(f, rng)
+    w = w * w_scale
+    if not rolling:
+        w, t = np.zeros(3), np.zeros(3)
+    tau = f.r - f.r0
+    X = f.X.copy()
+    X[0] = (np.array([0.1, 0.0, -1.0]) - C) @ R  # behind the camera
+    n_free = 12 if rolling else 6
+    e = exact_errors(R, C, w, t, X, f.x, tau)
+    k, cutoff = np.quantile(e[np.isfinite(e)], [0.3, 0.8])
+    H_ref, g_ref, cost_ref, used, e = reference_normal_equations(R, C, w, t, X, f.x, tau, k,
+                                                                 cutoff, n_free)
+    # all cases present: quadratic and linear Huber zone, beyond the cutoff, behind
+    assert np.sum(used & (e <= k)) > 10 and np.sum(used & (e > k)) > 10
+    assert np.sum(~used) > 10 and not used[0]
+    if rolling:  # both branches of the rotation coefficients
+        th = np.abs(tau) * np.linalg.norm(w)
+        assert (th.max() > 0.2) == (w_scale > 1)
+    H, g, cost = _normal_equations(R, C, w, t, X, f.x, tau, k, n_free, cutoff)
+    assert H.shape == (n_free, n_free) and g.shape == (n_free,)
+    np.testing.assert_allclose(H, H.T, rtol=0, atol=0)
+    np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-12 * np.abs(H_ref).max())
+    np.testing.assert_allclose(g, g_ref, rtol=1e-10, atol=1e-12 * np.abs(g_ref).max())
+    assert cost == pytest.approx(cost_ref, rel=1e-12)
+
+
+@pytest.mark.parametrize("rolling", [True, False])
+def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
+    rng = np.random.default_rng(5)
+    f = make_frame(rng, 150, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.1)
+    k = 2.0 / 1207.0
+    start = [rotvec_to_matrix(rng.normal(size=3) * 0.001) @ f.R,
+             f.C + rng.normal(size=3) * 0.002, f.w * 0.98, f.t * 1.02]
+    before = [a.copy() for a in start]
+    tau = f.r - f.r0
+    ref = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k)
+    for a, b in zip(start, before):  # inputs untouched
+        np.testing.assert_array_equal(a, b)
+    n_free = 12 if rolling else 6
+    e = exact_errors(ref.R, ref.C, ref.w, ref.t, f.X, f.x, tau)
+    inside = np.isfinite(e) & (e <= k)
+    sigma2 = np.sum(e[inside] ** 2) / (2 * inside.sum() - n_free)
+    assert ref.sigma == pytest.approx(np.sqrt(sigma2), rel=1e-10)
+    H = _normal_equations(ref.R, ref.C, ref.w, ref.t, f.X, f.x, tau, k, n_free, 3 * k)[0]
+    cov = np.zeros((12, 12))
+    cov[:n_free, :n_free] = sigma2 * np.linalg.inv(H)
+    np.testing.assert_allclose(ref.covariance, cov, rtol=1e-8, atol=1e-8 * np.abs(cov).max())
+    if not rolling:
+        assert np.all(ref.w == 0) and np.all(ref.t == 0)
+    # no covariance: None and NaN sigma, same pose
+    fast = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k,
+                          covariance=False)
+    assert fast.covariance is None and np.isnan(fast.sigma) and fast.nfev == ref.nfev
+    np.testing.assert_array_equal(fast.R, ref.R)
+
+
+def test_all_points_beyond_cutoff():
+    """Nothing to fit: H = 0, the zero step is accepted, the covariance is NaN (singular H)."""
+    rng = np.random.default_rng(5)
+    f = make_frame(rng, 50, rs_speed=0.5)
+    R, C, w, t = perturbed_start(f, rng)
+    k = 0.1 / 1207.0
+    ref = refine_rs_pose(R, C, w, t, f.X, f.x, f.r - f.r0, k, cutoff=k)
+    assert ref.success and ref.nfev == 2 and ref.sigma == 0.0
+    assert np.all(np.isnan(ref.covariance))
+    np.testing.assert_array_equal(ref.R, R)
+    assert ref.R is not R
+
+
+@pytest.mark.parametrize("n", [12, 6])
+def test_symmetric_solver_cholesky_lu_and_singular(n):
+    rng = np.random.default_rng(6)
+    L, M = np.empty((12, 12)), np.empty((12, 12))
+    J = rng.normal(size=(30, 12))
+    S = rng.normal(size=(12, 12))
+    # positive definite (Cholesky), indefinite (LU fallback)
+    for A, definite in ((J.T @ J, True), (S + S.T, False)):
+        assert (np.linalg.eigvalsh(A[:n, :n]).min() > 0) == definite
+        B = np.eye(12)
+        assert _solve_symmetric(A, B, n, n, L, M)
+        np.testing.assert_allclose(B[:n, :n], np.linalg.inv(A[:n, :n]), rtol=1e-9, atol=1e-12)
+    assert not _solve_symmetric(np.zeros((12, 12)), np.eye(12), n, n, L, M)
