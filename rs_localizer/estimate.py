@@ -49,7 +49,7 @@ class EstimateOptions:
         batch_size: samples of the first batch solved at once by the batched solvers; each
             next batch doubles, but no batch draws more samples than adaptive termination
             still asks for.
-        local_optimization_steps: maximum re-solves on the inliers.
+        local_optimization_steps: maximum local optimization rounds per new best.
         prosac_growth: with scores, the sampling pool reaches all points after this many
             hypotheses (it starts at the best-scored ``2 * sample size``).
         max_point_norm: 3D points farther than this from the origin (m) are dropped as
