@@ -30,27 +30,32 @@ def so3_coefficients(th2):
     return s / th, (1.0 - np.cos(th)) / th2, (th - s) / (th2 * th)
 
 
+@njit(cache=True, inline="always", fastmath=FMA)
+def rotate_left_into(a0, a1, a2, R, out):
+    """``out = expm([a]x) R`` for R, out (3, 3) (Rodrigues)."""
+    sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
+    e00 = 1.0 - ca * (a1 * a1 + a2 * a2)
+    e11 = 1.0 - ca * (a0 * a0 + a2 * a2)
+    e22 = 1.0 - ca * (a0 * a0 + a1 * a1)
+    e01 = -sa * a2 + ca * a0 * a1
+    e10 = sa * a2 + ca * a0 * a1
+    e02 = sa * a1 + ca * a0 * a2
+    e20 = -sa * a1 + ca * a0 * a2
+    e12 = -sa * a0 + ca * a1 * a2
+    e21 = sa * a0 + ca * a1 * a2
+    for j in range(3):
+        r0, r1, r2 = R[0, j], R[1, j], R[2, j]
+        out[0, j] = e00 * r0 + e01 * r1 + e02 * r2
+        out[1, j] = e10 * r0 + e11 * r1 + e12 * r2
+        out[2, j] = e20 * r0 + e21 * r1 + e22 * r2
+
+
 @njit(cache=True, fastmath=FMA)
 def compose_rotvec(v, R_pre):
     """(K, 3, 3) rotations ``expm([v_k]x) R_pre[k]`` (Rodrigues), the RS solvers' v applied
     on top of the pre-rotation."""
     K = v.shape[0]
     out = np.empty((K, 3, 3))
-    E = np.empty((3, 3))
     for k in range(K):
-        a0, a1, a2 = v[k, 0], v[k, 1], v[k, 2]
-        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-        E[0, 0] = 1.0 - ca * (a1 * a1 + a2 * a2)
-        E[1, 1] = 1.0 - ca * (a0 * a0 + a2 * a2)
-        E[2, 2] = 1.0 - ca * (a0 * a0 + a1 * a1)
-        E[0, 1] = -sa * a2 + ca * a0 * a1
-        E[1, 0] = sa * a2 + ca * a0 * a1
-        E[0, 2] = sa * a1 + ca * a0 * a2
-        E[2, 0] = -sa * a1 + ca * a0 * a2
-        E[1, 2] = -sa * a0 + ca * a1 * a2
-        E[2, 1] = sa * a0 + ca * a1 * a2
-        for i in range(3):
-            for j in range(3):
-                out[k, i, j] = (E[i, 0] * R_pre[k, 0, j] + E[i, 1] * R_pre[k, 1, j]
-                                + E[i, 2] * R_pre[k, 2, j])
+        rotate_left_into(v[k, 0], v[k, 1], v[k, 2], R_pre[k], out[k])
     return out

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ._so3 import FMA, so3_coefficients
+from ._so3 import FMA, rotate_left_into, so3_coefficients
 from .geometry import rotvec_to_matrix, skew
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
@@ -401,22 +401,9 @@ def _solve_symmetric(A, B, n, m, L, M):
 
 @njit(cache=True)
 def _rotate_left(v0, v1, v2, R):
-    """(3, 3) ``expm([v]x) R`` (Rodrigues, as :func:`~rs_localizer._so3.compose_rotvec`)."""
-    sa, ca, _ = so3_coefficients(v0 * v0 + v1 * v1 + v2 * v2)
-    E = np.empty((3, 3))
-    E[0, 0] = 1.0 - ca * (v1 * v1 + v2 * v2)
-    E[1, 1] = 1.0 - ca * (v0 * v0 + v2 * v2)
-    E[2, 2] = 1.0 - ca * (v0 * v0 + v1 * v1)
-    E[0, 1] = -sa * v2 + ca * v0 * v1
-    E[1, 0] = sa * v2 + ca * v0 * v1
-    E[0, 2] = sa * v1 + ca * v0 * v2
-    E[2, 0] = -sa * v1 + ca * v0 * v2
-    E[1, 2] = -sa * v0 + ca * v1 * v2
-    E[2, 1] = sa * v0 + ca * v1 * v2
+    """(3, 3) ``expm([v]x) R`` (Rodrigues)."""
     out = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = E[i, 0] * R[0, j] + E[i, 1] * R[1, j] + E[i, 2] * R[2, j]
+    rotate_left_into(v0, v1, v2, R, out)
     return out
 
 
