@@ -219,9 +219,15 @@ def _render_distorted(cam, R, C, w, t, X, noise, rng):
     return px + rng.normal(scale=noise, size=px.shape)
 
 
-@pytest.mark.parametrize("readout", ["top_to_bottom", "bottom_to_top", "left_to_right"])
+READOUTS = ["top_to_bottom", "bottom_to_top", "left_to_right"]
+
+
+@pytest.mark.parametrize("readout", READOUTS)
 def test_distorted_camera_and_readout_directions(readout):
-    rng = np.random.default_rng(hash(readout) % 1000)
+    # a fixed seed per direction (``hash(str)`` changes between processes): the velocity
+    # bounds below are exceeded by 1, 2 and 8 of 200 random draws for the three directions
+    # (one frame observes velocity weakly), so an unseeded draw fails now and then
+    rng = np.random.default_rng(READOUTS.index(readout))
     K = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
     cam = CameraModel.from_readout_time(K, 0.03, 1280, 720, D=[-0.25, 0.08, 0.001, 0.0005, 0.0],
                                         readout=readout, reference_row=100.0)
