@@ -40,7 +40,7 @@ sample-bag: venv
 	$(RSL) render-bag data/sample_images --frames 20 --mono --overwrite
 
 bench-node: venv
-	$(PY) -m rs_localizer.bench_node --frames 300 --solver r6p_1lin
+	$(PY) -m rs_localizer.evaluation.bench_node --frames 300 --solver r6p_1lin
 
 clean:
 	rm -rf build *.egg-info .pytest_cache

@@ -5,6 +5,18 @@ pose rolling shutter problem", ACCV 2018 (``shared/paper/linear_rs_absolute_pose
 Albl, Kukelova, Pajdla, "R6P - Rolling shutter absolute pose problem", CVPR 2015.
 
 Only ``rs_localizer.ros`` imports rclpy; everything else is plain NumPy/SciPy/OpenCV.
+
+    from rs_localizer import CameraModel, EstimateOptions, estimate_rs_pose
+
+Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :mod:`.maps`,
+:mod:`.accuracy`) <- :mod:`.solvers` <- :mod:`.estimation` <- :mod:`.frontends` <- :mod:`.ros`;
+:mod:`.sim` produces data; :mod:`.evaluation` and :mod:`.cli` compose everything.
 """
 
+from .camera import CameraModel
+from .estimation import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+
 __version__ = "0.1.0"
+
+__all__ = ["CameraModel", "EstimateOptions", "RSPoseEstimate", "estimate_rs_pose",
+           "__version__"]

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from rs_localizer.ar_experiment import SOLVERS_AR, cube_edges, project_estimate, run
-from rs_localizer.render import camera_preset
+from rs_localizer.evaluation.ar_experiment import SOLVERS_AR, cube_edges, project_estimate, run
+from rs_localizer.sim.render import camera_preset
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
 from rs_localizer.cli import main as cli  # noqa: E402
-from rs_localizer.ros import bag as rb  # noqa: E402
+from rs_localizer.ros import bag_io, play as rs_play, replay as rs_replay  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def small_bags(tmp_path_factory):
 def test_make_bag_contents(small_bags, storage):
     from rosbags.rosbag2 import Reader
     from rs_localizer.ros.pointcloud import read_correspondences, read_keypoints
-    from rs_localizer.trajectory import load_landmarks_csv
+    from rs_localizer.maps import load_landmarks_csv
 
     path = small_bags[storage]
     with Reader(path) as r:
@@ -38,15 +38,15 @@ def test_make_bag_contents(small_bags, storage):
         assert r.storage_plugin_name if hasattr(r, "storage_plugin_name") else True
     assert counts == {"/camera/camera_info": 4, "/camera/correspondences": 4,
                       "/camera/keypoints": 4, "/ground_truth/pose": 4, "/ground_truth/twist": 4}
-    info = rb.read_bag_info(path)
+    info = bag_io.read_bag_info(path)
     assert info["rs"]["line_delay"] == pytest.approx(30e-6)
     assert info["rs"]["reference_row"] == pytest.approx(359.5)
     assert info["settings"]["num_points"] == 200
     ids, pts = load_landmarks_csv(path / "landmarks.csv")
     lm = dict(zip(ids.tolist(), pts))
-    ts = rb._typestore()
+    ts = bag_io._typestore()
     order = []
-    for topic, msgtype, t, raw in rb.iter_messages(path):
+    for topic, msgtype, t, raw in bag_io.iter_messages(path):
         order.append(topic)
         msg = ts.deserialize_cdr(raw, msgtype)
         if topic.endswith("correspondences"):
@@ -58,7 +58,7 @@ def test_make_bag_contents(small_bags, storage):
             k = read_keypoints(msg)
             assert set(k.ids) <= set(lm)
     assert order[0] == "/camera/camera_info"  # camera_info comes before its frame
-    gt = rb.load_ground_truth(path)
+    gt = bag_io.load_ground_truth(path)
     assert len(gt) == 4
     s0 = int(gt.stamps[0])
     assert gt.nearest(s0 + 1000) == s0 and gt.nearest(s0 + 10_000_000) is None
@@ -69,13 +69,13 @@ def test_make_bag_contents(small_bags, storage):
 
 def test_same_content_in_both_storages(small_bags):
     # (compare decoded content: CDR padding bytes are not deterministic)
-    ts = rb._typestore()
-    a = list(rb.iter_messages(small_bags["mcap"]))
-    b = list(rb.iter_messages(small_bags["sqlite3"]))
+    ts = bag_io._typestore()
+    a = list(bag_io.iter_messages(small_bags["mcap"]))
+    b = list(bag_io.iter_messages(small_bags["sqlite3"]))
     assert [(m[0], m[2], len(m[3])) for m in a] == [(m[0], m[2], len(m[3])) for m in b]
     for x, y in zip(a, b):
         mx, my = ts.deserialize_cdr(x[3], x[1]), ts.deserialize_cdr(y[3], y[1])
-        if x[1] == rb.PC2:
+        if x[1] == bag_io.PC2:
             assert bytes(mx.data) == bytes(my.data)
         assert mx.header.stamp == my.header.stamp
 
@@ -99,16 +99,16 @@ def test_replay_offline_with_outputs(small_bags, tmp_path, capsys):
     lines = csv.read_text().splitlines()
     assert lines[0].startswith("frame,stamp_ns,out_stamp_ns,solver,success")
     assert len(lines) == 5
-    topics = rb.bag_topics(out)
+    topics = bag_io.bag_topics(out)
     assert topics["/rs_localizer/pose"] == "geometry_msgs/msg/PoseStamped"
     assert topics["/rs_localizer/odom"] == "nav_msgs/msg/Odometry"
-    gt = rb.load_ground_truth(path)
-    est = rb.load_ground_truth(out, "/rs_localizer/pose", "/rs_localizer/twist")
+    gt = bag_io.load_ground_truth(path)
+    est = bag_io.load_ground_truth(out, "/rs_localizer/pose", "/rs_localizer/twist")
     assert list(est.stamps) == list(gt.stamps)  # stamped at the reference row
 
 
 def test_replay_keypoints_source(small_bags, capsys):
-    res = rb.replay(small_bags["sqlite3"], source="keypoints", progress=None)
+    res = rs_replay.replay(small_bags["sqlite3"], source="keypoints", progress=None)
     assert res.solved == 4 and res.summary["rot_deg"]["max"] < 0.25
 
 
@@ -134,7 +134,7 @@ def test_play_reaches_a_subscriber(small_bags, ros_context):
                                           for _ in iter(stop.is_set, True)])
     th.start()
     try:
-        res = rb.play(small_bags["mcap"], rate=4.0, context=ros_context,
+        res = rs_play.play(small_bags["mcap"], rate=4.0, context=ros_context,
                       topics=["/camera/correspondences", "/camera/camera_info"],
                       remap={"/camera/correspondences": "/replayed/correspondences"},
                       wait_subscribers=20.0)
@@ -162,7 +162,7 @@ def test_header_stamp_shift_roundtrip():
 
     raw = serialize_message(correspondence_cloud(np.ones((3, 2)), np.ones((3, 3)),
                                                  stamp=1_700_000_000_999_999_999))
-    assert rb._header_stamp(raw) == 1_700_000_000_999_999_999
-    shifted = rb._shift_stamp(raw, rb.PC2, 2)
+    assert rs_play._header_stamp(raw) == 1_700_000_000_999_999_999
+    shifted = rs_play._shift_stamp(raw, bag_io.PC2, 2)
     assert stamp_to_ns(deserialize_message(shifted, PointCloud2).header.stamp) == \
         1_700_000_001_000_000_001

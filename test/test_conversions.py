@@ -6,7 +6,7 @@ import pytest
 pytest.importorskip("sensor_msgs.msg")
 
 from rs_localizer.camera import CameraModel  # noqa: E402
-from rs_localizer.estimate import RSPoseEstimate  # noqa: E402
+from rs_localizer.estimation.estimate import RSPoseEstimate  # noqa: E402
 from rs_localizer.geometry import rotvec_to_matrix  # noqa: E402
 from rs_localizer.ros import conversions as cv  # noqa: E402
 from sensor_msgs.msg import CameraInfo  # noqa: E402

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimate import SOLVERS, EstimateOptions, estimate_rs_pose, physical_velocities
+from rs_localizer.estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose, physical_velocities
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix, skew
-from rs_localizer.synthetic import make_frame, paper_camera
+from rs_localizer.sim.synthetic import make_frame, paper_camera
 
 CAM = paper_camera()
 

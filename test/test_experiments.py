@@ -1,4 +1,4 @@
-"""The paper's qualitative claims (sec. 4) on quick runs of ``rs_localizer.experiments``.
+"""The paper's qualitative claims (sec. 4) on quick runs of ``rs_localizer.evaluation.experiments``.
 
 Every experiment runs with 15 trials per setting (the full run, ``docs/experiments``, uses 200)
 and a fixed seed, so the tests are deterministic; the thresholds below are chosen so they hold
@@ -12,7 +12,7 @@ import os
 import numpy as np
 import pytest
 
-from rs_localizer import experiments as E
+from rs_localizer.evaluation import experiments as E
 
 TRIALS = 15
 SPEEDS = (0.25, 0.5, 0.75, 1.0)

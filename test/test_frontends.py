@@ -7,8 +7,8 @@ import pytest
 
 from rs_localizer.frontends import ArucoFrontend, make_frontend, to_gray
 from rs_localizer.frontends.image import image_fields, image_from_msg
-from rs_localizer.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
-from rs_localizer.render.scene import save_marker_map
+from rs_localizer.sim.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
+from rs_localizer.sim.render.scene import save_marker_map
 
 T_FRAME = 0.35
 
@@ -88,7 +88,8 @@ def test_feature_matches_mostly_correct(tmp_path):
     """Paper protocol: map from global-shutter renders with known depth, RS frame matched to
     it with the ratio test; the matched 3D points project (exact RS model) onto the matched
     pixels."""
-    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap, build_feature_map
+    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
+    from rs_localizer.sim.feature_map import build_feature_map
 
     scene = load_scene("textured_room")
     camera = camera_preset("vga")

@@ -34,7 +34,7 @@ OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_c
 
 
 def _check_accuracy(errs, limits=LIMITS, label=""):
-    from rs_localizer.ros.bag import summarize_errors
+    from rs_localizer.accuracy import summarize_errors
 
     s = summarize_errors(errs)
     for key, (med, mx) in limits.items():
@@ -56,8 +56,9 @@ def node(tmp_path_factory, keypoints_bag):
 
 
 def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=None):
-    from rs_localizer.ros.bag import load_ground_truth, play
-    from rs_localizer.ros.demo import evaluate_outputs
+    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.play import play
+    from rs_localizer.evaluation.demo import evaluate_outputs
 
     res = play(bag, lockstep=True, output_topics=outputs, context=ros_context, timeout=5.0,
                topics=topics, stamp_offset_ns=int(offset_s * 1e9), limit=limit, log=print)
@@ -203,7 +204,7 @@ def test_diagnostics(node, ros_context, sample_bag):
 # ---------------------------------------------------------------------------- bad input
 @pytest.fixture(scope="module")
 def frames():
-    from rs_localizer.trajectory import SequenceConfig, generate_sequence
+    from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
     fr, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=16, num_points=300, seed=5,
                                                          t0_ns=1_800_000_000_000_000_000))
@@ -214,7 +215,7 @@ def test_bad_inputs(tmp_path, ros_context, frames):
     """Every bad input is dropped with its reason counted; valid frames after it still solve."""
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import camera_info_msg
-    from rs_localizer.trajectory import save_landmarks_csv
+    from rs_localizer.maps import save_landmarks_csv
     from sensor_msgs.msg import PointField
 
     fr, scene, cam = frames

@@ -55,7 +55,7 @@ def node(tmp_path_factory, sample_images_bag):
 def _bag_messages(bag):
     """rclpy Image and CameraInfo messages of the bag, and its correspondence clouds."""
     from rclpy.serialization import deserialize_message
-    from rs_localizer.ros.bag import iter_messages
+    from rs_localizer.ros.bag_io import iter_messages
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
     types = {IMAGE_TOPIC: Image, INFO_TOPIC: CameraInfo, "/camera/correspondences": PointCloud2}
@@ -68,9 +68,11 @@ def _bag_messages(bag):
 def test_sample_images_accuracy(node, ros_context, sample_images_bag):
     """Lock-step replay of the rendered bag's images: every frame solved, accurate, stamped at
     the reference row; the republished correspondences are the bag's front-end output."""
-    from rs_localizer.ros.bag import load_ground_truth, play, summarize_errors
+    from rs_localizer.accuracy import summarize_errors
+    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.play import play
     from rs_localizer.ros.conversions import stamp_to_ns
-    from rs_localizer.ros.demo import evaluate_outputs
+    from rs_localizer.evaluation.demo import evaluate_outputs
     from rs_localizer.ros.pointcloud import read_correspondences
 
     outs = (f"{NS}/pose", f"{NS}/twist", f"{NS}/correspondences_out")

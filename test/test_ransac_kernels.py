@@ -4,11 +4,11 @@ gather, the P3P pre-rotation choice and the preemptive MSAC scoring."""
 import numpy as np
 import pytest
 
-from rs_localizer._hypotheses import draw_samples, gather_prerotated, select_prerotations
-from rs_localizer._scoring import errors2, msac_scores
+from rs_localizer.estimation.sampling import draw_samples, gather_prerotated, select_prerotations
+from rs_localizer.estimation.scoring import errors2, msac_scores
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.solvers import p3p_batch
-from rs_localizer.synthetic import make_frame
+from rs_localizer.sim.synthetic import make_frame
 
 
 def test_draw_samples_are_distinct_in_range_and_uniform():

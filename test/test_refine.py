@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.refine import (_normal_equations, _solve_symmetric, exact_errors,
+from rs_localizer.estimation.refine import (_normal_equations, _solve_symmetric, exact_errors,
                                  exact_jacobian, exact_residuals, refine_rs_pose,
                                  refine_rs_pose_scipy)
-from rs_localizer.synthetic import make_frame
+from rs_localizer.sim.synthetic import make_frame
 
 
 def perturbed_start(f, rng):

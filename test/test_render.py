@@ -5,10 +5,10 @@ import pytest
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.geometry import matrix_to_rotvec
-from rs_localizer.render import (Renderer, camera_preset, camera_rays, load_scene, make_motion,
+from rs_localizer.sim.render import (Renderer, camera_preset, camera_rays, load_scene, make_motion,
                                  motion_names, scene_names)
-from rs_localizer.render.scene import load_marker_map, save_marker_map
-from rs_localizer.trajectory import project_rs
+from rs_localizer.sim.render.scene import load_marker_map, save_marker_map
+from rs_localizer.sim.trajectory import project_rs
 
 T_FRAME = 0.35  # a frame with ~1 rad/s rotation in the shake motion
 
@@ -38,7 +38,7 @@ def _locate(hit, X, uv0):
 def test_marker_corners_appear_at_exact_rs_projection(room):
     """Every visible marker corner appears in the rendered frame (rendered line by line from
     the continuous trajectory, through lens distortion) at the pixel predicted by the exact RS
-    projection with the row solved iteratively (rs_localizer.trajectory.project_rs)."""
+    projection with the row solved iteratively (rs_localizer.sim.trajectory.project_rs)."""
     scene, camera, motion, r = room
     hit, quad, _ = r.hit_map(motion, T_FRAME)
     _, X = scene.marker_corner_points()
@@ -176,7 +176,7 @@ def test_render_bag_roundtrip(tmp_path):
     from rosbags.typesys import Stores, get_typestore
 
     from rs_localizer.frontends.image import image_from_msg
-    from rs_localizer.render.bagout import render_bag
+    from rs_localizer.cli.render_bag import render_bag
     from rs_localizer.ros.pointcloud import read_correspondences
 
     bag = render_bag(tmp_path / "bag", "aruco_room", "shake", 3, mono=True, supersample=1)

@@ -8,7 +8,7 @@ from rs_localizer.solvers import (DegenerateInputError, p3p, p3p_opencv, r6p, r6
                                   r6p_1lin_batch, r6p_joined, r6p_vC_wt, r6p_vC_wt_batch,
                                   r6p_vCt_w, r6p_vCt_w_batch, r6p_vCt_wt, r6p_vCt_wt_batch, r9p,
                                   r9p_batch)
-from rs_localizer.synthetic import make_frame
+from rs_localizer.sim.synthetic import make_frame
 
 ITERATIVE = [r6p_1lin, r6p_vC_wt, r6p_vCt_w, r6p_vCt_wt]
 BATCHED = {r6p_1lin: r6p_1lin_batch, r6p_vC_wt: r6p_vC_wt_batch, r6p_vCt_w: r6p_vCt_w_batch,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rs_project_exact
-from rs_localizer.synthetic import FOCAL_PX, HALF_TAN, make_frame, paper_camera
+from rs_localizer.sim.synthetic import FOCAL_PX, HALF_TAN, make_frame, paper_camera
 
 
 def test_frame_follows_the_protocol():

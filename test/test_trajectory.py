@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import matrix_to_rotvec
-from rs_localizer.trajectory import (SequenceConfig, Trajectory, default_camera,
-                                     generate_sequence, load_landmarks_csv, make_scene,
-                                     project_rs, save_landmarks_csv)
+from rs_localizer.maps import load_landmarks_csv, save_landmarks_csv
+from rs_localizer.sim.trajectory import (SequenceConfig, Trajectory, default_camera, generate_sequence, make_scene, project_rs)
 
 
 @pytest.fixture(scope="module")

@@ -52,7 +52,7 @@ class ArucoFrontend:
 
     def __init__(self, marker_corners: dict, dictionary: str = "DICT_4X4_250",
                  subpix_window: int = 3, min_marker_perimeter: float = 0.02):
-        from ..render.scene import marker_dictionary
+        from ..maps import marker_dictionary
 
         self.dictionary = dictionary
         self.marker_corners = {int(k): np.asarray(v, dtype=float).reshape(4, 3)
@@ -78,9 +78,9 @@ class ArucoFrontend:
 
     @classmethod
     def from_file(cls, path, **kw) -> "ArucoFrontend":
-        """From a marker map YAML (:func:`rs_localizer.render.scene.save_marker_map`) or a scene
+        """From a marker map YAML (:func:`rs_localizer.maps.load_marker_map`) or a scene
         YAML / built-in scene name."""
-        from ..render.scene import load_marker_map
+        from ..maps import load_marker_map
 
         dictionary, corners = load_marker_map(Path(str(path)))
         return cls(corners, dictionary, **kw)

@@ -1,8 +1,8 @@
 """Natural-feature front end following the paper's real-data protocol (sec. 4.2).
 
-1. :func:`build_feature_map`: reconstruct the scene with a *global-shutter* camera: render
-   views from known poses, detect ORB or SIFT features, and give every keypoint its 3D point by
-   casting its ray into the scene (known depth). Keypoints near depth discontinuities are
+1. :func:`feature_map_from_views`: reconstruct the scene from *global-shutter* views at known
+   poses with known depth (:func:`rs_localizer.sim.feature_map.build_feature_map` renders them):
+   detect ORB or SIFT features and give every keypoint its 3D point by back-projecting it. Keypoints near depth discontinuities are
    dropped; observations of the same 3D point (within ``merge_radius``) share a landmark id.
 2. :class:`FeatureFrontend`: detect the same kind of features in each rolling-shutter frame and
    match them to the map descriptors with Lowe's ratio test (the second neighbour is the best
@@ -23,7 +23,7 @@ import numpy as np
 from ..camera import CameraModel
 from .aruco import to_gray
 
-__all__ = ["FeatureMap", "FeatureFrontend", "build_feature_map", "make_detector"]
+__all__ = ["FeatureMap", "FeatureFrontend", "feature_map_from_views", "make_detector"]
 
 
 def make_detector(kind: str = "orb", n_features: int = 2000):
@@ -94,45 +94,37 @@ def _merge_landmarks(points: np.ndarray, radius: float) -> np.ndarray:
     return labels.astype(np.int64)
 
 
-def build_feature_map(scene, camera: CameraModel, poses, kind: str = "orb",
-                      n_features: int = 2000, merge_radius: float = 0.004,
-                      edge_margin_px: float = 2.0, supersample: int = 2,
-                      descriptors_per_landmark: int = 1) -> FeatureMap:
-    """Reconstruct a feature map from global-shutter renders at known ``poses``.
+def feature_map_from_views(views, kind: str = "orb", n_features: int = 2000,
+                           merge_radius: float = 0.004, edge_margin_px: float = 2.0,
+                           descriptors_per_landmark: int = 1) -> FeatureMap:
+    """Reconstruct a feature map from posed views with known depth.
 
     Args:
-        scene: :class:`~rs_localizer.render.scene.Scene`. camera: its intrinsics/distortion
-            (the line delay is ignored: the map views are global shutter).
-        poses: iterable of (orientation camera -> world (3, 3), position (3,)); or a motion
-            with ``pose(t)`` plus times: ``(motion, times)``.
+        views: iterable of ``(gray (H, W) uint8, backproject)``; ``backproject(uv (M, 2) px)``
+            returns ``(X (M, 3) world points in metres, surface (M,) int: the surface each ray
+            hits, < 0 for none)`` (a depth camera, a mesh, or a renderer's ray caster).
         kind: ``orb`` or ``sift``. n_features: features per view.
         merge_radius: observations closer than this (m) become one landmark.
-        edge_margin_px: drop keypoints whose neighbours this far away hit another quad or
+        edge_margin_px: drop keypoints whose neighbours this far away hit another surface or
             nothing (depth discontinuities, silhouettes).
         descriptors_per_landmark: keep this many medoid descriptors per landmark (0 = all
             observations; more makes matching slower, rarely better for nearby views).
     Returns:
         :class:`FeatureMap`.
+    Raises:
+        ValueError: no features in any view.
     """
-    from ..render.renderer import Renderer
-
-    if isinstance(poses, tuple) and len(poses) == 2 and hasattr(poses[0], "pose"):
-        motion, times = poses
-        R, p = motion.pose(np.asarray(times, dtype=float))
-        poses = list(zip(R, p))
-    renderer = Renderer(scene, camera, supersample=supersample)
     det = make_detector(kind, n_features)
     pts, descs = [], []
     m = float(edge_margin_px)
     offsets = np.array([[0, 0], [m, 0], [-m, 0], [0, m], [0, -m]])
-    for R, p in poses:
-        gray = renderer.render_pose(R, p, mono=True)
+    for gray, backproject in views:
         kps, des = det.detectAndCompute(gray, None)
         if des is None or not kps:
             continue
         uv = np.array([k.pt for k in kps], dtype=float)
         probe = (uv[:, None, :] + offsets[None]).reshape(-1, 2)
-        X, quad, _ = renderer.cast(probe, pose=(R, p))
+        X, quad = backproject(probe)
         X = X.reshape(len(uv), 5, 3)
         quad = quad.reshape(len(uv), 5)
         ok = (quad[:, 0] >= 0) & (quad == quad[:, :1]).all(axis=1)

@@ -1,6 +1,6 @@
 """``rs_localizer_node``: rolling-shutter camera localization from 2D-3D correspondences.
 
-A thin layer over :func:`rs_localizer.estimate.estimate_rs_pose` (no solver logic here):
+A thin layer over :func:`rs_localizer.estimate_rs_pose` (no solver logic here):
 decode the input, pick the camera model, call the estimator, publish, count. Images go through
 an image front end (:mod:`rs_localizer.frontends`: ArUco markers or natural features against a
 map) first, then down the same path as a correspondence cloud.
@@ -45,8 +45,9 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimate import SOLVERS, EstimateOptions, estimate_rs_pose, sample_size
-from ..trajectory import load_landmarks_csv
+from ..estimation import EstimateOptions, estimate_rs_pose
+from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
+from ..maps import load_landmarks_csv
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
                          read_keypoints)

@@ -14,6 +14,7 @@ function            paper name                      points       solutions
 ==================  ==============================  ===========  ====================
 
 The ``*_batch`` variants solve K problems at once ((K, N, 2), (K, N, 3) -> :class:`RSBatch`).
+:data:`SOLVERS` (``registry.py``) is the one table of what is known about each solver.
 """
 
 from ._common import DegenerateInputError, RSBatch, RSSolution
@@ -25,10 +26,11 @@ from .r6p_vC_wt import r6p_vC_wt, r6p_vC_wt_batch
 from .r6p_vCt_w import r6p_vCt_w, r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt, r6p_vCt_wt_batch
 from .r9p import r9p, r9p_batch
+from .registry import SOLVER_NAMES, SOLVERS, SolverInfo, sample_size, solver_info
 
 __all__ = [
     "DegenerateInputError", "RSBatch", "RSSolution", "P3PSolution",
     "p3p", "p3p_batch", "p3p_opencv", "r6p", "r6p_1lin", "r6p_vC_wt", "r6p_vCt_w", "r6p_vCt_wt", "r9p",
     "r6p_joined", "r6p_1lin_batch", "r6p_vC_wt_batch", "r6p_vCt_w_batch", "r6p_vCt_wt_batch",
-    "r9p_batch",
+    "r9p_batch", "SOLVERS", "SOLVER_NAMES", "SolverInfo", "solver_info", "sample_size",
 ]

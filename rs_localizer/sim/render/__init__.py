@@ -1,6 +1,6 @@
 """Rolling-shutter image rendering (ROS-free): scenes, motions, renderer, bags.
 
-    from rs_localizer.render import load_scene, make_motion, Renderer, camera_preset
+    from rs_localizer.sim.render import load_scene, make_motion, Renderer, camera_preset
     scene = load_scene("aruco_room")
     camera = camera_preset("vga")                      # 640x480, 30 ms readout, mild distortion
     motion = make_motion("shake", scene, duration=1.0)

@@ -1,6 +1,6 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
-Kept apart from :mod:`rs_localizer.estimate` so the estimator reads as the pipeline it is.
+Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it is.
 """
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._so3 import FMA, so3_coefficients
+from .._so3 import FMA, so3_coefficients
 
 
 @njit(cache=True, inline="always", fastmath=FMA)

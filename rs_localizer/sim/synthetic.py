@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import CameraModel
-from .geometry import (camera_position, matrix_to_rotvec, nearest_rotation, rotvec_to_matrix,
+from ..camera import CameraModel
+from ..geometry import (camera_position, matrix_to_rotvec, nearest_rotation, rotvec_to_matrix,
                        rs_project_exact)
-from .geometry import rs_project_linear, skew
+from ..geometry import rs_project_linear, skew
 
 __all__ = ["FOV_DEG", "IMAGE_SIZE", "FOCAL_PX", "FRAME_SPAN", "SyntheticFrame", "make_frame",
            "paper_camera", "random_rotation"]
@@ -98,7 +98,7 @@ def _unit(rng):
 
 def _physical_velocities(R, C, w, t, seconds_per_unit_r, h=1e-6):
     """Camera velocities by central differences of the simulated trajectory (independent of
-    the closed-form conversion in :mod:`rs_localizer.estimate`)."""
+    the closed-form conversion in :mod:`rs_localizer.estimation.estimate`)."""
     def pose(tau):
         Rt = rotvec_to_matrix(tau * w) @ R
         return Rt.T, camera_position(Rt, C + tau * t)  # camera->world orientation, centre

@@ -10,19 +10,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._hypotheses import draw_samples, gather_prerotated, select_prerotations, valid_rows
-from ._scoring import errors2, msac_evaluate, msac_scores
-from ._so3 import compose_rotvec
-from .camera import CameraModel
-from .geometry import camera_position, rotvec_to_matrix, skew
+from .sampling import draw_samples, gather_prerotated, select_prerotations, valid_rows
+from .scoring import errors2, msac_evaluate, msac_scores
+from .._so3 import compose_rotvec
+from ..camera import CameraModel
+from ..geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose
-from .solvers import (p3p_batch, r6p, r6p_1lin_batch, r6p_vC_wt_batch, r6p_vCt_w_batch,
-                      r6p_vCt_wt_batch, r9p_batch)
+from ..solvers import p3p_batch, r6p
+from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
 
 __all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
            "physical_velocities"]
 
-SOLVERS = ("p3p", "r6p", "r6p_1lin", "r6p_vC_wt", "r6p_vCt_w", "r6p_vCt_wt", "r9p", "r6p_joined")
+#: solver names (:data:`rs_localizer.solvers.registry.SOLVERS` holds what is known of each)
+SOLVERS = SOLVER_NAMES
 
 
 @dataclass(frozen=True)
@@ -136,38 +137,21 @@ class RSPoseEstimate:
 
 
 # ------------------------------------------------------------------------------------ solvers
-_SAMPLE_SIZE = {"p3p": 3, "r6p": 6, "r9p": 9}
-
-
-def sample_size(solver: str) -> int:
-    """Minimal sample size of a solver by name (3 for P3P, 9 for R9P, 6 otherwise)."""
-    return _SAMPLE_SIZE.get(solver, 6)
-
-
 def _hypothesis_iterations(solver: str, opts) -> int:
     """Linear iterations per minimal sample (see ``EstimateOptions.solver_iterations``)."""
     if opts.solver_iterations is not None:
         return int(opts.solver_iterations)
-    return 1 if solver == "r6p_1lin" else 5
+    return solver_info(solver).default_iterations or 1
 
 
 def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
-    """Run a batched RS solver on K pre-rotated samples; returns a list of RSBatch (2 for the
-    joined solver). R6P, with a variable number of roots, goes through :func:`_r6p_hypotheses`."""
-    if solver == "r6p_1lin":
-        return [r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
-    if solver == "r6p_vC_wt":
-        return [r6p_vC_wt_batch(xs, Xs, rs, r0, iterations=iterations)]
-    if solver == "r6p_vCt_w":
-        return [r6p_vCt_w_batch(xs, Xs, rs, r0, iterations=iterations)]
-    if solver == "r6p_vCt_wt":
-        return [r6p_vCt_wt_batch(xs, Xs, rs, r0, iterations=iterations)]
-    if solver == "r9p":
-        return [r9p_batch(xs, Xs, rs, r0)]
-    if solver == "r6p_joined":
-        return [r6p_vCt_w_batch(xs, Xs, rs, r0, iterations=iterations),
-                r6p_1lin_batch(xs, Xs, rs, r0, iterations=iterations)]
-    raise ValueError(f"unknown solver {solver!r}")
+    """Run a solver's batched kernels on K pre-rotated samples; returns a list of RSBatch (2
+    for the joined solver). R6P, with a variable number of roots, goes through
+    :func:`_r6p_hypotheses`."""
+    info = solver_info(solver)
+    if info.hypotheses != BATCHED:
+        raise ValueError(f"solver {solver!r} has no batched kernel")
+    return [fn(xs, Xs, rs, r0, iterations=iterations) for fn in info.batch]
 
 
 # ---------------------------------------------------------------------------- the estimator
@@ -224,11 +208,12 @@ def _required_iterations(inlier_ratio: float, s: int, confidence: float) -> floa
 def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
     """Hypotheses (R, C, w, t, valid) from a batch of samples."""
     R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
-    if solver == "p3p":
+    kind = solver_info(solver).hypotheses
+    if kind == GLOBAL_SHUTTER:
         z = np.zeros((len(samples), 3))
         return R_p, C_p, z, z.copy(), ok_p
     xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
-    if solver == "r6p":
+    if kind != BATCHED:
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
     batches = _batched_rs(solver, xs, Xs, rs, fr.r0, _hypothesis_iterations(solver, opts))
     Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
@@ -257,11 +242,12 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
     """Local optimization: the RS solver on all inliers, pre-rotated by the current R.
 
     R6P (minimal only) uses R6P_{v,C,w,t}^{[v]x} here; P3P has no RS local optimization."""
-    if solver == "p3p" or inl.sum() < 6:
+    n_inl = int(inl.sum())
+    if not solver_info(solver).rolling or n_inl < 6:
         return []
     Xr = fr.X[inl] @ R.T
-    names = {"r6p": ["r6p_1lin"], "r6p_joined": ["r6p_vCt_w", "r6p_1lin"],
-             "r9p": ["r9p"] if inl.sum() >= 9 else ["r6p_1lin"]}.get(solver, [solver])
+    names = [name if n_inl >= sample_size(name) else "r6p_1lin"
+             for name in solver_info(solver).lo_solvers]
     out = []
     for name in names:
         b = _batched_rs(name, fr.x[inl][None], Xr[None], fr.r[inl][None], fr.r0,
@@ -294,7 +280,7 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
     global-shutter refinement. Returns (score, (R, C, w, t), inlier mask).
     """
     th = np.sqrt(th2)
-    rolling = solver != "p3p"
+    rolling = solver_info(solver).rolling
     # the frame's points are shuffled: its first M points are a random subset (LO-RANSAC's
     # bounded inner sample); the final refinement uses every inlier
     M = min(len(fr.x), max(opts.lo_max_points, 2 * sample_size(solver)))
@@ -503,7 +489,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     if _collinear(fr.X[inl]):
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
-    rolling = solver != "p3p"
+    rolling = solver_info(solver).rolling
     cov12 = None
     t0 = time.perf_counter()
     tau = fr.r - fr.r0

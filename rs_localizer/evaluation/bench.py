@@ -1,7 +1,7 @@
-"""Benchmarks: ``python -m rs_localizer.bench {solvers,estimate}``.
+"""Benchmarks: ``python -m rs_localizer.evaluation.bench {solvers,estimate}``.
 
 Timings pin BLAS to one thread (threadpoolctl and the usual environment variables) and report
-medians over repeated runs on data from :mod:`rs_localizer.synthetic`. Numbers depend on the
+medians over repeated runs on data from :mod:`rs_localizer.sim.synthetic`. Numbers depend on the
 machine; the README quotes the ones measured on the project's 2-core CI machine.
 
 ``solvers``: median microseconds per call of every solver, per linear iteration, and the
@@ -17,8 +17,10 @@ import argparse
 import os
 import time
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+if __name__ == "__main__":  # one BLAS/numba thread, set before numpy loads (not on import)
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                 "NUMBA_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
 
 import numpy as np  # noqa: E402
 
@@ -27,13 +29,13 @@ try:  # noqa: E402
 except ImportError:  # pragma: no cover
     threadpool_limits = None
 
-from .estimate import SOLVERS, EstimateOptions, estimate_rs_pose  # noqa: E402
-from .geometry import rotation_angle_deg  # noqa: E402
-from .synthetic import make_frame, paper_camera  # noqa: E402
+from ..estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose  # noqa: E402
+from ..geometry import rotation_angle_deg  # noqa: E402
+from ..solvers.registry import SOLVERS as SOLVER_TABLE  # noqa: E402
+from ..sim.synthetic import make_frame, paper_camera  # noqa: E402
 
-#: paper Table 1 (2.5 GHz i7, C++/Matlab-MEX), microseconds per iteration
-PAPER_US = {"p3p": 3, "r6p": 1700, "r6p_1lin": 10, "r6p_vCt_w": 24, "r6p_vCt_wt": 30,
-            "r6p_vC_wt": 27, "r9p": 20}
+#: paper Table 1 (2.5 GHz i7, C++/Matlab-MEX), microseconds per iteration (from the registry)
+PAPER_US = {s.name: s.paper_us for s in SOLVER_TABLE.values() if s.paper_us is not None}
 
 
 def _median_us(fn, repeat: int) -> float:
@@ -50,7 +52,7 @@ def bench_solvers(repeat: int = 200, batch: int = 1000, seed: int = 0) -> list[d
     """Time every solver. Returns rows with ``us_call``, ``us_per_iteration`` (iterative
     solvers: the slope between 1 and 5 forced iterations), ``us_batched`` (per hypothesis, K =
     ``batch``) and ``us_batched_per_iteration``."""
-    from . import solvers as S
+    from .. import solvers as S
 
     rng = np.random.default_rng(seed)
     frames = [make_frame(rng, 9, rs_speed=0.5, angle_from_identity=0.0) for _ in range(batch)]
@@ -170,7 +172,7 @@ def _fmt(v, spec):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.bench", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog="python -m rs_localizer.evaluation.bench", description=__doc__.split("\n")[0])
     sub = p.add_subparsers(dest="what", required=True)
     ps = sub.add_parser("solvers", help="per-solver microseconds (single and batched)")
     ps.add_argument("--repeat", type=int, default=200)

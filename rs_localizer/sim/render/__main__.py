@@ -1,6 +1,6 @@
-"""``python -m rs_localizer.render``: render timing and a sample frame.
+"""``python -m rs_localizer.sim.render``: render timing and a sample frame.
 
-    python -m rs_localizer.render --camera vga --frames 10 --save frame.png
+    python -m rs_localizer.sim.render --camera vga --frames 10 --save frame.png
 """
 
 import cv2
@@ -16,7 +16,7 @@ def main(argv=None) -> int:
     from .renderer import CAMERA_PRESETS, NoiseModel, Renderer, camera_preset, frame_times
     from .scene import load_scene
 
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.render",
+    p = argparse.ArgumentParser(prog="python -m rs_localizer.sim.render",
                                 description="Render timing (and a sample frame)")
     p.add_argument("--scene", default="aruco_room")
     p.add_argument("--motion", default="shake", choices=motion_names())

@@ -39,8 +39,8 @@ def evaluate_outputs(frames, gt, namespaces):
     """Per-frame errors of the pose/twist outputs of each namespace against ground truth.
 
     Returns ``{ns: [errors dict or None per frame]}`` (see :func:`bag.frame_errors`)."""
-    from .bag import frame_errors
-    from .conversions import pose_from_msg, stamp_to_ns, twist_from_msg
+    from ..accuracy import frame_errors
+    from ..ros.conversions import pose_from_msg, stamp_to_ns, twist_from_msg
 
     out = {ns: [] for ns in namespaces}
     for f in frames:
@@ -90,8 +90,10 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
     ``images``: feed the bag's ``image`` topic (the nodes run the front end of its
     ``sequence.json``) instead of its ``correspondences``. Returns 0 when the RS node answered
     every frame."""
-    from .bag import format_summary, load_ground_truth, play, read_bag_info, summarize_errors
-    from .process import NodeProcess, random_domain_id, ros_env, write_params_yaml
+    from ..accuracy import format_summary, summarize_errors
+    from ..ros.bag_io import load_ground_truth, read_bag_info
+    from ..ros.play import play
+    from ..ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
 
     bag = Path(bag)
     info = read_bag_info(bag)
@@ -212,7 +214,7 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
     ``images``, the image-mode demo on ``image_bag`` (default ``data/sample_images``) with
     ``params`` + ``image_params`` (default ``config/rs_localizer_images.yaml``).
     Returns 0 when every part succeeded, 2 when a bag or parameter file is missing."""
-    from .process import repo_file
+    from ..ros.process import repo_file
 
     params = Path(params) if params else repo_file("config", "rs_localizer.yaml")
     if params is None or not Path(params).exists():

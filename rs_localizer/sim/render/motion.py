@@ -1,6 +1,6 @@
 """Continuous-time camera trajectories for the renderer.
 
-:class:`Motion` extends :class:`rs_localizer.trajectory.Trajectory` (same sinusoidal rotation
+:class:`Motion` extends :class:`rs_localizer.sim.trajectory.Trajectory` (same sinusoidal rotation
 model, same ground-truth velocities by central differences of the trajectory) with a base
 viewing direction (yaw, pitch) and translation terms expressed in that base camera frame
 (x right, y down, z forward), centred on ``t_center`` so that a sequence of ``duration`` seconds
@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry import rotvec_to_matrix
+from ...geometry import rotvec_to_matrix
 from ..trajectory import R_FORWARD, Trajectory
 
 __all__ = ["Motion", "MOTIONS", "make_motion", "motion_names", "base_rotation"]
@@ -42,7 +42,7 @@ def base_rotation(yaw: float, pitch: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Motion(Trajectory):
-    """A :class:`~rs_localizer.trajectory.Trajectory` with a base view direction and
+    """A :class:`~rs_localizer.sim.trajectory.Trajectory` with a base view direction and
     translation in the base camera frame (see the module docstring). ``velocity``, ``sway``:
     base camera frame (m/s, m)."""
 
@@ -112,7 +112,7 @@ def make_motion(name: str, scene=None, position=None, yaw: float | None = None,
 
     Args:
         name: one of :data:`MOTIONS`.
-        scene: a :class:`~rs_localizer.render.scene.Scene`; its viewpoint gives the default
+        scene: a :class:`~rs_localizer.sim.render.scene.Scene`; its viewpoint gives the default
             position, yaw and pitch.
         position, yaw, pitch: override the viewpoint (m, rad).
         duration: sequence length (s); translation is centred on ``duration / 2``.

@@ -24,10 +24,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ...maps import (SCENE_DIR, _vec, load_marker_map, marker_dictionary, marker_layout, scene_names,
+                     scene_path, scene_quad_frames, write_marker_map)
+
 __all__ = ["Quad", "Decal", "Marker", "Scene", "load_scene", "scene_names", "SCENE_DIR",
            "marker_dictionary", "marker_texture", "save_marker_map", "load_marker_map"]
 
-SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 
 
 @dataclass
@@ -136,13 +138,6 @@ class Scene:
 
 
 # ------------------------------------------------------------------------------- textures
-def marker_dictionary(name: str):
-    """cv2.aruco predefined dictionary by name (e.g. ``DICT_4X4_250``)."""
-    if not hasattr(cv2.aruco, name):
-        raise ValueError(f"unknown ArUco dictionary {name!r}")
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
-
-
 def marker_texture(dictionary: str, marker_id: int, texels_per_cell: int = 16,
                    margin_cells: int = 1) -> np.ndarray:
     """(S, S, 3) uint8 marker image: black-bordered code plus a white quiet zone of
@@ -245,18 +240,6 @@ def _make_texture(spec: dict, size, base: Path | None, seed: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------- loading
-def scene_names() -> list:
-    """Names of the built-in scenes."""
-    return sorted(p.stem for p in SCENE_DIR.glob("*.yaml"))
-
-
-def _vec(x, n=3, what="vector"):
-    a = np.asarray(x, dtype=float).ravel()
-    if a.shape != (n,) or not np.isfinite(a).all():
-        raise ValueError(f"{what} must be {n} finite numbers, got {x!r}")
-    return a
-
-
 def load_scene(name_or_path) -> Scene:
     """Load a scene by built-in name (``aruco_room``, ``textured_room``), YAML path, or dict.
 
@@ -271,31 +254,17 @@ def load_scene(name_or_path) -> Scene:
     if isinstance(name_or_path, dict):
         data = name_or_path
     else:
-        p = Path(str(name_or_path))
-        if not p.suffix and (SCENE_DIR / f"{p}.yaml").exists():
-            p = SCENE_DIR / f"{p}.yaml"
-        if not p.exists():
-            raise FileNotFoundError(f"scene {name_or_path!r} not found (built-in: "
-                                    f"{scene_names()})")
+        p = scene_path(name_or_path)
         data = yaml.safe_load(p.read_text())
         base = p.parent
         source = str(p)
-    if not isinstance(data, dict) or "quads" not in data:
-        raise ValueError("a scene needs a 'quads' list")
     seed = 0
     quads = []
-    for k, qd in enumerate(data["quads"]):
-        o = _vec(qd["origin"], what="origin")
-        u = _vec(qd["u"], what="u")
-        v = _vec(qd["v"], what="v")
-        u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
-        if abs(u @ v) > 1e-9:
-            raise ValueError(f"quad {qd.get('name', k)}: u and v must be orthogonal")
-        size = tuple(_vec(qd["size"], 2, "size"))
-        if min(size) <= 0:
-            raise ValueError(f"quad {qd.get('name', k)}: size must be positive")
+    for k, ((name, o, u, v, size), qd) in enumerate(zip(scene_quad_frames(data),
+                                                        data["quads"])):
+        size = tuple(size)
         tex = _make_texture(qd.get("texture", {"color": [200, 200, 200]}), size, base, seed + k)
-        quads.append(Quad(str(qd.get("name", f"quad{k}")), o, u, v, size, tex))
+        quads.append(Quad(name, o, u, v, size, tex))
     scene = Scene(name=str(data.get("name", "scene")), quads=quads,
                   dictionary=str(data.get("dictionary", "DICT_4X4_250")),
                   viewpoint=data.get("viewpoint") or {"position": [0.0, 0.0, 1.5],
@@ -308,38 +277,17 @@ def load_scene(name_or_path) -> Scene:
         w, h = _vec(dd["size"], 2, "size")
         tex = _make_texture(dd["texture"], (w, h), base, 100 + k)
         scene.decals.append(Decal(qi, (a0, b0, a0 + w, b0 + h), tex))
-    _add_markers(scene, data.get("markers") or {})
+    _add_markers(scene, data.get("markers") or {}, marker_layout(data))
     return scene
 
 
-def _add_markers(scene: Scene, spec: dict):
+def _add_markers(scene: Scene, spec: dict, layout: list):
+    """Marker decals of ``layout`` (:func:`rs_localizer.maps.marker_layout`) with a white margin
+    of ``spec['margin_cells']`` cells. Raises ValueError for a marker that does not fit."""
     margin_cells = int(spec.get("margin_cells", 1))
     tpc = int(spec.get("texels_per_cell", 16))
     cells = marker_dictionary(scene.dictionary).markerSize + 2
-    placed = []
-    for pl in spec.get("placements", []) or []:
-        if "fill" in pl:
-            f = pl["fill"]
-            qi = scene.quad_index(f["quad"])
-            q = scene.quads[qi]
-            size, pitch = float(f["size"]), float(f.get("pitch", 2 * float(f["size"])))
-            border = float(f.get("border", 0.1))
-            nc = int(np.floor((q.size[0] - size - 2 * border) / pitch + 1e-9)) + 1
-            nr = int(np.floor((q.size[1] - size - 2 * border) / pitch + 1e-9)) + 1
-            a0 = 0.5 * (q.size[0] - (nc - 1) * pitch - size)
-            b0 = 0.5 * (q.size[1] - (nr - 1) * pitch - size)
-            mid = int(f.get("first_id", 0))
-            for r in range(nr):
-                for c in range(nc):
-                    placed.append(Marker(mid, qi, a0 + c * pitch, b0 + r * pitch, size))
-                    mid += 1
-        else:
-            qi = scene.quad_index(pl["quad"])
-            a, b = _vec(pl["at"], 2, "at")
-            placed.append(Marker(int(pl["id"]), qi, float(a), float(b), float(pl["size"])))
-    ids = [m.id for m in placed]
-    if len(set(ids)) != len(ids):
-        raise ValueError(f"scene {scene.name}: duplicate marker ids")
+    placed = [Marker(mid, qi, a, b, size) for mid, qi, a, b, size in layout]
     textures = {}
     for m in placed:
         q = scene.quads[m.quad]
@@ -356,37 +304,6 @@ def _add_markers(scene: Scene, spec: dict):
 
 # ------------------------------------------------------------------------------- marker maps
 def save_marker_map(path, scene: Scene) -> Path:
-    """Write the marker map (dictionary + 3D corners per id) as YAML for the ArUco front end."""
-    import yaml
-
-    corners = scene.marker_corners()
-    data = {"dictionary": scene.dictionary, "scene": scene.name,
-            "markers": [{"id": int(k), "corners": np.round(c, 6).tolist()}
-                        for k, c in sorted(corners.items())]}
-    path = Path(path)
-    path.write_text("# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
-                    + yaml.safe_dump(data, default_flow_style=None, sort_keys=False))
-    return path
-
-
-def load_marker_map(path):
-    """Read a marker map (:func:`save_marker_map`) or a scene YAML. Returns
-    ``(dictionary name, {id: (4, 3) corners})``."""
-    import yaml
-
-    p = Path(str(path))
-    if not p.suffix and (SCENE_DIR / f"{p}.yaml").exists():
-        p = SCENE_DIR / f"{p}.yaml"
-    data = yaml.safe_load(p.read_text())
-    if isinstance(data, dict) and "quads" in data:
-        sc = load_scene(p)
-        return sc.dictionary, sc.marker_corners()
-    if not isinstance(data, dict) or "markers" not in data:
-        raise ValueError(f"{p}: neither a marker map nor a scene")
-    corners = {}
-    for m in data["markers"]:
-        c = np.asarray(m["corners"], dtype=float)
-        if c.shape != (4, 3) or not np.isfinite(c).all():
-            raise ValueError(f"{p}: marker {m.get('id')} needs 4 finite 3D corners")
-        corners[int(m["id"])] = c
-    return str(data.get("dictionary", "DICT_4X4_250")), corners
+    """Write the scene's marker map (dictionary + 3D corners per id) as YAML for the ArUco front
+    end (:func:`rs_localizer.maps.write_marker_map`)."""
+    return write_marker_map(path, scene.dictionary, scene.marker_corners(), scene=scene.name)

@@ -1,4 +1,8 @@
-"""Rendered rolling-shutter sequences as ROS 2 bags (rosbags only: no ROS installation needed).
+"""``rs-localizer render-bag``: rendered rolling-shutter sequences as ROS 2 bags.
+
+Composes the simulation (:mod:`rs_localizer.sim.render`: images and ground truth), an image front
+end (:mod:`rs_localizer.frontends`: correspondences) and bag I/O (:mod:`rs_localizer.ros.bag_io`,
+rosbags only: no ROS installation needed).
 
 :func:`render_bag` writes ``<ns>/image_raw`` (``sensor_msgs/Image``, rgb8 or mono8),
 ``<ns>/camera_info``, ``/ground_truth/pose`` (``PoseStamped``: camera optical frame in the map
@@ -11,7 +15,7 @@ front end's map (``markers.yaml`` for ArUco, ``feature_map.npz`` for features).
 Stamps: an image's header stamp is the capture time of its first line (``rs.stamp_row = 0``);
 the ground truth is stamped with the reference line's capture time.
 
-    python -m rs_localizer.render.bagout --out data/sample_images --frames 20 --mono
+    python -m rs_localizer.cli.render_bag --out data/sample_images --frames 20 --mono
 """
 
 from __future__ import annotations
@@ -25,85 +29,11 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
-from ..ros.bag import write_sequence_json
+from ..ros.bag_io import (CAMERA_INFO, GT_POSE, GT_TWIST, IMAGE, PC2, POSE, TWIST,
+                          RosbagsMessages, write_sequence_json)
 
-__all__ = ["render_bag", "add_arguments", "run_from_args", "main", "IMAGE", "CAMERA_INFO",
-           "POINTCLOUD2", "POSE", "TWIST"]
+__all__ = ["render_bag", "add_arguments", "run_from_args", "main"]
 
-IMAGE = "sensor_msgs/msg/Image"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
-POSE = "geometry_msgs/msg/PoseStamped"
-TWIST = "geometry_msgs/msg/TwistStamped"
-GT_POSE = "/ground_truth/pose"
-GT_TWIST = "/ground_truth/twist"
-_NS = 1_000_000_000
-
-
-class _Msgs:
-    """rosbags message builders (ROS 2 Jazzy typestore)."""
-
-    def __init__(self):
-        from rosbags.typesys import Stores, get_typestore
-
-        self.ts = get_typestore(Stores.ROS2_JAZZY)
-        self.T = self.ts.types
-
-    def header(self, stamp_ns: int, frame_id: str):
-        sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
-        return self.T["std_msgs/msg/Header"](
-            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
-
-    def image(self, img: np.ndarray, stamp_ns, frame_id):
-        from ..frontends.image import image_fields
-
-        return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
-
-    def camera_info(self, cam: CameraModel, stamp_ns, frame_id):
-        D = np.asarray(cam.D, dtype=float)
-        model = cam.distortion_model if cam.has_distortion else "plumb_bob"
-        if model == "plumb_bob" and len(D) < 5:
-            D = np.concatenate([D, np.zeros(5 - len(D))])
-        P = np.zeros((3, 4))
-        P[:, :3] = cam.K
-        roi = self.T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
-                                                          width=0, do_rectify=False)
-        return self.T[CAMERA_INFO](
-            header=self.header(stamp_ns, frame_id), height=cam.height, width=cam.width,
-            distortion_model=model, d=D, k=cam.K.ravel().copy(), r=np.eye(3).ravel(),
-            p=P.ravel(), binning_x=0, binning_y=0, roi=roi)
-
-    def cloud(self, uv, xyz, ids, stamp_ns, frame_id):
-        from ..ros.pointcloud import correspondence_array, pack_cloud
-
-        packed = pack_cloud(correspondence_array(uv, xyz, ids))
-        PF = self.T["sensor_msgs/msg/PointField"]
-        return self.T[POINTCLOUD2](
-            header=self.header(stamp_ns, frame_id), height=1, width=packed.width,
-            fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
-            is_bigendian=False, point_step=packed.point_step, row_step=packed.row_step,
-            data=np.frombuffer(packed.data, dtype=np.uint8),
-            is_dense=bool(np.isfinite(uv).all() and np.isfinite(xyz).all()))
-
-    def pose(self, R, p, stamp_ns, frame_id):
-        from ..ros.conversions import quaternion_from_matrix
-
-        q = quaternion_from_matrix(R)
-        T = self.T
-        return T[POSE](header=self.header(stamp_ns, frame_id), pose=T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
-                                                          z=float(q[2]), w=float(q[3]))))
-
-    def twist(self, w, v, stamp_ns, frame_id):
-        T = self.T
-        V = T["geometry_msgs/msg/Vector3"]
-        return T[TWIST](header=self.header(stamp_ns, frame_id), twist=T["geometry_msgs/msg/Twist"](
-            linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
-            angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2]))))
-
-    def cdr(self, msg, msgtype) -> bytes:
-        return self.ts.serialize_cdr(msg, msgtype)
 
 
 def _make_frontend(frontend, scene, camera, motion, duration, bag_dir: Path, feature_map,
@@ -114,13 +44,14 @@ def _make_frontend(frontend, scene, camera, motion, duration, bag_dir: Path, fea
     if frontend is None or frontend == "none":
         return None, {"kind": "none"}
     if frontend == "aruco":
-        from .scene import save_marker_map
+        from ..sim.render.scene import save_marker_map
 
         save_marker_map(bag_dir / "markers.yaml", scene)
         return ArucoFrontend.from_scene(scene), {"kind": "aruco", "map": "markers.yaml",
                                                  "dictionary": scene.dictionary}
     if frontend == "features":
-        from ..frontends.features import FeatureFrontend, FeatureMap, build_feature_map
+        from ..frontends.features import FeatureFrontend, FeatureMap
+        from ..sim.feature_map import build_feature_map
 
         if feature_map is None:
             fm = build_feature_map(scene, camera, (motion, np.linspace(0, duration,
@@ -150,8 +81,8 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
 
     Args:
         path: bag directory to create.
-        scene: built-in scene name, YAML path or :class:`~rs_localizer.render.scene.Scene`.
-        motion: preset name (:data:`~rs_localizer.render.motion.MOTIONS`) or a motion object
+        scene: built-in scene name, YAML path or :class:`~rs_localizer.sim.render.scene.Scene`.
+        motion: preset name (:data:`~rs_localizer.sim.render.motion.MOTIONS`) or a motion object
             with ``pose(t)``/``velocity_body(t)``.
         frames, fps: sequence length; frame ``k``'s first line is read at ``k / fps``.
         camera: preset name (``vga``, ``hd``) or a :class:`CameraModel`.
@@ -170,9 +101,9 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
     """
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
-    from .motion import make_motion
-    from .renderer import NoiseModel, Renderer, camera_preset, frame_times
-    from .scene import Scene, load_scene
+    from ..sim.render.motion import make_motion
+    from ..sim.render.renderer import NoiseModel, Renderer, camera_preset, frame_times
+    from ..sim.render.scene import Scene, load_scene
 
     path = Path(path)
     if path.exists():
@@ -194,7 +125,7 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
         shutil.rmtree(tmp_dir)
     tmp_dir.mkdir(parents=True)
     fe, fe_meta = _make_frontend(frontend, sc, cam, mot, duration, tmp_dir, feature_map)
-    M = _Msgs()
+    M = RosbagsMessages()
     ns = namespace.rstrip("/")
     topics = {"image": f"{ns}/image_raw", "camera_info": f"{ns}/camera_info",
               "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
@@ -211,7 +142,7 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
     with writer as w:
         c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=M.ts)
         c_img = w.add_connection(topics["image"], IMAGE, typestore=M.ts)
-        c_corr = (w.add_connection(topics["correspondences"], POINTCLOUD2, typestore=M.ts)
+        c_corr = (w.add_connection(topics["correspondences"], PC2, typestore=M.ts)
                   if fe is not None else None)
         c_gtp = w.add_connection(GT_POSE, POSE, typestore=M.ts)
         c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
@@ -229,7 +160,7 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
                 uv, xyz, ids = fe.process(fr.image, cam)
                 counts.append(len(uv))
                 w.write(c_corr, t_log, M.cdr(M.cloud(uv, xyz, ids, stamp, camera_frame),
-                                             POINTCLOUD2))
+                                             PC2))
             w.write(c_gtp, t_log, M.cdr(M.pose(fr.orientation, fr.position, t_ref_ns,
                                                map_frame), POSE))
             w.write(c_gtt, t_log, M.cdr(M.twist(fr.angular_velocity, fr.linear_velocity,
@@ -255,8 +186,8 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
 def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
     """Add the render-bag options to a parser (for ``rs-localizer render-bag``): the bag
     directory as ``--out/-o`` or, with ``positional_out``, as a positional ``out``."""
-    from .motion import motion_names
-    from .renderer import CAMERA_PRESETS
+    from ..sim.render.motion import motion_names
+    from ..sim.render.renderer import CAMERA_PRESETS
 
     if positional_out:
         p.add_argument("out", help="bag directory to write")
@@ -306,7 +237,7 @@ def run_from_args(a, stream=sys.stderr) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.render.bagout",
+    p = argparse.ArgumentParser(prog="python -m rs_localizer.cli.render_bag",
                                 description="Render a rolling-shutter image sequence to a bag")
     add_arguments(p)
     return run_from_args(p.parse_args(argv))

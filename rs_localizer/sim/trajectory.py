@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import CameraModel
-from .geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..camera import CameraModel
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = ["default_camera", "Trajectory", "Scene", "Frame", "SequenceConfig", "make_scene",
            "generate_sequence", "project_rs", "ground_truth"]
@@ -270,39 +270,3 @@ def generate_sequence(config: SequenceConfig = SequenceConfig(), camera: CameraM
             scores=scores, inlier=inlier, orientation=R, position=p, angular_velocity=w,
             linear_velocity=v, uv_clean=clean))
     return frames, scene, camera, trajectory
-
-
-def save_landmarks_csv(path, ids, points):
-    """Write a landmark map ``id,x,y,z`` (header line, metres)."""
-    with open(path, "w") as f:
-        f.write("id,x,y,z\n")
-        for i, (x, y, z) in zip(ids, points):
-            f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
-
-
-def load_landmarks_csv(path):
-    """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
-    points (M, 3)). Raises ValueError for malformed rows or duplicate ids."""
-    ids, pts = [], []
-    with open(path) as f:
-        for lineno, line in enumerate(f, 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            parts = [s.strip() for s in line.split(",")]
-            if lineno == 1 and parts[0].lower() == "id":
-                continue
-            if len(parts) != 4:
-                raise ValueError(f"{path}:{lineno}: expected 'id,x,y,z', got {line!r}")
-            try:
-                ids.append(int(parts[0]))
-                pts.append([float(s) for s in parts[1:]])
-            except ValueError as e:
-                raise ValueError(f"{path}:{lineno}: {e}") from None
-    ids = np.asarray(ids, dtype=np.int64)
-    if len(np.unique(ids)) != len(ids):
-        raise ValueError(f"{path}: duplicate landmark ids")
-    pts = np.asarray(pts, dtype=float).reshape(-1, 3)
-    if not np.isfinite(pts).all():
-        raise ValueError(f"{path}: non-finite coordinates")
-    return ids, pts

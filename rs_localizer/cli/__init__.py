@@ -5,6 +5,7 @@
     rs-localizer replay BAG [--solver r6p_1lin] [--out DIR] [--csv FILE]
     rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-images]
     rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
+    rs-localizer marker-map SCENE OUT
     rs-localizer experiments [--quick] [--out docs/experiments]
 """
 
@@ -15,12 +16,14 @@ import json
 import sys
 from pathlib import Path
 
+from ..solvers.registry import SOLVER_NAMES
+
 __all__ = ["main", "build_parser"]
 
 
 def _make_bag(args) -> int:
-    from .ros.bag import write_sequence_bag
-    from .trajectory import SequenceConfig, default_camera, generate_sequence
+    from ..ros.bag_io import write_sequence_bag
+    from ..sim.trajectory import SequenceConfig, default_camera, generate_sequence
 
     ref = None if args.reference_row < 0 else args.reference_row
     camera = default_camera(line_delay=args.line_delay, reference_row=ref,
@@ -58,7 +61,7 @@ def _parse_remap(items):
 
 
 def _play(args) -> int:
-    from .ros.bag import play
+    from ..ros.play import play
 
     res = play(args.bag, rate=args.rate, lockstep=args.lockstep, topics=args.topics,
                remap=_parse_remap(args.remap), output_topics=tuple(args.output_topic),
@@ -80,8 +83,9 @@ def _play(args) -> int:
 
 
 def _replay(args) -> int:
-    from .estimate import EstimateOptions
-    from .ros.bag import format_summary, replay
+    from ..estimation.estimate import EstimateOptions
+    from ..accuracy import format_summary
+    from ..ros.replay import replay
 
     opts = EstimateOptions(threshold_px=args.threshold, max_iterations=args.max_iterations,
                            confidence=args.confidence, min_inliers=args.min_inliers,
@@ -108,7 +112,7 @@ def _replay(args) -> int:
 
 
 def _demo(args) -> int:
-    from .ros.demo import run_demo
+    from ..evaluation.demo import run_demo
 
     return run_demo(bag=args.bag, params=args.params, compare=args.compare,
                     per_frame=not args.summary_only, timeout=args.timeout,
@@ -116,13 +120,22 @@ def _demo(args) -> int:
 
 
 def _render_bag(args) -> int:
-    from .render import bagout
+    from . import render_bag as bagout
 
     return int(bagout.run_from_args(args) or 0)
 
 
+def _marker_map(args) -> int:
+    from ..sim.render.scene import load_scene, save_marker_map
+
+    scene = load_scene(args.scene)
+    out = save_marker_map(args.out, scene)
+    print(f"wrote {out}: {len(scene.markers)} markers ({scene.dictionary}) of scene {scene.name}")
+    return 0
+
+
 def _experiments(args) -> int:
-    from .experiments import run
+    from ..evaluation.experiments import run
 
     return run(args)
 
@@ -182,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("replay", help="run the estimator over a bag offline")
     r.add_argument("bag")
-    r.add_argument("--solver", default="r6p_1lin")
+    r.add_argument("--solver", default="r6p_1lin", choices=SOLVER_NAMES,
+                   help="minimal solver (p3p = global shutter)")
     r.add_argument("--source", choices=["correspondences", "keypoints"],
                    default="correspondences")
     r.add_argument("--landmarks", default=None, help="CSV id,x,y,z (keypoints source)")
@@ -216,14 +230,20 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--image-bag", default=None, help="default: data/sample_images")
     d.set_defaults(func=_demo)
 
-    from .render import bagout
+    from . import render_bag as bagout
+
+    mm = sub.add_parser("marker-map", help="write the ArUco marker map of a scene (for the "
+                        "node's frontend_map / the aruco front end)")
+    mm.add_argument("scene", help="built-in scene (aruco_room, textured_room) or scene YAML")
+    mm.add_argument("out", help="marker map YAML to write")
+    mm.set_defaults(func=_marker_map)
 
     rb = sub.add_parser("render-bag", help="render a rolling-shutter image sequence to a bag "
                         "(images, camera_info, front-end correspondences, ground truth)")
     bagout.add_arguments(rb, positional_out=True)
     rb.set_defaults(func=_render_bag)
 
-    from .experiments import add_arguments as experiment_arguments
+    from ..evaluation.experiments import add_arguments as experiment_arguments
 
     ex = sub.add_parser("experiments", help="reproduce the paper's synthetic experiments "
                         "(PNG plots + markdown report)")

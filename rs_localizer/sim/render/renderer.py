@@ -13,7 +13,7 @@ for every line.
 Conventions: pixel centres at integer coordinates (OpenCV); line ``i`` is captured at
 ``t_first + line_time(i)``; ground truth (:class:`RenderedFrame`) is the pose at the reference
 line (camera -> world orientation and camera centre, world z up) and the angular/linear velocity
-in the camera optical frame, from :func:`rs_localizer.trajectory.ground_truth`.
+in the camera optical frame, from :func:`rs_localizer.sim.trajectory.ground_truth`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 from numba import njit, prange
 
-from ..camera import CameraModel
+from ...camera import CameraModel
 from ..trajectory import ground_truth, project_rs
 from .scene import Scene
 
@@ -41,7 +41,7 @@ MAX_LEVELS = 16
 CAMERA_PRESETS = {
     # a 640x480 webcam/phone stream: ~63 deg horizontal FOV, mild barrel, 30 ms readout
     "vga": (640, 480, 520.0, 520.0, 319.6, 239.3, (0.055, -0.11, 3e-4, -2e-4, 0.035), 0.030),
-    # a 1280x720 phone/action camera (as rs_localizer.trajectory.default_camera), 25 ms readout
+    # a 1280x720 phone/action camera (as rs_localizer.sim.trajectory.default_camera), 25 ms readout
     "hd": (1280, 720, 1002.5, 1001.8, 641.3, 358.2, (0.062, -0.118, 4e-4, -3e-4, 0.041), 0.025),
 }
 
@@ -578,7 +578,7 @@ class Renderer:
     def project(self, X, motion, t_first: float = 0.0, shutter: str = "rolling",
                 occlusion: bool = True):
         """Exact projection of world points into the frame: each point at the capture time of
-        its own line (:func:`rs_localizer.trajectory.project_rs`), or with the reference pose
+        its own line (:func:`rs_localizer.sim.trajectory.project_rs`), or with the reference pose
         for a global shutter. With ``occlusion``, points hidden behind a quad are dropped.
 
         Returns:

@@ -1,84 +1,58 @@
-"""Node benchmark: frames of 500 correspondences through the real node over DDS.
-
-    python -m rs_localizer.bench_node [--frames 300] [--points 500] [--solver r6p_1lin]
-
-Starts ``rs_localizer_node`` in a subprocess pinned to one CPU core (with single-threaded
-BLAS/numba), and from this process (pinned to another core):
-
-* lock-step: publish a frame, wait for its pose, repeat. Reports the throughput (frames/s)
-  and the latency from publish to pose received (median, p99): the full round trip of
-  serialization, DDS, decoding, estimation and publishing.
-* pipelined: keep ``--window`` frames in flight (reliable QoS, nothing dropped), which is how
-  a camera feeds the node; reports the sustained output rate.
-
-The estimator alone (same frames, same process as the benchmark, no ROS) is timed too, so the
-ROS overhead is visible. Frames come from :mod:`rs_localizer.trajectory` (a few distinct frames
-replayed with increasing stamps).
-"""
+"""Throughput and latency of the running node over DDS: a client that publishes frames and
+waits for their poses (lock-step and pipelined). :mod:`rs_localizer.evaluation.bench_node`
+drives it with synthetic frames."""
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["main", "run_benchmark"]
+__all__ = ["measure_node", "SINGLE_THREAD_ENV"]
 
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                      "NUMBA_NUM_THREADS": "1"}
 
 
-def _frames(n_distinct, points, seed):
-    from .trajectory import SequenceConfig, generate_sequence
+def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: int = 3,
+                 node_cpu: int | None = 0, result: dict | None = None, log=print) -> dict:
+    """Start ``rs_localizer_node`` (pinned to ``node_cpu`` with single-threaded BLAS/numba) and
+    feed it frames from this process (pinned to another core).
 
-    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=n_distinct,
-                                                         num_points=points, seed=seed))
-    return frames, cam
-
-
-def run_benchmark(frames: int = 300, points: int = 500, solver: str = "r6p_1lin",
-                  window: int = 3, distinct: int = 20, node_cpu: int | None = 0,
-                  seed: int = 0, log=print) -> dict:
+    Args:
+        seq: frames with ``uv`` (N, 2) px and ``xyz`` (N, 3) m (replayed cyclically with
+            stamps 33.3 ms apart). cam: their :class:`~rs_localizer.camera.CameraModel`.
+        solver: the node's solver. frames: frames per run. window: frames in flight in the
+            pipelined run. node_cpu: core of the node (None: no pinning).
+        result: dict to add the measurements to.
+    Returns:
+        ``result`` with ``lockstep`` and ``pipelined`` (hz, latency_ms_median/p99/max, ...) and
+        ``node_stages_ms`` (the node's own stage medians from its diagnostics).
+    Raises:
+        RuntimeError: the node did not start.
+    """
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+    from nav_msgs.msg import Odometry
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import serialize_message
-    from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
-    from .estimate import EstimateOptions, estimate_rs_pose
-    from .ros.conversions import camera_info_msg, stamp_to_ns
-    from .ros.pointcloud import correspondence_cloud
-    from .ros.process import (NodeProcess, random_domain_id, repo_file, ros_env,
-                              write_params_yaml)
+    from .conversions import camera_info_msg, stamp_to_ns
+    from .pointcloud import correspondence_cloud
+    from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
+    result = {} if result is None else result
     ncpu = os.cpu_count() or 1
     if node_cpu is not None and ncpu < 2:
         node_cpu = None
-    log(f"generating {distinct} distinct frames of {points} correspondences ...")
-    seq, cam = _frames(distinct, points, seed)
     offset = cam.time_offset(0.0, cam.reference_line)
     period = 33_333_333
-
-    # estimator alone (this process), after a JIT warm-up
-    opts = EstimateOptions()
-    for f in seq[:2]:
-        estimate_rs_pose(f.uv, f.xyz, cam, solver=solver, options=opts)
-    t_est = []
-    for f in seq:
-        tic = time.perf_counter()
-        estimate_rs_pose(f.uv, f.xyz, cam, solver=solver, options=opts)
-        t_est.append(time.perf_counter() - tic)
-    t_est = np.array(t_est)
-    log(f"estimator alone ({solver}): median {np.median(t_est) * 1e3:.2f} ms "
-        f"({1 / np.median(t_est):.0f} Hz)")
-
     domain = random_domain_id()
     env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
@@ -101,18 +75,13 @@ def run_benchmark(frames: int = 300, points: int = 500, solver: str = "r6p_1lin"
     pub_info = n.create_publisher(CameraInfo, "/bench/camera_info", qos)
     recv = {}
     # a consumer of every output, so that the node builds and sends all of them
-    from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
-    from nav_msgs.msg import Odometry
-
     for t, k in ((TwistStamped, "twist"), (Odometry, "odom"),
                  (PoseWithCovarianceStamped, "pose_with_covariance")):
         n.create_subscription(t, f"/bench/{k}", lambda m: None, qos)
     n.create_subscription(PoseStamped, "/bench/pose",
                           lambda m: recv.setdefault(stamp_to_ns(m.header.stamp),
                                                     time.perf_counter()), qos)
-    result = {"solver": solver, "points": points, "frames": frames,
-              "node_cpu": node_cpu, "estimator_ms_median": float(np.median(t_est) * 1e3),
-              "estimator_hz": float(1 / np.median(t_est))}
+    result.update(node_cpu=node_cpu)
     try:
         if not node.wait_ready(180):
             raise RuntimeError(f"node did not start:\n{node.log}")
@@ -167,7 +136,6 @@ def run_benchmark(frames: int = 300, points: int = 500, solver: str = "r6p_1lin"
             return r
 
         diag = {}
-        from diagnostic_msgs.msg import DiagnosticArray
 
         def on_diag(m):
             for st in m.status:
@@ -191,35 +159,3 @@ def run_benchmark(frames: int = 300, points: int = 500, solver: str = "r6p_1lin"
         rclpy.try_shutdown(context=ctx)
         node.stop()
     return result
-
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.bench_node",
-                                description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--frames", type=int, default=300)
-    p.add_argument("--points", type=int, default=500)
-    p.add_argument("--solver", default="r6p_1lin")
-    p.add_argument("--window", type=int, default=3, help="frames in flight (pipelined run)")
-    p.add_argument("--distinct", type=int, default=20, help="distinct synthetic frames")
-    p.add_argument("--node-cpu", type=int, default=0,
-                   help="CPU core for the node (-1: no pinning)")
-    p.add_argument("--target-hz", type=float, default=100.0)
-    p.add_argument("--json", default=None, help="write the results to this file")
-    args = p.parse_args(argv)
-    res = run_benchmark(args.frames, args.points, args.solver, args.window, args.distinct,
-                        None if args.node_cpu < 0 else args.node_cpu)
-    hz = res["pipelined"]["hz"]
-    print(f"node throughput with {args.solver}, {args.points} correspondences, one core: "
-          f"{hz:.1f} Hz sustained (target {args.target_hz:.0f} Hz: "
-          f"{'met' if hz >= args.target_hz else 'NOT met'}); lock-step "
-          f"{res['lockstep']['hz']:.1f} Hz, latency median "
-          f"{res['lockstep']['latency_ms_median']:.2f} ms, p99 "
-          f"{res['lockstep']['latency_ms_p99']:.2f} ms")
-    if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -19,8 +19,8 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ._so3 import FMA, rotate_left_into, so3_coefficients
-from .geometry import rotvec_to_matrix, skew
+from .._so3 import FMA, rotate_left_into, so3_coefficients
+from ..geometry import rotvec_to_matrix, skew
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
            "refine_rs_pose_scipy",

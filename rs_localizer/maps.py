@@ -1,0 +1,210 @@
+"""Map files: what the world looks like to a front end or the node, independent of how it was made.
+
+* Landmark maps (``id,x,y,z`` CSV, metres) for the ``keypoints`` input.
+* ArUco marker maps (YAML: dictionary + the four 3D corners of each marker) for the ArUco front
+  end, or scene YAMLs (``rs_localizer/scenes/``: textured quads with markers placed on them, the
+  world the renderer draws) whose marker corners :func:`load_marker_map` computes the same way
+  the renderer places them (:func:`marker_layout`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["save_landmarks_csv", "load_landmarks_csv", "marker_dictionary", "write_marker_map",
+           "load_marker_map", "SCENE_DIR", "scene_names", "scene_path", "scene_quad_frames",
+           "marker_layout"]
+
+#: the built-in scenes (world descriptions shared by the renderer and the ArUco front end)
+SCENE_DIR = Path(__file__).resolve().parent / "scenes"
+
+
+def save_landmarks_csv(path, ids, points):
+    """Write a landmark map ``id,x,y,z`` (header line, metres)."""
+    with open(path, "w") as f:
+        f.write("id,x,y,z\n")
+        for i, (x, y, z) in zip(ids, points):
+            f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
+
+
+def load_landmarks_csv(path):
+    """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
+    points (M, 3)). Raises ValueError for malformed rows or duplicate ids."""
+    ids, pts = [], []
+    with open(path) as f:
+        for lineno, line in enumerate(f, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = [s.strip() for s in line.split(",")]
+            if lineno == 1 and parts[0].lower() == "id":
+                continue
+            if len(parts) != 4:
+                raise ValueError(f"{path}:{lineno}: expected 'id,x,y,z', got {line!r}")
+            try:
+                ids.append(int(parts[0]))
+                pts.append([float(s) for s in parts[1:]])
+            except ValueError as e:
+                raise ValueError(f"{path}:{lineno}: {e}") from None
+    ids = np.asarray(ids, dtype=np.int64)
+    if len(np.unique(ids)) != len(ids):
+        raise ValueError(f"{path}: duplicate landmark ids")
+    pts = np.asarray(pts, dtype=float).reshape(-1, 3)
+    if not np.isfinite(pts).all():
+        raise ValueError(f"{path}: non-finite coordinates")
+    return ids, pts
+
+
+def marker_dictionary(name: str):
+    """cv2.aruco predefined dictionary by name (e.g. ``DICT_4X4_250``).
+
+    Raises ValueError for a name OpenCV does not know."""
+    import cv2
+
+    if not hasattr(cv2.aruco, name):
+        raise ValueError(f"unknown ArUco dictionary {name!r}")
+    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = None) -> Path:
+    """Write a marker map: ``dictionary`` name and ``corners`` {marker id: (4, 3) world corners
+    in ArUco order (TL, TR, BR, BL), metres} as YAML. Returns the path."""
+    import yaml
+
+    data = {"dictionary": dictionary, **({"scene": scene} if scene is not None else {}),
+            "markers": [{"id": int(k), "corners": np.round(c, 6).tolist()}
+                        for k, c in sorted(corners.items())]}
+    path = Path(path)
+    path.write_text("# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
+                    + yaml.safe_dump(data, default_flow_style=None, sort_keys=False))
+    return path
+
+
+def scene_names() -> list:
+    """Names of the built-in scenes."""
+    return sorted(p.stem for p in SCENE_DIR.glob("*.yaml"))
+
+
+def scene_path(name_or_path) -> Path:
+    """Path of a scene YAML: a built-in name (``aruco_room``) or a path.
+
+    Raises FileNotFoundError when neither exists."""
+    p = Path(str(name_or_path))
+    if not p.suffix and (SCENE_DIR / f"{p}.yaml").exists():
+        p = SCENE_DIR / f"{p}.yaml"
+    if not p.exists():
+        raise FileNotFoundError(f"scene {str(name_or_path)!r} not found (built-in: "
+                                f"{scene_names()})")
+    return p
+
+
+def _vec(x, n=3, what="vector"):
+    a = np.asarray(x, dtype=float).ravel()
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ValueError(f"{what} must be {n} finite numbers, got {x!r}")
+    return a
+
+
+def scene_quad_frames(data: dict) -> list:
+    """The quads of a scene (parsed YAML): ``[(name, origin (3,), u (3,), v (3,), size (2,))]``
+    with unit, orthogonal ``u``, ``v`` (metres, world frame); a quad's point at quad
+    coordinates (a, b) is ``origin + a u + b v``.
+
+    Raises ValueError: no ``quads`` list, non-finite or non-orthogonal axes, size <= 0."""
+    if not isinstance(data, dict) or "quads" not in data:
+        raise ValueError("a scene needs a 'quads' list")
+    out = []
+    for k, qd in enumerate(data["quads"]):
+        name = str(qd.get("name", f"quad{k}"))
+        o = _vec(qd["origin"], what="origin")
+        u = _vec(qd["u"], what="u")
+        v = _vec(qd["v"], what="v")
+        u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
+        if abs(u @ v) > 1e-9:
+            raise ValueError(f"quad {name}: u and v must be orthogonal")
+        size = _vec(qd["size"], 2, "size")
+        if min(size) <= 0:
+            raise ValueError(f"quad {name}: size must be positive")
+        out.append((name, o, u, v, size))
+    return out
+
+
+def marker_layout(data: dict) -> list:
+    """Markers of a scene (parsed YAML, its ``markers.placements``: single markers ``{id, quad,
+    at: [a, b], size}`` or grids ``{fill: {quad, size, pitch, border, first_id}}``).
+
+    Returns ``[(marker id, quad index, a, b, size)]``: the marker's top-left corner at quad
+    coordinates (a, b), side ``size`` (m). Raises ValueError for unknown quads or duplicate ids.
+    """
+    quads = scene_quad_frames(data)
+    names = [q[0] for q in quads]
+
+    def index(name):
+        if name not in names:
+            raise ValueError(f"scene has no quad {name!r}; quads: {names}")
+        return names.index(name)
+
+    placed = []
+    for pl in (data.get("markers") or {}).get("placements", []) or []:
+        if "fill" in pl:
+            f = pl["fill"]
+            qi = index(f["quad"])
+            qsize = quads[qi][4]
+            size, pitch = float(f["size"]), float(f.get("pitch", 2 * float(f["size"])))
+            border = float(f.get("border", 0.1))
+            nc = int(np.floor((qsize[0] - size - 2 * border) / pitch + 1e-9)) + 1
+            nr = int(np.floor((qsize[1] - size - 2 * border) / pitch + 1e-9)) + 1
+            a0 = 0.5 * (qsize[0] - (nc - 1) * pitch - size)
+            b0 = 0.5 * (qsize[1] - (nr - 1) * pitch - size)
+            mid = int(f.get("first_id", 0))
+            for r in range(nr):
+                for c in range(nc):
+                    placed.append((mid, qi, a0 + c * pitch, b0 + r * pitch, size))
+                    mid += 1
+        else:
+            qi = index(pl["quad"])
+            a, b = _vec(pl["at"], 2, "at")
+            placed.append((int(pl["id"]), qi, float(a), float(b), float(pl["size"])))
+    ids = [m[0] for m in placed]
+    if len(set(ids)) != len(ids):
+        raise ValueError("duplicate marker ids")
+    return placed
+
+
+def _scene_marker_corners(data: dict) -> dict:
+    quads = scene_quad_frames(data)
+    out = {}
+    for mid, qi, a, b, s in marker_layout(data):
+        _, o, u, v, _ = quads[qi]
+        A = np.array([a, a + s, a + s, a])[:, None]
+        B = np.array([b, b, b + s, b + s])[:, None]
+        out[mid] = o + A * u + B * v
+    return out
+
+
+def load_marker_map(path):
+    """Read a marker map (:func:`write_marker_map`), or a scene YAML / built-in scene name
+    (``aruco_room``: the corners of its markers). Returns ``(dictionary name, {id: (4, 3)
+    corners in ArUco order, metres})``.
+
+    Raises:
+        FileNotFoundError: no such file or built-in scene. ValueError: neither a marker map nor
+        a scene, or a marker without 4 finite 3D corners.
+    """
+    import yaml
+
+    p = scene_path(path)
+    data = yaml.safe_load(p.read_text())
+    if isinstance(data, dict) and "quads" in data:
+        return str(data.get("dictionary", "DICT_4X4_250")), _scene_marker_corners(data)
+    if not isinstance(data, dict) or "markers" not in data:
+        raise ValueError(f"{p}: neither a marker map nor a scene")
+    corners = {}
+    for m in data["markers"]:
+        c = np.asarray(m["corners"], dtype=float)
+        if c.shape != (4, 3) or not np.isfinite(c).all():
+            raise ValueError(f"{p}: marker {m.get('id')} needs 4 finite 3D corners")
+        corners[int(m["id"])] = c
+    return str(data.get("dictionary", "DICT_4X4_250")), corners

@@ -1,0 +1,261 @@
+"""ROS 2 bag I/O with ``rosbags`` (no rosbag2, no rclpy): the typestore, writing sequences
+and reading them back.
+
+* :func:`write_sequence_bag` writes a synthetic sequence (frames from
+  :func:`rs_localizer.sim.trajectory.generate_sequence`) as a bag (mcap or sqlite3) with
+  ``<ns>/correspondences``, ``<ns>/keypoints``, ``<ns>/camera_info``, ``/ground_truth/pose`` and
+  ``/ground_truth/twist``, plus ``landmarks.csv`` (the map for the keypoints topic) and
+  ``sequence.json`` (RS timing and generation settings) in the bag directory.
+* :class:`RosbagsMessages` builds messages of the Jazzy typestore (rendered sequences).
+* :func:`read_bag_info`, :func:`iter_messages`, :func:`bag_topics`, :func:`load_ground_truth`
+  read bags.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..accuracy import GroundTruth
+from ..camera import CameraModel
+from ..frontends.image import image_fields
+from ..maps import save_landmarks_csv
+from . import conversions as cv
+from .pointcloud import correspondence_array, correspondence_cloud, keypoint_cloud, pack_cloud
+
+__all__ = ["write_sequence_bag", "write_sequence_json", "read_bag_info", "load_ground_truth",
+           "iter_messages", "bag_topics", "RosbagsMessages", "GT_POSE",
+           "GT_TWIST"]
+
+PC2 = "sensor_msgs/msg/PointCloud2"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+IMAGE = "sensor_msgs/msg/Image"
+POSE = "geometry_msgs/msg/PoseStamped"
+TWIST = "geometry_msgs/msg/TwistStamped"
+GT_POSE = "/ground_truth/pose"
+GT_TWIST = "/ground_truth/twist"
+OUT_TYPES = {"pose": POSE, "twist": TWIST,
+             "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+             "odom": "nav_msgs/msg/Odometry"}
+_NS = 1_000_000_000
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _cdr(msg, msgtype: str, ts) -> bytes:
+    """rclpy message -> CDR bytes with zeroed padding (rclpy leaves the alignment padding
+    uninitialized, which makes bags non-reproducible): serialize, then let rosbags re-encode."""
+    from rclpy.serialization import serialize_message
+
+    return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
+
+
+def _storage_plugin(storage: str):
+    from rosbags.rosbag2 import StoragePlugin
+
+    try:
+        return {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    except KeyError:
+        raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3") from None
+
+
+
+def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str = "mcap",
+                       namespace: str = "/camera", camera_frame: str = "camera_optical_frame",
+                       map_frame: str = "map", with_ids: bool = True, with_scores: bool = False,
+                       keypoints: bool = True, correspondences: bool = True,
+                       stamp_row: float = 0.0, settings: dict | None = None,
+                       overwrite: bool = False) -> Path:
+    """Write a synthetic sequence as a ROS 2 bag directory; returns its path.
+
+    Log times: camera_info at stamp + 1 ms, clouds and ground truth at stamp + 2 ms (so that
+    camera_info always comes first). Ground truth is stamped with the reference row's time.
+    """
+    from rosbags.rosbag2 import Writer
+
+    path = Path(path)
+    if path.exists():
+        if not overwrite:
+            raise FileExistsError(f"{path} exists (use --overwrite)")
+        shutil.rmtree(path)
+    ts = _typestore()
+    ns = namespace.rstrip("/")
+    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
+    if correspondences:
+        topics["correspondences"] = f"{ns}/correspondences"
+    if keypoints:
+        topics["keypoints"] = f"{ns}/keypoints"
+    used = np.unique(np.concatenate([f.ids for f in frames])) if frames else np.zeros(0, int)
+    with Writer(path, version=9, storage_plugin=_storage_plugin(storage)) as w:
+        c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=ts)
+        c_corr = (w.add_connection(topics["correspondences"], PC2, typestore=ts)
+                  if correspondences else None)
+        c_kp = w.add_connection(topics["keypoints"], PC2, typestore=ts) if keypoints else None
+        c_gtp = w.add_connection(GT_POSE, POSE, typestore=ts)
+        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts)
+        for f in frames:
+            t_log = f.stamp_ns + 1_000_000
+            w.write(c_info, t_log, _cdr(cv.camera_info_msg(camera, camera_frame, f.stamp_ns),
+                                        CAMERA_INFO, ts))
+            t_log += 1_000_000
+            if c_corr is not None:
+                w.write(c_corr, t_log, _cdr(correspondence_cloud(
+                    f.uv, f.xyz, f.ids if with_ids else None,
+                    f.scores if with_scores else None, frame_id=camera_frame,
+                    stamp=f.stamp_ns), PC2, ts))
+            if c_kp is not None:
+                w.write(c_kp, t_log, _cdr(keypoint_cloud(
+                    f.uv, f.ids, f.scores if with_scores else None, frame_id=camera_frame,
+                    stamp=f.stamp_ns), PC2, ts))
+            est_like = _GT(f.orientation, f.position, f.angular_velocity, f.linear_velocity)
+            w.write(c_gtp, t_log, _cdr(cv.pose_stamped(est_like, f.t_ref_ns, map_frame),
+                                       POSE, ts))
+            w.write(c_gtt, t_log, _cdr(cv.twist_stamped(est_like, f.t_ref_ns, camera_frame),
+                                       TWIST, ts))
+    if keypoints and len(used):
+        save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
+    write_sequence_json(path, "rs-localizer make-bag", topics, len(frames), camera,
+                        camera_frame, map_frame, stamp_row, settings=settings or {})
+    return path
+
+
+def write_sequence_json(path, generator: str, topics, frames: int, camera: CameraModel,
+                        camera_frame: str, map_frame: str, stamp_row: float,
+                        rolling_shutter: bool = True, **extra) -> None:
+    """Write a bag's ``sequence.json`` (the schema :func:`load_sequence_info` and the demo read):
+    topics, frame count, frames, camera (K, D, size, distortion model) and RS timing, plus
+    ``extra`` top-level entries (``settings``, ``frontend``, ...). ``rolling_shutter=False``
+    records a global-shutter sequence (zero line delay and readout time)."""
+    meta = {
+        "generator": generator,
+        "topics": topics,
+        "frames": int(frames),
+        "camera_frame": camera_frame,
+        "map_frame": map_frame,
+        "camera": {"K": camera.K.tolist(), "D": camera.D.tolist(), "width": camera.width,
+                   "height": camera.height, "distortion_model": camera.distortion_model},
+        "rs": {"line_delay": camera.line_delay if rolling_shutter else 0.0,
+               "readout_time": camera.readout_time if rolling_shutter else 0.0,
+               "direction": camera.readout, "reference_row": camera.reference_line,
+               "stamp_row": float(stamp_row)},
+        **extra,
+    }
+    (Path(path) / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+@dataclass
+class _GT:
+    orientation: np.ndarray
+    position: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+
+
+
+# ---------------------------------------------------------------- reading
+def read_bag_info(path) -> dict:
+    """``sequence.json`` of a bag written by make-bag, or ``{}``."""
+    p = Path(path) / "sequence.json"
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def iter_messages(path, topics=None):
+    """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as r:
+        conns = [c for c in r.connections if topics is None or c.topic in topics]
+        for conn, t_ns, raw in r.messages(connections=conns):
+            yield conn.topic, conn.msgtype, t_ns, bytes(raw)
+
+
+def bag_topics(path) -> dict:
+    """topic -> msgtype."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as r:
+        return {c.topic: c.msgtype for c in r.connections}
+
+
+def load_ground_truth(path, pose_topic=GT_POSE, twist_topic=GT_TWIST) -> GroundTruth:
+    ts = _typestore()
+    gt = GroundTruth()
+    for topic, msgtype, _, raw in iter_messages(path, {pose_topic, twist_topic}):
+        msg = ts.deserialize_cdr(raw, msgtype)
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        if topic == pose_topic:
+            gt.orientation[stamp], gt.position[stamp] = cv.pose_from_msg(msg.pose)
+        else:
+            gt.angular_velocity[stamp], gt.linear_velocity[stamp] = cv.twist_from_msg(msg.twist)
+    gt.stamps = np.array(sorted(gt.orientation), dtype=np.int64)
+    return gt
+
+
+# ---------------------------------------------------------------- rosbags messages
+class RosbagsMessages:
+    """Message builders of the rosbags ROS 2 Jazzy typestore (no rclpy): header, image,
+    camera_info, correspondence cloud, pose, twist, and ``cdr`` to serialize them."""
+
+    def __init__(self):
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = get_typestore(Stores.ROS2_JAZZY)
+        self.T = self.ts.types
+
+    def header(self, stamp_ns: int, frame_id: str):
+        sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
+        return self.T["std_msgs/msg/Header"](
+            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
+
+    def image(self, img: np.ndarray, stamp_ns, frame_id):
+        return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
+
+    def camera_info(self, cam: CameraModel, stamp_ns, frame_id):
+        D = np.asarray(cam.D, dtype=float)
+        model = cam.distortion_model if cam.has_distortion else "plumb_bob"
+        if model == "plumb_bob" and len(D) < 5:
+            D = np.concatenate([D, np.zeros(5 - len(D))])
+        P = np.zeros((3, 4))
+        P[:, :3] = cam.K
+        roi = self.T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                          width=0, do_rectify=False)
+        return self.T[CAMERA_INFO](
+            header=self.header(stamp_ns, frame_id), height=cam.height, width=cam.width,
+            distortion_model=model, d=D, k=cam.K.ravel().copy(), r=np.eye(3).ravel(),
+            p=P.ravel(), binning_x=0, binning_y=0, roi=roi)
+
+    def cloud(self, uv, xyz, ids, stamp_ns, frame_id):
+        packed = pack_cloud(correspondence_array(uv, xyz, ids))
+        PF = self.T["sensor_msgs/msg/PointField"]
+        return self.T[PC2](
+            header=self.header(stamp_ns, frame_id), height=1, width=packed.width,
+            fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
+            is_bigendian=False, point_step=packed.point_step, row_step=packed.row_step,
+            data=np.frombuffer(packed.data, dtype=np.uint8),
+            is_dense=bool(np.isfinite(uv).all() and np.isfinite(xyz).all()))
+
+    def pose(self, R, p, stamp_ns, frame_id):
+        q = cv.quaternion_from_matrix(R)
+        T = self.T
+        return T[POSE](header=self.header(stamp_ns, frame_id), pose=T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
+                                                          z=float(q[2]), w=float(q[3]))))
+
+    def twist(self, w, v, stamp_ns, frame_id):
+        T = self.T
+        V = T["geometry_msgs/msg/Vector3"]
+        return T[TWIST](header=self.header(stamp_ns, frame_id), twist=T["geometry_msgs/msg/Twist"](
+            linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
+            angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2]))))
+
+    def cdr(self, msg, msgtype) -> bytes:
+        return self.ts.serialize_cdr(msg, msgtype)

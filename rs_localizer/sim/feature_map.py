@@ -1,0 +1,48 @@
+"""Feature maps of simulated scenes: global-shutter renders at known poses, reconstructed by
+:func:`rs_localizer.frontends.features.feature_map_from_views` (the paper's real-data protocol:
+a 3D map built from global-shutter views)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..frontends.features import FeatureMap, feature_map_from_views
+from .render.renderer import Renderer
+
+__all__ = ["build_feature_map"]
+
+
+def build_feature_map(scene, camera: CameraModel, poses, kind: str = "orb",
+                      n_features: int = 2000, merge_radius: float = 0.004,
+                      edge_margin_px: float = 2.0, supersample: int = 2,
+                      descriptors_per_landmark: int = 1) -> FeatureMap:
+    """Reconstruct a feature map from global-shutter renders of ``scene`` at known ``poses``.
+
+    Args:
+        scene: :class:`~rs_localizer.sim.render.scene.Scene`. camera: its intrinsics/distortion
+            (the line delay is ignored: the map views are global shutter).
+        poses: iterable of (orientation camera -> world (3, 3), position (3,)); or a motion
+            with ``pose(t)`` plus times: ``(motion, times)``.
+        kind, n_features, merge_radius, edge_margin_px, descriptors_per_landmark: see
+            :func:`~rs_localizer.frontends.features.feature_map_from_views`.
+        supersample: anti-aliasing samples per axis of the renders.
+    Returns:
+        :class:`~rs_localizer.frontends.features.FeatureMap`.
+    """
+    if isinstance(poses, tuple) and len(poses) == 2 and hasattr(poses[0], "pose"):
+        motion, times = poses
+        R, p = motion.pose(np.asarray(times, dtype=float))
+        poses = list(zip(R, p))
+    renderer = Renderer(scene, camera, supersample=supersample)
+
+    def views():
+        for R, p in poses:
+            def backproject(uv, pose=(R, p)):
+                X, quad, _ = renderer.cast(uv, pose=pose)
+                return X, quad
+            yield renderer.render_pose(R, p, mono=True), backproject
+
+    return feature_map_from_views(views(), kind=kind, n_features=n_features,
+                                  merge_radius=merge_radius, edge_margin_px=edge_margin_px,
+                                  descriptors_per_landmark=descriptors_per_landmark)

@@ -1,0 +1,112 @@
+"""The package's layers: imports point down only, ``ros`` is the only rclpy importer, nothing in
+the library imports ``sim`` or ``evaluation``, and one solver registry (README "Architecture")."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "rs_localizer"
+
+#: layer of each top-level module / subpackage, lowest first; a module may import only its own
+#: layer or lower ones (``sim`` produces data: it may use the model and the front ends' map
+#: formats; ``evaluation`` and ``cli`` compose everything)
+LAYER = {
+    "geometry": 0, "camera": 0, "_so3": 0, "maps": 0, "accuracy": 0,
+    "solvers": 1,
+    "estimation": 2,
+    "frontends": 3,
+    "sim": 4,
+    "ros": 5,
+    "evaluation": 6,
+    "cli": 7,
+}
+#: the package's own top level (re-exports the public API) and ``python -m rs_localizer``
+TOP = {"__init__", "__main__"}
+ROS_PACKAGES = {"rclpy", "geometry_msgs", "sensor_msgs", "nav_msgs", "diagnostic_msgs",
+                "std_msgs", "tf2_msgs", "visualization_msgs", "rcl_interfaces",
+                "builtin_interfaces", "lifecycle_msgs"}
+
+
+def _unit(path: Path) -> str:
+    rel = path.relative_to(PKG).with_suffix("")
+    return rel.parts[0]
+
+
+def _imports(path: Path):
+    """(absolute module name, line) of every import in a file (relative ones resolved)."""
+    tree = ast.parse(path.read_text())
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    pkg = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[:len(pkg) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+                if node.module is None:  # from . import x
+                    for a in node.names:
+                        yield f"{mod}.{a.name}", node.lineno
+                    continue
+            else:
+                mod = node.module
+            yield mod, node.lineno
+
+
+FILES = sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def test_every_unit_has_a_layer():
+    units = {_unit(p) for p in FILES} - TOP
+    assert units <= set(LAYER), f"modules without a layer: {units - set(LAYER)}"
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(PKG)))
+def test_imports_point_down(path):
+    unit = _unit(path)
+    if unit in TOP:
+        return
+    bad = []
+    for mod, line in _imports(path):
+        parts = mod.split(".")
+        if parts[0] in ROS_PACKAGES and unit != "ros":
+            bad.append(f"line {line}: {mod} (only rs_localizer.ros imports ROS)")
+        if parts[0] != "rs_localizer" or len(parts) < 2:
+            continue
+        target = parts[1]
+        if target in TOP:
+            bad.append(f"line {line}: {mod} (import the module, not the package top)")
+        elif LAYER[target] > LAYER[unit]:
+            bad.append(f"line {line}: {mod} ({unit} -> {target} points up)")
+    assert not bad, f"{path.relative_to(PKG)}:\n" + "\n".join(bad)
+
+
+def test_one_solver_registry():
+    """The estimator, the front ends, the node and the CLI read the registry: no comparison with
+    a solver-name literal outside ``solvers/`` (the evaluation names solvers in its claims)."""
+    from rs_localizer.solvers.registry import SOLVERS
+
+    names = set(SOLVERS)
+    offenders = []
+    for path in FILES:
+        if _unit(path) in ("solvers", "evaluation"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                consts = [c.value for c in [node.left, *node.comparators]
+                          if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+                if any(c in names for c in consts):
+                    offenders.append(f"{path.relative_to(PKG)}:{node.lineno}")
+    assert not offenders, "solver-name comparisons outside the registry: " + ", ".join(offenders)
+
+
+def test_public_api():
+    import rs_localizer
+    from rs_localizer.camera import CameraModel
+    from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+
+    assert rs_localizer.estimate_rs_pose is estimate_rs_pose
+    assert rs_localizer.EstimateOptions is EstimateOptions
+    assert rs_localizer.CameraModel is CameraModel
