@@ -20,10 +20,11 @@ Known 4.6 differences handled here:
 * ``relativeCornerRefinmentWinSize`` (sic) exists only from 4.9: set when present.
 * ChArUco corners come out shifted by about +0.5 px in x and y from OpenCV 4.5.4 (contrib PR
   3024 shifts the points by half a pixel around ``cornerSubPix``) until the fix of
-  opencv/opencv issue 25539 (PR 28380, January 2026; 5.0 is fixed). 4.6.0 has the offset
-  (0.4-0.7 px on rendered boards). :class:`CharucoCornerDetector` therefore refines OpenCV's
-  corners once more with ``cv2.cornerSubPix`` (which converges to the saddle point from any
-  nearby start), so all versions give the same corners.
+  opencv/opencv issue 25539 (PR 28380, January 2026; the 5.0.0 wheel has no offset). On a
+  rendered board 4.6.0's corners are off by (+0.50, +0.50) px on average, up to 0.77 px.
+  :class:`CharucoCornerDetector` therefore refines OpenCV's corners once more with
+  ``cv2.cornerSubPix`` (which converges to the saddle point from any nearby start), so all
+  versions give the same corners (< 0.1 px from the truth on the same render).
 
 The board coordinate frames agree between 4.6 and 5.x (origin at the top-left corner of the
 board image, x to the right, y down, z into the board); checked in ``test/test_boards.py``.
@@ -215,9 +216,9 @@ class CharucoCornerDetector:
         min_markers: a corner needs this many adjacent markers (1 or 2; OpenCV default 2).
         refine_markers: also look for board markers missed by the first pass
             (``refineDetectedMarkers`` with the board layout).
-        corner_window: half size (px) of the final ``cornerSubPix`` on every corner (the
-            half-pixel bias workaround, module notes); per corner at most 0.4 of its distance to
-            the nearest marker corner (at least 2). 0 disables it.
+        corner_window: largest half size (px) of the final ``cornerSubPix`` on every corner
+            (the half-pixel bias workaround, module notes); per corner half its distance to the
+            nearest marker corner, so no marker enters the window (at least 2). 0 disables it.
 
     ``detect(gray, K=None, D=None) -> (corners (N, 2), charuco ids (N,), marker corners
     (M, 4, 2), marker ids (M,))``. With ``K``/``D`` OpenCV interpolates the corners through an
@@ -226,7 +227,7 @@ class CharucoCornerDetector:
     """
 
     def __init__(self, board, params=None, min_markers: int = 2, refine_markers: bool = True,
-                 corner_window: int = 5):
+                 corner_window: int = 12):
         self.board = board
         self.params = params if params is not None else detector_parameters()
         self.min_markers = int(min_markers)
@@ -285,10 +286,10 @@ class CharucoCornerDetector:
 
 
 def _resubpix(gray, corners, marker_corners, max_window: int) -> np.ndarray:
-    """``cv2.cornerSubPix`` on chessboard corners (N, 2), the window of each at most 0.4 of
-    its distance to the nearest marker corner (so no marker edge enters it)."""
+    """``cv2.cornerSubPix`` on chessboard corners (N, 2), the half window of each half its
+    distance to the nearest marker corner (that corner stays outside the square window)."""
     d = np.linalg.norm(corners[:, None, :] - marker_corners[None, :, :], axis=2).min(axis=1)
-    win = np.clip(np.floor(0.4 * d), 2, max(2, max_window)).astype(int)
+    win = np.clip(np.floor(0.5 * d), 2, max(2, max_window)).astype(int)
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
     out = corners.copy()
     for w in np.unique(win):

@@ -662,8 +662,10 @@ class CharucoFrontend(_BoardFrontend):
             the corner interpolation (better under distortion); not for ``equidistant``.
         refine_markers: second marker pass using the board layout.
         subpix_window: half size (px) of the marker corner refinement window.
-        corner_window: half size (px) of the final chessboard-corner ``cornerSubPix`` that
-            removes the half-pixel bias of OpenCV 4.5.4 .. 4.12 (see :mod:`._cv_compat`).
+        corner_window: largest half size (px) of the final chessboard-corner
+            ``cornerSubPix`` that removes the half-pixel bias OpenCV had from 4.5.4 until
+            the fix of opencv issue 25539 (4.6 has it, 5.0 not; see :mod:`._cv_compat`); 0
+            keeps OpenCV's corners.
 
     ``last_markers`` holds the marker ids seen in the last image.
     """
@@ -672,7 +674,7 @@ class CharucoFrontend(_BoardFrontend):
     board_class = CharucoBoardModel
 
     def __init__(self, board: CharucoBoardModel, min_markers: int = 2, use_camera: bool = True,
-                 refine_markers: bool = True, subpix_window: int = 3, corner_window: int = 5):
+                 refine_markers: bool = True, subpix_window: int = 3, corner_window: int = 12):
         super().__init__(board)
         params = cvc.detector_parameters(cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
                                          cornerRefinementWinSize=int(subpix_window))
