@@ -23,7 +23,8 @@ from rs_localizer.estimate import estimate_rs_pose
 from rs_localizer.frontends import _cv_compat as cvc
 from rs_localizer.frontends.boards import (CharucoBoardModel, CharucoFrontend,
                                            CheckerboardFrontend, CheckerboardModel, TagBoard,
-                                           TagFrontend, board_image, load_board,
+                                           TagFrontend, _canonical_checkerboard,
+                                           board_image, load_board,
                                            load_dictionary, make_board_frontend,
                                            pose_from_spec)
 from rs_localizer.geometry import rotation_angle_deg
@@ -259,6 +260,20 @@ def test_synthetic_checkerboard_ids_follow_the_board(roll_deg, method):
     assert est.success and rotation_angle_deg(est.R, R_cv) < 0.05
     assert rotation_angle_deg(est.R, R) < 0.25
     assert np.linalg.norm(est.position - (-R.T @ C)) < 5e-3
+
+
+def test_checkerboard_order_from_any_of_the_four_grid_orders():
+    """The true corners handed over in each order OpenCV could report for a 9 x 6 grid (as is,
+    turned by 180 degrees, mirrored left-right or top-bottom) come back in the board's order."""
+    board = CheckerboardModel(9, 6, 0.03)
+    R, C = look_at_board([0.12, 0.075, 0], 0.5, [0.2, -0.1, 2.0])
+    img, H = render(board, K_SYN, R, C, ppm=2000.0, margin=30)
+    truth = project(H, board.points_board).reshape(6, 9, 2)
+    for grid in (truth, truth[::-1, ::-1], truth[:, ::-1], truth[::-1, :]):
+        out = _canonical_checkerboard(np.ascontiguousarray(grid), img)
+        np.testing.assert_allclose(out, truth)
+    # no contrast (a flat image): orientation unknown -> None
+    assert _canonical_checkerboard(truth, np.full_like(img, 128)) is None
 
 
 def test_synthetic_charuco():

@@ -559,8 +559,8 @@ class CheckerboardFrontend(_BoardFrontend):
         method: ``classic`` (``cv2.findChessboardCorners`` with fast check +
             ``cv2.cornerSubPix``), ``sb`` (``cv2.findChessboardCornersSB``, sector-based,
             subpixel by itself, more tolerant of blur) or ``auto`` (``classic``, then ``sb`` if
-            it finds nothing). On OpenCV's 640 x 480 ``left*.jpg`` classic takes ~10 ms, SB
-            ~80 ms.
+            it finds nothing). On OpenCV's 640 x 480 ``left01.jpg`` classic takes 10-20 ms,
+            SB 70-110 ms (one thread, OpenCV 4.6 / 5.0).
         subpix_window: half size (px) of the ``cornerSubPix`` window (``classic``); at most
             0.4 of the smallest corner spacing is used.
         sb_flags: flags of ``findChessboardCornersSB`` (default ``CALIB_CB_NORMALIZE_IMAGE``;
