@@ -19,7 +19,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimate import estimate_rs_pose
+from rs_localizer import estimate_rs_pose
 from rs_localizer.frontends import _cv_compat as cvc
 from rs_localizer.frontends.boards import (CharucoBoardModel, CharucoFrontend,
                                            CheckerboardFrontend, CheckerboardModel, TagBoard,
@@ -448,3 +448,19 @@ def _pose_table():  # pragma: no cover - run by hand: python test/test_boards.py
 
 if __name__ == "__main__":  # pragma: no cover
     _pose_table()
+
+
+def test_make_frontend_board_kind_equals_board_frontend():
+    """``make_frontend("board", yaml)`` (the node's ``frontend: board``) is the board front end of
+    that YAML: same corners and ids on a real photo."""
+    from rs_localizer.frontends import FRONTENDS, make_frontend
+    from rs_localizer.frontends.boards import make_board_frontend
+
+    assert "board" in FRONTENDS
+    yml = PHOTOS / "left_board.yaml"
+    img = cv2.imread(str(PHOTOS / "left01.jpg"), cv2.IMREAD_GRAYSCALE)
+    a = make_frontend("board", yml).process(img, encoding="mono8")
+    b = make_board_frontend(yml).process(img, encoding="mono8")
+    assert len(a[0]) == 54
+    np.testing.assert_array_equal(a[2], b[2])
+    np.testing.assert_allclose(a[0], b[0])

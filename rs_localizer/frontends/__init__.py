@@ -11,16 +11,21 @@ from .features import FeatureFrontend, FeatureMap, feature_map_from_views
 __all__ = ["ArucoFrontend", "FeatureFrontend", "FeatureMap", "feature_map_from_views", "to_gray",
            "make_frontend", "FRONTENDS"]
 
-FRONTENDS = ("aruco", "features")
+FRONTENDS = ("aruco", "features", "board")
 
 
 def make_frontend(kind: str, map_path, **kw):
     """Front end by name: ``aruco`` (``map_path``: marker map YAML, scene YAML or built-in scene
     name: :func:`rs_localizer.maps.load_marker_map`) or ``features`` (``map_path``: a feature map
-    ``.npz``, :meth:`FeatureMap.save`). Raises ValueError for an unknown kind or a bad map,
+    ``.npz``, :meth:`FeatureMap.save`) or ``board`` (``map_path``: a board YAML,
+    :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag board). Raises ValueError for an unknown kind or a bad map,
     FileNotFoundError for a missing one."""
     if kind == "aruco":
         return ArucoFrontend.from_file(map_path, **kw)
+    if kind == "board":
+        from .boards import make_board_frontend
+
+        return make_board_frontend(map_path, **kw)
     if kind == "features":
         return FeatureFrontend.from_file(map_path, **kw)
     raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")

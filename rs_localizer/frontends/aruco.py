@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from . import _cv_compat
 
 __all__ = ["ArucoFrontend", "to_gray"]
 
@@ -57,18 +58,16 @@ class ArucoFrontend:
         self.dictionary = dictionary
         self.marker_corners = {int(k): np.asarray(v, dtype=float).reshape(4, 3)
                                for k, v in marker_corners.items()}
-        params = cv2.aruco.DetectorParameters()
-        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-        params.cornerRefinementWinSize = int(subpix_window)
-        params.cornerRefinementMaxIterations = 50
-        params.cornerRefinementMinAccuracy = 0.01
-        if hasattr(params, "relativeCornerRefinmentWinSize"):  # OpenCV >= 4.9 (sic)
-            # window up to one marker cell (default 0.3 cell: ~0.27 px median error on rendered
-            # 30-40 px markers; 1.0: ~0.22 px)
-            params.relativeCornerRefinmentWinSize = 1.0
-        params.minMarkerPerimeterRate = float(min_marker_perimeter)
+        # relativeCornerRefinmentWinSize (sic, OpenCV >= 4.9, skipped before): window up to one
+        # marker cell (default 0.3 cell: ~0.27 px median error on rendered 30-40 px markers;
+        # 1.0: ~0.22 px)
+        params = _cv_compat.detector_parameters(
+            cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
+            cornerRefinementWinSize=int(subpix_window), cornerRefinementMaxIterations=50,
+            cornerRefinementMinAccuracy=0.01, relativeCornerRefinmentWinSize=1.0,
+            minMarkerPerimeterRate=float(min_marker_perimeter))
         self.params = params
-        self.detector = cv2.aruco.ArucoDetector(marker_dictionary(dictionary), params)
+        self.detector = _cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
         self.last_rejected = 0
         self.last_scores = None  # no match scores (FeatureFrontend has them)
 
@@ -87,13 +86,8 @@ class ArucoFrontend:
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8"):
         """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
-        gray = to_gray(image, encoding)
-        corners, ids, rejected = self.detector.detectMarkers(gray)
-        self.last_rejected = 0 if rejected is None else len(rejected)
-        if ids is None or len(ids) == 0:
-            return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
-        return (np.asarray(corners, dtype=float).reshape(-1, 4, 2),
-                np.asarray(ids, dtype=np.int64).ravel())
+        corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
+        return corners, ids
 
     def process(self, image: np.ndarray, camera: CameraModel | None = None,
                 encoding: str = "rgb8"):

@@ -17,7 +17,7 @@ model (``type`` in YAML)       front end                   correspondence ids
 Every front end has ``process(image, camera=None, encoding="rgb8") -> (points_px (N, 2),
 points3d (N, 3), ids (N,) int64)`` like :class:`~rs_localizer.frontends.aruco.ArucoFrontend`:
 pixels as measured (distorted), map points in metres, ready for
-:func:`rs_localizer.estimate.estimate_rs_pose`. :func:`load_board` reads a board from YAML or a
+:func:`rs_localizer.estimate_rs_pose`. :func:`load_board` reads a board from YAML or a
 dict, :func:`make_board_frontend` builds the matching front end. Detection goes through
 :mod:`._cv_compat`, so OpenCV 4.6 (Debian 12, Ubuntu 24.04) works as well as 4.7+ / 5.x.
 

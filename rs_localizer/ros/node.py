@@ -47,6 +47,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
+from ..frontends import FRONTENDS
 from ..maps import load_landmarks_csv
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
@@ -112,18 +113,19 @@ PARAMETERS = {
                                 "rational_polynomial, equidistant or none", None, False),
     "camera.d": ([0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)",
                  None, False),
-    "frontend": ("none", "image front end: none (no image subscription), aruco or features",
+    "frontend": ("none", "image front end: none (no image subscription), aruco, features or board "
+                 "(checkerboard, ChArUco or AprilTag/ArUco tag board from a board YAML)",
                  None, True),
     "frontend_map": ("", "map of the front end: aruco: marker map YAML, scene YAML or a "
-                     "built-in scene name (aruco_room); features: feature map .npz (reloaded "
-                     "on change)", None, False),
+                     "built-in scene name (aruco_room); features: feature map .npz; board: "
+                     "board YAML (reloaded on change)", None, False),
     "republish_correspondences": (False, "publish the front end's correspondences on "
                                   "correspondences_out (PointCloud2) for inspection", None,
                                   False),
 }
 
 #: values of the ``frontend`` parameter
-FRONTEND_KINDS = ("none", "aruco", "features")
+FRONTEND_KINDS = ("none",) + FRONTENDS
 
 _LOG_PERIOD = 2.0  # s, per failure reason
 
@@ -307,7 +309,7 @@ class RSLocalizerNode(Node):
             if not fmap:
                 return f"frontend {kind} needs frontend_map (" + (
                     "marker map YAML, scene YAML or aruco_room)" if kind == "aruco"
-                    else "feature map .npz)")
+                    else "board YAML)" if kind == "board" else "feature map .npz)")
             if (kind, fmap) == self._frontend_key:
                 cfg["frontend_obj"] = self._frontend
             else:

@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ...frontends._cv_compat import marker_image
 from ...maps import (SCENE_DIR, _vec, load_marker_map, marker_dictionary, marker_layout, scene_names,
                      scene_path, scene_quad_frames, write_marker_map)
 
@@ -147,7 +148,7 @@ def marker_texture(dictionary: str, marker_id: int, texels_per_cell: int = 16,
     if marker_id < 0 or marker_id >= len(d.bytesList):
         raise ValueError(f"marker id {marker_id} out of range for {dictionary} "
                          f"({len(d.bytesList)} markers)")
-    img = cv2.aruco.generateImageMarker(d, int(marker_id), n * texels_per_cell, borderBits=1)
+    img = marker_image(d, int(marker_id), n * texels_per_cell, border_bits=1)  # 4.6: drawMarker
     m = margin_cells * texels_per_cell
     img = cv2.copyMakeBorder(img, m, m, m, m, cv2.BORDER_CONSTANT, value=255)
     return np.repeat(img[:, :, None], 3, axis=2)
