@@ -1,24 +1,36 @@
 """P3P: the global-shutter minimal absolute pose baseline (three correspondences).
 
-Wraps PoseLib's P3P (``poselib.p3p``, ~3 us per call here) and falls back to OpenCV's
-``cv2.solveP3P`` (~40 us) when PoseLib is not installed. Both are well-kept libraries; we do
-not write our own.
+Our own numba implementation of Lambda Twist (Persson and Nordberg, "Lambda Twist: An Accurate
+Fast Robust Perspective Three Point (P3P) Solver", ECCV 2018), written from the paper in
+:mod:`.lambda_twist`, is the default backend. PoseLib's P3P (``poselib.p3p``, the library
+reference the tests compare against) and OpenCV's ``cv2.solveP3P`` remain selectable with
+``backend=`` or the ``RS_LOCALIZER_P3P`` environment variable (read at import; used to time
+the estimator with either backend).
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._common import check_inputs
+from .lambda_twist import lambda_twist, lambda_twist_batch
 
 try:  # PoseLib is a hard dependency of the package, but keep OpenCV as a working fallback
     import poselib as _poselib
 except ImportError:  # pragma: no cover - exercised by test_p3p_opencv_backend
     _poselib = None
 
-__all__ = ["P3PSolution", "p3p", "p3p_opencv", "p3p_batch"]
+__all__ = ["P3PSolution", "p3p", "p3p_opencv", "p3p_batch", "BACKENDS", "DEFAULT_BACKEND"]
+
+#: selectable P3P implementations
+BACKENDS = ("lambda_twist", "poselib", "opencv")
+#: backend used when ``backend=None``; from ``RS_LOCALIZER_P3P`` (default ``"lambda_twist"``)
+DEFAULT_BACKEND = os.environ.get("RS_LOCALIZER_P3P", "lambda_twist")
+if DEFAULT_BACKEND not in BACKENDS:
+    raise ValueError(f"RS_LOCALIZER_P3P must be one of {BACKENDS}, got {DEFAULT_BACKEND!r}")
 
 
 @dataclass(frozen=True)
@@ -36,22 +48,40 @@ def _check(x, X):
     return x, X
 
 
-def p3p(x, X) -> list[P3PSolution]:
+def _backend(backend):
+    """The backend to run: ``backend`` or :data:`DEFAULT_BACKEND`; ``poselib`` falls back to
+    ``opencv`` when PoseLib is not installed."""
+    b = DEFAULT_BACKEND if backend is None else backend
+    if b not in BACKENDS:
+        raise ValueError(f"p3p: backend must be one of {BACKENDS}, got {b!r}")
+    if b == "poselib" and _poselib is None:
+        return "opencv"
+    return b
+
+
+def p3p(x, X, backend: str | None = None) -> list[P3PSolution]:
     """All (up to 4) global-shutter poses from 3 correspondences (P3P).
 
     Args:
         x: (3, 2) calibrated (undistorted, normalized) image points.
         X: (3, 3) world points.
+        backend: ``"lambda_twist"`` (ours, Persson and Nordberg ECCV 2018), ``"poselib"``,
+            ``"opencv"``, or ``None`` for :data:`DEFAULT_BACKEND`.
     Returns:
-        list of :class:`P3PSolution` (possibly empty for degenerate input, e.g. collinear points).
+        list of :class:`P3PSolution` ``X_cam = R X + C`` (possibly empty for degenerate input,
+        e.g. collinear points).
     Raises:
-        ValueError: wrong shapes, N != 3, NaN/inf.
+        ValueError: wrong shapes, N != 3, NaN/inf, unknown backend.
     """
+    b = _backend(backend)
     x, X = _check(x, X)
-    if _poselib is None:
+    if b == "opencv":
         return p3p_opencv(x, X)
     xh = np.concatenate([x, np.ones((3, 1))], axis=1)
     xh /= np.linalg.norm(xh, axis=1, keepdims=True)
+    if b == "lambda_twist":
+        R, C = lambda_twist(xh, X)
+        return [P3PSolution(R[i], C[i]) for i in range(len(R))]
     out = []
     for pose in _poselib.p3p(xh, X):
         R, C = np.asarray(pose.R), np.asarray(pose.t)
@@ -78,20 +108,30 @@ def p3p_opencv(x, X) -> list[P3PSolution]:
     return out
 
 
-def p3p_batch(bearings, X):
+def p3p_batch(bearings, X, backend: str | None = None):
     """P3P on K triplets at once (RANSAC): bearings (K, 3, 3) unit rays, X (K, 3, 3).
 
+    Args:
+        bearings: (K, 3, 3) camera rays (camera frame). X: (K, 3, 3) world points.
+        backend: as in :func:`p3p` (default :data:`DEFAULT_BACKEND`, Lambda Twist).
     Returns:
-        (R (M, 3, 3), C (M, 3), owner (M,)): all M finite solutions and the triplet each came
-        from. No validation (hot path): callers pass finite, well-shaped arrays.
+        (R (M, 3, 3), C (M, 3), owner (M,) int64): all M finite solutions ``X_cam = R X + C``
+        and the triplet each came from (non-decreasing). No validation of the arrays (hot
+        path): callers pass finite, well-shaped arrays.
+    Raises:
+        ValueError: unknown backend.
     """
+    b = _backend(backend)
+    if b == "lambda_twist":
+        return lambda_twist_batch(np.ascontiguousarray(bearings, dtype=np.float64),
+                                  np.ascontiguousarray(X, dtype=np.float64))
     K = len(bearings)
-    if _poselib is not None:
-        poses = [_poselib.p3p(b, Xk) for b, Xk in zip(bearings, X)]
+    if b == "poselib":
+        poses = [_poselib.p3p(bk, Xk) for bk, Xk in zip(bearings, X)]
         Rts = [p.Rt for ps in poses for p in ps]
         counts = [len(ps) for ps in poses]
     else:
-        sols = [p3p_opencv(b[:, :2] / b[:, 2:3], Xk) for b, Xk in zip(bearings, X)]
+        sols = [p3p_opencv(bk[:, :2] / bk[:, 2:3], Xk) for bk, Xk in zip(bearings, X)]
         Rts = [np.c_[s.R, s.C] for ss in sols for s in ss]
         counts = [len(ss) for ss in sols]
     if not Rts:
