@@ -4,8 +4,8 @@ Our own numba implementation of Lambda Twist (Persson and Nordberg, "Lambda Twis
 Fast Robust Perspective Three Point (P3P) Solver", ECCV 2018), written from the paper in
 :mod:`.lambda_twist`, is the default backend. PoseLib's P3P (``poselib.p3p``, the library
 reference the tests compare against) and OpenCV's ``cv2.solveP3P`` remain selectable with
-``backend=`` or the ``RS_LOCALIZER_P3P`` environment variable (read at import; used to time
-the estimator with either backend).
+``backend=`` or the ``RS_LOCALIZER_P3P`` environment variable (read at import, an unknown
+value raises ValueError there; used to time the estimator with either backend).
 """
 
 from __future__ import annotations
