@@ -8,7 +8,7 @@ import poselib
 import pytest
 
 from rs_localizer.solvers.lambda_twist import _cubic_root, lambda_twist, lambda_twist_batch
-from rs_localizer.synthetic import make_frame
+from rs_localizer.sim.synthetic import make_frame
 
 P = sys.modules["rs_localizer.solvers.p3p"]  # the package exports a function named p3p
 

@@ -215,7 +215,7 @@ def test_p3p_poselib_and_opencv_agree():
     assert any(rotation_angle_deg(s.R, f.R) < 1e-6 for s in a)
 
 
-@pytest.mark.parametrize("backend", ["poselib", "opencv"])
+@pytest.mark.parametrize("backend", ["lambda_twist", "poselib", "opencv"])
 def test_p3p_batch_contains_ground_truth(backend, monkeypatch):
     """Every triplet's true pose is among its batched P3P solutions, with the right owner."""
     import sys
@@ -227,7 +227,7 @@ def test_p3p_batch_contains_ground_truth(backend, monkeypatch):
     frames = [make_frame(rng, 3, rs_speed=0.0) for _ in range(20)]
     b = np.array([np.c_[f.x, np.ones(3)] for f in frames])
     b /= np.linalg.norm(b, axis=2, keepdims=True)
-    R, C, owner = P.p3p_batch(b, np.array([f.X for f in frames]))
+    R, C, owner = P.p3p_batch(b, np.array([f.X for f in frames]), backend=backend)
     assert R.shape == (len(owner), 3, 3) and C.shape == (len(owner), 3)
     assert np.all(np.diff(owner) >= 0)
     for k, f in enumerate(frames):
