@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from ..camera import CameraModel
 from ..frontends.image import image_fields
 from ..maps import save_landmarks_csv
 from . import conversions as cv
-from .pointcloud import correspondence_array, correspondence_cloud, keypoint_cloud, pack_cloud
+from .pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
 
 __all__ = ["write_sequence_bag", "write_sequence_json", "read_bag_info", "load_ground_truth",
            "iter_messages", "bag_topics", "RosbagsMessages", "GT_POSE",
@@ -48,14 +47,6 @@ def _typestore():
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
-
-
-def _cdr(msg, msgtype: str, ts) -> bytes:
-    """rclpy message -> CDR bytes with zeroed padding (rclpy leaves the alignment padding
-    uninitialized, which makes bags non-reproducible): serialize, then let rosbags re-encode."""
-    from rclpy.serialization import serialize_message
-
-    return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
 
 
 def _storage_plugin(storage: str):
@@ -86,7 +77,8 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
         if not overwrite:
             raise FileExistsError(f"{path} exists (use --overwrite)")
         shutil.rmtree(path)
-    ts = _typestore()
+    M = RosbagsMessages()
+    ts = M.ts
     ns = namespace.rstrip("/")
     topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
     if correspondences:
@@ -103,23 +95,21 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
         c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts)
         for f in frames:
             t_log = f.stamp_ns + 1_000_000
-            w.write(c_info, t_log, _cdr(cv.camera_info_msg(camera, camera_frame, f.stamp_ns),
-                                        CAMERA_INFO, ts))
+            w.write(c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame),
+                                         CAMERA_INFO))
             t_log += 1_000_000
             if c_corr is not None:
-                w.write(c_corr, t_log, _cdr(correspondence_cloud(
-                    f.uv, f.xyz, f.ids if with_ids else None,
-                    f.scores if with_scores else None, frame_id=camera_frame,
-                    stamp=f.stamp_ns), PC2, ts))
+                w.write(c_corr, t_log, M.cdr(M.cloud(
+                    f.uv, f.xyz, f.ids if with_ids else None, f.stamp_ns, camera_frame,
+                    f.scores if with_scores else None), PC2))
             if c_kp is not None:
-                w.write(c_kp, t_log, _cdr(keypoint_cloud(
-                    f.uv, f.ids, f.scores if with_scores else None, frame_id=camera_frame,
-                    stamp=f.stamp_ns), PC2, ts))
-            est_like = _GT(f.orientation, f.position, f.angular_velocity, f.linear_velocity)
-            w.write(c_gtp, t_log, _cdr(cv.pose_stamped(est_like, f.t_ref_ns, map_frame),
-                                       POSE, ts))
-            w.write(c_gtt, t_log, _cdr(cv.twist_stamped(est_like, f.t_ref_ns, camera_frame),
-                                       TWIST, ts))
+                w.write(c_kp, t_log, M.cdr(M.keypoints(
+                    f.uv, f.ids, f.stamp_ns, camera_frame, f.scores if with_scores else None),
+                    PC2))
+            w.write(c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns,
+                                               map_frame), POSE))
+            w.write(c_gtt, t_log, M.cdr(M.twist(f.angular_velocity, f.linear_velocity,
+                                                f.t_ref_ns, camera_frame), TWIST))
     if keypoints and len(used):
         save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
     write_sequence_json(path, "rs-localizer make-bag", topics, len(frames), camera,
@@ -149,15 +139,6 @@ def write_sequence_json(path, generator: str, topics, frames: int, camera: Camer
         **extra,
     }
     (Path(path) / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
-
-
-@dataclass
-class _GT:
-    orientation: np.ndarray
-    position: np.ndarray
-    angular_velocity: np.ndarray
-    linear_velocity: np.ndarray
-
 
 
 # ---------------------------------------------------------------- reading
@@ -232,15 +213,24 @@ class RosbagsMessages:
             distortion_model=model, d=D, k=cam.K.ravel().copy(), r=np.eye(3).ravel(),
             p=P.ravel(), binning_x=0, binning_y=0, roi=roi)
 
-    def cloud(self, uv, xyz, ids, stamp_ns, frame_id):
-        packed = pack_cloud(correspondence_array(uv, xyz, ids))
+    def cloud(self, uv, xyz, ids, stamp_ns, frame_id, scores=None):
+        return self.cloud_from_array(correspondence_array(uv, xyz, ids, scores), stamp_ns,
+                                     frame_id)
+
+    def keypoints(self, uv, ids, stamp_ns, frame_id, scores=None):
+        return self.cloud_from_array(keypoint_array(uv, ids, scores), stamp_ns, frame_id)
+
+    def cloud_from_array(self, arr, stamp_ns, frame_id):
+        """A structured array (:mod:`rs_localizer.ros.pointcloud`) as a PointCloud2 (height 1,
+        little endian, dense only if every float is finite)."""
+        packed = pack_cloud(arr)
         PF = self.T["sensor_msgs/msg/PointField"]
         return self.T[PC2](
             header=self.header(stamp_ns, frame_id), height=1, width=packed.width,
             fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
             is_bigendian=False, point_step=packed.point_step, row_step=packed.row_step,
             data=np.frombuffer(packed.data, dtype=np.uint8),
-            is_dense=bool(np.isfinite(uv).all() and np.isfinite(xyz).all()))
+            is_dense=is_dense(arr))
 
     def pose(self, R, p, stamp_ns, frame_id):
         q = cv.quaternion_from_matrix(R)

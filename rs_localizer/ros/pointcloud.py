@@ -190,11 +190,12 @@ def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp=None):
     msg.point_step = packed.point_step
     msg.row_step = packed.row_step
     msg.data = packed.data
-    msg.is_dense = _is_dense(arr)
+    msg.is_dense = is_dense(arr)
     return msg
 
 
-def _is_dense(arr) -> bool:
+def is_dense(arr) -> bool:
+    """True if every float field of the structured array is finite (PointCloud2 ``is_dense``)."""
     for nm in arr.dtype.names:
         if arr.dtype.fields[nm][0].kind == "f" and not np.isfinite(arr[nm]).all():
             return False

@@ -15,10 +15,18 @@ import numpy as np
 
 from ..accuracy import GroundTruth, frame_errors, summarize_errors
 from . import conversions as cv
-from .bag_io import (CAMERA_INFO, GT_POSE, OUT_TYPES, _cdr, _storage_plugin, _typestore,
+from .bag_io import (CAMERA_INFO, GT_POSE, OUT_TYPES, _storage_plugin, _typestore,
                      bag_topics, iter_messages, load_ground_truth, read_bag_info)
 
 __all__ = ["replay", "ReplayResult", "CSV_COLUMNS"]
+
+
+def _cdr(msg, msgtype: str, ts) -> bytes:
+    """rclpy message -> CDR bytes with zeroed padding (rclpy leaves the alignment padding
+    uninitialized, which makes bags non-reproducible): serialize, then let rosbags re-encode."""
+    from rclpy.serialization import serialize_message
+
+    return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
 
 
 @dataclass
