@@ -300,6 +300,17 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
                                           [-0.5, 719.5]], atol=1e-3)
         assert stamp_to_ns(path.poses[-1].header.stamp) == stamp_to_ns(pose.header.stamp)
     assert [len(p.poses) for p in paths] == [1, 2, 2]  # --path-length 2
+    # export-image writes the bag's image as PNG (full colour: the same pixels)
+    import cv2
+
+    assert cli(["export-image", str(out), str(tmp_path / "d.png"), "--index", "1"]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png")),
+                                  image_from_msg(images[1])[0])
+    assert cli(["export-image", str(out), str(tmp_path / "p.png"), "--colors", "16"]) == 0
+    assert cv2.imread(str(tmp_path / "p.png")).shape == (720, 1280, 3)
+    assert cli(["export-image", str(out), str(tmp_path / "x.png"), "--index", "3"]) == 2
+    assert cli(["export-image", str(out), str(tmp_path / "x.png"), "--topic",
+                "/rs_localizer/pose"]) == 2
     # without --debug-outputs: no visualization topics
     rc = cli(["replay", str(bag), "--out", str(tmp_path / "plain"), "--quiet"])
     assert rc == 0 and "/rs_localizer/debug_image" not in bag_topics(tmp_path / "plain")
