@@ -170,6 +170,12 @@ def test_built_only_when_subscribed(ros_context):
         img, _ = image_from_msg(got[1])
         assert tuple(img[455, 300]) == (40, 40, 40)  # the blank canvas
         assert len(viz.builder.poses) == 3
+
+        def broken(*a, **k):
+            raise ValueError("drawing failed")
+        viz.builder.debug_image = broken  # logged, not raised: the frame is not lost
+        viz.publish(est, uv, X, cam, 8000, 9000, "cam", "map")
+        assert len(viz.builder.poses) == 4
     finally:
         ex.shutdown()
         listener.destroy_node()
