@@ -24,7 +24,7 @@ $(STAMP): setup.py setup.cfg package.xml
 	touch $@
 
 demo: venv
-	$(RSL) demo
+	$(RSL) demo $(ARGS)
 
 # pytest exit code 5 = no tests collected: not a failure of the build
 test: venv

@@ -43,6 +43,7 @@ def test_outputs_written(quick):
         assert (out / name).stat().st_size > 1000, name
     report = (out / "report.md").read_text()
     assert "holds" in report and "p3p" in report
+    assert "**Quick run**" in report and "noisy" in report  # quick verdicts say so
     cube = res["rolling"]["cube_px"]
     assert np.median(cube["r6p_1lin"]) < 0.3 * np.median(cube["p3p"])
 

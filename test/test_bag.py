@@ -89,11 +89,11 @@ def test_replay_offline_with_outputs(small_bags, tmp_path, capsys):
     path = small_bags["mcap"]
     out, csv = tmp_path / "est", tmp_path / "est.csv"
     rc = cli(["replay", str(path), "--out", str(out), "--csv", str(csv), "--quiet", "--json"])
-    text = capsys.readouterr().out
-    assert rc == 0, text
-    assert "solved 4/4" in text
-    summary = json.loads(text[text.index("{"):text.rindex("}") + 1])
-    assert summary["frames"] == 4
+    cap = capsys.readouterr()
+    assert rc == 0, cap.out + cap.err
+    assert "solved 4/4" in cap.err  # --json: the summary lines go to stderr
+    summary = json.loads(cap.out)   # and stdout is only the JSON
+    assert summary["frames"] == 4 and summary["solved"] == 4 and summary["failures"] == {}
     assert summary["rot_deg"]["max"] < 0.25 and summary["pos_m"]["max"] < 0.06
     assert summary["angvel"]["max"] < 0.5
     lines = csv.read_text().splitlines()

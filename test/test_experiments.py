@@ -235,6 +235,10 @@ def test_main_quick_subset_and_merge(tmp_path, capsys):
         data = json.load(fh)
     assert {"exp4", "exp6", "_meta"} <= set(data)
     assert data["_meta"]["exp4"]["trials"] == 3 and data["_meta"]["exp4"]["quick"]
+    assert "quick run (3 trials per setting): the verdicts below are noisy" in \
+        capsys.readouterr().out
+    with open(os.path.join(out, "report.md")) as fh:
+        assert "**Quick run** (exp4, exp6" in fh.read()  # the report says so too
     assert E.main(["--out", out, "--render-only"]) == 0
     assert os.path.exists(os.path.join(out, "exp6_timing.png"))
     with pytest.raises(SystemExit):

@@ -15,7 +15,7 @@ LAYER = {
     "geometry": 0, "camera": 0, "_so3": 0, "maps": 0, "accuracy": 0,
     "solvers": 1,
     "estimation": 2,
-    "frontends": 3,
+    "frontends": 3, "viz": 3,
     "sim": 4,
     "ros": 5,
     "evaluation": 6,

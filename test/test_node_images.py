@@ -257,3 +257,48 @@ def test_bad_frontend_parameters_are_clear_errors(tmp_path, ros_domain, params, 
     assert not n.alive()
     assert n.stop() != 0
     assert message in n.log, n.log
+
+
+def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
+    """Image mode: ``debug_image`` is the input image (dimmed to 0.7) under the overlay, with
+    the marker corners the front end found drawn as inliers, stamped like the image."""
+    import cv2
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rs_localizer.frontends.image import image_from_msg
+    from rs_localizer.ros.conversions import ns_to_stamp, stamp_to_ns
+    from rs_localizer.ros.pointcloud import read_correspondences
+    from rs_localizer.viz import COLORS
+    from sensor_msgs.msg import Image
+
+    msgs = _bag_messages(sample_images_bag)
+    frame, info = msgs[IMAGE_TOPIC][6], msgs[INFO_TOPIC][0]
+    corners = read_correspondences(msgs["/camera/correspondences"][6]).uv
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    probe = Probe(ros_context, namespace=NS)
+    pub = probe.node.create_publisher(Image, f"{NS}/image", qos)
+    got = []
+    probe.node.create_subscription(Image, f"{NS}/debug_image", got.append, qos)
+    try:
+        probe.wait_matched()
+        assert probe.wait(lambda: pub.get_subscription_count() > 0
+                          and probe.node.count_publishers(f"{NS}/debug_image") > 0, 30)
+        probe.pub_info.publish(info)
+        probe.spin(0.3)
+        stamp = stamp_to_ns(frame.header.stamp) + 2000 * 10**9  # after every earlier frame
+        frame.header.stamp = ns_to_stamp(stamp)
+        pub.publish(frame)
+        assert probe.wait_pose(stamp + REF_OFFSET_NS, timeout=20) is not None, node.log
+        assert probe.wait(lambda: len(got) > 0, 10)
+        im = got[0]
+        assert stamp_to_ns(im.header.stamp) == stamp
+        assert (im.encoding, im.width, im.height) == ("bgr8", 640, 480)
+        img, _ = image_from_msg(im)
+        raw, _ = image_from_msg(frame)
+        dimmed = cv2.cvtColor(cv2.convertScaleAbs(raw, alpha=0.7), cv2.COLOR_GRAY2BGR)
+        assert (img == dimmed).all(axis=2).mean() > 0.8
+        p = np.round(corners).astype(int)
+        p = p[p[:, 1] >= 50]  # below the text band
+        green = (img[p[:, 1], p[:, 0]] == COLORS["inlier"]).all(axis=1)
+        assert len(p) > 200 and green.mean() > 0.9, green.mean()
+    finally:
+        probe.close()

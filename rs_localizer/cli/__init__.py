@@ -2,7 +2,9 @@
 
     rs-localizer make-bag OUT [--frames 40 --points 500 --storage mcap ...]
     rs-localizer play BAG [--rate 1.0 | --lockstep] [--topics ...] [--remap FROM:=TO ...]
-    rs-localizer replay BAG [--solver r6p_1lin] [--out DIR] [--csv FILE]
+    rs-localizer replay BAG [--solver r6p_1lin] [--out DIR [--debug-outputs]] [--csv FILE]
+                            [--json]
+    rs-localizer export-image BAG OUT.png [--topic /rs_localizer/debug_image] [--index 0]
     rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-images]
     rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
     rs-localizer marker-map SCENE OUT
@@ -16,7 +18,8 @@ import json
 import sys
 from pathlib import Path
 
-from ..solvers.registry import SOLVER_NAMES
+from ..camera import READOUT_DIRECTIONS
+from ..solvers.registry import SOLVER_NAMES, solver_info
 
 __all__ = ["main", "build_parser"]
 
@@ -96,19 +99,64 @@ def _replay(args) -> int:
                  direction=args.direction, reference_row=args.reference_row,
                  stamp_row=args.stamp_row, landmarks_file=args.landmarks, out_bag=out_bag,
                  out_csv=args.csv, storage=args.storage, overwrite=args.overwrite,
-                 progress=None if args.quiet else sys.stderr)
+                 progress=None if args.quiet else sys.stderr,
+                 debug_outputs=args.debug_outputs, path_length=args.path_length,
+                 image_topic=args.image_topic)
     n = len(res.rows)
+    text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
     print(f"{args.solver}: solved {res.solved}/{n} frames"
-          + (f"; failures {res.failures}" if res.failures else ""))
+          + (f"; failures {res.failures}" if res.failures else ""), file=text)
     if res.summary.get("frames"):
-        print(format_summary(args.solver, res.summary, n))
-    if args.json:
-        print(json.dumps(res.summary, indent=2))
+        print(format_summary(args.solver, res.summary, n), file=text)
     if res.out_bag:
-        print(f"estimates: {res.out_bag}")
+        print(f"estimates: {res.out_bag}" + (" (with debug_image, markers, path)"
+                                             if args.debug_outputs else ""), file=text)
     if res.out_csv:
-        print(f"csv: {res.out_csv}")
+        print(f"csv: {res.out_csv}", file=text)
+    if args.json:
+        print(json.dumps({"solver": args.solver, "frames_total": n, "solved": res.solved,
+                          "failures": res.failures, **res.summary,
+                          "out_bag": str(res.out_bag) if res.out_bag else None,
+                          "csv": str(res.out_csv) if res.out_csv else None}, indent=2))
     return 0 if res.solved else 1
+
+
+def _export_image(args) -> int:
+    import cv2
+    import numpy as np
+
+    from ..frontends.image import image_from_msg
+    from ..ros.bag_io import IMAGE, _typestore, bag_topics, iter_messages
+    from ..viz.debug_image import to_bgr
+
+    topics = bag_topics(args.bag)
+    if topics.get(args.topic) != IMAGE:
+        images = sorted(t for t, mt in topics.items() if mt == IMAGE)
+        raise ValueError(f"{args.bag}: no sensor_msgs/Image topic {args.topic!r} (image "
+                         f"topics: {images or 'none'})")
+    ts = _typestore()
+    count = 0
+    for k, (_, mt, _, raw) in enumerate(iter_messages(args.bag, {args.topic})):
+        count += 1
+        if k == args.index:
+            img, enc = image_from_msg(ts.deserialize_cdr(raw, mt))
+            out = Path(args.out)
+            if out.parent and not out.parent.exists():
+                out.parent.mkdir(parents=True)
+            bgr = to_bgr(img, enc)
+            if args.colors:
+                from PIL import Image  # (Pillow comes with matplotlib)
+
+                Image.fromarray(np.ascontiguousarray(bgr[:, :, ::-1])).quantize(
+                    colors=args.colors, method=Image.Quantize.MEDIANCUT,
+                    dither=Image.Dither.NONE).save(str(out), optimize=True)
+            elif not cv2.imwrite(str(out), bgr, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+                raise ValueError(f"cannot write {out} (use a .png or .jpg name)")
+            print(f"wrote {out}: message {k} of {args.topic} ({img.shape[1]}x{img.shape[0]}, "
+                  f"{enc}, {out.stat().st_size / 1024:.0f} KiB)")
+            return 0
+    raise ValueError(f"{args.topic} has {count} messages; --index {args.index} is out of "
+                     "range")
 
 
 def _demo(args) -> int:
@@ -140,31 +188,44 @@ def _experiments(args) -> int:
     return run(args)
 
 
+def _solver_help(prefix: str) -> str:
+    """Help text listing the registry's solvers with their paper names."""
+    return prefix + ": " + ", ".join(
+        f"{n} ({solver_info(n).paper_name}{'' if solver_info(n).rolling else ', global shutter'})"
+        for n in SOLVER_NAMES)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="rs-localizer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True)
+    fmt = dict(formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    directions = list(READOUT_DIRECTIONS)
 
-    m = sub.add_parser("make-bag", help="write a synthetic rolling-shutter sequence as a bag")
+    m = sub.add_parser("make-bag", help="write a synthetic rolling-shutter sequence as a bag",
+                       **fmt)
     m.add_argument("out", help="output bag directory")
-    m.add_argument("--frames", type=int, default=40)
+    m.add_argument("--frames", type=int, default=40, help="frames to generate")
     m.add_argument("--points", type=int, default=500, help="correspondences per frame")
-    m.add_argument("--fps", type=float, default=30.0)
+    m.add_argument("--fps", type=float, default=30.0, help="frame rate (Hz)")
     m.add_argument("--noise", type=float, default=0.5, help="pixel noise sigma (px)")
-    m.add_argument("--outliers", type=float, default=0.2, help="outlier fraction")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--line-delay", type=float, default=30e-6, help="s per row")
-    m.add_argument("--direction", default="top_to_bottom",
-                   choices=["top_to_bottom", "bottom_to_top", "left_to_right", "right_to_left"])
+    m.add_argument("--outliers", type=float, default=0.2, help="outlier fraction (0..1)")
+    m.add_argument("--seed", type=int, default=0, help="random seed")
+    m.add_argument("--line-delay", type=float, default=30e-6,
+                   help="s per row (the 1280x720 camera: 30e-6 = 21.6 ms readout)")
+    m.add_argument("--direction", default="top_to_bottom", choices=directions,
+                   help="readout direction")
     m.add_argument("--reference-row", type=float, default=-1.0,
                    help="row of the ground-truth pose (-1: image centre)")
     m.add_argument("--stamp-row", type=float, default=0.0, help="row of the header stamp")
     m.add_argument("--motion-scale", type=float, default=1.0,
                    help="scale of the rotational motion (1: ~1.5 rad/s)")
     m.add_argument("--landmarks", type=int, default=6000, help="landmarks in the scene")
-    m.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
-    m.add_argument("--namespace", default="/camera")
-    m.add_argument("--no-distortion", action="store_true")
+    m.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap",
+                   help="bag storage format")
+    m.add_argument("--namespace", default="/camera", help="namespace of the camera topics")
+    m.add_argument("--no-distortion", action="store_true", help="camera without lens "
+                   "distortion (default: mild plumb_bob)")
     m.add_argument("--no-ids", action="store_true", help="omit the id field")
     m.add_argument("--scores", action="store_true", help="add a score field")
     m.add_argument("--no-keypoints", action="store_true", help="omit the keypoints topic")
@@ -172,81 +233,123 @@ def build_parser() -> argparse.ArgumentParser:
                    help="omit the correspondences topic")
     m.add_argument("--start-time", type=float, default=1_700_000_000.0,
                    help="capture time of the first frame (s since the epoch)")
-    m.add_argument("--overwrite", action="store_true")
+    m.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_make_bag)
 
-    pl = sub.add_parser("play", help="publish a bag into the live ROS graph")
-    pl.add_argument("bag")
+    pl = sub.add_parser("play", help="publish a bag into the live ROS graph", **fmt)
+    pl.add_argument("bag", help="bag directory")
     pl.add_argument("--rate", type=float, default=1.0, help="time scale (0: as fast as possible)")
     pl.add_argument("--lockstep", action="store_true",
                     help="wait for the output of each frame before sending the next")
     pl.add_argument("--output-topic", action="append", default=None,
-                    help="pose topic(s) to wait for in lock-step (default /camera/pose)")
+                    help="pose topic(s) to wait for in lock-step (repeatable; default "
+                    "/camera/pose)")
     pl.add_argument("--timeout", type=float, default=2.0, help="lock-step wait per frame (s)")
-    pl.add_argument("--retries", type=int, default=1, help="republish a frame without answer")
-    pl.add_argument("--topics", nargs="+", default=None, help="only these bag topics")
-    pl.add_argument("--remap", nargs="+", default=None, metavar="FROM:=TO")
+    pl.add_argument("--retries", type=int, default=1,
+                    help="times a frame without answer is republished (lock-step)")
+    pl.add_argument("--topics", nargs="+", default=None,
+                    help="only these bag topics (default: all)")
+    pl.add_argument("--remap", nargs="+", default=None, metavar="FROM:=TO",
+                    help="publish topic FROM of the bag as TO")
     pl.add_argument("--wait", type=float, default=None,
                     help="wait for subscribers (s; default 30 in lock-step, else 2)")
-    pl.add_argument("--best-effort", action="store_true", help="publish best effort")
+    pl.add_argument("--best-effort", action="store_true",
+                    help="publish best effort (default: reliable)")
     pl.add_argument("--limit", type=int, default=None, help="stop after N frames")
     pl.add_argument("--loop", type=int, default=1, help="play N times")
     pl.set_defaults(func=_play)
 
-    r = sub.add_parser("replay", help="run the estimator over a bag offline")
-    r.add_argument("bag")
+    r = sub.add_parser("replay", help="run the estimator over a bag offline", **fmt)
+    r.add_argument("bag", help="bag directory (make-bag or render-bag output)")
     r.add_argument("--solver", default="r6p_1lin", choices=SOLVER_NAMES,
-                   help="minimal solver (p3p = global shutter)")
+                   help=_solver_help("minimal solver"))
     r.add_argument("--source", choices=["correspondences", "keypoints"],
-                   default="correspondences")
-    r.add_argument("--landmarks", default=None, help="CSV id,x,y,z (keypoints source)")
+                   default="correspondences",
+                   help="frame topic: */correspondences (u, v, x, y, z) or */keypoints (u, v, "
+                   "id + a landmark map)")
+    r.add_argument("--landmarks", default=None,
+                   help="CSV id,x,y,z for --source keypoints (default: BAG/landmarks.csv)")
     r.add_argument("--out", default=None, help="write estimates to this bag directory")
+    r.add_argument("--debug-outputs", action="store_true",
+                   help="also write /rs_localizer/debug_image, markers and path into --out "
+                   "(the node's visualization topics, for Foxglove or RViz)")
+    r.add_argument("--path-length", type=int, default=1000,
+                   help="poses kept in the path topic (--debug-outputs)")
+    r.add_argument("--image-topic", default=None,
+                   help="image drawn under debug_image (default: the bag's sensor_msgs/Image "
+                   "topic next to the frames, if any; else a blank canvas)")
     r.add_argument("--csv", default=None, help="write one line per frame")
-    r.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
+    r.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap",
+                   help="storage format of --out")
     r.add_argument("--threshold", type=float, default=2.0, help="RANSAC threshold (px)")
-    r.add_argument("--max-iterations", type=int, default=1000)
-    r.add_argument("--confidence", type=float, default=0.9999)
-    r.add_argument("--min-inliers", type=int, default=12)
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--no-refine", action="store_true")
-    r.add_argument("--line-delay", type=float, default=None, help="s/row (default: bag)")
-    r.add_argument("--readout-time", type=float, default=None, help="s/frame, wins if > 0")
-    r.add_argument("--direction", default=None)
-    r.add_argument("--reference-row", type=float, default=None)
-    r.add_argument("--stamp-row", type=float, default=None)
-    r.add_argument("--json", action="store_true", help="print the summary as JSON")
+    r.add_argument("--max-iterations", type=int, default=1000,
+                   help="RANSAC hypotheses cap per frame")
+    r.add_argument("--confidence", type=float, default=0.9999,
+                   help="RANSAC adaptive-termination confidence")
+    r.add_argument("--min-inliers", type=int, default=12, help="fewest inliers for a pose")
+    r.add_argument("--seed", type=int, default=0, help="RANSAC random seed")
+    r.add_argument("--no-refine", action="store_true",
+                   help="skip the final exact-model refinement (no covariance)")
+    r.add_argument("--line-delay", type=float, default=None,
+                   help="s/row (default: the bag's sequence.json)")
+    r.add_argument("--readout-time", type=float, default=None,
+                   help="s/frame, wins over --line-delay if > 0")
+    r.add_argument("--direction", default=None, choices=directions,
+                   help="readout direction (default: the bag's sequence.json)")
+    r.add_argument("--reference-row", type=float, default=None,
+                   help="row (px) of the estimated pose (default: sequence.json; -1: centre)")
+    r.add_argument("--stamp-row", type=float, default=None,
+                   help="row (px) whose capture time is the header stamp (default: "
+                   "sequence.json, else 0)")
+    r.add_argument("--json", action="store_true",
+                   help="print only the summary as JSON on stdout (the rest goes to stderr)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
-    r.add_argument("--overwrite", action="store_true")
+    r.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     r.set_defaults(func=_replay)
 
-    d = sub.add_parser("demo", help="node + sample bag over DDS, accuracy vs ground truth")
-    d.add_argument("--bag", default=None, help="default: data/sample")
-    d.add_argument("--params", default=None, help="default: config/rs_localizer.yaml")
-    d.add_argument("--compare", default="p3p", help="second solver ('' to skip)")
-    d.add_argument("--summary-only", action="store_true")
-    d.add_argument("--timeout", type=float, default=5.0)
+    e = sub.add_parser("export-image", help="write one sensor_msgs/Image of a bag as PNG "
+                       "(e.g. a replay --debug-outputs debug_image)", **fmt)
+    e.add_argument("bag", help="bag directory")
+    e.add_argument("out", help="image file to write (.png, .jpg)")
+    e.add_argument("--topic", default="/rs_localizer/debug_image", help="image topic")
+    e.add_argument("--index", type=int, default=0, help="message number on the topic (0 = "
+                   "first)")
+    e.add_argument("--colors", type=int, default=0,
+                   help="PNG with a palette of this many colours (smaller file; 0: full colour)")
+    e.set_defaults(func=_export_image)
+
+    d = sub.add_parser("demo", help="node + sample bag over DDS, accuracy vs ground truth",
+                       **fmt)
+    d.add_argument("--bag", default=None, help="correspondence bag (default: data/sample)")
+    d.add_argument("--params", default=None,
+                   help="node parameter file (default: config/rs_localizer.yaml)")
+    d.add_argument("--compare", default="p3p", choices=[*SOLVER_NAMES, ""],
+                   help="second solver run next to the configured one ('' to skip)")
+    d.add_argument("--summary-only", action="store_true", help="no per-frame lines")
+    d.add_argument("--timeout", type=float, default=5.0,
+                   help="lock-step wait for each frame's pose (s)")
     d.add_argument("--images", action=argparse.BooleanOptionalAction, default=True,
                    help="also run the image-mode demo (front end in the node)")
-    d.add_argument("--image-bag", default=None, help="default: data/sample_images")
+    d.add_argument("--image-bag", default=None, help="image bag (default: data/sample_images)")
     d.set_defaults(func=_demo)
 
     from . import render_bag as bagout
 
     mm = sub.add_parser("marker-map", help="write the ArUco marker map of a scene (for the "
-                        "node's frontend_map / the aruco front end)")
+                        "node's frontend_map / the aruco front end)", **fmt)
     mm.add_argument("scene", help="built-in scene (aruco_room, textured_room) or scene YAML")
     mm.add_argument("out", help="marker map YAML to write")
     mm.set_defaults(func=_marker_map)
 
     rb = sub.add_parser("render-bag", help="render a rolling-shutter image sequence to a bag "
-                        "(images, camera_info, front-end correspondences, ground truth)")
+                        "(images, camera_info, front-end correspondences, ground truth)", **fmt)
     bagout.add_arguments(rb, positional_out=True)
     rb.set_defaults(func=_render_bag)
 
     from ..evaluation.experiments import add_arguments as experiment_arguments
 
     ex = sub.add_parser("experiments", help="reproduce the paper's synthetic experiments "
-                        "(PNG plots + markdown report)")
+                        "(PNG plots + markdown report)", **fmt)
     experiment_arguments(ex)
     ex.set_defaults(func=_experiments)
     return p

@@ -195,22 +195,32 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
         p.add_argument("--out", "-o", required=True, help="bag directory to write")
     p.add_argument("--scene", default="aruco_room",
                    help="built-in scene (aruco_room, textured_room) or scene YAML")
-    p.add_argument("--motion", default="shake", choices=motion_names())
-    p.add_argument("--frames", type=int, default=30)
-    p.add_argument("--fps", type=float, default=30.0)
-    p.add_argument("--camera", default="vga", choices=sorted(CAMERA_PRESETS))
-    p.add_argument("--frontend", default="aruco", choices=("aruco", "features", "none"))
-    p.add_argument("--feature-map", default=None, help="feature map .npz (features front end)")
+    p.add_argument("--motion", default="shake", choices=motion_names(),
+                   help="camera motion preset")
+    p.add_argument("--frames", type=int, default=30, help="frames to render")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate (Hz)")
+    p.add_argument("--camera", default="vga", choices=sorted(CAMERA_PRESETS),
+                   help="camera preset: " + ", ".join(
+                       f"{k} ({v[0]}x{v[1]}, fx {v[2]:g} px, {v[7] * 1e3:g} ms readout)"
+                       for k, v in sorted(CAMERA_PRESETS.items())))
+    p.add_argument("--frontend", default="aruco", choices=("aruco", "features", "none"),
+                   help="front end whose correspondences are written (none: images only)")
+    p.add_argument("--feature-map", default=None, help="feature map .npz (features front end; "
+                   "default: built from 12 global-shutter views of the motion)")
     p.add_argument("--mono", action="store_true", help="mono8 images (default rgb8)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure time [s] (motion blur)")
-    p.add_argument("--supersample", type=int, default=2)
-    p.add_argument("--global-shutter", action="store_true")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--start-time", type=float, default=1_700_000_000.0)
-    p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"))
-    p.add_argument("--no-compression", action="store_true")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--supersample", type=int, default=2,
+                   help="anti-aliasing samples per pixel axis")
+    p.add_argument("--global-shutter", action="store_true",
+                   help="render a global-shutter sequence (same poses, no readout)")
+    p.add_argument("--seed", type=int, default=0, help="sensor-noise random seed")
+    p.add_argument("--start-time", type=float, default=1_700_000_000.0,
+                   help="capture time of the first frame (s since the epoch)")
+    p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"),
+                   help="bag storage format")
+    p.add_argument("--no-compression", action="store_true", help="no zstd compression")
+    p.add_argument("--overwrite", action="store_true", help="replace the bag if it exists")
     return p
 
 

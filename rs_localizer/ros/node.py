@@ -21,6 +21,8 @@ Publications (reliable, depth 10):
     /diagnostics          diagnostic_msgs/DiagnosticArray
     correspondences_out   sensor_msgs/PointCloud2 (image mode, ``republish_correspondences``):
                           the front end's u, v, x, y, z, id (+ score), stamped like the image
+    debug_image, markers, path  visualization, built only when subscribed
+                          (:mod:`rs_localizer.ros.visualization`, parameters ``viz.*``)
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from ..maps import load_landmarks_csv
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
                          read_keypoints)
+from .visualization import NodeVisualization
 
 __all__ = ["RSLocalizerNode", "main", "PARAMETERS"]
 
@@ -196,6 +199,7 @@ class RSLocalizerNode(Node):
                                              rel)
         self.pub_odom = self.create_publisher(Odometry, "odom", rel)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", rel)
+        self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
         if self.get_parameter("publish_tf").value:
             if cv.have_tf2_msgs():
                 from tf2_msgs.msg import TFMessage
@@ -519,6 +523,7 @@ class RSLocalizerNode(Node):
             self.pub_odom.publish(cv.odometry(est, out_stamp, mf, frame))
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
             self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
+        self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
         self.counts["solved"] += 1
         self.inliers.append(est.num_inliers)
         toc = time.perf_counter()
@@ -563,6 +568,7 @@ class RSLocalizerNode(Node):
         if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
             raise _Drop("image_size_mismatch", f"image is {w}x{h}, the camera model "
                         f"{camera.width}x{camera.height}")
+        self.viz.set_image(img, enc, stamp)
         t0 = time.perf_counter()
         try:
             uv, xyz, ids = fe.process(img, camera, encoding=enc)

@@ -1,5 +1,7 @@
 """Offline replay: the estimator over every frame of a bag (no middleware), the estimates
-written as a bag and a CSV, and their accuracy against the bag's ground truth."""
+written as a bag and a CSV, and their accuracy against the bag's ground truth. With
+``debug_outputs`` the output bag also gets the node's visualization topics (``debug_image``,
+``markers``, ``path``: :mod:`rs_localizer.ros.visualization`), to open in Foxglove or RViz."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import numpy as np
 
 from ..accuracy import GroundTruth, frame_errors, summarize_errors
 from . import conversions as cv
-from .bag_io import (CAMERA_INFO, GT_POSE, OUT_TYPES, _storage_plugin, _typestore,
+from .bag_io import (CAMERA_INFO, GT_POSE, IMAGE, OUT_TYPES, _storage_plugin, _typestore,
                      bag_topics, iter_messages, load_ground_truth, read_bag_info)
 
 __all__ = ["replay", "ReplayResult", "CSV_COLUMNS"]
@@ -59,13 +61,25 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
            direction: str | None = None, reference_row: float | None = None,
            stamp_row: float | None = None, landmarks_file=None, out_bag=None, out_csv=None,
            storage: str = "mcap", map_frame: str = "map", camera_frame: str | None = None,
-           progress=sys.stderr, overwrite: bool = False) -> ReplayResult:
+           progress=sys.stderr, overwrite: bool = False, debug_outputs: bool = False,
+           path_length: int = 1000, image_topic: str | None = None) -> ReplayResult:
     """Run :func:`estimate_rs_pose` over every frame of a bag, offline.
 
     RS timing defaults come from the bag's ``sequence.json`` (make-bag) and can be overridden.
     Writes the estimates (``/rs_localizer/pose``, ``twist``, ``pose_with_covariance``,
     ``odom``) to ``out_bag`` and one line per frame to ``out_csv`` when given, and compares
     with ``/ground_truth/*`` when the bag has them.
+
+    ``debug_outputs`` (needs ``out_bag``) adds, for every solved frame,
+    ``/rs_localizer/debug_image`` (stamped like the input frame, drawn on the bag's image of
+    the same stamp when it has one on ``image_topic`` -- default: its ``sensor_msgs/Image``
+    topic in the frame topic's namespace, else the first one -- or on a blank canvas),
+    ``/rs_localizer/markers`` and ``/rs_localizer/path`` (the last ``path_length`` poses),
+    as the node publishes them.
+
+    Raises:
+        ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``.
+        FileExistsError: ``out_bag`` exists and not ``overwrite``.
     """
     from ..estimation.estimate import EstimateOptions, estimate_rs_pose
     from ..maps import load_landmarks_csv
@@ -92,6 +106,13 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
         ids, pts = load_landmarks_csv(lm)
         order = np.argsort(ids)
         lm_index = (ids[order], pts[order])
+    if debug_outputs and out_bag is None:
+        raise ValueError("debug outputs need an output bag (--out)")
+    if debug_outputs and image_topic is None:
+        images = [t for t, mt in topics.items() if mt == IMAGE]
+        ns = frame_topic.rsplit("/", 1)[0] + "/"
+        image_topic = next((t for t in images if t.startswith(ns)), images[0] if images
+                           else None)
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
     result = ReplayResult()
@@ -110,13 +131,19 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
         for name, mt in OUT_TYPES.items():
             conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
         result.out_bag = out_bag
+    viz = _DebugWriter(writer, conns, ts, path_length, map_frame) if debug_outputs else None
     camera = None
     cam_key = None
     t0 = time.perf_counter()
     i = 0
     try:
-        for topic, msgtype, t_log, raw in iter_messages(path, {frame_topic, info_topic}):
+        for topic, msgtype, t_log, raw in iter_messages(
+                path, {frame_topic, info_topic} | ({image_topic} if viz and image_topic
+                                                   else set())):
             msg = ts.deserialize_cdr(raw, msgtype)
+            if viz is not None and topic == image_topic:
+                viz.add_image(msg)
+                continue
             if topic == info_topic:
                 key = (tuple(msg.k), tuple(msg.d), msg.distortion_model, msg.width, msg.height)
                 if key != cam_key:
@@ -178,6 +205,8 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
                                         est, out_stamp, map_frame)),
                                     ("odom", cv.odometry(est, out_stamp, map_frame, cf))):
                                 writer.write(conns[name], t_log, _cdr(m, OUT_TYPES[name], ts))
+                            if viz is not None:
+                                viz.frame(est, uv, xyz, camera, stamp, out_stamp, cf, t_log)
                     else:
                         row["failure"] = est.failure or "unknown"
             if not row["success"]:
@@ -185,6 +214,8 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
             result.rows.append(row)
             _progress(i, n_frames, t0, progress)
     finally:
+        if viz is not None:
+            viz.flush()
         if writer is not None:
             writer.close()
     errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
@@ -193,6 +224,55 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
         result.out_csv = Path(out_csv)
         _write_csv(result.out_csv, result.rows)
     return result
+
+
+class _DebugWriter:
+    """Writes the visualization topics of solved frames into the replay's output bag. A frame's
+    debug image waits until the next frame (or the end), so that the bag's image with the same
+    stamp has been read whatever the order of equal log times."""
+
+    def __init__(self, writer, conns, ts, path_length, map_frame):
+        from .visualization import VIZ_TOPICS, VisualizationBuilder
+
+        self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
+        self.types = VIZ_TOPICS
+        for name, mt in VIZ_TOPICS.items():
+            conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
+        self.builder = VisualizationBuilder(path_length)
+        self.images = {}      # header stamp (ns) -> (image, encoding), the last few
+        self.pending = None
+
+    def add_image(self, msg):
+        from ..frontends.image import image_from_msg
+
+        try:
+            self.images[cv.stamp_to_ns(msg.header.stamp)] = image_from_msg(msg)
+        except ValueError:
+            return
+        while len(self.images) > 8:
+            self.images.pop(next(iter(self.images)))
+
+    def _write(self, name, t_log, msg):
+        self.writer.write(self.conns[name], t_log, _cdr(msg, self.types[name], self.ts))
+
+    def frame(self, est, uv, xyz, camera, stamp, out_stamp, camera_frame, t_log):
+        self.flush()
+        b = self.builder
+        b.add_pose(est, out_stamp, self.map_frame)
+        self._write("markers", t_log, b.markers(est, xyz, camera, out_stamp, self.map_frame))
+        self._write("path", t_log, b.path(out_stamp, self.map_frame))
+        self.pending = (est, uv, xyz, camera, stamp, camera_frame, t_log)
+
+    def flush(self):
+        if self.pending is None:
+            return
+        est, uv, xyz, camera, stamp, camera_frame, t_log = self.pending
+        self.pending = None
+        img, enc = self.images.get(stamp, (None, None))
+        if img is not None and img.shape[:2] != (camera.height, camera.width):
+            img, enc = None, None
+        self._write("debug_image", t_log, self.builder.debug_image(
+            est, uv, xyz, camera, stamp, camera_frame, img, enc))
 
 
 def _count(path, topic) -> int:

@@ -34,12 +34,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="trials per setting for Exp. 1-5 (default 200, quick 15)")
     p.add_argument("--estimator-trials", type=int, default=None,
                    help="frames per speed for Exp. 7 (default 60, quick 3)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="base random seed of the trials")
     p.add_argument("--noise", type=float, default=None,
                    help="image noise (px) of Exp. 1, 3, 4, 5 (default 0)")
     p.add_argument("--only", default=",".join(EXPERIMENTS),
                    help="comma-separated subset of " + ",".join(EXPERIMENTS))
-    p.add_argument("--dpi", type=int, default=80)
+    p.add_argument("--dpi", type=int, default=80, help="resolution of the PNG plots")
     p.add_argument("--render-only", action="store_true",
                    help="only redraw the plots and report from OUT/results.json")
 
@@ -85,9 +85,13 @@ def run(args) -> int:
     summary["_meta"] = meta
     files = write_outputs(summary, args.out, args.dpi)
     print(f"wrote {', '.join(files)} to {args.out} in {secs:.0f} s")
+    if cfg.quick:
+        print(f"quick run ({cfg.trials} trials per setting): the verdicts below are noisy; "
+              "run without --quick for the report's numbers")
     for c in claims(summary):
         if c["verdict"] != "agrees":
-            print(f"  {c['verdict']}: exp {c['exp']}: {c['paper']} -- {c['ours']}")
+            print(f"  {c['verdict']}{' (quick, noisy)' if cfg.quick else ''}: exp {c['exp']}: "
+                  f"{c['paper']} -- {c['ours']}")
     return 0
 
 

@@ -515,6 +515,11 @@ def write_report(res: dict, out: str, files: list[str] | None = None) -> str:
         "R6P_{v,C}^{w,t} orange, R9P black, joined purple).\n")
 
     add("## Claims: paper vs. ours\n")
+    quick = sorted(n for n in EXPERIMENTS if meta.get(n, {}).get("quick"))
+    if quick:
+        add(f"**Quick run** ({', '.join(quick)}: few trials per setting): these verdicts are "
+            "noisy and may flip between seeds; the full run (`rs-localizer experiments` "
+            "without `--quick`) is the one to compare with the paper.\n")
     add("| exp | paper | ours | verdict | criterion |")
     add("|---|---|---|---|---|")
     for c in claims(res):

@@ -1,0 +1,251 @@
+"""Visualization topics of a solved frame: ``debug_image``, ``markers`` and ``path``.
+
+The drawing and the 3D geometry are ROS-free (:mod:`rs_localizer.viz`); this module turns them
+into messages, for the node (:class:`NodeVisualization`: publishers created at start, messages
+built only when someone subscribes) and for ``rs-localizer replay --debug-outputs``
+(:class:`VisualizationBuilder`).
+
+    debug_image  sensor_msgs/Image (bgr8)          stamp = input stamp, frame = camera frame
+    markers      visualization_msgs/MarkerArray    map_frame, reference-line stamp: camera
+                 frustum (ns ``frustum``, LINE_LIST), angular and linear velocity arrows
+                 (``angular_velocity``, ``linear_velocity``, ARROW, in the map frame), inlier
+                 3D points (``inliers``, POINTS)
+    path         nav_msgs/Path                     map_frame: the last ``viz.path_length`` poses
+
+Everything is in ``map_frame`` with identity marker poses, so RViz (fixed frame = map_frame) and
+Foxglove show it without any TF.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from geometry_msgs.msg import Point
+from nav_msgs.msg import Path
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ..viz.debug_image import DebugImageOptions, draw_debug_image
+from ..viz.scene3d import frustum_segments, velocity_arrows
+from . import conversions as cv
+
+__all__ = ["VIZ_PARAMETERS", "VIZ_TOPICS", "VisualizationBuilder", "NodeVisualization",
+           "debug_image_msg", "marker_array", "path_msg", "MARKER_COLORS"]
+
+#: name -> (default, description, range); declared by :class:`NodeVisualization`
+VIZ_PARAMETERS = {
+    "viz.path_length": (1000, "poses kept in the path topic",
+                        IntegerRange(from_value=1, to_value=1_000_000, step=1)),
+    "viz.frustum_depth": (0.5, "depth of the camera frustum in the markers topic (m)",
+                          FloatingPointRange(from_value=1e-3, to_value=1e4, step=0.0)),
+    "viz.arrow_scale": (1.0, "velocity arrows in the markers topic: m of arrow per rad/s "
+                        "(angular) and per m/s (linear)",
+                        FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0)),
+    "viz.residual_scale": (10.0, "residual vectors in debug_image are drawn this many times "
+                           "longer", FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0)),
+}
+#: topic name -> message type name
+VIZ_TOPICS = {"debug_image": "sensor_msgs/msg/Image",
+              "markers": "visualization_msgs/msg/MarkerArray", "path": "nav_msgs/msg/Path"}
+#: RGBA (0..1) of the markers
+MARKER_COLORS = {"frustum": (0.0, 1.0, 1.0, 1.0), "angular_velocity": (1.0, 0.5, 0.0, 1.0),
+                 "linear_velocity": (0.2, 0.4, 1.0, 1.0), "inliers": (0.0, 1.0, 0.0, 1.0)}
+MAX_MARKER_POINTS = 5000
+
+
+def debug_image_msg(bgr: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
+    """(H, W, 3) uint8 BGR -> ``sensor_msgs/Image`` (``bgr8``, no row padding)."""
+    img = np.ascontiguousarray(bgr, dtype=np.uint8)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+    m = Image()
+    m.header.stamp = cv.ns_to_stamp(stamp_ns)
+    m.header.frame_id = frame_id
+    m.height, m.width = int(img.shape[0]), int(img.shape[1])
+    m.encoding = "bgr8"
+    m.is_bigendian = 0
+    m.step = 3 * m.width
+    m.data = img.tobytes()
+    return m
+
+
+def _color(rgba) -> ColorRGBA:
+    return ColorRGBA(r=float(rgba[0]), g=float(rgba[1]), b=float(rgba[2]), a=float(rgba[3]))
+
+
+def _points(P) -> list:
+    return [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in np.asarray(P)]
+
+
+def _marker(ns, kind, stamp_ns, frame_id) -> Marker:
+    m = Marker()
+    m.header.stamp = cv.ns_to_stamp(stamp_ns)
+    m.header.frame_id = frame_id
+    m.ns, m.id, m.type, m.action = ns, 0, kind, Marker.ADD
+    m.pose.orientation.w = 1.0  # identity: the points are map coordinates
+    m.color = _color(MARKER_COLORS[ns])
+    return m
+
+
+def marker_array(est, X, camera, stamp_ns: int, map_frame: str, frustum_depth: float = 0.5,
+                 arrow_scale: float = 1.0) -> MarkerArray:
+    """The ``markers`` of a solved frame, all in ``map_frame`` (identity poses, so no TF is
+    needed):
+
+    * ``frustum`` (LINE_LIST): :func:`rs_localizer.viz.scene3d.frustum_segments` of the
+      reference-line pose at ``frustum_depth`` (m);
+    * ``angular_velocity``, ``linear_velocity`` (ARROW from the camera centre,
+      ``points = [start, end]``): the world-frame velocities times ``arrow_scale`` (m per rad/s,
+      m per m/s); DELETE when the velocity is zero (global shutter);
+    * ``inliers`` (POINTS): the inliers' world points ``X[est.inliers]`` (at most 5000, evenly
+      spaced).
+
+    Sizes follow ``frustum_depth``: lines 2 %, arrow shaft 4 %, points 5 % of it.
+    """
+    d = float(frustum_depth)
+    out = MarkerArray()
+    fr = _marker("frustum", Marker.LINE_LIST, stamp_ns, map_frame)
+    fr.scale.x = 0.02 * d
+    fr.points = _points(frustum_segments(camera, est.orientation, est.position, d))
+    out.markers.append(fr)
+    for ns, (a, b) in velocity_arrows(est, arrow_scale).items():
+        m = _marker(ns, Marker.ARROW, stamp_ns, map_frame)
+        if np.linalg.norm(b - a) < 1e-9:
+            m.action = Marker.DELETE
+        else:
+            m.points = _points([a, b])
+            m.scale.x, m.scale.y, m.scale.z = 0.04 * d, 0.08 * d, 0.1 * d
+        out.markers.append(m)
+    pts = np.asarray(X, dtype=float).reshape(-1, 3)
+    inl = np.asarray(est.inliers, dtype=bool)
+    pts = pts[inl] if len(inl) == len(pts) else pts[:0]
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) > MAX_MARKER_POINTS:
+        pts = pts[np.linspace(0, len(pts) - 1, MAX_MARKER_POINTS).astype(int)]
+    m = _marker("inliers", Marker.POINTS, stamp_ns, map_frame)
+    m.scale.x = m.scale.y = 0.05 * d
+    m.points = _points(pts)
+    out.markers.append(m)
+    return out
+
+
+def path_msg(poses, stamp_ns: int, map_frame: str) -> Path:
+    """``nav_msgs/Path`` in ``map_frame`` of the ``PoseStamped`` messages ``poses``."""
+    m = Path()
+    m.header.stamp = cv.ns_to_stamp(stamp_ns)
+    m.header.frame_id = map_frame
+    m.poses = list(poses)
+    return m
+
+
+class VisualizationBuilder:
+    """The visualization messages of consecutive solved frames (keeps the path).
+
+    Args:
+        path_length: poses kept for ``path`` (the oldest are dropped).
+        frustum_depth, arrow_scale: see :func:`marker_array`.
+        residual_scale: see :class:`rs_localizer.viz.DebugImageOptions`.
+    """
+
+    def __init__(self, path_length: int = 1000, frustum_depth: float = 0.5,
+                 arrow_scale: float = 1.0, residual_scale: float = 10.0):
+        self.poses = deque(maxlen=max(int(path_length), 1))
+        self.frustum_depth = float(frustum_depth)
+        self.arrow_scale = float(arrow_scale)
+        self.residual_scale = float(residual_scale)
+
+    def set_path_length(self, n: int):
+        n = max(int(n), 1)
+        if n != self.poses.maxlen:
+            self.poses = deque(self.poses, maxlen=n)
+
+    def add_pose(self, est, out_stamp_ns: int, map_frame: str):
+        """Append the frame's pose (reference-line stamp) to the path."""
+        self.poses.append(cv.pose_stamped(est, out_stamp_ns, map_frame))
+
+    def debug_image(self, est, uv, X, camera, stamp_ns: int, camera_frame: str, image=None,
+                    encoding=None) -> Image:
+        """``debug_image`` (:func:`rs_localizer.viz.draw_debug_image`), stamped like the input
+        (``stamp_ns``) in ``camera_frame``."""
+        bgr = draw_debug_image(camera, uv, X, est, image, encoding,
+                               DebugImageOptions(residual_scale=self.residual_scale))
+        return debug_image_msg(bgr, stamp_ns, camera_frame)
+
+    def markers(self, est, X, camera, out_stamp_ns: int, map_frame: str) -> MarkerArray:
+        return marker_array(est, X, camera, out_stamp_ns, map_frame, self.frustum_depth,
+                            self.arrow_scale)
+
+    def path(self, out_stamp_ns: int, map_frame: str) -> Path:
+        return path_msg(self.poses, out_stamp_ns, map_frame)
+
+
+class NodeVisualization:
+    """The node's ``debug_image`` (reliable, depth 2), ``markers`` and ``path`` (reliable,
+    depth 10) publishers (created at start) and the ``viz.*`` parameters (declared on the node). Each message is built only when
+    its topic has a subscriber; the path keeps every solved pose regardless.
+
+    Usage in the node: ``viz = NodeVisualization(node)``; in image mode
+    ``viz.set_image(img, encoding, stamp_ns)`` with the decoded input; after a frame is solved
+    ``viz.publish(est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)``.
+    """
+
+    def __init__(self, node):
+        self.node = node
+        for name, (default, desc, rng) in VIZ_PARAMETERS.items():
+            d = ParameterDescriptor(description=desc)
+            if isinstance(rng, FloatingPointRange):
+                d.floating_point_range = [rng]
+            else:
+                d.integer_range = [rng]
+            node.declare_parameter(name, default, d)
+        rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_image = node.create_publisher(  # (images are large: a short queue)
+            Image, "debug_image", QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE))
+        self.pub_markers = node.create_publisher(MarkerArray, "markers", rel)
+        self.pub_path = node.create_publisher(Path, "path", rel)
+        self.builder = VisualizationBuilder(*(node.get_parameter(n).value for n in (
+            "viz.path_length", "viz.frustum_depth", "viz.arrow_scale", "viz.residual_scale")))
+        self._image = None   # (image, encoding, stamp_ns) of the current input image
+
+    def set_image(self, image, encoding, stamp_ns: int):
+        """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode)."""
+        self._image = (image, encoding, int(stamp_ns))
+
+    def _read_parameters(self):
+        b, get = self.builder, self.node.get_parameter
+        b.set_path_length(get("viz.path_length").value)
+        b.frustum_depth = float(get("viz.frustum_depth").value)
+        b.arrow_scale = float(get("viz.arrow_scale").value)
+        b.residual_scale = float(get("viz.residual_scale").value)
+
+    def publish(self, est, uv, X, camera, stamp_ns: int, out_stamp_ns: int, camera_frame: str,
+                map_frame: str):
+        """Publish the visualization of a solved frame: ``uv`` (N, 2) and ``X`` (N, 3) are the
+        estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the reference
+        line's (the pose's) stamp."""
+        b = self.builder
+        b.add_pose(est, out_stamp_ns, map_frame)
+        want = (self.pub_image.get_subscription_count() > 0,
+                self.pub_markers.get_subscription_count() > 0,
+                self.pub_path.get_subscription_count() > 0)
+        image, self._image = self._image, None
+        if not any(want):
+            return
+        try:
+            self._read_parameters()
+            if want[0]:
+                img, enc = ((image[0], image[1]) if image and image[2] == stamp_ns
+                            else (None, None))
+                self.pub_image.publish(b.debug_image(est, uv, X, camera, stamp_ns,
+                                                     camera_frame, img, enc))
+            if want[1]:
+                self.pub_markers.publish(b.markers(est, X, camera, out_stamp_ns, map_frame))
+            if want[2]:
+                self.pub_path.publish(b.path(out_stamp_ns, map_frame))
+        except Exception as e:  # noqa: BLE001 - a drawing problem must not cost the frame
+            self.node.get_logger().warning(
+                f"visualization failed: {type(e).__name__}: {e}", throttle_duration_sec=5.0)
