@@ -14,9 +14,9 @@ Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :
 """
 
 from .camera import CameraModel
-from .estimation import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+from .estimation import EstimateOptions, MotionPrior, RSPoseEstimate, estimate_rs_pose
 
 __version__ = "0.1.0"
 
-__all__ = ["CameraModel", "EstimateOptions", "RSPoseEstimate", "estimate_rs_pose",
+__all__ = ["CameraModel", "EstimateOptions", "MotionPrior", "RSPoseEstimate", "estimate_rs_pose",
            "__version__"]

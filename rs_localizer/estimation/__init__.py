@@ -6,11 +6,13 @@
 * :mod:`.sampling`: sample drawing, pre-rotation and gathering kernels;
 * :mod:`.scoring`: MSAC scoring kernels on the RS model;
 * :mod:`.refine`: Levenberg-Marquardt on the exact constant-velocity model (eq. 4) and its
-  covariance.
+  covariance;
+* :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate (issue 16).
 """
 
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose, physical_velocities
+from .prior import MotionPrior
 from .refine import exact_errors, refine_rs_pose
 
 __all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "physical_velocities",
-           "exact_errors", "refine_rs_pose"]
+           "exact_errors", "refine_rs_pose", "MotionPrior"]

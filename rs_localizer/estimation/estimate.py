@@ -5,22 +5,27 @@ Entry point: :func:`estimate_rs_pose` (in the spirit of PoseLib's ``estimate_abs
 
 from __future__ import annotations
 
+import functools
+import inspect
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .sampling import draw_samples, gather_prerotated, select_prerotations, valid_rows
+from .sampling import (draw_samples, gather_prerotated, second_prerotations,
+                       select_prerotations, valid_rows)
 from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose
+from .prior import MotionPrior, sample_prior_rows
+from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from ..solvers import p3p_batch, r6p
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
 
 __all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
-           "physical_velocities"]
+           "physical_velocities", "MotionPrior"]
 
 #: solver names (:data:`rs_localizer.solvers.registry.SOLVERS` holds what is known of each)
 SOLVERS = SOLVER_NAMES
@@ -58,6 +63,11 @@ class EstimateOptions:
         pretest_points: T(d,d)-style pre-test size: a hypothesis with fewer than half the
             inliers the best model predicts among this many (shuffled) points is rejected
             early. 0 disables it.
+        motion_prior: Gaussian prior on the camera's velocities
+            (:class:`~rs_localizer.estimation.prior.MotionPrior`, default 3 rad/s and
+            1.5 m/s, zero mean): local optimization and the refinement are maximum a posteriori, and
+            the covariance includes it. ``None``: maximum likelihood (issue 16: on planar
+            scenes the 12-parameter model is then near-degenerate).
     """
 
     threshold_px: float = 2.0
@@ -76,6 +86,7 @@ class EstimateOptions:
     prosac_growth: int = 200
     max_point_norm: float = 1e6
     pretest_points: int = 24
+    motion_prior: MotionPrior | None = MotionPrior()
 
 
 @dataclass(frozen=True)
@@ -86,7 +97,8 @@ class RSPoseEstimate:
         success: a pose was found with at least ``min_inliers`` inliers.
         failure: reason code when not successful (``too_few_points``,
             ``no_hypothesis``, ``too_few_inliers``, ``degenerate_geometry`` for inliers on a
-            3D line), else ``None``.
+            3D line, ``planar_scene`` for a solver that cannot work on coplanar points (R9P)
+            given a planar scene), else ``None``.
         solver: solver name used.
         R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
         w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
@@ -104,6 +116,13 @@ class RSPoseEstimate:
         pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame.
         twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera frame.
         rmse_px: RMS reprojection error of the inliers (pixels).
+        planar: the inliers' 3D points are coplanar (:func:`~.degeneracy.planarity` below
+            :data:`~.degeneracy.PLANAR_TOLERANCE`): the per-frame RS model is near-degenerate
+            and the velocities (and the rotation they trade against) lean on the motion prior.
+        planarity: that thickness-to-extent ratio of the inliers' 3D points (NaN on failure).
+        condition_number: unit-free condition number of the data's information matrix of the
+            refined parameters (:func:`~.degeneracy.condition_number`; NaN without
+            refinement): ~1e3-1e4 on 3D scenes, 1e5 and more when near-degenerate.
     """
 
     success: bool
@@ -128,6 +147,9 @@ class RSPoseEstimate:
     pose_covariance: np.ndarray | None = None
     twist_covariance: np.ndarray | None = None
     rmse_px: float = float("nan")
+    planar: bool = False
+    planarity: float = float("nan")
+    condition_number: float = float("nan")
 
     @property
     def num_inliers(self) -> int:
@@ -144,19 +166,44 @@ def _hypothesis_iterations(solver: str, opts) -> int:
     return solver_info(solver).default_iterations or 1
 
 
-def _batched_rs(solver: str, xs, Xs, rs, r0, iterations):
+def _batched_rs(solver: str, xs, Xs, rs, r0, iterations, prior_rows=None):
     """Run a solver's batched kernels on K pre-rotated samples; returns a list of RSBatch (2
     for the joined solver). R6P, with a variable number of roots, goes through
-    :func:`_r6p_hypotheses`."""
+    :func:`_r6p_hypotheses`. ``prior_rows`` (P (K, 6, 6), q (K, 6)) go to the kernels that take
+    them (damped solves for w and t, :func:`rs_localizer.solvers.r6p_1lin_batch`)."""
     info = solver_info(solver)
     if info.hypotheses != BATCHED:
         raise ValueError(f"solver {solver!r} has no batched kernel")
-    return [fn(xs, Xs, rs, r0, iterations=iterations) for fn in info.batch]
+    return [fn(xs, Xs, rs, r0, iterations=iterations, prior_rows=prior_rows)
+            if prior_rows is not None and _takes_prior_rows(fn)
+            else fn(xs, Xs, rs, r0, iterations=iterations) for fn in info.batch]
+
+
+@functools.cache
+def _takes_prior_rows(fn) -> bool:
+    """The batched kernel ``fn`` accepts ``prior_rows`` (a damped linear solve)."""
+    return "prior_rows" in inspect.signature(fn).parameters
+
+
+def _prior_rows(fr: "_Frame", opts, Xs, C0):
+    """Linearized motion-prior rows for K pre-rotated samples (``Xs`` (K, n, 3), their P3P
+    translations ``C0`` (K, 3)) when the frame asks for damped hypothesis solves (planar scene,
+    prior on; see :func:`estimate_rs_pose`), else None. The rows are weighted as if the image
+    noise were half the inlier threshold."""
+    if not fr.regularize:
+        return None
+    return sample_prior_rows(opts.motion_prior, Xs, C0, fr.spr, 0.5 * opts.threshold_px / fr.f)
 
 
 # ---------------------------------------------------------------------------- the estimator
 class _Frame:
-    """Validated, normalized correspondences of one frame."""
+    """Validated, normalized correspondences of one frame. ``spr``: the camera's seconds per
+    unit r; ``planar``: the 3D points are coplanar; ``regularize``: hypotheses use the motion
+    prior (planar scene, prior on)."""
+
+    spr = 0.0
+    planar = False
+    regularize = False
 
     def __init__(self, x, X, r, r0e, r0, d, f):
         self.x, self.X, self.r, self.r0e, self.r0, self.d, self.f = x, X, r, r0e, r0, d, f
@@ -182,13 +229,26 @@ def _hypothesis_arrays(batches, R_pre):
             np.concatenate([b.valid for b in batches]))
 
 
-def _p3p_prerotations(fr: _Frame, samples):
+def _p3p_prerotations(fr: _Frame, samples, th2=None):
     """P3P on the first 3 points of every sample; the solution with the lowest global-shutter
     error on the sample's other points is the pre-rotation (paper sec. 4, "P3P as initial
-    estimate"). Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
+    estimate"). Returns (R (K, 3, 3), C (K, 3), ok (K,)).
+
+    With ``th2`` (squared inlier threshold, normalized; planar frames) each sample whose
+    runner-up P3P solution scores close to the best (the planar two-fold ambiguity,
+    :func:`~.sampling.second_prerotations`: within 2x the best squared error plus a quarter
+    of ``th2`` per point, i.e. half the threshold)
+    is repeated with it: returns (samples (K', s), R, C, ok) with K' >= K."""
     first3 = samples[:, :3]
     R, C, owner = p3p_batch(fr.bearings.take(first3, axis=0), fr.X.take(first3, axis=0))
-    return select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
+    sel = select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
+    if th2 is None:
+        return sel
+    R2, C2, kept = second_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples), 2.0,
+                                       0.25 * th2 * max(samples.shape[1] - 3, 1))
+    kept &= sel[2]
+    return (np.concatenate([samples, samples[kept]]), np.concatenate([sel[0], R2[kept]]),
+            np.concatenate([sel[1], C2[kept]]), np.concatenate([sel[2], kept[kept]]))
 
 
 def _draw_samples(rng, pool: int, s: int, K: int) -> np.ndarray:
@@ -206,16 +266,22 @@ def _required_iterations(inlier_ratio: float, s: int, confidence: float) -> floa
 
 
 def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
-    """Hypotheses (R, C, w, t, valid) from a batch of samples."""
-    R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
+    """Hypotheses (R, C, w, t, valid) from a batch of samples (on planar frames also from the
+    samples' runner-up P3P pre-rotations, see :func:`_p3p_prerotations`)."""
     kind = solver_info(solver).hypotheses
+    if fr.planar and kind != GLOBAL_SHUTTER:
+        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples,
+                                                    (opts.threshold_px / fr.f) ** 2)
+    else:
+        R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
     if kind == GLOBAL_SHUTTER:
         z = np.zeros((len(samples), 3))
         return R_p, C_p, z, z.copy(), ok_p
     xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
     if kind != BATCHED:
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
-    batches = _batched_rs(solver, xs, Xs, rs, fr.r0, _hypothesis_iterations(solver, opts))
+    batches = _batched_rs(solver, xs, Xs, rs, fr.r0, _hypothesis_iterations(solver, opts),
+                          _prior_rows(fr, opts, Xs, C_p))
     Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
     ok &= np.tile(ok_p, len(batches))
     return Rs, Cs, ws, ts, ok
@@ -238,8 +304,9 @@ def _r6p_hypotheses(fr: _Frame, samples, Xs, R_p, ok_p):
             np.array(w_all).reshape(n, 3), np.array(t_all).reshape(n, 3), np.ones(n, dtype=bool))
 
 
-def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
-    """Local optimization: the RS solver on all inliers, pre-rotated by the current R.
+def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
+    """Local optimization: the RS solver on all inliers, pre-rotated by the current R (with
+    the current C, the linearization point of the motion prior's rows on planar frames).
 
     R6P (minimal only) uses R6P_{v,C,w,t}^{[v]x} here; P3P has no RS local optimization."""
     n_inl = int(inl.sum())
@@ -250,8 +317,9 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions):
              for name in solver_info(solver).lo_solvers]
     out = []
     for name in names:
+        rows = None if C is None else _prior_rows(fr, opts, Xr[None], np.asarray(C)[None])
         b = _batched_rs(name, fr.x[inl][None], Xr[None], fr.r[inl][None], fr.r0,
-                        max(_hypothesis_iterations(solver, opts), 2))[0]
+                        max(_hypothesis_iterations(solver, opts), 2), rows)[0]
         if b.valid[0]:
             out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
     return out
@@ -285,20 +353,22 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
     # bounded inner sample); the final refinement uses every inlier
     M = min(len(fr.x), max(opts.lo_max_points, 2 * sample_size(solver)))
     sub = _Frame(fr.x[:M], fr.X[:M], fr.r[:M], fr.r0e[:M], fr.r0, fr.d, fr.f)
+    sub.spr, sub.planar, sub.regularize = fr.spr, fr.planar, fr.regularize
     tau = sub.r - sub.r0
     for step in range(opts.local_optimization_steps):
         n_before = int(np.count_nonzero(best_inl))
         if n_before < 6:
             break
         start, start_score, start_inl = best, best_score, best_inl
-        for cand in (_nonminimal(sub, solver, best_inl[:M], best[0], opts)
+        for cand in (_nonminimal(sub, solver, best_inl[:M], best[0], opts, best[1])
                      if opts.nonminimal and step == 0 else []):
             sc, inl = _evaluate(fr, cand, th2)
             if sc < start_score:
                 start, start_score, start_inl = cand, sc, inl
         ref = refine_rs_pose(*start, sub.X, sub.x, tau, th, rolling_shutter=rolling,
                              max_iterations=opts.lo_refine_iterations, covariance=False,
-                             cutoff=2.0 * th)
+                             cutoff=2.0 * th, prior=opts.motion_prior,
+                             seconds_per_unit_r=fr.spr)
         cand = (ref.R, ref.C, ref.w, ref.t)
         sc, inl = _evaluate(fr, cand, th2)
         if sc < start_score:
@@ -432,6 +502,14 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     timings["prepare"] = time.perf_counter() - t_start
     if N < min_inl:
         return _fail("too_few_points", solver, n_in, N, n_dropped, 0, timings)
+    # planar scenes (issue 16): R9P cannot solve them; the RS solvers' hypotheses use the
+    # motion prior (damped solves for w, t: the plain ones let w, t absorb the noise)
+    fr.spr = camera.seconds_per_unit_r
+    fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)
+    if fr.planar and not solver_info(solver).coplanar:
+        return _fail("planar_scene", solver, n_in, N, n_dropped, 0, timings)
+    fr.regularize = bool(fr.planar and fr.spr > 0 and solver_info(solver).rolling
+                         and opts.motion_prior is not None and opts.motion_prior.enabled)
 
     # PROSAC-style ordering: sample from the best-scored points first, growing the pool
     order = np.arange(N)
@@ -490,16 +568,18 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
     rolling = solver_info(solver).rolling
-    cov12 = None
+    cov12 = info12 = None
     t0 = time.perf_counter()
     tau = fr.r - fr.r0
     if opts.refine:
         ref = refine_rs_pose(R, C, w, t, fr.X[inl], fr.x[inl], tau[inl], th,
-                             rolling_shutter=rolling)
+                             rolling_shutter=rolling, prior=opts.motion_prior,
+                             seconds_per_unit_r=fr.spr)
         cand = (ref.R, ref.C, ref.w, ref.t)
         if all(np.isfinite(c).all() for c in cand):
             R, C, w, t = cand
             cov12 = ref.covariance if np.isfinite(ref.covariance).all() else None
+            info12 = ref.data_information
         # final inliers on the refined exact model (errors at the measured capture time)
         e = exact_errors(R, C, w, t, fr.X, fr.x, tau)
         inl_ref = np.isfinite(e) & (e < th)
@@ -521,10 +601,14 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             twist_cov = None
     inliers = np.zeros(n_in, dtype=bool)
     inliers[rows[inl]] = True
+    flat = planarity(fr.X[inl])
+    n_free = 12 if rolling else 6
+    cond = condition_number(info12[:n_free, :n_free]) if info12 is not None else float("nan")
     timings["total"] = time.perf_counter() - t_start
     return RSPoseEstimate(
         success=True, failure=None, solver=solver, R=R, C=C, w=w, t=t, orientation=R.T,
         position=camera_position(R, C), angular_velocity=om, linear_velocity=vc,
         angular_velocity_world=om_w, linear_velocity_world=vc_w, inliers=inliers,
         num_valid=N, num_dropped=n_dropped, ransac_iterations=iters, timings=timings,
-        covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse)
+        covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse,
+        planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond)

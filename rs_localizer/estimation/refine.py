@@ -21,6 +21,7 @@ from scipy.optimize import least_squares
 
 from .._so3 import FMA, rotate_left_into, so3_coefficients
 from ..geometry import rotvec_to_matrix, skew
+from .prior import MotionPrior, prior_arrays
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
            "refine_rs_pose_scipy",
@@ -408,12 +409,65 @@ def _rotate_left(v0, v1, v2, R):
 
 
 @njit(cache=True)
-def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out):
+def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
+    """Motion prior of :func:`refine_rs_pose` at (C, w, t): ``scale2 (z - mu)^T Lam (z - mu)``
+    with ``z = (v, omega)`` the camera's velocities (README "Conventions":
+    ``v = (w x C - t) / s``, ``omega = -w / s``; ROS twist order). If ``add``, adds its
+    Gauss-Newton terms ``scale2 Jz^T Lam Jz`` to H (12, 12) and ``scale2 Jz^T Lam (z - mu)`` to
+    g (12,), Jz (6, 12) the Jacobian of z w.r.t. (delta, C, w, t). Returns the cost."""
+    z = np.empty(6)
+    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
+    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
+    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
+    z[3] = -w[0] / s
+    z[4] = -w[1] / s
+    z[5] = -w[2] / s
+    dz = z - mu
+    Ld = Lam @ dz
+    cost = 0.0
+    for a in range(6):
+        cost += dz[a] * Ld[a]
+    if add:
+        # Jz: dv/dC = [w]x / s, dv/dw = -[C]x / s, dv/dt = -I / s, domega/dw = -I / s
+        Jz = np.zeros((6, 12))
+        Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
+        Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
+        Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
+        Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
+        Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
+        Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
+        for a in range(3):
+            Jz[a, 9 + a] = -1.0 / s
+            Jz[3 + a, 6 + a] = -1.0 / s
+        LJ = Lam @ Jz
+        for i in range(3, 12):
+            gi = 0.0
+            for a in range(6):
+                gi += Jz[a, i] * Ld[a]
+            g[i] += scale2 * gi
+            for j in range(3, 12):
+                hij = 0.0
+                for a in range(6):
+                    hij += Jz[a, i] * LJ[a, j]
+                H[i, j] += scale2 * hij
+    return scale2 * cost
+
+
+@njit(cache=True)
+def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out,
+               prior_on, mu, Lam, s, noise2):
     """The whole Levenberg-Marquardt loop of :func:`refine_rs_pose` (arguments as there;
     n_free 12 or 6, the latter keeping w, t fixed; inputs are not modified).
 
+    With ``prior_on`` (and n_free 12) the cost gains the motion prior of
+    :func:`_prior_terms` (mean ``mu`` (6,), information ``Lam`` (6, 6), ``s`` seconds per unit
+    r) weighted by the image-noise variance ``noise2`` (normalized units^2; <= 0: estimated
+    from the starting point's residuals), so that the cost is ``noise2`` times the negative
+    log-posterior. Without it the computation is exactly the maximum-likelihood one.
+
     Writes R (row-major), C, w, t and, if ``want_cov``, the (12, 12) covariance (row-major)
-    into out (162,). Returns (sigma, success, nfev); sigma NaN unless ``want_cov``.
+    and the data's (12, 12) ``J^T W J`` (without the prior) into out (306,). Returns (sigma,
+    success, nfev); sigma NaN unless ``want_cov``.
     """
     H = np.empty((12, 12))
     g = np.empty(12)
@@ -423,8 +477,15 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
     M = np.empty((12, 12))
     Jt, G = _workspace(X.shape[0])
     m, cost, ss, n_in = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
+    use_prior = prior_on and n_free == 12
+    sp2 = 0.0
+    if use_prior:
+        sp2 = noise2 if noise2 > 0.0 else ss / max(2 * n_in - n_free, 1)
+        cost += _prior_terms(C, w, t, s, mu, Lam, sp2, H, g, False)
     if max_iterations > 0 or want_cov:
         _normal_matrix(Jt, m, G, H, g)
+        if use_prior:
+            _prior_terms(C, w, t, s, mu, Lam, sp2, H, g, True)
     nfev = 1
     success = False
     lam = 1e-4
@@ -446,6 +507,8 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
             wn = w
             tn = t
         m, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt)
+        if use_prior:
+            cn += _prior_terms(Cn, wn, tn, s, mu, Lam, sp2, H, g, False)
         nfev += 1
         if cn <= cost:
             rel = (cost - cn) / (1e-300 if 1e-300 > cost else cost)
@@ -455,6 +518,8 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
             last = rel < tol or it == max_iterations - 1
             if want_cov or not last:  # H, g only where used (rejected: keep the old ones)
                 _normal_matrix(Jt, m, G, H, g)
+                if use_prior:
+                    _prior_terms(C, w, t, s, mu, Lam, sp2, H, g, True)
             if rel < tol:
                 break
         else:
@@ -471,6 +536,20 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
     if want_cov:
         sigma2 = ss / max(2 * n_in - n_free, 1)
         sigma = np.sqrt(sigma2)
+        if use_prior:
+            # H holds J^T W J + sp2 P at the accepted point (P the prior's Gauss-Newton
+            # information): the data part goes out alone, and the posterior information
+            # J^T W J / sigma2 + P is sigma2^-1 (J^T W J + sigma2 P)
+            A[:, :] = 0.0
+            _prior_terms(C, w, t, s, mu, Lam, 1.0, A, g, True)
+            for i in range(12):
+                for j in range(12):
+                    out[162 + 12 * i + j] = H[i, j] - sp2 * A[i, j]
+                    H[i, j] += (sigma2 - sp2) * A[i, j]
+        else:
+            for i in range(12):
+                for j in range(12):
+                    out[162 + 12 * i + j] = H[i, j] if i < n_free and j < n_free else 0.0
         for i in range(n_free):  # B = H^-1; NaN if H is exactly singular (np.linalg.inv)
             for j in range(n_free):
                 B[i, j] = 1.0 if i == j else 0.0
@@ -519,16 +598,23 @@ _ZERO3 = np.zeros(3)
 
 
 class RefineResult:
-    """Refined (R, C, w, t), the (12, 12) covariance of (delta, C, w, t), residual sigma, cost."""
+    """Refined (R, C, w, t), the (12, 12) covariance of (delta, C, w, t), residual sigma, cost.
+
+    ``data_information``: (12, 12) ``J^T W J`` of the data alone at the optimum (normalized
+    units; divide by ``sigma^2`` for the Fisher information), when a covariance was computed,
+    else ``None``."""
 
     def __init__(self, R, C, w, t, covariance, sigma, success, nfev):
         self.R, self.C, self.w, self.t = R, C, w, t
         self.covariance, self.sigma, self.success, self.nfev = covariance, sigma, success, nfev
+        self.data_information = None
 
 
 def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter: bool = True,
                    max_iterations: int = 10, tol: float = 1e-10,
-                   covariance: bool = True, cutoff: float = np.inf) -> RefineResult:
+                   covariance: bool = True, cutoff: float = np.inf,
+                   prior: MotionPrior | None = None, seconds_per_unit_r: float = 0.0,
+                   noise: float | None = None) -> RefineResult:
     """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model.
 
     Args:
@@ -540,10 +626,19 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
         covariance: compute the covariance (skipped inside RANSAC's local optimization).
         cutoff: points farther than this (normalized units) are ignored at each iteration
             (truncated loss; lets RANSAC's local optimization run on all points).
+        prior: a :class:`~rs_localizer.estimation.prior.MotionPrior` on the camera's
+            velocities (maximum a posteriori instead of maximum likelihood; issue 16), or
+            ``None``. Ignored for global-shutter refinement or ``seconds_per_unit_r <= 0``.
+        seconds_per_unit_r: the camera's capture time per unit r (s), to express the prior on
+            the model's (w, t) (README "Conventions").
+        noise: image noise sigma (normalized units) that weighs the prior against the data;
+            ``None``: estimated from the residuals at the start
+            (``sum e^2 / (2 n - 12)`` over the points inside ``loss_scale``).
     Returns:
         :class:`RefineResult`; the covariance is ``sigma^2 H^-1`` over (delta, C, w, t) at the
         optimum (zero rows/columns for fixed parameters), ``sigma^2`` the residual variance of
-        the points inside ``loss_scale``.
+        the points inside ``loss_scale``. With a prior, ``H = J^T W J + sigma^2 Jz^T P Jz``
+        (P the prior information, Jz the Jacobian of the velocities): the posterior covariance.
 
     Matches SciPy's ``least_squares(loss="huber")`` on the same problem (see the tests). The
     loop runs in numba (:func:`_lm_refine`); measured on one core: ~70 us for 150 points and
@@ -552,36 +647,76 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
     """
     f64 = np.float64
     nf = 12 if rolling_shutter else 6
-    out = np.empty(162)  # R (row-major), C, w, t, covariance (row-major)
+    out = np.empty(306)  # R (row-major), C, w, t, covariance, J^T W J (row-major)
+    on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
+    noise2 = -1.0 if noise is None else float(noise) ** 2
     sigma, success, nfev = _lm_refine(
         np.ascontiguousarray(R0, dtype=f64), np.ascontiguousarray(C0, dtype=f64),
         np.ascontiguousarray(w0, dtype=f64) if rolling_shutter else _ZERO3,
         np.ascontiguousarray(t0, dtype=f64) if rolling_shutter else _ZERO3,
         np.ascontiguousarray(X, dtype=f64), np.ascontiguousarray(x, dtype=f64),
         np.ascontiguousarray(tau, dtype=f64), float(loss_scale), nf, float(cutoff),
-        int(max_iterations), float(tol), bool(covariance), out)
-    cov = out[18:].reshape(12, 12) if covariance else None
-    return RefineResult(out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov,
-                        float(sigma), success, nfev)
+        int(max_iterations), float(tol), bool(covariance), out,
+        on, mu, Lam, float(seconds_per_unit_r) if on else 1.0, noise2)
+    cov = out[18:162].reshape(12, 12) if covariance else None
+    res = RefineResult(out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov,
+                       float(sigma), success, nfev)
+    if covariance:
+        res.data_information = out[162:306].reshape(12, 12)
+    return res
+
+
+def _prior_residuals(theta, mean, U, s, scale):
+    """(6,) whitened prior residuals ``scale U (z - mean)`` and their (6, 12) Jacobian, z the
+    camera's velocities (v, omega) from theta = (delta, C, w, t) (README "Conventions")."""
+    C, w, t = theta[3:6], theta[6:9], theta[9:12]
+    z = np.concatenate([(np.cross(w, C) - t) / s, -w / s])
+    Jz = np.zeros((6, 12))
+    Jz[0:3, 3:6] = skew(w) / s
+    Jz[0:3, 6:9] = -skew(C) / s
+    Jz[0:3, 9:12] = -np.eye(3) / s
+    Jz[3:6, 6:9] = -np.eye(3) / s
+    return scale * U @ (z - mean), scale * U @ Jz
 
 
 def refine_rs_pose_scipy(R0, C0, w0, t0, X, x, tau, loss_scale: float,
-                         rolling_shutter: bool = True) -> RefineResult:
+                         rolling_shutter: bool = True, prior: MotionPrior | None = None,
+                         seconds_per_unit_r: float = 0.0, noise: float = 0.0) -> RefineResult:
     """The same problem solved by SciPy ``least_squares`` (Huber loss, trust region).
 
     A reference for tests and benchmarks; :func:`refine_rs_pose` is the one the estimator uses.
+    With a ``prior`` (rolling shutter only) the residuals gain six rows
+    ``noise * U (z - mean)``, ``U^T U`` the prior information (the MAP problem of
+    :func:`refine_rs_pose` with a given ``noise``; SciPy's Huber loss acts on every residual
+    component, so compare with a ``loss_scale`` the residuals stay inside).
     """
     free = np.arange(12) if rolling_shutter else np.arange(6)
     theta0 = np.concatenate([np.zeros(3), C0, w0 if rolling_shutter else np.zeros(3),
                              t0 if rolling_shutter else np.zeros(3)])
+    on, mean, Lam = prior_arrays(prior if rolling_shutter else None)
+    ev, V = np.linalg.eigh(Lam)
+    U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
 
     def full(p):
         th = theta0.copy()
         th[free] = p
         return th
 
-    res = least_squares(lambda p: exact_residuals(full(p), R0, X, x, tau), theta0[free],
-                        jac=lambda p: exact_jacobian(full(p), R0, X, x, tau)[:, free],
+    def fun(p):
+        r = exact_residuals(full(p), R0, X, x, tau)
+        if on:
+            r = np.concatenate([r, _prior_residuals(full(p), mean, U, seconds_per_unit_r,
+                                                    noise)[0]])
+        return r
+
+    def jac(p):
+        J = exact_jacobian(full(p), R0, X, x, tau)
+        if on:
+            J = np.concatenate([J, _prior_residuals(full(p), mean, U, seconds_per_unit_r,
+                                                    noise)[1]])
+        return J[:, free]
+
+    res = least_squares(fun, theta0[free], jac=jac,
                         loss="huber", f_scale=loss_scale, method="trf", x_scale="jac",
                         xtol=1e-12, ftol=1e-12, gtol=1e-12)
     th = full(res.x)

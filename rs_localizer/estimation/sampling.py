@@ -118,3 +118,53 @@ def select_prerotations(R, C, owner, samples, X, x, K):
             for a in range(3):
                 Rout[k, a, a] = 1.0
     return Rout, Cout, ok
+
+
+@njit(cache=True)
+def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
+    """The runner-up pre-rotation of each sample on planar scenes (issue 16): P3P on coplanar
+    points is two-fold ambiguous (the two poses of a plane seen under near-affine projection,
+    as in IPPE), and with rolling-shutter distortion the wrong one can score best on the
+    sample's other points. Among each sample's P3P solutions (as in
+    :func:`select_prerotations`), the second-lowest error ``e2`` is kept when
+    ``e2 <= ratio * e1 + slack`` (``e1`` the lowest; squared normalized units summed over the
+    sample's points beyond the first three).
+
+    Returns (R (K,3,3), C (K,3), kept (K,)): the runner-up per sample where kept."""
+    Rout = np.zeros((K, 3, 3))
+    Cout = np.zeros((K, 3))
+    e1 = np.full(K, np.inf)
+    e2 = np.full(K, np.inf)
+    m1 = np.full(K, -1)
+    m2 = np.full(K, -1)
+    s = samples.shape[1]
+    first = 3 if s > 3 else 0
+    for m in range(R.shape[0]):
+        k = owner[m]
+        e = 0.0
+        for j in range(first, s):
+            i = samples[k, j]
+            p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
+            p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
+            p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
+            if not p2 > 0.0:
+                e = np.inf
+                break
+            dx = p0 / p2 - x[i, 0]
+            dy = p1 / p2 - x[i, 1]
+            e += dx * dx + dy * dy
+        if e < e1[k]:
+            e2[k], m2[k] = e1[k], m1[k]
+            e1[k], m1[k] = e, m
+        elif e < e2[k]:
+            e2[k], m2[k] = e, m
+    kept = np.zeros(K, dtype=np.bool_)
+    for k in range(K):
+        if m2[k] >= 0 and e2[k] <= ratio * e1[k] + slack:
+            kept[k] = True
+            Rout[k] = R[m2[k]]
+            Cout[k] = C[m2[k]]
+        else:
+            for a in range(3):
+                Rout[k, a, a] = 1.0
+    return Rout, Cout, kept

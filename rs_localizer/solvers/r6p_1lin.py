@@ -23,10 +23,14 @@ __all__ = ["r6p_1lin", "r6p_1lin_batch"]
 
 
 @njit(cache=True)
-def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
+    """The iteration of the module docstring for K problems; with ``use_prior`` each linear
+    solve also takes the 6 rows ``P[k] (w, t) = q[k]`` (damped least squares, see
+    :func:`r6p_1lin_batch`), so the system is (2N + 6) x 12."""
     K, N = x.shape[0], x.shape[1]
-    A = np.empty((2 * N, 12))
-    b = np.empty(2 * N)
+    n_rows = 2 * N + 6 if use_prior else 2 * N
+    A = np.empty((n_rows, 12))
+    b = np.empty(n_rows)
     u = np.zeros(12)
     E = np.empty((2, 3))
     vhat = np.empty(3)
@@ -44,9 +48,9 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
                 Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
                 Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
                 rows_E(x[k], i, E)
-                for q in range(2):
-                    row = A[2 * i + q]
-                    e0, e1, e2 = E[q, 0], E[q, 1], E[q, 2]
+                for qq in range(2):
+                    row = A[2 * i + qq]
+                    e0, e1, e2 = E[qq, 0], E[qq, 1], E[qq, 2]
                     cross_into(X0, X1, X2, e0, e1, e2, row, 0)
                     row[3] = e0
                     row[4] = e1
@@ -58,7 +62,14 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
                     row[9] = tau * e0
                     row[10] = tau * e1
                     row[11] = tau * e2
-                    b[2 * i + q] = -(e0 * X0 + e1 * X1 + e2 * X2)
+                    b[2 * i + qq] = -(e0 * X0 + e1 * X1 + e2 * X2)
+            if use_prior:
+                for a in range(6):
+                    row = A[2 * N + a]
+                    for j in range(6):
+                        row[j] = 0.0
+                        row[6 + j] = P[k, a, j]
+                    b[2 * N + a] = q[k, a]
             if not lstsq(A, b, u):
                 break
             e = eq5_error(x[k], X[k], r[k], r0, u[0:3], u[3:6], u[6:9], u[9:12])
@@ -74,6 +85,15 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
             if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
+
+
+_NO_P = np.zeros((1, 6, 6))
+_NO_Q = np.zeros((1, 6))
+
+
+@njit(cache=True)
+def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    _solve(x, X, r, r0, iterations, tol, v_init, _NO_P, _NO_Q, False, out, ok, its, err)
 
 
 def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, tol: float = 1e-12):
@@ -105,15 +125,33 @@ def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, to
 
 
 def r6p_1lin_batch(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None,
-                   tol: float = 1e-12):
+                   tol: float = 1e-12, prior_rows=None):
     """Batched :func:`r6p_1lin` for K problems (RANSAC hypotheses).
 
     Args:
         x: (K, N, 2), X: (K, N, 3), r: (K, N) or None, v_init: (3,) or (K, 3) or None.
+        prior_rows: ``None``, or ``(P (K, 6, 6), q (K, 6))``: every linear solve then minimizes
+            ``|A u - b|^2 + |P[k] (w, t) - q[k]|^2`` (damped / regularized least squares on the
+            velocities; a linearized motion prior, issue 16) instead of solving ``A u = b``.
+            On near-degenerate samples (coplanar points, a small image extent) the plain
+            solve lets (w, t) absorb noise without bound; the extra rows keep them near the
+            prior. ``None`` runs the plain kernel (results bit-identical to before).
     Returns:
         :class:`RSBatch` with (K, 3) v, C, w, t and a (K,) ``valid`` mask (False for rank loss
         or non-finite input, never raises for those).
     Raises:
-        ValueError: wrong shapes or N < 6.
+        ValueError: wrong shapes or N < 6, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    return run_batch(_kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
+    if prior_rows is None:
+        return run_batch(_kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
+    P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
+    q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
+    K = np.shape(x)[0]
+    if P.shape != (K, 6, 6) or q.shape != (K, 6):
+        raise ValueError(f"r6p_1lin: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
+                         f"got {P.shape} and {q.shape}")
+
+    def kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+        _solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
+
+    return run_batch(kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)

@@ -51,6 +51,9 @@ class SolverInfo:
             inliers than there are falls back to ``r6p_1lin``).
         default_iterations: linear iterations per RANSAC sample (None: not iterative).
         paper_us: the paper's Table 1 time per iteration (C++ on a 2.5 GHz i7, us), if given.
+        coplanar: works on coplanar 3D points (False for R9P: its 18 unknowns lose 3
+            dimensions there, ``R_rs + u n^T`` and ``t - u d`` fit a plane ``n.X = d``
+            equally).
     """
 
     name: str
@@ -66,6 +69,7 @@ class SolverInfo:
     lo_solvers: tuple = ()
     default_iterations: int | None = None
     paper_us: float | None = None
+    coplanar: bool = True
 
 
 SOLVERS: dict[str, SolverInfo] = {s.name: s for s in (
@@ -84,7 +88,7 @@ SOLVERS: dict[str, SolverInfo] = {s.name: s for s in (
     SolverInfo("r6p_vCt_wt", "R6P_{v,C,t}^{w,t}", "sec. 3.2", 6, 1, True, True, BATCHED,
                r6p_vCt_wt, (r6p_vCt_wt_batch,), ("r6p_vCt_wt",), 5, paper_us=30),
     SolverInfo("r9p", "R9P", "sec. 3.4, eq. 8", 9, 1, True, False, BATCHED, r9p,
-               (_r9p_batch,), ("r9p",), 5, paper_us=20),
+               (_r9p_batch,), ("r9p",), 5, paper_us=20, coplanar=False),
     SolverInfo("r6p_joined", "joined", "sec. 4.1", 6, 1, True, True, BATCHED, r6p_joined,
                (r6p_vCt_w_batch, r6p_1lin_batch), ("r6p_vCt_w", "r6p_1lin"), 5),
 )}

@@ -1,0 +1,213 @@
+"""Motion prior of the estimator (issue 16): a Gaussian on the camera's velocities.
+
+On planar scenes (a board, a marker, a facade, a floor) the 12-parameter RS model of one frame
+is near-degenerate: the Fisher information of pose + velocities is near-singular, and the
+maximum-likelihood fit trades rotation against angular velocity by degrees. A weak prior on the
+velocities in physical units (rad/s, m/s) removes that freedom: the estimate becomes the
+maximum a posteriori one and its covariance reflects prior and data. On well-conditioned 3D
+scenes the data outweigh a weak prior by orders of magnitude.
+
+The prior is on ``z = (v, omega)``, the camera's linear and angular velocity in its own optical
+frame, in ROS twist order (vx, vy, vz, wx, wy, wz; m/s, rad/s), the order of
+:attr:`RSPoseEstimate.twist_covariance <rs_localizer.estimation.estimate.RSPoseEstimate>`: a
+video tracker can pass its predicted twist and covariance per frame. With the model's velocities
+per unit RS coordinate (README "Conventions", ``s`` = seconds per unit r)::
+
+    omega = -w / s,   v = (w x C - t) / s
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+__all__ = ["MotionPrior", "prior_arrays", "linear_prior_rows", "sample_prior_rows"]
+
+
+def _vector6(a, name):
+    v = np.asarray(a, dtype=float).reshape(-1)
+    if v.shape != (6,) or not np.isfinite(v).all():
+        raise ValueError(f"motion prior {name} must be 6 finite numbers (ROS twist order "
+                         f"vx, vy, vz, wx, wy, wz), got {a!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class MotionPrior:
+    """Gaussian prior on the camera's velocities during the readout.
+
+    Attributes:
+        angular_velocity_sigma: standard deviation of each angular velocity component (rad/s,
+            camera optical frame); ``0``, ``None`` or ``inf``: no prior on it.
+        linear_velocity_sigma: the same for the linear velocity (m/s).
+        mean: (6,) prior mean in ROS twist order (vx, vy, vz, wx, wy, wz; m/s, rad/s, camera
+            optical frame), e.g. a tracker's prediction; ``None``: zero (a camera at rest is
+            the most likely a priori; the sigmas say how fast it may move).
+        covariance: (6, 6) prior covariance in the same order; replaces the two sigmas when
+            given (symmetric positive definite).
+
+    The default (3 rad/s, 1.5 m/s, zero mean) is weak: a hand-held or walking camera (turning
+    at 1-3 rad/s, moving at up to ~1.5 m/s) lies within ~1 sigma. The linear sigma is the one
+    that matters on planes (rotation trades against linear velocity there; the angular sigma
+    barely changes the result); it is a compromise measured with
+    ``python -m rs_localizer.evaluation.bench_planar`` (README "Planar scenes"). Raises ValueError (on construction) for negative sigmas, a mean or
+    covariance of the wrong shape, non-finite entries, or a covariance that is not symmetric
+    positive definite.
+    """
+
+    angular_velocity_sigma: float | None = 3.0
+    linear_velocity_sigma: float | None = 1.5
+    mean: np.ndarray | None = None
+    covariance: np.ndarray | None = None
+
+    def __post_init__(self):
+        for name in ("angular_velocity_sigma", "linear_velocity_sigma"):
+            v = getattr(self, name)
+            if v is not None and (np.isnan(v) or v < 0):
+                raise ValueError(f"motion prior {name} must be >= 0 (0 or None: off), got {v}")
+        if self.mean is not None:
+            object.__setattr__(self, "mean", _vector6(self.mean, "mean"))
+        if self.covariance is not None:
+            S = np.asarray(self.covariance, dtype=float)
+            if S.shape != (6, 6) or not np.isfinite(S).all():
+                raise ValueError(f"motion prior covariance must be a finite (6, 6) matrix, "
+                                 f"got shape {S.shape}")
+            if not np.allclose(S, S.T, rtol=1e-9, atol=1e-12 * max(np.abs(S).max(), 1e-300)):
+                raise ValueError("motion prior covariance must be symmetric")
+            try:
+                np.linalg.cholesky(S)
+            except np.linalg.LinAlgError:
+                raise ValueError("motion prior covariance must be positive definite") from None
+            object.__setattr__(self, "covariance", S)
+
+    @staticmethod
+    def _inverse_variance(sigma):
+        if sigma is None or sigma == 0 or not np.isfinite(sigma):
+            return 0.0
+        return 1.0 / float(sigma) ** 2
+
+    @property
+    def enabled(self) -> bool:
+        """True if the prior constrains anything (a covariance, or a positive finite sigma)."""
+        return self.covariance is not None or bool(
+            self._inverse_variance(self.angular_velocity_sigma)
+            or self._inverse_variance(self.linear_velocity_sigma))
+
+    def mean_vector(self) -> np.ndarray:
+        """(6,) prior mean, ROS twist order (zeros when not given)."""
+        return np.zeros(6) if self.mean is None else self.mean.copy()
+
+    def information(self) -> np.ndarray:
+        """(6, 6) information matrix (inverse covariance), ROS twist order; zero rows and
+        columns for unconstrained components."""
+        if self.covariance is not None:
+            return np.linalg.inv(self.covariance)
+        return np.diag([self._inverse_variance(self.linear_velocity_sigma)] * 3
+                       + [self._inverse_variance(self.angular_velocity_sigma)] * 3)
+
+
+def prior_arrays(prior: MotionPrior | None):
+    """``(on, mean (6,), information (6, 6))`` for the numba kernels; ``on`` False (and zero
+    arrays) for ``None`` or a prior that constrains nothing."""
+    if prior is None or not prior.enabled:
+        return False, np.zeros(6), np.zeros((6, 6))
+    Lam = prior.information()
+    return True, prior.mean_vector(), np.ascontiguousarray(0.5 * (Lam + Lam.T))
+
+
+def linear_prior_rows(prior: MotionPrior, C0, seconds_per_unit_r: float, scale=1.0):
+    """The prior as linear equations on the model's ``(w, t)`` (per unit r), for the damped
+    linear solves of hypothesis generation (``prior_rows`` of
+    :func:`rs_localizer.solvers.r6p_1lin_batch`).
+
+    ``z = (v, omega)`` is linear in (w, t) once ``w x C`` is linearized at a rough centre
+    ``C0`` (the sample's P3P pose): ``w x C ~ w x C0``, so ``z ~ M (w, t)`` with
+    ``M = [[-[C0]x, -I], [-I, 0]] / s`` (README "Conventions").
+
+    Args:
+        prior: an enabled :class:`MotionPrior`.
+        C0: (3,) or (K, 3) rough translations (world -> camera, m).
+        seconds_per_unit_r: the camera's capture time per unit r (s), > 0.
+        scale: scalar or (K,) weight of the rows against the solver's algebraic equations
+            (the algebraic noise: image noise in normalized units times the depth).
+    Returns:
+        (P (K, 6, 6), q (K, 6)) (K = 1 for a single C0) with
+        ``|P (w, t) - q|^2 = scale^2 (z - mean)^T information (z - mean)`` under that
+        linearization: ``P = scale U M``, ``q = scale U mean``, ``U^T U = information``.
+    Raises:
+        ValueError: a disabled prior, or ``seconds_per_unit_r <= 0`` (global shutter).
+    """
+    if not prior.enabled:
+        raise ValueError("linear_prior_rows needs an enabled prior")
+    s = float(seconds_per_unit_r)
+    if not s > 0:
+        raise ValueError(f"seconds_per_unit_r must be > 0, got {seconds_per_unit_r}")
+    c = np.atleast_2d(np.asarray(C0, dtype=float))
+    K = len(c)
+    M = np.zeros((K, 6, 6))
+    M[:, 0, 1], M[:, 0, 2] = c[:, 2], -c[:, 1]     # -[C0]x
+    M[:, 1, 0], M[:, 1, 2] = -c[:, 2], c[:, 0]
+    M[:, 2, 0], M[:, 2, 1] = c[:, 1], -c[:, 0]
+    M[:, 0:3, 3:6] = -np.eye(3)
+    M[:, 3:6, 0:3] = -np.eye(3)
+    M /= s
+    Lam = prior.information()
+    ev, V = np.linalg.eigh(0.5 * (Lam + Lam.T))
+    U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
+    k = np.broadcast_to(np.asarray(scale, dtype=float), (K,))
+    P = k[:, None, None] * np.einsum("ij,kjl->kil", U, M)
+    q = k[:, None] * (U @ prior.mean_vector())[None, :]
+    return np.ascontiguousarray(P), np.ascontiguousarray(q)
+
+
+@njit(cache=True)
+def _rows_kernel(U, Um, Xs, C0, s, noise, P, q):
+    """:func:`sample_prior_rows` for K samples (loops instead of NumPy's per-call overhead)."""
+    K, n = Xs.shape[0], Xs.shape[1]
+    for k in range(K):
+        depth = 0.0
+        for i in range(n):
+            depth += Xs[k, i, 2]
+        depth = depth / n + C0[k, 2]
+        sc = noise * max(depth, 1e-9) / s
+        c0, c1, c2 = C0[k, 0], C0[k, 1], C0[k, 2]
+        for a in range(6):
+            u0, u1, u2 = U[a, 0], U[a, 1], U[a, 2]
+            # (v rows) U[a, :3] (-[C0]x) w = (C0 x U[a, :3]) . w; -U[a, :3] t; (omega) -U[a, 3:] w
+            P[k, a, 0] = sc * (c1 * u2 - c2 * u1 - U[a, 3])
+            P[k, a, 1] = sc * (c2 * u0 - c0 * u2 - U[a, 4])
+            P[k, a, 2] = sc * (c0 * u1 - c1 * u0 - U[a, 5])
+            P[k, a, 3] = -sc * u0
+            P[k, a, 4] = -sc * u1
+            P[k, a, 5] = -sc * u2
+            q[k, a] = sc * s * Um[a]
+
+
+def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noise: float):
+    """:func:`linear_prior_rows` for K pre-rotated samples, weighted like their equations.
+
+    The solver's algebraic equations (``E . p``, p the point in the camera) have noise of
+    about the image noise times the depth, so each sample's rows get
+    ``scale = noise * (mean depth of its points)``.
+
+    Args:
+        prior: an enabled :class:`MotionPrior`.
+        Xs: (K, n, 3) the samples' points pre-rotated by their P3P rotations.
+        C0: (K, 3) their P3P translations (the depth is ``Xs[..., 2] + C0[2]``).
+        seconds_per_unit_r: > 0 (s). noise: image noise (normalized units).
+    Returns:
+        (P (K, 6, 6), q (K, 6)) for ``prior_rows``; equal to :func:`linear_prior_rows` with
+        that scale.
+    """
+    Lam = prior.information()
+    ev, V = np.linalg.eigh(0.5 * (Lam + Lam.T))
+    U = np.ascontiguousarray((V * np.sqrt(np.clip(ev, 0.0, None))).T)
+    K = len(C0)
+    P = np.empty((K, 6, 6))
+    q = np.empty((K, 6))
+    _rows_kernel(U, U @ prior.mean_vector(), np.ascontiguousarray(Xs, dtype=np.float64),
+                 np.ascontiguousarray(C0, dtype=np.float64), float(seconds_per_unit_r),
+                 float(noise), P, q)
+    return P, q
