@@ -15,7 +15,7 @@ import numpy as np
 
 __all__ = ["save_landmarks_csv", "load_landmarks_csv", "marker_dictionary", "write_marker_map",
            "load_marker_map", "SCENE_DIR", "scene_names", "scene_path", "scene_quad_frames",
-           "marker_layout"]
+           "marker_layout", "checkerboard_layout", "checkerboard_corners"]
 
 #: the built-in scenes (world descriptions shared by the renderer and the ArUco front end)
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -171,6 +171,53 @@ def marker_layout(data: dict) -> list:
     if len(set(ids)) != len(ids):
         raise ValueError("duplicate marker ids")
     return placed
+
+
+def checkerboard_layout(data: dict) -> list:
+    """Checkerboards of a scene (parsed YAML, its ``checkerboards`` list of ``{quad, at: [a, b],
+    squares: [nu, nv], square}``: ``nu`` x ``nv`` squares of side ``square`` m whose top-left
+    corner sits at quad coordinates (a, b); the top-left square is dark).
+
+    Returns ``[(quad index, a, b, nu, nv, square)]``. Raises ValueError for unknown quads, fewer
+    than 2 squares along a side, a non-positive square, or a board that does not fit its quad."""
+    quads = scene_quad_frames(data)
+    names = [q[0] for q in quads]
+    out = []
+    for cb in data.get("checkerboards") or []:
+        if cb["quad"] not in names:
+            raise ValueError(f"scene has no quad {cb['quad']!r}; quads: {names}")
+        qi = names.index(cb["quad"])
+        a, b = _vec(cb["at"], 2, "at")
+        nu, nv = (int(n) for n in cb["squares"])
+        sq = float(cb["square"])
+        if nu < 2 or nv < 2 or not sq > 0:
+            raise ValueError(f"checkerboard needs >= 2 x 2 squares and square > 0, got {cb}")
+        qsize = quads[qi][4]
+        if a < -1e-9 or b < -1e-9 or a + nu * sq > qsize[0] + 1e-9 \
+                or b + nv * sq > qsize[1] + 1e-9:
+            raise ValueError(f"checkerboard {cb} does not fit on quad {cb['quad']}")
+        out.append((qi, float(a), float(b), nu, nv, sq))
+    return out
+
+
+def checkerboard_corners(data: dict):
+    """Inner corners of the scene's checkerboards (parsed YAML, :func:`checkerboard_layout`):
+    ``(ids (M,) int64, points (M, 3) world, metres)``. Board ``k`` with ``nu`` x ``nv`` squares
+    has ``(nu - 1) (nv - 1)`` inner corners, row-major along u then v (OpenCV's
+    ``findChessboardCorners`` order for ``patternSize = (nu - 1, nv - 1)`` when the top-left
+    square is at the image's top left); corner (i, j) has id ``1000 k + j (nu - 1) + i``."""
+    quads = scene_quad_frames(data)
+    ids, pts = [], []
+    for k, (qi, a, b, nu, nv, sq) in enumerate(checkerboard_layout(data)):
+        _, o, u, v, _ = quads[qi]
+        jj, ii = np.meshgrid(np.arange(nv - 1), np.arange(nu - 1), indexing="ij")
+        A = a + (ii.ravel() + 1) * sq
+        B = b + (jj.ravel() + 1) * sq
+        pts.append(o + A[:, None] * u + B[:, None] * v)
+        ids.append(1000 * k + jj.ravel() * (nu - 1) + ii.ravel())
+    if not pts:
+        return np.zeros(0, np.int64), np.zeros((0, 3))
+    return np.concatenate(ids).astype(np.int64), np.concatenate(pts)
 
 
 def _scene_marker_corners(data: dict) -> dict:

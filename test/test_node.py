@@ -191,9 +191,11 @@ def test_diagnostics(node, ros_context, sample_bag):
         assert st is not None, "no diagnostics from the node"
         for key in ("frames_received", "frames_solved", "frames_failed", "messages_lost",
                     "inliers_last", "inliers_mean", "latency_ms_median", "latency_ms_p99",
-                    "solver", "camera"):
+                    "solver", "camera", "planar", "condition_number_last"):
             assert key in v, key
         assert v["solver"] == "r6p_1lin" and v["camera"] == "camera_info"
+        assert v["planar"] == "false"  # a corridor: points in depth (issue 16)
+        assert 1.0 <= float(v["condition_number_last"]) < 1e4
         assert int(v["frames_received"]) >= int(v["frames_solved"]) >= 5
         assert 300 < float(v["inliers_mean"]) <= 500
         assert 0 < float(v["latency_ms_median"]) <= float(v["latency_ms_p99"]) < 5000

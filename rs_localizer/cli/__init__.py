@@ -1,6 +1,6 @@
 """``rs-localizer``: bag tools for the rolling-shutter localizer.
 
-    rs-localizer make-bag OUT [--frames 40 --points 500 --storage mcap ...]
+    rs-localizer make-bag OUT [--frames 40 --points 500 --scene corridor|plane|board ...]
     rs-localizer play BAG [--rate 1.0 | --lockstep] [--topics ...] [--remap FROM:=TO ...]
     rs-localizer replay BAG [--solver r6p_1lin] [--out DIR [--debug-outputs]] [--csv FILE]
                             [--json]
@@ -25,7 +25,10 @@ __all__ = ["main", "build_parser"]
 
 
 def _make_bag(args) -> int:
+    import numpy as np
+
     from ..ros.bag_io import write_sequence_bag
+    from ..sim.planar import sequence_scene
     from ..sim.trajectory import SequenceConfig, default_camera, generate_sequence
 
     ref = None if args.reference_row < 0 else args.reference_row
@@ -36,10 +39,15 @@ def _make_bag(args) -> int:
                          stamp_row=args.stamp_row, motion_scale=args.motion_scale,
                          num_landmarks=args.landmarks,
                          t0_ns=int(round(args.start_time * 1e9)))
-    frames, scene, camera, _ = generate_sequence(cfg, camera=camera)
+    scene, trajectory = sequence_scene(args.scene, np.random.default_rng([args.seed, 16]),
+                                       args.landmarks, args.motion_scale)
+    frames, scene, camera, _ = generate_sequence(cfg, camera=camera, trajectory=trajectory,
+                                                 scene=scene)
     settings = {k: getattr(cfg, k) for k in ("num_frames", "num_points", "fps", "noise_px",
                                              "outlier_ratio", "seed", "motion_scale",
                                              "num_landmarks")}
+    if args.scene != "corridor":
+        settings["scene"] = args.scene
     out = write_sequence_bag(args.out, frames, scene, camera, storage=args.storage,
                              namespace=args.namespace, with_ids=not args.no_ids,
                              with_scores=args.scores, keypoints=not args.no_keypoints,
@@ -221,6 +229,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--motion-scale", type=float, default=1.0,
                    help="scale of the rotational motion (1: ~1.5 rad/s)")
     m.add_argument("--landmarks", type=int, default=6000, help="landmarks in the scene")
+    m.add_argument("--scene", choices=["corridor", "plane", "board"], default="corridor",
+                   help="corridor: 3D landmarks along a walk (default); plane: one wall ahead "
+                   "(planar scene); board: a 6x7-corner checkerboard under hand-held shake "
+                   "(42 points; see README 'Planar scenes')")
     m.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap",
                    help="bag storage format")
     m.add_argument("--namespace", default="/camera", help="namespace of the camera topics")

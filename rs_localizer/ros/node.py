@@ -47,7 +47,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimation import EstimateOptions, estimate_rs_pose
+from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
 from ..frontends import FRONTENDS
 from ..maps import load_landmarks_csv
@@ -77,6 +77,13 @@ PARAMETERS = {
     "ransac.seed": (0, "RANSAC random seed (deterministic)",
                     _I(from_value=0, to_value=2_147_483_647, step=1), False),
     "refine": (True, "nonlinear refinement on the exact constant-velocity model", None, False),
+    "motion_prior.angular_velocity_sigma": (
+        3.0, "motion prior: sigma of each angular velocity component (rad/s, camera frame); "
+        "0 = no prior on it", _F(from_value=0.0, to_value=1e4, step=0.0), False),
+    "motion_prior.linear_velocity_sigma": (
+        1.5, "motion prior: sigma of each linear velocity component (m/s, camera frame); "
+        "0 = no prior on it (both 0: maximum likelihood, near-degenerate on planar scenes)",
+        _F(from_value=0.0, to_value=1e4, step=0.0), False),
     "rs.line_delay": (3.0e-5, "time between consecutive image lines (s/line); 0 = global "
                       "shutter", _F(from_value=0.0, to_value=0.01, step=0.0), False),
     "rs.readout_time": (0.0, "time to read the whole frame (s); if > 0 it wins over "
@@ -168,6 +175,7 @@ class RSLocalizerNode(Node):
         self.stage_times = {k: deque(maxlen=1000)
                             for k in ("decode", "frontend", "estimate", "publish")}
         self.inliers = deque(maxlen=1000)
+        self._planar_last = (False, float("nan"))  # (planar, condition number) of the last pose
         self.messages_lost = 0       # QoS message_lost events over the frame subscriptions
         self._lost = {}
         self._last_log = {}
@@ -268,7 +276,10 @@ class RSLocalizerNode(Node):
                                    max_iterations=int(p["ransac.max_iterations"]),
                                    confidence=float(p["ransac.confidence"]),
                                    min_inliers=int(p["ransac.min_inliers"]),
-                                   seed=int(p["ransac.seed"]), refine=bool(p["refine"]))
+                                   seed=int(p["ransac.seed"]), refine=bool(p["refine"]),
+                                   motion_prior=MotionPrior(
+                                       float(p["motion_prior.angular_velocity_sigma"]),
+                                       float(p["motion_prior.linear_velocity_sigma"])))
         except (TypeError, ValueError) as e:
             return f"invalid RANSAC options: {e}"
         ref = float(p["rs.reference_row"])
@@ -526,6 +537,7 @@ class RSLocalizerNode(Node):
         self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
         self.counts["solved"] += 1
         self.inliers.append(est.num_inliers)
+        self._planar_last = (est.planar, est.condition_number)
         toc = time.perf_counter()
         self.latencies.append(toc - tic)
         self.stage_times["decode"].append(t_decoded - tic - self._t_frontend)
@@ -627,6 +639,8 @@ class RSLocalizerNode(Node):
             "camera_info_rejected": c["camera_info_rejected"],
             "inliers_last": self.inliers[-1] if self.inliers else 0,
             "inliers_mean": f"{np.mean(self.inliers):.1f}" if self.inliers else "0",
+            "planar": str(self._planar_last[0]).lower(),
+            "condition_number_last": f"{self._planar_last[1]:.3g}",
             "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
             "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
             "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",

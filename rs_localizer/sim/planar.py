@@ -28,9 +28,10 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, rs_project_exact
+from .trajectory import Scene
 
 __all__ = ["PlanarFrame", "planar_camera", "make_planar_frame", "model_velocities",
-           "board_corners"]
+           "board_corners", "SEQUENCE_SCENES", "sequence_scene"]
 
 
 @dataclass(frozen=True)
@@ -47,7 +48,7 @@ class PlanarFrame:
             frame (rad/s, m/s).
         points_clean: (N, 2) the noise-free pixels.
         inlier: (N,) bool, False for the generated outliers.
-        scene: ``plane`` or ``board``.
+        scene: ``plane``, ``board`` or ``depth``.
     """
 
     points_px: np.ndarray
@@ -121,7 +122,8 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
                       board_distance=(0.8, 2.0), board=(6, 7), square: float = 0.08,
                       max_tilt_deg: float = 35.0, angular_speed=(1.0, 3.0),
                       linear_speed=(0.2, 1.0), noise_px: float = 0.5,
-                      outlier_ratio: float = 0.0, camera: CameraModel | None = None,
+                      outlier_ratio: float = 0.0, depth_range=(2.0, 6.0),
+                      camera: CameraModel | None = None,
                       max_tries: int = 200) -> PlanarFrame:
     """One frame of a planar scene (module docstring).
 
@@ -129,7 +131,9 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
         rng: a NumPy Generator or a seed.
         scene: ``plane`` (``n_points`` points over the image, plane ``distance`` m away on the
             optical axis) or ``board`` (the ``board`` inner corners with ``square`` m spacing,
-            the centre ``board_distance`` (min, max) m away, every corner in view).
+            the centre ``board_distance`` (min, max) m away, every corner in view) or
+            ``depth`` (the 3D reference: ``plane``'s camera, motion and image coverage, but
+            each point at a depth drawn uniformly from ``depth_range`` (m) along its ray).
         max_tilt_deg: largest angle between the plane normal and the optical axis (deg).
         angular_speed, linear_speed: (min, max) speeds (rad/s, m/s), uniform, random direction.
         noise_px: Gaussian pixel noise sigma.
@@ -143,8 +147,8 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
         points in view after ``max_tries`` attempts.
     """
     rng = np.random.default_rng(rng)
-    if scene not in ("plane", "board"):
-        raise ValueError(f"scene must be 'plane' or 'board', got {scene!r}")
+    if scene not in ("plane", "board", "depth"):
+        raise ValueError(f"scene must be 'plane', 'board' or 'depth', got {scene!r}")
     if n_points < 3 or noise_px < 0 or not 0 <= outlier_ratio <= 1:
         raise ValueError("need n_points >= 3, noise_px >= 0 and 0 <= outlier_ratio <= 1")
     cam = camera or planar_camera()
@@ -153,7 +157,14 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
     omega = _unit(rng) * rng.uniform(*angular_speed)
     vel = _unit(rng) * rng.uniform(*linear_speed)
     for _ in range(max_tries):
-        if scene == "plane":
+        if scene == "depth":
+            # the plane's camera and image coverage, the points spread in depth instead
+            R, C = _plane_pose(rng, [0.0, 0.0, distance], max_tilt_deg)
+            uv = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (2 * n_points, 2))
+            rays = np.concatenate([uv, np.ones((len(uv), 1))], axis=1) @ Kinv.T
+            lam = rng.uniform(*depth_range, len(uv))
+            X = (lam[:, None] * rays - C) @ R
+        elif scene == "plane":
             R, C = _plane_pose(rng, [0.0, 0.0, distance], max_tilt_deg)
             # pixels all over the image, back-projected (reference pose) onto the plane z = 0
             uv = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (2 * n_points, 2))
@@ -176,7 +187,7 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
         if scene == "board":
             if keep.all():
                 break
-        elif keep.sum() >= n_points:
+        elif keep.sum() >= n_points:  # plane, depth
             sel = np.flatnonzero(keep)[:n_points]
             X, px = X[sel], px[sel]
             break
@@ -192,3 +203,47 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
     return PlanarFrame(points_px=noisy, X=X, camera=cam, R=R, C=C, w=w, t=t, orientation=R.T,
                        position=camera_position(R, C), angular_velocity=omega,
                        linear_velocity=vel, points_clean=px, inlier=inlier, scene=scene)
+
+
+# ------------------------------------------------------------------------ sequences (make-bag)
+#: scene kinds of :func:`sequence_scene` (``make-bag --scene``)
+SEQUENCE_SCENES = ("corridor", "plane", "board")
+
+
+def sequence_scene(kind: str, rng, num_landmarks: int = 6000, motion_scale: float = 1.0):
+    """Landmarks and camera motion for a synthetic sequence
+    (:func:`rs_localizer.sim.trajectory.generate_sequence`, ``rs-localizer make-bag --scene``).
+
+    Args:
+        kind: ``corridor`` (the 3D corridor of :func:`~rs_localizer.sim.trajectory.make_scene`
+            and the default walk: returns ``(None, None)`` so that the sequence generator
+            draws exactly what it always drew), ``plane`` (``num_landmarks`` points on one wall
+            8 m ahead, 12 m wide and 6 m high, facing the default walk, which heads towards
+            it) or ``board`` (the 42 inner corners of the built-in ``checkerboard`` scene: 6x7,
+            8 cm squares, 1.2 m ahead, seen by the renderer's hand-held ``shake`` motion around
+            the scene's viewpoint, up to ~1.1 rad/s).
+        rng: NumPy Generator (the plane's landmarks). num_landmarks: landmarks of ``plane``.
+        motion_scale: rotation amplitude scale of the ``board`` motion (``corridor`` and
+            ``plane``: :class:`~rs_localizer.sim.trajectory.SequenceConfig` applies it).
+    Returns:
+        ``(Scene or None, Trajectory or None)``; ``None`` means the generator's default.
+    Raises:
+        ValueError: unknown kind.
+    """
+    if kind == "corridor":
+        return None, None
+    if kind == "plane":
+        y = rng.uniform(-6.0, 6.0, num_landmarks)
+        z = rng.uniform(-1.5, 4.5, num_landmarks)
+        pts = np.round(np.stack([np.full(num_landmarks, 8.0), y, z], axis=1), 4)
+        ids = np.arange(1, num_landmarks + 1, dtype=np.int64) * 7 + 100
+        return Scene(pts, ids), None
+    if kind == "board":
+        from .render.motion import make_motion
+        from .render.scene import load_scene
+
+        board = load_scene("checkerboard")
+        ids, pts = board.checkerboard_corner_points()
+        return Scene(np.round(pts, 4), ids), make_motion("shake", board, duration=2.0,
+                                                         scale=motion_scale)
+    raise ValueError(f"unknown scene {kind!r}; expected one of {SEQUENCE_SCENES}")

@@ -6,12 +6,16 @@ A scene is a YAML file (see ``scenes/aruco_room.yaml`` for the format)::
               texture unmirrored), u (right), v (down), size (along u, along v), texture
     decals:   pictures on a quad: quad name, at (a, b) metres along (u, v), size, texture
     markers:  ArUco markers on quads: explicit {id, quad, at, size} or {fill: {...}} grids
+    checkerboards: checkerboards on quads: {quad, at, squares: [nu, nv], square} (their inner
+              corners: :meth:`Scene.checkerboard_corner_points`)
 
 Every marker corner has a known 3D position: corner ``k`` (ArUco order: top-left, top-right,
 bottom-right, bottom-left of the black square) of marker ``id`` is correspondence id
 ``4 * id + k`` (:meth:`Scene.marker_corner_points`).
 
-Built-in scenes: ``aruco_room`` and ``textured_room`` (:func:`load_scene` by name).
+Built-in scenes: ``aruco_room`` and ``textured_room`` (rooms), and the single planar boards
+``checkerboard`` (6x7 inner corners, 8 cm squares), ``aruco_board`` and ``apriltag_board``
+(4x3 markers of 10 cm, DICT_4X4_250 / DICT_APRILTAG_36h11) (:func:`load_scene` by name).
 Textures are uint8 RGB arrays; the renderer builds mip-map pyramids from them.
 """
 
@@ -25,8 +29,9 @@ import cv2
 import numpy as np
 
 from ...frontends._cv_compat import marker_image
-from ...maps import (SCENE_DIR, _vec, load_marker_map, marker_dictionary, marker_layout, scene_names,
-                     scene_path, scene_quad_frames, write_marker_map)
+from ...maps import (SCENE_DIR, _vec, checkerboard_corners, checkerboard_layout, load_marker_map,
+                     marker_dictionary, marker_layout, scene_names, scene_path, scene_quad_frames,
+                     write_marker_map)
 
 __all__ = ["Quad", "Decal", "Marker", "Scene", "load_scene", "scene_names", "SCENE_DIR",
            "marker_dictionary", "marker_texture", "save_marker_map", "load_marker_map"]
@@ -99,6 +104,7 @@ class Scene:
     background: tuple = (30, 30, 35)
     source: str | None = None  # YAML path it was loaded from
     _packed: object = field(default=None, repr=False, compare=False)
+    _checker_corners: tuple = field(default=None, repr=False, compare=False)
 
     def quad_index(self, name: str) -> int:
         for i, q in enumerate(self.quads):
@@ -124,6 +130,13 @@ class Scene:
             return np.zeros(0, np.int64), np.zeros((0, 3))
         ids = np.concatenate([4 * k + np.arange(4) for k in corners])
         return ids.astype(np.int64), np.concatenate(list(corners.values()))
+
+    def checkerboard_corner_points(self):
+        """(ids (M,) int64, points (M, 3)) of the inner corners of the scene's checkerboards
+        (:func:`rs_localizer.maps.checkerboard_corners`; empty without checkerboards)."""
+        if self._checker_corners is None:
+            return np.zeros(0, np.int64), np.zeros((0, 3))
+        return self._checker_corners
 
     def viewpoint_pose(self):
         """(position (3,), yaw, pitch) of the scene's nominal camera viewpoint (rad)."""
@@ -279,6 +292,11 @@ def load_scene(name_or_path) -> Scene:
         tex = _make_texture(dd["texture"], (w, h), base, 100 + k)
         scene.decals.append(Decal(qi, (a0, b0, a0 + w, b0 + h), tex))
     _add_markers(scene, data.get("markers") or {}, marker_layout(data))
+    for qi, a, b, nu, nv, sq in checkerboard_layout(data):
+        tex = _make_texture({"checker": sq, "texels_per_metre": 64 / sq}, (nu * sq, nv * sq),
+                            base, 0)
+        scene.decals.append(Decal(qi, (a, b, a + nu * sq, b + nv * sq), tex))
+    scene._checker_corners = checkerboard_corners(data)
     return scene
 
 
