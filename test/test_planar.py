@@ -11,11 +11,11 @@ from rs_localizer import EstimateOptions, MotionPrior, estimate_rs_pose
 from rs_localizer.estimation.degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
 from rs_localizer.estimation.refine import (exact_jacobian, refine_rs_pose,
-                                            refine_rs_pose_scipy)
+                                            refine_rs_pose_scipy, untruncated_variance)
 from rs_localizer.estimation.sampling import second_prerotations, select_prerotations
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix, skew
 from rs_localizer.sim.planar import make_planar_frame, model_velocities, sequence_scene
-from rs_localizer.sim.synthetic import _physical_velocities
+from rs_localizer.sim.synthetic import _physical_velocities, make_frame, paper_camera
 from rs_localizer.solvers import p3p_batch, r6p_1lin_batch
 
 CHI2_3_3SIGMA = 14.16  # chi-square, 3 dof, P = 0.9973
@@ -153,6 +153,41 @@ def test_weak_prior_leaves_3d_scenes_at_the_exact_model_limit():
         oracle.append(np.linalg.norm(-o.w / f.camera.seconds_per_unit_r - f.angular_velocity))
         assert not b.planar and b.condition_number < 1e4
     assert np.median(mp) <= 1.1 * np.median(oracle) and np.median(mp) <= 1.1 * np.median(ml)
+
+
+def test_prior_is_not_used_against_a_much_faster_camera():
+    """Non-planar frames: the prior enters the final refinement only when the ML velocities do
+    not conflict with it. The paper's protocol at RS speed 0.5 (8.7 rad/s, 5 m/s) conflicts:
+    those estimates equal the maximum-likelihood ones bit for bit; at speed 0.1 it does not."""
+    cam = paper_camera()
+    for seed in range(6):
+        f = make_frame(1000 + seed, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
+        a = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin")
+        b = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin",
+                             EstimateOptions(motion_prior=None))
+        if not a.motion_prior_used:
+            assert np.array_equal(a.R, b.R) and np.array_equal(a.w, b.w)
+            assert np.array_equal(a.covariance, b.covariance)
+        assert not a.planar and a.condition_number < 1e3
+    used = [estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin").motion_prior_used
+            for f in (make_frame(1000 + k, 300, rs_speed=0.5, noise_px=1.0) for k in range(6))]
+    assert sum(used) <= 1
+    slow = make_frame(5, 300, rs_speed=0.1, noise_px=1.0)
+    assert estimate_rs_pose(slow.points_px, slow.X, cam, "r6p_1lin").motion_prior_used
+    fast = make_frame(1000, 300, rs_speed=0.5, noise_px=1.0)
+    assert estimate_rs_pose(fast.points_px, fast.X, cam, "r6p_1lin", EstimateOptions(
+        motion_prior=MotionPrior(always=True))).motion_prior_used
+
+
+def test_untruncated_variance_against_monte_carlo():
+    rng = np.random.default_rng(0)
+    k = 1.0
+    for sigma in (0.1, 0.3, 0.5, 0.8):
+        e2 = np.sum(rng.normal(0.0, sigma, (400_000, 2)) ** 2, axis=1)
+        s2 = e2[e2 <= k * k].mean() / 2  # what the refinement measures inside the threshold
+        assert np.sqrt(untruncated_variance(s2, k)) == pytest.approx(sigma, rel=0.01)
+    assert untruncated_variance(0.0, k) == 0.0
+    assert untruncated_variance(0.3, k) == k * k  # beyond a uniform disc: capped
 
 
 # ------------------------------------------------------------------------- hypotheses

@@ -65,9 +65,14 @@ class EstimateOptions:
             early. 0 disables it.
         motion_prior: Gaussian prior on the camera's velocities
             (:class:`~rs_localizer.estimation.prior.MotionPrior`, default 3 rad/s and
-            1.5 m/s, zero mean): local optimization and the refinement are maximum a posteriori, and
-            the covariance includes it. ``None``: maximum likelihood (issue 16: on planar
-            scenes the 12-parameter model is then near-degenerate).
+            1.5 m/s, zero mean), used where one frame cannot determine them (issue 16): on
+            planar scenes (coplanar 3D points) local optimization and the refinement are
+            maximum a posteriori and the hypotheses use damped solves; on other scenes the
+            final maximum-likelihood refinement is followed by a MAP one unless the data
+            conflict with the prior (a camera much faster than it allows, see
+            :func:`_final_refinement`). The covariance then includes the prior. With
+            ``MotionPrior(always=True)`` (e.g. a tracker's prediction) it is used on every
+            frame. ``None``: maximum likelihood everywhere.
     """
 
     threshold_px: float = 2.0
@@ -122,7 +127,10 @@ class RSPoseEstimate:
         planarity: that thickness-to-extent ratio of the inliers' 3D points (NaN on failure).
         condition_number: unit-free condition number of the data's information matrix of the
             refined parameters (:func:`~.degeneracy.condition_number`; NaN without
-            refinement): ~1e3-1e4 on 3D scenes, 1e5 and more when near-degenerate.
+            refinement): ~5-300 on 3D scenes, 1e4-1e6 on planar ones.
+        motion_prior_used: the final refinement was maximum a posteriori (see
+            ``EstimateOptions.motion_prior``); on planar frames the velocities, and the
+            rotation they trade against, lean on the prior.
     """
 
     success: bool
@@ -150,6 +158,7 @@ class RSPoseEstimate:
     planar: bool = False
     planarity: float = float("nan")
     condition_number: float = float("nan")
+    motion_prior_used: bool = False
 
     @property
     def num_inliers(self) -> int:
@@ -192,17 +201,19 @@ def _prior_rows(fr: "_Frame", opts, Xs, C0):
     noise were half the inlier threshold."""
     if not fr.regularize:
         return None
-    return sample_prior_rows(opts.motion_prior, Xs, C0, fr.spr, 0.5 * opts.threshold_px / fr.f)
+    return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * opts.threshold_px / fr.f)
 
 
 # ---------------------------------------------------------------------------- the estimator
 class _Frame:
     """Validated, normalized correspondences of one frame. ``spr``: the camera's seconds per
-    unit r; ``planar``: the 3D points are coplanar; ``regularize``: hypotheses use the motion
-    prior (planar scene, prior on)."""
+    unit r; ``planar``: the 3D points are coplanar; ``prior``: the motion prior of local
+    optimization and refinement (None: maximum likelihood); ``regularize``: hypotheses use it
+    too (planar scene)."""
 
     spr = 0.0
     planar = False
+    prior = None
     regularize = False
 
     def __init__(self, x, X, r, r0e, r0, d, f):
@@ -353,7 +364,7 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
     # bounded inner sample); the final refinement uses every inlier
     M = min(len(fr.x), max(opts.lo_max_points, 2 * sample_size(solver)))
     sub = _Frame(fr.x[:M], fr.X[:M], fr.r[:M], fr.r0e[:M], fr.r0, fr.d, fr.f)
-    sub.spr, sub.planar, sub.regularize = fr.spr, fr.planar, fr.regularize
+    sub.spr, sub.planar, sub.prior, sub.regularize = fr.spr, fr.planar, fr.prior, fr.regularize
     tau = sub.r - sub.r0
     for step in range(opts.local_optimization_steps):
         n_before = int(np.count_nonzero(best_inl))
@@ -367,8 +378,7 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
                 start, start_score, start_inl = cand, sc, inl
         ref = refine_rs_pose(*start, sub.X, sub.x, tau, th, rolling_shutter=rolling,
                              max_iterations=opts.lo_refine_iterations, covariance=False,
-                             cutoff=2.0 * th, prior=opts.motion_prior,
-                             seconds_per_unit_r=fr.spr)
+                             cutoff=2.0 * th, prior=fr.prior, seconds_per_unit_r=fr.spr)
         cand = (ref.R, ref.C, ref.w, ref.t)
         sc, inl = _evaluate(fr, cand, th2)
         if sc < start_score:
@@ -379,6 +389,47 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
         if int(np.count_nonzero(best_inl)) <= n_before:
             break
     return best_score, best, best_inl
+
+
+#: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
+#: :func:`_final_refinement`
+PRIOR_CONFLICT = 16.81
+
+
+def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
+    """The final refinement on the inliers.
+
+    With ``fr.prior`` (planar frames, or a prior with ``always``): MAP. Otherwise maximum
+    likelihood first; then, if ``prior`` is not None and does not conflict with the data (the
+    ML velocities ``z`` with their covariance ``S`` against the prior's mean ``m`` and
+    covariance ``P``: ``(z - m)^T (S + P)^-1 (z - m)`` below :data:`PRIOR_CONFLICT`), MAP
+    from the ML estimate. A camera far faster than the prior allows (the paper's protocol:
+    8.7 rad/s, 5 m/s) keeps its ML estimate, so a zero-mean prior cannot bias it; where the
+    data hardly determine the velocities (small or distant objects), the prior sharpens them.
+    Returns (RefineResult, whether the prior was used)."""
+    tau = fr.r[inl] - fr.r0
+    X, x = fr.X[inl], fr.x[inl]
+    th = float(th)
+    ref = refine_rs_pose(*model, X, x, tau, th, rolling_shutter=rolling, prior=fr.prior,
+                         seconds_per_unit_r=fr.spr)
+    if fr.prior is not None or prior is None:
+        return ref, fr.prior is not None
+    start = (ref.R, ref.C, ref.w, ref.t)
+    if not (all(np.isfinite(c).all() for c in start) and np.isfinite(ref.covariance).all()):
+        return ref, False
+    _, _, twist = _output_covariance(ref.covariance, ref.R, ref.C, ref.w, fr.spr)
+    om, vc, _, _ = physical_velocities(ref.R, ref.C, ref.w, ref.t, fr.spr)
+    d = np.r_[vc, om] - prior.mean_vector()
+    info = prior.information()
+    # (S + P)^-1 = Lam (I + S Lam)^-1 with Lam = P^-1 (zero rows for unconstrained axes)
+    try:
+        m2 = float(d @ info @ np.linalg.solve(np.eye(6) + twist @ info, d))
+    except np.linalg.LinAlgError:
+        return ref, False
+    if not m2 < PRIOR_CONFLICT:
+        return ref, False
+    return refine_rs_pose(*start, X, x, tau, th, rolling_shutter=rolling, prior=prior,
+                          seconds_per_unit_r=fr.spr), True
 
 
 def _collinear(X, tol: float = 1e-3) -> bool:
@@ -508,8 +559,11 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)
     if fr.planar and not solver_info(solver).coplanar:
         return _fail("planar_scene", solver, n_in, N, n_dropped, 0, timings)
-    fr.regularize = bool(fr.planar and fr.spr > 0 and solver_info(solver).rolling
-                         and opts.motion_prior is not None and opts.motion_prior.enabled)
+    prior = opts.motion_prior
+    prior_on = bool(prior is not None and prior.enabled and fr.spr > 0
+                    and solver_info(solver).rolling)
+    fr.prior = prior if prior_on and (fr.planar or prior.always) else None
+    fr.regularize = bool(fr.prior is not None and fr.planar)
 
     # PROSAC-style ordering: sample from the best-scored points first, growing the pool
     order = np.arange(N)
@@ -571,10 +625,10 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     cov12 = info12 = None
     t0 = time.perf_counter()
     tau = fr.r - fr.r0
+    prior_used = fr.prior is not None
     if opts.refine:
-        ref = refine_rs_pose(R, C, w, t, fr.X[inl], fr.x[inl], tau[inl], th,
-                             rolling_shutter=rolling, prior=opts.motion_prior,
-                             seconds_per_unit_r=fr.spr)
+        ref, prior_used = _final_refinement(fr, (R, C, w, t), inl, th, rolling,
+                                            prior if prior_on else None)
         cand = (ref.R, ref.C, ref.w, ref.t)
         if all(np.isfinite(c).all() for c in cand):
             R, C, w, t = cand
@@ -611,4 +665,5 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         angular_velocity_world=om_w, linear_velocity_world=vc_w, inliers=inliers,
         num_valid=N, num_dropped=n_dropped, ransac_iterations=iters, timings=timings,
         covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse,
-        planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond)
+        planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond,
+        motion_prior_used=prior_used)
