@@ -289,7 +289,7 @@ def test_r9p_on_a_plane_fails_with_planar_scene():
 def test_degeneracy_measures():
     rng = np.random.default_rng(0)
     flat = np.c_[rng.uniform(-1, 1, (50, 2)), np.zeros(50)] @ rotvec_to_matrix([0.3, 0.5, 1.0])
-    assert planarity(flat) < 1e-12 and planarity(rng.normal(size=(50, 3))) > 0.3
+    assert planarity(flat) < 1e-6 and planarity(rng.normal(size=(50, 3))) > 0.3
     assert planarity(np.c_[rng.uniform(-1, 1, (50, 2)), rng.uniform(-0.01, 0.01, 50)]) \
         == pytest.approx(0.01, rel=0.3)
     A = rng.normal(size=(40, 5))

@@ -18,6 +18,7 @@ Two measures, both reported in :class:`~rs_localizer.estimation.estimate.RSPoseE
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = ["PLANAR_TOLERANCE", "planarity", "condition_number"]
 
@@ -26,34 +27,72 @@ __all__ = ["PLANAR_TOLERANCE", "planarity", "condition_number"]
 PLANAR_TOLERANCE = 0.05
 
 
+@njit(cache=True)
+def _planarity(X):
+    n = X.shape[0]
+    m0 = m1 = m2 = 0.0
+    for i in range(n):
+        m0 += X[i, 0]
+        m1 += X[i, 1]
+        m2 += X[i, 2]
+    m0 /= n
+    m1 /= n
+    m2 /= n
+    S = np.zeros((3, 3))
+    for i in range(n):
+        d0, d1, d2 = X[i, 0] - m0, X[i, 1] - m1, X[i, 2] - m2
+        S[0, 0] += d0 * d0
+        S[0, 1] += d0 * d1
+        S[0, 2] += d0 * d2
+        S[1, 1] += d1 * d1
+        S[1, 2] += d1 * d2
+        S[2, 2] += d2 * d2
+    S[1, 0], S[2, 0], S[2, 1] = S[0, 1], S[0, 2], S[1, 2]
+    ev = np.linalg.eigvalsh(S)
+    if not ev[2] > 0.0:
+        return 0.0
+    return np.sqrt(max(ev[0], 0.0) / ev[2])
+
+
 def planarity(X) -> float:
     """Smallest over largest singular value of the centred points ``X`` (N, 3) (m).
 
     0 for coplanar points (and for fewer than 3 points or a single repeated point: no extent,
     nothing to measure), up to 1 for an isotropic cloud. Raises ValueError for a wrong shape.
     """
-    X = np.asarray(X, dtype=float)
+    X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim != 2 or X.shape[1] != 3:
         raise ValueError(f"X must have shape (N, 3), got {X.shape}")
-    if len(X) < 3:
-        return 0.0
-    S = np.cov(X.T, bias=True)  # 3x3 scatter: its eigenvalues are the squared singular values / N
-    ev = np.linalg.eigvalsh(S)
-    if not ev[2] > 0:
-        return 0.0
-    return float(np.sqrt(max(ev[0], 0.0) / ev[2]))
+    if len(X) < 3 or not np.isfinite(X).all():
+        return 0.0 if len(X) < 3 else float("nan")
+    return float(_planarity(X))
+
+
+@njit(cache=True)
+def _condition_number(H):
+    n = H.shape[0]
+    s = np.empty(n)
+    for i in range(n):
+        if not (H[i, i] > 0.0 and np.isfinite(H[i, i])):
+            return np.inf
+        s[i] = 1.0 / np.sqrt(H[i, i])
+    A = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = s[i] * H[i, j] * s[j]
+            if not np.isfinite(A[i, j]):
+                return np.inf
+    ev = np.linalg.eigvalsh(A)
+    if not ev[0] > 0.0:
+        return np.inf
+    return ev[n - 1] / ev[0]
 
 
 def condition_number(information) -> float:
     """Condition number of a symmetric information matrix (n, n) after Jacobi scaling
     ``D^-1/2 H D^-1/2`` with ``D = diag(H)`` (unit-free); ``inf`` if it is singular, has a
     zero diagonal entry (an undetermined parameter) or a non-finite entry."""
-    H = np.asarray(information, dtype=float)
-    d = np.diag(H)
-    if not (np.isfinite(H).all() and (d > 0).all()):
-        return float("inf")
-    s = 1.0 / np.sqrt(d)
-    ev = np.linalg.eigvalsh(s[:, None] * H * s[None, :])
-    if not ev[0] > 0:
-        return float("inf")
-    return float(ev[-1] / ev[0])
+    H = np.ascontiguousarray(information, dtype=np.float64)
+    if H.ndim != 2 or H.shape[0] != H.shape[1]:
+        raise ValueError(f"information must be square, got shape {H.shape}")
+    return float(_condition_number(H))

@@ -19,7 +19,7 @@ from .._so3 import compose_rotvec
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
 from .refine import exact_errors, refine_rs_pose
-from .prior import MotionPrior, sample_prior_rows
+from .prior import MotionPrior, prior_conflict, sample_prior_rows
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from ..solvers import p3p_batch, r6p
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
@@ -417,16 +417,7 @@ def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
     start = (ref.R, ref.C, ref.w, ref.t)
     if not (all(np.isfinite(c).all() for c in start) and np.isfinite(ref.covariance).all()):
         return ref, False
-    _, _, twist = _output_covariance(ref.covariance, ref.R, ref.C, ref.w, fr.spr)
-    om, vc, _, _ = physical_velocities(ref.R, ref.C, ref.w, ref.t, fr.spr)
-    d = np.r_[vc, om] - prior.mean_vector()
-    info = prior.information()
-    # (S + P)^-1 = Lam (I + S Lam)^-1 with Lam = P^-1 (zero rows for unconstrained axes)
-    try:
-        m2 = float(d @ info @ np.linalg.solve(np.eye(6) + twist @ info, d))
-    except np.linalg.LinAlgError:
-        return ref, False
-    if not m2 < PRIOR_CONFLICT:
+    if not prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr) < PRIOR_CONFLICT:
         return ref, False
     return refine_rs_pose(*start, X, x, tau, th, rolling_shutter=rolling, prior=prior,
                           seconds_per_unit_r=fr.spr), True

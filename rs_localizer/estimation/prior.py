@@ -23,7 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["MotionPrior", "prior_arrays", "linear_prior_rows", "sample_prior_rows"]
+__all__ = ["MotionPrior", "prior_arrays", "linear_prior_rows", "sample_prior_rows",
+           "prior_conflict"]
 
 
 def _vector6(a, name):
@@ -218,3 +219,51 @@ def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noi
                  np.ascontiguousarray(C0, dtype=np.float64), float(seconds_per_unit_r),
                  float(noise), P, q)
     return P, q
+
+
+@njit(cache=True)
+def _conflict(cov12, C, w, t, s, mean, Lam):
+    # z = (v, omega) = ((w x C - t) / s, -w / s) and its Jacobian Jz (6, 12) over
+    # (delta, C, w, t) (README "Conventions")
+    z = np.empty(6)
+    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
+    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
+    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
+    for a in range(3):
+        z[3 + a] = -w[a] / s
+    Jz = np.zeros((6, 12))
+    Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
+    Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
+    Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
+    Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
+    Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
+    Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
+    for a in range(3):
+        Jz[a, 9 + a] = -1.0 / s
+        Jz[3 + a, 6 + a] = -1.0 / s
+    S = Jz @ cov12 @ Jz.T
+    d = z - mean
+    # (S + Lam^-1)^-1 = Lam (I + S Lam)^-1, defined for a singular Lam too
+    M = np.eye(6) + S @ Lam
+    y = np.linalg.solve(M, d)
+    return d @ (Lam @ y)
+
+
+def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: float) -> float:
+    """Prior-data conflict of an estimate: the squared Mahalanobis distance of its velocities
+    ``z = (v, omega)`` (from the model's C, w, t per unit r, README "Conventions") from the
+    prior mean under the sum of their covariance (propagated from ``covariance``, (12, 12)
+    over (delta, C, w, t)) and the prior's: ``(z - m)^T (S + P)^-1 (z - m)``, chi-square with
+    6 dof if the prior is right. ``inf`` if it cannot be computed (singular)."""
+    on, mean, Lam = prior_arrays(prior)
+    if not on:
+        return 0.0
+    f64 = np.float64
+    try:
+        return float(_conflict(np.ascontiguousarray(covariance, dtype=f64),
+                               np.ascontiguousarray(C, dtype=f64),
+                               np.ascontiguousarray(w, dtype=f64),
+                               np.ascontiguousarray(t, dtype=f64), float(seconds_per_unit_r),
+                               mean, Lam))
+    except Exception:  # numba raises for a singular system
+        return float("inf")
