@@ -69,7 +69,8 @@ class EstimateOptions:
             planar scenes (coplanar 3D points) local optimization and the refinement are
             maximum a posteriori and the hypotheses use damped solves; on other scenes the
             final maximum-likelihood refinement is followed by a MAP one unless the data
-            conflict with the prior (a camera much faster than it allows, see
+            conflict with the prior (a camera much faster than it allows) or the prior would
+            move the velocities by less than a tenth of their standard deviation (see
             :func:`_final_refinement`). The covariance then includes the prior. With
             ``MotionPrior(always=True)`` (e.g. a tracker's prediction) it is used on every
             frame. ``None``: maximum likelihood everywhere.
@@ -394,6 +395,9 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
 #: :func:`_final_refinement`
 PRIOR_CONFLICT = 16.81
+#: below this squared shift (in the data's own metric: a tenth of their standard deviation)
+#: the prior's effect is negligible and the MAP refinement is skipped
+PRIOR_NEGLIGIBLE = 0.01
 
 
 def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
@@ -402,8 +406,10 @@ def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
     With ``fr.prior`` (planar frames, or a prior with ``always``): MAP. Otherwise maximum
     likelihood first; then, if ``prior`` is not None and does not conflict with the data (the
     ML velocities ``z`` with their covariance ``S`` against the prior's mean ``m`` and
-    covariance ``P``: ``(z - m)^T (S + P)^-1 (z - m)`` below :data:`PRIOR_CONFLICT`), MAP
-    from the ML estimate. A camera far faster than the prior allows (the paper's protocol:
+    covariance ``P``: ``(z - m)^T (S + P)^-1 (z - m)`` below :data:`PRIOR_CONFLICT`) and would
+    move them by at least a tenth of their standard deviation (:func:`~.prior.prior_conflict`,
+    :data:`PRIOR_NEGLIGIBLE`; else MAP and ML are the same for all purposes), MAP from the ML
+    estimate. A camera far faster than the prior allows (the paper's protocol:
     8.7 rad/s, 5 m/s) keeps its ML estimate, so a zero-mean prior cannot bias it; where the
     data hardly determine the velocities (small or distant objects), the prior sharpens them.
     Returns (RefineResult, whether the prior was used)."""
@@ -414,11 +420,11 @@ def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
                          seconds_per_unit_r=fr.spr)
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None
+    # (NaN in a failed refinement makes both tests false: the ML result stays)
+    conflict, shift = prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr)
+    if not (conflict < PRIOR_CONFLICT and shift >= PRIOR_NEGLIGIBLE):
+        return ref, False
     start = (ref.R, ref.C, ref.w, ref.t)
-    if not (all(np.isfinite(c).all() for c in start) and np.isfinite(ref.covariance).all()):
-        return ref, False
-    if not prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr) < PRIOR_CONFLICT:
-        return ref, False
     return refine_rs_pose(*start, X, x, tau, th, rolling_shutter=rolling, prior=prior,
                           seconds_per_unit_r=fr.spr), True
 

@@ -89,6 +89,13 @@ class MotionPrior:
             except np.linalg.LinAlgError:
                 raise ValueError("motion prior covariance must be positive definite") from None
             object.__setattr__(self, "covariance", S)
+        # (on, mean, information) for the kernels, computed once (the prior is immutable)
+        if self.enabled:
+            Lam = self.information()
+            arrays = (True, self.mean_vector(), np.ascontiguousarray(0.5 * (Lam + Lam.T)))
+        else:
+            arrays = (False, np.zeros(6), np.zeros((6, 6)))
+        object.__setattr__(self, "_arrays", arrays)
 
     @staticmethod
     def _inverse_variance(sigma):
@@ -119,10 +126,9 @@ class MotionPrior:
 def prior_arrays(prior: MotionPrior | None):
     """``(on, mean (6,), information (6, 6))`` for the numba kernels; ``on`` False (and zero
     arrays) for ``None`` or a prior that constrains nothing."""
-    if prior is None or not prior.enabled:
+    if prior is None:
         return False, np.zeros(6), np.zeros((6, 6))
-    Lam = prior.information()
-    return True, prior.mean_vector(), np.ascontiguousarray(0.5 * (Lam + Lam.T))
+    return prior._arrays
 
 
 def linear_prior_rows(prior: MotionPrior, C0, seconds_per_unit_r: float, scale=1.0):
@@ -246,24 +252,35 @@ def _conflict(cov12, C, w, t, s, mean, Lam):
     # (S + Lam^-1)^-1 = Lam (I + S Lam)^-1, defined for a singular Lam too
     M = np.eye(6) + S @ Lam
     y = np.linalg.solve(M, d)
-    return d @ (Lam @ y)
+    Ly = Lam @ y
+    # the linear-Gaussian posterior moves z by S Lam y; in the data's own metric S^-1 that is
+    # y^T Lam S Lam y
+    return d @ Ly, Ly @ (S @ Ly)
 
 
-def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: float) -> float:
-    """Prior-data conflict of an estimate: the squared Mahalanobis distance of its velocities
-    ``z = (v, omega)`` (from the model's C, w, t per unit r, README "Conventions") from the
-    prior mean under the sum of their covariance (propagated from ``covariance``, (12, 12)
-    over (delta, C, w, t)) and the prior's: ``(z - m)^T (S + P)^-1 (z - m)``, chi-square with
-    6 dof if the prior is right. ``inf`` if it cannot be computed (singular)."""
+def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: float):
+    """How an estimate's velocities relate to the prior (linear-Gaussian approximation).
+
+    ``z = (v, omega)`` from the model's C, w, t per unit r (README "Conventions"), with the
+    covariance ``S`` propagated from ``covariance`` ((12, 12) over (delta, C, w, t)); the prior
+    has mean ``m`` and covariance ``P``.
+
+    Returns:
+        (conflict, shift): ``conflict = (z - m)^T (S + P)^-1 (z - m)``, chi-square with 6 dof
+        if the prior is right; ``shift = dz^T S^-1 dz`` for the move ``dz = S (S + P)^-1
+        (z - m)`` the prior causes (MAP against maximum likelihood), in the data's own metric
+        (0.01: a tenth of the data's standard deviation). ``(inf, inf)`` if singular; ``(0,
+        0)`` for a disabled prior.
+    """
     on, mean, Lam = prior_arrays(prior)
     if not on:
-        return 0.0
+        return 0.0, 0.0
     f64 = np.float64
     try:
-        return float(_conflict(np.ascontiguousarray(covariance, dtype=f64),
-                               np.ascontiguousarray(C, dtype=f64),
-                               np.ascontiguousarray(w, dtype=f64),
-                               np.ascontiguousarray(t, dtype=f64), float(seconds_per_unit_r),
-                               mean, Lam))
+        c, sh = _conflict(np.ascontiguousarray(covariance, dtype=f64),
+                          np.ascontiguousarray(C, dtype=f64), np.ascontiguousarray(w, dtype=f64),
+                          np.ascontiguousarray(t, dtype=f64), float(seconds_per_unit_r), mean,
+                          Lam)
+        return float(c), float(sh)
     except Exception:  # numba raises for a singular system
-        return float("inf")
+        return float("inf"), float("inf")
