@@ -249,8 +249,8 @@ def _p3p_prerotations(fr: _Frame, samples, th2=None):
     With ``th2`` (squared inlier threshold, normalized; planar frames) each sample whose
     runner-up P3P solution scores close to the best (the planar two-fold ambiguity,
     :func:`~.sampling.second_prerotations`: within 2x the best squared error plus a quarter
-    of ``th2`` per point, i.e. half the threshold)
-    is repeated with it: returns (samples (K', s), R, C, ok) with K' >= K."""
+    of ``th2``, i.e. half the threshold, per point) is repeated with it: returns
+    (samples (K', s), R, C, ok) with K' >= K."""
     first3 = samples[:, :3]
     R, C, owner = p3p_batch(fr.bearings.take(first3, axis=0), fr.X.take(first3, axis=0))
     sel = select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
