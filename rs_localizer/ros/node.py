@@ -722,7 +722,7 @@ class RSLocalizerNode(Node):
         t_estimated = time.perf_counter()
         self.counts["points_dropped"] += int(est.num_dropped)
         if not est.success:
-            return self._fail(est.failure or "unknown",
+            return self._fail(est.failure or "estimator_error",
                               f"{len(uv)} points, {est.num_inliers} inliers, solver "
                               f"{cfg['solver']}")
         frame = cfg["camera_frame"] or msg.header.frame_id or "camera"
