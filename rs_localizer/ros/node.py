@@ -11,7 +11,8 @@ so the newest frames are solved); one worker thread takes them out, solves and p
 ``frames_received = frames_solved + frames_failed + frames_skipped (+ frames_pending)``, and the
 executor stays free for camera_info, parameters and diagnostics however slow a frame is.
 
-Subscriptions (sensor-data QoS, overridable with ``qos_overrides.<topic>.subscription.*``):
+Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; overridable with
+``qos_overrides.<topic>.subscription.*``):
     correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
                                               (+ id uint32, + score float32)
     keypoints        sensor_msgs/PointCloud2  u, v, id; 3D points from ``landmarks_file``
