@@ -181,15 +181,21 @@ def test_final_check_cheirality_and_depths():
         W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
         p = expm(tau[i] * W) @ R @ X[i] + C + tau[i] * t
         assert z[i] == pytest.approx(p[2], rel=1e-12)
-    assert check_final_model(R, C, w, t, X, tau, None) is None
+    assert (z > 0).all()
+    assert check_final_model(R, C, w, t, z, None) is None
     Xb = X.copy()
     Xb[7] = R.T @ (np.array([0.0, 0.0, -1.0]) - C)  # behind the camera at the reference time
     tb = tau.copy()
     tb[7] = 0.0
-    assert check_final_model(R, C, w, t, Xb, tb, None) == "cheirality"
-    assert check_final_model(R, C, w * 100, t, X, tau, motion_bounds(20, 30, 0.03)) == \
+    zb = depths_at_capture(R, C, w, t, Xb, tb)
+    assert zb[7] == pytest.approx(-1.0) and (np.delete(zb, 7) > 0).all()
+    assert check_final_model(R, C, w, t, zb, None) == "cheirality"
+    assert check_final_model(R, C, w, t, np.r_[z, np.nan], None) == "cheirality"
+    assert check_final_model(R, C, w * 100, t, z, motion_bounds(20, 30, 0.03)) == \
         "implausible_motion"
-    assert check_final_model(R, C * np.nan, w, t, X, tau, None) == "implausible_motion"
+    assert check_final_model(R, C * np.nan, w, t, z, None) == "implausible_motion"
+    assert depths_at_capture(R, C, np.zeros(3), t, X, tau) == pytest.approx(
+        (X @ R.T + C)[:, 2] + tau * t[2])
 
 
 def test_scoring_counts_points_behind_the_camera_as_outliers():

@@ -693,10 +693,11 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t)[inl])) * fr.f)
     timings["refine"] = time.perf_counter() - t0
     # the last word: plausible motion, every inlier in front of the camera at its capture time
-    reason = check_final_model(R, C, w, t, fr.X[inl], tau[inl], fr.motion_bounds)
+    z = depths_at_capture(R, C, w, t, fr.X, tau)
+    reason = check_final_model(R, C, w, t, z[inl], fr.motion_bounds)
     if reason is not None:
         return _fail(reason, solver, n_in, N, n_dropped, iters, timings)
-    n_behind = int(np.count_nonzero(~(depths_at_capture(R, C, w, t, fr.X, tau) > 0)))
+    n_behind = int(np.count_nonzero(~(z > 0)))
 
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, spr)
     cov, pose_cov, twist_cov = (None, None, None)
