@@ -225,7 +225,6 @@ class RSLocalizerNode(Node):
         self._cam_seq = 0            # arrival counter of camera_info entries
         self._info_stamps = deque(maxlen=64)   # stamps of the last camera_infos received
         self._frame_stamps = deque(maxlen=64)  # stamps of the last frames taken by the worker
-        self._info_synced = False    # camera_info comes with every frame, with its stamp
         self._camera = None          # CameraModel of the newest camera_info (with RS timing)
         self._landmarks = None       # (sorted ids, points)
         self._frontend = None        # image front end (frontend != none)
@@ -518,8 +517,6 @@ class RSLocalizerNode(Node):
                     del hist[0]
             self._camera = cam
             self._info_stamps.append(stamp)
-            if stamp in self._frame_stamps:  # it came after its frame: synchronized stream
-                self._info_synced = True
             self._lock.notify_all()
         if first:
             self.get_logger().info(
@@ -542,22 +539,22 @@ class RSLocalizerNode(Node):
         cfg = self.cfg
         deadline = time.monotonic() + cfg["camera_info_wait"]
         with self._lock:
+            # camera_info comes with every frame when the last two frames each got one with
+            # their stamp (before or after them)
+            infos = set(self._info_stamps)
+            synced = (len(self._frame_stamps) >= 2
+                      and all(self._frame_stamps[-k] in infos for k in (1, 2)))
             self._frame_stamps.append(stamp)
             while not self._stop:
                 if self._cam_hist:
-                    if (not self._info_synced or stamp in self._info_stamps
+                    if (not synced or stamp in self._info_stamps
                             or self._cam_hist[-1][0] >= stamp):
                         break
                 elif cfg["fallback"] is not None:
                     return cfg["fallback"]
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    if self._cam_hist:  # its camera_info did not come: stop waiting for them
-                        self._info_synced = False
+                if time.monotonic() >= deadline:
                     break
-                self._lock.wait(remaining)
-            if stamp in self._info_stamps:
-                self._info_synced = True
+                self._lock.wait(deadline - time.monotonic())
             hist = self._cam_hist
             if not hist:
                 return cfg["fallback"]
@@ -655,7 +652,6 @@ class RSLocalizerNode(Node):
                 keep = [max(self._cam_hist, key=lambda e: e[4])]
             self._cam_hist = keep
             self._frame_stamps.clear()
-            self._info_synced = False
 
     def _handle(self, msg, extract, arrival=None):
         """The pipeline of every frame: checks, ``extract(msg, camera, stamp) -> (uv, xyz,
