@@ -337,7 +337,8 @@ def test_bad_inputs(tmp_path, ros_context, frames):
                                                stamp=f.stamp_ns))
         expected_capped = 1
 
-        st, v = probe.wait_diag(lambda v: int(v.get("frames_received", 0)) == received)
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_received", 0)) == received
+                                and v.get("frames_pending") == "0")
         assert int(v["frames_received"]) == received, v
         for reason, n in expected.items():
             assert int(v.get(f"failed.{reason}", 0)) == n, (reason, v)

@@ -724,6 +724,9 @@ class RSLocalizerNode(Node):
                               f"{cfg['solver']}")
         frame = cfg["camera_frame"] or msg.header.frame_id or "camera"
         mf = cfg["map_frame"]
+        self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
+        self.inliers.append(est.num_inliers)
+        self._planar_last = (est.planar, est.condition_number)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
         self.pub_pose.publish(cv.pose_stamped(est, out_stamp, mf))
         if self.pub_twist.get_subscription_count():
@@ -735,9 +738,6 @@ class RSLocalizerNode(Node):
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
             self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
         self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
-        self.counts["solved"] += 1
-        self.inliers.append(est.num_inliers)
-        self._planar_last = (est.planar, est.condition_number)
         toc = time.perf_counter()
         self.latencies.append(toc - arrival)
         self.stamp_ages.append((self.get_clock().now().nanoseconds - stamp) * 1e-9)
