@@ -86,7 +86,7 @@ def plausible_motion(Rs, Cs, ws, ts, bounds):
     return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _plausible(Cs, ws, ts, w_max2, v_max2):
     out = np.empty(Cs.shape[0], dtype=np.bool_)
     for k in range(Cs.shape[0]):
@@ -120,7 +120,7 @@ def depths_at_capture(R, C, w, t, X, tau) -> np.ndarray:
                    *(np.ascontiguousarray(a, dtype=np.float64) for a in (C, w, t)), X, tau)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _depths(R, C, w, t, X, tau):
     n = X.shape[0]
     out = np.empty(n)
@@ -138,7 +138,7 @@ def _depths(R, C, w, t, X, tau):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _scatter(P):
     """Upper triangle of the scatter matrix of the centred rows of P (N, d), d = 2 or 3."""
     n, d = P.shape
