@@ -660,7 +660,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     timings["ransac"] = time.perf_counter() - t0 - t_local
     timings["local_optimization"] = t_local
     if best is None:  # (every model moved implausibly fast: say so)
-        return _fail("implausible_motion" if n_implausible else "no_hypothesis", solver, n_in, N, n_dropped, iters, timings)
+        return _fail("implausible_motion" if n_implausible else "no_hypothesis", solver, n_in,
+                     N, n_dropped, iters, timings)
 
     inl = best_inl
     if best_count < min_inl:

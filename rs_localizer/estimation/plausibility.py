@@ -7,7 +7,8 @@ camera centre) with angular velocities of thousands of rad/s and a camera kilome
 checks here keep such models out:
 
 * :func:`plausible_motion`: the physical angular and linear velocities (paper eq. 5 with
-  ``tau = time / seconds_per_unit_r``, see :func:`rs_localizer.estimation.estimate.physical_velocities`)
+  ``tau = time / seconds_per_unit_r``, see
+  :func:`rs_localizer.estimation.estimate.physical_velocities`)
   within the bounds of :class:`~rs_localizer.estimation.estimate.EstimateOptions`. Applied to
   every RANSAC hypothesis and local-optimization candidate (an implausible model scores like
   "no inliers") and to the final model.
