@@ -1,7 +1,7 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
 #   make test   the whole test suite
-# Other targets: venv, sample-bag (regenerate the committed bags), bench-node, clean.
+# Other targets: venv, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -11,7 +11,7 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test sample-bag bench-node clean
+.PHONY: venv demo test sample-bag bench-node fuzz-long clean
 
 venv: $(STAMP)
 
@@ -30,6 +30,12 @@ demo: venv
 test: venv
 	@$(PY) -m pytest $(PYTEST_ARGS) test; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest: no tests collected"; rc=0; fi; exit $$rc
+
+# the property-based fuzz suite with 20000 examples per test (make test runs a bounded profile)
+FUZZ_EXAMPLES ?= 20000
+fuzz-long: venv
+	RS_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -s test/test_fuzz.py \
+		--hypothesis-show-statistics
 
 # the committed bags: the demo's sample (correspondences) and a small keypoints bag for tests
 sample-bag: venv

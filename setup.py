@@ -31,7 +31,7 @@ setup(
         "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp",
                 "rosbags>=0.10"],
         "bench": ["threadpoolctl"],
-        "test": ["pytest"],
+        "test": ["pytest", "hypothesis"],
     },
     tests_require=["pytest"],
     zip_safe=True,

@@ -9,11 +9,13 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["save_landmarks_csv", "load_landmarks_csv", "marker_dictionary", "write_marker_map",
+__all__ = ["save_landmarks_csv", "load_landmarks_csv", "open_regular_file", "check_regular_file", "marker_dictionary", "write_marker_map",
            "load_marker_map", "SCENE_DIR", "scene_names", "scene_path", "scene_quad_frames",
            "marker_layout", "checkerboard_layout", "checkerboard_corners"]
 
@@ -29,11 +31,36 @@ def save_landmarks_csv(path, ids, points):
             f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
 
 
+def check_regular_file(path) -> None:
+    """Raise ValueError unless ``path`` is a regular file (``os.stat``, which does not block on
+    a FIFO or a device the way ``open`` does); OSError (FileNotFoundError...) if it cannot be
+    stat'ed."""
+    st = os.stat(path)
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: not a regular file")
+
+
+def open_regular_file(path, mode: str = "r"):
+    """``open(path, mode)`` (read-only modes) that never blocks on a FIFO or a device: the file
+    is opened non-blocking and checked to be a regular file (``fstat``, so it cannot be swapped
+    between check and open). Raises ValueError for anything else, OSError as ``open``."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"{path}: not a regular file")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, mode)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def load_landmarks_csv(path):
     """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
-    points (M, 3)). Raises ValueError for malformed rows or duplicate ids."""
+    points (M, 3)). Raises ValueError for malformed rows, duplicate ids or a path that is not a
+    regular file (a FIFO would block the reader), OSError if it cannot be opened."""
     ids, pts = [], []
-    with open(path) as f:
+    with open_regular_file(path) as f:
         for lineno, line in enumerate(f, 1):
             line = line.strip()
             if not line or line.startswith("#"):

@@ -40,7 +40,12 @@ def test_stamps():
     st = cv.ns_to_stamp(ns)
     assert (st.sec, st.nanosec) == (1_700_000_123, 456_789_012)
     assert cv.stamp_to_ns(st) == ns
-    assert cv.stamp_to_ns(cv.ns_to_stamp(-5)) == 0
+    # never clamped or wrapped (issue 11: (2^31 - 1, 999999999) + 10.8 ms came out negative)
+    for bad in (-5, 2**31 * 10**9, 2**63):
+        with pytest.raises(ValueError, match="stamp"):
+            cv.ns_to_stamp(bad)
+    top = cv.ns_to_stamp(2**31 * 10**9 - 1)
+    assert (top.sec, top.nanosec) == (2**31 - 1, 999_999_999)
 
 
 def test_camera_info_plumb_bob():
@@ -183,3 +188,72 @@ def test_tf_message_availability():
     else:
         with pytest.raises(ImportError):
             cv.tf_message(est, 5, "map", "cam")
+
+
+# ------------------------------------------------------------------ issue 11: validation
+def test_checked_stamp():
+    from builtin_interfaces.msg import Time
+
+    assert cv.checked_stamp_ns(Time(sec=3, nanosec=999_999_999)) == 3_999_999_999
+    for sec, nsec in ((1, 1_000_000_000), (1, 4_000_000_000), (-1, 0), (-5, 10)):
+        t = Time()
+        t.sec, t.nanosec = sec, nsec
+        with pytest.raises(ValueError, match="stamp") as e:
+            cv.checked_stamp_ns(t)
+        assert e.value.reason == "bad_stamp"
+
+
+def test_camera_info_roi_outside_the_image_is_rejected():
+    """A ROI outside or larger than the image was applied (a pose 77 deg off; a 5000x5000 ROI
+    moved the output stamp by 64 ms)."""
+    for x, y, w, h in ((1000, 0, 640, 480), (0, 300, 640, 480), (0, 0, 5000, 5000),
+                       (0, 0, 640, 0), (0, 0, 0, 480), (1280, 0, 0, 0)):
+        info = _info(d=[0.0] * 5)
+        info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = x, y, w, h
+        with pytest.raises(ValueError, match="roi") as e:
+            cv.camera_model_from_camera_info(info)
+        assert e.value.reason == "bad_roi", (x, y, w, h)
+    info = _info(d=[0.0] * 5)
+    info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = 640, 240, 640, 480
+    cam = cv.camera_model_from_camera_info(info)  # touches the corner: fine
+    assert (cam.width, cam.height) == (640, 480)
+
+
+@pytest.mark.parametrize("d", [[0.1, -0.2, 0.001], [0.1, -0.2], [0.1, -0.2, 0.001, 0.002, 0.05, 0.3],
+                               [0.1, -0.2, 0.001, 0.002, 0.05, 0.0, 0.0, 0.1, 0.2],
+                               [0.1, np.nan, 0.0, 0.0, 0.0], [np.inf, 0, 0, 0, 0]])
+def test_camera_info_ambiguous_or_bad_distortion_is_rejected(d):
+    """plumb_bob D with 3 or 6 non-zero coefficients was zero-padded (1.7-3.3 cm error)."""
+    with pytest.raises(ValueError) as e:
+        cv.camera_model_from_camera_info(_info("plumb_bob", d))
+    assert e.value.reason == "bad_distortion"
+    with pytest.raises(ValueError):  # the fallback (camera.d) goes through the same check
+        cv.camera_model(np.diag([1000.0, 1000.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]],
+                        d, 1280, 720, "plumb_bob")
+
+
+def test_camera_info_trailing_zeros_are_trimmed():
+    cam = cv.camera_model_from_camera_info(_info("plumb_bob", [0.1, -0.2, 0.001, 0.002, 0.05, 0.0]))
+    np.testing.assert_array_equal(cam.D, [0.1, -0.2, 0.001, 0.002, 0.05])
+    cam = cv.camera_model_from_camera_info(_info("plumb_bob", [0.1, -0.2, 0.001, 0.002, 0.0, 0.0]))
+    np.testing.assert_array_equal(cam.D, [0.1, -0.2, 0.001, 0.002, 0.0])
+
+
+def test_camera_info_nan_intrinsics_message():
+    """NaN cx was logged as 'K has fx or fy <= 0'."""
+    info = _info()
+    k = list(info.k)
+    k[2] = float("nan")
+    info.k = k
+    with pytest.raises(ValueError, match="non-finite") as e:
+        cv.camera_model_from_camera_info(info)
+    assert e.value.reason == "bad_intrinsics"
+    info = _info()
+    info.k = [1000.0, 0.0, 640.0, 0.0, 990.0, 360.0, 0.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="K") as e:
+        cv.camera_model_from_camera_info(info)
+    assert e.value.reason == "bad_intrinsics"
+    bad = _info(w=0)
+    with pytest.raises(ValueError) as e:
+        cv.camera_model_from_camera_info(bad)
+    assert e.value.reason == "bad_size"

@@ -159,7 +159,9 @@ def test_all_outliers_fail_cleanly():
     pts = rng.uniform(0, 999, (300, 2))
     X = rng.uniform(-1, 1, (300, 3))
     e = estimate_rs_pose(pts, X, CAM, "r6p_1lin")
-    assert not e.success and e.failure in ("too_few_inliers", "no_hypothesis")
+    # (random pixels: every minimal-sample model moves implausibly fast)
+    assert not e.success and e.failure in ("too_few_inliers", "no_hypothesis",
+                                           "implausible_motion")
     assert np.isfinite(e.R).all() and e.num_inliers == 0
 
 

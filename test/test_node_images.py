@@ -221,7 +221,8 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
         good(copy(f, step=f.width + 16, data=padded.tobytes()))
         n_good = 7
 
-        st, v = probe.wait_diag(lambda v: int(v.get("image_frames", 0)) == sent["images"])
+        st, v = probe.wait_diag(lambda v: int(v.get("image_frames", 0)) == sent["images"]
+                                and v.get("frames_pending") == "0")  # (all solved or failed)
         assert int(v["image_frames"]) == int(v["frames_received"]) == sent["images"], v
         for reason, n in expected.items():
             assert int(v.get(f"failed.{reason}", 0)) == n, (reason, v)

@@ -184,3 +184,56 @@ def test_rosbags_messages_are_accepted():
     c = pc.read_correspondences(msg)
     np.testing.assert_allclose(c.uv, uv, rtol=1e-6)
     np.testing.assert_array_equal(c.ids, np.arange(9))
+
+
+# ------------------------------------------------------------------ issue 11: hostile layouts
+def test_overlapping_offsets_are_a_layout_error():
+    """A v field at the offset of u (every v == u) was accepted and solved 2000 km off."""
+    rng = np.random.default_rng(5)
+    arr = pc.correspondence_array(rng.uniform(0, 99, (4, 2)), rng.uniform(0, 9, (4, 3)))
+    for name, off in (("v", 0), ("v", 2), ("z", 14), ("x", 4)):
+        fields = [(k, 4 * i, pc.FLOAT32, 1) for i, k in enumerate("uvxyz")]
+        i = "uvxyz".index(name)
+        fields[i] = (name, off, pc.FLOAT32, 1)
+        with pytest.raises(ValueError, match="overlap") as e:
+            pc.read_correspondences(_cloud(fields, 20, arr.tobytes(), 4))
+        assert e.value.reason == "bad_layout"
+    # a count > 1 running into the next field
+    fields = [("u", 0, pc.FLOAT32, 2)] + [(k, 4 * i, pc.FLOAT32, 1)
+                                          for i, k in enumerate("uvxyz") if k != "u"]
+    with pytest.raises(ValueError, match="overlap") as e:
+        pc.read_correspondences(_cloud(fields, 20, arr.tobytes(), 4))
+    assert e.value.reason == "bad_layout"
+
+
+def test_huge_count_is_a_layout_error_not_a_memory_error():
+    fields = [(k, 4 * i, pc.FLOAT32, 1) for i, k in enumerate("uvxyz")]
+    fields[4] = ("z", 16, pc.FLOAT32, 2**32 - 1)
+    with pytest.raises(ValueError, match="does not fit") as e:
+        pc.read_correspondences(_cloud(fields, 20, bytes(60), 3))
+    assert e.value.reason == "bad_layout"
+
+
+def test_fields_that_are_not_read_are_ignored():
+    """An extra field of unknown datatype rejected the whole cloud; fields the reader does not
+    use (unknown type, empty name, overlapping each other or beyond the record) are ignored."""
+    rng = np.random.default_rng(6)
+    uv, xyz = rng.uniform(0, 99, (5, 2)), rng.uniform(0, 9, (5, 3))
+    dt = np.dtype({"names": list("uvxyz"), "formats": ["<f4"] * 5,
+                   "offsets": [0, 4, 8, 12, 16], "itemsize": 32})
+    arr = np.zeros(5, dt)
+    for i, k in enumerate("uv"):
+        arr[k] = uv[:, i]
+    for i, k in enumerate("xyz"):
+        arr[k] = xyz[:, i]
+    fields = [(k, 4 * i, pc.FLOAT32, 1) for i, k in enumerate("uvxyz")]
+    fields += [("rgb", 20, 42, 1), ("", 24, pc.UINT8, 1), ("a", 20, pc.FLOAT64, 1),
+               ("b", 22, pc.UINT16, 1), ("c", 30, pc.FLOAT64, 1), ("d", 28, 0, 7)]
+    c = pc.read_correspondences(_cloud(fields, 32, arr.tobytes(), 5))
+    np.testing.assert_allclose(c.uv, uv, rtol=1e-6)
+    np.testing.assert_allclose(c.xyz, xyz, rtol=1e-6)
+    assert c.ids is None and c.scores is None
+    kfields = [("u", 0, pc.FLOAT32, 1), ("v", 4, pc.FLOAT32, 1), ("id", 8, pc.UINT32, 1),
+               ("w", 12, 99, 1), ("junk", 100, pc.FLOAT32, 1)]
+    k = pc.read_keypoints(_cloud(kfields, 20, bytes(40), 2))
+    assert len(k) == 2

@@ -87,3 +87,39 @@ def test_landmarks_csv_roundtrip(tmp_path):
     (tmp_path / "dup.csv").write_text("1,0,0,0\n1,1,1,1\n")
     with pytest.raises(ValueError, match="duplicate"):
         load_landmarks_csv(tmp_path / "dup.csv")
+
+
+def test_landmark_files_must_be_regular(tmp_path):
+    """Issue 11, defect 7: a FIFO as landmarks_file blocked the reader (and the node) until
+    someone wrote to it. Only regular files are opened; the check never blocks."""
+    import os
+    import threading
+
+    from rs_localizer.maps import check_regular_file
+
+    fifo = tmp_path / "lm.fifo"
+    os.mkfifo(fifo)
+    out = {}
+
+    def load():
+        try:
+            load_landmarks_csv(fifo)
+        except ValueError as e:
+            out["error"] = str(e)
+
+    th = threading.Thread(target=load, daemon=True)
+    th.start()
+    th.join(5.0)
+    if th.is_alive():  # (release the blocked reader before failing)
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+    assert not th.is_alive() and "not a regular file" in out.get("error", ""), out
+    for bad in (fifo, tmp_path):
+        with pytest.raises(ValueError, match="not a regular file"):
+            check_regular_file(bad)
+    with pytest.raises(FileNotFoundError):
+        check_regular_file(tmp_path / "missing.csv")
+    ok = tmp_path / "lm.csv"
+    save_landmarks_csv(ok, [3, 5], np.array([[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]]))
+    check_regular_file(ok)
+    ids, pts = load_landmarks_csv(ok)
+    assert ids.tolist() == [3, 5] and pts[1].tolist() == [3.0, 4.0, 5.0]

@@ -14,6 +14,8 @@ import numpy as np
 
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
                        select_prerotations, valid_rows)
+from .plausibility import (check_final_model, collinear_3d, depths_at_capture,
+                           image_degenerate, motion_bounds, plausible_motion)
 from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
@@ -74,6 +76,14 @@ class EstimateOptions:
             :func:`_final_refinement`). The covariance then includes the prior. With
             ``MotionPrior(always=True)`` (e.g. a tracker's prediction) it is used on every
             frame. ``None``: maximum likelihood everywhere.
+        max_angular_velocity: rad/s; models whose camera turns faster are implausible: they
+            score as having no inliers in RANSAC and local optimization, and a final model
+            beyond it fails with ``implausible_motion``. ``inf`` disables the bound. Not
+            applied with global-shutter timing (``camera.seconds_per_unit_r == 0``).
+        max_linear_velocity: m/s (map units per second), the same for the camera's speed.
+
+    Raises:
+        ValueError: a velocity bound that is not > 0 (NaN included).
     """
 
     threshold_px: float = 2.0
@@ -93,6 +103,14 @@ class EstimateOptions:
     max_point_norm: float = 1e6
     pretest_points: int = 24
     motion_prior: MotionPrior | None = MotionPrior()
+    max_angular_velocity: float = 20.0
+    max_linear_velocity: float = 50.0
+
+    def __post_init__(self):
+        for name in ("max_angular_velocity", "max_linear_velocity"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"{name} must be > 0 (inf: no bound), got "
+                                 f"{getattr(self, name)!r}")
 
 
 @dataclass(frozen=True)
@@ -101,10 +119,15 @@ class RSPoseEstimate:
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
-        failure: reason code when not successful (``too_few_points``,
-            ``no_hypothesis``, ``too_few_inliers``, ``degenerate_geometry`` for inliers on a
-            3D line, ``planar_scene`` for a solver that cannot work on coplanar points (R9P)
-            given a planar scene), else ``None``.
+        failure: reason code when not successful, else ``None``: ``too_few_points`` (fewer
+            valid rows than ``min_inliers``), ``no_hypothesis`` (no sample gave a model),
+            ``too_few_inliers``, ``degenerate_geometry`` (the points, or the inliers, are
+            identical or on one 3D line, or their pixels lie within the inlier threshold of
+            one image line), ``planar_scene`` (a solver that cannot work on coplanar points,
+            R9P, given a planar scene), ``implausible_motion`` (the best model, or every
+            hypothesis, moves faster than ``max_angular_velocity`` / ``max_linear_velocity``),
+            ``cheirality`` (an inlier of the best model is not in front of the camera at its
+            capture time).
         solver: solver name used.
         R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
         w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
@@ -114,7 +137,10 @@ class RSPoseEstimate:
             (rad/s, m/s).
         angular_velocity_world, linear_velocity_world: (3,) the same in the world frame.
         inliers: (N,) bool over the input rows (invalid rows are False).
-        num_valid: rows that passed validation; num_dropped: rows dropped (NaN/inf, behind...).
+        num_valid: rows that passed validation (finite, undistortable, within
+            ``max_point_norm``); num_behind: valid rows behind the camera at their capture
+            time under the final model (0 without one); num_dropped: rows not used, those
+            that failed validation plus ``num_behind``.
         ransac_iterations: hypotheses drawn. timings: stage -> seconds.
         covariance: (12, 12) over (rotation of the camera in the world [rad, world axes],
             position [m, world], angular velocity [rad/s, camera frame], linear velocity [m/s,
@@ -150,6 +176,7 @@ class RSPoseEstimate:
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     num_valid: int = 0
     num_dropped: int = 0
+    num_behind: int = 0
     ransac_iterations: int = 0
     timings: dict = field(default_factory=dict)
     covariance: np.ndarray | None = None
@@ -210,12 +237,15 @@ class _Frame:
     """Validated, normalized correspondences of one frame. ``spr``: the camera's seconds per
     unit r; ``planar``: the 3D points are coplanar; ``prior``: the motion prior of local
     optimization and refinement (None: maximum likelihood); ``regularize``: hypotheses use it
-    too (planar scene)."""
+    too (planar scene); ``motion_bounds``: the velocity bounds per unit r
+    (:func:`~rs_localizer.estimation.plausibility.motion_bounds`) that :func:`_evaluate`
+    enforces."""
 
     spr = 0.0
     planar = False
     prior = None
     regularize = False
+    motion_bounds = None
 
     def __init__(self, x, X, r, r0e, r0, d, f):
         self.x, self.X, self.r, self.r0e, self.r0, self.d, self.f = x, X, r, r0e, r0, d, f
@@ -339,8 +369,11 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
 
 def _evaluate(fr: _Frame, model, th2):
     """(MSAC score, inlier mask) of one model (R, C, w, t) on all points of the frame;
-    ``(inf, all False)`` for a model with non-finite parameters."""
+    ``(inf, all False)`` for a model with non-finite parameters or implausible motion
+    (``fr.motion_bounds``)."""
     R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64) for a in model)
+    if fr.motion_bounds is not None and not plausible_motion(R, C, w, t, fr.motion_bounds):
+        return np.inf, np.zeros(len(fr.x), dtype=bool)
     sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2)
     return sc, inl
 
@@ -429,13 +462,15 @@ def _final_refinement(fr: _Frame, model, inl, th, rolling, prior):
                           seconds_per_unit_r=fr.spr), True
 
 
-def _collinear(X, tol: float = 1e-3) -> bool:
-    """True if the 3D points lie (nearly) on a line: the pose about that line is then free."""
-    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
-    return bool(s[0] == 0 or s[1] < tol * s[0])
+def _degenerate(fr: _Frame, u_px, mask, threshold_px: float) -> bool:
+    """True if the points ``mask`` selects fix no pose: identical or collinear 3D points, or
+    pixels within ``threshold_px`` of one image line (see :mod:`.plausibility`)."""
+    return collinear_3d(fr.X[mask]) or image_degenerate(u_px[mask], fr.x[mask], fr.f,
+                                                        threshold_px)
 
 
 def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
+    """An unsuccessful :class:`RSPoseEstimate` with ``reason``."""
     return RSPoseEstimate(success=False, failure=reason, solver=solver,
                           inliers=np.zeros(n, dtype=bool), num_valid=n_valid,
                           num_dropped=n_dropped, ransac_iterations=iters,
@@ -547,20 +582,30 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             raise ValueError(f"scores must have shape ({n_in},), got {scores.shape}")
     s = sample_size(solver)
     min_inl = max(opts.min_inliers, s + 1)
-    timings["prepare"] = time.perf_counter() - t_start
     if N < min_inl:
+        timings["prepare"] = time.perf_counter() - t_start
         return _fail("too_few_points", solver, n_in, N, n_dropped, 0, timings)
+    # points that fix no pose (identical, on a 3D line, pixels on one image line): RANSAC
+    # would only find absurd rolling-shutter "fits" of them
+    u_fr = np.asarray(points2d_px, dtype=np.float64).take(rows, axis=0)
+    all_rows = np.ones(N, dtype=bool)
+    if _degenerate(fr, u_fr, all_rows, opts.threshold_px):
+        timings["prepare"] = time.perf_counter() - t_start
+        return _fail("degenerate_geometry", solver, n_in, N, n_dropped, 0, timings)
     # planar scenes (issue 16): R9P cannot solve them; the RS solvers' hypotheses use the
     # motion prior (damped solves for w, t: the plain ones let w, t absorb the noise)
-    fr.spr = camera.seconds_per_unit_r
+    fr.spr = spr = camera.seconds_per_unit_r
+    fr.motion_bounds = motion_bounds(opts.max_angular_velocity, opts.max_linear_velocity, spr)
     fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)
     if fr.planar and not solver_info(solver).coplanar:
+        timings["prepare"] = time.perf_counter() - t_start
         return _fail("planar_scene", solver, n_in, N, n_dropped, 0, timings)
     prior = opts.motion_prior
     prior_on = bool(prior is not None and prior.enabled and fr.spr > 0
                     and solver_info(solver).rolling)
     fr.prior = prior if prior_on and (fr.planar or prior.always) else None
     fr.regularize = bool(fr.prior is not None and fr.planar)
+    timings["prepare"] = time.perf_counter() - t_start
 
     # PROSAC-style ordering: sample from the best-scored points first, growing the pool
     order = np.arange(N)
@@ -577,6 +622,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     needed = float(opts.max_iterations)
     batch = max(int(opts.batch_size), 1)
     t_local = 0.0
+    n_implausible = 0  # hypotheses rejected for their motion alone
     t0 = time.perf_counter()
     while iters < opts.max_iterations and (iters < needed or iters < opts.min_iterations):
         # batches double (fewer calls), but draw no more samples than termination asks for
@@ -590,6 +636,10 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         samples = order.take(_draw_samples(rng, pool, s, K))
         iters += K
         Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
+        if fr.motion_bounds is not None:  # an implausible hypothesis has no inliers
+            plausible = plausible_motion(Rs, Cs, ws, ts, fr.motion_bounds)
+            n_implausible += int(np.count_nonzero(ok & ~plausible))
+            ok = ok & plausible
         if not ok.any():
             continue
         pre_min = int(0.5 * opts.pretest_points * best_count / N)
@@ -609,13 +659,14 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             needed = _required_iterations(best_count / N, s, opts.confidence)
     timings["ransac"] = time.perf_counter() - t0 - t_local
     timings["local_optimization"] = t_local
-    if best is None:
-        return _fail("no_hypothesis", solver, n_in, N, n_dropped, iters, timings)
+    if best is None:  # (every model moved implausibly fast: say so)
+        return _fail("implausible_motion" if n_implausible else "no_hypothesis", solver, n_in,
+                     N, n_dropped, iters, timings)
 
     inl = best_inl
     if best_count < min_inl:
         return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
-    if _collinear(fr.X[inl]):
+    if _degenerate(fr, u_fr, inl, opts.threshold_px):
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
     rolling = solver_info(solver).rolling
@@ -642,8 +693,13 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     else:
         rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t)[inl])) * fr.f)
     timings["refine"] = time.perf_counter() - t0
+    # the last word: plausible motion, every inlier in front of the camera at its capture time
+    z = depths_at_capture(R, C, w, t, fr.X, tau)
+    reason = check_final_model(R, C, w, t, z[inl], fr.motion_bounds)
+    if reason is not None:
+        return _fail(reason, solver, n_in, N, n_dropped, iters, timings)
+    n_behind = int(np.count_nonzero(~(z > 0)))
 
-    spr = camera.seconds_per_unit_r
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, spr)
     cov, pose_cov, twist_cov = (None, None, None)
     if cov12 is not None:
@@ -660,7 +716,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         success=True, failure=None, solver=solver, R=R, C=C, w=w, t=t, orientation=R.T,
         position=camera_position(R, C), angular_velocity=om, linear_velocity=vc,
         angular_velocity_world=om_w, linear_velocity_world=vc_w, inliers=inliers,
-        num_valid=N, num_dropped=n_dropped, ransac_iterations=iters, timings=timings,
+        num_valid=N, num_dropped=n_dropped + n_behind, num_behind=n_behind,
+        ransac_iterations=iters, timings=timings,
         covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse,
         planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond,
         motion_prior_used=prior_used)

@@ -1,6 +1,8 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
 Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it is.
+The entry points release the GIL (``nogil``): the node's subscription callbacks keep taking
+frames while a frame is scored.
 """
 
 from __future__ import annotations
@@ -83,7 +85,7 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact):
                           ts[h, 0], ts[h, 1], ts[h, 2], exact)
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, exact=True, pretest_n=0,
                 pretest_min=0, pretest_fraction=0.5):
     """MSAC scores of H hypotheses on N points, evaluated preemptively.
@@ -160,7 +162,7 @@ def msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, exact=True, pret
     return scores, counts
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def errors2(x, X, r0e, d, R, C, w, t, exact=True):
     """(N,) squared reprojection errors of one hypothesis (``inf`` where invalid); see
     :func:`project_error2`."""
@@ -176,7 +178,7 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True):
     return out
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def msac_evaluate(x, X, r0e, d, R, C, w, t, th2):
     """MSAC score, inlier mask and inlier count of one model on all N points.
 

@@ -15,6 +15,7 @@ from ..camera import DISTORTION_MODELS, CameraModel
 
 __all__ = [
     "quaternion_from_matrix", "matrix_from_quaternion", "stamp_to_ns", "ns_to_stamp",
+    "checked_stamp_ns", "StampError", "STAMP_MAX_NS", "CameraInfoError", "CAMERA_INFO_REASONS",
     "camera_model", "camera_model_from_camera_info", "pose_stamped", "twist_stamped",
     "pose_with_covariance_stamped", "odometry", "tf_message", "have_tf2_msgs", "covariance36",
     "camera_info_msg", "pose_from_msg", "twist_from_msg",
@@ -41,27 +42,90 @@ def matrix_from_quaternion(q) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- time
+#: the range of ``builtin_interfaces/Time`` this package reads and writes: int32 seconds >= 0
+#: (rclpy.time.Time rejects negative times), nanoseconds < 1e9
+STAMP_MAX_NS = 2**31 * _NS - 1
+
+
+class StampError(ValueError):
+    """An invalid ``builtin_interfaces/Time``; ``reason`` is ``bad_stamp``."""
+
+    reason = "bad_stamp"
+
+
 def stamp_to_ns(stamp) -> int:
-    """``builtin_interfaces/Time`` (rclpy or rosbags) -> integer nanoseconds."""
+    """``builtin_interfaces/Time`` (rclpy or rosbags) -> integer nanoseconds (not checked: see
+    :func:`checked_stamp_ns`)."""
     return int(stamp.sec) * _NS + int(stamp.nanosec)
 
 
+def checked_stamp_ns(stamp) -> int:
+    """Like :func:`stamp_to_ns`, for stamps from the outside world.
+
+    Raises:
+        StampError (a ValueError, ``reason = "bad_stamp"``): ``nanosec >= 1e9`` (it would be
+        read as extra seconds) or ``sec < 0`` (ROS time is not negative).
+    """
+    sec, nsec = int(stamp.sec), int(stamp.nanosec)
+    if not 0 <= nsec < _NS:
+        raise StampError(f"invalid stamp: nanosec {nsec} is not in [0, 1e9)")
+    if sec < 0:
+        raise StampError(f"invalid stamp: negative sec {sec}")
+    return sec * _NS + nsec
+
+
 def ns_to_stamp(ns: int):
-    """Integer nanoseconds -> rclpy ``builtin_interfaces/Time`` (negative clamps to 0)."""
+    """Integer nanoseconds -> rclpy ``builtin_interfaces/Time``.
+
+    Raises:
+        StampError (a ValueError): ``ns`` outside [0, 2^31 s) (int32 seconds; never clamped or
+        wrapped).
+    """
     from builtin_interfaces.msg import Time
 
-    ns = max(int(ns), 0)
+    ns = int(ns)
+    if not 0 <= ns <= STAMP_MAX_NS:
+        raise StampError(f"stamp {ns} ns is outside [0, 2^31 s): not representable")
     sec, nsec = divmod(ns, _NS)
     return Time(sec=sec, nanosec=nsec)
 
 
 # ---------------------------------------------------------------- cameras
+class CameraInfoError(ValueError):
+    """Intrinsics that cannot be used; ``reason`` is one of :data:`CAMERA_INFO_REASONS`."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+#: every ``CameraInfoError.reason``: ``bad_intrinsics`` (K not finite, fx or fy <= 0, last row
+#: not (0, 0, 1)), ``bad_distortion`` (unsupported model, non-finite or ambiguous
+#: coefficients), ``bad_size`` (zero image size or binning), ``bad_roi`` (a ROI outside the
+#: image or with one zero side)
+CAMERA_INFO_REASONS = ("bad_intrinsics", "bad_distortion", "bad_size", "bad_roi")
+
+
 def camera_model(K, D, width, height, distortion_model="plumb_bob", line_delay=0.0,
                  readout_time=0.0, readout="top_to_bottom", reference_row=None) -> CameraModel:
     """CameraModel with RS timing: ``readout_time > 0`` (s/frame) wins over ``line_delay``
-    (s/line). ``reference_row`` < 0 or None = image centre line."""
+    (s/line). ``reference_row`` < 0 or None = image centre line.
+
+    Raises:
+        CameraInfoError (a ValueError): see :data:`CAMERA_INFO_REASONS`; ValueError from
+        :class:`CameraModel` for bad RS timing.
+    """
     if reference_row is not None and reference_row < 0:
         reference_row = None
+    K = np.asarray(K, dtype=float).reshape(3, 3)
+    if not np.isfinite(K).all():
+        raise CameraInfoError("bad_intrinsics", f"K has non-finite entries: {K.tolist()}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CameraInfoError("bad_intrinsics", "uncalibrated camera: K has fx or fy <= 0")
+    if not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+        raise CameraInfoError("bad_intrinsics", f"K's last row is {K[2].tolist()}, not [0, 0, 1]")
+    if int(width) <= 0 or int(height) <= 0:
+        raise CameraInfoError("bad_size", f"invalid image size {width}x{height}")
     D = _normalize_distortion(np.asarray(D, dtype=float).ravel(), distortion_model)
     model = distortion_model or ("plumb_bob" if len(D) else "none")
     kw = dict(D=D, readout=readout, reference_row=reference_row, distortion_model=model)
@@ -72,24 +136,34 @@ def camera_model(K, D, width, height, distortion_model="plumb_bob", line_delay=0
 
 
 def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
-    """Trim trailing zero coefficients the model does not take (e.g. 14-vector with zeros)."""
+    """Check the coefficients and trim trailing zeros the model does not take (e.g. a
+    14-vector of zeros, or plumb_bob ``k1 k2 p1 p2 k3 0``). A count the model does not take
+    is never zero-padded: plumb_bob with 3 coefficients (``k1 k2 p1``? ``k1 k2 k3``?) or with a
+    6th one is ambiguous and rejected."""
     model = model or "plumb_bob"
     if model not in DISTORTION_MODELS:
-        raise ValueError(f"unsupported distortion model {model!r}; supported: "
-                         f"{sorted(DISTORTION_MODELS)}")
+        raise CameraInfoError("bad_distortion", f"unsupported distortion model {model!r}; "
+                              f"supported: {sorted(DISTORTION_MODELS)}")
+    if not np.isfinite(D).all():
+        raise CameraInfoError("bad_distortion", f"distortion coefficients are not finite: "
+                              f"{D.tolist()}")
     if not np.any(D):
         return np.zeros(0)
     allowed = DISTORTION_MODELS[model]
     if len(D) in allowed:
         return D
-    bigger = [n for n in allowed if n >= len(D)]
-    if bigger:  # pad with zeros (e.g. 3 coefficients k1 k2 p1 -> 4)
-        return np.concatenate([D, np.zeros(bigger[0] - len(D))])
-    keep = max(allowed)
-    if np.any(D[keep:]):
-        raise ValueError(f"{model}: {len(D)} coefficients with non-zero terms beyond the first "
-                         f"{keep} are not supported")
-    return D[:keep]
+    n = len(D)
+    while n > 0 and D[n - 1] == 0 and n not in allowed:
+        n -= 1  # drop trailing zeros down to a count the model takes
+    if n in allowed and n > 0:
+        return D[:n]
+    nz = int(np.flatnonzero(D)[-1]) + 1
+    if nz > max(allowed):
+        raise CameraInfoError("bad_distortion", f"{model}: {len(D)} coefficients with non-zero "
+                              f"terms beyond the first {max(allowed)} are not supported")
+    raise CameraInfoError("bad_distortion", f"{model}: {nz} coefficients ({len(D)} given) "
+                          f"but the model takes {[a for a in allowed if a]}; not guessing "
+                          "which ones they are")
 
 
 def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
@@ -100,30 +174,49 @@ def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
     and applies binning and ROI (REP 104) so that K matches the delivered image.
 
     Raises:
-        ValueError: uncalibrated (zero) K, unsupported distortion model or coefficients, bad size.
+        CameraInfoError (a ValueError) with ``reason`` in :data:`CAMERA_INFO_REASONS`.
     """
     K = np.asarray(info.k, dtype=float).reshape(3, 3).copy()
-    if not np.isfinite(K).all() or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError("camera_info is uncalibrated (K has fx or fy <= 0)")
+    if not np.isfinite(K).all():
+        raise CameraInfoError("bad_intrinsics", f"K has non-finite entries: {K.tolist()}")
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CameraInfoError("bad_intrinsics",
+                              "camera_info is uncalibrated (K has fx or fy <= 0)")
     width, height = int(info.width), int(info.height)
+    if width <= 0 or height <= 0:
+        raise CameraInfoError("bad_size", f"invalid image size {width}x{height}")
     bx = max(int(getattr(info, "binning_x", 0)), 1)
     by = max(int(getattr(info, "binning_y", 0)), 1)
     roi = getattr(info, "roi", None)
-    if roi is not None and int(roi.width) > 0 and int(roi.height) > 0 and (
-            int(roi.width) != width or int(roi.height) != height):
-        K[0, 2] -= int(roi.x_offset)
-        K[1, 2] -= int(roi.y_offset)
-        width, height = int(roi.width), int(roi.height)
+    if roi is not None:
+        x0, y0 = int(roi.x_offset), int(roi.y_offset)
+        rw, rh = int(roi.width), int(roi.height)
+        if (rw, rh) != (0, 0) or (x0, y0) != (0, 0):  # all zeros = the full image
+            if rw <= 0 or rh <= 0 or x0 < 0 or y0 < 0 or x0 + rw > width or y0 + rh > height:
+                raise CameraInfoError(
+                    "bad_roi", f"roi (x {x0}, y {y0}, {rw}x{rh}) is not inside the "
+                    f"{width}x{height} image")
+            if (rw, rh) != (width, height):
+                K[0, 2] -= x0
+                K[1, 2] -= y0
+                width, height = rw, rh
     if bx > 1 or by > 1:
         K[0, :] /= bx
         K[1, :] /= by
         width, height = width // bx, height // by
+        if width <= 0 or height <= 0:
+            raise CameraInfoError("bad_size", f"binning {bx}x{by} leaves no image")
     model = str(info.distortion_model or "")
     D = np.asarray(info.d, dtype=float).ravel()
     if not model:
         model = "plumb_bob" if np.any(D) else "none"
-    return camera_model(K, D, width, height, model, line_delay, readout_time, readout,
-                        reference_row)
+    try:
+        return camera_model(K, D, width, height, model, line_delay, readout_time, readout,
+                            reference_row)
+    except CameraInfoError:
+        raise
+    except ValueError as e:  # (RS timing: the node's parameters, checked there)
+        raise CameraInfoError("bad_intrinsics", str(e)) from None
 
 
 def camera_info_msg(camera: CameraModel, frame_id="", stamp_ns: int = 0):

@@ -5,7 +5,14 @@ decode the input, pick the camera model, call the estimator, publish, count. Ima
 an image front end (:mod:`rs_localizer.frontends`: ArUco markers or natural features against a
 map) first, then down the same path as a correspondence cloud.
 
-Subscriptions (sensor-data QoS, overridable with ``qos_overrides.<topic>.subscription.*``):
+Threads: the subscription callbacks (executor thread) only put frames into a bounded queue
+(``queue_size``; when it is full the oldest waiting frame is dropped and counted as skipped,
+so the newest frames are solved); one worker thread takes them out, solves and publishes. So
+``frames_received = frames_solved + frames_failed + frames_skipped (+ frames_pending)``, and the
+executor stays free for camera_info, parameters and diagnostics however slow a frame is.
+
+Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; overridable with
+``qos_overrides.<topic>.subscription.*``):
     correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
                                               (+ id uint32, + score float32)
     keypoints        sensor_msgs/PointCloud2  u, v, id; 3D points from ``landmarks_file``
@@ -27,8 +34,11 @@ Publications (reliable, depth 10):
 
 from __future__ import annotations
 
+import bisect
+import math
 import os
 import sys
+import threading
 import time
 from collections import Counter, deque
 
@@ -50,7 +60,7 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
 from ..frontends import FRONTENDS
-from ..maps import load_landmarks_csv
+from ..maps import check_regular_file, load_landmarks_csv
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
                          read_keypoints)
@@ -104,9 +114,22 @@ PARAMETERS = {
     "max_points": (5000, "clouds with more points are capped (highest scores, else evenly "
                    "spaced), with a warning", _I(from_value=10, to_value=10_000_000, step=1),
                    False),
-    "time_reset_threshold": (1.0, "a stamp older than the last one by more than this (s) is a "
-                             "restart (accepted); smaller steps back are out_of_order",
+    "time_reset_threshold": (1.0, "a frame stamped later than the previous one by more than "
+                             "this (s) resets the time-dependent state (a gap); any step back "
+                             "does too. Frames are never dropped for their stamp",
                              _F(from_value=0.0, to_value=1e6, step=0.0), False),
+    "queue_size": (5, "frames waiting to be solved; when full, the oldest waiting frame is "
+                   "dropped (counted in frames_skipped) so that the newest are solved",
+                   _I(from_value=1, to_value=10_000, step=1), False),
+    "camera_info_wait": (0.05, "s a frame may wait for its camera_info: when none has arrived "
+                         "yet, or when camera_info comes with every frame (same stamps) and "
+                         "the frame's own has not arrived yet",
+                         _F(from_value=0.0, to_value=5.0, step=0.0), False),
+    "max_angular_velocity": (20.0, "rad/s; a model turning faster is implausible (never "
+                             "published: implausible_motion)",
+                             _F(from_value=0.01, to_value=1e6, step=0.0), False),
+    "max_linear_velocity": (50.0, "m/s; a model moving faster is implausible",
+                            _F(from_value=0.01, to_value=1e9, step=0.0), False),
     "diagnostics_period": (1.0, "period of /diagnostics (s)",
                            _F(from_value=0.05, to_value=60.0, step=0.0), True),
     "warmup": (True, "solve a synthetic problem at start (JIT compilation)", None, True),
@@ -138,6 +161,17 @@ PARAMETERS = {
 FRONTEND_KINDS = ("none",) + FRONTENDS
 
 _LOG_PERIOD = 2.0  # s, per failure reason
+# Frame subscriptions: sensor-data QoS (best effort) with a deeper history than its 5, so that
+# frames arriving while the worker holds the GIL wait in the middleware until the callbacks
+# move them to the node's queue, where a drop is counted (frames_skipped), instead of being
+# overwritten unseen (images: 10, they are big)
+_CLOUD_QOS = QoSProfile(depth=100, reliability=qos_profile_sensor_data.reliability,
+                        durability=qos_profile_sensor_data.durability,
+                        history=qos_profile_sensor_data.history)
+_IMAGE_QOS = QoSProfile(depth=10, reliability=qos_profile_sensor_data.reliability,
+                        durability=qos_profile_sensor_data.durability,
+                        history=qos_profile_sensor_data.history)
+_CAMERA_HISTORY = 32  # camera_info entries kept (distinct calibrations, by stamp)
 
 
 class _Drop(ValueError):
@@ -171,7 +205,8 @@ class RSLocalizerNode(Node):
                     + f": {e}") from None
 
         self.counts = Counter()      # frames received / solved / failed.<reason> / ...
-        self.latencies = deque(maxlen=1000)  # s, callback entry -> published
+        self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
+        self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
         self.stage_times = {k: deque(maxlen=1000)
                             for k in ("decode", "frontend", "estimate", "publish")}
         self.inliers = deque(maxlen=1000)
@@ -179,10 +214,18 @@ class RSLocalizerNode(Node):
         self.messages_lost = 0       # QoS message_lost events over the frame subscriptions
         self._lost = {}
         self._last_log = {}
-        self._last_stamp = None
-        self._camera_info = None     # latest camera_info (message)
-        self._camera_info_key = None
-        self._camera = None          # CameraModel from camera_info (with RS timing)
+        self._last_stamp = None      # stamp of the last frame the worker took (time resets)
+        # the queue between the subscription callbacks and the worker, the camera_info history
+        # and the counters they share are guarded by this condition
+        self._lock = threading.Condition()
+        self._queue = deque()        # (msg, extract, arrival perf_counter)
+        self._busy = False           # the worker is on a frame
+        self._stop = False
+        self._cam_hist = []          # [stamp_ns, key, msg, CameraModel, seq], sorted by stamp
+        self._cam_seq = 0            # arrival counter of camera_info entries
+        self._info_stamps = deque(maxlen=64)   # stamps of the last camera_infos received
+        self._frame_stamps = deque(maxlen=64)  # stamps of the last frames taken by the worker
+        self._camera = None          # CameraModel of the newest camera_info (with RS timing)
         self._landmarks = None       # (sorted ids, points)
         self._frontend = None        # image front end (frontend != none)
         self._frontend_key = None    # (kind, map path) it was built from
@@ -218,27 +261,34 @@ class RSLocalizerNode(Node):
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
                     "wheels): not publishing /tf")
 
+        # (created first: a camera_info ready together with a frame is taken first)
+        self.sub_info = self.create_subscription(
+            CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.sub_corr = self.create_subscription(
-            PointCloud2, "correspondences", self._on_correspondences, qos_profile_sensor_data,
+            PointCloud2, "correspondences", self._on_correspondences, _CLOUD_QOS,
             event_callbacks=self._lost_events("correspondences"),
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.sub_kp = self.create_subscription(
-            PointCloud2, "keypoints", self._on_keypoints, qos_profile_sensor_data,
+            PointCloud2, "keypoints", self._on_keypoints, _CLOUD_QOS,
             event_callbacks=self._lost_events("keypoints"),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
-        self.sub_info = self.create_subscription(
-            CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.sub_image = None
         if self._frontend is not None:
             self.sub_image = self.create_subscription(
-                Image, "image", self._on_image, qos_profile_sensor_data,
+                Image, "image", self._on_image, _IMAGE_QOS,
                 event_callbacks=self._lost_events("image"),
                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
             if self.cfg["republish"]:
                 self._corr_out_publisher()
         self.create_timer(float(self.get_parameter("diagnostics_period").value),
                           self.publish_diagnostics)
+        # the worker holds the GIL while it solves; hand it to the subscription callbacks
+        # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
+        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
+        self._worker = threading.Thread(target=self._work, name="rs_localizer_worker",
+                                        daemon=True)
+        self._worker.start()
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
             self.get_logger().warning("rs.line_delay and rs.readout_time are 0: global-shutter "
                                       "timing, the published twist will be zero")
@@ -279,9 +329,16 @@ class RSLocalizerNode(Node):
                                    seed=int(p["ransac.seed"]), refine=bool(p["refine"]),
                                    motion_prior=MotionPrior(
                                        float(p["motion_prior.angular_velocity_sigma"]),
-                                       float(p["motion_prior.linear_velocity_sigma"])))
+                                       float(p["motion_prior.linear_velocity_sigma"])),
+                                   max_angular_velocity=float(p["max_angular_velocity"]),
+                                   max_linear_velocity=float(p["max_linear_velocity"]))
         except (TypeError, ValueError) as e:
             return f"invalid RANSAC options: {e}"
+        need = max(opts.min_inliers, sample_size(p["solver"]) + 1)
+        if int(p["max_points"]) < need:
+            return (f"max_points {p['max_points']} is below the {need} points a pose needs "
+                    f"(ransac.min_inliers {opts.min_inliers}, solver {p['solver']}): every "
+                    "frame would fail")
         ref = float(p["rs.reference_row"])
         cfg = {"solver": p["solver"], "options": opts, "line_delay": float(p["rs.line_delay"]),
                "readout_time": float(p["rs.readout_time"]), "direction": p["rs.direction"],
@@ -289,9 +346,16 @@ class RSLocalizerNode(Node):
                "map_frame": p["map_frame"], "camera_frame": p["camera_frame"],
                "max_points": int(p["max_points"]),
                "time_reset_ns": int(float(p["time_reset_threshold"]) * 1e9),
+               "queue_size": int(p["queue_size"]),
+               "camera_info_wait": float(p["camera_info_wait"]),
                "landmarks_file": p["landmarks_file"], "fallback": None}
+        if not all(math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx",
+                                                         "camera.cy")):
+            return "invalid fallback camera parameters: camera.fx/fy/cx/cy must be finite"
+        d = p["camera.d"] if p["camera.d"] is not None else []
+        if not all(math.isfinite(float(x)) for x in d):
+            return f"invalid fallback camera parameters: camera.d must be finite, got {list(d)}"
         if float(p["camera.fx"]) > 0:
-            d = p["camera.d"] if p["camera.d"] is not None else []
             K = np.array([[p["camera.fx"], 0.0, p["camera.cx"]],
                           [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
                           [0.0, 0.0, 1.0]], dtype=float)
@@ -331,6 +395,8 @@ class RSLocalizerNode(Node):
                 from ..frontends import make_frontend
 
                 try:
+                    if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
+                        check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
                     cfg["frontend_obj"] = make_frontend(kind, os.path.expanduser(fmap))
                 except Exception as e:  # noqa: BLE001 - OSError, ValueError, yaml errors
                     return f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
@@ -353,13 +419,15 @@ class RSLocalizerNode(Node):
             self._frontend_key = (cfg["frontend"], cfg["frontend_map"])
         if cfg["republish"] and self._frontend is not None and hasattr(self, "pub_pose"):
             self._corr_out_publisher()
-        if self._camera_info is not None:
-            try:
-                self._camera = self._camera_from_info(self._camera_info)
-            except ValueError as e:
-                self.get_logger().error(f"camera_info unusable with the new parameters: {e}")
-                self._camera = None
-                self._camera_info_key = None
+        with self._lock:  # the RS timing may have changed: rebuild the camera models
+            hist = []
+            for entry in self._cam_hist:
+                try:
+                    hist.append([*entry[:3], self._camera_from_info(entry[2]), entry[4]])
+                except ValueError as e:
+                    self.get_logger().error(f"camera_info unusable with the new parameters: {e}")
+            self._cam_hist = hist
+            self._camera = (max(hist, key=lambda e: e[4])[3] if hist else None)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
@@ -415,36 +483,141 @@ class RSLocalizerNode(Node):
         return cam
 
     def _on_camera_info(self, msg: CameraInfo):
+        """Validate a camera_info and add it to the history the frames pick from by stamp (a
+        rejected one is counted and logged, and the previous cameras stay)."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            return self._reject_camera_info("bad_stamp", str(e))
         key = (tuple(msg.k), tuple(msg.d), msg.distortion_model, msg.width, msg.height,
                msg.binning_x, msg.binning_y, msg.roi.x_offset, msg.roi.y_offset,
                msg.roi.width, msg.roi.height)
-        if key == self._camera_info_key:
-            return
-        try:
-            cam = self._camera_from_info(msg)
-        except ValueError as e:
-            self.counts["camera_info_rejected"] += 1
-            self._log_throttled("camera_info", f"ignoring camera_info: {e}")
-            return
-        if self._camera is None:
+        with self._lock:
+            cam = next((e[3] for e in self._cam_hist if e[1] == key), None)
+        if cam is None:
+            try:
+                cam = self._camera_from_info(msg)
+            except cv.CameraInfoError as e:
+                return self._reject_camera_info(e.reason, str(e))
+            except ValueError as e:  # (RS timing of the parameters: cannot happen, see cfg)
+                return self._reject_camera_info("bad_intrinsics", str(e))
+        first = False
+        with self._lock:
+            first = not self._cam_hist
+            hist = self._cam_hist
+            i = bisect.bisect_right([e[0] for e in hist], stamp)
+            self._cam_seq += 1
+            if i > 0 and hist[i - 1][1] == key:
+                hist[i - 1][4] = self._cam_seq  # the entry before already covers this stamp
+            else:
+                hist.insert(i, [stamp, key, msg, cam, self._cam_seq])
+                if i + 1 < len(hist) and hist[i + 1][1] == key:
+                    del hist[i + 1]  # now covered from an earlier stamp
+                if len(hist) > _CAMERA_HISTORY:
+                    del hist[0]
+            self._camera = cam
+            self._info_stamps.append(stamp)
+            self._lock.notify_all()
+        if first:
             self.get_logger().info(
                 f"camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
                 f"{cam.distortion_model if cam.has_distortion else 'no distortion'}")
-        self._camera_info, self._camera_info_key, self._camera = msg, key, cam
+
+    def _reject_camera_info(self, reason, detail):
+        with self._lock:
+            self.counts["camera_info_rejected"] += 1
+            self.counts[f"camera_info_rejected.{reason}"] += 1
+        self._log_throttled(f"camera_info.{reason}", f"camera_info rejected ({reason}), the "
+                            f"previous camera stays: {detail}")
+
+    def _camera_for(self, stamp: int):
+        """The camera model of a frame stamped ``stamp`` (ns): from the newest camera_info
+        stamped at or before it (the oldest one if the frame is older than all), else the
+        fallback intrinsics, else ``None``. Waits up to ``camera_info_wait`` when no
+        camera_info has arrived yet (and there is no fallback), or when camera_info comes
+        with every frame and this frame's has not arrived yet."""
+        cfg = self.cfg
+        deadline = time.monotonic() + cfg["camera_info_wait"]
+        with self._lock:
+            # camera_info comes with every frame when the last two frames each got one with
+            # their stamp (before or after them)
+            infos = set(self._info_stamps)
+            synced = (len(self._frame_stamps) >= 2
+                      and all(self._frame_stamps[-k] in infos for k in (1, 2)))
+            self._frame_stamps.append(stamp)
+            while not self._stop:
+                if self._cam_hist:
+                    if (not synced or stamp in self._info_stamps
+                            or self._cam_hist[-1][0] >= stamp):
+                        break
+                elif cfg["fallback"] is not None:
+                    return cfg["fallback"]
+                if time.monotonic() >= deadline:
+                    break
+                self._lock.wait(deadline - time.monotonic())
+            hist = self._cam_hist
+            if not hist:
+                return cfg["fallback"]
+            i = bisect.bisect_right([e[0] for e in hist], stamp)
+            return hist[max(i - 1, 0)][3]
 
     def _on_correspondences(self, msg: PointCloud2):
-        self._safe_handle(msg, self._from_correspondences)
+        self._enqueue(msg, self._from_correspondences)
 
     def _on_keypoints(self, msg: PointCloud2):
-        self._safe_handle(msg, self._from_keypoints)
+        self._enqueue(msg, self._from_keypoints)
 
     def _on_image(self, msg: Image):
         self.counts["image_frames"] += 1
-        self._safe_handle(msg, self._from_image)
+        self._enqueue(msg, self._from_image)
 
-    def _safe_handle(self, msg, extract):
+    def _enqueue(self, msg, extract):
+        """Subscription callbacks: count the frame and queue it for the worker. A full queue
+        drops its oldest frame (``frames_skipped``): the newest frames are the ones solved."""
+        arrival = time.perf_counter()
+        with self._lock:
+            self.counts["received"] += 1
+            skipped = 0
+            while len(self._queue) >= self.cfg["queue_size"]:
+                self._queue.popleft()
+                skipped += 1
+            self.counts["skipped"] += skipped
+            self._queue.append((msg, extract, arrival))
+            self._lock.notify_all()
+        if skipped:
+            self._log_throttled("skipped", "busy: frame queue full (queue_size "
+                                f"{self.cfg['queue_size']}), dropped the oldest waiting frame "
+                                f"[{self.counts['skipped']} skipped so far]")
+
+    def _work(self):
+        """The worker thread: frames out of the queue, through :meth:`_handle`, in order."""
+        while True:
+            with self._lock:
+                while not self._queue and not self._stop:
+                    self._lock.wait()
+                if self._stop:
+                    return
+                msg, extract, arrival = self._queue.popleft()
+                self._busy = True
+            try:
+                self._safe_handle(msg, extract, arrival)
+            finally:
+                with self._lock:
+                    self._busy = False
+
+    def destroy_node(self):
+        """Stop the worker thread (the frame it is on is finished), then destroy the node."""
+        with self._lock:
+            self._stop = True
+            self._lock.notify_all()
+        worker = getattr(self, "_worker", None)
+        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
+            worker.join(timeout=10.0)
+        return super().destroy_node()
+
+    def _safe_handle(self, msg, extract, arrival=None):
         try:
-            self._handle(msg, extract)
+            self._handle(msg, extract, arrival)
         except Exception as e:  # noqa: BLE001 - a bug for one frame must not stop the node
             self._fail("internal_error", f"{type(e).__name__}: {e}")
 
@@ -467,33 +640,63 @@ class RSLocalizerNode(Node):
             n = self.counts.get(f"failed.{key}", 0)
             self.get_logger().warning(text + (f" [{n} so far]" if n > 1 else ""))
 
-    def _handle(self, msg, extract):
+    def _reset_time_state(self, stamp: int, why: str):
+        """Time went back (or jumped ahead by more than ``time_reset_threshold``): forget what
+        depends on time (camera_infos stamped after ``stamp``, kept when nothing else is
+        left), count and log it. Frames are never dropped for their stamp."""
+        self.counts["time_resets"] += 1
+        self._log_throttled("time_reset", f"time reset: {why}")
+        with self._lock:
+            keep = [e for e in self._cam_hist if e[0] <= stamp]
+            if not keep and self._cam_hist:
+                keep = [max(self._cam_hist, key=lambda e: e[4])]
+            self._cam_hist = keep
+            self._frame_stamps.clear()
+
+    def _handle(self, msg, extract, arrival=None):
         """The pipeline of every frame: checks, ``extract(msg, camera, stamp) -> (uv, xyz,
         scores)`` (raises :class:`_Drop` or :class:`CloudError` for a bad frame), cap,
-        estimate, publish, count."""
+        estimate, publish, count. ``arrival``: ``perf_counter`` when the frame arrived (the
+        latency is measured from it)."""
         tic = time.perf_counter()
+        arrival = tic if arrival is None else arrival
         self._t_frontend = 0.0
-        self.counts["received"] += 1
-        stamp = cv.stamp_to_ns(msg.header.stamp)
         cfg = self.cfg
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            return self._fail("bad_stamp", str(e))
         if isinstance(msg, PointCloud2) and int(msg.width) * int(msg.height) == 0:
             return self._fail("empty_cloud", "cloud has no points")
-        camera = self._camera or cfg["fallback"]
+        last = self._last_stamp
+        self._last_stamp = stamp
+        if last is not None and stamp < last:
+            self._reset_time_state(stamp, f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
+                                   " s older than the previous frame")
+        elif last is not None and stamp - last > cfg["time_reset_ns"]:
+            self._reset_time_state(stamp, f"{(stamp - last) * 1e-9:.3f} s since the previous "
+                                   "frame (> time_reset_threshold)")
+        camera = self._camera_for(stamp)
         if camera is None:
-            return self._fail("no_camera_info", "no camera_info received yet and no fallback "
-                              "intrinsics (camera.fx <= 0)")
-        if self._last_stamp is not None and stamp < self._last_stamp:
-            if self._last_stamp - stamp <= cfg["time_reset_ns"]:
-                return self._fail("out_of_order", f"stamp {stamp * 1e-9:.6f} is older than the "
-                                  f"last frame {self._last_stamp * 1e-9:.6f}")
-            self.get_logger().warning("time jumped back by "
-                                      f"{(self._last_stamp - stamp) * 1e-9:.3f} s: restart")
+            return self._fail("no_camera_info", "no camera_info received (waited "
+                              f"{cfg['camera_info_wait']:.3f} s) and no fallback intrinsics "
+                              "(camera.fx <= 0)")
+        out_stamp = stamp + int(round(
+            camera.time_offset(cfg["stamp_row"], camera.reference_line) * 1e9))
+        if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
+            return self._fail("bad_stamp", f"output stamp {out_stamp} ns (input {stamp} ns + "
+                              "the reference row's offset) is outside [0, 2^31 s)")
         try:
             uv, xyz, scores = extract(msg, camera, stamp)
         except (_Drop, CloudError) as e:
             return self._fail(e.reason, str(e))
-        except ValueError as e:
-            return self._fail("bad_cloud", str(e))
+        # rows with NaN/inf go before the cap, so that the cap keeps valid rows
+        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+        n_bad = len(uv) - int(np.count_nonzero(good))
+        if n_bad:
+            self.counts["points_dropped"] += n_bad
+            uv, xyz = uv[good], xyz[good]
+            scores = None if scores is None else scores[good]
         if len(uv) > cfg["max_points"]:
             self.counts["capped_clouds"] += 1
             self.counts["capped_points"] += len(uv) - cfg["max_points"]
@@ -507,7 +710,6 @@ class RSLocalizerNode(Node):
                                 f"{cfg['max_points']}")
             uv, xyz = uv[keep], xyz[keep]
             scores = None if scores is None else scores[keep]
-        self._last_stamp = stamp
         t_decoded = time.perf_counter()
         try:
             est = estimate_rs_pose(uv, xyz, camera, solver=cfg["solver"],
@@ -517,13 +719,14 @@ class RSLocalizerNode(Node):
         t_estimated = time.perf_counter()
         self.counts["points_dropped"] += int(est.num_dropped)
         if not est.success:
-            return self._fail(est.failure or "unknown",
+            return self._fail(est.failure or "estimator_error",
                               f"{len(uv)} points, {est.num_inliers} inliers, solver "
                               f"{cfg['solver']}")
-        out_stamp = stamp + int(round(
-            camera.time_offset(cfg["stamp_row"], camera.reference_line) * 1e9))
         frame = cfg["camera_frame"] or msg.header.frame_id or "camera"
         mf = cfg["map_frame"]
+        self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
+        self.inliers.append(est.num_inliers)
+        self._planar_last = (est.planar, est.condition_number)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
         self.pub_pose.publish(cv.pose_stamped(est, out_stamp, mf))
         if self.pub_twist.get_subscription_count():
@@ -535,11 +738,9 @@ class RSLocalizerNode(Node):
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
             self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
         self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
-        self.counts["solved"] += 1
-        self.inliers.append(est.num_inliers)
-        self._planar_last = (est.planar, est.condition_number)
         toc = time.perf_counter()
-        self.latencies.append(toc - tic)
+        self.latencies.append(toc - arrival)
+        self.stamp_ages.append((self.get_clock().now().nanoseconds - stamp) * 1e-9)
         self.stage_times["decode"].append(t_decoded - tic - self._t_frontend)
         self.stage_times["estimate"].append(t_estimated - t_decoded)
         self.stage_times["publish"].append(toc - t_estimated)
@@ -609,8 +810,13 @@ class RSLocalizerNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
-        c = self.counts
-        lat = np.array(self.latencies) * 1e3
+        with self._lock:  # (a consistent snapshot of the counters the two threads write)
+            c = Counter(self.counts)
+            pending = len(self._queue) + int(self._busy)
+            camera_source = ("camera_info" if self._cam_hist else
+                             "parameters" if self.cfg["fallback"] is not None else "missing")
+        lat = np.array(list(self.latencies)) * 1e3
+        age = np.array(list(self.stamp_ages)) * 1e3
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"
         st.hardware_id = self.cfg["camera_frame"] or "camera"
@@ -618,20 +824,24 @@ class RSLocalizerNode(Node):
         if c["received"] and not c["solved"]:
             st.level = DiagnosticStatus.ERROR
             st.message = "no frame solved" + (f" ({failed})" if failed else "")
-        elif c["failed"] or self.messages_lost:
+        elif c["failed"] or self.messages_lost or c["skipped"]:
             st.level = DiagnosticStatus.WARN
-            st.message = f"{c['solved']}/{c['received']} frames solved"
+            st.message = f"{c['solved']}/{c['received']} frames solved" + (
+                f", {c['skipped']} skipped (busy)" if c["skipped"] else "")
         else:
             st.level = DiagnosticStatus.OK
             st.message = (f"{c['solved']}/{c['received']} frames solved" if c["received"]
                           else "waiting for frames")
         values = {
             "solver": self.cfg["solver"],
-            "camera": ("camera_info" if self._camera is not None else
-                       "parameters" if self.cfg["fallback"] is not None else "missing"),
+            "camera": camera_source,
             "frames_received": c["received"],
             "frames_solved": c["solved"],
             "frames_failed": c["failed"],
+            "frames_skipped": c["skipped"],
+            "frames_pending": pending,
+            "queue_size": self.cfg["queue_size"],
+            "time_resets": c["time_resets"],
             "messages_lost": self.messages_lost,
             "points_dropped": c["points_dropped"],
             "clouds_capped": c["capped_clouds"],
@@ -644,10 +854,13 @@ class RSLocalizerNode(Node):
             "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
             "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
             "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
+            "stamp_age_ms_last": f"{age[-1]:.3f}" if len(age) else "nan",
+            "stamp_age_ms_median": f"{np.median(age):.3f}" if len(age) else "nan",
         }
         for k, d in self.stage_times.items():
             if k == "frontend" and self._frontend is None:
                 continue
+            d = list(d)
             values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
         if self._frontend is not None:
             fe_ms = self.stage_times["frontend"]
@@ -661,6 +874,8 @@ class RSLocalizerNode(Node):
                     if c["frontend_runs"] else "0"),
             })
         values.update({f"failed.{k}": v for k, v in failed.items()})
+        values.update({k: v for k, v in sorted(c.items())
+                       if k.startswith("camera_info_rejected.")})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
 

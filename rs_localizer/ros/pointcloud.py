@@ -20,7 +20,7 @@ import numpy as np
 __all__ = [
     "INT8", "UINT8", "INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64",
     "DATATYPE_NAMES", "fields_to_dtype", "dtype_to_fields", "cloud_to_array", "array_to_cloud",
-    "pack_cloud", "CloudError", "Correspondences", "Keypoints", "read_correspondences",
+    "pack_cloud", "CloudError", "CLOUD_REASONS", "Correspondences", "Keypoints", "read_correspondences",
     "read_keypoints", "correspondence_array", "keypoint_array", "correspondence_cloud",
     "keypoint_cloud",
 ]
@@ -34,12 +34,14 @@ DATATYPE_NAMES = {INT8: "int8", UINT8: "uint8", INT16: "int16", UINT16: "uint16"
                   INT32: "int32", UINT32: "uint32", FLOAT32: "float32", FLOAT64: "float64"}
 
 FLOAT_TYPES = (FLOAT32, FLOAT64)
+
+#: every ``CloudError.reason``
+CLOUD_REASONS = ("missing_fields", "wrong_field_type", "truncated", "bad_layout")
 INDEX_TYPES = (UINT32, INT32, UINT16, UINT8)
 
 
 class CloudError(ValueError):
-    """A PointCloud2 that cannot be decoded. ``reason``: ``missing_fields``,
-    ``wrong_field_type``, ``truncated`` or ``bad_layout``."""
+    """A PointCloud2 that cannot be decoded. ``reason``: one of :data:`CLOUD_REASONS`."""
 
     def __init__(self, reason: str, message: str):
         super().__init__(message)
@@ -54,13 +56,16 @@ def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.d
     """Structured dtype (itemsize ``point_step``) from a list of PointField-like objects.
 
     Raises:
-        ValueError: unknown datatype, duplicate or empty name, a field beyond ``point_step``.
+        CloudError (a ValueError): ``wrong_field_type`` for an unknown datatype;
+        ``bad_layout`` for a duplicate or empty name, a field beyond ``point_step`` (offset,
+        size ``count`` x datatype), two fields that overlap (a ``v`` at the offset of ``u``
+        would make every ``v`` equal its ``u``), or ``point_step <= 0``.
     """
     point_step = int(point_step)
     if point_step <= 0:
         raise CloudError("bad_layout", f"point_step must be > 0, got {point_step}")
     order = ">" if is_bigendian else "<"
-    names, formats, offsets = [], [], []
+    names, formats, offsets, spans = [], [], [], []
     for f in fields:
         name = str(f.name)
         if not name:
@@ -73,14 +78,19 @@ def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.d
                              f"field {name!r} has unknown PointField datatype {dt}")
         count = max(int(f.count), 1)
         base = np.dtype(order + _DT_TO_NP[dt])
-        fmt = base if count == 1 else np.dtype((base, (count,)))
         offset = int(f.offset)
-        if offset < 0 or offset + fmt.itemsize > point_step:
-            raise CloudError("bad_layout", f"field {name!r} (offset {offset}, {fmt.itemsize} "
+        size = count * base.itemsize  # (checked before NumPy sees a huge count)
+        if offset < 0 or offset + size > point_step:
+            raise CloudError("bad_layout", f"field {name!r} (offset {offset}, {size} "
                              f"bytes) does not fit in point_step {point_step}")
+        for other, (a, b) in zip(names, spans):
+            if offset < b and a < offset + size:
+                raise CloudError("bad_layout", f"fields {other!r} (bytes {a}-{b - 1}) and "
+                                 f"{name!r} (bytes {offset}-{offset + size - 1}) overlap")
         names.append(name)
-        formats.append(fmt)
+        formats.append(base if count == 1 else np.dtype((base, (count,))))
         offsets.append(offset)
+        spans.append((offset, offset + size))
     return np.dtype({"names": names, "formats": formats, "offsets": offsets,
                      "itemsize": point_step})
 
@@ -105,12 +115,21 @@ def dtype_to_fields(dtype: np.dtype):
     return out
 
 
-def cloud_to_array(msg) -> np.ndarray:
+def cloud_to_array(msg, names=None) -> np.ndarray:
     """PointCloud2 (rclpy or rosbags) -> 1-D structured array of ``width * height`` points.
 
+    Args:
+        msg: the cloud.
+        names: decode only the fields of these names (the others, whatever their datatype,
+            offset or name, are ignored); ``None``: every field.
     Raises:
-        ValueError: inconsistent sizes (truncated data, row_step too small), bad fields.
+        CloudError (a ValueError): ``truncated`` (less data than the layout needs),
+        ``bad_layout`` (row_step too small, negative size, see :func:`fields_to_dtype`),
+        ``wrong_field_type``.
     """
+    fields = list(msg.fields)
+    if names is not None:
+        fields = [f for f in fields if str(f.name) in names]
     width, height = int(msg.width), int(msg.height)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
     n = width * height
@@ -126,8 +145,8 @@ def cloud_to_array(msg) -> np.ndarray:
     if n == 0:
         if point_step <= 0:  # an empty cloud may come with an empty layout
             return np.zeros(0, dtype=[("u", "f4"), ("v", "f4")])
-        return np.zeros(0, dtype=fields_to_dtype(msg.fields, point_step, msg.is_bigendian))
-    dtype = fields_to_dtype(msg.fields, point_step, bool(msg.is_bigendian))
+        return np.zeros(0, dtype=fields_to_dtype(fields, point_step, msg.is_bigendian))
+    dtype = fields_to_dtype(fields, point_step, bool(msg.is_bigendian))
     if row_step < width * point_step:
         raise CloudError("bad_layout",
                          f"row_step {row_step} < width {width} * point_step {point_step}")
@@ -228,12 +247,13 @@ class Keypoints:
         return len(self.uv)
 
 
-def _field_types(msg) -> dict:
-    return {str(f.name): int(f.datatype) for f in msg.fields}
+def _field_types(msg, names) -> dict:
+    """name -> datatype of the fields called one of ``names`` (the others are not read)."""
+    return {str(f.name): int(f.datatype) for f in msg.fields if str(f.name) in names}
 
 
 def _check_fields(msg, required: dict, optional: dict) -> dict:
-    types = _field_types(msg)
+    types = _field_types(msg, set(required) | set(optional))
     missing = [nm for nm in required if nm not in types]
     if missing:
         raise CloudError("missing_fields",
@@ -255,11 +275,16 @@ def _column(arr, name):
 
 
 def read_correspondences(msg) -> Correspondences:
-    """Decode a correspondences cloud. Raises ValueError for missing fields, wrong field types
-    and truncated data. Non-finite rows are kept (the estimator drops and counts them)."""
+    """Decode a correspondences cloud. Only the fields ``u, v, x, y, z, id, score`` are read;
+    other fields are ignored. Non-finite rows are kept (the caller drops and counts them).
+
+    Raises:
+        CloudError (a ValueError) with ``reason``: ``missing_fields``, ``wrong_field_type``,
+        ``truncated`` or ``bad_layout`` (see :func:`cloud_to_array`).
+    """
     types = _check_fields(msg, {k: FLOAT_TYPES for k in "uvxyz"},
                           {"id": INDEX_TYPES, "score": FLOAT_TYPES})
-    arr = cloud_to_array(msg)
+    arr = cloud_to_array(msg, set(types))
     uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
     xyz = np.stack([_column(arr, k) for k in "xyz"], axis=1).astype(np.float64)
     ids = _column(arr, "id").astype(np.int64) if "id" in types else None
@@ -268,11 +293,11 @@ def read_correspondences(msg) -> Correspondences:
 
 
 def read_keypoints(msg) -> Keypoints:
-    """Decode a keypoints cloud (``u, v, id`` [+ ``score``]). Raises ValueError like
-    :func:`read_correspondences`."""
+    """Decode a keypoints cloud (``u, v, id`` [+ ``score``]; other fields are ignored).
+    Raises CloudError like :func:`read_correspondences`."""
     types = _check_fields(msg, {"u": FLOAT_TYPES, "v": FLOAT_TYPES, "id": INDEX_TYPES},
                           {"score": FLOAT_TYPES})
-    arr = cloud_to_array(msg)
+    arr = cloud_to_array(msg, set(types))
     uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
     ids = _column(arr, "id").astype(np.int64)
     scores = _column(arr, "score").astype(np.float64) if "score" in types else None

@@ -1,0 +1,220 @@
+"""Plausibility checks of the estimator: motion bounds, cheirality, degenerate point sets.
+
+A model that explains the correspondences is not necessarily a camera pose: with the six extra
+degrees of freedom of the rolling-shutter model (``w``, ``t``), RANSAC can fit hundreds of
+"inliers" of a degenerate cloud (all pixels on one image line, 3D points reflected through the
+camera centre) with angular velocities of thousands of rad/s and a camera kilometres away. The
+checks here keep such models out:
+
+* :func:`plausible_motion`: the physical angular and linear velocities (paper eq. 5 with
+  ``tau = time / seconds_per_unit_r``, see
+  :func:`rs_localizer.estimation.estimate.physical_velocities`)
+  within the bounds of :class:`~rs_localizer.estimation.estimate.EstimateOptions`. Applied to
+  every RANSAC hypothesis and local-optimization candidate (an implausible model scores like
+  "no inliers") and to the final model.
+* :func:`depths_at_capture`: the depth of every point at its own capture time under the exact
+  constant-velocity model (``expm(tau [w]x) R X + C + tau t``, the model of the refinement);
+  inliers must be in front of the camera (cheirality).
+* :func:`image_degenerate`, :func:`collinear_3d`: point sets that fix no pose (identical points,
+  3D points on a line, image points within the inlier threshold of one image line).
+* :func:`check_final_model`: the last check before ``success=True``; returns a failure reason
+  (``implausible_motion``, ``cheirality``) or ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["motion_bounds", "plausible_motion", "depths_at_capture", "collinear_3d",
+           "image_degenerate", "check_final_model", "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
+
+#: failure reasons of :func:`check_final_model`
+IMPLAUSIBLE_MOTION = "implausible_motion"
+CHEIRALITY = "cheirality"
+
+
+def motion_bounds(max_angular_velocity: float, max_linear_velocity: float,
+                  seconds_per_unit_r: float):
+    """Bounds on the model velocities per unit RS coordinate ``r``.
+
+    Args:
+        max_angular_velocity: rad/s (``inf`` = no bound).
+        max_linear_velocity: m/s (``inf`` = no bound).
+        seconds_per_unit_r: the camera's capture-time difference per unit of ``r`` (s).
+    Returns:
+        ``(w_max, v_max)`` in rad and m per unit ``r``, or ``None`` when the timing is global
+        shutter (``seconds_per_unit_r <= 0``: the model velocities have no physical scale and
+        are not bounded).
+    """
+    s = float(seconds_per_unit_r)
+    if not s > 0:
+        return None
+    return float(max_angular_velocity) * s, float(max_linear_velocity) * s
+
+
+def plausible_motion(Rs, Cs, ws, ts, bounds):
+    """Which models move plausibly.
+
+    The camera's angular velocity is ``-w`` and its linear velocity ``w x C - t`` (per unit r,
+    in the camera frame; see ``physical_velocities``), so a model is plausible when
+    ``|w| <= w_max`` and ``|w x C - t| <= v_max``.
+
+    Args:
+        Rs (K, 3, 3) rotations (unused, for a uniform signature), Cs, ws, ts (K, 3) or (3,).
+        bounds: ``(w_max, v_max)`` from :func:`motion_bounds`, or ``None`` (only finiteness
+            is checked).
+    Returns:
+        (K,) bool, or a bool for single (3,) vectors; ``False`` for non-finite parameters.
+    """
+    if np.ndim(ws) == 1:  # one model: plain floats (this runs for every LO candidate)
+        C0, C1, C2 = (float(a) for a in Cs)
+        w0, w1, w2 = (float(a) for a in ws)
+        t0, t1, t2 = (float(a) for a in ts)
+        if not all(math.isfinite(a) for a in (C0, C1, C2, w0, w1, w2, t0, t1, t2)):
+            return False
+        if bounds is None:
+            return True
+        v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
+        return bool(w0 * w0 + w1 * w1 + w2 * w2 <= bounds[0] ** 2
+                    and v0 * v0 + v1 * v1 + v2 * v2 <= bounds[1] ** 2)
+    Cs, ws, ts = (np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
+                  for a in (Cs, ws, ts))
+    if bounds is None:
+        return _plausible(Cs, ws, ts, np.inf, np.inf)
+    return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+
+
+@njit(cache=True, nogil=True)
+def _plausible(Cs, ws, ts, w_max2, v_max2):
+    out = np.empty(Cs.shape[0], dtype=np.bool_)
+    for k in range(Cs.shape[0]):
+        C0, C1, C2 = Cs[k, 0], Cs[k, 1], Cs[k, 2]
+        w0, w1, w2 = ws[k, 0], ws[k, 1], ws[k, 2]
+        v0 = w1 * C2 - w2 * C1 - ts[k, 0]
+        v1 = w2 * C0 - w0 * C2 - ts[k, 1]
+        v2 = w0 * C1 - w1 * C0 - ts[k, 2]
+        wn2 = w0 * w0 + w1 * w1 + w2 * w2
+        vn2 = v0 * v0 + v1 * v1 + v2 * v2
+        finite = (np.isfinite(C0) and np.isfinite(C1) and np.isfinite(C2) and np.isfinite(wn2)
+                  and np.isfinite(ts[k, 0]) and np.isfinite(ts[k, 1]) and np.isfinite(ts[k, 2]))
+        out[k] = finite and wn2 <= w_max2 and vn2 <= v_max2
+    return out
+
+
+def depths_at_capture(R, C, w, t, X, tau) -> np.ndarray:
+    """(N,) depth (camera z, m) of each world point at its own capture time.
+
+    Exact constant-velocity model (the refinement's, eq. 4 with the rotation
+    ``expm(tau [w]x) R``): ``p_i = expm(tau_i [w]x) R X_i + C + tau_i t``; the z row of
+    Rodrigues' formula (written apart from the scoring and refinement kernels).
+
+    Args:
+        R (3, 3), C, w, t (3,): the model (world -> camera at the reference row; velocities per
+            unit r). X (N, 3) world points (m). tau (N,) ``r_i - r0`` of each observation.
+    """
+    X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
+    tau = np.ascontiguousarray(tau, dtype=np.float64).reshape(-1)
+    return _depths(np.ascontiguousarray(R, dtype=np.float64),
+                   *(np.ascontiguousarray(a, dtype=np.float64) for a in (C, w, t)), X, tau)
+
+
+@njit(cache=True, nogil=True)
+def _depths(R, C, w, t, X, tau):
+    n = X.shape[0]
+    out = np.empty(n)
+    wn = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    k0, k1, k2 = (w[0] / wn, w[1] / wn, w[2] / wn) if wn > 0 else (0.0, 0.0, 0.0)
+    for i in range(n):
+        q0 = R[0, 0] * X[i, 0] + R[0, 1] * X[i, 1] + R[0, 2] * X[i, 2]
+        q1 = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2]
+        q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
+        th = tau[i] * wn
+        c, s = np.cos(th), np.sin(th)
+        # z of q cos th + (k x q) sin th + k (k . q)(1 - cos th)
+        out[i] = (q2 * c + (k0 * q1 - k1 * q0) * s + k2 * (k0 * q0 + k1 * q1 + k2 * q2) * (1 - c)
+                  + C[2] + tau[i] * t[2])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _scatter(P):
+    """Upper triangle of the scatter matrix of the centred rows of P (N, d), d = 2 or 3."""
+    n, d = P.shape
+    m = np.zeros(d)
+    for i in range(n):
+        for a in range(d):
+            m[a] += P[i, a]
+    m /= max(n, 1)
+    S = np.zeros((d, d))
+    for i in range(n):
+        for a in range(d):
+            da = P[i, a] - m[a]
+            for b in range(a, d):
+                S[a, b] += da * (P[i, b] - m[b])
+    for a in range(d):
+        for b in range(a):
+            S[a, b] = S[b, a]
+    return S
+
+
+def collinear_3d(X, tol: float = 1e-3) -> bool:
+    """True if the 3D points (N, 3) lie (nearly) on a line or are identical (the rotation about
+    that line is free): second singular value of the centred points below ``tol`` times the
+    first (the eigenvalues of their 3x3 scatter matrix are the squared singular values)."""
+    X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
+    if len(X) < 3:
+        return True
+    ev = np.linalg.eigvalsh(_scatter(X))  # ascending
+    return bool(not ev[2] > 0 or ev[1] < tol * tol * ev[2])
+
+
+def line_rms(points) -> float:
+    """RMS distance of 2D points (N, 2) from their total-least-squares line (0 for N < 3):
+    the square root of the smaller eigenvalue of their 2x2 scatter matrix over N."""
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(p) < 3:
+        return 0.0
+    S = _scatter(p)
+    a, b, c = S[0, 0], S[0, 1], S[1, 1]
+    lam = 0.5 * (a + c) - math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+    return math.sqrt(max(lam, 0.0) / len(p))
+
+
+def image_degenerate(points_px, points_normalized, focal: float, threshold_px: float) -> bool:
+    """True if the image points lie within the inlier threshold of one image line (identical
+    points included): the rays then span a plane through the camera centre and the pose is not
+    determined (with the RS model's velocities, RANSAC still "fits" them).
+
+    Tested in the measured pixels and in the undistorted normalized coordinates scaled by
+    ``focal`` (a straight image line stays degenerate whichever of the two it is straight in).
+
+    Args:
+        points_px (N, 2) measured pixels; points_normalized (N, 2) undistorted normalized
+        coordinates; focal (px); threshold_px: RMS distance from the line (px) below which
+        the set is degenerate.
+    """
+    return (line_rms(points_px) < threshold_px
+            or line_rms(np.asarray(points_normalized, dtype=float) * focal) < threshold_px)
+
+
+def check_final_model(R, C, w, t, inlier_depths, bounds):
+    """The last check before a model is reported as a pose.
+
+    Args:
+        R (3, 3), C, w, t (3,): the final model; inlier_depths (N,): its inliers' depths at
+        their capture times (:func:`depths_at_capture`); bounds: :func:`motion_bounds` (or
+        ``None``).
+    Returns:
+        ``"implausible_motion"`` (non-finite parameters or a velocity beyond the bounds),
+        ``"cheirality"`` (an inlier not in front of the camera at its capture time), or
+        ``None`` when the model is plausible.
+    """
+    if not (np.isfinite(R).all() and plausible_motion(None, C, w, t, bounds)):
+        return IMPLAUSIBLE_MOTION
+    z = np.asarray(inlier_depths, dtype=float)
+    if not (z > 0).all():  # (False for NaN)
+        return CHEIRALITY
+    return None
