@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .batch import fused_kernels, ransac_batch
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
                        select_prerotations, valid_rows)
 from .scoring import errors2, msac_evaluate, msac_scores
@@ -577,6 +578,11 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     needed = float(opts.max_iterations)
     batch = max(int(opts.batch_size), 1)
     t_local = 0.0
+    # one numba call per batch (the same hypotheses and scores as _generate); planar frames
+    # of the RS solvers take _generate (runner-up pre-rotations, damped solves)
+    fused = (None if fr.planar and solver_info(solver).hypotheses != GLOBAL_SHUTTER
+             else fused_kernels(solver))
+    solver_its = _hypothesis_iterations(solver, opts)
     t0 = time.perf_counter()
     while iters < opts.max_iterations and (iters < needed or iters < opts.min_iterations):
         # batches double (fewer calls), but draw no more samples than termination asks for
@@ -587,18 +593,24 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         pool = N
         if scores is not None:
             pool = int(min(N, max(2 * s, np.ceil(N * (iters + K) / max(opts.prosac_growth, 1)))))
-        samples = order.take(_draw_samples(rng, pool, s, K))
         iters += K
-        Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
-        if not ok.any():
-            continue
         pre_min = int(0.5 * opts.pretest_points * best_count / N)
-        sc, cnt = msac_scores(fr.x, fr.X, fr.r0e, fr.d, np.ascontiguousarray(Rs),
-                              np.ascontiguousarray(Cs), np.ascontiguousarray(ws),
-                              np.ascontiguousarray(ts), th2, ok, best_score, True,
-                              opts.pretest_points, pre_min)
-        h = int(np.argmin(sc))
-        if sc[h] < best_score:
+        if fused is not None:
+            h, sc_h, Rs, Cs, ws, ts = ransac_batch(
+                rng.random((K, s)), pool, order, fr.x, fr.X, fr.r, fr.r0e, fr.d, fr.r0,
+                fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min)
+        else:
+            samples = order.take(_draw_samples(rng, pool, s, K))
+            Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
+            if not ok.any():
+                continue
+            sc, cnt = msac_scores(fr.x, fr.X, fr.r0e, fr.d, np.ascontiguousarray(Rs),
+                                  np.ascontiguousarray(Cs), np.ascontiguousarray(ws),
+                                  np.ascontiguousarray(ts), th2, ok, best_score, True,
+                                  opts.pretest_points, pre_min)
+            h = int(np.argmin(sc))
+            sc_h = sc[h]
+        if sc_h < best_score:
             t_lo = time.perf_counter()  # LO-RANSAC: polish every new best on its inliers
             best = (Rs[h], Cs[h], ws[h], ts[h])
             best_score, best_inl = _evaluate(fr, best, th2)
