@@ -13,12 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .batch import fused_kernels, ransac_batch
+from .outputs import (collinear, final_inliers, output_covariance_kernel,
+                      physical_velocities_kernel)
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
                        select_prerotations, valid_rows)
 from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
-from ..geometry import camera_position, rotvec_to_matrix, skew
+from ..geometry import camera_position, rotvec_to_matrix
 from .refine import exact_errors, refine_rs_pose
 from .prior import MotionPrior, prior_conflict, sample_prior_rows
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
@@ -441,12 +443,6 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
                           seconds_per_unit_r=fr.spr, cutoff=cut), True
 
 
-def _collinear(X, tol: float = 1e-3) -> bool:
-    """True if the 3D points lie (nearly) on a line: the pose about that line is then free."""
-    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
-    return bool(s[0] == 0 or s[1] < tol * s[0])
-
-
 def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
     return RSPoseEstimate(success=False, failure=reason, solver=solver,
                           inliers=np.zeros(n, dtype=bool), num_valid=n_valid,
@@ -469,33 +465,26 @@ def physical_velocities(R, C, w, t, seconds_per_unit_r: float):
     if seconds_per_unit_r <= 0:
         z = np.zeros(3)
         return z, z.copy(), z.copy(), z.copy()
-    om = -np.asarray(w) / seconds_per_unit_r
-    vc = (np.cross(w, C) - t) / seconds_per_unit_r
-    return om, vc, R.T @ om, R.T @ vc
+    f64 = np.float64
+    return physical_velocities_kernel(
+        np.ascontiguousarray(R, dtype=f64), np.ascontiguousarray(C, dtype=f64),
+        np.ascontiguousarray(w, dtype=f64), np.ascontiguousarray(t, dtype=f64),
+        float(seconds_per_unit_r))
 
 
 def _output_covariance(cov12, R, C, w, seconds_per_unit_r):
     """Propagate the (delta, C, w, t) covariance to (camera rotation in world, position,
-    omega_cam, v_cam) and to the ROS pose/twist blocks."""
-    s = seconds_per_unit_r
-    J = np.zeros((12, 12))
-    # R = expm(delta) R0 -> camera orientation R^T = R0^T expm(-delta): world-axis
-    # rotation perturbation phi = -R^T delta
-    J[0:3, 0:3] = -R.T
-    # position c = -R^T C: dc/ddelta = -R^T [C]x, dc/dC = -R^T
-    J[3:6, 0:3] = -R.T @ skew(C)
-    J[3:6, 3:6] = -R.T
-    if s > 0:
-        J[6:9, 6:9] = -np.eye(3) / s
-        J[9:12, 6:9] = -skew(C) / s
-        J[9:12, 3:6] = skew(w) / s
-        J[9:12, 9:12] = -np.eye(3) / s
-    out = J @ cov12 @ J.T
-    pose = np.zeros((6, 6))
-    order = [3, 4, 5, 0, 1, 2]
-    pose[:] = out[np.ix_(order, order)]
-    twist = out[np.ix_([9, 10, 11, 6, 7, 8], [9, 10, 11, 6, 7, 8])] if s > 0 else None
-    return out, pose, twist
+    omega_cam, v_cam) and to the ROS pose/twist blocks.
+
+    With ``R = expm(delta) R0`` the camera orientation ``R^T = R0^T expm(-delta)`` has the
+    world-axis rotation perturbation ``phi = -R^T delta``; the position ``c = -R^T C`` has
+    ``dc/ddelta = -R^T [C]x`` and ``dc/dC = -R^T``; the velocities follow
+    :func:`physical_velocities` (``omega = -w / s``, ``v = (w x C - t) / s``). Returns (the
+    (12, 12) covariance, the ROS pose block, the ROS twist block or ``None`` for a global
+    shutter); computed in :func:`.outputs.output_covariance_kernel`."""
+    s = float(seconds_per_unit_r)
+    out, pose, twist = output_covariance_kernel(np.ascontiguousarray(cov12), R, C, w, s)
+    return out, pose, (twist if s > 0 else None)
 
 
 def _prepare(points2d_px, points3d, camera, max_point_norm, rng=None):
@@ -638,7 +627,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     inl = best_inl
     if best_count < min_inl:
         return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
-    if _collinear(fr.X[inl]):
+    if collinear(fr.X, inl, 1e-3):  # inliers on a 3D line: the pose about it is free
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
     rolling = solver_info(solver).rolling
@@ -650,18 +639,17 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         ref, prior_used = _final_refinement(fr, (R, C, w, t), th, rolling,
                                             prior if prior_on else None)
         cand = (ref.R, ref.C, ref.w, ref.t)
-        if all(np.isfinite(c).all() for c in cand):
+        if np.isfinite(ref.R).all() and np.isfinite(np.concatenate(cand[1:])).all():
             R, C, w, t = cand
             cov12 = ref.covariance if np.isfinite(ref.covariance).all() else None
             info12 = ref.data_information
         # final inliers on the refined exact model (errors at the measured capture time)
-        e = exact_errors(R, C, w, t, fr.X, fr.x, tau)
-        inl_ref = np.isfinite(e) & (e < th)
-        if inl_ref.sum() >= min_inl:
+        inl_ref, n_ref, rms = final_inliers(exact_errors(R, C, w, t, fr.X, fr.x, tau), th)
+        if n_ref >= min_inl:
             inl = inl_ref
         else:
             return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
-        rmse = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
+        rmse = float(rms * fr.f)
     else:
         rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t)[inl])) * fr.f)
     timings["refine"] = time.perf_counter() - t0
