@@ -138,3 +138,63 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
         if scores[q] < scores[h]:
             h = q
     return h, scores[h], Rs, Cs, ws, ts
+
+
+@njit(cache=True)
+def nonminimal_solve(kinds, n_params, inl, R, x, X, r, r0, iterations):
+    """Local optimization's nonminimal step in one call: each batched kernel of ``kinds`` on all
+    points of ``inl``, pre-rotated by R.
+
+    Args:
+        kinds, n_params: (J,) kernel ids and their parameter counts (as for
+            :func:`ransac_batch`); inl: (N,) bool; R: (3, 3) the current rotation;
+            x (N, 2), X (N, 3), r (N,), r0 as there; iterations: linear iterations.
+    Returns:
+        (ok (J,), Rs (J, 3, 3), Cs, ws, ts (J, 3)): kernel j's solution composed with R,
+        ``Rs[j] = expm([v]x) R``; ``ok[j]`` False for rank loss or non-finite values.
+    """
+    n = 0
+    for i in range(inl.shape[0]):
+        if inl[i]:
+            n += 1
+    xs = np.empty((1, n, 2))
+    Xs = np.empty((1, n, 3))
+    rs = np.empty((1, n))
+    m = 0
+    for i in range(inl.shape[0]):
+        if inl[i]:
+            xs[0, m, 0] = x[i, 0]
+            xs[0, m, 1] = x[i, 1]
+            rs[0, m] = r[i]
+            for a in range(3):
+                Xs[0, m, a] = R[a, 0] * X[i, 0] + R[a, 1] * X[i, 1] + R[a, 2] * X[i, 2]
+            m += 1
+    J = kinds.shape[0]
+    ok = np.zeros(J, dtype=np.bool_)
+    Rs = np.empty((J, 3, 3))
+    Cs = np.zeros((J, 3))
+    ws = np.zeros((J, 3))
+    ts = np.zeros((J, 3))
+    v = np.zeros((1, 3))
+    R1 = np.empty((1, 3, 3))
+    R1[0] = R
+    out = np.zeros((1, MAX_PARAMS))
+    ok1 = np.zeros(1, dtype=np.bool_)
+    its = np.zeros(1, dtype=np.int64)
+    err = np.zeros(1)
+    v0 = np.zeros((1, 3))
+    for j in range(J):
+        out[:] = 0.0
+        run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
+        good = ok1[0]
+        for a in range(n_params[j]):
+            if not np.isfinite(out[0, a]):
+                good = False
+        ok[j] = good
+        for a in range(3):
+            v[0, a] = out[0, a] if good else 0.0
+            Cs[j, a] = out[0, 3 + a] if good else 0.0
+            ws[j, a] = out[0, 6 + a] if good else 0.0
+            ts[j, a] = out[0, 9 + a] if good else 0.0
+        Rs[j] = compose_rotvec(v, R1)[0]
+    return ok, Rs, Cs, ws, ts

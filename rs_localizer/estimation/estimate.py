@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .batch import fused_kernels, ransac_batch
+from .batch import fused_kernels, nonminimal_solve, ransac_batch
 from .outputs import (collinear, final_inliers, output_covariance_kernel,
                       physical_velocities_kernel)
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
@@ -25,6 +25,7 @@ from .refine import exact_errors, refine_rs_pose
 from .prior import MotionPrior, prior_conflict, sample_prior_rows
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from ..solvers import p3p_batch, r6p
+from ..solvers.kernels import kernel_ids
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
 
 __all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
@@ -334,9 +335,16 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
     n_inl = int(inl.sum())
     if not solver_info(solver).rolling or n_inl < 6:
         return []
-    Xr = fr.X[inl] @ R.T
     names = [name if n_inl >= sample_size(name) else "r6p_1lin"
              for name in solver_info(solver).lo_solvers]
+    ids = [kernel_ids(name) for name in names]
+    if all(k is not None and len(k) == 1 for k in ids):  # one numba call (gather, solve)
+        ok, Rs, Cs, ws, ts = nonminimal_solve(
+            np.array([k[0][0] for k in ids], dtype=np.int64),
+            np.array([k[0][1] for k in ids], dtype=np.int64), inl, np.ascontiguousarray(R),
+            fr.x, fr.X, fr.r, fr.r0, max(_hypothesis_iterations(solver, opts), 2))
+        return [(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
+    Xr = fr.X[inl] @ R.T
     out = []
     for name in names:
         rows = None if C is None else _prior_rows(fr, opts, Xr[None], np.asarray(C)[None])
