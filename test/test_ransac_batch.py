@@ -97,3 +97,42 @@ def test_estimator_gives_the_same_result_with_and_without_fusion(solver, monkeyp
         np.testing.assert_array_equal(a.w, b.w)
         np.testing.assert_array_equal(a.inliers, b.inliers)
         assert a.ransac_iterations == b.ransac_iterations
+
+
+def test_measured_time_scoring_is_the_refinement_residual():
+    """``measured_error2`` (RANSAC's score) against ``refine.exact_errors`` (the refinement's
+    residual, written separately) on a distorted camera with a bottom-to-top readout."""
+    from rs_localizer.camera import CameraModel
+    from rs_localizer.estimation.refine import exact_errors
+    from rs_localizer.estimation.scoring import errors2, msac_evaluate
+
+    K = np.array([[800.0, 0, 320], [0, 820, 240], [0, 0, 1]])
+    cam = CameraModel.from_readout_time(K, 0.03, 640, 480, D=[-0.2, 0.05, 0.001, -0.001, 0.0],
+                                        readout="bottom_to_top")
+    f = make_frame(7, 200, rs_speed=1.0, noise_px=0.5, outlier_ratio=0.2)
+    x, r, r0e = cam.normalize(cam.distort(f.x))
+    e_ref = exact_errors(f.R, f.C, f.w, f.t, f.X, x, r - cam.r0)
+    e2 = errors2(x, f.X, r0e, cam.readout_vector, f.R, f.C, f.w, f.t, True, True)
+    np.testing.assert_allclose(np.sqrt(e2), e_ref, rtol=1e-9, atol=1e-12)
+    th2 = (2.0 / cam.mean_focal) ** 2
+    sc, inl, n = msac_evaluate(x, f.X, r0e, cam.readout_vector, f.R, f.C, f.w, f.t, th2, True)
+    assert inl.tolist() == (e_ref ** 2 < th2).tolist() and n == inl.sum()
+    np.testing.assert_allclose(sc, np.minimum(e_ref ** 2, th2).sum(), rtol=1e-9)
+
+
+def test_measured_time_scoring_counts_the_inliers_at_fast_motion():
+    """At RS speed 1 the capture row of the first-order model misplaces points by pixels: the
+    true model loses inliers under it, not at the measured times (what made RANSAC draw ~320
+    instead of ~200 samples there)."""
+    from rs_localizer.estimation.scoring import msac_evaluate
+
+    lost_row, lost_measured = [], []
+    for k in range(5):
+        f = make_frame(40 + k, 400, rs_speed=1.0, noise_px=0.0)
+        x, r, r0e = CAM.normalize(f.points_px)
+        th2 = (1.0 / CAM.mean_focal) ** 2
+        for measured, lost in ((False, lost_row), (True, lost_measured)):
+            _, _, n = msac_evaluate(x, f.X, r0e, CAM.readout_vector, f.R, f.C, f.w, f.t, th2,
+                                    measured)
+            lost.append(len(x) - n)
+    assert sum(lost_measured) == 0 and sum(lost_row) > 0

@@ -48,7 +48,7 @@ def fused_kernels(solver: str):
 
 @njit(cache=True)
 def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iterations, th2, bail,
-                 pretest_n, pretest_min):
+                 pretest_n, pretest_min, measured=False):
     """Draw, solve and score one batch of K RANSAC samples.
 
     Args:
@@ -65,7 +65,8 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
             kernel writes (checked for finiteness).
         iterations: linear iterations of the iterative solvers.
         th2: squared inlier threshold (normalized units). bail, pretest_n, pretest_min: as in
-            :func:`~.scoring.msac_scores` (best score so far, pre-test size and bound).
+            :func:`~.scoring.msac_scores` (best score so far, pre-test size and bound);
+            measured: score at the measured capture times (see ``msac_scores``).
     Returns:
         (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3)) with H = max(J, 1) K
         hypotheses (kernel j's in rows ``j K .. j K + K - 1``), h the index of the batch's best
@@ -132,7 +133,7 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
             Rs[j * K:(j + 1) * K] = compose_rotvec(v, R_p)
     scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
-                            pretest_min)
+                            pretest_min, 0.5, measured)
     h = 0
     for q in range(scores.shape[0]):
         if scores[q] < scores[h]:

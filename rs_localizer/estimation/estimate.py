@@ -40,6 +40,10 @@ SOLVERS = SOLVER_NAMES
 #: squares and doubled the angular-velocity error at RS speed 1 (0.49 % against the 0.24 %
 #: of the maximum-likelihood fit on the true inliers; ``test_refine_reaches_the_ml_fit``).
 FINAL_CUTOFF = 2.0
+#: RANSAC and local optimization score points at their measured capture times
+#: (:func:`.scoring.measured_error2`, the refinement's residual) instead of at the capture
+#: row predicted by the first-order model (:func:`.scoring.project_error2`)
+SCORE_AT_MEASURED_TIME = True
 
 
 @dataclass(frozen=True)
@@ -359,7 +363,8 @@ def _evaluate(fr: _Frame, model, th2):
     """(MSAC score, inlier mask) of one model (R, C, w, t) on all points of the frame;
     ``(inf, all False)`` for a model with non-finite parameters."""
     R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64) for a in model)
-    sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2)
+    sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2,
+                               SCORE_AT_MEASURED_TIME)
     return sc, inl
 
 
@@ -606,7 +611,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         if fused is not None:
             h, sc_h, Rs, Cs, ws, ts = ransac_batch(
                 rng.random((K, s)), pool, order, fr.x, fr.X, fr.r, fr.r0e, fr.d, fr.r0,
-                fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min)
+                fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min,
+                SCORE_AT_MEASURED_TIME)
         else:
             samples = order.take(_draw_samples(rng, pool, s, K))
             Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
@@ -615,7 +621,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             sc, cnt = msac_scores(fr.x, fr.X, fr.r0e, fr.d, np.ascontiguousarray(Rs),
                                   np.ascontiguousarray(Cs), np.ascontiguousarray(ws),
                                   np.ascontiguousarray(ts), th2, ok, best_score, True,
-                                  opts.pretest_points, pre_min)
+                                  opts.pretest_points, pre_min, 0.5, SCORE_AT_MEASURED_TIME)
             h = int(np.argmin(sc))
             sc_h = sc[h]
         if sc_h < best_score:
@@ -659,7 +665,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
         rmse = float(rms * fr.f)
     else:
-        rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t)[inl])) * fr.f)
+        rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True,
+                                             SCORE_AT_MEASURED_TIME)[inl])) * fr.f)
     timings["refine"] = time.perf_counter() - t0
 
     spr = camera.seconds_per_unit_r
