@@ -136,3 +136,30 @@ def test_measured_time_scoring_counts_the_inliers_at_fast_motion():
                                     measured)
             lost.append(len(x) - n)
     assert sum(lost_measured) == 0 and sum(lost_row) > 0
+
+
+@pytest.mark.parametrize("solver", ["r6p_1lin", "r6p_vCt_w", "r9p"])
+def test_nonminimal_solve_equals_the_batched_solver_on_the_inliers(solver):
+    """LO's one-call nonminimal step against the public batched solver on the same inliers,
+    pre-rotated by the same R (NumPy), composed with R (NumPy Rodrigues)."""
+    from rs_localizer.estimation.batch import nonminimal_solve
+    from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+
+    f, x, X, r, _ = _frame_arrays(9)
+    R = rotvec_to_matrix(np.array([0.01, -0.02, 0.015])) @ f.R
+    inl = f.inlier.copy()
+    kinds, n_params = fused_kernels(solver)
+    mins = np.array([9 if solver == "r9p" else 6], dtype=np.int64)
+    ok, Rs, Cs, ws, ts = nonminimal_solve(kinds, n_params, mins, inl, R, x, X, r, CAM.r0, 2)
+    b = solver_info(solver).batch[0](x[inl][None], (X[inl] @ R.T)[None], r[inl][None], CAM.r0,
+                                     iterations=2)
+    assert ok[0] and b.valid[0]
+    np.testing.assert_allclose(Rs[0], rotvec_to_matrix(b.v[0]) @ R, atol=1e-12)
+    for a, c in ((Cs[0], b.C[0]), (ws[0], b.w[0]), (ts[0], b.t[0])):
+        np.testing.assert_allclose(a, c, rtol=1e-9, atol=1e-12)
+    assert rotation_angle_deg(Rs[0], f.R) < 0.5
+    # too few points for the kernel: skipped and flagged, not run
+    few = np.zeros(len(x), dtype=bool)
+    few[:int(mins[0]) - 1] = True
+    ok, *_ = nonminimal_solve(kinds, n_params, mins, few, R, x, X, r, CAM.r0, 2)
+    assert not ok[0]

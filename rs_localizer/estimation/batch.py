@@ -42,8 +42,8 @@ def fused_kernels(solver: str):
     ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
     if ids is None:
         return None
-    return (np.array([k for k, _ in ids], dtype=np.int64),
-            np.array([n for _, n in ids], dtype=np.int64))
+    return (np.array([k[0] for k in ids], dtype=np.int64),
+            np.array([k[1] for k in ids], dtype=np.int64))
 
 
 @njit(cache=True)
@@ -142,13 +142,15 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
 
 
 @njit(cache=True)
-def nonminimal_solve(kinds, n_params, inl, R, x, X, r, r0, iterations):
+def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iterations):
     """Local optimization's nonminimal step in one call: each batched kernel of ``kinds`` on all
     points of ``inl``, pre-rotated by R.
 
     Args:
         kinds, n_params: (J,) kernel ids and their parameter counts (as for
-            :func:`ransac_batch`); inl: (N,) bool; R: (3, 3) the current rotation;
+            :func:`ransac_batch`), min_points: (J,) the fewest points each kernel accepts
+            (fewer inliers: that kernel is skipped, ``ok`` False); inl: (N,) bool; R: (3, 3)
+            the current rotation;
             x (N, 2), X (N, 3), r (N,), r0 as there; iterations: linear iterations.
     Returns:
         (ok (J,), Rs (J, 3, 3), Cs, ws, ts (J, 3)): kernel j's solution composed with R,
@@ -186,8 +188,11 @@ def nonminimal_solve(kinds, n_params, inl, R, x, X, r, r0, iterations):
     v0 = np.zeros((1, 3))
     for j in range(J):
         out[:] = 0.0
-        run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
-        good = ok1[0]
+        good = False
+        if n >= min_points[j]:
+            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its,
+                       err)
+            good = ok1[0]
         for a in range(n_params[j]):
             if not np.isfinite(out[0, a]):
                 good = False

@@ -350,7 +350,8 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
     if all(k is not None and len(k) == 1 for k in ids):  # one numba call (gather, solve)
         ok, Rs, Cs, ws, ts = nonminimal_solve(
             np.array([k[0][0] for k in ids], dtype=np.int64),
-            np.array([k[0][1] for k in ids], dtype=np.int64), inl, np.ascontiguousarray(R),
+            np.array([k[0][1] for k in ids], dtype=np.int64),
+            np.array([k[0][2] for k in ids], dtype=np.int64), inl, np.ascontiguousarray(R),
             fr.x, fr.X, fr.r, fr.r0, max(_hypothesis_iterations(solver, opts), 2))
         return [(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
     Xr = fr.X[inl] @ R.T

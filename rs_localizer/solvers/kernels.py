@@ -42,18 +42,20 @@ _k_r9p = _module("r9p")._kernel
 #: widest ``out`` row any kernel writes (R9P: v, C, w, t and the 3x3 R_rs)
 MAX_PARAMS = 21
 
-#: batched function (as listed in :attr:`SolverInfo.batch`) -> (kernel id, parameters written)
+#: batched function (as listed in :attr:`SolverInfo.batch`) -> (kernel id, parameters written,
+#: fewest points)
 _IDS = {
-    r6p_1lin_batch: (0, 12),
-    r6p_vC_wt_batch: (1, 12),
-    r6p_vCt_w_batch: (2, 12),
-    r6p_vCt_wt_batch: (3, 12),
-    SOLVERS["r9p"].batch[0]: (4, 21),  # the registry's gauge-fixed r9p_batch wrapper
+    r6p_1lin_batch: (0, 12, 6),
+    r6p_vC_wt_batch: (1, 12, 6),
+    r6p_vCt_w_batch: (2, 12, 6),
+    r6p_vCt_wt_batch: (3, 12, 6),
+    SOLVERS["r9p"].batch[0]: (4, 21, 9),  # the registry's gauge-fixed r9p_batch wrapper
 }
 
 
 def kernel_ids(name: str):
-    """``((id, n_params), ...)`` of the batched kernels of solver ``name`` in the order of its
+    """``((id, n_params, min_points), ...)`` of the batched kernels of solver ``name`` (kernel
+    id for :func:`run_kernel`, parameters it writes, fewest points it accepts) in the order of its
     registry entry's ``batch`` tuple (two for the joined solver), or ``None`` if the solver has
     no batched kernels (``p3p``, ``r6p``) or one that :func:`run_kernel` does not know.
 
@@ -69,7 +71,8 @@ def kernel_ids(name: str):
 @njit(cache=True)
 def run_kernel(kind, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     """Run batched kernel ``kind`` (an id from :func:`kernel_ids`) on K problems; arguments as
-    the kernels' (module docstring). Unknown ids leave ``ok`` False."""
+    the kernels' (module docstring); N must be at least the kernel's ``min_points`` (not
+    checked here: the kernels do not check it either). Unknown ids leave ``ok`` False."""
     if kind == 0:
         _k_1lin(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
     elif kind == 1:
