@@ -38,7 +38,7 @@ SOLVERS = SOLVER_NAMES
 #: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
 #: inliers: a fit on the points inside the threshold alone is a 2-sigma-truncated least
 #: squares and doubled the angular-velocity error at RS speed 1 (0.49 % against the 0.24 %
-#: of the maximum-likelihood fit on the true inliers; ``test_refine_reaches_the_ml_fit``).
+#: of the maximum-likelihood fit on the true inliers; ``test/test_ml_accuracy.py``).
 FINAL_CUTOFF = 2.0
 #: The final refinement stops when an accepted step lowers the cost by less than this fraction
 #: (steps of a few hundredths of the parameters' standard deviation): the velocities then
@@ -532,10 +532,12 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
     Pipeline: validate and normalize (OpenCV undistortion; RS time from the measured, distorted
-    line) -> RANSAC over minimal samples (P3P pre-rotation per sample, batched RS solver, MSAC
-    score on the closed-form RS reprojection error of eq. 4/5, adaptive termination,
-    PROSAC-style ordering when ``scores`` are given) -> local optimization (the RS solver on
-    all inliers) -> robust refinement on the exact constant-velocity model with covariance.
+    line) -> RANSAC over minimal samples (P3P pre-rotation per sample, batched RS solver,
+    preemptive MSAC score on the reprojection error of the exact constant-velocity model at
+    each point's measured capture time, adaptive termination, PROSAC-style ordering when
+    ``scores`` are given; one numba call per batch, :mod:`.batch`) -> local optimization (the
+    RS solver on all inliers) -> robust refinement on the exact model (truncated Huber loss on
+    all points within ``FINAL_CUTOFF`` thresholds) with covariance.
 
     Args:
         points2d_px: (N, 2) measured (distorted) pixel coordinates.
