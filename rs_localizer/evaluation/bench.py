@@ -1,4 +1,4 @@
-"""Benchmarks: ``python -m rs_localizer.evaluation.bench {solvers,estimate}``.
+"""Benchmarks: ``python -m rs_localizer.evaluation.bench {solvers,estimate,ml}``.
 
 Timings pin BLAS to one thread (threadpoolctl and the usual environment variables) and report
 medians over repeated runs on data from :mod:`rs_localizer.sim.synthetic`. Numbers depend on the
@@ -11,7 +11,8 @@ estimator for every solver on rolling-shutter frames, ``r6p_1lin`` on global-shu
 PoseLib's ``estimate_absolute_pose`` on the global-shutter frames at matched settings and at its
 defaults (and, for accuracy, PoseLib and OpenCV's ``solvePnPRansac`` on the RS frames):
 wall-clock and CPU milliseconds per frame, accuracy, the ratios of ours to PoseLib's global-shutter
-time, and our stage medians.
+time, and our stage medians. ``ml``: our estimate against the maximum-likelihood fit (SciPy on the
+true inliers) at RS speed 1.
 """
 
 from __future__ import annotations
@@ -227,6 +228,52 @@ def _ours(f, cam, solver, opts):
     return e.R, e.C, e.num_inliers, e.timings, e.angular_velocity
 
 
+def ml_fit(f):
+    """(R, C, w, t) maximizing the likelihood of a synthetic frame under its Gaussian pixel
+    noise: SciPy ``least_squares`` on the generator's true inliers, exact constant-velocity
+    model (:func:`rs_localizer.estimation.refine.exact_residuals`), from the ground truth, run
+    to convergence. The best any estimator can do on the frame."""
+    from scipy.optimize import least_squares
+
+    from ..estimation.refine import exact_jacobian, exact_residuals
+    from ..geometry import rotvec_to_matrix
+
+    X, x, tau = f.X[f.inlier], f.x[f.inlier], f.r[f.inlier] - f.r0
+    theta0 = np.concatenate([np.zeros(3), f.C, f.w, f.t])
+    res = least_squares(lambda p: exact_residuals(p, f.R, X, x, tau), theta0,
+                        jac=lambda p: exact_jacobian(p, f.R, X, x, tau), method="lm",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    th = res.x
+    return rotvec_to_matrix(th[:3]) @ f.R, th[3:6], th[6:9], th[9:12]
+
+
+def bench_ml(frames: int = 40, n_points: int = 500, rs_speed: float = 1.0,
+             noise_px: float = 1.0, outlier_ratio: float = 0.3, seed: int = 0) -> dict:
+    """Our ``r6p_1lin`` estimate against the maximum-likelihood fit (:func:`ml_fit`) on the same
+    frames: median angular velocity error of both (% of the true |omega|), the median and
+    largest distance between the two (% of |omega|), and the median rotation errors (deg)."""
+    from ..estimation.estimate import physical_velocities
+
+    cam = paper_camera()
+    ours, ml, apart, rot_ours, rot_ml = [], [], [], [], []
+    for k in range(frames):
+        f = make_frame(seed * 100003 + k, n_points, rs_speed=rs_speed, noise_px=noise_px,
+                       outlier_ratio=outlier_ratio)
+        e = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin")
+        R, C, w, t = ml_fit(f)
+        om = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)[0]
+        n = np.linalg.norm(f.angular_velocity)
+        ours.append(100 * np.linalg.norm(e.angular_velocity - f.angular_velocity) / n)
+        ml.append(100 * np.linalg.norm(om - f.angular_velocity) / n)
+        apart.append(100 * np.linalg.norm(e.angular_velocity - om) / n)
+        rot_ours.append(rotation_angle_deg(e.R, f.R))
+        rot_ml.append(rotation_angle_deg(R, f.R))
+    return dict(frames=frames, rs_speed=rs_speed, omega_pct_ours=float(np.median(ours)),
+                omega_pct_ml=float(np.median(ml)), apart_pct_median=float(np.median(apart)),
+                apart_pct_max=float(np.max(apart)), rot_deg_ours=float(np.median(rot_ours)),
+                rot_deg_ml=float(np.median(rot_ml)))
+
+
 def _fmt(v, spec):
     width = int(spec.split(".")[0].rstrip("dfs") or 0)
     return format(v, spec) if isinstance(v, (int, float, np.floating)) else "-".rjust(width)
@@ -248,6 +295,9 @@ def main(argv=None) -> int:
     pe.add_argument("--no-baselines", action="store_true",
                     help="skip PoseLib and OpenCV on the RS frames (the global-shutter "
                          "references of the ratios always run)")
+    pm = sub.add_parser("ml", help="our estimate against the maximum-likelihood fit")
+    pm.add_argument("--frames", type=int, default=40)
+    pm.add_argument("--speed", type=float, default=1.0, help="RS speed")
     a = p.parse_args(argv)
     ctx = threadpool_limits(1) if threadpool_limits else None
     try:
@@ -261,6 +311,14 @@ def main(argv=None) -> int:
                       f"{_fmt(r.get('us_batched'), '16.2f')}"
                       f"{_fmt(r.get('us_batched_per_iteration'), '17.2f')}"
                       f"{_fmt(PAPER_US.get(r['solver']), '15d')}")
+        elif a.what == "ml":
+            r = bench_ml(a.frames, rs_speed=a.speed)
+            print(f"{r['frames']} frames at RS speed {r['rs_speed']} (500 correspondences, 1 px "
+                  f"noise, 30% outliers): median angular velocity error, % of |omega|: ours "
+                  f"{r['omega_pct_ours']:.3f}, maximum-likelihood fit on the true inliers "
+                  f"{r['omega_pct_ml']:.3f}; ours - ML: median {r['apart_pct_median']:.3f}, max "
+                  f"{r['apart_pct_max']:.3f}; median rotation error: ours "
+                  f"{r['rot_deg_ours']:.4f} deg, ML {r['rot_deg_ml']:.4f} deg")
         else:
             load0 = os.getloadavg()
             rows = bench_estimate(a.frames, a.points, a.speed, a.noise, a.outliers, a.solvers,
