@@ -347,7 +347,8 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
     names = [name if n_inl >= sample_size(name) else "r6p_1lin"
              for name in solver_info(solver).lo_solvers]
     ids = [kernel_ids(name) for name in names]
-    if all(k is not None and len(k) == 1 for k in ids):  # one numba call (gather, solve)
+    # one numba call (gather, solve) unless the solve is damped by the motion prior
+    if not fr.regularize and all(k is not None and len(k) == 1 for k in ids):
         ok, Rs, Cs, ws, ts = nonminimal_solve(
             np.array([k[0][0] for k in ids], dtype=np.int64),
             np.array([k[0][1] for k in ids], dtype=np.int64),
