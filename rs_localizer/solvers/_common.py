@@ -57,6 +57,18 @@ class RSSolution:
         if self.R_rs is not None:
             object.__setattr__(self, "R_rs", _frozen(self.R_rs))
 
+    @classmethod
+    def _trusted(cls, v, C, w, t, iterations, algebraic_error):
+        """An RSSolution from read-only float64 (3,) arrays, without the copies of
+        ``__init__`` (the solvers' hot path; the arrays must not be writeable)."""
+        self = object.__new__(cls)
+        for name, a in (("v", v), ("C", C), ("w", w), ("t", t)):
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "R_rs", None)
+        object.__setattr__(self, "iterations", iterations)
+        object.__setattr__(self, "algebraic_error", algebraic_error)
+        return self
+
     @property
     def R(self) -> np.ndarray:
         """(3, 3) rotation at the reference coordinate: Rodrigues of ``v`` (``expm([v]x)``)."""

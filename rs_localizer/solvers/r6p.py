@@ -1058,6 +1058,50 @@ def _solve(x, X, r, r0):
                   _MAX_NEWTON, zmax)
 
 
+@njit(cache=True)
+def _solve_core(x, X, r, r0):
+    """:func:`_solve` in one compiled call for the common case (the module's constant tables
+    are compile-time constants here). Returns (status, Z, its, err): status 0 with the roots;
+    1-4 a degeneracy (:data:`_DEGENERATE`); -1 when :func:`_solve` must run instead (maybe
+    coplanar points, which need the NumPy lift, or a Francis QR that did not converge)."""
+    Z0 = np.zeros((0, 12))
+    its0 = np.zeros(0, dtype=np.int64)
+    err0 = np.zeros(0)
+    status, Xn, taun, m, s, st, maybe_planar = _normalise(x, X, r, r0, _PLANAR_TOL)
+    if status != 0:
+        return status, Z0, its0, err0
+    if maybe_planar:
+        return -1, Z0, its0, err0
+    ok, A, Au, Bqr, V = _template(x, Xn, taun, _PROJ_C)
+    if not ok:
+        return 3, Z0, its0, err0
+    Mact, pivot_ratio = _action_matrix(Au, _MUL11, _MUL22, _QUADS, _CCOMP, _CSIGN, _SHIFT, _G)
+    if not pivot_ratio > _PIVOT_TOL:
+        return 4, Z0, its0, err0
+    for i in range(Mact.shape[0]):
+        for j in range(Mact.shape[1]):
+            if not np.isfinite(Mact[i, j]):
+                return 4, Z0, its0, err0
+    ok, Uc = _real_candidates(Mact, _SHIFT, _IMAG_TOL)
+    if not ok:
+        return -1, Z0, its0, err0
+    Z, its, err = _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, _PROJ_C, _ACCEPT_TOL,
+                         _MAX_NEWTON, _ZMAX)
+    return 0, Z, its, err
+
+
+@njit(cache=True)
+def _check6(x, X, r, r0):
+    """True if the six rows of x (6, 2), X (6, 3), r (6,) and r0 are all finite."""
+    if not np.isfinite(r0):
+        return False
+    for i in range(6):
+        if not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1]) and np.isfinite(r[i])
+                and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1]) and np.isfinite(X[i, 2])):
+            return False
+    return True
+
+
 _DEGENERATE = {
     1: "r6p: world points are coincident or collinear",
     2: "r6p: duplicated world points",
@@ -1108,11 +1152,26 @@ def r6p(x, X, r=None, r0: float = 0.0) -> list[RSSolution]:
             template. The solver never
             returns NaN; "no real root" is an empty list.
     """
-    x, X, r, r0 = check_inputs(x, X, r, r0, min_points=6, name="r6p")
-    if len(x) != 6:
-        raise ValueError(f"r6p: is a minimal solver and needs exactly 6 correspondences, "
-                         f"got {len(x)}")
-    Z, its, err = _solve(x, X, r, r0)
-    return [RSSolution(z[0:3], z[6:9], z[3:6], z[9:12], iterations=int(k), algebraic_error=float(e))
-            for z, k, e in zip(Z, its, err) if math.isfinite(e)]
+    f64 = np.float64
+    if (type(x) is np.ndarray and type(X) is np.ndarray and x.dtype == f64 and X.dtype == f64
+            and x.shape == (6, 2) and X.shape == (6, 3) and x.flags.c_contiguous
+            and X.flags.c_contiguous and r is None and type(r0) in (float, int)):
+        # fast path (the common call; same checks as check_inputs, one compiled call)
+        r, r0 = x[:, 1].copy(), float(r0)
+        if not _check6(x, X, r, r0):
+            raise ValueError("r6p: inputs contain NaN or inf")
+    else:
+        x, X, r, r0 = check_inputs(x, X, r, r0, min_points=6, name="r6p")
+        if len(x) != 6:
+            raise ValueError(f"r6p: is a minimal solver and needs exactly 6 correspondences, "
+                             f"got {len(x)}")
+    status, Z, its, err = _solve_core(x, X, r, r0)
+    if status > 0:
+        raise DegenerateInputError(_DEGENERATE[status])
+    if status < 0:
+        Z, its, err = _solve(x, X, r, r0)
+    Z.setflags(write=False)  # the solutions' arrays are read-only views of Z
+    return [RSSolution._trusted(Z[i, 0:3], Z[i, 6:9], Z[i, 3:6], Z[i, 9:12], int(its[i]),
+                                float(err[i]))
+            for i in range(len(err)) if math.isfinite(err[i])]
 

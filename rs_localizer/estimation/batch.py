@@ -1,0 +1,220 @@
+"""One numba call per RANSAC batch: sampling, P3P pre-rotation, the batched RS solver and the
+preemptive MSAC scoring (paper sec. 4).
+
+:func:`ransac_batch` runs the same kernels as the step-by-step path of
+:mod:`rs_localizer.estimation.estimate` (:func:`~.sampling.draw_samples`, Lambda Twist P3P,
+:func:`~.sampling.select_prerotations`, :func:`~.sampling.gather_prerotated`, the solver's
+batched kernel, :func:`~rs_localizer._so3.compose_rotvec`'s rotation,
+:func:`~.scoring.msac_scores`) on the same numbers, so its hypotheses and scores are the same,
+bit for bit; it only removes the ~15 NumPy/Python calls per batch between them (a NumPy call
+costs 1-10 us, a batch of 64 hypotheses ~150 us of kernels).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .._so3 import compose_rotvec
+from ..solvers.kernels import MAX_PARAMS, kernel_ids, run_kernel
+from ..solvers.lambda_twist import lambda_twist_batch
+from ..solvers.p3p import DEFAULT_BACKEND
+from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
+from .sampling import draw_samples, gather_prerotated, select_prerotations
+from .scoring import msac_scores
+
+__all__ = ["ransac_batch", "fused_kernels"]
+
+#: stopping tolerance of the iterative solvers on RANSAC samples (their default)
+_SOLVER_TOL = 1e-12
+
+
+def fused_kernels(solver: str):
+    """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
+    when the solver has no fused path: R6P (a variable number of roots per sample), a batched
+    solver without a kernel id, or a P3P backend other than our Lambda Twist
+    (``RS_LOCALIZER_P3P``, for comparisons). Raises ValueError for an unknown solver."""
+    info = solver_info(solver)
+    if DEFAULT_BACKEND != "lambda_twist":
+        return None
+    if info.hypotheses == GLOBAL_SHUTTER:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
+    if ids is None:
+        return None
+    return (np.array([k[0] for k in ids], dtype=np.int64),
+            np.array([k[1] for k in ids], dtype=np.int64))
+
+
+@njit(cache=True)
+def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iterations, th2, bail,
+                 pretest_n, pretest_min, measured=False, w_max=np.inf, v_max=np.inf):
+    """Draw, solve and score one batch of K RANSAC samples.
+
+    Args:
+        u: (K, s) uniform numbers in [0, 1) (the caller's seeded generator); s is the sample
+            size (3 for P3P, 6, or 9 for R9P).
+        pool: sample from ``order[:pool]`` (PROSAC-style growing pool; ``len(x)`` for plain
+            sampling). order: (N,) int64 point indices, best-scored first.
+        x (N, 2) normalized points, X (N, 3) world points, r (N,) RS coordinates, r0e (N,)
+            per-point reference coordinate, d (2,) readout direction, r0 the reference
+            coordinate (see :meth:`rs_localizer.camera.CameraModel.normalize`).
+        kinds: (J,) int64 batched-kernel ids (:func:`rs_localizer.solvers.kernels.kernel_ids`),
+            each run on every sample, pre-rotated by the sample's P3P solution; J = 0: the P3P
+            pre-rotations are the (global-shutter) hypotheses. n_params: (J,) parameters each
+            kernel writes (checked for finiteness).
+        iterations: linear iterations of the iterative solvers.
+        th2: squared inlier threshold (normalized units). bail, pretest_n, pretest_min: as in
+            :func:`~.scoring.msac_scores` (best score so far, pre-test size and bound);
+            measured: score at the measured capture times (see ``msac_scores``).
+        w_max, v_max: motion bounds per unit r (:func:`~.plausibility.motion_bounds`): a
+            hypothesis with ``|w| > w_max`` or ``|w x C - t| > v_max`` is not scored.
+    Returns:
+        (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3), n_implausible: valid
+        hypotheses rejected for their motion alone) with H = max(J, 1) K
+        hypotheses (kernel j's in rows ``j K .. j K + K - 1``), h the index of the batch's best
+        and ``score`` its MSAC score (``inf`` if no hypothesis was valid or none beat
+        ``bail``). Invalid hypotheses (no P3P solution, solver rank loss, non-finite values)
+        are never scored.
+    """
+    K, s = u.shape
+    local = draw_samples(u, pool)
+    samples = np.empty((K, s), dtype=np.int64)
+    b3 = np.empty((K, 3, 3))
+    X3 = np.empty((K, 3, 3))
+    for k in range(K):
+        for j in range(s):
+            samples[k, j] = order[local[k, j]]
+        for j in range(3):  # unit bearings of the first three points (P3P)
+            i = samples[k, j]
+            nrm = np.sqrt(x[i, 0] * x[i, 0] + x[i, 1] * x[i, 1] + 1.0)
+            b3[k, j, 0] = x[i, 0] / nrm
+            b3[k, j, 1] = x[i, 1] / nrm
+            b3[k, j, 2] = 1.0 / nrm
+            for a in range(3):
+                X3[k, j, a] = X[i, a]
+    R, C, own = lambda_twist_batch(b3, X3)
+    R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
+    J = kinds.shape[0]
+    if J == 0:
+        Rs, Cs, ok = R_p, C_p, ok_p
+        ws = np.zeros((K, 3))
+        ts = np.zeros((K, 3))
+    else:
+        xs, Xs, rs = gather_prerotated(samples, R_p, x, X, r)
+        H = J * K
+        Rs = np.empty((H, 3, 3))
+        Cs = np.empty((H, 3))
+        ws = np.empty((H, 3))
+        ts = np.empty((H, 3))
+        ok = np.empty(H, dtype=np.bool_)
+        out = np.empty((K, MAX_PARAMS))
+        ok_k = np.zeros(K, dtype=np.bool_)
+        its = np.zeros(K, dtype=np.int64)
+        err = np.zeros(K)
+        v0 = np.zeros((K, 3))
+        v = np.empty((K, 3))
+        for j in range(J):
+            out[:] = 0.0
+            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its,
+                       err)
+            for k in range(K):
+                h = j * K + k
+                good = ok_k[k]
+                for a in range(n_params[j]):
+                    if not np.isfinite(out[k, a]):
+                        good = False
+                if not good:  # (as RSBatch: an invalid problem's parameters are zero)
+                    for a in range(12):
+                        out[k, a] = 0.0
+                for a in range(3):
+                    v[k, a] = out[k, a]
+                    Cs[h, a] = out[k, 3 + a]
+                    ws[h, a] = out[k, 6 + a]
+                    ts[h, a] = out[k, 9 + a]
+                ok[h] = good and ok_p[k]
+            # (a call, not inlined: the same floating-point contraction as the step-by-step path)
+            Rs[j * K:(j + 1) * K] = compose_rotvec(v, R_p)
+    n_implausible = 0
+    for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
+        if ok[q]:
+            w0, w1, w2 = ws[q, 0], ws[q, 1], ws[q, 2]
+            v0 = w1 * Cs[q, 2] - w2 * Cs[q, 1] - ts[q, 0]
+            v1 = w2 * Cs[q, 0] - w0 * Cs[q, 2] - ts[q, 1]
+            v2 = w0 * Cs[q, 1] - w1 * Cs[q, 0] - ts[q, 2]
+            if not (w0 * w0 + w1 * w1 + w2 * w2 <= w_max * w_max
+                    and v0 * v0 + v1 * v1 + v2 * v2 <= v_max * v_max):
+                ok[q] = False
+                n_implausible += 1
+    scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
+                            pretest_min, 0.5, measured)
+    h = 0
+    for q in range(scores.shape[0]):
+        if scores[q] < scores[h]:
+            h = q
+    return h, scores[h], Rs, Cs, ws, ts, n_implausible
+
+
+@njit(cache=True)
+def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iterations):
+    """Local optimization's nonminimal step in one call: each batched kernel of ``kinds`` on all
+    points of ``inl``, pre-rotated by R.
+
+    Args:
+        kinds, n_params: (J,) kernel ids and their parameter counts (as for
+            :func:`ransac_batch`), min_points: (J,) the fewest points each kernel accepts
+            (fewer inliers: that kernel is skipped, ``ok`` False); inl: (N,) bool; R: (3, 3)
+            the current rotation;
+            x (N, 2), X (N, 3), r (N,), r0 as there; iterations: linear iterations.
+    Returns:
+        (ok (J,), Rs (J, 3, 3), Cs, ws, ts (J, 3)): kernel j's solution composed with R,
+        ``Rs[j] = expm([v]x) R``; ``ok[j]`` False for rank loss or non-finite values.
+    """
+    n = 0
+    for i in range(inl.shape[0]):
+        if inl[i]:
+            n += 1
+    xs = np.empty((1, n, 2))
+    Xs = np.empty((1, n, 3))
+    rs = np.empty((1, n))
+    m = 0
+    for i in range(inl.shape[0]):
+        if inl[i]:
+            xs[0, m, 0] = x[i, 0]
+            xs[0, m, 1] = x[i, 1]
+            rs[0, m] = r[i]
+            for a in range(3):
+                Xs[0, m, a] = R[a, 0] * X[i, 0] + R[a, 1] * X[i, 1] + R[a, 2] * X[i, 2]
+            m += 1
+    J = kinds.shape[0]
+    ok = np.zeros(J, dtype=np.bool_)
+    Rs = np.empty((J, 3, 3))
+    Cs = np.zeros((J, 3))
+    ws = np.zeros((J, 3))
+    ts = np.zeros((J, 3))
+    v = np.zeros((1, 3))
+    R1 = np.empty((1, 3, 3))
+    R1[0] = R
+    out = np.zeros((1, MAX_PARAMS))
+    ok1 = np.zeros(1, dtype=np.bool_)
+    its = np.zeros(1, dtype=np.int64)
+    err = np.zeros(1)
+    v0 = np.zeros((1, 3))
+    for j in range(J):
+        out[:] = 0.0
+        good = False
+        if n >= min_points[j]:
+            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its,
+                       err)
+            good = ok1[0]
+        for a in range(n_params[j]):
+            if not np.isfinite(out[0, a]):
+                good = False
+        ok[j] = good
+        for a in range(3):
+            v[0, a] = out[0, a] if good else 0.0
+            Cs[j, a] = out[0, 3 + a] if good else 0.0
+            ws[j, a] = out[0, 6 + a] if good else 0.0
+            ts[j, a] = out[0, 9 + a] if good else 0.0
+        Rs[j] = compose_rotvec(v, R1)[0]
+    return ok, Rs, Cs, ws, ts

@@ -1,0 +1,141 @@
+"""Numba kernels for the estimator's last steps: the collinearity test of the inliers, the
+final inlier set and RMS error, physical velocities and the covariance propagation.
+
+Each replaces a handful of small NumPy calls (an SVD, ``np.cross``, fancy indexing, 12 x 12
+products: ~200 us per frame in all, more than the final refinement itself) by one compiled
+call; :mod:`rs_localizer.estimation.estimate` keeps the formulas' documentation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["collinear", "final_inliers", "physical_velocities_kernel",
+           "output_covariance_kernel"]
+
+
+@njit(cache=True)
+def collinear(X, mask, tol):
+    """True if the points ``X[mask]`` (X (N, 3), mask (N,) bool) lie (nearly) on a line: the
+    second singular value of the centred points is below ``tol`` times the first (or all
+    points coincide). The singular values are the square roots of the eigenvalues of the 3x3
+    scatter matrix (computed here instead of an SVD of the N x 3 matrix)."""
+    n = 0
+    m0 = m1 = m2 = 0.0
+    for i in range(X.shape[0]):
+        if mask[i]:
+            n += 1
+            m0 += X[i, 0]
+            m1 += X[i, 1]
+            m2 += X[i, 2]
+    if n == 0:
+        return True
+    m0 /= n
+    m1 /= n
+    m2 /= n
+    S = np.zeros((3, 3))
+    for i in range(X.shape[0]):
+        if mask[i]:
+            d0, d1, d2 = X[i, 0] - m0, X[i, 1] - m1, X[i, 2] - m2
+            S[0, 0] += d0 * d0
+            S[0, 1] += d0 * d1
+            S[0, 2] += d0 * d2
+            S[1, 1] += d1 * d1
+            S[1, 2] += d1 * d2
+            S[2, 2] += d2 * d2
+    S[1, 0] = S[0, 1]
+    S[2, 0] = S[0, 2]
+    S[2, 1] = S[1, 2]
+    ev = np.linalg.eigvalsh(S)  # ascending
+    s0 = np.sqrt(max(ev[2], 0.0))
+    s1 = np.sqrt(max(ev[1], 0.0))
+    return s0 == 0.0 or s1 < tol * s0
+
+
+@njit(cache=True)
+def final_inliers(e, th):
+    """Inliers of the final model from its (N,) image distances ``e`` (``inf`` behind the
+    camera): ``(mask e < th, count, RMS of e over the mask)`` (RMS NaN for no inlier)."""
+    n = e.shape[0]
+    mask = np.zeros(n, dtype=np.bool_)
+    c = 0
+    ss = 0.0
+    for i in range(n):
+        if e[i] < th:  # False for NaN and inf
+            mask[i] = True
+            c += 1
+            ss += e[i] * e[i]
+    return mask, c, np.sqrt(ss / c) if c > 0 else np.nan
+
+
+@njit(cache=True)
+def physical_velocities_kernel(R, C, w, t, s):
+    """See :func:`rs_localizer.estimation.estimate.physical_velocities` (``s > 0``): returns
+    (omega_cam, v_cam, omega_world, v_world), each (3,)."""
+    om = np.empty(3)
+    vc = np.empty(3)
+    om_w = np.empty(3)
+    vc_w = np.empty(3)
+    inv = 1.0 / s
+    wxC0 = w[1] * C[2] - w[2] * C[1]
+    wxC1 = w[2] * C[0] - w[0] * C[2]
+    wxC2 = w[0] * C[1] - w[1] * C[0]
+    om[0], om[1], om[2] = -w[0] * inv, -w[1] * inv, -w[2] * inv
+    vc[0], vc[1], vc[2] = (wxC0 - t[0]) * inv, (wxC1 - t[1]) * inv, (wxC2 - t[2]) * inv
+    for a in range(3):
+        om_w[a] = R[0, a] * om[0] + R[1, a] * om[1] + R[2, a] * om[2]
+        vc_w[a] = R[0, a] * vc[0] + R[1, a] * vc[1] + R[2, a] * vc[2]
+    return om, vc, om_w, vc_w
+
+
+@njit(cache=True)
+def _skew_into(v, J, r, c, scale):
+    """J[r:r+3, c:c+3] = scale * [v]x."""
+    J[r, c + 1] = -scale * v[2]
+    J[r, c + 2] = scale * v[1]
+    J[r + 1, c] = scale * v[2]
+    J[r + 1, c + 2] = -scale * v[0]
+    J[r + 2, c] = -scale * v[1]
+    J[r + 2, c + 1] = scale * v[0]
+
+
+@njit(cache=True)
+def output_covariance_kernel(cov12, R, C, w, s):
+    """See :func:`rs_localizer.estimation.estimate._output_covariance`: the (12, 12)
+    covariance ``J cov12 J^T`` of (camera rotation in the world, position, omega_cam, v_cam),
+    the (6, 6) ROS pose block (x, y, z, rot x, rot y, rot z) and the (6, 6) ROS twist block
+    (vx, vy, vz, wx, wy, wz; zeros if ``s <= 0``)."""
+    J = np.zeros((12, 12))
+    for i in range(3):
+        for j in range(3):
+            J[i, j] = -R[j, i]  # -R^T
+            J[3 + i, 3 + j] = -R[j, i]
+    # dc/ddelta = -R^T [C]x
+    Cx = np.zeros((3, 3))
+    _skew_into(C, Cx, 0, 0, 1.0)
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc -= R[k, i] * Cx[k, j]
+            J[3 + i, j] = acc
+    if s > 0:
+        for i in range(3):
+            J[6 + i, 6 + i] = -1.0 / s
+            J[9 + i, 9 + i] = -1.0 / s
+        _skew_into(C, J, 9, 6, -1.0 / s)
+        _skew_into(w, J, 9, 3, 1.0 / s)
+    out = J @ cov12 @ J.T
+    pose = np.empty((6, 6))
+    twist = np.zeros((6, 6))
+    for a in range(6):
+        pa = a + 3 if a < 3 else a - 3  # (position, rotation) <- (rotation, position)
+        ta = a + 9 if a < 3 else a + 3  # (v, omega) <- rows 9-11, 6-8
+        for b in range(6):
+            pb = b + 3 if b < 3 else b - 3
+            tb = b + 9 if b < 3 else b + 3
+            pose[a, b] = out[pa, pb]
+            if s > 0:
+                twist[a, b] = out[ta, tb]
+    return out, pose, twist

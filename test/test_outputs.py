@@ -1,0 +1,81 @@
+"""The estimator's output kernels against the NumPy formulas they replace (SVD collinearity
+test, covariance propagation by an explicit Jacobian, RMS of the inliers)."""
+
+import numpy as np
+import pytest
+
+from rs_localizer.estimation.estimate import _output_covariance, physical_velocities
+from rs_localizer.estimation.outputs import collinear, final_inliers
+from rs_localizer.geometry import rotvec_to_matrix, skew
+
+
+def _svd_collinear(X, tol):
+    s = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
+    return bool(s[0] == 0 or s[1] < tol * s[0])
+
+
+@pytest.mark.parametrize("spread", [0.0, 1e-12, 1e-6, 1e-4, 5e-4, 2e-3, 1e-2, 1.0])
+def test_collinear_matches_the_svd_test(spread):
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        n = int(rng.integers(3, 60))
+        d = rng.normal(size=3)
+        X = rng.normal(size=3) + rng.normal(size=(n, 1)) * d + spread * rng.normal(size=(n, 3))
+        mask = rng.random(n) < 0.7
+        mask[:3] = True
+        ref = _svd_collinear(X[mask], 1e-3)
+        s = np.linalg.svd(X[mask] - X[mask].mean(axis=0), compute_uv=False)
+        if s[0] > 0 and abs(s[1] / s[0] - 1e-3) < 1e-6:
+            continue  # on the boundary itself rounding decides
+        assert collinear(X, mask, 1e-3) == ref
+    assert collinear(np.ones((5, 3)), np.ones(5, dtype=bool), 1e-3)  # coincident points
+
+
+def test_final_inliers_and_rms():
+    e = np.array([0.5, np.inf, 3.0, np.nan, 1.0, 2.0])
+    mask, n, rms = final_inliers(e, 2.0)
+    assert mask.tolist() == [True, False, False, False, True, False] and n == 2
+    assert rms == pytest.approx(np.sqrt((0.25 + 1.0) / 2))
+    assert np.isnan(final_inliers(np.full(3, np.inf), 1.0)[2])
+
+
+@pytest.mark.parametrize("s", [0.0, 3e-2 / 0.83])
+def test_output_covariance_matches_the_explicit_jacobian(s):
+    rng = np.random.default_rng(1)
+    R = rotvec_to_matrix(rng.normal(size=3))
+    C, w = rng.normal(size=3), rng.normal(size=3)
+    A = rng.normal(size=(12, 12))
+    cov12 = A @ A.T
+    J = np.zeros((12, 12))
+    J[0:3, 0:3] = -R.T
+    J[3:6, 0:3] = -R.T @ skew(C)
+    J[3:6, 3:6] = -R.T
+    if s > 0:
+        J[6:9, 6:9] = -np.eye(3) / s
+        J[9:12, 6:9] = -skew(C) / s
+        J[9:12, 3:6] = skew(w) / s
+        J[9:12, 9:12] = -np.eye(3) / s
+    ref = J @ cov12 @ J.T
+    out, pose, twist = _output_covariance(cov12, R, C, w, s)
+    np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    order = [3, 4, 5, 0, 1, 2]
+    np.testing.assert_allclose(pose, ref[np.ix_(order, order)], rtol=1e-12,
+                               atol=1e-12 * np.abs(ref).max())
+    if s > 0:
+        tw = [9, 10, 11, 6, 7, 8]
+        np.testing.assert_allclose(twist, ref[np.ix_(tw, tw)], rtol=1e-12,
+                                   atol=1e-12 * np.abs(ref).max())
+    else:
+        assert twist is None
+
+
+def test_physical_velocities_match_the_cross_product_formula():
+    rng = np.random.default_rng(2)
+    R = rotvec_to_matrix(rng.normal(size=3))
+    C, w, t = rng.normal(size=3), rng.normal(size=3), rng.normal(size=3)
+    om, vc, om_w, vc_w = physical_velocities(R, C, w, t, 0.02)
+    np.testing.assert_allclose(om, -w / 0.02, rtol=1e-14)
+    np.testing.assert_allclose(vc, (np.cross(w, C) - t) / 0.02, rtol=1e-12)
+    np.testing.assert_allclose(om_w, R.T @ om, rtol=1e-12)
+    np.testing.assert_allclose(vc_w, R.T @ vc, rtol=1e-12)
+    assert all((a == 0).all() for a in physical_velocities(R, C, w, t, 0.0))

@@ -1,0 +1,165 @@
+"""The fused RANSAC batch (one numba call: sampling, P3P pre-rotation, batched RS solver,
+preemptive MSAC) against the step-by-step kernels it fuses, and the estimator with and
+without it."""
+
+import numpy as np
+import pytest
+
+import rs_localizer.estimation.estimate as estimate_module
+from rs_localizer._so3 import compose_rotvec
+from rs_localizer.estimation.batch import fused_kernels, ransac_batch
+from rs_localizer.estimation.estimate import estimate_rs_pose
+from rs_localizer.estimation.sampling import draw_samples, gather_prerotated, select_prerotations
+from rs_localizer.estimation.scoring import msac_scores
+from rs_localizer.sim.synthetic import make_frame, paper_camera
+from rs_localizer.solvers import p3p_batch, solver_info
+
+CAM = paper_camera()
+SOLVERS = ["p3p", "r6p_1lin", "r6p_vC_wt", "r6p_vCt_w", "r6p_vCt_wt", "r9p", "r6p_joined"]
+
+
+def _frame_arrays(seed):
+    f = make_frame(seed, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
+    x, r, r0e = CAM.normalize(f.points_px)
+    return f, np.ascontiguousarray(x), f.X, np.ascontiguousarray(r), np.ascontiguousarray(r0e)
+
+
+def _step_by_step(u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_min):
+    """The same batch with the public kernels, one call each (as RANSAC did before fusing)."""
+    info = solver_info(solver)
+    samples = order[draw_samples(u, pool)]
+    b = np.concatenate([x, np.ones((len(x), 1))], axis=1)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    R, C, own = p3p_batch(b[samples[:, :3]], X[samples[:, :3]], backend="lambda_twist")
+    R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, len(samples))
+    if not info.rolling:
+        Rs, Cs, ws, ts, ok = R_p, C_p, np.zeros_like(C_p), np.zeros_like(C_p), ok_p
+    else:
+        xs, Xs, rs = gather_prerotated(samples, R_p, x, X, r)
+        its = info.default_iterations or 1
+        bs = [fn(xs, Xs, rs, CAM.r0, iterations=its) for fn in info.batch]
+        Rs = np.concatenate([compose_rotvec(np.ascontiguousarray(q.v), R_p) for q in bs])
+        Cs, ws, ts = (np.concatenate([getattr(q, a) for q in bs]) for a in "Cwt")
+        ok = np.concatenate([q.valid & ok_p for q in bs])
+    sc, _ = msac_scores(x, X, r0e, CAM.readout_vector, Rs, np.ascontiguousarray(Cs),
+                        np.ascontiguousarray(ws), np.ascontiguousarray(ts), th2, ok, bail, True,
+                        pre_n, pre_min)
+    return sc, Rs, Cs, ws, ts, ok
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_fused_batch_equals_the_step_by_step_kernels(solver):
+    f, x, X, r, r0e = _frame_arrays(5)
+    kinds, n_params = fused_kernels(solver)
+    info = solver_info(solver)
+    s = info.sample_size
+    rng = np.random.default_rng(1)
+    th2 = (2.0 / CAM.mean_focal) ** 2
+    order = rng.permutation(len(x)).astype(np.int64)
+    for K, pool, bail, pre_n, pre_min in [(40, len(x), np.inf, 0, 0), (33, 60, np.inf, 24, 3),
+                                          (50, len(x), 0.05, 24, 8)]:
+        u = rng.random((K, s))
+        h, score, Rs, Cs, ws, ts = ransac_batch(u, pool, order, x, X, r, r0e,
+                                                CAM.readout_vector, CAM.r0, kinds, n_params,
+                                                info.default_iterations or 1, th2, bail, pre_n,
+                                                pre_min)
+        sc, Rs2, Cs2, ws2, ts2, ok = _step_by_step(u, pool, order, x, X, r, r0e, solver, th2,
+                                                   bail, pre_n, pre_min)
+        assert len(Rs) == len(sc) == len(info.batch or (0,)) * K
+        # bit for bit: the same kernels on the same numbers
+        np.testing.assert_array_equal(Rs[ok], Rs2[ok])
+        for a, b in ((Cs, Cs2), (ws, ws2), (ts, ts2)):
+            np.testing.assert_array_equal(a[ok], b[ok])
+        assert h == int(np.argmin(sc)) and score == sc.min()
+    # the batch best of a plain batch is a good pose (sanity of the whole chain)
+    if np.isfinite(score):
+        from rs_localizer.geometry import rotation_angle_deg
+        assert rotation_angle_deg(Rs[h], f.R) < 5.0
+
+
+def test_solvers_without_a_fused_path():
+    assert fused_kernels("r6p") is None  # a variable number of roots per sample
+    with pytest.raises(ValueError):
+        fused_kernels("nope")
+
+
+@pytest.mark.parametrize("solver", ["r6p_1lin", "p3p"])
+def test_estimator_gives_the_same_result_with_and_without_fusion(solver, monkeypatch):
+    for k in range(3):
+        f = make_frame(20 + k, 300, rs_speed=0.5 if solver != "p3p" else 0.0, noise_px=1.0,
+                       outlier_ratio=0.3)
+        a = estimate_rs_pose(f.points_px, f.X, CAM, solver)
+        with monkeypatch.context() as m:
+            m.setattr(estimate_module, "fused_kernels", lambda name: None)
+            b = estimate_rs_pose(f.points_px, f.X, CAM, solver)
+        assert a.success and b.success
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.w, b.w)
+        np.testing.assert_array_equal(a.inliers, b.inliers)
+        assert a.ransac_iterations == b.ransac_iterations
+
+
+def test_measured_time_scoring_is_the_refinement_residual():
+    """``measured_error2`` (RANSAC's score) against ``refine.exact_errors`` (the refinement's
+    residual, written separately) on a distorted camera with a bottom-to-top readout."""
+    from rs_localizer.camera import CameraModel
+    from rs_localizer.estimation.refine import exact_errors
+    from rs_localizer.estimation.scoring import errors2, msac_evaluate
+
+    K = np.array([[800.0, 0, 320], [0, 820, 240], [0, 0, 1]])
+    cam = CameraModel.from_readout_time(K, 0.03, 640, 480, D=[-0.2, 0.05, 0.001, -0.001, 0.0],
+                                        readout="bottom_to_top")
+    f = make_frame(7, 200, rs_speed=1.0, noise_px=0.5, outlier_ratio=0.2)
+    x, r, r0e = cam.normalize(cam.distort(f.x))
+    e_ref = exact_errors(f.R, f.C, f.w, f.t, f.X, x, r - cam.r0)
+    e2 = errors2(x, f.X, r0e, cam.readout_vector, f.R, f.C, f.w, f.t, True, True)
+    np.testing.assert_allclose(np.sqrt(e2), e_ref, rtol=1e-9, atol=1e-12)
+    th2 = (2.0 / cam.mean_focal) ** 2
+    sc, inl, n = msac_evaluate(x, f.X, r0e, cam.readout_vector, f.R, f.C, f.w, f.t, th2, True)
+    assert inl.tolist() == (e_ref ** 2 < th2).tolist() and n == inl.sum()
+    np.testing.assert_allclose(sc, np.minimum(e_ref ** 2, th2).sum(), rtol=1e-9)
+
+
+def test_measured_time_scoring_counts_the_inliers_at_fast_motion():
+    """At RS speed 1 the capture row of the first-order model misplaces points by pixels: the
+    true model loses inliers under it, not at the measured times (what made RANSAC draw ~320
+    instead of ~200 samples there)."""
+    from rs_localizer.estimation.scoring import msac_evaluate
+
+    lost_row, lost_measured = [], []
+    for k in range(5):
+        f = make_frame(40 + k, 400, rs_speed=1.0, noise_px=0.0)
+        x, r, r0e = CAM.normalize(f.points_px)
+        th2 = (1.0 / CAM.mean_focal) ** 2
+        for measured, lost in ((False, lost_row), (True, lost_measured)):
+            _, _, n = msac_evaluate(x, f.X, r0e, CAM.readout_vector, f.R, f.C, f.w, f.t, th2,
+                                    measured)
+            lost.append(len(x) - n)
+    assert sum(lost_measured) == 0 and sum(lost_row) > 0
+
+
+@pytest.mark.parametrize("solver", ["r6p_1lin", "r6p_vCt_w", "r9p"])
+def test_nonminimal_solve_equals_the_batched_solver_on_the_inliers(solver):
+    """LO's one-call nonminimal step against the public batched solver on the same inliers,
+    pre-rotated by the same R (NumPy), composed with R (NumPy Rodrigues)."""
+    from rs_localizer.estimation.batch import nonminimal_solve
+    from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+
+    f, x, X, r, _ = _frame_arrays(9)
+    R = rotvec_to_matrix(np.array([0.01, -0.02, 0.015])) @ f.R
+    inl = f.inlier.copy()
+    kinds, n_params = fused_kernels(solver)
+    mins = np.array([9 if solver == "r9p" else 6], dtype=np.int64)
+    ok, Rs, Cs, ws, ts = nonminimal_solve(kinds, n_params, mins, inl, R, x, X, r, CAM.r0, 2)
+    b = solver_info(solver).batch[0](x[inl][None], (X[inl] @ R.T)[None], r[inl][None], CAM.r0,
+                                     iterations=2)
+    assert ok[0] and b.valid[0]
+    np.testing.assert_allclose(Rs[0], rotvec_to_matrix(b.v[0]) @ R, atol=1e-12)
+    for a, c in ((Cs[0], b.C[0]), (ws[0], b.w[0]), (ts[0], b.t[0])):
+        np.testing.assert_allclose(a, c, rtol=1e-9, atol=1e-12)
+    assert rotation_angle_deg(Rs[0], f.R) < 0.5
+    # too few points for the kernel: skipped and flagged, not run
+    few = np.zeros(len(x), dtype=bool)
+    few[:int(mins[0]) - 1] = True
+    ok, *_ = nonminimal_solve(kinds, n_params, mins, few, R, x, X, r, CAM.r0, 2)
+    assert not ok[0]
