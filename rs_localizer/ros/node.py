@@ -60,6 +60,7 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
 from ..frontends import FRONTENDS
+from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic, camera_to_base
 from ..maps import check_regular_file, load_landmarks_csv
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
@@ -108,7 +109,17 @@ PARAMETERS = {
     "map_frame": ("map", "frame of the published pose", None, True),
     "camera_frame": ("", "camera optical frame of the outputs; empty = input header.frame_id",
                      None, False),
-    "publish_tf": (True, "publish map -> camera on /tf (needs tf2_msgs)", None, True),
+    "publish_tf": (True, "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)", None,
+                   True),
+    "base_frame": ("", "robot body frame (REP 103, e.g. base_link); set: pose, "
+                   "pose_with_covariance, odom, twist and /tf describe it instead of the camera "
+                   "(camera_to_base.* is the mounting); empty = the camera optical frame", None,
+                   False),
+    "camera_to_base.translation": ([0.0, 0.0, 0.0], "camera optical frame origin in base_frame "
+                                   "(m, x y z): the base_frame -> camera transform", None, False),
+    "camera_to_base.rotation": (list(OPTICAL_TO_BODY_QUATERNION), "rotation camera optical "
+                                "frame -> base_frame, quaternion x y z w (default: a camera "
+                                "looking along the base's x axis)", None, False),
     "landmarks_file": ("", "CSV id,x,y,z for the keypoints topic (reloaded on change)", None,
                        False),
     "max_points": (5000, "clouds with more points are capped (highest scores, else evenly "
@@ -370,6 +381,13 @@ class RSLocalizerNode(Node):
             self._with_timing(CameraModel(K=np.eye(3), width=10, height=10), cfg)
         except ValueError as e:
             return f"invalid rolling-shutter parameters: {e}"
+        cfg["base_frame"], cfg["extrinsic"] = str(p["base_frame"]).strip(), None
+        if cfg["base_frame"]:
+            try:
+                cfg["extrinsic"] = Extrinsic.from_translation_quaternion(
+                    p["camera_to_base.translation"], p["camera_to_base.rotation"])
+            except ValueError as e:
+                return f"invalid camera_to_base: {e}"
         path = p["landmarks_file"]
         cfg["landmarks"] = None
         if path:
@@ -727,17 +745,20 @@ class RSLocalizerNode(Node):
         self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
         self.inliers.append(est.num_inliers)
         self._planar_last = (est.planar, est.condition_number)
+        out, out_frame = est, frame  # the camera's pose and twist, or the robot base's
+        if cfg["extrinsic"] is not None:
+            out, out_frame = camera_to_base(est, cfg["extrinsic"]), cfg["base_frame"]
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        self.pub_pose.publish(cv.pose_stamped(est, out_stamp, mf))
+        self.pub_pose.publish(cv.pose_stamped(out, out_stamp, mf))
         if self.pub_twist.get_subscription_count():
-            self.pub_twist.publish(cv.twist_stamped(est, out_stamp, frame))
+            self.pub_twist.publish(cv.twist_stamped(out, out_stamp, out_frame))
         if self.pub_pwc.get_subscription_count():
-            self.pub_pwc.publish(cv.pose_with_covariance_stamped(est, out_stamp, mf))
+            self.pub_pwc.publish(cv.pose_with_covariance_stamped(out, out_stamp, mf))
         if self.pub_odom.get_subscription_count():
-            self.pub_odom.publish(cv.odometry(est, out_stamp, mf, frame))
+            self.pub_odom.publish(cv.odometry(out, out_stamp, mf, out_frame))
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
-            self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
-        self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
+            self._tf_pub.publish(cv.tf_message(out, out_stamp, mf, out_frame))
+        self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)  # (camera frame)
         toc = time.perf_counter()
         self.latencies.append(toc - arrival)
         self.stamp_ages.append((self.get_clock().now().nanoseconds - stamp) * 1e-9)
