@@ -19,6 +19,8 @@ Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; over
     camera_info      sensor_msgs/CameraInfo
     image            sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), only when ``frontend`` is
                      ``aruco`` or ``features``; header.stamp = capture time of ``rs.stamp_row``
+    image/compressed sensor_msgs/CompressedImage (JPEG, PNG) instead, with
+                     ``image_transport: compressed`` (topic: the resolved ``image`` + /compressed)
 Publications (reliable, depth 10):
     pose                  geometry_msgs/PoseStamped              map_frame, reference-row time
     twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s
@@ -54,7 +56,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
@@ -163,6 +165,9 @@ PARAMETERS = {
     "frontend_map": ("", "map of the front end: aruco: marker map YAML, scene YAML or a "
                      "built-in scene name (aruco_room); features: feature map .npz; board: "
                      "board YAML (reloaded on change)", None, False),
+    "image_transport": ("raw", "image input with a front end: raw (sensor_msgs/Image on image) "
+                        "or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on "
+                        "image/compressed, decoded with OpenCV)", None, True),
     "republish_correspondences": (False, "publish the front end's correspondences on "
                                   "correspondences_out (PointCloud2) for inspection", None,
                                   False),
@@ -170,6 +175,8 @@ PARAMETERS = {
 
 #: values of the ``frontend`` parameter
 FRONTEND_KINDS = ("none",) + FRONTENDS
+#: values of the ``image_transport`` parameter
+IMAGE_TRANSPORTS = ("raw", "compressed")
 
 _LOG_PERIOD = 2.0  # s, per failure reason
 # Frame subscriptions: sensor-data QoS (best effort) with a deeper history than its 5, so that
@@ -286,10 +293,17 @@ class RSLocalizerNode(Node):
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.sub_image = None
         if self._frontend is not None:
-            self.sub_image = self.create_subscription(
-                Image, "image", self._on_image, _IMAGE_QOS,
-                event_callbacks=self._lost_events("image"),
-                qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            if self.cfg["image_transport"] == "compressed":  # image_transport's topic name
+                self.sub_image = self.create_subscription(
+                    CompressedImage, self.resolve_topic_name("image") + "/compressed",
+                    self._on_image, _IMAGE_QOS,
+                    event_callbacks=self._lost_events("image"),
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            else:
+                self.sub_image = self.create_subscription(
+                    Image, "image", self._on_image, _IMAGE_QOS,
+                    event_callbacks=self._lost_events("image"),
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
             if self.cfg["republish"]:
                 self._corr_out_publisher()
         self.create_timer(float(self.get_parameter("diagnostics_period").value),
@@ -400,8 +414,12 @@ class RSLocalizerNode(Node):
         kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
         if kind not in FRONTEND_KINDS:
             return f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
+        transport = str(p["image_transport"]).strip().lower()
+        if transport not in IMAGE_TRANSPORTS:
+            return (f"unknown image_transport {p['image_transport']!r}; expected one of "
+                    f"{list(IMAGE_TRANSPORTS)}")
         cfg.update(frontend=kind, frontend_map=fmap, republish=bool(p["republish_correspondences"]),
-                   frontend_obj=None)
+                   frontend_obj=None, image_transport=transport)
         if kind != "none":
             if not fmap:
                 return f"frontend {kind} needs frontend_map (" + (
@@ -585,7 +603,7 @@ class RSLocalizerNode(Node):
     def _on_keypoints(self, msg: PointCloud2):
         self._enqueue(msg, self._from_keypoints)
 
-    def _on_image(self, msg: Image):
+    def _on_image(self, msg):  # sensor_msgs/Image or CompressedImage
         self.counts["image_frames"] += 1
         self._enqueue(msg, self._from_image)
 
@@ -787,18 +805,25 @@ class RSLocalizerNode(Node):
 
     def _from_image(self, msg, camera, stamp):
         """Decode, run the front end, optionally republish its correspondences."""
-        from ..frontends.image import image_from_msg
+        from ..frontends.image import image_from_compressed, image_from_msg
 
         fe = self._frontend
         if fe is None:  # (the subscription exists only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
-        h, w = int(msg.height), int(msg.width)
-        if h * w == 0:
-            raise _Drop("bad_image", f"empty image ({w}x{h})")
-        try:
-            img, enc = image_from_msg(msg)
-        except ValueError as e:
-            raise _Drop("bad_image", str(e)) from None
+        if isinstance(msg, CompressedImage):
+            try:
+                img, enc = image_from_compressed(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
+            h, w = img.shape[:2]
+        else:
+            h, w = int(msg.height), int(msg.width)
+            if h * w == 0:
+                raise _Drop("bad_image", f"empty image ({w}x{h})")
+            try:
+                img, enc = image_from_msg(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
         if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
             raise _Drop("image_size_mismatch", f"image is {w}x{h}, the camera model "
                         f"{camera.width}x{camera.height}")
