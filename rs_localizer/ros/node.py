@@ -486,24 +486,24 @@ class RSLocalizerNode(Node):
     # ------------------------------------------------------------------ warm-up
     def _warmup(self, solver, cfg=None):
         """Run the estimator on a small synthetic RS problem so that the numba JIT compiles
-        before the first real frame (the compiled code is cached on disk)."""
+        (or loads from its cache) before the first real frame, logging each kernel compiled."""
+        from ..estimation.warmup import warm_up
+        from ..jit_cache import cache_state, compile_progress
+
         cfg = cfg or self.cfg
-        tic = time.perf_counter()
-        rng = np.random.default_rng(1)
-        cam = cv.camera_model(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
-                              [0.05, -0.05, 0.0, 0.0, 0.0], 640, 480, "plumb_bob",
-                              line_delay=5e-5)
-        n = 60
-        uv = rng.uniform([0, 0], [639, 479], (n, 2))
-        depth = rng.uniform(3, 8, n)
-        xn = cam.undistort(uv)
-        X = np.concatenate([xn, np.ones((n, 1))], axis=1) * depth[:, None]
+        log = self.get_logger()
+        st = cache_state()
+        log.info(f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
+                 + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
+                 + ")")
         try:
-            est = estimate_rs_pose(uv, X, cam, solver=solver, options=cfg["options"])
-            self.get_logger().info(f"warm-up ({solver}): {time.perf_counter() - tic:.2f} s, "
-                                   f"{'ok' if est.success else est.failure}")
+            with compile_progress(log.info) as prog:
+                dt, est = warm_up(solver, cfg["options"])
+            log.info(f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
+                     + (f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
+                        "installing avoids this)" if prog.kernels else ", kernels from the cache"))
         except Exception as e:  # noqa: BLE001 - never die in warm-up
-            self.get_logger().warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+            log.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
 
     # ------------------------------------------------------------------ callbacks
     def _lost_events(self, topic):
