@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file"]
+__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file",
+           "share_dirs"]
 
 
 def random_domain_id() -> int:
@@ -67,12 +68,34 @@ def write_params_yaml(path, params: dict | None = None, reliable_topics=(),
     return path
 
 
+def share_dirs() -> list[Path]:
+    """Where an installed ``rs_localizer`` keeps its data files (``config/``, ``launch/``,
+    ``data/``), most specific first: ``<prefix>/share/rs_localizer`` of the prefix the package
+    is installed in (``<prefix>/lib/pythonX.Y/site-packages/rs_localizer``: a pip venv or a
+    colcon install space), the ament index (``AMENT_PREFIX_PATH``), then ``sys.prefix``."""
+    pkg = Path(os.path.abspath(__file__)).parents[1]     # .../site-packages/rs_localizer
+    out = []
+    if pkg.parent.name in ("site-packages", "dist-packages"):
+        out.append(pkg.parents[3] / "share" / "rs_localizer")
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            out.append(Path(prefix) / "share" / "rs_localizer")
+    out.append(Path(sys.prefix) / "share" / "rs_localizer")
+    seen, uniq = set(), []
+    for d in out:
+        if d not in seen:
+            seen.add(d)
+            uniq.append(d)
+    return uniq
+
+
 def repo_file(*parts) -> Path | None:
     """A file of the source tree (``data/sample``, ``config/...``): looked up from the current
-    directory, then next to the package, then in ``share/rs_localizer`` of the environment."""
+    directory, then next to the package (a source checkout), then in the installed
+    ``share/rs_localizer`` (:func:`share_dirs`). None if nowhere."""
     rel = Path(*parts)
     here = Path(__file__).resolve().parents[2]
-    for base in (Path.cwd(), here, Path(sys.prefix) / "share" / "rs_localizer"):
+    for base in (Path.cwd(), here, *share_dirs()):
         if (base / rel).exists():
             return base / rel
     return None
