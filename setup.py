@@ -45,6 +45,7 @@ setup(
     entry_points={
         "console_scripts": [
             "rs_localizer_node = rs_localizer.ros.node:main",
+            "rs_localizer_lifecycle_node = rs_localizer.ros.lifecycle:main",
             "rs-localizer = rs_localizer.cli:main",
         ],
     },

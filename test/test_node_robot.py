@@ -175,3 +175,245 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
         alive = node.alive()
         rc = node.stop()
     assert alive and rc == 0, node.log
+
+
+class LifecycleClient:
+    """Drives a managed node through its lifecycle services (lifecycle_msgs ChangeState and
+    GetState) from a test-side node."""
+
+    def __init__(self, node, node_name):
+        from lifecycle_msgs.srv import ChangeState, GetState
+
+        self.node = node
+        self.change = node.create_client(ChangeState, f"{node_name}/change_state")
+        self.get = node.create_client(GetState, f"{node_name}/get_state")
+
+    def _call(self, executor, cli, req, timeout=120.0):
+        assert cli.wait_for_service(timeout_sec=30.0), cli.srv_name
+        fut = cli.call_async(req)
+        executor.spin_until_future_complete(fut, timeout_sec=timeout)
+        assert fut.done(), f"{cli.srv_name} did not answer"
+        return fut.result()
+
+    def state(self, executor) -> str:
+        from lifecycle_msgs.srv import GetState
+
+        return self._call(executor, self.get, GetState.Request()).current_state.label
+
+    def transition(self, executor, transition_id) -> bool:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+
+        return self._call(executor, self.change, ChangeState.Request(
+            transition=Transition(id=transition_id))).success
+
+
+def _frames(sample_bag, n):
+    """The first ``n`` correspondence clouds and the camera_info of the sample bag (rclpy)."""
+    from rclpy.serialization import deserialize_message
+    from rs_localizer.ros.bag_io import iter_messages
+    from sensor_msgs.msg import CameraInfo, PointCloud2
+
+    clouds, info = [], None
+    for topic, _, _, raw in iter_messages(sample_bag, {"/camera/correspondences",
+                                                       "/camera/camera_info"}):
+        if topic.endswith("camera_info") and info is None:
+            info = deserialize_message(raw, CameraInfo)
+        elif topic.endswith("correspondences") and len(clouds) < n:
+            clouds.append(deserialize_message(raw, PointCloud2))
+    return clouds, info
+
+
+def test_lifecycle(tmp_path, ros_context, sample_bag):
+    """configure loads and compiles (publishers exist, inactive; frames ignored), activate
+    subscribes and publishes (poses match ground truth), deactivate stops, cleanup releases;
+    a configure with an invalid parameter fails and leaves the node unconfigured."""
+    from conftest import CONFIG, Probe
+    from lifecycle_msgs.msg import Transition
+    from rs_localizer.accuracy import frame_errors
+    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.conversions import pose_from_msg, stamp_to_ns
+    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+    from test_node import ParamClient
+
+    ns = "/lc"
+    overlay = write_params_yaml(tmp_path / "p.yaml", {"diagnostics_period": 0.2},
+                                reliable_topics=[f"{ns}/correspondences", f"{ns}/camera_info"])
+    node = NodeProcess([CONFIG, overlay], namespace=ns, env=ros_env(),
+                       module="rs_localizer.ros.lifecycle", log=tmp_path / "lc.log")
+    clouds, info = _frames(sample_bag, 8)
+    gt = load_ground_truth(sample_bag)
+    ref = round(359.5 * 30e-6 * 1e9)
+    probe = Probe(ros_context, namespace=ns)
+    ex = probe.executor
+    lc = LifecycleClient(probe.node, f"{ns}/rs_localizer")
+    params = None
+    count = probe.node.count_publishers
+    subs = probe.node.count_subscribers
+
+    def send(k):
+        probe.pub_info.publish(info)
+        probe.pub_corr.publish(clouds[k])
+        return stamp_to_ns(clouds[k].header.stamp) + ref
+
+    try:
+        assert node.wait_ready(120, marker="unconfigured"), node.log
+        assert lc.state(ex) == "unconfigured"
+        probe.spin(0.5)
+        assert count(f"{ns}/pose") == 0 and subs(f"{ns}/correspondences") == 0
+
+        # an invalid parameter is accepted while unconfigured, and configure then fails
+        params = ParamClient(ros_context, f"{ns}/rs_localizer")
+        assert params.set(solver="nonexistent")[0].successful
+        assert not lc.transition(ex, Transition.TRANSITION_CONFIGURE)
+        assert lc.state(ex) == "unconfigured"
+        assert "configure failed: invalid parameters: unknown solver 'nonexistent'" in node.log
+        assert params.set(solver="r6p_1lin")[0].successful
+
+        assert lc.transition(ex, Transition.TRANSITION_CONFIGURE), node.log
+        assert lc.state(ex) == "inactive"
+        assert "warm-up (r6p_1lin)" in node.log
+        assert probe.wait(lambda: count(f"{ns}/pose") == 1 and subs(f"{ns}/camera_info") == 1,
+                          10)
+        assert subs(f"{ns}/correspondences") == 0
+        s = send(0)
+        probe.spin(1.0)
+        assert probe.pose_near(s) is None and not probe.outputs["pose"]  # inactive: nothing
+
+        assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)
+        assert lc.state(ex) == "active"
+        assert probe.wait(lambda: subs(f"{ns}/correspondences") == 1, 10)
+        for k in range(1, 5):
+            s = send(k)
+            pose = probe.wait_pose(s, timeout=20)
+            assert pose is not None, f"active: no pose for frame {k}:\n{node.log}"
+            e = frame_errors(*pose_from_msg(pose.pose), None, None, gt, s)
+            assert e["rot_deg"] < 0.2 and e["pos_m"] < 0.03, e
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 4)
+        assert int(v["frames_solved"]) == 4 and int(v["frames_received"]) == 4, v
+
+        assert lc.transition(ex, Transition.TRANSITION_DEACTIVATE)
+        assert lc.state(ex) == "inactive"
+        assert probe.wait(lambda: subs(f"{ns}/correspondences") == 0, 10)
+        n_poses, probe.diag = len(probe.outputs["pose"]), {}
+        send(5)
+        probe.spin(1.5)
+        assert len(probe.outputs["pose"]) == n_poses and probe.node_diag()[0] is None
+
+        assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)  # again
+        s = send(6)
+        assert probe.wait_pose(s, timeout=20) is not None, node.log
+
+        assert lc.transition(ex, Transition.TRANSITION_DEACTIVATE)
+        assert lc.transition(ex, Transition.TRANSITION_CLEANUP)
+        assert lc.state(ex) == "unconfigured"
+        assert probe.wait(lambda: count(f"{ns}/pose") == 0 and subs(f"{ns}/camera_info") == 0,
+                          10)
+        # configure again after cleanup: counters start from zero
+        assert lc.transition(ex, Transition.TRANSITION_CONFIGURE)
+        assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)
+        probe.diag = {}
+        s = send(7)
+        assert probe.wait_pose(s, timeout=20) is not None, node.log
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 1)
+        assert int(v["frames_received"]) == 1, v
+        assert lc.transition(ex, Transition.TRANSITION_ACTIVE_SHUTDOWN)
+        assert lc.state(ex) == "finalized"
+    finally:
+        if params is not None:
+            params.close()
+        probe.close()
+        alive = node.alive()
+        rc = node.stop()
+    assert alive and rc == 0, node.log
+
+
+def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag):
+    """``cameras``: one localizer per namespace in one process, each with its own section of
+    the parameter file; a landmark file named by every camera is loaded once."""
+    from conftest import CONFIG, Probe
+    from rclpy.serialization import deserialize_message
+    from rs_localizer.ros.bag_io import iter_messages
+    from rs_localizer.ros.conversions import stamp_to_ns
+    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+    from sensor_msgs.msg import PointCloud2
+
+    names = {"front": "/multi/front", "rear": "/multi/rear", "/abs/cam3": "/abs/cam3"}
+    topics = [f"{ns}/{t}" for ns in names.values()
+              for t in ("correspondences", "keypoints", "camera_info")]
+    overlay = write_params_yaml(tmp_path / "p.yaml", {
+        "cameras": list(names), "landmarks_file": str(keypoints_bag / "landmarks.csv"),
+        "diagnostics_period": 0.2}, reliable_topics=topics)
+    rear = tmp_path / "rear.yaml"  # the rear camera's own section: its frames
+    rear.write_text("/multi/rear/rs_localizer:\n  ros__parameters:\n"
+                    "    camera_frame: rear_optical\n    base_frame: base_link\n")
+    node = NodeProcess([CONFIG, overlay, rear], namespace="/multi", env=ros_env(),
+                       log=tmp_path / "multi.log")
+    clouds, info = _frames(sample_bag, 2)
+    kps = [deserialize_message(raw, PointCloud2) for topic, _, _, raw in
+           iter_messages(keypoints_bag, {"/camera/keypoints"})][:1]
+    ref = round(359.5 * 30e-6 * 1e9)
+    probes = {}
+    try:
+        assert node.wait_ready(240, count=3), node.log
+        assert "3 cameras in this process: /multi/front, /multi/rear, /abs/cam3; " \
+               "1 map files loaded (1 in use)" in node.log, node.log
+        probes = {ns: Probe(ros_context, namespace=ns) for ns in names.values()}
+        for ns, pr in probes.items():
+            pr.wait_matched()
+        for k, (ns, pr) in enumerate(probes.items()):
+            pr.pub_info.publish(info)
+            msg = clouds[k % 2]
+            pr.pub_corr.publish(msg)
+            s = stamp_to_ns(msg.header.stamp) + ref
+            assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no pose\n{node.log}"
+            pr.pub_kp.publish(kps[0])
+            s = stamp_to_ns(kps[0].header.stamp) + ref
+            assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no keypoints pose"
+            assert pr.wait(lambda pr=pr: len(pr.outputs["twist"]) == 2, 10)
+            frame = pr.outputs["twist"][-1].header.frame_id
+            assert frame == ("base_link" if ns == "/multi/rear" else "camera_optical_frame"), \
+                (ns, frame)
+        for ns, pr in probes.items():  # each camera counts its own frames
+            st, v = pr.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 2)
+            assert st is not None and st.name.endswith(f"{ns}/rs_localizer"), st
+            assert int(v["frames_received"]) == 2, (ns, v)
+        assert node.log.count("] ready:") == 3 or node.log.count("]: ready:") == 3
+    finally:
+        for pr in probes.values():
+            pr.close()
+        alive = node.alive()
+        rc = node.stop()
+    assert alive and rc == 0, node.log
+
+
+@pytest.mark.parametrize("cams, error", [(["a", "a"], "listed twice"),
+                                         (["", "b"], "empty camera namespace")])
+def test_bad_camera_lists_are_clear_errors(tmp_path, ros_domain, cams, error):
+    from conftest import CONFIG
+    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+
+    overlay = write_params_yaml(tmp_path / "p.yaml", {"cameras": cams})
+    n = NodeProcess([CONFIG, overlay], namespace="/badcams", env=ros_env(),
+                    log=tmp_path / "err.log")
+    try:
+        n.proc.wait(120)
+    finally:
+        rc = n.stop()
+    assert rc == 1 and error in n.log, n.log
+
+
+def test_runner_helpers():
+    from rs_localizer.ros.runner import camera_namespaces, node_cli_args
+
+    assert camera_namespaces(["front", "/abs/x", "rear/"], "/robot") == \
+        ["/robot/front", "/abs/x", "/robot/rear"]
+    assert camera_namespaces(["a"], "/") == ["/a"]
+    with pytest.raises(ValueError):
+        camera_namespaces(["a", "/a"], "/")
+    argv = ["prog", "--ros-args", "-r", "__ns:=/robot", "--params-file", "p.yaml", "-r",
+            "image:=image_raw", "--remap", "rs_localizer:__node:=x", "-p", "a:=1", "--",
+            "other", "--ros-args", "--log-level", "info"]
+    assert node_cli_args(argv) == ["--ros-args", "--params-file", "p.yaml", "-r",
+                                   "image:=image_raw", "-p", "a:=1", "--log-level", "info"]
+    assert node_cli_args(["prog"]) == []

@@ -62,3 +62,34 @@ def test_errors_are_not_cached(tmp_path):
     with pytest.raises(ValueError):
         cache.frontend("nope", "aruco_room")
     assert cache.loads == 0
+
+
+def test_owners_hold_and_release():
+    cache = MapCache()
+    a, b = object(), object()
+    cache.frontend("aruco", "aruco_room", owner=a)
+    cache.frontend("aruco", "aruco_room", owner=b)
+    assert cache.loads == 1 and len(cache) == 1
+    cache.release(a)
+    assert len(cache) == 1          # b still holds it
+    cache.frontend("aruco", "aruco_room", owner=a)
+    assert cache.loads == 1
+    cache.release(a)
+    cache.release(b)
+    assert len(cache) == 0          # nobody holds it: gone
+    cache.frontend("aruco", "aruco_room", owner=a)
+    assert cache.loads == 2         # loaded again
+
+
+def test_a_new_map_replaces_the_owners_old_one(tmp_path):
+    p1, p2 = tmp_path / "a.csv", tmp_path / "b.csv"
+    p1.write_text("1,0,0,1\n")
+    p2.write_text("2,0,0,1\n")
+    cache, owner = MapCache(), object()
+    cache.landmarks(p1, owner=owner)
+    cache.frontend("aruco", "aruco_room", owner=owner)
+    assert len(cache) == 2
+    cache.landmarks(p2, owner=owner)  # p1 no longer held by anyone
+    assert len(cache) == 2 and cache.landmarks(p2)[0][0] == 2
+    cache.release(owner)
+    assert len(cache) == 1            # p2 stays: pinned by the owner-less call above

@@ -63,7 +63,8 @@ from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
 from ..frontends import FRONTENDS
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic, camera_to_base
-from ..maps import check_regular_file, load_landmarks_csv
+from ..frontends.shared import SHARED_MAPS
+from ..maps import check_regular_file
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
                          read_keypoints)
@@ -200,11 +201,21 @@ class _Drop(ValueError):
         self.reason = reason
 
 
-class RSLocalizerNode(Node):
-    """The localizer node. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`."""
+class LocalizerCore:
+    """Everything of the localizer node but the order of its construction, shared by
+    :class:`RSLocalizerNode` (all at once) and the managed
+    :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode` (by lifecycle transition).
+    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`, :meth:`_init_state`,
+    :meth:`_configure` (parameters -> configuration, maps, JIT warm-up), :meth:`_create_outputs`,
+    :meth:`_create_camera_info_input`, :meth:`_create_frame_inputs`, :meth:`_log_ready`."""
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs):
-        super().__init__(node_name, **kwargs)
+    cfg = None  # the configuration built from the parameters (None: not configured)
+
+    def _make_publisher(self, msg_type, topic, qos):
+        """Publishers of the outputs (the managed node makes lifecycle publishers)."""
+        return self.create_publisher(msg_type, topic, qos)
+
+    def _declare_parameters(self):
         for name, (default, desc, rng, ro) in PARAMETERS.items():
             d = _D(description=desc, read_only=ro)
             if isinstance(rng, FloatingPointRange):
@@ -222,6 +233,7 @@ class RSLocalizerNode(Node):
                     + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
                     + f": {e}") from None
 
+    def _init_state(self):
         self.counts = Counter()      # frames received / solved / failed.<reason> / ...
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
@@ -251,38 +263,50 @@ class RSLocalizerNode(Node):
         self._t_frontend = 0.0       # s in the front end for the current frame
         self._tf_pub = None
         self.pub_corr_out = None     # correspondences_out, created when first needed
+        self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
+        self._diag_timer = None
 
+    def _configure(self):
+        """Parameters -> configuration (camera model, landmarks, front end and its map), then
+        the JIT warm-up. Raises RuntimeError for invalid parameters."""
         cfg = self._build_config({})
         if isinstance(cfg, str):
             raise RuntimeError(f"invalid parameters: {cfg}")
         self._apply_config(cfg)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-
         if self.get_parameter("warmup").value:
             self._warmup(self.cfg["solver"])
 
+    def _create_outputs(self):
         rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_pose = self.create_publisher(PoseStamped, "pose", rel)
-        self.pub_twist = self.create_publisher(TwistStamped, "twist", rel)
-        self.pub_pwc = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
-                                             rel)
-        self.pub_odom = self.create_publisher(Odometry, "odom", rel)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", rel)
-        self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
+        self.pub_pose = self._make_publisher(PoseStamped, "pose", rel)
+        self.pub_twist = self._make_publisher(TwistStamped, "twist", rel)
+        self.pub_pwc = self._make_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
+                                            rel)
+        self.pub_odom = self._make_publisher(Odometry, "odom", rel)
+        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", rel)
+        if getattr(self, "viz", None) is None:  # (declares the viz.* parameters: once)
+            self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
         if self.get_parameter("publish_tf").value:
             if cv.have_tf2_msgs():
                 from tf2_msgs.msg import TFMessage
 
-                self._tf_pub = self.create_publisher(TFMessage, "/tf", rel)
+                self._tf_pub = self._make_publisher(TFMessage, "/tf", rel)
             else:
                 self.get_logger().warning(
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
                     "wheels): not publishing /tf")
+        if self.cfg["republish"] and self._frontend is not None:
+            self._corr_out_publisher()
 
-        # (created first: a camera_info ready together with a frame is taken first)
+    def _create_camera_info_input(self):
+        # (created before the frame inputs: a camera_info ready together with a frame is
+        # taken first)
         self.sub_info = self.create_subscription(
             CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
+
+    def _create_frame_inputs(self):
+        """The frame subscriptions, the diagnostics timer and the worker thread."""
         self.sub_corr = self.create_subscription(
             PointCloud2, "correspondences", self._on_correspondences, _CLOUD_QOS,
             event_callbacks=self._lost_events("correspondences"),
@@ -304,16 +328,46 @@ class RSLocalizerNode(Node):
                     Image, "image", self._on_image, _IMAGE_QOS,
                     event_callbacks=self._lost_events("image"),
                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
-            if self.cfg["republish"]:
-                self._corr_out_publisher()
-        self.create_timer(float(self.get_parameter("diagnostics_period").value),
-                          self.publish_diagnostics)
+        self._diag_timer = self.create_timer(
+            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics)
+        self._start_worker()
+
+    def _start_worker(self):
+        with self._lock:
+            self._stop = False
         # the worker holds the GIL while it solves; hand it to the subscription callbacks
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._worker = threading.Thread(target=self._work, name="rs_localizer_worker",
                                         daemon=True)
         self._worker.start()
+
+    def _stop_worker(self, drop_queued: bool = False):
+        """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
+        the frames still waiting (counted as skipped)."""
+        with self._lock:
+            self._stop = True
+            if drop_queued:
+                self.counts["skipped"] += len(self._queue)
+                self._queue.clear()
+            self._lock.notify_all()
+        worker = getattr(self, "_worker", None)
+        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
+            worker.join(timeout=10.0)
+        self._worker = None
+
+    def _destroy_frame_inputs(self):
+        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped."""
+        for sub in (self.sub_corr, self.sub_kp, self.sub_image):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.sub_corr = self.sub_kp = self.sub_image = None
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = None
+        self._stop_worker(drop_queued=True)
+
+    def _log_ready(self):
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
             self.get_logger().warning("rs.line_delay and rs.readout_time are 0: global-shutter "
                                       "timing, the published twist will be zero")
@@ -405,12 +459,10 @@ class RSLocalizerNode(Node):
         path = p["landmarks_file"]
         cfg["landmarks"] = None
         if path:
-            try:
-                ids, pts = load_landmarks_csv(os.path.expanduser(path))
+            try:  # (loaded once per process: cameras naming the same file share it)
+                cfg["landmarks"] = SHARED_MAPS.landmarks(path, owner=self)
             except (OSError, ValueError) as e:
                 return f"cannot load landmarks_file {path!r}: {e}"
-            order = np.argsort(ids, kind="stable")
-            cfg["landmarks"] = (ids[order], pts[order])
         kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
         if kind not in FRONTEND_KINDS:
             return f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
@@ -428,12 +480,12 @@ class RSLocalizerNode(Node):
             if (kind, fmap) == self._frontend_key:
                 cfg["frontend_obj"] = self._frontend
             else:
-                from ..frontends import make_frontend
-
                 try:
                     if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
                         check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
-                    cfg["frontend_obj"] = make_frontend(kind, os.path.expanduser(fmap))
+                    # (the map is loaded once per process and shared by cameras naming it)
+                    cfg["frontend_obj"] = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap),
+                                                                owner=self)
                 except Exception as e:  # noqa: BLE001 - OSError, ValueError, yaml errors
                     return f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
         return cfg
@@ -453,7 +505,8 @@ class RSLocalizerNode(Node):
                                        f"{cfg['frontend_map']}")
             self._frontend = cfg["frontend_obj"]
             self._frontend_key = (cfg["frontend"], cfg["frontend_map"])
-        if cfg["republish"] and self._frontend is not None and hasattr(self, "pub_pose"):
+        if (cfg["republish"] and self._frontend is not None
+                and getattr(self, "pub_pose", None) is not None):
             self._corr_out_publisher()
         with self._lock:  # the RS timing may have changed: rebuild the camera models
             hist = []
@@ -467,7 +520,7 @@ class RSLocalizerNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
-        if not overrides:
+        if not overrides or self.cfg is None:  # (not configured yet: checked at configure)
             return SetParametersResult(successful=True)
         cfg = self._build_config(overrides)
         if isinstance(cfg, str):
@@ -642,13 +695,11 @@ class RSLocalizerNode(Node):
                     self._busy = False
 
     def destroy_node(self):
-        """Stop the worker thread (the frame it is on is finished), then destroy the node."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
-        worker = getattr(self, "_worker", None)
-        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
-            worker.join(timeout=10.0)
+        """Stop the worker thread (the frame it is on is finished), release the shared maps,
+        then destroy the node."""
+        if getattr(self, "_lock", None) is not None:
+            self._stop_worker()
+        SHARED_MAPS.release(self)  # (maps no other camera of the process uses are freed)
         return super().destroy_node()
 
     def _safe_handle(self, msg, extract, arrival=None):
@@ -659,7 +710,7 @@ class RSLocalizerNode(Node):
 
     def _corr_out_publisher(self):
         if self.pub_corr_out is None:
-            self.pub_corr_out = self.create_publisher(
+            self.pub_corr_out = self._make_publisher(
                 PointCloud2, "correspondences_out",
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         return self.pub_corr_out
@@ -932,26 +983,32 @@ class RSLocalizerNode(Node):
         self.pub_diag.publish(msg)
 
 
-def main(args=None):
-    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``)."""
-    from rclpy.executors import ExternalShutdownException
+class RSLocalizerNode(LocalizerCore, Node):
+    """The localizer node: configured (JIT warm-up included), subscribed and publishing from
+    construction. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`.
 
-    rclpy.init(args=sys.argv if args is None else args)
-    node = None
-    try:
-        node = RSLocalizerNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError as e:  # invalid parameters at start: a clear message, no traceback
-        print(f"rs_localizer_node: error: {e}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    Raises:
+        RuntimeError: invalid parameters (the message names the parameter).
+    """
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+        Node.__init__(self, node_name, **kwargs)
+        self._declare_parameters()
+        self._init_state()
+        self._configure()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._create_outputs()
+        self._create_camera_info_input()
+        self._create_frame_inputs()
+        self._log_ready()
+
+
+def main(args=None):
+    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``): one
+    node, or one per camera namespace in the ``cameras`` parameter (:mod:`.runner`)."""
+    from .runner import run
+
+    return run(RSLocalizerNode, args, "rs_localizer_node")
 
 
 if __name__ == "__main__":

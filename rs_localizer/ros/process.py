@@ -110,11 +110,12 @@ class NodeProcess:
         params: ``-p name:=value`` extra parameters.
         env: environment (see :func:`ros_env`). log: file for stdout+stderr (default: temp).
         cpus: pin the process (and all its threads) to these CPU ids (Linux).
+        module: the node's module (``rs_localizer.ros.lifecycle`` for the managed node).
     """
 
     def __init__(self, params_files=(), namespace="/camera", node_name=None, remaps=None,
-                 params=None, env=None, log=None, cpus=None):
-        args = [sys.executable, "-m", "rs_localizer.ros.node", "--ros-args"]
+                 params=None, env=None, log=None, cpus=None, module="rs_localizer.ros.node"):
+        args = [sys.executable, "-m", module, "--ros-args"]
         for f in params_files:
             args += ["--params-file", str(f)]
         if namespace:
@@ -149,11 +150,13 @@ class NodeProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def wait_ready(self, timeout: float = 60.0) -> bool:
-        """Wait for the node's ``ready`` log line (after warm-up)."""
+    def wait_ready(self, timeout: float = 60.0, count: int = 1, marker: str = "ready:") -> bool:
+        """Wait for ``count`` ``ready`` log lines (after warm-up; one per camera node) or other
+        ``marker`` lines."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            if "] ready:" in self.log or "]: ready:" in self.log:
+            log = self.log
+            if log.count(f"] {marker}") + log.count(f"]: {marker}") >= count:
                 return True
             if not self.alive():
                 return False
