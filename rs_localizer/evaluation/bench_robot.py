@@ -1,7 +1,9 @@
-"""On-a-robot benchmarks (issue 12): node start-up time from a non-editable, read-only install.
+"""On-a-robot benchmarks (issue 12): node start-up time from a non-editable, read-only install,
+and memory per camera with several cameras in one process.
 
     python -m rs_localizer.evaluation.bench_robot startup [--venv /tmp/rsl_venv] [--create]
         [--later 3] [--scenarios no-compile compile]
+    python -m rs_localizer.evaluation.bench_robot rss [--cameras 1 4] [--frames 10] [--images]
 
 ``startup`` installs the package non-editable into ``--venv`` (``--create``: a new venv and
 ``pip install '.[ros]'`` from the source tree), makes the installed package directory
@@ -20,6 +22,13 @@ Scenarios: ``no-compile`` (the package's compiled kernels deleted: the node comp
 first start into ``~/.cache/rs_localizer/numba``) and ``compile`` (``rs-localizer compile`` run
 once after installing, while the package is writable, as the README's install commands do;
 its duration is reported too).
+
+``rss`` starts ``rs_localizer_node`` (this environment) with ``cameras`` listing 1, then 4
+namespaces (and once as a plain single node without ``cameras``), feeds ``--frames`` frames of
+``data/sample`` (``--images``: the rendered ``data/sample_images`` through the ArUco front end)
+to every camera in lock-step over DDS, and reads the process's resident memory (``VmRSS``, and
+the peak ``VmHWM``) from ``/proc`` after the warm-up and after the frames. The cost of an extra
+camera is ``(RSS(4) - RSS(1)) / 3``.
 """
 
 from __future__ import annotations
@@ -35,7 +44,7 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["main", "measure_start", "installed_package_dir"]
+__all__ = ["main", "measure_start", "installed_package_dir", "measure_rss"]
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -202,6 +211,87 @@ def _startup(args) -> int:
     return 0
 
 
+def _proc_memory(pid: int) -> dict:
+    """``VmRSS`` and ``VmHWM`` of a process in MB (Linux ``/proc``)."""
+    out = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key = line.split(":")[0]
+        if key in ("VmRSS", "VmHWM"):
+            out[key] = int(line.split()[1]) / 1024.0
+    return out
+
+
+def measure_rss(n_cameras: int | None, frames: int = 10, images: bool = False,
+                timeout: float = 600.0, log=print) -> dict:
+    """One node process with ``n_cameras`` camera namespaces (None: a plain single node); RSS
+    after the warm-up and after ``frames`` frames per camera. Returns ``{"ready": {VmRSS,
+    VmHWM}, "after": {...}, "solved": frames answered}``."""
+    from ..ros.play import play
+    from ..ros.process import (NodeProcess, random_domain_id, repo_file, ros_env,
+                               write_params_yaml)
+
+    domain = random_domain_id()
+    env = ros_env(domain)
+    cams = [f"cam{k}" for k in range(n_cameras or 1)]
+    spaces = [f"/rss/{c}" for c in cams] if n_cameras else ["/rss"]
+    bag = repo_file("data", "sample_images" if images else "sample")
+    config = [repo_file("config", "rs_localizer.yaml")]
+    params = {"warmup": True}
+    if images:
+        config.append(repo_file("config", "rs_localizer_images.yaml"))
+        params["republish_correspondences"] = False
+    if n_cameras:
+        params["cameras"] = cams
+    work = Path(tempfile.mkdtemp(prefix="rsl_rss_"))
+    overlay = write_params_yaml(work / "p.yaml", params)
+    node = NodeProcess([*config, overlay], namespace="/rss", env=env, log=work / "node.log",
+                       remaps={"image": "image_raw"} if images else None)
+    try:
+        if not node.wait_ready(timeout, count=len(spaces)):
+            raise RuntimeError(f"node not ready:\n{node.log}")
+        time.sleep(1.0)
+        ready = _proc_memory(node.proc.pid)
+        frame_topic = "/camera/image_raw" if images else "/camera/correspondences"
+        solved = 0
+        for ns in spaces:
+            res = play(bag, lockstep=True, limit=frames, domain_id=domain, timeout=30.0,
+                       topics=[frame_topic, "/camera/camera_info"],
+                       remap={frame_topic: f"{ns}/{'image_raw' if images else 'correspondences'}",
+                              "/camera/camera_info": f"{ns}/camera_info"},
+                       output_topics=(f"{ns}/pose",), wait_subscribers=30.0,
+                       log=lambda *a, **k: None)
+            solved += res.answered
+        time.sleep(1.0)
+        after = _proc_memory(node.proc.pid)
+    finally:
+        node.stop()
+    return {"ready": ready, "after": after, "solved": solved, "frames": frames * len(spaces)}
+
+
+def _rss(args) -> int:
+    rows = {}
+    what = "images (ArUco front end)" if args.images else "correspondences"
+    print(f"resident memory of one rs_localizer_node process, {args.frames} frames of "
+          f"{what} per camera:", flush=True)
+    for n in [None] + list(args.cameras):
+        m = measure_rss(n, frames=args.frames, images=args.images)
+        label = "single node (no cameras)" if n is None else f"cameras: {n}"
+        rows[str(n)] = m
+        print(f"  {label:26s} RSS after warm-up {m['ready']['VmRSS']:6.1f} MB, after frames "
+              f"{m['after']['VmRSS']:6.1f} MB (peak {m['after']['VmHWM']:6.1f} MB), "
+              f"{m['solved']}/{m['frames']} frames solved", flush=True)
+    ks = [n for n in args.cameras if n > 1]
+    if 1 in args.cameras and ks:
+        for k in ks:
+            for when in ("ready", "after"):
+                extra = (rows[str(k)][when]["VmRSS"] - rows["1"][when]["VmRSS"]) / (k - 1)
+                print(f"  per extra camera ({k} vs 1, {'after warm-up' if when == 'ready' else 'after frames'}): "
+                      f"{extra:.1f} MB", flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m rs_localizer.evaluation.bench_robot",
                                 description=__doc__,
@@ -217,6 +307,12 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["no-compile", "compile"])
     s.add_argument("--json", default=None)
     s.set_defaults(func=_startup)
+    r = sub.add_parser("rss", help="resident memory for 1 and N cameras in one process")
+    r.add_argument("--cameras", type=int, nargs="+", default=[1, 4])
+    r.add_argument("--frames", type=int, default=10, help="frames per camera")
+    r.add_argument("--images", action="store_true", help="image mode (ArUco front end)")
+    r.add_argument("--json", default=None)
+    r.set_defaults(func=_rss)
     return p
 
 
