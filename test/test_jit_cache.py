@@ -159,3 +159,15 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     after = _signatures()
     new = {k: v - before.get(k, set()) for k, v in after.items() if v - before.get(k, set())}
     assert not new, f"kernels compiled after the warm-up: {new}"
+
+
+def test_compile_command_reports_the_cache_and_kernels(capsys):
+    """``rs-localizer compile``: where the kernels are and what was compiled or loaded."""
+    from rs_localizer.cli import main
+
+    assert main(["compile", "--solvers", "p3p"]) == 0
+    out = capsys.readouterr().out
+    state = jit_cache.cache_state()
+    assert f"numba cache: {state['dir']} ({state['mode']}" in out
+    assert "p3p: ready in" in out
+    assert "all kernels loaded from the cache" in out or "compiled " in out

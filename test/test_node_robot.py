@@ -282,7 +282,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
 
         assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)
         assert lc.state(ex) == "active"
-        assert probe.wait(lambda: subs(f"{ns}/correspondences") == 1, 10)
+        assert probe.wait(lambda: probe.pub_corr.get_subscription_count() == 1, 10)
         for k in range(1, 5):
             s = send(k)
             pose = probe.wait_pose(s, timeout=20)
@@ -301,6 +301,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
         assert len(probe.outputs["pose"]) == n_poses and probe.node_diag()[0] is None
 
         assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)  # again
+        assert probe.wait(lambda: probe.pub_corr.get_subscription_count() == 1, 10)
         s = send(6)
         assert probe.wait_pose(s, timeout=20) is not None, node.log
 
@@ -312,6 +313,8 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
         # configure again after cleanup: counters start from zero
         assert lc.transition(ex, Transition.TRANSITION_CONFIGURE)
         assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)
+        assert probe.wait(lambda: probe.pub_corr.get_subscription_count() == 1
+                          and probe.pub_info.get_subscription_count() == 1, 10)
         probe.diag = {}
         s = send(7)
         assert probe.wait_pose(s, timeout=20) is not None, node.log
