@@ -116,7 +116,8 @@ def seed_cache(package_dir: str, cache_dir: str) -> int:
 def configure(environ=None, package_dir: str = PACKAGE_DIR) -> dict:
     """Choose numba's cache directory (see the module docstring); call before numba is
     imported. Sets ``NUMBA_CACHE_DIR`` in ``environ`` (default ``os.environ``) when the package
-    is not writable and seeds it from the package. Returns :func:`cache_state`."""
+    is not writable and seeds it from the package. Returns ``{"mode", "dir", "seeded"}`` (see
+    :func:`cache_state`, which keeps the result for this package and ``os.environ``)."""
     env = os.environ if environ is None else environ
     if env.get("NUMBA_CACHE_DIR"):
         mode, cache = "NUMBA_CACHE_DIR", env["NUMBA_CACHE_DIR"]
@@ -133,9 +134,11 @@ def configure(environ=None, package_dir: str = PACKAGE_DIR) -> dict:
             except Exception:  # noqa: BLE001 - only slower without it
                 pass
     seeded = seed_cache(package_dir, cache) if cache else 0
-    _state.update(mode=mode, dir=cache or os.path.join(package_dir, "**", "__pycache__"),
-                  seeded=seeded)
-    return cache_state()
+    state = {"mode": mode, "dir": cache or os.path.join(package_dir, "**", "__pycache__"),
+             "seeded": seeded}
+    if environ is None and package_dir == PACKAGE_DIR:  # the process's own configuration
+        _state.update(state)
+    return state
 
 
 def cache_state() -> dict:
