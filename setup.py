@@ -20,6 +20,9 @@ setup(
         (f"share/{package_name}", ["package.xml"]),
         (f"share/{package_name}/config", glob("config/*.yaml")),
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
+        # the sample bags of `rs-localizer demo` (found via share/ outside the source tree)
+        (f"share/{package_name}/data/sample", glob("data/sample/*")),
+        (f"share/{package_name}/data/sample_images", glob("data/sample_images/*")),
     ],
     python_requires=">=3.10",
     # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots;
@@ -42,6 +45,7 @@ setup(
     entry_points={
         "console_scripts": [
             "rs_localizer_node = rs_localizer.ros.node:main",
+            "rs_localizer_lifecycle_node = rs_localizer.ros.lifecycle:main",
             "rs-localizer = rs_localizer.cli:main",
         ],
     },

@@ -2,16 +2,47 @@
 
     ros2 launch rs_localizer rs_localizer.launch.py [namespace:=camera]
         [params_file:=/path/to/params.yaml] [image_topic:=image_raw] [log_level:=info]
+        [cameras:="front rear"] [lifecycle:=false]
 
 Inputs are <namespace>/correspondences, <namespace>/keypoints, <namespace>/camera_info and,
-with ``frontend: aruco|features`` in the parameter file, <namespace>/<image_topic>.
+with ``frontend: aruco|features|board`` in the parameter file, <namespace>/<image_topic>.
+
+``cameras`` (namespaces separated by spaces or commas, relative to ``namespace`` unless they
+start with ``/``) runs one localizer per camera in this one process (the node's ``cameras``
+parameter): inputs and outputs under <namespace>/<camera>/. ``lifecycle:=true`` starts the
+managed node ``rs_localizer_lifecycle_node`` (configure and activate it with ``ros2 lifecycle``
+or a lifecycle manager).
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
+
+
+def camera_list(text: str) -> list:
+    """``"front, rear /abs"`` -> ``["front", "rear", "/abs"]``."""
+    return [c for c in text.replace(",", " ").split() if c]
+
+
+def _node(context):
+    cameras = camera_list(LaunchConfiguration("cameras").perform(context))
+    lifecycle = LaunchConfiguration("lifecycle").perform(context).lower() in ("1", "true", "yes")
+    parameters = [LaunchConfiguration("params_file")]
+    if cameras:
+        parameters.append({"cameras": cameras})
+    return [Node(
+        package="rs_localizer",
+        executable="rs_localizer_lifecycle_node" if lifecycle else "rs_localizer_node",
+        name="rs_localizer",
+        namespace=LaunchConfiguration("namespace"),
+        parameters=parameters,
+        remappings=[("image", LaunchConfiguration("image_topic"))],
+        arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
+        output="screen",
+        emulate_tty=True,
+    )]
 
 
 def generate_launch_description():
@@ -25,15 +56,10 @@ def generate_launch_description():
         DeclareLaunchArgument("image_topic", default_value="image_raw",
                               description="image topic (used when the frontend parameter is set)"),
         DeclareLaunchArgument("log_level", default_value="info"),
-        Node(
-            package="rs_localizer",
-            executable="rs_localizer_node",
-            name="rs_localizer",
-            namespace=LaunchConfiguration("namespace"),
-            parameters=[LaunchConfiguration("params_file")],
-            remappings=[("image", LaunchConfiguration("image_topic"))],
-            arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
-            output="screen",
-            emulate_tty=True,
-        ),
+        DeclareLaunchArgument("cameras", default_value="",
+                              description="camera namespaces (spaces or commas): one localizer "
+                              "per camera in one process; empty = one camera in namespace"),
+        DeclareLaunchArgument("lifecycle", default_value="false",
+                              description="start the managed (lifecycle) node"),
+        OpaqueFunction(function=_node),
     ])

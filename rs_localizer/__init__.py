@@ -13,8 +13,14 @@ Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :
 :mod:`.sim` produces data; :mod:`.evaluation` and :mod:`.cli` compose everything.
 """
 
-from .camera import CameraModel
-from .estimation import EstimateOptions, MotionPrior, RSPoseEstimate, estimate_rs_pose
+# numba's cache directory must be chosen before anything imports numba (jit_cache docstring)
+from . import jit_cache as _jit_cache
+
+_jit_cache.configure()
+
+from .camera import CameraModel  # noqa: E402
+from .estimation import (EstimateOptions, MotionPrior, RSPoseEstimate,  # noqa: E402
+                         estimate_rs_pose)
 
 __version__ = "0.1.0"
 

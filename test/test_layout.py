@@ -12,7 +12,7 @@ PKG = Path(__file__).resolve().parents[1] / "rs_localizer"
 #: layer or lower ones (``sim`` produces data: it may use the model and the front ends' map
 #: formats; ``evaluation`` and ``cli`` compose everything)
 LAYER = {
-    "geometry": 0, "camera": 0, "_so3": 0, "maps": 0, "accuracy": 0,
+    "geometry": 0, "camera": 0, "_so3": 0, "maps": 0, "accuracy": 0, "frames": 0, "jit_cache": 0,
     "solvers": 1,
     "estimation": 2,
     "frontends": 3, "viz": 3,

@@ -9,6 +9,7 @@
     rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
     rs-localizer marker-map SCENE OUT
     rs-localizer experiments [--quick] [--out docs/experiments]
+    rs-localizer compile [--solvers r6p_1lin p3p]   (once after installing: JIT kernels)
 """
 
 from __future__ import annotations
@@ -203,6 +204,22 @@ def _solver_help(prefix: str) -> str:
         for n in SOLVER_NAMES)
 
 
+def _compile(args) -> int:
+    from ..estimation.warmup import compile_kernels
+    from ..jit_cache import cache_state
+
+    st = cache_state()
+    print(f"numba cache: {st['dir']} ({st['mode']}"
+          + (f", {st['seeded']} files copied from the package" if st["seeded"] else "") + ")",
+          flush=True)
+    res = compile_kernels(args.solvers, log=lambda m: print(m, flush=True))
+    n = len(res["kernels"])
+    print(f"{', '.join(res['solvers'])}: ready in {res['seconds']:.1f} s ("
+          + (f"compiled {n} kernels in {sum(d for _, d in res['kernels']):.1f} s"
+             if n else "all kernels loaded from the cache") + ")")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="rs-localizer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -364,6 +381,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "(PNG plots + markdown report)", **fmt)
     experiment_arguments(ex)
     ex.set_defaults(func=_experiments)
+
+    from ..estimation.warmup import DEFAULT_SOLVERS
+
+    c = sub.add_parser("compile", help="compile the JIT kernels now (run once after installing, "
+                       "while the package directory is writable: the node then starts in "
+                       "seconds)", **fmt)
+    c.add_argument("--solvers", nargs="+", default=list(DEFAULT_SOLVERS), choices=SOLVER_NAMES,
+                   help="solvers to compile for")
+    c.set_defaults(func=_compile)
     return p
 
 

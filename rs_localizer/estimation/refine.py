@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from scipy.optimize import least_squares
 
 from .._so3 import FMA, rotate_left_into, so3_coefficients
 from ..geometry import rotvec_to_matrix, skew
@@ -743,6 +742,8 @@ def refine_rs_pose_scipy(R0, C0, w0, t0, X, x, tau, loss_scale: float,
             J = np.concatenate([J, _prior_residuals(full(p), mean, U, seconds_per_unit_r,
                                                     noise)[1]])
         return J[:, free]
+
+    from scipy.optimize import least_squares  # (here: 0.2 s of the node's start-up otherwise)
 
     res = least_squares(fun, theta0[free], jac=jac,
                         loss="huber", f_scale=loss_scale, method="trf", x_scale="jac",

@@ -19,6 +19,8 @@ Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; over
     camera_info      sensor_msgs/CameraInfo
     image            sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), only when ``frontend`` is
                      ``aruco`` or ``features``; header.stamp = capture time of ``rs.stamp_row``
+    image/compressed sensor_msgs/CompressedImage (JPEG, PNG) instead, with
+                     ``image_transport: compressed`` (topic: the resolved ``image`` + /compressed)
 Publications (reliable, depth 10):
     pose                  geometry_msgs/PoseStamped              map_frame, reference-row time
     twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s
@@ -43,7 +45,6 @@ import time
 from collections import Counter, deque
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
@@ -54,13 +55,15 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
 from ..frontends import FRONTENDS
-from ..maps import check_regular_file, load_landmarks_csv
+from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic, camera_to_base
+from ..frontends.shared import SHARED_MAPS
+from ..maps import check_regular_file
 from . import conversions as cv
 from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
                          read_keypoints)
@@ -108,7 +111,17 @@ PARAMETERS = {
     "map_frame": ("map", "frame of the published pose", None, True),
     "camera_frame": ("", "camera optical frame of the outputs; empty = input header.frame_id",
                      None, False),
-    "publish_tf": (True, "publish map -> camera on /tf (needs tf2_msgs)", None, True),
+    "publish_tf": (True, "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)", None,
+                   True),
+    "base_frame": ("", "robot body frame (REP 103, e.g. base_link); set: pose, "
+                   "pose_with_covariance, odom, twist and /tf describe it instead of the camera "
+                   "(camera_to_base.* is the mounting); empty = the camera optical frame", None,
+                   False),
+    "camera_to_base.translation": ([0.0, 0.0, 0.0], "camera optical frame origin in base_frame "
+                                   "(m, x y z): the base_frame -> camera transform", None, False),
+    "camera_to_base.rotation": (list(OPTICAL_TO_BODY_QUATERNION), "rotation camera optical "
+                                "frame -> base_frame, quaternion x y z w (default: a camera "
+                                "looking along the base's x axis)", None, False),
     "landmarks_file": ("", "CSV id,x,y,z for the keypoints topic (reloaded on change)", None,
                        False),
     "max_points": (5000, "clouds with more points are capped (highest scores, else evenly "
@@ -152,6 +165,9 @@ PARAMETERS = {
     "frontend_map": ("", "map of the front end: aruco: marker map YAML, scene YAML or a "
                      "built-in scene name (aruco_room); features: feature map .npz; board: "
                      "board YAML (reloaded on change)", None, False),
+    "image_transport": ("raw", "image input with a front end: raw (sensor_msgs/Image on image) "
+                        "or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on "
+                        "image/compressed, decoded with OpenCV)", None, True),
     "republish_correspondences": (False, "publish the front end's correspondences on "
                                   "correspondences_out (PointCloud2) for inspection", None,
                                   False),
@@ -159,6 +175,8 @@ PARAMETERS = {
 
 #: values of the ``frontend`` parameter
 FRONTEND_KINDS = ("none",) + FRONTENDS
+#: values of the ``image_transport`` parameter
+IMAGE_TRANSPORTS = ("raw", "compressed")
 
 _LOG_PERIOD = 2.0  # s, per failure reason
 # Frame subscriptions: sensor-data QoS (best effort) with a deeper history than its 5, so that
@@ -182,11 +200,21 @@ class _Drop(ValueError):
         self.reason = reason
 
 
-class RSLocalizerNode(Node):
-    """The localizer node. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`."""
+class LocalizerCore:
+    """Everything of the localizer node but the order of its construction, shared by
+    :class:`RSLocalizerNode` (all at once) and the managed
+    :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode` (by lifecycle transition).
+    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`, :meth:`_init_state`,
+    :meth:`_configure` (parameters -> configuration, maps, JIT warm-up), :meth:`_create_outputs`,
+    :meth:`_create_camera_info_input`, :meth:`_create_frame_inputs`, :meth:`_log_ready`."""
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs):
-        super().__init__(node_name, **kwargs)
+    cfg = None  # the configuration built from the parameters (None: not configured)
+
+    def _make_publisher(self, msg_type, topic, qos):
+        """Publishers of the outputs (the managed node makes lifecycle publishers)."""
+        return self.create_publisher(msg_type, topic, qos)
+
+    def _declare_parameters(self):
         for name, (default, desc, rng, ro) in PARAMETERS.items():
             d = _D(description=desc, read_only=ro)
             if isinstance(rng, FloatingPointRange):
@@ -204,6 +232,7 @@ class RSLocalizerNode(Node):
                     + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
                     + f": {e}") from None
 
+    def _init_state(self):
         self.counts = Counter()      # frames received / solved / failed.<reason> / ...
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
@@ -233,38 +262,50 @@ class RSLocalizerNode(Node):
         self._t_frontend = 0.0       # s in the front end for the current frame
         self._tf_pub = None
         self.pub_corr_out = None     # correspondences_out, created when first needed
+        self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
+        self._diag_timer = None
 
+    def _configure(self):
+        """Parameters -> configuration (camera model, landmarks, front end and its map), then
+        the JIT warm-up. Raises RuntimeError for invalid parameters."""
         cfg = self._build_config({})
         if isinstance(cfg, str):
             raise RuntimeError(f"invalid parameters: {cfg}")
         self._apply_config(cfg)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-
         if self.get_parameter("warmup").value:
             self._warmup(self.cfg["solver"])
 
+    def _create_outputs(self):
         rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_pose = self.create_publisher(PoseStamped, "pose", rel)
-        self.pub_twist = self.create_publisher(TwistStamped, "twist", rel)
-        self.pub_pwc = self.create_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
-                                             rel)
-        self.pub_odom = self.create_publisher(Odometry, "odom", rel)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", rel)
-        self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
+        self.pub_pose = self._make_publisher(PoseStamped, "pose", rel)
+        self.pub_twist = self._make_publisher(TwistStamped, "twist", rel)
+        self.pub_pwc = self._make_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
+                                            rel)
+        self.pub_odom = self._make_publisher(Odometry, "odom", rel)
+        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", rel)
+        if getattr(self, "viz", None) is None:  # (declares the viz.* parameters: once)
+            self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
         if self.get_parameter("publish_tf").value:
             if cv.have_tf2_msgs():
                 from tf2_msgs.msg import TFMessage
 
-                self._tf_pub = self.create_publisher(TFMessage, "/tf", rel)
+                self._tf_pub = self._make_publisher(TFMessage, "/tf", rel)
             else:
                 self.get_logger().warning(
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
                     "wheels): not publishing /tf")
+        if self.cfg["republish"] and self._frontend is not None:
+            self._corr_out_publisher()
 
-        # (created first: a camera_info ready together with a frame is taken first)
+    def _create_camera_info_input(self):
+        # (created before the frame inputs: a camera_info ready together with a frame is
+        # taken first)
         self.sub_info = self.create_subscription(
             CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
+
+    def _create_frame_inputs(self):
+        """The frame subscriptions, the diagnostics timer and the worker thread."""
         self.sub_corr = self.create_subscription(
             PointCloud2, "correspondences", self._on_correspondences, _CLOUD_QOS,
             event_callbacks=self._lost_events("correspondences"),
@@ -275,20 +316,57 @@ class RSLocalizerNode(Node):
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self.sub_image = None
         if self._frontend is not None:
-            self.sub_image = self.create_subscription(
-                Image, "image", self._on_image, _IMAGE_QOS,
-                event_callbacks=self._lost_events("image"),
-                qos_overriding_options=QoSOverridingOptions.with_default_policies())
-            if self.cfg["republish"]:
-                self._corr_out_publisher()
-        self.create_timer(float(self.get_parameter("diagnostics_period").value),
-                          self.publish_diagnostics)
+            if self.cfg["image_transport"] == "compressed":  # image_transport's topic name
+                self.sub_image = self.create_subscription(
+                    CompressedImage, self.resolve_topic_name("image") + "/compressed",
+                    self._on_image, _IMAGE_QOS,
+                    event_callbacks=self._lost_events("image"),
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            else:
+                self.sub_image = self.create_subscription(
+                    Image, "image", self._on_image, _IMAGE_QOS,
+                    event_callbacks=self._lost_events("image"),
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._diag_timer = self.create_timer(
+            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics)
+        self._start_worker()
+
+    def _start_worker(self):
+        with self._lock:
+            self._stop = False
         # the worker holds the GIL while it solves; hand it to the subscription callbacks
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._worker = threading.Thread(target=self._work, name="rs_localizer_worker",
                                         daemon=True)
         self._worker.start()
+
+    def _stop_worker(self, drop_queued: bool = False):
+        """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
+        the frames still waiting (counted as skipped)."""
+        with self._lock:
+            self._stop = True
+            if drop_queued:
+                self.counts["skipped"] += len(self._queue)
+                self._queue.clear()
+            self._lock.notify_all()
+        worker = getattr(self, "_worker", None)
+        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
+            worker.join(timeout=10.0)
+        self._worker = None
+
+    def _destroy_frame_inputs(self):
+        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped."""
+        for sub in (self.sub_corr, self.sub_kp, self.sub_image):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.sub_corr = self.sub_kp = self.sub_image = None
+        if self._diag_timer is not None:
+            self.destroy_timer(self._diag_timer)
+            self._diag_timer = None
+        self._stop_worker(drop_queued=True)
+
+    def _log_ready(self):
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
             self.get_logger().warning("rs.line_delay and rs.readout_time are 0: global-shutter "
                                       "timing, the published twist will be zero")
@@ -370,20 +448,29 @@ class RSLocalizerNode(Node):
             self._with_timing(CameraModel(K=np.eye(3), width=10, height=10), cfg)
         except ValueError as e:
             return f"invalid rolling-shutter parameters: {e}"
+        cfg["base_frame"], cfg["extrinsic"] = str(p["base_frame"]).strip(), None
+        if cfg["base_frame"]:
+            try:
+                cfg["extrinsic"] = Extrinsic.from_translation_quaternion(
+                    p["camera_to_base.translation"], p["camera_to_base.rotation"])
+            except ValueError as e:
+                return f"invalid camera_to_base: {e}"
         path = p["landmarks_file"]
         cfg["landmarks"] = None
         if path:
-            try:
-                ids, pts = load_landmarks_csv(os.path.expanduser(path))
+            try:  # (loaded once per process: cameras naming the same file share it)
+                cfg["landmarks"] = SHARED_MAPS.landmarks(path, owner=self)
             except (OSError, ValueError) as e:
                 return f"cannot load landmarks_file {path!r}: {e}"
-            order = np.argsort(ids, kind="stable")
-            cfg["landmarks"] = (ids[order], pts[order])
         kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
         if kind not in FRONTEND_KINDS:
             return f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
+        transport = str(p["image_transport"]).strip().lower()
+        if transport not in IMAGE_TRANSPORTS:
+            return (f"unknown image_transport {p['image_transport']!r}; expected one of "
+                    f"{list(IMAGE_TRANSPORTS)}")
         cfg.update(frontend=kind, frontend_map=fmap, republish=bool(p["republish_correspondences"]),
-                   frontend_obj=None)
+                   frontend_obj=None, image_transport=transport)
         if kind != "none":
             if not fmap:
                 return f"frontend {kind} needs frontend_map (" + (
@@ -392,12 +479,12 @@ class RSLocalizerNode(Node):
             if (kind, fmap) == self._frontend_key:
                 cfg["frontend_obj"] = self._frontend
             else:
-                from ..frontends import make_frontend
-
                 try:
                     if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
                         check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
-                    cfg["frontend_obj"] = make_frontend(kind, os.path.expanduser(fmap))
+                    # (the map is loaded once per process and shared by cameras naming it)
+                    cfg["frontend_obj"] = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap),
+                                                                owner=self)
                 except Exception as e:  # noqa: BLE001 - OSError, ValueError, yaml errors
                     return f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
         return cfg
@@ -417,7 +504,8 @@ class RSLocalizerNode(Node):
                                        f"{cfg['frontend_map']}")
             self._frontend = cfg["frontend_obj"]
             self._frontend_key = (cfg["frontend"], cfg["frontend_map"])
-        if cfg["republish"] and self._frontend is not None and hasattr(self, "pub_pose"):
+        if (cfg["republish"] and self._frontend is not None
+                and getattr(self, "pub_pose", None) is not None):
             self._corr_out_publisher()
         with self._lock:  # the RS timing may have changed: rebuild the camera models
             hist = []
@@ -431,7 +519,7 @@ class RSLocalizerNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
-        if not overrides:
+        if not overrides or self.cfg is None:  # (not configured yet: checked at configure)
             return SetParametersResult(successful=True)
         cfg = self._build_config(overrides)
         if isinstance(cfg, str):
@@ -450,24 +538,24 @@ class RSLocalizerNode(Node):
     # ------------------------------------------------------------------ warm-up
     def _warmup(self, solver, cfg=None):
         """Run the estimator on a small synthetic RS problem so that the numba JIT compiles
-        before the first real frame (the compiled code is cached on disk)."""
+        (or loads from its cache) before the first real frame, logging each kernel compiled."""
+        from ..estimation.warmup import warm_up
+        from ..jit_cache import cache_state, compile_progress
+
         cfg = cfg or self.cfg
-        tic = time.perf_counter()
-        rng = np.random.default_rng(1)
-        cam = cv.camera_model(np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
-                              [0.05, -0.05, 0.0, 0.0, 0.0], 640, 480, "plumb_bob",
-                              line_delay=5e-5)
-        n = 60
-        uv = rng.uniform([0, 0], [639, 479], (n, 2))
-        depth = rng.uniform(3, 8, n)
-        xn = cam.undistort(uv)
-        X = np.concatenate([xn, np.ones((n, 1))], axis=1) * depth[:, None]
+        log = self.get_logger()
+        st = cache_state()
+        log.info(f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
+                 + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
+                 + ")")
         try:
-            est = estimate_rs_pose(uv, X, cam, solver=solver, options=cfg["options"])
-            self.get_logger().info(f"warm-up ({solver}): {time.perf_counter() - tic:.2f} s, "
-                                   f"{'ok' if est.success else est.failure}")
+            with compile_progress(log.info) as prog:
+                dt, est = warm_up(solver, cfg["options"])
+            log.info(f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
+                     + (f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
+                        "installing avoids this)" if prog.kernels else ", kernels from the cache"))
         except Exception as e:  # noqa: BLE001 - never die in warm-up
-            self.get_logger().warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+            log.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
 
     # ------------------------------------------------------------------ callbacks
     def _lost_events(self, topic):
@@ -567,7 +655,7 @@ class RSLocalizerNode(Node):
     def _on_keypoints(self, msg: PointCloud2):
         self._enqueue(msg, self._from_keypoints)
 
-    def _on_image(self, msg: Image):
+    def _on_image(self, msg):  # sensor_msgs/Image or CompressedImage
         self.counts["image_frames"] += 1
         self._enqueue(msg, self._from_image)
 
@@ -606,13 +694,11 @@ class RSLocalizerNode(Node):
                     self._busy = False
 
     def destroy_node(self):
-        """Stop the worker thread (the frame it is on is finished), then destroy the node."""
-        with self._lock:
-            self._stop = True
-            self._lock.notify_all()
-        worker = getattr(self, "_worker", None)
-        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
-            worker.join(timeout=10.0)
+        """Stop the worker thread (the frame it is on is finished), release the shared maps,
+        then destroy the node."""
+        if getattr(self, "_lock", None) is not None:
+            self._stop_worker()
+        SHARED_MAPS.release(self)  # (maps no other camera of the process uses are freed)
         return super().destroy_node()
 
     def _safe_handle(self, msg, extract, arrival=None):
@@ -623,7 +709,7 @@ class RSLocalizerNode(Node):
 
     def _corr_out_publisher(self):
         if self.pub_corr_out is None:
-            self.pub_corr_out = self.create_publisher(
+            self.pub_corr_out = self._make_publisher(
                 PointCloud2, "correspondences_out",
                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         return self.pub_corr_out
@@ -727,17 +813,20 @@ class RSLocalizerNode(Node):
         self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
         self.inliers.append(est.num_inliers)
         self._planar_last = (est.planar, est.condition_number)
+        out, out_frame = est, frame  # the camera's pose and twist, or the robot base's
+        if cfg["extrinsic"] is not None:
+            out, out_frame = camera_to_base(est, cfg["extrinsic"]), cfg["base_frame"]
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        self.pub_pose.publish(cv.pose_stamped(est, out_stamp, mf))
+        self.pub_pose.publish(cv.pose_stamped(out, out_stamp, mf))
         if self.pub_twist.get_subscription_count():
-            self.pub_twist.publish(cv.twist_stamped(est, out_stamp, frame))
+            self.pub_twist.publish(cv.twist_stamped(out, out_stamp, out_frame))
         if self.pub_pwc.get_subscription_count():
-            self.pub_pwc.publish(cv.pose_with_covariance_stamped(est, out_stamp, mf))
+            self.pub_pwc.publish(cv.pose_with_covariance_stamped(out, out_stamp, mf))
         if self.pub_odom.get_subscription_count():
-            self.pub_odom.publish(cv.odometry(est, out_stamp, mf, frame))
+            self.pub_odom.publish(cv.odometry(out, out_stamp, mf, out_frame))
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
-            self._tf_pub.publish(cv.tf_message(est, out_stamp, mf, frame))
-        self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)
+            self._tf_pub.publish(cv.tf_message(out, out_stamp, mf, out_frame))
+        self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)  # (camera frame)
         toc = time.perf_counter()
         self.latencies.append(toc - arrival)
         self.stamp_ages.append((self.get_clock().now().nanoseconds - stamp) * 1e-9)
@@ -766,18 +855,25 @@ class RSLocalizerNode(Node):
 
     def _from_image(self, msg, camera, stamp):
         """Decode, run the front end, optionally republish its correspondences."""
-        from ..frontends.image import image_from_msg
+        from ..frontends.image import image_from_compressed, image_from_msg
 
         fe = self._frontend
         if fe is None:  # (the subscription exists only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
-        h, w = int(msg.height), int(msg.width)
-        if h * w == 0:
-            raise _Drop("bad_image", f"empty image ({w}x{h})")
-        try:
-            img, enc = image_from_msg(msg)
-        except ValueError as e:
-            raise _Drop("bad_image", str(e)) from None
+        if isinstance(msg, CompressedImage):
+            try:
+                img, enc = image_from_compressed(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
+            h, w = img.shape[:2]
+        else:
+            h, w = int(msg.height), int(msg.width)
+            if h * w == 0:
+                raise _Drop("bad_image", f"empty image ({w}x{h})")
+            try:
+                img, enc = image_from_msg(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
         if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
             raise _Drop("image_size_mismatch", f"image is {w}x{h}, the camera model "
                         f"{camera.width}x{camera.height}")
@@ -886,26 +982,32 @@ class RSLocalizerNode(Node):
         self.pub_diag.publish(msg)
 
 
-def main(args=None):
-    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``)."""
-    from rclpy.executors import ExternalShutdownException
+class RSLocalizerNode(LocalizerCore, Node):
+    """The localizer node: configured (JIT warm-up included), subscribed and publishing from
+    construction. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`.
 
-    rclpy.init(args=sys.argv if args is None else args)
-    node = None
-    try:
-        node = RSLocalizerNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except RuntimeError as e:  # invalid parameters at start: a clear message, no traceback
-        print(f"rs_localizer_node: error: {e}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    Raises:
+        RuntimeError: invalid parameters (the message names the parameter).
+    """
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+        Node.__init__(self, node_name, **kwargs)
+        self._declare_parameters()
+        self._init_state()
+        self._configure()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._create_outputs()
+        self._create_camera_info_input()
+        self._create_frame_inputs()
+        self._log_ready()
+
+
+def main(args=None):
+    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``): one
+    node, or one per camera namespace in the ``cameras`` parameter (:mod:`.runner`)."""
+    from .runner import run
+
+    return run(RSLocalizerNode, args, "rs_localizer_node")
 
 
 if __name__ == "__main__":

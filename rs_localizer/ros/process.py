@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file"]
+__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file",
+           "share_dirs"]
 
 
 def random_domain_id() -> int:
@@ -67,12 +68,34 @@ def write_params_yaml(path, params: dict | None = None, reliable_topics=(),
     return path
 
 
+def share_dirs() -> list[Path]:
+    """Where an installed ``rs_localizer`` keeps its data files (``config/``, ``launch/``,
+    ``data/``), most specific first: ``<prefix>/share/rs_localizer`` of the prefix the package
+    is installed in (``<prefix>/lib/pythonX.Y/site-packages/rs_localizer``: a pip venv or a
+    colcon install space), the ament index (``AMENT_PREFIX_PATH``), then ``sys.prefix``."""
+    pkg = Path(os.path.abspath(__file__)).parents[1]     # .../site-packages/rs_localizer
+    out = []
+    if pkg.parent.name in ("site-packages", "dist-packages"):
+        out.append(pkg.parents[3] / "share" / "rs_localizer")
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            out.append(Path(prefix) / "share" / "rs_localizer")
+    out.append(Path(sys.prefix) / "share" / "rs_localizer")
+    seen, uniq = set(), []
+    for d in out:
+        if d not in seen:
+            seen.add(d)
+            uniq.append(d)
+    return uniq
+
+
 def repo_file(*parts) -> Path | None:
     """A file of the source tree (``data/sample``, ``config/...``): looked up from the current
-    directory, then next to the package, then in ``share/rs_localizer`` of the environment."""
+    directory, then next to the package (a source checkout), then in the installed
+    ``share/rs_localizer`` (:func:`share_dirs`). None if nowhere."""
     rel = Path(*parts)
     here = Path(__file__).resolve().parents[2]
-    for base in (Path.cwd(), here, Path(sys.prefix) / "share" / "rs_localizer"):
+    for base in (Path.cwd(), here, *share_dirs()):
         if (base / rel).exists():
             return base / rel
     return None
@@ -87,11 +110,12 @@ class NodeProcess:
         params: ``-p name:=value`` extra parameters.
         env: environment (see :func:`ros_env`). log: file for stdout+stderr (default: temp).
         cpus: pin the process (and all its threads) to these CPU ids (Linux).
+        module: the node's module (``rs_localizer.ros.lifecycle`` for the managed node).
     """
 
     def __init__(self, params_files=(), namespace="/camera", node_name=None, remaps=None,
-                 params=None, env=None, log=None, cpus=None):
-        args = [sys.executable, "-m", "rs_localizer.ros.node", "--ros-args"]
+                 params=None, env=None, log=None, cpus=None, module="rs_localizer.ros.node"):
+        args = [sys.executable, "-m", module, "--ros-args"]
         for f in params_files:
             args += ["--params-file", str(f)]
         if namespace:
@@ -126,11 +150,13 @@ class NodeProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def wait_ready(self, timeout: float = 60.0) -> bool:
-        """Wait for the node's ``ready`` log line (after warm-up)."""
+    def wait_ready(self, timeout: float = 60.0, count: int = 1, marker: str = "ready:") -> bool:
+        """Wait for ``count`` ``ready`` log lines (after warm-up; one per camera node) or other
+        ``marker`` lines."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            if "] ready:" in self.log or "]: ready:" in self.log:
+            log = self.log
+            if log.count(f"] {marker}") + log.count(f"]: {marker}") >= count:
                 return True
             if not self.alive():
                 return False

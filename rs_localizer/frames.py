@@ -1,0 +1,186 @@
+"""Robot frames: the camera's pose, twist and covariances -> those of the robot base.
+
+The estimator describes the camera optical frame (REP 103 optical: z forward, x right, y down):
+its pose in the map ``T_map_cam = (R_mc, p_c)`` (camera -> map rotation, camera centre in m), its
+velocity in its own frame (angular ``omega_c`` rad/s, linear ``v_c`` m/s = ``R_mc^T dp_c/dt``)
+and 6x6 covariances (pose: ROS order x, y, z, rot x, rot y, rot z with the rotation perturbation
+about the *map* axes, ``R_mc = expm([phi]x) R_mc_hat``; twist: vx, vy, vz, wx, wy, wz in the
+camera frame). A robot wants the same quantities for its body frame ``base_link`` (REP 103
+body: x forward, y left, z up).
+
+The camera is rigidly mounted: :class:`Extrinsic` is the pose of the camera optical frame in the
+base frame, ``T_base_cam = (R_bc, t_bc)`` with ``p_base = R_bc p_cam + t_bc`` -- the transform
+``base_link -> camera_optical_frame`` of a static TF publisher (parent base, child camera). Then
+
+* pose: ``T_map_base = T_map_cam T_base_cam^-1``: ``R_mb = R_mc R_bc^T``,
+  ``p_b = p_c - R_mb t_bc``;
+* twist of the rigid body, in the base frame: ``omega_b = R_bc omega_c``,
+  ``v_b = R_bc v_c + t_bc x omega_b`` (velocity of the base origin);
+* covariances, first order (exact for the twist, which is linear): pose
+  ``J = [[I, [R_mb t_bc]x], [0, I]]`` (map-axis rotation perturbations stay the same), twist
+  ``J = [[R_bc, [t_bc]x R_bc], [0, R_bc]]``; ``Sigma_b = J Sigma_c J^T``.
+
+Pure NumPy (model layer, no ROS); the node applies :func:`camera_to_base` in its publish step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .geometry import skew
+
+__all__ = ["Extrinsic", "BaseState", "OPTICAL_TO_BODY_QUATERNION", "camera_to_base",
+           "base_pose", "base_twist", "base_pose_covariance", "base_twist_covariance"]
+
+#: ``(x, y, z, w)`` of the rotation optical -> body for a camera looking along the base's x axis
+#: (camera z = base x, camera x = -base y, camera y = -base z): the REP 103 convention change
+OPTICAL_TO_BODY_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class Extrinsic:
+    """Pose of the camera optical frame in the base frame (``base_link -> camera`` transform).
+
+    Attributes:
+        rotation: (3, 3) ``R_bc``, camera-frame vectors -> base-frame vectors.
+        translation: (3,) ``t_bc``, the camera centre in the base frame (m).
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+
+    @classmethod
+    def from_translation_quaternion(cls, translation, quaternion) -> "Extrinsic":
+        """From a translation ``(x, y, z)`` in m and a quaternion ``(x, y, z, w)`` (ROS order,
+        normalized here), as in ``static_transform_publisher x y z qx qy qz qw base camera``.
+
+        Raises:
+            ValueError: translation not 3 finite numbers; quaternion not 4 finite numbers or
+                of norm outside [0.5, 2] (a typo rather than rounding).
+        """
+        t = np.asarray(translation, dtype=float).reshape(-1)
+        q = np.asarray(quaternion, dtype=float).reshape(-1)
+        if t.shape != (3,) or not np.isfinite(t).all():
+            raise ValueError(f"translation must be 3 finite numbers (m), got {t.tolist()}")
+        if q.shape != (4,) or not np.isfinite(q).all():
+            raise ValueError(f"rotation must be a quaternion of 4 finite numbers (x, y, z, w), "
+                             f"got {q.tolist()}")
+        n = float(np.linalg.norm(q))
+        if not 0.5 <= n <= 2.0:
+            raise ValueError(f"rotation quaternion {q.tolist()} has norm {n:.3g}, expected 1 "
+                             "(order x, y, z, w)")
+        R = Rotation.from_quat(q / n).as_matrix()
+        return cls(rotation=R, translation=t)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """(4, 4) homogeneous ``T_base_cam``."""
+        T = np.eye(4)
+        T[:3, :3] = self.rotation
+        T[:3, 3] = self.translation
+        return T
+
+
+@dataclass(frozen=True)
+class BaseState:
+    """Pose, twist and covariances of the base frame (same attribute names as the estimator's
+    camera quantities, so the message conversions take either).
+
+    Attributes:
+        orientation: (3, 3) base -> map rotation ``R_mb``. position: (3,) base origin in the map
+            (m). angular_velocity, linear_velocity: (3,) the base's rigid-body velocity in the
+            base frame (rad/s, m/s). pose_covariance: (6, 6) or None, ROS order, map frame
+            (rotation about map axes). twist_covariance: (6, 6) or None, ROS order, base frame.
+    """
+
+    orientation: np.ndarray
+    position: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    pose_covariance: np.ndarray | None = None
+    twist_covariance: np.ndarray | None = None
+
+
+def base_pose(orientation, position, extrinsic: Extrinsic):
+    """Camera pose in the map -> base pose in the map.
+
+    Args:
+        orientation: (3, 3) camera -> map rotation ``R_mc``. position: (3,) camera centre (m).
+    Returns:
+        ``(R_mb (3, 3), p_b (3,))``: ``R_mb = R_mc R_bc^T``, ``p_b = p_c - R_mb t_bc``.
+    """
+    R_mb = np.asarray(orientation, dtype=float) @ extrinsic.rotation.T
+    return R_mb, np.asarray(position, dtype=float) - R_mb @ extrinsic.translation
+
+
+def base_twist(angular_velocity, linear_velocity, extrinsic: Extrinsic):
+    """Camera velocity in the camera frame -> the base's rigid-body velocity in the base frame.
+
+    Args:
+        angular_velocity, linear_velocity: (3,) ``omega_c`` (rad/s), ``v_c`` (m/s, velocity of
+            the camera centre in camera axes).
+    Returns:
+        ``(omega_b, v_b)``: ``omega_b = R_bc omega_c``, ``v_b = R_bc v_c + t_bc x omega_b``
+        (velocity of the base origin in base axes).
+    """
+    om_b = extrinsic.rotation @ np.asarray(angular_velocity, dtype=float)
+    v_b = extrinsic.rotation @ np.asarray(linear_velocity, dtype=float)
+    return om_b, v_b + np.cross(extrinsic.translation, om_b)
+
+
+def base_pose_covariance(cov, orientation, extrinsic: Extrinsic):
+    """(6, 6) camera pose covariance (ROS order, map frame, map-axis rotation perturbation) ->
+    base pose covariance in the same convention (first order). ``None`` stays ``None``.
+
+    Args:
+        cov: (6, 6) or None. orientation: (3, 3) camera -> map rotation ``R_mc``.
+    Raises:
+        ValueError: ``cov`` is not 6x6.
+    """
+    if cov is None:
+        return None
+    cov = np.asarray(cov, dtype=float)
+    if cov.shape != (6, 6):
+        raise ValueError(f"pose covariance must be 6x6, got {cov.shape}")
+    a = np.asarray(orientation, dtype=float) @ extrinsic.rotation.T @ extrinsic.translation
+    J = np.eye(6)
+    J[0:3, 3:6] = skew(a)
+    return J @ cov @ J.T
+
+
+def base_twist_covariance(cov, extrinsic: Extrinsic):
+    """(6, 6) camera twist covariance (vx, vy, vz, wx, wy, wz; camera frame) -> base twist
+    covariance (base frame); exact, the map is linear. ``None`` stays ``None``.
+
+    Raises:
+        ValueError: ``cov`` is not 6x6.
+    """
+    if cov is None:
+        return None
+    cov = np.asarray(cov, dtype=float)
+    if cov.shape != (6, 6):
+        raise ValueError(f"twist covariance must be 6x6, got {cov.shape}")
+    R, t = extrinsic.rotation, extrinsic.translation
+    J = np.zeros((6, 6))
+    J[0:3, 0:3] = R
+    J[0:3, 3:6] = skew(t) @ R
+    J[3:6, 3:6] = R
+    return J @ cov @ J.T
+
+
+def camera_to_base(camera, extrinsic: Extrinsic) -> BaseState:
+    """All of it at once: ``camera`` is anything with the estimator's attributes
+    ``orientation``, ``position``, ``angular_velocity``, ``linear_velocity``,
+    ``pose_covariance``, ``twist_covariance`` (e.g. an :class:`~rs_localizer.RSPoseEstimate`,
+    see the module docstring for frames and units)."""
+    R_mb, p_b = base_pose(camera.orientation, camera.position, extrinsic)
+    om_b, v_b = base_twist(camera.angular_velocity, camera.linear_velocity, extrinsic)
+    return BaseState(
+        orientation=R_mb, position=p_b, angular_velocity=om_b, linear_velocity=v_b,
+        pose_covariance=base_pose_covariance(getattr(camera, "pose_covariance", None),
+                                             camera.orientation, extrinsic),
+        twist_covariance=base_twist_covariance(getattr(camera, "twist_covariance", None),
+                                               extrinsic))

@@ -1,0 +1,130 @@
+"""Maps shared by several cameras in one process (the node's ``cameras`` parameter).
+
+A feature map (descriptors and 3D points, possibly tens of MB), a marker map, a board or a
+landmark table is loaded once per file and shared by every camera that names the same file;
+each camera still gets its own front-end object (its detector, matcher and per-image state), so
+cameras can process images concurrently. A file that changed on disk (modification time or
+size) is loaded again.
+
+Lifetime: a caller passes ``owner`` (e.g. the node); each owner holds at most one front-end map
+and one landmark table (a new one replaces its previous one), and :meth:`MapCache.release`
+drops its holds. A map no owner holds leaves the cache (it is freed once the last front end
+using it is gone). Without ``owner`` a map stays cached for the life of the process.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+__all__ = ["MapCache", "SHARED_MAPS"]
+
+
+class MapCache:
+    """Loaded maps by ``(kind, file identity)``; thread-safe."""
+
+    def __init__(self):
+        self._maps = {}
+        self._holds = {}    # id(owner) -> {slot: key}
+        self._pinned = set()  # keys loaded without an owner
+        self._lock = threading.Lock()
+        self.loads = 0  # maps actually read from disk (the rest were shared)
+
+    def __len__(self):
+        return len(self._maps)
+
+    def _hold(self, owner, slot, key):  # (under the lock)
+        if owner is None:
+            self._pinned.add(key)
+            return
+        old = self._holds.setdefault(id(owner), {}).get(slot)
+        self._holds[id(owner)][slot] = key
+        if old is not None and old != key:
+            self._drop_unheld(old)
+
+    def _drop_unheld(self, key):  # (under the lock)
+        if key in self._pinned or any(key in h.values() for h in self._holds.values()):
+            return
+        self._maps.pop(key, None)
+
+    def release(self, owner):
+        """Drop every hold of ``owner``; maps nobody else holds leave the cache."""
+        with self._lock:
+            for key in self._holds.pop(id(owner), {}).values():
+                self._drop_unheld(key)
+
+    @staticmethod
+    def _key(kind: str, path) -> tuple:
+        p = Path(os.path.expanduser(str(path)))
+        try:
+            st = p.stat()
+        except OSError:  # a built-in scene name (aruco_room) or a missing file (load raises)
+            return (kind, str(path))
+        return (kind, str(p.resolve()), st.st_mtime_ns, st.st_size)
+
+    def get(self, kind: str, path, load, owner=None, slot=None):
+        """The map of ``path`` for ``kind``, calling ``load(path)`` only when no loaded copy
+        is cached (exceptions of ``load`` propagate and nothing is cached); ``owner`` holds it
+        in ``slot`` (default: ``kind``)."""
+        key = self._key(kind, path)
+        with self._lock:
+            if key in self._maps:
+                self._hold(owner, slot or kind, key)
+                return self._maps[key]
+        value = load(path)
+        with self._lock:
+            self.loads += 1
+            value = self._maps.setdefault(key, value)
+            self._hold(owner, slot or kind, key)
+            return value
+
+    def frontend(self, kind: str, map_path, owner=None, **kw):
+        """A new front end (as :func:`rs_localizer.frontends.make_frontend`) around the shared
+        map of ``map_path``.
+
+        Raises:
+            ValueError: unknown kind or a bad map. FileNotFoundError: a missing map.
+        """
+        if kind == "aruco":
+            from ..maps import load_marker_map
+            from .aruco import ArucoFrontend
+
+            dictionary, corners = self.get(kind, map_path, lambda p: load_marker_map(Path(str(p))),
+                                           owner, "frontend")
+            return ArucoFrontend(corners, dictionary, **kw)
+        if kind == "features":
+            from .features import FeatureFrontend, FeatureMap
+
+            return FeatureFrontend(self.get(kind, map_path, FeatureMap.load, owner, "frontend"),
+                                   **kw)
+        if kind == "board":
+            from .boards import load_board, make_board_frontend
+
+            return make_board_frontend(self.get(kind, map_path, load_board, owner, "frontend"),
+                                       **kw)
+        from . import FRONTENDS
+
+        raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")
+
+    def landmarks(self, path, owner=None):
+        """``(ids sorted (M,), points (M, 3))`` of a landmark CSV
+        (:func:`rs_localizer.maps.load_landmarks_csv`), shared.
+
+        Raises:
+            OSError, ValueError: as ``load_landmarks_csv``.
+        """
+        import numpy as np
+
+        from ..maps import load_landmarks_csv
+
+        def load(p):
+            ids, pts = load_landmarks_csv(os.path.expanduser(str(p)))
+            order = np.argsort(ids, kind="stable")
+            return ids[order], pts[order]
+
+        return self.get("landmarks", path, load, owner)
+
+
+#: the process-wide cache the node uses
+SHARED_MAPS = MapCache()

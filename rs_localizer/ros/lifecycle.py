@@ -1,0 +1,119 @@
+"""``rs_localizer_lifecycle_node``: the localizer as a managed (lifecycle) node.
+
+The same processing, parameters and topics as ``rs_localizer_node``
+(:class:`~rs_localizer.ros.node.RSLocalizerNode`), driven by the lifecycle transitions
+(``ros2 lifecycle set /camera/rs_localizer configure``, or a lifecycle manager through the
+``lifecycle_msgs/srv/ChangeState`` service ``<node>/change_state``):
+
+* unconfigured (after start): parameters declared, nothing loaded, no topics.
+* configure: parameters -> configuration (fails, staying unconfigured, with the reason in the
+  log, on invalid parameters), the landmark and front-end maps loaded, the JIT kernels compiled
+  or loaded (the warm-up), the output publishers created (inactive) and ``camera_info``
+  subscribed (so a calibration is at hand at activation).
+* activate: the output publishers enabled, the frame inputs (``correspondences``,
+  ``keypoints``, ``image``) subscribed, diagnostics published.
+* deactivate: the frame inputs unsubscribed and diagnostics stopped: nothing is processed or
+  published.
+* cleanup: publishers, ``camera_info`` subscription, maps (unless another camera of the
+  process uses them), camera model and counters released; back to unconfigured.
+* shutdown: as cleanup, from any state.
+
+The ``cameras`` parameter runs one managed node per camera namespace (:mod:`.runner`); each is
+managed separately (``/robot/front/rs_localizer/change_state``, ...).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+
+from ..frontends.shared import SHARED_MAPS
+from .node import LocalizerCore
+
+__all__ = ["RSLocalizerLifecycleNode", "main"]
+
+_OK = TransitionCallbackReturn.SUCCESS
+
+
+class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
+    """The managed localizer node (see the module docstring). ``node_name`` and ``kwargs`` go to
+    :class:`rclpy.lifecycle.LifecycleNode`."""
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+        LifecycleNode.__init__(self, node_name, **kwargs)
+        self._declare_parameters()
+        self._init_state()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._outputs = []
+        self.get_logger().info("unconfigured (lifecycle node: configure, then activate)")
+
+    def _make_publisher(self, msg_type, topic, qos):
+        pub = self.create_lifecycle_publisher(msg_type, topic, qos)
+        self._outputs.append(pub)
+        return pub
+
+    # ------------------------------------------------------------------ transitions
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        try:
+            self._configure()
+        except RuntimeError as e:
+            self.get_logger().error(f"configure failed: {e}")
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        self._create_outputs()
+        self._create_camera_info_input()
+        self.get_logger().info(f"configured: solver {self.cfg['solver']} (inactive)")
+        return super().on_configure(state)
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        ret = super().on_activate(state)  # enables the lifecycle publishers
+        if ret == _OK:
+            self._create_frame_inputs()
+            self._log_ready()
+        return ret
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self._destroy_frame_inputs()
+        self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("cleaned up: unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self._destroy_frame_inputs()
+        self._release()
+        return super().on_shutdown(state)
+
+    def on_error(self, state) -> TransitionCallbackReturn:
+        self.get_logger().error("error in a transition: releasing everything (unconfigured)")
+        self._destroy_frame_inputs()
+        self._release()
+        return _OK
+
+    def _release(self):
+        """Drop what configure made: publishers, the camera_info subscription, maps, the
+        camera model, the configuration and the counters."""
+        for pub in self._outputs:
+            self.destroy_lifecycle_publisher(pub)
+        self._outputs = []
+        self.pub_pose = self.pub_twist = self.pub_pwc = self.pub_odom = self.pub_diag = None
+        if self.sub_info is not None:
+            self.destroy_subscription(self.sub_info)
+        SHARED_MAPS.release(self)
+        self._init_state()  # (pub_corr_out, _tf_pub, sub_* and the counters reset too)
+        self.cfg = None
+
+
+def main(args=None):
+    """Entry point of ``rs_localizer_lifecycle_node``."""
+    from .runner import run
+
+    return run(RSLocalizerLifecycleNode, args, "rs_localizer_lifecycle_node")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

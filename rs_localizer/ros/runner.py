@@ -1,0 +1,142 @@
+"""Process entry point shared by ``rs_localizer_node`` and ``rs_localizer_lifecycle_node``: one
+node, or one node per camera in one process.
+
+The ``cameras`` parameter (string array, read once at start; from the parameter file or
+``-p cameras:="[front, rear]"``) lists camera namespaces. Empty (the default): one node, as
+usual. Otherwise the process runs one localizer node per entry, named like the single node
+would be (``rs_localizer`` or the ``__node`` remap) in the namespace ``<process namespace>/
+<entry>`` (an entry starting with ``/`` is absolute), all on one executor: one Python
+interpreter, one numba JIT (the kernels compile or load once), and one copy of each map file
+that several cameras name (:mod:`rs_localizer.frontends.shared`). Each camera node gets every
+command-line ROS argument except the namespace and node-name remaps (so ``--params-file``,
+``-p`` and topic remaps such as ``-r image:=image_raw`` apply to every camera) and reads its own
+section of the parameter file too, e.g. ``/robot/front/rs_localizer: ros__parameters:
+{camera_frame: front_optical}``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+
+__all__ = ["run", "camera_namespaces", "node_cli_args", "read_cameras"]
+
+
+def camera_namespaces(cameras, base_namespace: str = "/") -> list[str]:
+    """Absolute namespaces of the ``cameras`` entries: relative ones under ``base_namespace``.
+
+    Raises:
+        ValueError: an empty entry or a namespace listed twice.
+    """
+    base = "/" + base_namespace.strip("/") if base_namespace.strip("/") else ""
+    out = []
+    for c in cameras:
+        c = str(c).strip()
+        if not c.strip("/"):
+            raise ValueError(f"cameras: empty camera namespace in {list(cameras)}")
+        ns = "/" + c.strip("/") if c.startswith("/") else f"{base}/{c.strip('/')}"
+        if ns in out:
+            raise ValueError(f"cameras: namespace {ns} listed twice")
+        out.append(ns)
+    return out
+
+
+def _is_name_remap(rule: str) -> bool:
+    target = rule.split(":=", 1)[0]
+    target = target.split(":", 1)[-1] if ":" in target else target  # node-targeted: n:__ns
+    return target in ("__ns", "__node", "__name")
+
+
+def node_cli_args(argv) -> list[str]:
+    """The ROS arguments of ``argv`` (every ``--ros-args`` section) without the namespace and
+    node-name remaps, as one ``--ros-args`` list for a node created with
+    ``use_global_arguments=False``."""
+    out, in_ros, skip = [], False, False
+    argv = list(argv)
+    for k, a in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        if a == "--ros-args":
+            in_ros = True
+            continue
+        if a == "--":
+            in_ros = False
+            continue
+        if not in_ros:
+            continue
+        if a in ("-r", "--remap") and k + 1 < len(argv):
+            if not _is_name_remap(argv[k + 1]):
+                out += [a, argv[k + 1]]
+            skip = True
+            continue
+        out.append(a)
+    return ["--ros-args", *out] if out else []
+
+
+def read_cameras(node_name: str = "rs_localizer"):
+    """``(cameras, namespace, node name)`` as the single node would see them (its parameter
+    file sections and remaps), via a short-lived probe node."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import ParameterUninitializedException
+    from rclpy.parameter import Parameter
+
+    probe = rclpy.create_node(node_name)
+    try:
+        probe.declare_parameter("cameras", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+            description="camera namespaces: one localizer per camera in this process",
+            read_only=True))
+        try:
+            cams = list(probe.get_parameter("cameras").value or [])
+        except ParameterUninitializedException:
+            cams = []
+        return cams, probe.get_namespace(), probe.get_name()
+    finally:
+        probe.destroy_node()
+
+
+def run(node_class, args=None, prog: str = "rs_localizer_node") -> int:
+    """Initialize rclpy with ``args`` (default ``sys.argv``), create the node(s) of
+    ``node_class`` (see the module docstring) and spin them until shutdown. Returns the exit
+    code (1 with a one-line error for invalid parameters)."""
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+    argv = sys.argv if args is None else args
+    rclpy.init(args=argv)
+    nodes = []
+    executor = None
+    try:
+        cams, base_ns, name = read_cameras()
+        if cams:
+            cli = node_cli_args(argv)
+            try:
+                namespaces = camera_namespaces(cams, base_ns)
+            except ValueError as e:
+                raise RuntimeError(str(e)) from None
+            for ns in namespaces:
+                nodes.append(node_class(name, namespace=ns, use_global_arguments=False,
+                                        cli_args=cli))
+            from ..frontends.shared import SHARED_MAPS
+
+            nodes[0].get_logger().info(
+                f"{len(nodes)} cameras in this process: {', '.join(namespaces)}; "
+                f"{SHARED_MAPS.loads} map files loaded ({len(SHARED_MAPS)} in use)")
+        else:
+            nodes.append(node_class())
+        executor = SingleThreadedExecutor()
+        for n in nodes:
+            executor.add_node(n)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except RuntimeError as e:  # invalid parameters at start: a clear message, no traceback
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 1
+    finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+        for n in nodes:
+            n.destroy_node()
+        rclpy.try_shutdown()
+    return 0

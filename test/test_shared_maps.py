@@ -1,0 +1,95 @@
+"""frontends.shared.MapCache: one load per map file, one front end per camera."""
+
+import os
+
+import numpy as np
+import pytest
+
+from rs_localizer.frontends.shared import MapCache
+from rs_localizer.maps import load_landmarks_csv
+
+
+def test_marker_map_loaded_once_and_frontends_are_separate(tmp_path):
+    from rs_localizer.frontends.aruco import ArucoFrontend
+    from rs_localizer.maps import load_marker_map
+
+    cache = MapCache()
+    a = cache.frontend("aruco", "aruco_room")
+    b = cache.frontend("aruco", "aruco_room")
+    assert isinstance(a, ArucoFrontend) and a is not b
+    assert cache.loads == 1
+    ref_dict, ref = load_marker_map("aruco_room")
+    assert a.dictionary == ref_dict and set(a.marker_corners) == set(ref)
+    for k in ref:
+        np.testing.assert_array_equal(a.marker_corners[k], ref[k])
+
+
+def test_feature_map_shared_by_two_frontends(tmp_path):
+    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
+
+    rng = np.random.default_rng(0)
+    fm = FeatureMap(rng.normal(size=(50, 3)), rng.integers(0, 256, (50, 32), dtype=np.uint8),
+                    np.arange(50, dtype=np.int64), "orb")
+    path = fm.save(tmp_path / "map.npz")
+    cache = MapCache()
+    a, b = cache.frontend("features", path), cache.frontend("features", str(path))
+    assert isinstance(a, FeatureFrontend) and a is not b and a.map is b.map
+    assert cache.loads == 1
+    np.testing.assert_array_equal(a.map.descriptors, fm.descriptors)
+    np.testing.assert_array_equal(a.map.points, fm.points)
+
+
+def test_landmarks_reloaded_when_the_file_changes(tmp_path):
+    p = tmp_path / "lm.csv"
+    p.write_text("id,x,y,z\n5,1,2,3\n2,4,5,6\n")
+    cache = MapCache()
+    ids, pts = cache.landmarks(p)
+    ids2, _ = cache.landmarks(str(p))
+    assert ids is ids2 and cache.loads == 1
+    np.testing.assert_array_equal(ids, [2, 5])
+    np.testing.assert_array_equal(pts, [[4, 5, 6], [1, 2, 3]])
+    p.write_text("id,x,y,z\n7,0,0,1\n")
+    os.utime(p, ns=(p.stat().st_atime_ns, p.stat().st_mtime_ns + 10**9))
+    ids3, _ = cache.landmarks(p)
+    assert cache.loads == 2
+    np.testing.assert_array_equal(ids3, load_landmarks_csv(p)[0])
+
+
+def test_errors_are_not_cached(tmp_path):
+    cache = MapCache()
+    with pytest.raises(FileNotFoundError):
+        cache.frontend("aruco", tmp_path / "missing.yaml")
+    with pytest.raises(ValueError):
+        cache.frontend("nope", "aruco_room")
+    assert cache.loads == 0
+
+
+def test_owners_hold_and_release():
+    cache = MapCache()
+    a, b = object(), object()
+    cache.frontend("aruco", "aruco_room", owner=a)
+    cache.frontend("aruco", "aruco_room", owner=b)
+    assert cache.loads == 1 and len(cache) == 1
+    cache.release(a)
+    assert len(cache) == 1          # b still holds it
+    cache.frontend("aruco", "aruco_room", owner=a)
+    assert cache.loads == 1
+    cache.release(a)
+    cache.release(b)
+    assert len(cache) == 0          # nobody holds it: gone
+    cache.frontend("aruco", "aruco_room", owner=a)
+    assert cache.loads == 2         # loaded again
+
+
+def test_a_new_map_replaces_the_owners_old_one(tmp_path):
+    p1, p2 = tmp_path / "a.csv", tmp_path / "b.csv"
+    p1.write_text("1,0,0,1\n")
+    p2.write_text("2,0,0,1\n")
+    cache, owner = MapCache(), object()
+    cache.landmarks(p1, owner=owner)
+    cache.frontend("aruco", "aruco_room", owner=owner)
+    assert len(cache) == 2
+    cache.landmarks(p2, owner=owner)  # p1 no longer held by anyone
+    assert len(cache) == 2 and cache.landmarks(p2)[0][0] == 2
+    cache.release(owner)
+    assert len(cache) == 1            # p2 stays: pinned by the owner-less call above
