@@ -59,10 +59,11 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
     for K, pool, bail, pre_n, pre_min in [(40, len(x), np.inf, 0, 0), (33, 60, np.inf, 24, 3),
                                           (50, len(x), 0.05, 24, 8)]:
         u = rng.random((K, s))
-        h, score, Rs, Cs, ws, ts = ransac_batch(u, pool, order, x, X, r, r0e,
-                                                CAM.readout_vector, CAM.r0, kinds, n_params,
-                                                info.default_iterations or 1, th2, bail, pre_n,
-                                                pre_min)
+        h, score, Rs, Cs, ws, ts, n_bad = ransac_batch(u, pool, order, x, X, r, r0e,
+                                                       CAM.readout_vector, CAM.r0, kinds,
+                                                       n_params, info.default_iterations or 1,
+                                                       th2, bail, pre_n, pre_min)
+        assert n_bad == 0  # no motion bounds given
         sc, Rs2, Cs2, ws2, ts2, ok = _step_by_step(u, pool, order, x, X, r, r0e, solver, th2,
                                                    bail, pre_n, pre_min)
         assert len(Rs) == len(sc) == len(info.batch or (0,)) * K
@@ -75,6 +76,35 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
     if np.isfinite(score):
         from rs_localizer.geometry import rotation_angle_deg
         assert rotation_angle_deg(Rs[h], f.R) < 5.0
+
+
+@pytest.mark.parametrize("solver", ["r6p_1lin", "r6p_vCt_w"])
+def test_fused_batch_skips_implausible_motion(solver):
+    """With motion bounds, the fused batch scores exactly the hypotheses that
+    :func:`plausible_motion` accepts (the step-by-step path's filter) and counts the rest."""
+    from rs_localizer.estimation.plausibility import plausible_motion
+
+    f, x, X, r, r0e = _frame_arrays(5)
+    kinds, n_params = fused_kernels(solver)
+    info = solver_info(solver)
+    rng = np.random.default_rng(2)
+    th2 = (2.0 / CAM.mean_focal) ** 2
+    order = rng.permutation(len(x)).astype(np.int64)
+    u = rng.random((40, info.sample_size))
+    args = (u, len(x), order, x, X, r, r0e, CAM.readout_vector, CAM.r0, kinds, n_params,
+            info.default_iterations or 1, th2, np.inf, 0, 0, False)
+    _, _, Rs, Cs, ws, ts, n0 = ransac_batch(*args)
+    sc, *_, ok = _step_by_step(u, len(x), order, x, X, r, r0e, solver, th2, np.inf, 0, 0)
+    wn = np.linalg.norm(ws[ok], axis=1)
+    bounds = (float(np.median(wn)), np.inf)  # about half the valid hypotheses too fast
+    h, score, _, _, _, _, n_bad = ransac_batch(*args, *bounds)
+    plausible = plausible_motion(Rs, Cs, ws, ts, bounds)
+    assert n0 == 0 and n_bad == int(np.count_nonzero(ok & ~plausible)) > 0
+    sc_ok = np.where(ok & plausible, sc, np.inf)
+    assert score == sc_ok.min() and plausible[h]
+    _, score_none, *_, n_all = ransac_batch(*args, 0.0, 0.0)  # nothing moves that slowly
+    assert n_all == int(np.count_nonzero(ok & (np.linalg.norm(ws, axis=1) > 0)))
+    assert not np.isfinite(score_none) or n_all < int(np.count_nonzero(ok))
 
 
 def test_solvers_without_a_fused_path():
