@@ -59,10 +59,10 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
     for K, pool, bail, pre_n, pre_min in [(40, len(x), np.inf, 0, 0), (33, 60, np.inf, 24, 3),
                                           (50, len(x), 0.05, 24, 8)]:
         u = rng.random((K, s))
-        h, score, Rs, Cs, ws, ts = ransac_batch(u, pool, order, x, X, r, r0e,
-                                                CAM.readout_vector, CAM.r0, kinds, n_params,
-                                                info.default_iterations or 1, th2, bail, pre_n,
-                                                pre_min)
+        h, score, Rs, Cs, ws, ts, n_implausible = ransac_batch(
+            u, pool, order, x, X, r, r0e, CAM.readout_vector, CAM.r0, kinds, n_params,
+            info.default_iterations or 1, th2, bail, pre_n, pre_min)
+        assert n_implausible == 0  # (no motion bounds given)
         sc, Rs2, Cs2, ws2, ts2, ok = _step_by_step(u, pool, order, x, X, r, r0e, solver, th2,
                                                    bail, pre_n, pre_min)
         assert len(Rs) == len(sc) == len(info.batch or (0,)) * K
@@ -71,6 +71,11 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
         for a, b in ((Cs, Cs2), (ws, ws2), (ts, ts2)):
             np.testing.assert_array_equal(a[ok], b[ok])
         assert h == int(np.argmin(sc)) and score == sc.min()
+        if info.rolling:  # motion bounds below every hypothesis's: none is scored
+            *_, n_rej = ransac_batch(u, pool, order, x, X, r, r0e, CAM.readout_vector, CAM.r0,
+                                     kinds, n_params, info.default_iterations or 1, th2, bail,
+                                     pre_n, pre_min, False, 0.0, 0.0)
+            assert n_rej == int(ok.sum())
     # the batch best of a plain batch is a good pose (sanity of the whole chain)
     if np.isfinite(score):
         from rs_localizer.geometry import rotation_angle_deg
