@@ -72,6 +72,11 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
         for a, b in ((Cs, Cs2), (ws, ws2), (ts, ts2)):
             np.testing.assert_array_equal(a[ok], b[ok])
         assert h == int(np.argmin(sc)) and score == sc.min()
+        if info.rolling:  # motion bounds below every hypothesis's: none is scored
+            *_, n_rej = ransac_batch(u, pool, order, x, X, r, r0e, CAM.readout_vector, CAM.r0,
+                                     kinds, n_params, info.default_iterations or 1, th2, bail,
+                                     pre_n, pre_min, False, 0.0, 0.0)
+            assert n_rej == int(ok.sum())
     # the batch best of a plain batch is a good pose (sanity of the whole chain)
     if np.isfinite(score):
         from rs_localizer.geometry import rotation_angle_deg

@@ -17,8 +17,8 @@ from .outputs import (final_inliers, output_covariance_kernel,
                       physical_velocities_kernel)
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
                        select_prerotations, valid_rows)
-from .plausibility import (check_final_model, collinear_3d, depths_at_capture,
-                           image_degenerate, motion_bounds, plausible_motion)
+from .plausibility import (CHEIRALITY, IMPLAUSIBLE_MOTION, degenerate_points,
+                           final_model_check, motion_bounds, plausible_motion)
 from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
@@ -499,8 +499,7 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
 def _degenerate(fr: _Frame, u_px, mask, threshold_px: float) -> bool:
     """True if the points ``mask`` selects fix no pose: identical or collinear 3D points, or
     pixels within ``threshold_px`` of one image line (see :mod:`.plausibility`)."""
-    return collinear_3d(fr.X[mask]) or image_degenerate(u_px[mask], fr.x[mask], fr.f,
-                                                        threshold_px)
+    return bool(degenerate_points(fr.X, u_px, fr.x, mask, float(fr.f), float(threshold_px)))
 
 
 def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
@@ -738,11 +737,14 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
                                              SCORE_AT_MEASURED_TIME)[inl])) * fr.f)
     timings["refine"] = time.perf_counter() - t0
     # the last word: plausible motion, every inlier in front of the camera at its capture time
-    z = depths_at_capture(R, C, w, t, fr.X, tau)
-    reason = check_final_model(R, C, w, t, z[inl], fr.motion_bounds)
-    if reason is not None:
-        return _fail(reason, solver, n_in, N, n_dropped, iters, timings)
-    n_behind = int(np.count_nonzero(~(z > 0)))
+    # (plausibility.check_final_model on depths_at_capture, in one compiled call)
+    w2max, v2max = ((np.inf, np.inf) if fr.motion_bounds is None
+                    else (float(fr.motion_bounds[0]) ** 2, float(fr.motion_bounds[1]) ** 2))
+    code, n_behind = final_model_check(*(np.ascontiguousarray(a, dtype=np.float64)
+                                         for a in (R, C, w, t)), fr.X, tau, inl, w2max, v2max)
+    if code:
+        return _fail(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY, solver, n_in, N,
+                     n_dropped, iters, timings)
 
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, spr)
     cov, pose_cov, twist_cov = (None, None, None)

@@ -1,9 +1,10 @@
-"""Numba kernels for the estimator's last steps: the collinearity test of the inliers, the
-final inlier set and RMS error, physical velocities and the covariance propagation.
+"""Numba kernels for the estimator's last steps: the final inlier set and RMS error, physical
+velocities and the covariance propagation (the degeneracy and plausibility tests are in
+:mod:`.plausibility`).
 
-Each replaces a handful of small NumPy calls (an SVD, ``np.cross``, fancy indexing, 12 x 12
-products: ~200 us per frame in all, more than the final refinement itself) by one compiled
-call; :mod:`rs_localizer.estimation.estimate` keeps the formulas' documentation.
+Each replaces a handful of small NumPy calls (``np.cross``, fancy indexing, 12 x 12 products:
+~200 us per frame with the former SVD collinearity test, more than the final refinement itself)
+by one compiled call; :mod:`rs_localizer.estimation.estimate` keeps the formulas' documentation.
 """
 
 from __future__ import annotations
@@ -11,46 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["collinear", "final_inliers", "physical_velocities_kernel",
-           "output_covariance_kernel"]
-
-
-@njit(cache=True)
-def collinear(X, mask, tol):
-    """True if the points ``X[mask]`` (X (N, 3), mask (N,) bool) lie (nearly) on a line: the
-    second singular value of the centred points is below ``tol`` times the first (or all
-    points coincide). The singular values are the square roots of the eigenvalues of the 3x3
-    scatter matrix (computed here instead of an SVD of the N x 3 matrix)."""
-    n = 0
-    m0 = m1 = m2 = 0.0
-    for i in range(X.shape[0]):
-        if mask[i]:
-            n += 1
-            m0 += X[i, 0]
-            m1 += X[i, 1]
-            m2 += X[i, 2]
-    if n == 0:
-        return True
-    m0 /= n
-    m1 /= n
-    m2 /= n
-    S = np.zeros((3, 3))
-    for i in range(X.shape[0]):
-        if mask[i]:
-            d0, d1, d2 = X[i, 0] - m0, X[i, 1] - m1, X[i, 2] - m2
-            S[0, 0] += d0 * d0
-            S[0, 1] += d0 * d1
-            S[0, 2] += d0 * d2
-            S[1, 1] += d1 * d1
-            S[1, 2] += d1 * d2
-            S[2, 2] += d2 * d2
-    S[1, 0] = S[0, 1]
-    S[2, 0] = S[0, 2]
-    S[2, 1] = S[1, 2]
-    ev = np.linalg.eigvalsh(S)  # ascending
-    s0 = np.sqrt(max(ev[2], 0.0))
-    s1 = np.sqrt(max(ev[1], 0.0))
-    return s0 == 0.0 or s1 < tol * s0
+__all__ = ["final_inliers", "physical_velocities_kernel", "output_covariance_kernel"]
 
 
 @njit(cache=True)

@@ -29,7 +29,8 @@ import numpy as np
 from numba import njit
 
 __all__ = ["motion_bounds", "plausible_motion", "depths_at_capture", "collinear_3d",
-           "image_degenerate", "check_final_model", "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
+           "image_degenerate", "degenerate_points", "check_final_model", "final_model_check",
+           "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
 
 #: failure reasons of :func:`check_final_model`
 IMPLAUSIBLE_MOTION = "implausible_motion"
@@ -69,22 +70,29 @@ def plausible_motion(Rs, Cs, ws, ts, bounds):
     Returns:
         (K,) bool, or a bool for single (3,) vectors; ``False`` for non-finite parameters.
     """
-    if np.ndim(ws) == 1:  # one model: plain floats (this runs for every LO candidate)
-        C0, C1, C2 = (float(a) for a in Cs)
-        w0, w1, w2 = (float(a) for a in ws)
-        t0, t1, t2 = (float(a) for a in ts)
-        if not all(math.isfinite(a) for a in (C0, C1, C2, w0, w1, w2, t0, t1, t2)):
-            return False
-        if bounds is None:
-            return True
-        v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
-        return bool(w0 * w0 + w1 * w1 + w2 * w2 <= bounds[0] ** 2
-                    and v0 * v0 + v1 * v1 + v2 * v2 <= bounds[1] ** 2)
+    if np.ndim(ws) == 1:  # one model (every LO candidate): one compiled call
+        f64 = np.float64
+        w2max, v2max = (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2,
+                                                               float(bounds[1]) ** 2)
+        return bool(_plausible1(np.asarray(Cs, dtype=f64), np.asarray(ws, dtype=f64),
+                                np.asarray(ts, dtype=f64), w2max, v2max))
     Cs, ws, ts = (np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
                   for a in (Cs, ws, ts))
     if bounds is None:
         return _plausible(Cs, ws, ts, np.inf, np.inf)
     return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+
+
+@njit(cache=True, nogil=True)
+def _plausible1(C, w, t, w_max2, v_max2):
+    """:func:`plausible_motion` of one model (C, w, t (3,))."""
+    C0, C1, C2, w0, w1, w2, t0, t1, t2 = C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2]
+    if not (np.isfinite(C0) and np.isfinite(C1) and np.isfinite(C2) and np.isfinite(w0)
+            and np.isfinite(w1) and np.isfinite(w2) and np.isfinite(t0) and np.isfinite(t1)
+            and np.isfinite(t2)):
+        return False
+    v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
+    return w0 * w0 + w1 * w1 + w2 * w2 <= w_max2 and v0 * v0 + v1 * v1 + v2 * v2 <= v_max2
 
 
 @njit(cache=True, nogil=True)
@@ -198,6 +206,80 @@ def image_degenerate(points_px, points_normalized, focal: float, threshold_px: f
     """
     return (line_rms(points_px) < threshold_px
             or line_rms(np.asarray(points_normalized, dtype=float) * focal) < threshold_px)
+
+
+@njit(cache=True, nogil=True)
+def _masked_scatter(P, mask, scale):
+    """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number)."""
+    n, d = P.shape
+    m = np.zeros(d)
+    c = 0
+    for i in range(n):
+        if mask[i]:
+            c += 1
+            for a in range(d):
+                m[a] += scale * P[i, a]
+    m /= max(c, 1)
+    S = np.zeros((d, d))
+    for i in range(n):
+        if mask[i]:
+            for a in range(d):
+                da = scale * P[i, a] - m[a]
+                for b in range(a, d):
+                    S[a, b] += da * (scale * P[i, b] - m[b])
+    for a in range(d):
+        for b in range(a):
+            S[a, b] = S[b, a]
+    return S, c
+
+
+@njit(cache=True, nogil=True)
+def _line_rms_masked(P, mask, scale):
+    """:func:`line_rms` of ``scale * P[mask]``."""
+    S, c = _masked_scatter(P, mask, scale)
+    if c < 3:
+        return 0.0
+    a, b, cc = S[0, 0], S[0, 1], S[1, 1]
+    lam = 0.5 * (a + cc) - math.sqrt(max(0.25 * (a - cc) ** 2 + b * b, 0.0))
+    return math.sqrt(max(lam, 0.0) / c)
+
+
+@njit(cache=True, nogil=True)
+def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px, tol=1e-3):
+    """``collinear_3d(X[mask], tol) or image_degenerate(points_px[mask],
+    points_normalized[mask], focal, threshold_px)`` in one compiled call, without the fancy
+    indexing (the estimator runs it on every frame, twice). X (N, 3), points_px and
+    points_normalized (N, 2), mask (N,) bool."""
+    S, c = _masked_scatter(X, mask, 1.0)
+    if c < 3:
+        return True
+    ev = np.linalg.eigvalsh(S)  # ascending
+    if not ev[2] > 0 or ev[1] < tol * tol * ev[2]:
+        return True
+    return (_line_rms_masked(points_px, mask, 1.0) < threshold_px
+            or _line_rms_masked(points_normalized, mask, focal) < threshold_px)
+
+
+@njit(cache=True, nogil=True)
+def final_model_check(R, C, w, t, X, tau, mask, w_max2, v_max2):
+    """:func:`check_final_model` on :func:`depths_at_capture` of the points ``mask`` selects,
+    in one compiled call: returns (0 plausible, 1 implausible motion, 2 cheirality; the number
+    of all points not in front of the camera at their capture times)."""
+    for i in range(3):
+        for j in range(3):
+            if not np.isfinite(R[i, j]):
+                return 1, 0
+    if not _plausible1(C, w, t, w_max2, v_max2):
+        return 1, 0
+    z = _depths(R, C, w, t, X, tau)
+    behind = 0
+    code = 0
+    for i in range(z.shape[0]):
+        if not z[i] > 0.0:
+            behind += 1
+            if mask[i]:
+                code = 2
+    return code, behind
 
 
 def check_final_model(R, C, w, t, inlier_depths, bounds):

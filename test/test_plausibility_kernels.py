@@ -1,0 +1,78 @@
+"""The estimator's one-call plausibility kernels against the functions of
+:mod:`rs_localizer.estimation.plausibility` they fuse (on the same inputs)."""
+
+import numpy as np
+import pytest
+
+from rs_localizer.estimation.plausibility import (check_final_model, collinear_3d,
+                                                  degenerate_points, depths_at_capture,
+                                                  final_model_check, image_degenerate,
+                                                  motion_bounds, plausible_motion)
+from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.sim.synthetic import make_frame, paper_camera
+
+CAM = paper_camera()
+
+
+def _point_sets(rng):
+    """(X, u_px, x) sets: generic, 3D points near a line, pixels near a line, few points."""
+    f = make_frame(int(rng.integers(1000)), 40, rs_speed=0.5, noise_px=1.0)
+    yield f.X, f.points_px, f.x
+    d = rng.normal(size=3)
+    for spread in (1e-6, 5e-4, 2e-3):
+        yield (rng.normal(size=3) + rng.normal(size=(40, 1)) * d
+               + spread * rng.normal(size=(40, 3))), f.points_px, f.x
+    for off_px in (0.5, 1.9, 2.1, 5.0):
+        u = np.c_[np.linspace(10, 900, 40), 300 + off_px * rng.choice([-1.0, 1.0], 40)]
+        yield f.X, u, CAM.normalize(u)[0]
+    yield f.X[:2], f.points_px[:2], f.x[:2]
+
+
+def test_degenerate_points_equals_collinear_3d_or_image_degenerate():
+    rng = np.random.default_rng(0)
+    n = 0
+    for _ in range(5):
+        for X, u, x in _point_sets(rng):
+            for mask in (np.ones(len(X), dtype=bool), rng.random(len(X)) < 0.6):
+                ref = (collinear_3d(X[mask]) or
+                       image_degenerate(u[mask], x[mask], CAM.mean_focal, 2.0))
+                got = degenerate_points(np.ascontiguousarray(X), np.ascontiguousarray(u),
+                                        np.ascontiguousarray(x), mask, CAM.mean_focal, 2.0)
+                assert got == ref
+                n += ref
+    assert 0 < n  # both outcomes occur
+
+
+@pytest.mark.parametrize("bounds", [None, (0.05, 0.02), (5.0, 5.0)])
+def test_one_model_plausibility_equals_the_batched_one(bounds):
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        C, w, t = rng.normal(size=3), rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.05
+        if rng.random() < 0.1:
+            w[rng.integers(3)] = np.nan
+        assert plausible_motion(None, C, w, t, bounds) == bool(
+            plausible_motion(None, C[None], w[None], t[None], bounds)[0])
+
+
+def test_final_model_check_equals_check_final_model_on_the_depths():
+    rng = np.random.default_rng(2)
+    f = make_frame(5, 200, rs_speed=1.0, noise_px=1.0, outlier_ratio=0.3)
+    tau = f.r - f.r0
+    bounds = motion_bounds(30.0, 100.0, CAM.seconds_per_unit_r)
+    codes = {None: 0, "implausible_motion": 1, "cheirality": 2}
+    seen = set()
+    for k in range(40):
+        R = rotvec_to_matrix(rng.normal(size=3) * (0.01 if k % 3 else 2.0)) @ f.R
+        C = f.C + rng.normal(size=3) * (0.1 if k % 4 else 3.0)
+        w = f.w * (1.0 if k % 5 else 50.0)
+        t = f.t
+        mask = rng.random(len(f.X)) < 0.5
+        z = depths_at_capture(R, C, w, t, f.X, tau)
+        ref = check_final_model(R, C, w, t, z[mask], bounds)
+        code, behind = final_model_check(R, C, w, t, f.X, tau, mask, bounds[0] ** 2,
+                                         bounds[1] ** 2)
+        assert code == codes[ref]
+        if code == 0 or code == 2:
+            assert behind == int(np.count_nonzero(~(z > 0)))
+        seen.add(code)
+    assert seen == {0, 1, 2}
