@@ -10,6 +10,8 @@
     rs-localizer marker-map SCENE OUT
     rs-localizer experiments [--quick] [--out docs/experiments]
     rs-localizer compile [--solvers r6p_1lin p3p]   (once after installing: JIT kernels)
+    rs-localizer calibrate-readout BAG [--source correspondences|keypoints|image] [--json]
+        [--imu-topic T]
 """
 
 from __future__ import annotations
@@ -25,36 +27,70 @@ from ..solvers.registry import SOLVER_NAMES, solver_info
 __all__ = ["main", "build_parser"]
 
 
+def _frame_list(text: str) -> tuple:
+    """``"3,5-7"`` -> (3, 5, 6, 7)."""
+    out = []
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        a, _, b = part.partition("-")
+        out.extend(range(int(a), int(b or a) + 1))
+    return tuple(out)
+
+
 def _make_bag(args) -> int:
     import numpy as np
 
     from ..ros.bag_io import write_sequence_bag
     from ..sim.planar import sequence_scene
-    from ..sim.trajectory import SequenceConfig, default_camera, generate_sequence
+    from ..sim.trajectory import (R_IMU_CAMERA, SequenceConfig, Teleport, default_camera,
+                                  generate_sequence, imu_samples, make_trajectory)
 
     ref = None if args.reference_row < 0 else args.reference_row
     camera = default_camera(line_delay=args.line_delay, reference_row=ref,
                             distortion=not args.no_distortion, readout=args.direction)
+    drop = _frame_list(args.drop_frames) if args.drop_frames else ()
     cfg = SequenceConfig(num_frames=args.frames, num_points=args.points, fps=args.fps,
                          noise_px=args.noise, outlier_ratio=args.outliers, seed=args.seed,
                          stamp_row=args.stamp_row, motion_scale=args.motion_scale,
                          num_landmarks=args.landmarks,
-                         t0_ns=int(round(args.start_time * 1e9)))
+                         t0_ns=int(round(args.start_time * 1e9)), drop_frames=drop)
     scene, trajectory = sequence_scene(args.scene, np.random.default_rng([args.seed, 16]),
                                        args.landmarks, args.motion_scale)
-    frames, scene, camera, _ = generate_sequence(cfg, camera=camera, trajectory=trajectory,
-                                                 scene=scene)
+    if args.motion != "walk":
+        if trajectory is not None:
+            raise ValueError(f"--motion applies to the corridor and plane scenes, not to "
+                             f"{args.scene!r}")
+        trajectory = make_trajectory(args.motion, args.motion_scale)
+    if args.teleport is not None:  # jump in the gap before frame N's readout
+        trajectory = Teleport(trajectory or make_trajectory("walk", args.motion_scale),
+                              time=(args.teleport - 0.25) / args.fps)
+    frames, scene, camera, trajectory = generate_sequence(cfg, camera=camera,
+                                                          trajectory=trajectory, scene=scene)
     settings = {k: getattr(cfg, k) for k in ("num_frames", "num_points", "fps", "noise_px",
                                              "outlier_ratio", "seed", "motion_scale",
                                              "num_landmarks")}
     if args.scene != "corridor":
         settings["scene"] = args.scene
+    # new options are recorded only when used (the committed bags stay as they are)
+    if args.motion != "walk":
+        settings["motion"] = args.motion
+    if drop:
+        settings["drop_frames"] = list(drop)
+    if args.teleport is not None:
+        settings["teleport_before_frame"] = args.teleport
+    extra, imu = {}, None
+    if args.imu_rate:
+        t, om, fo = imu_samples(trajectory, -0.1, args.frames / args.fps + 0.1, args.imu_rate,
+                                seed=args.seed)
+        imu = (cfg.t0_ns + np.round(t * 1e9).astype(np.int64), om, fo)
+        extra["imu"] = {"topic": args.imu_topic, "rate": args.imu_rate,
+                        "rotation_imu_from_camera": R_IMU_CAMERA.tolist()}
     out = write_sequence_bag(args.out, frames, scene, camera, storage=args.storage,
                              namespace=args.namespace, with_ids=not args.no_ids,
                              with_scores=args.scores, keypoints=not args.no_keypoints,
                              correspondences=not args.no_correspondences,
                              stamp_row=args.stamp_row, settings=settings,
-                             overwrite=args.overwrite)
+                             overwrite=args.overwrite, gt_twist=not args.no_gt_twist,
+                             imu=imu, imu_topic=args.imu_topic, extra=extra)
     size = sum(p.stat().st_size for p in Path(out).rglob("*") if p.is_file())
     print(f"wrote {out} ({len(frames)} frames x {args.points} points, "
           f"{size / 1024:.0f} KiB, {args.storage}); line delay {camera.line_delay * 1e6:.1f} "
@@ -191,6 +227,47 @@ def _marker_map(args) -> int:
     return 0
 
 
+def _calibrate_readout(args) -> int:
+    import numpy as np
+
+    from ..estimation.estimate import EstimateOptions
+    from ..estimation.readout import calibrate_line_delay
+    from ..ros.bag_frames import read_bag_frames, read_gyro
+
+    bag = read_bag_frames(args.bag, source=args.source, landmarks_file=args.landmarks,
+                          frontend=args.frontend, frontend_map=args.frontend_map,
+                          direction=args.direction)
+    gyro = read_gyro(args.bag, args.imu_topic) if args.imu_topic else None
+    stamp_row = bag.stamp_row if args.stamp_row is None else args.stamp_row
+    res = calibrate_line_delay(bag.frames, bag.camera, solver=args.solver,
+                               options=EstimateOptions(threshold_px=args.threshold, seed=0),
+                               gyro=gyro, stamp_row=stamp_row)
+    cam = bag.camera
+    lines = [f"calibrate-readout {args.bag}: {len(bag.frames)} frames ({args.source}"
+             + (f", gyro {args.imu_topic}" if gyro is not None else ", rotation between frames")
+             + f"), {res.frames_failed} not solved"
+             + (f", skipped {bag.skipped}" if bag.skipped else "")]
+    if res.observable:
+        lines.append(f"line delay {res.line_delay * 1e6:.4f} +- {res.line_delay_std * 1e6:.4f} "
+                     f"us/line ({res.line_delay_std / res.line_delay * 100:.2f} %), readout "
+                     f"{res.readout_time * 1e3:.3f} ms over {cam.lines} lines; "
+                     f"{res.samples} samples from {res.frames_used} frames, rotation rms "
+                     f"{res.rotation_rms:.2f} rad/s")
+    else:
+        lines.append(f"not observable: {res.reason}")
+    if res.camera_imu_rotation is not None:
+        lines.append("camera <- IMU rotation (estimated): "
+                     + np.array2string(res.camera_imu_rotation, precision=3,
+                                       suppress_small=True).replace("\n", ""))
+    text = "\n".join(lines)
+    if args.json:
+        print(text, file=sys.stderr)
+        print(json.dumps(res.as_dict()))
+    else:
+        print(text)
+    return 0 if res.observable else 3
+
+
 def _experiments(args) -> int:
     from ..evaluation.experiments import run
 
@@ -262,6 +339,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="omit the correspondences topic")
     m.add_argument("--start-time", type=float, default=1_700_000_000.0,
                    help="capture time of the first frame (s since the epoch)")
+    m.add_argument("--motion", default="walk", choices=["walk", "car", "shake", "pan"],
+                   help="walk (default: look-around walk), car (near-pure translation at "
+                   "5 m/s), shake (hand-held shake, ~30 rad/s^2), pan (turning ~1.5 rad/s)")
+    m.add_argument("--drop-frames", default=None, metavar="LIST",
+                   help="frame indices to leave out, e.g. 10,20-23 (dropped frames)")
+    m.add_argument("--teleport", type=int, default=None, metavar="N",
+                   help="the camera jumps 8 m and turns 0.7 rad just before frame N")
+    m.add_argument("--no-gt-twist", action="store_true",
+                   help="omit /ground_truth/twist (a bag without ground-truth velocities)")
+    m.add_argument("--imu-rate", type=float, default=0.0,
+                   help="also write a sensor_msgs/Imu topic at this rate (Hz; gyro with "
+                   "bias and noise, IMU axes x forward, y left, z up)")
+    m.add_argument("--imu-topic", default="/imu/data", help="topic of --imu-rate")
     m.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_make_bag)
 
@@ -374,6 +464,31 @@ def build_parser() -> argparse.ArgumentParser:
                         "(images, camera_info, front-end correspondences, ground truth)", **fmt)
     bagout.add_arguments(rb, positional_out=True)
     rb.set_defaults(func=_render_bag)
+
+    cr = sub.add_parser("calibrate-readout", help="estimate the line delay (s per line) "
+                        "from a bag with rotation, ignoring the RS timing it states")
+    cr.add_argument("bag")
+    cr.add_argument("--source", choices=["correspondences", "keypoints", "image"],
+                    default="correspondences")
+    cr.add_argument("--json", action="store_true",
+                    help="print one JSON object on stdout (line_delay, line_delay_std, "
+                    "frames_used, observable); the summary goes to stderr")
+    cr.add_argument("--imu-topic", default=None,
+                    help="sensor_msgs/Imu topic: use its gyro instead of the rotation between "
+                    "frames (camera and IMU rigidly mounted, one clock; their rotation is "
+                    "estimated)")
+    cr.add_argument("--solver", default="r6p_1lin", choices=SOLVER_NAMES)
+    cr.add_argument("--threshold", type=float, default=2.0, help="RANSAC threshold (px)")
+    cr.add_argument("--direction", default=None,
+                    help="readout direction (default: the bag's sequence.json)")
+    cr.add_argument("--stamp-row", type=float, default=None,
+                    help="row whose capture time is the header stamp (gyro only; default: "
+                    "the bag's sequence.json, else 0)")
+    cr.add_argument("--landmarks", default=None, help="CSV id,x,y,z (keypoints source)")
+    cr.add_argument("--frontend", default=None, choices=["aruco", "features"],
+                    help="image source: front end (default: the bag's sequence.json)")
+    cr.add_argument("--frontend-map", default=None, help="image source: front-end map")
+    cr.set_defaults(func=_calibrate_readout)
 
     from ..evaluation.experiments import add_arguments as experiment_arguments
 

@@ -26,12 +26,13 @@ from ..geometry import camera_position, rotvec_to_matrix
 from .refine import exact_errors, refine_rs_pose
 from .prior import MotionPrior, prior_conflict, sample_prior_rows
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .sensitivity import acceleration_sensitivity
 from ..solvers import p3p_batch, r6p
 from ..solvers.kernels import kernel_ids
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
 
-__all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "SOLVERS", "sample_size",
-           "physical_velocities", "MotionPrior"]
+__all__ = ["EstimateOptions", "RSPoseEstimate", "InitialModel", "estimate_rs_pose", "SOLVERS",
+           "sample_size", "physical_velocities", "MotionPrior"]
 
 #: solver names (:data:`rs_localizer.solvers.registry.SOLVERS` holds what is known of each)
 SOLVERS = SOLVER_NAMES
@@ -101,6 +102,10 @@ class EstimateOptions:
             beyond it fails with ``implausible_motion``. ``inf`` disables the bound. Not
             applied with global-shutter timing (``camera.seconds_per_unit_r == 0``).
         max_linear_velocity: m/s (map units per second), the same for the camera's speed.
+        acceleration_sensitivity: also return how the estimate moves per unit of angular and
+            linear acceleration during the readout
+            (:func:`rs_localizer.estimation.sensitivity.acceleration_sensitivity`, ~30 us;
+            needs ``refine`` and a rolling shutter; the video filter uses it).
 
     Raises:
         ValueError: a velocity bound that is not > 0 (NaN included).
@@ -125,12 +130,42 @@ class EstimateOptions:
     motion_prior: MotionPrior | None = MotionPrior()
     max_angular_velocity: float = 20.0
     max_linear_velocity: float = 50.0
+    acceleration_sensitivity: bool = False
 
     def __post_init__(self):
         for name in ("max_angular_velocity", "max_linear_velocity"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"{name} must be > 0 (inf: no bound), got "
                                  f"{getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class InitialModel:
+    """A predicted model for :func:`estimate_rs_pose` (e.g. from the previous frames of a
+    video, :class:`rs_localizer.estimation.tracker.RSTracker`).
+
+    The model is first tested as a hypothesis: the points within ``gate_px`` of it are counted
+    ("explained"). If at least ``min_explained`` are, it is pulled onto them (robust
+    Levenberg-Marquardt), becomes RANSAC's first hypothesis, and its rotation, then the best
+    model's, pre-rotates every minimal sample instead of a P3P pose (paper sec. 4 uses P3P for
+    that pre-rotation; any rotation within a few degrees serves, Fig. 6); when it then explains
+    at least ``min_explained`` points within the threshold, RANSAC samples only among those
+    (a verification, as LO-RANSAC's inner sampling). Otherwise the estimator runs exactly as
+    without it.
+
+    Attributes:
+        R (3, 3), C (3,): world -> camera at the reference row (``X_cam = R X + C``).
+        w, t (3,): model velocities per unit RS coordinate (as ``RSPoseEstimate.w``, ``t``).
+        gate_px: distance (px) within which a point counts as explained.
+        min_explained: fewest explained points to use the model.
+    """
+
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gate_px: float = 20.0
+    min_explained: int = 0
 
 
 @dataclass(frozen=True)
@@ -178,6 +213,14 @@ class RSPoseEstimate:
         motion_prior_used: the final refinement was maximum a posteriori (see
             ``EstimateOptions.motion_prior``); on planar frames the velocities, and the
             rotation they trade against, lean on the prior.
+        initial_explained: points within ``InitialModel.gate_px`` of the initial model (-1
+            without one; failed estimates do not report it); initial_used: the initial model
+            seeded RANSAC and pre-rotated its samples (False: too few points explained, the
+            estimator ran as without it).
+        acceleration_sensitivity: (12, 6) first-order change of (rotation, position, angular
+            velocity, linear velocity) per (angular acceleration [rad/s^2], linear acceleration
+            [m/s^2]) during the readout, camera frame; only with
+            ``EstimateOptions.acceleration_sensitivity``, else ``None``.
     """
 
     success: bool
@@ -207,6 +250,9 @@ class RSPoseEstimate:
     planarity: float = float("nan")
     condition_number: float = float("nan")
     motion_prior_used: bool = False
+    initial_explained: int = -1
+    initial_used: bool = False
+    acceleration_sensitivity: np.ndarray | None = None
 
     @property
     def num_inliers(self) -> int:
@@ -327,11 +373,18 @@ def _required_iterations(inlier_ratio: float, s: int, confidence: float) -> floa
     return np.log(1 - confidence) / np.log1p(-p)
 
 
-def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions):
+def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions, R_pre=None):
     """Hypotheses (R, C, w, t, valid) from a batch of samples (on planar frames also from the
-    samples' runner-up P3P pre-rotations, see :func:`_p3p_prerotations`)."""
+    samples' runner-up P3P pre-rotations, see :func:`_p3p_prerotations`). ``R_pre`` (3, 3),
+    if given, pre-rotates every sample of an RS solver instead of its P3P pose (and ``C_p``,
+    the linearization point of the motion prior's rows, is ``C_pre``)."""
     kind = solver_info(solver).hypotheses
-    if fr.planar and kind != GLOBAL_SHUTTER:
+    if R_pre is not None and kind != GLOBAL_SHUTTER:
+        R_pre, C_pre = R_pre
+        R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
+        C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
+        ok_p = np.ones(len(samples), dtype=bool)
+    elif fr.planar and kind != GLOBAL_SHUTTER:
         samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples,
                                                     (opts.threshold_px / fr.f) ** 2)
     else:
@@ -496,6 +549,42 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
                           seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL), True
 
 
+def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: EstimateOptions):
+    """Test an :class:`InitialModel` on all points: (explained count, seed) where seed is None
+    when it explains fewer than ``model.min_explained`` points (within its gate), else
+    ``(score, (R, C, w, t), inlier mask)`` after a robust Levenberg-Marquardt refinement on the
+    explained points when it then has more than ``s`` inliers within the threshold, or
+    ``(None, None, None)`` (use its rotation for pre-rotation only)."""
+    R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in
+                  (model.R, model.C, model.w, model.t))
+    rolling = solver_info(solver).rolling
+    if not rolling:
+        w, t = np.zeros(3), np.zeros(3)
+    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+        return 0, None
+    e2 = errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)
+    gate = float(model.gate_px) / fr.f
+    near = e2 < gate * gate
+    explained = int(np.count_nonzero(near))
+    if explained < max(int(model.min_explained), 1):
+        return explained, None
+    # a prediction is a few pixels off (a hand-held camera's at 30 fps: ~2-15 px): pull it in
+    # with Levenberg-Marquardt on (at most lo_max_points of) the explained points, truncated
+    # at the gate (this is the seed's local optimization)
+    idx = np.flatnonzero(near)[:max(opts.lo_max_points, 2 * s)]
+    ref = refine_rs_pose(R, C, w, t, fr.X[idx], fr.x[idx], fr.r[idx] - fr.r0, np.sqrt(th2),
+                         rolling_shutter=rolling, max_iterations=2 * opts.lo_refine_iterations,
+                         covariance=False, cutoff=gate, prior=fr.prior,
+                         seconds_per_unit_r=fr.spr)
+    best = (R, C, w, t)
+    if all(np.isfinite(a).all() for a in (ref.R, ref.C, ref.w, ref.t)):
+        best = (ref.R, ref.C, ref.w, ref.t)
+    score, inl = _evaluate(fr, best, th2)
+    if int(np.count_nonzero(inl)) <= s:
+        return explained, (None, None, None)
+    return explained, (score, best, inl)
+
+
 def _degenerate(fr: _Frame, u_px, mask, threshold_px: float) -> bool:
     """True if the points ``mask`` selects fix no pose: identical or collinear 3D points, or
     pixels within ``threshold_px`` of one image line (see :mod:`.plausibility`)."""
@@ -569,7 +658,8 @@ def _prepare(points2d_px, points3d, camera, max_point_norm, rng=None):
 
 
 def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "r6p_1lin",
-                     options: EstimateOptions | None = None, scores=None) -> RSPoseEstimate:
+                     options: EstimateOptions | None = None, scores=None, *,
+                     initial_model: InitialModel | None = None) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
     Pipeline: validate and normalize (OpenCV undistortion; RS time from the measured, distorted
@@ -587,6 +677,10 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         solver: one of :data:`SOLVERS`; ``p3p`` is the global-shutter baseline (w = t = 0).
         options: :class:`EstimateOptions`.
         scores: optional (N,) match quality, higher is better (PROSAC-style sample ordering).
+        initial_model: optional :class:`InitialModel` (a prediction, e.g. from the previous
+            frames of a video): tested first; if it explains enough points it seeds RANSAC and
+            its rotation replaces P3P as the samples' pre-rotation. Without it the estimator is
+            unchanged.
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason, never an
@@ -659,6 +753,27 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     bounds = ((np.inf, np.inf) if fr.motion_bounds is None
               else tuple(float(b) for b in fr.motion_bounds))
     t0 = time.perf_counter()
+    R_pre = None  # P3P pre-rotation per sample unless an initial model explains the frame
+    explained = -1
+    guided = 0  # > 0: sample only from the first `guided` points of `order`
+    if initial_model is not None:
+        t_lo = time.perf_counter()
+        explained, seeded = _seed(fr, solver, initial_model, th2, s, opts)
+        if seeded is not None:
+            R_pre = (np.ascontiguousarray(initial_model.R, dtype=np.float64),
+                     np.ascontiguousarray(initial_model.C, dtype=np.float64))
+            if seeded[0] is not None:
+                best_score, best, best_inl = seeded
+                best_count = int(np.count_nonzero(best_inl))
+                needed = _required_iterations(best_count / N, s, opts.confidence)
+                if best_count >= max(initial_model.min_explained, s + 1):
+                    # the seed explains the frame: RANSAC verifies it with samples drawn from
+                    # its inliers (as LO-RANSAC's inner sampling), so the all-inlier
+                    # probability is that of the pool, not of the frame
+                    order = np.concatenate([order[best_inl[order]], order[~best_inl[order]]])
+                    guided = best_count
+                    needed = 0.0
+        t_local += time.perf_counter() - t_lo
     while iters < opts.max_iterations and (iters < needed or iters < opts.min_iterations):
         # batches double (fewer calls), but draw no more samples than termination asks for
         K = min(batch, opts.max_iterations - iters,
@@ -666,11 +781,16 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
                     opts.min_iterations - iters, 1))
         batch *= 2
         pool = N
-        if scores is not None:
+        if guided:
+            pool = guided
+        elif scores is not None:
             pool = int(min(N, max(2 * s, np.ceil(N * (iters + K) / max(opts.prosac_growth, 1)))))
         iters += K
         pre_min = int(0.5 * opts.pretest_points * best_count / N)
-        if fused is not None:
+        if R_pre is not None and best is not None:  # pre-rotate by the best model so far
+            R_pre = (np.ascontiguousarray(best[0], dtype=np.float64),
+                     np.ascontiguousarray(best[1], dtype=np.float64))
+        if fused is not None and (R_pre is None or not solver_info(solver).rolling):
             h, sc_h, Rs, Cs, ws, ts, n_bad = ransac_batch(
                 rng.random((K, s)), pool, order, fr.x, fr.X, fr.r, fr.r0e, fr.d, fr.r0,
                 fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min,
@@ -678,7 +798,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             n_implausible += n_bad
         else:
             samples = order.take(_draw_samples(rng, pool, s, K))
-            Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts)
+            Rs, Cs, ws, ts, ok = _generate(fr, solver, samples, opts, R_pre)
             if fr.motion_bounds is not None:  # an implausible hypothesis has no inliers
                 plausible = plausible_motion(Rs, Cs, ws, ts, fr.motion_bounds)
                 n_implausible += int(np.count_nonzero(ok & ~plausible))
@@ -699,7 +819,9 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
                                                              best_inl, th2, opts)
             t_local += time.perf_counter() - t_lo
             best_count = int(np.count_nonzero(best_inl))
-            needed = _required_iterations(best_count / N, s, opts.confidence)
+            needed = _required_iterations(
+                (np.count_nonzero(best_inl[order[:guided]]) / guided) if guided
+                else best_count / N, s, opts.confidence)
     timings["ransac"] = time.perf_counter() - t0 - t_local
     timings["local_optimization"] = t_local
     if best is None:  # (every model moved implausibly fast: say so)
@@ -713,7 +835,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, iters, timings)
     R, C, w, t = (np.array(a, dtype=float) for a in best)
     rolling = solver_info(solver).rolling
-    cov12 = info12 = None
+    cov12 = info12 = sens = None
     t0 = time.perf_counter()
     tau = fr.r - fr.r0
     prior_used = fr.prior is not None
@@ -732,6 +854,11 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         else:
             return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
         rmse = float(rms * fr.f)
+        if opts.acceleration_sensitivity and rolling and spr > 0:
+            # on the final refinement's points (all, truncated) and its (posterior) H
+            sens = acceleration_sensitivity(
+                R, C, w, t, fr.X, fr.x, tau, spr, th, cutoff=FINAL_CUTOFF * th,
+                normal_inverse=None if cov12 is None else cov12 / ref.sigma**2)
     else:
         rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True,
                                              SCORE_AT_MEASURED_TIME)[inl])) * fr.f)
@@ -766,4 +893,5 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         ransac_iterations=iters, timings=timings,
         covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse,
         planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond,
-        motion_prior_used=prior_used)
+        motion_prior_used=prior_used, initial_explained=explained,
+        initial_used=R_pre is not None, acceleration_sensitivity=sens)

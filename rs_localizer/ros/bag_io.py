@@ -35,6 +35,7 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 IMAGE = "sensor_msgs/msg/Image"
 POSE = "geometry_msgs/msg/PoseStamped"
 TWIST = "geometry_msgs/msg/TwistStamped"
+IMU = "sensor_msgs/msg/Imu"
 GT_POSE = "/ground_truth/pose"
 GT_TWIST = "/ground_truth/twist"
 OUT_TYPES = {"pose": POSE, "twist": TWIST,
@@ -64,11 +65,17 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
                        map_frame: str = "map", with_ids: bool = True, with_scores: bool = False,
                        keypoints: bool = True, correspondences: bool = True,
                        stamp_row: float = 0.0, settings: dict | None = None,
-                       overwrite: bool = False) -> Path:
+                       overwrite: bool = False, gt_twist: bool = True, imu=None,
+                       imu_topic: str = "/imu/data", imu_frame: str = "imu_link",
+                       extra: dict | None = None) -> Path:
     """Write a synthetic sequence as a ROS 2 bag directory; returns its path.
 
     Log times: camera_info at stamp + 1 ms, clouds and ground truth at stamp + 2 ms (so that
     camera_info always comes first). Ground truth is stamped with the reference row's time.
+    ``gt_twist=False`` leaves out ``/ground_truth/twist`` (a bag without ground-truth
+    velocities). ``imu``: optional ``(t_ns (M,), omega (M, 3), specific_force (M, 3))`` written
+    as ``sensor_msgs/Imu`` on ``imu_topic`` (orientation unknown: covariance[0] = -1).
+    ``extra``: more top-level entries of ``sequence.json``.
     """
     from rosbags.rosbag2 import Writer
 
@@ -80,7 +87,9 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
     M = RosbagsMessages()
     ts = M.ts
     ns = namespace.rstrip("/")
-    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
+    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE}
+    if gt_twist:
+        topics["gt_twist"] = GT_TWIST
     if correspondences:
         topics["correspondences"] = f"{ns}/correspondences"
     if keypoints:
@@ -92,7 +101,12 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
                   if correspondences else None)
         c_kp = w.add_connection(topics["keypoints"], PC2, typestore=ts) if keypoints else None
         c_gtp = w.add_connection(GT_POSE, POSE, typestore=ts)
-        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts)
+        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts) if gt_twist else None
+        if imu is not None:
+            topics["imu"] = imu_topic
+            c_imu = w.add_connection(imu_topic, IMU, typestore=ts)
+            for t_ns, om, fo in zip(*imu):
+                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
         for f in frames:
             t_log = f.stamp_ns + 1_000_000
             w.write(c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame),
@@ -108,12 +122,14 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
                     PC2))
             w.write(c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns,
                                                map_frame), POSE))
-            w.write(c_gtt, t_log, M.cdr(M.twist(f.angular_velocity, f.linear_velocity,
-                                                f.t_ref_ns, camera_frame), TWIST))
+            if c_gtt is not None:
+                w.write(c_gtt, t_log, M.cdr(M.twist(f.angular_velocity, f.linear_velocity,
+                                                    f.t_ref_ns, camera_frame), TWIST))
     if keypoints and len(used):
         save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
     write_sequence_json(path, "rs-localizer make-bag", topics, len(frames), camera,
-                        camera_frame, map_frame, stamp_row, settings=settings or {})
+                        camera_frame, map_frame, stamp_row, settings=settings or {},
+                        **(extra or {}))
     return path
 
 
@@ -246,6 +262,24 @@ class RosbagsMessages:
         return T[TWIST](header=self.header(stamp_ns, frame_id), twist=T["geometry_msgs/msg/Twist"](
             linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
             angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2]))))
+
+    def imu(self, omega, specific_force, stamp_ns, frame_id):
+        """``sensor_msgs/Imu`` with angular velocity (rad/s) and linear acceleration (specific
+        force, m/s^2); orientation unknown (``orientation_covariance[0] = -1``)."""
+        T = self.T
+        V = T["geometry_msgs/msg/Vector3"]
+        unknown = np.zeros(9)
+        unknown[0] = -1.0
+        return T[IMU](header=self.header(stamp_ns, frame_id),
+                      orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                      orientation_covariance=unknown,
+                      angular_velocity=V(x=float(omega[0]), y=float(omega[1]),
+                                         z=float(omega[2])),
+                      angular_velocity_covariance=np.zeros(9),
+                      linear_acceleration=V(x=float(specific_force[0]),
+                                            y=float(specific_force[1]),
+                                            z=float(specific_force[2])),
+                      linear_acceleration_covariance=np.zeros(9))
 
     def cdr(self, msg, msgtype) -> bytes:
         return self.ts.serialize_cdr(msg, msgtype)

@@ -24,8 +24,9 @@ import numpy as np
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["default_camera", "Trajectory", "Scene", "Frame", "SequenceConfig", "make_scene",
-           "generate_sequence", "project_rs", "ground_truth"]
+__all__ = ["default_camera", "Trajectory", "Teleport", "TRAJECTORIES", "make_trajectory",
+           "Scene", "Frame", "SequenceConfig", "make_scene", "generate_sequence", "project_rs",
+           "ground_truth", "imu_samples", "R_IMU_CAMERA", "GRAVITY"]
 
 #: camera looking along world +x with z up: columns are the camera x (right), y (down),
 #: z (forward) axes in world coordinates
@@ -97,6 +98,104 @@ class Trajectory:
         dp = (self.position(t + h) - self.position(t - h)) / (2 * h)
         v = np.einsum("...ji,...j->...i", self.orientation(t), dp)
         return w, v
+
+
+#: trajectory presets for video sequences in the corridor (:func:`make_trajectory`), as
+#: :class:`Trajectory` field overrides: ``walk`` is the default trajectory above; ``car``
+#: drives along the corridor at 5 m/s with a gentle suspension bounce and a vibration of the
+#: mount (near-pure translation, < 0.1 rad/s); ``shake`` is a hand-held camera held nearly still with a strong
+#: 3.5-5 Hz shake (angular velocity up to ~1.5 rad/s, angular acceleration up to ~40 rad/s^2,
+#: far from constant during a readout); ``pan`` looks around (~1.5 rad/s about the vertical
+#: axis) while walking slowly, the motion for readout calibration.
+TRAJECTORIES = {
+    "walk": {},
+    "car": dict(velocity=(5.0, 0.0, 0.0), sway=(0.0, 0.003, 0.002), sway_hz=(0.0, 1.3, 3.1),
+                rot_amp=(0.003, 0.006, 0.002), rot_hz=(0.4, 0.3, 0.5),
+                shake_amp=(0.0005, 0.0004, 0.0003), shake_hz=(11.0, 13.0, 9.0)),
+    "shake": dict(velocity=(0.2, 0.0, 0.0), sway=(0.0, 0.03, 0.02), sway_hz=(0.0, 1.1, 1.7),
+                  rot_amp=(0.08, 0.15, 0.05), rot_hz=(0.3, 0.25, 0.35),
+                  shake_amp=(0.03, 0.04, 0.015), shake_hz=(4.3, 3.6, 5.1)),
+    "pan": dict(velocity=(0.5, 0.0, 0.0), sway=(0.0, 0.05, 0.03), sway_hz=(0.0, 0.8, 1.6),
+                rot_amp=(0.1, 0.8, 0.05), rot_hz=(0.3, 0.3, 0.25),
+                shake_amp=(0.002, 0.003, 0.001), shake_hz=(6.3, 5.1, 7.7)),
+}
+
+
+def make_trajectory(name: str = "walk", scale: float = 1.0) -> Trajectory:
+    """A :data:`TRAJECTORIES` preset; ``scale`` multiplies its rotation amplitudes.
+
+    Raises:
+        ValueError: unknown preset name.
+    """
+    if name not in TRAJECTORIES:
+        raise ValueError(f"unknown trajectory {name!r}; expected one of {sorted(TRAJECTORIES)}")
+    return Trajectory(scale=float(scale), **TRAJECTORIES[name])
+
+
+@dataclass(frozen=True)
+class Teleport:
+    """A trajectory that jumps to another place at ``time`` (s): from then on the camera is
+    moved by ``offset`` (m, world) and turned by ``yaw`` (rad, about world z through its
+    position), as a tracker sees a relocalization (a cut in a video, a kidnapped robot).
+    Pose and velocities as :class:`Trajectory` (the velocities are continuous across the jump
+    except for the rotation by ``yaw``)."""
+
+    base: Trajectory
+    time: float
+    offset: tuple = (8.0, 0.0, 0.0)
+    yaw: float = 0.7
+
+    def _jumped(self, t):
+        return np.asarray(t, dtype=float) >= self.time
+
+    def position(self, t) -> np.ndarray:
+        p = self.base.position(t)
+        return np.where(self._jumped(t)[..., None], p + np.asarray(self.offset), p)
+
+    def orientation(self, t) -> np.ndarray:
+        R = self.base.orientation(t)
+        Rz = rotvec_to_matrix(np.array([0.0, 0.0, self.yaw]))
+        return np.where(self._jumped(t)[..., None, None], Rz @ R, R)
+
+    def pose(self, t):
+        return self.orientation(t), self.position(t)
+
+    velocity_body = Trajectory.velocity_body
+
+
+#: rotation camera optical frame -> IMU frame of :func:`imu_samples` (IMU x forward, y left,
+#: z up, the usual body convention): ``omega_imu = R_IMU_CAMERA omega_cam``
+R_IMU_CAMERA = R_FORWARD.copy()
+#: gravity in the world frame (m/s^2, z up)
+GRAVITY = np.array([0.0, 0.0, -9.81])
+
+
+def imu_samples(trajectory, t_start: float, t_end: float, rate: float, seed: int = 0,
+                gyro_noise: float = 0.003, gyro_bias=(0.01, -0.02, 0.005),
+                accel_noise: float = 0.05, R_imu_camera: np.ndarray = R_IMU_CAMERA):
+    """Gyro and accelerometer samples of an IMU rigidly mounted on the camera (same origin).
+
+    Args:
+        trajectory: a :class:`Trajectory` (or anything with ``orientation``, ``position`` and
+            ``velocity_body``).
+        t_start, t_end: seconds (trajectory time); rate: samples per second.
+        seed, gyro_noise (rad/s per sample), gyro_bias (3,) rad/s, accel_noise (m/s^2).
+        R_imu_camera: (3, 3) rotation camera optical frame -> IMU frame.
+    Returns:
+        (t (M,) s, omega (M, 3) rad/s, specific_force (M, 3) m/s^2), IMU frame:
+        ``omega = R_imu_camera omega_cam + bias + noise``, ``f = R_imu_camera R^T (a - g) +
+        noise`` (a the second difference of the position).
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(t_start, t_end, 1.0 / rate)
+    w, _ = trajectory.velocity_body(t)
+    h = 1e-4
+    acc = (trajectory.position(t + h) - 2 * trajectory.position(t)
+           + trajectory.position(t - h)) / h**2
+    f_cam = np.einsum("nji,nj->ni", trajectory.orientation(t), acc - GRAVITY)
+    omega = w @ R_imu_camera.T + np.asarray(gyro_bias) + rng.normal(0, gyro_noise, w.shape)
+    f = f_cam @ R_imu_camera.T + rng.normal(0, accel_noise, f_cam.shape)
+    return t, omega, f
 
 
 @dataclass
@@ -202,7 +301,9 @@ class Frame:
 
 @dataclass(frozen=True)
 class SequenceConfig:
-    """Parameters of :func:`generate_sequence`."""
+    """Parameters of :func:`generate_sequence`. ``drop_frames``: indices of frames that are
+    generated but left out of the output (a camera dropping frames: the other frames are the
+    same as without it)."""
 
     num_frames: int = 40
     num_points: int = 500
@@ -214,6 +315,7 @@ class SequenceConfig:
     stamp_row: float = 0.0
     motion_scale: float = 1.0
     num_landmarks: int = 6000
+    drop_frames: tuple = ()
 
 
 def ground_truth(camera: CameraModel, trajectory: Trajectory, t_first_line: float):
@@ -264,6 +366,8 @@ def generate_sequence(config: SequenceConfig = SequenceConfig(), camera: CameraM
         noisy[out_idx] = rng.uniform([0, 0], [camera.width - 1, camera.height - 1], (n_out, 2))
         scores = np.where(inlier, rng.uniform(0.3, 1.0, n), rng.uniform(0.0, 0.7, n))
         stamp = t_first + float(camera.line_time(config.stamp_row))
+        if k in config.drop_frames:
+            continue
         frames.append(Frame(
             index=k, stamp_ns=config.t0_ns + int(round(stamp * 1e9)),
             t_ref_ns=config.t0_ns + int(round(t_ref * 1e9)), uv=noisy, xyz=xyz, ids=ids,

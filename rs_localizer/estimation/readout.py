@@ -1,0 +1,302 @@
+"""Readout calibration: the line delay of a rolling-shutter camera from a video with rotation.
+
+Users rarely know their camera's line delay (it is not in CameraInfo and seldom in
+datasheets). The per-frame estimator does not need it: it works in the normalized RS
+coordinate ``r`` and returns the rotation per unit of ``r`` during the readout, ``w`` (model
+units, :class:`~rs_localizer.estimation.estimate.RSPoseEstimate`). The camera's angular
+velocity is ``omega = -w / s`` with ``s = line_delay * focal`` the seconds per unit ``r``
+(:attr:`~rs_localizer.camera.CameraModel.seconds_per_unit_r`). Rotation between frames
+(rad/s, from the frames' orientations and stamps, or from a gyro) against ``w`` gives ``s``:
+
+* frames: over three consecutive frames ``k-1, k, k+1`` equally spaced by ``dt``,
+  Simpson's rule gives ``log(O_{k-1}^T O_{k+1}) = (dt / 3)(omega_{k-1} + 4 omega_k +
+  omega_{k+1})`` (all in frame k), so ``y_k = -(w_{k-1} + 4 w_k + w_{k+1}) / 6`` equals
+  ``s x_k`` with ``x_k = log(O_{k-1}^T O_{k+1}) / (2 dt)`` (rad/s). The rule's error on a
+  sinusoidal rotation of frequency f is below 1 % up to ``f dt = 0.17`` (5 Hz at 30 fps);
+  the trapezoid rule over one interval would be off by 9 % there.
+* gyro (``gyro=``): ``y_k = -w_k = s R_ci omega_imu(t_k) + c`` with the camera-IMU rotation
+  ``R_ci`` and a gyro bias term ``c`` estimated with ``s`` (Umeyama's similarity fit). The
+  frame times ``t_k`` are those of the reference line, which depend on the line delay: the fit
+  iterates. Assumed: camera and IMU rigidly mounted, one clock (no time offset).
+
+The fit is least squares through the origin with Huber weights (threshold 3 robust sigma),
+repeated to convergence. Its standard deviation is a heteroscedasticity- and
+autocorrelation-consistent (Newey-West, Bartlett kernel over 2 lags: neighbouring triplets
+share frames) sandwich estimate, inflated by ``n / (n - 1)``, combined in quadrature with a
+systematic ``model_error`` (relative, default 0.2 %): on noise-free synthetic sequences the
+per-frame ``w`` is 0.1-0.16 % smaller than the true rate (the constant-velocity fit over the
+readout), which the statistical part alone would not cover (measured over 24 seeds of the
+``pan`` sequence: errors -0.5 to +0.15 %, RMS of error / std 1.4 without the term). A sequence whose rotation does
+not pin ``s`` (relative standard deviation above ``max_relative_std``, fewer than
+``min_samples`` samples, or ``s <= 0``) is reported as not observable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..geometry import matrix_to_rotvec
+from .estimate import EstimateOptions, estimate_rs_pose
+
+__all__ = ["ReadoutCalibration", "calibrate_line_delay", "fit_line_delay", "per_frame_rates"]
+
+
+@dataclass(frozen=True)
+class ReadoutCalibration:
+    """Result of :func:`calibrate_line_delay` / :func:`fit_line_delay`.
+
+    Attributes:
+        line_delay: seconds per line, or ``None`` when not observable.
+        line_delay_std: its standard deviation (s), or ``None``.
+        frames_used: frames that entered the fit.
+        observable: the rotation pins the line delay (see the module docstring).
+        seconds_per_unit_r, seconds_per_unit_r_std: the fitted ``s`` and its standard deviation
+            (reported even when not observable; NaN without samples).
+        readout_time: ``line_delay * lines`` (s) or ``None``.
+        samples: number of samples (Simpson triplets or gyro frames).
+        rotation_rms: RMS angular rate of the samples (rad/s).
+        reason: why not observable (empty when observable).
+        camera_imu_rotation: (3, 3) ``R_ci`` (IMU -> camera) of the gyro fit, else ``None``.
+        residual_rms: RMS residual of the fit (rad per unit r).
+        frames_failed: frames the estimator could not solve.
+    """
+
+    line_delay: float | None
+    line_delay_std: float | None
+    frames_used: int
+    observable: bool
+    seconds_per_unit_r: float = float("nan")
+    seconds_per_unit_r_std: float = float("nan")
+    readout_time: float | None = None
+    samples: int = 0
+    rotation_rms: float = 0.0
+    reason: str = ""
+    camera_imu_rotation: np.ndarray | None = field(default=None, repr=False)
+    residual_rms: float = float("nan")
+    frames_failed: int = 0
+
+    def as_dict(self) -> dict:
+        """The four keys of ``rs-localizer calibrate-readout --json``."""
+        return {"line_delay": self.line_delay, "line_delay_std": self.line_delay_std,
+                "frames_used": int(self.frames_used), "observable": bool(self.observable)}
+
+
+def per_frame_rates(frames, camera: CameraModel, solver: str = "r6p_1lin",
+                    options: EstimateOptions | None = None):
+    """Run the estimator on every frame with the camera's RS timing replaced by
+    ``seconds_per_unit_r = 1`` (its stated line delay is ignored), the world origin moved to
+    the previous frame's camera centre (the first frame is solved twice for that).
+
+    Args:
+        frames: iterable of ``(stamp_ns, points2d_px (N, 2), points3d (N, 3))`` or
+            ``(stamp_ns, points2d_px, points3d, scores)``, in time order.
+        camera: intrinsics, distortion and readout direction (line delay ignored).
+    Returns:
+        (stamps (K,) int64, orientations (K, 3, 3) camera -> world, w (K, 3) rotation per
+        unit r in the camera frame, failed count) for the K solved frames.
+    """
+    cam = replace(camera, line_delay=1.0 / camera.focal)  # s = 1
+    opts = options or EstimateOptions()
+    stamps, Os, ws = [], [], []
+    failed = 0
+    origin = None
+    for fr in frames:
+        stamp, uv, xyz = fr[0], fr[1], fr[2]
+        scores = fr[3] if len(fr) > 3 else None
+        try:
+            # the model's C(tau) = C + tau t is linear in camera coordinates: a camera turning
+            # far from the world origin bends it and biases w (by 0.2 % at 30 m on the pan);
+            # with the origin near the camera (the last frame's centre) the bias vanishes
+            xyz = np.asarray(xyz, dtype=float)
+            for _ in range(1 if origin is not None else 2):
+                est = estimate_rs_pose(uv, xyz - (origin if origin is not None else 0.0), cam,
+                                       solver=solver, options=opts, scores=scores)
+                if not est.success:
+                    break
+                if origin is None:
+                    origin = est.position
+                    continue
+                origin = origin + est.position
+                break
+        except ValueError:
+            failed += 1
+            continue
+        if not est.success:
+            failed += 1
+            continue
+        stamps.append(int(stamp))
+        Os.append(est.orientation)
+        ws.append(est.w)
+    return (np.array(stamps, dtype=np.int64), np.array(Os).reshape(-1, 3, 3),
+            np.array(ws).reshape(-1, 3), failed)
+
+
+def _robust_slope(x, y, lags: int = 2, iterations: int = 20):
+    """Slope s of ``y = s x`` (x, y (n, 3) per sample) by Huber-weighted least squares, its
+    HAC standard deviation and the residual RMS. Returns (s, std, rms)."""
+    n = len(x)
+    wts = np.ones(n)
+    s = float(np.sum(x * y) / max(np.sum(x * x), 1e-300))
+    for _ in range(iterations):
+        r = y - s * x
+        rn = np.linalg.norm(r, axis=1)
+        scale = 1.4826 * np.median(rn) / np.sqrt(2.0) + 1e-300  # per-component sigma
+        k = 3.0 * scale * np.sqrt(3.0)
+        wts = np.where(rn <= k, 1.0, k / np.maximum(rn, 1e-300))
+        s_new = float(np.sum(wts[:, None] * x * y) / max(np.sum(wts[:, None] * x * x), 1e-300))
+        if abs(s_new - s) <= 1e-12 * max(abs(s), 1e-300):
+            s = s_new
+            break
+        s = s_new
+    r = y - s * x
+    u = wts * np.sum(x * r, axis=1)  # score per sample
+    A = float(np.sum(wts[:, None] * x * x))
+    V = float(u @ u)
+    for lag in range(1, min(lags, n - 1) + 1):
+        V += 2.0 * (1.0 - lag / (lags + 1.0)) * float(u[lag:] @ u[:-lag])
+    V = max(V, 0.0) * n / max(n - 1, 1)
+    std = float(np.sqrt(V) / A) if A > 0 else float("inf")
+    return s, std, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
+def _simpson_samples(stamps, Os, ws, max_dt: float, uniformity: float):
+    """Simpson triplets (x (n, 3) rad/s, y (n, 3) rad per unit r, frame indices used)."""
+    xs, ys, used = [], [], set()
+    t = stamps.astype(np.float64) * 1e-9
+    for k in range(1, len(t) - 1):
+        d1, d2 = t[k] - t[k - 1], t[k + 1] - t[k]
+        if not (0 < d1 <= max_dt and 0 < d2 <= max_dt) or abs(d1 - d2) > uniformity * d1:
+            continue
+        Ok = Os[k]
+        theta = matrix_to_rotvec(Os[k - 1].T @ Os[k + 1])  # frame k-1 (= frame k+1) axes
+        x = (Ok.T @ Os[k - 1]) @ theta / (d1 + d2)  # in frame k
+        y = -((Ok.T @ Os[k - 1]) @ ws[k - 1] + 4.0 * ws[k] + (Ok.T @ Os[k + 1]) @ ws[k + 1]) / 6
+        xs.append(x)
+        ys.append(y)
+        used.update((k - 1, k, k + 1))
+    return np.array(xs).reshape(-1, 3), np.array(ys).reshape(-1, 3), used
+
+
+def _umeyama(x, y, wts):
+    """Weighted similarity ``y ~ s R x + c`` (Umeyama 1991): (s, R, c)."""
+    W = wts / wts.sum()
+    mx, my = W @ x, W @ y
+    xc, yc = x - mx, y - my
+    Sxy = (yc * W[:, None]).T @ xc
+    U, D, Vt = np.linalg.svd(Sxy)
+    E = np.eye(3)
+    E[2, 2] = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = U @ E @ Vt
+    var_x = float(np.sum(W * np.sum(xc * xc, axis=1)))
+    s = float(np.trace(np.diag(D) @ E) / max(var_x, 1e-300))
+    return s, R, my - s * R @ mx
+
+
+def fit_line_delay(stamps_ns, orientations, w, camera: CameraModel, gyro=None,
+                   stamp_row: float = 0.0, max_dt: float = 0.1, uniformity: float = 0.1,
+                   min_samples: int = 10, max_relative_std: float = 0.05,
+                   model_error: float = 0.002, frames_failed: int = 0) -> ReadoutCalibration:
+    """Fit the line delay to per-frame RS rotation rates (see the module docstring).
+
+    Args:
+        stamps_ns: (K,) frame stamps (ns), increasing; any constant offset from the
+            reference line's time is fine without a gyro.
+        orientations: (K, 3, 3) camera -> world at the reference line.
+        w: (K, 3) rotation per unit RS coordinate (``RSPoseEstimate.w``).
+        camera: focal length along the readout axis and the number of lines (its line delay
+            is ignored); with a gyro also the reference line.
+        gyro: optional ``(t_ns (M,), omega (M, 3) rad/s)`` gyro samples in the IMU frame; the
+            frame times are then ``stamp + (reference line - stamp_row) * line_delay``.
+        stamp_row: line whose capture time is the stamp (gyro only).
+        max_dt: seconds; frames farther apart do not form a Simpson triplet.
+        uniformity: relative difference allowed between a triplet's two intervals.
+        min_samples, max_relative_std: observability thresholds (on the statistical std).
+        model_error: relative systematic error added in quadrature to the std.
+        frames_failed: reported as is.
+    Returns:
+        :class:`ReadoutCalibration`.
+    Raises:
+        ValueError: inconsistent array shapes.
+    """
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    Os = np.asarray(orientations, dtype=float).reshape(-1, 3, 3)
+    ws = np.asarray(w, dtype=float).reshape(-1, 3)
+    if not (len(stamps) == len(Os) == len(ws)):
+        raise ValueError(f"need as many stamps, orientations and w: {len(stamps)}, "
+                         f"{len(Os)}, {len(ws)}")
+    focal, lines = camera.focal, camera.lines
+    R_ci = None
+    if gyro is None:
+        x, y, used = _simpson_samples(stamps, Os, ws, max_dt, uniformity)
+        n = len(x)
+        if n < 2:
+            return ReadoutCalibration(None, None, len(used), False, samples=n,
+                                      reason="too few consecutive frames",
+                                      frames_failed=frames_failed)
+        s, std, rms = _robust_slope(x, y)
+        frames_used = len(used)
+    else:
+        t_imu = np.asarray(gyro[0], dtype=np.int64)
+        om_imu = np.asarray(gyro[1], dtype=float).reshape(-1, 3)
+        if len(t_imu) != len(om_imu) or len(t_imu) < 2:
+            raise ValueError("gyro needs (t_ns (M,), omega (M, 3)) with M >= 2")
+        order = np.argsort(t_imu)
+        t_imu, om_imu = t_imu[order], om_imu[order]
+        y = -ws
+        offset_lines = camera.reference_line - stamp_row
+        s, ld = 0.0, 0.0
+        for _ in range(5):  # frame times depend on the line delay: iterate
+            t = stamps + np.round(offset_lines * ld * 1e9).astype(np.int64)
+            inside = (t >= t_imu[0]) & (t <= t_imu[-1])
+            om = np.stack([np.interp(t[inside], t_imu, om_imu[:, a]) for a in range(3)], 1)
+            s, R_ci, c = _umeyama(om, y[inside], np.ones(int(inside.sum())))
+            ld = max(s, 0.0) / focal
+        x = om @ R_ci.T
+        yc = y[inside] - c
+        s, std, rms = _robust_slope(x, yc)
+        n = len(x)
+        frames_used = n
+    rot = float(np.sqrt(np.mean(np.sum(x * x, axis=1)))) if n else 0.0
+    reason = ""
+    if n < min_samples:
+        reason = f"{n} samples (need {min_samples})"
+    elif not s > 0:
+        reason = "the fitted time scale is not positive (wrong readout direction?)"
+    elif not std <= max_relative_std * s:
+        reason = (f"too little rotation: relative std {std / abs(s):.3g} > "
+                  f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)")
+    ok = not reason
+    std = float(np.hypot(std, model_error * abs(s)))
+    return ReadoutCalibration(
+        line_delay=s / focal if ok else None, line_delay_std=std / focal if ok else None,
+        frames_used=int(frames_used), observable=ok, seconds_per_unit_r=s,
+        seconds_per_unit_r_std=std, readout_time=s / focal * lines if ok else None,
+        samples=n, rotation_rms=rot, reason=reason, camera_imu_rotation=R_ci,
+        residual_rms=rms, frames_failed=frames_failed)
+
+
+def calibrate_line_delay(frames, camera: CameraModel, solver: str = "r6p_1lin",
+                         options: EstimateOptions | None = None, gyro=None,
+                         stamp_row: float = 0.0, **fit_args) -> ReadoutCalibration:
+    """Estimate a rolling-shutter camera's line delay and its standard deviation from a video
+    with rotation, ignoring the line delay ``camera`` states.
+
+    Args:
+        frames: iterable of ``(stamp_ns, points2d_px (N, 2), points3d (N, 3)[, scores])`` in
+            time order (2D-3D correspondences per frame, as :func:`estimate_rs_pose` takes).
+        camera: :class:`CameraModel` with the intrinsics, distortion and readout direction.
+        solver, options: the per-frame estimator's.
+        gyro: optional ``(t_ns (M,), omega (M, 3))`` gyro samples (IMU frame, rad/s) to use
+            instead of the rotation between frames.
+        stamp_row: line whose capture time is the frame stamp (gyro only).
+        fit_args: :func:`fit_line_delay` thresholds.
+    Returns:
+        :class:`ReadoutCalibration` (``observable=False`` and no line delay when the rotation
+        does not pin it).
+    """
+    stamps, Os, ws, failed = per_frame_rates(frames, camera, solver, options)
+    return fit_line_delay(stamps, Os, ws, camera, gyro=gyro, stamp_row=stamp_row,
+                          frames_failed=failed, **fit_args)

@@ -1,0 +1,250 @@
+"""Tracking a rolling-shutter camera through a video: predicted RANSAC, relocalization, resets,
+and the fused twist.
+
+Every frame of a video can be solved alone (:func:`estimate_rs_pose`), but the previous frames
+predict the pose to a fraction of a degree. :class:`RSTracker` keeps a
+:class:`~rs_localizer.estimation.fusion.TwistFilter` over the per-frame estimates and, for
+each new frame:
+
+1. predicts the pose and twist at the frame's time with the filter's motion model (constant
+   velocity or acceleration);
+2. hands the prediction to the estimator as an
+   :class:`~rs_localizer.estimation.estimate.InitialModel`: it is tested on all points first
+   (points within ``gate_px`` count as explained, MSAC within the threshold), seeds RANSAC, and
+   its rotation pre-rotates every minimal sample instead of a P3P pose (paper sec. 4 and
+   Fig. 6: the linear solvers need a rotation within a few degrees, not P3P's);
+3. falls back to the cold estimator when the prediction explains too few points (a
+   *relocalization*: a teleport, a lost track), and restarts everything on a stamp going back
+   or a gap longer than ``max_gap`` (a *reset*);
+4. fuses the estimate into the filter (the fused twist, final ``lag`` frames later).
+
+Each :class:`TrackResult` says which path the frame took: ``cold`` (no state: the first
+frame), ``tracked``, ``relocalized`` or ``reset``. A failed frame changes nothing but the
+counters: no state is made up for it, so a bad frame never becomes a pose or a twist.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..camera import CameraModel
+from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
+from .fusion import FusedState, FusionOptions, TwistFilter
+
+__all__ = ["TrackerOptions", "TrackResult", "RSTracker", "STATES", "model_from_state",
+           "motion_prior_from_state"]
+
+#: the paths a frame can take
+STATES = ("cold", "tracked", "relocalized", "reset")
+
+
+@dataclass(frozen=True)
+class TrackerOptions:
+    """Parameters of :class:`RSTracker`.
+
+    Attributes:
+        gate_px: a point is explained by the prediction if it reprojects within this many
+            pixels of it (the prediction of a hand-held camera is off by ~2-15 px at 30 fps),
+            or within ``gate_sigmas`` standard deviations of the predicted rotation (in pixels:
+            times the focal length) when that is larger, up to ``max_gate_px`` (a prediction
+            over dropped frames or just after a restart is less certain).
+        min_explained_ratio: the prediction is used if it explains at least this fraction of
+            the points the previous frame's inlier ratio promises (and at least
+            ``min_inliers``); otherwise the frame relocalizes (cold estimator).
+        max_gap: seconds; a longer gap between frames, or a stamp going back, resets the
+            tracker (a prediction over that long is not trusted).
+        tracked_options: :class:`EstimateOptions` for tracked frames (``None``: the tracker's
+            estimator options with ``min_iterations = tracked_min_iterations``).
+        tracked_min_iterations: RANSAC's minimum number of samples on tracked frames (the
+            prediction is a hypothesis already; adaptive termination still runs).
+        fusion: :class:`~rs_localizer.estimation.fusion.FusionOptions` of the filter (its
+            ``max_gap`` is set to the tracker's).
+    """
+
+    gate_px: float = 20.0
+    gate_sigmas: float = 3.0
+    max_gate_px: float = 200.0
+    min_explained_ratio: float = 0.5
+    max_gap: float = 0.5
+    tracked_options: EstimateOptions | None = None
+    tracked_min_iterations: int = 16
+    fusion: FusionOptions = field(default_factory=FusionOptions)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.gate_px) and self.gate_px > 0):
+            raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
+        if not (self.gate_sigmas >= 0 and self.max_gate_px >= self.gate_px):
+            raise ValueError("need gate_sigmas >= 0 and max_gate_px >= gate_px")
+        if not (0.0 <= self.min_explained_ratio <= 1.0):
+            raise ValueError(f"min_explained_ratio must be in [0, 1], got "
+                             f"{self.min_explained_ratio}")
+        if not (np.isfinite(self.max_gap) and self.max_gap > 0):
+            raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
+        if self.tracked_min_iterations < 0:
+            raise ValueError("tracked_min_iterations must be >= 0")
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One frame through :meth:`RSTracker.process`.
+
+    Attributes:
+        estimate: the per-frame :class:`RSPoseEstimate` (pose, in-frame twist, covariances),
+            as :func:`estimate_rs_pose` returns it; ``success=False`` for a bad frame.
+        state: ``cold``, ``tracked``, ``relocalized`` or ``reset`` (see :data:`STATES`).
+        fused: the filter's causal state at this frame (``None`` if the frame failed or the
+            filter has no state).
+        final: fused states that became final with this frame, oldest first (the frame
+            ``lag`` frames back; on a reset, the frames still pending). Each is a
+            :class:`~rs_localizer.estimation.fusion.FusedState` whose ``stamp_ns`` names its
+            frame.
+        predicted: the prediction used (``None`` on cold and reset frames).
+        explained: points the prediction explained (-1 without a prediction).
+    """
+
+    estimate: RSPoseEstimate
+    state: str
+    fused: FusedState | None = None
+    final: list = field(default_factory=list)
+    predicted: FusedState | None = None
+    explained: int = -1
+
+
+def model_from_state(state: FusedState, camera: CameraModel):
+    """The estimator's model ``(R, C, w, t)`` of a fused state (inverse of
+    :func:`~rs_localizer.estimation.estimate.physical_velocities`): ``R = O^T``,
+    ``C = -R p``, ``w = -omega s``, ``t = w x C - v s`` with ``s`` the camera's seconds per
+    unit RS coordinate (w = t = 0 for a global shutter). Shapes (3, 3), (3,), (3,), (3,)."""
+    R = np.asarray(state.orientation, dtype=float).T
+    C = -R @ np.asarray(state.position, dtype=float)
+    s = camera.seconds_per_unit_r
+    if s <= 0:
+        return R, C, np.zeros(3), np.zeros(3)
+    w = -np.asarray(state.angular_velocity, dtype=float) * s
+    t = np.cross(w, C) - np.asarray(state.linear_velocity, dtype=float) * s
+    return R, C, w, t
+
+
+def motion_prior_from_state(state: FusedState):
+    """The predicted twist as a prior for the per-frame refinement: ``(mean (6,), covariance
+    (6, 6))`` over (angular velocity [rad/s], linear velocity [m/s]), camera frame.
+
+    The one call to make when the estimator takes a motion prior; the tracker does not pass
+    it yet (the per-frame estimate stays independent of the filter, which fuses it)."""
+    mean = np.concatenate([state.angular_velocity, state.linear_velocity])
+    idx = [6, 7, 8, 9, 10, 11]
+    return mean, np.asarray(state.covariance)[np.ix_(idx, idx)]
+
+
+class RSTracker:
+    """Track a rolling-shutter camera through a video (see the module docstring).
+
+    Args:
+        solver: estimator solver name (as :func:`estimate_rs_pose`).
+        options: :class:`EstimateOptions` of cold frames (and of tracked frames unless
+            ``tracker_options.tracked_options`` is given); ``acceleration_sensitivity`` is
+            switched on (the filter uses it).
+        tracker_options: :class:`TrackerOptions`.
+
+    Counters: ``frames``, ``frames_tracked``, ``relocalizations``, ``resets``, ``failures``.
+    """
+
+    def __init__(self, solver: str = "r6p_1lin", options: EstimateOptions | None = None,
+                 tracker_options: TrackerOptions | None = None):
+        self.solver = solver
+        # the filter models the estimate's error from acceleration during the readout
+        self.options = replace(options or EstimateOptions(), acceleration_sensitivity=True)
+        self.tracker_options = tracker_options or TrackerOptions()
+        to = self.tracker_options
+        self.tracked_options = replace(
+            to.tracked_options or replace(self.options, min_iterations=min(
+                self.options.min_iterations, to.tracked_min_iterations)),
+            acceleration_sensitivity=True)
+        self.filter = TwistFilter(replace(to.fusion, max_gap=to.max_gap))
+        self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
+        self.failures = 0
+        self._inlier_ratio = None
+        self._stamp = None
+
+    @property
+    def track_state(self) -> str:
+        """``tracking`` (a prediction is available for the next frame) or ``lost``."""
+        return "tracking" if self.filter.initialized else "lost"
+
+    def reset(self) -> list:
+        """Forget the track (e.g. the solver or the camera changed). Returns the fused states
+        not yet final, as they are (oldest first)."""
+        out = self.filter.flush()
+        self.filter.reset()
+        self._inlier_ratio = None
+        self._stamp = None
+        return out
+
+    def flush(self) -> list:
+        """The fused states not yet final (oldest first, e.g. at the end of a video); they
+        are not returned again and the track goes on."""
+        return self.filter.flush()
+
+    def process(self, stamp_ns: int, points2d_px, points3d, camera: CameraModel,
+                scores=None) -> TrackResult:
+        """Estimate one frame and update the track.
+
+        Args:
+            stamp_ns: the frame's time (ns). Any constant offset from the reference row's
+                capture time is fine (e.g. the header stamp of row 0).
+            points2d_px (N, 2), points3d (N, 3), camera, scores (N,) or None: as
+                :func:`estimate_rs_pose`. The camera must not change without :meth:`reset`.
+        Returns:
+            :class:`TrackResult`.
+        Raises:
+            ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
+        """
+        stamp_ns = int(stamp_ns)
+        to = self.tracker_options
+        self.frames += 1
+        final = []
+        state = "cold"
+        if self._stamp is not None and (stamp_ns <= self._stamp
+                                        or (stamp_ns - self._stamp) * 1e-9 > to.max_gap):
+            final += self.reset()
+            state = "reset"
+            self.resets += 1
+        predicted = None
+        explained = -1
+        if self.filter.initialized:
+            predicted = self.filter.predict(stamp_ns)
+            R, C, w, t = model_from_state(predicted, camera)
+            n = len(points2d_px)
+            ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
+            need = max(self.options.min_inliers, int(to.min_explained_ratio * ratio * n))
+            sigma_rot = float(np.sqrt(max(np.linalg.eigvalsh(predicted.covariance[:3, :3]))))
+            gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal),
+                       to.max_gate_px)
+            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver,
+                                   self.tracked_options, scores,
+                                   initial_model=InitialModel(R, C, w, t, gate, need))
+            explained = est.initial_explained
+            if est.success and est.initial_used:
+                state = "tracked"
+            else:
+                state = "relocalized"
+                if not est.success and est.failure != "too_few_points":
+                    # the prediction misled RANSAC, or the frame is bad: try it cold
+                    est = estimate_rs_pose(points2d_px, points3d, camera, self.solver,
+                                           self.options, scores)
+        else:
+            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, self.options,
+                                   scores)
+        if not est.success:
+            self.failures += 1
+            return TrackResult(est, state, None, final, predicted, explained)
+        if state == "tracked":
+            self.frames_tracked += 1
+        elif state == "relocalized":
+            self.relocalizations += 1
+        self._stamp = stamp_ns
+        self._inlier_ratio = est.num_inliers / max(len(points2d_px), 1)
+        step = self.filter.update(stamp_ns, est, relocalized=state == "relocalized")
+        return TrackResult(est, state, step.current, final + step.final, predicted, explained)
