@@ -467,9 +467,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     cr = sub.add_parser("calibrate-readout", help="estimate the line delay (s per line) "
                         "from a bag with rotation, ignoring the RS timing it states")
-    cr.add_argument("bag")
+    cr.add_argument("bag", help="bag directory with a rotating sequence")
     cr.add_argument("--source", choices=["correspondences", "keypoints", "image"],
-                    default="correspondences")
+                    default="correspondences",
+                    help="frames from correspondence clouds, keypoints + landmark map, or "
+                    "images through a front end")
     cr.add_argument("--json", action="store_true",
                     help="print one JSON object on stdout (line_delay, line_delay_std, "
                     "frames_used, observable); the summary goes to stderr")
@@ -477,9 +479,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sensor_msgs/Imu topic: use its gyro instead of the rotation between "
                     "frames (camera and IMU rigidly mounted, one clock; their rotation is "
                     "estimated)")
-    cr.add_argument("--solver", default="r6p_1lin", choices=SOLVER_NAMES)
+    cr.add_argument("--solver", default="r6p_1lin", choices=SOLVER_NAMES,
+                    help="RS solver of the per-frame estimates")
     cr.add_argument("--threshold", type=float, default=2.0, help="RANSAC threshold (px)")
-    cr.add_argument("--direction", default=None,
+    cr.add_argument("--direction", default=None, choices=directions,
                     help="readout direction (default: the bag's sequence.json)")
     cr.add_argument("--stamp-row", type=float, default=None,
                     help="row whose capture time is the header stamp (gyro only; default: "

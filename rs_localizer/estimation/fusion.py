@@ -48,7 +48,6 @@ relocalized), and on a stamp going back or a gap longer than ``max_gap``.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
