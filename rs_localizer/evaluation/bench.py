@@ -21,17 +21,9 @@ import argparse
 import os
 import time
 
-if __name__ == "__main__":  # one BLAS/numba thread, set before numpy loads (not on import)
-    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                 "NUMBA_NUM_THREADS"):
-        os.environ.setdefault(_var, "1")
-
 import numpy as np  # noqa: E402
 
-try:  # noqa: E402
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover
-    threadpool_limits = None
+from .threads import one_thread  # noqa: E402
 
 from ..estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose  # noqa: E402
 from ..geometry import rotation_angle_deg  # noqa: E402
@@ -299,8 +291,7 @@ def main(argv=None) -> int:
     pm.add_argument("--frames", type=int, default=40)
     pm.add_argument("--speed", type=float, default=1.0, help="RS speed")
     a = p.parse_args(argv)
-    ctx = threadpool_limits(1) if threadpool_limits else None
-    try:
+    with one_thread():
         if a.what == "solvers":
             rows = bench_solvers(a.repeat, a.batch)
             print(f"{'solver':<16}{'us/call':>10}{'us/iter':>10}{'batched us/hyp':>16}"
@@ -346,9 +337,6 @@ def main(argv=None) -> int:
                 if r["stages_ms"]:
                     print(f"{r['method']:<38}" + "".join(f"{r['stages_ms'][k]:10.2f}"
                                                          for k in STAGES))
-    finally:
-        if ctx is not None:
-            ctx.unregister() if hasattr(ctx, "unregister") else None
     return 0
 
 

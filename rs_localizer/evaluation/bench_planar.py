@@ -29,21 +29,12 @@ the median time per frame. Then the issue's targets, checked. One BLAS thread.
 from __future__ import annotations
 
 import argparse
-import os
 import time
-
-if __name__ == "__main__":  # one BLAS/numba thread, set before numpy loads (not on import)
-    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                 "NUMBA_NUM_THREADS"):
-        os.environ.setdefault(_var, "1")
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-try:  # noqa: E402
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover
-    threadpool_limits = None
+from .threads import one_thread  # noqa: E402
 
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose  # noqa: E402
 from ..estimation.refine import refine_rs_pose  # noqa: E402
@@ -218,9 +209,7 @@ def main(argv=None) -> int:
     p.add_argument("--linear-speed", type=float, nargs=2, default=(0.2, 1.0),
                    metavar=("MIN", "MAX"), help="camera speed range (m/s)")
     args = p.parse_args(argv)
-    import contextlib
-
-    with threadpool_limits(1) if threadpool_limits is not None else contextlib.nullcontext():
+    with one_thread():
         make_planar_frame(0, "board")  # warm-up: numba compilation outside the timings
         _estimator_row(make_planar_frame(0, "board"), "r6p_1lin", MotionPrior())
         _estimator_row(make_planar_frame(0, "depth"), "r6p_1lin", MotionPrior())

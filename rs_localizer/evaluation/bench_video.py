@@ -21,23 +21,14 @@ committed ``data/sample`` bag. ``--quick`` uses fewer seeds and passes.
 from __future__ import annotations
 
 import argparse
-import os
 import time
-
-if __name__ == "__main__":  # one BLAS/numba thread, set before numpy loads (not on import)
-    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                 "NUMBA_NUM_THREADS"):
-        os.environ.setdefault(_var, "1")
 
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-try:  # noqa: E402
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover
-    threadpool_limits = None
+from .threads import one_thread  # noqa: E402
 
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose  # noqa: E402
 from ..estimation.readout import calibrate_line_delay  # noqa: E402
@@ -220,7 +211,12 @@ def events() -> dict:
 
 # ---------------------------------------------------------------------------- report
 def run(quick: bool = False) -> int:
-    limits = threadpool_limits(1) if threadpool_limits else None
+    """Print the video targets (one BLAS/numba thread); 0 if all are met."""
+    with one_thread():
+        return _run(quick)
+
+
+def _run(quick: bool) -> int:
     checks = []
 
     def check(name, ok, value):
@@ -313,7 +309,6 @@ def run(quick: bool = False) -> int:
     for name, ok, val in checks:
         print(f"  [{'PASS' if ok else 'FAIL'}] {name}: {val}")
     print(f"({time.perf_counter() - t0:.0f} s)")
-    del limits
     return 0 if all(ok for _, ok, _ in checks) else 1
 
 

@@ -50,6 +50,7 @@ from ... import solvers as S
 from ...solvers.registry import SOLVERS as SOLVER_TABLE
 from ...geometry import camera_position, rotation_angle_deg
 from ...solvers.joined import rs_reprojection_rmse
+from ..threads import one_thread
 from ...sim.synthetic import FRAME_SPAN, make_frame
 
 __all__ = ["Config", "FULL", "QUICK", "STYLE", "exp1_motion", "exp2_noise", "exp2_translation",
@@ -407,22 +408,12 @@ def exp6_timing(repeat: int = 200, batch: int = 1000, seed: int = 0) -> dict:
     the paper's microseconds per iteration and the maximum number of solutions."""
     from ..bench import bench_solvers
 
-    with _one_thread():
+    with one_thread():
         rows = bench_solvers(repeat=repeat, batch=batch, seed=seed)
     for r in rows:
         r["paper_us"] = PAPER_US.get(r["solver"])
         r["max_solutions"] = MAX_SOLUTIONS.get(r["solver"].split()[0])
     return dict(kind="exp6", rows=rows, repeat=repeat, batch=batch)
-
-
-def _one_thread():
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1)
 
 
 ESTIMATOR_METHODS = ("p3p", "r6p", "r6p_1lin", "r6p_vCt_w", "r9p", "r6p_joined", "poselib",
@@ -449,7 +440,7 @@ def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 20
     errors = {m: np.full((len(speeds), trials, 4), np.inf) for m in methods}
     secs = {m: np.full((len(speeds), trials), np.nan) for m in methods}
     inliers = {m: np.zeros((len(speeds), trials)) for m in methods}
-    with _one_thread():
+    with one_thread():
         for i, s in enumerate(speeds):
             for k in range(trials):
                 f = make_frame(np.random.default_rng([seed, 70, i, k]), n_points, rs_speed=s,
