@@ -376,15 +376,16 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
             assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no pose\n{node.log}"
             pr.pub_kp.publish(kps[0])
             s = stamp_to_ns(kps[0].header.stamp) + ref
-            assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no keypoints pose"
-            assert pr.wait(lambda pr=pr: len(pr.outputs["twist"]) == 2, 10)
+            assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no keypoints pose\n{node.log}"
+            assert pr.wait(lambda pr=pr: len(pr.outputs["twist"]) == 2, 10), \
+                (ns, len(pr.outputs["twist"]), node.log)
             frame = pr.outputs["twist"][-1].header.frame_id
             assert frame == ("base_link" if ns == "/multi/rear" else "camera_optical_frame"), \
                 (ns, frame)
         for ns, pr in probes.items():  # each camera counts its own frames
             st, v = pr.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 2)
-            assert st is not None and st.name.endswith(f"{ns}/rs_localizer"), st
-            assert int(v["frames_received"]) == 2, (ns, v)
+            assert st is not None and st.name.endswith(f"{ns}/rs_localizer"), (ns, st, node.log)
+            assert int(v["frames_received"]) == 2, (ns, v, node.log)
         assert node.log.count("] ready:") == 3 or node.log.count("]: ready:") == 3
     finally:
         for pr in probes.values():
