@@ -16,7 +16,7 @@ import pytest
 from scipy.linalg import expm
 
 from rs_localizer.estimation.fusion import FusionOptions, TwistFilter
-from rs_localizer.estimation.estimate import EstimateOptions
+from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
 from rs_localizer.estimation.tracker import RSTracker, TrackerOptions
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
@@ -125,10 +125,9 @@ def _track(name, n, seed, fusion=None, **cfg):
     tr = RSTracker(options=EstimateOptions(seed=0),
                    tracker_options=TrackerOptions(fusion=fusion or FusionOptions()))
     single, final = {}, []
-    for f in frames:
-        r = tr.process(f.t_ref_ns, f.uv, f.xyz, cam)
-        single[f.t_ref_ns] = r.estimate
-        final += r.final
+    for f in frames:  # single frame: the estimator alone (as without tracking)
+        single[f.t_ref_ns] = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
+        final += tr.process(f.t_ref_ns, f.uv, f.xyz, cam).final
     final += tr.flush()
     return frames, single, final
 
@@ -212,3 +211,44 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
     s = filt.update(NS // 30, est([0, 0, 0]))
     assert s.current.restarted and s.current.stamp_ns == NS // 30
     assert [f.stamp_ns for f in s.final] == [7 * NS // 30, 8 * NS // 30]
+
+
+def test_prior_information_is_taken_out():
+    """An estimate that is the posterior of a data measurement and a twist prior gives back
+    the data measurement (posterior by the covariance-form Kalman update here)."""
+    from rs_localizer.estimation.prior import MotionPrior
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(12, 12))
+    R_d = A @ A.T * 1e-4 + np.eye(12) * 1e-5  # data covariance (rot, pos, omega, v)
+    z_d = rng.normal(size=12) * 0.1
+    z_d[:3] = 0.0  # rotation relative to the data's orientation
+    O_d = rotvec_to_matrix([0.1, 0.2, -0.3])
+    B = rng.normal(size=(6, 6))
+    P = B @ B.T * 1e-3 + np.eye(6) * 1e-3  # prior covariance, ROS order (v, omega)
+    m = rng.normal(size=6) * 0.1
+    prior = MotionPrior(mean=m, covariance=P, always=True)
+    # the prior observes the twist: H picks (v, omega) out of (rot, pos, omega, v)
+    H = np.zeros((6, 12))
+    for row, col in enumerate([9, 10, 11, 6, 7, 8]):
+        H[row, col] = 1.0
+    K = R_d @ H.T @ np.linalg.inv(H @ R_d @ H.T + P)
+    z_post = z_d + K @ (m - H @ z_d)
+    R_post = (np.eye(12) - K @ H) @ R_d
+    G_d = rng.normal(size=(12, 6)) * 1e-3
+    est = SimpleNamespace(success=True, orientation=rotvec_to_matrix(z_post[:3]) @ O_d,
+                          position=z_post[3:6], angular_velocity=z_post[6:9],
+                          linear_velocity=z_post[9:12], covariance=0.5 * (R_post + R_post.T),
+                          twist_covariance=np.eye(6),
+                          acceleration_sensitivity=(np.eye(12) - K @ H) @ G_d)
+    z = TwistFilter()._measurement(est, prior)
+    assert z.deprior
+    np.testing.assert_allclose(z.R, R_d, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(z.p, z_d[3:6], atol=1e-9)
+    np.testing.assert_allclose(z.omega, z_d[6:9], atol=1e-9)
+    np.testing.assert_allclose(z.v, z_d[9:12], atol=1e-9)
+    np.testing.assert_allclose(z.O, O_d, atol=1e-9)
+    np.testing.assert_allclose(z.G, G_d, rtol=1e-6, atol=1e-12)
+    # without the prior the posterior is taken as it is
+    plain = TwistFilter()._measurement(est)
+    assert not plain.deprior and np.allclose(plain.R, est.covariance)

@@ -61,7 +61,8 @@ def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=No
     from rs_localizer.evaluation.demo import evaluate_outputs
 
     res = play(bag, lockstep=True, output_topics=outputs, context=ros_context, timeout=5.0,
-               topics=topics, stamp_offset_ns=int(offset_s * 1e9), limit=limit, log=print)
+               topics=topics, stamp_offset_ns=int(offset_s * 1e9), limit=limit, log=print,
+               late_topics=("/camera/twist", "/camera/odom"))  # (the fused twist: lag 1)
     gt = load_ground_truth(bag)
     if offset_s:  # shift ground truth like the inputs
         shift = int(offset_s * 1e9)
@@ -200,6 +201,67 @@ def test_diagnostics(node, ros_context, sample_bag):
         assert 300 < float(v["inliers_mean"]) <= 500
         assert 0 < float(v["latency_ms_median"]) <= float(v["latency_ms_p99"]) < 5000
     finally:
+        probe.close()
+
+
+def test_tracking_fused_twist_and_resets(node, ros_context, sample_bag):
+    """Issue 10: with tracking (default) twist / odom carry the fused twist, a frame late and
+    stamped with their frame's time, better than the per-frame twist on twist_single_frame;
+    diagnostics count tracked frames; a solver change resets the track; tracking.enabled false
+    gives the per-frame twist on twist again."""
+    from rs_localizer.ros.conversions import stamp_to_ns
+
+    topics = ["/camera/correspondences", "/camera/camera_info"]
+    outs = OUTPUTS + ("/camera/twist_single_frame",)
+    res, gt, errs = _play(ros_context, sample_bag, offset_s=700.0, topics=topics, outputs=outs)
+    assert res.answered == len(res.frames) == 30, node.log
+    single = []
+    for f in res.frames:
+        pose = f["outputs"]["/camera/pose"][1]
+        sf = f["outputs"]["/camera/twist_single_frame"][1]
+        tw = f["outputs"]["/camera/twist"][1]
+        odom = f["outputs"]["/camera/odom"][1]
+        stamp = stamp_to_ns(pose.header.stamp)
+        assert stamp_to_ns(sf.header.stamp) == stamp == stamp_to_ns(tw.header.stamp)
+        assert stamp_to_ns(odom.header.stamp) == stamp
+        assert np.isfinite(np.reshape(odom.twist.covariance, (6, 6))).all()
+        w = np.array([sf.twist.angular.x, sf.twist.angular.y, sf.twist.angular.z])
+        v = np.array([sf.twist.linear.x, sf.twist.linear.y, sf.twist.linear.z])
+        single.append((np.linalg.norm(w - gt.angular_velocity[stamp]),
+                       np.linalg.norm(v - gt.linear_velocity[stamp])))
+    single = np.array(single)
+    fused_w = np.median([e["angvel"] for e in errs])
+    fused_v = np.median([e["linvel"] for e in errs])
+    # (bench_video: 0.009 vs 0.043 rad/s, 0.025 vs 0.29 m/s)
+    assert fused_v < 0.4 * np.median(single[:, 1]), (fused_v, np.median(single[:, 1]))
+    assert fused_w < 0.7 * np.median(single[:, 0]), (fused_w, np.median(single[:, 0]))
+    probe = Probe(ros_context)
+    params = ParamClient(ros_context, "/camera/rs_localizer")
+    try:
+        st, v = probe.wait_diag(lambda v: int(v.get("frames_tracked", 0)) >= 29, timeout=10)
+        assert st is not None and v["track_state"] == "tracking", v
+        resets0 = int(v["resets"])
+        (r,) = params.set(solver="r6p_vC_wt")  # a solver change resets the track
+        assert r.successful, r.reason
+        res, _, _ = _play(ros_context, sample_bag, offset_s=701.0, limit=4, topics=topics,
+                          outputs=outs)
+        assert res.answered == 4, node.log
+        st, v = probe.wait_diag(lambda v: int(v.get("resets", 0)) > resets0, timeout=10)
+        assert st is not None, "no reset after the solver change"
+        for r in params.set(solver="r6p_1lin", **{"tracking.enabled": False}):
+            assert r.successful, r.reason
+        res, _, _ = _play(ros_context, sample_bag, offset_s=702.0, limit=3, topics=topics,
+                          outputs=outs)
+        assert res.answered == 3, node.log
+        for f in res.frames:  # the per-frame twist again, with the frame
+            tw = f["outputs"]["/camera/twist"][1].twist
+            sf = f["outputs"]["/camera/twist_single_frame"][1].twist
+            assert (tw.linear.x, tw.angular.y) == (sf.linear.x, sf.angular.y)
+        st, v = probe.wait_diag(lambda v: v.get("track_state") == "disabled", timeout=10)
+        assert st is not None
+    finally:
+        params.set(**{"tracking.enabled": True})
+        params.close()
         probe.close()
 
 

@@ -78,7 +78,8 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
     outs = (f"{NS}/pose", f"{NS}/twist", f"{NS}/correspondences_out")
     res = play(sample_images_bag, lockstep=True, topics=[IMAGE_TOPIC, INFO_TOPIC],
                remap={IMAGE_TOPIC: f"{NS}/image", INFO_TOPIC: f"{NS}/camera_info"},
-               output_topics=outs, context=ros_context, timeout=10.0, log=print)
+               output_topics=outs, context=ros_context, timeout=10.0, log=print,
+               late_topics=(f"{NS}/twist",))  # (the fused twist: a frame late)
     assert len(res.frames) == 20 and res.answered == 20, node.log
     gt = load_ground_truth(sample_images_bag)
     errs = evaluate_outputs(res.frames, gt, [NS])[NS]

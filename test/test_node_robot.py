@@ -63,7 +63,7 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
     try:
         res = play(sample_bag, lockstep=True, output_topics=OUTPUTS, context=ros_context,
                    timeout=5.0, topics=["/camera/correspondences", "/camera/camera_info"],
-                   limit=12, log=print)
+                   limit=12, log=print, late_topics=("/camera/twist", "/camera/odom"))
         assert res.answered == len(res.frames) == 12, node.log
         gt = _base_ground_truth(load_ground_truth(sample_bag), _T(
             Rotation.from_quat(q_bc).as_matrix(), t_bc))

@@ -125,7 +125,8 @@ def test_teleport_jump_back_drops_and_bad_frames():
 
 def test_state_model_roundtrip_and_prior(hard_sequence):
     frames, _, cam, _ = hard_sequence
-    tr = RSTracker(options=EstimateOptions(seed=0),
+    # (maximum likelihood: the filter starts at the estimate itself, no prior to take out)
+    tr = RSTracker(options=EstimateOptions(seed=0, motion_prior=None),
                    tracker_options=TrackerOptions(fusion=FusionOptions(lag=0)))
     r = tr.process(frames[0].t_ref_ns, frames[0].uv, frames[0].xyz, cam)
     e = r.estimate
@@ -135,9 +136,11 @@ def test_state_model_roundtrip_and_prior(hard_sequence):
     np.testing.assert_allclose(C, e.C, atol=1e-9)
     np.testing.assert_allclose(w, e.w, atol=1e-12)
     np.testing.assert_allclose(t, e.t, atol=1e-9)
-    mean, cov = motion_prior_from_state(r.fused)
-    np.testing.assert_allclose(mean, np.concatenate([e.angular_velocity, e.linear_velocity]))
-    assert cov.shape == (6, 6) and np.all(np.linalg.eigvalsh(cov) > 0)
+    prior = motion_prior_from_state(r.fused, inflation=2.0)
+    np.testing.assert_allclose(prior.mean_vector(),
+                               np.concatenate([e.linear_velocity, e.angular_velocity]))
+    np.testing.assert_allclose(prior.covariance, 2.0 * r.fused.twist_covariance, rtol=1e-12)
+    assert prior.always and np.all(np.linalg.eigvalsh(prior.covariance) > 0)
 
 
 def test_tracker_options_are_validated():

@@ -23,7 +23,7 @@ from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
 from .sampling import draw_samples, gather_prerotated, select_prerotations
 from .scoring import msac_scores
 
-__all__ = ["ransac_batch", "fused_kernels"]
+__all__ = ["ransac_batch", "prerotated_batch", "fused_kernels"]
 
 #: stopping tolerance of the iterative solvers on RANSAC samples (their default)
 _SOLVER_TOL = 1e-12
@@ -95,6 +95,40 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
                 X3[k, j, a] = X[i, a]
     R, C, own = lambda_twist_batch(b3, X3)
     R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
+    return _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_params,
+                            iterations, th2, bail, pretest_n, pretest_min, measured, w_max,
+                            v_max)
+
+
+@njit(cache=True)
+def prerotated_batch(u, pool, order, R_pre, x, X, r, r0e, d, r0, kinds, n_params, iterations,
+                     th2, bail, pretest_n, pretest_min, measured=False, w_max=np.inf,
+                     v_max=np.inf):
+    """:func:`ransac_batch` with one given pre-rotation ``R_pre`` (3, 3) for every sample
+    instead of each sample's P3P pose (a video tracker's predicted rotation,
+    :class:`rs_localizer.estimation.estimate.InitialModel`); the same kernels otherwise (the
+    step-by-step path: :func:`~rs_localizer.estimation.estimate._generate` with ``R_pre``).
+    ``kinds`` must not be empty (an RS solver). Arguments and returns as
+    :func:`ransac_batch`."""
+    K, s = u.shape
+    local = draw_samples(u, pool)
+    samples = np.empty((K, s), dtype=np.int64)
+    R_p = np.empty((K, 3, 3))
+    for k in range(K):
+        for j in range(s):
+            samples[k, j] = order[local[k, j]]
+        R_p[k] = R_pre
+    return _solve_and_score(samples, R_p, np.zeros((K, 3)), np.ones(K, dtype=np.bool_), x, X,
+                            r, r0e, d, r0, kinds, n_params, iterations, th2, bail, pretest_n,
+                            pretest_min, measured, w_max, v_max)
+
+
+@njit(cache=True)
+def _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_params,
+                     iterations, th2, bail, pretest_n, pretest_min, measured, w_max, v_max):
+    """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
+    sample with each kernel, drop implausible hypotheses, score."""
+    K = samples.shape[0]
     J = kinds.shape[0]
     if J == 0:
         Rs, Cs, ok = R_p, C_p, ok_p

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .batch import fused_kernels, nonminimal_solve, ransac_batch
+from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
 from .outputs import (final_inliers, output_covariance_kernel,
                       physical_velocities_kernel)
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
@@ -552,9 +552,10 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
 def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: EstimateOptions):
     """Test an :class:`InitialModel` on all points: (explained count, seed) where seed is None
     when it explains fewer than ``model.min_explained`` points (within its gate), else
-    ``(score, (R, C, w, t), inlier mask)`` after a robust Levenberg-Marquardt refinement on the
-    explained points when it then has more than ``s`` inliers within the threshold, or
-    ``(None, None, None)`` (use its rotation for pre-rotation only)."""
+    ``(score, (R, C, w, t), inlier mask)`` when it has more than ``s`` inliers within the
+    threshold (after a robust Levenberg-Marquardt refinement on the explained points if it had
+    fewer than ``min_explained`` there), or ``(None, None, None)`` (use its rotation for
+    pre-rotation only)."""
     R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in
                   (model.R, model.C, model.w, model.t))
     rolling = solver_info(solver).rolling
@@ -568,18 +569,24 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     explained = int(np.count_nonzero(near))
     if explained < max(int(model.min_explained), 1):
         return explained, None
-    # a prediction is a few pixels off (a hand-held camera's at 30 fps: ~2-15 px): pull it in
-    # with Levenberg-Marquardt on (at most lo_max_points of) the explained points, truncated
-    # at the gate (this is the seed's local optimization)
-    idx = np.flatnonzero(near)[:max(opts.lo_max_points, 2 * s)]
-    ref = refine_rs_pose(R, C, w, t, fr.X[idx], fr.x[idx], fr.r[idx] - fr.r0, np.sqrt(th2),
-                         rolling_shutter=rolling, max_iterations=2 * opts.lo_refine_iterations,
-                         covariance=False, cutoff=gate, prior=fr.prior,
-                         seconds_per_unit_r=fr.spr)
     best = (R, C, w, t)
-    if all(np.isfinite(a).all() for a in (ref.R, ref.C, ref.w, ref.t)):
-        best = (ref.R, ref.C, ref.w, ref.t)
     score, inl = _evaluate(fr, best, th2)
+    if int(np.count_nonzero(inl)) < max(int(model.min_explained), s + 1):
+        # a prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains
+        # the frame within the gate, not within the threshold: pull it in with
+        # Levenberg-Marquardt on (at most lo_max_points of) the explained points, truncated at
+        # the gate (the seed's local optimization; a good seed is left to the final
+        # refinement)
+        idx = np.flatnonzero(near)[:max(opts.lo_max_points, 2 * s)]
+        ref = refine_rs_pose(R, C, w, t, fr.X[idx], fr.x[idx], fr.r[idx] - fr.r0, np.sqrt(th2),
+                             rolling_shutter=rolling,
+                             max_iterations=2 * opts.lo_refine_iterations, covariance=False,
+                             cutoff=gate, prior=fr.prior, seconds_per_unit_r=fr.spr)
+        if all(np.isfinite(a).all() for a in (ref.R, ref.C, ref.w, ref.t)):
+            cand = (ref.R, ref.C, ref.w, ref.t)
+            sc, inl_c = _evaluate(fr, cand, th2)
+            if sc < score:
+                best, score, inl = cand, sc, inl_c
     if int(np.count_nonzero(inl)) <= s:
         return explained, (None, None, None)
     return explained, (score, best, inl)
@@ -790,11 +797,17 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         if R_pre is not None and best is not None:  # pre-rotate by the best model so far
             R_pre = (np.ascontiguousarray(best[0], dtype=np.float64),
                      np.ascontiguousarray(best[1], dtype=np.float64))
-        if fused is not None and (R_pre is None or not solver_info(solver).rolling):
+        if fused is not None and (R_pre is None or not len(fused[0])):
             h, sc_h, Rs, Cs, ws, ts, n_bad = ransac_batch(
                 rng.random((K, s)), pool, order, fr.x, fr.X, fr.r, fr.r0e, fr.d, fr.r0,
                 fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min,
                 SCORE_AT_MEASURED_TIME, *bounds)
+            n_implausible += n_bad
+        elif fused is not None:  # the same with the initial model's pre-rotation
+            h, sc_h, Rs, Cs, ws, ts, n_bad = prerotated_batch(
+                rng.random((K, s)), pool, order, R_pre[0], fr.x, fr.X, fr.r, fr.r0e, fr.d,
+                fr.r0, fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points,
+                pre_min, SCORE_AT_MEASURED_TIME, *bounds)
             n_implausible += n_bad
         else:
             samples = order.take(_draw_samples(rng, pool, s, K))
@@ -815,8 +828,10 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             t_lo = time.perf_counter()  # LO-RANSAC: polish every new best on its inliers
             best = (Rs[h], Cs[h], ws[h], ts[h])
             best_score, best_inl = _evaluate(fr, best, th2)
-            best_score, best, best_inl = _local_optimization(fr, solver, best, best_score,
-                                                             best_inl, th2, opts)
+            if not guided:  # (a verification sample that beats the seed is polished by the
+                # final refinement, on every point, like local optimization would)
+                best_score, best, best_inl = _local_optimization(fr, solver, best, best_score,
+                                                                 best_inl, th2, opts)
             t_local += time.perf_counter() - t_lo
             best_count = int(np.count_nonzero(best_inl))
             needed = _required_iterations(

@@ -55,6 +55,7 @@ from numba import njit
 from scipy.stats import chi2
 
 from .._so3 import so3_coefficients
+from .prior import prior_arrays
 
 __all__ = ["FusionOptions", "FusedState", "FusionStep", "TwistFilter", "MODELS"]
 
@@ -185,6 +186,16 @@ class FusionStep:
         if self._current is None and self._make is not None:
             self._current, self._make = self._make(), None
         return self._current
+
+
+class _Measurement:
+    """A frame's measurement: m (12 or 6), orientation O (3, 3), position p, omega, v_cam
+    (3,), covariance R (m, m), acceleration sensitivity G (m, 6) or None."""
+
+    def __init__(self, m, O, p, omega, v, R):
+        self.m, self.O, self.p, self.omega, self.v, self.R = m, O, p, omega, v, R
+        self.G = None
+        self.deprior = False
 
 
 class _Entry:
@@ -354,6 +365,85 @@ def _kalman_update(P, H, y, R):
 
 
 @njit(cache=True)
+def _innovation(O, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
+    """Innovation y (m,) and Jacobian H (m, n) on the newest state of a measurement of
+    (rotation, position[, omega, v_cam = O^T v]); with ``use_G`` (acceleration model) the
+    measurement also moves by ``G (alpha, O^T a)``."""
+    y = np.zeros(m)
+    H = np.zeros((m, n))
+    y[0:3] = _log(zO @ O.T)
+    for i in range(3):
+        y[3 + i] = zp[i] - p[i]
+        H[i, i] = 1.0
+        H[3 + i, 3 + i] = 1.0
+    Ot = np.ascontiguousarray(O.T)
+    if m == 12:
+        vc = Ot @ v
+        A = Ot @ _skew(v)
+        for i in range(3):
+            y[6 + i] = zomega[i] - omega[i]
+            y[9 + i] = zv[i] - vc[i]
+            H[6 + i, 6 + i] = 1.0
+            for j in range(3):
+                H[9 + i, j] = A[i, j]
+                H[9 + i, 9 + j] = Ot[i, j]
+    if use_G:
+        Ga = np.ascontiguousarray(G[:, 3:6]) @ Ot
+        ac = Ot @ a
+        for r in range(m):
+            for j in range(3):
+                H[r, 12 + j] = G[r, j]
+                H[r, 15 + j] = Ga[r, j]
+                y[r] -= G[r, j] * alpha[j] + G[r, 3 + j] * ac[j]
+    return y, H
+
+
+@njit(cache=True)
+def _cholesky_ok(S):
+    """True if the symmetric matrix S is positive definite (Cholesky runs through)."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = S[j, j] - L[j, :j] @ L[j, :j]
+        if not d > 0.0:
+            return False
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            L[i, j] = (S[i, j] - L[i, :j] @ L[j, :j]) / L[j, j]
+    return True
+
+
+@njit(cache=True)
+def _deprior(cov, p, omega, v, mean, info, G):
+    """Take a twist prior (ROS order mean (6,), information (6, 6)) out of a posterior
+    estimate (covariance (12, 12) over (rotation, position, omega, v), values p, omega, v;
+    rotation 0 at the estimate): returns (ok, data values (12,) (rotation relative to the
+    estimate), data covariance (12, 12), data sensitivity (12, 6) from the posterior's G)."""
+    idx = np.array([9, 10, 11, 6, 7, 8])
+    if not _cholesky_ok(cov):
+        return False, np.zeros(12), cov, G
+    L_post = np.linalg.inv(cov)
+    L_d = L_post.copy()
+    mp = np.zeros(12)
+    for a in range(6):
+        mp[idx[a]] = mean[a]
+        for b in range(6):
+            L_d[idx[a], idx[b]] -= info[a, b]
+    L_d = 0.5 * (L_d + L_d.T)
+    if not _cholesky_ok(L_d):
+        return False, np.zeros(12), cov, G
+    R_d = np.linalg.inv(L_d)
+    R_d = 0.5 * (R_d + R_d.T)
+    zp = np.zeros(12)
+    zp[3:6], zp[6:9], zp[9:12] = p, omega, v
+    rhs = L_post @ zp
+    for a in range(6):
+        for b in range(6):
+            rhs[idx[a]] -= info[a, b] * mean[b]
+    return True, R_d @ rhs, R_d, R_d @ (L_post @ G)
+
+
+@njit(cache=True)
 def _camera_covariance(O, v, Pb):
     """(12, 12) covariance of (phi, p, omega, v_cam = O^T v) from the (n, n) block over
     (phi, p, omega, v, ...): ``d v_cam = O^T [v]x phi + O^T dv``."""
@@ -370,7 +460,10 @@ def _camera_covariance(O, v, Pb):
     return 0.5 * (cov + cov.T)
 
 
+_NO_G = np.zeros((12, 6))
 _ROS_POSE = np.ix_([3, 4, 5, 0, 1, 2], [3, 4, 5, 0, 1, 2])
+#: indices of the ROS twist order (vx, vy, vz, wx, wy, wz) in the (12,) output layout
+_TWIST_ROS = np.array([[9], [10], [11], [6], [7], [8]])
 _ROS_TWIST = np.ix_([9, 10, 11, 6, 7, 8], [9, 10, 11, 6, 7, 8])
 
 
@@ -423,12 +516,12 @@ class TwistFilter:
     def _state(self, e: _Entry, P: np.ndarray) -> FusedState:
         """FusedState of one entry with its (n, n) covariance block."""
         cov = _camera_covariance(e.O, e.v, P)
+        # (the entries' arrays are replaced by updates, never changed in place: no copies)
         return FusedState(
-            stamp_ns=e.stamp, orientation=e.O.copy(), position=e.p.copy(),
-            angular_velocity=e.omega.copy(), linear_velocity=e.O.T @ e.v,
-            linear_velocity_world=e.v.copy(), angular_acceleration=e.alpha.copy(),
-            linear_acceleration=e.a.copy(), covariance=cov, fused=e.fused,
-            restarted=e.restarted, smoothed=e.age, nis=e.nis)
+            stamp_ns=e.stamp, orientation=e.O, position=e.p, angular_velocity=e.omega,
+            linear_velocity=e.O.T @ e.v, linear_velocity_world=e.v,
+            angular_acceleration=e.alpha, linear_acceleration=e.a, covariance=cov,
+            fused=e.fused, restarted=e.restarted, smoothed=e.age, nis=e.nis)
 
     def _block(self, i: int) -> np.ndarray:
         n = self.n
@@ -487,11 +580,19 @@ class TwistFilter:
         return out
 
     # ------------------------------------------------------------------ measurement
-    def _measurement(self, est):
-        """(m, R, G) of an estimate: m = 12 with its (12, 12) covariance, 6 (pose only) when
-        it has no twist covariance (global shutter), or None when unusable; R scaled by
-        ``measurement_scale``; G (m, 6) its acceleration sensitivity or None. For the velocity
-        model G's effect is added to R and G is None."""
+    def _measurement(self, est, prior=None):
+        """The measurement an estimate gives: a :class:`_Measurement` with m = 12 (pose and
+        twist with the (12, 12) covariance) or 6 (pose only: no twist covariance, a global
+        shutter), or None when unusable. R is scaled by ``measurement_scale``; G (m, 6) is the
+        acceleration sensitivity or None (the velocity model adds its effect to R instead).
+
+        ``prior``: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
+        refinement used (maximum a posteriori), whose information is taken out again (the
+        filter fuses what the frame's data say: the prior may be the filter's own prediction).
+        At the estimate, posterior information = data information + prior information (in
+        the twist block), so the data-only measurement is ``z_d = L_d^-1 (L_post z_post -
+        L_prior m)`` with ``L_d = L_post - L_prior``, and its sensitivity ``L_d^-1 L_post G``.
+        """
         if not getattr(est, "success", False):
             return None
         cov = getattr(est, "covariance", None)
@@ -501,28 +602,38 @@ class TwistFilter:
         m = 12 if getattr(est, "twist_covariance", None) is not None else 6
         if cov.shape != (12, 12) or not np.isfinite(cov[:m, :m]).all():
             return None
-        R = self.options.measurement_scale * cov[:m, :m]
+        z = _Measurement(m, np.asarray(est.orientation, dtype=float),
+                         np.asarray(est.position, dtype=float),
+                         np.asarray(est.angular_velocity, dtype=float),
+                         np.asarray(est.linear_velocity, dtype=float), cov[:m, :m].copy())
         G = getattr(est, "acceleration_sensitivity", None)
         if G is not None:
             G = np.asarray(G, dtype=float)
-            if G.shape != (12, 6) or not np.isfinite(G).all():
-                G = None
-            else:
-                G = np.ascontiguousarray(G[:m])
+            G = np.ascontiguousarray(G[:m]) if G.shape == (12, 6) and np.isfinite(G).all() \
+                else None
+        if prior is not None and m == 12 and getattr(prior, "enabled", False):
+            _, mean, info = prior_arrays(prior)  # ROS (v, omega) order
+            ok, zd, R_d, G_d = _deprior(z.R, z.p, z.omega, z.v, mean, info,
+                                        G if G is not None else np.zeros((12, 6)))
+            if ok:  # (else the data information is not positive definite: keep the posterior)
+                z = _Measurement(m, _exp(zd[0:3]) @ z.O, zd[3:6], zd[6:9], zd[9:12], R_d)
+                G = G_d if G is not None else None
+                z.deprior = True
+        z.R = np.ascontiguousarray(self.options.measurement_scale * z.R)
         if G is not None and not self._acc:
-            R = R + (G * self._acc_var) @ G.T
+            z.R = z.R + (G * self._acc_var) @ G.T
             G = None
-        return m, np.ascontiguousarray(R), G
+        z.G = G
+        return z
 
-    def _start(self, stamp_ns, est, Rm, G=None) -> None:
+    def _start(self, stamp_ns, z) -> None:
         o = self.options
         n = self.n
-        m = Rm.shape[0]
-        O = np.array(est.orientation, dtype=float)
-        omega = np.array(est.angular_velocity, dtype=float) if m == 12 else np.zeros(3)
-        v = O @ np.asarray(est.linear_velocity, dtype=float) if m == 12 else np.zeros(3)
-        e = _Entry(stamp_ns, O, np.array(est.position, dtype=float), omega, v, np.zeros(3),
-                   np.zeros(3))
+        m, Rm, G = z.m, z.R, z.G
+        O = np.array(z.O, dtype=float)
+        omega = np.array(z.omega, dtype=float) if m == 12 else np.zeros(3)
+        v = O @ z.v if m == 12 else np.zeros(3)
+        e = _Entry(stamp_ns, O, np.array(z.p, dtype=float), omega, v, np.zeros(3), np.zeros(3))
         e.fused, e.restarted = True, True
         P = np.zeros((n, n))
         # the state is z - G (alpha, a_cam) - noise: with the accelerations' prior A,
@@ -553,7 +664,8 @@ class TwistFilter:
         self.P = 0.5 * (P + P.T)
         self.rejections = 0
 
-    def update(self, stamp_ns: int, estimate, relocalized: bool = False) -> FusionStep:
+    def update(self, stamp_ns: int, estimate, relocalized: bool = False,
+               prior=None) -> FusionStep:
         """Fuse one per-frame estimate.
 
         Args:
@@ -564,12 +676,15 @@ class TwistFilter:
                 without a finite covariance is not fused: the frame gets the prediction.
             relocalized: the frame was not found from the previous one (the tracker's
                 relocalization): a measurement the gate rejects restarts the filter at once.
+            prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
+                refinement used, if any (``RSPoseEstimate.motion_prior_used``): its
+                information is removed before fusing (see :meth:`_measurement`).
         Returns:
             :class:`FusionStep`: the filtered state at the frame and the frames now final.
         """
         o = self.options
         n = self.n
-        meas = self._measurement(estimate)
+        meas = self._measurement(estimate, prior)
         flushed = []
         if self.window:
             dt = (int(stamp_ns) - self.window[0].stamp) * 1e-9
@@ -579,7 +694,7 @@ class TwistFilter:
         if not self.window:
             if meas is None:
                 return FusionStep(None, flushed)
-            self._start(stamp_ns, estimate, meas[1], meas[2])
+            self._start(stamp_ns, meas)
             return FusionStep(self._snapshot(), flushed + self._finalize())
         # propagate the newest entry and shift the window (the oldest falls out when full)
         new, F, Q = self._step(self.window[0], dt)
@@ -594,24 +709,9 @@ class TwistFilter:
         self.P = P
         if meas is None:
             return FusionStep(self._snapshot(), self._finalize())
-        m, Rm, G = meas
-        y = np.empty(m)
-        y[0:3] = _log(np.asarray(estimate.orientation, dtype=float) @ new.O.T)
-        y[3:6] = np.asarray(estimate.position, dtype=float) - new.p
-        H = np.zeros((m, n))  # on the newest block only
-        H[0:6, 0:6] = np.eye(6)
-        if m == 12:
-            Ot = new.O.T
-            y[6:9] = np.asarray(estimate.angular_velocity, dtype=float) - new.omega
-            y[9:12] = np.asarray(estimate.linear_velocity, dtype=float) - Ot @ new.v
-            H[6:9, 6:9] = np.eye(3)
-            H[9:12, 0:3] = Ot @ _skew(new.v)
-            H[9:12, 9:12] = Ot
-        if G is not None:  # the estimate moves by G (alpha, O^T a) (acceleration model)
-            Ga = G[:, 3:6] @ new.O.T
-            H[:, 12:15] = G[:, 0:3]
-            H[:, 15:18] = Ga
-            y -= G[:, 0:3] @ new.alpha + Ga @ new.a
+        m, Rm, G = meas.m, meas.R, meas.G
+        y, H = _innovation(new.O, new.p, new.omega, new.v, new.alpha, new.a, meas.O, meas.p,
+                           meas.omega, meas.v, m, n, G if G is not None else _NO_G, G is not None)
         nis, dx, P_upd, ok = _kalman_update(P, H, y, Rm)
         new.nis = nis
         if not (ok and nis <= self._limit[m]):
@@ -619,7 +719,7 @@ class TwistFilter:
             if relocalized or self.rejections > o.max_rejections:
                 new.emitted = True  # the frame restarts the filter instead
                 flushed = self.flush()
-                self._start(stamp_ns, estimate, Rm, G)
+                self._start(stamp_ns, meas)
                 self.window[0].nis = nis
                 return FusionStep(self._snapshot(), flushed + self._finalize())
             return FusionStep(self._snapshot(), self._finalize())
@@ -628,11 +728,8 @@ class TwistFilter:
         for i, e in enumerate(self.window):
             d = dx[i * n:(i + 1) * n]
             e.O = _exp(d[0:3]) @ e.O
-            e.p = e.p + d[3:6]
-            e.omega = e.omega + d[6:9]
-            e.v = e.v + d[9:12]
+            e.p, e.omega, e.v = e.p + d[3:6], e.omega + d[6:9], e.v + d[9:12]
             if self._acc:
-                e.alpha = e.alpha + d[12:15]
-                e.a = e.a + d[15:18]
+                e.alpha, e.a = e.alpha + d[12:15], e.a + d[15:18]
         new.fused = True
         return FusionStep(self._snapshot(), self._finalize())

@@ -51,10 +51,13 @@ def evaluate_outputs(frames, gt, namespaces):
                 out[ns].append(None)
                 continue
             R, p = pose_from_msg(pose[1].pose)
-            w = v = None
-            if twist is not None:
-                w, v = twist_from_msg(twist[1].twist)
-            out[ns].append(frame_errors(R, p, w, v, gt, stamp_to_ns(pose[1].header.stamp)))
+            err = frame_errors(R, p, None, None, gt, stamp_to_ns(pose[1].header.stamp))
+            if twist is not None and err is not None:  # (at the twist's own stamp: a fused
+                w, v = twist_from_msg(twist[1].twist)  # twist may come a frame late)
+                tw = frame_errors(R, p, w, v, gt, stamp_to_ns(twist[1].header.stamp))
+                if tw is not None:
+                    err.update({k: tw[k] for k in ("angvel", "linvel", "angvel_gt") if k in tw})
+            out[ns].append(err)
     return out
 
 
@@ -144,7 +147,8 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
             outs += ("/camera/correspondences_out",)
         res = play(bag, lockstep=True, topics=[frame_topic, cinfo], output_topics=outs,
                    timeout=timeout, retries=1, domain_id=domain,
-                   log=lambda m: print(m, file=out))
+                   log=lambda m: print(m, file=out),
+                   late_topics=tuple(f"{ns}/twist" for ns in nodes))  # (fused: one frame late)
         gt = load_ground_truth(bag)
         errs = evaluate_outputs(res.frames, gt, list(nodes))
         n = len(res.frames)

@@ -23,9 +23,13 @@ Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; over
                      ``image_transport: compressed`` (topic: the resolved ``image`` + /compressed)
 Publications (reliable, depth 10):
     pose                  geometry_msgs/PoseStamped              map_frame, reference-row time
-    twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s
+    twist                 geometry_msgs/TwistStamped             camera frame, rad/s and m/s; with
+                          tracking (default) the fused twist of the frame ``tracking.lag``
+                          frames back, stamped with that frame's time
+    twist_single_frame    geometry_msgs/TwistStamped             the frame's own twist
     pose_with_covariance  geometry_msgs/PoseWithCovarianceStamped
-    odom                  nav_msgs/Odometry
+    odom                  nav_msgs/Odometry                      pose + (fused) twist, with the
+                          twist's stamp
     /tf                   tf2_msgs/TFMessage (if importable and publish_tf)
     /diagnostics          diagnostic_msgs/DiagnosticArray
     correspondences_out   sensor_msgs/PointCloud2 (image mode, ``republish_correspondences``):
@@ -59,7 +63,9 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
-from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size
+from ..estimation.fusion import FusionOptions
+from ..estimation.tracker import RSTracker, TrackerOptions
+from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size, solver_info
 from ..frontends import FRONTENDS
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic, camera_to_base
 from ..frontends.shared import SHARED_MAPS
@@ -143,6 +149,26 @@ PARAMETERS = {
                              _F(from_value=0.01, to_value=1e6, step=0.0), False),
     "max_linear_velocity": (50.0, "m/s; a model moving faster is implausible",
                             _F(from_value=0.01, to_value=1e9, step=0.0), False),
+    "tracking.enabled": (True, "track the camera through the video: predicted RANSAC, "
+                         "relocalization, and twist / odom carry the fused twist (issue 10); "
+                         "false: every frame alone", None, False),
+    "tracking.lag": (1, "frames of smoothing delay of the fused twist: twist / odom of a frame "
+                     "are published when this many later frames have been fused (0: at once, "
+                     "causal filter)", _I(from_value=0, to_value=10, step=1), False),
+    "tracking.max_gap": (0.5, "s; a longer gap between frames (or a stamp going back) resets "
+                         "the track; after this long without frames the pending twists are "
+                         "published", _F(from_value=0.01, to_value=60.0, step=0.0), False),
+    "tracking.gate_px": (20.0, "a point is explained by the prediction within this distance "
+                         "(px); too few explained points: relocalize",
+                         _F(from_value=0.5, to_value=1000.0, step=0.0), False),
+    "tracking.angular_noise": (30.0, "filter process noise: angular jerk density "
+                               "(rad/s^3/sqrt(Hz))", _F(from_value=1e-3, to_value=1e6, step=0.0),
+                               False),
+    "tracking.linear_noise": (5.0, "filter process noise: linear jerk density (m/s^3/sqrt(Hz))",
+                              _F(from_value=1e-3, to_value=1e6, step=0.0), False),
+    "tracking.prior_from_prediction": ("planar", "the estimator's motion prior is the predicted "
+                                       "twist: planar (when the last frame was planar), always "
+                                       "or never", None, False),
     "diagnostics_period": (1.0, "period of /diagnostics (s)",
                            _F(from_value=0.05, to_value=60.0, step=0.0), True),
     "warmup": (True, "solve a synthetic problem at start (JIT compilation)", None, True),
@@ -190,6 +216,18 @@ _IMAGE_QOS = QoSProfile(depth=10, reliability=qos_profile_sensor_data.reliabilit
                         durability=qos_profile_sensor_data.durability,
                         history=qos_profile_sensor_data.history)
 _CAMERA_HISTORY = 32  # camera_info entries kept (distinct calibrations, by stamp)
+
+
+class _Fused:
+    """A frame's published pose (from its estimate) with its fused twist (a
+    :class:`~rs_localizer.estimation.fusion.FusedState`): what twist / odom carry."""
+
+    def __init__(self, est, fused):
+        self.orientation, self.position = est.orientation, est.position
+        self.pose_covariance = est.pose_covariance
+        self.angular_velocity, self.linear_velocity = (fused.angular_velocity,
+                                                       fused.linear_velocity)
+        self.twist_covariance = fused.twist_covariance
 
 
 class _Drop(ValueError):
@@ -264,6 +302,16 @@ class LocalizerCore:
         self.pub_corr_out = None     # correspondences_out, created when first needed
         self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
         self._diag_timer = None
+        # video tracking (issue 10): the tracker, what it was made for, the per-frame outputs
+        # waiting for their fused twist (out stamp -> (pose source, frame id)), the worker's
+        # and the idle-flush timer's lock around them, and counters over trackers
+        self._tracker = None
+        self._tracker_key = None
+        self._pending_out = {}
+        self._track_lock = threading.RLock()
+        self._last_frame_wall = None
+        self._track_counts = Counter()
+        self._flush_timer = None
 
     def _configure(self):
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
@@ -282,6 +330,7 @@ class LocalizerCore:
         self.pub_pwc = self._make_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
                                             rel)
         self.pub_odom = self._make_publisher(Odometry, "odom", rel)
+        self.pub_twist_single = self._make_publisher(TwistStamped, "twist_single_frame", rel)
         self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", rel)
         if getattr(self, "viz", None) is None:  # (declares the viz.* parameters: once)
             self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
@@ -329,6 +378,7 @@ class LocalizerCore:
                     qos_overriding_options=QoSOverridingOptions.with_default_policies())
         self._diag_timer = self.create_timer(
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics)
+        self._flush_timer = self.create_timer(0.05, self._flush_idle_track)
         self._start_worker()
 
     def _start_worker(self):
@@ -364,7 +414,12 @@ class LocalizerCore:
         if self._diag_timer is not None:
             self.destroy_timer(self._diag_timer)
             self._diag_timer = None
+        if self._flush_timer is not None:
+            self.destroy_timer(self._flush_timer)
+            self._flush_timer = None
         self._stop_worker(drop_queued=True)
+        with self._track_lock:  # (a reactivated node starts a new track)
+            self._drop_tracker()
 
     def _log_ready(self):
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
@@ -418,7 +473,20 @@ class LocalizerCore:
                     f"(ransac.min_inliers {opts.min_inliers}, solver {p['solver']}): every "
                     "frame would fail")
         ref = float(p["rs.reference_row"])
+        tracking = None
+        if bool(p["tracking.enabled"]):
+            try:
+                tracking = TrackerOptions(
+                    gate_px=float(p["tracking.gate_px"]),
+                    max_gap=float(p["tracking.max_gap"]),
+                    prior_from_prediction=str(p["tracking.prior_from_prediction"]),
+                    fusion=FusionOptions(lag=int(p["tracking.lag"]),
+                                         angular_noise=float(p["tracking.angular_noise"]),
+                                         linear_noise=float(p["tracking.linear_noise"])))
+            except (TypeError, ValueError) as e:
+                return f"invalid tracking parameters: {e}"
         cfg = {"solver": p["solver"], "options": opts, "line_delay": float(p["rs.line_delay"]),
+               "tracking": tracking,
                "readout_time": float(p["rs.readout_time"]), "direction": p["rs.direction"],
                "reference_row": None if ref < 0 else ref, "stamp_row": float(p["rs.stamp_row"]),
                "map_frame": p["map_frame"], "camera_frame": p["camera_frame"],
@@ -797,19 +865,38 @@ class LocalizerCore:
             uv, xyz = uv[keep], xyz[keep]
             scores = None if scores is None else scores[keep]
         t_decoded = time.perf_counter()
-        try:
-            est = estimate_rs_pose(uv, xyz, camera, solver=cfg["solver"],
-                                   options=cfg["options"], scores=scores)
-        except Exception as e:  # noqa: BLE001 - the node must stay up
-            return self._fail("estimator_error", f"{type(e).__name__}: {e}")
-        t_estimated = time.perf_counter()
-        self.counts["points_dropped"] += int(est.num_dropped)
-        if not est.success:
-            return self._fail(est.failure or "estimator_error",
-                              f"{len(uv)} points, {est.num_inliers} inliers, solver "
-                              f"{cfg['solver']}")
         frame = cfg["camera_frame"] or msg.header.frame_id or "camera"
         mf = cfg["map_frame"]
+        with self._track_lock:
+            final = []
+            try:
+                if cfg["tracking"] is not None:
+                    tracker, final = self._tracker_for(camera, cfg)
+                    r = tracker.process(out_stamp, uv, xyz, camera, scores)
+                    est = r.estimate
+                    final = final + r.final
+                    self._last_frame_wall = time.monotonic()
+                else:
+                    self._drop_tracker()
+                    est = estimate_rs_pose(uv, xyz, camera, solver=cfg["solver"],
+                                           options=cfg["options"], scores=scores)
+            except Exception as e:  # noqa: BLE001 - the node must stay up
+                self._publish_fused(final)
+                return self._fail("estimator_error", f"{type(e).__name__}: {e}")
+            t_estimated = time.perf_counter()
+            self.counts["points_dropped"] += int(est.num_dropped)
+            if not est.success:  # (twists of earlier frames a reset made final still go out)
+                self._publish_fused(final)
+                return self._fail(est.failure or "estimator_error",
+                                  f"{len(uv)} points, {est.num_inliers} inliers, solver "
+                                  f"{cfg['solver']}")
+            self._handle_solved(est, uv, xyz, camera, stamp, out_stamp, frame, mf, final,
+                                arrival, tic, t_decoded, t_estimated)
+
+    def _handle_solved(self, est, uv, xyz, camera, stamp, out_stamp, frame, mf, final,
+                       arrival, tic, t_decoded, t_estimated):
+        """Publish a solved frame (and the fused twists now final), count, time."""
+        cfg = self.cfg
         self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
         self.inliers.append(est.num_inliers)
         self._planar_last = (est.planar, est.condition_number)
@@ -818,12 +905,21 @@ class LocalizerCore:
             out, out_frame = camera_to_base(est, cfg["extrinsic"]), cfg["base_frame"]
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
         self.pub_pose.publish(cv.pose_stamped(out, out_stamp, mf))
-        if self.pub_twist.get_subscription_count():
-            self.pub_twist.publish(cv.twist_stamped(out, out_stamp, out_frame))
+        if self.pub_twist_single.get_subscription_count():
+            self.pub_twist_single.publish(cv.twist_stamped(out, out_stamp, out_frame))
+        # (global-shutter solver or timing: no twist to fuse; twist / odom stay the per-frame,
+        # zero, twist)
+        if (cfg["tracking"] is None or not solver_info(cfg["solver"]).rolling
+                or camera.seconds_per_unit_r <= 0):
+            if self.pub_twist.get_subscription_count():
+                self.pub_twist.publish(cv.twist_stamped(out, out_stamp, out_frame))
+            if self.pub_odom.get_subscription_count():
+                self.pub_odom.publish(cv.odometry(out, out_stamp, mf, out_frame))
+        else:  # twist / odom when the frame's fused twist is final (tracking.lag frames on)
+            self._pending_out[out_stamp] = (est, frame)
+            self._publish_fused(final)
         if self.pub_pwc.get_subscription_count():
             self.pub_pwc.publish(cv.pose_with_covariance_stamped(out, out_stamp, mf))
-        if self.pub_odom.get_subscription_count():
-            self.pub_odom.publish(cv.odometry(out, out_stamp, mf, out_frame))
         if self._tf_pub is not None and self._tf_pub.get_subscription_count():
             self._tf_pub.publish(cv.tf_message(out, out_stamp, mf, out_frame))
         self.viz.publish(est, uv, xyz, camera, stamp, out_stamp, frame, mf)  # (camera frame)
@@ -833,6 +929,66 @@ class LocalizerCore:
         self.stage_times["decode"].append(t_decoded - tic - self._t_frontend)
         self.stage_times["estimate"].append(t_estimated - t_decoded)
         self.stage_times["publish"].append(toc - t_estimated)
+
+    # ------------------------------------------------------------------ tracking
+    def _tracker_for(self, camera, cfg):
+        """The tracker for this camera and configuration: a new one when the solver, the
+        estimator or tracking options or the camera model changed (the old track's pending
+        twists are returned to be published). Returns (tracker, final states)."""
+        key = (cfg["solver"], cfg["options"], cfg["tracking"], id(camera))
+        final = []
+        if self._tracker is None or key != self._tracker_key:
+            if self._tracker is not None:
+                final = self._drop_tracker(flush=True)
+                self._track_counts["resets"] += 1
+            self._tracker = RSTracker(cfg["solver"], cfg["options"], cfg["tracking"])
+            self._tracker_key = key
+            self._tracker_camera = camera  # (keeps id(camera) unique while in use)
+        return self._tracker, final
+
+    def _drop_tracker(self, flush: bool = False):
+        """Forget the tracker (its counters are kept); returns its pending fused states when
+        ``flush``, else drops them with the outputs waiting for them."""
+        final = []
+        t = self._tracker
+        if t is not None:
+            for k in ("frames_tracked", "relocalizations", "resets"):
+                self._track_counts[k] += getattr(t, k)
+            final = t.reset() if flush else []
+        self._tracker = self._tracker_key = None
+        if not flush:
+            self._pending_out.clear()
+        return final
+
+    def _publish_fused(self, final):
+        """twist and odom of frames whose fused state is final: the frame's own pose (as
+        published) with the fused twist and its covariance, stamped with the frame's time."""
+        for f in final:
+            item = self._pending_out.pop(f.stamp_ns, None)
+            if item is None:
+                continue
+            est, frame = item
+            src = _Fused(est, f)
+            out, out_frame = src, frame
+            if self.cfg["extrinsic"] is not None:
+                out, out_frame = camera_to_base(src, self.cfg["extrinsic"]), self.cfg["base_frame"]
+            self.pub_twist.publish(cv.twist_stamped(out, f.stamp_ns, out_frame))
+            self.pub_odom.publish(cv.odometry(out, f.stamp_ns, self.cfg["map_frame"], out_frame))
+        if len(self._pending_out) > 64:  # (never left behind for long: drop the oldest)
+            for k in sorted(self._pending_out)[:-64]:
+                del self._pending_out[k]
+
+    def _flush_idle_track(self):
+        """Timer: after ``tracking.max_gap`` without frames the track is over (the next frame
+        resets it): publish the twists still pending."""
+        if self._tracker is None or self.cfg is None or self.cfg["tracking"] is None:
+            return
+        with self._track_lock:
+            last = self._last_frame_wall
+            if (self._tracker is None or last is None or not self._pending_out
+                    or time.monotonic() - last < self.cfg["tracking"].max_gap):
+                return
+            self._publish_fused(self._tracker.flush())
 
     def _from_correspondences(self, msg, camera, stamp):
         c = read_correspondences(msg)
@@ -946,6 +1102,7 @@ class LocalizerCore:
             "inliers_last": self.inliers[-1] if self.inliers else 0,
             "inliers_mean": f"{np.mean(self.inliers):.1f}" if self.inliers else "0",
             "planar": str(self._planar_last[0]).lower(),
+            **self._tracking_values(),
             "condition_number_last": f"{self._planar_last[1]:.3g}",
             "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
             "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
@@ -974,6 +1131,18 @@ class LocalizerCore:
                        if k.startswith("camera_info_rejected.")})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
+
+    def _tracking_values(self) -> dict:
+        """Diagnostics of video tracking: track_state (tracking, lost or disabled),
+        frames_tracked, relocalizations, resets (over the node's life)."""
+        t = self._tracker
+        tc = self._track_counts
+        on = self.cfg is not None and self.cfg["tracking"] is not None
+        state = ("disabled" if not on else t.track_state if t is not None else "lost")
+        return {"track_state": state,
+                "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
+                "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
+                "resets": tc["resets"] + (t.resets if t else 0)}
 
     def publish_diagnostics(self):
         msg = DiagnosticArray()

@@ -25,7 +25,7 @@ def output_type(topic: str):
     from sensor_msgs.msg import PointCloud2
 
     last = topic.rstrip("/").rsplit("/", 1)[-1]
-    return {"twist": TwistStamped, "odom": Odometry,
+    return {"twist": TwistStamped, "twist_single_frame": TwistStamped, "odom": Odometry,
             "pose_with_covariance": PoseWithCovarianceStamped,
             "correspondences_out": PointCloud2}.get(last, PoseStamped)
 
@@ -66,7 +66,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
          output_topics=("/camera/pose",), timeout: float = 2.0, retries: int = 1,
          wait_subscribers: float = 30.0, reliable: bool = True, context=None, domain_id=None,
          limit: int | None = None, loop: int = 1, stamp_offset_ns: int = 0, messages=None,
-         on_frame=None, log=print) -> PlayResult:
+         on_frame=None, log=print, late_topics=()) -> PlayResult:
     """Publish a bag into the ROS graph.
 
     Args:
@@ -85,6 +85,11 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
             are shifted forward by the bag duration so they keep increasing).
         stamp_offset_ns: added to every header stamp (replaying a bag into a running node).
         messages: preloaded ``iter_messages`` list (benchmarks). on_frame: callback(frame dict).
+        late_topics: output topics (among ``output_topics``) that may be published after later
+            frames (the node's fused twist and odom with ``tracking.lag`` > 0): lock-step does
+            not wait for them; each message goes to the frame with the nearest header stamp
+            (within 1 s), and at the end the player waits up to ``timeout`` for the missing
+            ones. Other outputs go to the frame being waited for, as before.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -112,13 +117,19 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
                 for t, mt in types.items()}
         outputs = {}
         pending = {"frame": None}
+        late = set(late_topics or ())
+        waited = [t for t in output_topics if t not in late]
 
         def make_cb(topic):
             def cb(msg):
-                fr = pending["frame"]
+                s = cv.stamp_to_ns(msg.header.stamp)
+                if topic in late:  # the frame with the nearest stamp
+                    fr = min(result.frames[-64:], key=lambda f: abs(f["stamp"] - s),
+                             default=None)
+                else:
+                    fr = pending["frame"]
                 if fr is None:
                     return
-                s = cv.stamp_to_ns(msg.header.stamp)
                 if abs(s - fr["stamp"]) < 1_000_000_000 and topic not in fr["outputs"]:
                     fr["outputs"][topic] = (time.perf_counter(), msg)
             return cb
@@ -173,13 +184,13 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
                 n_frames += 1
                 frame = {"index": n_frames - 1, "topic": topic, "stamp": _header_stamp(raw),
                          "t_pub": time.perf_counter(), "outputs": {},
-                         "expected": len(output_topics) if lockstep else 0}
+                         "expected": len(waited) if lockstep else 0}
                 result.frames.append(frame)
                 if lockstep:
                     pending["frame"] = frame
                     attempt = 0
                     t_end = time.perf_counter() + timeout
-                    while len(frame["outputs"]) < len(output_topics):
+                    while any(t not in frame["outputs"] for t in waited):
                         now = time.perf_counter()
                         if now >= t_end:
                             if attempt >= retries:
@@ -190,7 +201,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
                                 pubs[t].publish(r)
                             t_end = time.perf_counter() + timeout
                         executor.spin_once(timeout_sec=min(0.01, max(t_end - now, 0)))
-                    if len(frame["outputs"]) == len(output_topics):
+                    if all(t in frame["outputs"] for t in waited):
                         result.answered += 1
                     pending["frame"] = None
                 if on_frame is not None:
@@ -200,9 +211,13 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
             if limit is not None and n_frames >= limit:
                 break
         result.wall_time = time.perf_counter() - wall0
-        # let reliable writers flush the tail
+        # let reliable writers flush the tail (and the late outputs of the last frames come)
         end = time.perf_counter() + 0.2
-        while time.perf_counter() < end:
+        end_late = time.perf_counter() + (timeout if lockstep and late else 0.0)
+        while time.perf_counter() < max(end, end_late):
+            if time.perf_counter() >= end and not any(
+                    t not in f["outputs"] for f in result.frames for t in late):
+                break
             executor.spin_once(timeout_sec=0.02)
     finally:
         executor.remove_node(node)
