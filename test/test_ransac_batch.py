@@ -198,3 +198,40 @@ def test_nonminimal_solve_equals_the_batched_solver_on_the_inliers(solver):
     few[:int(mins[0]) - 1] = True
     ok, *_ = nonminimal_solve(kinds, n_params, mins, few, R, x, X, r, CAM.r0, 2)
     assert not ok[0]
+
+
+@pytest.mark.parametrize("solver", ["r6p_1lin", "r6p_vCt_w", "r6p_joined"])
+def test_prerotated_batch_equals_the_step_by_step_kernels(solver):
+    """A video tracker's batch: every sample pre-rotated by one given rotation (no P3P)."""
+    from rs_localizer.estimation.batch import prerotated_batch
+    from rs_localizer.geometry import rotvec_to_matrix
+
+    f, x, X, r, r0e = _frame_arrays(6)
+    kinds, n_params = fused_kernels(solver)
+    info = solver_info(solver)
+    s = info.sample_size
+    rng = np.random.default_rng(2)
+    th2 = (2.0 / CAM.mean_focal) ** 2
+    order = rng.permutation(len(x)).astype(np.int64)
+    R_pre = np.ascontiguousarray(rotvec_to_matrix(np.array([0.01, -0.02, 0.005])) @ f.R)
+    u = rng.random((24, s))
+    out = prerotated_batch(u, 120, order, R_pre, x, X, r, r0e, CAM.readout_vector, CAM.r0,
+                           kinds, n_params, info.default_iterations or 1, th2, np.inf, 24, 0)
+    h, score, Rs, Cs, ws, ts = out[:6]
+    samples = order[draw_samples(u, 120)]
+    R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
+    xs, Xs, rs = gather_prerotated(samples, R_p, x, X, r)
+    bs = [fn(xs, Xs, rs, CAM.r0, iterations=info.default_iterations or 1) for fn in info.batch]
+    Rs2 = np.concatenate([compose_rotvec(np.ascontiguousarray(q.v), R_p) for q in bs])
+    ok = np.concatenate([q.valid for q in bs])
+    np.testing.assert_array_equal(Rs[ok], Rs2[ok])
+    for a, name in ((Cs, "C"), (ws, "w"), (ts, "t")):
+        np.testing.assert_array_equal(a[ok], np.concatenate([getattr(q, name) for q in bs])[ok])
+    sc, _ = msac_scores(x, X, r0e, CAM.readout_vector, Rs2,
+                        np.ascontiguousarray(np.concatenate([q.C for q in bs])),
+                        np.ascontiguousarray(np.concatenate([q.w for q in bs])),
+                        np.ascontiguousarray(np.concatenate([q.t for q in bs])), th2, ok,
+                        np.inf, True, 24, 0)
+    assert h == int(np.argmin(sc)) and score == sc.min()
+    from rs_localizer.geometry import rotation_angle_deg
+    assert rotation_angle_deg(Rs[h], f.R) < 1.0  # near a good pre-rotation: a good pose

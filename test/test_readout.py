@@ -140,3 +140,18 @@ def test_teleport_and_dropped_frames_in_sequences():
     assert [f.index for f in some] == [0, 1, 4, 5]
     for f in some:  # the frames left are those of the full sequence
         np.testing.assert_array_equal(f.uv, full[f.index].uv)
+
+
+def test_image_source_on_the_rendered_bag(capsys):
+    """data/sample_images: real ArUco detections in rendered RS images (62.5 us/line, a
+    hand-held shake at ~0.6 rad/s rms, 20 frames)."""
+    from conftest import SAMPLE_IMAGES_BAG
+
+    if not (SAMPLE_IMAGES_BAG / "metadata.yaml").exists():
+        pytest.skip("data/sample_images missing")
+    assert cli_main(["calibrate-readout", str(SAMPLE_IMAGES_BAG), "--source", "image",
+                     "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["observable"] and res["frames_used"] == 20
+    err = res["line_delay"] - 62.5e-6
+    assert abs(err) < 0.05 * 62.5e-6 and abs(err) < 3 * res["line_delay_std"], res
