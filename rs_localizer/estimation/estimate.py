@@ -574,10 +574,12 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     if int(np.count_nonzero(inl)) < max(int(model.min_explained), s + 1):
         # a prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains
         # the frame within the gate, not within the threshold: pull it in with
-        # Levenberg-Marquardt on (at most lo_max_points of) the explained points, truncated at
+        # Levenberg-Marquardt on (at most lo_max_points / 3 of) the explained points, truncated at
         # the gate (the seed's local optimization; a good seed is left to the final
         # refinement)
-        idx = np.flatnonzero(near)[:max(opts.lo_max_points, 2 * s)]
+        # (a third of the local-optimization subset is plenty to pull a prediction in: the
+        # final refinement fits every point)
+        idx = np.flatnonzero(near)[:max(opts.lo_max_points // 3, 2 * s)]
         ref = refine_rs_pose(R, C, w, t, fr.X[idx], fr.x[idx], fr.r[idx] - fr.r0, np.sqrt(th2),
                              rolling_shutter=rolling,
                              max_iterations=2 * opts.lo_refine_iterations, covariance=False,

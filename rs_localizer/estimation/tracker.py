@@ -110,7 +110,7 @@ class TrackResult:
             as :func:`estimate_rs_pose` returns it; ``success=False`` for a bad frame.
         state: ``cold``, ``tracked``, ``relocalized`` or ``reset`` (see :data:`STATES`).
         fused: the filter's causal state at this frame (``None`` if the frame failed or the
-            filter has no state).
+            filter has no state; computed on first access).
         final: fused states that became final with this frame, oldest first (the frame
             ``lag`` frames back; on a reset, the frames still pending). Each is a
             :class:`~rs_localizer.estimation.fusion.FusedState` whose ``stamp_ns`` names its
@@ -121,10 +121,14 @@ class TrackResult:
 
     estimate: RSPoseEstimate
     state: str
-    fused: FusedState | None = None
+    step: object = field(default=None, repr=False)  # the filter's FusionStep (lazy ``fused``)
     final: list = field(default_factory=list)
     predicted: FusedState | None = None
     explained: int = -1
+
+    @property
+    def fused(self) -> FusedState | None:
+        return None if self.step is None else self.step.current
 
 
 def model_from_state(state: FusedState, camera: CameraModel):
@@ -278,4 +282,4 @@ class RSTracker:
         self._planar = bool(est.planar)
         step = self.filter.update(stamp_ns, est, relocalized=state == "relocalized",
                                   prior=opts.motion_prior if est.motion_prior_used else None)
-        return TrackResult(est, state, step.current, final + step.final, predicted, explained)
+        return TrackResult(est, state, step, final + step.final, predicted, explained)
