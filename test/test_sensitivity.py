@@ -86,3 +86,52 @@ def test_degenerate_input_gives_none(n):
     z = np.zeros(3)
     assert acceleration_sensitivity(np.eye(3), z, z, z, np.zeros((n, 3)), np.zeros((n, 2)),
                                     np.zeros(n), 0.03, 1e-3) is None
+
+
+@pytest.mark.parametrize("max_iterations", [0, 1, 10])
+def test_refinement_block_equals_a_separate_pass(max_iterations):
+    """``refine_rs_pose(acceleration_block=True)`` gives J^T W D at its result: the same
+    sensitivity as a separate pass over the points (also after a rejected last step), and
+    J^T W D equal to one built with NumPy from the exact Jacobian (finite differences)."""
+    from rs_localizer.estimation.refine import exact_residuals
+
+    rng = np.random.default_rng(3)
+    s, n = 0.03, 200
+    R = rotvec_to_matrix(np.array([0.2, 0.1, -0.1]))
+    C = np.array([0.1, 0.3, 0.5])
+    w = np.array([0.01, 0.02, -0.01])
+    t = np.array([0.01, -0.02, 0.005])
+    Xc = np.stack([rng.uniform(-3, 3, n), rng.uniform(-2, 2, n), rng.uniform(3, 9, n)], 1)
+    X = (Xc - C) @ R
+    tau = rng.uniform(-0.4, 0.4, n)
+    p = Xc + tau[:, None] * t  # (a slightly wrong model: residuals, Huber weights < 1)
+    x = p[:, :2] / p[:, 2:] + rng.normal(0, 1.5e-3, (n, 2))
+    x[:20] += 0.05  # outliers beyond the cutoff
+    th = 2e-3
+    ref = refine_rs_pose(R, C, w, t, X, x, tau, th, max_iterations=max_iterations,
+                         cutoff=5 * th, acceleration_block=True)
+    B = ref.acceleration_block
+    assert B.shape == (12, 6)
+    Hinv = ref.covariance / ref.sigma**2
+    fast = acceleration_sensitivity(ref.R, ref.C, ref.w, ref.t, X, x, tau, s, th,
+                                    cutoff=5 * th, normal_inverse=Hinv, acceleration_block=B)
+    slow = acceleration_sensitivity(ref.R, ref.C, ref.w, ref.t, X, x, tau, s, th,
+                                    cutoff=5 * th, normal_inverse=Hinv)
+    np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-12 * np.abs(slow).max())
+    # independent: J^T W D with J from finite differences of the exact residuals, Huber
+    # weights on the image distance, points beyond the cutoff left out
+    theta0 = np.concatenate([np.zeros(3), ref.C, ref.w, ref.t])
+    r0 = exact_residuals(theta0, ref.R, X, x, tau).reshape(-1, 2)
+    e = np.linalg.norm(r0, axis=1)
+    wgt = np.where(e <= th, 1.0, th / e) * (e <= 5 * th)
+    J = np.empty((2 * n, 12))
+    h = 1e-7
+    for j in range(12):
+        d = np.zeros(12)
+        d[j] = h
+        J[:, j] = (exact_residuals(theta0 + d, ref.R, X, x, tau)
+                   - exact_residuals(theta0 - d, ref.R, X, x, tau)) / (2 * h)
+    W = np.repeat(wgt, 2)
+    D = 0.5 * np.repeat(tau, 2)[:, None] * J[:, 6:12]
+    np.testing.assert_allclose(B, (J * W[:, None]).T @ D, rtol=1e-5,
+                               atol=1e-6 * np.abs(B).max())

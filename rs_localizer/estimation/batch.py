@@ -33,17 +33,32 @@ def fused_kernels(solver: str):
     """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
     when the solver has no fused path: R6P (a variable number of roots per sample), a batched
     solver without a kernel id, or a P3P backend other than our Lambda Twist
-    (``RS_LOCALIZER_P3P``, for comparisons). Raises ValueError for an unknown solver."""
+    (``RS_LOCALIZER_P3P``, for comparisons). The arrays are shared between calls: do not
+    modify them (they stay writable: numba compiles a read-only array as another type).
+    Raises ValueError for an unknown solver."""
+    out = _FUSED.get(solver)
+    if out is None:
+        out = _FUSED[solver] = _fused_kernels(solver)
+    return out if out != () else None
+
+
+#: fused_kernels per solver (``()``: none); the registry and the backend are fixed at import
+_FUSED: dict = {}
+
+
+def _fused_kernels(solver: str):
     info = solver_info(solver)
     if DEFAULT_BACKEND != "lambda_twist":
-        return None
+        return ()
     if info.hypotheses == GLOBAL_SHUTTER:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
-    if ids is None:
-        return None
-    return (np.array([k[0] for k in ids], dtype=np.int64),
-            np.array([k[1] for k in ids], dtype=np.int64))
+        out = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    else:
+        ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
+        if ids is None:
+            return ()
+        out = (np.array([k[0] for k in ids], dtype=np.int64),
+               np.array([k[1] for k in ids], dtype=np.int64))
+    return out
 
 
 @njit(cache=True)

@@ -516,7 +516,7 @@ PRIOR_CONFLICT = 16.81
 PRIOR_NEGLIGIBLE = 0.01
 
 
-def _final_refinement(fr: _Frame, model, th, rolling, prior):
+def _final_refinement(fr: _Frame, model, th, rolling, prior, acceleration=False):
     """The final refinement, on every point of the frame with the truncated Huber loss of
     local optimization (scale ``th``, points beyond ``FINAL_CUTOFF * th`` ignored and the set
     re-selected at every iteration): fitting only RANSAC's inliers (the points inside ``th``)
@@ -537,7 +537,8 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
     th = float(th)
     cut = FINAL_CUTOFF * th
     ref = refine_rs_pose(*model, X, x, tau, th, rolling_shutter=rolling, prior=fr.prior,
-                         seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL)
+                         seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL,
+                         acceleration_block=acceleration)
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None
     # (NaN in a failed refinement makes both tests false: the ML result stays)
@@ -546,7 +547,8 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior):
         return ref, False
     start = (ref.R, ref.C, ref.w, ref.t)
     return refine_rs_pose(*start, X, x, tau, th, rolling_shutter=rolling, prior=prior,
-                          seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL), True
+                          seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL,
+                          acceleration_block=acceleration), True
 
 
 def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: EstimateOptions):
@@ -570,7 +572,12 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     if explained < max(int(model.min_explained), 1):
         return explained, None
     best = (R, C, w, t)
-    score, inl = _evaluate(fr, best, th2)
+    # (what _evaluate gives, from the errors at hand: msac_evaluate's score and inliers)
+    if fr.motion_bounds is not None and not plausible_motion(R, C, w, t, fr.motion_bounds):
+        score, inl = np.inf, np.zeros(len(fr.x), dtype=bool)
+    else:
+        inl = e2 < th2
+        score = float(np.minimum(e2, th2).sum())
     if int(np.count_nonzero(inl)) < max(int(model.min_explained), s + 1):
         # a prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains
         # the frame within the gate, not within the threshold: pull it in with
@@ -857,8 +864,9 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     tau = fr.r - fr.r0
     prior_used = fr.prior is not None
     if opts.refine:
+        want_sens = bool(opts.acceleration_sensitivity and rolling and spr > 0)
         ref, prior_used = _final_refinement(fr, (R, C, w, t), th, rolling,
-                                            prior if prior_on else None)
+                                            prior if prior_on else None, want_sens)
         cand = (ref.R, ref.C, ref.w, ref.t)
         if np.isfinite(ref.R).all() and np.isfinite(np.concatenate(cand[1:])).all():
             R, C, w, t = cand
@@ -871,11 +879,13 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         else:
             return _fail("too_few_inliers", solver, n_in, N, n_dropped, iters, timings)
         rmse = float(rms * fr.f)
-        if opts.acceleration_sensitivity and rolling and spr > 0:
-            # on the final refinement's points (all, truncated) and its (posterior) H
+        if want_sens:
+            # on the final refinement's points (all, truncated) and its (posterior) H, with
+            # J^T W D from its last Jacobian
             sens = acceleration_sensitivity(
                 R, C, w, t, fr.X, fr.x, tau, spr, th, cutoff=FINAL_CUTOFF * th,
-                normal_inverse=None if cov12 is None else cov12 / ref.sigma**2)
+                normal_inverse=None if cov12 is None else cov12 / ref.sigma**2,
+                acceleration_block=ref.acceleration_block)
     else:
         rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True,
                                              SCORE_AT_MEASURED_TIME)[inl])) * fr.f)

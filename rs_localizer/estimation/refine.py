@@ -292,6 +292,26 @@ def _normal_matrix(Jt, m, G, H, g):
 
 
 @njit(cache=True)
+def _acceleration_block(Jt, m, B):
+    """B (12, 6) overwritten with ``J^T W D`` over the m used points of :func:`_evaluate`,
+    D the columns of an in-readout acceleration (beta, b): ``tau / 2`` times the w and t
+    columns of J (see :mod:`.sensitivity`). A point's ``tau`` is read back from its rows
+    (``Jt[9] / Jt[3]`` of its even column: ``tau d / d``, ``d > 0`` for a used point)."""
+    for a in range(12):
+        for b in range(6):
+            B[a, b] = 0.0
+    for j in range(m):
+        c0 = 2 * j
+        h = 0.5 * Jt[9, c0] / Jt[3, c0]
+        for c in range(c0, c0 + 2):
+            for a in range(12):
+                ra = Jt[a, c] * h
+                if ra != 0.0:
+                    for b in range(6):
+                        B[a, b] += ra * Jt[6 + b, c]
+
+
+@njit(cache=True)
 def _workspace(n):
     """Workspace (Jt (16, 2n), G (16, 16)) of :func:`_evaluate` and :func:`_normal_matrix`
     for n points, with the entries of Jt never written set to zero (padding rows 13-15,
@@ -480,7 +500,7 @@ def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
 
 @njit(cache=True)
 def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out,
-               prior_on, mu, Lam, s, noise2):
+               prior_on, mu, Lam, s, noise2, want_acc):
     """The whole Levenberg-Marquardt loop of :func:`refine_rs_pose` (arguments as there;
     n_free 12 or 6, the latter keeping w, t fixed; inputs are not modified).
 
@@ -491,8 +511,10 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
     log-posterior. Without it the computation is exactly the maximum-likelihood one.
 
     Writes R (row-major), C, w, t and, if ``want_cov``, the (12, 12) covariance (row-major)
-    and the data's (12, 12) ``J^T W J`` (without the prior) into out (306,). Returns (sigma,
-    success, nfev); sigma NaN unless ``want_cov``.
+    and the data's (12, 12) ``J^T W J`` (without the prior) into out (306,), and if
+    ``want_acc`` (with ``want_cov``) the (12, 6) ``J^T W D`` of :func:`_acceleration_block`
+    at the result into out[306:378] (out then (378,)). Returns (sigma, success, nfev); sigma
+    NaN unless ``want_cov``.
     """
     H = np.empty((12, 12))
     g = np.empty(12)
@@ -502,6 +524,7 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
     M = np.empty((12, 12))
     Jt, G = _workspace(X.shape[0])
     m, cost, ss, n_in = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
+    current = True  # Jt holds the rows at (R, C, w, t) (not at a rejected step)
     use_prior = prior_on and n_free == 12
     sp2 = 0.0
     if use_prior:
@@ -531,13 +554,15 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
         else:
             wn = w
             tn = t
-        m, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt)
+        mn, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt)
+        current = False
         if use_prior:
             cn += _prior_terms(Cn, wn, tn, s, mu, Lam, sp2, H, g, False)
         nfev += 1
         if cn <= cost:
             rel = (cost - cn) / (1e-300 if 1e-300 > cost else cost)
-            R, C, w, t, cost, ss, n_in = Rn, Cn, wn, tn, cn, ssn, n_inn
+            R, C, w, t, cost, ss, n_in, m = Rn, Cn, wn, tn, cn, ssn, n_inn, mn
+            current = True
             lam = max(lam / 10, 1e-12)
             success = True
             last = rel < tol or it == max_iterations - 1
@@ -587,6 +612,13 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
                     out[18 + 12 * i + j] = sigma2 * B[i, j]
                 else:
                     out[18 + 12 * i + j] = 0.0
+        if want_acc:
+            if not current:  # (the last step was rejected: rows at the result again)
+                m, _, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
+            _acceleration_block(Jt, m, A)
+            for i in range(12):
+                for j in range(6):
+                    out[306 + 6 * i + j] = A[i, j]
     return sigma, success, nfev
 
 
@@ -627,19 +659,22 @@ class RefineResult:
 
     ``data_information``: (12, 12) ``J^T W J`` of the data alone at the optimum (normalized
     units; divide by ``sigma^2`` for the Fisher information), when a covariance was computed,
-    else ``None``."""
+    else ``None``. ``acceleration_block``: (12, 6) ``J^T W D`` when asked for
+    (:func:`refine_rs_pose`), else ``None``."""
 
     def __init__(self, R, C, w, t, covariance, sigma, success, nfev):
         self.R, self.C, self.w, self.t = R, C, w, t
         self.covariance, self.sigma, self.success, self.nfev = covariance, sigma, success, nfev
         self.data_information = None
+        self.acceleration_block = None
 
 
 def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter: bool = True,
                    max_iterations: int = 10, tol: float = 1e-10,
                    covariance: bool = True, cutoff: float = np.inf,
                    prior: MotionPrior | None = None, seconds_per_unit_r: float = 0.0,
-                   noise: float | None = None) -> RefineResult:
+                   noise: float | None = None, acceleration_block: bool = False
+                   ) -> RefineResult:
     """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model.
 
     Args:
@@ -660,6 +695,10 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
             ``None``: estimated from the residuals at the start
             (``sum e^2 / (2 n - 12)`` over the points inside ``loss_scale``, corrected for
             that truncation like the covariance's sigma).
+        acceleration_block: also return ``J^T W D`` (12, 6) at the result (with
+            ``covariance``; rolling shutter), D the columns of an in-readout acceleration:
+            what :func:`~rs_localizer.estimation.sensitivity.acceleration_sensitivity` needs,
+            from the refinement's last Jacobian instead of another pass over the points.
     Returns:
         :class:`RefineResult`; the covariance is ``sigma^2 H^-1`` over (delta, C, w, t) at the
         optimum (zero rows/columns for fixed parameters), ``sigma^2`` the residual variance of
@@ -674,7 +713,9 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
     """
     f64 = np.float64
     nf = 12 if rolling_shutter else 6
-    out = np.empty(306)  # R (row-major), C, w, t, covariance, J^T W J (row-major)
+    want_acc = bool(acceleration_block and covariance and rolling_shutter)
+    # R (row-major), C, w, t, covariance, J^T W J (row-major)[, J^T W D (row-major)]
+    out = np.empty(378 if want_acc else 306)
     on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
     noise2 = -1.0 if noise is None else float(noise) ** 2
     sigma, success, nfev = _lm_refine(
@@ -684,12 +725,14 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
         np.ascontiguousarray(X, dtype=f64), np.ascontiguousarray(x, dtype=f64),
         np.ascontiguousarray(tau, dtype=f64), float(loss_scale), nf, float(cutoff),
         int(max_iterations), float(tol), bool(covariance), out,
-        on, mu, Lam, float(seconds_per_unit_r) if on else 1.0, noise2)
+        on, mu, Lam, float(seconds_per_unit_r) if on else 1.0, noise2, want_acc)
     cov = out[18:162].reshape(12, 12) if covariance else None
     res = RefineResult(out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov,
                        float(sigma), success, nfev)
     if covariance:
         res.data_information = out[162:306].reshape(12, 12)
+    if want_acc:
+        res.acceleration_block = out[306:378].reshape(12, 6)
     return res
 
 

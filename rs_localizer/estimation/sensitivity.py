@@ -130,8 +130,8 @@ def output_jacobian(R, C, w, seconds_per_unit_r: float) -> np.ndarray:
 
 def acceleration_sensitivity(R, C, w, t, X, x, tau, seconds_per_unit_r: float,
                              loss_scale: float, cutoff: float = np.inf,
-                             normal_inverse=None, max_points: int | None = None
-                             ) -> np.ndarray | None:
+                             normal_inverse=None, max_points: int | None = None,
+                             acceleration_block=None) -> np.ndarray | None:
     """First-order change of a frame's estimate per unit of in-readout acceleration.
 
     Args:
@@ -150,6 +150,9 @@ def acceleration_sensitivity(R, C, w, t, X, x, tau, seconds_per_unit_r: float,
             ``max_points`` points only and scaled by ``N / max_points`` (points in random
             order). Faster but coarse: on the synthetic shake 150 of 500 points removed only
             half as much of the acceleration's effect as all of them; the estimator uses all.
+        acceleration_block: optional (12, 6) ``J^T W D`` at the estimate over the same
+            points (``RefineResult.acceleration_block`` of the refinement that produced it),
+            used with ``normal_inverse`` instead of another pass over the points.
     Returns:
         (12, 6): rows as ``RSPoseEstimate.covariance`` (rotation, position, angular velocity,
         linear velocity), columns per (angular acceleration [rad/s^2], linear acceleration
@@ -166,6 +169,11 @@ def acceleration_sensitivity(R, C, w, t, X, x, tau, seconds_per_unit_r: float,
         Hinv = np.asarray(normal_inverse, dtype=f64)
         if Hinv.shape != (12, 12) or not np.isfinite(Hinv).all():
             Hinv = None
+    if Hinv is not None and acceleration_block is not None:
+        B = np.asarray(acceleration_block, dtype=f64)
+        if B.shape == (12, 6) and np.isfinite(B).all():
+            out = _physical(np.ascontiguousarray(Hinv @ B), R, C, w, s)
+            return out if np.isfinite(out).all() else None
     n = len(X)
     m = n if (Hinv is None or max_points is None) else min(n, max(int(max_points), 1))
     H, B = _normal_blocks(R, C, w, t, np.ascontiguousarray(X[:m], dtype=f64),
