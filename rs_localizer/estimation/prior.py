@@ -228,15 +228,23 @@ def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noi
 
 
 @njit(cache=True)
-def _conflict(cov12, C, w, t, s, mean, Lam):
-    # z = (v, omega) = ((w x C - t) / s, -w / s) and its Jacobian Jz (6, 12) over
-    # (delta, C, w, t) (README "Conventions")
+def model_twist(C, w, t, s):
+    """(6,) the camera's velocities ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (ROS twist
+    order; m/s, rad/s, camera frame) from the model's C, w, t per unit r and ``s`` seconds per
+    unit r (README "Conventions")."""
     z = np.empty(6)
     z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
     z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
     z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
     for a in range(3):
         z[3 + a] = -w[a] / s
+    return z
+
+
+@njit(cache=True)
+def model_twist_jacobian(C, w, s):
+    """(6, 12) Jacobian of :func:`model_twist` over the model's (delta, C, w, t):
+    ``dv/dC = [w]x / s``, ``dv/dw = -[C]x / s``, ``dv/dt = -I / s``, ``domega/dw = -I / s``."""
     Jz = np.zeros((6, 12))
     Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
     Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
@@ -247,6 +255,13 @@ def _conflict(cov12, C, w, t, s, mean, Lam):
     for a in range(3):
         Jz[a, 9 + a] = -1.0 / s
         Jz[3 + a, 6 + a] = -1.0 / s
+    return Jz
+
+
+@njit(cache=True)
+def _conflict(cov12, C, w, t, s, mean, Lam):
+    z = model_twist(C, w, t, s)
+    Jz = model_twist_jacobian(C, w, s)
     S = Jz @ cov12 @ Jz.T
     d = z - mean
     # (S + Lam^-1)^-1 = Lam (I + S Lam)^-1, defined for a singular Lam too

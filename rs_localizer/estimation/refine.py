@@ -20,7 +20,7 @@ from numba import njit
 
 from .._so3 import FMA, rotate_left_into, so3_coefficients
 from ..geometry import rotvec_to_matrix, skew
-from .prior import MotionPrior, prior_arrays
+from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
 __all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
            "refine_rs_pose_scipy", "untruncated_variance",
@@ -460,30 +460,13 @@ def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
     ``v = (w x C - t) / s``, ``omega = -w / s``; ROS twist order). If ``add``, adds its
     Gauss-Newton terms ``scale2 Jz^T Lam Jz`` to H (12, 12) and ``scale2 Jz^T Lam (z - mu)`` to
     g (12,), Jz (6, 12) the Jacobian of z w.r.t. (delta, C, w, t). Returns the cost."""
-    z = np.empty(6)
-    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
-    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
-    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
-    z[3] = -w[0] / s
-    z[4] = -w[1] / s
-    z[5] = -w[2] / s
-    dz = z - mu
+    dz = model_twist(C, w, t, s) - mu
     Ld = Lam @ dz
     cost = 0.0
     for a in range(6):
         cost += dz[a] * Ld[a]
     if add:
-        # Jz: dv/dC = [w]x / s, dv/dw = -[C]x / s, dv/dt = -I / s, domega/dw = -I / s
-        Jz = np.zeros((6, 12))
-        Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
-        Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
-        Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
-        Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
-        Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
-        Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
-        for a in range(3):
-            Jz[a, 9 + a] = -1.0 / s
-            Jz[3 + a, 6 + a] = -1.0 / s
+        Jz = model_twist_jacobian(C, w, s)
         LJ = Lam @ Jz
         for i in range(3, 12):
             gi = 0.0
