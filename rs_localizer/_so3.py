@@ -59,3 +59,12 @@ def compose_rotvec(v, R_pre):
     for k in range(K):
         rotate_left_into(v[k, 0], v[k, 1], v[k, 2], R_pre[k], out[k])
     return out
+
+
+@njit(cache=True)
+def skew_matrix(v):
+    """``[v]x`` (3, 3), a new array, of a 3-vector ``v`` (3,): ``[v]x a = v x a``."""
+    S = np.zeros((3, 3))
+    S[0, 1], S[0, 2], S[1, 2] = -v[2], v[1], -v[0]
+    S[1, 0], S[2, 0], S[2, 1] = v[2], -v[1], v[0]
+    return S

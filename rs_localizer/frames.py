@@ -131,6 +131,16 @@ def base_twist(angular_velocity, linear_velocity, extrinsic: Extrinsic):
     return om_b, v_b + np.cross(extrinsic.translation, om_b)
 
 
+def _covariance6(cov, what: str):
+    """``cov`` as a (6, 6) float array (``None`` stays ``None``); ValueError if not 6x6."""
+    if cov is None:
+        return None
+    cov = np.asarray(cov, dtype=float)
+    if cov.shape != (6, 6):
+        raise ValueError(f"{what} covariance must be 6x6, got {cov.shape}")
+    return cov
+
+
 def base_pose_covariance(cov, orientation, extrinsic: Extrinsic):
     """(6, 6) camera pose covariance (ROS order, map frame, map-axis rotation perturbation) ->
     base pose covariance in the same convention (first order). ``None`` stays ``None``.
@@ -140,11 +150,9 @@ def base_pose_covariance(cov, orientation, extrinsic: Extrinsic):
     Raises:
         ValueError: ``cov`` is not 6x6.
     """
+    cov = _covariance6(cov, "pose")
     if cov is None:
         return None
-    cov = np.asarray(cov, dtype=float)
-    if cov.shape != (6, 6):
-        raise ValueError(f"pose covariance must be 6x6, got {cov.shape}")
     a = np.asarray(orientation, dtype=float) @ extrinsic.rotation.T @ extrinsic.translation
     J = np.eye(6)
     J[0:3, 3:6] = skew(a)
@@ -158,11 +166,9 @@ def base_twist_covariance(cov, extrinsic: Extrinsic):
     Raises:
         ValueError: ``cov`` is not 6x6.
     """
+    cov = _covariance6(cov, "twist")
     if cov is None:
         return None
-    cov = np.asarray(cov, dtype=float)
-    if cov.shape != (6, 6):
-        raise ValueError(f"twist covariance must be 6x6, got {cov.shape}")
     R, t = extrinsic.rotation, extrinsic.translation
     J = np.zeros((6, 6))
     J[0:3, 0:3] = R

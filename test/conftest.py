@@ -93,6 +93,30 @@ def start_node(tmp_path, params=None, namespace="/camera", name="node", ready_ti
     return node
 
 
+def stop_node(node, *probes):
+    """Close ``probes``, then stop ``node``: ``(alive, rc)``, whether it was still running and
+    its exit code. Call it in ``finally`` and assert after it (``assert alive and rc == 0,
+    node.log``), so that a failure in the test body is not masked."""
+    for p in probes:
+        p.close()
+    alive = node.alive()
+    return alive, node.stop()
+
+
+def assert_dropped(node, st, v, expected):
+    """Each ``reason: n`` of ``expected`` is counted ``n`` times in the diagnostics values ``v``
+    (``failed.<reason>``) and logged as ``frame dropped (<reason>)``; the diagnostic status
+    ``st`` warns and the node is alive. Returns the node's log."""
+    for reason, n in expected.items():
+        assert int(v.get(f"failed.{reason}", 0)) == n, (reason, v)
+    assert st.level == st.WARN
+    assert node.alive()
+    log = node.log
+    for reason in expected:
+        assert f"frame dropped ({reason})" in log, reason
+    return log
+
+
 class Probe:
     """Test-side ROS node: publishes inputs (reliable) and records the node's outputs."""
 

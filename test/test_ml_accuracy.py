@@ -6,25 +6,13 @@ do on these frames."""
 
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
 
 from rs_localizer.estimation.estimate import estimate_rs_pose, physical_velocities
-from rs_localizer.estimation.refine import exact_jacobian, exact_residuals
-from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.evaluation.bench import ml_fit
+from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 
 CAM = paper_camera()
-
-
-def ml_fit(f):
-    """(R, C, w, t): least squares on the generator's inliers, from the ground truth."""
-    X, x, tau = f.X[f.inlier], f.x[f.inlier], f.r[f.inlier] - f.r0
-    theta0 = np.concatenate([np.zeros(3), f.C, f.w, f.t])
-    res = least_squares(lambda p: exact_residuals(p, f.R, X, x, tau), theta0,
-                        jac=lambda p: exact_jacobian(p, f.R, X, x, tau), method="lm",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
-    th = res.x
-    return rotvec_to_matrix(th[:3]) @ f.R, th[3:6], th[6:9], th[9:12]
 
 
 @pytest.fixture(scope="module")

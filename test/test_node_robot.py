@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import start_node  # noqa: E402
+from conftest import start_node, stop_node  # noqa: E402
 
 OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_covariance")
 
@@ -84,8 +84,7 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
                         np.reshape(odom.twist.covariance, (6, 6))):
                 assert np.isfinite(cov).all() and (np.diag(cov) > 0).all()
     finally:
-        alive = node.alive()
-        rc = node.stop()
+        alive, rc = stop_node(node)
     assert alive and rc == 0, node.log
 
 
@@ -175,9 +174,7 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
         assert int(v["frames_solved"]) == n_good and int(v["failed.bad_image"]) == n_bad, v
         assert "truncated JPEG" in node.log or "does not decode" in node.log, node.log
     finally:
-        probe.close()
-        alive = node.alive()
-        rc = node.stop()
+        alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
 
 
@@ -329,9 +326,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
     finally:
         if params is not None:
             params.close()
-        probe.close()
-        alive = node.alive()
-        rc = node.stop()
+        alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
 
 
@@ -388,10 +383,7 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
             assert int(v["frames_received"]) == 2, (ns, v, node.log)
         assert node.log.count("] ready:") == 3 or node.log.count("]: ready:") == 3
     finally:
-        for pr in probes.values():
-            pr.close()
-        alive = node.alive()
-        rc = node.stop()
+        alive, rc = stop_node(node, *probes.values())
     assert alive and rc == 0, node.log
 
 

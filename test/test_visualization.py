@@ -20,7 +20,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, start_node  # noqa: E402
+from conftest import Probe, start_node, stop_node  # noqa: E402
 from test_viz import K, _frame  # noqa: E402
 
 from rs_localizer.camera import CameraModel  # noqa: E402
@@ -242,9 +242,7 @@ def test_node_publishes_visualization(tmp_path, ros_context):
             assert stamp_to_ns(path.poses[-1].header.stamp) == f.t_ref_ns
             assert path.poses[-1].pose == pose.pose
     finally:
-        probe.close()
-        alive = node.alive()
-        rc = node.stop()
+        alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
 
 

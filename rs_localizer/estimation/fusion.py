@@ -54,7 +54,7 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from .._so3 import so3_coefficients
+from .._so3 import skew_matrix, so3_coefficients
 from .prior import prior_arrays
 
 __all__ = ["FusionOptions", "FusedState", "FusionStep", "TwistFilter", "MODELS"]
@@ -218,19 +218,10 @@ class _Entry:
 # (the filter runs once per frame next to a ~1 ms estimator: NumPy's per-call overhead on
 # 3x3 to 36x36 matrices would cost more than the arithmetic)
 @njit(cache=True)
-def _skew(v):
-    """``[v]x`` (3, 3)."""
-    S = np.zeros((3, 3))
-    S[0, 1], S[0, 2], S[1, 2] = -v[2], v[1], -v[0]
-    S[1, 0], S[2, 0], S[2, 1] = v[2], -v[1], v[0]
-    return S
-
-
-@njit(cache=True)
 def _exp(theta):
     """``expm([theta]x)`` (3, 3) (Rodrigues)."""
     a, b, _ = so3_coefficients(theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2)
-    K = _skew(theta)
+    K = skew_matrix(theta)
     return np.eye(3) + a * K + b * (K @ K)
 
 
@@ -276,7 +267,7 @@ def _transition(O, p, omega, v, alpha, a, dt, acc, qa, ql):
     h = 0.5 * dt * dt
     theta = omega * dt + h * alpha if acc else omega * dt
     c1, c2, c3 = so3_coefficients(theta @ theta)
-    K = _skew(theta)
+    K = skew_matrix(theta)
     K2 = K @ K
     On = O @ (np.eye(3) + c1 * K + c2 * K2)
     Jr = np.eye(3) - c2 * K + c3 * K2  # right Jacobian: expm(th + d) ~ expm(th) expm(Jr d)
@@ -379,7 +370,7 @@ def _innovation(O, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
     Ot = np.ascontiguousarray(O.T)
     if m == 12:
         vc = Ot @ v
-        A = Ot @ _skew(v)
+        A = Ot @ skew_matrix(v)
         for i in range(3):
             y[6 + i] = zomega[i] - omega[i]
             y[9 + i] = zv[i] - vc[i]
@@ -450,7 +441,7 @@ def _camera_covariance(O, v, Pb):
     J = np.zeros((12, 12))
     for i in range(9):
         J[i, i] = 1.0
-    A = O.T @ _skew(v)
+    A = O.T @ skew_matrix(v)
     for i in range(3):
         for j in range(3):
             J[9 + i, j] = A[i, j]
@@ -648,7 +639,7 @@ class TwistFilter:
             cross = np.zeros((m, 6))
         J = np.eye(12)
         if m == 12:  # world-frame v = O v_cam: dv = -[v]x phi + O dv_cam
-            J[9:12, 0:3] = -_skew(v)
+            J[9:12, 0:3] = -skew_matrix(v)
             J[9:12, 9:12] = O
         J = J[:, :m]
         P[:12, :12] = J @ Rm @ J.T

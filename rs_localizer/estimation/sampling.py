@@ -82,6 +82,27 @@ def gather_prerotated(samples, R_pre, x, X, r):
     return xs, Xs, rs
 
 
+@njit(cache=True, inline="always")
+def _sample_error(R, C, m, samples, k, X, x):
+    """Global-shutter reprojection error of P3P solution ``m`` (``R[m] X + C[m]``) on sample
+    ``k``'s points beyond the first three (all of them for 3-point samples): the sum of squared
+    normalized-plane distances, ``inf`` when one of them is not in front of the camera."""
+    s = samples.shape[1]
+    first = 3 if s > 3 else 0
+    e = 0.0
+    for j in range(first, s):
+        i = samples[k, j]
+        p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
+        p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
+        p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
+        if not p2 > 0.0:
+            return np.inf
+        dx = p0 / p2 - x[i, 0]
+        dy = p1 / p2 - x[i, 1]
+        e += dx * dx + dy * dy
+    return e
+
+
 @njit(cache=True)
 def select_prerotations(R, C, owner, samples, X, x, K):
     """For each of K samples pick, among its P3P solutions (R (M,3,3), C (M,3), owner (M,)),
@@ -92,22 +113,9 @@ def select_prerotations(R, C, owner, samples, X, x, K):
     Cout = np.zeros((K, 3))
     ok = np.zeros(K, dtype=np.bool_)
     best = np.full(K, np.inf)
-    s = samples.shape[1]
-    first = 3 if s > 3 else 0
     for m in range(R.shape[0]):
         k = owner[m]
-        e = 0.0
-        for j in range(first, s):
-            i = samples[k, j]
-            p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
-            p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
-            p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
-            if not p2 > 0.0:
-                e = np.inf
-                break
-            dx = p0 / p2 - x[i, 0]
-            dy = p1 / p2 - x[i, 1]
-            e += dx * dx + dy * dy
+        e = _sample_error(R, C, m, samples, k, X, x)
         if e < best[k]:
             best[k] = e
             Rout[k] = R[m]
@@ -137,22 +145,9 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
     e2 = np.full(K, np.inf)
     m1 = np.full(K, -1)
     m2 = np.full(K, -1)
-    s = samples.shape[1]
-    first = 3 if s > 3 else 0
     for m in range(R.shape[0]):
         k = owner[m]
-        e = 0.0
-        for j in range(first, s):
-            i = samples[k, j]
-            p0 = R[m, 0, 0] * X[i, 0] + R[m, 0, 1] * X[i, 1] + R[m, 0, 2] * X[i, 2] + C[m, 0]
-            p1 = R[m, 1, 0] * X[i, 0] + R[m, 1, 1] * X[i, 1] + R[m, 1, 2] * X[i, 2] + C[m, 1]
-            p2 = R[m, 2, 0] * X[i, 0] + R[m, 2, 1] * X[i, 1] + R[m, 2, 2] * X[i, 2] + C[m, 2]
-            if not p2 > 0.0:
-                e = np.inf
-                break
-            dx = p0 / p2 - x[i, 0]
-            dy = p1 / p2 - x[i, 1]
-            e += dx * dx + dy * dy
+        e = _sample_error(R, C, m, samples, k, X, x)
         if e < e1[k]:
             e2[k], m2[k] = e1[k], m1[k]
             e1[k], m1[k] = e, m

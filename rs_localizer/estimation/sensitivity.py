@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._so3 import skew_matrix
 from .refine import _point_rows
 
 __all__ = ["acceleration_sensitivity", "output_jacobian"]
@@ -71,20 +72,12 @@ def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
 
 
 @njit(cache=True)
-def _skew3(v):
-    S = np.zeros((3, 3))
-    S[0, 1], S[0, 2], S[1, 2] = -v[2], v[1], -v[0]
-    S[1, 0], S[2, 0], S[2, 1] = v[2], -v[1], v[0]
-    return S
-
-
-@njit(cache=True)
 def _output_jacobian(R, C, w, s):
     J = np.zeros((12, 12))
     Rt = np.ascontiguousarray(R.T)
-    RC = Rt @ _skew3(C)
-    SC = _skew3(C)
-    SW = _skew3(w)
+    RC = Rt @ skew_matrix(C)
+    SC = skew_matrix(C)
+    SW = skew_matrix(w)
     for i in range(3):
         for j in range(3):
             # camera orientation R^T = R0^T expm(-delta): world-axis rotation phi = -R^T delta
@@ -106,7 +99,7 @@ def _physical(G, R, C, w, s):
     """``J_out G M``: model sensitivities per (beta, b) to outputs per (alpha, a_cam), with
     ``beta = -s^2 alpha`` and ``b = beta x C - s^2 a``."""
     M = np.zeros((6, 6))
-    SC = _skew3(C)
+    SC = skew_matrix(C)
     for i in range(3):
         M[i, i] = -s * s
         M[3 + i, 3 + i] = -s * s

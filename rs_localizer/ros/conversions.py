@@ -219,13 +219,20 @@ def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
         raise CameraInfoError("bad_intrinsics", str(e)) from None
 
 
+def _stamped(msg_type, stamp_ns: int, frame_id: str):
+    """A new ``msg_type()`` (a message with a ``std_msgs/Header``) stamped ``stamp_ns``
+    (integer ns) in ``frame_id``."""
+    msg = msg_type()
+    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg.header.frame_id = frame_id
+    return msg
+
+
 def camera_info_msg(camera: CameraModel, frame_id="", stamp_ns: int = 0):
     """:class:`CameraModel` -> rclpy ``sensor_msgs/CameraInfo`` (P = [K | 0], R = I)."""
     from sensor_msgs.msg import CameraInfo
 
-    msg = CameraInfo()
-    msg.header.frame_id = frame_id
-    msg.header.stamp = ns_to_stamp(stamp_ns)
+    msg = _stamped(CameraInfo, stamp_ns, frame_id)
     msg.width, msg.height = camera.width, camera.height
     msg.distortion_model = camera.distortion_model if camera.has_distortion else "plumb_bob"
     D = np.asarray(camera.D, dtype=float)
@@ -283,9 +290,7 @@ def pose_stamped(est, stamp_ns: int, map_frame: str):
     """Camera optical frame pose in ``map_frame`` at the reference row."""
     from geometry_msgs.msg import PoseStamped
 
-    msg = PoseStamped()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = map_frame
+    msg = _stamped(PoseStamped, stamp_ns, map_frame)
     _fill_pose(msg.pose, est)
     return msg
 
@@ -294,9 +299,7 @@ def twist_stamped(est, stamp_ns: int, camera_frame: str):
     """Camera velocity (rad/s, m/s) in its own optical frame."""
     from geometry_msgs.msg import TwistStamped
 
-    msg = TwistStamped()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = camera_frame
+    msg = _stamped(TwistStamped, stamp_ns, camera_frame)
     _fill_twist(msg.twist, est)
     return msg
 
@@ -304,9 +307,7 @@ def twist_stamped(est, stamp_ns: int, camera_frame: str):
 def pose_with_covariance_stamped(est, stamp_ns: int, map_frame: str):
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
-    msg = PoseWithCovarianceStamped()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = map_frame
+    msg = _stamped(PoseWithCovarianceStamped, stamp_ns, map_frame)
     _fill_pose(msg.pose.pose, est)
     msg.pose.covariance = covariance36(est.pose_covariance)
     return msg
@@ -316,9 +317,7 @@ def odometry(est, stamp_ns: int, map_frame: str, camera_frame: str):
     """nav_msgs/Odometry: pose in ``map_frame``, twist in ``camera_frame`` (child frame)."""
     from nav_msgs.msg import Odometry
 
-    msg = Odometry()
-    msg.header.stamp = ns_to_stamp(stamp_ns)
-    msg.header.frame_id = map_frame
+    msg = _stamped(Odometry, stamp_ns, map_frame)
     msg.child_frame_id = camera_frame
     _fill_pose(msg.pose.pose, est)
     msg.pose.covariance = covariance36(est.pose_covariance)
@@ -341,9 +340,7 @@ def tf_message(est, stamp_ns: int, map_frame: str, camera_frame: str):
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
 
-    tr = TransformStamped()
-    tr.header.stamp = ns_to_stamp(stamp_ns)
-    tr.header.frame_id = map_frame
+    tr = _stamped(TransformStamped, stamp_ns, map_frame)
     tr.child_frame_id = camera_frame
     q = _quaternion(est)
     p = np.asarray(est.position, dtype=float)

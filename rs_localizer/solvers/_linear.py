@@ -212,6 +212,42 @@ def run_batch(kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, 
                    out[:, 12:21].reshape(K, 3, 3) if with_R_rs else None)
 
 
+def alternating_solver(kernel, name: str, label: str, section: str):
+    """The public pair ``(solve, solve_batch)`` of an alternating solver (paper sec. 3.1/3.2):
+    R6P_{v,C}^{w,t}, R6P_{v,C,t}^{w} and R6P_{v,C,t}^{w,t} differ only in the flags their
+    ``kernel`` passes to :func:`alternate` (each paper solver's module defines its kernel and
+    names the pair ``name`` and ``name + "_batch"``, defined in that module; ``label`` and
+    ``section``: the paper's name and section, for the docstrings)."""
+
+    def solve(x, X, r=None, r0: float = 0.0, iterations: int = 5, tol: float = 1e-12):
+        return run_single(kernel, name, 12, 6, x, X, r, r0, iterations, tol, None)
+
+    def solve_batch(x, X, r=None, r0: float = 0.0, iterations: int = 5, tol: float = 1e-12):
+        return run_batch(kernel, name, 12, 6, x, X, r, r0, iterations, tol, None)
+
+    solve.__doc__ = f"""{label} (paper sec. {section}): alternating linear RS absolute pose.
+
+    Args:
+        x: (N, 2) calibrated image points, N >= 6 (each half-step is a least-squares solve).
+        X: (N, 3) world points. r: (N,) RS coordinates (default x[:, 1]). r0: reference.
+        iterations: maximum alternations (one = both half-steps).
+        tol: stop when the RMS algebraic error of eq. 5 is <= tol or decreased by <= tol.
+    Returns:
+        :class:`RSSolution` (v, C, w, t per unit r), iterations run, algebraic error of eq. 5;
+        the iterate with the lowest error is kept.
+    Raises:
+        ValueError: wrong shapes, N < 6, NaN/inf, iterations < 1.
+        DegenerateInputError (a ValueError): a half-step system lost rank.
+    """
+    solve_batch.__doc__ = (
+        f"""Batched :func:`{name}`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch`
+    (invalid problems flagged in valid, never raised). Raises ValueError on bad shapes.""")
+    for fn, fn_name in ((solve, name), (solve_batch, name + "_batch")):
+        fn.__name__ = fn.__qualname__ = fn_name
+        fn.__module__ = kernel.__module__
+    return solve, solve_batch
+
+
 @njit(cache=True)
 def build_pose_step(x, X, r, r0, w, t, estimate_t, A, b):
     """Rows of the R6P_{v,C} / R6P_{v,C,t} half-steps (paper sec. 3.1, 3.2): w (and t) fixed.
