@@ -113,7 +113,8 @@ class EstimateOptions:
             of the same estimate under both (:mod:`.noise_model`; the estimate is unchanged).
             ``0``: white noise only (default). Estimate it with
             :func:`~rs_localizer.estimation.noise_model.fit_correlated_noise` on still
-            calibration views. Costs O(N^2) in the inliers (~1 ms at 300 points).
+            calibration views. Costs O(N^2) in the inliers: ~1 ms at 54 points, ~13 ms at
+            300, ~90 ms at 1000 (one core, the covariance step alone).
         correlated_noise_length_px: its correlation length (px, > 0).
 
     Raises:
