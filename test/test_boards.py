@@ -4,9 +4,10 @@ camera.
 
 The photo counts were checked by eye once on images with the detections drawn. Poses on the
 still photos: our P3P estimate must agree with cv2.solvePnP (and the checkerboard's with the
-extrinsics OpenCV's calibration stored in left_intrinsics.yml). The rolling-shutter solver is
-not held to that: a planar board seen once is a near-degenerate case for the RS model (a motion
-prior is pending, issue 16), see ``python test/test_boards.py`` for its numbers.
+extrinsics OpenCV's calibration stored in left_intrinsics.yml). The rolling-shutter estimate
+on the checkerboard photos agrees with P3P and reports a velocity consistent with zero once its
+covariance includes the photos' correlated image error (issue 13 item 5,
+``python -m rs_localizer.evaluation.still_boards``).
 
 Runs on OpenCV 4.6 (contrib) and on 4.7+ / 5.x (the compatibility layer _cv_compat).
 """
@@ -130,6 +131,46 @@ def test_checkerboard_pose_rs_fits_at_least_as_well(left_board):
         rs = estimate_rs_pose(uv, X, camera, "r6p_1lin")
         assert rs.success and rs.num_inliers == 54, n
         assert rs.rmse_px <= gs.rmse_px + 1e-3, n
+
+
+def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
+    """Issue 13 item 5. The correlated image error is fitted on the 13 still photos (REML,
+    as a user would on their calibration views); with it in the covariance, on every photo the
+    RS estimate's twist is within the chi2(6) 99.73 % bound of zero, the P3P pose within the
+    same bound under the RS pose covariance and the P3P rotation within the chi2(3) one under
+    its rotation block; the rotations differ by less than 4.5 deg (at most 3.9). With the white-noise
+    covariance alone the twist is "significant" on most photos (15-134)."""
+    from scipy.stats import chi2
+
+    from rs_localizer.estimation import EstimateOptions
+    from rs_localizer.estimation.noise_model import fit_correlated_noise
+
+    camera = read_camera("left_intrinsics.yml", LINE_DELAY)
+    fe = CheckerboardFrontend(left_board)
+    frames = []
+    for n in LEFT:
+        uv, X, _ = fe.process(photo(f"left{n}.jpg"))
+        frames.append((n, uv, X, estimate_rs_pose(uv, X, camera, "p3p")))
+    fit = fit_correlated_noise(camera, [(uv, X, g.R, g.C) for _, uv, X, g in frames])
+    assert fit.log_likelihood_ratio > 100  # strong evidence for a correlated error
+    assert 0.1 < fit.correlated_px < 0.4 and 40 < fit.length_px < 200, fit
+    opts = EstimateOptions(correlated_noise_px=fit.correlated_px,
+                           correlated_noise_length_px=fit.length_px)
+    q6, q3 = chi2.ppf(0.9973, 6), chi2.ppf(0.9973, 3)
+    white = []
+    for n, uv, X, gs in frames:
+        rs = estimate_rs_pose(uv, X, camera, "r6p_1lin", opts)
+        rs0 = estimate_rs_pose(uv, X, camera, "r6p_1lin")
+        assert rs.success and rs.num_inliers == 54, n
+        tw = np.r_[rs.linear_velocity, rs.angular_velocity]
+        phi = Rotation.from_matrix(gs.R.T @ rs.R).as_rotvec()  # world axes
+        dp = np.r_[gs.position - rs.position, phi]
+        assert rotation_angle_deg(rs.R, gs.R) < 4.5, n
+        assert tw @ np.linalg.solve(rs.twist_covariance, tw) < q6, n
+        assert dp @ np.linalg.solve(rs.pose_covariance, dp) < q6, n
+        assert phi @ np.linalg.solve(rs.pose_covariance[3:, 3:], phi) < q3, n
+        white.append(tw @ np.linalg.solve(rs0.twist_covariance, tw))
+    assert np.sum(np.asarray(white) > q6) >= 10
 
 
 # ------------------------------------------------------------------------ ChArUco / tag photos

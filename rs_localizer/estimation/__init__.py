@@ -8,6 +8,8 @@
 * :mod:`.refine`: Levenberg-Marquardt on the exact constant-velocity model (eq. 4) and its
   covariance;
 * :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate (issue 16).
+* :mod:`.noise_model`: spatially correlated image error in the covariance (its fit on still
+  calibration views, issue 13).
 """
 
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose, physical_velocities

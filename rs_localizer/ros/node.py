@@ -103,6 +103,14 @@ PARAMETERS = {
         1.5, "motion prior: sigma of each linear velocity component (m/s, camera frame); "
         "0 = no prior on it (both 0: maximum likelihood, near-degenerate on planar scenes)",
         _F(from_value=0.0, to_value=1e4, step=0.0), False),
+    "correlated_noise.sigma_px": (
+        0.0, "std (px per axis) of a spatially correlated image error (lens-model residue, "
+        "corner bias) in the covariance; 0 = white noise only. Fit it on still calibration "
+        "views (estimation.noise_model.fit_correlated_noise)",
+        _F(from_value=0.0, to_value=100.0, step=0.0), False),
+    "correlated_noise.length_px": (
+        100.0, "correlation length (px) of that error", _F(from_value=0.1, to_value=1e5,
+                                                           step=0.0), False),
     "rs.line_delay": (3.0e-5, "time between consecutive image lines (s/line); 0 = global "
                       "shutter", _F(from_value=0.0, to_value=0.01, step=0.0), False),
     "rs.readout_time": (0.0, "time to read the whole frame (s); if > 0 it wins over "
@@ -464,7 +472,10 @@ class LocalizerCore:
                                        float(p["motion_prior.angular_velocity_sigma"]),
                                        float(p["motion_prior.linear_velocity_sigma"])),
                                    max_angular_velocity=float(p["max_angular_velocity"]),
-                                   max_linear_velocity=float(p["max_linear_velocity"]))
+                                   max_linear_velocity=float(p["max_linear_velocity"]),
+                                   correlated_noise_px=float(p["correlated_noise.sigma_px"]),
+                                   correlated_noise_length_px=float(
+                                       p["correlated_noise.length_px"]))
         except (TypeError, ValueError) as e:
             return f"invalid RANSAC options: {e}"
         need = max(opts.min_inliers, sample_size(p["solver"]) + 1)

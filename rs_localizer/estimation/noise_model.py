@@ -1,0 +1,241 @@
+"""Spatially correlated image error in the estimator's covariance (issue 13 item 5).
+
+The refinement's covariance (:func:`rs_localizer.estimation.refine.refine_rs_pose`) assumes
+independent image noise per point and axis, its variance estimated from the residuals. Real
+cameras add a smooth systematic error that no pose explains: what the calibration's lens model
+misses, corner-detector bias, a board that is not quite flat. Neighbouring points share it. On
+OpenCV's still checkerboard photos (``test/data/photos/left*.jpg``) the global-shutter
+residuals of neighbouring corners correlate by ~0.5, and the 6 velocities of the RS model
+absorb that error as well with the column as "capture time" as with the row
+(``python -m rs_localizer.evaluation.still_boards``): the white-noise covariance then reports
+a still camera moving at 1-3 rad/s with twist Mahalanobis distances of 15-134.
+
+Model (per image axis, the two axes independent)::
+
+    e = n + m,   Cov(n_i, n_j) = sigma^2 delta_ij,
+                 Cov(m_i, m_j) = s^2 exp(-|u_i - u_j|^2 / (2 l^2))
+
+``u`` the measured pixels, ``sigma`` the white noise (the refinement's residual estimate, as
+before), ``s`` (px) and ``l`` (px) the correlated error's standard deviation and correlation
+length: camera properties, estimated once from still calibration views by restricted maximum
+likelihood (:func:`fit_correlated_noise`), set with ``EstimateOptions.correlated_noise_px`` /
+``correlated_noise_length_px`` (node: ``correlated_noise.sigma_px`` / ``.length_px``).
+
+The estimate itself is unchanged (the white-noise (MAP) refinement); only its covariance is:
+the sandwich covariance of that estimator under the model above,
+:func:`correlated_noise_covariance`.
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+from dataclasses import dataclass
+
+import numpy as np
+from .refine import exact_jacobian, exact_residuals, refine_rs_pose
+
+__all__ = ["correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians", "NoiseFit"]
+
+
+def _kernel(u_px, length_px):
+    """(N, N) ``exp(-|u_i - u_j|^2 / (2 l^2))`` of pixels u (N, 2)."""
+    d2 = np.sum((u_px[:, None, :] - u_px[None, :, :]) ** 2, axis=-1)
+    return np.exp(-0.5 * d2 / (float(length_px) ** 2))
+
+
+def correlated_noise_covariance(cov12, sigma, R, C, w, t, X, x, tau, u_px, pixel_jac,
+                                correlated_px, length_px):
+    """Covariance of the refined (delta, C, w, t) under white plus correlated image noise.
+
+    The refinement minimises ``|r|^2 + sigma^2 (prior)`` over normalized residuals r;
+    linearised, its error is ``B J^T e + B sigma^2 P (mu - z)`` with
+    ``B = (J^T J + sigma^2 P)^-1 = cov12 / sigma^2``. The correlated error is in pixels
+    (module doc); in normalized units ``Cov(e_i, e_j) = s^2 k_ij D_i^-1 D_j^-T`` (``D_i`` the
+    projection's pixel Jacobian at point i, ``k_ij`` the kernel), so the covariance of the
+    estimate is the sandwich::
+
+        cov12 + s^2 B (G_x^T K G_x + G_y^T K G_y) B,   G_i = D_i^-1 J_i (2, 12)
+
+    (``G_x``, ``G_y`` the x and y rows). ``correlated_px = 0`` returns a copy of cov12.
+
+    Args:
+        cov12: (12, 12) white-noise covariance of (delta, C, w, t) from
+            :func:`~rs_localizer.estimation.refine.refine_rs_pose` (normalized units; zero
+            rows and columns for fixed parameters).
+        sigma: its residual sigma (normalized units, > 0).
+        R (3, 3), C, w, t (3,): the refined model (``X_cam = R X + C`` at the reference row).
+        X: (N, 3) world points, x: (N, 2) normalized observations, tau: (N,) ``r_i - r0`` of
+            the points the covariance is computed on (the final inliers).
+        u_px: (N, 2) their measured pixels (the correlation is over image distance).
+        pixel_jac: (N, 2, 2) ``d pixel / d x`` at x (:func:`pixel_jacobians`).
+        correlated_px, length_px: ``s`` and ``l`` of the module doc (px).
+    Returns:
+        (12, 12) covariance, same units and order as cov12.
+    Raises:
+        ValueError: for mismatched point arrays or a non-positive length or sigma.
+    """
+    cov12 = np.asarray(cov12, dtype=float)
+    if correlated_px <= 0 or len(X) == 0:
+        return cov12.copy()
+    u = np.asarray(u_px, dtype=float)
+    Dj = np.asarray(pixel_jac, dtype=float)
+    if not (len(u) == len(X) == len(x) == len(tau) == len(Dj)):
+        raise ValueError(f"point arrays disagree: {len(u)}, {len(X)}, {len(x)}, {len(tau)}, "
+                         f"{len(Dj)}")
+    if not (length_px > 0 and sigma > 0):
+        raise ValueError(f"need length_px, sigma > 0, got {length_px}, {sigma}")
+    J = exact_jacobian(np.r_[0.0, 0.0, 0.0, C, w, t], np.asarray(R, float), X, x, tau)
+    G = np.linalg.solve(Dj, J.reshape(-1, 2, 12))  # D_i^-1 J_i
+    K = _kernel(u, length_px)
+    Gx, Gy = G[:, 0, :], G[:, 1, :]
+    M = Gx.T @ K @ Gx + Gy.T @ K @ Gy
+    B = cov12 / sigma**2
+    out = cov12 + correlated_px**2 * (B @ M @ B)
+    return 0.5 * (out + out.T)
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """Result of :func:`fit_correlated_noise` (all in pixels, per image axis).
+
+    Attributes:
+        white_px: standard deviation of the independent noise ``sigma``.
+        correlated_px: standard deviation ``s`` of the correlated error.
+        length_px: its correlation length ``l``.
+        log_likelihood_ratio: restricted log-likelihood of the fit minus that of white noise
+            alone (``s = 0``): twice it is ~chi-square with 2 dof when there is no correlated
+            error (a value of a few means no evidence for it).
+        views, points: views and points used.
+    """
+
+    white_px: float
+    correlated_px: float
+    length_px: float
+    log_likelihood_ratio: float
+    views: int
+    points: int
+
+
+def pixel_jacobians(camera, x, step=1e-6):
+    """(N, 2, 2) Jacobians ``d pixel / d x`` of the camera's projection (distortion and K) at
+    the undistorted normalized points x (N, 2), by central differences of
+    :meth:`~rs_localizer.camera.CameraModel.distort`."""
+    x = np.asarray(x, dtype=float)
+    out = np.empty((len(x), 2, 2))
+    for a in range(2):
+        h = np.zeros(2)
+        h[a] = step
+        out[:, :, a] = (camera.distort(x + h) - camera.distort(x - h)) / (2 * step)
+    return out
+
+
+def _view_terms(camera, uv, X, R, C):
+    """Global-shutter refinement of one still view: (residuals px (2N,), their Jacobian
+    (2N, 6) w.r.t. the pose, pixels (N, 2)), residuals and Jacobian mapped to pixels through
+    the local projection Jacobian (so that the noise model is the one of the pixels)."""
+    x, _, _ = camera.normalize(uv)
+    tau = np.zeros(len(x))
+    z3 = np.zeros(3)
+    ref = refine_rs_pose(R, C, z3, z3, X, x, tau, 1e3, rolling_shutter=False,
+                         max_iterations=50, tol=1e-14, covariance=False)
+    th = np.r_[0.0, 0.0, 0.0, ref.C, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    D = pixel_jacobians(camera, x)
+    r = np.einsum("nab,nb->na", D, exact_residuals(th, ref.R, X, x, tau).reshape(-1, 2))
+    J = np.einsum("nab,nbk->nak", D, exact_jacobian(th, ref.R, X, x, tau)[:, :6]
+                  .reshape(-1, 2, 6))
+    return r.ravel(), J.reshape(-1, 6), np.asarray(uv, dtype=float)
+
+
+def _restricted_nll(p, terms):
+    """Negative restricted log-likelihood (up to a constant) of log (sigma^2, s^2, l)."""
+    from scipy.linalg import cho_factor, cho_solve, solve_triangular
+
+    sw2, s2, l = np.exp(p)
+    tot = 0.0
+    for r, J, u in terms:
+        K1 = s2 * _kernel(u, l)
+        n = len(u)
+        S = np.zeros((2 * n, 2 * n))
+        S[0::2, 0::2] = K1
+        S[1::2, 1::2] = K1
+        S[np.diag_indices(2 * n)] += sw2
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            return np.inf
+        LJ = solve_triangular(L, J, lower=True)
+        Lr = solve_triangular(L, r, lower=True)
+        A = LJ.T @ LJ
+        b = LJ.T @ Lr
+        cA = cho_factor(A)
+        tot += (2.0 * np.log(np.diag(L)).sum() + 2.0 * np.log(np.diag(cA[0])).sum()
+                + Lr @ Lr - b @ cho_solve(cA, b))
+    return 0.5 * tot
+
+
+def fit_correlated_noise(camera, views, length_bounds_px=(None, 2000.0)) -> NoiseFit:
+    """Estimate the image noise model of the module doc from still views of a known planar
+    or 3D target (e.g. the calibration images), by restricted maximum likelihood (REML: the
+    likelihood of the residuals with the 6 pose parameters of each view integrated out, so
+    that what a pose absorbs is not mistaken for noise).
+
+    Each view's pose is refined first (global shutter, maximum likelihood from the given
+    pose). The views must be still (no motion during the readout): their residuals are then
+    image error only.
+
+    Args:
+        camera: :class:`~rs_localizer.camera.CameraModel` (intrinsics and distortion; the
+            readout timing is not used).
+        views: iterable of ``(uv_px (N, 2), X (N, 3), R (3, 3), C (3,))``: measured pixels,
+            world points and a starting pose (``X_cam = R X + C``, e.g. a P3P estimate or the
+            calibration's extrinsics), all points inliers.
+        length_bounds_px: search bounds of the correlation length (px); lower bound
+            ``None``: the median distance between neighbouring points (a shorter correlation
+            cannot be told from white noise: the fit would trade one for the other).
+    Returns:
+        :class:`NoiseFit`.
+    Raises:
+        ValueError: no view, or a view with fewer than 7 points.
+    """
+    from scipy.optimize import minimize  # (here: start-up time of the estimator's importers)
+
+    terms = []
+    for uv, X, R, C in views:
+        if len(uv) < 7:
+            raise ValueError(f"a view needs at least 7 points, got {len(uv)}")
+        terms.append(_view_terms(camera, np.asarray(uv, float), np.asarray(X, float),
+                                 np.asarray(R, float), np.asarray(C, float)))
+    if not terms:
+        raise ValueError("no view")
+    n = sum(len(t[2]) for t in terms)
+    dof = sum(len(t[0]) - 6 for t in terms)
+    v0 = sum(float(t[0] @ t[0]) for t in terms) / dof
+    lmin, lmax = length_bounds_px
+    if lmin is None:
+        nn = []
+        for _, _, u in terms:
+            d = np.sqrt(np.sum((u[:, None] - u[None]) ** 2, axis=-1))
+            np.fill_diagonal(d, np.inf)
+            nn.append(d.min(axis=1))
+        lmin = float(np.median(np.concatenate(nn)))
+    lo, hi = np.log(lmin), np.log(max(lmax, lmin))
+    bounds = [(np.log(v0) - 12, np.log(v0) + 3), (np.log(v0) - 12, np.log(v0) + 6), (lo, hi)]
+    with ExitStack() as stack:  # small matrices: one BLAS thread is ~40x faster when shared
+        try:
+            from threadpoolctl import threadpool_limits
+            stack.enter_context(threadpool_limits(limits=1))
+        except ImportError:
+            pass
+        best = None
+        for l0 in (30.0, 100.0, 300.0):  # a few starts: the length's likelihood can be bumpy
+            p0 = np.array([np.log(0.5 * v0), np.log(0.5 * v0), np.clip(np.log(l0), lo, hi)])
+            res = minimize(_restricted_nll, p0, args=(terms,), method="L-BFGS-B",
+                           bounds=bounds)
+            if best is None or res.fun < best.fun:
+                best = res
+        sw2, s2, l = np.exp(best.x)
+        # white noise alone (s -> 0)
+        white = _restricted_nll(np.array([np.log(v0), bounds[1][0] - 30, np.log(l)]), terms)
+    return NoiseFit(white_px=float(np.sqrt(sw2)), correlated_px=float(np.sqrt(s2)),
+                    length_px=float(l), log_likelihood_ratio=float(white - best.fun),
+                    views=len(terms), points=int(n))

@@ -1,0 +1,159 @@
+"""Correlated image error in the covariance (rs_localizer.estimation.noise_model, issue 13
+item 5): the sandwich covariance against finite differences of the refinement, the REML fit
+against the model it was drawn from, and the calibration of the new covariance on still
+synthetic boards (not inflated where the correlated error is what the model says)."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from rs_localizer.camera import CameraModel
+from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation.noise_model import (correlated_noise_covariance,
+                                                 fit_correlated_noise, pixel_jacobians)
+from rs_localizer.estimation.prior import MotionPrior
+from rs_localizer.estimation.refine import refine_rs_pose
+from rs_localizer.evaluation.still_boards import correlated_field
+from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+
+# the OpenCV sample camera of test/data/photos/left_intrinsics.yml (strong barrel distortion)
+K = np.array([[535.9157, 0.0, 342.2832], [0.0, 535.9157, 235.5708], [0.0, 0.0, 1.0]])
+D = np.array([-0.26637, -0.038589, 0.0017832, -0.00028122, 0.23839])
+CAM = CameraModel(K=K, D=D, width=640, height=480, line_delay=30e-6)
+Q6 = chi2.ppf(0.9973, 6)
+# a model of the size fitted on OpenCV's photos (python -m rs_localizer.evaluation.still_boards)
+WHITE, CORR, LENGTH = 0.10, 0.21, 92.0
+
+
+def board_views(n_views, seed):
+    """Still views of a 9 x 6 board (25 mm squares) filling most of the image: (X (54, 3),
+    R, C) per view, camera 0.3-0.45 m away, tilted up to ~35 deg."""
+    g = np.stack(np.meshgrid(np.arange(9), np.arange(6)), -1).reshape(-1, 2) * 0.025
+    X = np.c_[g - g.mean(0), np.zeros(len(g))]
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n_views:
+        R = rotvec_to_matrix(np.r_[rng.uniform(-0.6, 0.6, 2), rng.uniform(-0.4, 0.4)])
+        C = np.r_[rng.uniform(-0.03, 0.03, 2), rng.uniform(0.3, 0.45)]
+        u = CAM.project_rs(X, R, C)
+        if CAM.in_image(u, margin=-20).all():
+            out.append((X, R, C, u))
+    return out
+
+
+def test_sandwich_matches_finite_differences_of_the_refinement():
+    """The increment ``s^2 B M B`` of :func:`correlated_noise_covariance` equals
+    ``A Sigma A^T`` with A the finite-difference derivative of the (MAP, fixed noise weight)
+    refinement w.r.t. the measured pixels (through OpenCV's undistortion) and Sigma the
+    correlated error's dense pixel covariance; on a moving frame of 3D points through the
+    distorted camera. (On a planar board the Gauss-Newton linearization that every covariance
+    of the refinement uses is itself 5-25 % off the estimator's derivative: the flat valley;
+    the 3D scene isolates the sandwich.)"""
+    rng = np.random.default_rng(2)
+    R0, C0 = rotvec_to_matrix(np.array([0.2, -0.3, 0.1])), np.array([0.02, -0.01, 1.0])
+    while True:
+        X = (R0.T @ (rng.uniform(-0.5, 0.5, (40, 3)) * [1, 1, 0.6]).T).T
+        if CAM.in_image(CAM.project_rs(X, R0, C0), margin=-10).all():
+            break
+    s = CAM.seconds_per_unit_r
+    w0 = np.array([0.3, -0.5, 0.2]) * s  # a moving camera (~0.6 rad/s, 0.3 m/s)
+    t0 = np.array([0.1, 0.2, -0.15]) * s
+    u = CAM.project_rs(X, R0, C0, w0, t0) + np.random.default_rng(1).normal(0, 0.1, (len(X), 2))
+    x, r, _ = CAM.normalize(u)
+    tau = r - CAM.r0
+    prior = MotionPrior()
+    kw = dict(prior=prior, seconds_per_unit_r=s, max_iterations=100, tol=1e-15)
+    ref0 = refine_rs_pose(R0, C0, w0, t0, X, x, tau, 1.0, **kw)
+    sigma = ref0.sigma
+    ref = refine_rs_pose(ref0.R, ref0.C, ref0.w, ref0.t, X, x, tau, 1.0, noise=sigma, **kw)
+    cov = correlated_noise_covariance(ref.covariance, ref.sigma, ref.R, ref.C, ref.w, ref.t,
+                                      X, x, tau, u, pixel_jacobians(CAM, x), CORR, LENGTH)
+
+    def theta(p):
+        xp = CAM.normalize(p)[0]  # capture times kept (the covariance neglects their noise)
+        o = refine_rs_pose(ref.R, ref.C, ref.w, ref.t, X, xp, tau, 1.0, noise=sigma,
+                           covariance=False, **kw)
+        return np.r_[matrix_to_rotvec(o.R @ ref.R.T), o.C, o.w, o.t]
+
+    h = 1e-2  # px (the undistortion is exact to ~1e-6 px)
+    A = np.empty((12, 2 * len(X)))
+    for j in range(2 * len(X)):
+        d = np.zeros(2 * len(X))
+        d[j] = h
+        A[:, j] = (theta(u + d.reshape(-1, 2)) - theta(u - d.reshape(-1, 2))) / (2 * h)
+    d2 = np.sum((u[:, None] - u[None]) ** 2, axis=-1)
+    Sig = np.kron(CORR**2 * np.exp(-0.5 * d2 / LENGTH**2), np.eye(2))
+    want = A @ Sig @ A.T
+    got = cov - ref.covariance
+    scale = np.sqrt(np.outer(np.diag(want), np.diag(want)))
+    assert np.abs(got - want).max() / scale.max() < 1e-3
+    np.testing.assert_allclose(got / scale, want / scale, atol=2e-3)
+    assert np.all(np.linalg.eigvalsh(got) > -1e-9 * np.abs(got).max())
+
+
+def test_no_correlated_error_leaves_the_covariance_alone():
+    X, R, C, u = board_views(1, 4)[0]
+    a = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin")
+    b = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin",
+                         EstimateOptions(correlated_noise_px=0.0, correlated_noise_length_px=50))
+    np.testing.assert_array_equal(a.covariance, b.covariance)
+    c = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin", EstimateOptions(correlated_noise_px=0.2))
+    np.testing.assert_array_equal(a.R, c.R)  # the estimate is unchanged, only its covariance
+    assert np.all(np.linalg.eigvalsh(c.covariance - a.covariance) > -1e-12)
+
+
+@pytest.mark.parametrize("kw", [dict(correlated_noise_px=-0.1),
+                                dict(correlated_noise_px=np.nan),
+                                dict(correlated_noise_length_px=0.0),
+                                dict(correlated_noise_length_px=np.inf)])
+def test_options_reject(kw):
+    with pytest.raises(ValueError, match="correlated_noise"):
+        EstimateOptions(**kw)
+
+
+@pytest.fixture(scope="module")
+def still_frames():
+    """13 still views x 6 draws of white + correlated image error (the fitted model's size)."""
+    views = board_views(13, 7)
+    return [(X, R, C, u + correlated_field(u, WHITE, CORR, LENGTH,
+                                           np.random.default_rng((k, seed))))
+            for k, (X, R, C, u) in enumerate(views) for seed in range(6)]
+
+
+def test_fit_recovers_the_model(still_frames):
+    """REML on 13 still views (one draw each) recovers the correlated error it was drawn from,
+    and finds none in white noise."""
+    views = [(u, X, R, C) for X, R, C, u in still_frames[::6]]
+    fit = fit_correlated_noise(CAM, views)
+    assert fit.views == 13 and fit.points == 13 * 54
+    assert abs(fit.white_px - WHITE) < 0.02
+    assert 0.6 * CORR < fit.correlated_px < 1.5 * CORR
+    assert 0.5 * LENGTH < fit.length_px < 2.0 * LENGTH
+    assert fit.log_likelihood_ratio > 50
+    rng = np.random.default_rng(11)
+    white = [(u + rng.normal(0, WHITE, u.shape), X, R, C) for X, R, C, u in board_views(13, 8)]
+    wf = fit_correlated_noise(CAM, white)
+    assert abs(wf.white_px - WHITE) < 0.01
+    assert wf.log_likelihood_ratio < 6  # 2 LLR ~ chi2(2): 99.7 % at 11.6
+    assert wf.correlated_px < 0.35 * WHITE
+
+
+def test_covariance_is_calibrated_on_still_boards(still_frames):
+    """Still boards with the correlated error: the twist's Mahalanobis distance from the true
+    zero is close to chi2(6) with the option (median 6.0, mean 8.4, 92 % within the 99.73 %
+    bound: not inflated; the tail is the refinement's own, see below) and far beyond it
+    without (mean 86, 14 %). On these views white noise alone gives mean 13.9 and 79 % with
+    the white-noise covariance: the Gauss-Newton covariance of a planar board's RS model is
+    too tight in the flat valley whatever the noise model (issue 13 notes)."""
+    opts = EstimateOptions(correlated_noise_px=CORR, correlated_noise_length_px=LENGTH)
+    m_on, m_off = [], []
+    for X, R, C, u in still_frames:
+        for opt, out in ((opts, m_on), (EstimateOptions(), m_off)):
+            e = estimate_rs_pose(u, X, CAM, "r6p_1lin", opt)
+            assert e.success
+            tw = np.r_[e.linear_velocity, e.angular_velocity]
+            out.append(tw @ np.linalg.solve(e.twist_covariance, tw))
+    m_on, m_off = np.asarray(m_on), np.asarray(m_off)
+    assert 4.0 < np.median(m_on) < 7.5 and 4.0 < m_on.mean() < 10.0, m_on
+    assert np.mean(m_on <= Q6) >= 0.88
+    assert m_off.mean() > 25.0 and np.mean(m_off <= Q6) < 0.5
