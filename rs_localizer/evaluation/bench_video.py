@@ -278,7 +278,7 @@ def _run(quick: bool) -> int:
         check(f"tracked frame <= 1.0 ms median ({name.split(' (')[0]})",
               r["tracked_ms"] <= 1.0, f"{r['tracked_ms']:.2f} ms wall, "
               f"{r['tracked_cpu_ms']:.2f} ms thread CPU (cold {r['cold_ms']:.2f} / "
-              f"{r['cold_cpu_ms']:.2f})")
+              f"{r['cold_cpu_ms']:.2f}; tracked / cold {r['tracked_ms'] / r['cold_ms']:.2f})")
         check(f"tracked pose error within 1.1x of cold ({name.split(' (')[0]})",
               r["tracked_rot_deg"] <= 1.1 * r["cold_rot_deg"]
               and r["tracked_pos_mm"] <= 1.1 * r["cold_pos_mm"],
@@ -328,7 +328,22 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="fewer seeds and passes")
-    return run(quick=p.parse_args(argv).quick)
+    p.add_argument("--speed", type=int, metavar="RUNS", default=0,
+                   help="only the tracking-speed table, RUNS times (interleaved runs of "
+                        "3 passes each; the spread of the absolute times and of the ratio)")
+    a = p.parse_args(argv)
+    if a.speed:
+        with one_thread():
+            for k in range(a.speed):
+                for name, v in (("data/sample", sample_video()),
+                                ("walk, paper protocol", synthetic_video(
+                                    "walk", 40, 5, noise_px=1.0, outlier_ratio=0.3))):
+                    r = tracking_speed(*v, 3)
+                    print(f"run {k + 1} {name}: cold {r['cold_ms']:.2f} ms, tracked "
+                          f"{r['tracked_ms']:.2f} ms, tracked / cold "
+                          f"{r['tracked_ms'] / r['cold_ms']:.2f}", flush=True)
+        return 0
+    return run(quick=a.quick)
 
 
 if __name__ == "__main__":
