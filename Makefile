@@ -15,8 +15,10 @@ PYTEST_ARGS ?= -q
 
 venv: $(STAMP)
 
-# (re)install when the packaging changes; the ROS 2 Jazzy wheels come from PyPI
-$(STAMP): setup.py setup.cfg package.xml
+# (re)install when the packaging changes; the ROS 2 Jazzy wheels come from PyPI.
+# STAMP_DEPS= : a venv prepared otherwise (.ci/distro) is used as it is once it has the stamp
+STAMP_DEPS ?= setup.py setup.cfg package.xml
+$(STAMP): $(STAMP_DEPS)
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip

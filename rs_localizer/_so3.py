@@ -4,14 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numba.core import ir as _numba_ir
 
 #: numba fast-math flags of the hot kernels: fused multiply-add only (no reassociation, and
 #: NaN/inf semantics are kept, which the kernels rely on); ~30% faster scoring, results
 #: change in the last bits only
 FMA = {"contract"}
 
+#: ``inline=`` of the small numba helpers: "always" (numba-IR inlining) where numba copies an
+#: inlined callee's IR without deep-copying every variable's scope and location (numba >= 0.59,
+#: which gave ``ir.Var`` its ``__deepcopy__``); "never" before (Debian 12's numba 0.56 took
+#: > 20 min to compile the refinement kernel with "always", ~20 s without; LLVM still inlines)
+INLINE = "always" if hasattr(_numba_ir.Var, "__deepcopy__") else "never"
 
-@njit(cache=True, inline="always", fastmath=FMA)
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def so3_coefficients(th2):
     """Rodrigues/left-Jacobian coefficients for an angle t with ``t^2 = th2``:
     ``(sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3)``, so that
@@ -30,7 +37,7 @@ def so3_coefficients(th2):
     return s / th, (1.0 - np.cos(th)) / th2, (th - s) / (th2 * th)
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def rotate_left_into(a0, a1, a2, R, out):
     """``out = expm([a]x) R`` for R, out (3, 3) (Rodrigues)."""
     sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)

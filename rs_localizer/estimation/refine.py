@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, rotate_left_into, so3_coefficients
+from .._so3 import FMA, INLINE, rotate_left_into, so3_coefficients
 from ..geometry import rotvec_to_matrix, skew
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
@@ -77,7 +77,7 @@ def exact_jacobian(theta, R0, X, x, tau) -> np.ndarray:
 _FMA_REASSOC = FMA | {"reassoc"}
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     """``A^T m`` and ``Jl^T m`` for ``A = I + sa [a]x + ca [a]x^2`` (Rodrigues) and its left
     Jacobian ``Jl = I + ca [a]x + cb [a]x^2``: six scalars."""
@@ -91,7 +91,7 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
             m0 - ca * h0 + cb * l0, m1 - ca * h1 + cb * l1, m2 - ca * h2 + cb * l2)
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     """Point i's cost, residual and Jacobian rows at the pose ``(R (row-major), C, w, t)``
     given as 18 scalars. Everything is computed whether or not the point is used (no early
@@ -156,7 +156,7 @@ def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
             W00, W01, W02, W10, W11, W12, d, d02, d12, ti, e2_inside)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _store_rows(Jt, j0, j1, v):
     """Write a point's two weighted Jacobian rows (and residuals, row 12) from ``v`` (as
     returned by :func:`_point_rows`) as columns j0 (even) and j1 = j0 + 1 of Jt (16, M), rows
@@ -188,7 +188,7 @@ def _store_rows(Jt, j0, j1, v):
     Jt[12, j1] = e1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _add_point(v, m, cost, ss, n_in, Jt):
     """Add a point from :func:`_point_rows` to the running (m, cost, ss, n_in) of
     :func:`_fill_columns` and write its rows at columns 2m, 2m + 1 (overwritten by the next
@@ -201,7 +201,7 @@ def _add_point(v, m, cost, ss, n_in, Jt):
     return m + (1 if v[0] else 0), cost, ss, n_in
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     """Loop of :func:`_evaluate`: the used points' two rows as columns of Jt (the
     j-th used point's at 2j and 2j + 1). Returns (number of used points, cost, sum of e^2 and

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, so3_coefficients
+from .._so3 import FMA, INLINE, so3_coefficients
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, exact):
     """Squared reprojection error of one point whose rotated world point is ``q = R X``.
 
@@ -73,7 +73,7 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
     return ex * ex + ey * ey
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """Squared reprojection error of one point (``q = R X``) at its measured capture time.
 
@@ -102,7 +102,7 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     return ex * ex + ey * ey
 
 
-@njit(cache=True, inline="always", fastmath=FMA)
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured=False):
     """Squared reprojection error of point i under hypothesis h (see :func:`project_error2`,
     :func:`measured_error2` if ``measured``)."""

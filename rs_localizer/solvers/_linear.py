@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._so3 import INLINE
 from ._common import RSBatch, RSSolution, DegenerateInputError, check_batch, check_inputs
 
 RANK_TOL = 1e-10
@@ -23,7 +24,7 @@ RANK_TOL = 1e-10
 PATIENCE = 3
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def cross_into(a0, a1, a2, b0, b1, b2, out, j):
     out[j] = a1 * b2 - a2 * b1
     out[j + 1] = a2 * b0 - a0 * b2

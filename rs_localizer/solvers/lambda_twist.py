@@ -45,6 +45,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .._so3 import INLINE
+
 __all__ = ["lambda_twist", "lambda_twist_batch", "MAX_SOLUTIONS"]
 
 #: at most 4 solutions per triplet (two lines of D0, each meeting a conic twice)
@@ -56,7 +58,7 @@ _DEGENERATE_SIN2 = 1e-20
 _ORTHO_TOL = 1e-6
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
     return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
             + a02 * (a10 * a21 - a11 * a20))
@@ -99,7 +101,7 @@ def _cubic_root(b, c, d):
     return g
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _best_cross(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     """Unit vector orthogonal to the rows of a rank-2 3x3 matrix: the longest of the three row
     cross products (0 vector if the matrix has rank < 2)."""
@@ -127,14 +129,14 @@ def _best_cross(r00, r01, r02, r10, r11, r12, r20, r21, r22):
     return v0 * n, v1 * n, v2 * n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _quad(D00, D01, D02, D11, D12, D22, p0, p1, p2, q0, q1, q2):
     """p^T D q for a symmetric D given by its upper triangle."""
     return (p0 * (D00 * q0 + D01 * q1 + D02 * q2) + p1 * (D01 * q0 + D11 * q1 + D12 * q2)
             + p2 * (D02 * q0 + D12 * q1 + D22 * q2))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _residuals(l1, l2, l3, a12, a13, a23, b12, b13, b23):
     r1 = l1 * l1 + l2 * l2 - 2.0 * b12 * l1 * l2 - a12
     r2 = l1 * l1 + l3 * l3 - 2.0 * b13 * l1 * l3 - a13

@@ -305,7 +305,7 @@ def _render_kernel(dirs, ss, axis, Rs, ps, inv_f, qo, qu, qv, qn, qsize, qtex, q
                                 syn = (b - drect[di, 1]) / (drect[di, 3] - drect[di, 1])
                                 texel = dtexel[di]
                         fp = lam * inv_f / ss / math.sqrt(max(cs, 0.02))
-                        lod = math.log2(max(fp / texel, 1e-6))
+                        lod = np.log2(max(fp / texel, 1e-6))  # (numba < 0.60: no math.log2)
                         r, g, bb = _trilinear(tbuf, tinfo, tnl, t, lod, sxn, syn)
                         ar += r
                         ag += g
