@@ -14,7 +14,7 @@ FMA = {"contract"}
 #: ``inline=`` of the small numba helpers: "always" (numba-IR inlining) where numba copies an
 #: inlined callee's IR without deep-copying every variable's scope and location (numba >= 0.59,
 #: which gave ``ir.Var`` its ``__deepcopy__``); "never" before (Debian 12's numba 0.56 took
-#: > 20 min to compile the refinement kernel with "always", ~20 s without; LLVM still inlines)
+#: > 20 min to compile the refinement kernel with "always", ~20 s without)
 INLINE = "always" if hasattr(_numba_ir.Var, "__deepcopy__") else "never"
 
 
