@@ -165,13 +165,15 @@ def test_batch_equals_single_calls():
 @pytest.mark.parametrize("backend", ["lambda_twist", "poselib", "opencv"])
 def test_p3p_batch_backends_contain_ground_truth(backend):
     b, X, R, C = _frames(7, 30)
+    # OpenCV's own P3P is less exact in 4.6 (Debian 12: 1.3e-6 here) than in 5.x
+    tol = 1e-5 if backend == "opencv" else 1e-6
     Rs, Cs, owner = P.p3p_batch(b, X, backend=backend)
     assert Rs.shape == (len(owner), 3, 3) and Cs.shape == (len(owner), 3)
     assert np.all(np.diff(owner) >= 0)
     for k in range(len(b)):
         mine = owner == k
         assert 1 <= mine.sum() <= 4
-        assert _pose_distance(Rs[mine], Cs[mine], R[k:k + 1], C[k:k + 1]).min() < 1e-6
+        assert _pose_distance(Rs[mine], Cs[mine], R[k:k + 1], C[k:k + 1]).min() < tol
 
 
 def test_p3p_default_backend_is_lambda_twist_and_matches_poselib():
