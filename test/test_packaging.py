@@ -1,6 +1,8 @@
-"""package.xml (rosdep keys) and requirements.txt (pip, what has no usable key) together
-declare every third-party module the package and its launch file import (the distro install
-of the README's ROS section installs exactly these)."""
+"""What the distro install (README, ROS section; .ci/distro) relies on: package.xml (rosdep
+keys) and requirements.txt (pip, what has no usable key) together declare every third-party
+module the package and its launch file import, and numba kernels inline only through
+``_so3.INLINE`` (Debian 12's numba 0.56 takes > 20 min over a kernel with ``inline="always"``
+helpers)."""
 
 import ast
 import sys
@@ -64,3 +66,14 @@ def test_no_key_is_also_a_pip_requirement():
     keys, reqs = _declared()
     both = {KEY_MODULES.get(k, k) for k in keys} & set(reqs)
     assert not both, f"declared twice (rosdep and pip would both install them): {both}"
+
+
+def test_numba_inlining_goes_through_the_switch():
+    """``inline=`` of every numba decorator is ``INLINE`` (never a literal "always")."""
+    literal = []
+    for p in sorted((ROOT / "rs_localizer").rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.keyword) and node.arg == "inline" \
+                    and not (isinstance(node.value, ast.Name) and node.value.id == "INLINE"):
+                literal.append(f"{p.relative_to(ROOT)}:{node.value.lineno}")
+    assert not literal, f"use inline=INLINE (rs_localizer._so3) at {literal}"

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._so3 import INLINE
+
 
 @njit(cache=True)
 def valid_rows(u, X, max_norm):
@@ -82,7 +84,7 @@ def gather_prerotated(samples, R_pre, x, X, r):
     return xs, Xs, rs
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline=INLINE)
 def _sample_error(R, C, m, samples, k, X, x):
     """Global-shutter reprojection error of P3P solution ``m`` (``R[m] X + C[m]``) on sample
     ``k``'s points beyond the first three (all of them for 3-point samples): the sum of squared
