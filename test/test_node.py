@@ -14,6 +14,7 @@ flakiness. The global-shutter p3p baseline has ~50x larger pose errors on this m
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -461,7 +462,7 @@ def test_yaml_integer_for_double_is_a_clear_error(tmp_path, ros_domain):
     assert "ransac.threshold_px" in n.log and "0.0" in n.log
 
 
-def test_demo_command(ros_domain):
+def test_demo_command(ros_domain, tmp_path):
     """`make demo`'s command: two nodes (RS solver and p3p) on the sample bag, then two nodes
     in image mode (ArUco front end) on the rendered sample, each with a summary."""
     import subprocess
@@ -472,9 +473,14 @@ def test_demo_command(ros_domain):
     pytest.importorskip("rosbags")
     if not (ROOT / "data" / "sample" / "metadata.yaml").exists():
         pytest.skip("no sample bag")
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     out = subprocess.run([sys.executable, "-m", "rs_localizer", "demo", "--summary-only"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+                         cwd=ROOT, capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "TMPDIR": str(tmp)})
     assert out.returncode == 0, out.stdout + out.stderr
+    # a successful demo removes its working directory (node logs, QoS file)
+    assert not list(tmp.glob("rs_localizer_demo_*"))
     corr, _, images = out.stdout.partition("rs_localizer demo (image mode)")
     assert "r6p_1lin: 30/30 frames" in corr and "p3p: 30/30 frames" in corr
     assert "smaller" in corr

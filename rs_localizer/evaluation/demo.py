@@ -14,6 +14,7 @@ accuracy against the bag's ground truth is printed.
 from __future__ import annotations
 
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -134,6 +135,7 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
                                    "republish_correspondences": False},
             log=tmp / "node_compare.log")
     names = {"/camera": solver, "/p3p": compare}
+    ok = False  # (the node logs in tmp are kept when something failed)
     try:
         t0 = time.monotonic()
         for ns, n in nodes.items():
@@ -209,6 +211,8 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
     finally:
         for nd in nodes.values():
             nd.stop()
+        if ok:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True,
