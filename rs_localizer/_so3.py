@@ -38,6 +38,20 @@ def so3_coefficients(th2):
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
+def rotate_small(a0, a1, a2, q0, q1, q2):
+    """``expm([a]x) q = q + c1 a x q + c2 a x (a x q)`` (Rodrigues) for a point q, with the
+    coefficients ``(c1, c2, c3)`` of :func:`so3_coefficients` at ``a``: six scalars. The
+    constant-velocity RS model places a point seen at ``tau`` at ``rotate_small(tau w, R X) +
+    C + tau t`` (paper eq. 4, exact)."""
+    c1, c2, c3 = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
+    h0 = a1 * q2 - a2 * q1
+    h1 = a2 * q0 - a0 * q2
+    h2 = a0 * q1 - a1 * q0
+    return (q0 + c1 * h0 + c2 * (a1 * h2 - a2 * h1), q1 + c1 * h1 + c2 * (a2 * h0 - a0 * h2),
+            q2 + c1 * h2 + c2 * (a0 * h1 - a1 * h0), c1, c2, c3)
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
 def rotate_left_into(a0, a1, a2, R, out):
     """``out = expm([a]x) R`` for R, out (3, 3) (Rodrigues)."""
     sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, INLINE, rotate_left_into, so3_coefficients
+from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
@@ -112,14 +112,7 @@ def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     q2 = r20 * X0 + r21 * X1 + r22 * X2
     ti = tau[i]
     a0, a1, a2 = ti * w0, ti * w1, ti * w2
-    sa, ca, cb = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-    # Aq = expm([a]x) q = q + sa a x q + ca a x (a x q)  (Rodrigues)
-    c0 = a1 * q2 - a2 * q1
-    c1 = a2 * q0 - a0 * q2
-    c2 = a0 * q1 - a1 * q0
-    Aq0 = q0 + sa * c0 + ca * (a1 * c2 - a2 * c1)
-    Aq1 = q1 + sa * c1 + ca * (a2 * c0 - a0 * c2)
-    Aq2 = q2 + sa * c2 + ca * (a0 * c1 - a1 * c0)
+    Aq0, Aq1, Aq2, sa, ca, cb = rotate_small(a0, a1, a2, q0, q1, q2)  # Aq = expm([a]x) q
     p0 = Aq0 + C0 + ti * t0
     p1 = Aq1 + C1 + ti * t1
     p2 = Aq2 + C2 + ti * t2
@@ -616,14 +609,10 @@ def exact_errors(R, C, w, t, X, x, tau):
         q1 = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2]
         q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
         ti = tau[i]
-        a0, a1, a2 = ti * w[0], ti * w[1], ti * w[2]
-        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-        c0 = a1 * q2 - a2 * q1
-        c1 = a2 * q0 - a0 * q2
-        c2 = a0 * q1 - a1 * q0
-        p0 = q0 + sa * c0 + ca * (a1 * c2 - a2 * c1) + C[0] + ti * t[0]
-        p1 = q1 + sa * c1 + ca * (a2 * c0 - a0 * c2) + C[1] + ti * t[1]
-        p2 = q2 + sa * c2 + ca * (a0 * c1 - a1 * c0) + C[2] + ti * t[2]
+        Aq0, Aq1, Aq2, _, _, _ = rotate_small(ti * w[0], ti * w[1], ti * w[2], q0, q1, q2)
+        p0 = Aq0 + C[0] + ti * t[0]
+        p1 = Aq1 + C[1] + ti * t[1]
+        p2 = Aq2 + C[2] + ti * t[2]
         if not p2 > 0.0:
             out[i] = np.inf
         else:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import FMA, INLINE, so3_coefficients
+from .._so3 import FMA, INLINE, rotate_small
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -54,14 +54,10 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
         r = r1 if abs(r1 - r_gs) <= abs(r2 - r_gs) else r2
     tau = r - r0
     if exact:
-        a0, a1, a2 = tau * w0, tau * w1, tau * w2
-        sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-        c0 = a1 * q2 - a2 * q1
-        c1 = a2 * q0 - a0 * q2
-        c2 = a0 * q1 - a1 * q0
-        px = q0 + sa * c0 + ca * (a1 * c2 - a2 * c1) + C0 + tau * t0
-        py = q1 + sa * c1 + ca * (a2 * c0 - a0 * c2) + C1 + tau * t1
-        pz = q2 + sa * c2 + ca * (a0 * c1 - a1 * c0) + C2 + tau * t2
+        Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
+        px = Aq0 + C0 + tau * t0
+        py = Aq1 + C1 + tau * t1
+        pz = Aq2 + C2 + tau * t2
     else:
         px = P00 + tau * P10
         py = P01 + tau * P11
@@ -87,14 +83,10 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     model had 277 of 301 inliers under :func:`project_error2`). ``inf`` behind the camera.
     """
     tau = d0 * x0 + d1 * x1 - r0e
-    a0, a1, a2 = tau * w0, tau * w1, tau * w2
-    sa, ca, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-    c0 = a1 * q2 - a2 * q1
-    c1 = a2 * q0 - a0 * q2
-    c2 = a0 * q1 - a1 * q0
-    px = q0 + sa * c0 + ca * (a1 * c2 - a2 * c1) + C0 + tau * t0
-    py = q1 + sa * c1 + ca * (a2 * c0 - a0 * c2) + C1 + tau * t1
-    pz = q2 + sa * c2 + ca * (a0 * c1 - a1 * c0) + C2 + tau * t2
+    Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
+    px = Aq0 + C0 + tau * t0
+    py = Aq1 + C1 + tau * t1
+    pz = Aq2 + C2 + tau * t2
     if not pz > 0.0:
         return np.inf
     ex = px / pz - x0
