@@ -103,6 +103,25 @@ def stop_node(node, *probes):
     return alive, node.stop()
 
 
+def refused_start(tmp_path, param_files, namespace, timeout):
+    """Start a node on ``param_files`` that must refuse them and exit by itself. Returns
+    ``(exited, rc, log)``: whether it exited within ``timeout`` s, its exit code (a node still
+    running then is stopped first) and its log."""
+    import subprocess
+
+    from rs_localizer.ros.process import NodeProcess, ros_env
+
+    n = NodeProcess(list(param_files), namespace=namespace, env=ros_env(),
+                    log=tmp_path / "refused.log")
+    try:
+        n.proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        pass
+    exited = not n.alive()
+    rc = n.stop()
+    return exited, rc, n.log
+
+
 def assert_dropped(node, st, v, expected):
     """Each ``reason: n`` of ``expected`` is counted ``n`` times in the diagnostics values ``v``
     (``failed.<reason>``) and logged as ``frame dropped (<reason>)``; the diagnostic status

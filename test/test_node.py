@@ -449,17 +449,13 @@ def test_fallback_intrinsics_without_camera_info(tmp_path, ros_context, frames):
 
 
 def test_yaml_integer_for_double_is_a_clear_error(tmp_path, ros_domain):
-    from rs_localizer.ros.process import NodeProcess, ros_env
+    from conftest import refused_start
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**:\n  ros__parameters:\n    ransac:\n      threshold_px: 2\n")
-    n = NodeProcess([bad], namespace="/yaml", env=ros_env(), log=tmp_path / "bad.log")
-    t0 = time.monotonic()
-    while n.alive() and time.monotonic() - t0 < 60:
-        time.sleep(0.1)
-    assert not n.alive()
-    n.stop()
-    assert "ransac.threshold_px" in n.log and "0.0" in n.log
+    exited, _, log = refused_start(tmp_path, [bad], "/yaml", 60)
+    assert exited
+    assert "ransac.threshold_px" in log and "0.0" in log
 
 
 def test_demo_command(ros_domain, tmp_path):
@@ -614,7 +610,7 @@ def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
     probe = Probe(ros_context, namespace="/cinfo")
     try:
         probe.wait_matched()
-        errs, order = [], []
+        errs = []
         for k, f in enumerate(fr[:12]):
             c, shift = (cam2, 40.0) if k % 2 else (cam, 0.0)
             info = camera_info_msg(c, "cam", f.stamp_ns)

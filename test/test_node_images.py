@@ -16,7 +16,6 @@ m/s against a true speed of ~0.3 m/s), so its bound only catches gross errors.
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
@@ -264,17 +263,13 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
     ({"frontend_map": ""}, "frontend aruco needs frontend_map"),
 ])
 def test_bad_frontend_parameters_are_clear_errors(tmp_path, ros_domain, params, message):
-    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+    from conftest import refused_start
+    from rs_localizer.ros.process import write_params_yaml
 
     overlay = write_params_yaml(tmp_path / "p.yaml", params)
-    n = NodeProcess([CONFIG, IMAGES_CONFIG, overlay], namespace="/img_err", env=ros_env(),
-                    log=tmp_path / "err.log")
-    t0 = time.monotonic()
-    while n.alive() and time.monotonic() - t0 < 60:
-        time.sleep(0.1)
-    assert not n.alive()
-    assert n.stop() != 0
-    assert message in n.log, n.log
+    exited, rc, log = refused_start(tmp_path, [CONFIG, IMAGES_CONFIG, overlay], "/img_err", 60)
+    assert exited and rc != 0
+    assert message in log, log
 
 
 def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):

@@ -89,19 +89,14 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
 
 
 def test_bad_extrinsic_is_a_clear_error(tmp_path, ros_domain):
-    from conftest import CONFIG
-    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+    from conftest import CONFIG, refused_start
+    from rs_localizer.ros.process import write_params_yaml
 
     overlay = write_params_yaml(tmp_path / "p.yaml", {"base_frame": "base_link",
                                                       "camera_to_base.rotation": [0.0, 0.0, 0.0]})
-    n = NodeProcess([CONFIG, overlay], namespace="/bad_ext", env=ros_env(),
-                    log=tmp_path / "err.log")
-    try:
-        n.proc.wait(120)
-    finally:
-        rc = n.stop()
-    assert rc != 0
-    assert "invalid camera_to_base" in n.log and "quaternion" in n.log, n.log
+    exited, rc, log = refused_start(tmp_path, [CONFIG, overlay], "/bad_ext", 120)
+    assert exited and rc != 0
+    assert "invalid camera_to_base" in log and "quaternion" in log, log
 
 
 def test_compressed_images(tmp_path, ros_context, sample_images_bag):
@@ -390,17 +385,12 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
 @pytest.mark.parametrize("cams, error", [(["a", "a"], "listed twice"),
                                          (["", "b"], "empty camera namespace")])
 def test_bad_camera_lists_are_clear_errors(tmp_path, ros_domain, cams, error):
-    from conftest import CONFIG
-    from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
+    from conftest import CONFIG, refused_start
+    from rs_localizer.ros.process import write_params_yaml
 
     overlay = write_params_yaml(tmp_path / "p.yaml", {"cameras": cams})
-    n = NodeProcess([CONFIG, overlay], namespace="/badcams", env=ros_env(),
-                    log=tmp_path / "err.log")
-    try:
-        n.proc.wait(120)
-    finally:
-        rc = n.stop()
-    assert rc == 1 and error in n.log, n.log
+    exited, rc, log = refused_start(tmp_path, [CONFIG, overlay], "/badcams", 120)
+    assert exited and rc == 1 and error in log, log
 
 
 def test_runner_helpers():

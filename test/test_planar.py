@@ -13,7 +13,7 @@ from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
 from rs_localizer.estimation.refine import (exact_jacobian, refine_rs_pose,
                                             refine_rs_pose_scipy, untruncated_variance)
 from rs_localizer.estimation.sampling import second_prerotations, select_prerotations
-from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix, skew
+from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.planar import make_planar_frame, model_velocities, sequence_scene
 from rs_localizer.sim.synthetic import _physical_velocities, make_frame, paper_camera
 from rs_localizer.solvers import p3p_batch, r6p_1lin_batch

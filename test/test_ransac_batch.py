@@ -15,6 +15,8 @@ from rs_localizer.sim.synthetic import make_frame, paper_camera
 from rs_localizer.solvers import p3p_batch, solver_info
 
 CAM = paper_camera()
+#: the squared 2 px inlier threshold (normalized units)
+TH2 = (2.0 / CAM.mean_focal) ** 2
 SOLVERS = ["p3p", "r6p_1lin", "r6p_vC_wt", "r6p_vCt_w", "r6p_vCt_wt", "r9p", "r6p_joined"]
 #: the fused kernel's MSAC score against msac_scores': two compiled functions, equal bit for
 #: bit with numba's IR inlining, one ulp apart without it (Debian 12's numba 0.56, see
@@ -31,6 +33,16 @@ def _frame_arrays(seed):
     f = make_frame(seed, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
     x, r, r0e = CAM.normalize(f.points_px)
     return f, np.ascontiguousarray(x), f.X, np.ascontiguousarray(r), np.ascontiguousarray(r0e)
+
+
+def _batch_setup(frame_seed, rng_seed, solver):
+    """What a fused-batch test draws from: the frame's arrays ``(f, x, X, r, r0e)``, the
+    solver's ``(kinds, n_params)`` and registry entry, a generator seeded ``rng_seed`` and a
+    random point order drawn from it."""
+    arrays = _frame_arrays(frame_seed)
+    rng = np.random.default_rng(rng_seed)
+    order = rng.permutation(len(arrays[1])).astype(np.int64)
+    return arrays, fused_kernels(solver), solver_info(solver), rng, order
 
 
 def _step_by_step(u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_min):
@@ -58,13 +70,8 @@ def _step_by_step(u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_mi
 
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_fused_batch_equals_the_step_by_step_kernels(solver):
-    f, x, X, r, r0e = _frame_arrays(5)
-    kinds, n_params = fused_kernels(solver)
-    info = solver_info(solver)
-    s = info.sample_size
-    rng = np.random.default_rng(1)
-    th2 = (2.0 / CAM.mean_focal) ** 2
-    order = rng.permutation(len(x)).astype(np.int64)
+    (f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(5, 1, solver)
+    s, th2 = info.sample_size, TH2
     for K, pool, bail, pre_n, pre_min in [(40, len(x), np.inf, 0, 0), (33, 60, np.inf, 24, 3),
                                           (50, len(x), 0.05, 24, 8)]:
         u = rng.random((K, s))
@@ -98,12 +105,8 @@ def test_fused_batch_skips_implausible_motion(solver):
     :func:`plausible_motion` accepts (the step-by-step path's filter) and counts the rest."""
     from rs_localizer.estimation.plausibility import plausible_motion
 
-    f, x, X, r, r0e = _frame_arrays(5)
-    kinds, n_params = fused_kernels(solver)
-    info = solver_info(solver)
-    rng = np.random.default_rng(2)
-    th2 = (2.0 / CAM.mean_focal) ** 2
-    order = rng.permutation(len(x)).astype(np.int64)
+    (f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(5, 2, solver)
+    th2 = TH2
     u = rng.random((40, info.sample_size))
     args = (u, len(x), order, x, X, r, r0e, CAM.readout_vector, CAM.r0, kinds, n_params,
             info.default_iterations or 1, th2, np.inf, 0, 0, False)
@@ -215,13 +218,8 @@ def test_prerotated_batch_equals_the_step_by_step_kernels(solver):
     from rs_localizer.estimation.batch import prerotated_batch
     from rs_localizer.geometry import rotvec_to_matrix
 
-    f, x, X, r, r0e = _frame_arrays(6)
-    kinds, n_params = fused_kernels(solver)
-    info = solver_info(solver)
-    s = info.sample_size
-    rng = np.random.default_rng(2)
-    th2 = (2.0 / CAM.mean_focal) ** 2
-    order = rng.permutation(len(x)).astype(np.int64)
+    (f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(6, 2, solver)
+    s, th2 = info.sample_size, TH2
     R_pre = np.ascontiguousarray(rotvec_to_matrix(np.array([0.01, -0.02, 0.005])) @ f.R)
     u = rng.random((24, s))
     out = prerotated_batch(u, 120, order, R_pre, x, X, r, r0e, CAM.readout_vector, CAM.r0,
