@@ -54,19 +54,28 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
         r = r1 if abs(r1 - r_gs) <= abs(r2 - r_gs) else r2
     tau = r - r0
     if exact:
-        Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
-        px = Aq0 + C0 + tau * t0
-        py = Aq1 + C1 + tau * t1
-        pz = Aq2 + C2 + tau * t2
-    else:
-        px = P00 + tau * P10
-        py = P01 + tau * P11
-        pz = P02 + tau * P12
+        return _exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2)
+    return _image_error2(x0, x1, P00 + tau * P10, P01 + tau * P11, P02 + tau * P12)
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _image_error2(x0, x1, px, py, pz):
+    """Squared distance of the projection of the camera point p from x (``inf`` behind the
+    camera)."""
     if not pz > 0.0:
         return np.inf
     ex = px / pz - x0
     ey = py / pz - x1
     return ex * ex + ey * ey
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
+    """Squared reprojection error of one point (``q = R X``) captured at ``tau = r - r0``,
+    placed with the exact constant-velocity model ``expm(tau [w]x) q + C + tau t`` (paper
+    eq. 4); ``inf`` behind the camera."""
+    Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
+    return _image_error2(x0, x1, Aq0 + C0 + tau * t0, Aq1 + C1 + tau * t1, Aq2 + C2 + tau * t2)
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -82,16 +91,8 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     first-order row misplaces points by pixels (at RS speed 1, 30 deg per frame, the true
     model had 277 of 301 inliers under :func:`project_error2`). ``inf`` behind the camera.
     """
-    tau = d0 * x0 + d1 * x1 - r0e
-    Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
-    px = Aq0 + C0 + tau * t0
-    py = Aq1 + C1 + tau * t1
-    pz = Aq2 + C2 + tau * t2
-    if not pz > 0.0:
-        return np.inf
-    ex = px / pz - x0
-    ey = py / pz - x1
-    return ex * ex + ey * ey
+    return _exact_error2(x0, x1, d0 * x0 + d1 * x1 - r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2,
+                        t0, t1, t2)
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
