@@ -12,6 +12,8 @@ costs 1-10 us, a batch of 64 hypotheses ~150 us of kernels).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit
 
@@ -29,6 +31,7 @@ __all__ = ["ransac_batch", "prerotated_batch", "fused_kernels"]
 _SOLVER_TOL = 1e-12
 
 
+@functools.lru_cache(maxsize=None)  # (the registry and the backend are fixed at import)
 def fused_kernels(solver: str):
     """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
     when the solver has no fused path: R6P (a variable number of roots per sample), a batched
@@ -36,29 +39,16 @@ def fused_kernels(solver: str):
     (``RS_LOCALIZER_P3P``, for comparisons). The arrays are shared between calls: do not
     modify them (they stay writable: numba compiles a read-only array as another type).
     Raises ValueError for an unknown solver."""
-    out = _FUSED.get(solver)
-    if out is None:
-        out = _FUSED[solver] = _fused_kernels(solver)
-    return out if out != () else None
-
-
-#: fused_kernels per solver (``()``: none); the registry and the backend are fixed at import
-_FUSED: dict = {}
-
-
-def _fused_kernels(solver: str):
     info = solver_info(solver)
     if DEFAULT_BACKEND != "lambda_twist":
-        return ()
+        return None
     if info.hypotheses == GLOBAL_SHUTTER:
-        out = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    else:
-        ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
-        if ids is None:
-            return ()
-        out = (np.array([k[0] for k in ids], dtype=np.int64),
-               np.array([k[1] for k in ids], dtype=np.int64))
-    return out
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
+    if ids is None:
+        return None
+    return (np.array([k[0] for k in ids], dtype=np.int64),
+            np.array([k[1] for k in ids], dtype=np.int64))
 
 
 @njit(cache=True)

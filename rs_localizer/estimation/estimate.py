@@ -469,13 +469,17 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
     return out
 
 
-def _evaluate(fr: _Frame, model, th2):
+def _evaluate(fr: _Frame, model, th2, errors=None):
     """(MSAC score, inlier mask) of one model (R, C, w, t) on all points of the frame;
     ``(inf, all False)`` for a model with non-finite parameters or implausible motion
-    (``fr.motion_bounds``)."""
+    (``fr.motion_bounds``). ``errors``: the model's (N,) squared errors at every point when
+    they are at hand (:func:`errors2` as scored; finite parameters), instead of computing
+    them again."""
     R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64) for a in model)
     if fr.motion_bounds is not None and not plausible_motion(R, C, w, t, fr.motion_bounds):
         return np.inf, np.zeros(len(fr.x), dtype=bool)
+    if errors is not None:
+        return float(np.minimum(errors, th2).sum()), errors < th2
     sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2,
                                SCORE_AT_MEASURED_TIME)
     return sc, inl
@@ -592,12 +596,7 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     if explained < max(int(model.min_explained), 1):
         return explained, None
     best = (R, C, w, t)
-    # (what _evaluate gives, from the errors at hand: msac_evaluate's score and inliers)
-    if fr.motion_bounds is not None and not plausible_motion(R, C, w, t, fr.motion_bounds):
-        score, inl = np.inf, np.zeros(len(fr.x), dtype=bool)
-    else:
-        inl = e2 < th2
-        score = float(np.minimum(e2, th2).sum())
+    score, inl = _evaluate(fr, best, th2, errors=e2)
     if int(np.count_nonzero(inl)) < max(int(model.min_explained), s + 1):
         # a prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains
         # the frame within the gate, not within the threshold: pull it in with

@@ -106,6 +106,14 @@ def fused_twist(frames, cam, truth) -> dict:
 
 
 # ---------------------------------------------------------------------------- speed
+def speed_videos():
+    """The two videos of the speed table, as (name, (frames, camera, truth)), one at a time:
+    ``data/sample`` and the paper protocol's heavier frames on the walk."""
+    yield "data/sample (0.5 px, 20 % outliers)", sample_video()
+    yield "walk, paper protocol (1 px, 30 % outliers)", synthetic_video(
+        "walk", 40, 5, noise_px=1.0, outlier_ratio=0.3)
+
+
 def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
     """Per-frame ms of the cold estimator and of the tracker (whole ``process``: prediction,
     estimator, filter) on tracked frames, interleaved frame by frame; pose errors of both."""
@@ -265,9 +273,7 @@ def _run(quick: bool) -> int:
           "cold / tracked |")
     print("|---|---|---|---|---|---|---|---|---|")
     passes = 1 if quick else 3
-    speed = {"data/sample (0.5 px, 20 % outliers)": tracking_speed(*sample_video(), passes),
-             "walk, paper protocol (1 px, 30 % outliers)": tracking_speed(*synthetic_video(
-                 "walk", 40, 5, noise_px=1.0, outlier_ratio=0.3), passes)}
+    speed = {name: tracking_speed(*video, passes) for name, video in speed_videos()}
     for name, r in speed.items():
         print(f"| {name} | {r['tracked_frames']} | {r['cold_ms']:.2f} | {r['tracked_ms']:.2f} | "
               f"{r['speedup']:.1f}x | {r['cold_cpu_ms']:.2f} / {r['tracked_cpu_ms']:.2f} | "
@@ -335,11 +341,9 @@ def main(argv=None) -> int:
     if a.speed:
         with one_thread():
             for k in range(a.speed):
-                for name, v in (("data/sample", sample_video()),
-                                ("walk, paper protocol", synthetic_video(
-                                    "walk", 40, 5, noise_px=1.0, outlier_ratio=0.3))):
-                    r = tracking_speed(*v, 3)
-                    print(f"run {k + 1} {name}: cold {r['cold_ms']:.2f} ms, tracked "
+                for name, video in speed_videos():
+                    r = tracking_speed(*video, 3)
+                    print(f"run {k + 1} {name.split(' (')[0]}: cold {r['cold_ms']:.2f} ms, tracked "
                           f"{r['tracked_ms']:.2f} ms, tracked / cold "
                           f"{r['tracked_ms'] / r['cold_ms']:.2f}", flush=True)
         return 0
