@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.estimation.prior import MotionPrior, model_twist, model_twist_jacobian
 from rs_localizer.estimation.refine import (_normal_equations, _solve_symmetric, exact_errors,
-                                 exact_jacobian, exact_residuals, refine_rs_pose,
-                                 refine_rs_pose_scipy, untruncated_variance)
+                                 exact_jacobian, exact_residuals, posterior_step,
+                                 refine_rs_pose, refine_rs_pose_scipy, untruncated_variance)
+from rs_localizer.geometry import matrix_to_rotvec
 from rs_localizer.sim.synthetic import make_frame
 
 
@@ -171,3 +173,59 @@ def test_symmetric_solver_cholesky_lu_and_singular(n):
         assert _solve_symmetric(A, B, n, n, L, M)
         np.testing.assert_allclose(B[:n, :n], np.linalg.inv(A[:n, :n]), rtol=1e-9, atol=1e-12)
     assert not _solve_symmetric(np.zeros((12, 12)), np.eye(12), n, n, L, M)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("offset", [0.5, 2.0])
+def test_posterior_step_matches_converged_map(seed, offset):
+    """The closed-form MAP from the ML optimum against Levenberg-Marquardt run to convergence
+    on the MAP cost from there, for a prior as informative as the data with its mean
+    ``offset`` standard deviations off. The prior moves the estimate by several posterior
+    standard deviations; the closed form lands within 6 % of that move (the rest is the
+    truncated loss re-selecting points near its threshold at the new estimate, which one step
+    on the ML normal equations cannot see), and its covariance is the posterior one to 2 %."""
+    rng = np.random.default_rng(seed)
+    f = make_frame(rng, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+    k, s = 2.0 / 1207.0, 1e-3
+    tau = f.r - f.r0
+    ml = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14,
+                        max_iterations=50)
+    Jz = model_twist_jacobian(ml.C, ml.w, s)
+    S = Jz @ ml.covariance @ Jz.T  # the data's twist covariance
+    mean = model_twist(ml.C, ml.w, ml.t, s) + offset * np.sqrt(np.diag(S))
+    prior = MotionPrior(mean=mean, covariance=S, always=True)
+    conv = refine_rs_pose(ml.R, ml.C, ml.w, ml.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14,
+                          max_iterations=50, prior=prior, seconds_per_unit_r=s)
+    step = posterior_step(ml, prior, s)
+    sd = np.sqrt(np.diag(conv.covariance))
+
+    def diff(a, b):
+        return np.abs(np.r_[matrix_to_rotvec(a.R @ b.R.T), a.C - b.C, a.w - b.w, a.t - b.t]) / sd
+
+    move = diff(ml, conv).max()
+    assert move > 1.0  # the prior matters here
+    assert diff(step, conv).max() < 0.06 * move
+    # the posterior covariance with the ML estimate's noise sigma (the residuals at the MAP
+    # point, which the prior pulls off the data, would inflate it), from the converged MAP's
+    # data information and the prior's Jacobian there
+    Jc = model_twist_jacobian(conv.C, conv.w, s)
+    expected = ml.sigma**2 * np.linalg.inv(conv.data_information
+                                           + ml.sigma**2 * Jc.T @ np.linalg.inv(S) @ Jc)
+    np.testing.assert_allclose(np.sqrt(np.diag(step.covariance)), np.sqrt(np.diag(expected)),
+                               rtol=0.02)
+    assert step.sigma == ml.sigma and step.data_information is ml.data_information
+    # the data gradient at a converged ML optimum vanishes (relative to the normal matrix)
+    assert np.all(np.abs(ml.data_gradient) < 1e-6 * np.sqrt(np.diag(ml.data_information)))
+
+
+def test_posterior_step_refuses():
+    rng = np.random.default_rng(4)
+    f = make_frame(rng, 100, rs_speed=0.5, noise_px=1.0)
+    ml = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0)
+    assert posterior_step(ml, MotionPrior(angular_velocity_sigma=0.0,
+                                          linear_velocity_sigma=0.0), 1e-3) is None
+    nocov = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0,
+                           covariance=False)
+    assert posterior_step(nocov, MotionPrior(), 1e-3) is None
+    with pytest.raises(ValueError):
+        posterior_step(ml, MotionPrior(), 0.0)

@@ -24,7 +24,7 @@ from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix
-from .refine import exact_errors, refine_rs_pose
+from .refine import exact_errors, posterior_step, refine_rs_pose
 from .prior import MotionPrior, prior_conflict, sample_prior_rows
 from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from .sensitivity import acceleration_sensitivity
@@ -552,7 +552,8 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior, acceleration=False)
     covariance ``P``: ``(z - m)^T (S + P)^-1 (z - m)`` below :data:`PRIOR_CONFLICT`) and would
     move them by at least a tenth of their standard deviation (:func:`~.prior.prior_conflict`,
     :data:`PRIOR_NEGLIGIBLE`; else MAP and ML are the same for all purposes), MAP from the ML
-    estimate. A camera far faster than the prior allows (the paper's protocol:
+    estimate in closed form (:func:`~.refine.posterior_step`: one Gauss-Newton step with the
+    ML normal equations; the ML result's sigma and ``J^T W D``). A camera far faster than the prior allows (the paper's protocol:
     8.7 rad/s, 5 m/s) keeps its ML estimate, so a zero-mean prior cannot bias it; where the
     data hardly determine the velocities (small or distant objects), the prior sharpens them.
     Returns (RefineResult, whether the prior was used)."""
@@ -569,10 +570,8 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior, acceleration=False)
     conflict, shift = prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr)
     if not (conflict < PRIOR_CONFLICT and shift >= PRIOR_NEGLIGIBLE):
         return ref, False
-    start = (ref.R, ref.C, ref.w, ref.t)
-    return refine_rs_pose(*start, X, x, tau, th, rolling_shutter=rolling, prior=prior,
-                          seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL,
-                          acceleration_block=acceleration), True
+    post = posterior_step(ref, prior, fr.spr)  # (MAP from ML in closed form)
+    return (ref, False) if post is None else (post, True)
 
 
 def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: EstimateOptions):
