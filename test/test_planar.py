@@ -292,6 +292,19 @@ def test_degeneracy_measures():
     assert planarity(flat) < 1e-6 and planarity(rng.normal(size=(50, 3))) > 0.3
     assert planarity(np.c_[rng.uniform(-1, 1, (50, 2)), rng.uniform(-0.01, 0.01, 50)]) \
         == pytest.approx(0.01, rel=0.3)
+    # a mask selects rows without copying them: the same number as NumPy's SVD of the subset
+    # (here the flat rows of a cloud, far from the origin)
+    cloud = np.r_[flat, rng.normal(size=(30, 3))] + [1e3, -2e3, 5e2]
+    mask = np.r_[np.ones(50, bool), np.zeros(30, bool)]
+    sv = np.linalg.svd(cloud[~mask] - cloud[~mask].mean(axis=0), compute_uv=False)
+    assert planarity(cloud, ~mask) == pytest.approx(sv[2] / sv[0], rel=1e-9)
+    assert planarity(cloud, mask) < 1e-6 < planarity(cloud)
+    assert planarity(cloud, np.r_[True, True, np.zeros(78, bool)]) == 0.0
+    bad = cloud.copy()
+    bad[60] = np.nan
+    assert np.isnan(planarity(bad)) and planarity(bad, mask) < 1e-6
+    with pytest.raises(ValueError):
+        planarity(cloud, mask[:-1])
     A = rng.normal(size=(40, 5))
     H = A.T @ A
     D = np.diag([1e-3, 1.0, 1e4, 2.0, 0.5])

@@ -148,13 +148,14 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
 
 
 def test_all_points_beyond_cutoff():
-    """Nothing to fit: H = 0, the zero step is accepted, the covariance is NaN (singular H)."""
+    """Nothing to fit: H = 0, g = 0, so the model predicts no decrease and no step is taken;
+    the covariance is NaN (singular H)."""
     rng = np.random.default_rng(5)
     f = make_frame(rng, 50, rs_speed=0.5)
     R, C, w, t = perturbed_start(f, rng)
     k = 0.1 / 1207.0
     ref = refine_rs_pose(R, C, w, t, f.X, f.x, f.r - f.r0, k, cutoff=k)
-    assert ref.success and ref.nfev == 2 and ref.sigma == 0.0
+    assert not ref.success and ref.nfev == 1 and ref.sigma == 0.0
     assert np.all(np.isnan(ref.covariance))
     np.testing.assert_array_equal(ref.R, R)
     assert ref.R is not R

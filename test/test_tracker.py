@@ -75,9 +75,10 @@ def test_tracked_frames_match_cold_accuracy(hard_sequence):
     assert np.median(rot_t) < 1.3 * np.median(rot_c)
     assert np.median(pos_t) < 1.3 * np.median(pos_c)
     # no P3P and a short verification (tracked_min_iterations = 16, the seed's inliers as the
-    # pool) instead of ~180 samples
+    # pool) instead of ~180 samples; a seed that only half explains its pool (pulled in on a
+    # subset) can be beaten by a verification sample, which asks for a second batch
     assert np.median(iters_t) <= 16 and np.median(iters_c) > 100
-    assert max(iters_t) <= 32 and all(t < 0.25 * c for t, c in zip(iters_t, iters_c)), (
+    assert max(iters_t) <= 48 and all(t < 0.25 * c for t, c in zip(iters_t, iters_c)), (
         iters_t, iters_c)
 
 

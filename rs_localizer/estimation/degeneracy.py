@@ -20,6 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .plausibility import _masked_scatter
+
 __all__ = ["PLANAR_TOLERANCE", "planarity", "condition_number"]
 
 #: scenes thinner than this fraction of their extent count as planar (a facade with 20 cm of
@@ -28,44 +30,38 @@ PLANAR_TOLERANCE = 0.05
 
 
 @njit(cache=True)
-def _planarity(X):
-    n = X.shape[0]
-    m0 = m1 = m2 = 0.0
-    for i in range(n):
-        m0 += X[i, 0]
-        m1 += X[i, 1]
-        m2 += X[i, 2]
-    m0 /= n
-    m1 /= n
-    m2 /= n
-    S = np.zeros((3, 3))
-    for i in range(n):
-        d0, d1, d2 = X[i, 0] - m0, X[i, 1] - m1, X[i, 2] - m2
-        S[0, 0] += d0 * d0
-        S[0, 1] += d0 * d1
-        S[0, 2] += d0 * d2
-        S[1, 1] += d1 * d1
-        S[1, 2] += d1 * d2
-        S[2, 2] += d2 * d2
-    S[1, 0], S[2, 0], S[2, 1] = S[0, 1], S[0, 2], S[1, 2]
+def _planarity(X, mask):
+    for i in range(X.shape[0]):
+        if mask[i] and not (np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
+                            and np.isfinite(X[i, 2])):
+            return np.nan
+    S, c = _masked_scatter(X, mask, 1.0)
+    if c < 3:
+        return 0.0
     ev = np.linalg.eigvalsh(S)
     if not ev[2] > 0.0:
         return 0.0
     return np.sqrt(max(ev[0], 0.0) / ev[2])
 
 
-def planarity(X) -> float:
-    """Smallest over largest singular value of the centred points ``X`` (N, 3) (m).
+def planarity(X, mask=None) -> float:
+    """Smallest over largest singular value of the centred points ``X`` (N, 3) (m), or of
+    the rows ``mask`` (N,) bool selects (without copying them).
 
     0 for coplanar points (and for fewer than 3 points or a single repeated point: no extent,
-    nothing to measure), up to 1 for an isotropic cloud. Raises ValueError for a wrong shape.
+    nothing to measure), up to 1 for an isotropic cloud; NaN if a selected point is not
+    finite. Raises ValueError for a wrong shape of ``X`` or ``mask``.
     """
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim != 2 or X.shape[1] != 3:
         raise ValueError(f"X must have shape (N, 3), got {X.shape}")
-    if len(X) < 3 or not np.isfinite(X).all():
-        return 0.0 if len(X) < 3 else float("nan")
-    return float(_planarity(X))
+    if mask is None:
+        mask = np.ones(len(X), dtype=np.bool_)
+    else:
+        mask = np.asarray(mask, dtype=np.bool_)
+        if mask.shape != (len(X),):
+            raise ValueError(f"mask must have shape ({len(X)},), got {mask.shape}")
+    return float(_planarity(X, mask))
 
 
 @njit(cache=True)

@@ -933,7 +933,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             twist_cov = None
     inliers = np.zeros(n_in, dtype=bool)
     inliers[rows[inl]] = True
-    flat = planarity(fr.X[inl])
+    flat = planarity(fr.X, inl)
     n_free = 12 if rolling else 6
     cond = condition_number(info12[:n_free, :n_free]) if info12 is not None else float("nan")
     timings["total"] = time.perf_counter() - t_start

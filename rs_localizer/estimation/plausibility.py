@@ -210,26 +210,42 @@ def image_degenerate(points_px, points_normalized, focal: float, threshold_px: f
 
 @njit(cache=True, nogil=True)
 def _masked_scatter(P, mask, scale):
-    """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number)."""
+    """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number) for
+    d = 2 or 3 columns, in one pass: sums and products of the rows relative to the first
+    selected one (the shift keeps the moments as accurate as a centred two-pass sum for
+    points near each other and far from the origin)."""
     n, d = P.shape
-    m = np.zeros(d)
+    o0 = o1 = o2 = 0.0
+    s0 = s1 = s2 = s00 = s01 = s02 = s11 = s12 = s22 = 0.0
     c = 0
     for i in range(n):
         if mask[i]:
+            if c == 0:
+                o0, o1 = scale * P[i, 0], scale * P[i, 1]
+                if d == 3:
+                    o2 = scale * P[i, 2]
             c += 1
-            for a in range(d):
-                m[a] += scale * P[i, a]
-    m /= max(c, 1)
-    S = np.zeros((d, d))
-    for i in range(n):
-        if mask[i]:
-            for a in range(d):
-                da = scale * P[i, a] - m[a]
-                for b in range(a, d):
-                    S[a, b] += da * (scale * P[i, b] - m[b])
-    for a in range(d):
-        for b in range(a):
-            S[a, b] = S[b, a]
+            a0 = scale * P[i, 0] - o0
+            a1 = scale * P[i, 1] - o1
+            a2 = scale * P[i, 2] - o2 if d == 3 else 0.0
+            s0 += a0
+            s1 += a1
+            s2 += a2
+            s00 += a0 * a0
+            s01 += a0 * a1
+            s02 += a0 * a2
+            s11 += a1 * a1
+            s12 += a1 * a2
+            s22 += a2 * a2
+    k = 1.0 / max(c, 1)
+    S = np.empty((d, d))
+    S[0, 0] = s00 - s0 * s0 * k
+    S[0, 1] = S[1, 0] = s01 - s0 * s1 * k
+    S[1, 1] = s11 - s1 * s1 * k
+    if d == 3:
+        S[0, 2] = S[2, 0] = s02 - s0 * s2 * k
+        S[1, 2] = S[2, 1] = s12 - s1 * s2 * k
+        S[2, 2] = s22 - s2 * s2 * k
     return S, c
 
 
