@@ -777,10 +777,9 @@ def posterior_step(ml: RefineResult, prior: MotionPrior, seconds_per_unit_r: flo
     (C, w, t)). Converging the MAP cost with :func:`refine_rs_pose` instead costs three more
     passes over the points and lands within 6 % of the prior's shift of this (a prior as
     informative as the data, 0.5-2 std off, ``test_refine``; the truncated loss re-selects
-    points near its threshold at the new estimate); on the videos of
-    ``bench_video --speed`` (the default prior) within 0.02 std. The covariance keeps the ML
-    estimate's noise sigma (the residuals at the MAP point, pulled off the data by the prior,
-    would inflate it).
+    points near its threshold at the new estimate); the default prior moves far less. The
+    covariance keeps the ML estimate's noise sigma (the residuals at the MAP point, pulled off
+    the data by the prior, would inflate it).
 
     Args:
         ml: a rolling-shutter :class:`RefineResult` with covariance (``data_information``).
