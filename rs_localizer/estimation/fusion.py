@@ -199,19 +199,24 @@ class _Measurement:
 
 
 class _Entry:
-    """Nominal state of one frame in the window, with its bookkeeping."""
+    """Bookkeeping of one frame in the window; its nominal state is the frame's row of
+    ``TwistFilter.X``."""
 
-    __slots__ = ("stamp", "O", "p", "omega", "v", "alpha", "a", "fused", "restarted", "nis",
-                 "emitted", "age")
+    __slots__ = ("stamp", "fused", "restarted", "nis", "emitted", "age")
 
-    def __init__(self, stamp, O, p, omega, v, alpha, a):
-        self.stamp, self.O, self.p, self.omega, self.v = int(stamp), O, p, omega, v
-        self.alpha, self.a = alpha, a
+    def __init__(self, stamp):
+        self.stamp = int(stamp)
         self.fused = False
         self.restarted = False
         self.nis = float("nan")
         self.emitted = False
         self.age = 0
+
+
+#: width of a row of ``TwistFilter.X`` (one frame of the window): the nominal state O (3, 3)
+#: row-major in 0:9, p 9:12, omega 12:15, v (world) 15:18, alpha 18:21, a 21:24, then the
+#: output ``v_cam = O^T v`` in 24:27
+_ROW = 27
 
 
 # ------------------------------------------------------------------------- numba kernels
@@ -314,45 +319,142 @@ def _transition(O, p, omega, v, alpha, a, dt, acc, qa, ql):
 @njit(cache=True)
 def _shift_covariance(P, F, Q, n, keep):
     """``Fa P Fa^T + Q`` for the window: the newest block propagated by F, the ``keep``
-    newest old blocks shifted back one place (the rest dropped)."""
+    newest old blocks shifted back one place (the rest dropped). P (k n, k n) symmetric,
+    F, Q (n, n); returns ((keep + 1) n, (keep + 1) n), symmetric. F (identity plus a few
+    blocks, :func:`_transition`) is applied through its nonzero entries."""
     M = (keep + 1) * n
+    kn = keep * n  # the old blocks that stay
+    cols = max(kn, n)
+    nz = 0
+    fi, fk, fv = np.empty(n * n, np.int64), np.empty(n * n, np.int64), np.empty(n * n)
+    for i in range(n):
+        for k in range(n):
+            if F[i, k] != 0.0:
+                fi[nz], fk[nz], fv[nz] = i, k, F[i, k]
+                nz += 1
+    FP = np.zeros((n, cols))  # F P[:n, :cols]
+    for e in range(nz):
+        i, k, f = fi[e], fk[e], fv[e]
+        for c in range(cols):
+            FP[i, c] += f * P[k, c]
+    FPF = np.zeros((n, n))  # F (F P[:n, :n])^T = (F P F^T)^T
+    for e in range(nz):
+        j, k, f = fi[e], fk[e], fv[e]
+        for i in range(n):
+            FPF[j, i] += f * FP[i, k]
     out = np.empty((M, M))
-    FP = F @ np.ascontiguousarray(P[:n, :(keep + 1) * n])
-    out[:n, :n] = np.ascontiguousarray(FP[:, :n]) @ np.ascontiguousarray(F.T) + Q
-    if keep:
-        out[:n, n:] = FP[:, :keep * n]
-        out[n:, :n] = FP[:, :keep * n].T
-        out[n:, n:] = P[:keep * n, :keep * n]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.5 * (FPF[i, j] + FPF[j, i]) + Q[i, j]
+    for i in range(n):
+        for c in range(kn):
+            out[i, n + c] = FP[i, c]
+            out[n + c, i] = FP[i, c]
+    for r in range(kn):
+        for c in range(kn):
+            out[n + r, n + c] = P[r, c]
+    return out
+
+
+@njit(cache=True)
+def _cholesky(S):
+    """Lower Cholesky factor L (n, n) of the symmetric S (n, n) and ok: False if S is not
+    positive definite (L is not valid then). Plain loops (no exception inside numba)."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = S[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return L, False
+        ljj = np.sqrt(d)
+        L[j, j] = ljj
+        for i in range(j + 1, n):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / ljj
+    return L, True
+
+
+@njit(cache=True)
+def _inverse_from_cholesky(L):
+    """``S^-1 = L^-T L^-1`` (n, n), exactly symmetric, of ``S = L L^T`` from its lower
+    Cholesky factor L (n, n)."""
+    n = L.shape[0]
+    Li = np.zeros((n, n))  # L^-1 (lower), column by column: L Li[:, c] = e_c
+    for c in range(n):
+        Li[c, c] = 1.0 / L[c, c]
+        for i in range(c + 1, n):
+            s = 0.0
+            for k in range(c, i):
+                s -= L[i, k] * Li[k, c]
+            Li[i, c] = s / L[i, i]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for k in range(j, n):
+                s += Li[k, i] * Li[k, j]
+            out[i, j] = s
+            out[j, i] = s
     return out
 
 
 @njit(cache=True)
 def _kalman_update(P, H, y, R):
     """Kalman update with a measurement on the newest block (H (m, n) on the first n
-    columns of P (M, M)). Returns (nis, dx (M,), P' (M, M), ok); ok False if the innovation
-    covariance is not positive definite (nothing else is valid then)."""
+    columns of the symmetric P (M, M)). Returns (nis, dx (M,), P' (M, M) symmetric, ok);
+    ok False if the innovation covariance is not positive definite (nothing else is valid
+    then)."""
     m, n = H.shape
-    PHt = np.ascontiguousarray(P[:, :n]) @ np.ascontiguousarray(H.T)
-    S = H @ np.ascontiguousarray(PHt[:n]) + R
-    S = 0.5 * (S + S.T)
-    # Cholesky by hand (no exception inside numba for a non-positive matrix)
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = S[j, j] - L[j, :j] @ L[j, :j]
-        if not d > 0.0:
-            return np.inf, np.zeros(P.shape[0]), P, False
-        L[j, j] = np.sqrt(d)
-        for i in range(j + 1, m):
-            L[i, j] = (S[i, j] - L[i, :j] @ L[j, :j]) / L[j, j]
+    M = P.shape[0]
+    W = H @ np.ascontiguousarray(P[:n])  # H P (m, M)
+    S = np.empty((m, m))
+    for i in range(m):
+        for j in range(i, m):
+            s = 0.0
+            for k in range(n):
+                s += W[i, k] * H[j, k]
+            S[i, j] = s
+    for i in range(m):
+        for j in range(i, m):
+            S[i, j] += 0.5 * (R[i, j] + R[j, i])
+            S[j, i] = S[i, j]
+    L, ok = _cholesky(S)
+    if not ok:
+        return np.inf, np.zeros(M), P, False
     # forward substitution: z = L^-1 y, W = L^-1 (H P) so that K S K^T = W^T W, K y = W^T z
     z = np.empty(m)
-    W = np.empty((m, P.shape[0]))
-    B = np.ascontiguousarray(PHt.T)
     for i in range(m):
-        z[i] = (y[i] - L[i, :i] @ z[:i]) / L[i, i]
-        W[i] = (B[i] - L[i, :i] @ W[:i]) / L[i, i]
-    P2 = P - W.T @ W
-    return z @ z, W.T @ z, 0.5 * (P2 + P2.T), True
+        s = y[i]
+        for k in range(i):
+            s -= L[i, k] * z[k]
+            lik = L[i, k]
+            for c in range(M):
+                W[i, c] -= lik * W[k, c]
+        z[i] = s / L[i, i]
+        inv = 1.0 / L[i, i]
+        for c in range(M):
+            W[i, c] *= inv
+    dx = np.zeros(M)
+    for k in range(m):
+        for c in range(M):
+            dx[c] += W[k, c] * z[k]
+    P2 = np.empty((M, M))
+    for i in range(M):
+        for j in range(i, M):
+            P2[i, j] = 0.5 * (P[i, j] + P[j, i])
+    for k in range(m):
+        for i in range(M):
+            wki = W[k, i]
+            for j in range(i, M):
+                P2[i, j] -= wki * W[k, j]
+    for i in range(M):
+        for j in range(i + 1, M):
+            P2[j, i] = P2[i, j]
+    return z @ z, dx, P2, True
 
 
 @njit(cache=True)
@@ -390,41 +492,27 @@ def _innovation(O, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
 
 
 @njit(cache=True)
-def _cholesky_ok(S):
-    """True if the symmetric matrix S is positive definite (Cholesky runs through)."""
-    n = S.shape[0]
-    L = np.zeros((n, n))
-    for j in range(n):
-        d = S[j, j] - L[j, :j] @ L[j, :j]
-        if not d > 0.0:
-            return False
-        L[j, j] = np.sqrt(d)
-        for i in range(j + 1, n):
-            L[i, j] = (S[i, j] - L[i, :j] @ L[j, :j]) / L[j, j]
-    return True
-
-
-@njit(cache=True)
 def _deprior(cov, p, omega, v, mean, info, G):
     """Take a twist prior (ROS order mean (6,), information (6, 6)) out of a posterior
     estimate (covariance (12, 12) over (rotation, position, omega, v), values p, omega, v;
     rotation 0 at the estimate): returns (ok, data values (12,) (rotation relative to the
-    estimate), data covariance (12, 12), data sensitivity (12, 6) from the posterior's G)."""
+    estimate), data covariance (12, 12), data sensitivity (12, 6) from the posterior's G);
+    ok False (and the inputs back) when the posterior or the data information is not
+    positive definite."""
     idx = np.array([9, 10, 11, 6, 7, 8])
-    if not _cholesky_ok(cov):
+    L, ok = _cholesky(cov)
+    if not ok:
         return False, np.zeros(12), cov, G
-    L_post = np.linalg.inv(cov)
+    L_post = _inverse_from_cholesky(L)
     L_d = L_post.copy()
-    mp = np.zeros(12)
     for a in range(6):
-        mp[idx[a]] = mean[a]
         for b in range(6):
             L_d[idx[a], idx[b]] -= info[a, b]
     L_d = 0.5 * (L_d + L_d.T)
-    if not _cholesky_ok(L_d):
+    L, ok = _cholesky(L_d)
+    if not ok:
         return False, np.zeros(12), cov, G
-    R_d = np.linalg.inv(L_d)
-    R_d = 0.5 * (R_d + R_d.T)
+    R_d = _inverse_from_cholesky(L)
     zp = np.zeros(12)
     zp[3:6], zp[6:9], zp[9:12] = p, omega, v
     rhs = L_post @ zp
@@ -435,27 +523,191 @@ def _deprior(cov, p, omega, v, mean, info, G):
 
 
 @njit(cache=True)
+def _prepare_measurement(m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc,
+                         acc_var):
+    """The measurement of an estimate (see :meth:`TwistFilter._measurement`) from its arrays:
+    m (12 or 6), covariance cov (12, 12) (its (m, m) block is used), O (3, 3), p, omega,
+    v_cam (3,), acceleration sensitivity G (12, 6) (used if ``has_G``), the twist prior's
+    mean (6,) and information (6, 6) (taken out if ``prior_on`` and m = 12), the
+    ``measurement_scale``, ``acc`` (acceleration model) and the accelerations' variances
+    acc_var (6,) (velocity model: their effect is added to R).
+
+    Returns (usable, deprior, O (3, 3), p, omega, v_cam (3,), R (m, m), G (m, 6), has_G);
+    usable False if cov's (m, m) block is not finite; has_G False if G is not finite or
+    was moved into R."""
+    zO, zp, zw, zv = O.copy(), p.copy(), omega.copy(), v.copy()
+    for i in range(m):
+        for j in range(m):
+            if not np.isfinite(cov[i, j]):
+                return False, False, zO, zp, zw, zv, np.zeros((m, m)), np.zeros((m, 6)), False
+    if has_G:
+        for i in range(12):
+            for j in range(6):
+                if not np.isfinite(G[i, j]):
+                    has_G = False
+    Gm = np.ascontiguousarray(G[:m]) if has_G else np.zeros((m, 6))
+    R = np.ascontiguousarray(cov[:m, :m])
+    deprior = False
+    if prior_on and m == 12:
+        ok, zd, R_d, G_d = _deprior(R, zp, zw, zv, mean, info, Gm)
+        if ok:  # (else the data information is not positive definite: keep the posterior)
+            zO = _exp(zd[0:3]) @ zO
+            zp, zw, zv = zd[3:6].copy(), zd[6:9].copy(), zd[9:12].copy()
+            R = R_d
+            if has_G:
+                Gm = G_d
+            deprior = True
+    R = scale * R
+    if has_G and not acc:
+        R = R + (Gm * acc_var) @ Gm.T
+        has_G = False
+    return True, deprior, zO, zp, zw, zv, R, Gm, has_G
+
+@njit(cache=True)
 def _camera_covariance(O, v, Pb):
     """(12, 12) covariance of (phi, p, omega, v_cam = O^T v) from the (n, n) block over
-    (phi, p, omega, v, ...): ``d v_cam = O^T [v]x phi + O^T dv``."""
-    J = np.zeros((12, 12))
-    for i in range(9):
-        J[i, i] = 1.0
+    (phi, p, omega, v, ...): ``d v_cam = O^T [v]x phi + O^T dv`` (J Pb J^T with J the
+    identity but for these rows; symmetric)."""
     A = O.T @ skew_matrix(v)
+    T = np.zeros((3, 12))  # the v_cam rows of J Pb
+    for i in range(3):
+        for c in range(12):
+            s = 0.0
+            for j in range(3):
+                s += A[i, j] * Pb[j, c] + O[j, i] * Pb[9 + j, c]
+            T[i, c] = s
+    cov = np.empty((12, 12))
+    for a in range(9):
+        for b in range(9):
+            cov[a, b] = 0.5 * (Pb[a, b] + Pb[b, a])
+    for i in range(3):
+        for b in range(9):
+            cov[9 + i, b] = T[i, b]
+            cov[b, 9 + i] = T[i, b]
+        for k in range(3):
+            s = 0.0
+            for j in range(3):
+                s += T[i, j] * A[k, j] + T[i, 9 + j] * O[j, k]
+            cov[9 + i, 9 + k] = s
+    for i in range(3):
+        for k in range(i + 1, 3):
+            cov[9 + i, 9 + k] = cov[9 + k, 9 + i] = 0.5 * (cov[9 + i, 9 + k] + cov[9 + k, 9 + i])
+    return cov
+
+
+@njit(cache=True)
+def _unpack(x):
+    """Copies (O (3, 3), p, omega, v, alpha, a (3,)) of a window row x (see ``_ROW``)."""
+    O = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
-            J[9 + i, j] = A[i, j]
-            J[9 + i, 9 + j] = O[j, i]
-    Pc = np.ascontiguousarray(Pb[:12, :12])
-    cov = J @ Pc @ J.T
-    return 0.5 * (cov + cov.T)
+            O[i, j] = x[3 * i + j]
+    return O, x[9:12].copy(), x[12:15].copy(), x[15:18].copy(), x[18:21].copy(), \
+        x[21:24].copy()
+
+
+@njit(cache=True)
+def _pack(row, O, p, omega, v, alpha, a):
+    """Write a nominal state into a window row (27,) (see ``_ROW``; v_cam: ``_outputs``)."""
+    for i in range(3):
+        for j in range(3):
+            row[3 * i + j] = O[i, j]
+        row[9 + i], row[12 + i], row[15 + i] = p[i], omega[i], v[i]
+        row[18 + i], row[21 + i] = alpha[i], a[i]
+
+
+@njit(cache=True)
+def _outputs(X, P, n):
+    """Fill ``v_cam = O^T v`` (columns 24:27) of the window rows X (k, 27) and return their
+    (k, 12, 12) covariances of (phi, p, omega, v_cam) from the window covariance P
+    (k n, k n) (:func:`_camera_covariance` of each (n, n) diagonal block)."""
+    k = X.shape[0]
+    C = np.empty((k, 12, 12))
+    for i in range(k):
+        O, _, _, v, _, _ = _unpack(X[i])
+        for r in range(3):
+            X[i, 24 + r] = O[0, r] * v[0] + O[1, r] * v[1] + O[2, r] * v[2]
+        C[i] = _camera_covariance(O, v, P[i * n:(i + 1) * n, i * n:(i + 1) * n])
+    return C
+
+
+@njit(cache=True)
+def _update_window(X, P, dt, keep, acc, qa, ql, limit, m, cov, O, p, omega, v, G, has_G,
+                   prior_on, mean, info, scale, acc_var):
+    """The arithmetic of :meth:`TwistFilter.update` on a running window, in one call.
+
+    X (k, 27) the window's rows (newest first, see ``_ROW``) and P (k n, k n) its error
+    covariance (n = 18 with ``acc``, else 12). The newest state is propagated by ``dt`` s
+    (:func:`_transition`, spectral densities ``qa``, ``ql``) and becomes the new row 0; the
+    ``keep`` newest old rows follow (:func:`_shift_covariance`). With a measurement (m > 0;
+    the remaining arguments as :func:`_prepare_measurement`) it is fused into every row
+    when its NIS is <= ``limit`` (the gate; ``inf`` for none).
+
+    Returns (status, nis, X' (keep + 1, 27), P', C (keep + 1, 12, 12) the rows'
+    :func:`_outputs`): status -1 no usable measurement (nis NaN), 0 gated out (nis inf if
+    the innovation covariance is not positive definite), 1 fused; X', P' are the propagated
+    window unless fused."""
+    n = 18 if acc else 12
+    O0, p0, w0, v0, al0, a0 = _unpack(X[0])
+    On, pn, wn, vn, F, Q = _transition(O0, p0, w0, v0, al0, a0, dt, acc, qa, ql)
+    Pn = _shift_covariance(P, F, Q, n, keep)
+    Xn = np.empty((keep + 1, _ROW))
+    _pack(Xn[0], On, pn, wn, vn, al0, a0)
+    Xn[1:] = X[:keep]
+    status, nis = -1, np.nan
+    if m > 0:
+        usable, _, zO, zp, zw, zv, R, Gm, use_G = _prepare_measurement(
+            m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var)
+        if usable:
+            y, H = _innovation(On, pn, wn, vn, al0, a0, zO, zp, zw, zv, m, n, Gm, use_G)
+            nis, dx, P_upd, ok = _kalman_update(Pn, H, y, R)
+            status = 0
+            if ok and nis <= limit:
+                status = 1
+                Pn = P_upd
+                nv = 18 if acc else 12  # (alpha, a are not states of the velocity model)
+                for i in range(keep + 1):
+                    Oi = _unpack(Xn[i])[0]
+                    Oi = _exp(dx[i * n:i * n + 3]) @ Oi
+                    for r in range(3):
+                        for c in range(3):
+                            Xn[i, 3 * r + c] = Oi[r, c]
+                    for j in range(3, nv):
+                        Xn[i, 6 + j] += dx[i * n + j]
+    return status, nis, Xn, Pn, _outputs(Xn, Pn, n)
+
+
+@njit(cache=True)
+def _predict_row(X, P, dt, acc, qa, ql):
+    """The newest window row (of X (k, 27), error covariance P (k n, k n)) propagated by
+    ``dt`` s: (row (27,), its (12, 12) covariance of (phi, p, omega, v_cam))."""
+    n = 18 if acc else 12
+    O0, p0, w0, v0, al0, a0 = _unpack(X[0])
+    On, pn, wn, vn, F, Q = _transition(O0, p0, w0, v0, al0, a0, dt, acc, qa, ql)
+    Xn = np.empty((1, _ROW))
+    _pack(Xn[0], On, pn, wn, vn, al0, a0)
+    C = _outputs(Xn, _shift_covariance(P, F, Q, n, 0), n)
+    return Xn[0], C[0]
 
 
 _NO_G = np.zeros((12, 6))
+#: the measurement arguments of _update_window when there is none (m = 0)
+_NO_MEASUREMENT = (0, np.zeros((12, 12)), np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                   _NO_G, False, False, np.zeros(6), np.zeros((6, 6)))
 _ROS_POSE = np.ix_([3, 4, 5, 0, 1, 2], [3, 4, 5, 0, 1, 2])
 #: indices of the ROS twist order (vx, vy, vz, wx, wy, wz) in the (12,) output layout
 _TWIST_ROS = np.array([[9], [10], [11], [6], [7], [8]])
 _ROS_TWIST = np.ix_([9, 10, 11, 6, 7, 8], [9, 10, 11, 6, 7, 8])
+
+
+def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=float("nan")):
+    """FusedState of a window row x (27,) (see ``_ROW``) and its (12, 12) covariance; the
+    arrays are views of x (rows are never changed once the filter has handed them out)."""
+    return FusedState(
+        stamp_ns=stamp, orientation=x[0:9].reshape(3, 3), position=x[9:12],
+        angular_velocity=x[12:15], linear_velocity=x[24:27], linear_velocity_world=x[15:18],
+        angular_acceleration=x[18:21], linear_acceleration=x[21:24], covariance=cov,
+        fused=fused, restarted=restarted, smoothed=smoothed, nis=nis)
 
 
 class TwistFilter:
@@ -466,6 +718,13 @@ class TwistFilter:
     later time without changing the filter (the tracker's motion model); :meth:`flush`
     returns the frames not yet returned. Stamps are integers in ns; a constant offset for all
     frames (e.g. header stamps of row 0 instead of the reference row) does not matter.
+
+    The window (newest frame first): ``window`` (bookkeeping per frame), ``X`` (k, 27) the
+    frames' nominal states, one row each (O (3, 3) row-major, p, omega, v, alpha, a, then
+    v_cam = O^T v; zero accelerations for the velocity model), ``P`` (k n, k n) their joint
+    error covariance (n = 18 or 12 error states per frame, module docstring), ``C`` (k, 12,
+    12) each frame's covariance in the :class:`FusedState` layout. Updates replace these
+    arrays, never change them in place (the states handed out are views of them).
 
     Args:
         options: :class:`FusionOptions`.
@@ -480,13 +739,16 @@ class TwistFilter:
         self._qa, self._ql = float(o.angular_noise) ** 2, float(o.linear_noise) ** 2
         self._acc_var = np.repeat([o.angular_acceleration_std**2,
                                    o.linear_acceleration_std**2], 3)
+        self._scale = float(o.measurement_scale)
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         """Forget everything (frames not yet returned are dropped; see :meth:`flush`)."""
         self.window: list[_Entry] = []  # newest first
+        self.X = np.zeros((0, _ROW))
         self.P = np.zeros((0, 0))
+        self.C = np.zeros((0, 12, 12))
         self.rejections = 0
 
     @property
@@ -498,33 +760,13 @@ class TwistFilter:
         """Stamp of the newest frame, or None."""
         return self.window[0].stamp if self.window else None
 
-    def _step(self, e: _Entry, dt: float):
-        """Propagate one entry by ``dt``: (new entry, F (n, n), Q (n, n))."""
-        O, p, w, v, F, Q = _transition(e.O, e.p, e.omega, e.v, e.alpha, e.a, float(dt),
-                                       self._acc, self._qa, self._ql)
-        return _Entry(e.stamp, O, p, w, v, e.alpha, e.a), F, Q
-
-    def _state(self, e: _Entry, P: np.ndarray) -> FusedState:
-        """FusedState of one entry with its (n, n) covariance block."""
-        cov = _camera_covariance(e.O, e.v, P)
-        # (the entries' arrays are replaced by updates, never changed in place: no copies)
-        return FusedState(
-            stamp_ns=e.stamp, orientation=e.O, position=e.p, angular_velocity=e.omega,
-            linear_velocity=e.O.T @ e.v, linear_velocity_world=e.v,
-            angular_acceleration=e.alpha, linear_acceleration=e.a, covariance=cov,
-            fused=e.fused, restarted=e.restarted, smoothed=e.age, nis=e.nis)
-
-    def _block(self, i: int) -> np.ndarray:
-        n = self.n
-        return self.P[i * n:(i + 1) * n, i * n:(i + 1) * n]
-
     def _snapshot(self):
-        """A function giving the newest state as it is now (for :class:`FusionStep`; the
-        entries' arrays and P are replaced by updates, never changed in place)."""
-        src, P = self.window[0], self._block(0)
-        e = _Entry(src.stamp, src.O, src.p, src.omega, src.v, src.alpha, src.a)
-        e.fused, e.restarted, e.age, e.nis = src.fused, src.restarted, src.age, src.nis
-        return lambda: self._state(e, P)
+        """A function giving the newest state as it is now (for :class:`FusionStep`; X and C
+        are replaced by updates, never changed in place)."""
+        e = self.window[0]
+        x, cov = self.X[0], self.C[0]
+        stamp, fused, restarted, age, nis = e.stamp, e.fused, e.restarted, e.age, e.nis
+        return lambda: _fused_state(stamp, x, cov, fused, restarted, age, nis)
 
     def state(self, i: int = 0) -> FusedState:
         """The current estimate of the frame ``i`` frames back in the window (0: newest).
@@ -532,7 +774,8 @@ class TwistFilter:
         Raises:
             IndexError: no such frame in the window.
         """
-        return self._state(self.window[i], self._block(i))
+        e = self.window[i]
+        return _fused_state(e.stamp, self.X[i], self.C[i], e.fused, e.restarted, e.age, e.nis)
 
     def predict(self, stamp_ns: int) -> FusedState:
         """The newest state propagated to ``stamp_ns`` (>= its stamp; earlier stamps give the
@@ -543,10 +786,10 @@ class TwistFilter:
         """
         if not self.window:
             raise RuntimeError("TwistFilter.predict before the first update")
-        dt = max((int(stamp_ns) - self.window[0].stamp) * 1e-9, 0.0)
-        e, F, Q = self._step(self.window[0], dt)
-        e.stamp = int(stamp_ns)
-        return self._state(e, _shift_covariance(self._block(0).copy(), F, Q, self.n, 0))
+        stamp_ns = int(stamp_ns)
+        dt = max((stamp_ns - self.window[0].stamp) * 1e-9, 0.0)
+        x, cov = _predict_row(self.X, self.P, dt, self._acc, self._qa, self._ql)
+        return _fused_state(stamp_ns, x, cov)
 
     def flush(self) -> list:
         """Frames of the window not returned yet (oldest first), with their estimates so far;
@@ -571,6 +814,35 @@ class TwistFilter:
         return out
 
     # ------------------------------------------------------------------ measurement
+    def _measurement_inputs(self, est, prior=None):
+        """The arguments of :func:`_prepare_measurement` for an estimate up to
+        ``measurement_scale`` (m, cov, O, p, omega, v_cam, G, has_G, prior_on, mean, info),
+        or None when it is unusable by its type or shapes (failed, no (12, 12) covariance;
+        finiteness is checked by the kernel)."""
+        if not getattr(est, "success", False):
+            return None
+        cov = getattr(est, "covariance", None)
+        if cov is None:
+            return None
+        cov = np.asarray(cov, dtype=float)
+        if cov.shape != (12, 12):
+            return None
+        m = 12 if getattr(est, "twist_covariance", None) is not None else 6
+        G = getattr(est, "acceleration_sensitivity", None)
+        if G is not None:
+            G = np.asarray(G, dtype=float)
+        has_G = G is not None and G.shape == (12, 6)
+        if prior is not None and m == 12 and getattr(prior, "enabled", False):
+            _, mean, info = prior_arrays(prior)  # ROS (v, omega) order
+            on = True
+        else:
+            on, mean, info = False, _NO_MEASUREMENT[9], _NO_MEASUREMENT[10]
+        return (m, cov, np.asarray(est.orientation, dtype=float),
+                np.asarray(est.position, dtype=float),
+                np.asarray(est.angular_velocity, dtype=float),
+                np.asarray(est.linear_velocity, dtype=float), G if has_G else _NO_G, has_G,
+                on, mean, info)
+
     def _measurement(self, est, prior=None):
         """The measurement an estimate gives: a :class:`_Measurement` with m = 12 (pose and
         twist with the (12, 12) covariance) or 6 (pose only: no twist covariance, a global
@@ -583,38 +855,18 @@ class TwistFilter:
         At the estimate, posterior information = data information + prior information (in
         the twist block), so the data-only measurement is ``z_d = L_d^-1 (L_post z_post -
         L_prior m)`` with ``L_d = L_post - L_prior``, and its sensitivity ``L_d^-1 L_post G``.
+        (:meth:`update` does the same inside :func:`_update_window`.)
         """
-        if not getattr(est, "success", False):
+        args = self._measurement_inputs(est, prior)
+        if args is None:
             return None
-        cov = getattr(est, "covariance", None)
-        if cov is None:
+        ok, deprior, O, p, w, v, R, G, has_G = _prepare_measurement(
+            *args, self._scale, self._acc, self._acc_var)
+        if not ok:
             return None
-        cov = np.asarray(cov, dtype=float)
-        m = 12 if getattr(est, "twist_covariance", None) is not None else 6
-        if cov.shape != (12, 12) or not np.isfinite(cov[:m, :m]).all():
-            return None
-        z = _Measurement(m, np.asarray(est.orientation, dtype=float),
-                         np.asarray(est.position, dtype=float),
-                         np.asarray(est.angular_velocity, dtype=float),
-                         np.asarray(est.linear_velocity, dtype=float), cov[:m, :m].copy())
-        G = getattr(est, "acceleration_sensitivity", None)
-        if G is not None:
-            G = np.asarray(G, dtype=float)
-            G = np.ascontiguousarray(G[:m]) if G.shape == (12, 6) and np.isfinite(G).all() \
-                else None
-        if prior is not None and m == 12 and getattr(prior, "enabled", False):
-            _, mean, info = prior_arrays(prior)  # ROS (v, omega) order
-            ok, zd, R_d, G_d = _deprior(z.R, z.p, z.omega, z.v, mean, info,
-                                        G if G is not None else np.zeros((12, 6)))
-            if ok:  # (else the data information is not positive definite: keep the posterior)
-                z = _Measurement(m, _exp(zd[0:3]) @ z.O, zd[3:6], zd[6:9], zd[9:12], R_d)
-                G = G_d if G is not None else None
-                z.deprior = True
-        z.R = np.ascontiguousarray(self.options.measurement_scale * z.R)
-        if G is not None and not self._acc:
-            z.R = z.R + (G * self._acc_var) @ G.T
-            G = None
-        z.G = G
+        z = _Measurement(args[0], O, p, w, v, R)
+        z.G = G if has_G else None
+        z.deprior = deprior
         return z
 
     def _start(self, stamp_ns, z) -> None:
@@ -624,7 +876,7 @@ class TwistFilter:
         O = np.array(z.O, dtype=float)
         omega = np.array(z.omega, dtype=float) if m == 12 else np.zeros(3)
         v = O @ z.v if m == 12 else np.zeros(3)
-        e = _Entry(stamp_ns, O, np.array(z.p, dtype=float), omega, v, np.zeros(3), np.zeros(3))
+        e = _Entry(stamp_ns)
         e.fused, e.restarted = True, True
         P = np.zeros((n, n))
         # the state is z - G (alpha, a_cam) - noise: with the accelerations' prior A,
@@ -651,8 +903,12 @@ class TwistFilter:
             P[12:18, 12:18] = Aw
             P[:12, 12:18] = J @ cross
             P[12:18, :12] = P[:12, 12:18].T
+        X = np.zeros((1, _ROW))
+        X[0, 0:9], X[0, 9:12], X[0, 12:15], X[0, 15:18] = O.ravel(), z.p, omega, v
         self.window = [e]
         self.P = 0.5 * (P + P.T)
+        self.C = _outputs(X, self.P, n)
+        self.X = X
         self.rejections = 0
 
     def update(self, stamp_ns: int, estimate, relocalized: bool = False,
@@ -674,53 +930,44 @@ class TwistFilter:
             :class:`FusionStep`: the filtered state at the frame and the frames now final.
         """
         o = self.options
-        n = self.n
-        meas = self._measurement(estimate, prior)
+        stamp_ns = int(stamp_ns)
         flushed = []
         if self.window:
-            dt = (int(stamp_ns) - self.window[0].stamp) * 1e-9
+            dt = (stamp_ns - self.window[0].stamp) * 1e-9
             if dt <= 0 or dt > o.max_gap:
                 flushed = self.flush()
                 self.reset()
         if not self.window:
+            meas = self._measurement(estimate, prior)
             if meas is None:
                 return FusionStep(None, flushed)
             self._start(stamp_ns, meas)
             return FusionStep(self._snapshot(), flushed + self._finalize())
-        # propagate the newest entry and shift the window (the oldest falls out when full)
-        new, F, Q = self._step(self.window[0], dt)
-        new.stamp = int(stamp_ns)
+        # propagate the newest entry and shift the window (the oldest falls out when full),
+        # then fuse the measurement into every frame of the window (one kernel call)
+        args = self._measurement_inputs(estimate, prior) or _NO_MEASUREMENT
         keep = min(len(self.window), o.lag)
-        P = _shift_covariance(self.P, F, Q, n, keep)
+        status, nis, self.X, self.P, self.C = _update_window(
+            self.X, self.P, dt, keep, self._acc, self._qa, self._ql,
+            self._limit.get(args[0], np.inf), *args, self._scale, self._acc_var)
         for e in self.window[keep:]:  # fell out of the window (returned already unless lag 0)
             e.emitted = True
+        new = _Entry(stamp_ns)
         self.window = [new] + self.window[:keep]
         for e in self.window[1:]:
             e.age += 1
-        self.P = P
-        if meas is None:
+        if status < 0:  # no usable measurement: the frame gets the prediction
             return FusionStep(self._snapshot(), self._finalize())
-        m, Rm, G = meas.m, meas.R, meas.G
-        y, H = _innovation(new.O, new.p, new.omega, new.v, new.alpha, new.a, meas.O, meas.p,
-                           meas.omega, meas.v, m, n, G if G is not None else _NO_G, G is not None)
-        nis, dx, P_upd, ok = _kalman_update(P, H, y, Rm)
         new.nis = nis
-        if not (ok and nis <= self._limit[m]):
+        if status == 0:  # gated out
             self.rejections += 1
             if relocalized or self.rejections > o.max_rejections:
                 new.emitted = True  # the frame restarts the filter instead
                 flushed = self.flush()
-                self._start(stamp_ns, meas)
+                self._start(stamp_ns, self._measurement(estimate, prior))
                 self.window[0].nis = nis
                 return FusionStep(self._snapshot(), flushed + self._finalize())
             return FusionStep(self._snapshot(), self._finalize())
         self.rejections = 0
-        self.P = P_upd
-        for i, e in enumerate(self.window):
-            d = dx[i * n:(i + 1) * n]
-            e.O = _exp(d[0:3]) @ e.O
-            e.p, e.omega, e.v = e.p + d[3:6], e.omega + d[6:9], e.v + d[9:12]
-            if self._acc:
-                e.alpha, e.a = e.alpha + d[12:15], e.a + d[15:18]
         new.fused = True
         return FusionStep(self._snapshot(), self._finalize())
