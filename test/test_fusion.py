@@ -9,13 +9,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
 
-from rs_localizer.estimation.fusion import FusionOptions, TwistFilter
+from rs_localizer.estimation.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
 from rs_localizer.estimation.tracker import RSTracker, TrackerOptions
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
@@ -252,3 +254,164 @@ def test_prior_information_is_taken_out():
     # without the prior the posterior is taken as it is
     plain = TwistFilter()._measurement(est)
     assert not plain.deprior and np.allclose(plain.R, est.covariance)
+
+
+# --------------------------------------------------- the update kernel, against plain NumPy
+def _so3_exp(d):
+    return Rotation.from_rotvec(d).as_matrix()
+
+
+def _so3_log(R):
+    return Rotation.from_matrix(R).as_rotvec()
+
+
+def _plus(x, d):
+    """A nominal state (O, p, omega, v, alpha, a) moved by an error d (world-axis rotation
+    vector first; 18 or 12 entries)."""
+    O, p, w, v, al, a = x
+    if len(d) == 12:
+        d = np.concatenate([d, np.zeros(6)])
+    return (_so3_exp(d[:3]) @ O, p + d[3:6], w + d[6:9], v + d[9:12], al + d[12:15],
+            a + d[15:18])
+
+
+def _jacobian(f, x, n, eps=1e-6):
+    """Central differences of f(x + d) - f(x) (f returns error-space vectors) over d (n,)."""
+    cols = []
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = eps
+        cols.append((f(_plus(x, e)) - f(_plus(x, -e))) / (2 * eps))
+    return np.stack(cols, 1)
+
+
+@pytest.mark.parametrize("model", ["acceleration", "velocity"])
+def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
+    """One filter step on a random two-frame window (lag 1) by the numba kernel against the
+    textbook error-state EKF in NumPy/SciPy: F and H by central differences of the nominal
+    models, Q by Van Loan, the covariance-form Kalman update, the correction applied to both
+    frames, the output covariances by central differences of (O, p, omega, O^T v)."""
+    from rs_localizer.estimation import fusion as fu
+
+    acc = model == "acceleration"
+    n = 18 if acc else 12
+    opts = FusionOptions(model=model, lag=1, gate=1.0)
+    qa, ql = opts.angular_noise**2, opts.linear_noise**2
+    acc_var = np.repeat([opts.angular_acceleration_std**2, opts.linear_acceleration_std**2], 3)
+    rng = np.random.default_rng(7)
+    dt = 0.04
+
+    def rand_state():
+        al, a = (rng.normal(size=3), rng.normal(size=3)) if acc else (np.zeros(3), np.zeros(3))
+        return (_so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3),
+                rng.normal(size=3), al, a)
+
+    window = [rand_state(), rand_state()]  # newest first
+    X = np.zeros((2, 27))
+    for i, (O, p, w, v, al, a) in enumerate(window):
+        X[i, :24] = np.concatenate([O.ravel(), p, w, v, al, a])
+    A = rng.normal(size=(2 * n, 2 * n))
+    P = A @ A.T * 1e-3 + np.eye(2 * n) * 1e-4
+    B = rng.normal(size=(12, 12))
+    Rm = B @ B.T * 1e-4 + np.eye(12) * 1e-5
+    G = rng.normal(size=(12, 6)) * 1e-2
+
+    # --- NumPy: propagate the newest frame, shift the window
+    def propagate(x):
+        O, p, w, v, al, a = x
+        return (O @ _so3_exp(w * dt + 0.5 * dt**2 * al), p + v * dt + 0.5 * dt**2 * a,
+                w + al * dt, v + a * dt, al, a)
+
+    def minus(x1, x0):
+        err = np.concatenate([_so3_log(x1[0] @ x0[0].T)] + [x1[k] - x0[k] for k in range(1, 6)])
+        return err[:n]
+
+    new = propagate(window[0])
+    F = _jacobian(lambda x: minus(propagate(x), new), window[0], n)
+    order = 3 if acc else 2
+    Fc, Qd = _van_loan(np.diag(np.ones(order - 1), 1), np.diag([0.0] * (order - 1) + [1.0]),
+                       dt)
+    Qang, Qlin = np.kron(qa * Qd, np.eye(3)), np.kron(ql * Qd, np.eye(3))
+    T = np.eye(3 * order)
+    T[:3, :3] = new[0]  # the camera-frame angular chain's rotation error in world axes
+    Qang = T @ Qang @ T.T
+    ang = np.concatenate([np.arange(3) + 6 * b for b in range(order)])
+    Q = np.zeros((n, n))
+    Q[np.ix_(ang, ang)] = Qang
+    Q[np.ix_(ang + 3, ang + 3)] = Qlin
+    Fa = np.zeros((2 * n, 2 * n))
+    Fa[:n, :n] = F
+    Fa[n:, :n] = np.eye(n)
+    Pa = Fa @ P @ Fa.T
+    Pa[:n, :n] += Q
+
+    # --- the measurement: (O, p, omega, v_cam) moved by G (alpha, a_cam) (acceleration
+    # model); the filter takes a_cam = O^T a at the predicted O (it neglects the rotation
+    # error's effect on G's small term)
+    def h(x):
+        O, p, w, v, al, a = x
+        shift = G @ np.concatenate([al, new[0].T @ a]) if acc else np.zeros(12)
+        return np.concatenate([np.zeros(3), p, w, O.T @ v]) + shift, O
+
+    truth = _plus(new, rng.normal(size=n) * 0.05)
+    z_vec, zO = h(truth)
+    hv, hO = h(new)
+    y = np.concatenate([_so3_log(zO @ hO.T), np.zeros(9)]) + z_vec - hv
+    y[:3] -= z_vec[:3]  # (the rotation's shift is part of hv[:3])
+
+    def h_err(x):
+        v, O = h(x)
+        return np.concatenate([_so3_log(O @ hO.T), np.zeros(9)]) + v - np.concatenate(
+            [np.zeros(3), hv[3:]])
+
+    H = np.zeros((12, 2 * n))
+    H[:, :n] = _jacobian(h_err, new, n)
+    R_eff = Rm if acc else Rm + (G * acc_var) @ G.T
+    S = H @ Pa @ H.T + R_eff
+    K = Pa @ H.T @ np.linalg.inv(S)
+    dx = K @ y
+    P_ref = (np.eye(2 * n) - K @ H) @ Pa
+    nis_ref = y @ np.linalg.solve(S, y)
+    fused = [_plus(new, dx[:n]), _plus(window[0], dx[n:])]
+
+    # --- the kernel
+    status, nis, Xn, Pn, C = fu._update_window(
+        X, P, dt, 1, acc, qa, ql, np.inf, 12, Rm, zO, z_vec[3:6], z_vec[6:9], z_vec[9:12],
+        G, True, False, np.zeros(6), np.zeros((6, 6)), 1.0, acc_var)
+    assert status == 1
+    assert nis == pytest.approx(nis_ref, rel=1e-6)
+    np.testing.assert_allclose(Pn, 0.5 * (P_ref + P_ref.T), rtol=1e-6,
+                               atol=1e-7 * np.abs(P_ref).max())
+    for i, (O, p, w, v, al, a) in enumerate(fused):
+        np.testing.assert_allclose(Xn[i, :24], np.concatenate([O.ravel(), p, w, v, al, a]),
+                                   atol=1e-8)
+        np.testing.assert_allclose(Xn[i, 24:], O.T @ v, atol=1e-8)
+        # the output covariance of (phi, p, omega, v_cam)
+        out = lambda x, x0=fused[i]: np.concatenate([  # noqa: E731
+            _so3_log(x[0] @ x0[0].T), x[1], x[2], x[0].T @ x[3]])
+        J = _jacobian(out, fused[i], n)
+        Pb = Pn[i * n:(i + 1) * n, i * n:(i + 1) * n]
+        np.testing.assert_allclose(C[i], J @ Pb @ J.T, rtol=1e-6,
+                                   atol=1e-7 * np.abs(Pb).max())
+    # a gate below the NIS: nothing fused, the propagated window and covariance
+    status, nis2, Xg, Pg, _ = fu._update_window(
+        X, P, dt, 1, acc, qa, ql, 0.5 * nis_ref, 12, Rm, zO, z_vec[3:6], z_vec[6:9],
+        z_vec[9:12], G, True, False, np.zeros(6), np.zeros((6, 6)), 1.0, acc_var)
+    assert status == 0 and nis2 == pytest.approx(nis_ref, rel=1e-6)
+    np.testing.assert_allclose(Pg, Pa, rtol=1e-6, atol=1e-7 * np.abs(Pa).max())
+    np.testing.assert_allclose(Xg[0, :9], new[0].ravel(), atol=1e-12)
+    np.testing.assert_allclose(Xg[1, :24], X[0, :24], atol=0)
+
+
+def test_fused_states_are_fused_state_dataclasses():
+    filt = TwistFilter(FusionOptions(lag=1))
+    est = SimpleNamespace(success=True, orientation=np.eye(3), position=np.zeros(3),
+                          angular_velocity=np.zeros(3), linear_velocity=np.ones(3),
+                          covariance=np.eye(12) * 1e-4, twist_covariance=np.eye(6))
+    filt.update(0, est)
+    step = filt.update(NS // 30, est)
+    for s in [step.current, filt.predict(NS // 15)] + step.final:
+        ref = FusedState(**{f.name: getattr(s, f.name) for f in dataclasses.fields(FusedState)})
+        assert repr(s) == repr(ref) and vars(s).keys() == vars(ref).keys()
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            s.fused = True
