@@ -553,9 +553,10 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior, acceleration=False)
     move them by at least a tenth of their standard deviation (:func:`~.prior.prior_conflict`,
     :data:`PRIOR_NEGLIGIBLE`; else MAP and ML are the same for all purposes), MAP from the ML
     estimate in closed form (:func:`~.refine.posterior_step`: one Gauss-Newton step with the
-    ML normal equations; the ML result's sigma and ``J^T W D``). A camera far faster than the prior allows (the paper's protocol:
-    8.7 rad/s, 5 m/s) keeps its ML estimate, so a zero-mean prior cannot bias it; where the
-    data hardly determine the velocities (small or distant objects), the prior sharpens them.
+    ML normal equations; the ML result's sigma and ``J^T W D``). A camera far faster than the
+    prior allows (the paper's protocol: 8.7 rad/s, 5 m/s) keeps its ML estimate, so a
+    zero-mean prior cannot bias it; where the data hardly determine the velocities (small or
+    distant objects), the prior sharpens them.
     Returns (RefineResult, whether the prior was used)."""
     tau = fr.r - fr.r0
     X, x = fr.X, fr.x

@@ -573,6 +573,7 @@ def _prepare_measurement(m, cov, O, p, omega, v, G, has_G, prior_on, mean, info,
         has_G = False
     return True, deprior, zO, zp, zw, zv, R, Gm, has_G
 
+
 @njit(cache=True)
 def _camera_covariance(x, P, b, out):
     """Write into out (12, 12) the covariance of (phi, p, omega, v_cam = O^T v) of the
