@@ -6,8 +6,9 @@ import pytest
 
 from rs_localizer.estimation.plausibility import (check_final_model, collinear_3d,
                                                   degenerate_points, depths_at_capture,
-                                                  final_model_check, image_degenerate,
-                                                  motion_bounds, plausible_motion)
+                                                  final_model_check, finite_model,
+                                                  image_degenerate, motion_bounds,
+                                                  plausible_motion)
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 
@@ -52,6 +53,18 @@ def test_one_model_plausibility_equals_the_batched_one(bounds):
             w[rng.integers(3)] = np.nan
         assert plausible_motion(None, C, w, t, bounds) == bool(
             plausible_motion(None, C[None], w[None], t[None], bounds)[0])
+
+
+def test_finite_model_equals_numpy():
+    rng = np.random.default_rng(3)
+    for k in range(200):
+        parts = [rng.normal(size=(3, 3)), rng.normal(size=3), rng.normal(size=3),
+                 rng.normal(size=3)]
+        if k % 2:  # one non-finite entry anywhere
+            a = parts[rng.integers(4)]
+            a.flat[rng.integers(a.size)] = (np.nan, np.inf, -np.inf)[k % 3]
+        assert finite_model(*parts) == all(np.isfinite(a).all() for a in parts)
+        assert finite_model(*parts) == (k % 2 == 0)
 
 
 def test_final_model_check_equals_check_final_model_on_the_depths():

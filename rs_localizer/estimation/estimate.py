@@ -19,7 +19,7 @@ from .outputs import (final_inliers, output_covariance_kernel,
 from .sampling import (draw_samples, gather_prerotated, second_prerotations,
                        select_prerotations, valid_rows)
 from .plausibility import (CHEIRALITY, IMPLAUSIBLE_MOTION, degenerate_points,
-                           final_model_check, motion_bounds, plausible_motion)
+                           final_model_check, finite_model, motion_bounds, plausible_motion)
 from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
@@ -587,7 +587,7 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     rolling = solver_info(solver).rolling
     if not rolling:
         w, t = np.zeros(3), np.zeros(3)
-    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+    if not finite_model(R, C, w, t):
         return 0, None
     e2 = errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)
     gate = float(model.gate_px) / fr.f
@@ -610,7 +610,7 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
                              rolling_shutter=rolling,
                              max_iterations=2 * opts.lo_refine_iterations, covariance=False,
                              cutoff=gate, prior=fr.prior, seconds_per_unit_r=fr.spr)
-        if all(np.isfinite(a).all() for a in (ref.R, ref.C, ref.w, ref.t)):
+        if finite_model(ref.R, ref.C, ref.w, ref.t):
             cand = (ref.R, ref.C, ref.w, ref.t)
             sc, inl_c = _evaluate(fr, cand, th2)
             if sc < score:
@@ -818,7 +818,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
                     # the seed explains the frame: RANSAC verifies it with samples drawn from
                     # its inliers (as LO-RANSAC's inner sampling), so the all-inlier
                     # probability is that of the pool, not of the frame
-                    order = np.concatenate([order[best_inl[order]], order[~best_inl[order]]])
+                    first = best_inl.take(order)
+                    order = np.concatenate([order.compress(first), order.compress(~first)])
                     guided = best_count
                     needed = 0.0
         t_local += time.perf_counter() - t_lo
@@ -900,7 +901,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         ref, prior_used = _final_refinement(fr, (R, C, w, t), th, rolling,
                                             prior if prior_on else None, want_sens)
         cand = (ref.R, ref.C, ref.w, ref.t)
-        if np.isfinite(ref.R).all() and np.isfinite(np.concatenate(cand[1:])).all():
+        if finite_model(*cand):
             R, C, w, t = cand
             cov12 = ref.covariance if np.isfinite(ref.covariance).all() else None
             info12 = ref.data_information
@@ -933,8 +934,8 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     # (plausibility.check_final_model on depths_at_capture, in one compiled call)
     w2max, v2max = ((np.inf, np.inf) if fr.motion_bounds is None
                     else (float(fr.motion_bounds[0]) ** 2, float(fr.motion_bounds[1]) ** 2))
-    code, n_behind = final_model_check(*(np.ascontiguousarray(a, dtype=np.float64)
-                                         for a in (R, C, w, t)), fr.X, tau, inl, w2max, v2max)
+    # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
+    code, n_behind = final_model_check(R, C, w, t, fr.X, tau, inl, w2max, v2max)
     if code:
         return _fail(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY, solver, n_in, N,
                      n_dropped, iters, timings)

@@ -30,7 +30,7 @@ from numba import njit
 
 __all__ = ["motion_bounds", "plausible_motion", "depths_at_capture", "collinear_3d",
            "image_degenerate", "degenerate_points", "check_final_model", "final_model_check",
-           "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
+           "finite_model", "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
 
 #: failure reasons of :func:`check_final_model`
 IMPLAUSIBLE_MOTION = "implausible_motion"
@@ -93,6 +93,17 @@ def _plausible1(C, w, t, w_max2, v_max2):
         return False
     v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
     return w0 * w0 + w1 * w1 + w2 * w2 <= w_max2 and v0 * v0 + v1 * v1 + v2 * v2 <= v_max2
+
+
+@njit(cache=True, nogil=True)
+def finite_model(R, C, w, t):
+    """True if every entry of the model R (3, 3), C, w, t (3,) is finite (one compiled call
+    instead of four NumPy reductions)."""
+    for i in range(3):
+        for j in range(3):
+            if not np.isfinite(R[i, j]):
+                return False
+    return _plausible1(C, w, t, np.inf, np.inf)
 
 
 @njit(cache=True, nogil=True)
