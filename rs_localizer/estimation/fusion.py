@@ -56,6 +56,7 @@ from scipy.stats import chi2
 
 from .._so3 import skew_matrix, so3_coefficients
 from .prior import prior_arrays
+from .refine import _cholesky as _cholesky_block
 
 __all__ = ["FusionOptions", "FusedState", "FusionStep", "TwistFilter", "MODELS"]
 
@@ -385,23 +386,11 @@ def _shift_covariance(P, F, Q, n, keep):
 @njit(cache=True)
 def _cholesky(S):
     """Lower Cholesky factor L (n, n) of the symmetric S (n, n) and ok: False if S is not
-    positive definite (L is not valid then). Plain loops (no exception inside numba)."""
+    positive definite (L is not valid then); :func:`.refine._cholesky` on all of S, the
+    strict upper part of L zero."""
     n = S.shape[0]
     L = np.zeros((n, n))
-    for j in range(n):
-        d = S[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:
-            return L, False
-        ljj = np.sqrt(d)
-        L[j, j] = ljj
-        for i in range(j + 1, n):
-            s = S[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / ljj
-    return L, True
+    return L, _cholesky_block(S, n, L)
 
 
 @njit(cache=True)

@@ -474,6 +474,17 @@ def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
     return scale2 * cost
 
 
+@njit(cache=True, inline=INLINE)
+def _store_model(R, C, w, t, out):
+    """out[:18] = R (row-major), C, w, t: the model part of the refinement kernels' output."""
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = R[i, j]
+        out[9 + i] = C[i]
+        out[12 + i] = w[i]
+        out[15 + i] = t[i]
+
+
 @njit(cache=True)
 def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out,
                prior_on, mu, Lam, s, noise2, want_acc):
@@ -560,12 +571,7 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
             lam *= 10
             if lam > 1e8:
                 break
-    for i in range(3):
-        for j in range(3):
-            out[3 * i + j] = R[i, j]
-        out[9 + i] = C[i]
-        out[12 + i] = w[i]
-        out[15 + i] = t[i]
+    _store_model(R, C, w, t, out)
     sigma = np.nan
     if want_cov:
         sigma2 = untruncated_variance(ss / max(2 * n_in - n_free, 1), k)
@@ -637,12 +643,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
             B[i, j] = 1.0 if i == j else 0.0
     if not _solve_symmetric(H, B, 12, 12, L, M):
         return False
-    for i in range(3):
-        for j in range(3):
-            out[3 * i + j] = Rn[i, j]
-        out[9 + i] = Cn[i]
-        out[12 + i] = wn[i]
-        out[15 + i] = tn[i]
+    _store_model(Rn, Cn, wn, tn, out)
     for i in range(12):
         for j in range(12):
             out[18 + 12 * i + j] = sigma2 * B[i, j]

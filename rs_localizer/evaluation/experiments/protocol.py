@@ -430,16 +430,15 @@ def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 20
     R6P's RANSAC is capped at ``r6p_iterations`` hypotheses (its ~20 roots per sample make it
     ~10x slower). A failed estimate (``success=False``) counts as an infinite error. The GS
     baselines have no velocities (errors = |true velocity|). Also records seconds per frame.
-    The estimator runs without its motion-plausibility bounds: the protocol's scene has no
-    physical scale, and at the highest speed ~10 % of the frames move faster than 50 units/s
-    (the default bound of a camera in metres), which it would rightly refuse.
+    The estimator runs with :func:`~rs_localizer.evaluation.bench.protocol_options` (no
+    motion-plausibility bounds: the protocol's scene has no physical scale).
     """
-    from ..bench import _opencv_estimate, _poselib_estimate
-    from ...estimation.estimate import EstimateOptions, estimate_rs_pose
+    from ..bench import _opencv_estimate, _poselib_estimate, protocol_options
+    from ...estimation.estimate import estimate_rs_pose
     from ...sim.synthetic import paper_camera
 
     cam = paper_camera()
-    opts = EstimateOptions(max_angular_velocity=np.inf, max_linear_velocity=np.inf)
+    opts = protocol_options()
     errors = {m: np.full((len(speeds), trials, 4), np.inf) for m in methods}
     secs = {m: np.full((len(speeds), trials), np.nan) for m in methods}
     inliers = {m: np.zeros((len(speeds), trials)) for m in methods}
