@@ -353,6 +353,8 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
     probes = {}
     try:
         assert node.wait_ready(240, count=3), node.log
+        # the process logs its summary after the last camera's ``ready`` line: wait for it too
+        assert node.wait_ready(30, marker="3 cameras in this process:"), node.log
         assert "3 cameras in this process: /multi/front, /multi/rear, /abs/cam3; " \
                "1 map files loaded (1 in use)" in node.log, node.log
         probes = {ns: Probe(ros_context, namespace=ns) for ns in names.values()}
