@@ -54,7 +54,7 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from .._so3 import skew_matrix, so3_coefficients
+from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
 from .prior import prior_arrays
 from .refine import _cholesky as _cholesky_block
 
@@ -223,14 +223,6 @@ _ROW = 27
 # ------------------------------------------------------------------------- numba kernels
 # (the filter runs once per frame next to a ~1 ms estimator: NumPy's per-call overhead on
 # 3x3 to 36x36 matrices would cost more than the arithmetic)
-@njit(cache=True)
-def _exp(theta):
-    """``expm([theta]x)`` (3, 3) (Rodrigues)."""
-    a, b, _ = so3_coefficients(theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2)
-    K = skew_matrix(theta)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
 @njit(cache=True)
 def _log(R):
     """Rotation vector (3,) of a rotation matrix (3, 3)."""
@@ -550,7 +542,7 @@ def _prepare_measurement(m, cov, O, p, omega, v, G, has_G, prior_on, mean, info,
     if prior_on and m == 12:
         ok, zd, R_d, G_d = _deprior(R, zp, zw, zv, mean, info, Gm)
         if ok:  # (else the data information is not positive definite: keep the posterior)
-            zO = _exp(zd[0:3]) @ zO
+            rotate_left_into(zd[0], zd[1], zd[2], O, zO)  # (zO was O's copy)
             zp, zw, zv = zd[3:6].copy(), zd[6:9].copy(), zd[9:12].copy()
             R = R_d
             if has_G:
@@ -617,22 +609,6 @@ def _outputs(X, P, n):
 
 
 @njit(cache=True)
-def _rotate_row(x, a0, a1, a2):
-    """``O <- expm([a]x) O`` in place for the orientation (row-major in x[0:9]) of a window
-    row x (Rodrigues)."""
-    c1, c2, _ = so3_coefficients(a0 * a0 + a1 * a1 + a2 * a2)
-    K = np.array([[0.0, -a2, a1], [a2, 0.0, -a0], [-a1, a0, 0.0]])
-    K2 = _mul3(K, K)
-    for j in range(3):
-        r0, r1, r2 = x[j], x[3 + j], x[6 + j]
-        for i in range(3):
-            e0 = (1.0 if i == 0 else 0.0) + c1 * K[i, 0] + c2 * K2[i, 0]
-            e1 = (1.0 if i == 1 else 0.0) + c1 * K[i, 1] + c2 * K2[i, 1]
-            e2 = (1.0 if i == 2 else 0.0) + c1 * K[i, 2] + c2 * K2[i, 2]
-            x[3 * i + j] = e0 * r0 + e1 * r1 + e2 * r2
-
-
-@njit(cache=True)
 def _update_window(X, P, dt, keep, acc, qa, ql, limit, m, cov, O, p, omega, v, G, has_G,
                    prior_on, mean, info, scale, acc_var):
     """The arithmetic of :meth:`TwistFilter.update` on a running window, in one call.
@@ -669,7 +645,8 @@ def _update_window(X, P, dt, keep, acc, qa, ql, limit, m, cov, O, p, omega, v, G
                 Pn = P_upd
                 nv = 18 if acc else 12  # (alpha, a are not states of the velocity model)
                 for i in range(keep + 1):
-                    _rotate_row(Xn[i], dx[i * n], dx[i * n + 1], dx[i * n + 2])
+                    O = Xn[i, 0:9].reshape((3, 3))  # (a view: rotated in place)
+                    rotate_left_into(dx[i * n], dx[i * n + 1], dx[i * n + 2], O.copy(), O)
                     for j in range(3, nv):
                         Xn[i, 6 + j] += dx[i * n + j]
     return status, nis, Xn, Pn, _outputs(Xn, Pn, n)

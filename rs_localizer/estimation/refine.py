@@ -485,6 +485,19 @@ def _store_model(R, C, w, t, out):
         out[15 + i] = t[i]
 
 
+@njit(cache=True, inline=INLINE)
+def _apply_step(R, C, w, t, B, n_free):
+    """The model (R, C, w, t) moved by the step ``B[:n_free, 0]`` over (rotation, C, w, t)
+    (rotation on the left, ``expm([d]x) R``): new (R, C, w, t); w, t are kept (the same
+    arrays) unless n_free = 12."""
+    Rn = _rotate_left(B[0, 0], B[1, 0], B[2, 0], R)
+    Cn = np.array([C[0] + B[3, 0], C[1] + B[4, 0], C[2] + B[5, 0]])
+    if n_free == 12:
+        return (Rn, Cn, np.array([w[0] + B[6, 0], w[1] + B[7, 0], w[2] + B[8, 0]]),
+                np.array([t[0] + B[9, 0], t[1] + B[10, 0], t[2] + B[11, 0]]))
+    return Rn, Cn, w, t
+
+
 @njit(cache=True)
 def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out,
                prior_on, mu, Lam, s, noise2, want_acc):
@@ -541,14 +554,7 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
             pred -= g[i] * B[i, 0]
         if pred <= 0.1 * tol * cost:
             break
-        Rn = _rotate_left(B[0, 0], B[1, 0], B[2, 0], R)
-        Cn = np.array([C[0] + B[3, 0], C[1] + B[4, 0], C[2] + B[5, 0]])
-        if n_free == 12:
-            wn = np.array([w[0] + B[6, 0], w[1] + B[7, 0], w[2] + B[8, 0]])
-            tn = np.array([t[0] + B[9, 0], t[1] + B[10, 0], t[2] + B[11, 0]])
-        else:
-            wn = w
-            tn = t
+        Rn, Cn, wn, tn = _apply_step(R, C, w, t, B, n_free)
         mn, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt)
         current = False
         if use_prior:
@@ -632,10 +638,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
         B[i, 0] = -g[i]
     if not _solve_symmetric(H.copy(), B, 12, 1, L, M):
         return False
-    Rn = _rotate_left(B[0, 0], B[1, 0], B[2, 0], R)
-    Cn = np.array([C[0] + B[3, 0], C[1] + B[4, 0], C[2] + B[5, 0]])
-    wn = np.array([w[0] + B[6, 0], w[1] + B[7, 0], w[2] + B[8, 0]])
-    tn = np.array([t[0] + B[9, 0], t[1] + B[10, 0], t[2] + B[11, 0]])
+    Rn, Cn, wn, tn = _apply_step(R, C, w, t, B, 12)
     H[:, :] = Hd
     _prior_terms(Cn, wn, tn, s, mu, Lam, sigma2, H, g, True)
     for i in range(12):
