@@ -6,8 +6,8 @@ The photo counts were checked by eye once on images with the detections drawn. P
 still photos: our P3P estimate must agree with cv2.solvePnP (and the checkerboard's with the
 extrinsics OpenCV's calibration stored in left_intrinsics.yml). The rolling-shutter estimate
 on the checkerboard photos agrees with P3P and reports a velocity consistent with zero once its
-covariance includes the photos' correlated image error (issue 13 item 5,
-``python -m rs_localizer.evaluation.still_boards``).
+covariance includes the photos' correlated image error
+(``python -m rs_localizer.evaluation.still_boards``).
 
 Runs on OpenCV 4.6 (contrib) and on 4.7+ / 5.x (the compatibility layer _cv_compat).
 """
@@ -134,7 +134,7 @@ def test_checkerboard_pose_rs_fits_at_least_as_well(left_board):
 
 
 def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
-    """Issue 13 item 5. The correlated image error is fitted on the 13 still photos (REML,
+    """The correlated image error is fitted on the 13 still photos (REML,
     as a user would on their calibration views); with it in the covariance, on every photo the
     RS estimate's twist is within the chi2(6) 99.73 % bound of zero, the P3P pose within the
     same bound under the RS pose covariance and the P3P rotation within the chi2(3) one under

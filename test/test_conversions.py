@@ -40,7 +40,7 @@ def test_stamps():
     st = cv.ns_to_stamp(ns)
     assert (st.sec, st.nanosec) == (1_700_000_123, 456_789_012)
     assert cv.stamp_to_ns(st) == ns
-    # never clamped or wrapped (issue 11: (2^31 - 1, 999999999) + 10.8 ms came out negative)
+    # never clamped or wrapped ((2^31 - 1, 999999999) + 10.8 ms came out negative)
     for bad in (-5, 2**31 * 10**9, 2**63):
         with pytest.raises(ValueError, match="stamp"):
             cv.ns_to_stamp(bad)
@@ -190,7 +190,7 @@ def test_tf_message_availability():
             cv.tf_message(est, 5, "map", "cam")
 
 
-# ------------------------------------------------------------------ issue 11: validation
+# ------------------------------------------------------------------ validation
 def test_checked_stamp():
     from builtin_interfaces.msg import Time
 

@@ -1,5 +1,5 @@
 """The README documents every failure reason the node can emit, every camera_info rejection
-reason, and every node parameter (issue 11: ``bad_cloud`` was emitted but not documented).
+reason, and every node parameter (a reason emitted but not documented is a defect).
 
 Reasons are collected from the sources (the string literals passed to the node's ``_fail``,
 ``_Drop`` and ``_reject_camera_info``, the decoders' reason tuples, the estimator's ``_fail``

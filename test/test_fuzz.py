@@ -1,4 +1,4 @@
-"""Property-based fuzzing (hypothesis) of everything a hostile publisher controls (issue 11):
+"""Property-based fuzzing (hypothesis) of everything a hostile publisher controls:
 the PointCloud2, CameraInfo and Image decoders and the estimator's input validation.
 
 Properties: no exception escapes other than the documented one, every rejection carries a

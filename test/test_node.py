@@ -196,7 +196,7 @@ def test_diagnostics(node, ros_context, sample_bag):
                     "solver", "camera", "planar", "condition_number_last"):
             assert key in v, key
         assert v["solver"] == "r6p_1lin" and v["camera"] == "camera_info"
-        assert v["planar"] == "false"  # a corridor: points in depth (issue 16)
+        assert v["planar"] == "false"  # a corridor: points in depth
         assert 1.0 <= float(v["condition_number_last"]) < 1e4
         assert int(v["frames_received"]) >= int(v["frames_solved"]) >= 5
         assert 300 < float(v["inliers_mean"]) <= 500
@@ -206,7 +206,7 @@ def test_diagnostics(node, ros_context, sample_bag):
 
 
 def test_tracking_fused_twist_and_resets(node, ros_context, sample_bag):
-    """Issue 10: with tracking (default) twist / odom carry the fused twist, a frame late and
+    """With tracking (default) twist / odom carry the fused twist, a frame late and
     stamped with their frame's time, better than the per-frame twist on twist_single_frame;
     diagnostics count tracked frames; a solver change resets the track; tracking.enabled false
     gives the per-frame twist on twist again."""
@@ -486,7 +486,7 @@ def test_demo_command(ros_domain, tmp_path):
     assert "smaller" in images
 
 
-# ------------------------------------------------------------------ issue 11: never a wrong pose
+# ------------------------------------------------------------------ never a wrong pose
 def _settle(probe, timeout=30.0):
     """Wait until the node has nothing pending and its counters stopped changing; returns
     the diagnostics values."""

@@ -1,4 +1,4 @@
-"""The node on a robot (issue 12): outputs in the robot's base frame, compressed images,
+"""The node on a robot: outputs in the robot's base frame, compressed images,
 lifecycle management and several cameras in one process, each over DDS against a real node
 process."""
 

@@ -1,5 +1,5 @@
-"""Correlated image error in the covariance (rs_localizer.estimation.noise_model, issue 13
-item 5): the sandwich covariance against finite differences of the refinement, the REML fit
+"""Correlated image error in the covariance (rs_localizer.estimation.noise_model):
+the sandwich covariance against finite differences of the refinement, the REML fit
 against the model it was drawn from, and the calibration of the new covariance on still
 synthetic boards (not inflated where the correlated error is what the model says)."""
 
@@ -144,7 +144,7 @@ def test_covariance_is_calibrated_on_still_boards(still_frames):
     bound: not inflated; the tail is the refinement's own, see below) and far beyond it
     without (mean 86, 14 %). On these views white noise alone gives mean 13.9 and 79 % with
     the white-noise covariance: the Gauss-Newton covariance of a planar board's RS model is
-    too tight in the flat valley whatever the noise model (issue 13 notes)."""
+    too tight in the flat valley whatever the noise model."""
     opts = EstimateOptions(correlated_noise_px=CORR, correlated_noise_length_px=LENGTH)
     m_on, m_off = [], []
     for X, R, C, u in still_frames:

@@ -1,4 +1,4 @@
-"""Planar scenes (issue 16): motion prior (MAP), damped hypotheses, degeneracy reporting, R9P on
+"""Planar scenes: motion prior (MAP), damped hypotheses, degeneracy reporting, R9P on
 planes, board scenes and sequences. Ground truth from rs_localizer.sim.planar (exact RS model);
 the MAP refinement against SciPy's least_squares, its covariance against an independent
 Jacobian, the damped solver against NumPy's lstsq, the runner-up P3P choice against a

@@ -1,4 +1,4 @@
-"""Issue 11, defect 1 and 8 (estimator side): never report an implausible model as a pose.
+"""Estimator side of the plausibility checks: never report an implausible model as a pose.
 
 Ground truth: the sample-like sequence of :mod:`rs_localizer.sim.trajectory` (1280x720, fx ~1000,
 30 us/row, angular speed ~1.3-1.7 rad/s, walking at ~1.3 m/s). The hostile inputs are the ones

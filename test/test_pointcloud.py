@@ -186,7 +186,7 @@ def test_rosbags_messages_are_accepted():
     np.testing.assert_array_equal(c.ids, np.arange(9))
 
 
-# ------------------------------------------------------------------ issue 11: hostile layouts
+# ------------------------------------------------------------------ hostile layouts
 def test_overlapping_offsets_are_a_layout_error():
     """A v field at the offset of u (every v == u) was accepted and solved 2000 km off."""
     rng = np.random.default_rng(5)

@@ -90,7 +90,7 @@ def test_landmarks_csv_roundtrip(tmp_path):
 
 
 def test_landmark_files_must_be_regular(tmp_path):
-    """Issue 11, defect 7: a FIFO as landmarks_file blocked the reader (and the node) until
+    """A FIFO as landmarks_file blocked the reader (and the node) until
     someone wrote to it. Only regular files are opened; the check never blocks."""
     import os
     import threading

@@ -7,9 +7,9 @@
 * :mod:`.scoring`: MSAC scoring kernels on the RS model;
 * :mod:`.refine`: Levenberg-Marquardt on the exact constant-velocity model (eq. 4) and its
   covariance;
-* :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate (issue 16).
+* :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate.
 * :mod:`.noise_model`: spatially correlated image error in the covariance (its fit on still
-  calibration views, issue 13).
+  calibration views).
 """
 
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose, physical_velocities

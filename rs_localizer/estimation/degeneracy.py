@@ -1,4 +1,4 @@
-"""Planar and near-degenerate configurations of the RS pose problem (issue 16).
+"""Planar and near-degenerate configurations of the RS pose problem.
 
 Two measures, both reported in :class:`~rs_localizer.estimation.estimate.RSPoseEstimate`:
 

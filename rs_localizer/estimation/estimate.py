@@ -89,7 +89,7 @@ class EstimateOptions:
             early. 0 disables it.
         motion_prior: Gaussian prior on the camera's velocities
             (:class:`~rs_localizer.estimation.prior.MotionPrior`, default 3 rad/s and
-            1.5 m/s, zero mean), used where one frame cannot determine them (issue 16): on
+            1.5 m/s, zero mean), used where one frame cannot determine them: on
             planar scenes (coplanar 3D points) local optimization and the refinement are
             maximum a posteriori and the hypotheses use damped solves; on other scenes the
             final maximum-likelihood refinement is followed by a MAP one unless the data
@@ -762,7 +762,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     if _degenerate(fr, u_fr, all_rows, opts.threshold_px):
         timings["prepare"] = time.perf_counter() - t_start
         return _fail("degenerate_geometry", solver, n_in, N, n_dropped, 0, timings)
-    # planar scenes (issue 16): R9P cannot solve them; the RS solvers' hypotheses use the
+    # planar scenes: R9P cannot solve them; the RS solvers' hypotheses use the
     # motion prior (damped solves for w, t: the plain ones let w, t absorb the noise)
     fr.spr = spr = camera.seconds_per_unit_r
     fr.motion_bounds = motion_bounds(opts.max_angular_velocity, opts.max_linear_velocity, spr)

@@ -1,4 +1,4 @@
-"""Spatially correlated image error in the estimator's covariance (issue 13 item 5).
+"""Spatially correlated image error in the estimator's covariance.
 
 The refinement's covariance (:func:`rs_localizer.estimation.refine.refine_rs_pose`) assumes
 independent image noise per point and axis, its variance estimated from the residuals. Real

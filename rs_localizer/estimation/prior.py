@@ -1,4 +1,4 @@
-"""Motion prior of the estimator (issue 16): a Gaussian on the camera's velocities.
+"""Motion prior of the estimator: a Gaussian on the camera's velocities.
 
 On planar scenes (a board, a marker, a facade, a floor) the 12-parameter RS model of one frame
 is near-degenerate: the Fisher information of pose + velocities is near-singular, and the

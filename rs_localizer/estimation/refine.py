@@ -718,7 +718,7 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
         cutoff: points farther than this (normalized units) are ignored at each iteration
             (truncated loss; lets RANSAC's local optimization run on all points).
         prior: a :class:`~rs_localizer.estimation.prior.MotionPrior` on the camera's
-            velocities (maximum a posteriori instead of maximum likelihood; issue 16), or
+            velocities (maximum a posteriori instead of maximum likelihood), or
             ``None``. Ignored for global-shutter refinement or ``seconds_per_unit_r <= 0``.
         seconds_per_unit_r: the camera's capture time per unit r (s), to express the prior on
             the model's (w, t) (README "Conventions").

@@ -132,7 +132,7 @@ def select_prerotations(R, C, owner, samples, X, x, K):
 
 @njit(cache=True)
 def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
-    """The runner-up pre-rotation of each sample on planar scenes (issue 16): P3P on coplanar
+    """The runner-up pre-rotation of each sample on planar scenes: P3P on coplanar
     points is two-fold ambiguous (the two poses of a plane seen under near-affine projection,
     as in IPPE), and with rolling-shutter distortion the wrong one can score best on the
     sample's other points. Among each sample's P3P solutions (as in

@@ -64,7 +64,7 @@ class TrackerOptions:
             its covariance (:func:`motion_prior_from_state`) instead of the estimator options'
             own prior: ``"planar"`` (default: on tracked frames when the previous frame's
             inliers were coplanar, where it resolves the rotation/velocity trade-off of the
-            per-frame RS model, issue 16; on a synthetic wall it cut the rotation error from
+            per-frame RS model; on a synthetic wall it cut the rotation error from
             0.29 to 0.05 deg), ``"always"`` (every tracked frame; on 3D scenes the pose moves
             by a few percent and the frame costs ~0.1 ms more) or ``"never"``. The filter takes
             the prior's information out again before fusing.
@@ -149,7 +149,7 @@ def model_from_state(state: FusedState, camera: CameraModel):
 
 
 def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> MotionPrior:
-    """The predicted twist as the estimator's motion prior (issue 16): a
+    """The predicted twist as the estimator's motion prior: a
     :class:`~rs_localizer.estimation.prior.MotionPrior` with the state's linear and angular
     velocity (ROS twist order vx, vy, vz, wx, wy, wz; camera frame) as mean, its twist
     covariance times ``inflation`` as covariance, used on every frame (``always``)."""

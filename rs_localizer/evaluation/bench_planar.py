@@ -1,4 +1,4 @@
-"""Planar scenes (issue 16): ``python -m rs_localizer.evaluation.bench_planar``.
+"""Planar scenes: ``python -m rs_localizer.evaluation.bench_planar``.
 
 Prints, per scene of :func:`rs_localizer.sim.planar.make_planar_frame` (``plane``: 300 points on
 a plane 4 m away, tilted up to 35 deg; ``board``: a 6x7-corner checkerboard with 8 cm squares,
@@ -223,7 +223,7 @@ def main(argv=None) -> int:
                                        linear_speed=args.linear_speed)
             print_table(scene, results[scene], args.outliers)
     default = args.outliers == 0.0 and tuple(args.linear_speed) == (0.2, 1.0)
-    print("\ntargets (issue 16)" + (":" if default else
+    print("\ntargets" + (":" if default else
                                      " (they assume the default protocol: no outliers, "
                                      "0.2-1 m/s):"))
     for text, met in check_targets(results):

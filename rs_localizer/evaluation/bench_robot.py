@@ -1,4 +1,4 @@
-"""On-a-robot benchmarks (issue 12): node start-up time from a non-editable, read-only install,
+"""On-a-robot benchmarks: node start-up time from a non-editable, read-only install,
 and memory per camera with several cameras in one process.
 
     python -m rs_localizer.evaluation.bench_robot startup [--venv /tmp/rsl_venv] [--create]

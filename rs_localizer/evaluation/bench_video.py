@@ -1,4 +1,4 @@
-"""Video benchmark (issue 10): ``python -m rs_localizer.evaluation.bench_video``.
+"""Video benchmark: ``python -m rs_localizer.evaluation.bench_video``.
 
 Prints the targets of the video work and whether they are met:
 

@@ -1,4 +1,4 @@
-"""Diagnosis of the RS estimate on still photos of a checkerboard (issue 13 item 5).
+"""Diagnosis of the RS estimate on still photos of a checkerboard.
 
 Run from the repository root (needs test/data/photos, see fetch.sh there)::
 

@@ -20,7 +20,7 @@ Known 4.6 differences handled here:
 * ``relativeCornerRefinmentWinSize`` (sic) exists only from 4.9: set when present.
 * ChArUco corners come out shifted by about +0.5 px in x and y from OpenCV 4.5.4 (contrib PR
   3024 shifts the points by half a pixel around ``cornerSubPix``) until the fix of
-  opencv/opencv issue 25539 (PR 28380, January 2026; the 5.0.0 wheel has no offset). On a
+  opencv/opencv#25539 (opencv/opencv#28380, January 2026; the 5.0.0 wheel has no offset). On a
   rendered board 4.6.0's corners are off by (+0.50, +0.50) px on average, up to 0.77 px.
   :class:`CharucoCornerDetector` therefore refines OpenCV's corners once more with
   ``cv2.cornerSubPix`` (which converges to the saddle point from any nearby start), so all

@@ -664,7 +664,7 @@ class CharucoFrontend(_BoardFrontend):
         subpix_window: half size (px) of the marker corner refinement window.
         corner_window: largest half size (px) of the final chessboard-corner
             ``cornerSubPix`` that removes the half-pixel bias OpenCV had from 4.5.4 until
-            the fix of opencv issue 25539 (4.6 has it, 5.0 not; see :mod:`._cv_compat`); 0
+            the fix of opencv/opencv#25539 (4.6 has it, 5.0 not; see :mod:`._cv_compat`); 0
             keeps OpenCV's corners.
 
     ``last_markers`` holds the marker ids seen in the last image.

@@ -158,7 +158,7 @@ PARAMETERS = {
     "max_linear_velocity": (50.0, "m/s; a model moving faster is implausible",
                             _F(from_value=0.01, to_value=1e9, step=0.0), False),
     "tracking.enabled": (True, "track the camera through the video: predicted RANSAC, "
-                         "relocalization, and twist / odom carry the fused twist (issue 10); "
+                         "relocalization, and twist / odom carry the fused twist; "
                          "false: every frame alone", None, False),
     "tracking.lag": (1, "frames of smoothing delay of the fused twist: twist / odom of a frame "
                      "are published when this many later frames have been fused (0: at once, "
@@ -310,7 +310,7 @@ class LocalizerCore:
         self.pub_corr_out = None     # correspondences_out, created when first needed
         self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
         self._diag_timer = None
-        # video tracking (issue 10): the tracker, what it was made for, the per-frame outputs
+        # video tracking: the tracker, what it was made for, the per-frame outputs
         # waiting for their fused twist (out stamp -> (pose source, frame id)), the worker's
         # and the idle-flush timer's lock around them, and counters over trackers
         self._tracker = None

@@ -1,4 +1,4 @@
-"""Synthetic rolling-shutter frames of planar scenes (issue 16): a large plane, a small board.
+"""Synthetic rolling-shutter frames of planar scenes: a large plane, a small board.
 
 The per-frame RS model (12 unknowns: pose and both velocities) is near-degenerate on coplanar
 points; these frames measure how the estimator copes. Protocol of the issue:

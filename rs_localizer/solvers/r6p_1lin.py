@@ -132,7 +132,7 @@ def r6p_1lin_batch(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=No
         x: (K, N, 2), X: (K, N, 3), r: (K, N) or None, v_init: (3,) or (K, 3) or None.
         prior_rows: ``None``, or ``(P (K, 6, 6), q (K, 6))``: every linear solve then minimizes
             ``|A u - b|^2 + |P[k] (w, t) - q[k]|^2`` (damped / regularized least squares on the
-            velocities; a linearized motion prior, issue 16) instead of solving ``A u = b``.
+            velocities; a linearized motion prior) instead of solving ``A u = b``.
             On near-degenerate samples (coplanar points, a small image extent) the plain
             solve lets (w, t) absorb noise without bound; the extra rows keep them near the
             prior. ``None`` runs the plain kernel (results bit-identical to before).
