@@ -1,7 +1,7 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
-#   make test   the whole test suite
-# Other targets: venv, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
+#   make test   the style gate (ruff) and the whole test suite
+# Other targets: venv, lint, format, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -11,7 +11,7 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test sample-bag bench-node fuzz-long clean
+.PHONY: venv demo test lint format sample-bag bench-node fuzz-long clean
 
 venv: $(STAMP)
 
@@ -28,8 +28,18 @@ $(STAMP): $(STAMP_DEPS)
 demo: venv
 	$(RSL) demo $(ARGS)
 
+# the style gate (ruff.toml): lint, import order and formatting
+lint: venv
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+# rewrite the sources in the gate's format and apply its safe fixes
+format: venv
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
 # pytest exit code 5 = no tests collected: not a failure of the build
-test: venv
+test: venv lint
 	@$(PY) -m pytest $(PYTEST_ARGS) test; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest: no tests collected"; rc=0; fi; exit $$rc
 

@@ -27,14 +27,27 @@ setup(
     python_requires=">=3.10",
     # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots;
     # pyyaml: render scenes; scikit-image: the photographs on the textured_room walls
-    install_requires=["setuptools", "numpy", "scipy", "opencv-python-headless", "numba",
-                      "poselib", "matplotlib", "pyyaml", "scikit-image"],
+    install_requires=[
+        "setuptools",
+        "numpy",
+        "scipy",
+        "opencv-python-headless",
+        "numba",
+        "poselib",
+        "matplotlib",
+        "pyyaml",
+        "scikit-image",
+    ],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)
-        "ros": ["ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rmw-fastrtps-cpp",
-                "rosbags>=0.10"],
+        "ros": [
+            "ros-jazzy-rclpy",
+            "ros-jazzy-common-interfaces",
+            "ros-jazzy-rmw-fastrtps-cpp",
+            "rosbags>=0.10",
+        ],
         "bench": ["threadpoolctl"],
-        "test": ["pytest", "hypothesis"],
+        "test": ["pytest", "hypothesis", "ruff>=0.17,<0.18"],
     },
     tests_require=["pytest"],
     zip_safe=True,

@@ -14,11 +14,12 @@ managed node ``rs_localizer_lifecycle_node`` (configure and activate it with ``r
 or a lifecycle manager).
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
 
 
 def camera_list(text: str) -> list:
@@ -32,34 +33,52 @@ def _node(context):
     parameters = [LaunchConfiguration("params_file")]
     if cameras:
         parameters.append({"cameras": cameras})
-    return [Node(
-        package="rs_localizer",
-        executable="rs_localizer_lifecycle_node" if lifecycle else "rs_localizer_node",
-        name="rs_localizer",
-        namespace=LaunchConfiguration("namespace"),
-        parameters=parameters,
-        remappings=[("image", LaunchConfiguration("image_topic"))],
-        arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
-        output="screen",
-        emulate_tty=True,
-    )]
+    return [
+        Node(
+            package="rs_localizer",
+            executable="rs_localizer_lifecycle_node" if lifecycle else "rs_localizer_node",
+            name="rs_localizer",
+            namespace=LaunchConfiguration("namespace"),
+            parameters=parameters,
+            remappings=[("image", LaunchConfiguration("image_topic"))],
+            arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
+            output="screen",
+            emulate_tty=True,
+        )
+    ]
 
 
 def generate_launch_description():
     default_params = PathJoinSubstitution(
-        [FindPackageShare("rs_localizer"), "config", "rs_localizer.yaml"])
-    return LaunchDescription([
-        DeclareLaunchArgument("namespace", default_value="camera",
-                              description="namespace of the input and output topics"),
-        DeclareLaunchArgument("params_file", default_value=default_params,
-                              description="parameter file (see config/rs_localizer.yaml)"),
-        DeclareLaunchArgument("image_topic", default_value="image_raw",
-                              description="image topic (used when the frontend parameter is set)"),
-        DeclareLaunchArgument("log_level", default_value="info"),
-        DeclareLaunchArgument("cameras", default_value="",
-                              description="camera namespaces (spaces or commas): one localizer "
-                              "per camera in one process; empty = one camera in namespace"),
-        DeclareLaunchArgument("lifecycle", default_value="false",
-                              description="start the managed (lifecycle) node"),
-        OpaqueFunction(function=_node),
-    ])
+        [FindPackageShare("rs_localizer"), "config", "rs_localizer.yaml"]
+    )
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                "namespace",
+                default_value="camera",
+                description="namespace of the input and output topics",
+            ),
+            DeclareLaunchArgument(
+                "params_file",
+                default_value=default_params,
+                description="parameter file (see config/rs_localizer.yaml)",
+            ),
+            DeclareLaunchArgument(
+                "image_topic",
+                default_value="image_raw",
+                description="image topic (used when the frontend parameter is set)",
+            ),
+            DeclareLaunchArgument("log_level", default_value="info"),
+            DeclareLaunchArgument(
+                "cameras",
+                default_value="",
+                description="camera namespaces (spaces or commas): one localizer "
+                "per camera in one process; empty = one camera in namespace",
+            ),
+            DeclareLaunchArgument(
+                "lifecycle", default_value="false", description="start the managed (lifecycle) node"
+            ),
+            OpaqueFunction(function=_node),
+        ]
+    )

@@ -19,10 +19,20 @@ from . import jit_cache as _jit_cache
 _jit_cache.configure()
 
 from .camera import CameraModel  # noqa: E402
-from .estimation import (EstimateOptions, MotionPrior, RSPoseEstimate,  # noqa: E402
-                         estimate_rs_pose)
+from .estimation import (
+    EstimateOptions,
+    MotionPrior,
+    RSPoseEstimate,
+    estimate_rs_pose,
+)
 
 __version__ = "0.1.0"
 
-__all__ = ["CameraModel", "EstimateOptions", "MotionPrior", "RSPoseEstimate", "estimate_rs_pose",
-           "__version__"]
+__all__ = [
+    "CameraModel",
+    "EstimateOptions",
+    "MotionPrior",
+    "RSPoseEstimate",
+    "__version__",
+    "estimate_rs_pose",
+]

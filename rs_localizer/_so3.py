@@ -25,12 +25,21 @@ def so3_coefficients(th2):
     ``expm([a]x) = I + c1 [a]x + c2 [a]x^2`` and ``J_l(a) = I + c2 [a]x + c3 [a]x^2``.
     Taylor series to t^8 below t = 0.2 (exact to rounding there), trigonometry above."""
     if th2 < 0.04:  # divisions by constants written as multiplications (hot path)
-        c1 = 1.0 - th2 * (1.0 / 6.0) * (1.0 - th2 * (1.0 / 20.0) * (
-            1.0 - th2 * (1.0 / 42.0) * (1.0 - th2 * (1.0 / 72.0))))
-        c2 = 0.5 * (1.0 - th2 * (1.0 / 12.0) * (1.0 - th2 * (1.0 / 30.0) * (
-            1.0 - th2 * (1.0 / 56.0) * (1.0 - th2 * (1.0 / 90.0)))))
-        c3 = (1.0 - th2 * (1.0 / 20.0) * (1.0 - th2 * (1.0 / 42.0) * (
-            1.0 - th2 * (1.0 / 72.0) * (1.0 - th2 * (1.0 / 110.0))))) * (1.0 / 6.0)
+        c1 = 1.0 - th2 * (1.0 / 6.0) * (
+            1.0 - th2 * (1.0 / 20.0) * (1.0 - th2 * (1.0 / 42.0) * (1.0 - th2 * (1.0 / 72.0)))
+        )
+        c2 = 0.5 * (
+            1.0
+            - th2
+            * (1.0 / 12.0)
+            * (1.0 - th2 * (1.0 / 30.0) * (1.0 - th2 * (1.0 / 56.0) * (1.0 - th2 * (1.0 / 90.0))))
+        )
+        c3 = (
+            1.0
+            - th2
+            * (1.0 / 20.0)
+            * (1.0 - th2 * (1.0 / 42.0) * (1.0 - th2 * (1.0 / 72.0) * (1.0 - th2 * (1.0 / 110.0))))
+        ) * (1.0 / 6.0)
         return c1, c2, c3
     th = np.sqrt(th2)
     s = np.sin(th)
@@ -47,8 +56,14 @@ def rotate_small(a0, a1, a2, q0, q1, q2):
     h0 = a1 * q2 - a2 * q1
     h1 = a2 * q0 - a0 * q2
     h2 = a0 * q1 - a1 * q0
-    return (q0 + c1 * h0 + c2 * (a1 * h2 - a2 * h1), q1 + c1 * h1 + c2 * (a2 * h0 - a0 * h2),
-            q2 + c1 * h2 + c2 * (a0 * h1 - a1 * h0), c1, c2, c3)
+    return (
+        q0 + c1 * h0 + c2 * (a1 * h2 - a2 * h1),
+        q1 + c1 * h1 + c2 * (a2 * h0 - a0 * h2),
+        q2 + c1 * h2 + c2 * (a0 * h1 - a1 * h0),
+        c1,
+        c2,
+        c3,
+    )
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)

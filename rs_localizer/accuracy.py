@@ -12,7 +12,7 @@ import numpy as np
 
 from .geometry import rotation_angle_deg
 
-__all__ = ["GroundTruth", "frame_errors", "summarize_errors", "format_summary"]
+__all__ = ["GroundTruth", "format_summary", "frame_errors", "summarize_errors"]
 
 
 @dataclass
@@ -42,20 +42,21 @@ class GroundTruth:
         return None if best is None else best[1]
 
 
-def frame_errors(orientation, position, angular_velocity, linear_velocity, gt: GroundTruth,
-                 stamp_ns: int) -> dict | None:
+def frame_errors(
+    orientation, position, angular_velocity, linear_velocity, gt: GroundTruth, stamp_ns: int
+) -> dict | None:
     """Errors of one estimate against ground truth: rotation (deg), position (m), angular
     velocity (rad/s, norm of the difference), linear velocity (m/s). None if no ground truth."""
     s = gt.nearest(stamp_ns)
     if s is None:
         return None
-    out = {"rot_deg": rotation_angle_deg(orientation, gt.orientation[s]),
-           "pos_m": float(np.linalg.norm(np.asarray(position) - gt.position[s]))}
+    out = {
+        "rot_deg": rotation_angle_deg(orientation, gt.orientation[s]),
+        "pos_m": float(np.linalg.norm(np.asarray(position) - gt.position[s])),
+    }
     if s in gt.angular_velocity and angular_velocity is not None:
-        out["angvel"] = float(np.linalg.norm(np.asarray(angular_velocity)
-                                             - gt.angular_velocity[s]))
-        out["linvel"] = float(np.linalg.norm(np.asarray(linear_velocity)
-                                             - gt.linear_velocity[s]))
+        out["angvel"] = float(np.linalg.norm(np.asarray(angular_velocity) - gt.angular_velocity[s]))
+        out["linvel"] = float(np.linalg.norm(np.asarray(linear_velocity) - gt.linear_velocity[s]))
         out["angvel_gt"] = float(np.linalg.norm(gt.angular_velocity[s]))
     return out
 
@@ -67,19 +68,30 @@ def summarize_errors(errors: list) -> dict:
     for key in ("rot_deg", "pos_m", "angvel", "linvel"):
         vals = np.array([e[key] for e in errors if key in e])
         if len(vals):
-            out[key] = {"median": float(np.median(vals)), "mean": float(np.mean(vals)),
-                        "p90": float(np.percentile(vals, 90)), "max": float(np.max(vals))}
+            out[key] = {
+                "median": float(np.median(vals)),
+                "mean": float(np.mean(vals)),
+                "p90": float(np.percentile(vals, 90)),
+                "max": float(np.max(vals)),
+            }
     return out
 
 
 def format_summary(name: str, summary: dict, total: int | None = None) -> str:
-    parts = [f"{name}: {summary['frames']}" + (f"/{total}" if total is not None else "")
-             + " frames"]
-    units = {"rot_deg": ("rotation", "deg", 1), "pos_m": ("position", "cm", 100),
-             "angvel": ("ang.vel", "rad/s", 1), "linvel": ("lin.vel", "m/s", 1)}
+    parts = [
+        f"{name}: {summary['frames']}" + (f"/{total}" if total is not None else "") + " frames"
+    ]
+    units = {
+        "rot_deg": ("rotation", "deg", 1),
+        "pos_m": ("position", "cm", 100),
+        "angvel": ("ang.vel", "rad/s", 1),
+        "linvel": ("lin.vel", "m/s", 1),
+    }
     for key, (label, unit, scale) in units.items():
         if key in summary:
             s = summary[key]
-            parts.append(f"{label} median {s['median'] * scale:.3g} mean {s['mean'] * scale:.3g} "
-                         f"max {s['max'] * scale:.3g} {unit}")
+            parts.append(
+                f"{label} median {s['median'] * scale:.3g} mean {s['mean'] * scale:.3g} "
+                f"max {s['max'] * scale:.3g} {unit}"
+            )
     return "; ".join(parts)

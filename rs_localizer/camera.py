@@ -23,7 +23,7 @@ from numba import njit
 
 from .geometry import rotvec_to_matrix
 
-__all__ = ["CameraModel", "READOUT_DIRECTIONS", "DISTORTION_MODELS"]
+__all__ = ["DISTORTION_MODELS", "READOUT_DIRECTIONS", "CameraModel"]
 
 #: readout direction name -> (image axis: 0 = u/columns, 1 = v/rows; sign; direction vector d)
 #: undistortion stops when the point re-distorts to within this many pixels of the measured
@@ -38,8 +38,12 @@ READOUT_DIRECTIONS = {
 }
 
 #: sensor_msgs/CameraInfo distortion models we support and their coefficient counts.
-DISTORTION_MODELS = {"plumb_bob": (0, 4, 5, 8), "rational_polynomial": (0, 4, 5, 8),
-                     "equidistant": (0, 4), "none": (0,)}
+DISTORTION_MODELS = {
+    "plumb_bob": (0, 4, 5, 8),
+    "rational_polynomial": (0, 4, 5, 8),
+    "equidistant": (0, 4),
+    "none": (0,),
+}
 
 
 @dataclass(frozen=True)
@@ -86,12 +90,16 @@ class CameraModel:
         if not np.isfinite(self.line_delay) or self.line_delay < 0:
             raise ValueError(f"line_delay must be finite and >= 0, got {self.line_delay}")
         if self.readout not in READOUT_DIRECTIONS:
-            raise ValueError(f"unknown readout direction {self.readout!r}; "
-                             f"expected one of {sorted(READOUT_DIRECTIONS)}")
+            raise ValueError(
+                f"unknown readout direction {self.readout!r}; "
+                f"expected one of {sorted(READOUT_DIRECTIONS)}"
+            )
         model = self.distortion_model or "plumb_bob"
         if model not in DISTORTION_MODELS:
-            raise ValueError(f"unsupported distortion model {model!r}; "
-                             f"expected one of {sorted(DISTORTION_MODELS)}")
+            raise ValueError(
+                f"unsupported distortion model {model!r}; "
+                f"expected one of {sorted(DISTORTION_MODELS)}"
+            )
         if np.any(D != 0) and len(D) not in DISTORTION_MODELS[model]:
             raise ValueError(f"{model} takes {DISTORTION_MODELS[model]} coefficients, got {len(D)}")
         if self.reference_row is not None and not np.isfinite(self.reference_row):
@@ -287,8 +295,12 @@ class CameraModel:
     def in_image(self, points_px, margin: float = 0.0) -> np.ndarray:
         """(N,) bool: pixel inside ``[-margin, size - 1 + margin]``."""
         p = np.asarray(points_px, dtype=float)
-        return ((p[:, 0] >= -margin) & (p[:, 0] <= self.width - 1 + margin)
-                & (p[:, 1] >= -margin) & (p[:, 1] <= self.height - 1 + margin))
+        return (
+            (p[:, 0] >= -margin)
+            & (p[:, 0] <= self.width - 1 + margin)
+            & (p[:, 1] >= -margin)
+            & (p[:, 1] <= self.height - 1 + margin)
+        )
 
 
 @njit(cache=True)

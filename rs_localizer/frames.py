@@ -32,8 +32,16 @@ from scipy.spatial.transform import Rotation
 
 from .geometry import skew
 
-__all__ = ["Extrinsic", "BaseState", "OPTICAL_TO_BODY_QUATERNION", "camera_to_base",
-           "base_pose", "base_twist", "base_pose_covariance", "base_twist_covariance"]
+__all__ = [
+    "OPTICAL_TO_BODY_QUATERNION",
+    "BaseState",
+    "Extrinsic",
+    "base_pose",
+    "base_pose_covariance",
+    "base_twist",
+    "base_twist_covariance",
+    "camera_to_base",
+]
 
 #: ``(x, y, z, w)`` of the rotation optical -> body for a camera looking along the base's x axis
 #: (camera z = base x, camera x = -base y, camera y = -base z): the REP 103 convention change
@@ -53,7 +61,7 @@ class Extrinsic:
     translation: np.ndarray
 
     @classmethod
-    def from_translation_quaternion(cls, translation, quaternion) -> "Extrinsic":
+    def from_translation_quaternion(cls, translation, quaternion) -> Extrinsic:
         """From a translation ``(x, y, z)`` in m and a quaternion ``(x, y, z, w)`` (ROS order,
         normalized here), as in ``static_transform_publisher x y z qx qy qz qw base camera``.
 
@@ -66,12 +74,14 @@ class Extrinsic:
         if t.shape != (3,) or not np.isfinite(t).all():
             raise ValueError(f"translation must be 3 finite numbers (m), got {t.tolist()}")
         if q.shape != (4,) or not np.isfinite(q).all():
-            raise ValueError(f"rotation must be a quaternion of 4 finite numbers (x, y, z, w), "
-                             f"got {q.tolist()}")
+            raise ValueError(
+                f"rotation must be a quaternion of 4 finite numbers (x, y, z, w), got {q.tolist()}"
+            )
         n = float(np.linalg.norm(q))
         if not 0.5 <= n <= 2.0:
-            raise ValueError(f"rotation quaternion {q.tolist()} has norm {n:.3g}, expected 1 "
-                             "(order x, y, z, w)")
+            raise ValueError(
+                f"rotation quaternion {q.tolist()} has norm {n:.3g}, expected 1 (order x, y, z, w)"
+            )
         R = Rotation.from_quat(q / n).as_matrix()
         return cls(rotation=R, translation=t)
 
@@ -185,8 +195,14 @@ def camera_to_base(camera, extrinsic: Extrinsic) -> BaseState:
     R_mb, p_b = base_pose(camera.orientation, camera.position, extrinsic)
     om_b, v_b = base_twist(camera.angular_velocity, camera.linear_velocity, extrinsic)
     return BaseState(
-        orientation=R_mb, position=p_b, angular_velocity=om_b, linear_velocity=v_b,
-        pose_covariance=base_pose_covariance(getattr(camera, "pose_covariance", None),
-                                             camera.orientation, extrinsic),
-        twist_covariance=base_twist_covariance(getattr(camera, "twist_covariance", None),
-                                               extrinsic))
+        orientation=R_mb,
+        position=p_b,
+        angular_velocity=om_b,
+        linear_velocity=v_b,
+        pose_covariance=base_pose_covariance(
+            getattr(camera, "pose_covariance", None), camera.orientation, extrinsic
+        ),
+        twist_covariance=base_twist_covariance(
+            getattr(camera, "twist_covariance", None), extrinsic
+        ),
+    )

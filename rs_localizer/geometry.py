@@ -21,20 +21,20 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "skew",
-    "vee",
-    "rotvec_to_matrix",
-    "matrix_to_rotvec",
-    "nearest_rotation",
+    "READOUT_TOP_TO_BOTTOM",
+    "camera_position",
     "compose",
     "invert",
-    "camera_position",
+    "matrix_to_rotvec",
+    "nearest_rotation",
+    "reprojection_errors",
     "rotation_angle_deg",
+    "rotvec_to_matrix",
+    "rs_project_exact",
     "rs_project_first_order",
     "rs_project_linear",
-    "rs_project_exact",
-    "reprojection_errors",
-    "READOUT_TOP_TO_BOTTOM",
+    "skew",
+    "vee",
 ]
 
 READOUT_TOP_TO_BOTTOM = np.array([0.0, 1.0])
@@ -192,8 +192,9 @@ def rs_project_linear(X, R, C, w, t, r0: float = 0.0, readout=None):
     return rs_project_first_order(P0, P1, r0, readout)
 
 
-def rs_project_exact(X, R, C, w, t, r0: float = 0.0, readout=None, iterations: int = 50,
-                     tol: float = 1e-13):
+def rs_project_exact(
+    X, R, C, w, t, r0: float = 0.0, readout=None, iterations: int = 50, tol: float = 1e-13
+):
     """Projection through the exact constant-velocity RS model (for data generation).
 
     ``lambda [x; 1] = expm((r - r0)[w]x) R X + C + (r - r0) t`` with ``r = d . x``. The row

@@ -36,8 +36,16 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
-__all__ = ["configure", "user_cache_dir", "package_writable", "seed_cache", "cache_state",
-           "compile_progress", "CompileProgress", "PACKAGE_DIR"]
+__all__ = [
+    "PACKAGE_DIR",
+    "CompileProgress",
+    "cache_state",
+    "compile_progress",
+    "configure",
+    "package_writable",
+    "seed_cache",
+    "user_cache_dir",
+]
 
 #: the installed package directory as Python imports it (not symlink-resolved: numba names
 #: its cache directories after this path)
@@ -131,11 +139,14 @@ def configure(environ=None, package_dir: str = PACKAGE_DIR) -> dict:
                 from numba.core import config
 
                 config.reload_config()
-            except Exception:  # noqa: BLE001 - only slower without it
+            except Exception:
                 pass
     seeded = seed_cache(package_dir, cache) if cache else 0
-    state = {"mode": mode, "dir": cache or os.path.join(package_dir, "**", "__pycache__"),
-             "seeded": seeded}
+    state = {
+        "mode": mode,
+        "dir": cache or os.path.join(package_dir, "**", "__pycache__"),
+        "seeded": seeded,
+    }
     if environ is None and package_dir == PACKAGE_DIR:  # the process's own configuration
         _state.update(state)
     return state
@@ -195,8 +206,10 @@ def compile_progress(log=None):
                 prog.kernels.append((name(ev), dt))
                 prog.seconds += dt
                 if log is not None:
-                    log(f"compiled {name(ev)} in {dt:.1f} s ({len(prog.kernels)} kernels, "
-                        f"{time.perf_counter() - t_start:.1f} s so far)")
+                    log(
+                        f"compiled {name(ev)} in {dt:.1f} s ({len(prog.kernels)} kernels, "
+                        f"{time.perf_counter() - t_start:.1f} s so far)"
+                    )
 
     listener = _Listener()
     event.register("numba:compile", listener)

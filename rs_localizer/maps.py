@@ -15,9 +15,22 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["save_landmarks_csv", "load_landmarks_csv", "open_regular_file", "check_regular_file", "marker_dictionary", "write_marker_map",
-           "load_marker_map", "SCENE_DIR", "scene_names", "scene_path", "scene_quad_frames",
-           "marker_layout", "checkerboard_layout", "checkerboard_corners"]
+__all__ = [
+    "SCENE_DIR",
+    "check_regular_file",
+    "checkerboard_corners",
+    "checkerboard_layout",
+    "load_landmarks_csv",
+    "load_marker_map",
+    "marker_dictionary",
+    "marker_layout",
+    "open_regular_file",
+    "save_landmarks_csv",
+    "scene_names",
+    "scene_path",
+    "scene_quad_frames",
+    "write_marker_map",
+]
 
 #: the built-in scenes (world descriptions shared by the renderer and the ArUco front end)
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -100,12 +113,18 @@ def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = N
     in ArUco order (TL, TR, BR, BL), metres} as YAML. Returns the path."""
     import yaml
 
-    data = {"dictionary": dictionary, **({"scene": scene} if scene is not None else {}),
-            "markers": [{"id": int(k), "corners": np.round(c, 6).tolist()}
-                        for k, c in sorted(corners.items())]}
+    data = {
+        "dictionary": dictionary,
+        **({"scene": scene} if scene is not None else {}),
+        "markers": [
+            {"id": int(k), "corners": np.round(c, 6).tolist()} for k, c in sorted(corners.items())
+        ],
+    }
     path = Path(path)
-    path.write_text("# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
-                    + yaml.safe_dump(data, default_flow_style=None, sort_keys=False))
+    path.write_text(
+        "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
+        + yaml.safe_dump(data, default_flow_style=None, sort_keys=False)
+    )
     return path
 
 
@@ -122,8 +141,9 @@ def scene_path(name_or_path) -> Path:
     if not p.suffix and (SCENE_DIR / f"{p}.yaml").exists():
         p = SCENE_DIR / f"{p}.yaml"
     if not p.exists():
-        raise FileNotFoundError(f"scene {str(name_or_path)!r} not found (built-in: "
-                                f"{scene_names()})")
+        raise FileNotFoundError(
+            f"scene {str(name_or_path)!r} not found (built-in: {scene_names()})"
+        )
     return p
 
 
@@ -220,8 +240,7 @@ def checkerboard_layout(data: dict) -> list:
         if nu < 2 or nv < 2 or not sq > 0:
             raise ValueError(f"checkerboard needs >= 2 x 2 squares and square > 0, got {cb}")
         qsize = quads[qi][4]
-        if a < -1e-9 or b < -1e-9 or a + nu * sq > qsize[0] + 1e-9 \
-                or b + nv * sq > qsize[1] + 1e-9:
+        if a < -1e-9 or b < -1e-9 or a + nu * sq > qsize[0] + 1e-9 or b + nv * sq > qsize[1] + 1e-9:
             raise ValueError(f"checkerboard {cb} does not fit on quad {cb['quad']}")
         out.append((qi, float(a), float(b), nu, nv, sq))
     return out

@@ -75,17 +75,19 @@ def keypoints_bag():
     return KEYPOINTS_BAG
 
 
-def start_node(tmp_path, params=None, namespace="/camera", name="node", ready_timeout=120.0,
-               config=(CONFIG,)):
+def start_node(
+    tmp_path, params=None, namespace="/camera", name="node", ready_timeout=120.0, config=(CONFIG,)
+):
     """Start rs_localizer_node (``config`` files + ``params`` + reliable input QoS)."""
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
-    topics = [f"{namespace}/{t}" for t in ("correspondences", "keypoints", "camera_info",
-                                           "image")]
-    overlay = write_params_yaml(tmp_path / f"{name}_params.yaml", params or {},
-                                reliable_topics=topics)
-    node = NodeProcess([*config, overlay], namespace=namespace, env=ros_env(),
-                       log=tmp_path / f"{name}.log")
+    topics = [f"{namespace}/{t}" for t in ("correspondences", "keypoints", "camera_info", "image")]
+    overlay = write_params_yaml(
+        tmp_path / f"{name}_params.yaml", params or {}, reliable_topics=topics
+    )
+    node = NodeProcess(
+        [*config, overlay], namespace=namespace, env=ros_env(), log=tmp_path / f"{name}.log"
+    )
     if not node.wait_ready(ready_timeout):
         log = node.log
         node.stop()
@@ -111,8 +113,9 @@ def refused_start(tmp_path, param_files, namespace, timeout):
 
     from rs_localizer.ros.process import NodeProcess, ros_env
 
-    n = NodeProcess(list(param_files), namespace=namespace, env=ros_env(),
-                    log=tmp_path / "refused.log")
+    n = NodeProcess(
+        list(param_files), namespace=namespace, env=ros_env(), log=tmp_path / "refused.log"
+    )
     try:
         n.proc.wait(timeout)
     except subprocess.TimeoutExpired:
@@ -153,16 +156,20 @@ class Probe:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_corr = self.node.create_publisher(PointCloud2, f"{namespace}/correspondences",
-                                                   qos)
+        self.pub_corr = self.node.create_publisher(PointCloud2, f"{namespace}/correspondences", qos)
         self.pub_kp = self.node.create_publisher(PointCloud2, f"{namespace}/keypoints", qos)
         self.pub_info = self.node.create_publisher(CameraInfo, f"{namespace}/camera_info", qos)
         self.outputs = {"pose": [], "twist": [], "odom": [], "pose_with_covariance": []}
-        types = {"pose": PoseStamped, "twist": TwistStamped, "odom": Odometry,
-                 "pose_with_covariance": PoseWithCovarianceStamped}
+        types = {
+            "pose": PoseStamped,
+            "twist": TwistStamped,
+            "odom": Odometry,
+            "pose_with_covariance": PoseWithCovarianceStamped,
+        }
         for k, t in types.items():
-            self.node.create_subscription(t, f"{namespace}/{k}",
-                                          lambda m, k=k: self.outputs[k].append(m), qos)
+            self.node.create_subscription(
+                t, f"{namespace}/{k}", lambda m, k=k: self.outputs[k].append(m), qos
+            )
         self.diag = {}
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos)
 
@@ -184,10 +191,17 @@ class Probe:
         return predicate()
 
     def wait_matched(self, timeout=30.0):
-        ok = self.wait(lambda: all(p.get_subscription_count() > 0 for p in
-                                   (self.pub_corr, self.pub_kp, self.pub_info))
-                       and self.node.count_publishers(f"{self.ns}/pose") > 0
-                       and self.node.count_publishers("/diagnostics") > 0, timeout)
+        ok = self.wait(
+            lambda: (
+                all(
+                    p.get_subscription_count() > 0
+                    for p in (self.pub_corr, self.pub_kp, self.pub_info)
+                )
+                and self.node.count_publishers(f"{self.ns}/pose") > 0
+                and self.node.count_publishers("/diagnostics") > 0
+            ),
+            timeout,
+        )
         assert ok, "node did not match the probe's topics"
 
     def pose_near(self, stamp_ns, tol_ns=1_000):

@@ -38,8 +38,13 @@ def test_rs_solvers_match_p3p_on_global_shutter(quick):
 
 def test_outputs_written(quick):
     out, res = quick
-    for name in ("reprojection_hist.png", "ar_overlay.png", "errors.png", "report.md",
-                 "results.json"):
+    for name in (
+        "reprojection_hist.png",
+        "ar_overlay.png",
+        "errors.png",
+        "report.md",
+        "results.json",
+    ):
         assert (out / name).stat().st_size > 1000, name
     report = (out / "report.md").read_text()
     assert "holds" in report and "p3p" in report

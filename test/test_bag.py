@@ -10,8 +10,10 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from rs_localizer.cli import main as cli  # noqa: E402
-from rs_localizer.ros import bag_io, play as rs_play, replay as rs_replay  # noqa: E402
+from rs_localizer.cli import main as cli
+from rs_localizer.ros import bag_io
+from rs_localizer.ros import play as rs_play
+from rs_localizer.ros import replay as rs_replay
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +22,24 @@ def small_bags(tmp_path_factory):
     out = {}
     for storage in ("mcap", "sqlite3"):
         path = tmp / f"seq_{storage}"
-        assert cli(["make-bag", str(path), "--frames", "4", "--points", "200",
-                    "--storage", storage, "--scores", "--seed", "7"]) == 0
+        assert (
+            cli(
+                [
+                    "make-bag",
+                    str(path),
+                    "--frames",
+                    "4",
+                    "--points",
+                    "200",
+                    "--storage",
+                    storage,
+                    "--scores",
+                    "--seed",
+                    "7",
+                ]
+            )
+            == 0
+        )
         out[storage] = path
     return out
 
@@ -29,15 +47,21 @@ def small_bags(tmp_path_factory):
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_make_bag_contents(small_bags, storage):
     from rosbags.rosbag2 import Reader
-    from rs_localizer.ros.pointcloud import read_correspondences, read_keypoints
+
     from rs_localizer.maps import load_landmarks_csv
+    from rs_localizer.ros.pointcloud import read_correspondences, read_keypoints
 
     path = small_bags[storage]
     with Reader(path) as r:
         counts = {c.topic: c.msgcount for c in r.connections}
         assert r.storage_plugin_name if hasattr(r, "storage_plugin_name") else True
-    assert counts == {"/camera/camera_info": 4, "/camera/correspondences": 4,
-                      "/camera/keypoints": 4, "/ground_truth/pose": 4, "/ground_truth/twist": 4}
+    assert counts == {
+        "/camera/camera_info": 4,
+        "/camera/correspondences": 4,
+        "/camera/keypoints": 4,
+        "/ground_truth/pose": 4,
+        "/ground_truth/twist": 4,
+    }
     info = bag_io.read_bag_info(path)
     assert info["rs"]["line_delay"] == pytest.approx(30e-6)
     assert info["rs"]["reference_row"] == pytest.approx(359.5)
@@ -46,7 +70,7 @@ def test_make_bag_contents(small_bags, storage):
     lm = dict(zip(ids.tolist(), pts))
     ts = bag_io._typestore()
     order = []
-    for topic, msgtype, t, raw in bag_io.iter_messages(path):
+    for topic, msgtype, _t, raw in bag_io.iter_messages(path):
         order.append(topic)
         msg = ts.deserialize_cdr(raw, msgtype)
         if topic.endswith("correspondences"):
@@ -92,7 +116,7 @@ def test_replay_offline_with_outputs(small_bags, tmp_path, capsys):
     cap = capsys.readouterr()
     assert rc == 0, cap.out + cap.err
     assert "solved 4/4" in cap.err  # --json: the summary lines go to stderr
-    summary = json.loads(cap.out)   # and stdout is only the JSON
+    summary = json.loads(cap.out)  # and stdout is only the JSON
     assert summary["frames"] == 4 and summary["solved"] == 4 and summary["failures"] == {}
     assert summary["rot_deg"]["max"] < 0.25 and summary["pos_m"]["max"] < 0.06
     assert summary["angvel"]["max"] < 0.5
@@ -114,30 +138,38 @@ def test_replay_keypoints_source(small_bags, capsys):
 
 def test_play_reaches_a_subscriber(small_bags, ros_context):
     """play publishes every message with original timing (rate 4) into the live graph."""
+    import threading
+
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, PointCloud2
-    import threading
 
     node = rclpy.create_node("bag_test_listener", context=ros_context)
     got = {"corr": [], "info": []}
     qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-    node.create_subscription(PointCloud2, "/replayed/correspondences",
-                             lambda m: got["corr"].append(m), qos)
-    node.create_subscription(CameraInfo, "/camera/camera_info", lambda m: got["info"].append(m),
-                             qos)
+    node.create_subscription(
+        PointCloud2, "/replayed/correspondences", lambda m: got["corr"].append(m), qos
+    )
+    node.create_subscription(
+        CameraInfo, "/camera/camera_info", lambda m: got["info"].append(m), qos
+    )
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     stop = threading.Event()
-    th = threading.Thread(target=lambda: [ex.spin_once(timeout_sec=0.02)
-                                          for _ in iter(stop.is_set, True)])
+    th = threading.Thread(
+        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
+    )
     th.start()
     try:
-        res = rs_play.play(small_bags["mcap"], rate=4.0, context=ros_context,
-                      topics=["/camera/correspondences", "/camera/camera_info"],
-                      remap={"/camera/correspondences": "/replayed/correspondences"},
-                      wait_subscribers=20.0)
+        res = rs_play.play(
+            small_bags["mcap"],
+            rate=4.0,
+            context=ros_context,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            remap={"/camera/correspondences": "/replayed/correspondences"},
+            wait_subscribers=20.0,
+        )
         end = __import__("time").monotonic() + 5
         while len(got["corr"]) < 4 and __import__("time").monotonic() < end:
             __import__("time").sleep(0.02)
@@ -156,13 +188,17 @@ def test_play_reaches_a_subscriber(small_bags, ros_context):
 
 def test_header_stamp_shift_roundtrip():
     from rclpy.serialization import deserialize_message, serialize_message
-    from rs_localizer.ros.conversions import stamp_to_ns
-    from rs_localizer.ros.pointcloud import correspondence_cloud
     from sensor_msgs.msg import PointCloud2
 
-    raw = serialize_message(correspondence_cloud(np.ones((3, 2)), np.ones((3, 3)),
-                                                 stamp=1_700_000_000_999_999_999))
+    from rs_localizer.ros.conversions import stamp_to_ns
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    raw = serialize_message(
+        correspondence_cloud(np.ones((3, 2)), np.ones((3, 3)), stamp=1_700_000_000_999_999_999)
+    )
     assert rs_play._header_stamp(raw) == 1_700_000_000_999_999_999
     shifted = rs_play._shift_stamp(raw, bag_io.PC2, 2)
-    assert stamp_to_ns(deserialize_message(shifted, PointCloud2).header.stamp) == \
-        1_700_000_001_000_000_001
+    assert (
+        stamp_to_ns(deserialize_message(shifted, PointCloud2).header.stamp)
+        == 1_700_000_001_000_000_001
+    )

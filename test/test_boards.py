@@ -19,15 +19,23 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.camera import CameraModel
 from rs_localizer import estimate_rs_pose
+from rs_localizer.camera import CameraModel
 from rs_localizer.frontends import _cv_compat as cvc
-from rs_localizer.frontends.boards import (CharucoBoardModel, CharucoFrontend,
-                                           CheckerboardFrontend, CheckerboardModel, TagBoard,
-                                           TagFrontend, _canonical_checkerboard,
-                                           board_image, load_board,
-                                           load_dictionary, make_board_frontend,
-                                           pose_from_spec)
+from rs_localizer.frontends.boards import (
+    CharucoBoardModel,
+    CharucoFrontend,
+    CheckerboardFrontend,
+    CheckerboardModel,
+    TagBoard,
+    TagFrontend,
+    _canonical_checkerboard,
+    board_image,
+    load_board,
+    load_dictionary,
+    make_board_frontend,
+    pose_from_spec,
+)
 from rs_localizer.geometry import rotation_angle_deg
 
 PHOTOS = Path(__file__).resolve().parent / "data" / "photos"
@@ -154,8 +162,9 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
     fit = fit_correlated_noise(camera, [(uv, X, g.R, g.C) for _, uv, X, g in frames])
     assert fit.log_likelihood_ratio > 100  # strong evidence for a correlated error
     assert 0.1 < fit.correlated_px < 0.4 and 40 < fit.length_px < 200, fit
-    opts = EstimateOptions(correlated_noise_px=fit.correlated_px,
-                           correlated_noise_length_px=fit.length_px)
+    opts = EstimateOptions(
+        correlated_noise_px=fit.correlated_px, correlated_noise_length_px=fit.length_px
+    )
     q6, q3 = chi2.ppf(0.9973, 6), chi2.ppf(0.9973, 3)
     white = []
     for n, uv, X, gs in frames:
@@ -224,15 +233,17 @@ def test_single_markers_photo():
     a tag map holding 3 of them keeps only their 12 corners."""
     img = photo("singlemarkersoriginal.jpg")
     found = {23, 40, 62, 98, 124, 203}
-    tags = [dict(id=i, size=0.05, pose=dict(translation=[0.1 * k, 0, 0]))
-            for k, i in enumerate(sorted(found))]
+    tags = [
+        dict(id=i, size=0.05, pose=dict(translation=[0.1 * k, 0, 0]))
+        for k, i in enumerate(sorted(found))
+    ]
     fe = TagFrontend(TagBoard.from_tags(tags, "DICT_6X6_250"))
     _, tids = fe.detect(img)
     assert set(tids.tolist()) == found and len(tids) == 6
-    uv, X, ids = fe.process(img)
+    _uv, _X, ids = fe.process(img)
     assert len(ids) == 24
     part = TagFrontend(TagBoard.from_tags(tags[:3], "DICT_6X6_250", id_offset=1000))
-    uv3, X3, ids3 = part.process(img)
+    _uv3, X3, ids3 = part.process(img)
     assert len(ids3) == 12 and part.last_unknown == 3
     assert set(((ids3 - 1000) // 4).tolist()) == {23, 40, 62}
     # the same corners, shifted ids, the map points of the 3 tags
@@ -240,8 +251,9 @@ def test_single_markers_photo():
 
 
 # ------------------------------------------------------------------------ synthetic renders
-def look_at_board(board_center_b, dist, rotvec_cam_in_board, board_R=np.eye(3),
-                  board_t=np.zeros(3)):
+def look_at_board(
+    board_center_b, dist, rotvec_cam_in_board, board_R=np.eye(3), board_t=np.zeros(3)
+):
     """World -> camera (R, C) of a camera ``dist`` in front of a board point; the camera axes
     are the board's (x right, y down, looking into the board) turned by ``rotvec``."""
     Rc = Rotation.from_rotvec(rotvec_cam_in_board).as_matrix()  # camera axes in board frame
@@ -260,9 +272,14 @@ def render(board, K, R, C, size=(640, 480), ppm=2500.0, margin=40, ss=4, noise=2
     H = K @ np.column_stack([M[:, 0], M[:, 1], R @ board.translation + C])
     S = np.array([[ss, 0, (ss - 1) / 2], [0, ss, (ss - 1) / 2], [0, 0, 1.0]])
     W, Hh = size
-    hi = cv2.warpPerspective(tex, S @ H @ np.linalg.inv(A), (W * ss, Hh * ss),
-                             flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                             borderValue=110)
+    hi = cv2.warpPerspective(
+        tex,
+        S @ H @ np.linalg.inv(A),
+        (W * ss, Hh * ss),
+        flags=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=110,
+    )
     img = cv2.resize(hi, size, interpolation=cv2.INTER_AREA).astype(float)
     img += np.random.default_rng(seed).normal(0, noise, img.shape)
     return np.clip(np.round(img), 0, 255).astype(np.uint8), H
@@ -281,8 +298,9 @@ K_SYN = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
 def test_synthetic_checkerboard_ids_follow_the_board(roll_deg, method):
     """Rendered 9 x 6 board turned in the image by 0/90/180/270 degrees (plus a tilt): every
     id lands on its own projected corner (< 0.5 px): the order does not follow OpenCV's."""
-    board = CheckerboardModel(9, 6, 0.03, pose=dict(translation=[0.2, -0.1, 1.0],
-                                                    rotvec=[0.1, -0.2, 0.3]), id_offset=7)
+    board = CheckerboardModel(
+        9, 6, 0.03, pose=dict(translation=[0.2, -0.1, 1.0], rotvec=[0.1, -0.2, 0.3]), id_offset=7
+    )
     centre = np.array([4 * 0.03, 2.5 * 0.03, 0])
     rv = Rotation.from_euler("zx", [roll_deg, 20], degrees=True).as_rotvec()
     R, C = look_at_board(centre, 0.55, rv, board.rotation, board.translation)
@@ -297,7 +315,7 @@ def test_synthetic_checkerboard_ids_follow_the_board(roll_deg, method):
     # little less accurate here: up to 0.15 deg / 3 mm, classic 0.03 deg / 0.5 mm)
     camera = CameraModel(K=K_SYN)
     est = estimate_rs_pose(uv, X, camera, "p3p")
-    R_cv, t_cv = solve_pnp(uv, X, camera)
+    R_cv, _t_cv = solve_pnp(uv, X, camera)
     assert est.success and rotation_angle_deg(est.R, R_cv) < 0.05
     assert rotation_angle_deg(est.R, R) < 0.25
     assert np.linalg.norm(est.position - (-R.T @ C)) < 5e-3
@@ -318,10 +336,16 @@ def test_checkerboard_order_from_any_of_the_four_grid_orders():
 
 
 def test_synthetic_charuco():
-    board = CharucoBoardModel(6, 5, 0.04, 0.03, "DICT_5X5_100", marker_ids=np.arange(20, 35),
-                              pose=dict(translation=[1, 2, 0.5], quaternion=[0, 0, 0.3, 0.95]))
-    R, C = look_at_board([0.12, 0.1, 0], 0.6, [0.25, -0.3, 0.4], board.rotation,
-                         board.translation)
+    board = CharucoBoardModel(
+        6,
+        5,
+        0.04,
+        0.03,
+        "DICT_5X5_100",
+        marker_ids=np.arange(20, 35),
+        pose=dict(translation=[1, 2, 0.5], quaternion=[0, 0, 0.3, 0.95]),
+    )
+    R, C = look_at_board([0.12, 0.1, 0], 0.6, [0.25, -0.3, 0.4], board.rotation, board.translation)
     img, H = render(board, K_SYN, R, C)
     fe = CharucoFrontend(board)
     camera = CameraModel(K=K_SYN)
@@ -340,10 +364,18 @@ def test_synthetic_charuco():
 
 def test_synthetic_apriltag_grid():
     """AprilTag 36h11 grid board (tags 10..21): all 48 corners on their projections."""
-    board = TagBoard.grid(4, 3, 0.064, 0.016, "DICT_APRILTAG_36h11", first_id=10,
-                          pose=dict(translation=[0, 0, 2.0], rotvec=[np.pi / 2, 0, 0]))
-    R, C = look_at_board([0.152, 0.112, 0], 0.7, [-0.3, 0.2, -0.5], board.rotation,
-                         board.translation)
+    board = TagBoard.grid(
+        4,
+        3,
+        0.064,
+        0.016,
+        "DICT_APRILTAG_36h11",
+        first_id=10,
+        pose=dict(translation=[0, 0, 2.0], rotvec=[np.pi / 2, 0, 0]),
+    )
+    R, C = look_at_board(
+        [0.152, 0.112, 0], 0.7, [-0.3, 0.2, -0.5], board.rotation, board.translation
+    )
     img, H = render(board, K_SYN, R, C)
     fe = TagFrontend(board)
     uv, X, ids = fe.process(np.repeat(img[:, :, None], 3, axis=2))  # rgb8 in
@@ -359,8 +391,11 @@ def test_synthetic_apriltag_grid():
 def test_board_image_unrotated_detections():
     """board_image's pixel mapping A is exact: the flat image's detections sit on A's
     predictions (checkerboard, ChArUco, AprilTag grid)."""
-    boards = [CheckerboardModel(5, 4, 0.02), CharucoBoardModel(4, 4, 0.02, 0.014, "DICT_4X4_50"),
-              TagBoard.grid(3, 2, 0.024, 0.008)]
+    boards = [
+        CheckerboardModel(5, 4, 0.02),
+        CharucoBoardModel(4, 4, 0.02, 0.014, "DICT_4X4_50"),
+        TagBoard.grid(3, 2, 0.024, 0.008),
+    ]
     for b in boards:
         img, A = board_image(b, 2500.0, 30)
         uv, _, ids = make_board_frontend(b).process(img)
@@ -374,8 +409,9 @@ def test_board_frames_match_opencv_layout():
     """Our corner coordinates equal OpenCV's board object points (both versions)."""
     d = "DICT_6X6_250"
     ch = CharucoBoardModel(5, 7, 0.04, 0.02, d)
-    np.testing.assert_allclose(ch.points_board, cvc.charuco_chessboard_corners(ch.cv_board),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        ch.points_board, cvc.charuco_chessboard_corners(ch.cv_board), atol=1e-6
+    )
     tg = TagBoard.grid(5, 7, 0.04, 0.01, d)
     ref = cvc.board_object_points(cvc.grid_board(5, 7, 0.04, 0.01, load_dictionary(d)))
     np.testing.assert_allclose(tg.points_board, ref.reshape(-1, 3), atol=1e-6)
@@ -385,7 +421,7 @@ def test_board_frames_match_opencv_layout():
 
 def test_poses_and_tag_map_yaml(tmp_path):
     # 90 degrees about z: x -> y; quaternion (x y z w) and rotvec give the same
-    Rq, t = pose_from_spec(dict(translation=[1, 2, 3], quaternion=[0, 0, 2 ** -0.5, 2 ** -0.5]))
+    Rq, t = pose_from_spec(dict(translation=[1, 2, 3], quaternion=[0, 0, 2**-0.5, 2**-0.5]))
     Rv, _ = pose_from_spec(dict(rotvec=[0, 0, np.pi / 2]))
     np.testing.assert_allclose(Rq @ [1, 0, 0], [0, 1, 0], atol=1e-12)
     np.testing.assert_allclose(Rq, Rv, atol=1e-12)
@@ -398,36 +434,89 @@ def test_poses_and_tag_map_yaml(tmp_path):
         "tags:\n"
         "  - {id: 5, pose: {translation: [1, 0, 0], rotvec: [0, 0, 1.5707963267948966]}}\n"
         "  - {id: 6, size: 0.1, pose: {translation: [0, 0, 0]}}\n"
-        "  - {id: 7, corners: [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}\n")
+        "  - {id: 7, corners: [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]}\n"
+    )
     b = load_board(tmp_path / "tags.yaml")
     assert isinstance(b, TagBoard) and b.dictionary.markerSize == 6  # AprilTag 36h11 default
     np.testing.assert_array_equal(b.ids[:4], 100 + 4 * 5 + np.arange(4))
     # tag 5: corner TL (-0.1, -0.1) turned 90 deg about z -> (0.1, -0.1), + (1, 0, 0) + map z 1
     np.testing.assert_allclose(b.tag_corners[5][0], [1.1, -0.1, 1.0], atol=1e-12)
-    np.testing.assert_allclose(b.tag_corners[6], [[-.05, -.05, 1], [.05, -.05, 1],
-                                                  [.05, .05, 1], [-.05, .05, 1]], atol=1e-12)
+    np.testing.assert_allclose(
+        b.tag_corners[6],
+        [[-0.05, -0.05, 1], [0.05, -0.05, 1], [0.05, 0.05, 1], [-0.05, 0.05, 1]],
+        atol=1e-12,
+    )
     np.testing.assert_allclose(b.tag_corners[7][2], [1, 1, 1])
 
 
-@pytest.mark.parametrize("spec, match", [
-    (dict(type="hexboard"), "unknown board type"),
-    (dict(type="checkerboard", cols=9, rows=6), "needs"),
-    (dict(type="checkerboard", cols=9, rows=6, square_size=0.02, colour="red"), "unknown keys"),
-    (dict(type="checkerboard", cols=8, rows=6, square_size=0.02), "180 degrees"),
-    (dict(type="checkerboard", cols=9, rows=6, square_size=0.02,
-          pose=dict(quaternion=[0, 0, 0, 0])), "quaternion"),
-    (dict(type="checkerboard", cols=9, rows=6, square_size=0.02,
-          pose=dict(quaternion=[0, 0, 0, 1], rotvec=[0, 0, 0])), "not both"),
-    (dict(type="charuco", cols=5, rows=7, square_size=0.04, marker_size=0.05,
-          dictionary="DICT_6X6_250"), "marker_size"),
-    (dict(type="charuco", cols=5, rows=7, square_size=0.04, marker_size=0.02,
-          dictionary="DICT_6X6_50", marker_ids=list(range(40, 57))), "marker ids"),
-    (dict(type="charuco", cols=5, rows=7, square_size=0.04, marker_size=0.02,
-          dictionary="DICT_7X7_BOGUS"), "dictionary"),
-    (dict(type="tag_grid", cols=2, rows=2, tag_size=0.1, tag_spacing=0.02, ids=[1, 2, 3]),
-     "distinct ids"),
-    (dict(type="tag_map", tags=[dict(id=1, pose={})]), "size"),
-])
+@pytest.mark.parametrize(
+    "spec, match",
+    [
+        (dict(type="hexboard"), "unknown board type"),
+        (dict(type="checkerboard", cols=9, rows=6), "needs"),
+        (dict(type="checkerboard", cols=9, rows=6, square_size=0.02, colour="red"), "unknown keys"),
+        (dict(type="checkerboard", cols=8, rows=6, square_size=0.02), "180 degrees"),
+        (
+            dict(
+                type="checkerboard",
+                cols=9,
+                rows=6,
+                square_size=0.02,
+                pose=dict(quaternion=[0, 0, 0, 0]),
+            ),
+            "quaternion",
+        ),
+        (
+            dict(
+                type="checkerboard",
+                cols=9,
+                rows=6,
+                square_size=0.02,
+                pose=dict(quaternion=[0, 0, 0, 1], rotvec=[0, 0, 0]),
+            ),
+            "not both",
+        ),
+        (
+            dict(
+                type="charuco",
+                cols=5,
+                rows=7,
+                square_size=0.04,
+                marker_size=0.05,
+                dictionary="DICT_6X6_250",
+            ),
+            "marker_size",
+        ),
+        (
+            dict(
+                type="charuco",
+                cols=5,
+                rows=7,
+                square_size=0.04,
+                marker_size=0.02,
+                dictionary="DICT_6X6_50",
+                marker_ids=list(range(40, 57)),
+            ),
+            "marker ids",
+        ),
+        (
+            dict(
+                type="charuco",
+                cols=5,
+                rows=7,
+                square_size=0.04,
+                marker_size=0.02,
+                dictionary="DICT_7X7_BOGUS",
+            ),
+            "dictionary",
+        ),
+        (
+            dict(type="tag_grid", cols=2, rows=2, tag_size=0.1, tag_spacing=0.02, ids=[1, 2, 3]),
+            "distinct ids",
+        ),
+        (dict(type="tag_map", tags=[dict(id=1, pose={})]), "size"),
+    ],
+)
 def test_load_board_rejects(spec, match):
     with pytest.raises(ValueError, match=match):
         load_board(spec)
@@ -436,8 +525,9 @@ def test_load_board_rejects(spec, match):
 def test_legacy_charuco_pattern():
     """Even-row ChArUco boards: the legacy (pre-4.6) layout exists on OpenCV >= 4.8 only."""
     args = (5, 6, 0.04, 0.02, "DICT_6X6_250")
-    if hasattr(cvc.charuco_board(5, 6, 0.04, 0.02, load_dictionary("DICT_6X6_250")),
-               "setLegacyPattern"):
+    if hasattr(
+        cvc.charuco_board(5, 6, 0.04, 0.02, load_dictionary("DICT_6X6_250")), "setLegacyPattern"
+    ):
         new, old = CharucoBoardModel(*args), CharucoBoardModel(*args, legacy_pattern=True)
         assert not np.allclose(new.marker_corners[0], old.marker_corners[0])
     else:
@@ -447,8 +537,11 @@ def test_legacy_charuco_pattern():
 
 def test_frontends_on_empty_images_and_wrong_boards():
     blank = np.full((120, 160), 128, np.uint8)
-    for b in (CheckerboardModel(5, 4, 0.02), CharucoBoardModel(4, 4, 0.02, 0.014, "DICT_4X4_50"),
-              TagBoard.grid(2, 2, 0.03, 0.01)):
+    for b in (
+        CheckerboardModel(5, 4, 0.02),
+        CharucoBoardModel(4, 4, 0.02, 0.014, "DICT_4X4_50"),
+        TagBoard.grid(2, 2, 0.03, 0.01),
+    ):
         uv, X, ids = make_board_frontend(b).process(blank)
         assert uv.shape == (0, 2) and X.shape == (0, 3) and ids.shape == (0,)
     with pytest.raises(TypeError):
@@ -462,7 +555,7 @@ def test_compat_detector_parameters():
     use; the compat layer never calls it there) and overrides are applied."""
     p = cvc.detector_parameters(minMarkerPerimeterRate=0.05, noSuchField=1)
     assert p.minMarkerPerimeterRate == pytest.approx(0.05)
-    assert cvc.NEW_ARUCO_API == hasattr(cv2.aruco, "ArucoDetector")
+    assert hasattr(cv2.aruco, "ArucoDetector") == cvc.NEW_ARUCO_API
 
 
 # ------------------------------------------------------------------------ numbers for the docs
@@ -470,21 +563,30 @@ def _pose_table():  # pragma: no cover - run by hand: python test/test_boards.py
     camera = read_camera("left_intrinsics.yml", LINE_DELAY)
     fe = CheckerboardFrontend(load_board(PHOTOS / "left_board.yaml"))
     cases = [(f"left{n}.jpg", fe, camera) for n in LEFT]
-    cases.append(("choriginal.jpg", make_board_frontend(PHOTOS / "choriginal_board.yaml"),
-                  read_camera("tutorial_camera_charuco.yml", LINE_DELAY)))
+    cases.append(
+        (
+            "choriginal.jpg",
+            make_board_frontend(PHOTOS / "choriginal_board.yaml"),
+            read_camera("tutorial_camera_charuco.yml", LINE_DELAY),
+        )
+    )
     print(f"OpenCV {cv2.__version__}; line delay {LINE_DELAY * 1e6:.0f} us (nominal)")
-    print("photo            n  p3p-pnp deg  p3p-pnp mm  rs-pnp deg  rs-pnp mm  "
-          "rs rmse  p3p rmse  |w| rad/s  |v| m/s")
+    print(
+        "photo            n  p3p-pnp deg  p3p-pnp mm  rs-pnp deg  rs-pnp mm  "
+        "rs rmse  p3p rmse  |w| rad/s  |v| m/s"
+    )
     for name, f, cam in cases:
         uv, X, _ = f.process(photo(name), cam)
         R_cv, t_cv = solve_pnp(uv, X, cam)
         gs = estimate_rs_pose(uv, X, cam, "p3p")
         rs = estimate_rs_pose(uv, X, cam, "r6p_1lin")
-        print(f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.R, R_cv):10.3f}  "
-              f"{1e3 * np.linalg.norm(gs.C - t_cv):10.3f}  {rotation_angle_deg(rs.R, R_cv):10.3f}"
-              f"  {1e3 * np.linalg.norm(rs.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
-              f"  {np.linalg.norm(rs.angular_velocity):9.3f}  "
-              f"{np.linalg.norm(rs.linear_velocity):7.3f}")
+        print(
+            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.R, R_cv):10.3f}  "
+            f"{1e3 * np.linalg.norm(gs.C - t_cv):10.3f}  {rotation_angle_deg(rs.R, R_cv):10.3f}"
+            f"  {1e3 * np.linalg.norm(rs.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
+            f"  {np.linalg.norm(rs.angular_velocity):9.3f}  "
+            f"{np.linalg.norm(rs.linear_velocity):7.3f}"
+        )
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,16 +9,23 @@ from rs_localizer.camera import CameraModel
 K = np.array([[800.0, 0, 320.5], [0, 810.0, 240.5], [0, 0, 1]])
 
 
-@pytest.mark.parametrize("model,D", [("plumb_bob", [-0.2, 0.05, 0.001, -0.002, 0.01]),
-                                     ("rational_polynomial", [-0.2, 0.05, 0.001, -0.002, 0.01, 0.01, 0.0, 0.002]),
-                                     ("equidistant", [0.05, -0.01, 0.002, 0.0])])
+@pytest.mark.parametrize(
+    "model,D",
+    [
+        ("plumb_bob", [-0.2, 0.05, 0.001, -0.002, 0.01]),
+        ("rational_polynomial", [-0.2, 0.05, 0.001, -0.002, 0.01, 0.01, 0.0, 0.002]),
+        ("equidistant", [0.05, -0.01, 0.002, 0.0]),
+    ],
+)
 def test_distort_undistort_roundtrip_matches_opencv(model, D):
     cam = CameraModel(K, D, 640, 480, distortion_model=model)
     rng = np.random.default_rng(0)
     xn = rng.uniform(-0.35, 0.35, (50, 2))
     px = cam.distort(xn)
     if model == "equidistant":
-        ref, _ = cv2.fisheye.projectPoints(np.c_[xn, np.ones(50)].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.array(D))
+        ref, _ = cv2.fisheye.projectPoints(
+            np.c_[xn, np.ones(50)].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, np.array(D)
+        )
     else:
         ref, _ = cv2.projectPoints(np.c_[xn, np.ones(50)], np.zeros(3), np.zeros(3), K, np.array(D))
     np.testing.assert_allclose(px, ref.reshape(-1, 2), atol=1e-9)
@@ -32,8 +39,15 @@ def test_no_distortion_is_k_inverse():
     np.testing.assert_allclose(cam.distort(cam.undistort(px)), px)
 
 
-@pytest.mark.parametrize("readout,axis,sign", [("top_to_bottom", 1, 1), ("bottom_to_top", 1, -1),
-                                               ("left_to_right", 0, 1), ("right_to_left", 0, -1)])
+@pytest.mark.parametrize(
+    "readout,axis,sign",
+    [
+        ("top_to_bottom", 1, 1),
+        ("bottom_to_top", 1, -1),
+        ("left_to_right", 0, 1),
+        ("right_to_left", 0, -1),
+    ],
+)
 def test_rs_coordinate_is_proportional_to_capture_time(readout, axis, sign):
     cam = CameraModel(K, [], 640, 480, line_delay=2e-5, readout=readout)
     rng = np.random.default_rng(1)
@@ -44,7 +58,9 @@ def test_rs_coordinate_is_proportional_to_capture_time(readout, axis, sign):
     np.testing.assert_allclose(times - times[0], (r - r[0]) * cam.seconds_per_unit_r, atol=1e-15)
     assert np.all(np.diff(times[np.argsort(px[:, axis])]) * sign >= 0)
     np.testing.assert_allclose(cam.undistort(px) @ cam.readout_vector, r, atol=1e-12)
-    assert cam.line_time(cam.reference_line) == pytest.approx(cam.readout_time / 2 - cam.line_delay / 2)
+    assert cam.line_time(cam.reference_line) == pytest.approx(
+        cam.readout_time / 2 - cam.line_delay / 2
+    )
 
 
 def test_reference_row_and_readout_time():
@@ -65,10 +81,19 @@ def test_normalize_offsets_for_distorted_rows():
     np.testing.assert_allclose(r0e, cam.r0 - (r - x[:, 1]))
 
 
-@pytest.mark.parametrize("kw", [dict(K=np.diag([0.0, 1, 1])), dict(K=np.full((3, 3), np.nan)),
-                                dict(K=K, width=0), dict(K=K, line_delay=-1.0),
-                                dict(K=K, readout="diagonal"), dict(K=K, distortion_model="kb8"),
-                                dict(K=K, D=[0.1, 0.2, 0.3]), dict(K=K, D=[np.inf])])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(K=np.diag([0.0, 1, 1])),
+        dict(K=np.full((3, 3), np.nan)),
+        dict(K=K, width=0),
+        dict(K=K, line_delay=-1.0),
+        dict(K=K, readout="diagonal"),
+        dict(K=K, distortion_model="kb8"),
+        dict(K=K, D=[0.1, 0.2, 0.3]),
+        dict(K=K, D=[np.inf]),
+    ],
+)
 def test_invalid_camera_raises(kw):
     with pytest.raises(ValueError):
         CameraModel(**kw)

@@ -15,8 +15,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: options whose values are a fixed set: they must list it (argparse ``choices``)
-FIXED_SETS = {"solver", "compare", "direction", "storage", "source", "camera", "motion",
-              "frontend"}
+FIXED_SETS = {"solver", "compare", "direction", "storage", "source", "camera", "motion", "frontend"}
 
 
 def _subparsers():
@@ -58,8 +57,13 @@ def test_every_option_has_help_and_fixed_sets_have_choices():
 def test_make_demo_passes_args():
     if shutil.which("make") is None:
         pytest.skip("no make")
-    out = subprocess.run(["make", "-n", "demo", "ARGS=--no-images --summary-only"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        ["make", "-n", "demo", "ARGS=--no-images --summary-only"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     line = next(ln for ln in out.stdout.splitlines() if "rs-localizer demo" in ln)
     assert line.rstrip().endswith("rs-localizer demo --no-images --summary-only"), line
@@ -67,7 +71,7 @@ def test_make_demo_passes_args():
 
 def _readme_snippet() -> str:
     text = (ROOT / "README.md").read_text()
-    section = text[text.index("## Library use"):]
+    section = text[text.index("## Library use") :]
     m = re.search(r"```python\n(.*?)```", section, re.S)
     assert m, "no python block in README 'Library use'"
     return m.group(1)
@@ -82,7 +86,7 @@ def test_readme_library_snippet_runs(tmp_path, monkeypatch):
     assert "paper_camera" not in code
     monkeypatch.chdir(tmp_path)
     ns = {}
-    exec(compile(code, "README.md", "exec"), ns)  # noqa: S102 - the README's own code
+    exec(compile(code, "README.md", "exec"), ns)
     est, frame, camera = ns["est"], ns["frame"], ns["camera"]
     assert est.success, est.failure
     assert est.solver == "r6p_1lin"

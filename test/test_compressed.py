@@ -17,7 +17,7 @@ PIL = pytest.importorskip("PIL.Image")
 def _img(shape, seed=0):
     rng = np.random.default_rng(seed)
     # smooth content + noise: realistic for JPEG, exact for PNG
-    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
     base = 128 + 60 * np.sin(xx / 9.0) * np.cos(yy / 13.0)
     if len(shape) == 3:
         base = base[:, :, None] + np.arange(shape[2]) * 20.0

@@ -5,11 +5,12 @@ import pytest
 
 pytest.importorskip("sensor_msgs.msg")
 
-from rs_localizer.camera import CameraModel  # noqa: E402
-from rs_localizer.estimation.estimate import RSPoseEstimate  # noqa: E402
-from rs_localizer.geometry import rotvec_to_matrix  # noqa: E402
-from rs_localizer.ros import conversions as cv  # noqa: E402
-from sensor_msgs.msg import CameraInfo  # noqa: E402
+from sensor_msgs.msg import CameraInfo
+
+from rs_localizer.camera import CameraModel
+from rs_localizer.estimation.estimate import RSPoseEstimate
+from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.ros import conversions as cv
 
 
 def _info(model="plumb_bob", d=(0.1, -0.2, 0.001, 0.002, 0.05), w=1280, h=720):
@@ -60,25 +61,28 @@ def test_camera_info_plumb_bob():
 
 
 def test_camera_info_timing_options():
-    cam = cv.camera_model_from_camera_info(_info(), line_delay=1e-3, readout_time=0.018,
-                                           readout="bottom_to_top", reference_row=100.0)
+    cam = cv.camera_model_from_camera_info(
+        _info(), line_delay=1e-3, readout_time=0.018, readout="bottom_to_top", reference_row=100.0
+    )
     assert cam.line_delay == pytest.approx(0.018 / 720)  # readout_time wins
     assert cam.readout == "bottom_to_top" and cam.reference_line == 100.0
-    cam = cv.camera_model_from_camera_info(_info(), readout_time=0.0128,
-                                           readout="left_to_right")
+    cam = cv.camera_model_from_camera_info(_info(), readout_time=0.0128, readout="left_to_right")
     assert cam.line_delay == pytest.approx(0.0128 / 1280)
     assert cv.camera_model_from_camera_info(_info(), reference_row=-1.0).reference_row is None
 
 
-@pytest.mark.parametrize("model,d,expect", [
-    ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001], 8),
-    ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001] + [0.0] * 6, 8),
-    ("equidistant", [0.1, 0.01, 0.001, 0.0001], 4),
-    ("plumb_bob", [0.1, 0.01, 0.0, 0.0], 4),
-    ("plumb_bob", [0.0] * 5, 0),
-    ("", [], 0),
-    ("", [0.1, 0.0, 0.0, 0.0, 0.0], 5),
-])
+@pytest.mark.parametrize(
+    "model,d,expect",
+    [
+        ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001], 8),
+        ("rational_polynomial", [0.1, 0.01, 0.0, 0.0, 0.001, 0.2, 0.01, 0.001] + [0.0] * 6, 8),
+        ("equidistant", [0.1, 0.01, 0.001, 0.0001], 4),
+        ("plumb_bob", [0.1, 0.01, 0.0, 0.0], 4),
+        ("plumb_bob", [0.0] * 5, 0),
+        ("", [], 0),
+        ("", [0.1, 0.0, 0.0, 0.0, 0.0], 5),
+    ],
+)
 def test_camera_info_distortion_models(model, d, expect):
     cam = cv.camera_model_from_camera_info(_info(model, d))
     assert len(cam.D) == expect
@@ -119,8 +123,14 @@ def test_camera_info_binning_and_roi():
 
 
 def test_camera_info_msg_roundtrip():
-    cam = cv.camera_model(np.array([[900.0, 0, 600], [0, 905, 350], [0, 0, 1]]),
-                          [0.05, -0.1, 0.0, 0.0, 0.02], 1200, 700, "plumb_bob", line_delay=2e-5)
+    cam = cv.camera_model(
+        np.array([[900.0, 0, 600], [0, 905, 350], [0, 0, 1]]),
+        [0.05, -0.1, 0.0, 0.0, 0.02],
+        1200,
+        700,
+        "plumb_bob",
+        line_delay=2e-5,
+    )
     info = cv.camera_info_msg(cam, "cam", 123)
     assert info.header.frame_id == "cam" and info.header.stamp.nanosec == 123
     back = cv.camera_model_from_camera_info(info, line_delay=2e-5)
@@ -145,11 +155,16 @@ def _estimate():
     R = rotvec_to_matrix(np.array([0.1, -0.2, 0.3]))
     pc = np.arange(36, dtype=float).reshape(6, 6)
     tc = np.eye(6) * 0.01
-    return RSPoseEstimate(success=True, solver="r6p_1lin", orientation=R,
-                          position=np.array([1.0, 2.0, 3.0]),
-                          angular_velocity=np.array([0.1, 0.2, 0.3]),
-                          linear_velocity=np.array([-1.0, -2.0, -3.0]),
-                          pose_covariance=pc, twist_covariance=tc), R
+    return RSPoseEstimate(
+        success=True,
+        solver="r6p_1lin",
+        orientation=R,
+        position=np.array([1.0, 2.0, 3.0]),
+        angular_velocity=np.array([0.1, 0.2, 0.3]),
+        linear_velocity=np.array([-1.0, -2.0, -3.0]),
+        pose_covariance=pc,
+        twist_covariance=tc,
+    ), R
 
 
 def test_estimate_messages():
@@ -179,7 +194,6 @@ def test_covariance_unknown():
     np.testing.assert_array_equal(cv.covariance36(np.full((6, 6), np.nan)), np.zeros(36))
 
 
-
 def test_tf_message_availability():
     est, _ = _estimate()
     if cv.have_tf2_msgs():
@@ -206,8 +220,14 @@ def test_checked_stamp():
 def test_camera_info_roi_outside_the_image_is_rejected():
     """A ROI outside or larger than the image was applied (a pose 77 deg off; a 5000x5000 ROI
     moved the output stamp by 64 ms)."""
-    for x, y, w, h in ((1000, 0, 640, 480), (0, 300, 640, 480), (0, 0, 5000, 5000),
-                       (0, 0, 640, 0), (0, 0, 0, 480), (1280, 0, 0, 0)):
+    for x, y, w, h in (
+        (1000, 0, 640, 480),
+        (0, 300, 640, 480),
+        (0, 0, 5000, 5000),
+        (0, 0, 640, 0),
+        (0, 0, 0, 480),
+        (1280, 0, 0, 0),
+    ):
         info = _info(d=[0.0] * 5)
         info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height = x, y, w, h
         with pytest.raises(ValueError, match="roi") as e:
@@ -219,17 +239,30 @@ def test_camera_info_roi_outside_the_image_is_rejected():
     assert (cam.width, cam.height) == (640, 480)
 
 
-@pytest.mark.parametrize("d", [[0.1, -0.2, 0.001], [0.1, -0.2], [0.1, -0.2, 0.001, 0.002, 0.05, 0.3],
-                               [0.1, -0.2, 0.001, 0.002, 0.05, 0.0, 0.0, 0.1, 0.2],
-                               [0.1, np.nan, 0.0, 0.0, 0.0], [np.inf, 0, 0, 0, 0]])
+@pytest.mark.parametrize(
+    "d",
+    [
+        [0.1, -0.2, 0.001],
+        [0.1, -0.2],
+        [0.1, -0.2, 0.001, 0.002, 0.05, 0.3],
+        [0.1, -0.2, 0.001, 0.002, 0.05, 0.0, 0.0, 0.1, 0.2],
+        [0.1, np.nan, 0.0, 0.0, 0.0],
+        [np.inf, 0, 0, 0, 0],
+    ],
+)
 def test_camera_info_ambiguous_or_bad_distortion_is_rejected(d):
     """plumb_bob D with 3 or 6 non-zero coefficients was zero-padded (1.7-3.3 cm error)."""
     with pytest.raises(ValueError) as e:
         cv.camera_model_from_camera_info(_info("plumb_bob", d))
     assert e.value.reason == "bad_distortion"
     with pytest.raises(ValueError):  # the fallback (camera.d) goes through the same check
-        cv.camera_model(np.diag([1000.0, 1000.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]],
-                        d, 1280, 720, "plumb_bob")
+        cv.camera_model(
+            np.diag([1000.0, 1000.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]],
+            d,
+            1280,
+            720,
+            "plumb_bob",
+        )
 
 
 def test_camera_info_trailing_zeros_are_trimmed():

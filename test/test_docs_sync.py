@@ -20,8 +20,11 @@ def _readme_table_names(header: str) -> set:
     ``header``."""
     names, inside = set(), False
     for line in (ROOT / "README.md").read_text().splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")] if line.startswith("|") \
+        cells = (
+            [c.strip() for c in line.strip().strip("|").split("|")]
+            if line.startswith("|")
             else None
+        )
         if cells is None:
             inside = False
             continue
@@ -37,8 +40,9 @@ def _literals(path: Path, *functions) -> set:
     src = path.read_text()
     out = set()
     for fn in functions:
-        for m in re.finditer(rf"{fn}\(\s*\"([a-z_]+)\"(?:\s+if\s+[\w.]+\s+else\s+\"([a-z_]+)\")?",
-                             src):
+        for m in re.finditer(
+            rf"{fn}\(\s*\"([a-z_]+)\"(?:\s+if\s+[\w.]+\s+else\s+\"([a-z_]+)\")?", src
+        ):
             out |= {g for g in m.groups() if g}
     return out
 
@@ -57,8 +61,15 @@ def _node_reasons() -> set:
 
 def test_every_failure_reason_is_in_the_readme():
     emitted = _node_reasons()
-    assert {"bad_layout", "implausible_motion", "cheirality", "bad_stamp", "no_camera_info",
-            "degenerate_geometry", "internal_error"} <= emitted, emitted  # the scan works
+    assert {
+        "bad_layout",
+        "implausible_motion",
+        "cheirality",
+        "bad_stamp",
+        "no_camera_info",
+        "degenerate_geometry",
+        "internal_error",
+    } <= emitted, emitted  # the scan works
     documented = _readme_table_names("reason")
     assert emitted - documented == set(), f"undocumented failure reasons: {emitted - documented}"
     camera = set(_literals(PKG / "ros" / "node.py", "_reject_camera_info"))
@@ -104,5 +115,6 @@ def test_every_parameter_is_documented_with_its_default():
     yaml_text = (ROOT / "config" / "rs_localizer.yaml").read_text()
     for p in PARAMETERS:
         leaf = p.split(".")[-1]
-        assert re.search(rf"^\s*{re.escape(leaf)}:", yaml_text, re.M), \
+        assert re.search(rf"^\s*{re.escape(leaf)}:", yaml_text, re.M), (
             f"{p} missing from config/rs_localizer.yaml"
+        )

@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose, physical_velocities
+from rs_localizer.estimation.estimate import (
+    SOLVERS,
+    EstimateOptions,
+    estimate_rs_pose,
+    physical_velocities,
+)
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix, skew
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 
@@ -13,24 +18,29 @@ CAM = paper_camera()
 
 def frame_errors(est, f):
     depth = np.linalg.norm(f.position)  # distance camera - scene centre
-    return dict(rot=rotation_angle_deg(est.R, f.R),
-                pos=np.linalg.norm(est.position - f.position) / depth,
-                om=np.linalg.norm(est.angular_velocity - f.angular_velocity)
-                / np.linalg.norm(f.angular_velocity),
-                vel=np.linalg.norm(est.linear_velocity - f.linear_velocity)
-                / np.linalg.norm(f.linear_velocity))
+    return dict(
+        rot=rotation_angle_deg(est.R, f.R),
+        pos=np.linalg.norm(est.position - f.position) / depth,
+        om=np.linalg.norm(est.angular_velocity - f.angular_velocity)
+        / np.linalg.norm(f.angular_velocity),
+        vel=np.linalg.norm(est.linear_velocity - f.linear_velocity)
+        / np.linalg.norm(f.linear_velocity),
+    )
 
 
 @pytest.fixture(scope="module")
 def rs_frames():
-    return [make_frame(1000 + k, 500, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
-            for k in range(40)]
+    return [
+        make_frame(1000 + k, 500, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3) for k in range(40)
+    ]
 
 
 @pytest.fixture(scope="module")
 def rs_results(rs_frames):
-    return {s: [estimate_rs_pose(f.points_px, f.X, CAM, s) for f in rs_frames]
-            for s in ("r6p_1lin", "p3p")}
+    return {
+        s: [estimate_rs_pose(f.points_px, f.X, CAM, s) for f in rs_frames]
+        for s in ("r6p_1lin", "p3p")
+    }
 
 
 def test_r6p_1lin_meets_the_accuracy_targets(rs_frames, rs_results):
@@ -47,11 +57,14 @@ def test_r6p_1lin_meets_the_accuracy_targets(rs_frames, rs_results):
 
 def test_p3p_is_clearly_worse_on_rolling_shutter_frames(rs_frames, rs_results):
     rs = np.median([frame_errors(e, f)["rot"] for e, f in zip(rs_results["r6p_1lin"], rs_frames)])
-    gs_errs = [frame_errors(e, f)["rot"] if e.success else 180.0
-               for e, f in zip(rs_results["p3p"], rs_frames)]
+    gs_errs = [
+        frame_errors(e, f)["rot"] if e.success else 180.0
+        for e, f in zip(rs_results["p3p"], rs_frames)
+    ]
     assert np.median(gs_errs) > 10 * rs
-    assert np.median([e.num_inliers for e in rs_results["p3p"]]) < \
-        0.5 * np.median([e.num_inliers for e in rs_results["r6p_1lin"]])
+    assert np.median([e.num_inliers for e in rs_results["p3p"]]) < 0.5 * np.median(
+        [e.num_inliers for e in rs_results["r6p_1lin"]]
+    )
 
 
 def test_velocity_signs_follow_the_generator():
@@ -61,8 +74,10 @@ def test_velocity_signs_follow_the_generator():
     for kw in (dict(rotation_only=True), dict(translation_only=True), {}):
         f = make_frame(rng, 300, rs_speed=0.7, noise_px=0.2, **kw)
         e = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin")
-        for est, gt in ((e.angular_velocity, f.angular_velocity),
-                        (e.linear_velocity, f.linear_velocity)):
+        for est, gt in (
+            (e.angular_velocity, f.angular_velocity),
+            (e.linear_velocity, f.linear_velocity),
+        ):
             if np.linalg.norm(gt) > 0:
                 assert np.dot(est, gt) / np.linalg.norm(gt) ** 2 == pytest.approx(1.0, abs=0.1)
         np.testing.assert_allclose(e.angular_velocity_world, e.orientation @ e.angular_velocity)
@@ -73,7 +88,7 @@ def test_physical_velocities_formula_matches_finite_differences():
     R = rotvec_to_matrix([0.3, -0.2, 0.1])
     C, w, t = np.array([0.1, 0.2, 2.0]), np.array([0.05, -0.1, 0.2]), np.array([0.3, 0, -0.1])
     s, h = 0.02, 1e-7
-    om, vc, om_w, vc_w = physical_velocities(R, C, w, t, s)
+    om, _vc, _om_w, vc_w = physical_velocities(R, C, w, t, s)
     pos = lambda tau: -((np.eye(3) + tau * skew(w)) @ R).T @ (C + tau * t)
     np.testing.assert_allclose(vc_w, (pos(h) - pos(-h)) / (2 * h) / s, rtol=1e-6)
     Rwc = lambda tau: ((np.eye(3) + tau * skew(w)) @ R).T
@@ -152,7 +167,6 @@ def test_covariance_is_consistent_with_the_errors(rs_frames, rs_results):
     assert 6 / 2.5 < np.mean(errs) < 6 * 2.5
 
 
-
 # ---------------------------------------------------------------------------- bad input
 def test_all_outliers_fail_cleanly():
     rng = np.random.default_rng(0)
@@ -160,8 +174,7 @@ def test_all_outliers_fail_cleanly():
     X = rng.uniform(-1, 1, (300, 3))
     e = estimate_rs_pose(pts, X, CAM, "r6p_1lin")
     # (random pixels: every minimal-sample model moves implausibly fast)
-    assert not e.success and e.failure in ("too_few_inliers", "no_hypothesis",
-                                           "implausible_motion")
+    assert not e.success and e.failure in ("too_few_inliers", "no_hypothesis", "implausible_motion")
     assert np.isfinite(e.R).all() and e.num_inliers == 0
 
 
@@ -231,8 +244,15 @@ def test_distorted_camera_and_readout_directions(readout):
     # (one frame observes velocity weakly), so an unseeded draw fails now and then
     rng = np.random.default_rng(READOUTS.index(readout))
     K = np.array([[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
-    cam = CameraModel.from_readout_time(K, 0.03, 1280, 720, D=[-0.25, 0.08, 0.001, 0.0005, 0.0],
-                                        readout=readout, reference_row=100.0)
+    cam = CameraModel.from_readout_time(
+        K,
+        0.03,
+        1280,
+        720,
+        D=[-0.25, 0.08, 0.001, 0.0005, 0.0],
+        readout=readout,
+        reference_row=100.0,
+    )
     R = rotvec_to_matrix([0.1, 0.2, -0.05])
     C = np.array([0.05, -0.05, 3.0])
     # 40 deg/s and 1.5 m/s as a camera would see them -> model velocities per unit r
@@ -256,6 +276,7 @@ def test_rng_is_default_rng_stream():
     """The estimator's generator for an int seed (cached seed sequence) draws exactly what
     ``np.random.default_rng(seed)`` draws, so seeded results are NumPy's."""
     from rs_localizer.estimation.estimate import _rng
+
     for seed in (0, 5, np.int64(7), 2**40):
         for _ in range(2):  # (the second call hits the cache)
             a, b = _rng(seed), np.random.default_rng(seed)

@@ -211,14 +211,26 @@ def test_estimator_beats_global_shutter_under_fast_motion():
 # ------------------------------------------------------------------------------- outputs
 def test_outputs_from_results(tmp_path, exp1, exp2t, exp3, exp3_alg, exp4, exp5):
     # report, plots and results.json from the fixtures' raw results (no re-run)
-    res = dict(exp1=exp1, exp2_translation=exp2t, exp3_iterations=exp3,
-               exp3_algebraic=exp3_alg, exp4=exp4, exp5=exp5)
+    res = dict(
+        exp1=exp1,
+        exp2_translation=exp2t,
+        exp3_iterations=exp3,
+        exp3_algebraic=exp3_alg,
+        exp4=exp4,
+        exp5=exp5,
+    )
     summary = E.summarize(res)
     files = E.write_outputs(summary, str(tmp_path))
     for f in files:
         assert (tmp_path / f).stat().st_size > 0, f
-    assert {"exp1_motion.png", "exp3_convergence.png", "exp4_orientation.png",
-            "exp5_p3p_init.png", "report.md", "results.json"} <= set(files)
+    assert {
+        "exp1_motion.png",
+        "exp3_convergence.png",
+        "exp4_orientation.png",
+        "exp5_p3p_init.png",
+        "report.md",
+        "results.json",
+    } <= set(files)
     report = (tmp_path / "report.md").read_text()
     assert "## Claims: paper vs. ours" in report and "R6P root choice" in report
     back = E.load_summary(str(tmp_path / "results.json"))
@@ -235,8 +247,9 @@ def test_main_quick_subset_and_merge(tmp_path, capsys):
         data = json.load(fh)
     assert {"exp4", "exp6", "_meta"} <= set(data)
     assert data["_meta"]["exp4"]["trials"] == 3 and data["_meta"]["exp4"]["quick"]
-    assert "quick run (3 trials per setting): the verdicts below are noisy" in \
-        capsys.readouterr().out
+    assert (
+        "quick run (3 trials per setting): the verdicts below are noisy" in capsys.readouterr().out
+    )
     with open(os.path.join(out, "report.md")) as fh:
         assert "**Quick run** (exp4, exp6" in fh.read()  # the report says so too
     assert E.main(["--out", out, "--render-only"]) == 0

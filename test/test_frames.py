@@ -7,8 +7,14 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.frames import (OPTICAL_TO_BODY_QUATERNION, BaseState, Extrinsic,
-                                 base_pose_covariance, base_twist_covariance, camera_to_base)
+from rs_localizer.frames import (
+    OPTICAL_TO_BODY_QUATERNION,
+    BaseState,
+    Extrinsic,
+    base_pose_covariance,
+    base_twist_covariance,
+    camera_to_base,
+)
 from rs_localizer.sim.trajectory import Trajectory
 
 
@@ -79,8 +85,8 @@ def test_twist_is_the_velocity_of_the_base_origin():
     """A camera 1 m in front of the base, the robot turning on the spot at 1 rad/s about z: the
     camera moves at 1 m/s sideways, the base origin does not move."""
     ext = Extrinsic.from_translation_quaternion([1.0, 0, 0], OPTICAL_TO_BODY_QUATERNION)
-    om_c = ext.rotation.T @ [0, 0, 1.0]   # yaw rate 1 rad/s in camera axes
-    v_c = ext.rotation.T @ [0, 1.0, 0]    # camera centre moving to the left (base +y)
+    om_c = ext.rotation.T @ [0, 0, 1.0]  # yaw rate 1 rad/s in camera axes
+    v_c = ext.rotation.T @ [0, 1.0, 0]  # camera centre moving to the left (base +y)
     out = camera_to_base(_Cam(ext.rotation, [1.0, 0, 0], om_c, v_c), ext)
     np.testing.assert_allclose(out.angular_velocity, [0, 0, 1.0], atol=1e-15)
     np.testing.assert_allclose(out.linear_velocity, [0, 0, 0], atol=1e-15)
@@ -102,8 +108,22 @@ def test_pose_covariance_matches_the_numerical_jacobian_of_the_4x4_composition()
         T_cb = np.linalg.inv(ext.matrix)
 
         def base_of(delta):  # camera pose perturbed (x, y, z, rot about map axes) -> base
-            T = _T(expm(np.array([[0, -delta[5], delta[4]], [delta[5], 0, -delta[3]],
-                                  [-delta[4], delta[3], 0]])) @ R_mc, p_c + delta[:3]) @ T_cb
+            T = (
+                _T(
+                    expm(
+                        np.array(
+                            [
+                                [0, -delta[5], delta[4]],
+                                [delta[5], 0, -delta[3]],
+                                [-delta[4], delta[3], 0],
+                            ]
+                        )
+                    )
+                    @ R_mc,
+                    p_c + delta[:3],
+                )
+                @ T_cb
+            )
             R0 = (_T(R_mc, p_c) @ T_cb)[:3, :3]
             phi = Rotation.from_matrix(T[:3, :3] @ R0.T).as_rotvec()  # map-axis perturbation
             return np.concatenate([T[:3, 3], phi])
@@ -136,12 +156,14 @@ def test_twist_covariance_matches_the_numerical_jacobian_of_finite_differences()
     xi = rng.normal(size=6)
     cam = _Cam(T0[:3, :3], T0[:3, 3], xi[3:], xi[:3])
     out = camera_to_base(cam, ext)
-    np.testing.assert_allclose(np.concatenate([out.linear_velocity, out.angular_velocity]),
-                               J @ xi, atol=1e-7)
+    np.testing.assert_allclose(
+        np.concatenate([out.linear_velocity, out.angular_velocity]), J @ xi, atol=1e-7
+    )
     cov = _random_cov(rng, 0.1)
     np.testing.assert_allclose(base_twist_covariance(cov, ext), J @ cov @ J.T, atol=1e-7)
-    out = camera_to_base(_Cam(T0[:3, :3], T0[:3, 3], xi[3:], xi[:3], _random_cov(rng, 0.1),
-                              cov), ext)
+    out = camera_to_base(
+        _Cam(T0[:3, :3], T0[:3, 3], xi[3:], xi[:3], _random_cov(rng, 0.1), cov), ext
+    )
     np.testing.assert_allclose(out.twist_covariance, J @ cov @ J.T, atol=1e-7)
 
 
@@ -152,14 +174,28 @@ def test_identity_extrinsic_changes_nothing():
     pc, tc = _random_cov(rng, 0.1), _random_cov(rng, 0.1)
     cam = _Cam(R, rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), pc, tc)
     out = camera_to_base(cam, ext)
-    for a in ("orientation", "position", "angular_velocity", "linear_velocity",
-              "pose_covariance", "twist_covariance"):
+    for a in (
+        "orientation",
+        "position",
+        "angular_velocity",
+        "linear_velocity",
+        "pose_covariance",
+        "twist_covariance",
+    ):
         np.testing.assert_allclose(getattr(out, a), getattr(cam, a), atol=1e-14)
 
 
-@pytest.mark.parametrize("t, q", [([0, 0], [0, 0, 0, 1]), ([0, 0, np.nan], [0, 0, 0, 1]),
-                                  ([0, 0, 0], [0, 0, 0]), ([0, 0, 0], [0, 0, 0, 0]),
-                                  ([0, 0, 0], [0, 0, 0, np.inf]), ([0, 0, 0], [0, 0, 0, 5.0])])
+@pytest.mark.parametrize(
+    "t, q",
+    [
+        ([0, 0], [0, 0, 0, 1]),
+        ([0, 0, np.nan], [0, 0, 0, 1]),
+        ([0, 0, 0], [0, 0, 0]),
+        ([0, 0, 0], [0, 0, 0, 0]),
+        ([0, 0, 0], [0, 0, 0, np.inf]),
+        ([0, 0, 0], [0, 0, 0, 5.0]),
+    ],
+)
 def test_bad_extrinsic_raises(t, q):
     with pytest.raises(ValueError):
         Extrinsic.from_translation_quaternion(t, q)
@@ -168,5 +204,6 @@ def test_bad_extrinsic_raises(t, q):
 def test_quaternion_is_normalized():
     a = Extrinsic.from_translation_quaternion([0, 0, 0], [0, 0, 0.1, 1.0])
     np.testing.assert_allclose(a.rotation @ a.rotation.T, np.eye(3), atol=1e-14)
-    np.testing.assert_allclose(a.rotation, Rotation.from_rotvec([0, 0, 2 * np.arctan(0.1)])
-                               .as_matrix(), atol=1e-14)
+    np.testing.assert_allclose(
+        a.rotation, Rotation.from_rotvec([0, 0, 2 * np.arctan(0.1)]).as_matrix(), atol=1e-14
+    )

@@ -39,10 +39,9 @@ def test_aruco_corners_match_ground_truth(aruco_frame):
     err = np.linalg.norm(uv - gt, axis=1)
     assert np.median(err) < 0.35 and np.percentile(err, 95) < 1.0
     # mono and bgr inputs give the same detections; markers not in the map are ignored
-    uv2, _, ids2 = fe.process(to_gray(f.image), camera)
+    _uv2, _, ids2 = fe.process(to_gray(f.image), camera)
     np.testing.assert_array_equal(ids2, ids)
-    uv3, _, ids3 = fe.process(np.ascontiguousarray(f.image[:, :, ::-1]), camera,
-                              encoding="bgr8")
+    _uv3, _, ids3 = fe.process(np.ascontiguousarray(f.image[:, :, ::-1]), camera, encoding="bgr8")
     np.testing.assert_array_equal(ids3, ids)
     keep = {m: c for m, c in corners.items() if m % 2 == 0}
     _, _, ids4 = ArucoFrontend(keep, scene.dictionary).process(f.image, camera)
@@ -73,8 +72,9 @@ def test_image_message_roundtrip():
     mono = rng.integers(0, 255, (4, 3), dtype=np.uint8)
     padded = np.zeros((4, 8), np.uint8)
     padded[:, :3] = mono
-    msg = SimpleNamespace(height=4, width=3, encoding="mono8", is_bigendian=0, step=8,
-                          data=padded.tobytes())
+    msg = SimpleNamespace(
+        height=4, width=3, encoding="mono8", is_bigendian=0, step=8, data=padded.tobytes()
+    )
     np.testing.assert_array_equal(image_from_msg(msg)[0], mono)
     with pytest.raises(ValueError):
         image_from_msg(SimpleNamespace(height=4, width=3, encoding="16UC1", step=6, data=b""))
@@ -94,8 +94,9 @@ def test_feature_matches_mostly_correct(tmp_path):
     scene = load_scene("textured_room")
     camera = camera_preset("vga")
     motion = make_motion("shake", scene, duration=2.0)
-    fmap = build_feature_map(scene, camera, (motion, np.linspace(0.0, 2.0, 6)), kind="orb",
-                             n_features=1500)
+    fmap = build_feature_map(
+        scene, camera, (motion, np.linspace(0.0, 2.0, 6)), kind="orb", n_features=1500
+    )
     assert fmap.num_landmarks > 1000 and np.isfinite(fmap.points).all()
     path = fmap.save(tmp_path / "map.npz")
     fm2 = FeatureMap.load(path)

@@ -17,8 +17,8 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.estimation.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.estimation.tracker import RSTracker, TrackerOptions
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
@@ -86,17 +86,22 @@ def test_linear_case_equals_kalman_rts_smoother(lag):
     cov[3:6, 3:6] = np.eye(3) * sp**2
     final = []
     for k in range(n):
-        est = SimpleNamespace(success=True, orientation=rotvec_to_matrix([0, 0, yaw_m[k]]),
-                              position=pos_m[k], angular_velocity=np.zeros(3),
-                              linear_velocity=np.zeros(3), covariance=cov,
-                              twist_covariance=None)  # pose-only measurement
+        est = SimpleNamespace(
+            success=True,
+            orientation=rotvec_to_matrix([0, 0, yaw_m[k]]),
+            position=pos_m[k],
+            angular_velocity=np.zeros(3),
+            linear_velocity=np.zeros(3),
+            covariance=cov,
+            twist_covariance=None,
+        )  # pose-only measurement
         final += filt.update(int(round(t[k] * NS)), est).final
     final += filt.flush()
     assert [f.stamp_ns for f in final] == [int(round(x * NS)) for x in t]
     p0 = (None, opts.initial_velocity**2, opts.angular_acceleration_std**2)
     ref_yaw = _linear_smoother(yaw_m, sr**2, dt, opts.angular_noise**2, p0, lag)
     p0l = (None, opts.initial_velocity**2, opts.linear_acceleration_std**2)
-    for k, f in enumerate(final[:n - lag]):  # frames the smoother finished
+    for k, f in enumerate(final[: n - lag]):  # frames the smoother finished
         assert matrix_to_rotvec(f.orientation)[2] == pytest.approx(ref_yaw[k, 0], abs=1e-9)
         assert f.angular_velocity[2] == pytest.approx(ref_yaw[k, 1], abs=1e-7)
         assert f.angular_acceleration[2] == pytest.approx(ref_yaw[k, 2], abs=1e-5)
@@ -122,10 +127,13 @@ def test_options_are_validated():
 
 
 def _track(name, n, seed, fusion=None, **cfg):
-    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=n, seed=seed, **cfg),
-                                          trajectory=make_trajectory(name))
-    tr = RSTracker(options=EstimateOptions(seed=0),
-                   tracker_options=TrackerOptions(fusion=fusion or FusionOptions()))
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=n, seed=seed, **cfg), trajectory=make_trajectory(name)
+    )
+    tr = RSTracker(
+        options=EstimateOptions(seed=0),
+        tracker_options=TrackerOptions(fusion=fusion or FusionOptions()),
+    )
     single, final = {}, []
     for f in frames:  # single frame: the estimator alone (as without tracking)
         single[f.t_ref_ns] = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
@@ -138,17 +146,23 @@ def _errors(frames, single, final):
     by = {f.t_ref_ns: f for f in frames}
     out = {}
     for key in ("angular_velocity", "linear_velocity"):
-        out["single_" + key] = np.median([np.linalg.norm(getattr(e, key) - getattr(by[s], key))
-                                          for s, e in single.items()])
-        out["fused_" + key] = np.median([np.linalg.norm(getattr(x, key)
-                                                        - getattr(by[x.stamp_ns], key))
-                                         for x in final])
+        out["single_" + key] = np.median(
+            [np.linalg.norm(getattr(e, key) - getattr(by[s], key)) for s, e in single.items()]
+        )
+        out["fused_" + key] = np.median(
+            [np.linalg.norm(getattr(x, key) - getattr(by[x.stamp_ns], key)) for x in final]
+        )
     nees = []
     for x in final:
         f = by[x.stamp_ns]
-        e = np.concatenate([matrix_to_rotvec(x.orientation @ f.orientation.T),
-                            x.position - f.position, x.angular_velocity - f.angular_velocity,
-                            x.linear_velocity - f.linear_velocity])
+        e = np.concatenate(
+            [
+                matrix_to_rotvec(x.orientation @ f.orientation.T),
+                x.position - f.position,
+                x.angular_velocity - f.angular_velocity,
+                x.linear_velocity - f.linear_velocity,
+            ]
+        )
         nees.append(e @ np.linalg.solve(x.covariance, e))
     out["nees"] = float(np.mean(nees[2:]))
     return out
@@ -188,9 +202,15 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
     filt = TwistFilter(FusionOptions(lag=2))
 
     def est(p, v=(0.0, 0.0, 0.0)):
-        return SimpleNamespace(success=True, orientation=np.eye(3), position=np.asarray(p),
-                               angular_velocity=np.zeros(3), linear_velocity=np.asarray(v),
-                               covariance=cov, twist_covariance=np.eye(6))
+        return SimpleNamespace(
+            success=True,
+            orientation=np.eye(3),
+            position=np.asarray(p),
+            angular_velocity=np.zeros(3),
+            linear_velocity=np.asarray(v),
+            covariance=cov,
+            twist_covariance=np.eye(6),
+        )
 
     out = []
     for k in range(4):  # 0.3 m/s along x
@@ -238,11 +258,16 @@ def test_prior_information_is_taken_out():
     z_post = z_d + K @ (m - H @ z_d)
     R_post = (np.eye(12) - K @ H) @ R_d
     G_d = rng.normal(size=(12, 6)) * 1e-3
-    est = SimpleNamespace(success=True, orientation=rotvec_to_matrix(z_post[:3]) @ O_d,
-                          position=z_post[3:6], angular_velocity=z_post[6:9],
-                          linear_velocity=z_post[9:12], covariance=0.5 * (R_post + R_post.T),
-                          twist_covariance=np.eye(6),
-                          acceleration_sensitivity=(np.eye(12) - K @ H) @ G_d)
+    est = SimpleNamespace(
+        success=True,
+        orientation=rotvec_to_matrix(z_post[:3]) @ O_d,
+        position=z_post[3:6],
+        angular_velocity=z_post[6:9],
+        linear_velocity=z_post[9:12],
+        covariance=0.5 * (R_post + R_post.T),
+        twist_covariance=np.eye(6),
+        acceleration_sensitivity=(np.eye(12) - K @ H) @ G_d,
+    )
     z = TwistFilter()._measurement(est, prior)
     assert z.deprior
     np.testing.assert_allclose(z.R, R_d, rtol=1e-6, atol=1e-12)
@@ -271,8 +296,7 @@ def _plus(x, d):
     O, p, w, v, al, a = x
     if len(d) == 12:
         d = np.concatenate([d, np.zeros(6)])
-    return (_so3_exp(d[:3]) @ O, p + d[3:6], w + d[6:9], v + d[9:12], al + d[12:15],
-            a + d[15:18])
+    return (_so3_exp(d[:3]) @ O, p + d[3:6], w + d[6:9], v + d[9:12], al + d[12:15], a + d[15:18])
 
 
 def _jacobian(f, x, n, eps=1e-6):
@@ -303,8 +327,14 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
     def rand_state():
         al, a = (rng.normal(size=3), rng.normal(size=3)) if acc else (np.zeros(3), np.zeros(3))
-        return (_so3_exp(rng.normal(size=3)), rng.normal(size=3), rng.normal(size=3),
-                rng.normal(size=3), al, a)
+        return (
+            _so3_exp(rng.normal(size=3)),
+            rng.normal(size=3),
+            rng.normal(size=3),
+            rng.normal(size=3),
+            al,
+            a,
+        )
 
     window = [rand_state(), rand_state()]  # newest first
     X = np.zeros((2, 27))
@@ -319,8 +349,14 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     # --- NumPy: propagate the newest frame, shift the window
     def propagate(x):
         O, p, w, v, al, a = x
-        return (O @ _so3_exp(w * dt + 0.5 * dt**2 * al), p + v * dt + 0.5 * dt**2 * a,
-                w + al * dt, v + a * dt, al, a)
+        return (
+            O @ _so3_exp(w * dt + 0.5 * dt**2 * al),
+            p + v * dt + 0.5 * dt**2 * a,
+            w + al * dt,
+            v + a * dt,
+            al,
+            a,
+        )
 
     def minus(x1, x0):
         err = np.concatenate([_so3_log(x1[0] @ x0[0].T)] + [x1[k] - x0[k] for k in range(1, 6)])
@@ -329,8 +365,7 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     new = propagate(window[0])
     F = _jacobian(lambda x: minus(propagate(x), new), window[0], n)
     order = 3 if acc else 2
-    Fc, Qd = _van_loan(np.diag(np.ones(order - 1), 1), np.diag([0.0] * (order - 1) + [1.0]),
-                       dt)
+    _Fc, Qd = _van_loan(np.diag(np.ones(order - 1), 1), np.diag([0.0] * (order - 1) + [1.0]), dt)
     Qang, Qlin = np.kron(qa * Qd, np.eye(3)), np.kron(ql * Qd, np.eye(3))
     T = np.eye(3 * order)
     T[:3, :3] = new[0]  # the camera-frame angular chain's rotation error in world axes
@@ -361,8 +396,11 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
     def h_err(x):
         v, O = h(x)
-        return np.concatenate([_so3_log(O @ hO.T), np.zeros(9)]) + v - np.concatenate(
-            [np.zeros(3), hv[3:]])
+        return (
+            np.concatenate([_so3_log(O @ hO.T), np.zeros(9)])
+            + v
+            - np.concatenate([np.zeros(3), hv[3:]])
+        )
 
     H = np.zeros((12, 2 * n))
     H[:, :n] = _jacobian(h_err, new, n)
@@ -376,27 +414,74 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
     # --- the kernel
     status, nis, Xn, Pn, C = fu._update_window(
-        X, P, dt, 1, acc, qa, ql, np.inf, 12, Rm, zO, z_vec[3:6], z_vec[6:9], z_vec[9:12],
-        G, True, False, np.zeros(6), np.zeros((6, 6)), 1.0, acc_var)
+        X,
+        P,
+        dt,
+        1,
+        acc,
+        qa,
+        ql,
+        np.inf,
+        12,
+        Rm,
+        zO,
+        z_vec[3:6],
+        z_vec[6:9],
+        z_vec[9:12],
+        G,
+        True,
+        False,
+        np.zeros(6),
+        np.zeros((6, 6)),
+        1.0,
+        acc_var,
+    )
     assert status == 1
     assert nis == pytest.approx(nis_ref, rel=1e-6)
-    np.testing.assert_allclose(Pn, 0.5 * (P_ref + P_ref.T), rtol=1e-6,
-                               atol=1e-7 * np.abs(P_ref).max())
+    np.testing.assert_allclose(
+        Pn, 0.5 * (P_ref + P_ref.T), rtol=1e-6, atol=1e-7 * np.abs(P_ref).max()
+    )
     for i, (O, p, w, v, al, a) in enumerate(fused):
-        np.testing.assert_allclose(Xn[i, :24], np.concatenate([O.ravel(), p, w, v, al, a]),
-                                   atol=1e-8)
+        np.testing.assert_allclose(
+            Xn[i, :24], np.concatenate([O.ravel(), p, w, v, al, a]), atol=1e-8
+        )
         np.testing.assert_allclose(Xn[i, 24:], O.T @ v, atol=1e-8)
         # the output covariance of (phi, p, omega, v_cam)
-        out = lambda x, x0=fused[i]: np.concatenate([  # noqa: E731
-            _so3_log(x[0] @ x0[0].T), x[1], x[2], x[0].T @ x[3]])
+        out = lambda x, x0=fused[i]: np.concatenate(
+            [
+                _so3_log(x[0] @ x0[0].T),
+                x[1],
+                x[2],
+                x[0].T @ x[3],
+            ]
+        )
         J = _jacobian(out, fused[i], n)
-        Pb = Pn[i * n:(i + 1) * n, i * n:(i + 1) * n]
-        np.testing.assert_allclose(C[i], J @ Pb @ J.T, rtol=1e-6,
-                                   atol=1e-7 * np.abs(Pb).max())
+        Pb = Pn[i * n : (i + 1) * n, i * n : (i + 1) * n]
+        np.testing.assert_allclose(C[i], J @ Pb @ J.T, rtol=1e-6, atol=1e-7 * np.abs(Pb).max())
     # a gate below the NIS: nothing fused, the propagated window and covariance
     status, nis2, Xg, Pg, _ = fu._update_window(
-        X, P, dt, 1, acc, qa, ql, 0.5 * nis_ref, 12, Rm, zO, z_vec[3:6], z_vec[6:9],
-        z_vec[9:12], G, True, False, np.zeros(6), np.zeros((6, 6)), 1.0, acc_var)
+        X,
+        P,
+        dt,
+        1,
+        acc,
+        qa,
+        ql,
+        0.5 * nis_ref,
+        12,
+        Rm,
+        zO,
+        z_vec[3:6],
+        z_vec[6:9],
+        z_vec[9:12],
+        G,
+        True,
+        False,
+        np.zeros(6),
+        np.zeros((6, 6)),
+        1.0,
+        acc_var,
+    )
     assert status == 0 and nis2 == pytest.approx(nis_ref, rel=1e-6)
     np.testing.assert_allclose(Pg, Pa, rtol=1e-6, atol=1e-7 * np.abs(Pa).max())
     np.testing.assert_allclose(Xg[0, :9], new[0].ravel(), atol=1e-12)
@@ -405,9 +490,15 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
 def test_fused_states_are_fused_state_dataclasses():
     filt = TwistFilter(FusionOptions(lag=1))
-    est = SimpleNamespace(success=True, orientation=np.eye(3), position=np.zeros(3),
-                          angular_velocity=np.zeros(3), linear_velocity=np.ones(3),
-                          covariance=np.eye(12) * 1e-4, twist_covariance=np.eye(6))
+    est = SimpleNamespace(
+        success=True,
+        orientation=np.eye(3),
+        position=np.zeros(3),
+        angular_velocity=np.zeros(3),
+        linear_velocity=np.ones(3),
+        covariance=np.eye(12) * 1e-4,
+        twist_covariance=np.eye(6),
+    )
     filt.update(0, est)
     step = filt.update(NS // 30, est)
     for s in [step.current, filt.predict(NS // 15)] + step.final:

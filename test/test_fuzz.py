@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
+import itertools
+
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
@@ -34,9 +36,16 @@ from rs_localizer.frontends.image import ENCODINGS, image_from_msg  # noqa: E402
 from rs_localizer.geometry import rotation_angle_deg  # noqa: E402
 
 _LONG = int(os.environ.get("RS_FUZZ_EXAMPLES", "0") or 0)
-_COMMON = dict(deadline=None, derandomize=not _LONG, database=None,
-               suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much,
-                                      HealthCheck.data_too_large])
+_COMMON = dict(
+    deadline=None,
+    derandomize=not _LONG,
+    database=None,
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.filter_too_much,
+        HealthCheck.data_too_large,
+    ],
+)
 settings.register_profile("ci", max_examples=200, **_COMMON)
 settings.register_profile("long", max_examples=max(_LONG, 1), **_COMMON)
 _PROFILE = "long" if _LONG else "ci"
@@ -49,19 +58,24 @@ RUNS = Counter()  # test -> examples run
 @pytest.fixture(scope="module", autouse=True)
 def _report():
     yield
-    print(f"\nfuzz examples run ({_PROFILE} profile): "
-          + ", ".join(f"{k} {v}" for k, v in sorted(RUNS.items()))
-          + f"; total {sum(RUNS.values())}")
+    print(
+        f"\nfuzz examples run ({_PROFILE} profile): "
+        + ", ".join(f"{k} {v}" for k, v in sorted(RUNS.items()))
+        + f"; total {sum(RUNS.values())}"
+    )
 
 
 # ------------------------------------------------------------------------------ PointCloud2
 pc = pytest.importorskip("rs_localizer.ros.pointcloud")
 
 _NAMES = ["u", "v", "x", "y", "z", "id", "score", "rgb", "intensity", "", "u"]
-_field = st.builds(lambda name, off, dt, cnt: SimpleNamespace(name=name, offset=off,
-                                                               datatype=dt, count=cnt),
-                   st.sampled_from(_NAMES), st.integers(-4, 72),
-                   st.integers(0, 10), st.sampled_from([0, 1, 1, 1, 2, 3, 2**31]))
+_field = st.builds(
+    lambda name, off, dt, cnt: SimpleNamespace(name=name, offset=off, datatype=dt, count=cnt),
+    st.sampled_from(_NAMES),
+    st.integers(-4, 72),
+    st.integers(0, 10),
+    st.sampled_from([0, 1, 1, 1, 2, 3, 2**31]),
+)
 
 
 @st.composite
@@ -75,8 +89,15 @@ def _raw_clouds(draw):
     need = max(row_step, 0) * height
     n_data = draw(st.one_of(st.just(need), st.integers(0, need + 64)))
     data = draw(st.binary(min_size=n_data, max_size=n_data))
-    return SimpleNamespace(fields=fields, point_step=point_step, width=width, height=height,
-                           row_step=row_step, is_bigendian=draw(st.booleans()), data=data)
+    return SimpleNamespace(
+        fields=fields,
+        point_step=point_step,
+        width=width,
+        height=height,
+        row_step=row_step,
+        is_bigendian=draw(st.booleans()),
+        data=data,
+    )
 
 
 def _check_decoded(out, n, kind):
@@ -105,8 +126,8 @@ def test_fuzz_pointcloud_layouts(msg, kind):
     sizes = {1: 1, 2: 1, 3: 2, 4: 2, 5: 4, 6: 4, 7: 4, 8: 8}
     read = [f for f in msg.fields if f.name in ("u", "v", "x", "y", "z", "id", "score")]
     spans = sorted((f.offset, f.offset + sizes[f.datatype] * max(f.count, 1)) for f in read)
-    assert all(0 <= a and b <= msg.point_step for a, b in spans)
-    assert all(b1 <= a2 for (_, b1), (a2, _) in zip(spans, spans[1:])), spans
+    assert all(a >= 0 and b <= msg.point_step for a, b in spans)
+    assert all(b1 <= a2 for (_, b1), (a2, _) in itertools.pairwise(spans)), spans
 
 
 _FLOAT = {pc.FLOAT32: "f4", pc.FLOAT64: "f8"}
@@ -142,8 +163,14 @@ def _valid_clouds(draw):
     pad = draw(st.integers(0, 7))
     e = ">" if big else "<"
     known = [nm for nm in order if types[nm] in _ANY]
-    dt = np.dtype({"names": known, "formats": [e + _ANY[types[nm]] for nm in known],
-                   "offsets": [offsets[nm] for nm in known], "itemsize": point_step})
+    dt = np.dtype(
+        {
+            "names": known,
+            "formats": [e + _ANY[types[nm]] for nm in known],
+            "offsets": [offsets[nm] for nm in known],
+            "itemsize": point_step,
+        }
+    )
     n = width * height
     arr = np.zeros(n, dt)
     vals = st.floats(allow_nan=True, allow_infinity=True, width=32)
@@ -153,15 +180,26 @@ def _valid_clouds(draw):
             arr[nm] = draw(st.lists(vals, min_size=n, max_size=n))
         else:
             info = np.iinfo(dt.fields[nm][0])
-            arr[nm] = draw(st.lists(st.integers(int(info.min), int(info.max)), min_size=n,
-                                    max_size=n))
+            arr[nm] = draw(
+                st.lists(st.integers(int(info.min), int(info.max)), min_size=n, max_size=n)
+            )
     rows = arr.tobytes()
-    data = b"".join(rows[r * width * point_step:(r + 1) * width * point_step] + b"\xab" * pad
-                    for r in range(height))
-    fields = [SimpleNamespace(name=nm, offset=offsets[nm], datatype=types[nm], count=1)
-              for nm in order]
-    msg = SimpleNamespace(fields=fields, point_step=point_step, width=width, height=height,
-                          row_step=width * point_step + pad, is_bigendian=big, data=data)
+    data = b"".join(
+        rows[r * width * point_step : (r + 1) * width * point_step] + b"\xab" * pad
+        for r in range(height)
+    )
+    fields = [
+        SimpleNamespace(name=nm, offset=offsets[nm], datatype=types[nm], count=1) for nm in order
+    ]
+    msg = SimpleNamespace(
+        fields=fields,
+        point_step=point_step,
+        width=width,
+        height=height,
+        row_step=width * point_step + pad,
+        is_bigendian=big,
+        data=data,
+    )
     return msg, arr
 
 
@@ -193,26 +231,43 @@ _num = st.one_of(st.floats(-3000, 3000), st.sampled_from([0.0, -1.0, np.nan, np.
 
 @st.composite
 def _camera_infos(draw):
-    fx, fy = draw(st.one_of(st.floats(50, 3000), _num)), draw(st.one_of(st.floats(50, 3000),
-                                                                          _num))
-    w, h = draw(st.sampled_from([0, 1, 64, 640, 1280])), draw(st.sampled_from([0, 1, 48, 480,
-                                                                               720]))
+    fx, fy = draw(st.one_of(st.floats(50, 3000), _num)), draw(st.one_of(st.floats(50, 3000), _num))
+    w, h = draw(st.sampled_from([0, 1, 64, 640, 1280])), draw(st.sampled_from([0, 1, 48, 480, 720]))
     cx, cy = draw(st.one_of(st.just(w / 2), _num)), draw(st.one_of(st.just(h / 2), _num))
     k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
     if draw(st.integers(0, 9)) == 0:
         k[draw(st.integers(0, 8))] = draw(_num)
     n_d = draw(st.sampled_from([0, 1, 2, 3, 4, 5, 6, 8, 9, 12, 14]))
-    d = draw(st.lists(st.one_of(st.just(0.0), st.floats(-0.5, 0.5),
-                                st.sampled_from([np.nan, np.inf])), min_size=n_d, max_size=n_d))
-    model = draw(st.sampled_from(["plumb_bob", "rational_polynomial", "equidistant", "none",
-                                  "", "fisheye_magic"]))
-    roi = SimpleNamespace(x_offset=draw(st.integers(0, 1400)), y_offset=draw(st.integers(0, 800)),
-                          width=draw(st.integers(0, 1400)), height=draw(st.integers(0, 800)))
+    d = draw(
+        st.lists(
+            st.one_of(st.just(0.0), st.floats(-0.5, 0.5), st.sampled_from([np.nan, np.inf])),
+            min_size=n_d,
+            max_size=n_d,
+        )
+    )
+    model = draw(
+        st.sampled_from(
+            ["plumb_bob", "rational_polynomial", "equidistant", "none", "", "fisheye_magic"]
+        )
+    )
+    roi = SimpleNamespace(
+        x_offset=draw(st.integers(0, 1400)),
+        y_offset=draw(st.integers(0, 800)),
+        width=draw(st.integers(0, 1400)),
+        height=draw(st.integers(0, 800)),
+    )
     if draw(st.booleans()):
         roi.x_offset = roi.y_offset = roi.width = roi.height = 0
-    return SimpleNamespace(k=k, d=d, distortion_model=model, width=w, height=h,
-                           binning_x=draw(st.integers(0, 4)), binning_y=draw(st.integers(0, 4)),
-                           roi=roi)
+    return SimpleNamespace(
+        k=k,
+        d=d,
+        distortion_model=model,
+        width=w,
+        height=h,
+        binning_x=draw(st.integers(0, 4)),
+        binning_y=draw(st.integers(0, 4)),
+        roi=roi,
+    )
 
 
 @settings(settings.get_profile(_PROFILE))
@@ -232,7 +287,7 @@ def test_fuzz_camera_info(info):
     r = info.roi
     assert np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0
     if (r.x_offset, r.y_offset, r.width, r.height) != (0, 0, 0, 0):
-        assert 0 < r.width and 0 < r.height
+        assert r.width > 0 and r.height > 0
         assert r.x_offset + r.width <= w and r.y_offset + r.height <= h
         if (r.width, r.height) != (w, h):
             K[0, 2] -= r.x_offset
@@ -260,8 +315,9 @@ def _images(draw):
     ch = ENCODINGS.get(enc.lower(), 1)
     step = draw(st.one_of(st.just(w * ch), st.integers(0, 40)))
     n = draw(st.one_of(st.just(step * h), st.integers(0, step * h + 8)))
-    return SimpleNamespace(encoding=enc, height=h, width=w, step=step,
-                           data=draw(st.binary(min_size=n, max_size=n)))
+    return SimpleNamespace(
+        encoding=enc, height=h, width=w, step=step, data=draw(st.binary(min_size=n, max_size=n))
+    )
 
 
 @settings(settings.get_profile(_PROFILE))
@@ -271,7 +327,7 @@ def test_fuzz_image_decoder(msg):
     ``bad_image``)."""
     RUNS["image"] += 1
     try:
-        img, enc = image_from_msg(msg)
+        img, _enc = image_from_msg(msg)
     except ValueError:
         return
     ch = ENCODINGS[msg.encoding.lower()]
@@ -279,17 +335,29 @@ def test_fuzz_image_decoder(msg):
     assert (img.ndim == 2) == (ch == 1)
     buf = np.frombuffer(msg.data, np.uint8)
     for r in range(msg.height):
-        np.testing.assert_array_equal(img[r].reshape(-1), buf[r * msg.step:
-                                                              r * msg.step + msg.width * ch])
+        np.testing.assert_array_equal(
+            img[r].reshape(-1), buf[r * msg.step : r * msg.step + msg.width * ch]
+        )
 
 
 # ------------------------------------------------------------------------------ estimator
-CAM = CameraModel(K=np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]), width=640,
-                  height=480, line_delay=5e-5, D=[0.05, -0.02, 0.0, 0.0, 0.0])
+CAM = CameraModel(
+    K=np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
+    width=640,
+    height=480,
+    line_delay=5e-5,
+    D=[0.05, -0.02, 0.0, 0.0, 0.0],
+)
 OPTS = EstimateOptions(max_iterations=60, min_iterations=10)
 #: every failure reason estimate_rs_pose documents
-REASONS = {"too_few_points", "no_hypothesis", "too_few_inliers", "degenerate_geometry",
-           "implausible_motion", "cheirality"}
+REASONS = {
+    "too_few_points",
+    "no_hypothesis",
+    "too_few_inliers",
+    "degenerate_geometry",
+    "implausible_motion",
+    "cheirality",
+}
 
 
 def _check_estimate(e, u, X, opts=OPTS):
@@ -318,10 +386,12 @@ _val = st.one_of(st.floats(-2000, 2000), st.sampled_from([np.nan, np.inf, -np.in
 @st.composite
 def _arrays(draw):
     n = draw(st.integers(0, 40))
-    u = np.array(draw(st.lists(st.tuples(_val, _val), min_size=n, max_size=n)),
-                 dtype=float).reshape(n, 2)
-    X = np.array(draw(st.lists(st.tuples(_val, _val, _val), min_size=n, max_size=n)),
-                 dtype=float).reshape(n, 3)
+    u = np.array(
+        draw(st.lists(st.tuples(_val, _val), min_size=n, max_size=n)), dtype=float
+    ).reshape(n, 2)
+    X = np.array(
+        draw(st.lists(st.tuples(_val, _val, _val), min_size=n, max_size=n)), dtype=float
+    ).reshape(n, 3)
     if draw(st.integers(0, 9)) == 0:  # a wrong shape
         X = X[:, :2] if draw(st.booleans()) else X[: max(n - 1, 0)]
     return u, X
@@ -351,9 +421,24 @@ def _scene(seed):
     return uv, P, R, C
 
 
-_corruptions = st.lists(st.sampled_from(["v=u", "u=v", "reflect", "duplicate", "shuffle_3d",
-                                         "collinear_px", "scale_3d", "nan_rows", "behind",
-                                         "one_point"]), min_size=1, max_size=3)
+_corruptions = st.lists(
+    st.sampled_from(
+        [
+            "v=u",
+            "u=v",
+            "reflect",
+            "duplicate",
+            "shuffle_3d",
+            "collinear_px",
+            "scale_3d",
+            "nan_rows",
+            "behind",
+            "one_point",
+        ]
+    ),
+    min_size=1,
+    max_size=3,
+)
 
 
 @settings(settings.get_profile(_PROFILE), max_examples=_EST_EXAMPLES)

@@ -5,9 +5,20 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.geometry import (camera_position, compose, invert, nearest_rotation, reprojection_errors,
-                                   rotation_angle_deg, rotvec_to_matrix, rs_project_exact,
-                                   rs_project_first_order, rs_project_linear, skew, vee)
+from rs_localizer.geometry import (
+    camera_position,
+    compose,
+    invert,
+    nearest_rotation,
+    reprojection_errors,
+    rotation_angle_deg,
+    rotvec_to_matrix,
+    rs_project_exact,
+    rs_project_first_order,
+    rs_project_linear,
+    skew,
+    vee,
+)
 
 rng = np.random.default_rng(42)
 
@@ -41,10 +52,12 @@ def _brute_force_row(X, R, C, w, t, r0, d, exact):
     """Solve r = d . pi(p(r)) by dense 1-D search + bisection (independent of the closed form)."""
     out = []
     for Xi in X:
+
         def f(r):
             M = expm((r - r0) * skew(w)) if exact else np.eye(3) + (r - r0) * skew(w)
             p = M @ R @ Xi + C + (r - r0) * t
             return r - d @ (p[:2] / p[2]), p
+
         grid = np.linspace(-1, 1, 2001)
         vals = np.array([f(r)[0] for r in grid])
         k = np.flatnonzero(np.sign(vals[:-1]) != np.sign(vals[1:]))[0]
@@ -116,6 +129,7 @@ def test_compose_and_invert_match_homogeneous_matrices():
         M = np.eye(4)
         M[:3, :3], M[:3, 3] = R, C
         return M
+
     R1, R2 = rotvec_to_matrix([0.1, 0.2, 0.3]), rotvec_to_matrix([-0.4, 0.0, 0.2])
     C1, C2 = np.array([1.0, 2.0, 3.0]), np.array([-0.5, 0.1, 0.2])
     np.testing.assert_allclose(T(*compose(R1, C1, R2, C2)), T(R1, C1) @ T(R2, C2), atol=1e-14)

@@ -45,8 +45,13 @@ def _run(tmp, env_extra, *args):
 
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     env.update(env_extra)
-    out = subprocess.run([sys.executable, "-c", PROBE, str(tmp), *args], env=env,
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, str(tmp), *args],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -93,22 +98,25 @@ def test_configure_modes(tmp_path):
     st = jit_cache.configure(env, package_dir=str(pkg))
     want = str(tmp_path / "xdg" / "rs_localizer" / "numba")
     assert st["mode"] == "user" and env["NUMBA_CACHE_DIR"] == want and st["seeded"] == 1
-    assert (Path(want) / jit_cache._numba_subdir(str(pkg)) / "k-1.py311.nbi").read_bytes() \
-        == b"index"
+    assert (
+        Path(want) / jit_cache._numba_subdir(str(pkg)) / "k-1.py311.nbi"
+    ).read_bytes() == b"index"
     # an explicit NUMBA_CACHE_DIR wins
     env = {"NUMBA_CACHE_DIR": str(tmp_path / "mine")}
     st = jit_cache.configure(env, package_dir=str(pkg))
     assert st["mode"] == "NUMBA_CACHE_DIR" and env["NUMBA_CACHE_DIR"] == str(tmp_path / "mine")
-    assert jit_cache.user_cache_dir({}) == os.path.join(os.path.expanduser("~"), ".cache",
-                                                        "rs_localizer", "numba")
+    assert jit_cache.user_cache_dir({}) == os.path.join(
+        os.path.expanduser("~"), ".cache", "rs_localizer", "numba"
+    )
 
 
 def test_numba_subdir_is_numbas_name():
     from numba.core.caching import _CacheLocator
 
     f = os.path.join(jit_cache.PACKAGE_DIR, "solvers", "p3p.py")
-    assert jit_cache._numba_subdir(os.path.dirname(f)) == \
-        _CacheLocator.get_suitable_cache_subpath(f)
+    assert jit_cache._numba_subdir(os.path.dirname(f)) == _CacheLocator.get_suitable_cache_subpath(
+        f
+    )
 
 
 def _signatures():
@@ -120,10 +128,11 @@ def _signatures():
     for name, mod in list(sys.modules.items()):
         if not name.startswith("rs_localizer") or mod is None:
             continue
-        for attr, obj in vars(mod).items():
+        for _attr, obj in vars(mod).items():
             if isinstance(obj, CPUDispatcher):
                 out[f"{obj.py_func.__module__}.{obj.py_func.__qualname__}"] = set(
-                    map(str, obj.signatures))
+                    map(str, obj.signatures)
+                )
     return out
 
 
@@ -144,7 +153,8 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     ts = bag_io._typestore()
     info = cloud = None
     for topic, msgtype, _, raw in bag_io.iter_messages(
-            sample_bag, {"/camera/correspondences", "/camera/camera_info"}):
+        sample_bag, {"/camera/correspondences", "/camera/camera_info"}
+    ):
         msg = ts.deserialize_cdr(raw, msgtype)
         if topic.endswith("camera_info") and info is None:
             info = msg
@@ -153,8 +163,11 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     cam = camera_model_from_camera_info(info, line_delay=30e-6)
     c = read_correspondences(cloud)
     scores = np.linspace(1, 0, len(c.uv))
-    for uv, xyz, sc in ((c.uv, c.xyz, None), (c.uv, c.xyz, scores),
-                        (c.uv.astype(np.float32), c.xyz.astype(np.float32), None)):
+    for uv, xyz, sc in (
+        (c.uv, c.xyz, None),
+        (c.uv, c.xyz, scores),
+        (c.uv.astype(np.float32), c.xyz.astype(np.float32), None),
+    ):
         assert estimate_rs_pose(uv, xyz, cam, solver=solver, scores=sc).success
     after = _signatures()
     new = {k: v - before.get(k, set()) for k, v in after.items() if v - before.get(k, set())}

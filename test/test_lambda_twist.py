@@ -7,8 +7,8 @@ import numpy as np
 import poselib
 import pytest
 
-from rs_localizer.solvers.lambda_twist import _cubic_root, lambda_twist, lambda_twist_batch
 from rs_localizer.sim.synthetic import make_frame
+from rs_localizer.solvers.lambda_twist import _cubic_root, lambda_twist, lambda_twist_batch
 
 P = sys.modules["rs_localizer.solvers.p3p"]  # the package exports a function named p3p
 
@@ -21,8 +21,12 @@ def _bearings(x):
 def _frames(seed, n):
     rng = np.random.default_rng(seed)
     frames = [make_frame(rng, 3, rs_speed=0.0) for _ in range(n)]
-    return (np.array([_bearings(f.x) for f in frames]), np.array([f.X for f in frames]),
-            np.array([f.R for f in frames]), np.array([f.C for f in frames]))
+    return (
+        np.array([_bearings(f.x) for f in frames]),
+        np.array([f.X for f in frames]),
+        np.array([f.R for f in frames]),
+        np.array([f.C for f in frames]),
+    )
 
 
 def _pose_distance(R, C, R2, C2):
@@ -38,15 +42,19 @@ def test_true_pose_is_among_the_solutions():
     for k in range(len(b)):
         Rs, Cs = lambda_twist(b[k], X[k])
         assert 1 <= len(Rs) <= 4
-        err[k] = _pose_distance(Rs, Cs, R[k:k + 1], C[k:k + 1]).min()
+        err[k] = _pose_distance(Rs, Cs, R[k : k + 1], C[k : k + 1]).min()
         # every solution is a rotation putting the three points on their rays, in front
-        np.testing.assert_allclose(np.einsum("nji,njk->nik", Rs, Rs), np.broadcast_to(
-            np.eye(3), Rs.shape), atol=1e-12)  # the Newton-Schulz polish
+        np.testing.assert_allclose(
+            np.einsum("nji,njk->nik", Rs, Rs), np.broadcast_to(np.eye(3), Rs.shape), atol=1e-12
+        )  # the Newton-Schulz polish
         np.testing.assert_allclose(np.linalg.det(Rs), 1.0, atol=1e-9)
         Xc = np.einsum("nij,pj->npi", Rs, X[k]) + Cs[:, None]
         assert np.all(Xc[..., 2] > 0)
-        np.testing.assert_allclose(Xc / np.linalg.norm(Xc, axis=2, keepdims=True),
-                                   np.broadcast_to(b[k], Xc.shape), atol=1e-9)
+        np.testing.assert_allclose(
+            Xc / np.linalg.norm(Xc, axis=2, keepdims=True),
+            np.broadcast_to(b[k], Xc.shape),
+            atol=1e-9,
+        )
     assert (err < 1e-9).mean() >= 0.999, (err < 1e-9).mean()
     # the Gauss-Newton refinement of the depths (paper sec. 3.8) matters in the tail: 4e-13
     # here, 3e-12 without it
@@ -84,10 +92,16 @@ def _degenerate_cases():
     inf_X = X.copy()
     inf_X[2, 0] = np.inf
     near_collinear = collinear + 1e-13 * rng.normal(size=(3, 3))
-    return {"collinear X": (b, collinear), "duplicated X": (b, dup_X),
-            "duplicated bearing": (dup_b, X), "one point thrice": (b, all_same),
-            "zeros": (np.zeros((3, 3)), np.zeros((3, 3))), "NaN bearing": (nan_b, X),
-            "inf point": (b, inf_X), "collinear X up to 1e-13": (b, near_collinear)}
+    return {
+        "collinear X": (b, collinear),
+        "duplicated X": (b, dup_X),
+        "duplicated bearing": (dup_b, X),
+        "one point thrice": (b, all_same),
+        "zeros": (np.zeros((3, 3)), np.zeros((3, 3))),
+        "NaN bearing": (nan_b, X),
+        "inf point": (b, inf_X),
+        "collinear X up to 1e-13": (b, near_collinear),
+    }
 
 
 @pytest.mark.parametrize("name", list(_degenerate_cases()))
@@ -107,8 +121,9 @@ def test_random_and_near_degenerate_input_gives_finite_rotations():
         X = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-8, 8)
         mode = i % 4
         if mode == 1:
-            X[2] = X[0] + rng.normal() * (X[1] - X[0]) + 1e-12 * np.abs(X).max() * rng.normal(
-                size=3)
+            X[2] = (
+                X[0] + rng.normal() * (X[1] - X[0]) + 1e-12 * np.abs(X).max() * rng.normal(size=3)
+            )
         elif mode == 2:
             y[2] = y[0] + rng.normal() * (y[1] - y[0])
         elif mode == 3:
@@ -173,7 +188,7 @@ def test_p3p_batch_backends_contain_ground_truth(backend):
     for k in range(len(b)):
         mine = owner == k
         assert 1 <= mine.sum() <= 4
-        assert _pose_distance(Rs[mine], Cs[mine], R[k:k + 1], C[k:k + 1]).min() < tol
+        assert _pose_distance(Rs[mine], Cs[mine], R[k : k + 1], C[k : k + 1]).min() < tol
 
 
 def test_p3p_default_backend_is_lambda_twist_and_matches_poselib():

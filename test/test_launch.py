@@ -24,8 +24,14 @@ class _Config(_Recorder):
 @pytest.fixture
 def launch_file(monkeypatch):
     mods = {}
-    for name in ("launch", "launch.actions", "launch.substitutions", "launch_ros",
-                 "launch_ros.actions", "launch_ros.substitutions"):
+    for name in (
+        "launch",
+        "launch.actions",
+        "launch.substitutions",
+        "launch_ros",
+        "launch_ros.actions",
+        "launch_ros.substitutions",
+    ):
         mods[name] = types.ModuleType(name)
         monkeypatch.setitem(sys.modules, name, mods[name])
     mods["launch"].LaunchDescription = lambda actions: list(actions)
@@ -44,8 +50,9 @@ def launch_file(monkeypatch):
 def _node(mod, **values):
     actions = mod.generate_launch_description()
     args = {a.args[0]: a.kwargs["default_value"] for a in actions if "default_value" in a.kwargs}
-    assert {"namespace", "params_file", "image_topic", "log_level", "cameras",
-            "lifecycle"} <= set(args)
+    assert {"namespace", "params_file", "image_topic", "log_level", "cameras", "lifecycle"} <= set(
+        args
+    )
     context = {**args, **values}
     opaque = [a for a in actions if "function" in a.kwargs]
     (node,) = opaque[0].kwargs["function"](context)

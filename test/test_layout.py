@@ -12,10 +12,17 @@ PKG = Path(__file__).resolve().parents[1] / "rs_localizer"
 #: layer or lower ones (``sim`` produces data: it may use the model and the front ends' map
 #: formats; ``evaluation`` and ``cli`` compose everything)
 LAYER = {
-    "geometry": 0, "camera": 0, "_so3": 0, "maps": 0, "accuracy": 0, "frames": 0, "jit_cache": 0,
+    "geometry": 0,
+    "camera": 0,
+    "_so3": 0,
+    "maps": 0,
+    "accuracy": 0,
+    "frames": 0,
+    "jit_cache": 0,
     "solvers": 1,
     "estimation": 2,
-    "frontends": 3, "viz": 3,
+    "frontends": 3,
+    "viz": 3,
     "sim": 4,
     "ros": 5,
     "evaluation": 6,
@@ -23,9 +30,19 @@ LAYER = {
 }
 #: the package's own top level (re-exports the public API) and ``python -m rs_localizer``
 TOP = {"__init__", "__main__"}
-ROS_PACKAGES = {"rclpy", "geometry_msgs", "sensor_msgs", "nav_msgs", "diagnostic_msgs",
-                "std_msgs", "tf2_msgs", "visualization_msgs", "rcl_interfaces",
-                "builtin_interfaces", "lifecycle_msgs"}
+ROS_PACKAGES = {
+    "rclpy",
+    "geometry_msgs",
+    "sensor_msgs",
+    "nav_msgs",
+    "diagnostic_msgs",
+    "std_msgs",
+    "tf2_msgs",
+    "visualization_msgs",
+    "rcl_interfaces",
+    "builtin_interfaces",
+    "lifecycle_msgs",
+}
 
 
 def _unit(path: Path) -> str:
@@ -44,7 +61,7 @@ def _imports(path: Path):
                 yield a.name, node.lineno
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = pkg[:len(pkg) - (node.level - 1)]
+                base = pkg[: len(pkg) - (node.level - 1)]
                 mod = ".".join(base + ([node.module] if node.module else []))
                 if node.module is None:  # from . import x
                     for a in node.names:
@@ -95,8 +112,11 @@ def test_one_solver_registry():
             continue
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Compare):
-                consts = [c.value for c in [node.left, *node.comparators]
-                          if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+                consts = [
+                    c.value
+                    for c in [node.left, *node.comparators]
+                    if isinstance(c, ast.Constant) and isinstance(c.value, str)
+                ]
                 if any(c in names for c in consts):
                     offenders.append(f"{path.relative_to(PKG)}:{node.lineno}")
     assert not offenders, "solver-name comparisons outside the registry: " + ", ".join(offenders)

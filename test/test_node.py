@@ -23,10 +23,10 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, assert_dropped, start_node, stop_node  # noqa: E402
+from conftest import Probe, assert_dropped, start_node, stop_node
 
 LIMITS = {  # key: (median, max); typical on the sample bag: 0.010/0.06 deg, 1.8/4 mm,
-    "rot_deg": (0.03, 0.2),      # 0.04/0.12 rad/s, 0.28/0.58 m/s
+    "rot_deg": (0.03, 0.2),  # 0.04/0.12 rad/s, 0.28/0.58 m/s
     "pos_m": (0.01, 0.03),
     "angvel": (0.15, 0.4),
     "linvel": (0.8, 1.5),
@@ -47,8 +47,9 @@ def _check_accuracy(errs, limits=LIMITS, label=""):
 @pytest.fixture(scope="module")
 def node(tmp_path_factory, keypoints_bag):
     tmp = tmp_path_factory.mktemp("node")
-    n = start_node(tmp, {"diagnostics_period": 0.2,
-                         "landmarks_file": str(keypoints_bag / "landmarks.csv")})
+    n = start_node(
+        tmp, {"diagnostics_period": 0.2, "landmarks_file": str(keypoints_bag / "landmarks.csv")}
+    )
     yield n
     alive = n.alive()
     rc = n.stop()
@@ -57,13 +58,22 @@ def node(tmp_path_factory, keypoints_bag):
 
 
 def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=None):
+    from rs_localizer.evaluation.demo import evaluate_outputs
     from rs_localizer.ros.bag_io import load_ground_truth
     from rs_localizer.ros.play import play
-    from rs_localizer.evaluation.demo import evaluate_outputs
 
-    res = play(bag, lockstep=True, output_topics=outputs, context=ros_context, timeout=5.0,
-               topics=topics, stamp_offset_ns=int(offset_s * 1e9), limit=limit, log=print,
-               late_topics=("/camera/twist", "/camera/odom"))  # (the fused twist: lag 1)
+    res = play(
+        bag,
+        lockstep=True,
+        output_topics=outputs,
+        context=ros_context,
+        timeout=5.0,
+        topics=topics,
+        stamp_offset_ns=int(offset_s * 1e9),
+        limit=limit,
+        log=print,
+        late_topics=("/camera/twist", "/camera/odom"),
+    )  # (the fused twist: lag 1)
     gt = load_ground_truth(bag)
     if offset_s:  # shift ground truth like the inputs
         shift = int(offset_s * 1e9)
@@ -77,8 +87,9 @@ def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=No
 def test_sample_bag_accuracy(node, ros_context, sample_bag):
     from rs_localizer.ros.conversions import stamp_to_ns
 
-    res, gt, errs = _play(ros_context, sample_bag,
-                          topics=["/camera/correspondences", "/camera/camera_info"])
+    res, gt, errs = _play(
+        ros_context, sample_bag, topics=["/camera/correspondences", "/camera/camera_info"]
+    )
     assert len(res.frames) == 30 and res.answered == 30, node.log
     s = _check_accuracy(errs)
     print("sample bag accuracy:", s)
@@ -94,21 +105,30 @@ def test_sample_bag_accuracy(node, ros_context, sample_bag):
         assert pose.header.frame_id == "map" and odom.header.frame_id == "map"
         assert twist.header.frame_id == "camera_optical_frame"
         assert odom.child_frame_id == "camera_optical_frame"
-        for cov in (np.reshape(pwc.pose.covariance, (6, 6)),
-                    np.reshape(odom.pose.covariance, (6, 6)),
-                    np.reshape(odom.twist.covariance, (6, 6))):
+        for cov in (
+            np.reshape(pwc.pose.covariance, (6, 6)),
+            np.reshape(odom.pose.covariance, (6, 6)),
+            np.reshape(odom.twist.covariance, (6, 6)),
+        ):
             assert np.isfinite(cov).all() and (np.diag(cov) > 0).all()
             np.testing.assert_allclose(cov, cov.T, atol=1e-12 + 1e-9 * np.abs(cov).max())
     # position covariance is consistent with the actual error (within a factor ~10)
-    sig = [np.sqrt(np.trace(np.reshape(f["outputs"]["/camera/pose_with_covariance"][1]
-                                       .pose.covariance, (6, 6))[:3, :3]))
-           for f in res.frames]
+    sig = [
+        np.sqrt(
+            np.trace(
+                np.reshape(f["outputs"]["/camera/pose_with_covariance"][1].pose.covariance, (6, 6))[
+                    :3, :3
+                ]
+            )
+        )
+        for f in res.frames
+    ]
     ratio = s["pos_m"]["median"] / np.median(sig)
     assert 0.1 < ratio < 10, f"position error / predicted sigma = {ratio:.3g}"
 
 
 def test_keypoints_with_landmark_map(node, ros_context, keypoints_bag):
-    res, gt, errs = _play(ros_context, keypoints_bag, outputs=OUTPUTS[:2])
+    res, _gt, errs = _play(ros_context, keypoints_bag, outputs=OUTPUTS[:2])
     assert res.answered == len(res.frames) == 10, node.log
     _check_accuracy(errs, label="keypoints")
 
@@ -175,7 +195,7 @@ def test_solver_switch_at_runtime(node, ros_context, sample_bag, keypoints_bag):
         assert r.successful
     finally:
         params.close()
-    res, gt, errs = _play(ros_context, sample_bag, offset_s=400.0, limit=10, topics=topics)
+    res, _gt, errs = _play(ros_context, sample_bag, offset_s=400.0, limit=10, topics=topics)
     assert res.answered == 10
     _check_accuracy(errs, label="after switching back")
     rs_rot = np.median([e["rot_deg"] for e in errs])
@@ -184,16 +204,32 @@ def test_solver_switch_at_runtime(node, ros_context, sample_bag, keypoints_bag):
 
 
 def test_diagnostics(node, ros_context, sample_bag):
-    res, _, _ = _play(ros_context, sample_bag, offset_s=500.0, limit=5,
-                      topics=["/camera/correspondences", "/camera/camera_info"])
+    res, _, _ = _play(
+        ros_context,
+        sample_bag,
+        offset_s=500.0,
+        limit=5,
+        topics=["/camera/correspondences", "/camera/camera_info"],
+    )
     assert res.answered == 5
     probe = Probe(ros_context)
     try:
         st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 5, timeout=10)
         assert st is not None, "no diagnostics from the node"
-        for key in ("frames_received", "frames_solved", "frames_failed", "messages_lost",
-                    "inliers_last", "inliers_mean", "latency_ms_median", "latency_ms_p99",
-                    "solver", "camera", "planar", "condition_number_last"):
+        for key in (
+            "frames_received",
+            "frames_solved",
+            "frames_failed",
+            "messages_lost",
+            "inliers_last",
+            "inliers_mean",
+            "latency_ms_median",
+            "latency_ms_p99",
+            "solver",
+            "camera",
+            "planar",
+            "condition_number_last",
+        ):
             assert key in v, key
         assert v["solver"] == "r6p_1lin" and v["camera"] == "camera_info"
         assert v["planar"] == "false"  # a corridor: points in depth
@@ -228,8 +264,12 @@ def test_tracking_fused_twist_and_resets(node, ros_context, sample_bag):
         assert np.isfinite(np.reshape(odom.twist.covariance, (6, 6))).all()
         w = np.array([sf.twist.angular.x, sf.twist.angular.y, sf.twist.angular.z])
         v = np.array([sf.twist.linear.x, sf.twist.linear.y, sf.twist.linear.z])
-        single.append((np.linalg.norm(w - gt.angular_velocity[stamp]),
-                       np.linalg.norm(v - gt.linear_velocity[stamp])))
+        single.append(
+            (
+                np.linalg.norm(w - gt.angular_velocity[stamp]),
+                np.linalg.norm(v - gt.linear_velocity[stamp]),
+            )
+        )
     single = np.array(single)
     fused_w = np.median([e["angvel"] for e in errs])
     fused_v = np.median([e["linvel"] for e in errs])
@@ -244,15 +284,17 @@ def test_tracking_fused_twist_and_resets(node, ros_context, sample_bag):
         resets0 = int(v["resets"])
         (r,) = params.set(solver="r6p_vC_wt")  # a solver change resets the track
         assert r.successful, r.reason
-        res, _, _ = _play(ros_context, sample_bag, offset_s=701.0, limit=4, topics=topics,
-                          outputs=outs)
+        res, _, _ = _play(
+            ros_context, sample_bag, offset_s=701.0, limit=4, topics=topics, outputs=outs
+        )
         assert res.answered == 4, node.log
         st, v = probe.wait_diag(lambda v: int(v.get("resets", 0)) > resets0, timeout=10)
         assert st is not None, "no reset after the solver change"
         for r in params.set(solver="r6p_1lin", **{"tracking.enabled": False}):
             assert r.successful, r.reason
-        res, _, _ = _play(ros_context, sample_bag, offset_s=702.0, limit=3, topics=topics,
-                          outputs=outs)
+        res, _, _ = _play(
+            ros_context, sample_bag, offset_s=702.0, limit=3, topics=topics, outputs=outs
+        )
         assert res.answered == 3, node.log
         for f in res.frames:  # the per-frame twist again, with the frame
             tw = f["outputs"]["/camera/twist"][1].twist
@@ -271,23 +313,29 @@ def test_tracking_fused_twist_and_resets(node, ros_context, sample_bag):
 def frames():
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
-    fr, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=16, num_points=300, seed=5,
-                                                         t0_ns=1_800_000_000_000_000_000))
+    fr, scene, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=16, num_points=300, seed=5, t0_ns=1_800_000_000_000_000_000)
+    )
     return fr, scene, cam
 
 
 def test_bad_inputs(tmp_path, ros_context, frames):
     """Every bad input is dropped with its reason counted; valid frames after it still solve."""
+    from sensor_msgs.msg import PointField
+
+    from rs_localizer.maps import save_landmarks_csv
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import camera_info_msg
-    from rs_localizer.maps import save_landmarks_csv
-    from sensor_msgs.msg import PointField
 
     fr, scene, cam = frames
     lm = tmp_path / "landmarks.csv"
     save_landmarks_csv(lm, scene.ids, scene.points)
-    node = start_node(tmp_path, {"diagnostics_period": 0.2, "max_points": 2000,
-                                 "landmarks_file": str(lm)}, namespace="/bad", name="bad")
+    node = start_node(
+        tmp_path,
+        {"diagnostics_period": 0.2, "max_points": 2000, "landmarks_file": str(lm)},
+        namespace="/bad",
+        name="bad",
+    )
     probe = Probe(ros_context, namespace="/bad")
     try:
         probe.wait_matched()
@@ -296,8 +344,9 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         received = 0
 
         def cloud(f, stamp=None, **kw):
-            return pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam",
-                                           stamp=f.stamp_ns if stamp is None else stamp, **kw)
+            return pc.correspondence_cloud(
+                f.uv, f.xyz, frame_id="cam", stamp=f.stamp_ns if stamp is None else stamp, **kw
+            )
 
         def bad(msg, reason, topic="corr"):
             nonlocal received
@@ -328,8 +377,7 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         f = next(it)
         arr = pc.correspondence_array(f.uv, f.xyz)
         no_z = arr[["u", "v", "x", "y"]]
-        bad(pc.array_to_cloud(np.ascontiguousarray(no_z), "cam", f.stamp_ns - 1),
-            "missing_fields")
+        bad(pc.array_to_cloud(np.ascontiguousarray(no_z), "cam", f.stamp_ns - 1), "missing_fields")
         last = good(f)
         # wrong field types
         f = next(it)
@@ -344,8 +392,10 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         bad(m, "truncated")
         last = good(f)
         # empty cloud
-        bad(pc.correspondence_cloud(np.zeros((0, 2)), np.zeros((0, 3)), stamp=last.stamp_ns + 1),
-            "empty_cloud")
+        bad(
+            pc.correspondence_cloud(np.zeros((0, 2)), np.zeros((0, 3)), stamp=last.stamp_ns + 1),
+            "empty_cloud",
+        )
         # NaN/inf rows: dropped by the estimator, frame still solved
         f = next(it)
         uv = f.uv.copy()
@@ -358,8 +408,10 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         assert int(probe.node_diag()[1]["points_dropped"]) >= 40
         # only NaN rows
         f = next(it)
-        bad(pc.correspondence_cloud(np.full((50, 2), np.nan), f.xyz[:50], stamp=f.stamp_ns - 1),
-            None)
+        bad(
+            pc.correspondence_cloud(np.full((50, 2), np.nan), f.xyz[:50], stamp=f.stamp_ns - 1),
+            None,
+        )
         last = good(f)
         # fewer than the minimum
         f = next(it)
@@ -368,8 +420,12 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         # all outliers
         f = next(it)
         rng = np.random.default_rng(0)
-        bad(pc.correspondence_cloud(rng.uniform([0, 0], [1279, 719], (300, 2)), f.xyz,
-                                    stamp=f.stamp_ns - 1), None)
+        bad(
+            pc.correspondence_cloud(
+                rng.uniform([0, 0], [1279, 719], (300, 2)), f.xyz, stamp=f.stamp_ns - 1
+            ),
+            None,
+        )
         last = good(f)
         # a stamp older than the last frame: solved all the same (a time reset, counted)
         f = next(it)
@@ -387,8 +443,11 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         last = good(f, pc.keypoint_cloud(f.uv, ids, frame_id="cam", stamp=f.stamp_ns), "kp")
         probe.wait_diag(lambda v: int(v.get("unknown_landmark_ids", 0)) >= 50)
         f = next(it)
-        bad(pc.keypoint_cloud(f.uv, np.arange(300) + 3_000_000_000, stamp=f.stamp_ns - 1),
-            "unknown_landmarks", "kp")
+        bad(
+            pc.keypoint_cloud(f.uv, np.arange(300) + 3_000_000_000, stamp=f.stamp_ns - 1),
+            "unknown_landmarks",
+            "kp",
+        )
         # (another topic: wait until it is processed before the next frame)
         probe.wait_diag(lambda v: v.get("failed.unknown_landmarks") == "1")
         last = good(f)
@@ -396,18 +455,36 @@ def test_bad_inputs(tmp_path, ros_context, frames):
         f = next(it)
         reps = 40
         uv = np.tile(f.uv, (reps, 1)) + rng.normal(0, 0.05, (reps * len(f.uv), 2))
-        last = good(f, pc.correspondence_cloud(uv, np.tile(f.xyz, (reps, 1)), frame_id="cam",
-                                               stamp=f.stamp_ns))
+        last = good(
+            f,
+            pc.correspondence_cloud(
+                uv, np.tile(f.xyz, (reps, 1)), frame_id="cam", stamp=f.stamp_ns
+            ),
+        )
         expected_capped = 1
 
-        st, v = probe.wait_diag(lambda v: int(v.get("frames_received", 0)) == received
-                                and v.get("frames_pending") == "0")
+        st, v = probe.wait_diag(
+            lambda v: (
+                int(v.get("frames_received", 0)) == received and v.get("frames_pending") == "0"
+            )
+        )
         assert int(v["frames_received"]) == received, v
         log = assert_dropped(node, st, v, expected)
         # the estimator's own reasons for the three data-limited frames
-        est_reasons = {k: int(x) for k, x in v.items() if k.startswith("failed.")
-                       and k[7:] in ("degenerate_geometry", "too_few_points", "no_hypothesis",
-                                     "too_few_inliers", "implausible_motion", "cheirality")}
+        est_reasons = {
+            k: int(x)
+            for k, x in v.items()
+            if k.startswith("failed.")
+            and k[7:]
+            in (
+                "degenerate_geometry",
+                "too_few_points",
+                "no_hypothesis",
+                "too_few_inliers",
+                "implausible_motion",
+                "cheirality",
+            )
+        }
         assert sum(est_reasons.values()) == 3, v
         assert int(v["frames_failed"]) == sum(expected.values()) + 3
         assert int(v["clouds_capped"]) == expected_capped
@@ -423,12 +500,23 @@ def test_fallback_intrinsics_without_camera_info(tmp_path, ros_context, frames):
 
     fr, _, cam = frames
     K, D = cam.K, cam.D
-    node = start_node(tmp_path, {
-        "camera.fx": K[0, 0], "camera.fy": K[1, 1], "camera.cx": K[0, 2], "camera.cy": K[1, 2],
-        "camera.width": cam.width, "camera.height": cam.height,
-        "camera.distortion_model": "plumb_bob", "camera.d": [float(x) for x in D],
-        "rs.readout_time": cam.readout_time, "rs.line_delay": 0.0}, namespace="/fallback",
-        name="fallback")
+    node = start_node(
+        tmp_path,
+        {
+            "camera.fx": K[0, 0],
+            "camera.fy": K[1, 1],
+            "camera.cx": K[0, 2],
+            "camera.cy": K[1, 2],
+            "camera.width": cam.width,
+            "camera.height": cam.height,
+            "camera.distortion_model": "plumb_bob",
+            "camera.d": [float(x) for x in D],
+            "rs.readout_time": cam.readout_time,
+            "rs.line_delay": 0.0,
+        },
+        namespace="/fallback",
+        name="fallback",
+    )
     probe = Probe(ros_context, namespace="/fallback")
     try:
         probe.wait_matched()
@@ -441,7 +529,7 @@ def test_fallback_intrinsics_without_camera_info(tmp_path, ros_context, frames):
         R, p = pose_from_msg(probe.pose_near(fr[2].t_ref_ns).pose)
         assert rotation_angle_deg(R, fr[2].orientation) < LIMITS["rot_deg"][1]
         assert np.linalg.norm(p - fr[2].position) < LIMITS["pos_m"][1]
-        st, v = probe.wait_diag(lambda v: v.get("camera") == "parameters")
+        _st, v = probe.wait_diag(lambda v: v.get("camera") == "parameters")
         assert v["camera"] == "parameters"
     finally:
         probe.close()
@@ -471,9 +559,14 @@ def test_demo_command(ros_domain, tmp_path):
         pytest.skip("no sample bag")
     tmp = tmp_path / "tmp"
     tmp.mkdir()
-    out = subprocess.run([sys.executable, "-m", "rs_localizer", "demo", "--summary-only"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300,
-                         env={**os.environ, "TMPDIR": str(tmp)})
+    out = subprocess.run(
+        [sys.executable, "-m", "rs_localizer", "demo", "--summary-only"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "TMPDIR": str(tmp)},
+    )
     assert out.returncode == 0, out.stdout + out.stderr
     # a successful demo removes its working directory (node logs, QoS file)
     assert not list(tmp.glob("rs_localizer_demo_*"))
@@ -495,8 +588,13 @@ def _settle(probe, timeout=30.0):
     while time.monotonic() < end:
         probe.spin(0.5)
         v = probe.node_diag()[1]
-        key = (v.get("frames_received"), v.get("frames_solved"), v.get("frames_failed"),
-               v.get("frames_skipped"), v.get("frames_pending"))
+        key = (
+            v.get("frames_received"),
+            v.get("frames_solved"),
+            v.get("frames_failed"),
+            v.get("frames_skipped"),
+            v.get("frames_pending"),
+        )
         if key == prev and v.get("frames_pending", "0") == "0":
             return v
         prev = key
@@ -512,12 +610,16 @@ def rel_node(tmp_path_factory, frames):
     """One node for the issue-11 checks: namespace /rel, reliable inputs, a landmark map."""
     from rs_localizer.maps import save_landmarks_csv
 
-    fr, scene, cam = frames
+    _fr, scene, _cam = frames
     tmp = tmp_path_factory.mktemp("rel")
     lm = tmp / "landmarks.csv"
     save_landmarks_csv(lm, scene.ids, scene.points)
-    n = start_node(tmp, {"diagnostics_period": 0.2, "max_points": 2000,
-                         "landmarks_file": str(lm)}, namespace="/rel", name="rel")
+    n = start_node(
+        tmp,
+        {"diagnostics_period": 0.2, "max_points": 2000, "landmarks_file": str(lm)},
+        namespace="/rel",
+        name="rel",
+    )
     n.landmarks = lm
     yield n
     alive = n.alive()
@@ -531,7 +633,7 @@ def rel(rel_node, ros_context, frames):
     """A probe on /rel with the camera_info of ``frames`` published and the counters settled."""
     from rs_localizer.ros.conversions import camera_info_msg
 
-    fr, _, cam = frames
+    _fr, _, cam = frames
     probe = Probe(ros_context, namespace="/rel")
     probe.wait_matched()
     probe.pub_info.publish(camera_info_msg(cam, "cam", 0))
@@ -552,10 +654,11 @@ def test_implausible_frames_are_never_published(rel_node, rel, frames):
     """Defect 1: a v field at u's offset, pixels with v == u, points reflected through the
     camera centre: each fails with its reason and publishes nothing; rows behind the camera
     count in points_dropped."""
-    from rs_localizer.ros import pointcloud as pc
     from sensor_msgs.msg import PointField
 
-    fr, _, cam = frames
+    from rs_localizer.ros import pointcloud as pc
+
+    fr, _, _cam = frames
     probe = rel
     base = _settle(probe)
     t0 = 50_000_000_000
@@ -568,8 +671,7 @@ def test_implausible_frames_are_never_published(rel_node, rel, frames):
     uv[:, 1] = uv[:, 0]
     probe.pub_corr.publish(pc.correspondence_cloud(uv, f.xyz, stamp=f.stamp_ns))
     f = _shifted(fr[3], 2, t0 + 2_000_000)
-    probe.pub_corr.publish(pc.correspondence_cloud(f.uv, 2 * f.position - f.xyz,
-                                                   stamp=f.stamp_ns))
+    probe.pub_corr.publish(pc.correspondence_cloud(f.uv, 2 * f.position - f.xyz, stamp=f.stamp_ns))
     # 30 % of the rows behind the camera: solved, those rows counted as dropped
     f = _shifted(fr[4], 3, t0 + 3_000_000)
     n = int(0.3 * len(f.xyz))
@@ -581,9 +683,10 @@ def test_implausible_frames_are_never_published(rel_node, rel, frames):
     assert _n(v, "frames_received") - _n(base, "frames_received") == 4
     assert _n(v, "failed.bad_layout") - _n(base, "failed.bad_layout") == 1
     assert _n(v, "failed.degenerate_geometry") - _n(base, "failed.degenerate_geometry") == 1
-    implausible = sum(_n(v, f"failed.{r}") - _n(base, f"failed.{r}")
-                      for r in ("implausible_motion", "cheirality", "no_hypothesis",
-                                "too_few_inliers"))
+    implausible = sum(
+        _n(v, f"failed.{r}") - _n(base, f"failed.{r}")
+        for r in ("implausible_motion", "cheirality", "no_hypothesis", "too_few_inliers")
+    )
     assert implausible == 1, v
     assert _n(v, "frames_solved") - _n(base, "frames_solved") == 1
     assert _n(v, "points_dropped") - _n(base, "points_dropped") == n
@@ -614,12 +717,13 @@ def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
         for k, f in enumerate(fr[:12]):
             c, shift = (cam2, 40.0) if k % 2 else (cam, 0.0)
             info = camera_info_msg(c, "cam", f.stamp_ns)
-            cloud = pc.correspondence_cloud(f.uv + [shift, 0.0], f.xyz, frame_id="cam",
-                                            stamp=f.stamp_ns)
+            cloud = pc.correspondence_cloud(
+                f.uv + [shift, 0.0], f.xyz, frame_id="cam", stamp=f.stamp_ns
+            )
             if k < 8:  # camera_info first, then the frame, at once
                 probe.pub_info.publish(info)
                 probe.pub_corr.publish(cloud)
-            else:      # the frame first
+            else:  # the frame first
                 probe.pub_corr.publish(cloud)
                 probe.pub_info.publish(info)
             pose = probe.wait_pose(f.t_ref_ns, timeout=20)
@@ -685,13 +789,12 @@ def test_invalid_stamps_are_rejected_never_wrapped(rel_node, rel, frames):
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import stamp_to_ns
 
-    fr, _, cam = frames
+    fr, _, _cam = frames
     probe = rel
     base = _settle(probe)
     f = fr[6]
     n_poses = len(probe.outputs["pose"])
-    for sec, nsec in ((70, 4_000_000_000), (70, 1_000_000_000), (-5, 0),
-                      (2**31 - 1, 999_999_999)):
+    for sec, nsec in ((70, 4_000_000_000), (70, 1_000_000_000), (-5, 0), (2**31 - 1, 999_999_999)):
         m = pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam")
         m.header.stamp.sec, m.header.stamp.nanosec = sec, nsec
         probe.pub_corr.publish(m)
@@ -714,25 +817,36 @@ def test_time_jumps_never_drop_valid_frames(rel_node, rel, ros_context, sample_b
 
     probe = rel
     base = _settle(probe)
-    remap = {"/camera/correspondences": "/rel/correspondences",
-             "/camera/camera_info": "/rel/camera_info"}
+    remap = {
+        "/camera/correspondences": "/rel/correspondences",
+        "/camera/camera_info": "/rel/camera_info",
+    }
     resets = []
     for _ in range(2):
-        res = play(sample_bag, lockstep=True, output_topics=("/rel/pose",), context=ros_context,
-                   timeout=5.0, topics=list(remap), remap=remap,
-                   stamp_offset_ns=900_000_000_000, log=print)
+        res = play(
+            sample_bag,
+            lockstep=True,
+            output_topics=("/rel/pose",),
+            context=ros_context,
+            timeout=5.0,
+            topics=list(remap),
+            remap=remap,
+            stamp_offset_ns=900_000_000_000,
+            log=print,
+        )
         assert len(res.frames) == 30 and res.answered == 30, rel_node.log
         resets.append(_n(_settle(probe), "time_resets"))
     assert resets[1] - resets[0] == 1  # the second playback starts 0.967 s back
-    fr, _, cam = frames
+    fr, _, _cam = frames
     t0 = 950_000_000_000
     seq = [_shifted(fr[k], k, t0) for k in range(8)]
     spike = _shifted(fr[3], 99, t0 + 900_000_000)  # 0.9 s ahead of the frame before it
     for k, f in enumerate(seq):
         probe.pub_corr.publish(pc.correspondence_cloud(f.uv, f.xyz, stamp=f.stamp_ns))
         if k == 3:
-            probe.pub_corr.publish(pc.correspondence_cloud(spike.uv, spike.xyz,
-                                                           stamp=spike.stamp_ns))
+            probe.pub_corr.publish(
+                pc.correspondence_cloud(spike.uv, spike.xyz, stamp=spike.stamp_ns)
+            )
         assert probe.wait_pose(f.t_ref_ns, timeout=20) is not None, (k, rel_node.log)
     assert probe.pose_near(spike.t_ref_ns) is not None
     v = _settle(probe)
@@ -742,14 +856,14 @@ def test_time_jumps_never_drop_valid_frames(rel_node, rel, ros_context, sample_b
     assert "time reset" in rel_node.log
 
 
-def test_landmarks_file_fifo_does_not_hang_the_node(rel_node, rel, ros_context, tmp_path,
-                                                    frames):
+def test_landmarks_file_fifo_does_not_hang_the_node(rel_node, rel, ros_context, tmp_path, frames):
     """Defect 7: landmarks_file set to a FIFO hung SetParameters and stopped the frames. Only
     regular files are read; the rejection is immediate."""
     import os
 
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
+
     from rs_localizer.ros import pointcloud as pc
 
     fifo = tmp_path / "landmarks.fifo"
@@ -784,8 +898,9 @@ def test_smaller_defects(rel_node, rel, ros_context, frames):
     """Defect 8: the cap applies after NaN rows are dropped; an extra field of unknown datatype
     is ignored; identical points are degenerate_geometry; camera.d = NaN and max_points below
     the inliers a pose needs are rejected parameter values."""
-    from rs_localizer.ros import pointcloud as pc
     from sensor_msgs.msg import PointField
+
+    from rs_localizer.ros import pointcloud as pc
 
     fr, _, _ = frames
     probe = rel
@@ -812,11 +927,14 @@ def test_smaller_defects(rel_node, rel, ros_context, frames):
     assert probe.wait_pose(f.t_ref_ns, timeout=20) is not None, rel_node.log
     # identical points
     f = _shifted(fr[12], 2, t0 + 200_000_000)
-    probe.pub_corr.publish(pc.correspondence_cloud(np.tile(f.uv[:1], (100, 1)),
-                                                   np.tile(f.xyz[:1], (100, 1)),
-                                                   stamp=f.stamp_ns))
-    v = probe.wait_diag(lambda v: _n(v, "failed.degenerate_geometry")
-                        > _n(base, "failed.degenerate_geometry"))[1]
+    probe.pub_corr.publish(
+        pc.correspondence_cloud(
+            np.tile(f.uv[:1], (100, 1)), np.tile(f.xyz[:1], (100, 1)), stamp=f.stamp_ns
+        )
+    )
+    v = probe.wait_diag(
+        lambda v: _n(v, "failed.degenerate_geometry") > _n(base, "failed.degenerate_geometry")
+    )[1]
     assert _n(v, "failed.degenerate_geometry") == _n(base, "failed.degenerate_geometry") + 1
     params = ParamClient(ros_context, "/rel/rs_localizer")
     try:
@@ -848,20 +966,22 @@ def test_flood_accounting(tmp_path, ros_context, frames):
     ~300 Hz on keypoints (4500 points, ~3 ms to solve: more than the node can keep up with at
     that rate; 1500 points no longer were once tracked frames got faster), 2 s each;
     reliable frames reach the node (before: 53 % lost at 300 Hz)."""
+    from conftest import CONFIG
+
     from rs_localizer.maps import save_landmarks_csv
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import camera_info_msg
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
-    from conftest import CONFIG
-
     fr, scene, cam = frames
     lm = tmp_path / "landmarks.csv"
     save_landmarks_csv(lm, scene.ids, scene.points)
     ns = "/flood"
-    overlay = write_params_yaml(tmp_path / "flood.yaml", {
-        "diagnostics_period": 0.2, "landmarks_file": str(lm)},
-        reliable_topics=[f"{ns}/keypoints", f"{ns}/camera_info"])  # correspondences: best effort
+    overlay = write_params_yaml(
+        tmp_path / "flood.yaml",
+        {"diagnostics_period": 0.2, "landmarks_file": str(lm)},
+        reliable_topics=[f"{ns}/keypoints", f"{ns}/camera_info"],
+    )  # correspondences: best effort
     node = NodeProcess([CONFIG, overlay], namespace=ns, env=ros_env(), log=tmp_path / "flood.log")
     assert node.wait_ready(120), node.log
     probe = Probe(ros_context, namespace=ns)
@@ -876,28 +996,42 @@ def test_flood_accounting(tmp_path, ros_context, frames):
             n = int(rate * secs)
             dt = int(1e9 / rate)
             if kind == "best_effort":
-                msgs = [pc.correspondence_cloud(fr[k % len(fr)].uv, fr[k % len(fr)].xyz,
-                                                stamp=t0 + k * dt) for k in range(n)]
+                msgs = [
+                    pc.correspondence_cloud(
+                        fr[k % len(fr)].uv, fr[k % len(fr)].xyz, stamp=t0 + k * dt
+                    )
+                    for k in range(n)
+                ]
                 pub = probe.pub_corr
             else:
                 rng = np.random.default_rng(1)
-                big = [(np.tile(f.uv, (15, 1)) + rng.normal(0, 0.3, (15 * len(f.uv), 2)),
-                        np.tile(f.ids, 15)) for f in fr]
-                msgs = [pc.keypoint_cloud(*big[k % len(fr)], stamp=t0 + k * dt)
-                        for k in range(n)]
+                big = [
+                    (
+                        np.tile(f.uv, (15, 1)) + rng.normal(0, 0.3, (15 * len(f.uv), 2)),
+                        np.tile(f.ids, 15),
+                    )
+                    for f in fr
+                ]
+                msgs = [pc.keypoint_cloud(*big[k % len(fr)], stamp=t0 + k * dt) for k in range(n)]
                 pub = probe.pub_kp
             achieved = _flood(probe, pub, msgs, rate)
             t0 += n * dt + 1_000_000_000
             st, _ = probe.node_diag()
             v = _settle(probe, timeout=60)
             st, v = probe.node_diag()
-            d = {k: _n(v, f"frames_{k}") - _n(base, f"frames_{k}")
-                 for k in ("received", "solved", "failed", "skipped")}
-            results[kind] = dict(sent=n, rate=round(achieved), **d,
-                                 latency_ms_median=v["latency_ms_median"],
-                                 latency_ms_p99=v["latency_ms_p99"],
-                                 estimate_ms_median=v["estimate_ms_median"],
-                                 stamp_age_ms_median=v["stamp_age_ms_median"])
+            d = {
+                k: _n(v, f"frames_{k}") - _n(base, f"frames_{k}")
+                for k in ("received", "solved", "failed", "skipped")
+            }
+            results[kind] = dict(
+                sent=n,
+                rate=round(achieved),
+                **d,
+                latency_ms_median=v["latency_ms_median"],
+                latency_ms_p99=v["latency_ms_p99"],
+                estimate_ms_median=v["estimate_ms_median"],
+                stamp_age_ms_median=v["stamp_age_ms_median"],
+            )
             print(kind, results[kind])
             assert d["received"] == d["solved"] + d["failed"] + d["skipped"], (kind, d, v)
             assert v["frames_pending"] == "0"

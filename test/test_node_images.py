@@ -16,19 +16,24 @@ m/s against a true speed of ~0.3 m/s), so its bound only catches gross errors.
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import (IMAGES_CONFIG, CONFIG, Probe, assert_dropped, start_node,  # noqa: E402
-                      stop_node)
+from conftest import (
+    CONFIG,
+    IMAGES_CONFIG,
+    Probe,
+    assert_dropped,
+    start_node,
+    stop_node,
+)
 
 NS = "/img"
 LIMITS = {  # key: (median, max); typical 0.009/0.043 deg, 0.7/2.0 mm, 0.064/0.17 rad/s,
-    "rot_deg": (0.03, 0.15),     # 0.23/0.55 m/s
+    "rot_deg": (0.03, 0.15),  # 0.23/0.55 m/s
     "pos_m": (0.003, 0.008),
     "angvel": (0.2, 0.5),
     "linvel": (0.6, 1.2),
@@ -38,8 +43,13 @@ IMAGE_TOPIC, INFO_TOPIC = "/camera/image_raw", "/camera/camera_info"
 
 
 def _node(tmp, ns, name, params=None):
-    return start_node(tmp, {"diagnostics_period": 0.2, **(params or {})}, namespace=ns,
-                      name=name, config=(CONFIG, IMAGES_CONFIG))
+    return start_node(
+        tmp,
+        {"diagnostics_period": 0.2, **(params or {})},
+        namespace=ns,
+        name=name,
+        config=(CONFIG, IMAGES_CONFIG),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +65,9 @@ def node(tmp_path_factory, sample_images_bag):
 def _bag_messages(bag):
     """rclpy Image and CameraInfo messages of the bag, and its correspondence clouds."""
     from rclpy.serialization import deserialize_message
-    from rs_localizer.ros.bag_io import iter_messages
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+    from rs_localizer.ros.bag_io import iter_messages
 
     types = {IMAGE_TOPIC: Image, INFO_TOPIC: CameraInfo, "/camera/correspondences": PointCloud2}
     out = {t: [] for t in types}
@@ -69,17 +80,24 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
     """Lock-step replay of the rendered bag's images: every frame solved, accurate, stamped at
     the reference row; the republished correspondences are the front end's output."""
     from rs_localizer.accuracy import summarize_errors
-    from rs_localizer.ros.bag_io import load_ground_truth
-    from rs_localizer.ros.play import play
-    from rs_localizer.ros.conversions import stamp_to_ns
     from rs_localizer.evaluation.demo import evaluate_outputs
+    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.conversions import stamp_to_ns
+    from rs_localizer.ros.play import play
     from rs_localizer.ros.pointcloud import read_correspondences
 
     outs = (f"{NS}/pose", f"{NS}/twist", f"{NS}/correspondences_out")
-    res = play(sample_images_bag, lockstep=True, topics=[IMAGE_TOPIC, INFO_TOPIC],
-               remap={IMAGE_TOPIC: f"{NS}/image", INFO_TOPIC: f"{NS}/camera_info"},
-               output_topics=outs, context=ros_context, timeout=10.0, log=print,
-               late_topics=(f"{NS}/twist",))  # (the fused twist: a frame late)
+    res = play(
+        sample_images_bag,
+        lockstep=True,
+        topics=[IMAGE_TOPIC, INFO_TOPIC],
+        remap={IMAGE_TOPIC: f"{NS}/image", INFO_TOPIC: f"{NS}/camera_info"},
+        output_topics=outs,
+        context=ros_context,
+        timeout=10.0,
+        log=print,
+        late_topics=(f"{NS}/twist",),
+    )  # (the fused twist: a frame late)
     assert len(res.frames) == 20 and res.answered == 20, node.log
     gt = load_ground_truth(sample_images_bag)
     errs = evaluate_outputs(res.frames, gt, [NS])[NS]
@@ -95,8 +113,10 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
 
     msgs = _bag_messages(sample_images_bag)
     images = {stamp_to_ns(m.header.stamp): m for m in msgs[IMAGE_TOPIC]}
-    clouds = {stamp_to_ns(c.header.stamp): read_correspondences(c)
-              for c in msgs["/camera/correspondences"]}
+    clouds = {
+        stamp_to_ns(c.header.stamp): read_correspondences(c)
+        for c in msgs["/camera/correspondences"]
+    }
     fe = make_frontend("aruco", "aruco_room")  # IMAGES_CONFIG's front end, here
     n_bag = n_bag_found = 0
     uv_dev = []
@@ -130,11 +150,12 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
         uv_dev += [np.abs(mine.uv[at[int(ref.ids[k])]] - ref.uv[k]).max() for k in found]
     assert n_bag_found >= 0.98 * n_bag, (n_bag_found, n_bag)
     assert np.median(uv_dev) < 1e-3 and np.quantile(uv_dev, 0.99) < 0.05, np.quantile(
-        uv_dev, [0.5, 0.99, 1])
+        uv_dev, [0.5, 0.99, 1]
+    )
 
     probe = Probe(ros_context, namespace=NS)
     try:
-        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 20)
+        _st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 20)
         assert v.get("frontend") == "aruco" and int(v["image_frames"]) >= 20, v
         assert 200 < float(v["frontend_correspondences_mean"]) < 320, v
         assert 0 < float(v["frontend_ms_median"]) < 2000, v
@@ -163,18 +184,19 @@ def test_frontend_map_parameter(node, ros_context, sample_images_bag):
 def test_bad_images(tmp_path, ros_context, sample_images_bag):
     """Bad images are dropped and counted with their reason; the next valid image is solved."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rs_localizer.ros.conversions import ns_to_stamp, stamp_to_ns
     from sensor_msgs.msg import Image
     from std_msgs.msg import Header
+
+    from rs_localizer.ros.conversions import ns_to_stamp, stamp_to_ns
 
     msgs = _bag_messages(sample_images_bag)
     images, info = msgs[IMAGE_TOPIC], msgs[INFO_TOPIC][0]
     ns = "/img_bad"
     node = _node(tmp_path, ns, "img_bad", {"republish_correspondences": False})
     probe = Probe(ros_context, namespace=ns)
-    pub = probe.node.create_publisher(Image, f"{ns}/image",
-                                      QoSProfile(depth=100,
-                                                 reliability=ReliabilityPolicy.RELIABLE))
+    pub = probe.node.create_publisher(
+        Image, f"{ns}/image", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    )
     try:
         probe.wait_matched()
         assert probe.wait(lambda: pub.get_subscription_count() > 0, 30)
@@ -185,10 +207,18 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
         frames = iter(images)
 
         def copy(m, **changes):
-            header = Header(stamp=ns_to_stamp(stamp_to_ns(m.header.stamp)),
-                            frame_id=m.header.frame_id)
-            out = Image(header=header, height=m.height, width=m.width, encoding=m.encoding,
-                        is_bigendian=m.is_bigendian, step=m.step, data=m.data)
+            header = Header(
+                stamp=ns_to_stamp(stamp_to_ns(m.header.stamp)), frame_id=m.header.frame_id
+            )
+            out = Image(
+                header=header,
+                height=m.height,
+                width=m.width,
+                encoding=m.encoding,
+                is_bigendian=m.is_bigendian,
+                step=m.step,
+                data=m.data,
+            )
             for k, v in changes.items():
                 setattr(out, k, v)
             return out
@@ -213,7 +243,7 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
         good(next(frames))
         f = next(frames)
         s = stamp_to_ns(f.header.stamp)
-        bad(copy(restamp(f, s - 1), encoding="mono16"), "bad_image")        # wrong encoding
+        bad(copy(restamp(f, s - 1), encoding="mono16"), "bad_image")  # wrong encoding
         good(f)
         f = next(frames)
         s = stamp_to_ns(f.header.stamp)
@@ -222,31 +252,48 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
         f = next(frames)
         s = stamp_to_ns(f.header.stamp)
         bad(copy(restamp(f, s - 1), height=0, width=0, step=0, data=b""), "bad_image")  # empty
-        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, :f.width]
+        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, : f.width]
         half = np.ascontiguousarray(img[::2, ::2])
-        bad(copy(restamp(f, s - 1), height=half.shape[0], width=half.shape[1],
-                 step=half.shape[1], data=half.tobytes()), "image_size_mismatch")
+        bad(
+            copy(
+                restamp(f, s - 1),
+                height=half.shape[0],
+                width=half.shape[1],
+                step=half.shape[1],
+                data=half.tobytes(),
+            ),
+            "image_size_mismatch",
+        )
         blank = np.full_like(img, 128)
         bad(copy(restamp(f, s - 1), data=blank.tobytes()), "frontend_too_few_points")
         good(f)
         # other valid layouts: rgb8, bgr8 and a mono8 image with row padding
         f = next(frames)
-        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, :f.width]
+        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, : f.width]
         rgb = np.repeat(img[:, :, None], 3, axis=2)
         good(copy(f, encoding="rgb8", step=3 * f.width, data=rgb.tobytes()))
         f = next(frames)
-        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, :f.width]
-        good(copy(f, encoding="bgr8", step=3 * f.width,
-                  data=np.repeat(img[:, :, None], 3, axis=2).tobytes()))
+        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, : f.width]
+        good(
+            copy(
+                f,
+                encoding="bgr8",
+                step=3 * f.width,
+                data=np.repeat(img[:, :, None], 3, axis=2).tobytes(),
+            )
+        )
         f = next(frames)
-        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, :f.width]
+        img = np.frombuffer(bytes(f.data), np.uint8).reshape(f.height, f.step)[:, : f.width]
         padded = np.zeros((f.height, f.width + 16), np.uint8)
-        padded[:, :f.width] = img
+        padded[:, : f.width] = img
         good(copy(f, step=f.width + 16, data=padded.tobytes()))
         n_good = 7
 
-        st, v = probe.wait_diag(lambda v: int(v.get("image_frames", 0)) == sent["images"]
-                                and v.get("frames_pending") == "0")  # (all solved or failed)
+        st, v = probe.wait_diag(
+            lambda v: (
+                int(v.get("image_frames", 0)) == sent["images"] and v.get("frames_pending") == "0"
+            )
+        )  # (all solved or failed)
         assert int(v["image_frames"]) == int(v["frames_received"]) == sent["images"], v
         log = assert_dropped(node, st, v, expected)
         assert int(v["frames_failed"]) == sum(expected.values()), v
@@ -257,13 +304,17 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
     assert alive and rc == 0, node.log
 
 
-@pytest.mark.parametrize("params, message", [
-    ({"frontend_map": "/nonexistent/markers.yaml"}, "cannot load frontend_map"),
-    ({"frontend": "apriltag"}, "unknown frontend 'apriltag'"),
-    ({"frontend_map": ""}, "frontend aruco needs frontend_map"),
-])
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"frontend_map": "/nonexistent/markers.yaml"}, "cannot load frontend_map"),
+        ({"frontend": "apriltag"}, "unknown frontend 'apriltag'"),
+        ({"frontend_map": ""}, "frontend aruco needs frontend_map"),
+    ],
+)
 def test_bad_frontend_parameters_are_clear_errors(tmp_path, ros_domain, params, message):
     from conftest import refused_start
+
     from rs_localizer.ros.process import write_params_yaml
 
     overlay = write_params_yaml(tmp_path / "p.yaml", params)
@@ -277,11 +328,12 @@ def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
     the marker corners the front end found drawn as inliers, stamped like the image."""
     import cv2
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
     from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.conversions import ns_to_stamp, stamp_to_ns
     from rs_localizer.ros.pointcloud import read_correspondences
     from rs_localizer.viz import COLORS
-    from sensor_msgs.msg import Image
 
     msgs = _bag_messages(sample_images_bag)
     frame, info = msgs[IMAGE_TOPIC][6], msgs[INFO_TOPIC][0]
@@ -293,8 +345,13 @@ def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
     probe.node.create_subscription(Image, f"{NS}/debug_image", got.append, qos)
     try:
         probe.wait_matched()
-        assert probe.wait(lambda: pub.get_subscription_count() > 0
-                          and probe.node.count_publishers(f"{NS}/debug_image") > 0, 30)
+        assert probe.wait(
+            lambda: (
+                pub.get_subscription_count() > 0
+                and probe.node.count_publishers(f"{NS}/debug_image") > 0
+            ),
+            30,
+        )
         probe.pub_info.publish(info)
         probe.spin(0.3)
         stamp = stamp_to_ns(frame.header.stamp) + 2000 * 10**9  # after every earlier frame

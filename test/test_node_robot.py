@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import start_node, stop_node  # noqa: E402
+from conftest import start_node, stop_node
 
 OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_covariance")
 
@@ -49,24 +49,39 @@ def _base_ground_truth(gt, T_bc):
 def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
     """With base_frame and camera_to_base.* every output describes the base: checked against
     the bag's ground truth moved to the base with 4x4 transforms."""
+    from scipy.spatial.transform import Rotation
+
     from rs_localizer.accuracy import summarize_errors
     from rs_localizer.evaluation.demo import evaluate_outputs
     from rs_localizer.ros.bag_io import load_ground_truth
     from rs_localizer.ros.play import play
-    from scipy.spatial.transform import Rotation
 
     q_bc = Rotation.from_euler("xyz", [-95, 3, -88], degrees=True).as_quat()  # a tilted camera
     t_bc = np.array([0.35, -0.12, 0.6])
-    node = start_node(tmp_path, {"base_frame": "base_link",
-                                 "camera_to_base.translation": t_bc.tolist(),
-                                 "camera_to_base.rotation": q_bc.tolist()})
+    node = start_node(
+        tmp_path,
+        {
+            "base_frame": "base_link",
+            "camera_to_base.translation": t_bc.tolist(),
+            "camera_to_base.rotation": q_bc.tolist(),
+        },
+    )
     try:
-        res = play(sample_bag, lockstep=True, output_topics=OUTPUTS, context=ros_context,
-                   timeout=5.0, topics=["/camera/correspondences", "/camera/camera_info"],
-                   limit=12, log=print, late_topics=("/camera/twist", "/camera/odom"))
+        res = play(
+            sample_bag,
+            lockstep=True,
+            output_topics=OUTPUTS,
+            context=ros_context,
+            timeout=5.0,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            limit=12,
+            log=print,
+            late_topics=("/camera/twist", "/camera/odom"),
+        )
         assert res.answered == len(res.frames) == 12, node.log
-        gt = _base_ground_truth(load_ground_truth(sample_bag), _T(
-            Rotation.from_quat(q_bc).as_matrix(), t_bc))
+        gt = _base_ground_truth(
+            load_ground_truth(sample_bag), _T(Rotation.from_quat(q_bc).as_matrix(), t_bc)
+        )
         s = summarize_errors(evaluate_outputs(res.frames, gt, ["/camera"])["/camera"])
         # the camera-frame limits of test_node.py; a missing or wrong transform is off by the
         # mounting itself (~90 deg, 0.7 m, ~0.5 m/s)
@@ -78,10 +93,14 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
             pwc = f["outputs"]["/camera/pose_with_covariance"][1]
             assert twist.header.frame_id == "base_link" and odom.child_frame_id == "base_link"
             assert odom.header.frame_id == "map" and pwc.header.frame_id == "map"
-            np.testing.assert_allclose([odom.pose.pose.position.x, odom.pose.pose.position.y],
-                                       [pwc.pose.pose.position.x, pwc.pose.pose.position.y])
-            for cov in (np.reshape(pwc.pose.covariance, (6, 6)),
-                        np.reshape(odom.twist.covariance, (6, 6))):
+            np.testing.assert_allclose(
+                [odom.pose.pose.position.x, odom.pose.pose.position.y],
+                [pwc.pose.pose.position.x, pwc.pose.pose.position.y],
+            )
+            for cov in (
+                np.reshape(pwc.pose.covariance, (6, 6)),
+                np.reshape(odom.twist.covariance, (6, 6)),
+            ):
                 assert np.isfinite(cov).all() and (np.diag(cov) > 0).all()
     finally:
         alive, rc = stop_node(node)
@@ -90,10 +109,12 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
 
 def test_bad_extrinsic_is_a_clear_error(tmp_path, ros_domain):
     from conftest import CONFIG, refused_start
+
     from rs_localizer.ros.process import write_params_yaml
 
-    overlay = write_params_yaml(tmp_path / "p.yaml", {"base_frame": "base_link",
-                                                      "camera_to_base.rotation": [0.0, 0.0, 0.0]})
+    overlay = write_params_yaml(
+        tmp_path / "p.yaml", {"base_frame": "base_link", "camera_to_base.rotation": [0.0, 0.0, 0.0]}
+    )
     exited, rc, log = refused_start(tmp_path, [CONFIG, overlay], "/bad_ext", 120)
     assert exited and rc != 0
     assert "invalid camera_to_base" in log and "quaternion" in log, log
@@ -106,20 +127,32 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
     from conftest import CONFIG, IMAGES_CONFIG, Probe
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
     from rs_localizer.accuracy import frame_errors
     from rs_localizer.frontends.image import compressed_fields, image_from_msg
     from rs_localizer.ros.bag_io import iter_messages, load_ground_truth
     from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg, stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
-    from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
     ns = "/cimg"
     topic = f"{ns}/image_raw/compressed"
-    overlay = write_params_yaml(tmp_path / "p.yaml", {
-        "image_transport": "compressed", "republish_correspondences": False,
-        "diagnostics_period": 0.2}, reliable_topics=[f"{ns}/camera_info", topic])
-    node = NodeProcess([CONFIG, IMAGES_CONFIG, overlay], namespace=ns, env=ros_env(),
-                       remaps={"image": "image_raw"}, log=tmp_path / "node.log")
+    overlay = write_params_yaml(
+        tmp_path / "p.yaml",
+        {
+            "image_transport": "compressed",
+            "republish_correspondences": False,
+            "diagnostics_period": 0.2,
+        },
+        reliable_topics=[f"{ns}/camera_info", topic],
+    )
+    node = NodeProcess(
+        [CONFIG, IMAGES_CONFIG, overlay],
+        namespace=ns,
+        env=ros_env(),
+        remaps={"image": "image_raw"},
+        log=tmp_path / "node.log",
+    )
     msgs = {"/camera/image_raw": [], "/camera/camera_info": []}
     types = {"/camera/image_raw": Image, "/camera/camera_info": CameraInfo}
     for t, _, _, raw in iter_messages(sample_images_bag, set(types)):
@@ -127,8 +160,9 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
     gt = load_ground_truth(sample_images_bag)
     ref_offset = round(239.5 * 62.5e-6 * 1e9)
     probe = Probe(ros_context, namespace=ns)
-    pub = probe.node.create_publisher(CompressedImage, topic, QoSProfile(
-        depth=100, reliability=ReliabilityPolicy.RELIABLE))
+    pub = probe.node.create_publisher(
+        CompressedImage, topic, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    )
     try:
         assert node.wait_ready(120), node.log
         assert f"aruco front end on {topic}" in node.log, node.log
@@ -144,8 +178,9 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
             f = compressed_fields(arr, kind, quality=95, encoding=im.encoding)
             stamp = stamp_to_ns(im.header.stamp)
             if k in (1, 4):  # a bad payload just before the frame (counted, not solved)
-                bad = CompressedImage(format=f["format"], data=f["data"][: len(f["data"]) // 3]
-                                      .tobytes())
+                bad = CompressedImage(
+                    format=f["format"], data=f["data"][: len(f["data"]) // 3].tobytes()
+                )
                 bad.header.stamp = ns_to_stamp(stamp - 1000)
                 bad.header.frame_id = im.header.frame_id
                 pub.publish(bad)
@@ -163,9 +198,13 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
         assert max(e["pos_m"] for e in errs) < 0.01, errs
         # counters count frames on arrival: wait until none is pending (the pose of the last
         # frame can be out before its counters are)
-        st, v = probe.wait_diag(lambda v: int(v.get("image_frames", 0)) == n_good + n_bad
-                                and int(v.get("frames_pending", 1)) == 0
-                                and int(v.get("frames_solved", 0)) >= n_good)
+        _st, v = probe.wait_diag(
+            lambda v: (
+                int(v.get("image_frames", 0)) == n_good + n_bad
+                and int(v.get("frames_pending", 1)) == 0
+                and int(v.get("frames_solved", 0)) >= n_good
+            )
+        )
         assert int(v["frames_solved"]) == n_good and int(v["failed.bad_image"]) == n_bad, v
         assert "truncated JPEG" in node.log or "does not decode" in node.log, node.log
     finally:
@@ -200,19 +239,22 @@ class LifecycleClient:
         from lifecycle_msgs.msg import Transition
         from lifecycle_msgs.srv import ChangeState
 
-        return self._call(executor, self.change, ChangeState.Request(
-            transition=Transition(id=transition_id))).success
+        return self._call(
+            executor, self.change, ChangeState.Request(transition=Transition(id=transition_id))
+        ).success
 
 
 def _frames(sample_bag, n):
     """The first ``n`` correspondence clouds and the camera_info of the sample bag (rclpy)."""
     from rclpy.serialization import deserialize_message
-    from rs_localizer.ros.bag_io import iter_messages
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
+    from rs_localizer.ros.bag_io import iter_messages
+
     clouds, info = [], None
-    for topic, _, _, raw in iter_messages(sample_bag, {"/camera/correspondences",
-                                                       "/camera/camera_info"}):
+    for topic, _, _, raw in iter_messages(
+        sample_bag, {"/camera/correspondences", "/camera/camera_info"}
+    ):
         if topic.endswith("camera_info") and info is None:
             info = deserialize_message(raw, CameraInfo)
         elif topic.endswith("correspondences") and len(clouds) < n:
@@ -226,17 +268,26 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
     a configure with an invalid parameter fails and leaves the node unconfigured."""
     from conftest import CONFIG, Probe
     from lifecycle_msgs.msg import Transition
+    from test_node import ParamClient
+
     from rs_localizer.accuracy import frame_errors
     from rs_localizer.ros.bag_io import load_ground_truth
     from rs_localizer.ros.conversions import pose_from_msg, stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
-    from test_node import ParamClient
 
     ns = "/lc"
-    overlay = write_params_yaml(tmp_path / "p.yaml", {"diagnostics_period": 0.2},
-                                reliable_topics=[f"{ns}/correspondences", f"{ns}/camera_info"])
-    node = NodeProcess([CONFIG, overlay], namespace=ns, env=ros_env(),
-                       module="rs_localizer.ros.lifecycle", log=tmp_path / "lc.log")
+    overlay = write_params_yaml(
+        tmp_path / "p.yaml",
+        {"diagnostics_period": 0.2},
+        reliable_topics=[f"{ns}/correspondences", f"{ns}/camera_info"],
+    )
+    node = NodeProcess(
+        [CONFIG, overlay],
+        namespace=ns,
+        env=ros_env(),
+        module="rs_localizer.ros.lifecycle",
+        log=tmp_path / "lc.log",
+    )
     clouds, info = _frames(sample_bag, 8)
     gt = load_ground_truth(sample_bag)
     ref = round(359.5 * 30e-6 * 1e9)
@@ -269,8 +320,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
         assert lc.transition(ex, Transition.TRANSITION_CONFIGURE), node.log
         assert lc.state(ex) == "inactive"
         assert "warm-up (r6p_1lin)" in node.log
-        assert probe.wait(lambda: count(f"{ns}/pose") == 1 and subs(f"{ns}/camera_info") == 1,
-                          10)
+        assert probe.wait(lambda: count(f"{ns}/pose") == 1 and subs(f"{ns}/camera_info") == 1, 10)
         assert subs(f"{ns}/correspondences") == 0
         s = send(0)
         probe.spin(1.0)
@@ -304,17 +354,21 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
         assert lc.transition(ex, Transition.TRANSITION_DEACTIVATE)
         assert lc.transition(ex, Transition.TRANSITION_CLEANUP)
         assert lc.state(ex) == "unconfigured"
-        assert probe.wait(lambda: count(f"{ns}/pose") == 0 and subs(f"{ns}/camera_info") == 0,
-                          10)
+        assert probe.wait(lambda: count(f"{ns}/pose") == 0 and subs(f"{ns}/camera_info") == 0, 10)
         # configure again after cleanup: counters start from zero
         assert lc.transition(ex, Transition.TRANSITION_CONFIGURE)
         assert lc.transition(ex, Transition.TRANSITION_ACTIVATE)
-        assert probe.wait(lambda: probe.pub_corr.get_subscription_count() == 1
-                          and probe.pub_info.get_subscription_count() == 1, 10)
+        assert probe.wait(
+            lambda: (
+                probe.pub_corr.get_subscription_count() == 1
+                and probe.pub_info.get_subscription_count() == 1
+            ),
+            10,
+        )
         probe.diag = {}
         s = send(7)
         assert probe.wait_pose(s, timeout=20) is not None, node.log
-        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 1)
+        _st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 1)
         assert int(v["frames_received"]) == 1, v
         assert lc.transition(ex, Transition.TRANSITION_ACTIVE_SHUTDOWN)
         assert lc.state(ex) == "finalized"
@@ -330,33 +384,50 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
     the parameter file; a landmark file named by every camera is loaded once."""
     from conftest import CONFIG, Probe
     from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import PointCloud2
+
     from rs_localizer.ros.bag_io import iter_messages
     from rs_localizer.ros.conversions import stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
-    from sensor_msgs.msg import PointCloud2
 
     names = {"front": "/multi/front", "rear": "/multi/rear", "/abs/cam3": "/abs/cam3"}
-    topics = [f"{ns}/{t}" for ns in names.values()
-              for t in ("correspondences", "keypoints", "camera_info")]
-    overlay = write_params_yaml(tmp_path / "p.yaml", {
-        "cameras": list(names), "landmarks_file": str(keypoints_bag / "landmarks.csv"),
-        "diagnostics_period": 0.2}, reliable_topics=topics)
+    topics = [
+        f"{ns}/{t}"
+        for ns in names.values()
+        for t in ("correspondences", "keypoints", "camera_info")
+    ]
+    overlay = write_params_yaml(
+        tmp_path / "p.yaml",
+        {
+            "cameras": list(names),
+            "landmarks_file": str(keypoints_bag / "landmarks.csv"),
+            "diagnostics_period": 0.2,
+        },
+        reliable_topics=topics,
+    )
     rear = tmp_path / "rear.yaml"  # the rear camera's own section: its frames
-    rear.write_text("/multi/rear/rs_localizer:\n  ros__parameters:\n"
-                    "    camera_frame: rear_optical\n    base_frame: base_link\n")
-    node = NodeProcess([CONFIG, overlay, rear], namespace="/multi", env=ros_env(),
-                       log=tmp_path / "multi.log")
+    rear.write_text(
+        "/multi/rear/rs_localizer:\n  ros__parameters:\n"
+        "    camera_frame: rear_optical\n    base_frame: base_link\n"
+    )
+    node = NodeProcess(
+        [CONFIG, overlay, rear], namespace="/multi", env=ros_env(), log=tmp_path / "multi.log"
+    )
     clouds, info = _frames(sample_bag, 2)
-    kps = [deserialize_message(raw, PointCloud2) for topic, _, _, raw in
-           iter_messages(keypoints_bag, {"/camera/keypoints"})][:1]
+    kps = [
+        deserialize_message(raw, PointCloud2)
+        for topic, _, _, raw in iter_messages(keypoints_bag, {"/camera/keypoints"})
+    ][:1]
     ref = round(359.5 * 30e-6 * 1e9)
     probes = {}
     try:
         assert node.wait_ready(240, count=3), node.log
         # the process logs its summary after the last camera's ``ready`` line: wait for it too
         assert node.wait_ready(30, marker="3 cameras in this process:"), node.log
-        assert "3 cameras in this process: /multi/front, /multi/rear, /abs/cam3; " \
-               "1 map files loaded (1 in use)" in node.log, node.log
+        assert (
+            "3 cameras in this process: /multi/front, /multi/rear, /abs/cam3; "
+            "1 map files loaded (1 in use)" in node.log
+        ), node.log
         probes = {ns: Probe(ros_context, namespace=ns) for ns in names.values()}
         for ns, pr in probes.items():
             pr.wait_matched()
@@ -369,11 +440,16 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
             pr.pub_kp.publish(kps[0])
             s = stamp_to_ns(kps[0].header.stamp) + ref
             assert pr.wait_pose(s, timeout=30) is not None, f"{ns}: no keypoints pose\n{node.log}"
-            assert pr.wait(lambda pr=pr: len(pr.outputs["twist"]) == 2, 10), \
-                (ns, len(pr.outputs["twist"]), node.log)
+            assert pr.wait(lambda pr=pr: len(pr.outputs["twist"]) == 2, 10), (
+                ns,
+                len(pr.outputs["twist"]),
+                node.log,
+            )
             frame = pr.outputs["twist"][-1].header.frame_id
-            assert frame == ("base_link" if ns == "/multi/rear" else "camera_optical_frame"), \
-                (ns, frame)
+            assert frame == ("base_link" if ns == "/multi/rear" else "camera_optical_frame"), (
+                ns,
+                frame,
+            )
         for ns, pr in probes.items():  # each camera counts its own frames
             st, v = pr.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 2)
             assert st is not None and st.name.endswith(f"{ns}/rs_localizer"), (ns, st, node.log)
@@ -384,10 +460,12 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
     assert alive and rc == 0, node.log
 
 
-@pytest.mark.parametrize("cams, error", [(["a", "a"], "listed twice"),
-                                         (["", "b"], "empty camera namespace")])
+@pytest.mark.parametrize(
+    "cams, error", [(["a", "a"], "listed twice"), (["", "b"], "empty camera namespace")]
+)
 def test_bad_camera_lists_are_clear_errors(tmp_path, ros_domain, cams, error):
     from conftest import CONFIG, refused_start
+
     from rs_localizer.ros.process import write_params_yaml
 
     overlay = write_params_yaml(tmp_path / "p.yaml", {"cameras": cams})
@@ -398,14 +476,42 @@ def test_bad_camera_lists_are_clear_errors(tmp_path, ros_domain, cams, error):
 def test_runner_helpers():
     from rs_localizer.ros.runner import camera_namespaces, node_cli_args
 
-    assert camera_namespaces(["front", "/abs/x", "rear/"], "/robot") == \
-        ["/robot/front", "/abs/x", "/robot/rear"]
+    assert camera_namespaces(["front", "/abs/x", "rear/"], "/robot") == [
+        "/robot/front",
+        "/abs/x",
+        "/robot/rear",
+    ]
     assert camera_namespaces(["a"], "/") == ["/a"]
     with pytest.raises(ValueError):
         camera_namespaces(["a", "/a"], "/")
-    argv = ["prog", "--ros-args", "-r", "__ns:=/robot", "--params-file", "p.yaml", "-r",
-            "image:=image_raw", "--remap", "rs_localizer:__node:=x", "-p", "a:=1", "--",
-            "other", "--ros-args", "--log-level", "info"]
-    assert node_cli_args(argv) == ["--ros-args", "--params-file", "p.yaml", "-r",
-                                   "image:=image_raw", "-p", "a:=1", "--log-level", "info"]
+    argv = [
+        "prog",
+        "--ros-args",
+        "-r",
+        "__ns:=/robot",
+        "--params-file",
+        "p.yaml",
+        "-r",
+        "image:=image_raw",
+        "--remap",
+        "rs_localizer:__node:=x",
+        "-p",
+        "a:=1",
+        "--",
+        "other",
+        "--ros-args",
+        "--log-level",
+        "info",
+    ]
+    assert node_cli_args(argv) == [
+        "--ros-args",
+        "--params-file",
+        "p.yaml",
+        "-r",
+        "image:=image_raw",
+        "-p",
+        "a:=1",
+        "--log-level",
+        "info",
+    ]
     assert node_cli_args(["prog"]) == []

@@ -9,8 +9,11 @@ from scipy.stats import chi2
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
-from rs_localizer.estimation.noise_model import (correlated_noise_covariance,
-                                                 fit_correlated_noise, pixel_jacobians)
+from rs_localizer.estimation.noise_model import (
+    correlated_noise_covariance,
+    fit_correlated_noise,
+    pixel_jacobians,
+)
 from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import refine_rs_pose
 from rs_localizer.evaluation.still_boards import correlated_field
@@ -66,13 +69,27 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
     ref0 = refine_rs_pose(R0, C0, w0, t0, X, x, tau, 1.0, **kw)
     sigma = ref0.sigma
     ref = refine_rs_pose(ref0.R, ref0.C, ref0.w, ref0.t, X, x, tau, 1.0, noise=sigma, **kw)
-    cov = correlated_noise_covariance(ref.covariance, ref.sigma, ref.R, ref.C, ref.w, ref.t,
-                                      X, x, tau, u, pixel_jacobians(CAM, x), CORR, LENGTH)
+    cov = correlated_noise_covariance(
+        ref.covariance,
+        ref.sigma,
+        ref.R,
+        ref.C,
+        ref.w,
+        ref.t,
+        X,
+        x,
+        tau,
+        u,
+        pixel_jacobians(CAM, x),
+        CORR,
+        LENGTH,
+    )
 
     def theta(p):
         xp = CAM.normalize(p)[0]  # capture times kept (the covariance neglects their noise)
-        o = refine_rs_pose(ref.R, ref.C, ref.w, ref.t, X, xp, tau, 1.0, noise=sigma,
-                           covariance=False, **kw)
+        o = refine_rs_pose(
+            ref.R, ref.C, ref.w, ref.t, X, xp, tau, 1.0, noise=sigma, covariance=False, **kw
+        )
         return np.r_[matrix_to_rotvec(o.R @ ref.R.T), o.C, o.w, o.t]
 
     h = 1e-2  # px (the undistortion is exact to ~1e-6 px)
@@ -92,20 +109,30 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
 
 
 def test_no_correlated_error_leaves_the_covariance_alone():
-    X, R, C, u = board_views(1, 4)[0]
+    X, _R, _C, u = board_views(1, 4)[0]
     a = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin")
-    b = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin",
-                         EstimateOptions(correlated_noise_px=0.0, correlated_noise_length_px=50))
+    b = estimate_rs_pose(
+        u + 0.1,
+        X,
+        CAM,
+        "r6p_1lin",
+        EstimateOptions(correlated_noise_px=0.0, correlated_noise_length_px=50),
+    )
     np.testing.assert_array_equal(a.covariance, b.covariance)
     c = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin", EstimateOptions(correlated_noise_px=0.2))
     np.testing.assert_array_equal(a.R, c.R)  # the estimate is unchanged, only its covariance
     assert np.all(np.linalg.eigvalsh(c.covariance - a.covariance) > -1e-12)
 
 
-@pytest.mark.parametrize("kw", [dict(correlated_noise_px=-0.1),
-                                dict(correlated_noise_px=np.nan),
-                                dict(correlated_noise_length_px=0.0),
-                                dict(correlated_noise_length_px=np.inf)])
+@pytest.mark.parametrize(
+    "kw",
+    [
+        dict(correlated_noise_px=-0.1),
+        dict(correlated_noise_px=np.nan),
+        dict(correlated_noise_length_px=0.0),
+        dict(correlated_noise_length_px=np.inf),
+    ],
+)
 def test_options_reject(kw):
     with pytest.raises(ValueError, match="correlated_noise"):
         EstimateOptions(**kw)
@@ -115,9 +142,11 @@ def test_options_reject(kw):
 def still_frames():
     """13 still views x 6 draws of white + correlated image error (the fitted model's size)."""
     views = board_views(13, 7)
-    return [(X, R, C, u + correlated_field(u, WHITE, CORR, LENGTH,
-                                           np.random.default_rng((k, seed))))
-            for k, (X, R, C, u) in enumerate(views) for seed in range(6)]
+    return [
+        (X, R, C, u + correlated_field(u, WHITE, CORR, LENGTH, np.random.default_rng((k, seed))))
+        for k, (X, R, C, u) in enumerate(views)
+        for seed in range(6)
+    ]
 
 
 def test_fit_recovers_the_model(still_frames):
@@ -147,7 +176,7 @@ def test_covariance_is_calibrated_on_still_boards(still_frames):
     too tight in the flat valley whatever the noise model."""
     opts = EstimateOptions(correlated_noise_px=CORR, correlated_noise_length_px=LENGTH)
     m_on, m_off = [], []
-    for X, R, C, u in still_frames:
+    for X, _R, _C, u in still_frames:
         for opt, out in ((opts, m_on), (EstimateOptions(), m_off)):
             e = estimate_rs_pose(u, X, CAM, "r6p_1lin", opt)
             assert e.success

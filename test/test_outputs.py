@@ -37,12 +37,14 @@ def test_output_covariance_matches_the_explicit_jacobian(s):
     out, pose, twist = _output_covariance(cov12, R, C, w, s)
     np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
     order = [3, 4, 5, 0, 1, 2]
-    np.testing.assert_allclose(pose, ref[np.ix_(order, order)], rtol=1e-12,
-                               atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_allclose(
+        pose, ref[np.ix_(order, order)], rtol=1e-12, atol=1e-12 * np.abs(ref).max()
+    )
     if s > 0:
         tw = [9, 10, 11, 6, 7, 8]
-        np.testing.assert_allclose(twist, ref[np.ix_(tw, tw)], rtol=1e-12,
-                                   atol=1e-12 * np.abs(ref).max())
+        np.testing.assert_allclose(
+            twist, ref[np.ix_(tw, tw)], rtol=1e-12, atol=1e-12 * np.abs(ref).max()
+        )
     else:
         assert twist is None
 

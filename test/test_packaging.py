@@ -13,10 +13,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: rosdep keys of Python libraries (rosdistro's rosdep/python.yaml; each resolves to the Debian /
 #: Ubuntu package of the same name) -> the module they provide
-KEY_MODULES = {"python3-numpy": "numpy", "python3-scipy": "scipy", "python3-opencv": "cv2",
-               "python3-numba": "numba", "python3-matplotlib": "matplotlib",
-               "python3-yaml": "yaml", "python3-skimage": "skimage",
-               "python3-pytest": "pytest", "python3-hypothesis": "hypothesis"}
+KEY_MODULES = {
+    "python3-numpy": "numpy",
+    "python3-scipy": "scipy",
+    "python3-opencv": "cv2",
+    "python3-numba": "numba",
+    "python3-matplotlib": "matplotlib",
+    "python3-yaml": "yaml",
+    "python3-skimage": "skimage",
+    "python3-pytest": "pytest",
+    "python3-hypothesis": "hypothesis",
+}
 #: imported only where present, or brought by a declared package
 OPTIONAL = {
     "PIL": "Pillow, a dependency of matplotlib (python3-matplotlib depends on python3-pil)",
@@ -42,10 +49,14 @@ def _third_party_imports(paths):
 
 
 def _declared():
-    keys = [e.text.strip() for e in ET.parse(ROOT / "package.xml").getroot()
-            if e.tag in ("depend", "exec_depend", "test_depend", "build_depend")]
-    reqs = [line.split("#")[0].strip() for line in (ROOT / "requirements.txt").read_text()
-            .splitlines()]
+    keys = [
+        e.text.strip()
+        for e in ET.parse(ROOT / "package.xml").getroot()
+        if e.tag in ("depend", "exec_depend", "test_depend", "build_depend")
+    ]
+    reqs = [
+        line.split("#")[0].strip() for line in (ROOT / "requirements.txt").read_text().splitlines()
+    ]
     reqs = [r.split(">")[0].split("=")[0].split("<")[0].strip().lower() for r in reqs if r]
     return keys, reqs
 
@@ -73,7 +84,10 @@ def test_numba_inlining_goes_through_the_switch():
     literal = []
     for p in sorted((ROOT / "rs_localizer").rglob("*.py")):
         for node in ast.walk(ast.parse(p.read_text())):
-            if isinstance(node, ast.keyword) and node.arg == "inline" \
-                    and not (isinstance(node.value, ast.Name) and node.value.id == "INLINE"):
+            if (
+                isinstance(node, ast.keyword)
+                and node.arg == "inline"
+                and not (isinstance(node.value, ast.Name) and node.value.id == "INLINE")
+            ):
                 literal.append(f"{p.relative_to(ROOT)}:{node.value.lineno}")
     assert not literal, f"use inline=INLINE (rs_localizer._so3) at {literal}"

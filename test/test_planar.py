@@ -10,8 +10,12 @@ import pytest
 from rs_localizer import EstimateOptions, MotionPrior, estimate_rs_pose
 from rs_localizer.estimation.degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
-from rs_localizer.estimation.refine import (exact_jacobian, refine_rs_pose,
-                                            refine_rs_pose_scipy, untruncated_variance)
+from rs_localizer.estimation.refine import (
+    exact_jacobian,
+    refine_rs_pose,
+    refine_rs_pose_scipy,
+    untruncated_variance,
+)
 from rs_localizer.estimation.sampling import second_prerotations, select_prerotations
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.planar import make_planar_frame, model_velocities, sequence_scene
@@ -39,6 +43,7 @@ def test_planar_frame_ground_truth(scene):
     # noise-free pixels satisfy the exact model at their own capture line, all in the image
     x, tau = _normalized(f)
     from rs_localizer.estimation.refine import exact_errors
+
     assert exact_errors(f.R, f.C, f.w, f.t, f.X, x, tau).max() < 1e-9
     assert f.camera.in_image(f.points_px).all()
     if scene == "board":
@@ -64,9 +69,14 @@ def test_motion_prior_validation_and_information():
     assert MotionPrior(0.0, 2.0).information()[3, 3] == 0.0
     S = np.diag([4.0, 4.0, 4.0, 1.0, 1.0, 1.0])
     np.testing.assert_allclose(MotionPrior(covariance=S).information(), np.linalg.inv(S))
-    for bad in (dict(angular_velocity_sigma=-1.0), dict(mean=np.zeros(5)),
-                dict(covariance=np.eye(5)), dict(covariance=-np.eye(6)),
-                dict(covariance=np.triu(np.ones((6, 6)))), dict(mean=[np.nan] * 6)):
+    for bad in (
+        dict(angular_velocity_sigma=-1.0),
+        dict(mean=np.zeros(5)),
+        dict(covariance=np.eye(5)),
+        dict(covariance=-np.eye(6)),
+        dict(covariance=np.triu(np.ones((6, 6)))),
+        dict(mean=[np.nan] * 6),
+    ):
         with pytest.raises(ValueError):
             MotionPrior(**bad)
 
@@ -80,10 +90,21 @@ def test_map_refinement_matches_scipy(scene):
     noise = 0.5 / 600
     start = (rotvec_to_matrix([0.01, -0.02, 0.01]) @ f.R, f.C + 0.02, f.w * 0.8, f.t * 1.2)
     # a loss scale the residuals stay inside: both solve the same least-squares MAP problem
-    a = refine_rs_pose(*start, f.X, x, tau, 1.0, max_iterations=100, tol=1e-16, prior=prior,
-                       seconds_per_unit_r=s, noise=noise)
-    b = refine_rs_pose_scipy(*start, f.X, x, tau, 1.0, prior=prior, seconds_per_unit_r=s,
-                             noise=noise)
+    a = refine_rs_pose(
+        *start,
+        f.X,
+        x,
+        tau,
+        1.0,
+        max_iterations=100,
+        tol=1e-16,
+        prior=prior,
+        seconds_per_unit_r=s,
+        noise=noise,
+    )
+    b = refine_rs_pose_scipy(
+        *start, f.X, x, tau, 1.0, prior=prior, seconds_per_unit_r=s, noise=noise
+    )
     # (to far below the posterior's spread: ~0.3 deg, ~0.15 rad/s; the planar problem is
     # ill-conditioned, so the two optimizers stop a hair apart)
     assert rotation_angle_deg(a.R, b.R) < 1e-4
@@ -100,8 +121,9 @@ def test_map_covariance_is_the_posterior():
     x, tau = _normalized(f)
     s = f.camera.seconds_per_unit_r
     prior = MotionPrior(3.0, 1.5)
-    ref = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 1.0, max_iterations=50, prior=prior,
-                         seconds_per_unit_r=s)
+    ref = refine_rs_pose(
+        f.R, f.C, f.w, f.t, f.X, x, tau, 1.0, max_iterations=50, prior=prior, seconds_per_unit_r=s
+    )
     theta = np.r_[np.zeros(3), ref.C, ref.w, ref.t]
     J = exact_jacobian(theta, ref.R, f.X, x, tau)
 
@@ -111,10 +133,12 @@ def test_map_covariance_is_the_posterior():
     h = 1e-7
     Jz = np.stack([(z(theta + h * e) - z(theta - h * e)) / (2 * h) for e in np.eye(12)], 1)
     info = J.T @ J / ref.sigma**2 + Jz.T @ prior.information() @ Jz
-    np.testing.assert_allclose(ref.covariance, np.linalg.inv(info), rtol=1e-4,
-                               atol=1e-12 * np.abs(ref.covariance).max())
-    np.testing.assert_allclose(ref.data_information, J.T @ J, rtol=1e-6,
-                               atol=1e-9 * np.abs(J.T @ J).max())
+    np.testing.assert_allclose(
+        ref.covariance, np.linalg.inv(info), rtol=1e-4, atol=1e-12 * np.abs(ref.covariance).max()
+    )
+    np.testing.assert_allclose(
+        ref.data_information, J.T @ J, rtol=1e-6, atol=1e-9 * np.abs(J.T @ J).max()
+    )
 
 
 def test_prior_off_switches():
@@ -122,18 +146,33 @@ def test_prior_off_switches():
     (bit for bit), on a 3D frame and a planar one."""
     for scene in ("depth", "plane"):
         f = make_planar_frame(2, scene, outlier_ratio=0.2)
-        a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                             EstimateOptions(motion_prior=None))
-        b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                             EstimateOptions(motion_prior=MotionPrior(0.0, 0.0)))
-        for p, q in ((a.R, b.R), (a.C, b.C), (a.w, b.w), (a.t, b.t), (a.covariance,
-                                                                      b.covariance)):
+        a = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(motion_prior=None)
+        )
+        b = estimate_rs_pose(
+            f.points_px,
+            f.X,
+            f.camera,
+            "r6p_1lin",
+            EstimateOptions(motion_prior=MotionPrior(0.0, 0.0)),
+        )
+        for p, q in ((a.R, b.R), (a.C, b.C), (a.w, b.w), (a.t, b.t), (a.covariance, b.covariance)):
             assert np.array_equal(p, q)
         assert np.array_equal(a.inliers, b.inliers)
     x, tau = _normalized(f)
     r1 = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 0.01)
-    r2 = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 0.01, prior=MotionPrior(0.0, 0.0),
-                        seconds_per_unit_r=f.camera.seconds_per_unit_r)
+    r2 = refine_rs_pose(
+        f.R,
+        f.C,
+        f.w,
+        f.t,
+        f.X,
+        x,
+        tau,
+        0.01,
+        prior=MotionPrior(0.0, 0.0),
+        seconds_per_unit_r=f.camera.seconds_per_unit_r,
+    )
     assert np.array_equal(r1.covariance, r2.covariance) and np.array_equal(r1.R, r2.R)
 
 
@@ -143,8 +182,9 @@ def test_weak_prior_leaves_3d_scenes_at_the_exact_model_limit():
     ml, mp, oracle = [], [], []
     for seed in range(10):
         f = make_planar_frame(seed, "depth")
-        a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                             EstimateOptions(motion_prior=None))
+        a = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(motion_prior=None)
+        )
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin")
         x, tau = _normalized(f)
         o = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 2 / 600, max_iterations=50)
@@ -163,20 +203,26 @@ def test_prior_is_not_used_against_a_much_faster_camera():
     for seed in range(6):
         f = make_frame(1000 + seed, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.3)
         a = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin")
-        b = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin",
-                             EstimateOptions(motion_prior=None))
+        b = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin", EstimateOptions(motion_prior=None))
         if not a.motion_prior_used:
             assert np.array_equal(a.R, b.R) and np.array_equal(a.w, b.w)
             assert np.array_equal(a.covariance, b.covariance)
         assert not a.planar and a.condition_number < 1e3
-    used = [estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin").motion_prior_used
-            for f in (make_frame(1000 + k, 300, rs_speed=0.5, noise_px=1.0) for k in range(6))]
+    used = [
+        estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin").motion_prior_used
+        for f in (make_frame(1000 + k, 300, rs_speed=0.5, noise_px=1.0) for k in range(6))
+    ]
     assert sum(used) <= 1
     slow = make_frame(5, 300, rs_speed=0.1, noise_px=1.0)
     assert estimate_rs_pose(slow.points_px, slow.X, cam, "r6p_1lin").motion_prior_used
     fast = make_frame(1000, 300, rs_speed=0.5, noise_px=1.0)
-    assert estimate_rs_pose(fast.points_px, fast.X, cam, "r6p_1lin", EstimateOptions(
-        motion_prior=MotionPrior(always=True))).motion_prior_used
+    assert estimate_rs_pose(
+        fast.points_px,
+        fast.X,
+        cam,
+        "r6p_1lin",
+        EstimateOptions(motion_prior=MotionPrior(always=True)),
+    ).motion_prior_used
 
 
 def test_untruncated_variance_against_monte_carlo():
@@ -224,7 +270,8 @@ def test_linear_prior_rows_are_the_prior_at_the_linearization_point():
     P, q = linear_prior_rows(prior, C0, s, scale=2.0)
     z = np.r_[(np.cross(w, C0) - t) / s, -w / s] - prior.mean
     assert np.sum((P[0] @ np.r_[w, t] - q[0]) ** 2) == pytest.approx(
-        4.0 * z @ prior.information() @ z, rel=1e-10)
+        4.0 * z @ prior.information() @ z, rel=1e-10
+    )
     Xs = rng.normal(size=(1, 6, 3)) + [0, 0, 2.0]
     P2, q2 = sample_prior_rows(prior, Xs, C0[None], s, 1e-3)
     P3, q3 = linear_prior_rows(prior, C0, s, 1e-3 * (Xs[0, :, 2].mean() + C0[2]))
@@ -240,16 +287,21 @@ def test_runner_up_prerotation_by_brute_force():
     b = np.c_[x, np.ones(len(x))]
     b /= np.linalg.norm(b, axis=1, keepdims=True)
     R, C, owner = p3p_batch(b[samples[:, :3]], f.X[samples[:, :3]])
-    R1, C1, ok1 = select_prerotations(R, C, owner, samples, f.X, x, len(samples))
+    R1, _C1, _ok1 = select_prerotations(R, C, owner, samples, f.X, x, len(samples))
     n_kept = {}
     for ratio, slack in ((2.0, 1e-6), (1e9, 1.0), (1.0, 0.0)):
-        R2, C2, kept = second_prerotations(R, C, owner, samples, f.X, x, len(samples), ratio,
-                                           slack)
+        R2, _C2, kept = second_prerotations(
+            R, C, owner, samples, f.X, x, len(samples), ratio, slack
+        )
         for k in range(len(samples)):
             errs = []
             for m in np.flatnonzero(owner == k):
                 p = f.X[samples[k, 3:]] @ R[m].T + C[m]
-                e = np.inf if (p[:, 2] <= 0).any() else np.sum((p[:, :2] / p[:, 2:] - x[samples[k, 3:]]) ** 2)
+                e = (
+                    np.inf
+                    if (p[:, 2] <= 0).any()
+                    else np.sum((p[:, :2] / p[:, 2:] - x[samples[k, 3:]]) ** 2)
+                )
                 errs.append((e, m))
             errs.sort(key=lambda a: a[0])
             want = len(errs) > 1 and errs[1][0] <= ratio * errs[0][0] + slack
@@ -272,8 +324,9 @@ def test_board_with_outliers_finds_every_inlier():
         assert e.success and np.array_equal(e.inliers, f.inlier), seed
         assert e.planar and e.planarity < 1e-9 and e.condition_number > 1e4
         assert rotation_angle_deg(e.orientation, f.orientation) < 4.0
-        ml = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                              EstimateOptions(seed=seed, motion_prior=None))
+        ml = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(seed=seed, motion_prior=None)
+        )
         plain_failures += (not ml.success) or not np.array_equal(ml.inliers, f.inlier)
     assert plain_failures >= 1  # the failure the damped solves fix (seeds 13, 14)
 
@@ -290,8 +343,9 @@ def test_degeneracy_measures():
     rng = np.random.default_rng(0)
     flat = np.c_[rng.uniform(-1, 1, (50, 2)), np.zeros(50)] @ rotvec_to_matrix([0.3, 0.5, 1.0])
     assert planarity(flat) < 1e-6 and planarity(rng.normal(size=(50, 3))) > 0.3
-    assert planarity(np.c_[rng.uniform(-1, 1, (50, 2)), rng.uniform(-0.01, 0.01, 50)]) \
-        == pytest.approx(0.01, rel=0.3)
+    assert planarity(
+        np.c_[rng.uniform(-1, 1, (50, 2)), rng.uniform(-0.01, 0.01, 50)]
+    ) == pytest.approx(0.01, rel=0.3)
     # a mask selects rows without copying them: the same number as NumPy's SVD of the subset
     # (here the flat rows of a cloud, far from the origin)
     cloud = np.r_[flat, rng.normal(size=(30, 3))] + [1e3, -2e3, 5e2]
@@ -360,13 +414,22 @@ def test_prior_mean_and_covariance_from_a_tracker():
     f = make_planar_frame(8, "board")
     mean = np.r_[f.linear_velocity, f.angular_velocity] + 0.05
     cov = np.diag([0.1**2] * 3 + [0.1**2] * 3)
-    e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                         EstimateOptions(motion_prior=MotionPrior(mean=mean, covariance=cov)))
+    e = estimate_rs_pose(
+        f.points_px,
+        f.X,
+        f.camera,
+        "r6p_1lin",
+        EstimateOptions(motion_prior=MotionPrior(mean=mean, covariance=cov)),
+    )
     assert np.linalg.norm(e.angular_velocity - f.angular_velocity) < 0.3
     assert np.sqrt(np.trace(e.twist_covariance[3:, 3:])) < np.sqrt(3) * 0.1
-    a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin",
-                         EstimateOptions(motion_prior=MotionPrior(covariance=np.diag(
-                             [1.5**2] * 3 + [3.0**2] * 3))))
+    a = estimate_rs_pose(
+        f.points_px,
+        f.X,
+        f.camera,
+        "r6p_1lin",
+        EstimateOptions(motion_prior=MotionPrior(covariance=np.diag([1.5**2] * 3 + [3.0**2] * 3))),
+    )
     b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin")
     np.testing.assert_allclose(a.R, b.R, atol=1e-12)
     np.testing.assert_allclose(a.w, b.w, atol=1e-12)
@@ -378,8 +441,9 @@ def test_planar_sequences(kind):
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
     scene, traj = sequence_scene(kind, np.random.default_rng(0))
-    frames, _, camera, _ = generate_sequence(SequenceConfig(num_frames=12, fps=6.0, seed=1),
-                                             trajectory=traj, scene=scene)
+    frames, _, camera, _ = generate_sequence(
+        SequenceConfig(num_frames=12, fps=6.0, seed=1), trajectory=traj, scene=scene
+    )
     rs, gs = [], []
     for fr in frames:
         e = estimate_rs_pose(fr.uv, fr.xyz, camera, "r6p_1lin", EstimateOptions(min_inliers=8))
@@ -433,8 +497,13 @@ def test_board_scenes_render_and_detect(name):
         gray = cv2.cvtColor(frame.image, cv2.COLOR_RGB2GRAY)
         found, c = cv2.findChessboardCorners(gray, (6, 7))
         assert found
-        c = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1),
-                             (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
+        c = cv2.cornerSubPix(
+            gray,
+            c,
+            (5, 5),
+            (-1, -1),
+            (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3),
+        )
         uv = c.reshape(-1, 2)
         gt, ok = project_rs(cam, motion, t0, X)
         d = np.linalg.norm(uv[:, None] - gt[None], axis=2)
@@ -449,5 +518,6 @@ def test_board_scenes_render_and_detect(name):
     e = estimate_rs_pose(uv, X, cam, "r6p_1lin", EstimateOptions(min_inliers=8))
     g = estimate_rs_pose(uv, X, cam, "p3p", EstimateOptions(min_inliers=8))
     assert e.success and e.planar
-    assert rotation_angle_deg(e.orientation, frame.orientation) < \
-        rotation_angle_deg(g.orientation, frame.orientation)
+    assert rotation_angle_deg(e.orientation, frame.orientation) < rotation_angle_deg(
+        g.orientation, frame.orientation
+    )

@@ -12,21 +12,31 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation import EstimateOptions, estimate_rs_pose
-from rs_localizer.estimation.plausibility import (check_final_model, depths_at_capture,
-                                                  image_degenerate, motion_bounds,
-                                                  plausible_motion)
+from rs_localizer.estimation.plausibility import (
+    check_final_model,
+    depths_at_capture,
+    image_degenerate,
+    motion_bounds,
+    plausible_motion,
+)
 from rs_localizer.estimation.scoring import msac_evaluate
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
 #: the failure reasons :func:`estimate_rs_pose` documents
-REASONS = {"too_few_points", "no_hypothesis", "too_few_inliers", "degenerate_geometry",
-           "implausible_motion", "cheirality"}
+REASONS = {
+    "too_few_points",
+    "no_hypothesis",
+    "too_few_inliers",
+    "degenerate_geometry",
+    "implausible_motion",
+    "cheirality",
+}
 
 
 @pytest.fixture(scope="module")
 def seq():
-    fr, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=10, num_points=400, seed=5))
+    fr, _scene, cam, _ = generate_sequence(SequenceConfig(num_frames=10, num_points=400, seed=5))
     return fr, cam
 
 
@@ -42,8 +52,11 @@ def test_v_equal_u_cloud_is_never_a_pose(seq):
         uv = f.uv.copy()
         uv[:, 1] = uv[:, 0]
         e = estimate_rs_pose(uv, f.xyz, cam, options=_opts())
-        assert not e.success, (f.index, np.linalg.norm(e.position - f.position),
-                               np.linalg.norm(e.angular_velocity))
+        assert not e.success, (
+            f.index,
+            np.linalg.norm(e.position - f.position),
+            np.linalg.norm(e.angular_velocity),
+        )
         assert e.failure == "degenerate_geometry"
 
 
@@ -53,8 +66,11 @@ def test_reflected_points_are_never_a_pose(seq):
     fr, cam = seq
     for f in fr:
         e = estimate_rs_pose(f.uv, 2 * f.position - f.xyz, cam, options=_opts())
-        assert not e.success, (f.index, rotation_angle_deg(e.orientation, f.orientation),
-                               np.linalg.norm(e.angular_velocity))
+        assert not e.success, (
+            f.index,
+            rotation_angle_deg(e.orientation, f.orientation),
+            np.linalg.norm(e.angular_velocity),
+        )
         assert e.failure in REASONS
 
 
@@ -84,8 +100,9 @@ def test_rows_behind_the_camera_are_counted_as_dropped(seq):
 def test_identical_points_are_degenerate(seq):
     fr, cam = seq
     f = fr[0]
-    e = estimate_rs_pose(np.tile(f.uv[:1], (100, 1)), np.tile(f.xyz[:1], (100, 1)), cam,
-                         options=_opts())
+    e = estimate_rs_pose(
+        np.tile(f.uv[:1], (100, 1)), np.tile(f.xyz[:1], (100, 1)), cam, options=_opts()
+    )
     assert not e.success and e.failure == "degenerate_geometry"
     # identical pixels, distinct 3D points
     e = estimate_rs_pose(np.tile(f.uv[:1], (100, 1)), f.xyz[:100], cam, options=_opts())
@@ -114,7 +131,7 @@ def test_image_degenerate_against_a_direct_computation():
     # distance of (u, 0.5 u + 10 + e) from the line is e / sqrt(1.25)
     off = line + np.stack([np.zeros(200), np.full(200, 3.0) * rng.choice([-1, 1], 200)], 1)
     assert image_degenerate(line, line / 1000, 1000.0, 2.0)
-    assert image_degenerate(off, off / 1000, 1000.0, 3.0)        # 2.68 px from the line
+    assert image_degenerate(off, off / 1000, 1000.0, 3.0)  # 2.68 px from the line
     assert not image_degenerate(off, off / 1000, 1000.0, 2.0)
     spread = rng.uniform(0, 1000, (200, 2))
     assert not image_degenerate(spread, spread / 1000, 1000.0, 2.0)
@@ -129,8 +146,10 @@ def test_velocities_beyond_the_bounds_are_never_reported(seq):
         e = estimate_rs_pose(f.uv, f.xyz, cam, options=_opts())
         assert e.success
         assert np.linalg.norm(e.angular_velocity - f.angular_velocity) < 0.2
-        for kw, key in (({"max_angular_velocity": 0.5}, "angular_velocity"),
-                        ({"max_linear_velocity": 0.3}, "linear_velocity")):
+        for kw, key in (
+            ({"max_angular_velocity": 0.5}, "angular_velocity"),
+            ({"max_linear_velocity": 0.3}, "linear_velocity"),
+        ):
             e = estimate_rs_pose(f.uv, f.xyz, cam, options=_opts(**kw))
             bound = next(iter(kw.values()))
             if e.success:
@@ -140,8 +159,11 @@ def test_velocities_beyond_the_bounds_are_never_reported(seq):
 
 
 def test_options_validate_the_bounds():
-    for kw in ({"max_angular_velocity": 0.0}, {"max_angular_velocity": float("nan")},
-               {"max_linear_velocity": -1.0}):
+    for kw in (
+        {"max_angular_velocity": 0.0},
+        {"max_angular_velocity": float("nan")},
+        {"max_linear_velocity": -1.0},
+    ):
         with pytest.raises(ValueError):
             EstimateOptions(**kw)
     EstimateOptions(max_angular_velocity=float("inf"))  # no bound
@@ -157,8 +179,11 @@ def test_plausible_motion_against_physical_velocities():
     b = motion_bounds(20.0, 30.0, s)
     assert b == pytest.approx((0.6, 0.9))
     assert motion_bounds(20.0, 30.0, 0.0) is None
-    ws, Cs, ts = rng.normal(0, 0.6, (500, 3)), rng.normal(0, 5, (500, 3)), rng.normal(0, 0.6,
-                                                                                       (500, 3))
+    ws, Cs, ts = (
+        rng.normal(0, 0.6, (500, 3)),
+        rng.normal(0, 5, (500, 3)),
+        rng.normal(0, 0.6, (500, 3)),
+    )
     ok = plausible_motion(None, Cs, ws, ts, b)
     for k in range(500):
         om, vc, _, _ = physical_velocities(np.eye(3), Cs[k], ws[k], ts[k], s)
@@ -191,11 +216,13 @@ def test_final_check_cheirality_and_depths():
     assert zb[7] == pytest.approx(-1.0) and (np.delete(zb, 7) > 0).all()
     assert check_final_model(R, C, w, t, zb, None) == "cheirality"
     assert check_final_model(R, C, w, t, np.r_[z, np.nan], None) == "cheirality"
-    assert check_final_model(R, C, w * 100, t, z, motion_bounds(20, 30, 0.03)) == \
-        "implausible_motion"
+    assert (
+        check_final_model(R, C, w * 100, t, z, motion_bounds(20, 30, 0.03)) == "implausible_motion"
+    )
     assert check_final_model(R, C * np.nan, w, t, z, None) == "implausible_motion"
     assert depths_at_capture(R, C, np.zeros(3), t, X, tau) == pytest.approx(
-        (X @ R.T + C)[:, 2] + tau * t[2])
+        (X @ R.T + C)[:, 2] + tau * t[2]
+    )
 
 
 def test_scoring_counts_points_behind_the_camera_as_outliers():

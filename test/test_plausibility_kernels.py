@@ -4,11 +4,17 @@
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.plausibility import (check_final_model, collinear_3d,
-                                                  degenerate_points, depths_at_capture,
-                                                  final_model_check, finite_model,
-                                                  image_degenerate, motion_bounds,
-                                                  plausible_motion)
+from rs_localizer.estimation.plausibility import (
+    check_final_model,
+    collinear_3d,
+    degenerate_points,
+    depths_at_capture,
+    final_model_check,
+    finite_model,
+    image_degenerate,
+    motion_bounds,
+    plausible_motion,
+)
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 
@@ -21,8 +27,11 @@ def _point_sets(rng):
     yield f.X, f.points_px, f.x
     d = rng.normal(size=3)
     for spread in (1e-6, 5e-4, 2e-3):
-        yield (rng.normal(size=3) + rng.normal(size=(40, 1)) * d
-               + spread * rng.normal(size=(40, 3))), f.points_px, f.x
+        yield (
+            (rng.normal(size=3) + rng.normal(size=(40, 1)) * d + spread * rng.normal(size=(40, 3))),
+            f.points_px,
+            f.x,
+        )
     for off_px in (0.5, 1.9, 2.1, 5.0):
         u = np.c_[np.linspace(10, 900, 40), 300 + off_px * rng.choice([-1.0, 1.0], 40)]
         yield f.X, u, CAM.normalize(u)[0]
@@ -35,13 +44,20 @@ def test_degenerate_points_equals_collinear_3d_or_image_degenerate():
     for _ in range(5):
         for X, u, x in _point_sets(rng):
             for mask in (np.ones(len(X), dtype=bool), rng.random(len(X)) < 0.6):
-                ref = (collinear_3d(X[mask]) or
-                       image_degenerate(u[mask], x[mask], CAM.mean_focal, 2.0))
-                got = degenerate_points(np.ascontiguousarray(X), np.ascontiguousarray(u),
-                                        np.ascontiguousarray(x), mask, CAM.mean_focal, 2.0)
+                ref = collinear_3d(X[mask]) or image_degenerate(
+                    u[mask], x[mask], CAM.mean_focal, 2.0
+                )
+                got = degenerate_points(
+                    np.ascontiguousarray(X),
+                    np.ascontiguousarray(u),
+                    np.ascontiguousarray(x),
+                    mask,
+                    CAM.mean_focal,
+                    2.0,
+                )
                 assert got == ref
                 n += ref
-    assert 0 < n  # both outcomes occur
+    assert n > 0  # both outcomes occur
 
 
 @pytest.mark.parametrize("bounds", [None, (0.05, 0.02), (5.0, 5.0)])
@@ -52,14 +68,19 @@ def test_one_model_plausibility_equals_the_batched_one(bounds):
         if rng.random() < 0.1:
             w[rng.integers(3)] = np.nan
         assert plausible_motion(None, C, w, t, bounds) == bool(
-            plausible_motion(None, C[None], w[None], t[None], bounds)[0])
+            plausible_motion(None, C[None], w[None], t[None], bounds)[0]
+        )
 
 
 def test_finite_model_equals_numpy():
     rng = np.random.default_rng(3)
     for k in range(200):
-        parts = [rng.normal(size=(3, 3)), rng.normal(size=3), rng.normal(size=3),
-                 rng.normal(size=3)]
+        parts = [
+            rng.normal(size=(3, 3)),
+            rng.normal(size=3),
+            rng.normal(size=3),
+            rng.normal(size=3),
+        ]
         if k % 2:  # one non-finite entry anywhere
             a = parts[rng.integers(4)]
             a.flat[rng.integers(a.size)] = (np.nan, np.inf, -np.inf)[k % 3]
@@ -82,8 +103,7 @@ def test_final_model_check_equals_check_final_model_on_the_depths():
         mask = rng.random(len(f.X)) < 0.5
         z = depths_at_capture(R, C, w, t, f.X, tau)
         ref = check_final_model(R, C, w, t, z[mask], bounds)
-        code, behind = final_model_check(R, C, w, t, f.X, tau, mask, bounds[0] ** 2,
-                                         bounds[1] ** 2)
+        code, behind = final_model_check(R, C, w, t, f.X, tau, mask, bounds[0] ** 2, bounds[1] ** 2)
         assert code == codes[ref]
         if code == 0 or code == 2:
             assert behind == int(np.count_nonzero(~(z > 0)))

@@ -5,8 +5,9 @@ import pytest
 
 sensor_msgs = pytest.importorskip("sensor_msgs.msg")
 
-from rs_localizer.ros import pointcloud as pc  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
+
+from rs_localizer.ros import pointcloud as pc  # noqa: E402
 
 
 def _cloud(fields, point_step, data, width, height=1, bigendian=False, row_step=None):
@@ -53,8 +54,14 @@ def test_roundtrip_float64_exact():
 def test_mixed_types_padding_and_field_order():
     # x,y,z float64 first, then padding, then u,v float32 (arbitrary order and offsets)
     n = 7
-    dt = np.dtype({"names": ["x", "y", "z", "v", "u"], "formats": ["<f8"] * 3 + ["<f4"] * 2,
-                   "offsets": [0, 8, 16, 28, 32], "itemsize": 40})
+    dt = np.dtype(
+        {
+            "names": ["x", "y", "z", "v", "u"],
+            "formats": ["<f8"] * 3 + ["<f4"] * 2,
+            "offsets": [0, 8, 16, 28, 32],
+            "itemsize": 40,
+        }
+    )
     arr = np.zeros(n, dt)
     arr["x"], arr["y"], arr["z"] = np.arange(n), np.arange(n) * 2, np.arange(n) * 3
     arr["u"], arr["v"] = np.arange(n) + 0.5, np.arange(n) + 0.25
@@ -199,8 +206,9 @@ def test_overlapping_offsets_are_a_layout_error():
             pc.read_correspondences(_cloud(fields, 20, arr.tobytes(), 4))
         assert e.value.reason == "bad_layout"
     # a count > 1 running into the next field
-    fields = [("u", 0, pc.FLOAT32, 2)] + [(k, 4 * i, pc.FLOAT32, 1)
-                                          for i, k in enumerate("uvxyz") if k != "u"]
+    fields = [("u", 0, pc.FLOAT32, 2)] + [
+        (k, 4 * i, pc.FLOAT32, 1) for i, k in enumerate("uvxyz") if k != "u"
+    ]
     with pytest.raises(ValueError, match="overlap") as e:
         pc.read_correspondences(_cloud(fields, 20, arr.tobytes(), 4))
     assert e.value.reason == "bad_layout"
@@ -219,21 +227,38 @@ def test_fields_that_are_not_read_are_ignored():
     use (unknown type, empty name, overlapping each other or beyond the record) are ignored."""
     rng = np.random.default_rng(6)
     uv, xyz = rng.uniform(0, 99, (5, 2)), rng.uniform(0, 9, (5, 3))
-    dt = np.dtype({"names": list("uvxyz"), "formats": ["<f4"] * 5,
-                   "offsets": [0, 4, 8, 12, 16], "itemsize": 32})
+    dt = np.dtype(
+        {
+            "names": list("uvxyz"),
+            "formats": ["<f4"] * 5,
+            "offsets": [0, 4, 8, 12, 16],
+            "itemsize": 32,
+        }
+    )
     arr = np.zeros(5, dt)
     for i, k in enumerate("uv"):
         arr[k] = uv[:, i]
     for i, k in enumerate("xyz"):
         arr[k] = xyz[:, i]
     fields = [(k, 4 * i, pc.FLOAT32, 1) for i, k in enumerate("uvxyz")]
-    fields += [("rgb", 20, 42, 1), ("", 24, pc.UINT8, 1), ("a", 20, pc.FLOAT64, 1),
-               ("b", 22, pc.UINT16, 1), ("c", 30, pc.FLOAT64, 1), ("d", 28, 0, 7)]
+    fields += [
+        ("rgb", 20, 42, 1),
+        ("", 24, pc.UINT8, 1),
+        ("a", 20, pc.FLOAT64, 1),
+        ("b", 22, pc.UINT16, 1),
+        ("c", 30, pc.FLOAT64, 1),
+        ("d", 28, 0, 7),
+    ]
     c = pc.read_correspondences(_cloud(fields, 32, arr.tobytes(), 5))
     np.testing.assert_allclose(c.uv, uv, rtol=1e-6)
     np.testing.assert_allclose(c.xyz, xyz, rtol=1e-6)
     assert c.ids is None and c.scores is None
-    kfields = [("u", 0, pc.FLOAT32, 1), ("v", 4, pc.FLOAT32, 1), ("id", 8, pc.UINT32, 1),
-               ("w", 12, 99, 1), ("junk", 100, pc.FLOAT32, 1)]
+    kfields = [
+        ("u", 0, pc.FLOAT32, 1),
+        ("v", 4, pc.FLOAT32, 1),
+        ("id", 8, pc.UINT32, 1),
+        ("w", 12, 99, 1),
+        ("junk", 100, pc.FLOAT32, 1),
+    ]
     k = pc.read_keypoints(_cloud(kfields, 20, bytes(40), 2))
     assert len(k) == 2

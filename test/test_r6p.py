@@ -18,7 +18,7 @@ from rs_localizer.geometry import rs_project_linear, skew
 from rs_localizer.solvers._common import DegenerateInputError, RSSolution, algebraic_error
 from rs_localizer.solvers.r6p import r6p
 
-GT_TOL = 1e-8          # relative error of the ground-truth root
+GT_TOL = 1e-8  # relative error of the ground-truth root
 
 
 def _eq5_points(X, v, C, w, t, r, r0):
@@ -167,8 +167,9 @@ def test_coplanar_points_best_effort():
     rng = np.random.default_rng(7)
     n, found = 200, 0
     for k in range(n):
-        x, X, r, gt = _instance(rng, (0.05, 0.5)[k % 2], (0.0, 0.3)[k % 3 == 0],
-                                ("rows", "random")[k % 2], planar=True)
+        x, X, r, gt = _instance(
+            rng, (0.05, 0.5)[k % 2], (0.0, 0.3)[k % 3 == 0], ("rows", "random")[k % 2], planar=True
+        )
         sols = r6p(x, X, r, 0.0 if k % 3 else 0.3)
         _check_roots(x, X, r, 0.0 if k % 3 else 0.3, sols)
         found += _gt_error(sols, gt) <= GT_TOL
@@ -178,7 +179,7 @@ def test_coplanar_points_best_effort():
 # --------------------------------------------------------------------------- bad input
 def _good(rng=None):
     rng = rng or np.random.default_rng(3)
-    x, X, r, gt = _instance(rng, 0.3, 0.0, "random")
+    x, X, r, _gt = _instance(rng, 0.3, 0.0, "random")
     return x, X, r
 
 
@@ -208,20 +209,28 @@ def test_non_finite_input(what, bad):
 
 def test_wrong_shapes():
     x, X, r = _good()
-    for args in [(x.T, X, r), (x, X.T, r), (x[:, :1], X, r), (x, X[:, :2], r),
-                 (x, X[:5], r), (x, X, r[:5]), (x, X, r[:, None]), (x.ravel(), X, r),
-                 (x[None], X, r)]:
+    for args in [
+        (x.T, X, r),
+        (x, X.T, r),
+        (x[:, :1], X, r),
+        (x, X[:, :2], r),
+        (x, X[:5], r),
+        (x, X, r[:5]),
+        (x, X, r[:, None]),
+        (x.ravel(), X, r),
+        (x[None], X, r),
+    ]:
         with pytest.raises(ValueError):
             r6p(*args)
 
 
 def test_collinear_points_raise():
-    x, X, r = _good()
+    x, _X, r = _good()
     d = np.array([0.3, -0.5, 0.8])
     Xc = np.array([0.1, 0.2, 0.3]) + np.linspace(-1, 1, 6)[:, None] * d
     with pytest.raises(DegenerateInputError):
         r6p(x, Xc, r)
-    with pytest.raises(DegenerateInputError):        # all points equal
+    with pytest.raises(DegenerateInputError):  # all points equal
         r6p(x, np.ones((6, 3)), r)
 
 
@@ -237,9 +246,9 @@ def test_duplicated_points_raise():
 
 def test_constant_rs_coordinate_raises():
     x, X, _ = _good()
-    with pytest.raises(DegenerateInputError):        # tau = 0: C and t not separable
+    with pytest.raises(DegenerateInputError):  # tau = 0: C and t not separable
         r6p(x, X, np.full(6, 0.2), 0.2)
-    with pytest.raises(DegenerateInputError):        # tau constant: the same
+    with pytest.raises(DegenerateInputError):  # tau constant: the same
         r6p(x, X, np.full(6, 0.5), 0.2)
 
 
@@ -256,7 +265,7 @@ def test_near_degenerate_and_random_input_never_nan():
             X = rng.normal(size=(6, 3))
         else:
             X = rng.normal(size=(6, 3))
-            X[1] = X[0] + rng.normal(size=3) * 1e-9        # nearly duplicated
+            X[1] = X[0] + rng.normal(size=3) * 1e-9  # nearly duplicated
         try:
             sols = r6p(x, X, r, 0.1)
         except DegenerateInputError:
@@ -267,12 +276,11 @@ def test_near_degenerate_and_random_input_never_nan():
 
 def test_lapack_fallback_matches(monkeypatch):
     """If the hand-written Francis QR does not converge, LAPACK's eig gives the same roots."""
-    mod = importlib.import_module("rs_localizer.solvers.r6p")   # the package re-exports r6p
+    mod = importlib.import_module("rs_localizer.solvers.r6p")  # the package re-exports r6p
     rng = np.random.default_rng(9)
     cases = [_instance(rng, 0.3, 0.2, "random") for _ in range(5)]
     ref = [r6p(x, X, r, 0.2) for x, X, r, _ in cases]
-    monkeypatch.setattr(mod, "_real_candidates",
-                        lambda M, shift, tol: (False, np.zeros((0, 3))))
+    monkeypatch.setattr(mod, "_real_candidates", lambda M, shift, tol: (False, np.zeros((0, 3))))
     # (the compiled one-call path keeps its own _real_candidates: take the step-by-step one)
     monkeypatch.setattr(mod, "_solve_core", lambda x, X, r, r0: (-1, None, None, None))
     for (x, X, r, gt), a in zip(cases, ref):

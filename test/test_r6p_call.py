@@ -7,16 +7,18 @@ import importlib
 import numpy as np
 import pytest
 
-from rs_localizer.solvers import DegenerateInputError, r6p
 from rs_localizer.sim.synthetic import make_frame
+from rs_localizer.solvers import DegenerateInputError, r6p
 
 mod = importlib.import_module("rs_localizer.solvers.r6p")  # the package re-exports r6p
 
 
 def _instances(n=8):
     rng = np.random.default_rng(11)
-    return [make_frame(rng, 6, rs_speed=0.6, angle_from_identity=float(a), model="eq5")
-            for a in rng.uniform(0, 20, n)]
+    return [
+        make_frame(rng, 6, rs_speed=0.6, angle_from_identity=float(a), model="eq5")
+        for a in rng.uniform(0, 20, n)
+    ]
 
 
 def _step_by_step(x, X):
@@ -36,8 +38,14 @@ def test_fast_path_equals_the_stage_by_stage_solver(monkeypatch):
         general = r6p(x.tolist(), X.tolist())
         assert len(sols) == len(general) == int(np.isfinite(err).sum()) > 0
         for s, g, z, k in zip(sols, general, Z, its):
-            for a, b in ((s.v, z[0:3]), (s.w, z[3:6]), (s.C, z[6:9]), (s.t, z[9:12]),
-                         (g.v, z[0:3]), (g.t, z[9:12])):
+            for a, b in (
+                (s.v, z[0:3]),
+                (s.w, z[3:6]),
+                (s.C, z[6:9]),
+                (s.t, z[9:12]),
+                (g.v, z[0:3]),
+                (g.t, z[9:12]),
+            ):
                 np.testing.assert_array_equal(a, b)
             assert s.iterations == k and s.R_rs is None
             for a in (s.v, s.C, s.w, s.t):

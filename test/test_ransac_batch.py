@@ -62,9 +62,22 @@ def _step_by_step(u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_mi
         Rs = np.concatenate([compose_rotvec(np.ascontiguousarray(q.v), R_p) for q in bs])
         Cs, ws, ts = (np.concatenate([getattr(q, a) for q in bs]) for a in "Cwt")
         ok = np.concatenate([q.valid & ok_p for q in bs])
-    sc, _ = msac_scores(x, X, r0e, CAM.readout_vector, Rs, np.ascontiguousarray(Cs),
-                        np.ascontiguousarray(ws), np.ascontiguousarray(ts), th2, ok, bail, True,
-                        pre_n, pre_min)
+    sc, _ = msac_scores(
+        x,
+        X,
+        r0e,
+        CAM.readout_vector,
+        Rs,
+        np.ascontiguousarray(Cs),
+        np.ascontiguousarray(ws),
+        np.ascontiguousarray(ts),
+        th2,
+        ok,
+        bail,
+        True,
+        pre_n,
+        pre_min,
+    )
     return sc, Rs, Cs, ws, ts, ok
 
 
@@ -72,16 +85,34 @@ def _step_by_step(u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_mi
 def test_fused_batch_equals_the_step_by_step_kernels(solver):
     (f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(5, 1, solver)
     s, th2 = info.sample_size, TH2
-    for K, pool, bail, pre_n, pre_min in [(40, len(x), np.inf, 0, 0), (33, 60, np.inf, 24, 3),
-                                          (50, len(x), 0.05, 24, 8)]:
+    for K, pool, bail, pre_n, pre_min in [
+        (40, len(x), np.inf, 0, 0),
+        (33, 60, np.inf, 24, 3),
+        (50, len(x), 0.05, 24, 8),
+    ]:
         u = rng.random((K, s))
-        h, score, Rs, Cs, ws, ts, n_bad = ransac_batch(u, pool, order, x, X, r, r0e,
-                                                       CAM.readout_vector, CAM.r0, kinds,
-                                                       n_params, info.default_iterations or 1,
-                                                       th2, bail, pre_n, pre_min)
+        h, score, Rs, Cs, ws, ts, n_bad = ransac_batch(
+            u,
+            pool,
+            order,
+            x,
+            X,
+            r,
+            r0e,
+            CAM.readout_vector,
+            CAM.r0,
+            kinds,
+            n_params,
+            info.default_iterations or 1,
+            th2,
+            bail,
+            pre_n,
+            pre_min,
+        )
         assert n_bad == 0  # no motion bounds given
-        sc, Rs2, Cs2, ws2, ts2, ok = _step_by_step(u, pool, order, x, X, r, r0e, solver, th2,
-                                                   bail, pre_n, pre_min)
+        sc, Rs2, Cs2, ws2, ts2, ok = _step_by_step(
+            u, pool, order, x, X, r, r0e, solver, th2, bail, pre_n, pre_min
+        )
         assert len(Rs) == len(sc) == len(info.batch or (0,)) * K
         # bit for bit: the same kernels on the same numbers
         np.testing.assert_array_equal(Rs[ok], Rs2[ok])
@@ -89,13 +120,32 @@ def test_fused_batch_equals_the_step_by_step_kernels(solver):
             np.testing.assert_array_equal(a[ok], b[ok])
         assert h == int(np.argmin(sc)) and _same_score(score, sc.min())
         if info.rolling:  # motion bounds below every hypothesis's: none is scored
-            *_, n_rej = ransac_batch(u, pool, order, x, X, r, r0e, CAM.readout_vector, CAM.r0,
-                                     kinds, n_params, info.default_iterations or 1, th2, bail,
-                                     pre_n, pre_min, False, 0.0, 0.0)
+            *_, n_rej = ransac_batch(
+                u,
+                pool,
+                order,
+                x,
+                X,
+                r,
+                r0e,
+                CAM.readout_vector,
+                CAM.r0,
+                kinds,
+                n_params,
+                info.default_iterations or 1,
+                th2,
+                bail,
+                pre_n,
+                pre_min,
+                False,
+                0.0,
+                0.0,
+            )
             assert n_rej == int(ok.sum())
     # the batch best of a plain batch is a good pose (sanity of the whole chain)
     if np.isfinite(score):
         from rs_localizer.geometry import rotation_angle_deg
+
         assert rotation_angle_deg(Rs[h], f.R) < 5.0
 
 
@@ -105,11 +155,28 @@ def test_fused_batch_skips_implausible_motion(solver):
     :func:`plausible_motion` accepts (the step-by-step path's filter) and counts the rest."""
     from rs_localizer.estimation.plausibility import plausible_motion
 
-    (f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(5, 2, solver)
+    (_f, x, X, r, r0e), (kinds, n_params), info, rng, order = _batch_setup(5, 2, solver)
     th2 = TH2
     u = rng.random((40, info.sample_size))
-    args = (u, len(x), order, x, X, r, r0e, CAM.readout_vector, CAM.r0, kinds, n_params,
-            info.default_iterations or 1, th2, np.inf, 0, 0, False)
+    args = (
+        u,
+        len(x),
+        order,
+        x,
+        X,
+        r,
+        r0e,
+        CAM.readout_vector,
+        CAM.r0,
+        kinds,
+        n_params,
+        info.default_iterations or 1,
+        th2,
+        np.inf,
+        0,
+        0,
+        False,
+    )
     _, _, Rs, Cs, ws, ts, n0 = ransac_batch(*args)
     sc, *_, ok = _step_by_step(u, len(x), order, x, X, r, r0e, solver, th2, np.inf, 0, 0)
     wn = np.linalg.norm(ws[ok], axis=1)
@@ -133,8 +200,9 @@ def test_solvers_without_a_fused_path():
 @pytest.mark.parametrize("solver", ["r6p_1lin", "p3p"])
 def test_estimator_gives_the_same_result_with_and_without_fusion(solver, monkeypatch):
     for k in range(3):
-        f = make_frame(20 + k, 300, rs_speed=0.5 if solver != "p3p" else 0.0, noise_px=1.0,
-                       outlier_ratio=0.3)
+        f = make_frame(
+            20 + k, 300, rs_speed=0.5 if solver != "p3p" else 0.0, noise_px=1.0, outlier_ratio=0.3
+        )
         a = estimate_rs_pose(f.points_px, f.X, CAM, solver)
         with monkeypatch.context() as m:
             m.setattr(estimate_module, "fused_kernels", lambda name: None)
@@ -154,8 +222,9 @@ def test_measured_time_scoring_is_the_refinement_residual():
     from rs_localizer.estimation.scoring import errors2, msac_evaluate
 
     K = np.array([[800.0, 0, 320], [0, 820, 240], [0, 0, 1]])
-    cam = CameraModel.from_readout_time(K, 0.03, 640, 480, D=[-0.2, 0.05, 0.001, -0.001, 0.0],
-                                        readout="bottom_to_top")
+    cam = CameraModel.from_readout_time(
+        K, 0.03, 640, 480, D=[-0.2, 0.05, 0.001, -0.001, 0.0], readout="bottom_to_top"
+    )
     f = make_frame(7, 200, rs_speed=1.0, noise_px=0.5, outlier_ratio=0.2)
     x, r, r0e = cam.normalize(cam.distort(f.x))
     e_ref = exact_errors(f.R, f.C, f.w, f.t, f.X, x, r - cam.r0)
@@ -163,8 +232,8 @@ def test_measured_time_scoring_is_the_refinement_residual():
     np.testing.assert_allclose(np.sqrt(e2), e_ref, rtol=1e-9, atol=1e-12)
     th2 = (2.0 / cam.mean_focal) ** 2
     sc, inl, n = msac_evaluate(x, f.X, r0e, cam.readout_vector, f.R, f.C, f.w, f.t, th2, True)
-    assert inl.tolist() == (e_ref ** 2 < th2).tolist() and n == inl.sum()
-    np.testing.assert_allclose(sc, np.minimum(e_ref ** 2, th2).sum(), rtol=1e-9)
+    assert inl.tolist() == (e_ref**2 < th2).tolist() and n == inl.sum()
+    np.testing.assert_allclose(sc, np.minimum(e_ref**2, th2).sum(), rtol=1e-9)
 
 
 def test_measured_time_scoring_counts_the_inliers_at_fast_motion():
@@ -176,11 +245,12 @@ def test_measured_time_scoring_counts_the_inliers_at_fast_motion():
     lost_row, lost_measured = [], []
     for k in range(5):
         f = make_frame(40 + k, 400, rs_speed=1.0, noise_px=0.0)
-        x, r, r0e = CAM.normalize(f.points_px)
+        x, _r, r0e = CAM.normalize(f.points_px)
         th2 = (1.0 / CAM.mean_focal) ** 2
         for measured, lost in ((False, lost_row), (True, lost_measured)):
-            _, _, n = msac_evaluate(x, f.X, r0e, CAM.readout_vector, f.R, f.C, f.w, f.t, th2,
-                                    measured)
+            _, _, n = msac_evaluate(
+                x, f.X, r0e, CAM.readout_vector, f.R, f.C, f.w, f.t, th2, measured
+            )
             lost.append(len(x) - n)
     assert sum(lost_measured) == 0 and sum(lost_row) > 0
 
@@ -198,8 +268,9 @@ def test_nonminimal_solve_equals_the_batched_solver_on_the_inliers(solver):
     kinds, n_params = fused_kernels(solver)
     mins = np.array([9 if solver == "r9p" else 6], dtype=np.int64)
     ok, Rs, Cs, ws, ts = nonminimal_solve(kinds, n_params, mins, inl, R, x, X, r, CAM.r0, 2)
-    b = solver_info(solver).batch[0](x[inl][None], (X[inl] @ R.T)[None], r[inl][None], CAM.r0,
-                                     iterations=2)
+    b = solver_info(solver).batch[0](
+        x[inl][None], (X[inl] @ R.T)[None], r[inl][None], CAM.r0, iterations=2
+    )
     assert ok[0] and b.valid[0]
     np.testing.assert_allclose(Rs[0], rotvec_to_matrix(b.v[0]) @ R, atol=1e-12)
     for a, c in ((Cs[0], b.C[0]), (ws[0], b.w[0]), (ts[0], b.t[0])):
@@ -207,7 +278,7 @@ def test_nonminimal_solve_equals_the_batched_solver_on_the_inliers(solver):
     assert rotation_angle_deg(Rs[0], f.R) < 0.5
     # too few points for the kernel: skipped and flagged, not run
     few = np.zeros(len(x), dtype=bool)
-    few[:int(mins[0]) - 1] = True
+    few[: int(mins[0]) - 1] = True
     ok, *_ = nonminimal_solve(kinds, n_params, mins, few, R, x, X, r, CAM.r0, 2)
     assert not ok[0]
 
@@ -222,8 +293,25 @@ def test_prerotated_batch_equals_the_step_by_step_kernels(solver):
     s, th2 = info.sample_size, TH2
     R_pre = np.ascontiguousarray(rotvec_to_matrix(np.array([0.01, -0.02, 0.005])) @ f.R)
     u = rng.random((24, s))
-    out = prerotated_batch(u, 120, order, R_pre, x, X, r, r0e, CAM.readout_vector, CAM.r0,
-                           kinds, n_params, info.default_iterations or 1, th2, np.inf, 24, 0)
+    out = prerotated_batch(
+        u,
+        120,
+        order,
+        R_pre,
+        x,
+        X,
+        r,
+        r0e,
+        CAM.readout_vector,
+        CAM.r0,
+        kinds,
+        n_params,
+        info.default_iterations or 1,
+        th2,
+        np.inf,
+        24,
+        0,
+    )
     h, score, Rs, Cs, ws, ts = out[:6]
     samples = order[draw_samples(u, 120)]
     R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
@@ -234,11 +322,23 @@ def test_prerotated_batch_equals_the_step_by_step_kernels(solver):
     np.testing.assert_array_equal(Rs[ok], Rs2[ok])
     for a, name in ((Cs, "C"), (ws, "w"), (ts, "t")):
         np.testing.assert_array_equal(a[ok], np.concatenate([getattr(q, name) for q in bs])[ok])
-    sc, _ = msac_scores(x, X, r0e, CAM.readout_vector, Rs2,
-                        np.ascontiguousarray(np.concatenate([q.C for q in bs])),
-                        np.ascontiguousarray(np.concatenate([q.w for q in bs])),
-                        np.ascontiguousarray(np.concatenate([q.t for q in bs])), th2, ok,
-                        np.inf, True, 24, 0)
+    sc, _ = msac_scores(
+        x,
+        X,
+        r0e,
+        CAM.readout_vector,
+        Rs2,
+        np.ascontiguousarray(np.concatenate([q.C for q in bs])),
+        np.ascontiguousarray(np.concatenate([q.w for q in bs])),
+        np.ascontiguousarray(np.concatenate([q.t for q in bs])),
+        th2,
+        ok,
+        np.inf,
+        True,
+        24,
+        0,
+    )
     assert h == int(np.argmin(sc)) and _same_score(score, sc.min())
     from rs_localizer.geometry import rotation_angle_deg
+
     assert rotation_angle_deg(Rs[h], f.R) < 1.0  # near a good pre-rotation: a good pose

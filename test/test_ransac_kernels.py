@@ -7,8 +7,8 @@ import pytest
 from rs_localizer.estimation.sampling import draw_samples, gather_prerotated, select_prerotations
 from rs_localizer.estimation.scoring import errors2, msac_scores
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.solvers import p3p_batch
 from rs_localizer.sim.synthetic import make_frame
+from rs_localizer.solvers import p3p_batch
 
 
 def test_draw_samples_are_distinct_in_range_and_uniform():
@@ -80,13 +80,20 @@ def test_preemptive_msac_finds_the_brute_force_best(pretest):
     for h in range(H):  # perturbations of the truth, from small to gross
         s = 10.0 ** rng.uniform(-4, -0.5)
         Rs[h] = rotvec_to_matrix(rng.normal(size=3) * s) @ f.R
-        Cs[h], ws[h], ts[h] = (f.C + rng.normal(size=3) * s, f.w + rng.normal(size=3) * s,
-                               f.t + rng.normal(size=3) * s)
+        Cs[h], ws[h], ts[h] = (
+            f.C + rng.normal(size=3) * s,
+            f.w + rng.normal(size=3) * s,
+            f.t + rng.normal(size=3) * s,
+        )
     valid = rng.random(H) > 0.1
     d, r0e = np.array([0.0, 1.0]), np.full(len(f.x), f.r0)
     th2 = (2.0 / 1207.0) ** 2
-    full = np.array([np.minimum(errors2(f.x, f.X, r0e, d, Rs[h], Cs[h], ws[h], ts[h]),
-                                th2).sum() for h in range(H)])
+    full = np.array(
+        [
+            np.minimum(errors2(f.x, f.X, r0e, d, Rs[h], Cs[h], ws[h], ts[h]), th2).sum()
+            for h in range(H)
+        ]
+    )
     full[~valid] = np.inf
     sc, cnt = msac_scores(f.x, f.X, r0e, d, Rs, Cs, ws, ts, th2, valid, np.inf, True, pretest, 0)
     best = int(np.argmin(full))
@@ -98,6 +105,7 @@ def test_preemptive_msac_finds_the_brute_force_best(pretest):
     np.testing.assert_allclose(sc[finite], full[finite], rtol=1e-12)  # never a partial score
     assert not finite[~valid].any()
     # a bound below every hypothesis leaves nothing
-    none, _ = msac_scores(f.x, f.X, r0e, d, Rs, Cs, ws, ts, th2, valid, 0.5 * full[best], True,
-                          pretest, 0)
+    none, _ = msac_scores(
+        f.x, f.X, r0e, d, Rs, Cs, ws, ts, th2, valid, 0.5 * full[best], True, pretest, 0
+    )
     assert np.isinf(none).all()

@@ -11,9 +11,15 @@ import pytest
 from rs_localizer.cli import main as cli_main
 from rs_localizer.estimation.readout import calibrate_line_delay, fit_line_delay
 from rs_localizer.geometry import rotvec_to_matrix
-from rs_localizer.sim.trajectory import (R_IMU_CAMERA, SequenceConfig, TRAJECTORIES,
-                                         default_camera, generate_sequence, imu_samples,
-                                         make_trajectory)
+from rs_localizer.sim.trajectory import (
+    R_IMU_CAMERA,
+    TRAJECTORIES,
+    SequenceConfig,
+    default_camera,
+    generate_sequence,
+    imu_samples,
+    make_trajectory,
+)
 
 LINE_DELAY = 30e-6
 
@@ -25,8 +31,11 @@ def test_trajectory_presets():
     for name in TRAJECTORIES:
         w, v = make_trajectory(name).velocity_body(t)
         alpha = np.gradient(w, t, axis=0)
-        rates[name] = (np.linalg.norm(w, axis=1), np.linalg.norm(v, axis=1),
-                       np.linalg.norm(alpha, axis=1))
+        rates[name] = (
+            np.linalg.norm(w, axis=1),
+            np.linalg.norm(v, axis=1),
+            np.linalg.norm(alpha, axis=1),
+        )
     assert rates["car"][0].max() < 0.1 and rates["car"][1].min() > 4.5  # near-pure translation
     assert rates["shake"][2].max() > 25.0 > rates["walk"][2].max()  # strong angular accel.
     assert np.median(rates["pan"][0]) > 0.5  # rotation for the calibration
@@ -51,21 +60,33 @@ def test_fit_on_exact_rates_and_gyro():
     t_ref = t + float(cam.line_time(cam.reference_line))
     w_ref = -traj.velocity_body(t_ref)[0] * s
     ti, om, _ = imu_samples(traj, -0.1, 2.1, 200.0, seed=1)
-    g = fit_line_delay(stamps, traj.orientation(t_ref), w_ref, cam,
-                       gyro=((ti * 1e9).astype(np.int64), om), stamp_row=0.0)
+    g = fit_line_delay(
+        stamps,
+        traj.orientation(t_ref),
+        w_ref,
+        cam,
+        gyro=((ti * 1e9).astype(np.int64), om),
+        stamp_row=0.0,
+    )
     assert g.observable and g.line_delay == pytest.approx(LINE_DELAY, rel=5e-3)
     assert np.abs(g.camera_imu_rotation - R_IMU_CAMERA.T).max() < 0.02
     # too few frames / no rotation
     assert not fit_line_delay(stamps[:5], O[:5], w[:5], cam).observable
-    still = fit_line_delay(stamps, np.repeat(np.eye(3)[None], 60, 0),
-                           np.random.default_rng(0).normal(0, 1e-3, (60, 3)), cam)
+    still = fit_line_delay(
+        stamps,
+        np.repeat(np.eye(3)[None], 60, 0),
+        np.random.default_rng(0).normal(0, 1e-3, (60, 3)),
+        cam,
+    )
     assert not still.observable and still.line_delay is None and still.reason
 
 
 def _frames(name, seed, n=60, **cfg):
     frames, _, cam, _ = generate_sequence(
         SequenceConfig(num_frames=n, seed=seed, **cfg),
-        camera=default_camera(line_delay=LINE_DELAY), trajectory=make_trajectory(name))
+        camera=default_camera(line_delay=LINE_DELAY),
+        trajectory=make_trajectory(name),
+    )
     return [(f.stamp_ns, f.uv, f.xyz) for f in frames], cam
 
 
@@ -94,9 +115,27 @@ def test_no_rotation_is_not_observable():
 
 def test_cli_json_and_bag_without_ground_truth_twist(tmp_path, capsys):
     bag = tmp_path / "pan"
-    assert cli_main(["make-bag", str(bag), "--motion", "pan", "--frames", "40", "--seed", "2",
-                     "--imu-rate", "200", "--no-gt-twist", "--drop-frames", "20",
-                     "--no-keypoints"]) == 0
+    assert (
+        cli_main(
+            [
+                "make-bag",
+                str(bag),
+                "--motion",
+                "pan",
+                "--frames",
+                "40",
+                "--seed",
+                "2",
+                "--imu-rate",
+                "200",
+                "--no-gt-twist",
+                "--drop-frames",
+                "20",
+                "--no-keypoints",
+            ]
+        )
+        == 0
+    )
     meta = json.loads((bag / "sequence.json").read_text())
     assert "gt_twist" not in meta["topics"] and meta["topics"]["imu"] == "/imu/data"
     assert meta["settings"]["motion"] == "pan" and meta["settings"]["drop_frames"] == [20]
@@ -121,8 +160,12 @@ def test_cli_not_observable_exit_code(tmp_path, capsys):
     capsys.readouterr()
     assert cli_main(["calibrate-readout", str(bag), "--json"]) == 3
     res = json.loads(capsys.readouterr().out)
-    assert res == {"line_delay": None, "line_delay_std": None, "frames_used": 30,
-                   "observable": False}
+    assert res == {
+        "line_delay": None,
+        "line_delay_std": None,
+        "frames_used": 30,
+        "observable": False,
+    }
 
 
 def test_teleport_and_dropped_frames_in_sequences():
@@ -132,11 +175,13 @@ def test_teleport_and_dropped_frames_in_sequences():
     tp = Teleport(base, time=0.3, offset=(8.0, 0.0, 0.0), yaw=0.7)
     np.testing.assert_allclose(tp.position(0.29), base.position(0.29))
     np.testing.assert_allclose(tp.position(0.31), base.position(0.31) + [8, 0, 0])
-    np.testing.assert_allclose(tp.orientation(0.31),
-                               rotvec_to_matrix([0, 0, 0.7]) @ base.orientation(0.31))
+    np.testing.assert_allclose(
+        tp.orientation(0.31), rotvec_to_matrix([0, 0, 0.7]) @ base.orientation(0.31)
+    )
     full, _, _, _ = generate_sequence(SequenceConfig(num_frames=6, num_points=100, seed=7))
-    some, _, _, _ = generate_sequence(SequenceConfig(num_frames=6, num_points=100, seed=7,
-                                                     drop_frames=(2, 3)))
+    some, _, _, _ = generate_sequence(
+        SequenceConfig(num_frames=6, num_points=100, seed=7, drop_frames=(2, 3))
+    )
     assert [f.index for f in some] == [0, 1, 4, 5]
     for f in some:  # the frames left are those of the full sequence
         np.testing.assert_array_equal(f.uv, full[f.index].uv)
@@ -149,8 +194,9 @@ def test_image_source_on_the_rendered_bag(capsys):
 
     if not (SAMPLE_IMAGES_BAG / "metadata.yaml").exists():
         pytest.skip("data/sample_images missing")
-    assert cli_main(["calibrate-readout", str(SAMPLE_IMAGES_BAG), "--source", "image",
-                     "--json"]) == 0
+    assert (
+        cli_main(["calibrate-readout", str(SAMPLE_IMAGES_BAG), "--source", "image", "--json"]) == 0
+    )
     res = json.loads(capsys.readouterr().out)
     assert res["observable"] and res["frames_used"] == 20
     err = res["line_delay"] - 62.5e-6

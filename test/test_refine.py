@@ -3,18 +3,29 @@
 import numpy as np
 import pytest
 
-from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.estimation.prior import MotionPrior, model_twist, model_twist_jacobian
-from rs_localizer.estimation.refine import (_normal_equations, _solve_symmetric, exact_errors,
-                                 exact_jacobian, exact_residuals, posterior_step,
-                                 refine_rs_pose, refine_rs_pose_scipy, untruncated_variance)
-from rs_localizer.geometry import matrix_to_rotvec
+from rs_localizer.estimation.refine import (
+    _normal_equations,
+    _solve_symmetric,
+    exact_errors,
+    exact_jacobian,
+    exact_residuals,
+    posterior_step,
+    refine_rs_pose,
+    refine_rs_pose_scipy,
+    untruncated_variance,
+)
+from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame
 
 
 def perturbed_start(f, rng):
-    return (rotvec_to_matrix(rng.normal(size=3) * 0.01) @ f.R, f.C + rng.normal(size=3) * 0.02,
-            f.w * 0.9, f.t * 1.1)
+    return (
+        rotvec_to_matrix(rng.normal(size=3) * 0.01) @ f.R,
+        f.C + rng.normal(size=3) * 0.02,
+        f.w * 0.9,
+        f.t * 1.1,
+    )
 
 
 @pytest.mark.parametrize("rolling", [True, False])
@@ -24,8 +35,9 @@ def test_matches_scipy_least_squares_without_outliers(rolling):
     start = perturbed_start(f, rng)
     tau = f.r - f.r0
     # huge loss scale: both are plain least squares, so their optimum must coincide
-    a = refine_rs_pose(*start, f.X, f.x, tau, 1.0, rolling_shutter=rolling, max_iterations=50,
-                       tol=1e-15)
+    a = refine_rs_pose(
+        *start, f.X, f.x, tau, 1.0, rolling_shutter=rolling, max_iterations=50, tol=1e-15
+    )
     b = refine_rs_pose_scipy(*start, f.X, f.x, tau, 1.0, rolling_shutter=rolling)
     np.testing.assert_allclose(a.R, b.R, atol=1e-10)
     for p, q in ((a.C, b.C), (a.w, b.w), (a.t, b.t)):
@@ -41,9 +53,17 @@ def test_jacobian_matches_finite_differences():
     tau = f.r - f.r0
     J = exact_jacobian(theta, f.R, f.X, f.x, tau)
     h = 1e-7
-    Jn = np.stack([(exact_residuals(theta + h * e, f.R, f.X, f.x, tau)
-                    - exact_residuals(theta - h * e, f.R, f.X, f.x, tau)) / (2 * h)
-                   for e in np.eye(12)], axis=1)
+    Jn = np.stack(
+        [
+            (
+                exact_residuals(theta + h * e, f.R, f.X, f.x, tau)
+                - exact_residuals(theta - h * e, f.R, f.X, f.x, tau)
+            )
+            / (2 * h)
+            for e in np.eye(12)
+        ],
+        axis=1,
+    )
     np.testing.assert_allclose(J, Jn, atol=1e-6)
 
 
@@ -58,9 +78,15 @@ def test_recovers_ground_truth_with_outliers_and_reports_covariance():
     assert np.all(sd > 0) and np.all(np.isfinite(sd))
     assert ref.sigma * 1207 == pytest.approx(1.0, rel=0.3)  # residual sigma ~ the 1 px noise
     e = exact_errors(ref.R, ref.C, ref.w, ref.t, f.X, f.x, f.r - f.r0)
-    np.testing.assert_allclose(e, np.linalg.norm(exact_residuals(
-        np.r_[np.zeros(3), ref.C, ref.w, ref.t], ref.R, f.X, f.x, f.r - f.r0).reshape(-1, 2),
-        axis=1))
+    np.testing.assert_allclose(
+        e,
+        np.linalg.norm(
+            exact_residuals(
+                np.r_[np.zeros(3), ref.C, ref.w, ref.t], ref.R, f.X, f.x, f.r - f.r0
+            ).reshape(-1, 2),
+            axis=1,
+        ),
+    )
 
 
 def reference_normal_equations(R, C, w, t, X, x, tau, k, cutoff, n_free):
@@ -99,8 +125,9 @@ def test_normal_equations_match_numpy_reference(rolling, w_scale):
     n_free = 12 if rolling else 6
     e = exact_errors(R, C, w, t, X, f.x, tau)
     k, cutoff = np.quantile(e[np.isfinite(e)], [0.3, 0.8])
-    H_ref, g_ref, cost_ref, used, e = reference_normal_equations(R, C, w, t, X, f.x, tau, k,
-                                                                 cutoff, n_free)
+    H_ref, g_ref, cost_ref, used, e = reference_normal_equations(
+        R, C, w, t, X, f.x, tau, k, cutoff, n_free
+    )
     # all cases present: quadratic and linear Huber zone, beyond the cutoff, behind
     assert np.sum(used & (e <= k)) > 10 and np.sum(used & (e > k)) > 10
     assert np.sum(~used) > 10 and not used[0]
@@ -120,8 +147,12 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
     rng = np.random.default_rng(5)
     f = make_frame(rng, 150, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.1)
     k = 2.0 / 1207.0
-    start = [rotvec_to_matrix(rng.normal(size=3) * 0.001) @ f.R,
-             f.C + rng.normal(size=3) * 0.002, f.w * 0.98, f.t * 1.02]
+    start = [
+        rotvec_to_matrix(rng.normal(size=3) * 0.001) @ f.R,
+        f.C + rng.normal(size=3) * 0.002,
+        f.w * 0.98,
+        f.t * 1.02,
+    ]
     before = [a.copy() for a in start]
     tau = f.r - f.r0
     ref = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k)
@@ -141,8 +172,9 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
     if not rolling:
         assert np.all(ref.w == 0) and np.all(ref.t == 0)
     # no covariance: None and NaN sigma, same pose
-    fast = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k,
-                          covariance=False)
+    fast = refine_rs_pose(
+        *start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k, covariance=False
+    )
     assert fast.covariance is None and np.isnan(fast.sigma) and fast.nfev == ref.nfev
     np.testing.assert_array_equal(fast.R, ref.R)
 
@@ -189,14 +221,28 @@ def test_posterior_step_matches_converged_map(seed, offset):
     f = make_frame(rng, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
     k, s = 2.0 / 1207.0, 1e-3
     tau = f.r - f.r0
-    ml = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14,
-                        max_iterations=50)
+    ml = refine_rs_pose(
+        f.R, f.C, f.w, f.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14, max_iterations=50
+    )
     Jz = model_twist_jacobian(ml.C, ml.w, s)
     S = Jz @ ml.covariance @ Jz.T  # the data's twist covariance
     mean = model_twist(ml.C, ml.w, ml.t, s) + offset * np.sqrt(np.diag(S))
     prior = MotionPrior(mean=mean, covariance=S, always=True)
-    conv = refine_rs_pose(ml.R, ml.C, ml.w, ml.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14,
-                          max_iterations=50, prior=prior, seconds_per_unit_r=s)
+    conv = refine_rs_pose(
+        ml.R,
+        ml.C,
+        ml.w,
+        ml.t,
+        f.X,
+        f.x,
+        tau,
+        k,
+        cutoff=2 * k,
+        tol=1e-14,
+        max_iterations=50,
+        prior=prior,
+        seconds_per_unit_r=s,
+    )
     step = posterior_step(ml, prior, s)
     sd = np.sqrt(np.diag(conv.covariance))
 
@@ -210,10 +256,12 @@ def test_posterior_step_matches_converged_map(seed, offset):
     # point, which the prior pulls off the data, would inflate it), from the converged MAP's
     # data information and the prior's Jacobian there
     Jc = model_twist_jacobian(conv.C, conv.w, s)
-    expected = ml.sigma**2 * np.linalg.inv(conv.data_information
-                                           + ml.sigma**2 * Jc.T @ np.linalg.inv(S) @ Jc)
-    np.testing.assert_allclose(np.sqrt(np.diag(step.covariance)), np.sqrt(np.diag(expected)),
-                               rtol=0.02)
+    expected = ml.sigma**2 * np.linalg.inv(
+        conv.data_information + ml.sigma**2 * Jc.T @ np.linalg.inv(S) @ Jc
+    )
+    np.testing.assert_allclose(
+        np.sqrt(np.diag(step.covariance)), np.sqrt(np.diag(expected)), rtol=0.02
+    )
     assert step.sigma == ml.sigma and step.data_information is ml.data_information
     # the data gradient at a converged ML optimum vanishes (relative to the normal matrix)
     assert np.all(np.abs(ml.data_gradient) < 1e-6 * np.sqrt(np.diag(ml.data_information)))
@@ -223,10 +271,11 @@ def test_posterior_step_refuses():
     rng = np.random.default_rng(4)
     f = make_frame(rng, 100, rs_speed=0.5, noise_px=1.0)
     ml = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0)
-    assert posterior_step(ml, MotionPrior(angular_velocity_sigma=0.0,
-                                          linear_velocity_sigma=0.0), 1e-3) is None
-    nocov = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0,
-                           covariance=False)
+    assert (
+        posterior_step(ml, MotionPrior(angular_velocity_sigma=0.0, linear_velocity_sigma=0.0), 1e-3)
+        is None
+    )
+    nocov = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0, covariance=False)
     assert posterior_step(nocov, MotionPrior(), 1e-3) is None
     with pytest.raises(ValueError):
         posterior_step(ml, MotionPrior(), 0.0)

@@ -5,8 +5,15 @@ import pytest
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.geometry import matrix_to_rotvec
-from rs_localizer.sim.render import (Renderer, camera_preset, camera_rays, load_scene, make_motion,
-                                 motion_names, scene_names)
+from rs_localizer.sim.render import (
+    Renderer,
+    camera_preset,
+    camera_rays,
+    load_scene,
+    make_motion,
+    motion_names,
+    scene_names,
+)
 from rs_localizer.sim.render.scene import load_marker_map, save_marker_map
 from rs_localizer.sim.trajectory import project_rs
 
@@ -40,13 +47,14 @@ def test_marker_corners_appear_at_exact_rs_projection(room):
     the continuous trajectory, through lens distortion) at the pixel predicted by the exact RS
     projection with the row solved iteratively (rs_localizer.sim.trajectory.project_rs)."""
     scene, camera, motion, r = room
-    hit, quad, _ = r.hit_map(motion, T_FRAME)
+    hit, _quad, _ = r.hit_map(motion, T_FRAME)
     _, X = scene.marker_corner_points()
     uv, ok = project_rs(camera, motion, T_FRAME, X)
     inner = ok & camera.in_image(uv, margin=-3)
     assert inner.sum() > 150
-    err = np.array([np.linalg.norm(_locate(hit, X[i], uv[i]) - uv[i])
-                    for i in np.flatnonzero(inner)])
+    err = np.array(
+        [np.linalg.norm(_locate(hit, X[i], uv[i]) - uv[i]) for i in np.flatnonzero(inner)]
+    )
     assert err.max() < 0.1 and np.median(err) < 0.01
     # and the RS effect is real: the global-shutter projection is far off
     R, p = motion.pose(T_FRAME + camera.line_time(camera.reference_line))
@@ -59,15 +67,26 @@ def test_texture_blob_centroids_match_projection():
     """Image content: Gaussian blobs painted on a wall are rendered (bilinear/trilinear texture
     sampling, anti-aliasing) with their intensity centroids at the exact RS projection."""
     tpm, W, H, sig, pitch = 200, 3.0, 2.0, 0.02, 0.15
-    ys, xs = np.mgrid[0:int(H * tpm), 0:int(W * tpm)]
+    ys, xs = np.mgrid[0 : int(H * tpm), 0 : int(W * tpm)]
     da = ((xs + 0.5) / tpm + pitch / 2) % pitch - pitch / 2
     db = ((ys + 0.5) / tpm + pitch / 2) % pitch - pitch / 2
-    tex = (30 + 200 * np.exp(-(da ** 2 + db ** 2) / (2 * sig ** 2))).astype(np.uint8)
-    scene = load_scene({"name": "blobs",
-                        "viewpoint": {"position": [0, 0, 1.5], "look_at": [3, 0, 1.5]},
-                        "quads": [{"name": "wall", "origin": [3, 1.5, 2.5], "u": [0, -1, 0],
-                                   "v": [0, 0, -1], "size": [W, H],
-                                   "texture": {"array": tex}}]})
+    tex = (30 + 200 * np.exp(-(da**2 + db**2) / (2 * sig**2))).astype(np.uint8)
+    scene = load_scene(
+        {
+            "name": "blobs",
+            "viewpoint": {"position": [0, 0, 1.5], "look_at": [3, 0, 1.5]},
+            "quads": [
+                {
+                    "name": "wall",
+                    "origin": [3, 1.5, 2.5],
+                    "u": [0, -1, 0],
+                    "v": [0, 0, -1],
+                    "size": [W, H],
+                    "texture": {"array": tex},
+                }
+            ],
+        }
+    )
     camera = camera_preset("vga")
     motion = make_motion("shake", scene, duration=2.0)
     img = Renderer(scene, camera).render_image(motion, T_FRAME).mean(axis=2) - 30.0
@@ -77,11 +96,11 @@ def test_texture_blob_centroids_match_projection():
     ok &= camera.in_image(uv, margin=-14)
     assert ok.sum() > 100
     R = 11
-    vv, uu = np.mgrid[-R:R + 1, -R:R + 1]
+    vv, uu = np.mgrid[-R : R + 1, -R : R + 1]
     err = []
     for p in uv[ok]:
         u0, v0 = int(round(p[0])), int(round(p[1]))
-        patch = img[v0 - R:v0 + R + 1, u0 - R:u0 + R + 1]
+        patch = img[v0 - R : v0 + R + 1, u0 - R : u0 + R + 1]
         c = np.array([(patch * uu).sum(), (patch * vv).sum()]) / patch.sum() + [u0, v0]
         err.append(np.linalg.norm(c - p))
     assert np.max(err) < 0.1 and np.median(err) < 0.03
@@ -89,8 +108,9 @@ def test_texture_blob_centroids_match_projection():
 
 def test_zero_line_delay_reproduces_global_shutter(room):
     scene, camera, motion, _ = room
-    gs_cam = CameraModel(K=camera.K, D=camera.D, width=camera.width, height=camera.height,
-                         line_delay=0.0)
+    gs_cam = CameraModel(
+        K=camera.K, D=camera.D, width=camera.width, height=camera.height, line_delay=0.0
+    )
     r0 = Renderer(scene, gs_cam)
     rolling = r0.render_image(motion, T_FRAME, "rolling")
     glob = r0.render_image(motion, T_FRAME, "global")
@@ -135,7 +155,7 @@ def test_rays_follow_lens_distortion():
 def test_scenes_and_motions(tmp_path):
     assert {"aruco_room", "textured_room"} <= set(scene_names())
     sc = load_scene("aruco_room")
-    ids, X = sc.marker_corner_points()
+    ids, _X = sc.marker_corner_points()
     assert len(sc.markers) >= 100 and len(np.unique(ids)) == len(ids)
     assert set(ids % 4) == {0, 1, 2, 3}
     # marker corners lie on their quad's plane; ArUco order TL, TR, BR, BL along u, v
@@ -152,15 +172,29 @@ def test_scenes_and_motions(tmp_path):
     d, corners = load_marker_map(tmp_path / "m.yaml")
     assert d == sc.dictionary and np.allclose(corners[5], sc.marker_corners()[5], atol=1e-6)
     with pytest.raises(ValueError):
-        load_scene({"quads": [{"origin": [0, 0, 0], "u": [1, 0, 0], "v": [1, 1, 0],
-                               "size": [1, 1]}]})
+        load_scene(
+            {"quads": [{"origin": [0, 0, 0], "u": [1, 0, 0], "v": [1, 1, 0], "size": [1, 1]}]}
+        )
     with pytest.raises(ValueError):
-        load_scene({"quads": [{"name": "a", "origin": [0, 0, 0], "u": [1, 0, 0],
-                               "v": [0, 0, -1], "size": [2, 2]}],
-                    "markers": {"placements": [{"id": 1, "quad": "a", "at": [0.5, 0.5],
-                                                "size": 0.2},
-                                               {"id": 1, "quad": "a", "at": [1.2, 0.5],
-                                                "size": 0.2}]}})
+        load_scene(
+            {
+                "quads": [
+                    {
+                        "name": "a",
+                        "origin": [0, 0, 0],
+                        "u": [1, 0, 0],
+                        "v": [0, 0, -1],
+                        "size": [2, 2],
+                    }
+                ],
+                "markers": {
+                    "placements": [
+                        {"id": 1, "quad": "a", "at": [0.5, 0.5], "size": 0.2},
+                        {"id": 1, "quad": "a", "at": [1.2, 0.5], "size": 0.2},
+                    ]
+                },
+            }
+        )
     for name in motion_names():
         m = make_motion(name, sc, duration=1.0)
         w, v = m.velocity_body(np.linspace(0, 1, 7))
@@ -175,19 +209,23 @@ def test_render_bag_roundtrip(tmp_path):
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.cli.render_bag import render_bag
+    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.pointcloud import read_correspondences
 
     bag = render_bag(tmp_path / "bag", "aruco_room", "shake", 3, mono=True, supersample=1)
     ts = get_typestore(Stores.ROS2_JAZZY)
     msgs = {}
     with Reader(bag) as r:
-        for conn, t, raw in r.messages():
+        for conn, _t, raw in r.messages():
             msgs.setdefault(conn.topic, []).append(ts.deserialize_cdr(raw, conn.msgtype))
     assert {k: len(v) for k, v in msgs.items()} == {
-        "/camera/image_raw": 3, "/camera/camera_info": 3, "/camera/correspondences": 3,
-        "/ground_truth/pose": 3, "/ground_truth/twist": 3}
+        "/camera/image_raw": 3,
+        "/camera/camera_info": 3,
+        "/camera/correspondences": 3,
+        "/ground_truth/pose": 3,
+        "/ground_truth/twist": 3,
+    }
     img, enc = image_from_msg(msgs["/camera/image_raw"][1])
     assert img.shape == (480, 640) and enc == "mono8"
     c = read_correspondences(msgs["/camera/correspondences"][1])
@@ -225,7 +263,9 @@ def test_exposure_blur(room):
     sharp = Renderer(scene, camera, supersample=1).render_image(motion, T_FRAME)
     blur = Renderer(scene, camera, supersample=1, exposure=0.01).render_image(motion, T_FRAME)
     assert abs(sharp.mean() - blur.mean()) < 2.0
+
     # motion blur removes high-frequency energy
     def energy(img):
         return (np.diff(img, axis=0) ** 2).mean() + (np.diff(img, axis=1) ** 2).mean()
+
     assert energy(blur) < 0.8 * energy(sharp)

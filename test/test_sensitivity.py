@@ -34,8 +34,12 @@ def test_sensitivity_matches_finite_differences():
         beta = -s * s * np.asarray(alpha)
         b = np.cross(beta, C) - s * s * np.asarray(a)
         rot = rotvec_to_matrix(tau[:, None] * w + 0.5 * tau[:, None] ** 2 * beta)
-        p = np.einsum("nij,nj->ni", rot, X @ R.T) + C + tau[:, None] * t \
+        p = (
+            np.einsum("nij,nj->ni", rot, X @ R.T)
+            + C
+            + tau[:, None] * t
             + 0.5 * tau[:, None] ** 2 * b
+        )
         return p[:, :2] / p[:, 2:]
 
     th = 2.0 / 1000.0
@@ -48,8 +52,17 @@ def test_sensitivity_matches_finite_differences():
         x = observe(acc[:3], acc[3:])
         ref = refine_rs_pose(R, C, w, t, X, x, tau, th, max_iterations=30, tol=1e-15)
         out = _outputs(ref.R, ref.C, ref.w, ref.t, s)
-        d = np.concatenate([matrix_to_rotvec(out[0] @ base[0].T), out[1] - base[1],
-                            out[2] - base[2], out[3] - base[3]]) / 2.0
+        d = (
+            np.concatenate(
+                [
+                    matrix_to_rotvec(out[0] @ base[0].T),
+                    out[1] - base[1],
+                    out[2] - base[2],
+                    out[3] - base[3],
+                ]
+            )
+            / 2.0
+        )
         np.testing.assert_allclose(d, G[:, j], rtol=0.02, atol=1e-3 * np.abs(G[:, j]).max())
     # an angular acceleration moves the estimate measurably (the reason the filter models it)
     assert np.abs(G[6:9, :3]).max() > 1e-3 and np.abs(G[9:12, :3]).max() > 1e-3
@@ -57,8 +70,7 @@ def test_sensitivity_matches_finite_differences():
 
 def test_estimator_returns_it_on_request():
     traj = make_trajectory("shake")
-    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=8, seed=5),
-                                          trajectory=traj)
+    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=8, seed=5), trajectory=traj)
     f = frames[1]
     plain = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
     assert plain.acceleration_sensitivity is None
@@ -76,16 +88,21 @@ def test_estimator_returns_it_on_request():
         alpha = (traj.velocity_body(t_ref + h)[0] - traj.velocity_body(t_ref - h)[0]) / (2 * h)
         G = est.acceleration_sensitivity
         raw.append(np.linalg.norm(est.angular_velocity - f.angular_velocity))
-        corrected.append(np.linalg.norm(est.angular_velocity - G[6:9, :3] @ alpha
-                                        - f.angular_velocity))
+        corrected.append(
+            np.linalg.norm(est.angular_velocity - G[6:9, :3] @ alpha - f.angular_velocity)
+        )
     assert np.median(corrected) < 0.7 * np.median(raw)
 
 
 @pytest.mark.parametrize("n", [0])
 def test_degenerate_input_gives_none(n):
     z = np.zeros(3)
-    assert acceleration_sensitivity(np.eye(3), z, z, z, np.zeros((n, 3)), np.zeros((n, 2)),
-                                    np.zeros(n), 0.03, 1e-3) is None
+    assert (
+        acceleration_sensitivity(
+            np.eye(3), z, z, z, np.zeros((n, 3)), np.zeros((n, 2)), np.zeros(n), 0.03, 1e-3
+        )
+        is None
+    )
 
 
 @pytest.mark.parametrize("max_iterations", [0, 1, 10])
@@ -108,15 +125,39 @@ def test_refinement_block_equals_a_separate_pass(max_iterations):
     x = p[:, :2] / p[:, 2:] + rng.normal(0, 1.5e-3, (n, 2))
     x[:20] += 0.05  # outliers beyond the cutoff
     th = 2e-3
-    ref = refine_rs_pose(R, C, w, t, X, x, tau, th, max_iterations=max_iterations,
-                         cutoff=5 * th, acceleration_block=True)
+    ref = refine_rs_pose(
+        R,
+        C,
+        w,
+        t,
+        X,
+        x,
+        tau,
+        th,
+        max_iterations=max_iterations,
+        cutoff=5 * th,
+        acceleration_block=True,
+    )
     B = ref.acceleration_block
     assert B.shape == (12, 6)
     Hinv = ref.covariance / ref.sigma**2
-    fast = acceleration_sensitivity(ref.R, ref.C, ref.w, ref.t, X, x, tau, s, th,
-                                    cutoff=5 * th, normal_inverse=Hinv, acceleration_block=B)
-    slow = acceleration_sensitivity(ref.R, ref.C, ref.w, ref.t, X, x, tau, s, th,
-                                    cutoff=5 * th, normal_inverse=Hinv)
+    fast = acceleration_sensitivity(
+        ref.R,
+        ref.C,
+        ref.w,
+        ref.t,
+        X,
+        x,
+        tau,
+        s,
+        th,
+        cutoff=5 * th,
+        normal_inverse=Hinv,
+        acceleration_block=B,
+    )
+    slow = acceleration_sensitivity(
+        ref.R, ref.C, ref.w, ref.t, X, x, tau, s, th, cutoff=5 * th, normal_inverse=Hinv
+    )
     np.testing.assert_allclose(fast, slow, rtol=1e-9, atol=1e-12 * np.abs(slow).max())
     # independent: J^T W D with J from finite differences of the exact residuals, Huber
     # weights on the image distance, points beyond the cutoff left out
@@ -129,9 +170,10 @@ def test_refinement_block_equals_a_separate_pass(max_iterations):
     for j in range(12):
         d = np.zeros(12)
         d[j] = h
-        J[:, j] = (exact_residuals(theta0 + d, ref.R, X, x, tau)
-                   - exact_residuals(theta0 - d, ref.R, X, x, tau)) / (2 * h)
+        J[:, j] = (
+            exact_residuals(theta0 + d, ref.R, X, x, tau)
+            - exact_residuals(theta0 - d, ref.R, X, x, tau)
+        ) / (2 * h)
     W = np.repeat(wgt, 2)
     D = 0.5 * np.repeat(tau, 2)[:, None] * J[:, 6:12]
-    np.testing.assert_allclose(B, (J * W[:, None]).T @ D, rtol=1e-5,
-                               atol=1e-6 * np.abs(B).max())
+    np.testing.assert_allclose(B, (J * W[:, None]).T @ D, rtol=1e-5, atol=1e-6 * np.abs(B).max())

@@ -20,8 +20,10 @@ def test_repo_file_finds_the_ament_share(tmp_path, monkeypatch):
     assert process.repo_file("config", "only_installed.yaml") == cfg
     assert process.repo_file("config", "nowhere.yaml") is None
     # the source tree's own files still come first (next to the package)
-    assert process.repo_file("config", "rs_localizer.yaml") == \
-        Path(process.__file__).resolve().parents[2] / "config" / "rs_localizer.yaml"
+    assert (
+        process.repo_file("config", "rs_localizer.yaml")
+        == Path(process.__file__).resolve().parents[2] / "config" / "rs_localizer.yaml"
+    )
 
 
 def test_share_dirs_of_a_venv_install():

@@ -28,8 +28,12 @@ def test_feature_map_shared_by_two_frontends(tmp_path):
     from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
 
     rng = np.random.default_rng(0)
-    fm = FeatureMap(rng.normal(size=(50, 3)), rng.integers(0, 256, (50, 32), dtype=np.uint8),
-                    np.arange(50, dtype=np.int64), "orb")
+    fm = FeatureMap(
+        rng.normal(size=(50, 3)),
+        rng.integers(0, 256, (50, 32), dtype=np.uint8),
+        np.arange(50, dtype=np.int64),
+        "orb",
+    )
     path = fm.save(tmp_path / "map.npz")
     cache = MapCache()
     a, b = cache.frontend("features", path), cache.frontend("features", str(path))
@@ -71,14 +75,14 @@ def test_owners_hold_and_release():
     cache.frontend("aruco", "aruco_room", owner=b)
     assert cache.loads == 1 and len(cache) == 1
     cache.release(a)
-    assert len(cache) == 1          # b still holds it
+    assert len(cache) == 1  # b still holds it
     cache.frontend("aruco", "aruco_room", owner=a)
     assert cache.loads == 1
     cache.release(a)
     cache.release(b)
-    assert len(cache) == 0          # nobody holds it: gone
+    assert len(cache) == 0  # nobody holds it: gone
     cache.frontend("aruco", "aruco_room", owner=a)
-    assert cache.loads == 2         # loaded again
+    assert cache.loads == 2  # loaded again
 
 
 def test_a_new_map_replaces_the_owners_old_one(tmp_path):
@@ -92,4 +96,4 @@ def test_a_new_map_replaces_the_owners_old_one(tmp_path):
     cache.landmarks(p2, owner=owner)  # p1 no longer held by anyone
     assert len(cache) == 2 and cache.landmarks(p2)[0][0] == 2
     cache.release(owner)
-    assert len(cache) == 1            # p2 stays: pinned by the owner-less call above
+    assert len(cache) == 1  # p2 stays: pinned by the owner-less call above

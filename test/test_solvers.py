@@ -3,16 +3,38 @@
 import numpy as np
 import pytest
 
-from rs_localizer.geometry import rotation_angle_deg, rs_project_first_order, rs_project_linear, skew
-from rs_localizer.solvers import (DegenerateInputError, p3p, p3p_opencv, r6p, r6p_1lin,
-                                  r6p_1lin_batch, r6p_joined, r6p_vC_wt, r6p_vC_wt_batch,
-                                  r6p_vCt_w, r6p_vCt_w_batch, r6p_vCt_wt, r6p_vCt_wt_batch, r9p,
-                                  r9p_batch)
+from rs_localizer.geometry import (
+    rotation_angle_deg,
+    rs_project_first_order,
+    rs_project_linear,
+    skew,
+)
 from rs_localizer.sim.synthetic import make_frame
+from rs_localizer.solvers import (
+    DegenerateInputError,
+    p3p,
+    p3p_opencv,
+    r6p,
+    r6p_1lin,
+    r6p_1lin_batch,
+    r6p_joined,
+    r6p_vC_wt,
+    r6p_vC_wt_batch,
+    r6p_vCt_w,
+    r6p_vCt_w_batch,
+    r6p_vCt_wt,
+    r6p_vCt_wt_batch,
+    r9p,
+    r9p_batch,
+)
 
 ITERATIVE = [r6p_1lin, r6p_vC_wt, r6p_vCt_w, r6p_vCt_wt]
-BATCHED = {r6p_1lin: r6p_1lin_batch, r6p_vC_wt: r6p_vC_wt_batch, r6p_vCt_w: r6p_vCt_w_batch,
-           r6p_vCt_wt: r6p_vCt_wt_batch}
+BATCHED = {
+    r6p_1lin: r6p_1lin_batch,
+    r6p_vC_wt: r6p_vC_wt_batch,
+    r6p_vCt_w: r6p_vCt_w_batch,
+    r6p_vCt_wt: r6p_vCt_wt_batch,
+}
 
 
 def eq5_instance(rng, n=6, w_mag=0.3, t_mag=0.1, r0=0.0, v_mag=0.1):
@@ -76,7 +98,12 @@ def test_r6p_1lin_matches_closest_r6p_root():
         assert rel_err(lin, v, C, w, t) < 1e-7
         roots = r6p(x, X, r, 0.1)
         closest = min(roots, key=lambda s: np.linalg.norm(np.r_[s.v - lin.v, s.w - lin.w]))
-        for a, b in [(lin.v, closest.v), (lin.C, closest.C), (lin.w, closest.w), (lin.t, closest.t)]:
+        for a, b in [
+            (lin.v, closest.v),
+            (lin.C, closest.C),
+            (lin.w, closest.w),
+            (lin.t, closest.t),
+        ]:
             np.testing.assert_allclose(a, b, atol=1e-7)
 
 
@@ -153,7 +180,7 @@ def test_r9p_gauge_fix_keeps_t_determined_near_global_shutter():
     rng = np.random.default_rng(31)
     raw_err, fix_err = [], []
     for _ in range(30):
-        x, X, r, v, C, w, t = eq5_instance(rng, n=30, w_mag=0.005, t_mag=0.002)
+        x, X, r, _v, _C, _w, t = eq5_instance(rng, n=30, w_mag=0.005, t_mag=0.002)
         xn = x + rng.normal(scale=1e-3, size=x.shape)
         a, b = r9p(xn, X, r, gauge_fix=False), r9p(xn, X, r)
         np.testing.assert_allclose(a.w, b.w, atol=1e-12)
@@ -167,11 +194,13 @@ def test_r9p_gauge_fix_keeps_t_determined_near_global_shutter():
 
 def test_joined_picks_the_better_solver():
     rng = np.random.default_rng(4)
-    f = make_frame(rng, 40, translation_only=True, trans_per_frame=0.3, noise_px=1.0,
-                   angle_from_identity=0.0)
+    f = make_frame(
+        rng, 40, translation_only=True, trans_per_frame=0.3, noise_px=1.0, angle_from_identity=0.0
+    )
     j = r6p_joined(f.x, f.X)
     a, b = r6p_vCt_w(f.x, f.X), r6p_1lin(f.x, f.X)
     from rs_localizer.solvers.joined import rs_reprojection_rmse
+
     ea, eb = rs_reprojection_rmse(a, f.x, f.X), rs_reprojection_rmse(b, f.x, f.X)
     winner = a if ea <= eb else b
     np.testing.assert_allclose(j.v, winner.v)
@@ -236,8 +265,12 @@ def test_p3p_batch_contains_ground_truth(backend, monkeypatch):
         assert min(rotation_angle_deg(Rm, f.R) for Rm in R[mine]) < 1e-5
 
 
-BAD_SHAPES = [(np.zeros((6, 3)), np.zeros((6, 3))), (np.zeros((6, 2)), np.zeros((5, 3))),
-              (np.zeros((5, 2)), np.zeros((5, 3))), (np.zeros(12), np.zeros(18))]
+BAD_SHAPES = [
+    (np.zeros((6, 3)), np.zeros((6, 3))),
+    (np.zeros((6, 2)), np.zeros((5, 3))),
+    (np.zeros((5, 2)), np.zeros((5, 3))),
+    (np.zeros(12), np.zeros(18)),
+]
 
 
 @pytest.mark.parametrize("solver", ITERATIVE + [r6p_joined, r9p])

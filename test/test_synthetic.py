@@ -16,7 +16,7 @@ def test_frame_follows_the_protocol():
     # 30 deg and 0.3 units over the frame height 2 tan(22.5 deg)
     assert np.degrees(np.linalg.norm(f.w)) * 2 * HALF_TAN == pytest.approx(30.0)
     assert np.linalg.norm(f.t) * 2 * HALF_TAN == pytest.approx(0.3)
-    x, r = rs_project_exact(f.X, f.R, f.C, f.w, f.t, f.r0)
+    x, _r = rs_project_exact(f.X, f.R, f.C, f.w, f.t, f.r0)
     np.testing.assert_allclose(x, f.x, atol=1e-12)  # noise-free: exact model, r = y
     np.testing.assert_allclose(f.r, f.x[:, 1])
     np.testing.assert_allclose(f.points_px, f.x * FOCAL_PX + (1000 - 1) / 2)

@@ -8,11 +8,14 @@ import pytest
 
 from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, estimate_rs_pose
 from rs_localizer.estimation.fusion import FusionOptions
-from rs_localizer.estimation.tracker import (RSTracker, TrackerOptions, model_from_state,
-                                             motion_prior_from_state)
+from rs_localizer.estimation.tracker import (
+    RSTracker,
+    TrackerOptions,
+    model_from_state,
+    motion_prior_from_state,
+)
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.trajectory import (SequenceConfig, Teleport, generate_sequence,
-                                         make_trajectory)
+from rs_localizer.sim.trajectory import SequenceConfig, Teleport, generate_sequence, make_trajectory
 
 PERIOD = 1 / 30
 
@@ -20,8 +23,7 @@ PERIOD = 1 / 30
 @pytest.fixture(scope="module")
 def hard_sequence():
     """The paper's protocol in a video: 1 px noise, 30 % outliers."""
-    return generate_sequence(SequenceConfig(num_frames=12, seed=4, noise_px=1.0,
-                                            outlier_ratio=0.3))
+    return generate_sequence(SequenceConfig(num_frames=12, seed=4, noise_px=1.0, outlier_ratio=0.3))
 
 
 def test_initial_model_hook(hard_sequence):
@@ -33,18 +35,26 @@ def test_initial_model_hook(hard_sequence):
     # a model near the truth explains the frame: RANSAC verifies it with few samples drawn
     # from its inliers, pre-rotated by its rotation (no P3P) and lands on the cold pose
     R, C = cold.R, cold.C
-    near = InitialModel(rotvec_to_matrix([0.002, -0.001, 0.001]) @ R, C + 0.01, cold.w,
-                        cold.t, gate_px=20.0, min_explained=200)
-    warm = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0, min_iterations=0),
-                            initial_model=near)
+    near = InitialModel(
+        rotvec_to_matrix([0.002, -0.001, 0.001]) @ R,
+        C + 0.01,
+        cold.w,
+        cold.t,
+        gate_px=20.0,
+        min_explained=200,
+    )
+    warm = estimate_rs_pose(
+        f.uv, f.xyz, cam, options=EstimateOptions(seed=0, min_iterations=0), initial_model=near
+    )
     assert warm.success and warm.initial_used and warm.initial_explained >= 300
     assert warm.ransac_iterations < 0.25 * cold.ransac_iterations
     assert rotation_angle_deg(warm.orientation, cold.orientation) < 0.01
     assert np.linalg.norm(warm.position - cold.position) < 2e-3
     assert np.count_nonzero(warm.inliers != cold.inliers) <= 15  # of ~300, near the threshold
     # a wrong model explains nothing: the estimator runs exactly as without it
-    far = InitialModel(rotvec_to_matrix([0.0, 1.0, 0.0]) @ R, C + 3.0, gate_px=20.0,
-                       min_explained=50)
+    far = InitialModel(
+        rotvec_to_matrix([0.0, 1.0, 0.0]) @ R, C + 3.0, gate_px=20.0, min_explained=50
+    )
     other = estimate_rs_pose(f.uv, f.xyz, cam, options=opts, initial_model=far)
     assert not other.initial_used and other.initial_explained < 10
     np.testing.assert_array_equal(other.R, cold.R)
@@ -79,14 +89,16 @@ def test_tracked_frames_match_cold_accuracy(hard_sequence):
     # subset) can be beaten by a verification sample, which asks for a second batch
     assert np.median(iters_t) <= 16 and np.median(iters_c) > 100
     assert max(iters_t) <= 48 and all(t < 0.25 * c for t, c in zip(iters_t, iters_c)), (
-        iters_t, iters_c)
+        iters_t,
+        iters_c,
+    )
 
 
 def test_teleport_jump_back_drops_and_bad_frames():
     traj = Teleport(make_trajectory("walk"), time=12 * PERIOD - 0.25 * PERIOD)
-    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=16, seed=2,
-                                                         drop_frames=(5, 6)),
-                                          trajectory=traj)
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)), trajectory=traj
+    )
     assert [f.index for f in frames] == [k for k in range(16) if k not in (5, 6)]
     tr = RSTracker(options=EstimateOptions(seed=0))
     by_index = {f.index: f for f in frames}
@@ -130,8 +142,10 @@ def test_teleport_jump_back_drops_and_bad_frames():
 def test_state_model_roundtrip_and_prior(hard_sequence):
     frames, _, cam, _ = hard_sequence
     # (maximum likelihood: the filter starts at the estimate itself, no prior to take out)
-    tr = RSTracker(options=EstimateOptions(seed=0, motion_prior=None),
-                   tracker_options=TrackerOptions(fusion=FusionOptions(lag=0)))
+    tr = RSTracker(
+        options=EstimateOptions(seed=0, motion_prior=None),
+        tracker_options=TrackerOptions(fusion=FusionOptions(lag=0)),
+    )
     r = tr.process(frames[0].t_ref_ns, frames[0].uv, frames[0].xyz, cam)
     e = r.estimate
     R, C, w, t = model_from_state(r.fused, cam)
@@ -141,8 +155,9 @@ def test_state_model_roundtrip_and_prior(hard_sequence):
     np.testing.assert_allclose(w, e.w, atol=1e-12)
     np.testing.assert_allclose(t, e.t, atol=1e-9)
     prior = motion_prior_from_state(r.fused, inflation=2.0)
-    np.testing.assert_allclose(prior.mean_vector(),
-                               np.concatenate([e.linear_velocity, e.angular_velocity]))
+    np.testing.assert_allclose(
+        prior.mean_vector(), np.concatenate([e.linear_velocity, e.angular_velocity])
+    )
     np.testing.assert_allclose(prior.covariance, 2.0 * r.fused.twist_covariance, rtol=1e-12)
     assert prior.always and np.all(np.linalg.eigvalsh(prior.covariance) > 0)
 

@@ -5,7 +5,14 @@ import pytest
 
 from rs_localizer.geometry import matrix_to_rotvec
 from rs_localizer.maps import load_landmarks_csv, save_landmarks_csv
-from rs_localizer.sim.trajectory import (SequenceConfig, Trajectory, default_camera, generate_sequence, make_scene, project_rs)
+from rs_localizer.sim.trajectory import (
+    SequenceConfig,
+    Trajectory,
+    default_camera,
+    generate_sequence,
+    make_scene,
+    project_rs,
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +37,7 @@ def test_frames_shape_and_outliers(seq):
         assert f.t_ref_ns - f.stamp_ns == pytest.approx(359.5 * 30e-6 * 1e9, abs=2)
         # noise level of the inliers
         e = np.linalg.norm(f.uv[f.inlier] - f.uv_clean[f.inlier], axis=1)
-        assert 0.3 < np.sqrt(np.mean(e ** 2) / 2) < 0.7
+        assert 0.3 < np.sqrt(np.mean(e**2) / 2) < 0.7
     assert len(set(frames[0].ids)) == 300  # distinct landmarks
 
 
@@ -52,7 +59,7 @@ def test_exact_row_constraint(seq):
 
 def test_ground_truth_velocity_matches_finite_motion(seq):
     """Angular/linear velocity (camera frame) predict the pose a few ms later."""
-    _, _, cam, traj = seq
+    _, _, _cam, traj = seq
     t, dt = 0.1234, 1e-3
     R, _ = traj.pose(t)
     w, v = traj.velocity_body(t)

@@ -20,11 +20,11 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, start_node, stop_node  # noqa: E402
-from test_viz import K, _frame  # noqa: E402
+from conftest import Probe, start_node, stop_node
+from test_viz import K, _frame
 
-from rs_localizer.camera import CameraModel  # noqa: E402
-from rs_localizer.viz import COLORS  # noqa: E402
+from rs_localizer.camera import CameraModel
+from rs_localizer.viz import COLORS
 
 TEXT_BAND_PX = 100  # rows of the text band at 1280 px width (the labels under it are skipped)
 
@@ -54,10 +54,11 @@ def _far_corners_back_to_image(markers_points, orientation, position, camera):
 
 
 def test_marker_array_against_the_pose():
+    from visualization_msgs.msg import Marker
+
     from rs_localizer.ros.bag_io import _typestore
     from rs_localizer.ros.replay import _cdr
     from rs_localizer.ros.visualization import marker_array
-    from visualization_msgs.msg import Marker
 
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
     _, X, est, _ = _frame(cam)
@@ -77,8 +78,10 @@ def test_marker_array_against_the_pose():
     rays = np.c_[px, np.ones(4)] @ np.linalg.inv(K).T * 0.8
     np.testing.assert_allclose(P[1:8:2], rays @ est.orientation.T + est.position, atol=1e-9)
     np.testing.assert_allclose(P[9::2], np.roll(P[1:8:2], -1, axis=0), atol=1e-12)
-    for ns, vel in (("angular_velocity", est.angular_velocity),
-                    ("linear_velocity", est.linear_velocity)):
+    for ns, vel in (
+        ("angular_velocity", est.angular_velocity),
+        ("linear_velocity", est.linear_velocity),
+    ):
         a = m[ns]
         assert a.type == Marker.ARROW and len(a.points) == 2 and a.scale.x > 0
         s, e = (np.array([p.x, p.y, p.z]) for p in a.points)
@@ -95,8 +98,9 @@ def test_marker_array_against_the_pose():
     assert m2["angular_velocity"].action == Marker.DELETE
     # the messages survive a bag round trip (rosbags typestore)
     ts = _typestore()
-    back = ts.deserialize_cdr(_cdr(ma, "visualization_msgs/msg/MarkerArray", ts),
-                              "visualization_msgs/msg/MarkerArray")
+    back = ts.deserialize_cdr(
+        _cdr(ma, "visualization_msgs/msg/MarkerArray", ts), "visualization_msgs/msg/MarkerArray"
+    )
     assert len(back.markers[3].points) == est.num_inliers
 
 
@@ -119,8 +123,9 @@ def test_built_only_when_subscribed(ros_context):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rs_localizer.ros.visualization import NodeVisualization
     from sensor_msgs.msg import Image
+
+    from rs_localizer.ros.visualization import NodeVisualization
 
     node = rclpy.create_node("viz_gate", namespace="/gate", context=ros_context)
     viz = NodeVisualization(node)
@@ -131,6 +136,7 @@ def test_built_only_when_subscribed(ros_context):
         def counted(*a, name=name, fn=fn, **k):
             built[name] += 1
             return fn(*a, **k)
+
         setattr(viz.builder, name, counted)
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
     uv, X, est, _ = _frame(cam)
@@ -140,8 +146,12 @@ def test_built_only_when_subscribed(ros_context):
 
     listener = rclpy.create_node("viz_listener", context=ros_context)
     got = []
-    listener.create_subscription(Image, "/gate/debug_image", got.append,
-                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
+    listener.create_subscription(
+        Image,
+        "/gate/debug_image",
+        got.append,
+        QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE),
+    )
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     ex.add_node(listener)
@@ -173,6 +183,7 @@ def test_built_only_when_subscribed(ros_context):
 
         def broken(*a, **k):
             raise ValueError("drawing failed")
+
         viz.builder.debug_image = broken  # logged, not raised: the frame is not lost
         viz.publish(est, uv, X, cam, 8000, 9000, "cam", "map")
         assert len(viz.builder.poses) == 4
@@ -198,8 +209,12 @@ def test_node_publishes_visualization(tmp_path, ros_context):
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
     frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=4, num_points=500, seed=7))
-    node = start_node(tmp_path, {"viz.frustum_depth": 0.7, "diagnostics_period": 0.2},
-                      namespace="/viz", name="viz")
+    node = start_node(
+        tmp_path,
+        {"viz.frustum_depth": 0.7, "diagnostics_period": 0.2},
+        namespace="/viz",
+        name="viz",
+    )
     probe = Probe(ros_context, namespace="/viz")
     got = {"debug_image": [], "markers": [], "path": []}
     qos = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
@@ -211,11 +226,13 @@ def test_node_publishes_visualization(tmp_path, ros_context):
         probe.pub_info.publish(camera_info_msg(cam, "cam", frames[0].stamp_ns))
         probe.wait_diag(lambda v: v.get("camera") == "camera_info")
         for k, f in enumerate(frames):
-            probe.pub_corr.publish(pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam",
-                                                           stamp=f.stamp_ns))
+            probe.pub_corr.publish(
+                pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam", stamp=f.stamp_ns)
+            )
             assert probe.wait_pose(f.t_ref_ns, timeout=20) is not None, node.log
-            assert probe.wait(lambda: all(len(v) > k for v in got.values())), \
-                {n: len(v) for n, v in got.items()}
+            assert probe.wait(lambda: all(len(v) > k for v in got.values())), {
+                n: len(v) for n, v in got.items()
+            }
             pose = probe.pose_near(f.t_ref_ns)
             R, p = pose_from_msg(pose.pose)
             assert rotation_angle_deg(R, f.orientation) < 0.2
@@ -231,8 +248,9 @@ def test_node_publishes_visualization(tmp_path, ros_context):
             apex = fr.points[0]
             np.testing.assert_allclose([apex.x, apex.y, apex.z], p, atol=1e-9)
             back = _far_corners_back_to_image(fr.points, R, p, cam)
-            np.testing.assert_allclose(back, [[-0.5, -0.5], [1279.5, -0.5], [1279.5, 719.5],
-                                              [-0.5, 719.5]], atol=1e-3)
+            np.testing.assert_allclose(
+                back, [[-0.5, -0.5], [1279.5, -0.5], [1279.5, 719.5], [-0.5, 719.5]], atol=1e-3
+            )
             far = np.array([[q.x, q.y, q.z] for q in fr.points[1:8:2]])
             np.testing.assert_allclose((far - p) @ R[:, 2], 0.7, atol=1e-9)  # viz.frustum_depth
             inl = next(m for m in ma.markers if m.ns == "inliers")
@@ -253,10 +271,10 @@ def labelled_bag(tmp_path_factory):
     from rs_localizer.ros.bag_io import write_sequence_bag
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
-    frames, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=500,
-                                                             seed=11))
-    path = write_sequence_bag(tmp_path_factory.mktemp("viz_bag") / "bag", frames, scene, cam,
-                              keypoints=False)
+    frames, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=500, seed=11))
+    path = write_sequence_bag(
+        tmp_path_factory.mktemp("viz_bag") / "bag", frames, scene, cam, keypoints=False
+    )
     return path, frames, cam
 
 
@@ -275,8 +293,19 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
 
     bag, frames, cam = labelled_bag
     out = tmp_path / "out"
-    rc = cli(["replay", str(bag), "--out", str(out), "--debug-outputs", "--path-length", "2",
-              "--json", "--quiet"])
+    rc = cli(
+        [
+            "replay",
+            str(bag),
+            "--out",
+            str(out),
+            "--debug-outputs",
+            "--path-length",
+            "2",
+            "--json",
+            "--quiet",
+        ]
+    )
     cap = capsys.readouterr()
     assert rc == 0, cap.err
     summary = json.loads(cap.out)  # --json: stdout is the JSON and nothing else
@@ -300,21 +329,23 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
         R, p = pose_from_msg(pose.pose)
         fr = next(m for m in ma.markers if m.ns == "frustum")
         back = _far_corners_back_to_image(fr.points, R, p, cam)
-        np.testing.assert_allclose(back, [[-0.5, -0.5], [1279.5, -0.5], [1279.5, 719.5],
-                                          [-0.5, 719.5]], atol=1e-3)
+        np.testing.assert_allclose(
+            back, [[-0.5, -0.5], [1279.5, -0.5], [1279.5, 719.5], [-0.5, 719.5]], atol=1e-3
+        )
         assert stamp_to_ns(path.poses[-1].header.stamp) == stamp_to_ns(pose.header.stamp)
     assert [len(p.poses) for p in paths] == [1, 2, 2]  # --path-length 2
     # export-image writes the bag's image as PNG (full colour: the same pixels)
     import cv2
 
     assert cli(["export-image", str(out), str(tmp_path / "d.png"), "--index", "1"]) == 0
-    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png")),
-                                  image_from_msg(images[1])[0])
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png")), image_from_msg(images[1])[0])
     assert cli(["export-image", str(out), str(tmp_path / "p.png"), "--colors", "16"]) == 0
     assert cv2.imread(str(tmp_path / "p.png")).shape == (720, 1280, 3)
     assert cli(["export-image", str(out), str(tmp_path / "x.png"), "--index", "3"]) == 2
-    assert cli(["export-image", str(out), str(tmp_path / "x.png"), "--topic",
-                "/rs_localizer/pose"]) == 2
+    assert (
+        cli(["export-image", str(out), str(tmp_path / "x.png"), "--topic", "/rs_localizer/pose"])
+        == 2
+    )
     # without --debug-outputs: no visualization topics
     rc = cli(["replay", str(bag), "--out", str(tmp_path / "plain"), "--quiet"])
     assert rc == 0 and "/rs_localizer/debug_image" not in bag_topics(tmp_path / "plain")
@@ -326,14 +357,16 @@ def test_replay_draws_on_the_bag_images(sample_images_bag, tmp_path):
     """An image bag (render-bag): the debug image is the bag's image of the same stamp,
     dimmed to 0.7, under the overlay."""
     import cv2
+
     from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.replay import replay
 
-    res = replay(sample_images_bag, out_bag=tmp_path / "out", debug_outputs=True,
-                 progress=None)
+    res = replay(sample_images_bag, out_bag=tmp_path / "out", debug_outputs=True, progress=None)
     assert res.solved == 20
-    raw = {im.header.stamp.sec * 10**9 + im.header.stamp.nanosec: image_from_msg(im)[0]
-           for im in _topic_messages(sample_images_bag, "/camera/image_raw")[::7]}
+    raw = {
+        im.header.stamp.sec * 10**9 + im.header.stamp.nanosec: image_from_msg(im)[0]
+        for im in _topic_messages(sample_images_bag, "/camera/image_raw")[::7]
+    }
     debug = _topic_messages(tmp_path / "out", "/rs_localizer/debug_image")
     assert len(debug) == 20
     n = 0
@@ -354,11 +387,11 @@ def test_viz_parameters_documented_in_the_config():
     """config/rs_localizer.yaml (every parameter with its default) lists the viz.* ones."""
     import yaml
     from conftest import CONFIG
+
     from rs_localizer.ros.visualization import VIZ_PARAMETERS
 
     cfg = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]["viz"]
-    assert {f"viz.{k}": v for k, v in cfg.items()} == {
-        k: d[0] for k, d in VIZ_PARAMETERS.items()}
+    assert {f"viz.{k}": v for k, v in cfg.items()} == {k: d[0] for k, d in VIZ_PARAMETERS.items()}
     readme = (CONFIG.parents[1] / "README.md").read_text()
     for k, (default, _, _) in VIZ_PARAMETERS.items():
         assert f"| `{k}` | `{default}` |" in readme, k

@@ -17,8 +17,14 @@ from scipy.linalg import expm
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import RSPoseEstimate, physical_velocities
 from rs_localizer.geometry import rotvec_to_matrix, rs_project_exact, skew
-from rs_localizer.viz import (COLORS, DebugImageOptions, draw_debug_image, frustum_corners,
-                              frustum_segments, velocity_arrows)
+from rs_localizer.viz import (
+    COLORS,
+    DebugImageOptions,
+    draw_debug_image,
+    frustum_corners,
+    frustum_segments,
+    velocity_arrows,
+)
 from rs_localizer.viz.debug_image import CANVAS_GREY
 
 K = np.array([[500.0, 0, 320.0], [0, 520.0, 240.0], [0, 0, 1]])
@@ -41,8 +47,7 @@ def test_project_rs_solves_the_rs_constraint(readout):
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6, readout=readout)
     R, C = _pose()
     rng = np.random.default_rng(3)
-    X = _world_points(R, C, rng.uniform([-0.55, -0.4], [0.55, 0.4], (40, 2)),
-                      rng.uniform(2, 8, 40))
+    X = _world_points(R, C, rng.uniform([-0.55, -0.4], [0.55, 0.4], (40, 2)), rng.uniform(2, 8, 40))
     w, t = np.array([0.05, -0.12, 0.04]), np.array([0.2, 0.05, -0.1])  # per unit r
     uv = cam.project_rs(X, R, C, w, t)
     # every point lies where the exact model at its own capture line puts it (SciPy expm)
@@ -75,8 +80,12 @@ def _frame(cam, w=(0.02, -0.05, 0.01), t=(0.05, 0.0, 0.02), seed=0):
     w, t = np.asarray(w, float), np.asarray(t, float)
     gx, gy = np.meshgrid(np.arange(60, 600, 80.0), np.arange(110, 460, 70.0))
     grid = np.c_[gx.ravel(), gy.ravel()]
-    X = _world_points(R, C, (grid - K[:2, 2]) / np.diag(K)[:2],
-                      np.random.default_rng(seed).uniform(3, 6, len(grid)))
+    X = _world_points(
+        R,
+        C,
+        (grid - K[:2, 2]) / np.diag(K)[:2],
+        np.random.default_rng(seed).uniform(3, 6, len(grid)),
+    )
     x, _ = rs_project_exact(X, R, C, w, t, r0=cam.r0, readout=cam.readout_vector)
     truth = x @ K[:2, :2].T + K[:2, 2]
     uv = truth + np.random.default_rng(seed + 1).normal(0, 0.3, truth.shape)
@@ -85,10 +94,22 @@ def _frame(cam, w=(0.02, -0.05, 0.01), t=(0.05, 0.0, 0.02), seed=0):
     inl[out] = False
     uv[out] = truth[out] + [25.0, 0.0]
     om, vc, omw, vw = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
-    est = RSPoseEstimate(success=True, solver="r6p_1lin", R=R, C=C, w=w, t=t,
-                         orientation=R.T, position=-R.T @ C, angular_velocity=om,
-                         linear_velocity=vc, angular_velocity_world=omw,
-                         linear_velocity_world=vw, inliers=inl, rmse_px=0.42)
+    est = RSPoseEstimate(
+        success=True,
+        solver="r6p_1lin",
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=-R.T @ C,
+        angular_velocity=om,
+        linear_velocity=vc,
+        angular_velocity_world=omw,
+        linear_velocity_world=vw,
+        inliers=inl,
+        rmse_px=0.42,
+    )
     return uv, X, est, truth
 
 
@@ -99,13 +120,13 @@ def _px(img, p):
 def _near(img, p, colour, tol=60, r=1):
     """A pixel within ``r`` of ``p`` has ``colour`` (BGR, each channel within ``tol``)."""
     u, v = int(round(p[0])), int(round(p[1]))
-    patch = img[max(v - r, 0):v + r + 1, max(u - r, 0):u + r + 1].reshape(-1, 3).astype(int)
+    patch = img[max(v - r, 0) : v + r + 1, max(u - r, 0) : u + r + 1].reshape(-1, 3).astype(int)
     return bool((np.abs(patch - np.array(colour)) <= tol).all(axis=1).any())
 
 
 def test_debug_image_points_residuals_and_text():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    uv, X, est, truth = _frame(cam)
+    uv, X, est, _truth = _frame(cam)
     img = draw_debug_image(cam, uv, X, est, options=DebugImageOptions(cube=False))
     assert img.shape == (480, 640, 3) and img.dtype == np.uint8
     for p, good in zip(uv, est.inliers):
@@ -129,9 +150,10 @@ def test_debug_image_points_residuals_and_text():
 
     w, v = np.linalg.norm(est.angular_velocity), np.linalg.norm(est.linear_velocity)
     assert 1.0 < w < 5.0 and 0.05 < v < 5.0
-    expected = [f"r6p_1lin  inliers 31/35  RMSE 0.42 px  |omega| {w:.3f} rad/s  "
-                f"|v| {v:.3f} m/s", "green inlier  red outlier  yellow residual x10  cyan RS "
-                "cube  magenta global-shutter cube"]
+    expected = [
+        f"r6p_1lin  inliers 31/35  RMSE 0.42 px  |omega| {w:.3f} rad/s  |v| {v:.3f} m/s",
+        "green inlier  red outlier  yellow residual x10  cyan RS cube  magenta global-shutter cube",
+    ]
     again = img.copy()
     _text_lines(again, expected, COLORS["text"])
     np.testing.assert_array_equal(again, img)
@@ -151,8 +173,9 @@ def test_debug_image_background_from_the_input_image():
     rgb[..., 0] = 200  # red in rgb8
     img = draw_debug_image(cam, uv, X, est, rgb, "rgb8", DebugImageOptions(cube=False))
     assert _px(img, far) == (0, 0, 140)  # BGR
-    img = draw_debug_image(cam, uv, X, est, rgb[..., ::-1].copy(), "bgr8",
-                           DebugImageOptions(cube=False))
+    img = draw_debug_image(
+        cam, uv, X, est, rgb[..., ::-1].copy(), "bgr8", DebugImageOptions(cube=False)
+    )
     assert _px(img, far) == (0, 0, 140)
     for p, good in zip(uv, est.inliers):
         assert _px(img, p) == (COLORS["inlier"] if good else COLORS["outlier"])
@@ -166,13 +189,17 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     uv, X, est, _ = _frame(cam, w=w, t=(0, 0, 0))
     center = est.position + 4.0 * est.orientation[:, 2]
     side = 1.6
-    img = draw_debug_image(cam, uv[:0], X[:0], est, options=DebugImageOptions(
-        cube_center=tuple(center), cube_side=side, residual_scale=0))
+    img = draw_debug_image(
+        cam,
+        uv[:0],
+        X[:0],
+        est,
+        options=DebugImageOptions(cube_center=tuple(center), cube_side=side, residual_scale=0),
+    )
     from rs_localizer.viz.debug_image import cube_edge_points
 
     P = cube_edge_points(center, side, 60).reshape(-1, 3)  # dense points along the 12 edges
-    x, _ = rs_project_exact(P, est.R, est.C, est.w, est.t, r0=cam.r0,
-                            readout=cam.readout_vector)
+    x, _ = rs_project_exact(P, est.R, est.C, est.w, est.t, r0=cam.r0, readout=cam.readout_vector)
     rs = x @ K[:2, :2].T + K[:2, 2]
     gs, _ = cv2.projectPoints(P, cv2.Rodrigues(est.R)[0], est.C, K, None)
     gs = gs.reshape(-1, 2)
@@ -185,8 +212,13 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     assert np.mean([_near(img, p, COLORS["cube_gs"]) for p in off]) > 0.95
     # no motion: the two coincide, the RS cube (drawn last, thicker) covers the GS one
     uv, X, est0, _ = _frame(cam, w=(0, 0, 0), t=(0, 0, 0))
-    img0 = draw_debug_image(cam, uv[:0], X[:0], est0, options=DebugImageOptions(
-        cube_center=tuple(center), cube_side=side, residual_scale=0))
+    img0 = draw_debug_image(
+        cam,
+        uv[:0],
+        X[:0],
+        est0,
+        options=DebugImageOptions(cube_center=tuple(center), cube_side=side, residual_scale=0),
+    )
     cyan = (np.abs(img0.astype(int) - COLORS["cube_rs"]) <= 60).all(axis=2).sum()
     magenta = (np.abs(img0.astype(int) - COLORS["cube_gs"]) <= 60).all(axis=2).sum()
     assert cyan > 500 and magenta < 0.05 * cyan, (cyan, magenta)

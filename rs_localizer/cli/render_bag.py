@@ -29,15 +29,24 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
-from ..ros.bag_io import (CAMERA_INFO, GT_POSE, GT_TWIST, IMAGE, PC2, POSE, TWIST,
-                          RosbagsMessages, write_sequence_json)
+from ..ros.bag_io import (
+    CAMERA_INFO,
+    GT_POSE,
+    GT_TWIST,
+    IMAGE,
+    PC2,
+    POSE,
+    TWIST,
+    RosbagsMessages,
+    write_sequence_json,
+)
 
-__all__ = ["render_bag", "add_arguments", "run_from_args", "main"]
+__all__ = ["add_arguments", "main", "render_bag", "run_from_args"]
 
 
-
-def _make_frontend(frontend, scene, camera, motion, duration, bag_dir: Path, feature_map,
-                   n_map_views: int = 12):
+def _make_frontend(
+    frontend, scene, camera, motion, duration, bag_dir: Path, feature_map, n_map_views: int = 12
+):
     """Front end object + metadata; writes its map file into the bag directory."""
     from ..frontends import ArucoFrontend
 
@@ -47,36 +56,61 @@ def _make_frontend(frontend, scene, camera, motion, duration, bag_dir: Path, fea
         from ..sim.render.scene import save_marker_map
 
         save_marker_map(bag_dir / "markers.yaml", scene)
-        return ArucoFrontend.from_scene(scene), {"kind": "aruco", "map": "markers.yaml",
-                                                 "dictionary": scene.dictionary}
+        return ArucoFrontend.from_scene(scene), {
+            "kind": "aruco",
+            "map": "markers.yaml",
+            "dictionary": scene.dictionary,
+        }
     if frontend == "features":
         from ..frontends.features import FeatureFrontend, FeatureMap
         from ..sim.feature_map import build_feature_map
 
         if feature_map is None:
-            fm = build_feature_map(scene, camera, (motion, np.linspace(0, duration,
-                                                                       n_map_views)))
+            fm = build_feature_map(scene, camera, (motion, np.linspace(0, duration, n_map_views)))
         elif isinstance(feature_map, FeatureMap):
             fm = feature_map
         else:
             fm = FeatureMap.load(feature_map)
         fm.save(bag_dir / "feature_map.npz")
-        return FeatureFrontend(fm), {"kind": "features", "map": "feature_map.npz",
-                                     "descriptor": fm.kind, "landmarks": fm.num_landmarks}
+        return FeatureFrontend(fm), {
+            "kind": "features",
+            "map": "feature_map.npz",
+            "descriptor": fm.kind,
+            "landmarks": fm.num_landmarks,
+        }
     if hasattr(frontend, "process"):
         return frontend, {"kind": getattr(frontend, "name", type(frontend).__name__)}
-    raise ValueError(f"unknown front end {frontend!r}; expected aruco, features, none or an "
-                     "object with process(image, camera)")
+    raise ValueError(
+        f"unknown front end {frontend!r}; expected aruco, features, none or an "
+        "object with process(image, camera)"
+    )
 
 
-def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
-               camera="vga", fps: float = 30.0, frontend="aruco", feature_map=None,
-               mono: bool = False, noise: bool = True, exposure: float = 0.0,
-               supersample: int = 2, shutter: str = "rolling", seed: int = 0,
-               start_time: float = 1_700_000_000.0, namespace: str = "/camera",
-               camera_frame: str = "camera_optical_frame", map_frame: str = "map",
-               storage: str = "mcap", compress: bool = True, overwrite: bool = False,
-               progress=None) -> Path:
+def render_bag(
+    path,
+    scene="aruco_room",
+    motion="shake",
+    frames: int = 30,
+    *,
+    camera="vga",
+    fps: float = 30.0,
+    frontend="aruco",
+    feature_map=None,
+    mono: bool = False,
+    noise: bool = True,
+    exposure: float = 0.0,
+    supersample: int = 2,
+    shutter: str = "rolling",
+    seed: int = 0,
+    start_time: float = 1_700_000_000.0,
+    namespace: str = "/camera",
+    camera_frame: str = "camera_optical_frame",
+    map_frame: str = "map",
+    storage: str = "mcap",
+    compress: bool = True,
+    overwrite: bool = False,
+    progress=None,
+) -> Path:
     """Render a sequence into a ROS 2 bag directory; returns its path.
 
     Args:
@@ -118,8 +152,9 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
     cam = camera if isinstance(camera, CameraModel) else camera_preset(str(camera))
     duration = frames / fps
     mot = make_motion(motion, sc, duration=duration) if isinstance(motion, str) else motion
-    renderer = Renderer(sc, cam, supersample=supersample, exposure=exposure,
-                        noise=NoiseModel() if noise else None)
+    renderer = Renderer(
+        sc, cam, supersample=supersample, exposure=exposure, noise=NoiseModel() if noise else None
+    )
     tmp_dir = path.parent / (path.name + ".meta.tmp")
     if tmp_dir.exists():
         shutil.rmtree(tmp_dir)
@@ -127,29 +162,44 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
     fe, fe_meta = _make_frontend(frontend, sc, cam, mot, duration, tmp_dir, feature_map)
     M = RosbagsMessages()
     ns = namespace.rstrip("/")
-    topics = {"image": f"{ns}/image_raw", "camera_info": f"{ns}/camera_info",
-              "gt_pose": GT_POSE, "gt_twist": GT_TWIST}
+    topics = {
+        "image": f"{ns}/image_raw",
+        "camera_info": f"{ns}/camera_info",
+        "gt_pose": GT_POSE,
+        "gt_twist": GT_TWIST,
+    }
     if fe is not None:
         topics["correspondences"] = f"{ns}/correspondences"
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     writer = Writer(path, version=9, storage_plugin=plugin)
     if compress:
-        writer.set_compression(CompressionMode.STORAGE if storage == "mcap"
-                               else CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+        writer.set_compression(
+            CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE,
+            CompressionFormat.ZSTD,
+        )
     t0_ns = int(round(start_time * 1e9))
     counts = []
     tic = time.perf_counter()
     with writer as w:
         c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=M.ts)
         c_img = w.add_connection(topics["image"], IMAGE, typestore=M.ts)
-        c_corr = (w.add_connection(topics["correspondences"], PC2, typestore=M.ts)
-                  if fe is not None else None)
+        c_corr = (
+            w.add_connection(topics["correspondences"], PC2, typestore=M.ts)
+            if fe is not None
+            else None
+        )
         c_gtp = w.add_connection(GT_POSE, POSE, typestore=M.ts)
         c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
         for k in range(int(frames)):
             t_first = float(frame_times(k, fps))
-            fr = renderer.render(mot, t_first, index=k, shutter=shutter, mono=mono,
-                                 rng=np.random.default_rng([seed, k]))
+            fr = renderer.render(
+                mot,
+                t_first,
+                index=k,
+                shutter=shutter,
+                mono=mono,
+                rng=np.random.default_rng([seed, k]),
+            )
             stamp = fr.stamp_ns(t0_ns)
             t_ref_ns = t0_ns + int(round(fr.t_ref * 1e9))
             t_log = stamp + 1_000_000
@@ -159,26 +209,48 @@ def render_bag(path, scene="aruco_room", motion="shake", frames: int = 30, *,
             if fe is not None:
                 uv, xyz, ids = fe.process(fr.image, cam)
                 counts.append(len(uv))
-                w.write(c_corr, t_log, M.cdr(M.cloud(uv, xyz, ids, stamp, camera_frame),
-                                             PC2))
-            w.write(c_gtp, t_log, M.cdr(M.pose(fr.orientation, fr.position, t_ref_ns,
-                                               map_frame), POSE))
-            w.write(c_gtt, t_log, M.cdr(M.twist(fr.angular_velocity, fr.linear_velocity,
-                                                t_ref_ns, camera_frame), TWIST))
+                w.write(c_corr, t_log, M.cdr(M.cloud(uv, xyz, ids, stamp, camera_frame), PC2))
+            w.write(
+                c_gtp, t_log, M.cdr(M.pose(fr.orientation, fr.position, t_ref_ns, map_frame), POSE)
+            )
+            w.write(
+                c_gtt,
+                t_log,
+                M.cdr(
+                    M.twist(fr.angular_velocity, fr.linear_velocity, t_ref_ns, camera_frame), TWIST
+                ),
+            )
             if progress:
                 progress(k, frames, counts[-1] if counts else 0)
     for f in tmp_dir.iterdir():
         shutil.move(str(f), str(path / f.name))
     tmp_dir.rmdir()
     write_sequence_json(
-        path, "rs-localizer render-bag", topics, frames, cam, camera_frame, map_frame, 0.0,
-        rolling_shutter=shutter == "rolling", frontend=fe_meta,
-        settings={"scene": sc.name, "motion": getattr(mot, "name", str(motion)),
-                  "fps": fps, "shutter": shutter, "encoding": "mono8" if mono else "rgb8",
-                  "noise": bool(noise), "exposure": exposure, "supersample": supersample,
-                  "seed": seed, "start_time": start_time,
-                  "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
-                  "render_seconds": round(time.perf_counter() - tic, 2)})
+        path,
+        "rs-localizer render-bag",
+        topics,
+        frames,
+        cam,
+        camera_frame,
+        map_frame,
+        0.0,
+        rolling_shutter=shutter == "rolling",
+        frontend=fe_meta,
+        settings={
+            "scene": sc.name,
+            "motion": getattr(mot, "name", str(motion)),
+            "fps": fps,
+            "shutter": shutter,
+            "encoding": "mono8" if mono else "rgb8",
+            "noise": bool(noise),
+            "exposure": exposure,
+            "supersample": supersample,
+            "seed": seed,
+            "start_time": start_time,
+            "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
+            "render_seconds": round(time.perf_counter() - tic, 2),
+        },
+    )
     return path
 
 
@@ -193,32 +265,57 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
         p.add_argument("out", help="bag directory to write")
     else:
         p.add_argument("--out", "-o", required=True, help="bag directory to write")
-    p.add_argument("--scene", default="aruco_room",
-                   help="built-in scene (aruco_room, textured_room) or scene YAML")
-    p.add_argument("--motion", default="shake", choices=motion_names(),
-                   help="camera motion preset")
+    p.add_argument(
+        "--scene",
+        default="aruco_room",
+        help="built-in scene (aruco_room, textured_room) or scene YAML",
+    )
+    p.add_argument("--motion", default="shake", choices=motion_names(), help="camera motion preset")
     p.add_argument("--frames", type=int, default=30, help="frames to render")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate (Hz)")
-    p.add_argument("--camera", default="vga", choices=sorted(CAMERA_PRESETS),
-                   help="camera preset: " + ", ".join(
-                       f"{k} ({v[0]}x{v[1]}, fx {v[2]:g} px, {v[7] * 1e3:g} ms readout)"
-                       for k, v in sorted(CAMERA_PRESETS.items())))
-    p.add_argument("--frontend", default="aruco", choices=("aruco", "features", "none"),
-                   help="front end whose correspondences are written (none: images only)")
-    p.add_argument("--feature-map", default=None, help="feature map .npz (features front end; "
-                   "default: built from 12 global-shutter views of the motion)")
+    p.add_argument(
+        "--camera",
+        default="vga",
+        choices=sorted(CAMERA_PRESETS),
+        help="camera preset: "
+        + ", ".join(
+            f"{k} ({v[0]}x{v[1]}, fx {v[2]:g} px, {v[7] * 1e3:g} ms readout)"
+            for k, v in sorted(CAMERA_PRESETS.items())
+        ),
+    )
+    p.add_argument(
+        "--frontend",
+        default="aruco",
+        choices=("aruco", "features", "none"),
+        help="front end whose correspondences are written (none: images only)",
+    )
+    p.add_argument(
+        "--feature-map",
+        default=None,
+        help="feature map .npz (features front end; "
+        "default: built from 12 global-shutter views of the motion)",
+    )
     p.add_argument("--mono", action="store_true", help="mono8 images (default rgb8)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure time [s] (motion blur)")
-    p.add_argument("--supersample", type=int, default=2,
-                   help="anti-aliasing samples per pixel axis")
-    p.add_argument("--global-shutter", action="store_true",
-                   help="render a global-shutter sequence (same poses, no readout)")
+    p.add_argument(
+        "--supersample", type=int, default=2, help="anti-aliasing samples per pixel axis"
+    )
+    p.add_argument(
+        "--global-shutter",
+        action="store_true",
+        help="render a global-shutter sequence (same poses, no readout)",
+    )
     p.add_argument("--seed", type=int, default=0, help="sensor-noise random seed")
-    p.add_argument("--start-time", type=float, default=1_700_000_000.0,
-                   help="capture time of the first frame (s since the epoch)")
-    p.add_argument("--storage", default="mcap", choices=("mcap", "sqlite3"),
-                   help="bag storage format")
+    p.add_argument(
+        "--start-time",
+        type=float,
+        default=1_700_000_000.0,
+        help="capture time of the first frame (s since the epoch)",
+    )
+    p.add_argument(
+        "--storage", default="mcap", choices=("mcap", "sqlite3"), help="bag storage format"
+    )
     p.add_argument("--no-compression", action="store_true", help="no zstd compression")
     p.add_argument("--overwrite", action="store_true", help="replace the bag if it exists")
     return p
@@ -226,18 +323,35 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
 
 def run_from_args(a, stream=sys.stderr) -> int:
     """Run :func:`render_bag` from parsed :func:`add_arguments` options."""
+
     def prog(k, n, nc):
         stream.write(f"\rframe {k + 1}/{n}: {nc} correspondences")
         if k + 1 == n:
             stream.write("\n")
         stream.flush()
+
     try:
-        path = render_bag(a.out, a.scene, a.motion, a.frames, camera=a.camera, fps=a.fps,
-                          frontend=a.frontend, feature_map=a.feature_map, mono=a.mono,
-                          noise=not a.no_noise, exposure=a.exposure, supersample=a.supersample,
-                          shutter="global" if a.global_shutter else "rolling", seed=a.seed,
-                          start_time=a.start_time, storage=a.storage,
-                          compress=not a.no_compression, overwrite=a.overwrite, progress=prog)
+        path = render_bag(
+            a.out,
+            a.scene,
+            a.motion,
+            a.frames,
+            camera=a.camera,
+            fps=a.fps,
+            frontend=a.frontend,
+            feature_map=a.feature_map,
+            mono=a.mono,
+            noise=not a.no_noise,
+            exposure=a.exposure,
+            supersample=a.supersample,
+            shutter="global" if a.global_shutter else "rolling",
+            seed=a.seed,
+            start_time=a.start_time,
+            storage=a.storage,
+            compress=not a.no_compression,
+            overwrite=a.overwrite,
+            progress=prog,
+        )
     except (FileExistsError, FileNotFoundError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -247,8 +361,10 @@ def run_from_args(a, stream=sys.stderr) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.cli.render_bag",
-                                description="Render a rolling-shutter image sequence to a bag")
+    p = argparse.ArgumentParser(
+        prog="python -m rs_localizer.cli.render_bag",
+        description="Render a rolling-shutter image sequence to a bag",
+    )
     add_arguments(p)
     return run_from_args(p.parse_args(argv))
 

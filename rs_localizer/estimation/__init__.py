@@ -16,5 +16,12 @@ from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose, physica
 from .prior import MotionPrior
 from .refine import exact_errors, refine_rs_pose
 
-__all__ = ["EstimateOptions", "RSPoseEstimate", "estimate_rs_pose", "physical_velocities",
-           "exact_errors", "refine_rs_pose", "MotionPrior"]
+__all__ = [
+    "EstimateOptions",
+    "MotionPrior",
+    "RSPoseEstimate",
+    "estimate_rs_pose",
+    "exact_errors",
+    "physical_velocities",
+    "refine_rs_pose",
+]

@@ -25,13 +25,13 @@ from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
 from .sampling import draw_samples, gather_prerotated, select_prerotations
 from .scoring import msac_scores
 
-__all__ = ["ransac_batch", "prerotated_batch", "fused_kernels"]
+__all__ = ["fused_kernels", "prerotated_batch", "ransac_batch"]
 
 #: stopping tolerance of the iterative solvers on RANSAC samples (their default)
 _SOLVER_TOL = 1e-12
 
 
-@functools.lru_cache(maxsize=None)  # (the registry and the backend are fixed at import)
+@functools.cache  # (the registry and the backend are fixed at import)
 def fused_kernels(solver: str):
     """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
     when the solver has no fused path: R6P (a variable number of roots per sample), a batched
@@ -47,13 +47,34 @@ def fused_kernels(solver: str):
     ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
     if ids is None:
         return None
-    return (np.array([k[0] for k in ids], dtype=np.int64),
-            np.array([k[1] for k in ids], dtype=np.int64))
+    return (
+        np.array([k[0] for k in ids], dtype=np.int64),
+        np.array([k[1] for k in ids], dtype=np.int64),
+    )
 
 
 @njit(cache=True)
-def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iterations, th2, bail,
-                 pretest_n, pretest_min, measured=False, w_max=np.inf, v_max=np.inf):
+def ransac_batch(
+    u,
+    pool,
+    order,
+    x,
+    X,
+    r,
+    r0e,
+    d,
+    r0,
+    kinds,
+    n_params,
+    iterations,
+    th2,
+    bail,
+    pretest_n,
+    pretest_min,
+    measured=False,
+    w_max=np.inf,
+    v_max=np.inf,
+):
     """Draw, solve and score one batch of K RANSAC samples.
 
     Args:
@@ -100,15 +121,53 @@ def ransac_batch(u, pool, order, x, X, r, r0e, d, r0, kinds, n_params, iteration
                 X3[k, j, a] = X[i, a]
     R, C, own = lambda_twist_batch(b3, X3)
     R_p, C_p, ok_p = select_prerotations(R, C, own, samples, X, x, K)
-    return _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_params,
-                            iterations, th2, bail, pretest_n, pretest_min, measured, w_max,
-                            v_max)
+    return _solve_and_score(
+        samples,
+        R_p,
+        C_p,
+        ok_p,
+        x,
+        X,
+        r,
+        r0e,
+        d,
+        r0,
+        kinds,
+        n_params,
+        iterations,
+        th2,
+        bail,
+        pretest_n,
+        pretest_min,
+        measured,
+        w_max,
+        v_max,
+    )
 
 
 @njit(cache=True)
-def prerotated_batch(u, pool, order, R_pre, x, X, r, r0e, d, r0, kinds, n_params, iterations,
-                     th2, bail, pretest_n, pretest_min, measured=False, w_max=np.inf,
-                     v_max=np.inf):
+def prerotated_batch(
+    u,
+    pool,
+    order,
+    R_pre,
+    x,
+    X,
+    r,
+    r0e,
+    d,
+    r0,
+    kinds,
+    n_params,
+    iterations,
+    th2,
+    bail,
+    pretest_n,
+    pretest_min,
+    measured=False,
+    w_max=np.inf,
+    v_max=np.inf,
+):
     """:func:`ransac_batch` with one given pre-rotation ``R_pre`` (3, 3) for every sample
     instead of each sample's P3P pose (a video tracker's predicted rotation,
     :class:`rs_localizer.estimation.estimate.InitialModel`); the same kernels otherwise (the
@@ -123,14 +182,53 @@ def prerotated_batch(u, pool, order, R_pre, x, X, r, r0e, d, r0, kinds, n_params
         for j in range(s):
             samples[k, j] = order[local[k, j]]
         R_p[k] = R_pre
-    return _solve_and_score(samples, R_p, np.zeros((K, 3)), np.ones(K, dtype=np.bool_), x, X,
-                            r, r0e, d, r0, kinds, n_params, iterations, th2, bail, pretest_n,
-                            pretest_min, measured, w_max, v_max)
+    return _solve_and_score(
+        samples,
+        R_p,
+        np.zeros((K, 3)),
+        np.ones(K, dtype=np.bool_),
+        x,
+        X,
+        r,
+        r0e,
+        d,
+        r0,
+        kinds,
+        n_params,
+        iterations,
+        th2,
+        bail,
+        pretest_n,
+        pretest_min,
+        measured,
+        w_max,
+        v_max,
+    )
 
 
 @njit(cache=True)
-def _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_params,
-                     iterations, th2, bail, pretest_n, pretest_min, measured, w_max, v_max):
+def _solve_and_score(
+    samples,
+    R_p,
+    C_p,
+    ok_p,
+    x,
+    X,
+    r,
+    r0e,
+    d,
+    r0,
+    kinds,
+    n_params,
+    iterations,
+    th2,
+    bail,
+    pretest_n,
+    pretest_min,
+    measured,
+    w_max,
+    v_max,
+):
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
     K = samples.shape[0]
@@ -155,8 +253,7 @@ def _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_para
         v = np.empty((K, 3))
         for j in range(J):
             out[:] = 0.0
-            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its,
-                       err)
+            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its, err)
             for k in range(K):
                 h = j * K + k
                 good = ok_k[k]
@@ -173,7 +270,7 @@ def _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_para
                     ts[h, a] = out[k, 9 + a]
                 ok[h] = good and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
-            Rs[j * K:(j + 1) * K] = compose_rotvec(v, R_p)
+            Rs[j * K : (j + 1) * K] = compose_rotvec(v, R_p)
     n_implausible = 0
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
         if ok[q]:
@@ -181,12 +278,15 @@ def _solve_and_score(samples, R_p, C_p, ok_p, x, X, r, r0e, d, r0, kinds, n_para
             v0 = w1 * Cs[q, 2] - w2 * Cs[q, 1] - ts[q, 0]
             v1 = w2 * Cs[q, 0] - w0 * Cs[q, 2] - ts[q, 1]
             v2 = w0 * Cs[q, 1] - w1 * Cs[q, 0] - ts[q, 2]
-            if not (w0 * w0 + w1 * w1 + w2 * w2 <= w_max * w_max
-                    and v0 * v0 + v1 * v1 + v2 * v2 <= v_max * v_max):
+            if not (
+                w0 * w0 + w1 * w1 + w2 * w2 <= w_max * w_max
+                and v0 * v0 + v1 * v1 + v2 * v2 <= v_max * v_max
+            ):
                 ok[q] = False
                 n_implausible += 1
-    scores, _ = msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n,
-                            pretest_min, 0.5, measured)
+    scores, _ = msac_scores(
+        x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5, measured
+    )
     h = 0
     for q in range(scores.shape[0]):
         if scores[q] < scores[h]:
@@ -243,8 +343,7 @@ def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iteration
         out[:] = 0.0
         good = False
         if n >= min_points[j]:
-            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its,
-                       err)
+            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
             good = ok1[0]
         for a in range(n_params[j]):
             if not np.isfinite(out[0, a]):

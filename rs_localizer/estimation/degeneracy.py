@@ -22,7 +22,7 @@ from numba import njit
 
 from .plausibility import _masked_scatter
 
-__all__ = ["PLANAR_TOLERANCE", "planarity", "condition_number"]
+__all__ = ["PLANAR_TOLERANCE", "condition_number", "planarity"]
 
 #: scenes thinner than this fraction of their extent count as planar (a facade with 20 cm of
 #: relief over 10 m: 0.02; a desk with objects is well above)
@@ -32,8 +32,7 @@ PLANAR_TOLERANCE = 0.05
 @njit(cache=True)
 def _planarity(X, mask):
     for i in range(X.shape[0]):
-        if mask[i] and not (np.isfinite(X[i, 0]) and np.isfinite(X[i, 1])
-                            and np.isfinite(X[i, 2])):
+        if mask[i] and not (np.isfinite(X[i, 0]) and np.isfinite(X[i, 1]) and np.isfinite(X[i, 2])):
             return np.nan
     S, c = _masked_scatter(X, mask, 1.0)
     if c < 3:

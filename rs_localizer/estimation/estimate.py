@@ -12,28 +12,47 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
-from .noise_model import correlated_noise_covariance, pixel_jacobians
-from .outputs import (final_inliers, output_covariance_kernel,
-                      physical_velocities_kernel)
-from .sampling import (draw_samples, gather_prerotated, second_prerotations,
-                       select_prerotations, valid_rows)
-from .plausibility import (CHEIRALITY, IMPLAUSIBLE_MOTION, degenerate_points,
-                           final_model_check, finite_model, motion_bounds, plausible_motion)
-from .scoring import errors2, msac_evaluate, msac_scores
 from .._so3 import compose_rotvec
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix
-from .refine import exact_errors, posterior_step, refine_rs_pose
-from .prior import MotionPrior, prior_conflict, sample_prior_rows
-from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
-from .sensitivity import acceleration_sensitivity
 from ..solvers import p3p_batch, r6p
 from ..solvers.kernels import kernel_ids
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, SOLVER_NAMES, sample_size, solver_info
+from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
+from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .noise_model import correlated_noise_covariance, pixel_jacobians
+from .outputs import final_inliers, output_covariance_kernel, physical_velocities_kernel
+from .plausibility import (
+    CHEIRALITY,
+    IMPLAUSIBLE_MOTION,
+    degenerate_points,
+    final_model_check,
+    finite_model,
+    motion_bounds,
+    plausible_motion,
+)
+from .prior import MotionPrior, prior_conflict, sample_prior_rows
+from .refine import exact_errors, posterior_step, refine_rs_pose
+from .sampling import (
+    draw_samples,
+    gather_prerotated,
+    second_prerotations,
+    select_prerotations,
+    valid_rows,
+)
+from .scoring import errors2, msac_evaluate, msac_scores
+from .sensitivity import acceleration_sensitivity
 
-__all__ = ["EstimateOptions", "RSPoseEstimate", "InitialModel", "estimate_rs_pose", "SOLVERS",
-           "sample_size", "physical_velocities", "MotionPrior"]
+__all__ = [
+    "SOLVERS",
+    "EstimateOptions",
+    "InitialModel",
+    "MotionPrior",
+    "RSPoseEstimate",
+    "estimate_rs_pose",
+    "physical_velocities",
+    "sample_size",
+]
 
 #: solver names (:data:`rs_localizer.solvers.registry.SOLVERS` holds what is known of each)
 SOLVERS = SOLVER_NAMES
@@ -148,15 +167,18 @@ class EstimateOptions:
     def __post_init__(self):
         for name in ("max_angular_velocity", "max_linear_velocity"):
             if not float(getattr(self, name)) > 0:
-                raise ValueError(f"{name} must be > 0 (inf: no bound), got "
-                                 f"{getattr(self, name)!r}")
+                raise ValueError(f"{name} must be > 0 (inf: no bound), got {getattr(self, name)!r}")
         if not (np.isfinite(self.correlated_noise_px) and self.correlated_noise_px >= 0):
-            raise ValueError(f"correlated_noise_px must be finite and >= 0, got "
-                             f"{self.correlated_noise_px!r}")
-        if not (np.isfinite(self.correlated_noise_length_px)
-                and self.correlated_noise_length_px > 0):
-            raise ValueError(f"correlated_noise_length_px must be finite and > 0, got "
-                             f"{self.correlated_noise_length_px!r}")
+            raise ValueError(
+                f"correlated_noise_px must be finite and >= 0, got {self.correlated_noise_px!r}"
+            )
+        if not (
+            np.isfinite(self.correlated_noise_length_px) and self.correlated_noise_length_px > 0
+        ):
+            raise ValueError(
+                f"correlated_noise_length_px must be finite and > 0, got "
+                f"{self.correlated_noise_length_px!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -279,8 +301,6 @@ class RSPoseEstimate:
         return int(np.count_nonzero(self.inliers))
 
 
-
-
 # ------------------------------------------------------------------------------------ solvers
 def _hypothesis_iterations(solver: str, opts) -> int:
     """Linear iterations per minimal sample (see ``EstimateOptions.solver_iterations``)."""
@@ -297,9 +317,12 @@ def _batched_rs(solver: str, xs, Xs, rs, r0, iterations, prior_rows=None):
     info = solver_info(solver)
     if info.hypotheses != BATCHED:
         raise ValueError(f"solver {solver!r} has no batched kernel")
-    return [fn(xs, Xs, rs, r0, iterations=iterations, prior_rows=prior_rows)
-            if prior_rows is not None and _takes_prior_rows(fn)
-            else fn(xs, Xs, rs, r0, iterations=iterations) for fn in info.batch]
+    return [
+        fn(xs, Xs, rs, r0, iterations=iterations, prior_rows=prior_rows)
+        if prior_rows is not None and _takes_prior_rows(fn)
+        else fn(xs, Xs, rs, r0, iterations=iterations)
+        for fn in info.batch
+    ]
 
 
 @functools.cache
@@ -308,7 +331,7 @@ def _takes_prior_rows(fn) -> bool:
     return "prior_rows" in inspect.signature(fn).parameters
 
 
-def _prior_rows(fr: "_Frame", opts, Xs, C0):
+def _prior_rows(fr: _Frame, opts, Xs, C0):
     """Linearized motion-prior rows for K pre-rotated samples (``Xs`` (K, n, 3), their P3P
     translations ``C0`` (K, 3)) when the frame asks for damped hypothesis solves (planar scene,
     prior on; see :func:`estimate_rs_pose`), else None. The rows are weighted as if the image
@@ -350,11 +373,20 @@ def _hypothesis_arrays(batches, R_pre):
     Rs = [compose_rotvec(np.ascontiguousarray(b.v), R_pre) for b in batches]
     if len(batches) == 1:
         b = batches[0]
-        return (Rs[0], np.ascontiguousarray(b.C), np.ascontiguousarray(b.w),
-                np.ascontiguousarray(b.t), b.valid)
-    return (np.concatenate(Rs), np.concatenate([b.C for b in batches]),
-            np.concatenate([b.w for b in batches]), np.concatenate([b.t for b in batches]),
-            np.concatenate([b.valid for b in batches]))
+        return (
+            Rs[0],
+            np.ascontiguousarray(b.C),
+            np.ascontiguousarray(b.w),
+            np.ascontiguousarray(b.t),
+            b.valid,
+        )
+    return (
+        np.concatenate(Rs),
+        np.concatenate([b.C for b in batches]),
+        np.concatenate([b.w for b in batches]),
+        np.concatenate([b.t for b in batches]),
+        np.concatenate([b.valid for b in batches]),
+    )
 
 
 def _p3p_prerotations(fr: _Frame, samples, th2=None):
@@ -372,11 +404,24 @@ def _p3p_prerotations(fr: _Frame, samples, th2=None):
     sel = select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
     if th2 is None:
         return sel
-    R2, C2, kept = second_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples), 2.0,
-                                       0.25 * th2 * max(samples.shape[1] - 3, 1))
+    R2, C2, kept = second_prerotations(
+        R,
+        C,
+        owner,
+        samples,
+        fr.X,
+        fr.x,
+        len(samples),
+        2.0,
+        0.25 * th2 * max(samples.shape[1] - 3, 1),
+    )
     kept &= sel[2]
-    return (np.concatenate([samples, samples[kept]]), np.concatenate([sel[0], R2[kept]]),
-            np.concatenate([sel[1], C2[kept]]), np.concatenate([sel[2], kept[kept]]))
+    return (
+        np.concatenate([samples, samples[kept]]),
+        np.concatenate([sel[0], R2[kept]]),
+        np.concatenate([sel[1], C2[kept]]),
+        np.concatenate([sel[2], kept[kept]]),
+    )
 
 
 def _draw_samples(rng, pool: int, s: int, K: int) -> np.ndarray:
@@ -405,8 +450,7 @@ def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions, R_pre=Non
         C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
         ok_p = np.ones(len(samples), dtype=bool)
     elif fr.planar and kind != GLOBAL_SHUTTER:
-        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples,
-                                                    (opts.threshold_px / fr.f) ** 2)
+        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, (opts.threshold_px / fr.f) ** 2)
     else:
         R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
     if kind == GLOBAL_SHUTTER:
@@ -415,8 +459,15 @@ def _generate(fr: _Frame, solver: str, samples, opts: EstimateOptions, R_pre=Non
     xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
     if kind != BATCHED:
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
-    batches = _batched_rs(solver, xs, Xs, rs, fr.r0, _hypothesis_iterations(solver, opts),
-                          _prior_rows(fr, opts, Xs, C_p))
+    batches = _batched_rs(
+        solver,
+        xs,
+        Xs,
+        rs,
+        fr.r0,
+        _hypothesis_iterations(solver, opts),
+        _prior_rows(fr, opts, Xs, C_p),
+    )
     Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
     ok &= np.tile(ok_p, len(batches))
     return Rs, Cs, ws, ts, ok
@@ -435,8 +486,13 @@ def _r6p_hypotheses(fr: _Frame, samples, Xs, R_p, ok_p):
             R_all.append(rotvec_to_matrix(sol.v) @ R_p[k])
             C_all.append(sol.C), w_all.append(sol.w), t_all.append(sol.t)
     n = len(R_all)
-    return (np.array(R_all).reshape(n, 3, 3), np.array(C_all).reshape(n, 3),
-            np.array(w_all).reshape(n, 3), np.array(t_all).reshape(n, 3), np.ones(n, dtype=bool))
+    return (
+        np.array(R_all).reshape(n, 3, 3),
+        np.array(C_all).reshape(n, 3),
+        np.array(w_all).reshape(n, 3),
+        np.array(t_all).reshape(n, 3),
+        np.ones(n, dtype=bool),
+    )
 
 
 def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
@@ -447,23 +503,39 @@ def _nonminimal(fr: _Frame, solver: str, inl, R, opts: EstimateOptions, C=None):
     n_inl = int(inl.sum())
     if not solver_info(solver).rolling or n_inl < 6:
         return []
-    names = [name if n_inl >= sample_size(name) else "r6p_1lin"
-             for name in solver_info(solver).lo_solvers]
+    names = [
+        name if n_inl >= sample_size(name) else "r6p_1lin"
+        for name in solver_info(solver).lo_solvers
+    ]
     ids = [kernel_ids(name) for name in names]
     # one numba call (gather, solve) unless the solve is damped by the motion prior
     if not fr.regularize and all(k is not None and len(k) == 1 for k in ids):
         ok, Rs, Cs, ws, ts = nonminimal_solve(
             np.array([k[0][0] for k in ids], dtype=np.int64),
             np.array([k[0][1] for k in ids], dtype=np.int64),
-            np.array([k[0][2] for k in ids], dtype=np.int64), inl, np.ascontiguousarray(R),
-            fr.x, fr.X, fr.r, fr.r0, max(_hypothesis_iterations(solver, opts), 2))
+            np.array([k[0][2] for k in ids], dtype=np.int64),
+            inl,
+            np.ascontiguousarray(R),
+            fr.x,
+            fr.X,
+            fr.r,
+            fr.r0,
+            max(_hypothesis_iterations(solver, opts), 2),
+        )
         return [(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
     Xr = fr.X[inl] @ R.T
     out = []
     for name in names:
         rows = None if C is None else _prior_rows(fr, opts, Xr[None], np.asarray(C)[None])
-        b = _batched_rs(name, fr.x[inl][None], Xr[None], fr.r[inl][None], fr.r0,
-                        max(_hypothesis_iterations(solver, opts), 2), rows)[0]
+        b = _batched_rs(
+            name,
+            fr.x[inl][None],
+            Xr[None],
+            fr.r[inl][None],
+            fr.r0,
+            max(_hypothesis_iterations(solver, opts), 2),
+            rows,
+        )[0]
         if b.valid[0]:
             out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
     return out
@@ -480,13 +552,13 @@ def _evaluate(fr: _Frame, model, th2, errors=None):
         return np.inf, np.zeros(len(fr.x), dtype=bool)
     if errors is not None:
         return float(np.minimum(errors, th2).sum()), errors < th2
-    sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2,
-                               SCORE_AT_MEASURED_TIME)
+    sc, inl, _ = msac_evaluate(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, th2, SCORE_AT_MEASURED_TIME)
     return sc, inl
 
 
-def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2,
-                        opts: EstimateOptions):
+def _local_optimization(
+    fr: _Frame, solver: str, best, best_score, best_inl, th2, opts: EstimateOptions
+):
     """LO step of LO-RANSAC on a new best hypothesis (with its MSAC score and inlier mask).
 
     The first round re-solves with the (nonminimal) RS solver on the hypothesis's inliers,
@@ -512,14 +584,27 @@ def _local_optimization(fr: _Frame, solver: str, best, best_score, best_inl, th2
         if n_before < 6:
             break
         start, start_score, start_inl = best, best_score, best_inl
-        for cand in (_nonminimal(sub, solver, best_inl[:M], best[0], opts, best[1])
-                     if opts.nonminimal and step == 0 else []):
+        for cand in (
+            _nonminimal(sub, solver, best_inl[:M], best[0], opts, best[1])
+            if opts.nonminimal and step == 0
+            else []
+        ):
             sc, inl = _evaluate(fr, cand, th2)
             if sc < start_score:
                 start, start_score, start_inl = cand, sc, inl
-        ref = refine_rs_pose(*start, sub.X, sub.x, tau, th, rolling_shutter=rolling,
-                             max_iterations=opts.lo_refine_iterations, covariance=False,
-                             cutoff=2.0 * th, prior=fr.prior, seconds_per_unit_r=fr.spr)
+        ref = refine_rs_pose(
+            *start,
+            sub.X,
+            sub.x,
+            tau,
+            th,
+            rolling_shutter=rolling,
+            max_iterations=opts.lo_refine_iterations,
+            covariance=False,
+            cutoff=2.0 * th,
+            prior=fr.prior,
+            seconds_per_unit_r=fr.spr,
+        )
         cand = (ref.R, ref.C, ref.w, ref.t)
         sc, inl = _evaluate(fr, cand, th2)
         if sc < start_score:
@@ -562,9 +647,19 @@ def _final_refinement(fr: _Frame, model, th, rolling, prior, acceleration=False)
     X, x = fr.X, fr.x
     th = float(th)
     cut = FINAL_CUTOFF * th
-    ref = refine_rs_pose(*model, X, x, tau, th, rolling_shutter=rolling, prior=fr.prior,
-                         seconds_per_unit_r=fr.spr, cutoff=cut, tol=FINAL_TOL,
-                         acceleration_block=acceleration)
+    ref = refine_rs_pose(
+        *model,
+        X,
+        x,
+        tau,
+        th,
+        rolling_shutter=rolling,
+        prior=fr.prior,
+        seconds_per_unit_r=fr.spr,
+        cutoff=cut,
+        tol=FINAL_TOL,
+        acceleration_block=acceleration,
+    )
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None
     # (NaN in a failed refinement makes both tests false: the ML result stays)
@@ -582,8 +677,10 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
     threshold (after a robust Levenberg-Marquardt refinement on the explained points if it had
     fewer than ``min_explained`` there), or ``(None, None, None)`` (use its rotation for
     pre-rotation only)."""
-    R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in
-                  (model.R, model.C, model.w, model.t))
+    R, C, w, t = (
+        np.ascontiguousarray(a, dtype=np.float64).copy()
+        for a in (model.R, model.C, model.w, model.t)
+    )
     rolling = solver_info(solver).rolling
     if not rolling:
         w, t = np.zeros(3), np.zeros(3)
@@ -605,11 +702,23 @@ def _seed(fr: _Frame, solver: str, model: InitialModel, th2, s: int, opts: Estim
         # refinement)
         # (a third of the local-optimization subset is plenty to pull a prediction in: the
         # final refinement fits every point)
-        idx = np.flatnonzero(near)[:max(opts.lo_max_points // 3, 2 * s)]
-        ref = refine_rs_pose(R, C, w, t, fr.X[idx], fr.x[idx], fr.r[idx] - fr.r0, np.sqrt(th2),
-                             rolling_shutter=rolling,
-                             max_iterations=2 * opts.lo_refine_iterations, covariance=False,
-                             cutoff=gate, prior=fr.prior, seconds_per_unit_r=fr.spr)
+        idx = np.flatnonzero(near)[: max(opts.lo_max_points // 3, 2 * s)]
+        ref = refine_rs_pose(
+            R,
+            C,
+            w,
+            t,
+            fr.X[idx],
+            fr.x[idx],
+            fr.r[idx] - fr.r0,
+            np.sqrt(th2),
+            rolling_shutter=rolling,
+            max_iterations=2 * opts.lo_refine_iterations,
+            covariance=False,
+            cutoff=gate,
+            prior=fr.prior,
+            seconds_per_unit_r=fr.spr,
+        )
         if finite_model(ref.R, ref.C, ref.w, ref.t):
             cand = (ref.R, ref.C, ref.w, ref.t)
             sc, inl_c = _evaluate(fr, cand, th2)
@@ -628,10 +737,16 @@ def _degenerate(fr: _Frame, u_px, mask, threshold_px: float) -> bool:
 
 def _fail(reason, solver, n, n_valid=0, n_dropped=0, iters=0, timings=None):
     """An unsuccessful :class:`RSPoseEstimate` with ``reason``."""
-    return RSPoseEstimate(success=False, failure=reason, solver=solver,
-                          inliers=np.zeros(n, dtype=bool), num_valid=n_valid,
-                          num_dropped=n_dropped, ransac_iterations=iters,
-                          timings=timings or {})
+    return RSPoseEstimate(
+        success=False,
+        failure=reason,
+        solver=solver,
+        inliers=np.zeros(n, dtype=bool),
+        num_valid=n_valid,
+        num_dropped=n_dropped,
+        ransac_iterations=iters,
+        timings=timings or {},
+    )
 
 
 def physical_velocities(R, C, w, t, seconds_per_unit_r: float):
@@ -651,9 +766,12 @@ def physical_velocities(R, C, w, t, seconds_per_unit_r: float):
         return z, z.copy(), z.copy(), z.copy()
     f64 = np.float64
     return physical_velocities_kernel(
-        np.ascontiguousarray(R, dtype=f64), np.ascontiguousarray(C, dtype=f64),
-        np.ascontiguousarray(w, dtype=f64), np.ascontiguousarray(t, dtype=f64),
-        float(seconds_per_unit_r))
+        np.ascontiguousarray(R, dtype=f64),
+        np.ascontiguousarray(C, dtype=f64),
+        np.ascontiguousarray(w, dtype=f64),
+        np.ascontiguousarray(t, dtype=f64),
+        float(seconds_per_unit_r),
+    )
 
 
 def _output_covariance(cov12, R, C, w, seconds_per_unit_r):
@@ -700,14 +818,28 @@ def _prepare(points2d_px, points3d, camera, max_point_norm, rng=None):
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e = rows[good], x[good], r[good], r0e[good]
-    fr = _Frame(np.ascontiguousarray(x), X.take(rows, axis=0), np.ascontiguousarray(r),
-                np.ascontiguousarray(r0e), camera.r0, camera.readout_vector, camera.mean_focal)
+    fr = _Frame(
+        np.ascontiguousarray(x),
+        X.take(rows, axis=0),
+        np.ascontiguousarray(r),
+        np.ascontiguousarray(r0e),
+        camera.r0,
+        camera.readout_vector,
+        camera.mean_focal,
+    )
     return fr, rows
 
 
-def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "r6p_1lin",
-                     options: EstimateOptions | None = None, scores=None, *,
-                     initial_model: InitialModel | None = None) -> RSPoseEstimate:
+def estimate_rs_pose(
+    points2d_px,
+    points3d,
+    camera: CameraModel,
+    solver: str = "r6p_1lin",
+    options: EstimateOptions | None = None,
+    scores=None,
+    *,
+    initial_model: InitialModel | None = None,
+) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
     Pipeline: validate and normalize (OpenCV undistortion; RS time from the measured, distorted
@@ -752,7 +884,7 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             raise ValueError(f"scores must have shape ({n_in},), got {scores.shape}")
     s = sample_size(solver)
     min_inl = max(opts.min_inliers, s + 1)
-    if N < min_inl:
+    if min_inl > N:
         timings["prepare"] = time.perf_counter() - t_start
         return _fail("too_few_points", solver, n_in, N, n_dropped, 0, timings)
     # points that fix no pose (identical, on a 3D line, pixels on one image line): RANSAC
@@ -771,8 +903,9 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         timings["prepare"] = time.perf_counter() - t_start
         return _fail("planar_scene", solver, n_in, N, n_dropped, 0, timings)
     prior = opts.motion_prior
-    prior_on = bool(prior is not None and prior.enabled and fr.spr > 0
-                    and solver_info(solver).rolling)
+    prior_on = bool(
+        prior is not None and prior.enabled and fr.spr > 0 and solver_info(solver).rolling
+    )
     fr.prior = prior if prior_on and (fr.planar or prior.always) else None
     fr.regularize = bool(fr.prior is not None and fr.planar)
     timings["prepare"] = time.perf_counter() - t_start
@@ -795,11 +928,15 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     n_implausible = 0  # hypotheses rejected for their motion alone
     # one numba call per batch (the same hypotheses and scores as _generate); planar frames
     # of the RS solvers take _generate (runner-up pre-rotations, damped solves)
-    fused = (None if fr.planar and solver_info(solver).hypotheses != GLOBAL_SHUTTER
-             else fused_kernels(solver))
+    fused = (
+        None
+        if fr.planar and solver_info(solver).hypotheses != GLOBAL_SHUTTER
+        else fused_kernels(solver)
+    )
     solver_its = _hypothesis_iterations(solver, opts)
-    bounds = ((np.inf, np.inf) if fr.motion_bounds is None
-              else tuple(float(b) for b in fr.motion_bounds))
+    bounds = (
+        (np.inf, np.inf) if fr.motion_bounds is None else tuple(float(b) for b in fr.motion_bounds)
+    )
     t0 = time.perf_counter()
     R_pre = None  # P3P pre-rotation per sample unless an initial model explains the frame
     explained = -1
@@ -808,8 +945,10 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         t_lo = time.perf_counter()
         explained, seeded = _seed(fr, solver, initial_model, th2, s, opts)
         if seeded is not None:
-            R_pre = (np.ascontiguousarray(initial_model.R, dtype=np.float64),
-                     np.ascontiguousarray(initial_model.C, dtype=np.float64))
+            R_pre = (
+                np.ascontiguousarray(initial_model.R, dtype=np.float64),
+                np.ascontiguousarray(initial_model.C, dtype=np.float64),
+            )
             if seeded[0] is not None:
                 best_score, best, best_inl = seeded
                 best_count = int(np.count_nonzero(best_inl))
@@ -825,9 +964,15 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         t_local += time.perf_counter() - t_lo
     while iters < opts.max_iterations and (iters < needed or iters < opts.min_iterations):
         # batches double (fewer calls), but draw no more samples than termination asks for
-        K = min(batch, opts.max_iterations - iters,
-                max(int(np.ceil(min(needed, opts.max_iterations))) - iters,
-                    opts.min_iterations - iters, 1))
+        K = min(
+            batch,
+            opts.max_iterations - iters,
+            max(
+                int(np.ceil(min(needed, opts.max_iterations))) - iters,
+                opts.min_iterations - iters,
+                1,
+            ),
+        )
         batch *= 2
         pool = N
         if guided:
@@ -837,19 +982,54 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
         iters += K
         pre_min = int(0.5 * opts.pretest_points * best_count / N)
         if R_pre is not None and best is not None:  # pre-rotate by the best model so far
-            R_pre = (np.ascontiguousarray(best[0], dtype=np.float64),
-                     np.ascontiguousarray(best[1], dtype=np.float64))
+            R_pre = (
+                np.ascontiguousarray(best[0], dtype=np.float64),
+                np.ascontiguousarray(best[1], dtype=np.float64),
+            )
         if fused is not None and (R_pre is None or not len(fused[0])):
             h, sc_h, Rs, Cs, ws, ts, n_bad = ransac_batch(
-                rng.random((K, s)), pool, order, fr.x, fr.X, fr.r, fr.r0e, fr.d, fr.r0,
-                fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points, pre_min,
-                SCORE_AT_MEASURED_TIME, *bounds)
+                rng.random((K, s)),
+                pool,
+                order,
+                fr.x,
+                fr.X,
+                fr.r,
+                fr.r0e,
+                fr.d,
+                fr.r0,
+                fused[0],
+                fused[1],
+                solver_its,
+                th2,
+                best_score,
+                opts.pretest_points,
+                pre_min,
+                SCORE_AT_MEASURED_TIME,
+                *bounds,
+            )
             n_implausible += n_bad
         elif fused is not None:  # the same with the initial model's pre-rotation
             h, sc_h, Rs, Cs, ws, ts, n_bad = prerotated_batch(
-                rng.random((K, s)), pool, order, R_pre[0], fr.x, fr.X, fr.r, fr.r0e, fr.d,
-                fr.r0, fused[0], fused[1], solver_its, th2, best_score, opts.pretest_points,
-                pre_min, SCORE_AT_MEASURED_TIME, *bounds)
+                rng.random((K, s)),
+                pool,
+                order,
+                R_pre[0],
+                fr.x,
+                fr.X,
+                fr.r,
+                fr.r0e,
+                fr.d,
+                fr.r0,
+                fused[0],
+                fused[1],
+                solver_its,
+                th2,
+                best_score,
+                opts.pretest_points,
+                pre_min,
+                SCORE_AT_MEASURED_TIME,
+                *bounds,
+            )
             n_implausible += n_bad
         else:
             samples = order.take(_draw_samples(rng, pool, s, K))
@@ -860,10 +1040,24 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
                 ok = ok & plausible
             if not ok.any():
                 continue
-            sc, cnt = msac_scores(fr.x, fr.X, fr.r0e, fr.d, np.ascontiguousarray(Rs),
-                                  np.ascontiguousarray(Cs), np.ascontiguousarray(ws),
-                                  np.ascontiguousarray(ts), th2, ok, best_score, True,
-                                  opts.pretest_points, pre_min, 0.5, SCORE_AT_MEASURED_TIME)
+            sc, _cnt = msac_scores(
+                fr.x,
+                fr.X,
+                fr.r0e,
+                fr.d,
+                np.ascontiguousarray(Rs),
+                np.ascontiguousarray(Cs),
+                np.ascontiguousarray(ws),
+                np.ascontiguousarray(ts),
+                th2,
+                ok,
+                best_score,
+                True,
+                opts.pretest_points,
+                pre_min,
+                0.5,
+                SCORE_AT_MEASURED_TIME,
+            )
             h = int(np.argmin(sc))
             sc_h = sc[h]
         if sc_h < best_score:
@@ -872,18 +1066,28 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             best_score, best_inl = _evaluate(fr, best, th2)
             if not guided:  # (a verification sample that beats the seed is polished by the
                 # final refinement, on every point, like local optimization would)
-                best_score, best, best_inl = _local_optimization(fr, solver, best, best_score,
-                                                                 best_inl, th2, opts)
+                best_score, best, best_inl = _local_optimization(
+                    fr, solver, best, best_score, best_inl, th2, opts
+                )
             t_local += time.perf_counter() - t_lo
             best_count = int(np.count_nonzero(best_inl))
             needed = _required_iterations(
-                (np.count_nonzero(best_inl[order[:guided]]) / guided) if guided
-                else best_count / N, s, opts.confidence)
+                (np.count_nonzero(best_inl[order[:guided]]) / guided) if guided else best_count / N,
+                s,
+                opts.confidence,
+            )
     timings["ransac"] = time.perf_counter() - t0 - t_local
     timings["local_optimization"] = t_local
     if best is None:  # (every model moved implausibly fast: say so)
-        return _fail("implausible_motion" if n_implausible else "no_hypothesis", solver, n_in,
-                     N, n_dropped, iters, timings)
+        return _fail(
+            "implausible_motion" if n_implausible else "no_hypothesis",
+            solver,
+            n_in,
+            N,
+            n_dropped,
+            iters,
+            timings,
+        )
 
     inl = best_inl
     if best_count < min_inl:
@@ -898,8 +1102,9 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     prior_used = fr.prior is not None
     if opts.refine:
         want_sens = bool(opts.acceleration_sensitivity and rolling and spr > 0)
-        ref, prior_used = _final_refinement(fr, (R, C, w, t), th, rolling,
-                                            prior if prior_on else None, want_sens)
+        ref, prior_used = _final_refinement(
+            fr, (R, C, w, t), th, rolling, prior if prior_on else None, want_sens
+        )
         cand = (ref.R, ref.C, ref.w, ref.t)
         if finite_model(*cand):
             R, C, w, t = cand
@@ -916,29 +1121,66 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
             # on the final refinement's points (all, truncated) and its (posterior) H, with
             # J^T W D from its last Jacobian
             sens = acceleration_sensitivity(
-                R, C, w, t, fr.X, fr.x, tau, spr, th, cutoff=FINAL_CUTOFF * th,
+                R,
+                C,
+                w,
+                t,
+                fr.X,
+                fr.x,
+                tau,
+                spr,
+                th,
+                cutoff=FINAL_CUTOFF * th,
                 normal_inverse=None if cov12 is None else cov12 / ref.sigma**2,
-                acceleration_block=ref.acceleration_block)
+                acceleration_block=ref.acceleration_block,
+            )
         if cov12 is not None and opts.correlated_noise_px > 0 and ref.sigma > 0:
             # the same estimate's covariance under white + correlated image error (on the
             # final inliers; noise_model)
             cov12 = correlated_noise_covariance(
-                cov12, ref.sigma, R, C, w, t, fr.X[inl], fr.x[inl], tau[inl], u_fr[inl],
-                pixel_jacobians(camera, fr.x[inl]), opts.correlated_noise_px,
-                opts.correlated_noise_length_px)
+                cov12,
+                ref.sigma,
+                R,
+                C,
+                w,
+                t,
+                fr.X[inl],
+                fr.x[inl],
+                tau[inl],
+                u_fr[inl],
+                pixel_jacobians(camera, fr.x[inl]),
+                opts.correlated_noise_px,
+                opts.correlated_noise_length_px,
+            )
     else:
-        rmse = float(np.sqrt(np.mean(errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True,
-                                             SCORE_AT_MEASURED_TIME)[inl])) * fr.f)
+        rmse = float(
+            np.sqrt(
+                np.mean(
+                    errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)[inl]
+                )
+            )
+            * fr.f
+        )
     timings["refine"] = time.perf_counter() - t0
     # the last word: plausible motion, every inlier in front of the camera at its capture time
     # (plausibility.check_final_model on depths_at_capture, in one compiled call)
-    w2max, v2max = ((np.inf, np.inf) if fr.motion_bounds is None
-                    else (float(fr.motion_bounds[0]) ** 2, float(fr.motion_bounds[1]) ** 2))
+    w2max, v2max = (
+        (np.inf, np.inf)
+        if fr.motion_bounds is None
+        else (float(fr.motion_bounds[0]) ** 2, float(fr.motion_bounds[1]) ** 2)
+    )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
     code, n_behind = final_model_check(R, C, w, t, fr.X, tau, inl, w2max, v2max)
     if code:
-        return _fail(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY, solver, n_in, N,
-                     n_dropped, iters, timings)
+        return _fail(
+            IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY,
+            solver,
+            n_in,
+            N,
+            n_dropped,
+            iters,
+            timings,
+        )
 
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, spr)
     cov, pose_cov, twist_cov = (None, None, None)
@@ -953,12 +1195,34 @@ def estimate_rs_pose(points2d_px, points3d, camera: CameraModel, solver: str = "
     cond = condition_number(info12[:n_free, :n_free]) if info12 is not None else float("nan")
     timings["total"] = time.perf_counter() - t_start
     return RSPoseEstimate(
-        success=True, failure=None, solver=solver, R=R, C=C, w=w, t=t, orientation=R.T,
-        position=camera_position(R, C), angular_velocity=om, linear_velocity=vc,
-        angular_velocity_world=om_w, linear_velocity_world=vc_w, inliers=inliers,
-        num_valid=N, num_dropped=n_dropped + n_behind, num_behind=n_behind,
-        ransac_iterations=iters, timings=timings,
-        covariance=cov, pose_covariance=pose_cov, twist_covariance=twist_cov, rmse_px=rmse,
-        planar=bool(flat < PLANAR_TOLERANCE), planarity=flat, condition_number=cond,
-        motion_prior_used=prior_used, initial_explained=explained,
-        initial_used=R_pre is not None, acceleration_sensitivity=sens)
+        success=True,
+        failure=None,
+        solver=solver,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=camera_position(R, C),
+        angular_velocity=om,
+        linear_velocity=vc,
+        angular_velocity_world=om_w,
+        linear_velocity_world=vc_w,
+        inliers=inliers,
+        num_valid=N,
+        num_dropped=n_dropped + n_behind,
+        num_behind=n_behind,
+        ransac_iterations=iters,
+        timings=timings,
+        covariance=cov,
+        pose_covariance=pose_cov,
+        twist_covariance=twist_cov,
+        rmse_px=rmse,
+        planar=bool(flat < PLANAR_TOLERANCE),
+        planarity=flat,
+        condition_number=cond,
+        motion_prior_used=prior_used,
+        initial_explained=explained,
+        initial_used=R_pre is not None,
+        acceleration_sensitivity=sens,
+    )

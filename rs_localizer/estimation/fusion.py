@@ -58,7 +58,7 @@ from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
 from .prior import prior_arrays
 from .refine import _cholesky as _cholesky_block
 
-__all__ = ["FusionOptions", "FusedState", "FusionStep", "TwistFilter", "MODELS"]
+__all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 
 #: process models: constant acceleration (18 error states per frame) or constant velocity (12)
 MODELS = ("acceleration", "velocity")
@@ -106,8 +106,14 @@ class FusionOptions:
             raise ValueError(f"unknown fusion model {self.model!r}; expected one of {MODELS}")
         if int(self.lag) != self.lag or not 0 <= self.lag <= 10:
             raise ValueError(f"lag must be an integer in [0, 10], got {self.lag}")
-        for name in ("angular_noise", "linear_noise", "angular_acceleration_std",
-                     "linear_acceleration_std", "initial_velocity", "max_gap"):
+        for name in (
+            "angular_noise",
+            "linear_noise",
+            "angular_acceleration_std",
+            "linear_acceleration_std",
+            "initial_velocity",
+            "max_gap",
+        ):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {v}")
@@ -175,7 +181,7 @@ class FusionStep:
             frames back; on a restart every frame not yet returned; the new frame for lag 0.
     """
 
-    __slots__ = ("_make", "_current", "final")
+    __slots__ = ("_current", "_make", "final")
 
     def __init__(self, make, final: list):
         self._make = make
@@ -203,7 +209,7 @@ class _Entry:
     """Bookkeeping of one frame in the window; its nominal state is the frame's row of
     ``TwistFilter.X``."""
 
-    __slots__ = ("stamp", "fused", "restarted", "nis", "emitted", "age")
+    __slots__ = ("age", "emitted", "fused", "nis", "restarted", "stamp")
 
     def __init__(self, stamp):
         self.stamp = int(stamp)
@@ -250,9 +256,13 @@ def _chain_q(dt, order):
     acceleration)."""
     if order == 2:
         return np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
-    return np.array([[dt**5 / 20, dt**4 / 8, dt**3 / 6],
-                     [dt**4 / 8, dt**3 / 3, dt**2 / 2],
-                     [dt**3 / 6, dt**2 / 2, dt]])
+    return np.array(
+        [
+            [dt**5 / 20, dt**4 / 8, dt**3 / 6],
+            [dt**4 / 8, dt**3 / 3, dt**2 / 2],
+            [dt**3 / 6, dt**2 / 2, dt],
+        ]
+    )
 
 
 @njit(cache=True)
@@ -514,8 +524,9 @@ def _deprior(cov, p, omega, v, mean, info, G):
 
 
 @njit(cache=True)
-def _prepare_measurement(m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc,
-                         acc_var):
+def _prepare_measurement(
+    m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
+):
     """The measurement of an estimate (see :meth:`TwistFilter._measurement`) from its arrays:
     m (12 or 6), covariance cov (12, 12) (its (m, m) block is used), O (3, 3), p, omega,
     v_cam (3,), acceleration sensitivity G (12, 6) (used if ``has_G``), the twist prior's
@@ -589,8 +600,7 @@ def _camera_covariance(x, P, b, out):
             out[9 + i, 9 + k] = s
     for i in range(3):
         for k in range(i + 1, 3):
-            out[9 + i, 9 + k] = out[9 + k, 9 + i] = 0.5 * (out[9 + i, 9 + k]
-                                                          + out[9 + k, 9 + i])
+            out[9 + i, 9 + k] = out[9 + k, 9 + i] = 0.5 * (out[9 + i, 9 + k] + out[9 + k, 9 + i])
 
 
 @njit(cache=True)
@@ -609,8 +619,29 @@ def _outputs(X, P, n):
 
 
 @njit(cache=True)
-def _update_window(X, P, dt, keep, acc, qa, ql, limit, m, cov, O, p, omega, v, G, has_G,
-                   prior_on, mean, info, scale, acc_var):
+def _update_window(
+    X,
+    P,
+    dt,
+    keep,
+    acc,
+    qa,
+    ql,
+    limit,
+    m,
+    cov,
+    O,
+    p,
+    omega,
+    v,
+    G,
+    has_G,
+    prior_on,
+    mean,
+    info,
+    scale,
+    acc_var,
+):
     """The arithmetic of :meth:`TwistFilter.update` on a running window, in one call.
 
     X (k, 27) the window's rows (newest first, see ``_ROW``) and P (k n, k n) its error
@@ -632,12 +663,14 @@ def _update_window(X, P, dt, keep, acc, qa, ql, limit, m, cov, O, p, omega, v, G
     status, nis = -1, np.nan
     if m > 0:
         usable, _, zO, zp, zw, zv, R, Gm, use_G = _prepare_measurement(
-            m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var)
+            m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
+        )
         if usable:
             x = Xn[0]
             On = np.ascontiguousarray(x[0:9]).reshape((3, 3))
-            y, H = _innovation(On, x[9:12], x[12:15], x[15:18], x[18:21], x[21:24], zO, zp,
-                               zw, zv, m, n, Gm, use_G)
+            y, H = _innovation(
+                On, x[9:12], x[12:15], x[15:18], x[18:21], x[21:24], zO, zp, zw, zv, m, n, Gm, use_G
+            )
             nis, dx, P_upd, ok = _kalman_update(Pn, H, y, R)
             status = 0
             if ok and nis <= limit:
@@ -665,8 +698,19 @@ def _predict_row(X, P, dt, acc, qa, ql):
 
 _NO_G = np.zeros((12, 6))
 #: the measurement arguments of _update_window when there is none (m = 0)
-_NO_MEASUREMENT = (0, np.zeros((12, 12)), np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3),
-                   _NO_G, False, False, np.zeros(6), np.zeros((6, 6)))
+_NO_MEASUREMENT = (
+    0,
+    np.zeros((12, 12)),
+    np.eye(3),
+    np.zeros(3),
+    np.zeros(3),
+    np.zeros(3),
+    _NO_G,
+    False,
+    False,
+    np.zeros(6),
+    np.zeros((6, 6)),
+)
 _ROS_POSE = np.ix_([3, 4, 5, 0, 1, 2], [3, 4, 5, 0, 1, 2])
 #: indices of the ROS twist order (vx, vy, vz, wx, wy, wz) in the (12,) output layout
 _TWIST_ROS = np.array([[9], [10], [11], [6], [7], [8]])
@@ -682,10 +726,20 @@ def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=fl
     frozen dataclass' ``__init__`` goes through ``object.__setattr__`` field by field."""
     state = object.__new__(FusedState)
     state.__dict__.update(
-        stamp_ns=stamp, orientation=x[0:9].reshape(3, 3), position=x[9:12],
-        angular_velocity=x[12:15], linear_velocity=x[24:27], linear_velocity_world=x[15:18],
-        angular_acceleration=x[18:21], linear_acceleration=x[21:24], covariance=cov,
-        fused=fused, restarted=restarted, smoothed=smoothed, nis=nis)
+        stamp_ns=stamp,
+        orientation=x[0:9].reshape(3, 3),
+        position=x[9:12],
+        angular_velocity=x[12:15],
+        linear_velocity=x[24:27],
+        linear_velocity_world=x[15:18],
+        angular_acceleration=x[18:21],
+        linear_acceleration=x[21:24],
+        covariance=cov,
+        fused=fused,
+        restarted=restarted,
+        smoothed=smoothed,
+        nis=nis,
+    )
     return state
 
 
@@ -713,11 +767,9 @@ class TwistFilter:
         self.options = o = options or FusionOptions()
         self._acc = o.model == "acceleration"
         self.n = 18 if self._acc else 12
-        self._limit = {m: (float(chi2.ppf(o.gate, m)) if o.gate < 1.0 else np.inf)
-                       for m in (6, 12)}
+        self._limit = {m: (float(chi2.ppf(o.gate, m)) if o.gate < 1.0 else np.inf) for m in (6, 12)}
         self._qa, self._ql = float(o.angular_noise) ** 2, float(o.linear_noise) ** 2
-        self._acc_var = np.repeat([o.angular_acceleration_std**2,
-                                   o.linear_acceleration_std**2], 3)
+        self._acc_var = np.repeat([o.angular_acceleration_std**2, o.linear_acceleration_std**2], 3)
         self._scale = float(o.measurement_scale)
         self.reset()
 
@@ -816,11 +868,19 @@ class TwistFilter:
             on = True
         else:
             on, mean, info = False, _NO_MEASUREMENT[9], _NO_MEASUREMENT[10]
-        return (m, cov, np.asarray(est.orientation, dtype=float),
-                np.asarray(est.position, dtype=float),
-                np.asarray(est.angular_velocity, dtype=float),
-                np.asarray(est.linear_velocity, dtype=float), G if has_G else _NO_G, has_G,
-                on, mean, info)
+        return (
+            m,
+            cov,
+            np.asarray(est.orientation, dtype=float),
+            np.asarray(est.position, dtype=float),
+            np.asarray(est.angular_velocity, dtype=float),
+            np.asarray(est.linear_velocity, dtype=float),
+            G if has_G else _NO_G,
+            has_G,
+            on,
+            mean,
+            info,
+        )
 
     def _measurement(self, est, prior=None):
         """The measurement an estimate gives: a :class:`_Measurement` with m = 12 (pose and
@@ -840,7 +900,8 @@ class TwistFilter:
         if args is None:
             return None
         ok, deprior, O, p, w, v, R, G, has_G = _prepare_measurement(
-            *args, self._scale, self._acc, self._acc_var)
+            *args, self._scale, self._acc, self._acc_var
+        )
         if not ok:
             return None
         z = _Measurement(args[0], O, p, w, v, R)
@@ -890,8 +951,7 @@ class TwistFilter:
         self.X = X
         self.rejections = 0
 
-    def update(self, stamp_ns: int, estimate, relocalized: bool = False,
-               prior=None) -> FusionStep:
+    def update(self, stamp_ns: int, estimate, relocalized: bool = False, prior=None) -> FusionStep:
         """Fuse one per-frame estimate.
 
         Args:
@@ -927,8 +987,18 @@ class TwistFilter:
         args = self._measurement_inputs(estimate, prior) or _NO_MEASUREMENT
         keep = min(len(self.window), o.lag)
         status, nis, self.X, self.P, self.C = _update_window(
-            self.X, self.P, dt, keep, self._acc, self._qa, self._ql,
-            self._limit.get(args[0], np.inf), *args, self._scale, self._acc_var)
+            self.X,
+            self.P,
+            dt,
+            keep,
+            self._acc,
+            self._qa,
+            self._ql,
+            self._limit.get(args[0], np.inf),
+            *args,
+            self._scale,
+            self._acc_var,
+        )
         for e in self.window[keep:]:  # fell out of the window (returned already unless lag 0)
             e.emitted = True
         new = _Entry(stamp_ns)

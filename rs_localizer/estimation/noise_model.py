@@ -32,9 +32,10 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 
 import numpy as np
+
 from .refine import exact_jacobian, exact_residuals, refine_rs_pose
 
-__all__ = ["correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians", "NoiseFit"]
+__all__ = ["NoiseFit", "correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians"]
 
 
 def _kernel(u_px, length_px):
@@ -43,8 +44,9 @@ def _kernel(u_px, length_px):
     return np.exp(-0.5 * d2 / (float(length_px) ** 2))
 
 
-def correlated_noise_covariance(cov12, sigma, R, C, w, t, X, x, tau, u_px, pixel_jac,
-                                correlated_px, length_px):
+def correlated_noise_covariance(
+    cov12, sigma, R, C, w, t, X, x, tau, u_px, pixel_jac, correlated_px, length_px
+):
     """Covariance of the refined (delta, C, w, t) under white plus correlated image noise.
 
     The refinement minimises ``|r|^2 + sigma^2 (prior)`` over normalized residuals r;
@@ -80,8 +82,9 @@ def correlated_noise_covariance(cov12, sigma, R, C, w, t, X, x, tau, u_px, pixel
     u = np.asarray(u_px, dtype=float)
     Dj = np.asarray(pixel_jac, dtype=float)
     if not (len(u) == len(X) == len(x) == len(tau) == len(Dj)):
-        raise ValueError(f"point arrays disagree: {len(u)}, {len(X)}, {len(x)}, {len(tau)}, "
-                         f"{len(Dj)}")
+        raise ValueError(
+            f"point arrays disagree: {len(u)}, {len(X)}, {len(x)}, {len(tau)}, {len(Dj)}"
+        )
     if not (length_px > 0 and sigma > 0):
         raise ValueError(f"need length_px, sigma > 0, got {length_px}, {sigma}")
     J = exact_jacobian(np.r_[0.0, 0.0, 0.0, C, w, t], np.asarray(R, float), X, x, tau)
@@ -136,13 +139,24 @@ def _view_terms(camera, uv, X, R, C):
     x, _, _ = camera.normalize(uv)
     tau = np.zeros(len(x))
     z3 = np.zeros(3)
-    ref = refine_rs_pose(R, C, z3, z3, X, x, tau, 1e3, rolling_shutter=False,
-                         max_iterations=50, tol=1e-14, covariance=False)
+    ref = refine_rs_pose(
+        R,
+        C,
+        z3,
+        z3,
+        X,
+        x,
+        tau,
+        1e3,
+        rolling_shutter=False,
+        max_iterations=50,
+        tol=1e-14,
+        covariance=False,
+    )
     th = np.r_[0.0, 0.0, 0.0, ref.C, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     D = pixel_jacobians(camera, x)
     r = np.einsum("nab,nb->na", D, exact_residuals(th, ref.R, X, x, tau).reshape(-1, 2))
-    J = np.einsum("nab,nbk->nak", D, exact_jacobian(th, ref.R, X, x, tau)[:, :6]
-                  .reshape(-1, 2, 6))
+    J = np.einsum("nab,nbk->nak", D, exact_jacobian(th, ref.R, X, x, tau)[:, :6].reshape(-1, 2, 6))
     return r.ravel(), J.reshape(-1, 6), np.asarray(uv, dtype=float)
 
 
@@ -168,8 +182,12 @@ def _restricted_nll(p, terms):
         A = LJ.T @ LJ
         b = LJ.T @ Lr
         cA = cho_factor(A)
-        tot += (2.0 * np.log(np.diag(L)).sum() + 2.0 * np.log(np.diag(cA[0])).sum()
-                + Lr @ Lr - b @ cho_solve(cA, b))
+        tot += (
+            2.0 * np.log(np.diag(L)).sum()
+            + 2.0 * np.log(np.diag(cA[0])).sum()
+            + Lr @ Lr
+            - b @ cho_solve(cA, b)
+        )
     return 0.5 * tot
 
 
@@ -203,8 +221,15 @@ def fit_correlated_noise(camera, views, length_bounds_px=(None, 2000.0)) -> Nois
     for uv, X, R, C in views:
         if len(uv) < 7:
             raise ValueError(f"a view needs at least 7 points, got {len(uv)}")
-        terms.append(_view_terms(camera, np.asarray(uv, float), np.asarray(X, float),
-                                 np.asarray(R, float), np.asarray(C, float)))
+        terms.append(
+            _view_terms(
+                camera,
+                np.asarray(uv, float),
+                np.asarray(X, float),
+                np.asarray(R, float),
+                np.asarray(C, float),
+            )
+        )
     if not terms:
         raise ValueError("no view")
     n = sum(len(t[2]) for t in terms)
@@ -223,19 +248,24 @@ def fit_correlated_noise(camera, views, length_bounds_px=(None, 2000.0)) -> Nois
     with ExitStack() as stack:  # small matrices: one BLAS thread is ~40x faster when shared
         try:
             from threadpoolctl import threadpool_limits
+
             stack.enter_context(threadpool_limits(limits=1))
         except ImportError:
             pass
         best = None
         for l0 in (30.0, 100.0, 300.0):  # a few starts: the length's likelihood can be bumpy
             p0 = np.array([np.log(0.5 * v0), np.log(0.5 * v0), np.clip(np.log(l0), lo, hi)])
-            res = minimize(_restricted_nll, p0, args=(terms,), method="L-BFGS-B",
-                           bounds=bounds)
+            res = minimize(_restricted_nll, p0, args=(terms,), method="L-BFGS-B", bounds=bounds)
             if best is None or res.fun < best.fun:
                 best = res
         sw2, s2, l = np.exp(best.x)
         # white noise alone (s -> 0)
         white = _restricted_nll(np.array([np.log(v0), bounds[1][0] - 30, np.log(l)]), terms)
-    return NoiseFit(white_px=float(np.sqrt(sw2)), correlated_px=float(np.sqrt(s2)),
-                    length_px=float(l), log_likelihood_ratio=float(white - best.fun),
-                    views=len(terms), points=int(n))
+    return NoiseFit(
+        white_px=float(np.sqrt(sw2)),
+        correlated_px=float(np.sqrt(s2)),
+        length_px=float(l),
+        log_likelihood_ratio=float(white - best.fun),
+        views=len(terms),
+        points=int(n),
+    )

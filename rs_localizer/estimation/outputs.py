@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["final_inliers", "physical_velocities_kernel", "output_covariance_kernel"]
+__all__ = ["final_inliers", "output_covariance_kernel", "physical_velocities_kernel"]
 
 
 @njit(cache=True)

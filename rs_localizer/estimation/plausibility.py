@@ -28,17 +28,28 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["motion_bounds", "plausible_motion", "depths_at_capture", "collinear_3d",
-           "image_degenerate", "degenerate_points", "check_final_model", "final_model_check",
-           "finite_model", "IMPLAUSIBLE_MOTION", "CHEIRALITY"]
+__all__ = [
+    "CHEIRALITY",
+    "IMPLAUSIBLE_MOTION",
+    "check_final_model",
+    "collinear_3d",
+    "degenerate_points",
+    "depths_at_capture",
+    "final_model_check",
+    "finite_model",
+    "image_degenerate",
+    "motion_bounds",
+    "plausible_motion",
+]
 
 #: failure reasons of :func:`check_final_model`
 IMPLAUSIBLE_MOTION = "implausible_motion"
 CHEIRALITY = "cheirality"
 
 
-def motion_bounds(max_angular_velocity: float, max_linear_velocity: float,
-                  seconds_per_unit_r: float):
+def motion_bounds(
+    max_angular_velocity: float, max_linear_velocity: float, seconds_per_unit_r: float
+):
     """Bounds on the model velocities per unit RS coordinate ``r``.
 
     Args:
@@ -72,12 +83,19 @@ def plausible_motion(Rs, Cs, ws, ts, bounds):
     """
     if np.ndim(ws) == 1:  # one model (every LO candidate): one compiled call
         f64 = np.float64
-        w2max, v2max = (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2,
-                                                               float(bounds[1]) ** 2)
-        return bool(_plausible1(np.asarray(Cs, dtype=f64), np.asarray(ws, dtype=f64),
-                                np.asarray(ts, dtype=f64), w2max, v2max))
-    Cs, ws, ts = (np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3)
-                  for a in (Cs, ws, ts))
+        w2max, v2max = (
+            (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+        )
+        return bool(
+            _plausible1(
+                np.asarray(Cs, dtype=f64),
+                np.asarray(ws, dtype=f64),
+                np.asarray(ts, dtype=f64),
+                w2max,
+                v2max,
+            )
+        )
+    Cs, ws, ts = (np.ascontiguousarray(a, dtype=np.float64).reshape(-1, 3) for a in (Cs, ws, ts))
     if bounds is None:
         return _plausible(Cs, ws, ts, np.inf, np.inf)
     return _plausible(Cs, ws, ts, float(bounds[0]) ** 2, float(bounds[1]) ** 2)
@@ -87,9 +105,17 @@ def plausible_motion(Rs, Cs, ws, ts, bounds):
 def _plausible1(C, w, t, w_max2, v_max2):
     """:func:`plausible_motion` of one model (C, w, t (3,))."""
     C0, C1, C2, w0, w1, w2, t0, t1, t2 = C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2]
-    if not (np.isfinite(C0) and np.isfinite(C1) and np.isfinite(C2) and np.isfinite(w0)
-            and np.isfinite(w1) and np.isfinite(w2) and np.isfinite(t0) and np.isfinite(t1)
-            and np.isfinite(t2)):
+    if not (
+        np.isfinite(C0)
+        and np.isfinite(C1)
+        and np.isfinite(C2)
+        and np.isfinite(w0)
+        and np.isfinite(w1)
+        and np.isfinite(w2)
+        and np.isfinite(t0)
+        and np.isfinite(t1)
+        and np.isfinite(t2)
+    ):
         return False
     v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
     return w0 * w0 + w1 * w1 + w2 * w2 <= w_max2 and v0 * v0 + v1 * v1 + v2 * v2 <= v_max2
@@ -117,8 +143,15 @@ def _plausible(Cs, ws, ts, w_max2, v_max2):
         v2 = w0 * C1 - w1 * C0 - ts[k, 2]
         wn2 = w0 * w0 + w1 * w1 + w2 * w2
         vn2 = v0 * v0 + v1 * v1 + v2 * v2
-        finite = (np.isfinite(C0) and np.isfinite(C1) and np.isfinite(C2) and np.isfinite(wn2)
-                  and np.isfinite(ts[k, 0]) and np.isfinite(ts[k, 1]) and np.isfinite(ts[k, 2]))
+        finite = (
+            np.isfinite(C0)
+            and np.isfinite(C1)
+            and np.isfinite(C2)
+            and np.isfinite(wn2)
+            and np.isfinite(ts[k, 0])
+            and np.isfinite(ts[k, 1])
+            and np.isfinite(ts[k, 2])
+        )
         out[k] = finite and wn2 <= w_max2 and vn2 <= v_max2
     return out
 
@@ -136,8 +169,12 @@ def depths_at_capture(R, C, w, t, X, tau) -> np.ndarray:
     """
     X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
     tau = np.ascontiguousarray(tau, dtype=np.float64).reshape(-1)
-    return _depths(np.ascontiguousarray(R, dtype=np.float64),
-                   *(np.ascontiguousarray(a, dtype=np.float64) for a in (C, w, t)), X, tau)
+    return _depths(
+        np.ascontiguousarray(R, dtype=np.float64),
+        *(np.ascontiguousarray(a, dtype=np.float64) for a in (C, w, t)),
+        X,
+        tau,
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -153,8 +190,13 @@ def _depths(R, C, w, t, X, tau):
         th = tau[i] * wn
         c, s = np.cos(th), np.sin(th)
         # z of q cos th + (k x q) sin th + k (k . q)(1 - cos th)
-        out[i] = (q2 * c + (k0 * q1 - k1 * q0) * s + k2 * (k0 * q0 + k1 * q1 + k2 * q2) * (1 - c)
-                  + C[2] + tau[i] * t[2])
+        out[i] = (
+            q2 * c
+            + (k0 * q1 - k1 * q0) * s
+            + k2 * (k0 * q0 + k1 * q1 + k2 * q2) * (1 - c)
+            + C[2]
+            + tau[i] * t[2]
+        )
     return out
 
 
@@ -215,8 +257,10 @@ def image_degenerate(points_px, points_normalized, focal: float, threshold_px: f
         coordinates; focal (px); threshold_px: RMS distance from the line (px) below which
         the set is degenerate.
     """
-    return (line_rms(points_px) < threshold_px
-            or line_rms(np.asarray(points_normalized, dtype=float) * focal) < threshold_px)
+    return (
+        line_rms(points_px) < threshold_px
+        or line_rms(np.asarray(points_normalized, dtype=float) * focal) < threshold_px
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -283,8 +327,10 @@ def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px
     ev = np.linalg.eigvalsh(S)  # ascending
     if not ev[2] > 0 or ev[1] < tol * tol * ev[2]:
         return True
-    return (_line_rms_masked(points_px, mask, 1.0) < threshold_px
-            or _line_rms_masked(points_normalized, mask, focal) < threshold_px)
+    return (
+        _line_rms_masked(points_px, mask, 1.0) < threshold_px
+        or _line_rms_masked(points_normalized, mask, focal) < threshold_px
+    )
 
 
 @njit(cache=True, nogil=True)

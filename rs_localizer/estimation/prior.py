@@ -23,15 +23,22 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["MotionPrior", "prior_arrays", "linear_prior_rows", "sample_prior_rows",
-           "prior_conflict"]
+__all__ = [
+    "MotionPrior",
+    "linear_prior_rows",
+    "prior_arrays",
+    "prior_conflict",
+    "sample_prior_rows",
+]
 
 
 def _vector6(a, name):
     v = np.asarray(a, dtype=float).reshape(-1)
     if v.shape != (6,) or not np.isfinite(v).all():
-        raise ValueError(f"motion prior {name} must be 6 finite numbers (ROS twist order "
-                         f"vx, vy, vz, wx, wy, wz), got {a!r}")
+        raise ValueError(
+            f"motion prior {name} must be 6 finite numbers (ROS twist order "
+            f"vx, vy, vz, wx, wy, wz), got {a!r}"
+        )
     return v
 
 
@@ -80,8 +87,9 @@ class MotionPrior:
         if self.covariance is not None:
             S = np.asarray(self.covariance, dtype=float)
             if S.shape != (6, 6) or not np.isfinite(S).all():
-                raise ValueError(f"motion prior covariance must be a finite (6, 6) matrix, "
-                                 f"got shape {S.shape}")
+                raise ValueError(
+                    f"motion prior covariance must be a finite (6, 6) matrix, got shape {S.shape}"
+                )
             if not np.allclose(S, S.T, rtol=1e-9, atol=1e-12 * max(np.abs(S).max(), 1e-300)):
                 raise ValueError("motion prior covariance must be symmetric")
             try:
@@ -108,7 +116,8 @@ class MotionPrior:
         """True if the prior constrains anything (a covariance, or a positive finite sigma)."""
         return self.covariance is not None or bool(
             self._inverse_variance(self.angular_velocity_sigma)
-            or self._inverse_variance(self.linear_velocity_sigma))
+            or self._inverse_variance(self.linear_velocity_sigma)
+        )
 
     def mean_vector(self) -> np.ndarray:
         """(6,) prior mean, ROS twist order (zeros when not given)."""
@@ -119,8 +128,10 @@ class MotionPrior:
         columns for unconstrained components."""
         if self.covariance is not None:
             return np.linalg.inv(self.covariance)
-        return np.diag([self._inverse_variance(self.linear_velocity_sigma)] * 3
-                       + [self._inverse_variance(self.angular_velocity_sigma)] * 3)
+        return np.diag(
+            [self._inverse_variance(self.linear_velocity_sigma)] * 3
+            + [self._inverse_variance(self.angular_velocity_sigma)] * 3
+        )
 
 
 def prior_arrays(prior: MotionPrior | None):
@@ -161,7 +172,7 @@ def linear_prior_rows(prior: MotionPrior, C0, seconds_per_unit_r: float, scale=1
     c = np.atleast_2d(np.asarray(C0, dtype=float))
     K = len(c)
     M = np.zeros((K, 6, 6))
-    M[:, 0, 1], M[:, 0, 2] = c[:, 2], -c[:, 1]     # -[C0]x
+    M[:, 0, 1], M[:, 0, 2] = c[:, 2], -c[:, 1]  # -[C0]x
     M[:, 1, 0], M[:, 1, 2] = -c[:, 2], c[:, 0]
     M[:, 2, 0], M[:, 2, 1] = c[:, 1], -c[:, 0]
     M[:, 0:3, 3:6] = -np.eye(3)
@@ -221,9 +232,16 @@ def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noi
     K = len(C0)
     P = np.empty((K, 6, 6))
     q = np.empty((K, 6))
-    _rows_kernel(U, U @ prior.mean_vector(), np.ascontiguousarray(Xs, dtype=np.float64),
-                 np.ascontiguousarray(C0, dtype=np.float64), float(seconds_per_unit_r),
-                 float(noise), P, q)
+    _rows_kernel(
+        U,
+        U @ prior.mean_vector(),
+        np.ascontiguousarray(Xs, dtype=np.float64),
+        np.ascontiguousarray(C0, dtype=np.float64),
+        float(seconds_per_unit_r),
+        float(noise),
+        P,
+        q,
+    )
     return P, q
 
 
@@ -292,10 +310,15 @@ def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: 
         return 0.0, 0.0
     f64 = np.float64
     try:
-        c, sh = _conflict(np.ascontiguousarray(covariance, dtype=f64),
-                          np.ascontiguousarray(C, dtype=f64), np.ascontiguousarray(w, dtype=f64),
-                          np.ascontiguousarray(t, dtype=f64), float(seconds_per_unit_r), mean,
-                          Lam)
+        c, sh = _conflict(
+            np.ascontiguousarray(covariance, dtype=f64),
+            np.ascontiguousarray(C, dtype=f64),
+            np.ascontiguousarray(w, dtype=f64),
+            np.ascontiguousarray(t, dtype=f64),
+            float(seconds_per_unit_r),
+            mean,
+            Lam,
+        )
         return float(c), float(sh)
     except Exception:  # numba raises for a singular system
         return float("inf"), float("inf")

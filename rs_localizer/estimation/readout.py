@@ -80,12 +80,17 @@ class ReadoutCalibration:
 
     def as_dict(self) -> dict:
         """The four keys of ``rs-localizer calibrate-readout --json``."""
-        return {"line_delay": self.line_delay, "line_delay_std": self.line_delay_std,
-                "frames_used": int(self.frames_used), "observable": bool(self.observable)}
+        return {
+            "line_delay": self.line_delay,
+            "line_delay_std": self.line_delay_std,
+            "frames_used": int(self.frames_used),
+            "observable": bool(self.observable),
+        }
 
 
-def per_frame_rates(frames, camera: CameraModel, solver: str = "r6p_1lin",
-                    options: EstimateOptions | None = None):
+def per_frame_rates(
+    frames, camera: CameraModel, solver: str = "r6p_1lin", options: EstimateOptions | None = None
+):
     """Run the estimator on every frame with the camera's RS timing replaced by
     ``seconds_per_unit_r = 1`` (its stated line delay is ignored), the world origin moved to
     the previous frame's camera centre (the first frame is solved twice for that).
@@ -112,8 +117,14 @@ def per_frame_rates(frames, camera: CameraModel, solver: str = "r6p_1lin",
             # with the origin near the camera (the last frame's centre) the bias vanishes
             xyz = np.asarray(xyz, dtype=float)
             for _ in range(1 if origin is not None else 2):
-                est = estimate_rs_pose(uv, xyz - (origin if origin is not None else 0.0), cam,
-                                       solver=solver, options=opts, scores=scores)
+                est = estimate_rs_pose(
+                    uv,
+                    xyz - (origin if origin is not None else 0.0),
+                    cam,
+                    solver=solver,
+                    options=opts,
+                    scores=scores,
+                )
                 if not est.success:
                     break
                 if origin is None:
@@ -130,8 +141,12 @@ def per_frame_rates(frames, camera: CameraModel, solver: str = "r6p_1lin",
         stamps.append(int(stamp))
         Os.append(est.orientation)
         ws.append(est.w)
-    return (np.array(stamps, dtype=np.int64), np.array(Os).reshape(-1, 3, 3),
-            np.array(ws).reshape(-1, 3), failed)
+    return (
+        np.array(stamps, dtype=np.int64),
+        np.array(Os).reshape(-1, 3, 3),
+        np.array(ws).reshape(-1, 3),
+        failed,
+    )
 
 
 def _robust_slope(x, y, lags: int = 2, iterations: int = 20):
@@ -195,10 +210,20 @@ def _umeyama(x, y, wts):
     return s, R, my - s * R @ mx
 
 
-def fit_line_delay(stamps_ns, orientations, w, camera: CameraModel, gyro=None,
-                   stamp_row: float = 0.0, max_dt: float = 0.1, uniformity: float = 0.1,
-                   min_samples: int = 10, max_relative_std: float = 0.05,
-                   model_error: float = 0.002, frames_failed: int = 0) -> ReadoutCalibration:
+def fit_line_delay(
+    stamps_ns,
+    orientations,
+    w,
+    camera: CameraModel,
+    gyro=None,
+    stamp_row: float = 0.0,
+    max_dt: float = 0.1,
+    uniformity: float = 0.1,
+    min_samples: int = 10,
+    max_relative_std: float = 0.05,
+    model_error: float = 0.002,
+    frames_failed: int = 0,
+) -> ReadoutCalibration:
     """Fit the line delay to per-frame RS rotation rates (see the module docstring).
 
     Args:
@@ -225,17 +250,24 @@ def fit_line_delay(stamps_ns, orientations, w, camera: CameraModel, gyro=None,
     Os = np.asarray(orientations, dtype=float).reshape(-1, 3, 3)
     ws = np.asarray(w, dtype=float).reshape(-1, 3)
     if not (len(stamps) == len(Os) == len(ws)):
-        raise ValueError(f"need as many stamps, orientations and w: {len(stamps)}, "
-                         f"{len(Os)}, {len(ws)}")
+        raise ValueError(
+            f"need as many stamps, orientations and w: {len(stamps)}, {len(Os)}, {len(ws)}"
+        )
     focal, lines = camera.focal, camera.lines
     R_ci = None
     if gyro is None:
         x, y, used = _simpson_samples(stamps, Os, ws, max_dt, uniformity)
         n = len(x)
         if n < 2:
-            return ReadoutCalibration(None, None, len(used), False, samples=n,
-                                      reason="too few consecutive frames",
-                                      frames_failed=frames_failed)
+            return ReadoutCalibration(
+                None,
+                None,
+                len(used),
+                False,
+                samples=n,
+                reason="too few consecutive frames",
+                frames_failed=frames_failed,
+            )
         s, std, rms = _robust_slope(x, y)
         frames_used = len(used)
     else:
@@ -266,21 +298,38 @@ def fit_line_delay(stamps_ns, orientations, w, camera: CameraModel, gyro=None,
     elif not s > 0:
         reason = "the fitted time scale is not positive (wrong readout direction?)"
     elif not std <= max_relative_std * s:
-        reason = (f"too little rotation: relative std {std / abs(s):.3g} > "
-                  f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)")
+        reason = (
+            f"too little rotation: relative std {std / abs(s):.3g} > "
+            f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)"
+        )
     ok = not reason
     std = float(np.hypot(std, model_error * abs(s)))
     return ReadoutCalibration(
-        line_delay=s / focal if ok else None, line_delay_std=std / focal if ok else None,
-        frames_used=int(frames_used), observable=ok, seconds_per_unit_r=s,
-        seconds_per_unit_r_std=std, readout_time=s / focal * lines if ok else None,
-        samples=n, rotation_rms=rot, reason=reason, camera_imu_rotation=R_ci,
-        residual_rms=rms, frames_failed=frames_failed)
+        line_delay=s / focal if ok else None,
+        line_delay_std=std / focal if ok else None,
+        frames_used=int(frames_used),
+        observable=ok,
+        seconds_per_unit_r=s,
+        seconds_per_unit_r_std=std,
+        readout_time=s / focal * lines if ok else None,
+        samples=n,
+        rotation_rms=rot,
+        reason=reason,
+        camera_imu_rotation=R_ci,
+        residual_rms=rms,
+        frames_failed=frames_failed,
+    )
 
 
-def calibrate_line_delay(frames, camera: CameraModel, solver: str = "r6p_1lin",
-                         options: EstimateOptions | None = None, gyro=None,
-                         stamp_row: float = 0.0, **fit_args) -> ReadoutCalibration:
+def calibrate_line_delay(
+    frames,
+    camera: CameraModel,
+    solver: str = "r6p_1lin",
+    options: EstimateOptions | None = None,
+    gyro=None,
+    stamp_row: float = 0.0,
+    **fit_args,
+) -> ReadoutCalibration:
     """Estimate a rolling-shutter camera's line delay and its standard deviation from a video
     with rotation, ignoring the line delay ``camera`` states.
 
@@ -298,5 +347,6 @@ def calibrate_line_delay(frames, camera: CameraModel, solver: str = "r6p_1lin",
         does not pin it).
     """
     stamps, Os, ws, failed = per_frame_rates(frames, camera, solver, options)
-    return fit_line_delay(stamps, Os, ws, camera, gyro=gyro, stamp_row=stamp_row,
-                          frames_failed=failed, **fit_args)
+    return fit_line_delay(
+        stamps, Os, ws, camera, gyro=gyro, stamp_row=stamp_row, frames_failed=failed, **fit_args
+    )

@@ -22,9 +22,15 @@ from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
-__all__ = ["exact_residuals", "exact_jacobian", "exact_errors", "refine_rs_pose",
-           "refine_rs_pose_scipy", "untruncated_variance",
-           "RefineResult"]
+__all__ = [
+    "RefineResult",
+    "exact_errors",
+    "exact_jacobian",
+    "exact_residuals",
+    "refine_rs_pose",
+    "refine_rs_pose_scipy",
+    "untruncated_variance",
+]
 
 
 def _left_jacobian(phi: np.ndarray) -> np.ndarray:
@@ -87,8 +93,14 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
     l0 = a1 * h2 - a2 * h1
     l1 = a2 * h0 - a0 * h2
     l2 = a0 * h1 - a1 * h0
-    return (m0 - sa * h0 + ca * l0, m1 - sa * h1 + ca * l1, m2 - sa * h2 + ca * l2,
-            m0 - ca * h0 + cb * l0, m1 - ca * h1 + cb * l1, m2 - ca * h2 + cb * l2)
+    return (
+        m0 - sa * h0 + ca * l0,
+        m1 - sa * h1 + ca * l1,
+        m2 - sa * h2 + ca * l2,
+        m0 - ca * h0 + cb * l0,
+        m1 - ca * h1 + cb * l1,
+        m2 - ca * h2 + cb * l2,
+    )
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -142,11 +154,34 @@ def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     d02 = -u0 * d
     d12 = -u1 * d
     P00, P01, P02, W00, W01, W02 = _rotation_rows(
-        Aq1 * d02, Aq2 * d - Aq0 * d02, -Aq1 * d, a0, a1, a2, sa, ca, cb)
+        Aq1 * d02, Aq2 * d - Aq0 * d02, -Aq1 * d, a0, a1, a2, sa, ca, cb
+    )
     P10, P11, P12, W10, W11, W12 = _rotation_rows(
-        Aq1 * d12 - Aq2 * d, -Aq0 * d12, Aq0 * d, a0, a1, a2, sa, ca, cb)
-    return (used, rho, sw * e0, sw * e1, P00, P01, P02, P10, P11, P12,
-            W00, W01, W02, W10, W11, W12, d, d02, d12, ti, e2_inside)
+        Aq1 * d12 - Aq2 * d, -Aq0 * d12, Aq0 * d, a0, a1, a2, sa, ca, cb
+    )
+    return (
+        used,
+        rho,
+        sw * e0,
+        sw * e1,
+        P00,
+        P01,
+        P02,
+        P10,
+        P11,
+        P12,
+        W00,
+        W01,
+        W02,
+        W10,
+        W11,
+        W12,
+        d,
+        d02,
+        d12,
+        ti,
+        e2_inside,
+    )
 
 
 @njit(cache=True, inline=INLINE)
@@ -267,8 +302,26 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt):
     number).
     """
     rho_cut = cutoff * cutoff if cutoff <= k else 2.0 * k * cutoff - k * k
-    pose = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2],
-            C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])
+    pose = (
+        R[0, 0],
+        R[0, 1],
+        R[0, 2],
+        R[1, 0],
+        R[1, 1],
+        R[1, 2],
+        R[2, 0],
+        R[2, 1],
+        R[2, 2],
+        C[0],
+        C[1],
+        C[2],
+        w[0],
+        w[1],
+        w[2],
+        t[0],
+        t[1],
+        t[2],
+    )
     return _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt)
 
 
@@ -493,14 +546,38 @@ def _apply_step(R, C, w, t, B, n_free):
     Rn = _rotate_left(B[0, 0], B[1, 0], B[2, 0], R)
     Cn = np.array([C[0] + B[3, 0], C[1] + B[4, 0], C[2] + B[5, 0]])
     if n_free == 12:
-        return (Rn, Cn, np.array([w[0] + B[6, 0], w[1] + B[7, 0], w[2] + B[8, 0]]),
-                np.array([t[0] + B[9, 0], t[1] + B[10, 0], t[2] + B[11, 0]]))
+        return (
+            Rn,
+            Cn,
+            np.array([w[0] + B[6, 0], w[1] + B[7, 0], w[2] + B[8, 0]]),
+            np.array([t[0] + B[9, 0], t[1] + B[10, 0], t[2] + B[11, 0]]),
+        )
     return Rn, Cn, w, t
 
 
 @njit(cache=True)
-def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, want_cov, out,
-               prior_on, mu, Lam, s, noise2, want_acc):
+def _lm_refine(
+    R,
+    C,
+    w,
+    t,
+    X,
+    x,
+    tau,
+    k,
+    n_free,
+    cutoff,
+    max_iterations,
+    tol,
+    want_cov,
+    out,
+    prior_on,
+    mu,
+    Lam,
+    s,
+    noise2,
+    want_acc,
+):
     """The whole Levenberg-Marquardt loop of :func:`refine_rs_pose` (arguments as there;
     n_free 12 or 6, the latter keeping w, t fixed; inputs are not modified).
 
@@ -561,7 +638,7 @@ def _lm_refine(R, C, w, t, X, x, tau, k, n_free, cutoff, max_iterations, tol, wa
             cn += _prior_terms(Cn, wn, tn, s, mu, Lam, sp2, H, g, False)
         nfev += 1
         if cn <= cost:
-            rel = (cost - cn) / (1e-300 if 1e-300 > cost else cost)
+            rel = (cost - cn) / (1e-300 if cost < 1e-300 else cost)
             R, C, w, t, cost, ss, n_in, m = Rn, Cn, wn, tn, cn, ssn, n_inn, mn
             current = True
             lam = max(lam / 10, 1e-12)
@@ -698,12 +775,25 @@ class RefineResult:
         self.acceleration_block = None
 
 
-def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter: bool = True,
-                   max_iterations: int = 10, tol: float = 1e-10,
-                   covariance: bool = True, cutoff: float = np.inf,
-                   prior: MotionPrior | None = None, seconds_per_unit_r: float = 0.0,
-                   noise: float | None = None, acceleration_block: bool = False
-                   ) -> RefineResult:
+def refine_rs_pose(
+    R0,
+    C0,
+    w0,
+    t0,
+    X,
+    x,
+    tau,
+    loss_scale: float,
+    rolling_shutter: bool = True,
+    max_iterations: int = 10,
+    tol: float = 1e-10,
+    covariance: bool = True,
+    cutoff: float = np.inf,
+    prior: MotionPrior | None = None,
+    seconds_per_unit_r: float = 0.0,
+    noise: float | None = None,
+    acceleration_block: bool = False,
+) -> RefineResult:
     """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model.
 
     Args:
@@ -750,16 +840,31 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
     on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
     noise2 = -1.0 if noise is None else float(noise) ** 2
     sigma, success, nfev = _lm_refine(
-        np.ascontiguousarray(R0, dtype=f64), np.ascontiguousarray(C0, dtype=f64),
+        np.ascontiguousarray(R0, dtype=f64),
+        np.ascontiguousarray(C0, dtype=f64),
         np.ascontiguousarray(w0, dtype=f64) if rolling_shutter else _ZERO3,
         np.ascontiguousarray(t0, dtype=f64) if rolling_shutter else _ZERO3,
-        np.ascontiguousarray(X, dtype=f64), np.ascontiguousarray(x, dtype=f64),
-        np.ascontiguousarray(tau, dtype=f64), float(loss_scale), nf, float(cutoff),
-        int(max_iterations), float(tol), bool(covariance), out,
-        on, mu, Lam, float(seconds_per_unit_r) if on else 1.0, noise2, want_acc)
+        np.ascontiguousarray(X, dtype=f64),
+        np.ascontiguousarray(x, dtype=f64),
+        np.ascontiguousarray(tau, dtype=f64),
+        float(loss_scale),
+        nf,
+        float(cutoff),
+        int(max_iterations),
+        float(tol),
+        bool(covariance),
+        out,
+        on,
+        mu,
+        Lam,
+        float(seconds_per_unit_r) if on else 1.0,
+        noise2,
+        want_acc,
+    )
     cov = out[18:162].reshape(12, 12) if covariance else None
-    res = RefineResult(out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov,
-                       float(sigma), success, nfev)
+    res = RefineResult(
+        out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov, float(sigma), success, nfev
+    )
     if covariance:
         res.data_information = out[162:306].reshape(12, 12)
         res.data_gradient = out[306:318]
@@ -768,8 +873,9 @@ def refine_rs_pose(R0, C0, w0, t0, X, x, tau, loss_scale: float, rolling_shutter
     return res
 
 
-def posterior_step(ml: RefineResult, prior: MotionPrior, seconds_per_unit_r: float
-                   ) -> RefineResult | None:
+def posterior_step(
+    ml: RefineResult, prior: MotionPrior, seconds_per_unit_r: float
+) -> RefineResult | None:
     """The maximum-a-posteriori estimate under ``prior`` from a maximum-likelihood
     :func:`refine_rs_pose` result (rolling shutter, with covariance), in closed form: one
     Gauss-Newton step of the MAP cost from the ML optimum with the data's normal equations
@@ -804,16 +910,30 @@ def posterior_step(ml: RefineResult, prior: MotionPrior, seconds_per_unit_r: flo
         return None
     f64 = np.float64
     out = np.empty(162)
-    if not _posterior_step(np.ascontiguousarray(ml.R, dtype=f64),
-                           np.ascontiguousarray(ml.C, dtype=f64),
-                           np.ascontiguousarray(ml.w, dtype=f64),
-                           np.ascontiguousarray(ml.t, dtype=f64),
-                           np.ascontiguousarray(ml.data_information, dtype=f64),
-                           np.ascontiguousarray(ml.data_gradient, dtype=f64),
-                           float(ml.sigma) ** 2, float(seconds_per_unit_r), mu, Lam, out):
+    if not _posterior_step(
+        np.ascontiguousarray(ml.R, dtype=f64),
+        np.ascontiguousarray(ml.C, dtype=f64),
+        np.ascontiguousarray(ml.w, dtype=f64),
+        np.ascontiguousarray(ml.t, dtype=f64),
+        np.ascontiguousarray(ml.data_information, dtype=f64),
+        np.ascontiguousarray(ml.data_gradient, dtype=f64),
+        float(ml.sigma) ** 2,
+        float(seconds_per_unit_r),
+        mu,
+        Lam,
+        out,
+    ):
         return None
-    res = RefineResult(out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18],
-                       out[18:162].reshape(12, 12), ml.sigma, ml.success, ml.nfev)
+    res = RefineResult(
+        out[:9].reshape(3, 3),
+        out[9:12],
+        out[12:15],
+        out[15:18],
+        out[18:162].reshape(12, 12),
+        ml.sigma,
+        ml.success,
+        ml.nfev,
+    )
     res.data_information = ml.data_information
     res.data_gradient = ml.data_gradient
     res.acceleration_block = ml.acceleration_block
@@ -833,9 +953,20 @@ def _prior_residuals(theta, mean, U, s, scale):
     return scale * U @ (z - mean), scale * U @ Jz
 
 
-def refine_rs_pose_scipy(R0, C0, w0, t0, X, x, tau, loss_scale: float,
-                         rolling_shutter: bool = True, prior: MotionPrior | None = None,
-                         seconds_per_unit_r: float = 0.0, noise: float = 0.0) -> RefineResult:
+def refine_rs_pose_scipy(
+    R0,
+    C0,
+    w0,
+    t0,
+    X,
+    x,
+    tau,
+    loss_scale: float,
+    rolling_shutter: bool = True,
+    prior: MotionPrior | None = None,
+    seconds_per_unit_r: float = 0.0,
+    noise: float = 0.0,
+) -> RefineResult:
     """The same problem solved by SciPy ``least_squares`` (Huber loss, trust region).
 
     A reference for tests and benchmarks; :func:`refine_rs_pose` is the one the estimator uses.
@@ -845,8 +976,14 @@ def refine_rs_pose_scipy(R0, C0, w0, t0, X, x, tau, loss_scale: float,
     component, so compare with a ``loss_scale`` the residuals stay inside).
     """
     free = np.arange(12) if rolling_shutter else np.arange(6)
-    theta0 = np.concatenate([np.zeros(3), C0, w0 if rolling_shutter else np.zeros(3),
-                             t0 if rolling_shutter else np.zeros(3)])
+    theta0 = np.concatenate(
+        [
+            np.zeros(3),
+            C0,
+            w0 if rolling_shutter else np.zeros(3),
+            t0 if rolling_shutter else np.zeros(3),
+        ]
+    )
     on, mean, Lam = prior_arrays(prior if rolling_shutter else None)
     ev, V = np.linalg.eigh(Lam)
     U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
@@ -859,22 +996,41 @@ def refine_rs_pose_scipy(R0, C0, w0, t0, X, x, tau, loss_scale: float,
     def fun(p):
         r = exact_residuals(full(p), R0, X, x, tau)
         if on:
-            r = np.concatenate([r, _prior_residuals(full(p), mean, U, seconds_per_unit_r,
-                                                    noise)[0]])
+            r = np.concatenate(
+                [r, _prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[0]]
+            )
         return r
 
     def jac(p):
         J = exact_jacobian(full(p), R0, X, x, tau)
         if on:
-            J = np.concatenate([J, _prior_residuals(full(p), mean, U, seconds_per_unit_r,
-                                                    noise)[1]])
+            J = np.concatenate(
+                [J, _prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[1]]
+            )
         return J[:, free]
 
     from scipy.optimize import least_squares  # (here: 0.2 s of the node's start-up otherwise)
 
-    res = least_squares(fun, theta0[free], jac=jac,
-                        loss="huber", f_scale=loss_scale, method="trf", x_scale="jac",
-                        xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    res = least_squares(
+        fun,
+        theta0[free],
+        jac=jac,
+        loss="huber",
+        f_scale=loss_scale,
+        method="trf",
+        x_scale="jac",
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-12,
+    )
     th = full(res.x)
-    return RefineResult(rotvec_to_matrix(th[:3]) @ R0, th[3:6], th[6:9], th[9:12], None,
-                        float("nan"), bool(res.success), int(res.nfev))
+    return RefineResult(
+        rotvec_to_matrix(th[:3]) @ R0,
+        th[3:6],
+        th[6:9],
+        th[9:12],
+        None,
+        float("nan"),
+        bool(res.success),
+        int(res.nfev),
+    )

@@ -79,8 +79,9 @@ def gather_prerotated(samples, R_pre, x, X, r):
             xs[k, j, 1] = x[i, 1]
             rs[k, j] = r[i]
             for a in range(3):
-                Xs[k, j, a] = R_pre[k, a, 0] * X[i, 0] + R_pre[k, a, 1] * X[i, 1] \
-                    + R_pre[k, a, 2] * X[i, 2]
+                Xs[k, j, a] = (
+                    R_pre[k, a, 0] * X[i, 0] + R_pre[k, a, 1] * X[i, 1] + R_pre[k, a, 2] * X[i, 2]
+                )
     return xs, Xs, rs
 
 

@@ -91,8 +91,9 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     first-order row misplaces points by pixels (at RS speed 1, 30 deg per frame, the true
     model had 277 of 301 inliers under :func:`project_error2`). ``inf`` behind the camera.
     """
-    return _exact_error2(x0, x1, d0 * x0 + d1 * x1 - r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2,
-                        t0, t1, t2)
+    return _exact_error2(
+        x0, x1, d0 * x0 + d1 * x1 - r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2
+    )
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -104,17 +105,66 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured=False):
     q1 = Rs[h, 1, 0] * X0 + Rs[h, 1, 1] * X1 + Rs[h, 1, 2] * X2
     q2 = Rs[h, 2, 0] * X0 + Rs[h, 2, 1] * X1 + Rs[h, 2, 2] * X2
     if measured:
-        return measured_error2(x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
-                               Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
-                               ts[h, 0], ts[h, 1], ts[h, 2])
-    return project_error2(x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
-                          Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
-                          ts[h, 0], ts[h, 1], ts[h, 2], exact)
+        return measured_error2(
+            x[i, 0],
+            x[i, 1],
+            d0,
+            d1,
+            r0e[i],
+            q0,
+            q1,
+            q2,
+            Cs[h, 0],
+            Cs[h, 1],
+            Cs[h, 2],
+            ws[h, 0],
+            ws[h, 1],
+            ws[h, 2],
+            ts[h, 0],
+            ts[h, 1],
+            ts[h, 2],
+        )
+    return project_error2(
+        x[i, 0],
+        x[i, 1],
+        d0,
+        d1,
+        r0e[i],
+        q0,
+        q1,
+        q2,
+        Cs[h, 0],
+        Cs[h, 1],
+        Cs[h, 2],
+        ws[h, 0],
+        ws[h, 1],
+        ws[h, 2],
+        ts[h, 0],
+        ts[h, 1],
+        ts[h, 2],
+        exact,
+    )
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
-def msac_scores(x, X, r0e, d, Rs, Cs, ws, ts, th2, valid, bail, exact=True, pretest_n=0,
-                pretest_min=0, pretest_fraction=0.5, measured=False):
+def msac_scores(
+    x,
+    X,
+    r0e,
+    d,
+    Rs,
+    Cs,
+    ws,
+    ts,
+    th2,
+    valid,
+    bail,
+    exact=True,
+    pretest_n=0,
+    pretest_min=0,
+    pretest_fraction=0.5,
+    measured=False,
+):
     """MSAC scores of H hypotheses on N points, evaluated preemptively.
 
     Every valid hypothesis is first scored on the first ``pretest_n`` points (callers shuffle
@@ -202,12 +252,46 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False):
         q1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2
         q2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2
         if measured:
-            out[i] = measured_error2(x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
-                                     C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])
+            out[i] = measured_error2(
+                x[i, 0],
+                x[i, 1],
+                d[0],
+                d[1],
+                r0e[i],
+                q0,
+                q1,
+                q2,
+                C[0],
+                C[1],
+                C[2],
+                w[0],
+                w[1],
+                w[2],
+                t[0],
+                t[1],
+                t[2],
+            )
         else:
-            out[i] = project_error2(x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
-                                    C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
-                                    exact)
+            out[i] = project_error2(
+                x[i, 0],
+                x[i, 1],
+                d[0],
+                d[1],
+                r0e[i],
+                q0,
+                q1,
+                q2,
+                C[0],
+                C[1],
+                C[2],
+                w[0],
+                w[1],
+                w[2],
+                t[0],
+                t[1],
+                t[2],
+                exact,
+            )
     return out
 
 
@@ -224,8 +308,14 @@ def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False):
     N = x.shape[0]
     inl = np.zeros(N, dtype=np.bool_)
     for a in range(3):
-        if not (np.isfinite(C[a]) and np.isfinite(w[a]) and np.isfinite(t[a])
-                and np.isfinite(R[a, 0]) and np.isfinite(R[a, 1]) and np.isfinite(R[a, 2])):
+        if not (
+            np.isfinite(C[a])
+            and np.isfinite(w[a])
+            and np.isfinite(t[a])
+            and np.isfinite(R[a, 0])
+            and np.isfinite(R[a, 1])
+            and np.isfinite(R[a, 2])
+        ):
             return np.inf, inl, 0
     e2 = errors2(x, X, r0e, d, R, C, w, t, True, measured)
     s = 0.0

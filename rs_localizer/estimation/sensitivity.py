@@ -35,8 +35,26 @@ def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
     """``J^T W J`` (12, 12; only if ``want_H``) and ``J^T W D`` (12, 6) over the points in
     front of the camera within ``cutoff`` (Huber weights with threshold k, as the
     refinement), D the (beta, b) columns."""
-    pose = (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2],
-            C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2])
+    pose = (
+        R[0, 0],
+        R[0, 1],
+        R[0, 2],
+        R[1, 0],
+        R[1, 1],
+        R[1, 2],
+        R[2, 0],
+        R[2, 1],
+        R[2, 2],
+        C[0],
+        C[1],
+        C[2],
+        w[0],
+        w[1],
+        w[2],
+        t[0],
+        t[1],
+        t[2],
+    )
     H = np.zeros((12, 12))
     B = np.zeros((12, 6))
     row = np.empty(12)
@@ -116,15 +134,29 @@ def output_jacobian(R, C, w, seconds_per_unit_r: float) -> np.ndarray:
     :func:`~rs_localizer.estimation.estimate.physical_velocities`. The velocity rows are zero
     for a global shutter (``seconds_per_unit_r <= 0``)."""
     f64 = np.float64
-    return _output_jacobian(np.ascontiguousarray(R, dtype=f64),
-                            np.ascontiguousarray(C, dtype=f64),
-                            np.ascontiguousarray(w, dtype=f64), float(seconds_per_unit_r))
+    return _output_jacobian(
+        np.ascontiguousarray(R, dtype=f64),
+        np.ascontiguousarray(C, dtype=f64),
+        np.ascontiguousarray(w, dtype=f64),
+        float(seconds_per_unit_r),
+    )
 
 
-def acceleration_sensitivity(R, C, w, t, X, x, tau, seconds_per_unit_r: float,
-                             loss_scale: float, cutoff: float = np.inf,
-                             normal_inverse=None, max_points: int | None = None,
-                             acceleration_block=None) -> np.ndarray | None:
+def acceleration_sensitivity(
+    R,
+    C,
+    w,
+    t,
+    X,
+    x,
+    tau,
+    seconds_per_unit_r: float,
+    loss_scale: float,
+    cutoff: float = np.inf,
+    normal_inverse=None,
+    max_points: int | None = None,
+    acceleration_block=None,
+) -> np.ndarray | None:
     """First-order change of a frame's estimate per unit of in-readout acceleration.
 
     Args:
@@ -169,10 +201,18 @@ def acceleration_sensitivity(R, C, w, t, X, x, tau, seconds_per_unit_r: float,
             return out if np.isfinite(out).all() else None
     n = len(X)
     m = n if (Hinv is None or max_points is None) else min(n, max(int(max_points), 1))
-    H, B = _normal_blocks(R, C, w, t, np.ascontiguousarray(X[:m], dtype=f64),
-                          np.ascontiguousarray(x[:m], dtype=f64),
-                          np.ascontiguousarray(tau[:m], dtype=f64), float(loss_scale),
-                          float(cutoff), Hinv is None)
+    H, B = _normal_blocks(
+        R,
+        C,
+        w,
+        t,
+        np.ascontiguousarray(X[:m], dtype=f64),
+        np.ascontiguousarray(x[:m], dtype=f64),
+        np.ascontiguousarray(tau[:m], dtype=f64),
+        float(loss_scale),
+        float(cutoff),
+        Hinv is None,
+    )
     if Hinv is not None:
         G = Hinv @ (B * (n / max(m, 1)))  # d(delta, C, w, t) / d(beta, b)
     else:

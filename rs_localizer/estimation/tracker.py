@@ -34,8 +34,14 @@ from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs
 from .fusion import FusedState, FusionOptions, TwistFilter
 from .prior import MotionPrior
 
-__all__ = ["TrackerOptions", "TrackResult", "RSTracker", "STATES", "model_from_state",
-           "motion_prior_from_state"]
+__all__ = [
+    "STATES",
+    "RSTracker",
+    "TrackResult",
+    "TrackerOptions",
+    "model_from_state",
+    "motion_prior_from_state",
+]
 
 #: the paths a frame can take
 STATES = ("cold", "tracked", "relocalized", "reset")
@@ -90,15 +96,18 @@ class TrackerOptions:
         if not (self.gate_sigmas >= 0 and self.max_gate_px >= self.gate_px):
             raise ValueError("need gate_sigmas >= 0 and max_gate_px >= gate_px")
         if not (0.0 <= self.min_explained_ratio <= 1.0):
-            raise ValueError(f"min_explained_ratio must be in [0, 1], got "
-                             f"{self.min_explained_ratio}")
+            raise ValueError(
+                f"min_explained_ratio must be in [0, 1], got {self.min_explained_ratio}"
+            )
         if not (np.isfinite(self.max_gap) and self.max_gap > 0):
             raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
         if self.tracked_min_iterations < 0:
             raise ValueError("tracked_min_iterations must be >= 0")
         if self.prior_from_prediction not in ("planar", "always", "never"):
-            raise ValueError(f"prior_from_prediction must be planar, always or never, got "
-                             f"{self.prior_from_prediction!r}")
+            raise ValueError(
+                f"prior_from_prediction must be planar, always or never, got "
+                f"{self.prior_from_prediction!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -142,8 +151,9 @@ def model_from_state(state: FusedState, camera: CameraModel):
     if s <= 0:
         return R, C, np.zeros(3), np.zeros(3)
     w = -np.asarray(state.angular_velocity, dtype=float) * s
-    wxC = np.array([w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2],
-                    w[0] * C[1] - w[1] * C[0]])  # (np.cross costs ~10x more at this size)
+    wxC = np.array(
+        [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
+    )  # (np.cross costs ~10x more at this size)
     t = wxC - np.asarray(state.linear_velocity, dtype=float) * s
     return R, C, w, t
 
@@ -171,17 +181,25 @@ class RSTracker:
     Counters: ``frames``, ``frames_tracked``, ``relocalizations``, ``resets``, ``failures``.
     """
 
-    def __init__(self, solver: str = "r6p_1lin", options: EstimateOptions | None = None,
-                 tracker_options: TrackerOptions | None = None):
+    def __init__(
+        self,
+        solver: str = "r6p_1lin",
+        options: EstimateOptions | None = None,
+        tracker_options: TrackerOptions | None = None,
+    ):
         self.solver = solver
         # the filter models the estimate's error from acceleration during the readout
         self.options = replace(options or EstimateOptions(), acceleration_sensitivity=True)
         self.tracker_options = tracker_options or TrackerOptions()
         to = self.tracker_options
         self.tracked_options = replace(
-            to.tracked_options or replace(self.options, min_iterations=min(
-                self.options.min_iterations, to.tracked_min_iterations)),
-            acceleration_sensitivity=True)
+            to.tracked_options
+            or replace(
+                self.options,
+                min_iterations=min(self.options.min_iterations, to.tracked_min_iterations),
+            ),
+            acceleration_sensitivity=True,
+        )
         self.filter = TwistFilter(replace(to.fusion, max_gap=to.max_gap))
         self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
         self.failures = 0
@@ -209,8 +227,9 @@ class RSTracker:
         are not returned again and the track goes on."""
         return self.filter.flush()
 
-    def process(self, stamp_ns: int, points2d_px, points3d, camera: CameraModel,
-                scores=None) -> TrackResult:
+    def process(
+        self, stamp_ns: int, points2d_px, points3d, camera: CameraModel, scores=None
+    ) -> TrackResult:
         """Estimate one frame and update the track.
 
         Args:
@@ -228,8 +247,9 @@ class RSTracker:
         self.frames += 1
         final = []
         state = "cold"
-        if self._stamp is not None and (stamp_ns <= self._stamp
-                                        or (stamp_ns - self._stamp) * 1e-9 > to.max_gap):
+        if self._stamp is not None and (
+            stamp_ns <= self._stamp or (stamp_ns - self._stamp) * 1e-9 > to.max_gap
+        ):
             final += self.reset()
             state = "reset"
             self.resets += 1
@@ -242,31 +262,41 @@ class RSTracker:
             ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
             need = max(self.options.min_inliers, int(to.min_explained_ratio * ratio * n))
             sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
-            gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal),
-                       to.max_gate_px)
+            gate = min(
+                max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal), to.max_gate_px
+            )
             opts = self.tracked_options
             if camera.seconds_per_unit_r > 0 and (
-                    to.prior_from_prediction == "always"
-                    or (to.prior_from_prediction == "planar" and self._planar)):
+                to.prior_from_prediction == "always"
+                or (to.prior_from_prediction == "planar" and self._planar)
+            ):
                 try:
-                    opts = replace(opts, motion_prior=motion_prior_from_state(
-                        predicted, to.prior_inflation))
+                    opts = replace(
+                        opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
+                    )
                 except ValueError:  # (a covariance that is not positive definite)
                     pass
-            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores,
-                                   initial_model=InitialModel(R, C, w, t, gate, need))
+            est = estimate_rs_pose(
+                points2d_px,
+                points3d,
+                camera,
+                self.solver,
+                opts,
+                scores,
+                initial_model=InitialModel(R, C, w, t, gate, need),
+            )
             explained = est.initial_explained
             if est.success and est.initial_used:
                 state = "tracked"
             else:
                 state = "relocalized"
                 if opts is not self.tracked_options or (
-                        not est.success and est.failure != "too_few_points"):
+                    not est.success and est.failure != "too_few_points"
+                ):
                     # the prediction does not hold (its twist must not be the prior), or it
                     # misled RANSAC on a bad frame: solve the frame cold
                     opts = self.options
-                    est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts,
-                                           scores)
+                    est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
         else:
             opts = self.options
             est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
@@ -280,6 +310,10 @@ class RSTracker:
         self._stamp = stamp_ns
         self._inlier_ratio = est.num_inliers / max(len(points2d_px), 1)
         self._planar = bool(est.planar)
-        step = self.filter.update(stamp_ns, est, relocalized=state == "relocalized",
-                                  prior=opts.motion_prior if est.motion_prior_used else None)
+        step = self.filter.update(
+            stamp_ns,
+            est,
+            relocalized=state == "relocalized",
+            prior=opts.motion_prior if est.motion_prior_used else None,
+        )
         return TrackResult(est, state, step, final + step.final, predicted, explained)

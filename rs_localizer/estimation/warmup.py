@@ -16,7 +16,7 @@ from ..jit_cache import cache_state, compile_progress
 from ..solvers.registry import SOLVER_NAMES
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
 
-__all__ = ["warm_up", "compile_kernels", "DEFAULT_SOLVERS"]
+__all__ = ["DEFAULT_SOLVERS", "compile_kernels", "warm_up"]
 
 #: what ``rs-localizer compile`` compiles by default: the node's default solver and the
 #: global-shutter baseline of ``rs-localizer demo``
@@ -27,9 +27,14 @@ def _problem(n: int = 60, seed: int = 1):
     """A 640x480 distorted RS camera and ``n`` exact correspondences (3-8 m deep) with
     scores: pixels (n, 2), world points (n, 3), scores (n,)."""
     rng = np.random.default_rng(seed)
-    cam = CameraModel(K=np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
-                      D=np.array([0.05, -0.05, 0.0, 0.0, 0.0]), width=640, height=480,
-                      line_delay=5e-5, distortion_model="plumb_bob")
+    cam = CameraModel(
+        K=np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
+        D=np.array([0.05, -0.05, 0.0, 0.0, 0.0]),
+        width=640,
+        height=480,
+        line_delay=5e-5,
+        distortion_model="plumb_bob",
+    )
     uv = rng.uniform([0, 0], [639, 479], (n, 2))
     depth = rng.uniform(3, 8, n)
     xn = cam.undistort(uv)
@@ -37,8 +42,9 @@ def _problem(n: int = 60, seed: int = 1):
     return cam, uv, X, rng.uniform(0, 1, n)
 
 
-def warm_up(solver: str = "r6p_1lin",
-            options: EstimateOptions | None = None) -> tuple[float, RSPoseEstimate]:
+def warm_up(
+    solver: str = "r6p_1lin", options: EstimateOptions | None = None
+) -> tuple[float, RSPoseEstimate]:
     """Run :func:`~rs_localizer.estimation.estimate_rs_pose` with ``solver`` and ``options`` on
     a synthetic 60-point problem, with and without scores (the two input paths of the node).
 
@@ -75,5 +81,9 @@ def compile_kernels(solvers=DEFAULT_SOLVERS, log=print) -> dict:
     with compile_progress(log) as prog:
         for s in solvers:
             per[s], _ = warm_up(s)
-    return {"seconds": time.perf_counter() - tic, "kernels": prog.kernels,
-            "cache": cache_state(), "solvers": per}
+    return {
+        "seconds": time.perf_counter() - tic,
+        "kernels": prog.kernels,
+        "cache": cache_state(),
+        "solvers": per,
+    }

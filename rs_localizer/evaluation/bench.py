@@ -21,14 +21,13 @@ import argparse
 import os
 import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from .threads import one_thread  # noqa: E402
-
-from ..estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose  # noqa: E402
-from ..geometry import rotation_angle_deg  # noqa: E402
-from ..solvers.registry import SOLVERS as SOLVER_TABLE  # noqa: E402
-from ..sim.synthetic import make_frame, paper_camera  # noqa: E402
+from ..estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose
+from ..geometry import rotation_angle_deg
+from ..sim.synthetic import make_frame, paper_camera
+from ..solvers.registry import SOLVERS as SOLVER_TABLE
+from .threads import one_thread
 
 #: paper Table 1 (2.5 GHz i7, C++/Matlab-MEX), microseconds per iteration (from the registry)
 PAPER_US = {s.name: s.paper_us for s in SOLVER_TABLE.values() if s.paper_us is not None}
@@ -60,28 +59,54 @@ def bench_solvers(repeat: int = 200, batch: int = 1000, seed: int = 0) -> list[d
     x6, X6 = x9[:, :6].copy(), X9[:, :6].copy()
     f0 = frames[0]
     rows = []
-    rows.append(dict(solver="p3p", us_call=_median_us(lambda: S.p3p(f0.x[:3], f0.X[:3]), repeat),
-                     note="Lambda Twist"))
-    rows.append(dict(solver="p3p (OpenCV)",
-                     us_call=_median_us(lambda: S.p3p_opencv(f0.x[:3], f0.X[:3]), repeat)))
-    rows.append(dict(solver="r6p", us_call=_median_us(lambda: S.r6p(f0.x[:6], f0.X[:6]),
-                                                         repeat)))
-    iterative = {"r6p_1lin": (S.r6p_1lin, S.r6p_1lin_batch),
-                 "r6p_vC_wt": (S.r6p_vC_wt, S.r6p_vC_wt_batch),
-                 "r6p_vCt_w": (S.r6p_vCt_w, S.r6p_vCt_w_batch),
-                 "r6p_vCt_wt": (S.r6p_vCt_wt, S.r6p_vCt_wt_batch)}
+    rows.append(
+        dict(
+            solver="p3p",
+            us_call=_median_us(lambda: S.p3p(f0.x[:3], f0.X[:3]), repeat),
+            note="Lambda Twist",
+        )
+    )
+    rows.append(
+        dict(
+            solver="p3p (OpenCV)",
+            us_call=_median_us(lambda: S.p3p_opencv(f0.x[:3], f0.X[:3]), repeat),
+        )
+    )
+    rows.append(dict(solver="r6p", us_call=_median_us(lambda: S.r6p(f0.x[:6], f0.X[:6]), repeat)))
+    iterative = {
+        "r6p_1lin": (S.r6p_1lin, S.r6p_1lin_batch),
+        "r6p_vC_wt": (S.r6p_vC_wt, S.r6p_vC_wt_batch),
+        "r6p_vCt_w": (S.r6p_vCt_w, S.r6p_vCt_w_batch),
+        "r6p_vCt_wt": (S.r6p_vCt_wt, S.r6p_vCt_wt_batch),
+    }
     for name, (single, batched) in iterative.items():
         t1 = _median_us(lambda: single(f0.x[:6], f0.X[:6], iterations=1), repeat)
         t5 = _median_us(lambda: single(f0.x[:6], f0.X[:6], iterations=5, tol=-1.0), repeat)
         b1 = _median_us(lambda: batched(x6, X6, iterations=1), 20) / batch
         b5 = _median_us(lambda: batched(x6, X6, iterations=5, tol=-1.0), 20) / batch
-        rows.append(dict(solver=name, us_call=t5, us_per_iteration=(t5 - t1) / 4,
-                         us_batched=b5, us_batched_per_iteration=(b5 - b1) / 4,
-                         us_batched_1_iteration=b1))
-    rows.append(dict(solver="r9p", us_call=_median_us(lambda: S.r9p(f0.x, f0.X), repeat),
-                     us_batched=_median_us(lambda: S.r9p_batch(x9, X9), 20) / batch))
-    rows.append(dict(solver="r6p_joined",
-                     us_call=_median_us(lambda: S.r6p_joined(f0.x[:6], f0.X[:6]), repeat)))
+        rows.append(
+            dict(
+                solver=name,
+                us_call=t5,
+                us_per_iteration=(t5 - t1) / 4,
+                us_batched=b5,
+                us_batched_per_iteration=(b5 - b1) / 4,
+                us_batched_1_iteration=b1,
+            )
+        )
+    rows.append(
+        dict(
+            solver="r9p",
+            us_call=_median_us(lambda: S.r9p(f0.x, f0.X), repeat),
+            us_batched=_median_us(lambda: S.r9p_batch(x9, X9), 20) / batch,
+        )
+    )
+    rows.append(
+        dict(
+            solver="r6p_joined",
+            us_call=_median_us(lambda: S.r6p_joined(f0.x[:6], f0.X[:6]), repeat),
+        )
+    )
     return rows
 
 
@@ -90,8 +115,12 @@ def bench_solvers(repeat: int = 200, batch: int = 1000, seed: int = 0) -> list[d
 #: (3.0: it draws three times the samples its confidence bound asks for)
 def poselib_matched_options(opts: EstimateOptions) -> dict:
     """PoseLib ``ransac_opt`` with our iteration bounds, threshold and confidence."""
-    return {"max_reproj_error": opts.threshold_px, "min_iterations": opts.min_iterations,
-            "max_iterations": opts.max_iterations, "success_prob": opts.confidence}
+    return {
+        "max_reproj_error": opts.threshold_px,
+        "min_iterations": opts.min_iterations,
+        "max_iterations": opts.max_iterations,
+        "success_prob": opts.confidence,
+    }
 
 
 def _poselib_estimate(f, cam, threshold_px, ransac_opt=None):
@@ -100,8 +129,12 @@ def _poselib_estimate(f, cam, threshold_px, ransac_opt=None):
     import poselib
 
     K = cam.K
-    camera = {"model": "PINHOLE", "width": cam.width, "height": cam.height,
-              "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]}
+    camera = {
+        "model": "PINHOLE",
+        "width": cam.width,
+        "height": cam.height,
+        "params": [K[0, 0], K[1, 1], K[0, 2], K[1, 2]],
+    }
     ro = {"max_reproj_error": threshold_px} if ransac_opt is None else ransac_opt
     pose, info = poselib.estimate_absolute_pose(f.points_px, f.X, camera, ro, {})
     return np.asarray(pose.R), np.asarray(pose.t), int(info["num_inliers"])
@@ -110,10 +143,16 @@ def _poselib_estimate(f, cam, threshold_px, ransac_opt=None):
 def _opencv_estimate(f, cam, threshold_px):
     import cv2
 
-    ok, rvec, tvec, inl = cv2.solvePnPRansac(f.X, f.points_px, cam.K, None,
-                                              reprojectionError=threshold_px,
-                                              iterationsCount=1000, confidence=0.9999,
-                                              flags=cv2.SOLVEPNP_P3P)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        f.X,
+        f.points_px,
+        cam.K,
+        None,
+        reprojectionError=threshold_px,
+        iterationsCount=1000,
+        confidence=0.9999,
+        flags=cv2.SOLVEPNP_P3P,
+    )
     if not ok:
         return None, None, 0
     return cv2.Rodrigues(rvec)[0], tvec.ravel(), 0 if inl is None else len(inl)
@@ -123,13 +162,24 @@ def _opencv_estimate(f, cam, threshold_px):
 OURS_RS, OURS_GS = "r6p_1lin, RS frames", "r6p_1lin, GS frames"
 PL_MATCHED_GS = "PoseLib matched, GS frames"
 PL_DEFAULT_GS = "PoseLib defaults, GS frames"
-RATIOS = ((OURS_RS, PL_MATCHED_GS), (OURS_RS, PL_DEFAULT_GS), (OURS_GS, PL_MATCHED_GS),
-          (OURS_GS, PL_DEFAULT_GS))
+RATIOS = (
+    (OURS_RS, PL_MATCHED_GS),
+    (OURS_RS, PL_DEFAULT_GS),
+    (OURS_GS, PL_MATCHED_GS),
+    (OURS_GS, PL_DEFAULT_GS),
+)
 
 
-def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
-                   noise_px: float = 1.0, outlier_ratio: float = 0.3, solvers=None,
-                   baselines: bool = True, seed: int = 0) -> list[dict]:
+def bench_estimate(
+    frames: int = 50,
+    n_points: int = 500,
+    rs_speed: float = 0.5,
+    noise_px: float = 1.0,
+    outlier_ratio: float = 0.3,
+    solvers=None,
+    baselines: bool = True,
+    seed: int = 0,
+) -> list[dict]:
     """Time the full estimator per solver and the global-shutter baselines in ONE interleaved
     run: frame k of every method runs before frame k + 1 of any (the order of the methods
     rotates from frame to frame), so machine load affects all methods alike.
@@ -147,10 +197,26 @@ def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
     error (% of the true one; RS frames, our solvers), inliers, and our stage medians.
     """
     cam = paper_camera()
-    rs = [make_frame(seed * 100003 + k, n_points, rs_speed=rs_speed, noise_px=noise_px,
-                     outlier_ratio=outlier_ratio) for k in range(frames)]
-    gs = [make_frame(seed * 100003 + 50000 + k, n_points, rs_speed=0.0, noise_px=noise_px,
-                     outlier_ratio=outlier_ratio) for k in range(frames)]
+    rs = [
+        make_frame(
+            seed * 100003 + k,
+            n_points,
+            rs_speed=rs_speed,
+            noise_px=noise_px,
+            outlier_ratio=outlier_ratio,
+        )
+        for k in range(frames)
+    ]
+    gs = [
+        make_frame(
+            seed * 100003 + 50000 + k,
+            n_points,
+            rs_speed=0.0,
+            noise_px=noise_px,
+            outlier_ratio=outlier_ratio,
+        )
+        for k in range(frames)
+    ]
     opts = EstimateOptions()
     matched = poselib_matched_options(opts)
     methods = {}  # name -> (frames, fn)
@@ -163,16 +229,20 @@ def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
     methods[PL_DEFAULT_GS] = (gs, lambda f: _poselib_estimate(f, cam, opts.threshold_px))
     if baselines:
         methods["PoseLib matched, RS frames"] = (
-            rs, lambda f: _poselib_estimate(f, cam, opts.threshold_px, matched))
+            rs,
+            lambda f: _poselib_estimate(f, cam, opts.threshold_px, matched),
+        )
         methods["OpenCV solvePnPRansac P3P, RS frames"] = (
-            rs, lambda f: _opencv_estimate(f, cam, opts.threshold_px))
+            rs,
+            lambda f: _opencv_estimate(f, cam, opts.threshold_px),
+        )
     names = list(methods)
     for name in names:  # warm-up (numba compilation, caches)
         data, fn = methods[name]
         fn(data[0])
     acc = {name: dict(wall=[], cpu=[], rot=[], pos=[], om=[], inl=[], stages=[]) for name in names}
     for k in range(frames):
-        for name in names[k % len(names):] + names[:k % len(names)]:
+        for name in names[k % len(names) :] + names[: k % len(names)]:
             data, fn = methods[name]
             f = data[k]
             c0, t0 = time.thread_time(), time.perf_counter()
@@ -186,26 +256,37 @@ def bench_estimate(frames: int = 50, n_points: int = 500, rs_speed: float = 0.5,
                 a["pos"].append(100.0)
             else:
                 a["rot"].append(rotation_angle_deg(R, f.R))
-                a["pos"].append(100 * np.linalg.norm(-R.T @ C - f.position)
-                                / np.linalg.norm(f.position))
+                a["pos"].append(
+                    100 * np.linalg.norm(-R.T @ C - f.position) / np.linalg.norm(f.position)
+                )
             a["inl"].append(n)
             if extra:
                 timings, om = extra
                 a["stages"].append(timings)
                 if om is not None and np.linalg.norm(f.angular_velocity) > 0:
-                    a["om"].append(100 * np.linalg.norm(om - f.angular_velocity)
-                                   / np.linalg.norm(f.angular_velocity))
+                    a["om"].append(
+                        100
+                        * np.linalg.norm(om - f.angular_velocity)
+                        / np.linalg.norm(f.angular_velocity)
+                    )
     rows = []
     for name in names:
         a = acc[name]
-        rows.append(dict(method=name, ms_median=1e3 * np.median(a["wall"]),
-                         ms_p95=1e3 * np.percentile(a["wall"], 95),
-                         cpu_ms_median=1e3 * np.median(a["cpu"]), rot_deg=np.median(a["rot"]),
-                         pos_pct=np.median(a["pos"]),
-                         om_pct=np.median(a["om"]) if a["om"] else None,
-                         inliers=np.median(a["inl"]),
-                         stages_ms={s: 1e3 * np.median([d.get(s, 0.0) for d in a["stages"]])
-                                    for s in STAGES} if a["stages"] else None))
+        rows.append(
+            dict(
+                method=name,
+                ms_median=1e3 * np.median(a["wall"]),
+                ms_p95=1e3 * np.percentile(a["wall"], 95),
+                cpu_ms_median=1e3 * np.median(a["cpu"]),
+                rot_deg=np.median(a["rot"]),
+                pos_pct=np.median(a["pos"]),
+                om_pct=np.median(a["om"]) if a["om"] else None,
+                inliers=np.median(a["inl"]),
+                stages_ms={s: 1e3 * np.median([d.get(s, 0.0) for d in a["stages"]]) for s in STAGES}
+                if a["stages"]
+                else None,
+            )
+        )
     return rows
 
 
@@ -232,9 +313,15 @@ def ml_fit(f):
 
     X, x, tau = f.X[f.inlier], f.x[f.inlier], f.r[f.inlier] - f.r0
     theta0 = np.concatenate([np.zeros(3), f.C, f.w, f.t])
-    res = least_squares(lambda p: exact_residuals(p, f.R, X, x, tau), theta0,
-                        jac=lambda p: exact_jacobian(p, f.R, X, x, tau), method="lm",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    res = least_squares(
+        lambda p: exact_residuals(p, f.R, X, x, tau),
+        theta0,
+        jac=lambda p: exact_jacobian(p, f.R, X, x, tau),
+        method="lm",
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
     th = res.x
     return rotvec_to_matrix(th[:3]) @ f.R, th[3:6], th[6:9], th[9:12]
 
@@ -247,12 +334,17 @@ def protocol_options(**kw):
     of Exp. 7's fastest)."""
     from ..estimation.estimate import EstimateOptions
 
-    return EstimateOptions(**{"max_angular_velocity": np.inf, "max_linear_velocity": np.inf,
-                              **kw})
+    return EstimateOptions(**{"max_angular_velocity": np.inf, "max_linear_velocity": np.inf, **kw})
 
 
-def bench_ml(frames: int = 40, n_points: int = 500, rs_speed: float = 1.0,
-             noise_px: float = 1.0, outlier_ratio: float = 0.3, seed: int = 0) -> dict:
+def bench_ml(
+    frames: int = 40,
+    n_points: int = 500,
+    rs_speed: float = 1.0,
+    noise_px: float = 1.0,
+    outlier_ratio: float = 0.3,
+    seed: int = 0,
+) -> dict:
     """Our ``r6p_1lin`` estimate against the maximum-likelihood fit (:func:`ml_fit`) on the same
     frames: median angular velocity error of both (% of the true |omega|), the median and
     largest distance between the two (% of |omega|), and the median rotation errors (deg).
@@ -264,8 +356,13 @@ def bench_ml(frames: int = 40, n_points: int = 500, rs_speed: float = 1.0,
     cam = paper_camera()
     ours, ml, apart, rot_ours, rot_ml = [], [], [], [], []
     for k in range(frames):
-        f = make_frame(seed * 100003 + k, n_points, rs_speed=rs_speed, noise_px=noise_px,
-                       outlier_ratio=outlier_ratio)
+        f = make_frame(
+            seed * 100003 + k,
+            n_points,
+            rs_speed=rs_speed,
+            noise_px=noise_px,
+            outlier_ratio=outlier_ratio,
+        )
         e = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin", opts)
         R, C, w, t = ml_fit(f)
         om = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)[0]
@@ -275,10 +372,16 @@ def bench_ml(frames: int = 40, n_points: int = 500, rs_speed: float = 1.0,
         apart.append(100 * np.linalg.norm(e.angular_velocity - om) / n)
         rot_ours.append(rotation_angle_deg(e.R, f.R))
         rot_ml.append(rotation_angle_deg(R, f.R))
-    return dict(frames=frames, rs_speed=rs_speed, omega_pct_ours=float(np.median(ours)),
-                omega_pct_ml=float(np.median(ml)), apart_pct_median=float(np.median(apart)),
-                apart_pct_max=float(np.max(apart)), rot_deg_ours=float(np.median(rot_ours)),
-                rot_deg_ml=float(np.median(rot_ml)))
+    return dict(
+        frames=frames,
+        rs_speed=rs_speed,
+        omega_pct_ours=float(np.median(ours)),
+        omega_pct_ml=float(np.median(ml)),
+        apart_pct_median=float(np.median(apart)),
+        apart_pct_max=float(np.max(apart)),
+        rot_deg_ours=float(np.median(rot_ours)),
+        rot_deg_ml=float(np.median(rot_ml)),
+    )
 
 
 def _fmt(v, spec):
@@ -287,7 +390,9 @@ def _fmt(v, spec):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.evaluation.bench", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(
+        prog="python -m rs_localizer.evaluation.bench", description=__doc__.split("\n")[0]
+    )
     sub = p.add_subparsers(dest="what", required=True)
     ps = sub.add_parser("solvers", help="per-solver microseconds (single and batched)")
     ps.add_argument("--repeat", type=int, default=200)
@@ -299,9 +404,12 @@ def main(argv=None) -> int:
     pe.add_argument("--noise", type=float, default=1.0)
     pe.add_argument("--outliers", type=float, default=0.3)
     pe.add_argument("--solvers", nargs="*", default=None)
-    pe.add_argument("--no-baselines", action="store_true",
-                    help="skip PoseLib and OpenCV on the RS frames (the global-shutter "
-                         "references of the ratios always run)")
+    pe.add_argument(
+        "--no-baselines",
+        action="store_true",
+        help="skip PoseLib and OpenCV on the RS frames (the global-shutter "
+        "references of the ratios always run)",
+    )
     pm = sub.add_parser("ml", help="our estimate against the maximum-likelihood fit")
     pm.add_argument("--frames", type=int, default=40)
     pm.add_argument("--speed", type=float, default=1.0, help="RS speed")
@@ -309,49 +417,65 @@ def main(argv=None) -> int:
     with one_thread():
         if a.what == "solvers":
             rows = bench_solvers(a.repeat, a.batch)
-            print(f"{'solver':<16}{'us/call':>10}{'us/iter':>10}{'batched us/hyp':>16}"
-                  f"{'batched us/iter':>17}{'paper us/iter':>15}")
+            print(
+                f"{'solver':<16}{'us/call':>10}{'us/iter':>10}{'batched us/hyp':>16}"
+                f"{'batched us/iter':>17}{'paper us/iter':>15}"
+            )
             for r in rows:
-                print(f"{r['solver']:<16}{_fmt(r.get('us_call'), '10.1f')}"
-                      f"{_fmt(r.get('us_per_iteration'), '10.2f')}"
-                      f"{_fmt(r.get('us_batched'), '16.2f')}"
-                      f"{_fmt(r.get('us_batched_per_iteration'), '17.2f')}"
-                      f"{_fmt(PAPER_US.get(r['solver']), '15d')}")
+                print(
+                    f"{r['solver']:<16}{_fmt(r.get('us_call'), '10.1f')}"
+                    f"{_fmt(r.get('us_per_iteration'), '10.2f')}"
+                    f"{_fmt(r.get('us_batched'), '16.2f')}"
+                    f"{_fmt(r.get('us_batched_per_iteration'), '17.2f')}"
+                    f"{_fmt(PAPER_US.get(r['solver']), '15d')}"
+                )
         elif a.what == "ml":
             r = bench_ml(a.frames, rs_speed=a.speed)
-            print(f"{r['frames']} frames at RS speed {r['rs_speed']} (500 correspondences, 1 px "
-                  f"noise, 30% outliers): median angular velocity error, % of |omega|: ours "
-                  f"{r['omega_pct_ours']:.3f}, maximum-likelihood fit on the true inliers "
-                  f"{r['omega_pct_ml']:.3f}; ours - ML: median {r['apart_pct_median']:.3f}, max "
-                  f"{r['apart_pct_max']:.3f}; median rotation error: ours "
-                  f"{r['rot_deg_ours']:.4f} deg, ML {r['rot_deg_ml']:.4f} deg")
+            print(
+                f"{r['frames']} frames at RS speed {r['rs_speed']} (500 correspondences, 1 px "
+                f"noise, 30% outliers): median angular velocity error, % of |omega|: ours "
+                f"{r['omega_pct_ours']:.3f}, maximum-likelihood fit on the true inliers "
+                f"{r['omega_pct_ml']:.3f}; ours - ML: median {r['apart_pct_median']:.3f}, max "
+                f"{r['apart_pct_max']:.3f}; median rotation error: ours "
+                f"{r['rot_deg_ours']:.4f} deg, ML {r['rot_deg_ml']:.4f} deg"
+            )
         else:
             load0 = os.getloadavg()
-            rows = bench_estimate(a.frames, a.points, a.speed, a.noise, a.outliers, a.solvers,
-                                  not a.no_baselines)
+            rows = bench_estimate(
+                a.frames, a.points, a.speed, a.noise, a.outliers, a.solvers, not a.no_baselines
+            )
             load1 = os.getloadavg()
             by = {r["method"]: r for r in rows}
-            print(f"{a.frames} frames per method, interleaved; {a.points} correspondences, "
-                  f"{a.noise} px noise, {100 * a.outliers:.0f}% outliers; RS frames at RS speed "
-                  f"{a.speed} ({30 * a.speed:.0f} deg, {0.3 * a.speed:.2f} per frame), GS frames "
-                  f"at 0; one BLAS/numba thread; 1-min load average {load0[0]:.2f} -> "
-                  f"{load1[0]:.2f} on {os.cpu_count()} CPUs")
-            print(f"{'method':<38}{'ms median':>10}{'ms p95':>9}{'CPU ms':>9}"
-                  f"{'rot deg':>10}{'pos %':>8}{'omega %':>9}{'inliers':>9}")
+            print(
+                f"{a.frames} frames per method, interleaved; {a.points} correspondences, "
+                f"{a.noise} px noise, {100 * a.outliers:.0f}% outliers; RS frames at RS speed "
+                f"{a.speed} ({30 * a.speed:.0f} deg, {0.3 * a.speed:.2f} per frame), GS frames "
+                f"at 0; one BLAS/numba thread; 1-min load average {load0[0]:.2f} -> "
+                f"{load1[0]:.2f} on {os.cpu_count()} CPUs"
+            )
+            print(
+                f"{'method':<38}{'ms median':>10}{'ms p95':>9}{'CPU ms':>9}"
+                f"{'rot deg':>10}{'pos %':>8}{'omega %':>9}{'inliers':>9}"
+            )
             for r in rows:
-                print(f"{r['method']:<38}{r['ms_median']:10.2f}{r['ms_p95']:9.2f}"
-                      f"{r['cpu_ms_median']:9.2f}{r['rot_deg']:10.3f}{r['pos_pct']:8.2f}"
-                      f"{_fmt(r['om_pct'], '9.2f')}{r['inliers']:9.0f}")
+                print(
+                    f"{r['method']:<38}{r['ms_median']:10.2f}{r['ms_p95']:9.2f}"
+                    f"{r['cpu_ms_median']:9.2f}{r['rot_deg']:10.3f}{r['pos_pct']:8.2f}"
+                    f"{_fmt(r['om_pct'], '9.2f')}{r['inliers']:9.0f}"
+                )
             print("\nratios of median times (wall-clock, CPU):")
             for num, den in RATIOS:
                 if num in by and den in by:
-                    print(f"  {num} / {den}: {by[num]['ms_median'] / by[den]['ms_median']:.2f}, "
-                          f"{by[num]['cpu_ms_median'] / by[den]['cpu_ms_median']:.2f}")
+                    print(
+                        f"  {num} / {den}: {by[num]['ms_median'] / by[den]['ms_median']:.2f}, "
+                        f"{by[num]['cpu_ms_median'] / by[den]['cpu_ms_median']:.2f}"
+                    )
             print("\nmedian ms per stage (ours, wall-clock): " + ", ".join(STAGES))
             for r in rows:
                 if r["stages_ms"]:
-                    print(f"{r['method']:<38}" + "".join(f"{r['stages_ms'][k]:10.2f}"
-                                                         for k in STAGES))
+                    print(
+                        f"{r['method']:<38}" + "".join(f"{r['stages_ms'][k]:10.2f}" for k in STAGES)
+                    )
     return 0
 
 

@@ -44,16 +44,24 @@ import tempfile
 import time
 from pathlib import Path
 
-__all__ = ["main", "measure_start", "installed_package_dir", "measure_rss"]
+__all__ = ["installed_package_dir", "main", "measure_rss", "measure_start"]
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def installed_package_dir(venv: Path) -> Path:
-    out = subprocess.run([str(venv / "bin" / "python"), "-c",
-                          "import importlib.util as u, os; "
-                          "print(os.path.dirname(u.find_spec('rs_localizer').origin))"],
-                         capture_output=True, text=True, check=True, cwd="/")
+    out = subprocess.run(
+        [
+            str(venv / "bin" / "python"),
+            "-c",
+            "import importlib.util as u, os; "
+            "print(os.path.dirname(u.find_spec('rs_localizer').origin))",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd="/",
+    )
     return Path(out.stdout.strip().splitlines()[-1])
 
 
@@ -74,9 +82,16 @@ def _remove_compiled(pkg: Path) -> int:
     return n
 
 
-def measure_start(venv: Path, cache_home: Path, workdir: Path, read_only_mount: Path | None,
-                  sample_bag: Path, timeout: float = 600.0, log_path: Path | None = None,
-                  extra_args=()) -> dict:
+def measure_start(
+    venv: Path,
+    cache_home: Path,
+    workdir: Path,
+    read_only_mount: Path | None,
+    sample_bag: Path,
+    timeout: float = 600.0,
+    log_path: Path | None = None,
+    extra_args=(),
+) -> dict:
     """Start the installed node once; seconds to ``ready`` and to the first pose (see the
     module docstring). Returns ``{"ready_s", "first_pose_s", "log"}``."""
     from ..ros.play import play
@@ -88,18 +103,37 @@ def measure_start(venv: Path, cache_home: Path, workdir: Path, read_only_mount: 
     env.pop("NUMBA_CACHE_DIR", None)
     env.pop("PYTHONPATH", None)
     share = venv / "share" / "rs_localizer" / "config" / "rs_localizer.yaml"
-    node = [str(venv / "bin" / "rs_localizer_node"), "--ros-args", "--params-file", str(share),
-            "-r", "__ns:=/camera", *extra_args]
+    node = [
+        str(venv / "bin" / "rs_localizer_node"),
+        "--ros-args",
+        "--params-file",
+        str(share),
+        "-r",
+        "__ns:=/camera",
+        *extra_args,
+    ]
     if read_only_mount is not None:
         p = str(read_only_mount)
-        node = ["unshare", "-m", "sh", "-c",
-                f"mount --bind '{p}' '{p}' && mount -o remount,bind,ro '{p}' '{p}' && "
-                'exec "$@"', "sh", *node]
+        node = [
+            "unshare",
+            "-m",
+            "sh",
+            "-c",
+            f"mount --bind '{p}' '{p}' && mount -o remount,bind,ro '{p}' '{p}' && exec \"$@\"",
+            "sh",
+            *node,
+        ]
     log_path = log_path or Path(tempfile.mkstemp(prefix="rsl_start_", suffix=".log")[1])
     with open(log_path, "w") as logf:
         t0 = time.monotonic()
-        proc = subprocess.Popen(node, env=env, cwd=workdir, stdout=logf,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(
+            node,
+            env=env,
+            cwd=workdir,
+            stdout=logf,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         ready = first = None
         try:
             while time.monotonic() - t0 < timeout:
@@ -111,10 +145,17 @@ def measure_start(venv: Path, cache_home: Path, workdir: Path, read_only_mount: 
                     break
                 time.sleep(0.02)
             if ready is not None:
-                res = play(sample_bag, lockstep=True, limit=1, domain_id=domain, timeout=30.0,
-                           topics=["/camera/correspondences", "/camera/camera_info"],
-                           output_topics=("/camera/pose",), wait_subscribers=30.0,
-                           log=lambda *a, **k: None)
+                res = play(
+                    sample_bag,
+                    lockstep=True,
+                    limit=1,
+                    domain_id=domain,
+                    timeout=30.0,
+                    topics=["/camera/correspondences", "/camera/camera_info"],
+                    output_topics=("/camera/pose",),
+                    wait_subscribers=30.0,
+                    log=lambda *a, **k: None,
+                )
                 if res.answered:
                     first = time.monotonic() - t0
         finally:
@@ -143,8 +184,9 @@ def _startup(args) -> int:
         print(f"creating {venv} and installing {ROOT} (non-editable) ...", flush=True)
         subprocess.run([args.python, "-m", "venv", str(venv)], check=True)
         tic = time.monotonic()
-        subprocess.run([str(venv / "bin" / "pip"), "install", "-q", f"{ROOT}[ros]"],
-                       check=True, cwd="/")
+        subprocess.run(
+            [str(venv / "bin" / "pip"), "install", "-q", f"{ROOT}[ros]"], check=True, cwd="/"
+        )
         print(f"pip install: {time.monotonic() - tic:.0f} s", flush=True)
         shutil.rmtree(ROOT / "build", ignore_errors=True)
     pkg = installed_package_dir(venv)
@@ -152,30 +194,45 @@ def _startup(args) -> int:
     mount = None
     if _is_root():
         if shutil.which("unshare") is None:
-            print("running as root without unshare: chmod alone does not make the package "
-                  "read-only for root", file=sys.stderr)
+            print(
+                "running as root without unshare: chmod alone does not make the package "
+                "read-only for root",
+                file=sys.stderr,
+            )
             return 2
         mount = pkg
     work = Path(tempfile.mkdtemp(prefix="rsl_robot_"))
-    results = {"package": str(pkg), "read_only": "chmod -R a-w" + (
-        " + read-only bind mount (root ignores file modes)" if mount else ""), "scenarios": {}}
+    results = {
+        "package": str(pkg),
+        "read_only": "chmod -R a-w"
+        + (" + read-only bind mount (root ignores file modes)" if mount else ""),
+        "scenarios": {},
+    }
     print(f"package: {pkg} ({results['read_only']}); working directory {work}", flush=True)
     try:
         for scen in args.scenarios:
             _set_writable(pkg, True)
             out = {}
             if scen == "no-compile":
-                print(f"[{scen}] removed {_remove_compiled(pkg)} compiled kernel files from the "
-                      "package", flush=True)
+                print(
+                    f"[{scen}] removed {_remove_compiled(pkg)} compiled kernel files from the "
+                    "package",
+                    flush=True,
+                )
             elif scen == "compile":
                 _remove_compiled(pkg)
                 tic = time.monotonic()
-                r = subprocess.run([str(venv / "bin" / "rs-localizer"), "compile"], cwd=work,
-                                   capture_output=True, text=True,
-                                   env={**os.environ, "HOME": str(work)})
+                r = subprocess.run(
+                    [str(venv / "bin" / "rs-localizer"), "compile"],
+                    cwd=work,
+                    capture_output=True,
+                    text=True,
+                    env={**os.environ, "HOME": str(work)},
+                )
                 out["compile_s"] = time.monotonic() - tic
-                print(r.stdout.strip().splitlines()[-1] if r.stdout.strip() else r.stderr,
-                      flush=True)
+                print(
+                    r.stdout.strip().splitlines()[-1] if r.stdout.strip() else r.stderr, flush=True
+                )
                 print(f"[{scen}] rs-localizer compile: {out['compile_s']:.1f} s", flush=True)
                 if r.returncode:
                     print(r.stderr, file=sys.stderr)
@@ -186,12 +243,15 @@ def _startup(args) -> int:
             cache = work / f"cache_{scen}"
             starts = []
             for k in range(1 + args.later):
-                m = measure_start(venv, cache, work, mount, sample,
-                                  log_path=work / f"{scen}_{k}.log")
+                m = measure_start(
+                    venv, cache, work, mount, sample, log_path=work / f"{scen}_{k}.log"
+                )
                 label = "first start" if k == 0 else f"later start {k}"
-                print(f"[{scen}] {label}: ready {m['ready_s'] if m['ready_s'] is None else round(m['ready_s'], 2)} s, "
-                      f"first pose {m['first_pose_s'] if m['first_pose_s'] is None else round(m['first_pose_s'], 2)} s",
-                      flush=True)
+                print(
+                    f"[{scen}] {label}: ready {m['ready_s'] if m['ready_s'] is None else round(m['ready_s'], 2)} s, "
+                    f"first pose {m['first_pose_s'] if m['first_pose_s'] is None else round(m['first_pose_s'], 2)} s",
+                    flush=True,
+                )
                 if k == 0:
                     for line in m["log"].splitlines():
                         if "warm-up" in line or "compiled" in line:
@@ -221,14 +281,14 @@ def _proc_memory(pid: int) -> dict:
     return out
 
 
-def measure_rss(n_cameras: int | None, frames: int = 10, images: bool = False,
-                timeout: float = 600.0, log=print) -> dict:
+def measure_rss(
+    n_cameras: int | None, frames: int = 10, images: bool = False, timeout: float = 600.0, log=print
+) -> dict:
     """One node process with ``n_cameras`` camera namespaces (None: a plain single node); RSS
     after the warm-up and after ``frames`` frames per camera. Returns ``{"ready": {VmRSS,
     VmHWM}, "after": {...}, "solved": frames answered}``."""
     from ..ros.play import play
-    from ..ros.process import (NodeProcess, random_domain_id, repo_file, ros_env,
-                               write_params_yaml)
+    from ..ros.process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
     domain = random_domain_id()
     env = ros_env(domain)
@@ -244,8 +304,13 @@ def measure_rss(n_cameras: int | None, frames: int = 10, images: bool = False,
         params["cameras"] = cams
     work = Path(tempfile.mkdtemp(prefix="rsl_rss_"))
     overlay = write_params_yaml(work / "p.yaml", params)
-    node = NodeProcess([*config, overlay], namespace="/rss", env=env, log=work / "node.log",
-                       remaps={"image": "image_raw"} if images else None)
+    node = NodeProcess(
+        [*config, overlay],
+        namespace="/rss",
+        env=env,
+        log=work / "node.log",
+        remaps={"image": "image_raw"} if images else None,
+    )
     try:
         if not node.wait_ready(timeout, count=len(spaces)):
             raise RuntimeError(f"node not ready:\n{node.log}")
@@ -254,12 +319,21 @@ def measure_rss(n_cameras: int | None, frames: int = 10, images: bool = False,
         frame_topic = "/camera/image_raw" if images else "/camera/correspondences"
         solved = 0
         for ns in spaces:
-            res = play(bag, lockstep=True, limit=frames, domain_id=domain, timeout=30.0,
-                       topics=[frame_topic, "/camera/camera_info"],
-                       remap={frame_topic: f"{ns}/{'image_raw' if images else 'correspondences'}",
-                              "/camera/camera_info": f"{ns}/camera_info"},
-                       output_topics=(f"{ns}/pose",), wait_subscribers=30.0,
-                       log=lambda *a, **k: None)
+            res = play(
+                bag,
+                lockstep=True,
+                limit=frames,
+                domain_id=domain,
+                timeout=30.0,
+                topics=[frame_topic, "/camera/camera_info"],
+                remap={
+                    frame_topic: f"{ns}/{'image_raw' if images else 'correspondences'}",
+                    "/camera/camera_info": f"{ns}/camera_info",
+                },
+                output_topics=(f"{ns}/pose",),
+                wait_subscribers=30.0,
+                log=lambda *a, **k: None,
+            )
             solved += res.answered
         time.sleep(1.0)
         after = _proc_memory(node.proc.pid)
@@ -271,40 +345,58 @@ def measure_rss(n_cameras: int | None, frames: int = 10, images: bool = False,
 def _rss(args) -> int:
     rows = {}
     what = "images (ArUco front end)" if args.images else "correspondences"
-    print(f"resident memory of one rs_localizer_node process, {args.frames} frames of "
-          f"{what} per camera:", flush=True)
+    print(
+        f"resident memory of one rs_localizer_node process, {args.frames} frames of "
+        f"{what} per camera:",
+        flush=True,
+    )
     for n in [None] + list(args.cameras):
         m = measure_rss(n, frames=args.frames, images=args.images)
         label = "single node (no cameras)" if n is None else f"cameras: {n}"
         rows[str(n)] = m
-        print(f"  {label:26s} RSS after warm-up {m['ready']['VmRSS']:6.1f} MB, after frames "
-              f"{m['after']['VmRSS']:6.1f} MB (peak {m['after']['VmHWM']:6.1f} MB), "
-              f"{m['solved']}/{m['frames']} frames solved", flush=True)
+        print(
+            f"  {label:26s} RSS after warm-up {m['ready']['VmRSS']:6.1f} MB, after frames "
+            f"{m['after']['VmRSS']:6.1f} MB (peak {m['after']['VmHWM']:6.1f} MB), "
+            f"{m['solved']}/{m['frames']} frames solved",
+            flush=True,
+        )
     ks = [n for n in args.cameras if n > 1]
     if 1 in args.cameras and ks:
         for k in ks:
             for when in ("ready", "after"):
                 extra = (rows[str(k)][when]["VmRSS"] - rows["1"][when]["VmRSS"]) / (k - 1)
-                print(f"  per extra camera ({k} vs 1, {'after warm-up' if when == 'ready' else 'after frames'}): "
-                      f"{extra:.1f} MB", flush=True)
+                print(
+                    f"  per extra camera ({k} vs 1, {'after warm-up' if when == 'ready' else 'after frames'}): "
+                    f"{extra:.1f} MB",
+                    flush=True,
+                )
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.evaluation.bench_robot",
-                                description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m rs_localizer.evaluation.bench_robot",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = p.add_subparsers(dest="command", required=True)
     s = sub.add_parser("startup", help="node start-up time from a read-only install")
     s.add_argument("--venv", default="/tmp/rsl_venv")
-    s.add_argument("--create", action="store_true",
-                   help="(re)create the venv and pip install the source tree into it")
+    s.add_argument(
+        "--create",
+        action="store_true",
+        help="(re)create the venv and pip install the source tree into it",
+    )
     s.add_argument("--python", default=sys.executable, help="interpreter for --create")
     s.add_argument("--later", type=int, default=3, help="later starts per scenario")
-    s.add_argument("--scenarios", nargs="+", default=["no-compile", "compile"],
-                   choices=["no-compile", "compile"])
+    s.add_argument(
+        "--scenarios",
+        nargs="+",
+        default=["no-compile", "compile"],
+        choices=["no-compile", "compile"],
+    )
     s.add_argument("--json", default=None)
     s.set_defaults(func=_startup)
     r = sub.add_parser("rss", help="resident memory for 1 and N cameras in one process")

@@ -23,20 +23,24 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
+from pathlib import Path
 
-from dataclasses import replace  # noqa: E402
-from pathlib import Path  # noqa: E402
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from .threads import one_thread  # noqa: E402
-
-from ..estimation.estimate import EstimateOptions, estimate_rs_pose  # noqa: E402
-from ..estimation.readout import calibrate_line_delay  # noqa: E402
-from ..estimation.tracker import RSTracker  # noqa: E402
-from ..geometry import matrix_to_rotvec, rotation_angle_deg  # noqa: E402
-from ..sim.trajectory import (SequenceConfig, Teleport, default_camera,  # noqa: E402
-                              generate_sequence, imu_samples, make_trajectory)
+from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.readout import calibrate_line_delay
+from ..estimation.tracker import RSTracker
+from ..geometry import matrix_to_rotvec, rotation_angle_deg
+from ..sim.trajectory import (
+    SequenceConfig,
+    Teleport,
+    default_camera,
+    generate_sequence,
+    imu_samples,
+    make_trajectory,
+)
+from .threads import one_thread
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE = ROOT / "data" / "sample"
@@ -57,17 +61,24 @@ def sample_video():
     truth = {}
     for stamp, *_ in bag.frames:
         s = gt.nearest(stamp + offset)
-        truth[stamp] = (gt.orientation[s], gt.position[s], gt.angular_velocity.get(s),
-                        gt.linear_velocity.get(s))
+        truth[stamp] = (
+            gt.orientation[s],
+            gt.position[s],
+            gt.angular_velocity.get(s),
+            gt.linear_velocity.get(s),
+        )
     return [f[:3] for f in bag.frames], cam, truth
 
 
 def synthetic_video(name, n, seed, **cfg):
     """A synthetic video: (frames [(stamp_ns, uv, xyz)], camera, truth keyed by stamp)."""
-    frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=n, seed=seed, **cfg),
-                                          trajectory=make_trajectory(name))
-    truth = {f.stamp_ns: (f.orientation, f.position, f.angular_velocity, f.linear_velocity)
-             for f in frames}
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=n, seed=seed, **cfg), trajectory=make_trajectory(name)
+    )
+    truth = {
+        f.stamp_ns: (f.orientation, f.position, f.angular_velocity, f.linear_velocity)
+        for f in frames
+    }
     return [(f.stamp_ns, f.uv, f.xyz) for f in frames], cam, truth
 
 
@@ -96,13 +107,24 @@ def fused_twist(frames, cam, truth) -> dict:
     nees = []
     for x in final:
         O, p, w, v = truth[x.stamp_ns]
-        e = np.concatenate([matrix_to_rotvec(x.orientation @ O.T), x.position - p,
-                            x.angular_velocity - w, x.linear_velocity - v])
+        e = np.concatenate(
+            [
+                matrix_to_rotvec(x.orientation @ O.T),
+                x.position - p,
+                x.angular_velocity - w,
+                x.linear_velocity - v,
+            ]
+        )
         nees.append(float(e @ np.linalg.solve(x.covariance, e)))
     out["nees"] = float(np.mean(nees))
-    out["states"] = {k: v for k, v in (("tracked", tr.frames_tracked),
-                                       ("relocalized", tr.relocalizations),
-                                       ("resets", tr.resets))}
+    out["states"] = {
+        k: v
+        for k, v in (
+            ("tracked", tr.frames_tracked),
+            ("relocalized", tr.relocalizations),
+            ("resets", tr.resets),
+        )
+    }
     return out
 
 
@@ -111,8 +133,10 @@ def speed_videos():
     """The two videos of the speed table, as (name, (frames, camera, truth)), one at a time:
     ``data/sample`` and the paper protocol's heavier frames on the walk."""
     yield "data/sample (0.5 px, 20 % outliers)", sample_video()
-    yield "walk, paper protocol (1 px, 30 % outliers)", synthetic_video(
-        "walk", 40, 5, noise_px=1.0, outlier_ratio=0.3)
+    yield (
+        "walk, paper protocol (1 px, 30 % outliers)",
+        synthetic_video("walk", 40, 5, noise_px=1.0, outlier_ratio=0.3),
+    )
 
 
 def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
@@ -166,14 +190,23 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
             if r.state == "tracked":
                 s_track.append(time.perf_counter() - t0)
     med = lambda a: float(np.median(a))  # noqa: E731
-    return {"tracked_frames": len(t_track), "cold_ms": med(t_cold) * 1e3,
-            "tracked_ms": med(t_track) * 1e3, "speedup": med(t_cold) / med(t_track),
-            "cold_cpu_ms": med(cpu_cold) * 1e3, "tracked_cpu_ms": med(cpu_track) * 1e3,
-            "steady_cold_ms": med(s_cold) * 1e3, "steady_tracked_ms": med(s_track) * 1e3,
-            "steady_speedup": med(s_cold) / med(s_track),
-            "cold_rot_deg": med(rc), "tracked_rot_deg": med(rt), "cold_pos_mm": med(pc) * 1e3,
-            "tracked_pos_mm": med(pt) * 1e3, "cold_samples": med(iters_c),
-            "tracked_samples": med(iters_t)}
+    return {
+        "tracked_frames": len(t_track),
+        "cold_ms": med(t_cold) * 1e3,
+        "tracked_ms": med(t_track) * 1e3,
+        "speedup": med(t_cold) / med(t_track),
+        "cold_cpu_ms": med(cpu_cold) * 1e3,
+        "tracked_cpu_ms": med(cpu_track) * 1e3,
+        "steady_cold_ms": med(s_cold) * 1e3,
+        "steady_tracked_ms": med(s_track) * 1e3,
+        "steady_speedup": med(s_cold) / med(s_track),
+        "cold_rot_deg": med(rc),
+        "tracked_rot_deg": med(rt),
+        "cold_pos_mm": med(pc) * 1e3,
+        "tracked_pos_mm": med(pt) * 1e3,
+        "cold_samples": med(iters_c),
+        "tracked_samples": med(iters_t),
+    }
 
 
 # ---------------------------------------------------------------------------- readout
@@ -183,14 +216,17 @@ def readout(seeds, n: int = 60, gyro: bool = False) -> dict:
     errs, zs, rot = [], [], []
     for seed in seeds:
         frames, _, cam, traj = generate_sequence(
-            SequenceConfig(num_frames=n, seed=seed), camera=default_camera(line_delay=ld),
-            trajectory=make_trajectory("pan"))
+            SequenceConfig(num_frames=n, seed=seed),
+            camera=default_camera(line_delay=ld),
+            trajectory=make_trajectory("pan"),
+        )
         g = None
         if gyro:
             t, om, _ = imu_samples(traj, -0.1, n / 30.0 + 0.1, 200.0, seed=seed)
             g = (SequenceConfig().t0_ns + np.round(t * 1e9).astype(np.int64), om)
-        res = calibrate_line_delay([(f.stamp_ns, f.uv, f.xyz) for f in frames],
-                                   replace(cam, line_delay=0.0), gyro=g)
+        res = calibrate_line_delay(
+            [(f.stamp_ns, f.uv, f.xyz) for f in frames], replace(cam, line_delay=0.0), gyro=g
+        )
         if not res.observable:
             errs.append(np.inf)
             zs.append(np.inf)
@@ -199,10 +235,14 @@ def readout(seeds, n: int = 60, gyro: bool = False) -> dict:
         zs.append((res.line_delay - ld) / res.line_delay_std)
         rot.append(res.rotation_rms)
     errs, zs = np.abs(errs), np.abs(zs)
-    return {"seeds": len(errs), "median_err_pct": float(np.median(errs) * 100),
-            "max_err_pct": float(np.max(errs) * 100),
-            "within_3std": float(np.mean(zs <= 3.0)), "rms_z": float(np.sqrt(np.mean(zs**2))),
-            "rotation_rms": float(np.median(rot)) if rot else 0.0}
+    return {
+        "seeds": len(errs),
+        "median_err_pct": float(np.median(errs) * 100),
+        "max_err_pct": float(np.max(errs) * 100),
+        "within_3std": float(np.mean(zs <= 3.0)),
+        "rms_z": float(np.sqrt(np.mean(zs**2))),
+        "rotation_rms": float(np.median(rot)) if rot else 0.0,
+    }
 
 
 def readout_no_rotation() -> dict:
@@ -216,8 +256,9 @@ def events() -> dict:
     """Teleport, stamp jump back, dropped frames, a bad frame on a walk video."""
     period = 1 / 30
     traj = Teleport(make_trajectory("walk"), time=12 * period - 0.25 * period)
-    fr, _, cam, _ = generate_sequence(SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)),
-                                      trajectory=traj)
+    fr, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)), trajectory=traj
+    )
     by = {f.index: f for f in fr}
     tr = RSTracker(options=EstimateOptions(seed=0))
     log = {}
@@ -262,79 +303,112 @@ def _run(quick: bool) -> int:
 
     t0 = time.perf_counter()
     print("== fused twist (median error vs ground truth; final fused states, lag 1 frame)")
-    print("| sequence | frames | single-frame lin / ang | fused lin / ang | ratio lin / ang | "
-          "NEES (12) |")
+    print(
+        "| sequence | frames | single-frame lin / ang | fused lin / ang | ratio lin / ang | "
+        "NEES (12) |"
+    )
     print("|---|---|---|---|---|---|")
     rows = {"data/sample": fused_twist(*sample_video())}
     for name, seed in (("shake", 1), ("car", 1), ("pan", 1), ("walk", 3)):
         rows[name] = fused_twist(*synthetic_video(name, 60, seed))
     for name, r in rows.items():
-        print(f"| {name} | {r['frames']} | {r['single_lin']:.3f} m/s / {r['single_ang']:.3f} "
-              f"rad/s | {r['fused_lin']:.3f} / {r['fused_ang']:.3f} | "
-              f"{r['fused_lin'] / r['single_lin']:.2f} / {r['fused_ang'] / r['single_ang']:.2f} "
-              f"| {r['nees']:.1f} |")
+        print(
+            f"| {name} | {r['frames']} | {r['single_lin']:.3f} m/s / {r['single_ang']:.3f} "
+            f"rad/s | {r['fused_lin']:.3f} / {r['fused_ang']:.3f} | "
+            f"{r['fused_lin'] / r['single_lin']:.2f} / {r['fused_ang'] / r['single_ang']:.2f} "
+            f"| {r['nees']:.1f} |"
+        )
     s = rows["data/sample"]
-    check("fused linear velocity <= 1/4 single-frame (data/sample)",
-          s["fused_lin"] <= 0.25 * s["single_lin"],
-          f"{s['fused_lin']:.3f} vs {s['single_lin']:.3f} m/s")
-    check("fused angular velocity <= 1/2 single-frame (data/sample)",
-          s["fused_ang"] <= 0.5 * s["single_ang"],
-          f"{s['fused_ang']:.3f} vs {s['single_ang']:.3f} rad/s")
+    check(
+        "fused linear velocity <= 1/4 single-frame (data/sample)",
+        s["fused_lin"] <= 0.25 * s["single_lin"],
+        f"{s['fused_lin']:.3f} vs {s['single_lin']:.3f} m/s",
+    )
+    check(
+        "fused angular velocity <= 1/2 single-frame (data/sample)",
+        s["fused_ang"] <= 0.5 * s["single_ang"],
+        f"{s['fused_ang']:.3f} vs {s['single_ang']:.3f} rad/s",
+    )
     k = rows["shake"]
-    check("fused no worse than single-frame on the shake",
-          k["fused_lin"] <= k["single_lin"] and k["fused_ang"] <= k["single_ang"],
-          f"lin {k['fused_lin']:.3f} vs {k['single_lin']:.3f}, ang {k['fused_ang']:.3f} vs "
-          f"{k['single_ang']:.3f}")
-    check("fused covariance consistent (mean NEES in [6, 20], 12 expected)",
-          all(6 <= r["nees"] <= 20 for r in rows.values()),
-          ", ".join(f"{n} {r['nees']:.1f}" for n, r in rows.items()))
+    check(
+        "fused no worse than single-frame on the shake",
+        k["fused_lin"] <= k["single_lin"] and k["fused_ang"] <= k["single_ang"],
+        f"lin {k['fused_lin']:.3f} vs {k['single_lin']:.3f}, ang {k['fused_ang']:.3f} vs "
+        f"{k['single_ang']:.3f}",
+    )
+    check(
+        "fused covariance consistent (mean NEES in [6, 20], 12 expected)",
+        all(6 <= r["nees"] <= 20 for r in rows.values()),
+        ", ".join(f"{n} {r['nees']:.1f}" for n, r in rows.items()),
+    )
 
-    print("\n== tracking speed (500 correspondences; one run, one thread; tracked frames; "
-          "steady: alternating passes of each path, interleaved: frame by frame)")
-    print("| video | frames | steady cold / tracked ms | steady speed-up | interleaved cold / "
-          "tracked ms (thread CPU) | RANSAC samples cold / tracked | rotation error cold / "
-          "tracked | position error cold / tracked |")
+    print(
+        "\n== tracking speed (500 correspondences; one run, one thread; tracked frames; "
+        "steady: alternating passes of each path, interleaved: frame by frame)"
+    )
+    print(
+        "| video | frames | steady cold / tracked ms | steady speed-up | interleaved cold / "
+        "tracked ms (thread CPU) | RANSAC samples cold / tracked | rotation error cold / "
+        "tracked | position error cold / tracked |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     passes = 1 if quick else 3
     speed = {name: tracking_speed(*video, passes) for name, video in speed_videos()}
     for name, r in speed.items():
-        print(f"| {name} | {r['tracked_frames']} | {r['steady_cold_ms']:.2f} / "
-              f"{r['steady_tracked_ms']:.2f} | {r['steady_speedup']:.2f}x | "
-              f"{r['cold_ms']:.2f} / {r['tracked_ms']:.2f} ({r['cold_cpu_ms']:.2f} / "
-              f"{r['tracked_cpu_ms']:.2f}) | "
-              f"{r['cold_samples']:.0f} / {r['tracked_samples']:.0f} | "
-              f"{r['cold_rot_deg']:.4f} / {r['tracked_rot_deg']:.4f} deg | "
-              f"{r['cold_pos_mm']:.2f} / {r['tracked_pos_mm']:.2f} mm |")
+        print(
+            f"| {name} | {r['tracked_frames']} | {r['steady_cold_ms']:.2f} / "
+            f"{r['steady_tracked_ms']:.2f} | {r['steady_speedup']:.2f}x | "
+            f"{r['cold_ms']:.2f} / {r['tracked_ms']:.2f} ({r['cold_cpu_ms']:.2f} / "
+            f"{r['tracked_cpu_ms']:.2f}) | "
+            f"{r['cold_samples']:.0f} / {r['tracked_samples']:.0f} | "
+            f"{r['cold_rot_deg']:.4f} / {r['tracked_rot_deg']:.4f} deg | "
+            f"{r['cold_pos_mm']:.2f} / {r['tracked_pos_mm']:.2f} mm |"
+        )
     for name, r in speed.items():
-        check(f"tracked frame <= 1.0 ms median, steady ({name.split(' (')[0]})",
-              r["steady_tracked_ms"] <= 1.0, f"{r['steady_tracked_ms']:.2f} ms (cold "
-              f"{r['steady_cold_ms']:.2f}; tracked / cold "
-              f"{r['steady_tracked_ms'] / r['steady_cold_ms']:.2f}); frame-interleaved "
-              f"{r['tracked_ms']:.2f} ms (cold {r['cold_ms']:.2f})")
-        check(f"tracked pose error within 1.1x of cold ({name.split(' (')[0]})",
-              r["tracked_rot_deg"] <= 1.1 * r["cold_rot_deg"]
-              and r["tracked_pos_mm"] <= 1.1 * r["cold_pos_mm"],
-              f"rot {r['tracked_rot_deg'] / r['cold_rot_deg']:.2f}x, "
-              f"pos {r['tracked_pos_mm'] / r['cold_pos_mm']:.2f}x")
+        check(
+            f"tracked frame <= 1.0 ms median, steady ({name.split(' (')[0]})",
+            r["steady_tracked_ms"] <= 1.0,
+            f"{r['steady_tracked_ms']:.2f} ms (cold "
+            f"{r['steady_cold_ms']:.2f}; tracked / cold "
+            f"{r['steady_tracked_ms'] / r['steady_cold_ms']:.2f}); frame-interleaved "
+            f"{r['tracked_ms']:.2f} ms (cold {r['cold_ms']:.2f})",
+        )
+        check(
+            f"tracked pose error within 1.1x of cold ({name.split(' (')[0]})",
+            r["tracked_rot_deg"] <= 1.1 * r["cold_rot_deg"]
+            and r["tracked_pos_mm"] <= 1.1 * r["cold_pos_mm"],
+            f"rot {r['tracked_rot_deg'] / r['cold_rot_deg']:.2f}x, "
+            f"pos {r['tracked_pos_mm'] / r['cold_pos_mm']:.2f}x",
+        )
 
     print("\n== readout calibration (pan video, 60 frames, 30 us/line; bag timing ignored)")
     seeds = range(6) if quick else range(20)
-    cal = {"rotation between frames": readout(seeds),
-           "gyro (200 Hz, biased, rotated IMU)": readout(range(3) if quick else range(8),
-                                                         gyro=True)}
-    print("| source | seeds | rotation rms | median / max error | error within 3 std | "
-          "RMS error/std |")
+    cal = {
+        "rotation between frames": readout(seeds),
+        "gyro (200 Hz, biased, rotated IMU)": readout(range(3) if quick else range(8), gyro=True),
+    }
+    print(
+        "| source | seeds | rotation rms | median / max error | error within 3 std | "
+        "RMS error/std |"
+    )
     print("|---|---|---|---|---|---|")
     for name, r in cal.items():
-        print(f"| {name} | {r['seeds']} | {r['rotation_rms']:.2f} rad/s | "
-              f"{r['median_err_pct']:.2f} / {r['max_err_pct']:.2f} % | "
-              f"{r['within_3std'] * 100:.0f} % | {r['rms_z']:.2f} |")
+        print(
+            f"| {name} | {r['seeds']} | {r['rotation_rms']:.2f} rad/s | "
+            f"{r['median_err_pct']:.2f} / {r['max_err_pct']:.2f} % | "
+            f"{r['within_3std'] * 100:.0f} % | {r['rms_z']:.2f} |"
+        )
     r = cal["rotation between frames"]
-    check("line delay within 3 % (60 frames, >= 0.5 rad/s)",
-          r["max_err_pct"] <= 3.0 and r["rotation_rms"] >= 0.5,
-          f"max {r['max_err_pct']:.2f} % over {r['seeds']} seeds")
-    check("std honest (error within 3 std in >= 95 % of seeds)", r["within_3std"] >= 0.95,
-          f"{r['within_3std'] * 100:.0f} %")
+    check(
+        "line delay within 3 % (60 frames, >= 0.5 rad/s)",
+        r["max_err_pct"] <= 3.0 and r["rotation_rms"] >= 0.5,
+        f"max {r['max_err_pct']:.2f} % over {r['seeds']} seeds",
+    )
+    check(
+        "std honest (error within 3 std in >= 95 % of seeds)",
+        r["within_3std"] >= 0.95,
+        f"{r['within_3std'] * 100:.0f} %",
+    )
     nr = readout_no_rotation()
     check("no rotation (car) -> observable: false", not nr["observable"], nr["reason"])
 
@@ -342,12 +416,17 @@ def _run(quick: bool) -> int:
     ev = events()
     for key, val in ev.items():
         print(f"  {key}: {val}")
-    check("teleport relocalizes on the first frame after it",
-          ev["teleport"] == "relocalized" and ev["after_teleport"] == "tracked", ev["teleport"])
-    check("stamp jump back resets without dropping the frame", ev["jump_back"] == ("reset", True),
-          ev["jump_back"])
-    check("bad frame: counted failure, no pose, no twist", ev["bad_frame"][1],
-          ev["bad_frame"][0])
+    check(
+        "teleport relocalizes on the first frame after it",
+        ev["teleport"] == "relocalized" and ev["after_teleport"] == "tracked",
+        ev["teleport"],
+    )
+    check(
+        "stamp jump back resets without dropping the frame",
+        ev["jump_back"] == ("reset", True),
+        ev["jump_back"],
+    )
+    check("bad frame: counted failure, no pose, no twist", ev["bad_frame"][1], ev["bad_frame"][0])
 
     print("\n== targets")
     for name, ok, val in checks:
@@ -357,24 +436,33 @@ def _run(quick: bool) -> int:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--quick", action="store_true", help="fewer seeds and passes")
-    p.add_argument("--speed", type=int, metavar="RUNS", default=0,
-                   help="only the tracking-speed table, RUNS times (runs of 3 rounds each, "
-                        "see tracking_speed; the spread of the absolute times and of the "
-                        "ratios)")
+    p.add_argument(
+        "--speed",
+        type=int,
+        metavar="RUNS",
+        default=0,
+        help="only the tracking-speed table, RUNS times (runs of 3 rounds each, "
+        "see tracking_speed; the spread of the absolute times and of the "
+        "ratios)",
+    )
     a = p.parse_args(argv)
     if a.speed:
         with one_thread():
             for k in range(a.speed):
                 for name, video in speed_videos():
                     r = tracking_speed(*video, 3)
-                    print(f"run {k + 1} {name.split(' (')[0]}: steady cold "
-                          f"{r['steady_cold_ms']:.2f} ms, tracked {r['steady_tracked_ms']:.2f} "
-                          f"ms, tracked / cold {1 / r['steady_speedup']:.2f}; frame-interleaved "
-                          f"cold {r['cold_ms']:.2f} ms, tracked {r['tracked_ms']:.2f} ms, "
-                          f"tracked / cold {r['tracked_ms'] / r['cold_ms']:.2f}", flush=True)
+                    print(
+                        f"run {k + 1} {name.split(' (')[0]}: steady cold "
+                        f"{r['steady_cold_ms']:.2f} ms, tracked {r['steady_tracked_ms']:.2f} "
+                        f"ms, tracked / cold {1 / r['steady_speedup']:.2f}; frame-interleaved "
+                        f"cold {r['cold_ms']:.2f} ms, tracked {r['tracked_ms']:.2f} ms, "
+                        f"tracked / cold {r['tracked_ms'] / r['cold_ms']:.2f}",
+                        flush=True,
+                    )
         return 0
     return run(quick=a.quick)
 

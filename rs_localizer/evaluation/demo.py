@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_demo", "run_bag_demo", "evaluate_outputs"]
+__all__ = ["evaluate_outputs", "run_bag_demo", "run_demo"]
 
 
 def _solver_from_yaml(*paths) -> str:
@@ -87,8 +87,16 @@ def _image_setup(bag: Path, info: dict):
     return image, params
 
 
-def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p",
-                 per_frame: bool = True, timeout: float = 5.0, out=sys.stdout) -> int:
+def run_bag_demo(
+    bag,
+    params_files,
+    *,
+    images: bool = False,
+    compare: str = "p3p",
+    per_frame: bool = True,
+    timeout: float = 5.0,
+    out=sys.stdout,
+) -> int:
     """One demo part: two nodes (RS solver, ``compare``) on one bag, lock-step, accuracy.
 
     ``images``: feed the bag's ``image`` topic (the nodes run the front end of its
@@ -119,21 +127,40 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
     qos = write_params_yaml(tmp / "qos.yaml", reliable_topics=[frame_topic, cinfo])
     files = [*params_files, qos]
     mode = "image mode" if images else "correspondences"
-    print(f"rs_localizer demo ({mode}): bag {bag} ({info.get('frames', '?')} frames), params "
-          + ", ".join(str(f) for f in params_files) + f", ROS_DOMAIN_ID={domain}", file=out)
+    print(
+        f"rs_localizer demo ({mode}): bag {bag} ({info.get('frames', '?')} frames), params "
+        + ", ".join(str(f) for f in params_files)
+        + f", ROS_DOMAIN_ID={domain}",
+        file=out,
+    )
     if images:
-        print(f"  {frame_topic} -> {extra.get('frontend', 'configured')} front end (map "
-              f"{extra.get('frontend_map', 'from the parameter files')}), line delay "
-              f"{extra.get('rs.line_delay', float('nan')) * 1e6:.2f} us/line", file=out)
+        print(
+            f"  {frame_topic} -> {extra.get('frontend', 'configured')} front end (map "
+            f"{extra.get('frontend_map', 'from the parameter files')}), line delay "
+            f"{extra.get('rs.line_delay', float('nan')) * 1e6:.2f} us/line",
+            file=out,
+        )
     remaps = {remap_key: frame_topic, "camera_info": cinfo}
-    nodes = {"/camera": NodeProcess(files, namespace="/camera", env=env, remaps=remaps,
-                                    params=extra, log=tmp / "node_rs.log")}
+    nodes = {
+        "/camera": NodeProcess(
+            files,
+            namespace="/camera",
+            env=env,
+            remaps=remaps,
+            params=extra,
+            log=tmp / "node_rs.log",
+        )
+    }
     if compare:
         nodes["/p3p"] = NodeProcess(
-            files, namespace="/p3p", node_name="rs_localizer_" + compare, env=env,
-            remaps=remaps, params={**extra, "solver": compare,
-                                   "republish_correspondences": False},
-            log=tmp / "node_compare.log")
+            files,
+            namespace="/p3p",
+            node_name="rs_localizer_" + compare,
+            env=env,
+            remaps=remaps,
+            params={**extra, "solver": compare, "republish_correspondences": False},
+            log=tmp / "node_compare.log",
+        )
     names = {"/camera": solver, "/p3p": compare}
     ok = False  # (the node logs in tmp are kept when something failed)
     try:
@@ -142,20 +169,34 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
             if not n.wait_ready(120):
                 print(f"node {ns} did not start:\n{n.log}", file=sys.stderr)
                 return 1
-        print(f"nodes ready in {time.monotonic() - t0:.1f} s (JIT warm-up included); playing "
-              "in lock-step over DDS ...", file=out)
+        print(
+            f"nodes ready in {time.monotonic() - t0:.1f} s (JIT warm-up included); playing "
+            "in lock-step over DDS ...",
+            file=out,
+        )
         outs = tuple(f"{ns}/{k}" for ns in nodes for k in ("pose", "twist"))
         if images:
             outs += ("/camera/correspondences_out",)
-        res = play(bag, lockstep=True, topics=[frame_topic, cinfo], output_topics=outs,
-                   timeout=timeout, retries=1, domain_id=domain,
-                   log=lambda m: print(m, file=out),
-                   late_topics=tuple(f"{ns}/twist" for ns in nodes))  # (fused: one frame late)
+        res = play(
+            bag,
+            lockstep=True,
+            topics=[frame_topic, cinfo],
+            output_topics=outs,
+            timeout=timeout,
+            retries=1,
+            domain_id=domain,
+            log=lambda m: print(m, file=out),
+            late_topics=tuple(f"{ns}/twist" for ns in nodes),
+        )  # (fused: one frame late)
         gt = load_ground_truth(bag)
         errs = evaluate_outputs(res.frames, gt, list(nodes))
         n = len(res.frames)
-        npts = [f["outputs"]["/camera/correspondences_out"][1].width
-                if "/camera/correspondences_out" in f["outputs"] else None for f in res.frames]
+        npts = [
+            f["outputs"]["/camera/correspondences_out"][1].width
+            if "/camera/correspondences_out" in f["outputs"]
+            else None
+            for f in res.frames
+        ]
         if per_frame:
             head = f"{'frame':>5} | {solver + ': rot[deg] pos[cm] w[rad/s] v[m/s]':<44}"
             if compare:
@@ -163,16 +204,20 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
             if images:
                 head += " | corners"
             print(head, file=out)
-            for i, f in enumerate(res.frames):
+            for i, _f in enumerate(res.frames):
                 e = errs["/camera"][i]
-                line = (f"{i:5d} | {' ' * (len(solver) + 1)}{_fmt(e, 'rot_deg')}  "
-                        f"{_fmt(e, 'pos_m', 100, 6, 2)}  {_fmt(e, 'angvel')}  "
-                        f"{_fmt(e, 'linvel')}")
+                line = (
+                    f"{i:5d} | {' ' * (len(solver) + 1)}{_fmt(e, 'rot_deg')}  "
+                    f"{_fmt(e, 'pos_m', 100, 6, 2)}  {_fmt(e, 'angvel')}  "
+                    f"{_fmt(e, 'linvel')}"
+                )
                 line = f"{line:<52}"
                 if compare:
                     c = errs["/p3p"][i]
-                    line += (f" | {' ' * (len(compare) + 1)}{_fmt(c, 'rot_deg')}  "
-                             f"{_fmt(c, 'pos_m', 100, 6, 2)}")
+                    line += (
+                        f" | {' ' * (len(compare) + 1)}{_fmt(c, 'rot_deg')}  "
+                        f"{_fmt(c, 'pos_m', 100, 6, 2)}"
+                    )
                     line = f"{line:<84}"
                     ref = e or c
                     line += f" | {_fmt(ref, 'angvel_gt', 1, 5, 2)}"
@@ -181,32 +226,46 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
                     line += f" | {'-' if npts[i] is None else npts[i]:>7}"
                 print(line.rstrip(), file=out)
         print("", file=out)
-        print(f"summary ({mode}; errors vs ground truth; the pose is at the image centre row):",
-              file=out)
+        print(
+            f"summary ({mode}; errors vs ground truth; the pose is at the image centre row):",
+            file=out,
+        )
         summaries = {}
         for ns in nodes:
             summaries[ns] = summarize_errors(errs[ns])
             print("  " + format_summary(names[ns], summaries[ns], n), file=out)
         got = [k for k in npts if k is not None]
         if images and got:
-            print(f"  front end: {np.mean(got):.0f} marker corners per image "
-                  f"(min {min(got)}, max {max(got)})", file=out)
+            print(
+                f"  front end: {np.mean(got):.0f} marker corners per image "
+                f"(min {min(got)}, max {max(got)})",
+                file=out,
+            )
         lat = res.latencies
         if len(lat):
-            print(f"  lock-step round trip (publish -> all outputs): median "
-                  f"{np.median(lat) * 1e3:.1f} ms, p99 {np.percentile(lat, 99) * 1e3:.1f} ms"
-                  + (" (front end included)" if images else ""), file=out)
+            print(
+                f"  lock-step round trip (publish -> all outputs): median "
+                f"{np.median(lat) * 1e3:.1f} ms, p99 {np.percentile(lat, 99) * 1e3:.1f} ms"
+                + (" (front end included)" if images else ""),
+                file=out,
+            )
         rs = summaries["/camera"]
         if compare and rs.get("rot_deg") and summaries["/p3p"].get("rot_deg"):
             a, b = rs["rot_deg"]["median"], summaries["/p3p"]["rot_deg"]["median"]
             pa, pb = rs["pos_m"]["median"], summaries["/p3p"]["pos_m"]["median"]
-            print(f"  {solver} vs {compare}: median rotation error {b / max(a, 1e-12):.1f}x "
-                  f"smaller, position error {pb / max(pa, 1e-12):.1f}x smaller; only {solver} "
-                  "estimates the velocities", file=out)
+            print(
+                f"  {solver} vs {compare}: median rotation error {b / max(a, 1e-12):.1f}x "
+                f"smaller, position error {pb / max(pa, 1e-12):.1f}x smaller; only {solver} "
+                "estimates the velocities",
+                file=out,
+            )
         ok = rs.get("frames", 0) == n and n > 0
         if not ok:
-            print(f"  {solver}: {rs.get('frames', 0)}/{n} frames with a pose; node log: "
-                  f"{nodes['/camera'].log_path}", file=out)
+            print(
+                f"  {solver}: {rs.get('frames', 0)}/{n} frames with a pose; node log: "
+                f"{nodes['/camera'].log_path}",
+                file=out,
+            )
         return 0 if ok else 1
     finally:
         for nd in nodes.values():
@@ -215,9 +274,18 @@ def run_bag_demo(bag, params_files, *, images: bool = False, compare: str = "p3p
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True,
-             timeout: float = 5.0, out=sys.stdout, images: bool = True, image_bag=None,
-             image_params=None, correspondences: bool = True) -> int:
+def run_demo(
+    bag=None,
+    params=None,
+    compare: str = "p3p",
+    per_frame: bool = True,
+    timeout: float = 5.0,
+    out=sys.stdout,
+    images: bool = True,
+    image_bag=None,
+    image_params=None,
+    correspondences: bool = True,
+) -> int:
     """``make demo``: the correspondence demo on ``bag`` (default ``data/sample``) and, with
     ``images``, the image-mode demo on ``image_bag`` (default ``data/sample_images``) with
     ``params`` + ``image_params`` (default ``config/rs_localizer_images.yaml``).
@@ -237,8 +305,9 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
         parts.append((bag, [params], False))
     if images:
         ibag = Path(image_bag) if image_bag else repo_file("data", "sample_images")
-        iparams = (Path(image_params) if image_params
-                   else repo_file("config", "rs_localizer_images.yaml"))
+        iparams = (
+            Path(image_params) if image_params else repo_file("config", "rs_localizer_images.yaml")
+        )
         if ibag is None or not Path(ibag).exists():
             print("image sample bag not found (run `make sample-bag`)", file=sys.stderr)
             return 2
@@ -250,6 +319,10 @@ def run_demo(bag=None, params=None, compare: str = "p3p", per_frame: bool = True
     for k, (b, files, img) in enumerate(parts):
         if k:
             print("", file=out)
-        rc = max(rc, run_bag_demo(b, files, images=img, compare=compare, per_frame=per_frame,
-                                  timeout=timeout, out=out))
+        rc = max(
+            rc,
+            run_bag_demo(
+                b, files, images=img, compare=compare, per_frame=per_frame, timeout=timeout, out=out
+            ),
+        )
     return rc

@@ -76,16 +76,22 @@ def placebo_table(photos: Path = PHOTOS) -> None:
     """Table 1 of the module doc."""
     cam = _camera(photos)
     f, th, z3 = cam.mean_focal, 2.0 / cam.mean_focal, np.zeros(3)
-    print("photo  rmse(px, 2D): gs    rs(row)  rs(column)  rs(random)   "
-          "LR: row  column  random   |omega| rad/s (row ML)")
+    print(
+        "photo  rmse(px, 2D): gs    rs(row)  rs(column)  rs(random)   "
+        "LR: row  column  random   |omega| rad/s (row ML)"
+    )
     for n, uv, X in _corners(photos):
         x, r, _ = cam.normalize(uv)
         gs = estimate_rs_pose(uv, X, cam, "p3p")
-        times = {"row": r - cam.r0, "column": (uv[:, 0] - cam.K[0, 2]) / cam.K[0, 0],
-                 "random": np.random.default_rng(1).permutation(r - cam.r0)}
+        times = {
+            "row": r - cam.r0,
+            "column": (uv[:, 0] - cam.K[0, 2]) / cam.K[0, 0],
+            "random": np.random.default_rng(1).permutation(r - cam.r0),
+        }
         ss = {"gs": None}
-        g = refine_rs_pose(gs.R, gs.C, z3, z3, X, x, times["row"], th,
-                           rolling_shutter=False, max_iterations=50)
+        g = refine_rs_pose(
+            gs.R, gs.C, z3, z3, X, x, times["row"], th, rolling_shutter=False, max_iterations=50
+        )
         ss["gs"] = np.sum(exact_errors(g.R, g.C, g.w, g.t, X, x, times["row"]) ** 2) * f * f
         fits = {}
         for k, tau in times.items():
@@ -96,9 +102,11 @@ def placebo_table(photos: Path = PHOTOS) -> None:
         s2 = ss["row"] / (2 * N - 12)
         rm = [np.sqrt(ss[k] / N) for k in ("gs", "row", "column", "random")]
         lr = [(ss["gs"] - ss[k]) / s2 for k in ("row", "column", "random")]
-        print(f"left{n}  {rm[0]:17.3f}  {rm[1]:7.3f}  {rm[2]:10.3f}  {rm[3]:10.3f}   "
-              f"{lr[0]:7.1f}  {lr[1]:6.1f}  {lr[2]:6.1f}   "
-              f"{np.linalg.norm(fits['row'].w) / cam.seconds_per_unit_r:6.2f}")
+        print(
+            f"left{n}  {rm[0]:17.3f}  {rm[1]:7.3f}  {rm[2]:10.3f}  {rm[3]:10.3f}   "
+            f"{lr[0]:7.1f}  {lr[1]:6.1f}  {lr[2]:6.1f}   "
+            f"{np.linalg.norm(fits['row'].w) / cam.seconds_per_unit_r:6.2f}"
+        )
 
 
 def nees_table(photos: Path = PHOTOS, noise: float = 0.2, seeds: int = 8) -> None:
@@ -106,7 +114,7 @@ def nees_table(photos: Path = PHOTOS, noise: float = 0.2, seeds: int = 8) -> Non
     cam = _camera(photos)
     q6, q3 = chi2.ppf(0.9973, 6), chi2.ppf(0.9973, 3)
     m6, m3, err = [], [], []
-    for n, uv, X in _corners(photos):
+    for _n, uv, X in _corners(photos):
         gs = estimate_rs_pose(uv, X, cam, "p3p")
         clean = cam.project_rs(X, gs.R, gs.C)
         for seed in range(seeds):
@@ -119,11 +127,15 @@ def nees_table(photos: Path = PHOTOS, noise: float = 0.2, seeds: int = 8) -> Non
             err.append(rotation_angle_deg(rs.R, gs.R))
     m6, m3, err = map(np.asarray, (m6, m3, err))
     print(f"synthetic still boards, {len(m6)} frames, noise {noise} px per axis:")
-    print(f"  twist NEES mean {m6.mean():.1f} (chi2(6): 6), median {np.median(m6):.1f}, "
-          f"within 99.73 % ({q6:.2f}): {np.mean(m6 <= q6):.3f}, max {m6.max():.1f}")
-    print(f"  rotation NEES mean {m3.mean():.2f} (chi2(3): 3), within 99.73 % ({q3:.2f}): "
-          f"{np.mean(m3 <= q3):.3f}; rotation error median {np.median(err):.2f} deg, "
-          f"max {err.max():.2f} deg")
+    print(
+        f"  twist NEES mean {m6.mean():.1f} (chi2(6): 6), median {np.median(m6):.1f}, "
+        f"within 99.73 % ({q6:.2f}): {np.mean(m6 <= q6):.3f}, max {m6.max():.1f}"
+    )
+    print(
+        f"  rotation NEES mean {m3.mean():.2f} (chi2(3): 3), within 99.73 % ({q3:.2f}): "
+        f"{np.mean(m3 <= q3):.3f}; rotation error median {np.median(err):.2f} deg, "
+        f"max {err.max():.2f} deg"
+    )
 
 
 def _photo_views(photos: Path):
@@ -136,29 +148,42 @@ def _distances(rs, gs):
     tw = np.r_[rs.linear_velocity, rs.angular_velocity]
     phi = Rotation.from_matrix(gs.R.T @ rs.R).as_rotvec()  # world-axes rotation error
     dp = np.r_[gs.position - rs.position, phi]
-    return (rotation_angle_deg(rs.R, gs.R), float(tw @ np.linalg.solve(rs.twist_covariance, tw)),
-            float(dp @ np.linalg.solve(rs.pose_covariance, dp)))
+    return (
+        rotation_angle_deg(rs.R, gs.R),
+        float(tw @ np.linalg.solve(rs.twist_covariance, tw)),
+        float(dp @ np.linalg.solve(rs.pose_covariance, dp)),
+    )
 
 
 def correlated_table(photos: Path = PHOTOS, loo: bool = True):
     """Table 3 of the module doc; returns the fit on all photos."""
     cam, views = _photo_views(photos)
     fit = fit_correlated_noise(cam, [(uv, X, g.R, g.C) for _, uv, X, g in views])
-    print(f"correlated image error fitted on {fit.views} photos ({fit.points} corners): white "
-          f"{fit.white_px:.3f} px, correlated {fit.correlated_px:.3f} px, length "
-          f"{fit.length_px:.0f} px, log-likelihood ratio vs white {fit.log_likelihood_ratio:.1f}")
-    print("photo  rot diff deg  |omega| rad/s  twist M: before  after   loo    pose M: before  "
-          "after   loo   rot sd deg (after)")
+    print(
+        f"correlated image error fitted on {fit.views} photos ({fit.points} corners): white "
+        f"{fit.white_px:.3f} px, correlated {fit.correlated_px:.3f} px, length "
+        f"{fit.length_px:.0f} px, log-likelihood ratio vs white {fit.log_likelihood_ratio:.1f}"
+    )
+    print(
+        "photo  rot diff deg  |omega| rad/s  twist M: before  after   loo    pose M: before  "
+        "after   loo   rot sd deg (after)"
+    )
     rows = []
     for k, (n, uv, X, gs) in enumerate(views):
         fits = {"before": None, "after": fit}
         if loo:
-            fits["loo"] = fit_correlated_noise(cam, [(u, Y, g.R, g.C) for j, (_, u, Y, g)
-                                                     in enumerate(views) if j != k])
+            fits["loo"] = fit_correlated_noise(
+                cam, [(u, Y, g.R, g.C) for j, (_, u, Y, g) in enumerate(views) if j != k]
+            )
         d = {}
         for key, f in fits.items():
-            o = EstimateOptions() if f is None else EstimateOptions(
-                correlated_noise_px=f.correlated_px, correlated_noise_length_px=f.length_px)
+            o = (
+                EstimateOptions()
+                if f is None
+                else EstimateOptions(
+                    correlated_noise_px=f.correlated_px, correlated_noise_length_px=f.length_px
+                )
+            )
             rs = estimate_rs_pose(uv, X, cam, "r6p_1lin", o)
             d[key] = _distances(rs, gs)
             if key == "after":
@@ -166,17 +191,21 @@ def correlated_table(photos: Path = PHOTOS, loo: bool = True):
                 om = np.linalg.norm(rs.angular_velocity)
         lo = d.get("loo", (np.nan,) * 3)
         rows.append((d["before"][1], d["after"][1], lo[1], d["before"][2], d["after"][2], lo[2]))
-        print(f"left{n}  {d['after'][0]:12.2f}  {om:13.2f}  {d['before'][1]:14.1f}  "
-              f"{d['after'][1]:5.1f}  "
-              f"{lo[1]:5.1f}   {d['before'][2]:13.1f}  {d['after'][2]:5.1f}  {lo[2]:5.1f}   "
-              f"{sd:6.2f}")
+        print(
+            f"left{n}  {d['after'][0]:12.2f}  {om:13.2f}  {d['before'][1]:14.1f}  "
+            f"{d['after'][1]:5.1f}  "
+            f"{lo[1]:5.1f}   {d['before'][2]:13.1f}  {d['after'][2]:5.1f}  {lo[2]:5.1f}   "
+            f"{sd:6.2f}"
+        )
     r = np.array(rows)
     q6 = chi2.ppf(0.9973, 6)
-    print(f"max twist M: before {r[:, 0].max():.1f}, after {r[:, 1].max():.1f}, loo "
-          f"{np.nanmax(r[:, 2]) if loo else np.nan:.1f}; photos above {q6:.2f}: before "
-          f"{np.sum(r[:, 0] > q6)}, after {np.sum(r[:, 1] > q6)}, loo "
-          f"{np.sum(r[:, 2] > q6) if loo else -1}; max pose M: before {r[:, 3].max():.1f}, "
-          f"after {r[:, 4].max():.1f}, loo {np.nanmax(r[:, 5]) if loo else np.nan:.1f}")
+    print(
+        f"max twist M: before {r[:, 0].max():.1f}, after {r[:, 1].max():.1f}, loo "
+        f"{np.nanmax(r[:, 2]) if loo else np.nan:.1f}; photos above {q6:.2f}: before "
+        f"{np.sum(r[:, 0] > q6)}, after {np.sum(r[:, 1] > q6)}, loo "
+        f"{np.sum(r[:, 2] > q6) if loo else -1}; max pose M: before {r[:, 3].max():.1f}, "
+        f"after {r[:, 4].max():.1f}, loo {np.nanmax(r[:, 5]) if loo else np.nan:.1f}"
+    )
     return fit
 
 
@@ -193,17 +222,20 @@ def synthetic_correlated(photos: Path, fit, seeds: int = 8):
     """Table 4 of the module doc: {case: (mean twist M, fraction within 99.73 %)}."""
     cam, views = _photo_views(photos)
     q6 = chi2.ppf(0.9973, 6)
-    on = EstimateOptions(correlated_noise_px=fit.correlated_px,
-                         correlated_noise_length_px=fit.length_px)
-    cases = {"field, option off": (fit.correlated_px, EstimateOptions()),
-             "field, option on": (fit.correlated_px, on),
-             "white only, option off": (0.0, EstimateOptions()),
-             "white only, option on": (0.0, on)}
+    on = EstimateOptions(
+        correlated_noise_px=fit.correlated_px, correlated_noise_length_px=fit.length_px
+    )
+    cases = {
+        "field, option off": (fit.correlated_px, EstimateOptions()),
+        "field, option on": (fit.correlated_px, on),
+        "white only, option off": (0.0, EstimateOptions()),
+        "white only, option on": (0.0, on),
+    }
     out = {}
     white_views = []
     for name, (s_px, opts) in cases.items():
         m6 = []
-        for k, (_, uv, X, gs) in enumerate(views):
+        for k, (_, _uv, X, gs) in enumerate(views):
             clean = cam.project_rs(X, gs.R, gs.C)
             for seed in range(seeds):
                 rng = np.random.default_rng((k, seed))
@@ -215,12 +247,16 @@ def synthetic_correlated(photos: Path, fit, seeds: int = 8):
                     white_views.append((u, X, gs.R, gs.C))
         m6 = np.asarray(m6)
         out[name] = (float(m6.mean()), float(np.mean(m6 <= q6)))
-        print(f"synthetic still boards, {name}: twist M mean {m6.mean():.1f} (chi2(6): 6), "
-              f"median {np.median(m6):.1f}, within 99.73 %: {np.mean(m6 <= q6):.3f}")
+        print(
+            f"synthetic still boards, {name}: twist M mean {m6.mean():.1f} (chi2(6): 6), "
+            f"median {np.median(m6):.1f}, within 99.73 %: {np.mean(m6 <= q6):.3f}"
+        )
     wf = fit_correlated_noise(cam, white_views)
-    print(f"fit on white-noise-only views ({fit.white_px:.3f} px): white {wf.white_px:.3f} px, "
-          f"correlated {wf.correlated_px:.3f} px, log-likelihood ratio "
-          f"{wf.log_likelihood_ratio:.1f}")
+    print(
+        f"fit on white-noise-only views ({fit.white_px:.3f} px): white {wf.white_px:.3f} px, "
+        f"correlated {wf.correlated_px:.3f} px, log-likelihood ratio "
+        f"{wf.log_likelihood_ratio:.1f}"
+    )
     return out
 
 

@@ -8,8 +8,15 @@ Every front end has ``process(image, camera) -> (points_px (N, 2), points3d (N, 
 from .aruco import ArucoFrontend, to_gray
 from .features import FeatureFrontend, FeatureMap, feature_map_from_views
 
-__all__ = ["ArucoFrontend", "FeatureFrontend", "FeatureMap", "feature_map_from_views", "to_gray",
-           "make_frontend", "FRONTENDS"]
+__all__ = [
+    "FRONTENDS",
+    "ArucoFrontend",
+    "FeatureFrontend",
+    "FeatureMap",
+    "feature_map_from_views",
+    "make_frontend",
+    "to_gray",
+]
 
 FRONTENDS = ("aruco", "features", "board")
 

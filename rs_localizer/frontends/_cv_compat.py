@@ -35,11 +35,23 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["NEW_ARUCO_API", "has_aruco", "get_dictionary", "custom_dictionary",
-           "detector_parameters", "MarkerDetector", "grid_board", "charuco_board", "board",
-           "charuco_chessboard_corners", "board_ids", "board_object_points",
-           "CharucoCornerDetector",
-           "board_image", "marker_image"]
+__all__ = [
+    "NEW_ARUCO_API",
+    "CharucoCornerDetector",
+    "MarkerDetector",
+    "board",
+    "board_ids",
+    "board_image",
+    "board_object_points",
+    "charuco_board",
+    "charuco_chessboard_corners",
+    "custom_dictionary",
+    "detector_parameters",
+    "get_dictionary",
+    "grid_board",
+    "has_aruco",
+    "marker_image",
+]
 
 #: True when cv2.aruco has the detector objects of OpenCV >= 4.7
 NEW_ARUCO_API = hasattr(getattr(cv2, "aruco", None), "ArucoDetector")
@@ -52,8 +64,10 @@ def has_aruco() -> bool:
 
 def _require_aruco():
     if not has_aruco():
-        raise ImportError(f"OpenCV {cv2.__version__} has no cv2.aruco (install "
-                          "opencv-contrib-python(-headless) for OpenCV < 4.7)")
+        raise ImportError(
+            f"OpenCV {cv2.__version__} has no cv2.aruco (install "
+            "opencv-contrib-python(-headless) for OpenCV < 4.7)"
+        )
 
 
 def get_dictionary(name: str):
@@ -83,8 +97,10 @@ def custom_dictionary(bits, max_correction_bits: int = 0):
     if b.ndim != 3 or b.shape[1] != b.shape[2] or b.shape[0] == 0 or not np.isin(b, (0, 1)).all():
         raise ValueError(f"marker bits must be (M, n, n) of 0/1, got shape {b.shape}")
     n = int(b.shape[1])
-    get_bytes = getattr(cv2.aruco, "Dictionary_getByteListFromBits", None) or \
-        cv2.aruco.Dictionary.getByteListFromBits
+    get_bytes = (
+        getattr(cv2.aruco, "Dictionary_getByteListFromBits", None)
+        or cv2.aruco.Dictionary.getByteListFromBits
+    )
     byte_list = np.concatenate([get_bytes(m.astype(np.uint8)) for m in b])
     if NEW_ARUCO_API:
         return cv2.aruco.Dictionary(byte_list, n, int(max_correction_bits))
@@ -101,8 +117,7 @@ def detector_parameters(**overrides):
     attribute name. Names this OpenCV lacks are skipped (e.g.
     ``relativeCornerRefinmentWinSize`` before 4.9)."""
     _require_aruco()
-    p = cv2.aruco.DetectorParameters() if NEW_ARUCO_API else \
-        cv2.aruco.DetectorParameters_create()
+    p = cv2.aruco.DetectorParameters() if NEW_ARUCO_API else cv2.aruco.DetectorParameters_create()
     for k, v in overrides.items():
         if hasattr(p, k):
             setattr(p, k, v)
@@ -126,36 +141,49 @@ class MarkerDetector:
         if self._det is not None:
             corners, ids, rejected = self._det.detectMarkers(gray)
         else:
-            corners, ids, rejected = cv2.aruco.detectMarkers(gray, self.dictionary,
-                                                             parameters=self.params)
+            corners, ids, rejected = cv2.aruco.detectMarkers(
+                gray, self.dictionary, parameters=self.params
+            )
         n_rej = 0 if rejected is None else len(rejected)
         if ids is None or len(ids) == 0:
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), n_rej
-        return (np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2),
-                np.asarray(ids, dtype=np.int64).ravel(), n_rej)
+        return (
+            np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2),
+            np.asarray(ids, dtype=np.int64).ravel(),
+            n_rej,
+        )
 
 
-def grid_board(cols: int, rows: int, marker_length: float, separation: float, dictionary,
-               ids=None):
+def grid_board(cols: int, rows: int, marker_length: float, separation: float, dictionary, ids=None):
     """``cv2.aruco.GridBoard``: ``cols`` x ``rows`` markers of side ``marker_length`` with
     ``separation`` between them; ``ids`` (cols*rows,) row-major, default ``0..``."""
     _require_aruco()
     ids = None if ids is None else np.asarray(ids, dtype=np.int32).ravel()
     if NEW_ARUCO_API:
         if ids is None:
-            return cv2.aruco.GridBoard((int(cols), int(rows)), float(marker_length),
-                                       float(separation), dictionary)
-        return cv2.aruco.GridBoard((int(cols), int(rows)), float(marker_length),
-                                   float(separation), dictionary, ids)
-    b = cv2.aruco.GridBoard_create(int(cols), int(rows), float(marker_length), float(separation),
-                                   dictionary)
+            return cv2.aruco.GridBoard(
+                (int(cols), int(rows)), float(marker_length), float(separation), dictionary
+            )
+        return cv2.aruco.GridBoard(
+            (int(cols), int(rows)), float(marker_length), float(separation), dictionary, ids
+        )
+    b = cv2.aruco.GridBoard_create(
+        int(cols), int(rows), float(marker_length), float(separation), dictionary
+    )
     if ids is not None:
         b.setIds(ids)
     return b
 
 
-def charuco_board(cols: int, rows: int, square_length: float, marker_length: float, dictionary,
-                  ids=None, legacy_pattern: bool = False):
+def charuco_board(
+    cols: int,
+    rows: int,
+    square_length: float,
+    marker_length: float,
+    dictionary,
+    ids=None,
+    legacy_pattern: bool = False,
+):
     """``cv2.aruco.CharucoBoard`` of ``cols`` x ``rows`` squares.
 
     Raises:
@@ -167,14 +195,17 @@ def charuco_board(cols: int, rows: int, square_length: float, marker_length: flo
         args = ((int(cols), int(rows)), float(square_length), float(marker_length), dictionary)
         b = cv2.aruco.CharucoBoard(*args) if ids is None else cv2.aruco.CharucoBoard(*args, ids)
     else:
-        b = cv2.aruco.CharucoBoard_create(int(cols), int(rows), float(square_length),
-                                          float(marker_length), dictionary)
+        b = cv2.aruco.CharucoBoard_create(
+            int(cols), int(rows), float(square_length), float(marker_length), dictionary
+        )
         if ids is not None:
             b.setIds(ids)
     if legacy_pattern:
         if not hasattr(b, "setLegacyPattern"):
-            raise ValueError(f"OpenCV {cv2.__version__} cannot make the legacy (pre-4.6) "
-                             "ChArUco layout; it needs OpenCV >= 4.8")
+            raise ValueError(
+                f"OpenCV {cv2.__version__} cannot make the legacy (pre-4.6) "
+                "ChArUco layout; it needs OpenCV >= 4.8"
+            )
         b.setLegacyPattern(True)
     return b
 
@@ -226,8 +257,14 @@ class CharucoCornerDetector:
     each marker; both then refine every corner with ``cornerSubPix``.
     """
 
-    def __init__(self, board, params=None, min_markers: int = 2, refine_markers: bool = True,
-                 corner_window: int = 12):
+    def __init__(
+        self,
+        board,
+        params=None,
+        min_markers: int = 2,
+        refine_markers: bool = True,
+        corner_window: int = 12,
+    ):
         self.board = board
         self.params = params if params is not None else detector_parameters()
         self.min_markers = int(min_markers)
@@ -236,8 +273,14 @@ class CharucoCornerDetector:
         self._det = {}
 
     def _detector(self, K, D):
-        key = None if K is None else (np.asarray(K, float).tobytes(),
-                                      np.asarray(D if D is not None else [], float).tobytes())
+        key = (
+            None
+            if K is None
+            else (
+                np.asarray(K, float).tobytes(),
+                np.asarray(D if D is not None else [], float).tobytes(),
+            )
+        )
         det = self._det.get(key)
         if det is None:
             cp = cv2.aruco.CharucoParameters()
@@ -260,18 +303,30 @@ class CharucoCornerDetector:
             dictionary = self.board.dictionary
             mc, mids, rejected = cv2.aruco.detectMarkers(gray, dictionary, parameters=self.params)
             if self.refine_markers and mids is not None and len(mids):
-                kw = {} if K is None else dict(cameraMatrix=np.asarray(K, float),
-                                               distCoeffs=np.asarray(D if D is not None
-                                                                     else np.zeros(5), float))
+                kw = (
+                    {}
+                    if K is None
+                    else dict(
+                        cameraMatrix=np.asarray(K, float),
+                        distCoeffs=np.asarray(D if D is not None else np.zeros(5), float),
+                    )
+                )
                 mc, mids, rejected, _ = cv2.aruco.refineDetectedMarkers(
-                    gray, self.board, mc, mids, rejected, parameters=self.params, **kw)
+                    gray, self.board, mc, mids, rejected, parameters=self.params, **kw
+                )
             cc = cids = None
             if mids is not None and len(mids):
-                kw = {} if K is None else dict(cameraMatrix=np.asarray(K, float),
-                                               distCoeffs=np.asarray(D if D is not None
-                                                                     else np.zeros(5), float))
-                n, cc, cids = cv2.aruco.interpolateCornersCharuco(
-                    mc, mids, gray, self.board, minMarkers=self.min_markers, **kw)
+                kw = (
+                    {}
+                    if K is None
+                    else dict(
+                        cameraMatrix=np.asarray(K, float),
+                        distCoeffs=np.asarray(D if D is not None else np.zeros(5), float),
+                    )
+                )
+                _n, cc, cids = cv2.aruco.interpolateCornersCharuco(
+                    mc, mids, gray, self.board, minMarkers=self.min_markers, **kw
+                )
         if mids is None or len(mids) == 0:
             mc_out, mids_out = np.zeros((0, 4, 2)), np.zeros(0, np.int64)
         else:
@@ -310,6 +365,7 @@ def board_image(b, size, margin: int = 0, border_bits: int = 1) -> np.ndarray:
 def marker_image(dictionary, marker_id: int, side: int, border_bits: int = 1) -> np.ndarray:
     """(side, side) uint8 image of one marker (black border included, no quiet zone)."""
     if hasattr(cv2.aruco, "generateImageMarker"):
-        return cv2.aruco.generateImageMarker(dictionary, int(marker_id), int(side),
-                                             borderBits=int(border_bits))
+        return cv2.aruco.generateImageMarker(
+            dictionary, int(marker_id), int(side), borderBits=int(border_bits)
+        )
     return cv2.aruco.drawMarker(dictionary, int(marker_id), int(side), borderBits=int(border_bits))

@@ -29,8 +29,12 @@ def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
     enc = encoding.lower()
     if img.ndim != 3 or img.shape[2] not in (3, 4):
         raise ValueError(f"expected an (H, W), (H, W, 3) or (H, W, 4) image, got {img.shape}")
-    code = {("bgr", 3): cv2.COLOR_BGR2GRAY, ("bgr", 4): cv2.COLOR_BGRA2GRAY,
-            ("rgb", 3): cv2.COLOR_RGB2GRAY, ("rgb", 4): cv2.COLOR_RGBA2GRAY}
+    code = {
+        ("bgr", 3): cv2.COLOR_BGR2GRAY,
+        ("bgr", 4): cv2.COLOR_BGRA2GRAY,
+        ("rgb", 3): cv2.COLOR_RGB2GRAY,
+        ("rgb", 4): cv2.COLOR_RGBA2GRAY,
+    }
     kind = "bgr" if enc.startswith("bgr") else "rgb"
     return cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), code[(kind, img.shape[2])])
 
@@ -51,32 +55,41 @@ class ArucoFrontend:
 
     name = "aruco"
 
-    def __init__(self, marker_corners: dict, dictionary: str = "DICT_4X4_250",
-                 subpix_window: int = 3, min_marker_perimeter: float = 0.02):
+    def __init__(
+        self,
+        marker_corners: dict,
+        dictionary: str = "DICT_4X4_250",
+        subpix_window: int = 3,
+        min_marker_perimeter: float = 0.02,
+    ):
         from ..maps import marker_dictionary
 
         self.dictionary = dictionary
-        self.marker_corners = {int(k): np.asarray(v, dtype=float).reshape(4, 3)
-                               for k, v in marker_corners.items()}
+        self.marker_corners = {
+            int(k): np.asarray(v, dtype=float).reshape(4, 3) for k, v in marker_corners.items()
+        }
         # relativeCornerRefinmentWinSize (sic, OpenCV >= 4.9, skipped before): window up to one
         # marker cell (default 0.3 cell: ~0.27 px median error on rendered 30-40 px markers;
         # 1.0: ~0.22 px)
         params = _cv_compat.detector_parameters(
             cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
-            cornerRefinementWinSize=int(subpix_window), cornerRefinementMaxIterations=50,
-            cornerRefinementMinAccuracy=0.01, relativeCornerRefinmentWinSize=1.0,
-            minMarkerPerimeterRate=float(min_marker_perimeter))
+            cornerRefinementWinSize=int(subpix_window),
+            cornerRefinementMaxIterations=50,
+            cornerRefinementMinAccuracy=0.01,
+            relativeCornerRefinmentWinSize=1.0,
+            minMarkerPerimeterRate=float(min_marker_perimeter),
+        )
         self.params = params
         self.detector = _cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
         self.last_rejected = 0
         self.last_scores = None  # no match scores (FeatureFrontend has them)
 
     @classmethod
-    def from_scene(cls, scene, **kw) -> "ArucoFrontend":
+    def from_scene(cls, scene, **kw) -> ArucoFrontend:
         return cls(scene.marker_corners(), scene.dictionary, **kw)
 
     @classmethod
-    def from_file(cls, path, **kw) -> "ArucoFrontend":
+    def from_file(cls, path, **kw) -> ArucoFrontend:
         """From a marker map YAML (:func:`rs_localizer.maps.load_marker_map`) or a scene
         YAML / built-in scene name."""
         from ..maps import load_marker_map
@@ -89,8 +102,7 @@ class ArucoFrontend:
         corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
         return corners, ids
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None,
-                encoding: str = "rgb8"):
+    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
         """Correspondences of one image: ``(points_px (N, 2), points3d (N, 3), ids (N,))``
         with ``ids = 4 * marker_id + corner``. ``camera`` is not needed (pixels stay
         distorted, as the estimator expects) but accepted for a uniform front-end API."""

@@ -82,9 +82,20 @@ from ..camera import CameraModel
 from . import _cv_compat as cvc
 from .aruco import to_gray
 
-__all__ = ["CheckerboardModel", "CharucoBoardModel", "TagBoard", "load_board", "pose_from_spec",
-           "load_dictionary", "board_image", "CheckerboardFrontend", "CharucoFrontend",
-           "TagFrontend", "make_board_frontend", "BOARD_TYPES"]
+__all__ = [
+    "BOARD_TYPES",
+    "CharucoBoardModel",
+    "CharucoFrontend",
+    "CheckerboardFrontend",
+    "CheckerboardModel",
+    "TagBoard",
+    "TagFrontend",
+    "board_image",
+    "load_board",
+    "load_dictionary",
+    "make_board_frontend",
+    "pose_from_spec",
+]
 
 #: values of ``type`` in a board YAML
 BOARD_TYPES = ("checkerboard", "charuco", "tag_grid", "tag_map")
@@ -114,8 +125,10 @@ def pose_from_spec(spec) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"pose must be a mapping, got {type(spec).__name__}")
     unknown = set(spec) - {"translation", "quaternion", "rotvec"}
     if unknown:
-        raise ValueError(f"unknown pose keys {sorted(unknown)}; expected translation and "
-                         "quaternion (x y z w) or rotvec")
+        raise ValueError(
+            f"unknown pose keys {sorted(unknown)}; expected translation and "
+            "quaternion (x y z w) or rotvec"
+        )
     if "quaternion" in spec and "rotvec" in spec:
         raise ValueError("give either quaternion or rotvec, not both")
     t = np.asarray(spec.get("translation", [0.0, 0.0, 0.0]), dtype=float)
@@ -124,8 +137,10 @@ def pose_from_spec(spec) -> tuple[np.ndarray, np.ndarray]:
     if "quaternion" in spec:
         q = np.asarray(spec["quaternion"], dtype=float)
         if q.shape != (4,) or not np.isfinite(q).all() or np.linalg.norm(q) < 1e-9:
-            raise ValueError(f"quaternion must be 4 finite numbers (x y z w), not all zero, got "
-                             f"{spec['quaternion']}")
+            raise ValueError(
+                f"quaternion must be 4 finite numbers (x y z w), not all zero, got "
+                f"{spec['quaternion']}"
+            )
         R = Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
     elif "rotvec" in spec:
         r = np.asarray(spec["rotvec"], dtype=float)
@@ -189,8 +204,10 @@ class _BoardBase:
 
     def _set_pose(self, pose, id_offset):
         if isinstance(pose, tuple):
-            R, t = (np.asarray(pose[0], dtype=float).reshape(3, 3),
-                    np.asarray(pose[1], dtype=float).reshape(3))
+            R, t = (
+                np.asarray(pose[0], dtype=float).reshape(3, 3),
+                np.asarray(pose[1], dtype=float).reshape(3),
+            )
             if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
                 raise ValueError("pose rotation is not a rotation matrix")
         else:
@@ -239,12 +256,16 @@ class CheckerboardModel(_BoardBase):
     def __init__(self, cols: int, rows: int, square_size: float, pose=None, id_offset: int = 0):
         cols, rows, sq = int(cols), int(rows), float(square_size)
         if cols < 2 or rows < 2 or not np.isfinite(sq) or sq <= 0:
-            raise ValueError(f"checkerboard needs cols, rows >= 2 and square_size > 0, got "
-                             f"{cols} x {rows}, {square_size}")
+            raise ValueError(
+                f"checkerboard needs cols, rows >= 2 and square_size > 0, got "
+                f"{cols} x {rows}, {square_size}"
+            )
         if (cols + rows) % 2 == 0:
-            raise ValueError(f"a {cols} x {rows} inner-corner checkerboard looks the same turned "
-                             "by 180 degrees, so its pose is ambiguous; use cols + rows odd "
-                             "(e.g. 9 x 6)")
+            raise ValueError(
+                f"a {cols} x {rows} inner-corner checkerboard looks the same turned "
+                "by 180 degrees, so its pose is ambiguous; use cols + rows odd "
+                "(e.g. 9 x 6)"
+            )
         self.cols, self.rows, self.square_size = cols, rows, sq
         self._set_pose(pose, id_offset)
         r, c = np.mgrid[0:rows, 0:cols]
@@ -279,28 +300,46 @@ class CharucoBoardModel(_BoardBase):
 
     kind = "charuco"
 
-    def __init__(self, cols: int, rows: int, square_size: float, marker_size: float,
-                 dictionary, marker_ids=None, legacy_pattern: bool = False, pose=None,
-                 id_offset: int = 0, base_dir=None):
+    def __init__(
+        self,
+        cols: int,
+        rows: int,
+        square_size: float,
+        marker_size: float,
+        dictionary,
+        marker_ids=None,
+        legacy_pattern: bool = False,
+        pose=None,
+        id_offset: int = 0,
+        base_dir=None,
+    ):
         cols, rows = int(cols), int(rows)
         sq, mk = float(square_size), float(marker_size)
         if cols < 2 or rows < 2 or not (np.isfinite(sq) and np.isfinite(mk)) or not 0 < mk < sq:
-            raise ValueError(f"charuco needs cols, rows >= 2 and 0 < marker_size < square_size, "
-                             f"got {cols} x {rows}, {square_size}, {marker_size}")
+            raise ValueError(
+                f"charuco needs cols, rows >= 2 and 0 < marker_size < square_size, "
+                f"got {cols} x {rows}, {square_size}, {marker_size}"
+            )
         self.cols, self.rows, self.square_size, self.marker_size = cols, rows, sq, mk
-        self.dictionary = (load_dictionary(dictionary, base_dir)
-                           if isinstance(dictionary, (str, dict, Path)) else dictionary)
+        self.dictionary = (
+            load_dictionary(dictionary, base_dir)
+            if isinstance(dictionary, (str, dict, Path))
+            else dictionary
+        )
         n_markers = cols * rows // 2
         if marker_ids is not None:
             marker_ids = np.asarray(marker_ids, dtype=np.int64).ravel()
             if len(marker_ids) != n_markers or len(np.unique(marker_ids)) != n_markers:
-                raise ValueError(f"a {cols} x {rows} charuco board has {n_markers} markers; "
-                                 f"marker_ids must be {n_markers} distinct ids")
+                raise ValueError(
+                    f"a {cols} x {rows} charuco board has {n_markers} markers; "
+                    f"marker_ids must be {n_markers} distinct ids"
+                )
         ids_chk = np.arange(n_markers) if marker_ids is None else marker_ids
         if ids_chk.min() < 0 or ids_chk.max() >= _dictionary_size(self.dictionary):
             raise ValueError(f"marker ids must be in [0, {_dictionary_size(self.dictionary)})")
-        self.cv_board = cvc.charuco_board(cols, rows, sq, mk, self.dictionary, marker_ids,
-                                          bool(legacy_pattern))
+        self.cv_board = cvc.charuco_board(
+            cols, rows, sq, mk, self.dictionary, marker_ids, bool(legacy_pattern)
+        )
         self.legacy_pattern = bool(legacy_pattern)
         self.marker_ids = cvc.board_ids(self.cv_board)
         self._set_pose(pose, id_offset)
@@ -335,12 +374,22 @@ class TagBoard(_BoardBase):
 
     kind = "tags"
 
-    def __init__(self, corners_board: dict, dictionary="DICT_APRILTAG_36h11", pose=None,
-                 id_offset: int = 0, base_dir=None, grid=None):
+    def __init__(
+        self,
+        corners_board: dict,
+        dictionary="DICT_APRILTAG_36h11",
+        pose=None,
+        id_offset: int = 0,
+        base_dir=None,
+        grid=None,
+    ):
         if not corners_board:
             raise ValueError("a tag board needs at least one tag")
-        self.dictionary = (load_dictionary(dictionary, base_dir)
-                           if isinstance(dictionary, (str, dict, Path)) else dictionary)
+        self.dictionary = (
+            load_dictionary(dictionary, base_dir)
+            if isinstance(dictionary, (str, dict, Path))
+            else dictionary
+        )
         n_dict = _dictionary_size(self.dictionary)
         tags = {}
         for k, v in corners_board.items():
@@ -355,21 +404,36 @@ class TagBoard(_BoardBase):
         self.tag_ids = np.array(sorted(tags), dtype=np.int64)
         P = np.concatenate([tags[i] for i in self.tag_ids])
         self._finish(P, (4 * self.tag_ids[:, None] + np.arange(4)).ravel())
-        self.tag_corners = {int(i): self.points[4 * k:4 * k + 4]
-                            for k, i in enumerate(self.tag_ids)}
+        self.tag_corners = {
+            int(i): self.points[4 * k : 4 * k + 4] for k, i in enumerate(self.tag_ids)
+        }
 
     @classmethod
-    def grid(cls, cols: int, rows: int, tag_size: float, tag_spacing: float,
-             dictionary="DICT_APRILTAG_36h11", first_id: int = 0, ids=None, **kw) -> "TagBoard":
+    def grid(
+        cls,
+        cols: int,
+        rows: int,
+        tag_size: float,
+        tag_spacing: float,
+        dictionary="DICT_APRILTAG_36h11",
+        first_id: int = 0,
+        ids=None,
+        **kw,
+    ) -> TagBoard:
         """``cols`` x ``rows`` tags, row-major from the top-left; tag ``(c, r)`` has its
         top-left corner at ``(c, r, 0) * (tag_size + tag_spacing)``. ``ids`` (cols*rows,)
         or ``first_id + 0..``. Raises ValueError for bad sizes or a wrong number of ids."""
         cols, rows, s, g = int(cols), int(rows), float(tag_size), float(tag_spacing)
         if cols < 1 or rows < 1 or not (np.isfinite(s) and np.isfinite(g)) or s <= 0 or g < 0:
-            raise ValueError(f"tag grid needs cols, rows >= 1, tag_size > 0, tag_spacing >= 0, "
-                             f"got {cols} x {rows}, {tag_size}, {tag_spacing}")
-        ids = (np.arange(cols * rows) + int(first_id) if ids is None
-               else np.asarray(ids, dtype=np.int64).ravel())
+            raise ValueError(
+                f"tag grid needs cols, rows >= 1, tag_size > 0, tag_spacing >= 0, "
+                f"got {cols} x {rows}, {tag_size}, {tag_spacing}"
+            )
+        ids = (
+            np.arange(cols * rows) + int(first_id)
+            if ids is None
+            else np.asarray(ids, dtype=np.int64).ravel()
+        )
         if len(ids) != cols * rows or len(np.unique(ids)) != len(ids):
             raise ValueError(f"a {cols} x {rows} tag grid needs {cols * rows} distinct ids")
         unit = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float) * s
@@ -380,8 +444,9 @@ class TagBoard(_BoardBase):
         return cls(corners, dictionary, grid=(cols, rows, s, g, ids), **kw)
 
     @classmethod
-    def from_tags(cls, tags, dictionary="DICT_APRILTAG_36h11", tag_size: float | None = None,
-                  **kw) -> "TagBoard":
+    def from_tags(
+        cls, tags, dictionary="DICT_APRILTAG_36h11", tag_size: float | None = None, **kw
+    ) -> TagBoard:
         """Tags placed one by one. ``tags``: list of dicts with ``id`` and either ``corners``
         (4, 3) or ``pose`` (tag centre frame -> board frame, :func:`pose_from_spec`) plus
         ``size`` (default ``tag_size``). In the tag frame the corners are
@@ -452,12 +517,26 @@ def load_board(source, base_dir=None):
     if kind == "checkerboard":
         return CheckerboardModel(**take("cols", "rows", "square_size"), **common)
     if kind == "charuco":
-        a = take("cols", "rows", "square_size", "marker_size", "dictionary", marker_ids=None,
-                 legacy_pattern=False)
+        a = take(
+            "cols",
+            "rows",
+            "square_size",
+            "marker_size",
+            "dictionary",
+            marker_ids=None,
+            legacy_pattern=False,
+        )
         return CharucoBoardModel(**a, base_dir=base_dir, **common)
     if kind == "tag_grid":
-        a = take("cols", "rows", "tag_size", "tag_spacing", dictionary="DICT_APRILTAG_36h11",
-                 first_id=0, ids=None)
+        a = take(
+            "cols",
+            "rows",
+            "tag_size",
+            "tag_spacing",
+            dictionary="DICT_APRILTAG_36h11",
+            first_id=0,
+            ids=None,
+        )
         return TagBoard.grid(**a, base_dir=base_dir, **common)
     if kind == "tag_map":
         a = take("tags", dictionary="DICT_APRILTAG_36h11", tag_size=None)
@@ -523,8 +602,10 @@ class _BoardFrontend:
 
     def __init__(self, board):
         if not isinstance(board, self.board_class):
-            raise TypeError(f"{type(self).__name__} needs a {self.board_class.__name__}, got "
-                            f"{type(board).__name__}")
+            raise TypeError(
+                f"{type(self).__name__} needs a {self.board_class.__name__}, got "
+                f"{type(board).__name__}"
+            )
         self.board = board
         self.last_rejected = 0
         self.last_scores = None  # no match scores (FeatureFrontend has them)
@@ -537,8 +618,7 @@ class _BoardFrontend:
     def _detect_ids(self, gray, camera):
         raise NotImplementedError
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None,
-                encoding: str = "rgb8"):
+    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
         """Correspondences of one image: ``(points_px (N, 2) distorted pixels, points3d (N, 3)
         map metres, ids (N,) int64)``; detections whose id is not on the board are dropped.
         ``camera`` is optional (the ChArUco front end uses it to interpolate corners)."""
@@ -574,12 +654,18 @@ class CheckerboardFrontend(_BoardFrontend):
     name = "checkerboard"
     board_class = CheckerboardModel
 
-    def __init__(self, board: CheckerboardModel, method: str = "auto", subpix_window: int = 5,
-                 sb_flags: int | None = None):
+    def __init__(
+        self,
+        board: CheckerboardModel,
+        method: str = "auto",
+        subpix_window: int = 5,
+        sb_flags: int | None = None,
+    ):
         super().__init__(board)
         if method not in ("sb", "classic", "auto"):
-            raise ValueError(f"unknown checkerboard method {method!r}; expected sb, classic "
-                             "or auto")
+            raise ValueError(
+                f"unknown checkerboard method {method!r}; expected sb, classic or auto"
+            )
         self.method = method
         self.subpix_window = int(subpix_window)
         self.sb_flags = cv2.CALIB_CB_NORMALIZE_IMAGE if sb_flags is None else int(sb_flags)
@@ -590,14 +676,17 @@ class CheckerboardFrontend(_BoardFrontend):
         if method == "sb":
             ok, c = cv2.findChessboardCornersSB(gray, size, flags=self.sb_flags)
             return c if ok else None
-        flags = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-                 | cv2.CALIB_CB_FAST_CHECK)
+        flags = (
+            cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+        )
         ok, c = cv2.findChessboardCorners(gray, size, flags=flags)
         if not ok:
             return None
         grid = c.reshape(size[1], size[0], 2)
-        spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
-                      np.linalg.norm(np.diff(grid, axis=1), axis=2).min())
+        spacing = min(
+            np.linalg.norm(np.diff(grid, axis=0), axis=2).min(),
+            np.linalg.norm(np.diff(grid, axis=1), axis=2).min(),
+        )
         w = int(max(2, min(self.subpix_window, np.floor(0.4 * spacing))))
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
         return cv2.cornerSubPix(gray, c.astype(np.float32), (w, w), (-1, -1), crit)
@@ -613,8 +702,9 @@ class CheckerboardFrontend(_BoardFrontend):
             c = self._find(gray, mth)
             if c is not None:
                 self.last_method = mth
-                grid = _canonical_checkerboard(c.reshape(self.board.rows, self.board.cols, 2)
-                                               .astype(np.float64), gray)
+                grid = _canonical_checkerboard(
+                    c.reshape(self.board.rows, self.board.cols, 2).astype(np.float64), gray
+                )
                 if grid is None:
                     break
                 return grid.reshape(-1, 2), np.arange(self.board.cols * self.board.rows)
@@ -640,10 +730,15 @@ def _canonical_checkerboard(grid: np.ndarray, gray: np.ndarray, min_contrast: fl
     centre = 0.25 * (a + b + c + d)
     samples = [centre] + [0.5 * (centre + q) for q in (a, b, c, d)]
     pts = np.stack(samples, axis=0).astype(np.float32)  # (5, rows-1, cols-1, 2)
-    vals = cv2.remap(gray, pts[..., 0].reshape(-1, 1), pts[..., 1].reshape(-1, 1),
-                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    vals = cv2.remap(
+        gray,
+        pts[..., 0].reshape(-1, 1),
+        pts[..., 1].reshape(-1, 1),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
     vals = vals.reshape(pts.shape[:3]).astype(float).mean(axis=0)
-    rr, cc = np.mgrid[0:vals.shape[0], 0:vals.shape[1]]
+    rr, cc = np.mgrid[0 : vals.shape[0], 0 : vals.shape[1]]
     even = (rr + cc) % 2 == 0
     black, white = vals[even].mean(), vals[~even].mean()
     if abs(white - black) < min_contrast:
@@ -673,18 +768,27 @@ class CharucoFrontend(_BoardFrontend):
     name = "charuco"
     board_class = CharucoBoardModel
 
-    def __init__(self, board: CharucoBoardModel, min_markers: int = 2, use_camera: bool = True,
-                 refine_markers: bool = True, subpix_window: int = 3, corner_window: int = 12):
+    def __init__(
+        self,
+        board: CharucoBoardModel,
+        min_markers: int = 2,
+        use_camera: bool = True,
+        refine_markers: bool = True,
+        subpix_window: int = 3,
+        corner_window: int = 12,
+    ):
         super().__init__(board)
-        params = cvc.detector_parameters(cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
-                                         cornerRefinementWinSize=int(subpix_window))
-        self.detector = cvc.CharucoCornerDetector(board.cv_board, params, min_markers,
-                                                  refine_markers, corner_window)
+        params = cvc.detector_parameters(
+            cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
+            cornerRefinementWinSize=int(subpix_window),
+        )
+        self.detector = cvc.CharucoCornerDetector(
+            board.cv_board, params, min_markers, refine_markers, corner_window
+        )
         self.use_camera = bool(use_camera)
         self.last_markers = np.zeros(0, np.int64)
 
-    def detect(self, image: np.ndarray, camera: CameraModel | None = None,
-               encoding: str = "rgb8"):
+    def detect(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
         """``(corners (N, 2) pixels, charuco ids (N,) without offset)``."""
         K = D = None
         if camera is not None and self.use_camera and camera.distortion_model != "equidistant":
@@ -717,19 +821,31 @@ class TagFrontend(_BoardFrontend):
     name = "tags"
     board_class = TagBoard
 
-    _REFINE = {"subpix": "CORNER_REFINE_SUBPIX", "apriltag": "CORNER_REFINE_APRILTAG",
-               "contour": "CORNER_REFINE_CONTOUR", "none": "CORNER_REFINE_NONE"}
+    _REFINE = {
+        "subpix": "CORNER_REFINE_SUBPIX",
+        "apriltag": "CORNER_REFINE_APRILTAG",
+        "contour": "CORNER_REFINE_CONTOUR",
+        "none": "CORNER_REFINE_NONE",
+    }
 
-    def __init__(self, board: TagBoard, refinement: str = "subpix", subpix_window: int = 3,
-                 min_marker_perimeter: float = 0.02):
+    def __init__(
+        self,
+        board: TagBoard,
+        refinement: str = "subpix",
+        subpix_window: int = 3,
+        min_marker_perimeter: float = 0.02,
+    ):
         super().__init__(board)
         if refinement not in self._REFINE:
             raise ValueError(f"unknown refinement {refinement!r}; expected {list(self._REFINE)}")
         params = cvc.detector_parameters(
             cornerRefinementMethod=getattr(cv2.aruco, self._REFINE[refinement]),
-            cornerRefinementWinSize=int(subpix_window), cornerRefinementMaxIterations=50,
-            cornerRefinementMinAccuracy=0.01, relativeCornerRefinmentWinSize=1.0,
-            minMarkerPerimeterRate=float(min_marker_perimeter))
+            cornerRefinementWinSize=int(subpix_window),
+            cornerRefinementMaxIterations=50,
+            cornerRefinementMinAccuracy=0.01,
+            relativeCornerRefinmentWinSize=1.0,
+            minMarkerPerimeterRate=float(min_marker_perimeter),
+        )
         self.detector = cvc.MarkerDetector(board.dictionary, params)
         self.last_unknown = 0
 
@@ -747,8 +863,11 @@ class TagFrontend(_BoardFrontend):
         return corners.reshape(-1, 2), ids
 
 
-_FRONTENDS = {CheckerboardModel: CheckerboardFrontend, CharucoBoardModel: CharucoFrontend,
-              TagBoard: TagFrontend}
+_FRONTENDS = {
+    CheckerboardModel: CheckerboardFrontend,
+    CharucoBoardModel: CharucoFrontend,
+    TagBoard: TagFrontend,
+}
 
 
 def make_board_frontend(board, **kw):

@@ -23,15 +23,16 @@ import numpy as np
 from ..camera import CameraModel
 from .aruco import to_gray
 
-__all__ = ["FeatureMap", "FeatureFrontend", "feature_map_from_views", "make_detector"]
+__all__ = ["FeatureFrontend", "FeatureMap", "feature_map_from_views", "make_detector"]
 
 
 def make_detector(kind: str = "orb", n_features: int = 2000):
     """OpenCV feature detector/descriptor: ``orb`` (binary, Hamming) or ``sift`` (float, L2)."""
     kind = kind.lower()
     if kind == "orb":
-        return cv2.ORB_create(nfeatures=int(n_features), scaleFactor=1.2, nlevels=8,
-                              fastThreshold=10)
+        return cv2.ORB_create(
+            nfeatures=int(n_features), scaleFactor=1.2, nlevels=8, fastThreshold=10
+        )
     if kind == "sift":
         return cv2.SIFT_create(nfeatures=int(n_features))
     raise ValueError(f"unknown feature type {kind!r}; expected 'orb' or 'sift'")
@@ -61,19 +62,28 @@ class FeatureMap:
 
     def save(self, path) -> Path:
         path = Path(path)
-        np.savez_compressed(path, points=self.points, descriptors=self.descriptors,
-                            landmark_ids=self.landmark_ids, kind=np.array(self.kind))
+        np.savez_compressed(
+            path,
+            points=self.points,
+            descriptors=self.descriptors,
+            landmark_ids=self.landmark_ids,
+            kind=np.array(self.kind),
+        )
         return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
 
     @classmethod
-    def load(cls, path) -> "FeatureMap":
+    def load(cls, path) -> FeatureMap:
         """Raises ValueError for a file that is not a feature map."""
         with np.load(Path(path), allow_pickle=False) as z:
             missing = {"points", "descriptors", "landmark_ids", "kind"} - set(z.files)
             if missing:
                 raise ValueError(f"{path}: not a feature map (missing {sorted(missing)})")
-            fm = cls(z["points"].astype(float), z["descriptors"],
-                     z["landmark_ids"].astype(np.int64), str(z["kind"]))
+            fm = cls(
+                z["points"].astype(float),
+                z["descriptors"],
+                z["landmark_ids"].astype(np.int64),
+                str(z["kind"]),
+            )
         if fm.points.shape != (len(fm.descriptors), 3) or len(fm.landmark_ids) != len(fm.points):
             raise ValueError(f"{path}: inconsistent feature map arrays")
         return fm
@@ -94,9 +104,14 @@ def _merge_landmarks(points: np.ndarray, radius: float) -> np.ndarray:
     return labels.astype(np.int64)
 
 
-def feature_map_from_views(views, kind: str = "orb", n_features: int = 2000,
-                           merge_radius: float = 0.004, edge_margin_px: float = 2.0,
-                           descriptors_per_landmark: int = 1) -> FeatureMap:
+def feature_map_from_views(
+    views,
+    kind: str = "orb",
+    n_features: int = 2000,
+    merge_radius: float = 0.004,
+    edge_margin_px: float = 2.0,
+    descriptors_per_landmark: int = 1,
+) -> FeatureMap:
     """Reconstruct a feature map from posed views with known depth.
 
     Args:
@@ -189,11 +204,10 @@ class FeatureFrontend:
         self.last_scores = np.zeros(0)
 
     @classmethod
-    def from_file(cls, path, **kw) -> "FeatureFrontend":
+    def from_file(cls, path, **kw) -> FeatureFrontend:
         return cls(FeatureMap.load(path), **kw)
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None,
-                encoding: str = "rgb8"):
+    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
         """Correspondences of one image (pixels stay distorted; ``camera`` is unused)."""
         empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
         self.last_scores = np.zeros(0)

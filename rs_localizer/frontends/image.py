@@ -5,12 +5,26 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["image_from_msg", "image_from_compressed", "compressed_fields", "image_fields",
-           "ENCODINGS", "COMPRESSED_FORMATS"]
+__all__ = [
+    "COMPRESSED_FORMATS",
+    "ENCODINGS",
+    "compressed_fields",
+    "image_fields",
+    "image_from_compressed",
+    "image_from_msg",
+]
 
 #: supported encodings -> channels (8-bit)
-ENCODINGS = {"mono8": 1, "8uc1": 1, "rgb8": 3, "bgr8": 3, "8uc3": 3, "rgba8": 4, "bgra8": 4,
-             "8uc4": 4}
+ENCODINGS = {
+    "mono8": 1,
+    "8uc1": 1,
+    "rgb8": 3,
+    "bgr8": 3,
+    "8uc3": 3,
+    "rgba8": 4,
+    "bgra8": 4,
+    "8uc4": 4,
+}
 
 
 def image_from_msg(msg):
@@ -23,16 +37,20 @@ def image_from_msg(msg):
     """
     enc = str(msg.encoding).lower()
     if enc not in ENCODINGS:
-        raise ValueError(f"unsupported image encoding {msg.encoding!r}; "
-                         f"supported: {sorted(ENCODINGS)}")
+        raise ValueError(
+            f"unsupported image encoding {msg.encoding!r}; supported: {sorted(ENCODINGS)}"
+        )
     ch = ENCODINGS[enc]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    buf = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data,
-                        dtype=np.uint8)
+    buf = np.frombuffer(
+        bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8
+    )
     if step < w * ch or len(buf) < step * h:
-        raise ValueError(f"image data too short: {len(buf)} bytes for {h} rows of step {step} "
-                         f"({w} x {ch} bytes needed per row)")
-    img = buf[:step * h].reshape(h, step)[:, :w * ch]
+        raise ValueError(
+            f"image data too short: {len(buf)} bytes for {h} rows of step {step} "
+            f"({w} x {ch} bytes needed per row)"
+        )
+    img = buf[: step * h].reshape(h, step)[:, : w * ch]
     img = img.reshape(h, w) if ch == 1 else img.reshape(h, w, ch)
     return np.ascontiguousarray(img), ("mono8" if ch == 1 and enc == "8uc1" else enc)
 
@@ -84,16 +102,21 @@ def image_from_compressed(msg):
 
     kind = _compressed_kind(str(msg.format))
     if kind is None:
-        raise ValueError(f"unsupported compressed image format {msg.format!r}; supported: "
-                         f"{', '.join(COMPRESSED_FORMATS)}")
-    buf = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data,
-                        dtype=np.uint8)
+        raise ValueError(
+            f"unsupported compressed image format {msg.format!r}; supported: "
+            f"{', '.join(COMPRESSED_FORMATS)}"
+        )
+    buf = np.frombuffer(
+        bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8
+    )
     if len(buf) == 0:
         raise ValueError("empty compressed image")
     actual = _payload_kind(buf)
     if actual is None or (kind and actual != kind):
-        raise ValueError(f"payload is not a {kind or 'JPEG/PNG'} image (format {msg.format!r}, "
-                         f"{len(buf)} bytes starting {bytes(buf[:4]).hex()})")
+        raise ValueError(
+            f"payload is not a {kind or 'JPEG/PNG'} image (format {msg.format!r}, "
+            f"{len(buf)} bytes starting {bytes(buf[:4]).hex()})"
+        )
     if actual == "jpeg" and b"\xff\xd9" not in bytes(buf[-32:]):
         # (some libjpeg builds decode a cut-off JPEG into a gray-filled image with a warning)
         raise ValueError(f"truncated JPEG ({len(buf)} bytes, no end-of-image marker)")
@@ -110,8 +133,9 @@ def image_from_compressed(msg):
     return np.ascontiguousarray(img), _CHANNELS_TO_ENCODING[ch]
 
 
-def compressed_fields(image: np.ndarray, kind: str = "jpeg", quality: int = 95,
-                      encoding: str | None = None) -> dict:
+def compressed_fields(
+    image: np.ndarray, kind: str = "jpeg", quality: int = 95, encoding: str | None = None
+) -> dict:
     """Field values ``format, data`` of a ``sensor_msgs/CompressedImage`` for an (H, W) or
     (H, W, 3) uint8 array (BGR channel order, as OpenCV writes it) compressed with
     ``cv2.imencode``; ``format`` in image_transport's form ``"<encoding>; jpeg compressed
@@ -130,8 +154,7 @@ def compressed_fields(image: np.ndarray, kind: str = "jpeg", quality: int = 95,
     if not ok:
         raise ValueError(f"cv2.imencode failed for an array of shape {img.shape}")
     packed = "mono8" if img.ndim == 2 else "bgr8"
-    return dict(format=f"{encoding or packed}; {kind} compressed {packed}",
-                data=data.reshape(-1))
+    return dict(format=f"{encoding or packed}; {kind} compressed {packed}", data=data.reshape(-1))
 
 
 def image_fields(image: np.ndarray, encoding: str | None = None) -> dict:
@@ -146,5 +169,11 @@ def image_fields(image: np.ndarray, encoding: str | None = None) -> dict:
         enc = encoding or ("rgb8" if ch == 3 else "rgba8")
     else:
         raise ValueError(f"expected (H, W) or (H, W, 3|4) uint8, got {img.shape}")
-    return dict(height=img.shape[0], width=img.shape[1], encoding=enc, is_bigendian=0,
-                step=img.shape[1] * ch, data=img.reshape(-1))
+    return dict(
+        height=img.shape[0],
+        width=img.shape[1],
+        encoding=enc,
+        is_bigendian=0,
+        step=img.shape[1] * ch,
+        data=img.reshape(-1),
+    )

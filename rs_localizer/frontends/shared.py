@@ -18,7 +18,7 @@ import os
 import threading
 from pathlib import Path
 
-__all__ = ["MapCache", "SHARED_MAPS"]
+__all__ = ["SHARED_MAPS", "MapCache"]
 
 
 class MapCache:
@@ -26,7 +26,7 @@ class MapCache:
 
     def __init__(self):
         self._maps = {}
-        self._holds = {}    # id(owner) -> {slot: key}
+        self._holds = {}  # id(owner) -> {slot: key}
         self._pinned = set()  # keys loaded without an owner
         self._lock = threading.Lock()
         self.loads = 0  # maps actually read from disk (the rest were shared)
@@ -90,19 +90,22 @@ class MapCache:
             from ..maps import load_marker_map
             from .aruco import ArucoFrontend
 
-            dictionary, corners = self.get(kind, map_path, lambda p: load_marker_map(Path(str(p))),
-                                           owner, "frontend")
+            dictionary, corners = self.get(
+                kind, map_path, lambda p: load_marker_map(Path(str(p))), owner, "frontend"
+            )
             return ArucoFrontend(corners, dictionary, **kw)
         if kind == "features":
             from .features import FeatureFrontend, FeatureMap
 
-            return FeatureFrontend(self.get(kind, map_path, FeatureMap.load, owner, "frontend"),
-                                   **kw)
+            return FeatureFrontend(
+                self.get(kind, map_path, FeatureMap.load, owner, "frontend"), **kw
+            )
         if kind == "board":
             from .boards import load_board, make_board_frontend
 
-            return make_board_frontend(self.get(kind, map_path, load_board, owner, "frontend"),
-                                       **kw)
+            return make_board_frontend(
+                self.get(kind, map_path, load_board, owner, "frontend"), **kw
+            )
         from . import FRONTENDS
 
         raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")

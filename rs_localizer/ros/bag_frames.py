@@ -17,7 +17,7 @@ from ..camera import CameraModel
 from . import conversions as cv
 from .bag_io import CAMERA_INFO, IMAGE, IMU, _typestore, bag_topics, iter_messages, read_bag_info
 
-__all__ = ["BagFrames", "read_bag_frames", "read_gyro", "SOURCES"]
+__all__ = ["SOURCES", "BagFrames", "read_bag_frames", "read_gyro"]
 
 #: where the correspondences of a frame come from
 SOURCES = ("correspondences", "keypoints", "image")
@@ -46,9 +46,14 @@ def _frame_topic(topics: dict, source: str):
     return cand[0] if cand else None
 
 
-def read_bag_frames(path, source: str = "correspondences", landmarks_file=None,
-                    frontend: str | None = None, frontend_map=None,
-                    direction: str | None = None) -> BagFrames:
+def read_bag_frames(
+    path,
+    source: str = "correspondences",
+    landmarks_file=None,
+    frontend: str | None = None,
+    frontend_map=None,
+    direction: str | None = None,
+) -> BagFrames:
     """Read every frame of a bag as correspondences.
 
     Args:
@@ -86,8 +91,9 @@ def read_bag_frames(path, source: str = "correspondences", landmarks_file=None,
     lm_index = None
     fe = None
     if source == "keypoints":
-        ids, pts = load_landmarks_csv(Path(landmarks_file) if landmarks_file
-                                      else path / "landmarks.csv")
+        ids, pts = load_landmarks_csv(
+            Path(landmarks_file) if landmarks_file else path / "landmarks.csv"
+        )
         order = np.argsort(ids)
         lm_index = (ids[order], pts[order])
     elif source == "image":
@@ -98,8 +104,10 @@ def read_bag_frames(path, source: str = "correspondences", landmarks_file=None,
         kind = frontend or spec.get("kind")
         fmap = frontend_map or (path / spec["map"] if "map" in spec else None)
         if kind is None or fmap is None:
-            raise ValueError(f"{path}: no front end given and none in sequence.json "
-                             "(use --frontend and --frontend-map)")
+            raise ValueError(
+                f"{path}: no front end given and none in sequence.json "
+                "(use --frontend and --frontend-map)"
+            )
         fe = make_frontend(kind, fmap)
     ts = _typestore()
     for topic, msgtype, _, raw in iter_messages(path, {frame_topic, info_topic}):

@@ -26,9 +26,17 @@ from ..maps import save_landmarks_csv
 from . import conversions as cv
 from .pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
 
-__all__ = ["write_sequence_bag", "write_sequence_json", "read_bag_info", "load_ground_truth",
-           "iter_messages", "bag_topics", "RosbagsMessages", "GT_POSE",
-           "GT_TWIST"]
+__all__ = [
+    "GT_POSE",
+    "GT_TWIST",
+    "RosbagsMessages",
+    "bag_topics",
+    "iter_messages",
+    "load_ground_truth",
+    "read_bag_info",
+    "write_sequence_bag",
+    "write_sequence_json",
+]
 
 PC2 = "sensor_msgs/msg/PointCloud2"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
@@ -38,9 +46,12 @@ TWIST = "geometry_msgs/msg/TwistStamped"
 IMU = "sensor_msgs/msg/Imu"
 GT_POSE = "/ground_truth/pose"
 GT_TWIST = "/ground_truth/twist"
-OUT_TYPES = {"pose": POSE, "twist": TWIST,
-             "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
-             "odom": "nav_msgs/msg/Odometry"}
+OUT_TYPES = {
+    "pose": POSE,
+    "twist": TWIST,
+    "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "odom": "nav_msgs/msg/Odometry",
+}
 _NS = 1_000_000_000
 
 
@@ -59,15 +70,29 @@ def _storage_plugin(storage: str):
         raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3") from None
 
 
-
-def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str = "mcap",
-                       namespace: str = "/camera", camera_frame: str = "camera_optical_frame",
-                       map_frame: str = "map", with_ids: bool = True, with_scores: bool = False,
-                       keypoints: bool = True, correspondences: bool = True,
-                       stamp_row: float = 0.0, settings: dict | None = None,
-                       overwrite: bool = False, gt_twist: bool = True, imu=None,
-                       imu_topic: str = "/imu/data", imu_frame: str = "imu_link",
-                       extra: dict | None = None) -> Path:
+def write_sequence_bag(
+    path,
+    frames,
+    scene,
+    camera: CameraModel,
+    *,
+    storage: str = "mcap",
+    namespace: str = "/camera",
+    camera_frame: str = "camera_optical_frame",
+    map_frame: str = "map",
+    with_ids: bool = True,
+    with_scores: bool = False,
+    keypoints: bool = True,
+    correspondences: bool = True,
+    stamp_row: float = 0.0,
+    settings: dict | None = None,
+    overwrite: bool = False,
+    gt_twist: bool = True,
+    imu=None,
+    imu_topic: str = "/imu/data",
+    imu_frame: str = "imu_link",
+    extra: dict | None = None,
+) -> Path:
     """Write a synthetic sequence as a ROS 2 bag directory; returns its path.
 
     Log times: camera_info at stamp + 1 ms, clouds and ground truth at stamp + 2 ms (so that
@@ -97,8 +122,11 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
     used = np.unique(np.concatenate([f.ids for f in frames])) if frames else np.zeros(0, int)
     with Writer(path, version=9, storage_plugin=_storage_plugin(storage)) as w:
         c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=ts)
-        c_corr = (w.add_connection(topics["correspondences"], PC2, typestore=ts)
-                  if correspondences else None)
+        c_corr = (
+            w.add_connection(topics["correspondences"], PC2, typestore=ts)
+            if correspondences
+            else None
+        )
         c_kp = w.add_connection(topics["keypoints"], PC2, typestore=ts) if keypoints else None
         c_gtp = w.add_connection(GT_POSE, POSE, typestore=ts)
         c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts) if gt_twist else None
@@ -109,33 +137,78 @@ def write_sequence_bag(path, frames, scene, camera: CameraModel, *, storage: str
                 w.write(c_imu, int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
         for f in frames:
             t_log = f.stamp_ns + 1_000_000
-            w.write(c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame),
-                                         CAMERA_INFO))
+            w.write(
+                c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame), CAMERA_INFO)
+            )
             t_log += 1_000_000
             if c_corr is not None:
-                w.write(c_corr, t_log, M.cdr(M.cloud(
-                    f.uv, f.xyz, f.ids if with_ids else None, f.stamp_ns, camera_frame,
-                    f.scores if with_scores else None), PC2))
+                w.write(
+                    c_corr,
+                    t_log,
+                    M.cdr(
+                        M.cloud(
+                            f.uv,
+                            f.xyz,
+                            f.ids if with_ids else None,
+                            f.stamp_ns,
+                            camera_frame,
+                            f.scores if with_scores else None,
+                        ),
+                        PC2,
+                    ),
+                )
             if c_kp is not None:
-                w.write(c_kp, t_log, M.cdr(M.keypoints(
-                    f.uv, f.ids, f.stamp_ns, camera_frame, f.scores if with_scores else None),
-                    PC2))
-            w.write(c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns,
-                                               map_frame), POSE))
+                w.write(
+                    c_kp,
+                    t_log,
+                    M.cdr(
+                        M.keypoints(
+                            f.uv, f.ids, f.stamp_ns, camera_frame, f.scores if with_scores else None
+                        ),
+                        PC2,
+                    ),
+                )
+            w.write(
+                c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns, map_frame), POSE)
+            )
             if c_gtt is not None:
-                w.write(c_gtt, t_log, M.cdr(M.twist(f.angular_velocity, f.linear_velocity,
-                                                    f.t_ref_ns, camera_frame), TWIST))
+                w.write(
+                    c_gtt,
+                    t_log,
+                    M.cdr(
+                        M.twist(f.angular_velocity, f.linear_velocity, f.t_ref_ns, camera_frame),
+                        TWIST,
+                    ),
+                )
     if keypoints and len(used):
         save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
-    write_sequence_json(path, "rs-localizer make-bag", topics, len(frames), camera,
-                        camera_frame, map_frame, stamp_row, settings=settings or {},
-                        **(extra or {}))
+    write_sequence_json(
+        path,
+        "rs-localizer make-bag",
+        topics,
+        len(frames),
+        camera,
+        camera_frame,
+        map_frame,
+        stamp_row,
+        settings=settings or {},
+        **(extra or {}),
+    )
     return path
 
 
-def write_sequence_json(path, generator: str, topics, frames: int, camera: CameraModel,
-                        camera_frame: str, map_frame: str, stamp_row: float,
-                        rolling_shutter: bool = True, **extra) -> None:
+def write_sequence_json(
+    path,
+    generator: str,
+    topics,
+    frames: int,
+    camera: CameraModel,
+    camera_frame: str,
+    map_frame: str,
+    stamp_row: float,
+    rolling_shutter: bool = True,
+    **extra,
+) -> None:
     """Write a bag's ``sequence.json`` (the schema :func:`load_sequence_info` and the demo read):
     topics, frame count, frames, camera (K, D, size, distortion model) and RS timing, plus
     ``extra`` top-level entries (``settings``, ``frontend``, ...). ``rolling_shutter=False``
@@ -146,12 +219,20 @@ def write_sequence_json(path, generator: str, topics, frames: int, camera: Camer
         "frames": int(frames),
         "camera_frame": camera_frame,
         "map_frame": map_frame,
-        "camera": {"K": camera.K.tolist(), "D": camera.D.tolist(), "width": camera.width,
-                   "height": camera.height, "distortion_model": camera.distortion_model},
-        "rs": {"line_delay": camera.line_delay if rolling_shutter else 0.0,
-               "readout_time": camera.readout_time if rolling_shutter else 0.0,
-               "direction": camera.readout, "reference_row": camera.reference_line,
-               "stamp_row": float(stamp_row)},
+        "camera": {
+            "K": camera.K.tolist(),
+            "D": camera.D.tolist(),
+            "width": camera.width,
+            "height": camera.height,
+            "distortion_model": camera.distortion_model,
+        },
+        "rs": {
+            "line_delay": camera.line_delay if rolling_shutter else 0.0,
+            "readout_time": camera.readout_time if rolling_shutter else 0.0,
+            "direction": camera.readout,
+            "reference_row": camera.reference_line,
+            "stamp_row": float(stamp_row),
+        },
         **extra,
     }
     (Path(path) / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -210,7 +291,8 @@ class RosbagsMessages:
     def header(self, stamp_ns: int, frame_id: str):
         sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
         return self.T["std_msgs/msg/Header"](
-            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id)
+            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
+        )
 
     def image(self, img: np.ndarray, stamp_ns, frame_id):
         return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
@@ -222,16 +304,25 @@ class RosbagsMessages:
             D = np.concatenate([D, np.zeros(5 - len(D))])
         P = np.zeros((3, 4))
         P[:, :3] = cam.K
-        roi = self.T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
-                                                          width=0, do_rectify=False)
+        roi = self.T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
         return self.T[CAMERA_INFO](
-            header=self.header(stamp_ns, frame_id), height=cam.height, width=cam.width,
-            distortion_model=model, d=D, k=cam.K.ravel().copy(), r=np.eye(3).ravel(),
-            p=P.ravel(), binning_x=0, binning_y=0, roi=roi)
+            header=self.header(stamp_ns, frame_id),
+            height=cam.height,
+            width=cam.width,
+            distortion_model=model,
+            d=D,
+            k=cam.K.ravel().copy(),
+            r=np.eye(3).ravel(),
+            p=P.ravel(),
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        )
 
     def cloud(self, uv, xyz, ids, stamp_ns, frame_id, scores=None):
-        return self.cloud_from_array(correspondence_array(uv, xyz, ids, scores), stamp_ns,
-                                     frame_id)
+        return self.cloud_from_array(correspondence_array(uv, xyz, ids, scores), stamp_ns, frame_id)
 
     def keypoints(self, uv, ids, stamp_ns, frame_id, scores=None):
         return self.cloud_from_array(keypoint_array(uv, ids, scores), stamp_ns, frame_id)
@@ -242,26 +333,40 @@ class RosbagsMessages:
         packed = pack_cloud(arr)
         PF = self.T["sensor_msgs/msg/PointField"]
         return self.T[PC2](
-            header=self.header(stamp_ns, frame_id), height=1, width=packed.width,
+            header=self.header(stamp_ns, frame_id),
+            height=1,
+            width=packed.width,
             fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
-            is_bigendian=False, point_step=packed.point_step, row_step=packed.row_step,
+            is_bigendian=False,
+            point_step=packed.point_step,
+            row_step=packed.row_step,
             data=np.frombuffer(packed.data, dtype=np.uint8),
-            is_dense=is_dense(arr))
+            is_dense=is_dense(arr),
+        )
 
     def pose(self, R, p, stamp_ns, frame_id):
         q = cv.quaternion_from_matrix(R)
         T = self.T
-        return T[POSE](header=self.header(stamp_ns, frame_id), pose=T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]),
-                                                          z=float(q[2]), w=float(q[3]))))
+        return T[POSE](
+            header=self.header(stamp_ns, frame_id),
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                orientation=T["geometry_msgs/msg/Quaternion"](
+                    x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+                ),
+            ),
+        )
 
     def twist(self, w, v, stamp_ns, frame_id):
         T = self.T
         V = T["geometry_msgs/msg/Vector3"]
-        return T[TWIST](header=self.header(stamp_ns, frame_id), twist=T["geometry_msgs/msg/Twist"](
-            linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
-            angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2]))))
+        return T[TWIST](
+            header=self.header(stamp_ns, frame_id),
+            twist=T["geometry_msgs/msg/Twist"](
+                linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
+                angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2])),
+            ),
+        )
 
     def imu(self, omega, specific_force, stamp_ns, frame_id):
         """``sensor_msgs/Imu`` with angular velocity (rad/s) and linear acceleration (specific
@@ -270,16 +375,17 @@ class RosbagsMessages:
         V = T["geometry_msgs/msg/Vector3"]
         unknown = np.zeros(9)
         unknown[0] = -1.0
-        return T[IMU](header=self.header(stamp_ns, frame_id),
-                      orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-                      orientation_covariance=unknown,
-                      angular_velocity=V(x=float(omega[0]), y=float(omega[1]),
-                                         z=float(omega[2])),
-                      angular_velocity_covariance=np.zeros(9),
-                      linear_acceleration=V(x=float(specific_force[0]),
-                                            y=float(specific_force[1]),
-                                            z=float(specific_force[2])),
-                      linear_acceleration_covariance=np.zeros(9))
+        return T[IMU](
+            header=self.header(stamp_ns, frame_id),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=unknown,
+            angular_velocity=V(x=float(omega[0]), y=float(omega[1]), z=float(omega[2])),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=V(
+                x=float(specific_force[0]), y=float(specific_force[1]), z=float(specific_force[2])
+            ),
+            linear_acceleration_covariance=np.zeros(9),
+        )
 
     def cdr(self, msg, msgtype) -> bytes:
         return self.ts.serialize_cdr(msg, msgtype)

@@ -11,14 +11,26 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["measure_node", "SINGLE_THREAD_ENV"]
+__all__ = ["SINGLE_THREAD_ENV", "measure_node"]
 
-SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-                     "NUMBA_NUM_THREADS": "1"}
+SINGLE_THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "NUMBA_NUM_THREADS": "1",
+}
 
 
-def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: int = 3,
-                 node_cpu: int | None = 0, result: dict | None = None, log=print) -> dict:
+def measure_node(
+    seq,
+    cam,
+    solver: str = "r6p_1lin",
+    frames: int = 300,
+    window: int = 3,
+    node_cpu: int | None = 0,
+    result: dict | None = None,
+    log=print,
+) -> dict:
     """Start ``rs_localizer_node`` (pinned to ``node_cpu`` with single-threaded BLAS/numba) and
     feed it frames from this process (pinned to another core).
 
@@ -57,12 +69,19 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
     env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_bench_"))
-    overlay = write_params_yaml(tmp / "bench.yaml", {"solver": solver},
-                                reliable_topics=["/bench/correspondences", "/bench/camera_info"])
+    overlay = write_params_yaml(
+        tmp / "bench.yaml",
+        {"solver": solver},
+        reliable_topics=["/bench/correspondences", "/bench/camera_info"],
+    )
     config = repo_file("config", "rs_localizer.yaml")
-    node = NodeProcess([p for p in (config, overlay) if p], namespace="/bench", env=env,
-                       log=tmp / "node.log",
-                       cpus=None if node_cpu is None else [node_cpu])
+    node = NodeProcess(
+        [p for p in (config, overlay) if p],
+        namespace="/bench",
+        env=env,
+        log=tmp / "node.log",
+        cpus=None if node_cpu is None else [node_cpu],
+    )
     if node_cpu is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
     ctx = rclpy.Context()
@@ -75,21 +94,29 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
     pub_info = n.create_publisher(CameraInfo, "/bench/camera_info", qos)
     recv = {}
     # a consumer of every output, so that the node builds and sends all of them
-    for t, k in ((TwistStamped, "twist"), (Odometry, "odom"),
-                 (PoseWithCovarianceStamped, "pose_with_covariance")):
+    for t, k in (
+        (TwistStamped, "twist"),
+        (Odometry, "odom"),
+        (PoseWithCovarianceStamped, "pose_with_covariance"),
+    ):
         n.create_subscription(t, f"/bench/{k}", lambda m: None, qos)
-    n.create_subscription(PoseStamped, "/bench/pose",
-                          lambda m: recv.setdefault(stamp_to_ns(m.header.stamp),
-                                                    time.perf_counter()), qos)
+    n.create_subscription(
+        PoseStamped,
+        "/bench/pose",
+        lambda m: recv.setdefault(stamp_to_ns(m.header.stamp), time.perf_counter()),
+        qos,
+    )
     result.update(node_cpu=node_cpu)
     try:
         if not node.wait_ready(180):
             raise RuntimeError(f"node did not start:\n{node.log}")
         end = time.monotonic() + 30
-        while (pub.get_subscription_count() == 0 or pub_info.get_subscription_count() == 0
-               or n.count_publishers("/bench/pose") == 0
-               or n.count_publishers("/bench/pose_with_covariance") == 0) \
-                and time.monotonic() < end:
+        while (
+            pub.get_subscription_count() == 0
+            or pub_info.get_subscription_count() == 0
+            or n.count_publishers("/bench/pose") == 0
+            or n.count_publishers("/bench/pose_with_covariance") == 0
+        ) and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
         t0 = seq[0].stamp_ns
         pub_info.publish(camera_info_msg(cam, "camera", t0))
@@ -100,8 +127,9 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
         def raw_frame(i):
             f = seq[i % len(seq)]
             stamp = t0 + i * period
-            return stamp, serialize_message(correspondence_cloud(
-                f.uv, f.xyz, frame_id="camera", stamp=stamp))
+            return stamp, serialize_message(
+                correspondence_cloud(f.uv, f.xyz, frame_id="camera", stamp=stamp)
+            )
 
         def run(tag, count, start, win):
             msgs = [raw_frame(start + i) for i in range(count)]  # serialized up front
@@ -122,17 +150,28 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
                     continue
                 ex.spin_once(timeout_sec=0.001)
             wall = time.perf_counter() - wall0
-            lat = np.array([recv[out_stamp[s]] - sent[s] for s, _ in msgs
-                            if s in sent and out_stamp[s] in recv])
+            lat = np.array(
+                [
+                    recv[out_stamp[s]] - sent[s]
+                    for s, _ in msgs
+                    if s in sent and out_stamp[s] in recv
+                ]
+            )
             got = len(lat)
-            r = {"frames": count, "answered": got, "wall_s": wall,
-                 "hz": got / wall if wall > 0 else 0.0,
-                 "latency_ms_median": float(np.median(lat) * 1e3) if got else float("nan"),
-                 "latency_ms_p99": float(np.percentile(lat, 99) * 1e3) if got else float("nan"),
-                 "latency_ms_max": float(lat.max() * 1e3) if got else float("nan")}
-            log(f"{tag:>9}: {got}/{count} poses in {wall:.2f} s = {r['hz']:.1f} Hz; latency "
+            r = {
+                "frames": count,
+                "answered": got,
+                "wall_s": wall,
+                "hz": got / wall if wall > 0 else 0.0,
+                "latency_ms_median": float(np.median(lat) * 1e3) if got else float("nan"),
+                "latency_ms_p99": float(np.percentile(lat, 99) * 1e3) if got else float("nan"),
+                "latency_ms_max": float(lat.max() * 1e3) if got else float("nan"),
+            }
+            log(
+                f"{tag:>9}: {got}/{count} poses in {wall:.2f} s = {r['hz']:.1f} Hz; latency "
                 f"median {r['latency_ms_median']:.2f} ms, p99 {r['latency_ms_p99']:.2f} ms, "
-                f"max {r['latency_ms_max']:.2f} ms")
+                f"max {r['latency_ms_max']:.2f} ms"
+            )
             return r
 
         diag = {}
@@ -141,6 +180,7 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
             for st in m.status:
                 if st.name.endswith("/bench/rs_localizer"):
                     diag.update({kv.key: kv.value for kv in st.values})
+
         n.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
         run("warm-up", 10, 0, 1)
         result["lockstep"] = run("lock-step", frames, 10, 1)
@@ -148,10 +188,13 @@ def measure_node(seq, cam, solver: str = "r6p_1lin", frames: int = 300, window: 
         t_spin = time.perf_counter() + 1.2
         while time.perf_counter() < t_spin:
             ex.spin_once(timeout_sec=0.02)
-        result["node_stages_ms"] = {k[:-10]: float(v) for k, v in diag.items()
-                                    if k.endswith("_ms_median")}
-        log("inside the node (median ms): " + ", ".join(
-            f"{k} {v:.2f}" for k, v in result["node_stages_ms"].items()))
+        result["node_stages_ms"] = {
+            k[:-10]: float(v) for k, v in diag.items() if k.endswith("_ms_median")
+        }
+        log(
+            "inside the node (median ms): "
+            + ", ".join(f"{k} {v:.2f}" for k, v in result["node_stages_ms"].items())
+        )
     finally:
         ex.remove_node(n)
         n.destroy_node()

@@ -14,11 +14,27 @@ from scipy.spatial.transform import Rotation
 from ..camera import DISTORTION_MODELS, CameraModel
 
 __all__ = [
-    "quaternion_from_matrix", "matrix_from_quaternion", "stamp_to_ns", "ns_to_stamp",
-    "checked_stamp_ns", "StampError", "STAMP_MAX_NS", "CameraInfoError", "CAMERA_INFO_REASONS",
-    "camera_model", "camera_model_from_camera_info", "pose_stamped", "twist_stamped",
-    "pose_with_covariance_stamped", "odometry", "tf_message", "have_tf2_msgs", "covariance36",
-    "camera_info_msg", "pose_from_msg", "twist_from_msg",
+    "CAMERA_INFO_REASONS",
+    "STAMP_MAX_NS",
+    "CameraInfoError",
+    "StampError",
+    "camera_info_msg",
+    "camera_model",
+    "camera_model_from_camera_info",
+    "checked_stamp_ns",
+    "covariance36",
+    "have_tf2_msgs",
+    "matrix_from_quaternion",
+    "ns_to_stamp",
+    "odometry",
+    "pose_from_msg",
+    "pose_stamped",
+    "pose_with_covariance_stamped",
+    "quaternion_from_matrix",
+    "stamp_to_ns",
+    "tf_message",
+    "twist_from_msg",
+    "twist_stamped",
 ]
 
 _NS = 1_000_000_000
@@ -106,8 +122,17 @@ class CameraInfoError(ValueError):
 CAMERA_INFO_REASONS = ("bad_intrinsics", "bad_distortion", "bad_size", "bad_roi")
 
 
-def camera_model(K, D, width, height, distortion_model="plumb_bob", line_delay=0.0,
-                 readout_time=0.0, readout="top_to_bottom", reference_row=None) -> CameraModel:
+def camera_model(
+    K,
+    D,
+    width,
+    height,
+    distortion_model="plumb_bob",
+    line_delay=0.0,
+    readout_time=0.0,
+    readout="top_to_bottom",
+    reference_row=None,
+) -> CameraModel:
     """CameraModel with RS timing: ``readout_time > 0`` (s/frame) wins over ``line_delay``
     (s/line). ``reference_row`` < 0 or None = image centre line.
 
@@ -131,8 +156,9 @@ def camera_model(K, D, width, height, distortion_model="plumb_bob", line_delay=0
     kw = dict(D=D, readout=readout, reference_row=reference_row, distortion_model=model)
     if readout_time and readout_time > 0:
         return CameraModel.from_readout_time(K, float(readout_time), int(width), int(height), **kw)
-    return CameraModel(K=K, width=int(width), height=int(height), line_delay=float(line_delay),
-                       **kw)
+    return CameraModel(
+        K=K, width=int(width), height=int(height), line_delay=float(line_delay), **kw
+    )
 
 
 def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
@@ -142,11 +168,14 @@ def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
     6th one is ambiguous and rejected."""
     model = model or "plumb_bob"
     if model not in DISTORTION_MODELS:
-        raise CameraInfoError("bad_distortion", f"unsupported distortion model {model!r}; "
-                              f"supported: {sorted(DISTORTION_MODELS)}")
+        raise CameraInfoError(
+            "bad_distortion",
+            f"unsupported distortion model {model!r}; supported: {sorted(DISTORTION_MODELS)}",
+        )
     if not np.isfinite(D).all():
-        raise CameraInfoError("bad_distortion", f"distortion coefficients are not finite: "
-                              f"{D.tolist()}")
+        raise CameraInfoError(
+            "bad_distortion", f"distortion coefficients are not finite: {D.tolist()}"
+        )
     if not np.any(D):
         return np.zeros(0)
     allowed = DISTORTION_MODELS[model]
@@ -159,15 +188,22 @@ def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
         return D[:n]
     nz = int(np.flatnonzero(D)[-1]) + 1
     if nz > max(allowed):
-        raise CameraInfoError("bad_distortion", f"{model}: {len(D)} coefficients with non-zero "
-                              f"terms beyond the first {max(allowed)} are not supported")
-    raise CameraInfoError("bad_distortion", f"{model}: {nz} coefficients ({len(D)} given) "
-                          f"but the model takes {[a for a in allowed if a]}; not guessing "
-                          "which ones they are")
+        raise CameraInfoError(
+            "bad_distortion",
+            f"{model}: {len(D)} coefficients with non-zero "
+            f"terms beyond the first {max(allowed)} are not supported",
+        )
+    raise CameraInfoError(
+        "bad_distortion",
+        f"{model}: {nz} coefficients ({len(D)} given) "
+        f"but the model takes {[a for a in allowed if a]}; not guessing "
+        "which ones they are",
+    )
 
 
-def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
-                                  readout="top_to_bottom", reference_row=None) -> CameraModel:
+def camera_model_from_camera_info(
+    info, line_delay=0.0, readout_time=0.0, readout="top_to_bottom", reference_row=None
+) -> CameraModel:
     """``sensor_msgs/CameraInfo`` (rclpy or rosbags) -> :class:`CameraModel`.
 
     Uses K, D and ``distortion_model`` (pixels are measured, i.e. distorted: P/R are not used),
@@ -180,8 +216,7 @@ def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
     if not np.isfinite(K).all():
         raise CameraInfoError("bad_intrinsics", f"K has non-finite entries: {K.tolist()}")
     if K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise CameraInfoError("bad_intrinsics",
-                              "camera_info is uncalibrated (K has fx or fy <= 0)")
+        raise CameraInfoError("bad_intrinsics", "camera_info is uncalibrated (K has fx or fy <= 0)")
     width, height = int(info.width), int(info.height)
     if width <= 0 or height <= 0:
         raise CameraInfoError("bad_size", f"invalid image size {width}x{height}")
@@ -194,8 +229,9 @@ def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
         if (rw, rh) != (0, 0) or (x0, y0) != (0, 0):  # all zeros = the full image
             if rw <= 0 or rh <= 0 or x0 < 0 or y0 < 0 or x0 + rw > width or y0 + rh > height:
                 raise CameraInfoError(
-                    "bad_roi", f"roi (x {x0}, y {y0}, {rw}x{rh}) is not inside the "
-                    f"{width}x{height} image")
+                    "bad_roi",
+                    f"roi (x {x0}, y {y0}, {rw}x{rh}) is not inside the {width}x{height} image",
+                )
             if (rw, rh) != (width, height):
                 K[0, 2] -= x0
                 K[1, 2] -= y0
@@ -211,8 +247,9 @@ def camera_model_from_camera_info(info, line_delay=0.0, readout_time=0.0,
     if not model:
         model = "plumb_bob" if np.any(D) else "none"
     try:
-        return camera_model(K, D, width, height, model, line_delay, readout_time, readout,
-                            reference_row)
+        return camera_model(
+            K, D, width, height, model, line_delay, readout_time, readout, reference_row
+        )
     except CameraInfoError:
         raise
     except ValueError as e:  # (RS timing: the node's parameters, checked there)
@@ -273,8 +310,9 @@ def _fill_pose(pose, est):
     q = _quaternion(est)
     p = np.asarray(est.position, dtype=float)
     pose.position.x, pose.position.y, pose.position.z = (float(x) for x in p)
-    (pose.orientation.x, pose.orientation.y, pose.orientation.z,
-     pose.orientation.w) = (float(x) for x in q)
+    (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w) = (
+        float(x) for x in q
+    )
     return pose
 
 
@@ -344,10 +382,15 @@ def tf_message(est, stamp_ns: int, map_frame: str, camera_frame: str):
     tr.child_frame_id = camera_frame
     q = _quaternion(est)
     p = np.asarray(est.position, dtype=float)
-    (tr.transform.translation.x, tr.transform.translation.y,
-     tr.transform.translation.z) = (float(x) for x in p)
-    (tr.transform.rotation.x, tr.transform.rotation.y, tr.transform.rotation.z,
-     tr.transform.rotation.w) = (float(x) for x in q)
+    (tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z) = (
+        float(x) for x in p
+    )
+    (
+        tr.transform.rotation.x,
+        tr.transform.rotation.y,
+        tr.transform.rotation.z,
+        tr.transform.rotation.w,
+    ) = (float(x) for x in q)
     return TFMessage(transforms=[tr])
 
 

@@ -52,8 +52,12 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
@@ -65,17 +69,17 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
 from ..estimation.fusion import FusionOptions
 from ..estimation.tracker import RSTracker, TrackerOptions
-from ..solvers.registry import SOLVER_NAMES as SOLVERS, sample_size, solver_info
-from ..frontends import FRONTENDS
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic, camera_to_base
+from ..frontends import FRONTENDS
 from ..frontends.shared import SHARED_MAPS
 from ..maps import check_regular_file
+from ..solvers.registry import SOLVER_NAMES as SOLVERS
+from ..solvers.registry import sample_size, solver_info
 from . import conversions as cv
-from .pointcloud import (CloudError, correspondence_cloud, read_correspondences,
-                         read_keypoints)
+from .pointcloud import CloudError, correspondence_cloud, read_correspondences, read_keypoints
 from .visualization import NodeVisualization
 
-__all__ = ["RSLocalizerNode", "main", "PARAMETERS"]
+__all__ = ["PARAMETERS", "RSLocalizerNode", "main"]
 
 _D = ParameterDescriptor
 _F = FloatingPointRange
@@ -83,128 +87,305 @@ _I = IntegerRange
 
 #: name -> (default, description, range or None, read_only). Mirrors config/rs_localizer.yaml.
 PARAMETERS = {
-    "solver": ("r6p_1lin", f"minimal solver: one of {', '.join(SOLVERS)} (p3p = global shutter)",
-               None, False),
-    "ransac.threshold_px": (2.0, "RANSAC inlier threshold on the reprojection error (px)",
-                            _F(from_value=0.05, to_value=100.0, step=0.0), False),
-    "ransac.max_iterations": (1000, "RANSAC iteration cap",
-                              _I(from_value=1, to_value=1_000_000, step=1), False),
-    "ransac.confidence": (0.9999, "RANSAC adaptive-termination confidence",
-                          _F(from_value=0.5, to_value=0.999999999, step=0.0), False),
-    "ransac.min_inliers": (12, "fewest inliers for a pose", _I(from_value=3, to_value=100_000,
-                                                               step=1), False),
-    "ransac.seed": (0, "RANSAC random seed (deterministic)",
-                    _I(from_value=0, to_value=2_147_483_647, step=1), False),
+    "solver": (
+        "r6p_1lin",
+        f"minimal solver: one of {', '.join(SOLVERS)} (p3p = global shutter)",
+        None,
+        False,
+    ),
+    "ransac.threshold_px": (
+        2.0,
+        "RANSAC inlier threshold on the reprojection error (px)",
+        _F(from_value=0.05, to_value=100.0, step=0.0),
+        False,
+    ),
+    "ransac.max_iterations": (
+        1000,
+        "RANSAC iteration cap",
+        _I(from_value=1, to_value=1_000_000, step=1),
+        False,
+    ),
+    "ransac.confidence": (
+        0.9999,
+        "RANSAC adaptive-termination confidence",
+        _F(from_value=0.5, to_value=0.999999999, step=0.0),
+        False,
+    ),
+    "ransac.min_inliers": (
+        12,
+        "fewest inliers for a pose",
+        _I(from_value=3, to_value=100_000, step=1),
+        False,
+    ),
+    "ransac.seed": (
+        0,
+        "RANSAC random seed (deterministic)",
+        _I(from_value=0, to_value=2_147_483_647, step=1),
+        False,
+    ),
     "refine": (True, "nonlinear refinement on the exact constant-velocity model", None, False),
     "motion_prior.angular_velocity_sigma": (
-        3.0, "motion prior: sigma of each angular velocity component (rad/s, camera frame); "
-        "0 = no prior on it", _F(from_value=0.0, to_value=1e4, step=0.0), False),
+        3.0,
+        "motion prior: sigma of each angular velocity component (rad/s, camera frame); "
+        "0 = no prior on it",
+        _F(from_value=0.0, to_value=1e4, step=0.0),
+        False,
+    ),
     "motion_prior.linear_velocity_sigma": (
-        1.5, "motion prior: sigma of each linear velocity component (m/s, camera frame); "
+        1.5,
+        "motion prior: sigma of each linear velocity component (m/s, camera frame); "
         "0 = no prior on it (both 0: maximum likelihood, near-degenerate on planar scenes)",
-        _F(from_value=0.0, to_value=1e4, step=0.0), False),
+        _F(from_value=0.0, to_value=1e4, step=0.0),
+        False,
+    ),
     "correlated_noise.sigma_px": (
-        0.0, "std (px per axis) of a spatially correlated image error (lens-model residue, "
+        0.0,
+        "std (px per axis) of a spatially correlated image error (lens-model residue, "
         "corner bias) in the covariance; 0 = white noise only. Fit it on still calibration "
         "views (estimation.noise_model.fit_correlated_noise)",
-        _F(from_value=0.0, to_value=100.0, step=0.0), False),
+        _F(from_value=0.0, to_value=100.0, step=0.0),
+        False,
+    ),
     "correlated_noise.length_px": (
-        100.0, "correlation length (px) of that error", _F(from_value=0.1, to_value=1e5,
-                                                           step=0.0), False),
-    "rs.line_delay": (3.0e-5, "time between consecutive image lines (s/line); 0 = global "
-                      "shutter", _F(from_value=0.0, to_value=0.01, step=0.0), False),
-    "rs.readout_time": (0.0, "time to read the whole frame (s); if > 0 it wins over "
-                        "rs.line_delay (line_delay = readout_time / lines)",
-                        _F(from_value=0.0, to_value=1.0, step=0.0), False),
-    "rs.direction": ("top_to_bottom", "readout direction: " + ", ".join(READOUT_DIRECTIONS),
-                     None, False),
-    "rs.reference_row": (-1.0, "line (px) at which the pose is estimated; -1 = image centre",
-                         _F(from_value=-1.0, to_value=100_000.0, step=0.0), False),
-    "rs.stamp_row": (0.0, "line (px) whose capture time is the input header.stamp",
-                     _F(from_value=0.0, to_value=100_000.0, step=0.0), False),
+        100.0,
+        "correlation length (px) of that error",
+        _F(from_value=0.1, to_value=1e5, step=0.0),
+        False,
+    ),
+    "rs.line_delay": (
+        3.0e-5,
+        "time between consecutive image lines (s/line); 0 = global shutter",
+        _F(from_value=0.0, to_value=0.01, step=0.0),
+        False,
+    ),
+    "rs.readout_time": (
+        0.0,
+        "time to read the whole frame (s); if > 0 it wins over "
+        "rs.line_delay (line_delay = readout_time / lines)",
+        _F(from_value=0.0, to_value=1.0, step=0.0),
+        False,
+    ),
+    "rs.direction": (
+        "top_to_bottom",
+        "readout direction: " + ", ".join(READOUT_DIRECTIONS),
+        None,
+        False,
+    ),
+    "rs.reference_row": (
+        -1.0,
+        "line (px) at which the pose is estimated; -1 = image centre",
+        _F(from_value=-1.0, to_value=100_000.0, step=0.0),
+        False,
+    ),
+    "rs.stamp_row": (
+        0.0,
+        "line (px) whose capture time is the input header.stamp",
+        _F(from_value=0.0, to_value=100_000.0, step=0.0),
+        False,
+    ),
     "map_frame": ("map", "frame of the published pose", None, True),
-    "camera_frame": ("", "camera optical frame of the outputs; empty = input header.frame_id",
-                     None, False),
-    "publish_tf": (True, "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)", None,
-                   True),
-    "base_frame": ("", "robot body frame (REP 103, e.g. base_link); set: pose, "
-                   "pose_with_covariance, odom, twist and /tf describe it instead of the camera "
-                   "(camera_to_base.* is the mounting); empty = the camera optical frame", None,
-                   False),
-    "camera_to_base.translation": ([0.0, 0.0, 0.0], "camera optical frame origin in base_frame "
-                                   "(m, x y z): the base_frame -> camera transform", None, False),
-    "camera_to_base.rotation": (list(OPTICAL_TO_BODY_QUATERNION), "rotation camera optical "
-                                "frame -> base_frame, quaternion x y z w (default: a camera "
-                                "looking along the base's x axis)", None, False),
-    "landmarks_file": ("", "CSV id,x,y,z for the keypoints topic (reloaded on change)", None,
-                       False),
-    "max_points": (5000, "clouds with more points are capped (highest scores, else evenly "
-                   "spaced), with a warning", _I(from_value=10, to_value=10_000_000, step=1),
-                   False),
-    "time_reset_threshold": (1.0, "a frame stamped later than the previous one by more than "
-                             "this (s) resets the time-dependent state (a gap); any step back "
-                             "does too. Frames are never dropped for their stamp",
-                             _F(from_value=0.0, to_value=1e6, step=0.0), False),
-    "queue_size": (5, "frames waiting to be solved; when full, the oldest waiting frame is "
-                   "dropped (counted in frames_skipped) so that the newest are solved",
-                   _I(from_value=1, to_value=10_000, step=1), False),
-    "camera_info_wait": (0.05, "s a frame may wait for its camera_info: when none has arrived "
-                         "yet, or when camera_info comes with every frame (same stamps) and "
-                         "the frame's own has not arrived yet",
-                         _F(from_value=0.0, to_value=5.0, step=0.0), False),
-    "max_angular_velocity": (20.0, "rad/s; a model turning faster is implausible (never "
-                             "published: implausible_motion)",
-                             _F(from_value=0.01, to_value=1e6, step=0.0), False),
-    "max_linear_velocity": (50.0, "m/s; a model moving faster is implausible",
-                            _F(from_value=0.01, to_value=1e9, step=0.0), False),
-    "tracking.enabled": (True, "track the camera through the video: predicted RANSAC, "
-                         "relocalization, and twist / odom carry the fused twist; "
-                         "false: every frame alone", None, False),
-    "tracking.lag": (1, "frames of smoothing delay of the fused twist: twist / odom of a frame "
-                     "are published when this many later frames have been fused (0: at once, "
-                     "causal filter)", _I(from_value=0, to_value=10, step=1), False),
-    "tracking.max_gap": (0.5, "s; a longer gap between frames (or a stamp going back) resets "
-                         "the track; after this long without frames the pending twists are "
-                         "published", _F(from_value=0.01, to_value=60.0, step=0.0), False),
-    "tracking.gate_px": (20.0, "a point is explained by the prediction within this distance "
-                         "(px); too few explained points: relocalize",
-                         _F(from_value=0.5, to_value=1000.0, step=0.0), False),
-    "tracking.angular_noise": (30.0, "filter process noise: angular jerk density "
-                               "(rad/s^3/sqrt(Hz))", _F(from_value=1e-3, to_value=1e6, step=0.0),
-                               False),
-    "tracking.linear_noise": (5.0, "filter process noise: linear jerk density (m/s^3/sqrt(Hz))",
-                              _F(from_value=1e-3, to_value=1e6, step=0.0), False),
-    "tracking.prior_from_prediction": ("planar", "the estimator's motion prior is the predicted "
-                                       "twist: planar (when the last frame was planar), always "
-                                       "or never", None, False),
-    "diagnostics_period": (1.0, "period of /diagnostics (s)",
-                           _F(from_value=0.05, to_value=60.0, step=0.0), True),
+    "camera_frame": (
+        "",
+        "camera optical frame of the outputs; empty = input header.frame_id",
+        None,
+        False,
+    ),
+    "publish_tf": (
+        True,
+        "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)",
+        None,
+        True,
+    ),
+    "base_frame": (
+        "",
+        "robot body frame (REP 103, e.g. base_link); set: pose, "
+        "pose_with_covariance, odom, twist and /tf describe it instead of the camera "
+        "(camera_to_base.* is the mounting); empty = the camera optical frame",
+        None,
+        False,
+    ),
+    "camera_to_base.translation": (
+        [0.0, 0.0, 0.0],
+        "camera optical frame origin in base_frame (m, x y z): the base_frame -> camera transform",
+        None,
+        False,
+    ),
+    "camera_to_base.rotation": (
+        list(OPTICAL_TO_BODY_QUATERNION),
+        "rotation camera optical "
+        "frame -> base_frame, quaternion x y z w (default: a camera "
+        "looking along the base's x axis)",
+        None,
+        False,
+    ),
+    "landmarks_file": (
+        "",
+        "CSV id,x,y,z for the keypoints topic (reloaded on change)",
+        None,
+        False,
+    ),
+    "max_points": (
+        5000,
+        "clouds with more points are capped (highest scores, else evenly spaced), with a warning",
+        _I(from_value=10, to_value=10_000_000, step=1),
+        False,
+    ),
+    "time_reset_threshold": (
+        1.0,
+        "a frame stamped later than the previous one by more than "
+        "this (s) resets the time-dependent state (a gap); any step back "
+        "does too. Frames are never dropped for their stamp",
+        _F(from_value=0.0, to_value=1e6, step=0.0),
+        False,
+    ),
+    "queue_size": (
+        5,
+        "frames waiting to be solved; when full, the oldest waiting frame is "
+        "dropped (counted in frames_skipped) so that the newest are solved",
+        _I(from_value=1, to_value=10_000, step=1),
+        False,
+    ),
+    "camera_info_wait": (
+        0.05,
+        "s a frame may wait for its camera_info: when none has arrived "
+        "yet, or when camera_info comes with every frame (same stamps) and "
+        "the frame's own has not arrived yet",
+        _F(from_value=0.0, to_value=5.0, step=0.0),
+        False,
+    ),
+    "max_angular_velocity": (
+        20.0,
+        "rad/s; a model turning faster is implausible (never published: implausible_motion)",
+        _F(from_value=0.01, to_value=1e6, step=0.0),
+        False,
+    ),
+    "max_linear_velocity": (
+        50.0,
+        "m/s; a model moving faster is implausible",
+        _F(from_value=0.01, to_value=1e9, step=0.0),
+        False,
+    ),
+    "tracking.enabled": (
+        True,
+        "track the camera through the video: predicted RANSAC, "
+        "relocalization, and twist / odom carry the fused twist; "
+        "false: every frame alone",
+        None,
+        False,
+    ),
+    "tracking.lag": (
+        1,
+        "frames of smoothing delay of the fused twist: twist / odom of a frame "
+        "are published when this many later frames have been fused (0: at once, "
+        "causal filter)",
+        _I(from_value=0, to_value=10, step=1),
+        False,
+    ),
+    "tracking.max_gap": (
+        0.5,
+        "s; a longer gap between frames (or a stamp going back) resets "
+        "the track; after this long without frames the pending twists are "
+        "published",
+        _F(from_value=0.01, to_value=60.0, step=0.0),
+        False,
+    ),
+    "tracking.gate_px": (
+        20.0,
+        "a point is explained by the prediction within this distance "
+        "(px); too few explained points: relocalize",
+        _F(from_value=0.5, to_value=1000.0, step=0.0),
+        False,
+    ),
+    "tracking.angular_noise": (
+        30.0,
+        "filter process noise: angular jerk density (rad/s^3/sqrt(Hz))",
+        _F(from_value=1e-3, to_value=1e6, step=0.0),
+        False,
+    ),
+    "tracking.linear_noise": (
+        5.0,
+        "filter process noise: linear jerk density (m/s^3/sqrt(Hz))",
+        _F(from_value=1e-3, to_value=1e6, step=0.0),
+        False,
+    ),
+    "tracking.prior_from_prediction": (
+        "planar",
+        "the estimator's motion prior is the predicted "
+        "twist: planar (when the last frame was planar), always "
+        "or never",
+        None,
+        False,
+    ),
+    "diagnostics_period": (
+        1.0,
+        "period of /diagnostics (s)",
+        _F(from_value=0.05, to_value=60.0, step=0.0),
+        True,
+    ),
     "warmup": (True, "solve a synthetic problem at start (JIT compilation)", None, True),
-    "camera.fx": (0.0, "fallback intrinsics until camera_info arrives; fx <= 0 = wait for "
-                  "camera_info", _F(from_value=0.0, to_value=1e6, step=0.0), False),
+    "camera.fx": (
+        0.0,
+        "fallback intrinsics until camera_info arrives; fx <= 0 = wait for camera_info",
+        _F(from_value=0.0, to_value=1e6, step=0.0),
+        False,
+    ),
     "camera.fy": (0.0, "fallback fy (px)", _F(from_value=0.0, to_value=1e6, step=0.0), False),
     "camera.cx": (0.0, "fallback cx (px)", _F(from_value=-1e6, to_value=1e6, step=0.0), False),
     "camera.cy": (0.0, "fallback cy (px)", _F(from_value=-1e6, to_value=1e6, step=0.0), False),
-    "camera.width": (0, "fallback image width (px)", _I(from_value=0, to_value=100_000, step=1),
-                     False),
-    "camera.height": (0, "fallback image height (px)",
-                      _I(from_value=0, to_value=100_000, step=1), False),
-    "camera.distortion_model": ("plumb_bob", "fallback distortion model: plumb_bob, "
-                                "rational_polynomial, equidistant or none", None, False),
-    "camera.d": ([0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)",
-                 None, False),
-    "frontend": ("none", "image front end: none (no image subscription), aruco, features or board "
-                 "(checkerboard, ChArUco or AprilTag/ArUco tag board from a board YAML)",
-                 None, True),
-    "frontend_map": ("", "map of the front end: aruco: marker map YAML, scene YAML or a "
-                     "built-in scene name (aruco_room); features: feature map .npz; board: "
-                     "board YAML (reloaded on change)", None, False),
-    "image_transport": ("raw", "image input with a front end: raw (sensor_msgs/Image on image) "
-                        "or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on "
-                        "image/compressed, decoded with OpenCV)", None, True),
-    "republish_correspondences": (False, "publish the front end's correspondences on "
-                                  "correspondences_out (PointCloud2) for inspection", None,
-                                  False),
+    "camera.width": (
+        0,
+        "fallback image width (px)",
+        _I(from_value=0, to_value=100_000, step=1),
+        False,
+    ),
+    "camera.height": (
+        0,
+        "fallback image height (px)",
+        _I(from_value=0, to_value=100_000, step=1),
+        False,
+    ),
+    "camera.distortion_model": (
+        "plumb_bob",
+        "fallback distortion model: plumb_bob, rational_polynomial, equidistant or none",
+        None,
+        False,
+    ),
+    "camera.d": (
+        [0.0, 0.0, 0.0, 0.0, 0.0],
+        "fallback distortion coefficients (OpenCV order)",
+        None,
+        False,
+    ),
+    "frontend": (
+        "none",
+        "image front end: none (no image subscription), aruco, features or board "
+        "(checkerboard, ChArUco or AprilTag/ArUco tag board from a board YAML)",
+        None,
+        True,
+    ),
+    "frontend_map": (
+        "",
+        "map of the front end: aruco: marker map YAML, scene YAML or a "
+        "built-in scene name (aruco_room); features: feature map .npz; board: "
+        "board YAML (reloaded on change)",
+        None,
+        False,
+    ),
+    "image_transport": (
+        "raw",
+        "image input with a front end: raw (sensor_msgs/Image on image) "
+        "or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on "
+        "image/compressed, decoded with OpenCV)",
+        None,
+        True,
+    ),
+    "republish_correspondences": (
+        False,
+        "publish the front end's correspondences on "
+        "correspondences_out (PointCloud2) for inspection",
+        None,
+        False,
+    ),
 }
 
 #: values of the ``frontend`` parameter
@@ -217,12 +398,18 @@ _LOG_PERIOD = 2.0  # s, per failure reason
 # frames arriving while the worker holds the GIL wait in the middleware until the callbacks
 # move them to the node's queue, where a drop is counted (frames_skipped), instead of being
 # overwritten unseen (images: 10, they are big)
-_CLOUD_QOS = QoSProfile(depth=100, reliability=qos_profile_sensor_data.reliability,
-                        durability=qos_profile_sensor_data.durability,
-                        history=qos_profile_sensor_data.history)
-_IMAGE_QOS = QoSProfile(depth=10, reliability=qos_profile_sensor_data.reliability,
-                        durability=qos_profile_sensor_data.durability,
-                        history=qos_profile_sensor_data.history)
+_CLOUD_QOS = QoSProfile(
+    depth=100,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability,
+    history=qos_profile_sensor_data.history,
+)
+_IMAGE_QOS = QoSProfile(
+    depth=10,
+    reliability=qos_profile_sensor_data.reliability,
+    durability=qos_profile_sensor_data.durability,
+    history=qos_profile_sensor_data.history,
+)
 _CAMERA_HISTORY = 32  # camera_info entries kept (distinct calibrations, by stamp)
 
 
@@ -233,8 +420,10 @@ class _Fused:
     def __init__(self, est, fused):
         self.orientation, self.position = est.orientation, est.position
         self.pose_covariance = est.pose_covariance
-        self.angular_velocity, self.linear_velocity = (fused.angular_velocity,
-                                                       fused.linear_velocity)
+        self.angular_velocity, self.linear_velocity = (
+            fused.angular_velocity,
+            fused.linear_velocity,
+        )
         self.twist_covariance = fused.twist_covariance
 
 
@@ -276,38 +465,40 @@ class LocalizerCore:
                 raise RuntimeError(
                     f"parameter {name!r} must be of type {kind}"
                     + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
-                    + f": {e}") from None
+                    + f": {e}"
+                ) from None
 
     def _init_state(self):
-        self.counts = Counter()      # frames received / solved / failed.<reason> / ...
+        self.counts = Counter()  # frames received / solved / failed.<reason> / ...
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
-        self.stage_times = {k: deque(maxlen=1000)
-                            for k in ("decode", "frontend", "estimate", "publish")}
+        self.stage_times = {
+            k: deque(maxlen=1000) for k in ("decode", "frontend", "estimate", "publish")
+        }
         self.inliers = deque(maxlen=1000)
         self._planar_last = (False, float("nan"))  # (planar, condition number) of the last pose
-        self.messages_lost = 0       # QoS message_lost events over the frame subscriptions
+        self.messages_lost = 0  # QoS message_lost events over the frame subscriptions
         self._lost = {}
         self._last_log = {}
-        self._last_stamp = None      # stamp of the last frame the worker took (time resets)
+        self._last_stamp = None  # stamp of the last frame the worker took (time resets)
         # the queue between the subscription callbacks and the worker, the camera_info history
         # and the counters they share are guarded by this condition
         self._lock = threading.Condition()
-        self._queue = deque()        # (msg, extract, arrival perf_counter)
-        self._busy = False           # the worker is on a frame
+        self._queue = deque()  # (msg, extract, arrival perf_counter)
+        self._busy = False  # the worker is on a frame
         self._stop = False
-        self._cam_hist = []          # [stamp_ns, key, msg, CameraModel, seq], sorted by stamp
-        self._cam_seq = 0            # arrival counter of camera_info entries
-        self._info_stamps = deque(maxlen=64)   # stamps of the last camera_infos received
+        self._cam_hist = []  # [stamp_ns, key, msg, CameraModel, seq], sorted by stamp
+        self._cam_seq = 0  # arrival counter of camera_info entries
+        self._info_stamps = deque(maxlen=64)  # stamps of the last camera_infos received
         self._frame_stamps = deque(maxlen=64)  # stamps of the last frames taken by the worker
-        self._camera = None          # CameraModel of the newest camera_info (with RS timing)
-        self._landmarks = None       # (sorted ids, points)
-        self._frontend = None        # image front end (frontend != none)
-        self._frontend_key = None    # (kind, map path) it was built from
-        self._frontend_last = 0      # correspondences the front end made of the last image
-        self._t_frontend = 0.0       # s in the front end for the current frame
+        self._camera = None  # CameraModel of the newest camera_info (with RS timing)
+        self._landmarks = None  # (sorted ids, points)
+        self._frontend = None  # image front end (frontend != none)
+        self._frontend_key = None  # (kind, map path) it was built from
+        self._frontend_last = 0  # correspondences the front end made of the last image
+        self._t_frontend = 0.0  # s in the front end for the current frame
         self._tf_pub = None
-        self.pub_corr_out = None     # correspondences_out, created when first needed
+        self.pub_corr_out = None  # correspondences_out, created when first needed
         self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
         self._diag_timer = None
         # video tracking: the tracker, what it was made for, the per-frame outputs
@@ -335,8 +526,7 @@ class LocalizerCore:
         rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_pose = self._make_publisher(PoseStamped, "pose", rel)
         self.pub_twist = self._make_publisher(TwistStamped, "twist", rel)
-        self.pub_pwc = self._make_publisher(PoseWithCovarianceStamped, "pose_with_covariance",
-                                            rel)
+        self.pub_pwc = self._make_publisher(PoseWithCovarianceStamped, "pose_with_covariance", rel)
         self.pub_odom = self._make_publisher(Odometry, "odom", rel)
         self.pub_twist_single = self._make_publisher(TwistStamped, "twist_single_frame", rel)
         self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", rel)
@@ -350,7 +540,8 @@ class LocalizerCore:
             else:
                 self.get_logger().warning(
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
-                    "wheels): not publishing /tf")
+                    "wheels): not publishing /tf"
+                )
         if self.cfg["republish"] and self._frontend is not None:
             self._corr_out_publisher()
 
@@ -358,34 +549,54 @@ class LocalizerCore:
         # (created before the frame inputs: a camera_info ready together with a frame is
         # taken first)
         self.sub_info = self.create_subscription(
-            CameraInfo, "camera_info", self._on_camera_info, qos_profile_sensor_data,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            CameraInfo,
+            "camera_info",
+            self._on_camera_info,
+            qos_profile_sensor_data,
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
 
     def _create_frame_inputs(self):
         """The frame subscriptions, the diagnostics timer and the worker thread."""
         self.sub_corr = self.create_subscription(
-            PointCloud2, "correspondences", self._on_correspondences, _CLOUD_QOS,
+            PointCloud2,
+            "correspondences",
+            self._on_correspondences,
+            _CLOUD_QOS,
             event_callbacks=self._lost_events("correspondences"),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
         self.sub_kp = self.create_subscription(
-            PointCloud2, "keypoints", self._on_keypoints, _CLOUD_QOS,
+            PointCloud2,
+            "keypoints",
+            self._on_keypoints,
+            _CLOUD_QOS,
             event_callbacks=self._lost_events("keypoints"),
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+        )
         self.sub_image = None
         if self._frontend is not None:
             if self.cfg["image_transport"] == "compressed":  # image_transport's topic name
                 self.sub_image = self.create_subscription(
-                    CompressedImage, self.resolve_topic_name("image") + "/compressed",
-                    self._on_image, _IMAGE_QOS,
+                    CompressedImage,
+                    self.resolve_topic_name("image") + "/compressed",
+                    self._on_image,
+                    _IMAGE_QOS,
                     event_callbacks=self._lost_events("image"),
-                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                )
             else:
                 self.sub_image = self.create_subscription(
-                    Image, "image", self._on_image, _IMAGE_QOS,
+                    Image,
+                    "image",
+                    self._on_image,
+                    _IMAGE_QOS,
                     event_callbacks=self._lost_events("image"),
-                    qos_overriding_options=QoSOverridingOptions.with_default_policies())
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                )
         self._diag_timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics)
+            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
+        )
         self._flush_timer = self.create_timer(0.05, self._flush_idle_track)
         self._start_worker()
 
@@ -395,8 +606,7 @@ class LocalizerCore:
         # the worker holds the GIL while it solves; hand it to the subscription callbacks
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
-        self._worker = threading.Thread(target=self._work, name="rs_localizer_worker",
-                                        daemon=True)
+        self._worker = threading.Thread(target=self._work, name="rs_localizer_worker", daemon=True)
         self._worker.start()
 
     def _stop_worker(self, drop_queued: bool = False):
@@ -431,18 +641,31 @@ class LocalizerCore:
 
     def _log_ready(self):
         if self.cfg["line_delay"] == 0 and self.cfg["readout_time"] == 0:
-            self.get_logger().warning("rs.line_delay and rs.readout_time are 0: global-shutter "
-                                      "timing, the published twist will be zero")
+            self.get_logger().warning(
+                "rs.line_delay and rs.readout_time are 0: global-shutter "
+                "timing, the published twist will be zero"
+            )
         self.get_logger().info(
             f"ready: solver {self.cfg['solver']}, line delay "
             f"{self.cfg['line_delay'] * 1e6:.2f} us/line"
-            + (f", readout {self.cfg['readout_time'] * 1e3:.2f} ms"
-               if self.cfg["readout_time"] > 0 else "")
+            + (
+                f", readout {self.cfg['readout_time'] * 1e3:.2f} ms"
+                if self.cfg["readout_time"] > 0
+                else ""
+            )
             + f", intrinsics from {'parameters' if self.cfg['fallback'] else 'camera_info'}"
-            + (f", {len(self._landmarks[0])} landmarks from {self.cfg['landmarks_file']}"
-               if self._landmarks else "")
-            + (f", {self.cfg['frontend']} front end on {self.sub_image.topic_name} (map "
-               f"{self.cfg['frontend_map']})" if self.sub_image is not None else ""))
+            + (
+                f", {len(self._landmarks[0])} landmarks from {self.cfg['landmarks_file']}"
+                if self._landmarks
+                else ""
+            )
+            + (
+                f", {self.cfg['frontend']} front end on {self.sub_image.topic_name} (map "
+                f"{self.cfg['frontend_map']})"
+                if self.sub_image is not None
+                else ""
+            )
+        )
 
     # ------------------------------------------------------------------ parameters
     def _param_values(self, overrides: dict) -> dict:
@@ -460,29 +683,36 @@ class LocalizerCore:
         if p["solver"] not in SOLVERS:
             return f"unknown solver {p['solver']!r}; expected one of {list(SOLVERS)}"
         if p["rs.direction"] not in READOUT_DIRECTIONS:
-            return (f"unknown rs.direction {p['rs.direction']!r}; expected one of "
-                    f"{list(READOUT_DIRECTIONS)}")
+            return (
+                f"unknown rs.direction {p['rs.direction']!r}; expected one of "
+                f"{list(READOUT_DIRECTIONS)}"
+            )
         try:
-            opts = EstimateOptions(threshold_px=float(p["ransac.threshold_px"]),
-                                   max_iterations=int(p["ransac.max_iterations"]),
-                                   confidence=float(p["ransac.confidence"]),
-                                   min_inliers=int(p["ransac.min_inliers"]),
-                                   seed=int(p["ransac.seed"]), refine=bool(p["refine"]),
-                                   motion_prior=MotionPrior(
-                                       float(p["motion_prior.angular_velocity_sigma"]),
-                                       float(p["motion_prior.linear_velocity_sigma"])),
-                                   max_angular_velocity=float(p["max_angular_velocity"]),
-                                   max_linear_velocity=float(p["max_linear_velocity"]),
-                                   correlated_noise_px=float(p["correlated_noise.sigma_px"]),
-                                   correlated_noise_length_px=float(
-                                       p["correlated_noise.length_px"]))
+            opts = EstimateOptions(
+                threshold_px=float(p["ransac.threshold_px"]),
+                max_iterations=int(p["ransac.max_iterations"]),
+                confidence=float(p["ransac.confidence"]),
+                min_inliers=int(p["ransac.min_inliers"]),
+                seed=int(p["ransac.seed"]),
+                refine=bool(p["refine"]),
+                motion_prior=MotionPrior(
+                    float(p["motion_prior.angular_velocity_sigma"]),
+                    float(p["motion_prior.linear_velocity_sigma"]),
+                ),
+                max_angular_velocity=float(p["max_angular_velocity"]),
+                max_linear_velocity=float(p["max_linear_velocity"]),
+                correlated_noise_px=float(p["correlated_noise.sigma_px"]),
+                correlated_noise_length_px=float(p["correlated_noise.length_px"]),
+            )
         except (TypeError, ValueError) as e:
             return f"invalid RANSAC options: {e}"
         need = max(opts.min_inliers, sample_size(p["solver"]) + 1)
         if int(p["max_points"]) < need:
-            return (f"max_points {p['max_points']} is below the {need} points a pose needs "
-                    f"(ransac.min_inliers {opts.min_inliers}, solver {p['solver']}): every "
-                    "frame would fail")
+            return (
+                f"max_points {p['max_points']} is below the {need} points a pose needs "
+                f"(ransac.min_inliers {opts.min_inliers}, solver {p['solver']}): every "
+                "frame would fail"
+            )
         ref = float(p["rs.reference_row"])
         tracking = None
         if bool(p["tracking.enabled"]):
@@ -491,36 +721,60 @@ class LocalizerCore:
                     gate_px=float(p["tracking.gate_px"]),
                     max_gap=float(p["tracking.max_gap"]),
                     prior_from_prediction=str(p["tracking.prior_from_prediction"]),
-                    fusion=FusionOptions(lag=int(p["tracking.lag"]),
-                                         angular_noise=float(p["tracking.angular_noise"]),
-                                         linear_noise=float(p["tracking.linear_noise"])))
+                    fusion=FusionOptions(
+                        lag=int(p["tracking.lag"]),
+                        angular_noise=float(p["tracking.angular_noise"]),
+                        linear_noise=float(p["tracking.linear_noise"]),
+                    ),
+                )
             except (TypeError, ValueError) as e:
                 return f"invalid tracking parameters: {e}"
-        cfg = {"solver": p["solver"], "options": opts, "line_delay": float(p["rs.line_delay"]),
-               "tracking": tracking,
-               "readout_time": float(p["rs.readout_time"]), "direction": p["rs.direction"],
-               "reference_row": None if ref < 0 else ref, "stamp_row": float(p["rs.stamp_row"]),
-               "map_frame": p["map_frame"], "camera_frame": p["camera_frame"],
-               "max_points": int(p["max_points"]),
-               "time_reset_ns": int(float(p["time_reset_threshold"]) * 1e9),
-               "queue_size": int(p["queue_size"]),
-               "camera_info_wait": float(p["camera_info_wait"]),
-               "landmarks_file": p["landmarks_file"], "fallback": None}
-        if not all(math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx",
-                                                         "camera.cy")):
+        cfg = {
+            "solver": p["solver"],
+            "options": opts,
+            "line_delay": float(p["rs.line_delay"]),
+            "tracking": tracking,
+            "readout_time": float(p["rs.readout_time"]),
+            "direction": p["rs.direction"],
+            "reference_row": None if ref < 0 else ref,
+            "stamp_row": float(p["rs.stamp_row"]),
+            "map_frame": p["map_frame"],
+            "camera_frame": p["camera_frame"],
+            "max_points": int(p["max_points"]),
+            "time_reset_ns": int(float(p["time_reset_threshold"]) * 1e9),
+            "queue_size": int(p["queue_size"]),
+            "camera_info_wait": float(p["camera_info_wait"]),
+            "landmarks_file": p["landmarks_file"],
+            "fallback": None,
+        }
+        if not all(
+            math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx", "camera.cy")
+        ):
             return "invalid fallback camera parameters: camera.fx/fy/cx/cy must be finite"
         d = p["camera.d"] if p["camera.d"] is not None else []
         if not all(math.isfinite(float(x)) for x in d):
             return f"invalid fallback camera parameters: camera.d must be finite, got {list(d)}"
         if float(p["camera.fx"]) > 0:
-            K = np.array([[p["camera.fx"], 0.0, p["camera.cx"]],
-                          [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
-                          [0.0, 0.0, 1.0]], dtype=float)
+            K = np.array(
+                [
+                    [p["camera.fx"], 0.0, p["camera.cx"]],
+                    [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
+                    [0.0, 0.0, 1.0],
+                ],
+                dtype=float,
+            )
             try:
                 cfg["fallback"] = cv.camera_model(
-                    K, list(d), p["camera.width"], p["camera.height"],
-                    p["camera.distortion_model"], cfg["line_delay"], cfg["readout_time"],
-                    cfg["direction"], cfg["reference_row"])
+                    K,
+                    list(d),
+                    p["camera.width"],
+                    p["camera.height"],
+                    p["camera.distortion_model"],
+                    cfg["line_delay"],
+                    cfg["readout_time"],
+                    cfg["direction"],
+                    cfg["reference_row"],
+                )
             except ValueError as e:
                 return f"invalid fallback camera parameters: {e}"
         try:
@@ -531,7 +785,8 @@ class LocalizerCore:
         if cfg["base_frame"]:
             try:
                 cfg["extrinsic"] = Extrinsic.from_translation_quaternion(
-                    p["camera_to_base.translation"], p["camera_to_base.rotation"])
+                    p["camera_to_base.translation"], p["camera_to_base.rotation"]
+                )
             except ValueError as e:
                 return f"invalid camera_to_base: {e}"
         path = p["landmarks_file"]
@@ -546,15 +801,26 @@ class LocalizerCore:
             return f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
         transport = str(p["image_transport"]).strip().lower()
         if transport not in IMAGE_TRANSPORTS:
-            return (f"unknown image_transport {p['image_transport']!r}; expected one of "
-                    f"{list(IMAGE_TRANSPORTS)}")
-        cfg.update(frontend=kind, frontend_map=fmap, republish=bool(p["republish_correspondences"]),
-                   frontend_obj=None, image_transport=transport)
+            return (
+                f"unknown image_transport {p['image_transport']!r}; expected one of "
+                f"{list(IMAGE_TRANSPORTS)}"
+            )
+        cfg.update(
+            frontend=kind,
+            frontend_map=fmap,
+            republish=bool(p["republish_correspondences"]),
+            frontend_obj=None,
+            image_transport=transport,
+        )
         if kind != "none":
             if not fmap:
                 return f"frontend {kind} needs frontend_map (" + (
-                    "marker map YAML, scene YAML or aruco_room)" if kind == "aruco"
-                    else "board YAML)" if kind == "board" else "feature map .npz)")
+                    "marker map YAML, scene YAML or aruco_room)"
+                    if kind == "aruco"
+                    else "board YAML)"
+                    if kind == "board"
+                    else "feature map .npz)"
+                )
             if (kind, fmap) == self._frontend_key:
                 cfg["frontend_obj"] = self._frontend
             else:
@@ -562,29 +828,42 @@ class LocalizerCore:
                     if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
                         check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
                     # (the map is loaded once per process and shared by cameras naming it)
-                    cfg["frontend_obj"] = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap),
-                                                                owner=self)
-                except Exception as e:  # noqa: BLE001 - OSError, ValueError, yaml errors
+                    cfg["frontend_obj"] = SHARED_MAPS.frontend(
+                        kind, os.path.expanduser(fmap), owner=self
+                    )
+                except Exception as e:
                     return f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
         return cfg
 
     @staticmethod
     def _with_timing(camera: CameraModel, cfg) -> CameraModel:
-        return cv.camera_model(camera.K, camera.D, camera.width, camera.height,
-                               camera.distortion_model, cfg["line_delay"], cfg["readout_time"],
-                               cfg["direction"], cfg["reference_row"])
+        return cv.camera_model(
+            camera.K,
+            camera.D,
+            camera.width,
+            camera.height,
+            camera.distortion_model,
+            cfg["line_delay"],
+            cfg["readout_time"],
+            cfg["direction"],
+            cfg["reference_row"],
+        )
 
     def _apply_config(self, cfg):
         self.cfg = cfg
         self._landmarks = cfg["landmarks"]
         if cfg["frontend_obj"] is not self._frontend:
             if self._frontend is not None:
-                self.get_logger().info(f"reloaded the {cfg['frontend']} front end from "
-                                       f"{cfg['frontend_map']}")
+                self.get_logger().info(
+                    f"reloaded the {cfg['frontend']} front end from {cfg['frontend_map']}"
+                )
             self._frontend = cfg["frontend_obj"]
             self._frontend_key = (cfg["frontend"], cfg["frontend_map"])
-        if (cfg["republish"] and self._frontend is not None
-                and getattr(self, "pub_pose", None) is not None):
+        if (
+            cfg["republish"]
+            and self._frontend is not None
+            and getattr(self, "pub_pose", None) is not None
+        ):
             self._corr_out_publisher()
         with self._lock:  # the RS timing may have changed: rebuild the camera models
             hist = []
@@ -594,7 +873,7 @@ class LocalizerCore:
                 except ValueError as e:
                     self.get_logger().error(f"camera_info unusable with the new parameters: {e}")
             self._cam_hist = hist
-            self._camera = (max(hist, key=lambda e: e[4])[3] if hist else None)
+            self._camera = max(hist, key=lambda e: e[4])[3] if hist else None
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
@@ -610,8 +889,9 @@ class LocalizerCore:
                 self._warmup(overrides["solver"], cfg)
         self._apply_config(cfg)
         if overrides.get("landmarks_file") and cfg["landmarks"] is not None:
-            self.get_logger().info(f"reloaded {len(cfg['landmarks'][0])} landmarks from "
-                                   f"{cfg['landmarks_file']}")
+            self.get_logger().info(
+                f"reloaded {len(cfg['landmarks'][0])} landmarks from {cfg['landmarks_file']}"
+            )
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ warm-up
@@ -624,16 +904,24 @@ class LocalizerCore:
         cfg = cfg or self.cfg
         log = self.get_logger()
         st = cache_state()
-        log.info(f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
-                 + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
-                 + ")")
+        log.info(
+            f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
+            + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
+            + ")"
+        )
         try:
             with compile_progress(log.info) as prog:
                 dt, est = warm_up(solver, cfg["options"])
-            log.info(f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
-                     + (f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
-                        "installing avoids this)" if prog.kernels else ", kernels from the cache"))
-        except Exception as e:  # noqa: BLE001 - never die in warm-up
+            log.info(
+                f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
+                + (
+                    f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
+                    "installing avoids this)"
+                    if prog.kernels
+                    else ", kernels from the cache"
+                )
+            )
+        except Exception as e:
             log.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
 
     # ------------------------------------------------------------------ callbacks
@@ -641,12 +929,17 @@ class LocalizerCore:
         def on_lost(status):
             self._lost[topic] = int(status.total_count)
             self.messages_lost = sum(self._lost.values())
+
         return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def _camera_from_info(self, msg) -> CameraModel:
         cam = cv.camera_model_from_camera_info(
-            msg, self.cfg["line_delay"], self.cfg["readout_time"], self.cfg["direction"],
-            self.cfg["reference_row"])
+            msg,
+            self.cfg["line_delay"],
+            self.cfg["readout_time"],
+            self.cfg["direction"],
+            self.cfg["reference_row"],
+        )
         return cam
 
     def _on_camera_info(self, msg: CameraInfo):
@@ -656,9 +949,19 @@ class LocalizerCore:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except cv.StampError as e:
             return self._reject_camera_info("bad_stamp", str(e))
-        key = (tuple(msg.k), tuple(msg.d), msg.distortion_model, msg.width, msg.height,
-               msg.binning_x, msg.binning_y, msg.roi.x_offset, msg.roi.y_offset,
-               msg.roi.width, msg.roi.height)
+        key = (
+            tuple(msg.k),
+            tuple(msg.d),
+            msg.distortion_model,
+            msg.width,
+            msg.height,
+            msg.binning_x,
+            msg.binning_y,
+            msg.roi.x_offset,
+            msg.roi.y_offset,
+            msg.roi.width,
+            msg.roi.height,
+        )
         with self._lock:
             cam = next((e[3] for e in self._cam_hist if e[1] == key), None)
         if cam is None:
@@ -688,14 +991,17 @@ class LocalizerCore:
         if first:
             self.get_logger().info(
                 f"camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
-                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}")
+                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}"
+            )
 
     def _reject_camera_info(self, reason, detail):
         with self._lock:
             self.counts["camera_info_rejected"] += 1
             self.counts[f"camera_info_rejected.{reason}"] += 1
-        self._log_throttled(f"camera_info.{reason}", f"camera_info rejected ({reason}), the "
-                            f"previous camera stays: {detail}")
+        self._log_throttled(
+            f"camera_info.{reason}",
+            f"camera_info rejected ({reason}), the previous camera stays: {detail}",
+        )
 
     def _camera_for(self, stamp: int):
         """The camera model of a frame stamped ``stamp`` (ns): from the newest camera_info
@@ -709,13 +1015,13 @@ class LocalizerCore:
             # camera_info comes with every frame when the last two frames each got one with
             # their stamp (before or after them)
             infos = set(self._info_stamps)
-            synced = (len(self._frame_stamps) >= 2
-                      and all(self._frame_stamps[-k] in infos for k in (1, 2)))
+            synced = len(self._frame_stamps) >= 2 and all(
+                self._frame_stamps[-k] in infos for k in (1, 2)
+            )
             self._frame_stamps.append(stamp)
             while not self._stop:
                 if self._cam_hist:
-                    if (not synced or stamp in self._info_stamps
-                            or self._cam_hist[-1][0] >= stamp):
+                    if not synced or stamp in self._info_stamps or self._cam_hist[-1][0] >= stamp:
                         break
                 elif cfg["fallback"] is not None:
                     return cfg["fallback"]
@@ -752,9 +1058,12 @@ class LocalizerCore:
             self._queue.append((msg, extract, arrival))
             self._lock.notify_all()
         if skipped:
-            self._log_throttled("skipped", "busy: frame queue full (queue_size "
-                                f"{self.cfg['queue_size']}), dropped the oldest waiting frame "
-                                f"[{self.counts['skipped']} skipped so far]")
+            self._log_throttled(
+                "skipped",
+                "busy: frame queue full (queue_size "
+                f"{self.cfg['queue_size']}), dropped the oldest waiting frame "
+                f"[{self.counts['skipped']} skipped so far]",
+            )
 
     def _work(self):
         """The worker thread: frames out of the queue, through :meth:`_handle`, in order."""
@@ -783,14 +1092,16 @@ class LocalizerCore:
     def _safe_handle(self, msg, extract, arrival=None):
         try:
             self._handle(msg, extract, arrival)
-        except Exception as e:  # noqa: BLE001 - a bug for one frame must not stop the node
+        except Exception as e:
             self._fail("internal_error", f"{type(e).__name__}: {e}")
 
     def _corr_out_publisher(self):
         if self.pub_corr_out is None:
             self.pub_corr_out = self._make_publisher(
-                PointCloud2, "correspondences_out",
-                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+                PointCloud2,
+                "correspondences_out",
+                QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE),
+            )
         return self.pub_corr_out
 
     def _fail(self, reason: str, detail: str):
@@ -836,21 +1147,33 @@ class LocalizerCore:
         last = self._last_stamp
         self._last_stamp = stamp
         if last is not None and stamp < last:
-            self._reset_time_state(stamp, f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
-                                   " s older than the previous frame")
+            self._reset_time_state(
+                stamp,
+                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
+                " s older than the previous frame",
+            )
         elif last is not None and stamp - last > cfg["time_reset_ns"]:
-            self._reset_time_state(stamp, f"{(stamp - last) * 1e-9:.3f} s since the previous "
-                                   "frame (> time_reset_threshold)")
+            self._reset_time_state(
+                stamp,
+                f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)",
+            )
         camera = self._camera_for(stamp)
         if camera is None:
-            return self._fail("no_camera_info", "no camera_info received (waited "
-                              f"{cfg['camera_info_wait']:.3f} s) and no fallback intrinsics "
-                              "(camera.fx <= 0)")
-        out_stamp = stamp + int(round(
-            camera.time_offset(cfg["stamp_row"], camera.reference_line) * 1e9))
+            return self._fail(
+                "no_camera_info",
+                "no camera_info received (waited "
+                f"{cfg['camera_info_wait']:.3f} s) and no fallback intrinsics "
+                "(camera.fx <= 0)",
+            )
+        out_stamp = stamp + int(
+            round(camera.time_offset(cfg["stamp_row"], camera.reference_line) * 1e9)
+        )
         if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
-            return self._fail("bad_stamp", f"output stamp {out_stamp} ns (input {stamp} ns + "
-                              "the reference row's offset) is outside [0, 2^31 s)")
+            return self._fail(
+                "bad_stamp",
+                f"output stamp {out_stamp} ns (input {stamp} ns + "
+                "the reference row's offset) is outside [0, 2^31 s)",
+            )
         try:
             uv, xyz, scores = extract(msg, camera, stamp)
         except (_Drop, CloudError) as e:
@@ -866,13 +1189,15 @@ class LocalizerCore:
             self.counts["capped_clouds"] += 1
             self.counts["capped_points"] += len(uv) - cfg["max_points"]
             if scores is not None and np.isfinite(scores).any():
-                keep = np.argsort(-np.nan_to_num(scores, nan=-np.inf),
-                                  kind="stable")[: cfg["max_points"]]
+                keep = np.argsort(-np.nan_to_num(scores, nan=-np.inf), kind="stable")[
+                    : cfg["max_points"]
+                ]
                 keep.sort()
             else:
                 keep = np.linspace(0, len(uv) - 1, cfg["max_points"]).astype(int)
-            self._log_throttled("capped", f"cloud of {len(uv)} points capped to max_points "
-                                f"{cfg['max_points']}")
+            self._log_throttled(
+                "capped", f"cloud of {len(uv)} points capped to max_points {cfg['max_points']}"
+            )
             uv, xyz = uv[keep], xyz[keep]
             scores = None if scores is None else scores[keep]
         t_decoded = time.perf_counter()
@@ -889,23 +1214,52 @@ class LocalizerCore:
                     self._last_frame_wall = time.monotonic()
                 else:
                     self._drop_tracker()
-                    est = estimate_rs_pose(uv, xyz, camera, solver=cfg["solver"],
-                                           options=cfg["options"], scores=scores)
-            except Exception as e:  # noqa: BLE001 - the node must stay up
+                    est = estimate_rs_pose(
+                        uv, xyz, camera, solver=cfg["solver"], options=cfg["options"], scores=scores
+                    )
+            except Exception as e:
                 self._publish_fused(final)
                 return self._fail("estimator_error", f"{type(e).__name__}: {e}")
             t_estimated = time.perf_counter()
             self.counts["points_dropped"] += int(est.num_dropped)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 self._publish_fused(final)
-                return self._fail(est.failure or "estimator_error",
-                                  f"{len(uv)} points, {est.num_inliers} inliers, solver "
-                                  f"{cfg['solver']}")
-            self._handle_solved(est, uv, xyz, camera, stamp, out_stamp, frame, mf, final,
-                                arrival, tic, t_decoded, t_estimated)
+                return self._fail(
+                    est.failure or "estimator_error",
+                    f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg['solver']}",
+                )
+            self._handle_solved(
+                est,
+                uv,
+                xyz,
+                camera,
+                stamp,
+                out_stamp,
+                frame,
+                mf,
+                final,
+                arrival,
+                tic,
+                t_decoded,
+                t_estimated,
+            )
 
-    def _handle_solved(self, est, uv, xyz, camera, stamp, out_stamp, frame, mf, final,
-                       arrival, tic, t_decoded, t_estimated):
+    def _handle_solved(
+        self,
+        est,
+        uv,
+        xyz,
+        camera,
+        stamp,
+        out_stamp,
+        frame,
+        mf,
+        final,
+        arrival,
+        tic,
+        t_decoded,
+        t_estimated,
+    ):
         """Publish a solved frame (and the fused twists now final), count, time."""
         cfg = self.cfg
         self.counts["solved"] += 1  # (before publishing: whoever has the pose sees the count)
@@ -920,8 +1274,11 @@ class LocalizerCore:
             self.pub_twist_single.publish(cv.twist_stamped(out, out_stamp, out_frame))
         # (global-shutter solver or timing: no twist to fuse; twist / odom stay the per-frame,
         # zero, twist)
-        if (cfg["tracking"] is None or not solver_info(cfg["solver"]).rolling
-                or camera.seconds_per_unit_r <= 0):
+        if (
+            cfg["tracking"] is None
+            or not solver_info(cfg["solver"]).rolling
+            or camera.seconds_per_unit_r <= 0
+        ):
             if self.pub_twist.get_subscription_count():
                 self.pub_twist.publish(cv.twist_stamped(out, out_stamp, out_frame))
             if self.pub_odom.get_subscription_count():
@@ -996,8 +1353,12 @@ class LocalizerCore:
             return
         with self._track_lock:
             last = self._last_frame_wall
-            if (self._tracker is None or last is None or not self._pending_out
-                    or time.monotonic() - last < self.cfg["tracking"].max_gap):
+            if (
+                self._tracker is None
+                or last is None
+                or not self._pending_out
+                or time.monotonic() - last < self.cfg["tracking"].max_gap
+            ):
                 return
             self._publish_fused(self._tracker.flush())
 
@@ -1042,15 +1403,18 @@ class LocalizerCore:
             except ValueError as e:
                 raise _Drop("bad_image", str(e)) from None
         if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
-            raise _Drop("image_size_mismatch", f"image is {w}x{h}, the camera model "
-                        f"{camera.width}x{camera.height}")
+            raise _Drop(
+                "image_size_mismatch",
+                f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
+            )
         self.viz.set_image(img, enc, stamp)
         t0 = time.perf_counter()
         try:
             uv, xyz, ids = fe.process(img, camera, encoding=enc)
-        except Exception as e:  # noqa: BLE001 - cv2.error and friends: drop the frame
-            raise _Drop("frontend_error", f"{self.cfg['frontend']}: {type(e).__name__}: "
-                        f"{e}") from None
+        except Exception as e:
+            raise _Drop(
+                "frontend_error", f"{self.cfg['frontend']}: {type(e).__name__}: {e}"
+            ) from None
         self._t_frontend = time.perf_counter() - t0
         self.stage_times["frontend"].append(self._t_frontend)
         scores = getattr(fe, "last_scores", None)
@@ -1061,14 +1425,21 @@ class LocalizerCore:
         self._frontend_last = len(uv)
         if self.cfg["republish"]:
             frame = self.cfg["camera_frame"] or msg.header.frame_id or "camera"
-            self._corr_out_publisher().publish(correspondence_cloud(
-                uv, xyz, ids, scores, frame_id=frame, stamp=stamp))
+            self._corr_out_publisher().publish(
+                correspondence_cloud(uv, xyz, ids, scores, frame_id=frame, stamp=stamp)
+            )
         need = max(self.cfg["options"].min_inliers, sample_size(self.cfg["solver"]) + 1)
         if len(uv) < need:
-            what = (f"{len(uv) // 4} markers" if self.cfg["frontend"] == "aruco"
-                    else f"{len(uv)} matches")
-            raise _Drop("frontend_too_few_points", f"{self.cfg['frontend']} front end found "
-                        f"{what}: {len(uv)} correspondences, {need} needed")
+            what = (
+                f"{len(uv) // 4} markers"
+                if self.cfg["frontend"] == "aruco"
+                else f"{len(uv)} matches"
+            )
+            raise _Drop(
+                "frontend_too_few_points",
+                f"{self.cfg['frontend']} front end found "
+                f"{what}: {len(uv)} correspondences, {need} needed",
+            )
         return uv, xyz, scores
 
     # ------------------------------------------------------------------ diagnostics
@@ -1076,8 +1447,13 @@ class LocalizerCore:
         with self._lock:  # (a consistent snapshot of the counters the two threads write)
             c = Counter(self.counts)
             pending = len(self._queue) + int(self._busy)
-            camera_source = ("camera_info" if self._cam_hist else
-                             "parameters" if self.cfg["fallback"] is not None else "missing")
+            camera_source = (
+                "camera_info"
+                if self._cam_hist
+                else "parameters"
+                if self.cfg["fallback"] is not None
+                else "missing"
+            )
         lat = np.array(list(self.latencies)) * 1e3
         age = np.array(list(self.stamp_ages)) * 1e3
         st = DiagnosticStatus()
@@ -1090,11 +1466,15 @@ class LocalizerCore:
         elif c["failed"] or self.messages_lost or c["skipped"]:
             st.level = DiagnosticStatus.WARN
             st.message = f"{c['solved']}/{c['received']} frames solved" + (
-                f", {c['skipped']} skipped (busy)" if c["skipped"] else "")
+                f", {c['skipped']} skipped (busy)" if c["skipped"] else ""
+            )
         else:
             st.level = DiagnosticStatus.OK
-            st.message = (f"{c['solved']}/{c['received']} frames solved" if c["received"]
-                          else "waiting for frames")
+            st.message = (
+                f"{c['solved']}/{c['received']} frames solved"
+                if c["received"]
+                else "waiting for frames"
+            )
         values = {
             "solver": self.cfg["solver"],
             "camera": camera_source,
@@ -1128,18 +1508,21 @@ class LocalizerCore:
             values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
         if self._frontend is not None:
             fe_ms = self.stage_times["frontend"]
-            values.update({
-                "frontend": self.cfg["frontend"],
-                "image_frames": c["image_frames"],
-                "frontend_ms_last": f"{fe_ms[-1] * 1e3:.3f}" if fe_ms else "nan",
-                "frontend_correspondences_last": self._frontend_last,
-                "frontend_correspondences_mean": (
-                    f"{c['frontend_points'] / c['frontend_runs']:.1f}"
-                    if c["frontend_runs"] else "0"),
-            })
+            values.update(
+                {
+                    "frontend": self.cfg["frontend"],
+                    "image_frames": c["image_frames"],
+                    "frontend_ms_last": f"{fe_ms[-1] * 1e3:.3f}" if fe_ms else "nan",
+                    "frontend_correspondences_last": self._frontend_last,
+                    "frontend_correspondences_mean": (
+                        f"{c['frontend_points'] / c['frontend_runs']:.1f}"
+                        if c["frontend_runs"]
+                        else "0"
+                    ),
+                }
+            )
         values.update({f"failed.{k}": v for k, v in failed.items()})
-        values.update({k: v for k, v in sorted(c.items())
-                       if k.startswith("camera_info_rejected.")})
+        values.update({k: v for k, v in sorted(c.items()) if k.startswith("camera_info_rejected.")})
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
 
@@ -1149,11 +1532,13 @@ class LocalizerCore:
         t = self._tracker
         tc = self._track_counts
         on = self.cfg is not None and self.cfg["tracking"] is not None
-        state = ("disabled" if not on else t.track_state if t is not None else "lost")
-        return {"track_state": state,
-                "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
-                "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
-                "resets": tc["resets"] + (t.resets if t else 0)}
+        state = "disabled" if not on else t.track_state if t is not None else "lost"
+        return {
+            "track_state": state,
+            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
+            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
+            "resets": tc["resets"] + (t.resets if t else 0),
+        }
 
     def publish_diagnostics(self):
         msg = DiagnosticArray()

@@ -12,7 +12,7 @@ import numpy as np
 from . import conversions as cv
 from .bag_io import CAMERA_INFO, IMAGE, PC2, POSE, TWIST, iter_messages
 
-__all__ = ["play", "PlayResult", "is_frame_topic", "output_type"]
+__all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]
 
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 
@@ -21,13 +21,16 @@ def output_type(topic: str):
     """Message class of a node output topic, by its name."""
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
     from nav_msgs.msg import Odometry
-
     from sensor_msgs.msg import PointCloud2
 
     last = topic.rstrip("/").rsplit("/", 1)[-1]
-    return {"twist": TwistStamped, "twist_single_frame": TwistStamped, "odom": Odometry,
-            "pose_with_covariance": PoseWithCovarianceStamped,
-            "correspondences_out": PointCloud2}.get(last, PoseStamped)
+    return {
+        "twist": TwistStamped,
+        "twist_single_frame": TwistStamped,
+        "odom": Odometry,
+        "pose_with_covariance": PoseWithCovarianceStamped,
+        "correspondences_out": PointCloud2,
+    }.get(last, PoseStamped)
 
 
 def _msg_class(msgtype: str):
@@ -62,11 +65,28 @@ def is_frame_topic(topic: str, msgtype: str | None = None) -> bool:
     return topic.rstrip("/").rsplit("/", 1)[-1] in FRAME_TOPIC_SUFFIXES or msgtype == IMAGE
 
 
-def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=None,
-         output_topics=("/camera/pose",), timeout: float = 2.0, retries: int = 1,
-         wait_subscribers: float = 30.0, reliable: bool = True, context=None, domain_id=None,
-         limit: int | None = None, loop: int = 1, stamp_offset_ns: int = 0, messages=None,
-         on_frame=None, log=print, late_topics=()) -> PlayResult:
+def play(
+    path,
+    *,
+    rate: float = 1.0,
+    lockstep: bool = False,
+    topics=None,
+    remap=None,
+    output_topics=("/camera/pose",),
+    timeout: float = 2.0,
+    retries: int = 1,
+    wait_subscribers: float = 30.0,
+    reliable: bool = True,
+    context=None,
+    domain_id=None,
+    limit: int | None = None,
+    loop: int = 1,
+    stamp_offset_ns: int = 0,
+    messages=None,
+    on_frame=None,
+    log=print,
+    late_topics=(),
+) -> PlayResult:
     """Publish a bag into the ROS graph.
 
     Args:
@@ -111,10 +131,14 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         types = {}
         for topic, msgtype, _, _ in msgs:
             types.setdefault(topic, msgtype)
-        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE if reliable
-                         else ReliabilityPolicy.BEST_EFFORT)
-        pubs = {t: node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
-                for t, mt in types.items()}
+        qos = QoSProfile(
+            depth=10,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        )
+        pubs = {
+            t: node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
+            for t, mt in types.items()
+        }
         outputs = {}
         pending = {"frame": None}
         late = set(late_topics or ())
@@ -124,14 +148,14 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
             def cb(msg):
                 s = cv.stamp_to_ns(msg.header.stamp)
                 if topic in late:  # the frame with the nearest stamp
-                    fr = min(result.frames[-64:], key=lambda f: abs(f["stamp"] - s),
-                             default=None)
+                    fr = min(result.frames[-64:], key=lambda f: abs(f["stamp"] - s), default=None)
                 else:
                     fr = pending["frame"]
                 if fr is None:
                     return
                 if abs(s - fr["stamp"]) < 1_000_000_000 and topic not in fr["outputs"]:
                     fr["outputs"][topic] = (time.perf_counter(), msg)
+
             return cb
 
         if lockstep:
@@ -140,12 +164,16 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         frame_topics = [t for t in pubs if is_frame_topic(t, types[t])]
         deadline = time.monotonic() + wait_subscribers
         while any(pubs[t].get_subscription_count() == 0 for t in frame_topics) or (
-                lockstep and any(node.count_publishers(t) == 0 for t in output_topics)):
+            lockstep and any(node.count_publishers(t) == 0 for t in output_topics)
+        ):
             if time.monotonic() > deadline:
-                missing = [remap.get(t, t) for t in frame_topics
-                           if pubs[t].get_subscription_count() == 0]
-                log(f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
-                    "playing anyway")
+                missing = [
+                    remap.get(t, t) for t in frame_topics if pubs[t].get_subscription_count() == 0
+                ]
+                log(
+                    f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
+                    "playing anyway"
+                )
                 break
             executor.spin_once(timeout_sec=0.05)
         if not msgs:
@@ -156,8 +184,7 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         n_frames = 0
         last_pub = {}
         if lockstep:  # best-effort subscribers drop early samples: prime the camera_info
-            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])),
-                         len(msgs))
+            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
             for _ in range(3):
                 for topic, msgtype, _, raw in msgs[:first]:
                     pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
@@ -182,9 +209,14 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
                 if not is_frame_topic(topic, msgtype):
                     continue
                 n_frames += 1
-                frame = {"index": n_frames - 1, "topic": topic, "stamp": _header_stamp(raw),
-                         "t_pub": time.perf_counter(), "outputs": {},
-                         "expected": len(waited) if lockstep else 0}
+                frame = {
+                    "index": n_frames - 1,
+                    "topic": topic,
+                    "stamp": _header_stamp(raw),
+                    "t_pub": time.perf_counter(),
+                    "outputs": {},
+                    "expected": len(waited) if lockstep else 0,
+                }
                 result.frames.append(frame)
                 if lockstep:
                     pending["frame"] = frame
@@ -216,7 +248,8 @@ def play(path, *, rate: float = 1.0, lockstep: bool = False, topics=None, remap=
         end_late = time.perf_counter() + (timeout if lockstep and late else 0.0)
         while time.perf_counter() < max(end, end_late):
             if time.perf_counter() >= end and not any(
-                    t not in f["outputs"] for f in result.frames for t in late):
+                t not in f["outputs"] for f in result.frames for t in late
+            ):
                 break
             executor.spin_once(timeout_sec=0.02)
     finally:
@@ -244,6 +277,7 @@ def _shift_stamp(raw: bytes, msgtype: str, shift_ns: int) -> bytes:
         return raw
     order = "<" if raw[1] == 1 else ">"
     s = _header_stamp(raw) + shift_ns
-    head = np.array([(s // 1_000_000_000, s % 1_000_000_000)],
-                    dtype=order + "i4, " + order + "u4").tobytes()
+    head = np.array(
+        [(s // 1_000_000_000, s % 1_000_000_000)], dtype=order + "i4, " + order + "u4"
+    ).tobytes()
     return raw[:4] + head + raw[12:]

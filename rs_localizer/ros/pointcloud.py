@@ -18,20 +18,55 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "INT8", "UINT8", "INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64",
-    "DATATYPE_NAMES", "fields_to_dtype", "dtype_to_fields", "cloud_to_array", "array_to_cloud",
-    "pack_cloud", "CloudError", "CLOUD_REASONS", "Correspondences", "Keypoints", "read_correspondences",
-    "read_keypoints", "correspondence_array", "keypoint_array", "correspondence_cloud",
+    "CLOUD_REASONS",
+    "DATATYPE_NAMES",
+    "FLOAT32",
+    "FLOAT64",
+    "INT8",
+    "INT16",
+    "INT32",
+    "UINT8",
+    "UINT16",
+    "UINT32",
+    "CloudError",
+    "Correspondences",
+    "Keypoints",
+    "array_to_cloud",
+    "cloud_to_array",
+    "correspondence_array",
+    "correspondence_cloud",
+    "dtype_to_fields",
+    "fields_to_dtype",
+    "keypoint_array",
     "keypoint_cloud",
+    "pack_cloud",
+    "read_correspondences",
+    "read_keypoints",
 ]
 
 # sensor_msgs/PointField datatypes
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
-_DT_TO_NP = {INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", INT32: "i4", UINT32: "u4",
-             FLOAT32: "f4", FLOAT64: "f8"}
+_DT_TO_NP = {
+    INT8: "i1",
+    UINT8: "u1",
+    INT16: "i2",
+    UINT16: "u2",
+    INT32: "i4",
+    UINT32: "u4",
+    FLOAT32: "f4",
+    FLOAT64: "f8",
+}
 _NP_TO_DT = {v: k for k, v in _DT_TO_NP.items()}
-DATATYPE_NAMES = {INT8: "int8", UINT8: "uint8", INT16: "int16", UINT16: "uint16",
-                  INT32: "int32", UINT32: "uint32", FLOAT32: "float32", FLOAT64: "float64"}
+DATATYPE_NAMES = {
+    INT8: "int8",
+    UINT8: "uint8",
+    INT16: "int16",
+    UINT16: "uint16",
+    INT32: "int32",
+    UINT32: "uint32",
+    FLOAT32: "float32",
+    FLOAT64: "float64",
+}
 
 FLOAT_TYPES = (FLOAT32, FLOAT64)
 
@@ -74,25 +109,33 @@ def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.d
             raise CloudError("bad_layout", f"duplicate PointCloud2 field {name!r}")
         dt = int(f.datatype)
         if dt not in _DT_TO_NP:
-            raise CloudError("wrong_field_type",
-                             f"field {name!r} has unknown PointField datatype {dt}")
+            raise CloudError(
+                "wrong_field_type", f"field {name!r} has unknown PointField datatype {dt}"
+            )
         count = max(int(f.count), 1)
         base = np.dtype(order + _DT_TO_NP[dt])
         offset = int(f.offset)
         size = count * base.itemsize  # (checked before NumPy sees a huge count)
         if offset < 0 or offset + size > point_step:
-            raise CloudError("bad_layout", f"field {name!r} (offset {offset}, {size} "
-                             f"bytes) does not fit in point_step {point_step}")
+            raise CloudError(
+                "bad_layout",
+                f"field {name!r} (offset {offset}, {size} "
+                f"bytes) does not fit in point_step {point_step}",
+            )
         for other, (a, b) in zip(names, spans):
             if offset < b and a < offset + size:
-                raise CloudError("bad_layout", f"fields {other!r} (bytes {a}-{b - 1}) and "
-                                 f"{name!r} (bytes {offset}-{offset + size - 1}) overlap")
+                raise CloudError(
+                    "bad_layout",
+                    f"fields {other!r} (bytes {a}-{b - 1}) and "
+                    f"{name!r} (bytes {offset}-{offset + size - 1}) overlap",
+                )
         names.append(name)
         formats.append(base if count == 1 else np.dtype((base, (count,))))
         offsets.append(offset)
         spans.append((offset, offset + size))
-    return np.dtype({"names": names, "formats": formats, "offsets": offsets,
-                     "itemsize": point_step})
+    return np.dtype(
+        {"names": names, "formats": formats, "offsets": offsets, "itemsize": point_step}
+    )
 
 
 def dtype_to_fields(dtype: np.dtype):
@@ -148,15 +191,19 @@ def cloud_to_array(msg, names=None) -> np.ndarray:
         return np.zeros(0, dtype=fields_to_dtype(fields, point_step, msg.is_bigendian))
     dtype = fields_to_dtype(fields, point_step, bool(msg.is_bigendian))
     if row_step < width * point_step:
-        raise CloudError("bad_layout",
-                         f"row_step {row_step} < width {width} * point_step {point_step}")
+        raise CloudError(
+            "bad_layout", f"row_step {row_step} < width {width} * point_step {point_step}"
+        )
     need = row_step * (height - 1) + width * point_step
     if len(buf) < need:
-        raise CloudError("truncated", f"truncated PointCloud2: {len(buf)} bytes of data, "
-                         f"expected {row_step * height} ({height} rows x row_step {row_step})")
+        raise CloudError(
+            "truncated",
+            f"truncated PointCloud2: {len(buf)} bytes of data, "
+            f"expected {row_step * height} ({height} rows x row_step {row_step})",
+        )
     if row_step == width * point_step:
         return np.frombuffer(buf[: n * point_step].tobytes(), dtype=dtype, count=n)
-    rows = [buf[i * row_step: i * row_step + width * point_step] for i in range(height)]
+    rows = [buf[i * row_step : i * row_step + width * point_step] for i in range(height)]
     return np.frombuffer(np.concatenate(rows).tobytes(), dtype=dtype, count=n)
 
 
@@ -180,10 +227,14 @@ def pack_cloud(arr: np.ndarray) -> PackedCloud:
     if arr.dtype.names is None:
         raise ValueError("pack_cloud needs a structured array")
     dtype = arr.dtype
-    le = np.dtype({"names": list(dtype.names),
-                   "formats": [dtype.fields[nm][0].newbyteorder("<") for nm in dtype.names],
-                   "offsets": [dtype.fields[nm][1] for nm in dtype.names],
-                   "itemsize": dtype.itemsize})
+    le = np.dtype(
+        {
+            "names": list(dtype.names),
+            "formats": [dtype.fields[nm][0].newbyteorder("<") for nm in dtype.names],
+            "offsets": [dtype.fields[nm][1] for nm in dtype.names],
+            "itemsize": dtype.itemsize,
+        }
+    )
     arr = arr.astype(le, copy=False)
     return PackedCloud(dtype_to_fields(le), le.itemsize, len(arr), arr.tobytes())
 
@@ -203,8 +254,9 @@ def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp=None):
             msg.header.stamp = stamp
     msg.height = 1
     msg.width = packed.width
-    msg.fields = [PointField(name=nm, offset=off, datatype=dt, count=c)
-                  for nm, off, dt, c in packed.fields]
+    msg.fields = [
+        PointField(name=nm, offset=off, datatype=dt, count=c) for nm, off, dt, c in packed.fields
+    ]
     msg.is_bigendian = False
     msg.point_step = packed.point_step
     msg.row_step = packed.row_step
@@ -226,8 +278,8 @@ def is_dense(arr) -> bool:
 class Correspondences:
     """Decoded ``correspondences`` cloud. Arrays are float64 (ids uint32/int64)."""
 
-    uv: np.ndarray          # (N, 2) measured pixels
-    xyz: np.ndarray         # (N, 3) map frame, metres
+    uv: np.ndarray  # (N, 2) measured pixels
+    xyz: np.ndarray  # (N, 3) map frame, metres
     ids: np.ndarray | None  # (N,)
     scores: np.ndarray | None  # (N,)
 
@@ -239,7 +291,7 @@ class Correspondences:
 class Keypoints:
     """Decoded ``keypoints`` cloud."""
 
-    uv: np.ndarray   # (N, 2)
+    uv: np.ndarray  # (N, 2)
     ids: np.ndarray  # (N,) int64
     scores: np.ndarray | None
 
@@ -256,14 +308,17 @@ def _check_fields(msg, required: dict, optional: dict) -> dict:
     types = _field_types(msg, set(required) | set(optional))
     missing = [nm for nm in required if nm not in types]
     if missing:
-        raise CloudError("missing_fields",
-                         f"missing field(s) {missing}; the cloud has {sorted(types)}")
+        raise CloudError(
+            "missing_fields", f"missing field(s) {missing}; the cloud has {sorted(types)}"
+        )
     for spec in (required, optional):
         for nm, allowed in spec.items():
             if nm in types and types[nm] not in allowed:
                 raise CloudError(
-                    "wrong_field_type", f"field {nm!r} has type {_dt_name(types[nm])}; "
-                    f"expected one of {[_dt_name(a) for a in allowed]}")
+                    "wrong_field_type",
+                    f"field {nm!r} has type {_dt_name(types[nm])}; "
+                    f"expected one of {[_dt_name(a) for a in allowed]}",
+                )
     return types
 
 
@@ -282,8 +337,9 @@ def read_correspondences(msg) -> Correspondences:
         CloudError (a ValueError) with ``reason``: ``missing_fields``, ``wrong_field_type``,
         ``truncated`` or ``bad_layout`` (see :func:`cloud_to_array`).
     """
-    types = _check_fields(msg, {k: FLOAT_TYPES for k in "uvxyz"},
-                          {"id": INDEX_TYPES, "score": FLOAT_TYPES})
+    types = _check_fields(
+        msg, {k: FLOAT_TYPES for k in "uvxyz"}, {"id": INDEX_TYPES, "score": FLOAT_TYPES}
+    )
     arr = cloud_to_array(msg, set(types))
     uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
     xyz = np.stack([_column(arr, k) for k in "xyz"], axis=1).astype(np.float64)
@@ -295,8 +351,9 @@ def read_correspondences(msg) -> Correspondences:
 def read_keypoints(msg) -> Keypoints:
     """Decode a keypoints cloud (``u, v, id`` [+ ``score``]; other fields are ignored).
     Raises CloudError like :func:`read_correspondences`."""
-    types = _check_fields(msg, {"u": FLOAT_TYPES, "v": FLOAT_TYPES, "id": INDEX_TYPES},
-                          {"score": FLOAT_TYPES})
+    types = _check_fields(
+        msg, {"u": FLOAT_TYPES, "v": FLOAT_TYPES, "id": INDEX_TYPES}, {"score": FLOAT_TYPES}
+    )
     arr = cloud_to_array(msg, set(types))
     uv = np.stack([_column(arr, "u"), _column(arr, "v")], axis=1).astype(np.float64)
     ids = _column(arr, "id").astype(np.int64)

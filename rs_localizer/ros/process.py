@@ -13,8 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NodeProcess", "ros_env", "random_domain_id", "write_params_yaml", "repo_file",
-           "share_dirs"]
+__all__ = [
+    "NodeProcess",
+    "random_domain_id",
+    "repo_file",
+    "ros_env",
+    "share_dirs",
+    "write_params_yaml",
+]
 
 
 def random_domain_id() -> int:
@@ -51,8 +57,9 @@ def _yaml_value(v) -> str:
     return str(v)
 
 
-def write_params_yaml(path, params: dict | None = None, reliable_topics=(),
-                      node: str = "/**") -> Path:
+def write_params_yaml(
+    path, params: dict | None = None, reliable_topics=(), node: str = "/**"
+) -> Path:
     """Write a ROS 2 parameter file: ``params`` (flat dotted names) and, for each topic in
     ``reliable_topics`` (fully qualified), a QoS override making its subscription reliable."""
     lines = [f"{node}:", "  ros__parameters:"]
@@ -61,8 +68,12 @@ def write_params_yaml(path, params: dict | None = None, reliable_topics=(),
     if reliable_topics:
         lines.append("    qos_overrides:")
         for t in reliable_topics:
-            lines += [f"      {t}:", "        subscription:", "          reliability: reliable",
-                      "          depth: 100"]
+            lines += [
+                f"      {t}:",
+                "        subscription:",
+                "          reliability: reliable",
+                "          depth: 100",
+            ]
     path = Path(path)
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -73,7 +84,7 @@ def share_dirs() -> list[Path]:
     ``data/``), most specific first: ``<prefix>/share/rs_localizer`` of the prefix the package
     is installed in (``<prefix>/lib/pythonX.Y/site-packages/rs_localizer``: a pip venv or a
     colcon install space), the ament index (``AMENT_PREFIX_PATH``), then ``sys.prefix``."""
-    pkg = Path(os.path.abspath(__file__)).parents[1]     # .../site-packages/rs_localizer
+    pkg = Path(os.path.abspath(__file__)).parents[1]  # .../site-packages/rs_localizer
     out = []
     if pkg.parent.name in ("site-packages", "dist-packages"):
         out.append(pkg.parents[3] / "share" / "rs_localizer")
@@ -113,8 +124,18 @@ class NodeProcess:
         module: the node's module (``rs_localizer.ros.lifecycle`` for the managed node).
     """
 
-    def __init__(self, params_files=(), namespace="/camera", node_name=None, remaps=None,
-                 params=None, env=None, log=None, cpus=None, module="rs_localizer.ros.node"):
+    def __init__(
+        self,
+        params_files=(),
+        namespace="/camera",
+        node_name=None,
+        remaps=None,
+        params=None,
+        env=None,
+        log=None,
+        cpus=None,
+        module="rs_localizer.ros.node",
+    ):
         args = [sys.executable, "-m", module, "--ros-args"]
         for f in params_files:
             args += ["--params-file", str(f)]
@@ -137,9 +158,14 @@ class NodeProcess:
         if cpus is not None and hasattr(os, "sched_setaffinity"):
             cpu_set = set(cpus)
             preexec = lambda: os.sched_setaffinity(0, cpu_set)  # noqa: E731
-        self.proc = subprocess.Popen(args, env=self.env, stdout=self._log,
-                                     stderr=subprocess.STDOUT, start_new_session=True,
-                                     preexec_fn=preexec)
+        self.proc = subprocess.Popen(
+            args,
+            env=self.env,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            preexec_fn=preexec,
+        )
 
     @property
     def log(self) -> str:

@@ -17,10 +17,20 @@ import numpy as np
 
 from ..accuracy import GroundTruth, frame_errors, summarize_errors
 from . import conversions as cv
-from .bag_io import (CAMERA_INFO, GT_POSE, IMAGE, OUT_TYPES, _storage_plugin, _typestore,
-                     bag_topics, iter_messages, load_ground_truth, read_bag_info)
+from .bag_io import (
+    CAMERA_INFO,
+    GT_POSE,
+    IMAGE,
+    OUT_TYPES,
+    _storage_plugin,
+    _typestore,
+    bag_topics,
+    iter_messages,
+    load_ground_truth,
+    read_bag_info,
+)
 
-__all__ = ["replay", "ReplayResult", "CSV_COLUMNS"]
+__all__ = ["CSV_COLUMNS", "ReplayResult", "replay"]
 
 
 def _cdr(msg, msgtype: str, ts) -> bytes:
@@ -56,13 +66,29 @@ def _progress(i, n, t0, stream):
     stream.flush()
 
 
-def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "correspondences",
-           line_delay: float | None = None, readout_time: float | None = None,
-           direction: str | None = None, reference_row: float | None = None,
-           stamp_row: float | None = None, landmarks_file=None, out_bag=None, out_csv=None,
-           storage: str = "mcap", map_frame: str = "map", camera_frame: str | None = None,
-           progress=sys.stderr, overwrite: bool = False, debug_outputs: bool = False,
-           path_length: int = 1000, image_topic: str | None = None) -> ReplayResult:
+def replay(
+    path,
+    *,
+    solver: str = "r6p_1lin",
+    options=None,
+    source: str = "correspondences",
+    line_delay: float | None = None,
+    readout_time: float | None = None,
+    direction: str | None = None,
+    reference_row: float | None = None,
+    stamp_row: float | None = None,
+    landmarks_file=None,
+    out_bag=None,
+    out_csv=None,
+    storage: str = "mcap",
+    map_frame: str = "map",
+    camera_frame: str | None = None,
+    progress=sys.stderr,
+    overwrite: bool = False,
+    debug_outputs: bool = False,
+    path_length: int = 1000,
+    image_topic: str | None = None,
+) -> ReplayResult:
     """Run :func:`estimate_rs_pose` over every frame of a bag, offline.
 
     RS timing defaults come from the bag's ``sequence.json`` (make-bag) and can be overridden.
@@ -111,8 +137,7 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
     if debug_outputs and image_topic is None:
         images = [t for t, mt in topics.items() if mt == IMAGE]
         ns = frame_topic.rsplit("/", 1)[0] + "/"
-        image_topic = next((t for t in images if t.startswith(ns)), images[0] if images
-                           else None)
+        image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
     result = ReplayResult()
@@ -138,8 +163,8 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
     i = 0
     try:
         for topic, msgtype, t_log, raw in iter_messages(
-                path, {frame_topic, info_topic} | ({image_topic} if viz and image_topic
-                                                   else set())):
+            path, {frame_topic, info_topic} | ({image_topic} if viz and image_topic else set())
+        ):
             msg = ts.deserialize_cdr(raw, msgtype)
             if viz is not None and topic == image_topic:
                 viz.add_image(msg)
@@ -148,24 +173,32 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
                 key = (tuple(msg.k), tuple(msg.d), msg.distortion_model, msg.width, msg.height)
                 if key != cam_key:
                     camera = cv.camera_model_from_camera_info(
-                        msg, line_delay, readout_time, direction, reference_row)
+                        msg, line_delay, readout_time, direction, reference_row
+                    )
                     cam_key = key
                 continue
             i += 1
             stamp = cv.stamp_to_ns(msg.header.stamp)
-            row = {"frame": i - 1, "stamp_ns": stamp, "success": False, "failure": "",
-                   "solver": solver}
+            row = {
+                "frame": i - 1,
+                "stamp_ns": stamp,
+                "success": False,
+                "failure": "",
+                "solver": solver,
+            }
             if camera is None:
                 row["failure"] = "no_camera_info"
             else:
                 try:
                     if source == "keypoints":
                         kp = read_keypoints(msg)
-                        j = np.clip(np.searchsorted(lm_index[0], kp.ids), 0,
-                                    len(lm_index[0]) - 1)
+                        j = np.clip(np.searchsorted(lm_index[0], kp.ids), 0, len(lm_index[0]) - 1)
                         known = lm_index[0][j] == kp.ids
-                        uv, xyz, scores = kp.uv[known], lm_index[1][j[known]], (
-                            None if kp.scores is None else kp.scores[known])
+                        uv, xyz, scores = (
+                            kp.uv[known],
+                            lm_index[1][j[known]],
+                            (None if kp.scores is None else kp.scores[known]),
+                        )
                     else:
                         c = read_correspondences(msg)
                         uv, xyz, scores = c.uv, c.xyz, c.scores
@@ -173,11 +206,13 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
                     row["failure"] = getattr(e, "reason", "bad_cloud")
                 else:
                     tic = time.perf_counter()
-                    est = estimate_rs_pose(uv, xyz, camera, solver=solver, options=options,
-                                           scores=scores)
+                    est = estimate_rs_pose(
+                        uv, xyz, camera, solver=solver, options=options, scores=scores
+                    )
                     row["time_ms"] = (time.perf_counter() - tic) * 1e3
-                    out_stamp = stamp + int(round(
-                        camera.time_offset(stamp_row, camera.reference_line) * 1e9))
+                    out_stamp = stamp + int(
+                        round(camera.time_offset(stamp_row, camera.reference_line) * 1e9)
+                    )
                     row["out_stamp_ns"] = out_stamp
                     row["num_points"] = len(uv)
                     row["num_inliers"] = est.num_inliers
@@ -187,23 +222,29 @@ def replay(path, *, solver: str = "r6p_1lin", options=None, source: str = "corre
                         q = cv.quaternion_from_matrix(est.orientation)
                         row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
                         row.update({f"p{a}": est.position[k] for k, a in enumerate("xyz")})
-                        row.update({f"w{a}": est.angular_velocity[k]
-                                    for k, a in enumerate("xyz")})
-                        row.update({f"v{a}": est.linear_velocity[k]
-                                    for k, a in enumerate("xyz")})
-                        err = frame_errors(est.orientation, est.position,
-                                           est.angular_velocity, est.linear_velocity, gt,
-                                           out_stamp)
+                        row.update({f"w{a}": est.angular_velocity[k] for k, a in enumerate("xyz")})
+                        row.update({f"v{a}": est.linear_velocity[k] for k, a in enumerate("xyz")})
+                        err = frame_errors(
+                            est.orientation,
+                            est.position,
+                            est.angular_velocity,
+                            est.linear_velocity,
+                            gt,
+                            out_stamp,
+                        )
                         if err:
                             row.update({f"err_{k}": v for k, v in err.items()})
                         if writer is not None:
                             cf = camera_frame or msg.header.frame_id or "camera"
                             for name, m in (
-                                    ("pose", cv.pose_stamped(est, out_stamp, map_frame)),
-                                    ("twist", cv.twist_stamped(est, out_stamp, cf)),
-                                    ("pose_with_covariance", cv.pose_with_covariance_stamped(
-                                        est, out_stamp, map_frame)),
-                                    ("odom", cv.odometry(est, out_stamp, map_frame, cf))):
+                                ("pose", cv.pose_stamped(est, out_stamp, map_frame)),
+                                ("twist", cv.twist_stamped(est, out_stamp, cf)),
+                                (
+                                    "pose_with_covariance",
+                                    cv.pose_with_covariance_stamped(est, out_stamp, map_frame),
+                                ),
+                                ("odom", cv.odometry(est, out_stamp, map_frame, cf)),
+                            ):
                                 writer.write(conns[name], t_log, _cdr(m, OUT_TYPES[name], ts))
                             if viz is not None:
                                 viz.frame(est, uv, xyz, camera, stamp, out_stamp, cf, t_log)
@@ -239,7 +280,7 @@ class _DebugWriter:
         for name, mt in VIZ_TOPICS.items():
             conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
         self.builder = VisualizationBuilder(path_length)
-        self.images = {}      # header stamp (ns) -> (image, encoding), the last few
+        self.images = {}  # header stamp (ns) -> (image, encoding), the last few
         self.pending = None
 
     def add_image(self, msg):
@@ -271,8 +312,11 @@ class _DebugWriter:
         img, enc = self.images.get(stamp, (None, None))
         if img is not None and img.shape[:2] != (camera.height, camera.width):
             img, enc = None, None
-        self._write("debug_image", t_log, self.builder.debug_image(
-            est, uv, xyz, camera, stamp, camera_frame, img, enc))
+        self._write(
+            "debug_image",
+            t_log,
+            self.builder.debug_image(est, uv, xyz, camera, stamp, camera_frame, img, enc),
+        )
 
 
 def _count(path, topic) -> int:
@@ -282,10 +326,35 @@ def _count(path, topic) -> int:
         return sum(c.msgcount for c in r.connections if c.topic == topic)
 
 
-CSV_COLUMNS = ["frame", "stamp_ns", "out_stamp_ns", "solver", "success", "failure", "num_points",
-               "num_inliers", "rmse_px", "time_ms", "qx", "qy", "qz", "qw", "px", "py", "pz",
-               "wx", "wy", "wz", "vx", "vy", "vz", "err_rot_deg", "err_pos_m", "err_angvel",
-               "err_linvel"]
+CSV_COLUMNS = [
+    "frame",
+    "stamp_ns",
+    "out_stamp_ns",
+    "solver",
+    "success",
+    "failure",
+    "num_points",
+    "num_inliers",
+    "rmse_px",
+    "time_ms",
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "px",
+    "py",
+    "pz",
+    "wx",
+    "wy",
+    "wz",
+    "vx",
+    "vy",
+    "vz",
+    "err_rot_deg",
+    "err_pos_m",
+    "err_angvel",
+    "err_linvel",
+]
 
 
 def _write_csv(path, rows):
@@ -293,5 +362,9 @@ def _write_csv(path, rows):
         w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
         w.writeheader()
         for r in rows:
-            w.writerow({k: (f"{v:.9g}" if isinstance(v, float) and math.isfinite(v) else v)
-                        for k, v in r.items()})
+            w.writerow(
+                {
+                    k: (f"{v:.9g}" if isinstance(v, float) and math.isfinite(v) else v)
+                    for k, v in r.items()
+                }
+            )

@@ -20,7 +20,7 @@ import sys
 
 import rclpy
 
-__all__ = ["run", "camera_namespaces", "node_cli_args", "read_cameras"]
+__all__ = ["camera_namespaces", "node_cli_args", "read_cameras", "run"]
 
 
 def camera_namespaces(cameras, base_namespace: str = "/") -> list[str]:
@@ -84,9 +84,14 @@ def read_cameras(node_name: str = "rs_localizer"):
 
     probe = rclpy.create_node(node_name)
     try:
-        probe.declare_parameter("cameras", Parameter.Type.STRING_ARRAY, ParameterDescriptor(
-            description="camera namespaces: one localizer per camera in this process",
-            read_only=True))
+        probe.declare_parameter(
+            "cameras",
+            Parameter.Type.STRING_ARRAY,
+            ParameterDescriptor(
+                description="camera namespaces: one localizer per camera in this process",
+                read_only=True,
+            ),
+        )
         try:
             cams = list(probe.get_parameter("cameras").value or [])
         except ParameterUninitializedException:
@@ -115,13 +120,15 @@ def run(node_class, args=None, prog: str = "rs_localizer_node") -> int:
             except ValueError as e:
                 raise RuntimeError(str(e)) from None
             for ns in namespaces:
-                nodes.append(node_class(name, namespace=ns, use_global_arguments=False,
-                                        cli_args=cli))
+                nodes.append(
+                    node_class(name, namespace=ns, use_global_arguments=False, cli_args=cli)
+                )
             from ..frontends.shared import SHARED_MAPS
 
             nodes[0].get_logger().info(
                 f"{len(nodes)} cameras in this process: {', '.join(namespaces)}; "
-                f"{SHARED_MAPS.loads} map files loaded ({len(SHARED_MAPS)} in use)")
+                f"{SHARED_MAPS.loads} map files loaded ({len(SHARED_MAPS)} in use)"
+            )
         else:
             nodes.append(node_class())
         executor = SingleThreadedExecutor()

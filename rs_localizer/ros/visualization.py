@@ -33,27 +33,53 @@ from ..viz.debug_image import DebugImageOptions, draw_debug_image
 from ..viz.scene3d import frustum_segments, velocity_arrows
 from . import conversions as cv
 
-__all__ = ["VIZ_PARAMETERS", "VIZ_TOPICS", "VisualizationBuilder", "NodeVisualization",
-           "debug_image_msg", "marker_array", "path_msg", "MARKER_COLORS"]
+__all__ = [
+    "MARKER_COLORS",
+    "VIZ_PARAMETERS",
+    "VIZ_TOPICS",
+    "NodeVisualization",
+    "VisualizationBuilder",
+    "debug_image_msg",
+    "marker_array",
+    "path_msg",
+]
 
 #: name -> (default, description, range); declared by :class:`NodeVisualization`
 VIZ_PARAMETERS = {
-    "viz.path_length": (1000, "poses kept in the path topic",
-                        IntegerRange(from_value=1, to_value=1_000_000, step=1)),
-    "viz.frustum_depth": (0.5, "depth of the camera frustum in the markers topic (m)",
-                          FloatingPointRange(from_value=1e-3, to_value=1e4, step=0.0)),
-    "viz.arrow_scale": (1.0, "velocity arrows in the markers topic: m of arrow per rad/s "
-                        "(angular) and per m/s (linear)",
-                        FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0)),
-    "viz.residual_scale": (10.0, "residual vectors in debug_image are drawn this many times "
-                           "longer", FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0)),
+    "viz.path_length": (
+        1000,
+        "poses kept in the path topic",
+        IntegerRange(from_value=1, to_value=1_000_000, step=1),
+    ),
+    "viz.frustum_depth": (
+        0.5,
+        "depth of the camera frustum in the markers topic (m)",
+        FloatingPointRange(from_value=1e-3, to_value=1e4, step=0.0),
+    ),
+    "viz.arrow_scale": (
+        1.0,
+        "velocity arrows in the markers topic: m of arrow per rad/s (angular) and per m/s (linear)",
+        FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0),
+    ),
+    "viz.residual_scale": (
+        10.0,
+        "residual vectors in debug_image are drawn this many times longer",
+        FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0),
+    ),
 }
 #: topic name -> message type name
-VIZ_TOPICS = {"debug_image": "sensor_msgs/msg/Image",
-              "markers": "visualization_msgs/msg/MarkerArray", "path": "nav_msgs/msg/Path"}
+VIZ_TOPICS = {
+    "debug_image": "sensor_msgs/msg/Image",
+    "markers": "visualization_msgs/msg/MarkerArray",
+    "path": "nav_msgs/msg/Path",
+}
 #: RGBA (0..1) of the markers
-MARKER_COLORS = {"frustum": (0.0, 1.0, 1.0, 1.0), "angular_velocity": (1.0, 0.5, 0.0, 1.0),
-                 "linear_velocity": (0.2, 0.4, 1.0, 1.0), "inliers": (0.0, 1.0, 0.0, 1.0)}
+MARKER_COLORS = {
+    "frustum": (0.0, 1.0, 1.0, 1.0),
+    "angular_velocity": (1.0, 0.5, 0.0, 1.0),
+    "linear_velocity": (0.2, 0.4, 1.0, 1.0),
+    "inliers": (0.0, 1.0, 0.0, 1.0),
+}
 MAX_MARKER_POINTS = 5000
 
 
@@ -91,8 +117,15 @@ def _marker(ns, kind, stamp_ns, frame_id) -> Marker:
     return m
 
 
-def marker_array(est, X, camera, stamp_ns: int, map_frame: str, frustum_depth: float = 0.5,
-                 arrow_scale: float = 1.0) -> MarkerArray:
+def marker_array(
+    est,
+    X,
+    camera,
+    stamp_ns: int,
+    map_frame: str,
+    frustum_depth: float = 0.5,
+    arrow_scale: float = 1.0,
+) -> MarkerArray:
     """The ``markers`` of a solved frame, all in ``map_frame`` (identity poses, so no TF is
     needed):
 
@@ -151,8 +184,13 @@ class VisualizationBuilder:
         residual_scale: see :class:`rs_localizer.viz.DebugImageOptions`.
     """
 
-    def __init__(self, path_length: int = 1000, frustum_depth: float = 0.5,
-                 arrow_scale: float = 1.0, residual_scale: float = 10.0):
+    def __init__(
+        self,
+        path_length: int = 1000,
+        frustum_depth: float = 0.5,
+        arrow_scale: float = 1.0,
+        residual_scale: float = 10.0,
+    ):
         self.poses = deque(maxlen=max(int(path_length), 1))
         self.frustum_depth = float(frustum_depth)
         self.arrow_scale = float(arrow_scale)
@@ -167,17 +205,26 @@ class VisualizationBuilder:
         """Append the frame's pose (reference-line stamp) to the path."""
         self.poses.append(cv.pose_stamped(est, out_stamp_ns, map_frame))
 
-    def debug_image(self, est, uv, X, camera, stamp_ns: int, camera_frame: str, image=None,
-                    encoding=None) -> Image:
+    def debug_image(
+        self, est, uv, X, camera, stamp_ns: int, camera_frame: str, image=None, encoding=None
+    ) -> Image:
         """``debug_image`` (:func:`rs_localizer.viz.draw_debug_image`), stamped like the input
         (``stamp_ns``) in ``camera_frame``."""
-        bgr = draw_debug_image(camera, uv, X, est, image, encoding,
-                               DebugImageOptions(residual_scale=self.residual_scale))
+        bgr = draw_debug_image(
+            camera,
+            uv,
+            X,
+            est,
+            image,
+            encoding,
+            DebugImageOptions(residual_scale=self.residual_scale),
+        )
         return debug_image_msg(bgr, stamp_ns, camera_frame)
 
     def markers(self, est, X, camera, out_stamp_ns: int, map_frame: str) -> MarkerArray:
-        return marker_array(est, X, camera, out_stamp_ns, map_frame, self.frustum_depth,
-                            self.arrow_scale)
+        return marker_array(
+            est, X, camera, out_stamp_ns, map_frame, self.frustum_depth, self.arrow_scale
+        )
 
     def path(self, out_stamp_ns: int, map_frame: str) -> Path:
         return path_msg(self.poses, out_stamp_ns, map_frame)
@@ -204,12 +251,22 @@ class NodeVisualization:
             node.declare_parameter(name, default, d)
         rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.pub_image = node.create_publisher(  # (images are large: a short queue)
-            Image, "debug_image", QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE))
+            Image, "debug_image", QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
+        )
         self.pub_markers = node.create_publisher(MarkerArray, "markers", rel)
         self.pub_path = node.create_publisher(Path, "path", rel)
-        self.builder = VisualizationBuilder(*(node.get_parameter(n).value for n in (
-            "viz.path_length", "viz.frustum_depth", "viz.arrow_scale", "viz.residual_scale")))
-        self._image = None   # (image, encoding, stamp_ns) of the current input image
+        self.builder = VisualizationBuilder(
+            *(
+                node.get_parameter(n).value
+                for n in (
+                    "viz.path_length",
+                    "viz.frustum_depth",
+                    "viz.arrow_scale",
+                    "viz.residual_scale",
+                )
+            )
+        )
+        self._image = None  # (image, encoding, stamp_ns) of the current input image
 
     def set_image(self, image, encoding, stamp_ns: int):
         """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode)."""
@@ -222,30 +279,42 @@ class NodeVisualization:
         b.arrow_scale = float(get("viz.arrow_scale").value)
         b.residual_scale = float(get("viz.residual_scale").value)
 
-    def publish(self, est, uv, X, camera, stamp_ns: int, out_stamp_ns: int, camera_frame: str,
-                map_frame: str):
+    def publish(
+        self,
+        est,
+        uv,
+        X,
+        camera,
+        stamp_ns: int,
+        out_stamp_ns: int,
+        camera_frame: str,
+        map_frame: str,
+    ):
         """Publish the visualization of a solved frame: ``uv`` (N, 2) and ``X`` (N, 3) are the
         estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the reference
         line's (the pose's) stamp."""
         b = self.builder
         b.add_pose(est, out_stamp_ns, map_frame)
-        want = (self.pub_image.get_subscription_count() > 0,
-                self.pub_markers.get_subscription_count() > 0,
-                self.pub_path.get_subscription_count() > 0)
+        want = (
+            self.pub_image.get_subscription_count() > 0,
+            self.pub_markers.get_subscription_count() > 0,
+            self.pub_path.get_subscription_count() > 0,
+        )
         image, self._image = self._image, None
         if not any(want):
             return
         try:
             self._read_parameters()
             if want[0]:
-                img, enc = ((image[0], image[1]) if image and image[2] == stamp_ns
-                            else (None, None))
-                self.pub_image.publish(b.debug_image(est, uv, X, camera, stamp_ns,
-                                                     camera_frame, img, enc))
+                img, enc = (image[0], image[1]) if image and image[2] == stamp_ns else (None, None)
+                self.pub_image.publish(
+                    b.debug_image(est, uv, X, camera, stamp_ns, camera_frame, img, enc)
+                )
             if want[1]:
                 self.pub_markers.publish(b.markers(est, X, camera, out_stamp_ns, map_frame))
             if want[2]:
                 self.pub_path.publish(b.path(out_stamp_ns, map_frame))
-        except Exception as e:  # noqa: BLE001 - a drawing problem must not cost the frame
+        except Exception as e:
             self.node.get_logger().warning(
-                f"visualization failed: {type(e).__name__}: {e}", throttle_duration_sec=5.0)
+                f"visualization failed: {type(e).__name__}: {e}", throttle_duration_sec=5.0
+            )

@@ -13,10 +13,17 @@ from .render.renderer import Renderer
 __all__ = ["build_feature_map"]
 
 
-def build_feature_map(scene, camera: CameraModel, poses, kind: str = "orb",
-                      n_features: int = 2000, merge_radius: float = 0.004,
-                      edge_margin_px: float = 2.0, supersample: int = 2,
-                      descriptors_per_landmark: int = 1) -> FeatureMap:
+def build_feature_map(
+    scene,
+    camera: CameraModel,
+    poses,
+    kind: str = "orb",
+    n_features: int = 2000,
+    merge_radius: float = 0.004,
+    edge_margin_px: float = 2.0,
+    supersample: int = 2,
+    descriptors_per_landmark: int = 1,
+) -> FeatureMap:
     """Reconstruct a feature map from global-shutter renders of ``scene`` at known ``poses``.
 
     Args:
@@ -38,11 +45,18 @@ def build_feature_map(scene, camera: CameraModel, poses, kind: str = "orb",
 
     def views():
         for R, p in poses:
+
             def backproject(uv, pose=(R, p)):
                 X, quad, _ = renderer.cast(uv, pose=pose)
                 return X, quad
+
             yield renderer.render_pose(R, p, mono=True), backproject
 
-    return feature_map_from_views(views(), kind=kind, n_features=n_features,
-                                  merge_radius=merge_radius, edge_margin_px=edge_margin_px,
-                                  descriptors_per_landmark=descriptors_per_landmark)
+    return feature_map_from_views(
+        views(),
+        kind=kind,
+        n_features=n_features,
+        merge_radius=merge_radius,
+        edge_margin_px=edge_margin_px,
+        descriptors_per_landmark=descriptors_per_landmark,
+    )

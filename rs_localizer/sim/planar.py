@@ -30,8 +30,15 @@ from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, rs_project_exact
 from .trajectory import Scene
 
-__all__ = ["PlanarFrame", "planar_camera", "make_planar_frame", "model_velocities",
-           "board_corners", "SEQUENCE_SCENES", "sequence_scene"]
+__all__ = [
+    "SEQUENCE_SCENES",
+    "PlanarFrame",
+    "board_corners",
+    "make_planar_frame",
+    "model_velocities",
+    "planar_camera",
+    "sequence_scene",
+]
 
 
 @dataclass(frozen=True)
@@ -67,12 +74,14 @@ class PlanarFrame:
     scene: str
 
 
-def planar_camera(line_delay: float = 40e-6, focal: float = 600.0, width: int = 640,
-                  height: int = 480) -> CameraModel:
+def planar_camera(
+    line_delay: float = 40e-6, focal: float = 600.0, width: int = 640, height: int = 480
+) -> CameraModel:
     """The issue's camera: ``width`` x ``height`` px, ``focal`` px, principal point at the
     image centre, no distortion, top-to-bottom readout with ``line_delay`` s per line."""
-    K = np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
+    )
     return CameraModel(K=K, width=width, height=height, line_delay=line_delay)
 
 
@@ -80,8 +89,9 @@ def board_corners(corners=(6, 7), square: float = 0.08) -> np.ndarray:
     """(n_x * n_y, 3) inner corners of a checkerboard in its own frame (m): ``z = 0``, centred
     on the origin, x along the first count, row-major like OpenCV's corner order."""
     nx, ny = int(corners[0]), int(corners[1])
-    gx, gy = np.meshgrid((np.arange(nx) - (nx - 1) / 2) * square,
-                         (np.arange(ny) - (ny - 1) / 2) * square)
+    gx, gy = np.meshgrid(
+        (np.arange(nx) - (nx - 1) / 2) * square, (np.arange(ny) - (ny - 1) / 2) * square
+    )
     return np.stack([gx.ravel(), gy.ravel(), np.zeros(nx * ny)], axis=1)
 
 
@@ -117,14 +127,23 @@ def _plane_pose(rng, centre_cam, max_tilt_deg):
     return R, np.asarray(centre_cam, dtype=float)
 
 
-def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
-                      n_points: int = 300, distance: float = 4.0,
-                      board_distance=(0.8, 2.0), board=(6, 7), square: float = 0.08,
-                      max_tilt_deg: float = 35.0, angular_speed=(1.0, 3.0),
-                      linear_speed=(0.2, 1.0), noise_px: float = 0.5,
-                      outlier_ratio: float = 0.0, depth_range=(2.0, 6.0),
-                      camera: CameraModel | None = None,
-                      max_tries: int = 200) -> PlanarFrame:
+def make_planar_frame(
+    rng: np.random.Generator | int = 0,
+    scene: str = "plane",
+    n_points: int = 300,
+    distance: float = 4.0,
+    board_distance=(0.8, 2.0),
+    board=(6, 7),
+    square: float = 0.08,
+    max_tilt_deg: float = 35.0,
+    angular_speed=(1.0, 3.0),
+    linear_speed=(0.2, 1.0),
+    noise_px: float = 0.5,
+    outlier_ratio: float = 0.0,
+    depth_range=(2.0, 6.0),
+    camera: CameraModel | None = None,
+    max_tries: int = 200,
+) -> PlanarFrame:
     """One frame of a planar scene (module docstring).
 
     Args:
@@ -174,11 +193,13 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
             X = (lam[:, None] * rays - C) @ R  # R^T (p - C)
             X[:, 2] = 0.0
         else:
-            uv = rng.uniform([0.25 * cam.width, 0.25 * cam.height],
-                             [0.75 * cam.width, 0.75 * cam.height])
+            uv = rng.uniform(
+                [0.25 * cam.width, 0.25 * cam.height], [0.75 * cam.width, 0.75 * cam.height]
+            )
             ray = Kinv @ np.array([uv[0], uv[1], 1.0])
-            R, C = _plane_pose(rng, ray / np.linalg.norm(ray) * rng.uniform(*board_distance),
-                               max_tilt_deg)
+            R, C = _plane_pose(
+                rng, ray / np.linalg.norm(ray) * rng.uniform(*board_distance), max_tilt_deg
+            )
             X = board_corners(board, square)
         w, t = model_velocities(C, omega, vel, s)
         x, _ = rs_project_exact(X, R, C, w, t, cam.r0)
@@ -200,9 +221,22 @@ def make_planar_frame(rng: np.random.Generator | int = 0, scene: str = "plane",
         idx = rng.choice(len(X), n_out, replace=False)
         noisy[idx] = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (n_out, 2))
         inlier[idx] = False
-    return PlanarFrame(points_px=noisy, X=X, camera=cam, R=R, C=C, w=w, t=t, orientation=R.T,
-                       position=camera_position(R, C), angular_velocity=omega,
-                       linear_velocity=vel, points_clean=px, inlier=inlier, scene=scene)
+    return PlanarFrame(
+        points_px=noisy,
+        X=X,
+        camera=cam,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=camera_position(R, C),
+        angular_velocity=omega,
+        linear_velocity=vel,
+        points_clean=px,
+        inlier=inlier,
+        scene=scene,
+    )
 
 
 # ------------------------------------------------------------------------ sequences (make-bag)
@@ -244,6 +278,7 @@ def sequence_scene(kind: str, rng, num_landmarks: int = 6000, motion_scale: floa
 
         board = load_scene("checkerboard")
         ids, pts = board.checkerboard_corner_points()
-        return Scene(np.round(pts, 4), ids), make_motion("shake", board, duration=2.0,
-                                                         scale=motion_scale)
+        return Scene(np.round(pts, 4), ids), make_motion(
+            "shake", board, duration=2.0, scale=motion_scale
+        )
     raise ValueError(f"unknown scene {kind!r}; expected one of {SEQUENCE_SCENES}")

@@ -20,12 +20,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import CameraModel
-from ..geometry import (camera_position, matrix_to_rotvec, nearest_rotation, rotvec_to_matrix,
-                       rs_project_exact)
-from ..geometry import rs_project_linear, skew
+from ..geometry import (
+    camera_position,
+    matrix_to_rotvec,
+    nearest_rotation,
+    rotvec_to_matrix,
+    rs_project_exact,
+    rs_project_linear,
+    skew,
+)
 
-__all__ = ["FOV_DEG", "IMAGE_SIZE", "FOCAL_PX", "FRAME_SPAN", "SyntheticFrame", "make_frame",
-           "paper_camera", "random_rotation"]
+__all__ = [
+    "FOCAL_PX",
+    "FOV_DEG",
+    "FRAME_SPAN",
+    "IMAGE_SIZE",
+    "SyntheticFrame",
+    "make_frame",
+    "paper_camera",
+    "random_rotation",
+]
 
 FOV_DEG = 45.0
 IMAGE_SIZE = 1000
@@ -99,6 +113,7 @@ def _unit(rng):
 def _physical_velocities(R, C, w, t, seconds_per_unit_r, h=1e-6):
     """Camera velocities by central differences of the simulated trajectory (independent of
     the closed-form conversion in :mod:`rs_localizer.estimation.estimate`)."""
+
     def pose(tau):
         Rt = rotvec_to_matrix(tau * w) @ R
         return Rt.T, camera_position(Rt, C + tau * t)  # camera->world orientation, centre
@@ -110,12 +125,22 @@ def _physical_velocities(R, C, w, t, seconds_per_unit_r, h=1e-6):
     return omega_body, R @ v_world
 
 
-def make_frame(rng: np.random.Generator | int = 0, n_points: int = 100, rs_speed: float = 0.5,
-               noise_px: float = 0.0, outlier_ratio: float = 0.0, translation_only: bool = False,
-               rotation_only: bool = False, angle_from_identity: float | None = None,
-               rot_per_frame_deg: float | None = None, trans_per_frame: float | None = None,
-               model: str = "exact", r0: float = 0.0, readout_time: float = 0.03,
-               max_tries: int = 50) -> SyntheticFrame:
+def make_frame(
+    rng: np.random.Generator | int = 0,
+    n_points: int = 100,
+    rs_speed: float = 0.5,
+    noise_px: float = 0.0,
+    outlier_ratio: float = 0.0,
+    translation_only: bool = False,
+    rotation_only: bool = False,
+    angle_from_identity: float | None = None,
+    rot_per_frame_deg: float | None = None,
+    trans_per_frame: float | None = None,
+    model: str = "exact",
+    r0: float = 0.0,
+    readout_time: float = 0.03,
+    max_tries: int = 50,
+) -> SyntheticFrame:
     """Generate one frame of the paper's synthetic protocol.
 
     Args:
@@ -162,10 +187,9 @@ def make_frame(rng: np.random.Generator | int = 0, n_points: int = 100, rs_speed
         if model == "exact":
             x, r = rs_project_exact(X, R, C, w, t, r0)
         else:
-            x, r = rs_project_linear(X, R, C, w, t, r0)
+            x, _r = rs_project_linear(X, R, C, w, t, r0)
         Xc = X @ R.T + C
-        keep = (np.isfinite(x).all(axis=1) & (np.abs(x) <= HALF_TAN).all(axis=1)
-                & (Xc[:, 2] > 0.1))
+        keep = np.isfinite(x).all(axis=1) & (np.abs(x) <= HALF_TAN).all(axis=1) & (Xc[:, 2] > 0.1)
         xs.append(x[keep])
         Xs.append(X[keep])
         count += int(keep.sum())
@@ -186,8 +210,19 @@ def make_frame(rng: np.random.Generator | int = 0, n_points: int = 100, rs_speed
     spr = cam.seconds_per_unit_r
     Rm = R if model == "exact" else nearest_rotation(R)  # I + [v]x is not a rotation
     omega, vel = _physical_velocities(Rm, C, w, t, spr)
-    return SyntheticFrame(x=x, X=X, r=x[:, 1].copy(), r0=float(r0), R=R, C=C, w=w, t=t,
-                          inlier=inlier, points_px=cam.distort(x), seconds_per_unit_r=spr,
-                          angular_velocity=omega, linear_velocity=vel,
-                          position=camera_position(Rm, C))
-
+    return SyntheticFrame(
+        x=x,
+        X=X,
+        r=x[:, 1].copy(),
+        r0=float(r0),
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        inlier=inlier,
+        points_px=cam.distort(x),
+        seconds_per_unit_r=spr,
+        angular_velocity=omega,
+        linear_velocity=vel,
+        position=camera_position(Rm, C),
+    )

@@ -24,24 +24,46 @@ import numpy as np
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["default_camera", "Trajectory", "Teleport", "TRAJECTORIES", "make_trajectory",
-           "Scene", "Frame", "SequenceConfig", "make_scene", "generate_sequence", "project_rs",
-           "ground_truth", "imu_samples", "R_IMU_CAMERA", "GRAVITY"]
+__all__ = [
+    "GRAVITY",
+    "R_IMU_CAMERA",
+    "TRAJECTORIES",
+    "Frame",
+    "Scene",
+    "SequenceConfig",
+    "Teleport",
+    "Trajectory",
+    "default_camera",
+    "generate_sequence",
+    "ground_truth",
+    "imu_samples",
+    "make_scene",
+    "make_trajectory",
+    "project_rs",
+]
 
 #: camera looking along world +x with z up: columns are the camera x (right), y (down),
 #: z (forward) axes in world coordinates
 R_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
-def default_camera(line_delay: float = 30e-6, reference_row=None, distortion=True,
-                   readout="top_to_bottom") -> CameraModel:
+def default_camera(
+    line_delay: float = 30e-6, reference_row=None, distortion=True, readout="top_to_bottom"
+) -> CameraModel:
     """A 1280x720 phone/action camera: fx ~ 1000 px (~65 deg horizontal FOV), mild barrel
     plumb_bob distortion, 30 us/row line delay (21.6 ms readout)."""
     K = np.array([[1002.5, 0.0, 641.3], [0.0, 1001.8, 358.2], [0.0, 0.0, 1.0]])
     D = np.array([0.062, -0.118, 4e-4, -3e-4, 0.041]) if distortion else np.zeros(0)
-    return CameraModel(K=K, D=D, width=1280, height=720, line_delay=line_delay,
-                       readout=readout, reference_row=reference_row,
-                       distortion_model="plumb_bob")
+    return CameraModel(
+        K=K,
+        D=D,
+        width=1280,
+        height=720,
+        line_delay=line_delay,
+        readout=readout,
+        reference_row=reference_row,
+        distortion_model="plumb_bob",
+    )
 
 
 @dataclass(frozen=True)
@@ -56,12 +78,12 @@ class Trajectory:
     """
 
     p0: tuple = (0.0, 0.0, 1.5)
-    velocity: tuple = (1.2, 0.0, 0.0)           # m/s, world
-    sway: tuple = (0.0, 0.12, 0.05)             # m amplitude per world axis
+    velocity: tuple = (1.2, 0.0, 0.0)  # m/s, world
+    sway: tuple = (0.0, 0.12, 0.05)  # m amplitude per world axis
     sway_hz: tuple = (0.0, 0.8, 1.8)
-    rot_amp: tuple = (0.15, 0.60, 0.15)         # rad about camera x (tilt), y (pan), z (roll)
+    rot_amp: tuple = (0.15, 0.60, 0.15)  # rad about camera x (tilt), y (pan), z (roll)
     rot_hz: tuple = (0.5, 0.4, 0.45)
-    shake_amp: tuple = (0.003, 0.004, 0.002)    # rad, hand shake
+    shake_amp: tuple = (0.003, 0.004, 0.002)  # rad, hand shake
     shake_hz: tuple = (6.3, 5.1, 7.7)
     phase: tuple = (0.3, -0.6, 2.0, 0.7, 1.9, 0.4)
     scale: float = 1.0
@@ -69,17 +91,20 @@ class Trajectory:
     def _angles(self, t):
         t = np.asarray(t, dtype=float)[..., None]
         ph = np.asarray(self.phase)
-        a = (np.asarray(self.rot_amp) * np.sin(2 * np.pi * np.asarray(self.rot_hz) * t + ph[:3])
-             + np.asarray(self.shake_amp)
-             * np.sin(2 * np.pi * np.asarray(self.shake_hz) * t + ph[3:]))
+        a = np.asarray(self.rot_amp) * np.sin(
+            2 * np.pi * np.asarray(self.rot_hz) * t + ph[:3]
+        ) + np.asarray(self.shake_amp) * np.sin(2 * np.pi * np.asarray(self.shake_hz) * t + ph[3:])
         return self.scale * a
 
     def position(self, t) -> np.ndarray:
         """(..., 3) camera centre in the world (m)."""
         t = np.asarray(t, dtype=float)[..., None]
-        return (np.asarray(self.p0) + np.asarray(self.velocity) * t
-                + np.asarray(self.sway) * np.sin(2 * np.pi * np.asarray(self.sway_hz) * t
-                                                 + np.asarray(self.phase[:3])))
+        return (
+            np.asarray(self.p0)
+            + np.asarray(self.velocity) * t
+            + np.asarray(self.sway)
+            * np.sin(2 * np.pi * np.asarray(self.sway_hz) * t + np.asarray(self.phase[:3]))
+        )
 
     def orientation(self, t) -> np.ndarray:
         """(..., 3, 3) camera -> world rotation."""
@@ -109,15 +134,33 @@ class Trajectory:
 #: axis) while walking slowly, the motion for readout calibration.
 TRAJECTORIES = {
     "walk": {},
-    "car": dict(velocity=(5.0, 0.0, 0.0), sway=(0.0, 0.003, 0.002), sway_hz=(0.0, 1.3, 3.1),
-                rot_amp=(0.003, 0.006, 0.002), rot_hz=(0.4, 0.3, 0.5),
-                shake_amp=(0.0005, 0.0004, 0.0003), shake_hz=(11.0, 13.0, 9.0)),
-    "shake": dict(velocity=(0.2, 0.0, 0.0), sway=(0.0, 0.03, 0.02), sway_hz=(0.0, 1.1, 1.7),
-                  rot_amp=(0.08, 0.15, 0.05), rot_hz=(0.3, 0.25, 0.35),
-                  shake_amp=(0.03, 0.04, 0.015), shake_hz=(4.3, 3.6, 5.1)),
-    "pan": dict(velocity=(0.5, 0.0, 0.0), sway=(0.0, 0.05, 0.03), sway_hz=(0.0, 0.8, 1.6),
-                rot_amp=(0.1, 0.8, 0.05), rot_hz=(0.3, 0.3, 0.25),
-                shake_amp=(0.002, 0.003, 0.001), shake_hz=(6.3, 5.1, 7.7)),
+    "car": dict(
+        velocity=(5.0, 0.0, 0.0),
+        sway=(0.0, 0.003, 0.002),
+        sway_hz=(0.0, 1.3, 3.1),
+        rot_amp=(0.003, 0.006, 0.002),
+        rot_hz=(0.4, 0.3, 0.5),
+        shake_amp=(0.0005, 0.0004, 0.0003),
+        shake_hz=(11.0, 13.0, 9.0),
+    ),
+    "shake": dict(
+        velocity=(0.2, 0.0, 0.0),
+        sway=(0.0, 0.03, 0.02),
+        sway_hz=(0.0, 1.1, 1.7),
+        rot_amp=(0.08, 0.15, 0.05),
+        rot_hz=(0.3, 0.25, 0.35),
+        shake_amp=(0.03, 0.04, 0.015),
+        shake_hz=(4.3, 3.6, 5.1),
+    ),
+    "pan": dict(
+        velocity=(0.5, 0.0, 0.0),
+        sway=(0.0, 0.05, 0.03),
+        sway_hz=(0.0, 0.8, 1.6),
+        rot_amp=(0.1, 0.8, 0.05),
+        rot_hz=(0.3, 0.3, 0.25),
+        shake_amp=(0.002, 0.003, 0.001),
+        shake_hz=(6.3, 5.1, 7.7),
+    ),
 }
 
 
@@ -170,9 +213,17 @@ R_IMU_CAMERA = R_FORWARD.copy()
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
 
-def imu_samples(trajectory, t_start: float, t_end: float, rate: float, seed: int = 0,
-                gyro_noise: float = 0.003, gyro_bias=(0.01, -0.02, 0.005),
-                accel_noise: float = 0.05, R_imu_camera: np.ndarray = R_IMU_CAMERA):
+def imu_samples(
+    trajectory,
+    t_start: float,
+    t_end: float,
+    rate: float,
+    seed: int = 0,
+    gyro_noise: float = 0.003,
+    gyro_bias=(0.01, -0.02, 0.005),
+    accel_noise: float = 0.05,
+    R_imu_camera: np.ndarray = R_IMU_CAMERA,
+):
     """Gyro and accelerometer samples of an IMU rigidly mounted on the camera (same origin).
 
     Args:
@@ -190,8 +241,9 @@ def imu_samples(trajectory, t_start: float, t_end: float, rate: float, seed: int
     t = np.arange(t_start, t_end, 1.0 / rate)
     w, _ = trajectory.velocity_body(t)
     h = 1e-4
-    acc = (trajectory.position(t + h) - 2 * trajectory.position(t)
-           + trajectory.position(t - h)) / h**2
+    acc = (
+        trajectory.position(t + h) - 2 * trajectory.position(t) + trajectory.position(t - h)
+    ) / h**2
     f_cam = np.einsum("nji,nj->ni", trajectory.orientation(t), acc - GRAVITY)
     omega = w @ R_imu_camera.T + np.asarray(gyro_bias) + rng.normal(0, gyro_noise, w.shape)
     f = f_cam @ R_imu_camera.T + rng.normal(0, accel_noise, f_cam.shape)
@@ -210,9 +262,16 @@ class Scene:
         return self.points[[index[int(i)] for i in ids]]
 
 
-def make_scene(rng, num_landmarks: int = 6000, length: float = 40.0, x0: float = -2.0,
-               half_width: float = 3.0, floor: float = -0.2, ceiling: float = 4.0,
-               clutter: float = 0.25) -> Scene:
+def make_scene(
+    rng,
+    num_landmarks: int = 6000,
+    length: float = 40.0,
+    x0: float = -2.0,
+    half_width: float = 3.0,
+    floor: float = -0.2,
+    ceiling: float = 4.0,
+    clutter: float = 0.25,
+) -> Scene:
     """A corridor along world x: landmarks on the two walls, floor and ceiling, plus clutter
     (a fraction ``clutter`` of points) inside it, away from the walking line. Coordinates are
     rounded to 0.1 mm so that float32 clouds and CSV files carry them without loss that matters.
@@ -236,8 +295,14 @@ def make_scene(rng, num_landmarks: int = 6000, length: float = 40.0, x0: float =
     return Scene(pts, ids)
 
 
-def project_rs(camera: CameraModel, trajectory: Trajectory, t_first_line: float, X,
-               iterations: int = 30, tol: float = 1e-9):
+def project_rs(
+    camera: CameraModel,
+    trajectory: Trajectory,
+    t_first_line: float,
+    X,
+    iterations: int = 30,
+    tol: float = 1e-9,
+):
     """Exact RS projection of world points ``X`` (N, 3) for the frame whose first line is read
     at ``t_first_line`` (s).
 
@@ -326,8 +391,12 @@ def ground_truth(camera: CameraModel, trajectory: Trajectory, t_first_line: floa
     return R, p, w, v, t_ref
 
 
-def generate_sequence(config: SequenceConfig = SequenceConfig(), camera: CameraModel | None = None,
-                      trajectory: Trajectory | None = None, scene: Scene | None = None):
+def generate_sequence(
+    config: SequenceConfig = SequenceConfig(),
+    camera: CameraModel | None = None,
+    trajectory: Trajectory | None = None,
+    scene: Scene | None = None,
+):
     """Generate ``config.num_frames`` frames. Returns ``(frames, scene, camera, trajectory)``.
 
     Per frame: all landmarks visible in the RS image are projected exactly, ``num_points`` of
@@ -368,9 +437,21 @@ def generate_sequence(config: SequenceConfig = SequenceConfig(), camera: CameraM
         stamp = t_first + float(camera.line_time(config.stamp_row))
         if k in config.drop_frames:
             continue
-        frames.append(Frame(
-            index=k, stamp_ns=config.t0_ns + int(round(stamp * 1e9)),
-            t_ref_ns=config.t0_ns + int(round(t_ref * 1e9)), uv=noisy, xyz=xyz, ids=ids,
-            scores=scores, inlier=inlier, orientation=R, position=p, angular_velocity=w,
-            linear_velocity=v, uv_clean=clean))
+        frames.append(
+            Frame(
+                index=k,
+                stamp_ns=config.t0_ns + int(round(stamp * 1e9)),
+                t_ref_ns=config.t0_ns + int(round(t_ref * 1e9)),
+                uv=noisy,
+                xyz=xyz,
+                ids=ids,
+                scores=scores,
+                inlier=inlier,
+                orientation=R,
+                position=p,
+                angular_velocity=w,
+                linear_velocity=v,
+                uv_clean=clean,
+            )
+        )
     return frames, scene, camera, trajectory

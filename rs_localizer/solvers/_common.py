@@ -15,8 +15,14 @@ import numpy as np
 
 from ..geometry import rotvec_to_matrix, skew
 
-__all__ = ["RSSolution", "RSBatch", "DegenerateInputError", "check_inputs", "check_batch",
-           "algebraic_error"]
+__all__ = [
+    "DegenerateInputError",
+    "RSBatch",
+    "RSSolution",
+    "algebraic_error",
+    "check_batch",
+    "check_inputs",
+]
 
 
 class DegenerateInputError(ValueError):
@@ -106,9 +112,15 @@ class RSBatch:
 
     def solution(self, k: int) -> RSSolution:
         """The k-th problem's solution as an :class:`RSSolution`."""
-        return RSSolution(self.v[k], self.C[k], self.w[k], self.t[k],
-                          None if self.R_rs is None else self.R_rs[k],
-                          int(self.iterations[k]), float(self.algebraic_error[k]))
+        return RSSolution(
+            self.v[k],
+            self.C[k],
+            self.w[k],
+            self.t[k],
+            None if self.R_rs is None else self.R_rs[k],
+            int(self.iterations[k]),
+            float(self.algebraic_error[k]),
+        )
 
 
 def check_inputs(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str = "solver"):
@@ -137,8 +149,9 @@ def check_inputs(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str =
     if r.shape != (len(x),):
         raise ValueError(f"{name}: r must have shape ({len(x)},), got {r.shape}")
     r0 = float(r0)
-    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(r).all()
-            and np.isfinite(r0)):
+    if not (
+        np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(r).all() and np.isfinite(r0)
+    ):
         raise ValueError(f"{name}: inputs contain NaN or inf")
     return x, X, r, r0
 

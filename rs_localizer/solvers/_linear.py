@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import INLINE
-from ._common import RSBatch, RSSolution, DegenerateInputError, check_batch, check_inputs
+from ._common import DegenerateInputError, RSBatch, RSSolution, check_batch, check_inputs
 
 RANK_TOL = 1e-10
 #: iterations without a new lowest algebraic error before an iterative solver stops
@@ -164,8 +164,9 @@ def rows_E(x, i, E):
     E[1, 2] = -x[i, 0]
 
 
-def run_single(kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init,
-               with_R_rs=False):
+def run_single(
+    kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init, with_R_rs=False
+):
     """Validate one problem, run ``kernel`` on it as a batch of one, build an RSSolution.
 
     Raises:
@@ -187,21 +188,33 @@ def run_single(kernel, name, n_params, min_points, x, X, r, r0, iterations, tol,
     if not ok[0] or not np.isfinite(out[0]).all():
         raise DegenerateInputError(
             f"{name}: the correspondences do not determine a solution (rank-deficient system; "
-            "collinear, coplanar-degenerate or duplicated points?)")
+            "collinear, coplanar-degenerate or duplicated points?)"
+        )
     u = out[0]
-    return RSSolution(u[0:3], u[3:6], u[6:9], u[9:12], u[12:21].reshape(3, 3) if with_R_rs else None,
-                      int(its[0]), float(err[0]))
+    return RSSolution(
+        u[0:3],
+        u[3:6],
+        u[6:9],
+        u[9:12],
+        u[12:21].reshape(3, 3) if with_R_rs else None,
+        int(its[0]),
+        float(err[0]),
+    )
 
 
-def run_batch(kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init,
-              with_R_rs=False) -> RSBatch:
+def run_batch(
+    kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init, with_R_rs=False
+) -> RSBatch:
     """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)."""
     x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
     K = x.shape[0]
     if iterations < 1:
         raise ValueError(f"{name}: iterations must be >= 1, got {iterations}")
-    v0 = np.zeros((K, 3)) if v_init is None else np.ascontiguousarray(
-        np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)))
+    v0 = (
+        np.zeros((K, 3))
+        if v_init is None
+        else np.ascontiguousarray(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)))
+    )
     out = np.zeros((K, n_params))
     ok = np.zeros(K, dtype=np.bool_)
     its = np.zeros(K, dtype=np.int64)
@@ -209,8 +222,16 @@ def run_batch(kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, 
     kernel(x, X, r, r0, int(iterations), float(tol), v0, out, ok, its, err)
     ok &= np.isfinite(out).all(axis=1)
     out[~ok] = 0.0
-    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err,
-                   out[:, 12:21].reshape(K, 3, 3) if with_R_rs else None)
+    return RSBatch(
+        out[:, 0:3],
+        out[:, 3:6],
+        out[:, 6:9],
+        out[:, 9:12],
+        ok,
+        its,
+        err,
+        out[:, 12:21].reshape(K, 3, 3) if with_R_rs else None,
+    )
 
 
 def alternating_solver(kernel, name: str, label: str, section: str):
@@ -240,9 +261,8 @@ def alternating_solver(kernel, name: str, label: str, section: str):
         ValueError: wrong shapes, N < 6, NaN/inf, iterations < 1.
         DegenerateInputError (a ValueError): a half-step system lost rank.
     """
-    solve_batch.__doc__ = (
-        f"""Batched :func:`{name}`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch`
-    (invalid problems flagged in valid, never raised). Raises ValueError on bad shapes.""")
+    solve_batch.__doc__ = f"""Batched :func:`{name}`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch`
+    (invalid problems flagged in valid, never raised). Raises ValueError on bad shapes."""
     for fn, fn_name in ((solve, name), (solve_batch, name + "_batch")):
         fn.__name__ = fn.__qualname__ = fn_name
         fn.__module__ = kernel.__module__

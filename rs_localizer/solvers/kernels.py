@@ -24,7 +24,7 @@ from .r6p_vCt_w import r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt_batch
 from .registry import SOLVERS
 
-__all__ = ["run_kernel", "kernel_ids", "MAX_PARAMS"]
+__all__ = ["MAX_PARAMS", "kernel_ids", "run_kernel"]
 
 
 def _module(name):

@@ -47,7 +47,7 @@ from numba import njit
 
 from .._so3 import INLINE
 
-__all__ = ["lambda_twist", "lambda_twist_batch", "MAX_SOLUTIONS"]
+__all__ = ["MAX_SOLUTIONS", "lambda_twist", "lambda_twist_batch"]
 
 #: at most 4 solutions per triplet (two lines of D0, each meeting a conic twice)
 MAX_SOLUTIONS = 4
@@ -60,8 +60,11 @@ _ORTHO_TOL = 1e-6
 
 @njit(cache=True, inline=INLINE)
 def _det3(a00, a01, a02, a10, a11, a12, a20, a21, a22):
-    return (a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20)
-            + a02 * (a10 * a21 - a11 * a20))
+    return (
+        a00 * (a11 * a22 - a12 * a21)
+        - a01 * (a10 * a22 - a12 * a20)
+        + a02 * (a10 * a21 - a11 * a20)
+    )
 
 
 @njit(cache=True)
@@ -76,7 +79,7 @@ def _cubic_root(b, c, d):
     if h > 0.0 or p == 0.0:  # one real root (Cardano, cancellation-free form)
         sq = math.sqrt(max(h, 0.0))
         w = 0.5 * abs(q) + sq
-        A = -math.copysign(w ** third, q) if w > 0.0 else 0.0
+        A = -math.copysign(w**third, q) if w > 0.0 else 0.0
         t = A - p / (3.0 * A) if A != 0.0 else 0.0
         g = t + shift
     else:  # three real roots: t_k = 2 sqrt(-p/3) cos(phi/3 - 2 pi k / 3)
@@ -132,8 +135,11 @@ def _best_cross(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 @njit(cache=True, inline=INLINE)
 def _quad(D00, D01, D02, D11, D12, D22, p0, p1, p2, q0, q1, q2):
     """p^T D q for a symmetric D given by its upper triangle."""
-    return (p0 * (D00 * q0 + D01 * q1 + D02 * q2) + p1 * (D01 * q0 + D11 * q1 + D12 * q2)
-            + p2 * (D02 * q0 + D12 * q1 + D22 * q2))
+    return (
+        p0 * (D00 * q0 + D01 * q1 + D02 * q2)
+        + p1 * (D01 * q0 + D11 * q1 + D12 * q2)
+        + p2 * (D02 * q0 + D12 * q1 + D22 * q2)
+    )
 
 
 @njit(cache=True, inline=INLINE)
@@ -194,8 +200,11 @@ def _solve_into(y, X, Rout, tout, off):
     b13 = y10 * y30 + y11 * y31 + y12 * y32
     b23 = y20 * y30 + y21 * y31 + y22 * y32
     # parallel bearings: the system of eq. 4 has no isolated solution
-    if not (1.0 - b12 * b12 > _DEGENERATE_SIN2 and 1.0 - b13 * b13 > _DEGENERATE_SIN2
-            and 1.0 - b23 * b23 > _DEGENERATE_SIN2):
+    if not (
+        1.0 - b12 * b12 > _DEGENERATE_SIN2
+        and 1.0 - b13 * b13 > _DEGENERATE_SIN2
+        and 1.0 - b23 * b23 > _DEGENERATE_SIN2
+    ):
         return 0
     # world triangle: edges u = x1 - x2, v = x1 - x3, normal w = u x v
     u0, u1, u2 = X[0, 0] - X[1, 0], X[0, 1] - X[1, 1], X[0, 2] - X[1, 2]
@@ -220,12 +229,16 @@ def _solve_into(y, X, Rout, tout, off):
     c0 = _det3(A00, A01, A02, A01, A11, A12, A02, A12, A22)
     c3 = _det3(B00, B01, B02, B01, B11, B12, B02, B12, B22)
     # columns of D1 / D2 are their rows (symmetric); det(x, y, z) of column vectors
-    c1 = (_det3(B00, A01, A02, B01, A11, A12, B02, A12, A22)
-          + _det3(A00, B01, A02, A01, B11, A12, A02, B12, A22)
-          + _det3(A00, A01, B02, A01, A11, B12, A02, A12, B22))
-    c2 = (_det3(A00, B01, B02, A01, B11, B12, A02, B12, B22)
-          + _det3(B00, A01, B02, B01, A11, B12, B02, A12, B22)
-          + _det3(B00, B01, A02, B01, B11, A12, B02, B12, A22))
+    c1 = (
+        _det3(B00, A01, A02, B01, A11, A12, B02, A12, A22)
+        + _det3(A00, B01, A02, A01, B11, A12, A02, B12, A22)
+        + _det3(A00, A01, B02, A01, A11, B12, A02, A12, B22)
+    )
+    c2 = (
+        _det3(A00, B01, B02, A01, B11, B12, A02, B12, B22)
+        + _det3(B00, A01, B02, B01, A11, B12, B02, A12, B22)
+        + _det3(B00, B01, A02, B01, B11, A12, B02, B12, A22)
+    )
     # D0 = ka D1 + kb D2 with (ka, kb) = (1, gamma) or (delta, 1); the conic we intersect the
     # lines with is whichever of D1, D2 has the smaller weight in D0 (the most independent one)
     if abs(c3) >= abs(c0):
@@ -291,8 +304,9 @@ def _solve_into(y, X, Rout, tout, off):
             l2 = al * e31 + be * q1
             l3 = al * e32 + be * q2
             # scale from the sum of eq. 4 (sec. 3.6); sign makes the depths positive
-            den = (2.0 * (l1 * l1 + l2 * l2 + l3 * l3)
-                   - 2.0 * (b12 * l1 * l2 + b13 * l1 * l3 + b23 * l2 * l3))
+            den = 2.0 * (l1 * l1 + l2 * l2 + l3 * l3) - 2.0 * (
+                b12 * l1 * l2 + b13 * l1 * l3 + b23 * l2 * l3
+            )
             if not den > 0.0:
                 continue
             k = math.sqrt(asum / den)
@@ -336,8 +350,7 @@ def _solve_into(y, X, Rout, tout, off):
                 R[i, 2] = r2 - 0.5 * (r0 * s02 + r1 * s12 + r2 * s22)
             t = tout[off + n]
             for i in range(3):
-                t[i] = (l1 * y[0, i] / n1 - R[i, 0] * X[0, 0] - R[i, 1] * X[0, 1]
-                        - R[i, 2] * X[0, 2])
+                t[i] = l1 * y[0, i] / n1 - R[i, 0] * X[0, 0] - R[i, 1] * X[0, 1] - R[i, 2] * X[0, 2]
             if not (math.isfinite(t[0]) and math.isfinite(t[1]) and math.isfinite(t[2])):
                 continue
             n += 1

@@ -23,7 +23,7 @@ try:  # PoseLib is a hard dependency of the package, but keep OpenCV as a workin
 except ImportError:  # pragma: no cover - exercised by test_p3p_opencv_backend
     _poselib = None
 
-__all__ = ["P3PSolution", "p3p", "p3p_opencv", "p3p_batch", "BACKENDS", "DEFAULT_BACKEND"]
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "P3PSolution", "p3p", "p3p_batch", "p3p_opencv"]
 
 #: selectable P3P implementations
 BACKENDS = ("lambda_twist", "poselib", "opencv")
@@ -123,8 +123,10 @@ def p3p_batch(bearings, X, backend: str | None = None):
     """
     b = _backend(backend)
     if b == "lambda_twist":
-        return lambda_twist_batch(np.ascontiguousarray(bearings, dtype=np.float64),
-                                  np.ascontiguousarray(X, dtype=np.float64))
+        return lambda_twist_batch(
+            np.ascontiguousarray(bearings, dtype=np.float64),
+            np.ascontiguousarray(X, dtype=np.float64),
+        )
     K = len(bearings)
     if b == "poselib":
         poses = [_poselib.p3p(bk, Xk) for bk, Xk in zip(bearings, X)]

@@ -50,7 +50,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ._common import RSSolution, DegenerateInputError, check_inputs
+from ._common import DegenerateInputError, RSSolution, check_inputs
 from ._linear import solve_square
 
 __all__ = ["r6p"]
@@ -58,8 +58,11 @@ __all__ = ["r6p"]
 # ---------------------------------------------------------------------------------------------
 # Monomials in w = (w1, w2, w3) of degree <= 4, graded: [1 | w1 w2 w3 | 6 quadratic | 10 cubic |
 # 15 quartic]. Index 0..19 (degree <= 3) is the basis of the quotient ring, 20..34 the quartics.
-_MONOS = [e for d in range(5) for e in sorted(
-    (e for e in itertools.product(range(5), repeat=3) if sum(e) == d), reverse=True)]
+_MONOS = [
+    e
+    for d in range(5)
+    for e in sorted((e for e in itertools.product(range(5), repeat=3) if sum(e) == d), reverse=True)
+]
 _MIDX = {m: i for i, m in enumerate(_MONOS)}
 
 
@@ -73,35 +76,39 @@ def _mul_table(n1, n2):
     return tab
 
 
-_MUL11 = _mul_table(4, 4)      # affine x affine -> index in 0..9
-_MUL22 = _mul_table(10, 10)    # quadratic x quadratic -> index in 0..34
+_MUL11 = _mul_table(4, 4)  # affine x affine -> index in 0..9
+_MUL22 = _mul_table(10, 10)  # quadratic x quadratic -> index in 0..34
 # _SHIFT[b, k]: index of w_k * (basis monomial b); >= 20 means a quartic to be reduced
-_SHIFT = np.array([[_MIDX[tuple(m[i] + (i == k) for i in range(3))] for k in range(3)]
-                   for m in _MONOS[:20]], dtype=np.int64)
+_SHIFT = np.array(
+    [[_MIDX[tuple(m[i] + (i == k) for i in range(3))] for k in range(3)] for m in _MONOS[:20]],
+    dtype=np.int64,
+)
 # row pairs (15) of the 6 x 4 matrix A(w), and the 15 row quadruples (a, b | c, d) for Laplace
 _PAIRS = np.array(list(itertools.combinations(range(6), 2)), dtype=np.int64)
 _PAIR_ID = {tuple(p): i for i, p in enumerate(_PAIRS.tolist())}
-_QUADS = np.array([[_PAIR_ID[(q[0], q[1])], _PAIR_ID[(q[2], q[3])]]
-                   for q in itertools.combinations(range(6), 4)], dtype=np.int64)
+_QUADS = np.array(
+    [[_PAIR_ID[(q[0], q[1])], _PAIR_ID[(q[2], q[3])]] for q in itertools.combinations(range(6), 4)],
+    dtype=np.int64,
+)
 # column pairs of a 4 x 4 matrix, their complements, and the Laplace signs (-1)^(0+1+p+q)
 _CPAIRS = np.array(list(itertools.combinations(range(4), 2)), dtype=np.int64)
-_CCOMP = np.array([5 - i for i in range(6)], dtype=np.int64)   # complement of pair i is pair 5-i
+_CCOMP = np.array([5 - i for i in range(6)], dtype=np.int64)  # complement of pair i is pair 5-i
 _CSIGN = np.array([(-1.0) ** (1 + p + q) for p, q in _CPAIRS.tolist()])
 # generic linear form g . w whose multiplication matrix is diagonalised (fixed for determinism)
 _G = np.array([0.6410713, -0.3785134, 0.5287362])
 # projective change of the hidden variable w = u / (1 + c.u) (moves roots at infinity in)
 _PROJ_C = np.array([0.2137, -0.1694, 0.2581])
 
-_PLANAR_TOL = 1e-6     # smallest/largest principal axis of X below which X counts as planar
-_LIFT = 1e-6           # RMS lift off the plane (normalised units) for coplanar points
+_PLANAR_TOL = 1e-6  # smallest/largest principal axis of X below which X counts as planar
+_LIFT = 1e-6  # RMS lift off the plane (normalised units) for coplanar points
 _LIFT_PATTERN = np.array([0.83, -0.41, 0.27, -0.95, 0.64, -0.12])
-_RANK_TOL = 1e-10      # relative pivot threshold of the QR of B
-_PIVOT_TOL = 1e-13     # relative pivot threshold of the 15 x 15 elimination
-_IMAG_TOL = 1e-3       # eigenvalues with |Im| > _IMAG_TOL (1 + |Re|) are complex roots
-_ACCEPT_TOL = 1e-14    # accept a polished root if RMS residual <= _ACCEPT_TOL (1 + |z|)^2
-                       # (normalised units; z = (v, w, C, t))
-_ZMAX = 1e12           # roots with |z| above this (normalised units) are dropped as overflow-prone
-_MAX_NEWTON = 15       # Newton steps per root at most (2-3 are typical)
+_RANK_TOL = 1e-10  # relative pivot threshold of the QR of B
+_PIVOT_TOL = 1e-13  # relative pivot threshold of the 15 x 15 elimination
+_IMAG_TOL = 1e-3  # eigenvalues with |Im| > _IMAG_TOL (1 + |Re|) are complex roots
+_ACCEPT_TOL = 1e-14  # accept a polished root if RMS residual <= _ACCEPT_TOL (1 + |z|)^2
+# (normalised units; z = (v, w, C, t))
+_ZMAX = 1e12  # roots with |z| above this (normalised units) are dropped as overflow-prone
+_MAX_NEWTON = 15  # Newton steps per root at most (2-3 are typical)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -121,9 +128,9 @@ def _eq5_system(x, Xn, tau):
         X0, X1, X2 = Xn[i, 0], Xn[i, 1], Xn[i, 2]
         ti = tau[i]
         for q in range(2):
-            if q == 0:          # row 1 of [x_hat]x: -p_y + y p_z
+            if q == 0:  # row 1 of [x_hat]x: -p_y + y p_z
                 E[0], E[1], E[2] = 0.0, -1.0, x[i, 1]
-            else:               # row 2: p_x - x p_z
+            else:  # row 2: p_x - x p_z
                 E[0], E[1], E[2] = 1.0, 0.0, -x[i, 0]
             row = 2 * i + q
             XE0 = X1 * E[2] - X2 * E[1]
@@ -227,8 +234,7 @@ def _action_matrix(A, mul11, mul22, quads, ccomp, csign, shift, g):
                     for u in range(4):
                         for s in range(4):
                             idx = mul11[u, s]
-                            m2[pa, pc, idx] += (A[a, p, u] * A[b, q, s]
-                                                - A[a, q, u] * A[b, p, s])
+                            m2[pa, pc, idx] += A[a, p, u] * A[b, q, s] - A[a, q, u] * A[b, p, s]
                     pc += 1
             pa += 1
     # 4 x 4 minors by Laplace expansion along the first two rows -> 15 quartics (15 x 35)
@@ -360,10 +366,7 @@ def _dist(a, b):
 
 @njit(cache=True)
 def _finite(a):
-    for i in range(a.shape[0]):
-        if not np.isfinite(a[i]):
-            return False
-    return True
+    return all(np.isfinite(a[i]) for i in range(a.shape[0]))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -518,14 +521,14 @@ def _hqr(a, wr, wi):
                     break
                 l -= 1
             x = a[nn, nn]
-            if l == nn:                              # one real root
+            if l == nn:  # one real root
                 wr[nn] = x + t
                 wi[nn] = 0.0
                 nn -= 1
             else:
                 y = a[nn - 1, nn - 1]
                 w = a[nn, nn - 1] * a[nn - 1, nn]
-                if l == nn - 1:                      # a 2 x 2 block: two roots
+                if l == nn - 1:  # a 2 x 2 block: two roots
                     p = 0.5 * (y - x)
                     q = p * p + w
                     z = np.sqrt(abs(q))
@@ -547,7 +550,7 @@ def _hqr(a, wr, wi):
                 else:
                     if its == 60:
                         return False
-                    if its == 10 or its == 20 or its == 40:   # exceptional shift
+                    if its == 10 or its == 20 or its == 40:  # exceptional shift
                         t += x
                         for i in range(1, nn + 1):
                             a[i, i] -= x
@@ -676,12 +679,12 @@ def _real_candidates(Mact, shift, imag_tol):
     for e in range(1, n + 1):
         lam = wr[e]
         if wi[e] < 0.0 or abs(wi[e]) > imag_tol * (1.0 + abs(lam)):
-            continue          # complex root (of a nearly real pair only the + member is used)
+            continue  # complex root (of a nearly real pair only the + member is used)
         for i in range(1, n + 1):
-            b[i] = 1.0 + 0.1 * ((i * 7) % 5)    # fixed generic start vector
+            b[i] = 1.0 + 0.1 * ((i * 7) % 5)  # fixed generic start vector
         _hess_lu(H, lam, T, swap)
         good = True
-        for it in range(2):   # inverse iteration: (H - lam I) b_new = b
+        for _it in range(2):  # inverse iteration: (H - lam I) b_new = b
             _hess_lu_solve(T, swap, b)
             nrm = 0.0
             for i in range(1, n + 1):
@@ -734,8 +737,9 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
         for i in range(6):
             a0[i] = A[i, 0, 0] + A[i, 0, 1] * w0 + A[i, 0, 2] * w1 + A[i, 0, 3] * w2
             for j in range(3):
-                A1[i, j] = (A[i, j + 1, 0] + A[i, j + 1, 1] * w0 + A[i, j + 1, 2] * w1
-                            + A[i, j + 1, 3] * w2)
+                A1[i, j] = (
+                    A[i, j + 1, 0] + A[i, j + 1, 1] * w0 + A[i, j + 1, 2] * w1 + A[i, j + 1, 3] * w2
+                )
         for j in range(3):
             sm = 0.0
             for i in range(6):
@@ -892,9 +896,11 @@ def _normalise(x, X, r, r0, planar_tol):
             for b in range(3):
                 S[a, b] += Xn[i, a] * Xn[i, b]
     tr = S[0, 0] + S[1, 1] + S[2, 2]
-    det = (S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1])
-           - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
-           + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0]))
+    det = (
+        S[0, 0] * (S[1, 1] * S[2, 2] - S[1, 2] * S[2, 1])
+        - S[0, 1] * (S[1, 0] * S[2, 2] - S[1, 2] * S[2, 0])
+        + S[0, 2] * (S[1, 0] * S[2, 1] - S[1, 1] * S[2, 0])
+    )
     maybe_planar = det < planar_tol * planar_tol * tr * tr * tr
     return 0, Xn, taun, m, s, st, maybe_planar
 
@@ -970,8 +976,7 @@ def _template(x, Xp, taun, proj_c):
 
 
 @njit(cache=True)
-def _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, proj_c, accept_tol, max_newton,
-           zmax):
+def _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, proj_c, accept_tol, max_newton, zmax):
     """Candidates u (k, 3) -> polished, de-normalised roots sorted by algebraic error.
 
     Returns (Z (n, 12) = (v, w, C, t) in input units, Newton steps (n,), algebraic errors (n,)).
@@ -982,7 +987,7 @@ def _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, proj_c, accept_tol, m
     for c in range(Uc.shape[0]):
         den = 1.0 + proj_c[0] * Uc[c, 0] + proj_c[1] * Uc[c, 1] + proj_c[2] * Uc[c, 2]
         if abs(den) <= 1e-8 * (1.0 + abs(Uc[c, 0]) + abs(Uc[c, 1]) + abs(Uc[c, 2])):
-            continue                  # root at infinity of A(w)
+            continue  # root at infinity of A(w)
         for i in range(3):
             W[nw, i] = Uc[c, i] / den
         nw += 1
@@ -1018,8 +1023,8 @@ def _planar_lift(Xn):
     nearby problem are then polished by Newton on the true equations, so only exact roots are
     returned. Returns (Xp, lifted).
     """
-    ev, E = np.linalg.eigh(Xn.T @ Xn)                 # ascending
-    if not ev[0] < _PLANAR_TOL ** 2 * ev[2]:
+    ev, E = np.linalg.eigh(Xn.T @ Xn)  # ascending
+    if not ev[0] < _PLANAR_TOL**2 * ev[2]:
         return Xn, False
     G = np.column_stack([np.ones(len(Xn)), Xn @ E[:, 2], Xn @ E[:, 1]])
     xi = _LIFT_PATTERN - G @ np.linalg.lstsq(G, _LIFT_PATTERN, rcond=None)[0]
@@ -1054,8 +1059,9 @@ def _solve(x, X, r, r0):
     # lifted coplanar case: roots of norm >~ 1 / _LIFT are artefacts of the lift (they sit on the
     # curve at infinity of the planar problem), drop them
     zmax = 1e-2 / _LIFT if lifted else _ZMAX
-    return _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, _PROJ_C, _ACCEPT_TOL,
-                  _MAX_NEWTON, zmax)
+    return _roots(
+        x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, _PROJ_C, _ACCEPT_TOL, _MAX_NEWTON, zmax
+    )
 
 
 @njit(cache=True)
@@ -1085,8 +1091,9 @@ def _solve_core(x, X, r, r0):
     ok, Uc = _real_candidates(Mact, _SHIFT, _IMAG_TOL)
     if not ok:
         return -1, Z0, its0, err0
-    Z, its, err = _roots(x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, _PROJ_C, _ACCEPT_TOL,
-                         _MAX_NEWTON, _ZMAX)
+    Z, its, err = _roots(
+        x, X, r, r0, Xn, taun, A, Bqr, V, Uc, m, s, st, _PROJ_C, _ACCEPT_TOL, _MAX_NEWTON, _ZMAX
+    )
     return 0, Z, its, err
 
 
@@ -1096,8 +1103,14 @@ def _check6(x, X, r, r0):
     if not np.isfinite(r0):
         return False
     for i in range(6):
-        if not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1]) and np.isfinite(r[i])
-                and np.isfinite(X[i, 0]) and np.isfinite(X[i, 1]) and np.isfinite(X[i, 2])):
+        if not (
+            np.isfinite(x[i, 0])
+            and np.isfinite(x[i, 1])
+            and np.isfinite(r[i])
+            and np.isfinite(X[i, 0])
+            and np.isfinite(X[i, 1])
+            and np.isfinite(X[i, 2])
+        ):
             return False
     return True
 
@@ -1105,8 +1118,7 @@ def _check6(x, X, r, r0):
 _DEGENERATE = {
     1: "r6p: world points are coincident or collinear",
     2: "r6p: duplicated world points",
-    3: "r6p: C and t are not separable (all RS coordinates r_i equal, or degenerate image "
-       "points)",
+    3: "r6p: C and t are not separable (all RS coordinates r_i equal, or degenerate image points)",
     4: "r6p: rank-deficient elimination template (degenerate configuration)",
 }
 
@@ -1153,9 +1165,18 @@ def r6p(x, X, r=None, r0: float = 0.0) -> list[RSSolution]:
             returns NaN; "no real root" is an empty list.
     """
     f64 = np.float64
-    if (type(x) is np.ndarray and type(X) is np.ndarray and x.dtype == f64 and X.dtype == f64
-            and x.shape == (6, 2) and X.shape == (6, 3) and x.flags.c_contiguous
-            and X.flags.c_contiguous and r is None and type(r0) in (float, int)):
+    if (
+        type(x) is np.ndarray
+        and type(X) is np.ndarray
+        and x.dtype == f64
+        and X.dtype == f64
+        and x.shape == (6, 2)
+        and X.shape == (6, 3)
+        and x.flags.c_contiguous
+        and X.flags.c_contiguous
+        and r is None
+        and type(r0) in (float, int)
+    ):
         # fast path (the common call; same checks as check_inputs, one compiled call)
         r, r0 = x[:, 1].copy(), float(r0)
         if not _check6(x, X, r, r0):
@@ -1163,15 +1184,17 @@ def r6p(x, X, r=None, r0: float = 0.0) -> list[RSSolution]:
     else:
         x, X, r, r0 = check_inputs(x, X, r, r0, min_points=6, name="r6p")
         if len(x) != 6:
-            raise ValueError(f"r6p: is a minimal solver and needs exactly 6 correspondences, "
-                             f"got {len(x)}")
+            raise ValueError(
+                f"r6p: is a minimal solver and needs exactly 6 correspondences, got {len(x)}"
+            )
     status, Z, its, err = _solve_core(x, X, r, r0)
     if status > 0:
         raise DegenerateInputError(_DEGENERATE[status])
     if status < 0:
         Z, its, err = _solve(x, X, r, r0)
     Z.setflags(write=False)  # the solutions' arrays are read-only views of Z
-    return [RSSolution._trusted(Z[i, 0:3], Z[i, 6:9], Z[i, 3:6], Z[i, 9:12], int(its[i]),
-                                float(err[i]))
-            for i in range(len(err)) if math.isfinite(err[i])]
-
+    return [
+        RSSolution._trusted(Z[i, 0:3], Z[i, 6:9], Z[i, 3:6], Z[i, 9:12], int(its[i]), float(err[i]))
+        for i in range(len(err))
+        if math.isfinite(err[i])
+    ]

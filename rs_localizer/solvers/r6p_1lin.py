@@ -124,8 +124,16 @@ def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, to
     return run_single(_kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
 
 
-def r6p_1lin_batch(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None,
-                   tol: float = 1e-12, prior_rows=None):
+def r6p_1lin_batch(
+    x,
+    X,
+    r=None,
+    r0: float = 0.0,
+    iterations: int = 5,
+    v_init=None,
+    tol: float = 1e-12,
+    prior_rows=None,
+):
     """Batched :func:`r6p_1lin` for K problems (RANSAC hypotheses).
 
     Args:
@@ -148,8 +156,10 @@ def r6p_1lin_batch(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=No
     q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
     K = np.shape(x)[0]
     if P.shape != (K, 6, 6) or q.shape != (K, 6):
-        raise ValueError(f"r6p_1lin: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-                         f"got {P.shape} and {q.shape}")
+        raise ValueError(
+            f"r6p_1lin: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
+            f"got {P.shape} and {q.shape}"
+        )
 
     def kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         _solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)

@@ -43,9 +43,15 @@ def _eq8_error(x, X, r, r0, u):
     for i in range(n):
         tau = r[i] - r0
         X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
-        p[0] = X0 + u[1] * X2 - u[2] * X1 + u[3] + tau * (u[12] * X0 + u[13] * X1 + u[14] * X2 + u[6])
-        p[1] = X1 + u[2] * X0 - u[0] * X2 + u[4] + tau * (u[15] * X0 + u[16] * X1 + u[17] * X2 + u[7])
-        p[2] = X2 + u[0] * X1 - u[1] * X0 + u[5] + tau * (u[18] * X0 + u[19] * X1 + u[20] * X2 + u[8])
+        p[0] = (
+            X0 + u[1] * X2 - u[2] * X1 + u[3] + tau * (u[12] * X0 + u[13] * X1 + u[14] * X2 + u[6])
+        )
+        p[1] = (
+            X1 + u[2] * X0 - u[0] * X2 + u[4] + tau * (u[15] * X0 + u[16] * X1 + u[17] * X2 + u[7])
+        )
+        p[2] = (
+            X2 + u[0] * X1 - u[1] * X0 + u[5] + tau * (u[18] * X0 + u[19] * X1 + u[20] * X2 + u[8])
+        )
         e1 = -p[1] + x[i, 1] * p[2]
         e2 = p[0] - x[i, 0] * p[2]
         acc += e1 * e1 + e2 * e2
@@ -117,8 +123,9 @@ def _solve(x, X, r, r0, gauge_fix, out, ok, its, err):
         Vi[2, 2] = (1.0 + v2 * v2) / den
         for i in range(3):
             for j in range(3):
-                M[i, j] = (s[9 + 3 * i] * Vi[0, j] + s[10 + 3 * i] * Vi[1, j]
-                           + s[11 + 3 * i] * Vi[2, j])
+                M[i, j] = (
+                    s[9 + 3 * i] * Vi[0, j] + s[10 + 3 * i] * Vi[1, j] + s[11 + 3 * i] * Vi[2, j]
+                )
         out[k, 0:3] = s[0:3]
         out[k, 3:6] = s[3:6]
         out[k, 6] = 0.5 * (M[2, 1] - M[1, 2])
@@ -158,12 +165,36 @@ def r9p(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
         ValueError: wrong shapes, N < 9, NaN/inf.
         DegenerateInputError (a ValueError): rank-deficient 2N x 18 system.
     """
-    return run_single(_kernel if gauge_fix else _kernel_raw, "r9p", 21, 9, x, X, r, r0, 1, 0.0,
-                      None, with_R_rs=True)
+    return run_single(
+        _kernel if gauge_fix else _kernel_raw,
+        "r9p",
+        21,
+        9,
+        x,
+        X,
+        r,
+        r0,
+        1,
+        0.0,
+        None,
+        with_R_rs=True,
+    )
 
 
 def r9p_batch(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
     """Batched :func:`r9p`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch` with
     ``R_rs`` (K, 3, 3); invalid problems flagged in ``valid``. Raises ValueError on bad shapes."""
-    return run_batch(_kernel if gauge_fix else _kernel_raw, "r9p", 21, 9, x, X, r, r0, 1, 0.0,
-                     None, with_R_rs=True)
+    return run_batch(
+        _kernel if gauge_fix else _kernel_raw,
+        "r9p",
+        21,
+        9,
+        x,
+        X,
+        r,
+        r0,
+        1,
+        0.0,
+        None,
+        with_R_rs=True,
+    )

@@ -6,8 +6,8 @@ Every place that dispatches on a solver name reads :data:`SOLVERS` (no if-chains
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from .joined import r6p_joined
 from .p3p import p3p
@@ -18,12 +18,12 @@ from .r6p_vCt_w import r6p_vCt_w, r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt, r6p_vCt_wt_batch
 from .r9p import r9p, r9p_batch
 
-__all__ = ["SolverInfo", "SOLVERS", "SOLVER_NAMES", "solver_info", "sample_size"]
+__all__ = ["SOLVERS", "SOLVER_NAMES", "SolverInfo", "sample_size", "solver_info"]
 
 #: how RANSAC makes hypotheses with a solver
 GLOBAL_SHUTTER = "global_shutter"  # the P3P pre-rotation itself is the hypothesis (w = t = 0)
-BATCHED = "batched"                # one solution per sample from batched numba kernels
-ROOTS = "roots"                    # every real root of a per-sample polynomial solver (R6P)
+BATCHED = "batched"  # one solution per sample from batched numba kernels
+ROOTS = "roots"  # every real root of a per-sample polynomial solver (R6P)
 
 
 def _r9p_batch(x, X, r=None, r0: float = 0.0, iterations: int | None = None):
@@ -72,26 +72,129 @@ class SolverInfo:
     coplanar: bool = True
 
 
-SOLVERS: dict[str, SolverInfo] = {s.name: s for s in (
-    SolverInfo("p3p", "P3P", "global shutter baseline", 3, 4, False, False, GLOBAL_SHUTTER, p3p,
-               paper_us=3),
-    # R6P is not iterative: its 5 iterations are those of its local optimization's r6p_1lin
-    SolverInfo("r6p", "R6P", "Albl et al. CVPR 2015", 6, 20, True, False, ROOTS, r6p,
-               lo_solvers=("r6p_1lin",), default_iterations=5, paper_us=1700),
-    # after the P3P pre-rotation one iteration is as good as R6P (paper Fig. 6)
-    SolverInfo("r6p_1lin", "R6P_{v,C,w,t}^{[v]x}", "sec. 3.3", 6, 1, True, True, BATCHED,
-               r6p_1lin, (r6p_1lin_batch,), ("r6p_1lin",), 1, paper_us=10),
-    SolverInfo("r6p_vC_wt", "R6P_{v,C}^{w,t}", "sec. 3.1", 6, 1, True, True, BATCHED,
-               r6p_vC_wt, (r6p_vC_wt_batch,), ("r6p_vC_wt",), 5, paper_us=27),
-    SolverInfo("r6p_vCt_w", "R6P_{v,C,t}^{w}", "sec. 3.2", 6, 1, True, True, BATCHED,
-               r6p_vCt_w, (r6p_vCt_w_batch,), ("r6p_vCt_w",), 5, paper_us=24),
-    SolverInfo("r6p_vCt_wt", "R6P_{v,C,t}^{w,t}", "sec. 3.2", 6, 1, True, True, BATCHED,
-               r6p_vCt_wt, (r6p_vCt_wt_batch,), ("r6p_vCt_wt",), 5, paper_us=30),
-    SolverInfo("r9p", "R9P", "sec. 3.4, eq. 8", 9, 1, True, False, BATCHED, r9p,
-               (_r9p_batch,), ("r9p",), 5, paper_us=20, coplanar=False),
-    SolverInfo("r6p_joined", "joined", "sec. 4.1", 6, 1, True, True, BATCHED, r6p_joined,
-               (r6p_vCt_w_batch, r6p_1lin_batch), ("r6p_vCt_w", "r6p_1lin"), 5),
-)}
+SOLVERS: dict[str, SolverInfo] = {
+    s.name: s
+    for s in (
+        SolverInfo(
+            "p3p",
+            "P3P",
+            "global shutter baseline",
+            3,
+            4,
+            False,
+            False,
+            GLOBAL_SHUTTER,
+            p3p,
+            paper_us=3,
+        ),
+        # R6P is not iterative: its 5 iterations are those of its local optimization's r6p_1lin
+        SolverInfo(
+            "r6p",
+            "R6P",
+            "Albl et al. CVPR 2015",
+            6,
+            20,
+            True,
+            False,
+            ROOTS,
+            r6p,
+            lo_solvers=("r6p_1lin",),
+            default_iterations=5,
+            paper_us=1700,
+        ),
+        # after the P3P pre-rotation one iteration is as good as R6P (paper Fig. 6)
+        SolverInfo(
+            "r6p_1lin",
+            "R6P_{v,C,w,t}^{[v]x}",
+            "sec. 3.3",
+            6,
+            1,
+            True,
+            True,
+            BATCHED,
+            r6p_1lin,
+            (r6p_1lin_batch,),
+            ("r6p_1lin",),
+            1,
+            paper_us=10,
+        ),
+        SolverInfo(
+            "r6p_vC_wt",
+            "R6P_{v,C}^{w,t}",
+            "sec. 3.1",
+            6,
+            1,
+            True,
+            True,
+            BATCHED,
+            r6p_vC_wt,
+            (r6p_vC_wt_batch,),
+            ("r6p_vC_wt",),
+            5,
+            paper_us=27,
+        ),
+        SolverInfo(
+            "r6p_vCt_w",
+            "R6P_{v,C,t}^{w}",
+            "sec. 3.2",
+            6,
+            1,
+            True,
+            True,
+            BATCHED,
+            r6p_vCt_w,
+            (r6p_vCt_w_batch,),
+            ("r6p_vCt_w",),
+            5,
+            paper_us=24,
+        ),
+        SolverInfo(
+            "r6p_vCt_wt",
+            "R6P_{v,C,t}^{w,t}",
+            "sec. 3.2",
+            6,
+            1,
+            True,
+            True,
+            BATCHED,
+            r6p_vCt_wt,
+            (r6p_vCt_wt_batch,),
+            ("r6p_vCt_wt",),
+            5,
+            paper_us=30,
+        ),
+        SolverInfo(
+            "r9p",
+            "R9P",
+            "sec. 3.4, eq. 8",
+            9,
+            1,
+            True,
+            False,
+            BATCHED,
+            r9p,
+            (_r9p_batch,),
+            ("r9p",),
+            5,
+            paper_us=20,
+            coplanar=False,
+        ),
+        SolverInfo(
+            "r6p_joined",
+            "joined",
+            "sec. 4.1",
+            6,
+            1,
+            True,
+            True,
+            BATCHED,
+            r6p_joined,
+            (r6p_vCt_w_batch, r6p_1lin_batch),
+            ("r6p_vCt_w", "r6p_1lin"),
+            5,
+        ),
+    )
+}
 
 #: solver names in a stable order (parameter descriptions, CLI choices, benchmarks)
 SOLVER_NAMES = tuple(SOLVERS)

@@ -11,5 +11,12 @@
 from .debug_image import COLORS, DebugImageOptions, draw_debug_image, frame_residuals
 from .scene3d import frustum_corners, frustum_segments, velocity_arrows
 
-__all__ = ["COLORS", "DebugImageOptions", "draw_debug_image", "frame_residuals",
-           "frustum_corners", "frustum_segments", "velocity_arrows"]
+__all__ = [
+    "COLORS",
+    "DebugImageOptions",
+    "draw_debug_image",
+    "frame_residuals",
+    "frustum_corners",
+    "frustum_segments",
+    "velocity_arrows",
+]

@@ -25,8 +25,16 @@ import numpy as np
 
 from ..camera import CameraModel
 
-__all__ = ["COLORS", "CANVAS_GREY", "DebugImageOptions", "draw_debug_image", "frame_residuals",
-           "to_bgr", "auto_cube", "cube_edge_points"]
+__all__ = [
+    "CANVAS_GREY",
+    "COLORS",
+    "DebugImageOptions",
+    "auto_cube",
+    "cube_edge_points",
+    "draw_debug_image",
+    "frame_residuals",
+    "to_bgr",
+]
 
 #: BGR colours of the drawing (tests read pixels of these colours)
 COLORS = {
@@ -129,8 +137,9 @@ def cube_edge_points(center, side: float, samples: int = 16) -> np.ndarray:
     c = np.asarray(center, dtype=float).reshape(3)
     h = 0.5 * float(side)
     v = np.array([[x, y, z] for x in (-h, h) for y in (-h, h) for z in (-h, h)]) + c
-    edges = [(i, j) for i in range(8) for j in range(i + 1, 8)
-             if np.count_nonzero(v[i] != v[j]) == 1]
+    edges = [
+        (i, j) for i in range(8) for j in range(i + 1, 8) if np.count_nonzero(v[i] != v[j]) == 1
+    ]
     s = np.linspace(0.0, 1.0, max(int(samples), 2))[:, None]
     return np.array([v[i] + s * (v[j] - v[i]) for i, j in edges])
 
@@ -144,8 +153,8 @@ def _in_view(camera: CameraModel, est, P) -> np.ndarray:
         xn = Pc[:, :2] / z[:, None]
     f = np.diag(camera.K)[:2]
     size = np.array([camera.width, camera.height], dtype=float)
-    mid = (0.5 * (size - 1) - camera.K[:2, 2]) / f    # image centre, normalized
-    half = 0.75 * size / f                              # 1.5x half the field of view
+    mid = (0.5 * (size - 1) - camera.K[:2, 2]) / f  # image centre, normalized
+    half = 0.75 * size / f  # 1.5x half the field of view
     return (z > 1e-6) & np.all(np.abs(xn - mid) <= half, axis=1)
 
 
@@ -158,17 +167,31 @@ def _polyline(img, pts, color, thickness):
             run.append(p)
             continue
         if len(run) > 1:
-            cv2.polylines(img, [np.round(np.array(run) * 16).astype(np.int32)], False, color,
-                          thickness, cv2.LINE_AA, shift=4)
+            cv2.polylines(
+                img,
+                [np.round(np.array(run) * 16).astype(np.int32)],
+                False,
+                color,
+                thickness,
+                cv2.LINE_AA,
+                shift=4,
+            )
         run = []
     if len(run) > 1:
-        cv2.polylines(img, [np.round(np.array(run) * 16).astype(np.int32)], False, color,
-                      thickness, cv2.LINE_AA, shift=4)
+        cv2.polylines(
+            img,
+            [np.round(np.array(run) * 16).astype(np.int32)],
+            False,
+            color,
+            thickness,
+            cv2.LINE_AA,
+            shift=4,
+        )
 
 
 def _text_lines(img, lines, color):
     """Lines of text on a black band at the top of the image, scaled to fit its width."""
-    h, w = img.shape[:2]
+    _h, w = img.shape[:2]
     font = cv2.FONT_HERSHEY_SIMPLEX
     scale = float(np.clip(w / 1400.0, 0.35, 1.2))
     widest = max(cv2.getTextSize(s, font, scale, 1)[0][0] for s in lines)
@@ -181,9 +204,15 @@ def _text_lines(img, lines, color):
         cv2.putText(img, s, (4, step * (k + 1) - 2), font, scale, color, 1, cv2.LINE_AA)
 
 
-def draw_debug_image(camera: CameraModel, uv, X, est, image: np.ndarray | None = None,
-                     encoding: str | None = None,
-                     options: DebugImageOptions | None = None) -> np.ndarray:
+def draw_debug_image(
+    camera: CameraModel,
+    uv,
+    X,
+    est,
+    image: np.ndarray | None = None,
+    encoding: str | None = None,
+    options: DebugImageOptions | None = None,
+) -> np.ndarray:
     """Draw the debug image of one frame (see the module docstring).
 
     Args:
@@ -228,8 +257,7 @@ def draw_debug_image(camera: CameraModel, uv, X, est, image: np.ndarray | None =
             edges = cube_edge_points(center, side, o.cube_samples)
             P = edges.reshape(-1, 3)
             vis = _in_view(camera, est, P)
-            for key, w, t, thick in (("cube_gs", None, None, 1),
-                                     ("cube_rs", est.w, est.t, 2)):
+            for key, w, t, thick in (("cube_gs", None, None, 1), ("cube_rs", est.w, est.t, 2)):
                 px = np.full((len(P), 2), np.nan)
                 px[vis] = camera.project_rs(P[vis], est.R, est.C, w, t)
                 for e in px.reshape(edges.shape[0], edges.shape[1], 2):
@@ -245,8 +273,15 @@ def draw_debug_image(camera: CameraModel, uv, X, est, image: np.ndarray | None =
         a = np.round(uv[good] * 16).astype(np.int64)
         b = np.round(end[good] * 16).astype(np.int64)
         for p, q in zip(a, b):
-            cv2.line(img, (int(p[0]), int(p[1])), (int(q[0]), int(q[1])), COLORS["residual"],
-                     1, cv2.LINE_8, shift=4)
+            cv2.line(
+                img,
+                (int(p[0]), int(p[1])),
+                (int(q[0]), int(q[1])),
+                COLORS["residual"],
+                1,
+                cv2.LINE_8,
+                shift=4,
+            )
 
     r = max(int(o.point_radius), 1)
     pix = np.round(uv).astype(np.int64, copy=False) if n else np.zeros((0, 2), np.int64)
@@ -262,14 +297,21 @@ def draw_debug_image(camera: CameraModel, uv, X, est, image: np.ndarray | None =
     if ok_est:
         w = float(np.linalg.norm(est.angular_velocity))
         v = float(np.linalg.norm(est.linear_velocity))
-        lines = [f"{est.solver}  inliers {int(inl.sum())}/{n}  RMSE {est.rmse_px:.2f} px  "
-                 f"|omega| {w:.3f} rad/s  |v| {v:.3f} m/s"]
+        lines = [
+            f"{est.solver}  inliers {int(inl.sum())}/{n}  RMSE {est.rmse_px:.2f} px  "
+            f"|omega| {w:.3f} rad/s  |v| {v:.3f} m/s"
+        ]
         if o.legend:
-            lines.append(f"green inlier  red outlier  yellow residual x{o.residual_scale:g}  "
-                         "cyan RS cube  magenta global-shutter cube")
+            lines.append(
+                f"green inlier  red outlier  yellow residual x{o.residual_scale:g}  "
+                "cyan RS cube  magenta global-shutter cube"
+            )
     else:
         why = getattr(est, "failure", None) if est is not None else None
-        lines = [f"{getattr(est, 'solver', '') or 'no estimate'}  failed"
-                 + (f": {why}" if why else "") + f"  ({n} points)"]
+        lines = [
+            f"{getattr(est, 'solver', '') or 'no estimate'}  failed"
+            + (f": {why}" if why else "")
+            + f"  ({n} points)"
+        ]
     _text_lines(img, lines, COLORS["text"])
     return img

@@ -49,5 +49,7 @@ def velocity_arrows(est, scale: float = 1.0):
         ``{"angular_velocity": (start, end), "linear_velocity": (start, end)}``.
     """
     p = np.asarray(est.position, dtype=float)
-    return {"angular_velocity": (p, p + scale * np.asarray(est.angular_velocity_world)),
-            "linear_velocity": (p, p + scale * np.asarray(est.linear_velocity_world))}
+    return {
+        "angular_velocity": (p, p + scale * np.asarray(est.angular_velocity_world)),
+        "linear_velocity": (p, p + scale * np.asarray(est.linear_velocity_world)),
+    }

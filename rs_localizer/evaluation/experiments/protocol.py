@@ -47,24 +47,43 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ... import solvers as S
-from ...solvers.registry import SOLVERS as SOLVER_TABLE
 from ...geometry import camera_position, rotation_angle_deg
-from ...solvers.joined import rs_reprojection_rmse
-from ..threads import one_thread
 from ...sim.synthetic import FRAME_SPAN, make_frame
+from ...solvers.joined import rs_reprojection_rmse
+from ...solvers.registry import SOLVERS as SOLVER_TABLE
+from ..threads import one_thread
 
-__all__ = ["Config", "FULL", "QUICK", "STYLE", "exp1_motion", "exp2_noise", "exp2_translation",
-           "exp3_iterations", "exp3_algebraic", "exp4_orientation", "exp5_p3p_init",
-           "exp6_timing", "exp7_estimator", "run_all", "EXPERIMENTS", "summarize",
-           "save_summary", "load_summary"]
+__all__ = [
+    "EXPERIMENTS",
+    "FULL",
+    "QUICK",
+    "STYLE",
+    "Config",
+    "exp1_motion",
+    "exp2_noise",
+    "exp2_translation",
+    "exp3_algebraic",
+    "exp3_iterations",
+    "exp4_orientation",
+    "exp5_p3p_init",
+    "exp6_timing",
+    "exp7_estimator",
+    "load_summary",
+    "run_all",
+    "save_summary",
+    "summarize",
+]
 
 #: correspondences per synthetic frame: 0-5 minimal sample, 0-8 R9P, 9-19 held-out
 N_POINTS = 20
 HELD_OUT = slice(9, N_POINTS)
 METRICS = ("rot", "pos", "angvel", "linvel")
-METRIC_LABEL = {"rot": "rotation error [deg]", "pos": "camera centre error [units]",
-                "angvel": "angular velocity error [deg/frame]",
-                "linvel": "linear velocity error [units/frame]"}
+METRIC_LABEL = {
+    "rot": "rotation error [deg]",
+    "pos": "camera centre error [units]",
+    "angvel": "angular velocity error [deg/frame]",
+    "linvel": "linear velocity error [units/frame]",
+}
 ITERATIVE = tuple(k for k, v in SOLVER_TABLE.items() if v.iterative and k != "r6p_joined")
 
 #: one label and colour per solver, used in every plot (paper Fig. 7 colours where it has them:
@@ -84,9 +103,13 @@ STYLE = {
     "opencv": ("OpenCV solvePnPRansac P3P (GS)", "#8c564b"),
 }
 #: plain-text names for the report
-NAME = {**{k: v.paper_name for k, v in SOLVER_TABLE.items()},
-        "r6p_oracle": "R6P (oracle root)", "r6p_joined_lib": "r6p_joined (on the 6)",
-        "poselib": "PoseLib (GS)", "opencv": "OpenCV (GS)"}
+NAME = {
+    **{k: v.paper_name for k, v in SOLVER_TABLE.items()},
+    "r6p_oracle": "R6P (oracle root)",
+    "r6p_joined_lib": "r6p_joined (on the 6)",
+    "poselib": "PoseLib (GS)",
+    "opencv": "OpenCV (GS)",
+}
 #: the paper's solvers (the joined solver is run as its own spec)
 ALL_SOLVERS = tuple(k for k in SOLVER_TABLE if k != "r6p_joined")
 
@@ -104,7 +127,7 @@ class Config:
     """Trial counts and settings of every experiment (``FULL`` or ``QUICK``)."""
 
     trials: int = 200
-    noise_px: float = 0.0                      # image noise of Exp. 1, 3, 4, 5 (see report)
+    noise_px: float = 0.0  # image noise of Exp. 1, 3, 4, 5 (see report)
     exp1_speeds: tuple = tuple(np.round(np.arange(1, 11) / 10, 2))
     exp1_noisy_speeds: tuple = tuple(np.round(np.arange(0, 11) / 10, 2))
     exp1_noisy_px: float = 1.0
@@ -131,11 +154,21 @@ class Config:
 
 
 FULL = Config()
-QUICK = Config(trials=15, exp1_speeds=(0.25, 0.5, 0.75, 1.0), exp1_noisy_speeds=(0.0, 0.5, 1.0),
-               exp2_noise=(0.0, 1.0, 2.0), exp2_trans_speeds=(0.0, 0.5, 1.0),
-               exp3_speeds=(0.5, 1.0), exp4_angles=(0, 15, 30, 40),
-               exp5_speeds=(0.25, 0.5, 1.0), exp6_repeat=20, exp6_batch=100, exp7_trials=3,
-               exp7_speeds=(0.0, 1.0), quick=True)
+QUICK = Config(
+    trials=15,
+    exp1_speeds=(0.25, 0.5, 0.75, 1.0),
+    exp1_noisy_speeds=(0.0, 0.5, 1.0),
+    exp2_noise=(0.0, 1.0, 2.0),
+    exp2_trans_speeds=(0.0, 0.5, 1.0),
+    exp3_speeds=(0.5, 1.0),
+    exp4_angles=(0, 15, 30, 40),
+    exp5_speeds=(0.25, 0.5, 1.0),
+    exp6_repeat=20,
+    exp6_batch=100,
+    exp7_trials=3,
+    exp7_speeds=(0.0, 1.0),
+    quick=True,
+)
 
 
 # ---------------------------------------------------------------------------------- one trial
@@ -149,10 +182,14 @@ def _errors(R, C, w, t, f) -> np.ndarray:
     """(rotation deg, centre distance, |dw| deg/frame, |dt| units/frame) against ground truth."""
     if R is None or not (np.isfinite(R).all() and np.isfinite(C).all()):
         return np.full(4, np.inf)
-    return np.array([rotation_angle_deg(R, f.R),
-                     float(np.linalg.norm(camera_position(R, C) - f.position)),
-                     float(np.degrees(np.linalg.norm(np.asarray(w) - f.w)) * FRAME_SPAN),
-                     float(np.linalg.norm(np.asarray(t) - f.t) * FRAME_SPAN)])
+    return np.array(
+        [
+            rotation_angle_deg(R, f.R),
+            float(np.linalg.norm(camera_position(R, C) - f.position)),
+            float(np.degrees(np.linalg.norm(np.asarray(w) - f.w)) * FRAME_SPAN),
+            float(np.linalg.norm(np.asarray(t) - f.t) * FRAME_SPAN),
+        ]
+    )
 
 
 def p3p_best(x, X):
@@ -208,8 +245,9 @@ def _solve(f, specs, prerotate: bool = False) -> tuple[dict, dict]:
     X6p, Xhp = Xp[:6], Xp[HELD_OUT]
 
     def done(spec, sol):
-        out[spec] = (np.full(4, np.inf) if sol is None
-                     else _errors(sol.R @ Rp, sol.C, sol.w, sol.t, f))
+        out[spec] = (
+            np.full(4, np.inf) if sol is None else _errors(sol.R @ Rp, sol.C, sol.w, sol.t, f)
+        )
 
     for spec in specs:
         if spec == "p3p":
@@ -227,8 +265,7 @@ def _solve(f, specs, prerotate: bool = False) -> tuple[dict, dict]:
                 elif name == "r6p":
                     sol = _pick(roots, xh, Xhp)
                 else:  # diagnostic: the root closest to the ground-truth rotation
-                    sol = roots[int(np.argmin([rotation_angle_deg(r.R @ Rp, f.R)
-                                               for r in roots]))]
+                    sol = roots[int(np.argmin([rotation_angle_deg(r.R @ Rp, f.R) for r in roots]))]
             elif name == "r6p_joined_lib":  # the library's joined solver, selecting on the 6
                 sol = S.r6p_joined(x6, X6p, iterations=iterations)
             elif name in _ITER_FN:
@@ -251,8 +288,9 @@ def _solve(f, specs, prerotate: bool = False) -> tuple[dict, dict]:
     return out, info
 
 
-def _run(code: int, settings: list[dict], specs, trials: int, seed: int,
-         prerotate: bool = False) -> dict:
+def _run(
+    code: int, settings: list[dict], specs, trials: int, seed: int, prerotate: bool = False
+) -> dict:
     """Errors of every spec over ``trials`` frames per setting (make_frame kwargs).
 
     Returns dict(errors={spec: (n_settings, trials, 4)}, r6p_roots=list, p3p_solutions=list).
@@ -282,15 +320,27 @@ def failure_rate(errors: dict) -> dict:
 
 
 def _result(kind, x, xlabel, run, **extra):
-    return dict(kind=kind, x=list(map(float, x)), xlabel=xlabel, errors=run["errors"],
-                medians=medians(run["errors"]), failures=failure_rate(run["errors"]),
-                r6p_roots=run.get("r6p_roots", []), p3p_solutions=run.get("p3p_solutions", []),
-                **extra)
+    return dict(
+        kind=kind,
+        x=list(map(float, x)),
+        xlabel=xlabel,
+        errors=run["errors"],
+        medians=medians(run["errors"]),
+        failures=failure_rate(run["errors"]),
+        r6p_roots=run.get("r6p_roots", []),
+        p3p_solutions=run.get("p3p_solutions", []),
+        **extra,
+    )
 
 
 # --------------------------------------------------------------------------------- experiments
-def exp1_motion(trials: int = 200, speeds=FULL.exp1_speeds, noise_px: float = 0.0,
-                seed: int = 0, solvers=ALL_SOLVERS) -> dict:
+def exp1_motion(
+    trials: int = 200,
+    speeds=FULL.exp1_speeds,
+    noise_px: float = 0.0,
+    seed: int = 0,
+    solvers=ALL_SOLVERS,
+) -> dict:
     """Exp. 1 (Fig. 2): increasing RS speed s (s * 30 deg and s * 0.3 units per frame),
     R = I, ``noise_px`` image noise; all solvers at 5 iterations.
 
@@ -299,42 +349,76 @@ def exp1_motion(trials: int = 200, speeds=FULL.exp1_speeds, noise_px: float = 0.
     settings = [dict(rs_speed=s, noise_px=noise_px, angle_from_identity=0.0) for s in speeds]
     code = 10 if noise_px == 0 else 11
     run = _run(code, settings, list(solvers) + ["r6p_oracle"], trials, seed)
-    return _result("exp1", speeds, "RS speed (x 30 deg, x 0.3 units per frame)", run,
-                   noise_px=noise_px)
+    return _result(
+        "exp1", speeds, "RS speed (x 30 deg, x 0.3 units per frame)", run, noise_px=noise_px
+    )
 
 
-def exp2_noise(trials: int = 200, noises=FULL.exp2_noise, speed: float = 0.5, seed: int = 0,
-               solvers=ALL_SOLVERS + ("r6p_joined",)) -> dict:
+def exp2_noise(
+    trials: int = 200,
+    noises=FULL.exp2_noise,
+    speed: float = 0.5,
+    seed: int = 0,
+    solvers=ALL_SOLVERS + ("r6p_joined",),
+) -> dict:
     """Exp. 2, Fig. 3 right: general motion at RS speed ``speed``, R = I, noise 0 .. 2 px."""
     settings = [dict(rs_speed=speed, noise_px=n, angle_from_identity=0.0) for n in noises]
     run = _run(20, settings, list(solvers), trials, seed)
     return _result("exp2_noise", noises, "image noise sigma [px]", run, speed=speed)
 
 
-def exp2_translation(trials: int = 200, speeds=FULL.exp2_trans_speeds, noise_px: float = 1.0,
-                     seed: int = 0, solvers=ALL_SOLVERS + ("r6p_joined",)) -> dict:
+def exp2_translation(
+    trials: int = 200,
+    speeds=FULL.exp2_trans_speeds,
+    noise_px: float = 1.0,
+    seed: int = 0,
+    solvers=ALL_SOLVERS + ("r6p_joined",),
+) -> dict:
     """Exp. 2, Fig. 3 left: purely translational motion (0.3 units per frame at speed 1),
     ``noise_px`` noise, R = I, including the joined solver."""
-    settings = [dict(rs_speed=s, noise_px=noise_px, angle_from_identity=0.0,
-                     translation_only=True) for s in speeds]
+    settings = [
+        dict(rs_speed=s, noise_px=noise_px, angle_from_identity=0.0, translation_only=True)
+        for s in speeds
+    ]
     run = _run(21, settings, list(solvers) + ["r6p_joined_lib"], trials, seed)
-    return _result("exp2_translation", speeds, "translational speed (x 0.3 units per frame)",
-                   run, noise_px=noise_px)
+    return _result(
+        "exp2_translation",
+        speeds,
+        "translational speed (x 0.3 units per frame)",
+        run,
+        noise_px=noise_px,
+    )
 
 
-def exp3_iterations(trials: int = 200, speeds=FULL.exp3_speeds, iterations=(1, 5, 50),
-                    noise_px: float = 0.0, seed: int = 0) -> dict:
+def exp3_iterations(
+    trials: int = 200,
+    speeds=FULL.exp3_speeds,
+    iterations=(1, 5, 50),
+    noise_px: float = 0.0,
+    seed: int = 0,
+) -> dict:
     """Exp. 3, Fig. 4 left: every iterative solver at 1, 5 and 50 iterations (specs
     ``name@k``) plus R6P and R9P, R = I, increasing RS speed."""
     specs = ["r6p", "r9p"] + [f"{n}@{k}" for n in ITERATIVE for k in iterations]
     settings = [dict(rs_speed=s, noise_px=noise_px, angle_from_identity=0.0) for s in speeds]
     run = _run(30, settings, specs, trials, seed)
-    return _result("exp3_iterations", speeds, "RS speed (x 30 deg, x 0.3 units per frame)",
-                   run, iterations=list(iterations), noise_px=noise_px)
+    return _result(
+        "exp3_iterations",
+        speeds,
+        "RS speed (x 30 deg, x 0.3 units per frame)",
+        run,
+        iterations=list(iterations),
+        noise_px=noise_px,
+    )
 
 
-def exp3_algebraic(trials: int = 200, n_iterations: int = 50, speeds=(0.2, 0.5, 1.0),
-                   noise_px: float = 0.0, seed: int = 0) -> dict:
+def exp3_algebraic(
+    trials: int = 200,
+    n_iterations: int = 50,
+    speeds=(0.2, 0.5, 1.0),
+    noise_px: float = 0.0,
+    seed: int = 0,
+) -> dict:
     """Exp. 3, Fig. 4 right: RMS algebraic error of eq. 5 after each iteration k = 1..n, R = I.
 
     ``r6p_1lin`` is run one iteration at a time, each seeded with the previous ``v``
@@ -365,8 +449,9 @@ def exp3_algebraic(trials: int = 200, n_iterations: int = 50, speeds=(0.2, 0.5, 
             for n in ITERATIVE[1:]:
                 for i in range(n_iterations):
                     try:
-                        errs[n][j, k, i] = _ITER_FN[n](x6, X6, iterations=i + 1,
-                                                       tol=-1.0).algebraic_error
+                        errs[n][j, k, i] = _ITER_FN[n](
+                            x6, X6, iterations=i + 1, tol=-1.0
+                        ).algebraic_error
                     except ValueError:
                         break
     conv = {}
@@ -376,31 +461,48 @@ def exp3_algebraic(trials: int = 200, n_iterations: int = 50, speeds=(0.2, 0.5, 
         first = np.argmax(ok, axis=-1) + 1
         # reaching the final value only at the final iteration is not convergence
         conv[n] = np.where(ok.any(axis=-1) & (first < n_iterations), first, n_iterations + 1)
-    return dict(kind="exp3_algebraic", x=list(range(1, n_iterations + 1)), xlabel="iteration",
-                speeds=speeds, errors=errs, converged_at=conv, noise_px=noise_px)
+    return dict(
+        kind="exp3_algebraic",
+        x=list(range(1, n_iterations + 1)),
+        xlabel="iteration",
+        speeds=speeds,
+        errors=errs,
+        converged_at=conv,
+        noise_px=noise_px,
+    )
 
 
-def exp4_orientation(trials: int = 200, angles=FULL.exp4_angles, speed: float = 0.5,
-                     noise_px: float = 0.0, seed: int = 0, solvers=ALL_SOLVERS) -> dict:
+def exp4_orientation(
+    trials: int = 200,
+    angles=FULL.exp4_angles,
+    speed: float = 0.5,
+    noise_px: float = 0.0,
+    seed: int = 0,
+    solvers=ALL_SOLVERS,
+) -> dict:
     """Exp. 4 (Fig. 5): camera orientation exactly ``angle`` degrees from R = I (random axis),
     RS speed 0.5 (15 deg and 0.15 units per frame), no pre-rotation."""
-    settings = [dict(rs_speed=speed, noise_px=noise_px, angle_from_identity=float(a))
-                for a in angles]
+    settings = [
+        dict(rs_speed=speed, noise_px=noise_px, angle_from_identity=float(a)) for a in angles
+    ]
     run = _run(40, settings, list(solvers), trials, seed)
-    return _result("exp4", angles, "angle of R from the identity [deg]", run, speed=speed,
-                   noise_px=noise_px)
+    return _result(
+        "exp4", angles, "angle of R from the identity [deg]", run, speed=speed, noise_px=noise_px
+    )
 
 
-def exp5_p3p_init(trials: int = 200, speeds=FULL.exp5_speeds, noise_px: float = 0.0,
-                  seed: int = 0) -> dict:
+def exp5_p3p_init(
+    trials: int = 200, speeds=FULL.exp5_speeds, noise_px: float = 0.0, seed: int = 0
+) -> dict:
     """Exp. 5 (Fig. 6): random orientation, increasing RS speed, every RS solver on world
     points pre-rotated by the best P3P pose; alternating solvers at 50 iterations,
     ``r6p_1lin`` at 1."""
     specs = ["p3p", "r6p", "r6p_1lin@1", "r6p_vC_wt@50", "r6p_vCt_w@50", "r6p_vCt_wt@50", "r9p"]
     settings = [dict(rs_speed=s, noise_px=noise_px, angle_from_identity=None) for s in speeds]
     run = _run(50 if noise_px == 0 else 51, settings, specs, trials, seed, prerotate=True)
-    return _result("exp5", speeds, "RS speed (x 30 deg, x 0.3 units per frame)", run,
-                   noise_px=noise_px)
+    return _result(
+        "exp5", speeds, "RS speed (x 30 deg, x 0.3 units per frame)", run, noise_px=noise_px
+    )
 
 
 def exp6_timing(repeat: int = 200, batch: int = 1000, seed: int = 0) -> dict:
@@ -416,13 +518,28 @@ def exp6_timing(repeat: int = 200, batch: int = 1000, seed: int = 0) -> dict:
     return dict(kind="exp6", rows=rows, repeat=repeat, batch=batch)
 
 
-ESTIMATOR_METHODS = ("p3p", "r6p", "r6p_1lin", "r6p_vCt_w", "r9p", "r6p_joined", "poselib",
-                     "opencv")
+ESTIMATOR_METHODS = (
+    "p3p",
+    "r6p",
+    "r6p_1lin",
+    "r6p_vCt_w",
+    "r9p",
+    "r6p_joined",
+    "poselib",
+    "opencv",
+)
 
 
-def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 200,
-                   outlier_ratio: float = 0.3, noise_px: float = 1.0, methods=ESTIMATOR_METHODS,
-                   r6p_iterations: int = 100, seed: int = 0) -> dict:
+def exp7_estimator(
+    trials: int = 60,
+    speeds=FULL.exp7_speeds,
+    n_points: int = 200,
+    outlier_ratio: float = 0.3,
+    noise_px: float = 1.0,
+    methods=ESTIMATOR_METHODS,
+    r6p_iterations: int = 100,
+    seed: int = 0,
+) -> dict:
     """Exp. 7 (beyond the paper): the full robust estimator :func:`estimate_rs_pose` per solver
     and the global-shutter PoseLib / OpenCV estimators (via :mod:`rs_localizer.evaluation.bench`) on
     frames with outliers, random orientation, increasing RS speed.
@@ -433,9 +550,9 @@ def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 20
     The estimator runs with :func:`~rs_localizer.evaluation.bench.protocol_options` (no
     motion-plausibility bounds: the protocol's scene has no physical scale).
     """
-    from ..bench import _opencv_estimate, _poselib_estimate, protocol_options
     from ...estimation.estimate import estimate_rs_pose
     from ...sim.synthetic import paper_camera
+    from ..bench import _opencv_estimate, _poselib_estimate, protocol_options
 
     cam = paper_camera()
     opts = protocol_options()
@@ -445,8 +562,13 @@ def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 20
     with one_thread():
         for i, s in enumerate(speeds):
             for k in range(trials):
-                f = make_frame(np.random.default_rng([seed, 70, i, k]), n_points, rs_speed=s,
-                               noise_px=noise_px, outlier_ratio=outlier_ratio)
+                f = make_frame(
+                    np.random.default_rng([seed, 70, i, k]),
+                    n_points,
+                    rs_speed=s,
+                    noise_px=noise_px,
+                    outlier_ratio=outlier_ratio,
+                )
                 for m in methods:
                     t0 = time.perf_counter()
                     if m == "poselib":
@@ -458,17 +580,28 @@ def exp7_estimator(trials: int = 60, speeds=FULL.exp7_speeds, n_points: int = 20
                     else:
                         o = replace(opts, max_iterations=r6p_iterations) if m == "r6p" else opts
                         e = estimate_rs_pose(f.points_px, f.X, cam, m, o)
-                        R, C, w, t, n = ((e.R, e.C, e.w, e.t, e.num_inliers) if e.success
-                                         else (None, None, None, None, 0))
+                        R, C, w, t, n = (
+                            (e.R, e.C, e.w, e.t, e.num_inliers)
+                            if e.success
+                            else (None, None, None, None, 0)
+                        )
                     secs[m][i, k] = time.perf_counter() - t0
                     errors[m][i, k] = _errors(R, C, w, t, f)
                     inliers[m][i, k] = n
-    return dict(kind="exp7", x=list(map(float, speeds)),
-                xlabel="RS speed (x 30 deg, x 0.3 units per frame)", errors=errors,
-                medians=medians(errors), failures=failure_rate(errors),
-                ms_median={m: 1e3 * np.median(v, axis=1) for m, v in secs.items()},
-                inliers=inliers, n_points=n_points, outlier_ratio=outlier_ratio,
-                noise_px=noise_px, r6p_iterations=r6p_iterations)
+    return dict(
+        kind="exp7",
+        x=list(map(float, speeds)),
+        xlabel="RS speed (x 30 deg, x 0.3 units per frame)",
+        errors=errors,
+        medians=medians(errors),
+        failures=failure_rate(errors),
+        ms_median={m: 1e3 * np.median(v, axis=1) for m, v in secs.items()},
+        inliers=inliers,
+        n_points=n_points,
+        outlier_ratio=outlier_ratio,
+        noise_px=noise_px,
+        r6p_iterations=r6p_iterations,
+    )
 
 
 # ------------------------------------------------------------------------------------- driver
@@ -480,29 +613,41 @@ def run_all(cfg: Config = FULL, only=EXPERIMENTS, log=print) -> dict:
     res, secs = {}, {}
     t = cfg.trials
     steps = {
-        "exp1": lambda: {"exp1": exp1_motion(t, cfg.exp1_speeds, cfg.noise_px, cfg.seed),
-                         "exp1_noisy": exp1_motion(t, cfg.exp1_noisy_speeds, cfg.exp1_noisy_px,
-                                                   cfg.seed)},
-        "exp2": lambda: {"exp2_noise": exp2_noise(t, cfg.exp2_noise, cfg.exp2_speed, cfg.seed),
-                         "exp2_translation": exp2_translation(t, cfg.exp2_trans_speeds, 1.0,
-                                                              cfg.seed)},
-        "exp3": lambda: {"exp3_iterations": exp3_iterations(t, cfg.exp3_speeds,
-                                                            cfg.exp3_iterations, cfg.noise_px,
-                                                            cfg.seed),
-                         "exp3_algebraic": exp3_algebraic(t, cfg.exp3_alg_iterations,
-                                                          cfg.exp3_alg_speeds, cfg.noise_px,
-                                                          cfg.seed)},
-        "exp4": lambda: {"exp4": exp4_orientation(t, cfg.exp4_angles, cfg.exp4_speed,
-                                                  cfg.noise_px, cfg.seed)},
-        "exp5": lambda: {"exp5": exp5_p3p_init(t, cfg.exp5_speeds, cfg.noise_px, cfg.seed),
-                         "exp5_noisy": exp5_p3p_init(t, cfg.exp5_speeds, cfg.exp1_noisy_px,
-                                                     cfg.seed)},
+        "exp1": lambda: {
+            "exp1": exp1_motion(t, cfg.exp1_speeds, cfg.noise_px, cfg.seed),
+            "exp1_noisy": exp1_motion(t, cfg.exp1_noisy_speeds, cfg.exp1_noisy_px, cfg.seed),
+        },
+        "exp2": lambda: {
+            "exp2_noise": exp2_noise(t, cfg.exp2_noise, cfg.exp2_speed, cfg.seed),
+            "exp2_translation": exp2_translation(t, cfg.exp2_trans_speeds, 1.0, cfg.seed),
+        },
+        "exp3": lambda: {
+            "exp3_iterations": exp3_iterations(
+                t, cfg.exp3_speeds, cfg.exp3_iterations, cfg.noise_px, cfg.seed
+            ),
+            "exp3_algebraic": exp3_algebraic(
+                t, cfg.exp3_alg_iterations, cfg.exp3_alg_speeds, cfg.noise_px, cfg.seed
+            ),
+        },
+        "exp4": lambda: {
+            "exp4": exp4_orientation(t, cfg.exp4_angles, cfg.exp4_speed, cfg.noise_px, cfg.seed)
+        },
+        "exp5": lambda: {
+            "exp5": exp5_p3p_init(t, cfg.exp5_speeds, cfg.noise_px, cfg.seed),
+            "exp5_noisy": exp5_p3p_init(t, cfg.exp5_speeds, cfg.exp1_noisy_px, cfg.seed),
+        },
         "exp6": lambda: {"exp6": exp6_timing(cfg.exp6_repeat, cfg.exp6_batch, cfg.seed)},
-        "exp7": lambda: {"exp7": exp7_estimator(cfg.exp7_trials, cfg.exp7_speeds,
-                                                cfg.exp7_points, cfg.exp7_outliers,
-                                                cfg.exp7_noise_px,
-                                                r6p_iterations=cfg.exp7_r6p_iterations,
-                                                seed=cfg.seed)},
+        "exp7": lambda: {
+            "exp7": exp7_estimator(
+                cfg.exp7_trials,
+                cfg.exp7_speeds,
+                cfg.exp7_points,
+                cfg.exp7_outliers,
+                cfg.exp7_noise_px,
+                r6p_iterations=cfg.exp7_r6p_iterations,
+                seed=cfg.seed,
+            )
+        },
     }
     for name in EXPERIMENTS:
         if name not in only:
@@ -517,8 +662,16 @@ def run_all(cfg: Config = FULL, only=EXPERIMENTS, log=print) -> dict:
 
 
 # ------------------------------------------------------------------------------------ summary
-_ARRAY_FIELDS = ("medians", "failures", "median_curves", "converged_mean", "converged_median",
-                 "not_converged", "ms_median", "inliers_median")
+_ARRAY_FIELDS = (
+    "medians",
+    "failures",
+    "median_curves",
+    "converged_mean",
+    "converged_median",
+    "not_converged",
+    "ms_median",
+    "inliers_median",
+)
 
 
 def summarize(res: dict) -> dict:
@@ -530,8 +683,11 @@ def summarize(res: dict) -> dict:
         if key.startswith("_") or r.get("kind") == "exp6":
             out[key] = r
             continue
-        s = {k: v for k, v in r.items()
-             if k not in ("errors", "r6p_roots", "p3p_solutions", "converged_at", "inliers")}
+        s = {
+            k: v
+            for k, v in r.items()
+            if k not in ("errors", "r6p_roots", "p3p_solutions", "converged_at", "inliers")
+        }
         if r["kind"] == "exp3_algebraic":
             e, c, n = r["errors"], r["converged_at"], len(r["x"])
             s["trials"] = int(e["r6p_1lin"].shape[1])

@@ -1,18 +1,40 @@
 """Rolling-shutter image rendering (ROS-free): scenes, motions, renderer, bags.
 
-    from rs_localizer.sim.render import load_scene, make_motion, Renderer, camera_preset
-    scene = load_scene("aruco_room")
-    camera = camera_preset("vga")                      # 640x480, 30 ms readout, mild distortion
-    motion = make_motion("shake", scene, duration=1.0)
-    frame = Renderer(scene, camera).render(motion, t_first=0.1)
-    frame.image, frame.orientation, frame.position, frame.angular_velocity, frame.line_times
+from rs_localizer.sim.render import load_scene, make_motion, Renderer, camera_preset
+scene = load_scene("aruco_room")
+camera = camera_preset("vga")                      # 640x480, 30 ms readout, mild distortion
+motion = make_motion("shake", scene, duration=1.0)
+frame = Renderer(scene, camera).render(motion, t_first=0.1)
+frame.image, frame.orientation, frame.position, frame.angular_velocity, frame.line_times
 """
 
 from .motion import MOTIONS, Motion, make_motion, motion_names
-from .renderer import (CAMERA_PRESETS, NoiseModel, RenderedFrame, Renderer, camera_preset,
-                       camera_rays, frame_times)
+from .renderer import (
+    CAMERA_PRESETS,
+    NoiseModel,
+    RenderedFrame,
+    Renderer,
+    camera_preset,
+    camera_rays,
+    frame_times,
+)
 from .scene import Scene, load_marker_map, load_scene, save_marker_map, scene_names
 
-__all__ = ["Scene", "load_scene", "scene_names", "save_marker_map", "load_marker_map", "Motion",
-           "MOTIONS", "make_motion", "motion_names", "Renderer", "RenderedFrame", "NoiseModel",
-           "camera_preset", "camera_rays", "CAMERA_PRESETS", "frame_times"]
+__all__ = [
+    "CAMERA_PRESETS",
+    "MOTIONS",
+    "Motion",
+    "NoiseModel",
+    "RenderedFrame",
+    "Renderer",
+    "Scene",
+    "camera_preset",
+    "camera_rays",
+    "frame_times",
+    "load_marker_map",
+    "load_scene",
+    "make_motion",
+    "motion_names",
+    "save_marker_map",
+    "scene_names",
+]

@@ -1,6 +1,6 @@
 """``python -m rs_localizer.sim.render``: render timing and a sample frame.
 
-    python -m rs_localizer.sim.render --camera vga --frames 10 --save frame.png
+python -m rs_localizer.sim.render --camera vga --frames 10 --save frame.png
 """
 
 import cv2
@@ -16,8 +16,9 @@ def main(argv=None) -> int:
     from .renderer import CAMERA_PRESETS, NoiseModel, Renderer, camera_preset, frame_times
     from .scene import load_scene
 
-    p = argparse.ArgumentParser(prog="python -m rs_localizer.sim.render",
-                                description="Render timing (and a sample frame)")
+    p = argparse.ArgumentParser(
+        prog="python -m rs_localizer.sim.render", description="Render timing (and a sample frame)"
+    )
     p.add_argument("--scene", default="aruco_room")
     p.add_argument("--motion", default="shake", choices=motion_names())
     p.add_argument("--camera", default="vga", choices=sorted(CAMERA_PRESETS))
@@ -40,9 +41,11 @@ def main(argv=None) -> int:
         t = time.perf_counter()
         f = r.render(motion, float(frame_times(k)), index=k, shutter=shutter, rng=k)
         ts.append(time.perf_counter() - t)
-    print(f"{a.scene} {cam.width}x{cam.height} supersample {a.supersample} {shutter}: "
-          f"median {np.median(ts) * 1e3:.0f} ms/frame over {a.frames} frames "
-          f"(first call {first:.2f} s incl. JIT/cache load)")
+    print(
+        f"{a.scene} {cam.width}x{cam.height} supersample {a.supersample} {shutter}: "
+        f"median {np.median(ts) * 1e3:.0f} ms/frame over {a.frames} frames "
+        f"(first call {first:.2f} s incl. JIT/cache load)"
+    )
     if a.save:
         cv2.imwrite(a.save, f.image[:, :, ::-1])
         print(f"wrote {a.save}")

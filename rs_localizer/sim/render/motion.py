@@ -27,7 +27,7 @@ import numpy as np
 from ...geometry import rotvec_to_matrix
 from ..trajectory import R_FORWARD, Trajectory
 
-__all__ = ["Motion", "MOTIONS", "make_motion", "motion_names", "base_rotation"]
+__all__ = ["MOTIONS", "Motion", "base_rotation", "make_motion", "motion_names"]
 
 
 def base_rotation(yaw: float, pitch: float) -> np.ndarray:
@@ -57,9 +57,9 @@ class Motion(Trajectory):
 
     def position(self, t) -> np.ndarray:
         t = np.asarray(t, dtype=float)[..., None]
-        local = (np.asarray(self.velocity) * (t - self.t_center)
-                 + np.asarray(self.sway) * np.sin(2 * np.pi * np.asarray(self.sway_hz) * t
-                                                  + np.asarray(self.phase[:3])))
+        local = np.asarray(self.velocity) * (t - self.t_center) + np.asarray(self.sway) * np.sin(
+            2 * np.pi * np.asarray(self.sway_hz) * t + np.asarray(self.phase[:3])
+        )
         return np.asarray(self.p0) + local @ self.R_base.T
 
     def orientation(self, t) -> np.ndarray:
@@ -76,28 +76,66 @@ _ZERO = (0.0, 0.0, 0.0)
 
 #: preset name -> Trajectory/Motion field overrides (base camera frame: x right, y down, z fwd)
 MOTIONS = {
-    "shake": dict(velocity=_ZERO, sway=(0.05, 0.03, 0.04), sway_hz=(0.9, 1.4, 0.7),
-                  rot_amp=(0.05, 0.10, 0.03), rot_hz=(0.8, 0.6, 0.7),
-                  shake_amp=(0.02, 0.035, 0.012), shake_hz=(2.7, 3.1, 2.3),
-                  phase=(0.3, -0.6, 2.0, 0.7, 1.9, 0.4)),
-    "pan": dict(velocity=_ZERO, sway=(0.02, 0.01, 0.01), sway_hz=(0.5, 0.9, 0.6),
-                rot_amp=(0.05, 0.45, 0.02), rot_hz=(0.4, 0.45, 0.5),
-                shake_amp=(0.003, 0.004, 0.002), shake_hz=(6.3, 5.1, 7.7),
-                phase=(0.3, -0.2, 2.0, 0.7, 1.9, 0.4)),
-    "walk": dict(velocity=(0.0, 0.0, 1.2), sway=(0.04, 0.035, 0.0), sway_hz=(0.9, 1.8, 0.0),
-                 rot_amp=(0.03, 0.08, 0.02), rot_hz=(0.9, 0.45, 0.9),
-                 shake_amp=(0.004, 0.005, 0.003), shake_hz=(6.3, 5.1, 7.7),
-                 phase=(0.3, -0.6, 2.0, 0.7, 1.9, 0.4)),
-    "drone": dict(velocity=(2.5, 0.0, 0.0), sway=(0.0, 0.02, 0.02), sway_hz=(0.0, 0.7, 0.5),
-                  rot_amp=(0.03, 0.25, 0.04), rot_hz=(0.3, 0.25, 0.35),
-                  shake_amp=(0.002, 0.003, 0.002), shake_hz=(13.0, 17.0, 11.0),
-                  phase=(0.3, -1.2, 2.0, 0.7, 1.9, 0.4)),
-    "car": dict(velocity=(3.0, 0.0, 0.0), sway=(0.0, 0.004, 0.0), sway_hz=(0.0, 7.0, 0.0),
-                rot_amp=_ZERO, rot_hz=(1.0, 1.0, 1.0), shake_amp=_ZERO,
-                shake_hz=(1.0, 1.0, 1.0), phase=(0.0,) * 6),
-    "static": dict(velocity=_ZERO, sway=_ZERO, sway_hz=(1.0, 1.0, 1.0), rot_amp=_ZERO,
-                   rot_hz=(1.0, 1.0, 1.0), shake_amp=_ZERO, shake_hz=(1.0, 1.0, 1.0),
-                   phase=(0.0,) * 6),
+    "shake": dict(
+        velocity=_ZERO,
+        sway=(0.05, 0.03, 0.04),
+        sway_hz=(0.9, 1.4, 0.7),
+        rot_amp=(0.05, 0.10, 0.03),
+        rot_hz=(0.8, 0.6, 0.7),
+        shake_amp=(0.02, 0.035, 0.012),
+        shake_hz=(2.7, 3.1, 2.3),
+        phase=(0.3, -0.6, 2.0, 0.7, 1.9, 0.4),
+    ),
+    "pan": dict(
+        velocity=_ZERO,
+        sway=(0.02, 0.01, 0.01),
+        sway_hz=(0.5, 0.9, 0.6),
+        rot_amp=(0.05, 0.45, 0.02),
+        rot_hz=(0.4, 0.45, 0.5),
+        shake_amp=(0.003, 0.004, 0.002),
+        shake_hz=(6.3, 5.1, 7.7),
+        phase=(0.3, -0.2, 2.0, 0.7, 1.9, 0.4),
+    ),
+    "walk": dict(
+        velocity=(0.0, 0.0, 1.2),
+        sway=(0.04, 0.035, 0.0),
+        sway_hz=(0.9, 1.8, 0.0),
+        rot_amp=(0.03, 0.08, 0.02),
+        rot_hz=(0.9, 0.45, 0.9),
+        shake_amp=(0.004, 0.005, 0.003),
+        shake_hz=(6.3, 5.1, 7.7),
+        phase=(0.3, -0.6, 2.0, 0.7, 1.9, 0.4),
+    ),
+    "drone": dict(
+        velocity=(2.5, 0.0, 0.0),
+        sway=(0.0, 0.02, 0.02),
+        sway_hz=(0.0, 0.7, 0.5),
+        rot_amp=(0.03, 0.25, 0.04),
+        rot_hz=(0.3, 0.25, 0.35),
+        shake_amp=(0.002, 0.003, 0.002),
+        shake_hz=(13.0, 17.0, 11.0),
+        phase=(0.3, -1.2, 2.0, 0.7, 1.9, 0.4),
+    ),
+    "car": dict(
+        velocity=(3.0, 0.0, 0.0),
+        sway=(0.0, 0.004, 0.0),
+        sway_hz=(0.0, 7.0, 0.0),
+        rot_amp=_ZERO,
+        rot_hz=(1.0, 1.0, 1.0),
+        shake_amp=_ZERO,
+        shake_hz=(1.0, 1.0, 1.0),
+        phase=(0.0,) * 6,
+    ),
+    "static": dict(
+        velocity=_ZERO,
+        sway=_ZERO,
+        sway_hz=(1.0, 1.0, 1.0),
+        rot_amp=_ZERO,
+        rot_hz=(1.0, 1.0, 1.0),
+        shake_amp=_ZERO,
+        shake_hz=(1.0, 1.0, 1.0),
+        phase=(0.0,) * 6,
+    ),
 }
 
 
@@ -105,9 +143,16 @@ def motion_names() -> list:
     return sorted(MOTIONS)
 
 
-def make_motion(name: str, scene=None, position=None, yaw: float | None = None,
-                pitch: float | None = None, duration: float = 1.0, scale: float = 1.0,
-                **overrides) -> Motion:
+def make_motion(
+    name: str,
+    scene=None,
+    position=None,
+    yaw: float | None = None,
+    pitch: float | None = None,
+    duration: float = 1.0,
+    scale: float = 1.0,
+    **overrides,
+) -> Motion:
     """A preset motion around a viewpoint.
 
     Args:
@@ -130,7 +175,12 @@ def make_motion(name: str, scene=None, position=None, yaw: float | None = None,
         p0 = np.asarray(position, dtype=float)
     fields = dict(MOTIONS[name])
     fields.update(overrides)
-    m = Motion(p0=tuple(float(x) for x in p0), name=name,
-               yaw=float(y0 if yaw is None else yaw), pitch=float(pt0 if pitch is None else pitch),
-               t_center=0.5 * float(duration), scale=float(scale))
+    m = Motion(
+        p0=tuple(float(x) for x in p0),
+        name=name,
+        yaw=float(y0 if yaw is None else yaw),
+        pitch=float(pt0 if pitch is None else pitch),
+        t_center=0.5 * float(duration),
+        scale=float(scale),
+    )
     return replace(m, **fields)

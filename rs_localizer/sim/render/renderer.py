@@ -30,8 +30,14 @@ from ...camera import CameraModel
 from ..trajectory import ground_truth, project_rs
 from .scene import Scene
 
-__all__ = ["Renderer", "RenderedFrame", "NoiseModel", "camera_preset", "CAMERA_PRESETS",
-           "frame_times"]
+__all__ = [
+    "CAMERA_PRESETS",
+    "NoiseModel",
+    "RenderedFrame",
+    "Renderer",
+    "camera_preset",
+    "frame_times",
+]
 
 MAX_LEVELS = 16
 
@@ -46,23 +52,37 @@ CAMERA_PRESETS = {
 }
 
 
-def camera_preset(name: str = "vga", distortion: bool = True, readout_time: float | None = None,
-                  line_delay: float | None = None, reference_row=None,
-                  readout: str = "top_to_bottom") -> CameraModel:
+def camera_preset(
+    name: str = "vga",
+    distortion: bool = True,
+    readout_time: float | None = None,
+    line_delay: float | None = None,
+    reference_row=None,
+    readout: str = "top_to_bottom",
+) -> CameraModel:
     """A preset camera (``vga`` 640x480, ``hd`` 1280x720) with RS timing.
 
     ``line_delay`` (s/line) wins over ``readout_time`` (s/frame); ``line_delay=0`` gives a
     global shutter. Raises ValueError for an unknown preset."""
     if name not in CAMERA_PRESETS:
-        raise ValueError(f"unknown camera preset {name!r}; expected one of {sorted(CAMERA_PRESETS)}")
+        raise ValueError(
+            f"unknown camera preset {name!r}; expected one of {sorted(CAMERA_PRESETS)}"
+        )
     w, h, fx, fy, cx, cy, D, ro = CAMERA_PRESETS[name]
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     lines = h if readout in ("top_to_bottom", "bottom_to_top") else w
     if line_delay is None:
         line_delay = (ro if readout_time is None else readout_time) / lines
-    return CameraModel(K=K, D=np.array(D) if distortion else np.zeros(0), width=w, height=h,
-                       line_delay=line_delay, readout=readout, reference_row=reference_row,
-                       distortion_model="plumb_bob")
+    return CameraModel(
+        K=K,
+        D=np.array(D) if distortion else np.zeros(0),
+        width=w,
+        height=h,
+        line_delay=line_delay,
+        readout=readout,
+        reference_row=reference_row,
+        distortion_model="plumb_bob",
+    )
 
 
 # ------------------------------------------------------------------------------ packing
@@ -91,17 +111,35 @@ class _Packed:
         return (self.qo, self.qu, self.qv, self.qn, self.qsize)
 
     def all_args(self):
-        return (self.qo, self.qu, self.qv, self.qn, self.qsize, self.qtex, self.qtexel,
-                self.gcell, self.gdim, self.goff, self.gcells, self.drect, self.dtex,
-                self.dtexel, self.tbuf, self.tinfo, self.tnl, self.bg)
+        return (
+            self.qo,
+            self.qu,
+            self.qv,
+            self.qn,
+            self.qsize,
+            self.qtex,
+            self.qtexel,
+            self.gcell,
+            self.gdim,
+            self.goff,
+            self.gcells,
+            self.drect,
+            self.dtex,
+            self.dtexel,
+            self.tbuf,
+            self.tinfo,
+            self.tnl,
+            self.bg,
+        )
 
 
 def _pyramid(tex: np.ndarray):
     levels = [np.ascontiguousarray(tex, dtype=np.uint8)]
     while max(levels[-1].shape[:2]) > 1 and len(levels) < MAX_LEVELS:
         h, w = levels[-1].shape[:2]
-        nxt = cv2.resize(levels[-1], (max((w + 1) // 2, 1), max((h + 1) // 2, 1)),
-                         interpolation=cv2.INTER_AREA)
+        nxt = cv2.resize(
+            levels[-1], (max((w + 1) // 2, 1), max((h + 1) // 2, 1)), interpolation=cv2.INTER_AREA
+        )
         levels.append(np.ascontiguousarray(nxt.reshape(nxt.shape[0], nxt.shape[1], 3)))
     return levels
 
@@ -127,14 +165,26 @@ def _pack(scene: Scene) -> _Packed:
     qn = np.cross(qv, qu)
     qsize = np.array([q.size for q in scene.quads], float).reshape(Q, 2)
     qtex = np.array([add_tex(q.texture) for q in scene.quads], np.int64)
-    qtexel = np.array([math.sqrt(q.size[0] / q.texture.shape[1] * q.size[1] / q.texture.shape[0])
-                       for q in scene.quads])
+    qtexel = np.array(
+        [
+            math.sqrt(q.size[0] / q.texture.shape[1] * q.size[1] / q.texture.shape[0])
+            for q in scene.quads
+        ]
+    )
     M = len(scene.decals)
     drect = np.array([d.rect for d in scene.decals], float).reshape(M, 4)
     dtex = np.array([add_tex(d.texture) for d in scene.decals], np.int64)
-    dtexel = np.array([math.sqrt((d.rect[2] - d.rect[0]) / d.texture.shape[1]
-                                 * (d.rect[3] - d.rect[1]) / d.texture.shape[0])
-                       for d in scene.decals])
+    dtexel = np.array(
+        [
+            math.sqrt(
+                (d.rect[2] - d.rect[0])
+                / d.texture.shape[1]
+                * (d.rect[3] - d.rect[1])
+                / d.texture.shape[0]
+            )
+            for d in scene.decals
+        ]
+    )
     # per-quad uniform grid of decal indices
     gcell = np.ones(Q)
     gdim = np.ones((Q, 2), np.int64)
@@ -142,9 +192,16 @@ def _pack(scene: Scene) -> _Packed:
     lists = []
     for qi in range(Q):
         mine = [k for k, d in enumerate(scene.decals) if d.quad == qi]
-        cell = min([min(scene.decals[k].rect[2] - scene.decals[k].rect[0],
-                        scene.decals[k].rect[3] - scene.decals[k].rect[1]) for k in mine]
-                   + [max(qsize[qi])])
+        cell = min(
+            [
+                min(
+                    scene.decals[k].rect[2] - scene.decals[k].rect[0],
+                    scene.decals[k].rect[3] - scene.decals[k].rect[1],
+                )
+                for k in mine
+            ]
+            + [max(qsize[qi])]
+        )
         nx = max(int(math.ceil(qsize[qi, 0] / cell)), 1)
         ny = max(int(math.ceil(qsize[qi, 1] / cell)), 1)
         gcell[qi], gdim[qi] = cell, (nx, ny)
@@ -159,7 +216,7 @@ def _pack(scene: Scene) -> _Packed:
     maxd = max([len(c) for c in lists] + [1])
     gcells = np.full((len(lists), maxd), -1, np.int32)
     for i, c in enumerate(lists):
-        gcells[i, :len(c)] = c
+        gcells[i, : len(c)] = c
     # texture pyramids in one buffer
     chunks, tinfo, tnl, off = [], np.zeros((len(textures), MAX_LEVELS, 3), np.int64), [], 0
     for t, img in enumerate(textures):
@@ -169,9 +226,26 @@ def _pack(scene: Scene) -> _Packed:
             tinfo[t, L] = (off, lv.shape[1], lv.shape[0])
             chunks.append(lv.ravel())
             off += lv.size
-    packed = _Packed(qo, qu, qv, qn, qsize, qtex, qtexel, gcell, gdim, goff, gcells, drect,
-                     dtex, dtexel, np.concatenate(chunks), tinfo, np.array(tnl, np.int64),
-                     np.asarray(scene.background, float))
+    packed = _Packed(
+        qo,
+        qu,
+        qv,
+        qn,
+        qsize,
+        qtex,
+        qtexel,
+        gcell,
+        gdim,
+        goff,
+        gcells,
+        drect,
+        dtex,
+        dtexel,
+        np.concatenate(chunks),
+        tinfo,
+        np.array(tnl, np.int64),
+        np.asarray(scene.background, float),
+    )
     scene._packed = packed
     return packed
 
@@ -210,7 +284,7 @@ def _trilinear(tbuf, tinfo, tnl, t, lod, sx, sy):
     if lod <= 0.0:
         return _bilinear(tbuf, tinfo, t, 0, sx, sy)
     L = int(lod)
-    if L >= nl - 1:
+    if nl - 1 <= L:
         return _bilinear(tbuf, tinfo, t, nl - 1, sx, sy)
     f = lod - L
     r0, g0, b0 = _bilinear(tbuf, tinfo, t, L, sx, sy)
@@ -252,8 +326,33 @@ def _intersect(o0, o1, o2, d0, d1, d2, qo, qu, qv, qn, qsize):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def _render_kernel(dirs, ss, axis, Rs, ps, inv_f, qo, qu, qv, qn, qsize, qtex, qtexel, gcell,
-                   gdim, goff, gcells, drect, dtex, dtexel, tbuf, tinfo, tnl, bg, out):
+def _render_kernel(
+    dirs,
+    ss,
+    axis,
+    Rs,
+    ps,
+    inv_f,
+    qo,
+    qu,
+    qv,
+    qn,
+    qsize,
+    qtex,
+    qtexel,
+    gcell,
+    gdim,
+    goff,
+    gcells,
+    drect,
+    dtex,
+    dtexel,
+    tbuf,
+    tinfo,
+    tnl,
+    bg,
+    out,
+):
     H = out.shape[0]
     W = out.shape[1]
     K = Rs.shape[0]
@@ -280,8 +379,7 @@ def _render_kernel(dirs, ss, axis, Rs, ps, inv_f, qo, qu, qv, qn, qsize, qtex, q
                         d0 = Rs[k, line, 0, 0] * c0 + Rs[k, line, 0, 1] * c1 + Rs[k, line, 0, 2]
                         d1 = Rs[k, line, 1, 0] * c0 + Rs[k, line, 1, 1] * c1 + Rs[k, line, 1, 2]
                         d2 = Rs[k, line, 2, 0] * c0 + Rs[k, line, 2, 1] * c1 + Rs[k, line, 2, 2]
-                        q, lam, a, b, cs = _intersect(o0, o1, o2, d0, d1, d2, qo, qu, qv, qn,
-                                                      qsize)
+                        q, lam, a, b, cs = _intersect(o0, o1, o2, d0, d1, d2, qo, qu, qv, qn, qsize)
                         if q < 0:
                             ar += bg[0]
                             ag += bg[1]
@@ -298,8 +396,12 @@ def _render_kernel(dirs, ss, axis, Rs, ps, inv_f, qo, qu, qv, qn, qsize, qtex, q
                             di = gcells[cell, m]
                             if di < 0:
                                 break
-                            if (a >= drect[di, 0] and a <= drect[di, 2] and b >= drect[di, 1]
-                                    and b <= drect[di, 3]):
+                            if (
+                                a >= drect[di, 0]
+                                and a <= drect[di, 2]
+                                and b >= drect[di, 1]
+                                and b <= drect[di, 3]
+                            ):
                                 t = dtex[di]
                                 sxn = (a - drect[di, 0]) / (drect[di, 2] - drect[di, 0])
                                 syn = (b - drect[di, 1]) / (drect[di, 3] - drect[di, 1])
@@ -325,8 +427,9 @@ def _cast_kernel(dirs, lines, Rs, ps, qo, qu, qv, qn, qsize, X, quad, depth):
         d0 = Rs[L, 0, 0] * c0 + Rs[L, 0, 1] * c1 + Rs[L, 0, 2] * c2
         d1 = Rs[L, 1, 0] * c0 + Rs[L, 1, 1] * c1 + Rs[L, 1, 2] * c2
         d2 = Rs[L, 2, 0] * c0 + Rs[L, 2, 1] * c1 + Rs[L, 2, 2] * c2
-        q, lam, a, b, cs = _intersect(ps[L, 0], ps[L, 1], ps[L, 2], d0, d1, d2, qo, qu, qv, qn,
-                                      qsize)
+        q, lam, _a, _b, _cs = _intersect(
+            ps[L, 0], ps[L, 1], ps[L, 2], d0, d1, d2, qo, qu, qv, qn, qsize
+        )
         quad[i] = q
         if q < 0:
             X[i, 0] = np.nan
@@ -344,8 +447,13 @@ def _cast_kernel(dirs, lines, Rs, ps, qo, qu, qv, qn, qsize, X, quad, depth):
 @functools.lru_cache(maxsize=8)
 def _rays_cached(key, ss):
     K, D, w, h, model = key
-    cam = CameraModel(K=np.frombuffer(K).reshape(3, 3), D=np.frombuffer(D), width=w, height=h,
-                      distortion_model=model)
+    cam = CameraModel(
+        K=np.frombuffer(K).reshape(3, 3),
+        D=np.frombuffer(D),
+        width=w,
+        height=h,
+        distortion_model=model,
+    )
     offs = (np.arange(ss) + 0.5) / ss - 0.5
     us = (np.arange(w)[:, None] + offs[None, :]).ravel()
     vs = (np.arange(h)[:, None] + offs[None, :]).ravel()
@@ -360,8 +468,13 @@ def _rays_cached(key, ss):
 def camera_rays(camera: CameraModel, supersample: int = 1) -> np.ndarray:
     """(H*s, W*s, 3) camera-frame ray directions ``(x, y, 1)`` of the (sub)pixel samples: the
     undistorted normalized coordinates of each distorted pixel position (cached)."""
-    key = (camera.K.tobytes(), camera.D.tobytes(), camera.width, camera.height,
-           camera.distortion_model)
+    key = (
+        camera.K.tobytes(),
+        camera.D.tobytes(),
+        camera.width,
+        camera.height,
+        camera.distortion_model,
+    )
     return _rays_cached(key, int(supersample))
 
 
@@ -374,7 +487,7 @@ class NoiseModel:
     shot_gain: float = 0.05
 
     def apply(self, img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        sigma = np.sqrt(self.read ** 2 + self.shot_gain * np.clip(img, 0, None))
+        sigma = np.sqrt(self.read**2 + self.shot_gain * np.clip(img, 0, None))
         return img + rng.standard_normal(img.shape, dtype=np.float32) * sigma
 
 
@@ -432,9 +545,15 @@ class Renderer:
         noise: :class:`NoiseModel` or None.
     """
 
-    def __init__(self, scene: Scene, camera: CameraModel, supersample: int = 2,
-                 exposure: float = 0.0, exposure_samples: int | None = None,
-                 noise: NoiseModel | None = None):
+    def __init__(
+        self,
+        scene: Scene,
+        camera: CameraModel,
+        supersample: int = 2,
+        exposure: float = 0.0,
+        exposure_samples: int | None = None,
+        noise: NoiseModel | None = None,
+    ):
         if supersample < 1:
             raise ValueError("supersample must be >= 1")
         if exposure < 0:
@@ -466,15 +585,15 @@ class Renderer:
             t_lines = self.line_times(t_first)
         else:
             raise ValueError(f"shutter must be 'rolling' or 'global', got {shutter!r}")
-        offs = (exposure * ((np.arange(n_exp) + 0.5) / n_exp - 0.5) if exposure > 0
-                else np.zeros(1))
+        offs = exposure * ((np.arange(n_exp) + 0.5) / n_exp - 0.5) if exposure > 0 else np.zeros(1)
         t = offs[:, None] + t_lines[None, :]
         R, p = motion.pose(t)
         return np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(p, dtype=np.float64)
 
     # ---------------------------------------------------------------- rendering
-    def render_image(self, motion, t_first: float, shutter: str = "rolling",
-                     exposure: float | None = None) -> np.ndarray:
+    def render_image(
+        self, motion, t_first: float, shutter: str = "rolling", exposure: float | None = None
+    ) -> np.ndarray:
         """(H, W, 3) float32 noise-free RGB in [0, 255] for the frame starting at ``t_first``."""
         exposure = self.exposure if exposure is None else float(exposure)
         n_exp = 1
@@ -483,15 +602,26 @@ class Renderer:
                 n_exp = int(self.exposure_samples)
             else:
                 w, v = motion.velocity_body(t_first)
-                blur_px = (np.linalg.norm(w) + np.linalg.norm(v) / 2.0) * exposure \
+                blur_px = (
+                    (np.linalg.norm(w) + np.linalg.norm(v) / 2.0)
+                    * exposure
                     * self.camera.mean_focal
+                )
                 n_exp = int(np.clip(np.ceil(2.0 * blur_px), 1, 16))
         Rs, ps = self._poses(motion, t_first, shutter, exposure, n_exp)
         cam = self.camera
         out = np.empty((cam.height, cam.width, 3), np.float32)
         axis = -1 if shutter == "global" else self._axis
-        _render_kernel(camera_rays(cam, self.supersample), self.supersample, axis, Rs, ps,
-                       1.0 / cam.mean_focal, *self.packed.all_args(), out)
+        _render_kernel(
+            camera_rays(cam, self.supersample),
+            self.supersample,
+            axis,
+            Rs,
+            ps,
+            1.0 / cam.mean_focal,
+            *self.packed.all_args(),
+            out,
+        )
         return out
 
     def render_pose(self, orientation, position, mono: bool = False) -> np.ndarray:
@@ -501,13 +631,29 @@ class Renderer:
         Rs = np.ascontiguousarray(np.asarray(orientation, float).reshape(1, 1, 3, 3))
         ps = np.ascontiguousarray(np.asarray(position, float).reshape(1, 1, 3))
         out = np.empty((cam.height, cam.width, 3), np.float32)
-        _render_kernel(camera_rays(cam, self.supersample), self.supersample, -1, Rs, ps,
-                       1.0 / cam.mean_focal, *self.packed.all_args(), out)
+        _render_kernel(
+            camera_rays(cam, self.supersample),
+            self.supersample,
+            -1,
+            Rs,
+            ps,
+            1.0 / cam.mean_focal,
+            *self.packed.all_args(),
+            out,
+        )
         img = np.clip(np.rint(out), 0, 255).astype(np.uint8)
         return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if mono else img
 
-    def render(self, motion, t_first: float = 0.0, index: int = 0, shutter: str = "rolling",
-               mono: bool = False, rng=None, exposure: float | None = None) -> RenderedFrame:
+    def render(
+        self,
+        motion,
+        t_first: float = 0.0,
+        index: int = 0,
+        shutter: str = "rolling",
+        mono: bool = False,
+        rng=None,
+        exposure: float | None = None,
+    ) -> RenderedFrame:
         """Render one frame (uint8, with noise if configured) and its ground truth."""
         img = self.render_image(motion, t_first, shutter, exposure)
         if self.noise is not None:
@@ -517,22 +663,45 @@ class Renderer:
         if mono:
             img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         R, p, w, v, t_ref = ground_truth(self.camera, motion, t_first)
-        return RenderedFrame(index=int(index), image=img, t_first=float(t_first),
-                             t_ref=float(t_ref), line_times=self.line_times(t_first, shutter),
-                             orientation=R, position=p, angular_velocity=w, linear_velocity=v,
-                             shutter=shutter)
+        return RenderedFrame(
+            index=int(index),
+            image=img,
+            t_first=float(t_first),
+            t_ref=float(t_ref),
+            line_times=self.line_times(t_first, shutter),
+            orientation=R,
+            position=p,
+            angular_velocity=w,
+            linear_velocity=v,
+            shutter=shutter,
+        )
 
-    def render_sequence(self, motion, frames: int, fps: float = 30.0, t0: float = 0.0,
-                        shutter: str = "rolling", mono: bool = False, seed: int = 0):
+    def render_sequence(
+        self,
+        motion,
+        frames: int,
+        fps: float = 30.0,
+        t0: float = 0.0,
+        shutter: str = "rolling",
+        mono: bool = False,
+        seed: int = 0,
+    ):
         """Yield :class:`RenderedFrame` for frames ``0..frames-1`` (first line at
         ``t0 + k / fps``); noise is seeded per frame from ``seed``."""
         for k in range(int(frames)):
-            yield self.render(motion, float(frame_times(k, fps, t0)), index=k, shutter=shutter,
-                              mono=mono, rng=np.random.default_rng([seed, k]))
+            yield self.render(
+                motion,
+                float(frame_times(k, fps, t0)),
+                index=k,
+                shutter=shutter,
+                mono=mono,
+                rng=np.random.default_rng([seed, k]),
+            )
 
     # ---------------------------------------------------------------- geometry
-    def cast(self, points_px, motion=None, t_first: float = 0.0, shutter: str = "rolling",
-             pose=None):
+    def cast(
+        self, points_px, motion=None, t_first: float = 0.0, shutter: str = "rolling", pose=None
+    ):
         """World points seen at (distorted) pixels: ray casting with the pose of each pixel's
         line (or a fixed ``pose=(orientation cam->world, position)``).
 
@@ -561,22 +730,38 @@ class Renderer:
         quad = np.empty(len(uv), np.int64)
         depth = np.empty(len(uv))
         p = self.packed
-        _cast_kernel(np.ascontiguousarray(dirs), lines, np.ascontiguousarray(Rs, dtype=float),
-                     np.ascontiguousarray(ps, dtype=float), p.qo, p.qu, p.qv, p.qn, p.qsize,
-                     X, quad, depth)
+        _cast_kernel(
+            np.ascontiguousarray(dirs),
+            lines,
+            np.ascontiguousarray(Rs, dtype=float),
+            np.ascontiguousarray(ps, dtype=float),
+            p.qo,
+            p.qu,
+            p.qv,
+            p.qn,
+            p.qsize,
+            X,
+            quad,
+            depth,
+        )
         return X, quad, depth
 
     def hit_map(self, motion, t_first: float = 0.0, shutter: str = "rolling"):
         """Per-pixel (pixel centres) world points (H, W, 3), quad ids (H, W), depth (H, W)."""
         cam = self.camera
-        vv, uu = np.mgrid[0:cam.height, 0:cam.width]
-        X, q, d = self.cast(np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float), motion,
-                            t_first, shutter)
-        return (X.reshape(cam.height, cam.width, 3), q.reshape(cam.height, cam.width),
-                d.reshape(cam.height, cam.width))
+        vv, uu = np.mgrid[0 : cam.height, 0 : cam.width]
+        X, q, d = self.cast(
+            np.stack([uu.ravel(), vv.ravel()], axis=1).astype(float), motion, t_first, shutter
+        )
+        return (
+            X.reshape(cam.height, cam.width, 3),
+            q.reshape(cam.height, cam.width),
+            d.reshape(cam.height, cam.width),
+        )
 
-    def project(self, X, motion, t_first: float = 0.0, shutter: str = "rolling",
-                occlusion: bool = True):
+    def project(
+        self, X, motion, t_first: float = 0.0, shutter: str = "rolling", occlusion: bool = True
+    ):
         """Exact projection of world points into the frame: each point at the capture time of
         its own line (:func:`rs_localizer.sim.trajectory.project_rs`), or with the reference pose
         for a global shutter. With ``occlusion``, points hidden behind a quad are dropped.
@@ -603,4 +788,3 @@ class Renderer:
             ok[idx[~vis]] = False
         uv = np.where(ok[:, None], uv, np.nan)
         return uv, ok
-

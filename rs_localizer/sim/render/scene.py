@@ -29,13 +29,33 @@ import cv2
 import numpy as np
 
 from ...frontends._cv_compat import marker_image
-from ...maps import (SCENE_DIR, _vec, checkerboard_corners, checkerboard_layout, load_marker_map,
-                     marker_dictionary, marker_layout, scene_names, scene_path, scene_quad_frames,
-                     write_marker_map)
+from ...maps import (
+    SCENE_DIR,
+    _vec,
+    checkerboard_corners,
+    checkerboard_layout,
+    load_marker_map,
+    marker_dictionary,
+    marker_layout,
+    scene_names,
+    scene_path,
+    scene_quad_frames,
+    write_marker_map,
+)
 
-__all__ = ["Quad", "Decal", "Marker", "Scene", "load_scene", "scene_names", "SCENE_DIR",
-           "marker_dictionary", "marker_texture", "save_marker_map", "load_marker_map"]
-
+__all__ = [
+    "SCENE_DIR",
+    "Decal",
+    "Marker",
+    "Quad",
+    "Scene",
+    "load_marker_map",
+    "load_scene",
+    "marker_dictionary",
+    "marker_texture",
+    "save_marker_map",
+    "scene_names",
+]
 
 
 @dataclass
@@ -99,8 +119,9 @@ class Scene:
     decals: list = field(default_factory=list)
     markers: list = field(default_factory=list)
     dictionary: str = "DICT_4X4_250"
-    viewpoint: dict = field(default_factory=lambda: {"position": [0.0, 0.0, 1.5],
-                                                     "look_at": [1.0, 0.0, 1.5]})
+    viewpoint: dict = field(
+        default_factory=lambda: {"position": [0.0, 0.0, 1.5], "look_at": [1.0, 0.0, 1.5]}
+    )
     background: tuple = (30, 30, 35)
     source: str | None = None  # YAML path it was loaded from
     _packed: object = field(default=None, repr=False, compare=False)
@@ -110,8 +131,9 @@ class Scene:
         for i, q in enumerate(self.quads):
             if q.name == name:
                 return i
-        raise KeyError(f"scene {self.name!r} has no quad {name!r}; quads: "
-                       f"{[q.name for q in self.quads]}")
+        raise KeyError(
+            f"scene {self.name!r} has no quad {name!r}; quads: {[q.name for q in self.quads]}"
+        )
 
     # ---------------------------------------------------------------- markers
     def marker_corners(self) -> dict:
@@ -152,15 +174,17 @@ class Scene:
 
 
 # ------------------------------------------------------------------------------- textures
-def marker_texture(dictionary: str, marker_id: int, texels_per_cell: int = 16,
-                   margin_cells: int = 1) -> np.ndarray:
+def marker_texture(
+    dictionary: str, marker_id: int, texels_per_cell: int = 16, margin_cells: int = 1
+) -> np.ndarray:
     """(S, S, 3) uint8 marker image: black-bordered code plus a white quiet zone of
     ``margin_cells`` cells; every cell is exactly ``texels_per_cell`` texels."""
     d = marker_dictionary(dictionary)
     n = d.markerSize + 2
     if marker_id < 0 or marker_id >= len(d.bytesList):
-        raise ValueError(f"marker id {marker_id} out of range for {dictionary} "
-                         f"({len(d.bytesList)} markers)")
+        raise ValueError(
+            f"marker id {marker_id} out of range for {dictionary} ({len(d.bytesList)} markers)"
+        )
     img = marker_image(d, int(marker_id), n * texels_per_cell, border_bits=1)  # 4.6: drawMarker
     m = margin_cells * texels_per_cell
     img = cv2.copyMakeBorder(img, m, m, m, m, cv2.BORDER_CONSTANT, value=255)
@@ -186,7 +210,7 @@ def _noise_texture(shape, feature_px: float, seed: int) -> np.ndarray:
     h, w = shape
     acc = np.zeros((h, w), np.float32)
     for octave in range(4):
-        s = max(feature_px / 2 ** octave, 1.0)
+        s = max(feature_px / 2**octave, 1.0)
         small = rng.normal(0, 1, (max(int(h / s), 2), max(int(w / s), 2))).astype(np.float32)
         acc += cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC) / (octave + 1)
     acc = (acc - acc.mean()) / (acc.std() + 1e-9)
@@ -207,8 +231,11 @@ def _load_image(ref: str, base: Path | None, seed: int) -> np.ndarray:
             return _as_rgb(getattr(skimage.data, name)())
         except (ImportError, AttributeError, OSError) as e:
             if name not in _SKIMAGE_WARNED:
-                warnings.warn(f"scikit-image photograph {name!r} unavailable ({e}); using a "
-                              "procedural texture (pip install scikit-image)", stacklevel=3)
+                warnings.warn(
+                    f"scikit-image photograph {name!r} unavailable ({e}); using a "
+                    "procedural texture (pip install scikit-image)",
+                    stacklevel=3,
+                )
                 _SKIMAGE_WARNED.add(name)
             return _noise_texture((512, 512), 24.0, seed)
     path = Path(ref)
@@ -246,10 +273,13 @@ def _make_texture(spec: dict, size, base: Path | None, seed: int) -> np.ndarray:
             return img
         tw, th = float(tile[0]), float(tile[1])
         tile_px = (max(int(round(tw * tpm)), 1), max(int(round(th * tpm)), 1))
-        t = cv2.resize(img, tile_px, interpolation=cv2.INTER_AREA
-                       if tile_px[0] < img.shape[1] else cv2.INTER_CUBIC)
+        t = cv2.resize(
+            img,
+            tile_px,
+            interpolation=cv2.INTER_AREA if tile_px[0] < img.shape[1] else cv2.INTER_CUBIC,
+        )
         reps = (int(np.ceil(shape[0] / t.shape[0])), int(np.ceil(shape[1] / t.shape[1])), 1)
-        return np.ascontiguousarray(np.tile(t, reps)[:shape[0], :shape[1]])
+        return np.ascontiguousarray(np.tile(t, reps)[: shape[0], : shape[1]])
     raise ValueError(f"unknown texture spec {spec!r}: expected color, checker, noise or image")
 
 
@@ -274,17 +304,19 @@ def load_scene(name_or_path) -> Scene:
         source = str(p)
     seed = 0
     quads = []
-    for k, ((name, o, u, v, size), qd) in enumerate(zip(scene_quad_frames(data),
-                                                        data["quads"])):
+    for k, ((name, o, u, v, size), qd) in enumerate(zip(scene_quad_frames(data), data["quads"])):
         size = tuple(size)
         tex = _make_texture(qd.get("texture", {"color": [200, 200, 200]}), size, base, seed + k)
         quads.append(Quad(name, o, u, v, size, tex))
-    scene = Scene(name=str(data.get("name", "scene")), quads=quads,
-                  dictionary=str(data.get("dictionary", "DICT_4X4_250")),
-                  viewpoint=data.get("viewpoint") or {"position": [0.0, 0.0, 1.5],
-                                                      "look_at": [1.0, 0.0, 1.5]},
-                  background=tuple(int(c) for c in data.get("background", (30, 30, 35))),
-                  source=source)
+    scene = Scene(
+        name=str(data.get("name", "scene")),
+        quads=quads,
+        dictionary=str(data.get("dictionary", "DICT_4X4_250")),
+        viewpoint=data.get("viewpoint")
+        or {"position": [0.0, 0.0, 1.5], "look_at": [1.0, 0.0, 1.5]},
+        background=tuple(int(c) for c in data.get("background", (30, 30, 35))),
+        source=source,
+    )
     for k, dd in enumerate(data.get("decals", []) or []):
         qi = scene.quad_index(dd["quad"])
         a0, b0 = _vec(dd["at"], 2, "at")
@@ -293,8 +325,9 @@ def load_scene(name_or_path) -> Scene:
         scene.decals.append(Decal(qi, (a0, b0, a0 + w, b0 + h), tex))
     _add_markers(scene, data.get("markers") or {}, marker_layout(data))
     for qi, a, b, nu, nv, sq in checkerboard_layout(data):
-        tex = _make_texture({"checker": sq, "texels_per_metre": 64 / sq}, (nu * sq, nv * sq),
-                            base, 0)
+        tex = _make_texture(
+            {"checker": sq, "texels_per_metre": 64 / sq}, (nu * sq, nv * sq), base, 0
+        )
         scene.decals.append(Decal(qi, (a, b, a + nu * sq, b + nv * sq), tex))
     scene._checker_corners = checkerboard_corners(data)
     return scene
@@ -312,8 +345,12 @@ def _add_markers(scene: Scene, spec: dict, layout: list):
         q = scene.quads[m.quad]
         mg = margin_cells * m.size / cells
         rect = (m.a - mg, m.b - mg, m.a + m.size + mg, m.b + m.size + mg)
-        if rect[0] < -1e-9 or rect[1] < -1e-9 or rect[2] > q.size[0] + 1e-9 \
-                or rect[3] > q.size[1] + 1e-9:
+        if (
+            rect[0] < -1e-9
+            or rect[1] < -1e-9
+            or rect[2] > q.size[0] + 1e-9
+            or rect[3] > q.size[1] + 1e-9
+        ):
             raise ValueError(f"marker {m.id} (with its margin) does not fit on quad {q.name}")
         if m.id not in textures:
             textures[m.id] = marker_texture(scene.dictionary, m.id, tpc, margin_cells)
