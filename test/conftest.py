@@ -109,6 +109,7 @@ def refused_start(tmp_path, param_files, namespace, timeout):
     """Start a node on ``param_files`` that must refuse them and exit by itself. Returns
     ``(exited, rc, log)``: whether it exited within ``timeout`` s, its exit code (a node still
     running then is stopped first) and its log."""
+    import contextlib
     import subprocess
 
     from rs_localizer.ros.process import NodeProcess, ros_env
@@ -116,10 +117,8 @@ def refused_start(tmp_path, param_files, namespace, timeout):
     n = NodeProcess(
         list(param_files), namespace=namespace, env=ros_env(), log=tmp_path / "refused.log"
     )
-    try:
+    with contextlib.suppress(subprocess.TimeoutExpired):
         n.proc.wait(timeout)
-    except subprocess.TimeoutExpired:
-        pass
     exited = not n.alive()
     rc = n.stop()
     return exited, rc, n.log

@@ -16,6 +16,7 @@ The number of examples each test ran is printed at the end of the module (``-s``
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections import Counter
 from types import SimpleNamespace
@@ -24,8 +25,6 @@ import numpy as np
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-import itertools
-
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 

@@ -230,7 +230,7 @@ def test_node_publishes_visualization(tmp_path, ros_context):
                 pc.correspondence_cloud(f.uv, f.xyz, frame_id="cam", stamp=f.stamp_ns)
             )
             assert probe.wait_pose(f.t_ref_ns, timeout=20) is not None, node.log
-            assert probe.wait(lambda: all(len(v) > k for v in got.values())), {
+            assert probe.wait(lambda k=k: all(len(v) > k for v in got.values())), {
                 n: len(v) for n, v in got.items()
             }
             pose = probe.pose_near(f.t_ref_ns)
@@ -320,7 +320,7 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
     paths = _topic_messages(out, "/rs_localizer/path")
     poses = _topic_messages(out, "/rs_localizer/pose")
     assert len(images) == len(markers) == len(paths) == len(poses) == 3
-    for f, im, ma, path, pose in zip(frames, images, markers, paths, poses):
+    for f, im, ma, path, pose in zip(frames, images, markers, paths, poses, strict=True):
         assert stamp_to_ns(im.header.stamp) == f.stamp_ns
         img, enc = image_from_msg(im)
         assert enc == "bgr8" and img.shape == (720, 1280, 3)
