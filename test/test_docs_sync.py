@@ -1,25 +1,32 @@
-"""The README documents every failure reason the node can emit, every camera_info rejection
-reason, and every node parameter (a reason emitted but not documented is a defect).
+"""The node reference (docs/node.md) documents every failure reason the node can emit, every
+camera_info rejection reason, every node parameter with its default and every diagnostics key
+(a reason, parameter or key the node has but the page does not is a defect, and the page names
+nothing the node does not have). The README's short parameter table shows the same defaults.
 
 Reasons are collected from the sources (the string literals passed to the node's ``_fail``,
 ``_Drop`` and ``_reject_camera_info``, the decoders' reason tuples, the estimator's ``_fail``
-calls) and compared with the first column of the README's ``| reason |`` tables, both ways.
+calls; the leading underscore optional, in any module of ``ros/`` and ``estimation/``) and
+compared with the first column of the page's ``| reason |`` tables, both ways. Diagnostics keys
+are read from the status a live node publishes on ``/diagnostics``.
 """
 
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "rs_localizer"
+NODE_DOC = ROOT / "docs" / "node.md"
+README = ROOT / "README.md"
 
 
-def _readme_table_names(header: str) -> set:
-    """Backticked names in the first column of every README table whose first header cell is
-    ``header``."""
+def _table_names(header: str, path: Path = NODE_DOC) -> set:
+    """Backticked names in the first column of every table of ``path`` whose first header cell
+    is ``header``."""
     names, inside = set(), False
-    for line in (ROOT / "README.md").read_text().splitlines():
+    for line in path.read_text().splitlines():
         cells = (
             [c.strip() for c in line.strip().strip("|").split("|")]
             if line.startswith("|")
@@ -36,22 +43,32 @@ def _readme_table_names(header: str) -> set:
     return names
 
 
-def _literals(path: Path, *functions) -> set:
-    src = path.read_text()
+def _literals(paths, *functions) -> set:
+    """First string-literal arguments (``fn("reason")``, ``fn("a" if x else "b")``) of calls of
+    ``functions`` (or of the same names without their leading underscore) in ``paths``."""
     out = set()
-    for fn in functions:
-        for m in re.finditer(
-            rf"{fn}\(\s*\"([a-z_]+)\"(?:\s+if\s+[\w.]+\s+else\s+\"([a-z_]+)\")?", src
-        ):
-            out |= {g for g in m.groups() if g}
+    for path in [paths] if isinstance(paths, Path) else paths:
+        src = path.read_text()
+        for fn in functions:
+            name = re.escape(fn.lstrip("_"))
+            for m in re.finditer(
+                rf"(?<![\w.])(?:self\.|\w+\.)?_?{name}\(\s*\"([a-z_]+)\""
+                rf"(?:\s+if\s+[\w.]+\s+else\s+\"([a-z_]+)\")?",
+                src,
+            ):
+                out |= {g for g in m.groups() if g}
     return out
+
+
+def _modules(package: str) -> list:
+    return sorted((PKG / package).glob("*.py"))
 
 
 def _node_reasons() -> set:
     from rs_localizer.estimation import plausibility
 
-    reasons = _literals(PKG / "ros" / "node.py", "_fail", "_Drop")
-    reasons |= _literals(PKG / "estimation" / "estimate.py", "_fail")
+    reasons = _literals(_modules("ros"), "_fail", "_Drop")
+    reasons |= _literals(_modules("estimation"), "_fail")
     reasons |= {plausibility.IMPLAUSIBLE_MOTION, plausibility.CHEIRALITY}
     src = (PKG / "ros" / "pointcloud.py").read_text()
     reasons |= set(re.findall(r"CloudError\(\s*\"([a-z_]+)\"", src))
@@ -59,7 +76,7 @@ def _node_reasons() -> set:
     return reasons
 
 
-def test_every_failure_reason_is_in_the_readme():
+def test_every_failure_reason_is_documented():
     emitted = _node_reasons()
     assert {
         "bad_layout",
@@ -69,18 +86,47 @@ def test_every_failure_reason_is_in_the_readme():
         "no_camera_info",
         "degenerate_geometry",
         "internal_error",
+        "bad_image",
+        "frontend_too_few_points",
+        "too_few_inliers",
     } <= emitted, emitted  # the scan works
-    documented = _readme_table_names("reason")
+    documented = _table_names("reason")
     assert emitted - documented == set(), f"undocumented failure reasons: {emitted - documented}"
-    camera = set(_literals(PKG / "ros" / "node.py", "_reject_camera_info"))
+    camera = set(_literals(_modules("ros"), "_reject_camera_info"))
     from rs_localizer.ros import conversions
 
     camera |= set(conversions.CAMERA_INFO_REASONS)
-    doc_camera = _readme_table_names("camera_info rejected")
+    assert {"bad_intrinsics", "bad_distortion", "bad_roi"} <= camera, camera  # the scan works
+    doc_camera = _table_names("camera_info rejected")
     assert camera - doc_camera == set(), f"undocumented camera_info reasons: {camera - doc_camera}"
     stale = documented - emitted - camera
-    assert stale == set(), f"README reasons nothing emits: {stale}"
+    assert stale == set(), f"docs/node.md reasons nothing emits: {stale}"
     assert doc_camera - camera == set(), doc_camera - camera
+
+
+def _check_defaults(path: Path, parameters: dict) -> int:
+    """The default column of ``path``'s one-parameter table rows equals the node's default;
+    returns how many rows it checked."""
+    checked = 0
+    for line in path.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        names = re.findall(r"`([^`]+)`", cells[0]) if line.startswith("|") else []
+        if len(names) != 1 or names[0] not in parameters or len(cells) < 3:
+            continue
+        shown = re.findall(r"`([^`]*)`", cells[1])
+        default = parameters[names[0]][0]
+        if len(shown) != 1 or isinstance(default, list):
+            continue
+        text = shown[0]
+        where = (path.name, names[0], text, default)
+        if isinstance(default, bool):
+            assert text == str(default).lower(), where
+        elif isinstance(default, (int, float)):
+            assert float(text) == default, where
+        else:
+            assert text == (default if default else '""'), where
+        checked += 1
+    return checked
 
 
 def test_every_parameter_is_documented_with_its_default():
@@ -88,33 +134,83 @@ def test_every_parameter_is_documented_with_its_default():
 
     pytest.importorskip("rclpy")
     from rs_localizer.ros.node import PARAMETERS
+    from rs_localizer.ros.visualization import VIZ_PARAMETERS
 
-    documented = _readme_table_names("parameter")
+    documented = _table_names("parameter")
     missing = [p for p in PARAMETERS if p not in documented]
-    assert not missing, f"parameters missing from the README tables: {missing}"
-    # the default column of one-parameter rows
-    checked = 0
-    for line in (ROOT / "README.md").read_text().splitlines():
-        cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        names = re.findall(r"`([^`]+)`", cells[0]) if line.startswith("|") else []
-        if len(names) != 1 or names[0] not in PARAMETERS or len(cells) < 3:
-            continue
-        shown = re.findall(r"`([^`]*)`", cells[1])
-        default = PARAMETERS[names[0]][0]
-        if len(shown) != 1 or isinstance(default, list):
-            continue
-        text = shown[0]
-        if isinstance(default, bool):
-            assert text == str(default).lower(), (names[0], text, default)
-        elif isinstance(default, (int, float)):
-            assert float(text) == default, (names[0], text, default)
-        else:
-            assert text == (default if default else '""'), (names[0], text, default)
-        checked += 1
-    assert checked >= 20, checked
+    assert not missing, f"parameters missing from the docs/node.md tables: {missing}"
+    viz_missing = [p for p in VIZ_PARAMETERS if p not in documented]
+    assert not viz_missing, f"viz parameters missing from docs/node.md: {viz_missing}"
+    # ``cameras`` is read by the process runner (ros/runner.py), before the nodes exist
+    assert '"cameras"' in (PKG / "ros" / "runner.py").read_text()
+    known = set(PARAMETERS) | set(VIZ_PARAMETERS) | {"cameras"}
+    stale = documented - known
+    assert not stale, f"docs/node.md documents parameters the node does not have: {stale}"
+    checked = _check_defaults(NODE_DOC, {**PARAMETERS, **VIZ_PARAMETERS})
+    assert checked >= 20 + len(VIZ_PARAMETERS), checked
+    # the README's short table: names the node has, with the same defaults
+    in_readme = _table_names("parameter", README)
+    assert in_readme and in_readme <= set(PARAMETERS), in_readme - set(PARAMETERS)
+    assert _check_defaults(README, PARAMETERS) == len(in_readme)
     yaml_text = (ROOT / "config" / "rs_localizer.yaml").read_text()
     for p in PARAMETERS:
         leaf = p.split(".")[-1]
         assert re.search(rf"^\s*{re.escape(leaf)}:", yaml_text, re.M), (
             f"{p} missing from config/rs_localizer.yaml"
         )
+
+
+def _published_diagnostics_keys(ctx, overrides: dict) -> set:
+    """Keys of the first status a node (no warm-up) publishes on /diagnostics."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.node import RSLocalizerNode
+
+    params = {"warmup": False, "publish_tf": False, "diagnostics_period": 0.1, **overrides}
+    node = RSLocalizerNode(
+        "docs_sync",
+        context=ctx,
+        namespace="/docs_sync",
+        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+    )
+    probe = rclpy.create_node("docs_sync_probe", context=ctx)
+    got = []
+
+    def on_diag(msg):
+        got.extend(s for s in msg.status if "docs_sync" in s.name)
+
+    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(probe)
+    try:
+        deadline = time.monotonic() + 20
+        while not got and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.shutdown()
+        probe.destroy_node()
+        node.destroy_node()
+    assert got, "no /diagnostics status from the node"
+    return {kv.key for kv in got[0].values}
+
+
+def test_every_diagnostics_key_is_documented(ros_context):
+    """Correspondence mode and image mode (ArUco front end): every key the node publishes is in
+    the page's ``| diagnostics key |`` table, and every key there is published in one of the
+    two (``failed.<reason>`` and ``camera_info_rejected.<reason>`` stand for their families)."""
+    keys = _published_diagnostics_keys(ros_context, {})
+    keys |= _published_diagnostics_keys(
+        ros_context, {"frontend": "aruco", "frontend_map": "aruco_room"}
+    )
+    assert {"frames_received", "track_state", "frontend_ms_median"} <= keys, keys  # it works
+    documented = _table_names("diagnostics key")
+    families = {d.split("<")[0] for d in documented if "<" in d}
+    assert families == {"failed.", "camera_info_rejected."}, families
+    undocumented = {k for k in keys if k not in documented and not k.startswith(tuple(families))}
+    assert not undocumented, f"undocumented diagnostics keys: {sorted(undocumented)}"
+    stale = {d for d in documented if "<" not in d} - keys
+    assert not stale, f"docs/node.md diagnostics keys the node does not publish: {sorted(stale)}"

@@ -392,6 +392,6 @@ def test_viz_parameters_documented_in_the_config():
 
     cfg = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]["viz"]
     assert {f"viz.{k}": v for k, v in cfg.items()} == {k: d[0] for k, d in VIZ_PARAMETERS.items()}
-    readme = (CONFIG.parents[1] / "README.md").read_text()
+    node_doc = (CONFIG.parents[1] / "docs" / "node.md").read_text()
     for k, (default, _, _) in VIZ_PARAMETERS.items():
-        assert f"| `{k}` | `{default}` |" in readme, k
+        assert f"| `{k}` | `{default}` |" in node_doc, k
