@@ -18,7 +18,7 @@ from . import jit_cache as _jit_cache
 
 _jit_cache.configure()
 
-from .camera import CameraModel  # noqa: E402
+from .camera import CameraModel
 from .estimation import (
     EstimateOptions,
     MotionPrior,

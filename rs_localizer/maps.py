@@ -40,7 +40,7 @@ def save_landmarks_csv(path, ids, points):
     """Write a landmark map ``id,x,y,z`` (header line, metres)."""
     with open(path, "w") as f:
         f.write("id,x,y,z\n")
-        for i, (x, y, z) in zip(ids, points):
+        for i, (x, y, z) in zip(ids, points, strict=False):
             f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
 
 

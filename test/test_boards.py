@@ -146,7 +146,8 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
     as a user would on their calibration views); with it in the covariance, on every photo the
     RS estimate's twist is within the chi2(6) 99.73 % bound of zero, the P3P pose within the
     same bound under the RS pose covariance and the P3P rotation within the chi2(3) one under
-    its rotation block; the rotations differ by less than 4.5 deg (at most 3.9). With the white-noise
+    its rotation block; the rotations differ by less than 4.5 deg (at most 3.9). With the
+    white-noise
     covariance alone the twist is "significant" on most photos (15-134)."""
     from scipy.stats import chi2
 
@@ -251,11 +252,11 @@ def test_single_markers_photo():
 
 
 # ------------------------------------------------------------------------ synthetic renders
-def look_at_board(
-    board_center_b, dist, rotvec_cam_in_board, board_R=np.eye(3), board_t=np.zeros(3)
-):
+def look_at_board(board_center_b, dist, rotvec_cam_in_board, board_R=None, board_t=None):
     """World -> camera (R, C) of a camera ``dist`` in front of a board point; the camera axes
     are the board's (x right, y down, looking into the board) turned by ``rotvec``."""
+    board_R = np.eye(3) if board_R is None else board_R
+    board_t = np.zeros(3) if board_t is None else board_t
     Rc = Rotation.from_rotvec(rotvec_cam_in_board).as_matrix()  # camera axes in board frame
     c_b = np.asarray(board_center_b, float) - dist * Rc[:, 2]
     R = Rc.T @ board_R.T

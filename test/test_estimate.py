@@ -47,7 +47,7 @@ def test_r6p_1lin_meets_the_accuracy_targets(rs_frames, rs_results):
     """Paper protocol, 500 correspondences, 1 px noise, 30 % outliers, 15 deg + 0.15 per frame:
     rotation < 0.1 deg and position < 1 % of the scene distance in >= 95 % of frames; angular
     and linear velocity (vectors, so signs included) within 10 %."""
-    errs = [frame_errors(e, f) for e, f in zip(rs_results["r6p_1lin"], rs_frames)]
+    errs = [frame_errors(e, f) for e, f in zip(rs_results["r6p_1lin"], rs_frames, strict=False)]
     assert all(e.success for e in rs_results["r6p_1lin"])
     assert np.mean([e["rot"] < 0.1 for e in errs]) >= 0.95
     assert np.mean([e["pos"] < 0.01 for e in errs]) >= 0.95
@@ -56,10 +56,12 @@ def test_r6p_1lin_meets_the_accuracy_targets(rs_frames, rs_results):
 
 
 def test_p3p_is_clearly_worse_on_rolling_shutter_frames(rs_frames, rs_results):
-    rs = np.median([frame_errors(e, f)["rot"] for e, f in zip(rs_results["r6p_1lin"], rs_frames)])
+    rs = np.median(
+        [frame_errors(e, f)["rot"] for e, f in zip(rs_results["r6p_1lin"], rs_frames, strict=False)]
+    )
     gs_errs = [
         frame_errors(e, f)["rot"] if e.success else 180.0
-        for e, f in zip(rs_results["p3p"], rs_frames)
+        for e, f in zip(rs_results["p3p"], rs_frames, strict=False)
     ]
     assert np.median(gs_errs) > 10 * rs
     assert np.median([e.num_inliers for e in rs_results["p3p"]]) < 0.5 * np.median(
@@ -89,9 +91,15 @@ def test_physical_velocities_formula_matches_finite_differences():
     C, w, t = np.array([0.1, 0.2, 2.0]), np.array([0.05, -0.1, 0.2]), np.array([0.3, 0, -0.1])
     s, h = 0.02, 1e-7
     om, _vc, _om_w, vc_w = physical_velocities(R, C, w, t, s)
-    pos = lambda tau: -((np.eye(3) + tau * skew(w)) @ R).T @ (C + tau * t)
+
+    def pos(tau):
+        return -((np.eye(3) + tau * skew(w)) @ R).T @ (C + tau * t)
+
     np.testing.assert_allclose(vc_w, (pos(h) - pos(-h)) / (2 * h) / s, rtol=1e-6)
-    Rwc = lambda tau: ((np.eye(3) + tau * skew(w)) @ R).T
+
+    def Rwc(tau):
+        return ((np.eye(3) + tau * skew(w)) @ R).T
+
     dR = (Rwc(h) - Rwc(-h)) / (2 * h) / s  # = Rwc [om]x
     np.testing.assert_allclose(R @ dR, skew(om), atol=1e-6)
 
@@ -157,7 +165,7 @@ def test_covariance_is_consistent_with_the_errors(rs_frames, rs_results):
     chi-square with 6 dof has mean 6; accept a factor of 2.5 either way (the inlier
     threshold truncates the noise, the model is fitted to finite samples)."""
     errs = []
-    for e, f in zip(rs_results["r6p_1lin"], rs_frames):
+    for e, f in zip(rs_results["r6p_1lin"], rs_frames, strict=False):
         P = e.pose_covariance
         assert np.allclose(P, P.T) and np.all(np.linalg.eigvalsh(P) > 0)
         phi = matrix_to_rotvec(e.orientation @ f.R)  # world-axis rotation from truth to estimate

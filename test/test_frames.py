@@ -107,7 +107,9 @@ def test_pose_covariance_matches_the_numerical_jacobian_of_the_4x4_composition()
         p_c = rng.normal(size=3)
         T_cb = np.linalg.inv(ext.matrix)
 
-        def base_of(delta):  # camera pose perturbed (x, y, z, rot about map axes) -> base
+        def base_of(
+            delta, R_mc=R_mc, p_c=p_c, T_cb=T_cb
+        ):  # camera pose perturbed (x, y, z, rot about map axes) -> base
             T = (
                 _T(
                     expm(

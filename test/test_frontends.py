@@ -32,7 +32,7 @@ def test_aruco_corners_match_ground_truth(aruco_frame):
     assert set(ids % 4) == {0, 1, 2, 3} and len(np.unique(ids)) == len(ids)
     assert all(np.count_nonzero(mids == m) == 4 for m in np.unique(mids))
     corners = scene.marker_corners()
-    np.testing.assert_allclose(X, [corners[m][c] for m, c in zip(mids, ids % 4)])
+    np.testing.assert_allclose(X, [corners[m][c] for m, c in zip(mids, ids % 4, strict=False)])
     # detected corners vs the exact RS projection of the 3D corners
     gt, ok = r.project(X, motion, T_FRAME, occlusion=False)
     assert ok.all()

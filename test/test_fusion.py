@@ -274,7 +274,7 @@ def test_prior_information_is_taken_out():
     np.testing.assert_allclose(z.p, z_d[3:6], atol=1e-9)
     np.testing.assert_allclose(z.omega, z_d[6:9], atol=1e-9)
     np.testing.assert_allclose(z.v, z_d[9:12], atol=1e-9)
-    np.testing.assert_allclose(z.O, O_d, atol=1e-9)
+    np.testing.assert_allclose(z.Ori, O_d, atol=1e-9)
     np.testing.assert_allclose(z.G, G_d, rtol=1e-6, atol=1e-12)
     # without the prior the posterior is taken as it is
     plain = TwistFilter()._measurement(est)
@@ -293,10 +293,10 @@ def _so3_log(R):
 def _plus(x, d):
     """A nominal state (O, p, omega, v, alpha, a) moved by an error d (world-axis rotation
     vector first; 18 or 12 entries)."""
-    O, p, w, v, al, a = x
+    Ori, p, w, v, al, a = x
     if len(d) == 12:
         d = np.concatenate([d, np.zeros(6)])
-    return (_so3_exp(d[:3]) @ O, p + d[3:6], w + d[6:9], v + d[9:12], al + d[12:15], a + d[15:18])
+    return (_so3_exp(d[:3]) @ Ori, p + d[3:6], w + d[6:9], v + d[9:12], al + d[12:15], a + d[15:18])
 
 
 def _jacobian(f, x, n, eps=1e-6):
@@ -338,8 +338,8 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
     window = [rand_state(), rand_state()]  # newest first
     X = np.zeros((2, 27))
-    for i, (O, p, w, v, al, a) in enumerate(window):
-        X[i, :24] = np.concatenate([O.ravel(), p, w, v, al, a])
+    for i, (Ori, p, w, v, al, a) in enumerate(window):
+        X[i, :24] = np.concatenate([Ori.ravel(), p, w, v, al, a])
     A = rng.normal(size=(2 * n, 2 * n))
     P = A @ A.T * 1e-3 + np.eye(2 * n) * 1e-4
     B = rng.normal(size=(12, 12))
@@ -348,9 +348,9 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
     # --- NumPy: propagate the newest frame, shift the window
     def propagate(x):
-        O, p, w, v, al, a = x
+        Ori, p, w, v, al, a = x
         return (
-            O @ _so3_exp(w * dt + 0.5 * dt**2 * al),
+            Ori @ _so3_exp(w * dt + 0.5 * dt**2 * al),
             p + v * dt + 0.5 * dt**2 * a,
             w + al * dt,
             v + a * dt,
@@ -384,9 +384,9 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     # model); the filter takes a_cam = O^T a at the predicted O (it neglects the rotation
     # error's effect on G's small term)
     def h(x):
-        O, p, w, v, al, a = x
+        Ori, p, w, v, al, a = x
         shift = G @ np.concatenate([al, new[0].T @ a]) if acc else np.zeros(12)
-        return np.concatenate([np.zeros(3), p, w, O.T @ v]) + shift, O
+        return np.concatenate([np.zeros(3), p, w, Ori.T @ v]) + shift, Ori
 
     truth = _plus(new, rng.normal(size=n) * 0.05)
     z_vec, zO = h(truth)
@@ -395,9 +395,9 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     y[:3] -= z_vec[:3]  # (the rotation's shift is part of hv[:3])
 
     def h_err(x):
-        v, O = h(x)
+        v, Ori = h(x)
         return (
-            np.concatenate([_so3_log(O @ hO.T), np.zeros(9)])
+            np.concatenate([_so3_log(Ori @ hO.T), np.zeros(9)])
             + v
             - np.concatenate([np.zeros(3), hv[3:]])
         )
@@ -441,20 +441,23 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     np.testing.assert_allclose(
         Pn, 0.5 * (P_ref + P_ref.T), rtol=1e-6, atol=1e-7 * np.abs(P_ref).max()
     )
-    for i, (O, p, w, v, al, a) in enumerate(fused):
+    for i, (Ori, p, w, v, al, a) in enumerate(fused):
         np.testing.assert_allclose(
-            Xn[i, :24], np.concatenate([O.ravel(), p, w, v, al, a]), atol=1e-8
+            Xn[i, :24], np.concatenate([Ori.ravel(), p, w, v, al, a]), atol=1e-8
         )
-        np.testing.assert_allclose(Xn[i, 24:], O.T @ v, atol=1e-8)
+        np.testing.assert_allclose(Xn[i, 24:], Ori.T @ v, atol=1e-8)
+
         # the output covariance of (phi, p, omega, v_cam)
-        out = lambda x, x0=fused[i]: np.concatenate(
-            [
-                _so3_log(x[0] @ x0[0].T),
-                x[1],
-                x[2],
-                x[0].T @ x[3],
-            ]
-        )
+        def out(x, x0=fused[i]):
+            return np.concatenate(
+                [
+                    _so3_log(x[0] @ x0[0].T),
+                    x[1],
+                    x[2],
+                    x[0].T @ x[3],
+                ]
+            )
+
         J = _jacobian(out, fused[i], n)
         Pb = Pn[i * n : (i + 1) * n, i * n : (i + 1) * n]
         np.testing.assert_allclose(C[i], J @ Pb @ J.T, rtol=1e-6, atol=1e-7 * np.abs(Pb).max())

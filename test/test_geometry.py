@@ -53,7 +53,7 @@ def _brute_force_row(X, R, C, w, t, r0, d, exact):
     out = []
     for Xi in X:
 
-        def f(r):
+        def f(r, Xi=Xi):
             M = expm((r - r0) * skew(w)) if exact else np.eye(3) + (r - r0) * skew(w)
             p = M @ R @ Xi + C + (r - r0) * t
             return r - d @ (p[:2] / p[2]), p

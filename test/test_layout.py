@@ -54,7 +54,7 @@ def _imports(path: Path):
     """(absolute module name, line) of every import in a file (relative ones resolved)."""
     tree = ast.parse(path.read_text())
     rel = path.relative_to(PKG.parent).with_suffix("")
-    pkg = list(rel.parts[:-1]) if rel.name != "__init__" else list(rel.parts[:-1])
+    pkg = list(rel.parts[:-1])
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for a in node.names:

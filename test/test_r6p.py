@@ -123,7 +123,7 @@ def test_default_r_and_r0():
     b = r6p(x, X, x[:, 1], 0.0)
     assert len(a) == len(b) > 0
     assert _gt_error(a, gt) <= GT_TOL
-    for s1, s2 in zip(a, b):
+    for s1, s2 in zip(a, b, strict=False):
         np.testing.assert_allclose(_z(s1), _z(s2), rtol=1e-12, atol=1e-14)
 
 
@@ -283,7 +283,7 @@ def test_lapack_fallback_matches(monkeypatch):
     monkeypatch.setattr(mod, "_real_candidates", lambda M, shift, tol: (False, np.zeros((0, 3))))
     # (the compiled one-call path keeps its own _real_candidates: take the step-by-step one)
     monkeypatch.setattr(mod, "_solve_core", lambda x, X, r, r0: (-1, None, None, None))
-    for (x, X, r, gt), a in zip(cases, ref):
+    for (x, X, r, gt), a in zip(cases, ref, strict=False):
         b = mod.r6p(x, X, r, 0.2)
         assert _gt_error(b, gt) <= GT_TOL
         assert len(a) == len(b)

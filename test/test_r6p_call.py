@@ -37,7 +37,7 @@ def test_fast_path_equals_the_stage_by_stage_solver(monkeypatch):
             sols = r6p(x, X)
         general = r6p(x.tolist(), X.tolist())
         assert len(sols) == len(general) == int(np.isfinite(err).sum()) > 0
-        for s, g, z, k in zip(sols, general, Z, its):
+        for s, g, z, k in zip(sols, general, Z, its, strict=False):
             for a, b in (
                 (s.v, z[0:3]),
                 (s.w, z[3:6]),

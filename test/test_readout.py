@@ -50,10 +50,10 @@ def test_fit_on_exact_rates_and_gyro():
     traj = make_trajectory("pan")
     s = cam.seconds_per_unit_r
     t = np.arange(60) / 30.0
-    O = traj.orientation(t)
+    Ori = traj.orientation(t)
     w = -traj.velocity_body(t)[0] * s
     stamps = (t * 1e9).astype(np.int64)
-    res = fit_line_delay(stamps, O, w, cam)
+    res = fit_line_delay(stamps, Ori, w, cam)
     assert res.observable and res.line_delay == pytest.approx(LINE_DELAY, rel=1e-3)
     assert res.frames_used == 60 and res.samples == 58
     # gyro: stamps are of row 0, the rates at the reference row (360 lines later)
@@ -71,7 +71,7 @@ def test_fit_on_exact_rates_and_gyro():
     assert g.observable and g.line_delay == pytest.approx(LINE_DELAY, rel=5e-3)
     assert np.abs(g.camera_imu_rotation - R_IMU_CAMERA.T).max() < 0.02
     # too few frames / no rotation
-    assert not fit_line_delay(stamps[:5], O[:5], w[:5], cam).observable
+    assert not fit_line_delay(stamps[:5], Ori[:5], w[:5], cam).observable
     still = fit_line_delay(
         stamps,
         np.repeat(np.eye(3)[None], 60, 0),

@@ -156,7 +156,7 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
     before = [a.copy() for a in start]
     tau = f.r - f.r0
     ref = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k)
-    for a, b in zip(start, before):  # inputs untouched
+    for a, b in zip(start, before, strict=False):  # inputs untouched
         np.testing.assert_array_equal(a, b)
     n_free = 12 if rolling else 6
     e = exact_errors(ref.R, ref.C, ref.w, ref.t, f.X, f.x, tau)

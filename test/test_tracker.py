@@ -88,7 +88,9 @@ def test_tracked_frames_match_cold_accuracy(hard_sequence):
     # pool) instead of ~180 samples; a seed that only half explains its pool (pulled in on a
     # subset) can be beaten by a verification sample, which asks for a second batch
     assert np.median(iters_t) <= 16 and np.median(iters_c) > 100
-    assert max(iters_t) <= 48 and all(t < 0.25 * c for t, c in zip(iters_t, iters_c)), (
+    assert max(iters_t) <= 48 and all(
+        t < 0.25 * c for t, c in zip(iters_t, iters_c, strict=False)
+    ), (
         iters_t,
         iters_c,
     )

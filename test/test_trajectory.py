@@ -89,7 +89,7 @@ def test_landmarks_csv_roundtrip(tmp_path):
     np.testing.assert_array_equal(ids, scene.ids)
     np.testing.assert_allclose(pts, scene.points, atol=1e-9)
     (tmp_path / "bad.csv").write_text("id,x,y,z\n1,2,3\n")
-    with pytest.raises(ValueError, match="bad.csv:2"):
+    with pytest.raises(ValueError, match=r"bad\.csv:2"):
         load_landmarks_csv(tmp_path / "bad.csv")
     (tmp_path / "dup.csv").write_text("1,0,0,0\n1,1,1,1\n")
     with pytest.raises(ValueError, match="duplicate"):

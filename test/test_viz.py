@@ -52,7 +52,7 @@ def test_project_rs_solves_the_rs_constraint(readout):
     uv = cam.project_rs(X, R, C, w, t)
     # every point lies where the exact model at its own capture line puts it (SciPy expm)
     tau = cam.rs_coordinate(uv) - cam.r0
-    p = np.array([expm(tk * skew(w)) @ R @ x + C + tk * t for x, tk in zip(X, tau)])
+    p = np.array([expm(tk * skew(w)) @ R @ x + C + tk * t for x, tk in zip(X, tau, strict=False)])
     np.testing.assert_allclose(p[:, :2] / p[:, 2:] @ K[:2, :2].T + K[:2, 2], uv, atol=1e-6)
     # and it is the root the Newton solver of geometry.rs_project_exact finds
     x, _ = rs_project_exact(X, R, C, w, t, r0=cam.r0, readout=cam.readout_vector)
@@ -129,7 +129,7 @@ def test_debug_image_points_residuals_and_text():
     uv, X, est, _truth = _frame(cam)
     img = draw_debug_image(cam, uv, X, est, options=DebugImageOptions(cube=False))
     assert img.shape == (480, 640, 3) and img.dtype == np.uint8
-    for p, good in zip(uv, est.inliers):
+    for p, good in zip(uv, est.inliers, strict=False):
         assert _px(img, p) == (COLORS["inlier"] if good else COLORS["outlier"]), p
     # outliers: residual = prediction - measured = (-25, 0) px, x10 = 250 px, capped at 60 px
     for p in uv[~est.inliers]:
@@ -177,7 +177,7 @@ def test_debug_image_background_from_the_input_image():
         cam, uv, X, est, rgb[..., ::-1].copy(), "bgr8", DebugImageOptions(cube=False)
     )
     assert _px(img, far) == (0, 0, 140)
-    for p, good in zip(uv, est.inliers):
+    for p, good in zip(uv, est.inliers, strict=False):
         assert _px(img, p) == (COLORS["inlier"] if good else COLORS["outlier"])
 
 

@@ -397,14 +397,12 @@ def _experiments(args) -> int:
 
 def _solver_help(prefix: str) -> str:
     """Help text listing the registry's solvers with their paper names."""
-    return (
-        prefix
-        + ": "
-        + ", ".join(
-            f"{n} ({solver_info(n).paper_name}{'' if solver_info(n).rolling else ', global shutter'})"
-            for n in SOLVER_NAMES
-        )
-    )
+
+    def entry(n: str) -> str:
+        info = solver_info(n)
+        return f"{n} ({info.paper_name}{'' if info.rolling else ', global shutter'})"
+
+    return prefix + ": " + ", ".join(entry(n) for n in SOLVER_NAMES)
 
 
 def _compile(args) -> int:

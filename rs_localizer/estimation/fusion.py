@@ -199,8 +199,8 @@ class _Measurement:
     """A frame's measurement: m (12 or 6), orientation O (3, 3), position p, omega, v_cam
     (3,), covariance R (m, m), acceleration sensitivity G (m, 6) or None."""
 
-    def __init__(self, m, O, p, omega, v, R):
-        self.m, self.O, self.p, self.omega, self.v, self.R = m, O, p, omega, v, R
+    def __init__(self, m, Ori, p, omega, v, R):
+        self.m, self.Ori, self.p, self.omega, self.v, self.R = m, Ori, p, omega, v, R
         self.G = None
         self.deprior = False
 
@@ -292,14 +292,14 @@ def _transition(x, dt, acc, qa, ql, out):
     K2 = _mul3(K, K)
     E = np.empty((3, 3))  # expm([theta]x)
     Jr = np.empty((3, 3))  # right Jacobian: expm(th + d) ~ expm(th) expm(Jr d)
-    O = np.empty((3, 3))
+    Ori = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
             one = 1.0 if i == j else 0.0
             E[i, j] = one + c1 * K[i, j] + c2 * K2[i, j]
             Jr[i, j] = one - c2 * K[i, j] + c3 * K2[i, j]
-            O[i, j] = x[3 * i + j]
-    On = _mul3(O, E)
+            Ori[i, j] = x[3 * i + j]
+    On = _mul3(Ori, E)
     OJ = _mul3(On, Jr)
     for i in range(3):
         for j in range(3):
@@ -459,18 +459,18 @@ def _kalman_update(P, H, y, R):
 
 
 @njit(cache=True)
-def _innovation(O, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
+def _innovation(Ori, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
     """Innovation y (m,) and Jacobian H (m, n) on the newest state of a measurement of
     (rotation, position[, omega, v_cam = O^T v]); with ``use_G`` (acceleration model) the
     measurement also moves by ``G (alpha, O^T a)``."""
     y = np.zeros(m)
     H = np.zeros((m, n))
-    y[0:3] = _log(zO @ O.T)
+    y[0:3] = _log(zO @ Ori.T)
     for i in range(3):
         y[3 + i] = zp[i] - p[i]
         H[i, i] = 1.0
         H[3 + i, 3 + i] = 1.0
-    Ot = np.ascontiguousarray(O.T)
+    Ot = np.ascontiguousarray(Ori.T)
     if m == 12:
         vc = Ot @ v
         A = Ot @ skew_matrix(v)
@@ -525,7 +525,7 @@ def _deprior(cov, p, omega, v, mean, info, G):
 
 @njit(cache=True)
 def _prepare_measurement(
-    m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
+    m, cov, Ori, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
 ):
     """The measurement of an estimate (see :meth:`TwistFilter._measurement`) from its arrays:
     m (12 or 6), covariance cov (12, 12) (its (m, m) block is used), O (3, 3), p, omega,
@@ -537,7 +537,7 @@ def _prepare_measurement(
     Returns (usable, deprior, O (3, 3), p, omega, v_cam (3,), R (m, m), G (m, 6), has_G);
     usable False if cov's (m, m) block is not finite; has_G False if G is not finite or
     was moved into R."""
-    zO, zp, zw, zv = O.copy(), p.copy(), omega.copy(), v.copy()
+    zO, zp, zw, zv = Ori.copy(), p.copy(), omega.copy(), v.copy()
     for i in range(m):
         for j in range(m):
             if not np.isfinite(cov[i, j]):
@@ -553,7 +553,7 @@ def _prepare_measurement(
     if prior_on and m == 12:
         ok, zd, R_d, G_d = _deprior(R, zp, zw, zv, mean, info, Gm)
         if ok:  # (else the data information is not positive definite: keep the posterior)
-            rotate_left_into(zd[0], zd[1], zd[2], O, zO)  # (zO was O's copy)
+            rotate_left_into(zd[0], zd[1], zd[2], Ori, zO)  # (zO was O's copy)
             zp, zw, zv = zd[3:6].copy(), zd[6:9].copy(), zd[9:12].copy()
             R = R_d
             if has_G:
@@ -630,7 +630,7 @@ def _update_window(
     limit,
     m,
     cov,
-    O,
+    Ori,
     p,
     omega,
     v,
@@ -663,7 +663,7 @@ def _update_window(
     status, nis = -1, np.nan
     if m > 0:
         usable, _, zO, zp, zw, zv, R, Gm, use_G = _prepare_measurement(
-            m, cov, O, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
+            m, cov, Ori, p, omega, v, G, has_G, prior_on, mean, info, scale, acc, acc_var
         )
         if usable:
             x = Xn[0]
@@ -678,8 +678,8 @@ def _update_window(
                 Pn = P_upd
                 nv = 18 if acc else 12  # (alpha, a are not states of the velocity model)
                 for i in range(keep + 1):
-                    O = Xn[i, 0:9].reshape((3, 3))  # (a view: rotated in place)
-                    rotate_left_into(dx[i * n], dx[i * n + 1], dx[i * n + 2], O.copy(), O)
+                    Ori = Xn[i, 0:9].reshape((3, 3))  # (a view: rotated in place)
+                    rotate_left_into(dx[i * n], dx[i * n + 1], dx[i * n + 2], Ori.copy(), Ori)
                     for j in range(3, nv):
                         Xn[i, 6 + j] += dx[i * n + j]
     return status, nis, Xn, Pn, _outputs(Xn, Pn, n)
@@ -899,12 +899,12 @@ class TwistFilter:
         args = self._measurement_inputs(est, prior)
         if args is None:
             return None
-        ok, deprior, O, p, w, v, R, G, has_G = _prepare_measurement(
+        ok, deprior, Ori, p, w, v, R, G, has_G = _prepare_measurement(
             *args, self._scale, self._acc, self._acc_var
         )
         if not ok:
             return None
-        z = _Measurement(args[0], O, p, w, v, R)
+        z = _Measurement(args[0], Ori, p, w, v, R)
         z.G = G if has_G else None
         z.deprior = deprior
         return z
@@ -913,9 +913,9 @@ class TwistFilter:
         o = self.options
         n = self.n
         m, Rm, G = z.m, z.R, z.G
-        O = np.array(z.O, dtype=float)
+        Ori = np.array(z.Ori, dtype=float)
         omega = np.array(z.omega, dtype=float) if m == 12 else np.zeros(3)
-        v = O @ z.v if m == 12 else np.zeros(3)
+        v = Ori @ z.v if m == 12 else np.zeros(3)
         e = _Entry(stamp_ns)
         e.fused, e.restarted = True, True
         P = np.zeros((n, n))
@@ -924,7 +924,7 @@ class TwistFilter:
         A = np.diag(self._acc_var)
         if G is not None:
             Ta = np.eye(6)
-            Ta[3:6, 3:6] = O  # d(alpha, a_world) / d(alpha, a_cam)
+            Ta[3:6, 3:6] = Ori  # d(alpha, a_world) / d(alpha, a_cam)
             Rm = Rm + G @ A @ G.T
             cross = -(G @ A) @ Ta.T  # (m, 6) cov(z part, (alpha, a_world))
         else:
@@ -932,19 +932,19 @@ class TwistFilter:
         J = np.eye(12)
         if m == 12:  # world-frame v = O v_cam: dv = -[v]x phi + O dv_cam
             J[9:12, 0:3] = -skew_matrix(v)
-            J[9:12, 9:12] = O
+            J[9:12, 9:12] = Ori
         J = J[:, :m]
         P[:12, :12] = J @ Rm @ J.T
         if m == 6:
             P[6:12, 6:12] = np.eye(6) * o.initial_velocity**2
         if self._acc:
             Aw = np.diag(self._acc_var)
-            Aw[3:6, 3:6] = O @ A[3:6, 3:6] @ O.T
+            Aw[3:6, 3:6] = Ori @ A[3:6, 3:6] @ Ori.T
             P[12:18, 12:18] = Aw
             P[:12, 12:18] = J @ cross
             P[12:18, :12] = P[:12, 12:18].T
         X = np.zeros((1, _ROW))
-        X[0, 0:9], X[0, 9:12], X[0, 12:15], X[0, 15:18] = O.ravel(), z.p, omega, v
+        X[0, 0:9], X[0, 9:12], X[0, 12:15], X[0, 15:18] = Ori.ravel(), z.p, omega, v
         self.window = [e]
         self.P = 0.5 * (P + P.T)
         self.C = _outputs(X, self.P, n)

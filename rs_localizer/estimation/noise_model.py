@@ -164,10 +164,10 @@ def _restricted_nll(p, terms):
     """Negative restricted log-likelihood (up to a constant) of log (sigma^2, s^2, l)."""
     from scipy.linalg import cho_factor, cho_solve, solve_triangular
 
-    sw2, s2, l = np.exp(p)
+    sw2, s2, ell = np.exp(p)
     tot = 0.0
     for r, J, u in terms:
-        K1 = s2 * _kernel(u, l)
+        K1 = s2 * _kernel(u, ell)
         n = len(u)
         S = np.zeros((2 * n, 2 * n))
         S[0::2, 0::2] = K1
@@ -258,13 +258,13 @@ def fit_correlated_noise(camera, views, length_bounds_px=(None, 2000.0)) -> Nois
             res = minimize(_restricted_nll, p0, args=(terms,), method="L-BFGS-B", bounds=bounds)
             if best is None or res.fun < best.fun:
                 best = res
-        sw2, s2, l = np.exp(best.x)
+        sw2, s2, ell = np.exp(best.x)
         # white noise alone (s -> 0)
-        white = _restricted_nll(np.array([np.log(v0), bounds[1][0] - 30, np.log(l)]), terms)
+        white = _restricted_nll(np.array([np.log(v0), bounds[1][0] - 30, np.log(ell)]), terms)
     return NoiseFit(
         white_px=float(np.sqrt(sw2)),
         correlated_px=float(np.sqrt(s2)),
-        length_px=float(l),
+        length_px=float(ell),
         log_likelihood_ratio=float(white - best.fun),
         views=len(terms),
         points=int(n),

@@ -26,7 +26,8 @@ share frames) sandwich estimate, inflated by ``n / (n - 1)``, combined in quadra
 systematic ``model_error`` (relative, default 0.2 %): on noise-free synthetic sequences the
 per-frame ``w`` is 0.1-0.16 % smaller than the true rate (the constant-velocity fit over the
 readout), which the statistical part alone would not cover (measured over 24 seeds of the
-``pan`` sequence: errors -0.5 to +0.15 %, RMS of error / std 1.4 without the term). A sequence whose rotation does
+``pan`` sequence: errors -0.5 to +0.15 %, RMS of error / std 1.4 without the term). A sequence
+whose rotation does
 not pin ``s`` (relative standard deviation above ``max_relative_std``, fewer than
 ``min_samples`` samples, or ``s <= 0``) is reported as not observable.
 """

@@ -1,6 +1,7 @@
 """Numba kernels for RANSAC scoring: the closed-form RS projection of eq. 4/5, many hypotheses.
 
-Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it is.
+Kept apart from :mod:`rs_localizer.estimation.estimate` so the estimator reads as the pipeline it
+is.
 The entry points release the GIL (``nogil``): the node's subscription callbacks keep taking
 frames while a frame is scored.
 """

@@ -25,6 +25,7 @@ counters: no state is made up for it, so a bad frame never becomes a pose or a t
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -270,12 +271,11 @@ class RSTracker:
                 to.prior_from_prediction == "always"
                 or (to.prior_from_prediction == "planar" and self._planar)
             ):
-                try:
+                # (a covariance that is not positive definite keeps the options' prior)
+                with contextlib.suppress(ValueError):
                     opts = replace(
                         opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
                     )
-                except ValueError:  # (a covariance that is not positive definite)
-                    pass
             est = estimate_rs_pose(
                 points2d_px,
                 points3d,

@@ -269,7 +269,7 @@ def plot_histogram(panels, path, solvers=SOLVERS_AR):
         1, len(panels), figsize=(5.2 * len(panels), 3.6), dpi=90, squeeze=False
     )
     bins = np.linspace(0, 6, 61)
-    for ax, (title, frames) in zip(axes[0], panels):
+    for ax, (title, frames) in zip(axes[0], panels, strict=False):
         for k, s in enumerate(solvers):
             e = np.concatenate([f.reproj[s] for f in frames if s in f.reproj] or [np.zeros(0)])
             e = np.clip(e[np.isfinite(e)], 0, bins[-1])
@@ -350,7 +350,7 @@ def draw_overlay(
         for s in solvers:
             pan = big.copy()
 
-            def poly(uv, color, thick):
+            def poly(uv, color, thick, pan=pan, lo=lo):
                 q = (uv.reshape(edges.shape[0], edges.shape[1], 2) - lo + 0.5) * scale - 0.5
                 cv2.polylines(
                     pan,

@@ -79,11 +79,12 @@ def bench_solvers(repeat: int = 200, batch: int = 1000, seed: int = 0) -> list[d
         "r6p_vCt_w": (S.r6p_vCt_w, S.r6p_vCt_w_batch),
         "r6p_vCt_wt": (S.r6p_vCt_wt, S.r6p_vCt_wt_batch),
     }
+    x, X = f0.x[:6], f0.X[:6]
     for name, (single, batched) in iterative.items():
-        t1 = _median_us(lambda: single(f0.x[:6], f0.X[:6], iterations=1), repeat)
-        t5 = _median_us(lambda: single(f0.x[:6], f0.X[:6], iterations=5, tol=-1.0), repeat)
-        b1 = _median_us(lambda: batched(x6, X6, iterations=1), 20) / batch
-        b5 = _median_us(lambda: batched(x6, X6, iterations=5, tol=-1.0), 20) / batch
+        t1 = _median_us(lambda f=single: f(x, X, iterations=1), repeat)
+        t5 = _median_us(lambda f=single: f(x, X, iterations=5, tol=-1.0), repeat)
+        b1 = _median_us(lambda f=batched: f(x6, X6, iterations=1), 20) / batch
+        b5 = _median_us(lambda f=batched: f(x6, X6, iterations=5, tol=-1.0), 20) / batch
         rows.append(
             dict(
                 solver=name,

@@ -34,6 +34,7 @@ camera is ``(RSS(4) - RSS(1)) / 3``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -174,10 +175,8 @@ def _startup(args) -> int:
     if args.create:
         if venv.exists():
             pkg_old = None
-            try:
+            with contextlib.suppress(subprocess.CalledProcessError, FileNotFoundError):
                 pkg_old = installed_package_dir(venv)
-            except (subprocess.CalledProcessError, FileNotFoundError):
-                pass
             if pkg_old is not None and pkg_old.exists():
                 _set_writable(pkg_old, True)
             shutil.rmtree(venv)
@@ -247,11 +246,11 @@ def _startup(args) -> int:
                     venv, cache, work, mount, sample, log_path=work / f"{scen}_{k}.log"
                 )
                 label = "first start" if k == 0 else f"later start {k}"
-                print(
-                    f"[{scen}] {label}: ready {m['ready_s'] if m['ready_s'] is None else round(m['ready_s'], 2)} s, "
-                    f"first pose {m['first_pose_s'] if m['first_pose_s'] is None else round(m['first_pose_s'], 2)} s",
-                    flush=True,
+                ready, first = (
+                    None if m[key] is None else round(m[key], 2)
+                    for key in ("ready_s", "first_pose_s")
                 )
+                print(f"[{scen}] {label}: ready {ready} s, first pose {first} s", flush=True)
                 if k == 0:
                     for line in m["log"].splitlines():
                         if "warm-up" in line or "compiled" in line:
@@ -365,11 +364,8 @@ def _rss(args) -> int:
         for k in ks:
             for when in ("ready", "after"):
                 extra = (rows[str(k)][when]["VmRSS"] - rows["1"][when]["VmRSS"]) / (k - 1)
-                print(
-                    f"  per extra camera ({k} vs 1, {'after warm-up' if when == 'ready' else 'after frames'}): "
-                    f"{extra:.1f} MB",
-                    flush=True,
-                )
+                stage = "after warm-up" if when == "ready" else "after frames"
+                print(f"  per extra camera ({k} vs 1, {stage}): {extra:.1f} MB", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -106,10 +106,10 @@ def fused_twist(frames, cam, truth) -> dict:
         out["fused_" + key] = float(np.median([err(x, x.stamp_ns, i, attr) for x in final]))
     nees = []
     for x in final:
-        O, p, w, v = truth[x.stamp_ns]
+        Ori, p, w, v = truth[x.stamp_ns]
         e = np.concatenate(
             [
-                matrix_to_rotvec(x.orientation @ O.T),
+                matrix_to_rotvec(x.orientation @ Ori.T),
                 x.position - p,
                 x.angular_velocity - w,
                 x.linear_velocity - v,
@@ -168,18 +168,18 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
             t2, c2 = time.perf_counter(), time.thread_time()
             if r.state != "tracked" or not cold.success:
                 continue
-            O, p = truth[stamp][:2]
+            Ori, p = truth[stamp][:2]
             t_cold.append(t1 - t0)
             t_track.append(t2 - t1)
             cpu_cold.append(c1 - c0)
             cpu_track.append(c2 - c1)
-            rc.append(rotation_angle_deg(cold.orientation, O))
-            rt.append(rotation_angle_deg(r.estimate.orientation, O))
+            rc.append(rotation_angle_deg(cold.orientation, Ori))
+            rt.append(rotation_angle_deg(r.estimate.orientation, Ori))
             pc.append(np.linalg.norm(cold.position - p))
             pt.append(np.linalg.norm(r.estimate.position - p))
             iters_c.append(cold.ransac_iterations)
             iters_t.append(r.estimate.ransac_iterations)
-        for stamp, uv, xyz in frames:
+        for _stamp, uv, xyz in frames:
             t0 = time.perf_counter()
             cold = estimate_rs_pose(uv, xyz, cam, options=opts)
             s_cold.append(time.perf_counter() - t0)

@@ -25,7 +25,8 @@ def make_frontend(kind: str, map_path, **kw):
     """Front end by name: ``aruco`` (``map_path``: marker map YAML, scene YAML or built-in scene
     name: :func:`rs_localizer.maps.load_marker_map`) or ``features`` (``map_path``: a feature map
     ``.npz``, :meth:`FeatureMap.save`) or ``board`` (``map_path``: a board YAML,
-    :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag board). Raises ValueError for an unknown kind or a bad map,
+    :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag board). Raises
+    ValueError for an unknown kind or a bad map,
     FileNotFoundError for a missing one."""
     if kind == "aruco":
         return ArucoFrontend.from_file(map_path, **kw)

@@ -74,6 +74,7 @@ YAML (all lengths in metres; ``pose`` and ``id_offset`` optional for every type)
 from __future__ import annotations
 
 from pathlib import Path
+from typing import ClassVar
 
 import cv2
 import numpy as np
@@ -351,7 +352,7 @@ class CharucoBoardModel(_BoardBase):
     def marker_corners(self) -> dict:
         """{marker id: (4, 3) map corners TL, TR, BR, BL} (from OpenCV's board layout)."""
         op = cvc.board_object_points(self.cv_board)
-        return {int(m): self.to_map(c) for m, c in zip(self.marker_ids, op)}
+        return {int(m): self.to_map(c) for m, c in zip(self.marker_ids, op, strict=False)}
 
 
 class TagBoard(_BoardBase):
@@ -821,7 +822,7 @@ class TagFrontend(_BoardFrontend):
     name = "tags"
     board_class = TagBoard
 
-    _REFINE = {
+    _REFINE: ClassVar[dict[str, str]] = {
         "subpix": "CORNER_REFINE_SUBPIX",
         "apriltag": "CORNER_REFINE_APRILTAG",
         "contour": "CORNER_REFINE_CONTOUR",

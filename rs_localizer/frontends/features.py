@@ -2,7 +2,8 @@
 
 1. :func:`feature_map_from_views`: reconstruct the scene from *global-shutter* views at known
    poses with known depth (:func:`rs_localizer.sim.feature_map.build_feature_map` renders them):
-   detect ORB or SIFT features and give every keypoint its 3D point by back-projecting it. Keypoints near depth discontinuities are
+   detect ORB or SIFT features and give every keypoint its 3D point by back-projecting it.
+   Keypoints near depth discontinuities are
    dropped; observations of the same 3D point (within ``merge_radius``) share a landmark id.
 2. :class:`FeatureFrontend`: detect the same kind of features in each rolling-shutter frame and
    match them to the map descriptors with Lowe's ratio test (the second neighbour is the best

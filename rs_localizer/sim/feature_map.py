@@ -40,7 +40,7 @@ def build_feature_map(
     if isinstance(poses, tuple) and len(poses) == 2 and hasattr(poses[0], "pose"):
         motion, times = poses
         R, p = motion.pose(np.asarray(times, dtype=float))
-        poses = list(zip(R, p))
+        poses = list(zip(R, p, strict=False))
     renderer = Renderer(scene, camera, supersample=supersample)
 
     def views():

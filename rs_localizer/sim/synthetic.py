@@ -185,7 +185,7 @@ def make_frame(
     for _ in range(max_tries):
         X = rng.uniform(-1.0, 1.0, size=(4 * n_points, 3))
         if model == "exact":
-            x, r = rs_project_exact(X, R, C, w, t, r0)
+            x, _r = rs_project_exact(X, R, C, w, t, r0)
         else:
             x, _r = rs_project_linear(X, R, C, w, t, r0)
         Xc = X @ R.T + C

@@ -128,7 +128,8 @@ class Trajectory:
 #: trajectory presets for video sequences in the corridor (:func:`make_trajectory`), as
 #: :class:`Trajectory` field overrides: ``walk`` is the default trajectory above; ``car``
 #: drives along the corridor at 5 m/s with a gentle suspension bounce and a vibration of the
-#: mount (near-pure translation, < 0.1 rad/s); ``shake`` is a hand-held camera held nearly still with a strong
+#: mount (near-pure translation, < 0.1 rad/s); ``shake`` is a hand-held camera held nearly still
+#: with a strong
 #: 3.5-5 Hz shake (angular velocity up to ~1.5 rad/s, angular acceleration up to ~40 rad/s^2,
 #: far from constant during a readout); ``pan`` looks around (~1.5 rad/s about the vertical
 #: axis) while walking slowly, the motion for readout calibration.

@@ -261,8 +261,9 @@ def alternating_solver(kernel, name: str, label: str, section: str):
         ValueError: wrong shapes, N < 6, NaN/inf, iterations < 1.
         DegenerateInputError (a ValueError): a half-step system lost rank.
     """
-    solve_batch.__doc__ = f"""Batched :func:`{name}`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch`
-    (invalid problems flagged in valid, never raised). Raises ValueError on bad shapes."""
+    solve_batch.__doc__ = f"""Batched :func:`{name}`: x (K, N, 2), X (K, N, 3), r (K, N) ->
+    :class:`RSBatch` (invalid problems flagged in valid, never raised). Raises ValueError on bad
+    shapes."""
     for fn, fn_name in ((solve, name), (solve_batch, name + "_batch")):
         fn.__name__ = fn.__qualname__ = fn_name
         fn.__module__ = kernel.__module__

@@ -100,7 +100,7 @@ def p3p_opencv(x, X) -> list[P3PSolution]:
     except cv2.error:
         return []
     out = []
-    for rv, tv in zip(rvecs[:n], tvecs[:n]):
+    for rv, tv in zip(rvecs[:n], tvecs[:n], strict=False):
         R, _ = cv2.Rodrigues(rv)
         C = np.asarray(tv, dtype=float).ravel()
         if np.isfinite(R).all() and np.isfinite(C).all():
@@ -129,11 +129,11 @@ def p3p_batch(bearings, X, backend: str | None = None):
         )
     K = len(bearings)
     if b == "poselib":
-        poses = [_poselib.p3p(bk, Xk) for bk, Xk in zip(bearings, X)]
+        poses = [_poselib.p3p(bk, Xk) for bk, Xk in zip(bearings, X, strict=False)]
         Rts = [p.Rt for ps in poses for p in ps]
         counts = [len(ps) for ps in poses]
     else:
-        sols = [p3p_opencv(bk[:, :2] / bk[:, 2:3], Xk) for bk, Xk in zip(bearings, X)]
+        sols = [p3p_opencv(bk[:, :2] / bk[:, 2:3], Xk) for bk, Xk in zip(bearings, X, strict=False)]
         Rts = [np.c_[s.R, s.C] for ss in sols for s in ss]
         counts = [len(ss) for ss in sols]
     if not Rts:

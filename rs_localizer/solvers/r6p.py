@@ -70,7 +70,7 @@ def _mul_table(n1, n2):
     tab = np.full((n1, n2), -1, dtype=np.int64)
     for i in range(n1):
         for j in range(n2):
-            m = tuple(a + b for a, b in zip(_MONOS[i], _MONOS[j]))
+            m = tuple(a + b for a, b in zip(_MONOS[i], _MONOS[j], strict=False))
             if sum(m) <= 4:
                 tab[i, j] = _MIDX[m]
     return tab
@@ -366,7 +366,10 @@ def _dist(a, b):
 
 @njit(cache=True)
 def _finite(a):
-    return all(np.isfinite(a[i]) for i in range(a.shape[0]))
+    for i in range(a.shape[0]):  # noqa: SIM110 - numba compiles no generator inside all()
+        if not np.isfinite(a[i]):
+            return False
+    return True
 
 
 # ---------------------------------------------------------------------------------------------
@@ -511,24 +514,24 @@ def _hqr(a, wr, wi):
     while nn >= 1:
         its = 0
         while True:
-            l = nn
-            while l >= 2:
-                s = abs(a[l - 1, l - 1]) + abs(a[l, l])
+            ell = nn
+            while ell >= 2:
+                s = abs(a[ell - 1, ell - 1]) + abs(a[ell, ell])
                 if s == 0.0:
                     s = anorm
-                if abs(a[l, l - 1]) + s == s:
-                    a[l, l - 1] = 0.0
+                if abs(a[ell, ell - 1]) + s == s:
+                    a[ell, ell - 1] = 0.0
                     break
-                l -= 1
+                ell -= 1
             x = a[nn, nn]
-            if l == nn:  # one real root
+            if ell == nn:  # one real root
                 wr[nn] = x + t
                 wi[nn] = 0.0
                 nn -= 1
             else:
                 y = a[nn - 1, nn - 1]
                 w = a[nn, nn - 1] * a[nn - 1, nn]
-                if l == nn - 1:  # a 2 x 2 block: two roots
+                if ell == nn - 1:  # a 2 x 2 block: two roots
                     p = 0.5 * (y - x)
                     q = p * p + w
                     z = np.sqrt(abs(q))
@@ -560,7 +563,7 @@ def _hqr(a, wr, wi):
                         w = -0.4375 * s * s
                     its += 1
                     m = nn - 2
-                    while m >= l:
+                    while m >= ell:
                         z = a[m, m]
                         r = x - z
                         s = y - z
@@ -571,7 +574,7 @@ def _hqr(a, wr, wi):
                         p /= s
                         q /= s
                         r /= s
-                        if m == l:
+                        if m == ell:
                             break
                         u = abs(a[m, m - 1]) * (abs(q) + abs(r))
                         v = abs(p) * (abs(a[m - 1, m - 1]) + abs(z) + abs(a[m + 1, m + 1]))
@@ -599,7 +602,7 @@ def _hqr(a, wr, wi):
                             s = -s
                         if s != 0.0:
                             if k == m:
-                                if l != m:
+                                if ell != m:
                                     a[k, k - 1] = -a[k, k - 1]
                             else:
                                 a[k, k - 1] = -s * x
@@ -617,14 +620,14 @@ def _hqr(a, wr, wi):
                                 a[k + 1, j] -= p * y
                                 a[k, j] -= p * x
                             mmin = nn if nn < k + 3 else k + 3
-                            for i in range(l, mmin + 1):
+                            for i in range(ell, mmin + 1):
                                 p = x * a[i, k] + y * a[i, k + 1]
                                 if k != nn - 1:
                                     p += z * a[i, k + 2]
                                     a[i, k + 2] -= p * r
                                 a[i, k + 1] -= p * q
                                 a[i, k] -= p
-            if not (l < nn - 1):
+            if not (ell < nn - 1):
                 break
     return True
 
@@ -745,11 +748,11 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
             for i in range(6):
                 sm -= A1[i, j] * a0[i]
             v[j] = sm
-            for l in range(3):
+            for ell in range(3):
                 sm = 0.0
                 for i in range(6):
-                    sm += A1[i, j] * A1[i, l]
-                N3[j, l] = sm
+                    sm += A1[i, j] * A1[i, ell]
+                N3[j, ell] = sm
         if not solve_square(N3, v, v, 0.0):
             continue
         # C, t: evaluate the (v, w) part of the 12 equations (C = t = 0), then QR of B

@@ -1,6 +1,8 @@
 """R6P_{v,C}^{w,t}: linear alternating 6-point RS solver (paper sec. 3.1).
 
-Each iteration fixes (w, t) and estimates (v, C) by R6P_{v,C}, then fixes (v, C) and estimates (w, t) by R6P_{w,t}. Starts from w = t = 0. The paper finds it unstable because pose and motion are never estimated together.
+Each iteration fixes (w, t) and estimates (v, C) by R6P_{v,C}, then fixes (v, C) and estimates
+(w, t) by R6P_{w,t}. Starts from w = t = 0. The paper finds it unstable because pose and motion are
+never estimated together.
 """
 
 from __future__ import annotations

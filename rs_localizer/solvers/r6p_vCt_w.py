@@ -1,6 +1,8 @@
 """R6P_{v,C,t}^{w}: linear alternating 6-point RS solver (paper sec. 3.2).
 
-Each iteration fixes w and estimates (v, C, t) by R6P_{v,C,t} (12 equations, 9 unknowns), then fixes (v, C, t) and estimates w by R6P_{w} (3 unknowns). Starts from w = 0. Best for (near) pure translational motion.
+Each iteration fixes w and estimates (v, C, t) by R6P_{v,C,t} (12 equations, 9 unknowns), then
+fixes (v, C, t) and estimates w by R6P_{w} (3 unknowns). Starts from w = 0. Best for (near) pure
+translational motion.
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """R6P_{v,C,t}^{w,t}: linear alternating 6-point RS solver (paper sec. 3.2).
 
-Each iteration fixes w and estimates (v, C, t) by R6P_{v,C,t}, then keeps (v, C) and re-estimates (w, t) together by R6P_{w,t}. Starts from w = 0.
+Each iteration fixes w and estimates (v, C, t) by R6P_{v,C,t}, then keeps (v, C) and re-estimates
+(w, t) together by R6P_{w,t}. Starts from w = 0.
 """
 
 from __future__ import annotations

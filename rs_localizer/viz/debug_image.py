@@ -162,7 +162,7 @@ def _polyline(img, pts, color, thickness):
     """Draw (S, 2) pixels as a polyline, broken at nan rows."""
     ok = np.isfinite(pts).all(axis=1)
     run = []
-    for p, good in zip(pts, ok):
+    for p, good in zip(pts, ok, strict=False):
         if good:
             run.append(p)
             continue
@@ -272,7 +272,7 @@ def draw_debug_image(
         good = finite & np.isfinite(end).all(axis=1)
         a = np.round(uv[good] * 16).astype(np.int64)
         b = np.round(end[good] * 16).astype(np.int64)
-        for p, q in zip(a, b):
+        for p, q in zip(a, b, strict=False):
             cv2.line(
                 img,
                 (int(p[0]), int(p[1])),

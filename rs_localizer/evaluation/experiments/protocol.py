@@ -2,7 +2,8 @@
 
 The claims, plots and report written from their results are in :mod:`.report`.
 
-``python -m rs_localizer.evaluation.experiments [--quick] [--out docs/experiments] [--trials N] [--seed S]``
+``python -m rs_localizer.evaluation.experiments [--quick] [--out docs/experiments] [--trials N]
+[--seed S]``
 (also ``rs-localizer experiments``) runs every experiment with fixed seeds on data from
 :mod:`rs_localizer.sim.synthetic` and writes one PNG per experiment, ``report.md`` and
 ``results.json`` (every number of the report). ``--only exp6`` re-runs a subset and merges it
@@ -40,6 +41,7 @@ Plots show the median over the trials of every setting.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import time
 from dataclasses import dataclass, replace
@@ -275,10 +277,8 @@ def _solve(f, specs, prerotate: bool = False) -> tuple[dict, dict]:
             elif name == "r6p_joined":
                 cands = []
                 for fn in (S.r6p_vCt_w, S.r6p_1lin):
-                    try:
+                    with contextlib.suppress(ValueError):
                         cands.append(fn(x6, X6p, iterations=iterations))
-                    except ValueError:
-                        pass
                 sol = _pick(cands, xh, Xhp) if cands else None
             else:
                 raise KeyError(f"unknown solver spec {spec!r}")
@@ -506,8 +506,8 @@ def exp5_p3p_init(
 
 
 def exp6_timing(repeat: int = 200, batch: int = 1000, seed: int = 0) -> dict:
-    """Exp. 6 (Table 1): :func:`rs_localizer.evaluation.bench.bench_solvers` (one BLAS thread) next to
-    the paper's microseconds per iteration and the maximum number of solutions."""
+    """Exp. 6 (Table 1): :func:`rs_localizer.evaluation.bench.bench_solvers` (one BLAS thread)
+    next to the paper's microseconds per iteration and the maximum number of solutions."""
     from ..bench import bench_solvers
 
     with one_thread():

@@ -304,7 +304,9 @@ def load_scene(name_or_path) -> Scene:
         source = str(p)
     seed = 0
     quads = []
-    for k, ((name, o, u, v, size), qd) in enumerate(zip(scene_quad_frames(data), data["quads"])):
+    for k, ((name, o, u, v, size), qd) in enumerate(
+        zip(scene_quad_frames(data), data["quads"], strict=False)
+    ):
         size = tuple(size)
         tex = _make_texture(qd.get("texture", {"color": [200, 200, 200]}), size, base, seed + k)
         quads.append(Quad(name, o, u, v, size, tex))
