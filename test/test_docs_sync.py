@@ -1,7 +1,7 @@
 """The README documents every failure reason the node can emit, every camera_info rejection
 reason, and every node parameter (a reason emitted but not documented is a defect).
 
-Reasons are collected from the sources (the string literals passed to the node's ``_fail``,
+Reasons are collected from the sources (the string literals passed to the frame pipeline's
 ``_Drop`` and ``_reject_camera_info``, the decoders' reason tuples, the estimator's ``_fail``
 calls) and compared with the first column of the README's ``| reason |`` tables, both ways.
 """
@@ -50,7 +50,7 @@ def _literals(path: Path, *functions) -> set:
 def _node_reasons() -> set:
     from rs_localizer.estimation import plausibility
 
-    reasons = _literals(PKG / "ros" / "node.py", "_fail", "_Drop")
+    reasons = _literals(PKG / "ros" / "pipeline.py", "_Drop")
     reasons |= _literals(PKG / "estimation" / "estimate.py", "_fail")
     reasons |= {plausibility.IMPLAUSIBLE_MOTION, plausibility.CHEIRALITY}
     src = (PKG / "ros" / "pointcloud.py").read_text()
@@ -72,7 +72,7 @@ def test_every_failure_reason_is_in_the_readme():
     } <= emitted, emitted  # the scan works
     documented = _readme_table_names("reason")
     assert emitted - documented == set(), f"undocumented failure reasons: {emitted - documented}"
-    camera = set(_literals(PKG / "ros" / "node.py", "_reject_camera_info"))
+    camera = set(_literals(PKG / "ros" / "pipeline.py", "_reject_camera_info"))
     from rs_localizer.ros import conversions
 
     camera |= set(conversions.CAMERA_INFO_REASONS)
