@@ -44,6 +44,7 @@ __all__ = [
     "default_values",
     "estimate_options",
     "parameter_values",
+    "points_needed",
     "read_params_file",
     "tracker_options",
 ]
@@ -522,6 +523,12 @@ def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
     )
 
 
+def points_needed(solver: str, options: EstimateOptions) -> int:
+    """Fewest correspondences a pose needs: the estimator's ``min_inliers`` and one more than
+    the solver's minimal sample."""
+    return max(options.min_inliers, sample_size(solver) + 1)
+
+
 def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
     """The video tracker's options of the ``tracking.*`` parameters; None when
     ``tracking.enabled`` is false (every frame alone).
@@ -592,9 +599,8 @@ class LocalizerConfig:
 
     @property
     def min_points(self) -> int:
-        """Fewest correspondences a pose needs: ``ransac.min_inliers`` and one more than the
-        solver's sample."""
-        return max(self.options.min_inliers, sample_size(self.solver) + 1)
+        """Fewest correspondences a pose needs (:func:`points_needed`)."""
+        return points_needed(self.solver, self.options)
 
     def camera_with_timing(self, camera: CameraModel) -> CameraModel:
         """``camera``'s intrinsics with this configuration's rolling-shutter timing.
@@ -667,11 +673,11 @@ def build_config(
         opts = estimate_options(p)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"invalid RANSAC options: {e}") from None
-    need = max(opts.min_inliers, sample_size(p["solver"]) + 1)
+    need = points_needed(p["solver"], opts)
     if int(p["max_points"]) < need:
         raise ConfigError(
             f"max_points {p['max_points']} is below the {need} points a pose needs "
-            f"(ransac.min_inliers {opts.min_inliers}, solver {p['solver']}): every "
+            f"(ransac.min_inliers {int(p['ransac.min_inliers'])}, solver {p['solver']}): every "
             "frame would fail"
         )
     ref = float(p["rs.reference_row"])

@@ -106,10 +106,12 @@ class ThrottledLog:
         self._last: dict[str, float] = {}
 
     def info(self, text: str) -> None:
+        """Log ``text`` (not throttled)."""
         if self.logger is not None:
             self.logger.info(text)
 
     def error(self, text: str) -> None:
+        """Log ``text`` as an error (not throttled)."""
         if self.logger is not None:
             self.logger.error(text)
 
@@ -152,19 +154,23 @@ class PipelineStats:
         self._frontend_last = 0
 
     def add(self, key: str, n: int = 1) -> None:
+        """Add ``n`` to the counter ``key``."""
         with self._lock:
             self._counts[key] += n
 
     def stage_time(self, stage: str, seconds: float) -> None:
+        """Record the time (s) a frame spent in ``stage``."""
         with self._lock:
             self._stages[stage].append(seconds)
 
     def solved(self, inliers: int, planar: bool, condition_number: float) -> None:
+        """Record a solved frame's inlier count and the planarity of its points."""
         with self._lock:
             self._inliers.append(inliers)
             self._planar = (planar, condition_number)
 
     def frontend_ran(self, correspondences: int, seconds: float) -> None:
+        """Record a front-end run: the correspondences it made and its time (s)."""
         with self._lock:
             self._stages["frontend"].append(seconds)
             self._counts["frontend_runs"] += 1
@@ -172,6 +178,7 @@ class PipelineStats:
             self._frontend_last = correspondences
 
     def snapshot(self) -> StatsSnapshot:
+        """A consistent copy of every counter."""
         with self._lock:
             return StatsSnapshot(
                 counts=dict(self._counts),
@@ -250,6 +257,7 @@ class FrameResult:
 
     @property
     def solved(self) -> bool:
+        """The frame has a pose (no failure)."""
         return self.failure is None
 
 
@@ -293,6 +301,7 @@ class FramePipeline:
 
     @property
     def config(self) -> LocalizerConfig | None:
+        """The configuration frames are processed with."""
         return self._config
 
     def configure(self, config: LocalizerConfig) -> None:

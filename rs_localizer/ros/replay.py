@@ -81,6 +81,7 @@ class ReplayResult:
 
     @property
     def solved(self) -> int:
+        """Frames with a pose."""
         return sum(1 for r in self.rows if r["success"])
 
 
