@@ -67,8 +67,8 @@ def test_make_bag_contents(small_bags, storage):
     assert info["rs"]["reference_row"] == pytest.approx(359.5)
     assert info["settings"]["num_points"] == 200
     ids, pts = load_landmarks_csv(path / "landmarks.csv")
-    lm = dict(zip(ids.tolist(), pts))
-    ts = bag_io._typestore()
+    lm = dict(zip(ids.tolist(), pts, strict=True))
+    ts = bag_io.typestore()
     order = []
     for topic, msgtype, _t, raw in bag_io.iter_messages(path):
         order.append(topic)
@@ -93,11 +93,11 @@ def test_make_bag_contents(small_bags, storage):
 
 def test_same_content_in_both_storages(small_bags):
     # (compare decoded content: CDR padding bytes are not deterministic)
-    ts = bag_io._typestore()
+    ts = bag_io.typestore()
     a = list(bag_io.iter_messages(small_bags["mcap"]))
     b = list(bag_io.iter_messages(small_bags["sqlite3"]))
     assert [(m[0], m[2], len(m[3])) for m in a] == [(m[0], m[2], len(m[3])) for m in b]
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         mx, my = ts.deserialize_cdr(x[3], x[1]), ts.deserialize_cdr(y[3], y[1])
         if x[1] == bag_io.PC2:
             assert bytes(mx.data) == bytes(my.data)
@@ -134,6 +134,40 @@ def test_replay_offline_with_outputs(small_bags, tmp_path, capsys):
 def test_replay_keypoints_source(small_bags, capsys):
     res = rs_replay.replay(small_bags["sqlite3"], source="keypoints", progress=None)
     assert res.solved == 4 and res.summary["rot_deg"]["max"] < 0.25
+
+
+def test_replay_with_the_node_parameters(small_bags, tmp_path, capsys):
+    """--params-file gives replay the node's parameters (options override them); tracking
+    as in the node: twist carries the fused twist, twist_single_frame each frame's own."""
+    import csv as csv_module
+
+    from conftest import CONFIG
+
+    path = small_bags["mcap"]
+    out, table = tmp_path / "est", tmp_path / "est.csv"
+    args = ["replay", str(path), "--params-file", str(CONFIG), "--quiet"]
+    assert cli([*args, "--out", str(out), "--csv", str(table)]) == 0
+    assert "solved 4/4" in capsys.readouterr().out
+    topics = bag_io.bag_topics(out)
+    assert topics["/rs_localizer/twist_single_frame"] == "geometry_msgs/msg/TwistStamped"
+    rows = list(csv_module.DictReader(table.open()))
+    assert len(rows) == 4 and all(r["wx"] and r["single_wx"] for r in rows)
+    assert any(r["wx"] != r["single_wx"] for r in rows)  # fused
+    assert cli([*args, "--no-tracking", "--csv", str(table), "--seed", "3"]) == 0
+    rows = list(csv_module.DictReader(table.open()))
+    assert all(r["wx"] == r["single_wx"] for r in rows)  # every frame alone
+    # the parameter files decide; the bag's sequence.json fills in the RS timing they leave
+    values, _ = rs_replay.replay_parameters(path, [CONFIG], {"solver": "p3p"})
+    assert values["solver"] == "p3p" and values["rs.reference_row"] == -1.0
+    values, _ = rs_replay.replay_parameters(path)
+    assert values["rs.reference_row"] == pytest.approx(359.5)
+    assert values["rs.line_delay"] == pytest.approx(30e-6)
+    # invalid values are refused as the node refuses them
+    capsys.readouterr()
+    assert cli([*args, "-p", "ransac.seed:=1.5"]) == 2
+    assert "must be of type int" in capsys.readouterr().err
+    assert cli([*args, "--param", "solver:=r7p"]) == 2
+    assert "unknown solver 'r7p'" in capsys.readouterr().err
 
 
 def test_play_reaches_a_subscriber(small_bags, ros_context):

@@ -3,7 +3,7 @@ camera_info rejection reason, every node parameter with its default and every di
 (a reason, parameter or key the node has but the page does not is a defect, and the page names
 nothing the node does not have). The README's short parameter table shows the same defaults.
 
-Reasons are collected from the sources (the string literals passed to the node's ``_fail``,
+Reasons are collected from the sources (the string literals passed to the frame pipeline's
 ``_Drop`` and ``_reject_camera_info``, the decoders' reason tuples, the estimator's ``_fail``
 calls; the leading underscore optional, in any module of ``ros/`` and ``estimation/``) and
 compared with the first column of the page's ``| reason |`` tables, both ways. Diagnostics keys

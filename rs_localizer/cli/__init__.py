@@ -2,8 +2,8 @@
 
 rs-localizer make-bag OUT [--frames 40 --points 500 --scene corridor|plane|board ...]
 rs-localizer play BAG [--rate 1.0 | --lockstep] [--topics ...] [--remap FROM:=TO ...]
-rs-localizer replay BAG [--solver r6p_1lin] [--out DIR [--debug-outputs]] [--csv FILE]
-                        [--json]
+rs-localizer replay BAG [--params-file config/rs_localizer.yaml] [-p NAME:=VALUE]
+                        [--solver r6p_1lin] [--out DIR [--debug-outputs]] [--csv FILE] [--json]
 rs-localizer export-image BAG OUT.png [--topic /rs_localizer/debug_image] [--index 0]
 rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-images]
 rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
@@ -192,31 +192,50 @@ def _play(args) -> int:
     return 0 if not args.lockstep or res.timeouts == 0 else 1
 
 
+#: replay options that set a node parameter: (argparse dest, parameter name)
+_REPLAY_OVERRIDES = (
+    ("solver", "solver"),
+    ("threshold", "ransac.threshold_px"),
+    ("max_iterations", "ransac.max_iterations"),
+    ("confidence", "ransac.confidence"),
+    ("min_inliers", "ransac.min_inliers"),
+    ("seed", "ransac.seed"),
+    ("refine", "refine"),
+    ("tracking", "tracking.enabled"),
+    ("line_delay", "rs.line_delay"),
+    ("readout_time", "rs.readout_time"),
+    ("direction", "rs.direction"),
+    ("reference_row", "rs.reference_row"),
+    ("stamp_row", "rs.stamp_row"),
+    ("landmarks", "landmarks_file"),
+)
+
+
+def _param_overrides(items) -> dict:
+    """``NAME:=VALUE`` (the value in YAML, as ``ros2 run ... -p``) -> {NAME: value}."""
+    import yaml
+
+    out = {}
+    for it in items or ():
+        name, sep, text = it.partition(":=")
+        if not sep or not name.strip():
+            raise ValueError(f"--param expects NAME:=VALUE, got {it!r}")
+        out[name.strip()] = yaml.safe_load(text)
+    return out
+
+
 def _replay(args) -> int:
     from ..accuracy import format_summary
-    from ..estimation.estimate import EstimateOptions
     from ..ros.replay import replay
 
-    opts = EstimateOptions(
-        threshold_px=args.threshold,
-        max_iterations=args.max_iterations,
-        confidence=args.confidence,
-        min_inliers=args.min_inliers,
-        seed=args.seed,
-        refine=not args.no_refine,
-    )
+    params = _param_overrides(getattr(args, "param", []))
+    params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
     out_bag = Path(args.out) if args.out else None
     res = replay(
         args.bag,
-        solver=args.solver,
-        options=opts,
-        source=args.source,
-        line_delay=args.line_delay,
-        readout_time=args.readout_time,
-        direction=args.direction,
-        reference_row=args.reference_row,
-        stamp_row=args.stamp_row,
-        landmarks_file=args.landmarks,
+        params_files=getattr(args, "params_file", []),
+        params=params,
+        source=getattr(args, "source", None),
         out_bag=out_bag,
         out_csv=args.csv,
         storage=args.storage,
@@ -227,14 +246,16 @@ def _replay(args) -> int:
         image_topic=args.image_topic,
     )
     n = len(res.rows)
+    solver = res.config.solver
     text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
     print(
-        f"{args.solver}: solved {res.solved}/{n} frames"
-        + (f"; failures {res.failures}" if res.failures else ""),
+        f"{solver}: solved {res.solved}/{n} frames"
+        + (f"; failures {res.failures}" if res.failures else "")
+        + ("" if res.config.tracking is None else " (tracking: twist = the fused twist)"),
         file=text,
     )
     if res.summary.get("frames"):
-        print(format_summary(args.solver, res.summary, n), file=text)
+        print(format_summary(solver, res.summary, n), file=text)
     if res.out_bag:
         print(
             f"estimates: {res.out_bag}"
@@ -247,7 +268,7 @@ def _replay(args) -> int:
         print(
             json.dumps(
                 {
-                    "solver": args.solver,
+                    "solver": solver,
                     "frames_total": n,
                     "solved": res.solved,
                     "failures": res.failures,
@@ -582,24 +603,71 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--loop", type=int, default=1, help="play N times")
     pl.set_defaults(func=_play)
 
-    r = sub.add_parser("replay", help="run the estimator over a bag offline", **fmt)
+    r = sub.add_parser(
+        "replay",
+        help="the localizer node over a bag, offline (same parameters, same outputs)",
+        description="Run the node's per-frame pipeline over every frame of a bag, with the "
+        "node's parameters: the defaults, then each --params-file (ROS 2 format: the /** and "
+        "rs_localizer sections), then --param and the options below. Tracking is on as in "
+        "the node: twist and odom carry the fused twist, twist_single_frame each frame's own "
+        "(--no-tracking: every frame alone). The RS timing (rs.line_delay, rs.direction, "
+        "rs.reference_row, rs.stamp_row) that no parameter file or option sets comes from "
+        "the bag's sequence.json (make-bag, render-bag), else the parameter's default.",
+        **fmt,
+    )
     r.add_argument("bag", help="bag directory (make-bag or render-bag output)")
+    unset = argparse.SUPPRESS  # (options only override: unset ones leave the parameters)
     r.add_argument(
-        "--solver", default="r6p_1lin", choices=SOLVER_NAMES, help=_solver_help("minimal solver")
+        "--params-file",
+        action="append",
+        default=unset,
+        metavar="FILE",
+        help="the node's ROS 2 parameter file, e.g. config/rs_localizer.yaml (repeatable; "
+        "later ones win)",
+    )
+    r.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        default=unset,
+        metavar="NAME:=VALUE",
+        help="set a node parameter (YAML value, as ros2 run -p; repeatable), e.g. tracking.lag:=2",
+    )
+
+    def over(param: str, text: str) -> str:
+        from ..ros.params import PARAMETERS
+
+        return f"{text}; sets the parameter {param} (default: {PARAMETERS[param][0]})"
+
+    def timing(param: str, text: str) -> str:
+        from ..ros.params import PARAMETERS
+
+        return (
+            f"{text}; sets {param} (default: --params-file, else the bag's sequence.json, "
+            f"else {PARAMETERS[param][0]})"
+        )
+
+    r.add_argument(
+        "--solver",
+        default=unset,
+        choices=SOLVER_NAMES,
+        help=over("solver", _solver_help("minimal solver")),
     )
     r.add_argument(
         "--source",
-        choices=["correspondences", "keypoints"],
-        default="correspondences",
-        help="frame topic: */correspondences (u, v, x, y, z) or */keypoints (u, v, "
-        "id + a landmark map)",
+        choices=["correspondences", "keypoints", "image"],
+        default=unset,
+        help="frame topic: */correspondences (u, v, x, y, z), */keypoints (u, v, id + a "
+        "landmark map) or image (through the front end of the frontend parameter) "
+        "(default: image with a front end, else correspondences)",
     )
     r.add_argument(
         "--landmarks",
-        default=None,
-        help="CSV id,x,y,z for --source keypoints (default: BAG/landmarks.csv)",
+        default=unset,
+        help="CSV id,x,y,z for --source keypoints; sets landmarks_file (default: "
+        "--params-file, else BAG/landmarks.csv)",
     )
-    r.add_argument("--out", default=None, help="write estimates to this bag directory")
+    r.add_argument("--out", default=None, help="write the outputs to this bag directory")
     r.add_argument(
         "--debug-outputs",
         action="store_true",
@@ -615,50 +683,81 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--image-topic",
         default=None,
-        help="image drawn under debug_image (default: the bag's sensor_msgs/Image "
-        "topic next to the frames, if any; else a blank canvas)",
+        help="with --source image: the frames (default: the bag's image topic); else the "
+        "image drawn under debug_image (default: the bag's sensor_msgs/Image topic next to "
+        "the frames, if any; else a blank canvas)",
     )
     r.add_argument("--csv", default=None, help="write one line per frame")
     r.add_argument(
         "--storage", choices=["mcap", "sqlite3"], default="mcap", help="storage format of --out"
     )
-    r.add_argument("--threshold", type=float, default=2.0, help="RANSAC threshold (px)")
     r.add_argument(
-        "--max-iterations", type=int, default=1000, help="RANSAC hypotheses cap per frame"
+        "--threshold",
+        type=float,
+        default=unset,
+        help=over("ransac.threshold_px", "RANSAC threshold (px)"),
     )
     r.add_argument(
-        "--confidence", type=float, default=0.9999, help="RANSAC adaptive-termination confidence"
+        "--max-iterations",
+        type=int,
+        default=unset,
+        help=over("ransac.max_iterations", "RANSAC hypotheses cap per frame"),
     )
-    r.add_argument("--min-inliers", type=int, default=12, help="fewest inliers for a pose")
-    r.add_argument("--seed", type=int, default=0, help="RANSAC random seed")
+    r.add_argument(
+        "--confidence",
+        type=float,
+        default=unset,
+        help=over("ransac.confidence", "RANSAC adaptive-termination confidence"),
+    )
+    r.add_argument(
+        "--min-inliers",
+        type=int,
+        default=unset,
+        help=over("ransac.min_inliers", "fewest inliers for a pose"),
+    )
+    r.add_argument(
+        "--seed", type=int, default=unset, help=over("ransac.seed", "RANSAC random seed")
+    )
     r.add_argument(
         "--no-refine",
-        action="store_true",
-        help="skip the final exact-model refinement (no covariance)",
+        dest="refine",
+        action="store_const",
+        const=False,
+        default=unset,
+        help=over("refine", "skip the final exact-model refinement (no covariance)"),
     )
     r.add_argument(
-        "--line-delay", type=float, default=None, help="s/row (default: the bag's sequence.json)"
+        "--no-tracking",
+        dest="tracking",
+        action="store_const",
+        const=False,
+        default=unset,
+        help=over("tracking.enabled", "every frame alone: twist and odom carry its own twist"),
     )
+    r.add_argument("--line-delay", type=float, default=unset, help=timing("rs.line_delay", "s/row"))
     r.add_argument(
-        "--readout-time", type=float, default=None, help="s/frame, wins over --line-delay if > 0"
+        "--readout-time",
+        type=float,
+        default=unset,
+        help=over("rs.readout_time", "s/frame, wins over the line delay if > 0"),
     )
     r.add_argument(
         "--direction",
-        default=None,
+        default=unset,
         choices=directions,
-        help="readout direction (default: the bag's sequence.json)",
+        help=timing("rs.direction", "readout direction"),
     )
     r.add_argument(
         "--reference-row",
         type=float,
-        default=None,
-        help="row (px) of the estimated pose (default: sequence.json; -1: centre)",
+        default=unset,
+        help=timing("rs.reference_row", "row (px) of the estimated pose, -1: centre"),
     )
     r.add_argument(
         "--stamp-row",
         type=float,
-        default=None,
-        help="row (px) whose capture time is the header stamp (default: sequence.json, else 0)",
+        default=unset,
+        help=timing("rs.stamp_row", "row (px) whose capture time is the header stamp"),
     )
     r.add_argument(
         "--json",

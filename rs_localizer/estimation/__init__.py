@@ -13,6 +13,7 @@
 """
 
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose, physical_velocities
+from .points import cap_points
 from .prior import MotionPrior
 from .refine import exact_errors, refine_rs_pose
 
@@ -20,6 +21,7 @@ __all__ = [
     "EstimateOptions",
     "MotionPrior",
     "RSPoseEstimate",
+    "cap_points",
     "estimate_rs_pose",
     "exact_errors",
     "physical_velocities",

@@ -1,7 +1,13 @@
 """ROS 2 layer of rs_localizer: message conversions, the node and bag tools.
 
+The node (:mod:`.node`, managed: :mod:`.lifecycle`, several cameras: :mod:`.runner`) is wiring
+around ROS-free parts: :mod:`.params` (parameters -> configuration), :mod:`.pipeline` (what
+happens to each frame), :mod:`.camera_info_history`, :mod:`.frame_queue` (the worker and the
+frame accounting), :mod:`.outputs` (a frame's messages) and :mod:`.diagnostics`.
+:mod:`.replay` runs the same pipeline over a bag, offline.
+
 Importing this package does not import rclpy; :mod:`.node`, :mod:`.play` and the message
 builders in :mod:`.conversions` do (lazily). :mod:`.bag_io` (write and read bags) and
-:mod:`.replay` (the estimator over a bag, offline) need ``rosbags``; :mod:`.pointcloud` packs
-and decodes ``PointCloud2``; :mod:`.process` starts the node as a subprocess.
+:mod:`.replay` need ``rosbags``; :mod:`.pointcloud` packs and decodes ``PointCloud2``;
+:mod:`.process` starts the node as a subprocess.
 """

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from . import conversions as cv
-from .bag_io import CAMERA_INFO, IMAGE, IMU, _typestore, bag_topics, iter_messages, read_bag_info
+from .bag_io import CAMERA_INFO, IMAGE, IMU, bag_topics, iter_messages, read_bag_info, typestore
 
 __all__ = ["SOURCES", "BagFrames", "read_bag_frames", "read_gyro"]
 
@@ -109,7 +109,7 @@ def read_bag_frames(
                 "(use --frontend and --frontend-map)"
             )
         fe = make_frontend(kind, fmap)
-    ts = _typestore()
+    ts = typestore()
     for topic, msgtype, _, raw in iter_messages(path, {frame_topic, info_topic}):
         msg = ts.deserialize_cdr(raw, msgtype)
         if topic == info_topic:
@@ -152,7 +152,7 @@ def read_gyro(path, topic: str):
     topics = bag_topics(path)
     if topics.get(topic) != IMU:
         raise ValueError(f"{path}: no sensor_msgs/Imu topic {topic!r} (topics: {sorted(topics)})")
-    ts = _typestore()
+    ts = typestore()
     t, om = [], []
     for _, msgtype, _, raw in iter_messages(path, {topic}):
         msg = ts.deserialize_cdr(raw, msgtype)

@@ -34,6 +34,8 @@ __all__ = [
     "iter_messages",
     "load_ground_truth",
     "read_bag_info",
+    "storage_plugin",
+    "typestore",
     "write_sequence_bag",
     "write_sequence_json",
 ]
@@ -46,22 +48,34 @@ TWIST = "geometry_msgs/msg/TwistStamped"
 IMU = "sensor_msgs/msg/Imu"
 GT_POSE = "/ground_truth/pose"
 GT_TWIST = "/ground_truth/twist"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+#: message types of the localizer's outputs in a replay's bag (``/rs_localizer/<name>``)
 OUT_TYPES = {
     "pose": POSE,
     "twist": TWIST,
+    "twist_single_frame": TWIST,
     "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
     "odom": "nav_msgs/msg/Odometry",
 }
 _NS = 1_000_000_000
 
 
-def _typestore():
+def typestore():
+    """The rosbags typestore of ROS 2 Jazzy (message definitions for (de)serializing CDR)."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def _storage_plugin(storage: str):
+_typestore = typestore  # (the name some callers use)
+
+
+def storage_plugin(storage: str):
+    """The rosbags ``StoragePlugin`` of ``mcap`` or ``sqlite3``.
+
+    Raises:
+        ValueError: another name.
+    """
     from rosbags.rosbag2 import StoragePlugin
 
     try:
@@ -120,7 +134,7 @@ def write_sequence_bag(
     if keypoints:
         topics["keypoints"] = f"{ns}/keypoints"
     used = np.unique(np.concatenate([f.ids for f in frames])) if frames else np.zeros(0, int)
-    with Writer(path, version=9, storage_plugin=_storage_plugin(storage)) as w:
+    with Writer(path, version=9, storage_plugin=storage_plugin(storage)) as w:
         c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=ts)
         c_corr = (
             w.add_connection(topics["correspondences"], PC2, typestore=ts)
@@ -133,7 +147,7 @@ def write_sequence_bag(
         if imu is not None:
             topics["imu"] = imu_topic
             c_imu = w.add_connection(imu_topic, IMU, typestore=ts)
-            for t_ns, om, fo in zip(*imu):
+            for t_ns, om, fo in zip(*imu, strict=True):
                 w.write(c_imu, int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
         for f in frames:
             t_log = f.stamp_ns + 1_000_000
@@ -264,7 +278,7 @@ def bag_topics(path) -> dict:
 
 
 def load_ground_truth(path, pose_topic=GT_POSE, twist_topic=GT_TWIST) -> GroundTruth:
-    ts = _typestore()
+    ts = typestore()
     gt = GroundTruth()
     for topic, msgtype, _, raw in iter_messages(path, {pose_topic, twist_topic}):
         msg = ts.deserialize_cdr(raw, msgtype)

@@ -8,10 +8,20 @@ frame (REP 103: z forward, x right, y down). Covariances are 6x6 in ROS order
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from ..camera import DISTORTION_MODELS, CameraModel
+
+if TYPE_CHECKING:  # (the message packages are imported where a message is built)
+    from builtin_interfaces.msg import Time
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import CameraInfo
+    from tf2_msgs.msg import TFMessage
 
 __all__ = [
     "CAMERA_INFO_REASONS",
@@ -41,14 +51,14 @@ _NS = 1_000_000_000
 
 
 # ---------------------------------------------------------------- rotations
-def quaternion_from_matrix(R) -> np.ndarray:
+def quaternion_from_matrix(R: ArrayLike) -> np.ndarray:
     """(3, 3) rotation -> (4,) unit quaternion ``(x, y, z, w)`` (ROS order) with ``w >= 0``,
     via SciPy (a non-orthonormal input is projected onto SO(3) by SciPy first)."""
     q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
     return -q if q[3] < 0 else q
 
 
-def matrix_from_quaternion(q) -> np.ndarray:
+def matrix_from_quaternion(q: ArrayLike) -> np.ndarray:
     """(4,) quaternion ``(x, y, z, w)`` (normalized here) -> (3, 3) rotation."""
     q = np.asarray(q, dtype=float)
     n = np.linalg.norm(q)
@@ -69,13 +79,13 @@ class StampError(ValueError):
     reason = "bad_stamp"
 
 
-def stamp_to_ns(stamp) -> int:
+def stamp_to_ns(stamp: Any) -> int:
     """``builtin_interfaces/Time`` (rclpy or rosbags) -> integer nanoseconds (not checked: see
     :func:`checked_stamp_ns`)."""
     return int(stamp.sec) * _NS + int(stamp.nanosec)
 
 
-def checked_stamp_ns(stamp) -> int:
+def checked_stamp_ns(stamp: Any) -> int:
     """Like :func:`stamp_to_ns`, for stamps from the outside world.
 
     Raises:
@@ -90,7 +100,7 @@ def checked_stamp_ns(stamp) -> int:
     return sec * _NS + nsec
 
 
-def ns_to_stamp(ns: int):
+def ns_to_stamp(ns: int) -> Time:
     """Integer nanoseconds -> rclpy ``builtin_interfaces/Time``.
 
     Raises:
@@ -123,18 +133,19 @@ CAMERA_INFO_REASONS = ("bad_intrinsics", "bad_distortion", "bad_size", "bad_roi"
 
 
 def camera_model(
-    K,
-    D,
-    width,
-    height,
-    distortion_model="plumb_bob",
-    line_delay=0.0,
-    readout_time=0.0,
-    readout="top_to_bottom",
-    reference_row=None,
+    K: ArrayLike,
+    D: ArrayLike,
+    width: int,
+    height: int,
+    distortion_model: str = "plumb_bob",
+    line_delay: float = 0.0,
+    readout_time: float = 0.0,
+    readout: str = "top_to_bottom",
+    reference_row: float | None = None,
 ) -> CameraModel:
     """CameraModel with RS timing: ``readout_time > 0`` (s/frame) wins over ``line_delay``
-    (s/line). ``reference_row`` < 0 or None = image centre line.
+    (s/line). ``reference_row`` < 0 or None = image centre line. ``K``: (3, 3) intrinsics
+    (px); ``D``: distortion coefficients in OpenCV order (empty or all zero: none).
 
     Raises:
         CameraInfoError (a ValueError): see :data:`CAMERA_INFO_REASONS`; ValueError from
@@ -202,7 +213,11 @@ def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
 
 
 def camera_model_from_camera_info(
-    info, line_delay=0.0, readout_time=0.0, readout="top_to_bottom", reference_row=None
+    info: Any,
+    line_delay: float = 0.0,
+    readout_time: float = 0.0,
+    readout: str = "top_to_bottom",
+    reference_row: float | None = None,
 ) -> CameraModel:
     """``sensor_msgs/CameraInfo`` (rclpy or rosbags) -> :class:`CameraModel`.
 
@@ -265,7 +280,7 @@ def _stamped(msg_type, stamp_ns: int, frame_id: str):
     return msg
 
 
-def camera_info_msg(camera: CameraModel, frame_id="", stamp_ns: int = 0):
+def camera_info_msg(camera: CameraModel, frame_id: str = "", stamp_ns: int = 0) -> CameraInfo:
     """:class:`CameraModel` -> rclpy ``sensor_msgs/CameraInfo`` (P = [K | 0], R = I)."""
     from sensor_msgs.msg import CameraInfo
 
@@ -285,7 +300,7 @@ def camera_info_msg(camera: CameraModel, frame_id="", stamp_ns: int = 0):
 
 
 # ---------------------------------------------------------------- estimates -> messages
-def covariance36(C) -> np.ndarray:
+def covariance36(C: ArrayLike | None) -> np.ndarray:
     """6x6 covariance -> (36,) float64 row-major; ``None``/non-finite -> zeros (unknown)."""
     if C is None:
         return np.zeros(36)
@@ -324,7 +339,7 @@ def _fill_twist(twist, est):
     return twist
 
 
-def pose_stamped(est, stamp_ns: int, map_frame: str):
+def pose_stamped(est: Any, stamp_ns: int, map_frame: str) -> PoseStamped:
     """Camera optical frame pose in ``map_frame`` at the reference row."""
     from geometry_msgs.msg import PoseStamped
 
@@ -333,7 +348,7 @@ def pose_stamped(est, stamp_ns: int, map_frame: str):
     return msg
 
 
-def twist_stamped(est, stamp_ns: int, camera_frame: str):
+def twist_stamped(est: Any, stamp_ns: int, camera_frame: str) -> TwistStamped:
     """Camera velocity (rad/s, m/s) in its own optical frame."""
     from geometry_msgs.msg import TwistStamped
 
@@ -342,7 +357,9 @@ def twist_stamped(est, stamp_ns: int, camera_frame: str):
     return msg
 
 
-def pose_with_covariance_stamped(est, stamp_ns: int, map_frame: str):
+def pose_with_covariance_stamped(
+    est: Any, stamp_ns: int, map_frame: str
+) -> PoseWithCovarianceStamped:
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
     msg = _stamped(PoseWithCovarianceStamped, stamp_ns, map_frame)
@@ -351,7 +368,7 @@ def pose_with_covariance_stamped(est, stamp_ns: int, map_frame: str):
     return msg
 
 
-def odometry(est, stamp_ns: int, map_frame: str, camera_frame: str):
+def odometry(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> Odometry:
     """nav_msgs/Odometry: pose in ``map_frame``, twist in ``camera_frame`` (child frame)."""
     from nav_msgs.msg import Odometry
 
@@ -372,7 +389,7 @@ def have_tf2_msgs() -> bool:
     return True
 
 
-def tf_message(est, stamp_ns: int, map_frame: str, camera_frame: str):
+def tf_message(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> TFMessage:
     """tf2_msgs/TFMessage with the transform map -> camera. Raises ImportError without
     tf2_msgs (not in the PyPI wheels)."""
     from geometry_msgs.msg import TransformStamped
@@ -394,14 +411,14 @@ def tf_message(est, stamp_ns: int, map_frame: str, camera_frame: str):
     return TFMessage(transforms=[tr])
 
 
-def pose_from_msg(pose):
+def pose_from_msg(pose: Any) -> tuple[np.ndarray, np.ndarray]:
     """geometry_msgs/Pose (rclpy or rosbags) -> (orientation (3, 3), position (3,))."""
     q = [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]
     p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
     return matrix_from_quaternion(q), p
 
 
-def twist_from_msg(twist):
+def twist_from_msg(twist: Any) -> tuple[np.ndarray, np.ndarray]:
     """geometry_msgs/Twist -> (angular (3,), linear (3,))."""
     w = np.array([twist.angular.x, twist.angular.y, twist.angular.z], dtype=float)
     v = np.array([twist.linear.x, twist.linear.y, twist.linear.z], dtype=float)

@@ -63,7 +63,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self._create_outputs()
         self._create_camera_info_input()
-        self.get_logger().info(f"configured: solver {self.cfg['solver']} (inactive)")
+        self.get_logger().info(f"configured: solver {self.cfg.solver} (inactive)")
         return super().on_configure(state)
 
     def on_activate(self, state) -> TransitionCallbackReturn:
@@ -100,12 +100,12 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         for pub in self._outputs:
             self.destroy_lifecycle_publisher(pub)
         self._outputs = []
-        self.pub_pose = self.pub_twist = self.pub_pwc = self.pub_odom = self.pub_diag = None
+        self.pub_diag = None
         if self.sub_info is not None:
             self.destroy_subscription(self.sub_info)
         SHARED_MAPS.release(self)
-        self._init_state()  # (pub_corr_out, _tf_pub, sub_* and the counters reset too)
-        self.cfg = None
+        self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
+        # the counters reset too)
 
 
 def main(args=None):

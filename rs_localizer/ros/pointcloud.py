@@ -122,7 +122,7 @@ def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.d
                 f"field {name!r} (offset {offset}, {size} "
                 f"bytes) does not fit in point_step {point_step}",
             )
-        for other, (a, b) in zip(names, spans):
+        for other, (a, b) in zip(names, spans, strict=True):
             if offset < b and a < offset + size:
                 raise CloudError(
                     "bad_layout",

@@ -153,7 +153,7 @@ class NodeProcess:
             fd, log = tempfile.mkstemp(prefix="rs_localizer_node_", suffix=".log")
             os.close(fd)
         self.log_path = Path(log)
-        self._log = open(self.log_path, "w")
+        self._log = open(self.log_path, "w")  # noqa: SIM115 (open as long as the process; stop() closes it)
         preexec = None
         if cpus is not None and hasattr(os, "sched_setaffinity"):
             cpu_set = set(cpus)

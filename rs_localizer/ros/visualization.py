@@ -232,8 +232,9 @@ class VisualizationBuilder:
 
 class NodeVisualization:
     """The node's ``debug_image`` (reliable, depth 2), ``markers`` and ``path`` (reliable,
-    depth 10) publishers (created at start) and the ``viz.*`` parameters (declared on the node). Each message is built only when
-    its topic has a subscriber; the path keeps every solved pose regardless.
+    depth 10) publishers (created at start) and the ``viz.*`` parameters (declared on the
+    node). Each message is built only when its topic has a subscriber; the path keeps every
+    solved pose regardless.
 
     Usage in the node: ``viz = NodeVisualization(node)``; in image mode
     ``viz.set_image(img, encoding, stamp_ns)`` with the decoded input; after a frame is solved

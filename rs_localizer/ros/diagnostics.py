@@ -1,0 +1,110 @@
+"""The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
+without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .frame_queue import FrameCounts
+from .params import LocalizerConfig
+from .pipeline import StatsSnapshot
+
+__all__ = ["ERROR", "OK", "WARN", "diagnostic_status"]
+
+#: levels of ``diagnostic_msgs/DiagnosticStatus``
+OK, WARN, ERROR = 0, 1, 2
+
+
+def _ms(seconds: Sequence[float]) -> np.ndarray:
+    return np.array(list(seconds)) * 1e3
+
+
+def diagnostic_status(
+    cfg: LocalizerConfig,
+    frames: FrameCounts,
+    stats: StatsSnapshot,
+    tracking: dict[str, Any],
+    camera_source: str,
+    messages_lost: int,
+    latencies: Sequence[float],
+    stamp_ages: Sequence[float],
+) -> tuple[int, str, dict[str, Any]]:
+    """``(level, message, values)`` of the localizer's status.
+
+    Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped
+    or a message was lost, else OK. ``values`` (in publishing order): solver, camera
+    (``camera_source``), frame accounting (received, solved, failed, skipped, pending), counters
+    of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
+    :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
+    published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
+    stage times, front-end values (with a front end), then ``failed.<reason>`` and
+    ``camera_info_rejected.<reason>`` counts.
+    """
+    c = stats.counts
+    lat, age = _ms(latencies), _ms(stamp_ages)
+    failed = dict(sorted(frames.failures.items()))
+    if frames.received and not frames.solved:
+        level, message = ERROR, "no frame solved" + (f" ({failed})" if failed else "")
+    elif frames.failed or messages_lost or frames.skipped:
+        level = WARN
+        message = f"{frames.solved}/{frames.received} frames solved" + (
+            f", {frames.skipped} skipped (busy)" if frames.skipped else ""
+        )
+    else:
+        level = OK
+        message = (
+            f"{frames.solved}/{frames.received} frames solved"
+            if frames.received
+            else "waiting for frames"
+        )
+    inliers = stats.inliers
+    values: dict[str, Any] = {
+        "solver": cfg.solver,
+        "camera": camera_source,
+        "frames_received": frames.received,
+        "frames_solved": frames.solved,
+        "frames_failed": frames.failed,
+        "frames_skipped": frames.skipped,
+        "frames_pending": frames.pending,
+        "queue_size": cfg.queue_size,
+        "time_resets": c.get("time_resets", 0),
+        "messages_lost": messages_lost,
+        "points_dropped": c.get("points_dropped", 0),
+        "clouds_capped": c.get("capped_clouds", 0),
+        "unknown_landmark_ids": c.get("unknown_landmark_ids", 0),
+        "camera_info_rejected": c.get("camera_info_rejected", 0),
+        "inliers_last": inliers[-1] if inliers else 0,
+        "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
+        "planar": str(stats.planar).lower(),
+        **tracking,
+        "condition_number_last": f"{stats.condition_number:.3g}",
+        "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
+        "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
+        "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
+        "stamp_age_ms_last": f"{age[-1]:.3f}" if len(age) else "nan",
+        "stamp_age_ms_median": f"{np.median(age):.3f}" if len(age) else "nan",
+    }
+    for k, d in stats.stage_times.items():
+        if k == "frontend" and cfg.frontend is None:
+            continue
+        values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
+    if cfg.frontend is not None:
+        fe = stats.stage_times["frontend"]
+        runs = c.get("frontend_runs", 0)
+        values.update(
+            {
+                "frontend": cfg.frontend_kind,
+                "image_frames": c.get("image_frames", 0),
+                "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
+                "frontend_correspondences_last": stats.frontend_last,
+                "frontend_correspondences_mean": (
+                    f"{c.get('frontend_points', 0) / runs:.1f}" if runs else "0"
+                ),
+            }
+        )
+    values.update({f"failed.{k}": v for k, v in failed.items()})
+    values.update({k: v for k, v in sorted(c.items()) if k.startswith("camera_info_rejected.")})
+    return level, message, values

@@ -1,0 +1,178 @@
+"""The frames between the subscription callbacks and the thread that solves them.
+
+Callbacks :meth:`FrameQueue.put` frames into a bounded queue and return at once (the executor
+stays free for camera_info, parameters and diagnostics however slow a frame is); one worker
+thread takes them out in order and hands each to ``process``. When the queue is full the oldest
+waiting frame is dropped (skipped), so the newest frames are the ones solved.
+
+Accounting: every frame put is, at every instant, exactly one of solved, failed, skipped or
+pending (waiting, or the one being solved), so ``received = solved + failed + skipped +
+pending`` holds in every :meth:`FrameQueue.counts` snapshot: a frame's outcome is counted in the
+same critical section that ends its pending state. No ROS import.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+__all__ = ["Failed", "FrameCounts", "FrameQueue", "Outcome"]
+
+
+class Outcome(Protocol):
+    """What ``process`` returns for a frame: ``failure`` is None when it was solved, else the
+    reason it was dropped (counted as ``failed.<reason>``)."""
+
+    failure: str | None
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The outcome of a frame whose processing raised: ``failure`` is ``internal_error``."""
+
+    failure: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class FrameCounts:
+    """A consistent snapshot of the frame accounting: ``received == solved + failed +
+    skipped + pending``; ``failures`` counts each failure reason (their sum is ``failed``)."""
+
+    received: int = 0
+    solved: int = 0
+    failed: int = 0
+    skipped: int = 0
+    pending: int = 0
+    failures: dict[str, int] = field(default_factory=dict)
+
+
+class FrameQueue:
+    """A bounded frame queue with one worker thread.
+
+    Args:
+        process: ``process(item) -> outcome`` (an :class:`Outcome`), run on the worker thread
+            for each frame in arrival order; an exception counts the frame as failed with
+            reason ``internal_error`` (its outcome is then a :class:`Failed`).
+        deliver: ``deliver(item, outcome)``, run on the worker thread after the outcome is
+            counted (publishing: whoever receives a frame's output sees it counted); its
+            exceptions propagate to ``on_error`` (default: ignored) and do not change the
+            counts.
+        name: the worker thread's name.
+    """
+
+    def __init__(
+        self,
+        process: Callable[[Any], Outcome],
+        deliver: Callable[[Any, Outcome], None] | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
+        name: str = "rs_localizer_worker",
+    ):
+        self._process = process
+        self._deliver = deliver
+        self._on_error = on_error
+        self._name = name
+        self._cond = threading.Condition()
+        self._queue: deque = deque()
+        self._in_flight = False  # the worker is on a frame (counted as pending)
+        self._stop = False
+        self._worker: threading.Thread | None = None
+        self._received = self._solved = self._failed = self._skipped = 0
+        self._failures: Counter = Counter()
+
+    # ---------------------------------------------------------------- producer side
+    def put(self, item: Any, max_waiting: int) -> int:
+        """Count a received frame and queue it; when ``max_waiting`` frames already wait the
+        oldest ones are dropped (counted as skipped). Returns how many were dropped."""
+        with self._cond:
+            self._received += 1
+            skipped = 0
+            while self._queue and len(self._queue) >= max_waiting:
+                self._queue.popleft()
+                skipped += 1
+            self._skipped += skipped
+            self._queue.append(item)
+            self._cond.notify_all()
+        return skipped
+
+    def counts(self) -> FrameCounts:
+        """A consistent snapshot of the accounting (see the module docstring)."""
+        with self._cond:
+            return FrameCounts(
+                received=self._received,
+                solved=self._solved,
+                failed=self._failed,
+                skipped=self._skipped,
+                pending=len(self._queue) + int(self._in_flight),
+                failures=dict(self._failures),
+            )
+
+    def failures(self, reason: str) -> int:
+        """How many frames failed with ``reason`` so far."""
+        with self._cond:
+            return self._failures[reason]
+
+    @property
+    def stopping(self) -> bool:
+        """A stop was requested (a frame in progress may check it to stop waiting)."""
+        return self._stop
+
+    # ---------------------------------------------------------------- the worker
+    def start(self) -> None:
+        """Start the worker thread (after :meth:`stop`: a new one)."""
+        with self._cond:
+            self._stop = False
+        self._worker = threading.Thread(target=self._work, name=self._name, daemon=True)
+        self._worker.start()
+
+    def request_stop(self, drop_queued: bool = False) -> None:
+        """Ask the worker to stop after the frame it is on; ``drop_queued``: the frames still
+        waiting are dropped (counted as skipped), else they stay for a later :meth:`start`."""
+        with self._cond:
+            self._stop = True
+            if drop_queued:
+                self._skipped += len(self._queue)
+                self._queue.clear()
+            self._cond.notify_all()
+
+    def join(self, timeout: float = 10.0) -> None:
+        """Wait for the worker to end (not from the worker itself)."""
+        worker = self._worker
+        if worker is not None and worker.is_alive() and threading.current_thread() is not worker:
+            worker.join(timeout=timeout)
+        self._worker = None
+
+    def stop(self, drop_queued: bool = False, timeout: float = 10.0) -> None:
+        """:meth:`request_stop`, then :meth:`join`."""
+        self.request_stop(drop_queued)
+        self.join(timeout)
+
+    def _work(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop:
+                    self._cond.wait()
+                if self._stop:
+                    return
+                item = self._queue.popleft()
+                self._in_flight = True
+            try:
+                outcome = self._process(item)
+            except Exception as e:
+                outcome = Failed("internal_error", f"{type(e).__name__}: {e}")
+            with self._cond:  # (the outcome and the end of pending: one step)
+                if outcome.failure is None:
+                    self._solved += 1
+                else:
+                    self._failed += 1
+                    self._failures[outcome.failure] += 1
+                self._in_flight = False
+            if self._deliver is not None:
+                try:
+                    self._deliver(item, outcome)
+                except Exception as e:
+                    if self._on_error is not None:
+                        self._on_error(e)

@@ -1,0 +1,666 @@
+"""The localizer's per-frame pipeline, without ROS: what ``rs_localizer_node`` does with each
+frame, and what ``rs-localizer replay`` does with each frame of a bag.
+
+:class:`FramePipeline` takes a frame message (``sensor_msgs/PointCloud2`` correspondences or
+keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messages, which have
+the same fields) and returns a :class:`FrameResult`: the checks (stamp, empty cloud), time
+resets, the camera model of the frame's stamp (:class:`.camera_info_history.CameraInfoHistory`,
+fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
+front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the estimate
+(:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
+:func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
+the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
+back). :mod:`.outputs` turns a result into messages. Counters for the diagnostics are kept in
+:attr:`FramePipeline.stats`. No module-level ROS import.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..estimation import estimate_rs_pose
+from ..estimation.points import cap_points
+from ..estimation.tracker import RSTracker
+from ..frames import camera_to_base
+from ..solvers.registry import solver_info
+from . import conversions as cv
+from .camera_info_history import CameraInfoHistory, calibration_key
+from .params import LocalizerConfig
+from .pointcloud import CloudError, read_correspondences, read_keypoints
+
+__all__ = [
+    "FRAME_KINDS",
+    "FramePipeline",
+    "FrameResult",
+    "FusedOutput",
+    "PipelineStats",
+    "StatsSnapshot",
+    "ThrottledLog",
+    "log_warm_up",
+]
+
+#: kinds of frame message: a correspondence cloud, a keypoint cloud (ids into the landmark
+#: map), an image (raw or compressed) for the front end
+FRAME_KINDS = ("correspondences", "keypoints", "image")
+#: s between two log lines of the same kind (per failure reason)
+LOG_PERIOD = 2.0
+#: frames whose fused twist may wait at most (the oldest beyond are dropped)
+_MAX_PENDING = 64
+_STATS_KEPT = 1000
+
+
+def log_warm_up(solver: str, options: Any, logger: Any) -> None:
+    """Run the estimator on a small synthetic RS problem so that the numba JIT compiles (or
+    loads from its cache) before the first real frame, logging the cache, each kernel compiled
+    and the time to ``logger`` (``info``/``warning``). ``options``: the estimator options.
+    Never raises (a failure is logged)."""
+    from ..estimation.warmup import warm_up
+    from ..jit_cache import cache_state, compile_progress
+
+    st = cache_state()
+    logger.info(
+        f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
+        + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
+        + ")"
+    )
+    try:
+        with compile_progress(logger.info) as prog:
+            dt, est = warm_up(solver, options)
+        logger.info(
+            f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
+            + (
+                f", compiled {len(prog.kernels)} kernels (`rs-localizer compile` after "
+                "installing avoids this)"
+                if prog.kernels
+                else ", kernels from the cache"
+            )
+        )
+    except Exception as e:
+        logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+
+
+class _Drop(ValueError):
+    """A frame dropped by an input stage: ``reason`` is counted as ``failed.<reason>``."""
+
+    def __init__(self, reason: str, message: str):
+        super().__init__(message)
+        self.reason = reason
+
+
+class ThrottledLog:
+    """Warnings at most once per :data:`LOG_PERIOD` per key, over a logger with ``info``,
+    ``warning`` and ``error`` methods (an rclpy logger, a :class:`logging.Logger`); None:
+    silent."""
+
+    def __init__(self, logger: Any = None, period: float = LOG_PERIOD):
+        self.logger = logger
+        self.period = period
+        self._last: dict[str, float] = {}
+
+    def info(self, text: str) -> None:
+        """Log ``text`` (not throttled)."""
+        if self.logger is not None:
+            self.logger.info(text)
+
+    def error(self, text: str) -> None:
+        """Log ``text`` as an error (not throttled)."""
+        if self.logger is not None:
+            self.logger.error(text)
+
+    def warning(self, key: str, text: str, count: int = 0) -> None:
+        """Log ``text`` unless a ``key`` line was logged less than ``period`` s ago;
+        ``count`` > 1 is appended as ``[count so far]``."""
+        now = time.monotonic()
+        if self.logger is not None and now - self._last.get(key, -1e9) >= self.period:
+            self._last[key] = now
+            self.logger.warning(text + (f" [{count} so far]" if count > 1 else ""))
+
+
+@dataclass(frozen=True)
+class StatsSnapshot:
+    """A consistent copy of :class:`PipelineStats`."""
+
+    counts: dict[str, int]
+    inliers: list[int]
+    planar: bool
+    condition_number: float
+    frontend_last: int
+    stage_times: dict[str, list[float]]
+
+
+class PipelineStats:
+    """Counters of the pipeline for the diagnostics (thread-safe): ``counts`` (time_resets,
+    points_dropped, capped_clouds, capped_points, unknown_landmark_ids,
+    camera_info_rejected[.<reason>], frontend_runs, frontend_points, image_frames), the last
+    1000 inlier counts and stage times (s: decode, frontend, estimate, publish), the planarity
+    of the last pose and the front end's last correspondence count."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._counts: Counter = Counter()
+        self._inliers: deque[int] = deque(maxlen=_STATS_KEPT)
+        self._stages = {
+            k: deque(maxlen=_STATS_KEPT) for k in ("decode", "frontend", "estimate", "publish")
+        }
+        self._planar = (False, float("nan"))
+        self._frontend_last = 0
+
+    def add(self, key: str, n: int = 1) -> None:
+        """Add ``n`` to the counter ``key``."""
+        with self._lock:
+            self._counts[key] += n
+
+    def stage_time(self, stage: str, seconds: float) -> None:
+        """Record the time (s) a frame spent in ``stage``."""
+        with self._lock:
+            self._stages[stage].append(seconds)
+
+    def solved(self, inliers: int, planar: bool, condition_number: float) -> None:
+        """Record a solved frame's inlier count and the planarity of its points."""
+        with self._lock:
+            self._inliers.append(inliers)
+            self._planar = (planar, condition_number)
+
+    def frontend_ran(self, correspondences: int, seconds: float) -> None:
+        """Record a front-end run: the correspondences it made and its time (s)."""
+        with self._lock:
+            self._stages["frontend"].append(seconds)
+            self._counts["frontend_runs"] += 1
+            self._counts["frontend_points"] += correspondences
+            self._frontend_last = correspondences
+
+    def snapshot(self) -> StatsSnapshot:
+        """A consistent copy of every counter."""
+        with self._lock:
+            return StatsSnapshot(
+                counts=dict(self._counts),
+                inliers=list(self._inliers),
+                planar=self._planar[0],
+                condition_number=self._planar[1],
+                frontend_last=self._frontend_last,
+                stage_times={k: list(d) for k, d in self._stages.items()},
+            )
+
+
+class _Fused:
+    """A frame's published pose (from its estimate) with its fused twist (a
+    :class:`~rs_localizer.estimation.fusion.FusedState`): what twist / odom carry."""
+
+    def __init__(self, est, fused):
+        self.orientation, self.position = est.orientation, est.position
+        self.pose_covariance = est.pose_covariance
+        self.angular_velocity = fused.angular_velocity
+        self.linear_velocity = fused.linear_velocity
+        self.twist_covariance = fused.twist_covariance
+
+
+@dataclass(frozen=True)
+class FusedOutput:
+    """The twist / odom of an earlier frame, final now: ``source`` has the frame's pose and
+    covariance and its fused twist and covariance (in ``frame_id``: the camera's or, with
+    ``base_frame``, the robot's), stamped ``stamp_ns`` (the frame's output stamp)."""
+
+    stamp_ns: int
+    source: Any
+    frame_id: str
+
+
+@dataclass
+class FrameResult:
+    """What became of one frame.
+
+    Attributes:
+        failure: None when solved, else the reason it was dropped (``failed.<reason>``), with
+            ``detail`` (the log text).
+        stamp_ns: the input header stamp (ns); out_stamp_ns: the reference line's time, the
+            stamp of the outputs. frame_id: the camera optical frame of the outputs.
+        camera: the camera model used. points2d (N, 2) px, points3d (N, 3) m: the estimator's
+            input rows (after the cap).
+        estimate: the :class:`~rs_localizer.estimation.RSPoseEstimate` (camera frame).
+        output, output_frame: what pose / twist_single_frame / pose_with_covariance / tf
+            describe: the estimate, or with ``base_frame`` the robot base's state.
+        twist_now: twist / odom of this frame carry its own twist (no tracking, or a
+            global-shutter solver or timing); else they come with :attr:`fused` later.
+        fused: twist / odom of earlier frames that became final with this one (also on a
+            failed frame).
+        image: ``(array, encoding, stamp_ns)`` of a decoded input image.
+        correspondences: ``(points2d, points3d, ids, scores)`` the front end made of the image
+            (with ``republish_correspondences``).
+        times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
+            estimator (``frontend`` alone for one the front end dropped).
+    """
+
+    failure: str | None = None
+    detail: str = ""
+    stamp_ns: int | None = None
+    out_stamp_ns: int | None = None
+    frame_id: str = ""
+    camera: CameraModel | None = None
+    points2d: np.ndarray | None = None
+    points3d: np.ndarray | None = None
+    estimate: Any = None
+    output: Any = None
+    output_frame: str = ""
+    twist_now: bool = False
+    fused: list[FusedOutput] = field(default_factory=list)
+    image: tuple | None = None
+    correspondences: tuple | None = None
+    times: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def solved(self) -> bool:
+        """The frame has a pose (no failure)."""
+        return self.failure is None
+
+
+class FramePipeline:
+    """The per-frame pipeline of the localizer (see the module docstring).
+
+    Args:
+        config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
+            :meth:`configure` before the first frame).
+        log: :class:`ThrottledLog` (or a logger it wraps) for the warnings.
+        stopped: ``stopped()`` true ends a frame's wait for its camera_info (shutdown).
+
+    Threads: :meth:`process` on one thread at a time (the node's worker); camera_infos,
+    :meth:`flush_idle`, :meth:`configure` and the diagnostics from others.
+    """
+
+    def __init__(
+        self,
+        config: LocalizerConfig | None = None,
+        log: Any = None,
+        stopped: Callable[[], bool] = lambda: False,
+    ):
+        self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
+        self.stats = PipelineStats()
+        self.history = CameraInfoHistory()
+        self._stopped = stopped
+        self._config: LocalizerConfig | None = None
+        self._last_stamp: int | None = None  # of the last frame processed (time resets)
+        # video tracking: the tracker, what it was made for, the frames waiting for their fused
+        # twist (output stamp -> (estimate, frame id)), the lock between process() and
+        # flush_idle(), counters of the trackers dropped so far
+        self._tracker: RSTracker | None = None
+        self._tracker_key = None
+        self._tracker_camera = None
+        self._pending: dict[int, tuple] = {}
+        self._track_lock = threading.RLock()
+        self._last_frame_wall: float | None = None
+        self._track_counts: Counter = Counter()
+        if config is not None:
+            self.configure(config)
+
+    @property
+    def config(self) -> LocalizerConfig | None:
+        """The configuration frames are processed with."""
+        return self._config
+
+    def configure(self, config: LocalizerConfig) -> None:
+        """Use ``config`` from the next frame on; the camera models of the camera_infos
+        received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
+        and logged)."""
+        self._config = config
+        for err in self.history.rebuild(config.camera_from_info):
+            self.log.error(f"camera_info unusable with the new parameters: {err}")
+
+    def camera_source(self) -> str:
+        """Where the intrinsics come from: ``camera_info``, ``parameters`` (fallback) or
+        ``missing``."""
+        if len(self.history):
+            return "camera_info"
+        cfg = self._config
+        return "parameters" if cfg is not None and cfg.fallback is not None else "missing"
+
+    # ---------------------------------------------------------------- camera_info
+    def add_camera_info(self, msg: Any) -> CameraModel | None:
+        """Validate a ``sensor_msgs/CameraInfo`` and add it to the history the frames pick
+        their camera from by stamp. Returns its camera model, or None when it is rejected
+        (counted as ``camera_info_rejected.<reason>`` and logged; the previous cameras stay)."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            return self._reject_camera_info("bad_stamp", str(e))
+        key = calibration_key(msg)
+        cam = self.history.camera_with_key(key)
+        if cam is None:
+            try:
+                cam = self._config.camera_from_info(msg)
+            except cv.CameraInfoError as e:
+                return self._reject_camera_info(e.reason, str(e))
+            except ValueError as e:  # (RS timing of the parameters: checked in the config)
+                return self._reject_camera_info("bad_intrinsics", str(e))
+        if self.history.add(stamp, key, msg, cam):
+            self.log.info(
+                f"camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
+                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}"
+            )
+        return cam
+
+    def _reject_camera_info(self, reason: str, detail: str) -> None:
+        self.stats.add("camera_info_rejected")
+        self.stats.add(f"camera_info_rejected.{reason}")
+        self.log.warning(
+            f"camera_info.{reason}",
+            f"camera_info rejected ({reason}), the previous camera stays: {detail}",
+        )
+        return None
+
+    # ---------------------------------------------------------------- frames
+    def process(self, msg: Any, kind: str) -> FrameResult:
+        """One frame through the pipeline (see the module docstring). ``kind``: one of
+        :data:`FRAME_KINDS`. Never raises: a dropped frame's result has ``failure`` and
+        ``detail`` set (an unexpected exception: ``internal_error``)."""
+        res = FrameResult()
+        try:
+            self._run(msg, kind, res)
+        except (_Drop, CloudError) as e:
+            res.failure, res.detail = e.reason, str(e)
+        except Exception as e:  # (a defect: this frame is dropped, the next ones go on)
+            drop = _Drop("internal_error", f"{type(e).__name__}: {e}")
+            res.failure, res.detail = drop.reason, str(drop)
+        return res
+
+    def _run(self, msg: Any, kind: str, res: FrameResult) -> None:
+        """Fill ``res``; raises :class:`_Drop` or :class:`CloudError` for a dropped frame."""
+        tic = time.perf_counter()
+        cfg = self._config
+        res.frame_id = cfg.camera_frame or msg.header.frame_id or "camera"
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            raise _Drop("bad_stamp", str(e)) from None
+        res.stamp_ns = stamp
+        if kind != "image" and int(msg.width) * int(msg.height) == 0:
+            raise _Drop("empty_cloud", "cloud has no points")
+        self._check_time(stamp, cfg)
+        camera = self.history.camera_for(stamp, cfg.fallback, cfg.camera_info_wait, self._stopped)
+        if camera is None:
+            raise _Drop(
+                "no_camera_info",
+                "no camera_info received (waited "
+                f"{cfg.camera_info_wait:.3f} s) and no fallback intrinsics "
+                "(camera.fx <= 0)",
+            )
+        res.camera = camera
+        out_stamp = stamp + int(
+            round(camera.time_offset(cfg.stamp_row, camera.reference_line) * 1e9)
+        )
+        if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
+            raise _Drop(
+                "bad_stamp",
+                f"output stamp {out_stamp} ns (input {stamp} ns + "
+                "the reference row's offset) is outside [0, 2^31 s)",
+            )
+        res.out_stamp_ns = out_stamp
+        uv, xyz, scores = self._extract(msg, kind, camera, stamp, cfg, res)
+        uv, xyz, scores = self._valid_rows(uv, xyz, scores, cfg)
+        res.points2d, res.points3d = uv, xyz
+        t_decoded = time.perf_counter()
+        with self._track_lock:
+            final = []
+            try:
+                if cfg.tracking is not None:
+                    tracker, final = self._tracker_for(camera, cfg)
+                    r = tracker.process(out_stamp, uv, xyz, camera, scores)
+                    est = r.estimate
+                    final = final + r.final
+                    self._last_frame_wall = time.monotonic()
+                else:
+                    self._drop_tracker()
+                    est = estimate_rs_pose(
+                        uv, xyz, camera, solver=cfg.solver, options=cfg.options, scores=scores
+                    )
+            except Exception as e:
+                res.fused = self._fused_outputs(final, cfg)
+                raise _Drop("estimator_error", f"{type(e).__name__}: {e}") from None
+            t_estimated = time.perf_counter()
+            t_frontend = res.times.get("frontend", 0.0)
+            res.times = {
+                "decode": t_decoded - tic - t_frontend,
+                "frontend": t_frontend,
+                "estimate": t_estimated - t_decoded,
+            }
+            self.stats.add("points_dropped", int(est.num_dropped))
+            res.estimate = est
+            if not est.success:  # (twists of earlier frames a reset made final still go out)
+                res.fused = self._fused_outputs(final, cfg)
+                raise _Drop(
+                    est.failure or "estimator_error",
+                    f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg.solver}",
+                )
+            self.stats.solved(est.num_inliers, est.planar, est.condition_number)
+            res.output, res.output_frame = est, res.frame_id
+            if cfg.extrinsic is not None:
+                res.output, res.output_frame = camera_to_base(est, cfg.extrinsic), cfg.base_frame
+            # (global-shutter solver or timing: no twist to fuse; twist / odom stay the
+            # per-frame, zero, twist)
+            res.twist_now = (
+                cfg.tracking is None
+                or not solver_info(cfg.solver).rolling
+                or camera.seconds_per_unit_r <= 0
+            )
+            if not res.twist_now:  # twist / odom when the frame's fused twist is final
+                self._pending[out_stamp] = (est, res.frame_id)
+                res.fused = self._fused_outputs(final, cfg)
+        self.stats.stage_time("decode", res.times["decode"])
+        self.stats.stage_time("estimate", res.times["estimate"])
+
+    def _check_time(self, stamp: int, cfg: LocalizerConfig) -> None:
+        """A stamp older than the previous frame's, or newer by more than
+        ``time_reset_threshold``: a time reset (counted and logged; the camera_infos stamped
+        after it are forgotten). Frames are never dropped for their stamp."""
+        last, self._last_stamp = self._last_stamp, stamp
+        if last is None:
+            return
+        if stamp < last:
+            why = (
+                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
+                " s older than the previous frame"
+            )
+        elif stamp - last > cfg.time_reset_ns:
+            why = f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)"
+        else:
+            return
+        self.stats.add("time_resets")
+        self.log.warning("time_reset", f"time reset: {why}")
+        self.history.forget_after(stamp)
+
+    def _valid_rows(self, uv, xyz, scores, cfg: LocalizerConfig):
+        """Rows with NaN/inf dropped (before the cap, so that the cap keeps valid rows), then
+        the cap to ``max_points`` (counted and logged)."""
+        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+        n_bad = len(uv) - int(np.count_nonzero(good))
+        if n_bad:
+            self.stats.add("points_dropped", n_bad)
+            uv, xyz = uv[good], xyz[good]
+            scores = None if scores is None else scores[good]
+        if len(uv) > cfg.max_points:
+            self.stats.add("capped_clouds")
+            self.stats.add("capped_points", len(uv) - cfg.max_points)
+            self.log.warning(
+                "capped", f"cloud of {len(uv)} points capped to max_points {cfg.max_points}"
+            )
+            uv, xyz, scores = cap_points(uv, xyz, scores, cfg.max_points)
+        return uv, xyz, scores
+
+    def _extract(self, msg, kind: str, camera: CameraModel, stamp: int, cfg, res: FrameResult):
+        """The frame's rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)``.
+
+        Raises:
+            _Drop, CloudError: a frame that gives no usable rows (with the reason).
+        """
+        if kind == "correspondences":
+            c = read_correspondences(msg)
+            return c.uv, c.xyz, c.scores
+        if kind == "keypoints":
+            return self._from_keypoints(msg, cfg)
+        return self._from_image(msg, camera, stamp, cfg, res)
+
+    def _from_keypoints(self, msg, cfg: LocalizerConfig):
+        if cfg.landmarks is None:
+            raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
+        kp = read_keypoints(msg)
+        ids, pts = cfg.landmarks
+        j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
+        known = ids[j] == kp.ids
+        n_unknown = int(np.count_nonzero(~known))
+        if n_unknown:
+            self.stats.add("unknown_landmark_ids", n_unknown)
+        if not known.any():
+            raise _Drop("unknown_landmarks", f"none of the {len(kp)} keypoint ids is in the map")
+        scores = None if kp.scores is None else kp.scores[known]
+        return kp.uv[known], pts[j[known]], scores
+
+    def _from_image(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
+        """Decode (``sensor_msgs/Image``, or ``CompressedImage``: no ``encoding`` field), run
+        the front end."""
+        from ..frontends.image import image_from_compressed, image_from_msg
+
+        fe = cfg.frontend
+        if fe is None:  # (the node subscribes images only with a front end)
+            raise _Drop("no_frontend", "image received but frontend is none")
+        if not hasattr(msg, "encoding"):
+            try:
+                img, enc = image_from_compressed(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
+            h, w = img.shape[:2]
+        else:
+            h, w = int(msg.height), int(msg.width)
+            if h * w == 0:
+                raise _Drop("bad_image", f"empty image ({w}x{h})")
+            try:
+                img, enc = image_from_msg(msg)
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
+        if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
+            raise _Drop(
+                "image_size_mismatch",
+                f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
+            )
+        res.image = (img, enc, stamp)
+        t0 = time.perf_counter()
+        try:
+            uv, xyz, ids = fe.process(img, camera, encoding=enc)
+        except Exception as e:
+            raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
+        res.times["frontend"] = time.perf_counter() - t0
+        scores = getattr(fe, "last_scores", None)
+        if scores is not None and len(scores) != len(uv):
+            scores = None
+        self.stats.frontend_ran(len(uv), res.times["frontend"])
+        if cfg.republish_correspondences:
+            res.correspondences = (uv, xyz, ids, scores)
+        need = cfg.min_points
+        if len(uv) < need:
+            what = (
+                f"{len(uv) // 4} markers" if cfg.frontend_kind == "aruco" else f"{len(uv)} matches"
+            )
+            raise _Drop(
+                "frontend_too_few_points",
+                f"{cfg.frontend_kind} front end found {what}: {len(uv)} correspondences, "
+                f"{need} needed",
+            )
+        return uv, xyz, scores
+
+    # ---------------------------------------------------------------- tracking
+    def _tracker_for(self, camera: CameraModel, cfg: LocalizerConfig):
+        """The tracker for this camera and configuration: a new one when the solver, the
+        estimator or tracking options or the camera model changed (the old track's pending
+        twists are returned, final). Returns (tracker, final fused states)."""
+        key = (cfg.solver, cfg.options, cfg.tracking, id(camera))
+        final = []
+        if self._tracker is None or key != self._tracker_key:
+            if self._tracker is not None:
+                final = self._drop_tracker(flush=True)
+                self._track_counts["resets"] += 1
+            self._tracker = RSTracker(cfg.solver, cfg.options, cfg.tracking)
+            self._tracker_key = key
+            self._tracker_camera = camera  # (keeps id(camera) unique while in use)
+        return self._tracker, final
+
+    def _drop_tracker(self, flush: bool = False) -> list:
+        """Forget the tracker (its counters are kept); returns its pending fused states when
+        ``flush``, else drops them with the outputs waiting for them."""
+        final = []
+        t = self._tracker
+        if t is not None:
+            for k in ("frames_tracked", "relocalizations", "resets"):
+                self._track_counts[k] += getattr(t, k)
+            final = t.reset() if flush else []
+        self._tracker = self._tracker_key = None
+        if not flush:
+            self._pending.clear()
+        return final
+
+    def drop_tracker(self) -> None:
+        """End the track (e.g. the node is deactivated): the twists still pending are
+        dropped; the next frame starts a new track."""
+        with self._track_lock:
+            self._drop_tracker()
+
+    def _fused_outputs(self, final: list, cfg: LocalizerConfig) -> list[FusedOutput]:
+        """twist / odom of the frames whose fused state is final: the frame's own pose (as
+        published) with the fused twist and its covariance, stamped with the frame's time."""
+        out = []
+        for f in final:
+            item = self._pending.pop(f.stamp_ns, None)
+            if item is None:
+                continue
+            est, frame = item
+            src: Any = _Fused(est, f)
+            if cfg.extrinsic is not None:
+                src, frame = camera_to_base(src, cfg.extrinsic), cfg.base_frame
+            out.append(FusedOutput(f.stamp_ns, src, frame))
+        if len(self._pending) > _MAX_PENDING:  # (never left behind for long: drop the oldest)
+            for k in sorted(self._pending)[:-_MAX_PENDING]:
+                del self._pending[k]
+        return out
+
+    def flush_idle(self, now: float | None = None) -> list[FusedOutput]:
+        """After ``tracking.max_gap`` s (wall clock) without frames the track is over (the
+        next frame resets it): the twists still pending, now final."""
+        cfg = self._config
+        if self._tracker is None or cfg is None or cfg.tracking is None:
+            return []
+        with self._track_lock:
+            last = self._last_frame_wall
+            now = time.monotonic() if now is None else now
+            if (
+                self._tracker is None
+                or last is None
+                or not self._pending
+                or now - last < cfg.tracking.max_gap
+            ):
+                return []
+            return self._fused_outputs(self._tracker.flush(), cfg)
+
+    def flush(self) -> list[FusedOutput]:
+        """The end of the input (a bag): the twists still pending, as they are now."""
+        with self._track_lock:
+            if self._tracker is None or not self._pending:
+                return []
+            return self._fused_outputs(self._tracker.flush(), self._config)
+
+    def tracking_values(self) -> dict[str, Any]:
+        """Diagnostics of video tracking: track_state (tracking, lost or disabled),
+        frames_tracked, relocalizations, resets (over the pipeline's life)."""
+        t = self._tracker
+        tc = self._track_counts
+        on = self._config is not None and self._config.tracking is not None
+        state = "disabled" if not on else t.track_state if t is not None else "lost"
+        return {
+            "track_state": state,
+            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
+            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
+            "resets": tc["resets"] + (t.resets if t else 0),
+        }
