@@ -14,6 +14,7 @@ flakiness. The global-shutter p3p baseline has ~50x larger pose errors on this m
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 
@@ -170,7 +171,7 @@ def test_solver_switch_at_runtime(node, ros_context, sample_bag, keypoints_bag):
     try:
         (r,) = params.set(solver="p3p")
         assert r.successful, r.reason
-        res, gt, errs = _play(ros_context, sample_bag, offset_s=300.0, limit=10, topics=topics)
+        res, _gt, errs = _play(ros_context, sample_bag, offset_s=300.0, limit=10, topics=topics)
         assert res.answered == 10, node.log
         for f in res.frames:  # global shutter: no velocity
             tw = f["outputs"]["/camera/twist"][1].twist
@@ -883,10 +884,9 @@ def test_landmarks_file_fifo_does_not_hang_the_node(rel_node, rel, ros_context, 
         (r,) = params.set(landmarks_file=str(rel_node.landmarks))
         assert r.successful
     finally:
-        try:  # (on failure: release a reader blocked on the FIFO)
+        # (on failure: release a reader blocked on the FIFO)
+        with contextlib.suppress(OSError):
             os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
-        except OSError:
-            pass
         params.close()
     fr, _, _ = frames
     f = _shifted(fr[9], 0, 1_000_000_000_000)

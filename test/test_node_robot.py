@@ -335,7 +335,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
             assert pose is not None, f"active: no pose for frame {k}:\n{node.log}"
             e = frame_errors(*pose_from_msg(pose.pose), None, None, gt, s)
             assert e["rot_deg"] < 0.2 and e["pos_m"] < 0.03, e
-        st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 4)
+        _, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) == 4)
         assert int(v["frames_solved"]) == 4 and int(v["frames_received"]) == 4, v
 
         assert lc.transition(ex, Transition.TRANSITION_DEACTIVATE)
@@ -429,7 +429,7 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
             "1 map files loaded (1 in use)" in node.log
         ), node.log
         probes = {ns: Probe(ros_context, namespace=ns) for ns in names.values()}
-        for ns, pr in probes.items():
+        for pr in probes.values():
             pr.wait_matched()
         for k, (ns, pr) in enumerate(probes.items()):
             pr.pub_info.publish(info)
