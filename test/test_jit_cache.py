@@ -150,7 +150,7 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     _, est = warm_up(solver, EstimateOptions())
     assert est.success
     before = _signatures()
-    ts = bag_io._typestore()
+    ts = bag_io.typestore()
     info = cloud = None
     for topic, msgtype, _, raw in bag_io.iter_messages(
         sample_bag, {"/camera/correspondences", "/camera/camera_info"}

@@ -56,8 +56,8 @@ def _far_corners_back_to_image(markers_points, orientation, position, camera):
 def test_marker_array_against_the_pose():
     from visualization_msgs.msg import Marker
 
-    from rs_localizer.ros.bag_io import _typestore
-    from rs_localizer.ros.replay import _cdr
+    from rs_localizer.ros.bag_io import typestore
+    from rs_localizer.ros.replay import to_cdr
     from rs_localizer.ros.visualization import marker_array
 
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
@@ -97,9 +97,9 @@ def test_marker_array_against_the_pose():
     m2 = {x.ns: x for x in marker_array(gs, X, cam, 0, "map").markers}
     assert m2["angular_velocity"].action == Marker.DELETE
     # the messages survive a bag round trip (rosbags typestore)
-    ts = _typestore()
+    ts = typestore()
     back = ts.deserialize_cdr(
-        _cdr(ma, "visualization_msgs/msg/MarkerArray", ts), "visualization_msgs/msg/MarkerArray"
+        to_cdr(ma, "visualization_msgs/msg/MarkerArray", ts), "visualization_msgs/msg/MarkerArray"
     )
     assert len(back.markers[3].points) == est.num_inliers
 
@@ -279,9 +279,9 @@ def labelled_bag(tmp_path_factory):
 
 
 def _topic_messages(bag, topic):
-    from rs_localizer.ros.bag_io import _typestore, iter_messages
+    from rs_localizer.ros.bag_io import iter_messages, typestore
 
-    ts = _typestore()
+    ts = typestore()
     return [ts.deserialize_cdr(raw, mt) for _, mt, _, raw in iter_messages(bag, {topic})]
 
 

@@ -287,7 +287,7 @@ def _export_image(args) -> int:
     import numpy as np
 
     from ..frontends.image import image_from_msg
-    from ..ros.bag_io import IMAGE, _typestore, bag_topics, iter_messages
+    from ..ros.bag_io import IMAGE, bag_topics, iter_messages, typestore
     from ..viz.debug_image import to_bgr
 
     topics = bag_topics(args.bag)
@@ -297,7 +297,7 @@ def _export_image(args) -> int:
             f"{args.bag}: no sensor_msgs/Image topic {args.topic!r} (image "
             f"topics: {images or 'none'})"
         )
-    ts = _typestore()
+    ts = typestore()
     count = 0
     for k, (_, mt, _, raw) in enumerate(iter_messages(args.bag, {args.topic})):
         count += 1

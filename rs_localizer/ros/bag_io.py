@@ -67,9 +67,6 @@ def typestore():
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-_typestore = typestore  # (the name some callers use)
-
-
 def storage_plugin(storage: str):
     """The rosbags ``StoragePlugin`` of ``mcap`` or ``sqlite3``.
 

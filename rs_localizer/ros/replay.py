@@ -61,9 +61,6 @@ def to_cdr(msg: Any, msgtype: str, ts: Any) -> bytes:
     return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
 
 
-_cdr = to_cdr  # (the name some callers use)
-
-
 @dataclass
 class ReplayResult:
     """Outcome of :func:`replay`: ``rows`` (one dict per frame, the CSV's columns),
