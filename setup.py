@@ -25,8 +25,10 @@ setup(
         (f"share/{package_name}/data/sample_images", glob("data/sample_images/*")),
     ],
     python_requires=">=3.10",
-    # poselib: P3P (the pre-rotation of every RANSAC sample); matplotlib: experiment plots;
-    # pyyaml: render scenes; scikit-image: the photographs on the textured_room walls
+    # poselib: the global-shutter reference of the benchmarks and tests, and an optional P3P
+    # backend (the default P3P is our own Lambda Twist); matplotlib: experiment plots;
+    # pyyaml: parameter files, marker maps, boards and scenes; scikit-image: the photographs on
+    # the textured_room walls (renderer)
     install_requires=[
         "setuptools",
         "numpy",

@@ -179,7 +179,7 @@ def test_fused_twist_beats_single_frame_on_the_sample(sample_like):
     # targets (bench_video): linear <= 1/4, angular <= 1/2 of the single-frame error
     assert e["fused_linear_velocity"] < 0.4 * e["single_linear_velocity"]
     assert e["fused_angular_velocity"] < 0.7 * e["single_angular_velocity"]
-    assert e["single_linear_velocity"] > 0.15  # the per-frame figure (0.28 m/s in README)
+    assert e["single_linear_velocity"] > 0.15  # the per-frame figure (0.28 m/s in docs/video.md)
 
 
 @pytest.mark.parametrize("name", ["shake", "car"])

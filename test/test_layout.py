@@ -1,5 +1,6 @@
 """The package's layers: imports point down only, ``ros`` is the only rclpy importer, nothing in
-the library imports ``sim`` or ``evaluation``, and one solver registry (README "Architecture")."""
+the library imports ``sim`` or ``evaluation``, and one solver registry (docs/architecture.md
+"Layers")."""
 
 import ast
 from pathlib import Path

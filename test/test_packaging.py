@@ -1,4 +1,4 @@
-"""What the distro install (README, ROS section; .ci/distro) relies on: package.xml (rosdep
+"""What the distro install (docs/install.md; .ci/distro) relies on: package.xml (rosdep
 keys) and requirements.txt (pip, what has no usable key) together declare every third-party
 module the package and its launch file import, and numba kernels inline only through
 ``_so3.INLINE`` (Debian 12's numba 0.56 takes > 20 min over a kernel with ``inline="always"``

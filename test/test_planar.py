@@ -127,7 +127,7 @@ def test_map_covariance_is_the_posterior():
     theta = np.r_[np.zeros(3), ref.C, ref.w, ref.t]
     J = exact_jacobian(theta, ref.R, f.X, x, tau)
 
-    def z(th):  # the camera's velocities (v, omega) by README "Conventions"
+    def z(th):  # the camera's velocities (v, omega) by docs/architecture.md "Conventions"
         return np.r_[(np.cross(th[6:9], th[3:6]) - th[9:12]) / s, -th[6:9] / s]
 
     h = 1e-7

@@ -75,7 +75,8 @@ def test_reflected_points_are_never_a_pose(seq):
 
 
 def test_rows_behind_the_camera_are_counted_as_dropped(seq):
-    """The README's ``points_dropped`` counts rows behind the camera: with 30 % of the rows
+    """The node's ``points_dropped`` (docs/node.md) counts rows behind the camera: with 30 % of the
+    rows
     reflected behind the camera the frame still solves and those rows are counted."""
     fr, cam = seq
     f = fr[2]

@@ -500,7 +500,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="corridor",
         help="corridor: 3D landmarks along a walk (default); plane: one wall ahead "
         "(planar scene); board: a 6x7-corner checkerboard under hand-held shake "
-        "(42 points; see README 'Planar scenes')",
+        "(42 points; see docs/planar.md)",
     )
     m.add_argument(
         "--storage", choices=["mcap", "sqlite3"], default="mcap", help="bag storage format"

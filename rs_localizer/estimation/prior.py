@@ -11,7 +11,7 @@ The prior is on ``z = (v, omega)``, the camera's linear and angular velocity in 
 frame, in ROS twist order (vx, vy, vz, wx, wy, wz; m/s, rad/s), the order of
 :attr:`RSPoseEstimate.twist_covariance <rs_localizer.estimation.estimate.RSPoseEstimate>`: a
 video tracker can pass its predicted twist and covariance per frame. With the model's velocities
-per unit RS coordinate (README "Conventions", ``s`` = seconds per unit r)::
+per unit RS coordinate (docs/architecture.md "Conventions", ``s`` = seconds per unit r)::
 
     omega = -w / s,   v = (w x C - t) / s
 """
@@ -66,7 +66,7 @@ class MotionPrior:
     at 1-3 rad/s, moving at up to ~1.5 m/s) lies within ~1 sigma. The linear sigma is the one
     that matters on planes (rotation trades against linear velocity there; the angular sigma
     barely changes the result); it is a compromise measured with
-    ``python -m rs_localizer.evaluation.bench_planar`` (README "Planar scenes"). Raises ValueError
+    ``python -m rs_localizer.evaluation.bench_planar`` (docs/planar.md). Raises ValueError
     (on construction) for negative sigmas, a mean or
     covariance of the wrong shape, non-finite entries, or a covariance that is not symmetric
     positive definite.
@@ -150,7 +150,7 @@ def linear_prior_rows(prior: MotionPrior, C0, seconds_per_unit_r: float, scale=1
 
     ``z = (v, omega)`` is linear in (w, t) once ``w x C`` is linearized at a rough centre
     ``C0`` (the sample's P3P pose): ``w x C ~ w x C0``, so ``z ~ M (w, t)`` with
-    ``M = [[-[C0]x, -I], [-I, 0]] / s`` (README "Conventions").
+    ``M = [[-[C0]x, -I], [-I, 0]] / s`` (docs/architecture.md "Conventions").
 
     Args:
         prior: an enabled :class:`MotionPrior`.
@@ -250,7 +250,7 @@ def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noi
 def model_twist(C, w, t, s):
     """(6,) the camera's velocities ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (ROS twist
     order; m/s, rad/s, camera frame) from the model's C, w, t per unit r and ``s`` seconds per
-    unit r (README "Conventions")."""
+    unit r (docs/architecture.md "Conventions")."""
     z = np.empty(6)
     z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
     z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
@@ -295,7 +295,8 @@ def _conflict(cov12, C, w, t, s, mean, Lam):
 def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: float):
     """How an estimate's velocities relate to the prior (linear-Gaussian approximation).
 
-    ``z = (v, omega)`` from the model's C, w, t per unit r (README "Conventions"), with the
+    ``z = (v, omega)`` from the model's C, w, t per unit r (docs/architecture.md "Conventions"),
+    with the
     covariance ``S`` propagated from ``covariance`` ((12, 12) over (delta, C, w, t)); the prior
     has mean ``m`` and covariance ``P``.
 

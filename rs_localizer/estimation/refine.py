@@ -502,7 +502,7 @@ def untruncated_variance(s2, k):
 @njit(cache=True)
 def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
     """Motion prior of :func:`refine_rs_pose` at (C, w, t): ``scale2 (z - mu)^T Lam (z - mu)``
-    with ``z = (v, omega)`` the camera's velocities (README "Conventions":
+    with ``z = (v, omega)`` the camera's velocities (docs/architecture.md "Conventions":
     ``v = (w x C - t) / s``, ``omega = -w / s``; ROS twist order). If ``add``, adds its
     Gauss-Newton terms ``scale2 Jz^T Lam Jz`` to H (12, 12) and ``scale2 Jz^T Lam (z - mu)`` to
     g (12,), Jz (6, 12) the Jacobian of z w.r.t. (delta, C, w, t). Returns the cost."""
@@ -811,7 +811,7 @@ def refine_rs_pose(
             velocities (maximum a posteriori instead of maximum likelihood), or
             ``None``. Ignored for global-shutter refinement or ``seconds_per_unit_r <= 0``.
         seconds_per_unit_r: the camera's capture time per unit r (s), to express the prior on
-            the model's (w, t) (README "Conventions").
+            the model's (w, t) (docs/architecture.md "Conventions").
         noise: image noise sigma (normalized units) that weighs the prior against the data;
             ``None``: estimated from the residuals at the start
             (``sum e^2 / (2 n - 12)`` over the points inside ``loss_scale``, corrected for
@@ -942,7 +942,8 @@ def posterior_step(
 
 def _prior_residuals(theta, mean, U, s, scale):
     """(6,) whitened prior residuals ``scale U (z - mean)`` and their (6, 12) Jacobian, z the
-    camera's velocities (v, omega) from theta = (delta, C, w, t) (README "Conventions")."""
+    camera's velocities (v, omega) from theta = (delta, C, w, t) (docs/architecture.md
+    "Conventions")."""
     C, w, t = theta[3:6], theta[6:9], theta[9:12]
     z = np.concatenate([(np.cross(w, C) - t) / s, -w / s])
     Jz = np.zeros((6, 12))

@@ -2,7 +2,7 @@
 
 Timings pin BLAS to one thread (threadpoolctl and the usual environment variables) and report
 medians over repeated runs on data from :mod:`rs_localizer.sim.synthetic`. Numbers depend on the
-machine; the README quotes the ones measured on the project's 2-core CI machine.
+machine; docs/accuracy.md quotes the ones measured on a 2-core machine.
 
 ``solvers``: median microseconds per call of every solver, per linear iteration, and the
 amortized time per hypothesis when K minimal problems are solved at once (the batched kernels

@@ -20,7 +20,7 @@ first start and the same cache for the later starts. For each start it reports:
 
 Scenarios: ``no-compile`` (the package's compiled kernels deleted: the node compiles at its
 first start into ``~/.cache/rs_localizer/numba``) and ``compile`` (``rs-localizer compile`` run
-once after installing, while the package is writable, as the README's install commands do;
+once after installing, while the package is writable, as docs/install.md's commands do;
 its duration is reported too).
 
 ``rss`` starts ``rs_localizer_node`` (this environment) with ``cameras`` listing 1, then 4

@@ -49,7 +49,8 @@ class PlanarFrame:
         points_px: (N, 2) measured pixels (noisy). X: (N, 3) world points (m), all ``z = 0``.
         camera: the :class:`~rs_localizer.camera.CameraModel` that took it.
         R, C: world -> camera at the reference line (``X_cam = R X + C``, m).
-        w, t: the model velocities per unit RS coordinate (rad, m), README "Conventions".
+        w, t: the model velocities per unit RS coordinate (rad, m), docs/architecture.md
+        "Conventions".
         orientation, position: camera -> world rotation (``R^T``) and centre (m).
         angular_velocity, linear_velocity: (3,) the camera's own velocities in its optical
             frame (rad/s, m/s).
@@ -98,7 +99,7 @@ def board_corners(corners=(6, 7), square: float = 0.08) -> np.ndarray:
 def model_velocities(C, angular_velocity, linear_velocity, seconds_per_unit_r: float):
     """The camera's velocities (optical frame; rad/s, m/s) -> the model's (w, t) per unit r.
 
-    Inverse of README "Conventions" (``omega = -w / s``, ``v = (w x C - t) / s``):
+    Inverse of docs/architecture.md "Conventions" (``omega = -w / s``, ``v = (w x C - t) / s``):
     ``w = -s omega``, ``t = w x C - s v``. Returns (w (3,), t (3,))."""
     s = float(seconds_per_unit_r)
     w = -s * np.asarray(angular_velocity, dtype=float)
