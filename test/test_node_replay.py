@@ -4,7 +4,9 @@ stamp by stamp, as the node publishes when the bag is played to it over DDS in l
 
 Both run the same :class:`~rs_localizer.ros.pipeline.FramePipeline` on the same frames in the
 same order with the same camera_infos; the estimator and the tracker are deterministic (fixed
-RANSAC seed), so the values are expected bit-identical, and are compared exactly.
+RANSAC seed). With the PyPI wheels the two processes agree bit for bit; with Debian's NumPy and
+BLAS they were seen to differ in the last bits (2-4e-15 m on positions of a few metres), so the
+values are compared to 1e-12 relative to their magnitude.
 """
 
 from __future__ import annotations
@@ -110,13 +112,13 @@ def test_replay_writes_what_the_node_publishes(
     for topic in TOPICS:
         assert len(offline[topic]) == n, topic
         assert sorted(live[topic]) == sorted(offline[topic]), topic  # the same stamps
-        worst = 0.0
+        worst = 0.0  # largest difference relative to the value's magnitude (at least 1)
         for stamp, m in offline[topic].items():
             a, b = _values(topic, m), _values(topic, live[topic][stamp])
-            worst = max(worst, float(np.max(np.abs(a - b))))
+            worst = max(worst, float(np.max(np.abs(a - b) / np.maximum(np.abs(a), 1.0))))
             assert m.header.frame_id == live[topic][stamp].header.frame_id
         print(f"{mode} {topic}: {n} stamps, largest difference {worst:.3g}")
-        assert worst == 0.0, (topic, worst)
+        assert worst <= 1e-12, (topic, worst)
     # the fused twist is not the single-frame one (tracking on, as in the node)
     some = next(iter(offline["twist"]))
     assert not np.array_equal(
