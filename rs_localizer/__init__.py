@@ -20,8 +20,14 @@ _jit_cache.configure()
 
 from .camera import CameraModel
 from .estimation import (
+    CorrelatedNoise,
     EstimateOptions,
+    InitialModel,
+    LocalOptimizationOptions,
     MotionPrior,
+    PlausibilityOptions,
+    RansacOptions,
+    RefineOptions,
     RSPoseEstimate,
     estimate_rs_pose,
 )
@@ -30,9 +36,15 @@ __version__ = "0.1.0"
 
 __all__ = [
     "CameraModel",
+    "CorrelatedNoise",
     "EstimateOptions",
+    "InitialModel",
+    "LocalOptimizationOptions",
     "MotionPrior",
+    "PlausibilityOptions",
     "RSPoseEstimate",
+    "RansacOptions",
+    "RefineOptions",
     "__version__",
     "estimate_rs_pose",
 ]

@@ -151,7 +151,7 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
     covariance alone the twist is "significant" on most photos (15-134)."""
     from scipy.stats import chi2
 
-    from rs_localizer.estimation import EstimateOptions
+    from rs_localizer.estimation import CorrelatedNoise, EstimateOptions
     from rs_localizer.estimation.noise_model import fit_correlated_noise
 
     camera = read_camera("left_intrinsics.yml", LINE_DELAY)
@@ -164,7 +164,7 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
     assert fit.log_likelihood_ratio > 100  # strong evidence for a correlated error
     assert 0.1 < fit.correlated_px < 0.4 and 40 < fit.length_px < 200, fit
     opts = EstimateOptions(
-        correlated_noise_px=fit.correlated_px, correlated_noise_length_px=fit.length_px
+        correlated_noise=CorrelatedNoise(sigma_px=fit.correlated_px, length_px=fit.length_px)
     )
     q6, q3 = chi2.ppf(0.9973, 6), chi2.ppf(0.9973, 3)
     white = []

@@ -4,8 +4,8 @@ camera_info rejection reason, every node parameter with its default and every di
 nothing the node does not have). The README's short parameter table shows the same defaults.
 
 Reasons are collected from the sources (the string literals passed to the frame pipeline's
-``_Drop`` and ``_reject_camera_info``, the decoders' reason tuples, the estimator's ``_fail``
-calls; the leading underscore optional, in any module of ``ros/`` and ``estimation/``) and
+``_Drop`` and ``_reject_camera_info``, the leading underscore optional, in any module of
+``ros/``; the decoders' reason tuples; the estimator's ``FAILURE_REASONS``) and
 compared with the first column of the page's ``| reason |`` tables, both ways. Diagnostics keys
 are read from the status a live node publishes on ``/diagnostics``.
 """
@@ -65,11 +65,10 @@ def _modules(package: str) -> list:
 
 
 def _node_reasons() -> set:
-    from rs_localizer.estimation import plausibility
+    from rs_localizer.estimation import FAILURE_REASONS
 
     reasons = _literals(_modules("ros"), "_fail", "_Drop")
-    reasons |= _literals(_modules("estimation"), "_fail")
-    reasons |= {plausibility.IMPLAUSIBLE_MOTION, plausibility.CHEIRALITY}
+    reasons |= set(FAILURE_REASONS)
     src = (PKG / "ros" / "pointcloud.py").read_text()
     reasons |= set(re.findall(r"CloudError\(\s*\"([a-z_]+)\"", src))
     reasons.add("bad_stamp")  # conversions.StampError.reason

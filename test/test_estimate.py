@@ -7,6 +7,7 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import (
     SOLVERS,
     EstimateOptions,
+    RansacOptions,
     estimate_rs_pose,
     physical_velocities,
 )
@@ -122,7 +123,7 @@ def test_global_shutter_frames_match_p3p_and_give_zero_velocity():
 def test_other_solvers_work_end_to_end():
     f = make_frame(77, 400, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
     for solver in SOLVERS:
-        opts = EstimateOptions(max_iterations=60 if solver == "r6p" else 1000)
+        opts = EstimateOptions(ransac=RansacOptions(max_iterations=60 if solver == "r6p" else 1000))
         e = estimate_rs_pose(f.points_px, f.X, CAM, solver, opts)
         assert e.success, solver
         limit = 10.0 if solver == "p3p" else 0.3  # P3P is off by degrees at this speed
@@ -142,8 +143,12 @@ def test_r9p_estimator_works_without_motion():
 
 def test_deterministic_for_a_fixed_seed():
     f = make_frame(3, 300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.4)
-    a = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin", EstimateOptions(seed=7))
-    b = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin", EstimateOptions(seed=7))
+    a = estimate_rs_pose(
+        f.points_px, f.X, CAM, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=7))
+    )
+    b = estimate_rs_pose(
+        f.points_px, f.X, CAM, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=7))
+    )
     np.testing.assert_array_equal(a.R, b.R)
     np.testing.assert_array_equal(a.inliers, b.inliers)
     assert a.ransac_iterations == b.ransac_iterations
@@ -283,11 +288,11 @@ def test_distorted_camera_and_readout_directions(readout):
 def test_rng_is_default_rng_stream():
     """The estimator's generator for an int seed (cached seed sequence) draws exactly what
     ``np.random.default_rng(seed)`` draws, so seeded results are NumPy's."""
-    from rs_localizer.estimation.estimate import _rng
+    from rs_localizer.estimation.ransac import seeded_rng
 
     for seed in (0, 5, np.int64(7), 2**40):
         for _ in range(2):  # (the second call hits the cache)
-            a, b = _rng(seed), np.random.default_rng(seed)
+            a, b = seeded_rng(seed), np.random.default_rng(seed)
             np.testing.assert_array_equal(a.permutation(50), b.permutation(50))
             np.testing.assert_array_equal(a.random((4, 6)), b.random((4, 6)))
-    assert _rng(None).random() != _rng(None).random()
+    assert seeded_rng(None).random() != seeded_rng(None).random()

@@ -17,7 +17,7 @@ import pytest
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
 from rs_localizer.estimation.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.estimation.tracker import RSTracker, TrackerOptions
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
@@ -131,12 +131,14 @@ def _track(name, n, seed, fusion=None, **cfg):
         SequenceConfig(num_frames=n, seed=seed, **cfg), trajectory=make_trajectory(name)
     )
     tr = RSTracker(
-        options=EstimateOptions(seed=0),
+        options=EstimateOptions(ransac=RansacOptions(seed=0)),
         tracker_options=TrackerOptions(fusion=fusion or FusionOptions()),
     )
     single, final = {}, []
     for f in frames:  # single frame: the estimator alone (as without tracking)
-        single[f.t_ref_ns] = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
+        single[f.t_ref_ns] = estimate_rs_pose(
+            f.uv, f.xyz, cam, options=EstimateOptions(ransac=RansacOptions(seed=0))
+        )
         final += tr.process(f.t_ref_ns, f.uv, f.xyz, cam).final
     final += tr.flush()
     return frames, single, final

@@ -29,7 +29,7 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from rs_localizer.camera import CameraModel  # noqa: E402
-from rs_localizer.estimation import EstimateOptions, estimate_rs_pose  # noqa: E402
+from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose  # noqa: E402
 from rs_localizer.estimation.plausibility import depths_at_capture  # noqa: E402
 from rs_localizer.frontends.image import ENCODINGS, image_from_msg  # noqa: E402
 from rs_localizer.geometry import rotation_angle_deg  # noqa: E402
@@ -347,7 +347,7 @@ CAM = CameraModel(
     line_delay=5e-5,
     D=[0.05, -0.02, 0.0, 0.0, 0.0],
 )
-OPTS = EstimateOptions(max_iterations=60, min_iterations=10)
+OPTS = EstimateOptions(ransac=RansacOptions(max_iterations=60, min_iterations=10))
 #: every failure reason estimate_rs_pose documents
 REASONS = {
     "too_few_points",
@@ -368,15 +368,15 @@ def _check_estimate(e, u, X, opts=OPTS):
         assert e.num_inliers == 0
         return
     assert e.failure is None
-    assert e.num_inliers >= opts.min_inliers
+    assert e.num_inliers >= opts.ransac.min_inliers
     np.testing.assert_allclose(e.R @ e.R.T, np.eye(3), atol=1e-9)
-    assert np.linalg.norm(e.angular_velocity) <= opts.max_angular_velocity * (1 + 1e-9)
-    assert np.linalg.norm(e.linear_velocity) <= opts.max_linear_velocity * (1 + 1e-9)
+    assert np.linalg.norm(e.angular_velocity) <= opts.plausibility.max_angular_velocity * (1 + 1e-9)
+    assert np.linalg.norm(e.linear_velocity) <= opts.plausibility.max_linear_velocity * (1 + 1e-9)
     inl = e.inliers
     _, r, _ = CAM.normalize(u[inl])
     z = depths_at_capture(e.R, e.C, e.w, e.t, X[inl], r - CAM.r0)
     assert (z > 0).all()
-    assert e.rmse_px <= opts.threshold_px
+    assert e.rmse_px <= opts.ransac.threshold_px
 
 
 _val = st.one_of(st.floats(-2000, 2000), st.sampled_from([np.nan, np.inf, -np.inf, 0.0, 1e30]))

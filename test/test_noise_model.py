@@ -8,7 +8,7 @@ import pytest
 from scipy.stats import chi2
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation.estimate import CorrelatedNoise, EstimateOptions, estimate_rs_pose
 from rs_localizer.estimation.noise_model import (
     correlated_noise_covariance,
     fit_correlated_noise,
@@ -116,10 +116,12 @@ def test_no_correlated_error_leaves_the_covariance_alone():
         X,
         CAM,
         "r6p_1lin",
-        EstimateOptions(correlated_noise_px=0.0, correlated_noise_length_px=50),
+        EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px=0.0, length_px=50)),
     )
     np.testing.assert_array_equal(a.covariance, b.covariance)
-    c = estimate_rs_pose(u + 0.1, X, CAM, "r6p_1lin", EstimateOptions(correlated_noise_px=0.2))
+    c = estimate_rs_pose(
+        u + 0.1, X, CAM, "r6p_1lin", EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px=0.2))
+    )
     np.testing.assert_array_equal(a.R, c.R)  # the estimate is unchanged, only its covariance
     assert np.all(np.linalg.eigvalsh(c.covariance - a.covariance) > -1e-12)
 
@@ -127,15 +129,15 @@ def test_no_correlated_error_leaves_the_covariance_alone():
 @pytest.mark.parametrize(
     "kw",
     [
-        dict(correlated_noise_px=-0.1),
-        dict(correlated_noise_px=np.nan),
-        dict(correlated_noise_length_px=0.0),
-        dict(correlated_noise_length_px=np.inf),
+        dict(sigma_px=-0.1),
+        dict(sigma_px=np.nan),
+        dict(length_px=0.0),
+        dict(length_px=np.inf),
     ],
 )
 def test_options_reject(kw):
     with pytest.raises(ValueError, match="correlated_noise"):
-        EstimateOptions(**kw)
+        CorrelatedNoise(**kw)
 
 
 @pytest.fixture(scope="module")
@@ -174,7 +176,7 @@ def test_covariance_is_calibrated_on_still_boards(still_frames):
     without (mean 86, 14 %). On these views white noise alone gives mean 13.9 and 79 % with
     the white-noise covariance: the Gauss-Newton covariance of a planar board's RS model is
     too tight in the flat valley whatever the noise model."""
-    opts = EstimateOptions(correlated_noise_px=CORR, correlated_noise_length_px=LENGTH)
+    opts = EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px=CORR, length_px=LENGTH))
     m_on, m_off = [], []
     for X, _R, _C, u in still_frames:
         for opt, out in ((opts, m_on), (EstimateOptions(), m_off)):

@@ -4,8 +4,8 @@ propagation by an explicit Jacobian, RMS of the inliers, velocities by cross pro
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.estimate import _output_covariance, physical_velocities
 from rs_localizer.estimation.outputs import final_inliers
+from rs_localizer.estimation.result import output_covariance, physical_velocities
 from rs_localizer.geometry import rotvec_to_matrix, skew
 
 
@@ -34,7 +34,7 @@ def test_output_covariance_matches_the_explicit_jacobian(s):
         J[9:12, 3:6] = skew(w) / s
         J[9:12, 9:12] = -np.eye(3) / s
     ref = J @ cov12 @ J.T
-    out, pose, twist = _output_covariance(cov12, R, C, w, s)
+    out, pose, twist = output_covariance(cov12, R, C, w, s)
     np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
     order = [3, 4, 5, 0, 1, 2]
     np.testing.assert_allclose(

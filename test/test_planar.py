@@ -7,7 +7,7 @@ brute-force ranking, rendered boards against OpenCV's detectors."""
 import numpy as np
 import pytest
 
-from rs_localizer import EstimateOptions, MotionPrior, estimate_rs_pose
+from rs_localizer import EstimateOptions, MotionPrior, RansacOptions, estimate_rs_pose
 from rs_localizer.estimation.degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
 from rs_localizer.estimation.refine import (
@@ -320,12 +320,18 @@ def test_board_with_outliers_finds_every_inlier():
     plain_failures = 0
     for seed in range(16):
         f = make_planar_frame(seed, "board", outlier_ratio=0.2)
-        e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(seed=seed))
+        e = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=seed))
+        )
         assert e.success and np.array_equal(e.inliers, f.inlier), seed
         assert e.planar and e.planarity < 1e-9 and e.condition_number > 1e4
         assert rotation_angle_deg(e.orientation, f.orientation) < 4.0
         ml = estimate_rs_pose(
-            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(seed=seed, motion_prior=None)
+            f.points_px,
+            f.X,
+            f.camera,
+            "r6p_1lin",
+            EstimateOptions(ransac=RansacOptions(seed=seed), motion_prior=None),
         )
         plain_failures += (not ml.success) or not np.array_equal(ml.inliers, f.inlier)
     assert plain_failures >= 1  # the failure the damped solves fix (seeds 13, 14)
@@ -372,8 +378,12 @@ def _summary(scene, seeds, outliers=0.0):
     rows = {"map": [], "p3p": [], "ang": [], "nees_rot": [], "nees_ang": []}
     for seed in seeds:
         f = make_planar_frame(seed, scene, outlier_ratio=outliers)
-        e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(seed=seed))
-        g = estimate_rs_pose(f.points_px, f.X, f.camera, "p3p", EstimateOptions(seed=seed))
+        e = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=seed))
+        )
+        g = estimate_rs_pose(
+            f.points_px, f.X, f.camera, "p3p", EstimateOptions(ransac=RansacOptions(seed=seed))
+        )
         assert e.success and g.success
         rows["map"].append(rotation_angle_deg(e.orientation, f.orientation))
         rows["p3p"].append(rotation_angle_deg(g.orientation, f.orientation))
@@ -446,8 +456,12 @@ def test_planar_sequences(kind):
     )
     rs, gs = [], []
     for fr in frames:
-        e = estimate_rs_pose(fr.uv, fr.xyz, camera, "r6p_1lin", EstimateOptions(min_inliers=8))
-        g = estimate_rs_pose(fr.uv, fr.xyz, camera, "p3p", EstimateOptions(min_inliers=8))
+        e = estimate_rs_pose(
+            fr.uv, fr.xyz, camera, "r6p_1lin", EstimateOptions(ransac=RansacOptions(min_inliers=8))
+        )
+        g = estimate_rs_pose(
+            fr.uv, fr.xyz, camera, "p3p", EstimateOptions(ransac=RansacOptions(min_inliers=8))
+        )
         assert e.success and e.planar
         rs.append(rotation_angle_deg(e.orientation, fr.orientation))
         gs.append(rotation_angle_deg(g.orientation, fr.orientation))
@@ -515,8 +529,10 @@ def test_board_scenes_render_and_detect(name):
         assert len(ids) == 48 and len(scene.markers) == 12
         gt, ok = project_rs(cam, motion, t0, X)
         assert ok.all() and np.abs(uv - gt).max() < 1.0
-    e = estimate_rs_pose(uv, X, cam, "r6p_1lin", EstimateOptions(min_inliers=8))
-    g = estimate_rs_pose(uv, X, cam, "p3p", EstimateOptions(min_inliers=8))
+    e = estimate_rs_pose(
+        uv, X, cam, "r6p_1lin", EstimateOptions(ransac=RansacOptions(min_inliers=8))
+    )
+    g = estimate_rs_pose(uv, X, cam, "p3p", EstimateOptions(ransac=RansacOptions(min_inliers=8)))
     assert e.success and e.planar
     assert rotation_angle_deg(e.orientation, frame.orientation) < rotation_angle_deg(
         g.orientation, frame.orientation

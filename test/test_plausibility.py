@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rs_localizer.estimation import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation import (
+    EstimateOptions,
+    PlausibilityOptions,
+    RansacOptions,
+    estimate_rs_pose,
+)
 from rs_localizer.estimation.plausibility import (
     check_final_model,
     depths_at_capture,
@@ -40,8 +45,11 @@ def seq():
     return fr, cam
 
 
-def _opts(**kw):
-    return EstimateOptions(max_iterations=300, **kw)
+def _opts(**bounds):
+    """300 RANSAC iterations; ``bounds``: :class:`PlausibilityOptions` fields."""
+    return EstimateOptions(
+        ransac=RansacOptions(max_iterations=300), plausibility=PlausibilityOptions(**bounds)
+    )
 
 
 def test_v_equal_u_cloud_is_never_a_pose(seq):
@@ -166,8 +174,8 @@ def test_options_validate_the_bounds():
         {"max_linear_velocity": -1.0},
     ):
         with pytest.raises(ValueError):
-            EstimateOptions(**kw)
-    EstimateOptions(max_angular_velocity=float("inf"))  # no bound
+            PlausibilityOptions(**kw)
+    EstimateOptions(plausibility=PlausibilityOptions(max_angular_velocity=float("inf")))  # no bound
 
 
 def test_plausible_motion_against_physical_velocities():

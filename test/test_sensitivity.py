@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.estimate import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation.estimate import (
+    EstimateOptions,
+    RansacOptions,
+    RefineOptions,
+    estimate_rs_pose,
+)
 from rs_localizer.estimation.refine import refine_rs_pose
 from rs_localizer.estimation.sensitivity import acceleration_sensitivity
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
@@ -72,9 +77,13 @@ def test_estimator_returns_it_on_request():
     traj = make_trajectory("shake")
     frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=8, seed=5), trajectory=traj)
     f = frames[1]
-    plain = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
+    plain = estimate_rs_pose(
+        f.uv, f.xyz, cam, options=EstimateOptions(ransac=RansacOptions(seed=0))
+    )
     assert plain.acceleration_sensitivity is None
-    opts = EstimateOptions(seed=0, acceleration_sensitivity=True)
+    opts = EstimateOptions(
+        ransac=RansacOptions(seed=0), refine=RefineOptions(acceleration_sensitivity=True)
+    )
     est = estimate_rs_pose(f.uv, f.xyz, cam, options=opts)
     assert est.acceleration_sensitivity.shape == (12, 6)
     np.testing.assert_array_equal(est.R, plain.R)  # nothing else changes

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, estimate_rs_pose
+from rs_localizer.estimation.estimate import (
+    EstimateOptions,
+    InitialModel,
+    RansacOptions,
+    estimate_rs_pose,
+)
 from rs_localizer.estimation.fusion import FusionOptions
 from rs_localizer.estimation.tracker import (
     RSTracker,
@@ -29,7 +34,7 @@ def hard_sequence():
 def test_initial_model_hook(hard_sequence):
     frames, _, cam, _ = hard_sequence
     f = frames[3]
-    opts = EstimateOptions(seed=0)
+    opts = EstimateOptions(ransac=RansacOptions(seed=0))
     cold = estimate_rs_pose(f.uv, f.xyz, cam, options=opts)
     assert cold.success and cold.initial_explained == -1 and not cold.initial_used
     # a model near the truth explains the frame: RANSAC verifies it with few samples drawn
@@ -44,7 +49,11 @@ def test_initial_model_hook(hard_sequence):
         min_explained=200,
     )
     warm = estimate_rs_pose(
-        f.uv, f.xyz, cam, options=EstimateOptions(seed=0, min_iterations=0), initial_model=near
+        f.uv,
+        f.xyz,
+        cam,
+        options=EstimateOptions(ransac=RansacOptions(seed=0, min_iterations=0)),
+        initial_model=near,
     )
     assert warm.success and warm.initial_used and warm.initial_explained >= 300
     assert warm.ransac_iterations < 0.25 * cold.ransac_iterations
@@ -64,13 +73,15 @@ def test_initial_model_hook(hard_sequence):
 
 def test_tracked_frames_match_cold_accuracy(hard_sequence):
     frames, _, cam, _ = hard_sequence
-    tr = RSTracker(options=EstimateOptions(seed=0))
+    tr = RSTracker(options=EstimateOptions(ransac=RansacOptions(seed=0)))
     rot_t, rot_c, pos_t, pos_c, iters_t, iters_c = [], [], [], [], [], []
     states = []
     for f in frames:
         r = tr.process(f.t_ref_ns, f.uv, f.xyz, cam)
         states.append(r.state)
-        cold = estimate_rs_pose(f.uv, f.xyz, cam, options=EstimateOptions(seed=0))
+        cold = estimate_rs_pose(
+            f.uv, f.xyz, cam, options=EstimateOptions(ransac=RansacOptions(seed=0))
+        )
         if r.state == "tracked":
             rot_t.append(rotation_angle_deg(r.estimate.orientation, f.orientation))
             pos_t.append(np.linalg.norm(r.estimate.position - f.position))
@@ -102,7 +113,7 @@ def test_teleport_jump_back_drops_and_bad_frames():
         SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)), trajectory=traj
     )
     assert [f.index for f in frames] == [k for k in range(16) if k not in (5, 6)]
-    tr = RSTracker(options=EstimateOptions(seed=0))
+    tr = RSTracker(options=EstimateOptions(ransac=RansacOptions(seed=0)))
     by_index = {f.index: f for f in frames}
     seen_final = []
 
@@ -145,7 +156,7 @@ def test_state_model_roundtrip_and_prior(hard_sequence):
     frames, _, cam, _ = hard_sequence
     # (maximum likelihood: the filter starts at the estimate itself, no prior to take out)
     tr = RSTracker(
-        options=EstimateOptions(seed=0, motion_prior=None),
+        options=EstimateOptions(ransac=RansacOptions(seed=0), motion_prior=None),
         tracker_options=TrackerOptions(fusion=FusionOptions(lag=0)),
     )
     r = tr.process(frames[0].t_ref_ns, frames[0].uv, frames[0].xyz, cam)

@@ -355,7 +355,7 @@ def _marker_map(args) -> int:
 def _calibrate_readout(args) -> int:
     import numpy as np
 
-    from ..estimation.estimate import EstimateOptions
+    from ..estimation.estimate import EstimateOptions, RansacOptions
     from ..estimation.readout import calibrate_line_delay
     from ..ros.bag_frames import read_bag_frames, read_gyro
 
@@ -373,7 +373,7 @@ def _calibrate_readout(args) -> int:
         bag.frames,
         bag.camera,
         solver=args.solver,
-        options=EstimateOptions(threshold_px=args.threshold, seed=0),
+        options=EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold, seed=0)),
         gyro=gyro,
         stamp_row=stamp_row,
     )

@@ -34,6 +34,7 @@ from ..camera import CameraModel
 from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
 from .fusion import FusedState, FusionOptions, TwistFilter
 from .prior import MotionPrior
+from .result import TOO_FEW_POINTS
 
 __all__ = [
     "STATES",
@@ -169,6 +170,12 @@ def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> Motion
     return MotionPrior(mean=mean, covariance=0.5 * (cov + cov.T), always=True)
 
 
+def _with_sensitivity(options: EstimateOptions) -> EstimateOptions:
+    """``options`` with the acceleration sensitivity on (the filter models the estimate's error
+    from acceleration during the readout)."""
+    return replace(options, refine=replace(options.refine, acceleration_sensitivity=True))
+
+
 class RSTracker:
     """Track a rolling-shutter camera through a video (see the module docstring).
 
@@ -189,17 +196,18 @@ class RSTracker:
         tracker_options: TrackerOptions | None = None,
     ):
         self.solver = solver
-        # the filter models the estimate's error from acceleration during the readout
-        self.options = replace(options or EstimateOptions(), acceleration_sensitivity=True)
+        self.options = _with_sensitivity(options or EstimateOptions())
         self.tracker_options = tracker_options or TrackerOptions()
         to = self.tracker_options
-        self.tracked_options = replace(
+        cold = self.options.ransac
+        self.tracked_options = _with_sensitivity(
             to.tracked_options
             or replace(
                 self.options,
-                min_iterations=min(self.options.min_iterations, to.tracked_min_iterations),
-            ),
-            acceleration_sensitivity=True,
+                ransac=replace(
+                    cold, min_iterations=min(cold.min_iterations, to.tracked_min_iterations)
+                ),
+            )
         )
         self.filter = TwistFilter(replace(to.fusion, max_gap=to.max_gap))
         self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
@@ -244,59 +252,21 @@ class RSTracker:
             ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
         """
         stamp_ns = int(stamp_ns)
-        to = self.tracker_options
         self.frames += 1
-        final = []
-        state = "cold"
+        final, state = [], "cold"
+        to = self.tracker_options
         if self._stamp is not None and (
             stamp_ns <= self._stamp or (stamp_ns - self._stamp) * 1e-9 > to.max_gap
         ):
             final += self.reset()
             state = "reset"
             self.resets += 1
-        predicted = None
-        explained = -1
+        predicted, explained = None, -1
         if self.filter.initialized:
             predicted = self.filter.predict(stamp_ns)
-            R, C, w, t = model_from_state(predicted, camera)
-            n = len(points2d_px)
-            ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
-            need = max(self.options.min_inliers, int(to.min_explained_ratio * ratio * n))
-            sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
-            gate = min(
-                max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal), to.max_gate_px
+            est, state, opts, explained = self._tracked(
+                predicted, points2d_px, points3d, camera, scores
             )
-            opts = self.tracked_options
-            if camera.seconds_per_unit_r > 0 and (
-                to.prior_from_prediction == "always"
-                or (to.prior_from_prediction == "planar" and self._planar)
-            ):
-                # (a covariance that is not positive definite keeps the options' prior)
-                with contextlib.suppress(ValueError):
-                    opts = replace(
-                        opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
-                    )
-            est = estimate_rs_pose(
-                points2d_px,
-                points3d,
-                camera,
-                self.solver,
-                opts,
-                scores,
-                initial_model=InitialModel(R, C, w, t, gate, need),
-            )
-            explained = est.initial_explained
-            if est.success and est.initial_used:
-                state = "tracked"
-            else:
-                state = "relocalized"
-                if opts is not self.tracked_options or (
-                    not est.success and est.failure != "too_few_points"
-                ):
-                    # the prediction does not hold (its twist must not be the prior), or it
-                    # misled RANSAC on a bad frame: solve the frame cold
-                    opts = self.options
-                    est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
         else:
             opts = self.options
             est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
@@ -317,3 +287,46 @@ class RSTracker:
             prior=opts.motion_prior if est.motion_prior_used else None,
         )
         return TrackResult(est, state, step, final + step.final, predicted, explained)
+
+    def _tracked(
+        self, predicted: FusedState, points2d_px, points3d, camera: CameraModel, scores
+    ) -> tuple[RSPoseEstimate, str, EstimateOptions, int]:
+        """Estimate a frame from the filter's prediction (its model as the initial model, its
+        twist as the motion prior where the options ask for it); when the prediction does not
+        hold, solve the frame cold. Returns (estimate, ``tracked`` or ``relocalized``, the
+        options used, the points the prediction explained)."""
+        to = self.tracker_options
+        R, C, w, t = model_from_state(predicted, camera)
+        n = len(points2d_px)
+        ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
+        need = max(self.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n))
+        sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
+        gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal), to.max_gate_px)
+        opts = self.tracked_options
+        if camera.seconds_per_unit_r > 0 and (
+            to.prior_from_prediction == "always"
+            or (to.prior_from_prediction == "planar" and self._planar)
+        ):
+            # (a covariance that is not positive definite keeps the options' prior)
+            with contextlib.suppress(ValueError):
+                opts = replace(
+                    opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
+                )
+        est = estimate_rs_pose(
+            points2d_px,
+            points3d,
+            camera,
+            self.solver,
+            opts,
+            scores,
+            initial_model=InitialModel(R, C, w, t, gate, need),
+        )
+        explained = est.initial_explained
+        if est.success and est.initial_used:
+            return est, "tracked", opts, explained
+        if opts is not self.tracked_options or (not est.success and est.failure != TOO_FEW_POINTS):
+            # the prediction does not hold (its twist must not be the prior), or it misled
+            # RANSAC on a bad frame: solve the frame cold
+            opts = self.options
+            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
+        return est, "relocalized", opts, explained

@@ -5,7 +5,7 @@
 A hand-held camera (``shake`` motion: looking around with head shake, ~1 rad/s) films the
 ``aruco_room`` (ArUco markers on three perpendicular walls and the floor) with a rolling shutter
 (640x480, 30 ms readout, lens distortion, sensor noise). Every frame goes through the ArUco front
-end and RANSAC with exactly 100 iterations (``EstimateOptions(max_iterations=100,
+end and RANSAC with exactly 100 iterations (``RansacOptions(max_iterations=100,
 min_iterations=100)``) for ``p3p``, ``r6p``, ``r6p_1lin`` and ``r6p_vCt_w``. A global-shutter
 render of the same poses is the control. Outputs (in ``--out``):
 
@@ -30,7 +30,13 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.estimate import (
+    EstimateOptions,
+    LocalOptimizationOptions,
+    RansacOptions,
+    RefineOptions,
+    estimate_rs_pose,
+)
 from ..estimation.refine import exact_errors
 from ..geometry import rotation_angle_deg
 
@@ -79,14 +85,19 @@ class ARConfig:
     keep_images: tuple = ()  # frame indices whose images are kept (overlay)
 
     def options(self) -> EstimateOptions:
-        kw = {} if self.local_optimization else dict(local_optimization_steps=0, nonminimal=False)
         return EstimateOptions(
-            max_iterations=self.iterations,
-            min_iterations=self.iterations,
-            threshold_px=self.threshold_px,
-            refine=self.refine,
-            seed=self.seed,
-            **kw,
+            ransac=RansacOptions(
+                max_iterations=self.iterations,
+                min_iterations=self.iterations,
+                threshold_px=self.threshold_px,
+                seed=self.seed,
+            ),
+            local_optimization=(
+                LocalOptimizationOptions()
+                if self.local_optimization
+                else LocalOptimizationOptions(steps=0, nonminimal=False)
+            ),
+            refine=RefineOptions(enabled=self.refine),
         )
 
 

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..estimation.estimate import SOLVERS, EstimateOptions, estimate_rs_pose
+from ..estimation.estimate import SOLVERS, EstimateOptions, RansacOptions, estimate_rs_pose
 from ..geometry import rotation_angle_deg
 from ..sim.synthetic import make_frame, paper_camera
 from ..solvers.registry import SOLVERS as SOLVER_TABLE
@@ -117,10 +117,10 @@ def bench_solvers(repeat: int = 200, batch: int = 1000, seed: int = 0) -> list[d
 def poselib_matched_options(opts: EstimateOptions) -> dict:
     """PoseLib ``ransac_opt`` with our iteration bounds, threshold and confidence."""
     return {
-        "max_reproj_error": opts.threshold_px,
-        "min_iterations": opts.min_iterations,
-        "max_iterations": opts.max_iterations,
-        "success_prob": opts.confidence,
+        "max_reproj_error": opts.ransac.threshold_px,
+        "min_iterations": opts.ransac.min_iterations,
+        "max_iterations": opts.ransac.max_iterations,
+        "success_prob": opts.ransac.confidence,
     }
 
 
@@ -222,20 +222,25 @@ def bench_estimate(
     matched = poselib_matched_options(opts)
     methods = {}  # name -> (frames, fn)
     for s in solvers or SOLVERS:
-        o = EstimateOptions(max_iterations=100) if s == "r6p" else opts  # 20 roots per sample
+        o = (
+            EstimateOptions(ransac=RansacOptions(max_iterations=100)) if s == "r6p" else opts
+        )  # 20 roots per sample
         name = OURS_RS if s == "r6p_1lin" else f"{s}, RS frames"
         methods[name] = (rs, lambda f, s=s, o=o: _ours(f, cam, s, o))
     methods[OURS_GS] = (gs, lambda f: _ours(f, cam, "r6p_1lin", opts))
-    methods[PL_MATCHED_GS] = (gs, lambda f: _poselib_estimate(f, cam, opts.threshold_px, matched))
-    methods[PL_DEFAULT_GS] = (gs, lambda f: _poselib_estimate(f, cam, opts.threshold_px))
+    methods[PL_MATCHED_GS] = (
+        gs,
+        lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
+    )
+    methods[PL_DEFAULT_GS] = (gs, lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px))
     if baselines:
         methods["PoseLib matched, RS frames"] = (
             rs,
-            lambda f: _poselib_estimate(f, cam, opts.threshold_px, matched),
+            lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
         )
         methods["OpenCV solvePnPRansac P3P, RS frames"] = (
             rs,
-            lambda f: _opencv_estimate(f, cam, opts.threshold_px),
+            lambda f: _opencv_estimate(f, cam, opts.ransac.threshold_px),
         )
     names = list(methods)
     for name in names:  # warm-up (numba compilation, caches)
@@ -327,15 +332,16 @@ def ml_fit(f):
     return rotvec_to_matrix(th[:3]) @ f.R, th[3:6], th[6:9], th[9:12]
 
 
-def protocol_options(**kw):
-    """:class:`EstimateOptions` for the paper protocol's frames (``kw`` as its fields): without
+def protocol_options():
+    """:class:`EstimateOptions` for the paper protocol's frames: the defaults without
     the motion-plausibility bounds, since the protocol's scene has no physical scale and at
     RS speed 1.0 some frames move faster than 50 units/s (the default bound of a camera in
     metres), which the estimator would rightly refuse (3 of ``bench ml``'s 40 frames, ~10 %
     of Exp. 7's fastest)."""
-    from ..estimation.estimate import EstimateOptions
+    from ..estimation.estimate import EstimateOptions, PlausibilityOptions
 
-    return EstimateOptions(**{"max_angular_velocity": np.inf, "max_linear_velocity": np.inf, **kw})
+    unbounded = PlausibilityOptions(max_angular_velocity=np.inf, max_linear_velocity=np.inf)
+    return EstimateOptions(plausibility=unbounded)
 
 
 def bench_ml(

@@ -34,7 +34,7 @@ import time
 import cv2
 import numpy as np
 
-from ..estimation import EstimateOptions, MotionPrior, estimate_rs_pose
+from ..estimation import EstimateOptions, MotionPrior, RansacOptions, estimate_rs_pose
 from ..estimation.refine import refine_rs_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..sim.planar import make_planar_frame
@@ -63,7 +63,7 @@ def _estimator_row(f, solver, prior):
         f.X,
         f.camera,
         solver,
-        EstimateOptions(seed=0, motion_prior=prior, min_inliers=12),
+        EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12), motion_prior=prior),
     )
     ms = (time.perf_counter() - t0) * 1e3
     if not e.success:

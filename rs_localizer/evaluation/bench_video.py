@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
 from ..estimation.readout import calibrate_line_delay
 from ..estimation.tracker import RSTracker
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
@@ -87,7 +87,7 @@ def fused_twist(frames, cam, truth) -> dict:
     """Median velocity errors of the single-frame estimates (the estimator alone, as without
     tracking) and of the fused (final) states, and the mean NEES of the fused pose and twist
     (12 dof)."""
-    opts = EstimateOptions(seed=0)
+    opts = EstimateOptions(ransac=RansacOptions(seed=0))
     tr = RSTracker(options=opts)
     single, final = {}, []
     for stamp, uv, xyz in frames:
@@ -151,7 +151,7 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
        32 KiB of L1 instruction cache each): both pay ~20-30 % more there, with thread CPU
        time equal to wall time (no preemption).
     """
-    opts = EstimateOptions(seed=0)
+    opts = EstimateOptions(ransac=RansacOptions(seed=0))
     warm = RSTracker(options=opts)
     for stamp, uv, xyz in frames[:4]:  # warm-up (numba compilation of both paths)
         estimate_rs_pose(uv, xyz, cam, options=opts)
@@ -260,7 +260,7 @@ def events() -> dict:
         SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)), trajectory=traj
     )
     by = {f.index: f for f in fr}
-    tr = RSTracker(options=EstimateOptions(seed=0))
+    tr = RSTracker(options=EstimateOptions(ransac=RansacOptions(seed=0)))
     log = {}
     finals = []
 

@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from ..camera import CameraModel
-from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.estimate import CorrelatedNoise, EstimateOptions, estimate_rs_pose
 from ..estimation.noise_model import fit_correlated_noise
 from ..estimation.refine import exact_errors, refine_rs_pose
 from ..frontends.boards import CheckerboardFrontend, load_board
@@ -181,7 +181,9 @@ def correlated_table(photos: Path = PHOTOS, loo: bool = True):
                 EstimateOptions()
                 if f is None
                 else EstimateOptions(
-                    correlated_noise_px=f.correlated_px, correlated_noise_length_px=f.length_px
+                    correlated_noise=CorrelatedNoise(
+                        sigma_px=f.correlated_px, length_px=f.length_px
+                    )
                 )
             )
             rs = estimate_rs_pose(uv, X, cam, "r6p_1lin", o)
@@ -223,7 +225,7 @@ def synthetic_correlated(photos: Path, fit, seeds: int = 8):
     cam, views = _photo_views(photos)
     q6 = chi2.ppf(0.9973, 6)
     on = EstimateOptions(
-        correlated_noise_px=fit.correlated_px, correlated_noise_length_px=fit.length_px
+        correlated_noise=CorrelatedNoise(sigma_px=fit.correlated_px, length_px=fit.length_px)
     )
     cases = {
         "field, option off": (fit.correlated_px, EstimateOptions()),

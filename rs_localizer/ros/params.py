@@ -20,7 +20,14 @@ from typing import Any
 import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimation import EstimateOptions, MotionPrior
+from ..estimation import (
+    CorrelatedNoise,
+    EstimateOptions,
+    MotionPrior,
+    PlausibilityOptions,
+    RansacOptions,
+    RefineOptions,
+)
 from ..estimation.fusion import FusionOptions
 from ..estimation.tracker import TrackerOptions
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
@@ -506,27 +513,33 @@ def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
         TypeError, ValueError: from :class:`EstimateOptions` (e.g. a confidence outside (0, 1)).
     """
     return EstimateOptions(
-        threshold_px=float(values["ransac.threshold_px"]),
-        max_iterations=int(values["ransac.max_iterations"]),
-        confidence=float(values["ransac.confidence"]),
-        min_inliers=int(values["ransac.min_inliers"]),
-        seed=int(values["ransac.seed"]),
-        refine=bool(values["refine"]),
+        ransac=RansacOptions(
+            threshold_px=float(values["ransac.threshold_px"]),
+            max_iterations=int(values["ransac.max_iterations"]),
+            confidence=float(values["ransac.confidence"]),
+            min_inliers=int(values["ransac.min_inliers"]),
+            seed=int(values["ransac.seed"]),
+        ),
+        refine=RefineOptions(enabled=bool(values["refine"])),
         motion_prior=MotionPrior(
             float(values["motion_prior.angular_velocity_sigma"]),
             float(values["motion_prior.linear_velocity_sigma"]),
         ),
-        max_angular_velocity=float(values["max_angular_velocity"]),
-        max_linear_velocity=float(values["max_linear_velocity"]),
-        correlated_noise_px=float(values["correlated_noise.sigma_px"]),
-        correlated_noise_length_px=float(values["correlated_noise.length_px"]),
+        plausibility=PlausibilityOptions(
+            max_angular_velocity=float(values["max_angular_velocity"]),
+            max_linear_velocity=float(values["max_linear_velocity"]),
+        ),
+        correlated_noise=CorrelatedNoise(
+            sigma_px=float(values["correlated_noise.sigma_px"]),
+            length_px=float(values["correlated_noise.length_px"]),
+        ),
     )
 
 
 def points_needed(solver: str, options: EstimateOptions) -> int:
     """Fewest correspondences a pose needs: the estimator's ``min_inliers`` and one more than
     the solver's minimal sample."""
-    return max(options.min_inliers, sample_size(solver) + 1)
+    return max(options.ransac.min_inliers, sample_size(solver) + 1)
 
 
 def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:

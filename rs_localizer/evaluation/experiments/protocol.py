@@ -572,13 +572,19 @@ def exp7_estimator(
                 for m in methods:
                     t0 = time.perf_counter()
                     if m == "poselib":
-                        R, C, n = _poselib_estimate(f, cam, opts.threshold_px)
+                        R, C, n = _poselib_estimate(f, cam, opts.ransac.threshold_px)
                         w = t = np.zeros(3)
                     elif m == "opencv":
-                        R, C, n = _opencv_estimate(f, cam, opts.threshold_px)
+                        R, C, n = _opencv_estimate(f, cam, opts.ransac.threshold_px)
                         w = t = np.zeros(3)
                     else:
-                        o = replace(opts, max_iterations=r6p_iterations) if m == "r6p" else opts
+                        o = (
+                            replace(
+                                opts, ransac=replace(opts.ransac, max_iterations=r6p_iterations)
+                            )
+                            if m == "r6p"
+                            else opts
+                        )
                         e = estimate_rs_pose(f.points_px, f.X, cam, m, o)
                         R, C, w, t, n = (
                             (e.R, e.C, e.w, e.t, e.num_inliers)

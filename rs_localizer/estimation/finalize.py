@@ -1,0 +1,295 @@
+"""The last stage of the estimator: the final refinement of RANSAC's model on the exact
+constant-velocity model (paper eq. 4) with its covariance (:func:`refine_final_model`), the
+last checks and the outputs (:func:`final_estimate`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..geometry import camera_position
+from ..solvers.registry import solver_info
+from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
+from .noise_model import correlated_noise_covariance, pixel_jacobians
+from .options import EstimateOptions
+from .outputs import final_inliers
+from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION, final_model_check, finite_model
+from .prior import MotionPrior, prior_conflict
+from .refine import RefineResult, exact_errors, posterior_step, refine_rs_pose
+from .result import (
+    TOO_FEW_INLIERS,
+    EstimationFailed,
+    RSPoseEstimate,
+    output_covariance,
+    physical_velocities,
+)
+from .scoring import errors2
+from .sensitivity import acceleration_sensitivity
+
+__all__ = [
+    "FINAL_CUTOFF",
+    "FINAL_TOL",
+    "PRIOR_CONFLICT",
+    "PRIOR_NEGLIGIBLE",
+    "FinalModel",
+    "final_estimate",
+    "final_refinement",
+    "refine_final_model",
+]
+
+#: The final refinement fits every point within this many inlier thresholds (Huber loss with
+#: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
+#: inliers: a fit on the points inside the threshold alone is a 2-sigma-truncated least
+#: squares and doubled the angular-velocity error at RS speed 1 (0.49 % against the 0.24 %
+#: of the maximum-likelihood fit on the true inliers; ``test/test_ml_accuracy.py``).
+FINAL_CUTOFF = 2.0
+#: The final refinement stops when an accepted step lowers the cost by less than this fraction
+#: (steps of a few hundredths of the parameters' standard deviation): the velocities then
+#: agree with those at 1e-10 to 1e-4 of the ML fit's spread (RS speed 0.5 and 1), with 4-5
+#: cost evaluations instead of 6-8
+FINAL_TOL = 1e-6
+#: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
+#: :func:`final_refinement`
+PRIOR_CONFLICT = 16.81
+#: below this squared shift (in the data's own metric: a tenth of their standard deviation)
+#: the prior's effect is negligible and the MAP refinement is skipped
+PRIOR_NEGLIGIBLE = 0.01
+
+
+@dataclass
+class FinalModel:
+    """The refined model of one frame, before the last checks.
+
+    Attributes:
+        R (3, 3), C, w, t (3,): the model (world -> camera at the reference row; velocities
+            per unit r). inliers: (N,) over the frame's points.
+        rmse_px: RMS reprojection error of the inliers (px).
+        covariance: (12, 12) over (delta, C, w, t), or None (no refinement, or not finite).
+        information: (12, 12) the data's information matrix, or None.
+        sensitivity: (12, 6) acceleration sensitivity, or None.
+        prior_used: the refinement was maximum a posteriori.
+    """
+
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray
+    t: np.ndarray
+    inliers: np.ndarray
+    rmse_px: float
+    covariance: np.ndarray | None = None
+    information: np.ndarray | None = None
+    sensitivity: np.ndarray | None = None
+    prior_used: bool = False
+
+
+def final_refinement(
+    fr: Frame,
+    model: Model,
+    th: float,
+    rolling: bool,
+    prior: MotionPrior | None,
+    acceleration: bool = False,
+) -> tuple[RefineResult, bool]:
+    """The final refinement, on every point of the frame with the truncated Huber loss of
+    local optimization (scale ``th``, normalized units; points beyond ``FINAL_CUTOFF * th``
+    ignored and the set re-selected at every iteration): fitting only RANSAC's inliers (the
+    points inside ``th``) is a truncated least squares, about half as efficient on the
+    velocities.
+
+    With ``fr.prior`` (planar frames, or a prior with ``always``): MAP. Otherwise maximum
+    likelihood first; then, if ``prior`` is not None and does not conflict with the data (the
+    ML velocities ``z`` with their covariance ``S`` against the prior's mean ``m`` and
+    covariance ``P``: ``(z - m)^T (S + P)^-1 (z - m)`` below :data:`PRIOR_CONFLICT`) and would
+    move them by at least a tenth of their standard deviation (:func:`~.prior.prior_conflict`,
+    :data:`PRIOR_NEGLIGIBLE`; else MAP and ML are the same for all purposes), MAP from the ML
+    estimate in closed form (:func:`~.refine.posterior_step`: one Gauss-Newton step with the
+    ML normal equations; the ML result's sigma and ``J^T W D``). A camera far faster than the
+    prior allows (the paper's protocol: 8.7 rad/s, 5 m/s) keeps its ML estimate, so a
+    zero-mean prior cannot bias it; where the data hardly determine the velocities (small or
+    distant objects), the prior sharpens them. ``acceleration``: also compute the refinement's
+    ``J^T W D`` block for :func:`~.sensitivity.acceleration_sensitivity`.
+
+    Returns:
+        (the refinement's result, whether the prior was used).
+    """
+    th = float(th)
+    ref = refine_rs_pose(
+        *model,
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        rolling_shutter=rolling,
+        prior=fr.prior,
+        seconds_per_unit_r=fr.spr,
+        cutoff=FINAL_CUTOFF * th,
+        tol=FINAL_TOL,
+        acceleration_block=acceleration,
+    )
+    if fr.prior is not None or prior is None:
+        return ref, fr.prior is not None
+    # (NaN in a failed refinement makes both tests false: the ML result stays)
+    conflict, shift = prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr)
+    if not (conflict < PRIOR_CONFLICT and shift >= PRIOR_NEGLIGIBLE):
+        return ref, False
+    post = posterior_step(ref, prior, fr.spr)  # (MAP from ML in closed form)
+    return (ref, False) if post is None else (post, True)
+
+
+def refine_final_model(
+    fr: Frame,
+    camera: CameraModel,
+    solver: str,
+    opts: EstimateOptions,
+    model: Model,
+    inliers: np.ndarray,
+    min_inliers: int,
+) -> FinalModel:
+    """Refine RANSAC's ``model`` (with its (N,) ``inliers``) on every point of the frame
+    (:func:`final_refinement`), re-select the inliers on the refined exact model (errors at
+    each point's measured capture time) and add what the options ask of the covariance
+    (acceleration sensitivity, correlated image noise). Without ``opts.refine.enabled`` the
+    model stays as it is (no covariance).
+
+    Raises:
+        EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers`` on the refined
+            model.
+    """
+    th = opts.ransac.threshold_px / fr.f
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    if not opts.refine.enabled:
+        e2 = errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)
+        rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
+        return FinalModel(R, C, w, t, inliers, rmse, prior_used=fr.prior is not None)
+    rolling = solver_info(solver).rolling
+    want_sens = bool(opts.refine.acceleration_sensitivity and rolling and fr.spr > 0)
+    ref, prior_used = final_refinement(fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens)
+    final = FinalModel(R, C, w, t, inliers, np.nan, prior_used=prior_used)
+    if finite_model(ref.R, ref.C, ref.w, ref.t):
+        final.R, final.C, final.w, final.t = ref.R, ref.C, ref.w, ref.t
+        final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
+        final.information = ref.data_information
+    errors = exact_errors(final.R, final.C, final.w, final.t, fr.X, fr.x, fr.r - fr.r0)
+    inl_ref, n_ref, rms = final_inliers(errors, th)
+    if n_ref < min_inliers:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    final.inliers, final.rmse_px = inl_ref, float(rms * fr.f)
+    if want_sens:
+        final.sensitivity = _sensitivity(fr, final, ref, th)
+    corr = opts.correlated_noise
+    if final.covariance is not None and corr.sigma_px > 0 and ref.sigma > 0:
+        # the same estimate's covariance under white + correlated image error (on the final
+        # inliers; noise_model)
+        inl, tau = final.inliers, fr.r - fr.r0
+        final.covariance = correlated_noise_covariance(
+            final.covariance,
+            ref.sigma,
+            final.R,
+            final.C,
+            final.w,
+            final.t,
+            fr.X[inl],
+            fr.x[inl],
+            tau[inl],
+            fr.u_px[inl],
+            pixel_jacobians(camera, fr.x[inl]),
+            corr.sigma_px,
+            corr.length_px,
+        )
+    return final
+
+
+def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> np.ndarray:
+    """Acceleration sensitivity on the final refinement's points (all, truncated) and its
+    (posterior) H, with ``J^T W D`` from its last Jacobian."""
+    cov = final.covariance
+    return acceleration_sensitivity(
+        final.R,
+        final.C,
+        final.w,
+        final.t,
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        fr.spr,
+        th,
+        cutoff=FINAL_CUTOFF * th,
+        normal_inverse=None if cov is None else cov / ref.sigma**2,
+        acceleration_block=ref.acceleration_block,
+    )
+
+
+def final_estimate(
+    fr: Frame,
+    solver: str,
+    final: FinalModel,
+    iterations: int,
+    initial: tuple[int, bool],
+    timings: dict[str, float],
+) -> RSPoseEstimate:
+    """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
+    plausible motion and every inlier in front of the camera at its capture time
+    (:func:`~.plausibility.final_model_check` on the depths at capture, one compiled call).
+    ``initial``: (points the initial model explained or -1, whether it was used).
+
+    Raises:
+        EstimationFailed: ``implausible_motion``, ``cheirality``.
+    """
+    R, C, w, t, inl = final.R, final.C, final.w, final.t, final.inliers
+    bounds = fr.motion_bounds
+    w2max, v2max = (
+        (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
+    )
+    # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
+    code, n_behind = final_model_check(R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max)
+    if code:
+        raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
+    rolling = solver_info(solver).rolling
+    om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)
+    cov = pose_cov = twist_cov = None
+    if final.covariance is not None:
+        cov, pose_cov, twist_cov = output_covariance(final.covariance, R, C, w, fr.spr)
+        if not rolling:
+            twist_cov = None
+    inliers = np.zeros(fr.num_rows, dtype=bool)
+    inliers[fr.rows[inl]] = True
+    flat = planarity(fr.X, inl)
+    n_free = 12 if rolling else 6
+    info = final.information
+    return RSPoseEstimate(
+        success=True,
+        failure=None,
+        solver=solver,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=camera_position(R, C),
+        angular_velocity=om,
+        linear_velocity=vc,
+        angular_velocity_world=om_w,
+        linear_velocity_world=vc_w,
+        inliers=inliers,
+        num_valid=len(fr.x),
+        num_dropped=fr.num_rows - len(fr.x) + n_behind,
+        num_behind=n_behind,
+        ransac_iterations=iterations,
+        timings=timings,
+        covariance=cov,
+        pose_covariance=pose_cov,
+        twist_covariance=twist_cov,
+        rmse_px=final.rmse_px,
+        planar=bool(flat < PLANAR_TOLERANCE),
+        planarity=flat,
+        condition_number=(
+            condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
+        ),
+        motion_prior_used=final.prior_used,
+        initial_explained=initial[0],
+        initial_used=initial[1],
+        acceleration_sensitivity=final.sensitivity,
+    )

@@ -1,0 +1,203 @@
+"""The first stage of the estimator: one frame's correspondences validated, undistorted and
+normalized (:func:`prepare_frame`), then checked and configured for its solver
+(:func:`configure_frame`: degeneracy, planarity, timing, velocity bounds, motion prior).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..solvers.registry import sample_size, solver_info
+from .degeneracy import PLANAR_TOLERANCE, planarity
+from .plausibility import degenerate_points, motion_bounds, plausible_motion
+from .prior import MotionPrior
+from .result import (
+    DEGENERATE_GEOMETRY,
+    PLANAR_SCENE,
+    TOO_FEW_POINTS,
+    EstimationFailed,
+)
+from .sampling import valid_rows
+from .scoring import msac_evaluate
+
+__all__ = ["SCORE_AT_MEASURED_TIME", "Frame", "configure_frame", "prepare_frame"]
+
+#: RANSAC and local optimization score points at their measured capture times
+#: (:func:`.scoring.measured_error2`, the refinement's residual) instead of at the capture
+#: row predicted by the first-order model (:func:`.scoring.project_error2`)
+SCORE_AT_MEASURED_TIME = True
+
+Model = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+class Frame:
+    """Validated, normalized correspondences of one frame (rows shuffled, see
+    :func:`prepare_frame`).
+
+    Attributes:
+        x: (N, 2) normalized undistorted image points; X: (N, 3) world points (m);
+        r: (N,) RS coordinate of each point's capture (measured, distorted line); r0e: (N,)
+            the row coordinate the scoring kernels use; r0: the reference row's coordinate;
+        d: (2,) the camera's readout direction; f: mean focal length (px), the scale from
+            normalized units to pixels.
+        rows: (N,) input row of each point; u_px: (N, 2) their measured pixels;
+            num_rows: rows given to the estimator (valid or not).
+        spr: the camera's seconds per unit r (0: global shutter).
+        planar: the 3D points are coplanar.
+        prior: the motion prior of local optimization and the refinement (``None``: maximum
+            likelihood); regularize: the hypotheses use it too (planar scene); final_prior:
+            the prior the final refinement may add after its maximum-likelihood fit (``None``:
+            none applies to this solver and camera).
+        motion_bounds: the velocity bounds per unit r
+            (:func:`~rs_localizer.estimation.plausibility.motion_bounds`; ``None``: none).
+    """
+
+    spr = 0.0
+    planar = False
+    prior: MotionPrior | None = None
+    regularize = False
+    final_prior: MotionPrior | None = None
+    motion_bounds = None
+
+    def __init__(
+        self,
+        x: np.ndarray,
+        X: np.ndarray,
+        r: np.ndarray,
+        r0e: np.ndarray,
+        r0: float,
+        d: np.ndarray,
+        f: float,
+    ):
+        self.x, self.X, self.r, self.r0e, self.r0, self.d, self.f = x, X, r, r0e, r0, d, f
+
+    @property
+    def bearings(self) -> np.ndarray:
+        """(N, 3) unit rays of the normalized points (for P3P), computed once."""
+        if not hasattr(self, "_bearings"):
+            b = np.concatenate([self.x, np.ones((len(self.x), 1))], axis=1)
+            self._bearings = b / np.linalg.norm(b, axis=1, keepdims=True)
+        return self._bearings
+
+    def head(self, m: int) -> Frame:
+        """The frame's first ``m`` points (a random subset: the rows are shuffled) with the
+        same camera, timing and prior (LO-RANSAC's bounded inner sample)."""
+        sub = Frame(self.x[:m], self.X[:m], self.r[:m], self.r0e[:m], self.r0, self.d, self.f)
+        sub.spr, sub.planar, sub.prior, sub.regularize = (
+            self.spr,
+            self.planar,
+            self.prior,
+            self.regularize,
+        )
+        return sub
+
+    def evaluate(
+        self, model: Model, th2: float, errors: np.ndarray | None = None
+    ) -> tuple[float, np.ndarray]:
+        """(MSAC score, (N,) inlier mask) of one model (R, C, w, t) on all points of the frame;
+        ``(inf, all False)`` for a model with implausible motion (:attr:`motion_bounds`).
+        ``th2``: squared inlier threshold (normalized units). ``errors``: the model's (N,)
+        squared errors at every point when they are at hand (:func:`.scoring.errors2` as
+        scored; finite parameters), instead of computing them again."""
+        R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64) for a in model)
+        if self.motion_bounds is not None and not plausible_motion(R, C, w, t, self.motion_bounds):
+            return np.inf, np.zeros(len(self.x), dtype=bool)
+        if errors is not None:
+            return float(np.minimum(errors, th2).sum()), errors < th2
+        sc, inl, _ = msac_evaluate(
+            self.x, self.X, self.r0e, self.d, R, C, w, t, th2, SCORE_AT_MEASURED_TIME
+        )
+        return sc, inl
+
+    def degenerate(self, mask: np.ndarray, threshold_px: float) -> bool:
+        """True if the points ``mask`` (N,) selects fix no pose: identical or collinear 3D
+        points, or pixels within ``threshold_px`` of one image line (see
+        :func:`~.plausibility.degenerate_points`)."""
+        return bool(
+            degenerate_points(self.X, self.u_px, self.x, mask, float(self.f), float(threshold_px))
+        )
+
+
+def prepare_frame(
+    points2d_px: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    max_point_norm: float,
+    rng: np.random.Generator | None = None,
+) -> Frame:
+    """Validate and normalize one frame's correspondences.
+
+    Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
+    origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
+    ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization)
+    and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
+    the measured, distorted line).
+
+    Args:
+        points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+    Raises:
+        ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
+    """
+    u = np.asarray(points2d_px, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
+    rows = np.flatnonzero(valid_rows(u, X, max_point_norm))
+    if rng is not None:
+        rows = rng.permutation(rows)
+    # (``take``: NumPy's fancy indexing costs ~10x more at this size)
+    x, r, r0e = camera.normalize(u.take(rows, axis=0))
+    if not (np.isfinite(x).all() and np.isfinite(r).all()):
+        good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
+        rows, x, r, r0e = rows[good], x[good], r[good], r0e[good]
+    fr = Frame(
+        np.ascontiguousarray(x),
+        X.take(rows, axis=0),
+        np.ascontiguousarray(r),
+        np.ascontiguousarray(r0e),
+        camera.r0,
+        camera.readout_vector,
+        camera.mean_focal,
+    )
+    fr.rows, fr.num_rows = rows, len(u)
+    fr.u_px = u.take(rows, axis=0)
+    return fr
+
+
+def configure_frame(
+    fr: Frame,
+    camera: CameraModel,
+    solver: str,
+    min_inliers: int,
+    threshold_px: float,
+    velocity_bounds: tuple[float, float],
+    prior: MotionPrior | None,
+) -> None:
+    """Check that ``fr`` can fix a pose with ``solver`` and set its timing, velocity bounds
+    (rad/s, m/s), planarity and motion prior.
+
+    On planar scenes the RS solvers' hypotheses use the motion prior (damped solves for w, t:
+    the plain ones let w, t absorb the noise); elsewhere the prior enters local optimization
+    and the refinement only with ``prior.always``.
+
+    Raises:
+        EstimationFailed: ``too_few_points`` (fewer valid points than ``min_inliers``),
+            ``degenerate_geometry`` (identical points, points on a 3D line, pixels on one
+            image line: RANSAC would only find absurd rolling-shutter "fits" of them),
+            ``planar_scene`` (coplanar points and a solver that cannot take them, R9P).
+    """
+    if max(min_inliers, sample_size(solver) + 1) > len(fr.x):
+        raise EstimationFailed(TOO_FEW_POINTS)
+    if fr.degenerate(np.ones(len(fr.x), dtype=bool), threshold_px):
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    info = solver_info(solver)
+    fr.spr = spr = camera.seconds_per_unit_r
+    fr.motion_bounds = motion_bounds(*velocity_bounds, spr)
+    fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)
+    if fr.planar and not info.coplanar:
+        raise EstimationFailed(PLANAR_SCENE)
+    prior_on = bool(prior is not None and prior.enabled and spr > 0 and info.rolling)
+    fr.prior = prior if prior_on and (fr.planar or prior.always) else None
+    fr.regularize = bool(fr.prior is not None and fr.planar)
+    fr.final_prior = prior if prior_on else None

@@ -1,0 +1,434 @@
+"""RANSAC's hypotheses: models (R, C, w, t) from minimal samples and from inlier sets.
+
+Every minimal sample is pre-rotated before the linear RS solver runs on it (paper sec. 4): by
+its P3P pose (the cold start) or by a model the estimator already trusts (a tracker's
+prediction, then the best model so far). :func:`hypothesis_source` picks one of three sources
+with one interface (:class:`HypothesisSource`):
+
+* :class:`ColdSamples`: P3P pre-rotation, the batched RS solver and preemptive MSAC scoring in
+  one compiled call per batch (:func:`.batch.ransac_batch`);
+* :class:`AnchoredSamples`: the same pre-rotated by the anchor model
+  (:func:`.batch.prerotated_batch`);
+* :class:`SampleBySample`: the same steps one NumPy call at a time, for what the compiled path
+  does not cover (planar scenes: runner-up P3P pre-rotations and damped solves; R6P's variable
+  number of roots; a P3P backend other than Lambda Twist).
+
+All three draw their samples from the same uniforms, so a source change never changes the
+random stream.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from typing import NamedTuple, Protocol
+
+import numpy as np
+
+from .._so3 import compose_rotvec
+from ..geometry import rotvec_to_matrix
+from ..solvers import p3p_batch, r6p
+from ..solvers.kernels import kernel_ids
+from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, sample_size, solver_info
+from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
+from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
+from .options import EstimateOptions, RansacOptions
+from .plausibility import plausible_motion
+from .prior import sample_prior_rows
+from .sampling import draw_samples, gather_prerotated, second_prerotations, select_prerotations
+from .scoring import msac_scores
+
+__all__ = [
+    "AnchoredSamples",
+    "ColdSamples",
+    "HypothesisSource",
+    "SampleBySample",
+    "ScoredBatch",
+    "generate",
+    "hypothesis_iterations",
+    "hypothesis_source",
+    "nonminimal_models",
+]
+
+
+def hypothesis_iterations(solver: str, ransac: RansacOptions) -> int:
+    """Linear iterations per minimal sample (see ``RansacOptions.solver_iterations``)."""
+    if ransac.solver_iterations is not None:
+        return int(ransac.solver_iterations)
+    return solver_info(solver).default_iterations or 1
+
+
+@functools.cache
+def _takes_prior_rows(fn) -> bool:
+    """The batched kernel ``fn`` accepts ``prior_rows`` (a damped linear solve)."""
+    return "prior_rows" in inspect.signature(fn).parameters
+
+
+def _batched_rs(solver: str, xs, Xs, rs, r0, iterations, prior_rows=None) -> list:
+    """Run a solver's batched kernels on K pre-rotated samples; returns a list of RSBatch (2
+    for the joined solver). ``prior_rows`` (P (K, 6, 6), q (K, 6)) go to the kernels that take
+    them (damped solves for w and t, :func:`rs_localizer.solvers.r6p_1lin_batch`)."""
+    info = solver_info(solver)
+    if info.hypotheses != BATCHED:
+        raise ValueError(f"solver {solver!r} has no batched kernel")
+    return [
+        fn(xs, Xs, rs, r0, iterations=iterations, prior_rows=prior_rows)
+        if prior_rows is not None and _takes_prior_rows(fn)
+        else fn(xs, Xs, rs, r0, iterations=iterations)
+        for fn in info.batch
+    ]
+
+
+def _prior_rows(fr: Frame, threshold_px: float, Xs: np.ndarray, C0: np.ndarray):
+    """Linearized motion-prior rows for K pre-rotated samples (``Xs`` (K, n, 3), their
+    pre-rotation translations ``C0`` (K, 3)) when the frame asks for damped hypothesis solves
+    (planar scene, prior on), else None. The rows are weighted as if the image noise were half
+    the inlier threshold."""
+    if not fr.regularize:
+        return None
+    return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * threshold_px / fr.f)
+
+
+def _hypothesis_arrays(batches, R_pre):
+    """Stack RSBatch results (pre-rotated by R_pre per sample) into rotation/velocity arrays."""
+    Rs = [compose_rotvec(np.ascontiguousarray(b.v), R_pre) for b in batches]
+    if len(batches) == 1:
+        b = batches[0]
+        return (
+            Rs[0],
+            np.ascontiguousarray(b.C),
+            np.ascontiguousarray(b.w),
+            np.ascontiguousarray(b.t),
+            b.valid,
+        )
+    return (
+        np.concatenate(Rs),
+        np.concatenate([b.C for b in batches]),
+        np.concatenate([b.w for b in batches]),
+        np.concatenate([b.t for b in batches]),
+        np.concatenate([b.valid for b in batches]),
+    )
+
+
+def _p3p_prerotations(fr: Frame, samples, th2=None):
+    """P3P on the first 3 points of every sample; the solution with the lowest global-shutter
+    error on the sample's other points is the pre-rotation (paper sec. 4, "P3P as initial
+    estimate"). Returns (R (K, 3, 3), C (K, 3), ok (K,)).
+
+    With ``th2`` (squared inlier threshold, normalized; planar frames) each sample whose
+    runner-up P3P solution scores close to the best (the planar two-fold ambiguity,
+    :func:`~.sampling.second_prerotations`: within 2x the best squared error plus a quarter
+    of ``th2``, i.e. half the threshold, per point) is repeated with it: returns
+    (samples (K', s), R, C, ok) with K' >= K."""
+    first3 = samples[:, :3]
+    R, C, owner = p3p_batch(fr.bearings.take(first3, axis=0), fr.X.take(first3, axis=0))
+    sel = select_prerotations(R, C, owner, samples, fr.X, fr.x, len(samples))
+    if th2 is None:
+        return sel
+    R2, C2, kept = second_prerotations(
+        R,
+        C,
+        owner,
+        samples,
+        fr.X,
+        fr.x,
+        len(samples),
+        2.0,
+        0.25 * th2 * max(samples.shape[1] - 3, 1),
+    )
+    kept &= sel[2]
+    return (
+        np.concatenate([samples, samples[kept]]),
+        np.concatenate([sel[0], R2[kept]]),
+        np.concatenate([sel[1], C2[kept]]),
+        np.concatenate([sel[2], kept[kept]]),
+    )
+
+
+def _r6p_hypotheses(fr: Frame, samples, Xs, R_p, ok_p):
+    """Every real root of R6P for each sample whose P3P pre-rotation succeeded (a variable
+    number per sample), composed with that sample's pre-rotation."""
+    R_all, C_all, w_all, t_all = [], [], [], []
+    for k in np.flatnonzero(ok_p):
+        try:
+            roots = r6p(fr.x[samples[k]], Xs[k], fr.r[samples[k]], fr.r0)
+        except ValueError:  # degenerate sample
+            continue
+        for sol in roots:
+            R_all.append(rotvec_to_matrix(sol.v) @ R_p[k])
+            C_all.append(sol.C), w_all.append(sol.w), t_all.append(sol.t)
+    n = len(R_all)
+    return (
+        np.array(R_all).reshape(n, 3, 3),
+        np.array(C_all).reshape(n, 3),
+        np.array(w_all).reshape(n, 3),
+        np.array(t_all).reshape(n, 3),
+        np.ones(n, dtype=bool),
+    )
+
+
+def generate(
+    fr: Frame,
+    solver: str,
+    samples: np.ndarray,
+    ransac: RansacOptions,
+    anchor: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Hypotheses from a batch of minimal samples, one NumPy call at a time.
+
+    Args:
+        samples: (K, s) point indices of the frame.
+        anchor: (R (3, 3), C (3,)) that pre-rotates every sample of an RS solver instead of
+            its P3P pose (``C`` is the linearization point of the motion prior's rows).
+    Returns:
+        (R (M, 3, 3), C, w, t (M, 3), valid (M,)): on planar frames also the hypotheses of
+        the samples' runner-up P3P pre-rotations (:func:`_p3p_prerotations`); R6P gives every
+        real root; the joined solver two per sample. P3P's have ``w = t = 0``.
+    """
+    kind = solver_info(solver).hypotheses
+    if anchor is not None and kind != GLOBAL_SHUTTER:
+        R_pre, C_pre = anchor
+        R_p = np.ascontiguousarray(np.broadcast_to(R_pre, (len(samples), 3, 3)))
+        C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
+        ok_p = np.ones(len(samples), dtype=bool)
+    elif fr.planar and kind != GLOBAL_SHUTTER:
+        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, (ransac.threshold_px / fr.f) ** 2)
+    else:
+        R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
+    if kind == GLOBAL_SHUTTER:
+        z = np.zeros((len(samples), 3))
+        return R_p, C_p, z, z.copy(), ok_p
+    xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
+    if kind != BATCHED:
+        return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
+    batches = _batched_rs(
+        solver,
+        xs,
+        Xs,
+        rs,
+        fr.r0,
+        hypothesis_iterations(solver, ransac),
+        _prior_rows(fr, ransac.threshold_px, Xs, C_p),
+    )
+    Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
+    ok &= np.tile(ok_p, len(batches))
+    return Rs, Cs, ws, ts, ok
+
+
+def nonminimal_models(
+    fr: Frame,
+    solver: str,
+    inliers: np.ndarray,
+    R: np.ndarray,
+    opts: EstimateOptions,
+    C: np.ndarray | None = None,
+) -> list[Model]:
+    """Local optimization's linear step: the RS solver on all ``inliers`` (N,) bool,
+    pre-rotated by the current ``R`` (3, 3) (with the current ``C`` (3,), the linearization
+    point of the motion prior's rows on planar frames). R6P (minimal only) uses
+    R6P_{v,C,w,t}^{[v]x} here; P3P has no RS local optimization (returns ``[]``).
+
+    Returns:
+        the models (R, C, w, t) the solver found (0-2).
+    """
+    n_inl = int(inliers.sum())
+    if not solver_info(solver).rolling or n_inl < 6:
+        return []
+    names = [
+        name if n_inl >= sample_size(name) else "r6p_1lin"
+        for name in solver_info(solver).lo_solvers
+    ]
+    ids = [kernel_ids(name) for name in names]
+    iterations = max(hypothesis_iterations(solver, opts.ransac), 2)
+    # one numba call (gather, solve) unless the solve is damped by the motion prior
+    if not fr.regularize and all(k is not None and len(k) == 1 for k in ids):
+        ok, Rs, Cs, ws, ts = nonminimal_solve(
+            np.array([k[0][0] for k in ids], dtype=np.int64),
+            np.array([k[0][1] for k in ids], dtype=np.int64),
+            np.array([k[0][2] for k in ids], dtype=np.int64),
+            inliers,
+            np.ascontiguousarray(R),
+            fr.x,
+            fr.X,
+            fr.r,
+            fr.r0,
+            iterations,
+        )
+        return [(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
+    Xr = fr.X[inliers] @ R.T
+    out = []
+    for name in names:
+        rows = (
+            None
+            if C is None
+            else _prior_rows(fr, opts.ransac.threshold_px, Xr[None], np.asarray(C)[None])
+        )
+        b = _batched_rs(
+            name, fr.x[inliers][None], Xr[None], fr.r[inliers][None], fr.r0, iterations, rows
+        )[0]
+        if b.valid[0]:
+            out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
+    return out
+
+
+class ScoredBatch(NamedTuple):
+    """A batch of hypotheses with its best one: ``best`` indexes ``R`` (K, 3, 3), ``C``, ``w``,
+    ``t`` (K, 3); ``score`` is its MSAC score (``inf``: no usable hypothesis); ``implausible``:
+    hypotheses rejected for their motion alone."""
+
+    best: int
+    score: float
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray
+    t: np.ndarray
+    implausible: int
+
+
+class HypothesisSource(Protocol):
+    """Makes and scores one batch of RANSAC hypotheses."""
+
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
+        """Hypotheses from K samples drawn with ``uniforms`` (K, s) in [0, 1) among the first
+        ``pool`` points of ``order``, scored against ``best_score`` (preemptive MSAC with a
+        pre-test needing ``pretest_min`` inliers among the first pre-test points); ``anchor``:
+        (R, C) pre-rotating the samples, or None for P3P."""
+        ...
+
+
+class _Scoring:
+    """What every source shares: the frame, solver, squared threshold (normalized),
+    pre-test size, solver iterations and velocity bounds (per unit r)."""
+
+    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float):
+        self.fr, self.solver, self.th2 = fr, solver, th2
+        self.ransac = opts.ransac
+        self.iterations = hypothesis_iterations(solver, opts.ransac)
+        self.bounds = (
+            (np.inf, np.inf)
+            if fr.motion_bounds is None
+            else tuple(float(b) for b in fr.motion_bounds)
+        )
+
+
+class ColdSamples(_Scoring):
+    """P3P-pre-rotated samples, one compiled call per batch (:func:`.batch.ransac_batch`)."""
+
+    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float, kernels):
+        super().__init__(fr, solver, opts, th2)
+        self.kernels = kernels
+
+    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+        fr = self.fr
+        return ScoredBatch(
+            *ransac_batch(
+                uniforms,
+                pool,
+                order,
+                fr.x,
+                fr.X,
+                fr.r,
+                fr.r0e,
+                fr.d,
+                fr.r0,
+                self.kernels[0],
+                self.kernels[1],
+                self.iterations,
+                self.th2,
+                best_score,
+                self.ransac.pretest_points,
+                pretest_min,
+                SCORE_AT_MEASURED_TIME,
+                *self.bounds,
+            )
+        )
+
+
+class AnchoredSamples(ColdSamples):
+    """Samples pre-rotated by the anchor's rotation, one compiled call per batch
+    (:func:`.batch.prerotated_batch`)."""
+
+    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+        fr = self.fr
+        return ScoredBatch(
+            *prerotated_batch(
+                uniforms,
+                pool,
+                order,
+                anchor[0],
+                fr.x,
+                fr.X,
+                fr.r,
+                fr.r0e,
+                fr.d,
+                fr.r0,
+                self.kernels[0],
+                self.kernels[1],
+                self.iterations,
+                self.th2,
+                best_score,
+                self.ransac.pretest_points,
+                pretest_min,
+                SCORE_AT_MEASURED_TIME,
+                *self.bounds,
+            )
+        )
+
+
+class SampleBySample(_Scoring):
+    """The same steps as the compiled sources, one NumPy call at a time (:func:`generate`,
+    the plausibility filter, :func:`.scoring.msac_scores`)."""
+
+    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+        fr = self.fr
+        samples = order.take(draw_samples(uniforms, pool))
+        Rs, Cs, ws, ts, ok = generate(fr, self.solver, samples, self.ransac, anchor)
+        n_bad = 0
+        if fr.motion_bounds is not None:  # an implausible hypothesis has no inliers
+            plausible = plausible_motion(Rs, Cs, ws, ts, fr.motion_bounds)
+            n_bad = int(np.count_nonzero(ok & ~plausible))
+            ok = ok & plausible
+        if not ok.any():
+            return ScoredBatch(-1, np.inf, Rs, Cs, ws, ts, n_bad)
+        sc, _ = msac_scores(
+            fr.x,
+            fr.X,
+            fr.r0e,
+            fr.d,
+            np.ascontiguousarray(Rs),
+            np.ascontiguousarray(Cs),
+            np.ascontiguousarray(ws),
+            np.ascontiguousarray(ts),
+            self.th2,
+            ok,
+            best_score,
+            True,
+            self.ransac.pretest_points,
+            pretest_min,
+            0.5,
+            SCORE_AT_MEASURED_TIME,
+        )
+        h = int(np.argmin(sc))
+        return ScoredBatch(h, sc[h], Rs, Cs, ws, ts, n_bad)
+
+
+def hypothesis_source(
+    fr: Frame, solver: str, opts: EstimateOptions, th2: float, anchored: bool
+) -> HypothesisSource:
+    """The source of ``solver``'s hypotheses on ``fr``: compiled (cold or ``anchored``) where
+    the solver has a fused kernel and the frame is not planar, else step by step."""
+    planar_rs = fr.planar and solver_info(solver).hypotheses != GLOBAL_SHUTTER
+    kernels = None if planar_rs else fused_kernels(solver)
+    if kernels is None:
+        return SampleBySample(fr, solver, opts, th2)
+    if anchored and len(kernels[0]):
+        return AnchoredSamples(fr, solver, opts, th2, kernels)
+    return ColdSamples(fr, solver, opts, th2, kernels)

@@ -1,0 +1,220 @@
+"""Options of :func:`~rs_localizer.estimation.estimate_rs_pose`, grouped by concern, and its
+optional input :class:`InitialModel`.
+
+``EstimateOptions()`` is the estimator's default; change one concern at a time, e.g.
+``EstimateOptions(ransac=RansacOptions(threshold_px=1.0, seed=3))`` or, from existing options,
+``dataclasses.replace(opts, refine=RefineOptions(acceleration_sensitivity=True))``. All are
+frozen (hashable, safe to share between threads and frames).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .prior import MotionPrior
+
+__all__ = [
+    "CorrelatedNoise",
+    "EstimateOptions",
+    "InitialModel",
+    "LocalOptimizationOptions",
+    "PlausibilityOptions",
+    "RansacOptions",
+    "RefineOptions",
+]
+
+
+@dataclass(frozen=True)
+class RansacOptions:
+    """Sampling, scoring and termination of RANSAC.
+
+    Attributes:
+        threshold_px: inlier threshold on the RS reprojection error (pixels), at each point's
+            measured capture time.
+        max_iterations / min_iterations: bounds on the hypothesis samples drawn.
+        confidence: adaptive termination confidence in (0, 1).
+        min_inliers: fewest inliers for success (at least the solver's sample size + 1).
+        seed: RNG seed (the estimate is deterministic for a fixed seed).
+        batch_size: samples of the first batch solved at once by the batched solvers; each
+            next batch doubles, but no batch draws more samples than adaptive termination
+            still asks for.
+        prosac_growth: with match scores, the sampling pool reaches all points after this
+            many hypotheses (it starts at the best-scored ``2 * sample size``).
+        pretest_points: T(d,d)-style pre-test size: a hypothesis with fewer than half the
+            inliers the best model predicts among this many (shuffled) points is rejected
+            early. 0 disables it.
+        solver_iterations: linear iterations of the iterative 6-point solvers on minimal
+            samples; ``None``: 1 for ``r6p_1lin`` (after the P3P pre-rotation one iteration is
+            as good as R6P, paper Fig. 6) and 5 for the alternating solvers (the paper's
+            default; they need them). Local optimization runs at least 2 (it starts from the
+            current best rotation, so v is tiny and the [w]x[v]x term it fixes is second
+            order).
+    """
+
+    threshold_px: float = 2.0
+    max_iterations: int = 1000
+    min_iterations: int = 20
+    confidence: float = 0.9999
+    min_inliers: int = 12
+    seed: int = 0
+    batch_size: int = 32
+    prosac_growth: int = 200
+    pretest_points: int = 24
+    solver_iterations: int | None = None
+
+
+@dataclass(frozen=True)
+class LocalOptimizationOptions:
+    """LO-RANSAC: what polishes every new best hypothesis.
+
+    Attributes:
+        nonminimal: the first round re-runs the RS solver on all the hypothesis's inliers
+            (else only the exact-model Levenberg-Marquardt polishes it).
+        steps: maximum rounds per new best (they stop when the score stops improving).
+        refine_iterations: Levenberg-Marquardt iterations of each round.
+        max_points: rounds work on a random subset of this many points (the final
+            refinement uses every point).
+    """
+
+    nonminimal: bool = True
+    steps: int = 4
+    refine_iterations: int = 5
+    max_points: int = 150
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """The final refinement on the exact constant-velocity model (paper eq. 4).
+
+    Attributes:
+        enabled: run it (it also yields the covariance); ``False``: report RANSAC's model.
+        acceleration_sensitivity: also return how the estimate moves per unit of angular and
+            linear acceleration during the readout
+            (:func:`rs_localizer.estimation.sensitivity.acceleration_sensitivity`, ~30 us;
+            needs ``enabled`` and a rolling shutter; the video filter uses it).
+    """
+
+    enabled: bool = True
+    acceleration_sensitivity: bool = False
+
+
+@dataclass(frozen=True)
+class PlausibilityOptions:
+    """What an input point or a model may be.
+
+    Attributes:
+        max_angular_velocity: rad/s; models whose camera turns faster are implausible: they
+            score as having no inliers in RANSAC and local optimization, and a final model
+            beyond it fails with ``implausible_motion``. ``inf`` disables the bound. Not
+            applied with global-shutter timing (``camera.seconds_per_unit_r == 0``).
+        max_linear_velocity: m/s (map units per second), the same for the camera's speed.
+        max_point_norm: 3D points farther than this from the origin (m) are dropped as
+            points at infinity.
+
+    Raises:
+        ValueError: a velocity bound that is not > 0 (NaN included).
+    """
+
+    max_angular_velocity: float = 20.0
+    max_linear_velocity: float = 50.0
+    max_point_norm: float = 1e6
+
+    def __post_init__(self) -> None:
+        for name in ("max_angular_velocity", "max_linear_velocity"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"{name} must be > 0 (inf: no bound), got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class CorrelatedNoise:
+    """Spatially correlated image error in the covariance (:mod:`.noise_model`).
+
+    Attributes:
+        sigma_px: standard deviation (px, per image axis) of a spatially correlated image
+            error (lens-model residue, corner bias, a board that is not flat) on top of the
+            white noise the refinement estimates; the covariance becomes that of the same
+            estimate under both (the estimate is unchanged). ``0``: white noise only
+            (default). Estimate it with
+            :func:`~rs_localizer.estimation.noise_model.fit_correlated_noise` on still
+            calibration views. Costs O(N^2) in the inliers: ~1 ms at 54 points, ~13 ms at 300,
+            ~90 ms at 1000 (one core, the covariance step alone).
+        length_px: its correlation length (px, > 0).
+
+    Raises:
+        ValueError: a negative or non-finite ``sigma_px`` or a ``length_px`` that is not > 0.
+    """
+
+    sigma_px: float = 0.0
+    length_px: float = 100.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_px) and self.sigma_px >= 0):
+            raise ValueError(
+                f"correlated_noise.sigma_px must be finite and >= 0, got {self.sigma_px!r}"
+            )
+        if not (np.isfinite(self.length_px) and self.length_px > 0):
+            raise ValueError(
+                f"correlated_noise.length_px must be finite and > 0, got {self.length_px!r}"
+            )
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """Options of :func:`~rs_localizer.estimation.estimate_rs_pose`, one group per concern.
+
+    Attributes:
+        ransac: :class:`RansacOptions` (threshold, iterations, seed, sampling).
+        local_optimization: :class:`LocalOptimizationOptions` (LO-RANSAC).
+        refine: :class:`RefineOptions` (the final exact-model refinement).
+        motion_prior: Gaussian prior on the camera's velocities
+            (:class:`~rs_localizer.estimation.prior.MotionPrior`, default 3 rad/s and
+            1.5 m/s, zero mean), used where one frame cannot determine them: on planar scenes
+            (coplanar 3D points) local optimization and the refinement are maximum a
+            posteriori and the hypotheses use damped solves; on other scenes the final
+            maximum-likelihood refinement is followed by a MAP one unless the data conflict
+            with the prior (a camera much faster than it allows) or the prior would move the
+            velocities by less than a tenth of their standard deviation (see
+            :func:`~rs_localizer.estimation.finalize.final_refinement`). The covariance then
+            includes the prior. With ``MotionPrior(always=True)`` (e.g. a tracker's
+            prediction) it is used on every frame. ``None``: maximum likelihood everywhere.
+        plausibility: :class:`PlausibilityOptions` (velocity bounds, points at infinity).
+        correlated_noise: :class:`CorrelatedNoise` (the covariance's image-error model).
+    """
+
+    ransac: RansacOptions = RansacOptions()
+    local_optimization: LocalOptimizationOptions = LocalOptimizationOptions()
+    refine: RefineOptions = RefineOptions()
+    motion_prior: MotionPrior | None = MotionPrior()
+    plausibility: PlausibilityOptions = PlausibilityOptions()
+    correlated_noise: CorrelatedNoise = CorrelatedNoise()
+
+
+@dataclass(frozen=True)
+class InitialModel:
+    """A predicted model for :func:`~rs_localizer.estimation.estimate_rs_pose` (e.g. from the
+    previous frames of a video, :class:`rs_localizer.estimation.tracker.RSTracker`).
+
+    The model is first tested as a hypothesis: the points within ``gate_px`` of it are counted
+    ("explained"). If at least ``min_explained`` are, it is pulled onto them (robust
+    Levenberg-Marquardt), becomes RANSAC's first hypothesis, and its rotation, then the best
+    model's, pre-rotates every minimal sample instead of a P3P pose (paper sec. 4 uses P3P for
+    that pre-rotation; any rotation within a few degrees serves, Fig. 6); when it then explains
+    at least ``min_explained`` points within the threshold, RANSAC samples only among those
+    (a verification, as LO-RANSAC's inner sampling). Otherwise the estimator runs exactly as
+    without it.
+
+    Attributes:
+        R (3, 3), C (3,): world -> camera at the reference row (``X_cam = R X + C``).
+        w, t (3,): model velocities per unit RS coordinate (as ``RSPoseEstimate.w``, ``t``).
+        gate_px: distance (px) within which a point counts as explained.
+        min_explained: fewest explained points to use the model.
+    """
+
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gate_px: float = 20.0
+    min_explained: int = 0

@@ -1,0 +1,233 @@
+"""What :func:`~rs_localizer.estimation.estimate_rs_pose` returns: :class:`RSPoseEstimate`, its
+failure reasons, and the conversions of the model (R, C, w, t per unit RS coordinate) to the
+camera's physical velocities and the output covariances.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .outputs import output_covariance_kernel, physical_velocities_kernel
+from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
+
+__all__ = [
+    "CHEIRALITY",
+    "DEGENERATE_GEOMETRY",
+    "FAILURE_REASONS",
+    "IMPLAUSIBLE_MOTION",
+    "NO_HYPOTHESIS",
+    "PLANAR_SCENE",
+    "TOO_FEW_INLIERS",
+    "TOO_FEW_POINTS",
+    "EstimationFailed",
+    "RSPoseEstimate",
+    "failed_estimate",
+    "output_covariance",
+    "physical_velocities",
+]
+
+#: fewer valid rows than ``min_inliers``
+TOO_FEW_POINTS = "too_few_points"
+#: no minimal sample gave a model
+NO_HYPOTHESIS = "no_hypothesis"
+#: the best model has fewer than ``min_inliers`` inliers (before or after the refinement)
+TOO_FEW_INLIERS = "too_few_inliers"
+#: the points, or the inliers, are identical or on one 3D line, or their pixels lie within the
+#: inlier threshold of one image line
+DEGENERATE_GEOMETRY = "degenerate_geometry"
+#: a solver that cannot work on coplanar points (R9P) was given a planar scene
+PLANAR_SCENE = "planar_scene"
+#: every reason an unsuccessful estimate can give, in the order the estimator checks them
+FAILURE_REASONS = (
+    TOO_FEW_POINTS,
+    DEGENERATE_GEOMETRY,
+    PLANAR_SCENE,
+    NO_HYPOTHESIS,
+    IMPLAUSIBLE_MOTION,
+    TOO_FEW_INLIERS,
+    CHEIRALITY,
+)
+
+
+class EstimationFailed(Exception):
+    """A stage of the estimator found that the frame gives no pose; ``reason`` is one of
+    :data:`FAILURE_REASONS`. Caught by the estimator, which returns
+    :func:`failed_estimate` (never raised to its caller)."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class RSPoseEstimate:
+    """Result of :func:`~rs_localizer.estimation.estimate_rs_pose`. Frames: world/map, camera
+    optical frame (REP 103).
+
+    Attributes:
+        success: a pose was found with at least ``min_inliers`` inliers.
+        failure: reason code when not successful, else ``None``: ``too_few_points`` (fewer
+            valid rows than ``min_inliers``), ``no_hypothesis`` (no sample gave a model),
+            ``too_few_inliers``, ``degenerate_geometry`` (the points, or the inliers, are
+            identical or on one 3D line, or their pixels lie within the inlier threshold of
+            one image line), ``planar_scene`` (a solver that cannot work on coplanar points,
+            R9P, given a planar scene), ``implausible_motion`` (the best model, or every
+            hypothesis, moves faster than ``max_angular_velocity`` / ``max_linear_velocity``),
+            ``cheirality`` (an inlier of the best model is not in front of the camera at its
+            capture time).
+        solver: solver name used.
+        R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
+        w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
+        orientation, position: (3, 3), (3,) camera -> world rotation (``R^T``) and camera
+            centre in the world (m).
+        angular_velocity, linear_velocity: (3,) camera's own velocity in its optical frame
+            (rad/s, m/s).
+        angular_velocity_world, linear_velocity_world: (3,) the same in the world frame.
+        inliers: (N,) bool over the input rows (invalid rows are False).
+        num_valid: rows that passed validation (finite, undistortable, within
+            ``max_point_norm``); num_behind: valid rows behind the camera at their capture
+            time under the final model (0 without one); num_dropped: rows not used, those
+            that failed validation plus ``num_behind``.
+        ransac_iterations: hypotheses drawn. timings: stage -> seconds.
+        covariance: (12, 12) over (rotation of the camera in the world [rad, world axes],
+            position [m, world], angular velocity [rad/s, camera frame], linear velocity [m/s,
+            camera frame]), or ``None``.
+        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame.
+        twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera frame.
+        rmse_px: RMS reprojection error of the inliers (pixels).
+        planar: the inliers' 3D points are coplanar (:func:`~.degeneracy.planarity` below
+            :data:`~.degeneracy.PLANAR_TOLERANCE`): the per-frame RS model is near-degenerate
+            and the velocities (and the rotation they trade against) lean on the motion prior.
+        planarity: that thickness-to-extent ratio of the inliers' 3D points (NaN on failure).
+        condition_number: unit-free condition number of the data's information matrix of the
+            refined parameters (:func:`~.degeneracy.condition_number`; NaN without
+            refinement): ~5-300 on 3D scenes, 1e4-1e6 on planar ones.
+        motion_prior_used: the final refinement was maximum a posteriori (see
+            ``EstimateOptions.motion_prior``); on planar frames the velocities, and the
+            rotation they trade against, lean on the prior.
+        initial_explained: points within ``InitialModel.gate_px`` of the initial model (-1
+            without one; failed estimates do not report it); initial_used: the initial model
+            seeded RANSAC and pre-rotated its samples (False: too few points explained, the
+            estimator ran as without it).
+        acceleration_sensitivity: (12, 6) first-order change of (rotation, position, angular
+            velocity, linear velocity) per (angular acceleration [rad/s^2], linear acceleration
+            [m/s^2]) during the readout, camera frame; only with
+            ``RefineOptions.acceleration_sensitivity``, else ``None``.
+    """
+
+    success: bool
+    failure: str | None = None
+    solver: str = ""
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    C: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    orientation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    linear_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    num_valid: int = 0
+    num_dropped: int = 0
+    num_behind: int = 0
+    ransac_iterations: int = 0
+    timings: dict = field(default_factory=dict)
+    covariance: np.ndarray | None = None
+    pose_covariance: np.ndarray | None = None
+    twist_covariance: np.ndarray | None = None
+    rmse_px: float = float("nan")
+    planar: bool = False
+    planarity: float = float("nan")
+    condition_number: float = float("nan")
+    motion_prior_used: bool = False
+    initial_explained: int = -1
+    initial_used: bool = False
+    acceleration_sensitivity: np.ndarray | None = None
+
+    @property
+    def num_inliers(self) -> int:
+        """Inliers of the final model (0 on failure)."""
+        return int(np.count_nonzero(self.inliers))
+
+
+def failed_estimate(
+    reason: str,
+    solver: str,
+    num_rows: int,
+    num_valid: int,
+    iterations: int,
+    timings: dict[str, float],
+) -> RSPoseEstimate:
+    """The unsuccessful :class:`RSPoseEstimate` of a frame with ``num_rows`` input rows, of which
+    ``num_valid`` passed validation, after ``iterations`` RANSAC hypotheses.
+
+    Raises:
+        ValueError: ``reason`` is not one of :data:`FAILURE_REASONS`.
+    """
+    if reason not in FAILURE_REASONS:
+        raise ValueError(f"unknown failure reason {reason!r}; expected one of {FAILURE_REASONS}")
+    return RSPoseEstimate(
+        success=False,
+        failure=reason,
+        solver=solver,
+        inliers=np.zeros(num_rows, dtype=bool),
+        num_valid=num_valid,
+        num_dropped=num_rows - num_valid,
+        ransac_iterations=iterations,
+        timings=timings,
+    )
+
+
+def physical_velocities(
+    R: np.ndarray, C: np.ndarray, w: np.ndarray, t: np.ndarray, seconds_per_unit_r: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Model velocities (per unit r) -> the camera's own velocities.
+
+    With ``X_cam = R(tau) X + C(tau)``, ``R(tau) = (I + tau [w]x) R``, ``C(tau) = C + tau t`` and
+    ``tau = time / seconds_per_unit_r``, the camera orientation ``R^T`` changes as
+    ``d(R^T)/dtau = -R^T [w]x``, so its angular velocity in its own frame is ``-w`` per unit r,
+    and the centre ``c = -R^T C`` moves with ``dc/dtau = R^T (w x C - t)``.
+
+    Args:
+        R: (3, 3) world -> camera at the reference row; C, w, t: (3,) the model (paper eq. 4).
+        seconds_per_unit_r: the camera's readout time per unit RS coordinate (s).
+
+    Returns:
+        (omega_cam rad/s, v_cam m/s, omega_world, v_world), each (3,); zeros for a global
+        shutter (``seconds_per_unit_r == 0``).
+    """
+    if seconds_per_unit_r <= 0:
+        z = np.zeros(3)
+        return z, z.copy(), z.copy(), z.copy()
+    f64 = np.float64
+    return physical_velocities_kernel(
+        np.ascontiguousarray(R, dtype=f64),
+        np.ascontiguousarray(C, dtype=f64),
+        np.ascontiguousarray(w, dtype=f64),
+        np.ascontiguousarray(t, dtype=f64),
+        float(seconds_per_unit_r),
+    )
+
+
+def output_covariance(
+    cov12: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, seconds_per_unit_r: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Propagate the (delta, C, w, t) covariance (12, 12) to (camera rotation in world,
+    position, omega_cam, v_cam) and to the ROS pose/twist blocks.
+
+    With ``R = expm(delta) R0`` the camera orientation ``R^T = R0^T expm(-delta)`` has the
+    world-axis rotation perturbation ``phi = -R^T delta``; the position ``c = -R^T C`` has
+    ``dc/ddelta = -R^T [C]x`` and ``dc/dC = -R^T``; the velocities follow
+    :func:`physical_velocities` (``omega = -w / s``, ``v = (w x C - t) / s``).
+
+    Returns:
+        (the (12, 12) covariance, the (6, 6) ROS pose block, the (6, 6) ROS twist block or
+        ``None`` for a global shutter); computed in :func:`.outputs.output_covariance_kernel`.
+    """
+    s = float(seconds_per_unit_r)
+    out, pose, twist = output_covariance_kernel(np.ascontiguousarray(cov12), R, C, w, s)
+    return out, pose, (twist if s > 0 else None)
