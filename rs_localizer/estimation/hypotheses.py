@@ -326,7 +326,15 @@ class ColdSamples(_Scoring):
         super().__init__(fr, solver, opts, th2)
         self.kernels = kernels
 
-    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
         fr = self.fr
         return ScoredBatch(
             *ransac_batch(
@@ -356,7 +364,15 @@ class AnchoredSamples(ColdSamples):
     """Samples pre-rotated by the anchor's rotation, one compiled call per batch
     (:func:`.batch.prerotated_batch`)."""
 
-    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
         fr = self.fr
         return ScoredBatch(
             *prerotated_batch(
@@ -387,7 +403,15 @@ class SampleBySample(_Scoring):
     """The same steps as the compiled sources, one NumPy call at a time (:func:`generate`,
     the plausibility filter, :func:`.scoring.msac_scores`)."""
 
-    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor):
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
         fr = self.fr
         samples = order.take(draw_samples(uniforms, pool))
         Rs, Cs, ws, ts, ok = generate(fr, self.solver, samples, self.ransac, anchor)

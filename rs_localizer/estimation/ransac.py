@@ -35,7 +35,7 @@ def _seed_sequence(seed: int) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed)
 
 
-def seeded_rng(seed) -> np.random.Generator:
+def seeded_rng(seed: int | np.integer | None) -> np.random.Generator:
     """``np.random.default_rng(seed)`` (the same stream) without hashing an int seed again on
     every frame (~6 us of ~20 at this call's cache state); other seeds as NumPy takes them."""
     if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):

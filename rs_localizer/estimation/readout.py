@@ -34,6 +34,7 @@ not pin ``s`` (relative standard deviation above ``max_relative_std``, fewer tha
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -90,8 +91,11 @@ class ReadoutCalibration:
 
 
 def per_frame_rates(
-    frames, camera: CameraModel, solver: str = "r6p_1lin", options: EstimateOptions | None = None
-):
+    frames: Iterable[tuple],
+    camera: CameraModel,
+    solver: str = "r6p_1lin",
+    options: EstimateOptions | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Run the estimator on every frame with the camera's RS timing replaced by
     ``seconds_per_unit_r = 1`` (its stated line delay is ignored), the world origin moved to
     the previous frame's camera centre (the first frame is solved twice for that).
@@ -211,12 +215,52 @@ def _umeyama(x, y, wts):
     return s, R, my - s * R @ mx
 
 
+def _gyro_samples(stamps, ws, gyro, camera: CameraModel, stamp_row: float):
+    """Gyro rates at the frames' reference-line times, in the camera frame, against the
+    frames' ``-w`` (per unit r): (x (n, 3) rad/s, y (n, 3) centred, R_ci (3, 3) IMU -> camera).
+    The frame times depend on the line delay, so the similarity fit (:func:`_umeyama`) and the
+    times are iterated. Raises ValueError for malformed gyro samples."""
+    t_imu = np.asarray(gyro[0], dtype=np.int64)
+    om_imu = np.asarray(gyro[1], dtype=float).reshape(-1, 3)
+    if len(t_imu) != len(om_imu) or len(t_imu) < 2:
+        raise ValueError("gyro needs (t_ns (M,), omega (M, 3)) with M >= 2")
+    order = np.argsort(t_imu)
+    t_imu, om_imu = t_imu[order], om_imu[order]
+    y = -ws
+    offset_lines = camera.reference_line - stamp_row
+    ld = 0.0
+    for _ in range(5):  # frame times depend on the line delay: iterate
+        t = stamps + np.round(offset_lines * ld * 1e9).astype(np.int64)
+        inside = (t >= t_imu[0]) & (t <= t_imu[-1])
+        om = np.stack([np.interp(t[inside], t_imu, om_imu[:, a]) for a in range(3)], 1)
+        s, R_ci, c = _umeyama(om, y[inside], np.ones(int(inside.sum())))
+        ld = max(s, 0.0) / camera.focal
+    return om @ R_ci.T, y[inside] - c, R_ci
+
+
+def _unobservable(
+    n: int, s: float, std: float, rot: float, min_samples: int, max_relative_std: float
+) -> str:
+    """Why the fitted time scale ``s`` (std ``std``) from ``n`` samples of RMS rotation ``rot``
+    (rad/s) is not a calibration, or ``""`` if it is."""
+    if n < min_samples:
+        return f"{n} samples (need {min_samples})"
+    if not s > 0:
+        return "the fitted time scale is not positive (wrong readout direction?)"
+    if not std <= max_relative_std * s:
+        return (
+            f"too little rotation: relative std {std / abs(s):.3g} > "
+            f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)"
+        )
+    return ""
+
+
 def fit_line_delay(
-    stamps_ns,
-    orientations,
-    w,
+    stamps_ns: np.ndarray,
+    orientations: np.ndarray,
+    w: np.ndarray,
     camera: CameraModel,
-    gyro=None,
+    gyro: tuple[np.ndarray, np.ndarray] | None = None,
     stamp_row: float = 0.0,
     max_dt: float = 0.1,
     uniformity: float = 0.1,
@@ -272,37 +316,11 @@ def fit_line_delay(
         s, std, rms = _robust_slope(x, y)
         frames_used = len(used)
     else:
-        t_imu = np.asarray(gyro[0], dtype=np.int64)
-        om_imu = np.asarray(gyro[1], dtype=float).reshape(-1, 3)
-        if len(t_imu) != len(om_imu) or len(t_imu) < 2:
-            raise ValueError("gyro needs (t_ns (M,), omega (M, 3)) with M >= 2")
-        order = np.argsort(t_imu)
-        t_imu, om_imu = t_imu[order], om_imu[order]
-        y = -ws
-        offset_lines = camera.reference_line - stamp_row
-        s, ld = 0.0, 0.0
-        for _ in range(5):  # frame times depend on the line delay: iterate
-            t = stamps + np.round(offset_lines * ld * 1e9).astype(np.int64)
-            inside = (t >= t_imu[0]) & (t <= t_imu[-1])
-            om = np.stack([np.interp(t[inside], t_imu, om_imu[:, a]) for a in range(3)], 1)
-            s, R_ci, c = _umeyama(om, y[inside], np.ones(int(inside.sum())))
-            ld = max(s, 0.0) / focal
-        x = om @ R_ci.T
-        yc = y[inside] - c
-        s, std, rms = _robust_slope(x, yc)
-        n = len(x)
-        frames_used = n
+        x, y, R_ci = _gyro_samples(stamps, ws, gyro, camera, stamp_row)
+        s, std, rms = _robust_slope(x, y)
+        n = frames_used = len(x)
     rot = float(np.sqrt(np.mean(np.sum(x * x, axis=1)))) if n else 0.0
-    reason = ""
-    if n < min_samples:
-        reason = f"{n} samples (need {min_samples})"
-    elif not s > 0:
-        reason = "the fitted time scale is not positive (wrong readout direction?)"
-    elif not std <= max_relative_std * s:
-        reason = (
-            f"too little rotation: relative std {std / abs(s):.3g} > "
-            f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)"
-        )
+    reason = _unobservable(n, s, std, rot, min_samples, max_relative_std)
     ok = not reason
     std = float(np.hypot(std, model_error * abs(s)))
     return ReadoutCalibration(
@@ -323,13 +341,13 @@ def fit_line_delay(
 
 
 def calibrate_line_delay(
-    frames,
+    frames: Iterable[tuple],
     camera: CameraModel,
     solver: str = "r6p_1lin",
     options: EstimateOptions | None = None,
-    gyro=None,
+    gyro: tuple[np.ndarray, np.ndarray] | None = None,
     stamp_row: float = 0.0,
-    **fit_args,
+    **fit_args: float,
 ) -> ReadoutCalibration:
     """Estimate a rolling-shutter camera's line delay and its standard deviation from a video
     with rotation, ignoring the line delay ``camera`` states.

@@ -142,7 +142,9 @@ class TrackResult:
         return None if self.step is None else self.step.current
 
 
-def model_from_state(state: FusedState, camera: CameraModel):
+def model_from_state(
+    state: FusedState, camera: CameraModel
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The estimator's model ``(R, C, w, t)`` of a fused state (inverse of
     :func:`~rs_localizer.estimation.estimate.physical_velocities`): ``R = O^T``,
     ``C = -R p``, ``w = -omega s``, ``t = w x C - v s`` with ``s`` the camera's seconds per
@@ -237,7 +239,12 @@ class RSTracker:
         return self.filter.flush()
 
     def process(
-        self, stamp_ns: int, points2d_px, points3d, camera: CameraModel, scores=None
+        self,
+        stamp_ns: int,
+        points2d_px: np.ndarray,
+        points3d: np.ndarray,
+        camera: CameraModel,
+        scores: np.ndarray | None = None,
     ) -> TrackResult:
         """Estimate one frame and update the track.
 

@@ -8,6 +8,7 @@ install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the k
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
@@ -62,7 +63,9 @@ def warm_up(
     return time.perf_counter() - tic, est
 
 
-def compile_kernels(solvers=DEFAULT_SOLVERS, log=print) -> dict:
+def compile_kernels(
+    solvers: Iterable[str] = DEFAULT_SOLVERS, log: Callable[[str], object] = print
+) -> dict:
     """Compile (or load) every kernel the estimator needs for ``solvers``, reporting each
     kernel numba compiles through ``log`` (see :func:`rs_localizer.jit_cache.compile_progress`).
 
