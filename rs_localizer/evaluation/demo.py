@@ -259,6 +259,12 @@ def run_bag_demo(
                 "estimates the velocities",
                 file=out,
             )
+        if res.timeouts:
+            print(
+                f"  the player timed out on {res.timeouts} of {n} frames (no output within "
+                f"{timeout:g} s); node log: {nodes['/camera'].log_path}",
+                file=out,
+            )
         ok = rs.get("frames", 0) == n and n > 0
         if not ok:
             print(

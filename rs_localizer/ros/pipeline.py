@@ -57,11 +57,13 @@ _MAX_PENDING = 64
 _STATS_KEPT = 1000
 
 
-def log_warm_up(solver: str, options: Any, logger: Any) -> None:
-    """Run the estimator on a small synthetic RS problem so that the numba JIT compiles (or
-    loads from its cache) before the first real frame, logging the cache, each kernel compiled
-    and the time to ``logger`` (``info``/``warning``). ``options``: the estimator options.
-    Never raises (a failure is logged)."""
+def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any) -> None:
+    """Run the estimator (and, with ``tracking``, the video tracker) on small synthetic RS
+    problems so that the numba JIT compiles (or loads from its cache) every kernel the node
+    will use before the first real frame (:func:`~rs_localizer.estimation.warmup.warm_up`),
+    logging the cache, each kernel compiled and the time to ``logger``
+    (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
+    (None: every frame alone). Never raises (a failure is logged)."""
     from ..estimation.warmup import warm_up
     from ..jit_cache import cache_state, compile_progress
 
@@ -73,7 +75,7 @@ def log_warm_up(solver: str, options: Any, logger: Any) -> None:
     )
     try:
         with compile_progress(logger.info) as prog:
-            dt, est = warm_up(solver, options)
+            dt, est = warm_up(solver, options, tracking)
         logger.info(
             f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
             + (

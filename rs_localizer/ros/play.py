@@ -95,7 +95,8 @@ def play(
         lockstep: after each frame (a ``*/correspondences``, ``*/keypoints`` or image message) wait
             until every ``output_topics`` topic delivered a message stamped within 1 s of the
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
-            subscription may drop a sample) before moving on.
+            subscription may drop a sample) before moving on, counted in
+            ``PlayResult.timeouts`` and reported through ``log``.
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``.
         wait_subscribers: seconds to wait until every frame topic has a subscriber.
         reliable: publish with reliable QoS (depth 10); else best effort.
@@ -227,6 +228,11 @@ def play(
                         if now >= t_end:
                             if attempt >= retries:
                                 result.timeouts += 1
+                                missing = [t for t in waited if t not in frame["outputs"]]
+                                log(
+                                    f"warning: frame {frame['index']}: no {', '.join(missing)} "
+                                    f"within {timeout:g} s ({retries} retries); moving on"
+                                )
                                 break
                             attempt += 1
                             for t, r in last_pub.items():  # camera_info and the frame again

@@ -1,0 +1,103 @@
+"""No frame waits on the compiler: after the node's warm-up (as the node runs it, for its
+configuration), replaying real bags through the node's frame pipeline (cold and tracked
+frames, the twist filter and its smoother, correspondences, keypoints and image mode) uses no
+numba kernel signature the warm-up did not make. On a cold cache any new signature would be
+compiled inside a frame.
+
+The check runs in a fresh process: signatures loaded by earlier tests of this session would
+otherwise hide what the warm-up misses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SCRIPT = r"""
+import json, sys
+from numba.core.registry import CPUDispatcher
+from rs_localizer.ros.params import build_config
+from rs_localizer.ros.pipeline import log_warm_up
+from rs_localizer.ros.replay import replay, replay_parameters
+
+
+def signatures():
+    out = {}
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("rs_localizer") and mod is not None:
+            for obj in list(vars(mod).values()):
+                if isinstance(obj, CPUDispatcher):
+                    key = f"{obj.py_func.__module__}.{obj.py_func.__qualname__}"
+                    out[key] = sorted(map(str, obj.signatures))
+    return out
+
+
+class Log:
+    def info(self, m):
+        print(m, file=sys.stderr)
+
+    warning = info
+
+
+runs = json.loads(sys.argv[1])  # [(bag, source, parameter files, parameters)]
+before = None
+solved = {}
+for bag, source, files, params in runs:
+    if before is None:  # the node's warm-up, for the configuration of the first run
+        values, _ = replay_parameters(bag, files, params, source)
+        cfg = build_config(values, owner=object())
+        assert cfg.tracking is not None, "the default node tracks"
+        log_warm_up(cfg.solver, cfg.options, cfg.tracking, Log())
+        before = signatures()
+    res = replay(bag, params_files=files, params=params, source=source, progress=None)
+    solved[bag] = sum(bool(r["success"]) for r in res.rows), len(res.rows)
+after = signatures()
+new = {k: sorted(set(v) - set(before.get(k, []))) for k, v in after.items()}
+print(json.dumps({"new": {k: v for k, v in new.items() if v}, "solved": solved}))
+"""
+
+
+def test_node_warm_up_covers_every_kernel_of_real_frames():
+    pytest.importorskip("rosbags")
+    from rs_localizer.ros.bag_io import read_bag_info
+
+    config = str(ROOT / "config" / "rs_localizer.yaml")
+    images = ROOT / "data" / "sample_images"
+    rs = read_bag_info(images)["rs"]
+    image_params = {  # (configured as the demo configures the node on this bag)
+        "frontend": "aruco",
+        "frontend_map": str((images / "markers.yaml").resolve()),
+        "rs.line_delay": float(rs["line_delay"]),
+        "rs.readout_time": 0.0,
+        "rs.stamp_row": float(rs["stamp_row"]),
+    }
+    runs = [
+        (str(ROOT / "data" / "sample"), "correspondences", [config], {}),
+        (
+            str(images),
+            "image",
+            [config, str(ROOT / "config" / "rs_localizer_images.yaml")],
+            image_params,
+        ),
+        (str(ROOT / "test" / "data" / "keypoints"), "keypoints", [config], {}),
+    ]
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = subprocess.run(
+        [sys.executable, "-c", SCRIPT, json.dumps(runs)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    for bag, (solved, frames) in res["solved"].items():
+        assert frames > 0 and solved == frames, (bag, solved, frames)
+    assert not res["new"], f"kernels first used by a real frame, after the warm-up: {res['new']}"
