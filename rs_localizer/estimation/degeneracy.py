@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .plausibility import _masked_scatter
+from .plausibility import masked_scatter
 
 __all__ = ["PLANAR_TOLERANCE", "condition_number", "planarity"]
 
@@ -34,7 +34,7 @@ def _planarity(X, mask):
     for i in range(X.shape[0]):
         if mask[i] and not (np.isfinite(X[i, 0]) and np.isfinite(X[i, 1]) and np.isfinite(X[i, 2])):
             return np.nan
-    S, c = _masked_scatter(X, mask, 1.0)
+    S, c = masked_scatter(X, mask, 1.0)
     if c < 3:
         return 0.0
     ev = np.linalg.eigvalsh(S)

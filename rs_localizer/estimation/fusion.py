@@ -56,7 +56,7 @@ from scipy.stats import chi2
 
 from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
 from .prior import prior_arrays
-from .refine import _cholesky as _cholesky_block
+from .refine import cholesky_into
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 
@@ -220,9 +220,20 @@ class _Entry:
         self.age = 0
 
 
-#: width of a row of ``TwistFilter.X`` (one frame of the window): the nominal state O (3, 3)
-#: row-major in 0:9, p 9:12, omega 12:15, v (world) 15:18, alpha 18:21, a 21:24, then the
-#: output ``v_cam = O^T v`` in 24:27
+# A row of ``TwistFilter.X`` (one frame of the window) holds the nominal state at these
+# offsets: the orientation O (3, 3) row-major (camera -> world), the position p (world), the
+# angular velocity omega (camera frame), the linear velocity v (world), the angular and linear
+# accelerations alpha, a, then the output ``v_cam = O^T v``. (The error state and the (12,)
+# outputs are ordered phi, p, omega, v, alpha, a at 0, 3, 6, 9, 12, 15.) Module-level ints:
+# numba compiles them into the kernels as constants.
+ROW_O = 0
+ROW_P = 9
+ROW_OMEGA = 12
+ROW_V = 15
+ROW_ALPHA = 18
+ROW_A = 21
+ROW_V_CAM = 24
+#: width of a row
 _ROW = 27
 
 
@@ -286,7 +297,7 @@ def _transition(x, dt, acc, qa, ql, out):
     h = 0.5 * dt * dt
     theta = np.empty(3)
     for i in range(3):
-        theta[i] = x[12 + i] * dt + h * x[18 + i] if acc else x[12 + i] * dt
+        theta[i] = x[ROW_OMEGA + i] * dt + h * x[ROW_ALPHA + i] if acc else x[ROW_OMEGA + i] * dt
     c1, c2, c3 = so3_coefficients(theta[0] ** 2 + theta[1] ** 2 + theta[2] ** 2)
     K = skew_matrix(theta)
     K2 = _mul3(K, K)
@@ -298,18 +309,21 @@ def _transition(x, dt, acc, qa, ql, out):
             one = 1.0 if i == j else 0.0
             E[i, j] = one + c1 * K[i, j] + c2 * K2[i, j]
             Jr[i, j] = one - c2 * K[i, j] + c3 * K2[i, j]
-            Ori[i, j] = x[3 * i + j]
+            Ori[i, j] = x[ROW_O + 3 * i + j]
     On = _mul3(Ori, E)
     OJ = _mul3(On, Jr)
     for i in range(3):
         for j in range(3):
-            out[3 * i + j] = On[i, j]
-        p, w, v, al, a = x[9 + i], x[12 + i], x[15 + i], x[18 + i], x[21 + i]
+            out[ROW_O + 3 * i + j] = On[i, j]
+        p, w, v = x[ROW_P + i], x[ROW_OMEGA + i], x[ROW_V + i]
+        al, a = x[ROW_ALPHA + i], x[ROW_A + i]
         if acc:
-            out[9 + i], out[12 + i], out[15 + i] = p + v * dt + h * a, w + al * dt, v + a * dt
+            out[ROW_P + i] = p + v * dt + h * a
+            out[ROW_OMEGA + i] = w + al * dt
+            out[ROW_V + i] = v + a * dt
         else:
-            out[9 + i], out[12 + i], out[15 + i] = p + v * dt, w, v
-        out[18 + i], out[21 + i] = al, a
+            out[ROW_P + i], out[ROW_OMEGA + i], out[ROW_V + i] = p + v * dt, w, v
+        out[ROW_ALPHA + i], out[ROW_A + i] = al, a
     F = np.eye(n)
     for i in range(3):
         F[3 + i, 9 + i] = dt
@@ -388,11 +402,11 @@ def _shift_covariance(P, F, Q, n, keep):
 @njit(cache=True)
 def _cholesky(S):
     """Lower Cholesky factor L (n, n) of the symmetric S (n, n) and ok: False if S is not
-    positive definite (L is not valid then); :func:`.refine._cholesky` on all of S, the
+    positive definite (L is not valid then); :func:`.refine.cholesky_into` on all of S, the
     strict upper part of L zero."""
     n = S.shape[0]
     L = np.zeros((n, n))
-    return L, _cholesky_block(S, n, L)
+    return L, cholesky_into(S, n, L)
 
 
 @njit(cache=True)
@@ -572,10 +586,10 @@ def _camera_covariance(x, P, b, out):
     window row x (27,) from its (n, n) block of P at (b, b) over (phi, p, omega, v, ...):
     ``d v_cam = O^T [v]x phi + O^T dv`` (J P J^T with J the identity but for these rows;
     symmetric)."""
-    v0, v1, v2 = x[15], x[16], x[17]
+    v0, v1, v2 = x[ROW_V], x[ROW_V + 1], x[ROW_V + 2]
     A = np.empty((3, 3))  # O^T [v]x
     for i in range(3):
-        o0, o1, o2 = x[i], x[3 + i], x[6 + i]  # column i of O
+        o0, o1, o2 = x[ROW_O + i], x[ROW_O + 3 + i], x[ROW_O + 6 + i]  # column i of O
         A[i, 0] = o1 * v2 - o2 * v1
         A[i, 1] = o2 * v0 - o0 * v2
         A[i, 2] = o0 * v1 - o1 * v0
@@ -613,7 +627,11 @@ def _outputs(X, P, n):
     for i in range(k):
         x = X[i]
         for r in range(3):
-            x[24 + r] = x[r] * x[15] + x[3 + r] * x[16] + x[6 + r] * x[17]
+            x[ROW_V_CAM + r] = (
+                x[ROW_O + r] * x[ROW_V]
+                + x[ROW_O + 3 + r] * x[ROW_V + 1]
+                + x[ROW_O + 6 + r] * x[ROW_V + 2]
+            )
         _camera_covariance(x, P, i * n, C[i])
     return C
 
@@ -667,9 +685,22 @@ def _update_window(
         )
         if usable:
             x = Xn[0]
-            On = np.ascontiguousarray(x[0:9]).reshape((3, 3))
+            On = np.ascontiguousarray(x[ROW_O : ROW_O + 9]).reshape((3, 3))
             y, H = _innovation(
-                On, x[9:12], x[12:15], x[15:18], x[18:21], x[21:24], zO, zp, zw, zv, m, n, Gm, use_G
+                On,
+                x[ROW_P : ROW_P + 3],
+                x[ROW_OMEGA : ROW_OMEGA + 3],
+                x[ROW_V : ROW_V + 3],
+                x[ROW_ALPHA : ROW_ALPHA + 3],
+                x[ROW_A : ROW_A + 3],
+                zO,
+                zp,
+                zw,
+                zv,
+                m,
+                n,
+                Gm,
+                use_G,
             )
             nis, dx, P_upd, ok = _kalman_update(Pn, H, y, R)
             status = 0
@@ -678,10 +709,10 @@ def _update_window(
                 Pn = P_upd
                 nv = 18 if acc else 12  # (alpha, a are not states of the velocity model)
                 for i in range(keep + 1):
-                    Ori = Xn[i, 0:9].reshape((3, 3))  # (a view: rotated in place)
+                    Ori = Xn[i, ROW_O : ROW_O + 9].reshape((3, 3))  # (a view: rotated in place)
                     rotate_left_into(dx[i * n], dx[i * n + 1], dx[i * n + 2], Ori.copy(), Ori)
                     for j in range(3, nv):
-                        Xn[i, 6 + j] += dx[i * n + j]
+                        Xn[i, ROW_P + j - 3] += dx[i * n + j]  # (error state j >= 3: p...)
     return status, nis, Xn, Pn, _outputs(Xn, Pn, n)
 
 
@@ -727,13 +758,13 @@ def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=fl
     state = object.__new__(FusedState)
     state.__dict__.update(
         stamp_ns=stamp,
-        orientation=x[0:9].reshape(3, 3),
-        position=x[9:12],
-        angular_velocity=x[12:15],
-        linear_velocity=x[24:27],
-        linear_velocity_world=x[15:18],
-        angular_acceleration=x[18:21],
-        linear_acceleration=x[21:24],
+        orientation=x[ROW_O : ROW_O + 9].reshape(3, 3),
+        position=x[ROW_P : ROW_P + 3],
+        angular_velocity=x[ROW_OMEGA : ROW_OMEGA + 3],
+        linear_velocity=x[ROW_V_CAM : ROW_V_CAM + 3],
+        linear_velocity_world=x[ROW_V : ROW_V + 3],
+        angular_acceleration=x[ROW_ALPHA : ROW_ALPHA + 3],
+        linear_acceleration=x[ROW_A : ROW_A + 3],
         covariance=cov,
         fused=fused,
         restarted=restarted,

@@ -264,7 +264,7 @@ def image_degenerate(points_px, points_normalized, focal: float, threshold_px: f
 
 
 @njit(cache=True, nogil=True)
-def _masked_scatter(P, mask, scale):
+def masked_scatter(P, mask, scale):
     """(scatter matrix (d, d) of the centred rows ``scale * P[mask]``, their number) for
     d = 2 or 3 columns, in one pass: sums and products of the rows relative to the first
     selected one (the shift keeps the moments as accurate as a centred two-pass sum for
@@ -307,7 +307,7 @@ def _masked_scatter(P, mask, scale):
 @njit(cache=True, nogil=True)
 def _line_rms_masked(P, mask, scale):
     """:func:`line_rms` of ``scale * P[mask]``."""
-    S, c = _masked_scatter(P, mask, scale)
+    S, c = masked_scatter(P, mask, scale)
     if c < 3:
         return 0.0
     a, b, cc = S[0, 0], S[0, 1], S[1, 1]
@@ -321,7 +321,7 @@ def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px
     points_normalized[mask], focal, threshold_px)`` in one compiled call, without the fancy
     indexing (the estimator runs it on every frame, twice). X (N, 3), points_px and
     points_normalized (N, 2), mask (N,) bool."""
-    S, c = _masked_scatter(X, mask, 1.0)
+    S, c = masked_scatter(X, mask, 1.0)
     if c < 3:
         return True
     ev = np.linalg.eigvalsh(S)  # ascending

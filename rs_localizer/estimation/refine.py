@@ -32,6 +32,23 @@ __all__ = [
     "untruncated_variance",
 ]
 
+# The refinement kernels' packed float64 output (:func:`_lm_refine`, :func:`_posterior_step`),
+# block by block at these offsets, matrices row-major: R (3, 3), C, w, t (3,) the model;
+# the covariance (12, 12) of (delta, C, w, t); the data's information ``J^T W J`` (12, 12) and
+# gradient ``J^T W e`` (12,); the acceleration block ``J^T W D`` (12, 6). Module-level ints:
+# numba compiles them into the kernels as constants.
+OUT_R = 0
+OUT_C = 9
+OUT_W = 12
+OUT_T = 15
+OUT_COV = 18
+OUT_INFO = OUT_COV + 144
+OUT_GRAD = OUT_INFO + 144
+OUT_ACC = OUT_GRAD + 12
+#: the buffer without / with the acceleration block
+OUT_SIZE = OUT_ACC
+OUT_SIZE_ACC = OUT_ACC + 72
+
 
 def _left_jacobian(phi: np.ndarray) -> np.ndarray:
     """SO(3) left Jacobian ``J_l(phi)`` (..., 3, 3): ``d expm([phi]) / d phi`` in left form."""
@@ -104,7 +121,7 @@ def _rotation_rows(m0, m1, m2, a0, a1, a2, sa, ca, cb):
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
-def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
+def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
     """Point i's cost, residual and Jacobian rows at the pose ``(R (row-major), C, w, t)``
     given as 18 scalars. Everything is computed whether or not the point is used (no early
     exit: simpler, not slower).
@@ -187,7 +204,7 @@ def _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
 @njit(cache=True, inline=INLINE)
 def _store_rows(Jt, j0, j1, v):
     """Write a point's two weighted Jacobian rows (and residuals, row 12) from ``v`` (as
-    returned by :func:`_point_rows`) as columns j0 (even) and j1 = j0 + 1 of Jt (16, M), rows
+    returned by :func:`point_rows`) as columns j0 (even) and j1 = j0 + 1 of Jt (16, M), rows
     in parameter order (delta, C, w, t). The structural zeros (rows 4, 10 of even and 3, 9
     of odd columns) are set once by :func:`_workspace`."""
     e0, e1 = v[2], v[3]
@@ -218,7 +235,7 @@ def _store_rows(Jt, j0, j1, v):
 
 @njit(cache=True, inline=INLINE)
 def _add_point(v, m, cost, ss, n_in, Jt):
-    """Add a point from :func:`_point_rows` to the running (m, cost, ss, n_in) of
+    """Add a point from :func:`point_rows` to the running (m, cost, ss, n_in) of
     :func:`_fill_columns` and write its rows at columns 2m, 2m + 1 (overwritten by the next
     point if this one is not used)."""
     cost += v[1]
@@ -238,12 +255,12 @@ def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     n = X.shape[0]
     m, cost, ss, n_in = 0, 0.0, 0.0, 0
     for i in range(0, n - 1, 2):
-        a = _point_rows(pose, X, x, tau, i, k, cutoff, rho_cut)
-        b = _point_rows(pose, X, x, tau, i + 1, k, cutoff, rho_cut)
+        a = point_rows(pose, X, x, tau, i, k, cutoff, rho_cut)
+        b = point_rows(pose, X, x, tau, i + 1, k, cutoff, rho_cut)
         m, cost, ss, n_in = _add_point(a, m, cost, ss, n_in, Jt)
         m, cost, ss, n_in = _add_point(b, m, cost, ss, n_in, Jt)
     if n % 2 == 1:
-        a = _point_rows(pose, X, x, tau, n - 1, k, cutoff, rho_cut)
+        a = point_rows(pose, X, x, tau, n - 1, k, cutoff, rho_cut)
         m, cost, ss, n_in = _add_point(a, m, cost, ss, n_in, Jt)
     return m, cost, ss, n_in
 
@@ -385,7 +402,7 @@ def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff):
 
 
 @njit(cache=True)
-def _cholesky(A, n, L):
+def cholesky_into(A, n, L):
     """Cholesky factor of the leading n x n block of A (lower triangle read) into L[:n, :n]
     (lower triangle; the strict upper part is not written). False if A is not numerically
     positive definite."""
@@ -446,7 +463,7 @@ def _solve_symmetric(A, B, n, m, L, M):
     or pivoted LU (``np.linalg.solve``'s method) when A is not numerically positive definite.
     False (B undefined) only if A is exactly singular, where ``np.linalg.solve`` and ``inv``
     raise. L, M: (12, 12) workspace."""
-    if not _cholesky(A, n, L):
+    if not cholesky_into(A, n, L):
         for i in range(n):
             for j in range(n):
                 M[i, j] = A[i, j]
@@ -529,13 +546,13 @@ def _prior_terms(C, w, t, s, mu, Lam, scale2, H, g, add):
 
 @njit(cache=True, inline=INLINE)
 def _store_model(R, C, w, t, out):
-    """out[:18] = R (row-major), C, w, t: the model part of the refinement kernels' output."""
+    """The model part of the refinement kernels' output (:data:`OUT_R`, ..., :data:`OUT_T`)."""
     for i in range(3):
         for j in range(3):
-            out[3 * i + j] = R[i, j]
-        out[9 + i] = C[i]
-        out[12 + i] = w[i]
-        out[15 + i] = t[i]
+            out[OUT_R + 3 * i + j] = R[i, j]
+        out[OUT_C + i] = C[i]
+        out[OUT_W + i] = w[i]
+        out[OUT_T + i] = t[i]
 
 
 @njit(cache=True, inline=INLINE)
@@ -587,10 +604,11 @@ def _lm_refine(
     from the starting point's residuals), so that the cost is ``noise2`` times the negative
     log-posterior. Without it the computation is exactly the maximum-likelihood one.
 
-    Writes R (row-major), C, w, t and, if ``want_cov``, the (12, 12) covariance (row-major),
-    the data's (12, 12) ``J^T W J`` and (12,) gradient ``J^T W e`` (both without the prior)
-    into out (318,), and if ``want_acc`` (with ``want_cov``) the (12, 6) ``J^T W D`` of
-    :func:`_acceleration_block` at the result into out[318:390] (out then (390,)). Returns
+    Writes R, C, w, t and, if ``want_cov``, the (12, 12) covariance, the data's (12, 12)
+    ``J^T W J`` and (12,) gradient ``J^T W e`` (both without the prior) into out
+    (:data:`OUT_SIZE`,), and if ``want_acc`` (with ``want_cov``) the (12, 6) ``J^T W D`` of
+    :func:`_acceleration_block` at the result (out then (:data:`OUT_SIZE_ACC`,)); the layout
+    of :data:`OUT_R`. Returns
     (sigma, success, nfev); sigma NaN unless ``want_cov``.
     """
     H = np.empty((12, 12))
@@ -667,15 +685,15 @@ def _lm_refine(
             gp = np.zeros(12)
             _prior_terms(C, w, t, s, mu, Lam, 1.0, A, gp, True)
             for i in range(12):
-                out[306 + i] = g[i] - sp2 * gp[i]
+                out[OUT_GRAD + i] = g[i] - sp2 * gp[i]
                 for j in range(12):
-                    out[162 + 12 * i + j] = H[i, j] - sp2 * A[i, j]
+                    out[OUT_INFO + 12 * i + j] = H[i, j] - sp2 * A[i, j]
                     H[i, j] += (sigma2 - sp2) * A[i, j]
         else:
             for i in range(12):
-                out[306 + i] = g[i] if i < n_free else 0.0
+                out[OUT_GRAD + i] = g[i] if i < n_free else 0.0
                 for j in range(12):
-                    out[162 + 12 * i + j] = H[i, j] if i < n_free and j < n_free else 0.0
+                    out[OUT_INFO + 12 * i + j] = H[i, j] if i < n_free and j < n_free else 0.0
         for i in range(n_free):  # B = H^-1; NaN if H is exactly singular (np.linalg.inv)
             for j in range(n_free):
                 B[i, j] = 1.0 if i == j else 0.0
@@ -683,18 +701,18 @@ def _lm_refine(
         for i in range(12):
             for j in range(12):
                 if not ok:
-                    out[18 + 12 * i + j] = np.nan
+                    out[OUT_COV + 12 * i + j] = np.nan
                 elif i < n_free and j < n_free:
-                    out[18 + 12 * i + j] = sigma2 * B[i, j]
+                    out[OUT_COV + 12 * i + j] = sigma2 * B[i, j]
                 else:
-                    out[18 + 12 * i + j] = 0.0
+                    out[OUT_COV + 12 * i + j] = 0.0
         if want_acc:
             if not current:  # (the last step was rejected: rows at the result again)
                 m, _, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
             _acceleration_block(Jt, m, A)
             for i in range(12):
                 for j in range(6):
-                    out[318 + 6 * i + j] = A[i, j]
+                    out[OUT_ACC + 6 * i + j] = A[i, j]
     return sigma, success, nfev
 
 
@@ -703,8 +721,8 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     """One Gauss-Newton step of the maximum-a-posteriori cost of :func:`_lm_refine` from
     (R, C, w, t) with the data's normal equations there (``Hd`` (12, 12) ``J^T W J``, ``gd``
     (12,) ``J^T W e``) and the prior weighted by ``sigma2``; writes R, C, w, t, the posterior
-    covariance ``sigma2 (Hd + sigma2 Jz^T Lam Jz)^-1`` (Jz at the new point) into out (162,)
-    as :func:`_lm_refine` does. Returns False if the system is singular."""
+    covariance ``sigma2 (Hd + sigma2 Jz^T Lam Jz)^-1`` (Jz at the new point) into out
+    (:data:`OUT_INFO`,) as :func:`_lm_refine` does. Returns False if the system is singular."""
     H = Hd.copy()
     g = gd.copy()
     _prior_terms(C, w, t, s, mu, Lam, sigma2, H, g, True)
@@ -726,7 +744,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     _store_model(Rn, Cn, wn, tn, out)
     for i in range(12):
         for j in range(12):
-            out[18 + 12 * i + j] = sigma2 * B[i, j]
+            out[OUT_COV + 12 * i + j] = sigma2 * B[i, j]
     return True
 
 
@@ -773,6 +791,21 @@ class RefineResult:
         self.data_information = None
         self.data_gradient = None
         self.acceleration_block = None
+
+
+def _unpack(out: np.ndarray, sigma: float, success: bool, nfev: int, covariance: bool):
+    """A :class:`RefineResult` of the model and covariance in a kernel's ``out`` (views)."""
+    cov = out[OUT_COV:OUT_INFO].reshape(12, 12) if covariance else None
+    return RefineResult(
+        out[OUT_R:OUT_C].reshape(3, 3),
+        out[OUT_C:OUT_W],
+        out[OUT_W:OUT_T],
+        out[OUT_T:OUT_COV],
+        cov,
+        sigma,
+        success,
+        nfev,
+    )
 
 
 def refine_rs_pose(
@@ -835,8 +868,7 @@ def refine_rs_pose(
     f64 = np.float64
     nf = 12 if rolling_shutter else 6
     want_acc = bool(acceleration_block and covariance and rolling_shutter)
-    # R (row-major), C, w, t, covariance, J^T W J (row-major)[, J^T W D (row-major)]
-    out = np.empty(390 if want_acc else 318)
+    out = np.empty(OUT_SIZE_ACC if want_acc else OUT_SIZE)
     on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
     noise2 = -1.0 if noise is None else float(noise) ** 2
     sigma, success, nfev = _lm_refine(
@@ -861,15 +893,12 @@ def refine_rs_pose(
         noise2,
         want_acc,
     )
-    cov = out[18:162].reshape(12, 12) if covariance else None
-    res = RefineResult(
-        out[:9].reshape(3, 3), out[9:12], out[12:15], out[15:18], cov, float(sigma), success, nfev
-    )
+    res = _unpack(out, float(sigma), success, nfev, covariance)
     if covariance:
-        res.data_information = out[162:306].reshape(12, 12)
-        res.data_gradient = out[306:318]
+        res.data_information = out[OUT_INFO:OUT_GRAD].reshape(12, 12)
+        res.data_gradient = out[OUT_GRAD:OUT_ACC]
     if want_acc:
-        res.acceleration_block = out[318:390].reshape(12, 6)
+        res.acceleration_block = out[OUT_ACC:OUT_SIZE_ACC].reshape(12, 6)
     return res
 
 
@@ -909,7 +938,7 @@ def posterior_step(
     if not on or ml.data_information is None or not np.isfinite(ml.sigma):
         return None
     f64 = np.float64
-    out = np.empty(162)
+    out = np.empty(OUT_INFO)
     if not _posterior_step(
         np.ascontiguousarray(ml.R, dtype=f64),
         np.ascontiguousarray(ml.C, dtype=f64),
@@ -924,16 +953,7 @@ def posterior_step(
         out,
     ):
         return None
-    res = RefineResult(
-        out[:9].reshape(3, 3),
-        out[9:12],
-        out[12:15],
-        out[15:18],
-        out[18:162].reshape(12, 12),
-        ml.sigma,
-        ml.success,
-        ml.nfev,
-    )
+    res = _unpack(out, ml.sigma, ml.success, ml.nfev, True)
     res.data_information = ml.data_information
     res.data_gradient = ml.data_gradient
     res.acceleration_block = ml.acceleration_block

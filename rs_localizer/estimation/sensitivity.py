@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import skew_matrix
-from .refine import _point_rows
+from .refine import point_rows
 
 __all__ = ["acceleration_sensitivity", "output_jacobian"]
 
@@ -59,7 +59,7 @@ def _normal_blocks(R, C, w, t, X, x, tau, k, cutoff, want_H):
     B = np.zeros((12, 6))
     row = np.empty(12)
     for i in range(X.shape[0]):
-        v = _point_rows(pose, X, x, tau, i, k, cutoff, 0.0)
+        v = point_rows(pose, X, x, tau, i, k, cutoff, 0.0)
         if not v[0]:
             continue
         d, d02, d12, ti = v[16], v[17], v[18], v[19]
