@@ -117,7 +117,9 @@ class CameraModel:
 
     # ---------------------------------------------------------------- construction helpers
     @classmethod
-    def from_readout_time(cls, K, readout_time: float, width: int, height: int, **kw):
+    def from_readout_time(
+        cls, K: np.ndarray, readout_time: float, width: int, height: int, **kw: object
+    ) -> CameraModel:
         """Build from the time to read one whole frame (s): ``line_delay = readout_time / lines``,
         ``lines`` = height for vertical readout, width for horizontal."""
         readout = kw.get("readout", "top_to_bottom")
@@ -178,17 +180,17 @@ class CameraModel:
         return self.line_delay * self.focal
 
     # ---------------------------------------------------------------- conversions
-    def rs_coordinate_of_line(self, line):
+    def rs_coordinate_of_line(self, line: float | np.ndarray) -> float | np.ndarray:
         """Pixel coordinate along the readout axis -> RS coordinate ``r`` (normalized)."""
         a = self._axis
         sign = READOUT_DIRECTIONS[self.readout][1]
         return sign * (np.asarray(line, dtype=float) - self.K[a, 2]) / self.K[a, a]
 
-    def rs_coordinate(self, points_px) -> np.ndarray:
+    def rs_coordinate(self, points_px: np.ndarray) -> np.ndarray:
         """(N, 2) measured pixels -> (N,) RS coordinates of their capture lines (normalized)."""
         return self.rs_coordinate_of_line(np.asarray(points_px, dtype=float)[:, self._axis])
 
-    def line_time(self, line) -> np.ndarray:
+    def line_time(self, line: float | np.ndarray) -> np.ndarray:
         """Capture time (s) of a pixel line relative to the first line read out."""
         sign = READOUT_DIRECTIONS[self.readout][1]
         n = self.lines
@@ -199,7 +201,7 @@ class CameraModel:
         """Capture time of ``to_line`` minus that of ``from_line`` (s)."""
         return float(self.line_time(to_line) - self.line_time(from_line))
 
-    def undistort(self, points_px) -> np.ndarray:
+    def undistort(self, points_px: np.ndarray) -> np.ndarray:
         """(N, 2) measured pixels -> (N, 2) undistorted normalized coordinates (OpenCV)."""
         p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
         if len(p) == 0:
@@ -215,7 +217,7 @@ class CameraModel:
             return cv2.undistortPointsIter(p, self.K, self.D, None, None, crit).reshape(-1, 2)
         return cv2.undistortPoints(p, self.K, self.D, None, None, None, crit).reshape(-1, 2)
 
-    def distort(self, xn) -> np.ndarray:
+    def distort(self, xn: np.ndarray) -> np.ndarray:
         """(N, 2) undistorted normalized coordinates -> (N, 2) pixels (OpenCV projection)."""
         xn = np.ascontiguousarray(xn, dtype=np.float64)
         if len(xn) == 0:
@@ -230,7 +232,7 @@ class CameraModel:
             out, _ = cv2.projectPoints(P, z, z, self.K, self.D)
         return out.reshape(-1, 2)
 
-    def normalize(self, points_px):
+    def normalize(self, points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Everything the solvers need from measured pixels.
 
         Returns:
@@ -246,7 +248,15 @@ class CameraModel:
         r, r0e = _rs_coordinates(p, x, self.K, axis, sign, d[0], d[1], self.r0)
         return x, r, r0e
 
-    def project_rs(self, X, R, C, w=None, t=None, iterations: int = 30) -> np.ndarray:
+    def project_rs(
+        self,
+        X: np.ndarray,
+        R: np.ndarray,
+        C: np.ndarray,
+        w: np.ndarray | None = None,
+        t: np.ndarray | None = None,
+        iterations: int = 30,
+    ) -> np.ndarray:
         """Forward rolling-shutter projection of world points with a constant-velocity pose.
 
         Each point is imaged at its own capture line: ``X_cam(tau) = expm(tau [w]x) R X + C +
@@ -292,7 +302,7 @@ class CameraModel:
         uv[~ok] = np.nan
         return uv
 
-    def in_image(self, points_px, margin: float = 0.0) -> np.ndarray:
+    def in_image(self, points_px: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """(N,) bool: pixel inside ``[-margin, size - 1 + margin]``."""
         p = np.asarray(points_px, dtype=float)
         return (

@@ -147,7 +147,12 @@ def scene_path(name_or_path) -> Path:
     return p
 
 
-def _vec(x, n=3, what="vector"):
+def as_vector(x: object, n: int = 3, what: str = "vector") -> np.ndarray:
+    """``x`` (a YAML list, a tuple, an array) as a float array of shape (n,).
+
+    Raises:
+        ValueError: ``x`` is not ``n`` finite numbers (the message names it ``what``).
+    """
     a = np.asarray(x, dtype=float).ravel()
     if a.shape != (n,) or not np.isfinite(a).all():
         raise ValueError(f"{what} must be {n} finite numbers, got {x!r}")
@@ -165,13 +170,13 @@ def scene_quad_frames(data: dict) -> list:
     out = []
     for k, qd in enumerate(data["quads"]):
         name = str(qd.get("name", f"quad{k}"))
-        o = _vec(qd["origin"], what="origin")
-        u = _vec(qd["u"], what="u")
-        v = _vec(qd["v"], what="v")
+        o = as_vector(qd["origin"], what="origin")
+        u = as_vector(qd["u"], what="u")
+        v = as_vector(qd["v"], what="v")
         u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
         if abs(u @ v) > 1e-9:
             raise ValueError(f"quad {name}: u and v must be orthogonal")
-        size = _vec(qd["size"], 2, "size")
+        size = as_vector(qd["size"], 2, "size")
         if min(size) <= 0:
             raise ValueError(f"quad {name}: size must be positive")
         out.append((name, o, u, v, size))
@@ -212,7 +217,7 @@ def marker_layout(data: dict) -> list:
                     mid += 1
         else:
             qi = index(pl["quad"])
-            a, b = _vec(pl["at"], 2, "at")
+            a, b = as_vector(pl["at"], 2, "at")
             placed.append((int(pl["id"]), qi, float(a), float(b), float(pl["size"])))
     ids = [m[0] for m in placed]
     if len(set(ids)) != len(ids):
@@ -234,7 +239,7 @@ def checkerboard_layout(data: dict) -> list:
         if cb["quad"] not in names:
             raise ValueError(f"scene has no quad {cb['quad']!r}; quads: {names}")
         qi = names.index(cb["quad"])
-        a, b = _vec(cb["at"], 2, "at")
+        a, b = as_vector(cb["at"], 2, "at")
         nu, nv = (int(n) for n in cb["squares"])
         sq = float(cb["square"])
         if nu < 2 or nv < 2 or not sq > 0:

@@ -9,7 +9,7 @@ on the checkerboard photos agrees with P3P and reports a velocity consistent wit
 covariance includes the photos' correlated image error
 (``python -m rs_localizer.evaluation.still_boards``).
 
-Runs on OpenCV 4.6 (contrib) and on 4.7+ / 5.x (the compatibility layer _cv_compat).
+Runs on OpenCV 4.6 (contrib) and on 4.7+ / 5.x (the compatibility layer cv_compat).
 """
 
 from pathlib import Path
@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from rs_localizer import estimate_rs_pose
 from rs_localizer.camera import CameraModel
-from rs_localizer.frontends import _cv_compat as cvc
+from rs_localizer.frontends import cv_compat as cvc
 from rs_localizer.frontends.boards import (
     CharucoBoardModel,
     CharucoFrontend,

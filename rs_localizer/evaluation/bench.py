@@ -23,9 +23,10 @@ import time
 
 import numpy as np
 
+from ..camera import CameraModel
 from ..estimation.estimate import SOLVERS, EstimateOptions, RansacOptions, estimate_rs_pose
 from ..geometry import rotation_angle_deg
-from ..sim.synthetic import make_frame, paper_camera
+from ..sim.synthetic import SyntheticFrame, make_frame, paper_camera
 from ..solvers.registry import SOLVERS as SOLVER_TABLE
 from .threads import one_thread
 
@@ -124,9 +125,13 @@ def poselib_matched_options(opts: EstimateOptions) -> dict:
     }
 
 
-def _poselib_estimate(f, cam, threshold_px, ransac_opt=None):
-    """PoseLib ``estimate_absolute_pose`` (global shutter) on a frame: its default
-    ``RansacOptions`` with our threshold, or ``ransac_opt``. Returns (R, C, inliers)."""
+def poselib_estimate(
+    f: SyntheticFrame, cam: CameraModel, threshold_px: float, ransac_opt: dict | None = None
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """PoseLib ``estimate_absolute_pose`` (global shutter, the benchmarks' reference) on a
+    synthetic frame ``f`` (``points_px`` (N, 2), ``X`` (N, 3)): its default ``RansacOptions``
+    with our threshold (px), or ``ransac_opt``. Returns (R (3, 3) world -> camera, C (3,),
+    number of inliers)."""
     import poselib
 
     K = cam.K
@@ -141,7 +146,12 @@ def _poselib_estimate(f, cam, threshold_px, ransac_opt=None):
     return np.asarray(pose.R), np.asarray(pose.t), int(info["num_inliers"])
 
 
-def _opencv_estimate(f, cam, threshold_px):
+def opencv_estimate(
+    f: SyntheticFrame, cam: CameraModel, threshold_px: float
+) -> tuple[np.ndarray | None, np.ndarray | None, int]:
+    """``cv2.solvePnPRansac`` (P3P, global shutter, 1000 iterations) on a synthetic frame
+    ``f`` at ``threshold_px``: (R (3, 3) world -> camera, C (3,), number of inliers), or
+    ``(None, None, 0)`` when it finds no pose."""
     import cv2
 
     ok, rvec, tvec, inl = cv2.solvePnPRansac(
@@ -230,17 +240,17 @@ def bench_estimate(
     methods[OURS_GS] = (gs, lambda f: _ours(f, cam, "r6p_1lin", opts))
     methods[PL_MATCHED_GS] = (
         gs,
-        lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
+        lambda f: poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
     )
-    methods[PL_DEFAULT_GS] = (gs, lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px))
+    methods[PL_DEFAULT_GS] = (gs, lambda f: poselib_estimate(f, cam, opts.ransac.threshold_px))
     if baselines:
         methods["PoseLib matched, RS frames"] = (
             rs,
-            lambda f: _poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
+            lambda f: poselib_estimate(f, cam, opts.ransac.threshold_px, matched),
         )
         methods["OpenCV solvePnPRansac P3P, RS frames"] = (
             rs,
-            lambda f: _opencv_estimate(f, cam, opts.ransac.threshold_px),
+            lambda f: opencv_estimate(f, cam, opts.ransac.threshold_px),
         )
     names = list(methods)
     for name in names:  # warm-up (numba compilation, caches)

@@ -87,6 +87,20 @@ def _image_setup(bag: Path, info: dict):
     return image, params
 
 
+def _compile_first(solvers, out) -> None:
+    """Compile (or load from the cache) every kernel the demo's nodes will use, here, once,
+    with the progress printed: on a fresh install the nodes would otherwise each compile them
+    in their warm-up, unseen (minutes on a small machine)."""
+    from ..estimation.warmup import compile_kernels
+    from ..jit_cache import cache_state
+
+    st = cache_state()
+    print(f"numba kernels ({st['dir']}): compiling or loading ...", file=out, flush=True)
+    res = compile_kernels(solvers, log=lambda m: print(f"  {m}", file=out, flush=True))
+    done = f"compiled {len(res['kernels'])} kernels" if res["kernels"] else "all from the cache"
+    print(f"numba kernels ready in {res['seconds']:.1f} s ({done})", file=out, flush=True)
+
+
 def run_bag_demo(
     bag,
     params_files,
@@ -166,7 +180,7 @@ def run_bag_demo(
     try:
         t0 = time.monotonic()
         for ns, n in nodes.items():
-            if not n.wait_ready(120):
+            if not n.wait_ready(300):
                 print(f"node {ns} did not start:\n{n.log}", file=sys.stderr)
                 return 1
         print(
@@ -321,6 +335,9 @@ def run_demo(
             print("config/rs_localizer_images.yaml not found", file=sys.stderr)
             return 2
         parts.append((ibag, [params, iparams], True))
+    _compile_first(
+        [_solver_from_yaml(params), compare] if compare else [_solver_from_yaml(params)], out
+    )
     rc = 0
     for k, (b, files, img) in enumerate(parts):
         if k:

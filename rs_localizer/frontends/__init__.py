@@ -5,6 +5,9 @@ Every front end has ``process(image, camera) -> (points_px (N, 2), points3d (N, 
 :func:`rs_localizer.estimate_rs_pose`. :func:`make_frontend` builds one by name.
 """
 
+import os
+from typing import Any
+
 from .aruco import ArucoFrontend, to_gray
 from .features import FeatureFrontend, FeatureMap, feature_map_from_views
 
@@ -21,7 +24,7 @@ __all__ = [
 FRONTENDS = ("aruco", "features", "board")
 
 
-def make_frontend(kind: str, map_path, **kw):
+def make_frontend(kind: str, map_path: str | os.PathLike, **kw: Any) -> Any:
     """Front end by name: ``aruco`` (``map_path``: marker map YAML, scene YAML or built-in scene
     name: :func:`rs_localizer.maps.load_marker_map`) or ``features`` (``map_path``: a feature map
     ``.npz``, :meth:`FeatureMap.save`) or ``board`` (``map_path``: a board YAML,

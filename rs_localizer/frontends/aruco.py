@@ -9,12 +9,13 @@ map are ignored.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from . import _cv_compat
+from . import cv_compat
 
 __all__ = ["ArucoFrontend", "to_gray"]
 
@@ -71,7 +72,7 @@ class ArucoFrontend:
         # relativeCornerRefinmentWinSize (sic, OpenCV >= 4.9, skipped before): window up to one
         # marker cell (default 0.3 cell: ~0.27 px median error on rendered 30-40 px markers;
         # 1.0: ~0.22 px)
-        params = _cv_compat.detector_parameters(
+        params = cv_compat.detector_parameters(
             cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
             cornerRefinementWinSize=int(subpix_window),
             cornerRefinementMaxIterations=50,
@@ -80,16 +81,16 @@ class ArucoFrontend:
             minMarkerPerimeterRate=float(min_marker_perimeter),
         )
         self.params = params
-        self.detector = _cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
+        self.detector = cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
         self.last_rejected = 0
         self.last_scores = None  # no match scores (FeatureFrontend has them)
 
     @classmethod
-    def from_scene(cls, scene, **kw) -> ArucoFrontend:
+    def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:
         return cls(scene.marker_corners(), scene.dictionary, **kw)
 
     @classmethod
-    def from_file(cls, path, **kw) -> ArucoFrontend:
+    def from_file(cls, path: str | Path, **kw: Any) -> ArucoFrontend:
         """From a marker map YAML (:func:`rs_localizer.maps.load_marker_map`) or a scene
         YAML / built-in scene name."""
         from ..maps import load_marker_map
@@ -97,12 +98,14 @@ class ArucoFrontend:
         dictionary, corners = load_marker_map(Path(str(path)))
         return cls(corners, dictionary, **kw)
 
-    def detect(self, image: np.ndarray, encoding: str = "rgb8"):
+    def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
         corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
         return corners, ids
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
+    def process(
+        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Correspondences of one image: ``(points_px (N, 2), points3d (N, 3), ids (N,))``
         with ``ids = 4 * marker_id + corner``. ``camera`` is not needed (pixels stay
         distorted, as the estimator expects) but accepted for a uniform front-end API."""

@@ -19,7 +19,7 @@ points3d (N, 3), ids (N,) int64)`` like :class:`~rs_localizer.frontends.aruco.Ar
 pixels as measured (distorted), map points in metres, ready for
 :func:`rs_localizer.estimate_rs_pose`. :func:`load_board` reads a board from YAML or a
 dict, :func:`make_board_frontend` builds the matching front end. Detection goes through
-:mod:`._cv_compat`, so OpenCV 4.6 (Debian 12, Ubuntu 24.04) works as well as 4.7+ / 5.x.
+:mod:`.cv_compat`, so OpenCV 4.6 (Debian 12, Ubuntu 24.04) works as well as 4.7+ / 5.x.
 
 **Board frame** (all three kinds, as OpenCV >= 4.6 boards and the AprilTag library's tag
 frame): seen from the printed side, x to the right, y down, z = x cross y into the board. The
@@ -74,13 +74,13 @@ YAML (all lengths in metres; ``pose`` and ``id_offset`` optional for every type)
 from __future__ import annotations
 
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from . import _cv_compat as cvc
+from . import cv_compat as cvc
 from .aruco import to_gray
 
 __all__ = [
@@ -105,7 +105,7 @@ _EMPTY = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
 
 
 # ------------------------------------------------------------------------------- geometry
-def pose_from_spec(spec) -> tuple[np.ndarray, np.ndarray]:
+def pose_from_spec(spec: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """Board (or tag) frame -> map frame from a pose spec.
 
     Args:
@@ -153,7 +153,7 @@ def pose_from_spec(spec) -> tuple[np.ndarray, np.ndarray]:
     return R, t
 
 
-def load_dictionary(spec, base_dir=None):
+def load_dictionary(spec: str | dict, base_dir: str | Path | None = None) -> Any:
     """ArUco/AprilTag dictionary from a spec.
 
     Args:
@@ -416,10 +416,10 @@ class TagBoard(_BoardBase):
         rows: int,
         tag_size: float,
         tag_spacing: float,
-        dictionary="DICT_APRILTAG_36h11",
+        dictionary: str | dict = "DICT_APRILTAG_36h11",
         first_id: int = 0,
-        ids=None,
-        **kw,
+        ids: np.ndarray | None = None,
+        **kw: Any,
     ) -> TagBoard:
         """``cols`` x ``rows`` tags, row-major from the top-left; tag ``(c, r)`` has its
         top-left corner at ``(c, r, 0) * (tag_size + tag_spacing)``. ``ids`` (cols*rows,)
@@ -446,7 +446,11 @@ class TagBoard(_BoardBase):
 
     @classmethod
     def from_tags(
-        cls, tags, dictionary="DICT_APRILTAG_36h11", tag_size: float | None = None, **kw
+        cls,
+        tags: list[dict],
+        dictionary: str | dict = "DICT_APRILTAG_36h11",
+        tag_size: float | None = None,
+        **kw: Any,
     ) -> TagBoard:
         """Tags placed one by one. ``tags``: list of dicts with ``id`` and either ``corners``
         (4, 3) or ``pose`` (tag centre frame -> board frame, :func:`pose_from_spec`) plus
@@ -479,7 +483,9 @@ class TagBoard(_BoardBase):
         return cls(corners, dictionary, **kw)
 
 
-def load_board(source, base_dir=None):
+def load_board(
+    source: str | Path | dict, base_dir: str | Path | None = None
+) -> CheckerboardModel | CharucoBoardModel | TagBoard:
     """Board model from a YAML file or a dict (format in the module docstring).
 
     Args:
@@ -545,7 +551,11 @@ def load_board(source, base_dir=None):
     raise ValueError(f"unknown board type {kind!r}; expected one of {BOARD_TYPES}")
 
 
-def board_image(board, pixels_per_metre: float, margin_px: int = 0):
+def board_image(
+    board: CheckerboardModel | CharucoBoardModel | TagBoard,
+    pixels_per_metre: float,
+    margin_px: int = 0,
+) -> np.ndarray:
     """Printable image of a planar board (also the texture of the synthetic tests).
 
     Args:
@@ -692,7 +702,7 @@ class CheckerboardFrontend(_BoardFrontend):
         crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
         return cv2.cornerSubPix(gray, c.astype(np.float32), (w, w), (-1, -1), crit)
 
-    def detect(self, image: np.ndarray, encoding: str = "rgb8"):
+    def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """``(corners (cols*rows, 2) pixels, local ids (cols*rows,))`` in the board's order
         (id ``r * cols + c``, no offset), or empty arrays when the board is not found or its
         orientation cannot be told (no contrast between the two square colours)."""
@@ -760,7 +770,7 @@ class CharucoFrontend(_BoardFrontend):
         subpix_window: half size (px) of the marker corner refinement window.
         corner_window: largest half size (px) of the final chessboard-corner
             ``cornerSubPix`` that removes the half-pixel bias OpenCV had from 4.5.4 until
-            the fix of opencv/opencv#25539 (4.6 has it, 5.0 not; see :mod:`._cv_compat`); 0
+            the fix of opencv/opencv#25539 (4.6 has it, 5.0 not; see :mod:`.cv_compat`); 0
             keeps OpenCV's corners.
 
     ``last_markers`` holds the marker ids seen in the last image.
@@ -789,7 +799,9 @@ class CharucoFrontend(_BoardFrontend):
         self.use_camera = bool(use_camera)
         self.last_markers = np.zeros(0, np.int64)
 
-    def detect(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
+    def detect(
+        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(corners (N, 2) pixels, charuco ids (N,) without offset)``."""
         K = D = None
         if camera is not None and self.use_camera and camera.distortion_model != "equidistant":
@@ -850,7 +862,7 @@ class TagFrontend(_BoardFrontend):
         self.detector = cvc.MarkerDetector(board.dictionary, params)
         self.last_unknown = 0
 
-    def detect(self, image: np.ndarray, encoding: str = "rgb8"):
+    def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """All tags found: ``(corners (M, 4, 2) pixels, tag ids (M,))``."""
         corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
         return corners, ids
@@ -871,7 +883,9 @@ _FRONTENDS = {
 }
 
 
-def make_board_frontend(board, **kw):
+def make_board_frontend(
+    board: CheckerboardModel | CharucoBoardModel | TagBoard | str | Path | dict, **kw: Any
+) -> CheckerboardFrontend | CharucoFrontend | TagFrontend:
     """Front end for a board model, a board YAML path or a board dict (:func:`load_board`);
     ``kw`` go to the front end's constructor."""
     if not isinstance(board, _BoardBase):

@@ -15,8 +15,10 @@ The map is an ``.npz`` file (:meth:`FeatureMap.save` / :meth:`FeatureMap.load`).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -27,7 +29,7 @@ from .aruco import to_gray
 __all__ = ["FeatureFrontend", "FeatureMap", "feature_map_from_views", "make_detector"]
 
 
-def make_detector(kind: str = "orb", n_features: int = 2000):
+def make_detector(kind: str = "orb", n_features: int = 2000) -> Any:
     """OpenCV feature detector/descriptor: ``orb`` (binary, Hamming) or ``sift`` (float, L2)."""
     kind = kind.lower()
     if kind == "orb":
@@ -61,7 +63,7 @@ class FeatureMap:
     def num_landmarks(self) -> int:
         return int(len(np.unique(self.landmark_ids)))
 
-    def save(self, path) -> Path:
+    def save(self, path: str | Path) -> Path:
         path = Path(path)
         np.savez_compressed(
             path,
@@ -73,7 +75,7 @@ class FeatureMap:
         return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
 
     @classmethod
-    def load(cls, path) -> FeatureMap:
+    def load(cls, path: str | Path) -> FeatureMap:
         """Raises ValueError for a file that is not a feature map."""
         with np.load(Path(path), allow_pickle=False) as z:
             missing = {"points", "descriptors", "landmark_ids", "kind"} - set(z.files)
@@ -106,7 +108,7 @@ def _merge_landmarks(points: np.ndarray, radius: float) -> np.ndarray:
 
 
 def feature_map_from_views(
-    views,
+    views: Iterable[tuple[np.ndarray, Callable]],
     kind: str = "orb",
     n_features: int = 2000,
     merge_radius: float = 0.004,
@@ -205,10 +207,12 @@ class FeatureFrontend:
         self.last_scores = np.zeros(0)
 
     @classmethod
-    def from_file(cls, path, **kw) -> FeatureFrontend:
+    def from_file(cls, path: str | Path, **kw: Any) -> FeatureFrontend:
         return cls(FeatureMap.load(path), **kw)
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
+    def process(
+        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Correspondences of one image (pixels stay distorted; ``camera`` is unused)."""
         empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
         self.last_scores = np.zeros(0)

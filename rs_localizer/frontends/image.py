@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 __all__ = [
@@ -27,7 +29,7 @@ ENCODINGS = {
 }
 
 
-def image_from_msg(msg):
+def image_from_msg(msg: Any) -> tuple[np.ndarray, str]:
     """Decode an 8-bit ``sensor_msgs/Image``. Returns ``(array, encoding)``: (H, W) for mono8,
     (H, W, C) otherwise, encoding lower-cased (``rgb8``, ``bgr8``...: pass it on to the front
     end's ``process(..., encoding=...)``). Honours ``step`` (row padding).
@@ -85,7 +87,7 @@ def _payload_kind(buf: np.ndarray) -> str | None:
     return None
 
 
-def image_from_compressed(msg):
+def image_from_compressed(msg: Any) -> tuple[np.ndarray, str]:
     """Decode a ``sensor_msgs/CompressedImage`` (JPEG or PNG, 8-bit) with ``cv2.imdecode``.
 
     ``msg.format`` is ``jpeg``/``png`` or image_transport's ``"rgb8; jpeg compressed bgr8"``

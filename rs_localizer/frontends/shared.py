@@ -16,7 +16,11 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 __all__ = ["SHARED_MAPS", "MapCache"]
 
@@ -48,7 +52,7 @@ class MapCache:
             return
         self._maps.pop(key, None)
 
-    def release(self, owner):
+    def release(self, owner: object) -> None:
         """Drop every hold of ``owner``; maps nobody else holds leave the cache."""
         with self._lock:
             for key in self._holds.pop(id(owner), {}).values():
@@ -63,7 +67,14 @@ class MapCache:
             return (kind, str(path))
         return (kind, str(p.resolve()), st.st_mtime_ns, st.st_size)
 
-    def get(self, kind: str, path, load, owner=None, slot=None):
+    def get(
+        self,
+        kind: str,
+        path: str | os.PathLike,
+        load: Callable[[str], Any],
+        owner: object = None,
+        slot: str | None = None,
+    ) -> Any:
         """The map of ``path`` for ``kind``, calling ``load(path)`` only when no loaded copy
         is cached (exceptions of ``load`` propagate and nothing is cached); ``owner`` holds it
         in ``slot`` (default: ``kind``)."""
@@ -79,7 +90,9 @@ class MapCache:
             self._hold(owner, slot or kind, key)
             return value
 
-    def frontend(self, kind: str, map_path, owner=None, **kw):
+    def frontend(
+        self, kind: str, map_path: str | os.PathLike, owner: object = None, **kw: Any
+    ) -> Any:
         """A new front end (as :func:`rs_localizer.frontends.make_frontend`) around the shared
         map of ``map_path``.
 
@@ -110,7 +123,9 @@ class MapCache:
 
         raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")
 
-    def landmarks(self, path, owner=None):
+    def landmarks(
+        self, path: str | os.PathLike, owner: object = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """``(ids sorted (M,), points (M, 3))`` of a landmark CSV
         (:func:`rs_localizer.maps.load_landmarks_csv`), shared.
 

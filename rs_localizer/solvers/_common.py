@@ -123,7 +123,14 @@ class RSBatch:
         )
 
 
-def check_inputs(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str = "solver"):
+def check_inputs(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    min_points: int = 6,
+    name: str = "solver",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Validate and convert solver inputs.
 
     Args:
@@ -156,7 +163,14 @@ def check_inputs(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str =
     return x, X, r, r0
 
 
-def check_batch(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str = "solver"):
+def check_batch(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    min_points: int = 6,
+    name: str = "solver",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Batched version of :func:`check_inputs`: x (K, N, 2), X (K, N, 3), r (K, N) or None.
 
     Non-finite values are allowed here (those problems come back ``valid = False``); shapes and
@@ -176,7 +190,16 @@ def check_batch(x, X, r=None, r0: float = 0.0, min_points: int = 6, name: str = 
     return x, X, r, float(r0)
 
 
-def algebraic_error(x, X, r, r0, v, C, w, t) -> float:
+def algebraic_error(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    r0: float,
+    v: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+) -> float:
     """RMS algebraic residual of eq. 5 (first two rows of ``[x_hat]x p``) for one solution."""
     tau = np.asarray(r) - r0
     P = np.asarray(X) @ (np.eye(3) + skew(v)).T

@@ -13,6 +13,8 @@ least-squares (square for minimal samples, overdetermined otherwise) and reports
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numba import njit
 
@@ -165,8 +167,19 @@ def rows_E(x, i, E):
 
 
 def run_single(
-    kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init, with_R_rs=False
-):
+    kernel: Callable,
+    name: str,
+    n_params: int,
+    min_points: int,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None,
+    r0: float,
+    iterations: int,
+    tol: float,
+    v_init: np.ndarray | None,
+    with_R_rs: bool = False,
+) -> RSSolution:
     """Validate one problem, run ``kernel`` on it as a batch of one, build an RSSolution.
 
     Raises:
@@ -203,7 +216,18 @@ def run_single(
 
 
 def run_batch(
-    kernel, name, n_params, min_points, x, X, r, r0, iterations, tol, v_init, with_R_rs=False
+    kernel: Callable,
+    name: str,
+    n_params: int,
+    min_points: int,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None,
+    r0: float,
+    iterations: int,
+    tol: float,
+    v_init: np.ndarray | None,
+    with_R_rs: bool = False,
 ) -> RSBatch:
     """Batched counterpart of :func:`run_single`: x (K, N, 2), X (K, N, 3), r (K, N)."""
     x, X, r, r0 = check_batch(x, X, r, r0, min_points, name)
@@ -234,7 +258,9 @@ def run_batch(
     )
 
 
-def alternating_solver(kernel, name: str, label: str, section: str):
+def alternating_solver(
+    kernel: Callable, name: str, label: str, section: str
+) -> tuple[Callable[..., RSSolution], Callable[..., RSBatch]]:
     """The public pair ``(solve, solve_batch)`` of an alternating solver (paper sec. 3.1/3.2):
     R6P_{v,C}^{w,t}, R6P_{v,C,t}^{w} and R6P_{v,C,t}^{w,t} differ only in the flags their
     ``kernel`` passes to :func:`alternate` (each paper solver's module defines its kernel and

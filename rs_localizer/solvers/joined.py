@@ -11,14 +11,20 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import rs_project_linear
-from ._common import DegenerateInputError, check_inputs
+from ._common import DegenerateInputError, RSSolution, check_inputs
 from .r6p_1lin import r6p_1lin
 from .r6p_vCt_w import r6p_vCt_w
 
 __all__ = ["r6p_joined", "rs_reprojection_rmse"]
 
 
-def rs_reprojection_rmse(sol, x, X, r0=0.0, readout=None) -> float:
+def rs_reprojection_rmse(
+    sol: RSSolution,
+    x: np.ndarray,
+    X: np.ndarray,
+    r0: float = 0.0,
+    readout: np.ndarray | None = None,
+) -> float:
     """RMS reprojection error (normalized units) of a solution under eq. 5's closed-form
     projection (:func:`rs_localizer.geometry.rs_project_linear` with ``R = I + [v]x``)."""
     xp, _ = rs_project_linear(X, sol.R_linear, sol.C, sol.w, sol.t, r0, readout)
@@ -26,7 +32,14 @@ def rs_reprojection_rmse(sol, x, X, r0=0.0, readout=None) -> float:
     return float(np.sqrt(np.mean(e))) if np.isfinite(e).all() else float("inf")
 
 
-def r6p_joined(x, X, r=None, r0: float = 0.0, iterations: int = 5, tol: float = 1e-12):
+def r6p_joined(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    iterations: int = 5,
+    tol: float = 1e-12,
+) -> RSSolution:
     """Joined solver: :func:`r6p_vCt_w` and :func:`r6p_1lin`, the lower reprojection error wins.
 
     Args:

@@ -53,7 +53,7 @@ _IDS = {
 }
 
 
-def kernel_ids(name: str):
+def kernel_ids(name: str) -> tuple[tuple[int, int, int], ...] | None:
     """``((id, n_params, min_points), ...)`` of the batched kernels of solver ``name`` (kernel
     id for :func:`run_kernel`, parameters it writes, fewest points it accepts) in the order of its
     registry entry's ``batch`` tuple (two for the joined solver), or ``None`` if the solver has

@@ -59,7 +59,7 @@ def _backend(backend):
     return b
 
 
-def p3p(x, X, backend: str | None = None) -> list[P3PSolution]:
+def p3p(x: np.ndarray, X: np.ndarray, backend: str | None = None) -> list[P3PSolution]:
     """All (up to 4) global-shutter poses from 3 correspondences (P3P).
 
     Args:
@@ -90,7 +90,7 @@ def p3p(x, X, backend: str | None = None) -> list[P3PSolution]:
     return out
 
 
-def p3p_opencv(x, X) -> list[P3PSolution]:
+def p3p_opencv(x: np.ndarray, X: np.ndarray) -> list[P3PSolution]:
     """:func:`p3p` through OpenCV's ``cv2.solveP3P`` (SOLVEPNP_P3P) with K = I."""
     import cv2
 
@@ -108,7 +108,9 @@ def p3p_opencv(x, X) -> list[P3PSolution]:
     return out
 
 
-def p3p_batch(bearings, X, backend: str | None = None):
+def p3p_batch(
+    bearings: np.ndarray, X: np.ndarray, backend: str | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """P3P on K triplets at once (RANSAC): bearings (K, 3, 3) unit rays, X (K, 3, 3).
 
     Args:

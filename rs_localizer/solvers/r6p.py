@@ -1126,7 +1126,9 @@ _DEGENERATE = {
 }
 
 
-def r6p(x, X, r=None, r0: float = 0.0) -> list[RSSolution]:
+def r6p(
+    x: np.ndarray, X: np.ndarray, r: np.ndarray | None = None, r0: float = 0.0
+) -> list[RSSolution]:
     """All real solutions of the minimal rolling-shutter absolute pose problem R6P (eq. 5).
 
     Solves ``lambda_i [x_i; y_i; 1] = (I + (r_i - r0)[w]x)(I + [v]x) X_i + C + (r_i - r0) t``

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._common import RSBatch, RSSolution
 from ._linear import PATIENCE, cross_into, eq5_error, lstsq, rows_E, run_batch, run_single
 
 __all__ = ["r6p_1lin", "r6p_1lin_batch"]
@@ -96,7 +97,15 @@ def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     _solve(x, X, r, r0, iterations, tol, v_init, _NO_P, _NO_Q, False, out, ok, its, err)
 
 
-def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, tol: float = 1e-12):
+def r6p_1lin(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    iterations: int = 5,
+    v_init: np.ndarray | None = None,
+    tol: float = 1e-12,
+) -> RSSolution:
     """R6P_{v,C,w,t}^{[v]x} (paper sec. 3.3): linear iterative RS absolute pose.
 
     Args:
@@ -125,15 +134,15 @@ def r6p_1lin(x, X, r=None, r0: float = 0.0, iterations: int = 5, v_init=None, to
 
 
 def r6p_1lin_batch(
-    x,
-    X,
-    r=None,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
     r0: float = 0.0,
     iterations: int = 5,
-    v_init=None,
+    v_init: np.ndarray | None = None,
     tol: float = 1e-12,
-    prior_rows=None,
-):
+    prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RSBatch:
     """Batched :func:`r6p_1lin` for K problems (RANSAC hypotheses).
 
     Args:

@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._common import RSBatch, RSSolution
 from ._linear import cross_into, lstsq, rows_E, run_batch, run_single
 
 __all__ = ["r9p", "r9p_batch"]
@@ -149,7 +150,13 @@ def _solve(x, X, r, r0, gauge_fix, out, ok, its, err):
         ok[k] = True
 
 
-def r9p(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
+def r9p(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    gauge_fix: bool = True,
+) -> RSSolution:
     """R9P (paper sec. 3.4, eq. 8): linear, non-iterative, 9 or more correspondences.
 
     Args:
@@ -181,7 +188,13 @@ def r9p(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
     )
 
 
-def r9p_batch(x, X, r=None, r0: float = 0.0, gauge_fix: bool = True):
+def r9p_batch(
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None = None,
+    r0: float = 0.0,
+    gauge_fix: bool = True,
+) -> RSBatch:
     """Batched :func:`r9p`: x (K, N, 2), X (K, N, 3), r (K, N) -> :class:`RSBatch` with
     ``R_rs`` (K, 3, 3); invalid problems flagged in ``valid``. Raises ValueError on bad shapes."""
     return run_batch(

@@ -552,7 +552,7 @@ def exp7_estimator(
     """
     from ...estimation.estimate import estimate_rs_pose
     from ...sim.synthetic import paper_camera
-    from ..bench import _opencv_estimate, _poselib_estimate, protocol_options
+    from ..bench import opencv_estimate, poselib_estimate, protocol_options
 
     cam = paper_camera()
     opts = protocol_options()
@@ -572,10 +572,10 @@ def exp7_estimator(
                 for m in methods:
                     t0 = time.perf_counter()
                     if m == "poselib":
-                        R, C, n = _poselib_estimate(f, cam, opts.ransac.threshold_px)
+                        R, C, n = poselib_estimate(f, cam, opts.ransac.threshold_px)
                         w = t = np.zeros(3)
                     elif m == "opencv":
-                        R, C, n = _opencv_estimate(f, cam, opts.ransac.threshold_px)
+                        R, C, n = opencv_estimate(f, cam, opts.ransac.threshold_px)
                         w = t = np.zeros(3)
                     else:
                         o = (

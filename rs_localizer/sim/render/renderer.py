@@ -146,8 +146,8 @@ def _pyramid(tex: np.ndarray):
 
 def _pack(scene: Scene) -> _Packed:
     """Flatten a scene into numba-friendly arrays (cached on the scene)."""
-    if scene._packed is not None:
-        return scene._packed
+    if scene.render_cache is not None:
+        return scene.render_cache
     tex_ids = {}
     textures = []
 
@@ -246,7 +246,7 @@ def _pack(scene: Scene) -> _Packed:
         np.array(tnl, np.int64),
         np.asarray(scene.background, float),
     )
-    scene._packed = packed
+    scene.render_cache = packed
     return packed
 
 

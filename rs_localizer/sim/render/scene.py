@@ -28,10 +28,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ...frontends._cv_compat import marker_image
+from ...frontends.cv_compat import marker_image
 from ...maps import (
     SCENE_DIR,
-    _vec,
+    as_vector,
     checkerboard_corners,
     checkerboard_layout,
     load_marker_map,
@@ -124,7 +124,8 @@ class Scene:
     )
     background: tuple = (30, 30, 35)
     source: str | None = None  # YAML path it was loaded from
-    _packed: object = field(default=None, repr=False, compare=False)
+    #: the renderer's packed arrays of this scene, filled on its first render
+    render_cache: object = field(default=None, repr=False, compare=False)
     _checker_corners: tuple = field(default=None, repr=False, compare=False)
 
     def quad_index(self, name: str) -> int:
@@ -321,8 +322,8 @@ def load_scene(name_or_path) -> Scene:
     )
     for k, dd in enumerate(data.get("decals", []) or []):
         qi = scene.quad_index(dd["quad"])
-        a0, b0 = _vec(dd["at"], 2, "at")
-        w, h = _vec(dd["size"], 2, "size")
+        a0, b0 = as_vector(dd["at"], 2, "at")
+        w, h = as_vector(dd["size"], 2, "size")
         tex = _make_texture(dd["texture"], (w, h), base, 100 + k)
         scene.decals.append(Decal(qi, (a0, b0, a0 + w, b0 + h), tex))
     _add_markers(scene, data.get("markers") or {}, marker_layout(data))

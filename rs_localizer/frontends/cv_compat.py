@@ -32,6 +32,8 @@ board image, x to the right, y down, z into the board); checked in ``test/test_b
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 
@@ -70,7 +72,7 @@ def _require_aruco():
         )
 
 
-def get_dictionary(name: str):
+def get_dictionary(name: str) -> Any:
     """Predefined dictionary by name (``DICT_4X4_50`` ... ``DICT_APRILTAG_36h11``).
 
     Raises:
@@ -82,7 +84,7 @@ def get_dictionary(name: str):
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
 
 
-def custom_dictionary(bits, max_correction_bits: int = 0):
+def custom_dictionary(bits: np.ndarray, max_correction_bits: int = 0) -> Any:
     """Dictionary from marker bit patterns.
 
     Args:
@@ -112,7 +114,7 @@ def custom_dictionary(bits, max_correction_bits: int = 0):
     return d
 
 
-def detector_parameters(**overrides):
+def detector_parameters(**overrides: Any) -> Any:
     """``cv2.aruco.DetectorParameters`` with OpenCV defaults, then ``overrides`` set by
     attribute name. Names this OpenCV lacks are skipped (e.g.
     ``relativeCornerRefinmentWinSize`` before 4.9)."""
@@ -137,7 +139,7 @@ class MarkerDetector:
         self.params = params if params is not None else detector_parameters()
         self._det = cv2.aruco.ArucoDetector(dictionary, self.params) if NEW_ARUCO_API else None
 
-    def detect(self, gray: np.ndarray):
+    def detect(self, gray: np.ndarray) -> tuple[Any, Any]:
         if self._det is not None:
             corners, ids, rejected = self._det.detectMarkers(gray)
         else:
@@ -154,7 +156,14 @@ class MarkerDetector:
         )
 
 
-def grid_board(cols: int, rows: int, marker_length: float, separation: float, dictionary, ids=None):
+def grid_board(
+    cols: int,
+    rows: int,
+    marker_length: float,
+    separation: float,
+    dictionary: Any,
+    ids: np.ndarray | None = None,
+) -> Any:
     """``cv2.aruco.GridBoard``: ``cols`` x ``rows`` markers of side ``marker_length`` with
     ``separation`` between them; ``ids`` (cols*rows,) row-major, default ``0..``."""
     _require_aruco()
@@ -180,10 +189,10 @@ def charuco_board(
     rows: int,
     square_length: float,
     marker_length: float,
-    dictionary,
-    ids=None,
+    dictionary: Any,
+    ids: np.ndarray | None = None,
     legacy_pattern: bool = False,
-):
+) -> Any:
     """``cv2.aruco.CharucoBoard`` of ``cols`` x ``rows`` squares.
 
     Raises:
@@ -210,7 +219,7 @@ def charuco_board(
     return b
 
 
-def board(obj_points, dictionary, ids):
+def board(obj_points: list[np.ndarray], dictionary: Any, ids: np.ndarray) -> Any:
     """``cv2.aruco.Board`` from per-marker (4, 3) corners (float32) and ids."""
     _require_aruco()
     pts = [np.asarray(p, dtype=np.float32).reshape(4, 3) for p in obj_points]
@@ -220,19 +229,19 @@ def board(obj_points, dictionary, ids):
     return cv2.aruco.Board_create(pts, dictionary, ids)
 
 
-def charuco_chessboard_corners(b) -> np.ndarray:
+def charuco_chessboard_corners(b: Any) -> np.ndarray:
     """(K, 3) chessboard corners of a ChArUco board in its frame (charuco id = row index)."""
     c = b.getChessboardCorners() if hasattr(b, "getChessboardCorners") else b.chessboardCorners
     return np.asarray(c, dtype=np.float64).reshape(-1, 3)
 
 
-def board_ids(b) -> np.ndarray:
+def board_ids(b: Any) -> np.ndarray:
     """(M,) marker ids of a board."""
     ids = b.getIds() if hasattr(b, "getIds") else b.ids
     return np.asarray(ids, dtype=np.int64).ravel()
 
 
-def board_object_points(b) -> np.ndarray:
+def board_object_points(b: Any) -> np.ndarray:
     """(M, 4, 3) marker corners of a board in its frame."""
     op = b.getObjPoints() if hasattr(b, "getObjPoints") else b.objPoints
     return np.asarray(op, dtype=np.float64).reshape(-1, 4, 3)
@@ -295,7 +304,9 @@ class CharucoCornerDetector:
             self._det[key] = det
         return det
 
-    def detect(self, gray: np.ndarray, K=None, D=None):
+    def detect(
+        self, gray: np.ndarray, K: np.ndarray | None = None, D: np.ndarray | None = None
+    ) -> tuple[Any, Any]:
         empty2 = np.zeros((0, 2))
         if NEW_ARUCO_API:
             cc, cids, mc, mids = self._detector(K, D).detectBoard(gray)
@@ -354,7 +365,7 @@ def _resubpix(gray, corners, marker_corners, max_window: int) -> np.ndarray:
     return out
 
 
-def board_image(b, size, margin: int = 0, border_bits: int = 1) -> np.ndarray:
+def board_image(b: Any, size: tuple[int, int], margin: int = 0, border_bits: int = 1) -> np.ndarray:
     """(H, W) uint8 image of a board (``size`` = (W, H) pixels, ``margin`` white pixels)."""
     size = (int(size[0]), int(size[1]))
     if hasattr(b, "generateImage"):
@@ -362,7 +373,7 @@ def board_image(b, size, margin: int = 0, border_bits: int = 1) -> np.ndarray:
     return b.draw(size, marginSize=int(margin), borderBits=int(border_bits))
 
 
-def marker_image(dictionary, marker_id: int, side: int, border_bits: int = 1) -> np.ndarray:
+def marker_image(dictionary: Any, marker_id: int, side: int, border_bits: int = 1) -> np.ndarray:
     """(side, side) uint8 image of one marker (black border included, no quiet zone)."""
     if hasattr(cv2.aruco, "generateImageMarker"):
         return cv2.aruco.generateImageMarker(
