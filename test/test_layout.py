@@ -131,3 +131,56 @@ def test_public_api():
     assert rs_localizer.estimate_rs_pose is estimate_rs_pose
     assert rs_localizer.EstimateOptions is EstimateOptions
     assert rs_localizer.CameraModel is CameraModel
+
+
+#: where every public function and method carries type annotations: the solvers, the
+#: estimator, the front ends, the ROS message conversions and the camera model
+ANNOTATED = [
+    *sorted((PKG / "solvers").glob("*.py")),
+    *sorted((PKG / "estimation").glob("*.py")),
+    *sorted((PKG / "frontends").glob("*.py")),
+    PKG / "ros" / "conversions.py",
+    PKG / "camera.py",
+]
+
+
+def _public_functions(tree):
+    """(qualified name, node) of the public functions and methods of public classes at module
+    level, numba kernels excluded (numba does not read annotations)."""
+    for node in tree.body:
+        if isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+            for fn in _public_functions(node):
+                yield f"{node.name}.{fn[0]}", fn[1]
+        elif (
+            isinstance(node, ast.FunctionDef)
+            and (not node.name.startswith("_") or node.name == "__init__")
+            and not any("jit" in ast.unparse(d) for d in node.decorator_list)
+        ):
+            yield node.name, node
+
+
+def test_public_functions_are_annotated():
+    missing = []
+    for path in ANNOTATED:
+        for name, fn in _public_functions(ast.parse(path.read_text())):
+            args = [a for a in fn.args.args + fn.args.kwonlyargs if a.arg not in ("self", "cls")]
+            args += [a for a in (fn.args.vararg, fn.args.kwarg) if a is not None]
+            returns = fn.returns is not None or fn.name == "__init__"
+            if not returns or any(a.annotation is None for a in args):
+                missing.append(f"{path.relative_to(PKG.parent)}:{fn.lineno} {name}")
+    assert not missing, "public functions without type annotations:\n" + "\n".join(missing)
+
+
+def test_no_private_names_across_modules():
+    """A helper another module uses is public where it belongs: no ``from m import _name``
+    (``__dunder__`` names aside) and no ``from . import _module``."""
+    found = []
+    for path in sorted(PKG.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                found += [
+                    f"{path.relative_to(PKG.parent)}:{node.lineno} {a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert not found, "private names imported across modules:\n" + "\n".join(found)

@@ -32,7 +32,7 @@ _SOLVER_TOL = 1e-12
 
 
 @functools.cache  # (the registry and the backend are fixed at import)
-def fused_kernels(solver: str):
+def fused_kernels(solver: str) -> tuple[np.ndarray, np.ndarray] | None:
     """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
     when the solver has no fused path: R6P (a variable number of roots per sample), a batched
     solver without a kernel id, or a P3P backend other than our Lambda Twist

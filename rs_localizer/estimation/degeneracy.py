@@ -43,7 +43,7 @@ def _planarity(X, mask):
     return np.sqrt(max(ev[0], 0.0) / ev[2])
 
 
-def planarity(X, mask=None) -> float:
+def planarity(X: np.ndarray, mask: np.ndarray | None = None) -> float:
     """Smallest over largest singular value of the centred points ``X`` (N, 3) (m), or of
     the rows ``mask`` (N,) bool selects (without copying them).
 
@@ -83,7 +83,7 @@ def _condition_number(H):
     return ev[n - 1] / ev[0]
 
 
-def condition_number(information) -> float:
+def condition_number(information: np.ndarray) -> float:
     """Condition number of a symmetric information matrix (n, n) after Jacobi scaling
     ``D^-1/2 H D^-1/2`` with ``D = diag(H)`` (unit-free); ``inf`` if it is singular, has a
     zero diagonal entry (an undetermined parameter) or a non-finite entry."""

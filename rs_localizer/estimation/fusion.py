@@ -48,14 +48,16 @@ relocalized), and on a stamp going back or a gap longer than ``max_gap``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
 from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
-from .prior import prior_arrays
+from .prior import MotionPrior, prior_arrays
 from .refine import cholesky_into
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
@@ -183,7 +185,7 @@ class FusionStep:
 
     __slots__ = ("_current", "_make", "final")
 
-    def __init__(self, make, final: list):
+    def __init__(self, make: Callable[[], FusedState] | None, final: list):
         self._make = make
         self._current = None
         self.final = final
@@ -982,7 +984,13 @@ class TwistFilter:
         self.X = X
         self.rejections = 0
 
-    def update(self, stamp_ns: int, estimate, relocalized: bool = False, prior=None) -> FusionStep:
+    def update(
+        self,
+        stamp_ns: int,
+        estimate: Any,
+        relocalized: bool = False,
+        prior: MotionPrior | None = None,
+    ) -> FusionStep:
         """Fuse one per-frame estimate.
 
         Args:

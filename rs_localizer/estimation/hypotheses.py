@@ -322,7 +322,14 @@ class _Scoring:
 class ColdSamples(_Scoring):
     """P3P-pre-rotated samples, one compiled call per batch (:func:`.batch.ransac_batch`)."""
 
-    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float, kernels):
+    def __init__(
+        self,
+        fr: Frame,
+        solver: str,
+        opts: EstimateOptions,
+        th2: float,
+        kernels: tuple[np.ndarray, np.ndarray],
+    ):
         super().__init__(fr, solver, opts, th2)
         self.kernels = kernels
 

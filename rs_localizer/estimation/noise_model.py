@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import CameraModel
 from .refine import exact_jacobian, exact_residuals, refine_rs_pose
 
 __all__ = ["NoiseFit", "correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians"]
@@ -45,8 +46,20 @@ def _kernel(u_px, length_px):
 
 
 def correlated_noise_covariance(
-    cov12, sigma, R, C, w, t, X, x, tau, u_px, pixel_jac, correlated_px, length_px
-):
+    cov12: np.ndarray,
+    sigma: float,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    u_px: np.ndarray,
+    pixel_jac: np.ndarray,
+    correlated_px: float,
+    length_px: float,
+) -> np.ndarray:
     """Covariance of the refined (delta, C, w, t) under white plus correlated image noise.
 
     The refinement minimises ``|r|^2 + sigma^2 (prior)`` over normalized residuals r;
@@ -119,7 +132,7 @@ class NoiseFit:
     points: int
 
 
-def pixel_jacobians(camera, x, step=1e-6):
+def pixel_jacobians(camera: CameraModel, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
     """(N, 2, 2) Jacobians ``d pixel / d x`` of the camera's projection (distortion and K) at
     the undistorted normalized points x (N, 2), by central differences of
     :meth:`~rs_localizer.camera.CameraModel.distort`."""
@@ -191,7 +204,11 @@ def _restricted_nll(p, terms):
     return 0.5 * tot
 
 
-def fit_correlated_noise(camera, views, length_bounds_px=(None, 2000.0)) -> NoiseFit:
+def fit_correlated_noise(
+    camera: CameraModel,
+    views: list,
+    length_bounds_px: tuple[float | None, float] = (None, 2000.0),
+) -> NoiseFit:
     """Estimate the image noise model of the module doc from still views of a known planar
     or 3D target (e.g. the calibration images), by restricted maximum likelihood (REML: the
     likelihood of the residuals with the 6 pose parameters of each view integrated out, so

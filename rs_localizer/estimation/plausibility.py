@@ -49,7 +49,7 @@ CHEIRALITY = "cheirality"
 
 def motion_bounds(
     max_angular_velocity: float, max_linear_velocity: float, seconds_per_unit_r: float
-):
+) -> tuple[float, float] | None:
     """Bounds on the model velocities per unit RS coordinate ``r``.
 
     Args:
@@ -67,7 +67,13 @@ def motion_bounds(
     return float(max_angular_velocity) * s, float(max_linear_velocity) * s
 
 
-def plausible_motion(Rs, Cs, ws, ts, bounds):
+def plausible_motion(
+    Rs: np.ndarray,
+    Cs: np.ndarray,
+    ws: np.ndarray,
+    ts: np.ndarray,
+    bounds: tuple[float, float] | None,
+) -> bool | np.ndarray:
     """Which models move plausibly.
 
     The camera's angular velocity is ``-w`` and its linear velocity ``w x C - t`` (per unit r,
@@ -156,7 +162,9 @@ def _plausible(Cs, ws, ts, w_max2, v_max2):
     return out
 
 
-def depths_at_capture(R, C, w, t, X, tau) -> np.ndarray:
+def depths_at_capture(
+    R: np.ndarray, C: np.ndarray, w: np.ndarray, t: np.ndarray, X: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
     """(N,) depth (camera z, m) of each world point at its own capture time.
 
     Exact constant-velocity model (the refinement's, eq. 4 with the rotation
@@ -221,7 +229,7 @@ def _scatter(P):
     return S
 
 
-def collinear_3d(X, tol: float = 1e-3) -> bool:
+def collinear_3d(X: np.ndarray, tol: float = 1e-3) -> bool:
     """True if the 3D points (N, 3) lie (nearly) on a line or are identical (the rotation about
     that line is free): second singular value of the centred points below ``tol`` times the
     first (the eigenvalues of their 3x3 scatter matrix are the squared singular values)."""
@@ -232,7 +240,7 @@ def collinear_3d(X, tol: float = 1e-3) -> bool:
     return bool(not ev[2] > 0 or ev[1] < tol * tol * ev[2])
 
 
-def line_rms(points) -> float:
+def line_rms(points: np.ndarray) -> float:
     """RMS distance of 2D points (N, 2) from their total-least-squares line (0 for N < 3):
     the square root of the smaller eigenvalue of their 2x2 scatter matrix over N."""
     p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
@@ -244,7 +252,9 @@ def line_rms(points) -> float:
     return math.sqrt(max(lam, 0.0) / len(p))
 
 
-def image_degenerate(points_px, points_normalized, focal: float, threshold_px: float) -> bool:
+def image_degenerate(
+    points_px: np.ndarray, points_normalized: np.ndarray, focal: float, threshold_px: float
+) -> bool:
     """True if the image points lie within the inlier threshold of one image line (identical
     points included): the rays then span a plane through the camera centre and the pose is not
     determined (with the RS model's velocities, RANSAC still "fits" them).
@@ -355,7 +365,14 @@ def final_model_check(R, C, w, t, X, tau, mask, w_max2, v_max2):
     return code, behind
 
 
-def check_final_model(R, C, w, t, inlier_depths, bounds):
+def check_final_model(
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    inlier_depths: np.ndarray,
+    bounds: tuple[float, float] | None,
+) -> str | None:
     """The last check before a model is reported as a pose.
 
     Args:

@@ -135,7 +135,7 @@ class MotionPrior:
         )
 
 
-def prior_arrays(prior: MotionPrior | None):
+def prior_arrays(prior: MotionPrior | None) -> tuple[bool, np.ndarray, np.ndarray]:
     """``(on, mean (6,), information (6, 6))`` for the numba kernels; ``on`` False (and zero
     arrays) for ``None`` or a prior that constrains nothing."""
     if prior is None:
@@ -143,7 +143,9 @@ def prior_arrays(prior: MotionPrior | None):
     return prior._arrays
 
 
-def linear_prior_rows(prior: MotionPrior, C0, seconds_per_unit_r: float, scale=1.0):
+def linear_prior_rows(
+    prior: MotionPrior, C0: np.ndarray, seconds_per_unit_r: float, scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
     """The prior as linear equations on the model's ``(w, t)`` (per unit r), for the damped
     linear solves of hypothesis generation (``prior_rows`` of
     :func:`rs_localizer.solvers.r6p_1lin_batch`).
@@ -211,7 +213,9 @@ def _rows_kernel(U, Um, Xs, C0, s, noise, P, q):
             q[k, a] = sc * s * Um[a]
 
 
-def sample_prior_rows(prior: MotionPrior, Xs, C0, seconds_per_unit_r: float, noise: float):
+def sample_prior_rows(
+    prior: MotionPrior, Xs: np.ndarray, C0: np.ndarray, seconds_per_unit_r: float, noise: float
+) -> tuple[np.ndarray, np.ndarray]:
     """:func:`linear_prior_rows` for K pre-rotated samples, weighted like their equations.
 
     The solver's algebraic equations (``E . p``, p the point in the camera) have noise of
@@ -292,7 +296,14 @@ def _conflict(cov12, C, w, t, s, mean, Lam):
     return d @ Ly, Ly @ (S @ Ly)
 
 
-def prior_conflict(prior: MotionPrior, covariance, C, w, t, seconds_per_unit_r: float):
+def prior_conflict(
+    prior: MotionPrior,
+    covariance: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    seconds_per_unit_r: float,
+) -> tuple[float, float]:
     """How an estimate's velocities relate to the prior (linear-Gaussian approximation).
 
     ``z = (v, omega)`` from the model's C, w, t per unit r (docs/architecture.md "Conventions"),

@@ -70,13 +70,17 @@ def _camera_points(theta, R0, X, tau):
     return p, q, A, Aq
 
 
-def exact_residuals(theta, R0, X, x, tau) -> np.ndarray:
+def exact_residuals(
+    theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
     """(2N,) residuals ``pi(p_i) - x_i`` (normalized units) of the exact model; theta (12,)."""
     p, *_ = _camera_points(theta, R0, X, tau)
     return (p[:, :2] / p[:, 2:3] - x).ravel()
 
 
-def exact_jacobian(theta, R0, X, x, tau) -> np.ndarray:
+def exact_jacobian(
+    theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
     """(2N, 12) analytic Jacobian of :func:`exact_residuals` w.r.t. (delta, C, w, t)."""
     p, q, A, Aq = _camera_points(theta, R0, X, tau)
     n = len(X)
@@ -785,7 +789,17 @@ class RefineResult:
     condition; ~0 at a converged maximum-likelihood optimum). ``acceleration_block``: (12, 6)
     ``J^T W D`` when asked for (:func:`refine_rs_pose`), else ``None``."""
 
-    def __init__(self, R, C, w, t, covariance, sigma, success, nfev):
+    def __init__(
+        self,
+        R: np.ndarray,
+        C: np.ndarray,
+        w: np.ndarray,
+        t: np.ndarray,
+        covariance: np.ndarray | None,
+        sigma: float,
+        success: bool,
+        nfev: int,
+    ):
         self.R, self.C, self.w, self.t = R, C, w, t
         self.covariance, self.sigma, self.success, self.nfev = covariance, sigma, success, nfev
         self.data_information = None
@@ -793,7 +807,9 @@ class RefineResult:
         self.acceleration_block = None
 
 
-def _unpack(out: np.ndarray, sigma: float, success: bool, nfev: int, covariance: bool):
+def _unpack(
+    out: np.ndarray, sigma: float, success: bool, nfev: int, covariance: bool
+) -> RefineResult:
     """A :class:`RefineResult` of the model and covariance in a kernel's ``out`` (views)."""
     cov = out[OUT_COV:OUT_INFO].reshape(12, 12) if covariance else None
     return RefineResult(
@@ -809,13 +825,13 @@ def _unpack(out: np.ndarray, sigma: float, success: bool, nfev: int, covariance:
 
 
 def refine_rs_pose(
-    R0,
-    C0,
-    w0,
-    t0,
-    X,
-    x,
-    tau,
+    R0: np.ndarray,
+    C0: np.ndarray,
+    w0: np.ndarray,
+    t0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
     loss_scale: float,
     rolling_shutter: bool = True,
     max_iterations: int = 10,
@@ -975,13 +991,13 @@ def _prior_residuals(theta, mean, U, s, scale):
 
 
 def refine_rs_pose_scipy(
-    R0,
-    C0,
-    w0,
-    t0,
-    X,
-    x,
-    tau,
+    R0: np.ndarray,
+    C0: np.ndarray,
+    w0: np.ndarray,
+    t0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
     loss_scale: float,
     rolling_shutter: bool = True,
     prior: MotionPrior | None = None,

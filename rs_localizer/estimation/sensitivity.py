@@ -126,7 +126,9 @@ def _physical(G, R, C, w, s):
     return _output_jacobian(R, C, w, s) @ (G @ M)
 
 
-def output_jacobian(R, C, w, seconds_per_unit_r: float) -> np.ndarray:
+def output_jacobian(
+    R: np.ndarray, C: np.ndarray, w: np.ndarray, seconds_per_unit_r: float
+) -> np.ndarray:
     """(12, 12) Jacobian of the estimate's outputs (camera rotation [rad, world axes],
     position [m, world], angular velocity [rad/s, camera], linear velocity [m/s, camera]) with
     respect to the model's (delta, C, w, t) (``R = expm([delta]x) R0``; velocities per unit
@@ -143,19 +145,19 @@ def output_jacobian(R, C, w, seconds_per_unit_r: float) -> np.ndarray:
 
 
 def acceleration_sensitivity(
-    R,
-    C,
-    w,
-    t,
-    X,
-    x,
-    tau,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
     seconds_per_unit_r: float,
     loss_scale: float,
     cutoff: float = np.inf,
-    normal_inverse=None,
+    normal_inverse: np.ndarray | None = None,
     max_points: int | None = None,
-    acceleration_block=None,
+    acceleration_block: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """First-order change of a frame's estimate per unit of in-readout acceleration.
 

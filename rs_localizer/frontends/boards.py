@@ -254,7 +254,14 @@ class CheckerboardModel(_BoardBase):
 
     kind = "checkerboard"
 
-    def __init__(self, cols: int, rows: int, square_size: float, pose=None, id_offset: int = 0):
+    def __init__(
+        self,
+        cols: int,
+        rows: int,
+        square_size: float,
+        pose: dict | None = None,
+        id_offset: int = 0,
+    ):
         cols, rows, sq = int(cols), int(rows), float(square_size)
         if cols < 2 or rows < 2 or not np.isfinite(sq) or sq <= 0:
             raise ValueError(
@@ -307,12 +314,12 @@ class CharucoBoardModel(_BoardBase):
         rows: int,
         square_size: float,
         marker_size: float,
-        dictionary,
-        marker_ids=None,
+        dictionary: str | dict,
+        marker_ids: np.ndarray | None = None,
         legacy_pattern: bool = False,
-        pose=None,
+        pose: dict | None = None,
         id_offset: int = 0,
-        base_dir=None,
+        base_dir: str | Path | None = None,
     ):
         cols, rows = int(cols), int(rows)
         sq, mk = float(square_size), float(marker_size)
@@ -378,11 +385,11 @@ class TagBoard(_BoardBase):
     def __init__(
         self,
         corners_board: dict,
-        dictionary="DICT_APRILTAG_36h11",
-        pose=None,
+        dictionary: str | dict = "DICT_APRILTAG_36h11",
+        pose: dict | None = None,
         id_offset: int = 0,
-        base_dir=None,
-        grid=None,
+        base_dir: str | Path | None = None,
+        grid: tuple | None = None,
     ):
         if not corners_board:
             raise ValueError("a tag board needs at least one tag")

@@ -134,7 +134,7 @@ class MarkerDetector:
     marker).
     """
 
-    def __init__(self, dictionary, params=None):
+    def __init__(self, dictionary: Any, params: Any = None):
         self.dictionary = dictionary
         self.params = params if params is not None else detector_parameters()
         self._det = cv2.aruco.ArucoDetector(dictionary, self.params) if NEW_ARUCO_API else None
@@ -268,8 +268,8 @@ class CharucoCornerDetector:
 
     def __init__(
         self,
-        board,
-        params=None,
+        board: Any,
+        params: Any = None,
         min_markers: int = 2,
         refine_markers: bool = True,
         corner_window: int = 12,

@@ -195,7 +195,13 @@ class FeatureFrontend:
 
     name = "features"
 
-    def __init__(self, feature_map, ratio: float = 0.8, n_features: int = 2000, knn: int = 3):
+    def __init__(
+        self,
+        feature_map: FeatureMap | str | Path,
+        ratio: float = 0.8,
+        n_features: int = 2000,
+        knn: int = 3,
+    ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
         self.map = feature_map
