@@ -25,8 +25,7 @@ setup(
         (f"share/{package_name}/data/sample_images", glob("data/sample_images/*")),
     ],
     python_requires=">=3.10",
-    # poselib: the global-shutter reference of the benchmarks and tests, and an optional P3P
-    # backend (the default P3P is our own Lambda Twist); matplotlib: experiment plots;
+    # matplotlib: experiment plots (and Pillow for the CLI's image files);
     # pyyaml: parameter files, marker maps, boards and scenes; scikit-image: the photographs on
     # the textured_room walls (renderer)
     install_requires=[
@@ -35,7 +34,6 @@ setup(
         "scipy",
         "opencv-python-headless",
         "numba",
-        "poselib",
         "matplotlib",
         "pyyaml",
         "scikit-image",
@@ -48,7 +46,10 @@ setup(
             "ros-jazzy-rmw-fastrtps-cpp",
             "rosbags>=0.10",
         ],
-        "bench": ["threadpoolctl"],
+        # benchmarks: one BLAS thread (threadpoolctl); PoseLib, the global-shutter reference
+        # of the benchmarks and tests and an optional P3P backend (the default P3P is our own
+        # Lambda Twist; without PoseLib the "poselib" backend falls back to OpenCV)
+        "bench": ["threadpoolctl", "poselib"],
         "test": ["pytest", "hypothesis", "ruff>=0.17,<0.18"],
     },
     tests_require=["pytest"],

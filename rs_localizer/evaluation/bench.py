@@ -131,8 +131,18 @@ def poselib_estimate(
     """PoseLib ``estimate_absolute_pose`` (global shutter, the benchmarks' reference) on a
     synthetic frame ``f`` (``points_px`` (N, 2), ``X`` (N, 3)): its default ``RansacOptions``
     with our threshold (px), or ``ransac_opt``. Returns (R (3, 3) world -> camera, C (3,),
-    number of inliers)."""
-    import poselib
+    number of inliers).
+
+    Raises:
+        ImportError: PoseLib is not installed (``pip install 'rs_localizer[bench]'``).
+    """
+    try:
+        import poselib
+    except ImportError as e:
+        raise ImportError(
+            "the benchmarks' global-shutter reference needs PoseLib: "
+            "pip install 'rs_localizer[bench]'"
+        ) from e
 
     K = cam.K
     camera = {

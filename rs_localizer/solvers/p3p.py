@@ -18,7 +18,7 @@ import numpy as np
 from ._common import check_inputs
 from .lambda_twist import lambda_twist, lambda_twist_batch
 
-try:  # PoseLib is a hard dependency of the package, but keep OpenCV as a working fallback
+try:  # PoseLib (the bench extra) is optional: the "poselib" backend falls back to OpenCV
     import poselib as _poselib
 except ImportError:  # pragma: no cover - exercised by test_p3p_opencv_backend
     _poselib = None
