@@ -18,7 +18,9 @@ Model (per image axis, the two axes independent)::
 ``u`` the measured pixels, ``sigma`` the white noise (the refinement's residual estimate, as
 before), ``s`` (px) and ``l`` (px) the correlated error's standard deviation and correlation
 length: camera properties, estimated once from still calibration views by restricted maximum
-likelihood (:func:`fit_correlated_noise`), set with ``EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px, length_px))`` (node: ``correlated_noise.sigma_px`` / ``.length_px``).
+likelihood (:func:`fit_correlated_noise`), set with
+``EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px, length_px))`` (node:
+``correlated_noise.sigma_px`` / ``.length_px``).
 
 The estimate itself is unchanged (the white-noise (MAP) refinement); only its covariance is:
 the sandwich covariance of that estimator under the model above,
