@@ -5,7 +5,7 @@ without it."""
 import numpy as np
 import pytest
 
-import rs_localizer.estimation.estimate as estimate_module
+import rs_localizer.estimation.hypotheses as hypotheses_module
 from rs_localizer._so3 import compose_rotvec
 from rs_localizer.estimation.batch import fused_kernels, ransac_batch
 from rs_localizer.estimation.estimate import estimate_rs_pose
@@ -205,7 +205,7 @@ def test_estimator_gives_the_same_result_with_and_without_fusion(solver, monkeyp
         )
         a = estimate_rs_pose(f.points_px, f.X, CAM, solver)
         with monkeypatch.context() as m:
-            m.setattr(estimate_module, "fused_kernels", lambda name: None)
+            m.setattr(hypotheses_module, "fused_kernels", lambda name: None)
             b = estimate_rs_pose(f.points_px, f.X, CAM, solver)
         assert a.success and b.success
         np.testing.assert_array_equal(a.R, b.R)
