@@ -31,6 +31,7 @@ from hypothesis import strategies as st  # noqa: E402
 from rs_localizer.camera import CameraModel  # noqa: E402
 from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose  # noqa: E402
 from rs_localizer.estimation.plausibility import depths_at_capture  # noqa: E402
+from rs_localizer.evaluation.bench_consistency import ATTACKS, attack, corridor_frames  # noqa: E402
 from rs_localizer.frontends.image import ENCODINGS, image_from_msg  # noqa: E402
 from rs_localizer.geometry import rotation_angle_deg  # noqa: E402
 
@@ -356,6 +357,7 @@ REASONS = {
     "degenerate_geometry",
     "implausible_motion",
     "cheirality",
+    "inconsistent_fit",
 }
 
 
@@ -480,3 +482,16 @@ def test_fuzz_estimator_corrupted_frames(seed, corruptions, frac):
             assert not e.success
     if not m.any() and "u=v" not in corruptions and "one_point" not in corruptions:
         assert e.success and rotation_angle_deg(e.R, R) < 0.5
+
+
+@settings(settings.get_profile(_PROFILE), max_examples=_EST_EXAMPLES)
+@given(st.integers(0, 2**16), st.sampled_from(ATTACKS), st.sampled_from(["r6p_1lin", "p3p"]))
+def test_fuzz_estimator_partial_fit_garbage(seed, kind, solver):
+    """A corridor frame (walls, floor, ceiling, clutter; 300 points) whose every row is
+    mirrored or reflected (:func:`~rs_localizer.evaluation.bench_consistency.attack`): one
+    wall fits from behind; never a success."""
+    RUNS["estimator_partial_fit_garbage"] += 1
+    f = attack(corridor_frames(1, seed)[0], kind)
+    e = estimate_rs_pose(f.points_px, f.points3d, f.camera, solver, f.options)
+    assert not e.success, (e.inliers.sum(), e.position, f.position)
+    assert e.failure in REASONS

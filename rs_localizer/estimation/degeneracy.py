@@ -8,6 +8,11 @@ Two measures, both reported in :class:`~rs_localizer.estimation.estimate.RSPoseE
   :data:`PLANAR_TOLERANCE` the scene counts as planar: R9P cannot be used (its 18 unknowns
   lose 3 dimensions on coplanar points) and hypothesis generation uses the motion prior
   (damped linear solves).
+- :func:`far_side_fraction`: where the other points lie relative to the plane of a planar
+  inlier set, seen from the camera. A camera that really sees a wall of a room sees it from the
+  room's side; a fit that explains one wall of a 3D scene from outside the scene (the wall seen
+  from behind: what mirrored or reflected correspondences give, since a plane seen from behind
+  is its mirror image) has the rest of the scene beyond that wall.
 - :func:`condition_number`: of the data's information matrix of the 12 parameters (pose and
   velocities) after Jacobi scaling (each parameter divided by its own information, so the
   number does not depend on units). Large values mean some combination of rotation and
@@ -22,7 +27,7 @@ from numba import njit
 
 from .plausibility import masked_scatter
 
-__all__ = ["PLANAR_TOLERANCE", "condition_number", "planarity"]
+__all__ = ["PLANAR_TOLERANCE", "condition_number", "far_side_fraction", "planarity"]
 
 #: scenes thinner than this fraction of their extent count as planar (a facade with 20 cm of
 #: relief over 10 m: 0.02; a desk with objects is well above)
@@ -61,6 +66,42 @@ def planarity(X: np.ndarray, mask: np.ndarray | None = None) -> float:
         if mask.shape != (len(X),):
             raise ValueError(f"mask must have shape ({len(X)},), got {mask.shape}")
     return float(_planarity(X, mask))
+
+
+def far_side_fraction(X: np.ndarray, inliers: np.ndarray, centre: np.ndarray) -> float:
+    """Of the points ``X`` (N, 3) (m) that are not ``inliers`` (N,) bool and lie off the
+    inliers' best-fit plane (farther from it than 3 times the inliers' RMS distance to it, and
+    than 1e-3 of their extent), the fraction on the other side of that plane than the camera
+    centre ``centre`` (3,) (m, same frame as ``X``).
+
+    Meaningful when the inliers are coplanar (:func:`planarity` below
+    :data:`PLANAR_TOLERANCE`). 0.0 when no point is off the plane or fewer than 3 inliers.
+
+    Raises:
+        ValueError: ``X`` not (N, 3), ``inliers`` not (N,), ``centre`` not (3,).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    inliers = np.asarray(inliers, dtype=bool)
+    centre = np.asarray(centre, dtype=np.float64)
+    if X.ndim != 2 or X.shape[1] != 3 or inliers.shape != (len(X),) or centre.shape != (3,):
+        raise ValueError(
+            f"need X (N, 3), inliers (N,), centre (3,); got {X.shape}, {inliers.shape}, "
+            f"{centre.shape}"
+        )
+    P = X[inliers]
+    if len(P) < 3:
+        return 0.0
+    c = P.mean(axis=0)
+    _, s, vt = np.linalg.svd(P - c, full_matrices=False)
+    n = vt[2]
+    rms = s[2] / np.sqrt(len(P))
+    margin = max(3.0 * rms, 1e-3 * s[0] / np.sqrt(len(P)))
+    d = (X[~inliers] - c) @ n
+    off = d[np.abs(d) > margin]
+    if not len(off):
+        return 0.0
+    camera_side = np.sign(n @ (centre - c))
+    return float(np.mean(np.sign(off) == -camera_side))
 
 
 @njit(cache=True)

@@ -126,7 +126,15 @@ def estimate_rs_pose(
         final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
         timings["refine"] = time.perf_counter() - t0
         initial = (search.explained, search.anchor is not None)
-        est = final_estimate(fr, solver, final, search.iterations, initial, timings)
+        est = final_estimate(
+            fr,
+            solver,
+            final,
+            search.iterations,
+            initial,
+            timings,
+            opts.plausibility.consistent_fit,
+        )
     except EstimationFailed as failure:
         return failed_estimate(
             failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings

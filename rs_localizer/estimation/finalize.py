@@ -11,7 +11,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..geometry import camera_position
 from ..solvers.registry import solver_info
-from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .noise_model import correlated_noise_covariance, pixel_jacobians
 from .options import EstimateOptions
@@ -20,6 +20,7 @@ from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION, final_model_check, fin
 from .prior import MotionPrior, prior_conflict
 from .refine import RefineResult, exact_errors, posterior_step, refine_rs_pose
 from .result import (
+    INCONSISTENT_FIT,
     TOO_FEW_INLIERS,
     EstimationFailed,
     RSPoseEstimate,
@@ -30,8 +31,11 @@ from .scoring import errors2
 from .sensitivity import acceleration_sensitivity
 
 __all__ = [
+    "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
+    "PARTIAL_FIT_CONDITION",
+    "PARTIAL_FIT_FRACTION",
     "PRIOR_CONFLICT",
     "PRIOR_NEGLIGIBLE",
     "FinalModel",
@@ -51,6 +55,18 @@ FINAL_CUTOFF = 2.0
 #: agree with those at 1e-10 to 1e-4 of the ML fit's spread (RS speed 0.5 and 1), with 4-5
 #: cost evaluations instead of 6-8
 FINAL_TOL = 1e-6
+#: ``inconsistent_fit``: a planar inlier set of a non-planar frame with more than this fraction
+#: of the other points beyond its plane, away from the camera (the plane seen from behind).
+#: ``python -m rs_localizer.evaluation.bench_consistency``: true fits 0.0 with coplanar inliers
+#: (p3p on rolling-shutter corridor frames with 20-70 % outliers); mirrored or reflected
+#: correspondences 0.67-0.99
+FAR_SIDE_LIMIT = 0.5
+#: ``inconsistent_fit``: a fit explaining fewer than this fraction of the valid points ...
+PARTIAL_FIT_FRACTION = 0.1
+#: ... with a condition number (:func:`~.degeneracy.condition_number`) above this. Such
+#: garbage fits measured 1.3e3-6e3 with 4-6 % of the points; true fits of 3D scenes 5-400
+#: (corridor frames with up to 70 % outliers, the paper protocol's frames)
+PARTIAL_FIT_CONDITION = 1e3
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
 #: :func:`final_refinement`
 PRIOR_CONFLICT = 16.81
@@ -229,14 +245,27 @@ def final_estimate(
     iterations: int,
     initial: tuple[int, bool],
     timings: dict[str, float],
+    consistent_fit: bool = False,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
-    (:func:`~.plausibility.final_model_check` on the depths at capture, one compiled call).
+    (:func:`~.plausibility.final_model_check` on the depths at capture, one compiled call),
+    and, with ``consistent_fit``, a consistent fit (else ``inconsistent_fit``):
+
+    - inliers that are one plane of a non-planar frame must not have more than
+      :data:`FAR_SIDE_LIMIT` of the other points beyond that plane
+      (:func:`~.degeneracy.far_side_fraction`). A plane seen from behind is its own mirror
+      image, so mirrored images, reflected maps or a map in a mirrored frame fit one wall of a
+      3D scene exactly, from outside the scene, with a confident-looking covariance; a camera
+      that really sees a wall sees it from the scene's side;
+    - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points must not be poorly
+      conditioned (above :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial
+      fits.
+
     ``initial``: (points the initial model explained or -1, whether it was used).
 
     Raises:
-        EstimationFailed: ``implausible_motion``, ``cheirality``.
+        EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
     R, C, w, t, inl = final.R, final.C, final.w, final.t, final.inliers
     bounds = fr.motion_bounds
@@ -248,6 +277,18 @@ def final_estimate(
     if code:
         raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
     rolling = solver_info(solver).rolling
+    flat = planarity(fr.X, inl)
+    position = camera_position(R, C)
+    n_free = 12 if rolling else 6
+    info = final.information
+    cond = condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
+    if consistent_fit and not fr.planar:
+        seen_from_behind = (
+            flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
+        )
+        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
+        if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
+            raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)
     cov = pose_cov = twist_cov = None
     if final.covariance is not None:
@@ -256,9 +297,6 @@ def final_estimate(
             twist_cov = None
     inliers = np.zeros(fr.num_rows, dtype=bool)
     inliers[fr.rows[inl]] = True
-    flat = planarity(fr.X, inl)
-    n_free = 12 if rolling else 6
-    info = final.information
     return RSPoseEstimate(
         success=True,
         failure=None,
@@ -268,7 +306,7 @@ def final_estimate(
         w=w,
         t=t,
         orientation=R.T,
-        position=camera_position(R, C),
+        position=position,
         angular_velocity=om,
         linear_velocity=vc,
         angular_velocity_world=om_w,
@@ -285,9 +323,7 @@ def final_estimate(
         rmse_px=final.rmse_px,
         planar=bool(flat < PLANAR_TOLERANCE),
         planarity=flat,
-        condition_number=(
-            condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
-        ),
+        condition_number=cond,
         motion_prior_used=final.prior_used,
         initial_explained=initial[0],
         initial_used=initial[1],

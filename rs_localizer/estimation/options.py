@@ -112,6 +112,13 @@ class PlausibilityOptions:
         max_linear_velocity: m/s (map units per second), the same for the camera's speed.
         max_point_norm: 3D points farther than this from the origin (m) are dropped as
             points at infinity.
+        consistent_fit: refuse a final model that fits only a part of the frame in a way
+            true fits do not (``inconsistent_fit``; :func:`~.finalize.final_estimate`): its
+            inliers one plane of a non-planar frame seen from behind (most other points
+            beyond that plane), or a few percent of the points with a poorly conditioned
+            pose. That is how mirrored images, maps in a mirrored frame and reflected
+            correspondences fit. ``False``: no such check (e.g. a map whose points behind a
+            wall are matched through a window).
 
     Raises:
         ValueError: a velocity bound that is not > 0 (NaN included).
@@ -120,6 +127,7 @@ class PlausibilityOptions:
     max_angular_velocity: float = 20.0
     max_linear_velocity: float = 50.0
     max_point_norm: float = 1e6
+    consistent_fit: bool = True
 
     def __post_init__(self) -> None:
         for name in ("max_angular_velocity", "max_linear_velocity"):

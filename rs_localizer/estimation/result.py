@@ -17,6 +17,7 @@ __all__ = [
     "DEGENERATE_GEOMETRY",
     "FAILURE_REASONS",
     "IMPLAUSIBLE_MOTION",
+    "INCONSISTENT_FIT",
     "NO_HYPOTHESIS",
     "PLANAR_SCENE",
     "TOO_FEW_INLIERS",
@@ -39,6 +40,9 @@ TOO_FEW_INLIERS = "too_few_inliers"
 DEGENERATE_GEOMETRY = "degenerate_geometry"
 #: a solver that cannot work on coplanar points (R9P) was given a planar scene
 PLANAR_SCENE = "planar_scene"
+#: the inliers are one plane of a 3D scene seen from behind it: most of the other points lie
+#: beyond that plane, on the far side from the camera (:func:`~.finalize.final_estimate`)
+INCONSISTENT_FIT = "inconsistent_fit"
 #: every reason an unsuccessful estimate can give, in the order the estimator checks them
 FAILURE_REASONS = (
     TOO_FEW_POINTS,
@@ -48,6 +52,7 @@ FAILURE_REASONS = (
     IMPLAUSIBLE_MOTION,
     TOO_FEW_INLIERS,
     CHEIRALITY,
+    INCONSISTENT_FIT,
 )
 
 
@@ -76,7 +81,9 @@ class RSPoseEstimate:
             R9P, given a planar scene), ``implausible_motion`` (the best model, or every
             hypothesis, moves faster than ``max_angular_velocity`` / ``max_linear_velocity``),
             ``cheirality`` (an inlier of the best model is not in front of the camera at its
-            capture time).
+            capture time), ``inconsistent_fit`` (the inliers are one plane of a 3D scene
+            and most other points lie beyond it, away from the camera: the plane is seen
+            from behind, as mirrored or reflected correspondences make it).
         solver: solver name used.
         R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
         w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
