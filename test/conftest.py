@@ -170,11 +170,14 @@ class Probe:
                 t, f"{namespace}/{k}", lambda m, k=k: self.outputs[k].append(m), qos
             )
         self.diag = {}
+        self.diag_history = []  # (status name, values) of every diagnostics message
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, qos)
 
     def _on_diag(self, msg):
         for st in msg.status:
-            self.diag[st.name] = (st, {kv.key: kv.value for kv in st.values})
+            values = {kv.key: kv.value for kv in st.values}
+            self.diag[st.name] = (st, values)
+            self.diag_history.append((st.name, values))
 
     def spin(self, seconds):
         end = time.monotonic() + seconds

@@ -1,5 +1,8 @@
 """CameraInfo handling, stamps, quaternions and estimate -> message conversions."""
 
+import dataclasses
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -34,6 +37,43 @@ def test_quaternion_roundtrip_and_convention():
         np.testing.assert_allclose(cv.matrix_from_quaternion(-3 * q), R, atol=1e-12)
     with pytest.raises(ValueError):
         cv.matrix_from_quaternion([0, 0, 0, 0])
+
+
+def test_quaternion_of_an_orthonormal_matrix_skips_the_projection_only():
+    """``orthonormal=True`` (SciPy's ``assume_valid`` where it has it) gives the projected
+    path's quaternion for a rotation; a non-orthonormal matrix still takes the projection."""
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        R = rotvec_to_matrix(rng.normal(0, 1.5, 3))
+        np.testing.assert_allclose(
+            cv.quaternion_from_matrix(R, orthonormal=True), cv.quaternion_from_matrix(R), atol=1e-15
+        )
+    skewed = R * 1.01
+    np.testing.assert_allclose(cv.quaternion_from_matrix(skewed), cv.quaternion_from_matrix(R))
+    # a perturbed matrix becomes the nearest rotation: the polar decomposition's orthogonal factor
+    from scipy.linalg import polar
+
+    for _ in range(20):
+        M = rotvec_to_matrix(rng.normal(0, 1.5, 3)) + rng.normal(0, 0.05, (3, 3))
+        q = cv.quaternion_from_matrix(M)
+        np.testing.assert_allclose(cv.matrix_from_quaternion(q), polar(M)[0], atol=1e-12)
+    for bad in (np.eye(4), np.full((3, 3), np.nan)):
+        with pytest.raises(ValueError):
+            cv.quaternion_from_matrix(bad)
+
+
+def test_messages_of_interleaved_estimates_carry_their_own_orientation():
+    """A frame's pose and, frames later, an earlier frame's odom are built alternately: each
+    message carries its own estimate's orientation (the quaternion cache is per orientation)."""
+    rng = np.random.default_rng(2)
+    ests = []
+    for _ in range(12):
+        est, _ = _estimate()
+        ests.append(dataclasses.replace(est, orientation=rotvec_to_matrix(rng.normal(0, 1, 3))))
+    for k in range(2, 12):
+        for est, build in ((ests[k], cv.pose_stamped), (ests[k - 2], cv.pose_stamped)):
+            R, _ = cv.pose_from_msg(build(est, 1, "map").pose)
+            np.testing.assert_allclose(R, est.orientation, atol=1e-12)
 
 
 def test_stamps():
@@ -90,6 +130,20 @@ def test_camera_info_distortion_models(model, d, expect):
     # undistort/distort round trip works for the produced model
     p = np.array([[100.0, 100.0], [640.0, 360.0], [1200.0, 700.0]])
     np.testing.assert_allclose(cam.distort(cam.undistort(p)), p, atol=1e-6)
+
+
+@pytest.mark.parametrize("model", ["plumb_bob", "rational_polynomial", "equidistant", "none"])
+def test_camera_info_with_an_empty_d_is_an_undistorted_camera(model):
+    """An empty D is accepted as no distortion under every model (what drivers publish for
+    rectified images), as docs/node.md says: pixels map through K alone."""
+    cam = cv.camera_model_from_camera_info(_info(model, []))
+    assert not cam.has_distortion
+    p = np.array([[100.0, 100.0], [640.0, 360.0], [1200.0, 700.0]])
+    K = np.asarray(_info().k, dtype=float).reshape(3, 3)
+    expected = (p - K[:2, 2]) / np.diag(K)[:2]
+    np.testing.assert_allclose(cam.undistort(p), expected, atol=1e-12)
+    doc = (Path(__file__).parents[1] / "docs" / "node.md").read_text()
+    assert "An empty `D` (or all zeros) is accepted as no distortion" in doc
 
 
 def test_camera_info_errors():

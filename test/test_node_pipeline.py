@@ -306,6 +306,9 @@ def test_pipeline_tracks_a_sequence(msgs, sequence):
             assert topics == ["pose", "twist_single_frame"] + ["twist", "odom"] * len(res.fused) + [
                 "pose_with_covariance"
             ]
+            # only what has a subscriber is built (the pose always)
+            only = [t for t, _ in frame_messages(res, "map", lambda t: t == "odom")]
+            assert only == ["pose"] + ["odom"] * len(res.fused)
     assert fused == [f.t_ref_ns for f in frames[:-1]]  # one frame late
     last = pipe.flush()
     assert [o.stamp_ns for o in last] == [frames[-1].t_ref_ns] and pipe.flush() == []

@@ -395,3 +395,24 @@ def test_viz_parameters_documented_in_the_config():
     node_doc = (CONFIG.parents[1] / "docs" / "node.md").read_text()
     for k, (default, _, _) in VIZ_PARAMETERS.items():
         assert f"| `{k}` | `{default}` |" in node_doc, k
+
+
+def test_the_input_image_is_held_only_for_a_debug_image_subscriber():
+    """Decoded input images can be hundreds of MB: the visualization keeps one only while
+    ``debug_image`` has a subscriber, and lets it go when its frame is not solved."""
+    from types import SimpleNamespace
+
+    from rs_localizer.ros.visualization import NodeVisualization
+
+    subscribers = [0]
+    viz = object.__new__(NodeVisualization)  # (the publishers alone, without a node)
+    viz.pub_image = SimpleNamespace(get_subscription_count=lambda: subscribers[0])
+    viz._image = None
+    image = np.zeros((8, 8), np.uint8)
+    viz.set_image(image, "mono8", 5)
+    assert viz._image is None
+    subscribers[0] = 1
+    viz.set_image(image, "mono8", 5)
+    assert viz._image[0] is image
+    viz.clear_image()
+    assert viz._image is None

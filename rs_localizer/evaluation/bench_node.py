@@ -1,6 +1,7 @@
 """Node benchmark: frames of 500 correspondences through the real node over DDS.
 
     python -m rs_localizer.evaluation.bench_node [--frames 300] [--points 500] [--solver r6p_1lin]
+    python -m rs_localizer.evaluation.bench_node --cameras 4 [--rate 30] [--seconds 20]
 
 Starts ``rs_localizer_node`` in a subprocess pinned to one CPU core (with single-threaded
 BLAS/numba), and from this process (pinned to another core):
@@ -11,9 +12,18 @@ BLAS/numba), and from this process (pinned to another core):
 * pipelined: keep ``--window`` frames in flight (reliable QoS, nothing dropped), which is how
   a camera feeds the node; reports the sustained output rate.
 
-The estimator alone (same frames, same process as the benchmark, no ROS) is timed too, so the
-ROS overhead is visible. Frames come from :mod:`rs_localizer.sim.trajectory` (a few distinct frames
-replayed with increasing stamps).
+What the node runs on a frame is also timed alone (same frames, this process, no ROS): with
+the default configuration the video tracker (``tracking.enabled``), else the single-frame
+estimator. The node's overhead is the lock-step latency median minus that median: decoding,
+the queue, message building, publishing, the executor and the DDS round trip. A last
+lock-step run with only ``pose`` subscribed shows what the other outputs cost.
+
+``--cameras N``: instead, N cameras in one node process (the ``cameras`` parameter) on one core,
+each streaming ``--rate`` frames per second for ``--seconds`` (staggered, reliable): frames
+answered and skipped per camera and the latency from publish to pose (median, p99, max).
+
+Frames come from :mod:`rs_localizer.sim.trajectory` (a few distinct frames replayed with
+increasing stamps).
 """
 
 from __future__ import annotations
@@ -48,37 +58,65 @@ def run_benchmark(
     seed: int = 0,
     log=print,
 ) -> dict:
-    """Generate ``distinct`` synthetic frames, time the estimator alone on them, then the node
-    over DDS (:func:`rs_localizer.ros.bench_client.measure_node`). Returns the results."""
-    from ..estimation import EstimateOptions, estimate_rs_pose
+    """Generate ``distinct`` synthetic frames, time what the node runs on them alone, then the
+    node over DDS (:func:`rs_localizer.ros.bench_client.measure_node`). Returns the results,
+    with ``overhead_ms``: lock-step latency median minus the alone median."""
     from ..ros.bench_client import measure_node
 
     log(f"generating {distinct} distinct frames of {points} correspondences ...")
     seq, cam = _frames(distinct, points, seed)
-
-    # estimator alone (this process), after a JIT warm-up
-    opts = EstimateOptions()
-    for f in seq[:2]:
-        estimate_rs_pose(f.uv, f.xyz, cam, solver=solver, options=opts)
-    t_est = []
-    for f in seq:
-        tic = time.perf_counter()
-        estimate_rs_pose(f.uv, f.xyz, cam, solver=solver, options=opts)
-        t_est.append(time.perf_counter() - tic)
-    t_est = np.array(t_est)
+    what, t_est = _alone(seq, cam, solver, max(frames, 3 * distinct))
     log(
-        f"estimator alone ({solver}): median {np.median(t_est) * 1e3:.2f} ms "
+        f"{what} alone ({solver}): median {np.median(t_est) * 1e3:.2f} ms "
         f"({1 / np.median(t_est):.0f} Hz)"
     )
-
     result = {
         "solver": solver,
         "points": points,
         "frames": frames,
+        "alone": what,
         "estimator_ms_median": float(np.median(t_est) * 1e3),
         "estimator_hz": float(1 / np.median(t_est)),
     }
-    return measure_node(seq, cam, solver, frames, window, node_cpu, result, log)
+    result = measure_node(seq, cam, solver, frames, window, node_cpu, result, log)
+    result["overhead_ms"] = result["lockstep"]["latency_ms_median"] - result["estimator_ms_median"]
+    log(
+        f"node overhead (lock-step latency median - {what} alone): "
+        f"{result['overhead_ms']:.2f} ms per frame"
+    )
+    return result
+
+
+def _alone(seq, cam, solver: str, frames: int) -> tuple[str, np.ndarray]:
+    """What the node with its default configuration runs on a frame (the video tracker, or the
+    single-frame estimator without tracking), timed in this process on ``frames`` frames (the
+    distinct frames replayed with increasing stamps): (``"tracker"`` or ``"estimator"``, s per
+    frame)."""
+    from ..estimation import estimate_rs_pose
+    from ..estimation.tracker import RSTracker
+    from ..ros import params as P
+
+    cfg = P.build_config({**P.default_values(), "solver": solver})
+    period = 33_333_333
+    if cfg.tracking is not None:
+        tracker = RSTracker(solver, cfg.options, cfg.tracking)
+
+        def run(i, f):
+            tracker.process(seq[0].stamp_ns + i * period, f.uv, f.xyz, cam)
+
+        what = "tracker"
+    else:
+
+        def run(i, f):
+            estimate_rs_pose(f.uv, f.xyz, cam, solver=solver, options=cfg.options)
+
+        what = "estimator"
+    times = []
+    for i in range(frames + 10):  # (the first 10: JIT warm-up and the track's start)
+        tic = time.perf_counter()
+        run(i, seq[i % len(seq)])
+        times.append(time.perf_counter() - tic)
+    return what, np.array(times[10:])
 
 
 def main(argv=None) -> int:
@@ -95,7 +133,14 @@ def main(argv=None) -> int:
     p.add_argument("--node-cpu", type=int, default=0, help="CPU core for the node (-1: no pinning)")
     p.add_argument("--target-hz", type=float, default=100.0)
     p.add_argument("--json", default=None, help="write the results to this file")
+    p.add_argument(
+        "--cameras", type=int, default=0, help="N cameras in one process at --rate each (0: off)"
+    )
+    p.add_argument("--rate", type=float, default=30.0, help="frames per second per camera")
+    p.add_argument("--seconds", type=float, default=20.0, help="length of the camera streams")
     args = p.parse_args(argv)
+    if args.cameras > 0:
+        return _cameras(args)
     res = run_benchmark(
         args.frames,
         args.points,
@@ -111,11 +156,39 @@ def main(argv=None) -> int:
         f"{'met' if hz >= args.target_hz else 'NOT met'}); lock-step "
         f"{res['lockstep']['hz']:.1f} Hz, latency median "
         f"{res['lockstep']['latency_ms_median']:.2f} ms, p99 "
-        f"{res['lockstep']['latency_ms_p99']:.2f} ms"
+        f"{res['lockstep']['latency_ms_p99']:.2f} ms; node overhead {res['overhead_ms']:.2f} ms"
+        f" ({res['alone']} alone {res['estimator_ms_median']:.2f} ms); pose only subscribed: "
+        f"lock-step {res['pose_only']['hz']:.1f} Hz, latency median "
+        f"{res['pose_only']['latency_ms_median']:.2f} ms"
     )
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     return 0
+
+
+def _cameras(args) -> int:
+    from ..ros.bench_client import measure_cameras
+
+    seq, cam = _frames(args.distinct, args.points, 0)
+    res = measure_cameras(
+        seq,
+        cam,
+        args.cameras,
+        args.rate,
+        args.seconds,
+        args.solver,
+        None if args.node_cpu < 0 else args.node_cpu,
+    )
+    skipped = sum(max(r["frames_skipped"], 0) for r in res["cameras"].values())
+    print(
+        f"{args.cameras} cameras x {args.rate:.0f} Hz in one process on one core, {args.solver}, "
+        f"{args.points} correspondences: {res['answered']}/{res['sent']} frames with a pose, "
+        f"{skipped} skipped by the node; latency median {res['latency_ms_median']:.2f} ms, "
+        f"p99 {res['latency_ms_p99']:.2f} ms, max {res['latency_ms_max']:.2f} ms"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
+    return 0 if res["answered"] == res["sent"] else 1
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SINGLE_THREAD_ENV", "measure_node"]
+__all__ = ["SINGLE_THREAD_ENV", "measure_cameras", "measure_node"]
 
 SINGLE_THREAD_ENV = {
     "OMP_NUM_THREADS": "1",
@@ -41,8 +41,10 @@ def measure_node(
             pipelined run. node_cpu: core of the node (None: no pinning).
         result: dict to add the measurements to.
     Returns:
-        ``result`` with ``lockstep`` and ``pipelined`` (hz, latency_ms_median/p99/max, ...) and
-        ``node_stages_ms`` (the node's own stage medians from its diagnostics).
+        ``result`` with ``lockstep`` and ``pipelined`` (every default output subscribed),
+        ``pose_only`` (lock-step with only ``pose`` subscribed) (each: hz,
+        latency_ms_median/p99/max, ...) and ``node_stages_ms`` (the node's own stage medians
+        from its diagnostics).
     Raises:
         RuntimeError: the node did not start.
     """
@@ -94,12 +96,15 @@ def measure_node(
     pub_info = n.create_publisher(CameraInfo, "/bench/camera_info", qos)
     recv = {}
     # a consumer of every output, so that the node builds and sends all of them
-    for t, k in (
-        (TwistStamped, "twist"),
-        (Odometry, "odom"),
-        (PoseWithCovarianceStamped, "pose_with_covariance"),
-    ):
+    others = [
         n.create_subscription(t, f"/bench/{k}", lambda m: None, qos)
+        for t, k in (
+            (TwistStamped, "twist"),
+            (TwistStamped, "twist_single_frame"),
+            (Odometry, "odom"),
+            (PoseWithCovarianceStamped, "pose_with_covariance"),
+        )
+    ]
     n.create_subscription(
         PoseStamped,
         "/bench/pose",
@@ -135,17 +140,19 @@ def measure_node(
             msgs = [raw_frame(start + i) for i in range(count)]  # serialized up front
             sent = {}
             out_stamp = {s: s + int(round(offset * 1e9)) for s, _ in msgs}
-            k = 0
+            k = 0  # frames sent
+            waiting = []  # output stamps of the frames sent and not answered yet
             wall0 = time.perf_counter()
             deadline = wall0 + 60 + count * 0.5
             while time.perf_counter() < deadline:
-                done = sum(1 for s, _ in msgs[:k] if out_stamp[s] in recv)
-                if done == count:
+                waiting = [o for o in waiting if o not in recv]
+                if k == count and not waiting:
                     break
-                if k < count and k - done < win:
+                if k < count and len(waiting) < win:
                     s, raw = msgs[k]
                     sent[s] = time.perf_counter()
                     pub.publish(raw)
+                    waiting.append(out_stamp[s])
                     k += 1
                     continue
                 ex.spin_once(timeout_sec=0.001)
@@ -185,6 +192,15 @@ def measure_node(
         run("warm-up", 10, 0, 1)
         result["lockstep"] = run("lock-step", frames, 10, 1)
         result["pipelined"] = run(f"window {window}", frames, 10 + frames, window)
+        for sub in others:  # the node builds only the pose now (once it has seen them go)
+            n.destroy_subscription(sub)
+        end = time.monotonic() + 10
+        while n.count_subscribers("/bench/odom") and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        t_spin = time.perf_counter() + 0.5
+        while time.perf_counter() < t_spin:
+            ex.spin_once(timeout_sec=0.02)
+        result["pose_only"] = run("pose only", frames, 10 + 2 * frames, 1)
         t_spin = time.perf_counter() + 1.2
         while time.perf_counter() < t_spin:
             ex.spin_once(timeout_sec=0.02)
@@ -201,4 +217,199 @@ def measure_node(
         ex.shutdown()
         rclpy.try_shutdown(context=ctx)
         node.stop()
+    return result
+
+
+def measure_cameras(
+    seq,
+    cam,
+    n_cameras: int = 4,
+    rate_hz: float = 30.0,
+    seconds: float = 20.0,
+    solver: str = "r6p_1lin",
+    node_cpu: int | None = 0,
+    log=print,
+) -> dict:
+    """Several cameras in one ``rs_localizer_node`` process (the ``cameras`` parameter), the
+    process pinned to ``node_cpu`` with single-threaded BLAS/numba: every camera streams
+    ``rate_hz`` frames for ``seconds`` (reliable QoS, the cameras' frames staggered evenly over
+    the period, as free-running cameras are), every default output subscribed.
+
+    Args:
+        seq: frames with ``uv`` (N, 2) px and ``xyz`` (N, 3) m, replayed cyclically by every
+            camera. cam: their :class:`~rs_localizer.camera.CameraModel`. n_cameras: camera
+            namespaces ``cam0``.. under ``/bench``. rate_hz: frames per second per camera.
+            seconds: length of the stream (after a 1 s warm-up stream that is not counted).
+        solver: the node's solver. node_cpu: core of the node (None: no pinning).
+    Returns:
+        ``{"cameras": {name: {"sent", "answered", "latency_ms_median", "latency_ms_p99",
+        "latency_ms_max", "frames_received", "frames_solved", "frames_failed",
+        "frames_skipped", "frames_pending"}}, "answered", "sent", "latency_ms_median",
+        "latency_ms_p99"}`` (latency: publish -> pose received, all cameras pooled; the frame
+        counts from each camera's diagnostics after the stream).
+    Raises:
+        RuntimeError: the node did not start.
+    """
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import CameraInfo, PointCloud2
+
+    from .conversions import camera_info_msg, stamp_to_ns
+    from .pointcloud import correspondence_cloud
+    from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
+
+    ncpu = os.cpu_count() or 1
+    if node_cpu is not None and ncpu < 2:
+        node_cpu = None
+    offset_ns = int(round(cam.time_offset(0.0, cam.reference_line) * 1e9))
+    period = int(round(1e9 / rate_hz))
+    names = [f"cam{k}" for k in range(n_cameras)]
+    spaces = [f"/bench/{c}" for c in names]
+    domain = random_domain_id()
+    env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_bench_"))
+    overlay = write_params_yaml(
+        tmp / "bench.yaml",
+        {"solver": solver, "cameras": names},
+        reliable_topics=[f"{ns}/{t}" for ns in spaces for t in ("correspondences", "camera_info")],
+    )
+    node = NodeProcess(
+        [repo_file("config", "rs_localizer.yaml"), overlay],
+        namespace="/bench",
+        env=env,
+        log=tmp / "node.log",
+        cpus=None if node_cpu is None else [node_cpu],
+    )
+    if node_cpu is not None and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    n = rclpy.create_node("rs_localizer_bench_cameras", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(n)
+    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    pubs, infos, recv, diag = {}, {}, {}, {}
+    keep = []
+    for ns in spaces:
+        pubs[ns] = n.create_publisher(PointCloud2, f"{ns}/correspondences", qos)
+        infos[ns] = n.create_publisher(CameraInfo, f"{ns}/camera_info", qos)
+        keep += [
+            n.create_subscription(t, f"{ns}/{k}", lambda m: None, qos)
+            for t, k in (
+                (TwistStamped, "twist"),
+                (TwistStamped, "twist_single_frame"),
+                (Odometry, "odom"),
+                (PoseWithCovarianceStamped, "pose_with_covariance"),
+            )
+        ]
+        keep.append(
+            n.create_subscription(
+                PoseStamped,
+                f"{ns}/pose",
+                lambda m, ns=ns: recv.setdefault(
+                    (ns, stamp_to_ns(m.header.stamp)), time.perf_counter()
+                ),
+                qos,
+            )
+        )
+
+    def on_diag(m):
+        for st in m.status:
+            for ns in spaces:
+                if st.name.endswith(f"{ns}/rs_localizer"):
+                    diag[ns] = {kv.key: kv.value for kv in st.values}
+
+    n.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
+    sent = {}
+    try:
+        if not node.wait_ready(300, count=n_cameras):
+            raise RuntimeError(f"node did not start:\n{node.log}")
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not all(
+            pubs[ns].get_subscription_count() and n.count_publishers(f"{ns}/pose") for ns in spaces
+        ):
+            ex.spin_once(timeout_sec=0.05)
+        t0 = seq[0].stamp_ns
+        for ns in spaces:
+            infos[ns].publish(camera_info_msg(cam, "camera", t0))
+        t_spin = time.perf_counter() + 0.5
+        while time.perf_counter() < t_spin:
+            ex.spin_once(timeout_sec=0.02)
+        raw = {}  # (frame index) -> serialized cloud, built before the stream
+
+        def message(i):
+            if i not in raw:
+                f = seq[i % len(seq)]
+                raw[i] = serialize_message(
+                    correspondence_cloud(f.uv, f.xyz, frame_id="camera", stamp=t0 + i * period)
+                )
+            return raw[i]
+
+        warm = int(round(rate_hz))
+        count = warm + int(round(rate_hz * seconds))
+        for i in range(count):
+            message(i)
+        events = sorted(
+            (i * period + k * period // n_cameras, i, ns)
+            for i in range(count)
+            for k, ns in enumerate(spaces)
+        )
+        wall0 = time.perf_counter()
+        for due_ns, i, ns in events:
+            due = wall0 + due_ns * 1e-9
+            while True:
+                left = due - time.perf_counter()
+                if left <= 0:
+                    break
+                ex.spin_once(timeout_sec=min(left, 0.002) if left > 0.002 else 0)
+            if i >= warm:
+                sent[(ns, t0 + i * period + offset_ns)] = time.perf_counter()
+            pubs[ns].publish(message(i))
+        end = time.perf_counter() + 5.0
+        while time.perf_counter() < end and not all(k in recv for k in sent):
+            ex.spin_once(timeout_sec=0.01)
+        t_spin = time.perf_counter() + 1.5  # the diagnostics after the stream
+        while time.perf_counter() < t_spin:
+            ex.spin_once(timeout_sec=0.02)
+    finally:
+        ex.remove_node(n)
+        n.destroy_node()
+        ex.shutdown()
+        rclpy.try_shutdown(context=ctx)
+        node.stop()
+
+    def stats(lat):
+        lat = np.asarray(lat) * 1e3
+        if not len(lat):
+            return dict.fromkeys(("latency_ms_median", "latency_ms_p99", "latency_ms_max"), np.nan)
+        return {
+            "latency_ms_median": float(np.median(lat)),
+            "latency_ms_p99": float(np.percentile(lat, 99)),
+            "latency_ms_max": float(lat.max()),
+        }
+
+    result = {"cameras": {}}
+    pooled = []
+    for ns in spaces:
+        lat = [recv[k] - t for k, t in sent.items() if k[0] == ns and k in recv]
+        pooled += lat
+        d = diag.get(ns, {})
+        row = {"sent": sum(1 for k in sent if k[0] == ns), "answered": len(lat), **stats(lat)}
+        for key in ("received", "solved", "failed", "skipped", "pending"):
+            row[f"frames_{key}"] = int(float(d[f"frames_{key}"])) if f"frames_{key}" in d else -1
+        result["cameras"][ns] = row
+        log(
+            f"{ns}: {row['answered']}/{row['sent']} poses; node counted received "
+            f"{row['frames_received']}, solved {row['frames_solved']}, failed "
+            f"{row['frames_failed']}, skipped {row['frames_skipped']}; latency median "
+            f"{row['latency_ms_median']:.2f} ms, p99 {row['latency_ms_p99']:.2f} ms, max "
+            f"{row['latency_ms_max']:.2f} ms"
+        )
+    result.update(sent=len(sent), answered=len(pooled), **stats(pooled))
     return result

@@ -8,6 +8,9 @@ frame (REP 103: z forward, x right, y down). Covariances are 6x6 in ROS order
 
 from __future__ import annotations
 
+import functools
+import importlib
+import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -51,10 +54,39 @@ _NS = 1_000_000_000
 
 
 # ---------------------------------------------------------------- rotations
-def quaternion_from_matrix(R: ArrayLike) -> np.ndarray:
+def _supports_assume_valid() -> bool:
+    """Whether ``Rotation.from_matrix`` takes ``assume_valid`` (SciPy >= 1.15). Older
+    SciPy (e.g. Debian 12's 1.10) builds it as a Cython builtin without a signature, so
+    this tries the keyword instead of inspecting."""
+    try:
+        Rotation.from_matrix(np.eye(3), assume_valid=True)
+    except TypeError:
+        return False
+    return True
+
+
+#: SciPy >= 1.15 can skip projecting a matrix onto SO(3) (``assume_valid``; 4x faster)
+_ASSUME_VALID = _supports_assume_valid()
+
+
+def quaternion_from_matrix(R: ArrayLike, orthonormal: bool = False) -> np.ndarray:
     """(3, 3) rotation -> (4,) unit quaternion ``(x, y, z, w)`` (ROS order) with ``w >= 0``,
-    via SciPy (a non-orthonormal input is projected onto SO(3) by SciPy first)."""
-    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
+    via SciPy. A non-orthonormal input is first projected onto SO(3) (the nearest rotation
+    in the Frobenius norm, by SVD; SciPy's own handling of such input differs between
+    versions), unless ``orthonormal`` says it is a rotation to rounding already (an
+    estimate's orientation: no projection, ~4x faster with SciPy >= 1.15).
+
+    Raises ``ValueError`` on a matrix that is not (3, 3) or not finite."""
+    R = np.asarray(R, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise ValueError(f"expected a finite (3, 3) rotation matrix, got shape {R.shape}")
+    if orthonormal:
+        rot = Rotation.from_matrix(R, **({"assume_valid": True} if _ASSUME_VALID else {}))
+    else:
+        U, _, Vt = np.linalg.svd(R)
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+        rot = Rotation.from_matrix(U @ D @ Vt)
+    q = rot.as_quat()
     return -q if q[3] < 0 else q
 
 
@@ -107,13 +139,11 @@ def ns_to_stamp(ns: int) -> Time:
         StampError (a ValueError): ``ns`` outside [0, 2^31 s) (int32 seconds; never clamped or
         wrapped).
     """
-    from builtin_interfaces.msg import Time
-
     ns = int(ns)
     if not 0 <= ns <= STAMP_MAX_NS:
         raise StampError(f"stamp {ns} ns is outside [0, 2^31 s): not representable")
     sec, nsec = divmod(ns, _NS)
-    return Time(sec=sec, nanosec=nsec)
+    return _message_class("builtin_interfaces", "Time")(sec=sec, nanosec=nsec)
 
 
 # ---------------------------------------------------------------- cameras
@@ -271,6 +301,13 @@ def camera_model_from_camera_info(
         raise CameraInfoError("bad_intrinsics", str(e)) from None
 
 
+@functools.cache
+def _message_class(package: str, name: str):
+    """``<package>.msg.<name>``, imported on first use (this module also serves rosbags users
+    without rclpy's message packages)."""
+    return getattr(importlib.import_module(f"{package}.msg"), name)
+
+
 def _stamped(msg_type, stamp_ns: int, frame_id: str):
     """A new ``msg_type()`` (a message with a ``std_msgs/Header``) stamped ``stamp_ns``
     (integer ns) in ``frame_id``."""
@@ -311,14 +348,20 @@ def covariance36(C: ArrayLike | None) -> np.ndarray:
 
 
 def _quaternion(est):
-    """Quaternion of ``est.orientation``, computed once per estimate."""
-    cache = _quaternion.cache
-    if cache[0] is not est:
-        cache[:] = [est, quaternion_from_matrix(est.orientation)]
-    return cache[1]
+    """Quaternion of ``est.orientation``, computed once per orientation array: a frame's pose
+    and, frames later, its fused twist's odom share it (the last 8 are kept)."""
+    R = est.orientation
+    with _QUATERNIONS_LOCK:  # (the worker thread and the executor's flush timer)
+        hit = _QUATERNIONS.get(id(R))
+        if hit is None or hit[0] is not R:
+            if len(_QUATERNIONS) >= 8:
+                del _QUATERNIONS[next(iter(_QUATERNIONS))]
+            hit = _QUATERNIONS[id(R)] = (R, quaternion_from_matrix(R, orthonormal=True))
+    return hit[1]
 
 
-_quaternion.cache = [None, None]
+_QUATERNIONS: dict = {}  # id(orientation) -> (orientation, quaternion), oldest first
+_QUATERNIONS_LOCK = threading.Lock()
 
 
 def _fill_pose(pose, est):
@@ -341,18 +384,14 @@ def _fill_twist(twist, est):
 
 def pose_stamped(est: Any, stamp_ns: int, map_frame: str) -> PoseStamped:
     """Camera optical frame pose in ``map_frame`` at the reference row."""
-    from geometry_msgs.msg import PoseStamped
-
-    msg = _stamped(PoseStamped, stamp_ns, map_frame)
+    msg = _stamped(_message_class("geometry_msgs", "PoseStamped"), stamp_ns, map_frame)
     _fill_pose(msg.pose, est)
     return msg
 
 
 def twist_stamped(est: Any, stamp_ns: int, camera_frame: str) -> TwistStamped:
     """Camera velocity (rad/s, m/s) in its own optical frame."""
-    from geometry_msgs.msg import TwistStamped
-
-    msg = _stamped(TwistStamped, stamp_ns, camera_frame)
+    msg = _stamped(_message_class("geometry_msgs", "TwistStamped"), stamp_ns, camera_frame)
     _fill_twist(msg.twist, est)
     return msg
 
@@ -360,9 +399,9 @@ def twist_stamped(est: Any, stamp_ns: int, camera_frame: str) -> TwistStamped:
 def pose_with_covariance_stamped(
     est: Any, stamp_ns: int, map_frame: str
 ) -> PoseWithCovarianceStamped:
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-
-    msg = _stamped(PoseWithCovarianceStamped, stamp_ns, map_frame)
+    msg = _stamped(
+        _message_class("geometry_msgs", "PoseWithCovarianceStamped"), stamp_ns, map_frame
+    )
     _fill_pose(msg.pose.pose, est)
     msg.pose.covariance = covariance36(est.pose_covariance)
     return msg
@@ -370,9 +409,7 @@ def pose_with_covariance_stamped(
 
 def odometry(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> Odometry:
     """nav_msgs/Odometry: pose in ``map_frame``, twist in ``camera_frame`` (child frame)."""
-    from nav_msgs.msg import Odometry
-
-    msg = _stamped(Odometry, stamp_ns, map_frame)
+    msg = _stamped(_message_class("nav_msgs", "Odometry"), stamp_ns, map_frame)
     msg.child_frame_id = camera_frame
     _fill_pose(msg.pose.pose, est)
     msg.pose.covariance = covariance36(est.pose_covariance)

@@ -5,11 +5,10 @@ decode the input, pick the camera model, call the estimator, publish, count. Ima
 an image front end (:mod:`rs_localizer.frontends`: ArUco markers or natural features against a
 map) first, then down the same path as a correspondence cloud.
 
-Threads: the subscription callbacks (executor thread) only put frames into a bounded queue
-(``queue_size``; when it is full the oldest waiting frame is dropped and counted as skipped,
-so the newest frames are solved); one worker thread takes them out, solves and publishes. So
-``frames_received = frames_solved + frames_failed + frames_skipped (+ frames_pending)``, and the
-executor stays free for camera_info, parameters and diagnostics however slow a frame is.
+Threads: the subscription callbacks only count frames and put them into a bounded queue
+(``queue_size``; a full queue drops its oldest frame, counted as skipped); one worker thread
+solves and publishes, so the executor stays free for camera_info, parameters and diagnostics
+however slow a frame is (the accounting: :mod:`rs_localizer.ros.frame_queue`).
 
 Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; overridable with
 ``qos_overrides.<topic>.subscription.*``):
@@ -40,6 +39,7 @@ Publications (reliable, depth 10):
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections import deque
@@ -86,6 +86,7 @@ _CLOUD_QOS, _IMAGE_QOS = (
     for depth in (100, 10)
 )
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 _LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN, ERROR: DiagnosticStatus.ERROR}
 
 
@@ -318,7 +319,9 @@ class LocalizerCore:
         """Subscription callbacks: count the frame and queue it for the worker. A full queue
         drops its oldest frame (``frames_skipped``): the newest frames are the ones solved."""
         size = self.cfg.queue_size
-        if self._frames.put((msg, kind, time.perf_counter()), size):
+        skipped = self._frames.put((msg, kind, time.perf_counter()), size)
+        _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
+        if skipped:
             self.pipeline.log.warning(
                 "skipped",
                 f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
@@ -335,13 +338,12 @@ class LocalizerCore:
         failed frame: the fused twists it made final), log a failure."""
         tic = time.perf_counter()
         cfg = self.cfg
-        if getattr(res, "image", None) is not None:
-            self.viz.set_image(*res.image)
+        self.viz.hold_image(getattr(res, "image", None) if res.failure is None else None)
         if getattr(res, "correspondences", None) is not None:
             cloud = correspondence_cloud(*res.correspondences, res.frame_id, res.stamp_ns)
             self._corr_out_publisher().publish(cloud)
         if res.failure is not None:
-            self._publish(fused_messages(getattr(res, "fused", ()), cfg.map_frame))
+            self._publish(fused_messages(getattr(res, "fused", ()), cfg.map_frame, self._wanted))
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
                 self._frames.failures(res.failure),
@@ -374,7 +376,7 @@ class LocalizerCore:
         resets it): publish the twists still pending."""
         cfg = self.cfg
         if cfg is not None:
-            self._publish(fused_messages(self.pipeline.flush_idle(), cfg.map_frame))
+            self._publish(fused_messages(self.pipeline.flush_idle(), cfg.map_frame, self._wanted))
 
     def _corr_out_publisher(self):
         if self.pub_corr_out is None:

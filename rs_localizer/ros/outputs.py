@@ -23,25 +23,35 @@ __all__ = ["OUTPUT_TOPICS", "frame_messages", "fused_messages"]
 OUTPUT_TOPICS = ("pose", "twist_single_frame", "twist", "odom", "pose_with_covariance", "tf")
 
 
-def fused_messages(fused: Iterable[FusedOutput], map_frame: str) -> list[tuple[str, Any]]:
-    """``(topic, message)`` of the twist and odom of frames whose fused twist is final."""
+def _everything(topic: str) -> bool:
+    return True
+
+
+def fused_messages(
+    fused: Iterable[FusedOutput], map_frame: str, wanted: Callable[[str], bool] = _everything
+) -> list[tuple[str, Any]]:
+    """``(topic, message)`` of the twist and odom of frames whose fused twist is final
+    (``wanted(topic)`` false: that topic's messages are not built)."""
+    twist, odom = wanted("twist"), wanted("odom")
     out = []
     for f in fused:
-        out.append(("twist", cv.twist_stamped(f.source, f.stamp_ns, f.frame_id)))
-        out.append(("odom", cv.odometry(f.source, f.stamp_ns, map_frame, f.frame_id)))
+        if twist:
+            out.append(("twist", cv.twist_stamped(f.source, f.stamp_ns, f.frame_id)))
+        if odom:
+            out.append(("odom", cv.odometry(f.source, f.stamp_ns, map_frame, f.frame_id)))
     return out
 
 
 def frame_messages(
-    res: FrameResult, map_frame: str, wanted: Callable[[str], bool] = lambda topic: True
+    res: FrameResult, map_frame: str, wanted: Callable[[str], bool] = _everything
 ) -> list[tuple[str, Any]]:
     """``(topic, message)`` of everything a frame's result publishes, in order: for a solved
     frame ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist, or the
     fused twists now final), ``pose_with_covariance`` and ``tf``; for a failed one the fused
     twists now final. ``wanted(topic)`` false skips building a message nobody receives
-    (``pose`` and fused twists are always built); ``tf`` needs ``tf2_msgs``."""
+    (``pose`` is always built); ``tf`` needs ``tf2_msgs``."""
     if not res.solved:
-        return fused_messages(res.fused, map_frame)
+        return fused_messages(res.fused, map_frame, wanted)
     out, frame, stamp = res.output, res.output_frame, res.out_stamp_ns
     msgs: list[tuple[str, Any]] = [("pose", cv.pose_stamped(out, stamp, map_frame))]
     if wanted("twist_single_frame"):
@@ -52,7 +62,7 @@ def frame_messages(
         if wanted("odom"):
             msgs.append(("odom", cv.odometry(out, stamp, map_frame, frame)))
     else:
-        msgs += fused_messages(res.fused, map_frame)
+        msgs += fused_messages(res.fused, map_frame, wanted)
     if wanted("pose_with_covariance"):
         msgs.append(
             ("pose_with_covariance", cv.pose_with_covariance_stamped(out, stamp, map_frame))

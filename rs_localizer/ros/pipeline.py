@@ -540,6 +540,11 @@ class FramePipeline:
             h, w = int(msg.height), int(msg.width)
             if h * w == 0:
                 raise _Drop("bad_image", f"empty image ({w}x{h})")
+            if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
+                raise _Drop(  # (before decoding: no copy of an image of the wrong size)
+                    "image_size_mismatch",
+                    f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
+                )
             try:
                 img, enc = image_from_msg(msg)
             except ValueError as e:

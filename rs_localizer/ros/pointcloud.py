@@ -13,6 +13,7 @@ pixel coordinates) and ``x, y, z`` (map frame, metres), float32 or float64; opti
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,7 +89,8 @@ def _dt_name(dt: int) -> str:
 
 
 def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.dtype:
-    """Structured dtype (itemsize ``point_step``) from a list of PointField-like objects.
+    """Structured dtype (itemsize ``point_step``) from a list of PointField-like objects
+    (layouts seen before come from a cache: a camera sends the same layout every frame).
 
     Raises:
         CloudError (a ValueError): ``wrong_field_type`` for an unknown datatype;
@@ -96,25 +98,29 @@ def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.d
         size ``count`` x datatype), two fields that overlap (a ``v`` at the offset of ``u``
         would make every ``v`` equal its ``u``), or ``point_step <= 0``.
     """
-    point_step = int(point_step)
+    layout = tuple((str(f.name), int(f.offset), int(f.datatype), int(f.count)) for f in fields)
+    return _layout_dtype(layout, int(point_step), bool(is_bigendian))
+
+
+@functools.lru_cache(maxsize=64)
+def _layout_dtype(layout: tuple, point_step: int, is_bigendian: bool) -> np.dtype:
+    """:func:`fields_to_dtype` of ``layout``, ``((name, offset, datatype, count), ...)``
+    (an invalid layout raises, and is not cached)."""
     if point_step <= 0:
         raise CloudError("bad_layout", f"point_step must be > 0, got {point_step}")
     order = ">" if is_bigendian else "<"
     names, formats, offsets, spans = [], [], [], []
-    for f in fields:
-        name = str(f.name)
+    for name, offset, dt, count in layout:
         if not name:
             raise CloudError("bad_layout", "PointCloud2 field with an empty name")
         if name in names:
             raise CloudError("bad_layout", f"duplicate PointCloud2 field {name!r}")
-        dt = int(f.datatype)
         if dt not in _DT_TO_NP:
             raise CloudError(
                 "wrong_field_type", f"field {name!r} has unknown PointField datatype {dt}"
             )
-        count = max(int(f.count), 1)
+        count = max(count, 1)
         base = np.dtype(order + _DT_TO_NP[dt])
-        offset = int(f.offset)
         size = count * base.itemsize  # (checked before NumPy sees a huge count)
         if offset < 0 or offset + size > point_step:
             raise CloudError(

@@ -270,8 +270,23 @@ class NodeVisualization:
         self._image = None  # (image, encoding, stamp_ns) of the current input image
 
     def set_image(self, image, encoding, stamp_ns: int):
-        """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode)."""
-        self._image = (image, encoding, int(stamp_ns))
+        """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode) for
+        the next :meth:`publish`, only while ``debug_image`` has a subscriber: nothing else
+        needs it, and an image can be hundreds of MB."""
+        wanted = self.pub_image.get_subscription_count() > 0
+        self._image = (image, encoding, int(stamp_ns)) if wanted else None
+
+    def clear_image(self):
+        """Forget the remembered input image (its frame was not solved: no publish)."""
+        self._image = None
+
+    def hold_image(self, image: tuple | None):
+        """:meth:`set_image` with ``(image, encoding, stamp_ns)`` of a solved frame, or
+        :meth:`clear_image` with ``None`` (a frame without an image, or not solved)."""
+        if image is None:
+            self.clear_image()
+        else:
+            self.set_image(*image)
 
     def _read_parameters(self):
         b, get = self.builder, self.node.get_parameter
