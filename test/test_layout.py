@@ -25,6 +25,7 @@ LAYER = {
     "frontends": 3,
     "viz": 3,
     "sim": 4,
+    "mapping": 4,
     "ros": 5,
     "evaluation": 6,
     "cli": 7,
