@@ -10,12 +10,15 @@
 * :mod:`.scoring`: MSAC scoring kernels on the RS model;
 * :mod:`.refine`: Levenberg-Marquardt on the exact constant-velocity model (eq. 4) and its
   covariance;
-* :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate.
+* :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate;
+  :mod:`.gyro`: a gyro's angular velocity over the readout as a measurement
+  (:class:`GyroMeasurement`, :func:`gyro_measurement`).
 * :mod:`.noise_model`: spatially correlated image error in the covariance (its fit on still
   calibration views).
 """
 
 from .estimate import estimate_rs_pose
+from .gyro import GyroMeasurement, gyro_measurement, readout_window
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -34,6 +37,7 @@ __all__ = [
     "FAILURE_REASONS",
     "CorrelatedNoise",
     "EstimateOptions",
+    "GyroMeasurement",
     "InitialModel",
     "LocalOptimizationOptions",
     "MotionPrior",
@@ -44,6 +48,8 @@ __all__ = [
     "cap_points",
     "estimate_rs_pose",
     "exact_errors",
+    "gyro_measurement",
     "physical_velocities",
+    "readout_window",
     "refine_rs_pose",
 ]

@@ -18,13 +18,15 @@ estimator turns it into a failed :class:`RSPoseEstimate` in one place.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..camera import CameraModel
-from ..solvers.registry import SOLVER_NAMES, sample_size
+from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .finalize import final_estimate, refine_final_model
 from .frame import configure_frame, prepare_frame
+from .gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement, gyro_consistency, gyro_prior
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -42,6 +44,7 @@ __all__ = [
     "SOLVERS",
     "CorrelatedNoise",
     "EstimateOptions",
+    "GyroMeasurement",
     "InitialModel",
     "LocalOptimizationOptions",
     "MotionPrior",
@@ -67,6 +70,7 @@ def estimate_rs_pose(
     scores: np.ndarray | None = None,
     *,
     initial_model: InitialModel | None = None,
+    gyro: GyroMeasurement | None = None,
 ) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
@@ -89,6 +93,15 @@ def estimate_rs_pose(
             frames of a video): tested first; if it explains enough points it seeds RANSAC and
             its rotation replaces P3P as the samples' pre-rotation. Without it the estimator is
             unchanged.
+        gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of this
+            frame's readout (camera optical frame): added to the motion prior
+            (:func:`~rs_localizer.estimation.gyro.gyro_prior`), so local optimization and the
+            final refinement are maximum a posteriori with it on every frame, and on planar
+            frames the hypotheses' damped solves use it too; the covariance includes it. If
+            the image disagrees with it (:func:`~rs_localizer.estimation.gyro.gyro_consistency`
+            above :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`) or the aided
+            estimate fails where an unaided one succeeds, the frame is solved again without
+            it and ``gyro_rejected`` is set. Ignored by the global-shutter ``p3p``.
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason
@@ -100,6 +113,32 @@ def estimate_rs_pose(
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
+    args = (points2d_px, points3d, camera, solver)
+    if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
+        return _estimate(*args, opts, scores, initial_model)
+    aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
+    est = _estimate(*args, aided, scores, initial_model)
+    if est.success and est.twist_covariance is not None:
+        chi2 = gyro_consistency(gyro, est.angular_velocity, est.twist_covariance[3:, 3:])
+        if chi2 <= GYRO_CHI2_THRESHOLD:
+            return replace(est, gyro_used=True)
+    unaided = _estimate(*args, opts, scores, initial_model)
+    if est.success or unaided.success:
+        return replace(unaided, gyro_rejected=True)
+    return unaided
+
+
+def _estimate(
+    points2d_px: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    solver: str,
+    opts: EstimateOptions,
+    scores: np.ndarray | None,
+    initial_model: InitialModel | None,
+) -> RSPoseEstimate:
+    """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
+    a gyro)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)

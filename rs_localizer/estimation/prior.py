@@ -55,6 +55,10 @@ class MotionPrior:
             the most likely a priori; the sigmas say how fast it may move).
         covariance: (6, 6) prior covariance in the same order; replaces the two sigmas when
             given (symmetric positive definite).
+        information_matrix: (6, 6) inverse covariance in the same order; replaces the sigmas
+            and ``covariance`` when given (symmetric positive semi-definite: zero rows leave a
+            component unconstrained, e.g. a gyro measures the angular velocity only,
+            :func:`rs_localizer.estimation.gyro.gyro_prior`).
         always: use the prior on every frame, in local optimization and refinement. Default
             False: on planar frames always; on other frames only in the final refinement and
             only if the maximum-likelihood velocities do not conflict with it (a chi-square
@@ -77,6 +81,7 @@ class MotionPrior:
     mean: np.ndarray | None = None
     covariance: np.ndarray | None = None
     always: bool = False
+    information_matrix: np.ndarray | None = None
 
     def __post_init__(self):
         for name in ("angular_velocity_sigma", "linear_velocity_sigma"):
@@ -98,6 +103,18 @@ class MotionPrior:
             except np.linalg.LinAlgError:
                 raise ValueError("motion prior covariance must be positive definite") from None
             object.__setattr__(self, "covariance", S)
+        if self.information_matrix is not None:
+            L = np.asarray(self.information_matrix, dtype=float)
+            if L.shape != (6, 6) or not np.isfinite(L).all():
+                raise ValueError(
+                    f"motion prior information_matrix must be a finite (6, 6) matrix, got "
+                    f"shape {L.shape}"
+                )
+            if not np.allclose(L, L.T, rtol=1e-9, atol=1e-12 * max(np.abs(L).max(), 1e-300)):
+                raise ValueError("motion prior information_matrix must be symmetric")
+            if np.linalg.eigvalsh(0.5 * (L + L.T)).min() < -1e-9 * max(np.abs(L).max(), 1e-300):
+                raise ValueError("motion prior information_matrix must be positive semi-definite")
+            object.__setattr__(self, "information_matrix", 0.5 * (L + L.T))
         # (on, mean, information) for the kernels, computed once (the prior is immutable)
         if self.enabled:
             Lam = self.information()
@@ -115,6 +132,8 @@ class MotionPrior:
     @property
     def enabled(self) -> bool:
         """True if the prior constrains anything (a covariance, or a positive finite sigma)."""
+        if self.information_matrix is not None:
+            return bool(np.abs(self.information_matrix).max() > 0)
         return self.covariance is not None or bool(
             self._inverse_variance(self.angular_velocity_sigma)
             or self._inverse_variance(self.linear_velocity_sigma)
@@ -127,6 +146,8 @@ class MotionPrior:
     def information(self) -> np.ndarray:
         """(6, 6) information matrix (inverse covariance), ROS twist order; zero rows and
         columns for unconstrained components."""
+        if self.information_matrix is not None:
+            return self.information_matrix.copy()
         if self.covariance is not None:
             return np.linalg.inv(self.covariance)
         return np.diag(

@@ -122,6 +122,11 @@ class RSPoseEstimate:
             velocity, linear velocity) per (angular acceleration [rad/s^2], linear acceleration
             [m/s^2]) during the readout, camera frame; only with
             ``RefineOptions.acceleration_sensitivity``, else ``None``.
+        gyro_used: the estimate used the gyro measurement passed to the estimator (its
+            velocities, pose and covariance include it).
+        gyro_rejected: a gyro measurement was passed but the image disagreed with it (or the
+            aided estimate failed where an unaided one succeeded); the estimate is the unaided
+            one.
     """
 
     success: bool
@@ -154,6 +159,8 @@ class RSPoseEstimate:
     initial_explained: int = -1
     initial_used: bool = False
     acceleration_sensitivity: np.ndarray | None = None
+    gyro_used: bool = False
+    gyro_rejected: bool = False
 
     @property
     def num_inliers(self) -> int:

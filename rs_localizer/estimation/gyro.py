@@ -1,0 +1,221 @@
+"""A gyro as a measurement of the rolling-shutter model's angular velocity.
+
+The RS model of one frame moves with constant angular velocity ``omega`` during the readout
+(paper eq. 2-4; docs/architecture.md "Conventions"). On planar scenes one frame barely
+separates ``omega`` from the rotation; a gyro rigidly mounted on the camera measures it
+directly. :func:`gyro_measurement` turns the gyro samples of one readout into the mean angular
+velocity over the readout window in the camera optical frame with its covariance;
+:func:`gyro_prior` combines it with the estimator's motion prior (information form), and
+``estimate_rs_pose(..., gyro=...)`` uses the result in local optimization and the final
+refinement (maximum a posteriori) and, on planar frames, in the damped hypothesis solves.
+:func:`gyro_consistency` tests whether the image agreed with the gyro.
+
+Conventions: IMU samples are in the IMU frame; ``R_cam_imu`` rotates IMU axes into the camera
+optical frame (``omega_cam = R_cam_imu (omega_imu - bias)``); ``time_offset`` is added to IMU
+stamps to put them on the camera clock (``t_cam = t_imu + time_offset``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from ..camera import CameraModel
+from .prior import MotionPrior
+
+__all__ = [
+    "GYRO_CHI2_THRESHOLD",
+    "GyroMeasurement",
+    "gyro_consistency",
+    "gyro_measurement",
+    "gyro_prior",
+    "readout_window",
+]
+
+#: chi-square (3 dof) above which the image disagrees with the gyro: P(chi2_3 > 16.27) = 0.001
+GYRO_CHI2_THRESHOLD = 16.27
+
+
+@dataclass(frozen=True)
+class GyroMeasurement:
+    """The camera's mean angular velocity during one frame's readout, measured by a gyro.
+
+    Attributes:
+        angular_velocity: (3,) rad/s, camera optical frame.
+        covariance: (3, 3) rad^2/s^2, symmetric positive definite (noise of the averaged
+            samples plus the uncertainty of the gyro bias).
+
+    Raises ``ValueError`` (on construction) for non-finite values, wrong shapes or a
+    covariance that is not symmetric positive definite.
+    """
+
+    angular_velocity: np.ndarray
+    covariance: np.ndarray
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.angular_velocity, dtype=float).reshape(-1)
+        S = np.asarray(self.covariance, dtype=float)
+        if w.shape != (3,) or not np.isfinite(w).all():
+            raise ValueError(f"gyro angular_velocity must be 3 finite numbers, got {w!r}")
+        if S.shape != (3, 3) or not np.isfinite(S).all():
+            raise ValueError(f"gyro covariance must be a finite (3, 3) matrix, got {S.shape}")
+        if not np.allclose(S, S.T, rtol=1e-9, atol=1e-15):
+            raise ValueError("gyro covariance must be symmetric")
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise ValueError("gyro covariance must be positive definite") from None
+        object.__setattr__(self, "angular_velocity", w)
+        object.__setattr__(self, "covariance", 0.5 * (S + S.T))
+
+
+def readout_window(
+    camera: CameraModel, stamp: float, stamp_line: float | None = None
+) -> tuple[float, float]:
+    """Capture times (s) of the first and the last line read out of a frame.
+
+    Args:
+        camera: the camera (line delay, readout direction, lines).
+        stamp: the frame's stamp (s, camera clock).
+        stamp_line: the line (pixel coordinate along the readout axis) whose capture time is
+            ``stamp``; ``None``: the camera's reference line (the estimate's time).
+    Returns:
+        ``(t_first, t_last)`` with ``t_last - t_first = line_delay * (lines - 1)``.
+    """
+    line = camera.reference_line if stamp_line is None else float(stamp_line)
+    t0 = float(stamp) - float(camera.line_time(line))
+    return t0, t0 + camera.line_delay * (camera.lines - 1)
+
+
+def gyro_measurement(
+    stamps: ArrayLike,
+    rates: ArrayLike,
+    window: tuple[float, float],
+    R_cam_imu: ArrayLike | None = None,
+    bias: ArrayLike | None = None,
+    noise: float = 0.003,
+    bias_sigma: float = 0.0,
+    time_offset: float = 0.0,
+) -> GyroMeasurement:
+    """The mean angular velocity over a readout window from gyro samples.
+
+    The rate between samples is linearly interpolated; its mean over ``window`` (its integral
+    divided by the window's length; the rate at that instant for a zero-length window, a
+    global-shutter camera) is rotated into the camera optical frame after subtracting the bias.
+    The covariance is ``noise^2 / n I + bias_sigma^2 I`` with ``n >= 1`` the number of
+    sample intervals the window spans (independent sample noise averages down; the bias does
+    not).
+
+    Args:
+        stamps: (M,) IMU sample times (s, IMU clock), strictly increasing, M >= 2.
+        rates: (M, 3) angular rates (rad/s, IMU frame).
+        window: ``(t_first, t_last)`` capture times of the first and last line (s, camera
+            clock; :func:`readout_window`).
+        R_cam_imu: (3, 3) rotation IMU -> camera optical frame (default identity).
+        bias: (3,) gyro bias (rad/s, IMU frame) subtracted from the rates (default zero).
+        noise: standard deviation of one sample (rad/s), > 0.
+        bias_sigma: standard deviation of the bias error per axis (rad/s), >= 0.
+        time_offset: added to the IMU stamps to put them on the camera clock (s).
+    Returns:
+        :class:`GyroMeasurement`.
+    Raises:
+        ValueError: shapes, non-finite values, stamps not strictly increasing, ``noise <= 0``,
+            ``bias_sigma < 0``, a window with ``t_last < t_first``, or samples that do not
+            cover the window.
+    """
+    t = np.asarray(stamps, dtype=float).reshape(-1) + float(time_offset)
+    om = np.asarray(rates, dtype=float)
+    if om.ndim != 2 or om.shape[1] != 3 or len(om) != len(t) or len(t) < 2:
+        raise ValueError(f"gyro needs stamps (M,) and rates (M, 3) with M >= 2, got {om.shape}")
+    if not (np.isfinite(t).all() and np.isfinite(om).all()):
+        raise ValueError("gyro stamps and rates must be finite")
+    if not (np.diff(t) > 0).all():
+        raise ValueError("gyro stamps must be strictly increasing")
+    if not (np.isfinite(noise) and noise > 0) or not (np.isfinite(bias_sigma) and bias_sigma >= 0):
+        raise ValueError(f"gyro noise must be > 0 and bias_sigma >= 0, got {noise}, {bias_sigma}")
+    a, b = float(window[0]), float(window[1])
+    if not (np.isfinite(a) and np.isfinite(b) and b >= a):
+        raise ValueError(f"readout window must be finite with t_last >= t_first, got {window}")
+    if a < t[0] or b > t[-1]:
+        raise ValueError(
+            f"gyro samples [{t[0]:.6f}, {t[-1]:.6f}] s do not cover the readout "
+            f"[{a:.6f}, {b:.6f}] s"
+        )
+    if b > a:
+        inner = t[(t > a) & (t < b)]
+        grid = np.concatenate(([a], inner, [b]))
+        vals = np.stack([np.interp(grid, t, om[:, k]) for k in range(3)], 1)
+        dt = np.diff(grid)[:, None]
+        mean = (0.5 * (vals[1:] + vals[:-1]) * dt).sum(0) / (b - a)  # trapezoid rule
+        n = max(1, int(np.searchsorted(t, b) - np.searchsorted(t, a, side="right")) + 1)
+    else:
+        mean = np.array([np.interp(a, t, om[:, k]) for k in range(3)])
+        n = 1
+    if bias is not None:
+        mean = mean - np.asarray(bias, dtype=float).reshape(3)
+    R = np.eye(3) if R_cam_imu is None else np.asarray(R_cam_imu, dtype=float).reshape(3, 3)
+    cov = (noise**2 / n + bias_sigma**2) * np.eye(3)
+    return GyroMeasurement(R @ mean, R @ cov @ R.T)
+
+
+def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> MotionPrior:
+    """The estimator's motion prior with a gyro measurement added (information form).
+
+    ``Lambda = Lambda_base + Lambda_gyro`` (the gyro's information on the angular velocity
+    block of the ROS twist order ``(v, omega)``), ``mean = Lambda^+ (Lambda_base m_base +
+    Lambda_gyro omega_gyro)``; ``always`` is set (a measurement is used on every frame).
+
+    Args:
+        gyro: the frame's :class:`GyroMeasurement` (camera optical frame).
+        base: the motion prior without the gyro (``None``: none, the linear velocity is then
+            unconstrained).
+    Returns:
+        :class:`~rs_localizer.estimation.prior.MotionPrior` with ``information_matrix``.
+    """
+    Lg = np.zeros((6, 6))
+    Lg[3:, 3:] = np.linalg.inv(gyro.covariance)
+    if base is not None and base.enabled:
+        Lb, mb = base.information(), base.mean_vector()
+    else:
+        Lb, mb = np.zeros((6, 6)), np.zeros(6)
+    L = Lb + Lg
+    L = 0.5 * (L + L.T)
+    rhs = Lb @ mb
+    rhs[3:] += Lg[3:, 3:] @ gyro.angular_velocity
+    mean = np.linalg.lstsq(L, rhs, rcond=None)[0]
+    return MotionPrior(mean=mean, information_matrix=L, always=True)
+
+
+def gyro_consistency(
+    gyro: GyroMeasurement, angular_velocity: ArrayLike, posterior_covariance: ArrayLike
+) -> float:
+    """Chi-square (3 dof) of the gyro against a gyro-aided (MAP) estimate.
+
+    In a linear-Gaussian model the residual ``r = omega_MAP - omega_gyro`` of a measurement
+    used in the fit has covariance ``S_gyro - S_post`` (``S_post`` the estimate's posterior
+    covariance of the angular velocity): ``r^T (S_gyro - S_post)^-1 r``, with the difference
+    floored at 1 % of ``S_gyro`` (where the image adds almost nothing, planar frames, the
+    residual is near zero anyway). Above :data:`GYRO_CHI2_THRESHOLD` the image disagrees with
+    the gyro (a wrong camera-IMU rotation, time offset or bias).
+
+    Args:
+        gyro: the measurement used. angular_velocity: (3,) the estimate's (rad/s, camera
+            frame). posterior_covariance: (3, 3) its covariance (rad^2/s^2).
+    Returns:
+        the chi-square value (``inf`` for non-finite input).
+    """
+    r = np.asarray(angular_velocity, dtype=float).reshape(3) - gyro.angular_velocity
+    P = np.asarray(posterior_covariance, dtype=float).reshape(3, 3)
+    if not (np.isfinite(r).all() and np.isfinite(P).all()):
+        return float("inf")
+    Sg = gyro.covariance
+    D = Sg - 0.5 * (P + P.T)
+    # floor the eigenvalues of D relative to S_gyro: whiten by S_gyro, clip, unwhiten
+    Lc = np.linalg.cholesky(Sg)
+    Li = np.linalg.inv(Lc)
+    ev, V = np.linalg.eigh(Li @ D @ Li.T)
+    ev = np.maximum(ev, 0.01)
+    y = (V.T @ (Li @ r)) / np.sqrt(ev)
+    return float(y @ y)
