@@ -198,17 +198,24 @@ def _published_diagnostics_keys(ctx, overrides: dict) -> set:
 
 
 def test_every_diagnostics_key_is_documented(ros_context):
-    """Correspondence mode and image mode (ArUco front end): every key the node publishes is in
-    the page's ``| diagnostics key |`` table, and every key there is published in one of the
-    two (``failed.<reason>`` and ``camera_info_rejected.<reason>`` stand for their families)."""
+    """Correspondence mode, image mode (ArUco front end) and with the gyro: every key the node
+    publishes is in the page's ``| diagnostics key |`` table, and every key there is published
+    in one of them (``failed.<reason>``, ``camera_info_rejected.<reason>``,
+    ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` stand for their families)."""
     keys = _published_diagnostics_keys(ros_context, {})
     keys |= _published_diagnostics_keys(
         ros_context, {"frontend": "aruco", "frontend_map": "aruco_room"}
     )
-    assert {"frames_received", "track_state", "frontend_ms_median"} <= keys, keys  # it works
+    keys |= _published_diagnostics_keys(ros_context, {"imu.enabled": True})
+    assert {"frames_received", "track_state", "frontend_ms_median", "imu_rate_hz"} <= keys, keys
     documented = _table_names("diagnostics key")
     families = {d.split("<")[0] for d in documented if "<" in d}
-    assert families == {"failed.", "camera_info_rejected."}, families
+    assert families == {
+        "failed.",
+        "camera_info_rejected.",
+        "gyro_missing.",
+        "imu_rejected.",
+    }, families
     undocumented = {k for k in keys if k not in documented and not k.startswith(tuple(families))}
     assert not undocumented, f"undocumented diagnostics keys: {sorted(undocumented)}"
     stale = {d for d in documented if "<" not in d} - keys

@@ -157,3 +157,56 @@ def test_global_shutter_solver_ignores_the_gyro():
     b = estimate_rs_pose(f.points_px, f.X, f.camera, "p3p", OPTS)
     assert a.success and not a.gyro_used and not a.gyro_rejected
     np.testing.assert_array_equal(a.R, b.R)
+
+
+def test_imu_buffer_rejects_bad_samples_and_keeps_its_span():
+    from rs_localizer.estimation.gyro import ImuBuffer
+
+    buf = ImuBuffer(span=0.1, max_rate=10.0, max_gap=0.02)
+    assert buf.add(1_000_000_000, [0.1, 0.2, 0.3]) is None
+    assert buf.add(1_000_000_000, [0.1, 0.2, 0.3]) == "stamp_not_increasing"
+    assert buf.add(999_000_000, [0.1, 0.2, 0.3]) == "stamp_not_increasing"
+    assert buf.add(1_005_000_000, [np.nan, 0, 0]) == "non_finite"
+    assert buf.add(1_005_000_000, [0, 0, -11.0]) == "saturated"
+    for k in range(1, 60):  # 5 ms apart, 0.295 s: only the last 0.1 s stay
+        assert buf.add(1_000_000_000 + 5_000_000 * k, [0.1, 0.2, 0.3]) is None
+    t = [s for s, _ in buf.samples()]
+    assert t[-1] - t[0] <= 100_000_000 and len(t) == 21
+    assert buf.rate_hz() == pytest.approx(200.0)
+    assert buf.received == 64
+
+
+def test_imu_buffer_measurement_and_its_reasons():
+    import threading
+    import time
+
+    from rs_localizer.estimation.gyro import ImuBuffer
+
+    R = rotvec_to_matrix(np.array([0.2, 0.1, -0.4]))
+    bias = np.array([0.01, 0.0, -0.02])
+    buf = ImuBuffer(span=10.0, max_gap=0.02)
+    g, why = buf.measurement((0, 1), np.eye(3), np.zeros(3), 0.003, 0.0)
+    assert g is None and why == "no_samples"
+    w = np.array([0.5, -1.0, 0.25])
+    for k in range(21):  # 0 .. 0.1 s at 200 Hz
+        buf.add(5_000_000 * k, w + bias)
+    g, why = buf.measurement((20_000_000, 41_600_000), R, bias, 0.003, 0.001)
+    assert why == "" and isinstance(g, GyroMeasurement)
+    np.testing.assert_allclose(g.angular_velocity, R @ w, atol=1e-12)
+    # the window goes into the IMU clock (t_imu = t_cam - time_offset): 0.09 s + 0.02 s is
+    # beyond the samples
+    assert buf.measurement((90_000_000, 95_000_000), R, bias, 0.003, 0.0, -0.02)[1] == (
+        "not_covered"
+    )
+    assert buf.measurement((90_000_000, 95_000_000), R, bias, 0.003, 0.0, 0.02)[1] == ""
+    sparse = ImuBuffer(span=10.0, max_gap=0.02)
+    for k in range(5):  # an IMU at 10 Hz
+        sparse.add(100_000_000 * k, w)
+    assert sparse.measurement((120_000_000, 140_000_000), R, bias, 0.003, 0.0)[1] == "sparse"
+    # a frame waits for the samples covering its readout, up to its timeout
+    assert not buf.wait_until(200_000_000, 0.05)
+    threading.Timer(0.05, lambda: buf.add(200_000_000, w)).start()
+    t0 = time.monotonic()
+    assert buf.wait_until(200_000_000, 5.0)
+    assert time.monotonic() - t0 < 2.0
+    assert not buf.wait_until(300_000_000, 5.0, stopped=lambda: True)

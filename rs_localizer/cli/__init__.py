@@ -244,6 +244,7 @@ def _replay(args) -> int:
         debug_outputs=args.debug_outputs,
         path_length=args.path_length,
         image_topic=args.image_topic,
+        imu_topic=getattr(args, "imu_topic", None),
     )
     n = len(res.rows)
     solver = res.config.solver
@@ -254,6 +255,15 @@ def _replay(args) -> int:
         + ("" if res.config.tracking is None else " (tracking: twist = the fused twist)"),
         file=text,
     )
+    if res.config.imu is not None:
+        c = res.counts
+        missing = {k[13:]: v for k, v in c.items() if k.startswith("gyro_missing.")}
+        print(
+            f"gyro: {c.get('frames_with_gyro', 0)} frames used it, "
+            f"{c.get('gyro_rejected', 0)} contradicted by the image (solved without), "
+            f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
+            file=text,
+        )
     if res.summary.get("frames"):
         print(format_summary(solver, res.summary, n), file=text)
     if res.out_bag:
@@ -401,6 +411,13 @@ def _calibrate_readout(args) -> int:
                 "\n", ""
             )
         )
+    if res.camera_imu_rotation is not None and res.gyro_bias is not None:
+        from ..ros.conversions import quaternion_from_matrix
+
+        q = quaternion_from_matrix(res.camera_imu_rotation)
+        lines.append("for the node's parameters (the IMU's time offset is not estimated):")
+        lines.append("  imu.rotation: [" + ", ".join(f"{v:.6f}" for v in q) + "]")
+        lines.append("  imu.gyro_bias: [" + ", ".join(f"{v:.6f}" for v in res.gyro_bias) + "]")
     text = "\n".join(lines)
     if args.json:
         print(text, file=sys.stderr)
@@ -686,6 +703,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --source image: the frames (default: the bag's image topic); else the "
         "image drawn under debug_image (default: the bag's sensor_msgs/Image topic next to "
         "the frames, if any; else a blank canvas)",
+    )
+    r.add_argument(
+        "--imu-topic",
+        default=None,
+        help="with -p imu.enabled:=true: the sensor_msgs/Imu topic of the gyro (default: the "
+        "bag's only IMU topic)",
     )
     r.add_argument("--csv", default=None, help="write one line per frame")
     r.add_argument(

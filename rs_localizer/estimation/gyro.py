@@ -17,6 +17,9 @@ stamps to put them on the camera clock (``t_cam = t_imu + time_offset``).
 
 from __future__ import annotations
 
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,7 +30,10 @@ from .prior import MotionPrior
 
 __all__ = [
     "GYRO_CHI2_THRESHOLD",
+    "GYRO_MISSING_REASONS",
+    "IMU_SAMPLE_REJECTIONS",
     "GyroMeasurement",
+    "ImuBuffer",
     "gyro_consistency",
     "gyro_measurement",
     "gyro_prior",
@@ -219,3 +225,125 @@ def gyro_consistency(
     ev = np.maximum(ev, 0.01)
     y = (V.T @ (Li @ r)) / np.sqrt(ev)
     return float(y @ y)
+
+
+#: why an IMU sample is not buffered (:meth:`ImuBuffer.add`)
+IMU_SAMPLE_REJECTIONS = ("stamp_not_increasing", "non_finite", "saturated")
+#: why a frame is solved without the gyro (:meth:`ImuBuffer.measurement`)
+GYRO_MISSING_REASONS = ("no_samples", "not_covered", "sparse")
+
+
+class ImuBuffer:
+    """The recent gyro samples of one IMU, for the frames' :class:`GyroMeasurement`.
+
+    Samples come in stamp order (a ``sensor_msgs/Imu`` stream); those older than ``span``
+    seconds before the newest are dropped. Thread-safe: one thread may :meth:`add` while
+    another asks for a :meth:`measurement` (and waits for the samples covering a readout).
+
+    Args:
+        span: seconds of samples kept (> 0; ``inf``: all, e.g. a bag replayed offline).
+        max_rate: rates with any component beyond this (rad/s) are the sensor's saturation
+            and rejected.
+        max_gap: a readout whose samples are further apart than this (s) is ``sparse``: an
+            IMU at 10 Hz cannot describe the rotation within a 20 ms readout.
+    """
+
+    def __init__(self, span: float = 2.0, max_rate: float = 35.0, max_gap: float = 0.02):
+        if not (span > 0 and max_rate > 0 and max_gap > 0):
+            raise ValueError(f"span, max_rate, max_gap must be > 0, got {span, max_rate, max_gap}")
+        self.span_ns = np.inf if not np.isfinite(span) else int(span * 1e9)
+        self.max_rate, self.max_gap_ns = float(max_rate), int(max_gap * 1e9)
+        self._t: list[int] = []
+        self._w: list[tuple[float, float, float]] = []
+        self._cond = threading.Condition()
+        self._first: int | None = None
+        self.received = 0
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def add(self, stamp_ns: int, rate: ArrayLike) -> str | None:
+        """Buffer one sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU frame).
+        Returns ``None``, or the reason it was rejected (:data:`IMU_SAMPLE_REJECTIONS`):
+        a stamp not after the last one (going back or duplicated), a NaN/inf rate, a
+        saturated one."""
+        w = np.asarray(rate, dtype=float).reshape(3)
+        stamp_ns = int(stamp_ns)
+        with self._cond:
+            self.received += 1
+            if not np.isfinite(w).all():
+                return "non_finite"
+            if np.abs(w).max() > self.max_rate:
+                return "saturated"
+            if self._t and stamp_ns <= self._t[-1]:
+                return "stamp_not_increasing"
+            self._t.append(stamp_ns)
+            self._w.append((float(w[0]), float(w[1]), float(w[2])))
+            if self._first is None:
+                self._first = stamp_ns
+            cut = stamp_ns - self.span_ns
+            if self._t[0] < cut:
+                k = int(np.searchsorted(np.asarray(self._t), cut))
+                del self._t[:k], self._w[:k]
+            self._cond.notify_all()
+        return None
+
+    def samples(self) -> list[tuple[int, tuple[float, float, float]]]:
+        """A copy of the buffered samples: ``(stamp_ns, (wx, wy, wz))``, oldest first."""
+        with self._cond:
+            return list(zip(self._t, self._w, strict=True))
+
+    def rate_hz(self) -> float:
+        """The mean sample rate of the buffered samples (Hz; 0 with fewer than two)."""
+        with self._cond:
+            if len(self._t) < 2:
+                return 0.0
+            return (len(self._t) - 1) / ((self._t[-1] - self._t[0]) * 1e-9)
+
+    def wait_until(
+        self, stamp_ns: int, timeout: float, stopped: Callable[[], bool] = lambda: False
+    ) -> bool:
+        """Wait up to ``timeout`` s for a sample at or after ``stamp_ns`` (IMU clock); True
+        when there is one. ``stopped()`` true ends the wait (shutdown)."""
+        end = time.monotonic() + max(float(timeout), 0.0)
+        with self._cond:
+            while not (self._t and self._t[-1] >= stamp_ns):
+                left = end - time.monotonic()
+                if left <= 0 or stopped():
+                    return False
+                self._cond.wait(min(left, 0.05))
+            return True
+
+    def measurement(
+        self,
+        window_ns: tuple[int, int],
+        R_cam_imu: np.ndarray,
+        bias: np.ndarray,
+        noise: float,
+        bias_sigma: float,
+        time_offset: float = 0.0,
+    ) -> tuple[GyroMeasurement | None, str]:
+        """The gyro measurement of a readout ``window_ns`` (first and last line, camera
+        clock, ns) from the buffered samples (:func:`gyro_measurement`; ``time_offset`` s is
+        added to the IMU stamps). Returns ``(measurement, "")`` or ``(None, reason)``
+        with a reason of :data:`GYRO_MISSING_REASONS`: no samples, samples that do not
+        cover the window, or samples in or around it further apart than ``max_gap``."""
+        off = int(round(time_offset * 1e9))
+        a, b = int(window_ns[0]) - off, int(window_ns[1]) - off  # in the IMU clock
+        with self._cond:
+            if len(self._t) < 2:
+                return None, "no_samples"
+            if a < self._t[0] or b > self._t[-1]:
+                return None, "not_covered"
+            t = np.asarray(self._t, dtype=np.int64)
+            i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
+            i1 = min(int(np.searchsorted(t, b, side="left")), len(t) - 1)
+            ts = t[i0 : i1 + 1]
+            ws = np.asarray(self._w[i0 : i1 + 1], dtype=float)
+        if len(ts) < 2 or np.diff(ts).max() > self.max_gap_ns:
+            return None, "sparse"
+        # (times relative to the window start: seconds with full precision)
+        g = gyro_measurement(
+            (ts - a) * 1e-9, ws, (0.0, (b - a) * 1e-9), R_cam_imu, bias, noise, bias_sigma
+        )
+        return g, ""

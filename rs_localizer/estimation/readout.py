@@ -62,6 +62,8 @@ class ReadoutCalibration:
         rotation_rms: RMS angular rate of the samples (rad/s).
         reason: why not observable (empty when observable).
         camera_imu_rotation: (3, 3) ``R_ci`` (IMU -> camera) of the gyro fit, else ``None``.
+        gyro_bias: (3,) the gyro's bias (rad/s, IMU frame) of the gyro fit when observable,
+            else ``None``.
         residual_rms: RMS residual of the fit (rad per unit r).
         frames_failed: frames the estimator could not solve.
     """
@@ -77,6 +79,7 @@ class ReadoutCalibration:
     rotation_rms: float = 0.0
     reason: str = ""
     camera_imu_rotation: np.ndarray | None = field(default=None, repr=False)
+    gyro_bias: np.ndarray | None = field(default=None, repr=False)
     residual_rms: float = float("nan")
     frames_failed: int = 0
 
@@ -217,7 +220,8 @@ def _umeyama(x, y, wts):
 
 def _gyro_samples(stamps, ws, gyro, camera: CameraModel, stamp_row: float):
     """Gyro rates at the frames' reference-line times, in the camera frame, against the
-    frames' ``-w`` (per unit r): (x (n, 3) rad/s, y (n, 3) centred, R_ci (3, 3) IMU -> camera).
+    frames' ``-w`` (per unit r): (x (n, 3) rad/s, y (n, 3) centred, R_ci (3, 3) IMU -> camera,
+    c (3,) the fit's offset, ``-s R_ci bias``).
     The frame times depend on the line delay, so the similarity fit (:func:`_umeyama`) and the
     times are iterated. Raises ValueError for malformed gyro samples."""
     t_imu = np.asarray(gyro[0], dtype=np.int64)
@@ -235,7 +239,7 @@ def _gyro_samples(stamps, ws, gyro, camera: CameraModel, stamp_row: float):
         om = np.stack([np.interp(t[inside], t_imu, om_imu[:, a]) for a in range(3)], 1)
         s, R_ci, c = _umeyama(om, y[inside], np.ones(int(inside.sum())))
         ld = max(s, 0.0) / camera.focal
-    return om @ R_ci.T, y[inside] - c, R_ci
+    return om @ R_ci.T, y[inside] - c, R_ci, c
 
 
 def _unobservable(
@@ -299,7 +303,7 @@ def fit_line_delay(
             f"need as many stamps, orientations and w: {len(stamps)}, {len(Os)}, {len(ws)}"
         )
     focal, lines = camera.focal, camera.lines
-    R_ci = None
+    R_ci = gyro_bias = None
     if gyro is None:
         x, y, used = _simpson_samples(stamps, Os, ws, max_dt, uniformity)
         n = len(x)
@@ -316,8 +320,10 @@ def fit_line_delay(
         s, std, rms = _robust_slope(x, y)
         frames_used = len(used)
     else:
-        x, y, R_ci = _gyro_samples(stamps, ws, gyro, camera, stamp_row)
+        x, y, R_ci, c = _gyro_samples(stamps, ws, gyro, camera, stamp_row)
         s, std, rms = _robust_slope(x, y)
+        # y = s R_ci (omega_imu - bias) = s R_ci omega_imu + c
+        gyro_bias = -R_ci.T @ c / s if s > 0 else None
         n = frames_used = len(x)
     rot = float(np.sqrt(np.mean(np.sum(x * x, axis=1)))) if n else 0.0
     reason = _unobservable(n, s, std, rot, min_samples, max_relative_std)
@@ -335,6 +341,7 @@ def fit_line_delay(
         rotation_rms=rot,
         reason=reason,
         camera_imu_rotation=R_ci,
+        gyro_bias=gyro_bias if ok else None,
         residual_rms=rms,
         frames_failed=frames_failed,
     )

@@ -33,6 +33,7 @@ import numpy as np
 from ..camera import CameraModel
 from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
 from .fusion import FusedState, FusionOptions, TwistFilter
+from .gyro import GyroMeasurement
 from .prior import MotionPrior
 from .result import TOO_FEW_POINTS
 
@@ -245,6 +246,8 @@ class RSTracker:
         points3d: np.ndarray,
         camera: CameraModel,
         scores: np.ndarray | None = None,
+        *,
+        gyro: GyroMeasurement | None = None,
     ) -> TrackResult:
         """Estimate one frame and update the track.
 
@@ -253,6 +256,9 @@ class RSTracker:
                 capture time is fine (e.g. the header stamp of row 0).
             points2d_px (N, 2), points3d (N, 3), camera, scores (N,) or None: as
                 :func:`estimate_rs_pose`. The camera must not change without :meth:`reset`.
+            gyro: optional gyro measurement of the frame's readout, passed to
+                :func:`estimate_rs_pose` (it adds to the prediction's motion prior; the filter
+                removes only the prior, so the gyro's information stays in the frame's twist).
         Returns:
             :class:`TrackResult`.
         Raises:
@@ -272,11 +278,13 @@ class RSTracker:
         if self.filter.initialized:
             predicted = self.filter.predict(stamp_ns)
             est, state, opts, explained = self._tracked(
-                predicted, points2d_px, points3d, camera, scores
+                predicted, points2d_px, points3d, camera, scores, gyro
             )
         else:
             opts = self.options
-            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
+            est = estimate_rs_pose(
+                points2d_px, points3d, camera, self.solver, opts, scores, gyro=gyro
+            )
         if not est.success:
             self.failures += 1
             return TrackResult(est, state, None, final, predicted, explained)
@@ -296,7 +304,13 @@ class RSTracker:
         return TrackResult(est, state, step, final + step.final, predicted, explained)
 
     def _tracked(
-        self, predicted: FusedState, points2d_px, points3d, camera: CameraModel, scores
+        self,
+        predicted: FusedState,
+        points2d_px,
+        points3d,
+        camera: CameraModel,
+        scores,
+        gyro: GyroMeasurement | None = None,
     ) -> tuple[RSPoseEstimate, str, EstimateOptions, int]:
         """Estimate a frame from the filter's prediction (its model as the initial model, its
         twist as the motion prior where the options ask for it); when the prediction does not
@@ -327,6 +341,7 @@ class RSTracker:
             opts,
             scores,
             initial_model=InitialModel(R, C, w, t, gate, need),
+            gyro=gyro,
         )
         explained = est.initial_explained
         if est.success and est.initial_used:
@@ -335,5 +350,7 @@ class RSTracker:
             # the prediction does not hold (its twist must not be the prior), or it misled
             # RANSAC on a bad frame: solve the frame cold
             opts = self.options
-            est = estimate_rs_pose(points2d_px, points3d, camera, self.solver, opts, scores)
+            est = estimate_rs_pose(
+                points2d_px, points3d, camera, self.solver, opts, scores, gyro=gyro
+            )
         return est, "relocalized", opts, explained

@@ -31,6 +31,7 @@ def diagnostic_status(
     messages_lost: int,
     latencies: Sequence[float],
     stamp_ages: Sequence[float],
+    imu_rate_hz: float | None = None,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
@@ -40,8 +41,11 @@ def diagnostic_status(
     of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
     :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
     published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
-    stage times, front-end values (with a front end), then ``failed.<reason>`` and
-    ``camera_info_rejected.<reason>`` counts.
+    stage times, front-end values (with a front end), gyro values (with ``imu.enabled``:
+    ``imu_rate_hz`` the buffered samples' rate, frames solved with the gyro, frames whose
+    gyro the image contradicted, frames without gyro samples, IMU samples rejected, the
+    ``imu.gyro_bias`` used), then ``failed.<reason>``, ``camera_info_rejected.<reason>``,
+    ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` counts.
     """
     c = stats.counts
     lat, age = _ms(latencies), _ms(stamp_ages)
@@ -105,6 +109,18 @@ def diagnostic_status(
                 ),
             }
         )
+    if cfg.imu is not None:
+        values.update(
+            {
+                "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
+                "frames_with_gyro": c.get("frames_with_gyro", 0),
+                "gyro_rejected": c.get("gyro_rejected", 0),
+                "gyro_missing": c.get("gyro_missing", 0),
+                "imu_rejected": c.get("imu_rejected", 0),
+                "gyro_bias": " ".join(f"{b:.5f}" for b in cfg.imu.gyro_bias),
+            }
+        )
     values.update({f"failed.{k}": v for k, v in failed.items()})
-    values.update({k: v for k, v in sorted(c.items()) if k.startswith("camera_info_rejected.")})
+    prefixes = ("camera_info_rejected.", "gyro_missing.", "imu_rejected.")
+    values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
     return level, message, values

@@ -16,6 +16,7 @@ Subscriptions (best effort, history 100 clouds / 10 images / 5 camera_info; over
                                               (+ id uint32, + score float32)
     keypoints        sensor_msgs/PointCloud2  u, v, id; 3D points from ``landmarks_file``
     camera_info      sensor_msgs/CameraInfo
+    imu              sensor_msgs/Imu (sensor-data QoS), only with ``imu.enabled``: its gyro
     image            sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), only when ``frontend`` is
                      ``aruco`` or ``features``; header.stamp = capture time of ``rs.stamp_row``
     image/compressed sensor_msgs/CompressedImage (JPEG, PNG) instead, with
@@ -58,7 +59,7 @@ from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValu
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
@@ -75,15 +76,15 @@ __all__ = ["PARAMETERS", "RSLocalizerNode", "main"]
 # Frame subscriptions: sensor-data QoS (best effort) with a deeper history than its 5, so that
 # frames arriving while the worker holds the GIL wait in the middleware until the callbacks
 # move them to the node's queue, where a drop is counted (frames_skipped), instead of being
-# overwritten unseen (images: 10, they are big)
-_CLOUD_QOS, _IMAGE_QOS = (
+# overwritten unseen (images: 10, they are big; IMU samples: 200, ~1 s at 200 Hz)
+_CLOUD_QOS, _IMAGE_QOS, _IMU_QOS = (
     QoSProfile(
         depth=depth,
         reliability=qos_profile_sensor_data.reliability,
         durability=qos_profile_sensor_data.durability,
         history=qos_profile_sensor_data.history,
     )
-    for depth in (100, 10)
+    for depth in (100, 10, 200)
 )
 _RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
@@ -195,6 +196,11 @@ class LocalizerCore:
             qos_profile_sensor_data,
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
         )
+        if self.cfg.imu is not None:  # (imu.enabled is read-only)
+            qos = QoSOverridingOptions.with_default_policies()
+            self.sub_imu = self.create_subscription(
+                Imu, "imu", self.pipeline.add_imu, _IMU_QOS, qos_overriding_options=qos
+            )
 
     def _subscribe(self, msg_type, topic, kind: str, qos):
         """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
@@ -402,6 +408,7 @@ class LocalizerCore:
             self.messages_lost,
             list(self.latencies),
             list(self.stamp_ages),
+            self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
         )
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"

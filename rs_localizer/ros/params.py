@@ -44,12 +44,14 @@ __all__ = [
     "PARAMETERS",
     "ConfigError",
     "FloatRange",
+    "ImuConfig",
     "IntRange",
     "LocalizerConfig",
     "build_config",
     "check_parameter",
     "default_values",
     "estimate_options",
+    "imu_config",
     "parameter_values",
     "points_needed",
     "read_params_file",
@@ -308,6 +310,71 @@ PARAMETERS = {
         None,
         False,
     ),
+    "imu.enabled": (
+        False,
+        "subscribe to imu (sensor_msgs/Imu) and use its gyro in the estimate: the mean "
+        "angular velocity over each frame's readout, as a measurement with its covariance",
+        None,
+        True,
+    ),
+    "imu.rotation": (
+        [0.0, 0.0, 0.0, 1.0],
+        "rotation IMU frame -> camera optical frame, quaternion x y z w "
+        "(rs-localizer calibrate-readout --imu-topic prints it)",
+        None,
+        False,
+    ),
+    "imu.time_offset": (
+        0.0,
+        "s added to the IMU stamps to put them on the camera's clock",
+        FloatRange(from_value=-1.0, to_value=1.0),
+        False,
+    ),
+    "imu.gyro_noise": (
+        0.003,
+        "standard deviation of one gyro sample (rad/s); averaged over the samples of a readout",
+        FloatRange(from_value=1e-6, to_value=10.0),
+        False,
+    ),
+    "imu.gyro_bias": (
+        [0.0, 0.0, 0.0],
+        "gyro bias subtracted from the rates (rad/s, IMU frame; calibrate-readout "
+        "--imu-topic prints it)",
+        None,
+        False,
+    ),
+    "imu.gyro_bias_sigma": (
+        0.005,
+        "uncertainty of imu.gyro_bias per axis (rad/s); it does not average down",
+        FloatRange(from_value=0.0, to_value=10.0),
+        False,
+    ),
+    "imu.wait": (
+        0.03,
+        "s a frame may wait for the gyro samples covering its readout; then it is solved "
+        "without the gyro (gyro_missing.not_covered)",
+        FloatRange(from_value=0.0, to_value=1.0),
+        False,
+    ),
+    "imu.buffer": (
+        2.0,
+        "s of gyro samples kept for frames that arrive late",
+        FloatRange(from_value=0.1, to_value=60.0),
+        True,
+    ),
+    "imu.max_rate": (
+        35.0,
+        "rad/s; a sample with a larger component is the gyro's saturation and rejected",
+        FloatRange(from_value=0.1, to_value=1000.0),
+        False,
+    ),
+    "imu.max_gap": (
+        0.02,
+        "s; a readout whose gyro samples are further apart is solved without the gyro "
+        "(gyro_missing.sparse: an IMU topic too slow to describe one readout)",
+        FloatRange(from_value=0.001, to_value=1.0),
+        False,
+    ),
     "diagnostics_period": (
         1.0,
         "period of /diagnostics (s)",
@@ -563,6 +630,54 @@ def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
     )
 
 
+@dataclass(frozen=True)
+class ImuConfig:
+    """The gyro's use in the estimate (the ``imu.*`` parameters).
+
+    Attributes:
+        R_cam_imu: (3, 3) rotation IMU -> camera optical frame. time_offset: s added to the
+            IMU stamps. gyro_noise, gyro_bias_sigma: rad/s. gyro_bias: (3,) rad/s, IMU frame.
+        wait: s a frame waits for its samples. buffer: s kept. max_rate: rad/s saturation.
+        max_gap: s between samples beyond which a readout is ``sparse``.
+    """
+
+    R_cam_imu: np.ndarray
+    time_offset: float
+    gyro_noise: float
+    gyro_bias: np.ndarray
+    gyro_bias_sigma: float
+    wait: float
+    buffer: float
+    max_rate: float
+    max_gap: float
+
+
+def imu_config(values: Mapping[str, Any]) -> ImuConfig | None:
+    """The :class:`ImuConfig` of the ``imu.*`` parameters; None when ``imu.enabled`` is false.
+
+    Raises:
+        ValueError: ``imu.rotation`` not a quaternion (4 finite numbers of norm near 1),
+            ``imu.gyro_bias`` not 3 finite numbers.
+    """
+    if not bool(values["imu.enabled"]):
+        return None
+    R = Extrinsic.from_translation_quaternion([0.0, 0.0, 0.0], values["imu.rotation"]).rotation
+    bias = np.asarray(values["imu.gyro_bias"], dtype=float).reshape(-1)
+    if bias.shape != (3,) or not np.isfinite(bias).all():
+        raise ValueError(f"imu.gyro_bias must be 3 finite numbers (rad/s), got {bias.tolist()}")
+    return ImuConfig(
+        R_cam_imu=R,
+        time_offset=float(values["imu.time_offset"]),
+        gyro_noise=float(values["imu.gyro_noise"]),
+        gyro_bias=bias,
+        gyro_bias_sigma=float(values["imu.gyro_bias_sigma"]),
+        wait=float(values["imu.wait"]),
+        buffer=float(values["imu.buffer"]),
+        max_rate=float(values["imu.max_rate"]),
+        max_gap=float(values["imu.max_gap"]),
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class LocalizerConfig:
     """Everything the localizer derives from its parameters (see :data:`PARAMETERS` for the
@@ -571,6 +686,7 @@ class LocalizerConfig:
     Attributes:
         solver: minimal solver name. options: the estimator's options.
         tracking: the video tracker's options, None = every frame alone.
+        imu: the gyro's use (:class:`ImuConfig`), None = no gyro.
         line_delay (s/line), readout_time (s, > 0 wins), direction, reference_row (px, None =
             image centre), stamp_row (px): the rolling-shutter timing of every camera model.
         map_frame, camera_frame ("" = the input's frame id), base_frame ("" = none) and
@@ -609,6 +725,7 @@ class LocalizerConfig:
     frontend: Any
     image_transport: str
     republish_correspondences: bool
+    imu: ImuConfig | None = None
 
     @property
     def min_points(self) -> int:
@@ -698,6 +815,10 @@ def build_config(
         tracking = tracker_options(p)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"invalid tracking parameters: {e}") from None
+    try:
+        imu = imu_config(p)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"invalid imu parameters: {e}") from None
     line_delay, readout_time = float(p["rs.line_delay"]), float(p["rs.readout_time"])
     direction, reference_row = p["rs.direction"], (None if ref < 0 else ref)
     if not all(
@@ -806,6 +927,7 @@ def build_config(
         frontend=frontend,
         image_transport=transport,
         republish_correspondences=bool(p["republish_correspondences"]),
+        imu=imu,
     )
 
 

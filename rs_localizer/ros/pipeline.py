@@ -6,7 +6,9 @@ keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messag
 the same fields) and returns a :class:`FrameResult`: the checks (stamp, empty cloud), time
 resets, the camera model of the frame's stamp (:class:`.camera_info_history.CameraInfoHistory`,
 fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
-front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the estimate
+front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the gyro
+measurement of the frame's readout when ``imu.enabled`` (:class:`~rs_localizer.estimation.gyro.
+ImuBuffer`, fed by :meth:`FramePipeline.add_imu`), the estimate
 (:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
 :func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
 the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
@@ -27,6 +29,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation import estimate_rs_pose
+from ..estimation.gyro import GyroMeasurement, ImuBuffer
 from ..estimation.points import cap_points
 from ..estimation.tracker import RSTracker
 from ..frames import camera_to_base
@@ -270,7 +273,10 @@ class FramePipeline:
         config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
             :meth:`configure` before the first frame).
         log: :class:`ThrottledLog` (or a logger it wraps) for the warnings.
-        stopped: ``stopped()`` true ends a frame's wait for its camera_info (shutdown).
+        stopped: ``stopped()`` true ends a frame's wait for its camera_info or gyro samples
+            (shutdown).
+        imu_span: seconds of gyro samples kept (default ``imu.buffer``; ``inf`` for a bag
+            replayed offline, whose samples are all added before its frames).
 
     Threads: :meth:`process` on one thread at a time (the node's worker); camera_infos,
     :meth:`flush_idle`, :meth:`configure` and the diagnostics from others.
@@ -281,6 +287,7 @@ class FramePipeline:
         config: LocalizerConfig | None = None,
         log: Any = None,
         stopped: Callable[[], bool] = lambda: False,
+        imu_span: float | None = None,
     ):
         self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
         self.stats = PipelineStats()
@@ -298,6 +305,9 @@ class FramePipeline:
         self._track_lock = threading.RLock()
         self._last_frame_wall: float | None = None
         self._track_counts: Counter = Counter()
+        # the gyro samples (imu.enabled); imu_span overrides imu.buffer (replay: all of a bag)
+        self.imu: ImuBuffer | None = None
+        self._imu_span = imu_span
         if config is not None:
             self.configure(config)
 
@@ -311,6 +321,18 @@ class FramePipeline:
         received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
         and logged)."""
         self._config = config
+        imu = config.imu
+        if imu is None:
+            self.imu = None
+        elif self.imu is None or (self.imu.max_rate, self.imu.max_gap_ns) != (
+            imu.max_rate,
+            int(imu.max_gap * 1e9),
+        ):
+            span = imu.buffer if self._imu_span is None else self._imu_span
+            old, self.imu = self.imu, ImuBuffer(span, imu.max_rate, imu.max_gap)
+            if old is not None:  # (keep the samples received so far)
+                for t, w in old.samples():
+                    self.imu.add(t, w)
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
 
@@ -355,6 +377,62 @@ class FramePipeline:
             f"camera_info rejected ({reason}), the previous camera stays: {detail}",
         )
         return None
+
+    # ---------------------------------------------------------------- gyro
+    def add_imu(self, msg: Any) -> str | None:
+        """Buffer the gyro sample of a ``sensor_msgs/Imu`` (rclpy or rosbags). Returns None, or
+        the reason it was rejected, counted as ``imu_rejected.<reason>``: ``disabled``
+        (``imu.enabled`` false: nothing counted), ``no_angular_velocity`` (covariance[0] = -1,
+        the message's "no data"), ``bad_stamp`` and the reasons of
+        :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or repeated,
+        NaN or saturated rates)."""
+        buf = self.imu
+        if buf is None:
+            return "disabled"
+        if float(msg.angular_velocity_covariance[0]) == -1.0:
+            reason = "no_angular_velocity"
+        else:
+            try:
+                stamp = cv.checked_stamp_ns(msg.header.stamp)
+            except cv.StampError:
+                reason = "bad_stamp"
+            else:
+                a = msg.angular_velocity
+                reason = buf.add(stamp, (a.x, a.y, a.z))
+        if reason is not None:
+            self.stats.add("imu_rejected")
+            self.stats.add(f"imu_rejected.{reason}")
+            self.log.warning(f"imu.{reason}", f"IMU sample rejected ({reason})")
+        return reason
+
+    def _gyro_for(self, stamp: int, camera: CameraModel, cfg: LocalizerConfig):
+        """The gyro measurement of the frame's readout (waiting up to ``imu.wait`` for the
+        samples covering it), or None (``gyro_missing.<reason>`` counted; the frame is solved
+        without)."""
+        imu, buf = cfg.imu, self.imu
+        if imu is None or buf is None or camera.line_delay <= 0:
+            return None
+        first = stamp - int(round(float(camera.line_time(cfg.stamp_row)) * 1e9))
+        last = first + int(round(camera.line_delay * (camera.lines - 1) * 1e9))
+        off = int(round(imu.time_offset * 1e9))
+        buf.wait_until(last - off, imu.wait, self._stopped)
+        gyro, reason = buf.measurement(
+            (first, last),
+            imu.R_cam_imu,
+            imu.gyro_bias,
+            imu.gyro_noise,
+            imu.gyro_bias_sigma,
+            imu.time_offset,
+        )
+        if gyro is None:
+            self.stats.add("gyro_missing")
+            self.stats.add(f"gyro_missing.{reason}")
+            self.log.warning(
+                f"gyro.{reason}",
+                f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
+                "imu.time_offset",
+            )
+        return gyro
 
     # ---------------------------------------------------------------- frames
     def process(self, msg: Any, kind: str) -> FrameResult:
@@ -406,20 +484,27 @@ class FramePipeline:
         uv, xyz, scores = self._extract(msg, kind, camera, stamp, cfg, res)
         uv, xyz, scores = self._valid_rows(uv, xyz, scores, cfg)
         res.points2d, res.points3d = uv, xyz
+        gyro: GyroMeasurement | None = self._gyro_for(stamp, camera, cfg)
         t_decoded = time.perf_counter()
         with self._track_lock:
             final = []
             try:
                 if cfg.tracking is not None:
                     tracker, final = self._tracker_for(camera, cfg)
-                    r = tracker.process(out_stamp, uv, xyz, camera, scores)
+                    r = tracker.process(out_stamp, uv, xyz, camera, scores, gyro=gyro)
                     est = r.estimate
                     final = final + r.final
                     self._last_frame_wall = time.monotonic()
                 else:
                     self._drop_tracker()
                     est = estimate_rs_pose(
-                        uv, xyz, camera, solver=cfg.solver, options=cfg.options, scores=scores
+                        uv,
+                        xyz,
+                        camera,
+                        solver=cfg.solver,
+                        options=cfg.options,
+                        scores=scores,
+                        gyro=gyro,
                     )
             except Exception as e:
                 res.fused = self._fused_outputs(final, cfg)
@@ -432,6 +517,15 @@ class FramePipeline:
                 "estimate": t_estimated - t_decoded,
             }
             self.stats.add("points_dropped", int(est.num_dropped))
+            if est.gyro_rejected:
+                self.stats.add("gyro_rejected")
+                self.log.warning(
+                    "gyro.rejected",
+                    "the image disagrees with the gyro: frame solved without it (check "
+                    "imu.rotation, imu.time_offset and imu.gyro_bias)",
+                )
+            elif est.gyro_used and est.success:
+                self.stats.add("frames_with_gyro")
             res.estimate = est
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import conversions as cv
-from .bag_io import CAMERA_INFO, IMAGE, PC2, POSE, TWIST, iter_messages
+from .bag_io import CAMERA_INFO, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
 
 __all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]
 
@@ -86,6 +86,7 @@ def play(
     on_frame=None,
     log=print,
     late_topics=(),
+    imu_lead: float = 0.1,
 ) -> PlayResult:
     """Publish a bag into the ROS graph.
 
@@ -111,6 +112,9 @@ def play(
             not wait for them; each message goes to the frame with the nearest header stamp
             (within 1 s), and at the end the player waits up to ``timeout`` for the missing
             ones. Other outputs go to the frame being waited for, as before.
+        imu_lead: lock-step: ``sensor_msgs/Imu`` messages go out this many seconds of bag time
+            ahead of the frames (a node using the gyro waits for the samples covering a
+            frame's readout, which would otherwise come only after the frame was answered).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -129,6 +133,9 @@ def play(
         msgs = messages if messages is not None else list(iter_messages(path, topics))
         if topics is not None:
             msgs = [m for m in msgs if m[0] in topics]
+        if lockstep and imu_lead > 0:  # (stable: the rest keeps its order)
+            lead = int(imu_lead * 1e9)
+            msgs = sorted(msgs, key=lambda m: m[2] - lead if m[1] == IMU else m[2])
         types = {}
         for topic, msgtype, _, _ in msgs:
             types.setdefault(topic, msgtype)
@@ -179,8 +186,8 @@ def play(
             executor.spin_once(timeout_sec=0.05)
         if not msgs:
             return result
-        t_first = msgs[0][2]
-        duration = msgs[-1][2] - t_first + 1
+        t_first = min(m[2] for m in msgs)
+        duration = max(m[2] for m in msgs) - t_first + 1
         wall0 = time.perf_counter()
         n_frames = 0
         last_pub = {}
@@ -279,7 +286,7 @@ def _header_stamp(raw: bytes) -> int:
 
 def _shift_stamp(raw: bytes, msgtype: str, shift_ns: int) -> bytes:
     """Shift the header stamp of a CDR message that starts with a Header (all our types)."""
-    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE):
+    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE, IMU):
         return raw
     order = "<" if raw[1] == 1 else ">"
     s = _header_stamp(raw) + shift_ns

@@ -33,6 +33,7 @@ from .bag_io import (
     COMPRESSED_IMAGE,
     GT_POSE,
     IMAGE,
+    IMU,
     OUT_TYPES,
     bag_topics,
     iter_messages,
@@ -65,8 +66,10 @@ def to_cdr(msg: Any, msgtype: str, ts: Any) -> bytes:
 class ReplayResult:
     """Outcome of :func:`replay`: ``rows`` (one dict per frame, the CSV's columns),
     ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
-    of the published pose and twist), ``failures`` (reason -> frames), the files written, and
-    the configuration and parameter values used."""
+    of the published pose and twist), ``failures`` (reason -> frames), the files written, the
+    configuration and parameter values used, and the pipeline's counters (``counts``: e.g.
+    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing.<reason>``, as in the node's
+    diagnostics)."""
 
     rows: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
@@ -75,6 +78,7 @@ class ReplayResult:
     out_csv: Path | None = None
     config: LocalizerConfig | None = None
     parameters: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> int:
@@ -148,6 +152,7 @@ def replay(
     debug_outputs: bool = False,
     path_length: int = 1000,
     image_topic: str | None = None,
+    imu_topic: str | None = None,
     log: Any = None,
 ) -> ReplayResult:
     """Run the localizer node's per-frame pipeline over every frame of a bag, offline.
@@ -176,12 +181,15 @@ def replay(
             ``/rs_localizer/path`` (the last ``path_length`` poses), as the node publishes them.
         image_topic: with ``source`` image the frames' topic (default: the bag's image topic,
             as ``sequence.json`` names it).
+        imu_topic: with ``imu.enabled`` the ``sensor_msgs/Imu`` topic whose gyro the frames
+            use (default: the bag's only IMU topic); all its samples are buffered first.
         progress: stream for the progress bar (None: none). log: logger for the pipeline's
             warnings (None: silent).
 
     Raises:
         ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
-            invalid parameters (a :class:`~rs_localizer.ros.params.ConfigError`).
+            ``imu.enabled`` without one IMU topic (or ``imu_topic`` not one); invalid
+            parameters (a :class:`~rs_localizer.ros.params.ConfigError`).
         FileExistsError: ``out_bag`` exists and not ``overwrite``.
     """
     path = Path(path)
@@ -212,6 +220,17 @@ def replay(
         ns = frame_topic.rsplit("/", 1)[0] + "/"
         image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
     viz_topic = image_topic if debug_outputs and source != "image" else None
+    if cfg.imu is not None:
+        imus = [t for t, mt in topics.items() if mt == IMU]
+        if imu_topic is None and len(imus) == 1:
+            imu_topic = imus[0]
+        if imu_topic not in imus:
+            raise ValueError(
+                f"{path}: imu.enabled needs a sensor_msgs/Imu topic (--imu-topic; IMU topics: "
+                f"{imus})"
+            )
+        # (offline every sample is buffered before the frames: no waiting)
+        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
     result = ReplayResult(config=cfg, parameters=values)
@@ -232,7 +251,10 @@ def replay(
         result.out_bag = out_bag
     viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
     rows = _Rows(gt)
-    pipeline = FramePipeline(cfg, log=log)
+    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
+    if cfg.imu is not None:
+        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
     try:
         t0 = time.perf_counter()
         i = 0
@@ -268,6 +290,7 @@ def replay(
         if writer is not None:
             writer.close()
     result.rows = rows.finish()
+    result.counts = pipeline.stats.snapshot().counts
     for r in result.rows:
         if not r["success"]:
             result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
