@@ -95,14 +95,15 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         return _OK
 
     def _release(self):
-        """Drop what configure made: publishers, the camera_info subscription, maps, the
+        """Drop what configure made: publishers, the camera_info and imu subscriptions, maps, the
         camera model, the configuration and the counters."""
         for pub in self._outputs:
             self.destroy_lifecycle_publisher(pub)
         self._outputs = []
         self.pub_diag = None
-        if self.sub_info is not None:
-            self.destroy_subscription(self.sub_info)
+        for sub in (self.sub_info, self.sub_imu):
+            if sub is not None:
+                self.destroy_subscription(sub)
         SHARED_MAPS.release(self)
         self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
         # the counters reset too)

@@ -48,14 +48,8 @@ from collections import deque
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -63,10 +57,11 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
+from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN, diagnostic_status
 from .frame_queue import FrameQueue
 from .outputs import frame_messages, fused_messages
-from .params import PARAMETERS, ConfigError, FloatRange, LocalizerConfig, build_config
+from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .visualization import NodeVisualization
@@ -114,27 +109,7 @@ class LocalizerCore:
         return self.create_publisher(msg_type, topic, qos)
 
     def _declare_parameters(self):
-        for name, (default, desc, rng, ro) in PARAMETERS.items():
-            d = ParameterDescriptor(description=desc, read_only=ro)
-            if isinstance(rng, FloatRange):
-                d.floating_point_range = [
-                    FloatingPointRange(from_value=rng.from_value, to_value=rng.to_value, step=0.0)
-                ]
-            elif rng is not None:
-                d.integer_range = [
-                    IntegerRange(from_value=rng.from_value, to_value=rng.to_value, step=rng.step)
-                ]
-            try:
-                self.declare_parameter(name, default, d)
-            except InvalidParameterValueException as e:
-                raise RuntimeError(f"parameter {name!r}: {e} ({desc})") from None
-            except InvalidParameterTypeException as e:
-                kind = type(default).__name__
-                raise RuntimeError(
-                    f"parameter {name!r} must be of type {kind}"
-                    + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
-                    + f": {e}"
-                ) from None
+        declare_parameters(self, PARAMETERS)
 
     def _init_state(self):
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
@@ -145,7 +120,7 @@ class LocalizerCore:
         self._lost = {}
         self._pubs = {}  # the outputs' publishers (created by _create_outputs)
         self.pub_corr_out = None  # correspondences_out, created when first needed
-        self.sub_info = self.sub_corr = self.sub_kp = self.sub_image = None
+        self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
         self._diag_timer = self._flush_timer = None
 
     def _configure(self):
@@ -187,19 +162,19 @@ class LocalizerCore:
             self._corr_out_publisher()
 
     def _create_camera_info_input(self):
-        # (created before the frame inputs: a camera_info ready together with a frame is
-        # taken first)
+        """camera_info and, with imu.enabled (read-only), the gyro's imu; created before the
+        frame inputs: a camera_info or IMU sample ready together with a frame is taken first."""
+        qos = QoSOverridingOptions.with_default_policies()
         self.sub_info = self.create_subscription(
             CameraInfo,
             "camera_info",
             lambda msg: self.pipeline.add_camera_info(msg),
             qos_profile_sensor_data,
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            qos_overriding_options=qos,
         )
-        if self.cfg.imu is not None:  # (imu.enabled is read-only)
-            qos = QoSOverridingOptions.with_default_policies()
+        if self.cfg.imu is not None:
             self.sub_imu = self.create_subscription(
-                Imu, "imu", self.pipeline.add_imu, _IMU_QOS, qos_overriding_options=qos
+                Imu, "imu", lambda m: self.pipeline.add_imu(m), _IMU_QOS, qos_overriding_options=qos
             )
 
     def _subscribe(self, msg_type, topic, kind: str, qos):

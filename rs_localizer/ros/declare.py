@@ -1,0 +1,45 @@
+"""Declaring the localizer's parameters on an rclpy node, with their descriptors (description,
+range, read-only) from :data:`rs_localizer.ros.params.PARAMETERS`."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
+from .params import FloatRange
+
+__all__ = ["declare_parameters"]
+
+
+def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
+    """Declare every ``name -> (default, description, range, read_only)`` on ``node`` (the
+    value from the node's parameter overrides, else the default).
+
+    Raises:
+        RuntimeError: a value of the wrong type or outside its range, naming the parameter
+            (the node refuses to start).
+    """
+    for name, (default, desc, rng, ro) in parameters.items():
+        d = ParameterDescriptor(description=desc, read_only=ro)
+        if isinstance(rng, FloatRange):
+            d.floating_point_range = [
+                FloatingPointRange(from_value=rng.from_value, to_value=rng.to_value, step=0.0)
+            ]
+        elif rng is not None:
+            d.integer_range = [
+                IntegerRange(from_value=rng.from_value, to_value=rng.to_value, step=rng.step)
+            ]
+        try:
+            node.declare_parameter(name, default, d)
+        except InvalidParameterValueException as e:
+            raise RuntimeError(f"parameter {name!r}: {e} ({desc})") from None
+        except InvalidParameterTypeException as e:
+            kind = type(default).__name__
+            raise RuntimeError(
+                f"parameter {name!r} must be of type {kind}"
+                + (" (write e.g. 0.0, not 0, in YAML)" if kind == "float" else "")
+                + f": {e}"
+            ) from None
