@@ -45,8 +45,23 @@ def test_measurement_is_the_mean_rate_over_the_window_in_the_camera_frame():
     g = gyro_measurement(t, rates + bias, window, R, bias, noise=0.003, bias_sigma=0.001)
     expected = R @ (offset + slope * 0.5 * (window[0] + window[1]))
     np.testing.assert_allclose(g.angular_velocity, expected, atol=1e-12)
-    # 0.0123..0.0317 spans the samples 0.015..0.030 (4) plus the ends: 5 intervals
-    np.testing.assert_allclose(g.covariance, (0.003**2 / 5 + 0.001**2) * np.eye(3), atol=1e-18)
+    # the covariance: the weights' sum of squares; a uniform weighting of 5 samples would
+    # give 1/5, the parabola over 0.0194 s of 200 Hz samples a little more
+    c2 = (g.covariance[0, 0] - 0.001**2) / 0.003**2
+    assert 1 / 6 < c2 < 1 / 3, c2
+    np.testing.assert_allclose(g.covariance, g.covariance[0, 0] * np.eye(3), atol=1e-18)
+    # a jerk: the rate the RS model fits is the rotation angle's least-squares slope over the
+    # window, omega(m) + j h^2 / 10 (the mean rate would be omega(m) + j h^2 / 6); sampled at
+    # 10 kHz the interpolation error is negligible
+    tt = np.arange(0.0, 0.1, 1e-4)
+    j, m, h = 40.0, 0.05, 0.015
+    quad = np.stack([0.5 * j * (tt - m) ** 2] * 3, 1)
+    gq = gyro_measurement(tt, quad, (m - h, m + h), noise=0.003)
+    np.testing.assert_allclose(gq.angular_velocity, [j * h * h / 10] * 3, rtol=1e-4)
+    # independent: the slope of a least-squares line through the integrated angle
+    grid = np.linspace(m - h, m + h, 200_001)
+    theta = j * (grid - m) ** 3 / 6
+    assert gq.angular_velocity[0] == pytest.approx(np.polyfit(grid, theta, 1)[0], rel=1e-4)
     # a zero-length window (global shutter): the interpolated rate at that instant
     gs = gyro_measurement(t, rates, (0.0123, 0.0123), noise=0.003)
     np.testing.assert_allclose(gs.angular_velocity, offset + slope * 0.0123, atol=1e-12)

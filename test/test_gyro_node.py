@@ -131,3 +131,27 @@ def test_node_uses_the_gyro_over_dds(tmp_path, ros_context, imu_bag):
     finally:
         alive, rc = stop_node(node, probe)
     assert alive and rc == 0, node.log
+
+
+def test_render_bag_writes_the_imu_of_its_motion(tmp_path):
+    """render-bag --imu-rate: the gyro samples are the rendered motion's angular velocity in
+    the IMU axes plus the simulated bias (0.003 rad/s noise), around every frame."""
+    from rs_localizer.cli.render_bag import render_bag
+    from rs_localizer.ros.bag_frames import read_gyro
+    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.sim.trajectory import R_IMU_CAMERA
+
+    bag = render_bag(
+        tmp_path / "r", "aruco_room", "walk", 3, frontend="none", supersample=1, imu_rate=200.0
+    )
+    t, om = read_gyro(bag, "/imu/data")
+    gt = load_ground_truth(bag)
+    assert t[0] < gt.stamps[0] - 0.05e9 and t[-1] > gt.stamps[-1] + 0.05e9
+    assert np.median(np.diff(t)) == pytest.approx(5e6, rel=1e-3)
+    for s in gt.stamps:
+        k = int(np.argmin(np.abs(t - s)))
+        assert abs(t[k] - s) <= 2.5e6
+        expected = R_IMU_CAMERA @ gt.angular_velocity[int(s)] + np.array(BIAS)
+        assert np.linalg.norm(om[k] - expected) < 0.02, (om[k], expected)
+    with pytest.raises(ValueError, match="imu_rate"):
+        render_bag(tmp_path / "bad", "aruco_room", "walk", 1, frontend="none", imu_rate=-1.0)

@@ -34,6 +34,7 @@ from ..ros.bag_io import (
     GT_POSE,
     GT_TWIST,
     IMAGE,
+    IMU,
     PC2,
     POSE,
     TWIST,
@@ -110,6 +111,8 @@ def render_bag(
     compress: bool = True,
     overwrite: bool = False,
     progress=None,
+    imu_rate: float = 0.0,
+    imu_topic: str = "/imu/data",
 ) -> Path:
     """Render a sequence into a ROS 2 bag directory; returns its path.
 
@@ -130,6 +133,11 @@ def render_bag(
         start_time: time (s since the epoch) of frame 0. storage: ``mcap`` or ``sqlite3``;
             compress: zstd (mcap chunk compression / sqlite3 per-message).
         progress: callable ``(k, frames, n_correspondences)`` or None.
+        imu_rate: > 0: also write a ``sensor_msgs/Imu`` topic ``imu_topic`` at this rate (Hz)
+            from 0.1 s before the first frame to 0.1 s after the last, as ``make-bag
+            --imu-rate`` does (:func:`rs_localizer.sim.trajectory.imu_samples`: the motion's
+            angular velocity and specific force in IMU axes ``R_IMU_CAMERA``, with bias and
+            noise); ``sequence.json`` records the mounting.
     Raises:
         FileExistsError: ``path`` exists and not ``overwrite``. ValueError: bad arguments.
     """
@@ -138,6 +146,7 @@ def render_bag(
     from ..sim.render.motion import make_motion
     from ..sim.render.renderer import NoiseModel, Renderer, camera_preset, frame_times
     from ..sim.render.scene import Scene, load_scene
+    from ..sim.trajectory import R_IMU_CAMERA, imu_samples
 
     path = Path(path)
     if path.exists():
@@ -148,6 +157,8 @@ def render_bag(
         raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3")
     if frames < 1:
         raise ValueError("frames must be >= 1")
+    if not (imu_rate >= 0 and np.isfinite(imu_rate)):
+        raise ValueError(f"imu_rate must be >= 0 (Hz), got {imu_rate}")
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     cam = camera if isinstance(camera, CameraModel) else camera_preset(str(camera))
     duration = frames / fps
@@ -170,6 +181,14 @@ def render_bag(
     }
     if fe is not None:
         topics["correspondences"] = f"{ns}/correspondences"
+    extra = {}
+    if imu_rate > 0:
+        topics["imu"] = imu_topic
+        extra["imu"] = {
+            "topic": imu_topic,
+            "rate": imu_rate,
+            "rotation_imu_from_camera": R_IMU_CAMERA.tolist(),
+        }
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     writer = Writer(path, version=9, storage_plugin=plugin)
     if compress:
@@ -190,6 +209,12 @@ def render_bag(
         )
         c_gtp = w.add_connection(GT_POSE, POSE, typestore=M.ts)
         c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
+        if imu_rate > 0:
+            c_imu = w.add_connection(imu_topic, IMU, typestore=M.ts)
+            t_imu, om, fo = imu_samples(mot, -0.1, duration + 0.1, imu_rate, seed=seed)
+            for t, o, f in zip(t_imu, om, fo, strict=True):
+                stamp_imu = t0_ns + int(round(t * 1e9))
+                w.write(c_imu, stamp_imu, M.cdr(M.imu(o, f, stamp_imu, "imu_link"), IMU))
         for k in range(int(frames)):
             t_first = float(frame_times(k, fps))
             fr = renderer.render(
@@ -250,6 +275,7 @@ def render_bag(
             "correspondences_per_frame": float(np.mean(counts)) if counts else 0.0,
             "render_seconds": round(time.perf_counter() - tic, 2),
         },
+        **extra,
     )
     return path
 
@@ -317,6 +343,14 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
         "--storage", default="mcap", choices=("mcap", "sqlite3"), help="bag storage format"
     )
     p.add_argument("--no-compression", action="store_true", help="no zstd compression")
+    p.add_argument(
+        "--imu-rate",
+        type=float,
+        default=0.0,
+        help="also write a sensor_msgs/Imu topic at this rate (Hz; gyro with bias and noise, "
+        "IMU axes x forward, y left, z up), as make-bag does",
+    )
+    p.add_argument("--imu-topic", default="/imu/data", help="topic of --imu-rate")
     p.add_argument("--overwrite", action="store_true", help="replace the bag if it exists")
     return p
 
@@ -351,6 +385,8 @@ def run_from_args(a, stream=sys.stderr) -> int:
             compress=not a.no_compression,
             overwrite=a.overwrite,
             progress=prog,
+            imu_rate=a.imu_rate,
+            imu_topic=a.imu_topic,
         )
     except (FileExistsError, FileNotFoundError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)

@@ -105,14 +105,19 @@ def gyro_measurement(
     bias_sigma: float = 0.0,
     time_offset: float = 0.0,
 ) -> GyroMeasurement:
-    """The mean angular velocity over a readout window from gyro samples.
+    """The angular velocity the rolling-shutter model sees during a readout, from gyro samples.
 
-    The rate between samples is linearly interpolated; its mean over ``window`` (its integral
-    divided by the window's length; the rate at that instant for a zero-length window, a
-    global-shutter camera) is rotated into the camera optical frame after subtracting the bias.
-    The covariance is ``noise^2 / n I + bias_sigma^2 I`` with ``n >= 1`` the number of
-    sample intervals the window spans (independent sample noise averages down; the bias does
-    not).
+    The RS model turns at a constant rate during the readout (paper eq. 2); on a rotation that
+    accelerates, its best fit is the least-squares slope of the rotation angle over the
+    readout window ``[m - h, m + h]``, i.e. the rate weighted by ``3 (h^2 - (t - m)^2) /
+    (4 h^3)`` (integrating ``t theta(t)`` by parts). For a rate linear in time that is the
+    mean rate (the rate at the window's middle); with a jerk ``j`` it is ``omega(m) + j
+    h^2 / 10``, where the mean would be ``omega(m) + j h^2 / 6``. The rate between samples is
+    linearly interpolated (the weighted integral is then exact by Simpson's rule); for a
+    zero-length window (a global-shutter camera) the measurement is the rate at that instant.
+    It is rotated into the camera optical frame after subtracting the bias. The covariance is
+    ``noise^2 sum(c_i^2) I + bias_sigma^2 I`` with ``c`` the samples' weights in the
+    measurement (independent sample noise averages down; the bias does not).
 
     Args:
         stamps: (M,) IMU sample times (s, IMU clock), strictly increasing, M >= 2.
@@ -149,21 +154,40 @@ def gyro_measurement(
             f"gyro samples [{t[0]:.6f}, {t[-1]:.6f}] s do not cover the readout "
             f"[{a:.6f}, {b:.6f}] s"
         )
-    if b > a:
-        inner = t[(t > a) & (t < b)]
-        grid = np.concatenate(([a], inner, [b]))
-        vals = np.stack([np.interp(grid, t, om[:, k]) for k in range(3)], 1)
-        dt = np.diff(grid)[:, None]
-        mean = (0.5 * (vals[1:] + vals[:-1]) * dt).sum(0) / (b - a)  # trapezoid rule
-        n = max(1, int(np.searchsorted(t, b) - np.searchsorted(t, a, side="right")) + 1)
-    else:
-        mean = np.array([np.interp(a, t, om[:, k]) for k in range(3)])
-        n = 1
+    c = _sample_weights(t, a, b)
+    rate = c @ om
     if bias is not None:
-        mean = mean - np.asarray(bias, dtype=float).reshape(3)
+        rate = rate - np.asarray(bias, dtype=float).reshape(3)
     R = np.eye(3) if R_cam_imu is None else np.asarray(R_cam_imu, dtype=float).reshape(3, 3)
-    cov = (noise**2 / n + bias_sigma**2) * np.eye(3)
-    return GyroMeasurement(R @ mean, R @ cov @ R.T)
+    cov = (noise**2 * float(c @ c) + bias_sigma**2) * np.eye(3)
+    return GyroMeasurement(R @ rate, R @ cov @ R.T)
+
+
+def _sample_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
+    """(M,) weights ``c`` (summing to 1) of the samples at times ``t`` in the readout's
+    measurement over ``[a, b]`` (:func:`gyro_measurement`): the parabolic weight times the
+    linear interpolation between samples, integrated by Simpson's rule per segment (exact:
+    the product is cubic)."""
+    c = np.zeros(len(t))
+    k0 = int(np.searchsorted(t, a, side="right")) - 1
+    if b <= a:  # (global shutter: the interpolated rate at a)
+        k0 = min(max(k0, 0), len(t) - 2)
+        u = (a - t[k0]) / (t[k0 + 1] - t[k0])
+        c[k0], c[k0 + 1] = 1.0 - u, u
+        return c
+    m, h = 0.5 * (a + b), 0.5 * (b - a)
+    k = max(k0, 0)
+    while k < len(t) - 1 and t[k] < b:
+        s0, s1 = max(t[k], a), min(t[k + 1], b)
+        if s1 > s0:
+            ts = np.array([s0, 0.5 * (s0 + s1), s1])
+            w = 3.0 * (h * h - (ts - m) ** 2) / (4.0 * h**3)
+            u = (ts - t[k]) / (t[k + 1] - t[k])  # the later sample's interpolation weight
+            simpson = (s1 - s0) / 6.0 * np.array([1.0, 4.0, 1.0])
+            c[k] += simpson @ (w * (1.0 - u))
+            c[k + 1] += simpson @ (w * u)
+        k += 1
+    return c / c.sum()  # (sums to 1 but for rounding)
 
 
 def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> MotionPrior:
