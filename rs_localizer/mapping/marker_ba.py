@@ -88,6 +88,9 @@ class MappingOptions:
             between consecutive frames (the change of pose between their reference lines
             against the mean of their velocities times the time between them); ``None``
             (either): no tie.
+        motion_sigma_angular_accel: standard deviation of the camera's angular acceleration
+            (rad/s^2) between tied frames: their angular velocities differ by about this times
+            the time between them (hand-held: ~10 rad/s^2).
         max_frame_gap: consecutive frames further apart than this multiple of the median frame
             interval are not tied (a gap in the video).
         loss, f_scale_px: robust loss of ``least_squares`` and its scale (pixels).
@@ -107,6 +110,7 @@ class MappingOptions:
     calibrate_readout: bool = False
     motion_sigma_rot: float | None = 2e-3
     motion_sigma_pos: float | None = 5e-3
+    motion_sigma_angular_accel: float = 10.0
     max_frame_gap: float = 1.5
     loss: str = "huber"
     f_scale_px: float = 1.0
@@ -217,32 +221,46 @@ class _Init:
         self.unmapped: dict = {}
         self.inconsistent: dict = {}
         self.seed = None
+        self.excluded: set = set()  # (frame, id) detections that disagree with their frame
+        self.gate_px = 25.0
 
     def world_corners(self, mid):
         R, p = self.markers[mid]
         return marker_corners_local(self.opts.side(mid)) @ R.T + p
 
     def pose_frame(self, k, guess) -> bool:
-        known = [m for m in self.obs[k] if m in self.markers]
-        if not known:
-            return False
-        X = np.concatenate([self.world_corners(m) for m in known])
-        x = np.concatenate([self.obs[k][m] for m in known]).reshape(-1, 1, 2)
-        R0, C0 = guess
-        ok, rv, tv = cv2.solvePnP(
-            X,
-            x,
-            np.eye(3),
-            None,
-            rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
-            tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
-            useExtrinsicGuess=True,
-            flags=cv2.SOLVEPNP_ITERATIVE,
-        )
-        if not ok:
-            return False
-        self.frames[k] = (rotvec_to_matrix(np.ravel(rv)), np.ravel(tv))
-        return True
+        known = [m for m in self.obs[k] if m in self.markers and (k, m) not in self.excluded]
+        while known:
+            X = np.concatenate([self.world_corners(m) for m in known])
+            x = np.concatenate([self.obs[k][m] for m in known]).reshape(-1, 1, 2)
+            R0, C0 = guess
+            ok, rv, tv = cv2.solvePnP(
+                X,
+                x,
+                np.eye(3),
+                None,
+                rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
+                tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
+                useExtrinsicGuess=True,
+                flags=cv2.SOLVEPNP_ITERATIVE,
+            )
+            if not ok:
+                return False
+            R, C = rotvec_to_matrix(np.ravel(rv)), np.ravel(tv)
+            rms = [
+                np.sqrt(
+                    np.mean(_gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f) ** 2)
+                )
+                for m in known
+            ]
+            worst = int(np.argmax(rms))
+            if len(known) == 1 or rms[worst] <= self.gate_px:
+                self.frames[k] = (R, C)
+                return True
+            # a detection that disagrees with the frame's other markers (a misdetection, or
+            # the same id at another place): left out of this frame's initialization
+            self.excluded.add((k, known.pop(worst)))
+        return False
 
     def new_marker(self, k, mid) -> None:
         obj = marker_corners_local(self.opts.side(mid))
@@ -295,30 +313,23 @@ class _Init:
         self.markers = {m: (Rm[i], pm[i]) for i, m in enumerate(markers)}
 
     def views(self, mid) -> list:
-        return [k for k in self.frames if mid in self.obs[k]]
+        return [k for k in self.frames if mid in self.obs[k] and (k, mid) not in self.excluded]
 
     def check_marker(self, mid) -> None:
-        """Final decision on a marker: enough views, one place (else inconsistent)."""
-        frames = self.views(mid)
-        if len(frames) < self.opts.min_views:
-            self.unmapped[mid] = (
-                f"seen in {len(frames)} frame(s) with a pose; at least {self.opts.min_views} "
-                "needed to fix its pose"
-            )
-            del self.markers[mid]
-            return
+        """Final decision on a marker: one place (else inconsistent), enough views."""
         # one id at two places: views whose own single-view position lies far from the map's
         # and agree among themselves
+        every = [k for k in self.frames if mid in self.obs[k]]
         obj = marker_corners_local(self.opts.side(mid))
         own = {}
-        for k in frames:
+        for k in every:
             R, C = self.frames[k]
             ts = [t for _, t in _ippe_candidates(obj, self.obs[k][mid])]
             own[k] = R.T @ (np.mean(ts, axis=0) - C)
         pm = self.markers[mid][1]
         far = [
             k
-            for k in frames
+            for k in every
             if np.linalg.norm(own[k] - pm)
             > max(
                 0.5,
@@ -329,11 +340,19 @@ class _Init:
         if len(far) >= self.opts.min_views:
             other = np.median([own[k] for k in far], axis=0)
             if all(np.linalg.norm(own[k] - other) < np.linalg.norm(other - pm) / 3 for k in far):
-                near = [k for k in frames if k not in far]
+                near = [k for k in every if k not in far]
                 here = np.median([own[k] for k in near], axis=0) if near else pm
                 self.inconsistent[mid] = [here, other]
                 del self.markers[mid]
                 return
+        frames = self.views(mid)
+        if len(frames) < self.opts.min_views:
+            self.unmapped[mid] = (
+                f"seen in {len(frames)} frame(s) with a pose; at least {self.opts.min_views} "
+                "needed to fix its pose"
+            )
+            del self.markers[mid]
+            return
         self.refine_marker(mid, frames)
 
     def run(self) -> None:
@@ -358,6 +377,8 @@ class _Init:
                 if added % self.window == 0:
                     self.adjust()
                 for m in self.obs[k]:
+                    if (k, m) in self.excluded:
+                        continue
                     if m not in self.markers:
                         self.new_marker(k, m)
                     else:
@@ -516,14 +537,22 @@ class _Problem:
         er = matrix_to_rotvec(Rf[j] @ np.swapaxes(Rf[i], 1, 2)) - dt * 0.5 * (W[i] + W[j])
         ec = Cf[j] - Cf[i] - dt * 0.5 * (T[i] + T[j])
         o = self.opts
+        # the angular velocity changes by about the angular acceleration times the time between
+        # frames (without it the mean of two frames' velocities is tied, their difference free)
+        ew = (W[j] - W[i]) / (o.motion_sigma_angular_accel * dt)
         return np.concatenate(
-            [e, (er / o.motion_sigma_rot).ravel(), (ec / o.motion_sigma_pos).ravel()]
+            [
+                e,
+                (er / o.motion_sigma_rot).ravel(),
+                (ec / o.motion_sigma_pos).ravel(),
+                ew.ravel(),
+            ]
         )
 
     def sparsity(self):
         nd = int(self.keep.sum())
         nfix = 6 if self.fix is not None else 0
-        S = lil_matrix((8 * nd + nfix + 6 * len(self.ties), self.n), dtype=np.int8)
+        S = lil_matrix((8 * nd + nfix + 9 * len(self.ties), self.n), dtype=np.int8)
         midx = {m: i for i, m in enumerate(self.markers)}
         fidx = {k: i for i, k in enumerate(self.frames)}
         row = 0
@@ -541,7 +570,7 @@ class _Problem:
         if nfix:
             S[row : row + 6, self.fix * self.fpar : self.fix * self.fpar + 6] = 1
             row += 6
-        for _ in range(2):  # rotation rows of all ties, then position rows
+        for _ in range(3):  # rotation, position and angular velocity rows of all ties
             for i, j, _ in self.ties:
                 for a in (i, j):
                     S[row : row + 3, a * self.fpar : (a + 1) * self.fpar] = 1
@@ -640,12 +669,13 @@ def map_markers(
         method="trf",
     )
     Rf, Cf, _, _, Rm, pm, _ = free.unpack(sol.x)
-    init.frames, init.markers, _ = _regauge(
+    init.frames, init.markers, (Rg, pg) = _regauge(
         {k: (Rf[i], Cf[i]) for i, k in enumerate(fr_ids)},
         {m: (Rm[i], pm[i]) for i, m in enumerate(all_ids)},
         anchor,
         anchor_pose,
     )
+    init.inconsistent = {m: [Rg @ p + pg for p in ps] for m, ps in init.inconsistent.items()}
     timings["coarse adjustment"] = time.perf_counter() - t0
     # stage 2: gauge on the anchor, robust loss
     mk_ids = [m for m in all_ids if m != anchor]
