@@ -587,17 +587,23 @@ def map_markers(
 ) -> MarkerMapResult:
     """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
 
-    Stages: (1) incremental initialization from the anchor marker: a frame gets a pose from the
-    mapped markers it sees (OpenCV SQPnP on two or more, IPPE on one), a marker gets a pose
-    from the frames with a pose that see it (OpenCV ``SOLVEPNP_IPPE_SQUARE`` per view; of all
-    views' two-fold solutions the one consistent with every view is kept, so the planar
-    ambiguity is resolved across views); (2) the bundle adjustment of every frame's pose and
-    velocities and every marker's 6-DoF pose (module docstring: the estimator's model, paper
-    eq. 4) with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line
-    delay, consecutive frames tied by the motion model; (3) detections whose RMS error exceeds
-    ``reject_px`` are rejected and the map adjusted again without robust loss; the covariance
-    is ``(J^T J)^-1`` at the solution, the reprojection rows scaled by their estimated noise
-    (gauge: the anchor, fixed).
+    Stages: (1) initialization in capture order from the frame that sees the most markers
+    (:class:`_Init`): each frame's pose by OpenCV ``solvePnP`` (Levenberg-Marquardt from the
+    previous frame's pose, so a frame seeing a single marker keeps the continuous one of the
+    two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
+    poses, refined over all its views so far; every 25 frames and at the end a global-shutter
+    adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
+    than ``min_views`` frames is left out (``unmapped``), an id whose views place it at two
+    places far apart is left out (``inconsistent``, both places, never averaged); (2) a coarse
+    adjustment with the rolling-shutter model and the starting frame's pose as the gauge, then
+    the whole moved rigidly onto the anchor's pose; (3) the rolling-shutter bundle adjustment
+    of every frame's pose and velocities and every marker's 6-DoF pose (module docstring: the
+    estimator's model, paper eq. 4) with SciPy ``least_squares`` (sparse Jacobian from
+    ``jac_sparsity``, robust loss), optionally one line delay, consecutive frames tied by the
+    motion model, the anchor fixed; (4) detections whose RMS error exceeds ``reject_px`` are
+    rejected (counted) and the map adjusted again without robust loss; the covariance is
+    ``(J^T J)^-1`` at the solution, the reprojection rows scaled by their estimated noise
+    (gauge: the anchor).
 
     Args:
         frames: the video's detections in capture order (:class:`FrameDetections`; pixel
@@ -609,9 +615,10 @@ def map_markers(
         :class:`MarkerMapResult` (world frame: the anchor's, or ``options.anchor_pose``).
     Raises:
         ValueError: no detections in any frame (wrong dictionary?), the anchor not detected in
-            any frame, corners that are not (4, 2) and finite, fewer than ``min_views`` frames
-            that see the anchor, or ``calibrate_readout`` without a motion tie (global-shutter
-            model, tie disabled, or no consecutive frames).
+            any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
+            (seen in fewer than ``min_views`` frames with a pose, or at places that disagree),
+            or ``calibrate_readout`` without a motion tie (global-shutter model, tie disabled,
+            or no consecutive frames).
     """
     t_start = time.perf_counter()
     timings = {}
