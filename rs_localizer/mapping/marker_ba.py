@@ -222,45 +222,64 @@ class _Init:
         self.inconsistent: dict = {}
         self.seed = None
         self.excluded: set = set()  # (frame, id) detections that disagree with their frame
+        self.inconsistent_views: dict = {}  # id -> [frames of one place, of the other]
         self.gate_px = 25.0
 
     def world_corners(self, mid):
         R, p = self.markers[mid]
         return marker_corners_local(self.opts.side(mid)) @ R.T + p
 
+    def _pnp(self, k, markers, guess):
+        X = np.concatenate([self.world_corners(m) for m in markers])
+        x = np.concatenate([self.obs[k][m] for m in markers]).reshape(-1, 1, 2)
+        R0, C0 = guess
+        ok, rv, tv = cv2.solvePnP(
+            X,
+            x,
+            np.eye(3),
+            None,
+            rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
+            tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
+            useExtrinsicGuess=True,
+            flags=cv2.SOLVEPNP_ITERATIVE,
+        )
+        return (rotvec_to_matrix(np.ravel(rv)), np.ravel(tv)) if ok else None
+
+    def _rms(self, k, m, R, C) -> float:
+        e = _gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f)
+        return float(np.sqrt(np.mean(e**2)))
+
     def pose_frame(self, k, guess) -> bool:
+        """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
+
+        With several markers, the pose from all of them and from each alone compete: the one
+        that most markers agree with wins (ties: the one nearest the guess, the video being
+        continuous); markers that disagree with it (a misdetection, or one id at another place)
+        are left out of this frame's initialization."""
         known = [m for m in self.obs[k] if m in self.markers and (k, m) not in self.excluded]
-        while known:
-            X = np.concatenate([self.world_corners(m) for m in known])
-            x = np.concatenate([self.obs[k][m] for m in known]).reshape(-1, 1, 2)
-            R0, C0 = guess
-            ok, rv, tv = cv2.solvePnP(
-                X,
-                x,
-                np.eye(3),
-                None,
-                rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
-                tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
-                useExtrinsicGuess=True,
-                flags=cv2.SOLVEPNP_ITERATIVE,
+        if not known:
+            return False
+        subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
+        best = None
+        for sub in subsets:
+            pose = self._pnp(k, sub, guess)
+            if pose is None:
+                continue
+            R, C = pose
+            agree = [m for m in known if self._rms(k, m, R, C) <= self.gate_px]
+            away = np.linalg.norm(matrix_to_rotvec(R @ guess[0].T)) + np.linalg.norm(
+                R.T @ C - guess[0].T @ guess[1]
             )
-            if not ok:
-                return False
-            R, C = rotvec_to_matrix(np.ravel(rv)), np.ravel(tv)
-            rms = [
-                np.sqrt(
-                    np.mean(_gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f) ** 2)
-                )
-                for m in known
-            ]
-            worst = int(np.argmax(rms))
-            if len(known) == 1 or rms[worst] <= self.gate_px:
-                self.frames[k] = (R, C)
-                return True
-            # a detection that disagrees with the frame's other markers (a misdetection, or
-            # the same id at another place): left out of this frame's initialization
-            self.excluded.add((k, known.pop(worst)))
-        return False
+            score = (len(agree), -away)
+            if best is None or score > best[0]:
+                best = (score, pose, agree)
+        if best is None or not best[2]:
+            return False
+        _, pose, agree = best
+        self.excluded.update((k, m) for m in known if m not in agree)
+        pose = self._pnp(k, agree, pose) or pose
+        self.frames[k] = pose
+        return True
 
     def new_marker(self, k, mid) -> None:
         obj = marker_corners_local(self.opts.side(mid))
@@ -297,7 +316,15 @@ class _Init:
         markers = sorted(self.markers)
         opts = replace(self.opts, global_shutter=True, calibrate_readout=False)
         prob = _Problem(
-            self, self.obs_px, self.camera, opts, frames, markers, None, frames.index(self.seed)
+            self,
+            self.obs_px,
+            self.camera,
+            opts,
+            frames,
+            markers,
+            None,
+            frames.index(self.seed),
+            self.excluded,
         )
         sol = least_squares(
             prob.residuals,
@@ -343,6 +370,7 @@ class _Init:
                 near = [k for k in every if k not in far]
                 here = np.median([own[k] for k in near], axis=0) if near else pm
                 self.inconsistent[mid] = [here, other]
+                self.inconsistent_views[mid] = [near, far]
                 del self.markers[mid]
                 return
         frames = self.views(mid)
@@ -415,7 +443,9 @@ def _regauge(frames: dict, markers: dict, anchor: int, anchor_pose: tuple):
 class _Problem:
     """Parameter layout, residuals and Jacobian sparsity of the bundle adjustment."""
 
-    def __init__(self, init, obs_px, camera, opts, frames, markers, anchor, fix_frame=None):
+    def __init__(
+        self, init, obs_px, camera, opts, frames, markers, anchor, fix_frame=None, exclude=()
+    ):
         self.camera = camera
         self.opts = opts
         self.frames = frames  # frame indices, parameter order
@@ -445,7 +475,7 @@ class _Problem:
         fi, mi, loc, xs, taus = [], [], [], [], []
         for k in frames:
             for m, uv in obs_px[k].items():
-                if m != anchor and m not in midx:
+                if (m != anchor and m not in midx) or (k, m) in exclude:
                     continue
                 x, r, _ = camera.normalize(uv)
                 self.det.append((k, m))
@@ -663,7 +693,15 @@ def map_markers(
     # any single view): a coarse pass (wide robust scale) pulls the initialization together
     t0 = time.perf_counter()
     free = _Problem(
-        init, obs_px, camera, options, fr_ids, all_ids, None, fix_frame=fr_ids.index(init.seed)
+        init,
+        obs_px,
+        camera,
+        options,
+        fr_ids,
+        all_ids,
+        None,
+        fix_frame=fr_ids.index(init.seed),
+        exclude=init.excluded,
     )
     sol = least_squares(
         free.residuals,
@@ -673,20 +711,21 @@ def map_markers(
         f_scale=10.0,
         x_scale="jac",
         max_nfev=options.max_nfev,
+        ftol=1e-4,  # only to start the adjustments below close to the solution
+        xtol=1e-4,
         method="trf",
     )
     Rf, Cf, _, _, Rm, pm, _ = free.unpack(sol.x)
-    init.frames, init.markers, (Rg, pg) = _regauge(
+    init.frames, init.markers, _ = _regauge(
         {k: (Rf[i], Cf[i]) for i, k in enumerate(fr_ids)},
         {m: (Rm[i], pm[i]) for i, m in enumerate(all_ids)},
         anchor,
         anchor_pose,
     )
-    init.inconsistent = {m: [Rg @ p + pg for p in ps] for m, ps in init.inconsistent.items()}
     timings["coarse adjustment"] = time.perf_counter() - t0
     # stage 2: gauge on the anchor, robust loss
     mk_ids = [m for m in all_ids if m != anchor]
-    prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor)
+    prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=init.excluded)
     t0 = time.perf_counter()
     sol = least_squares(
         prob.residuals,
@@ -696,12 +735,16 @@ def map_markers(
         f_scale=options.f_scale_px,
         x_scale="jac",
         max_nfev=options.max_nfev,
+        ftol=1e-6,
+        xtol=1e-6,
         method="trf",
     )
     timings["robust adjustment"] = time.perf_counter() - t0
     rms = prob.detection_rms(sol.x)
     prob.keep = rms <= options.reject_px
-    num_rejected = int((~prob.keep).sum())
+    # rejected: by the adjustment, and detections of mapped markers that disagreed with their
+    # frame during the initialization
+    num_rejected = int((~prob.keep).sum()) + sum(m in all_ids for _, m in init.excluded)
     t0 = time.perf_counter()
     sol = least_squares(
         prob.residuals,
@@ -709,6 +752,8 @@ def map_markers(
         jac_sparsity=prob.sparsity(),
         x_scale="jac",
         max_nfev=options.max_nfev,
+        ftol=1e-6,
+        xtol=1e-6,
         method="trf",
     )
     timings["final adjustment"] = time.perf_counter() - t0
@@ -725,6 +770,23 @@ def map_markers(
     timings["covariance"] = time.perf_counter() - t0
 
     Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
+    # an id seen at two places: each place from its own views' single-view centres, with the
+    # adjusted frame poses
+    fpos = {k: i for i, k in enumerate(fr_ids)}
+    inconsistent = {}
+    for m, groups in init.inconsistent_views.items():
+        obj = marker_corners_local(options.side(m))
+        places = []
+        for views in groups:
+            cs = [
+                Rf[fpos[k]].T
+                @ (np.mean([t for _, t in _ippe_candidates(obj, obs_n[k][m])], 0) - Cf[fpos[k]])
+                for k in views
+                if k in fpos
+            ]
+            if cs:
+                places.append(np.median(cs, axis=0))
+        inconsistent[m] = places
     corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
     used = {}
     for (_, m), kept in zip(prob.det, prob.keep, strict=True):
@@ -765,7 +827,7 @@ def map_markers(
         num_rejected=num_rejected,
         num_frames_skipped=len(frames) - len(fr_ids),
         unmapped=init.unmapped,
-        inconsistent=init.inconsistent,
+        inconsistent=inconsistent,
         timings=timings,
         global_shutter=options.global_shutter,
     )
