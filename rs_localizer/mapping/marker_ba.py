@@ -145,8 +145,8 @@ class MarkerMapResult:
         num_rejected: detections rejected as outliers.
         num_frames_skipped: frames without detections or without a pose.
         unmapped: id -> why the marker is not in the map.
-        inconsistent: id -> list of (3,) world positions: one id detected at places that
-            disagree (left out of the map, never averaged).
+        inconsistent: id -> two (3,) world positions (m): one id detected at two places
+            (left out of the map, never averaged).
         timings: stage -> seconds.
         global_shutter: the global-shutter model was used.
     """
@@ -219,10 +219,9 @@ class _Init:
         self.frames: dict = {}  # frame -> (R, C) world -> camera
         self.markers: dict = {}  # id -> (R marker -> world, p)
         self.unmapped: dict = {}
-        self.inconsistent: dict = {}
         self.seed = None
         self.excluded: set = set()  # (frame, id) detections that disagree with their frame
-        self.inconsistent_views: dict = {}  # id -> [frames of one place, of the other]
+        self.suspects: dict = {}  # id -> [frames of one place, of another]
         self.gate_px = 25.0
 
     def world_corners(self, mid):
@@ -367,12 +366,14 @@ class _Init:
         if len(far) >= self.opts.min_views:
             other = np.median([own[k] for k in far], axis=0)
             if all(np.linalg.norm(own[k] - other) < np.linalg.norm(other - pm) / 3 for k in far):
+                # two places, or drift of the initialization: decided after the adjustment
+                # (map_markers); meanwhile the marker stays at one place, the other's views out
                 near = [k for k in every if k not in far]
-                here = np.median([own[k] for k in near], axis=0) if near else pm
-                self.inconsistent[mid] = [here, other]
-                self.inconsistent_views[mid] = [near, far]
-                del self.markers[mid]
-                return
+                if len(near) < self.opts.min_views:
+                    near, far = far, near
+                    self.markers[mid] = (self.markers[mid][0], other)
+                self.suspects[mid] = [near, far]
+                self.excluded.update((k, mid) for k in far)
         frames = self.views(mid)
         if len(frames) < self.opts.min_views:
             self.unmapped[mid] = (
@@ -623,8 +624,8 @@ def map_markers(
     two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
     poses, refined over all its views so far; every 25 frames and at the end a global-shutter
     adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
-    than ``min_views`` frames is left out (``unmapped``), an id whose views place it at two
-    places far apart is left out (``inconsistent``, both places, never averaged); (2) a coarse
+    than ``min_views`` frames is left out (``unmapped``); when some views of an id place it far
+    from the others and agree among themselves, only one group is used; (2) a coarse
     adjustment with the rolling-shutter model and the starting frame's pose as the gauge, then
     the whole moved rigidly onto the anchor's pose; (3) the rolling-shutter bundle adjustment
     of every frame's pose and velocities and every marker's 6-DoF pose (module docstring: the
@@ -633,7 +634,10 @@ def map_markers(
     motion model, the anchor fixed; (4) detections whose RMS error exceeds ``reject_px`` are
     rejected (counted) and the map adjusted again without robust loss; the covariance is
     ``(J^T J)^-1`` at the solution, the reprojection rows scaled by their estimated noise
-    (gauge: the anchor).
+    (gauge: the anchor); (5) an id whose two groups of views still place it more than
+    max(0.5 m, 3 sides) apart with the adjusted frames is left out of the map and reported with
+    both places (``inconsistent``, never averaged); closer, the split was drift of the
+    initialization and the marker stays (the other group's detections counted as rejected).
 
     Args:
         frames: the video's detections in capture order (:class:`FrameDetections`; pixel
@@ -771,10 +775,10 @@ def map_markers(
 
     Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
     # an id seen at two places: each place from its own views' single-view centres, with the
-    # adjusted frame poses
+    # adjusted frame poses; far apart: left out of the map with both places (never averaged)
     fpos = {k: i for i, k in enumerate(fr_ids)}
     inconsistent = {}
-    for m, groups in init.inconsistent_views.items():
+    for m, groups in init.suspects.items():
         obj = marker_corners_local(options.side(m))
         places = []
         for views in groups:
@@ -786,7 +790,16 @@ def map_markers(
             ]
             if cs:
                 places.append(np.median(cs, axis=0))
-        inconsistent[m] = places
+        if len(places) == 2 and np.linalg.norm(places[0] - places[1]) > max(
+            0.5, 3 * options.side(m)
+        ):
+            inconsistent[m] = places
+    if anchor in inconsistent:
+        raise ValueError(
+            f"anchor marker {anchor} cannot be placed: detected at places that disagree "
+            f"({inconsistent[anchor][0].round(2)} and {inconsistent[anchor][1].round(2)})"
+        )
+    num_rejected -= sum(m in inconsistent for _, m in init.excluded)
     corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
     used = {}
     for (_, m), kept in zip(prob.det, prob.keep, strict=True):
@@ -797,6 +810,8 @@ def map_markers(
     mstd[anchor] = np.zeros(6)
     nobs[anchor] = used.get(anchor, 0)
     for i, m in enumerate(mk_ids):
+        if m in inconsistent:
+            continue
         corners[m] = marker_corners_local(options.side(m)) @ Rm[i].T + pm[i]
         poses[m] = (Rm[i], pm[i])
         c = cov[
