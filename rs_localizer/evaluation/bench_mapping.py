@@ -136,6 +136,8 @@ def main(argv: list | None = None) -> int:
             )
             if res.unmapped:
                 print(f"{'':24s} left out: {res.unmapped}")
+            if res.inconsistent:
+                print(f"{'':24s} left out as seen at two places: {sorted(res.inconsistent)}")
     ratio = medians["global shutter"] / medians["rolling shutter"]
     print(f"global shutter / rolling shutter median corner error: {ratio:.1f}x")
     return 0

@@ -613,6 +613,31 @@ class _Problem:
         return np.sqrt(np.mean(e**2, axis=1))
 
 
+def _two_places(suspects: dict, Rf, Cf, fr_ids, obs_n, options) -> dict:
+    """Ids whose two groups of views place them more than max(0.5 m, 3 sides) apart with the
+    adjusted frames (world -> camera ``Rf``, ``Cf``): id -> [place, place], each the median of
+    its views' single-view centres (IPPE)."""
+    fpos = {k: i for i, k in enumerate(fr_ids)}
+    out = {}
+    for m, groups in suspects.items():
+        obj = marker_corners_local(options.side(m))
+        places = []
+        for views in groups:
+            cs = [
+                Rf[fpos[k]].T
+                @ (np.mean([t for _, t in _ippe_candidates(obj, obs_n[k][m])], 0) - Cf[fpos[k]])
+                for k in views
+                if k in fpos
+            ]
+            if cs:
+                places.append(np.median(cs, axis=0))
+        if len(places) == 2 and np.linalg.norm(places[0] - places[1]) > max(
+            0.5, 3 * options.side(m)
+        ):
+            out[m] = places
+    return out
+
+
 def map_markers(
     frames: Sequence[FrameDetections], camera: CameraModel, options: MappingOptions
 ) -> MarkerMapResult:
@@ -727,40 +752,62 @@ def map_markers(
         anchor_pose,
     )
     timings["coarse adjustment"] = time.perf_counter() - t0
-    # stage 2: gauge on the anchor, robust loss
+    # stage 2: gauge on the anchor, robust loss, rejection, plain least squares
     mk_ids = [m for m in all_ids if m != anchor]
-    prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=init.excluded)
-    t0 = time.perf_counter()
-    sol = least_squares(
-        prob.residuals,
-        prob.x0(init, camera.line_delay),
-        jac_sparsity=prob.sparsity(),
-        loss=options.loss,
-        f_scale=options.f_scale_px,
-        x_scale="jac",
-        max_nfev=options.max_nfev,
-        ftol=1e-6,
-        xtol=1e-6,
-        method="trf",
-    )
-    timings["robust adjustment"] = time.perf_counter() - t0
-    rms = prob.detection_rms(sol.x)
-    prob.keep = rms <= options.reject_px
+    exclude = set(init.excluded)
+    x_start = None
+    for _ in range(2):
+        prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=exclude)
+        t0 = time.perf_counter()
+        sol = least_squares(
+            prob.residuals,
+            prob.x0(init, camera.line_delay) if x_start is None else x_start,
+            jac_sparsity=prob.sparsity(),
+            loss=options.loss,
+            f_scale=options.f_scale_px,
+            x_scale="jac",
+            max_nfev=options.max_nfev,
+            ftol=1e-6,
+            xtol=1e-6,
+            method="trf",
+        )
+        timings["robust adjustment"] = timings.get("robust adjustment", 0.0) + (
+            time.perf_counter() - t0
+        )
+        prob.keep = prob.detection_rms(sol.x) <= options.reject_px
+        t0 = time.perf_counter()
+        sol = least_squares(
+            prob.residuals,
+            sol.x,
+            jac_sparsity=prob.sparsity(),
+            x_scale="jac",
+            max_nfev=options.max_nfev,
+            ftol=1e-6,
+            xtol=1e-6,
+            method="trf",
+        )
+        timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
+            time.perf_counter() - t0
+        )
+        Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
+        inconsistent = _two_places(init.suspects, Rf, Cf, fr_ids, obs_n, options)
+        # views split by drift of the initialization, not by a second copy: adjust again
+        # with them
+        drift = {(k, m) for k, m in exclude if m in init.suspects and m not in inconsistent}
+        if not drift or x_start is not None:
+            break
+        exclude -= drift
+        x_start = sol.x
+    if anchor in inconsistent:
+        raise ValueError(
+            f"anchor marker {anchor} cannot be placed: detected at places that disagree "
+            f"({inconsistent[anchor][0].round(2)} and {inconsistent[anchor][1].round(2)})"
+        )
     # rejected: by the adjustment, and detections of mapped markers that disagreed with their
     # frame during the initialization
-    num_rejected = int((~prob.keep).sum()) + sum(m in all_ids for _, m in init.excluded)
-    t0 = time.perf_counter()
-    sol = least_squares(
-        prob.residuals,
-        sol.x,
-        jac_sparsity=prob.sparsity(),
-        x_scale="jac",
-        max_nfev=options.max_nfev,
-        ftol=1e-6,
-        xtol=1e-6,
-        method="trf",
+    num_rejected = int((~prob.keep).sum()) + sum(
+        m in all_ids and m not in inconsistent for _, m in exclude
     )
-    timings["final adjustment"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
@@ -773,33 +820,6 @@ def map_markers(
     cov = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
     timings["covariance"] = time.perf_counter() - t0
 
-    Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
-    # an id seen at two places: each place from its own views' single-view centres, with the
-    # adjusted frame poses; far apart: left out of the map with both places (never averaged)
-    fpos = {k: i for i, k in enumerate(fr_ids)}
-    inconsistent = {}
-    for m, groups in init.suspects.items():
-        obj = marker_corners_local(options.side(m))
-        places = []
-        for views in groups:
-            cs = [
-                Rf[fpos[k]].T
-                @ (np.mean([t for _, t in _ippe_candidates(obj, obs_n[k][m])], 0) - Cf[fpos[k]])
-                for k in views
-                if k in fpos
-            ]
-            if cs:
-                places.append(np.median(cs, axis=0))
-        if len(places) == 2 and np.linalg.norm(places[0] - places[1]) > max(
-            0.5, 3 * options.side(m)
-        ):
-            inconsistent[m] = places
-    if anchor in inconsistent:
-        raise ValueError(
-            f"anchor marker {anchor} cannot be placed: detected at places that disagree "
-            f"({inconsistent[anchor][0].round(2)} and {inconsistent[anchor][1].round(2)})"
-        )
-    num_rejected -= sum(m in inconsistent for _, m in init.excluded)
     corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
     used = {}
     for (_, m), kept in zip(prob.det, prob.keep, strict=True):
