@@ -121,3 +121,35 @@ def test_refusals_write_no_file(rendered, tmp_path, capsys):
     assert "the camera 800x480" in capsys.readouterr().err
     assert not out.exists()
     assert not list(tmp_path.glob(".map.yaml.*"))
+
+
+def test_map_from_a_rendered_bag(rendered, tmp_path, capsys):
+    """The same scene rendered to a bag by ``render-bag`` (images, camera_info, header stamps
+    at the first line's capture time)."""
+    true, pose = rendered[3], rendered[4]
+    bag = tmp_path / "bag"
+    assert main(["render-bag", str(bag), "--frames", "12", "--motion", "pan"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "map.yaml"
+    common = ["--marker-size", "0.3", "--dictionary", "DICT_4X4_250", "--anchor", "0"]
+    a = ["map-markers", str(bag), "-o", str(out), *common, "--anchor-pose", *pose, "--quiet"]
+    assert main([*a, "--image-topic", "/no/such/image"]) == 2
+    assert "no image topic '/no/such/image'" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(a) == 0
+    _, corners = load_marker_map(out)
+    assert len(corners) >= 20
+    e = np.concatenate([np.linalg.norm(corners[m] - true[m], axis=1) for m in corners])
+    assert np.median(e) < 0.04 and e.max() < 0.12
+
+
+def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    import rs_localizer.mapping.outputs as outputs
+
+    def interrupted(src, dst):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        outputs.write_atomic(tmp_path / "map.yaml", "markers: []\n")
+    assert list(tmp_path.iterdir()) == []

@@ -17,6 +17,7 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "camera_from_yaml",
     "detect_folder",
+    "detect_image",
     "write_atomic",
     "write_map",
     "write_report",
@@ -120,18 +121,26 @@ def detect_folder(
                 f"{f}: image is {img.shape[1]}x{img.shape[0]}, the camera "
                 f"{camera.width}x{camera.height}"
             )
-        corners, ids = front.detect(img, "mono8")
-        ids = [int(m) for m in np.ravel(ids)] if ids is not None else []
-        dets = {}
-        for m in set(ids):
-            idx = [j for j, k in enumerate(ids) if k == m]
-            if len(idx) > 1:
-                counts["duplicate_ids"] += 1
-                continue
-            dets[m] = np.asarray(corners[idx[0]], dtype=float).reshape(4, 2)
+        dets, dup = detect_image(front, img)
+        counts["duplicate_ids"] += dup
         counts["without_markers"] += not dets
         frames.append(FrameDetections(i / fps + t_ref, dets))
     return frames, counts
+
+
+def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
+    """Markers in one (H, W) uint8 image with an :class:`ArucoFrontend`: ``({id: (4, 2)
+    pixel corners}, number of ids found more than once)``; an id found twice is dropped."""
+    corners, ids = front.detect(gray, "mono8")
+    ids = [int(m) for m in np.ravel(ids)] if ids is not None else []
+    dets, dup = {}, 0
+    for m in set(ids):
+        idx = [j for j, k in enumerate(ids) if k == m]
+        if len(idx) > 1:
+            dup += 1
+            continue
+        dets[m] = np.asarray(corners[idx[0]], dtype=float).reshape(4, 2)
+    return dets, dup
 
 
 def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
