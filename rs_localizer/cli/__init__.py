@@ -8,6 +8,7 @@ rs-localizer export-image BAG OUT.png [--topic /rs_localizer/debug_image] [--ind
 rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-images]
 rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
 rs-localizer marker-map SCENE OUT
+rs-localizer map-markers IMAGES -o MAP.yaml --camera CAMERA.yaml --marker-size S [--anchor ID]
 rs-localizer experiments [--quick] [--out docs/experiments]
 rs-localizer compile [--solvers r6p_1lin p3p]   (once after installing: JIT kernels)
 rs-localizer calibrate-readout BAG [--source correspondences|keypoints|image] [--json]
@@ -937,6 +938,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="solvers to compile for",
     )
     c.set_defaults(func=_compile)
+    from . import map_markers
+
+    map_markers.register(sub)
     return p
 
 

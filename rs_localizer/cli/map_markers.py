@@ -1,0 +1,241 @@
+"""``rs-localizer map-markers``: a marker map from a rolling-shutter video (a bag, or a folder
+of images with a camera YAML).
+
+Detects the markers in every image, builds the map with the rolling-shutter bundle adjustment
+(:func:`rs_localizer.mapping.marker_ba.map_markers`) and writes it in the marker-map format the
+ArUco front end and the node's ``frontend_map`` read. The world frame is the anchor marker's
+(x right, y up on its face, z out of it, origin at its centre) or ``--anchor-pose``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["frames_from_bag", "parse_sizes", "register", "run"]
+
+
+def parse_sizes(text: str) -> dict:
+    """``"12:0.30,14:0.1"`` -> {12: 0.30, 14: 0.1}. Raises ValueError on a malformed entry."""
+    out = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        mid, sep, size = part.partition(":")
+        try:
+            if not sep:
+                raise ValueError
+            out[int(mid)] = float(size)
+        except ValueError:
+            raise ValueError(f"--marker-sizes: expected ID:SIZE, got {part!r}") from None
+    return out
+
+
+def frames_from_bag(
+    path: str | Path,
+    image_topic: str | None,
+    dictionary: str,
+    readout_time: float,
+    progress: bool = True,
+) -> tuple:
+    """Marker detections of a bag's images (rosbags, no ROS installation needed).
+
+    The camera is the first ``camera_info`` of the bag (K, D, binning and ROI;
+    :func:`rs_localizer.ros.conversions.camera_model_from_camera_info`) with ``readout_time``
+    seconds per frame; the images are ``sensor_msgs/Image`` or ``CompressedImage`` on
+    ``image_topic`` (default: the bag's only image topic). A header stamp is the capture time
+    of the line ``rs.stamp_row`` of the bag's ``sequence.json`` (default 0, the first line).
+
+    Returns:
+        ``(camera, frames, counts)`` as :func:`rs_localizer.mapping.outputs.detect_folder`.
+    Raises:
+        FileNotFoundError: not a bag directory. ValueError: no or several image topics, no
+        camera_info, an image of another size than the camera, an undecodable image.
+    """
+    from ..frontends.aruco import ArucoFrontend, to_gray
+    from ..frontends.image import image_from_compressed, image_from_msg
+    from ..mapping.marker_ba import FrameDetections
+    from ..mapping.outputs import detect_image
+    from ..ros import conversions as cv
+    from ..ros.bag_io import (
+        CAMERA_INFO,
+        COMPRESSED_IMAGE,
+        IMAGE,
+        bag_topics,
+        iter_messages,
+        read_bag_info,
+        typestore,
+    )
+
+    path = Path(path)
+    if not (path / "metadata.yaml").exists():
+        raise FileNotFoundError(f"{path}: neither a folder of images nor a bag (no metadata.yaml)")
+    topics = bag_topics(path)
+    images = sorted(t for t, mt in topics.items() if mt in (IMAGE, COMPRESSED_IMAGE))
+    if image_topic is None:
+        if len(images) != 1:
+            raise ValueError(f"{path}: image topics {images}: choose one with --image-topic")
+        image_topic = images[0]
+    elif image_topic not in images:
+        raise ValueError(f"{path}: no image topic {image_topic!r} (image topics: {images})")
+    infos = sorted(t for t, mt in topics.items() if mt == CAMERA_INFO)
+    if not infos:
+        raise ValueError(f"{path}: no camera_info topic")
+    ns = image_topic.rsplit("/", 1)[0]
+    info_topic = next((t for t in infos if t.rsplit("/", 1)[0] == ns), infos[0])
+    ts = typestore()
+    camera = None
+    for _, msgtype, _, raw in iter_messages(path, {info_topic}):
+        camera = cv.camera_model_from_camera_info(
+            ts.deserialize_cdr(raw, msgtype), readout_time=readout_time
+        )
+        break
+    if camera is None:
+        raise ValueError(f"{path}: no camera_info message on {info_topic}")
+    stamp_row = float(read_bag_info(path).get("rs", {}).get("stamp_row", 0.0))
+    offset = float(camera.line_time(camera.reference_line) - camera.line_time(stamp_row))
+    front = ArucoFrontend({}, dictionary)
+    frames, counts = [], {"images": 0, "without_markers": 0, "duplicate_ids": 0}
+    msgs = iter_messages(path, {image_topic})
+    if progress:
+        try:
+            from tqdm import tqdm
+
+            msgs = tqdm(msgs, desc="detecting markers")
+        except ImportError:  # optional: no progress bar without it
+            pass
+    for _, msgtype, _, raw in msgs:
+        msg = ts.deserialize_cdr(raw, msgtype)
+        img, enc = (
+            image_from_compressed(msg) if msgtype == COMPRESSED_IMAGE else image_from_msg(msg)
+        )
+        gray = to_gray(img, enc)
+        if gray.shape != (camera.height, camera.width):
+            raise ValueError(
+                f"{path}: image is {gray.shape[1]}x{gray.shape[0]}, the camera "
+                f"{camera.width}x{camera.height}"
+            )
+        dets, dup = detect_image(front, gray)
+        counts["images"] += 1
+        counts["duplicate_ids"] += dup
+        counts["without_markers"] += not dets
+        stamp = cv.stamp_to_ns(msg.header.stamp) * 1e-9 + offset
+        frames.append(FrameDetections(stamp, dets))
+    frames.sort(key=lambda f: f.stamp)
+    return camera, frames, counts
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the command (see :func:`register`); returns 0.
+
+    Raises:
+        FileExistsError: the output exists without ``--overwrite``. FileNotFoundError: no
+        input folder, images or camera file. ValueError: bad sizes, dictionary, images of
+        another size, no detections, anchor not in view (see ``map_markers``).
+    """
+    from scipy.spatial.transform import Rotation
+
+    from ..mapping.marker_ba import MappingOptions, map_markers
+    from ..mapping.outputs import camera_from_yaml, detect_folder, write_map, write_report
+
+    out = Path(args.output)
+    if out.exists() and not args.overwrite:
+        raise FileExistsError(f"{out} exists (use --overwrite to replace it)")
+    if not args.marker_size > 0:
+        raise ValueError(f"--marker-size must be > 0, got {args.marker_size}")
+    if args.readout_time < 0:
+        raise ValueError(f"--readout-time must be >= 0, got {args.readout_time}")
+    t0 = time.perf_counter()
+    src = Path(args.input)
+    if (src / "metadata.yaml").exists():
+        camera, frames, counts = frames_from_bag(
+            src, args.image_topic, args.dictionary, args.readout_time, progress=not args.quiet
+        )
+    else:
+        if not src.is_dir():
+            raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
+        if args.camera_file is None:
+            raise ValueError("a folder of images needs --camera CAMERA.yaml (ROS camera_info)")
+        probe = camera_from_yaml(args.camera_file)
+        camera = camera_from_yaml(args.camera_file, line_delay=args.readout_time / probe.lines)
+        frames, counts = detect_folder(
+            src, camera, args.dictionary, args.fps, progress=not args.quiet
+        )
+    t_detect = time.perf_counter() - t0
+    anchor_pose = None
+    if args.anchor_pose is not None:
+        v = np.asarray(args.anchor_pose, dtype=float)
+        anchor_pose = (Rotation.from_quat(v[3:]).as_matrix(), v[:3])
+    opts = MappingOptions(
+        marker_size=args.marker_size,
+        marker_sizes=parse_sizes(args.marker_sizes or ""),
+        anchor=args.anchor,
+        anchor_pose=anchor_pose,
+        global_shutter=args.global_shutter,
+        calibrate_readout=args.calibrate_readout,
+    )
+    result = map_markers(frames, camera, opts)
+    result.timings["detection"] = t_detect
+    write_map(out, result, args.dictionary, overwrite=args.overwrite)
+    if args.report:
+        write_report(args.report, result, counts)
+    if not args.quiet:
+        print(
+            f"{out}: {len(result.corners)} markers (anchor {result.anchor}) from "
+            f"{counts['images']} images ({counts['without_markers']} without markers, "
+            f"{result.num_frames_skipped} without a pose); reprojection RMSE "
+            f"{result.rmse_px:.2f} px, {result.num_rejected} detections rejected, line delay "
+            f"{1e6 * result.line_delay:.2f} us"
+        )
+        for m, why in sorted(result.unmapped.items()):
+            print(f"  marker {m} left out: {why}")
+        for m, ps in sorted(result.inconsistent.items()):
+            where = " and ".join(np.array2string(p, precision=2) for p in ps)
+            print(f"  marker {m} left out: detected at places that disagree ({where})")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``map-markers`` subcommand to ``sub`` (sets ``func``)."""
+    p = sub.add_parser(
+        "map-markers",
+        help="build a marker map from a rolling-shutter video (folder of images)",
+        description=__doc__,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument(
+        "input", help="bag directory, or folder of images (sorted by name, one frame each)"
+    )
+    p.add_argument("-o", "--output", required=True, help="marker map YAML to write")
+    p.add_argument(
+        "--camera",
+        dest="camera_file",
+        help="camera YAML for a folder of images (ROS camera_info / calibration)",
+    )
+    p.add_argument("--image-topic", help="image topic of a bag (default: its only one)")
+    p.add_argument("--marker-size", type=float, required=True, help="marker side (m)")
+    p.add_argument("--marker-sizes", help="other sides, ID:SIZE,... (m)")
+    p.add_argument("--dictionary", default="DICT_APRILTAG_36h11", help="OpenCV dictionary")
+    p.add_argument("--anchor", type=int, help="marker fixing the world (default: lowest id)")
+    p.add_argument(
+        "--anchor-pose",
+        type=float,
+        nargs=7,
+        metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+        help="the anchor's centre (m) and orientation (marker -> world) in the world",
+    )
+    p.add_argument("--readout-time", type=float, default=0.03, help="frame readout time (s)")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of a folder of images")
+    p.add_argument(
+        "--calibrate-readout",
+        action="store_true",
+        help="estimate the line delay (starting from --readout-time)",
+    )
+    p.add_argument(
+        "--global-shutter", action="store_true", help="global-shutter model (no velocities)"
+    )
+    p.add_argument("--report", help="folder for report.yaml and map.png")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    p.set_defaults(func=run)

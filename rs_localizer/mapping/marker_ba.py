@@ -1,0 +1,868 @@
+"""Marker maps from a rolling-shutter video: incremental initialization and bundle adjustment.
+
+Input: per frame the detected corners of square fiducial markers (ArUco/AprilTag order TL, TR,
+BR, BL, measured pixels) and the frame's capture time. Output: each marker's 6-DoF pose and
+world corners, with a gauge-fixed covariance, and each frame's pose and twist.
+
+Model. Every corner observation is explained by the estimator's model (paper eq. 4 with the exact
+rotation, docs/architecture.md "Conventions"; :mod:`rs_localizer.estimation.refine`)::
+
+    x_i ~ pi( expm(tau_i [w]x) R X_i + C + tau_i t ),   tau_i = r_i - r0 (measured line)
+
+with ``x_i`` the undistorted normalized corner and ``X_i`` a marker corner. Here the velocities
+are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
+(:attr:`CameraModel.seconds_per_unit_r`), so that one global line delay can be calibrated and
+consecutive frames can be tied by the same velocities. A marker is a square of known side:
+its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
+(``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
+The world frame is the anchor marker's frame (or ``anchor_pose``): the anchor is not adjusted.
+
+The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
+``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from ..camera import CameraModel
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+
+__all__ = [
+    "FrameDetections",
+    "MappingOptions",
+    "MarkerMapResult",
+    "map_markers",
+    "marker_corners_local",
+]
+
+
+def marker_corners_local(side: float) -> np.ndarray:
+    """(4, 3) corners of a square marker of side ``side`` (m) in its own frame, in ArUco order
+    TL, TR, BR, BL: ``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h = side / 2``, z out
+    of the face (the object points of OpenCV's ``SOLVEPNP_IPPE_SQUARE``).
+
+    Raises:
+        ValueError: for a side that is not finite and positive.
+    """
+    if not np.isfinite(side) or side <= 0:
+        raise ValueError(f"marker side must be finite and > 0, got {side}")
+    h = 0.5 * float(side)
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+@dataclass(frozen=True)
+class FrameDetections:
+    """One frame's marker detections.
+
+    Attributes:
+        stamp: capture time of the frame's reference line (s).
+        corners: marker id -> (4, 2) measured (distorted) pixel corners in ArUco order.
+    """
+
+    stamp: float
+    corners: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MappingOptions:
+    """Options of :func:`map_markers`.
+
+    Attributes:
+        marker_size: default side length of the markers' black square (m).
+        marker_sizes: marker id -> side (m) for markers of another size.
+        anchor: id of the marker that fixes the world frame; ``None``: the lowest id detected.
+        anchor_pose: ``(R, p)``: the anchor's rotation (3, 3, marker -> world) and centre (3,)
+            (m) in the world; ``None``: the anchor's own frame is the world.
+        global_shutter: adjust with the global-shutter model (velocities fixed at 0, no motion
+            tie): for global-shutter cameras and for comparison.
+        calibrate_readout: estimate one line delay for the whole video (needs the motion tie).
+        motion_sigma_rot, motion_sigma_pos: standard deviations (rad, m) of the motion-model tie
+            between consecutive frames (the change of pose between their reference lines
+            against the mean of their velocities times the time between them); ``None``
+            (either): no tie.
+        motion_sigma_angular_accel: standard deviation of the camera's angular acceleration
+            (rad/s^2) between tied frames: their angular velocities differ by about this times
+            the time between them (hand-held: ~10 rad/s^2).
+        max_frame_gap: consecutive frames further apart than this multiple of the median frame
+            interval are not tied (a gap in the video).
+        loss, f_scale_px: robust loss of ``least_squares`` and its scale (pixels).
+        reject_px: a detection whose four corners' RMS reprojection error exceeds this (pixels)
+            after the robust adjustment is rejected (counted) and the map adjusted again.
+        min_views: a marker seen in fewer frames with a pose is left out of the map (reported
+            in ``MarkerMapResult.unmapped``): its planar two-fold ambiguity and its depth are
+            not fixed by one view.
+        max_nfev: function-evaluation budget of each ``least_squares`` call.
+    """
+
+    marker_size: float
+    marker_sizes: dict = field(default_factory=dict)
+    anchor: int | None = None
+    anchor_pose: tuple | None = None
+    global_shutter: bool = False
+    calibrate_readout: bool = False
+    motion_sigma_rot: float | None = 2e-3
+    motion_sigma_pos: float | None = 5e-3
+    motion_sigma_angular_accel: float = 10.0
+    max_frame_gap: float = 1.5
+    loss: str = "huber"
+    f_scale_px: float = 1.0
+    reject_px: float = 3.0
+    min_views: int = 2
+    max_nfev: int = 60
+
+    def side(self, marker_id: int) -> float:
+        """Side length (m) of marker ``marker_id``."""
+        return float(self.marker_sizes.get(int(marker_id), self.marker_size))
+
+
+@dataclass
+class MarkerMapResult:
+    """Result of :func:`map_markers`. World frame: the anchor's (see ``MappingOptions``).
+
+    Attributes:
+        anchor: the anchor's id.
+        corners: id -> (4, 3) world corners (m), ArUco order.
+        marker_poses: id -> ``(R, p)``: (3, 3) marker -> world rotation, (3,) centre (m).
+        marker_covariance: id -> (6, 6) covariance of (rotation [rad, world axes, left
+            perturbation], centre [m]); zeros for the anchor (the gauge).
+        marker_std: id -> (6,) square roots of that diagonal.
+        observations: id -> number of detections used in the adjustment.
+        frame_ids: (K,) indices into the input frames of the frames with a pose.
+        orientation, position: (K, 3, 3) camera -> world, (K, 3) camera centre (m), at each
+            frame's reference line.
+        angular_velocity, linear_velocity: (K, 3) the camera's own velocities in its optical
+            frame (rad/s, m/s); zeros with ``global_shutter``.
+        line_delay: seconds between lines (calibrated or the camera's).
+        rmse_px: RMS reprojection error of the detections kept (pixels).
+        num_rejected: detections rejected as outliers.
+        num_frames_skipped: frames without detections or without a pose.
+        unmapped: id -> why the marker is not in the map.
+        inconsistent: id -> two (3,) world positions (m): one id detected at two places
+            (left out of the map, never averaged).
+        timings: stage -> seconds.
+        global_shutter: the global-shutter model was used.
+    """
+
+    anchor: int
+    corners: dict
+    marker_poses: dict
+    marker_covariance: dict
+    marker_std: dict
+    observations: dict
+    frame_ids: np.ndarray
+    orientation: np.ndarray
+    position: np.ndarray
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    line_delay: float
+    rmse_px: float
+    num_rejected: int
+    num_frames_skipped: int
+    unmapped: dict
+    inconsistent: dict
+    timings: dict
+    global_shutter: bool
+
+
+# ------------------------------------------------------------------------- initialization
+
+
+def _ippe_candidates(obj: np.ndarray, x: np.ndarray) -> list:
+    """Both IPPE solutions (marker -> camera ``(R, t)``) of a square from normalized corners."""
+    n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+        obj, x.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+    )
+    return [
+        (rotvec_to_matrix(np.ravel(r)), np.ravel(t)) for r, t in zip(rvecs, tvecs, strict=True)
+    ][:n]
+
+
+def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f: float):
+    """(N,) global-shutter reprojection errors (pixels) of world points X under world->camera."""
+    p = X @ R.T + C
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.linalg.norm(p[:, :2] / p[:, 2:3] - x, axis=1) * f
+    return np.where(p[:, 2] > 1e-6, e, np.inf)
+
+
+class _Init:
+    """Incremental initialization in video order: frame poses (world -> camera), marker poses.
+
+    The world is first the camera frame of the frame that sees the most markers (the seed).
+    Frames are visited in capture order away from the seed; each gets its pose from the mapped
+    markers it sees (OpenCV ``solvePnP``, Levenberg-Marquardt from the previous frame's pose, so
+    a frame seeing a single marker keeps the continuous one of its two planar solutions); a
+    marker first seen gets the better of its two IPPE poses in that view, and every marker is
+    refined over all its views so far (SciPy ``least_squares``): a single view fixes a small
+    marker's centre well but its tilt poorly. The whole is moved onto the anchor afterwards
+    (:func:`_regauge`).
+    """
+
+    def __init__(self, obs, stamps, opts, anchor, camera, obs_px, window: int = 25):
+        self.obs = obs  # frame -> {id: (4, 2) normalized corners}
+        self.obs_px = obs_px
+        self.camera = camera
+        self.window = window
+        focal = camera.mean_focal
+        self.stamps = stamps
+        self.opts = opts
+        self.f = focal
+        self.anchor = anchor
+        self.frames: dict = {}  # frame -> (R, C) world -> camera
+        self.markers: dict = {}  # id -> (R marker -> world, p)
+        self.unmapped: dict = {}
+        self.seed = None
+        self.excluded: set = set()  # (frame, id) detections that disagree with their frame
+        self.suspects: dict = {}  # id -> [frames of one place, of another]
+        self.gate_px = 25.0
+
+    def world_corners(self, mid):
+        R, p = self.markers[mid]
+        return marker_corners_local(self.opts.side(mid)) @ R.T + p
+
+    def _pnp(self, k, markers, guess):
+        X = np.concatenate([self.world_corners(m) for m in markers])
+        x = np.concatenate([self.obs[k][m] for m in markers]).reshape(-1, 1, 2)
+        R0, C0 = guess
+        ok, rv, tv = cv2.solvePnP(
+            X,
+            x,
+            np.eye(3),
+            None,
+            rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
+            tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
+            useExtrinsicGuess=True,
+            flags=cv2.SOLVEPNP_ITERATIVE,
+        )
+        return (rotvec_to_matrix(np.ravel(rv)), np.ravel(tv)) if ok else None
+
+    def _rms(self, k, m, R, C) -> float:
+        e = _gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f)
+        return float(np.sqrt(np.mean(e**2)))
+
+    def pose_frame(self, k, guess) -> bool:
+        """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
+
+        With several markers, the pose from all of them and from each alone compete: the one
+        that most markers agree with wins (ties: the one nearest the guess, the video being
+        continuous); markers that disagree with it (a misdetection, or one id at another place)
+        are left out of this frame's initialization."""
+        known = [m for m in self.obs[k] if m in self.markers and (k, m) not in self.excluded]
+        if not known:
+            return False
+        subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
+        best = None
+        for sub in subsets:
+            pose = self._pnp(k, sub, guess)
+            if pose is None:
+                continue
+            R, C = pose
+            agree = [m for m in known if self._rms(k, m, R, C) <= self.gate_px]
+            away = np.linalg.norm(matrix_to_rotvec(R @ guess[0].T)) + np.linalg.norm(
+                R.T @ C - guess[0].T @ guess[1]
+            )
+            score = (len(agree), -away)
+            if best is None or score > best[0]:
+                best = (score, pose, agree)
+        if best is None or not best[2]:
+            return False
+        _, pose, agree = best
+        self.excluded.update((k, m) for m in known if m not in agree)
+        pose = self._pnp(k, agree, pose) or pose
+        self.frames[k] = pose
+        return True
+
+    def new_marker(self, k, mid) -> None:
+        obj = marker_corners_local(self.opts.side(mid))
+        R, C = self.frames[k]
+        best = None
+        for Rmc, tmc in _ippe_candidates(obj, self.obs[k][mid]):
+            Rm, pm = R.T @ Rmc, R.T @ (tmc - C)
+            e = np.mean(_gs_errors_px(R, C, obj @ Rm.T + pm, self.obs[k][mid], self.f))
+            if best is None or e < best[0]:
+                best = (e, Rm, pm)
+        self.markers[mid] = (best[1], best[2])
+
+    def refine_marker(self, mid, frames) -> None:
+        """Marker pose over its views ``frames`` (global-shutter reprojection, soft L1)."""
+        obj = marker_corners_local(self.opts.side(mid))
+        R0, p0 = self.markers[mid]
+        Rs = np.array([self.frames[k][0] for k in frames])
+        Cs = np.array([self.frames[k][1] for k in frames])
+        xs = np.array([self.obs[k][mid] for k in frames])
+
+        def res(q):
+            X = obj @ (rotvec_to_matrix(q[:3]) @ R0).T + q[3:]
+            p = np.einsum("kij,nj->kni", Rs, X) + Cs[:, None, :]
+            z = np.maximum(p[..., 2:3], 1e-6)
+            return ((p[..., :2] / z - xs) * self.f).ravel()
+
+        sol = least_squares(res, np.r_[0.0, 0.0, 0.0, p0], loss="soft_l1", f_scale=5.0)
+        self.markers[mid] = (rotvec_to_matrix(sol.x[:3]) @ R0, sol.x[3:])
+
+    def adjust(self) -> None:
+        """Global-shutter bundle adjustment of everything placed so far (gauge: the seed
+        frame), a robust loss wide enough for the rolling-shutter shear."""
+        frames = sorted(self.frames)
+        markers = sorted(self.markers)
+        opts = replace(self.opts, global_shutter=True, calibrate_readout=False)
+        prob = _Problem(
+            self,
+            self.obs_px,
+            self.camera,
+            opts,
+            frames,
+            markers,
+            None,
+            frames.index(self.seed),
+            self.excluded,
+        )
+        sol = least_squares(
+            prob.residuals,
+            prob.x0(self, self.camera.line_delay),
+            jac_sparsity=prob.sparsity(),
+            loss="soft_l1",
+            f_scale=5.0,
+            x_scale="jac",
+            max_nfev=30,
+        )
+        Rf, Cf, _, _, Rm, pm, _ = prob.unpack(sol.x)
+        self.frames = {k: (Rf[i], Cf[i]) for i, k in enumerate(frames)}
+        self.markers = {m: (Rm[i], pm[i]) for i, m in enumerate(markers)}
+
+    def views(self, mid) -> list:
+        return [k for k in self.frames if mid in self.obs[k] and (k, mid) not in self.excluded]
+
+    def check_marker(self, mid) -> None:
+        """Final decision on a marker: one place (else inconsistent), enough views."""
+        # one id at two places: views whose own single-view position lies far from the map's
+        # and agree among themselves
+        every = [k for k in self.frames if mid in self.obs[k]]
+        obj = marker_corners_local(self.opts.side(mid))
+        own = {}
+        for k in every:
+            R, C = self.frames[k]
+            ts = [t for _, t in _ippe_candidates(obj, self.obs[k][mid])]
+            own[k] = R.T @ (np.mean(ts, axis=0) - C)
+        pm = self.markers[mid][1]
+        far = [
+            k
+            for k in every
+            if np.linalg.norm(own[k] - pm)
+            > max(
+                0.5,
+                3 * self.opts.side(mid),
+                0.25 * np.linalg.norm(own[k] + self.frames[k][0].T @ self.frames[k][1]),
+            )
+        ]
+        if len(far) >= self.opts.min_views:
+            other = np.median([own[k] for k in far], axis=0)
+            if all(np.linalg.norm(own[k] - other) < np.linalg.norm(other - pm) / 3 for k in far):
+                # two places, or drift of the initialization: decided after the adjustment
+                # (map_markers); meanwhile the marker stays at one place, the other's views out
+                near = [k for k in every if k not in far]
+                if len(near) < self.opts.min_views:
+                    near, far = far, near
+                    self.markers[mid] = (self.markers[mid][0], other)
+                self.suspects[mid] = [near, far]
+                self.excluded.update((k, mid) for k in far)
+        frames = self.views(mid)
+        if len(frames) < self.opts.min_views:
+            self.unmapped[mid] = (
+                f"seen in {len(frames)} frame(s) with a pose; at least {self.opts.min_views} "
+                "needed to fix its pose"
+            )
+            del self.markers[mid]
+            return
+        self.refine_marker(mid, frames)
+
+    def run(self) -> None:
+        """Place the frames and markers; raises ValueError when the anchor cannot be placed."""
+        keys = sorted(self.obs, key=lambda k: self.stamps[k])
+        s = max(
+            range(len(keys)),
+            key=lambda i: (len(self.obs[keys[i]]), self.anchor in self.obs[keys[i]]),
+        )
+        self.seed = keys[s]
+        self.frames[self.seed] = (np.eye(3), np.zeros(3))
+        for m in self.obs[self.seed]:
+            self.new_marker(self.seed, m)
+        added = 0
+        for direction in (keys[s + 1 :], keys[:s][::-1]):
+            prev = self.seed
+            for k in direction:
+                if not self.pose_frame(k, self.frames[prev]):
+                    continue
+                prev = k
+                added += 1
+                if added % self.window == 0:
+                    self.adjust()
+                for m in self.obs[k]:
+                    if (k, m) in self.excluded:
+                        continue
+                    if m not in self.markers:
+                        self.new_marker(k, m)
+                    else:
+                        self.refine_marker(m, self.views(m)[-12:])
+                self.pose_frame(k, self.frames[k])
+        self.adjust()
+        for mid in sorted(self.markers):
+            self.check_marker(mid)
+        # frames again with the refined markers
+        for k in list(self.frames):
+            if not self.pose_frame(k, self.frames[k]):
+                del self.frames[k]
+        if self.anchor not in self.markers:
+            why = self.unmapped.get(self.anchor, "detected at places that disagree")
+            raise ValueError(f"anchor marker {self.anchor} cannot be placed: {why}")
+
+
+def _regauge(frames: dict, markers: dict, anchor: int, anchor_pose: tuple):
+    """Move frames (world -> camera) and markers (marker -> world) rigidly so that the anchor
+    sits at ``anchor_pose``; the reprojections do not change."""
+    Ra, pa = markers[anchor]
+    Rt, pt = anchor_pose
+    Rg = Rt @ Ra.T
+    pg = pt - Rg @ pa
+    markers = {m: (Rg @ R, Rg @ p + pg) for m, (R, p) in markers.items()}
+    markers[anchor] = (Rt, pt)
+    frames = {k: (R @ Rg.T, C - R @ Rg.T @ pg) for k, (R, C) in frames.items()}
+    return frames, markers, (Rg, pg)
+
+
+# ------------------------------------------------------------------------- bundle adjustment
+
+
+class _Problem:
+    """Parameter layout, residuals and Jacobian sparsity of the bundle adjustment."""
+
+    def __init__(
+        self, init, obs_px, camera, opts, frames, markers, anchor, fix_frame=None, exclude=()
+    ):
+        self.camera = camera
+        self.opts = opts
+        self.frames = frames  # frame indices, parameter order
+        self.markers = markers  # adjusted marker ids (anchor excluded)
+        self.anchor = anchor
+        self.vel = not opts.global_shutter
+        self.fpar = 12 if self.vel else 6
+        self.nf = len(frames)
+        self.nm = len(markers)
+        self.moff = self.nf * self.fpar
+        self.ld_col = self.moff + 6 * self.nm if opts.calibrate_readout else None
+        self.n = self.moff + 6 * self.nm + (1 if opts.calibrate_readout else 0)
+        self.R0f = np.array([init.frames[k][0] for k in frames])
+        self.C0f = np.array([init.frames[k][1] for k in frames])
+        self.R0m = np.array([init.markers[m][0] for m in markers])
+        self.p0m = np.array([init.markers[m][1] for m in markers])
+        self.fix = fix_frame
+        if anchor is None:
+            self.Ra, self.pa = np.eye(3), np.zeros(3)
+        else:
+            self.Ra, self.pa = init.markers[anchor]
+        self.local = {m: marker_corners_local(opts.side(m)) for m in {*markers, anchor} - {None}}
+        fidx = {k: i for i, k in enumerate(frames)}
+        midx = {m: i for i, m in enumerate(markers)}
+        # one row block per detection (4 corners)
+        self.det = []  # (frame index, marker id)
+        fi, mi, loc, xs, taus = [], [], [], [], []
+        for k in frames:
+            for m, uv in obs_px[k].items():
+                if (m != anchor and m not in midx) or (k, m) in exclude:
+                    continue
+                x, r, _ = camera.normalize(uv)
+                self.det.append((k, m))
+                fi.append(np.full(4, fidx[k]))
+                mi.append(np.full(4, midx.get(m, -1)))
+                loc.append(self.local[m])
+                xs.append(x)
+                taus.append(r - camera.r0)
+        self.fi = np.concatenate(fi)
+        self.mi = np.concatenate(mi)
+        self.loc = np.concatenate(loc)
+        self.x = np.concatenate(xs)
+        self.tau = np.concatenate(taus)
+        self.keep = np.ones(len(self.det), dtype=bool)
+        self.fxy = np.array([camera.K[0, 0], camera.K[1, 1]])
+        # motion tie between consecutive frames
+        self.ties = []
+        if self.vel and opts.motion_sigma_rot is not None and opts.motion_sigma_pos is not None:
+            st = np.array([init.stamps[k] for k in frames])
+            dts = np.diff(st)
+            if len(dts):
+                med = np.median(dts)
+                self.ties = [
+                    (i, i + 1, dts[i])
+                    for i in range(len(dts))
+                    if 0 < dts[i] <= opts.max_frame_gap * med
+                ]
+        if opts.calibrate_readout and not self.ties:
+            raise ValueError(
+                "calibrating the line delay needs consecutive frames tied by the motion model "
+                "(a video with stamps, the rolling-shutter model and motion_sigma_* set)"
+            )
+
+    def x0(self, init, line_delay):
+        x = np.zeros(self.n)
+        F = x[: self.moff].reshape(self.nf, self.fpar)
+        F[:, 3:6] = self.C0f
+        if self.vel:
+            st = np.array([init.stamps[k] for k in self.frames])
+            for i in range(self.nf):
+                a, b = max(i - 1, 0), min(i + 1, self.nf - 1)
+                dt = st[b] - st[a]
+                if b == a or dt <= 0 or dt > 3 * self.opts.max_frame_gap * np.median(np.diff(st)):
+                    continue
+                F[i, 6:9] = matrix_to_rotvec(self.R0f[b] @ self.R0f[a].T) / dt
+                F[i, 9:12] = (self.C0f[b] - self.C0f[a]) / dt
+        x[self.moff : self.moff + 6 * self.nm].reshape(self.nm, 6)[:, 3:6] = self.p0m
+        if self.ld_col is not None:
+            x[self.ld_col] = line_delay * 1e6
+        return x
+
+    def unpack(self, x):
+        F = x[: self.moff].reshape(self.nf, self.fpar)
+        Rf = rotvec_to_matrix(F[:, :3]) @ self.R0f
+        Cf = F[:, 3:6]
+        W = F[:, 6:9] if self.vel else np.zeros((self.nf, 3))
+        T = F[:, 9:12] if self.vel else np.zeros((self.nf, 3))
+        M = x[self.moff : self.moff + 6 * self.nm].reshape(self.nm, 6)
+        Rm = rotvec_to_matrix(M[:, :3]) @ self.R0m
+        pm = M[:, 3:6]
+        ld = x[self.ld_col] * 1e-6 if self.ld_col is not None else self.camera.line_delay
+        return Rf, Cf, W, T, Rm, pm, ld
+
+    def corner_residuals(self, x):
+        """(N, 2) reprojection residuals (pixels) of all corners."""
+        Rf, Cf, W, T, Rm, pm, ld = self.unpack(x)
+        Rm_all = np.concatenate([Rm, self.Ra[None]])
+        pm_all = np.concatenate([pm, self.pa[None]])
+        X = np.einsum("nij,nj->ni", Rm_all[self.mi], self.loc) + pm_all[self.mi]
+        ts = self.tau * (ld * self.camera.focal)
+        A = rotvec_to_matrix(ts[:, None] * W[self.fi])
+        p = np.einsum("nij,nj->ni", A @ Rf[self.fi], X) + Cf[self.fi] + ts[:, None] * T[self.fi]
+        z = np.where(p[:, 2] > 1e-6, p[:, 2], 1e-6)
+        return (p[:, :2] / z[:, None] - self.x) * self.fxy
+
+    def residuals(self, x):
+        e = self.corner_residuals(x).reshape(-1, 8)[self.keep].ravel()
+        if self.fix is not None:  # gauge on a frame: its pose held (stiff prior)
+            F = x[: self.moff].reshape(self.nf, self.fpar)
+            e = np.concatenate(
+                [e, 1e3 * F[self.fix, :3], 1e3 * (F[self.fix, 3:6] - self.C0f[self.fix])]
+            )
+        if not self.ties:
+            return e
+        Rf, Cf, W, T, *_ = self.unpack(x)
+        i = np.array([a for a, _, _ in self.ties])
+        j = np.array([b for _, b, _ in self.ties])
+        dt = np.array([d for _, _, d in self.ties])[:, None]
+        er = matrix_to_rotvec(Rf[j] @ np.swapaxes(Rf[i], 1, 2)) - dt * 0.5 * (W[i] + W[j])
+        ec = Cf[j] - Cf[i] - dt * 0.5 * (T[i] + T[j])
+        o = self.opts
+        # the angular velocity changes by about the angular acceleration times the time between
+        # frames (without it the mean of two frames' velocities is tied, their difference free)
+        ew = (W[j] - W[i]) / (o.motion_sigma_angular_accel * dt)
+        return np.concatenate(
+            [
+                e,
+                (er / o.motion_sigma_rot).ravel(),
+                (ec / o.motion_sigma_pos).ravel(),
+                ew.ravel(),
+            ]
+        )
+
+    def sparsity(self):
+        nd = int(self.keep.sum())
+        nfix = 6 if self.fix is not None else 0
+        S = lil_matrix((8 * nd + nfix + 9 * len(self.ties), self.n), dtype=np.int8)
+        midx = {m: i for i, m in enumerate(self.markers)}
+        fidx = {k: i for i, k in enumerate(self.frames)}
+        row = 0
+        for (k, m), kept in zip(self.det, self.keep, strict=True):
+            if not kept:
+                continue
+            f0 = fidx[k] * self.fpar
+            S[row : row + 8, f0 : f0 + self.fpar] = 1
+            if m in midx:
+                m0 = self.moff + 6 * midx[m]
+                S[row : row + 8, m0 : m0 + 6] = 1
+            if self.ld_col is not None:
+                S[row : row + 8, self.ld_col] = 1
+            row += 8
+        if nfix:
+            S[row : row + 6, self.fix * self.fpar : self.fix * self.fpar + 6] = 1
+            row += 6
+        for _ in range(3):  # rotation, position and angular velocity rows of all ties
+            for i, j, _ in self.ties:
+                for a in (i, j):
+                    S[row : row + 3, a * self.fpar : (a + 1) * self.fpar] = 1
+                row += 3
+        return S.tocsr()
+
+    def detection_rms(self, x):
+        e = self.corner_residuals(x).reshape(-1, 8)
+        return np.sqrt(np.mean(e**2, axis=1))
+
+
+def _two_places(suspects: dict, Rf, Cf, fr_ids, obs_n, options) -> dict:
+    """Ids whose two groups of views place them more than max(0.5 m, 3 sides) apart with the
+    adjusted frames (world -> camera ``Rf``, ``Cf``): id -> [place, place], each the median of
+    its views' single-view centres (IPPE)."""
+    fpos = {k: i for i, k in enumerate(fr_ids)}
+    out = {}
+    for m, groups in suspects.items():
+        obj = marker_corners_local(options.side(m))
+        places = []
+        for views in groups:
+            cs = [
+                Rf[fpos[k]].T
+                @ (np.mean([t for _, t in _ippe_candidates(obj, obs_n[k][m])], 0) - Cf[fpos[k]])
+                for k in views
+                if k in fpos
+            ]
+            if cs:
+                places.append(np.median(cs, axis=0))
+        if len(places) == 2 and np.linalg.norm(places[0] - places[1]) > max(
+            0.5, 3 * options.side(m)
+        ):
+            out[m] = places
+    return out
+
+
+def map_markers(
+    frames: Sequence[FrameDetections], camera: CameraModel, options: MappingOptions
+) -> MarkerMapResult:
+    """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
+
+    Stages: (1) initialization in capture order from the frame that sees the most markers
+    (:class:`_Init`): each frame's pose by OpenCV ``solvePnP`` (Levenberg-Marquardt from the
+    previous frame's pose, so a frame seeing a single marker keeps the continuous one of the
+    two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
+    poses, refined over all its views so far; every 25 frames and at the end a global-shutter
+    adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
+    than ``min_views`` frames is left out (``unmapped``); when some views of an id place it far
+    from the others and agree among themselves, only one group is used; (2) a coarse
+    adjustment with the rolling-shutter model and the starting frame's pose as the gauge, then
+    the whole moved rigidly onto the anchor's pose; (3) the rolling-shutter bundle adjustment
+    of every frame's pose and velocities and every marker's 6-DoF pose (module docstring: the
+    estimator's model, paper eq. 4) with SciPy ``least_squares`` (sparse Jacobian from
+    ``jac_sparsity``, robust loss), optionally one line delay, consecutive frames tied by the
+    motion model, the anchor fixed; (4) detections whose RMS error exceeds ``reject_px`` are
+    rejected (counted) and the map adjusted again without robust loss; the covariance is
+    ``(J^T J)^-1`` at the solution, the reprojection rows scaled by their estimated noise
+    (gauge: the anchor); (5) an id whose two groups of views still place it more than
+    max(0.5 m, 3 sides) apart with the adjusted frames is left out of the map and reported with
+    both places (``inconsistent``, never averaged); closer, the split was drift of the
+    initialization and the marker stays (the other group's detections counted as rejected).
+
+    Args:
+        frames: the video's detections in capture order (:class:`FrameDetections`; pixel
+            corners (4, 2) per id, ArUco order).
+        camera: intrinsics, distortion and RS timing (``line_delay``: the value used, or the
+            starting value with ``calibrate_readout``).
+        options: :class:`MappingOptions`.
+    Returns:
+        :class:`MarkerMapResult` (world frame: the anchor's, or ``options.anchor_pose``).
+    Raises:
+        ValueError: no detections in any frame (wrong dictionary?), the anchor not detected in
+            any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
+            (seen in fewer than ``min_views`` frames with a pose, or at places that disagree),
+            or ``calibrate_readout`` without a motion tie (global-shutter model, tie disabled,
+            or no consecutive frames).
+    """
+    t_start = time.perf_counter()
+    timings = {}
+    obs_px, obs_n, stamps = {}, {}, {}
+    for k, fr in enumerate(frames):
+        if not fr.corners:
+            continue
+        obs_px[k], obs_n[k] = {}, {}
+        for mid, c in fr.corners.items():
+            c = np.asarray(c, dtype=float)
+            if c.shape != (4, 2) or not np.isfinite(c).all():
+                raise ValueError(f"frame {k}: marker {mid} needs (4, 2) finite pixel corners")
+            obs_px[k][int(mid)] = c
+            obs_n[k][int(mid)] = camera.undistort(c)
+        stamps[k] = float(fr.stamp)
+    if not obs_px:
+        raise ValueError(
+            f"no marker detections in any of the {len(frames)} frames "
+            "(wrong dictionary, or no markers in view)"
+        )
+    ids = {m for d in obs_px.values() for m in d}
+    anchor = min(ids) if options.anchor is None else int(options.anchor)
+    n_anchor = sum(anchor in d for d in obs_px.values())
+    if n_anchor == 0:
+        raise ValueError(
+            f"anchor marker {anchor} is not detected in any frame (detected ids: {sorted(ids)})"
+        )
+    if options.anchor_pose is None:
+        anchor_pose = (np.eye(3), np.zeros(3))
+    else:
+        Ra, pa = options.anchor_pose
+        anchor_pose = (np.asarray(Ra, dtype=float).reshape(3, 3), np.asarray(pa, float).reshape(3))
+    init = _Init(obs_n, stamps, options, anchor, camera, obs_px)
+    init.run()
+    if len(init.frames) < 2:
+        raise ValueError(f"anchor marker {anchor}: fewer than 2 frames with a pose")
+    timings["initialization"] = time.perf_counter() - t_start
+
+    fr_ids = sorted(init.frames)
+    all_ids = sorted(init.markers)
+    # stage 1: gauge on the first placed frame (the anchor's orientation is poorly fixed by
+    # any single view): a coarse pass (wide robust scale) pulls the initialization together
+    t0 = time.perf_counter()
+    free = _Problem(
+        init,
+        obs_px,
+        camera,
+        options,
+        fr_ids,
+        all_ids,
+        None,
+        fix_frame=fr_ids.index(init.seed),
+        exclude=init.excluded,
+    )
+    sol = least_squares(
+        free.residuals,
+        free.x0(init, camera.line_delay),
+        jac_sparsity=free.sparsity(),
+        loss="soft_l1",
+        f_scale=10.0,
+        x_scale="jac",
+        max_nfev=options.max_nfev,
+        ftol=1e-4,  # only to start the adjustments below close to the solution
+        xtol=1e-4,
+        method="trf",
+    )
+    Rf, Cf, _, _, Rm, pm, _ = free.unpack(sol.x)
+    init.frames, init.markers, _ = _regauge(
+        {k: (Rf[i], Cf[i]) for i, k in enumerate(fr_ids)},
+        {m: (Rm[i], pm[i]) for i, m in enumerate(all_ids)},
+        anchor,
+        anchor_pose,
+    )
+    timings["coarse adjustment"] = time.perf_counter() - t0
+    # stage 2: gauge on the anchor, robust loss, rejection, plain least squares
+    mk_ids = [m for m in all_ids if m != anchor]
+    exclude = set(init.excluded)
+    x_start = None
+    for _ in range(2):
+        prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=exclude)
+        t0 = time.perf_counter()
+        sol = least_squares(
+            prob.residuals,
+            prob.x0(init, camera.line_delay) if x_start is None else x_start,
+            jac_sparsity=prob.sparsity(),
+            loss=options.loss,
+            f_scale=options.f_scale_px,
+            x_scale="jac",
+            max_nfev=options.max_nfev,
+            ftol=1e-6,
+            xtol=1e-6,
+            method="trf",
+        )
+        timings["robust adjustment"] = timings.get("robust adjustment", 0.0) + (
+            time.perf_counter() - t0
+        )
+        prob.keep = prob.detection_rms(sol.x) <= options.reject_px
+        t0 = time.perf_counter()
+        sol = least_squares(
+            prob.residuals,
+            sol.x,
+            jac_sparsity=prob.sparsity(),
+            x_scale="jac",
+            max_nfev=options.max_nfev,
+            ftol=1e-6,
+            xtol=1e-6,
+            method="trf",
+        )
+        timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
+            time.perf_counter() - t0
+        )
+        Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
+        inconsistent = _two_places(init.suspects, Rf, Cf, fr_ids, obs_n, options)
+        # views split by drift of the initialization, not by a second copy: adjust again
+        # with them
+        drift = {(k, m) for k, m in exclude if m in init.suspects and m not in inconsistent}
+        if not drift or x_start is not None:
+            break
+        exclude -= drift
+        x_start = sol.x
+    if anchor in inconsistent:
+        raise ValueError(
+            f"anchor marker {anchor} cannot be placed: detected at places that disagree "
+            f"({inconsistent[anchor][0].round(2)} and {inconsistent[anchor][1].round(2)})"
+        )
+    # rejected: by the adjustment, and detections of mapped markers that disagreed with their
+    # frame during the initialization
+    num_rejected = int((~prob.keep).sum()) + sum(
+        m in all_ids and m not in inconsistent for _, m in exclude
+    )
+
+    t0 = time.perf_counter()
+    e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
+    n_rep = e.size
+    dof = max(n_rep - prob.n, 1)
+    sigma = float(np.sqrt(np.sum(e**2) / dof))
+    J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    J[:n_rep] /= max(sigma, 1e-12)
+    H = J.T @ J
+    cov = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+    timings["covariance"] = time.perf_counter() - t0
+
+    corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
+    used = {}
+    for (_, m), kept in zip(prob.det, prob.keep, strict=True):
+        used[m] = used.get(m, 0) + int(kept)
+    corners[anchor] = marker_corners_local(options.side(anchor)) @ prob.Ra.T + prob.pa
+    poses[anchor] = (prob.Ra, prob.pa)
+    mcov[anchor] = np.zeros((6, 6))
+    mstd[anchor] = np.zeros(6)
+    nobs[anchor] = used.get(anchor, 0)
+    for i, m in enumerate(mk_ids):
+        if m in inconsistent:
+            continue
+        corners[m] = marker_corners_local(options.side(m)) @ Rm[i].T + pm[i]
+        poses[m] = (Rm[i], pm[i])
+        c = cov[
+            prob.moff + 6 * i : prob.moff + 6 * i + 6, prob.moff + 6 * i : prob.moff + 6 * i + 6
+        ]
+        mcov[m] = c
+        mstd[m] = np.sqrt(np.clip(np.diag(c), 0.0, None))
+        nobs[m] = used.get(m, 0)
+    # camera's own velocities (docs/architecture.md): omega = -w / s, v = (w x C - t) / s with
+    # w = s W, t = s T
+    omega = -W
+    vel = np.cross(W, Cf) - T
+    timings["total"] = time.perf_counter() - t_start
+    return MarkerMapResult(
+        anchor=anchor,
+        corners=corners,
+        marker_poses=poses,
+        marker_covariance=mcov,
+        marker_std=mstd,
+        observations=nobs,
+        frame_ids=np.array(fr_ids),
+        orientation=np.swapaxes(Rf, 1, 2),
+        position=-np.einsum("nji,nj->ni", Rf, Cf),
+        angular_velocity=omega,
+        linear_velocity=vel,
+        line_delay=float(ld),
+        rmse_px=float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
+        num_rejected=num_rejected,
+        num_frames_skipped=len(frames) - len(fr_ids),
+        unmapped=init.unmapped,
+        inconsistent=inconsistent,
+        timings=timings,
+        global_shutter=options.global_shutter,
+    )

@@ -1,0 +1,262 @@
+"""Inputs and outputs of the marker mapper: a camera YAML, marker detections in a folder of
+images, the map file (written whole or not at all) and the report (YAML and a picture)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import CameraModel
+from .marker_ba import FrameDetections, MarkerMapResult
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "camera_from_yaml",
+    "detect_folder",
+    "detect_image",
+    "write_atomic",
+    "write_map",
+    "write_report",
+]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
+
+
+def camera_from_yaml(path: str | Path, line_delay: float = 0.0) -> CameraModel:
+    """Camera from a ROS camera calibration YAML (``camera_calibration``'s ``image_width``,
+    ``image_height``, ``camera_matrix.data``, ``distortion_model``,
+    ``distortion_coefficients.data``) or a ``sensor_msgs/CameraInfo`` YAML (``width``,
+    ``height``, ``k``, ``d``, ``distortion_model``).
+
+    Args:
+        path: the YAML file. line_delay: seconds between lines (the file has no RS timing).
+    Returns:
+        :class:`CameraModel` (top-to-bottom readout, reference line: the image centre).
+    Raises:
+        FileNotFoundError: no such file. ValueError: neither format, or an invalid camera.
+    """
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"camera file {p} not found")
+    d = yaml.safe_load(p.read_text())
+    if not isinstance(d, dict):
+        raise ValueError(f"{p}: not a camera YAML")
+    if "camera_matrix" in d:
+        K = d["camera_matrix"]["data"]
+        D = (d.get("distortion_coefficients") or {}).get("data", [])
+        w, h = d.get("image_width"), d.get("image_height")
+    elif "k" in d or "K" in d:
+        K = d.get("k", d.get("K"))
+        D = d.get("d", d.get("D", []))
+        w, h = d.get("width"), d.get("height")
+    else:
+        raise ValueError(f"{p}: no camera_matrix (calibration YAML) or k (CameraInfo YAML)")
+    if w is None or h is None:
+        raise ValueError(f"{p}: image size missing")
+    return CameraModel(
+        K=np.asarray(K, dtype=float).reshape(3, 3),
+        D=np.asarray(D, dtype=float),
+        width=int(w),
+        height=int(h),
+        line_delay=float(line_delay),
+        distortion_model=str(d.get("distortion_model") or "plumb_bob"),
+    )
+
+
+def detect_folder(
+    folder: str | Path, camera: CameraModel, dictionary: str, fps: float, progress: bool = True
+) -> tuple[list, dict]:
+    """Detect markers in every image of a folder (sorted by name; one frame each).
+
+    Detection: :class:`rs_localizer.frontends.aruco.ArucoFrontend` (OpenCV ArUco detector, any
+    predefined dictionary, AprilTag included). An id found twice in one image is dropped from
+    that image (counted). Frame ``i`` is stamped ``i / fps`` plus the reference line's capture
+    time.
+
+    Args:
+        folder: directory of images (:data:`IMAGE_SUFFIXES`). camera: the camera (size check,
+            RS timing). dictionary: OpenCV dictionary name, e.g. ``DICT_APRILTAG_36h11``.
+        fps: frame rate (Hz). progress: show a progress bar (tqdm, when installed).
+    Returns:
+        ``(frames, counts)``: :class:`FrameDetections` per image, and counts ``images``,
+        ``without_markers``, ``duplicate_ids``.
+    Raises:
+        FileNotFoundError: no such folder, or no images in it. ValueError: an image of another
+        size than the camera, an unreadable image, an unknown dictionary, fps <= 0.
+    """
+    import cv2
+
+    try:
+        from tqdm import tqdm
+    except ImportError:  # optional: no progress bar without it
+
+        def tqdm(it, **_):
+            return it
+
+    from ..frontends.aruco import ArucoFrontend
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"image folder {folder} not found")
+    if not fps > 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not files:
+        raise FileNotFoundError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
+    front = ArucoFrontend({}, dictionary)
+    t_ref = float(camera.line_time(camera.reference_line))
+    frames, counts = [], {"images": len(files), "without_markers": 0, "duplicate_ids": 0}
+    for i, f in enumerate(tqdm(files, desc="detecting markers", disable=not progress)):
+        img = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise ValueError(f"{f}: not a readable image")
+        if img.shape != (camera.height, camera.width):
+            raise ValueError(
+                f"{f}: image is {img.shape[1]}x{img.shape[0]}, the camera "
+                f"{camera.width}x{camera.height}"
+            )
+        dets, dup = detect_image(front, img)
+        counts["duplicate_ids"] += dup
+        counts["without_markers"] += not dets
+        frames.append(FrameDetections(i / fps + t_ref, dets))
+    return frames, counts
+
+
+def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
+    """Markers in one (H, W) uint8 image with an :class:`ArucoFrontend`: ``({id: (4, 2)
+    pixel corners}, number of ids found more than once)``; an id found twice is dropped."""
+    corners, ids = front.detect(gray, "mono8")
+    ids = [int(m) for m in np.ravel(ids)] if ids is not None else []
+    dets, dup = {}, 0
+    for m in set(ids):
+        idx = [j for j, k in enumerate(ids) if k == m]
+        if len(idx) > 1:
+            dup += 1
+            continue
+        dets[m] = np.asarray(corners[idx[0]], dtype=float).reshape(4, 2)
+    return dets, dup
+
+
+def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` whole or not at all: a temporary file in the same directory,
+    then an atomic rename (``os.replace``); on any error (Ctrl-C included) the temporary file
+    is removed and ``path`` is untouched.
+
+    Raises:
+        FileExistsError: ``path`` exists and ``overwrite`` is False.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (use --overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_map(
+    path: str | Path, result: MarkerMapResult, dictionary: str, overwrite: bool = False
+) -> Path:
+    """Write the map in the marker-map format (:func:`rs_localizer.maps.load_marker_map`, the
+    ArUco front end and the node's ``frontend_map`` read it): ``dictionary`` and per marker
+    ``id``, ``corners`` (4, 3) m in ArUco order, plus ``std_position`` (3,) m and
+    ``std_rotation`` (3,) rad (world axes) and ``observations``. Written atomically
+    (:func:`write_atomic`).
+
+    Raises:
+        FileExistsError: ``path`` exists and ``overwrite`` is False.
+    """
+    import yaml
+
+    markers = []
+    for m in sorted(result.corners):
+        std = result.marker_std[m]
+        markers.append(
+            {
+                "id": int(m),
+                "corners": np.round(result.corners[m], 6).tolist(),
+                "std_position": np.round(std[3:], 6).tolist(),
+                "std_rotation": np.round(std[:3], 6).tolist(),
+                "observations": int(result.observations[m]),
+            }
+        )
+    text = "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n" + (
+        yaml.safe_dump(
+            {"dictionary": dictionary, "anchor": int(result.anchor), "markers": markers},
+            default_flow_style=None,
+            sort_keys=False,
+        )
+    )
+    return write_atomic(path, text, overwrite)
+
+
+def write_report(
+    folder: str | Path, result: MarkerMapResult, counts: dict | None = None
+) -> Sequence[Path]:
+    """Write ``report.yaml`` (per marker: observations, position and rotation std; RMSE, line
+    delay, rejected detections, skipped frames, markers left out and inconsistent ids, stage
+    times) and ``map.png`` (matplotlib: markers and camera path from above (x-y) and from the
+    side (x-z)) into ``folder``. Returns the two paths.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import yaml
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rep = {
+        "anchor": int(result.anchor),
+        "model": "global shutter" if result.global_shutter else "rolling shutter",
+        "reprojection_rmse_px": round(result.rmse_px, 4),
+        "line_delay_s": float(result.line_delay),
+        "rejected_detections": int(result.num_rejected),
+        "frames_with_pose": len(result.frame_ids),
+        "frames_skipped": int(result.num_frames_skipped),
+        **({"detection": dict(counts)} if counts else {}),
+        "markers": {
+            int(m): {
+                "observations": int(result.observations[m]),
+                "std_position_mm": np.round(1e3 * result.marker_std[m][3:], 2).tolist(),
+                "std_rotation_deg": np.round(np.degrees(result.marker_std[m][:3]), 3).tolist(),
+            }
+            for m in sorted(result.corners)
+        },
+        "left_out": {int(m): why for m, why in result.unmapped.items()},
+        "inconsistent": {
+            int(m): [np.round(p, 3).tolist() for p in ps] for m, ps in result.inconsistent.items()
+        },
+        "timings_s": {k: round(v, 3) for k, v in result.timings.items()},
+    }
+    yml = write_atomic(folder / "report.yaml", yaml.safe_dump(rep, sort_keys=False), True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5))
+    for ax, (i, j), title in zip(axes, ((0, 1), (0, 2)), ("top view", "side view"), strict=True):
+        ax.plot(result.position[:, i], result.position[:, j], "-", color="0.5", lw=1)
+        ax.plot(result.position[:1, i], result.position[:1, j], "o", color="0.3", ms=4)
+        for m, c in result.corners.items():
+            q = np.vstack([c, c[:1]])
+            ax.plot(q[:, i], q[:, j], "-", color="C3" if m == result.anchor else "C0", lw=1.5)
+            ax.annotate(str(m), c.mean(0)[[i, j]], fontsize=7)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)" if j == 1 else "z (m)")
+        ax.set_title(f"{title}: markers (anchor {result.anchor} red), camera path (grey)")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    png = folder / "map.png"
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return yml, png

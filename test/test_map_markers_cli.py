@@ -1,0 +1,155 @@
+"""``rs-localizer map-markers`` on rendered rolling-shutter images of the built-in aruco_room
+(sim/render: every line rendered at its own capture time), the written map against the scene's
+true marker corners, and the command's refusals (no bent or partial map file)."""
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from rs_localizer.cli import main
+from rs_localizer.frontends.aruco import ArucoFrontend
+from rs_localizer.maps import load_marker_map
+from rs_localizer.sim.render.motion import make_motion
+from rs_localizer.sim.render.renderer import Renderer, camera_preset, frame_times
+from rs_localizer.sim.render.scene import load_scene
+
+FRAMES = 16
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    root = tmp_path_factory.mktemp("map_markers")
+    scene = load_scene("aruco_room")
+    camera = camera_preset("vga", readout_time=0.03)
+    motion = make_motion("pan", scene, duration=FRAMES / 30)
+    renderer = Renderer(scene, camera)
+    images = root / "images"
+    images.mkdir()
+    for i in range(FRAMES):
+        fr = renderer.render(motion, float(frame_times(i)), index=i)
+        cv2.imwrite(str(images / f"{i:04d}.png"), cv2.cvtColor(fr.image, cv2.COLOR_RGB2BGR))
+    cam_yaml = root / "camera.yaml"
+    cam_yaml.write_text(
+        yaml.safe_dump(
+            {
+                "image_width": camera.width,
+                "image_height": camera.height,
+                "camera_matrix": {"rows": 3, "cols": 3, "data": camera.K.ravel().tolist()},
+                "distortion_model": "plumb_bob",
+                "distortion_coefficients": {"rows": 1, "cols": 5, "data": camera.D.tolist()},
+            }
+        )
+    )
+    _, true = load_marker_map("aruco_room")
+    c = true[0]  # anchor pose from its true corners (x right, y up, z out of the face)
+    x = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])
+    y = (c[0] - c[3]) / np.linalg.norm(c[0] - c[3])
+    q = Rotation.from_matrix(np.stack([x, y, np.cross(x, y)], axis=1)).as_quat()
+    pose = [str(v) for v in [*c.mean(axis=0), *q]]
+    return root, images, cam_yaml, true, pose
+
+
+def args(rendered, out, *extra):
+    _, images, cam_yaml, _, pose = rendered
+    return [
+        "map-markers",
+        str(images),
+        "-o",
+        str(out),
+        "--camera",
+        str(cam_yaml),
+        "--marker-size",
+        "0.3",
+        "--dictionary",
+        "DICT_4X4_250",
+        "--anchor",
+        "0",
+        "--anchor-pose",
+        *pose,
+        "--quiet",
+        *extra,
+    ]
+
+
+def test_map_from_rendered_images_matches_the_scene(rendered, tmp_path):
+    _, images, _, true, _ = rendered
+    out = tmp_path / "map.yaml"
+    report = tmp_path / "report"
+    assert main(args(rendered, out, "--report", str(report))) == 0
+    dictionary, corners = load_marker_map(out)
+    assert dictionary == "DICT_4X4_250"
+    assert len(corners) >= 20
+    e = np.concatenate([np.linalg.norm(corners[m] - true[m], axis=1) for m in corners])
+    assert np.median(e) < 0.04 and e.max() < 0.12
+    # the ArUco front end localizes against the written map
+    front = ArucoFrontend.from_file(out)
+    img = cv2.imread(str(images / "0000.png"))
+    uv, _, ids = front.process(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+    assert len(ids) >= 16 and len(uv) == len(ids)
+    rep = yaml.safe_load((report / "report.yaml").read_text())
+    assert set(rep["markers"]) == set(corners)
+    assert (report / "map.png").stat().st_size > 10_000
+    # an existing map is not overwritten without --overwrite
+    before = out.read_bytes()
+    assert main(args(rendered, out)) == 2
+    assert out.read_bytes() == before
+
+
+def test_refusals_write_no_file(rendered, tmp_path, capsys):
+    cam_yaml = rendered[2]
+    out = tmp_path / "map.yaml"
+    # wrong dictionary: no detections
+    a = args(rendered, out)
+    a[a.index("DICT_4X4_250")] = "DICT_APRILTAG_36h11"
+    assert main(a) == 2
+    assert "no marker detections" in capsys.readouterr().err
+    # anchor never in view
+    a = args(rendered, out)
+    a[a.index("--anchor") + 1] = "999"
+    assert main(a) == 2
+    assert "anchor marker 999" in capsys.readouterr().err
+    # images of another size than the camera
+    cam = yaml.safe_load(cam_yaml.read_text())
+    cam["image_width"] = 800
+    other = tmp_path / "camera800.yaml"
+    other.write_text(yaml.safe_dump(cam))
+    a = args(rendered, out)
+    a[a.index("--camera") + 1] = str(other)
+    assert main(a) == 2
+    assert "the camera 800x480" in capsys.readouterr().err
+    assert not out.exists()
+    assert not list(tmp_path.glob(".map.yaml.*"))
+
+
+def test_map_from_a_rendered_bag(rendered, tmp_path, capsys):
+    """The same scene rendered to a bag by ``render-bag`` (images, camera_info, header stamps
+    at the first line's capture time)."""
+    true, pose = rendered[3], rendered[4]
+    bag = tmp_path / "bag"
+    assert main(["render-bag", str(bag), "--frames", "12", "--motion", "pan"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "map.yaml"
+    common = ["--marker-size", "0.3", "--dictionary", "DICT_4X4_250", "--anchor", "0"]
+    a = ["map-markers", str(bag), "-o", str(out), *common, "--anchor-pose", *pose, "--quiet"]
+    assert main([*a, "--image-topic", "/no/such/image"]) == 2
+    assert "no image topic '/no/such/image'" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(a) == 0
+    _, corners = load_marker_map(out)
+    assert len(corners) >= 20
+    e = np.concatenate([np.linalg.norm(corners[m] - true[m], axis=1) for m in corners])
+    assert np.median(e) < 0.04 and e.max() < 0.12
+
+
+def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    import rs_localizer.mapping.outputs as outputs
+
+    def interrupted(src, dst):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs.os, "replace", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        outputs.write_atomic(tmp_path / "map.yaml", "markers: []\n")
+    assert list(tmp_path.iterdir()) == []
