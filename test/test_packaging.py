@@ -28,6 +28,7 @@ KEY_MODULES = {
 OPTIONAL = {
     "PIL": "Pillow, a dependency of matplotlib (python3-matplotlib depends on python3-pil)",
     "threadpoolctl": "benchmarks only (extra 'bench'), imported inside a try",
+    "tqdm": "map-markers' progress bar, imported inside a try (no bar without it)",
 }
 
 
