@@ -232,3 +232,49 @@ def test_bad_inputs(colmap_map, tmp_path):
     bent = write_marker_map(tmp_path / "moved.yaml", dictionary, moved)
     with pytest.raises(ValueError, match="residual"):
         align_to_markers(model, photos, bent)
+
+
+def test_map_features_command(colmap_map, tmp_path, capsys):
+    """The command writes the aligned map; refuses to overwrite; bad input: exit 2, no file."""
+    from rs_localizer.cli import main
+
+    model, photos = str(colmap_map["model"]), str(colmap_map["photos"])
+    out = tmp_path / "map.npz"
+    args = ["map-features", "--colmap", model, "--images", photos, "-o", str(out)]
+    assert main([*args, "--align-markers", "textured_room"]) == 0
+    printed = capsys.readouterr().out
+    assert "aligned on markers" in printed and "mm RMS" in printed
+    fm = FeatureMap.load(out)
+    np.testing.assert_allclose(fm.points, colmap_map["map"].points, atol=1e-9)
+    before = out.read_bytes()
+    assert main(args) == 2 and "--overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == before
+    assert main([*args, "--overwrite"]) == 0
+    assert "no metric scale" in capsys.readouterr().out and FeatureMap.load(out).metric is False
+    bad = tmp_path / "bad.npz"
+    assert main(["map-features", "--colmap", photos, "-o", str(bad)]) == 2
+    assert "not a COLMAP sparse model" in capsys.readouterr().err
+    camera = tmp_path / "camera.yaml"
+    camera.write_text(
+        "image_width: 320\nimage_height: 240\n"
+        "camera_matrix: {rows: 3, cols: 3, data: [260, 0, 160, 0, 260, 120, 0, 0, 1]}\n"
+    )
+    assert main(["map-features", "--images", photos, "--camera", str(camera), "-o", str(bad)]) == 2
+    assert "320x240" in capsys.readouterr().err
+    assert main([*args[:-2], "-o", str(bad), "--align-markers", str(tmp_path / "none.yaml")]) == 2
+    assert not bad.exists() and sorted(p.name for p in tmp_path.iterdir()) == [
+        "camera.yaml",
+        "map.npz",
+    ]
+
+
+def test_map_features_without_pycolmap_says_how_to_install(monkeypatch, tmp_path, capsys):
+    import sys
+
+    from rs_localizer.cli import main
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)
+    out = tmp_path / "map.npz"
+    assert main(["map-features", "--colmap", str(tmp_path), "-o", str(out)]) == 2
+    assert "pip install 'rs_localizer[mapping]'" in capsys.readouterr().err
+    assert not out.exists()
