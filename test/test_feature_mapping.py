@@ -278,3 +278,23 @@ def test_map_features_without_pycolmap_says_how_to_install(monkeypatch, tmp_path
     assert main(["map-features", "--colmap", str(tmp_path), "-o", str(out)]) == 2
     assert "pip install 'rs_localizer[mapping]'" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_flann_matcher_finds_the_same_landmarks_as_brute_force():
+    """Approximate (FLANN) matching of an image against a map made of its own features: each
+    feature finds its own landmark, as with brute force; ORB maps refuse FLANN."""
+    gray = Renderer(load_scene("textured_room"), camera_preset("vga", line_delay=0.0)).render_pose(
+        *_walk(3)[1], mono=True
+    )
+    kps, des = make_detector("sift", 1500).detectAndCompute(gray, None)
+    uv = np.array([k.pt for k in kps])
+    fm = FeatureMap(np.c_[uv, np.zeros(len(uv))], des, np.arange(len(uv)), "sift")
+    found = {}
+    for matcher in ("bf", "flann"):
+        px, X, ids = FeatureFrontend(fm, matcher=matcher, n_features=1500).process(gray, None)
+        np.testing.assert_allclose(X[:, :2], px, atol=1e-3)  # matched to its own feature
+        found[matcher] = set(ids.tolist())
+    assert len(found["flann"]) > 0.9 * len(found["bf"]) > 0.5 * len(uv)
+    with pytest.raises(ValueError, match="flann"):
+        orb = FeatureMap(fm.points, np.zeros((len(uv), 32), np.uint8), fm.landmark_ids, "orb")
+        FeatureFrontend(orb, matcher="flann")

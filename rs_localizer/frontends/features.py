@@ -245,6 +245,12 @@ class FeatureFrontend:
         feature_map: the map (or a path to its ``.npz``).
         ratio: Lowe's ratio (best distance < ratio * best distance to another landmark).
         n_features: features detected per image. knn: neighbours searched per feature.
+        matcher: ``bf`` (exact brute force, OpenCV ``BFMatcher``) or ``flann`` (approximate
+            nearest neighbours, OpenCV ``FlannBasedMatcher``: randomized k-d trees, for large
+            float (SIFT) maps; the index is built once here).
+
+    Raises:
+        ValueError: an unknown ``matcher``, or ``flann`` with a binary (ORB) map.
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``; the ids are
     landmark ids, ``last_scores`` holds ``1 - ratio`` per match (higher is better).
@@ -258,6 +264,7 @@ class FeatureFrontend:
         ratio: float = 0.8,
         n_features: int = 2000,
         knn: int = 3,
+        matcher: str = "bf",
     ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
@@ -265,8 +272,19 @@ class FeatureFrontend:
         self.ratio = float(ratio)
         self.knn = int(knn)
         self.detector = make_detector(feature_map.kind, n_features)
-        self.matcher = cv2.BFMatcher(_norm(feature_map.kind), crossCheck=False)
         self.train = np.ascontiguousarray(feature_map.descriptors)
+        if matcher == "bf":
+            self.matcher = cv2.BFMatcher(_norm(feature_map.kind), crossCheck=False)
+        elif matcher == "flann":
+            if feature_map.kind.lower() == "orb":
+                raise ValueError("matcher 'flann' is for float (sift) maps; use 'bf' for orb")
+            self.train = np.ascontiguousarray(self.train, dtype=np.float32)
+            self.matcher = cv2.FlannBasedMatcher(dict(algorithm=1, trees=4), dict(checks=64))
+            self.matcher.add([self.train])
+            self.matcher.train()
+        else:
+            raise ValueError(f"unknown matcher {matcher!r}; expected 'bf' or 'flann'")
+        self.matcher_name = matcher
         self.last_scores = np.zeros(0)
 
     @classmethod
@@ -285,7 +303,11 @@ class FeatureFrontend:
             return empty
         lm = self.map.landmark_ids
         best_q, best_t, best_s = [], [], []
-        for q, nbrs in enumerate(self.matcher.knnMatch(des, self.train, k=self.knn)):
+        if self.matcher_name == "flann":
+            found = self.matcher.knnMatch(np.asarray(des, np.float32), k=self.knn)
+        else:
+            found = self.matcher.knnMatch(des, self.train, k=self.knn)
+        for q, nbrs in enumerate(found):
             if not nbrs:
                 continue
             first = nbrs[0]

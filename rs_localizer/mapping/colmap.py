@@ -168,6 +168,7 @@ def feature_map_from_colmap(
     min_track: int = 3,
     max_error: float | None = None,
     descriptors_per_landmark: int = 1,
+    opencv_normalisation: bool = True,
 ) -> FeatureMap:
     """A COLMAP sparse model and its database -> a ``sift`` :class:`FeatureMap`.
 
@@ -183,6 +184,8 @@ def feature_map_from_colmap(
         database: its ``database.db`` (default: found beside the model or up to two levels up).
         min_track: smallest track length kept. max_error: largest reprojection error (px).
         descriptors_per_landmark: descriptors per point (see above).
+        opencv_normalisation: convert the descriptors (default); False keeps COLMAP's values
+            (as float32), for comparing the two (``bench_feature_map``).
     Returns:
         :class:`FeatureMap` with ``points`` (M, 3) in the model's frame and scale (``metric``
         False), ``track_length`` and ``reprojection_error`` (M,).
@@ -238,7 +241,7 @@ def feature_map_from_colmap(
     order = {pid: k for k, pid in enumerate(ids)}
     labels = np.array([order[r[0]] for r in rows], dtype=np.int64)
     raw = np.stack([descs[r[1]][r[2]] for r in rows])
-    des = opencv_sift_from_colmap(raw)
+    des = opencv_sift_from_colmap(raw) if opencv_normalisation else raw.astype(np.float32)
     keep = (
         representative_descriptors(des, labels, int(descriptors_per_landmark), "sift")
         if descriptors_per_landmark
