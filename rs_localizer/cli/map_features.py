@@ -58,6 +58,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="keep the reconstruction (database.db, model/) here (default: a temporary "
         "directory, removed)",
     )
+    p.add_argument(
+        "--matching",
+        choices=["exhaustive", "sequential"],
+        default="exhaustive",
+        help="--images: match every pair of photos, or each with its next ones in name order "
+        "(photos taken along a walk)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an existing map")
     p.set_defaults(func=run)
 
@@ -93,7 +100,9 @@ def run(args: argparse.Namespace, stream=sys.stdout) -> int:
         else:
             camera = colmap.load_camera_yaml(args.camera_yaml)
             work = Path(args.workdir) if args.workdir else Path(tmp)
-            model = colmap.reconstruct(args.images, camera, work, progress=sys.stderr)
+            model = colmap.reconstruct(
+                args.images, camera, work, progress=sys.stderr, matching=args.matching
+            )
             database = work / "database.db"
         fm = colmap.feature_map_from_colmap(
             model, database, min_track=args.min_track, max_error=args.max_error

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -63,6 +65,17 @@ def import_pycolmap() -> Any:
     except ModuleNotFoundError as e:
         raise ModuleNotFoundError(f"pycolmap is not installed: {INSTALL_HINT}") from e
     return pycolmap
+
+
+@contextmanager
+def _quiet(pycolmap: Any) -> Iterator[None]:
+    """COLMAP's own log (one line per step) down to warnings while it runs."""
+    level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 1
+    try:
+        yield
+    finally:
+        pycolmap.logging.minloglevel = level
 
 
 def load_camera_yaml(path: str | Path) -> CameraModel:
@@ -147,7 +160,8 @@ def read_model(model_dir: str | Path) -> Any:
             "e.g. the sparse/0 directory of a COLMAP project)"
         )
     try:
-        return pycolmap.Reconstruction(str(d))
+        with _quiet(pycolmap):
+            return pycolmap.Reconstruction(str(d))
     except Exception as e:  # pycolmap raises its own (RuntimeError / ValueError) on bad files
         raise ValueError(f"{d}: COLMAP cannot read the model: {e}") from None
 
@@ -301,6 +315,30 @@ def _triangulate(rays_o: np.ndarray, rays_d: np.ndarray) -> np.ndarray:
     return np.linalg.solve(P.sum(axis=0), np.einsum("kij,kj->i", P, rays_o))
 
 
+def _triangulate_robust(
+    rays_o: np.ndarray, rays_d: np.ndarray, cos_min_angle: float, max_angle: float
+) -> np.ndarray | None:
+    """Intersection (3,) of the rays that agree: every pair spanning more than the minimum
+    angle is a hypothesis, the one that most rays pass within ``max_angle`` (rad) of wins and
+    is refitted on them (a photo that COLMAP registered at a wrong pose does not bend it).
+    None when no pair spans the angle or fewer than two rays agree."""
+    best, best_in = None, 1
+    n = len(rays_d)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if rays_d[i] @ rays_d[j] > cos_min_angle:
+                continue
+            X = _triangulate(rays_o[[i, j]], rays_d[[i, j]])
+            v = X - rays_o
+            cos = np.einsum("kj,kj->k", v, rays_d) / np.maximum(np.linalg.norm(v, axis=1), 1e-12)
+            inl = cos > np.cos(max_angle)
+            if inl.sum() > best_in:
+                best, best_in = inl, int(inl.sum())
+    if best is None:
+        return None
+    return _triangulate(rays_o[best], rays_d[best])
+
+
 def align_to_markers(
     model_dir: str | Path,
     images_dir: str | Path,
@@ -308,13 +346,16 @@ def align_to_markers(
     min_markers: int = 3,
     max_residual: float = 0.02,
     min_angle_deg: float = 2.0,
+    max_ray_angle: float = 0.005,
 ) -> MarkerAlignment:
     """Similarity transform from a COLMAP model's frame to a marker map's (metric) frame.
 
     ArUco markers are detected in every registered photo
     (:class:`~rs_localizer.frontends.aruco.ArucoFrontend`, the map's dictionary); each corner
     seen in two or more photos whose rays span at least ``min_angle_deg`` is triangulated with
-    the model's poses and camera (least-squares ray intersection, pixels + 0.5 for COLMAP), and
+    the model's poses and camera (pixels + 0.5 for COLMAP; least-squares intersection of the
+    rays that pass within ``max_ray_angle`` rad of a common point, chosen over the pairs of
+    rays, so that a photo registered at a wrong pose is left out), and
     scale, rotation and translation come from Umeyama's method on the corners common to the map
     (``cv2.estimateAffine3D(..., force_rotation=True)``).
 
@@ -360,10 +401,12 @@ def align_to_markers(
     for key, views in sorted(obs.items()):
         if len(views) < 2:
             continue
-        D = np.array([v[1] for v in views])
-        if (D @ D.T).min() > cos_min:  # too narrow a baseline
+        X = _triangulate_robust(
+            np.array([v[0] for v in views]), np.array([v[1] for v in views]), cos_min, max_ray_angle
+        )
+        if X is None:  # too narrow a baseline, or no two photos agree
             continue
-        model_pts.append(_triangulate(np.array([v[0] for v in views]), D))
+        model_pts.append(X)
         map_pts.append(corners3d[key // 4][key % 4])
         used.add(key // 4)
     if len(used) < int(min_markers):
@@ -403,6 +446,9 @@ def reconstruct(
     min_registered: float = 0.5,
     progress: TextIO | None = sys.stderr,
     max_features: int = 4096,
+    matching: str = "exhaustive",
+    overlap: int = 10,
+    seed: int = 0,
 ) -> Path:
     """COLMAP reconstruction of photos taken with one known camera (pycolmap): SIFT extraction
     with the fixed intrinsics (:func:`colmap_camera`), exhaustive matching with geometric
@@ -415,14 +461,22 @@ def reconstruct(
             as ``model``.
         min_registered: smallest fraction of photos the model must register.
         progress: stream for stage lines (None: quiet). max_features: SIFT features per photo.
+        matching: ``exhaustive`` (every pair of photos) or ``sequential`` (each photo with the
+            next ``overlap`` in name order, and quadratically further ones: for photos taken
+            along a walk; fewer wrong pairs where a texture repeats across the place).
+        seed: seed of COLMAP's RANSAC (verification, registration, triangulation): the same
+            photos give the same model (-1: random).
     Returns:
         the model directory (``workdir/model``).
     Raises:
-        FileNotFoundError: no photos. ValueError: a photo of another size than the camera,
+        FileNotFoundError: no photos. ValueError: an unknown ``matching``, a photo of
+        another size than the camera,
         fewer than ``min_registered`` of the photos (or 3) registered. ModuleNotFoundError:
         pycolmap missing.
     """
     pycolmap = import_pycolmap()
+    if matching not in ("exhaustive", "sequential"):
+        raise ValueError(f"unknown matching {matching!r}; expected 'exhaustive' or 'sequential'")
     src = Path(images_dir)
     names = (
         sorted(p.name for p in src.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
@@ -457,39 +511,61 @@ def reconstruct(
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = int(max_features)
     extraction.num_threads = 2
-    say(f"[1/3] extracting SIFT features from {len(names)} photos ...")
-    pycolmap.extract_features(
-        str(db),
-        str(src),
-        image_names=names,
-        camera_mode=pycolmap.CameraMode.SINGLE,
-        reader_options=reader,
-        extraction_options=extraction,
-        device=pycolmap.Device.cpu,
-    )
-    t1 = time.perf_counter()
-    say(f"[2/3] matching {len(names) * (len(names) - 1) // 2} photo pairs ({t1 - t0:.1f} s) ...")
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = 2
-    pycolmap.match_exhaustive(str(db), matching_options=matching, device=pycolmap.Device.cpu)
-    t2 = time.perf_counter()
-    say(f"[3/3] incremental mapping ({t2 - t1:.1f} s) ...")
-    opts = pycolmap.IncrementalPipelineOptions()
-    opts.ba_refine_focal_length = False
-    opts.ba_refine_principal_point = False
-    opts.ba_refine_extra_params = False
-    opts.num_threads = 2
-    count = [0]
+    with _quiet(pycolmap):
+        say(f"[1/3] extracting SIFT features from {len(names)} photos ...")
+        pycolmap.extract_features(
+            str(db),
+            str(src),
+            image_names=names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=extraction,
+            device=pycolmap.Device.cpu,
+        )
+        t1 = time.perf_counter()
+        say(f"[2/3] {matching} matching of {len(names)} photos ({t1 - t0:.1f} s) ...")
+        match_opts = pycolmap.FeatureMatchingOptions()
+        match_opts.num_threads = 2
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = int(seed)
+        if matching == "sequential":
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = int(overlap)
+            pycolmap.match_sequential(
+                str(db),
+                matching_options=match_opts,
+                pairing_options=pairing,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+        else:
+            pycolmap.match_exhaustive(
+                str(db),
+                matching_options=match_opts,
+                verification_options=verification,
+                device=pycolmap.Device.cpu,
+            )
+        t2 = time.perf_counter()
+        say(f"[3/3] incremental mapping ({t2 - t1:.1f} s) ...")
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.ba_refine_focal_length = False
+        opts.ba_refine_principal_point = False
+        opts.ba_refine_extra_params = False
+        opts.num_threads = 2
+        opts.random_seed = int(seed)
+        opts.mapper.random_seed = int(seed)
+        opts.triangulation.random_seed = int(seed)
+        count = [0]
 
-    def registered() -> None:
-        count[0] += 1
-        say(f"      registered {count[0] + 1}/{len(names)} photos")
+        def registered() -> None:
+            count[0] += 1
+            say(f"      registered {count[0] + 2}/{len(names)} photos")
 
-    out = work / "sparse"
-    out.mkdir(exist_ok=True)
-    models = pycolmap.incremental_mapping(
-        str(db), str(src), str(out), options=opts, next_image_callback=registered
-    )
+        out = work / "sparse"
+        out.mkdir(exist_ok=True)
+        models = pycolmap.incremental_mapping(
+            str(db), str(src), str(out), options=opts, next_image_callback=registered
+        )
     best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
     n_reg = 0 if best is None else best.num_reg_images()
     if n_reg < max(3, int(np.ceil(min_registered * len(names)))):
