@@ -22,7 +22,7 @@ $(STAMP): $(STAMP_DEPS)
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install -e '.[ros,test,bench]'
+	$(PY) -m pip install -e '.[ros,test,bench,mapping]'
 	touch $@
 
 demo: venv

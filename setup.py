@@ -50,6 +50,8 @@ setup(
         # of the benchmarks and tests and an optional P3P backend (the default P3P is our own
         # Lambda Twist; without PoseLib the "poselib" backend falls back to OpenCV)
         "bench": ["threadpoolctl", "poselib"],
+        # feature maps from photos (rs-localizer map-features): COLMAP's Python bindings
+        "mapping": ["pycolmap>=4.2"],
         "test": ["pytest", "hypothesis", "ruff>=0.17,<0.18"],
     },
     tests_require=["pytest"],

@@ -29,6 +29,7 @@ OPTIONAL = {
     "PIL": "Pillow, a dependency of matplotlib (python3-matplotlib depends on python3-pil)",
     "threadpoolctl": "benchmarks only (extra 'bench'), imported inside a try",
     "tqdm": "map-markers' progress bar, imported inside a try (no bar without it)",
+    "pycolmap": "map-features only (extra 'mapping'), imported where used, says how to install",
 }
 
 

@@ -9,6 +9,7 @@ rs-localizer demo [--bag data/sample] [--params config/rs_localizer.yaml] [--no-
 rs-localizer render-bag OUT [--scene aruco_room --motion shake --frames 20 ...]
 rs-localizer marker-map SCENE OUT
 rs-localizer map-markers IMAGES -o MAP.yaml --camera CAMERA.yaml --marker-size S [--anchor ID]
+rs-localizer map-features (--colmap MODEL_DIR | --images DIR --camera CAMERA.yaml) -o MAP.npz
 rs-localizer experiments [--quick] [--out docs/experiments]
 rs-localizer compile [--solvers r6p_1lin p3p]   (once after installing: JIT kernels)
 rs-localizer calibrate-readout BAG [--source correspondences|keypoints|image] [--json]
@@ -910,6 +911,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cr.add_argument("--frontend-map", default=None, help="image source: front-end map")
     cr.set_defaults(func=_calibrate_readout)
+
+    from .map_features import register as register_map_features
+
+    register_map_features(sub)
 
     from ..evaluation.experiments import add_arguments as experiment_arguments
 

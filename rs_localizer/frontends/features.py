@@ -26,7 +26,13 @@ import numpy as np
 from ..camera import CameraModel
 from .aruco import to_gray
 
-__all__ = ["FeatureFrontend", "FeatureMap", "feature_map_from_views", "make_detector"]
+__all__ = [
+    "FeatureFrontend",
+    "FeatureMap",
+    "feature_map_from_views",
+    "make_detector",
+    "representative_descriptors",
+]
 
 
 def make_detector(kind: str = "orb", n_features: int = 2000) -> Any:
@@ -49,12 +55,23 @@ def _norm(kind: str) -> int:
 class FeatureMap:
     """3D landmarks with descriptors: ``points`` (M, 3) world (m), ``descriptors`` (M, D)
     (uint8 ORB / float32 SIFT), ``landmark_ids`` (M,) int64 (several descriptors, seen from
-    different views, may share one landmark and its 3D point), ``kind`` ``orb``/``sift``."""
+    different views, may share one landmark and its 3D point), ``kind`` ``orb``/``sift``.
+
+    Optional quality of each row (maps from a reconstruction, e.g.
+    :func:`rs_localizer.mapping.colmap.feature_map_from_colmap`; None for maps without it):
+    ``track_length`` (M,) int64 images that observed the point, ``reprojection_error`` (M,)
+    mean reprojection error (px) of its observations. ``metric`` is False when the points are
+    in an arbitrary scale (a reconstruction neither scaled nor aligned: positions, and
+    velocities, are then not in metres), True when known to be metric, None if not recorded.
+    """
 
     points: np.ndarray
     descriptors: np.ndarray
     landmark_ids: np.ndarray
     kind: str = "orb"
+    track_length: np.ndarray | None = None
+    reprojection_error: np.ndarray | None = None
+    metric: bool | None = None
 
     def __len__(self):
         return len(self.points)
@@ -63,7 +80,34 @@ class FeatureMap:
     def num_landmarks(self) -> int:
         return int(len(np.unique(self.landmark_ids)))
 
+    def _optional_arrays(self) -> dict:
+        out = {}
+        if self.track_length is not None:
+            out["track_length"] = np.asarray(self.track_length, np.int64)
+        if self.reprojection_error is not None:
+            out["reprojection_error"] = np.asarray(self.reprojection_error, np.float64)
+        if self.metric is not None:
+            out["metric"] = np.array(bool(self.metric))
+        return out
+
+    def subset(self, keep: np.ndarray) -> FeatureMap:
+        """The rows ``keep`` (bool mask (M,) or indices) with their quality arrays."""
+        opt = {
+            k: (None if getattr(self, k) is None else getattr(self, k)[keep])
+            for k in ("track_length", "reprojection_error")
+        }
+        return FeatureMap(
+            self.points[keep],
+            self.descriptors[keep],
+            self.landmark_ids[keep],
+            self.kind,
+            metric=self.metric,
+            **opt,
+        )
+
     def save(self, path: str | Path) -> Path:
+        """Write the ``.npz`` (numpy appends ``.npz`` to a name without it; the path written is
+        returned). Optional fields are stored only when set (older readers ignore them)."""
         path = Path(path)
         np.savez_compressed(
             path,
@@ -71,6 +115,7 @@ class FeatureMap:
             descriptors=self.descriptors,
             landmark_ids=self.landmark_ids,
             kind=np.array(self.kind),
+            **self._optional_arrays(),
         )
         return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
 
@@ -86,9 +131,18 @@ class FeatureMap:
                 z["descriptors"],
                 z["landmark_ids"].astype(np.int64),
                 str(z["kind"]),
+                track_length=z["track_length"].astype(np.int64) if "track_length" in z else None,
+                reprojection_error=(
+                    z["reprojection_error"].astype(float) if "reprojection_error" in z else None
+                ),
+                metric=bool(z["metric"]) if "metric" in z else None,
             )
-        if fm.points.shape != (len(fm.descriptors), 3) or len(fm.landmark_ids) != len(fm.points):
+        n = len(fm.points)
+        if fm.points.shape != (len(fm.descriptors), 3) or len(fm.landmark_ids) != n:
             raise ValueError(f"{path}: inconsistent feature map arrays")
+        for q in (fm.track_length, fm.reprojection_error):
+            if q is not None and q.shape != (n,):
+                raise ValueError(f"{path}: inconsistent feature map quality arrays")
         return fm
 
 
@@ -154,14 +208,17 @@ def feature_map_from_views(
     descriptors = np.concatenate(descs)
     labels = _merge_landmarks(points, merge_radius)
     if descriptors_per_landmark:
-        keep = _representatives(descriptors, labels, int(descriptors_per_landmark), kind)
+        keep = representative_descriptors(descriptors, labels, int(descriptors_per_landmark), kind)
         points, descriptors, labels = points[keep], descriptors[keep], labels[keep]
     return FeatureMap(points, descriptors, labels, kind.lower())
 
 
-def _representatives(des: np.ndarray, labels: np.ndarray, k: int, kind: str) -> np.ndarray:
-    """Indices of up to ``k`` medoid descriptors per landmark (smallest summed distance to the
-    landmark's other descriptors); observations' 3D points are averaged into the medoid's."""
+def representative_descriptors(
+    des: np.ndarray, labels: np.ndarray, k: int, kind: str
+) -> np.ndarray:
+    """Indices (sorted, int64) of up to ``k`` medoid descriptors per landmark: those with the
+    smallest summed distance (Hamming for ``orb``, L2 otherwise) to the landmark's other
+    descriptors ``des`` (N, D); ``labels`` (N,) landmark of each row."""
     order = np.argsort(labels, kind="stable")
     bounds = np.flatnonzero(np.diff(labels[order])) + 1
     keep = []
@@ -188,6 +245,12 @@ class FeatureFrontend:
         feature_map: the map (or a path to its ``.npz``).
         ratio: Lowe's ratio (best distance < ratio * best distance to another landmark).
         n_features: features detected per image. knn: neighbours searched per feature.
+        matcher: ``bf`` (exact brute force, OpenCV ``BFMatcher``) or ``flann`` (approximate
+            nearest neighbours, OpenCV ``FlannBasedMatcher``: randomized k-d trees, for large
+            float (SIFT) maps; the index is built once here).
+
+    Raises:
+        ValueError: an unknown ``matcher``, or ``flann`` with a binary (ORB) map.
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``; the ids are
     landmark ids, ``last_scores`` holds ``1 - ratio`` per match (higher is better).
@@ -201,6 +264,7 @@ class FeatureFrontend:
         ratio: float = 0.8,
         n_features: int = 2000,
         knn: int = 3,
+        matcher: str = "bf",
     ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
@@ -208,8 +272,19 @@ class FeatureFrontend:
         self.ratio = float(ratio)
         self.knn = int(knn)
         self.detector = make_detector(feature_map.kind, n_features)
-        self.matcher = cv2.BFMatcher(_norm(feature_map.kind), crossCheck=False)
         self.train = np.ascontiguousarray(feature_map.descriptors)
+        if matcher == "bf":
+            self.matcher = cv2.BFMatcher(_norm(feature_map.kind), crossCheck=False)
+        elif matcher == "flann":
+            if feature_map.kind.lower() == "orb":
+                raise ValueError("matcher 'flann' is for float (sift) maps; use 'bf' for orb")
+            self.train = np.ascontiguousarray(self.train, dtype=np.float32)
+            self.matcher = cv2.FlannBasedMatcher(dict(algorithm=1, trees=4), dict(checks=64))
+            self.matcher.add([self.train])
+            self.matcher.train()
+        else:
+            raise ValueError(f"unknown matcher {matcher!r}; expected 'bf' or 'flann'")
+        self.matcher_name = matcher
         self.last_scores = np.zeros(0)
 
     @classmethod
@@ -228,7 +303,11 @@ class FeatureFrontend:
             return empty
         lm = self.map.landmark_ids
         best_q, best_t, best_s = [], [], []
-        for q, nbrs in enumerate(self.matcher.knnMatch(des, self.train, k=self.knn)):
+        if self.matcher_name == "flann":
+            found = self.matcher.knnMatch(np.asarray(des, np.float32), k=self.knn)
+        else:
+            found = self.matcher.knnMatch(des, self.train, k=self.knn)
+        for q, nbrs in enumerate(found):
             if not nbrs:
                 continue
             first = nbrs[0]
