@@ -8,6 +8,7 @@ import os
 import sys
 import tempfile
 from pathlib import Path
+from typing import TextIO
 
 __all__ = ["register", "run"]
 
@@ -80,7 +81,7 @@ def _output_path(out: str, overwrite: bool) -> Path:
     return path
 
 
-def run(args: argparse.Namespace, stream=sys.stdout) -> int:
+def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
     """Run ``map-features``. Raises ValueError / FileNotFoundError / FileExistsError for input
     a user can fix (nothing is written then)."""
     if not args.colmap and not (args.images and args.camera_yaml):
@@ -138,5 +139,5 @@ def run(args: argparse.Namespace, stream=sys.stdout) -> int:
         except BaseException:
             Path(part).unlink(missing_ok=True)
             raise
-    print(f"wrote {out}: " + "; ".join(lines), file=stream)
+    print(f"wrote {out}: " + "; ".join(lines), file=stream or sys.stdout)
     return 0
