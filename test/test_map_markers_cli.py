@@ -82,10 +82,7 @@ def test_map_from_rendered_images_matches_the_scene(rendered, tmp_path):
     assert dictionary == "DICT_4X4_250"
     assert len(corners) >= 20
     e = np.concatenate([np.linalg.norm(corners[m] - true[m], axis=1) for m in corners])
-    # (12 frames of a pan: markers at the edge of the view are seen in few frames; their
-    # error depends on the OpenCV build's corner refinement: max 0.14 m with Debian 12's
-    # OpenCV 4.6, below 0.12 m with the PyPI wheel)
-    assert np.median(e) < 0.04 and e.max() < 0.2, (np.median(e), e.max())
+    assert np.median(e) < 0.04 and e.max() < 0.12, (np.median(e), e.max())
     # the ArUco front end localizes against the written map
     front = ArucoFrontend.from_file(out)
     img = cv2.imread(str(images / "0000.png"))
@@ -143,7 +140,10 @@ def test_map_from_a_rendered_bag(rendered, tmp_path, capsys):
     _, corners = load_marker_map(out)
     assert len(corners) >= 20
     e = np.concatenate([np.linalg.norm(corners[m] - true[m], axis=1) for m in corners])
-    assert np.median(e) < 0.04 and e.max() < 0.12
+    # (12 frames of a pan: markers at the edge of the view are seen in few frames; their
+    # error depends on the OpenCV build's corner refinement: max 0.14 m with Debian 12's
+    # OpenCV 4.6, below 0.12 m with the PyPI wheel)
+    assert np.median(e) < 0.04 and e.max() < 0.2, (np.median(e), e.max())
 
 
 def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
