@@ -21,6 +21,77 @@ SINGLE_THREAD_ENV = {
 }
 
 
+class _BenchGraph:
+    """The node under test, ``rs_localizer_node`` with ``config/rs_localizer.yaml`` + ``params``
+    in namespace ``/bench`` as a subprocess on a fresh ROS domain (pinned to ``node_cpu`` with
+    single-threaded BLAS/numba; this process to the next core), and this process's rclpy node
+    ``name`` with its executor and a reliable QoS (depth 100). ``node_cpu`` becomes None on a
+    single core. :meth:`close` shuts both down."""
+
+    def __init__(self, name: str, params: dict, reliable_topics: list, node_cpu: int | None):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
+
+        ncpu = os.cpu_count() or 1
+        if node_cpu is not None and ncpu < 2:
+            node_cpu = None
+        self.node_cpu = node_cpu
+        domain = random_domain_id()
+        env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
+        os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+        tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_bench_"))
+        overlay = write_params_yaml(tmp / "bench.yaml", params, reliable_topics=reliable_topics)
+        self.process = NodeProcess(
+            [p for p in (repo_file("config", "rs_localizer.yaml"), overlay) if p],
+            namespace="/bench",
+            env=env,
+            log=tmp / "node.log",
+            cpus=None if node_cpu is None else [node_cpu],
+        )
+        if node_cpu is not None and hasattr(os, "sched_setaffinity"):
+            os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.ex.add_node(self.node)
+        self.qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+    def consume_outputs(self, ns: str) -> list:
+        """Subscriptions (that drop what they get) to ``ns``'s outputs besides ``pose``, so
+        that the node builds and sends all of them."""
+        from geometry_msgs.msg import PoseWithCovarianceStamped, TwistStamped
+        from nav_msgs.msg import Odometry
+
+        return [
+            self.node.create_subscription(t, f"{ns}/{k}", lambda m: None, self.qos)
+            for t, k in (
+                (TwistStamped, "twist"),
+                (TwistStamped, "twist_single_frame"),
+                (Odometry, "odom"),
+                (PoseWithCovarianceStamped, "pose_with_covariance"),
+            )
+        ]
+
+    def spin(self, seconds: float) -> None:
+        """Run the executor for ``seconds``."""
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            self.ex.spin_once(timeout_sec=0.02)
+
+    def close(self) -> None:
+        import rclpy
+
+        self.ex.remove_node(self.node)
+        self.node.destroy_node()
+        self.ex.shutdown()
+        rclpy.try_shutdown(context=self.ctx)
+        self.process.stop()
+
+
 def measure_node(
     seq,
     cam,
@@ -48,63 +119,29 @@ def measure_node(
     Raises:
         RuntimeError: the node did not start.
     """
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
-    from nav_msgs.msg import Odometry
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from geometry_msgs.msg import PoseStamped
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
     from .conversions import camera_info_msg, stamp_to_ns
     from .pointcloud import correspondence_cloud
-    from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
     result = {} if result is None else result
-    ncpu = os.cpu_count() or 1
-    if node_cpu is not None and ncpu < 2:
-        node_cpu = None
     offset = cam.time_offset(0.0, cam.reference_line)
     period = 33_333_333
-    domain = random_domain_id()
-    env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
-    tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_bench_"))
-    overlay = write_params_yaml(
-        tmp / "bench.yaml",
+    graph = _BenchGraph(
+        "rs_localizer_bench",
         {"solver": solver},
-        reliable_topics=["/bench/correspondences", "/bench/camera_info"],
+        ["/bench/correspondences", "/bench/camera_info"],
+        node_cpu,
     )
-    config = repo_file("config", "rs_localizer.yaml")
-    node = NodeProcess(
-        [p for p in (config, overlay) if p],
-        namespace="/bench",
-        env=env,
-        log=tmp / "node.log",
-        cpus=None if node_cpu is None else [node_cpu],
-    )
-    if node_cpu is not None and hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    n = rclpy.create_node("rs_localizer_bench", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(n)
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    node, n, ex, qos = graph.process, graph.node, graph.ex, graph.qos
+    node_cpu = graph.node_cpu
     pub = n.create_publisher(PointCloud2, "/bench/correspondences", qos)
     pub_info = n.create_publisher(CameraInfo, "/bench/camera_info", qos)
     recv = {}
-    # a consumer of every output, so that the node builds and sends all of them
-    others = [
-        n.create_subscription(t, f"/bench/{k}", lambda m: None, qos)
-        for t, k in (
-            (TwistStamped, "twist"),
-            (TwistStamped, "twist_single_frame"),
-            (Odometry, "odom"),
-            (PoseWithCovarianceStamped, "pose_with_covariance"),
-        )
-    ]
+    others = graph.consume_outputs("/bench")
     n.create_subscription(
         PoseStamped,
         "/bench/pose",
@@ -125,9 +162,7 @@ def measure_node(
             ex.spin_once(timeout_sec=0.05)
         t0 = seq[0].stamp_ns
         pub_info.publish(camera_info_msg(cam, "camera", t0))
-        t_spin = time.perf_counter() + 0.3
-        while time.perf_counter() < t_spin:
-            ex.spin_once(timeout_sec=0.02)
+        graph.spin(0.3)
 
         def raw_frame(i):
             f = seq[i % len(seq)]
@@ -197,13 +232,9 @@ def measure_node(
         end = time.monotonic() + 10
         while n.count_subscribers("/bench/odom") and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
-        t_spin = time.perf_counter() + 0.5
-        while time.perf_counter() < t_spin:
-            ex.spin_once(timeout_sec=0.02)
+        graph.spin(0.5)
         result["pose_only"] = run("pose only", frames, 10 + 2 * frames, 1)
-        t_spin = time.perf_counter() + 1.2
-        while time.perf_counter() < t_spin:
-            ex.spin_once(timeout_sec=0.02)
+        graph.spin(1.2)
         result["node_stages_ms"] = {
             k[:-10]: float(v) for k, v in diag.items() if k.endswith("_ms_median")
         }
@@ -212,11 +243,7 @@ def measure_node(
             + ", ".join(f"{k} {v:.2f}" for k, v in result["node_stages_ms"].items())
         )
     finally:
-        ex.remove_node(n)
-        n.destroy_node()
-        ex.shutdown()
-        rclpy.try_shutdown(context=ctx)
-        node.stop()
+        graph.close()
     return result
 
 
@@ -250,64 +277,31 @@ def measure_cameras(
     Raises:
         RuntimeError: the node did not start.
     """
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
-    from nav_msgs.msg import Odometry
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from geometry_msgs.msg import PoseStamped
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
     from .conversions import camera_info_msg, stamp_to_ns
     from .pointcloud import correspondence_cloud
-    from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
-    ncpu = os.cpu_count() or 1
-    if node_cpu is not None and ncpu < 2:
-        node_cpu = None
     offset_ns = int(round(cam.time_offset(0.0, cam.reference_line) * 1e9))
     period = int(round(1e9 / rate_hz))
     names = [f"cam{k}" for k in range(n_cameras)]
     spaces = [f"/bench/{c}" for c in names]
-    domain = random_domain_id()
-    env = ros_env(domain, {**os.environ, **SINGLE_THREAD_ENV})
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
-    tmp = Path(tempfile.mkdtemp(prefix="rs_localizer_bench_"))
-    overlay = write_params_yaml(
-        tmp / "bench.yaml",
+    graph = _BenchGraph(
+        "rs_localizer_bench_cameras",
         {"solver": solver, "cameras": names},
-        reliable_topics=[f"{ns}/{t}" for ns in spaces for t in ("correspondences", "camera_info")],
+        [f"{ns}/{t}" for ns in spaces for t in ("correspondences", "camera_info")],
+        node_cpu,
     )
-    node = NodeProcess(
-        [repo_file("config", "rs_localizer.yaml"), overlay],
-        namespace="/bench",
-        env=env,
-        log=tmp / "node.log",
-        cpus=None if node_cpu is None else [node_cpu],
-    )
-    if node_cpu is not None and hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    n = rclpy.create_node("rs_localizer_bench_cameras", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(n)
-    qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+    node, n, ex, qos = graph.process, graph.node, graph.ex, graph.qos
     pubs, infos, recv, diag = {}, {}, {}, {}
     keep = []
     for ns in spaces:
         pubs[ns] = n.create_publisher(PointCloud2, f"{ns}/correspondences", qos)
         infos[ns] = n.create_publisher(CameraInfo, f"{ns}/camera_info", qos)
-        keep += [
-            n.create_subscription(t, f"{ns}/{k}", lambda m: None, qos)
-            for t, k in (
-                (TwistStamped, "twist"),
-                (TwistStamped, "twist_single_frame"),
-                (Odometry, "odom"),
-                (PoseWithCovarianceStamped, "pose_with_covariance"),
-            )
-        ]
+        keep += graph.consume_outputs(ns)
         keep.append(
             n.create_subscription(
                 PoseStamped,
@@ -338,9 +332,7 @@ def measure_cameras(
         t0 = seq[0].stamp_ns
         for ns in spaces:
             infos[ns].publish(camera_info_msg(cam, "camera", t0))
-        t_spin = time.perf_counter() + 0.5
-        while time.perf_counter() < t_spin:
-            ex.spin_once(timeout_sec=0.02)
+        graph.spin(0.5)
         raw = {}  # (frame index) -> serialized cloud, built before the stream
 
         def message(i):
@@ -374,15 +366,9 @@ def measure_cameras(
         end = time.perf_counter() + 5.0
         while time.perf_counter() < end and not all(k in recv for k in sent):
             ex.spin_once(timeout_sec=0.01)
-        t_spin = time.perf_counter() + 1.5  # the diagnostics after the stream
-        while time.perf_counter() < t_spin:
-            ex.spin_once(timeout_sec=0.02)
+        graph.spin(1.5)  # the diagnostics after the stream
     finally:
-        ex.remove_node(n)
-        n.destroy_node()
-        ex.shutdown()
-        rclpy.try_shutdown(context=ctx)
-        node.stop()
+        graph.close()
 
     def stats(lat):
         lat = np.asarray(lat) * 1e3
