@@ -580,6 +580,24 @@ class _Problem:
             ]
         )
 
+    def solve(self, x0, *, loss: str = "linear", f_scale: float = 1.0, tol: float = 1e-6):
+        """SciPy ``least_squares`` (trust region reflective with this problem's Jacobian
+        sparsity, Jacobian-scaled variables, ``max_nfev`` of the options) on
+        :meth:`residuals` from ``x0``; ``loss``, ``f_scale`` and ``tol`` (``ftol`` and
+        ``xtol``) as SciPy's."""
+        return least_squares(
+            self.residuals,
+            x0,
+            jac_sparsity=self.sparsity(),
+            loss=loss,
+            f_scale=f_scale,
+            x_scale="jac",
+            max_nfev=self.opts.max_nfev,
+            ftol=tol,
+            xtol=tol,
+            method="trf",
+        )
+
     def sparsity(self):
         nd = int(self.keep.sum())
         nfix = 6 if self.fix is not None else 0
@@ -732,18 +750,8 @@ def map_markers(
         fix_frame=fr_ids.index(init.seed),
         exclude=init.excluded,
     )
-    sol = least_squares(
-        free.residuals,
-        free.x0(init, camera.line_delay),
-        jac_sparsity=free.sparsity(),
-        loss="soft_l1",
-        f_scale=10.0,
-        x_scale="jac",
-        max_nfev=options.max_nfev,
-        ftol=1e-4,  # only to start the adjustments below close to the solution
-        xtol=1e-4,
-        method="trf",
-    )
+    # (a loose tolerance: only to start the adjustments below close to the solution)
+    sol = free.solve(free.x0(init, camera.line_delay), loss="soft_l1", f_scale=10.0, tol=1e-4)
     Rf, Cf, _, _, Rm, pm, _ = free.unpack(sol.x)
     init.frames, init.markers, _ = _regauge(
         {k: (Rf[i], Cf[i]) for i, k in enumerate(fr_ids)},
@@ -759,33 +767,17 @@ def map_markers(
     for _ in range(2):
         prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=exclude)
         t0 = time.perf_counter()
-        sol = least_squares(
-            prob.residuals,
+        sol = prob.solve(
             prob.x0(init, camera.line_delay) if x_start is None else x_start,
-            jac_sparsity=prob.sparsity(),
             loss=options.loss,
             f_scale=options.f_scale_px,
-            x_scale="jac",
-            max_nfev=options.max_nfev,
-            ftol=1e-6,
-            xtol=1e-6,
-            method="trf",
         )
         timings["robust adjustment"] = timings.get("robust adjustment", 0.0) + (
             time.perf_counter() - t0
         )
         prob.keep = prob.detection_rms(sol.x) <= options.reject_px
         t0 = time.perf_counter()
-        sol = least_squares(
-            prob.residuals,
-            sol.x,
-            jac_sparsity=prob.sparsity(),
-            x_scale="jac",
-            max_nfev=options.max_nfev,
-            ftol=1e-6,
-            xtol=1e-6,
-            method="trf",
-        )
+        sol = prob.solve(sol.x)
         timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
             time.perf_counter() - t0
         )
