@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
-from .prior import MotionPrior
+from .prior import MotionPrior, checked_symmetric
 
 __all__ = [
     "GYRO_CHI2_THRESHOLD",
@@ -62,17 +62,9 @@ class GyroMeasurement:
 
     def __post_init__(self) -> None:
         w = np.asarray(self.angular_velocity, dtype=float).reshape(-1)
-        S = np.asarray(self.covariance, dtype=float)
         if w.shape != (3,) or not np.isfinite(w).all():
             raise ValueError(f"gyro angular_velocity must be 3 finite numbers, got {w!r}")
-        if S.shape != (3, 3) or not np.isfinite(S).all():
-            raise ValueError(f"gyro covariance must be a finite (3, 3) matrix, got {S.shape}")
-        if not np.allclose(S, S.T, rtol=1e-9, atol=1e-15):
-            raise ValueError("gyro covariance must be symmetric")
-        try:
-            np.linalg.cholesky(S)
-        except np.linalg.LinAlgError:
-            raise ValueError("gyro covariance must be positive definite") from None
+        S = checked_symmetric(self.covariance, 3, "gyro covariance", atol=1e-15)
         object.__setattr__(self, "angular_velocity", w)
         object.__setattr__(self, "covariance", 0.5 * (S + S.T))
 

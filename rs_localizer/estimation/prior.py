@@ -25,11 +25,39 @@ from numba import njit
 
 __all__ = [
     "MotionPrior",
+    "checked_symmetric",
     "linear_prior_rows",
     "prior_arrays",
     "prior_conflict",
     "sample_prior_rows",
 ]
+
+
+def checked_symmetric(
+    M: np.ndarray, n: int, what: str, definite: bool = True, atol: float | None = None
+) -> np.ndarray:
+    """``M`` as an (n, n) float array after checking that it is finite, symmetric (to a
+    relative 1e-9, and ``atol``: default 1e-12 of its largest entry) and positive definite
+    (``definite``: it has a Cholesky factor) or positive semi-definite (eigenvalues above
+    -1e-9 of its largest entry).
+
+    Raises:
+        ValueError: naming ``what``, for the first check that fails.
+    """
+    S = np.asarray(M, dtype=float)
+    if S.shape != (n, n) or not np.isfinite(S).all():
+        raise ValueError(f"{what} must be a finite ({n}, {n}) matrix, got shape {S.shape}")
+    scale = max(np.abs(S).max(), 1e-300)
+    if not np.allclose(S, S.T, rtol=1e-9, atol=1e-12 * scale if atol is None else atol):
+        raise ValueError(f"{what} must be symmetric")
+    if definite:
+        try:
+            np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise ValueError(f"{what} must be positive definite") from None
+    elif np.linalg.eigvalsh(0.5 * (S + S.T)).min() < -1e-9 * scale:
+        raise ValueError(f"{what} must be positive semi-definite")
+    return S
 
 
 def _vector6(a, name):
@@ -91,29 +119,12 @@ class MotionPrior:
         if self.mean is not None:
             object.__setattr__(self, "mean", _vector6(self.mean, "mean"))
         if self.covariance is not None:
-            S = np.asarray(self.covariance, dtype=float)
-            if S.shape != (6, 6) or not np.isfinite(S).all():
-                raise ValueError(
-                    f"motion prior covariance must be a finite (6, 6) matrix, got shape {S.shape}"
-                )
-            if not np.allclose(S, S.T, rtol=1e-9, atol=1e-12 * max(np.abs(S).max(), 1e-300)):
-                raise ValueError("motion prior covariance must be symmetric")
-            try:
-                np.linalg.cholesky(S)
-            except np.linalg.LinAlgError:
-                raise ValueError("motion prior covariance must be positive definite") from None
+            S = checked_symmetric(self.covariance, 6, "motion prior covariance")
             object.__setattr__(self, "covariance", S)
         if self.information_matrix is not None:
-            L = np.asarray(self.information_matrix, dtype=float)
-            if L.shape != (6, 6) or not np.isfinite(L).all():
-                raise ValueError(
-                    f"motion prior information_matrix must be a finite (6, 6) matrix, got "
-                    f"shape {L.shape}"
-                )
-            if not np.allclose(L, L.T, rtol=1e-9, atol=1e-12 * max(np.abs(L).max(), 1e-300)):
-                raise ValueError("motion prior information_matrix must be symmetric")
-            if np.linalg.eigvalsh(0.5 * (L + L.T)).min() < -1e-9 * max(np.abs(L).max(), 1e-300):
-                raise ValueError("motion prior information_matrix must be positive semi-definite")
+            L = checked_symmetric(
+                self.information_matrix, 6, "motion prior information_matrix", definite=False
+            )
             object.__setattr__(self, "information_matrix", 0.5 * (L + L.T))
         # (on, mean, information) for the kernels, computed once (the prior is immutable)
         if self.enabled:
