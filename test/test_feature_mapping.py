@@ -8,26 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
+from rs_localizer.evaluation.bench_feature_map import photo_walk
 from rs_localizer.frontends.features import FeatureFrontend, FeatureMap, make_detector
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.sim.render.motion import base_rotation, make_motion
+from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
 from rs_localizer.sim.render.scene import load_scene
 
 N_PHOTOS = 24
-
-
-def _walk(n: int) -> list:
-    """Camera -> world orientation and centre of ``n`` photos on a slow walk through the room."""
-    out = []
-    for s in np.linspace(0.0, 1.0, n):
-        pos = np.array(
-            [0.6 + 1.4 * s, 0.5 * np.sin(2 * np.pi * s), 1.45 + 0.05 * np.sin(4 * np.pi * s)]
-        )
-        yaw = np.deg2rad(35 * np.sin(3 * np.pi * s))
-        pitch = np.deg2rad(-12 + 6 * np.cos(2 * np.pi * s))
-        out.append((base_rotation(yaw, pitch), pos))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +34,7 @@ def colmap_map(tmp_path_factory):
     scene = load_scene("textured_room")
     camera = camera_preset("vga", line_delay=0.0)
     renderer = Renderer(scene, camera)
-    poses = _walk(N_PHOTOS)
+    poses = photo_walk(N_PHOTOS)
     for k, (R, p) in enumerate(poses):
         cv2.imwrite(str(photos / f"photo_{k:03d}.png"), renderer.render_pose(R, p)[:, :, ::-1])
     model = reconstruct(photos, camera, root / "work", progress=None)
@@ -153,7 +141,7 @@ def test_colmap_descriptors_converted_to_opencv_normalisation():
 
     img = load_scene("textured_room")
     cam = camera_preset("vga", line_delay=0.0)
-    gray = Renderer(img, cam).render_pose(*_walk(3)[1], mono=True)
+    gray = Renderer(img, cam).render_pose(*photo_walk(3)[1], mono=True)
     _, d = make_detector("sift", 500).detectAndCompute(gray, None)
     root = np.sqrt(d / d.sum(axis=1, keepdims=True))
     colmap = np.clip(np.round(512 * root), 0, 255).astype(np.uint8)
@@ -284,7 +272,7 @@ def test_flann_matcher_finds_the_same_landmarks_as_brute_force():
     """Approximate (FLANN) matching of an image against a map made of its own features: each
     feature finds its own landmark, as with brute force; ORB maps refuse FLANN."""
     gray = Renderer(load_scene("textured_room"), camera_preset("vga", line_delay=0.0)).render_pose(
-        *_walk(3)[1], mono=True
+        *photo_walk(3)[1], mono=True
     )
     kps, des = make_detector("sift", 1500).detectAndCompute(gray, None)
     uv = np.array([k.pt for k in kps])
