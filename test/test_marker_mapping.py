@@ -9,12 +9,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from rs_localizer.mapping.marker_ba import FrameDetections, MappingOptions, map_markers
+from rs_localizer.evaluation.bench_mapping import room_scene
+from rs_localizer.mapping.marker_ba import FrameDetections, map_markers
 from rs_localizer.sim.marker_room import (
-    RoomWalk,
-    make_marker_room,
     room_camera,
-    simulate_detections,
 )
 
 NUM_FRAMES = 90
@@ -22,18 +20,7 @@ NUM_FRAMES = 90
 
 @pytest.fixture(scope="module")
 def scene():
-    room = make_marker_room(28, seed=0, size=(4.5, 4.0, 2.6))
-    camera = room_camera(readout_time=0.03)
-    walk = RoomWalk(centre=(2.25, 2.0))
-    dets, truth = simulate_detections(room, camera, walk, num_frames=NUM_FRAMES, noise_px=0.4)
-    frames = [FrameDetections(s, d) for s, d in dets]
-    opts = MappingOptions(
-        marker_size=0.16,
-        marker_sizes={int(i): float(s) for i, s in zip(room.ids, room.sides, strict=True)},
-        anchor=0,
-        anchor_pose=(room.R[0], room.p[0]),
-    )
-    return room, camera, walk, frames, truth, opts
+    return room_scene(NUM_FRAMES)
 
 
 @pytest.fixture(scope="module")

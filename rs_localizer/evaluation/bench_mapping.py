@@ -30,7 +30,7 @@ from ..mapping.marker_ba import FrameDetections, MappingOptions, MarkerMapResult
 from ..sim.marker_room import RoomWalk, make_marker_room, room_camera, simulate_detections
 from .threads import one_thread
 
-__all__ = ["CHI2_3_3SIGMA", "main", "map_errors"]
+__all__ = ["CHI2_3_3SIGMA", "main", "map_errors", "room_scene"]
 
 #: chi-square quantile of 3 degrees of freedom at the 3-sigma probability (0.9973)
 CHI2_3_3SIGMA = 14.16
@@ -74,6 +74,32 @@ def map_errors(result: MarkerMapResult, true_corners: dict, true_centres: dict) 
     )
 
 
+def room_scene(num_frames: int, seed: int = 0, markers: int = 28) -> tuple:
+    """The benchmark's scene: a 4.5 x 4 x 2.6 m room with ``markers`` markers of mixed sizes, the
+    hand-held walk around its centre seen by a 640x480 camera with a 30 ms readout, and the
+    corner detections of ``num_frames`` frames (0.4 px noise; ``seed``: layout and noise).
+
+    Returns:
+        ``(room, camera, walk, frames, truth, options)``: the
+        :class:`~rs_localizer.sim.marker_room.MarkerRoom`, the camera model, the
+        :class:`~rs_localizer.sim.marker_room.RoomWalk`, the :class:`FrameDetections`, the
+        frames' true poses and velocities (:func:`simulate_detections`) and the
+        :class:`MappingOptions` with the true sizes and marker 0 as the anchor at its true pose.
+    """
+    room = make_marker_room(markers, seed=seed, size=(4.5, 4.0, 2.6))
+    camera = room_camera(readout_time=0.03)
+    walk = RoomWalk(centre=(2.25, 2.0))
+    dets, truth = simulate_detections(room, camera, walk, num_frames=num_frames, seed=seed)
+    frames = [FrameDetections(s, d) for s, d in dets]
+    options = MappingOptions(
+        marker_size=0.16,
+        marker_sizes={int(i): float(s) for i, s in zip(room.ids, room.sides, strict=True)},
+        anchor=0,
+        anchor_pose=(room.R[0], room.p[0]),
+    )
+    return room, camera, walk, frames, truth, options
+
+
 def main(argv: list | None = None) -> int:
     """Run the benchmark and print its table; returns 0."""
     p = argparse.ArgumentParser(
@@ -85,17 +111,7 @@ def main(argv: list | None = None) -> int:
     p.add_argument("--markers", type=int, default=28, help="markers in the room")
     p.add_argument("--seed", type=int, default=0, help="layout and noise seed")
     args = p.parse_args(argv)
-    room = make_marker_room(args.markers, seed=args.seed, size=(4.5, 4.0, 2.6))
-    camera = room_camera(readout_time=0.03)
-    walk = RoomWalk(centre=(2.25, 2.0))
-    dets, _ = simulate_detections(room, camera, walk, num_frames=args.frames, seed=args.seed)
-    frames = [FrameDetections(s, d) for s, d in dets]
-    opts = MappingOptions(
-        marker_size=0.16,
-        marker_sizes={int(i): float(s) for i, s in zip(room.ids, room.sides, strict=True)},
-        anchor=0,
-        anchor_pose=(room.R[0], room.p[0]),
-    )
+    room, camera, walk, frames, _, opts = room_scene(args.frames, args.seed, args.markers)
     true_corners = room.corners()
     true_centres = {int(i): room.p[i] for i in room.ids}
     runs = [
@@ -107,7 +123,7 @@ def main(argv: list | None = None) -> int:
             replace(opts, calibrate_readout=True),
         ),
     ]
-    n_det = sum(len(d) for _, d in dets)
+    n_det = sum(len(f.corners) for f in frames)
     print(
         f"{args.frames} frames, {args.markers} markers ({n_det} detections, "
         f"{walk.max_angular_rate():.1f} rad/s max), 30 ms readout, 0.4 px noise; errors in mm; "
