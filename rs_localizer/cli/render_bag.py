@@ -355,8 +355,10 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
     return p
 
 
-def run_from_args(a, stream=sys.stderr) -> int:
-    """Run :func:`render_bag` from parsed :func:`add_arguments` options."""
+def run_from_args(a, stream=None) -> int:
+    """Run :func:`render_bag` from parsed :func:`add_arguments` options; progress goes to
+    ``stream`` (default: the ``sys.stderr`` of the call)."""
+    stream = stream or sys.stderr
 
     def prog(k, n, nc):
         stream.write(f"\rframe {k + 1}/{n}: {nc} correspondences")
