@@ -90,6 +90,7 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
         raise ValueError("--align-markers needs the photos: --images DIR")
     out = _output_path(args.out, args.overwrite)
     from ..mapping import colmap
+    from ..mapping.outputs import camera_from_yaml
 
     try:
         colmap.import_pycolmap()
@@ -99,7 +100,7 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
         if args.colmap:
             model, database = Path(args.colmap), args.database
         else:
-            camera = colmap.load_camera_yaml(args.camera_yaml)
+            camera = camera_from_yaml(args.camera_yaml)  # (global shutter: still photos)
             work = Path(args.workdir) if args.workdir else Path(tmp)
             model = colmap.reconstruct(
                 args.images, camera, work, progress=sys.stderr, matching=args.matching

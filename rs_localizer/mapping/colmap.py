@@ -45,7 +45,6 @@ __all__ = [
     "colmap_camera",
     "feature_map_from_colmap",
     "import_pycolmap",
-    "load_camera_yaml",
     "opencv_sift_from_colmap",
     "read_model",
     "reconstruct",
@@ -76,34 +75,6 @@ def _quiet(pycolmap: Any) -> Iterator[None]:
         yield
     finally:
         pycolmap.logging.minloglevel = level
-
-
-def load_camera_yaml(path: str | Path) -> CameraModel:
-    """A camera from a ROS ``camera_info`` calibration YAML (``image_width``, ``image_height``,
-    ``camera_matrix``, ``distortion_model``, ``distortion_coefficients``; as written by
-    ``camera_calibration``). Global shutter (the photos of a map are still images).
-
-    Raises:
-        FileNotFoundError: no such file. ValueError: not a calibration YAML, or an invalid
-        camera (:class:`~rs_localizer.camera.CameraModel`).
-    """
-    import yaml
-
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{p}: no such camera file")
-    data = yaml.safe_load(p.read_text())
-    try:
-        K = np.asarray(data["camera_matrix"]["data"], dtype=float).reshape(3, 3)
-        width, height = int(data["image_width"]), int(data["image_height"])
-        D = np.asarray((data.get("distortion_coefficients") or {}).get("data", []), dtype=float)
-        model = str(data.get("distortion_model", "plumb_bob"))
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(
-            f"{p}: not a camera calibration YAML (needs image_width, image_height, "
-            f"camera_matrix.data): {e}"
-        ) from None
-    return CameraModel(K=K, D=D, width=width, height=height, distortion_model=model)
 
 
 def colmap_camera(camera: CameraModel) -> Any:

@@ -33,11 +33,13 @@ def camera_from_yaml(path: str | Path, line_delay: float = 0.0) -> CameraModel:
     ``height``, ``k``, ``d``, ``distortion_model``).
 
     Args:
-        path: the YAML file. line_delay: seconds between lines (the file has no RS timing).
+        path: the YAML file. line_delay: seconds between lines (the file has no RS timing;
+            0: global shutter).
     Returns:
         :class:`CameraModel` (top-to-bottom readout, reference line: the image centre).
     Raises:
-        FileNotFoundError: no such file. ValueError: neither format, or an invalid camera.
+        FileNotFoundError: no such file. ValueError: neither format (or a malformed entry), or
+        an invalid camera.
     """
     import yaml
 
@@ -47,23 +49,29 @@ def camera_from_yaml(path: str | Path, line_delay: float = 0.0) -> CameraModel:
     d = yaml.safe_load(p.read_text())
     if not isinstance(d, dict):
         raise ValueError(f"{p}: not a camera YAML")
-    if "camera_matrix" in d:
-        K = d["camera_matrix"]["data"]
-        D = (d.get("distortion_coefficients") or {}).get("data", [])
-        w, h = d.get("image_width"), d.get("image_height")
-    elif "k" in d or "K" in d:
-        K = d.get("k", d.get("K"))
-        D = d.get("d", d.get("D", []))
-        w, h = d.get("width"), d.get("height")
-    else:
-        raise ValueError(f"{p}: no camera_matrix (calibration YAML) or k (CameraInfo YAML)")
-    if w is None or h is None:
-        raise ValueError(f"{p}: image size missing")
+    try:
+        if "camera_matrix" in d:
+            K = d["camera_matrix"]["data"]
+            D = (d.get("distortion_coefficients") or {}).get("data", [])
+            w, h = d.get("image_width"), d.get("image_height")
+        elif "k" in d or "K" in d:
+            K = d.get("k", d.get("K"))
+            D = d.get("d", d.get("D", []))
+            w, h = d.get("width"), d.get("height")
+        else:
+            raise ValueError("no camera_matrix (calibration YAML) or k (CameraInfo YAML)")
+        if w is None or h is None:
+            raise ValueError("image size missing")
+        K = np.asarray(K, dtype=float).reshape(3, 3)
+        D = np.asarray(D, dtype=float)
+        w, h = int(w), int(h)
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{p}: not a camera YAML: {e}") from None
     return CameraModel(
-        K=np.asarray(K, dtype=float).reshape(3, 3),
-        D=np.asarray(D, dtype=float),
-        width=int(w),
-        height=int(h),
+        K=K,
+        D=D,
+        width=w,
+        height=h,
         line_delay=float(line_delay),
         distortion_model=str(d.get("distortion_model") or "plumb_bob"),
     )
