@@ -298,8 +298,10 @@ class ImuBuffer:
             if self._first is None:
                 self._first = stamp_ns
             cut = stamp_ns - self.span_ns
-            if self._t[0] < cut:
-                k = int(np.searchsorted(np.asarray(self._t), cut))
+            k = 0  # (samples come in order: the old ones are a short prefix)
+            while self._t[k] < cut:
+                k += 1
+            if k:
                 del self._t[:k], self._w[:k]
             self._cond.notify_all()
         return None
