@@ -29,7 +29,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation import estimate_rs_pose
-from ..estimation.gyro import GyroMeasurement, ImuBuffer
+from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.points import cap_points
 from ..estimation.tracker import RSTracker
 from ..frames import camera_to_base
@@ -412,8 +412,8 @@ class FramePipeline:
         imu, buf = cfg.imu, self.imu
         if imu is None or buf is None or camera.line_delay <= 0:
             return None
-        first = stamp - int(round(float(camera.line_time(cfg.stamp_row)) * 1e9))
-        last = first + int(round(camera.line_delay * (camera.lines - 1) * 1e9))
+        a, b = readout_window(camera, 0.0, cfg.stamp_row)  # (s from the stamp)
+        first, last = stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9))
         off = int(round(imu.time_offset * 1e9))
         buf.wait_until(last - off, imu.wait, self._stopped)
         gyro, reason = buf.measurement(
