@@ -30,7 +30,8 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.sparse import csr_matrix, diags, lil_matrix
+from scipy.sparse.linalg import splu
 
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
@@ -333,6 +334,9 @@ class _Init:
             f_scale=5.0,
             x_scale="jac",
             max_nfev=30,
+            # (a loose tolerance: this only keeps the initialization from drifting)
+            ftol=1e-4,
+            xtol=1e-4,
         )
         Rf, Cf, _, _, Rm, pm, _ = prob.unpack(sol.x)
         self.frames = {k: (Rf[i], Cf[i]) for i, k in enumerate(frames)}
@@ -631,6 +635,34 @@ class _Problem:
         return np.sqrt(np.mean(e**2, axis=1))
 
 
+def _marker_covariance(jac, n_rep: int, sigma: float, prob: _Problem) -> np.ndarray:
+    """Covariance (6 M, 6 M) of the adjusted markers' parameters (rotation vector, centre; M =
+    ``prob.nm``) at the solution: the markers' block of ``(J^T J)^-1`` with the first ``n_rep``
+    rows of ``jac`` (the reprojections) scaled by ``1 / sigma``, the other parameters (frames,
+    line delay) marginalized by the Schur complement with a sparse LU factorization of their
+    block (SciPy ``splu``); where that block is singular, the dense pseudo-inverse of the
+    whole ``J^T J``."""
+    J = csr_matrix(jac)
+    scale = np.ones(J.shape[0])
+    scale[:n_rep] = 1.0 / max(sigma, 1e-12)
+    J = diags(scale) @ J
+    H = (J.T @ J).tocsc()
+    m0, m1 = prob.moff, prob.moff + 6 * prob.nm
+    other = np.r_[np.arange(m0), np.arange(m1, H.shape[0])]
+    Hmm = H[m0:m1, m0:m1].toarray()
+    Hoo = H[other][:, other].tocsc()
+    Hom = H[other][:, m0:m1].toarray()
+    try:
+        with np.errstate(all="raise"):
+            X = splu(Hoo).solve(Hom)
+        if not np.isfinite(X).all():
+            raise FloatingPointError
+    except (RuntimeError, FloatingPointError):
+        full = np.linalg.pinv(H.toarray(), rcond=1e-12, hermitian=True)
+        return full[m0:m1, m0:m1]
+    return np.linalg.pinv(Hmm - Hom.T @ X, rcond=1e-12, hermitian=True)
+
+
 def _two_places(suspects: dict, Rf, Cf, fr_ids, obs_n, options) -> dict:
     """Ids whose two groups of views place them more than max(0.5 m, 3 sides) apart with the
     adjusted frames (world -> camera ``Rf``, ``Cf``): id -> [place, place], each the median of
@@ -806,10 +838,7 @@ def map_markers(
     n_rep = e.size
     dof = max(n_rep - prob.n, 1)
     sigma = float(np.sqrt(np.sum(e**2) / dof))
-    J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    J[:n_rep] /= max(sigma, 1e-12)
-    H = J.T @ J
-    cov = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+    cov_markers = _marker_covariance(sol.jac, n_rep, sigma, prob)
     timings["covariance"] = time.perf_counter() - t0
 
     corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
@@ -826,9 +855,7 @@ def map_markers(
             continue
         corners[m] = marker_corners_local(options.side(m)) @ Rm[i].T + pm[i]
         poses[m] = (Rm[i], pm[i])
-        c = cov[
-            prob.moff + 6 * i : prob.moff + 6 * i + 6, prob.moff + 6 * i : prob.moff + 6 * i + 6
-        ]
+        c = cov_markers[6 * i : 6 * i + 6, 6 * i : 6 * i + 6]
         mcov[m] = c
         mstd[m] = np.sqrt(np.clip(np.diag(c), 0.0, None))
         nobs[m] = used.get(m, 0)

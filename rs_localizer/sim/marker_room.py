@@ -4,8 +4,11 @@ truth, as detections (no images): data for the marker mapper's tests and benchma
 The room is 6 x 5 x 3 m by default (world z up, origin in a floor corner); markers of mixed
 sizes hang on the four walls at irregular positions, heights and in-plane angles, some tilted
 out of the wall, one lies on the floor. The camera walks a circle in the middle of the room,
-turns once around and looks up and down (angular speed up to ~2 rad/s). Every corner is
-projected with the camera pose at the capture time of its own line, through the lens distortion
+turns once around and looks up and down (angular speed up to ~2 rad/s) (:class:`RoomWalk`);
+a mapping video may open in front of the anchor marker, looking at it from several directions
+(:class:`AnchorSweep`); a robot driving a loop at 0.4 m height gives a second video through
+the same room (:class:`RobotDrive`). Every corner is projected with the camera pose at the
+capture time of its own line, through the lens distortion
 (:func:`rs_localizer.sim.trajectory.project_rs`), then Gaussian pixel noise is added.
 """
 
@@ -19,7 +22,15 @@ from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from .trajectory import R_FORWARD, project_rs
 
-__all__ = ["MarkerRoom", "RoomWalk", "make_marker_room", "room_camera", "simulate_detections"]
+__all__ = [
+    "AnchorSweep",
+    "MarkerRoom",
+    "RobotDrive",
+    "RoomWalk",
+    "make_marker_room",
+    "room_camera",
+    "simulate_detections",
+]
 
 SIZES = (0.12, 0.16, 0.2, 0.3)
 
@@ -169,6 +180,85 @@ class RoomWalk:
         dt = t[1] - t[0]
         w = matrix_to_rotvec(np.swapaxes(R[:-1], 1, 2) @ R[1:]) / dt
         return float(np.max(np.linalg.norm(w, axis=1)))
+
+
+@dataclass(frozen=True)
+class RobotDrive(RoomWalk):
+    """A robot driving one loop of an ellipse (semi-axes ``radii``, m) around ``centre`` in
+    ``duration`` seconds with the camera at ``height`` m, looking along its heading turned
+    ``look`` rad outwards (towards the walls) and tilted up by ``tilt`` rad, with a small yaw
+    wobble: a second trajectory through the same room, lower and steadier than the hand-held
+    walk. Same interface as :class:`RoomWalk`."""
+
+    duration: float = 10.0
+    radii: tuple = (1.2, 1.0)
+    height: float = 0.4
+    look: float = -0.6
+    tilt: float = 0.2
+    yaw_wobble: float = 0.05
+    yaw_wobble_hz: float = 0.7
+
+    def position(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        a = 2 * np.pi * t / self.duration
+        return np.stack(
+            [
+                self.centre[0] + self.radii[0] * np.cos(a),
+                self.centre[1] + self.radii[1] * np.sin(a),
+                np.full_like(t, self.height),
+            ],
+            axis=-1,
+        )
+
+    def orientation(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        a = 2 * np.pi * t / self.duration
+        heading = np.arctan2(self.radii[1] * np.cos(a), -self.radii[0] * np.sin(a))
+        yaw = heading + self.look + self.yaw_wobble * np.sin(2 * np.pi * self.yaw_wobble_hz * t)
+        z = np.zeros_like(t)
+        Rz = rotvec_to_matrix(np.stack([z, z, yaw], axis=-1))
+        Ry = rotvec_to_matrix(np.stack([z, np.full_like(t, -self.tilt), z], axis=-1))
+        return Rz @ Ry @ R_FORWARD
+
+
+@dataclass(frozen=True)
+class AnchorSweep:
+    """The camera in front of a marker (``target``: its centre, ``normal``: its face normal,
+    world frame), ``distance`` m away, swaying ``lateral`` m left and right (and 0.25 m up and
+    down) once in ``duration`` seconds while looking at the marker's centre: how a user opens a
+    mapping video, so that the anchor is seen from several directions (views at an angle fix
+    its tilt, which sets the orientation of the whole map). Same interface as
+    :class:`RoomWalk`."""
+
+    target: tuple
+    normal: tuple
+    distance: float = 1.0
+    lateral: float = 0.7
+    duration: float = 2.0
+
+    def position(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        a = 2 * np.pi * t / self.duration
+        n = np.asarray(self.normal, dtype=float)
+        up = np.array([0.0, 0.0, 1.0])
+        side = np.cross(up, n)
+        side /= np.linalg.norm(side)
+        return (
+            np.asarray(self.target, dtype=float)
+            + n * self.distance
+            + np.sin(a)[..., None] * side * self.lateral
+            + (0.25 * np.sin(2 * a))[..., None] * up
+        )
+
+    def orientation(self, t) -> np.ndarray:
+        z = np.asarray(self.target, dtype=float) - self.position(t)
+        z /= np.linalg.norm(z, axis=-1, keepdims=True)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x, axis=-1, keepdims=True)
+        return np.stack([x, np.cross(z, x), z], axis=-1)
+
+    def pose(self, t):
+        return self.orientation(t), self.position(t)
 
 
 def simulate_detections(
