@@ -190,7 +190,8 @@ class GyroBiasEstimator:
 
     Args:
         bias: (3,) the initial bias (rad/s, IMU frame).
-        sigma: its standard deviation per axis (rad/s), > 0.
+        sigma: its standard deviation per axis (rad/s), >= 0 (0: known exactly; the random
+            walk still lets it drift).
         R_cam_imu: (3, 3) rotation IMU -> camera optical frame.
         noise: standard deviation of one gyro sample (rad/s), > 0.
         time_offset: s added to the IMU stamps to put them on the camera clock.
@@ -203,7 +204,7 @@ class GyroBiasEstimator:
         last_nis: the normalized innovation squared of the last pair tested (NaN before).
 
     Raises:
-        ValueError: shapes, non-finite values, ``sigma <= 0`` or ``noise <= 0``.
+        ValueError: shapes, non-finite values, ``sigma < 0`` or ``noise <= 0``.
 
     Not thread-safe: one thread updates it (the node's worker), others may read ``bias`` and
     ``covariance`` (replaced, never changed in place).
@@ -224,8 +225,8 @@ class GyroBiasEstimator:
             raise ValueError(f"bias must be 3 finite numbers (rad/s), got {b.tolist()}")
         if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
             raise ValueError("R_cam_imu must be a (3, 3) rotation")
-        if not (np.isfinite(sigma) and sigma > 0 and np.isfinite(noise) and noise > 0):
-            raise ValueError(f"sigma and noise must be > 0, got {sigma}, {noise}")
+        if not (np.isfinite(sigma) and sigma >= 0 and np.isfinite(noise) and noise > 0):
+            raise ValueError(f"need sigma >= 0 and noise > 0, got {sigma}, {noise}")
         if not np.isfinite(time_offset):
             raise ValueError(f"time_offset must be finite, got {time_offset}")
         self.options = options or GyroBiasOptions()
