@@ -179,14 +179,15 @@ def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bi
     """Track ``frames`` with the gyro of ``imu`` (None: no gyro) and, with ``estimate_bias``,
     the bias estimated online. Returns per-frame pose errors (rotation deg, position m), the
     fused twist errors (angular rad/s, linear m/s), the bias error (rad/s, the largest over
-    the three axes) after each frame with its time, and the estimator's counts."""
+    the three axes) after each frame with its time, the estimator's counts and the mean
+    normalized innovation squared of the pairs it tested (3 for a consistent covariance)."""
     opts = EstimateOptions(ransac=RansacOptions(seed=0))
     tracker = RSTracker(options=opts)
     bias = GyroBiasEstimator(np.full(3, VIDEO_PRIOR[0]), VIDEO_PRIOR[1], R_IMU_CAMERA.T, NOISE)
     truth = {f.t_ref_ns: f for f in frames}
     lead = int(round(cam.line_time(cam.reference_line) * 1e9))
     span = int(round(cam.line_delay * (cam.lines - 1) * 1e9))
-    pose, finals, bias_err = [], [], []
+    pose, finals, bias_err, nis = [], [], [], []
     for f in frames:
         g = None
         if imu is not None:
@@ -205,7 +206,9 @@ def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bi
                 )
             )
             if imu is not None and estimate_bias:
-                bias.update(f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu)
+                out = bias.update(f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu)
+                if out in ("used", "rejected"):
+                    nis.append(bias.last_nis)
         t = (f.t_ref_ns - frames[0].t_ref_ns) * 1e-9
         bias_err.append((t, float(np.abs(bias.bias - true_bias).max())))
     finals += tracker.flush()
@@ -222,6 +225,7 @@ def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bi
         bias=np.array(bias_err),
         counts=dict(bias.counts),
         std=bias.std,
+        nis=float(np.mean(nis)) if nis else float("nan"),
         frames=len(frames),
     )
 
@@ -249,7 +253,7 @@ def print_video(rows: dict, motion: str, seconds: float) -> None:
     print(
         f"{'':28s} "
         + " ".join(f"{t:>6g} s" for t in BIAS_TIMES)
-        + "   pairs used/rejected, final std (rad/s)"
+        + "   pairs used/rejected, final std (rad/s), mean NIS (3 dof)"
     )
     for name, r in rows.items():
         if name == "no gyro":
@@ -264,7 +268,7 @@ def print_video(rows: dict, motion: str, seconds: float) -> None:
         print(
             f"{name:28s} "
             + " ".join(f"{e:8.4f}" for e in errs)
-            + f"   {c['used']}/{c['rejected']}, {r['std'].max():.4f}"
+            + f"   {c['used']}/{c['rejected']}, {r['std'].max():.4f}, {r['nis']:.1f}"
         )
     med = {
         k: (np.median(r["pose"], axis=0), np.median(r["twist"], axis=0)) for k, r in rows.items()
