@@ -89,6 +89,27 @@ def test_replay_estimates_the_gyro_bias(imu_bag):
     assert base.gyro_bias is None
 
 
+def test_a_new_bias_parameter_restarts_the_estimate():
+    """The estimate survives a change of other parameters; a new imu.gyro_bias (a new
+    calibration) starts it again from the parameters; imu.estimate_bias false drops it."""
+    from rs_localizer.ros.params import build_config, default_values
+    from rs_localizer.ros.pipeline import FramePipeline
+
+    values = {**default_values(), **GYRO}
+    pipe = FramePipeline(build_config(values))
+    est = pipe.gyro_bias
+    est.bias = np.array([0.3, 0.2, 0.1])  # (as if estimated)
+    pipe.configure(build_config({**values, "ransac.threshold_px": 3.0}))
+    assert pipe.gyro_bias is est
+    np.testing.assert_array_equal(pipe.gyro_bias_values()[0], [0.3, 0.2, 0.1])
+    pipe.configure(build_config({**values, "imu.gyro_bias": [0.0, 0.0, 0.01]}))
+    np.testing.assert_array_equal(pipe.gyro_bias_values()[0], [0.0, 0.0, 0.01])
+    np.testing.assert_allclose(pipe.gyro_bias_values()[1], np.full(3, 0.005))
+    pipe.configure(build_config({**values, "imu.estimate_bias": False}))
+    assert pipe.gyro_bias is None
+    np.testing.assert_array_equal(pipe.gyro_bias_values()[0], BIAS)
+
+
 def test_pipeline_counts_rejected_imu_messages():
     from types import SimpleNamespace
 
