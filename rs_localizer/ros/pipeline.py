@@ -8,7 +8,9 @@ resets, the camera model of the frame's stamp (:class:`.camera_info_history.Came
 fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
 front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the gyro
 measurement of the frame's readout when ``imu.enabled`` (:class:`~rs_localizer.estimation.gyro.
-ImuBuffer`, fed by :meth:`FramePipeline.add_imu`), the estimate
+ImuBuffer`, fed by :meth:`FramePipeline.add_imu`; with ``imu.estimate_bias`` the gyro bias
+estimated online from the solved frames,
+:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`), the estimate
 (:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
 :func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
 the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
