@@ -266,6 +266,16 @@ def _replay(args) -> int:
             f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
             file=text,
         )
+        if res.gyro_bias is not None:
+            how = "estimated" if res.config.imu.estimate_bias else "imu.gyro_bias"
+            print(
+                f"gyro bias ({how}, rad/s, IMU frame): "
+                + " ".join(f"{b:.5f}" for b in res.gyro_bias)
+                + " +- "
+                + " ".join(f"{b:.5f}" for b in res.gyro_bias_std)
+                + f" ({c.get('gyro_bias_rejected', 0)} pairs of frames rejected)",
+                file=text,
+            )
     if res.summary.get("frames"):
         print(format_summary(solver, res.summary, n), file=text)
     if res.out_bag:

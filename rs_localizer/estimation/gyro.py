@@ -96,6 +96,7 @@ def gyro_measurement(
     noise: float = 0.003,
     bias_sigma: float = 0.0,
     time_offset: float = 0.0,
+    bias_covariance: ArrayLike | None = None,
 ) -> GyroMeasurement:
     """The angular velocity the rolling-shutter model sees during a readout, from gyro samples.
 
@@ -108,8 +109,8 @@ def gyro_measurement(
     linearly interpolated (the weighted integral is then exact by Simpson's rule); for a
     zero-length window (a global-shutter camera) the measurement is the rate at that instant.
     It is rotated into the camera optical frame after subtracting the bias. The covariance is
-    ``noise^2 sum(c_i^2) I + bias_sigma^2 I`` with ``c`` the samples' weights in the
-    measurement (independent sample noise averages down; the bias does not).
+    ``noise^2 sum(c_i^2) I + bias_sigma^2 I + R bias_covariance R^T`` with ``c`` the samples'
+    weights in the measurement (independent sample noise averages down; the bias does not).
 
     Args:
         stamps: (M,) IMU sample times (s, IMU clock), strictly increasing, M >= 2.
@@ -121,12 +122,16 @@ def gyro_measurement(
         noise: standard deviation of one sample (rad/s), > 0.
         bias_sigma: standard deviation of the bias error per axis (rad/s), >= 0.
         time_offset: added to the IMU stamps to put them on the camera clock (s).
+        bias_covariance: (3, 3) covariance of the bias error (rad^2/s^2, IMU frame; e.g. of an
+            online estimate, :class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`),
+            added to ``bias_sigma^2 I`` (default none).
     Returns:
         :class:`GyroMeasurement`.
     Raises:
         ValueError: shapes, non-finite values, stamps not strictly increasing, ``noise <= 0``,
-            ``bias_sigma < 0``, a window with ``t_last < t_first``, or samples that do not
-            cover the window.
+            ``bias_sigma < 0``, a window with ``t_last < t_first``, samples that do not
+            cover the window, or a ``bias_covariance`` that is not (3, 3) symmetric positive
+            semi-definite.
     """
     t = np.asarray(stamps, dtype=float).reshape(-1) + float(time_offset)
     om = np.asarray(rates, dtype=float)
@@ -152,6 +157,8 @@ def gyro_measurement(
         rate = rate - np.asarray(bias, dtype=float).reshape(3)
     R = np.eye(3) if R_cam_imu is None else np.asarray(R_cam_imu, dtype=float).reshape(3, 3)
     cov = (noise**2 * float(c @ c) + bias_sigma**2) * np.eye(3)
+    if bias_covariance is not None:
+        cov = cov + checked_symmetric(bias_covariance, 3, "gyro bias covariance", definite=False)
     return GyroMeasurement(R @ rate, R @ cov @ R.T)
 
 
@@ -340,28 +347,50 @@ class ImuBuffer:
         noise: float,
         bias_sigma: float,
         time_offset: float = 0.0,
+        bias_covariance: np.ndarray | None = None,
     ) -> tuple[GyroMeasurement | None, str]:
         """The gyro measurement of a readout ``window_ns`` (first and last line, camera
         clock, ns) from the buffered samples (:func:`gyro_measurement`; ``time_offset`` s is
-        added to the IMU stamps). Returns ``(measurement, "")`` or ``(None, reason)``
+        added to the IMU stamps; ``bias_covariance`` (3, 3) rad^2/s^2, IMU frame, is added to
+        the bias uncertainty). Returns ``(measurement, "")`` or ``(None, reason)``
         with a reason of :data:`GYRO_MISSING_REASONS`: no samples, samples that do not
         cover the window, or samples in or around it further apart than ``max_gap``."""
+        ts, ws, span, reason = self.interval(window_ns, time_offset)
+        if ts is None:
+            return None, reason
+        g = gyro_measurement(
+            ts, ws, (0.0, span), R_cam_imu, bias, noise, bias_sigma, 0.0, bias_covariance
+        )
+        return g, ""
+
+    def interval(
+        self, window_ns: tuple[int, int], time_offset: float = 0.0
+    ) -> tuple[np.ndarray | None, np.ndarray | None, float, str]:
+        """The buffered samples around the interval ``window_ns`` (start and end, camera
+        clock, ns; ``time_offset`` s is added to the IMU stamps).
+
+        Returns:
+            ``(t, rates, span, "")``: ``t`` (M,) the sample times in s relative to the
+            interval's start (the first at or before 0, the last at or after ``span``),
+            ``rates`` (M, 3) rad/s in the IMU frame, ``span`` the interval's length (s); or
+            ``(None, None, span, reason)`` with a reason of :data:`GYRO_MISSING_REASONS`
+            (no samples, samples that do not cover the interval, samples further apart than
+            ``max_gap``).
+        """
         off = int(round(time_offset * 1e9))
         a, b = int(window_ns[0]) - off, int(window_ns[1]) - off  # in the IMU clock
+        span = (b - a) * 1e-9
         with self._cond:
             if len(self._t) < 2:
-                return None, "no_samples"
+                return None, None, span, "no_samples"
             if a < self._t[0] or b > self._t[-1]:
-                return None, "not_covered"
+                return None, None, span, "not_covered"
             t = np.asarray(self._t, dtype=np.int64)
             i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
             i1 = min(int(np.searchsorted(t, b, side="left")), len(t) - 1)
             ts = t[i0 : i1 + 1]
             ws = np.asarray(self._w[i0 : i1 + 1], dtype=float)
         if len(ts) < 2 or np.diff(ts).max() > self.max_gap_ns:
-            return None, "sparse"
-        # (times relative to the window start: seconds with full precision)
-        g = gyro_measurement(
-            (ts - a) * 1e-9, ws, (0.0, (b - a) * 1e-9), R_cam_imu, bias, noise, bias_sigma
-        )
-        return g, ""
+            return None, None, span, "sparse"
+        # (times relative to the interval start: seconds with full precision)
+        return (ts - a) * 1e-9, ws, span, ""

@@ -32,6 +32,7 @@ def diagnostic_status(
     latencies: Sequence[float],
     stamp_ages: Sequence[float],
     imu_rate_hz: float | None = None,
+    gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
@@ -43,9 +44,12 @@ def diagnostic_status(
     published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
     stage times, front-end values (with a front end), gyro values (with ``imu.enabled``:
     ``imu_rate_hz`` the buffered samples' rate, frames solved with the gyro, frames whose
-    gyro the image contradicted, frames without gyro samples, IMU samples rejected, the
-    ``imu.gyro_bias`` used), then ``failed.<reason>``, ``camera_info_rejected.<reason>``,
-    ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` counts.
+    gyro the image contradicted, frames without gyro samples, IMU samples rejected, the gyro
+    bias used and its standard deviation: ``gyro_bias`` = (bias (3,), std (3,)) rad/s, IMU
+    frame, the online estimate with ``imu.estimate_bias``, default ``imu.gyro_bias`` and
+    ``imu.gyro_bias_sigma``; pairs of frames the bias estimator rejected), then
+    ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>`` and
+    ``imu_rejected.<reason>`` counts.
     """
     c = stats.counts
     lat, age = _ms(latencies), _ms(stamp_ages)
@@ -110,6 +114,7 @@ def diagnostic_status(
             }
         )
     if cfg.imu is not None:
+        bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
         values.update(
             {
                 "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
@@ -117,7 +122,9 @@ def diagnostic_status(
                 "gyro_rejected": c.get("gyro_rejected", 0),
                 "gyro_missing": c.get("gyro_missing", 0),
                 "imu_rejected": c.get("imu_rejected", 0),
-                "gyro_bias": " ".join(f"{b:.5f}" for b in cfg.imu.gyro_bias),
+                "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
+                "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
+                "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
             }
         )
     values.update({f"failed.{k}": v for k, v in failed.items()})

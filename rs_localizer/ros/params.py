@@ -345,8 +345,23 @@ PARAMETERS = {
     ),
     "imu.gyro_bias_sigma": (
         0.005,
-        "uncertainty of imu.gyro_bias per axis (rad/s); it does not average down",
+        "uncertainty of imu.gyro_bias per axis (rad/s); with imu.estimate_bias the initial "
+        "uncertainty of the estimate, else fixed (it does not average down)",
         FloatRange(from_value=0.0, to_value=10.0),
+        False,
+    ),
+    "imu.estimate_bias": (
+        True,
+        "estimate the gyro bias online from the rotation between consecutive solved frames, "
+        "starting from imu.gyro_bias with imu.gyro_bias_sigma; the frames' gyro uses the "
+        "estimate and its uncertainty",
+        None,
+        True,
+    ),
+    "imu.bias_random_walk": (
+        1e-4,
+        "rad/s per sqrt(s): how fast the estimated gyro bias may drift (imu.estimate_bias)",
+        FloatRange(from_value=0.0, to_value=1.0),
         False,
     ),
     "imu.wait": (
@@ -637,6 +652,8 @@ class ImuConfig:
     Attributes:
         R_cam_imu: (3, 3) rotation IMU -> camera optical frame. time_offset: s added to the
             IMU stamps. gyro_noise, gyro_bias_sigma: rad/s. gyro_bias: (3,) rad/s, IMU frame.
+        estimate_bias: estimate the bias online (initial value ``gyro_bias``, standard
+            deviation ``gyro_bias_sigma``). bias_random_walk: rad/s per sqrt(s).
         wait: s a frame waits for its samples. buffer: s kept. max_rate: rad/s saturation.
         max_gap: s between samples beyond which a readout is ``sparse``.
     """
@@ -650,6 +667,8 @@ class ImuConfig:
     buffer: float
     max_rate: float
     max_gap: float
+    estimate_bias: bool = False
+    bias_random_walk: float = 1e-4
 
 
 def imu_config(values: Mapping[str, Any]) -> ImuConfig | None:
@@ -675,6 +694,8 @@ def imu_config(values: Mapping[str, Any]) -> ImuConfig | None:
         buffer=float(values["imu.buffer"]),
         max_rate=float(values["imu.max_rate"]),
         max_gap=float(values["imu.max_gap"]),
+        estimate_bias=bool(values["imu.estimate_bias"]),
+        bias_random_walk=float(values["imu.bias_random_walk"]),
     )
 
 

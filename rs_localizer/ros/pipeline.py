@@ -8,7 +8,9 @@ resets, the camera model of the frame's stamp (:class:`.camera_info_history.Came
 fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
 front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the gyro
 measurement of the frame's readout when ``imu.enabled`` (:class:`~rs_localizer.estimation.gyro.
-ImuBuffer`, fed by :meth:`FramePipeline.add_imu`), the estimate
+ImuBuffer`, fed by :meth:`FramePipeline.add_imu`; with ``imu.estimate_bias`` the gyro bias
+estimated online from the solved frames,
+:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`), the estimate
 (:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
 :func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
 the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
@@ -30,6 +32,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..estimation import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
+from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from ..estimation.points import cap_points
 from ..estimation.tracker import RSTracker
 from ..frames import camera_to_base
@@ -308,6 +311,9 @@ class FramePipeline:
         # the gyro samples (imu.enabled); imu_span overrides imu.buffer (replay: all of a bag)
         self.imu: ImuBuffer | None = None
         self._imu_span = imu_span
+        # the online gyro-bias estimate (imu.estimate_bias) and the parameters it started from
+        self.gyro_bias: GyroBiasEstimator | None = None
+        self._bias_key = None
         if config is not None:
             self.configure(config)
 
@@ -333,8 +339,47 @@ class FramePipeline:
             if old is not None:  # (keep the samples received so far)
                 for t, w in old.samples():
                     self.imu.add(t, w)
+        self._configure_bias(imu)
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
+
+    def _configure_bias(self, imu) -> None:
+        """The online bias estimator of ``imu.estimate_bias``: kept while the ``imu.*`` values
+        it depends on stay the same, else started again from ``imu.gyro_bias`` with
+        ``imu.gyro_bias_sigma`` (a new calibration given at run time replaces the estimate)."""
+        if imu is None or not imu.estimate_bias:
+            self.gyro_bias = self._bias_key = None
+            return
+        key = (
+            tuple(np.round(imu.R_cam_imu, 12).ravel()),
+            imu.time_offset,
+            imu.gyro_noise,
+            tuple(imu.gyro_bias),
+            imu.gyro_bias_sigma,
+            imu.bias_random_walk,
+        )
+        if self.gyro_bias is None or key != self._bias_key:
+            self.gyro_bias = GyroBiasEstimator(
+                imu.gyro_bias,
+                imu.gyro_bias_sigma,
+                imu.R_cam_imu,
+                imu.gyro_noise,
+                imu.time_offset,
+                GyroBiasOptions(random_walk=imu.bias_random_walk),
+            )
+            self._bias_key = key
+
+    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
+        IMU frame): the online estimate with ``imu.estimate_bias``, else ``imu.gyro_bias``
+        and ``imu.gyro_bias_sigma``; None without ``imu.enabled``."""
+        cfg = self._config
+        if cfg is None or cfg.imu is None:
+            return None
+        est = self.gyro_bias
+        if est is not None:
+            return est.bias.copy(), est.std
+        return np.array(cfg.imu.gyro_bias, dtype=float), np.full(3, cfg.imu.gyro_bias_sigma)
 
     def camera_source(self) -> str:
         """Where the intrinsics come from: ``camera_info``, ``parameters`` (fallback) or
@@ -416,14 +461,17 @@ class FramePipeline:
         first, last = stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9))
         off = int(round(imu.time_offset * 1e9))
         buf.wait_until(last - off, imu.wait, self._stopped)
-        gyro, reason = buf.measurement(
-            (first, last),
-            imu.R_cam_imu,
-            imu.gyro_bias,
-            imu.gyro_noise,
-            imu.gyro_bias_sigma,
-            imu.time_offset,
-        )
+        if self.gyro_bias is not None:  # (the online estimate and its covariance)
+            gyro, reason = self.gyro_bias.measurement(buf, (first, last))
+        else:
+            gyro, reason = buf.measurement(
+                (first, last),
+                imu.R_cam_imu,
+                imu.gyro_bias,
+                imu.gyro_noise,
+                imu.gyro_bias_sigma,
+                imu.time_offset,
+            )
         if gyro is None:
             self.stats.add("gyro_missing")
             self.stats.add(f"gyro_missing.{reason}")
@@ -490,13 +538,16 @@ class FramePipeline:
             final = []
             try:
                 if cfg.tracking is not None:
+                    old = self._tracker
                     tracker, final = self._tracker_for(camera, cfg)
                     r = tracker.process(out_stamp, uv, xyz, camera, scores, gyro=gyro)
                     est = r.estimate
+                    new_track = tracker is not old or r.state in ("cold", "reset")
                     final = final + r.final
                     self._last_frame_wall = time.monotonic()
                 else:
                     self._drop_tracker()
+                    new_track = False
                     est = estimate_rs_pose(
                         uv,
                         xyz,
@@ -526,6 +577,7 @@ class FramePipeline:
                 )
             elif est.gyro_used and est.success:
                 self.stats.add("frames_with_gyro")
+            self._update_bias(est, out_stamp, new_track)
             res.estimate = est
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)
@@ -549,6 +601,22 @@ class FramePipeline:
                 res.fused = self._fused_outputs(final, cfg)
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
+
+    def _update_bias(self, est, out_stamp: int, new_track: bool) -> None:
+        """Feed a frame to the online bias estimator (``imu.estimate_bias``): a solved frame
+        pairs with the previous one; a failed frame or a new track (tracker reset) restarts
+        the pairing. A pair the chi-square test rejects is counted in
+        ``gyro_bias_rejected``."""
+        bias, buf = self.gyro_bias, self.imu
+        if bias is None or buf is None:
+            return
+        if new_track or not est.success:
+            bias.restart()
+        if not est.success:
+            return
+        cov = est.covariance[:3, :3] if est.covariance is not None else np.full((3, 3), np.nan)
+        if bias.update(out_stamp, est.orientation, cov, buf) == "rejected":
+            self.stats.add("gyro_bias_rejected")
 
     def _check_time(self, stamp: int, cfg: LocalizerConfig) -> None:
         """A stamp older than the previous frame's, or newer by more than

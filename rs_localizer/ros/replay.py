@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..accuracy import GroundTruth, frame_errors, summarize_errors
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
@@ -69,7 +71,9 @@ class ReplayResult:
     of the published pose and twist), ``failures`` (reason -> frames), the files written, the
     configuration and parameter values used, and the pipeline's counters (``counts``: e.g.
     ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing.<reason>``, as in the node's
-    diagnostics)."""
+    diagnostics), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the
+    last frame used, the online estimate with ``imu.estimate_bias``; None without
+    ``imu.enabled``)."""
 
     rows: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
@@ -79,6 +83,8 @@ class ReplayResult:
     config: LocalizerConfig | None = None
     parameters: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
+    gyro_bias: np.ndarray | None = None
+    gyro_bias_std: np.ndarray | None = None
 
     @property
     def solved(self) -> int:
@@ -291,6 +297,9 @@ def replay(
             writer.close()
     result.rows = rows.finish()
     result.counts = pipeline.stats.snapshot().counts
+    bias = pipeline.gyro_bias_values()
+    if bias is not None:
+        result.gyro_bias, result.gyro_bias_std = bias
     for r in result.rows:
         if not r["success"]:
             result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
