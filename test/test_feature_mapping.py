@@ -59,6 +59,8 @@ def test_reconstructed_map_matches_ground_truth(colmap_map, tmp_path):
     each point's first observation (pycolmap's track, COLMAP pixel - 0.5)."""
     import pycolmap
 
+    from rs_localizer.mapping.colmap import align_to_markers
+
     fm, raw, al = colmap_map["map"], colmap_map["raw"], colmap_map["alignment"]
     rec = pycolmap.Reconstruction(str(colmap_map["model"]))
     assert rec.num_reg_images() >= 0.8 * N_PHOTOS
@@ -83,6 +85,19 @@ def test_reconstructed_map_matches_ground_truth(colmap_map, tmp_path):
     # the alignment: all ten markers, a residual of the order of the point error
     assert len(al.markers) >= 6 and al.residual_rms < 0.02
     np.testing.assert_allclose(al.apply(raw.points), fm.points)
+    # refined on the marker detections, it turns the map less than the similarity from the
+    # triangulated corners alone does, against the best-fit similarity of the model's points
+    # to their ground truth (an independent fit: Umeyama on the points)
+    near = np.isfinite(err) & (err < 3 * np.nanmedian(err))
+    Rt, _ = cv2.estimateAffine3D(raw.points[near], truth[near], force_rotation=True)
+    best = np.asarray(Rt)[:, :3]
+    corners_only = align_to_markers(
+        colmap_map["model"], colmap_map["photos"], "textured_room", refine=False
+    )
+    refined, triangulated = rotation_angle_deg(al.R, best), rotation_angle_deg(corners_only.R, best)
+    assert refined < 0.04 and refined < triangulated, (refined, triangulated)
+    assert len(al.reprojection_errors) >= 4 * len(al.markers)
+    assert np.median(al.reprojection_errors) < 0.5 and len(corners_only.reprojection_errors) == 0
     # quality survives the file; filtering on it
     back = FeatureMap.load(fm.save(tmp_path / "map.npz"))
     np.testing.assert_array_equal(back.track_length, fm.track_length)
@@ -116,22 +131,25 @@ def _localize(feature_map, camera, scene, times):
 
 def test_rolling_shutter_frames_localize_against_the_map(colmap_map):
     """RS frames (hand-held shake, 30 ms readout) against the reconstruction: close to the
-    ground truth and to the same frames against the renderer-built map; the RS solver beats
-    the global-shutter P3P in rotation on the same matches."""
+    ground truth (within 0.1 deg and 5 mm: the map's alignment on the marker detections) and
+    to the same frames against the renderer-built map; the RS solver beats the global-shutter
+    P3P in rotation on the same matches."""
     from rs_localizer.sim.feature_map import build_feature_map
 
     scene = colmap_map["scene"]
     camera = camera_preset("vga")
     times = np.linspace(0.2, 1.8, 4)
     rot, pos, rot_p3p, _ = _localize(colmap_map["map"], camera, scene, times)
-    assert rot < 0.2 and pos < 0.02, (rot, pos)
+    assert rot < 0.1 and pos < 0.005, (rot, pos)
     assert rot_p3p > 3 * rot
     motion = make_motion("shake", scene, duration=2.0)
     ref = build_feature_map(
         scene, colmap_map["camera"], (motion, np.linspace(0.0, 2.0, 6)), kind="sift"
     )
     ref_rot, ref_pos, _, _ = _localize(ref, camera, scene, times)
-    assert rot < 4 * ref_rot + 0.02 and pos < 6 * ref_pos + 0.005, (rot, ref_rot, pos, ref_pos)
+    # the map's keypoints, seen from the photos' viewpoints, not the frames', set the floor
+    # (docs/feature_maps.md): a few times the error against the renderer-built map
+    assert rot < 8 * ref_rot and pos < 6 * ref_pos, (rot, ref_rot, pos, ref_pos)
 
 
 def test_colmap_descriptors_converted_to_opencv_normalisation():

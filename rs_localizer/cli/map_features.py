@@ -122,7 +122,9 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
             lines.append(
                 f"aligned on markers {al.markers}: scale {al.scale:.5g} m/unit, residual "
                 f"{al.residual_rms * 1000:.1f} mm RMS ({al.residual_max * 1000:.1f} mm max) "
-                f"over {len(al.corners)} corners"
+                f"over {len(al.corners)} triangulated corners, marker centres "
+                f"{sorted(al.reprojection_errors)[len(al.reprojection_errors) // 2]:.2f} px "
+                f"median over {len(al.reprojection_errors)} detections"
             )
         elif args.scale is not None:
             fm = colmap.scale_feature_map(fm, args.scale)
