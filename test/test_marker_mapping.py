@@ -67,6 +67,9 @@ def test_rs_map_matches_ground_truth(scene, rs_map):
     assert len(rs_map.corners) >= 15
     assert np.median(e) < 0.05 and e.max() < 0.25
     assert rs_map.rmse_px < 0.6
+    # unbiased corners: the corner offset found stays small (this walk sees the markers from
+    # a narrow range of distances, which fixes it only to a few tenths of a pixel)
+    assert abs(rs_map.corner_offset_px) < 0.3
     # frames: poses and the camera's own angular velocity against the trajectory
     _, _, _, _, truth, _ = scene
     k = rs_map.frame_ids
@@ -224,7 +227,7 @@ def test_views_of_the_anchor_at_an_angle_fix_the_map(scene, rs_map, sweep_scene,
     walk_only = map_errors(rs_map, room.corners(), {int(i): room.p[i] for i in room.ids})
     sweep = map_errors(sweep_map, room.corners(), {int(i): room.p[i] for i in room.ids})
     assert walk_only["median_mm"] > 2 * walk_only["aligned_median_mm"]
-    assert sweep["median_mm"] < 0.7 * walk_only["median_mm"]
+    assert sweep["median_mm"] < 0.8 * walk_only["median_mm"]
     assert sweep["median_mm"] < 2 * sweep["aligned_median_mm"]
     assert sweep["honest"] >= 0.9
     # the sweep's frames come first, with their own truth
@@ -252,3 +255,20 @@ def test_localization_against_the_built_map(sweep_scene, sweep_map):
     assert built["rotation_deg"] < 3 * true["rotation_deg"]
     assert built["position_cm"] < 3 * true["position_cm"]
     assert gs["rotation_deg"] > 1.5 * built["rotation_deg"]
+
+
+def test_an_inward_corner_bias_is_estimated_and_removed():
+    """Corners detected 0.25 px inside their squares (as OpenCV's subpixel refinement does on
+    blurred images) make every marker look smaller, so further away; the adjustment finds the
+    offset (shrunk towards zero by its prior where the views fix it loosely) and the map's shape
+    is better than without it, its covariance honest."""
+    room, camera, _, frames, _, opts = room_scene(NUM_FRAMES, anchor_frames=30, corner_bias_px=0.25)
+    centres = {int(i): room.p[i] for i in room.ids}
+    with_offset = map_markers(frames, camera, opts)
+    without = map_markers(frames, camera, replace(opts, corner_offset=False))
+    assert 0.1 < with_offset.corner_offset_px < 0.35
+    assert without.corner_offset_px == 0.0
+    e_with = map_errors(with_offset, room.corners(), centres)
+    e_without = map_errors(without, room.corners(), centres)
+    assert e_with["aligned_median_mm"] < 0.8 * e_without["aligned_median_mm"]
+    assert e_with["honest"] >= 0.9

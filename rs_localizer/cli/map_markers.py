@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         anchor_pose=anchor_pose,
         global_shutter=args.global_shutter,
         calibrate_readout=args.calibrate_readout,
+        corner_offset=not args.no_corner_offset,
     )
     result = map_markers(frames, camera, opts)
     result.timings["detection"] = t_detect
@@ -186,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
             f"{counts['images']} images ({counts['without_markers']} without markers, "
             f"{result.num_frames_skipped} without a pose); reprojection RMSE "
             f"{result.rmse_px:.2f} px, {result.num_rejected} detections rejected, line delay "
-            f"{1e6 * result.line_delay:.2f} us"
+            f"{1e6 * result.line_delay:.2f} us, detected corners {result.corner_offset_px:+.2f} "
+            "px inside the markers"
         )
         for m, why in sorted(result.unmapped.items()):
             print(f"  marker {m} left out: {why}")
@@ -234,6 +236,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--global-shutter", action="store_true", help="global-shutter model (no velocities)"
+    )
+    p.add_argument(
+        "--no-corner-offset",
+        action="store_true",
+        help="do not estimate the detector's corner offset (corners inside the markers' "
+        "squares along the diagonals, e.g. by the subpixel refinement of blurred corners)",
     )
     p.add_argument("--report", help="folder for report.yaml and map.png")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")

@@ -101,13 +101,20 @@ def map_errors(result: MarkerMapResult, true_corners: dict, true_centres: dict) 
     )
 
 
-def room_scene(num_frames: int, seed: int = 0, markers: int = 28, anchor_frames: int = 0) -> tuple:
+def room_scene(
+    num_frames: int,
+    seed: int = 0,
+    markers: int = 28,
+    anchor_frames: int = 0,
+    corner_bias_px: float = 0.0,
+) -> tuple:
     """The benchmark's scene: a 4.5 x 4 x 2.6 m room with ``markers`` markers of mixed sizes, the
     hand-held walk around its centre seen by a 640x480 camera with a 30 ms readout, and the
     corner detections of ``num_frames`` frames (0.4 px noise; ``seed``: layout and noise). With
     ``anchor_frames`` > 0 the video opens with that many frames of an
     :class:`~rs_localizer.sim.marker_room.AnchorSweep` 1 m in front of the anchor (marker 0),
-    then a cut of 1 s, then the walk.
+    then a cut of 1 s, then the walk. ``corner_bias_px``: the detected corners lie that far
+    inside their marker's square (:func:`simulate_detections`).
 
     Returns:
         ``(room, camera, walk, frames, truth, options)``: the
@@ -120,10 +127,14 @@ def room_scene(num_frames: int, seed: int = 0, markers: int = 28, anchor_frames:
     room = make_marker_room(markers, seed=seed, size=(4.5, 4.0, 2.6))
     camera = room_camera(readout_time=0.03)
     walk = RoomWalk(centre=(2.25, 2.0))
-    dets, truth = simulate_detections(room, camera, walk, num_frames=num_frames, seed=seed)
+    dets, truth = simulate_detections(
+        room, camera, walk, num_frames=num_frames, seed=seed, corner_bias_px=corner_bias_px
+    )
     if anchor_frames > 0:
         sweep = AnchorSweep(tuple(room.p[0]), tuple(room.R[0][:, 2]))
-        d0, t0 = simulate_detections(room, camera, sweep, anchor_frames, seed=seed + 1000)
+        d0, t0 = simulate_detections(
+            room, camera, sweep, anchor_frames, seed=seed + 1000, corner_bias_px=corner_bias_px
+        )
         shift = anchor_frames / 30.0 + 1.0
         dets = [(s - shift, d) for s, d in d0] + dets
         truth = {k: np.concatenate([t0[k], truth[k]]) for k in truth}
@@ -137,12 +148,20 @@ def room_scene(num_frames: int, seed: int = 0, markers: int = 28, anchor_frames:
     return room, camera, walk, frames, truth, options
 
 
-def drive_detections(room, camera, num_frames: int = 300, seed: int = 7) -> tuple:
+def drive_detections(
+    room, camera, num_frames: int = 300, seed: int = 7, corner_bias_px: float = 0.0
+) -> tuple:
     """A second video in the benchmark's room: a robot driving one loop at 0.4 m height
     (:class:`~rs_localizer.sim.marker_room.RobotDrive`, 10 s) with the same camera, 0.4 px
-    noise. Returns ``(detections, truth)`` as :func:`simulate_detections`."""
+    noise, ``corner_bias_px`` as :func:`room_scene`. Returns ``(detections, truth)`` as
+    :func:`simulate_detections`."""
     return simulate_detections(
-        room, camera, RobotDrive(centre=(2.25, 2.0)), num_frames=num_frames, seed=seed
+        room,
+        camera,
+        RobotDrive(centre=(2.25, 2.0)),
+        num_frames=num_frames,
+        seed=seed,
+        corner_bias_px=corner_bias_px,
     )
 
 
@@ -227,9 +246,15 @@ def main(argv: list | None = None) -> int:
     p.add_argument("--markers", type=int, default=30, help="markers in the room")
     p.add_argument("--seed", type=int, default=0, help="layout and noise seed")
     p.add_argument("--drive-frames", type=int, default=300, help="frames of the second video")
+    p.add_argument(
+        "--corner-bias",
+        type=float,
+        default=0.19,
+        help="px: detected corners inside their marker's square (OpenCV's on rendered images)",
+    )
     args = p.parse_args(argv)
     room, camera, walk, frames, _, opts = room_scene(
-        args.frames, args.seed, args.markers, args.anchor_frames
+        args.frames, args.seed, args.markers, args.anchor_frames, args.corner_bias
     )
     true_corners = room.corners()
     true_centres = {int(i): room.p[i] for i in room.ids}
@@ -245,15 +270,19 @@ def main(argv: list | None = None) -> int:
     ]
     if args.anchor_frames > 0:
         runs.append(("RS, walk only", camera, opts, frames[args.anchor_frames :]))
+    if args.corner_bias:
+        runs.append(("RS, no corner offset", camera, replace(opts, corner_offset=False), frames))
     n_det = sum(len(f.corners) for f in frames)
     print(
         f"{len(frames)} frames ({args.anchor_frames} in front of the anchor, then the walk), "
         f"{args.markers} markers ({n_det} detections, {walk.max_angular_rate():.1f} rad/s max), "
-        "30 ms readout, 0.4 px noise; errors in mm, the anchor at its true pose; one BLAS thread"
+        f"30 ms readout, 0.4 px noise, corners {args.corner_bias} px inside; errors in mm, the "
+        "anchor at its true pose; one BLAS thread"
     )
     head = (
         f"{'model':24s} {'mapped':>6s} {'median':>7s} {'max':>7s} {'al.med':>7s} {'al.max':>7s} "
-        f"{'std':>6s} {'3-sig':>6s} {'rmse px':>7s} {'delay %':>7s} {'time s':>7s}  stages (s)"
+        f"{'std':>6s} {'3-sig':>6s} {'rmse px':>7s} {'delay %':>7s} {'offs px':>7s} {'time s':>7s}"
+        "  stages (s)"
     )
     print(head)
     medians, maps = {}, {}
@@ -271,7 +300,7 @@ def main(argv: list | None = None) -> int:
                 f"{name:24s} {len(res.corners):6d} {e['median_mm']:7.1f} {e['max_mm']:7.1f} "
                 f"{e['aligned_median_mm']:7.1f} {e['aligned_max_mm']:7.1f} "
                 f"{e['std_median_mm']:6.1f} {100 * e['honest']:5.0f}% {res.rmse_px:7.2f} "
-                f"{delay:+7.2f} {total:7.1f}  {stages}"
+                f"{delay:+7.2f} {res.corner_offset_px:+7.3f} {total:7.1f}  {stages}"
             )
             if res.unmapped:
                 print(f"{'':24s} left out: {res.unmapped}")
@@ -280,7 +309,9 @@ def main(argv: list | None = None) -> int:
         ratio = medians["global shutter"] / medians["rolling shutter"]
         print(f"global shutter / rolling shutter median corner error: {ratio:.1f}x")
 
-        dets, truth = drive_detections(room, camera, args.drive_frames, seed=args.seed + 7)
+        dets, truth = drive_detections(
+            room, camera, args.drive_frames, seed=args.seed + 7, corner_bias_px=args.corner_bias
+        )
         print(
             f"\nlocalization of a second video ({args.drive_frames} frames, a robot driving a "
             "loop at 0.4 m), r6p_1lin frame by frame, default options, medians against the "

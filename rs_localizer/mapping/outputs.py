@@ -214,9 +214,9 @@ def write_report(
     folder: str | Path, result: MarkerMapResult, counts: dict | None = None
 ) -> Sequence[Path]:
     """Write ``report.yaml`` (per marker: observations, position and rotation std; RMSE, line
-    delay, rejected detections, skipped frames, markers left out and inconsistent ids, stage
-    times) and ``map.png`` (matplotlib: markers and camera path from above (x-y) and from the
-    side (x-z)) into ``folder``. Returns the two paths.
+    delay, the detector's corner offset, rejected detections, skipped frames, markers left out
+    and inconsistent ids, stage times) and ``map.png`` (matplotlib: markers and camera path
+    from above (x-y) and from the side (x-z)) into ``folder``. Returns the two paths.
     """
     import matplotlib
 
@@ -231,6 +231,7 @@ def write_report(
         "model": "global shutter" if result.global_shutter else "rolling shutter",
         "reprojection_rmse_px": round(result.rmse_px, 4),
         "line_delay_s": float(result.line_delay),
+        "corner_offset_px": round(float(result.corner_offset_px), 4),
         "rejected_detections": int(result.num_rejected),
         "frames_with_pose": len(result.frame_ids),
         "frames_skipped": int(result.num_frames_skipped),

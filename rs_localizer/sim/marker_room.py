@@ -271,12 +271,16 @@ def simulate_detections(
     seed: int = 0,
     min_side_px: float = 14.0,
     max_view_angle_deg: float = 70.0,
+    corner_bias_px: float = 0.0,
 ):
     """Detections of the room's markers along the walk.
 
     A marker is detected when all four corners project inside the image, its face is turned
     towards the camera (angle between its normal and the direction to the camera below
     ``max_view_angle_deg``) and its shortest projected side is at least ``min_side_px``.
+    ``corner_bias_px`` moves every detected corner that far towards the centre of its marker's
+    projected square along the diagonal (the inward bias of a subpixel corner detector on
+    blurred images), before the noise.
 
     Returns:
         ``(detections, truth)``: a list of ``(stamp, {id: (4, 2) pixels})`` with ``stamp`` the
@@ -308,7 +312,9 @@ def simulate_detections(
             sides = np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1)
             if sides.min() < min_side_px:
                 continue
-            dets[int(i)] = uv + rng.normal(scale=noise_px, size=uv.shape)
+            d = uv - uv.mean(axis=0)
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            dets[int(i)] = uv - corner_bias_px * d + rng.normal(scale=noise_px, size=uv.shape)
         out.append((t_ref, dets))
         h = 1e-5
         Ra, Rb = walk.orientation(np.array([t_ref - h, t_ref + h]))
