@@ -339,17 +339,14 @@ class _Init:
             frames.index(self.seed),
             self.excluded,
         )
-        sol = least_squares(
-            prob.residuals,
+        # (a loose tolerance and a small budget: this only keeps the initialization from
+        # drifting)
+        sol = prob.solve(
             prob.x0(self, self.camera.line_delay),
-            jac_sparsity=prob.sparsity(),
             loss="soft_l1",
             f_scale=5.0,
-            x_scale="jac",
+            tol=1e-4,
             max_nfev=30,
-            # (a loose tolerance: this only keeps the initialization from drifting)
-            ftol=1e-4,
-            xtol=1e-4,
         )
         Rf, Cf, _, _, Rm, pm, _ = prob.unpack(sol.x)
         self.frames = {k: (Rf[i], Cf[i]) for i, k in enumerate(frames)}
@@ -579,9 +576,8 @@ class _Problem:
         u = p[:, :2] / z[:, None] * self.fxy
         e = u - self.x * self.fxy
         if self.co_col is not None:  # detections lie inside the square along its diagonals
-            d = (u.reshape(-1, 4, 2) - u.reshape(-1, 4, 2).mean(axis=1, keepdims=True)).reshape(
-                -1, 2
-            )
+            q = u.reshape(-1, 4, 2)  # (the four corners of each detection)
+            d = (q - q.mean(axis=1, keepdims=True)).reshape(-1, 2)
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
             e = e - x[self.co_col] * d
         return e
@@ -617,11 +613,19 @@ class _Problem:
             ]
         )
 
-    def solve(self, x0, *, loss: str = "linear", f_scale: float = 1.0, tol: float = 1e-6):
+    def solve(
+        self,
+        x0,
+        *,
+        loss: str = "linear",
+        f_scale: float = 1.0,
+        tol: float = 1e-6,
+        max_nfev: int | None = None,
+    ):
         """SciPy ``least_squares`` (trust region reflective with this problem's Jacobian
-        sparsity, Jacobian-scaled variables, ``max_nfev`` of the options) on
-        :meth:`residuals` from ``x0``; ``loss``, ``f_scale`` and ``tol`` (``ftol`` and
-        ``xtol``) as SciPy's."""
+        sparsity, Jacobian-scaled variables) on :meth:`residuals` from ``x0``; ``loss``,
+        ``f_scale``, ``tol`` (``ftol`` and ``xtol``) and ``max_nfev`` (default: the options')
+        as SciPy's."""
         return least_squares(
             self.residuals,
             x0,
@@ -629,7 +633,7 @@ class _Problem:
             loss=loss,
             f_scale=f_scale,
             x_scale="jac",
-            max_nfev=self.opts.max_nfev,
+            max_nfev=self.opts.max_nfev if max_nfev is None else max_nfev,
             ftol=tol,
             xtol=tol,
             method="trf",
@@ -668,10 +672,6 @@ class _Problem:
                     S[row : row + 3, a * self.fpar : (a + 1) * self.fpar] = 1
                 row += 3
         return S.tocsr()
-
-    def detection_rms(self, x):
-        e = self.corner_residuals(x).reshape(-1, 8)
-        return np.sqrt(np.mean(e**2, axis=1))
 
 
 def _marker_covariance(jac, n_rep: int, sigma: float, prob: _Problem) -> np.ndarray:
@@ -846,8 +846,9 @@ def map_markers(
         timings["robust adjustment"] = timings.get("robust adjustment", 0.0) + (
             time.perf_counter() - t0
         )
-        prob.keep = prob.detection_rms(sol.x) <= options.reject_px
-        kept = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
+        e8 = prob.corner_residuals(sol.x).reshape(-1, 8)  # (one row per detection)
+        prob.keep = np.sqrt(np.mean(e8**2, axis=1)) <= options.reject_px
+        kept = e8[prob.keep]
         prob.noise_px = float(np.sqrt(np.mean(kept**2))) if kept.size else 1.0
         t0 = time.perf_counter()
         sol = prob.solve(sol.x)
