@@ -88,8 +88,8 @@ class MappingOptions:
         corner_offset: estimate one corner offset (pixels) for the whole video: the detected
             corners lie this far inside the marker's projected square, along its diagonals.
             OpenCV's subpixel refinement of the outer corner of a blurred black square is
-            biased inwards (0.19 px on the rendered images of ``render-bag``); left in, it
-            makes every marker look smaller, so further away, by a fixed fraction.
+            biased inwards (about 0.2 px on rendered images); left in, it makes every marker
+            look smaller, so further away, by a fixed fraction.
         corner_offset_sigma_px: standard deviation (pixels) of a zero-mean prior on the
             corner offset: where the video's views fix it poorly (markers seen from a narrow
             range of distances) it stays near zero instead of wandering.
