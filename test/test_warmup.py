@@ -101,3 +101,79 @@ def test_node_warm_up_covers_every_kernel_of_real_frames():
     for bag, (solved, frames) in res["solved"].items():
         assert frames > 0 and solved == frames, (bag, solved, frames)
     assert not res["new"], f"kernels first used by a real frame, after the warm-up: {res['new']}"
+
+
+def test_late_warm_up_makes_the_signatures_the_estimator_uses():
+    """The second compiling process's work (warm_late) compiles the refinement, the MAP step
+    and the twist filter with exactly the argument types the estimator and the tracker pass
+    them: after the node's warm-up it adds no signature (a different one would be compiled
+    for nothing, and the real one again inside the first frames)."""
+    from numba.core.registry import CPUDispatcher
+
+    from rs_localizer.estimation import fusion, prior, refine
+    from rs_localizer.estimation.tracker import TrackerOptions
+    from rs_localizer.estimation.warmup import fused_cached, warm_late, warm_up
+
+    warm_up("r6p_1lin", tracking=TrackerOptions())
+    kernels = [
+        obj
+        for mod in (refine, prior, fusion)
+        for obj in vars(mod).values()
+        if isinstance(obj, CPUDispatcher)
+    ]
+    before = {k.py_func.__qualname__: set(k.signatures) for k in kernels}
+    for name in ("_lm_refine", "_posterior_step", "_conflict", "_update_window", "_predict_row"):
+        assert before[name], name  # (the node's warm-up used it)
+    warm_late("r6p_1lin", tracking=TrackerOptions())
+    assert {k.py_func.__qualname__: set(k.signatures) for k in kernels} == before
+    assert fused_cached("r6p_1lin")  # (the tests' cache is writable)
+
+
+def test_second_compiling_process_uses_this_package(tmp_path, monkeypatch):
+    """The helper process imports the package this process runs (not a copy in the working
+    directory), finds the kernels in the same cache and reports what it compiled."""
+    from rs_localizer.estimation.tracker import TrackerOptions
+    from rs_localizer.estimation.warmup import _SecondProcess, warm_late
+
+    warm_late("r6p_1lin", tracking=TrackerOptions())  # (cached: the helper only loads)
+    decoy = tmp_path / "rs_localizer"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text("raise ImportError('the working directory copy')\n")
+    monkeypatch.chdir(tmp_path)
+    lines = []
+    helper = _SecondProcess(["r6p_1lin"], True, lines.append)
+    helper.wait()
+    assert helper._proc.returncode == 0, lines
+    assert helper.kernels == [], lines  # everything loaded from the cache
+
+
+def test_fused_kernels_not_cached_in_an_empty_cache(tmp_path):
+    """fused_cached reads numba's index: a copy of the package that was never compiled, with an
+    empty cache directory, holds nothing."""
+    import shutil
+
+    shutil.copytree(
+        ROOT / "rs_localizer",
+        tmp_path / "pkg" / "rs_localizer",
+        ignore=shutil.ignore_patterns("__pycache__"),
+    )
+    code = (
+        f"import rs_localizer; assert rs_localizer.__file__.startswith({str(tmp_path)!r}); "
+        "from rs_localizer.estimation.warmup import fused_cached; "
+        "print(fused_cached('r6p_1lin'), fused_cached('r6p'))"
+    )
+    env = {
+        **os.environ,
+        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+        "PYTHONPATH": str(tmp_path / "pkg"),
+    }
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "True"]  # (r6p has no fused kernels)

@@ -11,7 +11,7 @@ rs-localizer marker-map SCENE OUT
 rs-localizer map-markers IMAGES -o MAP.yaml --camera CAMERA.yaml --marker-size S [--anchor ID]
 rs-localizer map-features (--colmap MODEL_DIR | --images DIR --camera CAMERA.yaml) -o MAP.npz
 rs-localizer experiments [--quick] [--out docs/experiments]
-rs-localizer compile [--solvers r6p_1lin p3p]   (once after installing: JIT kernels)
+rs-localizer compile [--solvers r6p_1lin] [--jobs 2]   (once after installing: JIT kernels)
 rs-localizer calibrate-readout BAG [--source correspondences|keypoints|image] [--json]
     [--imu-topic T]
 """
@@ -466,12 +466,13 @@ def _compile(args) -> int:
         + ")",
         flush=True,
     )
-    res = compile_kernels(args.solvers, log=lambda m: print(m, flush=True))
+    res = compile_kernels(args.solvers, log=lambda m: print(m, flush=True), jobs=args.jobs)
     n = len(res["kernels"])
     print(
         f"{', '.join(res['solvers'])}: ready in {res['seconds']:.1f} s ("
         + (
-            f"compiled {n} kernels in {sum(d for _, d in res['kernels']):.1f} s"
+            f"compiled {n} kernels, {sum(d for _, d in res['kernels']):.1f} s of compiling"
+            + (f" in {args.jobs} processes" if args.jobs > 1 else "")
             if n
             else "all kernels loaded from the cache"
         )
@@ -936,7 +937,7 @@ def build_parser() -> argparse.ArgumentParser:
     experiment_arguments(ex)
     ex.set_defaults(func=_experiments)
 
-    from ..estimation.warmup import DEFAULT_SOLVERS
+    from ..estimation.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS
 
     c = sub.add_parser(
         "compile",
@@ -950,7 +951,13 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         default=list(DEFAULT_SOLVERS),
         choices=SOLVER_NAMES,
-        help="solvers to compile for",
+        help="solvers to compile for (the demo's global-shutter baseline: add p3p)",
+    )
+    c.add_argument(
+        "--jobs",
+        type=int,
+        default=DEFAULT_JOBS,
+        help="processes compiling at once (the fused RANSAC kernels in a second one)",
     )
     c.set_defaults(func=_compile)
     from . import map_markers

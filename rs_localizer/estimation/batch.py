@@ -18,7 +18,14 @@ import numpy as np
 from numba import njit
 
 from .._so3 import compose_rotvec
-from ..solvers.kernels import MAX_PARAMS, kernel_ids, run_kernel
+from ..solvers.kernels import (
+    MAX_PARAMS,
+    KernelSet,
+    kernel_count,
+    kernel_ids,
+    kernel_set,
+    run_kernels,
+)
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.p3p import DEFAULT_BACKEND
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
@@ -32,25 +39,23 @@ _SOLVER_TOL = 1e-12
 
 
 @functools.cache  # (the registry and the backend are fixed at import)
-def fused_kernels(solver: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(kinds, n_params)`` int64 arrays for :func:`ransac_batch` with ``solver``, or ``None``
-    when the solver has no fused path: R6P (a variable number of roots per sample), a batched
-    solver without a kernel id, or a P3P backend other than our Lambda Twist
-    (``RS_LOCALIZER_P3P``, for comparisons). The arrays are shared between calls: do not
-    modify them (they stay writable: numba compiles a read-only array as another type).
-    Raises ValueError for an unknown solver."""
+def fused_kernels(solver: str) -> tuple[KernelSet, np.ndarray] | None:
+    """``(kernels, n_params)`` for :func:`ransac_batch` with ``solver``: its batched kernels
+    as a :class:`~rs_localizer.solvers.kernels.KernelSet` (empty for the global-shutter P3P)
+    and the (J,) int64 parameters each writes; ``None`` when the solver has no fused path: R6P
+    (a variable number of roots per sample), a batched solver without a kernel id, or a P3P
+    backend other than our Lambda Twist (``RS_LOCALIZER_P3P``, for comparisons). The result
+    is shared between calls: do not modify the array (it stays writable: numba compiles a
+    read-only array as another type). Raises ValueError for an unknown solver."""
     info = solver_info(solver)
     if DEFAULT_BACKEND != "lambda_twist":
         return None
     if info.hypotheses == GLOBAL_SHUTTER:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return kernel_set(()), np.zeros(0, dtype=np.int64)
     ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
     if ids is None:
         return None
-    return (
-        np.array([k[0] for k in ids], dtype=np.int64),
-        np.array([k[1] for k in ids], dtype=np.int64),
-    )
+    return kernel_set(tuple(k[0] for k in ids)), np.array([k[1] for k in ids], dtype=np.int64)
 
 
 @njit(cache=True)
@@ -64,7 +69,7 @@ def ransac_batch(
     r0e,
     d,
     r0,
-    kinds,
+    kernels,
     n_params,
     iterations,
     th2,
@@ -85,10 +90,11 @@ def ransac_batch(
         x (N, 2) normalized points, X (N, 3) world points, r (N,) RS coordinates, r0e (N,)
             per-point reference coordinate, d (2,) readout direction, r0 the reference
             coordinate (see :meth:`rs_localizer.camera.CameraModel.normalize`).
-        kinds: (J,) int64 batched-kernel ids (:func:`rs_localizer.solvers.kernels.kernel_ids`),
-            each run on every sample, pre-rotated by the sample's P3P solution; J = 0: the P3P
-            pre-rotations are the (global-shutter) hypotheses. n_params: (J,) parameters each
-            kernel writes (checked for finiteness).
+        kernels: the :class:`~rs_localizer.solvers.kernels.KernelSet` of J batched kernels
+            (:func:`fused_kernels`), each run on every sample, pre-rotated by the sample's P3P
+            solution; J = 0: the P3P pre-rotations are the (global-shutter) hypotheses. The
+            function is compiled once per kernel set. n_params: (J,) parameters each kernel
+            writes (checked for finiteness).
         iterations: linear iterations of the iterative solvers.
         th2: squared inlier threshold (normalized units). bail, pretest_n, pretest_min: as in
             :func:`~.scoring.msac_scores` (best score so far, pre-test size and bound);
@@ -132,7 +138,7 @@ def ransac_batch(
         r0e,
         d,
         r0,
-        kinds,
+        kernels,
         n_params,
         iterations,
         th2,
@@ -157,7 +163,7 @@ def prerotated_batch(
     r0e,
     d,
     r0,
-    kinds,
+    kernels,
     n_params,
     iterations,
     th2,
@@ -172,7 +178,7 @@ def prerotated_batch(
     instead of each sample's P3P pose (a video tracker's predicted rotation,
     :class:`rs_localizer.estimation.estimate.InitialModel`); the same kernels otherwise (the
     step-by-step path: :func:`~rs_localizer.estimation.estimate._generate` with ``R_pre``).
-    ``kinds`` must not be empty (an RS solver). Arguments and returns as
+    ``kernels`` must not be empty (an RS solver). Arguments and returns as
     :func:`ransac_batch`."""
     K, s = u.shape
     local = draw_samples(u, pool)
@@ -193,7 +199,7 @@ def prerotated_batch(
         r0e,
         d,
         r0,
-        kinds,
+        kernels,
         n_params,
         iterations,
         th2,
@@ -218,7 +224,7 @@ def _solve_and_score(
     r0e,
     d,
     r0,
-    kinds,
+    kernels,
     n_params,
     iterations,
     th2,
@@ -232,7 +238,7 @@ def _solve_and_score(
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
     K = samples.shape[0]
-    J = kinds.shape[0]
+    J = kernel_count(kernels)
     if J == 0:
         Rs, Cs, ok = R_p, C_p, ok_p
         ws = np.zeros((K, 3))
@@ -253,7 +259,9 @@ def _solve_and_score(
         v = np.empty((K, 3))
         for j in range(J):
             out[:] = 0.0
-            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its, err)
+            run_kernels(
+                kernels, j, xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its, err
+            )
             for k in range(K):
                 h = j * K + k
                 good = ok_k[k]
@@ -295,14 +303,15 @@ def _solve_and_score(
 
 
 @njit(cache=True)
-def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iterations):
-    """Local optimization's nonminimal step in one call: each batched kernel of ``kinds`` on all
-    points of ``inl``, pre-rotated by R.
+def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterations):
+    """Local optimization's nonminimal step in one call: each batched kernel of ``kernels`` on
+    all points of ``inl``, pre-rotated by R.
 
     Args:
-        kinds, n_params: (J,) kernel ids and their parameter counts (as for
-            :func:`ransac_batch`), min_points: (J,) the fewest points each kernel accepts
-            (fewer inliers: that kernel is skipped, ``ok`` False); inl: (N,) bool; R: (3, 3)
+        kernels, n_params: a :class:`~rs_localizer.solvers.kernels.KernelSet` of J kernels
+            and their (J,) parameter counts (as for :func:`ransac_batch`); min_points: (J,)
+            the fewest points each kernel accepts (fewer inliers: that kernel is skipped,
+            ``ok`` False); inl: (N,) bool; R: (3, 3)
             the current rotation;
             x (N, 2), X (N, 3), r (N,), r0 as there; iterations: linear iterations.
     Returns:
@@ -325,7 +334,7 @@ def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iteration
             for a in range(3):
                 Xs[0, m, a] = R[a, 0] * X[i, 0] + R[a, 1] * X[i, 1] + R[a, 2] * X[i, 2]
             m += 1
-    J = kinds.shape[0]
+    J = kernel_count(kernels)
     ok = np.zeros(J, dtype=np.bool_)
     Rs = np.empty((J, 3, 3))
     Cs = np.zeros((J, 3))
@@ -343,7 +352,7 @@ def nonminimal_solve(kinds, n_params, min_points, inl, R, x, X, r, r0, iteration
         out[:] = 0.0
         good = False
         if n >= min_points[j]:
-            run_kernel(kinds[j], xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
+            run_kernels(kernels, j, xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok1, its, err)
             good = ok1[0]
         for a in range(n_params[j]):
             if not np.isfinite(out[0, a]):

@@ -28,7 +28,7 @@ import numpy as np
 from .._so3 import compose_rotvec
 from ..geometry import rotvec_to_matrix
 from ..solvers import p3p_batch, r6p
-from ..solvers.kernels import kernel_ids
+from ..solvers.kernels import kernel_ids, kernel_set
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, sample_size, solver_info
 from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
@@ -243,7 +243,7 @@ def nonminimal_models(
     # one numba call (gather, solve) unless the solve is damped by the motion prior
     if not fr.regularize and all(k is not None and len(k) == 1 for k in ids):
         ok, Rs, Cs, ws, ts = nonminimal_solve(
-            np.array([k[0][0] for k in ids], dtype=np.int64),
+            kernel_set(tuple(k[0][0] for k in ids)),
             np.array([k[0][1] for k in ids], dtype=np.int64),
             np.array([k[0][2] for k in ids], dtype=np.int64),
             inliers,

@@ -4,27 +4,57 @@ planar scenes).
 
 Used by the node at start (and on a solver change) and by ``rs-localizer compile``, the
 install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the kernels go).
+
+Compiling takes one to two minutes on one core; about half of it is the fused RANSAC kernels
+(:mod:`.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels not yet in
+numba's cache, a second Python process compiles, meanwhile, the kernels a frame needs later
+(:func:`warm_late`: the exact-model refinement, the motion prior's MAP step, the twist filter
+and its smoother) while this process runs the usual warm-up, which then loads them from the
+cache (or compiles whatever the second process has not finished): the result is the same as
+compiling in one process.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import subprocess
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import rotvec_to_matrix
-from ..jit_cache import cache_state, compile_progress
+from ..jit_cache import PACKAGE_DIR, cache_state, compile_progress
+from ..solvers.kernels import KernelSetType
 from ..solvers.registry import SOLVER_NAMES, solver_info
+from .batch import fused_kernels, prerotated_batch, ransac_batch
 from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+from .frame import prepare_frame
+from .fusion import TwistFilter
+from .prior import prior_conflict
+from .refine import posterior_step, refine_rs_pose
 from .tracker import RSTracker, TrackerOptions
 
-__all__ = ["DEFAULT_SOLVERS", "compile_kernels", "warm_up"]
+__all__ = [
+    "DEFAULT_JOBS",
+    "DEFAULT_SOLVERS",
+    "compile_kernels",
+    "fused_cached",
+    "warm_late",
+    "warm_up",
+]
 
-#: what ``rs-localizer compile`` compiles by default: the node's default solver and the
-#: global-shutter baseline of ``rs-localizer demo``
-DEFAULT_SOLVERS = ("r6p_1lin", "p3p")
+#: what ``rs-localizer compile`` compiles by default: the node's default solver
+DEFAULT_SOLVERS = ("r6p_1lin",)
+
+#: processes that compile at once by default: two where the machine has two cores or more
+DEFAULT_JOBS = min(2, os.cpu_count() or 1)
 
 
 def _camera() -> CameraModel:
@@ -78,6 +108,8 @@ def warm_up(
     solver: str = "r6p_1lin",
     options: EstimateOptions | None = None,
     tracking: TrackerOptions | None = None,
+    jobs: int = 1,
+    log: Callable[[str], object] | None = None,
 ) -> tuple[float, RSPoseEstimate]:
     """Run everything a node with ``solver``, ``options`` and ``tracking`` runs on a frame, on
     small synthetic problems, so that numba compiles (or loads from its cache) every kernel
@@ -90,6 +122,10 @@ def warm_up(
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
     sensitivity).
 
+    With ``jobs`` > 1, when the solver's fused RANSAC kernels are not in numba's cache
+    (:func:`fused_cached`), another process compiles the kernels a frame needs later
+    (:func:`warm_late`) meanwhile (module docstring); ``log`` receives its progress lines.
+
     Returns:
         (seconds, the estimate of the 3D scene without scores).
     Raises:
@@ -98,6 +134,19 @@ def warm_up(
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
+    helper = None
+    if jobs > 1 and not fused_cached(solver):
+        helper = _SecondProcess([solver], tracking is not None, log)
+    try:
+        est = _run(solver, options, tracking)
+    finally:
+        if helper is not None:
+            helper.wait()
+    return time.perf_counter() - tic, est
+
+
+def _run(solver, options, tracking) -> RSPoseEstimate:
+    """The warm-up's frames (:func:`warm_up`); returns the 3D scene's estimate."""
     cam, uv, X, scores = _problem()
     est = estimate_rs_pose(uv, X, cam, solver=solver, options=options)
     estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
@@ -112,21 +161,186 @@ def warm_up(
             for stamp, uv, X in frames:
                 tracker.process(stamp, uv, X, cam)
             tracker.flush()
-    return time.perf_counter() - tic, est
+    return est
+
+
+def warm_late(
+    solver: str, options: EstimateOptions | None = None, tracking: TrackerOptions | None = None
+) -> None:
+    """Compile (or load), without running RANSAC, the kernels a frame of ``solver`` needs
+    after it, with the argument types the estimator passes them: the exact-model refinement
+    (:func:`~.refine.refine_rs_pose`; its functions normalize their inputs, so the types do
+    not depend on the values), the motion prior's MAP step (:func:`~.prior.prior_conflict`,
+    :func:`~.refine.posterior_step`) and, with ``tracking``, the twist filter and its
+    smoother (:class:`~.fusion.TwistFilter` over synthetic per-frame estimates). The second
+    process of a parallel warm-up runs it (:func:`warm_up`).
+
+    Raises:
+        ValueError: unknown solver.
+    """
+    if solver not in SOLVER_NAMES:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
+    if not solver_info(solver).rolling:
+        return
+    opts = options or EstimateOptions()
+    cam, uv, X, _ = _problem()
+    fr = prepare_frame(uv, X, cam, opts.plausibility.max_point_norm, np.random.default_rng(0))
+    spr, prior = cam.seconds_per_unit_r, opts.motion_prior
+    ref = refine_rs_pose(
+        np.eye(3),
+        np.zeros(3),
+        np.zeros(3),
+        np.zeros(3),
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        opts.ransac.threshold_px / fr.f,
+        prior=prior,
+        seconds_per_unit_r=spr,
+        acceleration_block=True,
+    )
+    if prior is not None and ref.covariance is not None:
+        prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, spr)
+        posterior_step(ref, prior, spr)
+    if tracking is None:
+        return
+    filt = TwistFilter(replace(tracking.fusion, max_gap=tracking.max_gap))
+    cov = np.diag(np.full(12, 1e-4))
+    for k in range(4):
+        est = SimpleNamespace(
+            success=True,
+            orientation=rotvec_to_matrix(np.array([0.0, 0.01 * k, 0.0])).T,  # (as R.T)
+            position=np.array([0.01 * k, 0.0, 0.0]),
+            angular_velocity=np.array([0.0, 0.3, 0.0]),
+            linear_velocity=np.array([0.3, 0.0, 0.0]),
+            covariance=cov,
+            twist_covariance=cov[6:, 6:],
+            acceleration_sensitivity=np.zeros((12, 6)),
+        )
+        step = filt.update(k * 33_333_333, est, prior=prior)
+        _ = step.current
+        filt.predict((k + 1) * 33_333_333)
+    filt.flush()
+
+
+def fused_cached(solver: str) -> bool:
+    """True when numba's cache holds ``solver``'s fused RANSAC kernels (cold and anchored
+    batches) for this source, or the solver has none: then compiling them in another process
+    gains nothing. Reads numba's cache index (numba internals); any surprise there counts as
+    not cached."""
+    fused = fused_kernels(solver)
+    if fused is None:
+        return True
+    kernels = [ransac_batch] + ([prerotated_batch] if len(fused[0]) else [])
+    try:
+        for disp in kernels:
+            index = disp._cache._cache_file._load_index()
+            if not any(
+                isinstance(t, KernelSetType) and t.ids == fused[0].ids
+                for key in index
+                for t in key[0]
+            ):
+                return False
+    except Exception:
+        return False
+    return True
+
+
+#: the helper process: the package's parent directory first on sys.path (not the working
+#: directory's copy of the package, if any), then :func:`_second_main`
+_HELPER = (
+    "import sys; sys.path.insert(0, sys.argv[1]); "
+    "from rs_localizer.estimation.warmup import _second_main; _second_main(sys.argv[2:])"
+)
+
+
+def _second_main(argv: list[str]) -> None:
+    """The helper process of :class:`_SecondProcess` (``argv``: ``track`` or ``alone``, then
+    the solvers): :func:`warm_late` for each solver, progress lines on stdout, then one
+    ``kernel<TAB>name<TAB>seconds`` line per kernel compiled."""
+    tracking = TrackerOptions() if argv[0] == "track" else None
+    with compile_progress(lambda m: print(m, flush=True)) as prog:
+        for s in argv[1:]:
+            warm_late(s, tracking=tracking)
+    for name, dt in prog.kernels:
+        print(f"kernel\t{name}\t{dt:.3f}", flush=True)
+
+
+class _SecondProcess:
+    """:func:`warm_late` for ``solvers`` (with the default tracker's filter if ``track``) in
+    another Python process (the same interpreter and package, the same environment: numba
+    caches where this process does). ``log`` receives its progress lines; :attr:`kernels` its
+    (name, seconds) once :meth:`wait` returns. A helper that cannot start or fails only costs
+    time: this process compiles what is missing."""
+
+    def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
+        self.kernels: list[tuple[str, float]] = []
+        self._log = log
+        try:
+            self._proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-c",
+                    _HELPER,
+                    os.path.dirname(PACKAGE_DIR),
+                    "track" if track else "alone",
+                    *solvers,
+                ],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+        except OSError as e:
+            self._proc = None
+            if log is not None:
+                log(f"could not start a second compiling process ({e}); compiling in this one")
+            return
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self._proc.stdout:
+            line = line.rstrip("\n")
+            parts = line.split("\t")
+            if len(parts) == 3 and parts[0] == "kernel":
+                with contextlib.suppress(ValueError):
+                    self.kernels.append((parts[1], float(parts[2])))
+            elif line and self._log is not None:
+                self._log(f"[second process] {line}")
+
+    def wait(self) -> None:
+        """Wait for the helper (killed if this process is interrupted meanwhile)."""
+        if self._proc is None:
+            return
+        try:
+            self._proc.wait()
+        finally:
+            if self._proc.poll() is None:
+                self._proc.kill()
+                self._proc.wait()
+            self._reader.join(timeout=5.0)
+        if self._proc.returncode != 0 and self._log is not None:
+            self._log(
+                f"the second compiling process exited with {self._proc.returncode}; "
+                "this process compiles what it left"
+            )
 
 
 def compile_kernels(
     solvers: Iterable[str] = DEFAULT_SOLVERS,
     log: Callable[[str], object] = print,
     tracking: TrackerOptions | None = TrackerOptions(),
+    jobs: int = DEFAULT_JOBS,
 ) -> dict:
     """Compile (or load) every kernel the estimator needs for ``solvers`` (with the video
     tracker's, for ``tracking``: the node's default), reporting each kernel numba compiles
-    through ``log`` (see :func:`rs_localizer.jit_cache.compile_progress`).
+    through ``log`` (see :func:`rs_localizer.jit_cache.compile_progress`); with ``jobs`` > 1
+    a second process compiles the kernels a frame needs late meanwhile (:func:`warm_late`).
 
     Returns:
-        ``{"seconds": total, "kernels": [(name, seconds)], "cache": cache_state(),
-        "solvers": {solver: seconds}}``.
+        ``{"seconds": total, "kernels": [(name, seconds)] (both processes'), "cache":
+        cache_state(), "solvers": {solver: seconds}}``.
     Raises:
         ValueError: an unknown solver name.
     """
@@ -136,12 +350,21 @@ def compile_kernels(
             raise ValueError(f"unknown solver {s!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
     per = {}
+    kernels = []
     with compile_progress(log) as prog:
-        for s in solvers:
-            per[s], _ = warm_up(s, tracking=tracking)
+        helper = None
+        if jobs > 1 and not all(fused_cached(s) for s in solvers):
+            helper = _SecondProcess(solvers, tracking is not None, log)
+        try:
+            for s in solvers:
+                per[s], _ = warm_up(s, tracking=tracking)
+        finally:
+            if helper is not None:
+                helper.wait()
+                kernels += helper.kernels
     return {
         "seconds": time.perf_counter() - tic,
-        "kernels": prog.kernels,
+        "kernels": prog.kernels + kernels,
         "cache": cache_state(),
         "solvers": per,
     }

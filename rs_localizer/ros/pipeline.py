@@ -69,8 +69,9 @@ def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any) -> None:
     will use before the first real frame (:func:`~rs_localizer.estimation.warmup.warm_up`),
     logging the cache, each kernel compiled and the time to ``logger``
     (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
-    (None: every frame alone). Never raises (a failure is logged)."""
-    from ..estimation.warmup import warm_up
+    (None: every frame alone). On a machine with two cores or more, kernels not yet compiled
+    compile in two processes. Never raises (a failure is logged)."""
+    from ..estimation.warmup import DEFAULT_JOBS, warm_up
     from ..jit_cache import cache_state, compile_progress
 
     st = cache_state()
@@ -81,7 +82,7 @@ def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any) -> None:
     )
     try:
         with compile_progress(logger.info) as prog:
-            dt, est = warm_up(solver, options, tracking)
+            dt, est = warm_up(solver, options, tracking, jobs=DEFAULT_JOBS, log=logger.info)
         logger.info(
             f"warm-up ({solver}): {dt:.2f} s, {'ok' if est.success else est.failure}"
             + (

@@ -1,22 +1,28 @@
 """The batched solver kernels behind one numba entry point, so that compiled callers (RANSAC's
-fused batch in :mod:`rs_localizer.estimation.batch`) can run any of them by an integer id.
+fused batch in :mod:`rs_localizer.estimation.batch`) can run any of them.
 
 Every kernel has the signature of ``_linear.run_batch``'s kernels::
 
     kernel(x (K, N, 2), X (K, N, 3), r (K, N), r0, iterations, tol, v_init (K, 3),
            out (K, >= n_params), ok (K,), its (K,), err (K,))
 
-and writes ``out[:, 0:12] = (v, C, w, t)`` (R9P also its ``R_rs`` to ``out[:, 12:21]``). numba
-does not cache functions that take other compiled functions as arguments, so the dispatch is
-an explicit branch on the id here (all kernels are compiled into :func:`run_kernel`, once,
-and cached).
+and writes ``out[:, 0:12] = (v, C, w, t)`` (R9P also its ``R_rs`` to ``out[:, 12:21]``).
+
+A solver's kernels travel into compiled code as a :class:`KernelSet`, whose numba type
+carries the kernel ids. A caller is compiled once per kernel set, and each compiled version
+contains only the kernels of its set: the default node compiles R6P_{v,C,w,t}^{[v]x} alone,
+not every solver of the package (compiling them all into one branch on a runtime id took
+about three times as long). numba does not cache functions that take other compiled
+functions as arguments; a type that names the kernels is cached like any other argument type.
 """
 
 from __future__ import annotations
 
+import functools
 import sys
 
-from numba import njit
+from numba import types
+from numba.extending import NativeValue, models, overload, register_model, unbox
 
 from .r6p_1lin import r6p_1lin_batch
 from .r6p_vC_wt import r6p_vC_wt_batch
@@ -24,7 +30,7 @@ from .r6p_vCt_w import r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt_batch
 from .registry import SOLVERS
 
-__all__ = ["MAX_PARAMS", "kernel_ids", "run_kernel"]
+__all__ = ["MAX_PARAMS", "KernelSet", "kernel_count", "kernel_ids", "kernel_set", "run_kernels"]
 
 
 def _module(name):
@@ -68,20 +74,112 @@ def kernel_ids(name: str) -> tuple[tuple[int, int, int], ...] | None:
     return tuple(_IDS[fn] for fn in batch)
 
 
-@njit(cache=True)
-def run_kernel(kind, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-    """Run batched kernel ``kind`` (an id from :func:`kernel_ids`) on K problems; arguments as
-    the kernels' (module docstring); N must be at least the kernel's ``min_points`` (not
-    checked here: the kernels do not check it either). Unknown ids leave ``ok`` False."""
-    if kind == 0:
-        _k_1lin(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-    elif kind == 1:
-        _k_vC_wt(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-    elif kind == 2:
-        _k_vCt_w(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-    elif kind == 3:
-        _k_vCt_wt(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-    elif kind == 4:
-        _k_r9p(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+#: kernel id -> kernel
+_KERNELS = {0: _k_1lin, 1: _k_vC_wt, 2: _k_vCt_w, 3: _k_vCt_wt, 4: _k_r9p}
+
+
+class KernelSetType(types.Type):
+    """The numba type of a :class:`KernelSet`: its kernel ids are part of the type, so a
+    compiled caller is specialized (and cached) per set."""
+
+    def __init__(self, ids: tuple[int, ...]):
+        self.ids = tuple(int(i) for i in ids)
+        super().__init__(name=f"KernelSet{self.ids}")
+
+
+register_model(KernelSetType)(models.OpaqueModel)
+
+
+@unbox(KernelSetType)
+def _unbox_kernel_set(typ, obj, c):
+    # everything is in the type; the value itself carries nothing
+    return NativeValue(c.context.get_dummy_value())
+
+
+class KernelSet:
+    """Batched kernels to run, by id (:func:`kernel_ids`), as an argument of compiled code
+    (:func:`run_kernels`, :func:`kernel_count`). Immutable; use :func:`kernel_set` to share
+    one instance per set.
+
+    Raises ValueError for an id that has no kernel.
+    """
+
+    __slots__ = ("_numba_type_", "ids")
+
+    def __init__(self, ids: tuple[int, ...]):
+        ids = tuple(int(i) for i in ids)
+        unknown = [i for i in ids if i not in _KERNELS]
+        if unknown:
+            raise ValueError(f"no batched kernel with id {unknown}; known: {sorted(_KERNELS)}")
+        self.ids = ids
+        self._numba_type_ = KernelSetType(ids)
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __repr__(self) -> str:
+        return f"KernelSet({self.ids})"
+
+
+@functools.cache
+def kernel_set(ids: tuple[int, ...]) -> KernelSet:
+    """The shared :class:`KernelSet` of ``ids`` (a tuple of kernel ids, possibly empty).
+    Raises ValueError for an unknown id."""
+    return KernelSet(ids)
+
+
+def kernel_count(kernels):
+    """Number of kernels in a :class:`KernelSet`, a compile-time constant (compiled code
+    only)."""
+    raise NotImplementedError("kernel_count is called from compiled code only")
+
+
+def run_kernels(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    """Run the ``j``-th kernel of the :class:`KernelSet` ``kernels`` on K problems (compiled
+    code only); arguments as the kernels' (module docstring). N must be at least the kernel's
+    ``min_points`` (not checked here: the kernels do not check it either). ``j`` outside the
+    set leaves ``ok`` False."""
+    raise NotImplementedError("run_kernels is called from compiled code only")
+
+
+@overload(kernel_count)
+def _kernel_count(kernels):
+    if not isinstance(kernels, KernelSetType):
+        return None
+    n = len(kernels.ids)
+    return lambda kernels: n
+
+
+@overload(run_kernels)
+def _run_kernels(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    if not isinstance(kernels, KernelSetType):
+        return None
+    ks = [_KERNELS[i] for i in kernels.ids]
+    if not ks:
+
+        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+            ok[:] = False
+
+    elif len(ks) == 1:
+        k0 = ks[0]
+
+        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+            if j == 0:
+                k0(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+            else:
+                ok[:] = False
+
+    elif len(ks) == 2:
+        k0, k1 = ks
+
+        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+            if j == 0:
+                k0(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+            elif j == 1:
+                k1(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+            else:
+                ok[:] = False
+
     else:
-        ok[:] = False
+        raise ValueError(f"a kernel set holds at most two kernels, not {len(ks)}")
+    return impl
