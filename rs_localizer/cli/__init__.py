@@ -444,6 +444,8 @@ def _calibrate_readout(args) -> int:
         lines.append("  imu.gyro_bias: [" + ", ".join(f"{v:.6f}" for v in res.gyro_bias) + "]")
         if res.time_offset is not None:
             lines.append(f"  imu.time_offset: {res.time_offset:.6f}")
+        else:
+            lines.append("  # imu.time_offset: not estimated (see above)")
     text = "\n".join(lines)
     if args.json:
         print(text, file=sys.stderr)

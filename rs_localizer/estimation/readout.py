@@ -25,9 +25,12 @@ velocity is ``omega = -w / s`` with ``s = line_delay * focal`` the seconds per u
   Brent's bounded search (SciPy) to 1 us and the fit repeated there. Its standard deviation is
   the same sandwich estimate as the slope's, with the residuals' derivative with respect to
   the offset, ``-s R_ci alpha`` (``alpha`` the gyro's angular acceleration, by central
-  differences over 5 ms); the offset is only observable when the rotation rate changes: on a
-  constant rate every shift fits equally (reported as not observable when the standard
-  deviation exceeds ``max_time_offset_std`` or the best offset is at the grid's end).
+  differences over +-20 ms: over shorter steps the sample noise would pass for
+  acceleration). The offset is only observable when the rotation rate changes (on a constant
+  rate every shift fits equally): it is reported as not observable when its standard
+  deviation exceeds ``max_time_offset_std`` (1 ms) or the best offset is at the grid's end.
+  On 2 s of simulated hand-held shake (60 frames, a gyro 10 ms late) the error is at most
+  0.39 ms over seeds 0-5 with a standard deviation of 0.37-0.46 ms (``test/test_readout.py``).
 
 The fit is least squares through the origin with Huber weights (threshold 3 robust sigma),
 repeated to convergence. Its standard deviation is a heteroscedasticity- and
@@ -268,7 +271,7 @@ def _search_offset(t, y, t_imu, om_imu, max_offset: float, step: float) -> tuple
     return float(res.x), k in (0, len(grid) - 1)
 
 
-def _offset_std(t, y, t_imu, om_imu, d, s, R, c, lags: int = 2, h: float = 0.005) -> float:
+def _offset_std(t, y, t_imu, om_imu, d, s, R, c, lags: int = 2, h: float = 0.02) -> float:
     """Sandwich standard deviation (s) of the time offset ``d`` (see the module docstring)."""
     r = y - s * _rates_at(t - d * 1e9, t_imu, om_imu) @ R.T - c
     alpha = (
@@ -366,7 +369,7 @@ def fit_line_delay(
     estimate_time_offset: bool = True,
     max_time_offset: float = 0.05,
     time_offset_step: float = 0.001,
-    max_time_offset_std: float = 0.002,
+    max_time_offset_std: float = 0.001,
 ) -> ReadoutCalibration:
     """Fit the line delay to per-frame RS rotation rates (see the module docstring).
 
@@ -439,13 +442,13 @@ def fit_line_delay(
         )
         if not estimate_time_offset:
             d = d_std = None
-        elif at_end:
-            d_reason = f"the best offset is at the end of the search (+-{max_time_offset:g} s)"
         elif not d_std <= max_time_offset_std:
             d_reason = (
                 f"the rotation rate barely changes: std {d_std * 1e3:.3g} ms > "
                 f"{max_time_offset_std * 1e3:g} ms"
             )
+        elif at_end:
+            d_reason = f"the best offset is at the end of the search (+-{max_time_offset:g} s)"
         s, std, rms = _robust_slope(x, y)
         # y = s R_ci (omega_imu - bias) = s R_ci omega_imu + c
         gyro_bias = -R_ci.T @ c / s if s > 0 else None
