@@ -18,24 +18,24 @@ gyro_bias.pair_innovation`) and keeps the outcome of the last ``window`` pairs:
 * ``failures`` failed pairs among the last ``window`` counted ones, *and* a mount error that
   explains them, declare the gyro **inconsistent** with the image. The mount error is the
   rotation ``Q`` that best maps the gyro's rotations onto the image's over the window
-  (``log(O_prev^T O) ~ Q phi_gyro``, both in the camera frame; Kabsch's fit with Huber weights,
-  the rotation-vector form of Umeyama 1991): it must exceed ``min_mount_error_deg`` and halve the
-  pairs' median residual. Poses that are wrong now and then (a planar pose ambiguity, a tracker
-  glitch: the image is wrong, not the gyro) fail pairs in every direction, which no rotation of
-  the mount explains; a wrong mount (an axis swapped, a sign) fails them all the same way. A
-  time offset error is not a rotation either: on a 3D scene the per-frame test rejects it, on
-  a planar one it is left in (the gyro still helps there more than it hurts: the numbers
-  below). Then the gyro is **inconsistent** with the image: the frames are solved without
-  it (the caller's decision; the node counts them in ``gyro_disabled_inconsistent``), and
-  pairs are still tested with the gyro's own rotation, so that the gyro is **consistent**
-  again once at most ``recover_failures`` of the last ``window`` pairs fail (the data became
-  consistent, e.g. a corrected ``imu.rotation``).
+  (``log(O_prev^T O) ~ Q phi_gyro``, both in the camera frame; Kabsch's fit with Huber
+  weights, the rotation-vector form of Umeyama 1991): it must exceed ``min_mount_error_deg``
+  and halve the pairs' median residual. Poses that are wrong now and then (a planar pose
+  ambiguity, a tracker glitch: the image is wrong, not the gyro) fail pairs in every
+  direction, which no rotation of the mount explains; a wrong mount (an axis swapped, a sign)
+  fails them all the same way. A time offset error is not a rotation either: on a 3D scene the
+  per-frame test rejects the frames it spoils, on a planar one it is left in (there the gyro
+  still helped more than it hurt in the measurements below). While the gyro is inconsistent,
+  the frames are solved without it (the caller's decision; the node counts them in
+  ``gyro_disabled_inconsistent``), and pairs are still tested with the gyro's own rotation, so
+  that the gyro is **consistent** again once at most ``recover_failures`` of the last
+  ``window`` pairs fail (the data became consistent, e.g. a corrected ``imu.rotation``).
 
 A wrong mount by an angle ``a`` leaves a residual of about ``2 sin(a / 2) |omega| dt`` per pair
 (2.7 deg at 1 rad/s over 33 ms for 90 deg); a time offset error ``d`` one of about ``d
-|omega(t1) - omega(t0)|`` (0.1-0.5 deg on a hand-held shake for 10 ms). The numbers (frames until
-detection, false alarms with the right mount) are in docs/node.md "Gyro", from
-``python -m rs_localizer.evaluation.bench_gyro --video --scene plane``.
+|omega(t1) - omega(t0)|`` (up to 0.8 deg on a hand-held shake for 10 ms). The numbers (frames
+until detection, false alarms with the right mount, errors against no gyro) are in
+docs/node.md "Gyro", from ``python -m rs_localizer.evaluation.bench_gyro --video --mount``.
 
 Conventions as :mod:`rs_localizer.estimation.gyro`.
 """

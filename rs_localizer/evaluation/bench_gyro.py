@@ -33,8 +33,20 @@ gyro. Printed: the bias error at 1, 2, 5 and 10 s, and the median errors against
 of the per-frame pose (rotation deg, position cm) and of the fused twist (the smoother's final
 states: angular rad/s, linear m/s), with their ratios to the zero-bias run.
 
+``--video --mount``: the check of the gyro against the rotation between frames
+(:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`, as the node runs it: frames solved
+without the gyro while it is declared inconsistent, the bias estimator not fed then) on the
+same kind of video of a planar scene (``--scene plane``, the default: 500 points on a wall 8 m
+ahead, :func:`~rs_localizer.sim.planar.sequence_scene`) or the corridor; the gyro's bias of
+0.05 rad/s per axis estimated online. Rows: no gyro; the right mount; a mount 90 deg off about
+the optical axis, with and without the check; the gyro's stamps 10 ms late (``imu.time_offset``
+left at 0), with and without the check (``--rows`` picks some). Printed: the frame at which
+the gyro was first declared inconsistent, how often, the frames solved without it because of
+that, and the median errors against ground truth with their ratios to no gyro.
+
     python -m rs_localizer.evaluation.bench_gyro [--frames 200] [--scenes board plane depth]
     python -m rs_localizer.evaluation.bench_gyro --video [--seconds 10] [--motion shake]
+    python -m rs_localizer.evaluation.bench_gyro --video --mount [--scene plane] [--seconds 10]
 """
 
 from __future__ import annotations
