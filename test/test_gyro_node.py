@@ -57,7 +57,11 @@ def test_replay_with_the_gyro(imu_bag):
     assert aided.counts.get("gyro_missing", 0) == 0, aided.counts
     e0, e1 = np.median(_angular_errors(base)), np.median(_angular_errors(aided))
     assert e1 < 0.01 and e1 < 0.3 * e0, (e0, e1)
-    assert wrong.counts.get("gyro_rejected", 0) == n, wrong.counts
+    # (the first frames are rejected one by one; then the check of the rotation between
+    # frames leaves the gyro out)
+    c = wrong.counts
+    assert c.get("gyro_rejected", 0) + c.get("gyro_disabled_inconsistent", 0) == n, c
+    assert c.get("gyro_inconsistent_detections") == 1 and c["gyro_disabled_inconsistent"] >= 15
     assert "frames_with_gyro" not in wrong.counts
     np.testing.assert_array_equal(_angular_errors(wrong), _angular_errors(base))
     # a bag without the IMU topic the parameters ask for: a clear error
@@ -89,6 +93,78 @@ def test_replay_estimates_the_gyro_bias(imu_bag):
     assert base.gyro_bias is None
 
 
+@pytest.fixture(scope="module")
+def plane_bag(tmp_path_factory):
+    """A planar scene (a wall 8 m ahead) under hand-held shake with a 200 Hz gyro."""
+    from rs_localizer.cli import main
+
+    out = tmp_path_factory.mktemp("plane") / "bag"
+    args = ["make-bag", str(out), "--frames", "60", "--imu-rate", "200", "--motion", "shake"]
+    assert main(args + ["--scene", "plane"]) == 0
+    return out
+
+
+class _Log:
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text):
+        self.lines.append(("info", text))
+
+    def warning(self, text):
+        self.lines.append(("warning", text))
+
+    def error(self, text):
+        self.lines.append(("error", text))
+
+
+@pytest.mark.parametrize("estimate_bias", [True, False])
+def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
+    """On a planar scene the per-frame test rejects a mount 90 deg off (about the optical
+    axis) on some frames only; the rotation between frames shows it: within 30 frames (26
+    measured) the pipeline warns once, solves the rest without the gyro and counts them, with
+    or without the online bias, and the diagnostics say so; the right mount is not
+    flagged."""
+    from rs_localizer.geometry import rotvec_to_matrix
+    from rs_localizer.ros.conversions import quaternion_from_matrix
+    from rs_localizer.ros.diagnostics import WARN, diagnostic_status
+    from rs_localizer.ros.frame_queue import FrameCounts
+    from rs_localizer.ros.pipeline import StatsSnapshot
+    from rs_localizer.ros.replay import replay
+    from rs_localizer.sim.trajectory import R_IMU_CAMERA
+
+    R_wrong = rotvec_to_matrix(np.array([0.0, 0.0, np.pi / 2])) @ R_IMU_CAMERA.T
+    params = {**GYRO, "imu.estimate_bias": estimate_bias}
+    log = _Log()
+    wrong = replay(
+        plane_bag,
+        params={**params, "imu.rotation": list(quaternion_from_matrix(R_wrong))},
+        progress=None,
+        log=log,
+    )
+    right = replay(plane_bag, params=params, progress=None)
+    n = len(wrong.rows)
+    c = wrong.counts
+    assert wrong.solved == n == 60
+    assert c.get("gyro_inconsistent_detections") == 1, c
+    # every frame after the detection is solved without the gyro and counted
+    assert c["gyro_disabled_inconsistent"] >= n - 30, c
+    used, rejected = c.get("frames_with_gyro", 0), c.get("gyro_rejected", 0)
+    assert used + rejected + c["gyro_disabled_inconsistent"] == n, c
+    warned = [t for level, t in log.lines if "contradicts the gyro" in t]
+    assert len(warned) == 1 and "imu.rotation" in warned[0], log.lines
+    assert "gyro_inconsistent_detections" not in right.counts, right.counts
+    assert right.counts.get("gyro_disabled_inconsistent", 0) == 0, right.counts
+    snap = StatsSnapshot(c, [], True, 1.0, 0, {})
+    level, message, values = diagnostic_status(
+        wrong.config, FrameCounts(n, n), snap, {}, "parameters", 0, [], [], 200.0, None, True
+    )
+    assert level == WARN and "gyro contradicts the image" in message
+    assert values["gyro_inconsistent"] == "true"
+    assert values["gyro_disabled_inconsistent"] == c["gyro_disabled_inconsistent"]
+    assert values["gyro_pairs_failed"] == c["gyro_pairs_failed"] >= 6
+
+
 def test_a_new_bias_parameter_restarts_the_estimate():
     """The estimate survives a change of other parameters; a new imu.gyro_bias (a new
     calibration) starts it again from the parameters; imu.estimate_bias false drops it."""
@@ -107,6 +183,13 @@ def test_a_new_bias_parameter_restarts_the_estimate():
     np.testing.assert_allclose(pipe.gyro_bias_values()[1], np.full(3, 0.005))
     pipe.configure(build_config({**values, "imu.estimate_bias": False}))
     assert pipe.gyro_bias is None
+    # the check of the gyro against the image: kept over other parameters, tested anew with
+    # a new imu.rotation
+    pipe.gyro_check.inconsistent = True  # (as if declared)
+    pipe.configure(build_config({**values, "imu.estimate_bias": False, "ransac.seed": 5}))
+    assert pipe.gyro_inconsistent
+    pipe.configure(build_config({**values, "imu.rotation": [0.0, 0.0, 0.0, 1.0]}))
+    assert not pipe.gyro_inconsistent
     np.testing.assert_array_equal(pipe.gyro_bias_values()[0], BIAS)
 
 

@@ -118,12 +118,15 @@ def _make_bag(args) -> int:
         t, om, fo = imu_samples(
             trajectory, -0.1, args.frames / args.fps + 0.1, args.imu_rate, seed=args.seed
         )
-        imu = (cfg.t0_ns + np.round(t * 1e9).astype(np.int64), om, fo)
+        # (stamped on the IMU's clock: t_cam = t_imu + time_offset)
+        imu = (cfg.t0_ns + np.round((t - args.imu_time_offset) * 1e9).astype(np.int64), om, fo)
         extra["imu"] = {
             "topic": args.imu_topic,
             "rate": args.imu_rate,
             "rotation_imu_from_camera": R_IMU_CAMERA.tolist(),
         }
+        if args.imu_time_offset:
+            extra["imu"]["time_offset"] = args.imu_time_offset
     out = write_sequence_bag(
         args.out,
         frames,
@@ -263,6 +266,8 @@ def _replay(args) -> int:
         print(
             f"gyro: {c.get('frames_with_gyro', 0)} frames used it, "
             f"{c.get('gyro_rejected', 0)} contradicted by the image (solved without), "
+            f"{c.get('gyro_disabled_inconsistent', 0)} solved without it while the rotation "
+            "between frames contradicted it, "
             f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
             file=text,
         )
@@ -427,9 +432,20 @@ def _calibrate_readout(args) -> int:
         from ..ros.conversions import quaternion_from_matrix
 
         q = quaternion_from_matrix(res.camera_imu_rotation)
-        lines.append("for the node's parameters (the IMU's time offset is not estimated):")
+        if res.time_offset is not None:
+            lines.append(
+                f"gyro time offset {res.time_offset * 1e3:.3f} +- "
+                f"{res.time_offset_std * 1e3:.3f} ms (t_cam = t_imu + offset)"
+            )
+        else:
+            lines.append(f"gyro time offset not observable: {res.time_offset_reason}")
+        lines.append("for the node's parameters:")
         lines.append("  imu.rotation: [" + ", ".join(f"{v:.6f}" for v in q) + "]")
         lines.append("  imu.gyro_bias: [" + ", ".join(f"{v:.6f}" for v in res.gyro_bias) + "]")
+        if res.time_offset is not None:
+            lines.append(f"  imu.time_offset: {res.time_offset:.6f}")
+        else:
+            lines.append("  # imu.time_offset: not estimated (see above)")
     text = "\n".join(lines)
     if args.json:
         print(text, file=sys.stderr)
@@ -586,6 +602,14 @@ def build_parser() -> argparse.ArgumentParser:
         "bias and noise, IMU axes x forward, y left, z up)",
     )
     m.add_argument("--imu-topic", default="/imu/data", help="topic of --imu-rate")
+    m.add_argument(
+        "--imu-time-offset",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="with --imu-rate: stamp the IMU on a clock S seconds behind the camera's "
+        "(t_cam = t_imu + S, the node's imu.time_offset)",
+    )
     m.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_make_bag)
 
@@ -890,8 +914,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--imu-topic",
         default=None,
         help="sensor_msgs/Imu topic: use its gyro instead of the rotation between "
-        "frames (camera and IMU rigidly mounted, one clock; their rotation is "
-        "estimated)",
+        "frames (camera and IMU rigidly mounted; their rotation, the gyro bias and the "
+        "gyro's time offset within +-50 ms are estimated)",
     )
     cr.add_argument(
         "--solver",

@@ -66,6 +66,7 @@ __all__ = [
     "GyroBiasEstimator",
     "GyroBiasOptions",
     "integrate_gyro",
+    "pair_innovation",
 ]
 
 #: what :meth:`GyroBiasEstimator.update` did with a frame: ``used`` (the pair updated the
@@ -187,6 +188,45 @@ def _right_jacobian(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) - (1.0 - np.cos(th)) / th**2 * S + (th - np.sin(th)) / th**3 * (S @ S)
 
 
+def pair_innovation(
+    prev: tuple[int, np.ndarray, np.ndarray],
+    cur: tuple[int, np.ndarray, np.ndarray],
+    buffer: ImuBuffer,
+    R_cam_imu: np.ndarray,
+    bias: np.ndarray,
+    bias_covariance: np.ndarray,
+    noise: float,
+    time_offset: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | str:
+    """The rotation between two solved frames against the gyro's (the measurement of
+    :class:`GyroBiasEstimator`, see the module docstring).
+
+    Args:
+        prev, cur: ``(stamp_ns, orientation (3, 3) camera -> world, rotation covariance (3, 3)
+            rad^2, world axes)`` of the earlier and the later frame (camera clock).
+        buffer: the IMU's samples. R_cam_imu: (3, 3) IMU -> camera optical frame.
+        bias: (3,) rad/s, IMU frame, subtracted. bias_covariance: (3, 3) rad^2/s^2, its
+            covariance. noise: rad/s per sample. time_offset: s added to the IMU stamps.
+    Returns:
+        ``(r, H, Rn, S)``: ``r`` (3,) rad, ``log(dR_gyro^T O_prev^T O)`` in the later camera
+        frame; ``H`` (3, 3) its derivative with respect to the bias (``-R_cam_imu J``); ``Rn``
+        (3, 3) the covariance of the poses and the sample noise; ``S = H P_b H^T + Rn`` the
+        innovation's covariance; or the reason of ``no_gyro`` (no samples cover the interval).
+    """
+    t, rates, span, _ = buffer.interval((prev[0], cur[0]), time_offset)
+    if t is None:
+        return "no_gyro"
+    dR, J, c = integrate_gyro(t, rates, span, bias)
+    Rci = R_cam_imu
+    dR_cam = Rci @ dR @ Rci.T
+    Ori = cur[1]
+    r = matrix_to_rotvec(dR_cam.T @ (prev[1].T @ Ori))
+    H = -Rci @ J
+    Rn = Ori.T @ (prev[2] + cur[2]) @ Ori + noise**2 * float(c @ c) * np.eye(3)
+    S = H @ bias_covariance @ H.T + Rn
+    return r, H, Rn, 0.5 * (S + S.T)
+
+
 class GyroBiasEstimator:
     """A Kalman filter on one gyro's bias, measured by the rotation between consecutive
     solved frames (see the module docstring).
@@ -301,19 +341,21 @@ class GyroBiasEstimator:
         dt = (stamp_ns - prev[0]) * 1e-9
         if not (self.options.min_interval <= dt <= self.options.max_interval):
             return self._count("gap")
-        t, rates, span, _ = buffer.interval((prev[0], stamp_ns), self.time_offset)
-        if t is None:
-            return self._count("no_gyro")
         self._propagate(stamp_ns)
-        dR, J, c = integrate_gyro(t, rates, span, self.bias)
-        Rci = self.R_cam_imu
-        dR_cam = Rci @ dR @ Rci.T
-        r = matrix_to_rotvec(dR_cam.T @ (prev[1].T @ Ori))
-        H = -Rci @ J
-        Rn = Ori.T @ (prev[2] + self._prev[2]) @ Ori + self.noise**2 * float(c @ c) * np.eye(3)
+        inn = pair_innovation(
+            prev,
+            self._prev,
+            buffer,
+            self.R_cam_imu,
+            self.bias,
+            self.covariance,
+            self.noise,
+            self.time_offset,
+        )
+        if isinstance(inn, str):
+            return self._count(inn)
+        r, H, Rn, S = inn
         Pb = self.covariance
-        S = H @ Pb @ H.T + Rn
-        S = 0.5 * (S + S.T)
         try:
             Si = np.linalg.inv(S)
         except np.linalg.LinAlgError:

@@ -33,8 +33,20 @@ gyro. Printed: the bias error at 1, 2, 5 and 10 s, and the median errors against
 of the per-frame pose (rotation deg, position cm) and of the fused twist (the smoother's final
 states: angular rad/s, linear m/s), with their ratios to the zero-bias run.
 
+``--video --mount``: the check of the gyro against the rotation between frames
+(:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`, as the node runs it: frames solved
+without the gyro while it is declared inconsistent, the bias estimator not fed then) on the
+same kind of video of a planar scene (``--scene plane``, the default: 500 points on a wall 8 m
+ahead, :func:`~rs_localizer.sim.planar.sequence_scene`) or the corridor; the gyro's bias of
+0.05 rad/s per axis estimated online. Rows: no gyro; the right mount; a mount 90 deg off about
+the optical axis, with and without the check; the gyro's stamps 10 ms late (``imu.time_offset``
+left at 0), with and without the check (``--rows`` picks some). Printed: the frame at which
+the gyro was first declared inconsistent, how often, the frames solved without it because of
+that, and the median errors against ground truth with their ratios to no gyro.
+
     python -m rs_localizer.evaluation.bench_gyro [--frames 200] [--scenes board plane depth]
     python -m rs_localizer.evaluation.bench_gyro --video [--seconds 10] [--motion shake]
+    python -m rs_localizer.evaluation.bench_gyro --video --mount [--scene plane] [--seconds 10]
 """
 
 from __future__ import annotations
@@ -47,9 +59,10 @@ import numpy as np
 from ..estimation import EstimateOptions, RansacOptions, estimate_rs_pose, gyro_measurement
 from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator
+from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.tracker import RSTracker
 from ..geometry import rotation_angle_deg, rotvec_to_matrix
-from ..sim.planar import PlanarFrame, make_planar_frame
+from ..sim.planar import PlanarFrame, make_planar_frame, sequence_scene
 from ..sim.trajectory import (
     R_IMU_CAMERA,
     SequenceConfig,
@@ -151,19 +164,31 @@ VIDEO_PRIOR = (0.0, 0.05)
 BIAS_TIMES = (1.0, 2.0, 5.0, 10.0)
 
 
-def make_video(seconds: float, motion: str = "shake", seed: int = 0, fps: float = 30.0):
-    """``(frames, camera, trajectory)`` of a synthetic video (``generate_sequence``)."""
+def make_video(
+    seconds: float, motion: str = "shake", seed: int = 0, fps: float = 30.0, scene: str = "corridor"
+):
+    """``(frames, camera, trajectory)`` of a synthetic video (``generate_sequence``; ``scene``
+    of :func:`~rs_localizer.sim.planar.sequence_scene`: ``corridor`` or ``plane``, one wall
+    8 m ahead)."""
     n = int(round(seconds * fps))
+    if scene not in ("corridor", "plane"):
+        raise ValueError(f"scene must be corridor or plane, got {scene!r}")
+    landmarks, _ = sequence_scene(scene, np.random.default_rng([seed, 16]))
     frames, _, cam, traj = generate_sequence(
-        SequenceConfig(num_frames=n, seed=seed, fps=fps), trajectory=make_trajectory(motion)
+        SequenceConfig(num_frames=n, seed=seed, fps=fps),
+        trajectory=make_trajectory(motion),
+        scene=landmarks,
     )
     return frames, cam, traj
 
 
-def simulated_imu(frames, trajectory, bias: float, seed: int = 0) -> ImuBuffer:
+def simulated_imu(
+    frames, trajectory, bias: float, seed: int = 0, time_offset: float = 0.0
+) -> ImuBuffer:
     """A 200 Hz gyro (``imu_samples``: bias ``bias`` rad/s on every axis, 0.003 rad/s noise)
     over the video, 0.1 s before its first frame to 0.1 s after its last, in an
-    :class:`ImuBuffer` (stamps on the frames' clock)."""
+    :class:`ImuBuffer`, stamped on a clock ``time_offset`` s behind the frames' (``t_cam =
+    t_imu + time_offset``, as ``imu.time_offset``)."""
     t0_ns = SequenceConfig().t0_ns
     t_end = (frames[-1].t_ref_ns - t0_ns) * 1e-9 + 0.1
     t, om, _ = imu_samples(
@@ -171,33 +196,53 @@ def simulated_imu(frames, trajectory, bias: float, seed: int = 0) -> ImuBuffer:
     )
     buf = ImuBuffer(span=np.inf)
     for ti, wi in zip(t, om, strict=True):
-        buf.add(t0_ns + int(round(ti * 1e9)), wi)
+        buf.add(t0_ns + int(round((ti - time_offset) * 1e9)), wi)
     return buf
 
 
-def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bias: float):
-    """Track ``frames`` with the gyro of ``imu`` (None: no gyro) and, with ``estimate_bias``,
-    the bias estimated online. Returns per-frame pose errors (rotation deg, position m), the
-    fused twist errors (angular rad/s, linear m/s), the bias error (rad/s, the largest over
-    the three axes) after each frame with its time, the estimator's counts and the mean
-    normalized innovation squared of the pairs it tested (3 for a consistent covariance)."""
+def track_video(
+    frames,
+    cam,
+    imu: ImuBuffer | None,
+    estimate_bias: bool,
+    true_bias: float,
+    R_cam_imu: np.ndarray | None = None,
+    check: bool = False,
+):
+    """Track ``frames`` with the gyro of ``imu`` (None: no gyro) mounted as ``R_cam_imu``
+    (default: the simulated mount) and, with ``estimate_bias``, the bias estimated online;
+    with ``check``, the gyro is tested against the rotation between solved frames as the node
+    does (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames solved without
+    it while inconsistent, the bias estimator not fed then). Returns per-frame pose errors
+    (rotation deg, position m), the fused twist errors (angular rad/s, linear m/s), the bias
+    error (rad/s, the largest over the three axes) after each frame with its time, the
+    estimator's counts, the mean normalized innovation squared of the pairs it tested (3 for
+    a consistent covariance) and the check's results (the frame index of the first
+    detection or None, detections, frames solved without the gyro because of it)."""
     opts = EstimateOptions(ransac=RansacOptions(seed=0))
     tracker = RSTracker(options=opts)
-    bias = GyroBiasEstimator(np.full(3, VIDEO_PRIOR[0]), VIDEO_PRIOR[1], R_IMU_CAMERA.T, NOISE)
+    Rci = R_IMU_CAMERA.T if R_cam_imu is None else R_cam_imu
+    bias = GyroBiasEstimator(np.full(3, VIDEO_PRIOR[0]), VIDEO_PRIOR[1], Rci, NOISE)
+    mount = GyroMountCheck(Rci, NOISE) if check and imu is not None else None
+    first_detection, disabled = None, 0
     truth = {f.t_ref_ns: f for f in frames}
     lead = int(round(cam.line_time(cam.reference_line) * 1e9))
     span = int(round(cam.line_delay * (cam.lines - 1) * 1e9))
     pose, finals, bias_err, nis = [], [], [], []
-    for f in frames:
+    for k, f in enumerate(frames):
         g = None
         if imu is not None:
             first = f.t_ref_ns - lead
             g, _ = bias.measurement(imu, (first, first + span))
+            if mount is not None and mount.inconsistent:
+                g, disabled = None, disabled + 1
         r = tracker.process(f.t_ref_ns, f.uv, f.xyz, cam, f.scores, gyro=g)
         finals += r.final
         e = r.estimate
         if r.state == "reset" or not e.success:
             bias.restart()
+            if mount is not None:
+                mount.restart()
         if e.success:
             pose.append(
                 (
@@ -205,7 +250,14 @@ def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bi
                     float(np.linalg.norm(e.position - f.position)),
                 )
             )
-            if imu is not None and estimate_bias:
+            if mount is not None:
+                mount.update(
+                    f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu, bias.bias, bias.covariance
+                )
+                if mount.inconsistent:
+                    first_detection = k if first_detection is None else first_detection
+                    bias.restart()
+            if imu is not None and estimate_bias and not (mount is not None and mount.inconsistent):
                 out = bias.update(f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu)
                 if out in ("used", "rejected"):
                     nis.append(bias.last_nis)
@@ -227,6 +279,9 @@ def track_video(frames, cam, imu: ImuBuffer | None, estimate_bias: bool, true_bi
         std=bias.std,
         nis=float(np.mean(nis)) if nis else float("nan"),
         frames=len(frames),
+        first_detection=first_detection,
+        detections=mount.detections if mount is not None else 0,
+        disabled=disabled,
     )
 
 
@@ -283,6 +338,64 @@ def print_video(rows: dict, motion: str, seconds: float) -> None:
         )
 
 
+#: the uncorrected time offset of the ``--mount`` rows (s)
+MOUNT_TIME_OFFSET = 0.010
+
+
+#: the rows of ``--video --mount``: name -> (wrong mount, uncorrected time offset, checked)
+MOUNT_ROWS = {
+    "right mount": (False, False, True),
+    "mount 90 deg off": (True, False, True),
+    "mount 90 deg off, no check": (True, False, False),
+    f"time offset {MOUNT_TIME_OFFSET * 1e3:g} ms": (False, True, True),
+    f"time offset {MOUNT_TIME_OFFSET * 1e3:g} ms, no check": (False, True, False),
+}
+
+
+def run_mount(seconds: float, motion: str, seed: int, scene: str = "plane", rows=None) -> dict:
+    """The rows of the ``--video --mount`` table (see the module docstring): the gyro (bias
+    0.05 rad/s per axis, estimated online) tested against the rotation between frames;
+    ``rows``: names of :data:`MOUNT_ROWS` (default all); ``no gyro`` always."""
+    frames, cam, traj = make_video(seconds, motion, seed, scene=scene)
+    out = {"no gyro": track_video(frames, cam, None, False, 0.0)}
+    for name in rows or MOUNT_ROWS:
+        wrong, late, check = MOUNT_ROWS[name]
+        imu = simulated_imu(
+            frames, traj, VIDEO_BIAS, seed, time_offset=MOUNT_TIME_OFFSET if late else 0.0
+        )
+        R = R_WRONG @ R_IMU_CAMERA.T if wrong else None
+        out[name] = track_video(frames, cam, imu, True, VIDEO_BIAS, R, check=check)
+    return out
+
+
+def print_mount(rows: dict, motion: str, seconds: float, scene: str) -> None:
+    """The ``--video --mount`` table."""
+    print(
+        f"\n{scene}, {motion}, {seconds:g} s at 30 fps, 200 Hz gyro (bias {VIDEO_BIAS} rad/s per "
+        "axis, estimated online), checked against the rotation between frames"
+    )
+    print(
+        "detected: frame of the first detection; detections; frames solved without the gyro "
+        "because of it; median errors vs ground truth (ratio to no gyro)"
+    )
+    print(
+        f"{'':30s} {'detected':>9s} {'n':>3s} {'w/o':>5s} {'rot deg':>14s} {'pos cm':>14s} "
+        f"{'omega rad/s':>16s} {'v m/s':>14s}"
+    )
+    med = {
+        k: (np.median(r["pose"], axis=0), np.median(r["twist"], axis=0)) for k, r in rows.items()
+    }
+    p0, w0 = med["no gyro"]
+    for name, r in rows.items():
+        p, w = med[name]
+        det = "-" if r["first_detection"] is None else str(r["first_detection"])
+        print(
+            f"{name:30s} {det:>9s} {r['detections']:3d} {r['disabled']:5d} "
+            f"{p[0]:7.4f} ({p[0] / p0[0]:4.2f}) {100 * p[1]:7.3f} ({p[1] / p0[1]:4.2f}) "
+            f"{w[0]:9.4f} ({w[0] / w0[0]:4.2f}) {w[1]:7.4f} ({w[1] / w0[1]:4.2f})"
+        )
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=200)
@@ -291,7 +404,21 @@ def main(argv=None) -> int:
     ap.add_argument("--video", action="store_true", help="online gyro-bias estimation")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--motion", default="shake")
+    ap.add_argument(
+        "--mount",
+        action="store_true",
+        help="with --video: a wrong mount and time offset against the check of the gyro",
+    )
+    ap.add_argument("--scene", default="plane", choices=["corridor", "plane"], help="--mount scene")
+    ap.add_argument(
+        "--rows", nargs="+", default=None, choices=list(MOUNT_ROWS), help="--mount rows"
+    )
     args = ap.parse_args(argv)
+    if args.video and args.mount:
+        with one_thread():
+            rows = run_mount(args.seconds, args.motion, args.seed, args.scene, args.rows)
+            print_mount(rows, args.motion, args.seconds, args.scene)
+        return 0
     if args.video:
         with one_thread():
             print_video(run_video(args.seconds, args.motion, args.seed), args.motion, args.seconds)

@@ -33,11 +33,13 @@ def diagnostic_status(
     stamp_ages: Sequence[float],
     imu_rate_hz: float | None = None,
     gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
+    gyro_inconsistent: bool = False,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
-    Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped
-    or a message was lost, else OK. ``values`` (in publishing order): solver, camera
+    Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped,
+    a message was lost or the gyro is left out because the rotation between frames contradicts
+    it (``gyro_inconsistent``), else OK. ``values`` (in publishing order): solver, camera
     (``camera_source``), frame accounting (received, solved, failed, skipped, pending), counters
     of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
     :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
@@ -47,7 +49,9 @@ def diagnostic_status(
     gyro the image contradicted, frames without gyro samples, IMU samples rejected, the gyro
     bias used and its standard deviation: ``gyro_bias`` = (bias (3,), std (3,)) rad/s, IMU
     frame, the online estimate with ``imu.estimate_bias``, default ``imu.gyro_bias`` and
-    ``imu.gyro_bias_sigma``; pairs of frames the bias estimator rejected), then
+    ``imu.gyro_bias_sigma``; pairs of frames the bias estimator rejected; the check of the
+    gyro against the rotation between frames: ``gyro_inconsistent``, the frames solved
+    without the gyro because of it, its failed pairs and detections), then
     ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>`` and
     ``imu_rejected.<reason>`` counts.
     """
@@ -60,6 +64,12 @@ def diagnostic_status(
         level = WARN
         message = f"{frames.solved}/{frames.received} frames solved" + (
             f", {frames.skipped} skipped (busy)" if frames.skipped else ""
+        )
+    elif gyro_inconsistent and cfg.imu is not None:
+        level = WARN
+        message = (
+            f"{frames.solved}/{frames.received} frames solved; the gyro contradicts the image "
+            "(check imu.rotation, imu.time_offset): frames solved without it"
         )
     else:
         level = OK
@@ -125,6 +135,10 @@ def diagnostic_status(
                 "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
                 "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
                 "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
+                "gyro_inconsistent": str(bool(gyro_inconsistent)).lower(),
+                "gyro_disabled_inconsistent": c.get("gyro_disabled_inconsistent", 0),
+                "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
+                "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
             }
         )
     values.update({f"failed.{k}": v for k, v in failed.items()})

@@ -385,6 +385,7 @@ class LocalizerCore:
             list(self.stamp_ages),
             self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
             self.pipeline.gyro_bias_values(),
+            self.pipeline.gyro_inconsistent,
         )
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"

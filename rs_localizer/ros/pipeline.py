@@ -10,7 +10,9 @@ front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the gyr
 measurement of the frame's readout when ``imu.enabled`` (:class:`~rs_localizer.estimation.gyro.
 ImuBuffer`, fed by :meth:`FramePipeline.add_imu`; with ``imu.estimate_bias`` the gyro bias
 estimated online from the solved frames,
-:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`), the estimate
+:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`; the gyro left out while the
+rotation between solved frames contradicts it, :class:`~rs_localizer.estimation.gyro_check.
+GyroMountCheck`), the estimate
 (:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
 :func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
 the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
@@ -33,6 +35,7 @@ from ..camera import CameraModel
 from ..estimation import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
+from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.points import cap_points
 from ..estimation.tracker import RSTracker
 from ..frames import camera_to_base
@@ -315,6 +318,9 @@ class FramePipeline:
         # the online gyro-bias estimate (imu.estimate_bias) and the parameters it started from
         self.gyro_bias: GyroBiasEstimator | None = None
         self._bias_key = None
+        # the sequence-level check of the gyro against the image (imu.enabled)
+        self.gyro_check: GyroMountCheck | None = None
+        self._check_key = None
         if config is not None:
             self.configure(config)
 
@@ -341,6 +347,7 @@ class FramePipeline:
                 for t, w in old.samples():
                     self.imu.add(t, w)
         self._configure_bias(imu)
+        self._configure_check(imu)
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
 
@@ -369,6 +376,32 @@ class FramePipeline:
                 GyroBiasOptions(random_walk=imu.bias_random_walk),
             )
             self._bias_key = key
+
+    def _configure_check(self, imu) -> None:
+        """The check of the gyro against the image (:class:`GyroMountCheck`): kept while
+        the ``imu.*`` values it tests stay the same, else started again (consistent): a
+        corrected ``imu.rotation`` or ``imu.time_offset`` given at run time is tested anew."""
+        if imu is None:
+            self.gyro_check = self._check_key = None
+            return
+        key = (
+            tuple(np.round(imu.R_cam_imu, 12).ravel()),
+            imu.time_offset,
+            imu.gyro_noise,
+            tuple(imu.gyro_bias),
+            imu.gyro_bias_sigma,
+            imu.estimate_bias,
+        )
+        if self.gyro_check is None or key != self._check_key:
+            self.gyro_check = GyroMountCheck(imu.R_cam_imu, imu.gyro_noise, imu.time_offset)
+            self._check_key = key
+
+    @property
+    def gyro_inconsistent(self) -> bool:
+        """True while the rotation between solved frames contradicts the gyro and frames are
+        solved without it (``imu.enabled``; :class:`GyroMountCheck`)."""
+        check = self.gyro_check
+        return check is not None and check.inconsistent
 
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
@@ -481,6 +514,9 @@ class FramePipeline:
                 f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
                 "imu.time_offset",
             )
+        elif self.gyro_inconsistent:  # (the image refutes the gyro over the last pairs)
+            self.stats.add("gyro_disabled_inconsistent")
+            return None
         return gyro
 
     # ---------------------------------------------------------------- frames
@@ -578,7 +614,7 @@ class FramePipeline:
                 )
             elif est.gyro_used and est.success:
                 self.stats.add("frames_with_gyro")
-            self._update_bias(est, out_stamp, new_track)
+            self._update_gyro_checks(est, out_stamp, new_track, cfg)
             res.estimate = est
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)
@@ -603,19 +639,48 @@ class FramePipeline:
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
 
-    def _update_bias(self, est, out_stamp: int, new_track: bool) -> None:
-        """Feed a frame to the online bias estimator (``imu.estimate_bias``): a solved frame
-        pairs with the previous one; a failed frame or a new track (tracker reset) restarts
-        the pairing. A pair the chi-square test rejects is counted in
-        ``gyro_bias_rejected``."""
-        bias, buf = self.gyro_bias, self.imu
-        if bias is None or buf is None:
+    def _update_gyro_checks(self, est, out_stamp: int, new_track: bool, cfg) -> None:
+        """Feed a frame to the check of the gyro against the image and to the online bias
+        estimator (``imu.estimate_bias``): a solved frame pairs with the previous one; a failed
+        frame or a new track (tracker reset) restarts the pairing. A pair the check fails is
+        counted in ``gyro_pairs_failed``; when the check declares the gyro inconsistent it is
+        warned about once, and the bias estimator gets no pairs until it is consistent again
+        (a wrong mount would pull the bias). A pair the bias estimator's chi-square test rejects
+        is counted in ``gyro_bias_rejected``."""
+        check, bias, buf = self.gyro_check, self.gyro_bias, self.imu
+        if check is None or buf is None:
             return
         if new_track or not est.success:
-            bias.restart()
+            check.restart()
+            if bias is not None:
+                bias.restart()
         if not est.success:
             return
         cov = est.covariance[:3, :3] if est.covariance is not None else np.full((3, 3), np.nan)
+        if bias is not None:
+            b, Pb = bias.bias, bias.covariance
+        else:
+            b, Pb = np.asarray(cfg.imu.gyro_bias, float), cfg.imu.gyro_bias_sigma**2 * np.eye(3)
+        was = check.inconsistent
+        if check.update(out_stamp, est.orientation, cov, buf, b, Pb) == "failed":
+            self.stats.add("gyro_pairs_failed")
+        if check.inconsistent and not was:
+            self.stats.add("gyro_inconsistent_detections")
+            n_failed, n_pairs = check.window_failures
+            self.log.warning(
+                "gyro.inconsistent",
+                f"the rotation between frames contradicts the gyro ({n_failed} of the last "
+                f"{n_pairs} pairs, last residual {check.last_residual_deg:.2f} deg): frames "
+                "are solved without the gyro until it agrees again; check imu.rotation (IMU "
+                "-> camera optical frame), imu.time_offset and imu.gyro_bias",
+            )
+        elif was and not check.inconsistent:
+            self.log.info("the gyro agrees with the image again: frames use it")
+        if bias is None:
+            return
+        if check.inconsistent:
+            bias.restart()
+            return
         if bias.update(out_stamp, est.orientation, cov, buf) == "rejected":
             self.stats.add("gyro_bias_rejected")
 

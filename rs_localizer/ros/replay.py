@@ -70,7 +70,8 @@ class ReplayResult:
     ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
     of the published pose and twist), ``failures`` (reason -> frames), the files written, the
     configuration and parameter values used, and the pipeline's counters (``counts``: e.g.
-    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing.<reason>``, as in the node's
+    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_disabled_inconsistent``,
+    ``gyro_missing.<reason>``, as in the node's
     diagnostics), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the
     last frame used, the online estimate with ``imu.estimate_bias``; None without
     ``imu.enabled``)."""
