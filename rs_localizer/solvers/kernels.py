@@ -21,6 +21,7 @@ from __future__ import annotations
 import functools
 import sys
 
+import numpy as np
 from numba import types
 from numba.extending import NativeValue, models, overload, register_model, unbox
 
@@ -128,13 +129,27 @@ def kernel_set(ids: tuple[int, ...]) -> KernelSet:
     return KernelSet(ids)
 
 
-def kernel_count(kernels):
+def kernel_count(kernels: KernelSet) -> int:
     """Number of kernels in a :class:`KernelSet`, a compile-time constant (compiled code
     only)."""
     raise NotImplementedError("kernel_count is called from compiled code only")
 
 
-def run_kernels(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+def run_kernels(
+    kernels: KernelSet,
+    j: int,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray,
+    r0: float,
+    iterations: int,
+    tol: float,
+    v_init: np.ndarray,
+    out: np.ndarray,
+    ok: np.ndarray,
+    its: np.ndarray,
+    err: np.ndarray,
+) -> None:
     """Run the ``j``-th kernel of the :class:`KernelSet` ``kernels`` on K problems (compiled
     code only); arguments as the kernels' (module docstring). N must be at least the kernel's
     ``min_points`` (not checked here: the kernels do not check it either). ``j`` outside the
