@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -141,7 +142,7 @@ def warm_up(
         est = _run(solver, options, tracking)
     finally:
         if helper is not None:
-            helper.wait()
+            helper.stop()
     return time.perf_counter() - tic, est
 
 
@@ -150,18 +151,24 @@ def _run(solver, options, tracking) -> RSPoseEstimate:
     cam, uv, X, scores = _problem()
     est = estimate_rs_pose(uv, X, cam, solver=solver, options=options)
     estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
-    scenes = (False, True) if solver_info(solver).coplanar else (False,)
-    for scene in ("distant", "planar") if True in scenes else ("distant",):
+    for scene in ("distant", "planar") if solver_info(solver).coplanar else ("distant",):
         cam, uv, X, scores = _problem(scene=scene)
         estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
     if tracking is not None:
-        for planar in scenes:
-            cam, frames = _video(planar)
-            tracker = RSTracker(solver, options, tracking)
-            for stamp, uv, X in frames:
-                tracker.process(stamp, uv, X, cam)
-            tracker.flush()
+        _track(solver, options, tracking)
     return est
+
+
+def _track(solver, options, tracking, planar_first: bool = False) -> None:
+    """The warm-up's videos through an :class:`RSTracker`: a 3D scene, then a planar one for
+    solvers that take one (the other way round with ``planar_first``)."""
+    scenes = (False, True) if solver_info(solver).coplanar else (False,)
+    for planar in reversed(scenes) if planar_first else scenes:
+        cam, frames = _video(planar)
+        tracker = RSTracker(solver, options, tracking)
+        for stamp, uv, X in frames:
+            tracker.process(stamp, uv, X, cam)
+        tracker.flush()
 
 
 def warm_late(
@@ -223,15 +230,15 @@ def warm_late(
     filt.flush()
 
 
-def fused_cached(solver: str) -> bool:
-    """True when numba's cache holds ``solver``'s fused RANSAC kernels (cold and anchored
-    batches) for this source, or the solver has none: then compiling them in another process
-    gains nothing. Reads numba's cache index (numba internals); any surprise there counts as
-    not cached."""
+def fused_cached(solver: str, anchored: bool = True) -> bool:
+    """True when numba's cache holds ``solver``'s fused RANSAC kernels (the cold batch and,
+    with ``anchored``, the anchored one) for this source, or the solver has none: then
+    compiling in another process gains nothing. Reads numba's cache index (numba internals);
+    any surprise there counts as not cached."""
     fused = fused_kernels(solver)
     if fused is None:
         return True
-    kernels = [ransac_batch] + ([prerotated_batch] if len(fused[0]) else [])
+    kernels = [ransac_batch] + ([prerotated_batch] if anchored and len(fused[0]) else [])
     try:
         for disp in kernels:
             index = disp._cache._cache_file._load_index()
@@ -246,6 +253,9 @@ def fused_cached(solver: str) -> bool:
     return True
 
 
+#: a progress line of :func:`~rs_localizer.jit_cache.compile_progress`: kernel, seconds
+_COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
+
 #: the helper process: the package's parent directory first on sys.path (not the working
 #: directory's copy of the package, if any), then :func:`_second_main`
 _HELPER = (
@@ -256,21 +266,28 @@ _HELPER = (
 
 def _second_main(argv: list[str]) -> None:
     """The helper process of :class:`_SecondProcess` (``argv``: ``track`` or ``alone``, then
-    the solvers): :func:`warm_late` for each solver, progress lines on stdout, then one
-    ``kernel<TAB>name<TAB>seconds`` line per kernel compiled."""
+    the solvers): :func:`warm_late` for each solver; then, with ``track``, once the first
+    process has cached a solver's cold RANSAC batch, the tracker over the warm-up's videos
+    (planar first: the first process does the 3D scenes first), which compiles the kernels of
+    tracked and planar frames while the first process compiles the rest of a cold frame's.
+    Progress lines on stdout."""
     tracking = TrackerOptions() if argv[0] == "track" else None
-    with compile_progress(lambda m: print(m, flush=True)) as prog:
+    with compile_progress(lambda m: print(m, flush=True)):
         for s in argv[1:]:
             warm_late(s, tracking=tracking)
-    for name, dt in prog.kernels:
-        print(f"kernel\t{name}\t{dt:.3f}", flush=True)
+        if tracking is None:
+            return
+        for s in argv[1:]:
+            while not fused_cached(s, anchored=False):  # (the first process stops us)
+                time.sleep(0.2)
+            _track(s, None, tracking, planar_first=True)
 
 
 class _SecondProcess:
-    """:func:`warm_late` for ``solvers`` (with the default tracker's filter if ``track``) in
-    another Python process (the same interpreter and package, the same environment: numba
-    caches where this process does). ``log`` receives its progress lines; :attr:`kernels` its
-    (name, seconds) once :meth:`wait` returns. A helper that cannot start or fails only costs
+    """:func:`_second_main` for ``solvers`` (with the default tracker if ``track``) in another
+    Python process (the same interpreter and package, the same environment: numba caches where
+    this process does), started at once. ``log`` receives its progress lines; :attr:`kernels`
+    the (name, seconds) of what it compiled. A helper that cannot start or fails only costs
     time: this process compiles what is missing."""
 
     def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
@@ -302,29 +319,27 @@ class _SecondProcess:
     def _read(self) -> None:
         for line in self._proc.stdout:
             line = line.rstrip("\n")
-            parts = line.split("\t")
-            if len(parts) == 3 and parts[0] == "kernel":
+            m = _COMPILED.match(line)
+            if m:
                 with contextlib.suppress(ValueError):
-                    self.kernels.append((parts[1], float(parts[2])))
-            elif line and self._log is not None:
+                    self.kernels.append((m.group(1), float(m.group(2))))
+            if line and self._log is not None:
                 self._log(f"[second process] {line}")
 
-    def wait(self) -> None:
-        """Wait for the helper (killed if this process is interrupted meanwhile)."""
+    def stop(self) -> None:
+        """End the helper: this process has then compiled or loaded every kernel it needs,
+        so what the helper still does is of no use (numba writes each cached kernel
+        atomically: stopping it mid-way leaves no broken entry). Returns when it is gone."""
         if self._proc is None:
             return
-        try:
-            self._proc.wait()
-        finally:
-            if self._proc.poll() is None:
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
-            self._reader.join(timeout=5.0)
-        if self._proc.returncode != 0 and self._log is not None:
-            self._log(
-                f"the second compiling process exited with {self._proc.returncode}; "
-                "this process compiles what it left"
-            )
+        self._reader.join(timeout=5.0)
 
 
 def compile_kernels(
@@ -360,7 +375,7 @@ def compile_kernels(
                 per[s], _ = warm_up(s, tracking=tracking)
         finally:
             if helper is not None:
-                helper.wait()
+                helper.stop()
                 kernels += helper.kernels
     return {
         "seconds": time.perf_counter() - tic,
