@@ -74,6 +74,7 @@ def ransac_batch(
     measured=False,
     w_max=np.inf,
     v_max=np.inf,
+    w_known=None,
 ):
     """Draw, solve and score one batch of K RANSAC samples.
 
@@ -95,6 +96,9 @@ def ransac_batch(
             measured: score at the measured capture times (see ``msac_scores``).
         w_max, v_max: motion bounds per unit r (:func:`~.plausibility.motion_bounds`): a
             hypothesis with ``|w| > w_max`` or ``|w x C - t| > v_max`` is not scored.
+        w_known: None, or (3,) the known angular velocity (rad per unit r, a gyro's) for the
+            kernel ``R5P_W`` of :mod:`rs_localizer.solvers.kernels`: given to the kernels as
+            every sample's ``v_init``.
     Returns:
         (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3), n_implausible: valid
         hypotheses rejected for their motion alone) with H = max(J, 1) K
@@ -142,6 +146,7 @@ def ransac_batch(
         measured,
         w_max,
         v_max,
+        w_known,
     )
 
 
@@ -167,6 +172,7 @@ def prerotated_batch(
     measured=False,
     w_max=np.inf,
     v_max=np.inf,
+    w_known=None,
 ):
     """:func:`ransac_batch` with one given pre-rotation ``R_pre`` (3, 3) for every sample
     instead of each sample's P3P pose (a video tracker's predicted rotation,
@@ -203,6 +209,7 @@ def prerotated_batch(
         measured,
         w_max,
         v_max,
+        w_known,
     )
 
 
@@ -228,6 +235,7 @@ def _solve_and_score(
     measured,
     w_max,
     v_max,
+    w_known,
 ):
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
@@ -250,6 +258,9 @@ def _solve_and_score(
         its = np.zeros(K, dtype=np.int64)
         err = np.zeros(K)
         v0 = np.zeros((K, 3))
+        if w_known is not None:  # (the R5P_W kernel reads its known w from v_init)
+            for k in range(K):
+                v0[k, 0], v0[k, 1], v0[k, 2] = w_known[0], w_known[1], w_known[2]
         v = np.empty((K, 3))
         for j in range(J):
             out[:] = 0.0

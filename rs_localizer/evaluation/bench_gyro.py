@@ -14,7 +14,13 @@ the median rotation error (deg) and angular and linear velocity errors (rad/s, m
 - ``gyro, rotation 90 deg off``: the same samples with a camera-IMU rotation that is wrong
   by 90 deg about the optical axis (how often the estimator notices and falls back, and the
   error of what it returns);
-- ``oracle``: the angular velocity error the gyro measurement itself has.
+- ``oracle``: the angular velocity error the gyro measurement itself has;
+- ``floor``: the best achievable, the estimator's final refinement (exact model, its motion
+  prior; with the gyro: the gyro-aided prior) started from the ground truth on the true
+  inliers, without and with the gyro.
+
+With a gyro RANSAC solves its 5-point samples with the gyro's angular velocity
+(:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); the ``gyro`` rows show it.
 
 Then the time per frame with and without the gyro, interleaved frame by frame, one BLAS
 thread.
@@ -41,11 +47,20 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from ..estimation import EstimateOptions, RansacOptions, estimate_rs_pose, gyro_measurement
-from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
+from ..estimation import (
+    EstimateOptions,
+    RansacOptions,
+    estimate_rs_pose,
+    gyro_measurement,
+    physical_velocities,
+)
+from ..estimation.finalize import final_refinement
+from ..estimation.frame import configure_frame, prepare_frame
+from ..estimation.gyro import GyroMeasurement, ImuBuffer, gyro_prior, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator
 from ..estimation.tracker import RSTracker
 from ..geometry import rotation_angle_deg, rotvec_to_matrix
@@ -92,9 +107,37 @@ def _errors(e, f: PlanarFrame) -> tuple:
     )
 
 
+def floor_errors(f: PlanarFrame, opts: EstimateOptions, gyro: GyroMeasurement | None) -> tuple:
+    """Errors (rotation deg, angular rad/s, linear m/s) of the estimator's final refinement
+    (:func:`~rs_localizer.estimation.finalize.final_refinement`: exact model, truncated Huber
+    loss, the options' motion prior, with ``gyro`` the gyro-aided prior) started from the
+    ground truth on the true inliers: the best the estimator can reach on the frame."""
+    if gyro is not None:
+        opts = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
+    fr = prepare_frame(f.points_px[f.inlier], f.X[f.inlier], f.camera, np.inf)
+    configure_frame(
+        fr,
+        f.camera,
+        "r6p_1lin",
+        opts.ransac.min_inliers,
+        opts.ransac.threshold_px,
+        (np.inf, np.inf),
+        opts.motion_prior,
+    )
+    th = opts.ransac.threshold_px / fr.f
+    ref, _ = final_refinement(fr, (f.R, f.C, f.w, f.t), th, True, fr.final_prior)
+    omega, v, _, _ = physical_velocities(ref.R, ref.C, ref.w, ref.t, fr.spr)
+    return (
+        rotation_angle_deg(ref.R.T, f.orientation),
+        float(np.linalg.norm(omega - f.angular_velocity)),
+        float(np.linalg.norm(v - f.linear_velocity)),
+    )
+
+
 def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
     """Errors per row (frames x 3: rotation deg, angular rad/s, linear m/s), fall-backs of the
-    wrong-rotation row, the gyro's own error, and the interleaved times (ms)."""
+    wrong-rotation row, the gyro's own error, the floor's median errors (:func:`floor_errors`)
+    and the interleaved times (ms)."""
     rng = np.random.default_rng(seed)
     opts = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
     rows = {"no gyro": [], "gyro": [], "gyro, rotation 90 deg off": []}
@@ -102,11 +145,14 @@ def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
     used = {k: 0 for k in rows}
     ms = {"no gyro": [], "gyro": []}
     own = []
+    floor = {"floor, no gyro": [], "floor, gyro": []}
     for _ in range(frames):
         f = make_planar_frame(rng, scene)
         g = simulated_gyro(f, rng)
         bad = simulated_gyro(f, rng, R_WRONG @ R_IMU_CAMERA.T)
         own.append(float(np.linalg.norm(g.angular_velocity - f.angular_velocity)))
+        floor["floor, no gyro"].append(floor_errors(f, opts, None))
+        floor["floor, gyro"].append(floor_errors(f, opts, g))
         for name, gyro in (("no gyro", None), ("gyro", g), ("gyro, rotation 90 deg off", bad)):
             t0 = time.perf_counter()
             e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", opts, gyro=gyro)
@@ -121,6 +167,7 @@ def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
         used=used,
         ms={k: float(np.median(v)) for k, v in ms.items()},
         gyro_error=float(np.median(own)),
+        floor={k: np.nanmedian(np.array(v), axis=0) for k, v in floor.items()},
     )
 
 
@@ -136,6 +183,8 @@ def print_scene(scene: str, res: dict) -> None:
             f"{ok.sum()}/{res['used'][name]}/{res['rejected'][name]}"
         )
     print(f"{'oracle (the gyro itself)':28s} {'':8s} {res['gyro_error']:12.4f}")
+    for name, med in res["floor"].items():
+        print(f"{name + ' (truth start)':28s} {med[0]:8.3f} {med[1]:12.4f} {med[2]:8.3f}")
     m = res["ms"]
     print(
         f"time per frame: {m['gyro']:.2f} ms with gyro, {m['no gyro']:.2f} ms without "

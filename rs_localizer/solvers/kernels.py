@@ -18,13 +18,14 @@ import sys
 
 from numba import njit
 
+from .r5p_w import r5p_w_batch
 from .r6p_1lin import r6p_1lin_batch
 from .r6p_vC_wt import r6p_vC_wt_batch
 from .r6p_vCt_w import r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt_batch
 from .registry import SOLVERS
 
-__all__ = ["MAX_PARAMS", "kernel_ids", "run_kernel"]
+__all__ = ["MAX_PARAMS", "R5P_W", "kernel_ids", "run_kernel"]
 
 
 def _module(name):
@@ -38,6 +39,11 @@ _k_vC_wt = _module("r6p_vC_wt")._kernel
 _k_vCt_w = _module("r6p_vCt_w")._kernel
 _k_vCt_wt = _module("r6p_vCt_wt")._kernel
 _k_r9p = _module("r9p")._kernel
+_k_r5p_w = _module("r5p_w")._kernel
+
+#: kernel id of R5P_{v,C,t}^{w} (the angular velocity known, e.g. from a gyro: its ``v_init``
+#: rows carry that ``w``); not a registry solver, RANSAC uses it when a gyro is given
+R5P_W = 5
 
 #: widest ``out`` row any kernel writes (R9P: v, C, w, t and the 3x3 R_rs)
 MAX_PARAMS = 21
@@ -50,6 +56,7 @@ _IDS = {
     r6p_vCt_w_batch: (2, 12, 6),
     r6p_vCt_wt_batch: (3, 12, 6),
     SOLVERS["r9p"].batch[0]: (4, 21, 9),  # the registry's gauge-fixed r9p_batch wrapper
+    r5p_w_batch: (R5P_W, 12, 5),
 }
 
 
@@ -83,5 +90,7 @@ def run_kernel(kind, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
         _k_vCt_wt(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
     elif kind == 4:
         _k_r9p(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+    elif kind == R5P_W:
+        _k_r5p_w(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
     else:
         ok[:] = False
