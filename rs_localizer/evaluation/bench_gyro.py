@@ -23,7 +23,9 @@ With a gyro RANSAC solves its 5-point samples with the gyro's angular velocity
 (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); the ``gyro`` rows show it.
 
 Then the time per frame with and without the gyro, interleaved frame by frame, one BLAS
-thread.
+thread; and the same on the scene's frames with a fraction ``--outliers`` (default 0.5) of
+the correspondences replaced by random pixels: the hypotheses RANSAC drew (adaptive
+termination: 5-point samples with the gyro, 6 without) and the time per frame.
 
 ``--video``: online gyro-bias estimation instead. A synthetic video
 (:func:`rs_localizer.sim.trajectory.generate_sequence`, 1280x720, 30 us/line, 500
@@ -40,6 +42,7 @@ of the per-frame pose (rotation deg, position cm) and of the fused twist (the sm
 states: angular rad/s, linear m/s), with their ratios to the zero-bias run.
 
     python -m rs_localizer.evaluation.bench_gyro [--frames 200] [--scenes board plane depth]
+        [--outliers 0.5]
     python -m rs_localizer.evaluation.bench_gyro --video [--seconds 10] [--motion shake]
 """
 
@@ -168,6 +171,33 @@ def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
         ms={k: float(np.median(v)) for k, v in ms.items()},
         gyro_error=float(np.median(own)),
         floor={k: np.nanmedian(np.array(v), axis=0) for k, v in floor.items()},
+    )
+
+
+def run_outliers(scene: str, frames: int, ratio: float, seed: int = 0) -> dict:
+    """Median hypotheses drawn and time per frame (ms) with and without the gyro, interleaved,
+    on ``scene`` frames with ``ratio`` outliers, and the median rotation errors (deg)."""
+    rng = np.random.default_rng(seed)
+    opts = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
+    rows = {"no gyro": [], "gyro": []}
+    for _ in range(frames):
+        f = make_planar_frame(rng, scene, outlier_ratio=ratio)
+        g = simulated_gyro(f, rng)
+        for name, gyro in (("no gyro", None), ("gyro", g)):
+            t0 = time.perf_counter()
+            e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", opts, gyro=gyro)
+            ms = (time.perf_counter() - t0) * 1e3
+            rows[name].append((e.ransac_iterations, ms, _errors(e, f)[0]))
+    return {k: np.nanmedian(np.array(v), axis=0) for k, v in rows.items()}
+
+
+def print_outliers(ratio: float, res: dict) -> None:
+    """The outlier line of a scene."""
+    a, b = res["gyro"], res["no gyro"]
+    print(
+        f"at {100 * ratio:g} % outliers: {a[0]:.0f} hypotheses with gyro, {b[0]:.0f} without; "
+        f"{a[1]:.2f} ms with gyro, {b[1]:.2f} ms without (ratio {a[1] / b[1]:.2f}, "
+        f"interleaved); rotation {a[2]:.3f} / {b[2]:.3f} deg"
     )
 
 
@@ -337,6 +367,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--scenes", nargs="+", default=["board", "plane", "depth"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--outliers", type=float, default=0.5, help="outlier ratio of the cost line")
     ap.add_argument("--video", action="store_true", help="online gyro-bias estimation")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--motion", default="shake")
@@ -353,6 +384,9 @@ def main(argv=None) -> int:
         )
         for scene in args.scenes:
             print_scene(scene, run_scene(scene, args.frames, args.seed))
+            print_outliers(
+                args.outliers, run_outliers(scene, args.frames, args.outliers, args.seed)
+            )
     return 0
 
 
