@@ -17,7 +17,7 @@ from ..camera import CameraModel
 from ..geometry import rotvec_to_matrix
 from ..jit_cache import cache_state, compile_progress
 from ..solvers.registry import SOLVER_NAMES, solver_info
-from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
 from .tracker import RSTracker, TrackerOptions
 
 __all__ = ["DEFAULT_SOLVERS", "compile_kernels", "warm_up"]
@@ -78,6 +78,7 @@ def warm_up(
     solver: str = "r6p_1lin",
     options: EstimateOptions | None = None,
     tracking: TrackerOptions | None = None,
+    gyro: bool = True,
 ) -> tuple[float, RSPoseEstimate]:
     """Run everything a node with ``solver``, ``options`` and ``tracking`` runs on a frame, on
     small synthetic problems, so that numba compiles (or loads from its cache) every kernel
@@ -88,7 +89,8 @@ def warm_up(
     options, None: every frame alone) also an
     :class:`~rs_localizer.estimation.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
-    sensitivity).
+    sensitivity). With ``gyro`` each of these again with a gyro measurement (RANSAC's
+    samples solved with the angular velocity known, the gyro-aided prior).
 
     Returns:
         (seconds, the estimate of the 3D scene without scores).
@@ -101,17 +103,25 @@ def warm_up(
     cam, uv, X, scores = _problem()
     est = estimate_rs_pose(uv, X, cam, solver=solver, options=options)
     estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
+    # (any measurement compiles the gyro path; agreeing with the image or not)
+    gyros = (
+        (None, GyroMeasurement(np.array([0.2, -0.1, 0.3]), 1e-4 * np.eye(3))) if gyro else (None,)
+    )
+    if gyro:
+        estimate_rs_pose(uv, X, cam, solver=solver, options=options, gyro=gyros[1])
     scenes = (False, True) if solver_info(solver).coplanar else (False,)
     for scene in ("distant", "planar") if True in scenes else ("distant",):
         cam, uv, X, scores = _problem(scene=scene)
-        estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
+        for g in gyros:
+            estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores, gyro=g)
     if tracking is not None:
         for planar in scenes:
             cam, frames = _video(planar)
-            tracker = RSTracker(solver, options, tracking)
-            for stamp, uv, X in frames:
-                tracker.process(stamp, uv, X, cam)
-            tracker.flush()
+            for g in gyros:
+                tracker = RSTracker(solver, options, tracking)
+                for stamp, uv, X in frames:
+                    tracker.process(stamp, uv, X, cam, gyro=g)
+                tracker.flush()
     return time.perf_counter() - tic, est
 
 
