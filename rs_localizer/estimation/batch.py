@@ -98,7 +98,7 @@ def ransac_batch(
             hypothesis with ``|w| > w_max`` or ``|w x C - t| > v_max`` is not scored.
         w_known: None, or (3,) the known angular velocity (rad per unit r, a gyro's) for the
             kernel ``R5P_W`` of :mod:`rs_localizer.solvers.kernels`: given to the kernels as
-            every sample's ``v_init``.
+            every sample's ``v_init`` (zeros: the same as None for the other kernels).
     Returns:
         (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3), n_implausible: valid
         hypotheses rejected for their motion alone) with H = max(J, 1) K

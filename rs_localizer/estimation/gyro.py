@@ -6,8 +6,10 @@ separates ``omega`` from the rotation; a gyro rigidly mounted on the camera meas
 directly. :func:`gyro_measurement` turns the gyro samples of one readout into the mean angular
 velocity over the readout window in the camera optical frame with its covariance;
 :func:`gyro_prior` combines it with the estimator's motion prior (information form), and
-``estimate_rs_pose(..., gyro=...)`` uses the result in local optimization and the final
-refinement (maximum a posteriori) and, on planar frames, in the damped hypothesis solves.
+``estimate_rs_pose(..., gyro=...)`` solves RANSAC's samples with the measured angular velocity
+(:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`, 5 points) and uses the prior in local
+optimization and the final refinement (maximum a posteriori) and, on planar frames, in the
+damped hypothesis solves.
 :func:`gyro_consistency` tests whether the image agreed with the gyro.
 
 Conventions: IMU samples are in the IMU frame; ``R_cam_imu`` rotates IMU axes into the camera

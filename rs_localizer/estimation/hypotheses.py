@@ -337,9 +337,10 @@ class _Scoring:
         self.fr, self.solver, self.th2 = fr, solver, th2
         self.ransac = opts.ransac
         self.iterations = hypothesis_iterations(solver, opts.ransac, fr.known_w is not None)
-        # (the gyro's angular velocity for the fused kernel R5P_W; nothing without one)
-        self.known_w = (
-            () if fr.known_w is None else (np.ascontiguousarray(fr.known_w, dtype=np.float64),)
+        # (the gyro's angular velocity for the fused kernel R5P_W; zeros without one, the
+        # other kernels' v_init: one compiled signature of the fused batch for both)
+        self.known_w = np.ascontiguousarray(
+            np.zeros(3) if fr.known_w is None else fr.known_w, dtype=np.float64
         )
         self.bounds = (
             (np.inf, np.inf)
@@ -392,7 +393,7 @@ class ColdSamples(_Scoring):
                 pretest_min,
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
-                *self.known_w,
+                self.known_w,
             )
         )
 
@@ -432,7 +433,7 @@ class AnchoredSamples(ColdSamples):
                 pretest_min,
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
-                *self.known_w,
+                self.known_w,
             )
         )
 
