@@ -206,21 +206,27 @@ def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> Motion
     Returns:
         :class:`~rs_localizer.estimation.prior.MotionPrior` with ``information_matrix``.
     """
-    Lg = np.linalg.inv(gyro.covariance)
     on, mb, Lb = prior_arrays(base)
+    mean, L = _combined(gyro.covariance, gyro.angular_velocity, on, mb, Lb)
+    return MotionPrior._from_information(mean, L, True)
+
+
+@njit(cache=True)
+def _combined(Sg, w, on, mb, Lb):
+    """:func:`gyro_prior`'s arithmetic in one compiled call (NumPy's small-matrix calls cost
+    ~100 us per frame there): ``(mean (6,), L (6, 6))``; the mean is the least-squares
+    solution (minimum norm: zero for a component neither prior constrains)."""
+    Lg = np.linalg.inv(Sg)
     L = Lb.copy()
     L[3:, 3:] += Lg
     L = 0.5 * (L + L.T)
-    if on:
-        rhs = Lb @ mb
-        rhs[3:] += Lg @ gyro.angular_velocity
-        try:
-            mean = np.linalg.solve(L, rhs)
-        except np.linalg.LinAlgError:  # (a base prior without the linear velocity)
-            mean = np.linalg.lstsq(L, rhs, rcond=None)[0]
-    else:  # (the least-squares solution: the linear velocity unconstrained, zero)
-        mean = np.concatenate([np.zeros(3), gyro.angular_velocity])
-    return MotionPrior._from_information(mean, L, True)
+    if not on:
+        mean = np.zeros(6)
+        mean[3:] = w
+        return mean, L
+    rhs = Lb @ mb
+    rhs[3:] += Lg @ w
+    return np.linalg.lstsq(L, rhs)[0], L
 
 
 def gyro_consistency(
@@ -241,18 +247,20 @@ def gyro_consistency(
     Returns:
         the chi-square value (``inf`` for non-finite input).
     """
-    r = np.asarray(angular_velocity, dtype=float).reshape(3) - gyro.angular_velocity
-    P = np.asarray(posterior_covariance, dtype=float).reshape(3, 3)
-    if not (np.isfinite(r).all() and np.isfinite(P).all()):
-        return float("inf")
-    return float(_floored_chi2(r, gyro.covariance, np.ascontiguousarray(P)))
+    w = np.asarray(angular_velocity, dtype=np.float64).reshape(3)
+    P = np.asarray(posterior_covariance, dtype=np.float64).reshape(3, 3)
+    return float(_floored_chi2(w, gyro.angular_velocity, gyro.covariance, P))
 
 
 @njit(cache=True)
-def _floored_chi2(r, Sg, P):
-    """:func:`gyro_consistency`'s chi-square (one compiled call: ~40 us of NumPy's 3x3
-    calls less per frame): floor the eigenvalues of ``D = S_gyro - P`` relative to
-    ``S_gyro`` (whiten by S_gyro's Cholesky factor, clip at 0.01, unwhiten)."""
+def _floored_chi2(w, wg, Sg, P):
+    """:func:`gyro_consistency`'s chi-square in one compiled call (NumPy's 3x3 calls cost
+    ~40 us per frame there): floor the eigenvalues of ``D = S_gyro - P`` relative to
+    ``S_gyro`` (whiten by S_gyro's Cholesky factor, clip at 0.01, unwhiten); ``inf`` for
+    non-finite input."""
+    r = w - wg
+    if not (np.isfinite(r).all() and np.isfinite(P).all()):
+        return np.inf
     D = Sg - 0.5 * (P + P.T)
     Li = np.linalg.inv(np.linalg.cholesky(Sg))
     ev, V = np.linalg.eigh(Li @ D @ Li.T)
