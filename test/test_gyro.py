@@ -1,6 +1,9 @@
 """The gyro as a measurement of the RS model's angular velocity: the readout mean from samples,
 its combination with the motion prior, and gyro-aided estimates against the ground truth."""
 
+import time
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,7 +16,14 @@ from rs_localizer.estimation import (
     gyro_measurement,
     readout_window,
 )
+from rs_localizer.estimation.frame import configure_frame, prepare_frame
 from rs_localizer.estimation.gyro import GYRO_CHI2_THRESHOLD, gyro_consistency, gyro_prior
+from rs_localizer.estimation.hypotheses import (
+    KNOWN_W_SAMPLE,
+    ColdSamples,
+    SampleBySample,
+    hypothesis_source,
+)
 from rs_localizer.evaluation.bench_gyro import R_WRONG, simulated_gyro
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.planar import make_planar_frame
@@ -147,6 +157,67 @@ def test_gyro_aided_estimate_has_the_gyros_angular_velocity(scene):
     assert m[0] < 2 * m[2] and m[0] < 0.01, m
     assert m[1] > 3 * m[0], m
     assert m[3] <= 1.1 * m[4], m
+
+
+@pytest.mark.parametrize("scene, source", [("depth", ColdSamples), ("board", SampleBySample)])
+def test_ransac_hypotheses_carry_the_gyros_angular_velocity(scene, source):
+    """With a gyro RANSAC solves 5-point samples with its angular velocity (R5P_{v,C,t}^{w}):
+    in the fused batch (3D scene) and step by step (planar scene); the best hypothesis is
+    near the truth."""
+    rng = np.random.default_rng(6)
+    f = make_planar_frame(rng, scene)
+    g = simulated_gyro(f, rng)
+    opts = replace(OPTS, motion_prior=gyro_prior(g, OPTS.motion_prior))
+    fr = prepare_frame(f.points_px, f.X, f.camera, np.inf, np.random.default_rng(0))
+    configure_frame(fr, f.camera, "r6p_1lin", 12, 1.0, (np.inf, np.inf), opts.motion_prior)
+    fr.known_w = -f.camera.seconds_per_unit_r * g.angular_velocity
+    th2 = (opts.ransac.threshold_px / fr.f) ** 2
+    src = hypothesis_source(fr, "r6p_1lin", opts, th2, False)
+    assert isinstance(src, source)
+    N = len(fr.x)
+    out = src.best_of_batch(rng.random((32, KNOWN_W_SAMPLE)), N, np.arange(N), np.inf, 0, None)
+    solved = np.any(out.w != 0, axis=1)  # (an invalid hypothesis is all zeros)
+    assert solved.sum() >= 16
+    np.testing.assert_array_equal(out.w[solved], np.broadcast_to(fr.known_w, out.w[solved].shape))
+    assert np.isfinite(out.score)
+    assert rotation_angle_deg(out.R[out.best].T, f.orientation) < 3.0
+
+
+def test_gyro_on_a_board_is_better_and_not_slower():
+    """Hand-held board frames (42 corners): with the gyro the rotation error drops (median
+    0.75 against 1.06 deg over 200 frames, ``bench_gyro``; the best achievable from the
+    truth is 0.73) and the angular velocity is the gyro's; a frame costs about the same
+    (interleaved). At 50 % outliers RANSAC's 5-point samples need half the hypotheses."""
+    rng = np.random.default_rng(8)
+    rows, ms = [], []
+    for _ in range(16):
+        f = make_planar_frame(rng, "board")
+        g = simulated_gyro(f, rng)
+        t0 = time.perf_counter()
+        a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS, gyro=g)
+        t1 = time.perf_counter()
+        b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
+        ms.append((t1 - t0, time.perf_counter() - t1))
+        assert a.success and b.success and a.gyro_used
+        rows.append(
+            (
+                rotation_angle_deg(a.orientation, f.orientation),
+                rotation_angle_deg(b.orientation, f.orientation),
+                np.linalg.norm(a.angular_velocity - f.angular_velocity),
+            )
+        )
+    m = np.median(np.array(rows), axis=0)
+    assert m[0] < 0.85 * m[1], m
+    assert m[2] < 0.02, m
+    t = np.median(np.array(ms), axis=0)
+    assert t[0] < 1.5 * t[1], t
+    f = make_planar_frame(rng, "depth", outlier_ratio=0.5)
+    g = simulated_gyro(f, rng)
+    a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS, gyro=g)
+    b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
+    assert a.success and b.success and a.gyro_used
+    # adaptive termination: 0.5^-5 against 0.5^-6 samples per all-inlier one
+    assert a.ransac_iterations < 0.6 * b.ransac_iterations, (a.ransac_iterations, b)
 
 
 def test_a_gyro_the_image_contradicts_is_dropped():

@@ -19,7 +19,9 @@ from numba import njit
 
 from .._so3 import compose_rotvec
 from ..solvers.kernels import (
+    KNOWN_W,
     MAX_PARAMS,
+    R5P_W,
     KernelSet,
     kernel_count,
     kernel_ids,
@@ -41,7 +43,8 @@ _SOLVER_TOL = 1e-12
 @functools.cache  # (the registry and the backend are fixed at import)
 def fused_kernels(solver: str) -> tuple[KernelSet, np.ndarray] | None:
     """``(kernels, n_params)`` for :func:`ransac_batch` with ``solver``: its batched kernels
-    as a :class:`~rs_localizer.solvers.kernels.KernelSet` (empty for the global-shutter P3P)
+    as a :class:`~rs_localizer.solvers.kernels.KernelSet` (empty for the global-shutter P3P;
+    an RS solver's set also holds R5P_{v,C,t}^{w} for frames with a gyro)
     and the (J,) int64 parameters each writes; ``None`` when the solver has no fused path: R6P
     (a variable number of roots per sample), a batched solver without a kernel id, or a P3P
     backend other than our Lambda Twist (``RS_LOCALIZER_P3P``, for comparisons). The result
@@ -55,7 +58,10 @@ def fused_kernels(solver: str) -> tuple[KernelSet, np.ndarray] | None:
     ids = kernel_ids(solver) if info.hypotheses == BATCHED else None
     if ids is None:
         return None
-    return kernel_set(tuple(k[0] for k in ids)), np.array([k[1] for k in ids], dtype=np.int64)
+    return (
+        kernel_set(tuple(k[0] for k in ids), R5P_W),
+        np.array([k[1] for k in ids], dtype=np.int64),
+    )
 
 
 @njit(cache=True)
@@ -79,6 +85,7 @@ def ransac_batch(
     measured=False,
     w_max=np.inf,
     v_max=np.inf,
+    w_known=None,
 ):
     """Draw, solve and score one batch of K RANSAC samples.
 
@@ -101,6 +108,11 @@ def ransac_batch(
             measured: score at the measured capture times (see ``msac_scores``).
         w_max, v_max: motion bounds per unit r (:func:`~.plausibility.motion_bounds`): a
             hypothesis with ``|w| > w_max`` or ``|w x C - t| > v_max`` is not scored.
+        w_known: (3,) the known angular velocity (rad per unit r, a gyro's): every sample is
+            then solved by the kernel set's known-angular-velocity kernel instead of its own
+            (R5P_{v,C,t}^{w}, :data:`rs_localizer.solvers.kernels.R5P_W`; the known w goes to
+            it as every sample's ``v_init``; one hypothesis per sample); a (0,) array or
+            None: no gyro. (Callers pass an array either way: one compiled version for both.)
     Returns:
         (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3), n_implausible: valid
         hypotheses rejected for their motion alone) with H = max(J, 1) K
@@ -148,6 +160,7 @@ def ransac_batch(
         measured,
         w_max,
         v_max,
+        w_known,
     )
 
 
@@ -173,6 +186,7 @@ def prerotated_batch(
     measured=False,
     w_max=np.inf,
     v_max=np.inf,
+    w_known=None,
 ):
     """:func:`ransac_batch` with one given pre-rotation ``R_pre`` (3, 3) for every sample
     instead of each sample's P3P pose (a video tracker's predicted rotation,
@@ -209,6 +223,7 @@ def prerotated_batch(
         measured,
         w_max,
         v_max,
+        w_known,
     )
 
 
@@ -234,11 +249,13 @@ def _solve_and_score(
     measured,
     w_max,
     v_max,
+    w_known,
 ):
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
     K = samples.shape[0]
-    J = kernel_count(kernels)
+    known = w_known is not None and w_known.shape[0] == 3
+    J = 1 if known else kernel_count(kernels)
     if J == 0:
         Rs, Cs, ok = R_p, C_p, ok_p
         ws = np.zeros((K, 3))
@@ -256,16 +273,32 @@ def _solve_and_score(
         its = np.zeros(K, dtype=np.int64)
         err = np.zeros(K)
         v0 = np.zeros((K, 3))
+        if known:  # (the known-w kernel reads its w from v_init)
+            for k in range(K):
+                v0[k, 0], v0[k, 1], v0[k, 2] = w_known[0], w_known[1], w_known[2]
         v = np.empty((K, 3))
         for j in range(J):
             out[:] = 0.0
             run_kernels(
-                kernels, j, xs, Xs, rs, r0, iterations, _SOLVER_TOL, v0, out, ok_k, its, err
+                kernels,
+                KNOWN_W if known else j,
+                xs,
+                Xs,
+                rs,
+                r0,
+                iterations,
+                _SOLVER_TOL,
+                v0,
+                out,
+                ok_k,
+                its,
+                err,
             )
+            npar = 12 if known else n_params[j]
             for k in range(K):
                 h = j * K + k
                 good = ok_k[k]
-                for a in range(n_params[j]):
+                for a in range(npar):
                     if not np.isfinite(out[k, a]):
                         good = False
                 if not good:  # (as RSBatch: an invalid problem's parameters are zero)

@@ -94,7 +94,10 @@ def estimate_rs_pose(
             its rotation replaces P3P as the samples' pre-rotation. Without it the estimator is
             unchanged.
         gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of this
-            frame's readout (camera optical frame): added to the motion prior
+            frame's readout (camera optical frame): RANSAC solves its minimal samples with
+            the angular velocity known (R5P_{v,C,t}^{w}, 5 points,
+            :func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`), so every hypothesis carries
+            the gyro's angular velocity; it is added to the motion prior
             (:func:`~rs_localizer.estimation.gyro.gyro_prior`), so local optimization and the
             final refinement are maximum a posteriori with it on every frame, and on planar
             frames the hypotheses' damped solves use it too; the covariance includes it. If
@@ -117,7 +120,7 @@ def estimate_rs_pose(
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         return _estimate(*args, opts, scores, initial_model)
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
-    est = _estimate(*args, aided, scores, initial_model)
+    est = _estimate(*args, aided, scores, initial_model, gyro)
     if est.success and est.twist_covariance is not None:
         chi2 = gyro_consistency(gyro, est.angular_velocity, est.twist_covariance[3:, 3:])
         if chi2 <= GYRO_CHI2_THRESHOLD:
@@ -136,13 +139,16 @@ def _estimate(
     opts: EstimateOptions,
     scores: np.ndarray | None,
     initial_model: InitialModel | None,
+    gyro: GyroMeasurement | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
-    a gyro)."""
+    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
     fr = prepare_frame(points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng)
+    if gyro is not None:  # (the model's w per unit r: omega = -w / s)
+        fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
     min_inliers = max(opts.ransac.min_inliers, sample_size(solver) + 1)
     try:

@@ -51,6 +51,9 @@ class Frame:
             none applies to this solver and camera).
         motion_bounds: the velocity bounds per unit r
             (:func:`~rs_localizer.estimation.plausibility.motion_bounds`; ``None``: none).
+        known_w: (3,) the angular velocity a gyro measured, in the model's units (rad per
+            unit r, camera frame): RANSAC's samples are then solved with it known
+            (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); ``None``: no gyro.
     """
 
     spr = 0.0
@@ -59,6 +62,7 @@ class Frame:
     regularize = False
     final_prior: MotionPrior | None = None
     motion_bounds = None
+    known_w: np.ndarray | None = None
 
     def __init__(
         self,
@@ -84,11 +88,12 @@ class Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the
         same camera, timing and prior (LO-RANSAC's bounded inner sample)."""
         sub = Frame(self.x[:m], self.X[:m], self.r[:m], self.r0e[:m], self.r0, self.d, self.f)
-        sub.spr, sub.planar, sub.prior, sub.regularize = (
+        sub.spr, sub.planar, sub.prior, sub.regularize, sub.known_w = (
             self.spr,
             self.planar,
             self.prior,
             self.regularize,
+            self.known_w,
         )
         return sub
 

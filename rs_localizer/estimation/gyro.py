@@ -6,8 +6,10 @@ separates ``omega`` from the rotation; a gyro rigidly mounted on the camera meas
 directly. :func:`gyro_measurement` turns the gyro samples of one readout into the mean angular
 velocity over the readout window in the camera optical frame with its covariance;
 :func:`gyro_prior` combines it with the estimator's motion prior (information form), and
-``estimate_rs_pose(..., gyro=...)`` uses the result in local optimization and the final
-refinement (maximum a posteriori) and, on planar frames, in the damped hypothesis solves.
+``estimate_rs_pose(..., gyro=...)`` solves RANSAC's samples with the measured angular velocity
+(:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`, 5 points) and uses the prior in local
+optimization and the final refinement (maximum a posteriori) and, on planar frames, in the
+damped hypothesis solves.
 :func:`gyro_consistency` tests whether the image agreed with the gyro.
 
 Conventions: IMU samples are in the IMU frame; ``R_cam_imu`` rotates IMU axes into the camera
@@ -23,10 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
-from .prior import MotionPrior, checked_symmetric
+from .prior import MotionPrior, checked_symmetric, prior_arrays
 
 __all__ = [
     "GYRO_CHI2_THRESHOLD",
@@ -203,18 +206,27 @@ def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> Motion
     Returns:
         :class:`~rs_localizer.estimation.prior.MotionPrior` with ``information_matrix``.
     """
-    Lg = np.zeros((6, 6))
-    Lg[3:, 3:] = np.linalg.inv(gyro.covariance)
-    if base is not None and base.enabled:
-        Lb, mb = base.information(), base.mean_vector()
-    else:
-        Lb, mb = np.zeros((6, 6)), np.zeros(6)
-    L = Lb + Lg
+    on, mb, Lb = prior_arrays(base)
+    mean, L = _combined(gyro.covariance, gyro.angular_velocity, on, mb, Lb)
+    return MotionPrior._from_information(mean, L, True)
+
+
+@njit(cache=True)
+def _combined(Sg, w, on, mb, Lb):
+    """:func:`gyro_prior`'s arithmetic in one compiled call (NumPy's small-matrix calls cost
+    ~100 us per frame there): ``(mean (6,), L (6, 6))``; the mean is the least-squares
+    solution (minimum norm: zero for a component neither prior constrains)."""
+    Lg = np.linalg.inv(Sg)
+    L = Lb.copy()
+    L[3:, 3:] += Lg
     L = 0.5 * (L + L.T)
+    if not on:
+        mean = np.zeros(6)
+        mean[3:] = w
+        return mean, L
     rhs = Lb @ mb
-    rhs[3:] += Lg[3:, 3:] @ gyro.angular_velocity
-    mean = np.linalg.lstsq(L, rhs, rcond=None)[0]
-    return MotionPrior(mean=mean, information_matrix=L, always=True)
+    rhs[3:] += Lg @ w
+    return np.linalg.lstsq(L, rhs)[0], L
 
 
 def gyro_consistency(
@@ -235,19 +247,28 @@ def gyro_consistency(
     Returns:
         the chi-square value (``inf`` for non-finite input).
     """
-    r = np.asarray(angular_velocity, dtype=float).reshape(3) - gyro.angular_velocity
-    P = np.asarray(posterior_covariance, dtype=float).reshape(3, 3)
+    w = np.asarray(angular_velocity, dtype=np.float64).reshape(3)
+    P = np.asarray(posterior_covariance, dtype=np.float64).reshape(3, 3)
+    return float(_floored_chi2(w, gyro.angular_velocity, gyro.covariance, P))
+
+
+@njit(cache=True)
+def _floored_chi2(w, wg, Sg, P):
+    """:func:`gyro_consistency`'s chi-square in one compiled call (NumPy's 3x3 calls cost
+    ~40 us per frame there): floor the eigenvalues of ``D = S_gyro - P`` relative to
+    ``S_gyro`` (whiten by S_gyro's Cholesky factor, clip at 0.01, unwhiten); ``inf`` for
+    non-finite input."""
+    r = w - wg
     if not (np.isfinite(r).all() and np.isfinite(P).all()):
-        return float("inf")
-    Sg = gyro.covariance
+        return np.inf
     D = Sg - 0.5 * (P + P.T)
-    # floor the eigenvalues of D relative to S_gyro: whiten by S_gyro, clip, unwhiten
-    Lc = np.linalg.cholesky(Sg)
-    Li = np.linalg.inv(Lc)
+    Li = np.linalg.inv(np.linalg.cholesky(Sg))
     ev, V = np.linalg.eigh(Li @ D @ Li.T)
-    ev = np.maximum(ev, 0.01)
-    y = (V.T @ (Li @ r)) / np.sqrt(ev)
-    return float(y @ y)
+    y = V.T @ (Li @ r)
+    chi2 = 0.0
+    for a in range(3):
+        chi2 += y[a] * y[a] / max(ev[a], 0.01)
+    return chi2
 
 
 #: why an IMU sample is not buffered (:meth:`ImuBuffer.add`)

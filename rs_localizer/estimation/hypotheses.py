@@ -28,7 +28,9 @@ import numpy as np
 from .._so3 import compose_rotvec
 from ..geometry import rotvec_to_matrix
 from ..solvers import p3p_batch, r6p
-from ..solvers.kernels import kernel_ids, kernel_set
+from ..solvers.kernels import R5P_W, kernel_ids, kernel_set
+from ..solvers.p3p import DEFAULT_BACKEND
+from ..solvers.r5p_w import r5p_w_batch
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, sample_size, solver_info
 from .batch import fused_kernels, nonminimal_solve, prerotated_batch, ransac_batch
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
@@ -39,6 +41,7 @@ from .sampling import draw_samples, gather_prerotated, second_prerotations, sele
 from .scoring import msac_scores
 
 __all__ = [
+    "KNOWN_W_SAMPLE",
     "AnchoredSamples",
     "ColdSamples",
     "HypothesisSource",
@@ -51,10 +54,18 @@ __all__ = [
 ]
 
 
-def hypothesis_iterations(solver: str, ransac: RansacOptions) -> int:
-    """Linear iterations per minimal sample (see ``RansacOptions.solver_iterations``)."""
+#: minimal sample of RANSAC with a gyro: R5P_{v,C,t}^{w} (the angular velocity known, 9
+#: unknowns, 2 equations per point)
+KNOWN_W_SAMPLE = 5
+
+
+def hypothesis_iterations(solver: str, ransac: RansacOptions, known_w: bool = False) -> int:
+    """Linear iterations per minimal sample (see ``RansacOptions.solver_iterations``); with
+    the angular velocity ``known_w`` (a gyro) one R5P_{v,C,t}^{w} solve by default."""
     if ransac.solver_iterations is not None:
         return int(ransac.solver_iterations)
+    if known_w:
+        return 1
     return solver_info(solver).default_iterations or 1
 
 
@@ -183,7 +194,9 @@ def generate(
     Returns:
         (R (M, 3, 3), C, w, t (M, 3), valid (M,)): on planar frames also the hypotheses of
         the samples' runner-up P3P pre-rotations (:func:`_p3p_prerotations`); R6P gives every
-        real root; the joined solver two per sample. P3P's have ``w = t = 0``.
+        real root; the joined solver two per sample. P3P's have ``w = t = 0``. With the
+        frame's ``known_w`` (a gyro) an RS solver's samples are solved by
+        :func:`~rs_localizer.solvers.r5p_w.r5p_w_batch` instead, one hypothesis each.
     """
     kind = solver_info(solver).hypotheses
     if anchor is not None and kind != GLOBAL_SHUTTER:
@@ -199,6 +212,18 @@ def generate(
         z = np.zeros((len(samples), 3))
         return R_p, C_p, z, z.copy(), ok_p
     xs, Xs, rs = gather_prerotated(samples, R_p, fr.x, fr.X, fr.r)
+    if fr.known_w is not None:
+        b = r5p_w_batch(
+            xs,
+            Xs,
+            fr.known_w,
+            rs,
+            fr.r0,
+            hypothesis_iterations(solver, ransac, True),
+            prior_rows=_prior_rows(fr, ransac.threshold_px, Xs, C_p),
+        )
+        Rs, Cs, ws, ts, ok = _hypothesis_arrays([b], R_p)
+        return Rs, Cs, ws, ts, ok & ok_p
     if kind != BATCHED:
         return _r6p_hypotheses(fr, samples, Xs, R_p, ok_p)
     batches = _batched_rs(
@@ -311,7 +336,12 @@ class _Scoring:
     def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float):
         self.fr, self.solver, self.th2 = fr, solver, th2
         self.ransac = opts.ransac
-        self.iterations = hypothesis_iterations(solver, opts.ransac)
+        self.iterations = hypothesis_iterations(solver, opts.ransac, fr.known_w is not None)
+        # (the gyro's angular velocity for the fused batch's known-w kernel; an empty array
+        # without one: one compiled signature of the fused batch for both)
+        self.known_w = np.ascontiguousarray(
+            np.zeros(0) if fr.known_w is None else fr.known_w, dtype=np.float64
+        )
         self.bounds = (
             (np.inf, np.inf)
             if fr.motion_bounds is None
@@ -363,6 +393,7 @@ class ColdSamples(_Scoring):
                 pretest_min,
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
+                self.known_w,
             )
         )
 
@@ -402,6 +433,7 @@ class AnchoredSamples(ColdSamples):
                 pretest_min,
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
+                self.known_w,
             )
         )
 
@@ -455,11 +487,18 @@ def hypothesis_source(
     fr: Frame, solver: str, opts: EstimateOptions, th2: float, anchored: bool
 ) -> HypothesisSource:
     """The source of ``solver``'s hypotheses on ``fr``: compiled (cold or ``anchored``) where
-    the solver has a fused kernel and the frame is not planar, else step by step."""
+    the solver has a fused kernel (with a gyro: R5P_{v,C,t}^{w} for every RS solver) and the
+    frame is not planar, else step by step."""
     planar_rs = fr.planar and solver_info(solver).hypotheses != GLOBAL_SHUTTER
-    kernels = None if planar_rs else fused_kernels(solver)
+    if planar_rs:
+        kernels = None
+    else:
+        kernels = fused_kernels(solver)
+        if kernels is None and fr.known_w is not None and DEFAULT_BACKEND == "lambda_twist":
+            # (an RS solver without a fused kernel of its own: the gyro's kernel alone)
+            kernels = (kernel_set((), R5P_W), np.zeros(0, dtype=np.int64))
     if kernels is None:
         return SampleBySample(fr, solver, opts, th2)
-    if anchored and len(kernels[0]):
+    if anchored and (len(kernels[0]) or fr.known_w is not None):
         return AnchoredSamples(fr, solver, opts, th2, kernels)
     return ColdSamples(fr, solver, opts, th2, kernels)

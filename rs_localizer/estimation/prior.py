@@ -134,6 +134,27 @@ class MotionPrior:
             arrays = (False, np.zeros(6), np.zeros((6, 6)))
         object.__setattr__(self, "_arrays", arrays)
 
+    @classmethod
+    def _from_information(
+        cls, mean: np.ndarray, information: np.ndarray, always: bool
+    ) -> MotionPrior:
+        """The prior with ``mean`` (6,) and ``information`` (6, 6), both finite, the
+        information symmetric positive semi-definite and not zero by construction (the
+        caller's; :func:`rs_localizer.estimation.gyro.gyro_prior`): the checks of the
+        constructor (~60 us, per frame there) are skipped."""
+        prior = object.__new__(cls)
+        for name, value in (
+            ("angular_velocity_sigma", None),
+            ("linear_velocity_sigma", None),
+            ("mean", mean),
+            ("covariance", None),
+            ("always", bool(always)),
+            ("information_matrix", information),
+            ("_arrays", (True, mean.copy(), information.copy())),
+        ):
+            object.__setattr__(prior, name, value)
+        return prior
+
     @staticmethod
     def _inverse_variance(sigma):
         if sigma is None or sigma == 0 or not np.isfinite(sigma):

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
-from .hypotheses import hypothesis_source
+from .hypotheses import KNOWN_W_SAMPLE, hypothesis_source
 from .local_optimization import local_optimization, seed_from_initial_model
 from .options import EstimateOptions, InitialModel
 from .result import (
@@ -99,7 +99,8 @@ class Ransac:
     ):
         self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
         self.order, self.scored = order, scored
-        self.s = sample_size(solver)
+        # (with a gyro the samples are solved with the angular velocity known: 5 points)
+        self.s = sample_size(solver) if fr.known_w is None else KNOWN_W_SAMPLE
         th = opts.ransac.threshold_px / fr.f
         self.th2 = th * th
         self.best: Model | None = None

@@ -35,7 +35,7 @@ from ..jit_cache import PACKAGE_DIR, cache_state, compile_progress
 from ..solvers.kernels import KernelSetType
 from ..solvers.registry import SOLVER_NAMES, solver_info
 from .batch import fused_kernels, prerotated_batch, ransac_batch
-from .estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
 from .frame import prepare_frame
 from .fusion import TwistFilter
 from .prior import prior_conflict
@@ -111,6 +111,7 @@ def warm_up(
     tracking: TrackerOptions | None = None,
     jobs: int = 1,
     log: Callable[[str], object] | None = None,
+    gyro: bool = True,
 ) -> tuple[float, RSPoseEstimate]:
     """Run everything a node with ``solver``, ``options`` and ``tracking`` runs on a frame, on
     small synthetic problems, so that numba compiles (or loads from its cache) every kernel
@@ -121,7 +122,8 @@ def warm_up(
     options, None: every frame alone) also an
     :class:`~rs_localizer.estimation.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
-    sensitivity).
+    sensitivity). With ``gyro`` each of these again with a gyro measurement (RANSAC's
+    samples solved with the angular velocity known, the gyro-aided prior).
 
     With ``jobs`` > 1, when the solver's fused RANSAC kernels are not in numba's cache
     (:func:`fused_cached`), another process compiles the kernels a frame needs later
@@ -139,36 +141,47 @@ def warm_up(
     if jobs > 1 and not fused_cached(solver):
         helper = _SecondProcess([solver], tracking is not None, log)
     try:
-        est = _run(solver, options, tracking)
+        est = _run(solver, options, tracking, gyro)
     finally:
         if helper is not None:
             helper.stop()
     return time.perf_counter() - tic, est
 
 
-def _run(solver, options, tracking) -> RSPoseEstimate:
+#: a gyro measurement for the warm-up (any measurement compiles the gyro path, agreeing with
+#: the image or not)
+_GYRO = GyroMeasurement(np.array([0.2, -0.1, 0.3]), 1e-4 * np.eye(3))
+
+
+def _run(solver, options, tracking, gyro: bool = True) -> RSPoseEstimate:
     """The warm-up's frames (:func:`warm_up`); returns the 3D scene's estimate."""
+    gyros = (None, _GYRO) if gyro else (None,)
     cam, uv, X, scores = _problem()
     est = estimate_rs_pose(uv, X, cam, solver=solver, options=options)
     estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
+    if gyro:
+        estimate_rs_pose(uv, X, cam, solver=solver, options=options, gyro=_GYRO)
     for scene in ("distant", "planar") if solver_info(solver).coplanar else ("distant",):
         cam, uv, X, scores = _problem(scene=scene)
-        estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
+        for g in gyros:
+            estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores, gyro=g)
     if tracking is not None:
-        _track(solver, options, tracking)
+        _track(solver, options, tracking, gyro=gyro)
     return est
 
 
-def _track(solver, options, tracking, planar_first: bool = False) -> None:
-    """The warm-up's videos through an :class:`RSTracker`: a 3D scene, then a planar one for
-    solvers that take one (the other way round with ``planar_first``)."""
+def _track(solver, options, tracking, planar_first: bool = False, gyro: bool = True) -> None:
+    """The warm-up's videos through an :class:`RSTracker` (with ``gyro`` also with a gyro
+    measurement): a 3D scene, then a planar one for solvers that take one (the other way round
+    with ``planar_first``)."""
     scenes = (False, True) if solver_info(solver).coplanar else (False,)
     for planar in reversed(scenes) if planar_first else scenes:
         cam, frames = _video(planar)
-        tracker = RSTracker(solver, options, tracking)
-        for stamp, uv, X in frames:
-            tracker.process(stamp, uv, X, cam)
-        tracker.flush()
+        for g in (None, _GYRO) if gyro else (None,):
+            tracker = RSTracker(solver, options, tracking)
+            for stamp, uv, X in frames:
+                tracker.process(stamp, uv, X, cam, gyro=g)
+            tracker.flush()
 
 
 def warm_late(

@@ -14,10 +14,18 @@ the median rotation error (deg) and angular and linear velocity errors (rad/s, m
 - ``gyro, rotation 90 deg off``: the same samples with a camera-IMU rotation that is wrong
   by 90 deg about the optical axis (how often the estimator notices and falls back, and the
   error of what it returns);
-- ``oracle``: the angular velocity error the gyro measurement itself has.
+- ``oracle``: the angular velocity error the gyro measurement itself has;
+- ``floor``: the best achievable, the estimator's final refinement (exact model, its motion
+  prior; with the gyro: the gyro-aided prior) started from the ground truth on the true
+  inliers, without and with the gyro.
+
+With a gyro RANSAC solves its 5-point samples with the gyro's angular velocity
+(:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); the ``gyro`` rows show it.
 
 Then the time per frame with and without the gyro, interleaved frame by frame, one BLAS
-thread.
+thread; and the same on the scene's frames with a fraction ``--outliers`` (default 0.5) of
+the correspondences replaced by random pixels: the hypotheses RANSAC drew (adaptive
+termination: 5-point samples with the gyro, 6 without) and the time per frame.
 
 ``--video``: online gyro-bias estimation instead. A synthetic video
 (:func:`rs_localizer.sim.trajectory.generate_sequence`, 1280x720, 30 us/line, 500
@@ -45,6 +53,7 @@ the gyro was first declared inconsistent, how often, the frames solved without i
 that, and the median errors against ground truth with their ratios to no gyro.
 
     python -m rs_localizer.evaluation.bench_gyro [--frames 200] [--scenes board plane depth]
+        [--outliers 0.5]
     python -m rs_localizer.evaluation.bench_gyro --video [--seconds 10] [--motion shake]
     python -m rs_localizer.evaluation.bench_gyro --video --mount [--scene plane] [--seconds 10]
 """
@@ -53,11 +62,20 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
-from ..estimation import EstimateOptions, RansacOptions, estimate_rs_pose, gyro_measurement
-from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
+from ..estimation import (
+    EstimateOptions,
+    RansacOptions,
+    estimate_rs_pose,
+    gyro_measurement,
+    physical_velocities,
+)
+from ..estimation.finalize import final_refinement
+from ..estimation.frame import configure_frame, prepare_frame
+from ..estimation.gyro import GyroMeasurement, ImuBuffer, gyro_prior, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.tracker import RSTracker
@@ -105,9 +123,37 @@ def _errors(e, f: PlanarFrame) -> tuple:
     )
 
 
+def floor_errors(f: PlanarFrame, opts: EstimateOptions, gyro: GyroMeasurement | None) -> tuple:
+    """Errors (rotation deg, angular rad/s, linear m/s) of the estimator's final refinement
+    (:func:`~rs_localizer.estimation.finalize.final_refinement`: exact model, truncated Huber
+    loss, the options' motion prior, with ``gyro`` the gyro-aided prior) started from the
+    ground truth on the true inliers: the best the estimator can reach on the frame."""
+    if gyro is not None:
+        opts = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
+    fr = prepare_frame(f.points_px[f.inlier], f.X[f.inlier], f.camera, np.inf)
+    configure_frame(
+        fr,
+        f.camera,
+        "r6p_1lin",
+        opts.ransac.min_inliers,
+        opts.ransac.threshold_px,
+        (np.inf, np.inf),
+        opts.motion_prior,
+    )
+    th = opts.ransac.threshold_px / fr.f
+    ref, _ = final_refinement(fr, (f.R, f.C, f.w, f.t), th, True, fr.final_prior)
+    omega, v, _, _ = physical_velocities(ref.R, ref.C, ref.w, ref.t, fr.spr)
+    return (
+        rotation_angle_deg(ref.R.T, f.orientation),
+        float(np.linalg.norm(omega - f.angular_velocity)),
+        float(np.linalg.norm(v - f.linear_velocity)),
+    )
+
+
 def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
     """Errors per row (frames x 3: rotation deg, angular rad/s, linear m/s), fall-backs of the
-    wrong-rotation row, the gyro's own error, and the interleaved times (ms)."""
+    wrong-rotation row, the gyro's own error, the floor's median errors (:func:`floor_errors`)
+    and the interleaved times (ms)."""
     rng = np.random.default_rng(seed)
     opts = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
     rows = {"no gyro": [], "gyro": [], "gyro, rotation 90 deg off": []}
@@ -115,11 +161,14 @@ def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
     used = {k: 0 for k in rows}
     ms = {"no gyro": [], "gyro": []}
     own = []
+    floor = {"floor, no gyro": [], "floor, gyro": []}
     for _ in range(frames):
         f = make_planar_frame(rng, scene)
         g = simulated_gyro(f, rng)
         bad = simulated_gyro(f, rng, R_WRONG @ R_IMU_CAMERA.T)
         own.append(float(np.linalg.norm(g.angular_velocity - f.angular_velocity)))
+        floor["floor, no gyro"].append(floor_errors(f, opts, None))
+        floor["floor, gyro"].append(floor_errors(f, opts, g))
         for name, gyro in (("no gyro", None), ("gyro", g), ("gyro, rotation 90 deg off", bad)):
             t0 = time.perf_counter()
             e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", opts, gyro=gyro)
@@ -134,6 +183,34 @@ def run_scene(scene: str, frames: int, seed: int = 0) -> dict:
         used=used,
         ms={k: float(np.median(v)) for k, v in ms.items()},
         gyro_error=float(np.median(own)),
+        floor={k: np.nanmedian(np.array(v), axis=0) for k, v in floor.items()},
+    )
+
+
+def run_outliers(scene: str, frames: int, ratio: float, seed: int = 0) -> dict:
+    """Median hypotheses drawn and time per frame (ms) with and without the gyro, interleaved,
+    on ``scene`` frames with ``ratio`` outliers, and the median rotation errors (deg)."""
+    rng = np.random.default_rng(seed)
+    opts = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
+    rows = {"no gyro": [], "gyro": []}
+    for _ in range(frames):
+        f = make_planar_frame(rng, scene, outlier_ratio=ratio)
+        g = simulated_gyro(f, rng)
+        for name, gyro in (("no gyro", None), ("gyro", g)):
+            t0 = time.perf_counter()
+            e = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", opts, gyro=gyro)
+            ms = (time.perf_counter() - t0) * 1e3
+            rows[name].append((e.ransac_iterations, ms, _errors(e, f)[0]))
+    return {k: np.nanmedian(np.array(v), axis=0) for k, v in rows.items()}
+
+
+def print_outliers(ratio: float, res: dict) -> None:
+    """The outlier line of a scene."""
+    a, b = res["gyro"], res["no gyro"]
+    print(
+        f"at {100 * ratio:g} % outliers: {a[0]:.0f} hypotheses with gyro, {b[0]:.0f} without; "
+        f"{a[1]:.2f} ms with gyro, {b[1]:.2f} ms without (ratio {a[1] / b[1]:.2f}, "
+        f"interleaved); rotation {a[2]:.3f} / {b[2]:.3f} deg"
     )
 
 
@@ -149,6 +226,8 @@ def print_scene(scene: str, res: dict) -> None:
             f"{ok.sum()}/{res['used'][name]}/{res['rejected'][name]}"
         )
     print(f"{'oracle (the gyro itself)':28s} {'':8s} {res['gyro_error']:12.4f}")
+    for name, med in res["floor"].items():
+        print(f"{name + ' (truth start)':28s} {med[0]:8.3f} {med[1]:12.4f} {med[2]:8.3f}")
     m = res["ms"]
     print(
         f"time per frame: {m['gyro']:.2f} ms with gyro, {m['no gyro']:.2f} ms without "
@@ -401,6 +480,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--scenes", nargs="+", default=["board", "plane", "depth"])
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--outliers", type=float, default=0.5, help="outlier ratio of the cost line")
     ap.add_argument("--video", action="store_true", help="online gyro-bias estimation")
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--motion", default="shake")
@@ -431,6 +511,9 @@ def main(argv=None) -> int:
         )
         for scene in args.scenes:
             print_scene(scene, run_scene(scene, args.frames, args.seed))
+            print_outliers(
+                args.outliers, run_outliers(scene, args.frames, args.outliers, args.seed)
+            )
     return 0
 
 

@@ -132,7 +132,9 @@ class LocalizerCore:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self._apply_config(cfg)
         if self.get_parameter("warmup").value:
-            log_warm_up(cfg.solver, cfg.options, cfg.tracking, self.get_logger())
+            log_warm_up(
+                cfg.solver, cfg.options, cfg.tracking, self.get_logger(), cfg.imu is not None
+            )
 
     def _create_outputs(self):
         self._pubs = {  # output topic (as rs_localizer.ros.outputs names it) -> publisher
@@ -287,7 +289,13 @@ class LocalizerCore:
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
             self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
             if self.get_parameter("warmup").value:
-                log_warm_up(overrides["solver"], cfg.options, cfg.tracking, self.get_logger())
+                log_warm_up(
+                    overrides["solver"],
+                    cfg.options,
+                    cfg.tracking,
+                    self.get_logger(),
+                    cfg.imu is not None,
+                )
         self._apply_config(cfg)
         if overrides.get("landmarks_file") and cfg.landmarks is not None:
             self.get_logger().info(

@@ -11,6 +11,7 @@ function            paper name                      points       solutions
 ``r6p_vCt_wt``      R6P_{v,C,t}^{w,t} (3.2)         >= 6         1, iterative
 ``r9p``             R9P (3.4, eq. 8)                >= 9         1
 ``r6p_joined``      joined solver (4.1)             >= 6         1
+``r5p_w``           R5P_{v,C,t}^{w} (w known, 3.2)  >= 5         1, iterative
 ==================  ==============================  ===========  ====================
 
 The ``*_batch`` variants solve K problems at once ((K, N, 2), (K, N, 3) -> :class:`RSBatch`).
@@ -20,6 +21,7 @@ The ``*_batch`` variants solve K problems at once ((K, N, 2), (K, N, 3) -> :clas
 from ._common import DegenerateInputError, RSBatch, RSSolution
 from .joined import r6p_joined
 from .p3p import P3PSolution, p3p, p3p_batch, p3p_opencv
+from .r5p_w import r5p_w, r5p_w_batch
 from .r6p import r6p
 from .r6p_1lin import r6p_1lin, r6p_1lin_batch
 from .r6p_vC_wt import r6p_vC_wt, r6p_vC_wt_batch
@@ -39,6 +41,8 @@ __all__ = [
     "p3p",
     "p3p_batch",
     "p3p_opencv",
+    "r5p_w",
+    "r5p_w_batch",
     "r6p",
     "r6p_1lin",
     "r6p_1lin_batch",

@@ -22,16 +22,26 @@ import functools
 import sys
 
 import numpy as np
-from numba import types
+from numba import njit, types
 from numba.extending import NativeValue, models, overload, register_model, unbox
 
+from .r5p_w import r5p_w_batch
 from .r6p_1lin import r6p_1lin_batch
 from .r6p_vC_wt import r6p_vC_wt_batch
 from .r6p_vCt_w import r6p_vCt_w_batch
 from .r6p_vCt_wt import r6p_vCt_wt_batch
 from .registry import SOLVERS
 
-__all__ = ["MAX_PARAMS", "KernelSet", "kernel_count", "kernel_ids", "kernel_set", "run_kernels"]
+__all__ = [
+    "KNOWN_W",
+    "MAX_PARAMS",
+    "R5P_W",
+    "KernelSet",
+    "kernel_count",
+    "kernel_ids",
+    "kernel_set",
+    "run_kernels",
+]
 
 
 def _module(name):
@@ -45,6 +55,14 @@ _k_vC_wt = _module("r6p_vC_wt")._kernel
 _k_vCt_w = _module("r6p_vCt_w")._kernel
 _k_vCt_wt = _module("r6p_vCt_wt")._kernel
 _k_r9p = _module("r9p")._kernel
+_k_r5p_w = _module("r5p_w")._kernel
+
+#: kernel id of R5P_{v,C,t}^{w} (the angular velocity known, e.g. from a gyro: its ``v_init``
+#: rows carry that ``w``); not a registry solver, RANSAC uses it when a gyro is given
+R5P_W = 5
+
+#: the kernel index of :func:`run_kernels` that runs a set's known-angular-velocity kernel
+KNOWN_W = -1
 
 #: widest ``out`` row any kernel writes (R9P: v, C, w, t and the 3x3 R_rs)
 MAX_PARAMS = 21
@@ -57,6 +75,7 @@ _IDS = {
     r6p_vCt_w_batch: (2, 12, 6),
     r6p_vCt_wt_batch: (3, 12, 6),
     SOLVERS["r9p"].batch[0]: (4, 21, 9),  # the registry's gauge-fixed r9p_batch wrapper
+    r5p_w_batch: (R5P_W, 12, 5),
 }
 
 
@@ -76,16 +95,18 @@ def kernel_ids(name: str) -> tuple[tuple[int, int, int], ...] | None:
 
 
 #: kernel id -> kernel
-_KERNELS = {0: _k_1lin, 1: _k_vC_wt, 2: _k_vCt_w, 3: _k_vCt_wt, 4: _k_r9p}
+_KERNELS = {0: _k_1lin, 1: _k_vC_wt, 2: _k_vCt_w, 3: _k_vCt_wt, 4: _k_r9p, R5P_W: _k_r5p_w}
 
 
 class KernelSetType(types.Type):
     """The numba type of a :class:`KernelSet`: its kernel ids are part of the type, so a
     compiled caller is specialized (and cached) per set."""
 
-    def __init__(self, ids: tuple[int, ...]):
+    def __init__(self, ids: tuple[int, ...], known_w: int | None = None):
         self.ids = tuple(int(i) for i in ids)
-        super().__init__(name=f"KernelSet{self.ids}")
+        self.known_w = None if known_w is None else int(known_w)
+        extra = "" if self.known_w is None else f"+{self.known_w}"
+        super().__init__(name=f"KernelSet{self.ids}{extra}")
 
 
 register_model(KernelSetType)(models.OpaqueModel)
@@ -99,34 +120,37 @@ def _unbox_kernel_set(typ, obj, c):
 
 class KernelSet:
     """Batched kernels to run, by id (:func:`kernel_ids`), as an argument of compiled code
-    (:func:`run_kernels`, :func:`kernel_count`). Immutable; use :func:`kernel_set` to share
-    one instance per set.
+    (:func:`run_kernels`, :func:`kernel_count`), and optionally the kernel that solves the
+    same samples with the angular velocity known (``known_w``: :data:`R5P_W`, run as index
+    :data:`KNOWN_W`: a frame with a gyro uses the same compiled batch). Immutable; use
+    :func:`kernel_set` to share one instance per set.
 
     Raises ValueError for an id that has no kernel.
     """
 
-    __slots__ = ("_numba_type_", "ids")
+    __slots__ = ("_numba_type_", "ids", "known_w")
 
-    def __init__(self, ids: tuple[int, ...]):
+    def __init__(self, ids: tuple[int, ...], known_w: int | None = None):
         ids = tuple(int(i) for i in ids)
-        unknown = [i for i in ids if i not in _KERNELS]
+        unknown = [i for i in (*ids, *(() if known_w is None else (known_w,))) if i not in _KERNELS]
         if unknown:
             raise ValueError(f"no batched kernel with id {unknown}; known: {sorted(_KERNELS)}")
         self.ids = ids
-        self._numba_type_ = KernelSetType(ids)
+        self.known_w = None if known_w is None else int(known_w)
+        self._numba_type_ = KernelSetType(ids, self.known_w)
 
     def __len__(self) -> int:
         return len(self.ids)
 
     def __repr__(self) -> str:
-        return f"KernelSet({self.ids})"
+        return f"KernelSet({self.ids}, known_w={self.known_w})"
 
 
 @functools.cache
-def kernel_set(ids: tuple[int, ...]) -> KernelSet:
-    """The shared :class:`KernelSet` of ``ids`` (a tuple of kernel ids, possibly empty).
-    Raises ValueError for an unknown id."""
-    return KernelSet(ids)
+def kernel_set(ids: tuple[int, ...], known_w: int | None = None) -> KernelSet:
+    """The shared :class:`KernelSet` of ``ids`` (a tuple of kernel ids, possibly empty) and
+    ``known_w``. Raises ValueError for an unknown id."""
+    return KernelSet(ids, known_w)
 
 
 def kernel_count(kernels: KernelSet) -> int:
@@ -151,9 +175,10 @@ def run_kernels(
     err: np.ndarray,
 ) -> None:
     """Run the ``j``-th kernel of the :class:`KernelSet` ``kernels`` on K problems (compiled
-    code only); arguments as the kernels' (module docstring). N must be at least the kernel's
-    ``min_points`` (not checked here: the kernels do not check it either). ``j`` outside the
-    set leaves ``ok`` False."""
+    code only; ``j`` = :data:`KNOWN_W`: the set's known-angular-velocity kernel, which reads
+    the known w from ``v_init``); arguments as the kernels' (module docstring). N must be at
+    least the kernel's ``min_points`` (not checked here: the kernels do not check it either).
+    ``j`` outside the set leaves ``ok`` False."""
     raise NotImplementedError("run_kernels is called from compiled code only")
 
 
@@ -169,32 +194,28 @@ def _kernel_count(kernels):
 def _run_kernels(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     if not isinstance(kernels, KernelSetType):
         return None
+    if len(kernels.ids) > 2:
+        raise ValueError(f"a kernel set holds at most two kernels, not {len(kernels.ids)}")
+    # (a kernel the set does not have is a stand-in that solves nothing)
     ks = [_KERNELS[i] for i in kernels.ids]
-    if not ks:
+    kw = _KERNELS[kernels.known_w] if kernels.known_w is not None else _no_kernel
+    k0 = ks[0] if len(ks) > 0 else _no_kernel
+    k1 = ks[1] if len(ks) > 1 else _no_kernel
 
-        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+        if j == 0:
+            k0(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+        elif j == 1:
+            k1(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+        elif j == KNOWN_W:
+            kw(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
+        else:
             ok[:] = False
 
-    elif len(ks) == 1:
-        k0 = ks[0]
-
-        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-            if j == 0:
-                k0(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-            else:
-                ok[:] = False
-
-    elif len(ks) == 2:
-        k0, k1 = ks
-
-        def impl(kernels, j, x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-            if j == 0:
-                k0(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-            elif j == 1:
-                k1(x, X, r, r0, iterations, tol, v_init, out, ok, its, err)
-            else:
-                ok[:] = False
-
-    else:
-        raise ValueError(f"a kernel set holds at most two kernels, not {len(ks)}")
     return impl
+
+
+@njit(cache=True)
+def _no_kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+    """Stands in for a kernel a set does not have: solves nothing."""
+    ok[:] = False
