@@ -65,6 +65,7 @@ __all__ = [
     "BIAS_UPDATE_OUTCOMES",
     "GyroBiasEstimator",
     "GyroBiasOptions",
+    "checked_mount",
     "integrate_gyro",
     "pair_innovation",
 ]
@@ -112,6 +113,27 @@ class GyroBiasOptions:
                 f"need 0 <= min_interval < max_interval, got {self.min_interval}, "
                 f"{self.max_interval}"
             )
+
+
+def checked_mount(
+    R_cam_imu: ArrayLike, noise: float, time_offset: float
+) -> tuple[np.ndarray, float, float]:
+    """The gyro's mounting and noise as :class:`GyroBiasEstimator` and
+    :class:`~rs_localizer.estimation.gyro_check.GyroMountCheck` take them: ``(R_cam_imu (3, 3)
+    float, noise rad/s per sample, time_offset s)``.
+
+    Raises:
+        ValueError: ``R_cam_imu`` not a (3, 3) rotation, ``noise <= 0`` or not finite, a
+            non-finite ``time_offset``.
+    """
+    R = np.asarray(R_cam_imu, dtype=float)
+    if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+        raise ValueError("R_cam_imu must be a (3, 3) rotation")
+    if not (np.isfinite(noise) and noise > 0):
+        raise ValueError(f"noise must be > 0, got {noise}")
+    if not np.isfinite(time_offset):
+        raise ValueError(f"time_offset must be finite, got {time_offset}")
+    return R, float(noise), float(time_offset)
 
 
 def integrate_gyro(
@@ -263,19 +285,12 @@ class GyroBiasEstimator:
         options: GyroBiasOptions | None = None,
     ):
         b = np.asarray(bias, dtype=float).reshape(-1)
-        R = np.asarray(R_cam_imu, dtype=float)
         if b.shape != (3,) or not np.isfinite(b).all():
             raise ValueError(f"bias must be 3 finite numbers (rad/s), got {b.tolist()}")
-        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
-            raise ValueError("R_cam_imu must be a (3, 3) rotation")
-        if not (np.isfinite(sigma) and sigma >= 0 and np.isfinite(noise) and noise > 0):
-            raise ValueError(f"need sigma >= 0 and noise > 0, got {sigma}, {noise}")
-        if not np.isfinite(time_offset):
-            raise ValueError(f"time_offset must be finite, got {time_offset}")
+        if not (np.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"need sigma >= 0, got {sigma}")
+        self.R_cam_imu, self.noise, self.time_offset = checked_mount(R_cam_imu, noise, time_offset)
         self.options = options or GyroBiasOptions()
-        self.R_cam_imu = R
-        self.noise = float(noise)
-        self.time_offset = float(time_offset)
         self.bias = b.copy()
         self.covariance = float(sigma) ** 2 * np.eye(3)
         self.counts = {k: 0 for k in BIAS_UPDATE_OUTCOMES}

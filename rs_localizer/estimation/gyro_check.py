@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike
 
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from .gyro import GYRO_CHI2_THRESHOLD, ImuBuffer
-from .gyro_bias import pair_innovation
+from .gyro_bias import checked_mount, pair_innovation
 
 __all__ = ["MOUNT_CHECK_OUTCOMES", "GyroMountCheck", "MountCheckOptions"]
 
@@ -144,17 +144,8 @@ class GyroMountCheck:
         time_offset: float = 0.0,
         options: MountCheckOptions | None = None,
     ):
-        R = np.asarray(R_cam_imu, dtype=float)
-        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
-            raise ValueError("R_cam_imu must be a (3, 3) rotation")
-        if not (np.isfinite(noise) and noise > 0):
-            raise ValueError(f"noise must be > 0, got {noise}")
-        if not np.isfinite(time_offset):
-            raise ValueError(f"time_offset must be finite, got {time_offset}")
+        self.R_cam_imu, self.noise, self.time_offset = checked_mount(R_cam_imu, noise, time_offset)
         self.options = options or MountCheckOptions()
-        self.R_cam_imu = R
-        self.noise = float(noise)
-        self.time_offset = float(time_offset)
         self.inconsistent = False
         self.detections = 0
         self.counts = {k: 0 for k in MOUNT_CHECK_OUTCOMES}

@@ -102,6 +102,19 @@ def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: boo
         logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
 
 
+def _gyro_calibration(imu) -> tuple:
+    """The ``imu.*`` calibration values (mounting, time offset, noise, bias and its sigma) as
+    a comparable tuple: a gyro-bias estimate or a gyro check is started again when they
+    change at run time."""
+    return (
+        tuple(np.round(imu.R_cam_imu, 12).ravel()),
+        imu.time_offset,
+        imu.gyro_noise,
+        tuple(imu.gyro_bias),
+        imu.gyro_bias_sigma,
+    )
+
+
 class _Drop(ValueError):
     """A frame dropped by an input stage: ``reason`` is counted as ``failed.<reason>``."""
 
@@ -361,14 +374,7 @@ class FramePipeline:
         if imu is None or not imu.estimate_bias:
             self.gyro_bias = self._bias_key = None
             return
-        key = (
-            tuple(np.round(imu.R_cam_imu, 12).ravel()),
-            imu.time_offset,
-            imu.gyro_noise,
-            tuple(imu.gyro_bias),
-            imu.gyro_bias_sigma,
-            imu.bias_random_walk,
-        )
+        key = (*_gyro_calibration(imu), imu.bias_random_walk)
         if self.gyro_bias is None or key != self._bias_key:
             self.gyro_bias = GyroBiasEstimator(
                 imu.gyro_bias,
@@ -387,14 +393,7 @@ class FramePipeline:
         if imu is None:
             self.gyro_check = self._check_key = None
             return
-        key = (
-            tuple(np.round(imu.R_cam_imu, 12).ravel()),
-            imu.time_offset,
-            imu.gyro_noise,
-            tuple(imu.gyro_bias),
-            imu.gyro_bias_sigma,
-            imu.estimate_bias,
-        )
+        key = (*_gyro_calibration(imu), imu.estimate_bias)
         if self.gyro_check is None or key != self._check_key:
             self.gyro_check = GyroMountCheck(imu.R_cam_imu, imu.gyro_noise, imu.time_offset)
             self._check_key = key
