@@ -254,7 +254,12 @@ def _solve_and_score(
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
     K = samples.shape[0]
-    known = w_known is not None and w_known.shape[0] == 3
+    # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
+    if w_known is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
+        wk = np.zeros(0)
+    else:
+        wk = w_known
+    known = wk.shape[0] == 3
     J = 1 if known else kernel_count(kernels)
     if J == 0:
         Rs, Cs, ok = R_p, C_p, ok_p
@@ -275,7 +280,7 @@ def _solve_and_score(
         v0 = np.zeros((K, 3))
         if known:  # (the known-w kernel reads its w from v_init)
             for k in range(K):
-                v0[k, 0], v0[k, 1], v0[k, 2] = w_known[0], w_known[1], w_known[2]
+                v0[k, 0], v0[k, 1], v0[k, 2] = wk[0], wk[1], wk[2]
         v = np.empty((K, 3))
         for j in range(J):
             out[:] = 0.0
