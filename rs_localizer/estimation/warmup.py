@@ -24,7 +24,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -37,7 +36,6 @@ from ..solvers.registry import SOLVER_NAMES, solver_info
 from .batch import fused_kernels, prerotated_batch, ransac_batch
 from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
 from .frame import prepare_frame
-from .fusion import TwistFilter
 from .prior import prior_conflict
 from .refine import posterior_step, refine_rs_pose
 from .tracker import RSTracker, TrackerOptions
@@ -224,7 +222,7 @@ def warm_late(
         posterior_step(ref, prior, spr)
     if tracking is None:
         return
-    filt = TwistFilter(replace(tracking.fusion, max_gap=tracking.max_gap))
+    filt = RSTracker(solver, opts, tracking).filter  # (the tracker's own filter)
     cov = np.diag(np.full(12, 1e-4))
     for k in range(4):
         est = SimpleNamespace(

@@ -258,6 +258,45 @@ def run_batch(
     )
 
 
+def run_batch_with_prior(
+    kernel: Callable,
+    solve: Callable,
+    name: str,
+    min_points: int,
+    x: np.ndarray,
+    X: np.ndarray,
+    r: np.ndarray | None,
+    r0: float,
+    iterations: int,
+    tol: float,
+    v_init: np.ndarray | None,
+    prior_rows: tuple[np.ndarray, np.ndarray] | None,
+) -> RSBatch:
+    """:func:`run_batch` of a 12-parameter solver whose linear solves can take the rows of a
+    linearized motion prior on (w, t): ``kernel`` without them (``prior_rows`` None), else
+    ``solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)`` with
+    ``P`` (K, 6, 6), ``q`` (K, 6) from ``prior_rows``.
+
+    Raises:
+        ValueError: as :func:`run_batch`, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
+    """
+    if prior_rows is None:
+        return run_batch(kernel, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+    P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
+    q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
+    K = np.shape(x)[0]
+    if P.shape != (K, 6, 6) or q.shape != (K, 6):
+        raise ValueError(
+            f"{name}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
+            f"got {P.shape} and {q.shape}"
+        )
+
+    def with_prior(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
+        solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
+
+    return run_batch(with_prior, name, 12, min_points, x, X, r, r0, iterations, tol, v_init)
+
+
 def alternating_solver(
     kernel: Callable, name: str, label: str, section: str
 ) -> tuple[Callable[..., RSSolution], Callable[..., RSBatch]]:

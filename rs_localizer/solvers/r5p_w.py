@@ -30,7 +30,7 @@ from numba import njit
 
 from .._so3 import rotate_left_into, rotate_small, so3_coefficients
 from ._common import RSBatch, RSSolution
-from ._linear import lstsq, rows_E, run_batch, run_single
+from ._linear import lstsq, rows_E, run_batch_with_prior, run_single
 
 __all__ = ["r5p_w", "r5p_w_batch"]
 
@@ -228,17 +228,6 @@ def r5p_w_batch(
     """
     K = np.shape(x)[0]
     wk = _known_w(w, K)
-    if prior_rows is None:
-        return run_batch(_kernel, "r5p_w", 12, 5, x, X, r, r0, iterations, tol, wk)
-    P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
-    q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
-    if P.shape != (K, 6, 6) or q.shape != (K, 6):
-        raise ValueError(
-            f"r5p_w: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-            f"got {P.shape} and {q.shape}"
-        )
-
-    def kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-        _solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
-
-    return run_batch(kernel, "r5p_w", 12, 5, x, X, r, r0, iterations, tol, wk)
+    return run_batch_with_prior(
+        _kernel, _solve, "r5p_w", 5, x, X, r, r0, iterations, tol, wk, prior_rows
+    )

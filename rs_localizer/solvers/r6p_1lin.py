@@ -18,7 +18,15 @@ import numpy as np
 from numba import njit
 
 from ._common import RSBatch, RSSolution
-from ._linear import PATIENCE, cross_into, eq5_error, lstsq, rows_E, run_batch, run_single
+from ._linear import (
+    PATIENCE,
+    cross_into,
+    eq5_error,
+    lstsq,
+    rows_E,
+    run_batch_with_prior,
+    run_single,
+)
 
 __all__ = ["r6p_1lin", "r6p_1lin_batch"]
 
@@ -159,18 +167,6 @@ def r6p_1lin_batch(
     Raises:
         ValueError: wrong shapes or N < 6, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    if prior_rows is None:
-        return run_batch(_kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
-    P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
-    q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
-    K = np.shape(x)[0]
-    if P.shape != (K, 6, 6) or q.shape != (K, 6):
-        raise ValueError(
-            f"r6p_1lin: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-            f"got {P.shape} and {q.shape}"
-        )
-
-    def kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-        _solve(x, X, r, r0, iterations, tol, v_init, P, q, True, out, ok, its, err)
-
-    return run_batch(kernel, "r6p_1lin", 12, 6, x, X, r, r0, iterations, tol, v_init)
+    return run_batch_with_prior(
+        _kernel, _solve, "r6p_1lin", 6, x, X, r, r0, iterations, tol, v_init, prior_rows
+    )
