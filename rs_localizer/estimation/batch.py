@@ -316,7 +316,11 @@ def _solve_and_score(
                     ts[h, a] = out[k, 9 + a]
                 ok[h] = good and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
-            Rs[j * K : (j + 1) * K] = compose_rotvec(v, R_p)
+            Rj = compose_rotvec(v, R_p)
+            for k in range(K):  # (elementwise: see sampling._copy_pose)
+                for a in range(3):
+                    for b in range(3):
+                        Rs[j * K + k, a, b] = Rj[k, a, b]
     n_implausible = 0
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
         if ok[q]:

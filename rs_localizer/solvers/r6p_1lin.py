@@ -96,13 +96,12 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
         err[k] = best
 
 
-_NO_P = np.zeros((1, 6, 6))
-_NO_Q = np.zeros((1, 6))
-
-
 @njit(cache=True)
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-    _solve(x, X, r, r0, iterations, tol, v_init, _NO_P, _NO_Q, False, out, ok, its, err)
+    # (no prior rows: the arguments of the same types as the prior path's, writable arrays
+    # and a non-literal flag, so that both share one compiled _solve)
+    no_P, no_q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+    _solve(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its, err)
 
 
 def r6p_1lin(
