@@ -222,11 +222,19 @@ def warm_late(
         seconds_per_unit_r=spr,
         acceleration_block=True,
     )
+    # (the twist filter before the MAP step: the first process reaches the MAP step first, on
+    # its cold frame, and the tracker's filter last)
+    if tracking is not None:
+        _warm_filter(solver, opts, tracking)
     if prior is not None and ref.covariance is not None:
         prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, spr)
         posterior_step(ref, prior, spr)
-    if tracking is None:
-        return
+
+
+def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -> None:
+    """The tracker's twist filter and smoother over synthetic per-frame estimates
+    (:func:`warm_late`)."""
+    prior = opts.motion_prior
     filt = RSTracker(solver, opts, tracking).filter  # (the tracker's own filter)
     cov = np.diag(np.full(12, 1e-4))
     for k in range(4):
