@@ -317,7 +317,7 @@ def _solve_and_score(
                 ok[h] = good and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
             Rj = compose_rotvec(v, R_p)
-            for k in range(K):  # (elementwise: see sampling._copy_pose)
+            for k in range(K):  # (element by element, not a slice: see sampling._copy_pose)
                 for a in range(3):
                     for b in range(3):
                         Rs[j * K + k, a, b] = Rj[k, a, b]
@@ -384,7 +384,9 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
     ts = np.zeros((J, 3))
     v = np.zeros((1, 3))
     R1 = np.empty((1, 3, 3))
-    R1[0] = R
+    for a in range(3):  # (element by element: see _solve_and_score)
+        for b in range(3):
+            R1[0, a, b] = R[a, b]
     out = np.zeros((1, MAX_PARAMS))
     ok1 = np.zeros(1, dtype=np.bool_)
     its = np.zeros(1, dtype=np.int64)
@@ -405,5 +407,8 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
             Cs[j, a] = out[0, 3 + a] if good else 0.0
             ws[j, a] = out[0, 6 + a] if good else 0.0
             ts[j, a] = out[0, 9 + a] if good else 0.0
-        Rs[j] = compose_rotvec(v, R1)[0]
+        Rj = compose_rotvec(v, R1)
+        for a in range(3):
+            for b in range(3):
+                Rs[j, a, b] = Rj[0, a, b]
     return ok, Rs, Cs, ws, ts

@@ -114,7 +114,11 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
             if not lstsq(A, b, u):
                 break
             rotate_left_into(u[0], u[1], u[2], Rc, Rn)
-            Rc[:] = Rn
+            # (element by element: an array slice assignment also compiles numba's
+            # shape-mismatch error, seconds of compiling for an error that cannot occur)
+            for a in range(3):
+                for c in range(3):
+                    Rc[a, c] = Rn[a, c]
             its[k] = it + 1
             ok[k] = True
             if u[0] * u[0] + u[1] * u[1] + u[2] * u[2] <= tol * tol:

@@ -44,7 +44,8 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
     E = np.empty((2, 3))
     vhat = np.empty(3)
     for k in range(K):
-        vhat[:] = v_init[k]
+        for a in range(3):  # (element by element, not a slice: no shape-error path to compile)
+            vhat[a] = v_init[k, a]
         best = np.inf
         stale = 0
         ok[k] = False
@@ -88,9 +89,11 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
             stale = 0 if e < best - tol else stale + 1
             if e < best:
                 best = e
-                out[k, :12] = u
+                for a in range(12):
+                    out[k, a] = u[a]
                 ok[k] = True
-            vhat[:] = u[0:3]
+            for a in range(3):
+                vhat[a] = u[a]
             if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
