@@ -537,3 +537,40 @@ def test_board_scenes_render_and_detect(name):
     assert rotation_angle_deg(e.orientation, frame.orientation) < rotation_angle_deg(
         g.orientation, frame.orientation
     )
+
+
+def test_prior_conflict_is_the_linear_gaussian_chi_square():
+    """prior_conflict against the formula evaluated with NumPy: the camera's velocities
+    ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (docs/architecture.md "Conventions"), their
+    covariance ``S = J cov J^T`` with J by central differences,
+    ``conflict = (z - m)^T (S + P)^-1 (z - m)`` and ``shift = dz^T S^-1 dz`` for
+    ``dz = S (S + P)^-1 (z - m)``."""
+    from rs_localizer.estimation.prior import prior_conflict
+
+    rng = np.random.default_rng(5)
+    s = 3e-2  # seconds per unit r
+    C, w, t = rng.normal(0, 1, 3), rng.normal(0, 0.05, 3), rng.normal(0, 0.05, 3)
+    A = rng.normal(0, 1e-3, (12, 12))
+    cov = A @ A.T + 1e-6 * np.eye(12)
+    mean = rng.normal(0, 0.5, 6)
+    P = np.diag([0.8, 0.5, 0.6, 1.1, 0.9, 1.3]) ** 2
+    prior = MotionPrior(mean=mean, covariance=P)
+
+    def z_of(p):  # (delta, C, w, t) -> (v, omega); z does not depend on delta
+        Cp, wp, tp = p[3:6], p[6:9], p[9:12]
+        return np.concatenate([(np.cross(wp, Cp) - tp) / s, -wp / s])
+
+    p0 = np.concatenate([np.zeros(3), C, w, t])
+    z = z_of(p0)
+    J = np.empty((6, 12))
+    for k in range(12):  # (z is quadratic in p: central differences are exact up to rounding)
+        e = np.zeros(12)
+        e[k] = 1e-4
+        J[:, k] = (z_of(p0 + e) - z_of(p0 - e)) / 2e-4
+    S = J @ cov @ J.T
+    d = z - mean
+    y = np.linalg.solve(S + P, d)
+    dz = S @ y
+    conflict, shift = prior_conflict(prior, cov, C, w, t, s)
+    assert conflict == pytest.approx(d @ y, rel=1e-6)
+    assert shift == pytest.approx(dz @ np.linalg.solve(S, dz), rel=1e-4)

@@ -104,28 +104,60 @@ def test_node_warm_up_covers_every_kernel_of_real_frames():
 
 
 def test_late_warm_up_makes_the_signatures_the_estimator_uses():
-    """The second compiling process's work (warm_late) compiles the refinement, the MAP step
-    and the twist filter with exactly the argument types the estimator and the tracker pass
-    them: after the node's warm-up it adds no signature (a different one would be compiled
-    for nothing, and the real one again inside the first frames)."""
+    """The parallel warm-up's shares (the split of the cold RANSAC batch's callees, then
+    warm_late: the refinement, the MAP step and the twist filter) compile with exactly the
+    argument types the estimator and the tracker pass them: after the node's warm-up they add
+    no signature (a different one would be compiled for nothing, and the real one again
+    inside the first frames). Each kernel is compiled once: no literal-argument duplicates."""
+    import sys
+
     from numba.core.registry import CPUDispatcher
 
-    from rs_localizer.estimation import fusion, prior, refine
+    from rs_localizer.estimation import fusion, prior, refine, scoring
     from rs_localizer.estimation.tracker import TrackerOptions
-    from rs_localizer.estimation.warmup import fused_cached, warm_late, warm_up
+    from rs_localizer.estimation.warmup import _split_batch, fused_cached, warm_late, warm_up
 
     warm_up("r6p_1lin", tracking=TrackerOptions())
-    kernels = [
-        obj
-        for mod in (refine, prior, fusion)
-        for obj in vars(mod).values()
-        if isinstance(obj, CPUDispatcher)
+    solvers = [
+        sys.modules[f"rs_localizer.solvers.{m}"] for m in ("lambda_twist", "r6p_1lin", "r5p_w")
     ]
-    before = {k.py_func.__qualname__: set(k.signatures) for k in kernels}
-    for name in ("_lm_refine", "_posterior_step", "_conflict", "_update_window", "_predict_row"):
+    kernels = {  # "module.function" -> dispatcher
+        f"{mod.__name__.rsplit('.', 1)[1]}.{name}": obj
+        for mod in (refine, prior, fusion, scoring, *solvers)
+        for name, obj in vars(mod).items()
+        if isinstance(obj, CPUDispatcher)
+    }
+    before = {name: set(k.signatures) for name, k in kernels.items()}
+    for name in (
+        "refine._lm_refine",
+        "refine._posterior_step",
+        "prior._conflict",
+        "fusion._update_window",
+        "fusion._predict_row",
+    ):
         assert before[name], name  # (the node's warm-up used it)
+    # the batch's callees are compiled inside it (or it is loaded whole from the cache): their
+    # signatures are in numba's cache index
+    split = (
+        "scoring.msac_scores",
+        "lambda_twist.lambda_twist_batch",
+        "r6p_1lin._kernel",
+        "r5p_w._kernel",
+    )
+
+    def cached(name):
+        return {key[0] for key in kernels[name]._cache._cache_file._load_index()}
+
+    in_cache = {name: cached(name) for name in split}
+    for name in split:
+        assert in_cache[name], name
+    _split_batch("r6p_1lin", first=True)
+    _split_batch("r6p_1lin", first=False)
     warm_late("r6p_1lin", tracking=TrackerOptions())
-    assert {k.py_func.__qualname__: set(k.signatures) for k in kernels} == before
+    assert {name: set(k.signatures) for name, k in kernels.items() if name not in split} == {
+        name: sigs for name, sigs in before.items() if name not in split
+    }
+    assert {name: cached(name) for name in split} == in_cache
     assert fused_cached("r6p_1lin")  # (the tests' cache is writable)
 
 

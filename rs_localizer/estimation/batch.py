@@ -316,7 +316,11 @@ def _solve_and_score(
                     ts[h, a] = out[k, 9 + a]
                 ok[h] = good and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
-            Rs[j * K : (j + 1) * K] = compose_rotvec(v, R_p)
+            Rj = compose_rotvec(v, R_p)
+            for k in range(K):  # (element by element, not a slice: see sampling._copy_pose)
+                for a in range(3):
+                    for b in range(3):
+                        Rs[j * K + k, a, b] = Rj[k, a, b]
     n_implausible = 0
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
         if ok[q]:
@@ -380,7 +384,9 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
     ts = np.zeros((J, 3))
     v = np.zeros((1, 3))
     R1 = np.empty((1, 3, 3))
-    R1[0] = R
+    for a in range(3):  # (element by element: see _solve_and_score)
+        for b in range(3):
+            R1[0, a, b] = R[a, b]
     out = np.zeros((1, MAX_PARAMS))
     ok1 = np.zeros(1, dtype=np.bool_)
     its = np.zeros(1, dtype=np.int64)
@@ -401,5 +407,8 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
             Cs[j, a] = out[0, 3 + a] if good else 0.0
             ws[j, a] = out[0, 6 + a] if good else 0.0
             ts[j, a] = out[0, 9 + a] if good else 0.0
-        Rs[j] = compose_rotvec(v, R1)[0]
+        Rj = compose_rotvec(v, R1)
+        for a in range(3):
+            for b in range(3):
+                Rs[j, a, b] = Rj[0, a, b]
     return ok, Rs, Cs, ws, ts

@@ -27,7 +27,7 @@ from .result import (
     output_covariance,
     physical_velocities,
 )
-from .scoring import errors2
+from .scoring import exact_errors2
 from .sensitivity import acceleration_sensitivity
 
 __all__ = [
@@ -177,7 +177,7 @@ def refine_final_model(
     th = opts.ransac.threshold_px / fr.f
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     if not opts.refine.enabled:
-        e2 = errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)
+        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
         rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
         return FinalModel(R, C, w, t, inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling

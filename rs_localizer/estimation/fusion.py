@@ -725,7 +725,7 @@ def _predict_row(X, P, dt, acc, qa, ql):
     n = 18 if acc else 12
     Xn = np.empty((1, _ROW))
     F, Q = _transition(X[0], dt, acc, qa, ql, Xn[0])
-    C = _outputs(Xn, _shift_covariance(P, F, Q, n, 0), n)
+    C = _outputs(Xn, _shift_covariance(P, F, Q, n, np.int64(0)), n)  # (update()'s signature)
     return Xn[0], C[0]
 
 

@@ -38,7 +38,7 @@ from .options import EstimateOptions, RansacOptions
 from .plausibility import plausible_motion
 from .prior import sample_prior_rows
 from .sampling import draw_samples, gather_prerotated, second_prerotations, select_prerotations
-from .scoring import msac_scores
+from .scoring import exact_msac_scores
 
 __all__ = [
     "KNOWN_W_SAMPLE",
@@ -461,7 +461,7 @@ class SampleBySample(_Scoring):
             ok = ok & plausible
         if not ok.any():
             return ScoredBatch(-1, np.inf, Rs, Cs, ws, ts, n_bad)
-        sc, _ = msac_scores(
+        sc, _ = exact_msac_scores(
             fr.x,
             fr.X,
             fr.r0e,
@@ -473,7 +473,6 @@ class SampleBySample(_Scoring):
             self.th2,
             ok,
             best_score,
-            True,
             self.ransac.pretest_points,
             pretest_min,
             0.5,

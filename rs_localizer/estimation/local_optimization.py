@@ -11,7 +11,7 @@ from .hypotheses import nonminimal_models
 from .options import EstimateOptions, InitialModel
 from .plausibility import finite_model
 from .refine import refine_rs_pose
-from .scoring import errors2
+from .scoring import exact_errors2
 
 __all__ = ["Scored", "local_optimization", "seed_from_initial_model"]
 
@@ -105,7 +105,7 @@ def seed_from_initial_model(
         w, t = np.zeros(3), np.zeros(3)
     if not finite_model(R, C, w, t):
         return 0, None, False
-    e2 = errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, True, SCORE_AT_MEASURED_TIME)
+    e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
     gate = float(initial.gate_px) / fr.f
     near = e2 < gate * gate
     explained = int(np.count_nonzero(near))

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..solvers._linear import solve_square
+
 __all__ = [
     "MotionPrior",
     "checked_symmetric",
@@ -342,7 +344,11 @@ def _conflict(cov12, C, w, t, s, mean, Lam):
     d = z - mean
     # (S + Lam^-1)^-1 = Lam (I + S Lam)^-1, defined for a singular Lam too
     M = np.eye(6) + S @ Lam
-    y = np.linalg.solve(M, d)
+    # (LU with partial pivoting, as np.linalg.solve: the solvers' own, already compiled; numba's
+    # np.linalg.solve costs seconds of compiling on a cold start)
+    y = np.empty(6)
+    if not solve_square(M, d.copy(), y, 0.0):
+        return np.inf, np.inf
     Ly = Lam @ y
     # the linear-Gaussian posterior moves z by S Lam y; in the data's own metric S^-1 that is
     # y^T Lam S Lam y
@@ -386,5 +392,5 @@ def prior_conflict(
             Lam,
         )
         return float(c), float(sh)
-    except Exception:  # numba raises for a singular system
+    except Exception:  # (a singular system returns inf itself; this is for a numba error)
         return float("inf"), float("inf")

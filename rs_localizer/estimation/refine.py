@@ -258,14 +258,15 @@ def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     before either is stored so that their dependency chains overlap (~7% faster)."""
     n = X.shape[0]
     m, cost, ss, n_in = 0, 0.0, 0.0, 0
-    for i in range(0, n - 1, 2):
+    for i in range(0, n, 2):
+        # (an odd n's last point is computed twice and added once: two inlined copies of
+        # point_rows to compile, not three)
+        j = i + 1 if i + 1 < n else i
         a = point_rows(pose, X, x, tau, i, k, cutoff, rho_cut)
-        b = point_rows(pose, X, x, tau, i + 1, k, cutoff, rho_cut)
+        b = point_rows(pose, X, x, tau, j, k, cutoff, rho_cut)
         m, cost, ss, n_in = _add_point(a, m, cost, ss, n_in, Jt)
-        m, cost, ss, n_in = _add_point(b, m, cost, ss, n_in, Jt)
-    if n % 2 == 1:
-        a = point_rows(pose, X, x, tau, n - 1, k, cutoff, rho_cut)
-        m, cost, ss, n_in = _add_point(a, m, cost, ss, n_in, Jt)
+        if j > i:
+            m, cost, ss, n_in = _add_point(b, m, cost, ss, n_in, Jt)
     return m, cost, ss, n_in
 
 
@@ -643,7 +644,7 @@ def _lm_refine(
                 A[i, j] = H[i, j]
             A[i, i] = H[i, i] + lam * (H[i, i] + 1e-12)
             B[i, 0] = -g[i]
-        if not _solve_symmetric(A, B, n_free, 1, L, M):
+        if not _solve_symmetric(A, B, n_free, np.int64(1), L, M):
             break
         # converged: the Gauss-Newton model's decrease of the cost sum rho (~ -g . step, the
         # cost being ~ cost + 2 g.d + d^T H d) is below tol / 10 of it (a step ~0.01 of a
@@ -735,7 +736,9 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     M = np.empty((12, 12))
     for i in range(12):
         B[i, 0] = -g[i]
-    if not _solve_symmetric(H.copy(), B, 12, 1, L, M):
+    # (sizes as int64, not literals: one compiled _solve_symmetric for every caller)
+    n12, one = np.int64(12), np.int64(1)
+    if not _solve_symmetric(H.copy(), B, n12, one, L, M):
         return False
     Rn, Cn, wn, tn = _apply_step(R, C, w, t, B, 12)
     H[:, :] = Hd
@@ -743,7 +746,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     for i in range(12):
         for j in range(12):
             B[i, j] = 1.0 if i == j else 0.0
-    if not _solve_symmetric(H, B, 12, 12, L, M):
+    if not _solve_symmetric(H, B, n12, n12, L, M):
         return False
     _store_model(Rn, Cn, wn, tn, out)
     for i in range(12):

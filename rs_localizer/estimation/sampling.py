@@ -106,6 +106,17 @@ def _sample_error(R, C, m, samples, k, X, x):
     return e
 
 
+@njit(cache=True, inline=INLINE)
+def _copy_pose(R, C, m, Rout, Cout, k):
+    """``Rout[k], Cout[k] = R[m], C[m]`` element by element (a slice assignment would also
+    compile numba's shape-mismatch error, seconds of compiling for an error that cannot
+    occur here)."""
+    for a in range(3):
+        Cout[k, a] = C[m, a]
+        for b in range(3):
+            Rout[k, a, b] = R[m, a, b]
+
+
 @njit(cache=True)
 def select_prerotations(R, C, owner, samples, X, x, K):
     """For each of K samples pick, among its P3P solutions (R (M,3,3), C (M,3), owner (M,)),
@@ -121,8 +132,7 @@ def select_prerotations(R, C, owner, samples, X, x, K):
         e = _sample_error(R, C, m, samples, k, X, x)
         if e < best[k]:
             best[k] = e
-            Rout[k] = R[m]
-            Cout[k] = C[m]
+            _copy_pose(R, C, m, Rout, Cout, k)
             ok[k] = True
     for k in range(K):
         if not ok[k]:
@@ -160,8 +170,7 @@ def second_prerotations(R, C, owner, samples, X, x, K, ratio, slack):
     for k in range(K):
         if m2[k] >= 0 and e2[k] <= ratio * e1[k] + slack:
             kept[k] = True
-            Rout[k] = R[m2[k]]
-            Cout[k] = C[m2[k]]
+            _copy_pose(R, C, m2[k], Rout, Cout, k)
         else:
             for a in range(3):
                 Rout[k, a, a] = 1.0

@@ -148,6 +148,26 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured=False):
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
+def _msac_points(
+    x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured
+):
+    """Add points ``start <= i < stop`` to hypothesis h's running MSAC score s and inlier
+    count c, stopping early once s exceeds ``bail`` or fewer than ``need`` inliers remain
+    reachable. Returns (s, c, True if every point was added). The one place
+    :func:`msac_scores` evaluates errors: one inlined copy of the error model to compile."""
+    for i in range(start, stop):
+        e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured)
+        if e2 < th2:
+            s += e2
+            c += 1
+        else:
+            s += th2
+        if s > bail or c + (stop - 1 - i) < need:
+            return s, c, False
+    return s, c, True
+
+
+@njit(cache=True, fastmath=FMA, nogil=True)
 def msac_scores(
     x,
     X,
@@ -196,22 +216,33 @@ def msac_scores(
     n_pre = min(pretest_n, N)
     part = np.zeros(H)
     pre_cnt = np.full(H, -1, dtype=np.int64)
+    zero = np.int64(0)  # (not a literal: one compiled _msac_points for both loops)
     for h in range(H):
         if not valid[h]:
             continue
-        s = 0.0
-        c = 0
-        for i in range(n_pre):
-            e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured)
-            if e2 < th2:
-                s += e2
-                c += 1
-            else:
-                s += th2
-            # stop once the hypothesis can no longer pass the pre-test or beat the bound
-            if s > bail or c + (n_pre - 1 - i) < pretest_min:
-                break
-        else:
+        # stop once the hypothesis can no longer pass the pre-test or beat the bound
+        s, c, done = _msac_points(
+            x,
+            X,
+            r0e,
+            d0,
+            d1,
+            Rs,
+            Cs,
+            ws,
+            ts,
+            h,
+            zero,
+            n_pre,
+            0.0,
+            zero,
+            th2,
+            bail,
+            pretest_min,
+            exact,
+            measured,
+        )
+        if done:
             part[h] = s
             pre_cnt[h] = c
     order = np.argsort(-pre_cnt, kind="mergesort")
@@ -221,17 +252,27 @@ def msac_scores(
             break
         if pre_cnt[h] < pretest_min or part[h] > bail:
             continue
-        s = part[h]
-        c = pre_cnt[h]
-        for i in range(n_pre, N):
-            e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured)
-            if e2 < th2:
-                s += e2
-                c += 1
-            else:
-                s += th2
-            if s > bail:
-                break
+        s, c, _ = _msac_points(
+            x,
+            X,
+            r0e,
+            d0,
+            d1,
+            Rs,
+            Cs,
+            ws,
+            ts,
+            h,
+            n_pre,
+            N,
+            part[h],
+            pre_cnt[h],
+            th2,
+            bail,
+            -N,
+            exact,
+            measured,
+        )
         if s <= bail:
             scores[h] = s
             counts[h] = c
@@ -294,6 +335,57 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False):
                 exact,
             )
     return out
+
+
+@njit(cache=True, nogil=True)
+def exact_errors2(x, X, r0e, d, R, C, w, t, measured):
+    """:func:`errors2` with ``exact=True`` (the estimator's errors), for callers in Python.
+
+    ``exact`` goes in as a compile-time constant, as in :func:`msac_evaluate` and the fused
+    RANSAC batch, so all of them share one compiled :func:`errors2` (numba compiles a
+    constant flag and a run-time flag separately)."""
+    return errors2(x, X, r0e, d, R, C, w, t, True, measured)
+
+
+@njit(cache=True, nogil=True)
+def exact_msac_scores(
+    x,
+    X,
+    r0e,
+    d,
+    Rs,
+    Cs,
+    ws,
+    ts,
+    th2,
+    valid,
+    bail,
+    pretest_n,
+    pretest_min,
+    pretest_fraction,
+    measured,
+):
+    """:func:`msac_scores` with ``exact=True`` (the estimator's scoring), for callers in Python;
+    one compiled :func:`msac_scores` with the fused RANSAC batch's (see :func:`exact_errors2`).
+    """
+    return msac_scores(
+        x,
+        X,
+        r0e,
+        d,
+        Rs,
+        Cs,
+        ws,
+        ts,
+        th2,
+        valid,
+        bail,
+        True,
+        pretest_n,
+        pretest_min,
+        pretest_fraction,
+        measured,
+    )
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)

@@ -5,13 +5,14 @@ planar scenes).
 Used by the node at start (and on a solver change) and by ``rs-localizer compile``, the
 install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the kernels go).
 
-Compiling takes one to two minutes on one core; about half of it is the fused RANSAC kernels
+Compiling takes one to two minutes on one core; a third of it is the fused RANSAC kernels
 (:mod:`.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels not yet in
-numba's cache, a second Python process compiles, meanwhile, the kernels a frame needs later
-(:func:`warm_late`: the exact-model refinement, the motion prior's MAP step, the twist filter
-and its smoother) while this process runs the usual warm-up, which then loads them from the
-cache (or compiles whatever the second process has not finished): the result is the same as
-compiling in one process.
+numba's cache, a second Python process compiles, meanwhile, part of that batch's callees
+(Lambda Twist and the MSAC scoring, while this process compiles the solver kernels), then the
+kernels a frame needs later (:func:`warm_late`: the exact-model refinement, the motion prior's
+MAP step, the twist filter and its smoother) while this process runs the usual warm-up, which
+then loads them from the cache (or compiles whatever the second process has not finished):
+the result is the same as compiling in one process.
 """
 
 from __future__ import annotations
@@ -31,13 +32,15 @@ import numpy as np
 from ..camera import CameraModel
 from ..geometry import rotvec_to_matrix
 from ..jit_cache import PACKAGE_DIR, cache_state, compile_progress
-from ..solvers.kernels import KernelSetType
+from ..solvers.kernels import KernelSetType, compile_kernel_set
+from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
 from .batch import fused_kernels, prerotated_batch, ransac_batch
 from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
 from .frame import prepare_frame
 from .prior import prior_conflict
 from .refine import posterior_step, refine_rs_pose
+from .scoring import exact_msac_scores
 from .tracker import RSTracker, TrackerOptions
 
 __all__ = [
@@ -139,6 +142,8 @@ def warm_up(
     if jobs > 1 and not fused_cached(solver):
         helper = _SecondProcess([solver], tracking is not None, log)
     try:
+        if helper is not None:
+            _split_batch(solver, first=True)
         est = _run(solver, options, tracking, gyro)
     finally:
         if helper is not None:
@@ -217,11 +222,19 @@ def warm_late(
         seconds_per_unit_r=spr,
         acceleration_block=True,
     )
+    # (the twist filter before the MAP step: the first process reaches the MAP step first, on
+    # its cold frame, and the tracker's filter last)
+    if tracking is not None:
+        _warm_filter(solver, opts, tracking)
     if prior is not None and ref.covariance is not None:
         prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, spr)
         posterior_step(ref, prior, spr)
-    if tracking is None:
-        return
+
+
+def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -> None:
+    """The tracker's twist filter and smoother over synthetic per-frame estimates
+    (:func:`warm_late`)."""
+    prior = opts.motion_prior
     filt = RSTracker(solver, opts, tracking).filter  # (the tracker's own filter)
     cov = np.diag(np.full(12, 1e-4))
     for k in range(4):
@@ -239,6 +252,42 @@ def warm_late(
         _ = step.current
         filt.predict((k + 1) * 33_333_333)
     filt.flush()
+
+
+def _split_batch(solver: str, first: bool) -> None:
+    """Compile (or load) one share of the callees of ``solver``'s cold RANSAC batch
+    (:func:`.batch.ransac_batch`, compiled first and alone on a cold frame's path) with the
+    argument types the batch passes them: ``first``: the batched solver kernels (the first
+    process, before its warm-up); else Lambda Twist's batch and the MSAC scoring (the second
+    process, before :func:`warm_late`), which the first process's batch reaches after the
+    kernels and then loads from numba's cache. Nothing for a solver without a fused batch."""
+    fused = fused_kernels(solver)
+    if fused is None:
+        return
+    if first:
+        compile_kernel_set(fused[0])
+        return
+    lambda_twist_batch(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)))
+    cam, uv, X, _ = _problem()
+    fr = prepare_frame(uv, X, cam, np.inf, np.random.default_rng(0))
+    H = 2
+    exact_msac_scores(
+        fr.x,
+        fr.X,
+        fr.r0e,
+        fr.d,
+        np.zeros((H, 3, 3)),
+        np.zeros((H, 3)),
+        np.zeros((H, 3)),
+        np.zeros((H, 3)),
+        1e-6,
+        np.zeros(H, dtype=np.bool_),
+        np.inf,
+        10,
+        0,
+        0.5,
+        False,
+    )
 
 
 def fused_cached(solver: str, anchored: bool = True) -> bool:
@@ -277,13 +326,16 @@ _HELPER = (
 
 def _second_main(argv: list[str]) -> None:
     """The helper process of :class:`_SecondProcess` (``argv``: ``track`` or ``alone``, then
-    the solvers): :func:`warm_late` for each solver; then, with ``track``, once the first
+    the solvers): its share of each solver's cold RANSAC batch (:func:`_split_batch`), then
+    :func:`warm_late` for each solver; then, with ``track``, once the first
     process has cached a solver's cold RANSAC batch, the tracker over the warm-up's videos
     (planar first: the first process does the 3D scenes first), which compiles the kernels of
     tracked and planar frames while the first process compiles the rest of a cold frame's.
     Progress lines on stdout."""
     tracking = TrackerOptions() if argv[0] == "track" else None
     with compile_progress(lambda m: print(m, flush=True)):
+        for s in argv[1:]:
+            _split_batch(s, first=False)
         for s in argv[1:]:
             warm_late(s, tracking=tracking)
         if tracking is None:
@@ -382,6 +434,9 @@ def compile_kernels(
         if jobs > 1 and not all(fused_cached(s) for s in solvers):
             helper = _SecondProcess(solvers, tracking is not None, log)
         try:
+            if helper is not None:
+                for s in solvers:
+                    _split_batch(s, first=True)
             for s in solvers:
                 per[s], _ = warm_up(s, tracking=tracking)
         finally:

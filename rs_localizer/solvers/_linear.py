@@ -237,7 +237,8 @@ def run_batch(
     v0 = (
         np.zeros((K, 3))
         if v_init is None
-        else np.ascontiguousarray(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)))
+        # (a writable copy, as the fused batch passes: one compiled kernel for both)
+        else np.array(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)), order="C")
     )
     out = np.zeros((K, n_params))
     ok = np.zeros(K, dtype=np.bool_)

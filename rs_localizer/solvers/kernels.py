@@ -37,6 +37,7 @@ __all__ = [
     "MAX_PARAMS",
     "R5P_W",
     "KernelSet",
+    "compile_kernel_set",
     "kernel_count",
     "kernel_ids",
     "kernel_set",
@@ -151,6 +152,29 @@ def kernel_set(ids: tuple[int, ...], known_w: int | None = None) -> KernelSet:
     """The shared :class:`KernelSet` of ``ids`` (a tuple of kernel ids, possibly empty) and
     ``known_w``. Raises ValueError for an unknown id."""
     return KernelSet(ids, known_w)
+
+
+def compile_kernel_set(kernels: KernelSet, iterations: int = 1) -> None:
+    """Compile (or load from numba's cache) every kernel of ``kernels``, with the argument
+    types :func:`run_kernels` passes them in the fused RANSAC batch, by running each on two
+    problems of 9 points at the origin (which it rejects as degenerate; ``ok`` stays False).
+    Lets a warm-up compile the kernels ahead of, or beside, the batch that calls them."""
+    K, N = 2, 9
+    ids = (*kernels.ids, *(() if kernels.known_w is None else (kernels.known_w,)))
+    for i in ids:
+        _KERNELS[i](
+            np.zeros((K, N, 2)),
+            np.zeros((K, N, 3)),
+            np.zeros((K, N)),
+            0.0,
+            int(iterations),
+            1e-12,
+            np.zeros((K, 3)),
+            np.zeros((K, MAX_PARAMS)),
+            np.zeros(K, dtype=np.bool_),
+            np.zeros(K, dtype=np.int64),
+            np.zeros(K),
+        )
 
 
 def kernel_count(kernels: KernelSet) -> int:

@@ -376,7 +376,8 @@ def lambda_twist(bearings, X):
     """
     R = np.empty((MAX_SOLUTIONS, 3, 3))
     t = np.empty((MAX_SOLUTIONS, 3))
-    n = _solve_into(bearings, X, R, t, 0)
+    # (a non-literal offset: the same compiled _solve_into as lambda_twist_batch's)
+    n = _solve_into(bearings, X, R, t, np.int64(0))
     return R[:n].copy(), t[:n].copy()
 
 
@@ -396,7 +397,9 @@ def lambda_twist_batch(bearings, X):
     R = np.empty((MAX_SOLUTIONS * K, 3, 3))
     t = np.empty((MAX_SOLUTIONS * K, 3))
     own = np.empty(MAX_SOLUTIONS * K, dtype=np.int64)
-    m = 0
+    # (an int64 from the start: numba would otherwise also compile _solve_into for the literal
+    # 0 it sees first)
+    m = np.int64(0)
     for k in range(K):
         n = _solve_into(bearings[k], X[k], R, t, m)
         for j in range(n):

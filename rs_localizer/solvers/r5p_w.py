@@ -114,7 +114,11 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
             if not lstsq(A, b, u):
                 break
             rotate_left_into(u[0], u[1], u[2], Rc, Rn)
-            Rc[:] = Rn
+            # (element by element: an array slice assignment also compiles numba's
+            # shape-mismatch error, seconds of compiling for an error that cannot occur)
+            for a in range(3):
+                for c in range(3):
+                    Rc[a, c] = Rn[a, c]
             its[k] = it + 1
             ok[k] = True
             if u[0] * u[0] + u[1] * u[1] + u[2] * u[2] <= tol * tol:
@@ -146,15 +150,14 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
         err[k] = np.sqrt(acc / N)
 
 
-_NO_P = np.zeros((1, 6, 6))
-_NO_Q = np.zeros((1, 6))
-
-
 @njit(cache=True)
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
     """The batched-kernel signature of ``_linear.run_batch``; ``v_init`` (K, 3) carries the
     known ``w`` of each problem (this solver has no other use for an initial ``v``)."""
-    _solve(x, X, r, r0, iterations, tol, v_init, _NO_P, _NO_Q, False, out, ok, its, err)
+    # (no prior rows: the arguments of the same types as the prior path's, writable arrays
+    # and a non-literal flag, so that both share one compiled _solve)
+    no_P, no_q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+    _solve(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its, err)
 
 
 def _known_w(w, K: int) -> np.ndarray:

@@ -44,7 +44,8 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
     E = np.empty((2, 3))
     vhat = np.empty(3)
     for k in range(K):
-        vhat[:] = v_init[k]
+        for a in range(3):  # (element by element, not a slice: no shape-error path to compile)
+            vhat[a] = v_init[k, a]
         best = np.inf
         stale = 0
         ok[k] = False
@@ -88,21 +89,22 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
             stale = 0 if e < best - tol else stale + 1
             if e < best:
                 best = e
-                out[k, :12] = u
+                for a in range(12):
+                    out[k, a] = u[a]
                 ok[k] = True
-            vhat[:] = u[0:3]
+            for a in range(3):
+                vhat[a] = u[a]
             if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
 
 
-_NO_P = np.zeros((1, 6, 6))
-_NO_Q = np.zeros((1, 6))
-
-
 @njit(cache=True)
 def _kernel(x, X, r, r0, iterations, tol, v_init, out, ok, its, err):
-    _solve(x, X, r, r0, iterations, tol, v_init, _NO_P, _NO_Q, False, out, ok, its, err)
+    # (no prior rows: the arguments of the same types as the prior path's, writable arrays
+    # and a non-literal flag, so that both share one compiled _solve)
+    no_P, no_q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+    _solve(x, X, r, r0, iterations, tol, v_init, no_P, no_q, np.bool_(False), out, ok, its, err)
 
 
 def r6p_1lin(
