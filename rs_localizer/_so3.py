@@ -97,6 +97,16 @@ def compose_rotvec(v, R_pre):
     return out
 
 
+@njit(cache=True, inline=INLINE)
+def copy_matrix3(src, dst):
+    """``dst[:, :] = src`` for 3 x 3 arrays, element by element. A slice assignment between
+    arrays also compiles numba's shape-mismatch error with its string formatting (seconds of
+    compiling on a cold start) for an error that cannot occur here."""
+    for a in range(3):
+        for b in range(3):
+            dst[a, b] = src[a, b]
+
+
 @njit(cache=True)
 def skew_matrix(v):
     """``[v]x`` (3, 3), a new array, of a 3-vector ``v`` (3,): ``[v]x a = v x a``."""

@@ -17,7 +17,7 @@ import functools
 import numpy as np
 from numba import njit
 
-from .._so3 import compose_rotvec
+from .._so3 import compose_rotvec, copy_matrix3
 from ..solvers.kernels import (
     KNOWN_W,
     MAX_PARAMS,
@@ -317,10 +317,8 @@ def _solve_and_score(
                 ok[h] = good and ok_p[k]
             # (a call, not inlined: the same floating-point contraction as the step-by-step path)
             Rj = compose_rotvec(v, R_p)
-            for k in range(K):  # (element by element, not a slice: see sampling._copy_pose)
-                for a in range(3):
-                    for b in range(3):
-                        Rs[j * K + k, a, b] = Rj[k, a, b]
+            for k in range(K):
+                copy_matrix3(Rj[k], Rs[j * K + k])
     n_implausible = 0
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
         if ok[q]:
@@ -384,9 +382,7 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
     ts = np.zeros((J, 3))
     v = np.zeros((1, 3))
     R1 = np.empty((1, 3, 3))
-    for a in range(3):  # (element by element: see _solve_and_score)
-        for b in range(3):
-            R1[0, a, b] = R[a, b]
+    copy_matrix3(R, R1[0])
     out = np.zeros((1, MAX_PARAMS))
     ok1 = np.zeros(1, dtype=np.bool_)
     its = np.zeros(1, dtype=np.int64)
@@ -407,8 +403,5 @@ def nonminimal_solve(kernels, n_params, min_points, inl, R, x, X, r, r0, iterati
             Cs[j, a] = out[0, 3 + a] if good else 0.0
             ws[j, a] = out[0, 6 + a] if good else 0.0
             ts[j, a] = out[0, 9 + a] if good else 0.0
-        Rj = compose_rotvec(v, R1)
-        for a in range(3):
-            for b in range(3):
-                Rs[j, a, b] = Rj[0, a, b]
+        copy_matrix3(compose_rotvec(v, R1)[0], Rs[j])
     return ok, Rs, Cs, ws, ts

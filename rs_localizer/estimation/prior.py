@@ -392,5 +392,5 @@ def prior_conflict(
             Lam,
         )
         return float(c), float(sh)
-    except Exception:  # (a singular system returns inf itself; this is for a numba error)
+    except Exception:  # (a singular system returns inf itself; numba raises for a wrong shape)
         return float("inf"), float("inf")

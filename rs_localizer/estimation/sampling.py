@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import INLINE
+from .._so3 import INLINE, copy_matrix3
 
 
 @njit(cache=True)
@@ -108,13 +108,11 @@ def _sample_error(R, C, m, samples, k, X, x):
 
 @njit(cache=True, inline=INLINE)
 def _copy_pose(R, C, m, Rout, Cout, k):
-    """``Rout[k], Cout[k] = R[m], C[m]`` element by element (a slice assignment would also
-    compile numba's shape-mismatch error, seconds of compiling for an error that cannot
-    occur here)."""
+    """``Rout[k], Cout[k] = R[m], C[m]`` element by element (see
+    :func:`rs_localizer._so3.copy_matrix3`)."""
+    copy_matrix3(R[m], Rout[k])
     for a in range(3):
         Cout[k, a] = C[m, a]
-        for b in range(3):
-            Rout[k, a, b] = R[m, a, b]
 
 
 @njit(cache=True)

@@ -127,8 +127,9 @@ def warm_up(
     samples solved with the angular velocity known, the gyro-aided prior).
 
     With ``jobs`` > 1, when the solver's fused RANSAC kernels are not in numba's cache
-    (:func:`fused_cached`), another process compiles the kernels a frame needs later
-    (:func:`warm_late`) meanwhile (module docstring); ``log`` receives its progress lines.
+    (:func:`fused_cached`), another process compiles part of them and the kernels a frame
+    needs later (:func:`warm_late`) meanwhile (module docstring); ``log`` receives its
+    progress lines.
 
     Returns:
         (seconds, the estimate of the 3D scene without scores).
@@ -138,16 +139,8 @@ def warm_up(
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
-    helper = None
-    if jobs > 1 and not fused_cached(solver):
-        helper = _SecondProcess([solver], tracking is not None, log)
-    try:
-        if helper is not None:
-            _split_batch(solver, first=True)
+    with _parallel([solver], tracking is not None, jobs, log):
         est = _run(solver, options, tracking, gyro)
-    finally:
-        if helper is not None:
-            helper.stop()
     return time.perf_counter() - tic, est
 
 
@@ -290,6 +283,27 @@ def _split_batch(solver: str, first: bool) -> None:
     )
 
 
+@contextlib.contextmanager
+def _parallel(solvers: list[str], track: bool, jobs: int, log: Callable[[str], object] | None):
+    """While the body compiles: with ``jobs`` > 1 and some solver's fused RANSAC kernels not
+    cached, a second compiling process (:class:`_SecondProcess`, with the tracker's frames if
+    ``track``), and this process's share of each solver's cold batch compiled first
+    (:func:`_split_batch`); the second process is stopped when the body is done. Yields the
+    :class:`_SecondProcess` (its :attr:`~_SecondProcess.kernels` complete after the block) or
+    None."""
+    helper = None
+    if jobs > 1 and not all(fused_cached(s) for s in solvers):
+        helper = _SecondProcess(solvers, track, log)
+    try:
+        if helper is not None:
+            for s in solvers:
+                _split_batch(s, first=True)
+        yield helper
+    finally:
+        if helper is not None:
+            helper.stop()
+
+
 def fused_cached(solver: str, anchored: bool = True) -> bool:
     """True when numba's cache holds ``solver``'s fused RANSAC kernels (the cold batch and,
     with ``anchored``, the anchored one) for this source, or the solver has none: then
@@ -414,7 +428,8 @@ def compile_kernels(
     """Compile (or load) every kernel the estimator needs for ``solvers`` (with the video
     tracker's, for ``tracking``: the node's default), reporting each kernel numba compiles
     through ``log`` (see :func:`rs_localizer.jit_cache.compile_progress`); with ``jobs`` > 1
-    a second process compiles the kernels a frame needs late meanwhile (:func:`warm_late`).
+    a second process compiles part of the RANSAC batch and the kernels a frame needs later
+    meanwhile (module docstring).
 
     Returns:
         ``{"seconds": total, "kernels": [(name, seconds)] (both processes'), "cache":
@@ -428,24 +443,15 @@ def compile_kernels(
             raise ValueError(f"unknown solver {s!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
     per = {}
-    kernels = []
-    with compile_progress(log) as prog:
-        helper = None
-        if jobs > 1 and not all(fused_cached(s) for s in solvers):
-            helper = _SecondProcess(solvers, tracking is not None, log)
-        try:
-            if helper is not None:
-                for s in solvers:
-                    _split_batch(s, first=True)
-            for s in solvers:
-                per[s], _ = warm_up(s, tracking=tracking)
-        finally:
-            if helper is not None:
-                helper.stop()
-                kernels += helper.kernels
+    with (
+        compile_progress(log) as prog,
+        _parallel(solvers, tracking is not None, jobs, log) as helper,
+    ):
+        for s in solvers:
+            per[s], _ = warm_up(s, tracking=tracking)
     return {
         "seconds": time.perf_counter() - tic,
-        "kernels": prog.kernels + kernels,
+        "kernels": prog.kernels + (helper.kernels if helper is not None else []),
         "cache": cache_state(),
         "solvers": per,
     }

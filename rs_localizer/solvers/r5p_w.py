@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import rotate_left_into, rotate_small, so3_coefficients
+from .._so3 import copy_matrix3, rotate_left_into, rotate_small, so3_coefficients
 from ._common import RSBatch, RSSolution
 from ._linear import lstsq, rows_E, run_batch_with_prior, run_single
 
@@ -114,11 +114,7 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
             if not lstsq(A, b, u):
                 break
             rotate_left_into(u[0], u[1], u[2], Rc, Rn)
-            # (element by element: an array slice assignment also compiles numba's
-            # shape-mismatch error, seconds of compiling for an error that cannot occur)
-            for a in range(3):
-                for c in range(3):
-                    Rc[a, c] = Rn[a, c]
+            copy_matrix3(Rn, Rc)
             its[k] = it + 1
             ok[k] = True
             if u[0] * u[0] + u[1] * u[1] + u[2] * u[2] <= tol * tol:

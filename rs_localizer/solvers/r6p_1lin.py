@@ -44,7 +44,7 @@ def _solve(x, X, r, r0, iterations, tol, v_init, P, q, use_prior, out, ok, its, 
     E = np.empty((2, 3))
     vhat = np.empty(3)
     for k in range(K):
-        for a in range(3):  # (element by element, not a slice: no shape-error path to compile)
+        for a in range(3):  # (element by element: see _so3.copy_matrix3)
             vhat[a] = v_init[k, a]
         best = np.inf
         stale = 0
