@@ -114,8 +114,9 @@ def measure_node(
     Returns:
         ``result`` with ``lockstep`` and ``pipelined`` (every default output subscribed),
         ``pose_only`` (lock-step with only ``pose`` subscribed) (each: hz,
-        latency_ms_median/p99/max, ...) and ``node_stages_ms`` (the node's own stage medians
-        from its diagnostics).
+        latency_ms_median/p99/max, node_cpu_ms_per_frame: the node process's CPU time, all
+        its threads, over the run divided by its frames, ...) and ``node_stages_ms`` (the
+        node's own stage medians from its diagnostics).
     Raises:
         RuntimeError: the node did not start.
     """
@@ -177,6 +178,7 @@ def measure_node(
             out_stamp = {s: s + int(round(offset * 1e9)) for s, _ in msgs}
             k = 0  # frames sent
             waiting = []  # output stamps of the frames sent and not answered yet
+            cpu0 = node.cpu_seconds()
             wall0 = time.perf_counter()
             deadline = wall0 + 60 + count * 0.5
             while time.perf_counter() < deadline:
@@ -192,6 +194,7 @@ def measure_node(
                     continue
                 ex.spin_once(timeout_sec=0.001)
             wall = time.perf_counter() - wall0
+            cpu = node.cpu_seconds() - cpu0
             lat = np.array(
                 [
                     recv[out_stamp[s]] - sent[s]
@@ -208,11 +211,13 @@ def measure_node(
                 "latency_ms_median": float(np.median(lat) * 1e3) if got else float("nan"),
                 "latency_ms_p99": float(np.percentile(lat, 99) * 1e3) if got else float("nan"),
                 "latency_ms_max": float(lat.max() * 1e3) if got else float("nan"),
+                "node_cpu_ms_per_frame": cpu / count * 1e3,
             }
             log(
                 f"{tag:>9}: {got}/{count} poses in {wall:.2f} s = {r['hz']:.1f} Hz; latency "
                 f"median {r['latency_ms_median']:.2f} ms, p99 {r['latency_ms_p99']:.2f} ms, "
-                f"max {r['latency_ms_max']:.2f} ms"
+                f"max {r['latency_ms_max']:.2f} ms; node CPU {r['node_cpu_ms_per_frame']:.2f} ms "
+                "per frame"
             )
             return r
 
@@ -272,8 +277,10 @@ def measure_cameras(
         ``{"cameras": {name: {"sent", "answered", "latency_ms_median", "latency_ms_p99",
         "latency_ms_max", "frames_received", "frames_solved", "frames_failed",
         "frames_skipped", "frames_pending"}}, "answered", "sent", "latency_ms_median",
-        "latency_ms_p99"}`` (latency: publish -> pose received, all cameras pooled; the frame
-        counts from each camera's diagnostics after the stream).
+        "latency_ms_p99", "node_cpu_ms_per_frame"}`` (latency: publish -> pose received, all
+        cameras pooled; the frame counts from each camera's diagnostics after the stream; CPU:
+        the node process's, all threads, from the stream's start to its last pose, per frame
+        streamed, warm-up frames included).
     Raises:
         RuntimeError: the node did not start.
     """
@@ -352,6 +359,7 @@ def measure_cameras(
             for i in range(count)
             for k, ns in enumerate(spaces)
         )
+        cpu0 = node.cpu_seconds()
         wall0 = time.perf_counter()
         for due_ns, i, ns in events:
             due = wall0 + due_ns * 1e-9
@@ -366,6 +374,7 @@ def measure_cameras(
         end = time.perf_counter() + 5.0
         while time.perf_counter() < end and not all(k in recv for k in sent):
             ex.spin_once(timeout_sec=0.01)
+        cpu_per_frame = (node.cpu_seconds() - cpu0) / len(events)
         graph.spin(1.5)  # the diagnostics after the stream
     finally:
         graph.close()
@@ -397,5 +406,10 @@ def measure_cameras(
             f"{row['latency_ms_median']:.2f} ms, p99 {row['latency_ms_p99']:.2f} ms, max "
             f"{row['latency_ms_max']:.2f} ms"
         )
-    result.update(sent=len(sent), answered=len(pooled), **stats(pooled))
+    result.update(
+        sent=len(sent),
+        answered=len(pooled),
+        node_cpu_ms_per_frame=cpu_per_frame * 1e3,
+        **stats(pooled),
+    )
     return result

@@ -30,6 +30,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from ..frontends.shared import SHARED_MAPS
 from .node import LocalizerCore
+from .qos import output_events
 
 __all__ = ["RSLocalizerLifecycleNode", "main"]
 
@@ -49,7 +50,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         self.get_logger().info("unconfigured (lifecycle node: configure, then activate)")
 
     def _make_publisher(self, msg_type, topic, qos):
-        pub = self.create_lifecycle_publisher(msg_type, topic, qos)
+        pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
         self._outputs.append(pub)
         return pub
 

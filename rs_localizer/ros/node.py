@@ -51,7 +51,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
@@ -64,24 +64,11 @@ from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode", "main"]
 
-# Frame subscriptions: sensor-data QoS (best effort) with a deeper history than its 5, so that
-# frames arriving while the worker holds the GIL wait in the middleware until the callbacks
-# move them to the node's queue, where a drop is counted (frames_skipped), instead of being
-# overwritten unseen (images: 10, they are big; IMU samples: 200, ~1 s at 200 Hz)
-_CLOUD_QOS, _IMAGE_QOS, _IMU_QOS = (
-    QoSProfile(
-        depth=depth,
-        reliability=qos_profile_sensor_data.reliability,
-        durability=qos_profile_sensor_data.durability,
-        history=qos_profile_sensor_data.history,
-    )
-    for depth in (100, 10, 200)
-)
-_RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 _LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN, ERROR: DiagnosticStatus.ERROR}
 
@@ -105,8 +92,9 @@ class LocalizerCore:
         return None if self.pipeline is None else self.pipeline.config
 
     def _make_publisher(self, msg_type, topic, qos):
-        """Publishers of the outputs (the managed node makes lifecycle publishers)."""
-        return self.create_publisher(msg_type, topic, qos)
+        """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
+        event handlers (:func:`.qos.output_events`)."""
+        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
 
     def _declare_parameters(self):
         declare_parameters(self, PARAMETERS)
@@ -138,7 +126,7 @@ class LocalizerCore:
 
     def _create_outputs(self):
         self._pubs = {  # output topic (as rs_localizer.ros.outputs names it) -> publisher
-            topic: self._make_publisher(msg_type, topic, _RELIABLE)
+            topic: self._make_publisher(msg_type, topic, RELIABLE)
             for topic, msg_type in (
                 ("pose", PoseStamped),
                 ("twist", TwistStamped),
@@ -147,14 +135,14 @@ class LocalizerCore:
                 ("twist_single_frame", TwistStamped),
             )
         }
-        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", _RELIABLE)
+        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         if getattr(self, "viz", None) is None:  # (declares the viz.* parameters: once)
             self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
         if self.get_parameter("publish_tf").value:
             if cv.have_tf2_msgs():
                 from tf2_msgs.msg import TFMessage
 
-                self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", _RELIABLE)
+                self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
             else:
                 self.get_logger().warning(
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
@@ -176,7 +164,7 @@ class LocalizerCore:
         )
         if self.cfg.imu is not None:
             self.sub_imu = self.create_subscription(
-                Imu, "imu", lambda m: self.pipeline.add_imu(m), _IMU_QOS, qos_overriding_options=qos
+                Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
             )
 
     def _subscribe(self, msg_type, topic, kind: str, qos):
@@ -204,19 +192,21 @@ class LocalizerCore:
     def _create_frame_inputs(self):
         """The frame subscriptions, the diagnostics timer and the worker thread."""
         self.sub_corr = self._subscribe(
-            PointCloud2, "correspondences", "correspondences", _CLOUD_QOS
+            PointCloud2, "correspondences", "correspondences", CLOUD_QOS
         )
-        self.sub_kp = self._subscribe(PointCloud2, "keypoints", "keypoints", _CLOUD_QOS)
+        self.sub_kp = self._subscribe(PointCloud2, "keypoints", "keypoints", CLOUD_QOS)
         self.sub_image = None
         if self.cfg.frontend is not None:  # (compressed: on image_transport's topic name)
             compressed = self.cfg.image_transport == "compressed"
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
-            self.sub_image = self._subscribe(msg_type, topic, "image", _IMAGE_QOS)
+            self.sub_image = self._subscribe(msg_type, topic, "image", IMAGE_QOS)
         self._diag_timer = self.create_timer(
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
-        self._flush_timer = self.create_timer(0.05, self._flush_idle_track)
+        # (every timer tick rebuilds the executor's wait set in Python, as many times a second as
+        # there are cameras in the process: 10 Hz, the pending twists go out within 0.1 s)
+        self._flush_timer = self.create_timer(0.1, self._flush_idle_track)
         # the worker holds the GIL while it solves; hand it to the subscription callbacks
         # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
@@ -369,7 +359,7 @@ class LocalizerCore:
 
     def _corr_out_publisher(self):
         if self.pub_corr_out is None:
-            self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", _RELIABLE)
+            self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", RELIABLE)
         return self.pub_corr_out
 
     def destroy_node(self):

@@ -176,6 +176,16 @@ class NodeProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
+    def cpu_seconds(self) -> float:
+        """CPU time (s, user + system, all threads) the process has used so far, from
+        ``/proc/<pid>/stat`` (resolution one clock tick, usually 10 ms); NaN where there is no
+        ``/proc`` or the process has ended."""
+        try:
+            fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return float("nan")
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
     def wait_ready(self, timeout: float = 60.0, count: int = 1, marker: str = "ready:") -> bool:
         """Wait for ``count`` ``ready`` log lines (after warm-up; one per camera node) or other
         ``marker`` lines."""

@@ -24,7 +24,6 @@ import numpy as np
 from geometry_msgs.msg import Point
 from nav_msgs.msg import Path
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -32,6 +31,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from ..viz.debug_image import DebugImageOptions, draw_debug_image
 from ..viz.scene3d import frustum_segments, velocity_arrows
 from . import conversions as cv
+from .qos import DEBUG_IMAGE_QOS, RELIABLE, output_events
 
 __all__ = [
     "MARKER_COLORS",
@@ -250,12 +250,14 @@ class NodeVisualization:
             else:
                 d.integer_range = [rng]
             node.declare_parameter(name, default, d)
-        rel = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub_image = node.create_publisher(  # (images are large: a short queue)
-            Image, "debug_image", QoSProfile(depth=2, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub_image, self.pub_markers, self.pub_path = (
+            node.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
+            for msg_type, topic, qos in (
+                (Image, "debug_image", DEBUG_IMAGE_QOS),  # (images are large: a short queue)
+                (MarkerArray, "markers", RELIABLE),
+                (Path, "path", RELIABLE),
+            )
         )
-        self.pub_markers = node.create_publisher(MarkerArray, "markers", rel)
-        self.pub_path = node.create_publisher(Path, "path", rel)
         self.builder = VisualizationBuilder(
             *(
                 node.get_parameter(n).value
