@@ -124,6 +124,46 @@ def refused_start(tmp_path, param_files, namespace, timeout):
     return exited, rc, n.log
 
 
+def diagnostics_in_process(ctx, name: str, overrides: dict) -> list:
+    """Build ``RSLocalizerNode`` ``name`` in namespace ``/<name>`` in this process (no warm-up,
+    no tf, diagnostics every 0.1 s, + ``overrides``) and a probe subscribed to ``/diagnostics``
+    with rclpy's default QoS; spin both until the node's first status arrives (at most 20 s).
+    Returns the node's statuses received (empty: none)."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.node import RSLocalizerNode
+
+    params = {"warmup": False, "publish_tf": False, "diagnostics_period": 0.1, **overrides}
+    node = RSLocalizerNode(
+        name,
+        context=ctx,
+        namespace=f"/{name}",
+        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+    )
+    probe = rclpy.create_node(f"{name}_probe", context=ctx)
+    got = []
+
+    def on_diag(msg):
+        got.extend(s for s in msg.status if name in s.name)
+
+    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    ex.add_node(probe)
+    try:
+        deadline = time.monotonic() + 20
+        while not got and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.1)
+    finally:
+        ex.shutdown()
+        probe.destroy_node()
+        node.destroy_node()
+    return got
+
+
 def assert_dropped(node, st, v, expected):
     """Each ``reason: n`` of ``expected`` is counted ``n`` times in the diagnostics values ``v``
     (``failed.<reason>``) and logged as ``frame dropped (<reason>)``; the diagnostic status

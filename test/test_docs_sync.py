@@ -13,7 +13,6 @@ are read from the status a live node publishes on ``/diagnostics``.
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,38 +160,9 @@ def test_every_parameter_is_documented_with_its_default():
 
 def _published_diagnostics_keys(ctx, overrides: dict) -> set:
     """Keys of the first status a node (no warm-up) publishes on /diagnostics."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
+    from conftest import diagnostics_in_process
 
-    from rs_localizer.ros.node import RSLocalizerNode
-
-    params = {"warmup": False, "publish_tf": False, "diagnostics_period": 0.1, **overrides}
-    node = RSLocalizerNode(
-        "docs_sync",
-        context=ctx,
-        namespace="/docs_sync",
-        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
-    )
-    probe = rclpy.create_node("docs_sync_probe", context=ctx)
-    got = []
-
-    def on_diag(msg):
-        got.extend(s for s in msg.status if "docs_sync" in s.name)
-
-    probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    ex.add_node(probe)
-    try:
-        deadline = time.monotonic() + 20
-        while not got and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.1)
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        node.destroy_node()
+    got = diagnostics_in_process(ctx, "docs_sync", overrides)
     assert got, "no /diagnostics status from the node"
     return {kv.key for kv in got[0].values}
 

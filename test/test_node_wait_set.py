@@ -4,8 +4,6 @@ incompatible QoS reports it on its own side), the subscriptions keep rclpy's def
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
 pytest.importorskip("rclpy")
@@ -63,35 +61,6 @@ def test_publishers_add_no_event_handlers(ros_context, lifecycle):
 def test_outputs_reach_a_default_subscriber(ros_context):
     """Without the publishers' event handlers the outputs still go out: a subscriber with
     rclpy's default QoS (reliable, volatile) receives ``/diagnostics``."""
-    import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
+    from conftest import diagnostics_in_process
 
-    from rs_localizer.ros.node import RSLocalizerNode
-
-    node = RSLocalizerNode(
-        "wait_set_out",
-        context=ros_context,
-        namespace="/ws_out",
-        parameter_overrides=_params(diagnostics_period=0.1),
-    )
-    probe = rclpy.create_node("wait_set_probe", context=ros_context)
-    got = []
-    probe.create_subscription(
-        DiagnosticArray,
-        "/diagnostics",
-        lambda m: got.extend(s for s in m.status if "ws_out" in s.name),
-        10,
-    )
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    ex.add_node(probe)
-    try:
-        deadline = time.monotonic() + 20
-        while not got and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.1)
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        node.destroy_node()
-    assert got, "no /diagnostics from the node"
+    assert diagnostics_in_process(ros_context, "wait_set_out", {}), "no /diagnostics from the node"
