@@ -246,6 +246,20 @@ class Probe:
         )
         assert ok, "node did not match the probe's topics"
 
+    def wait_camera_info(self, timeout=30.0):
+        """Wait until the node's diagnostics say its intrinsics come from ``camera_info``: a
+        reliable message published right after matching can still reach the node after a
+        frame sent a moment later (discovery finishes on the node's side later)."""
+        name = f"{self.ns}/rs_localizer"
+        ok = self.wait(
+            lambda: any(
+                k.endswith(name) and values.get("camera") == "camera_info"
+                for k, (_, values) in self.diag.items()
+            ),
+            timeout,
+        )
+        assert ok, "the node did not report the camera_info"
+
     def pose_near(self, stamp_ns, tol_ns=1_000):
         from rs_localizer.ros.conversions import stamp_to_ns
 

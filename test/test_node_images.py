@@ -201,7 +201,7 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
         probe.wait_matched()
         assert probe.wait(lambda: pub.get_subscription_count() > 0, 30)
         probe.pub_info.publish(info)
-        probe.wait(lambda: False, 0.3)
+        probe.wait_camera_info()
         sent = {"images": 0}
         expected = {}
         frames = iter(images)

@@ -169,7 +169,7 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
         assert probe.wait(lambda: pub.get_subscription_count() > 0, 30), node.log
         probe.wait_matched()
         probe.pub_info.publish(msgs["/camera/camera_info"][0])
-        probe.wait(lambda: False, 0.3)
+        probe.wait_camera_info()
         n_bad = n_good = 0
         errs = []
         for k, im in enumerate(msgs["/camera/image_raw"][:6]):
