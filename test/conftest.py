@@ -124,6 +124,15 @@ def refused_start(tmp_path, param_files, namespace, timeout):
     return exited, rc, n.log
 
 
+def in_process_parameters(overrides: dict) -> list:
+    """``parameter_overrides`` for a localizer node a test builds in its own process: no
+    warm-up (the test does not solve frames), no tf, then ``overrides``."""
+    from rclpy.parameter import Parameter
+
+    params = {"warmup": False, "publish_tf": False, **overrides}
+    return [Parameter(k, value=v) for k, v in params.items()]
+
+
 def diagnostics_in_process(ctx, name: str, overrides: dict) -> list:
     """Build ``RSLocalizerNode`` ``name`` in namespace ``/<name>`` in this process (no warm-up,
     no tf, diagnostics every 0.1 s, + ``overrides``) and a probe subscribed to ``/diagnostics``
@@ -132,16 +141,14 @@ def diagnostics_in_process(ctx, name: str, overrides: dict) -> list:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
 
     from rs_localizer.ros.node import RSLocalizerNode
 
-    params = {"warmup": False, "publish_tf": False, "diagnostics_period": 0.1, **overrides}
     node = RSLocalizerNode(
         name,
         context=ctx,
         namespace=f"/{name}",
-        parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+        parameter_overrides=in_process_parameters({"diagnostics_period": 0.1, **overrides}),
     )
     probe = rclpy.create_node(f"{name}_probe", context=ctx)
     got = []

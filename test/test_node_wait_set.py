@@ -9,13 +9,6 @@ import pytest
 pytest.importorskip("rclpy")
 
 
-def _params(**extra):
-    from rclpy.parameter import Parameter
-
-    values = {"warmup": False, "publish_tf": False, **extra}
-    return [Parameter(k, value=v) for k, v in values.items()]
-
-
 def _event_owners(node) -> list[str]:
     """``subscription`` or ``publisher`` for each QoS event handler among the node's
     waitables (the only waitables the node creates)."""
@@ -30,18 +23,26 @@ def _event_owners(node) -> list[str]:
 
 @pytest.mark.parametrize("lifecycle", [False, True])
 def test_publishers_add_no_event_handlers(ros_context, lifecycle):
+    from conftest import in_process_parameters
+
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
     from rs_localizer.ros.node import RSLocalizerNode
 
     if lifecycle:
         node = RSLocalizerLifecycleNode(
-            "wait_set_lc", context=ros_context, namespace="/ws", parameter_overrides=_params()
+            "wait_set_lc",
+            context=ros_context,
+            namespace="/ws",
+            parameter_overrides=in_process_parameters({}),
         )
         node.trigger_configure()
         node.trigger_activate()  # (the frame subscriptions)
     else:
         node = RSLocalizerNode(
-            "wait_set", context=ros_context, namespace="/ws", parameter_overrides=_params()
+            "wait_set",
+            context=ros_context,
+            namespace="/ws",
+            parameter_overrides=in_process_parameters({}),
         )
     try:
         topics = {p.topic_name for p in node.publishers}
