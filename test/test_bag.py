@@ -11,9 +11,9 @@ pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
 from rs_localizer.cli import main as cli
-from rs_localizer.ros import bag_io
-from rs_localizer.ros import play as rs_play
-from rs_localizer.ros import replay as rs_replay
+from rs_localizer.ros.bags import bag_io
+from rs_localizer.ros.bags import play as rs_play
+from rs_localizer.ros.bags import replay as rs_replay
 
 
 @pytest.fixture(scope="module")

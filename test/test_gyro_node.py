@@ -43,7 +43,7 @@ def test_replay_with_the_gyro(imu_bag):
     """Per frame (tracking off) the gyro brings the angular velocity to its own accuracy; a
     wrong mounting is contradicted by the image on every frame, which is then solved exactly
     as without the gyro."""
-    from rs_localizer.ros.replay import replay
+    from rs_localizer.ros.bags.replay import replay
 
     off = {"tracking.enabled": False}
     base = replay(imu_bag, params=off, progress=None)
@@ -73,7 +73,7 @@ def test_replay_estimates_the_gyro_bias(imu_bag):
     """With the bias unknown (imu.gyro_bias 0 +- 0.05 rad/s) the pipeline estimates the
     simulated one from the 30 frames (1 s) of the bag, reports it, and the tracked video is not
     worse than without the IMU; with imu.estimate_bias false the parameter stays."""
-    from rs_localizer.ros.replay import replay
+    from rs_localizer.ros.bags.replay import replay
 
     unknown = {**GYRO, "imu.gyro_bias": [0.0, 0.0, 0.0], "imu.gyro_bias_sigma": 0.05}
     est = replay(imu_bag, params=unknown, progress=None)
@@ -126,11 +126,11 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     or without the online bias, and the diagnostics say so; the right mount is not
     flagged."""
     from rs_localizer.geometry import rotvec_to_matrix
+    from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.conversions import quaternion_from_matrix
     from rs_localizer.ros.diagnostics import WARN, diagnostic_status
     from rs_localizer.ros.frame_queue import FrameCounts
     from rs_localizer.ros.pipeline import StatsSnapshot
-    from rs_localizer.ros.replay import replay
     from rs_localizer.sim.trajectory import R_IMU_CAMERA
 
     R_wrong = rotvec_to_matrix(np.array([0.0, 0.0, np.pi / 2])) @ R_IMU_CAMERA.T
@@ -223,9 +223,9 @@ def test_pipeline_counts_rejected_imu_messages():
 def test_node_uses_the_gyro_over_dds(tmp_path, ros_context, imu_bag):
     """The node subscribes imu (sensor_msgs/Imu), solves the frames with the gyro of their
     readout and says so in its diagnostics; the twist is then at the gyro's accuracy."""
-    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.play import play
     from rs_localizer.ros.conversions import stamp_to_ns
-    from rs_localizer.ros.play import play
 
     node = start_node(
         tmp_path,
@@ -269,8 +269,8 @@ def test_render_bag_writes_the_imu_of_its_motion(tmp_path):
     """render-bag --imu-rate: the gyro samples are the rendered motion's angular velocity in
     the IMU axes plus the simulated bias (0.003 rad/s noise), around every frame."""
     from rs_localizer.cli.render_bag import render_bag
-    from rs_localizer.ros.bag_frames import read_gyro
-    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.bag_frames import read_gyro
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.sim.trajectory import R_IMU_CAMERA
 
     bag = render_bag(

@@ -60,8 +60,8 @@ def node(tmp_path_factory, keypoints_bag):
 
 def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=None):
     from rs_localizer.evaluation.demo import evaluate_outputs
-    from rs_localizer.ros.bag_io import load_ground_truth
-    from rs_localizer.ros.play import play
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.play import play
 
     res = play(
         bag,
@@ -814,7 +814,7 @@ def test_time_jumps_never_drop_valid_frames(rel_node, rel, ros_context, sample_b
     answered in full both times; a frame stamped 0.9 s ahead does not drop the frames after
     it. Each jump back is a counted time reset."""
     from rs_localizer.ros import pointcloud as pc
-    from rs_localizer.ros.play import play
+    from rs_localizer.ros.bags.play import play
 
     probe = rel
     base = _settle(probe)

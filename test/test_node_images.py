@@ -67,7 +67,7 @@ def _bag_messages(bag):
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-    from rs_localizer.ros.bag_io import iter_messages
+    from rs_localizer.ros.bags.bag_io import iter_messages
 
     types = {IMAGE_TOPIC: Image, INFO_TOPIC: CameraInfo, "/camera/correspondences": PointCloud2}
     out = {t: [] for t in types}
@@ -81,9 +81,9 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
     the reference row; the republished correspondences are the front end's output."""
     from rs_localizer.accuracy import summarize_errors
     from rs_localizer.evaluation.demo import evaluate_outputs
-    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.play import play
     from rs_localizer.ros.conversions import stamp_to_ns
-    from rs_localizer.ros.play import play
     from rs_localizer.ros.pointcloud import read_correspondences
 
     outs = (f"{NS}/pose", f"{NS}/twist", f"{NS}/correspondences_out")

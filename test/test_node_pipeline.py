@@ -140,7 +140,7 @@ def test_config_from_the_defaults():
 # ---------------------------------------------------------------------------- camera_info
 @pytest.fixture(scope="module")
 def msgs():
-    from rs_localizer.ros.bag_io import RosbagsMessages
+    from rs_localizer.ros.bags.bag_io import RosbagsMessages
 
     return RosbagsMessages()
 

@@ -42,7 +42,7 @@ def _values(topic: str, m) -> np.ndarray:
 
 def _node_outputs(tmp_path, ros_context, bag, files, params, frame_topic):
     """The node's outputs by topic and stamp, the bag played to it in lock-step."""
-    from rs_localizer.ros.play import play
+    from rs_localizer.ros.bags.play import play
 
     node = start_node(tmp_path, params, namespace=NS, name="cmp", config=files)
     try:
@@ -73,8 +73,8 @@ def _node_outputs(tmp_path, ros_context, bag, files, params, frame_topic):
 
 
 def _replay_outputs(tmp_path, bag, files, params):
-    from rs_localizer.ros.bag_io import iter_messages, typestore
-    from rs_localizer.ros.replay import replay
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.replay import replay
 
     res = replay(bag, params_files=files, params=params, out_bag=tmp_path / "out", progress=None)
     ts = typestore()
@@ -90,7 +90,7 @@ def _replay_outputs(tmp_path, bag, files, params):
 def test_replay_writes_what_the_node_publishes(
     mode, tmp_path, ros_context, sample_bag, sample_images_bag
 ):
-    from rs_localizer.ros.bag_io import read_bag_info
+    from rs_localizer.ros.bags.bag_io import read_bag_info
 
     if mode == "images":  # (configured as the demo configures the node on this bag)
         bag, files, frame_topic = sample_images_bag, [CONFIG, IMAGES_CONFIG], "/camera/image_raw"

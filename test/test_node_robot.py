@@ -53,8 +53,8 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
 
     from rs_localizer.accuracy import summarize_errors
     from rs_localizer.evaluation.demo import evaluate_outputs
-    from rs_localizer.ros.bag_io import load_ground_truth
-    from rs_localizer.ros.play import play
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.play import play
 
     q_bc = Rotation.from_euler("xyz", [-95, 3, -88], degrees=True).as_quat()  # a tilted camera
     t_bc = np.array([0.35, -0.12, 0.6])
@@ -131,7 +131,7 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
 
     from rs_localizer.accuracy import frame_errors
     from rs_localizer.frontends.image import compressed_fields, image_from_msg
-    from rs_localizer.ros.bag_io import iter_messages, load_ground_truth
+    from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth
     from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg, stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
@@ -249,7 +249,7 @@ def _frames(sample_bag, n):
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
-    from rs_localizer.ros.bag_io import iter_messages
+    from rs_localizer.ros.bags.bag_io import iter_messages
 
     clouds, info = [], None
     for topic, _, _, raw in iter_messages(
@@ -271,7 +271,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
     from test_node import ParamClient
 
     from rs_localizer.accuracy import frame_errors
-    from rs_localizer.ros.bag_io import load_ground_truth
+    from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.conversions import pose_from_msg, stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
@@ -386,7 +386,7 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
-    from rs_localizer.ros.bag_io import iter_messages
+    from rs_localizer.ros.bags.bag_io import iter_messages
     from rs_localizer.ros.conversions import stamp_to_ns
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 

@@ -56,8 +56,8 @@ def _far_corners_back_to_image(markers_points, orientation, position, camera):
 def test_marker_array_against_the_pose():
     from visualization_msgs.msg import Marker
 
-    from rs_localizer.ros.bag_io import typestore
-    from rs_localizer.ros.replay import to_cdr
+    from rs_localizer.ros.bags.bag_io import typestore
+    from rs_localizer.ros.bags.replay import to_cdr
     from rs_localizer.ros.visualization import marker_array
 
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
@@ -268,7 +268,7 @@ def test_node_publishes_visualization(tmp_path, ros_context):
 @pytest.fixture(scope="module")
 def labelled_bag(tmp_path_factory):
     """A 3-frame correspondence bag and its frames (ground-truth inlier labels)."""
-    from rs_localizer.ros.bag_io import write_sequence_bag
+    from rs_localizer.ros.bags.bag_io import write_sequence_bag
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
     frames, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=500, seed=11))
@@ -279,7 +279,7 @@ def labelled_bag(tmp_path_factory):
 
 
 def _topic_messages(bag, topic):
-    from rs_localizer.ros.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
 
     ts = typestore()
     return [ts.deserialize_cdr(raw, mt) for _, mt, _, raw in iter_messages(bag, {topic})]
@@ -288,7 +288,7 @@ def _topic_messages(bag, topic):
 def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
     from rs_localizer.cli import main as cli
     from rs_localizer.frontends.image import image_from_msg
-    from rs_localizer.ros.bag_io import bag_topics
+    from rs_localizer.ros.bags.bag_io import bag_topics
     from rs_localizer.ros.conversions import pose_from_msg, stamp_to_ns
 
     bag, frames, cam = labelled_bag
@@ -359,7 +359,7 @@ def test_replay_draws_on_the_bag_images(sample_images_bag, tmp_path):
     import cv2
 
     from rs_localizer.frontends.image import image_from_msg
-    from rs_localizer.ros.replay import replay
+    from rs_localizer.ros.bags.replay import replay
 
     res = replay(sample_images_bag, out_bag=tmp_path / "out", debug_outputs=True, progress=None)
     assert res.solved == 20

@@ -25,7 +25,7 @@ import json, sys
 from numba.core.registry import CPUDispatcher
 from rs_localizer.ros.params import build_config
 from rs_localizer.ros.pipeline import log_warm_up
-from rs_localizer.ros.replay import replay, replay_parameters
+from rs_localizer.ros.bags.replay import replay, replay_parameters
 
 
 def signatures():
@@ -66,7 +66,7 @@ print(json.dumps({"new": {k: v for k, v in new.items() if v}, "solved": solved})
 
 def test_node_warm_up_covers_every_kernel_of_real_frames():
     pytest.importorskip("rosbags")
-    from rs_localizer.ros.bag_io import read_bag_info
+    from rs_localizer.ros.bags.bag_io import read_bag_info
 
     config = str(ROOT / "config" / "rs_localizer.yaml")
     images = ROOT / "data" / "sample_images"

@@ -41,7 +41,7 @@ def _frame_list(text: str) -> tuple:
 def _make_bag(args) -> int:
     import numpy as np
 
-    from ..ros.bag_io import write_sequence_bag
+    from ..ros.bags.bag_io import write_sequence_bag
     from ..sim.planar import sequence_scene
     from ..sim.trajectory import (
         R_IMU_CAMERA,
@@ -166,7 +166,7 @@ def _parse_remap(items):
 
 
 def _play(args) -> int:
-    from ..ros.play import play
+    from ..ros.bags.play import play
 
     res = play(
         args.bag,
@@ -231,7 +231,7 @@ def _param_overrides(items) -> dict:
 
 def _replay(args) -> int:
     from ..accuracy import format_summary
-    from ..ros.replay import replay
+    from ..ros.bags.replay import replay
 
     params = _param_overrides(getattr(args, "param", []))
     params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
@@ -314,7 +314,7 @@ def _export_image(args) -> int:
     import numpy as np
 
     from ..frontends.image import image_from_msg
-    from ..ros.bag_io import IMAGE, bag_topics, iter_messages, typestore
+    from ..ros.bags.bag_io import IMAGE, bag_topics, iter_messages, typestore
     from ..viz.debug_image import to_bgr
 
     topics = bag_topics(args.bag)
@@ -384,7 +384,7 @@ def _calibrate_readout(args) -> int:
 
     from ..estimation.estimate import EstimateOptions, RansacOptions
     from ..estimation.readout import calibrate_line_delay
-    from ..ros.bag_frames import read_bag_frames, read_gyro
+    from ..ros.bags.bag_frames import read_bag_frames, read_gyro
 
     bag = read_bag_frames(
         args.bag,

@@ -58,7 +58,7 @@ def frames_from_bag(
     from ..mapping.marker_ba import FrameDetections
     from ..mapping.outputs import detect_image
     from ..ros import conversions as cv
-    from ..ros.bag_io import (
+    from ..ros.bags.bag_io import (
         CAMERA_INFO,
         COMPRESSED_IMAGE,
         IMAGE,

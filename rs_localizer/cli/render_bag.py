@@ -1,8 +1,8 @@
 """``rs-localizer render-bag``: rendered rolling-shutter sequences as ROS 2 bags.
 
 Composes the simulation (:mod:`rs_localizer.sim.render`: images and ground truth), an image front
-end (:mod:`rs_localizer.frontends`: correspondences) and bag I/O (:mod:`rs_localizer.ros.bag_io`,
-rosbags only: no ROS installation needed).
+end (:mod:`rs_localizer.frontends`: correspondences) and bag I/O
+(:mod:`rs_localizer.ros.bags.bag_io`, rosbags only: no ROS installation needed).
 
 :func:`render_bag` writes ``<ns>/image_raw`` (``sensor_msgs/Image``, rgb8 or mono8),
 ``<ns>/camera_info``, ``/ground_truth/pose`` (``PoseStamped``: camera optical frame in the map
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
-from ..ros.bag_io import (
+from ..ros.bags.bag_io import (
     CAMERA_INFO,
     GT_POSE,
     GT_TWIST,

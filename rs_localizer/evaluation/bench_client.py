@@ -33,7 +33,13 @@ class _BenchGraph:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        from .process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
+        from ..ros.process import (
+            NodeProcess,
+            random_domain_id,
+            repo_file,
+            ros_env,
+            write_params_yaml,
+        )
 
         ncpu = os.cpu_count() or 1
         if node_cpu is not None and ncpu < 2:
@@ -125,8 +131,8 @@ def measure_node(
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
-    from .conversions import camera_info_msg, stamp_to_ns
-    from .pointcloud import correspondence_cloud
+    from ..ros.conversions import camera_info_msg, stamp_to_ns
+    from ..ros.pointcloud import correspondence_cloud
 
     result = {} if result is None else result
     offset = cam.time_offset(0.0, cam.reference_line)
@@ -289,8 +295,8 @@ def measure_cameras(
     from rclpy.serialization import serialize_message
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
-    from .conversions import camera_info_msg, stamp_to_ns
-    from .pointcloud import correspondence_cloud
+    from ..ros.conversions import camera_info_msg, stamp_to_ns
+    from ..ros.pointcloud import correspondence_cloud
 
     offset_ns = int(round(cam.time_offset(0.0, cam.reference_line) * 1e9))
     period = int(round(1e9 / rate_hz))

@@ -50,8 +50,8 @@ SAMPLE = ROOT / "data" / "sample"
 def sample_video():
     """data/sample as (frames [(stamp_ns, uv, xyz)], camera with the bag's RS timing, truth
     {reference-row stamp: (O, p, omega, v)}, stamp offset to the reference row in ns)."""
-    from ..ros.bag_frames import read_bag_frames
-    from ..ros.bag_io import load_ground_truth, read_bag_info
+    from ..ros.bags.bag_frames import read_bag_frames
+    from ..ros.bags.bag_io import load_ground_truth, read_bag_info
 
     bag = read_bag_frames(SAMPLE)
     rs = read_bag_info(SAMPLE)["rs"]

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import CameraModel
-from . import conversions as cv
+from ...camera import CameraModel
+from .. import conversions as cv
 from .bag_io import CAMERA_INFO, IMAGE, IMU, bag_topics, iter_messages, read_bag_info, typestore
 
 __all__ = ["SOURCES", "BagFrames", "read_bag_frames", "read_gyro"]
@@ -71,8 +71,8 @@ def read_bag_frames(
         ValueError: unknown source, no such topic in the bag, no camera_info, no front end.
         FileNotFoundError: missing bag, landmark file or front-end map.
     """
-    from ..maps import load_landmarks_csv
-    from .pointcloud import read_correspondences, read_keypoints
+    from ...maps import load_landmarks_csv
+    from ..pointcloud import read_correspondences, read_keypoints
 
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; expected one of {SOURCES}")
@@ -97,8 +97,8 @@ def read_bag_frames(
         order = np.argsort(ids)
         lm_index = (ids[order], pts[order])
     elif source == "image":
-        from ..frontends import make_frontend
-        from ..frontends.image import image_from_msg
+        from ...frontends import make_frontend
+        from ...frontends.image import image_from_msg
 
         spec = info.get("frontend", {})
         kind = frontend or spec.get("kind")

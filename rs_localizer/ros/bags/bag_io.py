@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..accuracy import GroundTruth
-from ..camera import CameraModel
-from ..frontends.image import image_fields
-from ..maps import save_landmarks_csv
-from . import conversions as cv
-from .pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
+from ...accuracy import GroundTruth
+from ...camera import CameraModel
+from ...frontends.image import image_fields
+from ...maps import save_landmarks_csv
+from .. import conversions as cv
+from ..pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
 
 __all__ = [
     "GT_POSE",

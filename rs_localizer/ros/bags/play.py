@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import conversions as cv
+from .. import conversions as cv
 from .bag_io import CAMERA_INFO, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
 
 __all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]

@@ -27,9 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy import GroundTruth, frame_errors, summarize_errors
-from ..frontends.shared import SHARED_MAPS
-from . import conversions as cv
+from ...accuracy import GroundTruth, frame_errors, summarize_errors
+from ...frontends.shared import SHARED_MAPS
+from .. import conversions as cv
+from ..outputs import frame_messages, fused_messages
+from ..params import LocalizerConfig, build_config, parameter_values, read_params_file
+from ..pipeline import FramePipeline, FrameResult, FusedOutput
 from .bag_io import (
     CAMERA_INFO,
     COMPRESSED_IMAGE,
@@ -44,9 +47,6 @@ from .bag_io import (
     storage_plugin,
     typestore,
 )
-from .outputs import frame_messages, fused_messages
-from .params import LocalizerConfig, build_config, parameter_values, read_params_file
-from .pipeline import FramePipeline, FrameResult, FusedOutput
 
 __all__ = ["BAG_TIMING", "CSV_COLUMNS", "ReplayResult", "replay", "replay_parameters", "to_cdr"]
 
@@ -393,7 +393,7 @@ class _DebugWriter:
     stamp has been read whatever the order of equal log times."""
 
     def __init__(self, writer, conns, ts, path_length, map_frame):
-        from .visualization import VIZ_TOPICS, VisualizationBuilder
+        from ..visualization import VIZ_TOPICS, VisualizationBuilder
 
         self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
         self.types = VIZ_TOPICS
@@ -404,7 +404,7 @@ class _DebugWriter:
         self.pending = None
 
     def add_image(self, msg):
-        from ..frontends.image import image_from_msg
+        from ...frontends.image import image_from_msg
 
         try:
             self.add_decoded(*image_from_msg(msg), cv.stamp_to_ns(msg.header.stamp))
