@@ -160,7 +160,7 @@ def test_every_parameter_is_documented_with_its_default():
 
 def _published_diagnostics_keys(ctx, overrides: dict) -> set:
     """Keys of the first status a node (no warm-up) publishes on /diagnostics."""
-    from conftest import diagnostics_in_process
+    from helpers.ros import diagnostics_in_process
 
     got = diagnostics_in_process(ctx, "docs_sync", overrides)
     assert got, "no /diagnostics status from the node"

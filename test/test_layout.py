@@ -187,3 +187,23 @@ def test_no_private_names_across_modules():
                     if a.name.startswith("_") and not a.name.startswith("__")
                 ]
     assert not found, "private names imported across modules:\n" + "\n".join(found)
+
+
+def test_tests_import_helpers_not_tests():
+    """Test modules share code through ``test/helpers`` (fixtures: ``test/conftest.py``): none
+    imports another test module or ``conftest``."""
+    tests = PKG.parent / "test"
+    found = []
+    for path in sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names = [node.module]
+            found += [
+                f"{path.relative_to(tests)}:{node.lineno} {n}"
+                for n in names
+                if n.split(".")[0] == "conftest" or n.split(".")[0].startswith("test_")
+            ]
+    assert not found, "test modules importing tests or conftest:\n" + "\n".join(found)

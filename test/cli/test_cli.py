@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: options whose values are a fixed set: they must list it (argparse ``choices``)
 FIXED_SETS = {"solver", "compare", "direction", "storage", "source", "camera", "motion", "frontend"}

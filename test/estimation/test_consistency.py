@@ -49,7 +49,7 @@ def test_far_side_fraction_counts_the_points_beyond_the_plane():
 
 def test_the_reason_is_documented():
     assert INCONSISTENT_FIT in FAILURE_REASONS
-    assert f"`{INCONSISTENT_FIT}`" in (Path(__file__).parents[1] / "docs" / "node.md").read_text()
+    assert f"`{INCONSISTENT_FIT}`" in (Path(__file__).parents[2] / "docs" / "node.md").read_text()
 
 
 @pytest.mark.parametrize("kind", ATTACKS)

@@ -190,7 +190,7 @@ def test_teleport_and_dropped_frames_in_sequences():
 def test_image_source_on_the_rendered_bag(capsys):
     """data/sample_images: real ArUco detections in rendered RS images (62.5 us/line, a
     hand-held shake at ~0.6 rad/s rms, 20 frames)."""
-    from conftest import SAMPLE_IMAGES_BAG
+    from helpers.paths import SAMPLE_IMAGES_BAG
 
     if not (SAMPLE_IMAGES_BAG / "metadata.yaml").exists():
         pytest.skip("data/sample_images missing")

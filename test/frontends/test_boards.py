@@ -38,7 +38,7 @@ from rs_localizer.frontends.boards import (
 )
 from rs_localizer.geometry import rotation_angle_deg
 
-PHOTOS = Path(__file__).resolve().parent / "data" / "photos"
+PHOTOS = Path(__file__).resolve().parents[1] / "data" / "photos"
 LEFT = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]
 LINE_DELAY = 30e-6  # nominal: the photos' cameras are unknown; only scales the velocities
 
@@ -560,7 +560,7 @@ def test_compat_detector_parameters():
 
 
 # ------------------------------------------------------------------------ numbers for the docs
-def _pose_table():  # pragma: no cover - run by hand: python test/test_boards.py
+def _pose_table():  # pragma: no cover - run by hand: python test/frontends/test_boards.py
     camera = read_camera("left_intrinsics.yml", LINE_DELAY)
     fe = CheckerboardFrontend(load_board(PHOTOS / "left_board.yaml"))
     cases = [(f"left{n}.jpg", fe, camera) for n in LEFT]

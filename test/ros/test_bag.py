@@ -141,7 +141,7 @@ def test_replay_with_the_node_parameters(small_bags, tmp_path, capsys):
     as in the node: twist carries the fused twist, twist_single_frame each frame's own."""
     import csv as csv_module
 
-    from conftest import CONFIG
+    from helpers.paths import CONFIG
 
     path = small_bags["mcap"]
     out, table = tmp_path / "est", tmp_path / "est.csv"

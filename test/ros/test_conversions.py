@@ -142,7 +142,7 @@ def test_camera_info_with_an_empty_d_is_an_undistorted_camera(model):
     K = np.asarray(_info().k, dtype=float).reshape(3, 3)
     expected = (p - K[:2, 2]) / np.diag(K)[:2]
     np.testing.assert_allclose(cam.undistort(p), expected, atol=1e-12)
-    doc = (Path(__file__).parents[1] / "docs" / "node.md").read_text()
+    doc = (Path(__file__).parents[2] / "docs" / "node.md").read_text()
     assert "An empty `D` (or all zeros) is accepted as no distortion" in doc
 
 

@@ -7,7 +7,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, start_node, stop_node
+from helpers.ros import Probe, start_node, stop_node
 
 #: the camera-IMU mounting of make-bag --imu-rate (rs_localizer.sim.trajectory.R_IMU_CAMERA):
 #: IMU -> camera optical frame as a quaternion x y z w, and its simulated gyro bias

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-LAUNCH = Path(__file__).resolve().parents[1] / "launch" / "rs_localizer.launch.py"
+LAUNCH = Path(__file__).resolve().parents[2] / "launch" / "rs_localizer.launch.py"
 
 
 class _Recorder:

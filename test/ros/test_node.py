@@ -24,7 +24,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, assert_dropped, start_node, stop_node
+from helpers.ros import ParamClient, Probe, assert_dropped, start_node, stop_node
 
 LIMITS = {  # key: (median, max); typical on the sample bag: 0.010/0.06 deg, 1.8/4 mm,
     "rot_deg": (0.03, 0.2),  # 0.04/0.12 rad/s, 0.28/0.58 m/s
@@ -132,37 +132,6 @@ def test_keypoints_with_landmark_map(node, ros_context, keypoints_bag):
     res, _gt, errs = _play(ros_context, keypoints_bag, outputs=OUTPUTS[:2])
     assert res.answered == len(res.frames) == 10, node.log
     _check_accuracy(errs, label="keypoints")
-
-
-class ParamClient:
-    """Sets parameters through the node's ``set_parameters`` service."""
-
-    def __init__(self, ctx, node_name):
-        import rclpy
-        from rcl_interfaces.srv import SetParameters
-        from rclpy.executors import SingleThreadedExecutor
-
-        self.node = rclpy.create_node("rs_localizer_test_param_client", context=ctx)
-        self.ex = SingleThreadedExecutor(context=ctx)
-        self.ex.add_node(self.node)
-        self.cli = self.node.create_client(SetParameters, f"{node_name}/set_parameters")
-        assert self.cli.wait_for_service(timeout_sec=20.0)
-
-    def set(self, **values):
-        from rcl_interfaces.srv import SetParameters
-        from rclpy.parameter import Parameter
-
-        req = SetParameters.Request()
-        req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
-        fut = self.cli.call_async(req)
-        self.ex.spin_until_future_complete(fut, timeout_sec=30.0)
-        assert fut.done()
-        return fut.result().results
-
-    def close(self):
-        self.ex.remove_node(self.node)
-        self.node.destroy_node()
-        self.ex.shutdown()
 
 
 def test_solver_switch_at_runtime(node, ros_context, sample_bag, keypoints_bag):
@@ -538,7 +507,7 @@ def test_fallback_intrinsics_without_camera_info(tmp_path, ros_context, frames):
 
 
 def test_yaml_integer_for_double_is_a_clear_error(tmp_path, ros_domain):
-    from conftest import refused_start
+    from helpers.ros import refused_start
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("/**:\n  ros__parameters:\n    ransac:\n      threshold_px: 2\n")
@@ -553,7 +522,7 @@ def test_demo_command(ros_domain, tmp_path):
     import subprocess
     import sys
 
-    from conftest import ROOT
+    from helpers.paths import ROOT
 
     pytest.importorskip("rosbags")
     if not (ROOT / "data" / "sample" / "metadata.yaml").exists():
@@ -989,7 +958,7 @@ def test_flood_accounting(tmp_path, ros_context, frames):
     import signal
     import threading
 
-    from conftest import CONFIG
+    from helpers.paths import CONFIG
 
     from rs_localizer.maps import save_landmarks_csv
     from rs_localizer.ros import pointcloud as pc

@@ -22,14 +22,8 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import (
-    CONFIG,
-    IMAGES_CONFIG,
-    Probe,
-    assert_dropped,
-    start_node,
-    stop_node,
-)
+from helpers.paths import CONFIG, IMAGES_CONFIG
+from helpers.ros import Probe, assert_dropped, start_node, stop_node
 
 NS = "/img"
 LIMITS = {  # key: (median, max); typical 0.009/0.043 deg, 0.7/2.0 mm, 0.064/0.17 rad/s,
@@ -166,7 +160,7 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
 
 def test_frontend_map_parameter(node, ros_context, sample_images_bag):
     """frontend is read-only; frontend_map reloads, a bad map is rejected and changes nothing."""
-    from test_node import ParamClient
+    from helpers.ros import ParamClient
 
     params = ParamClient(ros_context, f"{NS}/rs_localizer")
     try:
@@ -313,7 +307,7 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
     ],
 )
 def test_bad_frontend_parameters_are_clear_errors(tmp_path, ros_domain, params, message):
-    from conftest import refused_start
+    from helpers.ros import refused_start
 
     from rs_localizer.ros.process import write_params_yaml
 

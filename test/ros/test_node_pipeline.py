@@ -59,7 +59,7 @@ def test_cap_points_keeps_the_best_scores_else_evenly_spaced():
 
 # ---------------------------------------------------------------------------- parameters
 def test_the_config_file_holds_every_default():
-    from conftest import CONFIG
+    from helpers.paths import CONFIG
 
     values, ignored = P.parameter_values([CONFIG])
     assert values == P.default_values() and ignored == []

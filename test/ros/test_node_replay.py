@@ -17,7 +17,8 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import CONFIG, IMAGES_CONFIG, start_node
+from helpers.paths import CONFIG, IMAGES_CONFIG
+from helpers.ros import start_node
 
 NS = "/cmp"
 TOPICS = ("pose", "twist", "twist_single_frame")

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import start_node, stop_node
+from helpers.ros import start_node, stop_node
 
 OUTPUTS = ("/camera/pose", "/camera/twist", "/camera/odom", "/camera/pose_with_covariance")
 
@@ -108,7 +108,8 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
 
 
 def test_bad_extrinsic_is_a_clear_error(tmp_path, ros_domain):
-    from conftest import CONFIG, refused_start
+    from helpers.paths import CONFIG
+    from helpers.ros import refused_start
 
     from rs_localizer.ros.process import write_params_yaml
 
@@ -124,7 +125,8 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
     """``image_transport: compressed``: JPEG and PNG versions of the rendered frames on
     ``<image remapped>/compressed`` are solved (accurate against ground truth); bad payloads
     are dropped and counted as ``bad_image``; the node stays up."""
-    from conftest import CONFIG, IMAGES_CONFIG, Probe
+    from helpers.paths import CONFIG, IMAGES_CONFIG
+    from helpers.ros import Probe
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -266,9 +268,9 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
     """configure loads and compiles (publishers exist, inactive; frames ignored), activate
     subscribes and publishes (poses match ground truth), deactivate stops, cleanup releases;
     a configure with an invalid parameter fails and leaves the node unconfigured."""
-    from conftest import CONFIG, Probe
+    from helpers.paths import CONFIG
+    from helpers.ros import ParamClient, Probe
     from lifecycle_msgs.msg import Transition
-    from test_node import ParamClient
 
     from rs_localizer.accuracy import frame_errors
     from rs_localizer.ros.bags.bag_io import load_ground_truth
@@ -382,7 +384,8 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
 def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag):
     """``cameras``: one localizer per namespace in one process, each with its own section of
     the parameter file; a landmark file named by every camera is loaded once."""
-    from conftest import CONFIG, Probe
+    from helpers.paths import CONFIG
+    from helpers.ros import Probe
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
@@ -464,7 +467,8 @@ def test_cameras_in_one_process(tmp_path, ros_context, sample_bag, keypoints_bag
     "cams, error", [(["a", "a"], "listed twice"), (["", "b"], "empty camera namespace")]
 )
 def test_bad_camera_lists_are_clear_errors(tmp_path, ros_domain, cams, error):
-    from conftest import CONFIG, refused_start
+    from helpers.paths import CONFIG
+    from helpers.ros import refused_start
 
     from rs_localizer.ros.process import write_params_yaml
 

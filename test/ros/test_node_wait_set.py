@@ -23,7 +23,7 @@ def _event_owners(node) -> list[str]:
 
 @pytest.mark.parametrize("lifecycle", [False, True])
 def test_publishers_add_no_event_handlers(ros_context, lifecycle):
-    from conftest import in_process_parameters
+    from helpers.ros import in_process_parameters
 
     from rs_localizer.ros.lifecycle import RSLocalizerLifecycleNode
     from rs_localizer.ros.node import RSLocalizerNode
@@ -62,6 +62,6 @@ def test_publishers_add_no_event_handlers(ros_context, lifecycle):
 def test_outputs_reach_a_default_subscriber(ros_context):
     """Without the publishers' event handlers the outputs still go out: a subscriber with
     rclpy's default QoS (reliable, volatile) receives ``/diagnostics``."""
-    from conftest import diagnostics_in_process
+    from helpers.ros import diagnostics_in_process
 
     assert diagnostics_in_process(ros_context, "wait_set_out", {}), "no /diagnostics from the node"

@@ -20,8 +20,8 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
-from conftest import Probe, start_node, stop_node
-from test_viz import K, _frame
+from helpers.debug_frames import K, known_frame
+from helpers.ros import Probe, start_node, stop_node
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.viz import COLORS
@@ -61,7 +61,7 @@ def test_marker_array_against_the_pose():
     from rs_localizer.ros.visualization import marker_array
 
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    _, X, est, _ = _frame(cam)
+    _, X, est, _ = known_frame(cam)
     ma = marker_array(est, X, cam, 123_456_789, "world", frustum_depth=0.8, arrow_scale=0.5)
     m = {x.ns: x for x in ma.markers}
     assert set(m) == {"frustum", "angular_velocity", "linear_velocity", "inliers"}
@@ -139,7 +139,7 @@ def test_built_only_when_subscribed(ros_context):
 
         setattr(viz.builder, name, counted)
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    uv, X, est, _ = _frame(cam)
+    uv, X, est, _ = known_frame(cam)
     viz.publish(est, uv, X, cam, 1000, 2000, "cam", "map")
     assert built == {"debug_image": 0, "markers": 0, "path": 0}
     assert len(viz.builder.poses) == 1
@@ -386,7 +386,7 @@ def test_replay_draws_on_the_bag_images(sample_images_bag, tmp_path):
 def test_viz_parameters_documented_in_the_config():
     """config/rs_localizer.yaml (every parameter with its default) lists the viz.* ones."""
     import yaml
-    from conftest import CONFIG
+    from helpers.paths import CONFIG
 
     from rs_localizer.ros.visualization import VIZ_PARAMETERS
 

@@ -12,11 +12,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from helpers.debug_frames import K, known_frame, known_pose, world_points
 from scipy.linalg import expm
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation.estimate import RSPoseEstimate, physical_velocities
-from rs_localizer.geometry import rotvec_to_matrix, rs_project_exact, skew
+from rs_localizer.estimation.estimate import RSPoseEstimate
+from rs_localizer.geometry import rs_project_exact, skew
 from rs_localizer.viz import (
     COLORS,
     DebugImageOptions,
@@ -27,27 +28,13 @@ from rs_localizer.viz import (
 )
 from rs_localizer.viz.debug_image import CANVAS_GREY
 
-K = np.array([[500.0, 0, 320.0], [0, 520.0, 240.0], [0, 0, 1]])
-
-
-def _pose():
-    R = rotvec_to_matrix([0.1, -0.25, 0.05])
-    C = np.array([0.3, -0.2, 1.0])
-    return R, C
-
-
-def _world_points(R, C, xn, depth):
-    """World points seen at normalized (N, 2) ``xn`` and ``depth`` from the reference pose."""
-    Xc = np.c_[xn, np.ones(len(xn))] * np.asarray(depth, dtype=float).reshape(-1, 1)
-    return (Xc - C) @ R  # R^T (Xc - C)
-
 
 @pytest.mark.parametrize("readout", ["top_to_bottom", "bottom_to_top", "left_to_right"])
 def test_project_rs_solves_the_rs_constraint(readout):
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6, readout=readout)
-    R, C = _pose()
+    R, C = known_pose()
     rng = np.random.default_rng(3)
-    X = _world_points(R, C, rng.uniform([-0.55, -0.4], [0.55, 0.4], (40, 2)), rng.uniform(2, 8, 40))
+    X = world_points(R, C, rng.uniform([-0.55, -0.4], [0.55, 0.4], (40, 2)), rng.uniform(2, 8, 40))
     w, t = np.array([0.05, -0.12, 0.04]), np.array([0.2, 0.05, -0.1])  # per unit r
     uv = cam.project_rs(X, R, C, w, t)
     # every point lies where the exact model at its own capture line puts it (SciPy expm)
@@ -62,57 +49,17 @@ def test_project_rs_solves_the_rs_constraint(readout):
 def test_project_rs_global_shutter_with_distortion_is_opencv():
     D = np.array([0.05, -0.1, 3e-4, -2e-4, 0.03])
     cam = CameraModel(K, D, 640, 480, line_delay=60e-6)
-    R, C = _pose()
+    R, C = known_pose()
     rng = np.random.default_rng(4)
-    X = _world_points(R, C, rng.uniform(-0.5, 0.5, (30, 2)), rng.uniform(1, 5, 30))
+    X = world_points(R, C, rng.uniform(-0.5, 0.5, (30, 2)), rng.uniform(1, 5, 30))
     ref, _ = cv2.projectPoints(X, cv2.Rodrigues(R)[0], C, K, D)
     np.testing.assert_allclose(cam.project_rs(X, R, C), ref.reshape(-1, 2), atol=1e-6)
     # behind the camera: nan
-    behind = _world_points(R, C, np.zeros((1, 2)), [-2.0])
+    behind = world_points(R, C, np.zeros((1, 2)), [-2.0])
     assert np.isnan(cam.project_rs(behind, R, C)).all()
 
 
 # ------------------------------------------------------------------------------ debug image
-def _frame(cam, w=(0.02, -0.05, 0.01), t=(0.05, 0.0, 0.02), seed=0):
-    """A grid of inliers (0.3 px noise) and four outliers displaced by +25 px in u, with the
-    estimate equal to the true pose. Returns (uv, X, est, truth_uv)."""
-    R, C = _pose()
-    w, t = np.asarray(w, float), np.asarray(t, float)
-    gx, gy = np.meshgrid(np.arange(60, 600, 80.0), np.arange(110, 460, 70.0))
-    grid = np.c_[gx.ravel(), gy.ravel()]
-    X = _world_points(
-        R,
-        C,
-        (grid - K[:2, 2]) / np.diag(K)[:2],
-        np.random.default_rng(seed).uniform(3, 6, len(grid)),
-    )
-    x, _ = rs_project_exact(X, R, C, w, t, r0=cam.r0, readout=cam.readout_vector)
-    truth = x @ K[:2, :2].T + K[:2, 2]
-    uv = truth + np.random.default_rng(seed + 1).normal(0, 0.3, truth.shape)
-    inl = np.ones(len(uv), dtype=bool)
-    out = np.array([3, 10, 17, 30])
-    inl[out] = False
-    uv[out] = truth[out] + [25.0, 0.0]
-    om, vc, omw, vw = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
-    est = RSPoseEstimate(
-        success=True,
-        solver="r6p_1lin",
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=-R.T @ C,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=omw,
-        linear_velocity_world=vw,
-        inliers=inl,
-        rmse_px=0.42,
-    )
-    return uv, X, est, truth
-
-
 def _px(img, p):
     return tuple(int(c) for c in img[int(round(p[1])), int(round(p[0]))])
 
@@ -126,7 +73,7 @@ def _near(img, p, colour, tol=60, r=1):
 
 def test_debug_image_points_residuals_and_text():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    uv, X, est, _truth = _frame(cam)
+    uv, X, est, _truth = known_frame(cam)
     img = draw_debug_image(cam, uv, X, est, options=DebugImageOptions(cube=False))
     assert img.shape == (480, 640, 3) and img.dtype == np.uint8
     for p, good in zip(uv, est.inliers, strict=False):
@@ -164,7 +111,7 @@ def test_debug_image_points_residuals_and_text():
 
 def test_debug_image_background_from_the_input_image():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    uv, X, est, _ = _frame(cam)
+    uv, X, est, _ = known_frame(cam)
     far = (300, 455)  # away from every point, residual and the text
     mono = np.full((480, 640), 200, np.uint8)
     img = draw_debug_image(cam, uv, X, est, mono, "mono8", DebugImageOptions(cube=False))
@@ -186,7 +133,7 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     projection of the same pose puts them (magenta), several px apart at the top and bottom."""
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
     w = np.array([0.0, 0.1, 0.0])  # ~3.2 rad/s pan (per unit r: 31 ms)
-    uv, X, est, _ = _frame(cam, w=w, t=(0, 0, 0))
+    uv, X, est, _ = known_frame(cam, w=w, t=(0, 0, 0))
     center = est.position + 4.0 * est.orientation[:, 2]
     side = 1.6
     img = draw_debug_image(
@@ -211,7 +158,7 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     assert len(off) > 0.2 * len(gs), apart.max()  # the motion moves much of the cube
     assert np.mean([_near(img, p, COLORS["cube_gs"]) for p in off]) > 0.95
     # no motion: the two coincide, the RS cube (drawn last, thicker) covers the GS one
-    uv, X, est0, _ = _frame(cam, w=(0, 0, 0), t=(0, 0, 0))
+    uv, X, est0, _ = known_frame(cam, w=(0, 0, 0), t=(0, 0, 0))
     img0 = draw_debug_image(
         cam,
         uv[:0],
@@ -226,7 +173,7 @@ def test_debug_image_cube_rs_next_to_global_shutter():
 
 def test_debug_image_default_cube_is_in_view_and_failures_are_grey():
     cam = CameraModel(K, [0.05, -0.1, 0, 0, 0.03], 640, 480, line_delay=60e-6)
-    uv, X, est, _ = _frame(cam)
+    uv, X, est, _ = known_frame(cam)
     img = draw_debug_image(cam, uv, X, est)
     cyan = (np.abs(img.astype(int) - COLORS["cube_rs"]) <= 60).all(axis=2)
     assert cyan.sum() > 500
@@ -248,7 +195,7 @@ def test_debug_image_default_cube_is_in_view_and_failures_are_grey():
 
 # ------------------------------------------------------------------------------ 3D markers
 def test_frustum_corners_against_the_pose():
-    R, C = _pose()
+    R, C = known_pose()
     orientation, position = R.T, -R.T @ C
     cam = CameraModel(K, [], 640, 480)
     k = frustum_corners(cam, orientation, position, 0.5)
@@ -274,7 +221,7 @@ def test_frustum_corners_against_the_pose():
 
 def test_velocity_arrows_in_the_map():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
-    _, _, est, _ = _frame(cam)
+    _, _, est, _ = known_frame(cam)
     a = velocity_arrows(est, scale=2.0)
     s, e = a["angular_velocity"]
     np.testing.assert_allclose(s, est.position)
