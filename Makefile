@@ -1,7 +1,8 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
 #   make test   the style gate (ruff) and the whole test suite
-# Other targets: venv, lint, format, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
+# Other targets: venv, lint, format, params (the parameters' defaults in docs and config from
+# their table), sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -11,7 +12,7 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test lint format sample-bag bench-node fuzz-long clean
+.PHONY: venv demo test lint format params sample-bag bench-node fuzz-long clean
 
 venv: $(STAMP)
 
@@ -37,6 +38,11 @@ lint: venv
 format: venv
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
+
+# the defaults of docs/node.md, README.md and config/rs_localizer.yaml from the one table of
+# the node's parameters (rs_localizer/ros/params.py PARAMETERS); test_docs_sync checks them
+params: venv
+	$(PY) -m rs_localizer.ros.param_docs --write
 
 # pytest exit code 5 = no tests collected: not a failure of the build
 test: venv lint

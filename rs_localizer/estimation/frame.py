@@ -44,6 +44,9 @@ class Frame:
         rows: (N,) input row of each point; u_px: (N, 2) their measured pixels;
             num_rows: rows given to the estimator (valid or not).
         spr: the camera's seconds per unit r (0: global shutter).
+        threshold: the inlier threshold in normalized image units (``threshold_px / f``), set
+            once by :func:`configure_frame` for RANSAC, its hypotheses and the final
+            refinement.
         planar: the 3D points are coplanar.
         prior: the motion prior of local optimization and the refinement (``None``: maximum
             likelihood); regularize: the hypotheses use it too (planar scene); final_prior:
@@ -63,6 +66,7 @@ class Frame:
     final_prior: MotionPrior | None = None
     motion_bounds = None
     known_w: np.ndarray | None = None
+    threshold: float
 
     def __init__(
         self,
@@ -95,6 +99,7 @@ class Frame:
             self.regularize,
             self.known_w,
         )
+        sub.threshold = self.threshold
         return sub
 
     def evaluate(
@@ -197,6 +202,7 @@ def configure_frame(
     if fr.degenerate(np.ones(len(fr.x), dtype=bool), threshold_px):
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     info = solver_info(solver)
+    fr.threshold = threshold_px / fr.f
     fr.spr = spr = camera.seconds_per_unit_r
     fr.motion_bounds = motion_bounds(*velocity_bounds, spr)
     fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)

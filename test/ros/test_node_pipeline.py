@@ -123,8 +123,9 @@ def test_values_are_checked_as_ros_does(name, value, message):
     ],
 )
 def test_invalid_configurations_raise_with_the_parameter_named(changes, message):
+    """The configuration (or, for the map files, loading its maps) names the parameter."""
     with pytest.raises(P.ConfigError, match=message):
-        P.build_config({**P.default_values(), **changes})
+        P.load_maps(P.build_config({**P.default_values(), **changes}))
 
 
 def test_config_from_the_defaults():

@@ -23,7 +23,7 @@ import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -31,7 +31,13 @@ from ...accuracy import GroundTruth, frame_errors, summarize_errors
 from ...frontends.shared import SHARED_MAPS
 from .. import conversions as cv
 from ..outputs import frame_messages, fused_messages
-from ..params import LocalizerConfig, build_config, parameter_values, read_params_file
+from ..params import (
+    LocalizerConfig,
+    build_config,
+    load_maps,
+    parameter_values,
+    read_params_file,
+)
 from ..pipeline import FramePipeline, FrameResult, FusedOutput
 from .bag_io import (
     CAMERA_INFO,
@@ -146,15 +152,15 @@ def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, im
 
 
 def replay(
-    path,
+    path: str | os.PathLike,
     *,
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
     source: str | None = None,
-    out_bag=None,
-    out_csv=None,
+    out_bag: str | os.PathLike | None = None,
+    out_csv: str | os.PathLike | None = None,
     storage: str = "mcap",
-    progress=sys.stderr,
+    progress: TextIO | None = sys.stderr,
     overwrite: bool = False,
     debug_outputs: bool = False,
     path_length: int = 1000,
@@ -204,7 +210,7 @@ def replay(
     values, _ = replay_parameters(path, params_files, params, source)
     token = object()
     try:
-        cfg = build_config(values, owner=token)
+        cfg = load_maps(build_config(values), owner=token)
     finally:
         SHARED_MAPS.release(token)  # (the configuration keeps what it loaded)
     if source is None:
