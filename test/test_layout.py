@@ -137,12 +137,13 @@ def test_public_api():
 
 
 #: where every public function and method carries type annotations: the solvers, the
-#: estimator, the front ends, the ROS message conversions and the camera model
+#: estimator, the front ends, the ROS layer, the simulation and the camera model
 ANNOTATED = [
     *sorted((PKG / "solvers").glob("*.py")),
     *sorted((PKG / "estimation").glob("*.py")),
     *sorted((PKG / "frontends").glob("*.py")),
-    PKG / "ros" / "conversions.py",
+    *sorted((PKG / "ros").rglob("*.py")),
+    *sorted((PKG / "sim").rglob("*.py")),
     PKG / "camera.py",
 ]
 

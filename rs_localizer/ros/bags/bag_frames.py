@@ -47,11 +47,11 @@ def _frame_topic(topics: dict, source: str):
 
 
 def read_bag_frames(
-    path,
+    path: str | Path,
     source: str = "correspondences",
-    landmarks_file=None,
+    landmarks_file: str | Path | None = None,
     frontend: str | None = None,
-    frontend_map=None,
+    frontend_map: str | Path | None = None,
     direction: str | None = None,
 ) -> BagFrames:
     """Read every frame of a bag as correspondences.
@@ -142,7 +142,7 @@ def read_bag_frames(
     return out
 
 
-def read_gyro(path, topic: str):
+def read_gyro(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
     """Angular velocities of the ``sensor_msgs/Imu`` messages on ``topic``: ``(t_ns (M,),
     omega (M, 3) rad/s)`` in the IMU frame, by header stamp.
 

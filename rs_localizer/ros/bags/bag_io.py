@@ -14,8 +14,11 @@ and reading them back.
 from __future__ import annotations
 
 import json
+import os
 import shutil
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -60,14 +63,14 @@ OUT_TYPES = {
 _NS = 1_000_000_000
 
 
-def typestore():
+def typestore() -> Any:
     """The rosbags typestore of ROS 2 Jazzy (message definitions for (de)serializing CDR)."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def storage_plugin(storage: str):
+def storage_plugin(storage: str) -> type:
     """The rosbags ``StoragePlugin`` of ``mcap`` or ``sqlite3``.
 
     Raises:
@@ -82,9 +85,9 @@ def storage_plugin(storage: str):
 
 
 def write_sequence_bag(
-    path,
-    frames,
-    scene,
+    path: str | os.PathLike,
+    frames: Sequence[Any],
+    scene: Any,
     camera: CameraModel,
     *,
     storage: str = "mcap",
@@ -99,7 +102,7 @@ def write_sequence_bag(
     settings: dict | None = None,
     overwrite: bool = False,
     gt_twist: bool = True,
-    imu=None,
+    imu: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     imu_topic: str = "/imu/data",
     imu_frame: str = "imu_link",
     extra: dict | None = None,
@@ -209,16 +212,16 @@ def write_sequence_bag(
 
 
 def write_sequence_json(
-    path,
+    path: str | os.PathLike,
     generator: str,
-    topics,
+    topics: Mapping[str, str],
     frames: int,
     camera: CameraModel,
     camera_frame: str,
     map_frame: str,
     stamp_row: float,
     rolling_shutter: bool = True,
-    **extra,
+    **extra: Any,
 ) -> None:
     """Write a bag's ``sequence.json`` (the schema :func:`load_sequence_info` and the demo read):
     topics, frame count, frames, camera (K, D, size, distortion model) and RS timing, plus
@@ -250,13 +253,15 @@ def write_sequence_json(
 
 
 # ---------------------------------------------------------------- reading
-def read_bag_info(path) -> dict:
+def read_bag_info(path: str | os.PathLike) -> dict:
     """``sequence.json`` of a bag written by make-bag, or ``{}``."""
     p = Path(path) / "sequence.json"
     return json.loads(p.read_text()) if p.is_file() else {}
 
 
-def iter_messages(path, topics=None):
+def iter_messages(
+    path: str | os.PathLike, topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
     """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order."""
     from rosbags.rosbag2 import Reader
 
@@ -266,15 +271,17 @@ def iter_messages(path, topics=None):
             yield conn.topic, conn.msgtype, t_ns, bytes(raw)
 
 
-def bag_topics(path) -> dict:
-    """topic -> msgtype."""
+def bag_topics(path: str | os.PathLike) -> dict[str, str]:
+    """topic -> msgtype of every connection of the bag at ``path``."""
     from rosbags.rosbag2 import Reader
 
     with Reader(path) as r:
         return {c.topic: c.msgtype for c in r.connections}
 
 
-def load_ground_truth(path, pose_topic=GT_POSE, twist_topic=GT_TWIST) -> GroundTruth:
+def load_ground_truth(
+    path: str | os.PathLike, pose_topic: str = GT_POSE, twist_topic: str = GT_TWIST
+) -> GroundTruth:
     ts = typestore()
     gt = GroundTruth()
     for topic, msgtype, _, raw in iter_messages(path, {pose_topic, twist_topic}):
@@ -299,16 +306,16 @@ class RosbagsMessages:
         self.ts = get_typestore(Stores.ROS2_JAZZY)
         self.T = self.ts.types
 
-    def header(self, stamp_ns: int, frame_id: str):
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
         sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
         return self.T["std_msgs/msg/Header"](
             stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
         )
 
-    def image(self, img: np.ndarray, stamp_ns, frame_id):
+    def image(self, img: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
         return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
 
-    def camera_info(self, cam: CameraModel, stamp_ns, frame_id):
+    def camera_info(self, cam: CameraModel, stamp_ns: int, frame_id: str) -> Any:
         D = np.asarray(cam.D, dtype=float)
         model = cam.distortion_model if cam.has_distortion else "plumb_bob"
         if model == "plumb_bob" and len(D) < 5:
@@ -332,13 +339,28 @@ class RosbagsMessages:
             roi=roi,
         )
 
-    def cloud(self, uv, xyz, ids, stamp_ns, frame_id, scores=None):
+    def cloud(
+        self,
+        uv: np.ndarray,
+        xyz: np.ndarray,
+        ids: np.ndarray | None,
+        stamp_ns: int,
+        frame_id: str,
+        scores: np.ndarray | None = None,
+    ) -> Any:
         return self.cloud_from_array(correspondence_array(uv, xyz, ids, scores), stamp_ns, frame_id)
 
-    def keypoints(self, uv, ids, stamp_ns, frame_id, scores=None):
+    def keypoints(
+        self,
+        uv: np.ndarray,
+        ids: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        scores: np.ndarray | None = None,
+    ) -> Any:
         return self.cloud_from_array(keypoint_array(uv, ids, scores), stamp_ns, frame_id)
 
-    def cloud_from_array(self, arr, stamp_ns, frame_id):
+    def cloud_from_array(self, arr: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
         """A structured array (:mod:`rs_localizer.ros.pointcloud`) as a PointCloud2 (height 1,
         little endian, dense only if every float is finite)."""
         packed = pack_cloud(arr)
@@ -355,7 +377,7 @@ class RosbagsMessages:
             is_dense=is_dense(arr),
         )
 
-    def pose(self, R, p, stamp_ns, frame_id):
+    def pose(self, R: np.ndarray, p: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
         q = cv.quaternion_from_matrix(R)
         T = self.T
         return T[POSE](
@@ -368,7 +390,7 @@ class RosbagsMessages:
             ),
         )
 
-    def twist(self, w, v, stamp_ns, frame_id):
+    def twist(self, w: np.ndarray, v: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
         T = self.T
         V = T["geometry_msgs/msg/Vector3"]
         return T[TWIST](
@@ -379,7 +401,9 @@ class RosbagsMessages:
             ),
         )
 
-    def imu(self, omega, specific_force, stamp_ns, frame_id):
+    def imu(
+        self, omega: np.ndarray, specific_force: np.ndarray, stamp_ns: int, frame_id: str
+    ) -> Any:
         """``sensor_msgs/Imu`` with angular velocity (rad/s) and linear acceleration (specific
         force, m/s^2); orientation unknown (``orientation_covariance[0] = -1``)."""
         T = self.T
@@ -398,5 +422,5 @@ class RosbagsMessages:
             linear_acceleration_covariance=np.zeros(9),
         )
 
-    def cdr(self, msg, msgtype) -> bytes:
+    def cdr(self, msg: Any, msgtype: str) -> bytes:
         return self.ts.serialize_cdr(msg, msgtype)

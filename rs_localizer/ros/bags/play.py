@@ -4,8 +4,11 @@ lock-step (wait for each frame's output before sending the next)."""
 from __future__ import annotations
 
 import importlib
+import os
 import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +20,7 @@ __all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 
 
-def output_type(topic: str):
+def output_type(topic: str) -> type:
     """Message class of a node output topic, by its name."""
     from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
     from nav_msgs.msg import Odometry
@@ -66,26 +69,26 @@ def is_frame_topic(topic: str, msgtype: str | None = None) -> bool:
 
 
 def play(
-    path,
+    path: str | os.PathLike,
     *,
     rate: float = 1.0,
     lockstep: bool = False,
-    topics=None,
-    remap=None,
-    output_topics=("/camera/pose",),
+    topics: Iterable[str] | None = None,
+    remap: Mapping[str, str] | None = None,
+    output_topics: Sequence[str] = ("/camera/pose",),
     timeout: float = 2.0,
     retries: int = 1,
     wait_subscribers: float = 30.0,
     reliable: bool = True,
-    context=None,
-    domain_id=None,
+    context: Any = None,
+    domain_id: int | None = None,
     limit: int | None = None,
     loop: int = 1,
     stamp_offset_ns: int = 0,
-    messages=None,
-    on_frame=None,
-    log=print,
-    late_topics=(),
+    messages: list[tuple[str, str, int, bytes]] | None = None,
+    on_frame: Callable[[dict], None] | None = None,
+    log: Callable[[str], Any] = print,
+    late_topics: Iterable[str] = (),
     imu_lead: float = 0.1,
 ) -> PlayResult:
     """Publish a bag into the ROS graph.
