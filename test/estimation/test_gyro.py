@@ -121,6 +121,7 @@ def test_gyro_prior_adds_the_information_to_the_motion_prior():
         GyroMeasurement(np.zeros(3), np.zeros((3, 3)))
 
 
+@pytest.mark.slow
 def test_consistency_is_chi_square_of_the_residual():
     g = GyroMeasurement(np.zeros(3), 1e-4 * np.eye(3))
     # weak image (posterior = the gyro): the floor of 1 % of the gyro's covariance applies

@@ -90,6 +90,7 @@ def _frames(name, seed, n=60, **cfg):
     return [(f.stamp_ns, f.uv, f.xyz) for f in frames], cam
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_line_delay_from_a_panning_video(seed):
     frames, cam = _frames("pan", seed)
@@ -113,6 +114,7 @@ def test_no_rotation_is_not_observable():
     assert "rotation" in res.reason
 
 
+@pytest.mark.slow
 def test_cli_json_and_bag_without_ground_truth_twist(tmp_path, capsys):
     bag = tmp_path / "pan"
     assert (
@@ -237,6 +239,7 @@ def test_time_offset_on_exact_rates_and_not_on_a_constant_rate():
     assert "barely changes" in c.time_offset_reason, c.time_offset_reason
 
 
+@pytest.mark.slow
 def test_time_offset_from_a_shaky_video():
     """2 s of simulated hand-held shake (60 frames, 500 correspondences with 0.5 px noise and
     20 % outliers) with a gyro 10 ms late: the offset to within 1 ms (0.39 ms the largest error
@@ -250,6 +253,7 @@ def test_time_offset_from_a_shaky_video():
     assert abs(err) < 1e-3 and abs(err) < 3 * res.time_offset_std < 3e-3, res
 
 
+@pytest.mark.slow
 def test_cli_prints_the_time_offset_as_a_parameter(tmp_path, capsys):
     """make-bag --imu-time-offset 0.01, then calibrate-readout --imu-topic: the offset is
     printed as the node's parameter and within 1 ms of the simulated one."""

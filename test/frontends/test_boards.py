@@ -113,6 +113,7 @@ def test_checkerboard_detectors_agree(left_board):
     assert errs.max() < 2.0 and np.median(errs) < 0.3
 
 
+@pytest.mark.slow
 def test_checkerboard_pose_p3p_matches_solvepnp(left_board):
     """Our P3P (RANSAC + refinement, global shutter) vs cv2.solvePnP on every photo."""
     camera = read_camera("left_intrinsics.yml", LINE_DELAY)
@@ -127,6 +128,7 @@ def test_checkerboard_pose_p3p_matches_solvepnp(left_board):
         assert est.rmse_px < 0.35, n
 
 
+@pytest.mark.slow
 def test_checkerboard_pose_rs_fits_at_least_as_well(left_board):
     """r6p_1lin on the still photos: succeeds with every corner an inlier and, its model
     containing the global-shutter one, fits no worse than P3P. Its pose is NOT compared with

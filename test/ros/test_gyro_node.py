@@ -220,6 +220,7 @@ def test_pipeline_counts_rejected_imu_messages():
     assert "imu_rejected" not in off.stats.snapshot().counts
 
 
+@pytest.mark.slow
 def test_node_uses_the_gyro_over_dds(tmp_path, ros_context, imu_bag):
     """The node subscribes imu (sensor_msgs/Imu), solves the frames with the gyro of their
     readout and says so in its diagnostics; the twist is then at the gyro's accuracy."""

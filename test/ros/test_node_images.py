@@ -298,6 +298,7 @@ def test_bad_images(tmp_path, ros_context, sample_images_bag):
     assert alive and rc == 0, node.log
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "params, message",
     [
