@@ -22,6 +22,7 @@ LAYER = {
     "jit_cache": 0,
     "solvers": 1,
     "estimation": 2,
+    "tracking": 2.5,
     "frontends": 3,
     "viz": 3,
     "sim": 4,
@@ -139,6 +140,7 @@ def test_public_api():
 ANNOTATED = [
     *sorted((PKG / "solvers").glob("*.py")),
     *sorted((PKG / "estimation").glob("*.py")),
+    *sorted((PKG / "tracking").glob("*.py")),
     *sorted((PKG / "frontends").glob("*.py")),
     PKG / "ros" / "conversions.py",
     PKG / "camera.py",
