@@ -19,6 +19,8 @@ LAYER = {
     "maps": 0,
     "accuracy": 0,
     "frames": 0,
+    "pose": 0,
+    "correspondences": 0,
     "jit_cache": 0,
     "solvers": 1,
     "estimation": 2,

@@ -57,6 +57,7 @@ from numba import njit
 from scipy.stats import chi2
 
 from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
+from ..pose import RSPose
 from .prior import MotionPrior, prior_arrays
 from .refine import cholesky_into
 
@@ -163,6 +164,11 @@ class FusedState:
     restarted: bool = False
     smoothed: int = 0
     nis: float = float("nan")
+
+    @property
+    def pose(self) -> RSPose:
+        """The fused pose and twist at ``stamp_ns`` (:class:`~rs_localizer.pose.RSPose`)."""
+        return RSPose.of(self)
 
     @property
     def pose_covariance(self) -> np.ndarray:

@@ -316,7 +316,10 @@ def track_video(
         )
     seq = SequenceLocalizer(
         SequenceSettings(
-            options=EstimateOptions(ransac=RansacOptions(seed=0)), imu=gyro, check_gyro=check
+            options=EstimateOptions(ransac=RansacOptions(seed=0)),
+            imu=gyro,
+            stamp_row=cam.reference_line,  # (the frames are stamped with their reference time)
+            check_gyro=check,
         ),
         imu_span=np.inf,
     )
@@ -325,13 +328,11 @@ def track_video(
             seq.add_imu(t, w)
     first_detection = None
     truth = {f.t_ref_ns: f for f in frames}
-    # (a frame's stamp: its first line, whose capture time is t_ref - lead)
-    lead = int(round(cam.line_time(cam.reference_line) * 1e9))
     pose, finals, bias_err, nis = [], [], [], []
     prior = np.full(3, VIDEO_PRIOR[0])
     for k, f in enumerate(frames):
         tested = _bias_pairs(seq)
-        out = seq.process(SequenceFrame(f.t_ref_ns - lead, cam, f.uv, f.xyz, f.scores))
+        out = seq.process(SequenceFrame(f.t_ref_ns, cam, f.uv, f.xyz, f.scores))
         finals += out.fused
         e = out.estimate
         if e.success:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences, TrackingFrontend
 from ..estimation.gyro import ImuBuffer
 from ..estimation.gyro_bias import GyroBiasEstimator
 from ..estimation.gyro_check import GyroMountCheck
@@ -233,8 +234,8 @@ class FrameResult:
         fused: twist / odom of earlier frames that became final with this one (also on a
             failed frame).
         image: ``(array, encoding, stamp_ns)`` of a decoded input image.
-        correspondences: ``(points2d, points3d, ids, scores)`` the front end made of the image
-            (with ``republish_correspondences``).
+        correspondences: the :class:`~rs_localizer.correspondences.Correspondences` the front
+            end made of the image (with ``republish_correspondences``).
         times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
             estimator (``frontend`` alone for one the front end dropped).
     """
@@ -253,7 +254,7 @@ class FrameResult:
     twist_now: bool = False
     fused: list[FusedOutput] = field(default_factory=list)
     image: tuple | None = None
-    correspondences: tuple | None = None
+    correspondences: Correspondences | None = None
     times: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -477,6 +478,8 @@ class FramePipeline:
         }
         res.fused = self._fused_outputs(out.fused, cfg)
         est = out.estimate
+        if kind == "image" and isinstance(cfg.frontend, TrackingFrontend):
+            self._observe(cfg, stamp, uv, est)
         if est is None:
             raise _Drop("estimator_error", out.error or "no estimate")
         self.stats.add("points_dropped", int(est.num_dropped))
@@ -493,6 +496,16 @@ class FramePipeline:
         res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
+
+    def _observe(self, cfg: LocalizerConfig, stamp: int, uv: np.ndarray, est: Any) -> None:
+        """Tell a tracking front end how its frame was solved (an error is logged, the frame
+        goes on)."""
+        try:
+            cfg.frontend.observe(stamp, uv, est)
+        except Exception as e:
+            self.log.warning(
+                "frontend_error", f"{cfg.frontend_kind}.observe: {type(e).__name__}: {e}"
+            )
 
     def _check_time(self, stamp: int) -> None:
         """A stamp older than the previous frame's, or newer by more than
@@ -588,16 +601,14 @@ class FramePipeline:
         res.image = (img, enc, stamp)
         t0 = time.perf_counter()
         try:
-            uv, xyz, ids = fe.process(img, camera, encoding=enc)
+            found = Correspondences.of(fe.process(img, camera, encoding=enc))
         except Exception as e:
             raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
         res.times["frontend"] = time.perf_counter() - t0
-        scores = getattr(fe, "last_scores", None)
-        if scores is not None and len(scores) != len(uv):
-            scores = None
+        uv, xyz, scores = found.pixels, found.points, found.valid_scores()
         self.stats.frontend_ran(len(uv), res.times["frontend"])
         if cfg.republish_correspondences:
-            res.correspondences = (uv, xyz, ids, scores)
+            res.correspondences = Correspondences(uv, xyz, found.ids, scores)
         need = cfg.min_points
         if len(uv) < need:
             what = (

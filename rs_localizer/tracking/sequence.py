@@ -59,6 +59,7 @@ from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.tracker import RSTracker, TrackerOptions
+from ..pose import RSPose
 from ..solvers.registry import solver_info
 
 __all__ = [
@@ -171,6 +172,11 @@ class FusedPose:
     twist_covariance: Any
     tag: Any = None
     state: FusedState | None = None
+
+    @property
+    def pose(self) -> RSPose:
+        """The frame's pose with its fused twist (:class:`~rs_localizer.pose.RSPose`)."""
+        return RSPose.of(self)
 
     @classmethod
     def of(cls, estimate: RSPoseEstimate, fused: FusedState, tag: Any = None) -> FusedPose:
