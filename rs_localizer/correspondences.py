@@ -27,7 +27,8 @@ class Correspondences:
         scores: (N,) match quality (higher is better, e.g. ``1 - ratio`` of a feature match),
             or None; used by PROSAC-style sampling.
 
-    It unpacks as ``pixels, points, ids`` (``uv, xyz, ids = frontend.process(image)``).
+    It unpacks, and indexes, as ``pixels, points, ids`` (``uv, xyz, ids =
+    frontend.process(image)``); ``len`` is the number of rows.
     """
 
     pixels: np.ndarray
@@ -54,6 +55,10 @@ class Correspondences:
 
     def __iter__(self) -> Iterator[Any]:
         return iter((self.pixels, self.points, self.ids))
+
+    def __getitem__(self, i: int) -> Any:
+        """``pixels``, ``points``, ``ids`` by position (as the former 3-tuple)."""
+        return (self.pixels, self.points, self.ids)[i]
 
     def valid_scores(self) -> np.ndarray | None:
         """``scores`` when there is one per row, else None."""

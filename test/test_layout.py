@@ -16,6 +16,7 @@ LAYER = {
     "geometry": 0,
     "camera": 0,
     "_so3": 0,
+    "_linalg": 0,
     "maps": 0,
     "accuracy": 0,
     "frames": 0,

@@ -160,3 +160,19 @@ def test_correspondences_type():
 
     assert isinstance(Markers(), Frontend) and not isinstance(Markers(), TrackingFrontend)
     assert isinstance(Tracks(), TrackingFrontend)
+
+
+def test_rotation_log_inverts_the_exponential():
+    from rs_localizer._so3 import rotation_log_into
+
+    rng = np.random.default_rng(1)
+    v = np.empty(3)
+    for angle in (0.0, 1e-9, 1e-7, 1e-3, 1.0, 3.0, np.pi - 1e-5, np.pi):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        rotation_log_into(rotvec_to_matrix(angle * axis), v)
+        atol = 1e-9
+        if angle >= np.pi - 1e-4:  # (at pi, the axis and its opposite are the same rotation)
+            v = v if v @ axis > 0 else -v
+            atol = 1e-4  # (the axis from the symmetric part: off by ~ (pi - angle) there)
+        np.testing.assert_allclose(v, angle * axis, atol=atol)
