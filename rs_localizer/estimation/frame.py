@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import CameraModel
+from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
 from .plausibility import degenerate_points, motion_bounds, plausible_motion
@@ -28,7 +29,8 @@ __all__ = ["SCORE_AT_MEASURED_TIME", "Frame", "configure_frame", "prepare_frame"
 #: row predicted by the first-order model (:func:`.scoring.project_error2`)
 SCORE_AT_MEASURED_TIME = True
 
-Model = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: the solvers' model ``(R, C, w, t)`` (a tuple: the kernels take its arrays)
+Model = RSModel
 
 
 class Frame:

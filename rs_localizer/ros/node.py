@@ -322,7 +322,10 @@ class LocalizerCore:
         cfg = self.cfg
         self.viz.hold_image(getattr(res, "image", None) if res.failure is None else None)
         if getattr(res, "correspondences", None) is not None:
-            cloud = correspondence_cloud(*res.correspondences, res.frame_id, res.stamp_ns)
+            c = res.correspondences
+            cloud = correspondence_cloud(
+                c.pixels, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
+            )
             self._corr_out_publisher().publish(cloud)
         if res.failure is not None:
             self._publish(fused_messages(getattr(res, "fused", ()), cfg.map_frame, self._wanted))

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
+from rs_localizer._linalg import solve_symmetric as _solve_symmetric
 from rs_localizer.estimation.prior import MotionPrior, model_twist, model_twist_jacobian
 from rs_localizer.estimation.refine import (
     _normal_equations,
-    _solve_symmetric,
     exact_errors,
     exact_jacobian,
     exact_residuals,
