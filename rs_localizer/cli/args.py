@@ -13,7 +13,6 @@ import argparse
 import math
 import os
 import re
-import sys
 from pathlib import Path
 from typing import NoReturn
 
@@ -29,10 +28,12 @@ __all__ = [
     "input_file",
     "map_input",
     "marker_map_file",
+    "node_default",
     "nonneg_float",
     "nonneg_int",
     "output_dir",
     "output_file",
+    "plain",
     "positive_float",
     "positive_int",
     "probability",
@@ -59,13 +60,31 @@ def plain(text: str) -> str:
     return _ROLE.sub(r"\1", text).replace("``", "")
 
 
+_NODE_DEFAULT = re.compile(r"<node default of ([\w.]+)>")
+
+
+def node_default(param: str) -> str:
+    """A placeholder for the node parameter's default in a help text, filled in by
+    :class:`HelpFormatter` when the help is shown (the parameter table is not imported while
+    a command line is parsed)."""
+    return f"<node default of {param}>"
+
+
+def _fill_node_defaults(text: str) -> str:
+    if "<node default of " not in text:
+        return text
+    from ..ros.params import PARAMETERS
+
+    return _NODE_DEFAULT.sub(lambda m: str(PARAMETERS[m.group(1)][0]), text)
+
+
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Shows an option's default once: appended as ``(default: X)`` unless the help already
     says ``default`` or there is no default to show (None, False, suppressed); help and
-    descriptions lose their reST markup."""
+    descriptions lose their reST markup; node parameters' defaults are filled in."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
+        text = _fill_node_defaults(action.help or "").replace("%", "%%")
         if (
             "default" not in text
             and action.default not in (None, False, argparse.SUPPRESS)
@@ -284,11 +303,6 @@ def bag_dir(path: str | Path, require_messages: bool = False) -> Path:
     if require_messages and count == 0:
         raise CliError(f"{path}: the bag has no messages")
     return path
-
-
-def debug_requested(argv: list[str] | None) -> bool:
-    """``--debug`` anywhere on the command line (the traceback of an unexpected error)."""
-    return "--debug" in (sys.argv[1:] if argv is None else argv)
 
 
 def solver_help(prefix: str) -> str:

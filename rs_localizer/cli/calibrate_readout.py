@@ -83,12 +83,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Calibrate and print; returns 0, or 3 when the line delay is not observable. Raises
     CliError for a bag, landmark or map file that cannot be used (before any frame)."""
-    import numpy as np
-
-    from ..estimation.estimate import EstimateOptions, RansacOptions
-    from ..estimation.readout import calibrate_line_delay
-    from ..ros.bag_frames import read_bag_frames, read_gyro
-
     path = A.bag_dir(args.bag, require_messages=True)
     if args.landmarks is not None:
         A.input_file(args.landmarks, "landmark CSV (id,x,y,z)")
@@ -99,6 +93,12 @@ def run(args: argparse.Namespace) -> int:
 
         if bag_topics(path).get(args.imu_topic) != IMU:
             raise A.CliError(f"{path}: no sensor_msgs/Imu topic {args.imu_topic!r}")
+    import numpy as np
+
+    from ..estimation.estimate import EstimateOptions, RansacOptions
+    from ..estimation.readout import calibrate_line_delay
+    from ..ros.bag_frames import read_bag_frames, read_gyro
+
     bag = read_bag_frames(
         path,
         source=args.source,

@@ -14,8 +14,6 @@ HELP = "compile the JIT kernels now (once after installing: the node then starts
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``compile`` subcommand to ``sub`` (``func`` = :func:`run`)."""
-    from ..estimation.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS
-
     c = sub.add_parser(
         "compile",
         help=HELP,
@@ -27,15 +25,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c.add_argument(
         "--solvers",
         nargs="+",
-        default=list(DEFAULT_SOLVERS),
+        default=None,
         choices=SOLVER_NAMES,
-        help="solvers to compile for (the demo's global-shutter baseline: add p3p)",
+        help="solvers to compile for (default: r6p_1lin, the node's; the demo's "
+        "global-shutter baseline: add p3p)",
     )
     c.add_argument(
         "--jobs",
         type=A.positive_int,
-        default=DEFAULT_JOBS,
-        help="processes compiling at once (the fused RANSAC kernels in a second one)",
+        default=None,
+        help="processes compiling at once, the fused RANSAC kernels in a second one (default: "
+        "2 on a machine with two cores or more, else 1)",
     )
     c.set_defaults(func=run)
     return c
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Compile (or load from the cache) the kernels; returns 0."""
-    from ..estimation.warmup import compile_kernels
+    from ..estimation.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS, compile_kernels
     from ..jit_cache import cache_state
 
     st = cache_state()
@@ -53,13 +53,15 @@ def run(args: argparse.Namespace) -> int:
         + ")",
         flush=True,
     )
-    res = compile_kernels(args.solvers, log=lambda m: print(m, flush=True), jobs=args.jobs)
+    solvers = args.solvers or list(DEFAULT_SOLVERS)
+    jobs = args.jobs or DEFAULT_JOBS
+    res = compile_kernels(solvers, log=lambda m: print(m, flush=True), jobs=jobs)
     n = len(res["kernels"])
     print(
         f"{', '.join(res['solvers'])}: ready in {res['seconds']:.1f} s ("
         + (
             f"compiled {n} kernels, {sum(d for _, d in res['kernels']):.1f} s of compiling"
-            + (f" in {args.jobs} processes" if args.jobs > 1 else "")
+            + (f" in {jobs} processes" if jobs > 1 else "")
             if n
             else "all kernels loaded from the cache"
         )

@@ -147,14 +147,14 @@ def run(args: argparse.Namespace) -> int:
     """Simulate (:func:`rs_localizer.sim.bag_sequence.simulate_bag_sequence`) and write the
     bag; returns 0. Raises CliError / ValueError for options that do not fit together or an
     output that cannot be written (checked before the simulation)."""
-    from ..ros.bag_io import write_sequence_bag
-    from ..sim.bag_sequence import simulate_bag_sequence
-
     A.output_dir(args.out, args.overwrite, "bag directory")
     if args.motion != "walk" and args.scene == "board":
         raise A.CliError(
             f"--motion applies to the corridor and plane scenes, not to {args.scene!r}"
         )
+    from ..ros.bag_io import write_sequence_bag
+    from ..sim.bag_sequence import simulate_bag_sequence
+
     seq = simulate_bag_sequence(
         frames=args.frames,
         points=args.points,

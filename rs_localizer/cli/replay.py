@@ -53,16 +53,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
 
     def over(param: str, text: str) -> str:
-        from ..ros.params import PARAMETERS
-
-        return f"{text}; sets the parameter {param} (default: {PARAMETERS[param][0]})"
+        return f"{text}; sets the parameter {param} (default: {A.node_default(param)})"
 
     def timing(param: str, text: str) -> str:
-        from ..ros.params import PARAMETERS
-
         return (
             f"{text}; sets {param} (default: --params-file, else the bag's sequence.json, "
-            f"else {PARAMETERS[param][0]})"
+            f"else {A.node_default(param)})"
         )
 
     r.add_argument(
@@ -234,9 +230,6 @@ def _param_overrides(items) -> dict:
 def run(args: argparse.Namespace) -> int:
     """Replay the bag; returns 0, or 1 when no frame was solved. Raises CliError for a bag,
     parameter file, landmark file or output that cannot be used (before any frame)."""
-    from ..accuracy import format_summary
-    from ..ros.replay import replay
-
     bag = A.bag_dir(args.bag, require_messages=True)
     for f in getattr(args, "params_file", []):
         if not isinstance(A.yaml_file(f, "parameter file"), dict):
@@ -250,6 +243,9 @@ def run(args: argparse.Namespace) -> int:
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
         A.output_file(args.csv, True, "CSV file")
+    from ..accuracy import format_summary
+    from ..ros.replay import replay
+
     res = replay(
         bag,
         params_files=getattr(args, "params_file", []),
