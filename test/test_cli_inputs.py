@@ -279,3 +279,28 @@ def test_help_shows_defaults_once_and_no_markup():
     assert "(default: 30)" in " ".join(rb.split())
     cr = " ".join(sub.choices["calibrate-readout"].format_help().split())
     assert "(default: 2.0)" in cr and "(default: r6p_1lin)" in cr
+
+
+def test_export_image_all_writes_every_image_of_the_bag(tmp_path, capsys):
+    """``export-image --all`` on the sample image bag: one PNG per message in bag order, each
+    equal to the single-image export of the same index (the topic found without --topic)."""
+    import cv2
+    import numpy as np
+
+    from rs_localizer.ros.bag_io import bag_topics, iter_messages
+
+    bag = ROOT / "data" / "sample_images"
+    if not (bag / "metadata.yaml").exists():
+        pytest.skip("no sample image bag")
+    topic = "/camera/image_raw"
+    assert topic in bag_topics(bag)
+    n = sum(1 for _ in iter_messages(bag, {topic}))
+    assert main(["export-image", str(bag), str(tmp_path / "all"), "--all", "--quiet"]) == 0
+    files = sorted((tmp_path / "all").iterdir())
+    assert [f.name for f in files] == [f"{k:06d}.png" for k in range(n)]
+    assert main(["export-image", str(bag), str(tmp_path / "one.png"), "--index", "7"]) == 0
+    assert f"message 7 of {topic}" in capsys.readouterr().out
+    np.testing.assert_array_equal(cv2.imread(str(files[7])), cv2.imread(str(tmp_path / "one.png")))
+    # into a folder that is not empty: only with --overwrite
+    assert main(["export-image", str(bag), str(tmp_path / "all"), "--all"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
