@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``rs-localizer`` parser with every subcommand of :data:`COMMANDS`."""
     p = A.Parser(
         prog="rs-localizer",
-        description="Localize rolling-shutter cameras: the node's offline and bag tools, map "
+        description="Localize rolling-shutter cameras: the node's offline and bag tools, map\n"
         "builders and the paper's experiments.",
         epilog=_EPILOG,
         formatter_class=A.HelpFormatter,
