@@ -81,6 +81,8 @@ CASES = [
     (["map-markers", "bag", "-o", "m.yaml", "--marker-size", "inf"], "--marker-size"),
     (["map-markers", "bag", "-o", "m.yaml", *_M, "--marker-sizes", "3:nan"], "--marker-sizes"),
     (["map-markers", "bag", "-o", "m.yaml", *_M, "--fps", "0"], "--fps"),
+    (["map-markers", "bag", "-o", "m.yaml", *_M, "--anchor-pose", *"0000000"], "quaternion"),
+    (["map-markers", "bag", "-o", "m.yaml", *_M, "--anchor-pose", *"000000", "nan"], "nan"),
     (["map-features", *_MF, "--max-residual", "nan"], "--max-residual"),
     (["map-features", *_MF, "--scale", "-1"], "--scale"),
     (["map-features", *_MF, "--scale", "nan"], "--scale"),

@@ -148,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         A.writable_dir(args.report, "report folder")
     sizes = parse_sizes(args.marker_sizes or "")
+    if args.anchor_pose is not None and not np.linalg.norm(args.anchor_pose[3:]) > 1e-9:
+        raise A.CliError("--anchor-pose: the quaternion QX QY QZ QW must not be zero")
     src = A.map_input(args.input, args.camera_file)
     t0 = time.perf_counter()
     if (src / "metadata.yaml").exists():
