@@ -35,17 +35,18 @@ COMMANDS = (
 #: errors a user can fix (a value, a path, a file's content): one line, exit code 2
 USER_ERRORS = (A.CliError, ValueError, OSError)
 
-_EPILOG = """\
-Run 'rs-localizer COMMAND -h' for a command's options. A mistake in the command
-line is reported on one line ('rs-localizer COMMAND: error: ...', exit code 2) before
-any work; 'rs-localizer COMMAND ... --debug' shows the traceback of an unexpected error."""
+_EPILOG = (
+    "Run 'rs-localizer COMMAND -h' for a command's options. A mistake in the command line is "
+    "reported on one line ('rs-localizer COMMAND: error: ...', exit code 2) before any work; "
+    "'rs-localizer COMMAND ... --debug' shows the traceback of an unexpected error."
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``rs-localizer`` parser with every subcommand of :data:`COMMANDS`."""
     p = A.Parser(
         prog="rs-localizer",
-        description="Localize rolling-shutter cameras: the node's offline and bag tools, map\n"
+        description="Localize rolling-shutter cameras: the node's offline and bag tools, map "
         "builders and the paper's experiments.",
         epilog=_EPILOG,
         formatter_class=A.HelpFormatter,

@@ -78,10 +78,11 @@ def _fill_node_defaults(text: str) -> str:
     return _NODE_DEFAULT.sub(lambda m: str(PARAMETERS[m.group(1)][0]), text)
 
 
-class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+class HelpFormatter(argparse.HelpFormatter):
     """Shows an option's default once: appended as ``(default: X)`` unless the help already
     says ``default`` or there is no default to show (None, False, suppressed); help and
-    descriptions lose their reST markup; node parameters' defaults are filled in."""
+    descriptions lose their reST markup; node parameters' defaults are filled in; description
+    paragraphs are wrapped to the terminal (indented lines kept as written)."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = _fill_node_defaults(action.help or "").replace("%", "%%")
@@ -96,6 +97,16 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
 
     def _format_text(self, text: str) -> str:
         return super()._format_text(plain(text))
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        # paragraphs (blank-line separated) are wrapped; indented lines are kept as written
+        out = []
+        for para in text.split("\n\n"):
+            if any(line.startswith(" ") for line in para.splitlines()):
+                out.append("\n".join(indent + line for line in para.splitlines()))
+            else:
+                out.append(super()._fill_text(para, width, indent))
+        return "\n\n".join(out)
 
     def _expand_help(self, action: argparse.Action) -> str:
         return plain(super()._expand_help(action))
