@@ -139,6 +139,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "(t_cam = t_imu + S, the node's imu.time_offset)",
     )
     m.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=run)
     return m
 
@@ -152,9 +153,12 @@ def run(args: argparse.Namespace) -> int:
         raise A.CliError(
             f"--motion applies to the corridor and plane scenes, not to {args.scene!r}"
         )
+    from tqdm import tqdm
+
     from ..ros.bag_io import write_sequence_bag
     from ..sim.bag_sequence import simulate_bag_sequence
 
+    bar = tqdm(total=args.frames, desc="simulating", unit="frame", disable=args.quiet)
     seq = simulate_bag_sequence(
         frames=args.frames,
         points=args.points,
@@ -177,7 +181,9 @@ def run(args: argparse.Namespace) -> int:
         imu_rate=args.imu_rate,
         imu_topic=args.imu_topic,
         imu_time_offset=args.imu_time_offset,
+        progress=lambda k: bar.update(1),
     )
+    bar.close()
     out = write_sequence_bag(
         args.out,
         seq.frames,

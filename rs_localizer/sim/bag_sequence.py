@@ -80,6 +80,7 @@ def simulate_bag_sequence(
     imu_rate: float = 0.0,
     imu_topic: str = "/imu/data",
     imu_time_offset: float = 0.0,
+    progress=None,
 ) -> SimulatedSequence:
     """Simulate the sequence of ``rs-localizer make-bag`` (the CLI's options, same names).
 
@@ -97,6 +98,7 @@ def simulate_bag_sequence(
         imu_rate: > 0: IMU samples at this rate (Hz) from 0.1 s before the first frame to 0.1 s
             after the last, stamped on a clock ``imu_time_offset`` s behind the camera's
             (t_cam = t_imu + offset); imu_topic: recorded in ``extra``.
+        progress: None or a callable called with each frame's index before it is made.
     Raises:
         ValueError: ``motion`` other than walk with the board scene.
     """
@@ -129,7 +131,7 @@ def simulate_bag_sequence(
             trajectory or make_trajectory("walk", motion_scale), time=(teleport - 0.25) / fps
         )
     out_frames, sc, camera, trajectory = generate_sequence(
-        cfg, camera=camera, trajectory=trajectory, scene=sc
+        cfg, camera=camera, trajectory=trajectory, scene=sc, progress=progress
     )
     keys = (
         "num_frames",
