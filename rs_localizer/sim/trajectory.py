@@ -405,8 +405,10 @@ def generate_sequence(
     camera: CameraModel | None = None,
     trajectory: Trajectory | None = None,
     scene: Scene | None = None,
+    progress=None,
 ) -> tuple[list[Frame], Scene, CameraModel, Trajectory]:
     """Generate ``config.num_frames`` frames. Returns ``(frames, scene, camera, trajectory)``.
+    ``progress``: None or a callable, called with each frame's index before the frame is made.
 
     Per frame: all landmarks visible in the RS image are projected exactly, ``num_points`` of
     them are drawn at random, Gaussian pixel noise ``noise_px`` is added, and a fraction
@@ -420,6 +422,8 @@ def generate_sequence(
     frames = []
     period = 1.0 / config.fps
     for k in range(config.num_frames):
+        if progress is not None:
+            progress(k)
         t_first = k * period
         R, p, w, v, t_ref = ground_truth(camera, trajectory, t_first)
         # cheap pre-selection with the reference pose, then the exact projection

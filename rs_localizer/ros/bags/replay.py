@@ -171,7 +171,8 @@ def replay(
     """Run the localizer node's per-frame pipeline over every frame of a bag, offline.
 
     Args:
-        path: bag directory (make-bag or render-bag output, or a recording).
+        path: bag directory (make-bag or render-bag output, or a recording), or its storage
+            file (then its directory is read, with its sequence.json).
         params_files: the node's ROS 2 parameter files (later ones win; see
             :func:`.params.read_params_file` for the sections read).
         params: overrides by parameter name (``{"solver": "p3p", "tracking.enabled": False}``).
@@ -206,6 +207,8 @@ def replay(
         FileExistsError: ``out_bag`` exists and not ``overwrite``.
     """
     path = Path(path)
+    if path.is_file() and (path.parent / "metadata.yaml").is_file():
+        path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
     info = read_bag_info(path)
     values, _ = replay_parameters(path, params_files, params, source)
     token = object()
