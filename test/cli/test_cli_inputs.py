@@ -12,10 +12,9 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers.paths import ROOT
 
 from rs_localizer.cli import main
-
-ROOT = Path(__file__).resolve().parents[1]
 
 CAMERA_YAML = (
     "image_width: 320\nimage_height: 240\n"
