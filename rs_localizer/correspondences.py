@@ -28,7 +28,9 @@ class Correspondences:
             or None; used by PROSAC-style sampling.
 
     It unpacks, and indexes, as ``pixels, points, ids`` (``uv, xyz, ids =
-    frontend.process(image)``); ``len`` is the number of rows.
+    frontend.process(image)``); ``len`` is the number of rows. ``uv`` and ``xyz`` name
+    ``pixels`` and ``points`` as the fields of a ``correspondences`` PointCloud2 do
+    (:func:`rs_localizer.ros.pointcloud.read_correspondences` returns this type).
     """
 
     pixels: np.ndarray
@@ -49,6 +51,16 @@ class Correspondences:
             return result
         pixels, points, ids = result
         return cls(pixels, points, ids)
+
+    @property
+    def uv(self) -> np.ndarray:
+        """``pixels`` (N, 2) px, by the name of the cloud fields ``u, v``."""
+        return self.pixels
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """``points`` (N, 3) m, by the name of the cloud fields ``x, y, z``."""
+        return self.points
 
     def __len__(self) -> int:
         return len(self.pixels)

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from ..correspondences import Correspondences
+
 __all__ = [
     "CLOUD_REASONS",
     "DATATYPE_NAMES",
@@ -282,17 +284,9 @@ def is_dense(arr: np.ndarray) -> bool:
 
 
 # ---------------------------------------------------------------- typed views
-@dataclass
-class Correspondences:
-    """Decoded ``correspondences`` cloud. Arrays are float64 (ids uint32/int64)."""
-
-    uv: np.ndarray  # (N, 2) measured pixels
-    xyz: np.ndarray  # (N, 3) map frame, metres
-    ids: np.ndarray | None  # (N,)
-    scores: np.ndarray | None  # (N,)
-
-    def __len__(self):
-        return len(self.uv)
+# A decoded ``correspondences`` cloud is the library's
+# :class:`~rs_localizer.correspondences.Correspondences` (``uv``/``xyz`` name its
+# ``pixels``/``points``), the type every front end returns.
 
 
 @dataclass
@@ -338,8 +332,11 @@ def _column(arr, name):
 
 
 def read_correspondences(msg: Any) -> Correspondences:
-    """Decode a correspondences cloud. Only the fields ``u, v, x, y, z, id, score`` are read;
-    other fields are ignored. Non-finite rows are kept (the caller drops and counts them).
+    """Decode a correspondences cloud into :class:`~rs_localizer.correspondences.Correspondences`:
+    ``pixels`` (N, 2) float64 px (distorted), ``points`` (N, 3) float64 m (map frame), ``ids``
+    (N,) int64 or None (no ``id`` field), ``scores`` (N,) float64 or None (no ``score`` field).
+    Only the fields ``u, v, x, y, z, id, score`` are read; other fields are ignored.
+    Non-finite rows are kept (the caller drops and counts them).
 
     Raises:
         CloudError (a ValueError) with ``reason``: ``missing_fields``, ``wrong_field_type``,

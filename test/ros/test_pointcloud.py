@@ -38,6 +38,15 @@ def test_roundtrip_correspondences_float32_with_id_and_score():
     np.testing.assert_array_equal(c.ids, ids)
     np.testing.assert_allclose(c.scores, scores, rtol=1e-6)
     assert c.uv.dtype == np.float64 and len(c) == 50
+    # the library's one correspondence type: what a front end returns, same fields
+    from rs_localizer.correspondences import Correspondences
+
+    assert type(c) is Correspondences and c.pixels is c.uv and c.points is c.xyz
+    assert c.ids.dtype == np.int64
+    pixels, points, found_ids = c  # unpacks like a front end's result
+    np.testing.assert_array_equal(pixels, c.uv)
+    np.testing.assert_array_equal(points, c.xyz)
+    np.testing.assert_array_equal(found_ids, ids)
 
 
 def test_roundtrip_float64_exact():
