@@ -19,6 +19,7 @@ Drawn with OpenCV on the input image (image mode) or on a dark canvas of the cam
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -248,41 +249,82 @@ def draw_debug_image(
     if ok_est and len(est.inliers) == n:
         inl = np.asarray(est.inliers, dtype=bool)
     finite = np.isfinite(uv).all(axis=1)
-
     if ok_est and o.cube:
-        auto = auto_cube(camera, est, X, inl)
-        center = (auto[0] if auto else None) if o.cube_center is None else o.cube_center
-        side = (auto[1] if auto else None) if o.cube_side is None else float(o.cube_side)
-        if center is not None and side is not None:
-            edges = cube_edge_points(center, side, o.cube_samples)
-            P = edges.reshape(-1, 3)
-            vis = _in_view(camera, est, P)
-            for key, w, t, thick in (("cube_gs", None, None, 1), ("cube_rs", est.w, est.t, 2)):
-                px = np.full((len(P), 2), np.nan)
-                px[vis] = camera.project_rs(P[vis], est.R, est.C, w, t)
-                for e in px.reshape(edges.shape[0], edges.shape[1], 2):
-                    _polyline(img, e, COLORS[key], thick)
-
+        _draw_cubes(img, camera, X, est, inl, o)
     if ok_est and o.residual_scale > 0:
-        pred = frame_residuals(camera, uv, X, est)
-        d = (pred - uv) * o.residual_scale
-        ln = np.linalg.norm(d, axis=1)
-        cap = np.where(ln > o.max_residual_px, o.max_residual_px / np.maximum(ln, 1e-12), 1.0)
-        end = uv + d * cap[:, None]
-        good = finite & np.isfinite(end).all(axis=1)
-        a = np.round(uv[good] * 16).astype(np.int64)
-        b = np.round(end[good] * 16).astype(np.int64)
-        for p, q in zip(a, b, strict=False):
-            cv2.line(
-                img,
-                (int(p[0]), int(p[1])),
-                (int(q[0]), int(q[1])),
-                COLORS["residual"],
-                1,
-                cv2.LINE_8,
-                shift=4,
-            )
+        _draw_residuals(img, camera, uv, X, est, finite, o)
+    _draw_points(img, uv, finite, inl, ok_est, o)
+    _text_lines(img, _caption(est, ok_est, inl, n, o), COLORS["text"])
+    return img
 
+
+def _draw_cubes(
+    img: np.ndarray,
+    camera: CameraModel,
+    X: np.ndarray,
+    est: Any,
+    inl: np.ndarray,
+    o: DebugImageOptions,
+) -> None:
+    """Stage 1 of :func:`draw_debug_image`: the cube's edges as the global-shutter projection
+    (thin) and as the RS projection with the estimated twist (thick), where in view."""
+    auto = auto_cube(camera, est, X, inl)
+    center = (auto[0] if auto else None) if o.cube_center is None else o.cube_center
+    side = (auto[1] if auto else None) if o.cube_side is None else float(o.cube_side)
+    if center is None or side is None:
+        return
+    edges = cube_edge_points(center, side, o.cube_samples)
+    P = edges.reshape(-1, 3)
+    vis = _in_view(camera, est, P)
+    for key, w, t, thick in (("cube_gs", None, None, 1), ("cube_rs", est.w, est.t, 2)):
+        px = np.full((len(P), 2), np.nan)
+        px[vis] = camera.project_rs(P[vis], est.R, est.C, w, t)
+        for e in px.reshape(edges.shape[0], edges.shape[1], 2):
+            _polyline(img, e, COLORS[key], thick)
+
+
+def _draw_residuals(
+    img: np.ndarray,
+    camera: CameraModel,
+    uv: np.ndarray,
+    X: np.ndarray,
+    est: Any,
+    finite: np.ndarray,
+    o: DebugImageOptions,
+) -> None:
+    """Stage 2 of :func:`draw_debug_image`: each reprojection error as a line from the
+    measured pixel, scaled by ``residual_scale`` and capped to ``max_residual_px``."""
+    pred = frame_residuals(camera, uv, X, est)
+    d = (pred - uv) * o.residual_scale
+    ln = np.linalg.norm(d, axis=1)
+    cap = np.where(ln > o.max_residual_px, o.max_residual_px / np.maximum(ln, 1e-12), 1.0)
+    end = uv + d * cap[:, None]
+    good = finite & np.isfinite(end).all(axis=1)
+    a = np.round(uv[good] * 16).astype(np.int64)
+    b = np.round(end[good] * 16).astype(np.int64)
+    for p, q in zip(a, b, strict=False):
+        cv2.line(
+            img,
+            (int(p[0]), int(p[1])),
+            (int(q[0]), int(q[1])),
+            COLORS["residual"],
+            1,
+            cv2.LINE_8,
+            shift=4,
+        )
+
+
+def _draw_points(
+    img: np.ndarray,
+    uv: np.ndarray,
+    finite: np.ndarray,
+    inl: np.ndarray,
+    ok_est: bool,
+    o: DebugImageOptions,
+) -> None:
+    """Stage 3 of :func:`draw_debug_image`: outliers as crosses (grey dots when unsolved),
+    then inliers as dots."""
+    n = len(uv)
     r = max(int(o.point_radius), 1)
     pix = np.round(uv).astype(np.int64, copy=False) if n else np.zeros((0, 2), np.int64)
     for k in np.flatnonzero(finite & ~inl):
@@ -294,6 +336,10 @@ def draw_debug_image(
     for k in np.flatnonzero(finite & inl):
         cv2.circle(img, (int(pix[k, 0]), int(pix[k, 1])), r, COLORS["inlier"], -1)
 
+
+def _caption(est: Any, ok_est: bool, inl: np.ndarray, n: int, o: DebugImageOptions) -> list[str]:
+    """Stage 4 of :func:`draw_debug_image`: the text lines (solver, inliers, RMSE, twist
+    magnitudes and the legend; or the failure reason)."""
     if ok_est:
         w = float(np.linalg.norm(est.angular_velocity))
         v = float(np.linalg.norm(est.linear_velocity))
@@ -306,12 +352,10 @@ def draw_debug_image(
                 f"green inlier  red outlier  yellow residual x{o.residual_scale:g}  "
                 "cyan RS cube  magenta global-shutter cube"
             )
-    else:
-        why = getattr(est, "failure", None) if est is not None else None
-        lines = [
-            f"{getattr(est, 'solver', '') or 'no estimate'}  failed"
-            + (f": {why}" if why else "")
-            + f"  ({n} points)"
-        ]
-    _text_lines(img, lines, COLORS["text"])
-    return img
+        return lines
+    why = getattr(est, "failure", None) if est is not None else None
+    return [
+        f"{getattr(est, 'solver', '') or 'no estimate'}  failed"
+        + (f": {why}" if why else "")
+        + f"  ({n} points)"
+    ]
