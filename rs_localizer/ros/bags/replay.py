@@ -209,7 +209,64 @@ def replay(
     path = Path(path)
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
-    info = read_bag_info(path)
+    values, cfg, source = _replay_config(path, params_files, params, source)
+    ts = typestore()
+    topics = bag_topics(path)
+    frame_topic, info_topic, viz_topic, imu_topic = _replay_topics(
+        path, topics, cfg, source, image_topic, imu_topic, debug_outputs, out_bag
+    )
+    if cfg.imu is not None:
+        # (offline every sample is buffered before the frames: no waiting)
+        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
+    gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
+    n_frames = _count(path, frame_topic)
+    result = ReplayResult(config=cfg, parameters=values)
+    writer, conns = None, {}
+    if out_bag is not None:
+        writer, conns = _open_out_bag(Path(out_bag), storage, overwrite, ts)
+        result.out_bag = Path(out_bag)
+    viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
+    rows = _Rows(gt)
+    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
+    if cfg.imu is not None:
+        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
+    try:
+        _run_frames(
+            path,
+            ts,
+            pipeline,
+            cfg,
+            source,
+            (frame_topic, info_topic, viz_topic),
+            rows,
+            writer,
+            conns,
+            viz,
+            n_frames,
+            progress,
+        )
+    finally:
+        if viz is not None:
+            viz.flush()
+        if writer is not None:
+            writer.close()
+    _summarize(result, rows, pipeline)
+    if out_csv is not None:
+        result.out_csv = Path(out_csv)
+        _write_csv(result.out_csv, result.rows)
+    return result
+
+
+def _replay_config(
+    path: Path, params_files, params, source: str | None
+) -> tuple[dict[str, Any], LocalizerConfig, str]:
+    """Stage 1 of :func:`replay`: ``(parameter values, configuration with its maps loaded,
+    source)``; ``source`` None becomes ``image`` with a front end, else ``correspondences``.
+
+    Raises:
+        ValueError: invalid parameters; ``source`` image without a front end.
+    """
     values, _ = replay_parameters(path, params_files, params, source)
     token = object()
     try:
@@ -222,8 +279,27 @@ def replay(
         raise ValueError("--source image needs a front end (the frontend parameter is none)")
     # (offline every camera_info before a frame has been read: no waiting)
     cfg = dataclasses.replace(cfg, camera_info_wait=0.0)
-    ts = typestore()
-    topics = bag_topics(path)
+    return values, cfg, source
+
+
+def _replay_topics(
+    path: Path,
+    topics: dict[str, str],
+    cfg: LocalizerConfig,
+    source: str,
+    image_topic: str | None,
+    imu_topic: str | None,
+    debug_outputs: bool,
+    out_bag: Any,
+) -> tuple[str, str | None, str | None, str | None]:
+    """Stage 2 of :func:`replay`: the bag topics ``(frames, camera_info, images to draw the
+    debug image on or None, IMU or None)``.
+
+    Raises:
+        ValueError: no frame topic; ``debug_outputs`` without ``out_bag``; ``imu.enabled``
+            without one IMU topic (or ``imu_topic`` not one).
+    """
+    info = read_bag_info(path)
     frame_topic = _frame_topic(topics, source, cfg, info, image_topic)
     info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
     if frame_topic is None:
@@ -245,66 +321,81 @@ def replay(
                 f"{path}: imu.enabled needs a sensor_msgs/Imu topic (--imu-topic; IMU topics: "
                 f"{imus})"
             )
-        # (offline every sample is buffered before the frames: no waiting)
-        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
-    gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
-    n_frames = _count(path, frame_topic)
-    result = ReplayResult(config=cfg, parameters=values)
-    writer = None
-    conns = {}
-    if out_bag is not None:
-        from rosbags.rosbag2 import Writer
+    return frame_topic, info_topic, viz_topic, imu_topic
 
-        out_bag = Path(out_bag)
-        if out_bag.exists():
-            if not overwrite:
-                raise FileExistsError(f"{out_bag} exists (use --overwrite)")
-            shutil.rmtree(out_bag)
-        writer = Writer(out_bag, version=9, storage_plugin=storage_plugin(storage))
-        writer.open()
-        for name, mt in OUT_TYPES.items():
-            conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
-        result.out_bag = out_bag
-    viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
-    rows = _Rows(gt)
-    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
-    if cfg.imu is not None:
-        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
-            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
-    try:
-        t0 = time.perf_counter()
-        i = 0
-        t_log = 0
-        wanted = OUT_TYPES.__contains__
-        for topic, msgtype, t_log, raw in iter_messages(
-            path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
-        ):
-            msg = ts.deserialize_cdr(raw, msgtype)
-            if topic == viz_topic:
-                viz.add_image(msg)
-                continue
-            if topic == info_topic:
-                pipeline.add_camera_info(msg)
-                continue
-            i += 1
-            res = pipeline.process(msg, source)
-            rows.add(i - 1, res, cfg.solver)
-            msgs = frame_messages(res, cfg.map_frame, wanted)
-            rows.fused(res.fused)
-            _write(writer, conns, ts, t_log, msgs)
-            if viz is not None and res.solved:
-                if res.image is not None:
-                    viz.add_decoded(*res.image)
-                viz.frame(res, t_log)
-            _progress(i, n_frames, t0, progress)
-        last = pipeline.flush()  # (the end of the video: the twists still pending)
-        rows.fused(last)
-        _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
-    finally:
-        if viz is not None:
-            viz.flush()
-        if writer is not None:
-            writer.close()
+
+def _open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
+    """Stage 3 of :func:`replay`: the output bag's open writer and its connections by output
+    name (:data:`OUT_TYPES`).
+
+    Raises:
+        FileExistsError: ``out_bag`` exists and not ``overwrite``.
+    """
+    from rosbags.rosbag2 import Writer
+
+    if out_bag.exists():
+        if not overwrite:
+            raise FileExistsError(f"{out_bag} exists (use --overwrite)")
+        shutil.rmtree(out_bag)
+    writer = Writer(out_bag, version=9, storage_plugin=storage_plugin(storage))
+    writer.open()
+    conns = {}
+    for name, mt in OUT_TYPES.items():
+        conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
+    return writer, conns
+
+
+def _run_frames(
+    path: Path,
+    ts: Any,
+    pipeline: FramePipeline,
+    cfg: LocalizerConfig,
+    source: str,
+    topics: tuple[str, str | None, str | None],
+    rows: _Rows,
+    writer: Any,
+    conns: dict,
+    viz: _DebugWriter | None,
+    n_frames: int,
+    progress: TextIO | None,
+) -> None:
+    """Stage 4 of :func:`replay`: every frame (and camera_info, and image to draw on) of the
+    bag, in log-time order, through ``pipeline``; the rows and the outputs recorded, then the
+    twists still pending at the end of the video."""
+    frame_topic, info_topic, viz_topic = topics
+    t0 = time.perf_counter()
+    i = 0
+    t_log = 0
+    wanted = OUT_TYPES.__contains__
+    for topic, msgtype, t_log, raw in iter_messages(
+        path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
+    ):
+        msg = ts.deserialize_cdr(raw, msgtype)
+        if topic == viz_topic:
+            viz.add_image(msg)
+            continue
+        if topic == info_topic:
+            pipeline.add_camera_info(msg)
+            continue
+        i += 1
+        res = pipeline.process(msg, source)
+        rows.add(i - 1, res, cfg.solver)
+        msgs = frame_messages(res, cfg.map_frame, wanted)
+        rows.fused(res.fused)
+        _write(writer, conns, ts, t_log, msgs)
+        if viz is not None and res.solved:
+            if res.image is not None:
+                viz.add_decoded(*res.image)
+            viz.frame(res, t_log)
+        _progress(i, n_frames, t0, progress)
+    last = pipeline.flush()  # (the end of the video: the twists still pending)
+    rows.fused(last)
+    _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
+
+
+def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline) -> None:
+    """Stage 5 of :func:`replay`: the rows, counts, gyro bias, failures and error summary
+    into ``result``."""
     result.rows = rows.finish()
     result.counts = pipeline.stats.snapshot().counts
     bias = pipeline.gyro_bias_values()
@@ -315,10 +406,6 @@ def replay(
             result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
     errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
     result.summary = summarize_errors(errors)
-    if out_csv is not None:
-        result.out_csv = Path(out_csv)
-        _write_csv(result.out_csv, result.rows)
-    return result
 
 
 def _write(writer, conns, ts, t_log: int, messages) -> None:
