@@ -125,75 +125,21 @@ def write_sequence_bag(
         shutil.rmtree(path)
     M = RosbagsMessages()
     ts = M.ts
-    ns = namespace.rstrip("/")
-    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE}
-    if gt_twist:
-        topics["gt_twist"] = GT_TWIST
-    if correspondences:
-        topics["correspondences"] = f"{ns}/correspondences"
-    if keypoints:
-        topics["keypoints"] = f"{ns}/keypoints"
+    topics = _sequence_topics(namespace, gt_twist, correspondences, keypoints, imu, imu_topic)
     used = np.unique(np.concatenate([f.ids for f in frames])) if frames else np.zeros(0, int)
     with Writer(path, version=9, storage_plugin=storage_plugin(storage)) as w:
-        c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=ts)
-        c_corr = (
-            w.add_connection(topics["correspondences"], PC2, typestore=ts)
-            if correspondences
-            else None
-        )
-        c_kp = w.add_connection(topics["keypoints"], PC2, typestore=ts) if keypoints else None
-        c_gtp = w.add_connection(GT_POSE, POSE, typestore=ts)
-        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts) if gt_twist else None
+        conns = {
+            name: w.add_connection(topics[name], mt, typestore=ts)
+            for name, mt in _SEQUENCE_TYPES.items()
+            if name in topics
+        }
         if imu is not None:
-            topics["imu"] = imu_topic
-            c_imu = w.add_connection(imu_topic, IMU, typestore=ts)
             for t_ns, om, fo in zip(*imu, strict=True):
-                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
+                w.write(conns["imu"], int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
         for f in frames:
-            t_log = f.stamp_ns + 1_000_000
-            w.write(
-                c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame), CAMERA_INFO)
+            _write_sequence_frame(
+                w, M, conns, f, camera, camera_frame, map_frame, with_ids, with_scores
             )
-            t_log += 1_000_000
-            if c_corr is not None:
-                w.write(
-                    c_corr,
-                    t_log,
-                    M.cdr(
-                        M.cloud(
-                            f.uv,
-                            f.xyz,
-                            f.ids if with_ids else None,
-                            f.stamp_ns,
-                            camera_frame,
-                            f.scores if with_scores else None,
-                        ),
-                        PC2,
-                    ),
-                )
-            if c_kp is not None:
-                w.write(
-                    c_kp,
-                    t_log,
-                    M.cdr(
-                        M.keypoints(
-                            f.uv, f.ids, f.stamp_ns, camera_frame, f.scores if with_scores else None
-                        ),
-                        PC2,
-                    ),
-                )
-            w.write(
-                c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns, map_frame), POSE)
-            )
-            if c_gtt is not None:
-                w.write(
-                    c_gtt,
-                    t_log,
-                    M.cdr(
-                        M.twist(f.angular_velocity, f.linear_velocity, f.t_ref_ns, camera_frame),
-                        TWIST,
-                    ),
-                )
     if keypoints and len(used):
         save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
     write_sequence_json(
@@ -209,6 +155,75 @@ def write_sequence_bag(
         **(extra or {}),
     )
     return path
+
+
+#: the topics of :func:`write_sequence_bag` by name, with their message types, in the order
+#: their connections are added
+_SEQUENCE_TYPES = {
+    "camera_info": CAMERA_INFO,
+    "correspondences": PC2,
+    "keypoints": PC2,
+    "gt_pose": POSE,
+    "gt_twist": TWIST,
+    "imu": IMU,
+}
+
+
+def _sequence_topics(
+    namespace: str,
+    gt_twist: bool,
+    correspondences: bool,
+    keypoints: bool,
+    imu: Any,
+    imu_topic: str,
+) -> dict[str, str]:
+    """Stage 1 of :func:`write_sequence_bag`: the topic names by name (as ``sequence.json``
+    lists them)."""
+    ns = namespace.rstrip("/")
+    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE}
+    if gt_twist:
+        topics["gt_twist"] = GT_TWIST
+    if correspondences:
+        topics["correspondences"] = f"{ns}/correspondences"
+    if keypoints:
+        topics["keypoints"] = f"{ns}/keypoints"
+    if imu is not None:
+        topics["imu"] = imu_topic
+    return topics
+
+
+def _write_sequence_frame(
+    w: Any,
+    M: RosbagsMessages,
+    conns: dict[str, Any],
+    f: Any,
+    camera: CameraModel,
+    camera_frame: str,
+    map_frame: str,
+    with_ids: bool,
+    with_scores: bool,
+) -> None:
+    """Stage 2 of :func:`write_sequence_bag`: one frame's messages: camera_info logged at
+    stamp + 1 ms, the clouds and the ground truth at stamp + 2 ms."""
+    t_log = f.stamp_ns + 1_000_000
+    w.write(
+        conns["camera_info"],
+        t_log,
+        M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame), CAMERA_INFO),
+    )
+    t_log += 1_000_000
+    scores = f.scores if with_scores else None
+    if "correspondences" in conns:
+        cloud = M.cloud(f.uv, f.xyz, f.ids if with_ids else None, f.stamp_ns, camera_frame, scores)
+        w.write(conns["correspondences"], t_log, M.cdr(cloud, PC2))
+    if "keypoints" in conns:
+        kp = M.keypoints(f.uv, f.ids, f.stamp_ns, camera_frame, scores)
+        w.write(conns["keypoints"], t_log, M.cdr(kp, PC2))
+    pose = M.pose(f.orientation, f.position, f.t_ref_ns, map_frame)
+    w.write(conns["gt_pose"], t_log, M.cdr(pose, POSE))
+    if "gt_twist" in conns:
+        twist = M.twist(f.angular_velocity, f.linear_velocity, f.t_ref_ns, camera_frame)
+        w.write(conns["gt_twist"], t_log, M.cdr(twist, TWIST))
 
 
 def write_sequence_json(
