@@ -141,7 +141,8 @@ def test_public_api():
 
 
 #: where every public function and method carries type annotations: the solvers, the
-#: estimator, the front ends, the ROS layer, the simulation and the camera model
+#: estimator, the front ends, the ROS layer, the simulation, the command line and the camera
+#: model
 ANNOTATED = [
     *sorted((PKG / "solvers").glob("*.py")),
     *sorted((PKG / "estimation").glob("*.py")),
@@ -149,6 +150,7 @@ ANNOTATED = [
     *sorted((PKG / "frontends").glob("*.py")),
     *sorted((PKG / "ros").rglob("*.py")),
     *sorted((PKG / "sim").rglob("*.py")),
+    *sorted((PKG / "cli").glob("*.py")),
     PKG / "camera.py",
 ]
 

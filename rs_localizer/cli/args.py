@@ -14,7 +14,10 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
+
+if TYPE_CHECKING:  # (for the annotations only: the camera model is loaded on demand)
+    from ..camera import CameraModel
 
 __all__ = [
     "BAG_FILE_SUFFIXES",
@@ -255,7 +258,7 @@ def input_dir(path: str | Path, what: str = "directory") -> Path:
     return path
 
 
-def yaml_file(path: str | Path, what: str = "YAML file"):
+def yaml_file(path: str | Path, what: str = "YAML file") -> Any:
     """Load a YAML file now (missing, a directory, unreadable or not YAML: CliError); returns
     its content."""
     import yaml
@@ -332,7 +335,7 @@ def _first_line(e: BaseException) -> str:
     return text.splitlines()[0] if text else type(e).__name__
 
 
-def camera_file(path: str | Path):
+def camera_file(path: str | Path) -> CameraModel:
     """Load a camera YAML (ROS camera_info / calibration) now; returns the camera model.
     Raises CliError when it is missing or not a camera file."""
     from ..mapping.outputs import camera_from_yaml

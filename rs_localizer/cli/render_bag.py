@@ -21,9 +21,12 @@ the ground truth is stamped with the reference line's capture time.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -41,6 +44,11 @@ from ..ros.bags.bag_io import (
     write_sequence_json,
 )
 from . import args as A
+
+if TYPE_CHECKING:  # (for the annotations only: imported when rendering)
+    from ..correspondences import Frontend
+    from ..frontends.features import FeatureMap
+    from ..sim.render.scene import Scene
 
 __all__ = ["register", "render_bag", "run"]
 
@@ -90,15 +98,15 @@ def _make_frontend(
 
 
 def render_bag(
-    path,
-    scene="aruco_room",
-    motion="shake",
+    path: str | os.PathLike,
+    scene: str | os.PathLike | Scene = "aruco_room",
+    motion: str | Any = "shake",
     frames: int = 30,
     *,
-    camera="vga",
+    camera: str | CameraModel = "vga",
     fps: float = 30.0,
-    frontend="aruco",
-    feature_map=None,
+    frontend: str | Frontend | None = "aruco",
+    feature_map: FeatureMap | str | os.PathLike | None = None,
     mono: bool = False,
     noise: bool = True,
     exposure: float = 0.0,
@@ -112,7 +120,7 @@ def render_bag(
     storage: str = "mcap",
     compress: bool = True,
     overwrite: bool = False,
-    progress=None,
+    progress: Callable[[int, int, int], Any] | None = None,
     imu_rate: float = 0.0,
     imu_topic: str = "/imu/data",
 ) -> Path:
