@@ -3,7 +3,9 @@ motion, the frames, the optional IMU samples and the settings recorded in ``sequ
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -80,7 +82,7 @@ def simulate_bag_sequence(
     imu_rate: float = 0.0,
     imu_topic: str = "/imu/data",
     imu_time_offset: float = 0.0,
-    progress=None,
+    progress: Callable[[int], Any] | None = None,
 ) -> SimulatedSequence:
     """Simulate the sequence of ``rs-localizer make-bag`` (the CLI's options, same names).
 

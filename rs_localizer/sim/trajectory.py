@@ -17,7 +17,7 @@ y down.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -405,7 +405,7 @@ def generate_sequence(
     camera: CameraModel | None = None,
     trajectory: Trajectory | None = None,
     scene: Scene | None = None,
-    progress=None,
+    progress: Callable[[int], object] | None = None,
 ) -> tuple[list[Frame], Scene, CameraModel, Trajectory]:
     """Generate ``config.num_frames`` frames. Returns ``(frames, scene, camera, trajectory)``.
     ``progress``: None or a callable, called with each frame's index before the frame is made.
