@@ -27,6 +27,7 @@ import numpy as np
 
 from .._so3 import compose_rotvec
 from ..geometry import rotvec_to_matrix
+from ..pose import RSModel
 from ..solvers import p3p_batch, r6p
 from ..solvers.kernels import R5P_W, kernel_ids, kernel_set
 from ..solvers.p3p import DEFAULT_BACKEND
@@ -279,7 +280,7 @@ def nonminimal_models(
             fr.r0,
             iterations,
         )
-        return [(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
+        return [RSModel(Rs[j], Cs[j], ws[j], ts[j]) for j in range(len(ids)) if ok[j]]
     Xr = fr.X[inliers] @ R.T
     out = []
     for name in names:
@@ -288,7 +289,7 @@ def nonminimal_models(
             name, fr.x[inliers][None], Xr[None], fr.r[inliers][None], fr.r0, iterations, rows
         )[0]
         if b.valid[0]:
-            out.append((rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
+            out.append(RSModel(rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]))
     return out
 
 

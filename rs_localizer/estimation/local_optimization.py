@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .hypotheses import nonminimal_models
@@ -72,7 +73,7 @@ def local_optimization(
             prior=fr.prior,
             seconds_per_unit_r=fr.spr,
         )
-        cand = (ref.R, ref.C, ref.w, ref.t)
+        cand = RSModel(ref.R, ref.C, ref.w, ref.t)
         sc, inl = fr.evaluate(cand, th2)
         if sc < start_score:
             start, start_score, start_inl = cand, sc, inl
@@ -112,8 +113,9 @@ def seed_from_initial_model(
     if explained < max(int(initial.min_explained), 1):
         return explained, None, False
     s = sample_size(solver)
-    score, inl = fr.evaluate((R, C, w, t), th2, errors=e2)
-    seed = (score, (R, C, w, t), inl)
+    model = RSModel(R, C, w, t)
+    score, inl = fr.evaluate(model, th2, errors=e2)
+    seed = (score, model, inl)
     if int(np.count_nonzero(seed[2])) < max(int(initial.min_explained), s + 1):
         seed = _pull_in(fr, solver, seed, near, gate, th2, opts)
     if int(np.count_nonzero(seed[2])) <= s:
@@ -148,7 +150,7 @@ def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float
         seconds_per_unit_r=fr.spr,
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
-        cand = (ref.R, ref.C, ref.w, ref.t)
+        cand = RSModel(ref.R, ref.C, ref.w, ref.t)
         sc, inl = fr.evaluate(cand, th2)
         if sc < score:
             return sc, cand, inl

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..camera import CameraModel
+from ..pose import RSModel
 from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
 from .fusion import FusedState, FusionOptions, TwistFilter
 from .gyro import GyroMeasurement
@@ -143,10 +144,9 @@ class TrackResult:
         return None if self.step is None else self.step.current
 
 
-def model_from_state(
-    state: FusedState, camera: CameraModel
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The estimator's model ``(R, C, w, t)`` of a fused state (inverse of
+def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
+    """The estimator's model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`) of a fused
+    state (inverse of
     :func:`~rs_localizer.estimation.estimate.physical_velocities`): ``R = O^T``,
     ``C = -R p``, ``w = -omega s``, ``t = w x C - v s`` with ``s`` the camera's seconds per
     unit RS coordinate (w = t = 0 for a global shutter). Shapes (3, 3), (3,), (3,), (3,)."""
@@ -154,13 +154,13 @@ def model_from_state(
     C = -R @ np.asarray(state.position, dtype=float)
     s = camera.seconds_per_unit_r
     if s <= 0:
-        return R, C, np.zeros(3), np.zeros(3)
+        return RSModel(R, C, np.zeros(3), np.zeros(3))
     w = -np.asarray(state.angular_velocity, dtype=float) * s
     wxC = np.array(
         [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
     )  # (np.cross costs ~10x more at this size)
     t = wxC - np.asarray(state.linear_velocity, dtype=float) * s
-    return R, C, w, t
+    return RSModel(R, C, w, t)
 
 
 def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> MotionPrior:
