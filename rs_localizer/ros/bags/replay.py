@@ -228,33 +228,21 @@ def replay(
     viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
     rows = _Rows(gt)
     pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
-    if cfg.imu is not None:
-        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
-            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
-    try:
-        _run_frames(
-            path,
-            ts,
-            pipeline,
-            cfg,
-            source,
-            (frame_topic, info_topic, viz_topic),
-            rows,
-            writer,
-            conns,
-            viz,
-            n_frames,
-            progress,
-        )
-    finally:
-        if viz is not None:
-            viz.flush()
-        if writer is not None:
-            writer.close()
-    _summarize(result, rows, pipeline)
-    if out_csv is not None:
-        result.out_csv = Path(out_csv)
-        _write_csv(result.out_csv, result.rows)
+    _run_frames(
+        path,
+        ts,
+        pipeline,
+        cfg,
+        source,
+        (frame_topic, info_topic, viz_topic, imu_topic),
+        rows,
+        writer,
+        conns,
+        viz,
+        n_frames,
+        progress,
+    )
+    _summarize(result, rows, pipeline, out_csv)
     return result
 
 
@@ -351,7 +339,7 @@ def _run_frames(
     pipeline: FramePipeline,
     cfg: LocalizerConfig,
     source: str,
-    topics: tuple[str, str | None, str | None],
+    topics: tuple[str, str | None, str | None, str | None],
     rows: _Rows,
     writer: Any,
     conns: dict,
@@ -359,43 +347,53 @@ def _run_frames(
     n_frames: int,
     progress: TextIO | None,
 ) -> None:
-    """Stage 4 of :func:`replay`: every frame (and camera_info, and image to draw on) of the
-    bag, in log-time order, through ``pipeline``; the rows and the outputs recorded, then the
-    twists still pending at the end of the video."""
-    frame_topic, info_topic, viz_topic = topics
-    t0 = time.perf_counter()
-    i = 0
-    t_log = 0
-    wanted = OUT_TYPES.__contains__
-    for topic, msgtype, t_log, raw in iter_messages(
-        path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
-    ):
-        msg = ts.deserialize_cdr(raw, msgtype)
-        if topic == viz_topic:
-            viz.add_image(msg)
-            continue
-        if topic == info_topic:
-            pipeline.add_camera_info(msg)
-            continue
-        i += 1
-        res = pipeline.process(msg, source)
-        rows.add(i - 1, res, cfg.solver)
-        msgs = frame_messages(res, cfg.map_frame, wanted)
-        rows.fused(res.fused)
-        _write(writer, conns, ts, t_log, msgs)
-        if viz is not None and res.solved:
-            if res.image is not None:
-                viz.add_decoded(*res.image)
-            viz.frame(res, t_log)
-        _progress(i, n_frames, t0, progress)
-    last = pipeline.flush()  # (the end of the video: the twists still pending)
-    rows.fused(last)
-    _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
+    """Stage 4 of :func:`replay`: the IMU samples buffered (with ``cfg.imu``), then every frame
+    (and camera_info, and image to draw on) of the bag, in log-time order, through
+    ``pipeline``; the rows and the outputs recorded, then the twists still pending at the end
+    of the video. The debug outputs and the output bag are closed in any case."""
+    frame_topic, info_topic, viz_topic, imu_topic = topics
+    if cfg.imu is not None:
+        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
+    try:
+        t0 = time.perf_counter()
+        i = 0
+        t_log = 0
+        wanted = OUT_TYPES.__contains__
+        for topic, msgtype, t_log, raw in iter_messages(
+            path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
+        ):
+            msg = ts.deserialize_cdr(raw, msgtype)
+            if topic == viz_topic:
+                viz.add_image(msg)
+                continue
+            if topic == info_topic:
+                pipeline.add_camera_info(msg)
+                continue
+            i += 1
+            res = pipeline.process(msg, source)
+            rows.add(i - 1, res, cfg.solver)
+            msgs = frame_messages(res, cfg.map_frame, wanted)
+            rows.fused(res.fused)
+            _write(writer, conns, ts, t_log, msgs)
+            if viz is not None and res.solved:
+                if res.image is not None:
+                    viz.add_decoded(*res.image)
+                viz.frame(res, t_log)
+            _progress(i, n_frames, t0, progress)
+        last = pipeline.flush()  # (the end of the video: the twists still pending)
+        rows.fused(last)
+        _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
+    finally:
+        if viz is not None:
+            viz.flush()
+        if writer is not None:
+            writer.close()
 
 
-def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline) -> None:
+def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline, out_csv: Any) -> None:
     """Stage 5 of :func:`replay`: the rows, counts, gyro bias, failures and error summary
-    into ``result``."""
+    into ``result``; the CSV written to ``out_csv`` (None: none)."""
     result.rows = rows.finish()
     result.counts = pipeline.stats.snapshot().counts
     bias = pipeline.gyro_bias_values()
@@ -406,6 +404,9 @@ def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline) -> No
             result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
     errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
     result.summary = summarize_errors(errors)
+    if out_csv is not None:
+        result.out_csv = Path(out_csv)
+        _write_csv(result.out_csv, result.rows)
 
 
 def _write(writer, conns, ts, t_log: int, messages) -> None:
