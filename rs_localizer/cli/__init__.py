@@ -186,6 +186,8 @@ def _play(args) -> int:
     if args.lockstep:
         lat = res.latencies
         msg += f"; {res.answered} answered, {res.timeouts} timed out"
+        if res.republished:
+            msg += f" ({res.republished} sent again after no answer)"
         if len(lat):
             import numpy as np
 
@@ -992,6 +994,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from ..ros.dds_profile import apply_default_profile
+
+    apply_default_profile()  # (before any rclpy participant: images over shared memory)
     if getattr(args, "output_topic", "unset") is None:
         args.output_topic = ["/camera/pose"]
     try:
