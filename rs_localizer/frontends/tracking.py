@@ -1,0 +1,468 @@
+"""Feature front end for video: track the last frame's inliers, match near predictions, detect
+rarely.
+
+Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences of three kinds:
+
+- **tracked**: the previous frame's inliers (pixel, map row) followed into this frame with
+  pyramidal Lucas-Kanade optical flow (``cv2.calcOpticalFlowPyrLK``), kept only when tracking
+  back lands within ``fb_max_px`` of the start (forward-backward check); they keep their map
+  rows, so no descriptor is computed or matched;
+- **guided**: map points predicted in view and not tracked, matched to the keypoints of a
+  *refresh* detection near their predicted pixel (within ``search_radius_px``; a
+  ``scipy.spatial.cKDTree`` over the keypoints; descriptor distance and ratio tests). The
+  prediction is a rolling-shutter projection (:meth:`rs_localizer.camera.CameraModel.project_rs`:
+  each point at its own capture line) of the solved pose and twist of the frame the detection
+  ran on. The refresh detection runs in a background thread on a copy of one frame, every
+  ``refresh_frames`` frames or when fewer than ``min_tracked_inliers`` tracks survive; its
+  matches are then tracked (LK) from that frame into the current one and join the tracks: a
+  refresh never holds up a frame;
+- **global**: full detection and matching against the whole map
+  (:class:`~rs_localizer.frontends.features.FeatureFrontend`, FLANN for SIFT maps), run
+  synchronously only when there is nothing to track: the first frame, after a frame that was
+  not solved, after a time reset (a stamp going back, or further ahead than ``reset_gap_s``),
+  or when fewer than ``min_points`` tracks remain.
+
+The estimator stays the judge: every pose comes from a full rolling-shutter estimate over these
+correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end the frame's
+estimate, and only its inliers are tracked further (tracked outliers are dropped). Without
+``observe`` (a caller that does not report estimates) every frame is a global one.
+
+This is the standard design of video trackers (PTAM, ORB-SLAM's localization mode, VINS's
+feature tracker) with a rolling-shutter motion model for the guided search.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..camera import CameraModel
+from .aruco import to_gray
+from .features import FeatureFrontend, FeatureMap, make_detector
+
+__all__ = ["FRAME_KINDS", "FrameReport", "TrackingFeatureFrontend"]
+
+#: kinds of frame: ``global`` (full detection + global matching), ``tracked`` (tracks and
+#: guided matches only), ``empty`` (no texture: no keypoint at all)
+FRAME_KINDS = ("global", "tracked", "empty")
+
+
+@dataclass
+class FrameReport:
+    """What the front end did on its last frame: ``kind`` (:data:`FRAME_KINDS`), the number
+    of ``tracked``, ``guided`` and ``global`` correspondences, ``reason`` a global frame ran
+    (``start``, ``lost``, ``time_reset``, ``few_tracks``, ``tracking_off``), and stage times
+    (s): ``tracking`` (optical flow), ``guided`` (joining a refresh's matches), ``detection``
+    (+ global matching; on global frames only). ``refresh_started``: a background refresh
+    began on this frame."""
+
+    kind: str = "global"
+    tracked: int = 0
+    guided: int = 0
+    global_: int = 0
+    reason: str = ""
+    times: dict = field(default_factory=dict)
+    refresh_started: bool = False
+
+
+@dataclass
+class _Refresh:
+    """A background detection on one frame and what is needed to use its result."""
+
+    index: int
+    gray: np.ndarray
+    pose: tuple  # (R, C, w, t) of that frame's estimate (world -> camera, per unit r)
+    camera: CameraModel
+    result: Any = None
+    done: threading.Event = field(default_factory=threading.Event)
+
+
+class TrackingFeatureFrontend:
+    """Feature front end for a video (see the module doc): same ``process`` as
+    :class:`~rs_localizer.frontends.features.FeatureFrontend`, plus :meth:`observe`.
+
+    Args:
+        feature_map: the map (or a path to its ``.npz``).
+        matcher: global matching: ``flann`` (default for SIFT maps; refused for ORB maps) or
+            ``bf``. flann_checks, ratio, n_features: as ``FeatureFrontend``.
+        tracking: False: every frame global (the per-frame front end, with its matcher).
+        refresh_frames: start a background refresh detection every this many frames (0: only
+            when tracks run low).
+        search_radius_px: guided matching window around each predicted pixel (px).
+        min_tracked_inliers: fewer tracked inliers than this start a refresh.
+        min_points: fewer correspondences than this after tracking: a global frame.
+        max_tracks: at most this many tracks followed per frame (the best spread kept).
+        lk_window, lk_levels: LK window (px) and pyramid levels. fb_max_px: forward-backward
+            error bound (px).
+        reset_gap_s: a frame further than this after the previous one (or before it) resets
+            tracking.
+
+    Raises:
+        ValueError: an unknown ``matcher``, ``flann`` with an ORB map, an empty map, or a
+            parameter out of range.
+    """
+
+    name = "features"
+    takes_stamp = True
+
+    def __init__(
+        self,
+        feature_map: FeatureMap | str | Path,
+        matcher: str | None = None,
+        flann_checks: int = 32,
+        ratio: float = 0.8,
+        n_features: int = 2000,
+        tracking: bool = True,
+        refresh_frames: int = 10,
+        search_radius_px: float = 8.0,
+        min_tracked_inliers: int = 60,
+        min_points: int = 15,
+        max_tracks: int = 800,
+        lk_window: int = 21,
+        lk_levels: int = 3,
+        fb_max_px: float = 1.0,
+        reset_gap_s: float = 0.5,
+    ):
+        if not isinstance(feature_map, FeatureMap):
+            feature_map = FeatureMap.load(feature_map)
+        if len(feature_map) == 0:
+            raise ValueError("the feature map is empty")
+        if matcher is None:
+            matcher = "bf" if feature_map.kind.lower() == "orb" else "flann"
+        if search_radius_px <= 0 or fb_max_px <= 0 or lk_window < 3 or min_points < 4:
+            raise ValueError(
+                "search_radius_px and fb_max_px must be > 0, lk_window >= 3, min_points >= 4"
+            )
+        self.global_frontend = FeatureFrontend(
+            feature_map,
+            ratio=ratio,
+            n_features=n_features,
+            matcher=matcher,
+            flann_checks=flann_checks,
+        )
+        self.map = feature_map
+        self.ratio = float(ratio)
+        self.tracking = bool(tracking)
+        self.refresh_frames = int(refresh_frames)
+        self.search_radius_px = float(search_radius_px)
+        self.min_tracked_inliers = int(min_tracked_inliers)
+        self.min_points = int(min_points)
+        self.max_tracks = int(max_tracks)
+        self.lk = dict(
+            winSize=(int(lk_window), int(lk_window)),
+            maxLevel=int(lk_levels),
+            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03),
+        )
+        self.fb_max_px = float(fb_max_px)
+        self.reset_gap_ns = int(reset_gap_s * 1e9)
+        self._refresh_detector = make_detector(feature_map.kind, n_features)
+        self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
+        self.last_scores = np.zeros(0)
+        self.report = FrameReport()
+        self.counts = {k: 0 for k in FRAME_KINDS}
+        self.relocalizations = 0
+        self.reset()
+
+    @classmethod
+    def from_file(cls, path: str | Path, **kw: Any) -> TrackingFeatureFrontend:
+        return cls(FeatureMap.load(path), **kw)
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        """Forget the tracks, the motion and any refresh in flight (next frame: global)."""
+        self._gray = None  # previous frame
+        self._uv = np.zeros((0, 2), np.float32)  # tracks in the previous frame
+        self._rows = np.zeros(0, np.int64)  # their map rows
+        self._pose = None  # (R, C, w, t) of the previous frame's estimate
+        self._stamp = None
+        self._index = -1
+        self._solved_index = -2
+        self._since_refresh = 0
+        self._pending: _Refresh | None = None
+        self._frames = {}  # index -> gray of recent frames (for joining a refresh)
+        self._out_rows = np.zeros(0, np.int64)
+        self._out_uv = np.zeros((0, 2))
+        self._lost = True
+
+    def _time_reset(self, stamp_ns: int | None) -> bool:
+        if stamp_ns is None or self._stamp is None:
+            return False
+        return stamp_ns < self._stamp or stamp_ns - self._stamp > self.reset_gap_ns
+
+    # ------------------------------------------------------------------ per frame
+    def process(
+        self,
+        image: np.ndarray,
+        camera: CameraModel | None = None,
+        encoding: str = "rgb8",
+        stamp_ns: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Correspondences of one frame: ``(points_px (N, 2) distorted px, points3d (N, 3)
+        world m, landmark ids (N,))``; ``report`` says how they were found. ``stamp_ns``:
+        the frame's capture time (ns), for the motion prediction and time resets."""
+        gray = to_gray(image, encoding)
+        rep = FrameReport(times={})
+        reason = None
+        if not self.tracking:
+            reason = "tracking_off"
+        elif self._time_reset(stamp_ns):
+            reason = "time_reset"
+        elif self._gray is None or self._pose is None:
+            reason = "start"
+        elif self._lost:
+            reason = "lost"
+        elif self._gray.shape != gray.shape:
+            reason = "start"
+        if reason is not None and reason not in ("tracking_off",):
+            self._drop_tracks(keep_refresh=False)
+        self._index += 1
+        uv = np.zeros((0, 2), np.float32)
+        rows = np.zeros(0, np.int64)
+        kinds = np.zeros(0, np.int8)  # 0 tracked, 1 guided
+        if reason is None:
+            t0 = time.perf_counter()
+            uv, rows = self._track(self._gray, gray, self._uv, self._rows)
+            kinds = np.zeros(len(uv), np.int8)
+            rep.times["tracking"] = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            g_uv, g_rows = self._join_refresh(gray)
+            rep.times["guided"] = time.perf_counter() - t0
+            if len(g_uv):  # (a guided match replaces the track of its landmark: re-anchored)
+                lm = self.map.landmark_ids
+                keep = ~np.isin(lm[rows], lm[g_rows])
+                uv, rows, kinds = uv[keep], rows[keep], kinds[keep]
+                uv = np.concatenate([uv, g_uv])
+                rows = np.concatenate([rows, g_rows])
+                kinds = np.concatenate([kinds, np.ones(len(g_uv), np.int8)])
+            if len(uv) < self.min_points:
+                reason = "few_tracks"
+                self._drop_tracks(keep_refresh=False)
+        if reason is not None:
+            t0 = time.perf_counter()
+            g_uv, _, ids = self.global_frontend.process(gray, camera, encoding="mono8")
+            rep.times["detection"] = time.perf_counter() - t0
+            self.last_scores = self.global_frontend.last_scores
+            rep.kind, rep.reason, rep.global_ = "global", reason, len(g_uv)
+            if reason in ("lost", "time_reset", "few_tracks"):
+                self.relocalizations += 1
+            rows = self._rows_of(ids)
+            uv = np.asarray(g_uv, np.float32).reshape(-1, 2)
+            self._since_refresh = 0
+        else:
+            rep.kind = "tracked"
+            rep.tracked = int(np.count_nonzero(kinds == 0))
+            rep.guided = int(np.count_nonzero(kinds == 1))
+            self.last_scores = np.where(kinds == 0, 0.5, 0.4).astype(float)
+            self._since_refresh += 1
+        self.counts[rep.kind] += 1
+        self._gray, self._stamp = gray, stamp_ns if stamp_ns is not None else self._stamp
+        self._frames = {k: v for k, v in self._frames.items() if k >= self._index - 30}
+        self._frames[self._index] = gray
+        self._out_rows, self._out_uv = rows, np.asarray(uv, float)
+        self._lost = True  # until observe() says the frame was solved
+        self.report = rep
+        return (
+            np.asarray(uv, float).reshape(-1, 2),
+            self.map.points[rows].reshape(-1, 3),
+            self.map.landmark_ids[rows],
+        )
+
+    def observe(
+        self, estimate: Any, points2d: np.ndarray | None = None, camera: CameraModel | None = None
+    ) -> None:
+        """The estimator's verdict on the last frame: its inliers are tracked into the next
+        frame, the rest dropped; a failed estimate makes the next frame global.
+
+        Args:
+            estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of the rows the
+                last :meth:`process` returned (``success``, ``inliers`` (N,), ``R``, ``C``,
+                ``w``, ``t``).
+            points2d: (N, 2) px the rows the estimator saw, when the caller removed or
+                reordered rows of the front end's output (matched back by pixel); None: the
+                output as returned.
+            camera: the frame's camera model (needed to start a refresh).
+        """
+        if estimate is None or not getattr(estimate, "success", False):
+            self._drop_tracks(keep_refresh=False)
+            self._lost = True
+            return
+        inl = np.asarray(estimate.inliers, bool)
+        rows, uv = self._out_rows, self._out_uv
+        if points2d is not None and (len(points2d) != len(uv) or not np.array_equal(points2d, uv)):
+            pos = {(float(a), float(b)): k for k, (a, b) in enumerate(uv)}
+            idx = np.array([pos.get((float(a), float(b)), -1) for a, b in points2d], np.int64)
+            keep = (idx >= 0) & inl[: len(idx)]
+            rows, uv = rows[idx[keep]], uv[idx[keep]]
+        elif len(inl) == len(uv):
+            rows, uv = rows[inl], uv[inl]
+        else:
+            rows, uv = rows[:0], uv[:0]
+        self._uv = np.asarray(uv, np.float32).reshape(-1, 2)
+        self._rows = rows
+        self._pose = (
+            np.asarray(estimate.R, float),
+            np.asarray(estimate.C, float),
+            np.asarray(estimate.w, float),
+            np.asarray(estimate.t, float),
+        )
+        self._lost = False
+        self._solved_index = self._index
+        if not self.tracking or camera is None:
+            return
+        low = len(rows) < self.min_tracked_inliers
+        due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
+        if (low or due) and self._pending is None:
+            self._start_refresh(camera)
+
+    # ------------------------------------------------------------------ internals
+    def _rows_of(self, ids: np.ndarray) -> np.ndarray:
+        """Map rows of landmark ids (the first row of each id)."""
+        if not hasattr(self, "_id_order"):
+            lm = self.map.landmark_ids
+            self._id_order = np.argsort(lm, kind="stable")
+            self._id_sorted = lm[self._id_order]
+        j = np.searchsorted(self._id_sorted, np.asarray(ids, np.int64))
+        return self._id_order[np.clip(j, 0, len(self._id_order) - 1)]
+
+    def _drop_tracks(self, keep_refresh: bool) -> None:
+        self._uv = np.zeros((0, 2), np.float32)
+        self._rows = np.zeros(0, np.int64)
+        self._pose = None
+        if not keep_refresh:
+            self._pending = None
+
+    def _track(
+        self, prev: np.ndarray, gray: np.ndarray, uv: np.ndarray, rows: np.ndarray, cap=True
+    ):
+        """LK tracks ``uv`` (K, 2) of ``prev`` into ``gray`` with the forward-backward check
+        (at most ``max_tracks`` of them with ``cap``); returns the surviving
+        ``(uv (K', 2) float32, rows (K',))``."""
+        if len(uv) == 0:
+            return uv, rows
+        if cap and len(uv) > self.max_tracks:  # (spread: a random subset, reproducible)
+            keep = np.random.default_rng(len(uv)).choice(len(uv), self.max_tracks, replace=False)
+            uv, rows = uv[np.sort(keep)], rows[np.sort(keep)]
+        p0 = np.ascontiguousarray(uv, np.float32).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, **self.lk)
+        if p1 is None:
+            return uv[:0], rows[:0]
+        p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(gray, prev, p1, None, **self.lk)
+        fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
+        p1 = p1.reshape(-1, 2)
+        h, w = gray.shape[:2]
+        ok = (
+            (st.ravel() == 1)
+            & (st_b.ravel() == 1)
+            & (fb < self.fb_max_px)
+            & (p1[:, 0] >= 0)
+            & (p1[:, 1] >= 0)
+            & (p1[:, 0] <= w - 1)
+            & (p1[:, 1] <= h - 1)
+        )
+        return p1[ok], rows[ok]
+
+    def _start_refresh(self, camera: CameraModel) -> None:
+        """Detect on the last frame in a background thread (OpenCV releases the GIL)."""
+        job = _Refresh(self._index, self._gray, self._pose, camera)
+        self._pending = job
+        self.report.refresh_started = True
+        det = self._refresh_detector
+
+        def run():
+            try:
+                job.result = det.detectAndCompute(job.gray, None)
+            except cv2.error:
+                job.result = ((), None)
+            job.done.set()
+
+        threading.Thread(target=run, name="tracking-refresh", daemon=True).start()
+        self._since_refresh = 0
+
+    def _join_refresh(self, gray: np.ndarray):
+        """A finished refresh: guided matching in its frame, then LK into this one.
+
+        Returns ``(uv (G, 2) float32, rows (G,))``."""
+        job = self._pending
+        empty = np.zeros((0, 2), np.float32), np.zeros(0, np.int64)
+        if job is None or not job.done.is_set():
+            return empty
+        self._pending = None
+        src = self._frames.get(job.index)
+        kps, des = job.result
+        if src is None or des is None or not len(kps):
+            return empty
+        uv_k, rows = self._guided(job, np.array([k.pt for k in kps], float), des)
+        if len(uv_k) == 0:
+            return empty
+        return self._track(src, gray, uv_k.astype(np.float32), rows, cap=False)
+
+    def _local_rows(self, pose: tuple, camera: CameraModel) -> np.ndarray:
+        """Map rows in front of the camera and inside the image (global-shutter projection
+        of the pose, 10 % margin)."""
+        R, C = pose[0], pose[1]
+        Xc = self.map.points @ R.T + C
+        z = Xc[:, 2]
+        ok = z > 0.05
+        x = np.where(ok, Xc[:, 0] / np.where(ok, z, 1), 1e9)
+        y = np.where(ok, Xc[:, 1] / np.where(ok, z, 1), 1e9)
+        K = camera.K
+        u, v = K[0, 0] * x + K[0, 2], K[1, 1] * y + K[1, 2]
+        mw, mh = 0.1 * camera.width, 0.1 * camera.height
+        ok &= (u > -mw) & (u < camera.width + mw) & (v > -mh) & (v < camera.height + mh)
+        return np.flatnonzero(ok)
+
+    def _guided(self, job: _Refresh, kp_uv: np.ndarray, des: np.ndarray):
+        """Match the refresh frame's keypoints ``kp_uv`` (K, 2), ``des`` (K, D) to the map
+        points predicted in view by that frame's RS pose and twist, within
+        ``search_radius_px`` (distance and ratio tests, one keypoint per landmark)."""
+        from scipy.spatial import cKDTree
+
+        empty = np.zeros((0, 2)), np.zeros(0, np.int64)
+        rows = self._local_rows(job.pose, job.camera)
+        if len(rows) == 0:
+            return empty
+        R, C, w, t = job.pose
+        pred = job.camera.project_rs(self.map.points[rows], R, C, w, t, iterations=5)
+        ok = np.isfinite(pred).all(axis=1)
+        ok &= (pred[:, 0] >= 0) & (pred[:, 1] >= 0)
+        ok &= (pred[:, 0] <= job.camera.width - 1) & (pred[:, 1] <= job.camera.height - 1)
+        rows, pred = rows[ok], pred[ok]
+        if len(rows) == 0:
+            return empty
+        tree = cKDTree(kp_uv)
+        near = tree.query_ball_point(pred, self.search_radius_px)
+        pr = np.repeat(np.arange(len(rows)), [len(n) for n in near])
+        kq = np.fromiter((k for n in near for k in n), np.int64, count=len(pr))
+        if len(pr) == 0:
+            return empty
+        md = self.map.descriptors[rows[pr]]
+        if self._norm == cv2.NORM_HAMMING:
+            bits = np.unpackbits(np.bitwise_xor(md, des[kq]), axis=1)
+            dist = bits.sum(axis=1).astype(float)
+        else:
+            dist = np.linalg.norm(md.astype(np.float32) - des[kq].astype(np.float32), axis=1)
+        # per map point: best and second-best keypoint in its window
+        order = np.lexsort((dist, pr))
+        pr, kq, dist = pr[order], kq[order], dist[order]
+        first = np.r_[True, pr[1:] != pr[:-1]]
+        best = np.flatnonzero(first)
+        nxt = best + 1
+        has2 = (nxt < len(pr)) & (nxt < len(pr)) & np.r_[pr[1:] == pr[:-1], False][best]
+        second = np.full(len(best), np.inf)
+        second[has2] = dist[nxt[has2]]
+        # an absolute bound too: the map's matches are rarely farther (SIFT L2 of unit*512)
+        max_dist = 64.0 if self._norm == cv2.NORM_HAMMING else 300.0
+        good = (dist[best] < self.ratio * second) & (dist[best] < max_dist)
+        p, k, d = pr[best][good], kq[best][good], dist[best][good]
+        # one map point per keypoint: the closest descriptor wins
+        o = np.lexsort((d, k))
+        p, k = p[o], k[o]
+        uniq = np.r_[True, k[1:] != k[:-1]]
+        p, k = p[uniq], k[uniq]
+        return kp_uv[k], rows[p]
