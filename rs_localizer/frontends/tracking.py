@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,8 +50,8 @@ from .features import FeatureFrontend, FeatureMap, make_detector
 __all__ = ["FRAME_KINDS", "FrameReport", "TrackingFeatureFrontend"]
 
 #: kinds of frame: ``global`` (full detection + global matching), ``tracked`` (tracks and
-#: guided matches only), ``empty`` (no texture: no keypoint at all)
-FRAME_KINDS = ("global", "tracked", "empty")
+#: guided matches only)
+FRAME_KINDS = ("global", "tracked")
 
 
 @dataclass
@@ -166,6 +167,8 @@ class TrackingFeatureFrontend:
         self.last_scores = np.zeros(0)
         self.report = FrameReport()
         self.counts = {k: 0 for k in FRAME_KINDS}
+        self._totals = {"tracked": 0, "guided": 0, "global": 0}
+        self._times = {k: deque(maxlen=1000) for k in FRAME_KINDS}
         self.relocalizations = 0
         self.reset()
 
@@ -206,6 +209,7 @@ class TrackingFeatureFrontend:
         """Correspondences of one frame: ``(points_px (N, 2) distorted px, points3d (N, 3)
         world m, landmark ids (N,))``; ``report`` says how they were found. ``stamp_ns``:
         the frame's capture time (ns), for the motion prediction and time resets."""
+        t_start = time.perf_counter()
         gray = to_gray(image, encoding)
         rep = FrameReport(times={})
         reason = None
@@ -213,11 +217,11 @@ class TrackingFeatureFrontend:
             reason = "tracking_off"
         elif self._time_reset(stamp_ns):
             reason = "time_reset"
-        elif self._gray is None or self._pose is None:
+        elif self._gray is None:
             reason = "start"
         elif self._lost:
             reason = "lost"
-        elif self._gray.shape != gray.shape:
+        elif self._pose is None or self._gray.shape != gray.shape:
             reason = "start"
         if reason is not None and reason not in ("tracking_off",):
             self._drop_tracks(keep_refresh=False)
@@ -261,6 +265,10 @@ class TrackingFeatureFrontend:
             self.last_scores = np.where(kinds == 0, 0.5, 0.4).astype(float)
             self._since_refresh += 1
         self.counts[rep.kind] += 1
+        self._totals["tracked"] += rep.tracked
+        self._totals["guided"] += rep.guided
+        self._totals["global"] += rep.global_
+        self._times[rep.kind].append(time.perf_counter() - t_start)
         self._gray, self._stamp = gray, stamp_ns if stamp_ns is not None else self._stamp
         self._frames = {k: v for k, v in self._frames.items() if k >= self._index - 30}
         self._frames[self._index] = gray
@@ -319,6 +327,28 @@ class TrackingFeatureFrontend:
         due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
         if (low or due) and self._pending is None:
             self._start_refresh(camera)
+
+    def wait_refresh(self, timeout: float | None = None) -> bool:
+        """Block until the background refresh in flight (if any) has detected (offline runs
+        that want the same result on every run). Returns False on timeout."""
+        job = self._pending
+        return True if job is None else job.done.wait(timeout)
+
+    def summary(self) -> dict:
+        """Counters since start: frames per kind (``frontend_frames_<kind>``),
+        ``frontend_relocalizations`` (global frames after tracking was lost or reset), mean
+        correspondences per kind (tracked and guided over tracked frames, global over global
+        frames) and median front-end time per frame kind (ms; ``nan`` before one)."""
+        out = {f"frontend_frames_{k}": n for k, n in self.counts.items()}
+        out["frontend_relocalizations"] = self.relocalizations
+        n_tr, n_gl = max(self.counts["tracked"], 1), max(self.counts["global"], 1)
+        out["frontend_correspondences_tracked_mean"] = f"{self._totals['tracked'] / n_tr:.1f}"
+        out["frontend_correspondences_guided_mean"] = f"{self._totals['guided'] / n_tr:.1f}"
+        out["frontend_correspondences_global_mean"] = f"{self._totals['global'] / n_gl:.1f}"
+        for k in ("tracked", "global"):
+            t = self._times[k]
+            out[f"frontend_ms_median_{k}"] = f"{np.median(t) * 1e3:.3f}" if t else "nan"
+        return out
 
     # ------------------------------------------------------------------ internals
     def _rows_of(self, ids: np.ndarray) -> np.ndarray:

@@ -475,6 +475,52 @@ PARAMETERS = {
         None,
         False,
     ),
+    "features.tracking": (
+        True,
+        "features front end on video: track the last frame's inliers (optical flow) and match "
+        "map points near their predicted pixels; full detection + global matching only to "
+        "(re)localize. false: full detection and global matching on every image",
+        None,
+        True,
+    ),
+    "features.matcher": (
+        "auto",
+        "global matching of the features front end: auto (flann for SIFT maps, bf for ORB "
+        "maps), bf (exact brute force) or flann (approximate; SIFT maps only)",
+        None,
+        True,
+    ),
+    "features.flann_checks": (
+        32,
+        "leaves FLANN visits per query (more: closer to brute force, slower)",
+        IntRange(from_value=1, to_value=4096),
+        True,
+    ),
+    "features.max_features": (
+        2000,
+        "features detected per image on global and refresh frames",
+        IntRange(from_value=10, to_value=100_000),
+        True,
+    ),
+    "features.refresh_frames": (
+        10,
+        "with tracking: a background detection refreshes the tracks every this many frames "
+        "(0: only when they run low)",
+        IntRange(from_value=0, to_value=10_000),
+        True,
+    ),
+    "features.search_radius_px": (
+        8.0,
+        "px; guided matching window around each map point's predicted pixel",
+        FloatRange(from_value=1.0, to_value=200.0),
+        True,
+    ),
+    "features.min_tracked_inliers": (
+        60,
+        "with tracking: fewer tracked inliers than this start a refresh detection",
+        IntRange(from_value=0, to_value=100_000),
+        True,
+    ),
 }
 
 #: values of the ``frontend`` parameter
@@ -783,6 +829,26 @@ class LocalizerConfig:
         )
 
 
+def _frontend_options(kind: str, p) -> dict:
+    """Keyword arguments of the front end ``kind`` from the ``features.*`` parameters."""
+    if kind != "features":
+        return {}
+    matcher = str(p["features.matcher"]).strip().lower()
+    if matcher not in ("auto", "bf", "flann"):
+        raise ConfigError(
+            f"unknown features.matcher {p['features.matcher']!r}; expected auto, bf or flann"
+        )
+    return {
+        "tracking": bool(p["features.tracking"]),
+        "matcher": None if matcher == "auto" else matcher,
+        "flann_checks": int(p["features.flann_checks"]),
+        "n_features": int(p["features.max_features"]),
+        "refresh_frames": int(p["features.refresh_frames"]),
+        "search_radius_px": float(p["features.search_radius_px"]),
+        "min_tracked_inliers": int(p["features.min_tracked_inliers"]),
+    }
+
+
 def _frontend_needs(kind: str) -> str:
     if kind == "aruco":
         return "marker map YAML, scene YAML or aruco_room)"
@@ -918,7 +984,9 @@ def build_config(
                 if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
                     check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
                 # (the map is loaded once per process and shared by cameras naming it)
-                frontend = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap), owner=owner)
+                frontend = SHARED_MAPS.frontend(
+                    kind, os.path.expanduser(fmap), owner=owner, **_frontend_options(kind, p)
+                )
             except Exception as e:
                 raise ConfigError(
                     f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"

@@ -618,6 +618,8 @@ class FramePipeline:
                 self.stats.add("frames_with_gyro")
             self._update_gyro_checks(est, out_stamp, new_track, cfg)
             res.estimate = est
+            if kind == "image" and hasattr(cfg.frontend, "observe"):  # (what to track next)
+                cfg.frontend.observe(est, uv, camera)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)
                 raise _Drop(
@@ -787,7 +789,8 @@ class FramePipeline:
         res.image = (img, enc, stamp)
         t0 = time.perf_counter()
         try:
-            uv, xyz, ids = fe.process(img, camera, encoding=enc)
+            kw = {"stamp_ns": stamp} if getattr(fe, "takes_stamp", False) else {}
+            uv, xyz, ids = fe.process(img, camera, encoding=enc, **kw)
         except Exception as e:
             raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
         res.times["frontend"] = time.perf_counter() - t0
