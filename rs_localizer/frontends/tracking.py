@@ -44,6 +44,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from ..geometry import rotvec_to_matrix
 from .aruco import to_gray
 from .features import FeatureFrontend, FeatureMap, make_detector
 
@@ -124,9 +125,9 @@ class TrackingFeatureFrontend:
         search_radius_px: float = 8.0,
         min_tracked_inliers: int = 60,
         min_points: int = 15,
-        max_tracks: int = 800,
-        lk_window: int = 21,
-        lk_levels: int = 3,
+        max_tracks: int = 500,
+        lk_window: int = 15,
+        lk_levels: int = 2,
         fb_max_px: float = 1.0,
         reset_gap_s: float = 0.5,
     ):
@@ -183,6 +184,7 @@ class TrackingFeatureFrontend:
         self._uv = np.zeros((0, 2), np.float32)  # tracks in the previous frame
         self._rows = np.zeros(0, np.int64)  # their map rows
         self._pose = None  # (R, C, w, t) of the previous frame's estimate
+        self._camera = None
         self._stamp = None
         self._index = -1
         self._solved_index = -2
@@ -231,11 +233,12 @@ class TrackingFeatureFrontend:
         kinds = np.zeros(0, np.int8)  # 0 tracked, 1 guided
         if reason is None:
             t0 = time.perf_counter()
-            uv, rows = self._track(self._gray, gray, self._uv, self._rows)
+            guess = self._predict(self._rows, stamp_ns)
+            uv, rows = self._track(self._gray, gray, self._uv, self._rows, guess=guess)
             kinds = np.zeros(len(uv), np.int8)
             rep.times["tracking"] = time.perf_counter() - t0
             t0 = time.perf_counter()
-            g_uv, g_rows = self._join_refresh(gray)
+            g_uv, g_rows = self._join_refresh(gray, stamp_ns)
             rep.times["guided"] = time.perf_counter() - t0
             if len(g_uv):  # (a guided match replaces the track of its landmark: re-anchored)
                 lm = self.map.landmark_ids
@@ -313,6 +316,7 @@ class TrackingFeatureFrontend:
             rows, uv = rows[:0], uv[:0]
         self._uv = np.asarray(uv, np.float32).reshape(-1, 2)
         self._rows = rows
+        self._camera = camera
         self._pose = (
             np.asarray(estimate.R, float),
             np.asarray(estimate.C, float),
@@ -367,19 +371,51 @@ class TrackingFeatureFrontend:
         if not keep_refresh:
             self._pending = None
 
+    def _predict(self, rows: np.ndarray, stamp_ns: int | None) -> np.ndarray | None:
+        """(K, 2) px: where the map points ``rows`` land in the next frame under the last
+        frame's pose and twist held constant over ``stamp_ns`` - the last stamp (each point
+        at its own capture line, :meth:`CameraModel.project_rs`); None without a motion or
+        a rolling-shutter timing."""
+        cam = self._camera
+        if self._pose is None or cam is None or stamp_ns is None or self._stamp is None:
+            return None
+        if cam.seconds_per_unit_r <= 0 or len(rows) == 0:
+            return None
+        R, C, w, t = self._pose
+        dT = (stamp_ns - self._stamp) * 1e-9 / cam.seconds_per_unit_r  # (RS units)
+        Rp = rotvec_to_matrix(dT * w) @ R
+        uv = cam.project_rs(self.map.points[rows], Rp, C + dT * t, w, t, iterations=4)
+        return uv if np.isfinite(uv).all() else None
+
     def _track(
-        self, prev: np.ndarray, gray: np.ndarray, uv: np.ndarray, rows: np.ndarray, cap=True
+        self,
+        prev: np.ndarray,
+        gray: np.ndarray,
+        uv: np.ndarray,
+        rows: np.ndarray,
+        cap: bool = True,
+        guess: np.ndarray | None = None,
     ):
         """LK tracks ``uv`` (K, 2) of ``prev`` into ``gray`` with the forward-backward check
-        (at most ``max_tracks`` of them with ``cap``); returns the surviving
-        ``(uv (K', 2) float32, rows (K',))``."""
+        (at most ``max_tracks`` of them with ``cap``), starting from ``guess`` (K, 2) px (the
+        motion model's prediction) when given; returns the surviving ``(uv (K', 2) float32,
+        rows (K',))``."""
         if len(uv) == 0:
             return uv, rows
         if cap and len(uv) > self.max_tracks:  # (spread: a random subset, reproducible)
-            keep = np.random.default_rng(len(uv)).choice(len(uv), self.max_tracks, replace=False)
-            uv, rows = uv[np.sort(keep)], rows[np.sort(keep)]
+            keep = np.sort(
+                np.random.default_rng(len(uv)).choice(len(uv), self.max_tracks, replace=False)
+            )
+            uv, rows = uv[keep], rows[keep]
+            guess = None if guess is None else guess[keep]
         p0 = np.ascontiguousarray(uv, np.float32).reshape(-1, 1, 2)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, **self.lk)
+        if guess is not None:
+            p1 = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(
+                prev, gray, p0, p1, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self.lk
+            )
+        else:
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, **self.lk)
         if p1 is None:
             return uv[:0], rows[:0]
         p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(gray, prev, p1, None, **self.lk)
@@ -414,7 +450,7 @@ class TrackingFeatureFrontend:
         threading.Thread(target=run, name="tracking-refresh", daemon=True).start()
         self._since_refresh = 0
 
-    def _join_refresh(self, gray: np.ndarray):
+    def _join_refresh(self, gray: np.ndarray, stamp_ns: int | None):
         """A finished refresh: guided matching in its frame, then LK into this one.
 
         Returns ``(uv (G, 2) float32, rows (G,))``."""
@@ -430,7 +466,8 @@ class TrackingFeatureFrontend:
         uv_k, rows = self._guided(job, np.array([k.pt for k in kps], float), des)
         if len(uv_k) == 0:
             return empty
-        return self._track(src, gray, uv_k.astype(np.float32), rows, cap=False)
+        guess = self._predict(rows, stamp_ns)  # (the refresh frame may be a few frames back)
+        return self._track(src, gray, uv_k.astype(np.float32), rows, cap=False, guess=guess)
 
     def _local_rows(self, pose: tuple, camera: CameraModel) -> np.ndarray:
         """Map rows in front of the camera and inside the image (global-shutter projection
