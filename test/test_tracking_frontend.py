@@ -90,4 +90,4 @@ def test_bad_maps_are_refused(video):
     orb = FeatureMap(fmap.points[:10], np.zeros((10, 32), np.uint8), fmap.landmark_ids[:10])
     with pytest.raises(ValueError, match="flann"):
         TrackingFeatureFrontend(orb, matcher="flann")
-    assert TrackingFeatureFrontend(orb).global_frontend.matcher_name == "bf"  # auto
+    assert TrackingFeatureFrontend(orb).matcher_name == "bf"  # auto

@@ -69,7 +69,8 @@ def run_video(fm: FeatureMap, frames: list, camera, tracking: bool, **kw) -> dic
     entries are blanked: a black image) in order. Returns per-frame arrays: ``kind`` (str),
     ``tracked``/``guided``/``global`` correspondences, times (s) ``tracking``, ``guided``,
     ``detection``, ``estimation``, ``frontend`` (all of the front end), ``rot`` (deg) and
-    ``pos`` (m) errors (NaN: not posed), ``blank`` (bool)."""
+    ``pos`` (m) errors (NaN: not posed), ``blank`` (bool), ``waited`` (bool: the frame waited
+    for a late refresh)."""
     fe = TrackingFeatureFrontend(fm, tracking=tracking, **kw)
     out = {
         k: []
@@ -86,6 +87,7 @@ def run_video(fm: FeatureMap, frames: list, camera, tracking: bool, **kw) -> dic
             "rot",
             "pos",
             "blank",
+            "waited",
         )
     }
     for f, blank in frames:
@@ -111,6 +113,7 @@ def run_video(fm: FeatureMap, frames: list, camera, tracking: bool, **kw) -> dic
         out["rot"].append(rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan)
         out["pos"].append(float(np.linalg.norm(est.position - f.position)) if ok else np.nan)
         out["blank"].append(bool(blank))
+        out["waited"].append(rep.refresh_waited)
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -210,7 +213,8 @@ def main(argv: list | None = None) -> int:
             print(
                 f"{'':19s} tracked frames fe+est {_ms(total[tr])}; global frames "
                 f"{_ms(total[~tr])}; first/last 50 frames {np.nanmedian(r['rot'][:50]):.4f}/"
-                f"{np.nanmedian(r['rot'][-50:]):.4f} deg"
+                f"{np.nanmedian(r['rot'][-50:]):.4f} deg; {int(r['waited'].sum())} frames "
+                "waited for a refresh"
                 + (
                     f"; posed again {_refound(r)} frames after the blank"
                     if r["blank"].any()

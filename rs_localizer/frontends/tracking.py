@@ -62,7 +62,8 @@ class FrameReport:
     (``start``, ``lost``, ``time_reset``, ``few_tracks``, ``tracking_off``), and stage times
     (s): ``tracking`` (optical flow), ``guided`` (joining a refresh's matches), ``detection``
     (+ global matching; on global frames only). ``refresh_started``: a background refresh
-    began on this frame."""
+    began on this frame; ``refresh_waited``: this frame waited for a refresh (see
+    ``refresh_wait_frames``)."""
 
     kind: str = "global"
     tracked: int = 0
@@ -71,6 +72,7 @@ class FrameReport:
     reason: str = ""
     times: dict = field(default_factory=dict)
     refresh_started: bool = False
+    refresh_waited: bool = False
 
 
 @dataclass
@@ -85,9 +87,10 @@ class _Refresh:
     done: threading.Event = field(default_factory=threading.Event)
 
 
-class TrackingFeatureFrontend:
-    """Feature front end for a video (see the module doc): same ``process`` as
-    :class:`~rs_localizer.frontends.features.FeatureFrontend`, plus :meth:`observe`.
+class TrackingFeatureFrontend(FeatureFrontend):
+    """Feature front end for a video (see the module doc): a
+    :class:`~rs_localizer.frontends.features.FeatureFrontend` (its global matching) whose
+    ``process`` tracks, plus :meth:`observe`.
 
     Args:
         feature_map: the map (or a path to its ``.npz``).
@@ -104,6 +107,10 @@ class TrackingFeatureFrontend:
             error bound (px).
         reset_gap_s: a frame further than this after the previous one (or before it) resets
             tracking.
+        refresh_wait_frames: a refresh still running this many frames after it started,
+            while fewer than ``min_tracked_inliers`` tracks remain, is waited for (a CPU too
+            busy to detect within a few frame periods: the frame waits rather than the tracks
+            thin out and drift). Default ``max(2 * refresh_frames, 10)``.
 
     Raises:
         ValueError: an unknown ``matcher``, ``flann`` with an ORB map, an empty map, or a
@@ -123,13 +130,14 @@ class TrackingFeatureFrontend:
         tracking: bool = True,
         refresh_frames: int = 10,
         search_radius_px: float = 8.0,
-        min_tracked_inliers: int = 60,
+        min_tracked_inliers: int = 150,
         min_points: int = 15,
         max_tracks: int = 500,
         lk_window: int = 15,
         lk_levels: int = 2,
         fb_max_px: float = 1.0,
         reset_gap_s: float = 0.5,
+        refresh_wait_frames: int | None = None,
     ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
@@ -141,17 +149,20 @@ class TrackingFeatureFrontend:
             raise ValueError(
                 "search_radius_px and fb_max_px must be > 0, lk_window >= 3, min_points >= 4"
             )
-        self.global_frontend = FeatureFrontend(
+        super().__init__(
             feature_map,
             ratio=ratio,
             n_features=n_features,
             matcher=matcher,
             flann_checks=flann_checks,
         )
-        self.map = feature_map
-        self.ratio = float(ratio)
         self.tracking = bool(tracking)
         self.refresh_frames = int(refresh_frames)
+        self.refresh_wait_frames = (
+            max(2 * self.refresh_frames, 10)
+            if refresh_wait_frames is None
+            else int(refresh_wait_frames)
+        )
         self.search_radius_px = float(search_radius_px)
         self.min_tracked_inliers = int(min_tracked_inliers)
         self.min_points = int(min_points)
@@ -165,7 +176,6 @@ class TrackingFeatureFrontend:
         self.reset_gap_ns = int(reset_gap_s * 1e9)
         self._refresh_detector = make_detector(feature_map.kind, n_features)
         self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
-        self.last_scores = np.zeros(0)
         self.report = FrameReport()
         self.counts = {k: 0 for k in FRAME_KINDS}
         self._totals = {"tracked": 0, "guided": 0, "global": 0}
@@ -238,6 +248,14 @@ class TrackingFeatureFrontend:
             kinds = np.zeros(len(uv), np.int8)
             rep.times["tracking"] = time.perf_counter() - t0
             t0 = time.perf_counter()
+            job = self._pending
+            if (
+                job is not None
+                and self._index - job.index > self.refresh_wait_frames
+                and len(uv) < self.min_tracked_inliers
+            ):  # (a CPU too busy to finish the refresh in time: wait rather than drift)
+                job.done.wait()
+                rep.refresh_waited = True
             g_uv, g_rows = self._join_refresh(gray, stamp_ns)
             rep.times["guided"] = time.perf_counter() - t0
             if len(g_uv):  # (a guided match replaces the track of its landmark: re-anchored)
@@ -252,9 +270,8 @@ class TrackingFeatureFrontend:
                 self._drop_tracks(keep_refresh=False)
         if reason is not None:
             t0 = time.perf_counter()
-            g_uv, _, ids = self.global_frontend.process(gray, camera, encoding="mono8")
+            g_uv, _, ids = FeatureFrontend.process(self, gray, camera, encoding="mono8")
             rep.times["detection"] = time.perf_counter() - t0
-            self.last_scores = self.global_frontend.last_scores
             rep.kind, rep.reason, rep.global_ = "global", reason, len(g_uv)
             if reason in ("lost", "time_reset", "few_tracks"):
                 self.relocalizations += 1
@@ -447,7 +464,8 @@ class TrackingFeatureFrontend:
                 job.result = ((), None)
             job.done.set()
 
-        threading.Thread(target=run, name="tracking-refresh", daemon=True).start()
+        # (not a daemon: a detection still running at exit is finished, not killed in OpenCV)
+        threading.Thread(target=run, name="tracking-refresh").start()
         self._since_refresh = 0
 
     def _join_refresh(self, gray: np.ndarray, stamp_ns: int | None):

@@ -516,7 +516,7 @@ PARAMETERS = {
         True,
     ),
     "features.min_tracked_inliers": (
-        60,
+        150,
         "with tracking: fewer tracked inliers than this start a refresh detection",
         IntRange(from_value=0, to_value=100_000),
         True,

@@ -152,8 +152,10 @@ def play(
             ``PlayResult.timeouts`` and reported through ``log``.
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``.
         wait_subscribers: seconds to wait until every frame topic has a subscriber.
-        reliable: publish with reliable QoS (depth 10); else best effort. Images always go
-            out with the sensor-data QoS (best effort, depth 5) of camera drivers.
+        reliable: publish with reliable QoS (depth 10); else best effort. Images go out with
+            the sensor-data QoS (best effort, depth 5) of camera drivers, or as ``reliable``
+            says when a subscriber asks for reliable images (which a best-effort publisher
+            does not match).
         context: an ``rclpy.Context`` (initialized here if needed and shut down at the end if
             it was created here). domain_id: ROS domain for a context created here.
         limit: stop after this many frames. loop: play the bag this many times (frame stamps
@@ -245,9 +247,26 @@ def play(
                 return bool(ns - ok)
             return any(pubs[t].get_subscription_count() == 0 for t in frame_topics)
 
+        reliable_images = set()
+
+        def match_reliable_image_readers():
+            # a subscriber asking for reliable images (a QoS override) does not match the
+            # sensor-data publisher: publish that topic reliable (it matches both kinds)
+            for t in frame_topics:
+                if types[t] not in (IMAGE, COMPRESSED_IMAGE) or t in reliable_images:
+                    continue
+                if pubs[t].get_subscription_count():
+                    continue
+                infos = node.get_subscriptions_info_by_topic(remap.get(t, t))
+                if any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos):
+                    node.destroy_publisher(pubs[t])
+                    pubs[t] = node.create_publisher(_msg_class(types[t]), remap.get(t, t), qos)
+                    reliable_images.add(t)
+
         while unmatched() or (
             lockstep and any(node.count_publishers(t) == 0 for t in output_topics)
         ):
+            match_reliable_image_readers()
             if time.monotonic() > deadline:
                 missing = [
                     remap.get(t, t) for t in frame_topics if pubs[t].get_subscription_count() == 0
