@@ -174,7 +174,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         )
         self.fb_max_px = float(fb_max_px)
         self.reset_gap_ns = int(reset_gap_s * 1e9)
-        self._refresh_detector = make_detector(feature_map.kind, n_features)
+        self._n_features = int(n_features)
         self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
         self.report = FrameReport()
         self.counts = {k: 0 for k in FRAME_KINDS}
@@ -455,7 +455,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         job = _Refresh(self._index, self._gray, self._pose, camera)
         self._pending = job
         self.report.refresh_started = True
-        det = self._refresh_detector
+        # (a detector per job: a dropped job's thread may still be running)
+        det = make_detector(self.map.kind, self._n_features)
 
         def run():
             try:
