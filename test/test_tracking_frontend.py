@@ -91,3 +91,27 @@ def test_bad_maps_are_refused(video):
     with pytest.raises(ValueError, match="flann"):
         TrackingFeatureFrontend(orb, matcher="flann")
     assert TrackingFeatureFrontend(orb).matcher_name == "bf"  # auto
+
+
+def test_replay_of_a_rendered_video_tracks(tmp_path):
+    """The node's pipeline (offline replay, the node's default features parameters) on a
+    640x480 RGB render: every frame posed, all but the first served by tracking (the
+    pipeline feeds each estimate back to the front end), errors small against the truth."""
+    pytest.importorskip("rosbags")
+    from rs_localizer.cli import main as cli
+    from rs_localizer.ros.replay import replay
+
+    bag = tmp_path / "video"
+    args = ["render-bag", str(bag), "--scene", "textured_room", "--frontend", "features"]
+    assert cli(args + ["--frames", "8"]) == 0
+    res = replay(
+        bag,
+        params={"frontend": "features", "frontend_map": str(bag / "feature_map.npz")},
+        source="image",
+        progress=None,
+    )
+    fe = res.config.frontend
+    assert isinstance(fe, TrackingFeatureFrontend)
+    assert res.solved == len(res.rows) == 8
+    assert fe.counts == {"global": 1, "tracked": 7}
+    assert res.summary["rot_deg"]["median"] < 0.1, res.summary
