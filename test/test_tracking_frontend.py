@@ -91,6 +91,9 @@ def test_bad_maps_are_refused(video):
     with pytest.raises(ValueError, match="flann"):
         TrackingFeatureFrontend(orb, matcher="flann")
     assert TrackingFeatureFrontend(orb).matcher_name == "bf"  # auto
+    wrong = FeatureMap(fmap.points, fmap.descriptors[:, :64], fmap.landmark_ids, "sift")
+    with pytest.raises(ValueError, match="128"):
+        TrackingFeatureFrontend(wrong)
 
 
 def test_replay_of_a_rendered_video_tracks(tmp_path):

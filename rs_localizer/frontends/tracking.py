@@ -113,8 +113,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
             thin out and drift). Default ``max(2 * refresh_frames, 10)``.
 
     Raises:
-        ValueError: an unknown ``matcher``, ``flann`` with an ORB map, an empty map, or a
-            parameter out of range.
+        ValueError: an unknown ``matcher``, ``flann`` with an ORB map, an empty map,
+            descriptors of another type or width than the map's detector gives (uint8 x 32
+            for ORB, float32 x 128 for SIFT), or a parameter out of range.
     """
 
     name = "features"
@@ -143,6 +144,13 @@ class TrackingFeatureFrontend(FeatureFrontend):
             feature_map = FeatureMap.load(feature_map)
         if len(feature_map) == 0:
             raise ValueError("the feature map is empty")
+        want = (np.uint8, 32) if feature_map.kind.lower() == "orb" else (np.float32, 128)
+        des = np.asarray(feature_map.descriptors)
+        if des.ndim != 2 or des.shape[1] != want[1] or not np.can_cast(des.dtype, want[0]):
+            raise ValueError(
+                f"the feature map's descriptors are {des.dtype} with shape {des.shape}; a "
+                f"{feature_map.kind} map needs {np.dtype(want[0])} rows of {want[1]} values"
+            )
         if matcher is None:
             matcher = "bf" if feature_map.kind.lower() == "orb" else "flann"
         if search_radius_px <= 0 or fb_max_px <= 0 or lk_window < 3 or min_points < 4:
