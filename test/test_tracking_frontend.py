@@ -40,7 +40,7 @@ def _run(fe, frames, camera, blank=(), shift_ns=None):
         stamp = int(f.t_first * 1e9) + (shift_ns[1] if shift_ns and k >= shift_ns[0] else 0)
         uv, X, _ = fe.process(img, camera, stamp_ns=stamp)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
-        fe.observe(est, None, camera)
+        fe.observe(stamp, None, est)
         fe.wait_refresh(60.0)
         ok = est is not None and est.success
         err = rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan

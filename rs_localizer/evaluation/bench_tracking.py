@@ -98,7 +98,7 @@ def run_video(fm: FeatureMap, frames: list, camera, tracking: bool, **kw) -> dic
         t1 = time.perf_counter()
         est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 6 else None
         t2 = time.perf_counter()
-        fe.observe(est, None, camera)
+        fe.observe(stamp, None, est)
         rep = fe.report
         out["kind"].append(rep.kind)
         out["tracked"].append(rep.tracked)

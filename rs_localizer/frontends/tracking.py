@@ -26,6 +26,7 @@ The estimator stays the judge: every pose comes from a full rolling-shutter esti
 correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end the frame's
 estimate, and only its inliers are tracked further (tracked outliers are dropped). Without
 ``observe`` (a caller that does not report estimates) every frame is a global one.
+``observe(stamp_ns, pixels, estimate)`` is the ``TrackingFrontend`` protocol the node calls.
 
 This is the standard design of video trackers (PTAM, ORB-SLAM's localization mode, VINS's
 feature tracker) with a rolling-shutter motion model for the guided search.
@@ -203,6 +204,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._rows = np.zeros(0, np.int64)  # their map rows
         self._pose = None  # (R, C, w, t) of the previous frame's estimate
         self._camera = None
+        self._frame_camera = None
         self._stamp = None
         self._index = -1
         self._solved_index = -2
@@ -298,6 +300,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._totals["global"] += rep.global_
         self._times[rep.kind].append(time.perf_counter() - t_start)
         self._gray, self._stamp = gray, stamp_ns if stamp_ns is not None else self._stamp
+        self._frame_camera = camera
         self._frames = {k: v for k, v in self._frames.items() if k >= self._index - 30}
         self._frames[self._index] = gray
         self._out_rows, self._out_uv = rows, np.asarray(uv, float)
@@ -309,21 +312,22 @@ class TrackingFeatureFrontend(FeatureFrontend):
             self.map.landmark_ids[rows],
         )
 
-    def observe(
-        self, estimate: Any, points2d: np.ndarray | None = None, camera: CameraModel | None = None
-    ) -> None:
+    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
         """The estimator's verdict on the last frame: its inliers are tracked into the next
-        frame, the rest dropped; a failed estimate makes the next frame global.
+        frame, the rest dropped; a failed estimate (or None) makes the next frame global.
 
         Args:
-            estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of the rows the
-                last :meth:`process` returned (``success``, ``inliers`` (N,), ``R``, ``C``,
-                ``w``, ``t``).
-            points2d: (N, 2) px the rows the estimator saw, when the caller removed or
+            stamp_ns: the frame's stamp (ns; None: the one given to :meth:`process`).
+            pixels: (M, 2) px, the rows the estimator was given, when the caller removed or
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
-            camera: the frame's camera model (needed to start a refresh).
+            estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of those rows
+                (``success``, ``inliers`` (M,), ``R``, ``C``, ``w``, ``t``), or None.
         """
+        points2d = pixels
+        camera = self._frame_camera
+        if stamp_ns is not None:
+            self._stamp = int(stamp_ns)
         if estimate is None or not getattr(estimate, "success", False):
             self._drop_tracks(keep_refresh=False)
             self._lost = True

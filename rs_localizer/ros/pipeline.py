@@ -619,7 +619,7 @@ class FramePipeline:
             self._update_gyro_checks(est, out_stamp, new_track, cfg)
             res.estimate = est
             if kind == "image" and hasattr(cfg.frontend, "observe"):  # (what to track next)
-                cfg.frontend.observe(est, uv, camera)
+                cfg.frontend.observe(stamp, uv, est)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)
                 raise _Drop(
