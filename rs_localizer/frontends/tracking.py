@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences
 from ..geometry import rotvec_to_matrix
 from .aruco import to_gray
 from .features import FeatureFrontend, FeatureMap, make_detector
@@ -227,10 +228,11 @@ class TrackingFeatureFrontend(FeatureFrontend):
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
         stamp_ns: int | None = None,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Correspondences of one frame: ``(points_px (N, 2) distorted px, points3d (N, 3)
-        world m, landmark ids (N,))``; ``report`` says how they were found. ``stamp_ns``:
-        the frame's capture time (ns), for the motion prediction and time resets."""
+    ) -> Correspondences:
+        """Correspondences of one frame (:class:`~rs_localizer.correspondences.Correspondences`:
+        pixels (N, 2) distorted px, points (N, 3) world m, landmark ids (N,), scores (N,));
+        ``report`` says how they were found. ``stamp_ns``: the frame's capture time (ns), for
+        the motion prediction and time resets."""
         t_start = time.perf_counter()
         gray = to_gray(image, encoding)
         rep = FrameReport(times={})
@@ -306,10 +308,11 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._out_rows, self._out_uv = rows, np.asarray(uv, float)
         self._lost = True  # until observe() says the frame was solved
         self.report = rep
-        return (
+        return Correspondences(
             np.asarray(uv, float).reshape(-1, 2),
             self.map.points[rows].reshape(-1, 3),
             self.map.landmark_ids[rows],
+            np.asarray(self.last_scores, float),
         )
 
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
