@@ -15,6 +15,8 @@ from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
 from rs_localizer.sim.render.scene import load_scene
 
+pytestmark = pytest.mark.slow  # (renders a map and a video)
+
 
 @pytest.fixture(scope="module")
 def video():

@@ -7,6 +7,8 @@ import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import pytest
+
 from rs_localizer.ros.dds_profile import PROFILE_PATH, apply_default_profile
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,6 +85,7 @@ time.sleep(1.0)
 """
 
 
+@pytest.mark.slow
 def test_best_effort_640x480_rgb_at_30hz_with_the_profile(ros_domain):
     """Driver and reader (the node's image QoS) in two processes, both with the profile, as
     the launch file runs them: all 30 frames of 921,600 bytes arrive."""
