@@ -14,11 +14,13 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(include=[package_name, f"{package_name}.*"]),
-    package_data={"rs_localizer": ["scenes/*.yaml"]},
+    package_data={"rs_localizer": ["scenes/*.yaml", "ros/fastdds_profile.xml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
         (f"share/{package_name}/config", glob("config/*.yaml")),
+        # the Fast DDS profile the launch file applies (rs_localizer/ros/dds_profile.py)
+        (f"share/{package_name}/config", ["rs_localizer/ros/fastdds_profile.xml"]),
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
         # the sample bags of `rs-localizer demo` (found via share/ outside the source tree)
         (f"share/{package_name}/data/sample", glob("data/sample/*")),

@@ -12,9 +12,17 @@ start with ``/``) runs one localizer per camera in this one process (the node's 
 parameter): inputs and outputs under <namespace>/<camera>/. ``lifecycle:=true`` starts the
 managed node ``rs_localizer_lifecycle_node`` (configure and activate it with ``ros2 lifecycle``
 or a lifecycle manager).
+
+Unless FASTRTPS_DEFAULT_PROFILES_FILE or FASTDDS_DEFAULT_PROFILES_FILE is set, every process this
+launch starts (and those started after it in an including launch) gets the package's Fast DDS
+profile (share/rs_localizer/config/fastdds_profile.xml: a shared-memory segment large enough for
+1280x720 RGB images at 30 Hz; docs/node.md "Image input"). A camera driver started in the same
+launch file benefits too; one started elsewhere needs the variable exported.
 """
 
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+import os
+
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
@@ -27,13 +35,28 @@ def camera_list(text: str) -> list:
     return [c for c in text.replace(",", " ").split() if c]
 
 
+def dds_profile_actions(environ=os.environ) -> list:
+    """Set FASTRTPS_DEFAULT_PROFILES_FILE to the package's profile unless the user chose one
+    (or another middleware)."""
+    if any(
+        environ.get(k) for k in ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE")
+    ):
+        return []
+    if not environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp").startswith("rmw_fastrtps"):
+        return []
+    profile = PathJoinSubstitution(
+        [FindPackageShare("rs_localizer"), "config", "fastdds_profile.xml"]
+    )
+    return [SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", profile)]
+
+
 def _node(context):
     cameras = camera_list(LaunchConfiguration("cameras").perform(context))
     lifecycle = LaunchConfiguration("lifecycle").perform(context).lower() in ("1", "true", "yes")
     parameters = [LaunchConfiguration("params_file")]
     if cameras:
         parameters.append({"cameras": cameras})
-    return [
+    return dds_profile_actions() + [
         Node(
             package="rs_localizer",
             executable="rs_localizer_lifecycle_node" if lifecycle else "rs_localizer_node",

@@ -167,14 +167,25 @@ def _published_diagnostics_keys(ctx, overrides: dict) -> set:
     return {kv.key for kv in got[0].values}
 
 
-def test_every_diagnostics_key_is_documented(ros_context):
-    """Correspondence mode, image mode (ArUco front end) and with the gyro: every key the node
-    publishes is in the page's ``| diagnostics key |`` table, and every key there is published
-    in one of them (``failed.<reason>``, ``camera_info_rejected.<reason>``,
+def test_every_diagnostics_key_is_documented(ros_context, tmp_path):
+    """Correspondence mode, image mode (ArUco and features front ends) and with the gyro:
+    every key the node publishes is in the page's ``| diagnostics key |`` table, and every key
+    there is published in one of them (``failed.<reason>``, ``camera_info_rejected.<reason>``,
     ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` stand for their families)."""
+    import numpy as np
+
+    from rs_localizer.frontends.features import FeatureMap
+
+    rng = np.random.default_rng(0)
+    fmap = FeatureMap(
+        rng.normal(size=(20, 3)), rng.random((20, 128), np.float32), np.arange(20), "sift"
+    ).save(tmp_path / "features.npz")
     keys = _published_diagnostics_keys(ros_context, {})
     keys |= _published_diagnostics_keys(
         ros_context, {"frontend": "aruco", "frontend_map": "aruco_room"}
+    )
+    keys |= _published_diagnostics_keys(
+        ros_context, {"frontend": "features", "frontend_map": str(fmap)}
     )
     keys |= _published_diagnostics_keys(ros_context, {"imu.enabled": True})
     assert {"frames_received", "track_state", "frontend_ms_median", "imu_rate_hz"} <= keys, keys

@@ -73,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     with a hint to rerun with ``--debug`` (exit code 1), and with ``--debug`` as a traceback.
     """
     args = build_parser().parse_args(argv)
+    from ..ros.dds_profile import apply_default_profile
+
+    apply_default_profile()  # (before any rclpy participant: images over shared memory)
     cmd = f"rs-localizer {args.command}"
     try:
         return int(args.func(args) or 0)

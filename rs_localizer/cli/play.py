@@ -116,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
     if args.lockstep:
         lat = res.latencies
         msg += f"; {res.answered} answered, {res.timeouts} timed out"
+        if res.republished:
+            msg += f" ({res.republished} sent again after no answer)"
         if len(lat):
             import numpy as np
 

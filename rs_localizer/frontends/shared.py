@@ -107,10 +107,11 @@ class MapCache:
                 kind, map_path, lambda p: load_marker_map(Path(str(p))), owner, "frontend"
             )
             return ArucoFrontend(corners, dictionary, **kw)
-        if kind == "features":
-            from .features import FeatureFrontend, FeatureMap
+        if kind == "features":  # (the video front end; tracking=False: per frame)
+            from .features import FeatureMap
+            from .tracking import TrackingFeatureFrontend
 
-            return FeatureFrontend(
+            return TrackingFeatureFrontend(
                 self.get(kind, map_path, FeatureMap.load, owner, "frontend"), **kw
             )
         if kind == "board":

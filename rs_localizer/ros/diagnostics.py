@@ -121,8 +121,11 @@ def diagnostic_status(
                 "frontend_correspondences_mean": (
                     f"{c.get('frontend_points', 0) / runs:.1f}" if runs else "0"
                 ),
+                "frontend_ms_p99": f"{np.percentile(fe, 99) * 1e3:.3f}" if fe else "nan",
             }
         )
+        summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
+        values.update(summary() if summary is not None else {"frontend_frames_global": runs})
     if cfg.imu is not None:
         bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
         values.update(

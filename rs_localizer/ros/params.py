@@ -430,6 +430,50 @@ PARAMETERS = {
         "publish the front end's correspondences on "
         "correspondences_out (PointCloud2) for inspection",
     ),
+    "features.tracking": Parameter(
+        True,
+        "features front end on video: track the last frame's inliers (optical flow) and match "
+        "map points near their predicted pixels; full detection + global matching only to "
+        "(re)localize. false: full detection and global matching on every image",
+        read_only=True,
+    ),
+    "features.matcher": Parameter(
+        "auto",
+        "global matching of the features front end: auto (flann for SIFT maps, bf for ORB "
+        "maps), bf (exact brute force) or flann (approximate; SIFT maps only)",
+        read_only=True,
+    ),
+    "features.flann_checks": Parameter(
+        32,
+        "leaves FLANN visits per query (more: closer to brute force, slower)",
+        IntRange(from_value=1, to_value=4096),
+        read_only=True,
+    ),
+    "features.max_features": Parameter(
+        2000,
+        "features detected per image on global and refresh frames",
+        IntRange(from_value=10, to_value=100_000),
+        read_only=True,
+    ),
+    "features.refresh_frames": Parameter(
+        10,
+        "with tracking: a background detection refreshes the tracks every this many frames "
+        "(0: only when they run low)",
+        IntRange(from_value=0, to_value=10_000),
+        read_only=True,
+    ),
+    "features.search_radius_px": Parameter(
+        8.0,
+        "px; guided matching window around each map point's predicted pixel",
+        FloatRange(from_value=1.0, to_value=200.0),
+        read_only=True,
+    ),
+    "features.min_tracked_inliers": Parameter(
+        150,
+        "with tracking: fewer tracked inliers than this start a refresh detection",
+        IntRange(from_value=0, to_value=100_000),
+        read_only=True,
+    ),
 }
 
 
@@ -676,7 +720,8 @@ class LocalizerConfig:
         landmarks_file and landmarks: ``(sorted ids (N,), points (N, 3) m)`` or None.
         frontend_kind (``none``, ``aruco``, ...), frontend_map, frontend: the image front end
             object (None for ``none``), image_transport (``raw``/``compressed``),
-            republish_correspondences.
+            republish_correspondences, frontend_options (the front end's keyword arguments:
+            the ``features.*`` parameters for ``features``).
     """
 
     solver: str
@@ -704,6 +749,8 @@ class LocalizerConfig:
     image_transport: str
     republish_correspondences: bool
     imu: ImuConfig | None = None
+    #: keyword arguments of the front end (``features.*`` for ``features``)
+    frontend_options: dict = dataclasses.field(default_factory=dict)
 
     @property
     def min_points(self) -> int:
@@ -738,6 +785,26 @@ class LocalizerConfig:
         return cv.camera_model_from_camera_info(
             msg, self.line_delay, self.readout_time, self.direction, self.reference_row
         )
+
+
+def _frontend_options(kind: str, p) -> dict:
+    """Keyword arguments of the front end ``kind`` from the ``features.*`` parameters."""
+    if kind != "features":
+        return {}
+    matcher = str(p["features.matcher"]).strip().lower()
+    if matcher not in ("auto", "bf", "flann"):
+        raise ConfigError(
+            f"unknown features.matcher {p['features.matcher']!r}; expected auto, bf or flann"
+        )
+    return {
+        "tracking": bool(p["features.tracking"]),
+        "matcher": None if matcher == "auto" else matcher,
+        "flann_checks": int(p["features.flann_checks"]),
+        "n_features": int(p["features.max_features"]),
+        "refresh_frames": int(p["features.refresh_frames"]),
+        "search_radius_px": float(p["features.search_radius_px"]),
+        "min_tracked_inliers": int(p["features.min_tracked_inliers"]),
+    }
 
 
 def _frontend_needs(kind: str) -> str:
@@ -907,6 +974,7 @@ def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
         image_transport=transport,
         republish_correspondences=bool(p["republish_correspondences"]),
         imu=imu,
+        frontend_options=_frontend_options(kind, p),
     )
 
 
@@ -938,7 +1006,9 @@ def load_maps(
                 if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
                     check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
                 # (the map is loaded once per process and shared by cameras naming it)
-                frontend = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap), owner=owner)
+                frontend = SHARED_MAPS.frontend(
+                    kind, os.path.expanduser(fmap), owner=owner, **cfg.frontend_options
+                )
             except Exception as e:
                 raise ConfigError(
                     f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"

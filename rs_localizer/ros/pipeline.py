@@ -601,7 +601,8 @@ class FramePipeline:
         res.image = (img, enc, stamp)
         t0 = time.perf_counter()
         try:
-            found = Correspondences.of(fe.process(img, camera, encoding=enc))
+            kw = {"stamp_ns": stamp} if getattr(fe, "takes_stamp", False) else {}
+            found = Correspondences.of(fe.process(img, camera, encoding=enc, **kw))
         except Exception as e:
             raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
         res.times["frontend"] = time.perf_counter() - t0

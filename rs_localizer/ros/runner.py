@@ -108,7 +108,10 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
     code (1 with a one-line error for invalid parameters)."""
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+    from .dds_profile import apply_default_profile
+
     argv = sys.argv if args is None else args
+    apply_default_profile()  # (before the first participant: images over shared memory)
     rclpy.init(args=argv)
     nodes = []
     executor = None

@@ -37,6 +37,7 @@ def launch_file(monkeypatch):
     mods["launch"].LaunchDescription = lambda actions: list(actions)
     mods["launch.actions"].DeclareLaunchArgument = _Recorder
     mods["launch.actions"].OpaqueFunction = _Recorder
+    mods["launch.actions"].SetEnvironmentVariable = _Recorder
     mods["launch.substitutions"].LaunchConfiguration = _Config
     mods["launch.substitutions"].PathJoinSubstitution = _Recorder
     mods["launch_ros.actions"].Node = _Recorder
@@ -55,7 +56,8 @@ def _node(mod, **values):
     )
     context = {**args, **values}
     opaque = [a for a in actions if "function" in a.kwargs]
-    (node,) = opaque[0].kwargs["function"](context)
+    *env, node = opaque[0].kwargs["function"](context)
+    assert all(isinstance(e, _Recorder) and e.args[0].endswith("PROFILES_FILE") for e in env)
     return node.kwargs
 
 
@@ -70,3 +72,13 @@ def test_camera_list_and_lifecycle(launch_file):
     assert kw["executable"] == "rs_localizer_lifecycle_node"
     assert kw["parameters"][1] == {"cameras": ["front", "rear", "/abs/cam3"]}
     assert launch_file.camera_list("  ") == []
+
+
+def test_dds_profile_unless_the_user_set_one(launch_file):
+    """The package's Fast DDS profile goes to every process of the launch, unless the user set
+    a profile file or another middleware."""
+    (env,) = launch_file.dds_profile_actions({})
+    assert env.args[0] == "FASTRTPS_DEFAULT_PROFILES_FILE"
+    assert env.args[1].args[0][1:] == ["config", "fastdds_profile.xml"]
+    assert launch_file.dds_profile_actions({"FASTDDS_DEFAULT_PROFILES_FILE": "/x.xml"}) == []
+    assert launch_file.dds_profile_actions({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) == []

@@ -1,5 +1,11 @@
 """Play a bag into the live ROS 2 graph (rclpy): original timing scaled by ``rate``, or
-lock-step (wait for each frame's output before sending the next)."""
+lock-step (wait for each frame's output before sending the next).
+
+Images (``sensor_msgs/Image``, ``CompressedImage``) go out with the sensor-data QoS camera
+drivers use (best effort), the other topics reliable by default. When a camera namespace has
+frames on several topics (``make-bag`` writes ``correspondences`` and ``keypoints`` of the same
+frames; a rendered bag may add the image), only one of them is played, the one the node can use
+(:func:`choose_frame_topics`), unless ``topics`` names them."""
 
 from __future__ import annotations
 
@@ -13,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from .. import conversions as cv
-from .bag_io import CAMERA_INFO, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
+from .bag_io import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
 
-__all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]
+__all__ = ["PlayResult", "choose_frame_topics", "is_frame_topic", "output_type", "play"]
 
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
 
@@ -51,6 +57,10 @@ class PlayResult:
     answered: int = 0
     timeouts: int = 0
     wall_time: float = 0.0
+    #: lock-step: frames sent again because no output came within the timeout
+    republished: int = 0
+    #: frame topics of the bag left out (another topic carries the same frames)
+    skipped_topics: list = field(default_factory=list)
 
     @property
     def latencies(self) -> np.ndarray:
@@ -64,8 +74,50 @@ class PlayResult:
 
 def is_frame_topic(topic: str, msgtype: str | None = None) -> bool:
     """A topic carrying one frame per message: ``*/correspondences``, ``*/keypoints`` or an
-    image (``sensor_msgs/msg/Image``)."""
-    return topic.rstrip("/").rsplit("/", 1)[-1] in FRAME_TOPIC_SUFFIXES or msgtype == IMAGE
+    image (``sensor_msgs/msg/Image`` or ``CompressedImage``)."""
+    last = topic.rstrip("/").rsplit("/", 1)[-1]
+    return last in FRAME_TOPIC_SUFFIXES or msgtype in (IMAGE, COMPRESSED_IMAGE)
+
+
+def _parent(topic: str) -> str:
+    """Camera namespace of a frame topic (``/cam/image/compressed`` -> ``/cam``)."""
+    t = topic.rstrip("/")
+    if t.endswith("/compressed"):
+        t = t[: -len("/compressed")]
+    return t.rsplit("/", 1)[0]
+
+
+def choose_frame_topics(frame_topics: dict, subscribed: set) -> tuple[list, list]:
+    """The frame topic to play in each camera namespace, and the ones left out.
+
+    ``frame_topics``: ``{topic: msgtype}`` of the bag's frame topics; ``subscribed``: those with
+    a live subscriber. Per namespace (the topic's parent) one topic is kept, the first of: an
+    image with a subscriber (the node runs an image front end), ``correspondences`` (needs
+    nothing else), a compressed or raw image, ``keypoints`` (needs the node's
+    ``landmarks_file``). Returns ``(kept, skipped)`` topic lists.
+    """
+
+    def rank(t):
+        mt = frame_topics[t]
+        image = mt in (IMAGE, COMPRESSED_IMAGE)
+        last = t.rstrip("/").rsplit("/", 1)[-1]
+        if image and t in subscribed:
+            return 0
+        if last == "correspondences":
+            return 1
+        if image:
+            return 2
+        return 3
+
+    groups = {}
+    for t in frame_topics:
+        groups.setdefault(_parent(t), []).append(t)
+    kept, skipped = [], []
+    for ts in groups.values():
+        best = min(ts, key=lambda t: (rank(t), t))
+        kept.append(best)
+        skipped += [t for t in ts if t != best]
+    return kept, skipped
 
 
 def play(
@@ -103,7 +155,10 @@ def play(
             ``PlayResult.timeouts`` and reported through ``log``.
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``.
         wait_subscribers: seconds to wait until every frame topic has a subscriber.
-        reliable: publish with reliable QoS (depth 10); else best effort.
+        reliable: publish with reliable QoS (depth 10); else best effort. Images go out with
+            the sensor-data QoS (best effort, depth 5) of camera drivers, or as ``reliable``
+            says when a subscriber asks for reliable images (which a best-effort publisher
+            does not match).
         context: an ``rclpy.Context`` (initialized here if needed and shut down at the end if
             it was created here). domain_id: ROS domain for a context created here.
         limit: stop after this many frames. loop: play the bag this many times (frame stamps
@@ -118,10 +173,16 @@ def play(
         imu_lead: lock-step: ``sensor_msgs/Imu`` messages go out this many seconds of bag time
             ahead of the frames (a node using the gyro waits for the samples covering a
             frame's readout, which would otherwise come only after the frame was answered).
+            Each IMU message is sent once (never primed nor republished: a repeated sample
+            would be rejected by the node as not increasing).
+
+    When ``topics`` is None and a camera namespace has several frame topics, only the one
+    :func:`choose_frame_topics` picks is played (a note through ``log`` names the others and
+    the ``--topics`` to pass instead).
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
     remap = dict(remap or {})
     own_context = context is None
@@ -147,7 +208,11 @@ def play(
             reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         )
         pubs = {
-            t: node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
+            t: node.create_publisher(
+                _msg_class(mt),
+                remap.get(t, t),
+                qos_profile_sensor_data if mt in (IMAGE, COMPRESSED_IMAGE) else qos,
+            )
             for t, mt in types.items()
         }
         outputs = {}
@@ -173,10 +238,38 @@ def play(
             for t in output_topics:
                 outputs[t] = node.create_subscription(output_type(t), t, make_cb(t), qos)
         frame_topics = [t for t in pubs if is_frame_topic(t, types[t])]
+        choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
         deadline = time.monotonic() + wait_subscribers
-        while any(pubs[t].get_subscription_count() == 0 for t in frame_topics) or (
+
+        def unmatched():
+            # choosing: one subscribed frame topic per namespace is enough (then 0.5 s more
+            # for the others to match); else every frame topic needs its subscriber
+            if choose:
+                ns = {_parent(t) for t in frame_topics}
+                ok = {_parent(t) for t in frame_topics if pubs[t].get_subscription_count()}
+                return bool(ns - ok)
+            return any(pubs[t].get_subscription_count() == 0 for t in frame_topics)
+
+        reliable_images = set()
+
+        def match_reliable_image_readers():
+            # a subscriber asking for reliable images (a QoS override) does not match the
+            # sensor-data publisher: publish that topic reliable (it matches both kinds)
+            for t in frame_topics:
+                if types[t] not in (IMAGE, COMPRESSED_IMAGE) or t in reliable_images:
+                    continue
+                if pubs[t].get_subscription_count():
+                    continue
+                infos = node.get_subscriptions_info_by_topic(remap.get(t, t))
+                if any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos):
+                    node.destroy_publisher(pubs[t])
+                    pubs[t] = node.create_publisher(_msg_class(types[t]), remap.get(t, t), qos)
+                    reliable_images.add(t)
+
+        while unmatched() or (
             lockstep and any(node.count_publishers(t) == 0 for t in output_topics)
         ):
+            match_reliable_image_readers()
             if time.monotonic() > deadline:
                 missing = [
                     remap.get(t, t) for t in frame_topics if pubs[t].get_subscription_count() == 0
@@ -187,6 +280,20 @@ def play(
                 )
                 break
             executor.spin_once(timeout_sec=0.05)
+        if choose:
+            end = time.monotonic() + 0.5
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.05)
+            subscribed = {t for t in frame_topics if pubs[t].get_subscription_count()}
+            kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed)
+            if skipped:
+                result.skipped_topics = skipped
+                msgs = [m for m in msgs if m[0] not in skipped]
+                others = [t for t in types if t not in skipped and t not in kept]
+                log(
+                    f"note: frames on several topics; playing {', '.join(kept)} and not "
+                    f"{', '.join(skipped)} (choose with --topics {' '.join(kept + others)})"
+                )
         if not msgs:
             return result
         t_first = min(m[2] for m in msgs)
@@ -195,9 +302,12 @@ def play(
         n_frames = 0
         last_pub = {}
         if lockstep:  # best-effort subscribers drop early samples: prime the camera_info
+            # (not the IMU: a sample sent twice is rejected as not increasing)
             first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
             for _ in range(3):
                 for topic, msgtype, _, raw in msgs[:first]:
+                    if msgtype == IMU:
+                        continue
                     pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
                 end = time.perf_counter() + 0.05
                 while time.perf_counter() < end:
@@ -215,7 +325,8 @@ def play(
                             break
                         executor.spin_once(timeout_sec=min(target - now, 0.05))
                 pubs[topic].publish(raw)
-                last_pub[topic] = raw
+                if msgtype != IMU:  # (republished with a frame without answer)
+                    last_pub[topic] = raw
                 result.published += 1
                 if not is_frame_topic(topic, msgtype):
                     continue
@@ -245,6 +356,7 @@ def play(
                                 )
                                 break
                             attempt += 1
+                            result.republished += 1
                             for t, r in last_pub.items():  # camera_info and the frame again
                                 pubs[t].publish(r)
                             t_end = time.perf_counter() + timeout
@@ -289,7 +401,7 @@ def _header_stamp(raw: bytes) -> int:
 
 def _shift_stamp(raw: bytes, msgtype: str, shift_ns: int) -> bytes:
     """Shift the header stamp of a CDR message that starts with a Header (all our types)."""
-    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE, IMU):
+    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE, COMPRESSED_IMAGE, IMU):
         return raw
     order = "<" if raw[1] == 1 else ">"
     s = _header_stamp(raw) + shift_ns

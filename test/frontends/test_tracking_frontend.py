@@ -1,0 +1,122 @@
+"""The tracking feature front end on a rendered rolling-shutter video of ``textured_room``
+against its renderer-built SIFT map: tracked and guided correspondences land on the true
+projections of their map points, poses stay as good as per-frame global matching, and it
+relocalizes after black frames and time resets; bad maps are refused."""
+
+import numpy as np
+import pytest
+
+from rs_localizer.estimation.estimate import estimate_rs_pose
+from rs_localizer.frontends.features import FeatureMap
+from rs_localizer.frontends.tracking import TrackingFeatureFrontend
+from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.sim.feature_map import build_feature_map
+from rs_localizer.sim.render.motion import make_motion
+from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
+from rs_localizer.sim.render.scene import load_scene
+
+pytestmark = pytest.mark.slow  # (renders a map and a video)
+
+
+@pytest.fixture(scope="module")
+def video():
+    scene = load_scene("textured_room")
+    camera = camera_preset("vga")
+    motion = make_motion("shake", scene, duration=1.0)
+    fmap = build_feature_map(
+        scene,
+        camera_preset("vga", line_delay=0.0),
+        (motion, np.linspace(0.0, 1.0, 4)),
+        kind="sift",
+        n_features=1500,
+    )
+    renderer = Renderer(scene, camera, noise=NoiseModel())
+    frames = list(renderer.render_sequence(motion, 10, seed=1))
+    return fmap, frames, camera, renderer, motion
+
+
+def _run(fe, frames, camera, blank=(), shift_ns=None):
+    out = []
+    for k, f in enumerate(frames):
+        img = np.zeros_like(f.image) if k in blank else f.image
+        stamp = int(f.t_first * 1e9) + (shift_ns[1] if shift_ns and k >= shift_ns[0] else 0)
+        uv, X, _ = fe.process(img, camera, stamp_ns=stamp)
+        est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
+        fe.observe(stamp, None, est)
+        fe.wait_refresh(60.0)
+        ok = est is not None and est.success
+        err = rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
+        out.append((fe.report, uv, X, err))
+    return out
+
+
+def test_tracked_and_guided_correspondences_are_right(video):
+    fmap, frames, camera, renderer, motion = video
+    fe = TrackingFeatureFrontend(fmap, refresh_frames=3)
+    got = _run(fe, frames, camera)
+    kinds = [r.kind for r, *_ in got]
+    assert kinds[0] == "global" and kinds[1:].count("tracked") == len(frames) - 1, kinds
+    assert sum(r.guided for r, *_ in got) > 200  # the refreshes joined
+    for (rep, uv, X, _), f in zip(got, frames, strict=True):
+        gt, ok = renderer.project(X, motion, f.t_first, occlusion=True)
+        err = np.where(ok, np.linalg.norm(uv - np.nan_to_num(gt), axis=1), np.inf)
+        assert np.mean(err < 2.0) > 0.9, (rep.kind, np.median(err))
+    # every pose as good as per-frame global matching on the same frames (the estimator
+    # judges either way)
+    per_frame = _run(TrackingFeatureFrontend(fmap, tracking=False), frames, camera)
+    tracked = np.array([e for *_, e in got])
+    reference = np.array([e for *_, e in per_frame])
+    assert np.isfinite(tracked).all() and np.isfinite(reference).all()
+    assert np.median(tracked) <= 2.0 * np.median(reference) + 0.01, (tracked, reference)
+    assert fe.summary()["frontend_frames_tracked"] == len(frames) - 1
+
+
+def test_black_frames_and_time_reset_relocalize(video):
+    fmap, frames, camera, *_ = video
+    fe = TrackingFeatureFrontend(fmap)
+    got = _run(fe, frames, camera, blank={3, 4})
+    assert [len(uv) for _, uv, _, _ in got[3:5]] == [0, 0]  # no texture: no correspondence
+    assert got[5][0].kind == "global" and got[5][0].reason == "lost"
+    assert np.isfinite(got[5][3])  # posed again on the first frame with a view
+    assert fe.relocalizations >= 1
+    fe = TrackingFeatureFrontend(fmap)
+    got = _run(fe, frames[:6], camera, shift_ns=(3, -(10**9)))  # stamps jump back 1 s
+    assert got[3][0].kind == "global" and got[3][0].reason == "time_reset"
+    assert got[4][0].kind == "tracked" and np.isfinite(got[4][3])
+
+
+def test_bad_maps_are_refused(video):
+    fmap = video[0]
+    with pytest.raises(ValueError, match="empty"):
+        TrackingFeatureFrontend(fmap.subset(np.zeros(len(fmap), bool)))
+    orb = FeatureMap(fmap.points[:10], np.zeros((10, 32), np.uint8), fmap.landmark_ids[:10])
+    with pytest.raises(ValueError, match="flann"):
+        TrackingFeatureFrontend(orb, matcher="flann")
+    assert TrackingFeatureFrontend(orb).matcher_name == "bf"  # auto
+    wrong = FeatureMap(fmap.points, fmap.descriptors[:, :64], fmap.landmark_ids, "sift")
+    with pytest.raises(ValueError, match="128"):
+        TrackingFeatureFrontend(wrong)
+
+
+def test_replay_of_a_rendered_video_tracks(tmp_path):
+    """The node's pipeline (offline replay, the node's default features parameters) on a
+    640x480 RGB render: every frame posed, all but the first served by tracking (the
+    pipeline feeds each estimate back to the front end), errors small against the truth."""
+    pytest.importorskip("rosbags")
+    from rs_localizer.cli import main as cli
+    from rs_localizer.ros.bags.replay import replay
+
+    bag = tmp_path / "video"
+    args = ["render-bag", str(bag), "--scene", "textured_room", "--frontend", "features"]
+    assert cli(args + ["--frames", "8"]) == 0
+    res = replay(
+        bag,
+        params={"frontend": "features", "frontend_map": str(bag / "feature_map.npz")},
+        source="image",
+        progress=None,
+    )
+    fe = res.config.frontend
+    assert isinstance(fe, TrackingFeatureFrontend)
+    assert res.solved == len(res.rows) == 8
+    assert fe.counts == {"global": 1, "tracked": 7}
+    assert res.summary["rot_deg"]["median"] < 0.1, res.summary
