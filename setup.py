@@ -20,6 +20,9 @@ setup(
         (f"share/{package_name}", ["package.xml"]),
         (f"share/{package_name}/config", glob("config/*.yaml")),
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
+        # RViz configuration and Foxglove layout of the node's outputs
+        (f"share/{package_name}/rviz", glob("rviz/*.rviz")),
+        (f"share/{package_name}/foxglove", glob("foxglove/*.json")),
         # the sample bags of `rs-localizer demo` (found via share/ outside the source tree)
         (f"share/{package_name}/data/sample", glob("data/sample/*")),
         (f"share/{package_name}/data/sample_images", glob("data/sample_images/*")),
