@@ -1,7 +1,8 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
 #   make test   the style gate (ruff) and the whole test suite
-# Other targets: venv, lint, format, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
+# Other targets: venv, tf2-msgs (/tf on the PyPI wheels), lint, format, sample-bag (regenerate the
+# committed bags), bench-node, fuzz-long, newcomer (the docs' commands, run), clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -11,7 +12,7 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test lint format sample-bag bench-node fuzz-long clean
+.PHONY: venv tf2-msgs demo test lint format sample-bag bench-node fuzz-long newcomer clean
 
 venv: $(STAMP)
 
@@ -24,6 +25,10 @@ $(STAMP): $(STAMP_DEPS)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install -e '.[ros,test,bench,mapping]'
 	touch $@
+
+# tf2_msgs is not among the PyPI wheels: build it with their rosidl generators (needs cc, c++)
+tf2-msgs: venv
+	$(PY) tools/build_tf2_msgs.py
 
 demo: venv
 	$(RSL) demo $(ARGS)
