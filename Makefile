@@ -65,5 +65,10 @@ sample-bag: venv
 bench-node: venv
 	$(PY) -m rs_localizer.evaluation.bench_node --frames 300 --solver r6p_1lin
 
+# a new user's first hour: the README's and the docs' shell commands as written (the quick ones;
+# the others are listed with the reason), exit codes and quoted figures checked
+newcomer: venv
+	$(PY) tools/newcomer.py
+
 clean:
 	rm -rf build *.egg-info .pytest_cache
