@@ -41,7 +41,7 @@ def test_every_checked_figure_is_quoted_next_to_its_command():
     assert nc.FIGURES
     for fig in nc.FIGURES:
         text = (ROOT / fig.page).read_text()
-        cmds = nc.shell_commands(fig.page)
+        cmds = nc.shell_commands(fig.page) + nc.INLINE_COMMANDS.get(fig.page, [])
         assert any(fig.command in c and not nc.why_skipped(c) for c in cmds), fig
         quoted = f"{fig.value:g}"
         assert quoted in text or f"{fig.value}" in text, (fig.page, quoted)

@@ -501,22 +501,36 @@ def _sandwich(J: np.ndarray, r: np.ndarray, lags: int = 2) -> np.ndarray:
     return cov
 
 
-def _interval_rates(t0_ns, t1_ns, t_imu, om_imu, points: int = 17) -> np.ndarray:
-    """(n, 3) mean gyro rate over each interval ``[t0, t1]`` (ns, IMU clock), by the
-    trapezoid rule over ``points`` interpolated samples."""
+def _interval_rotations(t0_ns, t1_ns, t_imu, om_imu, bias, points: int = 17) -> np.ndarray:
+    """(n, 3) rotation vector of the gyro's rotation over each interval ``[t0, t1]`` (ns, IMU
+    clock), with ``bias`` (3,) subtracted, divided by the interval (rad/s): the interpolated
+    rates composed over ``points - 1`` steps (SciPy rotations), so a turning axis costs no
+    approximation."""
+    from scipy.spatial.transform import Rotation
+
     u = np.linspace(0.0, 1.0, points)
     t = t0_ns[:, None] + (t1_ns - t0_ns)[:, None] * u[None, :]
-    r = _rates_at(t.ravel(), t_imu, om_imu).reshape(len(t0_ns), points, 3)
-    return np.trapezoid(r, u, axis=1) if hasattr(np, "trapezoid") else np.trapz(r, u, axis=1)
+    r = _rates_at(t.ravel(), t_imu, om_imu).reshape(len(t0_ns), points, 3) - bias
+    step = (t1_ns - t0_ns) * 1e-9 / (points - 1)
+    inc = 0.5 * (r[:, 1:] + r[:, :-1]) * step[:, None, None]  # (n, points - 1, 3)
+    rot = Rotation.identity(len(t0_ns))
+    for j in range(points - 1):
+        rot = rot * Rotation.from_rotvec(inc[:, j])
+    return rot.as_rotvec() / ((t1_ns - t0_ns) * 1e-9)[:, None]
 
 
-def _mount_from_frame_rotations(t_ref, Os, t_imu, om_imu, d: float, max_dt: float):
+def _mount_from_frame_rotations(
+    t_ref, Os, t_imu, om_imu, d: float, max_dt: float, with_offset: bool = False
+):
     """The camera-IMU rotation and the gyro bias from the rotation between consecutive frames'
     poses (which the images determine far better than one frame's angular velocity, whose
-    readout-long fit trades it for the linear velocity) against the gyro integrated over the
-    same interval: ``log(O_k^T O_{k+1}) / dt = R_ci (mean gyro - bias)``. Kabsch with a
+    readout-long fit trades it for the linear velocity) against the gyro's rotation over the
+    same interval (:func:`_interval_rotations`): ``log(O_k^T O_{k+1}) = R_ci log(gyro rotation,
+    bias removed)``. Kabsch with a
     centroid (Huber-reweighted), then the sandwich covariance of (phi (3) about the camera
-    axes, bias (3)). Returns (R_ci, bias, cov (6, 6), samples) or None below 10 pairs."""
+    axes, bias (3)), with the time offset ``d`` as a nuisance parameter when ``with_offset``
+    (it was estimated from the same video). Returns (R_ci, bias, cov (6, 6), samples) or None
+    below 10 pairs."""
     dt = np.diff(t_ref) * 1e-9
     d_ns = np.round(d * 1e9)
     t0, t1 = t_ref[:-1] - d_ns, t_ref[1:] - d_ns
@@ -525,20 +539,26 @@ def _mount_from_frame_rotations(t_ref, Os, t_imu, om_imu, d: float, max_dt: floa
         return None
     k = np.flatnonzero(keep)
     x = np.array([matrix_to_rotvec(Os[i].T @ Os[i + 1]) for i in k]) / dt[k][:, None]
-    g = _interval_rates(t0[k], t1[k], t_imu, om_imu)
-    wts = np.ones(len(k))
-    for _ in range(10):
-        W = wts / wts.sum()
-        mx, mg = W @ x, W @ g
-        U, _, Vt = np.linalg.svd(((x - mx) * W[:, None]).T @ (g - mg))
-        E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-        R = U @ E @ Vt
-        bias = mg - R.T @ mx  # x = R (g - bias)
-        r = x - (g - bias) @ R.T
-        wts = _huber_weights(r)
-    z = (g - bias) @ R.T
-    J = np.concatenate([-_skew_rows(z), np.broadcast_to(-R, (len(k), 3, 3))], axis=2)
-    return R, bias, _sandwich(J, r), len(k)
+    wts, bias = np.ones(len(k)), np.zeros(3)
+    for _ in range(3):  # the gyro's rotation with the bias taken out, then the bias again
+        g = _interval_rotations(t0[k], t1[k], t_imu, om_imu, bias)
+        for _ in range(10):
+            W = wts / wts.sum()
+            mx, mg = W @ x, W @ g
+            U, _, Vt = np.linalg.svd(((x - mx) * W[:, None]).T @ (g - mg))
+            E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+            R = U @ E @ Vt
+            delta = mg - R.T @ mx  # x = R (g - delta): what is left of the bias
+            r = x - (g - delta) @ R.T
+            wts = _huber_weights(r)
+        bias = bias + delta
+    z = (g - delta) @ R.T
+    cols = [-_skew_rows(z), np.broadcast_to(-R, (len(k), 3, 3))]
+    if with_offset:  # the time offset as a nuisance parameter: d(mean gyro)/d(offset)
+        dg = -(_rates_at(t1[k], t_imu, om_imu) - _rates_at(t0[k], t_imu, om_imu)) / dt[k][:, None]
+        cols.append((dg @ R.T)[:, :, None])
+    J = np.concatenate(cols, axis=2)
+    return R, bias, _sandwich(J, r)[:6, :6], len(k)
 
 
 def _fit_to_gyro(
@@ -586,7 +606,7 @@ def _fit_to_gyro(
         # the frames' reference-line times (camera clock) with the fitted line delay
         t_ref = stamps + np.round((camera.reference_line - stamp_row) * s / camera.focal * 1e9)
         mount = _mount_from_frame_rotations(
-            t_ref.astype(np.int64), Os, t_imu, om_imu, d or 0.0, max_dt
+            t_ref.astype(np.int64), Os, t_imu, om_imu, d or 0.0, max_dt, d is not None
         )
         if mount is not None:
             R_ci, bias, cov, _ = mount
