@@ -23,6 +23,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -245,7 +246,19 @@ def run_page(page: str, timeout: float, domain: int) -> list[Step]:
                 stderr=subprocess.STDOUT,
                 text=True,
             )
-            st.rc = 0
+            # as a user would: start the player once the node says it is ready
+            t0, st.rc = time.perf_counter(), 0
+            lines: list[str] = []
+            threading.Thread(target=lines.extend, args=(node.stdout,), daemon=True).start()
+            while not any("ready:" in ln for ln in lines) and node.poll() is None:
+                if time.perf_counter() - t0 > timeout:
+                    st.problems.append(f"not ready within {timeout:g} s")
+                    break
+                time.sleep(0.2)
+            st.seconds, st.output = time.perf_counter() - t0, "".join(lines)
+            if node.poll() is not None:
+                st.rc = node.returncode
+                st.problems.append(f"the node ended: {st.output.strip()[-300:]}")
             continue
         t0 = time.perf_counter()
         try:
@@ -275,7 +288,10 @@ def run_page(page: str, timeout: float, domain: int) -> list[Step]:
     for fig in FIGURES:
         if fig.page != page:
             continue
-        st = next((s for s in steps if fig.command in s.command and s.rc == 0), None)
+        done = [s for s in steps if s.rc == 0]
+        st = next((s for s in done if s.command == fig.command), None) or next(
+            (s for s in done if fig.command in s.command), None
+        )
         if st is None:
             continue
         got = _figure(fig, st.output)
