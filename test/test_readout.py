@@ -291,3 +291,28 @@ def test_cli_prints_the_time_offset_as_a_parameter(tmp_path, capsys):
     assert abs(float(line.split(":")[1]) - 0.01) < 1e-3, out
     assert "imu.rotation:" in out and "imu.gyro_bias:" in out
     assert "camera-IMU rotation: std about camera x/y/z" in out and ": observable" in out, out
+
+
+def test_gyro_lines_say_what_is_not_determined():
+    """The printed lines carry each std and verdict; an undetermined rotation gets the
+    warning; no gyro, no lines."""
+    from rs_localizer.estimation.readout import ReadoutCalibration
+
+    assert ReadoutCalibration(3e-5, 1e-7, 60, True).gyro_lines() == []
+    res = ReadoutCalibration(
+        3e-5,
+        1e-7,
+        60,
+        True,
+        camera_imu_rotation=np.eye(3),
+        camera_imu_rotation_std=np.radians([0.1, 2.0, 0.1]),
+        camera_imu_rotation_observable=False,
+        gyro_bias=np.array([0.01, -0.02, 0.005]),
+        gyro_bias_std=np.array([0.001, 0.002, 0.001]),
+        gyro_bias_observable=True,
+        mount_reason="the camera-IMU rotation about camera axis [0.00, 1.00, 0.00] is not ...",
+    )
+    rot, bias, warn = res.gyro_lines()
+    assert rot == "camera-IMU rotation: std about camera x/y/z 0.1/2/0.1 deg: NOT observable"
+    assert bias.startswith("gyro bias [0.0100, -0.0200, 0.0050]") and "0.0020" in bias
+    assert bias.endswith(": observable") and warn.startswith("WARNING: the camera-IMU rotation")
