@@ -1,9 +1,10 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
 #   make test   the style gate (ruff) and the whole test suite
-# Other targets: venv, test-quick (no node over DDS, no slow test), lint, format, params (the
-# parameters' defaults in docs and config from their table), sample-bag (regenerate the
-# committed bags), bench-node, fuzz-long, clean.
+# Other targets: venv, tf2-msgs (/tf on the PyPI wheels), test-quick (no node over DDS, no slow
+# test), lint, format, params (the parameters' defaults in docs and config from their table),
+# sample-bag (regenerate the committed bags), bench-node, fuzz-long, newcomer (the docs'
+# commands, run), clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -13,7 +14,8 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test test-quick lint format params sample-bag bench-node fuzz-long clean
+.PHONY: venv tf2-msgs demo test test-quick lint format params sample-bag bench-node fuzz-long \
+	newcomer clean
 
 venv: $(STAMP)
 
@@ -26,6 +28,10 @@ $(STAMP): $(STAMP_DEPS)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install -e '.[ros,test,bench,mapping]'
 	touch $@
+
+# tf2_msgs is not among the PyPI wheels: build it with their rosidl generators (needs cc, c++)
+tf2-msgs: venv
+	$(PY) tools/build_tf2_msgs.py
 
 demo: venv
 	$(RSL) demo $(ARGS)
@@ -70,6 +76,11 @@ sample-bag: venv
 
 bench-node: venv
 	$(PY) -m rs_localizer.evaluation.bench_node --frames 300 --solver r6p_1lin
+
+# a new user's first hour: the README's and the docs' shell commands as written (the quick ones;
+# the others are listed with the reason), exit codes and quoted figures checked
+newcomer: venv
+	$(PY) tools/newcomer.py
 
 clean:
 	rm -rf build *.egg-info .pytest_cache

@@ -22,6 +22,9 @@ setup(
         # the Fast DDS profile the launch file applies (rs_localizer/ros/dds_profile.py)
         (f"share/{package_name}/config", ["rs_localizer/ros/fastdds_profile.xml"]),
         (f"share/{package_name}/launch", glob("launch/*.launch.py")),
+        # RViz configuration and Foxglove layout of the node's outputs
+        (f"share/{package_name}/rviz", glob("rviz/*.rviz")),
+        (f"share/{package_name}/foxglove", glob("foxglove/*.json")),
         # the sample bags of `rs-localizer demo` (found via share/ outside the source tree)
         (f"share/{package_name}/data/sample", glob("data/sample/*")),
         (f"share/{package_name}/data/sample_images", glob("data/sample_images/*")),

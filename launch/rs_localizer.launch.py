@@ -2,7 +2,7 @@
 
     ros2 launch rs_localizer rs_localizer.launch.py [namespace:=camera]
         [params_file:=/path/to/params.yaml] [image_topic:=image_raw] [log_level:=info]
-        [cameras:="front rear"] [lifecycle:=false]
+        [cameras:="front rear"] [lifecycle:=false] [rviz:=false]
 
 Inputs are <namespace>/correspondences, <namespace>/keypoints, <namespace>/camera_info and,
 with ``frontend: aruco|features|board`` in the parameter file, <namespace>/<image_topic>.
@@ -11,7 +11,9 @@ with ``frontend: aruco|features|board`` in the parameter file, <namespace>/<imag
 start with ``/``) runs one localizer per camera in this one process (the node's ``cameras``
 parameter): inputs and outputs under <namespace>/<camera>/. ``lifecycle:=true`` starts the
 managed node ``rs_localizer_lifecycle_node`` (configure and activate it with ``ros2 lifecycle``
-or a lifecycle manager).
+or a lifecycle manager). ``rviz:=true`` also opens RViz with the package's configuration
+(rviz/rs_localizer.rviz: the camera's pose and path, the markers, the debug image; topics under
+/camera, fixed frame map).
 
 Unless FASTRTPS_DEFAULT_PROFILES_FILE or FASTDDS_DEFAULT_PROFILES_FILE is set, every process this
 launch starts (and those started after it in an including launch) gets the package's Fast DDS
@@ -71,6 +73,14 @@ def _node(context):
     ]
 
 
+def _rviz(context):
+    """RViz with the package's configuration when ``rviz:=true``."""
+    if LaunchConfiguration("rviz").perform(context).lower() not in ("1", "true", "yes"):
+        return []
+    config = PathJoinSubstitution([FindPackageShare("rs_localizer"), "rviz", "rs_localizer.rviz"])
+    return [Node(package="rviz2", executable="rviz2", arguments=["-d", config], output="screen")]
+
+
 def generate_launch_description():
     default_params = PathJoinSubstitution(
         [FindPackageShare("rs_localizer"), "config", "rs_localizer.yaml"]
@@ -103,5 +113,11 @@ def generate_launch_description():
                 "lifecycle", default_value="false", description="start the managed (lifecycle) node"
             ),
             OpaqueFunction(function=_node),
+            DeclareLaunchArgument(
+                "rviz",
+                default_value="false",
+                description="also open RViz with rviz/rs_localizer.rviz (namespace camera)",
+            ),
+            OpaqueFunction(function=_rviz),
         ]
     )

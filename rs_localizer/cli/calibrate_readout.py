@@ -141,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
                 "\n", ""
             )
         )
+    lines += res.gyro_lines()  # each with its std and whether the motion determined it
     if res.camera_imu_rotation is not None and res.gyro_bias is not None:
         from ..ros.conversions import quaternion_from_matrix
 
@@ -153,8 +154,22 @@ def run(args: argparse.Namespace) -> int:
         else:
             lines.append(f"gyro time offset not observable: {res.time_offset_reason}")
         lines.append("for the node's parameters:")
-        lines.append("  imu.rotation: [" + ", ".join(f"{v:.6f}" for v in q) + "]")
-        lines.append("  imu.gyro_bias: [" + ", ".join(f"{v:.6f}" for v in res.gyro_bias) + "]")
+        unsure = "  # not determined by this motion: see WARNING above"
+        lines.append(
+            "  imu.rotation: ["
+            + ", ".join(f"{v:.6f}" for v in q)
+            + "]"
+            + ("" if res.camera_imu_rotation_observable else unsure)
+        )
+        lines.append(
+            "  imu.gyro_bias: ["
+            + ", ".join(f"{v:.6f}" for v in res.gyro_bias)
+            + "]"
+            + ("" if res.gyro_bias_observable else unsure)
+        )
+        sigma = float(np.max(res.gyro_bias_std)) if res.gyro_bias_std is not None else np.inf
+        if not res.gyro_bias_observable and np.isfinite(sigma):  # (the default: 0.005)
+            lines.append(f"  imu.gyro_bias_sigma: {sigma:.6f}")
         if res.time_offset is not None:
             lines.append(f"  imu.time_offset: {res.time_offset:.6f}")
         else:

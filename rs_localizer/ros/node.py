@@ -268,6 +268,17 @@ class LocalizerCore:
             )
         if cfg.republish_correspondences and cfg.frontend is not None and self._pubs:
             self._corr_out_publisher()
+        default_timing = (
+            cfg.line_delay == PARAMETERS["rs.line_delay"].default and not cfg.readout_time > 0
+        )
+        if cfg.frontend is not None and default_timing and not getattr(self, "_warned_rs", 0):
+            self._warned_rs = True  # (once per node)
+            self.get_logger().warning(
+                f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
+                "unset) on image input: set your camera's, measured with `rs-localizer "
+                "calibrate-readout` or from the published values in docs/video.md; a wrong "
+                "line delay biases the angular and linear velocity"
+            )
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}

@@ -10,7 +10,7 @@ import pytest
 
 from rs_localizer.cli import main as cli_main
 from rs_localizer.estimation.readout import calibrate_line_delay, fit_line_delay
-from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,
     TRAJECTORIES,
@@ -251,6 +251,33 @@ def test_time_offset_from_a_shaky_video():
     assert res.observable and abs(res.line_delay - LINE_DELAY) < 0.03 * LINE_DELAY
     err = res.time_offset - 0.01
     assert abs(err) < 1e-3 and abs(err) < 3 * res.time_offset_std < 3e-3, res
+    # the shake turns about every axis: mount and bias determined, within 3 std of the truth
+    # (the simulated IMU: R_IMU_CAMERA, bias (0.01, -0.02, 0.005) rad/s)
+    assert res.camera_imu_rotation_observable and res.gyro_bias_observable, res.mount_reason
+    rot_err = matrix_to_rotvec(res.camera_imu_rotation @ R_IMU_CAMERA)  # camera axes
+    assert np.all(np.abs(rot_err) < 3 * res.camera_imu_rotation_std), (rot_err, res)
+    assert np.all(res.camera_imu_rotation_std < np.radians(0.3))
+    bias_err = res.gyro_bias - np.array([0.01, -0.02, 0.005])
+    assert np.all(np.abs(bias_err) < 3 * res.gyro_bias_std) and np.abs(bias_err).max() < 2e-3
+    assert np.all(res.gyro_bias_std < 2e-3) and res.mount_reason == ""
+
+
+@pytest.mark.slow
+def test_one_axis_pan_leaves_the_mount_about_its_axis_undetermined():
+    """A pan turns about one axis (the camera's y): the rotation about it is reported as not
+    observable, with the axis and the advice to rotate about all three axes; the figures
+    printed are still within 3 std of the truth (an honest std, not only a large one)."""
+    frames, cam = _frames("pan", 0)
+    t0 = SequenceConfig().t0_ns
+    res = calibrate_line_delay(frames, cam, gyro=_shifted_gyro(make_trajectory("pan"), 2, 0, 1, t0))
+    assert res.observable and res.camera_imu_rotation_observable is False
+    std = res.camera_imu_rotation_std
+    assert std[1] > np.radians(0.5) and std[1] > 5 * max(std[0], std[2]), std
+    assert "all three axes" in res.mount_reason and "camera axis [" in res.mount_reason
+    rot_err = matrix_to_rotvec(res.camera_imu_rotation @ R_IMU_CAMERA)
+    assert np.all(np.abs(rot_err) < 3 * std), (rot_err, std)
+    bias_err = res.gyro_bias - np.array([0.01, -0.02, 0.005])
+    assert np.all(np.abs(bias_err) < 3 * res.gyro_bias_std), (bias_err, res.gyro_bias_std)
 
 
 @pytest.mark.slow
@@ -268,3 +295,29 @@ def test_cli_prints_the_time_offset_as_a_parameter(tmp_path, capsys):
     line = next(ln for ln in out.splitlines() if ln.strip().startswith("imu.time_offset:"))
     assert abs(float(line.split(":")[1]) - 0.01) < 1e-3, out
     assert "imu.rotation:" in out and "imu.gyro_bias:" in out
+    assert "camera-IMU rotation: std about camera x/y/z" in out and ": observable" in out, out
+
+
+def test_gyro_lines_say_what_is_not_determined():
+    """The printed lines carry each std and verdict; an undetermined rotation gets the
+    warning; no gyro, no lines."""
+    from rs_localizer.estimation.readout import ReadoutCalibration
+
+    assert ReadoutCalibration(3e-5, 1e-7, 60, True).gyro_lines() == []
+    res = ReadoutCalibration(
+        3e-5,
+        1e-7,
+        60,
+        True,
+        camera_imu_rotation=np.eye(3),
+        camera_imu_rotation_std=np.radians([0.1, 2.0, 0.1]),
+        camera_imu_rotation_observable=False,
+        gyro_bias=np.array([0.01, -0.02, 0.005]),
+        gyro_bias_std=np.array([0.001, 0.002, 0.001]),
+        gyro_bias_observable=True,
+        mount_reason="the camera-IMU rotation about camera axis [0.00, 1.00, 0.00] is not ...",
+    )
+    rot, bias, warn = res.gyro_lines()
+    assert rot == "camera-IMU rotation: std about camera x/y/z 0.1/2/0.1 deg: NOT observable"
+    assert bias.startswith("gyro bias [0.0100, -0.0200, 0.0050]") and "0.0020" in bias
+    assert bias.endswith(": observable") and warn.startswith("WARNING: the camera-IMU rotation")

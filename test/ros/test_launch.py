@@ -82,3 +82,16 @@ def test_dds_profile_unless_the_user_set_one(launch_file):
     assert env.args[1].args[0][1:] == ["config", "fastdds_profile.xml"]
     assert launch_file.dds_profile_actions({"FASTDDS_DEFAULT_PROFILES_FILE": "/x.xml"}) == []
     assert launch_file.dds_profile_actions({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}) == []
+
+
+def test_rviz_argument_opens_the_packaged_configuration(launch_file):
+    actions = launch_file.generate_launch_description()
+    args = {a.args[0]: a.kwargs["default_value"] for a in actions if "default_value" in a.kwargs}
+    assert args["rviz"] == "false"
+    rviz = [a for a in actions if "function" in a.kwargs][1].kwargs["function"]
+    assert rviz({**args}) == []
+    (node,) = rviz({**args, "rviz": "true"})
+    assert node.kwargs["executable"] == "rviz2" and node.kwargs["arguments"][0] == "-d"
+    config = node.kwargs["arguments"][1].args[0]
+    assert config[1:] == ["rviz", "rs_localizer.rviz"]
+    assert (LAUNCH.parents[1] / "rviz" / "rs_localizer.rviz").is_file()
