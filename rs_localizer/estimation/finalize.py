@@ -34,13 +34,16 @@ __all__ = [
     "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
+    "MIRRORED_FIT_FRACTION",
     "PARTIAL_FIT_CONDITION",
     "PARTIAL_FIT_FRACTION",
     "PRIOR_CONFLICT",
     "PRIOR_NEGLIGIBLE",
     "FinalModel",
+    "ImageAlone",
     "final_estimate",
     "final_refinement",
+    "image_alone",
     "refine_final_model",
 ]
 
@@ -67,6 +70,11 @@ PARTIAL_FIT_FRACTION = 0.1
 #: garbage fits measured 1.3e3-6e3 with 4-6 % of the points; true fits of 3D scenes 5-400
 #: (corridor frames with up to 70 % outliers, the paper protocol's frames)
 PARTIAL_FIT_CONDITION = 1e3
+#: ``inconsistent_fit`` too: a non-planar fit explaining fewer than this fraction of the valid
+#: points with a condition number above :data:`PARTIAL_FIT_CONDITION` (correspondences
+#: reflected through the camera centre, no rigid pose explains them: 22-39 % of the points
+#: fitted, condition 1.9e3 and more; ``python -m rs_localizer.evaluation.bench_consistency``)
+MIRRORED_FIT_FRACTION = 0.5
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
 #: :func:`final_refinement`
 PRIOR_CONFLICT = 16.81
@@ -153,6 +161,66 @@ def final_refinement(
         return ref, False
     post = posterior_step(ref, prior, fr.spr)  # (MAP from ML in closed form)
     return (ref, False) if post is None else (post, True)
+
+
+@dataclass(frozen=True)
+class ImageAlone:
+    """What the image alone says near a gyro-aided model (:func:`image_alone`).
+
+    Attributes:
+        angular_velocity: (3,) rad/s, camera optical frame.
+        covariance: (3, 3) its covariance (rad^2/s^2), from the data alone.
+        num_inliers: points within the inlier threshold of the image-alone model.
+    """
+
+    angular_velocity: np.ndarray
+    covariance: np.ndarray
+    num_inliers: int
+
+
+def image_alone(
+    fr: Frame, final: FinalModel, th: float, prior: MotionPrior | None
+) -> ImageAlone | None:
+    """The final refinement of ``final`` on the frame's points without the gyro: the angular
+    velocity the image alone gives near that model, with its covariance, and the inliers it
+    explains. One refinement (a few cost evaluations), no RANSAC: the gyro-aided estimate's
+    test of the gyro (``estimate_rs_pose(..., gyro=)``). As in the unaided estimator, a
+    planar frame (or a ``prior`` with ``always``) is refined with the motion ``prior`` without
+    the gyro (one planar frame barely separates the angular velocity from the rotation),
+    others by maximum likelihood.
+
+    Args:
+        fr: the frame (rolling shutter: ``fr.spr > 0``). final: the aided model.
+        th: inlier threshold (normalized units). prior: the motion prior without the gyro.
+    Returns:
+        :class:`ImageAlone`, or ``None`` when the refinement gives no finite model or
+        covariance.
+    """
+    if not fr.spr > 0:
+        return None
+    on = prior is not None and prior.enabled and (fr.planar or prior.always)
+    ref = refine_rs_pose(
+        final.R,
+        final.C,
+        final.w,
+        final.t,
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        rolling_shutter=True,
+        prior=prior if on else None,
+        seconds_per_unit_r=fr.spr,
+        cutoff=FINAL_CUTOFF * th,
+        tol=FINAL_TOL,
+    )
+    cov = ref.covariance
+    if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
+        return None
+    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0)
+    n = final_inliers(errors, th)[1]
+    # (omega = -w / s in the camera frame: physical_velocities)
+    return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
 
 
 def refine_final_model(
@@ -258,9 +326,11 @@ def final_estimate(
       image, so mirrored images, reflected maps or a map in a mirrored frame fit one wall of a
       3D scene exactly, from outside the scene, with a confident-looking covariance; a camera
       that really sees a wall sees it from the scene's side;
-    - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points must not be poorly
-      conditioned (above :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial
-      fits.
+    - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points, or a non-planar
+      one of fewer than :data:`MIRRORED_FIT_FRACTION`, must not be poorly conditioned (above
+      :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial fits, and
+      correspondences reflected through the camera centre (a mirror image of a 3D scene: no
+      rigid pose explains them, a part of them is fitted badly conditioned).
 
     ``initial``: (points the initial model explained or -1, whether it was used).
 
@@ -286,7 +356,10 @@ def final_estimate(
         seen_from_behind = (
             flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
         )
-        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
+        n_inl = np.count_nonzero(inl)
+        few = n_inl < PARTIAL_FIT_FRACTION * len(fr.x) or (
+            n_inl < MIRRORED_FIT_FRACTION * len(fr.x) and flat >= PLANAR_TOLERANCE
+        )
         if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
             raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
+from ..maps import file_mode
 from .marker_ba import FrameDetections, MarkerMapResult
 
 __all__ = [
@@ -154,7 +155,8 @@ def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
 def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
     """Write ``text`` to ``path`` whole or not at all: a temporary file in the same directory,
     then an atomic rename (``os.replace``); on any error (Ctrl-C included) the temporary file
-    is removed and ``path`` is untouched.
+    is removed and ``path`` is untouched. The file gets the user's umask mode
+    (:func:`rs_localizer.maps.file_mode`), as a plain ``open`` would.
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
@@ -165,6 +167,7 @@ def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, file_mode())  # (mkstemp's 0600 -> the umask's: readable by others)
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
         os.replace(tmp, path)
