@@ -34,7 +34,6 @@ __all__ = [
     "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
-    "MIRRORED_FIT_FRACTION",
     "PARTIAL_FIT_CONDITION",
     "PARTIAL_FIT_FRACTION",
     "PRIOR_CONFLICT",
@@ -70,11 +69,6 @@ PARTIAL_FIT_FRACTION = 0.1
 #: garbage fits measured 1.3e3-6e3 with 4-6 % of the points; true fits of 3D scenes 5-400
 #: (corridor frames with up to 70 % outliers, the paper protocol's frames)
 PARTIAL_FIT_CONDITION = 1e3
-#: ``inconsistent_fit`` too: a non-planar fit explaining fewer than this fraction of the valid
-#: points with a condition number above :data:`PARTIAL_FIT_CONDITION` (correspondences
-#: reflected through the camera centre, no rigid pose explains them: 22-39 % of the points
-#: fitted, condition 1.9e3 and more; ``python -m rs_localizer.evaluation.bench_consistency``)
-MIRRORED_FIT_FRACTION = 0.5
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
 #: :func:`final_refinement`
 PRIOR_CONFLICT = 16.81
@@ -326,11 +320,9 @@ def final_estimate(
       image, so mirrored images, reflected maps or a map in a mirrored frame fit one wall of a
       3D scene exactly, from outside the scene, with a confident-looking covariance; a camera
       that really sees a wall sees it from the scene's side;
-    - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points, or a non-planar
-      one of fewer than :data:`MIRRORED_FIT_FRACTION`, must not be poorly conditioned (above
-      :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial fits, and
-      correspondences reflected through the camera centre (a mirror image of a 3D scene: no
-      rigid pose explains them, a part of them is fitted badly conditioned).
+    - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points must not be poorly
+      conditioned (above :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial
+      fits.
 
     ``initial``: (points the initial model explained or -1, whether it was used).
 
@@ -356,10 +348,7 @@ def final_estimate(
         seen_from_behind = (
             flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
         )
-        n_inl = np.count_nonzero(inl)
-        few = n_inl < PARTIAL_FIT_FRACTION * len(fr.x) or (
-            n_inl < MIRRORED_FIT_FRACTION * len(fr.x) and flat >= PLANAR_TOLERANCE
-        )
+        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
         if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
             raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)

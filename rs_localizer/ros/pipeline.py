@@ -705,6 +705,11 @@ class FramePipeline:
         self.stats.add("time_resets")
         self.log.warning("time_reset", f"time reset: {why}")
         self.history.forget_after(stamp)
+        if self.imu is not None:  # (a new timeline: the old samples and pairs do not apply)
+            self.imu.reset()
+        for state in (self.gyro_bias, self.gyro_check):
+            if state is not None:
+                state.restart()
 
     def _valid_rows(self, uv, xyz, scores, cfg: LocalizerConfig):
         """Rows with NaN/inf dropped (before the cap, so that the cap keeps valid rows), then
