@@ -1,7 +1,8 @@
 """A wrong IMU never makes a pose worse: a seeded fuzz of the gyro path.
 
-A synthetic hand-held video of the corridor (``bench_gyro.make_video``: 1280x720, 30 us/line,
-500 correspondences with 20 % outliers) with a simulated 200 Hz gyro, attacked in the ways a
+A synthetic hand-held video of the corridor (``generate_sequence`` with the ``shake``
+trajectory: 1280x720, 30 us/line, 500 correspondences with 20 % outliers) with a simulated
+200 Hz gyro, attacked in the ways a
 real IMU stream goes wrong: spikes of +-30 rad/s on a few samples (under ``imu.max_rate``),
 garbage rates under that bound, a bias offset far beyond the stated uncertainty, samples
 stamped far in the future or the past, dropouts, a wrong mount, a wrong time offset, a time
@@ -25,9 +26,15 @@ from rs_localizer.estimation.gyro import (
     IMU_SAMPLE_REJECTIONS,
     ImuBuffer,
 )
-from rs_localizer.evaluation.bench_gyro import NOISE, RATE_HZ, make_video
+from rs_localizer.evaluation.bench_gyro import NOISE, RATE_HZ
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.trajectory import R_IMU_CAMERA, SequenceConfig, imu_samples
+from rs_localizer.sim.trajectory import (
+    R_IMU_CAMERA,
+    SequenceConfig,
+    generate_sequence,
+    imu_samples,
+    make_trajectory,
+)
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0))
 #: absolute slack on top of 1.2x (deg, m): the per-frame noise of the unaided pose on this video
@@ -51,8 +58,9 @@ ATTACKS = (
 
 @pytest.fixture(scope="module")
 def video():
-    frames, cam, traj = make_video(FRAMES / 30.0, "shake", seed=3)
-    t0_ns = SequenceConfig().t0_ns
+    config = SequenceConfig(num_frames=FRAMES, seed=3, num_landmarks=2000)
+    frames, _, cam, traj = generate_sequence(config, trajectory=make_trajectory("shake"))
+    t0_ns = config.t0_ns
     t_end = (frames[-1].t_ref_ns - t0_ns) * 1e-9 + 0.1
     t, om, _ = imu_samples(
         traj, -0.1, t_end, RATE_HZ, 3, NOISE, np.zeros(3), R_imu_camera=R_IMU_CAMERA

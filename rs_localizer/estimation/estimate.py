@@ -142,7 +142,8 @@ def estimate_rs_pose(
     if est.success:
         img = image[0] if image else None
         if img is None or (
-            gyro_image_chi2(gyro, img.angular_velocity, img.covariance) > GYRO_CHI2_THRESHOLD
+            gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar)
+            > GYRO_CHI2_THRESHOLD
         ):
             why = "contradicted"
         elif (

@@ -36,6 +36,8 @@ __all__ = [
     "GYRO_IMAGE_SCALE",
     "GYRO_INLIER_MARGIN",
     "GYRO_MISSING_REASONS",
+    "GYRO_PLANAR_IMAGE_SCALE",
+    "GYRO_PLANAR_RATE_CHANGE_FACTOR",
     "GYRO_RATE_CHANGE_FACTOR",
     "GYRO_RECHECK_FRACTION",
     "IMU_SAMPLE_REJECTIONS",
@@ -51,9 +53,13 @@ __all__ = [
 #: chi-square (3 dof) above which the image disagrees with the gyro: P(chi2_3 > 16.27) = 0.001
 GYRO_CHI2_THRESHOLD = 16.27
 #: :func:`gyro_image_chi2`: the image's covariance is scaled by this ...
-GYRO_IMAGE_SCALE = 2.0
+GYRO_IMAGE_SCALE = 1.0
 #: ... and the gyro's rate change over the readout times this is added as a standard deviation
-GYRO_RATE_CHANGE_FACTOR = 0.2
+GYRO_RATE_CHANGE_FACTOR = 0.1
+#: the same two on planar frames (one plane separates the angular velocity from the rotation
+#: weakly: a rate change within the readout moves the image's estimate further)
+GYRO_PLANAR_IMAGE_SCALE = 2.0
+GYRO_PLANAR_RATE_CHANGE_FACTOR = 0.2
 #: a gyro-aided estimate explaining fewer than ``1 - GYRO_INLIER_MARGIN`` of the inliers of
 #: the image alone (unaided RANSAC) is not used: the gyro led RANSAC to a wrong consensus
 GYRO_INLIER_MARGIN = 0.1
@@ -310,7 +316,10 @@ def _floored_chi2(w, wg, Sg, P):
 
 
 def gyro_image_chi2(
-    gyro: GyroMeasurement, angular_velocity: ArrayLike, image_covariance: ArrayLike
+    gyro: GyroMeasurement,
+    angular_velocity: ArrayLike,
+    image_covariance: ArrayLike,
+    planar: bool = False,
 ) -> float:
     """Chi-square (3 dof) of the gyro against the angular velocity the image alone gives.
 
@@ -319,13 +328,16 @@ def gyro_image_chi2(
     prior: :func:`~rs_localizer.estimation.finalize.image_alone`), and ``Q = (k |d|)^2 I``
     (``d`` the gyro's :attr:`~GyroMeasurement.rate_change` over the readout, ``k`` =
     :data:`GYRO_RATE_CHANGE_FACTOR`) allows for what a one-rate model cannot fit when the rate
-    changes within the readout, with ``S_image`` scaled by :data:`GYRO_IMAGE_SCALE`. Both
-    constants are calibrated so that a right gyro exceeds :data:`GYRO_CHI2_THRESHOLD` with
-    the stated probability (``python -m rs_localizer.evaluation.bench_gyro --false-alarms``).
+    changes within the readout, with ``S_image`` scaled by :data:`GYRO_IMAGE_SCALE` (on planar
+    frames :data:`GYRO_PLANAR_RATE_CHANGE_FACTOR` and :data:`GYRO_PLANAR_IMAGE_SCALE`). The
+    constants are calibrated so that a right gyro exceeds :data:`GYRO_CHI2_THRESHOLD` with at
+    most the stated probability (hand-held videos and single frames, 3D and planar:
+    ``python -m rs_localizer.evaluation.bench_gyro --false-alarms``).
 
     Args:
         gyro: the measurement. angular_velocity: (3,) the image's (rad/s, camera frame).
         image_covariance: (3, 3) its covariance from the data alone (rad^2/s^2).
+        planar: the frame's points are (nearly) coplanar.
     Returns:
         the chi-square value (``inf`` for non-finite input or a singular covariance).
     """
@@ -336,8 +348,9 @@ def gyro_image_chi2(
             w - gyro.angular_velocity,
             gyro.covariance,
             P,
-            GYRO_IMAGE_SCALE,
-            GYRO_RATE_CHANGE_FACTOR**2 * float(gyro.rate_change @ gyro.rate_change),
+            GYRO_PLANAR_IMAGE_SCALE if planar else GYRO_IMAGE_SCALE,
+            (GYRO_PLANAR_RATE_CHANGE_FACTOR if planar else GYRO_RATE_CHANGE_FACTOR) ** 2
+            * float(gyro.rate_change @ gyro.rate_change),
         )
     )
 
