@@ -126,8 +126,9 @@ def open_regular_file(path, mode: str = "r"):
 
 def load_landmarks_csv(path):
     """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
-    points (M, 3)). Raises ValueError for malformed rows, duplicate ids or a path that is not a
-    regular file (a FIFO would block the reader), OSError if it cannot be opened."""
+    points (M, 3)). Raises ValueError for malformed rows, no rows, duplicate ids, non-finite
+    coordinates or a path that is not a regular file (a FIFO would block the reader), OSError if
+    it cannot be opened."""
     ids, pts = [], []
     with open_regular_file(path) as f:
         for lineno, line in enumerate(f, 1):
@@ -144,6 +145,8 @@ def load_landmarks_csv(path):
                 pts.append([float(s) for s in parts[1:]])
             except ValueError as e:
                 raise ValueError(f"{path}:{lineno}: {e}") from None
+    if not ids:
+        raise ValueError(f"{path}: no landmarks")
     ids = np.asarray(ids, dtype=np.int64)
     if len(np.unique(ids)) != len(ids):
         raise ValueError(f"{path}: duplicate landmark ids")

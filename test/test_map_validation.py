@@ -162,3 +162,22 @@ def test_maps_are_written_readable_by_others(tmp_path, umask_022):
     q = write_atomic(tmp_path / "private.yaml", "markers: []\n")
     assert stat.S_IMODE(q.stat().st_mode) == 0o600
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_landmark_maps_that_cannot_work_are_refused(tmp_path):
+    from rs_localizer.maps import load_landmarks_csv
+
+    cases = {
+        "id,x,y,z\n": "no landmarks",
+        "id,x,y,z\n1,0,0,1\n1,0,1,1\n": "duplicate",
+        "id,x,y,z\n1,nan,0,1\n": "non-finite",
+        "1,0,0\n": "expected",
+    }
+    for k, (text, match) in enumerate(cases.items()):
+        p = tmp_path / f"l{k}.csv"
+        p.write_text(text)
+        with pytest.raises(ValueError, match=match):
+            load_landmarks_csv(p)
+    p.write_text("id,x,y,z\n3,0.5,0,2\n")
+    ids, pts = load_landmarks_csv(p)
+    assert ids.tolist() == [3] and pts.tolist() == [[0.5, 0.0, 2.0]]

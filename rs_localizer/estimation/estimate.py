@@ -150,14 +150,14 @@ def estimate_rs_pose(
             est.num_inliers >= GYRO_RECHECK_FRACTION * est.num_valid
             and img.num_inliers <= est.num_inliers * (1.0 + GYRO_INLIER_MARGIN)
         ):
-            return replace(est, gyro_used=True)
+            return est
         else:
             unaided = _estimate(*args, opts, scores, initial_model)
             if not (
                 unaided.success
                 and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
             ):
-                return replace(est, gyro_used=True)
+                return est
             why = "fewer_inliers"
     if unaided is None:
         unaided = _estimate(*args, opts, scores, initial_model)
@@ -179,7 +179,8 @@ def _estimate(
     image_prior: MotionPrior | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
-    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity. With
+    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
+    success has ``gyro_used`` set). With
     ``image`` (a list), a success appends what the image alone (with ``image_prior``, the
     motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
     or None)."""
@@ -219,6 +220,7 @@ def _estimate(
             initial,
             timings,
             opts.plausibility.consistent_fit,
+            gyro is not None,
         )
         if image is not None:
             t0 = time.perf_counter()

@@ -308,6 +308,7 @@ def final_estimate(
     initial: tuple[int, bool],
     timings: dict[str, float],
     consistent_fit: bool = False,
+    gyro_used: bool = False,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
@@ -324,7 +325,8 @@ def final_estimate(
       conditioned (above :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial
       fits.
 
-    ``initial``: (points the initial model explained or -1, whether it was used).
+    ``initial``: (points the initial model explained or -1, whether it was used);
+    ``gyro_used``: the model was solved with a gyro measurement (set on the estimate).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -390,4 +392,5 @@ def final_estimate(
         initial_explained=initial[0],
         initial_used=initial[1],
         acceleration_sensitivity=final.sensitivity,
+        gyro_used=gyro_used,
     )
