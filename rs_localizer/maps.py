@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import stat
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -33,18 +34,46 @@ __all__ = [
     "scene_path",
     "scene_quad_frames",
     "write_marker_map",
+    "write_text_atomic",
 ]
 
 #: the built-in scenes (world descriptions shared by the renderer and the ArUco front end)
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 
 
-def save_landmarks_csv(path, ids, points):
-    """Write a landmark map ``id,x,y,z`` (header line, metres)."""
-    with open(path, "w") as f:
-        f.write("id,x,y,z\n")
-        for i, (x, y, z) in zip(ids, points, strict=False):
-            f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
+def save_landmarks_csv(path, ids, points) -> Path:
+    """Write a landmark map ``id,x,y,z`` (header line, metres), atomically
+    (:func:`write_text_atomic`). Returns the path."""
+    rows = [
+        f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n" for i, (x, y, z) in zip(ids, points, strict=False)
+    ]
+    return write_text_atomic(path, "id,x,y,z\n" + "".join(rows), overwrite=True)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` whole or not at all: a temporary file in the same directory,
+    then an atomic rename (``os.replace``); on any error (Ctrl-C included) the temporary file
+    is removed and ``path`` is untouched. The file gets the user's umask mode
+    (:func:`file_mode`), as a plain ``open`` would. The parent directory is created.
+
+    Raises:
+        FileExistsError: ``path`` exists and ``overwrite`` is False.
+        OSError: the directory cannot be written.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (use --overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, file_mode())  # (mkstemp's 0600 -> the umask's: readable by others)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
 
 
 def file_mode() -> int:
@@ -169,7 +198,8 @@ def marker_dictionary(name: str):
 
 def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = None) -> Path:
     """Write a marker map: ``dictionary`` name and ``corners`` {marker id: (4, 3) world corners
-    in ArUco order (TL, TR, BR, BL), metres} as YAML. Returns the path."""
+    in ArUco order (TL, TR, BR, BL), metres} as YAML, atomically (:func:`write_text_atomic`).
+    Returns the path."""
     import yaml
 
     data = {
@@ -179,12 +209,12 @@ def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = N
             {"id": int(k), "corners": np.round(c, 6).tolist()} for k, c in sorted(corners.items())
         ],
     }
-    path = Path(path)
-    path.write_text(
+    return write_text_atomic(
+        path,
         "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
-        + yaml.safe_dump(data, default_flow_style=None, sort_keys=False)
+        + yaml.safe_dump(data, default_flow_style=None, sort_keys=False),
+        overwrite=True,
     )
-    return path
 
 
 def scene_names() -> list:

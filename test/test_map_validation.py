@@ -181,3 +181,15 @@ def test_landmark_maps_that_cannot_work_are_refused(tmp_path):
     p.write_text("id,x,y,z\n3,0.5,0,2\n")
     ids, pts = load_landmarks_csv(p)
     assert ids.tolist() == [3] and pts.tolist() == [[0.5, 0.0, 2.0]]
+
+
+def test_marker_and_landmark_maps_are_written_whole_and_readable(tmp_path, umask_022):
+    from rs_localizer.maps import load_landmarks_csv, save_landmarks_csv
+
+    p = write_marker_map(tmp_path / "sub" / "m.yaml", "DICT_4X4_50", {7: _square(0.1)})
+    assert stat.S_IMODE(p.stat().st_mode) == 0o644
+    assert load_marker_map(p)[1].keys() == {7}
+    q = save_landmarks_csv(tmp_path / "l.csv", [4, 5], np.array([[0, 0, 1.0], [1, 2, 3.0]]))
+    assert stat.S_IMODE(q.stat().st_mode) == 0o644
+    assert load_landmarks_csv(q)[0].tolist() == [4, 5]
+    assert not list(tmp_path.rglob("*.tmp"))
