@@ -221,6 +221,7 @@ def _estimate(
             timings,
             opts.plausibility.consistent_fit,
             gyro is not None,
+            opts.ransac.threshold_px / fr.f,
         )
         if image is not None:
             t0 = time.perf_counter()
