@@ -46,6 +46,9 @@ def test_samples_far_from_the_frames_time_are_rejected_without_poisoning_the_buf
     # the frames' time follows wait_until and measurement (IMU clock)
     buf.wait_until(100 * S + 25 * DT, 0.0)
     assert buf.add(102 * S, W) == "stamp_far_from_frames"
+    # a frame that takes 3 s to solve: the stream that went on meanwhile is kept
+    assert _feed(buf, 100 * S + 30 * DT, 600) == [None] * 600
+    assert buf.add(100 * S + 30 * DT + 600 * DT + 2 * S, W) == "stamp_far_from_frames"
 
 
 def test_a_clock_that_goes_back_starts_a_new_timeline():

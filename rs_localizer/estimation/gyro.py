@@ -410,7 +410,8 @@ class ImuBuffer:
 
     A bad stamp never locks the buffer: once a frame's time is known (:meth:`note_frame`,
     also noted by :meth:`wait_until` and :meth:`measurement`), a sample further than
-    ``max_skew`` from it is rejected (``stamp_far_from_frames``); a sample that jumped more
+    ``max_skew`` before it, or after it and after the newest sample, is rejected
+    (``stamp_far_from_frames``); a sample that jumped more
     than :data:`IMU_JUMP_NS` ahead of its predecessor and is followed by one before it is
     dropped as a lone bad stamp; :data:`IMU_NEW_TIMELINE_SAMPLES` consecutive increasing samples
     before the newest one start the buffer over (the IMU's clock went back). A time reset of
@@ -422,8 +423,8 @@ class ImuBuffer:
             and rejected.
         max_gap: a readout whose samples are further apart than this (s) is ``sparse``: an
             IMU at 10 Hz cannot describe the rotation within a 20 ms readout.
-        max_skew: s; a sample stamped further than this before or after the last frame's
-            time (IMU clock) is rejected (``inf``: no bound).
+        max_skew: s; a sample stamped further than this before the last frame's time (IMU
+            clock), or after it and after the newest sample, is rejected (``inf``: no bound).
 
     Attributes:
         received: samples given to :meth:`add` (since construction).
@@ -503,7 +504,7 @@ class ImuBuffer:
                 return "non_finite"
             if np.abs(w).max() > self.max_rate:
                 return "saturated"
-            if self._frame_ns is not None and abs(stamp_ns - self._frame_ns) > self.max_skew_ns:
+            if self._far(stamp_ns):
                 return "stamp_far_from_frames"
             sample = (float(w[0]), float(w[1]), float(w[2]))
             if self._t and stamp_ns <= self._t[-1]:
@@ -521,6 +522,18 @@ class ImuBuffer:
             self._run.clear()
             self._append(stamp_ns, sample)
         return None
+
+    def _far(self, stamp_ns: int) -> bool:
+        """Whether a sample is further than ``max_skew`` behind the frames' time, or ahead of
+        it and of the newest sample (a stream that went on while a frame took long to solve
+        is not far: it continues from its newest sample)."""
+        f = self._frame_ns
+        if f is None:
+            return False
+        if f - stamp_ns > self.max_skew_ns:
+            return True
+        ahead_of_newest = not self._t or stamp_ns - self._t[-1] > self.max_skew_ns
+        return stamp_ns - f > self.max_skew_ns and ahead_of_newest
 
     def _new_timeline(self, stamp_ns: int, sample: tuple[float, float, float]) -> bool:
         """Collect samples that go back before the newest one; once
