@@ -41,7 +41,7 @@ __all__ = [
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 
 
-def save_landmarks_csv(path, ids, points) -> Path:
+def save_landmarks_csv(path: str | os.PathLike, ids: np.ndarray, points: np.ndarray) -> Path:
     """Write a landmark map ``id,x,y,z`` (header line, metres), atomically
     (:func:`write_text_atomic`). Returns the path."""
     rows = [
