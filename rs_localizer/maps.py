@@ -11,15 +11,19 @@ from __future__ import annotations
 
 import os
 import stat
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
 __all__ = [
+    "MARKER_SQUARE_TOLERANCE",
     "SCENE_DIR",
+    "check_marker_corners",
     "check_regular_file",
     "checkerboard_corners",
     "checkerboard_layout",
+    "file_mode",
     "load_landmarks_csv",
     "load_marker_map",
     "marker_dictionary",
@@ -30,18 +34,99 @@ __all__ = [
     "scene_path",
     "scene_quad_frames",
     "write_marker_map",
+    "write_text_atomic",
 ]
 
 #: the built-in scenes (world descriptions shared by the renderer and the ArUco front end)
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 
 
-def save_landmarks_csv(path, ids, points):
-    """Write a landmark map ``id,x,y,z`` (header line, metres)."""
-    with open(path, "w") as f:
-        f.write("id,x,y,z\n")
-        for i, (x, y, z) in zip(ids, points, strict=False):
-            f.write(f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n")
+def save_landmarks_csv(path: str | os.PathLike, ids: np.ndarray, points: np.ndarray) -> Path:
+    """Write a landmark map ``id,x,y,z`` (header line, metres), atomically
+    (:func:`write_text_atomic`). Returns the path."""
+    rows = [
+        f"{int(i)},{x:.4f},{y:.4f},{z:.4f}\n" for i, (x, y, z) in zip(ids, points, strict=False)
+    ]
+    return write_text_atomic(path, "id,x,y,z\n" + "".join(rows), overwrite=True)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` whole or not at all: a temporary file in the same directory,
+    then an atomic rename (``os.replace``); on any error (Ctrl-C included) the temporary file
+    is removed and ``path`` is untouched. The file gets the user's umask mode
+    (:func:`file_mode`), as a plain ``open`` would. The parent directory is created.
+
+    Raises:
+        FileExistsError: ``path`` exists and ``overwrite`` is False.
+        OSError: the directory cannot be written.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (use --overwrite to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, file_mode())  # (mkstemp's 0600 -> the umask's: readable by others)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def file_mode() -> int:
+    """The mode a new file gets from the user's umask (``0o666 & ~umask``): maps written
+    through a temporary file (``mkstemp``: 0600) are given it, so that a node running as
+    another user can read them."""
+    try:  # (Linux: read it without changing it)
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+#: relative tolerance on a marker's sides and diagonals (:func:`check_marker_corners`)
+MARKER_SQUARE_TOLERANCE = 0.05
+
+
+def check_marker_corners(corners: np.ndarray, size: float | None = None, what: str = "") -> None:
+    """Check that ``corners`` (4, 3) (metres, ArUco order) form a square: finite, the four sides
+    and the two diagonals (``sqrt(2)`` sides) equal within :data:`MARKER_SQUARE_TOLERANCE`,
+    coplanar within that tolerance of the side, a side > 1 mm, and, if ``size`` is given, a
+    side of that length within the tolerance.
+
+    Raises:
+        ValueError: naming ``what`` and the first violation.
+    """
+    c = np.asarray(corners, dtype=float)
+    if c.shape != (4, 3) or not np.isfinite(c).all():
+        raise ValueError(f"{what}needs 4 finite 3D corners")
+    sides = np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)
+    diag = np.array([np.linalg.norm(c[2] - c[0]), np.linalg.norm(c[3] - c[1])])
+    side = float(np.mean(sides))
+    tol = MARKER_SQUARE_TOLERANCE
+    if not side > 1e-3:
+        raise ValueError(f"{what}degenerate corners (side {side:.3g} m)")
+    if np.abs(sides - side).max() > tol * side or np.abs(diag - np.sqrt(2) * side).max() > (
+        tol * side
+    ):
+        raise ValueError(
+            f"{what}corners are not a square (sides {np.round(sides, 4).tolist()} m, "
+            f"diagonals {np.round(diag, 4).tolist()} m)"
+        )
+    n = np.cross(c[1] - c[0], c[3] - c[0])
+    n = n / np.linalg.norm(n)
+    if abs(float((c[2] - c[0]) @ n)) > tol * side:
+        raise ValueError(f"{what}corners are not coplanar")
+    if size is not None and abs(side - float(size)) > tol * float(size):
+        raise ValueError(f"{what}side {side:.4f} m, the map states {float(size):.4f} m")
 
 
 def check_regular_file(path) -> None:
@@ -70,8 +155,9 @@ def open_regular_file(path, mode: str = "r"):
 
 def load_landmarks_csv(path):
     """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
-    points (M, 3)). Raises ValueError for malformed rows, duplicate ids or a path that is not a
-    regular file (a FIFO would block the reader), OSError if it cannot be opened."""
+    points (M, 3)). Raises ValueError for malformed rows, no rows, duplicate ids, non-finite
+    coordinates or a path that is not a regular file (a FIFO would block the reader), OSError if
+    it cannot be opened."""
     ids, pts = [], []
     with open_regular_file(path) as f:
         for lineno, line in enumerate(f, 1):
@@ -88,6 +174,8 @@ def load_landmarks_csv(path):
                 pts.append([float(s) for s in parts[1:]])
             except ValueError as e:
                 raise ValueError(f"{path}:{lineno}: {e}") from None
+    if not ids:
+        raise ValueError(f"{path}: no landmarks")
     ids = np.asarray(ids, dtype=np.int64)
     if len(np.unique(ids)) != len(ids):
         raise ValueError(f"{path}: duplicate landmark ids")
@@ -110,7 +198,8 @@ def marker_dictionary(name: str):
 
 def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = None) -> Path:
     """Write a marker map: ``dictionary`` name and ``corners`` {marker id: (4, 3) world corners
-    in ArUco order (TL, TR, BR, BL), metres} as YAML. Returns the path."""
+    in ArUco order (TL, TR, BR, BL), metres} as YAML, atomically (:func:`write_text_atomic`).
+    Returns the path."""
     import yaml
 
     data = {
@@ -120,12 +209,12 @@ def write_marker_map(path, dictionary: str, corners: dict, scene: str | None = N
             {"id": int(k), "corners": np.round(c, 6).tolist()} for k, c in sorted(corners.items())
         ],
     }
-    path = Path(path)
-    path.write_text(
+    return write_text_atomic(
+        path,
         "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
-        + yaml.safe_dump(data, default_flow_style=None, sort_keys=False)
+        + yaml.safe_dump(data, default_flow_style=None, sort_keys=False),
+        overwrite=True,
     )
-    return path
 
 
 def scene_names() -> list:
@@ -289,7 +378,11 @@ def load_marker_map(path):
 
     Raises:
         FileNotFoundError: no such file or built-in scene. ValueError: neither a marker map nor
-        a scene, or a marker without 4 finite 3D corners.
+        a scene, no markers, a marker without an integer id >= 0 or 4 finite 3D corners, an id
+        given twice, corners that are not a square (:func:`check_marker_corners`; of the
+        marker's ``size`` or the map's ``marker_size`` in metres when given). Other keys
+        (per-marker uncertainty, observations, the anchor) are read by their own users and
+        ignored here.
     """
     import yaml
 
@@ -299,10 +392,28 @@ def load_marker_map(path):
         return str(data.get("dictionary", "DICT_4X4_250")), _scene_marker_corners(data)
     if not isinstance(data, dict) or "markers" not in data:
         raise ValueError(f"{p}: neither a marker map nor a scene")
+    markers = data["markers"]
+    if not isinstance(markers, list) or not markers:
+        raise ValueError(f"{p}: the map has no markers")
+    dictionary = data.get("dictionary", "DICT_4X4_250")
+    if not isinstance(dictionary, str):
+        raise ValueError(f"{p}: 'dictionary' must be a name, got {dictionary!r}")
+    size = data.get("marker_size")
     corners = {}
-    for m in data["markers"]:
-        c = np.asarray(m["corners"], dtype=float)
-        if c.shape != (4, 3) or not np.isfinite(c).all():
-            raise ValueError(f"{p}: marker {m.get('id')} needs 4 finite 3D corners")
-        corners[int(m["id"])] = c
-    return str(data.get("dictionary", "DICT_4X4_250")), corners
+    for k, m in enumerate(markers):
+        if not isinstance(m, dict) or "id" not in m or "corners" not in m:
+            raise ValueError(f"{p}: marker #{k} needs 'id' and 'corners'")
+        mid = m["id"]
+        if isinstance(mid, bool) or not isinstance(mid, int) or mid < 0:
+            raise ValueError(f"{p}: marker #{k}: id must be an integer >= 0, got {mid!r}")
+        if mid in corners:
+            raise ValueError(f"{p}: marker id {mid} appears twice")
+        try:
+            c = np.asarray(m["corners"], dtype=float)
+            msize = m.get("size", size)
+            msize = None if msize is None else float(msize)
+        except (TypeError, ValueError):
+            raise ValueError(f"{p}: marker {mid}: corners and size must be numbers") from None
+        check_marker_corners(c, msize, f"{p}: marker {mid}: ")
+        corners[mid] = c
+    return dictionary, corners

@@ -10,6 +10,7 @@ import tempfile
 from pathlib import Path
 from typing import TextIO
 
+from ..maps import file_mode
 from . import args as A
 
 __all__ = ["register", "run"]
@@ -160,6 +161,7 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
         os.close(fd)
         try:
             fm.save(part)
+            os.chmod(part, file_mode())  # (mkstemp's 0600 -> the user's umask)
             os.replace(part, out)
         except BaseException:
             Path(part).unlink(missing_ok=True)

@@ -24,9 +24,16 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
-from .finalize import final_estimate, refine_final_model
+from .finalize import ImageAlone, final_estimate, image_alone, refine_final_model
 from .frame import configure_frame, prepare_frame
-from .gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement, gyro_consistency, gyro_prior
+from .gyro import (
+    GYRO_CHI2_THRESHOLD,
+    GYRO_INLIER_MARGIN,
+    GYRO_RECHECK_FRACTION,
+    GyroMeasurement,
+    gyro_image_chi2,
+    gyro_prior,
+)
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -101,11 +108,19 @@ def estimate_rs_pose(
             the gyro's angular velocity; it is added to the motion prior
             (:func:`~rs_localizer.estimation.gyro.gyro_prior`), so local optimization and the
             final refinement are maximum a posteriori with it on every frame, and on planar
-            frames the hypotheses' damped solves use it too; the covariance includes it. If
-            the image disagrees with it (:func:`~rs_localizer.estimation.gyro.gyro_consistency`
-            above :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`) or the aided
-            estimate fails where an unaided one succeeds, the frame is solved again without
-            it and ``gyro_rejected`` is set. Ignored by the global-shutter ``p3p``.
+            frames the hypotheses' damped solves use it too; the covariance includes it. The
+            gyro is then judged by the image alone (never by an estimate solved with it):
+            the aided model is refined once more without any prior
+            (:func:`~rs_localizer.estimation.finalize.image_alone`); if the gyro disagrees
+            with that angular velocity (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`
+            above :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`), if the aided
+            estimate fails, or if it explains fewer than ``1 -``
+            :data:`~rs_localizer.estimation.gyro.GYRO_INLIER_MARGIN` of the inliers of the
+            unaided estimate (run when the aided one explains fewer than
+            :data:`~rs_localizer.estimation.gyro.GYRO_RECHECK_FRACTION` of the valid points,
+            or the image-alone refinement explains more than it: a gyro that led RANSAC to a
+            wrong consensus), the frame is solved again without it, ``gyro_rejected`` is set
+            and ``gyro_rejection`` says why. Ignored by the global-shutter ``p3p``.
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason
@@ -121,14 +136,34 @@ def estimate_rs_pose(
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         return _estimate(*args, opts, scores, initial_model)
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
-    est = _estimate(*args, aided, scores, initial_model, gyro)
-    if est.success and est.twist_covariance is not None:
-        chi2 = gyro_consistency(gyro, est.angular_velocity, est.twist_covariance[3:, 3:])
-        if chi2 <= GYRO_CHI2_THRESHOLD:
-            return replace(est, gyro_used=True)
-    unaided = _estimate(*args, opts, scores, initial_model)
+    image: list[ImageAlone | None] = []
+    est = _estimate(*args, aided, scores, initial_model, gyro, image, opts.motion_prior)
+    unaided = None
+    why = "aided_failed"
+    if est.success:
+        img = image[0] if image else None
+        if img is None or (
+            gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar)
+            > GYRO_CHI2_THRESHOLD
+        ):
+            why = "contradicted"
+        elif (
+            est.num_inliers >= GYRO_RECHECK_FRACTION * est.num_valid
+            and img.num_inliers <= est.num_inliers * (1.0 + GYRO_INLIER_MARGIN)
+        ):
+            return est
+        else:
+            unaided = _estimate(*args, opts, scores, initial_model)
+            if not (
+                unaided.success
+                and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
+            ):
+                return est
+            why = "fewer_inliers"
+    if unaided is None:
+        unaided = _estimate(*args, opts, scores, initial_model)
     if est.success or unaided.success:
-        return replace(unaided, gyro_rejected=True)
+        return replace(unaided, gyro_rejected=True, gyro_rejection=why)
     return unaided
 
 
@@ -149,9 +184,15 @@ def _estimate(
     scores: np.ndarray | None,
     initial_model: InitialModel | None,
     gyro: GyroMeasurement | None = None,
+    image: list[ImageAlone | None] | None = None,
+    image_prior: MotionPrior | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
-    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity."""
+    a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
+    success has ``gyro_used`` set). With
+    ``image`` (a list), a success appends what the image alone (with ``image_prior``, the
+    motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
+    or None)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
@@ -188,7 +229,13 @@ def _estimate(
             initial,
             timings,
             opts.plausibility.consistent_fit,
+            gyro is not None,
+            opts.ransac.threshold_px / fr.f,
         )
+        if image is not None:
+            t0 = time.perf_counter()
+            image.append(image_alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
+            timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(
             failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings

@@ -34,13 +34,18 @@ __all__ = [
     "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
+    "MIRRORED_FIT_FRACTION",
+    "NEAR_MISS_RATIO",
+    "NEAR_MISS_WINDOW",
     "PARTIAL_FIT_CONDITION",
     "PARTIAL_FIT_FRACTION",
     "PRIOR_CONFLICT",
     "PRIOR_NEGLIGIBLE",
     "FinalModel",
+    "ImageAlone",
     "final_estimate",
     "final_refinement",
+    "image_alone",
     "refine_final_model",
 ]
 
@@ -67,6 +72,17 @@ PARTIAL_FIT_FRACTION = 0.1
 #: garbage fits measured 1.3e3-6e3 with 4-6 % of the points; true fits of 3D scenes 5-400
 #: (corridor frames with up to 70 % outliers, the paper protocol's frames)
 PARTIAL_FIT_CONDITION = 1e3
+#: ``inconsistent_fit``: a fit explaining fewer than this fraction of the valid points of a
+#: non-planar frame ...
+MIRRORED_FIT_FRACTION = 0.5
+#: ... with more near misses (points between 1 and :data:`NEAR_MISS_WINDOW` inlier thresholds
+#: from the model) than this fraction of its inliers. Wrong matches land anywhere, and the noise
+#: tail of true inliers beyond a threshold of 2 sigma is 0.16 of them; a part of a set of
+#: correspondences no rigid pose explains (3D points reflected through the camera centre) is
+#: fitted with its neighbours just missing: 0.7-1.9 in the paper protocol's frames, true fits
+#: at most 0.22 (``python -m rs_localizer.evaluation.bench_consistency``)
+NEAR_MISS_RATIO = 0.5
+NEAR_MISS_WINDOW = 5.0
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of
 #: :func:`final_refinement`
 PRIOR_CONFLICT = 16.81
@@ -153,6 +169,66 @@ def final_refinement(
         return ref, False
     post = posterior_step(ref, prior, fr.spr)  # (MAP from ML in closed form)
     return (ref, False) if post is None else (post, True)
+
+
+@dataclass(frozen=True)
+class ImageAlone:
+    """What the image alone says near a gyro-aided model (:func:`image_alone`).
+
+    Attributes:
+        angular_velocity: (3,) rad/s, camera optical frame.
+        covariance: (3, 3) its covariance (rad^2/s^2), from the data alone.
+        num_inliers: points within the inlier threshold of the image-alone model.
+    """
+
+    angular_velocity: np.ndarray
+    covariance: np.ndarray
+    num_inliers: int
+
+
+def image_alone(
+    fr: Frame, final: FinalModel, th: float, prior: MotionPrior | None
+) -> ImageAlone | None:
+    """The final refinement of ``final`` on the frame's points without the gyro: the angular
+    velocity the image alone gives near that model, with its covariance, and the inliers it
+    explains. One refinement (a few cost evaluations), no RANSAC: the gyro-aided estimate's
+    test of the gyro (``estimate_rs_pose(..., gyro=)``). As in the unaided estimator, a
+    planar frame (or a ``prior`` with ``always``) is refined with the motion ``prior`` without
+    the gyro (one planar frame barely separates the angular velocity from the rotation),
+    others by maximum likelihood.
+
+    Args:
+        fr: the frame (rolling shutter: ``fr.spr > 0``). final: the aided model.
+        th: inlier threshold (normalized units). prior: the motion prior without the gyro.
+    Returns:
+        :class:`ImageAlone`, or ``None`` when the refinement gives no finite model or
+        covariance.
+    """
+    if not fr.spr > 0:
+        return None
+    on = prior is not None and prior.enabled and (fr.planar or prior.always)
+    ref = refine_rs_pose(
+        final.R,
+        final.C,
+        final.w,
+        final.t,
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        rolling_shutter=True,
+        prior=prior if on else None,
+        seconds_per_unit_r=fr.spr,
+        cutoff=FINAL_CUTOFF * th,
+        tol=FINAL_TOL,
+    )
+    cov = ref.covariance
+    if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
+        return None
+    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0)
+    n = final_inliers(errors, th)[1]
+    # (omega = -w / s in the camera frame: physical_velocities)
+    return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
 
 
 def refine_final_model(
@@ -246,6 +322,8 @@ def final_estimate(
     initial: tuple[int, bool],
     timings: dict[str, float],
     consistent_fit: bool = False,
+    gyro_used: bool = False,
+    threshold: float = 0.0,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
@@ -260,9 +338,16 @@ def final_estimate(
       that really sees a wall sees it from the scene's side;
     - a fit of fewer than :data:`PARTIAL_FIT_FRACTION` of the valid points must not be poorly
       conditioned (above :data:`PARTIAL_FIT_CONDITION`): the same garbage's thicker partial
-      fits.
+      fits;
+    - a fit of fewer than :data:`MIRRORED_FIT_FRACTION` of the valid points must not have more
+      than :data:`NEAR_MISS_RATIO` of its inlier count in near misses (between ``threshold``
+      and :data:`NEAR_MISS_WINDOW` times it, normalized units; 0 skips the test): a part of
+      correspondences no rigid pose explains (reflected through the camera centre) fitted with
+      its neighbours just missing, where true outliers land anywhere (rolling-shutter solvers
+      only: a global-shutter model leaves near misses on any rolling-shutter frame).
 
-    ``initial``: (points the initial model explained or -1, whether it was used).
+    ``initial``: (points the initial model explained or -1, whether it was used);
+    ``gyro_used``: the model was solved with a gyro measurement (set on the estimate).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -286,9 +371,15 @@ def final_estimate(
         seen_from_behind = (
             flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
         )
-        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
+        n_inl = np.count_nonzero(inl)
+        few = n_inl < PARTIAL_FIT_FRACTION * len(fr.x)
         if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
             raise EstimationFailed(INCONSISTENT_FIT)
+        if rolling and threshold > 0 and n_inl < MIRRORED_FIT_FRACTION * len(fr.x):
+            e = exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0)
+            near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
+            if near > NEAR_MISS_RATIO * n_inl:
+                raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)
     cov = pose_cov = twist_cov = None
     if final.covariance is not None:
@@ -328,4 +419,5 @@ def final_estimate(
         initial_explained=initial[0],
         initial_used=initial[1],
         acceleration_sensitivity=final.sensitivity,
+        gyro_used=gyro_used,
     )

@@ -33,11 +33,18 @@ from .prior import MotionPrior, checked_symmetric, prior_arrays
 
 __all__ = [
     "GYRO_CHI2_THRESHOLD",
+    "GYRO_IMAGE_SCALE",
+    "GYRO_INLIER_MARGIN",
     "GYRO_MISSING_REASONS",
+    "GYRO_PLANAR_IMAGE_SCALE",
+    "GYRO_PLANAR_RATE_CHANGE_FACTOR",
+    "GYRO_RATE_CHANGE_FACTOR",
+    "GYRO_RECHECK_FRACTION",
     "IMU_SAMPLE_REJECTIONS",
     "GyroMeasurement",
     "ImuBuffer",
     "gyro_consistency",
+    "gyro_image_chi2",
     "gyro_measurement",
     "gyro_prior",
     "readout_window",
@@ -45,6 +52,20 @@ __all__ = [
 
 #: chi-square (3 dof) above which the image disagrees with the gyro: P(chi2_3 > 16.27) = 0.001
 GYRO_CHI2_THRESHOLD = 16.27
+#: :func:`gyro_image_chi2`: the image's covariance is scaled by this ...
+GYRO_IMAGE_SCALE = 1.0
+#: ... and the gyro's rate change over the readout times this is added as a standard deviation
+GYRO_RATE_CHANGE_FACTOR = 0.1
+#: the same two on planar frames (one plane separates the angular velocity from the rotation
+#: weakly: a rate change within the readout moves the image's estimate further)
+GYRO_PLANAR_IMAGE_SCALE = 2.0
+GYRO_PLANAR_RATE_CHANGE_FACTOR = 0.2
+#: a gyro-aided estimate explaining fewer than ``1 - GYRO_INLIER_MARGIN`` of the inliers of
+#: the image alone (unaided RANSAC) is not used: the gyro led RANSAC to a wrong consensus
+GYRO_INLIER_MARGIN = 0.1
+#: the unaided estimate is run to compare inlier counts when the aided one explains fewer
+#: than this fraction of the valid points (or the image-alone refinement explains more)
+GYRO_RECHECK_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
@@ -55,6 +76,10 @@ class GyroMeasurement:
         angular_velocity: (3,) rad/s, camera optical frame.
         covariance: (3, 3) rad^2/s^2, symmetric positive definite (noise of the averaged
             samples plus the uncertainty of the gyro bias).
+        rate_change: (3,) rad/s, camera optical frame: how much the rate changed over the
+            readout (the samples' least-squares slope times the readout time; zero when
+            unknown). A rolling-shutter model turns at one rate per frame: the change is what
+            it cannot represent, and :func:`gyro_image_chi2` allows for it.
 
     Raises ``ValueError`` (on construction) for non-finite values, wrong shapes or a
     covariance that is not symmetric positive definite.
@@ -62,14 +87,19 @@ class GyroMeasurement:
 
     angular_velocity: np.ndarray
     covariance: np.ndarray
+    rate_change: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         w = np.asarray(self.angular_velocity, dtype=float).reshape(-1)
         if w.shape != (3,) or not np.isfinite(w).all():
             raise ValueError(f"gyro angular_velocity must be 3 finite numbers, got {w!r}")
         S = checked_symmetric(self.covariance, 3, "gyro covariance", atol=1e-15)
+        d = np.zeros(3) if self.rate_change is None else np.asarray(self.rate_change, float)
+        if d.shape != (3,) or not np.isfinite(d).all():
+            raise ValueError(f"gyro rate_change must be 3 finite numbers, got {d!r}")
         object.__setattr__(self, "angular_velocity", w)
         object.__setattr__(self, "covariance", 0.5 * (S + S.T))
+        object.__setattr__(self, "rate_change", d)
 
 
 def readout_window(
@@ -162,7 +192,21 @@ def gyro_measurement(
     cov = (noise**2 * float(c @ c) + bias_sigma**2) * np.eye(3)
     if bias_covariance is not None:
         cov = cov + checked_symmetric(bias_covariance, 3, "gyro bias covariance", definite=False)
-    return GyroMeasurement(R @ rate, R @ cov @ R.T)
+    return GyroMeasurement(R @ rate, R @ cov @ R.T, R @ _rate_change(t, om, a, b))
+
+
+def _rate_change(t: np.ndarray, om: np.ndarray, a: float, b: float) -> np.ndarray:
+    """(3,) the rates' least-squares slope over the samples from the last at or before ``a``
+    to the first at or after ``b``, times ``b - a`` (rad/s; zero for a zero-length window)."""
+    if b <= a:
+        return np.zeros(3)
+    i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, b, side="left")), len(t) - 1)
+    ts, ws = t[i0 : i1 + 1], om[i0 : i1 + 1]
+    if len(ts) < 2:
+        return np.zeros(3)
+    dt = ts - ts.mean()
+    return (dt @ (ws - ws.mean(axis=0))) / float(dt @ dt) * (b - a)
 
 
 def _sample_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
@@ -271,10 +315,90 @@ def _floored_chi2(w, wg, Sg, P):
     return chi2
 
 
+def gyro_image_chi2(
+    gyro: GyroMeasurement,
+    angular_velocity: ArrayLike,
+    image_covariance: ArrayLike,
+    planar: bool = False,
+) -> float:
+    """Chi-square (3 dof) of the gyro against the angular velocity the image alone gives.
+
+    ``r = omega_image - omega_gyro`` with covariance ``S_gyro + S_image + Q``: the two are
+    independent measurements of the readout's rate (``S_image`` from the data alone, no
+    prior: :func:`~rs_localizer.estimation.finalize.image_alone`), and ``Q = (k |d|)^2 I``
+    (``d`` the gyro's :attr:`~GyroMeasurement.rate_change` over the readout, ``k`` =
+    :data:`GYRO_RATE_CHANGE_FACTOR`) allows for what a one-rate model cannot fit when the rate
+    changes within the readout, with ``S_image`` scaled by :data:`GYRO_IMAGE_SCALE` (on planar
+    frames :data:`GYRO_PLANAR_RATE_CHANGE_FACTOR` and :data:`GYRO_PLANAR_IMAGE_SCALE`). The
+    constants are calibrated so that a right gyro exceeds :data:`GYRO_CHI2_THRESHOLD` with at
+    most the stated probability (hand-held videos and single frames, 3D and planar:
+    ``python -m rs_localizer.evaluation.bench_gyro --false-alarms``).
+
+    Args:
+        gyro: the measurement. angular_velocity: (3,) the image's (rad/s, camera frame).
+        image_covariance: (3, 3) its covariance from the data alone (rad^2/s^2).
+        planar: the frame's points are (nearly) coplanar.
+    Returns:
+        the chi-square value (``inf`` for non-finite input or a singular covariance).
+    """
+    w = np.asarray(angular_velocity, dtype=np.float64).reshape(3)
+    P = np.asarray(image_covariance, dtype=np.float64).reshape(3, 3)
+    return float(
+        _image_chi2(
+            w - gyro.angular_velocity,
+            gyro.covariance,
+            P,
+            GYRO_PLANAR_IMAGE_SCALE if planar else GYRO_IMAGE_SCALE,
+            (GYRO_PLANAR_RATE_CHANGE_FACTOR if planar else GYRO_RATE_CHANGE_FACTOR) ** 2
+            * float(gyro.rate_change @ gyro.rate_change),
+        )
+    )
+
+
+@njit(cache=True)
+def _image_chi2(r, Sg, P, scale, q):
+    """:func:`gyro_image_chi2`'s arithmetic in one compiled call (NumPy's 3x3 calls cost
+    ~100 us per frame): ``r^T (Sg + scale P + q I)^-1 r`` by Cholesky; ``inf`` for
+    non-finite input or a covariance that is not positive definite."""
+    if not (np.isfinite(r).all() and np.isfinite(P).all()):
+        return np.inf
+    S = Sg + 0.5 * scale * (P + P.T)
+    for a in range(3):
+        S[a, a] += q
+    # (3x3 Cholesky by hand: numba's raises on a non-positive-definite matrix)
+    L = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(i + 1):
+            v = S[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            if i == j:
+                if not v > 0.0:
+                    return np.inf
+                L[i, i] = np.sqrt(v)
+            else:
+                L[i, j] = v / L[j, j]
+    y = np.zeros(3)
+    chi2 = 0.0
+    for i in range(3):
+        v = r[i]
+        for k in range(i):
+            v -= L[i, k] * y[k]
+        y[i] = v / L[i, i]
+        chi2 += y[i] * y[i]
+    return chi2
+
+
 #: why an IMU sample is not buffered (:meth:`ImuBuffer.add`)
-IMU_SAMPLE_REJECTIONS = ("stamp_not_increasing", "non_finite", "saturated")
+IMU_SAMPLE_REJECTIONS = ("stamp_not_increasing", "stamp_far_from_frames", "non_finite", "saturated")
 #: why a frame is solved without the gyro (:meth:`ImuBuffer.measurement`)
 GYRO_MISSING_REASONS = ("no_samples", "not_covered", "sparse")
+#: a sample more than this after the one before it (ns) is a jump: if the next sample goes
+#: back before it, the jump was a lone bad stamp and is dropped (:meth:`ImuBuffer.add`)
+IMU_JUMP_NS = 500_000_000
+#: this many consecutive samples that go back before the newest one, each after the one before
+#: it, are a new timeline (a bag played again, a clock reset): the buffer starts over with them
+IMU_NEW_TIMELINE_SAMPLES = 10
 
 
 class ImuBuffer:
@@ -284,33 +408,94 @@ class ImuBuffer:
     seconds before the newest are dropped. Thread-safe: one thread may :meth:`add` while
     another asks for a :meth:`measurement` (and waits for the samples covering a readout).
 
+    A bad stamp never locks the buffer: once a frame's time is known (:meth:`note_frame`,
+    also noted by :meth:`wait_until` and :meth:`measurement`), a sample further than
+    ``max_skew`` before it, or after it and after the newest sample, is rejected
+    (``stamp_far_from_frames``); a sample that jumped more
+    than :data:`IMU_JUMP_NS` ahead of its predecessor and is followed by one before it is
+    dropped as a lone bad stamp; :data:`IMU_NEW_TIMELINE_SAMPLES` consecutive increasing samples
+    before the newest one start the buffer over (the IMU's clock went back). A time reset of
+    the frames calls :meth:`reset`.
+
     Args:
         span: seconds of samples kept (> 0; ``inf``: all, e.g. a bag replayed offline).
         max_rate: rates with any component beyond this (rad/s) are the sensor's saturation
             and rejected.
         max_gap: a readout whose samples are further apart than this (s) is ``sparse``: an
             IMU at 10 Hz cannot describe the rotation within a 20 ms readout.
+        max_skew: s; a sample stamped further than this before the last frame's time (IMU
+            clock), or after it and after the newest sample, is rejected (``inf``: no bound).
+
+    Attributes:
+        received: samples given to :meth:`add` (since construction).
+        accepted: samples buffered (since construction).
+        dropped: buffered samples later dropped as a lone bad stamp.
+        resets: times the buffer started over (:meth:`reset`, a new timeline).
+        last_accepted: ``time.monotonic()`` of the last buffered sample (None before).
     """
 
-    def __init__(self, span: float = 2.0, max_rate: float = 35.0, max_gap: float = 0.02):
-        if not (span > 0 and max_rate > 0 and max_gap > 0):
-            raise ValueError(f"span, max_rate, max_gap must be > 0, got {span, max_rate, max_gap}")
+    def __init__(
+        self,
+        span: float = 2.0,
+        max_rate: float = 35.0,
+        max_gap: float = 0.02,
+        max_skew: float = 1.0,
+    ):
+        if not (span > 0 and max_rate > 0 and max_gap > 0 and max_skew > 0):
+            raise ValueError(
+                "span, max_rate, max_gap, max_skew must be > 0, got "
+                f"{span, max_rate, max_gap, max_skew}"
+            )
         self.span_ns = np.inf if not np.isfinite(span) else int(span * 1e9)
         self.max_rate, self.max_gap_ns = float(max_rate), int(max_gap * 1e9)
+        self.max_skew_ns = np.inf if not np.isfinite(max_skew) else int(max_skew * 1e9)
         self._t: list[int] = []
         self._w: list[tuple[float, float, float]] = []
         self._cond = threading.Condition()
         self._first: int | None = None
-        self.received = 0
+        self._frame_ns: int | None = None
+        self._run: list[tuple[int, tuple[float, float, float]]] = []
+        self.received = self.accepted = self.dropped = self.resets = 0
+        self.last_accepted: float | None = None
+        self._created = time.monotonic()
+
+    def idle_seconds(self) -> float:
+        """Seconds (monotonic clock) since the last buffered sample, or since the buffer was
+        made when none was."""
+        with self._cond:
+            last = self._created if self.last_accepted is None else self.last_accepted
+        return time.monotonic() - last
 
     def __len__(self) -> int:
         return len(self._t)
 
+    def reset(self) -> None:
+        """Forget every sample and the frames' time (a time reset of the frames: a new
+        timeline); the counters are kept, :attr:`resets` counts it."""
+        with self._cond:
+            self._clear()
+            self._frame_ns = None
+
+    def _clear(self) -> None:
+        self._t.clear()
+        self._w.clear()
+        self._run.clear()
+        self._first = None
+        self.resets += 1
+
+    def note_frame(self, stamp_ns: int) -> None:
+        """The frames' current time (ns, IMU clock: a frame's stamp minus ``time_offset``;
+        the bound of ``max_skew`` is far larger than any offset), against which new samples
+        are judged."""
+        with self._cond:
+            self._frame_ns = int(stamp_ns)
+
     def add(self, stamp_ns: int, rate: ArrayLike) -> str | None:
         """Buffer one sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU frame).
         Returns ``None``, or the reason it was rejected (:data:`IMU_SAMPLE_REJECTIONS`):
-        a stamp not after the last one (going back or duplicated), a NaN/inf rate, a
-        saturated one."""
+        a stamp not after the last one (going back or duplicated), a stamp further than
+        ``max_skew`` from the frames' time, a NaN/inf rate, a saturated one (see the class
+        docstring for how a bad stamp is recovered from)."""
         w = np.asarray(rate, dtype=float).reshape(3)
         stamp_ns = int(stamp_ns)
         with self._cond:
@@ -319,20 +504,65 @@ class ImuBuffer:
                 return "non_finite"
             if np.abs(w).max() > self.max_rate:
                 return "saturated"
+            if self._far(stamp_ns):
+                return "stamp_far_from_frames"
+            sample = (float(w[0]), float(w[1]), float(w[2]))
             if self._t and stamp_ns <= self._t[-1]:
-                return "stamp_not_increasing"
-            self._t.append(stamp_ns)
-            self._w.append((float(w[0]), float(w[1]), float(w[2])))
-            if self._first is None:
-                self._first = stamp_ns
-            cut = stamp_ns - self.span_ns
-            k = 0  # (samples come in order: the old ones are a short prefix)
-            while self._t[k] < cut:
-                k += 1
-            if k:
-                del self._t[:k], self._w[:k]
-            self._cond.notify_all()
+                if (
+                    len(self._t) >= 2
+                    and self._t[-2] < stamp_ns
+                    and (self._t[-1] - self._t[-2] > IMU_JUMP_NS)
+                ):  # (the newest sample jumped ahead alone: a bad stamp, dropped)
+                    del self._t[-1], self._w[-1]
+                    self.dropped += 1
+                elif not self._new_timeline(stamp_ns, sample):
+                    return "stamp_not_increasing"
+                else:
+                    return None
+            self._run.clear()
+            self._append(stamp_ns, sample)
         return None
+
+    def _far(self, stamp_ns: int) -> bool:
+        """Whether a sample is further than ``max_skew`` behind the frames' time, or ahead of
+        it and of the newest sample (a stream that went on while a frame took long to solve
+        is not far: it continues from its newest sample)."""
+        f = self._frame_ns
+        if f is None:
+            return False
+        if f - stamp_ns > self.max_skew_ns:
+            return True
+        ahead_of_newest = not self._t or stamp_ns - self._t[-1] > self.max_skew_ns
+        return stamp_ns - f > self.max_skew_ns and ahead_of_newest
+
+    def _new_timeline(self, stamp_ns: int, sample: tuple[float, float, float]) -> bool:
+        """Collect samples that go back before the newest one; once
+        :data:`IMU_NEW_TIMELINE_SAMPLES` in a row increase, start over with them (True)."""
+        if self._run and stamp_ns <= self._run[-1][0]:
+            self._run.clear()
+        self._run.append((stamp_ns, sample))
+        if len(self._run) < IMU_NEW_TIMELINE_SAMPLES:
+            return False
+        run = list(self._run)
+        self._clear()
+        for t, s in run:
+            self._append(t, s)
+        return True
+
+    def _append(self, stamp_ns: int, sample: tuple[float, float, float]) -> None:
+        self._t.append(stamp_ns)
+        self._w.append(sample)
+        self.accepted += 1
+        self.last_accepted = time.monotonic()
+        if self._first is None:
+            self._first = stamp_ns
+        cut = stamp_ns - self.span_ns
+        k = 0  # (samples come in order: the old ones are a short prefix)
+        while self._t[k] < cut:
+            k += 1
+        if k:
+            del self._t[:k], self._w[:k]
+        self._cond.notify_all()
 
     def samples(self) -> list[tuple[int, tuple[float, float, float]]]:
         """A copy of the buffered samples: ``(stamp_ns, (wx, wy, wz))``, oldest first."""
@@ -350,9 +580,11 @@ class ImuBuffer:
         self, stamp_ns: int, timeout: float, stopped: Callable[[], bool] = lambda: False
     ) -> bool:
         """Wait up to ``timeout`` s for a sample at or after ``stamp_ns`` (IMU clock); True
-        when there is one. ``stopped()`` true ends the wait (shutdown)."""
+        when there is one. ``stopped()`` true ends the wait (shutdown). ``stamp_ns`` is noted as
+        the frames' time (:meth:`note_frame`)."""
         end = time.monotonic() + max(float(timeout), 0.0)
         with self._cond:
+            self._frame_ns = int(stamp_ns)
             while not (self._t and self._t[-1] >= stamp_ns):
                 left = end - time.monotonic()
                 if left <= 0 or stopped():
@@ -375,7 +607,9 @@ class ImuBuffer:
         added to the IMU stamps; ``bias_covariance`` (3, 3) rad^2/s^2, IMU frame, is added to
         the bias uncertainty). Returns ``(measurement, "")`` or ``(None, reason)``
         with a reason of :data:`GYRO_MISSING_REASONS`: no samples, samples that do not
-        cover the window, or samples in or around it further apart than ``max_gap``."""
+        cover the window, or samples in or around it further apart than ``max_gap``. The
+        window's end is noted as the frames' time (:meth:`note_frame`)."""
+        self.note_frame(int(window_ns[1]) - int(round(time_offset * 1e9)))
         ts, ws, span, reason = self.interval(window_ns, time_offset)
         if ts is None:
             return None, reason

@@ -17,6 +17,7 @@ __all__ = [
     "CHEIRALITY",
     "DEGENERATE_GEOMETRY",
     "FAILURE_REASONS",
+    "GYRO_REJECTIONS",
     "IMPLAUSIBLE_MOTION",
     "INCONSISTENT_FIT",
     "NO_HYPOTHESIS",
@@ -55,6 +56,12 @@ FAILURE_REASONS = (
     CHEIRALITY,
     INCONSISTENT_FIT,
 )
+
+
+#: why a gyro measurement was not used (``RSPoseEstimate.gyro_rejection``): ``contradicted``
+#: (the gyro's rate disagrees with the image-alone refinement's), ``fewer_inliers`` (the aided
+#: estimate explains markedly fewer points than the unaided one), ``aided_failed``
+GYRO_REJECTIONS = ("contradicted", "fewer_inliers", "aided_failed")
 
 
 class EstimationFailed(Exception):
@@ -128,6 +135,7 @@ class RSPoseEstimate:
         gyro_rejected: a gyro measurement was passed but the image disagreed with it (or the
             aided estimate failed where an unaided one succeeded); the estimate is the unaided
             one.
+        gyro_rejection: why, with ``gyro_rejected`` (:data:`GYRO_REJECTIONS`), else ``""``.
     """
 
     success: bool
@@ -162,6 +170,7 @@ class RSPoseEstimate:
     acceleration_sensitivity: np.ndarray | None = None
     gyro_used: bool = False
     gyro_rejected: bool = False
+    gyro_rejection: str = ""
 
     @property
     def num_inliers(self) -> int:

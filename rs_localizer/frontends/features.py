@@ -28,8 +28,10 @@ from ..correspondences import Correspondences
 from .aruco import to_gray
 
 __all__ = [
+    "DESCRIPTOR_FORMATS",
     "FeatureFrontend",
     "FeatureMap",
+    "check_feature_map",
     "feature_map_from_views",
     "make_detector",
     "representative_descriptors",
@@ -122,15 +124,21 @@ class FeatureMap:
 
     @classmethod
     def load(cls, path: str | Path) -> FeatureMap:
-        """Raises ValueError for a file that is not a feature map."""
+        """Read a feature map ``.npz`` (:meth:`save`).
+
+        Raises:
+            ValueError: a file that is not a feature map, or one no front end can use
+                (:func:`check_feature_map`). OSError: it cannot be read.
+        """
         with np.load(Path(path), allow_pickle=False) as z:
             missing = {"points", "descriptors", "landmark_ids", "kind"} - set(z.files)
             if missing:
                 raise ValueError(f"{path}: not a feature map (missing {sorted(missing)})")
+            raw_ids = z["landmark_ids"]
             fm = cls(
                 z["points"].astype(float),
                 z["descriptors"],
-                z["landmark_ids"].astype(np.int64),
+                np.nan_to_num(raw_ids).astype(np.int64),
                 str(z["kind"]),
                 track_length=z["track_length"].astype(np.int64) if "track_length" in z else None,
                 reprojection_error=(
@@ -144,7 +152,42 @@ class FeatureMap:
         for q in (fm.track_length, fm.reprojection_error):
             if q is not None and q.shape != (n,):
                 raise ValueError(f"{path}: inconsistent feature map quality arrays")
+        check_feature_map(fm, raw_ids, str(path))
         return fm
+
+
+#: per descriptor kind: (dtype, width) the OpenCV detector produces (ORB: 32 bytes, SIFT: 128
+#: floats); a map's descriptors must match the front end's detector to be matched at all
+DESCRIPTOR_FORMATS = {"orb": (np.dtype(np.uint8), 32), "sift": (np.dtype(np.float32), 128)}
+
+
+def check_feature_map(fm: FeatureMap, raw_ids: np.ndarray | None = None, what: str = "") -> None:
+    """Check that a feature map can work with its front end: a known ``kind``
+    (:data:`DESCRIPTOR_FORMATS`), descriptors of that kind's dtype and width (an ORB map with
+    float32 descriptors would fail every match), at least one row, finite points, integral
+    finite landmark ids (``raw_ids``: the ids as stored, before conversion).
+
+    Raises:
+        ValueError: naming ``what`` and the first problem.
+    """
+    kind = str(fm.kind).lower()
+    if kind not in DESCRIPTOR_FORMATS:
+        raise ValueError(f"{what}: kind {fm.kind!r} is not one of {sorted(DESCRIPTOR_FORMATS)}")
+    dtype, width = DESCRIPTOR_FORMATS[kind]
+    d = np.asarray(fm.descriptors)
+    if d.ndim != 2 or d.dtype != dtype or d.shape[1] != width:
+        raise ValueError(
+            f"{what}: {kind} descriptors must be (M, {width}) {dtype}, got {d.shape} {d.dtype}"
+        )
+    if len(fm.points) == 0:
+        raise ValueError(f"{what}: the map has no landmarks")
+    if not np.isfinite(fm.points).all():
+        raise ValueError(f"{what}: non-finite landmark points")
+    ids = fm.landmark_ids if raw_ids is None else np.asarray(raw_ids)
+    if ids.dtype.kind == "f" and not (np.isfinite(ids).all() and (ids == np.round(ids)).all()):
+        raise ValueError(f"{what}: landmark ids must be finite integers")
+    if ids.dtype.kind not in "iuf":
+        raise ValueError(f"{what}: landmark ids must be integers, got {ids.dtype}")
 
 
 def _merge_landmarks(points: np.ndarray, radius: float) -> np.ndarray:

@@ -3,14 +3,13 @@ images, the map file (written whole or not at all) and the report (YAML and a pi
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import CameraModel
+from ..maps import write_text_atomic
 from .marker_ba import FrameDetections, MarkerMapResult
 
 __all__ = [
@@ -152,26 +151,13 @@ def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
 
 
 def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
-    """Write ``text`` to ``path`` whole or not at all: a temporary file in the same directory,
-    then an atomic rename (``os.replace``); on any error (Ctrl-C included) the temporary file
-    is removed and ``path`` is untouched.
+    """Write ``text`` to ``path`` whole or not at all, with the user's umask mode
+    (:func:`rs_localizer.maps.write_text_atomic`).
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists (use --overwrite to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text_atomic(path, text, overwrite)
 
 
 def write_map(

@@ -12,10 +12,12 @@ from .frame_queue import FrameCounts
 from .params import LocalizerConfig
 from .pipeline import StatsSnapshot
 
-__all__ = ["ERROR", "OK", "WARN", "diagnostic_status"]
+__all__ = ["ERROR", "IMU_IDLE_WARN_S", "OK", "WARN", "diagnostic_status"]
 
 #: levels of ``diagnostic_msgs/DiagnosticStatus``
 OK, WARN, ERROR = 0, 1, 2
+#: s; with ``imu.enabled``, no usable IMU sample for this long while frames arrive is a WARN
+IMU_IDLE_WARN_S = 2.0
 
 
 def _ms(seconds: Sequence[float]) -> np.ndarray:
@@ -34,14 +36,17 @@ def diagnostic_status(
     imu_rate_hz: float | None = None,
     gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
     gyro_inconsistent: bool = False,
+    imu_idle_s: float | None = None,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
     Level ERROR when frames arrived but none was solved, WARN when a frame failed, was skipped,
     a message was lost or the gyro is left out because the rotation between frames contradicts
-    it (``gyro_inconsistent``), else OK. ``values`` (in publishing order): solver, camera
-    (``camera_source``), frame accounting (received, solved, failed, skipped, pending), counters
-    of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
+    it (``gyro_inconsistent``) or, with ``imu.enabled``, frames arrive but no usable IMU sample
+    did for :data:`IMU_IDLE_WARN_S` (``imu_idle_s``: s since the last buffered sample, or since
+    the start; e.g. every message rejected), else OK. ``values`` (in publishing order): solver,
+    camera (``camera_source``), frame accounting (received, solved, failed, skipped, pending),
+    counters of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
     :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
     published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
     stage times, front-end values (with a front end), gyro values (with ``imu.enabled``:
@@ -70,6 +75,19 @@ def diagnostic_status(
         message = (
             f"{frames.solved}/{frames.received} frames solved; the gyro contradicts the image "
             "(check imu.rotation, imu.time_offset): frames solved without it"
+        )
+    elif (
+        cfg.imu is not None
+        and frames.received
+        and imu_idle_s is not None
+        and imu_idle_s > IMU_IDLE_WARN_S
+    ):
+        level = WARN
+        rejected = c.get("imu_rejected", 0)
+        message = (
+            f"{frames.solved}/{frames.received} frames solved; no usable IMU sample for "
+            f"{imu_idle_s:.1f} s ({rejected} IMU messages rejected): frames solved without the "
+            "gyro; check the imu topic and its stamps"
         )
     else:
         level = OK
@@ -135,6 +153,7 @@ def diagnostic_status(
                 "gyro_rejected": c.get("gyro_rejected", 0),
                 "gyro_missing": c.get("gyro_missing", 0),
                 "imu_rejected": c.get("imu_rejected", 0),
+                "imu_idle_s": "nan" if imu_idle_s is None else f"{imu_idle_s:.1f}",
                 "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
                 "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
                 "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),

@@ -401,6 +401,7 @@ class LocalizerCore:
             self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
             self.pipeline.gyro_bias_values(),
             self.pipeline.gyro_inconsistent,
+            self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
         )
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"

@@ -147,12 +147,14 @@ def test_map_from_a_rendered_bag(rendered, tmp_path, capsys):
 
 
 def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    import os
+
     import rs_localizer.mapping.outputs as outputs
 
     def interrupted(src, dst):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(outputs.os, "replace", interrupted)
+    monkeypatch.setattr(os, "replace", interrupted)
     with pytest.raises(KeyboardInterrupt):
         outputs.write_atomic(tmp_path / "map.yaml", "markers: []\n")
     assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,39 @@
+"""Correspondences reflected through the camera centre (a mirror image of a 3D scene: no rigid
+pose explains them) give no pose, while true frames with as few inliers are still solved."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from rs_localizer.estimation import estimate_rs_pose
+from rs_localizer.estimation.result import INCONSISTENT_FIT
+from rs_localizer.evaluation.bench import protocol_options
+from rs_localizer.evaluation.bench_consistency import TestFrame, attack, corridor_frames
+from rs_localizer.sim.synthetic import make_frame, paper_camera
+
+OPTS = protocol_options()
+UNCHECKED = replace(OPTS, plausibility=replace(OPTS.plausibility, consistent_fit=False))
+
+
+@pytest.mark.parametrize(
+    "seed, rs_speed", [(1, 1.0), (28, 1.0), (4, 0.5), (16, 0.5), (17, 0.5), (29, 0.5)]
+)
+def test_a_partial_fit_of_reflected_correspondences_is_refused(seed, rs_speed):
+    """The paper protocol's frames (300 points in a box in front of the camera, 1 px noise),
+    every 3D point reflected through the camera centre: without the consistency check these
+    frames give a confident pose from 14-97 of the 300 points, badly conditioned."""
+    f = make_frame(seed, n_points=300, rs_speed=rs_speed, noise_px=1.0)
+    a = attack(TestFrame(f.points_px, f.X, paper_camera(), f.position, OPTS), "reflected")
+    e = estimate_rs_pose(a.points_px, a.points3d, a.camera, "r6p_1lin", UNCHECKED)
+    assert e.success and e.num_inliers < 0.5 * e.num_valid  # (the garbage the check is for)
+    e = estimate_rs_pose(a.points_px, a.points3d, a.camera, "r6p_1lin", OPTS)
+    assert not e.success and e.failure == INCONSISTENT_FIT
+
+
+def test_true_frames_with_most_points_outliers_are_still_solved():
+    """The corridor with 70 % outliers: 3D inlier sets of about 30 % of the points."""
+    for f in corridor_frames(6, 7, outlier_ratio=0.7):
+        e = estimate_rs_pose(f.points_px, f.points3d, f.camera, "r6p_1lin", f.options)
+        assert e.failure != INCONSISTENT_FIT
