@@ -6,8 +6,8 @@ Used by the node at start (and on a solver change) and by ``rs-localizer compile
 install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the kernels go).
 
 Compiling takes one to two minutes on one core; a third of it is the fused RANSAC kernels
-(:mod:`.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels not yet in
-numba's cache, a second Python process compiles, meanwhile, part of that batch's callees
+(:mod:`.estimation.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels
+not yet in numba's cache, a second Python process compiles, meanwhile, part of that batch's callees
 (Lambda Twist and the MSAC scoring, while this process compiles the solver kernels), then the
 kernels a frame needs later (:func:`warm_late`: the exact-model refinement, the motion prior's
 MAP step, the twist filter and its smoother) while this process runs the usual warm-up, which
@@ -29,19 +29,19 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix
-from ..jit_cache import PACKAGE_DIR, cache_state, compile_progress
-from ..solvers.kernels import KernelSetType, compile_kernel_set
-from ..solvers.lambda_twist import lambda_twist_batch
-from ..solvers.registry import SOLVER_NAMES, solver_info
-from .batch import fused_kernels, prerotated_batch, ransac_batch
-from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
-from .frame import prepare_frame
-from .prior import prior_conflict
-from .refine import posterior_step, refine_rs_pose
-from .scoring import exact_msac_scores
-from .tracker import RSTracker, TrackerOptions
+from .camera import CameraModel
+from .estimation.batch import fused_kernels, prerotated_batch, ransac_batch
+from .estimation.estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
+from .estimation.frame import prepare_frame
+from .estimation.prior import prior_conflict
+from .estimation.refine import posterior_step, refine_rs_pose
+from .estimation.scoring import exact_msac_scores
+from .estimation.tracker import RSTracker, TrackerOptions
+from .geometry import rotvec_to_matrix
+from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
+from .solvers.kernels import KernelSetType, compile_kernel_set
+from .solvers.lambda_twist import lambda_twist_batch
+from .solvers.registry import SOLVER_NAMES, solver_info
 
 __all__ = [
     "DEFAULT_JOBS",
@@ -185,10 +185,11 @@ def warm_late(
 ) -> None:
     """Compile (or load), without running RANSAC, the kernels a frame of ``solver`` needs
     after it, with the argument types the estimator passes them: the exact-model refinement
-    (:func:`~.refine.refine_rs_pose`; its functions normalize their inputs, so the types do
-    not depend on the values), the motion prior's MAP step (:func:`~.prior.prior_conflict`,
-    :func:`~.refine.posterior_step`) and, with ``tracking``, the twist filter and its
-    smoother (:class:`~.fusion.TwistFilter` over synthetic per-frame estimates). The second
+    (:func:`~.estimation.refine.refine_rs_pose`; its functions normalize their inputs, so the
+    types do not depend on the values), the motion prior's MAP step
+    (:func:`~.estimation.prior.prior_conflict`, :func:`~.estimation.refine.posterior_step`)
+    and, with ``tracking``, the twist filter and its smoother
+    (:class:`~.estimation.fusion.TwistFilter` over synthetic per-frame estimates). The second
     process of a parallel warm-up runs it (:func:`warm_up`).
 
     Raises:
@@ -249,8 +250,8 @@ def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -
 
 def _split_batch(solver: str, first: bool) -> None:
     """Compile (or load) one share of the callees of ``solver``'s cold RANSAC batch
-    (:func:`.batch.ransac_batch`, compiled first and alone on a cold frame's path) with the
-    argument types the batch passes them: ``first``: the batched solver kernels (the first
+    (:func:`.estimation.batch.ransac_batch`, compiled first and alone on a cold frame's path)
+    with the argument types the batch passes them: ``first``: the batched solver kernels (the first
     process, before its warm-up); else Lambda Twist's batch and the MSAC scoring (the second
     process, before :func:`warm_late`), which the first process's batch reaches after the
     kernels and then loads from numba's cache. Nothing for a solver without a fused batch."""
@@ -334,7 +335,7 @@ _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
 #: directory's copy of the package, if any), then :func:`_second_main`
 _HELPER = (
     "import sys; sys.path.insert(0, sys.argv[1]); "
-    "from rs_localizer.estimation.warmup import _second_main; _second_main(sys.argv[2:])"
+    "from rs_localizer.warmup import _second_main; _second_main(sys.argv[2:])"
 )
 
 

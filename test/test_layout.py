@@ -20,6 +20,7 @@ LAYER = {
     "accuracy": 0,
     "frames": 0,
     "jit_cache": 0,
+    "warmup": 2,
     "solvers": 1,
     "estimation": 2,
     "frontends": 3,

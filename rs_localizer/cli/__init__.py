@@ -472,7 +472,7 @@ def _solver_help(prefix: str) -> str:
 
 
 def _compile(args) -> int:
-    from ..estimation.warmup import compile_kernels
+    from ..warmup import compile_kernels
     from ..jit_cache import cache_state
 
     st = cache_state()
@@ -961,7 +961,7 @@ def build_parser() -> argparse.ArgumentParser:
     experiment_arguments(ex)
     ex.set_defaults(func=_experiments)
 
-    from ..estimation.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS
+    from ..warmup import DEFAULT_JOBS, DEFAULT_SOLVERS
 
     c = sub.add_parser(
         "compile",

@@ -69,13 +69,13 @@ _STATS_KEPT = 1000
 def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: bool = False) -> None:
     """Run the estimator (and, with ``tracking``, the video tracker) on small synthetic RS
     problems so that the numba JIT compiles (or loads from its cache) every kernel the node
-    will use before the first real frame (:func:`~rs_localizer.estimation.warmup.warm_up`),
+    will use before the first real frame (:func:`~rs_localizer.warmup.warm_up`),
     logging the cache, each kernel compiled and the time to ``logger``
     (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
     (None: every frame alone); ``gyro``: also the gyro-aided path (``imu.enabled``). On a
     machine with two cores or more, kernels not yet compiled compile in two processes. Never
     raises (a failure is logged)."""
-    from ..estimation.warmup import DEFAULT_JOBS, warm_up
+    from ..warmup import DEFAULT_JOBS, warm_up
     from ..jit_cache import cache_state, compile_progress
 
     st = cache_state()
