@@ -13,6 +13,11 @@ kernels a frame needs later (:func:`warm_late`: the exact-model refinement, the 
 MAP step, the twist filter and its smoother) while this process runs the usual warm-up, which
 then loads them from the cache (or compiles whatever the second process has not finished):
 the result is the same as compiling in one process.
+
+A node need not wait for any of this (:func:`start_background_compile`): on a cold cache it
+solves its frames at once without compiled kernels
+(:mod:`rs_localizer.estimation.uncompiled`) while another process compiles them, and switches
+to them, frame by frame, once they are cached and loaded.
 """
 
 from __future__ import annotations
@@ -46,8 +51,11 @@ from .solvers.registry import SOLVER_NAMES, solver_info
 __all__ = [
     "DEFAULT_JOBS",
     "DEFAULT_SOLVERS",
+    "background_state",
     "compile_kernels",
     "fused_cached",
+    "start_background_compile",
+    "uncompiled_rate",
     "warm_late",
     "warm_up",
 ]
@@ -456,3 +464,160 @@ def compile_kernels(
         "cache": cache_state(),
         "solvers": per,
     }
+
+
+#: the background compile's state (:func:`background_state`)
+_BACKGROUND = {
+    "state": "off",
+    "reason": None,
+    "seconds": None,
+    "failures": 0,
+    "uncompiled_hz": None,
+}
+_BACKGROUND_LOCK = threading.Lock()
+
+#: the background compiling process: the package's parent directory first on sys.path, then
+#: :func:`_background_main` with the pickled (solver, options, tracking, gyro) on stdin
+_BACKGROUND_HELPER = (
+    "import sys; sys.path.insert(0, sys.argv[1]); "
+    "from rs_localizer.warmup import _background_main; _background_main()"
+)
+
+
+def background_state() -> dict:
+    """The background compilation of this process (:func:`start_background_compile`):
+    ``{"state": "off" | "compiling" | "loading" | "compiled" | "failed", "reason": why it
+    failed or None, "seconds": compile-and-load time once compiled, "failures": background
+    compiles that failed, "uncompiled_hz": the uncompiled path's rate measured at start}``."""
+    with _BACKGROUND_LOCK:
+        return dict(_BACKGROUND)
+
+
+def _background_main() -> None:
+    """The background compiling process: :func:`warm_up` (one process: the node's process
+    keeps the other cores) for the pickled (solver, options, tracking, gyro) read from stdin,
+    so numba compiles and caches every kernel the node's frames need. Exit code 0 when
+    done."""
+    import pickle
+
+    solver, options, tracking, gyro, nice = pickle.loads(sys.stdin.buffer.read())
+    if nice and hasattr(os, "nice"):  # (the frames of the node's process come first)
+        os.nice(nice)
+    with compile_progress(lambda m: print(m, flush=True)):
+        warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+
+
+def uncompiled_rate(n: int = 500, frames: int = 3) -> float:
+    """Frames per second of the uncompiled path on :func:`_problem`'s 3D scene with ``n``
+    correspondences (a fifth of them outliers), median of ``frames`` runs."""
+    from .estimation.uncompiled import estimate_uncompiled
+
+    cam, uv, X, _ = _problem(n)
+    rng = np.random.default_rng(5)
+    bad = rng.random(n) < 0.2
+    uv = uv.copy()
+    uv[bad] = rng.uniform([0, 0], [639, 479], (int(bad.sum()), 2))
+    times = []
+    for _ in range(frames):
+        tic = time.perf_counter()
+        estimate_uncompiled(uv, X, cam)
+        times.append(time.perf_counter() - tic)
+    return 1.0 / float(np.median(times))
+
+
+def start_background_compile(
+    solver: str,
+    options: EstimateOptions | None = None,
+    tracking: TrackerOptions | None = None,
+    gyro: bool = False,
+    log: Callable[[str], object] = print,
+    warn: Callable[[str], object] | None = None,
+    nice: int = 10,
+) -> bool:
+    """Solve at once, compile meanwhile: switch this process's estimator to the uncompiled
+    path (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`), compile the
+    kernels ``solver`` (with ``options``, ``tracking``, ``gyro``) needs in another Python
+    process (at ``nice``), and once it has cached them, load them here in a background thread
+    (the frames go on uncompiled meanwhile) and switch back to the compiled path: the next
+    frame uses them. Logs what it does through ``log`` (once), a failure through ``warn``
+    (once: the compiling process cannot start, crashes or is killed, the kernels were not
+    cached, or loading them fails); the frames then stay on the uncompiled path and
+    :func:`background_state` counts it.
+
+    Returns:
+        False (nothing started) when the solver has no uncompiled path
+        (:data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS`), else True.
+    """
+    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
+
+    if solver not in UNCOMPILED_SOLVERS:
+        return False
+    warn = warn or log
+    use_compiled_kernels(False)
+    hz = uncompiled_rate()
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
+    log(
+        f"compiling kernels in the background: frames are solved on the uncompiled path, "
+        f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
+        "compile` after installing avoids this)"
+    )
+    args = (solver, options, tracking, gyro)
+    threading.Thread(
+        target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
+    ).start()
+    return True
+
+
+def _background_run(args: tuple, log, warn, nice: int) -> None:
+    """The thread of :func:`start_background_compile`."""
+    solver, options, tracking, gyro = args
+    import pickle
+
+    from .estimation.uncompiled import compiled_path, use_compiled_kernels
+
+    tic = time.perf_counter()
+
+    def fail(reason: str) -> None:
+        with _BACKGROUND_LOCK:
+            _BACKGROUND.update(state="failed", reason=reason)
+            _BACKGROUND["failures"] += 1
+        warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
+
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _BACKGROUND_HELPER, os.path.dirname(PACKAGE_DIR)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        out, _ = proc.communicate(pickle.dumps((*args, nice)))
+    except (OSError, pickle.PicklingError) as e:
+        fail(f"the compiling process could not start: {e}")
+        return
+    if proc.returncode != 0:
+        lines = out.decode(errors="replace").strip().splitlines()
+        how = (
+            f"killed by signal {-proc.returncode}"
+            if proc.returncode < 0
+            else f"exit code {proc.returncode}"
+        )
+        fail(f"the compiling process ended with {how}" + (f": {lines[-1]}" if lines else ""))
+        return
+    if not fused_cached(solver, anchored=False):
+        fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
+        return
+    with _BACKGROUND_LOCK:
+        _BACKGROUND["state"] = "loading"
+    try:
+        with compiled_path(), compile_progress() as prog:
+            warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+    except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
+        fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
+        return
+    use_compiled_kernels(True)
+    dt = time.perf_counter() - tic
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiled", seconds=dt)
+    extra = f" ({len(prog.kernels)} compiled in this process)" if prog.kernels else ""
+    log(f"kernels compiled and loaded in {dt:.1f} s{extra}: frames use them from now on")

@@ -472,8 +472,8 @@ def _solver_help(prefix: str) -> str:
 
 
 def _compile(args) -> int:
-    from ..warmup import compile_kernels
     from ..jit_cache import cache_state
+    from ..warmup import compile_kernels
 
     st = cache_state()
     print(

@@ -39,6 +39,7 @@ from .options import (
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import EstimationFailed, RSPoseEstimate, failed_estimate, physical_velocities
+from .uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use, estimate_uncompiled
 
 __all__ = [
     "SOLVERS",
@@ -105,6 +106,13 @@ def estimate_rs_pose(
             above :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`) or the aided
             estimate fails where an unaided one succeeds, the frame is solved again without
             it and ``gyro_rejected`` is set. Ignored by the global-shutter ``p3p``.
+    While the compiled kernels are switched off
+    (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`: a node whose kernels
+    compile in the background), the solvers of
+    :data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS` run without them
+    (:func:`~rs_localizer.estimation.uncompiled.estimate_uncompiled`: the same model and
+    outputs; ``scores``, ``initial_model`` and ``gyro`` are not used there).
+
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason
@@ -116,6 +124,8 @@ def estimate_rs_pose(
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
+    if solver in UNCOMPILED_SOLVERS and not compiled_kernels_in_use():
+        return estimate_uncompiled(points2d_px, points3d, camera, solver, opts)
     args = (points2d_px, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         return _estimate(*args, opts, scores, initial_model)

@@ -91,8 +91,8 @@ def _compile_first(solvers, out) -> None:
     """Compile (or load from the cache) every kernel the demo's nodes will use, here, once,
     with the progress printed: on a fresh install the nodes would otherwise each compile them
     in their warm-up, unseen (minutes on a small machine)."""
-    from ..warmup import compile_kernels
     from ..jit_cache import cache_state
+    from ..warmup import compile_kernels
 
     st = cache_state()
     print(f"numba kernels ({st['dir']}): compiling or loading ...", file=out, flush=True)

@@ -38,6 +38,7 @@ from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.points import cap_points
 from ..estimation.tracker import RSTracker
+from ..estimation.uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use
 from ..frames import camera_to_base
 from ..solvers.registry import solver_info
 from . import conversions as cv
@@ -66,19 +67,37 @@ _MAX_PENDING = 64
 _STATS_KEPT = 1000
 
 
-def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: bool = False) -> None:
+def log_warm_up(
+    solver: str,
+    options: Any,
+    tracking: Any,
+    logger: Any,
+    gyro: bool = False,
+    background: bool = False,
+) -> None:
     """Run the estimator (and, with ``tracking``, the video tracker) on small synthetic RS
     problems so that the numba JIT compiles (or loads from its cache) every kernel the node
     will use before the first real frame (:func:`~rs_localizer.warmup.warm_up`),
     logging the cache, each kernel compiled and the time to ``logger``
     (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
     (None: every frame alone); ``gyro``: also the gyro-aided path (``imu.enabled``). On a
-    machine with two cores or more, kernels not yet compiled compile in two processes. Never
-    raises (a failure is logged)."""
-    from ..warmup import DEFAULT_JOBS, warm_up
+    machine with two cores or more, kernels not yet compiled compile in two processes. With
+    ``background`` and kernels not cached, nothing waits: the frames are solved on the
+    uncompiled path while they compile in the background
+    (:func:`~rs_localizer.warmup.start_background_compile`). Never raises (a failure is
+    logged)."""
     from ..jit_cache import cache_state, compile_progress
+    from ..warmup import DEFAULT_JOBS, fused_cached, start_background_compile, warm_up
 
     st = cache_state()
+    if background and not fused_cached(solver, anchored=False):
+        try:
+            if start_background_compile(
+                solver, options, tracking, gyro, logger.info, logger.warning
+            ):
+                return
+        except Exception as e:
+            logger.warning(f"background compile ({solver}) failed to start: {e}")
     logger.info(
         f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
         + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
@@ -264,10 +283,13 @@ class FrameResult:
             (with ``republish_correspondences``).
         times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
             estimator (``frontend`` alone for one the front end dropped).
+        compiled: the frame was solved with the compiled kernels (False: on the uncompiled
+            path while they compile, :mod:`rs_localizer.estimation.uncompiled`).
     """
 
     failure: str | None = None
     detail: str = ""
+    compiled: bool = True
     stamp_ns: int | None = None
     out_stamp_ns: int | None = None
     frame_id: str = ""
@@ -571,12 +593,17 @@ class FramePipeline:
         uv, xyz, scores = self._extract(msg, kind, camera, stamp, cfg, res)
         uv, xyz, scores = self._valid_rows(uv, xyz, scores, cfg)
         res.points2d, res.points3d = uv, xyz
-        gyro: GyroMeasurement | None = self._gyro_for(stamp, camera, cfg)
+        # (while the kernels compile in the background: every frame alone, without the gyro,
+        # on the uncompiled path; estimation.uncompiled)
+        compiled = compiled_kernels_in_use() or cfg.solver not in UNCOMPILED_SOLVERS
+        self.stats.add("frames_compiled" if compiled else "frames_uncompiled")
+        res.compiled = compiled
+        gyro: GyroMeasurement | None = self._gyro_for(stamp, camera, cfg) if compiled else None
         t_decoded = time.perf_counter()
         with self._track_lock:
             final = []
             try:
-                if cfg.tracking is not None:
+                if cfg.tracking is not None and compiled:
                     old = self._tracker
                     tracker, final = self._tracker_for(camera, cfg)
                     r = tracker.process(out_stamp, uv, xyz, camera, scores, gyro=gyro)
@@ -585,7 +612,8 @@ class FramePipeline:
                     final = final + r.final
                     self._last_frame_wall = time.monotonic()
                 else:
-                    self._drop_tracker()
+                    if compiled:
+                        self._drop_tracker()
                     new_track = False
                     est = estimate_rs_pose(
                         uv,
@@ -616,7 +644,8 @@ class FramePipeline:
                 )
             elif est.gyro_used and est.success:
                 self.stats.add("frames_with_gyro")
-            self._update_gyro_checks(est, out_stamp, new_track, cfg)
+            if compiled:
+                self._update_gyro_checks(est, out_stamp, new_track, cfg)
             res.estimate = est
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 res.fused = self._fused_outputs(final, cfg)
@@ -632,6 +661,7 @@ class FramePipeline:
             # per-frame, zero, twist)
             res.twist_now = (
                 cfg.tracking is None
+                or not compiled
                 or not solver_info(cfg.solver).rolling
                 or camera.seconds_per_unit_r <= 0
             )
