@@ -22,6 +22,7 @@ to them, frame by frame, once they are cached and loaded.
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import re
@@ -503,8 +504,32 @@ def _background_main() -> None:
     solver, options, tracking, gyro, nice = pickle.loads(sys.stdin.buffer.read())
     if nice and hasattr(os, "nice"):  # (the frames of the node's process come first)
         os.nice(nice)
-    with compile_progress(lambda m: print(m, flush=True)):
+    with _compile_lock(), compile_progress(lambda m: print(m, flush=True)):
         warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+
+
+@contextlib.contextmanager
+def _compile_lock():
+    """One background compile at a time per numba cache (several nodes starting at once on
+    a cold cache: the first compiles, the others then load most kernels from the cache): an
+    exclusive ``flock`` on a file in the temporary directory named after the cache. Without
+    ``fcntl`` (not POSIX) no lock."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    import hashlib
+    import tempfile
+
+    key = hashlib.sha1(str(cache_state()["dir"]).encode()).hexdigest()[:16]
+    path = os.path.join(tempfile.gettempdir(), f"rs_localizer_compile_{key}.lock")
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def uncompiled_rate(n: int = 500, frames: int = 3) -> float:
@@ -569,6 +594,14 @@ def start_background_compile(
     return True
 
 
+def _stop(proc: subprocess.Popen) -> None:
+    """End a background compiling process still running (at this process's exit)."""
+    if proc.poll() is None:
+        proc.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=5.0)
+
+
 def _background_run(args: tuple, log, warn, nice: int) -> None:
     """The thread of :func:`start_background_compile`."""
     solver, options, tracking, gyro = args
@@ -591,6 +624,7 @@ def _background_run(args: tuple, log, warn, nice: int) -> None:
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
         )
+        atexit.register(_stop, proc)  # (not left compiling after this process ends)
         out, _ = proc.communicate(pickle.dumps((*args, nice)))
     except (OSError, pickle.PicklingError) as e:
         fail(f"the compiling process could not start: {e}")
