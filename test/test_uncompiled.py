@@ -222,3 +222,28 @@ def test_background_compile_failure_counted(monkeypatch):
         assert st["uncompiled_hz"] > 0
     finally:
         use_compiled_kernels(True)
+
+
+def test_background_compile_switches_over():
+    """With the kernels cached, the background compile's process finishes, the kernels are
+    loaded in a background thread and the frames switch to the compiled path; meanwhile the
+    switch says uncompiled."""
+    import time
+
+    import rs_localizer.warmup as W
+
+    logs = []
+    try:
+        assert W.start_background_compile("r6p_1lin", log=logs.append, warn=logs.append)
+        assert not compiled_kernels_in_use()
+        deadline = time.monotonic() + 300
+        while W.background_state()["state"] in ("compiling", "loading"):
+            assert time.monotonic() < deadline, logs
+            time.sleep(0.1)
+        st = W.background_state()
+        assert st["state"] == "compiled", st
+        assert compiled_kernels_in_use()
+        assert st["seconds"] > 0
+        assert "frames use them from now on" in logs[-1]
+    finally:
+        use_compiled_kernels(True)

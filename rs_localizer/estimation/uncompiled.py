@@ -89,6 +89,9 @@ __all__ = [
 UNCOMPILED_SOLVERS = ("r6p_1lin", "p3p")
 #: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
 _SAMPLE_ITERATIONS = 5
+#: robust fits of the final refinement, each on the points within the cutoff of the last
+#: (RANSAC's model comes out of local optimization's exact-model steps: one is enough)
+_FINAL_PASSES = 1
 #: models of a batch scored on all points after the preemptive test on a subset
 _KEEP = 4
 #: collinearity tolerance of the degeneracy test (as the compiled one)
@@ -544,12 +547,12 @@ def _fit(fr: _Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: f
 
 def _refine(fr: _Frame, model, th: float, rolling: bool):
     """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
-    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model, selected again
-    once after the fit; MAP with the frame's prior. Returns (R, C, w, t, covariance (12, 12)
+    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model
+    (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's prior. Returns (R, C, w, t, covariance (12, 12)
     of (delta, C, w, t) or None, data information or None)."""
     R, C, w, t = model
     sigma = th / 2.0
-    for _ in range(2):
+    for _ in range(_FINAL_PASSES):
         e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
         near = e < FINAL_CUTOFF * th
         if np.count_nonzero(near) < 7:
