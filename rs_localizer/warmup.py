@@ -44,7 +44,7 @@ from .estimation.refine import posterior_step, refine_rs_pose
 from .estimation.scoring import exact_msac_scores
 from .estimation.tracker import RSTracker, TrackerOptions
 from .geometry import rotvec_to_matrix
-from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
+from .jit_cache import PACKAGE_DIR, cache_state, compile_progress, numba_error
 from .solvers.kernels import KernelSetType, compile_kernel_set
 from .solvers.lambda_twist import lambda_twist_batch
 from .solvers.registry import SOLVER_NAMES, solver_info
@@ -565,9 +565,9 @@ def start_background_compile(
     process (at ``nice``), and once it has cached them, load them here in a background thread
     (the frames go on uncompiled meanwhile) and switch back to the compiled path: the next
     frame uses them. Logs what it does through ``log`` (once), a failure through ``warn``
-    (once: the compiling process cannot start, crashes or is killed, the kernels were not
-    cached, or loading them fails); the frames then stay on the uncompiled path and
-    :func:`background_state` counts it.
+    (once: numba is not available, the compiling process cannot start, crashes or is killed,
+    the kernels were not cached, or loading them fails); the frames then stay on the
+    uncompiled path and :func:`background_state` counts it.
 
     Returns:
         False (nothing started) when the solver has no uncompiled path
@@ -587,11 +587,22 @@ def start_background_compile(
         f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
         "compile` after installing avoids this)"
     )
+    if numba_error() is not None:
+        _background_failed(f"numba is not available: {numba_error()}", warn)
+        return True
     args = (solver, options, tracking, gyro)
     threading.Thread(
         target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
     ).start()
     return True
+
+
+def _background_failed(reason: str, warn) -> None:
+    """Record and say once that the background compile failed (:func:`background_state`)."""
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="failed", reason=reason)
+        _BACKGROUND["failures"] += 1
+    warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -612,10 +623,7 @@ def _background_run(args: tuple, log, warn, nice: int) -> None:
     tic = time.perf_counter()
 
     def fail(reason: str) -> None:
-        with _BACKGROUND_LOCK:
-            _BACKGROUND.update(state="failed", reason=reason)
-            _BACKGROUND["failures"] += 1
-        warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
+        _background_failed(reason, warn)
 
     try:
         proc = subprocess.Popen(

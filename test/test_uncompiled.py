@@ -247,3 +247,58 @@ def test_background_compile_switches_over():
         assert "frames use them from now on" in logs[-1]
     finally:
         use_compiled_kernels(True)
+
+
+_NO_NUMBA = """
+import importlib.abc, json, sys
+
+
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("numba", "llvmlite"):
+            raise ImportError(f"No module named {name!r} (blocked)")
+
+
+sys.meta_path.insert(0, Block())
+from rs_localizer.jit_cache import numba_error
+from rs_localizer.estimation.uncompiled import compiled_kernels_in_use
+from rs_localizer.ros import params as P
+from rs_localizer.ros.bag_io import RosbagsMessages
+from rs_localizer.ros.pipeline import FramePipeline, log_warm_up
+from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
+from rs_localizer.warmup import background_state
+
+frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=200, seed=4))
+cfg = P.build_config({**P.default_values(), "camera_info_wait": 0.0})
+logs = []
+log = type("L", (), {"info": lambda s, m: logs.append(m), "warning": lambda s, m: logs.append(m)})()
+log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, background=True)
+msgs = RosbagsMessages()
+pipe = FramePipeline(cfg)
+pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
+solved = [pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences").solved
+          for f in frames]
+print(json.dumps({"error": numba_error(), "compiled": compiled_kernels_in_use(),
+                  "solved": solved, "state": background_state(), "logs": logs}))
+"""
+
+
+def test_runs_without_numba():
+    """With numba missing (its import blocked), the package imports, the node's warm-up says
+    once why the kernels are not compiled and counts it, and the pipeline solves frames on the
+    uncompiled path."""
+    r = subprocess.run(
+        [sys.executable, "-c", _NO_NUMBA],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=180,
+    )
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    assert "blocked" in res["error"]
+    assert res["compiled"] is False
+    assert res["solved"] == [True, True, True]
+    assert res["state"]["state"] == "failed" and res["state"]["failures"] == 1
+    assert "numba is not available" in res["state"]["reason"]
+    assert sum("frames stay on the uncompiled path" in m for m in res["logs"]) == 1

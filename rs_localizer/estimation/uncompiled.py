@@ -23,12 +23,14 @@ covariances, inliers and failure reasons), at a lower rate:
 Not on this path: PROSAC ordering (``scores`` are ignored: uniform sampling), an
 ``initial_model`` (the frame is solved without it), a gyro measurement (solved without it),
 the acceleration sensitivity and the correlated image-noise covariance. Solvers:
-:data:`UNCOMPILED_SOLVERS`. Nothing here calls a numba kernel, so nothing compiles, and the
-module imports none of numba's: :func:`estimate_uncompiled` runs where numba is missing.
+:data:`UNCOMPILED_SOLVERS`. Nothing here calls a numba kernel, so nothing compiles; where numba
+is missing or broken, :mod:`rs_localizer.jit_cache` puts a stand-in in its place so that the
+package imports, and this path runs.
 
 Which path :func:`~.estimate.estimate_rs_pose` takes is this module's switch,
 :func:`use_compiled_kernels` (default: compiled, numba compiles on first use as before;
-``RS_LOCALIZER_COMPILED=0`` in the environment: uncompiled from the start); a
+``RS_LOCALIZER_COMPILED=0`` in the environment, or numba missing or failing to import
+(:func:`rs_localizer.jit_cache.numba_error`): uncompiled from the start); a
 node with a cold cache turns it off while the kernels compile in the background
 (:class:`rs_localizer.warmup.BackgroundCompile`) and on again once they are loaded.
 """
@@ -48,6 +50,7 @@ from scipy.optimize import least_squares
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
+from ..jit_cache import numba_error
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, far_side_fraction
 from .finalize import (
@@ -100,7 +103,7 @@ _COLLINEAR_TOL = 1e-3
 #: environment variable: ``0`` starts the process on the uncompiled path (numba unusable on
 #: this machine, or to measure that path)
 COMPILED_ENV = "RS_LOCALIZER_COMPILED"
-_switch = {"compiled": os.environ.get(COMPILED_ENV, "1").strip() != "0"}
+_switch = {"compiled": os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_error() is None}
 _local = threading.local()
 
 
@@ -548,8 +551,9 @@ def _fit(fr: _Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: f
 def _refine(fr: _Frame, model, th: float, rolling: bool):
     """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
     (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model
-    (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's prior. Returns (R, C, w, t, covariance (12, 12)
-    of (delta, C, w, t) or None, data information or None)."""
+    (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's
+    prior. Returns (R, C, w, t, covariance (12, 12) of (delta, C, w, t) or None, data
+    information or None)."""
     R, C, w, t = model
     sigma = th / 2.0
     for _ in range(_FINAL_PASSES):
