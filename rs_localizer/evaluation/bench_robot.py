@@ -223,13 +223,13 @@ def _synthetic_rate(domain: int, frames: int, log_path: Path, sample_bag: Path) 
             "/camera/camera_info",
             CAMERA_INFO,
             t_base,
-            rm.cdr(rm.camera_info(cam, t_base, "camera"), CAMERA_INFO),
+            bytes(rm.cdr(rm.camera_info(cam, t_base, "camera"), CAMERA_INFO)),
         )
     ]
     for i in range(frames):
         f = seq[i % len(seq)]
         stamp = t_base + (i + 1) * period
-        raw = rm.cdr(rm.cloud(f.uv, f.xyz, f.ids, stamp, "camera"), PC2)
+        raw = bytes(rm.cdr(rm.cloud(f.uv, f.xyz, f.ids, stamp, "camera"), PC2))
         msgs.append(("/camera/correspondences", PC2, stamp, raw))
     res = play(
         None,
