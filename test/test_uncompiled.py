@@ -215,7 +215,7 @@ def test_background_compile_failure_counted(monkeypatch):
         st = W.background_state()
         assert st["state"] == "failed"
         assert st["failures"] == before + 1
-        assert "exit code 3" in st["reason"] and "boom" in st["reason"]
+        assert "ended with exit code 3 (boom)" in st["reason"]
         assert not compiled_kernels_in_use()
         assert len(warns) == 1 and "uncompiled" in warns[0]
         assert len(logs) == 1 and "compiling kernels in the background" in logs[0]
