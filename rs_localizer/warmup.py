@@ -54,6 +54,7 @@ __all__ = [
     "DEFAULT_SOLVERS",
     "background_state",
     "compile_kernels",
+    "fall_back_uncompiled",
     "fused_cached",
     "start_background_compile",
     "uncompiled_rate",
@@ -604,6 +605,20 @@ def _background_failed(reason: str, warn) -> None:
         _BACKGROUND.update(state="failed", reason=reason)
         _BACKGROUND["failures"] += 1
     warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
+
+
+def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]) -> bool:
+    """The compiled kernels cannot be used (``reason``: e.g. a corrupt or foreign numba cache
+    the warm-up could not load): switch this process to the uncompiled path, say why once
+    through ``warn`` and count it (:func:`background_state`). False (nothing changed) for a
+    solver without an uncompiled path."""
+    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
+
+    if solver not in UNCOMPILED_SOLVERS:
+        return False
+    use_compiled_kernels(False)
+    _background_failed(reason, warn)
+    return True
 
 
 def _stop(proc: subprocess.Popen) -> None:

@@ -302,3 +302,60 @@ def test_runs_without_numba():
     assert res["state"]["state"] == "failed" and res["state"]["failures"] == 1
     assert "numba is not available" in res["state"]["reason"]
     assert sum("frames stay on the uncompiled path" in m for m in res["logs"]) == 1
+
+
+class _Log:
+    def __init__(self):
+        self.lines = []
+
+    def info(self, m):
+        self.lines.append(m)
+
+    def warning(self, m):
+        self.lines.append(m)
+
+
+def test_warm_up_failure_falls_back(monkeypatch):
+    """A cached warm-up that fails (numba cannot load a corrupt or foreign cache entry: it
+    raises) leaves the node's frames on the uncompiled path, said once and counted."""
+    import rs_localizer.warmup as W
+    from rs_localizer.ros.pipeline import log_warm_up
+
+    def broken(*a, **k):
+        raise ValueError("invalid literal for int() with base 10: 'arbage'")
+
+    monkeypatch.setattr(W, "fused_cached", lambda *a, **k: True)
+    monkeypatch.setattr(W, "warm_up", broken)
+    before = W.background_state()["failures"]
+    log = _Log()
+    try:
+        log_warm_up("r6p_1lin", None, None, log, background=True)
+        assert not compiled_kernels_in_use()
+        st = W.background_state()
+        assert st["state"] == "failed" and st["failures"] == before + 1
+        assert "ValueError" in st["reason"]
+        assert sum("frames stay on the uncompiled path" in m for m in log.lines) == 1
+    finally:
+        use_compiled_kernels(True)
+
+
+def test_compiled_but_not_cached(monkeypatch):
+    """A background compile that ends well but leaves nothing in the cache (a read-only
+    cache directory: numba then only warns) keeps the frames uncompiled, with the reason."""
+    import time
+
+    import rs_localizer.warmup as W
+
+    monkeypatch.setattr(W, "_BACKGROUND_HELPER", "pass")
+    monkeypatch.setattr(W, "fused_cached", lambda *a, **k: False)
+    warns = []
+    try:
+        W.start_background_compile("r6p_1lin", log=lambda m: None, warn=warns.append)
+        deadline = time.monotonic() + 60
+        while W.background_state()["state"] == "compiling" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        st = W.background_state()
+        assert st["state"] == "failed" and "not cached" in st["reason"]
+        assert not compiled_kernels_in_use() and len(warns) == 1
+    finally:
+        use_compiled_kernels(True)

@@ -84,10 +84,17 @@ def log_warm_up(
     machine with two cores or more, kernels not yet compiled compile in two processes. With
     ``background`` and kernels not cached, nothing waits: the frames are solved on the
     uncompiled path while they compile in the background
-    (:func:`~rs_localizer.warmup.start_background_compile`). Never raises (a failure is
+    (:func:`~rs_localizer.warmup.start_background_compile`), and a warm-up that fails (a
+    corrupt cache) leaves the frames on the uncompiled path. Never raises (a failure is
     logged)."""
     from ..jit_cache import cache_state, compile_progress
-    from ..warmup import DEFAULT_JOBS, fused_cached, start_background_compile, warm_up
+    from ..warmup import (
+        DEFAULT_JOBS,
+        fall_back_uncompiled,
+        fused_cached,
+        start_background_compile,
+        warm_up,
+    )
 
     st = cache_state()
     if background and not fused_cached(solver, anchored=False):
@@ -119,6 +126,8 @@ def log_warm_up(
         )
     except Exception as e:
         logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+        if background:  # (e.g. a corrupt numba cache: frames would fail on the kernels)
+            fall_back_uncompiled(solver, f"warm-up: {type(e).__name__}: {e}", logger.warning)
 
 
 def _gyro_calibration(imu) -> tuple:
