@@ -106,6 +106,7 @@ def estimate_rs_pose(
             above :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`) or the aided
             estimate fails where an unaided one succeeds, the frame is solved again without
             it and ``gyro_rejected`` is set. Ignored by the global-shutter ``p3p``.
+
     While the compiled kernels are switched off
     (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`: a node whose kernels
     compile in the background), the solvers of
