@@ -433,11 +433,12 @@ class _Search:
     def _local_optimization(self) -> None:
         """Local optimization of a new best: the linear solver on (at most
         ``local_optimization.max_points`` of) its inliers, pre-rotated by it, while that
-        scores better, then a few Levenberg-Marquardt steps of the exact model on them."""
+        scores better (at most ``local_optimization.steps`` times), then a few
+        Levenberg-Marquardt steps of the exact model on them."""
         if not self.rolling or not self.opts.local_optimization.nonminimal:
             return
         fr, lo = self.fr, self.opts.local_optimization
-        for _ in range(10):
+        for _ in range(max(lo.steps, 1)):
             idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
             if len(idx) < 2 * self.s:
                 return
