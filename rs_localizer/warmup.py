@@ -579,6 +579,9 @@ def start_background_compile(
 
     if solver not in UNCOMPILED_SOLVERS:
         return False
+    with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
+        if _BACKGROUND["state"] in ("compiling", "loading"):
+            return True
     warn = warn or log
     use_compiled_kernels(False)
     hz = uncompiled_rate()
