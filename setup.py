@@ -27,7 +27,7 @@ setup(
     python_requires=">=3.10",
     # matplotlib: experiment plots (and Pillow for the CLI's image files);
     # pyyaml: parameter files, marker maps, boards and scenes; scikit-image: the photographs on
-    # the textured_room walls (renderer)
+    # the textured_room walls (renderer); tqdm: progress bars of the long CLI steps
     install_requires=[
         "setuptools",
         "numpy",
@@ -37,6 +37,7 @@ setup(
         "matplotlib",
         "pyyaml",
         "scikit-image",
+        "tqdm",
     ],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)

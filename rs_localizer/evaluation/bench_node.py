@@ -68,7 +68,7 @@ def run_benchmark(
     uncompiled_node: bool = True,
 ) -> dict:
     """Generate ``distinct`` synthetic frames, time what the node runs on them alone, then the
-    node over DDS (:func:`rs_localizer.ros.bench_client.measure_node`), then alone again with
+    node over DDS (:func:`rs_localizer.evaluation.bench_client.measure_node`), then alone again with
     the lock-step idle time as a pause between frames. Returns the results, with
     ``overhead_ms``: lock-step latency median minus the alone median, and
     ``overhead_paced_ms``: minus the paced alone median. Both estimator paths are reported:
@@ -76,7 +76,7 @@ def run_benchmark(
     kernels compile in the background) timed alone (``uncompiled_ms_median``,
     ``uncompiled_hz``) and, with ``uncompiled_node``, the node on it lock-step
     (``uncompiled_node``: the node started with ``RS_LOCALIZER_COMPILED=0``)."""
-    from ..ros.bench_client import measure_node
+    from .bench_client import measure_node
 
     log(f"generating {distinct} distinct frames of {points} correspondences ...")
     seq, cam = _frames(distinct, points, seed)
@@ -151,7 +151,7 @@ def _node_uncompiled(seq, cam, solver: str, frames: int, node_cpu, log) -> dict:
     import os
 
     from ..estimation.uncompiled import COMPILED_ENV
-    from ..ros.bench_client import measure_node
+    from .bench_client import measure_node
 
     before = os.environ.get(COMPILED_ENV)
     os.environ[COMPILED_ENV] = "0"
@@ -268,7 +268,7 @@ def main(argv=None) -> int:
 
 
 def _cameras(args) -> int:
-    from ..ros.bench_client import measure_cameras
+    from .bench_client import measure_cameras
 
     seq, cam = _frames(args.distinct, args.points, 0)
     res = measure_cameras(

@@ -114,7 +114,7 @@ def measure_start(
     the module docstring). Returns ``{"ready_s", "first_pose_s", "three_poses_s",
     "answered", "rate": {"hz", "answered", "frames", "compiled_before_end"} or None,
     "log"}``."""
-    from ..ros.play import play
+    from ..ros.bags.play import play
     from ..ros.process import random_domain_id, ros_env
 
     domain = random_domain_id()
@@ -210,8 +210,8 @@ def _synthetic_rate(domain: int, frames: int, log_path: Path, sample_bag: Path) 
     after ``data/sample``'s; whether the node's log (``log_path``) said the kernels were
     loaded before the last frame was answered (None: no background compile, the kernels
     came from the cache)."""
-    from ..ros.bag_io import CAMERA_INFO, PC2, RosbagsMessages, iter_messages
-    from ..ros.play import play
+    from ..ros.bags.bag_io import CAMERA_INFO, PC2, RosbagsMessages, iter_messages
+    from ..ros.bags.play import play
     from ..sim.trajectory import SequenceConfig, generate_sequence
 
     seq, _, cam, _ = generate_sequence(SequenceConfig(num_frames=10, num_points=500, seed=0))
@@ -478,7 +478,7 @@ def measure_rss(
     """One node process with ``n_cameras`` camera namespaces (None: a plain single node); RSS
     after the warm-up and after ``frames`` frames per camera. Returns ``{"ready": {VmRSS,
     VmHWM}, "after": {...}, "solved": frames answered}``."""
-    from ..ros.play import play
+    from ..ros.bags.play import play
     from ..ros.process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
     domain = random_domain_id()

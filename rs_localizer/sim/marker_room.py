@@ -145,7 +145,7 @@ class RoomWalk:
     pitch: float = 0.25
     pitch_hz: float = 0.5
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         return np.stack(
@@ -157,7 +157,7 @@ class RoomWalk:
             axis=-1,
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         yaw = 2 * np.pi * t / self.duration + self.yaw_wobble * np.sin(
             2 * np.pi * self.yaw_wobble_hz * t
@@ -170,7 +170,7 @@ class RoomWalk:
         Rx = rotvec_to_matrix(np.stack([roll, z, z], axis=-1))
         return Rz @ Ry @ Rx @ R_FORWARD
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
     def max_angular_rate(self, fps: float = 30.0) -> float:
@@ -198,7 +198,7 @@ class RobotDrive(RoomWalk):
     yaw_wobble: float = 0.05
     yaw_wobble_hz: float = 0.7
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         return np.stack(
@@ -210,7 +210,7 @@ class RobotDrive(RoomWalk):
             axis=-1,
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         heading = np.arctan2(self.radii[1] * np.cos(a), -self.radii[0] * np.sin(a))
@@ -236,7 +236,7 @@ class AnchorSweep:
     lateral: float = 0.7
     duration: float = 2.0
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         n = np.asarray(self.normal, dtype=float)
@@ -250,14 +250,14 @@ class AnchorSweep:
             + (0.25 * np.sin(2 * a))[..., None] * up
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         z = np.asarray(self.target, dtype=float) - self.position(t)
         z /= np.linalg.norm(z, axis=-1, keepdims=True)
         x = np.cross(z, [0.0, 0.0, 1.0])
         x /= np.linalg.norm(x, axis=-1, keepdims=True)
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
 
@@ -272,7 +272,7 @@ def simulate_detections(
     min_side_px: float = 14.0,
     max_view_angle_deg: float = 70.0,
     corner_bias_px: float = 0.0,
-):
+) -> tuple[list[tuple[float, dict[int, np.ndarray]]], dict[str, np.ndarray]]:
     """Detections of the room's markers along the walk.
 
     A marker is detected when all four corners project inside the image, its face is turned
