@@ -481,9 +481,9 @@ class _Search:
                 )
 
 
-def _configure(fr: _Frame, camera, solver: str, opts: EstimateOptions) -> None:
+def _configure(fr: _Frame, camera, solver: str, opts: EstimateOptions, min_inliers: int) -> None:
     """:func:`.frame.configure_frame` (the same checks, in the same order)."""
-    if max(opts.ransac.min_inliers, sample_size(solver) + 1) > len(fr.x):
+    if min_inliers > len(fr.x):
         raise EstimationFailed(TOO_FEW_POINTS)
     if _degenerate(fr, np.ones(len(fr.x), dtype=bool), opts.ransac.threshold_px):
         raise EstimationFailed(DEGENERATE_GEOMETRY)
@@ -641,10 +641,11 @@ def _physical(R, C, w, t, s: float):
     return om, vc, R.T @ om, R.T @ vc
 
 
-def _finalize(fr: _Frame, solver: str, opts: EstimateOptions, model, iterations, timings):
+def _finalize(
+    fr: _Frame, solver: str, opts: EstimateOptions, model, iterations, timings, min_inliers
+):
     """Refinement, last checks and outputs (:mod:`.finalize`)."""
     th = opts.ransac.threshold_px / fr.f
-    min_inliers = max(opts.ransac.min_inliers, sample_size(solver) + 1)
     rolling = solver_info(solver).rolling
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     cov = info = None
@@ -734,6 +735,8 @@ def estimate_uncompiled(
         ValueError: a solver not in :data:`UNCOMPILED_SOLVERS`, or arrays that are not
             (N, 2) / (N, 3).
     """
+    from .estimate import points_needed  # (estimate imports this module)
+
     if solver not in UNCOMPILED_SOLVERS:
         raise ValueError(
             f"solver {solver!r} needs the compiled kernels; {UNCOMPILED_SOLVERS} do not"
@@ -744,9 +747,9 @@ def estimate_uncompiled(
     rng = seeded_rng(opts.ransac.seed)
     fr = _prepare(points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng)
     search = _Search(fr, solver, opts, rng)
-    min_inliers = max(opts.ransac.min_inliers, sample_size(solver) + 1)
+    min_inliers = points_needed(solver, opts)
     try:
-        _configure(fr, camera, solver, opts)
+        _configure(fr, camera, solver, opts, min_inliers)
         timings["prepare"] = time.perf_counter() - t_start
         t0 = time.perf_counter()
         search.run()
@@ -758,7 +761,7 @@ def estimate_uncompiled(
         if _degenerate(fr, search.inliers, opts.ransac.threshold_px):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         t0 = time.perf_counter()
-        est = _finalize(fr, solver, opts, search.best, search.iterations, timings)
+        est = _finalize(fr, solver, opts, search.best, search.iterations, timings, min_inliers)
         timings["refine"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(
