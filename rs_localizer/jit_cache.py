@@ -42,6 +42,7 @@ __all__ = [
     "cache_state",
     "compile_progress",
     "configure",
+    "numba_error",
     "package_writable",
     "seed_cache",
     "user_cache_dir",
@@ -53,6 +54,81 @@ PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 _SUFFIXES = (".nbi", ".nbc")  # numba's index and data files
 
 _state = {"mode": "unconfigured", "dir": None, "seeded": 0}
+_numba = {"error": None}
+
+
+def numba_error() -> str | None:
+    """Why numba could not be imported in this process (``None``: it was). Then
+    :func:`configure` put a stand-in in its place, so that the package imports and runs on
+    its uncompiled path (:mod:`rs_localizer.estimation.uncompiled`); calling a kernel raises
+    RuntimeError with this reason."""
+    return _numba["error"]
+
+
+class _KernelUnavailable:
+    """Stand-in for a numba kernel where numba is missing: calling it raises RuntimeError
+    (the uncompiled path never calls one); ``py_func`` is the Python function."""
+
+    def __init__(self, fn):
+        self.py_func = fn
+        self.__name__ = getattr(fn, "__name__", "kernel")
+        self.__doc__ = getattr(fn, "__doc__", None)
+
+    def __call__(self, *args, **kwargs):
+        raise RuntimeError(
+            f"{self.__name__} is a compiled kernel and numba is not available "
+            f"({_numba['error']}): only the uncompiled path runs here"
+        )
+
+
+def _numba_standin() -> dict:
+    """Modules that stand in for numba (``numba``, ``numba.types``, ``numba.extending``,
+    ``numba.core``, ``numba.core.ir``) with what the package uses at import time: ``njit``
+    (kernels that raise when called), ``prange``, the extension decorators (no-ops)."""
+    import types as _pytypes
+
+    def njit(*args, **kwargs):
+        if len(args) == 1 and callable(args[0]) and not kwargs:
+            return _KernelUnavailable(args[0])
+        return _KernelUnavailable
+
+    def decorator_factory(*_a, **_k):
+        return lambda f: f
+
+    class _Type:
+        def __init__(self, name: str = "", *a, **k):
+            self.name = name
+
+    mods = {
+        n: _pytypes.ModuleType(n)
+        for n in ("numba", "numba.types", "numba.extending", "numba.core", "numba.core.ir")
+    }
+    top, ext = mods["numba"], mods["numba.extending"]
+    top.njit = top.jit = njit
+    top.prange = range
+    top.types, top.extending, top.core = mods["numba.types"], ext, mods["numba.core"]
+    top.__rs_localizer_standin__ = True
+    mods["numba.types"].Type = _Type
+    ext.overload = ext.register_model = ext.unbox = ext.box = decorator_factory
+    ext.NativeValue = lambda *a, **k: None
+    ext.models = _pytypes.SimpleNamespace(OpaqueModel=object, StructModel=object)
+    mods["numba.core"].ir = mods["numba.core.ir"]
+    mods["numba.core.ir"].Var = type("Var", (), {})
+    return mods
+
+
+def _import_numba() -> None:
+    """Import numba; if that fails (missing, or broken: llvmlite, a CPU it does not support),
+    record why (:func:`numba_error`) and install the stand-in modules."""
+    if "numba" in sys.modules:
+        return
+    try:
+        import numba  # noqa: F401
+    except Exception as e:  # (ImportError, or anything numba's own import raises)
+        _numba["error"] = f"{type(e).__name__}: {e}"
+        for name in [n for n in sys.modules if n == "numba" or n.startswith("numba.")]:
+            del sys.modules[name]
+        sys.modules.update(_numba_standin())
 
 
 def user_cache_dir(environ=None) -> str:
@@ -124,8 +200,10 @@ def seed_cache(package_dir: str, cache_dir: str) -> int:
 def configure(environ=None, package_dir: str = PACKAGE_DIR) -> dict:
     """Choose numba's cache directory (see the module docstring); call before numba is
     imported. Sets ``NUMBA_CACHE_DIR`` in ``environ`` (default ``os.environ``) when the package
-    is not writable and seeds it from the package. Returns ``{"mode", "dir", "seeded"}`` (see
-    :func:`cache_state`, which keeps the result for this package and ``os.environ``)."""
+    is not writable and seeds it from the package; for the process's own configuration it
+    then imports numba (a stand-in where that fails, :func:`numba_error`). Returns
+    ``{"mode", "dir", "seeded"}`` (see :func:`cache_state`, which keeps the result for this
+    package and ``os.environ``)."""
     env = os.environ if environ is None else environ
     if env.get("NUMBA_CACHE_DIR"):
         mode, cache = "NUMBA_CACHE_DIR", env["NUMBA_CACHE_DIR"]
@@ -149,6 +227,7 @@ def configure(environ=None, package_dir: str = PACKAGE_DIR) -> dict:
     }
     if environ is None and package_dir == PACKAGE_DIR:  # the process's own configuration
         _state.update(state)
+        _import_numba()
     return state
 
 

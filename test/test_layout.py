@@ -23,6 +23,7 @@ LAYER = {
     "pose": 0,
     "correspondences": 0,
     "jit_cache": 0,
+    "warmup": 2,
     "solvers": 1,
     "estimation": 2,
     "tracking": 2.5,

@@ -46,6 +46,7 @@ from .options import (
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import EstimationFailed, RSPoseEstimate, failed_estimate, physical_velocities
+from .uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use, estimate_uncompiled
 
 __all__ = [
     "SOLVERS",
@@ -121,6 +122,14 @@ def estimate_rs_pose(
             or the image-alone refinement explains more than it: a gyro that led RANSAC to a
             wrong consensus), the frame is solved again without it, ``gyro_rejected`` is set
             and ``gyro_rejection`` says why. Ignored by the global-shutter ``p3p``.
+
+    While the compiled kernels are switched off
+    (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`: a node whose kernels
+    compile in the background), the solvers of
+    :data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS` run without them
+    (:func:`~rs_localizer.estimation.uncompiled.estimate_uncompiled`: the same model and
+    outputs; ``scores``, ``initial_model`` and ``gyro`` are not used there).
+
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason
@@ -132,6 +141,8 @@ def estimate_rs_pose(
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
+    if solver in UNCOMPILED_SOLVERS and not compiled_kernels_in_use():
+        return estimate_uncompiled(points2d_px, points3d, camera, solver, opts)
     args = (points2d_px, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         return _estimate(*args, opts, scores, initial_model)

@@ -87,20 +87,6 @@ def _image_setup(bag: Path, info: dict):
     return image, params
 
 
-def _compile_first(solvers, out) -> None:
-    """Compile (or load from the cache) every kernel the demo's nodes will use, here, once,
-    with the progress printed: on a fresh install the nodes would otherwise each compile them
-    in their warm-up, unseen (minutes on a small machine)."""
-    from ..estimation.warmup import compile_kernels
-    from ..jit_cache import cache_state
-
-    st = cache_state()
-    print(f"numba kernels ({st['dir']}): compiling or loading ...", file=out, flush=True)
-    res = compile_kernels(solvers, log=lambda m: print(f"  {m}", file=out, flush=True))
-    done = f"compiled {len(res['kernels'])} kernels" if res["kernels"] else "all from the cache"
-    print(f"numba kernels ready in {res['seconds']:.1f} s ({done})", file=out, flush=True)
-
-
 def run_bag_demo(
     bag,
     params_files,
@@ -184,10 +170,17 @@ def run_bag_demo(
                 print(f"node {ns} did not start:\n{n.log}", file=sys.stderr)
                 return 1
         print(
-            f"nodes ready in {time.monotonic() - t0:.1f} s (JIT warm-up included); playing "
-            "in lock-step over DDS ...",
+            f"nodes ready in {time.monotonic() - t0:.1f} s; playing in lock-step over DDS ...",
             file=out,
         )
+        for ns, n in nodes.items():
+            if "compiling kernels in the background" in n.log:
+                print(
+                    f"  {ns}: no compiled kernels cached yet: the node compiles them in the "
+                    "background and solves frames on the uncompiled path meanwhile (every frame "
+                    "alone, no tracking); `rs-localizer compile` once avoids this",
+                    file=out,
+                )
         outs = tuple(f"{ns}/{k}" for ns in nodes for k in ("pose", "twist"))
         if images:
             outs += ("/camera/correspondences_out",)
@@ -335,9 +328,6 @@ def run_demo(
             print("config/rs_localizer_images.yaml not found", file=sys.stderr)
             return 2
         parts.append((ibag, [params, iparams], True))
-    _compile_first(
-        [_solver_from_yaml(params), compare] if compare else [_solver_from_yaml(params)], out
-    )
     rc = 0
     for k, (b, files, img) in enumerate(parts):
         if k:

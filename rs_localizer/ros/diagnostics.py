@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ..estimation.uncompiled import compiled_kernels_in_use
+from ..warmup import background_state
 from .frame_queue import FrameCounts
 from .params import LocalizerConfig
 from .pipeline import StatsSnapshot
@@ -46,7 +48,10 @@ def diagnostic_status(
     did for :data:`IMU_IDLE_WARN_S` (``imu_idle_s``: s since the last buffered sample, or since
     the start; e.g. every message rejected), else OK. ``values`` (in publishing order): solver,
     camera (``camera_source``), frame accounting (received, solved, failed, skipped, pending),
-    counters of ``stats`` and ``messages_lost``, inliers, planarity, ``tracking`` (see
+    the estimator's path (``compiled``: the compiled kernels in use, else the uncompiled path;
+    the background compile's state, failures and last error; frames solved on each path;
+    :func:`rs_localizer.warmup.background_state`), counters of ``stats`` and
+    ``messages_lost``, inliers, planarity, ``tracking`` (see
     :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
     published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
     stage times, front-end values (with a front end), gyro values (with ``imu.enabled``:
@@ -96,6 +101,13 @@ def diagnostic_status(
             if frames.received
             else "waiting for frames"
         )
+    compiled, bg = compiled_kernels_in_use(), background_state()
+    if not compiled:  # (a lower rate while the kernels compile is not a fault)
+        message += (
+            "; kernels compiling in the background: frames on the uncompiled path"
+            if bg["state"] in ("compiling", "loading")
+            else "; frames on the uncompiled path"
+        )
     inliers = stats.inliers
     values: dict[str, Any] = {
         "solver": cfg.solver,
@@ -105,6 +117,12 @@ def diagnostic_status(
         "frames_failed": frames.failed,
         "frames_skipped": frames.skipped,
         "frames_pending": frames.pending,
+        "compiled": str(compiled).lower(),
+        "compile_state": bg["state"],
+        "compile_failures": bg["failures"],
+        "compile_error": bg["reason"] or "",
+        "frames_compiled": c.get("frames_compiled", 0),
+        "frames_uncompiled": c.get("frames_uncompiled", 0),
         "queue_size": cfg.queue_size,
         "time_resets": c.get("time_resets", 0),
         "messages_lost": messages_lost,

@@ -123,7 +123,12 @@ class LocalizerCore:
         self._apply_config(cfg)
         if self.get_parameter("warmup").value:
             log_warm_up(
-                cfg.solver, cfg.options, cfg.tracking, self.get_logger(), cfg.imu is not None
+                cfg.solver,
+                cfg.options,
+                cfg.tracking,
+                self.get_logger(),
+                cfg.imu is not None,
+                background=True,
             )
 
     def _create_outputs(self):

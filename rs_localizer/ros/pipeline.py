@@ -65,19 +65,44 @@ LOG_PERIOD = 2.0
 _STATS_KEPT = 1000
 
 
-def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: bool = False) -> None:
+def log_warm_up(
+    solver: str,
+    options: Any,
+    tracking: Any,
+    logger: Any,
+    gyro: bool = False,
+    background: bool = False,
+) -> None:
     """Run the estimator (and, with ``tracking``, the video tracker) on small synthetic RS
     problems so that the numba JIT compiles (or loads from its cache) every kernel the node
-    will use before the first real frame (:func:`~rs_localizer.estimation.warmup.warm_up`),
+    will use before the first real frame (:func:`~rs_localizer.warmup.warm_up`),
     logging the cache, each kernel compiled and the time to ``logger``
     (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
     (None: every frame alone); ``gyro``: also the gyro-aided path (``imu.enabled``). On a
-    machine with two cores or more, kernels not yet compiled compile in two processes. Never
-    raises (a failure is logged)."""
-    from ..estimation.warmup import DEFAULT_JOBS, warm_up
+    machine with two cores or more, kernels not yet compiled compile in two processes. With
+    ``background`` and kernels not cached, nothing waits: the frames are solved on the
+    uncompiled path while they compile in the background
+    (:func:`~rs_localizer.warmup.start_background_compile`), and a warm-up that fails (a
+    corrupt cache) leaves the frames on the uncompiled path. Never raises (a failure is
+    logged)."""
     from ..jit_cache import cache_state, compile_progress
+    from ..warmup import (
+        DEFAULT_JOBS,
+        fall_back_uncompiled,
+        fused_cached,
+        start_background_compile,
+        warm_up,
+    )
 
     st = cache_state()
+    if background and not fused_cached(solver, anchored=False):
+        try:
+            if start_background_compile(
+                solver, options, tracking, gyro, logger.info, logger.warning
+            ):
+                return
+        except Exception as e:
+            logger.warning(f"background compile ({solver}) failed to start: {e}")
     logger.info(
         f"warm-up ({solver}): numba cache {st['dir']} ({st['mode']}"
         + (f", {st['seeded']} files copied from the package" if st["seeded"] else "")
@@ -99,6 +124,8 @@ def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: boo
         )
     except Exception as e:
         logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
+        if background:  # (e.g. a corrupt numba cache: frames would fail on the kernels)
+            fall_back_uncompiled(solver, f"warm-up: {type(e).__name__}: {e}", logger.warning)
 
 
 class _Drop(ValueError):
@@ -238,10 +265,13 @@ class FrameResult:
             end made of the image (with ``republish_correspondences``).
         times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
             estimator (``frontend`` alone for one the front end dropped).
+        compiled: the frame was solved with the compiled kernels (False: on the uncompiled
+            path while they compile, :mod:`rs_localizer.estimation.uncompiled`).
     """
 
     failure: str | None = None
     detail: str = ""
+    compiled: bool = True
     stamp_ns: int | None = None
     out_stamp_ns: int | None = None
     frame_id: str = ""
@@ -469,6 +499,8 @@ class FramePipeline:
         res.points2d, res.points3d = uv, xyz
         t_decoded = time.perf_counter()
         out = self.sequence.process(SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id))
+        res.compiled = out.compiled
+        self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")
         t_estimated = time.perf_counter()
         t_frontend = res.times.get("frontend", 0.0)
         res.times = {  # (the wait for the gyro samples counts as decoding, as for camera_info)

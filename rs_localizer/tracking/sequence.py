@@ -59,6 +59,7 @@ from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.tracker import RSTracker, TrackerOptions
+from ..estimation.uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use
 from ..pose import RSPose
 from ..solvers.registry import solver_info
 
@@ -212,6 +213,9 @@ class SequenceOutput:
         gyro: the gyro measurement the frame was solved with, or None.
         error: ``"<exception type>: <message>"`` when the estimator raised, else None.
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
+        compiled: the frame was solved with the compiled kernels; False: alone (no tracker,
+            no gyro) on the uncompiled path, while they compile in the background
+            (:mod:`rs_localizer.estimation.uncompiled`).
     """
 
     estimate: RSPoseEstimate | None = None
@@ -223,6 +227,7 @@ class SequenceOutput:
     gyro: GyroMeasurement | None = None
     error: str | None = None
     gyro_seconds: float = 0.0
+    compiled: bool = True
 
 
 def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
@@ -556,14 +561,17 @@ class SequenceLocalizer:
         stamp = int(frame.stamp_ns)
         ref = reference_stamp_ns(stamp, camera, s.stamp_row)
         out = SequenceOutput(stamp_ns=ref)
+        # (while the kernels compile in the background: every frame alone, without the gyro,
+        # on the uncompiled path; estimation.uncompiled)
+        out.compiled = compiled = compiled_kernels_in_use() or s.solver not in UNCOMPILED_SOLVERS
         t0 = time.perf_counter()
-        out.gyro = gyro = self._gyro_for(stamp, camera)
+        out.gyro = gyro = self._gyro_for(stamp, camera) if compiled else None
         out.gyro_seconds = time.perf_counter() - t0
         uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
         with self._lock:
             final = []
             try:
-                if s.tracking is not None:
+                if s.tracking is not None and compiled:
                     old = self._tracker
                     tracker, final = self._tracker_for(camera)
                     r = tracker.process(ref, uv, xyz, camera, scores, gyro=gyro)
@@ -572,7 +580,8 @@ class SequenceLocalizer:
                     final = final + r.final
                     self._last_frame_wall = time.monotonic()
                 else:
-                    self._end_track()
+                    if compiled:
+                        self._end_track()
                     new_track = False
                     est = estimate_rs_pose(
                         uv,
@@ -598,7 +607,8 @@ class SequenceLocalizer:
                 )
             elif est.gyro_used and est.success:
                 self._count("frames_with_gyro", 1)
-            self._update_gyro_checks(est, ref, new_track)
+            if compiled:
+                self._update_gyro_checks(est, ref, new_track)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 out.fused = self._fused(final)
                 return out
@@ -606,6 +616,7 @@ class SequenceLocalizer:
             # final)
             out.twist_now = (
                 s.tracking is None
+                or not compiled
                 or not solver_info(s.solver).rolling
                 or camera.seconds_per_unit_r <= 0
             )

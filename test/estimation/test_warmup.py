@@ -115,7 +115,7 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
 
     from rs_localizer.estimation import fusion, prior, refine, scoring
     from rs_localizer.estimation.tracker import TrackerOptions
-    from rs_localizer.estimation.warmup import _split_batch, fused_cached, warm_late, warm_up
+    from rs_localizer.warmup import _split_batch, fused_cached, warm_late, warm_up
 
     warm_up("r6p_1lin", tracking=TrackerOptions())
     solvers = [
@@ -166,7 +166,7 @@ def test_second_compiling_process_uses_this_package(tmp_path, monkeypatch):
     directory), finds the kernels in the same cache (the cold batch included: it goes on to
     the tracker's videos and ends) and reports what it compiled."""
     from rs_localizer.estimation.tracker import TrackerOptions
-    from rs_localizer.estimation.warmup import _SecondProcess, warm_late
+    from rs_localizer.warmup import _SecondProcess, warm_late
 
     warm_late("r6p_1lin", tracking=TrackerOptions())  # (cached: the helper only loads)
     decoy = tmp_path / "rs_localizer"
@@ -192,7 +192,7 @@ def test_fused_kernels_not_cached_in_an_empty_cache(tmp_path):
     )
     code = (
         f"import rs_localizer; assert rs_localizer.__file__.startswith({str(tmp_path)!r}); "
-        "from rs_localizer.estimation.warmup import fused_cached; "
+        "from rs_localizer.warmup import fused_cached; "
         "print(fused_cached('r6p_1lin'), fused_cached('r6p'))"
     )
     env = {

@@ -342,3 +342,29 @@ def test_pipeline_drops_and_counts(msgs, sequence):
     info.k[0] = 0.0
     assert pipe.add_camera_info(info) is None
     assert pipe.stats.snapshot().counts["camera_info_rejected.bad_intrinsics"] == 1
+
+
+def test_pipeline_uncompiled_then_compiled(msgs, sequence):
+    """While the kernels compile (the estimator's switch off), frames are solved alone on the
+    uncompiled path with their own twist (no tracker, nothing pending), counted per path; the
+    first frame after the switch goes to the tracker."""
+    from rs_localizer.estimation.uncompiled import use_compiled_kernels
+
+    frames, _, cam = sequence
+    pipe = _pipeline()
+    pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
+    use_compiled_kernels(False)
+    try:
+        for f in frames[:3]:
+            res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
+            assert res.solved, (res.failure, res.detail)
+            assert not res.compiled and res.twist_now and res.fused == []
+            assert np.degrees(np.linalg.norm(res.estimate.orientation - f.orientation)) < 0.5
+        assert pipe.tracking_values()["track_state"] != "tracking"
+    finally:
+        use_compiled_kernels(True)
+    f = frames[3]
+    res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
+    assert res.solved and res.compiled and not res.twist_now
+    counts = pipe.stats.snapshot().counts
+    assert (counts["frames_uncompiled"], counts["frames_compiled"]) == (3, 1)

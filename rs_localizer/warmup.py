@@ -6,17 +6,23 @@ Used by the node at start (and on a solver change) and by ``rs-localizer compile
 install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the kernels go).
 
 Compiling takes one to two minutes on one core; a third of it is the fused RANSAC kernels
-(:mod:`.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels not yet in
-numba's cache, a second Python process compiles, meanwhile, part of that batch's callees
+(:mod:`.estimation.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels
+not yet in numba's cache, a second Python process compiles, meanwhile, part of that batch's callees
 (Lambda Twist and the MSAC scoring, while this process compiles the solver kernels), then the
 kernels a frame needs later (:func:`warm_late`: the exact-model refinement, the motion prior's
 MAP step, the twist filter and its smoother) while this process runs the usual warm-up, which
 then loads them from the cache (or compiles whatever the second process has not finished):
 the result is the same as compiling in one process.
+
+A node need not wait for any of this (:func:`start_background_compile`): on a cold cache it
+solves its frames at once without compiled kernels
+(:mod:`rs_localizer.estimation.uncompiled`) while another process compiles them, and switches
+to them, frame by frame, once they are cached and loaded.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
 import re
@@ -29,25 +35,29 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix
-from ..jit_cache import PACKAGE_DIR, cache_state, compile_progress
-from ..solvers.kernels import KernelSetType, compile_kernel_set
-from ..solvers.lambda_twist import lambda_twist_batch
-from ..solvers.registry import SOLVER_NAMES, solver_info
-from .batch import fused_kernels, prerotated_batch, ransac_batch
-from .estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
-from .frame import prepare_frame
-from .prior import prior_conflict
-from .refine import posterior_step, refine_rs_pose
-from .scoring import exact_msac_scores
-from .tracker import RSTracker, TrackerOptions
+from .camera import CameraModel
+from .estimation.batch import fused_kernels, prerotated_batch, ransac_batch
+from .estimation.estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
+from .estimation.frame import prepare_frame
+from .estimation.prior import prior_conflict
+from .estimation.refine import posterior_step, refine_rs_pose
+from .estimation.scoring import exact_msac_scores
+from .estimation.tracker import RSTracker, TrackerOptions
+from .geometry import rotvec_to_matrix
+from .jit_cache import PACKAGE_DIR, cache_state, compile_progress, numba_error
+from .solvers.kernels import KernelSetType, compile_kernel_set
+from .solvers.lambda_twist import lambda_twist_batch
+from .solvers.registry import SOLVER_NAMES, solver_info
 
 __all__ = [
     "DEFAULT_JOBS",
     "DEFAULT_SOLVERS",
+    "background_state",
     "compile_kernels",
+    "fall_back_uncompiled",
     "fused_cached",
+    "start_background_compile",
+    "uncompiled_rate",
     "warm_late",
     "warm_up",
 ]
@@ -185,10 +195,11 @@ def warm_late(
 ) -> None:
     """Compile (or load), without running RANSAC, the kernels a frame of ``solver`` needs
     after it, with the argument types the estimator passes them: the exact-model refinement
-    (:func:`~.refine.refine_rs_pose`; its functions normalize their inputs, so the types do
-    not depend on the values), the motion prior's MAP step (:func:`~.prior.prior_conflict`,
-    :func:`~.refine.posterior_step`) and, with ``tracking``, the twist filter and its
-    smoother (:class:`~.fusion.TwistFilter` over synthetic per-frame estimates). The second
+    (:func:`~.estimation.refine.refine_rs_pose`; its functions normalize their inputs, so the
+    types do not depend on the values), the motion prior's MAP step
+    (:func:`~.estimation.prior.prior_conflict`, :func:`~.estimation.refine.posterior_step`)
+    and, with ``tracking``, the twist filter and its smoother
+    (:class:`~.estimation.fusion.TwistFilter` over synthetic per-frame estimates). The second
     process of a parallel warm-up runs it (:func:`warm_up`).
 
     Raises:
@@ -249,8 +260,8 @@ def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -
 
 def _split_batch(solver: str, first: bool) -> None:
     """Compile (or load) one share of the callees of ``solver``'s cold RANSAC batch
-    (:func:`.batch.ransac_batch`, compiled first and alone on a cold frame's path) with the
-    argument types the batch passes them: ``first``: the batched solver kernels (the first
+    (:func:`.estimation.batch.ransac_batch`, compiled first and alone on a cold frame's path)
+    with the argument types the batch passes them: ``first``: the batched solver kernels (the first
     process, before its warm-up); else Lambda Twist's batch and the MSAC scoring (the second
     process, before :func:`warm_late`), which the first process's batch reaches after the
     kernels and then loads from numba's cache. Nothing for a solver without a fused batch."""
@@ -334,7 +345,7 @@ _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
 #: directory's copy of the package, if any), then :func:`_second_main`
 _HELPER = (
     "import sys; sys.path.insert(0, sys.argv[1]); "
-    "from rs_localizer.estimation.warmup import _second_main; _second_main(sys.argv[2:])"
+    "from rs_localizer.warmup import _second_main; _second_main(sys.argv[2:])"
 )
 
 
@@ -455,3 +466,222 @@ def compile_kernels(
         "cache": cache_state(),
         "solvers": per,
     }
+
+
+#: the background compile's state (:func:`background_state`)
+_BACKGROUND = {
+    "state": "off",
+    "reason": None,
+    "seconds": None,
+    "failures": 0,
+    "uncompiled_hz": None,
+}
+_BACKGROUND_LOCK = threading.Lock()
+
+#: the background compiling process: the package's parent directory first on sys.path, then
+#: :func:`_background_main` with the pickled (solver, options, tracking, gyro) on stdin
+_BACKGROUND_HELPER = (
+    "import sys; sys.path.insert(0, sys.argv[1]); "
+    "from rs_localizer.warmup import _background_main; _background_main()"
+)
+
+
+def background_state() -> dict:
+    """The background compilation of this process (:func:`start_background_compile`):
+    ``{"state": "off" | "compiling" | "loading" | "compiled" | "failed", "reason": why it
+    failed or None, "seconds": compile-and-load time once compiled, "failures": background
+    compiles that failed, "uncompiled_hz": the uncompiled path's rate measured at start}``."""
+    with _BACKGROUND_LOCK:
+        return dict(_BACKGROUND)
+
+
+def _background_main() -> None:
+    """The background compiling process: :func:`warm_up` (one process: the node's process
+    keeps the other cores) for the pickled (solver, options, tracking, gyro) read from stdin,
+    so numba compiles and caches every kernel the node's frames need. Exit code 0 when
+    done."""
+    import pickle
+
+    solver, options, tracking, gyro, nice = pickle.loads(sys.stdin.buffer.read())
+    if nice and hasattr(os, "nice"):  # (the frames of the node's process come first)
+        os.nice(nice)
+    with _compile_lock(), compile_progress(lambda m: print(m, flush=True)):
+        warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+
+
+@contextlib.contextmanager
+def _compile_lock():
+    """One background compile at a time per numba cache (several nodes starting at once on
+    a cold cache: the first compiles, the others then load most kernels from the cache): an
+    exclusive ``flock`` on a file in the temporary directory named after the cache. Without
+    ``fcntl`` (not POSIX) no lock."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    import hashlib
+    import tempfile
+
+    key = hashlib.sha1(str(cache_state()["dir"]).encode()).hexdigest()[:16]
+    path = os.path.join(tempfile.gettempdir(), f"rs_localizer_compile_{key}.lock")
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def uncompiled_rate(n: int = 500, frames: int = 2) -> float:
+    """Frames per second of the uncompiled path on :func:`_problem`'s 3D scene with ``n``
+    correspondences (a fifth of them outliers): the last of ``frames`` runs (the first one
+    also warms the path up: first calls into SciPy and OpenCV)."""
+    from .estimation.uncompiled import estimate_uncompiled
+
+    cam, uv, X, _ = _problem(n)
+    rng = np.random.default_rng(5)
+    bad = rng.random(n) < 0.2
+    uv = uv.copy()
+    uv[bad] = rng.uniform([0, 0], [639, 479], (int(bad.sum()), 2))
+    dt = np.inf
+    for _ in range(max(frames, 1)):
+        tic = time.perf_counter()
+        estimate_uncompiled(uv, X, cam)
+        dt = time.perf_counter() - tic
+    return 1.0 / dt
+
+
+def start_background_compile(
+    solver: str,
+    options: EstimateOptions | None = None,
+    tracking: TrackerOptions | None = None,
+    gyro: bool = False,
+    log: Callable[[str], object] = print,
+    warn: Callable[[str], object] | None = None,
+    nice: int = 10,
+) -> bool:
+    """Solve at once, compile meanwhile: switch this process's estimator to the uncompiled
+    path (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`), compile the
+    kernels ``solver`` (with ``options``, ``tracking``, ``gyro``) needs in another Python
+    process (at ``nice``), and once it has cached them, load them here in a background thread
+    (the frames go on uncompiled meanwhile) and switch back to the compiled path: the next
+    frame uses them. Logs what it does through ``log`` (once), a failure through ``warn``
+    (once: numba is not available, the compiling process cannot start, crashes or is killed,
+    the kernels were not cached, or loading them fails); the frames then stay on the
+    uncompiled path and :func:`background_state` counts it.
+
+    Returns:
+        False (nothing started) when the solver has no uncompiled path
+        (:data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS`), else True.
+    """
+    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
+
+    if solver not in UNCOMPILED_SOLVERS:
+        return False
+    with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
+        if _BACKGROUND["state"] in ("compiling", "loading"):
+            return True
+    warn = warn or log
+    use_compiled_kernels(False)
+    hz = uncompiled_rate()
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
+    log(
+        f"compiling kernels in the background: frames are solved on the uncompiled path, "
+        f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
+        "compile` after installing avoids this)"
+    )
+    if numba_error() is not None:
+        _background_failed(f"numba is not available: {numba_error()}", warn)
+        return True
+    args = (solver, options, tracking, gyro)
+    threading.Thread(
+        target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
+    ).start()
+    return True
+
+
+def _background_failed(reason: str, warn) -> None:
+    """Record and say once that the background compile failed (:func:`background_state`)."""
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="failed", reason=reason)
+        _BACKGROUND["failures"] += 1
+    warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
+
+
+def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]) -> bool:
+    """The compiled kernels cannot be used (``reason``: e.g. a corrupt or foreign numba cache
+    the warm-up could not load): switch this process to the uncompiled path, say why once
+    through ``warn`` and count it (:func:`background_state`). False (nothing changed) for a
+    solver without an uncompiled path."""
+    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
+
+    if solver not in UNCOMPILED_SOLVERS:
+        return False
+    use_compiled_kernels(False)
+    _background_failed(reason, warn)
+    return True
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """End a background compiling process still running (at this process's exit)."""
+    _BACKGROUND["exiting"] = True
+    if proc.poll() is None:
+        proc.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=5.0)
+
+
+def _background_run(args: tuple, log, warn, nice: int) -> None:
+    """The thread of :func:`start_background_compile`."""
+    solver, options, tracking, gyro = args
+    import pickle
+
+    from .estimation.uncompiled import compiled_path, use_compiled_kernels
+
+    tic = time.perf_counter()
+
+    def fail(reason: str) -> None:
+        _background_failed(reason, warn)
+
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _BACKGROUND_HELPER, os.path.dirname(PACKAGE_DIR)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        atexit.register(_stop, proc)  # (not left compiling after this process ends)
+        out, _ = proc.communicate(pickle.dumps((*args, nice)))
+    except (OSError, pickle.PicklingError) as e:
+        fail(f"the compiling process could not start: {e}")
+        return
+    if proc.returncode != 0:
+        if _BACKGROUND.get("exiting"):  # (stopped at this process's exit: not a failure)
+            return
+        lines = out.decode(errors="replace").strip().splitlines()
+        how = (
+            f"was killed by signal {-proc.returncode}"
+            if proc.returncode < 0
+            else f"ended with exit code {proc.returncode}"
+        )
+        fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
+        return
+    if not fused_cached(solver, anchored=False):
+        fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
+        return
+    with _BACKGROUND_LOCK:
+        _BACKGROUND["state"] = "loading"
+    try:
+        with compiled_path(), compile_progress() as prog:
+            warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+    except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
+        fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
+        return
+    use_compiled_kernels(True)
+    dt = time.perf_counter() - tic
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiled", seconds=dt)
+    extra = f" ({len(prog.kernels)} compiled in this process)" if prog.kernels else ""
+    log(f"kernels compiled and loaded in {dt:.1f} s{extra}: frames use them from now on")

@@ -1,0 +1,771 @@
+"""The estimator without compiled kernels: NumPy, SciPy and OpenCV only.
+
+The compiled kernels (numba) are an accelerator, not a precondition. Until they are compiled
+(a cold cache: one to two minutes of CPU) or when numba is unavailable, frames are solved here,
+on the same model with the same outputs (:class:`~.result.RSPoseEstimate` with pose, twist,
+covariances, inliers and failure reasons), at a lower rate:
+
+1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
+   undistortion; the RS coordinate of the measured, distorted line), the same shuffle;
+2. RANSAC: minimal samples pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of
+   each sample, the root with the least error on the sample's other points; paper sec. 4),
+   the paper's linear R6P (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples
+   with ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
+   exact constant-velocity model at each point's measured capture time (eq. 4), all hypotheses
+   of a batch scored at once, adaptive termination;
+3. local optimization: the linear solver on all inliers, pre-rotated by the best model;
+4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
+   (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
+   :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
+   planar frames), its covariance from the analytic Jacobian, the motion-plausibility and
+   cheirality checks and the consistent-fit test of the compiled path.
+
+Not on this path: PROSAC ordering (``scores`` are ignored: uniform sampling), an
+``initial_model`` (the frame is solved without it), a gyro measurement (solved without it),
+the acceleration sensitivity and the correlated image-noise covariance. Solvers:
+:data:`UNCOMPILED_SOLVERS`. Nothing here calls a numba kernel, so nothing compiles; where numba
+is missing or broken, :mod:`rs_localizer.jit_cache` puts a stand-in in its place so that the
+package imports, and this path runs.
+
+Which path :func:`~.estimate.estimate_rs_pose` takes is this module's switch,
+:func:`use_compiled_kernels` (default: compiled, numba compiles on first use as before;
+``RS_LOCALIZER_COMPILED=0`` in the environment, or numba missing or failing to import
+(:func:`rs_localizer.jit_cache.numba_error`): uncompiled from the start); a
+node with a cold cache turns it off while the kernels compile in the background
+(:class:`rs_localizer.warmup.BackgroundCompile`) and on again once they are loaded.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import threading
+import time
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..geometry import camera_position, rotvec_to_matrix, skew
+from ..jit_cache import numba_error
+from ..solvers.registry import sample_size, solver_info
+from .degeneracy import PLANAR_TOLERANCE, far_side_fraction
+from .finalize import (
+    FAR_SIDE_LIMIT,
+    FINAL_CUTOFF,
+    FINAL_TOL,
+    PARTIAL_FIT_CONDITION,
+    PARTIAL_FIT_FRACTION,
+)
+from .options import EstimateOptions
+from .prior import prior_arrays
+from .ransac import required_iterations, seeded_rng
+from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
+from .result import (
+    CHEIRALITY,
+    DEGENERATE_GEOMETRY,
+    IMPLAUSIBLE_MOTION,
+    INCONSISTENT_FIT,
+    NO_HYPOTHESIS,
+    PLANAR_SCENE,
+    TOO_FEW_INLIERS,
+    TOO_FEW_POINTS,
+    EstimationFailed,
+    RSPoseEstimate,
+    failed_estimate,
+)
+
+__all__ = [
+    "COMPILED_ENV",
+    "UNCOMPILED_SOLVERS",
+    "compiled_kernels_in_use",
+    "compiled_path",
+    "estimate_uncompiled",
+    "use_compiled_kernels",
+]
+
+#: solvers this path runs (the paper's linear R6P, the node's default, and the
+#: global-shutter P3P baseline); others always take the compiled path
+UNCOMPILED_SOLVERS = ("r6p_1lin", "p3p")
+#: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
+_SAMPLE_ITERATIONS = 5
+#: robust fits of the final refinement, each on the points within the cutoff of the last
+#: (RANSAC's model comes out of local optimization's exact-model steps: one is enough)
+_FINAL_PASSES = 1
+#: models of a batch scored on all points after the preemptive test on a subset
+_KEEP = 4
+#: collinearity tolerance of the degeneracy test (as the compiled one)
+_COLLINEAR_TOL = 1e-3
+
+#: environment variable: ``0`` starts the process on the uncompiled path (numba unusable on
+#: this machine, or to measure that path)
+COMPILED_ENV = "RS_LOCALIZER_COMPILED"
+_switch = {"compiled": os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_error() is None}
+_local = threading.local()
+
+
+def use_compiled_kernels(enabled: bool) -> None:
+    """Choose the path of :func:`~.estimate.estimate_rs_pose` for the whole process:
+    ``True`` (the default) the compiled kernels, ``False`` this module (for the solvers in
+    :data:`UNCOMPILED_SOLVERS`). Thread-safe (one flag)."""
+    _switch["compiled"] = bool(enabled)
+
+
+def compiled_kernels_in_use() -> bool:
+    """True when :func:`~.estimate.estimate_rs_pose` runs the compiled kernels in this thread
+    (the process-wide switch, or :func:`compiled_path` around the call)."""
+    return bool(getattr(_local, "forced", False) or _switch["compiled"])
+
+
+@contextlib.contextmanager
+def compiled_path() -> Iterator[None]:
+    """Within the block, this thread's estimates take the compiled path whatever the
+    switch says (the warm-up that loads the kernels while other threads solve uncompiled)."""
+    before = getattr(_local, "forced", False)
+    _local.forced = True
+    try:
+        yield
+    finally:
+        _local.forced = before
+
+
+class _Frame:
+    """One frame's valid rows, shuffled and normalized (the fields of :class:`.frame.Frame`
+    this path uses)."""
+
+    def __init__(self, u_px, x, X, r, r0, f, rows, num_rows):
+        self.u_px, self.x, self.X, self.r, self.r0, self.f = u_px, x, X, r, r0, f
+        self.tau = r - r0
+        self.rows, self.num_rows = rows, num_rows
+        self.spr = 0.0
+        self.planar = False
+        self.bounds: tuple[float, float] | None = None
+        self.prior = None
+        self.final_prior = None
+
+
+def _undistort(camera: CameraModel, p: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels -> undistorted normalized points, as :meth:`CameraModel.undistort`
+    (OpenCV) without its compiled pinhole kernel."""
+    if camera.has_distortion:
+        return camera.undistort(p)
+    K = camera.K
+    y = (p[:, 1] - K[1, 2]) / K[1, 1]
+    return np.stack([(p[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=1)
+
+
+def _prepare(points2d_px, points3d, camera: CameraModel, max_point_norm: float, rng) -> _Frame:
+    """:func:`.frame.prepare_frame` in NumPy (same validity rule, shuffle and normalization)."""
+    u = np.asarray(points2d_px, dtype=np.float64)
+    X = np.asarray(points3d, dtype=np.float64)
+    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
+        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
+    rows = rng.permutation(np.flatnonzero(ok))
+    p = np.ascontiguousarray(u.take(rows, axis=0))
+    x = _undistort(camera, p) if len(p) else np.zeros((0, 2))
+    axis, sign, _ = READOUT_DIRECTIONS[camera.readout]
+    K = camera.K
+    r = sign * (p[:, axis] - K[axis, 2]) / K[axis, axis]
+    good = np.isfinite(x.sum(axis=1) + r)
+    rows, p, x, r = rows[good], p[good], x[good], r[good]
+    return _Frame(
+        p,
+        np.ascontiguousarray(x),
+        X.take(rows, axis=0),
+        r,
+        camera.r0,
+        camera.mean_focal,
+        rows,
+        len(u),
+    )
+
+
+def _line_rms(P: np.ndarray) -> float:
+    """RMS distance of 2D points (N, 2) from their total-least-squares line."""
+    if len(P) < 3:
+        return 0.0
+    S = np.cov(P.T, bias=True) * len(P)
+    return math.sqrt(max(np.linalg.eigvalsh(S)[0], 0.0) / len(P))
+
+
+def _degenerate(fr: _Frame, mask: np.ndarray, threshold_px: float) -> bool:
+    """:func:`~.plausibility.degenerate_points` in NumPy: identical or collinear 3D points,
+    or pixels (measured, or undistorted at the mean focal length) within ``threshold_px`` of
+    one image line."""
+    X = fr.X[mask]
+    if len(X) < 3:
+        return True
+    ev = np.linalg.eigvalsh(np.cov(X.T, bias=True) * len(X))
+    if not ev[2] > 0 or ev[1] < _COLLINEAR_TOL**2 * ev[2]:
+        return True
+    return _line_rms(fr.u_px[mask]) < threshold_px or _line_rms(fr.x[mask] * fr.f) < threshold_px
+
+
+def _planarity(X: np.ndarray) -> float:
+    """:func:`~.degeneracy.planarity` in NumPy."""
+    if len(X) < 3:
+        return 0.0
+    if not np.isfinite(X).all():
+        return float("nan")
+    ev = np.linalg.eigvalsh(np.cov(X.T, bias=True) * len(X))
+    return 0.0 if not ev[2] > 0 else float(np.sqrt(max(ev[0], 0.0) / ev[2]))
+
+
+def _condition_number(H: np.ndarray) -> float:
+    """:func:`~.degeneracy.condition_number` in NumPy (Jacobi-scaled, ``inf`` if singular)."""
+    d = np.diag(H)
+    if not (np.all(d > 0) and np.isfinite(H).all()):
+        return float("inf")
+    s = 1.0 / np.sqrt(d)
+    ev = np.linalg.eigvalsh(s[:, None] * H * s[None, :])
+    return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products over the last axis (broadcast), without ``np.cross``'s axis handling
+    (a third of this path's time otherwise)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _rotate_small(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``expm([a]x) q`` for stacked rotation vectors ``a`` and points ``q`` (..., 3)."""
+    th2 = np.einsum("...i,...i->...", a, a)
+    th = np.sqrt(th2)
+    small = th2 < 1e-12
+    ths = np.where(small, 1.0, th)
+    sa = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    ca = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    aq = _cross(a, q)
+    return q + sa[..., None] * aq + ca[..., None] * _cross(a, aq)
+
+
+def _errors2(fr: _Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
+    """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
+    t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
+    model (paper eq. 4); ``inf`` behind the camera."""
+    X, x, tau = fr.X[:m], fr.x[:m], fr.tau[:m]
+    q = X @ R.transpose(0, 2, 1)
+    tau3 = tau[None, :, None]
+    p = _rotate_small(tau3 * w[:, None, :], q)
+    p += C[:, None, :] + tau3 * t[:, None, :]
+    z = p[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iz = 1.0 / z
+        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+    return np.where(z > 0, e, np.inf)
+
+
+def _plausible(C, w, t, bounds) -> np.ndarray:
+    """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
+    and ``|w x C - t| <= v_max`` (:func:`~.plausibility.plausible_motion`)."""
+    ok = np.isfinite(C).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(t).all(axis=1)
+    if bounds is None:
+        return ok
+    with np.errstate(invalid="ignore"):
+        return (
+            ok
+            & (np.einsum("hi,hi->h", w, w) <= bounds[0] ** 2)
+            & (np.sum((_cross(w, C) - t) ** 2, axis=1) <= bounds[1] ** 2)
+        )
+
+
+def _p3p(fr: _Frame, samples: np.ndarray):
+    """P3P pre-rotation of each sample (K, s): OpenCV's P3P on its first three points, the
+    root with the least squared error on its other points (all of them for P3P's own
+    samples) in front of the camera. Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
+    K = len(samples)
+    eye = np.eye(3)
+    owner, rv, tv = [], [], []
+    X3, x3 = fr.X[samples[:, :3]], fr.x[samples[:, :3]]
+    p3p = cv2.SOLVEPNP_P3P
+    for k in range(K):
+        try:
+            n, rvecs, tvecs = cv2.solveP3P(X3[k], x3[k], eye, None, flags=p3p)
+        except cv2.error:
+            continue
+        owner += [k] * n
+        rv += rvecs
+        tv += tvecs
+    Rs, Cs, ok = np.tile(eye, (K, 1, 1)), np.zeros((K, 3)), np.zeros(K, dtype=bool)
+    if not owner:
+        return Rs, Cs, ok
+    owner = np.array(owner)
+    R = rotvec_to_matrix(np.array(rv).reshape(-1, 3))
+    c = np.array(tv).reshape(-1, 3)
+    rest = samples[:, 3:] if samples.shape[1] > 3 else samples
+    Xr, xr = fr.X[rest[owner]], fr.x[rest[owner]]  # (M, m, 3), (M, m, 2)
+    p = np.einsum("mij,mnj->mni", R, Xr) + c[:, None, :]
+    z = p[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.sum((p[..., :2] / z[..., None] - xr) ** 2, axis=(1, 2))
+    e = np.where((z > 0).all(axis=1) & np.isfinite(e), e, np.inf)
+    order = np.lexsort((e, owner))  # by sample, the least error first
+    first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+    first = first[np.isfinite(e[first])]
+    Rs[owner[first]], Cs[owner[first]], ok[owner[first]] = R[first], c[first], True
+    return Rs, Cs, ok
+
+
+def _r6p_1lin(x, X, tau, iterations: int):
+    """The paper's linear iterative R6P (sec. 3.3, eq. 6; :mod:`rs_localizer.solvers.r6p_1lin`)
+    for K problems at once: x (K, n, 2), X (K, n, 3) (pre-rotated), tau (K, n); n >= 6 solves
+    in the least-squares sense. Each iteration fixes ``v_hat`` in the nonlinear term
+    ``tau [w]x [v_hat]x X`` of eq. 5; the iterate with the least algebraic error of eq. 5 is
+    kept. Returns (v, C, w, t) (K, 3) each and ok (K,)."""
+    K, n = x.shape[0], x.shape[1]
+    # the two elimination rows E of each point (independent rows of [x]x): E0 = (0, -1, y),
+    # E1 = (1, 0, -x)
+    E = np.zeros((K, n, 2, 3))
+    E[..., 0, 1], E[..., 0, 2] = -1.0, x[..., 1]
+    E[..., 1, 0], E[..., 1, 2] = 1.0, -x[..., 0]
+    te = tau[:, :, None, None]
+    A = np.empty((K, n, 2, 12))
+    A[..., 0:3] = _cross(X[:, :, None, :], E)
+    A[..., 3:6] = E
+    A[..., 9:12] = te * E
+    b = -np.einsum("knqa,kna->knq", E, X).reshape(K, 2 * n)
+    vhat = np.zeros((K, 3))
+    best = np.full(K, np.inf)
+    out = np.full((K, 12), np.nan)
+    ok = np.zeros(K, dtype=bool)
+    for _ in range(iterations):
+        Z = X + _cross(vhat[:, None, :], X)
+        A[..., 6:9] = te * _cross(Z[:, :, None, :], E)
+        u, good = _solve_stack(A.reshape(K, 2 * n, 12), b)
+        vn, Cn, wn, tn = u[:, None, 0:3], u[:, None, 3:6], u[:, None, 6:9], u[:, None, 9:12]
+        # algebraic error of eq. 5 at the iterate
+        vX = X + _cross(vn, X)
+        P = vX + tau[..., None] * (_cross(wn, vX) + tn) + Cn
+        res = np.einsum("knqa,kna->knq", E, P)
+        err = np.sqrt(np.mean(res.reshape(K, -1) ** 2, axis=1))
+        better = good & (err < best)
+        out[better], best[better], ok[better] = u[better], err[better], True
+        vhat = np.where(good[:, None], u[:, 0:3], vhat)
+    return out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok
+
+
+def _solve_stack(A: np.ndarray, b: np.ndarray):
+    """Solutions of K systems A (K, m, 12) u = b (K, m): ``np.linalg.solve`` on the stacked
+    square systems (m = 12, minimal samples), else on their normal equations (least squares).
+    Returns (u (K, 12), ok (K,)), NaN where singular or not finite."""
+    if A.shape[1] != A.shape[2]:
+        A, b = np.einsum("kmi,kmj->kij", A, A), np.einsum("kmi,km->ki", A, b)
+    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
+    u = np.full(b.shape[:1] + (12,), np.nan)
+    if not ok.any():
+        return u, ok
+    try:
+        u[ok] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+    except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
+        for k in np.flatnonzero(ok):
+            try:
+                u[k] = np.linalg.solve(A[k], b[k])
+            except np.linalg.LinAlgError:
+                ok[k] = False
+    ok &= np.isfinite(u).all(axis=1)
+    return u, ok
+
+
+def _hypotheses(fr: _Frame, samples: np.ndarray, rolling: bool):
+    """Models (R (H, 3, 3), C, w, t (H, 3)) of the minimal samples: P3P (global shutter) or
+    R6P on the P3P-pre-rotated sample (rotation ``expm([v]x) R_p``)."""
+    Rp, Cp, ok = _p3p(fr, samples)
+    if not rolling:
+        z = np.zeros_like(Cp)
+        return Rp[ok], Cp[ok], z[ok], z[ok]
+    s = samples[ok]
+    Rp = Rp[ok]
+    Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
+    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], _SAMPLE_ITERATIONS)
+    R = np.einsum("kij,kjl->kil", rotvec_to_matrix(v[good]), Rp[good])
+    return R, C[good], w[good], t[good]
+
+
+class _Search:
+    """MSAC over minimal samples in batches (adaptive termination, local optimization of
+    every new best)."""
+
+    def __init__(self, fr: _Frame, solver: str, opts: EstimateOptions, rng):
+        self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
+        self.s = sample_size(solver)
+        self.rolling = solver_info(solver).rolling
+        self.th2 = (opts.ransac.threshold_px / fr.f) ** 2
+        self.best = None
+        self.score = np.inf
+        self.inliers = np.zeros(len(fr.x), dtype=bool)
+        self.iterations = 0
+        self.implausible = False
+
+    def _consider(self, R, C, w, t) -> bool:
+        """Score H models (or one: R (3, 3)); keep the best if it beats the current one. True
+        if it did."""
+        if R.ndim == 2:
+            R, C, w, t = R[None], C[None], w[None], t[None]
+        if not len(R):
+            return False
+        fine = _plausible(C, w, t, self.fr.bounds)
+        self.implausible |= bool((~fine).any())
+        if not fine.any():
+            return False
+        R, C, w, t = R[fine], C[fine], w[fine], t[fine]
+        m = self.opts.ransac.pretest_points * 2
+        if len(R) > _KEEP and len(self.fr.x) > 2 * m:
+            # preemptive scoring: every model on the first m points (the rows are shuffled: a
+            # random subset), the best _KEEP of them on all
+            part = np.minimum(_errors2(self.fr, R, C, w, t, m), self.th2).sum(axis=1)
+            keep = np.argpartition(part, _KEEP - 1)[:_KEEP]
+            R, C, w, t = R[keep], C[keep], w[keep], t[keep]
+        e2 = _errors2(self.fr, R, C, w, t)
+        sc = np.minimum(e2, self.th2).sum(axis=1)
+        k = int(np.argmin(sc))
+        if not sc[k] < self.score:
+            return False
+        self.score, self.best, self.inliers = sc[k], (R[k], C[k], w[k], t[k]), e2[k] < self.th2
+        return True
+
+    def _local_optimization(self) -> None:
+        """Local optimization of a new best: the linear solver on (at most
+        ``local_optimization.max_points`` of) its inliers, pre-rotated by it, while that
+        scores better (at most ``local_optimization.steps`` times), then a few
+        Levenberg-Marquardt steps of the exact model on them."""
+        if not self.rolling or not self.opts.local_optimization.nonminimal:
+            return
+        fr, lo = self.fr, self.opts.local_optimization
+        for _ in range(max(lo.steps, 1)):
+            idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
+            if len(idx) < 2 * self.s:
+                return
+            R0 = self.best[0]
+            Xs = (fr.X[idx] @ R0.T)[None]
+            v, C, w, t, ok = _r6p_1lin(fr.x[idx][None], Xs, fr.tau[idx][None], 3)
+            if not ok[0] or not self._consider(rotvec_to_matrix(v[0]) @ R0, C[0], w[0], t[0]):
+                break
+        idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
+        R0, C0, w0, t0 = self.best
+        args = (R0, fr.X[idx], fr.x[idx], fr.tau[idx])
+        try:
+            res = least_squares(
+                lambda p: exact_residuals(p, *args),
+                np.concatenate([np.zeros(3), C0, w0, t0]),
+                jac=lambda p: exact_jacobian(p, *args),
+                method="lm",
+                max_nfev=max(lo.refine_iterations, 1) + 1,
+            )
+        except (ValueError, np.linalg.LinAlgError):
+            return
+        th = res.x
+        self._consider(rotvec_to_matrix(th[:3]) @ R0, th[3:6], th[6:9], th[9:12])
+
+    def run(self) -> None:
+        ro = self.opts.ransac
+        N = len(self.fr.x)
+        needed = float(ro.max_iterations)
+        while self.iterations < min(needed, ro.max_iterations):
+            K = int(max(1, min(ro.batch_size, ro.max_iterations - self.iterations)))
+            samples = np.argpartition(self.rng.random((K, N)), self.s - 1, axis=1)[:, : self.s]
+            self.iterations += K
+            if self._consider(*_hypotheses(self.fr, samples, self.rolling)):
+                self._local_optimization()
+            count = int(np.count_nonzero(self.inliers))
+            if count:
+                needed = max(
+                    ro.min_iterations,
+                    required_iterations(count / N, self.s, ro.confidence),
+                )
+
+
+def _configure(fr: _Frame, camera, solver: str, opts: EstimateOptions, min_inliers: int) -> None:
+    """:func:`.frame.configure_frame` (the same checks, in the same order)."""
+    if min_inliers > len(fr.x):
+        raise EstimationFailed(TOO_FEW_POINTS)
+    if _degenerate(fr, np.ones(len(fr.x), dtype=bool), opts.ransac.threshold_px):
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    info = solver_info(solver)
+    fr.spr = spr = camera.seconds_per_unit_r
+    pl = opts.plausibility
+    fr.bounds = (pl.max_angular_velocity * spr, pl.max_linear_velocity * spr) if spr > 0 else None
+    fr.planar = bool(_planarity(fr.X) < PLANAR_TOLERANCE)
+    if fr.planar and not info.coplanar:
+        raise EstimationFailed(PLANAR_SCENE)
+    prior = opts.motion_prior
+    prior_on = bool(prior is not None and prior.enabled and spr > 0 and info.rolling)
+    fr.prior = prior if prior_on and (fr.planar or prior.always) else None
+
+
+def _fit(fr: _Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
+    """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
+    ``th``), SciPy ``least_squares``; MAP with the frame's prior
+    (:func:`~.refine.refine_rs_pose_scipy`, whose prior rows take the image noise
+    ``sigma``). Returns (R, C, w, t) or None (not finite)."""
+    R0, C0, w0, t0 = model
+    X, x, tau = fr.X[near], fr.x[near], fr.tau[near]
+    if fr.prior is not None and rolling:
+        ref = refine_rs_pose_scipy(
+            R0,
+            C0,
+            w0,
+            t0,
+            X,
+            x,
+            tau,
+            th,
+            prior=fr.prior,
+            seconds_per_unit_r=fr.spr,
+            noise=sigma,
+        )
+        R, C, w, t = ref.R, ref.C, ref.w, ref.t
+    else:
+        n_free = 12 if rolling else 6
+        theta0 = np.concatenate([np.zeros(3), C0, w0 if rolling else np.zeros(3), t0 * rolling])
+
+        def full(p):
+            th_ = theta0.copy()
+            th_[:n_free] = p
+            return th_
+
+        res = least_squares(
+            lambda p: exact_residuals(full(p), R0, X, x, tau),
+            theta0[:n_free],
+            jac=lambda p: exact_jacobian(full(p), R0, X, x, tau)[:, :n_free],
+            loss="huber",
+            f_scale=th,
+            method="trf",
+            x_scale="jac",
+            ftol=FINAL_TOL,
+            xtol=1e-10,
+            gtol=1e-10,
+        )
+        th_ = full(res.x)
+        R, C, w, t = rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12]
+    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+        return None
+    return R, C, w, t
+
+
+def _refine(fr: _Frame, model, th: float, rolling: bool):
+    """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
+    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model
+    (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's
+    prior. Returns (R, C, w, t, covariance (12, 12) of (delta, C, w, t) or None, data
+    information or None)."""
+    R, C, w, t = model
+    sigma = th / 2.0
+    for _ in range(_FINAL_PASSES):
+        e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
+        near = e < FINAL_CUTOFF * th
+        if np.count_nonzero(near) < 7:
+            return R, C, w, t, None, None
+        inl = e < th
+        if np.count_nonzero(inl) > 12:
+            sigma = float(np.sqrt(np.mean(e[inl] ** 2)))
+        fit = _fit(fr, (R, C, w, t), near, th, rolling, sigma)
+        if fit is None:
+            return R, C, w, t, None, None
+        R, C, w, t = fit
+    # covariance: Huber weights on the points within the cutoff, sigma from the inliers
+    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
+    near = e < FINAL_CUTOFF * th
+    theta = np.concatenate([np.zeros(3), C, w, t])
+    J = exact_jacobian(theta, R, fr.X[near], fr.x[near], fr.tau[near])
+    res = exact_residuals(theta, R, fr.X[near], fr.x[near], fr.tau[near])
+    wt = np.repeat(np.minimum(1.0, th / np.maximum(e[near], 1e-300)), 2)
+    n_free = 12 if rolling else 6
+    J = J[:, :n_free]
+    H = J.T @ (wt[:, None] * J)
+    dof = max(len(res) - n_free, 1)
+    sigma2 = float(np.sum(wt * res**2) / dof)
+    info = np.zeros((12, 12))
+    info[:n_free, :n_free] = H
+    Hp = H.copy()
+    on, _, Lam = prior_arrays(fr.prior if rolling else None)
+    if on:
+        s = fr.spr
+        Jz = np.zeros((6, 12))
+        Jz[0:3, 3:6] = skew(w) / s
+        Jz[0:3, 6:9] = -skew(C) / s
+        Jz[0:3, 9:12] = -np.eye(3) / s
+        Jz[3:6, 6:9] = -np.eye(3) / s
+        Hp = Hp + sigma2 * (Jz.T @ Lam @ Jz)[:n_free, :n_free]
+    try:
+        cov_free = sigma2 * np.linalg.inv(Hp)
+    except np.linalg.LinAlgError:
+        return R, C, w, t, None, info
+    cov = np.zeros((12, 12))
+    cov[:n_free, :n_free] = cov_free
+    return R, C, w, t, (cov if np.isfinite(cov).all() else None), info
+
+
+def _depths(fr: _Frame, R, C, w, t) -> np.ndarray:
+    """(N,) depths of every point at its capture time under the exact model."""
+    p = _rotate_small(fr.tau[:, None] * w, fr.X @ R.T) + C + fr.tau[:, None] * t
+    return p[:, 2]
+
+
+def _output_covariance(cov12, R, C, w, s: float):
+    """:func:`~.result.output_covariance` in NumPy: (delta, C, w, t) -> (camera rotation in
+    the world, position, omega_cam, v_cam) and the ROS pose and twist blocks."""
+    Rt = R.T
+    J = np.zeros((12, 12))
+    J[0:3, 0:3] = -Rt  # phi = -R^T delta
+    J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
+    J[3:6, 3:6] = -Rt  # dc/dC
+    if s > 0:
+        J[6:9, 6:9] = -np.eye(3) / s  # omega = -w / s
+        J[9:12, 3:6] = skew(w) / s  # v = (w x C - t) / s
+        J[9:12, 6:9] = -skew(C) / s
+        J[9:12, 9:12] = -np.eye(3) / s
+    out = J @ cov12 @ J.T
+    out = 0.5 * (out + out.T)
+    pose = np.zeros((6, 6))
+    idx = np.r_[3:6, 0:3]  # ROS (x, y, z, rot x, rot y, rot z)
+    pose[:] = out[np.ix_(idx, idx)]
+    tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
+    twist = out[np.ix_(tw, tw)] if s > 0 else None
+    return out, pose, twist
+
+
+def _physical(R, C, w, t, s: float):
+    """:func:`~.result.physical_velocities` in NumPy."""
+    if s <= 0:
+        z = np.zeros(3)
+        return z, z.copy(), z.copy(), z.copy()
+    om = -w / s
+    vc = (_cross(w, C) - t) / s
+    return om, vc, R.T @ om, R.T @ vc
+
+
+def _finalize(
+    fr: _Frame, solver: str, opts: EstimateOptions, model, iterations, timings, min_inliers
+):
+    """Refinement, last checks and outputs (:mod:`.finalize`)."""
+    th = opts.ransac.threshold_px / fr.f
+    rolling = solver_info(solver).rolling
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    cov = info = None
+    prior_used = fr.prior is not None
+    if opts.refine.enabled:
+        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, rolling)
+    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
+    inl = e < th
+    if np.count_nonzero(inl) < min_inliers:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    rmse_px = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
+    if not (np.isfinite(R).all() and _plausible(C[None], w[None], t[None], fr.bounds)[0]):
+        raise EstimationFailed(IMPLAUSIBLE_MOTION)
+    behind = ~(_depths(fr, R, C, w, t) > 0)
+    if (behind & inl).any():
+        raise EstimationFailed(CHEIRALITY)
+    n_behind = int(np.count_nonzero(behind))
+    flat = _planarity(fr.X[inl])
+    position = camera_position(R, C)
+    n_free = 12 if rolling else 6
+    cond = _condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
+    if opts.plausibility.consistent_fit and not fr.planar:
+        seen_from_behind = (
+            flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
+        )
+        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
+        if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
+            raise EstimationFailed(INCONSISTENT_FIT)
+    om, vc, om_w, vc_w = _physical(R, C, w, t, fr.spr)
+    cov_out = pose_cov = twist_cov = None
+    if cov is not None:
+        cov_out, pose_cov, twist_cov = _output_covariance(cov, R, C, w, fr.spr)
+        if not rolling:
+            twist_cov = None
+    inliers = np.zeros(fr.num_rows, dtype=bool)
+    inliers[fr.rows[inl]] = True
+    return RSPoseEstimate(
+        success=True,
+        failure=None,
+        solver=solver,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=position,
+        angular_velocity=om,
+        linear_velocity=vc,
+        angular_velocity_world=om_w,
+        linear_velocity_world=vc_w,
+        inliers=inliers,
+        num_valid=len(fr.x),
+        num_dropped=fr.num_rows - len(fr.x) + n_behind,
+        num_behind=n_behind,
+        ransac_iterations=iterations,
+        timings=timings,
+        covariance=cov_out,
+        pose_covariance=pose_cov,
+        twist_covariance=twist_cov,
+        rmse_px=rmse_px,
+        planar=bool(flat < PLANAR_TOLERANCE),
+        planarity=flat,
+        condition_number=cond,
+        motion_prior_used=prior_used,
+    )
+
+
+def estimate_uncompiled(
+    points2d_px: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    solver: str = "r6p_1lin",
+    options: EstimateOptions | None = None,
+) -> RSPoseEstimate:
+    """:func:`~.estimate.estimate_rs_pose` without compiled kernels (module docstring): the
+    same model, outputs and failure reasons, for the solvers in :data:`UNCOMPILED_SOLVERS`.
+
+    Args:
+        points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+        camera: the camera (intrinsics, distortion, RS timing).
+        solver: ``r6p_1lin`` or ``p3p``.
+        options: :class:`~.options.EstimateOptions` (default ``EstimateOptions()``).
+    Returns:
+        :class:`~.result.RSPoseEstimate`. Data problems give ``success=False`` with a
+        failure reason, never an exception.
+    Raises:
+        ValueError: a solver not in :data:`UNCOMPILED_SOLVERS`, or arrays that are not
+            (N, 2) / (N, 3).
+    """
+    from .estimate import points_needed  # (estimate imports this module)
+
+    if solver not in UNCOMPILED_SOLVERS:
+        raise ValueError(
+            f"solver {solver!r} needs the compiled kernels; {UNCOMPILED_SOLVERS} do not"
+        )
+    opts = options or EstimateOptions()
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    rng = seeded_rng(opts.ransac.seed)
+    fr = _prepare(points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng)
+    search = _Search(fr, solver, opts, rng)
+    min_inliers = points_needed(solver, opts)
+    try:
+        _configure(fr, camera, solver, opts, min_inliers)
+        timings["prepare"] = time.perf_counter() - t_start
+        t0 = time.perf_counter()
+        search.run()
+        timings["ransac"] = time.perf_counter() - t0
+        if search.best is None:
+            raise EstimationFailed(IMPLAUSIBLE_MOTION if search.implausible else NO_HYPOTHESIS)
+        if np.count_nonzero(search.inliers) < min_inliers:
+            raise EstimationFailed(TOO_FEW_INLIERS)
+        if _degenerate(fr, search.inliers, opts.ransac.threshold_px):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        t0 = time.perf_counter()
+        est = _finalize(fr, solver, opts, search.best, search.iterations, timings, min_inliers)
+        timings["refine"] = time.perf_counter() - t0
+    except EstimationFailed as failure:
+        return failed_estimate(
+            failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings
+        )
+    timings["total"] = time.perf_counter() - t_start
+    return est
