@@ -37,6 +37,7 @@ setup(
         "matplotlib",
         "pyyaml",
         "scikit-image",
+        "tqdm",
     ],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)

@@ -330,6 +330,67 @@ def _triangulate_robust(
     return _triangulate(rays_o[best], rays_d[best])
 
 
+def _marker_rays(rec: Any, images_dir: str | Path, corners3d: dict, dictionary: str) -> tuple:
+    """The map's markers detected in every registered photo of the model ``rec``: per corner
+    key ``4 * id + corner`` the rays ``[(origin (3,), unit direction (3,))]`` in the model's
+    frame, and per detection ``(id, (4, 2) undistorted normalized corners, Rc, tc, focal)``
+    (the photo's model pose ``x_cam = Rc x + tc``, its focal length in px).
+
+    Raises:
+        FileNotFoundError: a registered photo missing from ``images_dir``."""
+    from ..frontends.aruco import ArucoFrontend
+
+    det = ArucoFrontend(corners3d, dictionary)
+    obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    dets: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, float]] = []
+    for iid in sorted(rec.reg_image_ids()):
+        image = rec.images[iid]
+        path = Path(images_dir) / image.name
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            raise FileNotFoundError(f"{path}: registered photo missing or unreadable")
+        px, mids = det.detect(gray, "mono8")
+        if len(mids) == 0:
+            continue
+        xy = np.asarray(image.camera.cam_from_img(px.reshape(-1, 2).astype(float) + 0.5))
+        world_from_cam = image.cam_from_world().inverse()
+        Rw = np.asarray(world_from_cam.rotation.matrix())
+        o = np.asarray(world_from_cam.translation, float)
+        d = np.c_[xy, np.ones(len(xy))] @ Rw.T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        cam_from_world = image.cam_from_world()
+        Rc = np.asarray(cam_from_world.rotation.matrix())
+        tc = np.asarray(cam_from_world.translation, float)
+        focal = float(image.camera.mean_focal_length())
+        for k, m in enumerate(np.repeat(np.asarray(mids).ravel(), 4)):
+            if int(m) in corners3d:
+                obs.setdefault(4 * int(m) + k % 4, []).append((o, d[k]))
+                if k % 4 == 3:
+                    dets.append((int(m), xy[k - 3 : k + 1], Rc, tc, focal))
+    return obs, dets
+
+
+def _triangulate_corners(
+    obs: dict, corners3d: dict, cos_min: float, max_ray_angle: float
+) -> tuple[list, list, set]:
+    """Corners seen from two or more photos, triangulated robustly
+    (:func:`_triangulate_robust`): ``(model points [(3,)], their map corners [(3,)], ids of
+    the markers used)``."""
+    model_pts, map_pts, used = [], [], set()
+    for key, views in sorted(obs.items()):
+        if len(views) < 2:
+            continue
+        X = _triangulate_robust(
+            np.array([v[0] for v in views]), np.array([v[1] for v in views]), cos_min, max_ray_angle
+        )
+        if X is None:  # too narrow a baseline, or no two photos agree
+            continue
+        model_pts.append(X)
+        map_pts.append(corners3d[key // 4][key % 4])
+        used.add(key // 4)
+    return model_pts, map_pts, used
+
+
 def align_to_markers(
     model_dir: str | Path,
     images_dir: str | Path,
@@ -382,51 +443,14 @@ def align_to_markers(
         residual over ``max_residual`` (photos or map of another place, a moved marker).
         FileNotFoundError: a registered photo missing from ``images_dir``.
     """
-    from ..frontends.aruco import ArucoFrontend
     from ..maps import load_marker_map
 
     rec = read_model(model_dir)
     dictionary, corners3d = load_marker_map(markers)
-    det = ArucoFrontend(corners3d, dictionary)
-    obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # 4*id+corner -> [(origin, dir)]
-    dets: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, float]] = []  # for the refinement
-    for iid in sorted(rec.reg_image_ids()):
-        image = rec.images[iid]
-        path = Path(images_dir) / image.name
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            raise FileNotFoundError(f"{path}: registered photo missing or unreadable")
-        px, mids = det.detect(gray, "mono8")
-        if len(mids) == 0:
-            continue
-        xy = np.asarray(image.camera.cam_from_img(px.reshape(-1, 2).astype(float) + 0.5))
-        world_from_cam = image.cam_from_world().inverse()
-        Rw = np.asarray(world_from_cam.rotation.matrix())
-        o = np.asarray(world_from_cam.translation, float)
-        d = np.c_[xy, np.ones(len(xy))] @ Rw.T
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        cam_from_world = image.cam_from_world()
-        Rc = np.asarray(cam_from_world.rotation.matrix())
-        tc = np.asarray(cam_from_world.translation, float)
-        focal = float(image.camera.mean_focal_length())
-        for k, m in enumerate(np.repeat(np.asarray(mids).ravel(), 4)):
-            if int(m) in corners3d:
-                obs.setdefault(4 * int(m) + k % 4, []).append((o, d[k]))
-                if k % 4 == 3:
-                    dets.append((int(m), xy[k - 3 : k + 1], Rc, tc, focal))
-    cos_min = np.cos(np.deg2rad(min_angle_deg))
-    model_pts, map_pts, used = [], [], set()
-    for key, views in sorted(obs.items()):
-        if len(views) < 2:
-            continue
-        X = _triangulate_robust(
-            np.array([v[0] for v in views]), np.array([v[1] for v in views]), cos_min, max_ray_angle
-        )
-        if X is None:  # too narrow a baseline, or no two photos agree
-            continue
-        model_pts.append(X)
-        map_pts.append(corners3d[key // 4][key % 4])
-        used.add(key // 4)
+    obs, dets = _marker_rays(rec, images_dir, corners3d, dictionary)
+    model_pts, map_pts, used = _triangulate_corners(
+        obs, corners3d, np.cos(np.deg2rad(min_angle_deg)), max_ray_angle
+    )
     if len(used) < int(min_markers):
         raise ValueError(
             f"marker alignment needs >= {min_markers} markers of the map triangulated in the "

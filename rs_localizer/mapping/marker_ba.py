@@ -1218,7 +1218,12 @@ def map_markers(
     bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
     bar.set_postfix_str("initialization")
     init = _Init(obs_n, stamps, options, gauge, camera, obs_px)
-    init.run()
+    try:
+        init.run()
+    except ValueError:
+        if videos is not None:  # (a video of another place: say so)
+            _check_videos(videos, init, obs_px)
+        raise
     if len(init.frames) < 2:
         raise ValueError(f"anchor marker {gauge}: fewer than 2 frames with a pose")
     if videos is not None:
@@ -1241,7 +1246,6 @@ def map_markers(
     bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
     if bad:
         raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")
-    fr_ids = list(prob.frames)
     mk_ids = prob.markers
     all_ids = sorted(init.markers)
     # rejected: by the adjustment, and detections of mapped markers that disagreed with their
@@ -1249,13 +1253,40 @@ def map_markers(
     num_rejected = int((~prob.keep).sum()) + sum(
         m in all_ids and m not in inconsistent for _, m in exclude
     )
-    Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
+    _, _, _, _, Rm, pm, _ = prob.unpack(sol.x)
     poses = {gauge: (prob.Ra, prob.pa)}
     poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(mk_ids)})
     sides = {m: options.side(m) for m in poses}
 
     bar.set_postfix_str("covariance")
     t0 = time.perf_counter()
+    framed = _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
+    timings["covariance"] = time.perf_counter() - t0
+    bar.update(1)
+    bar.close()
+    return _assemble(
+        prob,
+        sol,
+        init,
+        framed,
+        sides,
+        options,
+        inconsistent,
+        num_rejected,
+        len(frames),
+        timings,
+        t_start,
+    )
+
+
+def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent) -> dict:
+    """Stage (4)-(5) of :func:`map_markers`: the covariance of the markers in the gauge
+    (viewpoint clusters, shared-error weights), the output frame (the best-observed marker
+    chosen when no anchor is given; surveyed anchors checked against their residual) and the
+    markers' poses and covariances in it. Returns a dict of ``poses`` / ``cov`` (id -> output
+    pose, (6, 6)), ``frame`` (:class:`OutputFrame`) and ``transform`` ``(R, t)`` (adjustment
+    frame -> output frame). Raises ValueError for surveyed anchors that disagree."""
+    Rf, Cf, *_ = prob.unpack(sol.x)
     labels = _view_clusters(prob, Rf, Cf, poses, options.view_cluster_rad)
     weights, rho = (
         _shared_error_weights(prob, sol.x, labels)
@@ -1263,12 +1294,11 @@ def map_markers(
         else (np.ones(len(prob.det)), 0.0)
     )
     cov_gauge, _ = _gauge_covariance(prob, sol, weights)
-    keep_ids = [m for m in poses if m not in inconsistent]
     kind = "surveyed" if options.anchors else "anchor" if options.anchor is not None else None
     if kind is None:
         kind = "best-observed"
-        options = replace(options, anchor=_best_observed(poses, mk_ids, cov_gauge))
-    out_cov, frame_cov = _propagate(poses, mk_ids, cov_gauge, options, gauge, sides)
+        options = replace(options, anchor=_best_observed(poses, prob.markers, cov_gauge))
+    out_cov, frame_cov = _propagate(poses, prob.markers, cov_gauge, options, gauge, sides)
     Ro, to, residual = _output_transform(poses, options, gauge, sides)
     if options.anchors and residual > options.max_anchor_residual:
         raise ValueError(
@@ -1277,68 +1307,73 @@ def map_markers(
             f"{options.max_anchor_residual * 1000:.0f} mm): a wrong pose or id, a moved "
             "marker, or a wrong marker size"
         )
-    timings["covariance"] = time.perf_counter() - t0
-    bar.update(1)
-    bar.close()
-
-    corners, out_poses, mcov, mstd, nobs, used = {}, {}, {}, {}, {}, {}
-    for (_, m), kept in zip(prob.det, prob.keep, strict=True):
-        used[m] = used.get(m, 0) + int(kept)
-    for m in keep_ids:
+    out_poses, covs = {}, {}
+    for m in poses:
+        if m in inconsistent:
+            continue
         R, p = poses[m]
-        Rw, pw = Ro @ R, Ro @ p + to
-        out_poses[m] = (Rw, pw)
-        corners[m] = marker_corners_local(sides[m]) @ Rw.T + pw
+        out_poses[m] = (Ro @ R, Ro @ p + to)
         c = 0.5 * (out_cov[m] + out_cov[m].T)
         if m == options.anchor and kind == "anchor":
             c = np.zeros((6, 6))  # (the anchor's pose in its own frame is exact)
-        mcov[m] = c
-        mstd[m] = np.sqrt(np.clip(np.diag(c), 0.0, None))
-        nobs[m] = used.get(m, 0)
+        covs[m] = c
     frame_std = np.sqrt(np.clip(np.diag(frame_cov), 0.0, None))
-    anchors = sorted(options.anchors) if options.anchors else [int(options.anchor)]
     frame = OutputFrame(
         kind,
-        anchors,
+        sorted(options.anchors) if options.anchors else [int(options.anchor)],
         float(np.degrees(frame_std[:3].max())),
         float(1e3 * frame_std[3:].max()),
         frame_cov,
         1e3 * residual,
         rho,
     )
+    return dict(poses=out_poses, cov=covs, frame=frame, transform=(Ro, to), gauge_poses=poses)
+
+
+def _assemble(
+    prob, sol, init, framed, sides, options, inconsistent, num_rejected, n_frames, timings, t0
+) -> MarkerMapResult:
+    """Stage (6) of :func:`map_markers`: the :class:`MarkerMapResult` in the output frame
+    (markers, their covariance and std, frames' poses and velocities, counts, coverage)."""
+    Rf, Cf, W, T, _, _, ld = prob.unpack(sol.x)
+    Ro, to = framed["transform"]
+    used: dict = {}
+    for (_, m), kept in zip(prob.det, prob.keep, strict=True):
+        used[m] = used.get(m, 0) + int(kept)
+    poses, covs = framed["poses"], framed["cov"]
+    corners = {m: marker_corners_local(sides[m]) @ R.T + p for m, (R, p) in poses.items()}
+    mstd = {m: np.sqrt(np.clip(np.diag(c), 0.0, None)) for m, c in covs.items()}
     # the frames in the output frame: world -> camera (R, C) becomes (R Ro^T, C - R Ro^T to)
     Rf_out = Rf @ Ro.T
     Cf_out = Cf - np.einsum("nij,j->ni", Rf_out, to)
     # camera's own velocities (docs/architecture.md): omega = -w / s, v = (w x C - t) / s with
-    # w = s W, t = s T (C the world -> camera translation)
-    # (the camera's velocities in its own frame do not depend on the world frame)
-    omega = -W
-    vel = np.cross(W, Cf) - T
+    # w = s W, t = s T (C the world -> camera translation of the adjustment's frame: the
+    # camera's velocities in its own frame do not depend on the world frame)
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
-    timings["total"] = time.perf_counter() - t_start
+    timings["total"] = time.perf_counter() - t0
     return MarkerMapResult(
-        anchor=anchors[0],
+        anchor=framed["frame"].anchors[0],
         corners=corners,
-        marker_poses=out_poses,
-        marker_covariance=mcov,
+        marker_poses=poses,
+        marker_covariance=covs,
         marker_std=mstd,
-        observations=nobs,
-        frame_ids=np.array(fr_ids),
+        observations={m: used.get(m, 0) for m in poses},
+        frame_ids=np.array(list(prob.frames)),
         orientation=np.swapaxes(Rf_out, 1, 2),
         position=-np.einsum("nji,nj->ni", Rf_out, Cf_out),
-        angular_velocity=omega,
-        linear_velocity=vel,
+        angular_velocity=-W,
+        linear_velocity=np.cross(W, Cf) - T,
         line_delay=float(ld),
         rmse_px=float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
         num_rejected=num_rejected,
-        num_frames_skipped=len(frames) - len(fr_ids),
+        num_frames_skipped=n_frames - len(prob.frames),
         unmapped=init.unmapped,
         inconsistent=inconsistent,
         timings=timings,
         global_shutter=options.global_shutter,
         corner_offset_px=prob.corner_offset(sol.x),
-        frame=frame,
-        coverage=_coverage(prob, Rf, Cf, poses, mstd, sides, options.coverage_std),
+        frame=framed["frame"],
+        coverage=_coverage(prob, Rf, Cf, framed["gauge_poses"], mstd, sides, options.coverage_std),
     )
 
 
