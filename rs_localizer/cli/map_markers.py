@@ -201,6 +201,12 @@ def _summary(out: Path, result, counts: dict, opts) -> list:
             "Look at the anchor from closer and from several directions, or fix the frame by "
             "a better-observed marker (leave out --anchor) or by several surveyed markers "
             "(--survey MARKERS.yaml)"
+            + (
+                ". At several degrees the stated marker precision, a linearization, "
+                "understates the turn: do not rely on this frame"
+                if f.rotation_std_deg > 5.0
+                else ""
+            )
         )
     for m, why in sorted(result.coverage.items()):
         lines.append(f"  marker {m}: {why}")

@@ -93,6 +93,8 @@ class MappingOptions:
         shared_errors: weight the detections in the covariance for the detector's errors that
             repeat when a marker is seen again from the same viewpoint
             (:func:`_shared_error_weights`); False: every detection independent.
+        planar_ambiguity: widen each marker's rotation covariance along its mirrored tilt
+            where the cost says the mirror fits (:func:`_mirror_covariance`).
         view_cluster_rad: viewing directions within this angle (rad; and distances within
             30 %) count as one viewpoint for ``shared_errors``.
         coverage_std: markers whose stated position std (largest axis, m) exceeds this are
@@ -135,6 +137,7 @@ class MappingOptions:
     anchors: dict | None = None
     max_anchor_residual: float = 0.05
     shared_errors: bool = True
+    planar_ambiguity: bool = True
     view_cluster_rad: float = 0.35
     coverage_std: float = 0.01
     max_frame_rotation_deg: float = 0.5
@@ -949,6 +952,59 @@ def _gauge_covariance(prob: _Problem, sol, weights: np.ndarray) -> tuple[np.ndar
     return _marker_covariance(diags(scale) @ J, n_px, sigma, prob), sigma
 
 
+def _mirror_covariance(prob: _Problem, x, weights, sigma: float, poses: dict) -> dict:
+    """id -> (6, 6) covariance to add to a marker's pose for the planar ambiguity of its tilt.
+
+    A square seen from about one direction has two poses that fit it: the true one and its
+    tilt mirrored through the viewing direction (the two solutions of IPPE). Far and small,
+    both fit almost equally, and the linearized covariance at one of them, which can be sharp
+    there, says nothing of the other. For each marker the tilt is mirrored through its mean
+    viewing direction (rotation ``delta``, the frames and the centre held), and the rise of
+    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` gives the variance along
+    ``delta`` that the cost's secant implies, ``|delta|^2 / d``; where that exceeds the
+    linearized variance along ``delta``, the difference is added along it (rotation block)."""
+    Rf, Cf, *_ = prob.unpack(x)
+    fidx = {k: i for i, k in enumerate(prob.frames)}
+    midx = {m: i for i, m in enumerate(prob.markers)}
+    e8 = prob.corner_residuals(x).reshape(-1, 8)
+    out = {}
+    for m, (R, p) in poses.items():
+        rows = [d for d, (k, mm) in enumerate(prob.det) if mm == m and prob.keep[d]]
+        if not rows:
+            continue
+        v = np.array(
+            [R.T @ (-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p) for d in rows]
+        )
+        v = v / np.linalg.norm(v, axis=1, keepdims=True)
+        u = v.mean(axis=0)
+        u /= np.linalg.norm(u)
+        n_alt = 2 * u[2] * u - np.array([0.0, 0.0, 1.0])
+        axis = np.cross([0.0, 0.0, 1.0], n_alt)
+        ang = float(np.arctan2(np.linalg.norm(axis), n_alt[2]))
+        if ang < 1e-6:
+            continue
+        delta = R @ (axis / np.linalg.norm(axis) * ang)  # (world axes, left perturbation)
+        R_alt = rotvec_to_matrix(delta) @ R
+        x_alt = np.array(x, dtype=float)
+        Ra_save = prob.Ra
+        if m in midx:
+            M = x_alt[prob.moff : prob.moff + 6 * prob.nm].reshape(prob.nm, 6)
+            M[midx[m], :3] = matrix_to_rotvec(R_alt @ prob.R0m[midx[m]].T)
+        else:
+            prob.Ra = R_alt
+        try:
+            e_alt = prob.corner_residuals(x_alt).reshape(-1, 8)
+        finally:
+            prob.Ra = Ra_save
+        w = weights[rows]
+        rise = float(np.sum(w * (np.sum(e_alt[rows] ** 2, 1) - np.sum(e8[rows] ** 2, 1))))
+        rise = max(rise / sigma**2, 1.0)
+        d = delta / ang
+        var = ang**2 / rise
+        out[m] = (d, var)
+    return out
+
+
 def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (3, 3) and translation (3,) minimizing ``|R src + t - dst|`` over (N, 3)
     points (Kabsch; SciPy ``Rotation.align_vectors`` on the centred points)."""
@@ -1293,12 +1349,24 @@ def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
         if options.shared_errors
         else (np.ones(len(prob.det)), 0.0)
     )
-    cov_gauge, _ = _gauge_covariance(prob, sol, weights)
+    cov_gauge, sigma = _gauge_covariance(prob, sol, weights)
+    # the gauge marker joins as a variable of its own, uncorrelated with the others: its
+    # only uncertainty in the gauge is the ambiguity of its tilt
+    ids = [*prob.markers, gauge]
+    n = 6 * len(prob.markers)
+    cov = np.zeros((n + 6, n + 6))
+    cov[:n, :n] = cov_gauge
+    if options.planar_ambiguity:
+        for m, (d, var) in _mirror_covariance(prob, sol.x, weights, sigma, poses).items():
+            i = 6 * ids.index(m)
+            lin = float(d @ cov[i : i + 3, i : i + 3] @ d)
+            if var > lin:
+                cov[i : i + 3, i : i + 3] += (var - lin) * np.outer(d, d)
     kind = "surveyed" if options.anchors else "anchor" if options.anchor is not None else None
     if kind is None:
         kind = "best-observed"
-        options = replace(options, anchor=_best_observed(poses, prob.markers, cov_gauge))
-    out_cov, frame_cov = _propagate(poses, prob.markers, cov_gauge, options, gauge, sides)
+        options = replace(options, anchor=_best_observed(poses, ids, cov))
+    out_cov, frame_cov = _propagate(poses, ids, cov, options, gauge, sides)
     Ro, to, residual = _output_transform(poses, options, gauge, sides)
     if options.anchors and residual > options.max_anchor_residual:
         raise ValueError(
