@@ -88,8 +88,9 @@ class MappingOptions:
         anchors: id -> (4, 3) surveyed world corners (m) of several markers: the world frame
             is the rigid best fit of their mapped corners to these (a frame several markers
             fix); excludes ``anchor``.
-        max_anchor_residual: largest RMS corner residual (m) of the surveyed anchors after the
-            fit; above it the anchors disagree with the video (an error).
+        max_anchor_residual: RMS corner residual (m) of the surveyed anchors after the fit
+            that is always accepted; above it and above 3 times the position std the map
+            states for them, the anchors disagree with the video (an error).
         shared_errors: weight the detections in the covariance for the detector's errors that
             repeat when a marker is seen again from the same viewpoint
             (:func:`_shared_error_weights`); False: every detection independent.
@@ -1368,13 +1369,20 @@ def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
         options = replace(options, anchor=_best_observed(poses, ids, cov))
     out_cov, frame_cov = _propagate(poses, ids, cov, options, gauge, sides)
     Ro, to, residual = _output_transform(poses, options, gauge, sides)
-    if options.anchors and residual > options.max_anchor_residual:
-        raise ValueError(
-            f"the surveyed anchors {sorted(options.anchors)} disagree with the video: RMS corner "
-            f"residual {residual * 1000:.0f} mm after the best fit (bound "
-            f"{options.max_anchor_residual * 1000:.0f} mm): a wrong pose or id, a moved "
-            "marker, or a wrong marker size"
+    if options.anchors:
+        # what the map states for the surveyed markers' positions (rms per axis)
+        stated = float(
+            np.sqrt(np.mean([np.trace(out_cov[m][3:, 3:]) / 3 for m in options.anchors]))
         )
+        bound = max(options.max_anchor_residual, 3 * stated)
+        if residual > bound:
+            raise ValueError(
+                f"the surveyed anchors {sorted(options.anchors)} disagree with the video: RMS "
+                f"corner residual {residual * 1000:.0f} mm after the best fit, above "
+                f"{bound * 1000:.0f} mm (3x the {stated * 1000:.0f} mm the map states for them, "
+                f"at least {options.max_anchor_residual * 1000:.0f} mm): a wrong pose or id, a "
+                "moved marker, or a wrong marker size"
+            )
     out_poses, covs = {}, {}
     for m in poses:
         if m in inconsistent:
