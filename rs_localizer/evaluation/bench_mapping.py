@@ -1,29 +1,39 @@
-"""Marker maps from a rolling-shutter video: ``python -m rs_localizer.evaluation.bench_mapping``.
+"""Marker maps from rolling-shutter videos: ``python -m rs_localizer.evaluation.bench_mapping``.
 
 The scene (:mod:`rs_localizer.sim.marker_room`): a 4.5 x 4 x 2.6 m room with 30 markers of
 0.12-0.30 m (marker 0, 0.30 m, is the anchor; one on the floor, a third tilted out of their
-wall). The mapping video opens with 2 s in front of the anchor, looking at it from the left and
-the right at ~1 m (:class:`~rs_localizer.sim.marker_room.AnchorSweep`), then a cut, then a
-hand-held walk that turns around the room once every 5 s (angular speed up to ~2.2 rad/s);
-640x480, f = 500 px, 30 ms readout, 0.4 px corner noise, 30 fps. Corners are projected with the
-camera pose at each line's own capture time (no images: detections only).
+wall); 640x480, f = 500 px, 30 ms readout, 30 fps, 0.4 px corner noise, the corners 0.19 px
+inside their squares, and a detector error of 0.3 px that repeats when a marker is seen again
+from the same viewpoint (:func:`~rs_localizer.sim.marker_room.view_dependent_error`). Corners
+are projected with the camera pose at each line's own capture time (no images: detections
+only). Three mapping videos unlike each other:
 
-Prints, for the rolling-shutter adjustment at the true line delay, the global-shutter one on the
-same detections, the rolling-shutter one calibrating the line delay from a start 20 % off, and
-the rolling-shutter one of the walk alone (without the views of the anchor): the marker-corner
-error (median, max; mm) with the gauge fixed on the anchor only (its true pose, no best-fit
-alignment), the same after a best-fit rigid alignment (the map's shape), the median reported
-standard deviation of the marker centres (what the detections can fix), the fraction of
-markers whose centre error lies within its reported 3-sigma (Mahalanobis distance below
-chi2_3(0.9973) = 14.16), the reprojection RMSE, the line delay error, and the time per stage.
+- **walk + anchor sweep**: 2 s in front of the anchor, looking at it from the left and the
+  right at ~1 m (:class:`~rs_localizer.sim.marker_room.AnchorSweep`), a cut, then a hand-held
+  walk turning around the room once every 5 s (up to ~2.2 rad/s);
+- **one spot, small anchor**: the same layout with a 16 cm anchor, a hand-held video from one
+  spot in a corner panning across the room (:class:`~rs_localizer.sim.marker_room.OneSpot`;
+  the anchor 4.5 m away, seen head-on);
+- **robot drive**: a robot driving a loop at 0.4 m height
+  (:class:`~rs_localizer.sim.marker_room.RobotDrive`).
 
-Then a second video in the same room (a robot driving a loop at 0.4 m,
-:class:`~rs_localizer.sim.marker_room.RobotDrive`) is localized frame by frame against the
-true map and against each built map (written and loaded as the node reads it): median rotation
-and position errors against the truth and their ratio to the true map's. One BLAS thread.
+Each is mapped with three choices of the output frame (marker 0 at its true pose; the
+best-observed marker, the default; marker 0 and the two markers seen most often, surveyed at
+their true corners) and with the global-shutter model. Printed per map, in its output frame:
+the marker-corner error (median, max; mm), the same after a best-fit rigid alignment (the
+map's shape), the median stated standard deviation of the marker centres (sqrt of the
+covariance's trace), the fraction of markers whose centre error lies within the stated
+3-sigma (Mahalanobis distance below chi2_3(0.9973) = 14.16), the frame's true rotation (the
+best fit of the map's centres onto the truth) against its stated std and whether that lies
+within the stated 3-sigma, the correlation of the repeated detector errors found, the time.
+Then the walk and the drive mapped together; then a second drive (other noise) localized
+frame by frame against the true map and the built maps (written and read as the node reads
+them; the walk's map also with the correspondences scored by the markers' stated std), and
+the targets. One BLAS thread.
 
     python -m rs_localizer.evaluation.bench_mapping [--frames 240] [--anchor-frames 60]
-        [--markers 30] [--seed 0] [--drive-frames 300]
+        [--spot-frames 150] [--map-drive-frames 300] [--markers 30] [--seed 0]
+        [--drive-frames 300] [--corner-bias 0.19] [--view-error 0.3]
 """
 
 from __future__ import annotations

@@ -297,20 +297,53 @@ class _Init:
         e = _gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f)
         return float(np.sqrt(np.mean(e**2)))
 
-    def pose_frame(self, k, guess) -> bool:
+    def _ippe_guesses(self, k: int, known: list) -> list:
+        """Camera poses (world -> camera) of frame ``k`` from each known marker's two planar
+        solutions: starting points that need no previous frame (after a cut)."""
+        out = []
+        for m in known:
+            Rm, pm = self.markers[m]
+            for Rmc, tmc in _ippe_candidates(
+                marker_corners_local(self.opts.side(m)), self.obs[k][m]
+            ):
+                R = Rmc @ Rm.T
+                out.append((R, tmc - R @ pm))
+        return out
+
+    def pose_frame(self, k, guess, cut: bool = False) -> bool:
         """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
 
         With several markers, the pose from all of them and from each alone compete: the one
         that most markers agree with wins (ties: the one nearest the guess, the video being
         continuous); markers that disagree with it (a misdetection, or one id at another place)
-        are left out of this frame's initialization."""
+        are left out of this frame's initialization. After a cut (``cut``: a gap in the
+        stamps, another video), or when no start from the guess fits, each known marker's two
+        planar solutions are tried as starts too."""
         known = [m for m in self.obs[k] if m in self.markers and (k, m) not in self.excluded]
         if not known:
             return False
-        subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
+        best = self._best_pose(k, known, guess, [guess] * (1 + (len(known) > 1) * len(known)))
+        if cut or best is None or not best[2]:
+            starts = self._ippe_guesses(k, known)
+            alt = self._best_pose(k, known, guess, starts, subsets=[known] * len(starts))
+            if alt is not None and (best is None or alt[0] > best[0]):
+                best = alt
+        if best is None or not best[2]:
+            return False
+        _, pose, agree = best
+        self.excluded.update((k, m) for m in known if m not in agree)
+        pose = self._pnp(k, agree, pose) or pose
+        self.frames[k] = pose
+        return True
+
+    def _best_pose(self, k, known, guess, starts, subsets=None):
+        """The best ``(score, pose, agreeing markers)`` over PnP from ``starts`` on
+        ``subsets`` (default: all known markers, then each alone), or None."""
+        if subsets is None:
+            subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
         best = None
-        for sub in subsets:
-            pose = self._pnp(k, sub, guess)
+        for sub, start in zip(subsets, starts, strict=False):
+            pose = self._pnp(k, sub, start)
             if pose is None:
                 continue
             R, C = pose
@@ -321,13 +354,7 @@ class _Init:
             score = (len(agree), -away)
             if best is None or score > best[0]:
                 best = (score, pose, agree)
-        if best is None or not best[2]:
-            return False
-        _, pose, agree = best
-        self.excluded.update((k, m) for m in known if m not in agree)
-        pose = self._pnp(k, agree, pose) or pose
-        self.frames[k] = pose
-        return True
+        return best
 
     def new_marker(self, k, mid) -> None:
         obj = marker_corners_local(self.opts.side(mid))
@@ -445,10 +472,13 @@ class _Init:
         for m in self.obs[self.seed]:
             self.new_marker(self.seed, m)
         added = 0
+        dts = np.diff([self.stamps[k] for k in keys])
+        gap = self.opts.max_frame_gap * float(np.median(dts)) if len(dts) else 0.0
         for direction in (keys[s + 1 :], keys[:s][::-1]):
             prev = self.seed
             for k in direction:
-                if not self.pose_frame(k, self.frames[prev]):
+                cut = abs(self.stamps[k] - self.stamps[prev]) > max(gap, 0.5)
+                if not self.pose_frame(k, self.frames[prev], cut=cut):
                     continue
                 prev = k
                 added += 1
