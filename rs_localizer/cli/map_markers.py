@@ -239,6 +239,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--readout-time must be >= 0, got {args.readout_time}")
     opts = _options(args)
     inputs = args.input if isinstance(args.input, list) else [args.input]
+    for src in inputs:  # (all inputs checked before any detection)
+        if not Path(src).is_dir():
+            raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
     t0 = time.perf_counter()
     detected = [_detect(Path(src), args) for src in inputs]
     camera = detected[0][0]
