@@ -1474,7 +1474,7 @@ def _assemble(
         num_rejected=num_rejected,
         num_frames_skipped=n_frames - len(prob.frames),
         unmapped=init.unmapped,
-        inconsistent=inconsistent,
+        inconsistent={m: [Ro @ q + to for q in qs] for m, qs in inconsistent.items()},
         timings=timings,
         global_shutter=options.global_shutter,
         corner_offset_px=prob.corner_offset(sol.x),
