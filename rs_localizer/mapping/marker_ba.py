@@ -1319,7 +1319,14 @@ def map_markers(
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    _coarse_adjustment(init, obs_px, camera, options, gauge, (np.eye(3), np.zeros(3)))
+    # the adjustment's frame: the anchor at its pose when one is given (the motion tie of the
+    # camera centres is not invariant to where the world's origin lies: the output frame's
+    # origin is the one the tie sees), else the gauge marker's own frame
+    gauge_pose = (np.eye(3), np.zeros(3))
+    if options.anchor is not None and options.anchor_pose is not None:
+        Ra, pa = options.anchor_pose
+        gauge_pose = (np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3))
+    _coarse_adjustment(init, obs_px, camera, options, gauge, gauge_pose)
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
