@@ -1,7 +1,9 @@
 # rs_localizer: two commands on a machine with nothing but Python 3.11
 #   make demo   the node on the sample bag over DDS, accuracy vs ground truth (and vs p3p)
 #   make test   the style gate (ruff) and the whole test suite
-# Other targets: venv, lint, format, sample-bag (regenerate the committed bags), bench-node, fuzz-long, clean.
+# Other targets: venv, test-quick (no node over DDS, no slow test), lint, format, params (the
+# parameters' defaults in docs and config from their table), sample-bag (regenerate the
+# committed bags), bench-node, fuzz-long, clean.
 
 PYTHON ?= python3.11
 VENV   ?= .venv
@@ -11,7 +13,7 @@ RSL    := $(BIN)/rs-localizer
 STAMP  := $(VENV)/.rs_localizer-installed
 PYTEST_ARGS ?= -q
 
-.PHONY: venv demo test lint format sample-bag bench-node fuzz-long clean
+.PHONY: venv demo test test-quick lint format params sample-bag bench-node fuzz-long clean
 
 venv: $(STAMP)
 
@@ -38,10 +40,19 @@ format: venv
 	$(BIN)/ruff format .
 	$(BIN)/ruff check --fix .
 
+# the defaults of docs/node.md, README.md and config/rs_localizer.yaml from the one table of
+# the node's parameters (rs_localizer/ros/params.py PARAMETERS); test_docs_sync checks them
+params: venv
+	$(PY) -m rs_localizer.ros.param_docs --write
+
 # pytest exit code 5 = no tests collected: not a failure of the build
 test: venv lint
 	@$(PY) -m pytest $(PYTEST_ARGS) test; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest: no tests collected"; rc=0; fi; exit $$rc
+
+# the quick set: leaves out the tests that start nodes over DDS and those over ~10 s
+test-quick: venv
+	$(PY) -m pytest $(PYTEST_ARGS) -m "not ros and not slow" test
 
 # the property-based fuzz suite with 20000 examples per test (make test runs a bounded profile)
 FUZZ_EXAMPLES ?= 20000

@@ -27,7 +27,7 @@ setup(
     python_requires=">=3.10",
     # matplotlib: experiment plots (and Pillow for the CLI's image files);
     # pyyaml: parameter files, marker maps, boards and scenes; scikit-image: the photographs on
-    # the textured_room walls (renderer)
+    # the textured_room walls (renderer); tqdm: progress bars of the long CLI steps
     install_requires=[
         "setuptools",
         "numpy",

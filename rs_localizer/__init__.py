@@ -8,8 +8,11 @@ Only ``rs_localizer.ros`` imports rclpy; everything else is plain NumPy/SciPy/Op
 
     from rs_localizer import CameraModel, EstimateOptions, estimate_rs_pose
 
+A video (tracking, gyro, gyro bias): :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`.
+
 Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :mod:`.maps`,
-:mod:`.accuracy`) <- :mod:`.solvers` <- :mod:`.estimation` <- :mod:`.frontends` <- :mod:`.ros`;
+:mod:`.accuracy`, :mod:`.pose`, :mod:`.correspondences`) <- :mod:`.solvers` <-
+:mod:`.estimation` <- :mod:`.tracking` <- :mod:`.frontends` <- :mod:`.ros`;
 :mod:`.sim` produces data; :mod:`.evaluation` and :mod:`.cli` compose everything.
 """
 
@@ -19,6 +22,7 @@ from . import jit_cache as _jit_cache
 _jit_cache.configure()
 
 from .camera import CameraModel
+from .correspondences import Correspondences, Frontend
 from .estimation import (
     CorrelatedNoise,
     EstimateOptions,
@@ -31,20 +35,30 @@ from .estimation import (
     RSPoseEstimate,
     estimate_rs_pose,
 )
+from .pose import RSModel, RSPose
+from .tracking import GyroSettings, SequenceFrame, SequenceLocalizer, SequenceSettings
 
 __version__ = "0.1.0"
 
 __all__ = [
     "CameraModel",
     "CorrelatedNoise",
+    "Correspondences",
     "EstimateOptions",
+    "Frontend",
+    "GyroSettings",
     "InitialModel",
     "LocalOptimizationOptions",
     "MotionPrior",
     "PlausibilityOptions",
+    "RSModel",
+    "RSPose",
     "RSPoseEstimate",
     "RansacOptions",
     "RefineOptions",
+    "SequenceFrame",
+    "SequenceLocalizer",
+    "SequenceSettings",
     "__version__",
     "estimate_rs_pose",
 ]

@@ -114,3 +114,31 @@ def skew_matrix(v):
     S[0, 1], S[0, 2], S[1, 2] = -v[2], v[1], -v[0]
     S[1, 0], S[2, 0], S[2, 1] = v[2], -v[1], v[0]
     return S
+
+
+@njit(cache=True)
+def rotation_log_into(R, v):
+    """``v`` (3,) = the rotation vector (axis times angle in [0, pi], rad) of the rotation
+    matrix ``R`` (3, 3): from the antisymmetric part (``0.5 (R - R^T)`` below 1e-6 rad), and
+    near pi, where that part vanishes, the axis from the symmetric part (the largest diagonal
+    entry of ``(R + I) / 2``) signed by the antisymmetric part."""
+    c = min(max(0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0), -1.0), 1.0)
+    th = np.arccos(c)
+    a0, a1, a2 = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+    if th < np.pi - 1e-4:
+        f = 0.5 if th < 1e-6 else 0.5 * th / np.sin(th)
+        v[0], v[1], v[2] = a0 * f, a1 * f, a2 * f
+        return
+    k = 0
+    for j in (1, 2):
+        if R[j, j] > R[k, k]:
+            k = j
+    d = 0.5 * (R[k, k] + 1.0)
+    s = np.sqrt(max(d, 1e-300))
+    b0 = 0.5 * (R[0, k] + (1.0 if k == 0 else 0.0)) / s
+    b1 = 0.5 * (R[1, k] + (1.0 if k == 1 else 0.0)) / s
+    b2 = 0.5 * (R[2, k] + (1.0 if k == 2 else 0.0)) / s
+    n = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+    if b0 * a0 + b1 * a1 + b2 * a2 < 0:
+        n = -n
+    v[0], v[1], v[2] = b0 / n * th, b1 / n * th, b2 / n * th

@@ -1,7 +1,7 @@
 """Accuracy of an estimate against ground truth (per frame and summarized over a sequence).
 
 Used by the offline replay, the demo and the node tests; the ground truth is read from bags by
-:func:`rs_localizer.ros.bag_io.load_ground_truth`.
+:func:`rs_localizer.ros.bags.bag_io.load_ground_truth`.
 """
 
 from __future__ import annotations

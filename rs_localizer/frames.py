@@ -31,6 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .geometry import skew
+from .pose import RSPose
 
 __all__ = [
     "OPTICAL_TO_BODY_QUATERNION",
@@ -112,6 +113,11 @@ class BaseState:
     linear_velocity: np.ndarray
     pose_covariance: np.ndarray | None = None
     twist_covariance: np.ndarray | None = None
+
+    @property
+    def pose(self) -> RSPose:
+        """The base's pose and twist (:class:`~rs_localizer.pose.RSPose`)."""
+        return RSPose.of(self)
 
 
 def base_pose(orientation, position, extrinsic: Extrinsic):

@@ -160,7 +160,7 @@ def test_every_parameter_is_documented_with_its_default():
 
 def _published_diagnostics_keys(ctx, overrides: dict) -> set:
     """Keys of the first status a node (no warm-up) publishes on /diagnostics."""
-    from conftest import diagnostics_in_process
+    from helpers.ros import diagnostics_in_process
 
     got = diagnostics_in_process(ctx, "docs_sync", overrides)
     assert got, "no /diagnostics status from the node"
@@ -190,3 +190,22 @@ def test_every_diagnostics_key_is_documented(ros_context):
     assert not undocumented, f"undocumented diagnostics keys: {sorted(undocumented)}"
     stale = {d for d in documented if "<" not in d} - keys
     assert not stale, f"docs/node.md diagnostics keys the node does not publish: {sorted(stale)}"
+
+
+def test_parameter_defaults_follow_the_table():
+    """docs/node.md's and the README's default columns and config/rs_localizer.yaml's values
+    are those of ``rs_localizer.ros.params.PARAMETERS`` (``make params`` rewrites them), and
+    the YAML sets every parameter; a wrong default is found and rewritten."""
+    from rs_localizer.ros.param_docs import check, sync_table, sync_yaml
+    from rs_localizer.ros.params import PARAMETERS
+
+    assert check(ROOT) == []
+    wrong = {**PARAMETERS, "ransac.threshold_px": (3.5,), "refine": (False,)}
+    yaml_text = (ROOT / "config" / "rs_localizer.yaml").read_text()
+    new, changed, missing = sync_yaml(yaml_text, wrong)
+    assert [c[0] for c in changed] == ["ransac.threshold_px", "refine"] and not missing
+    assert re.search(r"^\s+threshold_px: 3\.5 ", new, re.M)
+    assert re.search(r"^\s+refine: false ", new, re.M)
+    new, changed = sync_table(NODE_DOC.read_text(), wrong)
+    assert {c[0] for c in changed} == {"ransac.threshold_px", "refine"}
+    assert "| `ransac.threshold_px` | `3.5` |" in new

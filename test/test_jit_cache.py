@@ -143,7 +143,7 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     pytest.importorskip("rosbags")
     from rs_localizer.estimation import EstimateOptions, estimate_rs_pose
     from rs_localizer.estimation.warmup import warm_up
-    from rs_localizer.ros import bag_io
+    from rs_localizer.ros.bags import bag_io
     from rs_localizer.ros.conversions import camera_model_from_camera_info
     from rs_localizer.ros.pointcloud import read_correspondences
 

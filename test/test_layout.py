@@ -1,6 +1,6 @@
-"""The package's layers: imports point down only, ``ros`` is the only rclpy importer, nothing in
-the library imports ``sim`` or ``evaluation``, and one solver registry (docs/architecture.md
-"Layers")."""
+"""The package's layers: imports point down only, ``ros`` is the only rclpy importer (with the
+benchmark's DDS client), nothing in the library imports ``sim`` or ``evaluation``, and one solver
+registry (docs/architecture.md "Layers")."""
 
 import ast
 from pathlib import Path
@@ -16,12 +16,16 @@ LAYER = {
     "geometry": 0,
     "camera": 0,
     "_so3": 0,
+    "_linalg": 0,
     "maps": 0,
     "accuracy": 0,
     "frames": 0,
+    "pose": 0,
+    "correspondences": 0,
     "jit_cache": 0,
     "solvers": 1,
     "estimation": 2,
+    "tracking": 2.5,
     "frontends": 3,
     "viz": 3,
     "sim": 4,
@@ -45,6 +49,8 @@ ROS_PACKAGES = {
     "builtin_interfaces",
     "lifecycle_msgs",
 }
+#: outside ``ros``, the benchmark's DDS client of the node (it measures the node from outside)
+ROS_CLIENTS = {PKG / "evaluation" / "bench_client.py"}
 
 
 def _unit(path: Path) -> str:
@@ -90,7 +96,7 @@ def test_imports_point_down(path):
     bad = []
     for mod, line in _imports(path):
         parts = mod.split(".")
-        if parts[0] in ROS_PACKAGES and unit != "ros":
+        if parts[0] in ROS_PACKAGES and unit != "ros" and path not in ROS_CLIENTS:
             bad.append(f"line {line}: {mod} (only rs_localizer.ros imports ROS)")
         if parts[0] != "rs_localizer" or len(parts) < 2:
             continue
@@ -135,12 +141,14 @@ def test_public_api():
 
 
 #: where every public function and method carries type annotations: the solvers, the
-#: estimator, the front ends, the ROS message conversions and the camera model
+#: estimator, the front ends, the ROS layer, the simulation and the camera model
 ANNOTATED = [
     *sorted((PKG / "solvers").glob("*.py")),
     *sorted((PKG / "estimation").glob("*.py")),
+    *sorted((PKG / "tracking").glob("*.py")),
     *sorted((PKG / "frontends").glob("*.py")),
-    PKG / "ros" / "conversions.py",
+    *sorted((PKG / "ros").rglob("*.py")),
+    *sorted((PKG / "sim").rglob("*.py")),
     PKG / "camera.py",
 ]
 
@@ -185,3 +193,23 @@ def test_no_private_names_across_modules():
                     if a.name.startswith("_") and not a.name.startswith("__")
                 ]
     assert not found, "private names imported across modules:\n" + "\n".join(found)
+
+
+def test_tests_import_helpers_not_tests():
+    """Test modules share code through ``test/helpers`` (fixtures: ``test/conftest.py``): none
+    imports another test module or ``conftest``."""
+    tests = PKG.parent / "test"
+    found = []
+    for path in sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names = [node.module]
+            found += [
+                f"{path.relative_to(tests)}:{node.lineno} {n}"
+                for n in names
+                if n.split(".")[0] == "conftest" or n.split(".")[0].startswith("test_")
+            ]
+    assert not found, "test modules importing tests or conftest:\n" + "\n".join(found)

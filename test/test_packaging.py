@@ -21,6 +21,7 @@ KEY_MODULES = {
     "python3-matplotlib": "matplotlib",
     "python3-yaml": "yaml",
     "python3-skimage": "skimage",
+    "python3-tqdm": "tqdm",
     "python3-pytest": "pytest",
     "python3-hypothesis": "hypothesis",
 }
@@ -28,7 +29,6 @@ KEY_MODULES = {
 OPTIONAL = {
     "PIL": "Pillow, a dependency of matplotlib (python3-matplotlib depends on python3-pil)",
     "threadpoolctl": "benchmarks only (extra 'bench'), imported inside a try",
-    "tqdm": "map-markers' progress bar, imported inside a try (no bar without it)",
     "pycolmap": "map-features only (extra 'mapping'), imported where used, says how to install",
 }
 

@@ -10,16 +10,18 @@ import tempfile
 from pathlib import Path
 from typing import TextIO
 
+from . import args as A
+
 __all__ = ["register", "run"]
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``map-features`` parser to ``sub`` (``func`` = :func:`run`)."""
     p = sub.add_parser(
         "map-features",
         help="feature map for the features front end from a COLMAP model or from photos "
         "(needs pycolmap: pip install 'rs_localizer[mapping]')",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=A.HelpFormatter,
         description="Build the features front end's map (.npz) from a COLMAP sparse model and "
         "its database (--colmap), or reconstruct photos taken with one known camera first "
         "(--images with --camera). A reconstruction has no metric scale: give --scale or "
@@ -38,12 +40,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--camera", dest="camera_yaml", metavar="CAMERA.yaml", help="calibration YAML of the photos"
     )
     p.add_argument("-o", "--out", required=True, metavar="MAP.npz", help="feature map to write")
-    p.add_argument("--min-track", type=int, default=3, help="fewest photos that saw a point")
     p.add_argument(
-        "--max-error", type=float, default=None, help="largest reprojection error of a point (px)"
+        "--min-track", type=A.positive_int, default=3, help="fewest photos that saw a point"
+    )
+    p.add_argument(
+        "--max-error",
+        type=A.positive_float,
+        default=None,
+        help="largest reprojection error of a point (px)",
     )
     scale = p.add_mutually_exclusive_group()
-    scale.add_argument("--scale", type=float, help="metres per model unit")
+    scale.add_argument("--scale", type=A.positive_float, help="metres per model unit")
     scale.add_argument(
         "--align-markers",
         metavar="MARKERS.yaml",
@@ -51,7 +58,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "its frame and scale",
     )
     p.add_argument(
-        "--max-residual", type=float, default=0.02, help="largest marker alignment RMS (m)"
+        "--max-residual",
+        type=A.positive_float,
+        default=0.02,
+        help="largest marker alignment RMS (m)",
     )
     p.add_argument(
         "--workdir",
@@ -76,16 +86,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing map")
     p.set_defaults(func=run)
+    return p
 
 
 def _output_path(out: str, overwrite: bool) -> Path:
     path = Path(out)
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists (use --overwrite to replace it)")
+    A.output_file(path, overwrite, "feature map")
     if not path.parent.is_dir():
-        raise FileNotFoundError(f"{path.parent}: no such directory")
+        raise A.CliError(f"{path}: cannot write the feature map (no directory {path.parent})")
     return path
 
 
@@ -97,6 +107,18 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
     if args.align_markers and not args.images:
         raise ValueError("--align-markers needs the photos: --images DIR")
     out = _output_path(args.out, args.overwrite)
+    if args.colmap:
+        A.input_dir(args.colmap, "COLMAP sparse model directory")
+    if args.database:
+        A.input_file(args.database, "COLMAP database")
+    if args.images:
+        A.input_dir(args.images, "folder of photos")
+    if args.camera_yaml:
+        A.camera_file(args.camera_yaml)
+    if args.align_markers:
+        A.marker_map_file(args.align_markers)
+    if args.workdir:
+        A.writable_dir(args.workdir, "work directory")
     from ..mapping import colmap
     from ..mapping.outputs import camera_from_yaml
 

@@ -15,11 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import args as A
+
 __all__ = ["frames_from_bag", "parse_sizes", "register", "run"]
 
 
 def parse_sizes(text: str) -> dict:
-    """``"12:0.30,14:0.1"`` -> {12: 0.30, 14: 0.1}. Raises ValueError on a malformed entry."""
+    """``"12:0.30,14:0.1"`` -> {12: 0.30, 14: 0.1}. Raises ValueError on a malformed entry or a
+    size that is not a finite number > 0."""
     out = {}
     for part in filter(None, (p.strip() for p in text.split(","))):
         mid, sep, size = part.partition(":")
@@ -27,8 +30,10 @@ def parse_sizes(text: str) -> dict:
             if not sep:
                 raise ValueError
             out[int(mid)] = float(size)
+            if not (np.isfinite(out[int(mid)]) and out[int(mid)] > 0):
+                raise ValueError
         except ValueError:
-            raise ValueError(f"--marker-sizes: expected ID:SIZE, got {part!r}") from None
+            raise ValueError(f"--marker-sizes: expected ID:SIZE (m, > 0), got {part!r}") from None
     return out
 
 
@@ -58,7 +63,7 @@ def frames_from_bag(
     from ..mapping.marker_ba import FrameDetections
     from ..mapping.outputs import detect_image
     from ..ros import conversions as cv
-    from ..ros.bag_io import (
+    from ..ros.bags.bag_io import (
         CAMERA_INFO,
         COMPRESSED_IMAGE,
         IMAGE,
@@ -230,16 +235,16 @@ def run(args: argparse.Namespace) -> int:
     from ..mapping.marker_ba import concatenate_videos, map_markers
     from ..mapping.outputs import write_map, write_report
 
-    out = Path(args.output)
-    if out.exists() and not args.overwrite:
-        raise FileExistsError(f"{out} exists (use --overwrite to replace it)")
-    if not args.marker_size > 0:
-        raise ValueError(f"--marker-size must be > 0, got {args.marker_size}")
-    if args.readout_time < 0:
-        raise ValueError(f"--readout-time must be >= 0, got {args.readout_time}")
+    out = A.output_file(args.output, args.overwrite, "marker map")
+    if args.report:
+        A.writable_dir(args.report, "report folder")
+    if args.anchor_pose is not None and not np.linalg.norm(args.anchor_pose[3:]) > 1e-9:
+        raise A.CliError("--anchor-pose: the quaternion QX QY QZ QW must not be zero")
     opts = _options(args)
     inputs = args.input if isinstance(args.input, list) else [args.input]
-    for src in inputs:  # (all inputs checked before any detection)
+    # (every input checked before any detection)
+    inputs = [A.map_input(src, args.camera_file) for src in inputs]
+    for src in inputs:
         if not Path(src).is_dir():
             raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
     t0 = time.perf_counter()
@@ -284,13 +289,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def register(sub: argparse._SubParsersAction) -> None:
-    """Add the ``map-markers`` subcommand to ``sub`` (sets ``func``)."""
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``map-markers`` subcommand to ``sub`` (``func`` = :func:`run`)."""
     p = sub.add_parser(
         "map-markers",
-        help="build a marker map from a rolling-shutter video (folder of images)",
+        help="build a marker map from a rolling-shutter video (a bag or a folder of images)",
         description=__doc__,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=A.HelpFormatter,
     )
     p.add_argument(
         "input",
@@ -305,24 +310,28 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="camera YAML for a folder of images (ROS camera_info / calibration)",
     )
     p.add_argument("--image-topic", help="image topic of a bag (default: its only one)")
-    p.add_argument("--marker-size", type=float, required=True, help="marker side (m)")
+    p.add_argument("--marker-size", type=A.positive_float, required=True, help="marker side (m)")
     p.add_argument("--marker-sizes", help="other sides, ID:SIZE,... (m)")
     p.add_argument("--dictionary", default="DICT_APRILTAG_36h11", help="OpenCV dictionary")
     p.add_argument(
         "--anchor",
-        type=int,
+        type=A.nonneg_int,
         help="marker fixing the world (default: the best-observed marker, whose pose the "
         "video fixes best)",
     )
     p.add_argument(
         "--anchor-pose",
-        type=float,
+        type=A.finite_float,
         nargs=7,
         metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
         help="the anchor's centre (m) and orientation (marker -> world) in the world",
     )
-    p.add_argument("--readout-time", type=float, default=0.03, help="frame readout time (s)")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of a folder of images")
+    p.add_argument(
+        "--readout-time", type=A.nonneg_float, default=0.03, help="frame readout time (s)"
+    )
+    p.add_argument(
+        "--fps", type=A.positive_float, default=30.0, help="frame rate of a folder of images"
+    )
     p.add_argument(
         "--calibrate-readout",
         action="store_true",
@@ -353,3 +362,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
     p.set_defaults(func=run)
+    return p

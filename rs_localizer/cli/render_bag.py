@@ -1,8 +1,8 @@
 """``rs-localizer render-bag``: rendered rolling-shutter sequences as ROS 2 bags.
 
 Composes the simulation (:mod:`rs_localizer.sim.render`: images and ground truth), an image front
-end (:mod:`rs_localizer.frontends`: correspondences) and bag I/O (:mod:`rs_localizer.ros.bag_io`,
-rosbags only: no ROS installation needed).
+end (:mod:`rs_localizer.frontends`: correspondences) and bag I/O
+(:mod:`rs_localizer.ros.bags.bag_io`, rosbags only: no ROS installation needed).
 
 :func:`render_bag` writes ``<ns>/image_raw`` (``sensor_msgs/Image``, rgb8 or mono8),
 ``<ns>/camera_info``, ``/ground_truth/pose`` (``PoseStamped``: camera optical frame in the map
@@ -15,21 +15,20 @@ front end's map (``markers.yaml`` for ArUco, ``feature_map.npz`` for features).
 Stamps: an image's header stamp is the capture time of its first line (``rs.stamp_row = 0``);
 the ground truth is stamped with the reference line's capture time.
 
-    python -m rs_localizer.cli.render_bag --out data/sample_images --frames 20 --mono
+    rs-localizer render-bag data/sample_images --frames 20 --mono
 """
 
 from __future__ import annotations
 
 import argparse
 import shutil
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import CameraModel
-from ..ros.bag_io import (
+from ..ros.bags.bag_io import (
     CAMERA_INFO,
     GT_POSE,
     GT_TWIST,
@@ -41,8 +40,11 @@ from ..ros.bag_io import (
     RosbagsMessages,
     write_sequence_json,
 )
+from . import args as A
 
-__all__ = ["add_arguments", "main", "render_bag", "run_from_args"]
+__all__ = ["register", "render_bag", "run"]
+
+HELP = "render a rolling-shutter image sequence (images, correspondences, ground truth) to a bag"
 
 
 def _make_frontend(
@@ -281,24 +283,28 @@ def render_bag(
 
 
 # ------------------------------------------------------------------------------ CLI
-def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
-    """Add the render-bag options to a parser (for ``rs-localizer render-bag``): the bag
-    directory as ``--out/-o`` or, with ``positional_out``, as a positional ``out``."""
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``render-bag`` subcommand to ``sub`` (``func`` = :func:`run`)."""
     from ..sim.render.motion import motion_names
     from ..sim.render.renderer import CAMERA_PRESETS
 
-    if positional_out:
-        p.add_argument("out", help="bag directory to write")
-    else:
-        p.add_argument("--out", "-o", required=True, help="bag directory to write")
+    p = sub.add_parser(
+        "render-bag",
+        help=HELP,
+        description="Render a rolling-shutter camera moving through a textured scene with "
+        "markers: the images, camera_info, the front end's correspondences, the ground truth "
+        "and sequence.json, as a bag (and the front end's map beside it).",
+        formatter_class=A.HelpFormatter,
+    )
+    p.add_argument("out", help="bag directory to write")
     p.add_argument(
         "--scene",
         default="aruco_room",
         help="built-in scene (aruco_room, textured_room) or scene YAML",
     )
     p.add_argument("--motion", default="shake", choices=motion_names(), help="camera motion preset")
-    p.add_argument("--frames", type=int, default=30, help="frames to render")
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate (Hz)")
+    p.add_argument("--frames", type=A.positive_int, default=30, help="frames to render")
+    p.add_argument("--fps", type=A.positive_float, default=30.0, help="frame rate (Hz)")
     p.add_argument(
         "--camera",
         default="vga",
@@ -321,21 +327,23 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
         help="feature map .npz (features front end; "
         "default: built from 12 global-shutter views of the motion)",
     )
-    p.add_argument("--mono", action="store_true", help="mono8 images (default rgb8)")
+    p.add_argument("--mono", action="store_true", help="mono8 images (default: rgb8)")
     p.add_argument("--no-noise", action="store_true", help="no sensor noise")
-    p.add_argument("--exposure", type=float, default=0.0, help="exposure time [s] (motion blur)")
     p.add_argument(
-        "--supersample", type=int, default=2, help="anti-aliasing samples per pixel axis"
+        "--exposure", type=A.nonneg_float, default=0.0, help="exposure time [s] (motion blur)"
+    )
+    p.add_argument(
+        "--supersample", type=A.positive_int, default=2, help="anti-aliasing samples per pixel axis"
     )
     p.add_argument(
         "--global-shutter",
         action="store_true",
         help="render a global-shutter sequence (same poses, no readout)",
     )
-    p.add_argument("--seed", type=int, default=0, help="sensor-noise random seed")
+    p.add_argument("--seed", type=A.nonneg_int, default=0, help="sensor-noise random seed")
     p.add_argument(
         "--start-time",
-        type=float,
+        type=A.nonneg_float,
         default=1_700_000_000.0,
         help="capture time of the first frame (s since the epoch)",
     )
@@ -345,26 +353,33 @@ def add_arguments(p: argparse.ArgumentParser, positional_out: bool = False):
     p.add_argument("--no-compression", action="store_true", help="no zstd compression")
     p.add_argument(
         "--imu-rate",
-        type=float,
+        type=A.nonneg_float,
         default=0.0,
         help="also write a sensor_msgs/Imu topic at this rate (Hz; gyro with bias and noise, "
         "IMU axes x forward, y left, z up), as make-bag does",
     )
     p.add_argument("--imu-topic", default="/imu/data", help="topic of --imu-rate")
     p.add_argument("--overwrite", action="store_true", help="replace the bag if it exists")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
     return p
 
 
-def run_from_args(a, stream=None) -> int:
-    """Run :func:`render_bag` from parsed :func:`add_arguments` options; progress goes to
-    ``stream`` (default: the ``sys.stderr`` of the call)."""
-    stream = stream or sys.stderr
+def run(a: argparse.Namespace) -> int:
+    """Render the bag (:func:`render_bag`) with a progress bar on stderr; returns 0. Raises
+    CliError for an output, scene or feature map that cannot be used (before rendering)."""
+    from tqdm import tqdm
+
+    A.output_dir(a.out, a.overwrite, "bag directory")
+    if Path(a.scene).suffix in (".yaml", ".yml"):
+        A.yaml_file(a.scene, "scene YAML")
+    if a.feature_map is not None:
+        A.input_file(a.feature_map, "feature map (.npz)")
+    bar = tqdm(total=a.frames, desc="rendering", unit="frame", disable=a.quiet)
 
     def prog(k, n, nc):
-        stream.write(f"\rframe {k + 1}/{n}: {nc} correspondences")
-        if k + 1 == n:
-            stream.write("\n")
-        stream.flush()
+        bar.update(1)
+        bar.set_postfix(correspondences=nc, refresh=False)
 
     try:
         path = render_bag(
@@ -390,22 +405,8 @@ def run_from_args(a, stream=None) -> int:
             imu_rate=a.imu_rate,
             imu_topic=a.imu_topic,
         )
-    except (FileExistsError, FileNotFoundError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    finally:
+        bar.close()
     size = sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
     print(f"wrote {path} ({size / 1e6:.1f} MB)")
     return 0
-
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m rs_localizer.cli.render_bag",
-        description="Render a rolling-shutter image sequence to a bag",
-    )
-    add_arguments(p)
-    return run_from_args(p.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

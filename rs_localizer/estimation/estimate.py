@@ -54,6 +54,7 @@ __all__ = [
     "RefineOptions",
     "estimate_rs_pose",
     "physical_velocities",
+    "points_needed",
     "sample_size",
 ]
 
@@ -131,6 +132,14 @@ def estimate_rs_pose(
     return unaided
 
 
+def points_needed(solver: str, options: EstimateOptions) -> int:
+    """Fewest correspondences (and inliers) a pose of ``solver`` needs: the options'
+    ``ransac.min_inliers``, and at least one more than the solver's minimal sample (a model
+    fitted to exactly its sample has no redundancy to check it). The node refuses a
+    ``max_points`` below this."""
+    return max(options.ransac.min_inliers, sample_size(solver) + 1)
+
+
 def _estimate(
     points2d_px: np.ndarray,
     points3d: np.ndarray,
@@ -150,7 +159,7 @@ def _estimate(
     if gyro is not None:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
-    min_inliers = max(opts.ransac.min_inliers, sample_size(solver) + 1)
+    min_inliers = points_needed(solver, opts)
     try:
         try:
             configure_frame(

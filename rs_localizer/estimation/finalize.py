@@ -48,7 +48,7 @@ __all__ = [
 #: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
 #: inliers: a fit on the points inside the threshold alone is a 2-sigma-truncated least
 #: squares and doubled the angular-velocity error at RS speed 1 (0.49 % against the 0.24 %
-#: of the maximum-likelihood fit on the true inliers; ``test/test_ml_accuracy.py``).
+#: of the maximum-likelihood fit on the true inliers; ``test/evaluation/test_ml_accuracy.py``).
 FINAL_CUTOFF = 2.0
 #: The final refinement stops when an accepted step lowers the cost by less than this fraction
 #: (steps of a few hundredths of the parameters' standard deviation): the velocities then
@@ -174,7 +174,7 @@ def refine_final_model(
         EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers`` on the refined
             model.
     """
-    th = opts.ransac.threshold_px / fr.f
+    th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     if not opts.refine.enabled:
         e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..camera import CameraModel
+from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
 from .plausibility import degenerate_points, motion_bounds, plausible_motion
@@ -28,7 +29,8 @@ __all__ = ["SCORE_AT_MEASURED_TIME", "Frame", "configure_frame", "prepare_frame"
 #: row predicted by the first-order model (:func:`.scoring.project_error2`)
 SCORE_AT_MEASURED_TIME = True
 
-Model = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: the solvers' model ``(R, C, w, t)`` (a tuple: the kernels take its arrays)
+Model = RSModel
 
 
 class Frame:
@@ -44,6 +46,9 @@ class Frame:
         rows: (N,) input row of each point; u_px: (N, 2) their measured pixels;
             num_rows: rows given to the estimator (valid or not).
         spr: the camera's seconds per unit r (0: global shutter).
+        threshold: the inlier threshold in normalized image units (``threshold_px / f``), set
+            once by :func:`configure_frame` for RANSAC, its hypotheses and the final
+            refinement.
         planar: the 3D points are coplanar.
         prior: the motion prior of local optimization and the refinement (``None``: maximum
             likelihood); regularize: the hypotheses use it too (planar scene); final_prior:
@@ -63,6 +68,7 @@ class Frame:
     final_prior: MotionPrior | None = None
     motion_bounds = None
     known_w: np.ndarray | None = None
+    threshold: float
 
     def __init__(
         self,
@@ -95,6 +101,7 @@ class Frame:
             self.regularize,
             self.known_w,
         )
+        sub.threshold = self.threshold
         return sub
 
     def evaluate(
@@ -197,6 +204,7 @@ def configure_frame(
     if fr.degenerate(np.ones(len(fr.x), dtype=bool), threshold_px):
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     info = solver_info(solver)
+    fr.threshold = threshold_px / fr.f
     fr.spr = spr = camera.seconds_per_unit_r
     fr.motion_bounds = motion_bounds(*velocity_bounds, spr)
     fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)

@@ -56,9 +56,10 @@ import numpy as np
 from numba import njit
 from scipy.stats import chi2
 
-from .._so3 import rotate_left_into, skew_matrix, so3_coefficients
+from .._linalg import cholesky_into
+from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
+from ..pose import RSPose
 from .prior import MotionPrior, prior_arrays
-from .refine import cholesky_into
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 
@@ -165,6 +166,11 @@ class FusedState:
     nis: float = float("nan")
 
     @property
+    def pose(self) -> RSPose:
+        """The fused pose and twist at ``stamp_ns`` (:class:`~rs_localizer.pose.RSPose`)."""
+        return RSPose.of(self)
+
+    @property
     def pose_covariance(self) -> np.ndarray:
         return self.covariance[_ROS_POSE]
 
@@ -242,26 +248,6 @@ _ROW = 27
 # ------------------------------------------------------------------------- numba kernels
 # (the filter runs once per frame next to a ~1 ms estimator: NumPy's per-call overhead on
 # 3x3 to 36x36 matrices would cost more than the arithmetic)
-@njit(cache=True)
-def _log(R):
-    """Rotation vector (3,) of a rotation matrix (3, 3)."""
-    c = min(max(0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0), -1.0), 1.0)
-    th = np.arccos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if th < 1e-6:
-        return 0.5 * v
-    if th < np.pi - 1e-4:
-        return v * (0.5 * th / np.sin(th))
-    # near pi: the axis from the symmetric part (largest diagonal of R + I)
-    B = 0.5 * (R + np.eye(3))
-    k = np.argmax(np.array([B[0, 0], B[1, 1], B[2, 2]]))
-    axis = B[:, k] / np.sqrt(max(B[k, k], 1e-300))
-    axis /= np.sqrt(axis @ axis)
-    if axis @ v < 0:
-        axis = -axis
-    return axis * th
-
-
 @njit(cache=True)
 def _chain_q(dt, order):
     """Discrete covariance of an ``order``-fold integrator chain driven by unit continuous
@@ -404,8 +390,8 @@ def _shift_covariance(P, F, Q, n, keep):
 @njit(cache=True)
 def _cholesky(S):
     """Lower Cholesky factor L (n, n) of the symmetric S (n, n) and ok: False if S is not
-    positive definite (L is not valid then); :func:`.refine.cholesky_into` on all of S, the
-    strict upper part of L zero."""
+    positive definite (L is not valid then); :func:`rs_localizer._linalg.cholesky_into` on
+    all of S, the strict upper part of L zero."""
     n = S.shape[0]
     L = np.zeros((n, n))
     return L, cholesky_into(S, n, L)
@@ -481,7 +467,9 @@ def _innovation(Ori, p, omega, v, alpha, a, zO, zp, zomega, zv, m, n, G, use_G):
     measurement also moves by ``G (alpha, O^T a)``."""
     y = np.zeros(m)
     H = np.zeros((m, n))
-    y[0:3] = _log(zO @ Ori.T)
+    rv = np.empty(3)
+    rotation_log_into(zO @ Ori.T, rv)
+    y[0:3] = rv
     for i in range(3):
         y[3 + i] = zp[i] - p[i]
         H[i, i] = 1.0

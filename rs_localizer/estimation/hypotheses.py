@@ -90,14 +90,14 @@ def _batched_rs(solver: str, xs, Xs, rs, r0, iterations, prior_rows=None) -> lis
     ]
 
 
-def _prior_rows(fr: Frame, threshold_px: float, Xs: np.ndarray, C0: np.ndarray):
+def _prior_rows(fr: Frame, Xs: np.ndarray, C0: np.ndarray):
     """Linearized motion-prior rows for K pre-rotated samples (``Xs`` (K, n, 3), their
     pre-rotation translations ``C0`` (K, 3)) when the frame asks for damped hypothesis solves
     (planar scene, prior on), else None. The rows are weighted as if the image noise were half
     the inlier threshold."""
     if not fr.regularize:
         return None
-    return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * threshold_px / fr.f)
+    return sample_prior_rows(fr.prior, Xs, C0, fr.spr, 0.5 * fr.threshold)
 
 
 def _hypothesis_arrays(batches, R_pre):
@@ -205,7 +205,7 @@ def generate(
         C_p = np.ascontiguousarray(np.broadcast_to(C_pre, (len(samples), 3)))
         ok_p = np.ones(len(samples), dtype=bool)
     elif fr.planar and kind != GLOBAL_SHUTTER:
-        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, (ransac.threshold_px / fr.f) ** 2)
+        samples, R_p, C_p, ok_p = _p3p_prerotations(fr, samples, fr.threshold**2)
     else:
         R_p, C_p, ok_p = _p3p_prerotations(fr, samples)
     if kind == GLOBAL_SHUTTER:
@@ -220,7 +220,7 @@ def generate(
             rs,
             fr.r0,
             hypothesis_iterations(solver, ransac, True),
-            prior_rows=_prior_rows(fr, ransac.threshold_px, Xs, C_p),
+            prior_rows=_prior_rows(fr, Xs, C_p),
         )
         Rs, Cs, ws, ts, ok = _hypothesis_arrays([b], R_p)
         return Rs, Cs, ws, ts, ok & ok_p
@@ -233,7 +233,7 @@ def generate(
         rs,
         fr.r0,
         hypothesis_iterations(solver, ransac),
-        _prior_rows(fr, ransac.threshold_px, Xs, C_p),
+        _prior_rows(fr, Xs, C_p),
     )
     Rs, Cs, ws, ts, ok = _hypothesis_arrays(batches, R_p)
     ok &= np.tile(ok_p, len(batches))
@@ -283,11 +283,7 @@ def nonminimal_models(
     Xr = fr.X[inliers] @ R.T
     out = []
     for name in names:
-        rows = (
-            None
-            if C is None
-            else _prior_rows(fr, opts.ransac.threshold_px, Xr[None], np.asarray(C)[None])
-        )
+        rows = None if C is None else _prior_rows(fr, Xr[None], np.asarray(C)[None])
         b = _batched_rs(
             name, fr.x[inliers][None], Xr[None], fr.r[inliers][None], fr.r0, iterations, rows
         )[0]

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..pose import RSModel
 from .prior import MotionPrior
 
 __all__ = [
@@ -226,3 +227,8 @@ class InitialModel:
     t: np.ndarray = field(default_factory=lambda: np.zeros(3))
     gate_px: float = 20.0
     min_explained: int = 0
+
+    @property
+    def model(self) -> RSModel:
+        """The predicted model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`)."""
+        return RSModel(self.R, self.C, self.w, self.t)

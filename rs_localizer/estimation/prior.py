@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..solvers._linear import solve_square
+from .._linalg import solve_square
 
 __all__ = [
     "MotionPrior",

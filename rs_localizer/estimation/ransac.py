@@ -101,8 +101,7 @@ class Ransac:
         self.order, self.scored = order, scored
         # (with a gyro the samples are solved with the angular velocity known: 5 points)
         self.s = sample_size(solver) if fr.known_w is None else KNOWN_W_SAMPLE
-        th = opts.ransac.threshold_px / fr.f
-        self.th2 = th * th
+        self.th2 = np.nan  # (squared normalized threshold: set by run, on the configured frame)
         self.best: Model | None = None
         self.score = np.inf
         self.inliers = np.zeros(len(fr.x), dtype=bool)
@@ -123,6 +122,7 @@ class Ransac:
         model's) pre-rotates every sample, and when it explains at least ``min_explained``
         points within the threshold RANSAC only verifies it, sampling among its inliers."""
         t0 = time.perf_counter()
+        self.th2 = self.fr.threshold * self.fr.threshold
         if initial is not None:
             self._seed(initial)
         source = hypothesis_source(

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
@@ -407,87 +408,6 @@ def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff):
 
 
 @njit(cache=True)
-def cholesky_into(A, n, L):
-    """Cholesky factor of the leading n x n block of A (lower triangle read) into L[:n, :n]
-    (lower triangle; the strict upper part is not written). False if A is not numerically
-    positive definite."""
-    for j in range(n):
-        s = A[j, j]
-        for p in range(j):
-            s -= L[j, p] * L[j, p]
-        if not s > 0.0:
-            return False
-        d = np.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            s = A[i, j]
-            for p in range(j):
-                s -= L[i, p] * L[j, p]
-            L[i, j] = s / d
-    return True
-
-
-@njit(cache=True)
-def _lu_solve(M, B, n, m):
-    """Solve ``M Y = B`` in place (Y in B[:n, :m]) by Gaussian elimination with partial
-    pivoting on the leading n x n block of M (destroyed): LAPACK gesv's method, which
-    ``np.linalg.solve`` and ``np.linalg.inv`` use. False if M is exactly singular (their
-    LinAlgError)."""
-    for j in range(n):
-        piv = j
-        big = abs(M[j, j])
-        for i in range(j + 1, n):
-            if abs(M[i, j]) > big:
-                big = abs(M[i, j])
-                piv = i
-        if M[piv, j] == 0.0:
-            return False
-        if piv != j:
-            for c in range(n):
-                M[j, c], M[piv, c] = M[piv, c], M[j, c]
-            for c in range(m):
-                B[j, c], B[piv, c] = B[piv, c], B[j, c]
-        for i in range(j + 1, n):
-            f = M[i, j] / M[j, j]
-            for c in range(j + 1, n):
-                M[i, c] -= f * M[j, c]
-            for c in range(m):
-                B[i, c] -= f * B[j, c]
-    for c in range(m):
-        for i in range(n - 1, -1, -1):
-            s = B[i, c]
-            for p in range(i + 1, n):
-                s -= M[i, p] * B[p, c]
-            B[i, c] = s / M[i, i]
-    return True
-
-
-@njit(cache=True)
-def _solve_symmetric(A, B, n, m, L, M):
-    """Solve ``A Y = B`` in place in B[:n, :m] for the symmetric n x n block of A: Cholesky,
-    or pivoted LU (``np.linalg.solve``'s method) when A is not numerically positive definite.
-    False (B undefined) only if A is exactly singular, where ``np.linalg.solve`` and ``inv``
-    raise. L, M: (12, 12) workspace."""
-    if not cholesky_into(A, n, L):
-        for i in range(n):
-            for j in range(n):
-                M[i, j] = A[i, j]
-        return _lu_solve(M, B, n, m)
-    for c in range(m):
-        for i in range(n):  # L y = b
-            s = B[i, c]
-            for p in range(i):
-                s -= L[i, p] * B[p, c]
-            B[i, c] = s / L[i, i]
-        for i in range(n - 1, -1, -1):  # L^T y' = y
-            s = B[i, c]
-            for p in range(i + 1, n):
-                s -= L[p, i] * B[p, c]
-            B[i, c] = s / L[i, i]
-    return True
-
-
-@njit(cache=True)
 def _rotate_left(v0, v1, v2, R):
     """(3, 3) ``expm([v]x) R`` (Rodrigues)."""
     out = np.empty((3, 3))
@@ -644,7 +564,7 @@ def _lm_refine(
                 A[i, j] = H[i, j]
             A[i, i] = H[i, i] + lam * (H[i, i] + 1e-12)
             B[i, 0] = -g[i]
-        if not _solve_symmetric(A, B, n_free, np.int64(1), L, M):
+        if not solve_symmetric(A, B, n_free, np.int64(1), L, M):
             break
         # converged: the Gauss-Newton model's decrease of the cost sum rho (~ -g . step, the
         # cost being ~ cost + 2 g.d + d^T H d) is below tol / 10 of it (a step ~0.01 of a
@@ -702,7 +622,7 @@ def _lm_refine(
         for i in range(n_free):  # B = H^-1; NaN if H is exactly singular (np.linalg.inv)
             for j in range(n_free):
                 B[i, j] = 1.0 if i == j else 0.0
-        ok = _solve_symmetric(H, B, n_free, n_free, L, M)
+        ok = solve_symmetric(H, B, n_free, n_free, L, M)
         for i in range(12):
             for j in range(12):
                 if not ok:
@@ -736,9 +656,9 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     M = np.empty((12, 12))
     for i in range(12):
         B[i, 0] = -g[i]
-    # (sizes as int64, not literals: one compiled _solve_symmetric for every caller)
+    # (sizes as int64, not literals: one compiled solve_symmetric for every caller)
     n12, one = np.int64(12), np.int64(1)
-    if not _solve_symmetric(H.copy(), B, n12, one, L, M):
+    if not solve_symmetric(H.copy(), B, n12, one, L, M):
         return False
     Rn, Cn, wn, tn = _apply_step(R, C, w, t, B, 12)
     H[:, :] = Hd
@@ -746,7 +666,7 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
     for i in range(12):
         for j in range(12):
             B[i, j] = 1.0 if i == j else 0.0
-    if not _solve_symmetric(H, B, n12, n12, L, M):
+    if not solve_symmetric(H, B, n12, n12, L, M):
         return False
     _store_model(Rn, Cn, wn, tn, out)
     for i in range(12):

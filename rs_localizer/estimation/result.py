@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..pose import RSModel, RSPose
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
@@ -166,6 +167,17 @@ class RSPoseEstimate:
     def num_inliers(self) -> int:
         """Inliers of the final model (0 on failure)."""
         return int(np.count_nonzero(self.inliers))
+
+    @property
+    def pose(self) -> RSPose:
+        """The camera's pose and own twist (:class:`~rs_localizer.pose.RSPose`: orientation,
+        position, angular and linear velocity; no stamp)."""
+        return RSPose.of(self)
+
+    @property
+    def model(self) -> RSModel:
+        """The solvers' model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`)."""
+        return RSModel(self.R, self.C, self.w, self.t)
 
 
 def failed_estimate(

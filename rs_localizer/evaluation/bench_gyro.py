@@ -32,9 +32,10 @@ termination: 5-point samples with the gyro, 6 without) and the time per frame.
 correspondences per frame with 0.5 px noise and 20 % outliers, 30 fps, the ``shake``
 hand-held trajectory by default) with a simulated 200 Hz gyro
 (:func:`~rs_localizer.sim.trajectory.imu_samples`: 0.003 rad/s noise per sample, mounted as
-``R_IMU_CAMERA``), tracked by :class:`~rs_localizer.estimation.tracker.RSTracker` with each
-frame's gyro measurement from :class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`
-(initial bias 0, sigma 0.05 rad/s). Rows: a gyro with a bias of 0.05 rad/s per axis, estimated
+``R_IMU_CAMERA``), tracked as the node tracks a video, by
+:class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the tracker, each frame's gyro
+measurement, the online bias estimate, the check of the gyro against the image; initial bias 0,
+sigma 0.05 rad/s). Rows: a gyro with a bias of 0.05 rad/s per axis, estimated
 online; the same bias not estimated (the initial value and sigma kept, as
 ``imu.estimate_bias: false``); a gyro without bias (estimated online too, the reference); no
 gyro. Printed: the bias error at 1, 2, 5 and 10 s, and the median errors against ground truth
@@ -76,9 +77,6 @@ from ..estimation import (
 from ..estimation.finalize import final_refinement
 from ..estimation.frame import configure_frame, prepare_frame
 from ..estimation.gyro import GyroMeasurement, ImuBuffer, gyro_prior, readout_window
-from ..estimation.gyro_bias import GyroBiasEstimator
-from ..estimation.gyro_check import GyroMountCheck
-from ..estimation.tracker import RSTracker
 from ..geometry import rotation_angle_deg, rotvec_to_matrix
 from ..sim.planar import PlanarFrame, make_planar_frame, sequence_scene
 from ..sim.trajectory import (
@@ -87,6 +85,12 @@ from ..sim.trajectory import (
     generate_sequence,
     imu_samples,
     make_trajectory,
+)
+from ..tracking.sequence import (
+    GyroSettings,
+    SequenceFrame,
+    SequenceLocalizer,
+    SequenceSettings,
 )
 from .threads import one_thread
 
@@ -286,42 +290,51 @@ def track_video(
     estimate_bias: bool,
     true_bias: float,
     R_cam_imu: np.ndarray | None = None,
-    check: bool = False,
+    check: bool = True,
 ):
-    """Track ``frames`` with the gyro of ``imu`` (None: no gyro) mounted as ``R_cam_imu``
-    (default: the simulated mount) and, with ``estimate_bias``, the bias estimated online;
-    with ``check``, the gyro is tested against the rotation between solved frames as the node
-    does (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames solved without
-    it while inconsistent, the bias estimator not fed then). Returns per-frame pose errors
+    """Track ``frames`` as the node does, through
+    :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, with the gyro samples of
+    ``imu`` (None: no gyro) mounted as ``R_cam_imu`` (default: the simulated mount), the bias
+    prior ``VIDEO_PRIOR`` and, with ``estimate_bias``, the bias estimated online; the gyro is
+    tested against the rotation between solved frames unless ``check`` is false
+    (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames solved without it
+    while inconsistent, the bias estimator not fed then). Returns per-frame pose errors
     (rotation deg, position m), the fused twist errors (angular rad/s, linear m/s), the bias
     error (rad/s, the largest over the three axes) after each frame with its time, the
     estimator's counts, the mean normalized innovation squared of the pairs it tested (3 for
     a consistent covariance) and the check's results (the frame index of the first
     detection or None, detections, frames solved without the gyro because of it)."""
-    opts = EstimateOptions(ransac=RansacOptions(seed=0))
-    tracker = RSTracker(options=opts)
-    Rci = R_IMU_CAMERA.T if R_cam_imu is None else R_cam_imu
-    bias = GyroBiasEstimator(np.full(3, VIDEO_PRIOR[0]), VIDEO_PRIOR[1], Rci, NOISE)
-    mount = GyroMountCheck(Rci, NOISE) if check and imu is not None else None
-    first_detection, disabled = None, 0
+    gyro = None
+    if imu is not None:
+        gyro = GyroSettings(
+            R_cam_imu=R_IMU_CAMERA.T if R_cam_imu is None else R_cam_imu,
+            gyro_noise=NOISE,
+            gyro_bias=np.full(3, VIDEO_PRIOR[0]),
+            gyro_bias_sigma=VIDEO_PRIOR[1],
+            estimate_bias=estimate_bias,
+            buffer=np.inf,
+        )
+    seq = SequenceLocalizer(
+        SequenceSettings(
+            options=EstimateOptions(ransac=RansacOptions(seed=0)),
+            imu=gyro,
+            stamp_row=cam.reference_line,  # (the frames are stamped with their reference time)
+            check_gyro=check,
+        ),
+        imu_span=np.inf,
+    )
+    if imu is not None:
+        for t, w in imu.samples():
+            seq.add_imu(t, w)
+    first_detection = None
     truth = {f.t_ref_ns: f for f in frames}
-    lead = int(round(cam.line_time(cam.reference_line) * 1e9))
-    span = int(round(cam.line_delay * (cam.lines - 1) * 1e9))
     pose, finals, bias_err, nis = [], [], [], []
+    prior = np.full(3, VIDEO_PRIOR[0])
     for k, f in enumerate(frames):
-        g = None
-        if imu is not None:
-            first = f.t_ref_ns - lead
-            g, _ = bias.measurement(imu, (first, first + span))
-            if mount is not None and mount.inconsistent:
-                g, disabled = None, disabled + 1
-        r = tracker.process(f.t_ref_ns, f.uv, f.xyz, cam, f.scores, gyro=g)
-        finals += r.final
-        e = r.estimate
-        if r.state == "reset" or not e.success:
-            bias.restart()
-            if mount is not None:
-                mount.restart()
+        tested = _bias_pairs(seq)
+        out = seq.process(SequenceFrame(f.t_ref_ns, cam, f.uv, f.xyz, f.scores))
+        finals += out.fused
+        e = out.estimate
         if e.success:
             pose.append(
                 (
@@ -329,20 +342,15 @@ def track_video(
                     float(np.linalg.norm(e.position - f.position)),
                 )
             )
-            if mount is not None:
-                mount.update(
-                    f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu, bias.bias, bias.covariance
-                )
-                if mount.inconsistent:
-                    first_detection = k if first_detection is None else first_detection
-                    bias.restart()
-            if imu is not None and estimate_bias and not (mount is not None and mount.inconsistent):
-                out = bias.update(f.t_ref_ns, e.orientation, e.covariance[:3, :3], imu)
-                if out in ("used", "rejected"):
-                    nis.append(bias.last_nis)
+        if seq.gyro_inconsistent and first_detection is None:
+            first_detection = k
+        if _bias_pairs(seq) > tested:
+            nis.append(seq.gyro_bias.last_nis)
         t = (f.t_ref_ns - frames[0].t_ref_ns) * 1e-9
-        bias_err.append((t, float(np.abs(bias.bias - true_bias).max())))
-    finals += tracker.flush()
+        values = seq.gyro_bias_values()
+        b = values[0] if values is not None else prior
+        bias_err.append((t, float(np.abs(b - true_bias).max())))
+    finals += seq.flush()
     twist = [
         (
             float(np.linalg.norm(x.angular_velocity - truth[x.stamp_ns].angular_velocity)),
@@ -350,18 +358,25 @@ def track_video(
         )
         for x in finals
     ]
+    est = seq.gyro_bias
     return dict(
         pose=np.array(pose),
         twist=np.array(twist),
         bias=np.array(bias_err),
-        counts=dict(bias.counts),
-        std=bias.std,
+        counts=dict(est.counts) if est is not None else {"used": 0, "rejected": 0},
+        std=est.std if est is not None else np.full(3, VIDEO_PRIOR[1]),
         nis=float(np.mean(nis)) if nis else float("nan"),
         frames=len(frames),
         first_detection=first_detection,
-        detections=mount.detections if mount is not None else 0,
-        disabled=disabled,
+        detections=seq.gyro_check.detections if seq.gyro_check is not None else 0,
+        disabled=seq.counts["gyro_disabled_inconsistent"],
     )
+
+
+def _bias_pairs(seq: SequenceLocalizer) -> int:
+    """Pairs the online bias estimator has tested so far (used or rejected)."""
+    est = seq.gyro_bias
+    return 0 if est is None else est.counts["used"] + est.counts["rejected"]
 
 
 def run_video(seconds: float, motion: str, seed: int) -> dict:

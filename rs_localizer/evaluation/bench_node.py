@@ -64,11 +64,11 @@ def run_benchmark(
     log=print,
 ) -> dict:
     """Generate ``distinct`` synthetic frames, time what the node runs on them alone, then the
-    node over DDS (:func:`rs_localizer.ros.bench_client.measure_node`), then alone again with
+    node over DDS (:func:`rs_localizer.evaluation.bench_client.measure_node`), then alone again with
     the lock-step idle time as a pause between frames. Returns the results, with
     ``overhead_ms``: lock-step latency median minus the alone median, and
     ``overhead_paced_ms``: minus the paced alone median."""
-    from ..ros.bench_client import measure_node
+    from .bench_client import measure_node
 
     log(f"generating {distinct} distinct frames of {points} correspondences ...")
     seq, cam = _frames(distinct, points, seed)
@@ -191,7 +191,7 @@ def main(argv=None) -> int:
 
 
 def _cameras(args) -> int:
-    from ..ros.bench_client import measure_cameras
+    from .bench_client import measure_cameras
 
     seq, cam = _frames(args.distinct, args.points, 0)
     res = measure_cameras(

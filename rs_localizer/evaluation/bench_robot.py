@@ -95,7 +95,7 @@ def measure_start(
 ) -> dict:
     """Start the installed node once; seconds to ``ready`` and to the first pose (see the
     module docstring). Returns ``{"ready_s", "first_pose_s", "log"}``."""
-    from ..ros.play import play
+    from ..ros.bags.play import play
     from ..ros.process import random_domain_id, ros_env
 
     domain = random_domain_id()
@@ -286,7 +286,7 @@ def measure_rss(
     """One node process with ``n_cameras`` camera namespaces (None: a plain single node); RSS
     after the warm-up and after ``frames`` frames per camera. Returns ``{"ready": {VmRSS,
     VmHWM}, "after": {...}, "solved": frames answered}``."""
-    from ..ros.play import play
+    from ..ros.bags.play import play
     from ..ros.process import NodeProcess, random_domain_id, repo_file, ros_env, write_params_yaml
 
     domain = random_domain_id()

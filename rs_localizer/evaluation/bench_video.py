@@ -30,7 +30,6 @@ import numpy as np
 
 from ..estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
 from ..estimation.readout import calibrate_line_delay
-from ..estimation.tracker import RSTracker
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..sim.trajectory import (
     SequenceConfig,
@@ -40,6 +39,7 @@ from ..sim.trajectory import (
     imu_samples,
     make_trajectory,
 )
+from ..tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
 from .threads import one_thread
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,8 +50,8 @@ SAMPLE = ROOT / "data" / "sample"
 def sample_video():
     """data/sample as (frames [(stamp_ns, uv, xyz)], camera with the bag's RS timing, truth
     {reference-row stamp: (O, p, omega, v)}, stamp offset to the reference row in ns)."""
-    from ..ros.bag_frames import read_bag_frames
-    from ..ros.bag_io import load_ground_truth, read_bag_info
+    from ..ros.bags.bag_frames import read_bag_frames
+    from ..ros.bags.bag_io import load_ground_truth, read_bag_info
 
     bag = read_bag_frames(SAMPLE)
     rs = read_bag_info(SAMPLE)["rs"]
@@ -88,14 +88,14 @@ def fused_twist(frames, cam, truth) -> dict:
     tracking) and of the fused (final) states, and the mean NEES of the fused pose and twist
     (12 dof)."""
     opts = EstimateOptions(ransac=RansacOptions(seed=0))
-    tr = RSTracker(options=opts)
+    seq = _sequence(opts, cam)
     single, final = {}, []
     for stamp, uv, xyz in frames:
         e = estimate_rs_pose(uv, xyz, cam, options=opts)
         if e.success:
             single[stamp] = e
-        final += tr.process(stamp, uv, xyz, cam).final
-    final += tr.flush()
+        final += [x.state for x in seq.process(SequenceFrame(stamp, cam, uv, xyz)).fused]
+    final += [x.state for x in seq.flush()]
 
     def err(x, stamp, i, attr):
         return float(np.linalg.norm(getattr(x, attr) - truth[stamp][i]))
@@ -117,15 +117,19 @@ def fused_twist(frames, cam, truth) -> dict:
         )
         nees.append(float(e @ np.linalg.solve(x.covariance, e)))
     out["nees"] = float(np.mean(nees))
+    tv = seq.tracking_values()
     out["states"] = {
-        k: v
-        for k, v in (
-            ("tracked", tr.frames_tracked),
-            ("relocalized", tr.relocalizations),
-            ("resets", tr.resets),
-        )
+        "tracked": tv["frames_tracked"],
+        "relocalized": tv["relocalizations"],
+        "resets": tv["resets"],
     }
     return out
+
+
+def _sequence(opts: EstimateOptions, cam) -> SequenceLocalizer:
+    """The node's video state (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
+    tracking on, no gyro), fed the frames' reference-line times as their stamps."""
+    return SequenceLocalizer(SequenceSettings(options=opts, stamp_row=cam.reference_line))
 
 
 # ---------------------------------------------------------------------------- speed
@@ -152,21 +156,21 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
        time equal to wall time (no preemption).
     """
     opts = EstimateOptions(ransac=RansacOptions(seed=0))
-    warm = RSTracker(options=opts)
+    warm = _sequence(opts, cam)
     for stamp, uv, xyz in frames[:4]:  # warm-up (numba compilation of both paths)
         estimate_rs_pose(uv, xyz, cam, options=opts)
-        warm.process(stamp, uv, xyz, cam)
+        warm.process(SequenceFrame(stamp, cam, uv, xyz))
     t_cold, t_track, rc, rt, pc, pt, iters_c, iters_t = [], [], [], [], [], [], [], []
     cpu_cold, cpu_track, s_cold, s_track = [], [], [], []
     for _ in range(passes):
-        tr = RSTracker(options=opts)
+        tr = _sequence(opts, cam)
         for stamp, uv, xyz in frames:
             t0, c0 = time.perf_counter(), time.thread_time()
             cold = estimate_rs_pose(uv, xyz, cam, options=opts)
             t1, c1 = time.perf_counter(), time.thread_time()
-            r = tr.process(stamp, uv, xyz, cam)
+            r = tr.process(SequenceFrame(stamp, cam, uv, xyz))
             t2, c2 = time.perf_counter(), time.thread_time()
-            if r.state != "tracked" or not cold.success:
+            if r.path != "tracked" or not cold.success:
                 continue
             Ori, p = truth[stamp][:2]
             t_cold.append(t1 - t0)
@@ -183,11 +187,11 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
             t0 = time.perf_counter()
             cold = estimate_rs_pose(uv, xyz, cam, options=opts)
             s_cold.append(time.perf_counter() - t0)
-        tr = RSTracker(options=opts)
+        tr = _sequence(opts, cam)
         for stamp, uv, xyz in frames:
             t0 = time.perf_counter()
-            r = tr.process(stamp, uv, xyz, cam)
-            if r.state == "tracked":
+            r = tr.process(SequenceFrame(stamp, cam, uv, xyz))
+            if r.path == "tracked":
                 s_track.append(time.perf_counter() - t0)
     med = lambda a: float(np.median(a))  # noqa: E731
     return {
@@ -260,29 +264,31 @@ def events() -> dict:
         SequenceConfig(num_frames=16, seed=2, drop_frames=(5, 6)), trajectory=traj
     )
     by = {f.index: f for f in fr}
-    tr = RSTracker(options=EstimateOptions(ransac=RansacOptions(seed=0)))
+    tr = _sequence(EstimateOptions(ransac=RansacOptions(seed=0)), cam)
     log = {}
     finals = []
 
     def feed(k, bad=False):
         f = by[k]
-        r = tr.process(f.stamp_ns, np.full_like(f.uv, np.nan) if bad else f.uv, f.xyz, cam)
-        finals.extend(x.stamp_ns for x in r.final)
+        uv = np.full_like(f.uv, np.nan) if bad else f.uv
+        r = tr.process(SequenceFrame(f.stamp_ns, cam, uv, f.xyz))
+        finals.extend(x.stamp_ns for x in r.fused)
         return r
 
     for k in (0, 1, 2, 3, 4):
         feed(k)
-    log["after_drop"] = feed(7).state
+    log["after_drop"] = feed(7).path
     for k in (8, 9):
         feed(k)
-    bad = feed(10, bad=True)
-    log["bad_frame"] = (bad.estimate.failure, bad.final == [] and bad.fused is None)
+    waiting = tr.pending
+    bad = feed(10, bad=True)  # (no pose, nothing made final, nothing waiting for a twist)
+    log["bad_frame"] = (bad.estimate.failure, bad.fused == [] and tr.pending == waiting)
     for k in (10, 11):
         feed(k)
-    log["teleport"] = feed(12).state
-    log["after_teleport"] = feed(13).state
+    log["teleport"] = feed(12).path
+    log["after_teleport"] = feed(13).path
     back = feed(3)
-    log["jump_back"] = (back.state, back.estimate.success)
+    log["jump_back"] = (back.path, back.estimate.success)
     finals.extend(x.stamp_ns for x in tr.flush())
     log["solved_frames_with_final_twist"] = (len(finals), 13)
     return log

@@ -117,8 +117,8 @@ def run_bag_demo(
     ``sequence.json``) instead of its ``correspondences``. Returns 0 when the RS node answered
     every frame."""
     from ..accuracy import format_summary, summarize_errors
-    from ..ros.bag_io import load_ground_truth, read_bag_info
-    from ..ros.play import play
+    from ..ros.bags.bag_io import load_ground_truth, read_bag_info
+    from ..ros.bags.play import play
     from ..ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
 
     bag = Path(bag)

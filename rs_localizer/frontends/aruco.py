@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences
 from . import cv_compat
 
 __all__ = ["ArucoFrontend", "marker_scores", "marker_std_from_file", "to_gray"]
@@ -144,19 +145,23 @@ class ArucoFrontend:
 
     def process(
         self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Correspondences of one image: ``(points_px (N, 2), points3d (N, 3), ids (N,))``
-        with ``ids = 4 * marker_id + corner``. ``camera`` is not needed (pixels stay
-        distorted, as the estimator expects) but accepted for a uniform front-end API."""
+    ) -> Correspondences:
+        """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
+        (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
+        stated std when it has them (``marker_std``), else None; unpacks as
+        ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. ``camera`` is
+        not needed (pixels stay distorted, as the estimator expects) but accepted for a uniform
+        front-end API."""
         corners, mids = self.detect(image, encoding)
         keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
         if not keep:
             self.last_scores = None if self.marker_std is None else np.zeros(0)
-            return np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64)
+            return Correspondences.empty()
+        self.last_scores = None
         if self.marker_std is not None:
             std = [self.marker_std.get(int(mids[i]), 0.0) for i in keep]
             self.last_scores = np.repeat(marker_scores(np.asarray(std)), 4)
         uv = corners[keep].reshape(-1, 2)
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
-        return uv, X, ids.astype(np.int64)
+        return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)

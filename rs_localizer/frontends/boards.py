@@ -80,6 +80,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences
 from . import cv_compat as cvc
 from .aruco import to_gray
 
@@ -636,17 +637,20 @@ class _BoardFrontend:
     def _detect_ids(self, gray, camera):
         raise NotImplementedError
 
-    def process(self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"):
-        """Correspondences of one image: ``(points_px (N, 2) distorted pixels, points3d (N, 3)
-        map metres, ids (N,) int64)``; detections whose id is not on the board are dropped.
+    def process(
+        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+    ) -> Correspondences:
+        """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`,
+        unpacks as ``(points_px (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
+        int64)``; no scores); detections whose id is not on the board are dropped.
         ``camera`` is optional (the ChArUco front end uses it to interpolate corners)."""
         uv, ids = self._detect_ids(to_gray(image, encoding), camera)
         if len(ids) == 0:
-            return _EMPTY
+            return Correspondences.empty()
         rows, found = self.board.lookup(ids)
         if not found.any():
-            return _EMPTY
-        return uv[found], self.board.points[rows], ids[found]
+            return Correspondences.empty()
+        return Correspondences(uv[found], self.board.points[rows], ids[found])
 
 
 class CheckerboardFrontend(_BoardFrontend):

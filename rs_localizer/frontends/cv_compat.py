@@ -27,7 +27,8 @@ Known 4.6 differences handled here:
   versions give the same corners (< 0.1 px from the truth on the same render).
 
 The board coordinate frames agree between 4.6 and 5.x (origin at the top-left corner of the
-board image, x to the right, y down, z into the board); checked in ``test/test_boards.py``.
+board image, x to the right, y down, z into the board); checked in
+``test/frontends/test_boards.py``.
 """
 
 from __future__ import annotations

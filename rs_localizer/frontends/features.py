@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences
 from .aruco import to_gray
 
 __all__ = [
@@ -300,9 +301,12 @@ class FeatureFrontend:
 
     def process(
         self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Correspondences of one image (pixels stay distorted; ``camera`` is unused)."""
-        empty = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+    ) -> Correspondences:
+        """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`
+        with the scores ``1 - ratio``; pixels stay distorted; ``camera`` is unused)."""
+        empty = Correspondences(
+            np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
+        )
         self.last_scores = np.zeros(0)
         gray = to_gray(image, encoding)
         kps, des = self.detector.detectAndCompute(gray, None)
@@ -337,4 +341,4 @@ class FeatureFrontend:
         keep = np.sort(order[first])
         uv = np.array([kps[i].pt for i in q[keep]], dtype=float)
         self.last_scores = s[keep]
-        return uv, self.map.points[t[keep]], lm[t[keep]]
+        return Correspondences(uv, self.map.points[t[keep]], lm[t[keep]], self.last_scores)

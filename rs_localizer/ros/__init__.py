@@ -4,10 +4,11 @@ The node (:mod:`.node`, managed: :mod:`.lifecycle`, several cameras: :mod:`.runn
 around ROS-free parts: :mod:`.params` (parameters -> configuration), :mod:`.pipeline` (what
 happens to each frame), :mod:`.camera_info_history`, :mod:`.frame_queue` (the worker and the
 frame accounting), :mod:`.outputs` (a frame's messages) and :mod:`.diagnostics`.
-:mod:`.replay` runs the same pipeline over a bag, offline.
+:mod:`.bags.replay` runs the same pipeline over a bag, offline.
 
-Importing this package does not import rclpy; :mod:`.node`, :mod:`.play` and the message
-builders in :mod:`.conversions` do (lazily). :mod:`.bag_io` (write and read bags) and
-:mod:`.replay` need ``rosbags``; :mod:`.pointcloud` packs and decodes ``PointCloud2``;
-:mod:`.process` starts the node as a subprocess.
+Importing this package does not import rclpy; :mod:`.node`, :mod:`.bags.play` and the message
+builders in :mod:`.conversions` do (lazily). The bag tools in :mod:`.bags` (:mod:`.bags.bag_io`,
+:mod:`.bags.bag_frames`, :mod:`.bags.play`, :mod:`.bags.replay`) need ``rosbags``;
+:mod:`.pointcloud` packs and decodes ``PointCloud2``; :mod:`.process` starts the node as a
+subprocess.
 """

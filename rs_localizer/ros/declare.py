@@ -15,14 +15,16 @@ __all__ = ["declare_parameters"]
 
 
 def declare_parameters(node: Any, parameters: Mapping[str, tuple]) -> None:
-    """Declare every ``name -> (default, description, range, read_only)`` on ``node`` (the
-    value from the node's parameter overrides, else the default).
+    """Declare every ``name -> (default, description, range, read_only, ...)`` (a
+    :class:`~rs_localizer.ros.params.Parameter`) on ``node`` (the value from the node's
+    parameter overrides, else the default).
 
     Raises:
         RuntimeError: a value of the wrong type or outside its range, naming the parameter
             (the node refuses to start).
     """
-    for name, (default, desc, rng, ro) in parameters.items():
+    for name, par in parameters.items():
+        default, desc, rng, ro = par[:4]
         d = ParameterDescriptor(description=desc, read_only=ro)
         if isinstance(rng, FloatRange):
             d.floating_point_range = [

@@ -25,8 +25,9 @@ managed separately (``/robot/front/rs_localizer/change_state``, ...).
 from __future__ import annotations
 
 import sys
+from typing import Any
 
-from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from ..frontends.shared import SHARED_MAPS
 from .node import LocalizerCore
@@ -41,7 +42,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
     """The managed localizer node (see the module docstring). ``node_name`` and ``kwargs`` go to
     :class:`rclpy.lifecycle.LifecycleNode`."""
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         LifecycleNode.__init__(self, node_name, **kwargs)
         self._declare_parameters()
         self._init_state()
@@ -55,7 +56,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         return pub
 
     # ------------------------------------------------------------------ transitions
-    def on_configure(self, state) -> TransitionCallbackReturn:
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
             self._configure()
         except RuntimeError as e:
@@ -67,29 +68,29 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         self.get_logger().info(f"configured: solver {self.cfg.solver} (inactive)")
         return super().on_configure(state)
 
-    def on_activate(self, state) -> TransitionCallbackReturn:
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         ret = super().on_activate(state)  # enables the lifecycle publishers
         if ret == _OK:
             self._create_frame_inputs()
             self._log_ready()
         return ret
 
-    def on_deactivate(self, state) -> TransitionCallbackReturn:
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._destroy_frame_inputs()
         self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
         return super().on_deactivate(state)
 
-    def on_cleanup(self, state) -> TransitionCallbackReturn:
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._release()
         self.get_logger().info("cleaned up: unconfigured")
         return super().on_cleanup(state)
 
-    def on_shutdown(self, state) -> TransitionCallbackReturn:
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._destroy_frame_inputs()
         self._release()
         return super().on_shutdown(state)
 
-    def on_error(self, state) -> TransitionCallbackReturn:
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.get_logger().error("error in a transition: releasing everything (unconfigured)")
         self._destroy_frame_inputs()
         self._release()
@@ -110,7 +111,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         # the counters reset too)
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     """Entry point of ``rs_localizer_lifecycle_node``."""
     from .runner import run
 

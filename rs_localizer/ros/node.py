@@ -44,6 +44,7 @@ import os
 import sys
 import time
 from collections import deque
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
@@ -61,7 +62,7 @@ from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN, diagnostic_status
 from .frame_queue import FrameQueue
 from .outputs import frame_messages, fused_messages
-from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config
+from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config, load_maps
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
@@ -115,7 +116,8 @@ class LocalizerCore:
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
         the JIT warm-up. Raises RuntimeError for invalid parameters."""
         try:
-            cfg = build_config(self._param_values({}), owner=self, current=self.cfg)
+            cfg = build_config(self._param_values({}))
+            cfg = load_maps(cfg, owner=self, current=self.cfg)
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self._apply_config(cfg)
@@ -272,7 +274,8 @@ class LocalizerCore:
         if not overrides or self.cfg is None:  # (not configured yet: checked at configure)
             return SetParametersResult(successful=True)
         try:
-            cfg = build_config(self._param_values(overrides), owner=self, current=self.cfg)
+            cfg = build_config(self._param_values(overrides))
+            cfg = load_maps(cfg, owner=self, current=self.cfg)
         except ConfigError as e:
             self.get_logger().warning(f"rejected parameter change: {e}")
             return SetParametersResult(successful=False, reason=str(e))
@@ -319,7 +322,10 @@ class LocalizerCore:
         cfg = self.cfg
         self.viz.hold_image(getattr(res, "image", None) if res.failure is None else None)
         if getattr(res, "correspondences", None) is not None:
-            cloud = correspondence_cloud(*res.correspondences, res.frame_id, res.stamp_ns)
+            c = res.correspondences
+            cloud = correspondence_cloud(
+                c.pixels, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
+            )
             self._corr_out_publisher().publish(cloud)
         if res.failure is not None:
             self._publish(fused_messages(getattr(res, "fused", ()), cfg.map_frame, self._wanted))
@@ -362,7 +368,7 @@ class LocalizerCore:
             self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", RELIABLE)
         return self.pub_corr_out
 
-    def destroy_node(self):
+    def destroy_node(self) -> None:
         """Stop the worker thread (the frame it is on is finished), release the shared maps,
         then destroy the node."""
         if self.pipeline is not None:
@@ -392,7 +398,7 @@ class LocalizerCore:
         st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         return st
 
-    def publish_diagnostics(self):
+    def publish_diagnostics(self) -> None:
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostics_status()]
@@ -407,7 +413,7 @@ class RSLocalizerNode(LocalizerCore, Node):
         RuntimeError: invalid parameters (the message names the parameter).
     """
 
-    def __init__(self, node_name: str = "rs_localizer", **kwargs):
+    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
         self._declare_parameters()
         self._init_state()
@@ -419,7 +425,7 @@ class RSLocalizerNode(LocalizerCore, Node):
         self._log_ready()
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``): one
     node, or one per camera namespace in the ``cameras`` parameter (:mod:`.runner`)."""
     from .runner import run

@@ -4,54 +4,52 @@
 range, read-only; ``config/rs_localizer.yaml`` lists them with their defaults). The node, the
 managed node and ``rs-localizer replay`` turn a full set of parameter values into a
 :class:`LocalizerConfig` with :func:`build_config`, which raises :class:`ConfigError` naming
-the parameter when a value cannot be used. Parameter files in the ROS 2 format are read by
-:func:`read_params_file` (for replay; the node gets them from ROS).
+the parameter when a value cannot be used, then load its maps with :func:`load_maps`.
+Parameter files in the ROS 2 format are read by :func:`read_params_file` (for replay; the node
+gets them from ROS).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimation import (
-    CorrelatedNoise,
-    EstimateOptions,
-    MotionPrior,
-    PlausibilityOptions,
-    RansacOptions,
-    RefineOptions,
-)
-from ..estimation.fusion import FusionOptions
+from ..estimation import EstimateOptions
+from ..estimation.estimate import points_needed
 from ..estimation.tracker import TrackerOptions
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
 from ..frontends import FRONTENDS
 from ..frontends.shared import SHARED_MAPS
 from ..maps import check_regular_file
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
-from ..solvers.registry import sample_size
 from . import conversions as cv
 
 __all__ = [
     "FRONTEND_KINDS",
     "IMAGE_TRANSPORTS",
+    "OPTION_GROUPS",
     "PARAMETERS",
     "ConfigError",
     "FloatRange",
     "ImuConfig",
     "IntRange",
     "LocalizerConfig",
+    "Parameter",
     "build_config",
     "check_parameter",
     "default_values",
     "estimate_options",
     "imu_config",
+    "load_maps",
+    "option_fields",
     "parameter_values",
     "points_needed",
     "read_params_file",
@@ -79,408 +77,370 @@ class IntRange:
     step: int = 1
 
 
-#: name -> (default, description, range or None, read_only). Mirrors config/rs_localizer.yaml.
+class Parameter(NamedTuple):
+    """One node parameter: the single place its name (the :data:`PARAMETERS` key), default,
+    description, range and read-only flag are written, and where its value goes.
+
+    Attributes:
+        default: the value when no parameter file or override sets it; its type is the
+            parameter's type (``float`` parameters need ``0.0`` in YAML, not ``0``).
+        description: the ROS parameter descriptor's text (``ros2 param describe``).
+        range: :class:`FloatRange`, :class:`IntRange` or None (any value).
+        read_only: the node refuses changes at run time.
+        field: the options field it sets, ``"<group>"`` or ``"<group>:<path>"`` with
+            ``<group>`` one of :data:`OPTION_GROUPS` (``estimate``: :class:`EstimateOptions`,
+            ``tracking``: :class:`TrackerOptions`, ``imu``: :class:`ImuConfig`). Without a path
+            the field has the parameter's name less the group's prefix (``ransac.seed`` ->
+            ``EstimateOptions.ransac.seed``, ``tracking.gate_px`` -> ``TrackerOptions.gate_px``);
+            a path says where the names differ (``refine`` -> ``refine.enabled``). None: read
+            by :func:`build_config` itself (frames, camera, queue, front end).
+    """
+
+    default: Any
+    description: str
+    range: FloatRange | IntRange | None = None
+    read_only: bool = False
+    field: str | None = None
+
+
+#: name -> :class:`Parameter`: every parameter of the node, in the order of
+#: config/rs_localizer.yaml and docs/node.md (``python -m rs_localizer.ros.param_docs --write``
+#: rewrites their defaults from this table; test/test_docs_sync.py checks them)
 PARAMETERS = {
-    "solver": (
-        "r6p_1lin",
-        f"minimal solver: one of {', '.join(SOLVERS)} (p3p = global shutter)",
-        None,
-        False,
+    "solver": Parameter(
+        "r6p_1lin", f"minimal solver: one of {', '.join(SOLVERS)} (p3p = global shutter)"
     ),
-    "ransac.threshold_px": (
+    "ransac.threshold_px": Parameter(
         2.0,
         "RANSAC inlier threshold on the reprojection error (px)",
         FloatRange(from_value=0.05, to_value=100.0),
-        False,
+        field="estimate",
     ),
-    "ransac.max_iterations": (
-        1000,
-        "RANSAC iteration cap",
-        IntRange(from_value=1, to_value=1_000_000),
-        False,
+    "ransac.max_iterations": Parameter(
+        1000, "RANSAC iteration cap", IntRange(from_value=1, to_value=1_000_000), field="estimate"
     ),
-    "ransac.confidence": (
+    "ransac.confidence": Parameter(
         0.9999,
         "RANSAC adaptive-termination confidence",
         FloatRange(from_value=0.5, to_value=0.999999999),
-        False,
+        field="estimate",
     ),
-    "ransac.min_inliers": (
-        12,
-        "fewest inliers for a pose",
-        IntRange(from_value=3, to_value=100_000),
-        False,
+    "ransac.min_inliers": Parameter(
+        12, "fewest inliers for a pose", IntRange(from_value=3, to_value=100_000), field="estimate"
     ),
-    "ransac.seed": (
+    "ransac.seed": Parameter(
         0,
         "RANSAC random seed (deterministic)",
         IntRange(from_value=0, to_value=2_147_483_647),
-        False,
+        field="estimate",
     ),
-    "refine": (True, "nonlinear refinement on the exact constant-velocity model", None, False),
-    "motion_prior.angular_velocity_sigma": (
+    "refine": Parameter(
+        True,
+        "nonlinear refinement on the exact constant-velocity model",
+        field="estimate:refine.enabled",
+    ),
+    "motion_prior.angular_velocity_sigma": Parameter(
         3.0,
         "motion prior: sigma of each angular velocity component (rad/s, camera frame); "
         "0 = no prior on it",
         FloatRange(from_value=0.0, to_value=1e4),
-        False,
+        field="estimate",
     ),
-    "motion_prior.linear_velocity_sigma": (
+    "motion_prior.linear_velocity_sigma": Parameter(
         1.5,
         "motion prior: sigma of each linear velocity component (m/s, camera frame); "
         "0 = no prior on it (both 0: maximum likelihood, near-degenerate on planar scenes)",
         FloatRange(from_value=0.0, to_value=1e4),
-        False,
+        field="estimate",
     ),
-    "correlated_noise.sigma_px": (
+    "correlated_noise.sigma_px": Parameter(
         0.0,
         "std (px per axis) of a spatially correlated image error (lens-model residue, "
         "corner bias) in the covariance; 0 = white noise only. Fit it on still calibration "
         "views (estimation.noise_model.fit_correlated_noise)",
         FloatRange(from_value=0.0, to_value=100.0),
-        False,
+        field="estimate",
     ),
-    "correlated_noise.length_px": (
+    "correlated_noise.length_px": Parameter(
         100.0,
         "correlation length (px) of that error",
         FloatRange(from_value=0.1, to_value=1e5),
-        False,
+        field="estimate",
     ),
-    "rs.line_delay": (
+    "rs.line_delay": Parameter(
         3.0e-5,
         "time between consecutive image lines (s/line); 0 = global shutter",
         FloatRange(from_value=0.0, to_value=0.01),
-        False,
     ),
-    "rs.readout_time": (
+    "rs.readout_time": Parameter(
         0.0,
         "time to read the whole frame (s); if > 0 it wins over "
         "rs.line_delay (line_delay = readout_time / lines)",
         FloatRange(from_value=0.0, to_value=1.0),
-        False,
     ),
-    "rs.direction": (
-        "top_to_bottom",
-        "readout direction: " + ", ".join(READOUT_DIRECTIONS),
-        None,
-        False,
+    "rs.direction": Parameter(
+        "top_to_bottom", "readout direction: " + ", ".join(READOUT_DIRECTIONS)
     ),
-    "rs.reference_row": (
+    "rs.reference_row": Parameter(
         -1.0,
         "line (px) at which the pose is estimated; -1 = image centre",
         FloatRange(from_value=-1.0, to_value=100_000.0),
-        False,
     ),
-    "rs.stamp_row": (
+    "rs.stamp_row": Parameter(
         0.0,
         "line (px) whose capture time is the input header.stamp",
         FloatRange(from_value=0.0, to_value=100_000.0),
-        False,
     ),
-    "map_frame": ("map", "frame of the published pose", None, True),
-    "camera_frame": (
-        "",
-        "camera optical frame of the outputs; empty = input header.frame_id",
-        None,
-        False,
+    "map_frame": Parameter("map", "frame of the published pose", read_only=True),
+    "camera_frame": Parameter(
+        "", "camera optical frame of the outputs; empty = input header.frame_id"
     ),
-    "publish_tf": (
-        True,
-        "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)",
-        None,
-        True,
+    "publish_tf": Parameter(
+        True, "publish map -> camera (or base_frame) on /tf (needs tf2_msgs)", read_only=True
     ),
-    "base_frame": (
+    "base_frame": Parameter(
         "",
         "robot body frame (REP 103, e.g. base_link); set: pose, "
         "pose_with_covariance, odom, twist and /tf describe it instead of the camera "
         "(camera_to_base.* is the mounting); empty = the camera optical frame",
-        None,
-        False,
     ),
-    "camera_to_base.translation": (
+    "camera_to_base.translation": Parameter(
         [0.0, 0.0, 0.0],
         "camera optical frame origin in base_frame (m, x y z): the base_frame -> camera transform",
-        None,
-        False,
     ),
-    "camera_to_base.rotation": (
+    "camera_to_base.rotation": Parameter(
         list(OPTICAL_TO_BODY_QUATERNION),
         "rotation camera optical "
         "frame -> base_frame, quaternion x y z w (default: a camera "
         "looking along the base's x axis)",
-        None,
-        False,
     ),
-    "landmarks_file": (
-        "",
-        "CSV id,x,y,z for the keypoints topic (reloaded on change)",
-        None,
-        False,
-    ),
-    "max_points": (
+    "landmarks_file": Parameter("", "CSV id,x,y,z for the keypoints topic (reloaded on change)"),
+    "max_points": Parameter(
         5000,
         "clouds with more points are capped (highest scores, else evenly spaced), with a warning",
         IntRange(from_value=10, to_value=10_000_000),
-        False,
     ),
-    "time_reset_threshold": (
+    "time_reset_threshold": Parameter(
         1.0,
         "a frame stamped later than the previous one by more than "
         "this (s) resets the time-dependent state (a gap); any step back "
         "does too. Frames are never dropped for their stamp",
         FloatRange(from_value=0.0, to_value=1e6),
-        False,
     ),
-    "queue_size": (
+    "queue_size": Parameter(
         5,
         "frames waiting to be solved; when full, the oldest waiting frame is "
         "dropped (counted in frames_skipped) so that the newest are solved",
         IntRange(from_value=1, to_value=10_000),
-        False,
     ),
-    "camera_info_wait": (
+    "camera_info_wait": Parameter(
         0.05,
         "s a frame may wait for its camera_info: when none has arrived "
         "yet, or when camera_info comes with every frame (same stamps) and "
         "the frame's own has not arrived yet",
         FloatRange(from_value=0.0, to_value=5.0),
-        False,
     ),
-    "max_angular_velocity": (
+    "max_angular_velocity": Parameter(
         20.0,
         "rad/s; a model turning faster is implausible (never published: implausible_motion)",
         FloatRange(from_value=0.01, to_value=1e6),
-        False,
+        field="estimate:plausibility.max_angular_velocity",
     ),
-    "max_linear_velocity": (
+    "max_linear_velocity": Parameter(
         50.0,
         "m/s; a model moving faster is implausible",
         FloatRange(from_value=0.01, to_value=1e9),
-        False,
+        field="estimate:plausibility.max_linear_velocity",
     ),
-    "tracking.enabled": (
+    "tracking.enabled": Parameter(
         True,
         "track the camera through the video: predicted RANSAC, "
         "relocalization, and twist / odom carry the fused twist; "
         "false: every frame alone",
-        None,
-        False,
     ),
-    "tracking.lag": (
+    "tracking.lag": Parameter(
         1,
         "frames of smoothing delay of the fused twist: twist / odom of a frame "
         "are published when this many later frames have been fused (0: at once, "
         "causal filter)",
         IntRange(from_value=0, to_value=10),
-        False,
+        field="tracking:fusion.lag",
     ),
-    "tracking.max_gap": (
+    "tracking.max_gap": Parameter(
         0.5,
         "s; a longer gap between frames (or a stamp going back) resets "
         "the track; after this long without frames the pending twists are "
         "published",
         FloatRange(from_value=0.01, to_value=60.0),
-        False,
+        field="tracking",
     ),
-    "tracking.gate_px": (
+    "tracking.gate_px": Parameter(
         20.0,
         "a point is explained by the prediction within this distance "
         "(px); too few explained points: relocalize",
         FloatRange(from_value=0.5, to_value=1000.0),
-        False,
+        field="tracking",
     ),
-    "tracking.angular_noise": (
+    "tracking.angular_noise": Parameter(
         30.0,
         "filter process noise: angular jerk density (rad/s^3/sqrt(Hz))",
         FloatRange(from_value=1e-3, to_value=1e6),
-        False,
+        field="tracking:fusion.angular_noise",
     ),
-    "tracking.linear_noise": (
+    "tracking.linear_noise": Parameter(
         5.0,
         "filter process noise: linear jerk density (m/s^3/sqrt(Hz))",
         FloatRange(from_value=1e-3, to_value=1e6),
-        False,
+        field="tracking:fusion.linear_noise",
     ),
-    "tracking.prior_from_prediction": (
+    "tracking.prior_from_prediction": Parameter(
         "planar",
         "the estimator's motion prior is the predicted "
         "twist: planar (when the last frame was planar), always "
         "or never",
-        None,
-        False,
+        field="tracking",
     ),
-    "imu.enabled": (
+    "imu.enabled": Parameter(
         False,
         "subscribe to imu (sensor_msgs/Imu) and use its gyro in the estimate: the mean "
         "angular velocity over each frame's readout, as a measurement with its covariance",
-        None,
-        True,
+        read_only=True,
     ),
-    "imu.rotation": (
+    "imu.rotation": Parameter(
         [0.0, 0.0, 0.0, 1.0],
         "rotation IMU frame -> camera optical frame, quaternion x y z w "
         "(rs-localizer calibrate-readout --imu-topic prints it)",
-        None,
-        False,
     ),
-    "imu.time_offset": (
+    "imu.time_offset": Parameter(
         0.0,
         "s added to the IMU stamps to put them on the camera's clock",
         FloatRange(from_value=-1.0, to_value=1.0),
-        False,
+        field="imu",
     ),
-    "imu.gyro_noise": (
+    "imu.gyro_noise": Parameter(
         0.003,
         "standard deviation of one gyro sample (rad/s); averaged over the samples of a readout",
         FloatRange(from_value=1e-6, to_value=10.0),
-        False,
+        field="imu",
     ),
-    "imu.gyro_bias": (
+    "imu.gyro_bias": Parameter(
         [0.0, 0.0, 0.0],
         "gyro bias subtracted from the rates (rad/s, IMU frame; calibrate-readout "
         "--imu-topic prints it)",
-        None,
-        False,
     ),
-    "imu.gyro_bias_sigma": (
+    "imu.gyro_bias_sigma": Parameter(
         0.005,
         "uncertainty of imu.gyro_bias per axis (rad/s); with imu.estimate_bias the initial "
         "uncertainty of the estimate, else fixed (it does not average down)",
         FloatRange(from_value=0.0, to_value=10.0),
-        False,
+        field="imu",
     ),
-    "imu.estimate_bias": (
+    "imu.estimate_bias": Parameter(
         True,
         "estimate the gyro bias online from the rotation between consecutive solved frames, "
         "starting from imu.gyro_bias with imu.gyro_bias_sigma; the frames' gyro uses the "
         "estimate and its uncertainty",
-        None,
-        True,
+        read_only=True,
+        field="imu",
     ),
-    "imu.bias_random_walk": (
+    "imu.bias_random_walk": Parameter(
         1e-4,
         "rad/s per sqrt(s): how fast the estimated gyro bias may drift (imu.estimate_bias)",
         FloatRange(from_value=0.0, to_value=1.0),
-        False,
+        field="imu",
     ),
-    "imu.wait": (
+    "imu.wait": Parameter(
         0.03,
         "s a frame may wait for the gyro samples covering its readout; then it is solved "
         "without the gyro (gyro_missing.not_covered)",
         FloatRange(from_value=0.0, to_value=1.0),
-        False,
+        field="imu",
     ),
-    "imu.buffer": (
+    "imu.buffer": Parameter(
         2.0,
         "s of gyro samples kept for frames that arrive late",
         FloatRange(from_value=0.1, to_value=60.0),
-        True,
+        read_only=True,
+        field="imu",
     ),
-    "imu.max_rate": (
+    "imu.max_rate": Parameter(
         35.0,
         "rad/s; a sample with a larger component is the gyro's saturation and rejected",
         FloatRange(from_value=0.1, to_value=1000.0),
-        False,
+        field="imu",
     ),
-    "imu.max_gap": (
+    "imu.max_gap": Parameter(
         0.02,
         "s; a readout whose gyro samples are further apart is solved without the gyro "
         "(gyro_missing.sparse: an IMU topic too slow to describe one readout)",
         FloatRange(from_value=0.001, to_value=1.0),
-        False,
+        field="imu",
     ),
-    "diagnostics_period": (
+    "diagnostics_period": Parameter(
         1.0,
         "period of /diagnostics (s)",
         FloatRange(from_value=0.05, to_value=60.0),
-        True,
+        read_only=True,
     ),
-    "warmup": (True, "solve a synthetic problem at start (JIT compilation)", None, True),
-    "camera.fx": (
+    "warmup": Parameter(
+        True, "solve a synthetic problem at start (JIT compilation)", read_only=True
+    ),
+    "camera.fx": Parameter(
         0.0,
         "fallback intrinsics until camera_info arrives; fx <= 0 = wait for camera_info",
         FloatRange(from_value=0.0, to_value=1e6),
-        False,
     ),
-    "camera.fy": (
-        0.0,
-        "fallback fy (px)",
-        FloatRange(from_value=0.0, to_value=1e6),
-        False,
+    "camera.fy": Parameter(0.0, "fallback fy (px)", FloatRange(from_value=0.0, to_value=1e6)),
+    "camera.cx": Parameter(0.0, "fallback cx (px)", FloatRange(from_value=-1e6, to_value=1e6)),
+    "camera.cy": Parameter(0.0, "fallback cy (px)", FloatRange(from_value=-1e6, to_value=1e6)),
+    "camera.width": Parameter(
+        0, "fallback image width (px)", IntRange(from_value=0, to_value=100_000)
     ),
-    "camera.cx": (
-        0.0,
-        "fallback cx (px)",
-        FloatRange(from_value=-1e6, to_value=1e6),
-        False,
+    "camera.height": Parameter(
+        0, "fallback image height (px)", IntRange(from_value=0, to_value=100_000)
     ),
-    "camera.cy": (
-        0.0,
-        "fallback cy (px)",
-        FloatRange(from_value=-1e6, to_value=1e6),
-        False,
-    ),
-    "camera.width": (
-        0,
-        "fallback image width (px)",
-        IntRange(from_value=0, to_value=100_000),
-        False,
-    ),
-    "camera.height": (
-        0,
-        "fallback image height (px)",
-        IntRange(from_value=0, to_value=100_000),
-        False,
-    ),
-    "camera.distortion_model": (
+    "camera.distortion_model": Parameter(
         "plumb_bob",
         "fallback distortion model: plumb_bob, rational_polynomial, equidistant or none",
-        None,
-        False,
     ),
-    "camera.d": (
-        [0.0, 0.0, 0.0, 0.0, 0.0],
-        "fallback distortion coefficients (OpenCV order)",
-        None,
-        False,
+    "camera.d": Parameter(
+        [0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)"
     ),
-    "frontend": (
+    "frontend": Parameter(
         "none",
         "image front end: none (no image subscription), aruco, features or board "
         "(checkerboard, ChArUco or AprilTag/ArUco tag board from a board YAML)",
-        None,
-        True,
+        read_only=True,
     ),
-    "frontend_map": (
+    "frontend_map": Parameter(
         "",
         "map of the front end: aruco: marker map YAML, scene YAML or a "
         "built-in scene name (aruco_room); features: feature map .npz; board: "
         "board YAML (reloaded on change)",
-        None,
-        False,
     ),
-    "image_transport": (
+    "image_transport": Parameter(
         "raw",
         "image input with a front end: raw (sensor_msgs/Image on image) "
         "or compressed (sensor_msgs/CompressedImage, JPEG or PNG, on "
         "image/compressed, decoded with OpenCV)",
-        None,
-        True,
+        read_only=True,
     ),
-    "republish_correspondences": (
+    "republish_correspondences": Parameter(
         False,
         "publish the front end's correspondences on "
         "correspondences_out (PointCloud2) for inspection",
-        None,
-        False,
     ),
 }
+
 
 #: values of the ``frontend`` parameter
 FRONTEND_KINDS = ("none",) + FRONTENDS
 #: values of the ``image_transport`` parameter
 IMAGE_TRANSPORTS = ("raw", "compressed")
+#: options groups a :attr:`Parameter.field` names -> the prefix its parameter names drop
+#: (``estimate``: :class:`EstimateOptions`, ``tracking``: :class:`TrackerOptions`, ``imu``:
+#: :class:`ImuConfig`)
+OPTION_GROUPS = {"estimate": "", "tracking": "tracking.", "imu": "imu."}
 
 
 #: parameter-file entries that belong to the node but are not localizer parameters: the
@@ -497,7 +457,10 @@ class ConfigError(ValueError):
 
 def default_values() -> dict[str, Any]:
     """Every parameter at its default value (lists copied)."""
-    return {k: (list(v[0]) if isinstance(v[0], list) else v[0]) for k, v in PARAMETERS.items()}
+    return {
+        k: (list(p.default) if isinstance(p.default, list) else p.default)
+        for k, p in PARAMETERS.items()
+    }
 
 
 def check_parameter(name: str, value: Any) -> None:
@@ -510,7 +473,7 @@ def check_parameter(name: str, value: Any) -> None:
     """
     if name not in PARAMETERS:
         raise ConfigError(f"unknown parameter {name!r}")
-    default, desc, rng, _ = PARAMETERS[name]
+    default, desc, rng = PARAMETERS[name][:3]
     kind = type(default).__name__
 
     if isinstance(default, list):
@@ -586,46 +549,61 @@ def read_params_file(path: str | os.PathLike, node_name: str = "rs_localizer") -
     return out
 
 
+def _typed(default: Any, value: Any) -> Any:
+    """``value`` as its parameter's type (ROS gives the declared type; a parameter file read by
+    :func:`read_params_file` is checked by :func:`check_parameter` first)."""
+    if isinstance(default, bool):
+        return bool(value)
+    if isinstance(default, (int, float, str)):
+        return type(default)(value)
+    return list(value)
+
+
+def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields of options group ``group`` that parameters set (:attr:`Parameter.field`),
+    as a tree ``{field: value or {subfield: ...}}`` of the values in ``values``.
+
+    Raises:
+        KeyError: ``values`` lacks one of the group's parameters.
+    """
+    tree: dict[str, Any] = {}
+    for name, par in PARAMETERS.items():
+        if par.field is None or par.field.split(":")[0] != group:
+            continue
+        _, _, path = par.field.partition(":")
+        if not path:
+            prefix = OPTION_GROUPS[group]
+            path = name[len(prefix) :] if prefix and name.startswith(prefix) else name
+        *parents, leaf = path.split(".")
+        node = tree
+        for k in parents:
+            node = node.setdefault(k, {})
+        node[leaf] = _typed(par.default, values[name])
+    return tree
+
+
+def _replace(obj: Any, tree: Mapping[str, Any]) -> Any:
+    """Frozen dataclass ``obj`` with the fields of ``tree`` replaced (nested dataclasses
+    recursively); the classes validate the result."""
+    changes = {
+        k: _replace(getattr(obj, k), v) if isinstance(v, Mapping) else v for k, v in tree.items()
+    }
+    return dataclasses.replace(obj, **changes)
+
+
 def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
-    """The estimator options of the parameters ``ransac.*``, ``refine``, ``motion_prior.*``,
-    ``max_angular_velocity``, ``max_linear_velocity`` and ``correlated_noise.*`` (every other
-    option at its default).
+    """The estimator options of the parameters whose :attr:`Parameter.field` is in the
+    ``estimate`` group (``ransac.*``, ``refine``, ``motion_prior.*``, ``max_angular_velocity``,
+    ``max_linear_velocity``, ``correlated_noise.*``); every other option at its default.
 
     Raises:
         TypeError, ValueError: from :class:`EstimateOptions` (e.g. a confidence outside (0, 1)).
     """
-    return EstimateOptions(
-        ransac=RansacOptions(
-            threshold_px=float(values["ransac.threshold_px"]),
-            max_iterations=int(values["ransac.max_iterations"]),
-            confidence=float(values["ransac.confidence"]),
-            min_inliers=int(values["ransac.min_inliers"]),
-            seed=int(values["ransac.seed"]),
-        ),
-        refine=RefineOptions(enabled=bool(values["refine"])),
-        motion_prior=MotionPrior(
-            float(values["motion_prior.angular_velocity_sigma"]),
-            float(values["motion_prior.linear_velocity_sigma"]),
-        ),
-        plausibility=PlausibilityOptions(
-            max_angular_velocity=float(values["max_angular_velocity"]),
-            max_linear_velocity=float(values["max_linear_velocity"]),
-        ),
-        correlated_noise=CorrelatedNoise(
-            sigma_px=float(values["correlated_noise.sigma_px"]),
-            length_px=float(values["correlated_noise.length_px"]),
-        ),
-    )
-
-
-def points_needed(solver: str, options: EstimateOptions) -> int:
-    """Fewest correspondences a pose needs: the estimator's ``min_inliers`` and one more than
-    the solver's minimal sample."""
-    return max(options.ransac.min_inliers, sample_size(solver) + 1)
+    return _replace(EstimateOptions(), option_fields("estimate", values))
 
 
 def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
-    """The video tracker's options of the ``tracking.*`` parameters; None when
+    """The video tracker's options of the parameters in the ``tracking`` group; None when
     ``tracking.enabled`` is false (every frame alone).
 
     Raises:
@@ -633,16 +611,7 @@ def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
     """
     if not bool(values["tracking.enabled"]):
         return None
-    return TrackerOptions(
-        gate_px=float(values["tracking.gate_px"]),
-        max_gap=float(values["tracking.max_gap"]),
-        prior_from_prediction=str(values["tracking.prior_from_prediction"]),
-        fusion=FusionOptions(
-            lag=int(values["tracking.lag"]),
-            angular_noise=float(values["tracking.angular_noise"]),
-            linear_noise=float(values["tracking.linear_noise"]),
-        ),
-    )
+    return _replace(TrackerOptions(), option_fields("tracking", values))
 
 
 @dataclass(frozen=True)
@@ -684,19 +653,7 @@ def imu_config(values: Mapping[str, Any]) -> ImuConfig | None:
     bias = np.asarray(values["imu.gyro_bias"], dtype=float).reshape(-1)
     if bias.shape != (3,) or not np.isfinite(bias).all():
         raise ValueError(f"imu.gyro_bias must be 3 finite numbers (rad/s), got {bias.tolist()}")
-    return ImuConfig(
-        R_cam_imu=R,
-        time_offset=float(values["imu.time_offset"]),
-        gyro_noise=float(values["imu.gyro_noise"]),
-        gyro_bias=bias,
-        gyro_bias_sigma=float(values["imu.gyro_bias_sigma"]),
-        wait=float(values["imu.wait"]),
-        buffer=float(values["imu.buffer"]),
-        max_rate=float(values["imu.max_rate"]),
-        max_gap=float(values["imu.max_gap"]),
-        estimate_bias=bool(values["imu.estimate_bias"]),
-        bias_random_walk=float(values["imu.bias_random_walk"]),
-    )
+    return ImuConfig(R_cam_imu=R, gyro_bias=bias, **option_fields("imu", values))
 
 
 @dataclass(frozen=True, eq=False)
@@ -791,28 +748,9 @@ def _frontend_needs(kind: str) -> str:
     return "feature map .npz)"
 
 
-def build_config(
-    values: Mapping[str, Any],
-    *,
-    owner: object | None = None,
-    current: LocalizerConfig | None = None,
-) -> LocalizerConfig:
-    """The configuration of a full set of parameter values (one per :data:`PARAMETERS` name).
-
-    Loads the landmark table (``landmarks_file``) and the front end's map (``frontend_map``)
-    through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on behalf of ``owner`` (one
-    copy per process, released with ``SHARED_MAPS.release(owner)``); the front end of
-    ``current`` is reused when its kind and map are unchanged. Types and ranges are not checked
-    here (ROS does it for the node, :func:`check_parameter` for replay).
-
-    Raises:
-        ConfigError: the first unusable value, with a message naming the parameter (unknown
-            solver, direction, front end or transport; estimator or tracking options their
-            classes reject; ``max_points`` below what a pose needs; non-finite or invalid
-            fallback intrinsics; rolling-shutter timing; ``camera_to_base``; a landmark or
-            front-end map that does not load).
-    """
-    p = values
+def _estimation(p: Mapping[str, Any]) -> tuple[EstimateOptions, TrackerOptions | None, Any]:
+    """Stage of :func:`build_config`: solver, estimator options (and what a pose needs against
+    ``max_points``), tracker options and the gyro's use."""
     if p["solver"] not in SOLVERS:
         raise ConfigError(f"unknown solver {p['solver']!r}; expected one of {list(SOLVERS)}")
     if p["rs.direction"] not in READOUT_DIRECTIONS:
@@ -831,7 +769,6 @@ def build_config(
             f"(ransac.min_inliers {int(p['ransac.min_inliers'])}, solver {p['solver']}): every "
             "frame would fail"
         )
-    ref = float(p["rs.reference_row"])
     try:
         tracking = tracker_options(p)
     except (TypeError, ValueError) as e:
@@ -840,8 +777,21 @@ def build_config(
         imu = imu_config(p)
     except (TypeError, ValueError) as e:
         raise ConfigError(f"invalid imu parameters: {e}") from None
+    return opts, tracking, imu
+
+
+def _timing(p: Mapping[str, Any]) -> tuple[float, float, str, float | None]:
+    """Stage of :func:`build_config`: the rolling-shutter timing ``(line_delay, readout_time,
+    direction, reference_row or None)`` of the ``rs.*`` parameters (checked with the fallback
+    camera, then alone)."""
+    ref = float(p["rs.reference_row"])
     line_delay, readout_time = float(p["rs.line_delay"]), float(p["rs.readout_time"])
-    direction, reference_row = p["rs.direction"], (None if ref < 0 else ref)
+    return line_delay, readout_time, p["rs.direction"], (None if ref < 0 else ref)
+
+
+def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
+    """Stage of :func:`build_config`: the camera model of the ``camera.*`` parameters (None:
+    ``camera.fx <= 0``), then the check of the rolling-shutter timing on its own."""
     if not all(
         math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx", "camera.cy")
     ):
@@ -868,19 +818,20 @@ def build_config(
                 p["camera.width"],
                 p["camera.height"],
                 p["camera.distortion_model"],
-                line_delay,
-                readout_time,
-                direction,
-                reference_row,
+                *timing,
             )
         except ValueError as e:
             raise ConfigError(f"invalid fallback camera parameters: {e}") from None
     try:
-        cv.camera_model(
-            np.eye(3), [], 10, 10, "plumb_bob", line_delay, readout_time, direction, reference_row
-        )
+        cv.camera_model(np.eye(3), [], 10, 10, "plumb_bob", *timing)
     except ValueError as e:
         raise ConfigError(f"invalid rolling-shutter parameters: {e}") from None
+    return fallback
+
+
+def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
+    """Stage of :func:`build_config`: ``(base_frame, the base_frame -> camera mounting or
+    None)``."""
     base_frame, extrinsic = str(p["base_frame"]).strip(), None
     if base_frame:
         try:
@@ -889,13 +840,11 @@ def build_config(
             )
         except ValueError as e:
             raise ConfigError(f"invalid camera_to_base: {e}") from None
-    path = p["landmarks_file"]
-    landmarks = None
-    if path:
-        try:  # (loaded once per process: cameras naming the same file share it)
-            landmarks = SHARED_MAPS.landmarks(path, owner=owner)
-        except (OSError, ValueError) as e:
-            raise ConfigError(f"cannot load landmarks_file {path!r}: {e}") from None
+    return base_frame, extrinsic
+
+
+def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
+    """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
     kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
     if kind not in FRONTEND_KINDS:
         raise ConfigError(
@@ -907,22 +856,31 @@ def build_config(
             f"unknown image_transport {p['image_transport']!r}; expected one of "
             f"{list(IMAGE_TRANSPORTS)}"
         )
-    frontend = None
-    if kind != "none":
-        if not fmap:
-            raise ConfigError(f"frontend {kind} needs frontend_map (" + _frontend_needs(kind))
-        if current is not None and (kind, fmap) == (current.frontend_kind, current.frontend_map):
-            frontend = current.frontend
-        else:
-            try:
-                if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
-                    check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
-                # (the map is loaded once per process and shared by cameras naming it)
-                frontend = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap), owner=owner)
-            except Exception as e:
-                raise ConfigError(
-                    f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
-                ) from None
+    if kind != "none" and not fmap:
+        raise ConfigError(f"frontend {kind} needs frontend_map (" + _frontend_needs(kind))
+    return kind, fmap, transport
+
+
+def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
+    """The configuration of a full set of parameter values (one per :data:`PARAMETERS` name),
+    without its maps: ``landmarks`` and ``frontend`` are None until :func:`load_maps` loads
+    them. Reads no file. Types and ranges are not checked here (ROS does it for the node,
+    :func:`check_parameter` for replay).
+
+    Raises:
+        ConfigError: the first unusable value, with a message naming the parameter (unknown
+            solver, direction, front end or transport; estimator or tracking options their
+            classes reject; ``max_points`` below what a pose needs; non-finite or invalid
+            fallback intrinsics; rolling-shutter timing; ``camera_to_base``; a front end
+            without ``frontend_map``).
+    """
+    p = values
+    opts, tracking, imu = _estimation(p)
+    timing = _timing(p)
+    fallback = _fallback_camera(p, timing)
+    base_frame, extrinsic = _mounting(p)
+    kind, fmap, transport = _image_input(p)
+    line_delay, readout_time, direction, reference_row = timing
     return LocalizerConfig(
         solver=p["solver"],
         options=opts,
@@ -942,14 +900,50 @@ def build_config(
         camera_info_wait=float(p["camera_info_wait"]),
         fallback=fallback,
         landmarks_file=p["landmarks_file"],
-        landmarks=landmarks,
+        landmarks=None,
         frontend_kind=kind,
         frontend_map=fmap,
-        frontend=frontend,
+        frontend=None,
         image_transport=transport,
         republish_correspondences=bool(p["republish_correspondences"]),
         imu=imu,
     )
+
+
+def load_maps(
+    cfg: LocalizerConfig, *, owner: object | None = None, current: LocalizerConfig | None = None
+) -> LocalizerConfig:
+    """``cfg`` with its maps: the landmark table of ``landmarks_file`` and the front end of
+    ``frontend_map``, loaded through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on
+    behalf of ``owner`` (one copy per process, released with ``SHARED_MAPS.release(owner)``).
+    The front end of ``current`` is reused when its kind and map are unchanged.
+
+    Raises:
+        ConfigError: a landmark table or front-end map that does not load (missing, not a
+            regular file, malformed), naming the parameter.
+    """
+    landmarks, frontend = None, None
+    path = cfg.landmarks_file
+    if path:
+        try:  # (loaded once per process: cameras naming the same file share it)
+            landmarks = SHARED_MAPS.landmarks(path, owner=owner)
+        except (OSError, ValueError) as e:
+            raise ConfigError(f"cannot load landmarks_file {path!r}: {e}") from None
+    kind, fmap = cfg.frontend_kind, cfg.frontend_map
+    if kind != "none":
+        if current is not None and (kind, fmap) == (current.frontend_kind, current.frontend_map):
+            frontend = current.frontend
+        else:
+            try:
+                if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
+                    check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
+                # (the map is loaded once per process and shared by cameras naming it)
+                frontend = SHARED_MAPS.frontend(kind, os.path.expanduser(fmap), owner=owner)
+            except Exception as e:
+                raise ConfigError(
+                    f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
+                ) from None
+    return dataclasses.replace(cfg, landmarks=landmarks, frontend=frontend)
 
 
 def parameter_values(

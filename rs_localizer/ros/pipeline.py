@@ -6,18 +6,14 @@ keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messag
 the same fields) and returns a :class:`FrameResult`: the checks (stamp, empty cloud), time
 resets, the camera model of the frame's stamp (:class:`.camera_info_history.CameraInfoHistory`,
 fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
-front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), the gyro
-measurement of the frame's readout when ``imu.enabled`` (:class:`~rs_localizer.estimation.gyro.
-ImuBuffer`, fed by :meth:`FramePipeline.add_imu`; with ``imu.estimate_bias`` the gyro bias
-estimated online from the solved frames,
-:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`; the gyro left out while the
-rotation between solved frames contradicts it, :class:`~rs_localizer.estimation.gyro_check.
-GyroMountCheck`), the estimate
-(:class:`~rs_localizer.estimation.tracker.RSTracker` with tracking, else
-:func:`~rs_localizer.estimation.estimate_rs_pose`), and what is to be published: the pose and
-the frame's own twist, and the fused twists that became final (a frame ``tracking.lag`` frames
-back). :mod:`.outputs` turns a result into messages. Counters for the diagnostics are kept in
-:attr:`FramePipeline.stats`. No module-level ROS import.
+front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), then the camera's
+video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the library's video
+entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro measurement of the
+frame's readout when ``imu.enabled``, the online gyro bias, the check of the gyro against the
+image, the video tracker with ``tracking.enabled`` or else each frame alone), and what is to be
+published: the pose and the frame's own twist, and the fused twists that became final (a frame
+``tracking.lag`` frames back). :mod:`.outputs` turns a result into messages. Counters for the
+diagnostics are kept in :attr:`FramePipeline.stats`. No module-level ROS import.
 """
 
 from __future__ import annotations
@@ -32,14 +28,19 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
-from ..estimation import estimate_rs_pose
-from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
-from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
+from ..correspondences import Correspondences, TrackingFrontend
+from ..estimation.gyro import ImuBuffer
+from ..estimation.gyro_bias import GyroBiasEstimator
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.points import cap_points
-from ..estimation.tracker import RSTracker
 from ..frames import camera_to_base
-from ..solvers.registry import solver_info
+from ..tracking.sequence import (
+    FusedPose,
+    SequenceFrame,
+    SequenceLocalizer,
+    SequenceSettings,
+    reference_stamp_ns,
+)
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .params import LocalizerConfig
@@ -61,8 +62,6 @@ __all__ = [
 FRAME_KINDS = ("correspondences", "keypoints", "image")
 #: s between two log lines of the same kind (per failure reason)
 LOG_PERIOD = 2.0
-#: frames whose fused twist may wait at most (the oldest beyond are dropped)
-_MAX_PENDING = 64
 _STATS_KEPT = 1000
 
 
@@ -100,19 +99,6 @@ def log_warm_up(solver: str, options: Any, tracking: Any, logger: Any, gyro: boo
         )
     except Exception as e:
         logger.warning(f"warm-up ({solver}) failed: {type(e).__name__}: {e}")
-
-
-def _gyro_calibration(imu) -> tuple:
-    """The ``imu.*`` calibration values (mounting, time offset, noise, bias and its sigma) as
-    a comparable tuple: a gyro-bias estimate or a gyro check is started again when they
-    change at run time."""
-    return (
-        tuple(np.round(imu.R_cam_imu, 12).ravel()),
-        imu.time_offset,
-        imu.gyro_noise,
-        tuple(imu.gyro_bias),
-        imu.gyro_bias_sigma,
-    )
 
 
 class _Drop(ValueError):
@@ -218,18 +204,6 @@ class PipelineStats:
             )
 
 
-class _Fused:
-    """A frame's published pose (from its estimate) with its fused twist (a
-    :class:`~rs_localizer.estimation.fusion.FusedState`): what twist / odom carry."""
-
-    def __init__(self, est, fused):
-        self.orientation, self.position = est.orientation, est.position
-        self.pose_covariance = est.pose_covariance
-        self.angular_velocity = fused.angular_velocity
-        self.linear_velocity = fused.linear_velocity
-        self.twist_covariance = fused.twist_covariance
-
-
 @dataclass(frozen=True)
 class FusedOutput:
     """The twist / odom of an earlier frame, final now: ``source`` has the frame's pose and
@@ -260,8 +234,8 @@ class FrameResult:
         fused: twist / odom of earlier frames that became final with this one (also on a
             failed frame).
         image: ``(array, encoding, stamp_ns)`` of a decoded input image.
-        correspondences: ``(points2d, points3d, ids, scores)`` the front end made of the image
-            (with ``republish_correspondences``).
+        correspondences: the :class:`~rs_localizer.correspondences.Correspondences` the front
+            end made of the image (with ``republish_correspondences``).
         times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
             estimator (``frontend`` alone for one the front end dropped).
     """
@@ -280,7 +254,7 @@ class FrameResult:
     twist_now: bool = False
     fused: list[FusedOutput] = field(default_factory=list)
     image: tuple | None = None
-    correspondences: tuple | None = None
+    correspondences: Correspondences | None = None
     times: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -317,26 +291,10 @@ class FramePipeline:
         self.history = CameraInfoHistory()
         self._stopped = stopped
         self._config: LocalizerConfig | None = None
-        self._last_stamp: int | None = None  # of the last frame processed (time resets)
-        # video tracking: the tracker, what it was made for, the frames waiting for their fused
-        # twist (output stamp -> (estimate, frame id)), the lock between process() and
-        # flush_idle(), counters of the trackers dropped so far
-        self._tracker: RSTracker | None = None
-        self._tracker_key = None
-        self._tracker_camera = None
-        self._pending: dict[int, tuple] = {}
-        self._track_lock = threading.RLock()
-        self._last_frame_wall: float | None = None
-        self._track_counts: Counter = Counter()
-        # the gyro samples (imu.enabled); imu_span overrides imu.buffer (replay: all of a bag)
-        self.imu: ImuBuffer | None = None
-        self._imu_span = imu_span
-        # the online gyro-bias estimate (imu.estimate_bias) and the parameters it started from
-        self.gyro_bias: GyroBiasEstimator | None = None
-        self._bias_key = None
-        # the sequence-level check of the gyro against the image (imu.enabled)
-        self.gyro_check: GyroMountCheck | None = None
-        self._check_key = None
+        # the camera's video state: tracker, fused twists pending, gyro, bias, gyro check
+        self.sequence = SequenceLocalizer(
+            log=self.log, count=self.stats.add, stopped=stopped, imu_span=imu_span
+        )
         if config is not None:
             self.configure(config)
 
@@ -348,74 +306,50 @@ class FramePipeline:
     def configure(self, config: LocalizerConfig) -> None:
         """Use ``config`` from the next frame on; the camera models of the camera_infos
         received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
-        and logged)."""
+        and logged), the video state keeps what still applies
+        (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.configure`)."""
         self._config = config
-        imu = config.imu
-        if imu is None:
-            self.imu = None
-        elif self.imu is None or (self.imu.max_rate, self.imu.max_gap_ns) != (
-            imu.max_rate,
-            int(imu.max_gap * 1e9),
-        ):
-            span = imu.buffer if self._imu_span is None else self._imu_span
-            old, self.imu = self.imu, ImuBuffer(span, imu.max_rate, imu.max_gap)
-            if old is not None:  # (keep the samples received so far)
-                for t, w in old.samples():
-                    self.imu.add(t, w)
-        self._configure_bias(imu)
-        self._configure_check(imu)
+        self.sequence.configure(
+            SequenceSettings(
+                solver=config.solver,
+                options=config.options,
+                tracking=config.tracking,
+                imu=config.imu,
+                stamp_row=config.stamp_row,
+                time_reset_ns=config.time_reset_ns,
+            )
+        )
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
 
-    def _configure_bias(self, imu) -> None:
-        """The online bias estimator of ``imu.estimate_bias``: kept while the ``imu.*`` values
-        it depends on stay the same, else started again from ``imu.gyro_bias`` with
-        ``imu.gyro_bias_sigma`` (a new calibration given at run time replaces the estimate)."""
-        if imu is None or not imu.estimate_bias:
-            self.gyro_bias = self._bias_key = None
-            return
-        key = (*_gyro_calibration(imu), imu.bias_random_walk)
-        if self.gyro_bias is None or key != self._bias_key:
-            self.gyro_bias = GyroBiasEstimator(
-                imu.gyro_bias,
-                imu.gyro_bias_sigma,
-                imu.R_cam_imu,
-                imu.gyro_noise,
-                imu.time_offset,
-                GyroBiasOptions(random_walk=imu.bias_random_walk),
-            )
-            self._bias_key = key
+    @property
+    def imu(self) -> ImuBuffer | None:
+        """The gyro samples (``imu.enabled``), else None."""
+        return self.sequence.imu
 
-    def _configure_check(self, imu) -> None:
-        """The check of the gyro against the image (:class:`GyroMountCheck`): kept while
-        the ``imu.*`` values it tests stay the same, else started again (consistent): a
-        corrected ``imu.rotation`` or ``imu.time_offset`` given at run time is tested anew."""
-        if imu is None:
-            self.gyro_check = self._check_key = None
-            return
-        key = (*_gyro_calibration(imu), imu.estimate_bias)
-        if self.gyro_check is None or key != self._check_key:
-            self.gyro_check = GyroMountCheck(imu.R_cam_imu, imu.gyro_noise, imu.time_offset)
-            self._check_key = key
+    @property
+    def gyro_bias(self) -> GyroBiasEstimator | None:
+        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
+        return self.sequence.gyro_bias
+
+    @property
+    def gyro_check(self) -> GyroMountCheck | None:
+        """The check of the gyro against the image (``imu.enabled``), else None."""
+        return self.sequence.gyro_check
 
     @property
     def gyro_inconsistent(self) -> bool:
         """True while the rotation between solved frames contradicts the gyro and frames are
-        solved without it (``imu.enabled``; :class:`GyroMountCheck`)."""
-        check = self.gyro_check
-        return check is not None and check.inconsistent
+        solved without it (``imu.enabled``)."""
+        return self.sequence.gyro_inconsistent
 
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
         IMU frame): the online estimate with ``imu.estimate_bias``, else ``imu.gyro_bias``
         and ``imu.gyro_bias_sigma``; None without ``imu.enabled``."""
-        cfg = self._config
-        if cfg is None or cfg.imu is None:
+        if self._config is None:
             return None
-        est = self.gyro_bias
-        if est is not None:
-            return est.bias.copy(), est.std
-        return np.array(cfg.imu.gyro_bias, dtype=float), np.full(3, cfg.imu.gyro_bias_sigma)
+        return self.sequence.gyro_bias_values()
 
     def camera_source(self) -> str:
         """Where the intrinsics come from: ``camera_info``, ``parameters`` (fallback) or
@@ -467,8 +401,7 @@ class FramePipeline:
         the message's "no data"), ``bad_stamp`` and the reasons of
         :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or repeated,
         NaN or saturated rates)."""
-        buf = self.imu
-        if buf is None:
+        if self.sequence.imu is None:
             return "disabled"
         if float(msg.angular_velocity_covariance[0]) == -1.0:
             reason = "no_angular_velocity"
@@ -479,47 +412,12 @@ class FramePipeline:
                 reason = "bad_stamp"
             else:
                 a = msg.angular_velocity
-                reason = buf.add(stamp, (a.x, a.y, a.z))
+                reason = self.sequence.add_imu(stamp, (a.x, a.y, a.z))
         if reason is not None:
             self.stats.add("imu_rejected")
             self.stats.add(f"imu_rejected.{reason}")
             self.log.warning(f"imu.{reason}", f"IMU sample rejected ({reason})")
         return reason
-
-    def _gyro_for(self, stamp: int, camera: CameraModel, cfg: LocalizerConfig):
-        """The gyro measurement of the frame's readout (waiting up to ``imu.wait`` for the
-        samples covering it), or None (``gyro_missing.<reason>`` counted; the frame is solved
-        without)."""
-        imu, buf = cfg.imu, self.imu
-        if imu is None or buf is None or camera.line_delay <= 0:
-            return None
-        a, b = readout_window(camera, 0.0, cfg.stamp_row)  # (s from the stamp)
-        first, last = stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9))
-        off = int(round(imu.time_offset * 1e9))
-        buf.wait_until(last - off, imu.wait, self._stopped)
-        if self.gyro_bias is not None:  # (the online estimate and its covariance)
-            gyro, reason = self.gyro_bias.measurement(buf, (first, last))
-        else:
-            gyro, reason = buf.measurement(
-                (first, last),
-                imu.R_cam_imu,
-                imu.gyro_bias,
-                imu.gyro_noise,
-                imu.gyro_bias_sigma,
-                imu.time_offset,
-            )
-        if gyro is None:
-            self.stats.add("gyro_missing")
-            self.stats.add(f"gyro_missing.{reason}")
-            self.log.warning(
-                f"gyro.{reason}",
-                f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
-                "imu.time_offset",
-            )
-        elif self.gyro_inconsistent:  # (the image refutes the gyro over the last pairs)
-            self.stats.add("gyro_disabled_inconsistent")
-            return None
-        return gyro
 
     # ---------------------------------------------------------------- frames
     def process(self, msg: Any, kind: str) -> FrameResult:
@@ -548,7 +446,7 @@ class FramePipeline:
         res.stamp_ns = stamp
         if kind != "image" and int(msg.width) * int(msg.height) == 0:
             raise _Drop("empty_cloud", "cloud has no points")
-        self._check_time(stamp, cfg)
+        self._check_time(stamp)
         camera = self.history.camera_for(stamp, cfg.fallback, cfg.camera_info_wait, self._stopped)
         if camera is None:
             raise _Drop(
@@ -558,9 +456,7 @@ class FramePipeline:
                 "(camera.fx <= 0)",
             )
         res.camera = camera
-        out_stamp = stamp + int(
-            round(camera.time_offset(cfg.stamp_row, camera.reference_line) * 1e9)
-        )
+        out_stamp = reference_stamp_ns(stamp, camera, cfg.stamp_row)
         if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
             raise _Drop(
                 "bad_stamp",
@@ -571,136 +467,54 @@ class FramePipeline:
         uv, xyz, scores = self._extract(msg, kind, camera, stamp, cfg, res)
         uv, xyz, scores = self._valid_rows(uv, xyz, scores, cfg)
         res.points2d, res.points3d = uv, xyz
-        gyro: GyroMeasurement | None = self._gyro_for(stamp, camera, cfg)
         t_decoded = time.perf_counter()
-        with self._track_lock:
-            final = []
-            try:
-                if cfg.tracking is not None:
-                    old = self._tracker
-                    tracker, final = self._tracker_for(camera, cfg)
-                    r = tracker.process(out_stamp, uv, xyz, camera, scores, gyro=gyro)
-                    est = r.estimate
-                    new_track = tracker is not old or r.state in ("cold", "reset")
-                    final = final + r.final
-                    self._last_frame_wall = time.monotonic()
-                else:
-                    self._drop_tracker()
-                    new_track = False
-                    est = estimate_rs_pose(
-                        uv,
-                        xyz,
-                        camera,
-                        solver=cfg.solver,
-                        options=cfg.options,
-                        scores=scores,
-                        gyro=gyro,
-                    )
-            except Exception as e:
-                res.fused = self._fused_outputs(final, cfg)
-                raise _Drop("estimator_error", f"{type(e).__name__}: {e}") from None
-            t_estimated = time.perf_counter()
-            t_frontend = res.times.get("frontend", 0.0)
-            res.times = {
-                "decode": t_decoded - tic - t_frontend,
-                "frontend": t_frontend,
-                "estimate": t_estimated - t_decoded,
-            }
-            self.stats.add("points_dropped", int(est.num_dropped))
-            if est.gyro_rejected:
-                self.stats.add("gyro_rejected")
-                self.log.warning(
-                    "gyro.rejected",
-                    "the image disagrees with the gyro: frame solved without it (check "
-                    "imu.rotation, imu.time_offset and imu.gyro_bias)",
-                )
-            elif est.gyro_used and est.success:
-                self.stats.add("frames_with_gyro")
-            self._update_gyro_checks(est, out_stamp, new_track, cfg)
-            res.estimate = est
-            if not est.success:  # (twists of earlier frames a reset made final still go out)
-                res.fused = self._fused_outputs(final, cfg)
-                raise _Drop(
-                    est.failure or "estimator_error",
-                    f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg.solver}",
-                )
-            self.stats.solved(est.num_inliers, est.planar, est.condition_number)
-            res.output, res.output_frame = est, res.frame_id
-            if cfg.extrinsic is not None:
-                res.output, res.output_frame = camera_to_base(est, cfg.extrinsic), cfg.base_frame
-            # (global-shutter solver or timing: no twist to fuse; twist / odom stay the
-            # per-frame, zero, twist)
-            res.twist_now = (
-                cfg.tracking is None
-                or not solver_info(cfg.solver).rolling
-                or camera.seconds_per_unit_r <= 0
+        out = self.sequence.process(SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id))
+        t_estimated = time.perf_counter()
+        t_frontend = res.times.get("frontend", 0.0)
+        res.times = {  # (the wait for the gyro samples counts as decoding, as for camera_info)
+            "decode": t_decoded - tic - t_frontend + out.gyro_seconds,
+            "frontend": t_frontend,
+            "estimate": t_estimated - t_decoded - out.gyro_seconds,
+        }
+        res.fused = self._fused_outputs(out.fused, cfg)
+        est = out.estimate
+        if kind == "image" and isinstance(cfg.frontend, TrackingFrontend):
+            self._observe(cfg, stamp, uv, est)
+        if est is None:
+            raise _Drop("estimator_error", out.error or "no estimate")
+        self.stats.add("points_dropped", int(est.num_dropped))
+        res.estimate = est
+        if not est.success:
+            raise _Drop(
+                est.failure or "estimator_error",
+                f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg.solver}",
             )
-            if not res.twist_now:  # twist / odom when the frame's fused twist is final
-                self._pending[out_stamp] = (est, res.frame_id)
-                res.fused = self._fused_outputs(final, cfg)
+        self.stats.solved(est.num_inliers, est.planar, est.condition_number)
+        res.output, res.output_frame = est, res.frame_id
+        if cfg.extrinsic is not None:
+            res.output, res.output_frame = camera_to_base(est, cfg.extrinsic), cfg.base_frame
+        res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
 
-    def _update_gyro_checks(self, est, out_stamp: int, new_track: bool, cfg) -> None:
-        """Feed a frame to the check of the gyro against the image and to the online bias
-        estimator (``imu.estimate_bias``): a solved frame pairs with the previous one; a failed
-        frame or a new track (tracker reset) restarts the pairing. A pair the check fails is
-        counted in ``gyro_pairs_failed``; when the check declares the gyro inconsistent it is
-        warned about once, and the bias estimator gets no pairs until it is consistent again
-        (a wrong mount would pull the bias). A pair the bias estimator's chi-square test rejects
-        is counted in ``gyro_bias_rejected``."""
-        check, bias, buf = self.gyro_check, self.gyro_bias, self.imu
-        if check is None or buf is None:
-            return
-        if new_track or not est.success:
-            check.restart()
-            if bias is not None:
-                bias.restart()
-        if not est.success:
-            return
-        cov = est.covariance[:3, :3] if est.covariance is not None else np.full((3, 3), np.nan)
-        if bias is not None:
-            b, Pb = bias.bias, bias.covariance
-        else:
-            b, Pb = np.asarray(cfg.imu.gyro_bias, float), cfg.imu.gyro_bias_sigma**2 * np.eye(3)
-        was = check.inconsistent
-        if check.update(out_stamp, est.orientation, cov, buf, b, Pb) == "failed":
-            self.stats.add("gyro_pairs_failed")
-        if check.inconsistent and not was:
-            self.stats.add("gyro_inconsistent_detections")
-            n_failed, n_pairs = check.window_failures
+    def _observe(self, cfg: LocalizerConfig, stamp: int, uv: np.ndarray, est: Any) -> None:
+        """Tell a tracking front end how its frame was solved (an error is logged, the frame
+        goes on)."""
+        try:
+            cfg.frontend.observe(stamp, uv, est)
+        except Exception as e:
             self.log.warning(
-                "gyro.inconsistent",
-                f"the rotation between frames contradicts the gyro ({n_failed} of the last "
-                f"{n_pairs} pairs, last residual {check.last_residual_deg:.2f} deg): frames "
-                "are solved without the gyro until it agrees again; check imu.rotation (IMU "
-                "-> camera optical frame), imu.time_offset and imu.gyro_bias",
+                "frontend_error", f"{cfg.frontend_kind}.observe: {type(e).__name__}: {e}"
             )
-        elif was and not check.inconsistent:
-            self.log.info("the gyro agrees with the image again: frames use it")
-        if bias is None:
-            return
-        if check.inconsistent:
-            bias.restart()
-            return
-        if bias.update(out_stamp, est.orientation, cov, buf) == "rejected":
-            self.stats.add("gyro_bias_rejected")
 
-    def _check_time(self, stamp: int, cfg: LocalizerConfig) -> None:
+    def _check_time(self, stamp: int) -> None:
         """A stamp older than the previous frame's, or newer by more than
         ``time_reset_threshold``: a time reset (counted and logged; the camera_infos stamped
-        after it are forgotten). Frames are never dropped for their stamp."""
-        last, self._last_stamp = self._last_stamp, stamp
-        if last is None:
-            return
-        if stamp < last:
-            why = (
-                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
-                " s older than the previous frame"
-            )
-        elif stamp - last > cfg.time_reset_ns:
-            why = f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)"
-        else:
+        after it are forgotten; the video state starts a new gyro timeline,
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.check_time`). Frames are never
+        dropped for their stamp."""
+        why = self.sequence.check_time(stamp)
+        if why is None:
             return
         self.stats.add("time_resets")
         self.log.warning("time_reset", f"time reset: {why}")
@@ -787,16 +601,14 @@ class FramePipeline:
         res.image = (img, enc, stamp)
         t0 = time.perf_counter()
         try:
-            uv, xyz, ids = fe.process(img, camera, encoding=enc)
+            found = Correspondences.of(fe.process(img, camera, encoding=enc))
         except Exception as e:
             raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
         res.times["frontend"] = time.perf_counter() - t0
-        scores = getattr(fe, "last_scores", None)
-        if scores is not None and len(scores) != len(uv):
-            scores = None
+        uv, xyz, scores = found.pixels, found.points, found.valid_scores()
         self.stats.frontend_ran(len(uv), res.times["frontend"])
         if cfg.republish_correspondences:
-            res.correspondences = (uv, xyz, ids, scores)
+            res.correspondences = Correspondences(uv, xyz, found.ids, scores)
         need = cfg.min_points
         if len(uv) < need:
             what = (
@@ -810,94 +622,40 @@ class FramePipeline:
         return uv, xyz, scores
 
     # ---------------------------------------------------------------- tracking
-    def _tracker_for(self, camera: CameraModel, cfg: LocalizerConfig):
-        """The tracker for this camera and configuration: a new one when the solver, the
-        estimator or tracking options or the camera model changed (the old track's pending
-        twists are returned, final). Returns (tracker, final fused states)."""
-        key = (cfg.solver, cfg.options, cfg.tracking, id(camera))
-        final = []
-        if self._tracker is None or key != self._tracker_key:
-            if self._tracker is not None:
-                final = self._drop_tracker(flush=True)
-                self._track_counts["resets"] += 1
-            self._tracker = RSTracker(cfg.solver, cfg.options, cfg.tracking)
-            self._tracker_key = key
-            self._tracker_camera = camera  # (keeps id(camera) unique while in use)
-        return self._tracker, final
-
-    def _drop_tracker(self, flush: bool = False) -> list:
-        """Forget the tracker (its counters are kept); returns its pending fused states when
-        ``flush``, else drops them with the outputs waiting for them."""
-        final = []
-        t = self._tracker
-        if t is not None:
-            for k in ("frames_tracked", "relocalizations", "resets"):
-                self._track_counts[k] += getattr(t, k)
-            final = t.reset() if flush else []
-        self._tracker = self._tracker_key = None
-        if not flush:
-            self._pending.clear()
-        return final
-
     def drop_tracker(self) -> None:
         """End the track (e.g. the node is deactivated): the twists still pending are
         dropped; the next frame starts a new track."""
-        with self._track_lock:
-            self._drop_tracker()
+        self.sequence.end_track()
 
-    def _fused_outputs(self, final: list, cfg: LocalizerConfig) -> list[FusedOutput]:
+    def _fused_outputs(self, fused: list[FusedPose], cfg: LocalizerConfig) -> list[FusedOutput]:
         """twist / odom of the frames whose fused state is final: the frame's own pose (as
         published) with the fused twist and its covariance, stamped with the frame's time."""
         out = []
-        for f in final:
-            item = self._pending.pop(f.stamp_ns, None)
-            if item is None:
-                continue
-            est, frame = item
-            src: Any = _Fused(est, f)
+        for f in fused:
+            src: Any = f
+            frame = f.tag
             if cfg.extrinsic is not None:
                 src, frame = camera_to_base(src, cfg.extrinsic), cfg.base_frame
             out.append(FusedOutput(f.stamp_ns, src, frame))
-        if len(self._pending) > _MAX_PENDING:  # (never left behind for long: drop the oldest)
-            for k in sorted(self._pending)[:-_MAX_PENDING]:
-                del self._pending[k]
         return out
 
     def flush_idle(self, now: float | None = None) -> list[FusedOutput]:
         """After ``tracking.max_gap`` s (wall clock) without frames the track is over (the
         next frame resets it): the twists still pending, now final."""
         cfg = self._config
-        if self._tracker is None or cfg is None or cfg.tracking is None:
+        if cfg is None:
             return []
-        with self._track_lock:
-            last = self._last_frame_wall
-            now = time.monotonic() if now is None else now
-            if (
-                self._tracker is None
-                or last is None
-                or not self._pending
-                or now - last < cfg.tracking.max_gap
-            ):
-                return []
-            return self._fused_outputs(self._tracker.flush(), cfg)
+        return self._fused_outputs(self.sequence.flush_idle(now), cfg)
 
     def flush(self) -> list[FusedOutput]:
         """The end of the input (a bag): the twists still pending, as they are now."""
-        with self._track_lock:
-            if self._tracker is None or not self._pending:
-                return []
-            return self._fused_outputs(self._tracker.flush(), self._config)
+        if self._config is None:
+            return []
+        return self._fused_outputs(self.sequence.flush(), self._config)
 
     def tracking_values(self) -> dict[str, Any]:
         """Diagnostics of video tracking: track_state (tracking, lost or disabled),
         frames_tracked, relocalizations, resets (over the pipeline's life)."""
-        t = self._tracker
-        tc = self._track_counts
-        on = self._config is not None and self._config.tracking is not None
-        state = "disabled" if not on else t.track_state if t is not None else "lost"
-        return {
-            "track_state": state,
-            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
-            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
-            "resets": tc["resets"] + (t.resets if t else 0),
-        }
+        if self._config is None:
+            return {**self.sequence.tracking_values(), "track_state": "disabled"}
+        return self.sequence.tracking_values()

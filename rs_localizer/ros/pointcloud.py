@@ -14,7 +14,9 @@ pixel coordinates) and ``x, y, z`` (map frame, metres), float32 or float64; opti
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +90,7 @@ def _dt_name(dt: int) -> str:
     return DATATYPE_NAMES.get(dt, f"unknown({dt})")
 
 
-def fields_to_dtype(fields, point_step: int, is_bigendian: bool = False) -> np.dtype:
+def fields_to_dtype(fields: Sequence[Any], point_step: int, is_bigendian: bool = False) -> np.dtype:
     """Structured dtype (itemsize ``point_step``) from a list of PointField-like objects
     (layouts seen before come from a cache: a camera sends the same layout every frame).
 
@@ -144,7 +146,7 @@ def _layout_dtype(layout: tuple, point_step: int, is_bigendian: bool) -> np.dtyp
     )
 
 
-def dtype_to_fields(dtype: np.dtype):
+def dtype_to_fields(dtype: np.dtype) -> list[tuple[str, int, int, int]]:
     """Structured dtype -> list of ``(name, offset, datatype, count)`` tuples.
 
     Raises:
@@ -164,7 +166,7 @@ def dtype_to_fields(dtype: np.dtype):
     return out
 
 
-def cloud_to_array(msg, names=None) -> np.ndarray:
+def cloud_to_array(msg: Any, names: Sequence[str] | None = None) -> np.ndarray:
     """PointCloud2 (rclpy or rosbags) -> 1-D structured array of ``width * height`` points.
 
     Args:
@@ -245,7 +247,7 @@ def pack_cloud(arr: np.ndarray) -> PackedCloud:
     return PackedCloud(dtype_to_fields(le), le.itemsize, len(arr), arr.tobytes())
 
 
-def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp=None):
+def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp: Any = None) -> Any:
     """Structured array -> rclpy ``sensor_msgs/PointCloud2`` (height 1, little endian, dense
     only if every float is finite). ``stamp``: a ``builtin_interfaces/Time`` or int nanoseconds."""
     from sensor_msgs.msg import PointCloud2, PointField
@@ -271,7 +273,7 @@ def array_to_cloud(arr: np.ndarray, frame_id: str = "", stamp=None):
     return msg
 
 
-def is_dense(arr) -> bool:
+def is_dense(arr: np.ndarray) -> bool:
     """True if every float field of the structured array is finite (PointCloud2 ``is_dense``)."""
     for nm in arr.dtype.names:
         if arr.dtype.fields[nm][0].kind == "f" and not np.isfinite(arr[nm]).all():
@@ -335,7 +337,7 @@ def _column(arr, name):
     return col
 
 
-def read_correspondences(msg) -> Correspondences:
+def read_correspondences(msg: Any) -> Correspondences:
     """Decode a correspondences cloud. Only the fields ``u, v, x, y, z, id, score`` are read;
     other fields are ignored. Non-finite rows are kept (the caller drops and counts them).
 
@@ -354,7 +356,7 @@ def read_correspondences(msg) -> Correspondences:
     return Correspondences(uv, xyz, ids, scores)
 
 
-def read_keypoints(msg) -> Keypoints:
+def read_keypoints(msg: Any) -> Keypoints:
     """Decode a keypoints cloud (``u, v, id`` [+ ``score``]; other fields are ignored).
     Raises CloudError like :func:`read_correspondences`."""
     types = _check_fields(
@@ -367,7 +369,13 @@ def read_keypoints(msg) -> Keypoints:
     return Keypoints(uv, ids, scores)
 
 
-def correspondence_array(uv, xyz, ids=None, scores=None, dtype="f4") -> np.ndarray:
+def correspondence_array(
+    uv: np.ndarray,
+    xyz: np.ndarray,
+    ids: np.ndarray | None = None,
+    scores: np.ndarray | None = None,
+    dtype: str = "f4",
+) -> np.ndarray:
     """Build the structured array of a correspondences cloud (u, v, x, y, z [, id] [, score])."""
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
@@ -388,7 +396,9 @@ def correspondence_array(uv, xyz, ids=None, scores=None, dtype="f4") -> np.ndarr
     return arr
 
 
-def keypoint_array(uv, ids, scores=None, dtype="f4") -> np.ndarray:
+def keypoint_array(
+    uv: np.ndarray, ids: np.ndarray, scores: np.ndarray | None = None, dtype: str = "f4"
+) -> np.ndarray:
     """Structured array of a keypoints cloud (u, v, id [, score])."""
     uv = np.asarray(uv, dtype=float).reshape(-1, 2)
     fields = [("u", dtype), ("v", dtype), ("id", "<u4")]
@@ -401,11 +411,26 @@ def keypoint_array(uv, ids, scores=None, dtype="f4") -> np.ndarray:
     return arr
 
 
-def correspondence_cloud(uv, xyz, ids=None, scores=None, frame_id="", stamp=None, dtype="f4"):
+def correspondence_cloud(
+    uv: np.ndarray,
+    xyz: np.ndarray,
+    ids: np.ndarray | None = None,
+    scores: np.ndarray | None = None,
+    frame_id: str = "",
+    stamp: Any = None,
+    dtype: str = "f4",
+) -> Any:
     """rclpy PointCloud2 of correspondences."""
     return array_to_cloud(correspondence_array(uv, xyz, ids, scores, dtype), frame_id, stamp)
 
 
-def keypoint_cloud(uv, ids, scores=None, frame_id="", stamp=None, dtype="f4"):
+def keypoint_cloud(
+    uv: np.ndarray,
+    ids: np.ndarray,
+    scores: np.ndarray | None = None,
+    frame_id: str = "",
+    stamp: Any = None,
+    dtype: str = "f4",
+) -> Any:
     """rclpy PointCloud2 of keypoints."""
     return array_to_cloud(keypoint_array(uv, ids, scores, dtype), frame_id, stamp)

@@ -9,7 +9,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +30,7 @@ def random_domain_id() -> int:
     return random.SystemRandom().randint(1, 101)
 
 
-def ros_env(domain_id: int | None = None, base=None) -> dict:
+def ros_env(domain_id: int | None = None, base: Mapping[str, str] | None = None) -> dict:
     """Environment for isolated local ROS processes: ``ROS_DOMAIN_ID`` and localhost-only
     discovery. Also applies them to ``os.environ`` of the caller when ``base`` is None."""
     env = dict(os.environ if base is None else base)
@@ -58,7 +60,10 @@ def _yaml_value(v) -> str:
 
 
 def write_params_yaml(
-    path, params: dict | None = None, reliable_topics=(), node: str = "/**"
+    path: str | os.PathLike,
+    params: dict | None = None,
+    reliable_topics: Iterable[str] = (),
+    node: str = "/**",
 ) -> Path:
     """Write a ROS 2 parameter file: ``params`` (flat dotted names) and, for each topic in
     ``reliable_topics`` (fully qualified), a QoS override making its subscription reliable."""
@@ -100,7 +105,7 @@ def share_dirs() -> list[Path]:
     return uniq
 
 
-def repo_file(*parts) -> Path | None:
+def repo_file(*parts: str) -> Path | None:
     """A file of the source tree (``data/sample``, ``config/...``): looked up from the current
     directory, then next to the package (a source checkout), then in the installed
     ``share/rs_localizer`` (:func:`share_dirs`). None if nowhere."""
@@ -126,15 +131,15 @@ class NodeProcess:
 
     def __init__(
         self,
-        params_files=(),
-        namespace="/camera",
-        node_name=None,
-        remaps=None,
-        params=None,
-        env=None,
-        log=None,
-        cpus=None,
-        module="rs_localizer.ros.node",
+        params_files: Iterable[str | os.PathLike] = (),
+        namespace: str = "/camera",
+        node_name: str | None = None,
+        remaps: Mapping[str, str] | None = None,
+        params: Mapping[str, Any] | None = None,
+        env: Mapping[str, str] | None = None,
+        log: str | os.PathLike | None = None,
+        cpus: Iterable[int] | None = None,
+        module: str = "rs_localizer.ros.node",
     ):
         args = [sys.executable, "-m", module, "--ros-args"]
         for f in params_files:

@@ -17,13 +17,14 @@ section of the parameter file too, e.g. ``/robot/front/rs_localizer: ros__parame
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
 
 import rclpy
 
 __all__ = ["camera_namespaces", "node_cli_args", "read_cameras", "run"]
 
 
-def camera_namespaces(cameras, base_namespace: str = "/") -> list[str]:
+def camera_namespaces(cameras: Sequence[str], base_namespace: str = "/") -> list[str]:
     """Absolute namespaces of the ``cameras`` entries: relative ones under ``base_namespace``.
 
     Raises:
@@ -48,7 +49,7 @@ def _is_name_remap(rule: str) -> bool:
     return target in ("__ns", "__node", "__name")
 
 
-def node_cli_args(argv) -> list[str]:
+def node_cli_args(argv: Sequence[str]) -> list[str]:
     """The ROS arguments of ``argv`` (every ``--ros-args`` section) without the namespace and
     node-name remaps, as one ``--ros-args`` list for a node created with
     ``use_global_arguments=False``."""
@@ -75,7 +76,7 @@ def node_cli_args(argv) -> list[str]:
     return ["--ros-args", *out] if out else []
 
 
-def read_cameras(node_name: str = "rs_localizer"):
+def read_cameras(node_name: str = "rs_localizer") -> tuple[list[str], str, str]:
     """``(cameras, namespace, node name)`` as the single node would see them (its parameter
     file sections and remaps), via a short-lived probe node."""
     from rcl_interfaces.msg import ParameterDescriptor
@@ -101,7 +102,7 @@ def read_cameras(node_name: str = "rs_localizer"):
         probe.destroy_node()
 
 
-def run(node_class, args=None, prog: str = "rs_localizer_node") -> int:
+def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localizer_node") -> int:
     """Initialize rclpy with ``args`` (default ``sys.argv``), create the node(s) of
     ``node_class`` (see the module docstring) and spin them until shutdown. Returns the exit
     code (1 with a one-line error for invalid parameters)."""

@@ -19,6 +19,8 @@ Foxglove show it without any TF.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import Point
@@ -28,6 +30,8 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from ..camera import CameraModel
+from ..estimation.result import RSPoseEstimate
 from ..viz.debug_image import DebugImageOptions, draw_debug_image
 from ..viz.scene3d import frustum_segments, velocity_arrows
 from . import conversions as cv
@@ -118,9 +122,9 @@ def _marker(ns, kind, stamp_ns, frame_id) -> Marker:
 
 
 def marker_array(
-    est,
-    X,
-    camera,
+    est: RSPoseEstimate,
+    X: np.ndarray,
+    camera: CameraModel,
     stamp_ns: int,
     map_frame: str,
     frustum_depth: float = 0.5,
@@ -166,7 +170,7 @@ def marker_array(
     return out
 
 
-def path_msg(poses, stamp_ns: int, map_frame: str) -> Path:
+def path_msg(poses: Iterable[Any], stamp_ns: int, map_frame: str) -> Path:
     """``nav_msgs/Path`` in ``map_frame`` of the ``PoseStamped`` messages ``poses``."""
     m = Path()
     m.header.stamp = cv.ns_to_stamp(stamp_ns)
@@ -196,17 +200,25 @@ class VisualizationBuilder:
         self.arrow_scale = float(arrow_scale)
         self.residual_scale = float(residual_scale)
 
-    def set_path_length(self, n: int):
+    def set_path_length(self, n: int) -> None:
         n = max(int(n), 1)
         if n != self.poses.maxlen:
             self.poses = deque(self.poses, maxlen=n)
 
-    def add_pose(self, est, out_stamp_ns: int, map_frame: str):
+    def add_pose(self, est: RSPoseEstimate, out_stamp_ns: int, map_frame: str) -> None:
         """Append the frame's pose (reference-line stamp) to the path."""
         self.poses.append(cv.pose_stamped(est, out_stamp_ns, map_frame))
 
     def debug_image(
-        self, est, uv, X, camera, stamp_ns: int, camera_frame: str, image=None, encoding=None
+        self,
+        est: RSPoseEstimate,
+        uv: np.ndarray,
+        X: np.ndarray,
+        camera: CameraModel,
+        stamp_ns: int,
+        camera_frame: str,
+        image: np.ndarray | None = None,
+        encoding: str | None = None,
     ) -> Image:
         """``debug_image`` (:func:`rs_localizer.viz.draw_debug_image`), stamped like the input
         (``stamp_ns``) in ``camera_frame``."""
@@ -221,7 +233,14 @@ class VisualizationBuilder:
         )
         return debug_image_msg(bgr, stamp_ns, camera_frame)
 
-    def markers(self, est, X, camera, out_stamp_ns: int, map_frame: str) -> MarkerArray:
+    def markers(
+        self,
+        est: RSPoseEstimate,
+        X: np.ndarray,
+        camera: CameraModel,
+        out_stamp_ns: int,
+        map_frame: str,
+    ) -> MarkerArray:
         return marker_array(
             est, X, camera, out_stamp_ns, map_frame, self.frustum_depth, self.arrow_scale
         )
@@ -241,7 +260,7 @@ class NodeVisualization:
     ``viz.publish(est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)``.
     """
 
-    def __init__(self, node):
+    def __init__(self, node: Any):
         self.node = node
         for name, (default, desc, rng) in VIZ_PARAMETERS.items():
             d = ParameterDescriptor(description=desc)
@@ -271,18 +290,18 @@ class NodeVisualization:
         )
         self._image = None  # (image, encoding, stamp_ns) of the current input image
 
-    def set_image(self, image, encoding, stamp_ns: int):
+    def set_image(self, image: np.ndarray, encoding: str, stamp_ns: int) -> None:
         """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode) for
         the next :meth:`publish`, only while ``debug_image`` has a subscriber: nothing else
         needs it, and an image can be hundreds of MB."""
         wanted = self.pub_image.get_subscription_count() > 0
         self._image = (image, encoding, int(stamp_ns)) if wanted else None
 
-    def clear_image(self):
+    def clear_image(self) -> None:
         """Forget the remembered input image (its frame was not solved: no publish)."""
         self._image = None
 
-    def hold_image(self, image: tuple | None):
+    def hold_image(self, image: tuple | None) -> None:
         """:meth:`set_image` with ``(image, encoding, stamp_ns)`` of a solved frame, or
         :meth:`clear_image` with ``None`` (a frame without an image, or not solved)."""
         if image is None:
@@ -299,15 +318,15 @@ class NodeVisualization:
 
     def publish(
         self,
-        est,
-        uv,
-        X,
-        camera,
+        est: RSPoseEstimate,
+        uv: np.ndarray,
+        X: np.ndarray,
+        camera: CameraModel,
         stamp_ns: int,
         out_stamp_ns: int,
         camera_frame: str,
         map_frame: str,
-    ):
+    ) -> None:
         """Publish the visualization of a solved frame: ``uv`` (N, 2) and ``X`` (N, 3) are the
         estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the reference
         line's (the pose's) stamp."""

@@ -4,19 +4,22 @@ a 3D map built from global-shutter views)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ..camera import CameraModel
 from ..frontends.features import FeatureMap, feature_map_from_views
 from .render.renderer import Renderer
+from .render.scene import Scene
 
 __all__ = ["build_feature_map"]
 
 
 def build_feature_map(
-    scene,
+    scene: Scene,
     camera: CameraModel,
-    poses,
+    poses: Sequence[tuple[np.ndarray, np.ndarray]],
     kind: str = "orb",
     n_features: int = 2000,
     merge_radius: float = 0.004,

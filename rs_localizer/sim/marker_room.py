@@ -148,7 +148,7 @@ class RoomWalk:
     pitch: float = 0.25
     pitch_hz: float = 0.5
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         return np.stack(
@@ -160,7 +160,7 @@ class RoomWalk:
             axis=-1,
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         yaw = 2 * np.pi * t / self.duration + self.yaw_wobble * np.sin(
             2 * np.pi * self.yaw_wobble_hz * t
@@ -173,7 +173,7 @@ class RoomWalk:
         Rx = rotvec_to_matrix(np.stack([roll, z, z], axis=-1))
         return Rz @ Ry @ Rx @ R_FORWARD
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
     def max_angular_rate(self, fps: float = 30.0) -> float:
@@ -201,7 +201,7 @@ class RobotDrive(RoomWalk):
     yaw_wobble: float = 0.05
     yaw_wobble_hz: float = 0.7
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         return np.stack(
@@ -213,7 +213,7 @@ class RobotDrive(RoomWalk):
             axis=-1,
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         heading = np.arctan2(self.radii[1] * np.cos(a), -self.radii[0] * np.sin(a))
@@ -238,7 +238,7 @@ class OneSpot(RoomWalk):
     yaw_to: float = 1.8
     pitch: float = 0.15
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         shake = 0.02 * np.stack(
             [np.sin(2 * np.pi * 0.9 * t), np.sin(2 * np.pi * 1.3 * t + 1), np.sin(3.7 * t)],
@@ -246,7 +246,7 @@ class OneSpot(RoomWalk):
         )
         return np.asarray(self.spot, dtype=float) + shake
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         u = 0.5 - 0.5 * np.cos(2 * np.pi * t / self.duration)  # there and back
         yaw = self.yaw_from + (self.yaw_to - self.yaw_from) * u
@@ -292,7 +292,7 @@ class AnchorSweep:
     lateral: float = 0.7
     duration: float = 2.0
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)
         a = 2 * np.pi * t / self.duration
         n = np.asarray(self.normal, dtype=float)
@@ -306,14 +306,14 @@ class AnchorSweep:
             + (0.25 * np.sin(2 * a))[..., None] * up
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         z = np.asarray(self.target, dtype=float) - self.position(t)
         z /= np.linalg.norm(z, axis=-1, keepdims=True)
         x = np.cross(z, [0.0, 0.0, 1.0])
         x /= np.linalg.norm(x, axis=-1, keepdims=True)
         return np.stack([x, np.cross(z, x), z], axis=-1)
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
 
@@ -330,7 +330,7 @@ def simulate_detections(
     corner_bias_px: float = 0.0,
     view_error_px: float = 0.0,
     view_seed: int = 0,
-):
+) -> tuple[list[tuple[float, dict[int, np.ndarray]]], dict[str, np.ndarray]]:
     """Detections of the room's markers along the walk.
 
     A marker is detected when all four corners project inside the image, its face is turned

@@ -1,7 +1,7 @@
 """Synthetic rolling-shutter frames of planar scenes: a large plane, a small board.
 
 The per-frame RS model (12 unknowns: pose and both velocities) is near-degenerate on coplanar
-points; these frames measure how the estimator copes. Protocol of the issue:
+points; these frames measure how the estimator copes. The protocol:
 
 - camera: 640x480, f = 600 px, principal point at the image centre, no distortion, top-to-bottom
   readout at 40 us per line (19.2 ms per frame), reference line at the image centre
@@ -23,6 +23,7 @@ frame is the plane's: the plane is ``z = 0``, its normal +z points towards the c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -78,7 +79,7 @@ class PlanarFrame:
 def planar_camera(
     line_delay: float = 40e-6, focal: float = 600.0, width: int = 640, height: int = 480
 ) -> CameraModel:
-    """The issue's camera: ``width`` x ``height`` px, ``focal`` px, principal point at the
+    """The planar frames' camera: ``width`` x ``height`` px, ``focal`` px, principal point at the
     image centre, no distortion, top-to-bottom readout with ``line_delay`` s per line."""
     K = np.array(
         [[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
@@ -86,7 +87,7 @@ def planar_camera(
     return CameraModel(K=K, width=width, height=height, line_delay=line_delay)
 
 
-def board_corners(corners=(6, 7), square: float = 0.08) -> np.ndarray:
+def board_corners(corners: tuple[int, int] = (6, 7), square: float = 0.08) -> np.ndarray:
     """(n_x * n_y, 3) inner corners of a checkerboard in its own frame (m): ``z = 0``, centred
     on the origin, x along the first count, row-major like OpenCV's corner order."""
     nx, ny = int(corners[0]), int(corners[1])
@@ -96,7 +97,12 @@ def board_corners(corners=(6, 7), square: float = 0.08) -> np.ndarray:
     return np.stack([gx.ravel(), gy.ravel(), np.zeros(nx * ny)], axis=1)
 
 
-def model_velocities(C, angular_velocity, linear_velocity, seconds_per_unit_r: float):
+def model_velocities(
+    C: np.ndarray,
+    angular_velocity: np.ndarray,
+    linear_velocity: np.ndarray,
+    seconds_per_unit_r: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """The camera's velocities (optical frame; rad/s, m/s) -> the model's (w, t) per unit r.
 
     Inverse of docs/architecture.md "Conventions" (``omega = -w / s``, ``v = (w x C - t) / s``):
@@ -133,15 +139,15 @@ def make_planar_frame(
     scene: str = "plane",
     n_points: int = 300,
     distance: float = 4.0,
-    board_distance=(0.8, 2.0),
-    board=(6, 7),
+    board_distance: tuple[float, float] = (0.8, 2.0),
+    board: tuple[int, int] = (6, 7),
     square: float = 0.08,
     max_tilt_deg: float = 35.0,
-    angular_speed=(1.0, 3.0),
-    linear_speed=(0.2, 1.0),
+    angular_speed: tuple[float, float] = (1.0, 3.0),
+    linear_speed: tuple[float, float] = (0.2, 1.0),
     noise_px: float = 0.5,
     outlier_ratio: float = 0.0,
-    depth_range=(2.0, 6.0),
+    depth_range: tuple[float, float] = (2.0, 6.0),
     camera: CameraModel | None = None,
     max_tries: int = 200,
 ) -> PlanarFrame:
@@ -245,7 +251,12 @@ def make_planar_frame(
 SEQUENCE_SCENES = ("corridor", "plane", "board")
 
 
-def sequence_scene(kind: str, rng, num_landmarks: int = 6000, motion_scale: float = 1.0):
+def sequence_scene(
+    kind: str,
+    rng: np.random.Generator,
+    num_landmarks: int = 6000,
+    motion_scale: float = 1.0,
+) -> tuple[Scene | None, Any]:
     """Landmarks and camera motion for a synthetic sequence
     (:func:`rs_localizer.sim.trajectory.generate_sequence`, ``rs-localizer make-bag --scene``).
 

@@ -17,6 +17,7 @@ y down.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,7 +49,10 @@ R_FORWARD = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 def default_camera(
-    line_delay: float = 30e-6, reference_row=None, distortion=True, readout="top_to_bottom"
+    line_delay: float = 30e-6,
+    reference_row: float | None = None,
+    distortion: bool = True,
+    readout: str = "top_to_bottom",
 ) -> CameraModel:
     """A 1280x720 phone/action camera: fx ~ 1000 px (~65 deg horizontal FOV), mild barrel
     plumb_bob distortion, 30 us/row line delay (21.6 ms readout)."""
@@ -96,7 +100,7 @@ class Trajectory:
         ) + np.asarray(self.shake_amp) * np.sin(2 * np.pi * np.asarray(self.shake_hz) * t + ph[3:])
         return self.scale * a
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         """(..., 3) camera centre in the world (m)."""
         t = np.asarray(t, dtype=float)[..., None]
         return (
@@ -106,14 +110,16 @@ class Trajectory:
             * np.sin(2 * np.pi * np.asarray(self.sway_hz) * t + np.asarray(self.phase[:3]))
         )
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         """(..., 3, 3) camera -> world rotation."""
         return R_FORWARD @ rotvec_to_matrix(self._angles(t))
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
-    def velocity_body(self, t, h: float = 1e-5):
+    def velocity_body(
+        self, t: float | np.ndarray, h: float = 1e-5
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Angular (rad/s) and linear (m/s) velocity of the camera in its optical frame by
         central differences of the trajectory: ``w = log(R(t-h)^T R(t+h)) / 2h``,
         ``v = R(t)^T (p(t+h) - p(t-h)) / 2h``."""
@@ -192,16 +198,16 @@ class Teleport:
     def _jumped(self, t):
         return np.asarray(t, dtype=float) >= self.time
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         p = self.base.position(t)
         return np.where(self._jumped(t)[..., None], p + np.asarray(self.offset), p)
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         R = self.base.orientation(t)
         Rz = rotvec_to_matrix(np.array([0.0, 0.0, self.yaw]))
         return np.where(self._jumped(t)[..., None, None], Rz @ R, R)
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
     velocity_body = Trajectory.velocity_body
@@ -215,16 +221,16 @@ GRAVITY = np.array([0.0, 0.0, -9.81])
 
 
 def imu_samples(
-    trajectory,
+    trajectory: Trajectory,
     t_start: float,
     t_end: float,
     rate: float,
     seed: int = 0,
     gyro_noise: float = 0.003,
-    gyro_bias=(0.01, -0.02, 0.005),
+    gyro_bias: tuple[float, float, float] | np.ndarray = (0.01, -0.02, 0.005),
     accel_noise: float = 0.05,
     R_imu_camera: np.ndarray = R_IMU_CAMERA,
-):
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gyro and accelerometer samples of an IMU rigidly mounted on the camera (same origin).
 
     Args:
@@ -258,13 +264,13 @@ class Scene:
     points: np.ndarray
     ids: np.ndarray
 
-    def lookup(self, ids) -> np.ndarray:
+    def lookup(self, ids: Iterable[int]) -> np.ndarray:
         index = {int(i): k for k, i in enumerate(self.ids)}
         return self.points[[index[int(i)] for i in ids]]
 
 
 def make_scene(
-    rng,
+    rng: np.random.Generator,
     num_landmarks: int = 6000,
     length: float = 40.0,
     x0: float = -2.0,
@@ -300,10 +306,10 @@ def project_rs(
     camera: CameraModel,
     trajectory: Trajectory,
     t_first_line: float,
-    X,
+    X: np.ndarray,
     iterations: int = 30,
     tol: float = 1e-9,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Exact RS projection of world points ``X`` (N, 3) for the frame whose first line is read
     at ``t_first_line`` (s).
 
@@ -384,7 +390,9 @@ class SequenceConfig:
     drop_frames: tuple = ()
 
 
-def ground_truth(camera: CameraModel, trajectory: Trajectory, t_first_line: float):
+def ground_truth(
+    camera: CameraModel, trajectory: Trajectory, t_first_line: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """(orientation, position, angular_velocity, linear_velocity, t_ref) at the reference line."""
     t_ref = t_first_line + float(camera.line_time(camera.reference_line))
     R, p = trajectory.pose(t_ref)
@@ -397,8 +405,10 @@ def generate_sequence(
     camera: CameraModel | None = None,
     trajectory: Trajectory | None = None,
     scene: Scene | None = None,
-):
+    progress=None,
+) -> tuple[list[Frame], Scene, CameraModel, Trajectory]:
     """Generate ``config.num_frames`` frames. Returns ``(frames, scene, camera, trajectory)``.
+    ``progress``: None or a callable, called with each frame's index before the frame is made.
 
     Per frame: all landmarks visible in the RS image are projected exactly, ``num_points`` of
     them are drawn at random, Gaussian pixel noise ``noise_px`` is added, and a fraction
@@ -412,6 +422,8 @@ def generate_sequence(
     frames = []
     period = 1.0 / config.fps
     for k in range(config.num_frames):
+        if progress is not None:
+            progress(k)
         t_first = k * period
         R, p, w, v, t_ref = ground_truth(camera, trajectory, t_first)
         # cheap pre-selection with the reference pose, then the exact projection

@@ -18,6 +18,7 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit
 
+from .._linalg import solve_square
 from .._so3 import INLINE
 from ._common import DegenerateInputError, RSBatch, RSSolution, check_batch, check_inputs
 
@@ -31,54 +32,6 @@ def cross_into(a0, a1, a2, b0, b1, b2, out, j):
     out[j] = a1 * b2 - a2 * b1
     out[j + 1] = a2 * b0 - a0 * b2
     out[j + 2] = a0 * b1 - a1 * b0
-
-
-@njit(cache=True)
-def solve_square(A, b, u, tol):
-    """Gaussian elimination with partial pivoting for square A (n, n); A, b overwritten; the
-    solution goes to u (which may be b itself).
-
-    Returns False if a pivot is at or below ``tol`` times the largest entry (``tol = 0``: only
-    an exactly zero pivot fails).
-    """
-    n = A.shape[0]
-    amax = 0.0
-    for i in range(n):
-        for j in range(n):
-            if abs(A[i, j]) > amax:
-                amax = abs(A[i, j])
-    if amax == 0.0:
-        return False
-    for k in range(n):
-        p = k
-        pv = abs(A[k, k])
-        for i in range(k + 1, n):
-            if abs(A[i, k]) > pv:
-                pv = abs(A[i, k])
-                p = i
-        if pv <= tol * amax:
-            return False
-        if p != k:
-            for j in range(k, n):
-                tmp = A[k, j]
-                A[k, j] = A[p, j]
-                A[p, j] = tmp
-            tmp = b[k]
-            b[k] = b[p]
-            b[p] = tmp
-        inv = 1.0 / A[k, k]
-        for i in range(k + 1, n):
-            f = A[i, k] * inv
-            if f != 0.0:
-                for j in range(k + 1, n):
-                    A[i, j] -= f * A[k, j]
-                b[i] -= f * b[k]
-    for k in range(n - 1, -1, -1):
-        s = b[k]
-        for j in range(k + 1, n):
-            s -= A[k, j] * u[j]
-        u[k] = s / A[k, k]
-    return True
 
 
 @njit(cache=True)

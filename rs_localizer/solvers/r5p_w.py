@@ -28,23 +28,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._so3 import copy_matrix3, rotate_left_into, rotate_small, so3_coefficients
+from .._so3 import (
+    copy_matrix3,
+    rotate_left_into,
+    rotate_small,
+    rotation_log_into,
+    so3_coefficients,
+)
 from ._common import RSBatch, RSSolution
 from ._linear import lstsq, rows_E, run_batch_with_prior, run_single
 
 __all__ = ["r5p_w", "r5p_w_batch"]
-
-
-@njit(cache=True)
-def _log_rotation(R, v):
-    """``v`` (3,) = the rotation vector of R (3, 3) (angles below pi)."""
-    c = min(max(0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0), -1.0), 1.0)
-    th = np.arccos(c)
-    s = np.sin(th)
-    f = 0.5 if th < 1e-8 else 0.5 * th / s
-    v[0] = f * (R[2, 1] - R[1, 2])
-    v[1] = f * (R[0, 2] - R[2, 0])
-    v[2] = f * (R[1, 0] - R[0, 1])
 
 
 @njit(cache=True)
@@ -121,7 +115,7 @@ def _solve(x, X, r, r0, iterations, tol, w_in, P, q, use_prior, out, ok, its, er
                 break
         if not ok[k]:
             continue
-        _log_rotation(Rc, v)
+        rotation_log_into(Rc, v)
         for a in range(3):
             out[k, a] = v[a]
             out[k, 3 + a] = u[3 + a]

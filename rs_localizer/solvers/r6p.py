@@ -50,8 +50,17 @@ import math
 import numpy as np
 from numba import njit
 
+from .._linalg import (
+    balance,
+    elmhes,
+    hessenberg_lu,
+    hessenberg_lu_solve,
+    householder_lstsq_into,
+    householder_qr,
+    hqr,
+    solve_square,
+)
 from ._common import DegenerateInputError, RSSolution, check_inputs
-from ._linear import solve_square
 
 __all__ = ["r6p"]
 
@@ -153,67 +162,6 @@ def _eq5_system(x, Xn, tau):
                 B[row, j] = E[j]
                 B[row, 3 + j] = ti * E[j]
     return M, B
-
-
-@njit(cache=True)
-def _householder(B, M, V, Rd):
-    """In-place Householder QR of B (12, 6), applying Q^T to M (12, m) as well.
-
-    Reflector k is stored in V[k:, k] (unit norm), R's diagonal in Rd. Returns min/max |R_kk|.
-    """
-    m, n = B.shape
-    rmax = 0.0
-    rmin = np.inf
-    for k in range(n):
-        s = 0.0
-        for i in range(k, m):
-            s += B[i, k] * B[i, k]
-        nrm = np.sqrt(s)
-        alpha = -nrm if B[k, k] > 0 else nrm
-        for i in range(m):
-            V[i, k] = 0.0
-        for i in range(k, m):
-            V[i, k] = B[i, k]
-        V[k, k] -= alpha
-        vn = 0.0
-        for i in range(k, m):
-            vn += V[i, k] * V[i, k]
-        vn = np.sqrt(vn)
-        if vn > 0.0:
-            for i in range(k, m):
-                V[i, k] /= vn
-        for j in range(k, n):
-            d = 0.0
-            for i in range(k, m):
-                d += V[i, k] * B[i, j]
-            for i in range(k, m):
-                B[i, j] -= 2.0 * d * V[i, k]
-        for j in range(M.shape[1]):
-            d = 0.0
-            for i in range(k, m):
-                d += V[i, k] * M[i, j]
-            for i in range(k, m):
-                M[i, j] -= 2.0 * d * V[i, k]
-        Rd[k] = alpha
-        rmax = max(rmax, abs(alpha))
-        rmin = min(rmin, abs(alpha))
-    return rmin / rmax if rmax > 0.0 else 0.0
-
-
-@njit(cache=True)
-def _solve_ct(Bqr, V, f, out):
-    """Least squares ``B [C; t] = -f`` with the stored QR (f is overwritten by Q^T f)."""
-    for k in range(6):
-        d = 0.0
-        for i in range(k, 12):
-            d += V[i, k] * f[i]
-        for i in range(k, 12):
-            f[i] -= 2.0 * d * V[i, k]
-    for k in range(5, -1, -1):
-        s = -f[k]
-        for j in range(k + 1, 6):
-            s -= Bqr[k, j] * out[j]
-        out[k] = s / Bqr[k, k]
 
 
 @njit(cache=True)
@@ -373,265 +321,7 @@ def _finite(a):
 
 
 # ---------------------------------------------------------------------------------------------
-# Small dense linear algebra (hand-written: LAPACK call overhead dominates at these sizes)
-@njit(cache=True)
-def _balance(a, D):
-    """Balance a square matrix in place (EISPACK balanc, radix 2), 1-based arrays:
-    ``a_out = D^-1 a_in D`` with the diagonal D (n + 1,) returned in D."""
-    n = a.shape[0] - 1
-    done = False
-    while not done:
-        done = True
-        for i in range(1, n + 1):
-            r = 0.0
-            c = 0.0
-            for j in range(1, n + 1):
-                if j != i:
-                    c += abs(a[j, i])
-                    r += abs(a[i, j])
-            if c != 0.0 and r != 0.0:
-                g = r / 2.0
-                f = 1.0
-                sm = c + r
-                while c < g:
-                    f *= 2.0
-                    c *= 4.0
-                g = r * 2.0
-                while c > g:
-                    f /= 2.0
-                    c /= 4.0
-                if (c + r) / f < 0.95 * sm:
-                    done = False
-                    g = 1.0 / f
-                    D[i] *= f
-                    for j in range(1, n + 1):
-                        a[i, j] *= g
-                    for j in range(1, n + 1):
-                        a[j, i] *= f
-
-
-@njit(cache=True)
-def _elmhes(a, Z):
-    """Reduce to upper Hessenberg form in place by stabilised elimination (EISPACK elmhes),
-    1-based arrays. Accumulates the similarity: on return ``a_in Z = Z a_out``."""
-    n = a.shape[0] - 1
-    for m in range(2, n):
-        x = 0.0
-        i = m
-        for j in range(m, n + 1):
-            if abs(a[j, m - 1]) > abs(x):
-                x = a[j, m - 1]
-                i = j
-        if i != m:
-            for j in range(m - 1, n + 1):
-                tmp = a[i, j]
-                a[i, j] = a[m, j]
-                a[m, j] = tmp
-            for j in range(1, n + 1):
-                tmp = a[j, i]
-                a[j, i] = a[j, m]
-                a[j, m] = tmp
-                tmp = Z[j, i]
-                Z[j, i] = Z[j, m]
-                Z[j, m] = tmp
-        if x != 0.0:
-            for i in range(m + 1, n + 1):
-                y = a[i, m - 1]
-                if y != 0.0:
-                    y /= x
-                    a[i, m - 1] = 0.0
-                    for j in range(m, n + 1):
-                        a[i, j] -= y * a[m, j]
-                    for j in range(1, n + 1):
-                        a[j, m] += y * a[j, i]
-                        Z[j, m] += y * Z[j, i]
-
-
-@njit(cache=True)
-def _hess_lu(H, lam, T, swap):
-    """LU factorisation of (H - lam I) for upper Hessenberg H (1-based, n x n, not modified) with
-    partial pivoting (only rows k, k+1 compete): O(n^2). Factors go to T (multipliers in
-    T[k+1, k]), row swaps to swap. Tiny pivots are replaced by 1e-15 max|H| (inverse iteration).
-    """
-    n = H.shape[0] - 1
-    hmax = 0.0
-    for i in range(1, n + 1):
-        for j in range(max(i - 1, 1), n + 1):
-            T[i, j] = H[i, j]
-            hmax = max(hmax, abs(H[i, j]))
-        T[i, i] -= lam
-    floor = 1e-15 * max(hmax, abs(lam))
-    if floor == 0.0:
-        floor = 1e-300
-    for k in range(1, n):
-        swap[k] = False
-        if abs(T[k + 1, k]) > abs(T[k, k]):
-            swap[k] = True
-            for j in range(k, n + 1):
-                tmp = T[k, j]
-                T[k, j] = T[k + 1, j]
-                T[k + 1, j] = tmp
-        if abs(T[k, k]) < floor:
-            T[k, k] = floor
-        f = T[k + 1, k] / T[k, k]
-        T[k + 1, k] = f
-        if f != 0.0:
-            for j in range(k + 1, n + 1):
-                T[k + 1, j] -= f * T[k, j]
-    if abs(T[n, n]) < floor:
-        T[n, n] = floor
-
-
-@njit(cache=True)
-def _hess_lu_solve(T, swap, y):
-    """Solve with the factors of :func:`_hess_lu`; y (n + 1,) overwritten (1-based)."""
-    n = T.shape[0] - 1
-    for k in range(1, n):
-        if swap[k]:
-            tmp = y[k]
-            y[k] = y[k + 1]
-            y[k + 1] = tmp
-        y[k + 1] -= T[k + 1, k] * y[k]
-    for k in range(n, 0, -1):
-        sm = y[k]
-        for j in range(k + 1, n + 1):
-            sm -= T[k, j] * y[j]
-        y[k] = sm / T[k, k]
-
-
-@njit(cache=True)
-def _hqr(a, wr, wi):
-    """Eigenvalues of an upper Hessenberg matrix (1-based, destroyed) by the Francis double-shift
-    QR algorithm (EISPACK hqr). Returns False if an eigenvalue needs more than 60 iterations."""
-    n = a.shape[0] - 1
-    anorm = 0.0
-    for i in range(1, n + 1):
-        for j in range(max(i - 1, 1), n + 1):
-            anorm += abs(a[i, j])
-    nn = n
-    t = 0.0
-    x = y = z = w = p = q = r = 0.0
-    while nn >= 1:
-        its = 0
-        while True:
-            ell = nn
-            while ell >= 2:
-                s = abs(a[ell - 1, ell - 1]) + abs(a[ell, ell])
-                if s == 0.0:
-                    s = anorm
-                if abs(a[ell, ell - 1]) + s == s:
-                    a[ell, ell - 1] = 0.0
-                    break
-                ell -= 1
-            x = a[nn, nn]
-            if ell == nn:  # one real root
-                wr[nn] = x + t
-                wi[nn] = 0.0
-                nn -= 1
-            else:
-                y = a[nn - 1, nn - 1]
-                w = a[nn, nn - 1] * a[nn - 1, nn]
-                if ell == nn - 1:  # a 2 x 2 block: two roots
-                    p = 0.5 * (y - x)
-                    q = p * p + w
-                    z = np.sqrt(abs(q))
-                    x += t
-                    if q >= 0.0:
-                        z = p + (z if p >= 0.0 else -z)
-                        wr[nn - 1] = x + z
-                        wr[nn] = x + z
-                        if z != 0.0:
-                            wr[nn] = x - w / z
-                        wi[nn - 1] = 0.0
-                        wi[nn] = 0.0
-                    else:
-                        wr[nn - 1] = x + p
-                        wr[nn] = x + p
-                        wi[nn - 1] = -z
-                        wi[nn] = z
-                    nn -= 2
-                else:
-                    if its == 60:
-                        return False
-                    if its == 10 or its == 20 or its == 40:  # exceptional shift
-                        t += x
-                        for i in range(1, nn + 1):
-                            a[i, i] -= x
-                        s = abs(a[nn, nn - 1]) + abs(a[nn - 1, nn - 2])
-                        x = 0.75 * s
-                        y = x
-                        w = -0.4375 * s * s
-                    its += 1
-                    m = nn - 2
-                    while m >= ell:
-                        z = a[m, m]
-                        r = x - z
-                        s = y - z
-                        p = (r * s - w) / a[m + 1, m] + a[m, m + 1]
-                        q = a[m + 1, m + 1] - z - r - s
-                        r = a[m + 2, m + 1]
-                        s = abs(p) + abs(q) + abs(r)
-                        p /= s
-                        q /= s
-                        r /= s
-                        if m == ell:
-                            break
-                        u = abs(a[m, m - 1]) * (abs(q) + abs(r))
-                        v = abs(p) * (abs(a[m - 1, m - 1]) + abs(z) + abs(a[m + 1, m + 1]))
-                        if u + v == v:
-                            break
-                        m -= 1
-                    for i in range(m + 2, nn + 1):
-                        a[i, i - 2] = 0.0
-                        if i != m + 2:
-                            a[i, i - 3] = 0.0
-                    for k in range(m, nn):
-                        if k != m:
-                            p = a[k, k - 1]
-                            q = a[k + 1, k - 1]
-                            r = 0.0
-                            if k != nn - 1:
-                                r = a[k + 2, k - 1]
-                            x = abs(p) + abs(q) + abs(r)
-                            if x != 0.0:
-                                p /= x
-                                q /= x
-                                r /= x
-                        s = np.sqrt(p * p + q * q + r * r)
-                        if p < 0.0:
-                            s = -s
-                        if s != 0.0:
-                            if k == m:
-                                if ell != m:
-                                    a[k, k - 1] = -a[k, k - 1]
-                            else:
-                                a[k, k - 1] = -s * x
-                            p += s
-                            x = p / s
-                            y = q / s
-                            z = r / s
-                            q /= p
-                            r /= p
-                            for j in range(k, nn + 1):
-                                p = a[k, j] + q * a[k + 1, j]
-                                if k != nn - 1:
-                                    p += r * a[k + 2, j]
-                                    a[k + 2, j] -= p * z
-                                a[k + 1, j] -= p * y
-                                a[k, j] -= p * x
-                            mmin = nn if nn < k + 3 else k + 3
-                            for i in range(ell, mmin + 1):
-                                p = x * a[i, k] + y * a[i, k + 1]
-                                if k != nn - 1:
-                                    p += z * a[i, k + 2]
-                                    a[i, k + 2] -= p * r
-                                a[i, k + 1] -= p * q
-                                a[i, k] -= p
-            if not (ell < nn - 1):
-                break
-    return True
-
-
+# The action matrix's real roots (the eigenvalue kernels are in rs_localizer._linalg)
 @njit(cache=True)
 def _w_from_eigvec(u, shift, out):
     """w from an eigenvector u ~ [1, w1, w2, w3, w1^2, ...] (20,): w_k = u[w_k m] / u[m] with
@@ -665,13 +355,13 @@ def _real_candidates(Mact, shift, imag_tol):
     Z = np.zeros((n + 1, n + 1))
     for i in range(1, n + 1):
         Z[i, i] = 1.0
-    _balance(H, D)
-    _elmhes(H, Z)
+    balance(H, D)
+    elmhes(H, Z)
     Hq = H.copy()
     wr = np.zeros(n + 1)
     wi = np.zeros(n + 1)
     W = np.zeros((n, 3))
-    if not _hqr(Hq, wr, wi):
+    if not hqr(Hq, wr, wi):
         return False, W[:0]
     k = 0
     b = np.zeros(n + 1)
@@ -685,10 +375,10 @@ def _real_candidates(Mact, shift, imag_tol):
             continue  # complex root (of a nearly real pair only the + member is used)
         for i in range(1, n + 1):
             b[i] = 1.0 + 0.1 * ((i * 7) % 5)  # fixed generic start vector
-        _hess_lu(H, lam, T, swap)
+        hessenberg_lu(H, lam, T, swap)
         good = True
         for _it in range(2):  # inverse iteration: (H - lam I) b_new = b
-            _hess_lu_solve(T, swap, b)
+            hessenberg_lu_solve(T, swap, b)
             nrm = 0.0
             for i in range(1, n + 1):
                 nrm = max(nrm, abs(b[i]))
@@ -765,7 +455,7 @@ def _polish(x, Xn, tau, A, Bqr, V, W, accept_tol, max_newton, zmax):
         z[4] = w1
         z[5] = w2
         _residual_jacobian(x, Xn, tau, z, F, J)
-        _solve_ct(Bqr, V, F, ct)
+        householder_lstsq_into(Bqr, V, F, ct)
         for i in range(6):
             z[6 + i] = ct[i]
         # Newton on the 12 x 12 system (J is square: the problem is minimal)
@@ -962,7 +652,7 @@ def _template(x, Xp, taun, proj_c):
     M, B = _eq5_system(x, Xp, taun)
     V = np.zeros((12, 6))
     Rd = np.zeros(6)
-    ok = _householder(B, M, V, Rd) > _RANK_TOL
+    ok = householder_qr(B, M, V, Rd) > _RANK_TOL
     A = np.zeros((6, 4, 4))
     Au = np.zeros((6, 4, 4))
     for i in range(6):

@@ -94,7 +94,7 @@ def run(args) -> int:
         summary = load_summary(prev)  # re-running a subset keeps the other experiments
         print(f"updating {prev}: re-running {', '.join(only)}")
     t0 = time.perf_counter()
-    res = run_all(cfg, only, log=lambda m: print(m, flush=True))
+    res = run_all(cfg, only, log=lambda m: print(m, flush=True), progress=True)
     secs = time.perf_counter() - t0
     new = summarize(res)
     meta = summary.get("_meta", {})

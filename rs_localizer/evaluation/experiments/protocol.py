@@ -614,8 +614,10 @@ def exp7_estimator(
 EXPERIMENTS = ("exp1", "exp2", "exp3", "exp4", "exp5", "exp6", "exp7")
 
 
-def run_all(cfg: Config = FULL, only=EXPERIMENTS, log=print) -> dict:
-    """Run the selected experiments; returns {name: result dict} plus ``_seconds`` timings."""
+def run_all(cfg: Config = FULL, only=EXPERIMENTS, log=print, progress: bool = False) -> dict:
+    """Run the selected experiments; returns {name: result dict} plus ``_seconds`` timings.
+    ``log``: called with a line per experiment done; ``progress``: a progress bar on stderr
+    (the log lines are written above it)."""
     res, secs = {}, {}
     t = cfg.trials
     steps = {
@@ -655,14 +657,20 @@ def run_all(cfg: Config = FULL, only=EXPERIMENTS, log=print) -> dict:
             )
         },
     }
-    for name in EXPERIMENTS:
-        if name not in only:
-            continue
+    from tqdm import tqdm
+
+    bar = tqdm([n for n in EXPERIMENTS if n in only], unit="exp", disable=not progress)
+    for name in bar:
+        bar.set_description(name)
         t0 = time.perf_counter()
         res.update(steps[name]())
         secs[name] = time.perf_counter() - t0
         if log:
-            log(f"{name}: {secs[name]:.1f} s")
+            line = f"{name}: {secs[name]:.1f} s"
+            if progress:
+                bar.write(line)
+            else:
+                log(line)
     res["_seconds"] = secs
     return res
 

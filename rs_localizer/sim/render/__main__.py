@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Time the renderer on a preset scene/motion/camera; optionally save the last frame."""
     import argparse
     import time

@@ -21,6 +21,7 @@ translation, 3 m/s sideways, no rotation), ``static``.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -55,17 +56,17 @@ class Motion(Trajectory):
     def R_base(self) -> np.ndarray:
         return base_rotation(self.yaw, self.pitch)
 
-    def position(self, t) -> np.ndarray:
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         t = np.asarray(t, dtype=float)[..., None]
         local = np.asarray(self.velocity) * (t - self.t_center) + np.asarray(self.sway) * np.sin(
             2 * np.pi * np.asarray(self.sway_hz) * t + np.asarray(self.phase[:3])
         )
         return np.asarray(self.p0) + local @ self.R_base.T
 
-    def orientation(self, t) -> np.ndarray:
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         return self.R_base @ rotvec_to_matrix(self._angles(t))
 
-    def peak_rates(self, duration: float, fps: float = 200.0):
+    def peak_rates(self, duration: float, fps: float = 200.0) -> tuple[float, float]:
         """(max |angular velocity| rad/s, max |linear velocity| m/s) over ``[0, duration]``."""
         t = np.linspace(0.0, duration, max(int(duration * fps), 2))
         w, v = self.velocity_body(t)
@@ -145,13 +146,13 @@ def motion_names() -> list:
 
 def make_motion(
     name: str,
-    scene=None,
-    position=None,
+    scene: Any = None,
+    position: np.ndarray | None = None,
     yaw: float | None = None,
     pitch: float | None = None,
     duration: float = 1.0,
     scale: float = 1.0,
-    **overrides,
+    **overrides: Any,
 ) -> Motion:
     """A preset motion around a viewpoint.
 

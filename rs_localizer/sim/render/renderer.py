@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -27,7 +28,7 @@ import numpy as np
 from numba import njit, prange
 
 from ...camera import CameraModel
-from ..trajectory import ground_truth, project_rs
+from ..trajectory import Trajectory, ground_truth, project_rs
 from .scene import Scene
 
 __all__ = [
@@ -57,7 +58,7 @@ def camera_preset(
     distortion: bool = True,
     readout_time: float | None = None,
     line_delay: float | None = None,
-    reference_row=None,
+    reference_row: float | None = None,
     readout: str = "top_to_bottom",
 ) -> CameraModel:
     """A preset camera (``vga`` 640x480, ``hd`` 1280x720) with RS timing.
@@ -491,7 +492,7 @@ class NoiseModel:
         return img + rng.standard_normal(img.shape, dtype=np.float32) * sigma
 
 
-def frame_times(index, fps: float = 30.0, t0: float = 0.0):
+def frame_times(index: int | np.ndarray, fps: float = 30.0, t0: float = 0.0) -> np.ndarray:
     """Capture time (s) of the first line of frame ``index`` at ``fps``."""
     return t0 + np.asarray(index, dtype=float) / fps
 
@@ -528,7 +529,9 @@ class RenderedFrame:
     def C(self) -> np.ndarray:
         return -self.orientation.T @ self.position
 
-    def stamp_ns(self, t0_ns: int = 0, row: float | None = None, camera: CameraModel | None = None):
+    def stamp_ns(
+        self, t0_ns: int = 0, row: float | None = None, camera: CameraModel | None = None
+    ) -> int:
         """Header stamp: capture time of the first line (or of ``row`` given ``camera``)."""
         t = self.t_first if row is None else self.t_first + float(camera.line_time(row))
         return int(t0_ns) + int(round(t * 1e9))
@@ -592,7 +595,11 @@ class Renderer:
 
     # ---------------------------------------------------------------- rendering
     def render_image(
-        self, motion, t_first: float, shutter: str = "rolling", exposure: float | None = None
+        self,
+        motion: Trajectory,
+        t_first: float,
+        shutter: str = "rolling",
+        exposure: float | None = None,
     ) -> np.ndarray:
         """(H, W, 3) float32 noise-free RGB in [0, 255] for the frame starting at ``t_first``."""
         exposure = self.exposure if exposure is None else float(exposure)
@@ -624,7 +631,9 @@ class Renderer:
         )
         return out
 
-    def render_pose(self, orientation, position, mono: bool = False) -> np.ndarray:
+    def render_pose(
+        self, orientation: np.ndarray, position: np.ndarray, mono: bool = False
+    ) -> np.ndarray:
         """Noise-free uint8 image from one fixed pose (camera -> world orientation, camera
         centre): a global-shutter view, e.g. for building a feature map."""
         cam = self.camera
@@ -646,12 +655,12 @@ class Renderer:
 
     def render(
         self,
-        motion,
+        motion: Trajectory,
         t_first: float = 0.0,
         index: int = 0,
         shutter: str = "rolling",
         mono: bool = False,
-        rng=None,
+        rng: np.random.Generator | None = None,
         exposure: float | None = None,
     ) -> RenderedFrame:
         """Render one frame (uint8, with noise if configured) and its ground truth."""
@@ -678,14 +687,14 @@ class Renderer:
 
     def render_sequence(
         self,
-        motion,
+        motion: Trajectory,
         frames: int,
         fps: float = 30.0,
         t0: float = 0.0,
         shutter: str = "rolling",
         mono: bool = False,
         seed: int = 0,
-    ):
+    ) -> Iterator[RenderedFrame]:
         """Yield :class:`RenderedFrame` for frames ``0..frames-1`` (first line at
         ``t0 + k / fps``); noise is seeded per frame from ``seed``."""
         for k in range(int(frames)):
@@ -700,8 +709,13 @@ class Renderer:
 
     # ---------------------------------------------------------------- geometry
     def cast(
-        self, points_px, motion=None, t_first: float = 0.0, shutter: str = "rolling", pose=None
-    ):
+        self,
+        points_px: np.ndarray,
+        motion: Trajectory | None = None,
+        t_first: float = 0.0,
+        shutter: str = "rolling",
+        pose: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World points seen at (distorted) pixels: ray casting with the pose of each pixel's
         line (or a fixed ``pose=(orientation cam->world, position)``).
 
@@ -746,7 +760,9 @@ class Renderer:
         )
         return X, quad, depth
 
-    def hit_map(self, motion, t_first: float = 0.0, shutter: str = "rolling"):
+    def hit_map(
+        self, motion: Trajectory, t_first: float = 0.0, shutter: str = "rolling"
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-pixel (pixel centres) world points (H, W, 3), quad ids (H, W), depth (H, W)."""
         cam = self.camera
         vv, uu = np.mgrid[0 : cam.height, 0 : cam.width]
@@ -760,8 +776,13 @@ class Renderer:
         )
 
     def project(
-        self, X, motion, t_first: float = 0.0, shutter: str = "rolling", occlusion: bool = True
-    ):
+        self,
+        X: np.ndarray,
+        motion: Trajectory,
+        t_first: float = 0.0,
+        shutter: str = "rolling",
+        occlusion: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Exact projection of world points into the frame: each point at the capture time of
         its own line (:func:`rs_localizer.sim.trajectory.project_rs`), or with the reference pose
         for a global shutter. With ``occlusion``, points hidden behind a quad are dropped.

@@ -78,7 +78,7 @@ class Quad:
         """Unit normal on the side that sees the texture unmirrored (``v x u``)."""
         return np.cross(self.v, self.u)
 
-    def point(self, a, b) -> np.ndarray:
+    def point(self, a: float | np.ndarray, b: float | np.ndarray) -> np.ndarray:
         """World point(s) at quad coordinates (a, b) (metres)."""
         a = np.asarray(a, dtype=float)[..., None]
         b = np.asarray(b, dtype=float)[..., None]
@@ -146,7 +146,7 @@ class Scene:
             out[m.id] = q.point([m.a, m.a + s, m.a + s, m.a], [m.b, m.b, m.b + s, m.b + s])
         return out
 
-    def marker_corner_points(self):
+    def marker_corner_points(self) -> tuple[np.ndarray, np.ndarray]:
         """(ids (4M,) int64 = 4 * marker_id + corner, points (4M, 3)) of all marker corners."""
         corners = self.marker_corners()
         if not corners:
@@ -154,14 +154,14 @@ class Scene:
         ids = np.concatenate([4 * k + np.arange(4) for k in corners])
         return ids.astype(np.int64), np.concatenate(list(corners.values()))
 
-    def checkerboard_corner_points(self):
+    def checkerboard_corner_points(self) -> tuple[np.ndarray, np.ndarray]:
         """(ids (M,) int64, points (M, 3)) of the inner corners of the scene's checkerboards
         (:func:`rs_localizer.maps.checkerboard_corners`; empty without checkerboards)."""
         if self._checker_corners is None:
             return np.zeros(0, np.int64), np.zeros((0, 3))
         return self._checker_corners
 
-    def viewpoint_pose(self):
+    def viewpoint_pose(self) -> tuple[np.ndarray, float, float]:
         """(position (3,), yaw, pitch) of the scene's nominal camera viewpoint (rad)."""
         p = np.asarray(self.viewpoint["position"], dtype=float)
         d = np.asarray(self.viewpoint["look_at"], dtype=float) - p
@@ -169,7 +169,7 @@ class Scene:
         pitch = float(np.arctan2(d[2], np.hypot(d[0], d[1])))
         return p, yaw, pitch
 
-    def bounds(self):
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         pts = np.concatenate([q.corners() for q in self.quads])
         return pts.min(axis=0), pts.max(axis=0)
 
@@ -285,7 +285,7 @@ def _make_texture(spec: dict, size, base: Path | None, seed: int) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------- loading
-def load_scene(name_or_path) -> Scene:
+def load_scene(name_or_path: str | Path | dict) -> Scene:
     """Load a scene by built-in name (``aruco_room``, ``textured_room``), YAML path, or dict.
 
     Raises:
@@ -362,7 +362,7 @@ def _add_markers(scene: Scene, spec: dict, layout: list):
 
 
 # ------------------------------------------------------------------------------- marker maps
-def save_marker_map(path, scene: Scene) -> Path:
+def save_marker_map(path: str | Path, scene: Scene) -> Path:
     """Write the scene's marker map (dictionary + 3D corners per id) as YAML for the ArUco front
     end (:func:`rs_localizer.maps.write_marker_map`)."""
     return write_marker_map(path, scene.dictionary, scene.marker_corners(), scene=scene.name)

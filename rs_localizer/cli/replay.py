@@ -1,0 +1,319 @@
+"""``rs-localizer replay``: the localizer node's per-frame pipeline over a bag, offline (the
+node's parameters and outputs, no ROS graph)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from ..camera import READOUT_DIRECTIONS
+from ..solvers.registry import SOLVER_NAMES
+from . import args as A
+
+__all__ = ["register", "run"]
+
+HELP = "run the localizer node over a bag offline (same parameters, same outputs)"
+
+
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``replay`` subcommand to ``sub`` (``func`` = :func:`run`)."""
+    r = sub.add_parser(
+        "replay",
+        help=HELP,
+        description="Run the node's per-frame pipeline over every frame of a bag, with the "
+        "node's parameters: the defaults, then each --params-file (ROS 2 format: the /** and "
+        "rs_localizer sections), then --param and the options below. Tracking is on as in "
+        "the node: twist and odom carry the fused twist, twist_single_frame each frame's own "
+        "(--no-tracking: every frame alone). The RS timing (rs.line_delay, rs.direction, "
+        "rs.reference_row, rs.stamp_row) that no parameter file or option sets comes from "
+        "the bag's sequence.json (make-bag, render-bag), else the parameter's default.",
+        formatter_class=A.HelpFormatter,
+    )
+    r.add_argument(
+        "bag",
+        help="bag directory (make-bag or render-bag output, or a recording) or its .mcap file",
+    )
+    unset = argparse.SUPPRESS  # (options only override: unset ones leave the parameters)
+    r.add_argument(
+        "--params-file",
+        action="append",
+        default=unset,
+        metavar="FILE",
+        help="the node's ROS 2 parameter file, e.g. config/rs_localizer.yaml (repeatable; "
+        "later ones win)",
+    )
+    r.add_argument(
+        "-p",
+        "--param",
+        action="append",
+        default=unset,
+        metavar="NAME:=VALUE",
+        help="set a node parameter (YAML value, as ros2 run -p; repeatable), e.g. tracking.lag:=2",
+    )
+
+    def over(param: str, text: str) -> str:
+        return f"{text}; sets the parameter {param} (default: {A.node_default(param)})"
+
+    def timing(param: str, text: str) -> str:
+        return (
+            f"{text}; sets {param} (default: --params-file, else the bag's sequence.json, "
+            f"else {A.node_default(param)})"
+        )
+
+    r.add_argument(
+        "--solver",
+        default=unset,
+        choices=SOLVER_NAMES,
+        help=over("solver", A.solver_help("minimal solver")),
+    )
+    r.add_argument(
+        "--source",
+        choices=["correspondences", "keypoints", "image"],
+        default=unset,
+        help="frame topic: */correspondences (u, v, x, y, z), */keypoints (u, v, id + a "
+        "landmark map) or image (through the front end of the frontend parameter) "
+        "(default: image with a front end, else correspondences)",
+    )
+    r.add_argument(
+        "--landmarks",
+        default=unset,
+        help="CSV id,x,y,z for --source keypoints; sets landmarks_file (default: "
+        "--params-file, else BAG/landmarks.csv)",
+    )
+    r.add_argument("--out", default=None, help="write the outputs to this bag directory")
+    r.add_argument(
+        "--debug-outputs",
+        action="store_true",
+        help="also write /rs_localizer/debug_image, markers and path into --out "
+        "(the node's visualization topics, for Foxglove or RViz)",
+    )
+    r.add_argument(
+        "--path-length",
+        type=A.positive_int,
+        default=1000,
+        help="poses kept in the path topic (--debug-outputs)",
+    )
+    r.add_argument(
+        "--image-topic",
+        default=None,
+        help="with --source image: the frames (default: the bag's image topic); else the "
+        "image drawn under debug_image (default: the bag's sensor_msgs/Image topic next to "
+        "the frames, if any; else a blank canvas)",
+    )
+    r.add_argument(
+        "--imu-topic",
+        default=None,
+        help="with -p imu.enabled:=true: the sensor_msgs/Imu topic of the gyro (default: the "
+        "bag's only IMU topic)",
+    )
+    r.add_argument("--csv", default=None, help="write one line per frame")
+    r.add_argument(
+        "--storage", choices=["mcap", "sqlite3"], default="mcap", help="storage format of --out"
+    )
+    r.add_argument(
+        "--threshold",
+        type=A.positive_float,
+        default=unset,
+        help=over("ransac.threshold_px", "RANSAC threshold (px)"),
+    )
+    r.add_argument(
+        "--max-iterations",
+        type=A.positive_int,
+        default=unset,
+        help=over("ransac.max_iterations", "RANSAC hypotheses cap per frame"),
+    )
+    r.add_argument(
+        "--confidence",
+        type=A.probability,
+        default=unset,
+        help=over("ransac.confidence", "RANSAC adaptive-termination confidence"),
+    )
+    r.add_argument(
+        "--min-inliers",
+        type=A.positive_int,
+        default=unset,
+        help=over("ransac.min_inliers", "fewest inliers for a pose"),
+    )
+    r.add_argument(
+        "--seed", type=A.nonneg_int, default=unset, help=over("ransac.seed", "RANSAC random seed")
+    )
+    r.add_argument(
+        "--no-refine",
+        dest="refine",
+        action="store_const",
+        const=False,
+        default=unset,
+        help=over("refine", "skip the final exact-model refinement (no covariance)"),
+    )
+    r.add_argument(
+        "--no-tracking",
+        dest="tracking",
+        action="store_const",
+        const=False,
+        default=unset,
+        help=over("tracking.enabled", "every frame alone: twist and odom carry its own twist"),
+    )
+    r.add_argument(
+        "--line-delay", type=A.nonneg_float, default=unset, help=timing("rs.line_delay", "s/row")
+    )
+    r.add_argument(
+        "--readout-time",
+        type=A.nonneg_float,
+        default=unset,
+        help=over("rs.readout_time", "s/frame, wins over the line delay if > 0"),
+    )
+    r.add_argument(
+        "--direction",
+        default=unset,
+        choices=list(READOUT_DIRECTIONS),
+        help=timing("rs.direction", "readout direction"),
+    )
+    r.add_argument(
+        "--reference-row",
+        type=A.finite_float,
+        default=unset,
+        help=timing("rs.reference_row", "row (px) of the estimated pose, -1: centre"),
+    )
+    r.add_argument(
+        "--stamp-row",
+        type=A.finite_float,
+        default=unset,
+        help=timing("rs.stamp_row", "row (px) whose capture time is the header stamp"),
+    )
+    r.add_argument(
+        "--json",
+        action="store_true",
+        help="print only the summary as JSON on stdout (the rest goes to stderr)",
+    )
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    r.set_defaults(func=run)
+    return r
+
+
+#: replay options that set a node parameter: (argparse dest, parameter name)
+_REPLAY_OVERRIDES = (
+    ("solver", "solver"),
+    ("threshold", "ransac.threshold_px"),
+    ("max_iterations", "ransac.max_iterations"),
+    ("confidence", "ransac.confidence"),
+    ("min_inliers", "ransac.min_inliers"),
+    ("seed", "ransac.seed"),
+    ("refine", "refine"),
+    ("tracking", "tracking.enabled"),
+    ("line_delay", "rs.line_delay"),
+    ("readout_time", "rs.readout_time"),
+    ("direction", "rs.direction"),
+    ("reference_row", "rs.reference_row"),
+    ("stamp_row", "rs.stamp_row"),
+    ("landmarks", "landmarks_file"),
+)
+
+
+def _param_overrides(items) -> dict:
+    """``NAME:=VALUE`` (the value in YAML, as ``ros2 run ... -p``) -> {NAME: value}."""
+    import yaml
+
+    out = {}
+    for it in items or ():
+        name, sep, text = it.partition(":=")
+        if not sep or not name.strip():
+            raise A.CliError(f"--param expects NAME:=VALUE, got {it!r}")
+        try:
+            out[name.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise A.CliError(f"--param {name.strip()}: not a YAML value: {text!r}") from None
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Replay the bag; returns 0, or 1 when no frame was solved. Raises CliError for a bag,
+    parameter file, landmark file or output that cannot be used (before any frame)."""
+    bag = A.bag_dir(args.bag, require_messages=True)
+    for f in getattr(args, "params_file", []):
+        if not isinstance(A.yaml_file(f, "parameter file"), dict):
+            raise A.CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
+    if hasattr(args, "landmarks"):
+        A.input_file(args.landmarks, "landmark CSV (id,x,y,z)")
+    params = _param_overrides(getattr(args, "param", []))
+    params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
+    if args.debug_outputs and not args.out:
+        raise A.CliError("--debug-outputs writes into the --out bag: give --out DIR")
+    out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
+    if args.csv:
+        A.output_file(args.csv, True, "CSV file")
+    from ..accuracy import format_summary
+    from ..ros.bags.replay import replay
+
+    res = replay(
+        bag,
+        params_files=getattr(args, "params_file", []),
+        params=params,
+        source=getattr(args, "source", None),
+        out_bag=out_bag,
+        out_csv=args.csv,
+        storage=args.storage,
+        overwrite=args.overwrite,
+        progress=None if args.quiet else sys.stderr,
+        debug_outputs=args.debug_outputs,
+        path_length=args.path_length,
+        image_topic=args.image_topic,
+        imu_topic=getattr(args, "imu_topic", None),
+    )
+    n = len(res.rows)
+    solver = res.config.solver
+    text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
+    print(
+        f"{solver}: solved {res.solved}/{n} frames"
+        + (f"; failures {res.failures}" if res.failures else "")
+        + ("" if res.config.tracking is None else " (tracking: twist = the fused twist)"),
+        file=text,
+    )
+    if res.config.imu is not None:
+        c = res.counts
+        missing = {k[13:]: v for k, v in c.items() if k.startswith("gyro_missing.")}
+        print(
+            f"gyro: {c.get('frames_with_gyro', 0)} frames used it, "
+            f"{c.get('gyro_rejected', 0)} contradicted by the image (solved without), "
+            f"{c.get('gyro_disabled_inconsistent', 0)} solved without it while the rotation "
+            "between frames contradicted it, "
+            f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
+            file=text,
+        )
+        if res.gyro_bias is not None:
+            how = "estimated" if res.config.imu.estimate_bias else "imu.gyro_bias"
+            print(
+                f"gyro bias ({how}, rad/s, IMU frame): "
+                + " ".join(f"{b:.5f}" for b in res.gyro_bias)
+                + " +- "
+                + " ".join(f"{b:.5f}" for b in res.gyro_bias_std)
+                + f" ({c.get('gyro_bias_rejected', 0)} pairs of frames rejected)",
+                file=text,
+            )
+    if res.summary.get("frames"):
+        print(format_summary(solver, res.summary, n), file=text)
+    if res.out_bag:
+        print(
+            f"estimates: {res.out_bag}"
+            + (" (with debug_image, markers, path)" if args.debug_outputs else ""),
+            file=text,
+        )
+    if res.out_csv:
+        print(f"csv: {res.out_csv}", file=text)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "solver": solver,
+                    "frames_total": n,
+                    "solved": res.solved,
+                    "failures": res.failures,
+                    **res.summary,
+                    "out_bag": str(res.out_bag) if res.out_bag else None,
+                    "csv": str(res.out_csv) if res.out_csv else None,
+                },
+                indent=2,
+            )
+        )
+    return 0 if res.solved else 1

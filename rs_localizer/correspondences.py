@@ -1,0 +1,99 @@
+"""What a front end makes of an image: :class:`Correspondences` (2D-3D rows), and the
+:class:`Frontend` protocol every front end (markers, boards, a feature map) follows.
+
+The 2D points are pixels of the distorted image (the estimator undistorts them with the camera
+model), the 3D points are in the world/map frame (m).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Correspondences", "Frontend", "TrackingFrontend"]
+
+
+@dataclass(frozen=True, eq=False)
+class Correspondences:
+    """2D-3D correspondences of one frame.
+
+    Attributes:
+        pixels: (N, 2) px, distorted image points.
+        points: (N, 3) m, world points.
+        ids: (N,) int64 landmark / corner ids, or None.
+        scores: (N,) match quality (higher is better, e.g. ``1 - ratio`` of a feature match),
+            or None; used by PROSAC-style sampling.
+
+    It unpacks, and indexes, as ``pixels, points, ids`` (``uv, xyz, ids =
+    frontend.process(image)``); ``len`` is the number of rows.
+    """
+
+    pixels: np.ndarray
+    points: np.ndarray
+    ids: np.ndarray | None = None
+    scores: np.ndarray | None = None
+
+    @classmethod
+    def empty(cls) -> Correspondences:
+        """No correspondences (with empty ids)."""
+        return cls(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
+
+    @classmethod
+    def of(cls, result: Any) -> Correspondences:
+        """``result`` itself, or the :class:`Correspondences` of a ``(pixels, points, ids)``
+        tuple (a front end written before this type: no scores)."""
+        if isinstance(result, Correspondences):
+            return result
+        pixels, points, ids = result
+        return cls(pixels, points, ids)
+
+    def __len__(self) -> int:
+        return len(self.pixels)
+
+    def __iter__(self) -> Iterator[Any]:
+        return iter((self.pixels, self.points, self.ids))
+
+    def __getitem__(self, i: int) -> Any:
+        """``pixels``, ``points``, ``ids`` by position (as the former 3-tuple)."""
+        return (self.pixels, self.points, self.ids)[i]
+
+    def valid_scores(self) -> np.ndarray | None:
+        """``scores`` when there is one per row, else None."""
+        s = self.scores
+        return s if s is not None and len(s) == len(self.pixels) else None
+
+
+@runtime_checkable
+class Frontend(Protocol):
+    """A front end: an image in, 2D-3D correspondences out.
+
+    ``process(image, camera, encoding)``: ``image`` (H, W) or (H, W, 3) uint8 in ``encoding``
+    (``bgr8``, ``rgb8``, ``mono8``), ``camera`` the frame's
+    :class:`~rs_localizer.camera.CameraModel` (or None); returns :class:`Correspondences`.
+
+    A front end that tracks from frame to frame is a :class:`TrackingFrontend`.
+    """
+
+    def process(self, image: np.ndarray, camera: Any = None, encoding: str = "bgr8") -> Any:
+        """The frame's :class:`Correspondences`."""
+        ...
+
+
+@runtime_checkable
+class TrackingFrontend(Frontend, Protocol):
+    """A :class:`Frontend` that follows points from frame to frame and wants to know how each
+    frame was solved.
+
+    ``observe(stamp_ns, pixels, estimate)``: called by the node after each image frame it
+    estimated, with the frame's header stamp (ns), ``pixels`` (M, 2) the rows the estimator
+    was given (the front end's rows without non-finite ones, capped to ``max_points``) and
+    ``estimate`` (an ``RSPoseEstimate``: ``estimate.inliers`` (M,) is the inlier mask over
+    ``pixels``; ``estimate.success`` false on a failed frame) or None when the estimator raised.
+    """
+
+    def observe(self, stamp_ns: int, pixels: np.ndarray, estimate: Any) -> None:
+        """Take note of how the previous frame was solved."""
+        ...

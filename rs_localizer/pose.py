@@ -1,0 +1,126 @@
+"""The rolling-shutter camera state, typed: :class:`RSPose` (what a localized frame is, in
+physical units) and :class:`RSModel` (the same state as the minimal solvers' model).
+
+Frames: world/map and the camera optical frame (REP 103). The two forms and the conversion
+between them (Kukelova, Albl, Sugimoto, Pajdla, "Linear Solution to the Minimal Absolute Pose
+Rolling Shutter Problem", ACCV 2018, eq. 4: a point seen at RS coordinate ``r`` projects as
+``X_cam = (I + r [w]x) R X + C + r t``):
+
+- :class:`RSModel` ``(R, C, w, t)``: ``R`` (3, 3) world -> camera and ``C`` (3,) at the
+  reference row, ``w``, ``t`` (3,) per unit RS coordinate (rad, m per normalized unit). It is a
+  ``NamedTuple``: it unpacks as the bare ``(R, C, w, t)`` tuple the numba kernels and the
+  estimator's stages pass around.
+- :class:`RSPose`: ``orientation`` (3, 3) camera -> world (``R^T``), ``position`` (3,) m, the
+  camera centre in the world (``-R^T C``), ``angular_velocity`` (3,) rad/s and
+  ``linear_velocity`` (3,) m/s of the camera in its own optical frame, at ``stamp_ns`` (the
+  reference row's capture time, ns; None when unknown).
+
+With ``s`` seconds per unit RS coordinate (``CameraModel.seconds_per_unit_r``), the camera's
+angular velocity is ``-w / s`` and its linear velocity ``(w x C - t) / s`` (camera frame); see
+:func:`rs_localizer.estimation.result.physical_velocities`, the compiled form the estimator
+uses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+__all__ = ["RSModel", "RSPose"]
+
+
+class RSModel(NamedTuple):
+    """The solvers' rolling-shutter model (see the module docstring): ``R`` (3, 3) world ->
+    camera, ``C`` (3,) m, ``w`` (3,) rad and ``t`` (3,) m per unit RS coordinate."""
+
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray
+    t: np.ndarray
+
+    @classmethod
+    def of(cls, obj: Any) -> RSModel:
+        """The model of anything with ``R``, ``C``, ``w``, ``t`` attributes (an
+        ``RSPoseEstimate``, an ``InitialModel``, an ``RSSolution``)."""
+        return cls(obj.R, obj.C, obj.w, obj.t)
+
+
+def _zeros3() -> np.ndarray:
+    return np.zeros(3)
+
+
+@dataclass(frozen=True, eq=False)
+class RSPose:
+    """A camera's pose and twist at one time (see the module docstring for frames and units).
+
+    Attributes:
+        orientation: (3, 3) camera -> world rotation.
+        position: (3,) camera centre in the world (m).
+        angular_velocity: (3,) rad/s, camera frame. linear_velocity: (3,) m/s, camera frame.
+        stamp_ns: the time of the pose (ns), or None.
+    """
+
+    orientation: np.ndarray = field(default_factory=lambda: np.eye(3))
+    position: np.ndarray = field(default_factory=_zeros3)
+    angular_velocity: np.ndarray = field(default_factory=_zeros3)
+    linear_velocity: np.ndarray = field(default_factory=_zeros3)
+    stamp_ns: int | None = None
+
+    @classmethod
+    def of(cls, obj: Any, stamp_ns: int | None = None) -> RSPose:
+        """The pose of anything with ``orientation``, ``position``, ``angular_velocity`` and
+        ``linear_velocity`` attributes (an ``RSPoseEstimate``, a ``FusedState``, a
+        ``BaseState``); ``stamp_ns`` or the object's own ``stamp_ns`` if it has one."""
+        if stamp_ns is None:
+            stamp_ns = getattr(obj, "stamp_ns", None)
+        return cls(
+            obj.orientation, obj.position, obj.angular_velocity, obj.linear_velocity, stamp_ns
+        )
+
+    @classmethod
+    def from_model(
+        cls, model: RSModel | tuple, seconds_per_unit_r: float, stamp_ns: int | None = None
+    ) -> RSPose:
+        """The pose of a solver's model ``(R, C, w, t)`` with ``seconds_per_unit_r`` s per
+        unit RS coordinate (0: a global shutter, zero twist).
+
+        Raises:
+            ValueError: ``seconds_per_unit_r`` negative or not finite.
+        """
+        s = float(seconds_per_unit_r)
+        if not (np.isfinite(s) and s >= 0):
+            raise ValueError(f"seconds_per_unit_r must be finite and >= 0, got {s}")
+        R, C, w, t = (np.asarray(x, dtype=float) for x in model)
+        if s == 0:
+            om, v = np.zeros(3), np.zeros(3)
+        else:
+            om, v = -w / s, (np.cross(w, C) - t) / s
+        return cls(R.T, -R.T @ C, om, v, stamp_ns)
+
+    def model(self, seconds_per_unit_r: float) -> RSModel:
+        """The solver's model of this pose (the inverse of :meth:`from_model`; a global
+        shutter, ``seconds_per_unit_r`` 0, gives zero ``w`` and ``t``)."""
+        s = float(seconds_per_unit_r)
+        R = np.asarray(self.orientation, dtype=float).T
+        C = -R @ np.asarray(self.position, dtype=float)
+        w = -s * np.asarray(self.angular_velocity, dtype=float)
+        t = np.cross(w, C) - s * np.asarray(self.linear_velocity, dtype=float)
+        return RSModel(R, C, w, t)
+
+    @property
+    def angular_velocity_world(self) -> np.ndarray:
+        """(3,) rad/s, the angular velocity in world axes."""
+        return np.asarray(self.orientation) @ np.asarray(self.angular_velocity)
+
+    @property
+    def linear_velocity_world(self) -> np.ndarray:
+        """(3,) m/s, the linear velocity in world axes."""
+        return np.asarray(self.orientation) @ np.asarray(self.linear_velocity)
+
+    def with_twist(self, angular_velocity: np.ndarray, linear_velocity: np.ndarray) -> RSPose:
+        """The same pose with another twist (e.g. a fused one)."""
+        return RSPose(
+            self.orientation, self.position, angular_velocity, linear_velocity, self.stamp_ns
+        )

@@ -1,0 +1,426 @@
+"""ROS 2 bag I/O with ``rosbags`` (no rosbag2, no rclpy): the typestore, writing sequences
+and reading them back.
+
+* :func:`write_sequence_bag` writes a synthetic sequence (frames from
+  :func:`rs_localizer.sim.trajectory.generate_sequence`) as a bag (mcap or sqlite3) with
+  ``<ns>/correspondences``, ``<ns>/keypoints``, ``<ns>/camera_info``, ``/ground_truth/pose`` and
+  ``/ground_truth/twist``, plus ``landmarks.csv`` (the map for the keypoints topic) and
+  ``sequence.json`` (RS timing and generation settings) in the bag directory.
+* :class:`RosbagsMessages` builds messages of the Jazzy typestore (rendered sequences).
+* :func:`read_bag_info`, :func:`iter_messages`, :func:`bag_topics`, :func:`load_ground_truth`
+  read bags.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...accuracy import GroundTruth
+from ...camera import CameraModel
+from ...frontends.image import image_fields
+from ...maps import save_landmarks_csv
+from .. import conversions as cv
+from ..pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
+
+__all__ = [
+    "GT_POSE",
+    "GT_TWIST",
+    "RosbagsMessages",
+    "bag_topics",
+    "iter_messages",
+    "load_ground_truth",
+    "read_bag_info",
+    "storage_plugin",
+    "typestore",
+    "write_sequence_bag",
+    "write_sequence_json",
+]
+
+PC2 = "sensor_msgs/msg/PointCloud2"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+IMAGE = "sensor_msgs/msg/Image"
+POSE = "geometry_msgs/msg/PoseStamped"
+TWIST = "geometry_msgs/msg/TwistStamped"
+IMU = "sensor_msgs/msg/Imu"
+GT_POSE = "/ground_truth/pose"
+GT_TWIST = "/ground_truth/twist"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+#: message types of the localizer's outputs in a replay's bag (``/rs_localizer/<name>``)
+OUT_TYPES = {
+    "pose": POSE,
+    "twist": TWIST,
+    "twist_single_frame": TWIST,
+    "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "odom": "nav_msgs/msg/Odometry",
+}
+_NS = 1_000_000_000
+
+
+def typestore() -> Any:
+    """The rosbags typestore of ROS 2 Jazzy (message definitions for (de)serializing CDR)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def storage_plugin(storage: str) -> type:
+    """The rosbags ``StoragePlugin`` of ``mcap`` or ``sqlite3``.
+
+    Raises:
+        ValueError: another name.
+    """
+    from rosbags.rosbag2 import StoragePlugin
+
+    try:
+        return {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    except KeyError:
+        raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3") from None
+
+
+def write_sequence_bag(
+    path: str | os.PathLike,
+    frames: Sequence[Any],
+    scene: Any,
+    camera: CameraModel,
+    *,
+    storage: str = "mcap",
+    namespace: str = "/camera",
+    camera_frame: str = "camera_optical_frame",
+    map_frame: str = "map",
+    with_ids: bool = True,
+    with_scores: bool = False,
+    keypoints: bool = True,
+    correspondences: bool = True,
+    stamp_row: float = 0.0,
+    settings: dict | None = None,
+    overwrite: bool = False,
+    gt_twist: bool = True,
+    imu: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    imu_topic: str = "/imu/data",
+    imu_frame: str = "imu_link",
+    extra: dict | None = None,
+) -> Path:
+    """Write a synthetic sequence as a ROS 2 bag directory; returns its path.
+
+    Log times: camera_info at stamp + 1 ms, clouds and ground truth at stamp + 2 ms (so that
+    camera_info always comes first). Ground truth is stamped with the reference row's time.
+    ``gt_twist=False`` leaves out ``/ground_truth/twist`` (a bag without ground-truth
+    velocities). ``imu``: optional ``(t_ns (M,), omega (M, 3), specific_force (M, 3))`` written
+    as ``sensor_msgs/Imu`` on ``imu_topic`` (orientation unknown: covariance[0] = -1).
+    ``extra``: more top-level entries of ``sequence.json``.
+    """
+    from rosbags.rosbag2 import Writer
+
+    path = Path(path)
+    if path.exists():
+        if not overwrite:
+            raise FileExistsError(f"{path} exists (use --overwrite)")
+        shutil.rmtree(path)
+    M = RosbagsMessages()
+    ts = M.ts
+    ns = namespace.rstrip("/")
+    topics = {"camera_info": f"{ns}/camera_info", "gt_pose": GT_POSE}
+    if gt_twist:
+        topics["gt_twist"] = GT_TWIST
+    if correspondences:
+        topics["correspondences"] = f"{ns}/correspondences"
+    if keypoints:
+        topics["keypoints"] = f"{ns}/keypoints"
+    used = np.unique(np.concatenate([f.ids for f in frames])) if frames else np.zeros(0, int)
+    with Writer(path, version=9, storage_plugin=storage_plugin(storage)) as w:
+        c_info = w.add_connection(topics["camera_info"], CAMERA_INFO, typestore=ts)
+        c_corr = (
+            w.add_connection(topics["correspondences"], PC2, typestore=ts)
+            if correspondences
+            else None
+        )
+        c_kp = w.add_connection(topics["keypoints"], PC2, typestore=ts) if keypoints else None
+        c_gtp = w.add_connection(GT_POSE, POSE, typestore=ts)
+        c_gtt = w.add_connection(GT_TWIST, TWIST, typestore=ts) if gt_twist else None
+        if imu is not None:
+            topics["imu"] = imu_topic
+            c_imu = w.add_connection(imu_topic, IMU, typestore=ts)
+            for t_ns, om, fo in zip(*imu, strict=True):
+                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, fo, int(t_ns), imu_frame), IMU))
+        for f in frames:
+            t_log = f.stamp_ns + 1_000_000
+            w.write(
+                c_info, t_log, M.cdr(M.camera_info(camera, f.stamp_ns, camera_frame), CAMERA_INFO)
+            )
+            t_log += 1_000_000
+            if c_corr is not None:
+                w.write(
+                    c_corr,
+                    t_log,
+                    M.cdr(
+                        M.cloud(
+                            f.uv,
+                            f.xyz,
+                            f.ids if with_ids else None,
+                            f.stamp_ns,
+                            camera_frame,
+                            f.scores if with_scores else None,
+                        ),
+                        PC2,
+                    ),
+                )
+            if c_kp is not None:
+                w.write(
+                    c_kp,
+                    t_log,
+                    M.cdr(
+                        M.keypoints(
+                            f.uv, f.ids, f.stamp_ns, camera_frame, f.scores if with_scores else None
+                        ),
+                        PC2,
+                    ),
+                )
+            w.write(
+                c_gtp, t_log, M.cdr(M.pose(f.orientation, f.position, f.t_ref_ns, map_frame), POSE)
+            )
+            if c_gtt is not None:
+                w.write(
+                    c_gtt,
+                    t_log,
+                    M.cdr(
+                        M.twist(f.angular_velocity, f.linear_velocity, f.t_ref_ns, camera_frame),
+                        TWIST,
+                    ),
+                )
+    if keypoints and len(used):
+        save_landmarks_csv(path / "landmarks.csv", used, scene.lookup(used))
+    write_sequence_json(
+        path,
+        "rs-localizer make-bag",
+        topics,
+        len(frames),
+        camera,
+        camera_frame,
+        map_frame,
+        stamp_row,
+        settings=settings or {},
+        **(extra or {}),
+    )
+    return path
+
+
+def write_sequence_json(
+    path: str | os.PathLike,
+    generator: str,
+    topics: Mapping[str, str],
+    frames: int,
+    camera: CameraModel,
+    camera_frame: str,
+    map_frame: str,
+    stamp_row: float,
+    rolling_shutter: bool = True,
+    **extra: Any,
+) -> None:
+    """Write a bag's ``sequence.json`` (the schema :func:`load_sequence_info` and the demo read):
+    topics, frame count, frames, camera (K, D, size, distortion model) and RS timing, plus
+    ``extra`` top-level entries (``settings``, ``frontend``, ...). ``rolling_shutter=False``
+    records a global-shutter sequence (zero line delay and readout time)."""
+    meta = {
+        "generator": generator,
+        "topics": topics,
+        "frames": int(frames),
+        "camera_frame": camera_frame,
+        "map_frame": map_frame,
+        "camera": {
+            "K": camera.K.tolist(),
+            "D": camera.D.tolist(),
+            "width": camera.width,
+            "height": camera.height,
+            "distortion_model": camera.distortion_model,
+        },
+        "rs": {
+            "line_delay": camera.line_delay if rolling_shutter else 0.0,
+            "readout_time": camera.readout_time if rolling_shutter else 0.0,
+            "direction": camera.readout,
+            "reference_row": camera.reference_line,
+            "stamp_row": float(stamp_row),
+        },
+        **extra,
+    }
+    (Path(path) / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+
+
+# ---------------------------------------------------------------- reading
+def read_bag_info(path: str | os.PathLike) -> dict:
+    """``sequence.json`` of a bag written by make-bag, or ``{}``."""
+    p = Path(path) / "sequence.json"
+    return json.loads(p.read_text()) if p.is_file() else {}
+
+
+def iter_messages(
+    path: str | os.PathLike, topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """Yield ``(topic, msgtype, log_time_ns, raw_cdr)`` in log-time order."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as r:
+        conns = [c for c in r.connections if topics is None or c.topic in topics]
+        for conn, t_ns, raw in r.messages(connections=conns):
+            yield conn.topic, conn.msgtype, t_ns, bytes(raw)
+
+
+def bag_topics(path: str | os.PathLike) -> dict[str, str]:
+    """topic -> msgtype of every connection of the bag at ``path``."""
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as r:
+        return {c.topic: c.msgtype for c in r.connections}
+
+
+def load_ground_truth(
+    path: str | os.PathLike, pose_topic: str = GT_POSE, twist_topic: str = GT_TWIST
+) -> GroundTruth:
+    ts = typestore()
+    gt = GroundTruth()
+    for topic, msgtype, _, raw in iter_messages(path, {pose_topic, twist_topic}):
+        msg = ts.deserialize_cdr(raw, msgtype)
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        if topic == pose_topic:
+            gt.orientation[stamp], gt.position[stamp] = cv.pose_from_msg(msg.pose)
+        else:
+            gt.angular_velocity[stamp], gt.linear_velocity[stamp] = cv.twist_from_msg(msg.twist)
+    gt.stamps = np.array(sorted(gt.orientation), dtype=np.int64)
+    return gt
+
+
+# ---------------------------------------------------------------- rosbags messages
+class RosbagsMessages:
+    """Message builders of the rosbags ROS 2 Jazzy typestore (no rclpy): header, image,
+    camera_info, correspondence cloud, pose, twist, and ``cdr`` to serialize them."""
+
+    def __init__(self):
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = get_typestore(Stores.ROS2_JAZZY)
+        self.T = self.ts.types
+
+    def header(self, stamp_ns: int, frame_id: str) -> Any:
+        sec, nsec = divmod(max(int(stamp_ns), 0), _NS)
+        return self.T["std_msgs/msg/Header"](
+            stamp=self.T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id=frame_id
+        )
+
+    def image(self, img: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
+        return self.T[IMAGE](header=self.header(stamp_ns, frame_id), **image_fields(img))
+
+    def camera_info(self, cam: CameraModel, stamp_ns: int, frame_id: str) -> Any:
+        D = np.asarray(cam.D, dtype=float)
+        model = cam.distortion_model if cam.has_distortion else "plumb_bob"
+        if model == "plumb_bob" and len(D) < 5:
+            D = np.concatenate([D, np.zeros(5 - len(D))])
+        P = np.zeros((3, 4))
+        P[:, :3] = cam.K
+        roi = self.T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        )
+        return self.T[CAMERA_INFO](
+            header=self.header(stamp_ns, frame_id),
+            height=cam.height,
+            width=cam.width,
+            distortion_model=model,
+            d=D,
+            k=cam.K.ravel().copy(),
+            r=np.eye(3).ravel(),
+            p=P.ravel(),
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        )
+
+    def cloud(
+        self,
+        uv: np.ndarray,
+        xyz: np.ndarray,
+        ids: np.ndarray | None,
+        stamp_ns: int,
+        frame_id: str,
+        scores: np.ndarray | None = None,
+    ) -> Any:
+        return self.cloud_from_array(correspondence_array(uv, xyz, ids, scores), stamp_ns, frame_id)
+
+    def keypoints(
+        self,
+        uv: np.ndarray,
+        ids: np.ndarray,
+        stamp_ns: int,
+        frame_id: str,
+        scores: np.ndarray | None = None,
+    ) -> Any:
+        return self.cloud_from_array(keypoint_array(uv, ids, scores), stamp_ns, frame_id)
+
+    def cloud_from_array(self, arr: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
+        """A structured array (:mod:`rs_localizer.ros.pointcloud`) as a PointCloud2 (height 1,
+        little endian, dense only if every float is finite)."""
+        packed = pack_cloud(arr)
+        PF = self.T["sensor_msgs/msg/PointField"]
+        return self.T[PC2](
+            header=self.header(stamp_ns, frame_id),
+            height=1,
+            width=packed.width,
+            fields=[PF(name=n, offset=o, datatype=d, count=c) for n, o, d, c in packed.fields],
+            is_bigendian=False,
+            point_step=packed.point_step,
+            row_step=packed.row_step,
+            data=np.frombuffer(packed.data, dtype=np.uint8),
+            is_dense=is_dense(arr),
+        )
+
+    def pose(self, R: np.ndarray, p: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
+        q = cv.quaternion_from_matrix(R)
+        T = self.T
+        return T[POSE](
+            header=self.header(stamp_ns, frame_id),
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                orientation=T["geometry_msgs/msg/Quaternion"](
+                    x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+                ),
+            ),
+        )
+
+    def twist(self, w: np.ndarray, v: np.ndarray, stamp_ns: int, frame_id: str) -> Any:
+        T = self.T
+        V = T["geometry_msgs/msg/Vector3"]
+        return T[TWIST](
+            header=self.header(stamp_ns, frame_id),
+            twist=T["geometry_msgs/msg/Twist"](
+                linear=V(x=float(v[0]), y=float(v[1]), z=float(v[2])),
+                angular=V(x=float(w[0]), y=float(w[1]), z=float(w[2])),
+            ),
+        )
+
+    def imu(
+        self, omega: np.ndarray, specific_force: np.ndarray, stamp_ns: int, frame_id: str
+    ) -> Any:
+        """``sensor_msgs/Imu`` with angular velocity (rad/s) and linear acceleration (specific
+        force, m/s^2); orientation unknown (``orientation_covariance[0] = -1``)."""
+        T = self.T
+        V = T["geometry_msgs/msg/Vector3"]
+        unknown = np.zeros(9)
+        unknown[0] = -1.0
+        return T[IMU](
+            header=self.header(stamp_ns, frame_id),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=unknown,
+            angular_velocity=V(x=float(omega[0]), y=float(omega[1]), z=float(omega[2])),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=V(
+                x=float(specific_force[0]), y=float(specific_force[1]), z=float(specific_force[2])
+            ),
+            linear_acceleration_covariance=np.zeros(9),
+        )
+
+    def cdr(self, msg: Any, msgtype: str) -> bytes:
+        return self.ts.serialize_cdr(msg, msgtype)

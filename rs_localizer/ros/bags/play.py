@@ -1,0 +1,299 @@
+"""Play a bag into the live ROS 2 graph (rclpy): original timing scaled by ``rate``, or
+lock-step (wait for each frame's output before sending the next)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import conversions as cv
+from .bag_io import CAMERA_INFO, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
+
+__all__ = ["PlayResult", "is_frame_topic", "output_type", "play"]
+
+FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
+
+
+def output_type(topic: str) -> type:
+    """Message class of a node output topic, by its name."""
+    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import PointCloud2
+
+    last = topic.rstrip("/").rsplit("/", 1)[-1]
+    return {
+        "twist": TwistStamped,
+        "twist_single_frame": TwistStamped,
+        "odom": Odometry,
+        "pose_with_covariance": PoseWithCovarianceStamped,
+        "correspondences_out": PointCloud2,
+    }.get(last, PoseStamped)
+
+
+def _msg_class(msgtype: str):
+    pkg, kind, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+
+
+@dataclass
+class PlayResult:
+    """Outcome of :func:`play`: per frame the input stamp, publish time (monotonic s), outputs
+    received (``{pose_topic: (recv_time, msg)}``) and the summary counters."""
+
+    frames: list = field(default_factory=list)
+    published: int = 0
+    answered: int = 0
+    timeouts: int = 0
+    wall_time: float = 0.0
+
+    @property
+    def latencies(self) -> np.ndarray:
+        """Publish -> first output (s) per answered frame (the slowest pose topic)."""
+        out = []
+        for f in self.frames:
+            if f["outputs"] and len(f["outputs"]) == f["expected"]:
+                out.append(max(t for t, _ in f["outputs"].values()) - f["t_pub"])
+        return np.array(out)
+
+
+def is_frame_topic(topic: str, msgtype: str | None = None) -> bool:
+    """A topic carrying one frame per message: ``*/correspondences``, ``*/keypoints`` or an
+    image (``sensor_msgs/msg/Image``)."""
+    return topic.rstrip("/").rsplit("/", 1)[-1] in FRAME_TOPIC_SUFFIXES or msgtype == IMAGE
+
+
+def play(
+    path: str | os.PathLike,
+    *,
+    rate: float = 1.0,
+    lockstep: bool = False,
+    topics: Iterable[str] | None = None,
+    remap: Mapping[str, str] | None = None,
+    output_topics: Sequence[str] = ("/camera/pose",),
+    timeout: float = 2.0,
+    retries: int = 1,
+    wait_subscribers: float = 30.0,
+    reliable: bool = True,
+    context: Any = None,
+    domain_id: int | None = None,
+    limit: int | None = None,
+    loop: int = 1,
+    stamp_offset_ns: int = 0,
+    messages: list[tuple[str, str, int, bytes]] | None = None,
+    on_frame: Callable[[dict], None] | None = None,
+    log: Callable[[str], Any] = print,
+    late_topics: Iterable[str] = (),
+    imu_lead: float = 0.1,
+) -> PlayResult:
+    """Publish a bag into the ROS graph.
+
+    Args:
+        path: bag directory.
+        rate: time scale of the original timing (ignored in lock-step).
+        lockstep: after each frame (a ``*/correspondences``, ``*/keypoints`` or image message) wait
+            until every ``output_topics`` topic delivered a message stamped within 1 s of the
+            frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
+            subscription may drop a sample) before moving on, counted in
+            ``PlayResult.timeouts`` and reported through ``log``.
+        topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``.
+        wait_subscribers: seconds to wait until every frame topic has a subscriber.
+        reliable: publish with reliable QoS (depth 10); else best effort.
+        context: an ``rclpy.Context`` (initialized here if needed and shut down at the end if
+            it was created here). domain_id: ROS domain for a context created here.
+        limit: stop after this many frames. loop: play the bag this many times (frame stamps
+            are shifted forward by the bag duration so they keep increasing).
+        stamp_offset_ns: added to every header stamp (replaying a bag into a running node).
+        messages: preloaded ``iter_messages`` list (benchmarks). on_frame: callback(frame dict).
+        late_topics: output topics (among ``output_topics``) that may be published after later
+            frames (the node's fused twist and odom with ``tracking.lag`` > 0): lock-step does
+            not wait for them; each message goes to the frame with the nearest header stamp
+            (within 1 s), and at the end the player waits up to ``timeout`` for the missing
+            ones. Other outputs go to the frame being waited for, as before.
+        imu_lead: lock-step: ``sensor_msgs/Imu`` messages go out this many seconds of bag time
+            ahead of the frames (a node using the gyro waits for the samples covering a
+            frame's readout, which would otherwise come only after the frame was answered).
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    remap = dict(remap or {})
+    own_context = context is None
+    if own_context:
+        context = rclpy.Context()
+        rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node("rs_localizer_player", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    result = PlayResult()
+    try:
+        msgs = messages if messages is not None else list(iter_messages(path, topics))
+        if topics is not None:
+            msgs = [m for m in msgs if m[0] in topics]
+        if lockstep and imu_lead > 0:  # (stable: the rest keeps its order)
+            lead = int(imu_lead * 1e9)
+            msgs = sorted(msgs, key=lambda m: m[2] - lead if m[1] == IMU else m[2])
+        types = {}
+        for topic, msgtype, _, _ in msgs:
+            types.setdefault(topic, msgtype)
+        qos = QoSProfile(
+            depth=10,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        )
+        pubs = {
+            t: node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
+            for t, mt in types.items()
+        }
+        outputs = {}
+        pending = {"frame": None}
+        late = set(late_topics or ())
+        waited = [t for t in output_topics if t not in late]
+
+        def make_cb(topic):
+            def cb(msg):
+                s = cv.stamp_to_ns(msg.header.stamp)
+                if topic in late:  # the frame with the nearest stamp
+                    fr = min(result.frames[-64:], key=lambda f: abs(f["stamp"] - s), default=None)
+                else:
+                    fr = pending["frame"]
+                if fr is None:
+                    return
+                if abs(s - fr["stamp"]) < 1_000_000_000 and topic not in fr["outputs"]:
+                    fr["outputs"][topic] = (time.perf_counter(), msg)
+
+            return cb
+
+        if lockstep:
+            for t in output_topics:
+                outputs[t] = node.create_subscription(output_type(t), t, make_cb(t), qos)
+        frame_topics = [t for t in pubs if is_frame_topic(t, types[t])]
+        deadline = time.monotonic() + wait_subscribers
+        while any(pubs[t].get_subscription_count() == 0 for t in frame_topics) or (
+            lockstep and any(node.count_publishers(t) == 0 for t in output_topics)
+        ):
+            if time.monotonic() > deadline:
+                missing = [
+                    remap.get(t, t) for t in frame_topics if pubs[t].get_subscription_count() == 0
+                ]
+                log(
+                    f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
+                    "playing anyway"
+                )
+                break
+            executor.spin_once(timeout_sec=0.05)
+        if not msgs:
+            return result
+        t_first = min(m[2] for m in msgs)
+        duration = max(m[2] for m in msgs) - t_first + 1
+        wall0 = time.perf_counter()
+        n_frames = 0
+        last_pub = {}
+        if lockstep:  # best-effort subscribers drop early samples: prime the camera_info
+            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
+            for _ in range(3):
+                for topic, msgtype, _, raw in msgs[:first]:
+                    pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
+                end = time.perf_counter() + 0.05
+                while time.perf_counter() < end:
+                    executor.spin_once(timeout_sec=0.01)
+        for rep in range(max(int(loop), 1)):
+            shift = rep * (duration + 33_000_000) + stamp_offset_ns
+            for topic, msgtype, t_ns, raw in msgs:
+                if shift:
+                    raw = _shift_stamp(raw, msgtype, shift)
+                if not lockstep and rate > 0:
+                    target = wall0 + (t_ns + shift - stamp_offset_ns - t_first) * 1e-9 / rate
+                    while True:
+                        now = time.perf_counter()
+                        if now >= target:
+                            break
+                        executor.spin_once(timeout_sec=min(target - now, 0.05))
+                pubs[topic].publish(raw)
+                last_pub[topic] = raw
+                result.published += 1
+                if not is_frame_topic(topic, msgtype):
+                    continue
+                n_frames += 1
+                frame = {
+                    "index": n_frames - 1,
+                    "topic": topic,
+                    "stamp": _header_stamp(raw),
+                    "t_pub": time.perf_counter(),
+                    "outputs": {},
+                    "expected": len(waited) if lockstep else 0,
+                }
+                result.frames.append(frame)
+                if lockstep:
+                    pending["frame"] = frame
+                    attempt = 0
+                    t_end = time.perf_counter() + timeout
+                    while any(t not in frame["outputs"] for t in waited):
+                        now = time.perf_counter()
+                        if now >= t_end:
+                            if attempt >= retries:
+                                result.timeouts += 1
+                                missing = [t for t in waited if t not in frame["outputs"]]
+                                log(
+                                    f"warning: frame {frame['index']}: no {', '.join(missing)} "
+                                    f"within {timeout:g} s ({retries} retries); moving on"
+                                )
+                                break
+                            attempt += 1
+                            for t, r in last_pub.items():  # camera_info and the frame again
+                                pubs[t].publish(r)
+                            t_end = time.perf_counter() + timeout
+                        executor.spin_once(timeout_sec=min(0.01, max(t_end - now, 0)))
+                    if all(t in frame["outputs"] for t in waited):
+                        result.answered += 1
+                    pending["frame"] = None
+                if on_frame is not None:
+                    on_frame(frame)
+                if limit is not None and n_frames >= limit:
+                    break
+            if limit is not None and n_frames >= limit:
+                break
+        result.wall_time = time.perf_counter() - wall0
+        # let reliable writers flush the tail (and the late outputs of the last frames come)
+        end = time.perf_counter() + 0.2
+        end_late = time.perf_counter() + (timeout if lockstep and late else 0.0)
+        while time.perf_counter() < max(end, end_late):
+            if time.perf_counter() >= end and not any(
+                t not in f["outputs"] for f in result.frames for t in late
+            ):
+                break
+            executor.spin_once(timeout_sec=0.02)
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+        if own_context:
+            rclpy.try_shutdown(context=context)
+    return result
+
+
+def _header_stamp(raw: bytes) -> int:
+    """Header stamp of a CDR message that starts with std_msgs/Header (4-byte encapsulation
+    header, then int32 sec, uint32 nanosec, little endian)."""
+    if raw[1] not in (0, 1):
+        return 0
+    order = "<" if raw[1] == 1 else ">"
+    sec, nsec = np.frombuffer(raw[4:12], dtype=order + "i4, " + order + "u4")[0]
+    return int(sec) * 1_000_000_000 + int(nsec)
+
+
+def _shift_stamp(raw: bytes, msgtype: str, shift_ns: int) -> bytes:
+    """Shift the header stamp of a CDR message that starts with a Header (all our types)."""
+    if not shift_ns or msgtype not in (PC2, CAMERA_INFO, POSE, TWIST, IMAGE, IMU):
+        return raw
+    order = "<" if raw[1] == 1 else ">"
+    s = _header_stamp(raw) + shift_ns
+    head = np.array(
+        [(s // 1_000_000_000, s % 1_000_000_000)], dtype=order + "i4, " + order + "u4"
+    ).tobytes()
+    return raw[:4] + head + raw[12:]

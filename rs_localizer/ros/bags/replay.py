@@ -1,0 +1,520 @@
+"""Offline replay: the localizer node over every frame of a bag, without middleware.
+
+The frames go through the node's own per-frame pipeline
+(:class:`~rs_localizer.ros.pipeline.FramePipeline`) configured from the node's parameters
+(:mod:`.params`: defaults, then ROS 2 parameter files, then overrides), so a replay publishes
+what the node would: the pose, the frame's own twist (``twist_single_frame``) and, with
+tracking (the default), the fused twist on ``twist`` and ``odom`` when it is final. The outputs
+are written as a bag (``/rs_localizer/<topic>``) and a CSV (one line per frame), and compared
+with the bag's ground truth (``/ground_truth/*``) when it has one. With ``debug_outputs`` the
+output bag also gets the node's visualization topics (``debug_image``, ``markers``, ``path``:
+:mod:`rs_localizer.ros.visualization`), to open in Foxglove or RViz.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import os
+import shutil
+import sys
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from ...accuracy import GroundTruth, frame_errors, summarize_errors
+from ...frontends.shared import SHARED_MAPS
+from .. import conversions as cv
+from ..outputs import frame_messages, fused_messages
+from ..params import (
+    LocalizerConfig,
+    build_config,
+    load_maps,
+    parameter_values,
+    read_params_file,
+)
+from ..pipeline import FramePipeline, FrameResult, FusedOutput
+from .bag_io import (
+    CAMERA_INFO,
+    COMPRESSED_IMAGE,
+    GT_POSE,
+    IMAGE,
+    IMU,
+    OUT_TYPES,
+    bag_topics,
+    iter_messages,
+    load_ground_truth,
+    read_bag_info,
+    storage_plugin,
+    typestore,
+)
+
+__all__ = ["BAG_TIMING", "CSV_COLUMNS", "ReplayResult", "replay", "replay_parameters", "to_cdr"]
+
+#: RS timing parameters a replay takes from the bag's ``sequence.json`` (``rs`` section, written
+#: by make-bag and render-bag) when neither a parameter file nor an override sets them
+#: (``rs.readout_time`` is not among them: with 0 the line delay is used, as recorded)
+BAG_TIMING = ("rs.line_delay", "rs.direction", "rs.reference_row", "rs.stamp_row")
+
+
+def to_cdr(msg: Any, msgtype: str, ts: Any) -> bytes:
+    """rclpy message -> CDR bytes with zeroed padding (rclpy leaves the alignment padding
+    uninitialized, which makes bags non-reproducible): serialize, then let rosbags re-encode."""
+    from rclpy.serialization import serialize_message
+
+    return bytes(ts.serialize_cdr(ts.deserialize_cdr(serialize_message(msg), msgtype), msgtype))
+
+
+@dataclass
+class ReplayResult:
+    """Outcome of :func:`replay`: ``rows`` (one dict per frame, the CSV's columns),
+    ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
+    of the published pose and twist), ``failures`` (reason -> frames), the files written, the
+    configuration and parameter values used, and the pipeline's counters (``counts``: e.g.
+    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_disabled_inconsistent``,
+    ``gyro_missing.<reason>``, as in the node's
+    diagnostics), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the
+    last frame used, the online estimate with ``imu.estimate_bias``; None without
+    ``imu.enabled``)."""
+
+    rows: list = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+    failures: dict = field(default_factory=dict)
+    out_bag: Path | None = None
+    out_csv: Path | None = None
+    config: LocalizerConfig | None = None
+    parameters: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+    gyro_bias: np.ndarray | None = None
+    gyro_bias_std: np.ndarray | None = None
+
+    @property
+    def solved(self) -> int:
+        """Frames with a pose."""
+        return sum(1 for r in self.rows if r["success"])
+
+
+def _progress(i, n, t0, stream):
+    if stream is None:
+        return
+    width = 30
+    done = int(width * i / max(n, 1))
+    rate = i / max(time.perf_counter() - t0, 1e-9)
+    stream.write(f"\r[{'#' * done}{'.' * (width - done)}] {i}/{n} frames {rate:6.1f} Hz")
+    if i == n:
+        stream.write("\n")
+    stream.flush()
+
+
+def replay_parameters(
+    path: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+    source: str | None = None,
+) -> tuple[dict[str, Any], list[str]]:
+    """The node parameter values of a replay of the bag ``path``: the defaults, then
+    ``params_files`` in order (ROS 2 parameter files, as ``--params-file`` gives them to the
+    node), then ``params`` (overrides by parameter name). Then, for what none of them sets: the
+    :data:`BAG_TIMING` values of the bag's ``sequence.json``, and with ``source`` keypoints the
+    bag's ``landmarks.csv`` as ``landmarks_file``. Returns ``(values, ignored file entries)``.
+
+    Raises:
+        ConfigError (a ValueError): see :func:`.params.parameter_values`.
+    """
+    params_files = list(params_files)
+    values, ignored = parameter_values(params_files, params)
+    given = set(params or {}).union(*(read_params_file(f) for f in params_files))
+    rs = read_bag_info(Path(path)).get("rs", {})
+    for name in BAG_TIMING:
+        key = name.split(".", 1)[1]
+        if name not in given and rs.get(key) is not None:
+            values[name] = str(rs[key]) if name == "rs.direction" else float(rs[key])
+    if source == "keypoints" and not values["landmarks_file"]:
+        values["landmarks_file"] = str(Path(path) / "landmarks.csv")
+    return values, ignored
+
+
+def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, image_topic):
+    """The bag topic of the frames for ``source``."""
+    if source != "image":
+        return next((t for t in topics if t.rstrip("/").endswith("/" + source)), None)
+    want = COMPRESSED_IMAGE if cfg.image_transport == "compressed" else IMAGE
+    images = [t for t, mt in topics.items() if mt == want]
+    for t in (image_topic, info.get("topics", {}).get("image")):
+        if t in images:
+            return t
+    return images[0] if images else None
+
+
+def replay(
+    path: str | os.PathLike,
+    *,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+    source: str | None = None,
+    out_bag: str | os.PathLike | None = None,
+    out_csv: str | os.PathLike | None = None,
+    storage: str = "mcap",
+    progress: TextIO | None = sys.stderr,
+    overwrite: bool = False,
+    debug_outputs: bool = False,
+    path_length: int = 1000,
+    image_topic: str | None = None,
+    imu_topic: str | None = None,
+    log: Any = None,
+) -> ReplayResult:
+    """Run the localizer node's per-frame pipeline over every frame of a bag, offline.
+
+    Args:
+        path: bag directory (make-bag or render-bag output, or a recording), or its storage
+            file (then its directory is read, with its sequence.json).
+        params_files: the node's ROS 2 parameter files (later ones win; see
+            :func:`.params.read_params_file` for the sections read).
+        params: overrides by parameter name (``{"solver": "p3p", "tracking.enabled": False}``).
+            RS timing and the keypoints' landmarks that nothing sets come from the bag
+            (:func:`replay_parameters`).
+        source: the frames: ``correspondences`` (``*/correspondences``), ``keypoints``
+            (``*/keypoints`` + ``landmarks_file``) or ``image`` (an image topic through the
+            front end of the ``frontend`` parameter); None: ``image`` when ``frontend`` is not
+            ``none``, else ``correspondences``.
+        out_bag: write the outputs here (``/rs_localizer/pose``, ``twist``,
+            ``twist_single_frame``, ``pose_with_covariance``, ``odom``: the node's messages,
+            each logged at the bag time of the frame that made it final). out_csv: one line
+            per frame (:data:`CSV_COLUMNS`: the pose, the twist on ``twist`` and the frame's own
+            twist, errors against ground truth). storage: ``mcap`` or ``sqlite3``.
+        debug_outputs: (needs ``out_bag``) add, for every solved frame,
+            ``/rs_localizer/debug_image`` (stamped like the input frame, drawn on the input
+            image in image mode, else on the bag's image of the same stamp on ``image_topic``
+            -- default: its ``sensor_msgs/Image`` topic in the frame topic's namespace, else
+            the first one -- or on a blank canvas), ``/rs_localizer/markers`` and
+            ``/rs_localizer/path`` (the last ``path_length`` poses), as the node publishes them.
+        image_topic: with ``source`` image the frames' topic (default: the bag's image topic,
+            as ``sequence.json`` names it).
+        imu_topic: with ``imu.enabled`` the ``sensor_msgs/Imu`` topic whose gyro the frames
+            use (default: the bag's only IMU topic); all its samples are buffered first.
+        progress: stream for the progress bar (None: none). log: logger for the pipeline's
+            warnings (None: silent).
+
+    Raises:
+        ValueError: no frame topic for ``source``; ``debug_outputs`` without ``out_bag``;
+            ``imu.enabled`` without one IMU topic (or ``imu_topic`` not one); invalid
+            parameters (a :class:`~rs_localizer.ros.params.ConfigError`).
+        FileExistsError: ``out_bag`` exists and not ``overwrite``.
+    """
+    path = Path(path)
+    if path.is_file() and (path.parent / "metadata.yaml").is_file():
+        path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
+    info = read_bag_info(path)
+    values, _ = replay_parameters(path, params_files, params, source)
+    token = object()
+    try:
+        cfg = load_maps(build_config(values), owner=token)
+    finally:
+        SHARED_MAPS.release(token)  # (the configuration keeps what it loaded)
+    if source is None:
+        source = "image" if cfg.frontend is not None else "correspondences"
+    if source == "image" and cfg.frontend is None:
+        raise ValueError("--source image needs a front end (the frontend parameter is none)")
+    # (offline every camera_info before a frame has been read: no waiting)
+    cfg = dataclasses.replace(cfg, camera_info_wait=0.0)
+    ts = typestore()
+    topics = bag_topics(path)
+    frame_topic = _frame_topic(topics, source, cfg, info, image_topic)
+    info_topic = next((t for t, mt in topics.items() if mt == CAMERA_INFO), None)
+    if frame_topic is None:
+        what = f"*/{source}" if source != "image" else f"{cfg.image_transport} image"
+        raise ValueError(f"{path}: no {what} topic (topics: {sorted(topics)})")
+    if debug_outputs and out_bag is None:
+        raise ValueError("debug outputs need an output bag (--out)")
+    if debug_outputs and source != "image" and image_topic is None:
+        images = [t for t, mt in topics.items() if mt == IMAGE]
+        ns = frame_topic.rsplit("/", 1)[0] + "/"
+        image_topic = next((t for t in images if t.startswith(ns)), images[0] if images else None)
+    viz_topic = image_topic if debug_outputs and source != "image" else None
+    if cfg.imu is not None:
+        imus = [t for t, mt in topics.items() if mt == IMU]
+        if imu_topic is None and len(imus) == 1:
+            imu_topic = imus[0]
+        if imu_topic not in imus:
+            raise ValueError(
+                f"{path}: imu.enabled needs a sensor_msgs/Imu topic (--imu-topic; IMU topics: "
+                f"{imus})"
+            )
+        # (offline every sample is buffered before the frames: no waiting)
+        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
+    gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
+    n_frames = _count(path, frame_topic)
+    result = ReplayResult(config=cfg, parameters=values)
+    writer = None
+    conns = {}
+    if out_bag is not None:
+        from rosbags.rosbag2 import Writer
+
+        out_bag = Path(out_bag)
+        if out_bag.exists():
+            if not overwrite:
+                raise FileExistsError(f"{out_bag} exists (use --overwrite)")
+            shutil.rmtree(out_bag)
+        writer = Writer(out_bag, version=9, storage_plugin=storage_plugin(storage))
+        writer.open()
+        for name, mt in OUT_TYPES.items():
+            conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
+        result.out_bag = out_bag
+    viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
+    rows = _Rows(gt)
+    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
+    if cfg.imu is not None:
+        for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+            pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
+    try:
+        t0 = time.perf_counter()
+        i = 0
+        t_log = 0
+        wanted = OUT_TYPES.__contains__
+        for topic, msgtype, t_log, raw in iter_messages(
+            path, {frame_topic, info_topic} | ({viz_topic} if viz_topic else set())
+        ):
+            msg = ts.deserialize_cdr(raw, msgtype)
+            if topic == viz_topic:
+                viz.add_image(msg)
+                continue
+            if topic == info_topic:
+                pipeline.add_camera_info(msg)
+                continue
+            i += 1
+            res = pipeline.process(msg, source)
+            rows.add(i - 1, res, cfg.solver)
+            msgs = frame_messages(res, cfg.map_frame, wanted)
+            rows.fused(res.fused)
+            _write(writer, conns, ts, t_log, msgs)
+            if viz is not None and res.solved:
+                if res.image is not None:
+                    viz.add_decoded(*res.image)
+                viz.frame(res, t_log)
+            _progress(i, n_frames, t0, progress)
+        last = pipeline.flush()  # (the end of the video: the twists still pending)
+        rows.fused(last)
+        _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
+    finally:
+        if viz is not None:
+            viz.flush()
+        if writer is not None:
+            writer.close()
+    result.rows = rows.finish()
+    result.counts = pipeline.stats.snapshot().counts
+    bias = pipeline.gyro_bias_values()
+    if bias is not None:
+        result.gyro_bias, result.gyro_bias_std = bias
+    for r in result.rows:
+        if not r["success"]:
+            result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
+    errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
+    result.summary = summarize_errors(errors)
+    if out_csv is not None:
+        result.out_csv = Path(out_csv)
+        _write_csv(result.out_csv, result.rows)
+    return result
+
+
+def _write(writer, conns, ts, t_log: int, messages) -> None:
+    if writer is None:
+        return
+    for topic, m in messages:
+        writer.write(conns[topic], t_log, to_cdr(m, OUT_TYPES[topic], ts))
+
+
+def _xyz(prefix: str, v) -> dict:
+    return {f"{prefix}{a}": float(v[k]) for k, a in enumerate("xyz")}
+
+
+class _Rows:
+    """The CSV rows: one per frame, the pose when solved, the published twist (the frame's
+    own, or the fused one when it comes) and the errors against ground truth."""
+
+    def __init__(self, gt: GroundTruth):
+        self.gt = gt
+        self.rows: list[dict] = []
+        self.waiting: dict[int, tuple] = {}  # out stamp -> (row, orientation, position)
+
+    def add(self, index: int, res: FrameResult, solver: str) -> None:
+        row = {
+            "frame": index,
+            "stamp_ns": res.stamp_ns,
+            "success": res.solved,
+            "failure": res.failure or "",
+            "solver": solver,
+        }
+        if res.out_stamp_ns is not None:
+            row["out_stamp_ns"] = res.out_stamp_ns
+        est = res.estimate
+        if est is not None:
+            row["time_ms"] = res.times.get("estimate", float("nan")) * 1e3
+            row["num_points"] = len(res.points2d)
+            row["num_inliers"] = est.num_inliers
+            row["rmse_px"] = est.rmse_px
+        self.rows.append(row)
+        if not res.solved:
+            return
+        out = res.output
+        q = cv.quaternion_from_matrix(out.orientation)
+        row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
+        row.update(_xyz("p", out.position))
+        row.update(_xyz("single_w", out.angular_velocity))
+        row.update(_xyz("single_v", out.linear_velocity))
+        self.waiting[res.out_stamp_ns] = (row, out.orientation, out.position)
+        if res.twist_now:
+            self._twist(res.out_stamp_ns, out.angular_velocity, out.linear_velocity)
+
+    def fused(self, fused: Iterable[FusedOutput]) -> None:
+        for f in fused:
+            self._twist(f.stamp_ns, f.source.angular_velocity, f.source.linear_velocity)
+
+    def _twist(self, stamp: int, w, v) -> None:
+        item = self.waiting.pop(stamp, None)
+        if item is None:
+            return
+        row, R, p = item
+        row.update(_xyz("w", w))
+        row.update(_xyz("v", v))
+        self._errors(row, R, p, w, v, stamp)
+
+    def _errors(self, row, R, p, w, v, stamp) -> None:
+        err = frame_errors(R, p, w, v, self.gt, stamp)
+        if err:
+            row.update({f"err_{k}": val for k, val in err.items()})
+
+    def finish(self) -> list[dict]:
+        """The rows; solved frames whose twist never came get their pose errors alone."""
+        for stamp, (row, R, p) in self.waiting.items():
+            self._errors(row, R, p, None, None, stamp)
+        self.waiting.clear()
+        return self.rows
+
+
+class _DebugWriter:
+    """Writes the visualization topics of solved frames into the replay's output bag. A frame's
+    debug image waits until the next frame (or the end), so that the bag's image with the same
+    stamp has been read whatever the order of equal log times."""
+
+    def __init__(self, writer, conns, ts, path_length, map_frame):
+        from ..visualization import VIZ_TOPICS, VisualizationBuilder
+
+        self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
+        self.types = VIZ_TOPICS
+        for name, mt in VIZ_TOPICS.items():
+            conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
+        self.builder = VisualizationBuilder(path_length)
+        self.images = {}  # header stamp (ns) -> (image, encoding), the last few
+        self.pending = None
+
+    def add_image(self, msg):
+        from ...frontends.image import image_from_msg
+
+        try:
+            self.add_decoded(*image_from_msg(msg), cv.stamp_to_ns(msg.header.stamp))
+        except ValueError:
+            return
+
+    def add_decoded(self, image, encoding, stamp_ns: int):
+        self.images[int(stamp_ns)] = (image, encoding)
+        while len(self.images) > 8:
+            self.images.pop(next(iter(self.images)))
+
+    def _write(self, name, t_log, msg):
+        self.writer.write(self.conns[name], t_log, to_cdr(msg, self.types[name], self.ts))
+
+    def frame(self, res: FrameResult, t_log: int):
+        self.flush()
+        b, est, mf = self.builder, res.estimate, self.map_frame
+        b.add_pose(est, res.out_stamp_ns, mf)
+        self._write(
+            "markers", t_log, b.markers(est, res.points3d, res.camera, res.out_stamp_ns, mf)
+        )
+        self._write("path", t_log, b.path(res.out_stamp_ns, mf))
+        self.pending = (res, t_log)
+
+    def flush(self):
+        if self.pending is None:
+            return
+        res, t_log = self.pending
+        self.pending = None
+        camera = res.camera
+        img, enc = self.images.get(res.stamp_ns, (None, None))
+        if img is not None and img.shape[:2] != (camera.height, camera.width):
+            img, enc = None, None
+        self._write(
+            "debug_image",
+            t_log,
+            self.builder.debug_image(
+                res.estimate,
+                res.points2d,
+                res.points3d,
+                camera,
+                res.stamp_ns,
+                res.frame_id,
+                img,
+                enc,
+            ),
+        )
+
+
+def _count(path, topic) -> int:
+    from rosbags.rosbag2 import Reader
+
+    with Reader(path) as r:
+        return sum(c.msgcount for c in r.connections if c.topic == topic)
+
+
+CSV_COLUMNS = [
+    "frame",
+    "stamp_ns",
+    "out_stamp_ns",
+    "solver",
+    "success",
+    "failure",
+    "num_points",
+    "num_inliers",
+    "rmse_px",
+    "time_ms",
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "px",
+    "py",
+    "pz",
+    "wx",
+    "wy",
+    "wz",
+    "vx",
+    "vy",
+    "vz",
+    "err_rot_deg",
+    "err_pos_m",
+    "err_angvel",
+    "err_linvel",
+    "single_wx",
+    "single_wy",
+    "single_wz",
+    "single_vx",
+    "single_vy",
+    "single_vz",
+]
+
+
+def _write_csv(path, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow(
+                {
+                    k: (f"{v:.9g}" if isinstance(v, float) and math.isfinite(v) else v)
+                    for k, v in r.items()
+                }
+            )

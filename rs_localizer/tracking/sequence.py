@@ -1,0 +1,701 @@
+"""The library's video entry point: one rolling-shutter camera's frames, in order, with its gyro.
+
+:class:`SequenceLocalizer` owns every piece of a camera's video state (in the spirit of
+OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
+
+- the video tracker (:class:`~rs_localizer.estimation.tracker.RSTracker`: predicted RANSAC,
+  relocalization, resets, the fused twist), made again when the solver, the estimator or
+  tracking options or the camera model change;
+- the frames whose pose is out but whose fused twist is final only ``tracking.lag`` frames
+  later (:attr:`SequenceOutput.fused` hands them out when they are);
+- the gyro samples (:class:`~rs_localizer.estimation.gyro.ImuBuffer`, fed by :meth:`add_imu`)
+  and each frame's gyro measurement over its readout;
+- the online gyro-bias estimate (:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`,
+  with ``estimate_bias``) and the check of the gyro against the rotation between solved frames
+  (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames are solved without the
+  gyro while it is declared inconsistent);
+- time resets: a frame stamp older than the previous one, or newer by more than
+  ``time_reset_ns`` (:meth:`check_time`) starts the gyro's timeline again (the samples of the
+  previous timeline, the bias estimator's and the check's pairing).
+
+API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspondences ->
+:class:`SequenceOutput`), :meth:`flush` (end of the video: the twists still pending),
+:meth:`reset` (forget everything but the configuration). The node's
+:class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages, picks the camera model of a
+frame's stamp and keeps the diagnostics; ``rs-localizer replay``, ``evaluation/bench_gyro.py``
+and ``evaluation/bench_video.py`` drive this same object.
+
+Example (a video of correspondences and a gyro; ``camera`` a
+:class:`~rs_localizer.camera.CameraModel` with its rolling-shutter timing)::
+
+    seq = SequenceLocalizer(SequenceSettings(imu=GyroSettings(R_cam_imu=R)))
+    for t_ns, w in gyro_samples:
+        seq.add_imu(t_ns, w)
+    for stamp_ns, uv, xyz in frames:
+        out = seq.process(SequenceFrame(stamp_ns, camera, uv, xyz))
+        if out.estimate is not None and out.estimate.success:
+            ...  # out.estimate: pose and the frame's own twist
+        for f in out.fused:
+            ...  # f.pose: an earlier frame's pose with its fused twist
+    for f in seq.flush():
+        ...
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..estimation.estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
+from ..estimation.fusion import FusedState
+from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
+from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
+from ..estimation.gyro_check import GyroMountCheck
+from ..estimation.tracker import RSTracker, TrackerOptions
+from ..pose import RSPose
+from ..solvers.registry import solver_info
+
+__all__ = [
+    "MAX_PENDING",
+    "FusedPose",
+    "GyroSettings",
+    "SequenceFrame",
+    "SequenceLocalizer",
+    "SequenceOutput",
+    "SequenceSettings",
+    "reference_stamp_ns",
+]
+
+#: frames whose fused twist may wait at most (the oldest beyond are dropped)
+MAX_PENDING = 64
+
+
+@dataclass(frozen=True)
+class GyroSettings:
+    """How the gyro is used (the node's ``imu.*`` parameters; any object with these attributes
+    will do, e.g. the node's ``ImuConfig``).
+
+    Attributes:
+        R_cam_imu: (3, 3) rotation IMU -> camera optical frame.
+        time_offset: s added to the IMU stamps to get camera time.
+        gyro_noise: rad/s, standard deviation of one sample.
+        gyro_bias: (3,) rad/s, IMU frame; gyro_bias_sigma: its standard deviation per axis.
+        estimate_bias: estimate the bias online (from ``gyro_bias`` with ``gyro_bias_sigma``);
+            bias_random_walk: rad/s per sqrt(s), how fast it may drift.
+        wait: s a frame waits for the samples covering its readout (0: none, e.g. offline).
+        buffer: s of samples kept. max_rate: rad/s, the saturation (rejected beyond).
+        max_gap: s between samples beyond which a readout is ``sparse``.
+    """
+
+    R_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(3))
+    time_offset: float = 0.0
+    gyro_noise: float = 0.005
+    gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    gyro_bias_sigma: float = 0.01
+    wait: float = 0.0
+    buffer: float = 2.0
+    max_rate: float = 35.0
+    max_gap: float = 0.02
+    estimate_bias: bool = False
+    bias_random_walk: float = 1e-4
+
+
+@dataclass(frozen=True)
+class SequenceSettings:
+    """The configuration of a :class:`SequenceLocalizer`.
+
+    Attributes:
+        solver: minimal solver name (:mod:`rs_localizer.solvers.registry`).
+        options: the estimator's :class:`~rs_localizer.estimation.estimate.EstimateOptions`
+            (None: the defaults).
+        tracking: the video tracker's
+            :class:`~rs_localizer.estimation.tracker.TrackerOptions`; None: every frame alone.
+        imu: how the gyro is used (:class:`GyroSettings`); None: no gyro.
+        stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
+        time_reset_ns: a forward stamp jump larger than this (ns) is a time reset.
+        check_gyro: check the gyro against the rotation between solved frames and solve
+            without it while they disagree (the node always does; off only to show what the
+            check prevents).
+    """
+
+    solver: str = "r6p_1lin"
+    options: EstimateOptions | None = None
+    tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
+    imu: Any = None
+    stamp_row: float = 0.0
+    time_reset_ns: int = 10**9
+    check_gyro: bool = True
+
+
+@dataclass(frozen=True)
+class SequenceFrame:
+    """One frame of the video.
+
+    Attributes:
+        stamp_ns: the capture time (ns, camera clock) of row ``stamp_row`` (the header stamp).
+        camera: the camera model, with its rolling-shutter timing.
+        points2d: (N, 2) px, distorted image points; points3d: (N, 3) m, world points.
+        scores: (N,) match quality (higher is better) or None.
+        tag: anything the caller wants back with the frame's fused twist (e.g. its frame id).
+    """
+
+    stamp_ns: int
+    camera: CameraModel
+    points2d: np.ndarray
+    points3d: np.ndarray
+    scores: np.ndarray | None = None
+    tag: Any = None
+
+
+@dataclass(frozen=True)
+class FusedPose:
+    """A frame's pose as estimated (orientation (3, 3) camera -> world, position (3,) m and
+    their 6x6 ``pose_covariance``) with its fused twist (``angular_velocity`` rad/s,
+    ``linear_velocity`` m/s, camera frame, and their 6x6 ``twist_covariance``): what the
+    node's twist and odom carry. ``stamp_ns``: the frame's reference time; ``tag``: the
+    frame's :attr:`SequenceFrame.tag`; ``state``: the tracker's fused state itself (the
+    smoothed pose too, and the 12x12 covariance of pose and twist)."""
+
+    stamp_ns: int
+    orientation: np.ndarray
+    position: np.ndarray
+    pose_covariance: Any
+    angular_velocity: np.ndarray
+    linear_velocity: np.ndarray
+    twist_covariance: Any
+    tag: Any = None
+    state: FusedState | None = None
+
+    @property
+    def pose(self) -> RSPose:
+        """The frame's pose with its fused twist (:class:`~rs_localizer.pose.RSPose`)."""
+        return RSPose.of(self)
+
+    @classmethod
+    def of(cls, estimate: RSPoseEstimate, fused: FusedState, tag: Any = None) -> FusedPose:
+        """The estimate's pose with the fused state's twist."""
+        return cls(
+            fused.stamp_ns,
+            estimate.orientation,
+            estimate.position,
+            estimate.pose_covariance,
+            fused.angular_velocity,
+            fused.linear_velocity,
+            fused.twist_covariance,
+            tag,
+            fused,
+        )
+
+
+@dataclass
+class SequenceOutput:
+    """What became of a frame in :meth:`SequenceLocalizer.process`.
+
+    Attributes:
+        estimate: the frame's :class:`~rs_localizer.estimation.estimate.RSPoseEstimate`
+            (check ``success``); None when the estimator raised (``error``).
+        stamp_ns: the frame's reference time (ns): the time of the estimated pose.
+        twist_now: the frame's own twist is its final twist (no tracking, a global-shutter
+            solver or no readout timing); else its fused twist comes in a later ``fused``.
+        fused: earlier frames (and, on a reset, this track's last ones) whose fused twist is
+            final now, oldest first (also after a failed frame).
+        new_track: the frame started a track (first frame, reset, new tracker).
+        path: the tracker's path for the frame (``cold``, ``tracked``, ``relocalized``,
+            ``reset``: :data:`~rs_localizer.estimation.tracker.STATES`); None without tracking.
+        gyro: the gyro measurement the frame was solved with, or None.
+        error: ``"<exception type>: <message>"`` when the estimator raised, else None.
+        gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
+    """
+
+    estimate: RSPoseEstimate | None = None
+    stamp_ns: int = 0
+    twist_now: bool = True
+    fused: list[FusedPose] = field(default_factory=list)
+    new_track: bool = False
+    path: str | None = None
+    gyro: GyroMeasurement | None = None
+    error: str | None = None
+    gyro_seconds: float = 0.0
+
+
+def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
+    """The reference row's capture time (ns): the time of a frame's estimate, from the header
+    stamp ``stamp_ns`` (the capture time of row ``stamp_row``, px along the readout)."""
+    return int(stamp_ns) + int(round(camera.time_offset(stamp_row, camera.reference_line) * 1e9))
+
+
+def _gyro_calibration(imu: Any) -> tuple:
+    """The gyro calibration values (mounting, time offset, noise, bias and its sigma) as a
+    comparable tuple: a gyro-bias estimate or a gyro check is started again when they change
+    at run time."""
+    return (
+        tuple(np.round(imu.R_cam_imu, 12).ravel()),
+        imu.time_offset,
+        imu.gyro_noise,
+        tuple(imu.gyro_bias),
+        imu.gyro_bias_sigma,
+    )
+
+
+class _Silent:
+    def info(self, text: str) -> None:
+        pass
+
+    def warning(self, key: str, text: str, count: int = 0) -> None:
+        pass
+
+
+class SequenceLocalizer:
+    """A camera's video state (see the module docstring).
+
+    Args:
+        settings: the :class:`SequenceSettings` (None: the defaults; change them at run time
+            with :meth:`configure`).
+        log: where warnings go: an object with ``warning(key, text)`` (``key``: the kind, for
+            throttling) and ``info(text)``; None: silent.
+        count: ``count(key, n)`` for each counter (the node's diagnostics keys:
+            ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing[.<reason>]``,
+            ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
+            ``gyro_inconsistent_detections``, ``gyro_bias_rejected``); None: counted in
+            :attr:`counts`.
+        stopped: ``stopped()`` true ends a frame's wait for its gyro samples (shutdown).
+        imu_span: s of gyro samples kept (default ``imu.buffer``; ``inf`` when every sample is
+            added before the frames, e.g. a bag replayed offline).
+
+    Threads: :meth:`process` on one thread at a time; :meth:`add_imu`, :meth:`flush_idle`
+    and the read-outs from others.
+    """
+
+    def __init__(
+        self,
+        settings: SequenceSettings | None = None,
+        *,
+        log: Any = None,
+        count: Callable[[str, int], None] | None = None,
+        stopped: Callable[[], bool] = lambda: False,
+        imu_span: float | None = None,
+    ):
+        self.log = log if log is not None else _Silent()
+        self.counts: Counter = Counter()
+        self._count = count if count is not None else self._count_here
+        self._stopped = stopped
+        self._imu_span = imu_span
+        self.settings = SequenceSettings()
+        self._last_stamp: int | None = None
+        # the tracker, what it was made for, the frames waiting for their fused twist
+        # (reference stamp -> (estimate, tag)), the lock between process() and flush_idle(),
+        # counters of the trackers dropped so far
+        self._tracker: RSTracker | None = None
+        self._tracker_key = None
+        self._tracker_camera = None
+        self._pending: dict[int, tuple] = {}
+        self._lock = threading.RLock()
+        self._last_frame_wall: float | None = None
+        self._track_counts: Counter = Counter()
+        self.imu: ImuBuffer | None = None
+        self.gyro_bias: GyroBiasEstimator | None = None
+        self._bias_key = None
+        self.gyro_check: GyroMountCheck | None = None
+        self._check_key = None
+        self.configure(settings or SequenceSettings())
+
+    def _count_here(self, key: str, n: int = 1) -> None:
+        self.counts[key] += n
+
+    # ---------------------------------------------------------------- configuration
+    def configure(self, settings: SequenceSettings) -> None:
+        """Use ``settings`` from the next frame on. The gyro samples are kept; the bias
+        estimate and the gyro check are kept while the gyro calibration they depend on stays
+        the same, else started again (a corrected ``imu.rotation`` given at run time is tested
+        anew); the tracker is made again at the next frame when the solver, the options or the
+        tracking options changed."""
+        self.settings = settings
+        imu = settings.imu
+        if imu is None:
+            self.imu = None
+        elif self.imu is None or (self.imu.max_rate, self.imu.max_gap_ns) != (
+            imu.max_rate,
+            int(imu.max_gap * 1e9),
+        ):
+            old, self.imu = self.imu, self._new_buffer()
+            if old is not None:  # (keep the samples received so far)
+                for t, w in old.samples():
+                    self.imu.add(t, w)
+        self._configure_bias(imu)
+        self._configure_check(imu)
+
+    def _new_buffer(self) -> ImuBuffer:
+        imu = self.settings.imu
+        span = imu.buffer if self._imu_span is None else self._imu_span
+        return ImuBuffer(span, imu.max_rate, imu.max_gap)
+
+    def _configure_bias(self, imu: Any) -> None:
+        if imu is None or not imu.estimate_bias:
+            self.gyro_bias = self._bias_key = None
+            return
+        key = (*_gyro_calibration(imu), imu.bias_random_walk)
+        if self.gyro_bias is None or key != self._bias_key:
+            self.gyro_bias = GyroBiasEstimator(
+                imu.gyro_bias,
+                imu.gyro_bias_sigma,
+                imu.R_cam_imu,
+                imu.gyro_noise,
+                imu.time_offset,
+                GyroBiasOptions(random_walk=imu.bias_random_walk),
+            )
+            self._bias_key = key
+
+    def _configure_check(self, imu: Any) -> None:
+        if imu is None or not self.settings.check_gyro:
+            self.gyro_check = self._check_key = None
+            return
+        key = (*_gyro_calibration(imu), imu.estimate_bias)
+        if self.gyro_check is None or key != self._check_key:
+            self.gyro_check = GyroMountCheck(imu.R_cam_imu, imu.gyro_noise, imu.time_offset)
+            self._check_key = key
+
+    # ---------------------------------------------------------------- read-outs
+    @property
+    def gyro_inconsistent(self) -> bool:
+        """True while the rotation between solved frames contradicts the gyro and frames are
+        solved without it (:class:`GyroMountCheck`)."""
+        check = self.gyro_check
+        return check is not None and check.inconsistent
+
+    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
+        IMU frame): the online estimate with ``estimate_bias``, else the settings' ``gyro_bias``
+        and ``gyro_bias_sigma``; None without a gyro."""
+        imu = self.settings.imu
+        if imu is None:
+            return None
+        est = self.gyro_bias
+        if est is not None:
+            return est.bias.copy(), est.std
+        return np.array(imu.gyro_bias, dtype=float), np.full(3, imu.gyro_bias_sigma)
+
+    def tracking_values(self) -> dict[str, Any]:
+        """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
+        ``relocalizations``, ``resets`` (over the localizer's life)."""
+        t = self._tracker
+        tc = self._track_counts
+        state = (
+            "disabled"
+            if self.settings.tracking is None
+            else t.track_state
+            if t is not None
+            else "lost"
+        )
+        return {
+            "track_state": state,
+            "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
+            "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
+            "resets": tc["resets"] + (t.resets if t else 0),
+        }
+
+    @property
+    def pending(self) -> int:
+        """Frames whose fused twist is not final yet."""
+        return len(self._pending)
+
+    # ---------------------------------------------------------------- gyro
+    def add_imu(self, stamp_ns: int, rate: Any) -> str | None:
+        """Buffer a gyro sample (``stamp_ns`` IMU clock, ``rate`` (3,) rad/s, IMU frame).
+        Returns None, or why it was rejected: ``disabled`` (no gyro in the settings) or the
+        reasons of :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or
+        repeated, NaN or saturated rates)."""
+        buf = self.imu
+        if buf is None:
+            return "disabled"
+        return buf.add(stamp_ns, rate)
+
+    def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
+        """The gyro measurement of the frame's readout (waiting up to ``imu.wait`` for the
+        samples covering it), or None (``gyro_missing.<reason>`` counted; the frame is solved
+        without)."""
+        imu, buf = self.settings.imu, self.imu
+        if imu is None or buf is None or camera.line_delay <= 0:
+            return None
+        a, b = readout_window(camera, 0.0, self.settings.stamp_row)  # (s from the stamp)
+        first, last = stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9))
+        off = int(round(imu.time_offset * 1e9))
+        buf.wait_until(last - off, imu.wait, self._stopped)
+        if self.gyro_bias is not None:  # (the online estimate and its covariance)
+            gyro, reason = self.gyro_bias.measurement(buf, (first, last))
+        else:
+            gyro, reason = buf.measurement(
+                (first, last),
+                imu.R_cam_imu,
+                imu.gyro_bias,
+                imu.gyro_noise,
+                imu.gyro_bias_sigma,
+                imu.time_offset,
+            )
+        if gyro is None:
+            self._count("gyro_missing", 1)
+            self._count(f"gyro_missing.{reason}", 1)
+            self.log.warning(
+                f"gyro.{reason}",
+                f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
+                "imu.time_offset",
+            )
+        elif self.gyro_inconsistent:  # (the image refutes the gyro over the last pairs)
+            self._count("gyro_disabled_inconsistent", 1)
+            return None
+        return gyro
+
+    def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
+        """Feed a frame to the check of the gyro against the image and to the online bias
+        estimator: a solved frame pairs with the previous one; a failed frame or a new track
+        restarts the pairing. A pair the check fails is counted in ``gyro_pairs_failed``; when
+        the check declares the gyro inconsistent it is warned about once, and the bias
+        estimator gets no pairs until it is consistent again (a wrong mount would pull the
+        bias). A pair the bias estimator's chi-square test rejects is counted in
+        ``gyro_bias_rejected``."""
+        check, bias, buf = self.gyro_check, self.gyro_bias, self.imu
+        if buf is None or (check is None and bias is None):
+            return
+        if new_track or not est.success:
+            if check is not None:
+                check.restart()
+            if bias is not None:
+                bias.restart()
+        if not est.success:
+            return
+        cov = est.covariance[:3, :3] if est.covariance is not None else np.full((3, 3), np.nan)
+        if check is not None:
+            self._check_pair(check, bias, buf, est, cov, stamp)
+        if bias is None:
+            return
+        if check is not None and check.inconsistent:
+            bias.restart()
+            return
+        if bias.update(stamp, est.orientation, cov, buf) == "rejected":
+            self._count("gyro_bias_rejected", 1)
+
+    def _check_pair(self, check, bias, buf, est, cov, stamp: int) -> None:
+        """The gyro check's test of a solved frame against the previous one (counted, and
+        the first detection of an inconsistent gyro warned about)."""
+        imu = self.settings.imu
+        if bias is not None:
+            b, Pb = bias.bias, bias.covariance
+        else:
+            b, Pb = np.asarray(imu.gyro_bias, float), imu.gyro_bias_sigma**2 * np.eye(3)
+        was = check.inconsistent
+        if check.update(stamp, est.orientation, cov, buf, b, Pb) == "failed":
+            self._count("gyro_pairs_failed", 1)
+        if check.inconsistent and not was:
+            self._count("gyro_inconsistent_detections", 1)
+            n_failed, n_pairs = check.window_failures
+            self.log.warning(
+                "gyro.inconsistent",
+                f"the rotation between frames contradicts the gyro ({n_failed} of the last "
+                f"{n_pairs} pairs, last residual {check.last_residual_deg:.2f} deg): frames "
+                "are solved without the gyro until it agrees again; check imu.rotation (IMU "
+                "-> camera optical frame), imu.time_offset and imu.gyro_bias",
+            )
+        elif was and not check.inconsistent:
+            self.log.info("the gyro agrees with the image again: frames use it")
+
+    # ---------------------------------------------------------------- time
+    def check_time(self, stamp_ns: int) -> str | None:
+        """Note a frame's stamp (ns). A stamp older than the previous frame's, or newer by more
+        than ``time_reset_ns``, is a time reset: returns why (else None), and the gyro's
+        timeline starts again: on a stamp going back the samples buffered so far (the old
+        timeline's) are dropped, on a jump forward those older than the previous frame; the
+        bias estimator's and the gyro check's pairing restart. (The tracker resets itself on
+        the same stamps.) :meth:`process` calls it; calling it first for the same stamp (to
+        act on a reset before the frame is decoded) does not count it twice."""
+        stamp = int(stamp_ns)
+        last, self._last_stamp = self._last_stamp, stamp
+        if last is None:
+            return None
+        if stamp < last:
+            why = (
+                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
+                " s older than the previous frame"
+            )
+        elif stamp - last > self.settings.time_reset_ns:
+            why = f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)"
+        else:
+            return None
+        self._restart_gyro(None if stamp < last else last)
+        return why
+
+    def _restart_gyro(self, keep_from: int | None) -> None:
+        """A new timeline: the gyro samples before ``keep_from`` (ns; None: all) dropped, the
+        pairing of the bias estimator and of the gyro check restarted."""
+        with self._lock:
+            if self.imu is not None:
+                old, self.imu = self.imu, self._new_buffer()
+                if keep_from is not None:
+                    for t, w in old.samples():
+                        if t >= keep_from:
+                            self.imu.add(t, w)
+            if self.gyro_check is not None:
+                self.gyro_check.restart()
+            if self.gyro_bias is not None:
+                self.gyro_bias.restart()
+
+    # ---------------------------------------------------------------- frames
+    def process(self, frame: SequenceFrame) -> SequenceOutput:
+        """Estimate one frame (its gyro measurement from the buffered samples, the tracker's
+        prediction), update the gyro bias and check, and hand out the fused twists that became
+        final. Never raises for a frame the estimator rejects (``estimate.success`` false,
+        with ``estimate.failure``) or raises on (``error``)."""
+        self.check_time(frame.stamp_ns)
+        s = self.settings
+        camera = frame.camera
+        stamp = int(frame.stamp_ns)
+        ref = reference_stamp_ns(stamp, camera, s.stamp_row)
+        out = SequenceOutput(stamp_ns=ref)
+        t0 = time.perf_counter()
+        out.gyro = gyro = self._gyro_for(stamp, camera)
+        out.gyro_seconds = time.perf_counter() - t0
+        uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
+        with self._lock:
+            final = []
+            try:
+                if s.tracking is not None:
+                    old = self._tracker
+                    tracker, final = self._tracker_for(camera)
+                    r = tracker.process(ref, uv, xyz, camera, scores, gyro=gyro)
+                    est, out.path = r.estimate, r.state
+                    new_track = tracker is not old or r.state in ("cold", "reset")
+                    final = final + r.final
+                    self._last_frame_wall = time.monotonic()
+                else:
+                    self._end_track()
+                    new_track = False
+                    est = estimate_rs_pose(
+                        uv,
+                        xyz,
+                        camera,
+                        solver=s.solver,
+                        options=s.options,
+                        scores=scores,
+                        gyro=gyro,
+                    )
+            except Exception as e:
+                out.fused = self._fused(final)
+                out.error = f"{type(e).__name__}: {e}"
+                out.estimate = None
+                return out
+            out.estimate, out.new_track = est, new_track
+            if est.gyro_rejected:
+                self._count("gyro_rejected", 1)
+                self.log.warning(
+                    "gyro.rejected",
+                    "the image disagrees with the gyro: frame solved without it (check "
+                    "imu.rotation, imu.time_offset and imu.gyro_bias)",
+                )
+            elif est.gyro_used and est.success:
+                self._count("frames_with_gyro", 1)
+            self._update_gyro_checks(est, ref, new_track)
+            if not est.success:  # (twists of earlier frames a reset made final still go out)
+                out.fused = self._fused(final)
+                return out
+            # (global-shutter solver or timing: no twist to fuse; the frame's own twist is
+            # final)
+            out.twist_now = (
+                s.tracking is None
+                or not solver_info(s.solver).rolling
+                or camera.seconds_per_unit_r <= 0
+            )
+            if not out.twist_now:  # (its fused twist comes when final)
+                self._pending[ref] = (est, frame.tag)
+                out.fused = self._fused(final)
+        return out
+
+    def _tracker_for(self, camera: CameraModel) -> tuple[RSTracker, list]:
+        """The tracker for this camera and configuration: a new one when the solver, the
+        estimator or tracking options or the camera model changed (the old track's pending
+        twists are returned, final). Returns (tracker, final fused states)."""
+        s = self.settings
+        key = (s.solver, s.options, s.tracking, id(camera))
+        final = []
+        if self._tracker is None or key != self._tracker_key:
+            if self._tracker is not None:
+                final = self._end_track(flush=True)
+                self._track_counts["resets"] += 1
+            self._tracker = RSTracker(s.solver, s.options, s.tracking)
+            self._tracker_key = key
+            self._tracker_camera = camera  # (keeps id(camera) unique while in use)
+        return self._tracker, final
+
+    def _end_track(self, flush: bool = False) -> list:
+        """Forget the tracker (its counters are kept); returns its pending fused states when
+        ``flush``, else drops them with the frames waiting for them."""
+        final = []
+        t = self._tracker
+        if t is not None:
+            for k in ("frames_tracked", "relocalizations", "resets"):
+                self._track_counts[k] += getattr(t, k)
+            final = t.reset() if flush else []
+        self._tracker = self._tracker_key = None
+        if not flush:
+            self._pending.clear()
+        return final
+
+    def end_track(self) -> None:
+        """End the track (e.g. the node is deactivated): the twists still pending are dropped;
+        the next frame starts a new track. The gyro state is kept."""
+        with self._lock:
+            self._end_track()
+
+    def _fused(self, final: list) -> list[FusedPose]:
+        """The frames whose fused state is final: their pose with the fused twist."""
+        out = []
+        for f in final:
+            item = self._pending.pop(f.stamp_ns, None)
+            if item is None:
+                continue
+            est, tag = item
+            out.append(FusedPose.of(est, f, tag))
+        if len(self._pending) > MAX_PENDING:  # (never left behind for long: drop the oldest)
+            for k in sorted(self._pending)[:-MAX_PENDING]:
+                del self._pending[k]
+        return out
+
+    def flush(self) -> list[FusedPose]:
+        """The end of the video: the twists still pending, as they are now (the track goes
+        on)."""
+        with self._lock:
+            if self._tracker is None or not self._pending:
+                return []
+            return self._fused(self._tracker.flush())
+
+    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
+        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
+        without frames the track is over (the next frame resets it): the twists still pending,
+        now final."""
+        tracking = self.settings.tracking
+        if self._tracker is None or tracking is None:
+            return []
+        with self._lock:
+            last = self._last_frame_wall
+            now = time.monotonic() if now is None else now
+            if (
+                self._tracker is None
+                or last is None
+                or not self._pending
+                or now - last < tracking.max_gap
+            ):
+                return []
+            return self._fused(self._tracker.flush())
+
+    def reset(self) -> None:
+        """Forget the video (the configuration stays): the track and the twists pending, the
+        gyro samples, the bias estimator's and the gyro check's pairing, the last stamp. The
+        bias estimate itself is kept (the same IMU)."""
+        with self._lock:
+            self._end_track()
+            self._restart_gyro(None)
+            self._last_stamp = None

@@ -1,0 +1,6 @@
+"""Plain helpers shared by the tests (the fixtures stay in ``test/conftest.py``).
+
+:mod:`helpers.paths` names the repository's data, :mod:`helpers.ros` starts nodes and probes
+them over DDS (rclpy imported only when called), :mod:`helpers.debug_frames` builds a frame with
+a known pose for the debug-image tests. Test modules import these, never each other.
+"""

@@ -1,0 +1,344 @@
+"""The node's building blocks without ROS: parameters and configuration, the camera_info
+history, the frame queue's accounting, point capping and the per-frame pipeline (fed rosbags
+messages, which have the fields of the rclpy ones)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from rs_localizer.estimation.points import cap_points, capped_rows
+from rs_localizer.ros import params as P
+from rs_localizer.ros.camera_info_history import CameraInfoHistory, calibration_key
+from rs_localizer.ros.frame_queue import FrameQueue
+
+ROS_FREE = (
+    "rs_localizer.ros.params",
+    "rs_localizer.ros.pipeline",
+    "rs_localizer.ros.frame_queue",
+    "rs_localizer.ros.camera_info_history",
+    "rs_localizer.ros.diagnostics",
+    "rs_localizer.ros.outputs",
+)
+
+
+def test_modules_import_no_ros():
+    code = (
+        f"import sys, {', '.join(ROS_FREE)}; "
+        "bad = [m for m in sys.modules if m.split('.')[0] in "
+        "('rclpy', 'rcl_interfaces', 'sensor_msgs', 'geometry_msgs', 'builtin_interfaces')]; "
+        "assert not bad, bad"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ---------------------------------------------------------------------------- point capping
+def test_cap_points_keeps_the_best_scores_else_evenly_spaced():
+    uv, xyz = np.arange(20.0).reshape(10, 2), np.arange(30.0).reshape(10, 3)
+    scores = np.array([0.1, 0.9, np.nan, 0.5, 0.9, 0.2, 0.8, 0.0, 0.3, 0.7])
+    u, x, s = cap_points(uv, xyz, scores, 4)
+    assert capped_rows(10, 4, scores).tolist() == [1, 4, 6, 9]
+    np.testing.assert_array_equal(u, uv[[1, 4, 6, 9]])
+    np.testing.assert_array_equal(x, xyz[[1, 4, 6, 9]])
+    np.testing.assert_array_equal(s, scores[[1, 4, 6, 9]])
+    assert capped_rows(4, 2, np.array([0.5, 0.7, 0.5, 0.5])).tolist() == [0, 1]  # ties: earlier
+    assert capped_rows(10, 4).tolist() == [0, 3, 6, 9]  # no scores: evenly spaced
+    assert capped_rows(10, 4, np.full(10, np.nan)).tolist() == [0, 3, 6, 9]
+    u, x, s = cap_points(uv, xyz, None, 10)
+    assert u is uv and x is xyz and s is None
+    with pytest.raises(ValueError):
+        cap_points(uv, xyz[:5], None, 4)
+    with pytest.raises(ValueError):
+        capped_rows(10, 0)
+
+
+# ---------------------------------------------------------------------------- parameters
+def test_the_config_file_holds_every_default():
+    from helpers.paths import CONFIG
+
+    values, ignored = P.parameter_values([CONFIG])
+    assert values == P.default_values() and ignored == []
+
+
+def test_params_file_sections_and_overrides(tmp_path):
+    f = tmp_path / "p.yaml"
+    f.write_text(
+        "/**:\n  ros__parameters:\n    ransac: {seed: 3}\n    viz: {path_length: 5}\n"
+        "    typo_name: 1\n"
+        "rs_localizer:\n  ros__parameters:\n    solver: p3p\n"
+        "/camera/rs_localizer:\n  ros__parameters:\n    solver: r9p\n"
+    )
+    assert P.read_params_file(f) == {
+        "ransac.seed": 3,
+        "viz.path_length": 5,
+        "typo_name": 1,
+        "solver": "p3p",
+    }
+    values, ignored = P.parameter_values([f], {"tracking.lag": 2})
+    assert values["ransac.seed"] == 3 and values["solver"] == "p3p" and values["tracking.lag"] == 2
+    assert ignored == ["typo_name"]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("solver: p3p\n")
+    with pytest.raises(P.ConfigError, match="ros__parameters"):
+        P.read_params_file(bad)
+
+
+@pytest.mark.parametrize(
+    "name, value, message",
+    [
+        ("rs.line_delay", 0, "must be of type float (write e.g. 0.0"),
+        ("rs.line_delay", -1.0, "outside"),
+        ("ransac.min_inliers", 2, "outside"),
+        ("ransac.seed", 1.5, "must be of type int"),
+        ("refine", 1, "must be of type bool"),
+        ("camera.d", [0, 0, 0, 0, 0], "list of float"),
+        ("nonexistent", 1, "unknown parameter"),
+    ],
+)
+def test_values_are_checked_as_ros_does(name, value, message):
+    with pytest.raises(P.ConfigError, match=message.replace("(", r"\(")):
+        P.check_parameter(name, value)
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"solver": "r7p"}, "unknown solver 'r7p'"),
+        ({"rs.direction": "diagonal"}, "unknown rs.direction"),
+        ({"max_points": 11}, "max_points 11 is below the 12 points"),
+        ({"max_angular_velocity": 0.0}, "invalid RANSAC options: max_angular_velocity"),
+        ({"camera.fx": float("nan")}, "camera.fx/fy/cx/cy must be finite"),
+        ({"camera.d": [float("inf"), 0.0]}, "camera.d must be finite"),
+        ({"base_frame": "base", "camera_to_base.rotation": [0.0] * 4}, "invalid camera_to_base"),
+        ({"landmarks_file": "/nonexistent.csv"}, "cannot load landmarks_file"),
+        ({"frontend": "sift"}, "unknown frontend 'sift'"),
+        ({"frontend": "aruco"}, "frontend aruco needs frontend_map"),
+        ({"image_transport": "h264"}, "unknown image_transport"),
+        ({"tracking.lag": -1}, "invalid tracking parameters"),
+    ],
+)
+def test_invalid_configurations_raise_with_the_parameter_named(changes, message):
+    """The configuration (or, for the map files, loading its maps) names the parameter."""
+    with pytest.raises(P.ConfigError, match=message):
+        P.load_maps(P.build_config({**P.default_values(), **changes}))
+
+
+def test_config_from_the_defaults():
+    cfg = P.build_config(P.default_values())
+    assert cfg.solver == "r6p_1lin" and cfg.tracking.fusion.lag == 1
+    assert cfg.options == P.estimate_options(P.default_values())
+    assert cfg.reference_row is None and cfg.fallback is None and cfg.frontend is None
+    assert cfg.time_reset_ns == 1_000_000_000 and cfg.min_points == 12
+    off = P.build_config({**P.default_values(), "tracking.enabled": False})
+    assert off.tracking is None
+
+
+# ---------------------------------------------------------------------------- camera_info
+@pytest.fixture(scope="module")
+def msgs():
+    from rs_localizer.ros.bags.bag_io import RosbagsMessages
+
+    return RosbagsMessages()
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
+
+    frames, scene, cam, _ = generate_sequence(SequenceConfig(num_frames=8, num_points=300, seed=4))
+    return frames, scene, cam
+
+
+def test_camera_info_history_selects_by_stamp(msgs, sequence):
+    _, _, cam = sequence
+    h = CameraInfoHistory(size=3)
+    info = msgs.camera_info(cam, 100, "cam")
+    key = calibration_key(info)
+    assert h.camera_for(50) is None and h.camera_for(50, fallback="fb") == "fb"
+    assert h.add(100, key, info, "A") is True
+    assert h.add(200, key, info, "A") is False  # the same calibration: one entry
+    assert len(h) == 1 and h.entries()[0].seq == 2
+    h.add(300, ("other",), info, "B")
+    assert [h.camera_for(s) for s in (50, 100, 299, 300, 10**9)] == ["A", "A", "A", "B", "B"]
+    assert h.camera_with_key(("other",)) == "B"
+    h.forget_after(150)  # a time reset: calibrations stamped later go
+    assert [e.camera for e in h.entries()] == ["A"]
+    h.forget_after(10)  # nothing older: the newest stays
+    assert [e.camera for e in h.entries()] == ["A"]
+    for k in range(5):
+        h.add(1000 + k, (k,), info, k)
+    assert [e.camera for e in h.entries()] == [2, 3, 4]  # size 3: the oldest go
+    assert h.rebuild(lambda m: "C") == [] and {e.camera for e in h.entries()} == {"C"}
+
+
+def test_camera_info_history_waits_for_the_frames_own_camera_info(msgs, sequence):
+    """camera_info with every frame (same stamps): a frame waits for its own."""
+    _, _, cam = sequence
+    h = CameraInfoHistory()
+    info = msgs.camera_info(cam, 0, "cam")
+    for s in (1, 2):
+        h.add(s, (s,), info, s)
+        assert h.camera_for(s, wait=1.0) == s
+    threading.Timer(0.1, lambda: h.add(3, (3,), info, 3)).start()
+    t0 = time.monotonic()
+    assert h.camera_for(3, wait=5.0) == 3  # woken by its camera_info
+    assert 0.05 < time.monotonic() - t0 < 4.0
+    t0 = time.monotonic()
+    assert h.camera_for(4, wait=0.2) == 3  # it never comes: the previous one after the wait
+    assert time.monotonic() - t0 >= 0.15
+    assert h.camera_for(5, wait=5.0, stopped=lambda: True) == 3  # stopping: no wait
+
+
+# ---------------------------------------------------------------------------- frame queue
+class _Outcome:
+    def __init__(self, failure=None):
+        self.failure = failure
+
+
+def test_frame_accounting_holds_in_every_snapshot():
+    """received = solved + failed + skipped + pending in every snapshot, sampled from another
+    thread while frames stream in faster than they are processed."""
+
+    def process(k):
+        time.sleep(0.0005 * (k % 3))
+        if k % 7 == 0:
+            raise RuntimeError("boom")
+        return _Outcome(None if k % 5 else "no_camera_info")
+
+    delivered = []
+    q = FrameQueue(process, lambda k, o: delivered.append((k, o.failure)))
+    q.start()
+    samples, stop = [], threading.Event()
+
+    def sample():
+        while not stop.is_set():
+            samples.append(q.counts())
+
+    reader = threading.Thread(target=sample)
+    reader.start()
+    try:
+        for k in range(1500):
+            q.put(k, 3)
+            if k % 50 == 0:
+                time.sleep(0.002)
+        end = time.monotonic() + 20
+        while q.counts().pending and time.monotonic() < end:
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        reader.join()
+        q.stop()
+    final = q.counts()
+    assert len(samples) > 100
+    for c in samples + [final]:
+        assert c.received == c.solved + c.failed + c.skipped + c.pending, c
+        assert c.failed == sum(c.failures.values()), c
+    assert final.received == 1500 and final.pending == 0
+    assert final.skipped > 0 and final.solved > 0
+    assert final.failed > 0 and set(final.failures) <= {"internal_error", "no_camera_info"}
+    assert len(delivered) == final.solved + final.failed
+    assert [k for k, _ in delivered] == sorted(k for k, _ in delivered)  # in order
+    assert all(f == "internal_error" for k, f in delivered if k % 7 == 0)
+
+
+def test_frame_queue_drops_the_oldest_and_stops():
+    gate = threading.Event()
+    done = []
+    q = FrameQueue(lambda k: (gate.wait(5), _Outcome())[1], lambda k, o: done.append(k))
+    q.start()
+    q.put(0, 2)
+    while q.counts().pending != 1 or q.counts().received != 1:
+        time.sleep(0.001)
+    time.sleep(0.05)  # (the worker is on frame 0)
+    assert [q.put(k, 2) for k in (1, 2, 3, 4)] == [0, 0, 1, 1]  # 1 and 2 dropped
+    c = q.counts()
+    assert (c.received, c.skipped, c.pending) == (5, 2, 3)
+    gate.set()
+    end = time.monotonic() + 5
+    while q.counts().pending and time.monotonic() < end:
+        time.sleep(0.01)
+    assert done == [0, 3, 4]
+    q.stop(drop_queued=True)
+    q.put(5, 2)
+    q.request_stop(drop_queued=True)  # (stopped: the frame waiting is dropped)
+    c = q.counts()
+    assert (c.received, c.solved, c.skipped, c.pending) == (6, 3, 3, 0)
+
+
+# ---------------------------------------------------------------------------- pipeline
+def _pipeline(**changes):
+    from rs_localizer.ros.pipeline import FramePipeline
+
+    cfg = P.build_config({**P.default_values(), "camera_info_wait": 0.0, **changes})
+    return FramePipeline(cfg)
+
+
+def test_pipeline_tracks_a_sequence(msgs, sequence):
+    """Every frame solved and stamped at its reference line; with tracking (lag 1) each frame's
+    fused twist comes with the next frame, the last one with flush()."""
+    import importlib.util
+
+    from rs_localizer.ros.outputs import frame_messages, fused_messages
+
+    with_messages = importlib.util.find_spec("geometry_msgs") is not None
+    frames, _, cam = sequence
+    pipe = _pipeline()
+    f0 = frames[0]
+    res = pipe.process(msgs.cloud(f0.uv, f0.xyz, f0.ids, f0.stamp_ns, "cam"), "correspondences")
+    assert res.failure == "no_camera_info" and pipe.camera_source() == "missing"
+    pipe.add_camera_info(msgs.camera_info(cam, f0.stamp_ns, "cam"))
+    assert pipe.camera_source() == "camera_info"
+    fused = []
+    for f in frames:
+        res = pipe.process(
+            msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam", scores=f.scores), "correspondences"
+        )
+        assert res.solved, (res.failure, res.detail)
+        assert res.out_stamp_ns == f.t_ref_ns and res.frame_id == "cam" and not res.twist_now
+        assert np.degrees(np.linalg.norm(res.estimate.orientation - f.orientation)) < 0.5
+        fused += [o.stamp_ns for o in res.fused]
+        if with_messages:  # the node's publishing order
+            topics = [t for t, _ in frame_messages(res, "map", lambda t: t != "tf")]
+            assert topics == ["pose", "twist_single_frame"] + ["twist", "odom"] * len(res.fused) + [
+                "pose_with_covariance"
+            ]
+            # only what has a subscriber is built (the pose always)
+            only = [t for t, _ in frame_messages(res, "map", lambda t: t == "odom")]
+            assert only == ["pose"] + ["odom"] * len(res.fused)
+    assert fused == [f.t_ref_ns for f in frames[:-1]]  # one frame late
+    last = pipe.flush()
+    assert [o.stamp_ns for o in last] == [frames[-1].t_ref_ns] and pipe.flush() == []
+    if with_messages:
+        assert [t for t, _ in fused_messages(last, "map")] == ["twist", "odom"]
+    values = pipe.tracking_values()
+    assert values["track_state"] == "tracking" and values["frames_tracked"] >= len(frames) - 2
+
+
+def test_pipeline_drops_and_counts(msgs, sequence):
+    frames, _, cam = sequence
+    pipe = _pipeline(max_points=100, **{"tracking.enabled": False})
+    pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
+    f = frames[0]
+    uv = f.uv.copy()
+    uv[:3] = np.nan
+    res = pipe.process(msgs.cloud(uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
+    assert res.solved and res.twist_now and len(res.points2d) == 100
+    st = pipe.stats.snapshot()
+    assert st.counts["points_dropped"] >= 3 and st.counts["capped_clouds"] == 1
+    res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns - 10**9, "cam"), "correspondences")
+    assert res.solved and pipe.stats.snapshot().counts["time_resets"] == 1  # never dropped
+    empty = msgs.cloud(f.uv[:0], f.xyz[:0], f.ids[:0], f.stamp_ns, "cam")
+    assert pipe.process(empty, "correspondences").failure == "empty_cloud"
+    kp = msgs.keypoints(f.uv, f.ids, f.stamp_ns, "cam")
+    assert pipe.process(kp, "keypoints").failure == "no_landmarks"
+    img = msgs.image(np.zeros((4, 4), np.uint8), f.stamp_ns, "cam")
+    assert pipe.process(img, "image").failure == "no_frontend"
+    info = msgs.camera_info(cam, 5, "cam")
+    info.k[0] = 0.0
+    assert pipe.add_camera_info(info) is None
+    assert pipe.stats.snapshot().counts["camera_info_rejected.bad_intrinsics"] == 1

@@ -1,0 +1,178 @@
+"""The library's video entry point (rs_localizer.tracking.sequence.SequenceLocalizer) and the
+typed domain objects (rs_localizer.pose, rs_localizer.correspondences): a synthetic video
+against its ground truth and against the tracker driven directly, the gyro's timeline across a
+time reset, and the pose conversions against the estimator's own."""
+
+import numpy as np
+import pytest
+
+from rs_localizer.correspondences import Correspondences, Frontend, TrackingFrontend
+from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions
+from rs_localizer.estimation.result import physical_velocities
+from rs_localizer.estimation.tracker import RSTracker
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.pose import RSModel, RSPose
+from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
+from rs_localizer.tracking.sequence import (
+    GyroSettings,
+    SequenceFrame,
+    SequenceLocalizer,
+    SequenceSettings,
+)
+
+OPTS = EstimateOptions(ransac=RansacOptions(seed=0))
+
+
+@pytest.fixture(scope="module")
+def video():
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=12, seed=3), trajectory=make_trajectory("walk")
+    )
+    return frames, cam
+
+
+def test_sequence_tracks_a_video_as_the_tracker_does(video):
+    frames, cam = video
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, stamp_row=0.0))
+    tracker = RSTracker(options=OPTS)
+    fused, direct = [], []
+    for f in frames:
+        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
+        assert out.stamp_ns == f.t_ref_ns  # (the reference line's time, from the header stamp)
+        r = tracker.process(f.t_ref_ns, f.uv, f.xyz, cam)
+        direct += r.final
+        e = out.estimate
+        assert e.success and not out.twist_now
+        assert rotation_angle_deg(e.orientation, f.orientation) < 0.2
+        assert np.linalg.norm(e.position - f.position) < 0.05
+        np.testing.assert_array_equal(e.orientation, r.estimate.orientation)
+        fused += out.fused
+    fused += seq.flush()
+    direct += tracker.flush()
+    # every frame's fused twist comes out once, in order, with the frame's own pose and tag
+    assert [x.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
+    assert [x.tag for x in fused] == [f.index for f in frames]
+    truth = {f.t_ref_ns: f for f in frames}
+    for x, d in zip(fused, direct, strict=True):
+        np.testing.assert_array_equal(x.angular_velocity, d.angular_velocity)
+        assert np.linalg.norm(x.angular_velocity - truth[x.stamp_ns].angular_velocity) < 0.3
+    assert seq.tracking_values()["frames_tracked"] == len(frames) - 1
+    assert seq.pending == 0
+
+
+def test_without_tracking_each_frame_is_final(video):
+    frames, cam = video
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=None))
+    out = seq.process(SequenceFrame(frames[0].stamp_ns, cam, frames[0].uv, frames[0].xyz))
+    assert out.estimate.success and out.twist_now and out.fused == [] and out.path is None
+    assert seq.tracking_values()["track_state"] == "disabled"
+
+
+def test_a_time_reset_starts_the_gyro_timeline_again(video):
+    frames, _ = video
+    seq = SequenceLocalizer(
+        SequenceSettings(options=OPTS, imu=GyroSettings(estimate_bias=True)), imu_span=np.inf
+    )
+    t0 = frames[0].stamp_ns
+    for k in range(40):
+        assert seq.add_imu(t0 + k * 5_000_000, (0.0, 0.0, 0.0)) is None
+    assert seq.check_time(t0) is None
+    assert seq.check_time(t0) is None  # (the same stamp again: no reset)
+    assert len(seq.imu) == 40
+    # a stamp going back: the old timeline's samples are gone, the new timeline's accepted
+    why = seq.check_time(t0 - 10**9)
+    assert why is not None and "older" in why
+    assert len(seq.imu) == 0
+    assert seq.add_imu(t0 - 10**9, (0.0, 0.0, 0.0)) is None
+    # a jump forward: the samples from the previous frame on are kept
+    assert seq.add_imu(t0 - 10**9 + 5_000_000, (0.0, 0.0, 0.0)) is None
+    assert seq.check_time(t0 - 10**9 + 5_000_000) is None
+    why = seq.check_time(t0 + 10**10)
+    assert why is not None and "time_reset_threshold" in why
+    assert len(seq.imu) == 1
+
+
+def test_reset_forgets_the_video(video):
+    frames, cam = video
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, imu=GyroSettings()))
+    seq.add_imu(frames[0].stamp_ns, (0.0, 0.0, 0.0))
+    for f in frames[:3]:
+        seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+    assert seq.pending > 0
+    seq.reset()
+    assert seq.pending == 0 and len(seq.imu) == 0 and seq.flush() == []
+    # (after a reset an older stamp is no time reset: the timeline was forgotten)
+    assert seq.check_time(frames[0].stamp_ns) is None
+
+
+def test_rs_pose_conversions_match_the_estimator():
+    rng = np.random.default_rng(0)
+    R = rotvec_to_matrix(rng.normal(size=3))
+    model = RSModel(R, rng.normal(size=3), 0.01 * rng.normal(size=3), 0.02 * rng.normal(size=3))
+    s = 2.1e-2
+    pose = RSPose.from_model(model, s, stamp_ns=7)
+    om, v, om_w, v_w = physical_velocities(*model, s)
+    np.testing.assert_allclose(pose.orientation, R.T, atol=1e-15)
+    np.testing.assert_allclose(pose.position, -R.T @ model.C, atol=1e-14)
+    np.testing.assert_allclose(pose.angular_velocity, om, rtol=1e-12)
+    np.testing.assert_allclose(pose.linear_velocity, v, rtol=1e-12)
+    np.testing.assert_allclose(pose.angular_velocity_world, om_w, rtol=1e-12)
+    np.testing.assert_allclose(pose.linear_velocity_world, v_w, rtol=1e-12)
+    back = pose.model(s)
+    for a, b in zip(back, model, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    gs = RSPose.from_model(model, 0.0)
+    assert not gs.angular_velocity.any() and not gs.linear_velocity.any()
+    with pytest.raises(ValueError):
+        RSPose.from_model(model, -1.0)
+    R_, C_, w_, t_ = model  # (unpacks as the bare tuple the kernels take)
+    assert R_ is model.R and C_ is model.C and w_ is model.w and t_ is model.t
+
+
+def test_estimate_pose_and_model_views(video):
+    frames, cam = video
+    f = frames[0]
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=None))
+    e = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
+    p = RSPose.from_model(e.model, cam.seconds_per_unit_r)
+    np.testing.assert_allclose(p.orientation, e.pose.orientation, atol=1e-12)
+    np.testing.assert_allclose(p.position, e.pose.position, atol=1e-9)
+    np.testing.assert_allclose(p.angular_velocity, e.angular_velocity, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(p.linear_velocity, e.linear_velocity, rtol=1e-9, atol=1e-12)
+
+
+def test_correspondences_type():
+    uv, xyz, ids = np.zeros((3, 2)), np.ones((3, 3)), np.arange(3)
+    c = Correspondences(uv, xyz, ids, np.array([0.5, 0.2]))
+    a, b, i = c  # (unpacks as the front ends' former 3-tuple)
+    assert a is uv and b is xyz and i is ids and len(c) == 3
+    assert c.valid_scores() is None  # (not one per row)
+    assert Correspondences.of((uv, xyz, ids)).scores is None
+    assert len(Correspondences.empty()) == 0
+
+    class Markers:
+        def process(self, image, camera=None, encoding="bgr8"):
+            return c
+
+    class Tracks(Markers):
+        def observe(self, stamp_ns, pixels, estimate):
+            pass
+
+    assert isinstance(Markers(), Frontend) and not isinstance(Markers(), TrackingFrontend)
+    assert isinstance(Tracks(), TrackingFrontend)
+
+
+def test_rotation_log_inverts_the_exponential():
+    from rs_localizer._so3 import rotation_log_into
+
+    rng = np.random.default_rng(1)
+    v = np.empty(3)
+    for angle in (0.0, 1e-9, 1e-7, 1e-3, 1.0, 3.0, np.pi - 1e-5, np.pi):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        rotation_log_into(rotvec_to_matrix(angle * axis), v)
+        atol = 1e-9
+        if angle >= np.pi - 1e-4:  # (at pi, the axis and its opposite are the same rotation)
+            v = v if v @ axis > 0 else -v
+            atol = 1e-4  # (the axis from the symmetric part: off by ~ (pi - angle) there)
+        np.testing.assert_allclose(v, angle * axis, atol=atol)
