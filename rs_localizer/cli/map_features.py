@@ -73,9 +73,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--matching",
         choices=["exhaustive", "sequential"],
-        default="exhaustive",
-        help="--images: match every pair of photos, or each with its next ones in name order "
-        "(photos taken along a walk)",
+        default="sequential",
+        help="--images: match each photo with its next ones in name order (photos taken along "
+        "a walk), or every pair of photos (photos in no order; on tiled textures it can bend "
+        "the model)",
+    )
+    p.add_argument(
+        "--attempts",
+        type=int,
+        default=3,
+        help="--images with --align-markers: reconstructions tried when the alignment "
+        "refuses a bent model (the other --matching, then another seed)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing map")
     p.set_defaults(func=run)
@@ -119,15 +127,30 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
         colmap.import_pycolmap()
     except ModuleNotFoundError as e:
         raise ValueError(str(e)) from None
+    if args.attempts < 1:
+        raise ValueError(f"--attempts must be >= 1, got {args.attempts}")
+    al, tried = None, []
     with tempfile.TemporaryDirectory(prefix="rs_localizer_colmap_") as tmp:
         if args.colmap:
             model, database = Path(args.colmap), args.database
         else:
             camera = camera_from_yaml(args.camera_yaml)  # (global shutter: still photos)
             work = Path(args.workdir) if args.workdir else Path(tmp)
-            model = colmap.reconstruct(
-                args.images, camera, work, progress=sys.stderr, matching=args.matching
-            )
+            if args.align_markers:
+                model, al, tried = colmap.reconstruct_aligned(
+                    args.images,
+                    camera,
+                    work,
+                    args.align_markers,
+                    matching=args.matching,
+                    attempts=args.attempts,
+                    max_residual=args.max_residual,
+                    progress=sys.stderr,
+                )
+            else:
+                model = colmap.reconstruct(
+                    args.images, camera, work, progress=sys.stderr, matching=args.matching
+                )
             database = work / "database.db"
         fm = colmap.feature_map_from_colmap(
             model, database, min_track=args.min_track, max_error=args.max_error
@@ -138,9 +161,10 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
             f"{sorted(fm.reprojection_error)[len(fm) // 2]:.2f} px), SIFT descriptors"
         ]
         if args.align_markers:
-            al = colmap.align_to_markers(
-                model, args.images, args.align_markers, max_residual=args.max_residual
-            )
+            if al is None:
+                al = colmap.align_to_markers(
+                    model, args.images, args.align_markers, max_residual=args.max_residual
+                )
             fm = colmap.align_feature_map(fm, al)
             lines.append(
                 f"aligned on markers {al.markers}: scale {al.scale:.5g} m/unit, residual "
@@ -149,6 +173,10 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
                 f"{sorted(al.reprojection_errors)[len(al.reprojection_errors) // 2]:.2f} px "
                 f"median over {len(al.reprojection_errors)} detections"
             )
+            for a in tried[:-1]:
+                lines.append(f"refused first: {a.matching} matching, seed {a.seed}: {a.error}")
+            if tried:
+                lines.append(f"kept: {tried[-1].matching} matching, seed {tried[-1].seed}")
         elif args.scale is not None:
             fm = colmap.scale_feature_map(fm, args.scale)
             lines.append(f"scaled by {args.scale:g} m/unit")

@@ -104,12 +104,9 @@ def frames_from_bag(
     frames, counts = [], {"images": 0, "without_markers": 0, "duplicate_ids": 0}
     msgs = iter_messages(path, {image_topic})
     if progress:
-        try:
-            from tqdm import tqdm
+        from tqdm import tqdm
 
-            msgs = tqdm(msgs, desc="detecting markers")
-        except ImportError:  # optional: no progress bar without it
-            pass
+        msgs = tqdm(msgs, desc="detecting markers")
     for _, msgtype, _, raw in msgs:
         msg = ts.deserialize_cdr(raw, msgtype)
         img, enc = (
@@ -131,74 +128,164 @@ def frames_from_bag(
     return camera, frames, counts
 
 
+def _detect(src: Path, args: argparse.Namespace) -> tuple:
+    """``(camera, frames, counts)`` of one input (a bag, or a folder of images with
+    ``--camera``)."""
+    from ..mapping.outputs import camera_from_yaml, detect_folder
+
+    if (src / "metadata.yaml").exists():
+        return frames_from_bag(
+            src, args.image_topic, args.dictionary, args.readout_time, progress=not args.quiet
+        )
+    if not src.is_dir():
+        raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
+    if args.camera_file is None:
+        raise ValueError("a folder of images needs --camera CAMERA.yaml (ROS camera_info)")
+    probe = camera_from_yaml(args.camera_file)
+    camera = camera_from_yaml(args.camera_file, line_delay=args.readout_time / probe.lines)
+    frames, counts = detect_folder(src, camera, args.dictionary, args.fps, progress=not args.quiet)
+    return camera, frames, counts
+
+
+def _options(args: argparse.Namespace):
+    """:class:`MappingOptions` from the command line. Raises ValueError on a surveyed-marker
+    file without markers, or ``--anchor`` with ``--survey``."""
+    from scipy.spatial.transform import Rotation
+
+    from ..mapping.marker_ba import MappingOptions
+
+    anchor_pose, anchors = None, None
+    if args.anchor_pose is not None:
+        v = np.asarray(args.anchor_pose, dtype=float)
+        anchor_pose = (Rotation.from_quat(v[3:]).as_matrix(), v[:3])
+    if getattr(args, "survey", None):
+        from ..maps import load_marker_map
+
+        if args.anchor is not None or anchor_pose is not None:
+            raise ValueError("--survey fixes the frame by its markers: drop --anchor/--anchor-pose")
+        _, anchors = load_marker_map(args.survey)
+        if not anchors:
+            raise ValueError(f"{args.survey}: no markers")
+    return MappingOptions(
+        marker_size=args.marker_size,
+        marker_sizes=parse_sizes(args.marker_sizes or ""),
+        anchor=args.anchor,
+        anchor_pose=anchor_pose,
+        anchors=anchors,
+        global_shutter=args.global_shutter,
+        calibrate_readout=args.calibrate_readout,
+        corner_offset=not args.no_corner_offset,
+        coverage_std=args.coverage_std / 1000.0,
+    )
+
+
+def _summary(out: Path, result, counts: dict, opts) -> list:
+    """The lines the command prints about a map: size, fit, the frame and its uncertainty
+    (with a warning naming the remedy above the bounds), markers left out and the markers
+    whose stated std exceeds ``--coverage-std`` with what would help."""
+    f = result.frame
+    lines = [
+        f"{out}: {len(result.corners)} markers from {counts['images']} images "
+        f"({counts['without_markers']} without markers, {result.num_frames_skipped} without a "
+        f"pose); reprojection RMSE {result.rmse_px:.2f} px, {result.num_rejected} detections "
+        f"rejected, line delay {1e6 * result.line_delay:.2f} us, detected corners "
+        f"{result.corner_offset_px:+.2f} px inside the markers",
+        f"  frame: {f.kind} ({', '.join(map(str, f.anchors))}"
+        + (f", residual {f.residual_mm:.1f} mm RMS" if f.kind == "surveyed" else "")
+        + f"); its own uncertainty against the map as a whole: {f.rotation_std_deg:.2f} deg, "
+        f"{f.position_std_mm:.0f} mm (std, largest axis); marker std in the map frame: median "
+        f"{1e3 * np.median([s[3:].max() for s in result.marker_std.values()]):.1f} mm",
+    ]
+    if f.rotation_std_deg > opts.max_frame_rotation_deg or (
+        f.position_std_mm > opts.max_frame_position_mm
+    ):
+        lines.append(
+            f"  WARNING: the frame is poorly fixed ({f.rotation_std_deg:.2f} deg, "
+            f"{f.position_std_mm:.0f} mm): every marker far from "
+            f"{'the anchor' if f.kind != 'surveyed' else 'the surveyed markers'} inherits it. "
+            "Look at the anchor from closer and from several directions, or fix the frame by "
+            "a better-observed marker (leave out --anchor) or by several surveyed markers "
+            "(--survey MARKERS.yaml)"
+            + (
+                ". At several degrees the stated marker precision, a linearization, "
+                "understates the turn: do not rely on this frame"
+                if f.rotation_std_deg > 5.0
+                else ""
+            )
+        )
+    for m, why in sorted(result.coverage.items()):
+        lines.append(f"  marker {m}: {why}")
+    for m, why in sorted(result.unmapped.items()):
+        lines.append(f"  marker {m} left out: {why}")
+    for m, ps in sorted(result.inconsistent.items()):
+        where = " and ".join(np.array2string(p, precision=2) for p in ps)
+        lines.append(f"  marker {m} left out: detected at places that disagree ({where})")
+    return lines
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command (see :func:`register`); returns 0.
 
     Raises:
         FileExistsError: the output exists without ``--overwrite``. FileNotFoundError: no
         input folder, images or camera file. ValueError: bad sizes, dictionary, images of
-        another size, no detections, anchor not in view (see ``map_markers``).
+        another size, no detections, anchor not in view, surveyed markers that disagree with
+        the video, a video of another place (see ``map_markers``).
     """
-    from scipy.spatial.transform import Rotation
-
-    from ..mapping.marker_ba import MappingOptions, map_markers
-    from ..mapping.outputs import camera_from_yaml, detect_folder, write_map, write_report
+    from ..mapping.marker_ba import concatenate_videos, map_markers
+    from ..mapping.outputs import write_map, write_report
 
     out = A.output_file(args.output, args.overwrite, "marker map")
     if args.report:
         A.writable_dir(args.report, "report folder")
-    sizes = parse_sizes(args.marker_sizes or "")
     if args.anchor_pose is not None and not np.linalg.norm(args.anchor_pose[3:]) > 1e-9:
         raise A.CliError("--anchor-pose: the quaternion QX QY QZ QW must not be zero")
-    src = A.map_input(args.input, args.camera_file)
-    t0 = time.perf_counter()
-    if (src / "metadata.yaml").exists():
-        camera, frames, counts = frames_from_bag(
-            src, args.image_topic, args.dictionary, args.readout_time, progress=not args.quiet
-        )
-    else:
-        if not src.is_dir():
+    opts = _options(args)
+    inputs = args.input if isinstance(args.input, list) else [args.input]
+    # (every input checked before any detection)
+    inputs = [A.map_input(src, args.camera_file) for src in inputs]
+    for src in inputs:
+        if not Path(src).is_dir():
             raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
-        if args.camera_file is None:
-            raise ValueError("a folder of images needs --camera CAMERA.yaml (ROS camera_info)")
-        probe = camera_from_yaml(args.camera_file)
-        camera = camera_from_yaml(args.camera_file, line_delay=args.readout_time / probe.lines)
-        frames, counts = detect_folder(
-            src, camera, args.dictionary, args.fps, progress=not args.quiet
-        )
+    t0 = time.perf_counter()
+    detected = [_detect(Path(src), args) for src in inputs]
+    camera = detected[0][0]
+    for src, (cam, _, _) in zip(inputs, detected, strict=True):
+        if (cam.width, cam.height) != (camera.width, camera.height) or not np.allclose(
+            cam.K, camera.K
+        ):
+            raise ValueError(f"{src}: another camera than {inputs[0]}'s: map one camera at a time")
+    frames = concatenate_videos([d[1] for d in detected])
+    videos = [i for i, d in enumerate(detected) for _ in d[1]]
+    counts = {k: sum(d[2][k] for d in detected) for k in detected[0][2]}
     t_detect = time.perf_counter() - t0
-    anchor_pose = None
-    if args.anchor_pose is not None:
-        v = np.asarray(args.anchor_pose, dtype=float)
-        anchor_pose = (Rotation.from_quat(v[3:]).as_matrix(), v[:3])
-    opts = MappingOptions(
-        marker_size=args.marker_size,
-        marker_sizes=sizes,
-        anchor=args.anchor,
-        anchor_pose=anchor_pose,
-        global_shutter=args.global_shutter,
-        calibrate_readout=args.calibrate_readout,
-        corner_offset=not args.no_corner_offset,
+    result = map_markers(
+        frames, camera, opts, progress=not args.quiet, videos=videos if len(inputs) > 1 else None
     )
-    result = map_markers(frames, camera, opts)
     result.timings["detection"] = t_detect
+    singles = []
+    if len(inputs) > 1 and not args.quiet:  # precision of each video alone, for the report
+        for d in detected:
+            try:
+                singles.append(map_markers(d[1], camera, opts))
+            except ValueError as e:
+                singles.append(str(e))
     write_map(out, result, args.dictionary, overwrite=args.overwrite)
     if args.report:
         write_report(args.report, result, counts)
     if not args.quiet:
-        print(
-            f"{out}: {len(result.corners)} markers (anchor {result.anchor}) from "
-            f"{counts['images']} images ({counts['without_markers']} without markers, "
-            f"{result.num_frames_skipped} without a pose); reprojection RMSE "
-            f"{result.rmse_px:.2f} px, {result.num_rejected} detections rejected, line delay "
-            f"{1e6 * result.line_delay:.2f} us, detected corners {result.corner_offset_px:+.2f} "
-            "px inside the markers"
-        )
-        for m, why in sorted(result.unmapped.items()):
-            print(f"  marker {m} left out: {why}")
-        for m, ps in sorted(result.inconsistent.items()):
-            where = " and ".join(np.array2string(p, precision=2) for p in ps)
-            print(f"  marker {m} left out: detected at places that disagree ({where})")
+        print("\n".join(_summary(out, result, counts, opts)))
+        for src, single in zip(inputs, singles, strict=False):
+            if isinstance(single, str):
+                print(f"  {src} alone: no map ({single})")
+                continue
+            common = sorted(set(single.marker_std) & set(result.marker_std))
+            before = np.median([single.marker_std[m][3:].max() for m in common])
+            after = np.median([result.marker_std[m][3:].max() for m in common])
+            print(
+                f"  {src} alone: {len(single.corners)} markers; median std of the markers it "
+                f"maps {1e3 * before:.1f} mm alone, {1e3 * after:.1f} mm with all videos"
+            )
     return 0
 
 
@@ -211,7 +298,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         formatter_class=A.HelpFormatter,
     )
     p.add_argument(
-        "input", help="bag directory, or folder of images (sorted by name, one frame each)"
+        "input",
+        nargs="+",
+        help="bag directory, or folder of images (sorted by name, one frame each); several: "
+        "videos of one place adjusted together into one map",
     )
     p.add_argument("-o", "--output", required=True, help="marker map YAML to write")
     p.add_argument(
@@ -224,7 +314,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--marker-sizes", help="other sides, ID:SIZE,... (m)")
     p.add_argument("--dictionary", default="DICT_APRILTAG_36h11", help="OpenCV dictionary")
     p.add_argument(
-        "--anchor", type=A.nonneg_int, help="marker fixing the world (default: lowest id)"
+        "--anchor",
+        type=A.nonneg_int,
+        help="marker fixing the world (default: the best-observed marker, whose pose the "
+        "video fixes best)",
     )
     p.add_argument(
         "--anchor-pose",
@@ -252,6 +345,18 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="do not estimate the detector's corner offset (corners inside the markers' "
         "squares along the diagonals, e.g. by the subpixel refinement of blurred corners)",
+    )
+    p.add_argument(
+        "--survey",
+        metavar="MARKERS.yaml",
+        help="marker map of surveyed markers (their corners in your frame): the map's frame is "
+        "the best fit of these markers (instead of --anchor)",
+    )
+    p.add_argument(
+        "--coverage-std",
+        type=float,
+        default=10.0,
+        help="mm: name the markers whose stated position std exceeds this, with what would help",
     )
     p.add_argument("--report", help="folder for report.yaml and map.png")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")

@@ -2,9 +2,9 @@
 
 Renders ``--photos`` global-shutter photos of ``textured_room`` on a slow walk (640x480, the
 ``vga`` lens), reconstructs them with pycolmap (:func:`rs_localizer.mapping.colmap.reconstruct`,
-two threads, sequential matching: the photos are a walk), imports the model
-(:func:`~rs_localizer.mapping.colmap.feature_map_from_colmap`, track >= 3) and aligns it on the
-scene's ten markers. Then renders ``--frames`` rolling-shutter
+two threads for extraction and matching, one for the mapping, sequential matching: the photos
+are a walk), imports the model (:func:`~rs_localizer.mapping.colmap.feature_map_from_colmap`,
+track >= 3) and aligns it on the scene's ten markers. Then renders ``--frames`` rolling-shutter
 frames (hand-held ``shake``, 30 ms readout, sensor noise) and localizes each with the features
 front end and ``r6p_1lin`` / ``p3p`` against this map and against the renderer-built SIFT map
 (:func:`rs_localizer.sim.feature_map.build_feature_map`, six views of the same motion).
@@ -314,7 +314,7 @@ def main(argv: list | None = None) -> int:
     oracle = _best_similarity(raw.points, truth)
     timed = "reused from --workdir" if np.isnan(t_rec) else f"in {t_rec:.1f} s"
     print(
-        f"reconstruction: {args.photos} photos {timed} (pycolmap, 2 threads, "
+        f"reconstruction: {args.photos} photos {timed} (pycolmap, 2 threads, mapping on 1, "
         f"{args.matching} matching, seed {args.seed}); {len(fm)} points with track >= 3"
     )
     print(

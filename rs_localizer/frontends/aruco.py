@@ -18,7 +18,37 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences
 from . import cv_compat
 
-__all__ = ["ArucoFrontend", "to_gray"]
+__all__ = ["ArucoFrontend", "marker_scores", "marker_std_from_file", "to_gray"]
+
+#: a marker whose stated position std is this (m) scores 0.5 (:func:`marker_scores`)
+SCORE_STD_M = 0.005
+
+
+def marker_scores(std: np.ndarray) -> np.ndarray:
+    """Match scores (N,) in (0, 1] from the markers' stated position std (N,) m (largest axis
+    in the map): ``1 / (1 + (std / SCORE_STD_M)^2)``, higher for better-fixed markers; the
+    estimator draws its RANSAC samples from the best-scored correspondences first
+    (PROSAC-style ordering), so a frame's hypotheses come from its best-mapped markers."""
+    s = np.asarray(std, dtype=float) / SCORE_STD_M
+    return 1.0 / (1.0 + s * s)
+
+
+def marker_std_from_file(path: str | Path) -> dict:
+    """id -> the largest of a marker's ``std_position`` entries (m) in a marker map written by
+    ``map-markers``; {} for a map without them (older maps, scenes, a name that is not a
+    file)."""
+    import yaml
+
+    p = Path(str(path))
+    if not p.is_file():
+        return {}
+    data = yaml.safe_load(p.read_text())
+    out = {}
+    for m in (data or {}).get("markers", []) if isinstance(data, dict) else []:
+        std = m.get("std_position") if isinstance(m, dict) else None
+        if std is not None and np.all(np.isfinite(np.asarray(std, dtype=float))):
+            out[int(m["id"])] = float(np.max(std))
+    return out
 
 
 def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
@@ -51,6 +81,9 @@ class ArucoFrontend:
             marker cell is used).
         min_marker_perimeter: smallest marker perimeter as a fraction of the image's larger
             side (OpenCV ``minMarkerPerimeterRate``).
+        marker_std: {marker id: stated position std (m)} of the map: each correspondence
+            gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
+            without one scores 1. None: no scores.
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,) int64)``.
     """
@@ -63,6 +96,7 @@ class ArucoFrontend:
         dictionary: str = "DICT_4X4_250",
         subpix_window: int = 3,
         min_marker_perimeter: float = 0.02,
+        marker_std: dict | None = None,
     ):
         from ..maps import marker_dictionary
 
@@ -84,7 +118,10 @@ class ArucoFrontend:
         self.params = params
         self.detector = cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
         self.last_rejected = 0
-        self.last_scores = None  # no match scores (FeatureFrontend has them)
+        self.marker_std = (
+            None if marker_std is None else {int(k): float(v) for k, v in marker_std.items()}
+        )
+        self.last_scores = None  # per correspondence, from marker_std
 
     @classmethod
     def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:
@@ -93,10 +130,12 @@ class ArucoFrontend:
     @classmethod
     def from_file(cls, path: str | Path, **kw: Any) -> ArucoFrontend:
         """From a marker map YAML (:func:`rs_localizer.maps.load_marker_map`) or a scene
-        YAML / built-in scene name."""
+        YAML / built-in scene name; the map's stated std, when it has them, score the
+        correspondences (``marker_std``)."""
         from ..maps import load_marker_map
 
         dictionary, corners = load_marker_map(Path(str(path)))
+        kw.setdefault("marker_std", marker_std_from_file(path) or None)
         return cls(corners, dictionary, **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
@@ -108,15 +147,21 @@ class ArucoFrontend:
         self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
-        (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), no scores; unpacks as
+        (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
+        stated std when it has them (``marker_std``), else None; unpacks as
         ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. ``camera`` is
         not needed (pixels stay distorted, as the estimator expects) but accepted for a uniform
         front-end API."""
         corners, mids = self.detect(image, encoding)
         keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
         if not keep:
+            self.last_scores = None if self.marker_std is None else np.zeros(0)
             return Correspondences.empty()
+        self.last_scores = None
+        if self.marker_std is not None:
+            std = [self.marker_std.get(int(mids[i]), 0.0) for i in keep]
+            self.last_scores = np.repeat(marker_scores(np.asarray(std)), 4)
         uv = corners[keep].reshape(-1, 2)
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
-        return Correspondences(uv, X, ids.astype(np.int64))
+        return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)

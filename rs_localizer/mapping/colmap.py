@@ -6,7 +6,9 @@ models (structure from motion, global shutter); ``pycolmap`` (optional extra ``m
 them and runs the reconstruction:
 
 * :func:`reconstruct`: photos + known intrinsics -> a COLMAP sparse model (feature extraction,
-  exhaustive matching, incremental mapping; pycolmap).
+  sequential or exhaustive matching, incremental mapping; pycolmap);
+  :func:`reconstruct_aligned`: the same, aligned on a marker map, reconstructed again with the
+  other matching when the alignment refuses a bent model.
 * :func:`feature_map_from_colmap`: a sparse model + its database -> a
   :class:`~rs_localizer.frontends.features.FeatureMap` (kind ``sift``): one map row per 3D
   point, its descriptor the medoid of its track, its id the COLMAP point id, track length and
@@ -39,6 +41,8 @@ from ..frontends.features import FeatureMap, representative_descriptors
 
 __all__ = [
     "INSTALL_HINT",
+    "Attempt",
+    "BentModelError",
     "MarkerAlignment",
     "align_feature_map",
     "align_to_markers",
@@ -48,6 +52,7 @@ __all__ = [
     "opencv_sift_from_colmap",
     "read_model",
     "reconstruct",
+    "reconstruct_aligned",
     "scale_feature_map",
 ]
 
@@ -68,9 +73,14 @@ def import_pycolmap() -> Any:
 
 @contextmanager
 def _quiet(pycolmap: Any) -> Iterator[None]:
-    """COLMAP's own log (one line per step) down to warnings while it runs."""
+    """COLMAP's own log down to errors while it runs. Its info lines (one per step) would
+    bury the progress; its warnings are mostly Ceres' "Linear solver failure. Failed to compute
+    a step: Eigen failure" from the bundle adjustments: at an iteration where the normal
+    equations are not positive definite (a point or photo barely constrained yet, early in the
+    reconstruction) Ceres rejects the step, raises its damping and goes on. They say nothing
+    about the model; its registered photos, reprojection error and the marker alignment do."""
     level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 1
+    pycolmap.logging.minloglevel = 2
     try:
         yield
     finally:
@@ -257,6 +267,11 @@ def scale_feature_map(feature_map: FeatureMap, scale: float) -> FeatureMap:
     return fm
 
 
+class BentModelError(ValueError):
+    """The marker alignment refused a model: its RMS corner residual exceeds the bound (a
+    bent reconstruction, or photos and marker map that disagree)."""
+
+
 @dataclass
 class MarkerAlignment:
     """Similarity ``x_map = scale * R @ x_model + t`` found by :func:`align_to_markers`.
@@ -315,6 +330,67 @@ def _triangulate_robust(
     return _triangulate(rays_o[best], rays_d[best])
 
 
+def _marker_rays(rec: Any, images_dir: str | Path, corners3d: dict, dictionary: str) -> tuple:
+    """The map's markers detected in every registered photo of the model ``rec``: per corner
+    key ``4 * id + corner`` the rays ``[(origin (3,), unit direction (3,))]`` in the model's
+    frame, and per detection ``(id, (4, 2) undistorted normalized corners, Rc, tc, focal)``
+    (the photo's model pose ``x_cam = Rc x + tc``, its focal length in px).
+
+    Raises:
+        FileNotFoundError: a registered photo missing from ``images_dir``."""
+    from ..frontends.aruco import ArucoFrontend
+
+    det = ArucoFrontend(corners3d, dictionary)
+    obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    dets: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, float]] = []
+    for iid in sorted(rec.reg_image_ids()):
+        image = rec.images[iid]
+        path = Path(images_dir) / image.name
+        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if gray is None:
+            raise FileNotFoundError(f"{path}: registered photo missing or unreadable")
+        px, mids = det.detect(gray, "mono8")
+        if len(mids) == 0:
+            continue
+        xy = np.asarray(image.camera.cam_from_img(px.reshape(-1, 2).astype(float) + 0.5))
+        world_from_cam = image.cam_from_world().inverse()
+        Rw = np.asarray(world_from_cam.rotation.matrix())
+        o = np.asarray(world_from_cam.translation, float)
+        d = np.c_[xy, np.ones(len(xy))] @ Rw.T
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        cam_from_world = image.cam_from_world()
+        Rc = np.asarray(cam_from_world.rotation.matrix())
+        tc = np.asarray(cam_from_world.translation, float)
+        focal = float(image.camera.mean_focal_length())
+        for k, m in enumerate(np.repeat(np.asarray(mids).ravel(), 4)):
+            if int(m) in corners3d:
+                obs.setdefault(4 * int(m) + k % 4, []).append((o, d[k]))
+                if k % 4 == 3:
+                    dets.append((int(m), xy[k - 3 : k + 1], Rc, tc, focal))
+    return obs, dets
+
+
+def _triangulate_corners(
+    obs: dict, corners3d: dict, cos_min: float, max_ray_angle: float
+) -> tuple[list, list, set]:
+    """Corners seen from two or more photos, triangulated robustly
+    (:func:`_triangulate_robust`): ``(model points [(3,)], their map corners [(3,)], ids of
+    the markers used)``."""
+    model_pts, map_pts, used = [], [], set()
+    for key, views in sorted(obs.items()):
+        if len(views) < 2:
+            continue
+        X = _triangulate_robust(
+            np.array([v[0] for v in views]), np.array([v[1] for v in views]), cos_min, max_ray_angle
+        )
+        if X is None:  # too narrow a baseline, or no two photos agree
+            continue
+        model_pts.append(X)
+        map_pts.append(corners3d[key // 4][key % 4])
+        used.add(key // 4)
+    return model_pts, map_pts, used
+
+
 def align_to_markers(
     model_dir: str | Path,
     images_dir: str | Path,
@@ -367,51 +443,14 @@ def align_to_markers(
         residual over ``max_residual`` (photos or map of another place, a moved marker).
         FileNotFoundError: a registered photo missing from ``images_dir``.
     """
-    from ..frontends.aruco import ArucoFrontend
     from ..maps import load_marker_map
 
     rec = read_model(model_dir)
     dictionary, corners3d = load_marker_map(markers)
-    det = ArucoFrontend(corners3d, dictionary)
-    obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # 4*id+corner -> [(origin, dir)]
-    dets: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, float]] = []  # for the refinement
-    for iid in sorted(rec.reg_image_ids()):
-        image = rec.images[iid]
-        path = Path(images_dir) / image.name
-        gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if gray is None:
-            raise FileNotFoundError(f"{path}: registered photo missing or unreadable")
-        px, mids = det.detect(gray, "mono8")
-        if len(mids) == 0:
-            continue
-        xy = np.asarray(image.camera.cam_from_img(px.reshape(-1, 2).astype(float) + 0.5))
-        world_from_cam = image.cam_from_world().inverse()
-        Rw = np.asarray(world_from_cam.rotation.matrix())
-        o = np.asarray(world_from_cam.translation, float)
-        d = np.c_[xy, np.ones(len(xy))] @ Rw.T
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        cam_from_world = image.cam_from_world()
-        Rc = np.asarray(cam_from_world.rotation.matrix())
-        tc = np.asarray(cam_from_world.translation, float)
-        focal = float(image.camera.mean_focal_length())
-        for k, m in enumerate(np.repeat(np.asarray(mids).ravel(), 4)):
-            if int(m) in corners3d:
-                obs.setdefault(4 * int(m) + k % 4, []).append((o, d[k]))
-                if k % 4 == 3:
-                    dets.append((int(m), xy[k - 3 : k + 1], Rc, tc, focal))
-    cos_min = np.cos(np.deg2rad(min_angle_deg))
-    model_pts, map_pts, used = [], [], set()
-    for key, views in sorted(obs.items()):
-        if len(views) < 2:
-            continue
-        X = _triangulate_robust(
-            np.array([v[0] for v in views]), np.array([v[1] for v in views]), cos_min, max_ray_angle
-        )
-        if X is None:  # too narrow a baseline, or no two photos agree
-            continue
-        model_pts.append(X)
-        map_pts.append(corners3d[key // 4][key % 4])
-        used.add(key // 4)
+    obs, dets = _marker_rays(rec, images_dir, corners3d, dictionary)
+    model_pts, map_pts, used = _triangulate_corners(
+        obs, corners3d, np.cos(np.deg2rad(min_angle_deg)), max_ray_angle
+    )
     if len(used) < int(min_markers):
         raise ValueError(
             f"marker alignment needs >= {min_markers} markers of the map triangulated in the "
@@ -440,10 +479,12 @@ def align_to_markers(
     res = np.linalg.norm(scale * src @ R.T + t - dst, axis=1)
     rms = float(np.sqrt(np.mean(res**2)))
     if not np.isfinite(rms) or rms > max_residual:
-        raise ValueError(
+        raise BentModelError(
             f"marker alignment residual {rms * 100:.1f} cm RMS over {len(res)} corners exceeds "
-            f"{max_residual * 100:.1f} cm: the photos and the marker map do not agree (another "
-            "place, a moved marker, a wrong marker size?)"
+            f"{max_residual * 100:.1f} cm: the reconstruction is bent (photos registered at "
+            "wrong poses where textures repeat: reconstruct again with the other --matching, "
+            "more overlap), or the photos and the marker map do not agree (another place, a "
+            "moved marker, a wrong marker size)"
         )
     return MarkerAlignment(scale, R, t, sorted(used), rms, float(res.max()), src, dst, reprojection)
 
@@ -493,45 +534,9 @@ def align_feature_map(feature_map: FeatureMap, alignment: MarkerAlignment) -> Fe
     return fm
 
 
-def reconstruct(
-    images_dir: str | Path,
-    camera: CameraModel,
-    workdir: str | Path,
-    min_registered: float = 0.5,
-    progress: TextIO | None = sys.stderr,
-    max_features: int = 4096,
-    matching: str = "exhaustive",
-    overlap: int = 10,
-    seed: int = 0,
-) -> Path:
-    """COLMAP reconstruction of photos taken with one known camera (pycolmap): SIFT extraction
-    with the fixed intrinsics (:func:`colmap_camera`), exhaustive matching with geometric
-    verification, incremental mapping (intrinsics not refined); the largest model is kept.
-
-    Args:
-        images_dir: the photos (png/jpg), all ``camera.width`` x ``camera.height``.
-        camera: their intrinsics and distortion.
-        workdir: gets ``database.db``, COLMAP's models ``sparse/N`` and the largest of them
-            as ``model``.
-        min_registered: smallest fraction of photos the model must register.
-        progress: stream for stage lines (None: quiet). max_features: SIFT features per photo.
-        matching: ``exhaustive`` (every pair of photos) or ``sequential`` (each photo with the
-            next ``overlap`` in name order, and quadratically further ones: for photos taken
-            along a walk; fewer wrong pairs where a texture repeats across the place).
-        seed: seed of COLMAP's RANSAC (verification, registration, triangulation): the same
-            photos give the same model (-1: random).
-    Returns:
-        the model directory (``workdir/model``).
-    Raises:
-        FileNotFoundError: no photos. ValueError: an unknown ``matching``, a photo of
-        another size than the camera,
-        fewer than ``min_registered`` of the photos (or 3) registered. ModuleNotFoundError:
-        pycolmap missing.
-    """
-    pycolmap = import_pycolmap()
-    if matching not in ("exhaustive", "sequential"):
-        raise ValueError(f"unknown matching {matching!r}; expected 'exhaustive' or 'sequential'")
-    src = Path(images_dir)
+def _photo_names(src: Path, camera: CameraModel) -> list[str]:
+    """Names of the photos (png/jpg) in ``src``, sorted, each checked to be readable and of
+    the camera's size. Raises FileNotFoundError (none) or ValueError (a wrong size)."""
     names = (
         sorted(p.name for p in src.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
         if src.is_dir()
@@ -547,79 +552,150 @@ def reconstruct(
                 f"{src / n}: {got}, the camera is {camera.width}x{camera.height}: photos and "
                 "camera file do not belong together"
             )
+    return names
+
+
+def _extract(pycolmap: Any, db: Path, src: Path, names: list, camera: CameraModel, n: int):
+    """COLMAP SIFT extraction (``n`` features per photo) with the fixed intrinsics."""
+    cam = colmap_camera(camera)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = cam.model_name
+    reader.camera_params = ",".join(f"{v:.10g}" for v in cam.params)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = int(n)
+    extraction.num_threads = 2
+    pycolmap.extract_features(
+        str(db),
+        str(src),
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+
+
+def _match(pycolmap: Any, db: Path, matching: str, overlap: int, seed: int) -> None:
+    """COLMAP matching with geometric verification: every pair, or each photo with its next
+    ``overlap`` (and quadratically further) ones in name order."""
+    match_opts = pycolmap.FeatureMatchingOptions()
+    match_opts.num_threads = 2
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(seed)
+    if matching == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = int(overlap)
+        pycolmap.match_sequential(
+            str(db),
+            matching_options=match_opts,
+            pairing_options=pairing,
+            verification_options=verification,
+            device=pycolmap.Device.cpu,
+        )
+    else:
+        pycolmap.match_exhaustive(
+            str(db),
+            matching_options=match_opts,
+            verification_options=verification,
+            device=pycolmap.Device.cpu,
+        )
+
+
+def _incremental_mapping(
+    pycolmap: Any, db: Path, src: Path, out: Path, seed: int, bar: Any
+) -> dict:
+    """COLMAP incremental mapping, intrinsics fixed, on one thread with a fixed seed: with
+    several threads COLMAP's mapper does not repeat its model for a seed (the order in which
+    threads finish changes the registrations), on one it does (same photos, same model)."""
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.num_threads = 1
+    opts.random_seed = int(seed)
+    opts.mapper.random_seed = int(seed)
+    opts.triangulation.random_seed = int(seed)
+
+    def registered() -> None:
+        bar.update(1)
+
+    out.mkdir(exist_ok=True)
+    return pycolmap.incremental_mapping(
+        str(db), str(src), str(out), options=opts, next_image_callback=registered
+    )
+
+
+def reconstruct(
+    images_dir: str | Path,
+    camera: CameraModel,
+    workdir: str | Path,
+    min_registered: float = 0.5,
+    progress: TextIO | None = sys.stderr,
+    max_features: int = 4096,
+    matching: str = "sequential",
+    overlap: int = 10,
+    seed: int = 0,
+) -> Path:
+    """COLMAP reconstruction of photos taken with one known camera (pycolmap): SIFT extraction
+    with the fixed intrinsics (:func:`colmap_camera`), matching with geometric verification,
+    incremental mapping (intrinsics not refined, one thread: repeatable); the largest model is
+    kept.
+
+    Args:
+        images_dir: the photos (png/jpg), all ``camera.width`` x ``camera.height``.
+        camera: their intrinsics and distortion.
+        workdir: gets ``database.db``, COLMAP's models ``sparse/N`` and the largest of them
+            as ``model``.
+        min_registered: smallest fraction of photos the model must register.
+        progress: stream for stage lines and progress bars (tqdm; None: quiet).
+        max_features: SIFT features per photo.
+        matching: ``sequential`` (each photo with the next ``overlap`` in name order, and
+            quadratically further ones: photos taken along a walk; few wrong pairs where a
+            texture repeats across the place) or ``exhaustive`` (every pair of photos: photos
+            in no particular order; on tiled textures it can bend the model).
+        seed: seed of COLMAP's RANSAC (verification, registration, triangulation).
+    Returns:
+        the model directory (``workdir/model``).
+    Raises:
+        FileNotFoundError: no photos. ValueError: an unknown ``matching``, a photo of
+        another size than the camera, fewer than ``min_registered`` of the photos (or 3)
+        registered. ModuleNotFoundError: pycolmap missing.
+    """
+    from tqdm import tqdm
+
+    pycolmap = import_pycolmap()
+    if matching not in ("exhaustive", "sequential"):
+        raise ValueError(f"unknown matching {matching!r}; expected 'exhaustive' or 'sequential'")
+    src = Path(images_dir)
+    names = _photo_names(src, camera)
     work = Path(workdir)
     work.mkdir(parents=True, exist_ok=True)
     db = work / "database.db"
     if db.exists():
         db.unlink()
-    cam = colmap_camera(camera)
 
     def say(msg: str) -> None:
         if progress is not None:
             print(msg, file=progress, flush=True)
 
     t0 = time.perf_counter()
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = cam.model_name
-    reader.camera_params = ",".join(f"{v:.10g}" for v in cam.params)
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.sift.max_num_features = int(max_features)
-    extraction.num_threads = 2
     with _quiet(pycolmap):
         say(f"[1/3] extracting SIFT features from {len(names)} photos ...")
-        pycolmap.extract_features(
-            str(db),
-            str(src),
-            image_names=names,
-            camera_mode=pycolmap.CameraMode.SINGLE,
-            reader_options=reader,
-            extraction_options=extraction,
-            device=pycolmap.Device.cpu,
-        )
+        _extract(pycolmap, db, src, names, camera, max_features)
         t1 = time.perf_counter()
         say(f"[2/3] {matching} matching of {len(names)} photos ({t1 - t0:.1f} s) ...")
-        match_opts = pycolmap.FeatureMatchingOptions()
-        match_opts.num_threads = 2
-        verification = pycolmap.TwoViewGeometryOptions()
-        verification.ransac.random_seed = int(seed)
-        if matching == "sequential":
-            pairing = pycolmap.SequentialPairingOptions()
-            pairing.overlap = int(overlap)
-            pycolmap.match_sequential(
-                str(db),
-                matching_options=match_opts,
-                pairing_options=pairing,
-                verification_options=verification,
-                device=pycolmap.Device.cpu,
-            )
-        else:
-            pycolmap.match_exhaustive(
-                str(db),
-                matching_options=match_opts,
-                verification_options=verification,
-                device=pycolmap.Device.cpu,
-            )
+        _match(pycolmap, db, matching, overlap, seed)
         t2 = time.perf_counter()
         say(f"[3/3] incremental mapping ({t2 - t1:.1f} s) ...")
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.ba_refine_focal_length = False
-        opts.ba_refine_principal_point = False
-        opts.ba_refine_extra_params = False
-        opts.num_threads = 2
-        opts.random_seed = int(seed)
-        opts.mapper.random_seed = int(seed)
-        opts.triangulation.random_seed = int(seed)
-        count = [0]
-
-        def registered() -> None:
-            count[0] += 1
-            say(f"      registered {count[0] + 2}/{len(names)} photos")
-
-        out = work / "sparse"
-        out.mkdir(exist_ok=True)
-        models = pycolmap.incremental_mapping(
-            str(db), str(src), str(out), options=opts, next_image_callback=registered
-        )
+        with tqdm(
+            total=len(names),
+            initial=2,
+            desc="registering photos",
+            unit="photo",
+            file=progress,
+            disable=progress is None,
+        ) as bar:
+            models = _incremental_mapping(pycolmap, db, src, work / "sparse", seed, bar)
     best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
     n_reg = 0 if best is None else best.num_reg_images()
     if n_reg < max(3, int(np.ceil(min_registered * len(names)))):
@@ -636,3 +712,78 @@ def reconstruct(
         f"error {best.compute_mean_reprojection_error():.2f} px ({time.perf_counter() - t0:.1f} s)"
     )
     return model_dir
+
+
+@dataclass
+class Attempt:
+    """One reconstruction tried by :func:`reconstruct_aligned`: its ``matching`` and ``seed``,
+    and the marker ``alignment`` when accepted, else ``error`` (why it was refused)."""
+
+    matching: str
+    seed: int
+    alignment: MarkerAlignment | None = None
+    error: str = ""
+
+
+def reconstruct_aligned(
+    images_dir: str | Path,
+    camera: CameraModel,
+    workdir: str | Path,
+    markers: str | Path,
+    matching: str = "sequential",
+    attempts: int = 3,
+    max_residual: float = 0.02,
+    seed: int = 0,
+    progress: TextIO | None = sys.stderr,
+) -> tuple[Path, MarkerAlignment, list[Attempt]]:
+    """Reconstruct the photos (:func:`reconstruct`) and align the model on a marker map
+    (:func:`align_to_markers`); a model the alignment refuses (residual over
+    ``max_residual``: bent, photos registered at wrong poses where textures repeat) is
+    reconstructed again, up to ``attempts`` times: the other matching, then the first with
+    another seed, alternating. The first model that aligns is kept.
+
+    Args:
+        images_dir, camera, workdir: as :func:`reconstruct`. markers: marker map YAML or scene.
+        matching: the first attempt's matching. attempts: most reconstructions (>= 1).
+        max_residual: largest RMS corner residual (m). seed: the first attempt's seed.
+        progress: stream for stage lines (None: quiet).
+    Returns:
+        ``(model dir, alignment, attempts)``: every attempt with its outcome, in order.
+    Raises:
+        ValueError: no attempt aligned; the message names every attempt's residual, the
+        likely cause and what to try. Others as :func:`reconstruct` and
+        :func:`align_to_markers` (too few markers is not retried: another matching does not
+        add markers).
+    """
+    if attempts < 1:
+        raise ValueError(f"attempts must be >= 1, got {attempts}")
+    other = {"sequential": "exhaustive", "exhaustive": "sequential"}[matching]
+    tried: list[Attempt] = []
+    for i in range(int(attempts)):
+        a = Attempt(matching if i % 2 == 0 else other, int(seed) + i // 2)
+        tried.append(a)
+        if progress is not None and i:
+            print(
+                f"attempt {i + 1}/{attempts}: {a.matching} matching, seed {a.seed}",
+                file=progress,
+                flush=True,
+            )
+        model = reconstruct(
+            images_dir, camera, workdir, progress=progress, matching=a.matching, seed=a.seed
+        )
+        try:
+            a.alignment = align_to_markers(model, images_dir, markers, max_residual=max_residual)
+            return model, a.alignment, tried
+        except BentModelError as e:
+            a.error = str(e)
+            if progress is not None:
+                print(f"refused: {e}", file=progress, flush=True)
+    summary = "; ".join(f"{a.matching} matching, seed {a.seed}: {a.error}" for a in tried)
+    raise ValueError(
+        f"no reconstruction of {images_dir} agrees with the marker map after {len(tried)} "
+        f"attempt(s) ({summary}). Residuals of decimetres that change from attempt to attempt "
+        "mean a bent reconstruction (photos registered at wrong poses where textures repeat): "
+        "take photos with more overlap in walking order (name order) and fewer views of "
+        "repeated texture alone, or more markers in view. Residuals that stay alike point at "
+        "the marker map instead (another place, a moved marker, a wrong marker size)."
+    )

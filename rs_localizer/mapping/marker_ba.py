@@ -40,6 +40,8 @@ __all__ = [
     "FrameDetections",
     "MappingOptions",
     "MarkerMapResult",
+    "OutputFrame",
+    "concatenate_videos",
     "map_markers",
     "marker_corners_local",
 ]
@@ -79,9 +81,27 @@ class MappingOptions:
     Attributes:
         marker_size: default side length of the markers' black square (m).
         marker_sizes: marker id -> side (m) for markers of another size.
-        anchor: id of the marker that fixes the world frame; ``None``: the lowest id detected.
+        anchor: id of the marker that fixes the world frame; ``None`` (and no ``anchors``):
+            the most detected marker (the best-observed one, whose pose the video fixes best).
         anchor_pose: ``(R, p)``: the anchor's rotation (3, 3, marker -> world) and centre (3,)
             (m) in the world; ``None``: the anchor's own frame is the world.
+        anchors: id -> (4, 3) surveyed world corners (m) of several markers: the world frame
+            is the rigid best fit of their mapped corners to these (a frame several markers
+            fix); excludes ``anchor``.
+        max_anchor_residual: RMS corner residual (m) of the surveyed anchors after the fit
+            that is always accepted; above it and above 3 times the position std the map
+            states for them, the anchors disagree with the video (an error).
+        shared_errors: weight the detections in the covariance for the detector's errors that
+            repeat when a marker is seen again from the same viewpoint
+            (:func:`_shared_error_weights`); False: every detection independent.
+        planar_ambiguity: widen each marker's rotation covariance along its mirrored tilt
+            where the cost says the mirror fits (:func:`_mirror_covariance`).
+        view_cluster_rad: viewing directions within this angle (rad; and distances within
+            30 %) count as one viewpoint for ``shared_errors``.
+        coverage_std: markers whose stated position std (largest axis, m) exceeds this are
+            named in ``MarkerMapResult.coverage`` with what would help.
+        max_frame_rotation_deg, max_frame_position_mm: bounds on the output frame's own
+            uncertainty above which the map tools warn.
         global_shutter: adjust with the global-shutter model (velocities fixed at 0, no motion
             tie): for global-shutter cameras and for comparison.
         calibrate_readout: estimate one line delay for the whole video (needs the motion tie).
@@ -115,6 +135,14 @@ class MappingOptions:
     marker_sizes: dict = field(default_factory=dict)
     anchor: int | None = None
     anchor_pose: tuple | None = None
+    anchors: dict | None = None
+    max_anchor_residual: float = 0.05
+    shared_errors: bool = True
+    planar_ambiguity: bool = True
+    view_cluster_rad: float = 0.35
+    coverage_std: float = 0.01
+    max_frame_rotation_deg: float = 0.5
+    max_frame_position_mm: float = 20.0
     global_shutter: bool = False
     calibrate_readout: bool = False
     corner_offset: bool = True
@@ -136,14 +164,16 @@ class MappingOptions:
 
 @dataclass
 class MarkerMapResult:
-    """Result of :func:`map_markers`. World frame: the anchor's (see ``MappingOptions``).
+    """Result of :func:`map_markers`. World frame: the output frame (see ``MappingOptions``
+    and ``frame``).
 
     Attributes:
-        anchor: the anchor's id.
+        anchor: the anchor's id (the first of the markers that fix the frame).
         corners: id -> (4, 3) world corners (m), ArUco order.
         marker_poses: id -> ``(R, p)``: (3, 3) marker -> world rotation, (3,) centre (m).
         marker_covariance: id -> (6, 6) covariance of (rotation [rad, world axes, left
-            perturbation], centre [m]); zeros for the anchor (the gauge).
+            perturbation], centre [m]) in the output frame, the frame's own uncertainty
+            included; zeros for a single anchor (exact in its own frame).
         marker_std: id -> (6,) square roots of that diagonal.
         observations: id -> number of detections used in the adjustment.
         frame_ids: (K,) indices into the input frames of the frames with a pose.
@@ -162,6 +192,9 @@ class MarkerMapResult:
         global_shutter: the global-shutter model was used.
         corner_offset_px: the detector's corner offset found (pixels, inwards along the
             diagonals; ``MappingOptions.corner_offset``), 0 when not estimated.
+        frame: :class:`OutputFrame`: how the output frame is fixed, and how well.
+        coverage: id -> why the marker's stated std exceeds ``MappingOptions.coverage_std``
+            and what would help.
     """
 
     anchor: int
@@ -184,6 +217,8 @@ class MarkerMapResult:
     timings: dict
     global_shutter: bool
     corner_offset_px: float = 0.0
+    frame: OutputFrame | None = None
+    coverage: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------- initialization
@@ -262,20 +297,53 @@ class _Init:
         e = _gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f)
         return float(np.sqrt(np.mean(e**2)))
 
-    def pose_frame(self, k, guess) -> bool:
+    def _ippe_guesses(self, k: int, known: list) -> list:
+        """Camera poses (world -> camera) of frame ``k`` from each known marker's two planar
+        solutions: starting points that need no previous frame (after a cut)."""
+        out = []
+        for m in known:
+            Rm, pm = self.markers[m]
+            for Rmc, tmc in _ippe_candidates(
+                marker_corners_local(self.opts.side(m)), self.obs[k][m]
+            ):
+                R = Rmc @ Rm.T
+                out.append((R, tmc - R @ pm))
+        return out
+
+    def pose_frame(self, k, guess, cut: bool = False) -> bool:
         """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
 
         With several markers, the pose from all of them and from each alone compete: the one
         that most markers agree with wins (ties: the one nearest the guess, the video being
         continuous); markers that disagree with it (a misdetection, or one id at another place)
-        are left out of this frame's initialization."""
+        are left out of this frame's initialization. After a cut (``cut``: a gap in the
+        stamps, another video), or when no start from the guess fits, each known marker's two
+        planar solutions are tried as starts too."""
         known = [m for m in self.obs[k] if m in self.markers and (k, m) not in self.excluded]
         if not known:
             return False
-        subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
+        best = self._best_pose(k, known, guess, [guess] * (1 + (len(known) > 1) * len(known)))
+        if cut or best is None or not best[2]:
+            starts = self._ippe_guesses(k, known)
+            alt = self._best_pose(k, known, guess, starts, subsets=[known] * len(starts))
+            if alt is not None and (best is None or alt[0] > best[0]):
+                best = alt
+        if best is None or not best[2]:
+            return False
+        _, pose, agree = best
+        self.excluded.update((k, m) for m in known if m not in agree)
+        pose = self._pnp(k, agree, pose) or pose
+        self.frames[k] = pose
+        return True
+
+    def _best_pose(self, k, known, guess, starts, subsets=None):
+        """The best ``(score, pose, agreeing markers)`` over PnP from ``starts`` on
+        ``subsets`` (default: all known markers, then each alone), or None."""
+        if subsets is None:
+            subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
         best = None
-        for sub in subsets:
-            pose = self._pnp(k, sub, guess)
+        for sub, start in zip(subsets, starts, strict=False):
+            pose = self._pnp(k, sub, start)
             if pose is None:
                 continue
             R, C = pose
@@ -286,13 +354,7 @@ class _Init:
             score = (len(agree), -away)
             if best is None or score > best[0]:
                 best = (score, pose, agree)
-        if best is None or not best[2]:
-            return False
-        _, pose, agree = best
-        self.excluded.update((k, m) for m in known if m not in agree)
-        pose = self._pnp(k, agree, pose) or pose
-        self.frames[k] = pose
-        return True
+        return best
 
     def new_marker(self, k, mid) -> None:
         obj = marker_corners_local(self.opts.side(mid))
@@ -410,10 +472,13 @@ class _Init:
         for m in self.obs[self.seed]:
             self.new_marker(self.seed, m)
         added = 0
+        dts = np.diff([self.stamps[k] for k in keys])
+        gap = self.opts.max_frame_gap * float(np.median(dts)) if len(dts) else 0.0
         for direction in (keys[s + 1 :], keys[:s][::-1]):
             prev = self.seed
             for k in direction:
-                if not self.pose_frame(k, self.frames[prev]):
+                cut = abs(self.stamps[k] - self.stamps[prev]) > max(gap, 0.5)
+                if not self.pose_frame(k, self.frames[prev], cut=cut):
                     continue
                 prev = k
                 added += 1
@@ -727,49 +792,10 @@ def _two_places(suspects: dict, Rf, Cf, fr_ids, obs_n, options) -> dict:
     return out
 
 
-def map_markers(
-    frames: Sequence[FrameDetections], camera: CameraModel, options: MappingOptions
-) -> MarkerMapResult:
-    """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
-
-    Stages: (1) initialization in capture order from the frame that sees the most markers
-    (:class:`_Init`): each frame's pose by OpenCV ``solvePnP`` (Levenberg-Marquardt from the
-    previous frame's pose, so a frame seeing a single marker keeps the continuous one of the
-    two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
-    poses, refined over all its views so far; every 25 frames and at the end a global-shutter
-    adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
-    than ``min_views`` frames is left out (``unmapped``); when some views of an id place it far
-    from the others and agree among themselves, only one group is used; (2) a coarse
-    adjustment with the rolling-shutter model and the starting frame's pose as the gauge, then
-    the whole moved rigidly onto the anchor's pose; (3) the rolling-shutter bundle adjustment
-    of every frame's pose and velocities and every marker's 6-DoF pose (module docstring: the
-    estimator's model, paper eq. 4) with SciPy ``least_squares`` (sparse Jacobian from
-    ``jac_sparsity``, robust loss), optionally one line delay, consecutive frames tied by the
-    motion model, the anchor fixed; (4) detections whose RMS error exceeds ``reject_px`` are
-    rejected (counted) and the map adjusted again without robust loss; the covariance is
-    ``(J^T J)^-1`` at the solution, the reprojection rows scaled by their estimated noise
-    (gauge: the anchor); (5) an id whose two groups of views still place it more than
-    max(0.5 m, 3 sides) apart with the adjusted frames is left out of the map and reported with
-    both places (``inconsistent``, never averaged); closer, the split was drift of the
-    initialization and the marker stays (the other group's detections counted as rejected).
-
-    Args:
-        frames: the video's detections in capture order (:class:`FrameDetections`; pixel
-            corners (4, 2) per id, ArUco order).
-        camera: intrinsics, distortion and RS timing (``line_delay``: the value used, or the
-            starting value with ``calibrate_readout``).
-        options: :class:`MappingOptions`.
-    Returns:
-        :class:`MarkerMapResult` (world frame: the anchor's, or ``options.anchor_pose``).
-    Raises:
-        ValueError: no detections in any frame (wrong dictionary?), the anchor not detected in
-            any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
-            (seen in fewer than ``min_views`` frames with a pose, or at places that disagree),
-            or ``calibrate_readout`` without a motion tie (global-shutter model, tie disabled,
-            or no consecutive frames).
-    """
-    t_start = time.perf_counter()
-    timings = {}
+def _read_detections(frames: Sequence[FrameDetections], camera: CameraModel) -> tuple:
+    """``(obs_px, obs_n, stamps)``: per frame with detections, id -> (4, 2) pixel corners and
+    undistorted normalized corners, and the stamps. Raises ValueError on corners that are not
+    (4, 2) and finite, or no detections at all."""
     obs_px, obs_n, stamps = {}, {}, {}
     for k, fr in enumerate(frames):
         if not fr.corners:
@@ -787,29 +813,36 @@ def map_markers(
             f"no marker detections in any of the {len(frames)} frames "
             "(wrong dictionary, or no markers in view)"
         )
-    ids = {m for d in obs_px.values() for m in d}
-    anchor = min(ids) if options.anchor is None else int(options.anchor)
-    n_anchor = sum(anchor in d for d in obs_px.values())
-    if n_anchor == 0:
-        raise ValueError(
-            f"anchor marker {anchor} is not detected in any frame (detected ids: {sorted(ids)})"
-        )
-    if options.anchor_pose is None:
-        anchor_pose = (np.eye(3), np.zeros(3))
-    else:
-        Ra, pa = options.anchor_pose
-        anchor_pose = (np.asarray(Ra, dtype=float).reshape(3, 3), np.asarray(pa, float).reshape(3))
-    init = _Init(obs_n, stamps, options, anchor, camera, obs_px)
-    init.run()
-    if len(init.frames) < 2:
-        raise ValueError(f"anchor marker {anchor}: fewer than 2 frames with a pose")
-    timings["initialization"] = time.perf_counter() - t_start
+    return obs_px, obs_n, stamps
 
+
+def _choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
+    """The marker held fixed in the adjustment (the internal gauge) and the surveyed anchors.
+
+    ``options.anchor`` given: that marker. ``options.anchors`` given: the most detected of
+    them. Neither: the most detected marker (its pose is fixed by the most views). Raises
+    ValueError naming an anchor that no frame detects."""
+    ids = {m for d in obs_px.values() for m in d}
+    count = {m: sum(m in d for d in obs_px.values()) for m in ids}
+    wanted = [int(options.anchor)] if options.anchor is not None else []
+    wanted += [int(m) for m in (options.anchors or {})]
+    missing = [m for m in wanted if m not in ids]
+    if missing:
+        raise ValueError(
+            f"anchor marker {', '.join(map(str, missing))} is not detected in any frame "
+            f"(detected ids: {sorted(ids)})"
+        )
+    if options.anchor is not None:
+        return int(options.anchor), wanted
+    pool = wanted or sorted(ids)
+    return max(pool, key=lambda m: (count[m], -m)), wanted
+
+
+def _coarse_adjustment(init: _Init, obs_px, camera, options, anchor, anchor_pose) -> None:
+    """A coarse rolling-shutter adjustment (gauge: the starting frame, wide robust scale) that
+    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose``."""
     fr_ids = sorted(init.frames)
     all_ids = sorted(init.markers)
-    # stage 1: gauge on the first placed frame (the anchor's orientation is poorly fixed by
-    # any single view): a coarse pass (wide robust scale) pulls the initialization together
-    t0 = time.perf_counter()
     free = _Problem(
         init,
         obs_px,
@@ -830,12 +863,18 @@ def map_markers(
         anchor,
         anchor_pose,
     )
-    timings["coarse adjustment"] = time.perf_counter() - t0
-    # stage 2: gauge on the anchor, robust loss, rejection, plain least squares
-    mk_ids = [m for m in all_ids if m != anchor]
+
+
+def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, bar) -> tuple:
+    """Rolling-shutter bundle adjustment with the gauge marker fixed: robust loss, rejection of
+    detections over ``reject_px``, plain least squares; views split by drift of the
+    initialization (not a second copy of the id) are taken back and the map adjusted again.
+    Returns ``(problem, solution, inconsistent ids, excluded detections)``."""
+    fr_ids = sorted(init.frames)
+    mk_ids = [m for m in sorted(init.markers) if m != anchor]
     exclude = set(init.excluded)
     x_start = None
-    for _ in range(2):
+    for rnd in range(2):
         prob = _Problem(init, obs_px, camera, options, fr_ids, mk_ids, anchor, exclude=exclude)
         t0 = time.perf_counter()
         sol = prob.solve(
@@ -855,7 +894,12 @@ def map_markers(
         timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
             time.perf_counter() - t0
         )
-        Rf, Cf, W, T, Rm, pm, ld = prob.unpack(sol.x)
+        bar.update(1)
+        bar.set_postfix_str(
+            f"round {rnd + 1}: cost {sol.cost:.4g}, rms {prob.noise_px:.2f} px, "
+            f"{int((~prob.keep).sum())} detections rejected"
+        )
+        Rf, Cf, *_ = prob.unpack(sol.x)
         inconsistent = _two_places(init.suspects, Rf, Cf, fr_ids, obs_n, options)
         # views split by drift of the initialization, not by a second copy: adjust again
         # with them
@@ -864,69 +908,608 @@ def map_markers(
             break
         exclude -= drift
         x_start = sol.x
-    if anchor in inconsistent:
-        raise ValueError(
-            f"anchor marker {anchor} cannot be placed: detected at places that disagree "
-            f"({inconsistent[anchor][0].round(2)} and {inconsistent[anchor][1].round(2)})"
+    return prob, sol, inconsistent, exclude
+
+
+def _view_clusters(prob: _Problem, Rf, Cf, Rm_all: dict, angle: float) -> np.ndarray:
+    """(D,) cluster label of every detection: detections of one marker whose viewing
+    directions (marker -> camera, in the marker's frame) lie within ``angle`` rad of the
+    cluster's first one and whose distances differ by less than 30 % share a label."""
+    fidx = {k: i for i, k in enumerate(prob.frames)}
+    labels = np.full(len(prob.det), -1)
+    heads: dict = {}  # marker -> [(label, direction, distance)]
+    nxt = 0
+    cos_max = np.cos(angle)
+    for d, (k, m) in enumerate(prob.det):
+        i = fidx[k]
+        R, p = Rm_all[m]
+        v = R.T @ (-Rf[i].T @ Cf[i] - p)
+        dist = float(np.linalg.norm(v))
+        u = v / max(dist, 1e-9)
+        for lab, u0, d0 in heads.setdefault(m, []):
+            if u @ u0 > cos_max and abs(np.log(dist / d0)) < np.log(1.3):
+                labels[d] = lab
+                break
+        else:
+            heads[m].append((nxt, u, dist))
+            labels[d] = nxt
+            nxt += 1
+    return labels
+
+
+def _shared_error_weights(prob: _Problem, x, labels: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weights (D,) of the detections in the covariance, and the correlation found.
+
+    A detector's error on a marker repeats when the marker is seen again from the same
+    viewpoint (the same image of it: same blur, same pixels on its edges), so detections from
+    one viewpoint do not add independent information. The correlation ``rho`` of the
+    residuals of consecutive detections of one marker within a viewpoint cluster is
+    estimated from the adjustment's own residuals (0 for independent noise); a cluster of
+    ``n`` detections then carries the information of ``n / (1 + (n - 1) rho)`` independent
+    ones (the design effect of equally correlated samples), and each of its detections is
+    weighted by ``1 / (1 + (n - 1) rho)``."""
+    e8 = prob.corner_residuals(x).reshape(-1, 8)
+    keep = prob.keep
+    last: dict = {}
+    num = den = 0.0
+    for d in range(len(prob.det)):
+        if not keep[d]:
+            continue
+        lab = labels[d]
+        if lab in last:
+            a, b = e8[last[lab]], e8[d]
+            num += float(a @ b)
+            den += float(np.sqrt((a @ a) * (b @ b)))
+        last[lab] = d
+    rho = float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0
+    n = np.bincount(labels[keep], minlength=labels.max() + 1)
+    w = 1.0 / (1.0 + (n[labels] - 1) * rho)
+    return w, rho
+
+
+def _gauge_covariance(prob: _Problem, sol, weights: np.ndarray) -> tuple[np.ndarray, float]:
+    """Joint covariance (6 M, 6 M) of the adjusted markers (gauge: the fixed marker) and the
+    estimated pixel noise: reprojection rows weighted by ``weights`` (per detection) and
+    scaled by the noise (:func:`_marker_covariance`)."""
+    e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
+    n_rep = e.size
+    dof = max(n_rep - prob.n, 1)
+    sigma = float(np.sqrt(np.sum(e**2) / dof))
+    J = csr_matrix(sol.jac)
+    scale = np.ones(J.shape[0])
+    scale[:n_rep] = np.repeat(np.sqrt(weights[prob.keep]), 8)
+    # (the corner offset's prior row follows the reprojections and is in pixels too)
+    n_px = n_rep + (1 if prob.co_col is not None else 0)
+    return _marker_covariance(diags(scale) @ J, n_px, sigma, prob), sigma
+
+
+def _mirror_covariance(prob: _Problem, x, weights, sigma: float, poses: dict) -> dict:
+    """id -> (6, 6) covariance to add to a marker's pose for the planar ambiguity of its tilt.
+
+    A square seen from about one direction has two poses that fit it: the true one and its
+    tilt mirrored through the viewing direction (the two solutions of IPPE). Far and small,
+    both fit almost equally, and the linearized covariance at one of them, which can be sharp
+    there, says nothing of the other. For each marker the tilt is mirrored through its mean
+    viewing direction (rotation ``delta``, the frames and the centre held), and the rise of
+    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` gives the variance along
+    ``delta`` that the cost's secant implies, ``|delta|^2 / d``; where that exceeds the
+    linearized variance along ``delta``, the difference is added along it (rotation block)."""
+    Rf, Cf, *_ = prob.unpack(x)
+    fidx = {k: i for i, k in enumerate(prob.frames)}
+    midx = {m: i for i, m in enumerate(prob.markers)}
+    e8 = prob.corner_residuals(x).reshape(-1, 8)
+    out = {}
+    for m, (R, p) in poses.items():
+        rows = [d for d, (k, mm) in enumerate(prob.det) if mm == m and prob.keep[d]]
+        if not rows:
+            continue
+        v = np.array(
+            [R.T @ (-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p) for d in rows]
         )
+        v = v / np.linalg.norm(v, axis=1, keepdims=True)
+        u = v.mean(axis=0)
+        u /= np.linalg.norm(u)
+        n_alt = 2 * u[2] * u - np.array([0.0, 0.0, 1.0])
+        axis = np.cross([0.0, 0.0, 1.0], n_alt)
+        ang = float(np.arctan2(np.linalg.norm(axis), n_alt[2]))
+        if ang < 1e-6:
+            continue
+        delta = R @ (axis / np.linalg.norm(axis) * ang)  # (world axes, left perturbation)
+        R_alt = rotvec_to_matrix(delta) @ R
+        x_alt = np.array(x, dtype=float)
+        Ra_save = prob.Ra
+        if m in midx:
+            M = x_alt[prob.moff : prob.moff + 6 * prob.nm].reshape(prob.nm, 6)
+            M[midx[m], :3] = matrix_to_rotvec(R_alt @ prob.R0m[midx[m]].T)
+        else:
+            prob.Ra = R_alt
+        try:
+            e_alt = prob.corner_residuals(x_alt).reshape(-1, 8)
+        finally:
+            prob.Ra = Ra_save
+        w = weights[rows]
+        rise = float(np.sum(w * (np.sum(e_alt[rows] ** 2, 1) - np.sum(e8[rows] ** 2, 1))))
+        rise = max(rise / sigma**2, 1.0)
+        d = delta / ang
+        var = ang**2 / rise
+        out[m] = (d, var)
+    return out
+
+
+def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) minimizing ``|R src + t - dst|`` over (N, 3)
+    points (Kabsch; SciPy ``Rotation.align_vectors`` on the centred points)."""
+    from scipy.spatial.transform import Rotation
+
+    cs, cd = src.mean(0), dst.mean(0)
+    rot, _ = Rotation.align_vectors(dst - cd, src - cs)
+    R = rot.as_matrix()
+    return R, cd - R @ cs
+
+
+@dataclass
+class OutputFrame:
+    """How the map's output frame is fixed and how well.
+
+    Attributes:
+        kind: ``anchor`` (one marker at its pose), ``surveyed`` (best fit to surveyed
+            markers) or ``best-observed`` (the most detected marker).
+        anchors: the markers that fix it.
+        rotation_std_deg, position_std_mm: the frame's own uncertainty against the map as a
+            whole (the rigid best fit of all mapped markers' centres): standard deviation of
+            its rotation (largest axis, deg) and of its origin (largest axis, mm).
+        covariance: (6, 6) that uncertainty (rotation rad, position m; map axes).
+        residual_mm: RMS corner residual of the surveyed markers after the fit (0 else).
+        shared_error_correlation: correlation of the detections' errors from one viewpoint
+            (:func:`_shared_error_weights`) used in the covariances.
+    """
+
+    kind: str
+    anchors: list
+    rotation_std_deg: float
+    position_std_mm: float
+    covariance: np.ndarray
+    residual_mm: float = 0.0
+    shared_error_correlation: float = 0.0
+
+
+def _pose_vector_map(poses: dict, ids: list, x: np.ndarray) -> dict:
+    """Marker poses with the perturbation ``x`` (6 per id: rotation vector, world axes left;
+    centre) applied."""
+    out = dict(poses)
+    for i, m in enumerate(ids):
+        R, p = poses[m]
+        out[m] = (rotvec_to_matrix(x[6 * i : 6 * i + 3]) @ R, p + x[6 * i + 3 : 6 * i + 6])
+    return out
+
+
+def _output_transform(poses: dict, options: MappingOptions, gauge: int, sides: dict) -> tuple:
+    """Rigid transform ``(R, t)`` from the adjustment's frame to the output frame, and the RMS
+    corner residual (m) of the surveyed anchors (0 for one anchor)."""
+    if options.anchors:
+        ids = sorted(options.anchors)
+        src = np.concatenate(
+            [marker_corners_local(sides[m]) @ poses[m][0].T + poses[m][1] for m in ids]
+        )
+        dst = np.concatenate([np.asarray(options.anchors[m], float).reshape(4, 3) for m in ids])
+        R, t = _fit_rigid(src, dst)
+        res = np.linalg.norm(src @ R.T + t - dst, axis=1)
+        return R, t, float(np.sqrt(np.mean(res**2)))
+    anchor = gauge if options.anchor is None else int(options.anchor)
+    Rt, pt = options.anchor_pose if options.anchor_pose is not None else (np.eye(3), np.zeros(3))
+    Ra, pa = poses[anchor]
+    R = np.asarray(Rt, float) @ Ra.T
+    return R, np.asarray(pt, float) - R @ pa, 0.0
+
+
+def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides) -> tuple:
+    """Marker poses and covariances in the output frame, and the frame's covariance.
+
+    The adjustment holds the gauge marker fixed; the output frame is a function of the
+    estimated markers (an anchor's pose, or a best fit to surveyed markers), so its own
+    uncertainty enters every marker's: with ``y(x)`` the markers' poses in the output frame
+    as a function of all adjusted markers' poses ``x`` (6 per marker), the covariance is
+    ``A cov A^T`` with ``A = dy/dx`` (central differences). The frame's own uncertainty is
+    that of the output frame against the rigid best fit of all markers' centres (the map as a
+    whole), by the same propagation."""
+    cent_ids = sorted(poses)
+    all_out = sorted(poses)
+    h = 1e-6
+
+    def outputs(x: np.ndarray) -> np.ndarray:
+        P = _pose_vector_map(poses, ids, x)
+        R, t, _ = _output_transform(P, options, gauge, sides)
+        y = []
+        for m in all_out:
+            Rm, pm = P[m]
+            y.append(matrix_to_rotvec(R @ Rm @ R0_out[m].T))
+            y.append(R @ pm + t)
+        # the output frame against the best fit of all centres
+        C = np.array([P[m][1] for m in cent_ids])
+        Rb, tb = _fit_rigid(C, np.array([poses[m][1] for m in cent_ids]))
+        # frame -> adjustment frame is (R^T, -R^T t); map it by the best fit
+        Rf = Rb @ R.T
+        y.append(matrix_to_rotvec(Rf @ R0_frame.T))
+        y.append(tb - Rb @ R.T @ t)
+        return np.concatenate(y)
+
+    R_, _, _ = _output_transform(poses, options, gauge, sides)
+    R0_frame = R_.T
+    R0_out = {m: R_ @ poses[m][0] for m in all_out}
+    y0 = outputs(np.zeros(6 * len(ids)))
+    A = np.empty((y0.size, 6 * len(ids)))
+    for j in range(6 * len(ids)):
+        dx = np.zeros(6 * len(ids))
+        dx[j] = h
+        A[:, j] = (outputs(dx) - outputs(-dx)) / (2 * h)
+    S = A @ cov @ A.T
+    out_cov = {m: S[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, m in enumerate(all_out)}
+    G = np.kron(np.eye(2), R_)  # (the frame's uncertainty on the output axes)
+    frame_cov = G @ S[-6:, -6:] @ G.T
+    return out_cov, frame_cov
+
+
+def _best_observed(poses: dict, ids: list, cov: np.ndarray) -> int:
+    """The marker whose pose the map fixes best: the smallest uncertainty of its pose
+    against the map as a whole (the markers' poses moved by the rigid best fit of all centres
+    onto the estimate, covariance by central differences as :func:`_propagate`), scored as
+    the position variance the rotation's uncertainty causes at the map's median distance
+    from it plus its own position variance (largest axes)."""
+    all_ids = sorted(poses)
+    cent = np.array([poses[m][1] for m in all_ids])
+    R0 = {m: poses[m][0] for m in all_ids}
+
+    def outputs(x: np.ndarray) -> np.ndarray:
+        P = _pose_vector_map(poses, ids, x)
+        C = np.array([P[m][1] for m in all_ids])
+        Rb, tb = _fit_rigid(C, cent)
+        y = []
+        for m in all_ids:
+            y.append(matrix_to_rotvec(Rb @ P[m][0] @ R0[m].T))
+            y.append(Rb @ P[m][1] + tb)
+        return np.concatenate(y)
+
+    h = 1e-6
+    n = 6 * len(ids)
+    A = np.empty((6 * len(all_ids), n))
+    for j in range(n):
+        dx = np.zeros(n)
+        dx[j] = h
+        A[:, j] = (outputs(dx) - outputs(-dx)) / (2 * h)
+    S = A @ cov @ A.T
+    best, score = all_ids[0], np.inf
+    for i, m in enumerate(all_ids):
+        r = np.median(np.linalg.norm(cent - poses[m][1], axis=1))
+        blk = S[6 * i : 6 * i + 6, 6 * i : 6 * i + 6]
+        sc = np.linalg.eigvalsh(blk[:3, :3])[-1] * r**2 + np.linalg.eigvalsh(blk[3:, 3:])[-1]
+        if sc < score:
+            best, score = m, sc
+    return best
+
+
+def _coverage(prob, Rf, Cf, poses, std, sides, bound: float) -> dict:
+    """id -> why a marker's stated position std (largest axis) exceeds ``bound`` (m): seen
+    in few frames, only from far, only head-on, from one direction."""
+    fidx = {k: i for i, k in enumerate(prob.frames)}
+    views: dict = {}
+    for (k, m), kept in zip(prob.det, prob.keep, strict=True):
+        if kept and m in poses:
+            i = fidx[k]
+            R, p = poses[m]
+            views.setdefault(m, []).append(R.T @ (-Rf[i].T @ Cf[i] - p))
+    out = {}
+    for m, s in std.items():
+        worst = float(np.max(s[3:]))
+        if worst <= bound or m not in views:
+            continue
+        v = np.array(views[m])
+        dist = np.linalg.norm(v, axis=1)
+        u = v / dist[:, None]
+        tilt = np.degrees(np.arccos(np.clip(u[:, 2], -1, 1)))
+        spread = np.degrees(np.arccos(np.clip(u @ u.mean(0) / np.linalg.norm(u.mean(0)), -1, 1)))
+        why = []
+        if len(v) < 10:
+            why.append(f"seen in {len(v)} frames")
+        if dist.min() > 12 * sides[m]:
+            why.append(f"only from far (closest {dist.min():.1f} m, {sides[m] * 100:.0f} cm side)")
+        if tilt.max() < 20:
+            why.append(f"only head-on (within {tilt.max():.0f} deg of its face normal)")
+        elif spread.max() < 10:
+            why.append(f"from one direction only (within {spread.max():.0f} deg)")
+        out[m] = (
+            f"std {worst * 1000:.0f} mm: "
+            + (", ".join(why) if why else "far from the markers that fix the frame")
+            + "; views from closer and at an angle would fix it"
+        )
+    return out
+
+
+def concatenate_videos(videos: Sequence[Sequence[FrameDetections]], gap: float = 10.0) -> list:
+    """Several videos of one place as one sequence for :func:`map_markers`: each video's
+    stamps shifted to start ``gap`` seconds after the previous one ends (no motion tie across
+    the cut). Returns the frames; :func:`video_of_frames` gives which video each came from."""
+    out, t_end = [], None
+    for v in videos:
+        v = list(v)
+        if not v:
+            continue
+        shift = 0.0 if t_end is None else t_end + gap - v[0].stamp
+        out.extend(FrameDetections(f.stamp + shift, f.corners) for f in v)
+        t_end = out[-1].stamp
+    return out
+
+
+def map_markers(
+    frames: Sequence[FrameDetections],
+    camera: CameraModel,
+    options: MappingOptions,
+    progress: bool = False,
+    videos: Sequence[int] | None = None,
+) -> MarkerMapResult:
+    """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
+
+    Stages: (1) initialization in capture order from the frame that sees the most markers
+    (:class:`_Init`): each frame's pose by OpenCV ``solvePnP`` (Levenberg-Marquardt from the
+    previous frame's pose, so a frame seeing a single marker keeps the continuous one of the
+    two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
+    poses, refined over all its views so far; every 25 frames and at the end a global-shutter
+    adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
+    than ``min_views`` frames is left out (``unmapped``); when some views of an id place it far
+    from the others and agree among themselves, only one group is used; (2) a coarse
+    adjustment with the rolling-shutter model and the starting frame's pose as the gauge
+    (:func:`_coarse_adjustment`); (3) the rolling-shutter bundle adjustment of every frame's
+    pose and velocities and every marker's 6-DoF pose (module docstring: the estimator's
+    model, paper eq. 4) with SciPy ``least_squares`` (sparse Jacobian, robust loss),
+    optionally one line delay, consecutive frames tied by the motion model, one marker held
+    fixed (the gauge: the anchor, or the most detected marker); detections whose RMS error
+    exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust
+    loss (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
+    reprojection rows scaled by the estimated noise and weighted for the errors that repeat
+    from one viewpoint (:func:`_shared_error_weights`); (5) the map moved to its output
+    frame (one anchor at its pose, or a best fit to surveyed markers) with every marker's
+    covariance propagated through the frame's own uncertainty (:func:`_propagate`), and
+    that uncertainty reported; (6) an id whose two groups of views still place it more than
+    max(0.5 m, 3 sides) apart is left out of the map and reported with both places
+    (``inconsistent``, never averaged).
+
+    Args:
+        frames: the video's detections in capture order (:class:`FrameDetections`; pixel
+            corners (4, 2) per id, ArUco order); several videos: :func:`concatenate_videos`.
+        camera: intrinsics, distortion and RS timing (``line_delay``: the value used, or the
+            starting value with ``calibrate_readout``).
+        options: :class:`MappingOptions`.
+        progress: show the stages and adjustment rounds (tqdm, on stderr).
+        videos: (len(frames),) index of the video of each frame: a video whose frames the
+            map cannot place (no marker in common, or its markers disagree) is refused.
+    Returns:
+        :class:`MarkerMapResult` in the output frame (``options.anchor`` at
+        ``options.anchor_pose``, ``options.anchors`` fitted, or the most detected marker).
+    Raises:
+        ValueError: no detections in any frame (wrong dictionary?), an anchor not detected in
+            any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
+            (seen in fewer than ``min_views`` frames with a pose, or at places that disagree),
+            surveyed anchors that disagree with the video (RMS corner residual over
+            ``max_anchor_residual``), a video of another place, or ``calibrate_readout``
+            without a motion tie.
+    """
+    from tqdm import tqdm
+
+    t_start = time.perf_counter()
+    timings: dict = {}
+    obs_px, obs_n, stamps = _read_detections(frames, camera)
+    gauge, _ = _choose_gauge(obs_px, options)
+    if options.anchors:
+        unknown = [m for m in options.anchors if np.asarray(options.anchors[m]).size != 12]
+        if unknown:
+            raise ValueError(f"surveyed anchors {unknown} need (4, 3) corners")
+    bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
+    bar.set_postfix_str("initialization")
+    init = _Init(obs_n, stamps, options, gauge, camera, obs_px)
+    try:
+        init.run()
+    except ValueError:
+        if videos is not None:  # (a video of another place: say so)
+            _check_videos(videos, init, obs_px)
+        raise
+    if len(init.frames) < 2:
+        raise ValueError(f"anchor marker {gauge}: fewer than 2 frames with a pose")
+    if videos is not None:
+        _check_videos(videos, init, obs_px)
+    timings["initialization"] = time.perf_counter() - t_start
+    bar.update(1)
+    bar.set_postfix_str("coarse adjustment")
+    t0 = time.perf_counter()
+    # the adjustment's frame: the anchor at its pose when one is given (the motion tie of the
+    # camera centres is not invariant to where the world's origin lies: the output frame's
+    # origin is the one the tie sees), else the gauge marker's own frame
+    gauge_pose = (np.eye(3), np.zeros(3))
+    if options.anchor is not None and options.anchor_pose is not None:
+        Ra, pa = options.anchor_pose
+        gauge_pose = (np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3))
+    _coarse_adjustment(init, obs_px, camera, options, gauge, gauge_pose)
+    timings["coarse adjustment"] = time.perf_counter() - t0
+    bar.update(1)
+    prob, sol, inconsistent, exclude = _adjust_and_reject(
+        init, obs_px, obs_n, camera, options, gauge, timings, bar
+    )
+    if gauge in inconsistent:
+        raise ValueError(
+            f"anchor marker {gauge} cannot be placed: detected at places that disagree "
+            f"({inconsistent[gauge][0].round(2)} and {inconsistent[gauge][1].round(2)})"
+        )
+    bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
+    if bad:
+        raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")
+    mk_ids = prob.markers
+    all_ids = sorted(init.markers)
     # rejected: by the adjustment, and detections of mapped markers that disagreed with their
     # frame during the initialization
     num_rejected = int((~prob.keep).sum()) + sum(
         m in all_ids and m not in inconsistent for _, m in exclude
     )
+    _, _, _, _, Rm, pm, _ = prob.unpack(sol.x)
+    poses = {gauge: (prob.Ra, prob.pa)}
+    poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(mk_ids)})
+    sides = {m: options.side(m) for m in poses}
 
+    bar.set_postfix_str("covariance")
     t0 = time.perf_counter()
-    e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
-    n_rep = e.size
-    dof = max(n_rep - prob.n, 1)
-    sigma = float(np.sqrt(np.sum(e**2) / dof))
-    # (the corner offset's prior row follows the reprojections and is in pixels too)
-    n_px = n_rep + (1 if prob.co_col is not None else 0)
-    cov_markers = _marker_covariance(sol.jac, n_px, sigma, prob)
+    framed = _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
     timings["covariance"] = time.perf_counter() - t0
+    bar.update(1)
+    bar.close()
+    return _assemble(
+        prob,
+        sol,
+        init,
+        framed,
+        sides,
+        options,
+        inconsistent,
+        num_rejected,
+        len(frames),
+        timings,
+        t_start,
+    )
 
-    corners, poses, mcov, mstd, nobs = {}, {}, {}, {}, {}
-    used = {}
-    for (_, m), kept in zip(prob.det, prob.keep, strict=True):
-        used[m] = used.get(m, 0) + int(kept)
-    corners[anchor] = marker_corners_local(options.side(anchor)) @ prob.Ra.T + prob.pa
-    poses[anchor] = (prob.Ra, prob.pa)
-    mcov[anchor] = np.zeros((6, 6))
-    mstd[anchor] = np.zeros(6)
-    nobs[anchor] = used.get(anchor, 0)
-    for i, m in enumerate(mk_ids):
+
+def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent) -> dict:
+    """Stage (4)-(5) of :func:`map_markers`: the covariance of the markers in the gauge
+    (viewpoint clusters, shared-error weights), the output frame (the best-observed marker
+    chosen when no anchor is given; surveyed anchors checked against their residual) and the
+    markers' poses and covariances in it. Returns a dict of ``poses`` / ``cov`` (id -> output
+    pose, (6, 6)), ``frame`` (:class:`OutputFrame`) and ``transform`` ``(R, t)`` (adjustment
+    frame -> output frame). Raises ValueError for surveyed anchors that disagree."""
+    Rf, Cf, *_ = prob.unpack(sol.x)
+    labels = _view_clusters(prob, Rf, Cf, poses, options.view_cluster_rad)
+    weights, rho = (
+        _shared_error_weights(prob, sol.x, labels)
+        if options.shared_errors
+        else (np.ones(len(prob.det)), 0.0)
+    )
+    cov_gauge, sigma = _gauge_covariance(prob, sol, weights)
+    # the gauge marker joins as a variable of its own, uncorrelated with the others: its
+    # only uncertainty in the gauge is the ambiguity of its tilt
+    ids = [*prob.markers, gauge]
+    n = 6 * len(prob.markers)
+    cov = np.zeros((n + 6, n + 6))
+    cov[:n, :n] = cov_gauge
+    if options.planar_ambiguity:
+        for m, (d, var) in _mirror_covariance(prob, sol.x, weights, sigma, poses).items():
+            i = 6 * ids.index(m)
+            lin = float(d @ cov[i : i + 3, i : i + 3] @ d)
+            if var > lin:
+                cov[i : i + 3, i : i + 3] += (var - lin) * np.outer(d, d)
+    kind = "surveyed" if options.anchors else "anchor" if options.anchor is not None else None
+    if kind is None:
+        kind = "best-observed"
+        options = replace(options, anchor=_best_observed(poses, ids, cov))
+    out_cov, frame_cov = _propagate(poses, ids, cov, options, gauge, sides)
+    Ro, to, residual = _output_transform(poses, options, gauge, sides)
+    if options.anchors:
+        # what the map states for the surveyed markers' positions (rms per axis)
+        stated = float(
+            np.sqrt(np.mean([np.trace(out_cov[m][3:, 3:]) / 3 for m in options.anchors]))
+        )
+        bound = max(options.max_anchor_residual, 3 * stated)
+        if residual > bound:
+            raise ValueError(
+                f"the surveyed anchors {sorted(options.anchors)} disagree with the video: RMS "
+                f"corner residual {residual * 1000:.0f} mm after the best fit, above "
+                f"{bound * 1000:.0f} mm (3x the {stated * 1000:.0f} mm the map states for them, "
+                f"at least {options.max_anchor_residual * 1000:.0f} mm): a wrong pose or id, a "
+                "moved marker, or a wrong marker size"
+            )
+    out_poses, covs = {}, {}
+    for m in poses:
         if m in inconsistent:
             continue
-        corners[m] = marker_corners_local(options.side(m)) @ Rm[i].T + pm[i]
-        poses[m] = (Rm[i], pm[i])
-        c = cov_markers[6 * i : 6 * i + 6, 6 * i : 6 * i + 6]
-        mcov[m] = c
-        mstd[m] = np.sqrt(np.clip(np.diag(c), 0.0, None))
-        nobs[m] = used.get(m, 0)
+        R, p = poses[m]
+        out_poses[m] = (Ro @ R, Ro @ p + to)
+        c = 0.5 * (out_cov[m] + out_cov[m].T)
+        if m == options.anchor and kind == "anchor":
+            c = np.zeros((6, 6))  # (the anchor's pose in its own frame is exact)
+        covs[m] = c
+    frame_std = np.sqrt(np.clip(np.diag(frame_cov), 0.0, None))
+    frame = OutputFrame(
+        kind,
+        sorted(options.anchors) if options.anchors else [int(options.anchor)],
+        float(np.degrees(frame_std[:3].max())),
+        float(1e3 * frame_std[3:].max()),
+        frame_cov,
+        1e3 * residual,
+        rho,
+    )
+    return dict(poses=out_poses, cov=covs, frame=frame, transform=(Ro, to), gauge_poses=poses)
+
+
+def _assemble(
+    prob, sol, init, framed, sides, options, inconsistent, num_rejected, n_frames, timings, t0
+) -> MarkerMapResult:
+    """Stage (6) of :func:`map_markers`: the :class:`MarkerMapResult` in the output frame
+    (markers, their covariance and std, frames' poses and velocities, counts, coverage)."""
+    Rf, Cf, W, T, _, _, ld = prob.unpack(sol.x)
+    Ro, to = framed["transform"]
+    used: dict = {}
+    for (_, m), kept in zip(prob.det, prob.keep, strict=True):
+        used[m] = used.get(m, 0) + int(kept)
+    poses, covs = framed["poses"], framed["cov"]
+    corners = {m: marker_corners_local(sides[m]) @ R.T + p for m, (R, p) in poses.items()}
+    mstd = {m: np.sqrt(np.clip(np.diag(c), 0.0, None)) for m, c in covs.items()}
+    # the frames in the output frame: world -> camera (R, C) becomes (R Ro^T, C - R Ro^T to)
+    Rf_out = Rf @ Ro.T
+    Cf_out = Cf - np.einsum("nij,j->ni", Rf_out, to)
     # camera's own velocities (docs/architecture.md): omega = -w / s, v = (w x C - t) / s with
-    # w = s W, t = s T
-    omega = -W
-    vel = np.cross(W, Cf) - T
-    timings["total"] = time.perf_counter() - t_start
+    # w = s W, t = s T (C the world -> camera translation of the adjustment's frame: the
+    # camera's velocities in its own frame do not depend on the world frame)
+    e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
+    timings["total"] = time.perf_counter() - t0
     return MarkerMapResult(
-        anchor=anchor,
+        anchor=framed["frame"].anchors[0],
         corners=corners,
         marker_poses=poses,
-        marker_covariance=mcov,
+        marker_covariance=covs,
         marker_std=mstd,
-        observations=nobs,
-        frame_ids=np.array(fr_ids),
-        orientation=np.swapaxes(Rf, 1, 2),
-        position=-np.einsum("nji,nj->ni", Rf, Cf),
-        angular_velocity=omega,
-        linear_velocity=vel,
+        observations={m: used.get(m, 0) for m in poses},
+        frame_ids=np.array(list(prob.frames)),
+        orientation=np.swapaxes(Rf_out, 1, 2),
+        position=-np.einsum("nji,nj->ni", Rf_out, Cf_out),
+        angular_velocity=-W,
+        linear_velocity=np.cross(W, Cf) - T,
         line_delay=float(ld),
         rmse_px=float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
         num_rejected=num_rejected,
-        num_frames_skipped=len(frames) - len(fr_ids),
+        num_frames_skipped=n_frames - len(prob.frames),
         unmapped=init.unmapped,
-        inconsistent=inconsistent,
+        inconsistent={m: [Ro @ q + to for q in qs] for m, qs in inconsistent.items()},
         timings=timings,
         global_shutter=options.global_shutter,
         corner_offset_px=prob.corner_offset(sol.x),
+        frame=framed["frame"],
+        coverage=_coverage(prob, Rf, Cf, framed["gauge_poses"], mstd, sides, options.coverage_std),
     )
+
+
+def _check_videos(videos: Sequence[int], init: _Init, obs_px: dict) -> None:
+    """Refuse a video of which the map places fewer than half the frames with markers: its
+    markers are not the others' (another place), or disagree with them (the reprojection
+    RMS of its frames against the map's markers is named)."""
+    for v in sorted(set(videos)):
+        ks = [k for k in obs_px if videos[k] == v]
+        posed = [k for k in ks if k in init.frames]
+        if len(posed) >= 0.5 * len(ks):
+            continue
+        others = {m for k in obs_px if videos[k] != v for m in obs_px[k]}
+        mine = {m for k in ks for m in obs_px[k]}
+        common = sorted(mine & others)
+        errs = []
+        for k in posed:
+            for m in obs_px[k]:
+                if m in init.markers:
+                    errs.append(init._rms(k, m, *init.frames[k]))
+        rms = f"{np.sqrt(np.mean(np.square(errs))):.1f} px" if errs else "no frame placed"
+        raise ValueError(
+            f"video {v + 1}: the map places {len(posed)} of its {len(ks)} frames with markers "
+            f"(markers in common with the other videos: {common or 'none'}; reprojection "
+            f"RMS {rms}): another place, or markers moved between the videos"
+        )

@@ -89,7 +89,7 @@ def detect_folder(
     Args:
         folder: directory of images (:data:`IMAGE_SUFFIXES`). camera: the camera (size check,
             RS timing). dictionary: OpenCV dictionary name, e.g. ``DICT_APRILTAG_36h11``.
-        fps: frame rate (Hz). progress: show a progress bar (tqdm, when installed).
+        fps: frame rate (Hz). progress: show a progress bar (tqdm).
     Returns:
         ``(frames, counts)``: :class:`FrameDetections` per image, and counts ``images``,
         ``without_markers``, ``duplicate_ids``.
@@ -98,13 +98,7 @@ def detect_folder(
         size than the camera, an unreadable image, an unknown dictionary, fps <= 0.
     """
     import cv2
-
-    try:
-        from tqdm import tqdm
-    except ImportError:  # optional: no progress bar without it
-
-        def tqdm(it, **_):
-            return it
+    from tqdm import tqdm
 
     from ..frontends.aruco import ArucoFrontend
 
@@ -166,8 +160,11 @@ def write_map(
     """Write the map in the marker-map format (:func:`rs_localizer.maps.load_marker_map`, the
     ArUco front end and the node's ``frontend_map`` read it): ``dictionary`` and per marker
     ``id``, ``corners`` (4, 3) m in ArUco order, plus ``std_position`` (3,) m and
-    ``std_rotation`` (3,) rad (world axes) and ``observations``. Written atomically
-    (:func:`write_atomic`).
+    ``std_rotation`` (3,) rad (world axes; in the map's frame, the frame's own uncertainty
+    included) and ``observations``; and ``frame``: how the frame is fixed (``kind``,
+    ``anchors``) and its own uncertainty (``rotation_std_deg``, ``position_std_mm``). Readers
+    that know only ``dictionary`` and the markers' ``id`` and ``corners`` read it as before.
+    Written atomically (:func:`write_atomic`).
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
@@ -186,14 +183,30 @@ def write_map(
                 "observations": int(result.observations[m]),
             }
         )
+    doc = {"dictionary": dictionary, "anchor": int(result.anchor)}
+    if result.frame is not None:
+        doc["frame"] = _frame_dict(result.frame)
+    doc["markers"] = markers
     text = "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n" + (
         yaml.safe_dump(
-            {"dictionary": dictionary, "anchor": int(result.anchor), "markers": markers},
+            doc,
             default_flow_style=None,
             sort_keys=False,
         )
     )
     return write_atomic(path, text, overwrite)
+
+
+def _frame_dict(frame: object) -> dict:
+    """The output frame's description for the map file and the report."""
+    return {
+        "kind": frame.kind,
+        "anchors": [int(m) for m in frame.anchors],
+        "rotation_std_deg": round(float(frame.rotation_std_deg), 4),
+        "position_std_mm": round(float(frame.position_std_mm), 2),
+        "surveyed_residual_mm": round(float(frame.residual_mm), 2),
+        "shared_error_correlation": round(float(frame.shared_error_correlation), 3),
+    }
 
 
 def write_report(
@@ -221,6 +234,8 @@ def write_report(
         "rejected_detections": int(result.num_rejected),
         "frames_with_pose": len(result.frame_ids),
         "frames_skipped": int(result.num_frames_skipped),
+        **({"frame": _frame_dict(result.frame)} if result.frame is not None else {}),
+        "coverage": {int(m): why for m, why in result.coverage.items()},
         **({"detection": dict(counts)} if counts else {}),
         "markers": {
             int(m): {

@@ -7,7 +7,8 @@ out of the wall, one lies on the floor. The camera walks a circle in the middle 
 turns once around and looks up and down (angular speed up to ~2 rad/s) (:class:`RoomWalk`);
 a mapping video may open in front of the anchor marker, looking at it from several directions
 (:class:`AnchorSweep`); a robot driving a loop at 0.4 m height gives a second video through
-the same room (:class:`RobotDrive`). Every corner is projected with the camera pose at the
+the same room (:class:`RobotDrive`); a hand-held video from one spot (:class:`OneSpot`) sees
+the far markers from one direction only. Every corner is projected with the camera pose at the
 capture time of its own line, through the lens distortion
 (:func:`rs_localizer.sim.trajectory.project_rs`), then Gaussian pixel noise is added.
 """
@@ -25,11 +26,13 @@ from .trajectory import R_FORWARD, project_rs
 __all__ = [
     "AnchorSweep",
     "MarkerRoom",
+    "OneSpot",
     "RobotDrive",
     "RoomWalk",
     "make_marker_room",
     "room_camera",
     "simulate_detections",
+    "view_dependent_error",
 ]
 
 SIZES = (0.12, 0.16, 0.2, 0.3)
@@ -222,6 +225,59 @@ class RobotDrive(RoomWalk):
 
 
 @dataclass(frozen=True)
+class OneSpot(RoomWalk):
+    """A hand-held video from one spot: the camera stays near ``spot`` (x, y, height; m),
+    shaking by about 2 cm, and pans its view from ``yaw_from`` to ``yaw_to`` (rad, world
+    yaw of the optical axis) and back in ``duration`` seconds, looking ``pitch`` rad up and
+    down: the far walls' markers are seen from one direction only. Same interface as
+    :class:`RoomWalk`."""
+
+    duration: float = 5.0
+    spot: tuple = (0.7, 0.7, 1.5)
+    yaw_from: float = -0.2
+    yaw_to: float = 1.8
+    pitch: float = 0.15
+
+    def position(self, t: float | np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        shake = 0.02 * np.stack(
+            [np.sin(2 * np.pi * 0.9 * t), np.sin(2 * np.pi * 1.3 * t + 1), np.sin(3.7 * t)],
+            axis=-1,
+        )
+        return np.asarray(self.spot, dtype=float) + shake
+
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        u = 0.5 - 0.5 * np.cos(2 * np.pi * t / self.duration)  # there and back
+        yaw = self.yaw_from + (self.yaw_to - self.yaw_from) * u
+        pitch = self.pitch * np.sin(2 * np.pi * 0.4 * t) - 0.05
+        roll = 0.04 * np.sin(2 * np.pi * 0.7 * t + 0.5)
+        z = np.zeros_like(t)
+        Rz = rotvec_to_matrix(np.stack([z, z, yaw], axis=-1))
+        Ry = rotvec_to_matrix(np.stack([z, -pitch, z], axis=-1))
+        Rx = rotvec_to_matrix(np.stack([roll, z, z], axis=-1))
+        return Rz @ Ry @ Rx @ R_FORWARD
+
+
+def view_dependent_error(
+    marker_id: int, direction: np.ndarray, sigma_px: float, seed: int = 0, scale_rad: float = 0.35
+) -> np.ndarray:
+    """(4, 2) pixels: a detector's error on the four corners of marker ``marker_id`` seen
+    from ``direction`` (3,) (unit vector from the marker to the camera, in the marker's
+    frame). It is the same for the same viewpoint and changes smoothly as the viewpoint
+    turns (over about ``scale_rad``): a marker's image seen again from the same place gives
+    the same corners, so frames taken from one spot do not average it away, where views from
+    other directions do. Each corner's error is a sum of three random plane waves over the
+    viewing direction (rms ``sigma_px`` per axis; fixed by ``seed`` and the id)."""
+    rng = np.random.default_rng([int(seed), int(marker_id), 77])
+    k = rng.normal(scale=1.0 / scale_rad, size=(4, 3, 3))  # corner, wave, direction
+    phase = rng.uniform(0, 2 * np.pi, size=(4, 3))
+    amp = rng.normal(size=(4, 3, 2))
+    wave = np.cos(k @ np.asarray(direction, dtype=float) + phase)  # (4, 3)
+    return sigma_px * np.sqrt(2.0 / 3.0) * np.einsum("cw,cwa->ca", wave, amp)
+
+
+@dataclass(frozen=True)
 class AnchorSweep:
     """The camera in front of a marker (``target``: its centre, ``normal``: its face normal,
     world frame), ``distance`` m away, swaying ``lateral`` m left and right (and 0.25 m up and
@@ -272,6 +328,8 @@ def simulate_detections(
     min_side_px: float = 14.0,
     max_view_angle_deg: float = 70.0,
     corner_bias_px: float = 0.0,
+    view_error_px: float = 0.0,
+    view_seed: int = 0,
 ) -> tuple[list[tuple[float, dict[int, np.ndarray]]], dict[str, np.ndarray]]:
     """Detections of the room's markers along the walk.
 
@@ -280,7 +338,9 @@ def simulate_detections(
     ``max_view_angle_deg``) and its shortest projected side is at least ``min_side_px``.
     ``corner_bias_px`` moves every detected corner that far towards the centre of its marker's
     projected square along the diagonal (the inward bias of a subpixel corner detector on
-    blurred images), before the noise.
+    blurred images), before the noise. ``view_error_px`` adds a detector error that depends on
+    the viewpoint (:func:`view_dependent_error`, rms per axis; ``view_seed`` fixes it: use
+    the same for several videos of one room) before the noise.
 
     Returns:
         ``(detections, truth)``: a list of ``(stamp, {id: (4, 2) pixels})`` with ``stamp`` the
@@ -314,7 +374,11 @@ def simulate_detections(
                 continue
             d = uv - uv.mean(axis=0)
             d /= np.linalg.norm(d, axis=1, keepdims=True)
-            dets[int(i)] = uv - corner_bias_px * d + rng.normal(scale=noise_px, size=uv.shape)
+            uv = uv - corner_bias_px * d + rng.normal(scale=noise_px, size=uv.shape)
+            if view_error_px:
+                u = room.R[i].T @ view / np.linalg.norm(view)
+                uv = uv + view_dependent_error(int(i), u, view_error_px, view_seed)
+            dets[int(i)] = uv
         out.append((t_ref, dets))
         h = 1e-5
         Ra, Rb = walk.orientation(np.array([t_ref - h, t_ref + h]))

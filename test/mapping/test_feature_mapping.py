@@ -37,7 +37,7 @@ def colmap_map(tmp_path_factory):
     poses = photo_walk(N_PHOTOS)
     for k, (R, p) in enumerate(poses):
         cv2.imwrite(str(photos / f"photo_{k:03d}.png"), renderer.render_pose(R, p)[:, :, ::-1])
-    model = reconstruct(photos, camera, root / "work", progress=None)
+    model = reconstruct(photos, camera, root / "work", progress=None, matching="exhaustive")
     fm = feature_map_from_colmap(model, min_track=3)
     alignment = align_to_markers(model, photos, "textured_room")
     return dict(
