@@ -1,8 +1,12 @@
 """Image front ends: an image in, 2D-3D correspondences out.
 
-Every front end has ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``
-(distorted pixels, world points in metres, int64 ids), ready for
-:func:`rs_localizer.estimate_rs_pose`. :func:`make_frontend` builds one by name.
+Every front end has ``process(image, camera, encoding)`` returning
+:class:`~rs_localizer.correspondences.Correspondences` (distorted pixels (N, 2), world points in
+metres (N, 3), int64 ids (N,) and optional match scores; it unpacks as ``pixels, points, ids``),
+ready for :func:`rs_localizer.estimate_rs_pose` (the protocols:
+:class:`~rs_localizer.correspondences.Frontend`,
+:class:`~rs_localizer.correspondences.TrackingFrontend`). :func:`make_frontend` builds one by
+name.
 """
 
 import os
