@@ -4,6 +4,7 @@ last checks and the outputs (:func:`final_estimate`)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -314,6 +315,43 @@ def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> 
     )
 
 
+def fit_is_inconsistent(
+    X: np.ndarray,
+    inliers: np.ndarray,
+    position: np.ndarray,
+    flat: float,
+    condition: float,
+    rolling: bool,
+    threshold: float,
+    errors: Callable[[], np.ndarray],
+) -> bool:
+    """Whether a final fit of a non-planar frame is one no rigid camera explains (the three
+    tests of :func:`final_estimate`'s ``consistent_fit``; the uncompiled path uses it too).
+
+    Args:
+        X: (N, 3) m, the frame's valid world points; inliers: (N,) bool, the fit's inliers.
+        position: (3,) m, the camera centre in the world at the reference line.
+        flat: the inliers' planarity (:func:`~.degeneracy.planarity`).
+        condition: the condition number of the fit's information matrix (NaN: unknown).
+        rolling: a rolling-shutter solver (the near-miss test is skipped for P3P).
+        threshold: the inlier threshold, normalized units (0 skips the near-miss test).
+        errors: called only for the near-miss test: the (N,) reprojection errors of the fit,
+            normalized units.
+    """
+    n_inl = int(np.count_nonzero(inliers))
+    n = len(X)
+    if flat < PLANAR_TOLERANCE and far_side_fraction(X, inliers, position) > FAR_SIDE_LIMIT:
+        return True
+    if n_inl < PARTIAL_FIT_FRACTION * n and condition > PARTIAL_FIT_CONDITION:
+        return True
+    if rolling and threshold > 0 and n_inl < MIRRORED_FIT_FRACTION * n:
+        e = errors()
+        near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
+        if near > NEAR_MISS_RATIO * n_inl:
+            return True
+    return False
+
+
 def final_estimate(
     fr: Frame,
     solver: str,
@@ -367,19 +405,21 @@ def final_estimate(
     n_free = 12 if rolling else 6
     info = final.information
     cond = condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
-    if consistent_fit and not fr.planar:
-        seen_from_behind = (
-            flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
+    if (
+        consistent_fit
+        and not fr.planar
+        and fit_is_inconsistent(
+            fr.X,
+            inl,
+            position,
+            flat,
+            cond,
+            rolling,
+            threshold,
+            lambda: exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0),
         )
-        n_inl = np.count_nonzero(inl)
-        few = n_inl < PARTIAL_FIT_FRACTION * len(fr.x)
-        if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
-            raise EstimationFailed(INCONSISTENT_FIT)
-        if rolling and threshold > 0 and n_inl < MIRRORED_FIT_FRACTION * len(fr.x):
-            e = exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0)
-            near = np.count_nonzero((e >= threshold) & (e < NEAR_MISS_WINDOW * threshold))
-            if near > NEAR_MISS_RATIO * n_inl:
-                raise EstimationFailed(INCONSISTENT_FIT)
+    ):
+        raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)
     cov = pose_cov = twist_cov = None
     if final.covariance is not None:

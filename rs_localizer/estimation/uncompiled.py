@@ -52,14 +52,8 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
 from ..jit_cache import numba_error
 from ..solvers.registry import sample_size, solver_info
-from .degeneracy import PLANAR_TOLERANCE, far_side_fraction
-from .finalize import (
-    FAR_SIDE_LIMIT,
-    FINAL_CUTOFF,
-    FINAL_TOL,
-    PARTIAL_FIT_CONDITION,
-    PARTIAL_FIT_FRACTION,
-)
+from .degeneracy import PLANAR_TOLERANCE
+from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent
 from .options import EstimateOptions
 from .prior import prior_arrays
 from .ransac import required_iterations, seeded_rng
@@ -667,13 +661,12 @@ def _finalize(
     position = camera_position(R, C)
     n_free = 12 if rolling else 6
     cond = _condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
-    if opts.plausibility.consistent_fit and not fr.planar:
-        seen_from_behind = (
-            flat < PLANAR_TOLERANCE and far_side_fraction(fr.X, inl, position) > FAR_SIDE_LIMIT
-        )
-        few = np.count_nonzero(inl) < PARTIAL_FIT_FRACTION * len(fr.x)
-        if seen_from_behind or (few and cond > PARTIAL_FIT_CONDITION):
-            raise EstimationFailed(INCONSISTENT_FIT)
+    if (
+        opts.plausibility.consistent_fit
+        and not fr.planar
+        and fit_is_inconsistent(fr.X, inl, position, flat, cond, rolling, th, lambda: e)
+    ):
+        raise EstimationFailed(INCONSISTENT_FIT)
     om, vc, om_w, vc_w = _physical(R, C, w, t, fr.spr)
     cov_out = pose_cov = twist_cov = None
     if cov is not None:

@@ -37,3 +37,25 @@ def test_true_frames_with_most_points_outliers_are_still_solved():
     for f in corridor_frames(6, 7, outlier_ratio=0.7):
         e = estimate_rs_pose(f.points_px, f.points3d, f.camera, "r6p_1lin", f.options)
         assert e.failure != INCONSISTENT_FIT
+
+
+def test_near_misses_make_a_partial_fit_inconsistent():
+    """The near-miss rule of :func:`fit_is_inconsistent` (shared by the compiled and the
+    uncompiled path) on a 3D cloud: 100 inliers of 300, the other 200 points either just
+    missing (1-5 thresholds) or anywhere (far beyond)."""
+    import numpy as np
+
+    from rs_localizer.estimation.finalize import NEAR_MISS_WINDOW, fit_is_inconsistent
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, (300, 3)) + [0, 0, 5]
+    inl = np.zeros(300, bool)
+    inl[:100] = True
+    th = 1e-3
+    e = np.where(inl, 0.5 * th, rng.uniform(1.5 * th, 0.9 * NEAR_MISS_WINDOW * th, 300))
+    far = np.where(inl, 0.5 * th, rng.uniform(20 * th, 100 * th, 300))
+    args = (X, inl, np.zeros(3), 1.0, 10.0, True)
+    assert fit_is_inconsistent(*args, th, lambda: e)
+    assert not fit_is_inconsistent(*args, th, lambda: far)
+    assert not fit_is_inconsistent(*args, 0.0, lambda: e)  # threshold 0: the test is off
+    assert not fit_is_inconsistent(X, inl, np.zeros(3), 1.0, 10.0, False, th, lambda: e)  # P3P
