@@ -430,9 +430,13 @@ class FramePipeline:
         (``imu.enabled`` false: nothing counted), ``no_angular_velocity`` (covariance[0] = -1,
         the message's "no data"), ``bad_stamp`` and the reasons of
         :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or repeated,
-        NaN or saturated rates)."""
-        if self.sequence.imu is None:
+        NaN or saturated rates). A buffered sample that this one shows to have been a lone
+        stamp jump ahead (dropped from the buffer) is counted as
+        ``imu_rejected.stamp_jumped_ahead``."""
+        buf = self.sequence.imu
+        if buf is None:
             return "disabled"
+        dropped = buf.dropped
         if float(msg.angular_velocity_covariance[0]) == -1.0:
             reason = "no_angular_velocity"
         else:
@@ -443,10 +447,12 @@ class FramePipeline:
             else:
                 a = msg.angular_velocity
                 reason = self.sequence.add_imu(stamp, (a.x, a.y, a.z))
-        if reason is not None:
+        for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
+            buf.dropped - dropped
+        ):
             self.stats.add("imu_rejected")
-            self.stats.add(f"imu_rejected.{reason}")
-            self.log.warning(f"imu.{reason}", f"IMU sample rejected ({reason})")
+            self.stats.add(f"imu_rejected.{why}")
+            self.log.warning(f"imu.{why}", f"IMU sample rejected ({why})")
         return reason
 
     # ---------------------------------------------------------------- frames

@@ -195,3 +195,5 @@ def test_a_wrong_imu_never_makes_a_replayed_pose_worse(gyro_bag, tmp_path, kind)
         assert c.get("gyro_missing", 0) >= 1, c
     if kind == "past_stamp":  # (a sample going back is refused, and counted)
         assert c.get("imu_rejected.stamp_not_increasing", 0) >= 1, c
+    if kind == "future_stamp":  # (the lone sample ahead is dropped, and counted)
+        assert c.get("imu_rejected.stamp_jumped_ahead", 0) >= 1, c
