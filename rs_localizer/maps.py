@@ -231,7 +231,8 @@ def scene_path(name_or_path) -> Path:
         p = SCENE_DIR / f"{p}.yaml"
     if not p.exists():
         raise FileNotFoundError(
-            f"scene {str(name_or_path)!r} not found (built-in: {scene_names()})"
+            f"map file {str(name_or_path)!r} not found (expected a marker map or scene YAML, "
+            f"or a built-in scene: {', '.join(scene_names())})"
         )
     return p
 

@@ -193,3 +193,13 @@ def test_marker_and_landmark_maps_are_written_whole_and_readable(tmp_path, umask
     assert stat.S_IMODE(q.stat().st_mode) == 0o644
     assert load_landmarks_csv(q)[0].tolist() == [4, 5]
     assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_a_missing_map_file_is_named_a_map_file(tmp_path):
+    """A missing marker map (the node's ``frontend_map``, the tools' map arguments) is reported
+    as a map file, naming the path and what was expected."""
+    from rs_localizer.maps import scene_path
+
+    missing = tmp_path / "nosuch.yaml"
+    with pytest.raises(FileNotFoundError, match=r"map file .*nosuch\.yaml.* not found"):
+        scene_path(missing)
