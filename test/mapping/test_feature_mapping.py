@@ -54,6 +54,7 @@ def colmap_map(tmp_path_factory):
     )
 
 
+@pytest.mark.slow
 def test_reconstructed_map_matches_ground_truth(colmap_map, tmp_path):
     """Median 3D point error after the marker alignment, against the renderer's ray cast of
     each point's first observation (pycolmap's track, COLMAP pixel - 0.5)."""
@@ -129,6 +130,7 @@ def _localize(feature_map, camera, scene, times):
     return np.median(np.array(out), axis=0)
 
 
+@pytest.mark.slow
 def test_rolling_shutter_frames_localize_against_the_map(colmap_map):
     """RS frames (hand-held shake, 30 ms readout) against the reconstruction: close to the
     ground truth (within 0.1 deg and 5 mm: the map's alignment on the marker detections) and
@@ -195,6 +197,7 @@ def test_feature_map_without_quality_still_loads(tmp_path):
         FeatureMap.load(p)
 
 
+@pytest.mark.slow
 def test_bad_inputs(colmap_map, tmp_path):
     import pycolmap
 
@@ -240,6 +243,7 @@ def test_bad_inputs(colmap_map, tmp_path):
         align_to_markers(model, photos, bent)
 
 
+@pytest.mark.slow
 def test_map_features_command(colmap_map, tmp_path, capsys):
     """The command writes the aligned map; refuses to overwrite; bad input: exit 2, no file."""
     from rs_localizer.cli import main

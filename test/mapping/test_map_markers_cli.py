@@ -73,6 +73,7 @@ def args(rendered, out, *extra):
     ]
 
 
+@pytest.mark.slow
 def test_map_from_rendered_images_matches_the_scene(rendered, tmp_path):
     _, images, _, true, _ = rendered
     out = tmp_path / "map.yaml"
@@ -97,6 +98,7 @@ def test_map_from_rendered_images_matches_the_scene(rendered, tmp_path):
     assert out.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_refusals_write_no_file(rendered, tmp_path, capsys):
     cam_yaml = rendered[2]
     out = tmp_path / "map.yaml"
@@ -123,6 +125,7 @@ def test_refusals_write_no_file(rendered, tmp_path, capsys):
     assert not list(tmp_path.glob(".map.yaml.*"))
 
 
+@pytest.mark.slow
 def test_map_from_a_rendered_bag(rendered, tmp_path, capsys):
     """The same scene rendered to a bag by ``render-bag`` (images, camera_info, header stamps
     at the first line's capture time)."""

@@ -13,6 +13,9 @@ from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import Renderer, camera_preset, frame_times
 from rs_localizer.sim.render.scene import load_scene
 
+#: the bundle adjustments of these tests take 10-70 s each
+pytestmark = pytest.mark.slow
+
 FRAMES = 16
 
 

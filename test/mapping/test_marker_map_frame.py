@@ -28,6 +28,9 @@ from rs_localizer.sim.marker_room import (
     view_dependent_error,
 )
 
+#: the bundle adjustments of these tests take 10-70 s each
+pytestmark = pytest.mark.slow
+
 VIEW_ERROR = 0.3
 
 

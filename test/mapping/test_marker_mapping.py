@@ -27,6 +27,9 @@ from rs_localizer.sim.marker_room import (
     room_camera,
 )
 
+#: the bundle adjustments of these tests take 10-70 s each
+pytestmark = pytest.mark.slow
+
 NUM_FRAMES = 90
 
 
