@@ -181,6 +181,7 @@ def play(
     the ``--topics`` to pass instead).
     """
     import rclpy
+    from rclpy.event_handler import PublisherEventCallbacks
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
@@ -207,11 +208,17 @@ def play(
             depth=10,
             reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         )
+        # a reader asking for reliable images does not match the sensor-data publisher: play
+        # answers it with a reliable one (match_reliable_image_readers below), so rclpy's
+        # "incompatible QoS" warning on the first publisher would be noise
+        quiet = PublisherEventCallbacks(incompatible_qos=lambda event: None)
         pubs = {
-            t: node.create_publisher(
-                _msg_class(mt),
-                remap.get(t, t),
-                qos_profile_sensor_data if mt in (IMAGE, COMPRESSED_IMAGE) else qos,
+            t: (
+                node.create_publisher(
+                    _msg_class(mt), remap.get(t, t), qos_profile_sensor_data, event_callbacks=quiet
+                )
+                if mt in (IMAGE, COMPRESSED_IMAGE)
+                else node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
             )
             for t, mt in types.items()
         }
