@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -352,6 +353,70 @@ def fit_is_inconsistent(
     return False
 
 
+def solved_estimate(
+    fr: Any,
+    solver: str,
+    model: Model,
+    position: np.ndarray,
+    inliers: np.ndarray,
+    num_behind: int,
+    velocities: tuple,
+    covariances: tuple | None,
+    flat: float,
+    condition: float,
+    **fields: Any,
+) -> RSPoseEstimate:
+    """The successful :class:`RSPoseEstimate` of a checked final model, for the compiled and
+    the uncompiled path alike.
+
+    Args:
+        fr: the prepared frame (``x`` (n, 2) valid rows, ``rows`` their indices among the
+            ``num_rows`` input rows).
+        model: ``(R, C, w, t)`` (eq. 5); position: (3,) m, the camera centre in the world.
+        inliers: (n,) bool over the valid rows; num_behind: valid rows behind the camera.
+        velocities: ``(angular, linear, angular_world, linear_world)`` rad/s and m/s
+            (:func:`~.result.physical_velocities`).
+        covariances: ``(12x12, pose 6x6, twist 6x6)`` in ROS order, or None.
+        flat: the inliers' planarity; condition: the information matrix's condition number.
+        fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...).
+    """
+    R, C, w, t = model
+    om, vc, om_w, vc_w = velocities
+    cov = pose_cov = twist_cov = None
+    if covariances is not None:
+        cov, pose_cov, twist_cov = covariances
+        if not solver_info(solver).rolling:
+            twist_cov = None
+    mask = np.zeros(fr.num_rows, dtype=bool)
+    mask[fr.rows[inliers]] = True
+    return RSPoseEstimate(
+        success=True,
+        failure=None,
+        solver=solver,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        orientation=R.T,
+        position=position,
+        angular_velocity=om,
+        linear_velocity=vc,
+        angular_velocity_world=om_w,
+        linear_velocity_world=vc_w,
+        inliers=mask,
+        num_valid=len(fr.x),
+        num_dropped=fr.num_rows - len(fr.x) + num_behind,
+        num_behind=num_behind,
+        covariance=cov,
+        pose_covariance=pose_cov,
+        twist_covariance=twist_cov,
+        planar=bool(flat < PLANAR_TOLERANCE),
+        planarity=flat,
+        condition_number=condition,
+        **fields,
+    )
+
+
 def final_estimate(
     fr: Frame,
     solver: str,
@@ -420,41 +485,23 @@ def final_estimate(
         )
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
-    om, vc, om_w, vc_w = physical_velocities(R, C, w, t, fr.spr)
-    cov = pose_cov = twist_cov = None
+    cov = None
     if final.covariance is not None:
-        cov, pose_cov, twist_cov = output_covariance(final.covariance, R, C, w, fr.spr)
-        if not rolling:
-            twist_cov = None
-    inliers = np.zeros(fr.num_rows, dtype=bool)
-    inliers[fr.rows[inl]] = True
-    return RSPoseEstimate(
-        success=True,
-        failure=None,
-        solver=solver,
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=position,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=om_w,
-        linear_velocity_world=vc_w,
-        inliers=inliers,
-        num_valid=len(fr.x),
-        num_dropped=fr.num_rows - len(fr.x) + n_behind,
-        num_behind=n_behind,
+        cov = output_covariance(final.covariance, R, C, w, fr.spr)
+    return solved_estimate(
+        fr,
+        solver,
+        (R, C, w, t),
+        position,
+        inl,
+        n_behind,
+        physical_velocities(R, C, w, t, fr.spr),
+        cov,
+        flat,
+        cond,
         ransac_iterations=iterations,
         timings=timings,
-        covariance=cov,
-        pose_covariance=pose_cov,
-        twist_covariance=twist_cov,
         rmse_px=final.rmse_px,
-        planar=bool(flat < PLANAR_TOLERANCE),
-        planarity=flat,
-        condition_number=cond,
         motion_prior_used=final.prior_used,
         initial_explained=initial[0],
         initial_used=initial[1],

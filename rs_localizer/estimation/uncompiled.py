@@ -53,7 +53,7 @@ from ..geometry import camera_position, rotvec_to_matrix, skew
 from ..jit_cache import numba_error
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
-from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent
+from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
 from .options import EstimateOptions
 from .prior import prior_arrays
 from .ransac import required_iterations, seeded_rng
@@ -667,41 +667,20 @@ def _finalize(
         and fit_is_inconsistent(fr.X, inl, position, flat, cond, rolling, th, lambda: e)
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
-    om, vc, om_w, vc_w = _physical(R, C, w, t, fr.spr)
-    cov_out = pose_cov = twist_cov = None
-    if cov is not None:
-        cov_out, pose_cov, twist_cov = _output_covariance(cov, R, C, w, fr.spr)
-        if not rolling:
-            twist_cov = None
-    inliers = np.zeros(fr.num_rows, dtype=bool)
-    inliers[fr.rows[inl]] = True
-    return RSPoseEstimate(
-        success=True,
-        failure=None,
-        solver=solver,
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=position,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=om_w,
-        linear_velocity_world=vc_w,
-        inliers=inliers,
-        num_valid=len(fr.x),
-        num_dropped=fr.num_rows - len(fr.x) + n_behind,
-        num_behind=n_behind,
+    return solved_estimate(
+        fr,
+        solver,
+        (R, C, w, t),
+        position,
+        inl,
+        n_behind,
+        _physical(R, C, w, t, fr.spr),
+        None if cov is None else _output_covariance(cov, R, C, w, fr.spr),
+        flat,
+        cond,
         ransac_iterations=iterations,
         timings=timings,
-        covariance=cov_out,
-        pose_covariance=pose_cov,
-        twist_covariance=twist_cov,
         rmse_px=rmse_px,
-        planar=bool(flat < PLANAR_TOLERANCE),
-        planarity=flat,
-        condition_number=cond,
         motion_prior_used=prior_used,
     )
 
