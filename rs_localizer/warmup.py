@@ -40,7 +40,7 @@ from .estimation.batch import fused_kernels, prerotated_batch, ransac_batch
 from .estimation.estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
 from .estimation.frame import prepare_frame
 from .estimation.prior import prior_conflict
-from .estimation.refine import posterior_step, refine_rs_pose
+from .estimation.refine import RefineSettings, posterior_step, refine_rs_pose
 from .estimation.scoring import exact_msac_scores
 from .estimation.tracker import RSTracker, TrackerOptions
 from .geometry import rotvec_to_matrix
@@ -214,17 +214,13 @@ def warm_late(
     fr = prepare_frame(uv, X, cam, opts.plausibility.max_point_norm, np.random.default_rng(0))
     spr, prior = cam.seconds_per_unit_r, opts.motion_prior
     ref = refine_rs_pose(
-        np.eye(3),
-        np.zeros(3),
-        np.zeros(3),
-        np.zeros(3),
+        (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)),
         fr.X,
         fr.x,
         fr.r - fr.r0,
         opts.ransac.threshold_px / fr.f,
+        RefineSettings(seconds_per_unit_r=spr, acceleration_block=True),
         prior=prior,
-        seconds_per_unit_r=spr,
-        acceleration_block=True,
     )
     # (the twist filter before the MAP step: the first process reaches the MAP step first, on
     # its cold frame, and the tracker's filter last)

@@ -30,7 +30,7 @@ from .options import (
 )
 from .points import cap_points
 from .prior import MotionPrior
-from .refine import exact_errors, refine_rs_pose
+from .refine import RefineSettings, exact_errors, refine_rs_pose
 from .result import FAILURE_REASONS, RSPoseEstimate, physical_velocities
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "RSPoseEstimate",
     "RansacOptions",
     "RefineOptions",
+    "RefineSettings",
     "cap_points",
     "estimate_rs_pose",
     "exact_errors",

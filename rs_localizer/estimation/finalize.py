@@ -12,6 +12,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import camera_position
+from ..pose import RSModel
 from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
@@ -20,7 +21,7 @@ from .options import EstimateOptions
 from .outputs import final_inliers
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION, final_model_check, finite_model
 from .prior import MotionPrior, prior_conflict
-from .refine import RefineResult, exact_errors, posterior_step, refine_rs_pose
+from .refine import RefineResult, RefineSettings, exact_errors, posterior_step, refine_rs_pose
 from .result import (
     INCONSISTENT_FIT,
     TOO_FEW_INLIERS,
@@ -151,17 +152,19 @@ def final_refinement(
     """
     th = float(th)
     ref = refine_rs_pose(
-        *model,
+        model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
         th,
-        rolling_shutter=rolling,
+        RefineSettings(
+            rolling_shutter=rolling,
+            seconds_per_unit_r=fr.spr,
+            cutoff=FINAL_CUTOFF * th,
+            tol=FINAL_TOL,
+            acceleration_block=acceleration,
+        ),
         prior=fr.prior,
-        seconds_per_unit_r=fr.spr,
-        cutoff=FINAL_CUTOFF * th,
-        tol=FINAL_TOL,
-        acceleration_block=acceleration,
     )
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None
@@ -210,19 +213,15 @@ def image_alone(
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
     ref = refine_rs_pose(
-        final.R,
-        final.C,
-        final.w,
-        final.t,
+        RSModel.of(final),
         fr.X,
         fr.x,
         fr.r - fr.r0,
         th,
-        rolling_shutter=True,
+        RefineSettings(
+            rolling_shutter=True, seconds_per_unit_r=fr.spr, cutoff=FINAL_CUTOFF * th, tol=FINAL_TOL
+        ),
         prior=prior if on else None,
-        seconds_per_unit_r=fr.spr,
-        cutoff=FINAL_CUTOFF * th,
-        tol=FINAL_TOL,
     )
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():

@@ -11,7 +11,7 @@ from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
 from .hypotheses import nonminimal_models
 from .options import EstimateOptions, InitialModel
 from .plausibility import finite_model
-from .refine import refine_rs_pose
+from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
 __all__ = ["Scored", "local_optimization", "seed_from_initial_model"]
@@ -61,17 +61,19 @@ def local_optimization(
             if sc < start_score:
                 start, start_score, start_inl = cand, sc, inl
         ref = refine_rs_pose(
-            *start,
+            start,
             sub.X,
             sub.x,
             tau,
             th,
-            rolling_shutter=rolling,
-            max_iterations=lo.refine_iterations,
-            covariance=False,
-            cutoff=2.0 * th,
+            RefineSettings(
+                rolling_shutter=rolling,
+                max_iterations=lo.refine_iterations,
+                covariance=False,
+                cutoff=2.0 * th,
+                seconds_per_unit_r=fr.spr,
+            ),
             prior=fr.prior,
-            seconds_per_unit_r=fr.spr,
         )
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)
         sc, inl = fr.evaluate(cand, th2)
@@ -129,25 +131,24 @@ def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float
     (at most a third of local optimization's ``max_points`` of) the explained points,
     truncated at the gate (a third is plenty to pull a prediction in: the final refinement
     fits every point). Returns the better of ``seed`` and the pulled model."""
-    score, (R, C, w, t), _ = seed
+    score, model, _ = seed
     s = sample_size(solver)
     lo = opts.local_optimization
     idx = np.flatnonzero(near)[: max(lo.max_points // 3, 2 * s)]
     ref = refine_rs_pose(
-        R,
-        C,
-        w,
-        t,
+        model,
         fr.X[idx],
         fr.x[idx],
         fr.r[idx] - fr.r0,
         np.sqrt(th2),
-        rolling_shutter=solver_info(solver).rolling,
-        max_iterations=2 * lo.refine_iterations,
-        covariance=False,
-        cutoff=gate,
+        RefineSettings(
+            rolling_shutter=solver_info(solver).rolling,
+            max_iterations=2 * lo.refine_iterations,
+            covariance=False,
+            cutoff=gate,
+            seconds_per_unit_r=fr.spr,
+        ),
         prior=fr.prior,
-        seconds_per_unit_r=fr.spr,
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import CameraModel
-from .refine import exact_jacobian, exact_residuals, refine_rs_pose
+from .refine import RefineSettings, exact_jacobian, exact_residuals, refine_rs_pose
 
 __all__ = ["NoiseFit", "correlated_noise_covariance", "fit_correlated_noise", "pixel_jacobians"]
 
@@ -154,18 +154,12 @@ def _view_terms(camera, uv, X, R, C):
     tau = np.zeros(len(x))
     z3 = np.zeros(3)
     ref = refine_rs_pose(
-        R,
-        C,
-        z3,
-        z3,
+        (R, C, z3, z3),
         X,
         x,
         tau,
         1e3,
-        rolling_shutter=False,
-        max_iterations=50,
-        tol=1e-14,
-        covariance=False,
+        RefineSettings(rolling_shutter=False, max_iterations=50, tol=1e-14, covariance=False),
     )
     th = np.r_[0.0, 0.0, 0.0, ref.C, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     D = pixel_jacobians(camera, x)

@@ -15,16 +15,20 @@ same problem with SciPy's ``least_squares`` and serves as the reference in the t
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numba import njit
 
 from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
+from ..pose import RSModel
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
 __all__ = [
     "RefineResult",
+    "RefineSettings",
     "exact_errors",
     "exact_jacobian",
     "exact_residuals",
@@ -747,31 +751,43 @@ def _unpack(
     )
 
 
+@dataclass(frozen=True)
+class RefineSettings:
+    """How :func:`refine_rs_pose` runs (the defaults: the estimator's final refinement).
+
+    Attributes: as the arguments of the same names in :func:`refine_rs_pose`.
+    """
+
+    rolling_shutter: bool = True
+    max_iterations: int = 10
+    tol: float = 1e-10
+    covariance: bool = True
+    cutoff: float = np.inf
+    seconds_per_unit_r: float = 0.0
+    noise: float | None = None
+    acceleration_block: bool = False
+
+
+DEFAULT_REFINE = RefineSettings()
+
+
 def refine_rs_pose(
-    R0: np.ndarray,
-    C0: np.ndarray,
-    w0: np.ndarray,
-    t0: np.ndarray,
+    model: RSModel | tuple,
     X: np.ndarray,
     x: np.ndarray,
     tau: np.ndarray,
     loss_scale: float,
-    rolling_shutter: bool = True,
-    max_iterations: int = 10,
-    tol: float = 1e-10,
-    covariance: bool = True,
-    cutoff: float = np.inf,
+    settings: RefineSettings = DEFAULT_REFINE,
     prior: MotionPrior | None = None,
-    seconds_per_unit_r: float = 0.0,
-    noise: float | None = None,
-    acceleration_block: bool = False,
 ) -> RefineResult:
     """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model.
 
     Args:
-        R0, C0, w0, t0: initial rotation (3, 3), translation, velocities per unit r (3,).
+        model: the initial :class:`~rs_localizer.pose.RSModel` ``(R0, C0, w0, t0)`` (or the
+            same 4-tuple): rotation (3, 3), translation, velocities per unit r (3,).
         X: (N, 3) world points; x: (N, 2) normalized observations; tau: (N,) ``r_i - r0``.
         loss_scale: Huber threshold in normalized units (the inlier threshold).
+        settings: a :class:`RefineSettings`, its fields (all but ``prior``) as follows.
         rolling_shutter: False keeps ``w = t = 0`` fixed (global-shutter refinement, P3P).
         max_iterations: LM iterations; tol: stop when the relative cost decrease is below it,
             or when the Gauss-Newton model predicts a decrease below ``tol / 10`` for the next
@@ -779,7 +795,7 @@ def refine_rs_pose(
         covariance: compute the covariance (skipped inside RANSAC's local optimization).
         cutoff: points farther than this (normalized units) are ignored at each iteration
             (truncated loss; lets RANSAC's local optimization run on all points).
-        prior: a :class:`~rs_localizer.estimation.prior.MotionPrior` on the camera's
+        prior (argument): a :class:`~rs_localizer.estimation.prior.MotionPrior` on the camera's
             velocities (maximum a posteriori instead of maximum likelihood), or
             ``None``. Ignored for global-shutter refinement or ``seconds_per_unit_r <= 0``.
         seconds_per_unit_r: the camera's capture time per unit r (s), to express the prior on
@@ -804,6 +820,17 @@ def refine_rs_pose(
     ~130 us for 300 with 6 evaluations (~20 us per evaluation of 300 points). The returned
     arrays are views of one buffer.
     """
+    R0, C0, w0, t0 = model
+    rolling_shutter, max_iterations, tol = (
+        settings.rolling_shutter,
+        settings.max_iterations,
+        settings.tol,
+    )
+    covariance, cutoff, noise = settings.covariance, settings.cutoff, settings.noise
+    seconds_per_unit_r, acceleration_block = (
+        settings.seconds_per_unit_r,
+        settings.acceleration_block,
+    )
     f64 = np.float64
     nf = 12 if rolling_shutter else 6
     want_acc = bool(acceleration_block and covariance and rolling_shutter)

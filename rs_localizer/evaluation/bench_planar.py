@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from ..estimation import EstimateOptions, MotionPrior, RansacOptions, estimate_rs_pose
-from ..estimation.refine import refine_rs_pose
+from ..estimation.refine import RefineSettings, refine_rs_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..sim.planar import make_planar_frame
 from .threads import one_thread
@@ -92,18 +92,13 @@ def _oracle_row(f, prior):
     x, r, _ = cam.normalize(f.points_px[f.inlier])
     s = cam.seconds_per_unit_r
     ref = refine_rs_pose(
-        f.R,
-        f.C,
-        f.w,
-        f.t,
+        (f.R, f.C, f.w, f.t),
         f.X[f.inlier],
         x,
         r - cam.r0,
         2.0 / cam.mean_focal,
-        max_iterations=50,
+        RefineSettings(max_iterations=50, seconds_per_unit_r=s, covariance=False),
         prior=prior,
-        seconds_per_unit_r=s,
-        covariance=False,
     )
     om = -ref.w / s
     v = (np.cross(ref.w, ref.C) - ref.t) / s

@@ -47,7 +47,7 @@ from scipy.stats import chi2
 from ..camera import CameraModel
 from ..estimation.estimate import CorrelatedNoise, EstimateOptions, estimate_rs_pose
 from ..estimation.noise_model import fit_correlated_noise
-from ..estimation.refine import exact_errors, refine_rs_pose
+from ..estimation.refine import RefineSettings, exact_errors, refine_rs_pose
 from ..frontends.boards import CheckerboardFrontend, load_board
 from ..geometry import rotation_angle_deg
 
@@ -90,12 +90,19 @@ def placebo_table(photos: Path = PHOTOS) -> None:
         }
         ss = {"gs": None}
         g = refine_rs_pose(
-            gs.R, gs.C, z3, z3, X, x, times["row"], th, rolling_shutter=False, max_iterations=50
+            (gs.R, gs.C, z3, z3),
+            X,
+            x,
+            times["row"],
+            th,
+            RefineSettings(rolling_shutter=False, max_iterations=50),
         )
         ss["gs"] = np.sum(exact_errors(g.R, g.C, g.w, g.t, X, x, times["row"]) ** 2) * f * f
         fits = {}
         for k, tau in times.items():
-            res = refine_rs_pose(gs.R, gs.C, z3, z3, X, x, tau, th, max_iterations=50)
+            res = refine_rs_pose(
+                (gs.R, gs.C, z3, z3), X, x, tau, th, RefineSettings(max_iterations=50)
+            )
             fits[k] = res
             ss[k] = np.sum(exact_errors(res.R, res.C, res.w, res.t, X, x, tau) ** 2) * f * f
         N = len(x)

@@ -24,8 +24,9 @@ The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse J
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -255,7 +256,16 @@ class _Init:
     (:func:`_regauge`).
     """
 
-    def __init__(self, obs, stamps, opts, anchor, camera, obs_px, window: int = 25):
+    def __init__(
+        self,
+        obs: dict,
+        stamps: dict,
+        opts: MappingOptions,
+        anchor: int,
+        camera: CameraModel,
+        obs_px: dict,
+        window: int = 25,
+    ) -> None:
         self.obs = obs  # frame -> {id: (4, 2) normalized corners}
         self.obs_px = obs_px
         self.camera = camera
@@ -273,11 +283,11 @@ class _Init:
         self.suspects: dict = {}  # id -> [frames of one place, of another]
         self.gate_px = 25.0
 
-    def world_corners(self, mid):
+    def world_corners(self, mid: int) -> np.ndarray:
         R, p = self.markers[mid]
         return marker_corners_local(self.opts.side(mid)) @ R.T + p
 
-    def _pnp(self, k, markers, guess):
+    def _pnp(self, k: int, markers: list, guess: tuple) -> tuple | None:
         X = np.concatenate([self.world_corners(m) for m in markers])
         x = np.concatenate([self.obs[k][m] for m in markers]).reshape(-1, 1, 2)
         R0, C0 = guess
@@ -293,7 +303,7 @@ class _Init:
         )
         return (rotvec_to_matrix(np.ravel(rv)), np.ravel(tv)) if ok else None
 
-    def _rms(self, k, m, R, C) -> float:
+    def _rms(self, k: int, m: int, R: np.ndarray, C: np.ndarray) -> float:
         e = _gs_errors_px(R, C, self.world_corners(m), self.obs[k][m], self.f)
         return float(np.sqrt(np.mean(e**2)))
 
@@ -310,7 +320,7 @@ class _Init:
                 out.append((R, tmc - R @ pm))
         return out
 
-    def pose_frame(self, k, guess, cut: bool = False) -> bool:
+    def pose_frame(self, k: int, guess: tuple | None, cut: bool = False) -> bool:
         """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
 
         With several markers, the pose from all of them and from each alone compete: the one
@@ -336,7 +346,14 @@ class _Init:
         self.frames[k] = pose
         return True
 
-    def _best_pose(self, k, known, guess, starts, subsets=None):
+    def _best_pose(
+        self,
+        k: int,
+        known: list,
+        guess: tuple | None,
+        starts: list,
+        subsets: list | None = None,
+    ) -> tuple | None:
         """The best ``(score, pose, agreeing markers)`` over PnP from ``starts`` on
         ``subsets`` (default: all known markers, then each alone), or None."""
         if subsets is None:
@@ -356,7 +373,7 @@ class _Init:
                 best = (score, pose, agree)
         return best
 
-    def new_marker(self, k, mid) -> None:
+    def new_marker(self, k: int, mid: int) -> None:
         obj = marker_corners_local(self.opts.side(mid))
         R, C = self.frames[k]
         best = None
@@ -367,7 +384,7 @@ class _Init:
                 best = (e, Rm, pm)
         self.markers[mid] = (best[1], best[2])
 
-    def refine_marker(self, mid, frames) -> None:
+    def refine_marker(self, mid: int, frames: list) -> None:
         """Marker pose over its views ``frames`` (global-shutter reprojection, soft L1)."""
         obj = marker_corners_local(self.opts.side(mid))
         R0, p0 = self.markers[mid]
@@ -414,10 +431,10 @@ class _Init:
         self.frames = {k: (Rf[i], Cf[i]) for i, k in enumerate(frames)}
         self.markers = {m: (Rm[i], pm[i]) for i, m in enumerate(markers)}
 
-    def views(self, mid) -> list:
+    def views(self, mid: int) -> list:
         return [k for k in self.frames if mid in self.obs[k] and (k, mid) not in self.excluded]
 
-    def check_marker(self, mid) -> None:
+    def check_marker(self, mid: int) -> None:
         """Final decision on a marker: one place (else inconsistent), enough views."""
         # one id at two places: views whose own single-view position lies far from the map's
         # and agree among themselves
@@ -524,8 +541,17 @@ class _Problem:
     """Parameter layout, residuals and Jacobian sparsity of the bundle adjustment."""
 
     def __init__(
-        self, init, obs_px, camera, opts, frames, markers, anchor, fix_frame=None, exclude=()
-    ):
+        self,
+        init: _Init,
+        obs_px: dict,
+        camera: CameraModel,
+        opts: MappingOptions,
+        frames: list,
+        markers: list,
+        anchor: int,
+        fix_frame: int | None = None,
+        exclude: Iterable = (),
+    ) -> None:
         self.camera = camera
         self.opts = opts
         self.frames = frames  # frame indices, parameter order
@@ -594,7 +620,7 @@ class _Problem:
                 "(a video with stamps, the rolling-shutter model and motion_sigma_* set)"
             )
 
-    def x0(self, init, line_delay):
+    def x0(self, init: _Init, line_delay: float) -> np.ndarray:
         x = np.zeros(self.n)
         F = x[: self.moff].reshape(self.nf, self.fpar)
         F[:, 3:6] = self.C0f
@@ -612,7 +638,7 @@ class _Problem:
             x[self.ld_col] = line_delay * 1e6
         return x
 
-    def unpack(self, x):
+    def unpack(self, x: np.ndarray) -> tuple:
         F = x[: self.moff].reshape(self.nf, self.fpar)
         Rf = rotvec_to_matrix(F[:, :3]) @ self.R0f
         Cf = F[:, 3:6]
@@ -624,11 +650,11 @@ class _Problem:
         ld = x[self.ld_col] * 1e-6 if self.ld_col is not None else self.camera.line_delay
         return Rf, Cf, W, T, Rm, pm, ld
 
-    def corner_offset(self, x) -> float:
+    def corner_offset(self, x: np.ndarray) -> float:
         """The detector's corner offset (pixels, inwards) in ``x``; 0 when not estimated."""
         return float(x[self.co_col]) if self.co_col is not None else 0.0
 
-    def corner_residuals(self, x):
+    def corner_residuals(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) reprojection residuals (pixels) of all corners."""
         Rf, Cf, W, T, Rm, pm, ld = self.unpack(x)
         Rm_all = np.concatenate([Rm, self.Ra[None]])
@@ -647,7 +673,7 @@ class _Problem:
             e = e - x[self.co_col] * d
         return e
 
-    def residuals(self, x):
+    def residuals(self, x: np.ndarray) -> np.ndarray:
         e = self.corner_residuals(x).reshape(-1, 8)[self.keep].ravel()
         if self.fix is not None:  # gauge on a frame: its pose held (stiff prior)
             F = x[: self.moff].reshape(self.nf, self.fpar)
@@ -680,13 +706,13 @@ class _Problem:
 
     def solve(
         self,
-        x0,
+        x0: np.ndarray,
         *,
         loss: str = "linear",
         f_scale: float = 1.0,
         tol: float = 1e-6,
         max_nfev: int | None = None,
-    ):
+    ) -> Any:
         """SciPy ``least_squares`` (trust region reflective with this problem's Jacobian
         sparsity, Jacobian-scaled variables) on :meth:`residuals` from ``x0``; ``loss``,
         ``f_scale``, ``tol`` (``ftol`` and ``xtol``) and ``max_nfev`` (default: the options')
@@ -704,7 +730,7 @@ class _Problem:
             method="trf",
         )
 
-    def sparsity(self):
+    def sparsity(self) -> csr_matrix:
         nd = int(self.keep.sum())
         nfix = 6 if self.fix is not None else 0
         nco = 1 if self.co_col is not None else 0
@@ -1304,52 +1330,25 @@ def map_markers(
             raise ValueError(f"surveyed anchors {unknown} need (4, 3) corners")
     bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
     bar.set_postfix_str("initialization")
-    init = _Init(obs_n, stamps, options, gauge, camera, obs_px)
-    try:
-        init.run()
-    except ValueError:
-        if videos is not None:  # (a video of another place: say so)
-            _check_videos(videos, init, obs_px)
-        raise
-    if len(init.frames) < 2:
-        raise ValueError(f"anchor marker {gauge}: fewer than 2 frames with a pose")
-    if videos is not None:
-        _check_videos(videos, init, obs_px)
+    init = _initialize(obs_px, obs_n, stamps, options, gauge, camera, videos)
     timings["initialization"] = time.perf_counter() - t_start
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    # the adjustment's frame: the anchor at its pose when one is given (the motion tie of the
-    # camera centres is not invariant to where the world's origin lies: the output frame's
-    # origin is the one the tie sees), else the gauge marker's own frame
-    gauge_pose = (np.eye(3), np.zeros(3))
-    if options.anchor is not None and options.anchor_pose is not None:
-        Ra, pa = options.anchor_pose
-        gauge_pose = (np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3))
-    _coarse_adjustment(init, obs_px, camera, options, gauge, gauge_pose)
+    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options))
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
         init, obs_px, obs_n, camera, options, gauge, timings, bar
     )
-    if gauge in inconsistent:
-        raise ValueError(
-            f"anchor marker {gauge} cannot be placed: detected at places that disagree "
-            f"({inconsistent[gauge][0].round(2)} and {inconsistent[gauge][1].round(2)})"
-        )
-    bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
-    if bad:
-        raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")
-    mk_ids = prob.markers
+    _check_anchors_placed(gauge, inconsistent, options, init)
     all_ids = sorted(init.markers)
     # rejected: by the adjustment, and detections of mapped markers that disagreed with their
     # frame during the initialization
     num_rejected = int((~prob.keep).sum()) + sum(
         m in all_ids and m not in inconsistent for _, m in exclude
     )
-    _, _, _, _, Rm, pm, _ = prob.unpack(sol.x)
-    poses = {gauge: (prob.Ra, prob.pa)}
-    poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(mk_ids)})
+    poses = _marker_poses(prob, sol.x, gauge)
     sides = {m: options.side(m) for m in poses}
 
     bar.set_postfix_str("covariance")
@@ -1371,6 +1370,66 @@ def map_markers(
         timings,
         t_start,
     )
+
+
+def _initialize(
+    obs_px: dict,
+    obs_n: dict,
+    stamps: dict,
+    options: MappingOptions,
+    gauge: int,
+    camera: CameraModel,
+    videos: Sequence[int] | None,
+) -> _Init:
+    """Stage (1) of :func:`map_markers`: the initialization in capture order (:class:`_Init`),
+    with at least two frames placed and every video placed (:func:`_check_videos`).
+
+    Raises:
+        ValueError: as :meth:`_Init.run`, fewer than 2 frames with a pose, or a video of
+            another place.
+    """
+    init = _Init(obs_n, stamps, options, gauge, camera, obs_px)
+    try:
+        init.run()
+    except ValueError:
+        if videos is not None:  # (a video of another place: say so)
+            _check_videos(videos, init, obs_px)
+        raise
+    if len(init.frames) < 2:
+        raise ValueError(f"anchor marker {gauge}: fewer than 2 frames with a pose")
+    if videos is not None:
+        _check_videos(videos, init, obs_px)
+    return init
+
+
+def _marker_poses(prob: _Problem, x: np.ndarray, gauge: int) -> dict:
+    """id -> ``(R (3, 3), p (3,))`` of the gauge marker and every adjusted marker at ``x``."""
+    _, _, _, _, Rm, pm, _ = prob.unpack(x)
+    poses = {gauge: (prob.Ra, prob.pa)}
+    poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(prob.markers)})
+    return poses
+
+
+def _gauge_pose(options: MappingOptions) -> tuple[np.ndarray, np.ndarray]:
+    """The adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at its pose when one is given
+    (the motion tie of the camera centres is not invariant to where the world's origin lies:
+    the output frame's origin is the one the tie sees), else the gauge marker's own frame."""
+    if options.anchor is not None and options.anchor_pose is not None:
+        Ra, pa = options.anchor_pose
+        return np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3)
+    return np.eye(3), np.zeros(3)
+
+
+def _check_anchors_placed(gauge: int, inconsistent: dict, options: MappingOptions, init: _Init):
+    """Raise ValueError when the gauge marker or a surveyed anchor has no single place."""
+    if gauge in inconsistent:
+        raise ValueError(
+            f"anchor marker {gauge} cannot be placed: detected at places that disagree "
+            f"({inconsistent[gauge][0].round(2)} and {inconsistent[gauge][1].round(2)})"
+        )
+    bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
+    if bad:
+        raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")
 
 
 def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent) -> dict:

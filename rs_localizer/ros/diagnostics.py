@@ -66,8 +66,49 @@ def diagnostic_status(
     ``imu_rejected.<reason>`` counts.
     """
     c = stats.counts
-    lat, age = _ms(latencies), _ms(stamp_ages)
     failed = dict(sorted(frames.failures.items()))
+    level, message = _level_and_message(
+        cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s
+    )
+    compiled, bg = compiled_kernels_in_use(), background_state()
+    if not compiled:  # (a lower rate while the kernels compile is not a fault)
+        message += (
+            "; kernels compiling in the background: frames on the uncompiled path"
+            if bg["state"] in ("compiling", "loading")
+            else "; frames on the uncompiled path"
+        )
+    values = _core_values(
+        cfg,
+        frames,
+        stats,
+        tracking,
+        camera_source,
+        messages_lost,
+        latencies,
+        stamp_ages,
+        compiled,
+        bg,
+    )
+    if cfg.frontend is not None:
+        values.update(_frontend_values(cfg, stats))
+    if cfg.imu is not None:
+        values.update(_imu_values(cfg, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s))
+    values.update({f"failed.{k}": v for k, v in failed.items()})
+    prefixes = ("camera_info_rejected.", "gyro_missing.", "imu_rejected.")
+    values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
+    return level, message, values
+
+
+def _level_and_message(
+    cfg: LocalizerConfig,
+    frames: FrameCounts,
+    c: dict[str, int],
+    failed: dict[str, int],
+    messages_lost: int,
+    gyro_inconsistent: bool,
+    imu_idle_s: float | None,
+) -> tuple[int, str]:
+    """The status level and message of :func:`diagnostic_status` (before the compile note)."""
     if frames.received and not frames.solved:
         level, message = ERROR, "no frame solved" + (f" ({failed})" if failed else "")
     elif frames.failed or messages_lost or frames.skipped:
@@ -101,13 +142,24 @@ def diagnostic_status(
             if frames.received
             else "waiting for frames"
         )
-    compiled, bg = compiled_kernels_in_use(), background_state()
-    if not compiled:  # (a lower rate while the kernels compile is not a fault)
-        message += (
-            "; kernels compiling in the background: frames on the uncompiled path"
-            if bg["state"] in ("compiling", "loading")
-            else "; frames on the uncompiled path"
-        )
+    return level, message
+
+
+def _core_values(
+    cfg: LocalizerConfig,
+    frames: FrameCounts,
+    stats: StatsSnapshot,
+    tracking: dict[str, Any],
+    camera_source: str,
+    messages_lost: int,
+    latencies: Sequence[float],
+    stamp_ages: Sequence[float],
+    compiled: bool,
+    bg: dict[str, Any],
+) -> dict[str, Any]:
+    """The values every status carries, through the stage times (see :func:`diagnostic_status`)."""
+    c = stats.counts
+    lat, age = _ms(latencies), _ms(stamp_ages)
     inliers = stats.inliers
     values: dict[str, Any] = {
         "solver": cfg.solver,
@@ -145,43 +197,58 @@ def diagnostic_status(
         if k == "frontend" and cfg.frontend is None:
             continue
         values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
-    if cfg.frontend is not None:
-        fe = stats.stage_times["frontend"]
-        runs = c.get("frontend_runs", 0)
-        values.update(
-            {
-                "frontend": cfg.frontend_kind,
-                "image_frames": c.get("image_frames", 0),
-                "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
-                "frontend_correspondences_last": stats.frontend_last,
-                "frontend_correspondences_mean": (
-                    f"{c.get('frontend_points', 0) / runs:.1f}" if runs else "0"
-                ),
-                "frontend_ms_p99": f"{np.percentile(fe, 99) * 1e3:.3f}" if fe else "nan",
-            }
-        )
-        summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
-        values.update(summary() if summary is not None else {"frontend_frames_global": runs})
-    if cfg.imu is not None:
-        bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
-        values.update(
-            {
-                "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
-                "frames_with_gyro": c.get("frames_with_gyro", 0),
-                "gyro_rejected": c.get("gyro_rejected", 0),
-                "gyro_missing": c.get("gyro_missing", 0),
-                "imu_rejected": c.get("imu_rejected", 0),
-                "imu_idle_s": "nan" if imu_idle_s is None else f"{imu_idle_s:.1f}",
-                "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
-                "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
-                "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
-                "gyro_inconsistent": str(bool(gyro_inconsistent)).lower(),
-                "gyro_disabled_inconsistent": c.get("gyro_disabled_inconsistent", 0),
-                "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
-                "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
-            }
-        )
-    values.update({f"failed.{k}": v for k, v in failed.items()})
-    prefixes = ("camera_info_rejected.", "gyro_missing.", "imu_rejected.")
-    values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
-    return level, message, values
+    return values
+
+
+def _frontend_values(cfg: LocalizerConfig, stats: StatsSnapshot) -> dict[str, Any]:
+    """The front end's values of :func:`diagnostic_status` (``cfg.frontend`` set)."""
+    c = stats.counts
+    values: dict[str, Any] = {}
+    fe = stats.stage_times["frontend"]
+    runs = c.get("frontend_runs", 0)
+    values.update(
+        {
+            "frontend": cfg.frontend_kind,
+            "image_frames": c.get("image_frames", 0),
+            "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
+            "frontend_correspondences_last": stats.frontend_last,
+            "frontend_correspondences_mean": (
+                f"{c.get('frontend_points', 0) / runs:.1f}" if runs else "0"
+            ),
+            "frontend_ms_p99": f"{np.percentile(fe, 99) * 1e3:.3f}" if fe else "nan",
+        }
+    )
+    summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
+    values.update(summary() if summary is not None else {"frontend_frames_global": runs})
+    return values
+
+
+def _imu_values(
+    cfg: LocalizerConfig,
+    c: dict[str, int],
+    imu_rate_hz: float | None,
+    gyro_bias: tuple[Sequence[float], Sequence[float]] | None,
+    gyro_inconsistent: bool,
+    imu_idle_s: float | None,
+) -> dict[str, Any]:
+    """The gyro's values of :func:`diagnostic_status` (``cfg.imu`` set)."""
+    values: dict[str, Any] = {}
+    bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
+    values.update(
+        {
+            "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
+            "frames_with_gyro": c.get("frames_with_gyro", 0),
+            "gyro_rejected": c.get("gyro_rejected", 0),
+            "gyro_missing": c.get("gyro_missing", 0),
+            "imu_rejected": c.get("imu_rejected", 0),
+            "imu_idle_s": "nan" if imu_idle_s is None else f"{imu_idle_s:.1f}",
+            "gyro_bias": " ".join(f"{b:.5f}" for b in bias),
+            "gyro_bias_std": " ".join(f"{b:.5f}" for b in std),
+            "gyro_bias_rejected": c.get("gyro_bias_rejected", 0),
+            "gyro_inconsistent": str(bool(gyro_inconsistent)).lower(),
+            "gyro_disabled_inconsistent": c.get("gyro_disabled_inconsistent", 0),
+            "gyro_pairs_failed": c.get("gyro_pairs_failed", 0),
+            "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
+        }
+    )
+    return values

@@ -15,7 +15,7 @@ from rs_localizer.estimation.noise_model import (
     pixel_jacobians,
 )
 from rs_localizer.estimation.prior import MotionPrior
-from rs_localizer.estimation.refine import refine_rs_pose
+from rs_localizer.estimation.refine import RefineSettings, refine_rs_pose
 from rs_localizer.evaluation.still_boards import correlated_field
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 
@@ -65,10 +65,18 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
     x, r, _ = CAM.normalize(u)
     tau = r - CAM.r0
     prior = MotionPrior()
-    kw = dict(prior=prior, seconds_per_unit_r=s, max_iterations=100, tol=1e-15)
-    ref0 = refine_rs_pose(R0, C0, w0, t0, X, x, tau, 1.0, **kw)
+    kw = dict(seconds_per_unit_r=s, max_iterations=100, tol=1e-15)
+    ref0 = refine_rs_pose((R0, C0, w0, t0), X, x, tau, 1.0, RefineSettings(**kw), prior=prior)
     sigma = ref0.sigma
-    ref = refine_rs_pose(ref0.R, ref0.C, ref0.w, ref0.t, X, x, tau, 1.0, noise=sigma, **kw)
+    ref = refine_rs_pose(
+        (ref0.R, ref0.C, ref0.w, ref0.t),
+        X,
+        x,
+        tau,
+        1.0,
+        RefineSettings(noise=sigma, **kw),
+        prior=prior,
+    )
     cov = correlated_noise_covariance(
         ref.covariance,
         ref.sigma,
@@ -88,7 +96,13 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
     def theta(p):
         xp = CAM.normalize(p)[0]  # capture times kept (the covariance neglects their noise)
         o = refine_rs_pose(
-            ref.R, ref.C, ref.w, ref.t, X, xp, tau, 1.0, noise=sigma, covariance=False, **kw
+            (ref.R, ref.C, ref.w, ref.t),
+            X,
+            xp,
+            tau,
+            1.0,
+            RefineSettings(noise=sigma, covariance=False, **kw),
+            prior=prior,
         )
         return np.r_[matrix_to_rotvec(o.R @ ref.R.T), o.C, o.w, o.t]
 

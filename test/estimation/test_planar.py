@@ -11,6 +11,7 @@ from rs_localizer import EstimateOptions, MotionPrior, RansacOptions, estimate_r
 from rs_localizer.estimation.degeneracy import PLANAR_TOLERANCE, condition_number, planarity
 from rs_localizer.estimation.prior import linear_prior_rows, sample_prior_rows
 from rs_localizer.estimation.refine import (
+    RefineSettings,
     exact_jacobian,
     refine_rs_pose,
     refine_rs_pose_scipy,
@@ -91,16 +92,13 @@ def test_map_refinement_matches_scipy(scene):
     start = (rotvec_to_matrix([0.01, -0.02, 0.01]) @ f.R, f.C + 0.02, f.w * 0.8, f.t * 1.2)
     # a loss scale the residuals stay inside: both solve the same least-squares MAP problem
     a = refine_rs_pose(
-        *start,
+        start,
         f.X,
         x,
         tau,
         1.0,
-        max_iterations=100,
-        tol=1e-16,
+        RefineSettings(max_iterations=100, tol=1e-16, seconds_per_unit_r=s, noise=noise),
         prior=prior,
-        seconds_per_unit_r=s,
-        noise=noise,
     )
     b = refine_rs_pose_scipy(
         *start, f.X, x, tau, 1.0, prior=prior, seconds_per_unit_r=s, noise=noise
@@ -111,7 +109,7 @@ def test_map_refinement_matches_scipy(scene):
     for p, q in ((a.C, b.C), (a.w, b.w), (a.t, b.t)):
         np.testing.assert_allclose(p, q, atol=1e-6)
     # and the prior changed the answer (against maximum likelihood) on the plane
-    c = refine_rs_pose(*start, f.X, x, tau, 1.0, max_iterations=100, tol=1e-16)
+    c = refine_rs_pose(start, f.X, x, tau, 1.0, RefineSettings(max_iterations=100, tol=1e-16))
     if scene == "plane":
         assert rotation_angle_deg(a.R, c.R) > 0.1
 
@@ -122,7 +120,13 @@ def test_map_covariance_is_the_posterior():
     s = f.camera.seconds_per_unit_r
     prior = MotionPrior(3.0, 1.5)
     ref = refine_rs_pose(
-        f.R, f.C, f.w, f.t, f.X, x, tau, 1.0, max_iterations=50, prior=prior, seconds_per_unit_r=s
+        (f.R, f.C, f.w, f.t),
+        f.X,
+        x,
+        tau,
+        1.0,
+        RefineSettings(max_iterations=50, seconds_per_unit_r=s),
+        prior=prior,
     )
     theta = np.r_[np.zeros(3), ref.C, ref.w, ref.t]
     J = exact_jacobian(theta, ref.R, f.X, x, tau)
@@ -160,18 +164,15 @@ def test_prior_off_switches():
             assert np.array_equal(p, q)
         assert np.array_equal(a.inliers, b.inliers)
     x, tau = _normalized(f)
-    r1 = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 0.01)
+    r1 = refine_rs_pose((f.R, f.C, f.w, f.t), f.X, x, tau, 0.01)
     r2 = refine_rs_pose(
-        f.R,
-        f.C,
-        f.w,
-        f.t,
+        (f.R, f.C, f.w, f.t),
         f.X,
         x,
         tau,
         0.01,
+        RefineSettings(seconds_per_unit_r=f.camera.seconds_per_unit_r),
         prior=MotionPrior(0.0, 0.0),
-        seconds_per_unit_r=f.camera.seconds_per_unit_r,
     )
     assert np.array_equal(r1.covariance, r2.covariance) and np.array_equal(r1.R, r2.R)
 
@@ -187,7 +188,9 @@ def test_weak_prior_leaves_3d_scenes_at_the_exact_model_limit():
         )
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin")
         x, tau = _normalized(f)
-        o = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, x, tau, 2 / 600, max_iterations=50)
+        o = refine_rs_pose(
+            (f.R, f.C, f.w, f.t), f.X, x, tau, 2 / 600, RefineSettings(max_iterations=50)
+        )
         ml.append(np.linalg.norm(a.angular_velocity - f.angular_velocity))
         mp.append(np.linalg.norm(b.angular_velocity - f.angular_velocity))
         oracle.append(np.linalg.norm(-o.w / f.camera.seconds_per_unit_r - f.angular_velocity))

@@ -6,6 +6,7 @@ import pytest
 from rs_localizer._linalg import solve_symmetric as _solve_symmetric
 from rs_localizer.estimation.prior import MotionPrior, model_twist, model_twist_jacobian
 from rs_localizer.estimation.refine import (
+    RefineSettings,
     _normal_equations,
     exact_errors,
     exact_jacobian,
@@ -36,7 +37,12 @@ def test_matches_scipy_least_squares_without_outliers(rolling):
     tau = f.r - f.r0
     # huge loss scale: both are plain least squares, so their optimum must coincide
     a = refine_rs_pose(
-        *start, f.X, f.x, tau, 1.0, rolling_shutter=rolling, max_iterations=50, tol=1e-15
+        start,
+        f.X,
+        f.x,
+        tau,
+        1.0,
+        RefineSettings(rolling_shutter=rolling, max_iterations=50, tol=1e-15),
     )
     b = refine_rs_pose_scipy(*start, f.X, f.x, tau, 1.0, rolling_shutter=rolling)
     np.testing.assert_allclose(a.R, b.R, atol=1e-10)
@@ -71,7 +77,9 @@ def test_recovers_ground_truth_with_outliers_and_reports_covariance():
     rng = np.random.default_rng(3)
     f = make_frame(rng, 400, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
     k = 2.0 / 1207.0
-    ref = refine_rs_pose(*perturbed_start(f, rng), f.X, f.x, f.r - f.r0, k, cutoff=3 * k)
+    ref = refine_rs_pose(
+        perturbed_start(f, rng), f.X, f.x, f.r - f.r0, k, RefineSettings(cutoff=3 * k)
+    )
     assert rotation_angle_deg(ref.R, f.R) < 0.05
     assert np.linalg.norm(ref.w - f.w) / np.linalg.norm(f.w) < 0.05
     sd = np.sqrt(np.diag(ref.covariance))
@@ -155,7 +163,9 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
     ]
     before = [a.copy() for a in start]
     tau = f.r - f.r0
-    ref = refine_rs_pose(*start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k)
+    ref = refine_rs_pose(
+        start, f.X, f.x, tau, k, RefineSettings(rolling_shutter=rolling, cutoff=3 * k)
+    )
     for a, b in zip(start, before, strict=False):  # inputs untouched
         np.testing.assert_array_equal(a, b)
     n_free = 12 if rolling else 6
@@ -173,7 +183,12 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
         assert np.all(ref.w == 0) and np.all(ref.t == 0)
     # no covariance: None and NaN sigma, same pose
     fast = refine_rs_pose(
-        *start, f.X, f.x, tau, k, rolling_shutter=rolling, cutoff=3 * k, covariance=False
+        start,
+        f.X,
+        f.x,
+        tau,
+        k,
+        RefineSettings(rolling_shutter=rolling, cutoff=3 * k, covariance=False),
     )
     assert fast.covariance is None and np.isnan(fast.sigma) and fast.nfev == ref.nfev
     np.testing.assert_array_equal(fast.R, ref.R)
@@ -186,7 +201,7 @@ def test_all_points_beyond_cutoff():
     f = make_frame(rng, 50, rs_speed=0.5)
     R, C, w, t = perturbed_start(f, rng)
     k = 0.1 / 1207.0
-    ref = refine_rs_pose(R, C, w, t, f.X, f.x, f.r - f.r0, k, cutoff=k)
+    ref = refine_rs_pose((R, C, w, t), f.X, f.x, f.r - f.r0, k, RefineSettings(cutoff=k))
     assert not ref.success and ref.nfev == 1 and ref.sigma == 0.0
     assert np.all(np.isnan(ref.covariance))
     np.testing.assert_array_equal(ref.R, R)
@@ -222,26 +237,25 @@ def test_posterior_step_matches_converged_map(seed, offset):
     k, s = 2.0 / 1207.0, 1e-3
     tau = f.r - f.r0
     ml = refine_rs_pose(
-        f.R, f.C, f.w, f.t, f.X, f.x, tau, k, cutoff=2 * k, tol=1e-14, max_iterations=50
+        (f.R, f.C, f.w, f.t),
+        f.X,
+        f.x,
+        tau,
+        k,
+        RefineSettings(cutoff=2 * k, tol=1e-14, max_iterations=50),
     )
     Jz = model_twist_jacobian(ml.C, ml.w, s)
     S = Jz @ ml.covariance @ Jz.T  # the data's twist covariance
     mean = model_twist(ml.C, ml.w, ml.t, s) + offset * np.sqrt(np.diag(S))
     prior = MotionPrior(mean=mean, covariance=S, always=True)
     conv = refine_rs_pose(
-        ml.R,
-        ml.C,
-        ml.w,
-        ml.t,
+        (ml.R, ml.C, ml.w, ml.t),
         f.X,
         f.x,
         tau,
         k,
-        cutoff=2 * k,
-        tol=1e-14,
-        max_iterations=50,
+        RefineSettings(cutoff=2 * k, tol=1e-14, max_iterations=50, seconds_per_unit_r=s),
         prior=prior,
-        seconds_per_unit_r=s,
     )
     step = posterior_step(ml, prior, s)
     sd = np.sqrt(np.diag(conv.covariance))
@@ -270,12 +284,14 @@ def test_posterior_step_matches_converged_map(seed, offset):
 def test_posterior_step_refuses():
     rng = np.random.default_rng(4)
     f = make_frame(rng, 100, rs_speed=0.5, noise_px=1.0)
-    ml = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0)
+    ml = refine_rs_pose((f.R, f.C, f.w, f.t), f.X, f.x, f.r - f.r0, 2.0 / 1207.0)
     assert (
         posterior_step(ml, MotionPrior(angular_velocity_sigma=0.0, linear_velocity_sigma=0.0), 1e-3)
         is None
     )
-    nocov = refine_rs_pose(f.R, f.C, f.w, f.t, f.X, f.x, f.r - f.r0, 2.0 / 1207.0, covariance=False)
+    nocov = refine_rs_pose(
+        (f.R, f.C, f.w, f.t), f.X, f.x, f.r - f.r0, 2.0 / 1207.0, RefineSettings(covariance=False)
+    )
     assert posterior_step(nocov, MotionPrior(), 1e-3) is None
     with pytest.raises(ValueError):
         posterior_step(ml, MotionPrior(), 0.0)

@@ -12,7 +12,7 @@ from rs_localizer.estimation.estimate import (
     RefineOptions,
     estimate_rs_pose,
 )
-from rs_localizer.estimation.refine import refine_rs_pose
+from rs_localizer.estimation.refine import RefineSettings, refine_rs_pose
 from rs_localizer.estimation.sensitivity import acceleration_sensitivity
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
@@ -55,7 +55,9 @@ def test_sensitivity_matches_finite_differences():
         acc = np.zeros(6)
         acc[j] = 2.0  # rad/s^2 or m/s^2
         x = observe(acc[:3], acc[3:])
-        ref = refine_rs_pose(R, C, w, t, X, x, tau, th, max_iterations=30, tol=1e-15)
+        ref = refine_rs_pose(
+            (R, C, w, t), X, x, tau, th, RefineSettings(max_iterations=30, tol=1e-15)
+        )
         out = _outputs(ref.R, ref.C, ref.w, ref.t, s)
         d = (
             np.concatenate(
@@ -135,17 +137,12 @@ def test_refinement_block_equals_a_separate_pass(max_iterations):
     x[:20] += 0.05  # outliers beyond the cutoff
     th = 2e-3
     ref = refine_rs_pose(
-        R,
-        C,
-        w,
-        t,
+        (R, C, w, t),
         X,
         x,
         tau,
         th,
-        max_iterations=max_iterations,
-        cutoff=5 * th,
-        acceleration_block=True,
+        RefineSettings(max_iterations=max_iterations, cutoff=5 * th, acceleration_block=True),
     )
     B = ref.acceleration_block
     assert B.shape == (12, 6)

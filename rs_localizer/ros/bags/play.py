@@ -181,11 +181,8 @@ def play(
     the ``--topics`` to pass instead).
     """
     import rclpy
-    from rclpy.event_handler import PublisherEventCallbacks
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-    remap = dict(remap or {})
     own_context = context is None
     if own_context:
         context = rclpy.Context()
@@ -204,7 +201,64 @@ def play(
         types = {}
         for topic, msgtype, _, _ in msgs:
             types.setdefault(topic, msgtype)
-        qos = QoSProfile(
+        s = _Session(node, executor, dict(remap or {}), types, reliable, result, log)
+        late = set(late_topics or ())
+        waited = [t for t in output_topics if t not in late]
+        if lockstep:
+            s.subscribe_outputs(output_topics, late)
+        frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
+        choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
+        s.wait_for_subscribers(
+            frame_topics, choose, output_topics if lockstep else (), wait_subscribers
+        )
+        if choose:
+            msgs = s.choose_frames(frame_topics, msgs)
+        if not msgs:
+            return result
+        s.publish_all(
+            msgs,
+            rate=rate,
+            lockstep=lockstep,
+            waited=waited,
+            timeout=timeout,
+            retries=retries,
+            limit=limit,
+            loop=loop,
+            stamp_offset_ns=stamp_offset_ns,
+            on_frame=on_frame,
+        )
+        # let reliable writers flush the tail (and the late outputs of the last frames come)
+        s.flush_tail(timeout if lockstep and late else 0.0, late)
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+        if own_context:
+            rclpy.try_shutdown(context=context)
+    return result
+
+
+class _Session:
+    """The stages of :func:`play` on one player node: its publishers (one per bag topic), the
+    subscriptions to the node's outputs (lock-step), the wait for subscribers, the choice of
+    frame topics, publishing and the final flush."""
+
+    def __init__(
+        self,
+        node: Any,
+        executor: Any,
+        remap: dict[str, str],
+        types: dict[str, str],
+        reliable: bool,
+        result: PlayResult,
+        log: Callable[[str], Any],
+    ) -> None:
+        from rclpy.event_handler import PublisherEventCallbacks
+        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+        self.node, self.executor, self.remap, self.types = node, executor, remap, types
+        self.result, self.log = result, log
+        self.qos = QoSProfile(
             depth=10,
             reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
         )
@@ -212,20 +266,24 @@ def play(
         # answers it with a reliable one (match_reliable_image_readers below), so rclpy's
         # "incompatible QoS" warning on the first publisher would be noise
         quiet = PublisherEventCallbacks(incompatible_qos=lambda event: None)
-        pubs = {
+        self.pubs = {
             t: (
                 node.create_publisher(
                     _msg_class(mt), remap.get(t, t), qos_profile_sensor_data, event_callbacks=quiet
                 )
                 if mt in (IMAGE, COMPRESSED_IMAGE)
-                else node.create_publisher(_msg_class(mt), remap.get(t, t), qos)
+                else node.create_publisher(_msg_class(mt), remap.get(t, t), self.qos)
             )
             for t, mt in types.items()
         }
-        outputs = {}
-        pending = {"frame": None}
-        late = set(late_topics or ())
-        waited = [t for t in output_topics if t not in late]
+        self.outputs: dict[str, Any] = {}
+        self.pending: dict[str, dict | None] = {"frame": None}
+        self.reliable_images: set[str] = set()
+
+    def subscribe_outputs(self, output_topics: Sequence[str], late: set[str]) -> None:
+        """Lock-step: subscribe to every output topic; a message goes to the frame being
+        waited for, or (``late`` topics) to the frame with the nearest stamp (within 1 s)."""
+        result, pending = self.result, self.pending
 
         def make_cb(topic):
             def cb(msg):
@@ -241,11 +299,38 @@ def play(
 
             return cb
 
-        if lockstep:
-            for t in output_topics:
-                outputs[t] = node.create_subscription(output_type(t), t, make_cb(t), qos)
-        frame_topics = [t for t in pubs if is_frame_topic(t, types[t])]
-        choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
+        for t in output_topics:
+            self.outputs[t] = self.node.create_subscription(output_type(t), t, make_cb(t), self.qos)
+
+    def _match_reliable_image_readers(self, frame_topics: Sequence[str]) -> None:
+        # a subscriber asking for reliable images (a QoS override) does not match the
+        # sensor-data publisher: publish that topic reliable (it matches both kinds)
+        from rclpy.qos import ReliabilityPolicy
+
+        pubs, types, remap = self.pubs, self.types, self.remap
+        for t in frame_topics:
+            if types[t] not in (IMAGE, COMPRESSED_IMAGE) or t in self.reliable_images:
+                continue
+            if pubs[t].get_subscription_count():
+                continue
+            infos = self.node.get_subscriptions_info_by_topic(remap.get(t, t))
+            if any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos):
+                self.node.destroy_publisher(pubs[t])
+                pubs[t] = self.node.create_publisher(
+                    _msg_class(types[t]), remap.get(t, t), self.qos
+                )
+                self.reliable_images.add(t)
+
+    def wait_for_subscribers(
+        self,
+        frame_topics: Sequence[str],
+        choose: bool,
+        output_topics: Sequence[str],
+        wait_subscribers: float,
+    ) -> None:
+        """Spin until the frame topics have subscribers and every ``output_topics`` topic a
+        publisher, or ``wait_subscribers`` s passed (then a warning through ``log``)."""
+        pubs = self.pubs
         deadline = time.monotonic() + wait_subscribers
 
         def unmatched():
@@ -257,68 +342,109 @@ def play(
                 return bool(ns - ok)
             return any(pubs[t].get_subscription_count() == 0 for t in frame_topics)
 
-        reliable_images = set()
-
-        def match_reliable_image_readers():
-            # a subscriber asking for reliable images (a QoS override) does not match the
-            # sensor-data publisher: publish that topic reliable (it matches both kinds)
-            for t in frame_topics:
-                if types[t] not in (IMAGE, COMPRESSED_IMAGE) or t in reliable_images:
-                    continue
-                if pubs[t].get_subscription_count():
-                    continue
-                infos = node.get_subscriptions_info_by_topic(remap.get(t, t))
-                if any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos):
-                    node.destroy_publisher(pubs[t])
-                    pubs[t] = node.create_publisher(_msg_class(types[t]), remap.get(t, t), qos)
-                    reliable_images.add(t)
-
-        while unmatched() or (
-            lockstep and any(node.count_publishers(t) == 0 for t in output_topics)
-        ):
-            match_reliable_image_readers()
+        while unmatched() or any(self.node.count_publishers(t) == 0 for t in output_topics):
+            self._match_reliable_image_readers(frame_topics)
             if time.monotonic() > deadline:
                 missing = [
-                    remap.get(t, t) for t in frame_topics if pubs[t].get_subscription_count() == 0
+                    self.remap.get(t, t)
+                    for t in frame_topics
+                    if pubs[t].get_subscription_count() == 0
                 ]
-                log(
+                self.log(
                     f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
                     "playing anyway"
                 )
                 break
-            executor.spin_once(timeout_sec=0.05)
-        if choose:
-            end = time.monotonic() + 0.5
-            while time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.05)
-            subscribed = {t for t in frame_topics if pubs[t].get_subscription_count()}
-            kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed)
-            if skipped:
-                result.skipped_topics = skipped
-                msgs = [m for m in msgs if m[0] not in skipped]
-                others = [t for t in types if t not in skipped and t not in kept]
-                log(
-                    f"note: frames on several topics; playing {', '.join(kept)} and not "
-                    f"{', '.join(skipped)} (choose with --topics {' '.join(kept + others)})"
-                )
-        if not msgs:
-            return result
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def choose_frames(self, frame_topics: Sequence[str], msgs: list) -> list:
+        """After 0.5 s more for subscribers: ``msgs`` without the frame topics that
+        :func:`choose_frame_topics` leaves out (named in ``result`` and through ``log``)."""
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            self.executor.spin_once(timeout_sec=0.05)
+        pubs, types = self.pubs, self.types
+        subscribed = {t for t in frame_topics if pubs[t].get_subscription_count()}
+        kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed)
+        if skipped:
+            self.result.skipped_topics = skipped
+            msgs = [m for m in msgs if m[0] not in skipped]
+            others = [t for t in types if t not in skipped and t not in kept]
+            self.log(
+                f"note: frames on several topics; playing {', '.join(kept)} and not "
+                f"{', '.join(skipped)} (choose with --topics {' '.join(kept + others)})"
+            )
+        return msgs
+
+    def _prime(self, msgs: list, stamp_offset_ns: int) -> None:
+        """Lock-step: best-effort subscribers drop early samples: publish the messages
+        before the first frame three times (not the IMU: a sample sent twice is rejected as
+        not increasing)."""
+        first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
+        for _ in range(3):
+            for topic, msgtype, _, raw in msgs[:first]:
+                if msgtype == IMU:
+                    continue
+                self.pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
+            end = time.perf_counter() + 0.05
+            while time.perf_counter() < end:
+                self.executor.spin_once(timeout_sec=0.01)
+
+    def _await_outputs(
+        self, frame: dict, waited: Sequence[str], last_pub: dict, timeout: float, retries: int
+    ) -> None:
+        """Lock-step: spin until ``frame`` has every ``waited`` output, republishing the last
+        messages of each topic up to ``retries`` times after ``timeout`` s without them."""
+        result = self.result
+        self.pending["frame"] = frame
+        attempt = 0
+        t_end = time.perf_counter() + timeout
+        while any(t not in frame["outputs"] for t in waited):
+            now = time.perf_counter()
+            if now >= t_end:
+                if attempt >= retries:
+                    result.timeouts += 1
+                    missing = [t for t in waited if t not in frame["outputs"]]
+                    self.log(
+                        f"warning: frame {frame['index']}: no {', '.join(missing)} "
+                        f"within {timeout:g} s ({retries} retries); moving on"
+                    )
+                    break
+                attempt += 1
+                result.republished += 1
+                for t, r in last_pub.items():  # camera_info and the frame again
+                    self.pubs[t].publish(r)
+                t_end = time.perf_counter() + timeout
+            self.executor.spin_once(timeout_sec=min(0.01, max(t_end - now, 0)))
+        if all(t in frame["outputs"] for t in waited):
+            result.answered += 1
+        self.pending["frame"] = None
+
+    def publish_all(
+        self,
+        msgs: list,
+        *,
+        rate: float,
+        lockstep: bool,
+        waited: Sequence[str],
+        timeout: float,
+        retries: int,
+        limit: int | None,
+        loop: int,
+        stamp_offset_ns: int,
+        on_frame: Callable[[dict], None] | None,
+    ) -> None:
+        """Publish ``msgs`` ``loop`` times (stamps shifted by the bag duration each time), at
+        ``rate`` times the original timing or in lock-step, recording each frame in
+        ``result``; sets ``result.wall_time``."""
+        result, executor, pubs = self.result, self.executor, self.pubs
         t_first = min(m[2] for m in msgs)
         duration = max(m[2] for m in msgs) - t_first + 1
         wall0 = time.perf_counter()
         n_frames = 0
         last_pub = {}
-        if lockstep:  # best-effort subscribers drop early samples: prime the camera_info
-            # (not the IMU: a sample sent twice is rejected as not increasing)
-            first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
-            for _ in range(3):
-                for topic, msgtype, _, raw in msgs[:first]:
-                    if msgtype == IMU:
-                        continue
-                    pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
-                end = time.perf_counter() + 0.05
-                while time.perf_counter() < end:
-                    executor.spin_once(timeout_sec=0.01)
+        if lockstep:
+            self._prime(msgs, stamp_offset_ns)
         for rep in range(max(int(loop), 1)):
             shift = rep * (duration + 33_000_000) + stamp_offset_ns
             for topic, msgtype, t_ns, raw in msgs:
@@ -348,29 +474,7 @@ def play(
                 }
                 result.frames.append(frame)
                 if lockstep:
-                    pending["frame"] = frame
-                    attempt = 0
-                    t_end = time.perf_counter() + timeout
-                    while any(t not in frame["outputs"] for t in waited):
-                        now = time.perf_counter()
-                        if now >= t_end:
-                            if attempt >= retries:
-                                result.timeouts += 1
-                                missing = [t for t in waited if t not in frame["outputs"]]
-                                log(
-                                    f"warning: frame {frame['index']}: no {', '.join(missing)} "
-                                    f"within {timeout:g} s ({retries} retries); moving on"
-                                )
-                                break
-                            attempt += 1
-                            result.republished += 1
-                            for t, r in last_pub.items():  # camera_info and the frame again
-                                pubs[t].publish(r)
-                            t_end = time.perf_counter() + timeout
-                        executor.spin_once(timeout_sec=min(0.01, max(t_end - now, 0)))
-                    if all(t in frame["outputs"] for t in waited):
-                        result.answered += 1
-                    pending["frame"] = None
+                    self._await_outputs(frame, waited, last_pub, timeout, retries)
                 if on_frame is not None:
                     on_frame(frame)
                 if limit is not None and n_frames >= limit:
@@ -378,22 +482,17 @@ def play(
             if limit is not None and n_frames >= limit:
                 break
         result.wall_time = time.perf_counter() - wall0
-        # let reliable writers flush the tail (and the late outputs of the last frames come)
+
+    def flush_tail(self, late_wait: float, late: set[str]) -> None:
+        """Spin 0.2 s, and up to ``late_wait`` s while a frame misses a ``late`` output."""
         end = time.perf_counter() + 0.2
-        end_late = time.perf_counter() + (timeout if lockstep and late else 0.0)
+        end_late = time.perf_counter() + late_wait
         while time.perf_counter() < max(end, end_late):
             if time.perf_counter() >= end and not any(
-                t not in f["outputs"] for f in result.frames for t in late
+                t not in f["outputs"] for f in self.result.frames for t in late
             ):
                 break
-            executor.spin_once(timeout_sec=0.02)
-    finally:
-        executor.remove_node(node)
-        node.destroy_node()
-        executor.shutdown()
-        if own_context:
-            rclpy.try_shutdown(context=context)
-    return result
+            self.executor.spin_once(timeout_sec=0.02)
 
 
 def _header_stamp(raw: bytes) -> int:
