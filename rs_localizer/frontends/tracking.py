@@ -8,14 +8,16 @@ Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences 
   back lands within ``fb_max_px`` of the start (forward-backward check); they keep their map
   rows, so no descriptor is computed or matched;
 - **guided**: map points predicted in view and not tracked, matched to the keypoints of a
-  *refresh* detection near their predicted pixel (within ``search_radius_px``; a
-  ``scipy.spatial.cKDTree`` over the keypoints; descriptor distance and ratio tests). The
+  *refresh* detection near their predicted pixel (within ``search_radius_px``; the
+  nearest 8 keypoints of each window from one ``scipy.spatial.cKDTree`` query; descriptor
+  distance and ratio tests). The
   prediction is a rolling-shutter projection (:meth:`rs_localizer.camera.CameraModel.project_rs`:
   each point at its own capture line) of the solved pose and twist of the frame the detection
-  ran on. The refresh detection runs in a background thread on a copy of one frame, every
+  ran on. The refresh detection and this matching run in a background thread (in OpenCV,
+  SciPy and NumPy calls, which release the GIL) on one frame, every
   ``refresh_frames`` frames or when fewer than ``min_tracked_inliers`` tracks survive; its
-  matches are then tracked (LK) from that frame into the current one and join the tracks: a
-  refresh never holds up a frame;
+  matches are then tracked (LK, from their predicted pixels) from that frame into the
+  current one and join the tracks: a refresh never holds up a frame;
 - **global**: full detection and matching against the whole map
   (:class:`~rs_localizer.frontends.features.FeatureFrontend`, FLANN for SIFT maps), run
   synchronously only when there is nothing to track: the first frame, after a frame that was
