@@ -162,6 +162,9 @@ def diagnostic_status(
         )
         summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
         values.update(summary() if summary is not None else {"frontend_frames_global": runs})
+        few = getattr(cfg.frontend, "few_match_frames", None)  # (a feature front end)
+        if few is not None:
+            values["frontend_few_match_frames"] = few
     if cfg.imu is not None:
         bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
         values.update(

@@ -120,3 +120,24 @@ def test_replay_of_a_rendered_video_tracks(tmp_path):
     assert res.solved == len(res.rows) == 8
     assert fe.counts == {"global": 1, "tracked": 7}
     assert res.summary["rot_deg"]["median"] < 0.1, res.summary
+
+
+def test_a_map_of_other_descriptors_is_counted_and_warned_once(video):
+    fmap, frames, camera, *_ = video
+    # the same map with the 8 orientation bins of each SIFT histogram in the other order
+    # (descriptor layouts differ between SIFT implementations)
+    other = fmap.descriptors.reshape(-1, 16, 8)[:, :, ::-1].reshape(-1, 128)
+    bad = FeatureMap(fmap.points, np.ascontiguousarray(other), fmap.landmark_ids, "sift")
+    fe = TrackingFeatureFrontend(bad)
+    got = _run(fe, frames[:4], camera)
+    assert [r.kind for r, *_ in got] == ["global"] * 4  # (never solved: never tracked)
+    assert fe.few_match_frames == 4
+    text = fe.pop_warning()
+    assert text is not None and "frontend_few_match_frames" in text
+    assert fe.pop_warning() is None  # (once)
+    _run(fe, frames[4:6], camera)
+    assert fe.few_match_frames == 6 and fe.pop_warning() is None
+    # the map's own descriptors: no image counted, no warning
+    good = TrackingFeatureFrontend(fmap, tracking=False)
+    assert all(len(uv) > 100 for _, uv, *_ in _run(good, frames[:2], camera))
+    assert good.few_match_frames == 0 and good.pop_warning() is None
