@@ -515,7 +515,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         if job is None or not job.done.is_set():
             return empty
         self._pending = None
-        if job.result is None or self._index - job.index > 90:
+        if job.result is None or self._index - job.index > 90:  # (3 s at 30 Hz: too old)
             return empty
         uv_k, rows = job.result
         guess = self._predict(rows, stamp_ns)  # (the refresh frame may be a few frames back)
