@@ -29,6 +29,8 @@ from .aruco import to_gray
 
 __all__ = [
     "DESCRIPTOR_FORMATS",
+    "FEW_MATCHES_FRACTION",
+    "FEW_MATCHES_MIN_KEYPOINTS",
     "FeatureFrontend",
     "FeatureMap",
     "check_feature_map",
@@ -36,6 +38,14 @@ __all__ = [
     "make_detector",
     "representative_descriptors",
 ]
+
+
+#: an image with at least this many keypoints of which fewer than ``FEW_MATCHES_FRACTION``
+#: match the map counts as a few-matches image (``FeatureFrontend.few_match_frames``): a map
+#: whose descriptors do not come from this detector (another SIFT implementation, another
+#: descriptor normalization, another detector), or a view of an unmapped place
+FEW_MATCHES_MIN_KEYPOINTS = 200
+FEW_MATCHES_FRACTION = 0.02
 
 
 def make_detector(kind: str = "orb", n_features: int = 2000) -> Any:
@@ -302,6 +312,11 @@ class FeatureFrontend:
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``; the ids are
     landmark ids, ``last_scores`` holds ``1 - ratio`` per match (higher is better).
+
+    ``few_match_frames`` counts the images with at least :data:`FEW_MATCHES_MIN_KEYPOINTS`
+    keypoints of which fewer than :data:`FEW_MATCHES_FRACTION` matched the map (a map whose
+    descriptors do not come from this detector gives that on every image); the first one
+    leaves a warning for :meth:`pop_warning` (once per front end).
     """
 
     name = "features"
@@ -337,6 +352,33 @@ class FeatureFrontend:
             raise ValueError(f"unknown matcher {matcher!r}; expected 'bf' or 'flann'")
         self.matcher_name = matcher
         self.last_scores = np.zeros(0)
+        self.few_match_frames = 0
+        self._few_warned = False
+        self._warning: str | None = None
+
+    def pop_warning(self) -> str | None:
+        """The warning left by the first few-matches image (see the class doc), once; None
+        when there is none (or it was taken already)."""
+        text, self._warning = self._warning, None
+        return text
+
+    def _count_matches(self, n_keypoints: int, n_matches: int) -> None:
+        """Count an image of ``n_keypoints`` keypoints with ``n_matches`` map matches as a
+        few-matches image (class doc); the first leaves the warning."""
+        if n_keypoints < FEW_MATCHES_MIN_KEYPOINTS or n_matches >= (
+            FEW_MATCHES_FRACTION * n_keypoints
+        ):
+            return
+        self.few_match_frames += 1
+        if not self._few_warned:
+            self._few_warned = True
+            self._warning = (
+                f"feature map: {n_matches} of {n_keypoints} {self.map.kind.upper()} keypoints "
+                "of an image matched the map; if this goes on, the map's descriptors do not "
+                f"come from OpenCV's {self.map.kind.upper()} (another implementation, "
+                "normalization or detector) or the camera sees an unmapped place (counted "
+                "as frontend_few_match_frames; warned once)"
+            )
 
     @classmethod
     def from_file(cls, path: str | Path, **kw: Any) -> FeatureFrontend:
@@ -355,6 +397,19 @@ class FeatureFrontend:
         kps, des = self.detector.detectAndCompute(gray, None)
         if des is None or not kps:
             return empty
+        found = self._match(des)
+        self._count_matches(len(kps), len(found[0]))
+        if not len(found[0]):
+            return empty
+        q, t, s = found
+        lm = self.map.landmark_ids
+        uv = np.array([kps[i].pt for i in q], dtype=float)
+        self.last_scores = s
+        return Correspondences(uv, self.map.points[t], lm[t], self.last_scores)
+
+    def _match(self, des: np.ndarray) -> tuple:
+        """Ratio-test matches of the descriptors ``des`` (K, D), one per landmark: (query
+        rows (M,), map rows (M,), scores ``1 - ratio`` (M,))."""
         lm = self.map.landmark_ids
         best_q, best_t, best_s = [], [], []
         if self.matcher_name == "flann":
@@ -374,7 +429,7 @@ class FeatureFrontend:
                 best_t.append(first.trainIdx)
                 best_s.append(1.0 - r)
         if not best_q:
-            return empty
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         q = np.array(best_q)
         t = np.array(best_t)
         s = np.array(best_s)
@@ -382,6 +437,4 @@ class FeatureFrontend:
         order = np.argsort(-s, kind="stable")
         _, first = np.unique(lm[t[order]], return_index=True)
         keep = np.sort(order[first])
-        uv = np.array([kps[i].pt for i in q[keep]], dtype=float)
-        self.last_scores = s[keep]
-        return Correspondences(uv, self.map.points[t[keep]], lm[t[keep]], self.last_scores)
+        return q[keep], t[keep], s[keep]

@@ -8,14 +8,16 @@ Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences 
   back lands within ``fb_max_px`` of the start (forward-backward check); they keep their map
   rows, so no descriptor is computed or matched;
 - **guided**: map points predicted in view and not tracked, matched to the keypoints of a
-  *refresh* detection near their predicted pixel (within ``search_radius_px``; a
-  ``scipy.spatial.cKDTree`` over the keypoints; descriptor distance and ratio tests). The
+  *refresh* detection near their predicted pixel (within ``search_radius_px``; the
+  nearest 8 keypoints of each window from one ``scipy.spatial.cKDTree`` query; descriptor
+  distance and ratio tests). The
   prediction is a rolling-shutter projection (:meth:`rs_localizer.camera.CameraModel.project_rs`:
   each point at its own capture line) of the solved pose and twist of the frame the detection
-  ran on. The refresh detection runs in a background thread on a copy of one frame, every
+  ran on. The refresh detection and this matching run in a background thread (in OpenCV,
+  SciPy and NumPy calls, which release the GIL) on one frame, every
   ``refresh_frames`` frames or when fewer than ``min_tracked_inliers`` tracks survive; its
-  matches are then tracked (LK) from that frame into the current one and join the tracks: a
-  refresh never holds up a frame;
+  matches are then tracked (LK, from their predicted pixels) from that frame into the
+  current one and join the tracks: a refresh never holds up a frame;
 - **global**: full detection and matching against the whole map
   (:class:`~rs_localizer.frontends.features.FeatureFrontend`, FLANN for SIFT maps), run
   synchronously only when there is nothing to track: the first frame, after a frame that was
@@ -85,7 +87,7 @@ class _Refresh:
     gray: np.ndarray
     pose: tuple  # (R, C, w, t) of that frame's estimate (world -> camera, per unit r)
     camera: CameraModel
-    result: Any = None
+    result: Any = None  # (uv (G, 2) float32, rows (G,)): the guided matches in that frame
     done: threading.Event = field(default_factory=threading.Event)
 
 
@@ -135,8 +137,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         search_radius_px: float = 8.0,
         min_tracked_inliers: int = 150,
         min_points: int = 15,
-        max_tracks: int = 500,
-        lk_window: int = 15,
+        max_tracks: int = 1000,
+        lk_window: int = 11,
         lk_levels: int = 2,
         fb_max_px: float = 1.0,
         reset_gap_s: float = 0.5,
@@ -211,7 +213,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._solved_index = -2
         self._since_refresh = 0
         self._pending: _Refresh | None = None
-        self._frames = {}  # index -> gray of recent frames (for joining a refresh)
         self._out_rows = np.zeros(0, np.int64)
         self._out_uv = np.zeros((0, 2))
         self._lost = True
@@ -301,10 +302,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._totals["guided"] += rep.guided
         self._totals["global"] += rep.global_
         self._times[rep.kind].append(time.perf_counter() - t_start)
-        self._gray, self._stamp = gray, stamp_ns if stamp_ns is not None else self._stamp
+        self._gray = gray
+        self._stamp = stamp_ns if stamp_ns is not None else self._stamp
         self._frame_camera = camera
-        self._frames = {k: v for k, v in self._frames.items() if k >= self._index - 30}
-        self._frames[self._index] = gray
         self._out_rows, self._out_uv = rows, np.asarray(uv, float)
         self._lost = True  # until observe() says the frame was solved
         self.report = rep
@@ -419,41 +419,58 @@ class TrackingFeatureFrontend(FeatureFrontend):
         uv = cam.project_rs(self.map.points[rows], Rp, C + dT * t, w, t, iterations=4)
         return uv if np.isfinite(uv).all() else None
 
+    def _cap(self, uv: np.ndarray, n: int) -> np.ndarray:
+        """Indices of at most ``n`` of the points ``uv`` (K, 2) spread over the image: an
+        8 x 6 grid, the cells filled in turn (a reproducible random order inside a cell)."""
+        if len(uv) <= n:
+            return np.arange(len(uv))
+        h, w = self._gray.shape[:2]
+        cell = np.clip((uv[:, 0] * (8 / w)).astype(int), 0, 7) + 8 * np.clip(
+            (uv[:, 1] * (6 / h)).astype(int), 0, 5
+        )
+        jitter = np.random.default_rng(len(uv)).random(len(uv))
+        order = np.lexsort((jitter, cell))
+        c = cell[order]
+        start = np.r_[0, np.flatnonzero(c[1:] != c[:-1]) + 1]
+        rank = np.arange(len(c)) - np.repeat(start, np.diff(np.r_[start, len(c)]))
+        return np.sort(order[np.lexsort((jitter[order], rank))[:n]])
+
     def _track(
         self,
         prev: np.ndarray,
-        gray: np.ndarray,
+        cur: np.ndarray,
         uv: np.ndarray,
         rows: np.ndarray,
         cap: bool = True,
         guess: np.ndarray | None = None,
     ):
-        """LK tracks ``uv`` (K, 2) of ``prev`` into ``gray`` with the forward-backward check
-        (at most ``max_tracks`` of them with ``cap``), starting from ``guess`` (K, 2) px (the
-        motion model's prediction) when given; returns the surviving ``(uv (K', 2) float32,
-        rows (K',))``."""
+        """LK tracks ``uv`` (K, 2) of image ``prev`` into image ``cur`` with the
+        forward-backward check (at most ``max_tracks`` of them with ``cap``, spread by
+        :meth:`_cap`), starting from ``guess`` (K, 2) px (the motion model's prediction) when
+        given; the backward pass starts from ``uv``. Returns the surviving ``(uv (K', 2)
+        float32, rows (K',))``."""
         if len(uv) == 0:
             return uv, rows
-        if cap and len(uv) > self.max_tracks:  # (spread: a random subset, reproducible)
-            keep = np.sort(
-                np.random.default_rng(len(uv)).choice(len(uv), self.max_tracks, replace=False)
-            )
+        if cap and len(uv) > self.max_tracks:
+            keep = self._cap(uv, self.max_tracks)
             uv, rows = uv[keep], rows[keep]
             guess = None if guess is None else guess[keep]
         p0 = np.ascontiguousarray(uv, np.float32).reshape(-1, 1, 2)
         if guess is not None:
             p1 = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2)
             p1, st, _ = cv2.calcOpticalFlowPyrLK(
-                prev, gray, p0, p1, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self.lk
+                prev, cur, p0, p1, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self.lk
             )
         else:
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, gray, p0, None, **self.lk)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **self.lk)
         if p1 is None:
             return uv[:0], rows[:0]
-        p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(gray, prev, p1, None, **self.lk)
+        p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(
+            cur, prev, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self.lk
+        )
         fb = np.linalg.norm((p0b - p0).reshape(-1, 2), axis=1)
         p1 = p1.reshape(-1, 2)
-        h, w = gray.shape[:2]
+        h, w = cur.shape[:2]
         ok = (
             (st.ravel() == 1)
             & (st_b.ravel() == 1)
@@ -475,9 +492,13 @@ class TrackingFeatureFrontend(FeatureFrontend):
 
         def run():
             try:
-                job.result = det.detectAndCompute(job.gray, None)
+                kps, des = det.detectAndCompute(job.gray, None)
+                if des is not None and len(kps):
+                    uv, rows = self._guided(job, cv2.KeyPoint_convert(kps).astype(float), des)
+                    if len(rows):
+                        job.result = (uv.astype(np.float32), rows)
             except cv2.error:
-                job.result = ((), None)
+                job.result = None
             job.done.set()
 
         # (not a daemon: a detection still running at exit is finished, not killed in OpenCV)
@@ -485,7 +506,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._since_refresh = 0
 
     def _join_refresh(self, gray: np.ndarray, stamp_ns: int | None):
-        """A finished refresh: guided matching in its frame, then LK into this one.
+        """A finished refresh (detection and guided matching in its frame, done in the
+        background): its matches followed by LK into this frame ``gray``.
 
         Returns ``(uv (G, 2) float32, rows (G,))``."""
         job = self._pending
@@ -493,15 +515,11 @@ class TrackingFeatureFrontend(FeatureFrontend):
         if job is None or not job.done.is_set():
             return empty
         self._pending = None
-        src = self._frames.get(job.index)
-        kps, des = job.result
-        if src is None or des is None or not len(kps):
+        if job.result is None or self._index - job.index > 90:  # (3 s at 30 Hz: too old)
             return empty
-        uv_k, rows = self._guided(job, np.array([k.pt for k in kps], float), des)
-        if len(uv_k) == 0:
-            return empty
+        uv_k, rows = job.result
         guess = self._predict(rows, stamp_ns)  # (the refresh frame may be a few frames back)
-        return self._track(src, gray, uv_k.astype(np.float32), rows, cap=False, guess=guess)
+        return self._track(job.gray, gray, uv_k, rows, cap=False, guess=guess)
 
     def _local_rows(self, pose: tuple, camera: CameraModel) -> np.ndarray:
         """Map rows in front of the camera and inside the image (global-shutter projection
@@ -536,10 +554,12 @@ class TrackingFeatureFrontend(FeatureFrontend):
         rows, pred = rows[ok], pred[ok]
         if len(rows) == 0:
             return empty
-        tree = cKDTree(kp_uv)
-        near = tree.query_ball_point(pred, self.search_radius_px)
-        pr = np.repeat(np.arange(len(rows)), [len(n) for n in near])
-        kq = np.fromiter((k for n in near for k in n), np.int64, count=len(pr))
+        # (the keypoints in each window: the 8 nearest within the radius, in one call)
+        kn = min(8, len(kp_uv))
+        _, near = cKDTree(kp_uv).query(pred, k=kn, distance_upper_bound=self.search_radius_px)
+        near = np.asarray(near).reshape(len(pred), kn)
+        pr, col = np.nonzero(near < len(kp_uv))
+        kq = near[pr, col].astype(np.int64)
         if len(pr) == 0:
             return empty
         md = self.map.descriptors[rows[pr]]
@@ -547,7 +567,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
             bits = np.unpackbits(np.bitwise_xor(md, des[kq]), axis=1)
             dist = bits.sum(axis=1).astype(float)
         else:
-            dist = np.linalg.norm(md.astype(np.float32) - des[kq].astype(np.float32), axis=1)
+            diff = np.asarray(md, np.float32) - np.asarray(des[kq], np.float32)
+            dist = np.sqrt(np.einsum("ij,ij->i", diff, diff))
         # per map point: best and second-best keypoint in its window
         order = np.lexsort((dist, pr))
         pr, kq, dist = pr[order], kq[order], dist[order]

@@ -220,6 +220,9 @@ def _frontend_values(cfg: LocalizerConfig, stats: StatsSnapshot) -> dict[str, An
     )
     summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
     values.update(summary() if summary is not None else {"frontend_frames_global": runs})
+    few = getattr(cfg.frontend, "few_match_frames", None)  # (a feature front end)
+    if few is not None:
+        values["frontend_few_match_frames"] = few
     return values
 
 

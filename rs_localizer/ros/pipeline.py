@@ -644,6 +644,10 @@ class FramePipeline:
         except Exception as e:
             raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
         res.times["frontend"] = time.perf_counter() - t0
+        pop = getattr(fe, "pop_warning", None)  # (a front end's one-time warning)
+        text = pop() if pop is not None else None
+        if text:
+            self.log.warning(f"{cfg.frontend_kind}.warning", text)
         uv, xyz, scores = found.pixels, found.points, found.valid_scores()
         self.stats.frontend_ran(len(uv), res.times["frontend"])
         if cfg.republish_correspondences:

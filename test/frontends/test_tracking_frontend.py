@@ -3,6 +3,8 @@ against its renderer-built SIFT map: tracked and guided correspondences land on 
 projections of their map points, poses stay as good as per-frame global matching, and it
 relocalizes after black frames and time resets; bad maps are refused."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -35,12 +37,15 @@ def video():
     return fmap, frames, camera, renderer, motion
 
 
-def _run(fe, frames, camera, blank=(), shift_ns=None):
+def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
     out = []
     for k, f in enumerate(frames):
         img = np.zeros_like(f.image) if k in blank else f.image
         stamp = int(f.t_first * 1e9) + (shift_ns[1] if shift_ns and k >= shift_ns[0] else 0)
+        t0 = time.perf_counter()
         uv, X, _ = fe.process(img, camera, stamp_ns=stamp)
+        if times is not None:  # (the front end's time per frame, s)
+            times.append(time.perf_counter() - t0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
         fe.observe(stamp, None, est)
         fe.wait_refresh(60.0)
@@ -53,7 +58,8 @@ def _run(fe, frames, camera, blank=(), shift_ns=None):
 def test_tracked_and_guided_correspondences_are_right(video):
     fmap, frames, camera, renderer, motion = video
     fe = TrackingFeatureFrontend(fmap, refresh_frames=3)
-    got = _run(fe, frames, camera)
+    times, ref_times = [], []
+    got = _run(fe, frames, camera, times=times)
     kinds = [r.kind for r, *_ in got]
     assert kinds[0] == "global" and kinds[1:].count("tracked") == len(frames) - 1, kinds
     assert sum(r.guided for r, *_ in got) > 200  # the refreshes joined
@@ -63,12 +69,19 @@ def test_tracked_and_guided_correspondences_are_right(video):
         assert np.mean(err < 2.0) > 0.9, (rep.kind, np.median(err))
     # every pose as good as per-frame global matching on the same frames (the estimator
     # judges either way)
-    per_frame = _run(TrackingFeatureFrontend(fmap, tracking=False), frames, camera)
+    per_frame = _run(TrackingFeatureFrontend(fmap, tracking=False), frames, camera, times=ref_times)
     tracked = np.array([e for *_, e in got])
     reference = np.array([e for *_, e in per_frame])
     assert np.isfinite(tracked).all() and np.isfinite(reference).all()
     assert np.median(tracked) <= 2.0 * np.median(reference) + 0.01, (tracked, reference)
     assert fe.summary()["frontend_frames_tracked"] == len(frames) - 1
+    # time: a tracked frame (the refresh joins included) costs a fraction of a global one
+    t_tracked = [t for (r, *_), t in zip(got, times, strict=True) if r.kind == "tracked"]
+    t_global = np.median(ref_times)
+    assert np.median(t_tracked) < 0.3 * t_global and max(t_tracked) < t_global, (
+        t_tracked,
+        ref_times,
+    )
 
 
 def test_black_frames_and_time_reset_relocalize(video):
@@ -120,3 +133,43 @@ def test_replay_of_a_rendered_video_tracks(tmp_path):
     assert res.solved == len(res.rows) == 8
     assert fe.counts == {"global": 1, "tracked": 7}
     assert res.summary["rot_deg"]["median"] < 0.1, res.summary
+
+
+def test_a_map_of_other_descriptors_is_counted_and_warned_once(video):
+    fmap, frames, camera, *_ = video
+    # the same map with the 8 orientation bins of each SIFT histogram in the other order
+    # (descriptor layouts differ between SIFT implementations)
+    other = fmap.descriptors.reshape(-1, 16, 8)[:, :, ::-1].reshape(-1, 128)
+    bad = FeatureMap(fmap.points, np.ascontiguousarray(other), fmap.landmark_ids, "sift")
+    fe = TrackingFeatureFrontend(bad)
+    got = _run(fe, frames[:4], camera)
+    assert [r.kind for r, *_ in got] == ["global"] * 4  # (never solved: never tracked)
+    assert fe.few_match_frames == 4
+    text = fe.pop_warning()
+    assert text is not None and "frontend_few_match_frames" in text
+    assert fe.pop_warning() is None  # (once)
+    _run(fe, frames[4:6], camera)
+    assert fe.few_match_frames == 6 and fe.pop_warning() is None
+    # the map's own descriptors: no image counted, no warning
+    good = TrackingFeatureFrontend(fmap, tracking=False)
+    assert all(len(uv) > 100 for _, uv, *_ in _run(good, frames[:2], camera))
+    assert good.few_match_frames == 0 and good.pop_warning() is None
+
+
+def test_capped_tracks_cover_the_image(video):
+    """The cap keeps tracks in every part of the image: a cluster of 900 points in one
+    corner does not crowd out 96 points spread over the image."""
+    fmap, _, camera, *_ = video
+    fe = TrackingFeatureFrontend(fmap, max_tracks=200)
+    fe._gray = np.zeros((camera.height, camera.width), np.uint8)
+    rng = np.random.default_rng(0)
+    cluster = rng.uniform(0, 20, (900, 2))
+    gx, gy = np.meshgrid(np.arange(12) + 0.5, np.arange(8) + 0.5)
+    spread = np.c_[gx.ravel() * camera.width / 12, gy.ravel() * camera.height / 8]
+    uv = np.concatenate([cluster, spread])
+    keep = fe._cap(uv, 200)
+    assert len(keep) == 200 and len(np.unique(keep)) == 200
+    # the spread points kept (all but the one in the cluster's corner; a random subset of
+    # 200 would keep about 19 of them)
+    assert np.isin(np.arange(900, 996), keep).sum() >= 95
+    assert np.array_equal(fe._cap(uv[:150], 200), np.arange(150))  # under the cap: all

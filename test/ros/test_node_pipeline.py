@@ -344,6 +344,56 @@ def test_pipeline_drops_and_counts(msgs, sequence):
     assert pipe.stats.snapshot().counts["camera_info_rejected.bad_intrinsics"] == 1
 
 
+def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequence, tmp_path):
+    """A feature map whose descriptors match none of an image's many keypoints: each such
+    image counted (frontend_few_match_frames), one warning over several images."""
+    import cv2
+
+    from rs_localizer.frontends.features import FeatureMap
+    from rs_localizer.frontends.shared import SHARED_MAPS
+    from rs_localizer.ros.pipeline import FramePipeline
+
+    _, _, cam = sequence
+    rng = np.random.default_rng(0)
+    fmap = FeatureMap(
+        rng.normal(size=(20, 3)), rng.random((20, 128), np.float32), np.arange(20), "sift"
+    ).save(tmp_path / "features.npz")
+    owner = object()
+    cfg = P.load_maps(
+        P.build_config(
+            {
+                **P.default_values(),
+                "camera_info_wait": 0.0,
+                "frontend": "features",
+                "frontend_map": str(fmap),
+            }
+        ),
+        owner=owner,
+    )
+    warned = []
+
+    class Log:
+        def info(self, text):
+            pass
+
+        def warning(self, text):
+            warned.append(text)
+
+        def error(self, text):
+            pass
+
+    pipe = FramePipeline(cfg, log=Log())
+    pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
+    texture = rng.integers(0, 256, (cam.height // 4, cam.width // 4), np.uint8)
+    img = cv2.resize(texture, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
+    for k in range(3):
+        res = pipe.process(msgs.image(img, (k + 1) * 10**8, "cam"), "image")
+        assert res.failure == "frontend_too_few_points"
+    assert cfg.frontend.few_match_frames == 3
+    assert len([w for w in warned if "frontend_few_match_frames" in w]) == 1
+    SHARED_MAPS.release(owner)
+
+
 def test_pipeline_uncompiled_then_compiled(msgs, sequence):
     """While the kernels compile (the estimator's switch off), frames are solved alone on the
     uncompiled path with their own twist (no tracker, nothing pending), counted per path; the
