@@ -1,7 +1,8 @@
 """Marker video through the ArUco front end, windowed vs full-frame detection: ``python -m
 rs_localizer.evaluation.bench_aruco``.
 
-Renders a hand-held (``shake``) rolling-shutter video of ``aruco_room`` at 30 Hz for each
+Renders a hand-held (``shake``) rolling-shutter video of ``aruco_room`` (``--scene``: another
+built-in marker scene, e.g. the single board ``aruco_board``) at 30 Hz for each
 camera preset (``vga`` 640x480, ``hd`` 1280x720; 30 ms readout, sensor noise) and localizes
 it frame by frame with :class:`~rs_localizer.frontends.aruco.ArucoFrontend` and the
 ``r6p_1lin`` estimator, once with full-frame detection on every frame and once with windowed
@@ -14,6 +15,7 @@ the largest difference between a marker corner found in a window and the same co
 over the full frame (px). One OpenCV / BLAS thread.
 
     python -m rs_localizer.evaluation.bench_aruco [--frames 90] [--margin 16] [--every 10]
+        [--scene aruco_room] [--presets vga,hd]
 """
 
 from __future__ import annotations
@@ -37,10 +39,10 @@ __all__ = ["main", "render_video", "run_interleaved"]
 FPS = 30.0
 
 
-def render_video(preset: str, frames: int, seed: int = 0) -> tuple:
+def render_video(preset: str, frames: int, seed: int = 0, scene: str = "aruco_room") -> tuple:
     """``(scene, camera, rendered frames)``: ``frames`` frames at 30 Hz of a ``shake`` video of
-    ``aruco_room`` with camera preset ``preset``."""
-    scene = load_scene("aruco_room")
+    the built-in scene ``scene`` with camera preset ``preset``."""
+    scene = load_scene(scene)
     camera = camera_preset(preset)
     motion = make_motion("shake", scene, duration=frames / FPS + 0.1)
     r = Renderer(scene, camera, noise=NoiseModel())
@@ -95,13 +97,14 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("--frames", type=int, default=90, help="frames per video (30 Hz)")
     ap.add_argument("--margin", type=float, default=16.0, help="window margin (px)")
     ap.add_argument("--every", type=int, default=10, help="full frame every N frames")
+    ap.add_argument("--scene", default="aruco_room", help="built-in marker scene")
     ap.add_argument("--presets", default="vga,hd", help="camera presets, comma-separated")
     a = ap.parse_args(argv)
     cv2.setNumThreads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     print(f"load: {os.getloadavg()[0]:.2f} (1 min average)")
     for preset in a.presets.split(","):
-        scene, camera, frames = render_video(preset, a.frames)
+        scene, camera, frames = render_video(preset, a.frames, scene=a.scene)
         res = run_interleaved(
             scene, camera, frames, window_margin_px=a.margin, full_frame_every=a.every
         )

@@ -107,7 +107,7 @@ class ArucoFrontend:
         min_marker_perimeter: float = 0.02,
         marker_std: dict | None = None,
         windowed: bool = False,
-        window_margin_px: float = 24.0,
+        window_margin_px: float = 16.0,
         full_frame_every: int = 10,
     ):
         from ..maps import marker_dictionary

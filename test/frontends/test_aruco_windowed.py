@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.evaluation.bench_aruco import render_video, run_interleaved
+from rs_localizer.evaluation.bench_aruco import FPS, render_video, run_interleaved
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
+from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
 
 
 @pytest.fixture(scope="module")
@@ -32,12 +33,19 @@ def test_windowed_corners_equal_full_frame(video):
     c_w, _, _ = _solve(win, f, camera)
     assert win.last_kind == "windowed" and len(win.last_windows) > 1
     h, w = f.image.shape[:2]
-    assert sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in win.last_windows) < h * w
+    assert all(0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h for x0, y0, x1, y1 in win.last_windows)
     c_f = full.process(f.image, camera)
     common, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
     assert len(common) >= 0.9 * len(c_f)
     np.testing.assert_allclose(c_w.pixels[i_w], c_f.pixels[i_f], atol=0.05)
     np.testing.assert_array_equal(c_w.points[i_w], c_f.points[i_f])
+    # against the exact RS projection of the mapped corners: the accuracy of full frames
+    motion = make_motion("shake", scene, duration=len(frames) / FPS + 0.1)
+    gt, ok = Renderer(scene, camera, noise=NoiseModel()).project(
+        c_w.points, motion, 1 / FPS, occlusion=False
+    )
+    err = np.linalg.norm(c_w.pixels - gt, axis=1)
+    assert ok.all() and np.median(err) < 0.35 and np.percentile(err, 95) < 1.0
 
 
 def test_fallback_after_loss_and_periodic(video):
