@@ -178,9 +178,11 @@ class ArucoFrontend:
     ) -> tuple[list, set] | None:
         """Windows to search in a frame of ``shape`` (H, W) taken at ``stamp_ns``: the last
         solved pose (``R``, ``C``) moved by its twist (``w``, ``t``) over the stamp difference,
-        every mapped marker corner projected at its own capture line
+        every corner of the markers found in the last frame projected at its own capture line
         (:meth:`CameraModel.project_rs`), each marker's corner bounding box padded by
-        ``window_margin_px`` and clipped to the image, overlapping boxes merged.
+        ``window_margin_px`` and clipped to the image, overlapping boxes merged where that
+        adds no pixel (:func:`merge_windows`). Markers predicted partly outside the image or
+        seen from behind get no window.
 
         Returns:
             ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive) around
