@@ -84,6 +84,15 @@ class ArucoFrontend:
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
+        windowed: detect only in windows around the markers' predicted pixels (the last
+            solved frame's pose and twist carried to this frame's stamp, each corner at its
+            own capture line) instead of over the full frame; the full frame is searched when
+            there is no prediction (start, after a failed frame or a stamp jump), when a
+            predicted marker is not found, and every ``full_frame_every`` frames (new markers).
+        window_margin_px: padding (px) of each predicted marker's bounding box; at least the
+            adaptive-threshold half window plus the expected prediction error.
+        full_frame_every: a full-frame detection at least every this many frames (0: only on
+            the fallbacks above).
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,) int64)``.
     """
@@ -97,6 +106,9 @@ class ArucoFrontend:
         subpix_window: int = 3,
         min_marker_perimeter: float = 0.02,
         marker_std: dict | None = None,
+        windowed: bool = False,
+        window_margin_px: float = 16.0,
+        full_frame_every: int = 10,
     ):
         from ..maps import marker_dictionary
 
@@ -122,6 +134,24 @@ class ArucoFrontend:
             None if marker_std is None else {int(k): float(v) for k, v in marker_std.items()}
         )
         self.last_scores = None  # per correspondence, from marker_std
+        self.windowed = bool(windowed)
+        self.window_margin_px = float(window_margin_px)
+        self.full_frame_every = int(full_frame_every)
+        self._min_perimeter_rate = float(min_marker_perimeter)
+        self._pose = None  # (R, C, w, t) of the last solved frame
+        self._stamp = None  # its stamp (ns)
+        self._camera = None  # the camera of the last processed frame
+        self._frame_stamp = None
+        self._since_full = 0
+        self._missed = False  # a predicted marker was not found in the last windowed frame
+        self._last_found: set = set()  # marker ids found in the last frame
+        self.counts = {"windowed": 0, "full": 0}
+        self._times: list = []  # detection seconds per frame
+        self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
+        self.last_kind = "full"  # how the last frame was searched: full or windowed
+
+    #: the node passes the frame's stamp to process() (motion prediction)
+    takes_stamp = True
 
     @classmethod
     def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:
@@ -143,16 +173,171 @@ class ArucoFrontend:
         corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
         return corners, ids
 
+    def predict_windows(
+        self, shape: tuple, camera: CameraModel | None, stamp_ns: int | None
+    ) -> tuple[list, set] | None:
+        """Windows to search in a frame of ``shape`` (H, W) taken at ``stamp_ns``: the last
+        solved pose (``R``, ``C``) moved by its twist (``w``, ``t``) over the stamp difference,
+        every corner of the markers found in the last frame projected at its own capture line
+        (:meth:`CameraModel.project_rs`), each marker's corner bounding box padded by
+        ``window_margin_px`` and clipped to the image, overlapping boxes merged where that
+        adds no pixel (:func:`merge_windows`). Markers predicted partly outside the image or
+        seen from behind get no window.
+
+        Returns:
+            ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive) around
+            the markers found in the last frame, and the ids of those predicted fully inside
+            the image; None without a prediction (no solved frame, no camera or RS timing, no
+            stamp, no marker found).
+        """
+        cam = camera if camera is not None else self._camera
+        if self._pose is None or cam is None or stamp_ns is None or self._stamp is None:
+            return None
+        if cam.seconds_per_unit_r <= 0:
+            return None
+        from ..geometry import rotvec_to_matrix
+
+        R, C, w, t = self._pose
+        dT = (int(stamp_ns) - self._stamp) * 1e-9 / cam.seconds_per_unit_r
+        mids = np.array(sorted(self._last_found & self.marker_corners.keys()), np.int64)
+        if len(mids) == 0:
+            return None
+        X = np.concatenate([self.marker_corners[int(m)] for m in mids])
+        uv = cam.project_rs(X, rotvec_to_matrix(dT * w) @ R, C + dT * t, w, t, iterations=4)
+        uv = uv.reshape(-1, 4, 2)
+        h, wd = int(shape[0]), int(shape[1])
+        ok = np.isfinite(uv).all(axis=(1, 2))
+        ok &= (uv[..., 0] >= 0).all(1) & (uv[..., 0] <= wd - 1).all(1)
+        ok &= (uv[..., 1] >= 0).all(1) & (uv[..., 1] <= h - 1).all(1)
+        # front face towards the camera (ArUco corners run clockwise in the image)
+        a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
+        cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (
+            c[:, 0] - a[:, 0]
+        )
+        ok &= np.nan_to_num(cross) > 0
+        m = self.window_margin_px
+        boxes = []
+        for q in uv[ok]:
+            lo, hi = q.min(0) - m, q.max(0) + m
+            boxes.append(
+                [
+                    max(0, int(np.floor(lo[0]))),
+                    max(0, int(np.floor(lo[1]))),
+                    min(wd, int(np.ceil(hi[0])) + 1),
+                    min(h, int(np.ceil(hi[1])) + 1),
+                ]
+            )
+        return merge_windows(boxes), {int(i) for i in mids[ok]}
+
+    def _detect_windows(self, gray: np.ndarray, windows: list) -> tuple[np.ndarray, np.ndarray]:
+        """Detections in each window, corners offset back to full-frame pixels; the smallest
+        marker perimeter is kept at the full frame's (OpenCV scales it by the window size)."""
+        full = max(gray.shape)
+        best: dict = {}  # marker id -> (distance of its corners to the window border, corners)
+        for x0, y0, x1, y1 in windows:
+            self.params.minMarkerPerimeterRate = (
+                self._min_perimeter_rate * full / max(x1 - x0, y1 - y0)
+            )
+            det = cv_compat.MarkerDetector(self.detector.dictionary, self.params)
+            c, i, _ = det.detect(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            for cc, ii in zip(c, i, strict=True):
+                # a marker seen in two overlapping windows: the one it sits deeper in
+                inside = min(
+                    cc[:, 0].min(),
+                    cc[:, 1].min(),
+                    x1 - x0 - cc[:, 0].max(),
+                    y1 - y0 - cc[:, 1].max(),
+                )
+                if int(ii) not in best or inside > best[int(ii)][0]:
+                    best[int(ii)] = (inside, cc + np.array([x0, y0], float))
+        self.params.minMarkerPerimeterRate = self._min_perimeter_rate
+        if not best:
+            return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
+        ids = sorted(best)
+        return np.asarray([best[i][1] for i in ids]), np.asarray(ids, np.int64)
+
+    def _detect_frame(
+        self, gray: np.ndarray, camera: CameraModel | None, stamp_ns: int | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Windowed detection when it applies (see ``windowed``), else full frame."""
+        import time
+
+        t0 = time.perf_counter()
+        pred = None
+        due = self.full_frame_every > 0 and self._since_full + 1 >= self.full_frame_every
+        if self.windowed and not self._missed and not due:
+            pred = self.predict_windows(gray.shape, camera, stamp_ns)
+        self._missed = False
+        if pred is not None:
+            windows, expect = pred
+            corners, mids = self._detect_windows(gray, windows)
+            self.last_windows = windows
+            self.last_kind = "windowed"
+            self._missed = not expect.issubset({int(i) for i in mids})
+            self._since_full += 1
+            self.counts["windowed"] += 1
+        else:
+            corners, mids, self.last_rejected = self.detector.detect(gray)
+            self.last_windows = []
+            self.last_kind = "full"
+            self._since_full = 0
+            self.counts["full"] += 1
+        self._times.append(time.perf_counter() - t0)
+        self._last_found = {int(i) for i in mids}
+        return corners, mids
+
+    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+        """The estimate of the last processed frame (the node calls this after each frame):
+        a solved one (``success``, ``R``, ``C``, ``w``, ``t``) predicts the next frame's
+        marker windows; a failed one (or None) makes the next frame a full-frame search.
+        ``stamp_ns``: the frame's stamp (None: the one given to :meth:`process`); ``pixels``
+        is not used."""
+        if estimate is None or not getattr(estimate, "success", False):
+            self._pose = None
+            return
+        self._pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
+        self._stamp = int(stamp_ns) if stamp_ns is not None else self._frame_stamp
+
+    def reset(self) -> None:
+        """Forget the motion: the next frame is searched in full."""
+        self._pose = None
+        self._missed = False
+
+    def summary(self) -> dict:
+        """Counters since start: frames searched whole (``frontend_frames_global``) and in
+        windows (``aruco_frames_windowed``), and the median detection time per frame (ms;
+        ``nan`` before one)."""
+        t = self._times
+        return {
+            "frontend_frames_global": self.counts["full"],
+            "aruco_frames_windowed": self.counts["windowed"],
+            "aruco_detect_ms_median": f"{np.median(t) * 1e3:.3f}" if t else "nan",
+        }
+
     def process(
-        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+        self,
+        image: np.ndarray,
+        camera: CameraModel | None = None,
+        encoding: str = "rgb8",
+        stamp_ns: int | None = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
         (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
         stated std when it has them (``marker_std``), else None; unpacks as
-        ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. ``camera`` is
-        not needed (pixels stay distorted, as the estimator expects) but accepted for a uniform
-        front-end API."""
-        corners, mids = self.detect(image, encoding)
+        ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
+        distorted, as the estimator expects; ``camera`` (the frame's model) and ``stamp_ns``
+        (its capture stamp, ns) serve the windowed detection (``windowed``), which without
+        them searches the full frame."""
+        if (
+            stamp_ns is not None
+            and self._frame_stamp is not None
+            and (int(stamp_ns) <= self._frame_stamp)
+        ):
+            self.reset()  # time went back (a replayed bag): no prediction
+        self._frame_stamp = None if stamp_ns is None else int(stamp_ns)
+        if camera is not None:
+            self._camera = camera
+        corners, mids = self._detect_frame(to_gray(image, encoding), camera, stamp_ns)
         keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
         if not keep:
             self.last_scores = None if self.marker_std is None else np.zeros(0)
@@ -165,3 +350,32 @@ class ArucoFrontend:
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
         return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)
+
+
+def merge_windows(boxes: list) -> list:
+    """Overlapping boxes ``[x0, y0, x1, y1]`` (end exclusive) joined into their bounding box
+    where that box has no more pixels than the two together (no pixel searched that neither
+    covers), repeated until no pair qualifies;
+    returns a list of 4-tuples (windows may still overlap where joining would cost pixels)."""
+
+    def area(b: list) -> int:
+        return (b[2] - b[0]) * (b[3] - b[1])
+
+    boxes = [list(b) for b in boxes]
+    merged = True
+    while merged:
+        merged = False
+        out: list = []
+        for b in boxes:
+            for o in out:
+                if b[0] < o[2] and o[0] < b[2] and b[1] < o[3] and o[1] < b[3]:
+                    u = [min(o[0], b[0]), min(o[1], b[1]), max(o[2], b[2]), max(o[3], b[3])]
+                    ov = (min(o[2], b[2]) - max(o[0], b[0])) * (min(o[3], b[3]) - max(o[1], b[1]))
+                    if area(u) <= area(o) + area(b) - ov:
+                        o[:] = u
+                        merged = True
+                        break
+            else:
+                out.append(b)
+        boxes = out
+    return [tuple(b) for b in boxes]

@@ -468,6 +468,26 @@ PARAMETERS = {
         FloatRange(from_value=1.0, to_value=200.0),
         read_only=True,
     ),
+    "aruco.windowed": Parameter(
+        False,
+        "aruco front end: detect markers only in windows around their pixels predicted from "
+        "the last solved frame, the full frame on start, after a failed frame, when a "
+        "predicted marker is missing and every aruco.full_frame_every frames",
+        read_only=True,
+    ),
+    "aruco.window_margin_px": Parameter(
+        16.0,
+        "px; with aruco.windowed: padding of each predicted marker's bounding box",
+        FloatRange(from_value=2.0, to_value=500.0),
+        read_only=True,
+    ),
+    "aruco.full_frame_every": Parameter(
+        10,
+        "with aruco.windowed: a full-frame detection at least every this many frames (new "
+        "markers; 0: only on the fallbacks)",
+        IntRange(from_value=0, to_value=10_000),
+        read_only=True,
+    ),
     "features.min_tracked_inliers": Parameter(
         150,
         "with tracking: fewer tracked inliers than this start a refresh detection",
@@ -788,7 +808,14 @@ class LocalizerConfig:
 
 
 def _frontend_options(kind: str, p) -> dict:
-    """Keyword arguments of the front end ``kind`` from the ``features.*`` parameters."""
+    """Keyword arguments of the front end ``kind`` from the ``features.*`` and ``aruco.*``
+    parameters."""
+    if kind == "aruco":
+        return {
+            "windowed": bool(p["aruco.windowed"]),
+            "window_margin_px": float(p["aruco.window_margin_px"]),
+            "full_frame_every": int(p["aruco.full_frame_every"]),
+        }
     if kind != "features":
         return {}
     matcher = str(p["features.matcher"]).strip().lower()
