@@ -57,7 +57,10 @@ rclpy.init(domain_id=int(__import__("os").environ["ROS_DOMAIN_ID"]))
 node = RSLocalizerNode("tf_check", parameter_overrides=[Parameter("warmup", value=False)])
 pubs = dict(node.get_publisher_names_and_types_by_node("tf_check", "/"))
 assert pubs.get("/tf") == ["tf2_msgs/msg/TFMessage"], pubs
-print("ok")
+# shut down before the interpreter exits (a live node's threads at exit can crash it)
+node.destroy_node()
+rclpy.shutdown()
+print("ok", flush=True)
 """
 
 
