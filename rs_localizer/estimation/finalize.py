@@ -12,7 +12,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import camera_position
-from ..pose import RSModel
+from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
@@ -213,7 +213,7 @@ def image_alone(
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
     ref = refine_rs_pose(
-        RSModel.of(final),
+        RSModel(final.R, final.C, final.w, final.t),
         fr.X,
         fr.x,
         fr.r - fr.r0,
@@ -373,14 +373,15 @@ def solved_estimate(
             ``num_rows`` input rows).
         model: ``(R, C, w, t)`` (eq. 5); position: (3,) m, the camera centre in the world.
         inliers: (n,) bool over the valid rows; num_behind: valid rows behind the camera.
-        velocities: ``(angular, linear, angular_world, linear_world)`` rad/s and m/s
-            (:func:`~.result.physical_velocities`).
+        velocities: ``(angular, linear, ...)`` (3,) rad/s and m/s, camera frame (the first
+            two of :func:`~.result.physical_velocities`; the estimate's pose derives the
+            world-frame ones).
         covariances: ``(12x12, pose 6x6, twist 6x6)`` in ROS order, or None.
         flat: the inliers' planarity; condition: the information matrix's condition number.
         fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...).
     """
     R, C, w, t = model
-    om, vc, om_w, vc_w = velocities
+    om, vc = velocities[0], velocities[1]
     cov = pose_cov = twist_cov = None
     if covariances is not None:
         cov, pose_cov, twist_cov = covariances
@@ -392,16 +393,8 @@ def solved_estimate(
         success=True,
         failure=None,
         solver=solver,
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=position,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=om_w,
-        linear_velocity_world=vc_w,
+        model=RSModel(R, C, w, t),
+        pose=RSPose(R.T, position, om, vc),
         inliers=mask,
         num_valid=len(fr.x),
         num_dropped=fr.num_rows - len(fr.x) + num_behind,

@@ -307,7 +307,7 @@ class RSTracker:
         hold, solve the frame cold. Returns (estimate, ``tracked`` or ``relocalized``, the
         options used, the points the prediction explained)."""
         to = self.tracker_options
-        R, C, w, t = model_from_state(predicted, camera)
+        model = model_from_state(predicted, camera)
         n = len(points2d_px)
         ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
         need = max(self.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n))
@@ -330,7 +330,7 @@ class RSTracker:
             self.solver,
             opts,
             scores,
-            initial_model=InitialModel(R, C, w, t, gate, need),
+            initial_model=InitialModel(model, gate, need),
             gyro=gyro,
         )
         explained = est.initial_explained
