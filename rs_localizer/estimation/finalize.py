@@ -99,8 +99,9 @@ class FinalModel:
     """The refined model of one frame, before the last checks.
 
     Attributes:
-        R (3, 3), C, w, t (3,): the model (world -> camera at the reference row; velocities
-            per unit r). inliers: (N,) over the frame's points.
+        model: the :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3), ``C``
+            (3,) world -> camera at the reference row, ``w``, ``t`` (3,) velocities per unit r.
+        inliers: (N,) over the frame's points.
         rmse_px: RMS reprojection error of the inliers (px).
         covariance: (12, 12) over (delta, C, w, t), or None (no refinement, or not finite).
         information: (12, 12) the data's information matrix, or None.
@@ -108,10 +109,7 @@ class FinalModel:
         prior_used: the refinement was maximum a posteriori.
     """
 
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray
-    t: np.ndarray
+    model: RSModel
     inliers: np.ndarray
     rmse_px: float
     covariance: np.ndarray | None = None
@@ -213,7 +211,7 @@ def image_alone(
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
     ref = refine_rs_pose(
-        RSModel(final.R, final.C, final.w, final.t),
+        final.model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
@@ -256,16 +254,16 @@ def refine_final_model(
     if not opts.refine.enabled:
         e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
         rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
-        return FinalModel(R, C, w, t, inliers, rmse, prior_used=fr.prior is not None)
+        return FinalModel(RSModel(R, C, w, t), inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling
     want_sens = bool(opts.refine.acceleration_sensitivity and rolling and fr.spr > 0)
     ref, prior_used = final_refinement(fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens)
-    final = FinalModel(R, C, w, t, inliers, np.nan, prior_used=prior_used)
+    final = FinalModel(RSModel(R, C, w, t), inliers, np.nan, prior_used=prior_used)
     if finite_model(ref.R, ref.C, ref.w, ref.t):
-        final.R, final.C, final.w, final.t = ref.R, ref.C, ref.w, ref.t
+        final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
         final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
         final.information = ref.data_information
-    errors = exact_errors(final.R, final.C, final.w, final.t, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0)
     inl_ref, n_ref, rms = final_inliers(errors, th)
     if n_ref < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
@@ -280,10 +278,7 @@ def refine_final_model(
         final.covariance = correlated_noise_covariance(
             final.covariance,
             ref.sigma,
-            final.R,
-            final.C,
-            final.w,
-            final.t,
+            *final.model,
             fr.X[inl],
             fr.x[inl],
             tau[inl],
@@ -300,10 +295,7 @@ def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> 
     (posterior) H, with ``J^T W D`` from its last Jacobian."""
     cov = final.covariance
     return acceleration_sensitivity(
-        final.R,
-        final.C,
-        final.w,
-        final.t,
+        *final.model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
@@ -447,7 +439,7 @@ def final_estimate(
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
-    R, C, w, t, inl = final.R, final.C, final.w, final.t, final.inliers
+    (R, C, w, t), inl = final.model, final.inliers
     bounds = fr.motion_bounds
     w2max, v2max = (
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
