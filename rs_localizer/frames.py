@@ -97,27 +97,42 @@ class Extrinsic:
 
 @dataclass(frozen=True)
 class BaseState:
-    """Pose, twist and covariances of the base frame (same attribute names as the estimator's
-    camera quantities, so the message conversions take either).
+    """Pose, twist and covariances of the base frame (the estimator's camera quantities, for
+    the base: the message conversions take either).
 
     Attributes:
-        orientation: (3, 3) base -> map rotation ``R_mb``. position: (3,) base origin in the map
-            (m). angular_velocity, linear_velocity: (3,) the base's rigid-body velocity in the
-            base frame (rad/s, m/s). pose_covariance: (6, 6) or None, ROS order, map frame
-            (rotation about map axes). twist_covariance: (6, 6) or None, ROS order, base frame.
+        pose: the base's :class:`~rs_localizer.pose.RSPose`: ``orientation`` (3, 3) base -> map
+            rotation ``R_mb``, ``position`` (3,) base origin in the map (m),
+            ``angular_velocity``, ``linear_velocity`` (3,) the base's rigid-body velocity in
+            the base frame (rad/s, m/s), ``stamp_ns`` the camera pose's. Read-only properties
+            of the same names give them here.
+        pose_covariance: (6, 6) or None, ROS order, map frame (rotation about map axes).
+        twist_covariance: (6, 6) or None, ROS order, base frame.
     """
 
-    orientation: np.ndarray
-    position: np.ndarray
-    angular_velocity: np.ndarray
-    linear_velocity: np.ndarray
+    pose: RSPose
     pose_covariance: np.ndarray | None = None
     twist_covariance: np.ndarray | None = None
 
     @property
-    def pose(self) -> RSPose:
-        """The base's pose and twist (:class:`~rs_localizer.pose.RSPose`)."""
-        return RSPose.of(self)
+    def orientation(self) -> np.ndarray:
+        """(3, 3) base -> map rotation (``pose.orientation``)."""
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the base origin in the map (``pose.position``)."""
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s, base frame (``pose.angular_velocity``)."""
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(3,) m/s, the base origin's velocity in the base frame (``pose.linear_velocity``)."""
+        return self.pose.linear_velocity
 
 
 def base_pose(orientation, position, extrinsic: Extrinsic):
@@ -194,19 +209,18 @@ def base_twist_covariance(cov, extrinsic: Extrinsic):
 
 
 def camera_to_base(camera, extrinsic: Extrinsic) -> BaseState:
-    """All of it at once: ``camera`` is anything with the estimator's attributes
-    ``orientation``, ``position``, ``angular_velocity``, ``linear_velocity``,
-    ``pose_covariance``, ``twist_covariance`` (e.g. an :class:`~rs_localizer.RSPoseEstimate`,
-    see the module docstring for frames and units)."""
-    R_mb, p_b = base_pose(camera.orientation, camera.position, extrinsic)
-    om_b, v_b = base_twist(camera.angular_velocity, camera.linear_velocity, extrinsic)
+    """All of it at once: ``camera`` has the camera's ``pose`` (an
+    :class:`~rs_localizer.pose.RSPose`) and, optionally, its (6, 6) ``pose_covariance`` and
+    ``twist_covariance`` (e.g. an :class:`~rs_localizer.RSPoseEstimate` or a
+    :class:`~rs_localizer.tracking.FusedPose`; see the module docstring for frames and units).
+    The base's pose keeps the camera pose's ``stamp_ns``."""
+    cam = camera.pose
+    R_mb, p_b = base_pose(cam.orientation, cam.position, extrinsic)
+    om_b, v_b = base_twist(cam.angular_velocity, cam.linear_velocity, extrinsic)
     return BaseState(
-        orientation=R_mb,
-        position=p_b,
-        angular_velocity=om_b,
-        linear_velocity=v_b,
+        pose=RSPose(R_mb, p_b, om_b, v_b, cam.stamp_ns),
         pose_covariance=base_pose_covariance(
-            getattr(camera, "pose_covariance", None), camera.orientation, extrinsic
+            getattr(camera, "pose_covariance", None), cam.orientation, extrinsic
         ),
         twist_covariance=base_twist_covariance(
             getattr(camera, "twist_covariance", None), extrinsic

@@ -18,13 +18,22 @@ Rolling Shutter Problem", ACCV 2018, eq. 4: a point seen at RS coordinate ``r`` 
 With ``s`` seconds per unit RS coordinate (``CameraModel.seconds_per_unit_r``), the camera's
 angular velocity is ``-w / s`` and its linear velocity ``(w x C - t) / s`` (camera frame); see
 :func:`rs_localizer.estimation.result.physical_velocities`, the compiled form the estimator
-uses.
+uses, and :meth:`RSPose.from_model` / :meth:`RSPose.model`, the two directions here.
+
+The library's types store these, not loose arrays: an estimate
+(:class:`~rs_localizer.estimation.result.RSPoseEstimate`) holds its ``model`` and its ``pose``,
+a fused state (:class:`~rs_localizer.estimation.fusion.FusedState`), a fused frame
+(:class:`~rs_localizer.tracking.sequence.FusedPose`) and a base state
+(:class:`~rs_localizer.frames.BaseState`) their ``pose``, and a predicted model
+(:class:`~rs_localizer.estimation.options.InitialModel`) its ``model``; their ``R``, ``C``,
+``w``, ``t``, ``orientation``, ``position``, ... are read-only views of these. The numba
+kernels take the model's bare arrays (an :class:`RSModel` unpacks as them).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -41,10 +50,10 @@ class RSModel(NamedTuple):
     t: np.ndarray
 
     @classmethod
-    def of(cls, obj: Any) -> RSModel:
-        """The model of anything with ``R``, ``C``, ``w``, ``t`` attributes (an
-        ``RSPoseEstimate``, an ``InitialModel``, an ``RSSolution``)."""
-        return cls(obj.R, obj.C, obj.w, obj.t)
+    def identity(cls) -> RSModel:
+        """The model of a camera at the world origin, axes aligned, not moving: ``R`` the
+        (3, 3) identity, ``C``, ``w``, ``t`` (3,) zeros (new arrays on each call)."""
+        return cls(np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
 
 def _zeros3() -> np.ndarray:
@@ -69,15 +78,27 @@ class RSPose:
     stamp_ns: int | None = None
 
     @classmethod
-    def of(cls, obj: Any, stamp_ns: int | None = None) -> RSPose:
-        """The pose of anything with ``orientation``, ``position``, ``angular_velocity`` and
-        ``linear_velocity`` attributes (an ``RSPoseEstimate``, a ``FusedState``, a
-        ``BaseState``); ``stamp_ns`` or the object's own ``stamp_ns`` if it has one."""
-        if stamp_ns is None:
-            stamp_ns = getattr(obj, "stamp_ns", None)
-        return cls(
-            obj.orientation, obj.position, obj.angular_velocity, obj.linear_velocity, stamp_ns
+    def _trusted(
+        cls,
+        orientation: np.ndarray,
+        position: np.ndarray,
+        angular_velocity: np.ndarray,
+        linear_velocity: np.ndarray,
+        stamp_ns: int | None = None,
+    ) -> RSPose:
+        """An RSPose of these arrays (as the constructor: no copies, no checks), built without
+        the frozen dataclass' field-by-field ``object.__setattr__`` (the twist filter's hot
+        path: it hands out a state per frame and per prediction). The arrays must not be
+        changed afterwards."""
+        pose = object.__new__(cls)
+        pose.__dict__.update(
+            orientation=orientation,
+            position=position,
+            angular_velocity=angular_velocity,
+            linear_velocity=linear_velocity,
+            stamp_ns=stamp_ns,
         )
+        return pose
 
     @classmethod
     def from_model(
@@ -100,13 +121,20 @@ class RSPose:
         return cls(R.T, -R.T @ C, om, v, stamp_ns)
 
     def model(self, seconds_per_unit_r: float) -> RSModel:
-        """The solver's model of this pose (the inverse of :meth:`from_model`; a global
-        shutter, ``seconds_per_unit_r`` 0, gives zero ``w`` and ``t``)."""
+        """The solver's model of this pose (the inverse of :meth:`from_model`): ``R = O^T``,
+        ``C = -R p``, ``w = -omega s``, ``t = w x C - v s`` with ``s = seconds_per_unit_r``
+        (s per unit RS coordinate); a global shutter (``s <= 0``) gives zero ``w`` and ``t``.
+        The tracker's prediction of each frame goes through here."""
         s = float(seconds_per_unit_r)
         R = np.asarray(self.orientation, dtype=float).T
         C = -R @ np.asarray(self.position, dtype=float)
-        w = -s * np.asarray(self.angular_velocity, dtype=float)
-        t = np.cross(w, C) - s * np.asarray(self.linear_velocity, dtype=float)
+        if s <= 0:
+            return RSModel(R, C, np.zeros(3), np.zeros(3))
+        w = -np.asarray(self.angular_velocity, dtype=float) * s
+        wxC = np.array(
+            [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
+        )  # (np.cross costs ~10x more at this size)
+        t = wxC - np.asarray(self.linear_velocity, dtype=float) * s
         return RSModel(R, C, w, t)
 
     @property
@@ -119,8 +147,18 @@ class RSPose:
         """(3,) m/s, the linear velocity in world axes."""
         return np.asarray(self.orientation) @ np.asarray(self.linear_velocity)
 
-    def with_twist(self, angular_velocity: np.ndarray, linear_velocity: np.ndarray) -> RSPose:
-        """The same pose with another twist (e.g. a fused one)."""
+    def with_twist(
+        self,
+        angular_velocity: np.ndarray,
+        linear_velocity: np.ndarray,
+        stamp_ns: int | None = None,
+    ) -> RSPose:
+        """The same pose with another twist (e.g. a fused one: (3,) rad/s and m/s, camera
+        frame), at ``stamp_ns`` (ns; None: this pose's)."""
         return RSPose(
-            self.orientation, self.position, angular_velocity, linear_velocity, self.stamp_ns
+            self.orientation,
+            self.position,
+            angular_velocity,
+            linear_velocity,
+            self.stamp_ns if stamp_ns is None else stamp_ns,
         )

@@ -15,6 +15,7 @@ from rs_localizer.frames import (
     base_twist_covariance,
     camera_to_base,
 )
+from rs_localizer.pose import RSPose
 from rs_localizer.sim.trajectory import Trajectory
 
 
@@ -34,8 +35,7 @@ def _body_twist_fd(T_of_t, t, h=1e-5):
 
 class _Cam:
     def __init__(self, R, p, om, v, pc=None, tc=None):
-        self.orientation, self.position = R, p
-        self.angular_velocity, self.linear_velocity = om, v
+        self.pose = RSPose(R, p, om, v)
         self.pose_covariance, self.twist_covariance = pc, tc
 
 
@@ -176,14 +176,9 @@ def test_identity_extrinsic_changes_nothing():
     pc, tc = _random_cov(rng, 0.1), _random_cov(rng, 0.1)
     cam = _Cam(R, rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), pc, tc)
     out = camera_to_base(cam, ext)
-    for a in (
-        "orientation",
-        "position",
-        "angular_velocity",
-        "linear_velocity",
-        "pose_covariance",
-        "twist_covariance",
-    ):
+    for a in ("orientation", "position", "angular_velocity", "linear_velocity"):
+        np.testing.assert_allclose(getattr(out, a), getattr(cam.pose, a), atol=1e-14)
+    for a in ("pose_covariance", "twist_covariance"):
         np.testing.assert_allclose(getattr(out, a), getattr(cam, a), atol=1e-14)
 
 

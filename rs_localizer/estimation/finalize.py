@@ -12,7 +12,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import camera_position
-from ..pose import RSModel
+from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
@@ -99,8 +99,9 @@ class FinalModel:
     """The refined model of one frame, before the last checks.
 
     Attributes:
-        R (3, 3), C, w, t (3,): the model (world -> camera at the reference row; velocities
-            per unit r). inliers: (N,) over the frame's points.
+        model: the :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3), ``C``
+            (3,) world -> camera at the reference row, ``w``, ``t`` (3,) velocities per unit r.
+        inliers: (N,) over the frame's points.
         rmse_px: RMS reprojection error of the inliers (px).
         covariance: (12, 12) over (delta, C, w, t), or None (no refinement, or not finite).
         information: (12, 12) the data's information matrix, or None.
@@ -108,10 +109,7 @@ class FinalModel:
         prior_used: the refinement was maximum a posteriori.
     """
 
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray
-    t: np.ndarray
+    model: RSModel
     inliers: np.ndarray
     rmse_px: float
     covariance: np.ndarray | None = None
@@ -213,7 +211,7 @@ def image_alone(
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
     ref = refine_rs_pose(
-        RSModel.of(final),
+        final.model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
@@ -256,16 +254,16 @@ def refine_final_model(
     if not opts.refine.enabled:
         e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
         rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
-        return FinalModel(R, C, w, t, inliers, rmse, prior_used=fr.prior is not None)
+        return FinalModel(RSModel(R, C, w, t), inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling
     want_sens = bool(opts.refine.acceleration_sensitivity and rolling and fr.spr > 0)
     ref, prior_used = final_refinement(fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens)
-    final = FinalModel(R, C, w, t, inliers, np.nan, prior_used=prior_used)
+    final = FinalModel(RSModel(R, C, w, t), inliers, np.nan, prior_used=prior_used)
     if finite_model(ref.R, ref.C, ref.w, ref.t):
-        final.R, final.C, final.w, final.t = ref.R, ref.C, ref.w, ref.t
+        final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
         final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
         final.information = ref.data_information
-    errors = exact_errors(final.R, final.C, final.w, final.t, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0)
     inl_ref, n_ref, rms = final_inliers(errors, th)
     if n_ref < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
@@ -280,10 +278,7 @@ def refine_final_model(
         final.covariance = correlated_noise_covariance(
             final.covariance,
             ref.sigma,
-            final.R,
-            final.C,
-            final.w,
-            final.t,
+            *final.model,
             fr.X[inl],
             fr.x[inl],
             tau[inl],
@@ -300,10 +295,7 @@ def _sensitivity(fr: Frame, final: FinalModel, ref: RefineResult, th: float) -> 
     (posterior) H, with ``J^T W D`` from its last Jacobian."""
     cov = final.covariance
     return acceleration_sensitivity(
-        final.R,
-        final.C,
-        final.w,
-        final.t,
+        *final.model,
         fr.X,
         fr.x,
         fr.r - fr.r0,
@@ -373,14 +365,15 @@ def solved_estimate(
             ``num_rows`` input rows).
         model: ``(R, C, w, t)`` (eq. 5); position: (3,) m, the camera centre in the world.
         inliers: (n,) bool over the valid rows; num_behind: valid rows behind the camera.
-        velocities: ``(angular, linear, angular_world, linear_world)`` rad/s and m/s
-            (:func:`~.result.physical_velocities`).
+        velocities: ``(angular, linear, ...)`` (3,) rad/s and m/s, camera frame (the first
+            two of :func:`~.result.physical_velocities`; the estimate's pose derives the
+            world-frame ones).
         covariances: ``(12x12, pose 6x6, twist 6x6)`` in ROS order, or None.
         flat: the inliers' planarity; condition: the information matrix's condition number.
         fields: the other :class:`RSPoseEstimate` fields (timings, rmse_px, ...).
     """
     R, C, w, t = model
-    om, vc, om_w, vc_w = velocities
+    om, vc = velocities[0], velocities[1]
     cov = pose_cov = twist_cov = None
     if covariances is not None:
         cov, pose_cov, twist_cov = covariances
@@ -392,16 +385,8 @@ def solved_estimate(
         success=True,
         failure=None,
         solver=solver,
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=position,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=om_w,
-        linear_velocity_world=vc_w,
+        model=RSModel(R, C, w, t),
+        pose=RSPose(R.T, position, om, vc),
         inliers=mask,
         num_valid=len(fr.x),
         num_dropped=fr.num_rows - len(fr.x) + num_behind,
@@ -454,7 +439,7 @@ def final_estimate(
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
     """
-    R, C, w, t, inl = final.R, final.C, final.w, final.t, final.inliers
+    (R, C, w, t), inl = final.model, final.inliers
     bounds = fr.motion_bounds
     w2max, v2max = (
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)

@@ -134,10 +134,12 @@ class FusedState:
     :class:`~rs_localizer.estimation.estimate.RSPoseEstimate`.
 
     Attributes:
-        stamp_ns: the frame's stamp (ns, as fed to the filter).
-        orientation (3, 3), position (3,): camera -> world, camera centre (m).
-        angular_velocity, linear_velocity (3,): camera frame (rad/s, m/s).
-        linear_velocity_world (3,): world frame (m/s).
+        pose: the fused pose and twist, a :class:`~rs_localizer.pose.RSPose` at the frame's
+            stamp (``pose.stamp_ns``, ns, as fed to the filter): ``orientation`` (3, 3)
+            camera -> world, ``position`` (3,) camera centre (m), ``angular_velocity``,
+            ``linear_velocity`` (3,) camera frame (rad/s, m/s). Read-only properties of the
+            same names (and ``stamp_ns``, ``linear_velocity_world`` (3,) m/s, world frame)
+            give them here.
         angular_acceleration (3,, camera frame, rad/s^2), linear_acceleration (3,, world,
             m/s^2): zero for the velocity model.
         covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
@@ -151,12 +153,7 @@ class FusedState:
         nis: normalized innovation squared of the frame's measurement (NaN if none).
     """
 
-    stamp_ns: int
-    orientation: np.ndarray
-    position: np.ndarray
-    angular_velocity: np.ndarray
-    linear_velocity: np.ndarray
-    linear_velocity_world: np.ndarray
+    pose: RSPose
     angular_acceleration: np.ndarray
     linear_acceleration: np.ndarray
     covariance: np.ndarray = field(repr=False)
@@ -166,16 +163,43 @@ class FusedState:
     nis: float = float("nan")
 
     @property
-    def pose(self) -> RSPose:
-        """The fused pose and twist at ``stamp_ns`` (:class:`~rs_localizer.pose.RSPose`)."""
-        return RSPose.of(self)
+    def stamp_ns(self) -> int:
+        """The frame's stamp (ns, as fed to the filter; ``pose.stamp_ns``)."""
+        return self.pose.stamp_ns
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """(3, 3) camera -> world rotation (``pose.orientation``)."""
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera centre in the world (``pose.position``)."""
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s, camera frame (``pose.angular_velocity``)."""
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(3,) m/s, camera frame (``pose.linear_velocity``)."""
+        return self.pose.linear_velocity
+
+    @property
+    def linear_velocity_world(self) -> np.ndarray:
+        """(3,) m/s, world frame (``pose.linear_velocity_world``)."""
+        return self.pose.linear_velocity_world
 
     @property
     def pose_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame."""
         return self.covariance[_ROS_POSE]
 
     @property
     def twist_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera frame."""
         return self.covariance[_ROS_TWIST]
 
 
@@ -747,12 +771,13 @@ def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=fl
     frozen dataclass' ``__init__`` goes through ``object.__setattr__`` field by field."""
     state = object.__new__(FusedState)
     state.__dict__.update(
-        stamp_ns=stamp,
-        orientation=x[ROW_O : ROW_O + 9].reshape(3, 3),
-        position=x[ROW_P : ROW_P + 3],
-        angular_velocity=x[ROW_OMEGA : ROW_OMEGA + 3],
-        linear_velocity=x[ROW_V_CAM : ROW_V_CAM + 3],
-        linear_velocity_world=x[ROW_V : ROW_V + 3],
+        pose=RSPose._trusted(
+            x[ROW_O : ROW_O + 9].reshape(3, 3),
+            x[ROW_P : ROW_P + 3],
+            x[ROW_OMEGA : ROW_OMEGA + 3],
+            x[ROW_V_CAM : ROW_V_CAM + 3],
+            stamp,
+        ),
         angular_acceleration=x[ROW_ALPHA : ROW_ALPHA + 3],
         linear_acceleration=x[ROW_A : ROW_A + 3],
         covariance=cov,

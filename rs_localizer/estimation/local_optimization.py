@@ -100,10 +100,7 @@ def seed_from_initial_model(
         pull onto the explained points if it had fewer than ``min_explained`` there), else
         None.
     """
-    R, C, w, t = (
-        np.ascontiguousarray(a, dtype=np.float64).copy()
-        for a in (initial.R, initial.C, initial.w, initial.t)
-    )
+    R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in initial.model)
     if not solver_info(solver).rolling:
         w, t = np.zeros(3), np.zeros(3)
     if not finite_model(R, C, w, t):

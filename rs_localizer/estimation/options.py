@@ -9,7 +9,7 @@ frozen (hashable, safe to share between threads and frames).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -215,20 +215,39 @@ class InitialModel:
     without it.
 
     Attributes:
-        R (3, 3), C (3,): world -> camera at the reference row (``X_cam = R X + C``).
-        w, t (3,): model velocities per unit RS coordinate (as ``RSPoseEstimate.w``, ``t``).
+        model: the predicted :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` (a bare
+            4-tuple is converted): ``R`` (3, 3), ``C`` (3,) world -> camera at the reference
+            row (``X_cam = R X + C``), ``w``, ``t`` (3,) model velocities per unit RS
+            coordinate (rad, m per normalized unit; as ``RSPoseEstimate.w``, ``t``; zeros: no
+            motion during the readout). Read-only properties ``R``, ``C``, ``w``, ``t``.
         gate_px: distance (px) within which a point counts as explained.
         min_explained: fewest explained points to use the model.
     """
 
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    model: RSModel
     gate_px: float = 20.0
     min_explained: int = 0
 
+    def __post_init__(self):
+        if not isinstance(self.model, RSModel):
+            object.__setattr__(self, "model", RSModel(*self.model))
+
     @property
-    def model(self) -> RSModel:
-        """The predicted model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`)."""
-        return RSModel(self.R, self.C, self.w, self.t)
+    def R(self) -> np.ndarray:
+        """(3, 3) world -> camera rotation at the reference row (``model.R``)."""
+        return self.model.R
+
+    @property
+    def C(self) -> np.ndarray:
+        """(3,) m, ``X_cam = R X + C`` at the reference row (``model.C``)."""
+        return self.model.C
+
+    @property
+    def w(self) -> np.ndarray:
+        """(3,) rad per unit RS coordinate (``model.w``)."""
+        return self.model.w
+
+    @property
+    def t(self) -> np.ndarray:
+        """(3,) m per unit RS coordinate (``model.t``)."""
+        return self.model.t

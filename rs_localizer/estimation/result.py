@@ -93,13 +93,16 @@ class RSPoseEstimate:
             and most other points lie beyond it, away from the camera: the plane is seen
             from behind, as mirrored or reflected correspondences make it).
         solver: solver name used.
-        R, C: (3, 3), (3,) world -> camera at the reference row: ``X_cam = R X + C``.
-        w, t: (3,) model velocities per unit RS coordinate (rad, m per normalized unit).
-        orientation, position: (3, 3), (3,) camera -> world rotation (``R^T``) and camera
-            centre in the world (m).
-        angular_velocity, linear_velocity: (3,) camera's own velocity in its optical frame
-            (rad/s, m/s).
-        angular_velocity_world, linear_velocity_world: (3,) the same in the world frame.
+        model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
+            ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
+            (3,) model velocities per unit RS coordinate (rad, m per normalized unit); the
+            identity and zeros on failure. Read-only properties ``R``, ``C``, ``w``, ``t``.
+        pose: the same as a :class:`~rs_localizer.pose.RSPose` (no stamp): ``orientation``
+            (3, 3) camera -> world (``R^T``), ``position`` (3,) camera centre in the world (m),
+            ``angular_velocity``, ``linear_velocity`` (3,) the camera's own velocity in its
+            optical frame (rad/s, m/s), with ``angular_velocity_world`` and
+            ``linear_velocity_world`` (3,) in the world frame; read-only properties of the
+            same names here.
         inliers: (N,) bool over the input rows (invalid rows are False).
         num_valid: rows that passed validation (finite, undistortable, within
             ``max_point_norm``); num_behind: valid rows behind the camera at their capture
@@ -141,16 +144,8 @@ class RSPoseEstimate:
     success: bool
     failure: str | None = None
     solver: str = ""
-    R: np.ndarray = field(default_factory=lambda: np.eye(3))
-    C: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    w: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    t: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    orientation: np.ndarray = field(default_factory=lambda: np.eye(3))
-    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    angular_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    linear_velocity_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    model: RSModel = field(default_factory=RSModel.identity)
+    pose: RSPose = field(default_factory=RSPose)
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     num_valid: int = 0
     num_dropped: int = 0
@@ -177,16 +172,57 @@ class RSPoseEstimate:
         """Inliers of the final model (0 on failure)."""
         return int(np.count_nonzero(self.inliers))
 
+    # read-only views of ``model`` and ``pose`` (the names the callers and the message
+    # conversions use)
     @property
-    def pose(self) -> RSPose:
-        """The camera's pose and own twist (:class:`~rs_localizer.pose.RSPose`: orientation,
-        position, angular and linear velocity; no stamp)."""
-        return RSPose.of(self)
+    def R(self) -> np.ndarray:
+        """(3, 3) world -> camera rotation at the reference row (``model.R``)."""
+        return self.model.R
 
     @property
-    def model(self) -> RSModel:
-        """The solvers' model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`)."""
-        return RSModel(self.R, self.C, self.w, self.t)
+    def C(self) -> np.ndarray:
+        """(3,) m, ``X_cam = R X + C`` at the reference row (``model.C``)."""
+        return self.model.C
+
+    @property
+    def w(self) -> np.ndarray:
+        """(3,) rad per unit RS coordinate (``model.w``)."""
+        return self.model.w
+
+    @property
+    def t(self) -> np.ndarray:
+        """(3,) m per unit RS coordinate (``model.t``)."""
+        return self.model.t
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """(3, 3) camera -> world rotation (``pose.orientation``)."""
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera centre in the world (``pose.position``)."""
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s, camera optical frame (``pose.angular_velocity``)."""
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(3,) m/s, camera optical frame (``pose.linear_velocity``)."""
+        return self.pose.linear_velocity
+
+    @property
+    def angular_velocity_world(self) -> np.ndarray:
+        """(3,) rad/s, world frame (``pose.angular_velocity_world``)."""
+        return self.pose.angular_velocity_world
+
+    @property
+    def linear_velocity_world(self) -> np.ndarray:
+        """(3,) m/s, world frame (``pose.linear_velocity_world``)."""
+        return self.pose.linear_velocity_world
 
 
 def failed_estimate(

@@ -146,21 +146,11 @@ class TrackResult:
 
 def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     """The estimator's model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`) of a fused
-    state (inverse of
-    :func:`~rs_localizer.estimation.estimate.physical_velocities`): ``R = O^T``,
-    ``C = -R p``, ``w = -omega s``, ``t = w x C - v s`` with ``s`` the camera's seconds per
-    unit RS coordinate (w = t = 0 for a global shutter). Shapes (3, 3), (3,), (3,), (3,)."""
-    R = np.asarray(state.orientation, dtype=float).T
-    C = -R @ np.asarray(state.position, dtype=float)
-    s = camera.seconds_per_unit_r
-    if s <= 0:
-        return RSModel(R, C, np.zeros(3), np.zeros(3))
-    w = -np.asarray(state.angular_velocity, dtype=float) * s
-    wxC = np.array(
-        [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
-    )  # (np.cross costs ~10x more at this size)
-    t = wxC - np.asarray(state.linear_velocity, dtype=float) * s
-    return RSModel(R, C, w, t)
+    state: its pose's :meth:`~rs_localizer.pose.RSPose.model` with the camera's seconds per
+    unit RS coordinate (the inverse of
+    :func:`~rs_localizer.estimation.estimate.physical_velocities`; w = t = 0 for a global
+    shutter). Shapes (3, 3), (3,), (3,), (3,)."""
+    return state.pose.model(camera.seconds_per_unit_r)
 
 
 def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> MotionPrior:
@@ -317,7 +307,7 @@ class RSTracker:
         hold, solve the frame cold. Returns (estimate, ``tracked`` or ``relocalized``, the
         options used, the points the prediction explained)."""
         to = self.tracker_options
-        R, C, w, t = model_from_state(predicted, camera)
+        model = model_from_state(predicted, camera)
         n = len(points2d_px)
         ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
         need = max(self.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n))
@@ -340,7 +330,7 @@ class RSTracker:
             self.solver,
             opts,
             scores,
-            initial_model=InitialModel(R, C, w, t, gate, need),
+            initial_model=InitialModel(model, gate, need),
             gyro=gyro,
         )
         explained = est.initial_explained

@@ -157,42 +157,59 @@ class SequenceFrame:
 
 @dataclass(frozen=True)
 class FusedPose:
-    """A frame's pose as estimated (orientation (3, 3) camera -> world, position (3,) m and
-    their 6x6 ``pose_covariance``) with its fused twist (``angular_velocity`` rad/s,
-    ``linear_velocity`` m/s, camera frame, and their 6x6 ``twist_covariance``): what the
-    node's twist and odom carry. ``stamp_ns``: the frame's reference time; ``tag``: the
-    frame's :attr:`SequenceFrame.tag`; ``state``: the tracker's fused state itself (the
-    smoothed pose too, and the 12x12 covariance of pose and twist)."""
+    """A frame's pose as estimated with its fused twist: what the node's twist and odom carry.
 
-    stamp_ns: int
-    orientation: np.ndarray
-    position: np.ndarray
+    Attributes:
+        pose: a :class:`~rs_localizer.pose.RSPose` at the frame's reference time
+            (``pose.stamp_ns``, ns): ``orientation`` (3, 3) camera -> world and ``position``
+            (3,) m as estimated, ``angular_velocity`` (3,) rad/s and ``linear_velocity`` (3,)
+            m/s fused (camera frame). Read-only properties of the same names (and
+            ``stamp_ns``) give them here.
+        pose_covariance: (6, 6) of the estimated pose (ROS order, world frame).
+        twist_covariance: (6, 6) of the fused twist (ROS order, camera frame).
+        tag: the frame's :attr:`SequenceFrame.tag`.
+        state: the tracker's fused state itself (the smoothed pose too, and the 12x12
+            covariance of pose and twist).
+    """
+
+    pose: RSPose
     pose_covariance: Any
-    angular_velocity: np.ndarray
-    linear_velocity: np.ndarray
     twist_covariance: Any
     tag: Any = None
     state: FusedState | None = None
 
     @property
-    def pose(self) -> RSPose:
-        """The frame's pose with its fused twist (:class:`~rs_localizer.pose.RSPose`)."""
-        return RSPose.of(self)
+    def stamp_ns(self) -> int:
+        """The frame's reference time (ns; ``pose.stamp_ns``)."""
+        return self.pose.stamp_ns
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """(3, 3) camera -> world rotation, as estimated (``pose.orientation``)."""
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera centre in the world, as estimated (``pose.position``)."""
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s, fused, camera frame (``pose.angular_velocity``)."""
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(3,) m/s, fused, camera frame (``pose.linear_velocity``)."""
+        return self.pose.linear_velocity
 
     @classmethod
     def of(cls, estimate: RSPoseEstimate, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose with the fused state's twist."""
-        return cls(
-            fused.stamp_ns,
-            estimate.orientation,
-            estimate.position,
-            estimate.pose_covariance,
-            fused.angular_velocity,
-            fused.linear_velocity,
-            fused.twist_covariance,
-            tag,
-            fused,
+        """The estimate's pose with the fused state's twist, at the fused state's stamp."""
+        pose = estimate.pose.with_twist(
+            fused.angular_velocity, fused.linear_velocity, fused.stamp_ns
         )
+        return cls(pose, estimate.pose_covariance, fused.twist_covariance, tag, fused)
 
 
 @dataclass

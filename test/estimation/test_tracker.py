@@ -20,6 +20,7 @@ from rs_localizer.estimation.tracker import (
     motion_prior_from_state,
 )
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.pose import RSModel
 from rs_localizer.sim.trajectory import SequenceConfig, Teleport, generate_sequence, make_trajectory
 
 PERIOD = 1 / 30
@@ -41,10 +42,7 @@ def test_initial_model_hook(hard_sequence):
     # from its inliers, pre-rotated by its rotation (no P3P) and lands on the cold pose
     R, C = cold.R, cold.C
     near = InitialModel(
-        rotvec_to_matrix([0.002, -0.001, 0.001]) @ R,
-        C + 0.01,
-        cold.w,
-        cold.t,
+        RSModel(rotvec_to_matrix([0.002, -0.001, 0.001]) @ R, C + 0.01, cold.w, cold.t),
         gate_px=20.0,
         min_explained=200,
     )
@@ -62,7 +60,9 @@ def test_initial_model_hook(hard_sequence):
     assert np.count_nonzero(warm.inliers != cold.inliers) <= 15  # of ~300, near the threshold
     # a wrong model explains nothing: the estimator runs exactly as without it
     far = InitialModel(
-        rotvec_to_matrix([0.0, 1.0, 0.0]) @ R, C + 3.0, gate_px=20.0, min_explained=50
+        RSModel(rotvec_to_matrix([0.0, 1.0, 0.0]) @ R, C + 3.0, np.zeros(3), np.zeros(3)),
+        gate_px=20.0,
+        min_explained=50,
     )
     other = estimate_rs_pose(f.uv, f.xyz, cam, options=opts, initial_model=far)
     assert not other.initial_used and other.initial_explained < 10

@@ -7,6 +7,7 @@ import numpy as np
 
 from rs_localizer.estimation.estimate import RSPoseEstimate, physical_velocities
 from rs_localizer.geometry import rotvec_to_matrix, rs_project_exact
+from rs_localizer.pose import RSModel, RSPose
 
 #: intrinsics (px) of the test camera, 640 x 480
 K = np.array([[500.0, 0, 320.0], [0, 520.0, 240.0], [0, 0, 1]])
@@ -45,20 +46,12 @@ def known_frame(cam, w=(0.02, -0.05, 0.01), t=(0.05, 0.0, 0.02), seed=0):
     out = np.array([3, 10, 17, 30])
     inl[out] = False
     uv[out] = truth[out] + [25.0, 0.0]
-    om, vc, omw, vw = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
+    om, vc, _, _ = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
     est = RSPoseEstimate(
         success=True,
         solver="r6p_1lin",
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        orientation=R.T,
-        position=-R.T @ C,
-        angular_velocity=om,
-        linear_velocity=vc,
-        angular_velocity_world=omw,
-        linear_velocity_world=vw,
+        model=RSModel(R, C, w, t),
+        pose=RSPose(R.T, -R.T @ C, om, vc),
         inliers=inl,
         rmse_px=0.42,
     )

@@ -13,6 +13,7 @@ from sensor_msgs.msg import CameraInfo
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import RSPoseEstimate
 from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.pose import RSPose
 from rs_localizer.ros import conversions as cv
 
 
@@ -69,7 +70,8 @@ def test_messages_of_interleaved_estimates_carry_their_own_orientation():
     ests = []
     for _ in range(12):
         est, _ = _estimate()
-        ests.append(dataclasses.replace(est, orientation=rotvec_to_matrix(rng.normal(0, 1, 3))))
+        pose = dataclasses.replace(est.pose, orientation=rotvec_to_matrix(rng.normal(0, 1, 3)))
+        ests.append(dataclasses.replace(est, pose=pose))
     for k in range(2, 12):
         for est, build in ((ests[k], cv.pose_stamped), (ests[k - 2], cv.pose_stamped)):
             R, _ = cv.pose_from_msg(build(est, 1, "map").pose)
@@ -212,10 +214,9 @@ def _estimate():
     return RSPoseEstimate(
         success=True,
         solver="r6p_1lin",
-        orientation=R,
-        position=np.array([1.0, 2.0, 3.0]),
-        angular_velocity=np.array([0.1, 0.2, 0.3]),
-        linear_velocity=np.array([-1.0, -2.0, -3.0]),
+        pose=RSPose(
+            R, np.array([1.0, 2.0, 3.0]), np.array([0.1, 0.2, 0.3]), np.array([-1.0, -2.0, -3.0])
+        ),
         pose_covariance=pc,
         twist_covariance=tc,
     ), R

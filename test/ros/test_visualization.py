@@ -93,7 +93,7 @@ def test_marker_array_against_the_pose():
     # global shutter (zero twist): the arrows are deleted, not drawn with zero length
     from dataclasses import replace
 
-    gs = replace(est, angular_velocity_world=np.zeros(3), linear_velocity_world=np.zeros(3))
+    gs = replace(est, pose=est.pose.with_twist(np.zeros(3), np.zeros(3)))
     m2 = {x.ns: x for x in marker_array(gs, X, cam, 0, "map").markers}
     assert m2["angular_velocity"].action == Marker.DELETE
     # the messages survive a bag round trip (rosbags typestore)

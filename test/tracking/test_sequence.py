@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from rs_localizer.correspondences import Correspondences, Frontend, TrackingFrontend
-from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions
+from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, RansacOptions
 from rs_localizer.estimation.result import physical_velocities
-from rs_localizer.estimation.tracker import RSTracker
+from rs_localizer.estimation.tracker import RSTracker, model_from_state
+from rs_localizer.frames import Extrinsic, camera_to_base
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSModel, RSPose
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
@@ -139,6 +140,46 @@ def test_estimate_pose_and_model_views(video):
     np.testing.assert_allclose(p.position, e.pose.position, atol=1e-9)
     np.testing.assert_allclose(p.angular_velocity, e.angular_velocity, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(p.linear_velocity, e.linear_velocity, rtol=1e-9, atol=1e-12)
+
+
+def test_estimates_and_states_store_their_pose_and_model(video):
+    """The estimate, the fused states and frames, a base state and an initial model hold an
+    RSPose / RSModel; their old attribute names are views of it."""
+    frames, cam = video
+    s = cam.seconds_per_unit_r
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS))
+    estimates, fused = {}, []
+    for f in frames[:4]:
+        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        estimates[out.stamp_ns] = e = out.estimate
+        assert isinstance(e.pose, RSPose) and isinstance(e.model, RSModel)
+        assert e.orientation is e.pose.orientation and e.position is e.pose.position
+        assert e.R is e.model.R and e.t is e.model.t and e.pose.stamp_ns is None
+        np.testing.assert_allclose(e.linear_velocity_world, e.orientation @ e.linear_velocity)
+        fused += out.fused
+    fused += seq.flush()
+    assert len(fused) == 4
+    ext = Extrinsic(np.eye(3), np.array([0.1, 0.0, 0.2]))
+    for x in fused:
+        e, st = estimates[x.stamp_ns], x.state
+        # the frame's own pose as estimated, with the fused twist, at the frame's time
+        assert x.pose.stamp_ns == st.pose.stamp_ns == st.stamp_ns == x.stamp_ns
+        assert x.orientation is e.pose.orientation and x.position is e.pose.position
+        assert x.angular_velocity is st.pose.angular_velocity
+        assert x.linear_velocity is st.linear_velocity
+        base = camera_to_base(x, ext)
+        assert base.pose.stamp_ns == x.stamp_ns and base.orientation is base.pose.orientation
+        # the tracker's prediction model is the state's pose as a model, and back
+        model = model_from_state(st, cam)
+        for a, b in zip(model, st.pose.model(s), strict=True):
+            np.testing.assert_array_equal(a, b)
+        back = RSPose.from_model(model, s)
+        np.testing.assert_allclose(back.position, st.position, atol=1e-12)
+        np.testing.assert_allclose(back.linear_velocity, st.linear_velocity, atol=1e-9)
+    init = InitialModel(tuple(estimates[fused[0].stamp_ns].model), gate_px=5.0)
+    assert isinstance(init.model, RSModel) and init.C is init.model.C
+    gs = fused[0].pose.model(0.0)  # a global shutter: exact zeros, no -0.0
+    assert not np.signbit(gs.w).any() and not gs.w.any() and not gs.t.any()
 
 
 def test_correspondences_type():
