@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rs_localizer.frontends.features import DESCRIPTOR_FORMATS, FeatureMap
 from rs_localizer.maps import load_marker_map, write_marker_map
+from rs_localizer.maps.features import DESCRIPTOR_FORMATS, FeatureMap
 
 
 def _square(side: float, origin=(0.0, 0.0, 2.0)) -> np.ndarray:

@@ -25,7 +25,8 @@ def test_marker_map_loaded_once_and_frontends_are_separate(tmp_path):
 
 
 def test_feature_map_shared_by_two_frontends(tmp_path):
-    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
+    from rs_localizer.frontends.features import FeatureFrontend
+    from rs_localizer.maps.features import FeatureMap
 
     rng = np.random.default_rng(0)
     fm = FeatureMap(
