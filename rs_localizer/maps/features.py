@@ -7,10 +7,14 @@ end, stored as a compressed ``.npz`` (arrays ``points`` (M, 3) map frame in metr
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .files import file_mode
 
 __all__ = ["DESCRIPTOR_FORMATS", "FeatureMap", "check_feature_map"]
 
@@ -70,18 +74,36 @@ class FeatureMap:
         )
 
     def save(self, path: str | Path) -> Path:
-        """Write the ``.npz`` (numpy appends ``.npz`` to a name without it; the path written is
-        returned). Optional fields are stored only when set (older readers ignore them)."""
+        """Write the compressed ``.npz`` whole or not at all: a temporary file in the same
+        directory, renamed over ``path`` (an existing map is replaced), with the user's umask
+        mode (:func:`~rs_localizer.maps.files.file_mode`). ``.npz`` is appended to a name
+        without it. Optional fields are stored only when set (older readers ignore them).
+
+        Returns:
+            The path written.
+        Raises:
+            OSError: the directory does not exist or cannot be written (nothing is left
+                behind).
+        """
         path = Path(path)
-        np.savez_compressed(
-            path,
-            points=self.points,
-            descriptors=self.descriptors,
-            landmark_ids=self.landmark_ids,
-            kind=np.array(self.kind),
-            **self._optional_arrays(),
-        )
-        return path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+        out = path if path.suffix == ".npz" else path.with_suffix(path.suffix + ".npz")
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+        try:
+            os.fchmod(fd, file_mode())  # (mkstemp's 0600 -> the umask's: readable by others)
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(
+                    fh,
+                    points=self.points,
+                    descriptors=self.descriptors,
+                    landmark_ids=self.landmark_ids,
+                    kind=np.array(self.kind),
+                    **self._optional_arrays(),
+                )
+            os.replace(tmp, out)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return out
 
     @classmethod
     def load(cls, path: str | Path) -> FeatureMap:
