@@ -144,11 +144,10 @@ class ArucoFrontend:
         """From a marker map YAML (:func:`rs_localizer.maps.markers.load_marker_map`) or a scene
         YAML / built-in scene name; the map's stated std, when it has them, score the
         correspondences (``marker_std``)."""
-        from ..maps.markers import load_marker_map, load_marker_std
+        from .registry import FRONTEND_KINDS
 
-        dictionary, corners = load_marker_map(Path(str(path)))
-        kw.setdefault("marker_std", load_marker_std(path) or None)
-        return cls(corners, dictionary, **kw)
+        kind = FRONTEND_KINDS["aruco"]  # (the same front end as make_frontend("aruco", path))
+        return kind.make(kind.load(path), **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
