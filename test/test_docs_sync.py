@@ -174,7 +174,7 @@ def test_every_diagnostics_key_is_documented(ros_context, tmp_path):
     ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` stand for their families)."""
     import numpy as np
 
-    from rs_localizer.frontends.features import FeatureMap
+    from rs_localizer.maps.features import FeatureMap
 
     rng = np.random.default_rng(0)
     fmap = FeatureMap(

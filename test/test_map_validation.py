@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rs_localizer.frontends.features import DESCRIPTOR_FORMATS, FeatureMap
 from rs_localizer.maps import load_marker_map, write_marker_map
+from rs_localizer.maps.features import DESCRIPTOR_FORMATS, FeatureMap
 
 
 def _square(side: float, origin=(0.0, 0.0, 2.0)) -> np.ndarray:
@@ -203,3 +203,37 @@ def test_a_missing_map_file_is_named_a_map_file(tmp_path):
     missing = tmp_path / "nosuch.yaml"
     with pytest.raises(FileNotFoundError, match=r"map file .*nosuch\.yaml.* not found"):
         scene_path(missing)
+
+
+def test_the_marker_map_writer_keeps_map_markers_fields(tmp_path):
+    """One writer for every marker map: the anchor, the frame and per-marker fields written
+    after the corners (map-markers' map) read back through the one reader and the std reader."""
+    from rs_localizer.maps.markers import load_marker_std
+
+    frame = {"kind": "anchor", "anchors": [7]}
+    p = write_marker_map(
+        tmp_path / "m.yaml",
+        "DICT_4X4_50",
+        {8: _square(0.1, (0.3, 0.0, 2.0)), 7: _square(0.1)},
+        anchor=7,
+        frame=frame,
+        marker_fields={7: {"std_position": [0.001, 0.002, 0.0], "observations": 3}},
+    )
+    data = yaml.safe_load(p.read_text())
+    assert list(data) == ["dictionary", "anchor", "frame", "markers"] and data["frame"] == frame
+    assert [m["id"] for m in data["markers"]] == [7, 8]
+    assert list(data["markers"][0]) == ["id", "corners", "std_position", "observations"]
+    assert sorted(load_marker_map(p)[1]) == [7, 8] and load_marker_std(p) == {7: 0.002}
+    with pytest.raises(FileExistsError):
+        write_marker_map(p, "DICT_4X4_50", {7: _square(0.1)}, overwrite=False)
+
+
+def test_feature_maps_are_written_whole_and_readable(tmp_path, umask_022):
+    rng = np.random.default_rng(1)
+    fm = FeatureMap(
+        rng.normal(size=(5, 3)), rng.integers(0, 256, (5, 32), np.uint8), np.arange(5), "orb"
+    )
+    p = fm.save(tmp_path / "map")
+    assert p == tmp_path / "map.npz" and stat.S_IMODE(p.stat().st_mode) == 0o644
+    np.testing.assert_array_equal(FeatureMap.load(p).descriptors, fm.descriptors)
+    assert not list(tmp_path.glob(".*.tmp"))

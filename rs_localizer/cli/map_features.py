@@ -4,13 +4,11 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 from pathlib import Path
 from typing import TextIO
 
-from ..maps import file_mode
 from . import args as A
 
 __all__ = ["register", "run"]
@@ -185,14 +183,6 @@ def run(args: argparse.Namespace, stream: TextIO | None = None) -> int:
                 "no metric scale: positions and velocities will be in the model's units, not "
                 "metres (use --scale S or --align-markers MARKERS.yaml)"
             )
-        fd, part = tempfile.mkstemp(prefix=f".{out.stem}.", suffix=".npz", dir=out.parent)
-        os.close(fd)
-        try:
-            fm.save(part)
-            os.chmod(part, file_mode())  # (mkstemp's 0600 -> the user's umask)
-            os.replace(part, out)
-        except BaseException:
-            Path(part).unlink(missing_ok=True)
-            raise
+        fm.save(out)  # (whole or not at all)
     print(f"wrote {out}: " + "; ".join(lines), file=stream or sys.stdout)
     return 0

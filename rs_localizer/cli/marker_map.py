@@ -30,10 +30,11 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Write the map; returns 0. Raises CliError / ValueError for an unknown scene or an output
     that cannot be written."""
-    from ..sim.render.scene import load_scene, save_marker_map
+    from ..maps.markers import write_marker_map
+    from ..sim.render.scene import load_scene
 
     A.output_file(args.out, True, "marker map")
     scene = load_scene(args.scene)
-    out = save_marker_map(args.out, scene)
+    out = write_marker_map(args.out, scene.dictionary, scene.marker_corners(), scene=scene.name)
     print(f"wrote {out}: {len(scene.markers)} markers ({scene.dictionary}) of scene {scene.name}")
     return 0

@@ -47,7 +47,7 @@ from . import args as A
 
 if TYPE_CHECKING:  # (for the annotations only: imported when rendering)
     from ..correspondences import Frontend
-    from ..frontends.features import FeatureMap
+    from ..maps.features import FeatureMap
     from ..sim.render.scene import Scene
 
 __all__ = ["register", "render_bag", "run"]
@@ -64,16 +64,19 @@ def _make_frontend(
     if frontend is None or frontend == "none":
         return None, {"kind": "none"}
     if frontend == "aruco":
-        from ..sim.render.scene import save_marker_map
+        from ..maps.markers import write_marker_map
 
-        save_marker_map(bag_dir / "markers.yaml", scene)
+        write_marker_map(
+            bag_dir / "markers.yaml", scene.dictionary, scene.marker_corners(), scene=scene.name
+        )
         return ArucoFrontend.from_scene(scene), {
             "kind": "aruco",
             "map": "markers.yaml",
             "dictionary": scene.dictionary,
         }
     if frontend == "features":
-        from ..frontends.features import FeatureFrontend, FeatureMap
+        from ..frontends.features import FeatureFrontend
+        from ..maps.features import FeatureMap
         from ..sim.feature_map import build_feature_map
 
         if feature_map is None:

@@ -48,8 +48,9 @@ import cv2
 import numpy as np
 
 from ..estimation.estimate import estimate_rs_pose
-from ..frontends.features import FeatureFrontend, FeatureMap
+from ..frontends.features import FeatureFrontend
 from ..geometry import rotation_angle_deg
+from ..maps.features import FeatureMap
 from ..sim.feature_map import build_feature_map
 from ..sim.render.motion import base_rotation, make_motion
 from ..sim.render.renderer import NoiseModel, Renderer, camera_preset

@@ -13,34 +13,30 @@ import os
 from typing import Any
 
 from .aruco import ArucoFrontend, to_gray
-from .features import FeatureFrontend, FeatureMap, feature_map_from_views
+from .features import FeatureFrontend, feature_map_from_views
+from .registry import FRONTENDS, frontend_kind
 
 __all__ = [
     "FRONTENDS",
     "ArucoFrontend",
     "FeatureFrontend",
-    "FeatureMap",
     "feature_map_from_views",
     "make_frontend",
     "to_gray",
 ]
 
-FRONTENDS = ("aruco", "features", "board")
-
 
 def make_frontend(kind: str, map_path: str | os.PathLike, **kw: Any) -> Any:
-    """Front end by name: ``aruco`` (``map_path``: marker map YAML, scene YAML or built-in scene
-    name: :func:`rs_localizer.maps.load_marker_map`) or ``features`` (``map_path``: a feature map
-    ``.npz``, :meth:`FeatureMap.save`) or ``board`` (``map_path``: a board YAML,
-    :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag board). Raises
-    ValueError for an unknown kind or a bad map,
-    FileNotFoundError for a missing one."""
-    if kind == "aruco":
-        return ArucoFrontend.from_file(map_path, **kw)
-    if kind == "board":
-        from .boards import make_board_frontend
+    """Front end by name (:data:`~rs_localizer.frontends.registry.FRONTEND_KINDS`): ``aruco``
+    (``map_path``: marker map YAML, scene YAML or built-in scene name:
+    :func:`rs_localizer.maps.load_marker_map`; scored by the map's stated std when it has them)
+    or ``features`` (``map_path``: a feature map ``.npz``,
+    :meth:`rs_localizer.maps.features.FeatureMap.load`) or ``board`` (``map_path``: a board
+    YAML, :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag
+    board); ``kw`` go to the front end's constructor.
 
-        return make_board_frontend(map_path, **kw)
-    if kind == "features":
-        return FeatureFrontend.from_file(map_path, **kw)
-    raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")
+    Raises:
+        ValueError: an unknown kind or a bad map. FileNotFoundError: a missing map.
+    """
+    k = frontend_kind(kind)
+    return k.make(k.load(map_path), **kw)

@@ -18,7 +18,7 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences
 from . import cv_compat
 
-__all__ = ["ArucoFrontend", "marker_scores", "marker_std_from_file", "to_gray"]
+__all__ = ["ArucoFrontend", "marker_scores", "to_gray"]
 
 #: a marker whose stated position std is this (m) scores 0.5 (:func:`marker_scores`)
 SCORE_STD_M = 0.005
@@ -31,24 +31,6 @@ def marker_scores(std: np.ndarray) -> np.ndarray:
     (PROSAC-style ordering), so a frame's hypotheses come from its best-mapped markers."""
     s = np.asarray(std, dtype=float) / SCORE_STD_M
     return 1.0 / (1.0 + s * s)
-
-
-def marker_std_from_file(path: str | Path) -> dict:
-    """id -> the largest of a marker's ``std_position`` entries (m) in a marker map written by
-    ``map-markers``; {} for a map without them (older maps, scenes, a name that is not a
-    file)."""
-    import yaml
-
-    p = Path(str(path))
-    if not p.is_file():
-        return {}
-    data = yaml.safe_load(p.read_text())
-    out = {}
-    for m in (data or {}).get("markers", []) if isinstance(data, dict) else []:
-        std = m.get("std_position") if isinstance(m, dict) else None
-        if std is not None and np.all(np.isfinite(np.asarray(std, dtype=float))):
-            out[int(m["id"])] = float(np.max(std))
-    return out
 
 
 def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
@@ -110,7 +92,7 @@ class ArucoFrontend:
         window_margin_px: float = 16.0,
         full_frame_every: int = 10,
     ):
-        from ..maps import marker_dictionary
+        from ..maps.markers import marker_dictionary
 
         self.dictionary = dictionary
         self.marker_corners = {
@@ -159,14 +141,13 @@ class ArucoFrontend:
 
     @classmethod
     def from_file(cls, path: str | Path, **kw: Any) -> ArucoFrontend:
-        """From a marker map YAML (:func:`rs_localizer.maps.load_marker_map`) or a scene
+        """From a marker map YAML (:func:`rs_localizer.maps.markers.load_marker_map`) or a scene
         YAML / built-in scene name; the map's stated std, when it has them, score the
         correspondences (``marker_std``)."""
-        from ..maps import load_marker_map
+        from .registry import FRONTEND_KINDS
 
-        dictionary, corners = load_marker_map(Path(str(path)))
-        kw.setdefault("marker_std", marker_std_from_file(path) or None)
-        return cls(corners, dictionary, **kw)
+        kind = FRONTEND_KINDS["aruco"]  # (the same front end as make_frontend("aruco", path))
+        return kind.make(kind.load(path), **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""

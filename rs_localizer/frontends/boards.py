@@ -17,9 +17,10 @@ model (``type`` in YAML)       front end                   correspondence ids
 Every front end has ``process(image, camera=None, encoding="rgb8") -> (points_px (N, 2),
 points3d (N, 3), ids (N,) int64)`` like :class:`~rs_localizer.frontends.aruco.ArucoFrontend`:
 pixels as measured (distorted), map points in metres, ready for
-:func:`rs_localizer.estimate_rs_pose`. :func:`load_board` reads a board from YAML or a
-dict, :func:`make_board_frontend` builds the matching front end. Detection goes through
-:mod:`.cv_compat`, so OpenCV 4.6 (Debian 12, Ubuntu 24.04) works as well as 4.7+ / 5.x.
+:func:`rs_localizer.estimate_rs_pose`. :func:`load_board` reads a board from YAML or a dict
+(the file format: :mod:`rs_localizer.maps.boards`), :func:`make_board_frontend` builds the
+matching front end. Detection goes through :mod:`.cv_compat`, so OpenCV 4.6 (Debian 12,
+Ubuntu 24.04) works as well as 4.7+ / 5.x.
 
 **Board frame** (all three kinds, as OpenCV >= 4.6 boards and the AprilTag library's tag
 frame): seen from the printed side, x to the right, y down, z = x cross y into the board. The
@@ -81,6 +82,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences
+from ..maps.boards import BOARD_TYPES, read_board
 from . import cv_compat as cvc
 from .aruco import to_gray
 
@@ -99,8 +101,6 @@ __all__ = [
     "pose_from_spec",
 ]
 
-#: values of ``type`` in a board YAML
-BOARD_TYPES = ("checkerboard", "charuco", "tag_grid", "tag_map")
 
 _EMPTY = (np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64))
 
@@ -494,7 +494,8 @@ class TagBoard(_BoardBase):
 def load_board(
     source: str | Path | dict, base_dir: str | Path | None = None
 ) -> CheckerboardModel | CharucoBoardModel | TagBoard:
-    """Board model from a YAML file or a dict (format in the module docstring).
+    """Board model from a YAML file or a dict (format in the module docstring; read and its
+    keys checked by :func:`rs_localizer.maps.boards.read_board`).
 
     Args:
         source: path to a YAML file, or a dict with ``type`` in :data:`BOARD_TYPES`.
@@ -505,58 +506,15 @@ def load_board(
         ValueError: unknown type, missing or unknown keys, invalid values.
         FileNotFoundError: no such file.
     """
-    import yaml
-
-    if isinstance(source, dict):
-        data = dict(source)
-    else:
-        path = Path(str(source))
-        data = yaml.safe_load(path.read_text())
-        if base_dir is None:
-            base_dir = path.parent
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: a board YAML must be a mapping")
-    kind = str(data.pop("type", "")).lower()
-    common = dict(pose=data.pop("pose", None), id_offset=data.pop("id_offset", 0))
-
-    def take(*required, **optional):
-        missing = [k for k in required if k not in data]
-        if missing:
-            raise ValueError(f"{kind} board needs {missing}")
-        out = {k: data.pop(k) for k in required}
-        out.update({k: data.pop(k, v) for k, v in optional.items()})
-        if data:
-            raise ValueError(f"unknown keys for a {kind} board: {sorted(data)}")
-        return out
-
-    if kind == "checkerboard":
-        return CheckerboardModel(**take("cols", "rows", "square_size"), **common)
-    if kind == "charuco":
-        a = take(
-            "cols",
-            "rows",
-            "square_size",
-            "marker_size",
-            "dictionary",
-            marker_ids=None,
-            legacy_pattern=False,
-        )
-        return CharucoBoardModel(**a, base_dir=base_dir, **common)
-    if kind == "tag_grid":
-        a = take(
-            "cols",
-            "rows",
-            "tag_size",
-            "tag_spacing",
-            dictionary="DICT_APRILTAG_36h11",
-            first_id=0,
-            ids=None,
-        )
-        return TagBoard.grid(**a, base_dir=base_dir, **common)
-    if kind == "tag_map":
-        a = take("tags", dictionary="DICT_APRILTAG_36h11", tag_size=None)
-        return TagBoard.from_tags(**a, base_dir=base_dir, **common)
-    raise ValueError(f"unknown board type {kind!r}; expected one of {BOARD_TYPES}")
+    spec = read_board(source, base_dir)
+    a, common = spec.args, dict(pose=spec.pose, id_offset=spec.id_offset)
+    if spec.kind == "checkerboard":
+        return CheckerboardModel(**a, **common)
+    if spec.kind == "charuco":
+        return CharucoBoardModel(**a, base_dir=spec.base_dir, **common)
+    if spec.kind == "tag_grid":
+        return TagBoard.grid(**a, base_dir=spec.base_dir, **common)
+    return TagBoard.from_tags(**a, base_dir=spec.base_dir, **common)
 
 
 def board_image(

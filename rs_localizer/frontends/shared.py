@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from .registry import frontend_kind
+
 __all__ = ["SHARED_MAPS", "MapCache"]
 
 
@@ -93,36 +95,15 @@ class MapCache:
     def frontend(
         self, kind: str, map_path: str | os.PathLike, owner: object = None, **kw: Any
     ) -> Any:
-        """A new front end (as :func:`rs_localizer.frontends.make_frontend`) around the shared
-        map of ``map_path``.
+        """A new front end for a video (``make_video`` of the kind in
+        :data:`~rs_localizer.frontends.registry.FRONTEND_KINDS`) around the shared map of
+        ``map_path``.
 
         Raises:
             ValueError: unknown kind or a bad map. FileNotFoundError: a missing map.
         """
-        if kind == "aruco":
-            from ..maps import load_marker_map
-            from .aruco import ArucoFrontend
-
-            dictionary, corners = self.get(
-                kind, map_path, lambda p: load_marker_map(Path(str(p))), owner, "frontend"
-            )
-            return ArucoFrontend(corners, dictionary, **kw)
-        if kind == "features":  # (the video front end; tracking=False: per frame)
-            from .features import FeatureMap
-            from .tracking import TrackingFeatureFrontend
-
-            return TrackingFeatureFrontend(
-                self.get(kind, map_path, FeatureMap.load, owner, "frontend"), **kw
-            )
-        if kind == "board":
-            from .boards import load_board, make_board_frontend
-
-            return make_board_frontend(
-                self.get(kind, map_path, load_board, owner, "frontend"), **kw
-            )
-        from . import FRONTENDS
-
-        raise ValueError(f"unknown front end {kind!r}; expected one of {FRONTENDS}")
+        k = frontend_kind(kind)  # (an unknown kind loads nothing)
+        return k.make_video(self.get(kind, map_path, k.load, owner, "frontend"), **kw)
 
     def landmarks(
         self, path: str | os.PathLike, owner: object = None

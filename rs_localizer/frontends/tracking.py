@@ -49,8 +49,9 @@ import numpy as np
 from ..camera import CameraModel
 from ..correspondences import Correspondences
 from ..geometry import rotvec_to_matrix
+from ..maps.features import FeatureMap
 from .aruco import to_gray
-from .features import FeatureFrontend, FeatureMap, make_detector
+from .features import FeatureFrontend, make_detector
 
 __all__ = ["FRAME_KINDS", "FrameReport", "TrackingFeatureFrontend"]
 

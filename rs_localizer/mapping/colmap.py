@@ -10,7 +10,7 @@ them and runs the reconstruction:
   :func:`reconstruct_aligned`: the same, aligned on a marker map, reconstructed again with the
   other matching when the alignment refuses a bent model.
 * :func:`feature_map_from_colmap`: a sparse model + its database -> a
-  :class:`~rs_localizer.frontends.features.FeatureMap` (kind ``sift``): one map row per 3D
+  :class:`~rs_localizer.maps.features.FeatureMap` (kind ``sift``): one map row per 3D
   point, its descriptor the medoid of its track, its id the COLMAP point id, track length and
   reprojection error kept as quality.
 * :func:`align_to_markers` / :func:`scale_feature_map`: a reconstruction has no scale; markers
@@ -37,7 +37,8 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..frontends.features import FeatureMap, representative_descriptors
+from ..frontends.features import representative_descriptors
+from ..maps.features import FeatureMap
 
 __all__ = [
     "INSTALL_HINT",

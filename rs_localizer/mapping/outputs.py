@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel
-from ..maps import write_text_atomic
+from ..maps.files import write_text_atomic
+from ..maps.markers import write_marker_map
 from .marker_ba import FrameDetections, MarkerMapResult
 
 __all__ = [
@@ -146,7 +147,7 @@ def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
 
 def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
     """Write ``text`` to ``path`` whole or not at all, with the user's umask mode
-    (:func:`rs_localizer.maps.write_text_atomic`).
+    (:func:`rs_localizer.maps.files.write_text_atomic`).
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
@@ -157,44 +158,36 @@ def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
 def write_map(
     path: str | Path, result: MarkerMapResult, dictionary: str, overwrite: bool = False
 ) -> Path:
-    """Write the map in the marker-map format (:func:`rs_localizer.maps.load_marker_map`, the
-    ArUco front end and the node's ``frontend_map`` read it): ``dictionary`` and per marker
-    ``id``, ``corners`` (4, 3) m in ArUco order, plus ``std_position`` (3,) m and
-    ``std_rotation`` (3,) rad (world axes; in the map's frame, the frame's own uncertainty
-    included) and ``observations``; and ``frame``: how the frame is fixed (``kind``,
-    ``anchors``) and its own uncertainty (``rotation_std_deg``, ``position_std_mm``). Readers
-    that know only ``dictionary`` and the markers' ``id`` and ``corners`` read it as before.
-    Written atomically (:func:`write_atomic`).
+    """Write the map in the marker-map format through its one writer
+    (:func:`rs_localizer.maps.markers.write_marker_map`; :func:`rs_localizer.maps.load_marker_map`,
+    the ArUco front end and the node's ``frontend_map`` read it): ``dictionary``, the
+    ``anchor`` id, ``frame``: how the frame is fixed (``kind``, ``anchors``) and its own
+    uncertainty (``rotation_std_deg``, ``position_std_mm``), and per marker ``id``, ``corners``
+    (4, 3) m in ArUco order, plus ``std_position`` (3,) m and ``std_rotation`` (3,) rad (world
+    axes; in the map's frame, the frame's own uncertainty included) and ``observations``.
+    Readers that know only ``dictionary`` and the markers' ``id`` and ``corners`` read it as
+    before. Written atomically.
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
     """
-    import yaml
-
-    markers = []
-    for m in sorted(result.corners):
+    fields = {}
+    for m in result.corners:
         std = result.marker_std[m]
-        markers.append(
-            {
-                "id": int(m),
-                "corners": np.round(result.corners[m], 6).tolist(),
-                "std_position": np.round(std[3:], 6).tolist(),
-                "std_rotation": np.round(std[:3], 6).tolist(),
-                "observations": int(result.observations[m]),
-            }
-        )
-    doc = {"dictionary": dictionary, "anchor": int(result.anchor)}
-    if result.frame is not None:
-        doc["frame"] = _frame_dict(result.frame)
-    doc["markers"] = markers
-    text = "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n" + (
-        yaml.safe_dump(
-            doc,
-            default_flow_style=None,
-            sort_keys=False,
-        )
+        fields[m] = {
+            "std_position": np.round(std[3:], 6).tolist(),
+            "std_rotation": np.round(std[:3], 6).tolist(),
+            "observations": int(result.observations[m]),
+        }
+    return write_marker_map(
+        path,
+        dictionary,
+        result.corners,
+        anchor=int(result.anchor),
+        frame=None if result.frame is None else _frame_dict(result.frame),
+        marker_fields=fields,
+        overwrite=overwrite,
     )
-    return write_atomic(path, text, overwrite)
 
 
 def _frame_dict(frame: object) -> dict:

@@ -9,7 +9,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..camera import CameraModel
-from ..frontends.features import FeatureMap, feature_map_from_views
+from ..frontends.features import feature_map_from_views
+from ..maps.features import FeatureMap
 from .render.renderer import Renderer
 from .render.scene import Scene
 
@@ -38,7 +39,7 @@ def build_feature_map(
             :func:`~rs_localizer.frontends.features.feature_map_from_views`.
         supersample: anti-aliasing samples per axis of the renders.
     Returns:
-        :class:`~rs_localizer.frontends.features.FeatureMap`.
+        :class:`~rs_localizer.maps.features.FeatureMap`.
     """
     if isinstance(poses, tuple) and len(poses) == 2 and hasattr(poses[0], "pose"):
         motion, times = poses

@@ -7,8 +7,8 @@ import pytest
 
 from rs_localizer.frontends import ArucoFrontend, make_frontend, to_gray
 from rs_localizer.frontends.image import image_fields, image_from_msg
+from rs_localizer.maps.markers import write_marker_map
 from rs_localizer.sim.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
-from rs_localizer.sim.render.scene import save_marker_map
 
 T_FRAME = 0.35
 
@@ -50,7 +50,9 @@ def test_aruco_corners_match_ground_truth(aruco_frame):
 
 def test_aruco_from_map_file(aruco_frame, tmp_path):
     scene, camera, _, _, f = aruco_frame
-    save_marker_map(tmp_path / "markers.yaml", scene)
+    write_marker_map(
+        tmp_path / "markers.yaml", scene.dictionary, scene.marker_corners(), scene=scene.name
+    )
     a = make_frontend("aruco", tmp_path / "markers.yaml").process(f.image, camera)
     b = make_frontend("aruco", "aruco_room").process(f.image, camera)
     np.testing.assert_array_equal(a[2], b[2])
@@ -88,7 +90,8 @@ def test_feature_matches_mostly_correct(tmp_path):
     """Paper protocol: map from global-shutter renders with known depth, RS frame matched to
     it with the ratio test; the matched 3D points project (exact RS model) onto the matched
     pixels."""
-    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
+    from rs_localizer.frontends.features import FeatureFrontend
+    from rs_localizer.maps.features import FeatureMap
     from rs_localizer.sim.feature_map import build_feature_map
 
     scene = load_scene("textured_room")

@@ -25,7 +25,8 @@ def test_marker_map_loaded_once_and_frontends_are_separate(tmp_path):
 
 
 def test_feature_map_shared_by_two_frontends(tmp_path):
-    from rs_localizer.frontends.features import FeatureFrontend, FeatureMap
+    from rs_localizer.frontends.features import FeatureFrontend
+    from rs_localizer.maps.features import FeatureMap
 
     rng = np.random.default_rng(0)
     fm = FeatureMap(
@@ -97,3 +98,16 @@ def test_a_new_map_replaces_the_owners_old_one(tmp_path):
     assert len(cache) == 2 and cache.landmarks(p2)[0][0] == 2
     cache.release(owner)
     assert len(cache) == 1  # p2 stays: pinned by the owner-less call above
+
+
+def test_one_table_of_front_ends():
+    """make_frontend and the node's shared maps read the same table of front ends."""
+    from rs_localizer.frontends import FRONTENDS, make_frontend
+    from rs_localizer.frontends.registry import FRONTEND_KINDS
+
+    assert FRONTENDS == tuple(FRONTEND_KINDS) == ("aruco", "features", "board")
+    with pytest.raises(ValueError, match="unknown front end 'nope'"):
+        make_frontend("nope", "aruco_room")
+    a = make_frontend("aruco", "aruco_room")
+    b = MapCache().frontend("aruco", "aruco_room")
+    assert type(a) is type(b) and a.marker_corners.keys() == b.marker_corners.keys()

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends.features import FeatureMap
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.maps.features import FeatureMap
 from rs_localizer.sim.feature_map import build_feature_map
 from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset

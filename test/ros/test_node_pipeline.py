@@ -349,8 +349,8 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
     image counted (frontend_few_match_frames), one warning over several images."""
     import cv2
 
-    from rs_localizer.frontends.features import FeatureMap
     from rs_localizer.frontends.shared import SHARED_MAPS
+    from rs_localizer.maps.features import FeatureMap
     from rs_localizer.ros.pipeline import FramePipeline
 
     _, _, cam = sequence

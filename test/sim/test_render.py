@@ -5,6 +5,7 @@ import pytest
 
 from rs_localizer.camera import CameraModel
 from rs_localizer.geometry import matrix_to_rotvec
+from rs_localizer.maps.markers import load_marker_map, write_marker_map
 from rs_localizer.sim.render import (
     Renderer,
     camera_preset,
@@ -14,7 +15,6 @@ from rs_localizer.sim.render import (
     motion_names,
     scene_names,
 )
-from rs_localizer.sim.render.scene import load_marker_map, save_marker_map
 from rs_localizer.sim.trajectory import project_rs
 
 T_FRAME = 0.35  # a frame with ~1 rad/s rotation in the shake motion
@@ -168,7 +168,7 @@ def test_scenes_and_motions(tmp_path):
     # three perpendicular walls and a floor
     normals = np.array([q.normal for q in sc.quads])
     assert np.abs(normals @ normals.T - np.eye(4))[[0, 0, 1, 2], [1, 3, 3, 3]].max() < 1e-12
-    save_marker_map(tmp_path / "m.yaml", sc)
+    write_marker_map(tmp_path / "m.yaml", sc.dictionary, sc.marker_corners(), scene=sc.name)
     d, corners = load_marker_map(tmp_path / "m.yaml")
     assert d == sc.dictionary and np.allclose(corners[5], sc.marker_corners()[5], atol=1e-6)
     with pytest.raises(ValueError):

@@ -18,7 +18,7 @@ from .renderer import (
     camera_rays,
     frame_times,
 )
-from .scene import Scene, load_marker_map, load_scene, save_marker_map, scene_names
+from .scene import Scene, load_scene, scene_names
 
 __all__ = [
     "CAMERA_PRESETS",
@@ -31,10 +31,8 @@ __all__ = [
     "camera_preset",
     "camera_rays",
     "frame_times",
-    "load_marker_map",
     "load_scene",
     "make_motion",
     "motion_names",
-    "save_marker_map",
     "scene_names",
 ]

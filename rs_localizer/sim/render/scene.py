@@ -29,18 +29,16 @@ import cv2
 import numpy as np
 
 from ...frontends.cv_compat import marker_image
-from ...maps import (
+from ...maps.markers import marker_dictionary
+from ...maps.scenes import (
     SCENE_DIR,
     as_vector,
     checkerboard_corners,
     checkerboard_layout,
-    load_marker_map,
-    marker_dictionary,
     marker_layout,
     scene_names,
     scene_path,
     scene_quad_frames,
-    write_marker_map,
 )
 
 __all__ = [
@@ -49,11 +47,9 @@ __all__ = [
     "Marker",
     "Quad",
     "Scene",
-    "load_marker_map",
     "load_scene",
     "marker_dictionary",
     "marker_texture",
-    "save_marker_map",
     "scene_names",
 ]
 
@@ -156,7 +152,7 @@ class Scene:
 
     def checkerboard_corner_points(self) -> tuple[np.ndarray, np.ndarray]:
         """(ids (M,) int64, points (M, 3)) of the inner corners of the scene's checkerboards
-        (:func:`rs_localizer.maps.checkerboard_corners`; empty without checkerboards)."""
+        (:func:`rs_localizer.maps.scenes.checkerboard_corners`; empty without checkerboards)."""
         if self._checker_corners is None:
             return np.zeros(0, np.int64), np.zeros((0, 3))
         return self._checker_corners
@@ -337,8 +333,8 @@ def load_scene(name_or_path: str | Path | dict) -> Scene:
 
 
 def _add_markers(scene: Scene, spec: dict, layout: list):
-    """Marker decals of ``layout`` (:func:`rs_localizer.maps.marker_layout`) with a white margin
-    of ``spec['margin_cells']`` cells. Raises ValueError for a marker that does not fit."""
+    """Marker decals of ``layout`` (:func:`rs_localizer.maps.scenes.marker_layout`) with a white
+    margin of ``spec['margin_cells']`` cells. Raises ValueError for a marker that does not fit."""
     margin_cells = int(spec.get("margin_cells", 1))
     tpc = int(spec.get("texels_per_cell", 16))
     cells = marker_dictionary(scene.dictionary).markerSize + 2
@@ -359,10 +355,3 @@ def _add_markers(scene: Scene, spec: dict, layout: list):
             textures[m.id] = marker_texture(scene.dictionary, m.id, tpc, margin_cells)
         scene.decals.append(Decal(m.quad, rect, textures[m.id], marker_id=m.id))
         scene.markers.append(m)
-
-
-# ------------------------------------------------------------------------------- marker maps
-def save_marker_map(path: str | Path, scene: Scene) -> Path:
-    """Write the scene's marker map (dictionary + 3D corners per id) as YAML for the ArUco front
-    end (:func:`rs_localizer.maps.write_marker_map`)."""
-    return write_marker_map(path, scene.dictionary, scene.marker_corners(), scene=scene.name)
