@@ -41,19 +41,12 @@ def _load_markers(path: str | os.PathLike) -> tuple:
 
 
 def _aruco(loaded: tuple, **kw: Any) -> Any:
-    """ArUco front end scoring by the map's stated std when it has them."""
+    """ArUco front end (per image and the node's alike) scoring each marker's corners by the
+    map's stated std when it has them (a map from ``map-markers``)."""
     from .aruco import ArucoFrontend
 
     dictionary, corners, std = loaded
     kw.setdefault("marker_std", std or None)
-    return ArucoFrontend(corners, dictionary, **kw)
-
-
-def _aruco_video(loaded: tuple, **kw: Any) -> Any:
-    """The node's ArUco front end: the map's stated std are not used (as the node always did)."""
-    from .aruco import ArucoFrontend
-
-    dictionary, corners, _ = loaded
     return ArucoFrontend(corners, dictionary, **kw)
 
 
@@ -89,7 +82,7 @@ def _board(board: Any, **kw: Any) -> Any:
 
 #: name -> :class:`FrontendKind`
 FRONTEND_KINDS = {
-    "aruco": FrontendKind(_load_markers, _aruco, _aruco_video),  # marker map or scene YAML
+    "aruco": FrontendKind(_load_markers, _aruco, _aruco),  # marker map or scene YAML
     "features": FrontendKind(_load_features, _features, _features_video),  # feature map .npz
     "board": FrontendKind(_load_board, _board, _board),  # board YAML
 }

@@ -111,3 +111,25 @@ def test_one_table_of_front_ends():
     a = make_frontend("aruco", "aruco_room")
     b = MapCache().frontend("aruco", "aruco_room")
     assert type(a) is type(b) and a.marker_corners.keys() == b.marker_corners.keys()
+
+
+def test_node_and_library_score_markers_by_the_stated_std(tmp_path):
+    """A map with stated marker std (as map-markers writes): the node's front end (shared maps)
+    and make_frontend both carry them, and the scores follow marker_scores."""
+    from rs_localizer.frontends import make_frontend
+    from rs_localizer.frontends.aruco import marker_scores
+    from rs_localizer.maps.markers import load_marker_map, write_marker_map
+
+    dictionary, corners = load_marker_map("aruco_room")
+    ids = sorted(corners)[:3]
+    std = {ids[0]: 0.001, ids[1]: 0.005, ids[2]: 0.05}
+    path = write_marker_map(
+        tmp_path / "m.yaml",
+        dictionary,
+        {i: corners[i] for i in ids},
+        marker_fields={i: {"std_position": [s, s / 2, s / 3]} for i, s in std.items()},
+    )
+    for fe in (make_frontend("aruco", path), MapCache().frontend("aruco", path)):
+        assert fe.marker_std == pytest.approx(std)
+    expected = marker_scores(np.array([std[i] for i in ids]))
+    assert expected[0] > expected[1] > expected[2]
