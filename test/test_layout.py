@@ -152,6 +152,9 @@ ANNOTATED = [
     *sorted((PKG / "ros").rglob("*.py")),
     *sorted((PKG / "sim").rglob("*.py")),
     *sorted((PKG / "cli").glob("*.py")),
+    *sorted((PKG / "mapping").glob("*.py")),
+    *sorted((PKG / "maps").glob("*.py")),
+    *sorted((PKG / "viz").glob("*.py")),
     PKG / "camera.py",
 ]
 

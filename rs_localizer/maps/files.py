@@ -8,6 +8,7 @@ import os
 import stat
 import tempfile
 from pathlib import Path
+from typing import IO
 
 __all__ = ["check_regular_file", "file_mode", "open_regular_file", "write_text_atomic"]
 
@@ -54,7 +55,7 @@ def file_mode() -> int:
     return 0o666 & ~mask
 
 
-def check_regular_file(path) -> None:
+def check_regular_file(path: str | os.PathLike) -> None:
     """Raise ValueError unless ``path`` is a regular file (``os.stat``, which does not block on
     a FIFO or a device the way ``open`` does); OSError (FileNotFoundError...) if it cannot be
     stat'ed."""
@@ -63,7 +64,7 @@ def check_regular_file(path) -> None:
         raise ValueError(f"{path}: not a regular file")
 
 
-def open_regular_file(path, mode: str = "r"):
+def open_regular_file(path: str | os.PathLike, mode: str = "r") -> IO:
     """``open(path, mode)`` (read-only modes) that never blocks on a FIFO or a device: the file
     is opened non-blocking and checked to be a regular file (``fstat``, so it cannot be swapped
     between check and open). Raises ValueError for anything else, OSError as ``open``."""

@@ -23,7 +23,7 @@ def save_landmarks_csv(path: str | os.PathLike, ids: np.ndarray, points: np.ndar
     return write_text_atomic(path, "id,x,y,z\n" + "".join(rows), overwrite=True)
 
 
-def load_landmarks_csv(path):
+def load_landmarks_csv(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read ``id,x,y,z`` (header optional, ``#`` comments allowed). Returns (ids (M,) int64,
     points (M, 3)). Raises ValueError for malformed rows, no rows, duplicate ids, non-finite
     coordinates or a path that is not a regular file (a FIFO would block the reader), OSError if

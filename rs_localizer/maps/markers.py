@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,7 @@ def check_marker_corners(corners: np.ndarray, size: float | None = None, what: s
         raise ValueError(f"{what}side {side:.4f} m, the map states {float(size):.4f} m")
 
 
-def marker_dictionary(name: str):
+def marker_dictionary(name: str) -> Any:
     """cv2.aruco predefined dictionary by name (e.g. ``DICT_4X4_250``).
 
     Raises ValueError for a name OpenCV does not know."""
@@ -135,7 +136,7 @@ def write_marker_map(
     )
 
 
-def load_marker_map(path):
+def load_marker_map(path: str | os.PathLike) -> tuple[str, dict[int, np.ndarray]]:
     """Read a marker map (:func:`write_marker_map`), or a scene YAML / built-in scene name
     (``aruco_room``: the corners of its markers). Returns ``(dictionary name, {id: (4, 3)
     corners in ArUco order, metres})``.

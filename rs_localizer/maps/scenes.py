@@ -30,7 +30,7 @@ def scene_names() -> list:
     return sorted(p.stem for p in SCENE_DIR.glob("*.yaml"))
 
 
-def scene_path(name_or_path) -> Path:
+def scene_path(name_or_path: str | Path) -> Path:
     """Path of a scene YAML: a built-in name (``aruco_room``) or a path.
 
     Raises FileNotFoundError when neither exists."""
@@ -149,7 +149,7 @@ def checkerboard_layout(data: dict) -> list:
     return out
 
 
-def checkerboard_corners(data: dict):
+def checkerboard_corners(data: dict) -> tuple[np.ndarray, np.ndarray]:
     """Inner corners of the scene's checkerboards (parsed YAML, :func:`checkerboard_layout`):
     ``(ids (M,) int64, points (M, 3) world, metres)``. Board ``k`` with ``nu`` x ``nv`` squares
     has ``(nu - 1) (nv - 1)`` inner corners, row-major along u then v (OpenCV's

@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..correspondences import Frontend
 from ..estimation import EstimateOptions
 from ..estimation.estimate import points_needed
 from ..estimation.tracker import TrackerOptions
@@ -33,7 +34,7 @@ from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from . import conversions as cv
 
 __all__ = [
-    "FRONTEND_KINDS",
+    "FRONTEND_CHOICES",
     "IMAGE_TRANSPORTS",
     "OPTION_GROUPS",
     "PARAMETERS",
@@ -498,7 +499,7 @@ PARAMETERS = {
 
 
 #: values of the ``frontend`` parameter
-FRONTEND_KINDS = ("none",) + FRONTENDS
+FRONTEND_CHOICES = ("none",) + FRONTENDS
 #: values of the ``image_transport`` parameter
 IMAGE_TRANSPORTS = ("raw", "compressed")
 #: options groups a :attr:`Parameter.field` names -> the prefix its parameter names drop
@@ -765,7 +766,7 @@ class LocalizerConfig:
     landmarks: tuple[np.ndarray, np.ndarray] | None
     frontend_kind: str
     frontend_map: str
-    frontend: Any
+    frontend: Frontend | None
     image_transport: str
     republish_correspondences: bool
     imu: ImuConfig | None = None
@@ -940,9 +941,9 @@ def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
 def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
     """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
     kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
-    if kind not in FRONTEND_KINDS:
+    if kind not in FRONTEND_CHOICES:
         raise ConfigError(
-            f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_KINDS)}"
+            f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_CHOICES)}"
         )
     transport = str(p["image_transport"]).strip().lower()
     if transport not in IMAGE_TRANSPORTS:

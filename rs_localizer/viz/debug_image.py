@@ -23,6 +23,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
 
@@ -107,7 +108,7 @@ def to_bgr(image: np.ndarray, encoding: str | None = None) -> np.ndarray:
     raise ValueError(f"expected an (H, W) or (H, W, 3|4) image, got shape {img.shape}")
 
 
-def frame_residuals(camera: CameraModel, uv, X, est) -> np.ndarray:
+def frame_residuals(camera: CameraModel, uv: ArrayLike, X: ArrayLike, est: Any) -> np.ndarray:
     """(N, 2) pixels the estimate predicts for the world points ``X`` (N, 3): their
     rolling-shutter projection with ``est.R, est.C, est.w, est.t``, each at the capture time of
     its own line (:meth:`CameraModel.project_rs`). The residual of a measured pixel ``uv`` is
@@ -115,7 +116,9 @@ def frame_residuals(camera: CameraModel, uv, X, est) -> np.ndarray:
     return camera.project_rs(X, est.R, est.C, est.w, est.t)
 
 
-def auto_cube(camera: CameraModel, est, X, inliers=None):
+def auto_cube(
+    camera: CameraModel, est: Any, X: ArrayLike, inliers: ArrayLike | None = None
+) -> tuple[np.ndarray, float] | None:
     """Default cube: centre (3,) on the optical axis of the reference-line pose at the median
     depth of the (inlier) points ``X`` (N, 3), side = half the image height at that depth (m).
     Returns ``(center, side)``; ``None`` if no point is in front of the camera."""
@@ -132,7 +135,7 @@ def auto_cube(camera: CameraModel, est, X, inliers=None):
     return center, side
 
 
-def cube_edge_points(center, side: float, samples: int = 16) -> np.ndarray:
+def cube_edge_points(center: ArrayLike, side: float, samples: int = 16) -> np.ndarray:
     """(12, samples, 3) points along the 12 edges of the cube with ``center`` (3,) and ``side``
     (m), axis-aligned in the map frame."""
     c = np.asarray(center, dtype=float).reshape(3)
@@ -207,9 +210,9 @@ def _text_lines(img, lines, color):
 
 def draw_debug_image(
     camera: CameraModel,
-    uv,
-    X,
-    est,
+    uv: ArrayLike,
+    X: ArrayLike,
+    est: Any,
     image: np.ndarray | None = None,
     encoding: str | None = None,
     options: DebugImageOptions | None = None,

@@ -7,14 +7,19 @@ right, y down).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
 
 __all__ = ["frustum_corners", "frustum_segments", "velocity_arrows"]
 
 
-def frustum_corners(camera: CameraModel, orientation, position, depth: float) -> np.ndarray:
+def frustum_corners(
+    camera: CameraModel, orientation: ArrayLike, position: ArrayLike, depth: float
+) -> np.ndarray:
     """(4, 3) map points where the rays through the image corners reach ``depth`` (m, along
     the optical axis): pixel corners ``(-0.5, -0.5)``, ``(W - 0.5, -0.5)``,
     ``(W - 0.5, H - 0.5)``, ``(-0.5, H - 0.5)`` (top-left, top-right, bottom-right,
@@ -32,7 +37,9 @@ def frustum_corners(camera: CameraModel, orientation, position, depth: float) ->
     return rays @ np.asarray(orientation, dtype=float).T + np.asarray(position, dtype=float)
 
 
-def frustum_segments(camera: CameraModel, orientation, position, depth: float) -> np.ndarray:
+def frustum_segments(
+    camera: CameraModel, orientation: ArrayLike, position: ArrayLike, depth: float
+) -> np.ndarray:
     """(16, 3) map points, consecutive pairs are the 8 segments of the camera frustum: centre
     to each of the 4 :func:`frustum_corners`, then the far rectangle (for a ``LINE_LIST``)."""
     c = np.asarray(position, dtype=float)
@@ -41,7 +48,7 @@ def frustum_segments(camera: CameraModel, orientation, position, depth: float) -
     return np.array([p for s in segs for p in s])
 
 
-def velocity_arrows(est, scale: float = 1.0):
+def velocity_arrows(est: Any, scale: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Start and end (3,) map points of the angular- and linear-velocity arrows at the camera
     centre: ``end = position + scale * velocity_world`` (``scale`` m per rad/s and per m/s).
 
