@@ -170,6 +170,11 @@ class FusedPose:
         tag: the frame's :attr:`SequenceFrame.tag`.
         state: the tracker's fused state itself (the smoothed pose too, and the 12x12
             covariance of pose and twist).
+        own_twist: the filter did not fuse the frame's own measurement (its innovation gate
+            refused it, or it was unusable): its state there is a prediction that the frame's
+            data do not support, so the twist is the frame's own (as ``twist_single_frame``),
+            with the estimate's covariance. A global-shutter estimate (no twist of its own)
+            keeps the prediction.
     """
 
     pose: RSPose
@@ -177,6 +182,7 @@ class FusedPose:
     twist_covariance: Any
     tag: Any = None
     state: FusedState | None = None
+    own_twist: bool = False
 
     @property
     def stamp_ns(self) -> int:
@@ -205,7 +211,14 @@ class FusedPose:
 
     @classmethod
     def of(cls, estimate: RSPoseEstimate, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose with the fused state's twist, at the fused state's stamp."""
+        """The estimate's pose with the fused state's twist, at the fused state's stamp; the
+        estimate's own twist and covariance where the filter did not fuse the frame
+        (:attr:`own_twist`)."""
+        if not fused.fused and estimate.twist_covariance is not None:
+            pose = estimate.pose.with_twist(
+                estimate.angular_velocity, estimate.linear_velocity, fused.stamp_ns
+            )
+            return cls(pose, estimate.pose_covariance, estimate.twist_covariance, tag, fused, True)
         pose = estimate.pose.with_twist(
             fused.angular_velocity, fused.linear_velocity, fused.stamp_ns
         )
@@ -405,7 +418,8 @@ class SequenceLocalizer:
 
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
-        ``relocalizations``, ``resets`` (over the localizer's life)."""
+        ``relocalizations``, ``resets``, ``twists_own_frame`` (frames whose fused twist is
+        their own, :attr:`FusedPose.own_twist`; over the localizer's life)."""
         t = self._tracker
         tc = self._track_counts
         state = (
@@ -420,6 +434,7 @@ class SequenceLocalizer:
             "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
             "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
             "resets": tc["resets"] + (t.resets if t else 0),
+            "twists_own_frame": tc["twists_own_frame"],
         }
 
     @property
@@ -687,6 +702,7 @@ class SequenceLocalizer:
                 continue
             est, tag = item
             out.append(FusedPose.of(est, f, tag))
+            self._track_counts["twists_own_frame"] += out[-1].own_twist
         if len(self._pending) > MAX_PENDING:  # (never left behind for long: drop the oldest)
             for k in sorted(self._pending)[:-MAX_PENDING]:
                 del self._pending[k]
