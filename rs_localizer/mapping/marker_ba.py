@@ -1061,18 +1061,11 @@ def _mirror_covariance(prob: _Problem, x, weights, sigma: float, poses: dict) ->
         rows = [d for d, (k, mm) in enumerate(prob.det) if mm == m and prob.keep[d]]
         if not rows:
             continue
-        v = np.array(
-            [R.T @ (-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p) for d in rows]
-        )
-        v = v / np.linalg.norm(v, axis=1, keepdims=True)
-        u = v.mean(axis=0)
-        u /= np.linalg.norm(u)
-        n_alt = 2 * u[2] * u - np.array([0.0, 0.0, 1.0])
-        axis = np.cross([0.0, 0.0, 1.0], n_alt)
-        ang = float(np.arctan2(np.linalg.norm(axis), n_alt[2]))
-        if ang < 1e-6:
+        views = np.array([-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p for d in rows])
+        delta = _mirrored_tilt(R, views)  # (world axes, left perturbation)
+        if delta is None:
             continue
-        delta = R @ (axis / np.linalg.norm(axis) * ang)  # (world axes, left perturbation)
+        ang = float(np.linalg.norm(delta))
         R_alt = rotvec_to_matrix(delta) @ R
         x_alt = np.array(x, dtype=float)
         Ra_save = prob.Ra
