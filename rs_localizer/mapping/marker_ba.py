@@ -251,9 +251,10 @@ class _Init:
     markers it sees (OpenCV ``solvePnP``, Levenberg-Marquardt from the previous frame's pose, so
     a frame seeing a single marker keeps the continuous one of its two planar solutions); a
     marker first seen gets the better of its two IPPE poses in that view, and every marker is
-    refined over all its views so far (SciPy ``least_squares``): a single view fixes a small
-    marker's centre well but its tilt poorly. The whole is moved onto the anchor afterwards
-    (:func:`_regauge`).
+    refined over all its views so far (SciPy ``least_squares``) from its current tilt and from
+    that tilt mirrored, the better fit kept: a single view fixes a small marker's centre well
+    but its tilt poorly, and may pick the wrong one of the two. The whole is moved onto the
+    anchor afterwards (:func:`_regauge`).
     """
 
     def __init__(
@@ -385,7 +386,11 @@ class _Init:
         self.markers[mid] = (best[1], best[2])
 
     def refine_marker(self, mid: int, frames: list) -> None:
-        """Marker pose over its views ``frames`` (global-shutter reprojection, soft L1)."""
+        """Marker pose over its views ``frames`` (global-shutter reprojection, soft L1),
+        started from its current pose and from its tilt mirrored through its mean viewing
+        direction (the other planar solution, :func:`_mirrored_tilt`); the better fit is kept.
+        A small marker's first view fits both tilts about equally, so the one picked there
+        may be the wrong one: its later views, from other directions, tell them apart."""
         obj = marker_corners_local(self.opts.side(mid))
         R0, p0 = self.markers[mid]
         Rs = np.array([self.frames[k][0] for k in frames])
@@ -398,8 +403,17 @@ class _Init:
             z = np.maximum(p[..., 2:3], 1e-6)
             return ((p[..., :2] / z - xs) * self.f).ravel()
 
-        sol = least_squares(res, np.r_[0.0, 0.0, 0.0, p0], loss="soft_l1", f_scale=5.0)
-        self.markers[mid] = (rotvec_to_matrix(sol.x[:3]) @ R0, sol.x[3:])
+        starts = [np.zeros(3)]
+        centres = -np.einsum("kji,kj->ki", Rs, Cs)  # (the cameras' centres in the world)
+        delta = _mirrored_tilt(R0, centres - p0)
+        if delta is not None:
+            starts.append(delta)
+        best = None
+        for r0 in starts:
+            sol = least_squares(res, np.r_[r0, p0], loss="soft_l1", f_scale=5.0)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        self.markers[mid] = (rotvec_to_matrix(best.x[:3]) @ R0, best.x[3:])
 
     def adjust(self) -> None:
         """Global-shutter bundle adjustment of everything placed so far (gauge: the seed
@@ -519,6 +533,24 @@ class _Init:
         if self.anchor not in self.markers:
             why = self.unmapped.get(self.anchor, "detected at places that disagree")
             raise ValueError(f"anchor marker {self.anchor} cannot be placed: {why}")
+
+
+def _mirrored_tilt(R: np.ndarray, views: np.ndarray) -> np.ndarray | None:
+    """Rotation vector (world axes, left perturbation) that mirrors the tilt of a marker
+    (rotation ``R``, marker -> world) through its mean viewing direction: the other of the two
+    poses of a square that fit a view from about that direction (IPPE's two solutions).
+    ``views``: (K, 3) vectors from the marker's centre to the cameras (world). None when the
+    marker is seen head-on (the two coincide)."""
+    v = views @ R  # (in the marker's frame)
+    v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    u = v.mean(axis=0)
+    u /= max(np.linalg.norm(u), 1e-12)
+    n_alt = 2 * u[2] * u - np.array([0.0, 0.0, 1.0])
+    axis = np.cross([0.0, 0.0, 1.0], n_alt)
+    ang = float(np.arctan2(np.linalg.norm(axis), n_alt[2]))
+    if ang < 1e-6:
+        return None
+    return R @ (axis / np.linalg.norm(axis) * ang)
 
 
 def _regauge(frames: dict, markers: dict, anchor: int, anchor_pose: tuple):
@@ -1029,18 +1061,11 @@ def _mirror_covariance(prob: _Problem, x, weights, sigma: float, poses: dict) ->
         rows = [d for d, (k, mm) in enumerate(prob.det) if mm == m and prob.keep[d]]
         if not rows:
             continue
-        v = np.array(
-            [R.T @ (-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p) for d in rows]
-        )
-        v = v / np.linalg.norm(v, axis=1, keepdims=True)
-        u = v.mean(axis=0)
-        u /= np.linalg.norm(u)
-        n_alt = 2 * u[2] * u - np.array([0.0, 0.0, 1.0])
-        axis = np.cross([0.0, 0.0, 1.0], n_alt)
-        ang = float(np.arctan2(np.linalg.norm(axis), n_alt[2]))
-        if ang < 1e-6:
+        views = np.array([-Rf[fidx[prob.det[d][0]]].T @ Cf[fidx[prob.det[d][0]]] - p for d in rows])
+        delta = _mirrored_tilt(R, views)  # (world axes, left perturbation)
+        if delta is None:
             continue
-        delta = R @ (axis / np.linalg.norm(axis) * ang)  # (world axes, left perturbation)
+        ang = float(np.linalg.norm(delta))
         R_alt = rotvec_to_matrix(delta) @ R
         x_alt = np.array(x, dtype=float)
         Ra_save = prob.Ra
@@ -1278,12 +1303,12 @@ def map_markers(
     (:class:`_Init`): each frame's pose by OpenCV ``solvePnP`` (Levenberg-Marquardt from the
     previous frame's pose, so a frame seeing a single marker keeps the continuous one of the
     two planar solutions), a new marker by the better of its two ``SOLVEPNP_IPPE_SQUARE``
-    poses, refined over all its views so far; every 25 frames and at the end a global-shutter
-    adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker seen in fewer
-    than ``min_views`` frames is left out (``unmapped``); when some views of an id place it far
-    from the others and agree among themselves, only one group is used; (2) a coarse
-    adjustment with the rolling-shutter model and the starting frame's pose as the gauge
-    (:func:`_coarse_adjustment`); (3) the rolling-shutter bundle adjustment of every frame's
+    poses, refined over all its views so far from both tilts; every 25 frames and at the end a
+    global-shutter adjustment of everything placed (SciPy ``least_squares``, soft L1); a marker
+    seen in fewer than ``min_views`` frames is left out (``unmapped``); when some views of an
+    id place it far from the others and agree among themselves, only one group is used; (2) a
+    coarse adjustment with the rolling-shutter model and the starting frame's pose as the
+    gauge (:func:`_coarse_adjustment`); (3) the rolling-shutter bundle adjustment of every frame's
     pose and velocities and every marker's 6-DoF pose (module docstring: the estimator's
     model, paper eq. 4) with SciPy ``least_squares`` (sparse Jacobian, robust loss),
     optionally one line delay, consecutive frames tied by the motion model, one marker held
