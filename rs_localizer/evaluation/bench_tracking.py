@@ -14,8 +14,9 @@ with :class:`~rs_localizer.frontends.tracking.TrackingFeatureFrontend` tracking 
 Prints per video and mode: frames per kind (global / tracked), correspondences per kind,
 the per-frame time split (tracking, guided join, detection + global matching, estimation;
 median and p99, ms), rotation and position errors against the renderer's truth (median over
-the frames, first and last 50 frames), the frames posed, and after the blank the frames until
-posed again; then the targets, checked. The frames are fed as fast as they are processed, so
+the frames, first and last 50 frames), the inliers' distances to the true projections of
+their map points per kind of correspondence, the frames posed, and after the blank the frames
+until posed again; then the targets, checked. The frames are fed as fast as they are processed, so
 a background refresh spans more frames than it would on a live camera; ``--realtime`` feeds
 them at 30 Hz instead (a frame that takes longer is followed at once). One OpenCV / BLAS
 thread.
@@ -68,7 +69,13 @@ def padded_map(fm: FeatureMap, size: int, seed: int = 0) -> FeatureMap:
 
 
 def run_video(
-    fm: FeatureMap, frames: list, camera, tracking: bool, period_s: float = 0.0, **kw
+    fm: FeatureMap,
+    frames: list,
+    camera,
+    tracking: bool,
+    period_s: float = 0.0,
+    truth: tuple | None = None,
+    **kw,
 ) -> dict:
     """Localize ``frames`` (:class:`~rs_localizer.sim.render.renderer.RenderedFrame`, None
     entries are blanked: a black image) in order. Returns per-frame arrays: ``kind`` (str),
@@ -77,7 +84,10 @@ def run_video(
     ``pos`` (m) errors (NaN: not posed), ``blank`` (bool), ``waited`` (bool: the frame waited
     for a late refresh). ``period_s`` > 0: the next frame is given no earlier than this many
     seconds after the previous one (a live camera's frame period; the background refresh
-    runs meanwhile); 0: as soon as the previous frame is done."""
+    runs meanwhile); 0: as soon as the previous frame is done. ``truth``: ``(renderer,
+    motion)`` of the video: then ``px_err`` holds per frame the estimate's inliers' distances
+    (px) to the true rolling-shutter projections of their map points and ``px_kind`` their
+    kinds (0 tracked, 1 guided, 2 global)."""
     fe = TrackingFeatureFrontend(fm, tracking=tracking, **kw)
     out = {
         k: []
@@ -95,6 +105,8 @@ def run_video(
             "pos",
             "blank",
             "waited",
+            "px_err",
+            "px_kind",
         )
     }
     for f, blank in frames:
@@ -123,13 +135,30 @@ def run_video(
         out["pos"].append(float(np.linalg.norm(est.position - f.position)) if ok else np.nan)
         out["blank"].append(bool(blank))
         out["waited"].append(rep.refresh_waited)
-    return {k: np.array(v) for k, v in out.items()}
+        if truth is not None and ok:
+            gt, _ = truth[0].project(X, truth[1], f.t_first, occlusion=False)
+            inl = np.asarray(est.inliers, bool) & np.isfinite(gt).all(axis=1)
+            out["px_err"].append(np.linalg.norm(uv[inl] - gt[inl], axis=1))
+            out["px_kind"].append(np.asarray(fe.last_kinds)[inl])
+    px = {k: out.pop(k) for k in ("px_err", "px_kind")}
+    res = {k: np.array(v) for k, v in out.items()}
+    res.update({k: np.concatenate(v) if v else np.zeros(0) for k, v in px.items()})
+    return res
 
 
 def _ms(a: np.ndarray) -> str:
     if len(a) == 0:
         return "    -/    -"
     return f"{np.median(a) * 1e3:5.1f}/{np.percentile(a, 99) * 1e3:5.1f}"
+
+
+def _first_last(r: dict) -> str:
+    """Median rotation (deg) and position (cm) errors of the first and the last 50 frames."""
+    a, b = slice(None, 50), slice(-50, None)
+    return (
+        f"{np.nanmedian(r['rot'][a]):.4f}/{np.nanmedian(r['rot'][b]):.4f} deg, "
+        f"{np.nanmedian(r['pos'][a]) * 100:.3f}/{np.nanmedian(r['pos'][b]) * 100:.3f} cm"
+    )
 
 
 def _refound(r: dict) -> int | None:
@@ -201,6 +230,7 @@ def main(argv: list | None = None) -> int:
                 rs,
                 tracking,
                 period_s=1.0 / FPS if args.realtime else 0.0,
+                truth=(renderer, motion),
             )
     print(
         f"\n{args.frames} frames per video, {rs.width}x{rs.height}, map {len(fm)} descriptors, "
@@ -228,16 +258,19 @@ def main(argv: list | None = None) -> int:
             f"{np.nanmedian(r['rot']):7.4f} {np.nanmedian(r['pos']) * 100:6.3f} "
             f"{np.sum(np.isfinite(r['rot'])):3d}/{len(k)}"
         )
+        px = "; ".join(
+            f"{kind} {np.median(r['px_err'][r['px_kind'] == i]):.3f}"
+            for i, kind in enumerate(("tracked", "guided", "global"))
+            if np.any(r["px_kind"] == i)
+        )
+        print(f"{'':19s} inliers' distance to the true projection, median px: {px}")
         if not tracking:
-            print(
-                f"{'':19s} first/last 50 frames {np.nanmedian(r['rot'][:50]):.4f}/"
-                f"{np.nanmedian(r['rot'][-50:]):.4f} deg"
-            )
+            print(f"{'':19s} first/last 50 frames {_first_last(r)}")
         if tracking:
             print(
                 f"{'':19s} tracked frames fe+est {_ms(total[tr])}; global frames "
-                f"{_ms(total[~tr])}; first/last 50 frames {np.nanmedian(r['rot'][:50]):.4f}/"
-                f"{np.nanmedian(r['rot'][-50:]):.4f} deg; {int(r['waited'].sum())} frames "
+                f"{_ms(total[~tr])}; first/last 50 frames {_first_last(r)}; "
+                f"{int(r['waited'].sum())} frames "
                 "waited for a refresh"
                 + (
                     f"; posed again {_refound(r)} frames after the blank"
@@ -257,6 +290,11 @@ def main(argv: list | None = None) -> int:
         for n in videos
     ]
     worst = max(max(a) for a in acc)
+    drift = max(  # the last 50 frames against per-frame global matching's last 50
+        np.nanmedian(results[n, True][k][-50:]) / np.nanmedian(results[n, False][k][-50:])
+        for n in videos
+        for k in ("rot", "pos")
+    )
     refound = _refound(results["walk", True])
     unposed = sum(int(np.sum(~np.isfinite(r["rot"]) & ~r["blank"])) for r in on_tr)
     targets = [
@@ -270,6 +308,10 @@ def main(argv: list | None = None) -> int:
             bool(len(tr_tot)) and np.percentile(tr_tot, 99) <= 0.040,
         ),
         (f"accuracy within 1.1x of per-frame global matching ({worst:.2f}x)", worst <= 1.1),
+        (
+            f"no drift: last 50 frames within 1.1x of per-frame global matching ({drift:.2f}x)",
+            drift <= 1.1,
+        ),
         (f"every frame with a view posed ({unposed} not)", unposed == 0),
         (
             f"posed again within 2 frames after the blank ({refound} frames)",

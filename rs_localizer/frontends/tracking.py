@@ -6,7 +6,12 @@ Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences 
 - **tracked**: the previous frame's inliers (pixel, map row) followed into this frame with
   pyramidal Lucas-Kanade optical flow (``cv2.calcOpticalFlowPyrLK``), kept only when tracking
   back lands within ``fb_max_px`` of the start (forward-backward check); they keep their map
-  rows, so no descriptor is computed or matched;
+  rows, so no descriptor is computed or matched. Each track flows from its *anchor*, the
+  frame its pixel was detected in (a global or refresh detection), not from the previous
+  frame: frame-to-frame flow adds a little error on every frame, and a track followed for
+  a second drifts away from its map point. A track whose anchor is older than
+  ``max_anchor_age`` frames (the view has changed too much for the old patch), or of an
+  anchor beyond the ``max_anchors`` newest, is anchored again at its tracked pixel;
 - **guided**: map points predicted in view and not tracked, matched to the keypoints of a
   *refresh* detection near their predicted pixel (within ``search_radius_px``; the
   nearest 8 keypoints of each window from one ``scipy.spatial.cKDTree`` query; descriptor
@@ -95,7 +100,9 @@ class _Refresh:
 class TrackingFeatureFrontend(FeatureFrontend):
     """Feature front end for a video (see the module doc): a
     :class:`~rs_localizer.frontends.features.FeatureFrontend` (its global matching) whose
-    ``process`` tracks, plus :meth:`observe`.
+    ``process`` tracks, plus :meth:`observe`. After ``process``, ``last_kinds`` (N,) says
+    what each correspondence is (0 tracked, 1 guided, 2 global) and ``last_ages`` (N,) how
+    many frames ago its pixel was detected.
 
     Args:
         feature_map: the map (or a path to its ``.npz``).
@@ -110,6 +117,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         max_tracks: at most this many tracks followed per frame (the best spread kept).
         lk_window, lk_levels: LK window (px) and pyramid levels. fb_max_px: forward-backward
             error bound (px).
+        max_anchor_age: a track is followed from the frame it was detected in for at most
+            this many frames, then anchored again at its tracked pixel.
+        max_anchors: at most this many anchor frames tracked from (one optical-flow call
+            each); the tracks of older ones are anchored again in the current frame.
         reset_gap_s: a frame further than this after the previous one (or before it) resets
             tracking.
         refresh_wait_frames: a refresh still running this many frames after it started,
@@ -144,6 +155,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         fb_max_px: float = 1.0,
         reset_gap_s: float = 0.5,
         refresh_wait_frames: int | None = None,
+        max_anchor_age: int = 30,
+        max_anchors: int = 4,
     ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
@@ -162,6 +175,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
             raise ValueError(
                 "search_radius_px and fb_max_px must be > 0, lk_window >= 3, min_points >= 4"
             )
+        if max_anchor_age < 1 or max_anchors < 1:
+            raise ValueError("max_anchor_age and max_anchors must be >= 1")
         super().__init__(
             feature_map,
             ratio=ratio,
@@ -186,6 +201,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
             criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03),
         )
         self.fb_max_px = float(fb_max_px)
+        self.max_anchor_age = int(max_anchor_age)
+        self.max_anchors = int(max_anchors)
         self.reset_gap_ns = int(reset_gap_s * 1e9)
         self._n_features = int(n_features)
         self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
@@ -206,6 +223,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._gray = None  # previous frame
         self._uv = np.zeros((0, 2), np.float32)  # tracks in the previous frame
         self._rows = np.zeros(0, np.int64)  # their map rows
+        self._age = np.zeros(0, np.int64)  # frames since each track's pixel was detected
+        self._anc = np.zeros(0, np.int64)  # each track's anchor: the frame index it is tracked from
+        self._anc_uv = np.zeros((0, 2), np.float32)  # its pixel in that frame
+        self._anchors: dict[int, np.ndarray] = {}  # anchor frame index -> gray image
         self._pose = None  # (R, C, w, t) of the previous frame's estimate
         self._camera = None
         self._frame_camera = None
@@ -216,6 +237,11 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._pending: _Refresh | None = None
         self._out_rows = np.zeros(0, np.int64)
         self._out_uv = np.zeros((0, 2))
+        self._out_age = np.zeros(0, np.int64)
+        self._out_anc = np.zeros(0, np.int64)
+        self._out_anc_uv = np.zeros((0, 2), np.float32)
+        self.last_kinds = np.zeros(0, np.int8)
+        self.last_ages = np.zeros(0, np.int64)
         self._lost = True
 
     def _time_reset(self, stamp_ns: int | None) -> bool:
@@ -254,11 +280,15 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._index += 1
         uv = np.zeros((0, 2), np.float32)
         rows = np.zeros(0, np.int64)
-        kinds = np.zeros(0, np.int8)  # 0 tracked, 1 guided
+        kinds = np.zeros(0, np.int8)  # 0 tracked, 1 guided, 2 global
+        ages = np.zeros(0, np.int64)
+        anc, anc_uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
         if reason is None:
             t0 = time.perf_counter()
             guess = self._predict(self._rows, stamp_ns)
-            uv, rows = self._track(self._gray, gray, self._uv, self._rows, guess=guess)
+            uv, rows, idx = self._track_anchored(gray, guess)
+            ages = self._age[idx] + 1
+            anc, anc_uv = self._anc[idx], self._anc_uv[idx]
             kinds = np.zeros(len(uv), np.int8)
             rep.times["tracking"] = time.perf_counter() - t0
             t0 = time.perf_counter()
@@ -270,15 +300,21 @@ class TrackingFeatureFrontend(FeatureFrontend):
             ):  # (a CPU too busy to finish the refresh in time: wait rather than drift)
                 job.done.wait()
                 rep.refresh_waited = True
-            g_uv, g_rows = self._join_refresh(gray, stamp_ns)
+            g_uv, g_rows, g_anc_uv, job = self._join_refresh(gray, stamp_ns)
             rep.times["guided"] = time.perf_counter() - t0
             if len(g_uv):  # (a guided match replaces the track of its landmark: re-anchored)
                 lm = self.map.landmark_ids
                 keep = ~np.isin(lm[rows], lm[g_rows])
-                uv, rows, kinds = uv[keep], rows[keep], kinds[keep]
+                uv, rows, kinds, ages = uv[keep], rows[keep], kinds[keep], ages[keep]
+                anc, anc_uv = anc[keep], anc_uv[keep]
                 uv = np.concatenate([uv, g_uv])
                 rows = np.concatenate([rows, g_rows])
                 kinds = np.concatenate([kinds, np.ones(len(g_uv), np.int8)])
+                ages = np.concatenate([ages, np.full(len(g_uv), self._index - job.index)])
+                anc = np.concatenate([anc, np.full(len(g_uv), job.index, np.int64)])
+                anc_uv = np.concatenate([anc_uv, g_anc_uv])
+                self._anchors[job.index] = job.gray
+            anc, anc_uv = self._reanchor(anc, anc_uv, uv, gray)
             if len(uv) < self.min_points:
                 reason = "few_tracks"
                 self._drop_tracks(keep_refresh=False)
@@ -291,6 +327,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
                 self.relocalizations += 1
             rows = self._rows_of(ids)
             uv = np.asarray(g_uv, np.float32).reshape(-1, 2)
+            kinds = np.full(len(uv), 2, np.int8)
+            ages = np.zeros(len(uv), np.int64)
+            anc, anc_uv = np.full(len(uv), self._index, np.int64), uv
+            self._anchors = {self._index: gray}
             self._since_refresh = 0
         else:
             rep.kind = "tracked"
@@ -306,7 +346,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._gray = gray
         self._stamp = stamp_ns if stamp_ns is not None else self._stamp
         self._frame_camera = camera
-        self._out_rows, self._out_uv = rows, np.asarray(uv, float)
+        self._out_rows, self._out_uv, self._out_age = rows, np.asarray(uv, float), ages
+        self._out_anc, self._out_anc_uv = anc, np.asarray(anc_uv, np.float32).reshape(-1, 2)
+        self.last_kinds, self.last_ages = kinds, ages
         self._lost = True  # until observe() says the frame was solved
         self.report = rep
         return Correspondences(
@@ -337,18 +379,22 @@ class TrackingFeatureFrontend(FeatureFrontend):
             self._lost = True
             return
         inl = np.asarray(estimate.inliers, bool)
-        rows, uv = self._out_rows, self._out_uv
+        uv = self._out_uv
         if points2d is not None and (len(points2d) != len(uv) or not np.array_equal(points2d, uv)):
             pos = {(float(a), float(b)): k for k, (a, b) in enumerate(uv)}
             idx = np.array([pos.get((float(a), float(b)), -1) for a, b in points2d], np.int64)
-            keep = (idx >= 0) & inl[: len(idx)]
-            rows, uv = rows[idx[keep]], uv[idx[keep]]
+            keep = idx[(idx >= 0) & inl[: len(idx)]]
         elif len(inl) == len(uv):
-            rows, uv = rows[inl], uv[inl]
+            keep = np.flatnonzero(inl)
         else:
-            rows, uv = rows[:0], uv[:0]
-        self._uv = np.asarray(uv, np.float32).reshape(-1, 2)
-        self._rows = rows
+            keep = np.zeros(0, np.int64)
+        self._uv = np.asarray(uv[keep], np.float32).reshape(-1, 2)
+        self._rows = self._out_rows[keep]
+        self._age = self._out_age[keep]
+        self._anc, self._anc_uv = self._out_anc[keep], self._out_anc_uv[keep]
+        used = set(np.unique(self._anc).tolist())
+        self._anchors = {k: g for k, g in self._anchors.items() if k in used}
+        rows = self._rows
         self._camera = camera
         self._pose = (
             np.asarray(estimate.R, float),
@@ -400,6 +446,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
     def _drop_tracks(self, keep_refresh: bool) -> None:
         self._uv = np.zeros((0, 2), np.float32)
         self._rows = np.zeros(0, np.int64)
+        self._age = np.zeros(0, np.int64)
+        self._anc = np.zeros(0, np.int64)
+        self._anc_uv = np.zeros((0, 2), np.float32)
+        self._anchors = {}
         self._pose = None
         if not keep_refresh:
             self._pending = None
@@ -420,9 +470,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         uv = cam.project_rs(self.map.points[rows], Rp, C + dT * t, w, t, iterations=4)
         return uv if np.isfinite(uv).all() else None
 
-    def _cap(self, uv: np.ndarray, n: int) -> np.ndarray:
+    def _cap(self, uv: np.ndarray, n: int, age: np.ndarray | None = None) -> np.ndarray:
         """Indices of at most ``n`` of the points ``uv`` (K, 2) spread over the image: an
-        8 x 6 grid, the cells filled in turn (a reproducible random order inside a cell)."""
+        8 x 6 grid, the cells filled in turn (inside a cell the youngest ``age`` (K,) first,
+        then a reproducible random order)."""
         if len(uv) <= n:
             return np.arange(len(uv))
         h, w = self._gray.shape[:2]
@@ -430,7 +481,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
             (uv[:, 1] * (6 / h)).astype(int), 0, 5
         )
         jitter = np.random.default_rng(len(uv)).random(len(uv))
-        order = np.lexsort((jitter, cell))
+        age = np.zeros(len(uv)) if age is None else age
+        order = np.lexsort((jitter, age, cell))
         c = cell[order]
         start = np.r_[0, np.flatnonzero(c[1:] != c[:-1]) + 1]
         rank = np.arange(len(c)) - np.repeat(start, np.diff(np.r_[start, len(c)]))
@@ -449,13 +501,14 @@ class TrackingFeatureFrontend(FeatureFrontend):
         forward-backward check (at most ``max_tracks`` of them with ``cap``, spread by
         :meth:`_cap`), starting from ``guess`` (K, 2) px (the motion model's prediction) when
         given; the backward pass starts from ``uv``. Returns the surviving ``(uv (K', 2)
-        float32, rows (K',))``."""
+        float32, rows (K',), idx (K',))``, ``idx`` their indices in ``uv``."""
+        idx = np.arange(len(uv))
         if len(uv) == 0:
-            return uv, rows
+            return uv, rows, idx
         if cap and len(uv) > self.max_tracks:
-            keep = self._cap(uv, self.max_tracks)
-            uv, rows = uv[keep], rows[keep]
-            guess = None if guess is None else guess[keep]
+            idx = self._cap(uv, self.max_tracks)
+            uv, rows = uv[idx], rows[idx]
+            guess = None if guess is None else guess[idx]
         p0 = np.ascontiguousarray(uv, np.float32).reshape(-1, 1, 2)
         if guess is not None:
             p1 = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2)
@@ -465,7 +518,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         else:
             p1, st, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, **self.lk)
         if p1 is None:
-            return uv[:0], rows[:0]
+            return uv[:0], rows[:0], idx[:0]
         p0b, st_b, _ = cv2.calcOpticalFlowPyrLK(
             cur, prev, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self.lk
         )
@@ -481,7 +534,58 @@ class TrackingFeatureFrontend(FeatureFrontend):
             & (p1[:, 0] <= w - 1)
             & (p1[:, 1] <= h - 1)
         )
-        return p1[ok], rows[ok]
+        return p1[ok], rows[ok], idx[ok]
+
+    def _track_anchored(self, cur: np.ndarray, guess: np.ndarray | None):
+        """The tracks (at most ``max_tracks``, spread by :meth:`_cap`) followed into image
+        ``cur`` from their anchors: each from the frame it was detected (or re-anchored) in,
+        at its pixel there, by LK from ``guess`` (K, 2) (the motion model's prediction; the
+        previous frame's pixels without one), with the forward-backward check against the
+        anchor pixel. Tracking from the anchor rather than from frame to frame keeps the
+        optical flow's errors from adding up over the frames.
+
+        Returns ``(uv (K', 2) float32, rows (K',), idx (K',))``, ``idx`` the tracks' indices."""
+        n = len(self._uv)
+        idx = np.arange(n)
+        if n > self.max_tracks:
+            # (the youngest anchors first: optical flow over fewer frames is more precise)
+            idx = self._cap(self._uv, self.max_tracks, age=self._index - self._anc)
+        start = self._uv if guess is None else guess
+        out_uv, out_idx = [], []
+        anc = self._anc[idx]
+        for a in np.unique(anc):
+            sel = idx[anc == a]
+            img = self._anchors.get(int(a))
+            if img is None:
+                continue
+            uv, _, k = self._track(
+                img, cur, self._anc_uv[sel], self._rows[sel], cap=False, guess=start[sel]
+            )
+            out_uv.append(uv)
+            out_idx.append(sel[k])
+        if not out_idx:
+            return np.zeros((0, 2), np.float32), self._rows[:0], idx[:0]
+        uv, idx = np.concatenate(out_uv), np.concatenate(out_idx)
+        return uv, self._rows[idx], idx
+
+    def _reanchor(self, anc: np.ndarray, anc_uv: np.ndarray, uv: np.ndarray, gray: np.ndarray):
+        """Tracks whose anchor is more than ``max_anchor_age`` frames old, or of the oldest
+        anchors beyond ``max_anchors``, are anchored again in this frame at their tracked
+        pixels ``uv`` (the view has changed too much for the old patch, or too many images
+        would be tracked from). Returns the new ``(anc, anc_uv)``."""
+        if len(anc) == 0:
+            return anc, anc_uv
+        old = self._index - anc > self.max_anchor_age
+        live = np.unique(anc[~old])
+        if len(live) >= self.max_anchors:  # (keep max_anchors - 1, plus this frame)
+            old |= (anc < live[-(self.max_anchors - 1)]) if self.max_anchors > 1 else True
+        if not old.any():
+            return anc, anc_uv
+        anc, anc_uv = anc.copy(), np.array(anc_uv, np.float32).reshape(-1, 2)
+        anc[old] = self._index
+        anc_uv[old] = uv[old]
+        self._anchors[self._index] = gray
+        return anc, anc_uv
 
     def _start_refresh(self, camera: CameraModel) -> None:
         """Detect on the last frame in a background thread (OpenCV releases the GIL)."""
@@ -510,9 +614,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         """A finished refresh (detection and guided matching in its frame, done in the
         background): its matches followed by LK into this frame ``gray``.
 
-        Returns ``(uv (G, 2) float32, rows (G,))``."""
+        Returns ``(uv (G, 2) float32, rows (G,), uv_k (G, 2), job)``: ``uv_k`` their
+        detected pixels in the refresh frame, ``job`` the refresh (its ``index``, ``gray``)."""
         job = self._pending
-        empty = np.zeros((0, 2), np.float32), np.zeros(0, np.int64)
+        empty = np.zeros((0, 2), np.float32), np.zeros(0, np.int64), np.zeros((0, 2)), job
         if job is None or not job.done.is_set():
             return empty
         self._pending = None
@@ -520,7 +625,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
             return empty
         uv_k, rows = job.result
         guess = self._predict(rows, stamp_ns)  # (the refresh frame may be a few frames back)
-        return self._track(job.gray, gray, uv_k, rows, cap=False, guess=guess)
+        uv, rows, idx = self._track(job.gray, gray, uv_k, rows, cap=False, guess=guess)
+        return uv, rows, uv_k[idx], job
 
     def _local_rows(self, pose: tuple, camera: CameraModel) -> np.ndarray:
         """Map rows in front of the camera and inside the image (global-shutter projection
