@@ -20,21 +20,27 @@ from rs_localizer.sim.render.scene import load_scene
 pytestmark = pytest.mark.slow  # (renders a map and a video)
 
 
-@pytest.fixture(scope="module")
-def video():
+def _shake_video(seconds: float, frames: int, seed: int):
+    """A hand-held 640x480 video of ``textured_room`` with the SIFT map of four still views
+    of its path: (map, rendered frames, camera, renderer, motion)."""
     scene = load_scene("textured_room")
     camera = camera_preset("vga")
-    motion = make_motion("shake", scene, duration=1.0)
+    motion = make_motion("shake", scene, duration=seconds)
     fmap = build_feature_map(
         scene,
         camera_preset("vga", line_delay=0.0),
-        (motion, np.linspace(0.0, 1.0, 4)),
+        (motion, np.linspace(0.0, seconds, 4)),
         kind="sift",
         n_features=1500,
     )
     renderer = Renderer(scene, camera, noise=NoiseModel())
-    frames = list(renderer.render_sequence(motion, 10, seed=1))
-    return fmap, frames, camera, renderer, motion
+    rendered = list(renderer.render_sequence(motion, frames, seed=seed))
+    return fmap, rendered, camera, renderer, motion
+
+
+@pytest.fixture(scope="module")
+def video():
+    return _shake_video(1.0, 10, seed=1)
 
 
 def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
@@ -178,19 +184,7 @@ def test_capped_tracks_cover_the_image(video):
 @pytest.fixture(scope="module")
 def long_video():
     """Two seconds (60 frames) of the hand-held video, with its map and truth."""
-    scene = load_scene("textured_room")
-    camera = camera_preset("vga")
-    motion = make_motion("shake", scene, duration=2.0)
-    fmap = build_feature_map(
-        scene,
-        camera_preset("vga", line_delay=0.0),
-        (motion, np.linspace(0.0, 2.0, 4)),
-        kind="sift",
-        n_features=1500,
-    )
-    renderer = Renderer(scene, camera, noise=NoiseModel())
-    frames = list(renderer.render_sequence(motion, 60, seed=2))
-    return fmap, frames, camera, renderer, motion
+    return _shake_video(2.0, 60, seed=2)
 
 
 def _pixel_errors(got, frames, renderer, motion):
