@@ -231,16 +231,18 @@ def _ippe_candidates(obj: np.ndarray, x: np.ndarray) -> list:
     OpenCV's square solver (``SOLVEPNP_IPPE_SQUARE``) is tried first; where it returns
     non-finite poses (OpenCV 4.6 does on some exact, noise-free corners) the general planar one
     (``SOLVEPNP_IPPE``, the same two solutions of a plane) replaces it."""
+    finite = []
     for flags in (cv2.SOLVEPNP_IPPE_SQUARE, cv2.SOLVEPNP_IPPE):
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             obj, x.reshape(-1, 1, 2), np.eye(3), None, flags=flags
         )
-        out = [
+        poses = [
             (rotvec_to_matrix(np.ravel(r)), np.ravel(t)) for r, t in zip(rvecs, tvecs, strict=True)
         ][:n]
-        if out and all(np.isfinite(R).all() and np.isfinite(t).all() for R, t in out):
-            return out
-    return [(R, t) for R, t in out if np.isfinite(R).all() and np.isfinite(t).all()]
+        finite = [(R, t) for R, t in poses if np.isfinite(R).all() and np.isfinite(t).all()]
+        if finite and len(finite) == len(poses):
+            break
+    return finite
 
 
 def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f: float):
