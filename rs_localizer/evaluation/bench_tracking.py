@@ -31,6 +31,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 import cv2
 import numpy as np
@@ -44,9 +45,12 @@ from ..sim.render.motion import make_motion
 from ..sim.render.renderer import NoiseModel, Renderer, camera_preset
 from ..sim.render.scene import load_scene
 
-__all__ = ["main", "padded_map", "run_video"]
+__all__ = ["main", "median_ratio_interval", "padded_map", "run_video"]
 
 FPS = 30.0
+#: frames per block of the moving-block bootstrap (1 s at 30 Hz: neighbouring frames' errors
+#: are correlated, so frames are resampled in runs of this length)
+BLOCK_FRAMES = 30
 
 
 def padded_map(fm: FeatureMap, size: int, seed: int = 0) -> FeatureMap:
@@ -144,6 +148,53 @@ def run_video(
     res = {k: np.array(v) for k, v in out.items()}
     res.update({k: np.concatenate(v) if v else np.zeros(0) for k, v in px.items()})
     return res
+
+
+def median_ratio_interval(
+    a: np.ndarray,
+    b: np.ndarray,
+    block: int = BLOCK_FRAMES,
+    resamples: int = 2000,
+    level: float = 0.95,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile interval of ``nanmedian(a) / nanmedian(b)`` by a paired moving-block
+    bootstrap over frames (Kunsch, "The jackknife and the bootstrap for general stationary
+    observations", Ann. Statist. 17(3), 1989): each resample draws ``ceil(n / block)`` runs of
+    ``block`` consecutive frames with replacement (the same frames for ``a`` and ``b``) and
+    takes the ratio of the two medians.
+
+    How far a ratio of median errors measured on one video can be trusted: the per-frame
+    errors of a video are correlated over neighbouring frames, so an interval from frames
+    resampled one by one would be too narrow.
+
+    Args:
+        a, b: (n,) per-frame errors of the two methods on the same frames (NaN: not posed).
+        block: frames per run (1 <= block <= n). resamples: bootstrap resamples.
+        level: the interval's coverage (0 < level < 1). seed: the resampling's seed.
+    Returns:
+        ``(low, high)``, the ``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles of the
+        resampled ratios (resamples in which a method posed no frame are left out).
+    Raises:
+        ValueError: ``a`` and ``b`` of other shapes than the same (n,), n < 1, or ``block``
+            or ``level`` out of range.
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if a.ndim != 1 or a.shape != b.shape or len(a) < 1:
+        raise ValueError(f"a and b must be (n,) arrays of one length, got {a.shape}, {b.shape}")
+    n = len(a)
+    if not 1 <= block <= n or not 0.0 < level < 1.0:
+        raise ValueError(f"block must be in [1, {n}] and level in (0, 1)")
+    rng = np.random.default_rng(seed)
+    runs = -(-n // block)
+    starts = rng.integers(0, n - block + 1, size=(resamples, runs))
+    idx = (starts[:, :, None] + np.arange(block)).reshape(resamples, -1)[:, :n]
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a resample with no posed frame
+        ratios = np.nanmedian(a[idx], axis=1) / np.nanmedian(b[idx], axis=1)
+    ratios = ratios[np.isfinite(ratios)]
+    q = (1.0 - level) / 2.0
+    return float(np.quantile(ratios, q)), float(np.quantile(ratios, 1.0 - q))
 
 
 def _ms(a: np.ndarray) -> str:
@@ -289,6 +340,22 @@ def main(argv: list | None = None) -> int:
         )
         for n in videos
     ]
+    print(
+        "\nratios to per-frame global matching, median over the frames (95 % interval, "
+        f"moving-block bootstrap of {BLOCK_FRAMES}-frame runs):"
+    )
+    for n in videos:
+        on, off = results[n, True], results[n, False]
+        parts = []
+        for k, unit in (("rot", "rotation"), ("pos", "position")):
+            lo, hi = median_ratio_interval(on[k], off[k])
+            llo, lhi = median_ratio_interval(on[k][-50:], off[k][-50:], block=10)
+            parts.append(
+                f"{unit} {np.nanmedian(on[k]) / np.nanmedian(off[k]):.2f}x [{lo:.2f}, {hi:.2f}]"
+                f", last 50 frames {np.nanmedian(on[k][-50:]) / np.nanmedian(off[k][-50:]):.2f}x"
+                f" [{llo:.2f}, {lhi:.2f}]"
+            )
+        print(f"  {n:10s} " + "; ".join(parts))
     worst = max(max(a) for a in acc)
     drift = max(  # the last 50 frames against per-frame global matching's last 50
         np.nanmedian(results[n, True][k][-50:]) / np.nanmedian(results[n, False][k][-50:])
