@@ -34,7 +34,8 @@ the repeated detector errors found, the time. Then the walk and the drive mapped
 then a second drive (the same loop, other noise) localized frame by frame against the true
 map and the built maps (written and read as the node reads them; the walk's map also with the
 correspondences scored by the markers' stated std, and with the final fit weighing each
-corner by its stated std, :func:`corner_sigmas`), each map's errors compared with the true
+corner by its stated std, :func:`corner_sigmas`, or by its shape-only std,
+``MarkerMapResult.marker_shape_std``), each map's errors compared with the true
 map's on the frames both solve, and the targets. One BLAS thread.
 
     python -m rs_localizer.evaluation.bench_mapping [--frames 240] [--anchor-frames 60]
@@ -640,6 +641,14 @@ def main(argv: list | None = None) -> int:
             rows.append(
                 ("walk, weighted by std", maps["walk + anchor sweep"], None, corner_sigmas(walk))
             )
+            rows.append(
+                (
+                    "walk, by shape std",
+                    maps["walk + anchor sweep"],
+                    None,
+                    walk.marker_shape_std,
+                )
+            )
         for name, corners, std, sigma in rows:
             if name == "one spot, small anchor":
                 continue  # (another room)
@@ -654,12 +663,13 @@ def main(argv: list | None = None) -> int:
                 f"{r['position_cm']:7.2f} {both:5d} {f'{rr:.2f}x {rp:.2f}x':>12s}  "
                 f"{dict(r['failed'])}"
             )
-            if name in ("walk + anchor sweep", "merged", "walk, weighted by std"):
-                what = {
-                    "walk + anchor sweep": "the walk's map",
-                    "merged": "the merged map (walk + drive)",
-                    "walk, weighted by std": "the walk's map, corners weighted by their std",
-                }[name]
+            what = {
+                "walk + anchor sweep": "the walk's map",
+                "merged": "the merged map (walk + drive)",
+                "walk, weighted by std": "the walk's map, corners weighted by their std",
+                "walk, by shape std": "the walk's map, corners weighted by their shape-only std",
+            }.get(name)
+            if what is not None:
                 targets.append(
                     (
                         f"localization against {what} within 1.5x of the true map",
