@@ -34,6 +34,7 @@ from .gyro import (
     gyro_image_chi2,
     gyro_prior,
 )
+from .map_weights import check_point_sigma, weighted_final_model
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -80,6 +81,7 @@ def estimate_rs_pose(
     *,
     initial_model: InitialModel | None = None,
     gyro: GyroMeasurement | None = None,
+    point_sigma: np.ndarray | None = None,
 ) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
@@ -122,13 +124,20 @@ def estimate_rs_pose(
             or the image-alone refinement explains more than it: a gyro that led RANSAC to a
             wrong consensus), the frame is solved again without it, ``gyro_rejected`` is set
             and ``gyro_rejection`` says why. Ignored by the global-shutter ``p3p``.
+        point_sigma: optional (N,) standard deviation (m, per axis) of each 3D point, e.g. a
+            built map's stated precision: the final model is then refined once more with each
+            point weighted by its total image noise, detection and map
+            (:func:`~rs_localizer.estimation.map_weights.weighted_final_model`; RANSAC and its
+            inlier test are unchanged; frames refined with a motion prior keep the unweighted
+            fit; the covariance is the weighted fit's, without acceleration sensitivity or
+            correlated noise). Without it the estimator is unchanged.
 
     While the compiled kernels are switched off
     (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`: a node whose kernels
     compile in the background), the solvers of
     :data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS` run without them
     (:func:`~rs_localizer.estimation.uncompiled.estimate_uncompiled`: the same model and
-    outputs; ``scores``, ``initial_model`` and ``gyro`` are not used there).
+    outputs; ``scores``, ``initial_model``, ``gyro`` and ``point_sigma`` are not used there).
 
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
@@ -143,12 +152,23 @@ def estimate_rs_pose(
     opts = options or EstimateOptions()
     if solver in UNCOMPILED_SOLVERS and not compiled_kernels_in_use():
         return estimate_uncompiled(points2d_px, points3d, camera, solver, opts)
+    if point_sigma is not None:
+        point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
     args = (points2d_px, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
-        return _estimate(*args, opts, scores, initial_model)
+        return _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
     image: list[ImageAlone | None] = []
-    est = _estimate(*args, aided, scores, initial_model, gyro, image, opts.motion_prior)
+    est = _estimate(
+        *args,
+        aided,
+        scores,
+        initial_model,
+        gyro,
+        image,
+        opts.motion_prior,
+        point_sigma=point_sigma,
+    )
     unaided = None
     why = "aided_failed"
     if est.success:
@@ -164,7 +184,7 @@ def estimate_rs_pose(
         ):
             return est
         else:
-            unaided = _estimate(*args, opts, scores, initial_model)
+            unaided = _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
             if not (
                 unaided.success
                 and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
@@ -172,7 +192,7 @@ def estimate_rs_pose(
                 return est
             why = "fewer_inliers"
     if unaided is None:
-        unaided = _estimate(*args, opts, scores, initial_model)
+        unaided = _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
     if est.success or unaided.success:
         return replace(unaided, gyro_rejected=True, gyro_rejection=why)
     return unaided
@@ -197,13 +217,16 @@ def _estimate(
     gyro: GyroMeasurement | None = None,
     image: list[ImageAlone | None] | None = None,
     image_prior: MotionPrior | None = None,
+    *,
+    point_sigma: np.ndarray | None = None,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
     a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
     success has ``gyro_used`` set). With
     ``image`` (a list), a success appends what the image alone (with ``image_prior``, the
     motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
-    or None)."""
+    or None). ``point_sigma``: (num_rows,) the 3D points' standard deviations (m), or None
+    (:func:`~.map_weights.weighted_final_model`)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
@@ -230,6 +253,8 @@ def _estimate(
         model = search.result(min_inliers, opts.ransac.threshold_px)
         t0 = time.perf_counter()
         final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
+        if point_sigma is not None:
+            final = weighted_final_model(fr, solver, final, point_sigma[fr.rows], min_inliers)
         timings["refine"] = time.perf_counter() - t0
         initial = (search.explained, search.anchor is not None)
         est = final_estimate(

@@ -35,7 +35,7 @@ from scipy.sparse import csr_matrix, diags, lil_matrix
 from scipy.sparse.linalg import splu
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
 
 __all__ = [
     "FrameDetections",
@@ -45,6 +45,7 @@ __all__ = [
     "concatenate_videos",
     "map_markers",
     "marker_corners_local",
+    "shape_covariance",
 ]
 
 
@@ -196,6 +197,11 @@ class MarkerMapResult:
         frame: :class:`OutputFrame`: how the output frame is fixed, and how well.
         coverage: id -> why the marker's stated std exceeds ``MappingOptions.coverage_std``
             and what would help.
+        marker_shape_std: id -> (4,) each corner's shape-only std (m, rms per axis): its
+            uncertainty relative to the other markers' corners, the frame's and the map's
+            rigid motion as a whole left out (:func:`shape_covariance`). A camera localized
+            against the map sees these, not ``marker_std``: the latter also holds where the
+            whole map sits in the output frame, which is common to all markers.
     """
 
     anchor: int
@@ -220,6 +226,7 @@ class MarkerMapResult:
     corner_offset_px: float = 0.0
     frame: OutputFrame | None = None
     coverage: dict = field(default_factory=dict)
+    marker_shape_std: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------- initialization
@@ -1108,6 +1115,50 @@ def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return R, cd - R @ cs
 
 
+def shape_covariance(points: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """The shape-only part (3 N, 3 N) of the joint covariance ``cov`` (3 N, 3 N) of ``points``
+    (N, 3): the covariance projected onto the complement of the rigid motions of all points
+    together, ``P cov P^T`` with ``P = I - G G^+`` and ``G`` the (3 N, 6) stacked
+    ``[I, -[x_i]x]`` (a small translation and rotation of the whole set). This is the
+    minimum-trace (inner-constraint) gauge of bundle adjustment (Triggs, McLauchlan, Hartley,
+    Fitzgibbon, "Bundle Adjustment: A Modern Synthesis", 2000, section 9): it does not depend
+    on which gauge ``cov`` was computed in, and it is the covariance of the points after a
+    best rigid fit of the whole set onto its mean (to first order). What it keeps is each
+    point's error relative to the others, which is what a camera localized against the
+    points sees; the uncertainty of where the whole set sits goes to the frame."""
+    x = np.asarray(points, float)
+    n = len(x)
+    G = np.zeros((3 * n, 6))
+    for i, c in enumerate(x - x.mean(0)):
+        G[3 * i : 3 * i + 3, :3] = np.eye(3)
+        G[3 * i : 3 * i + 3, 3:] = -skew(c)
+    P = np.eye(3 * n) - G @ np.linalg.pinv(G)
+    return P @ np.asarray(cov, float) @ P.T
+
+
+def _corner_shape_std(poses: dict, ids: list, cov: np.ndarray, sides: dict, keep) -> dict:
+    """id -> (4,) shape-only std of each corner of the markers in ``keep`` (m, rms per axis:
+    ``sqrt(trace / 3)``): the joint covariance of all their corners, ``J cov J^T`` with a
+    corner ``c = p + R o`` moving by ``[-[R o]x, I]`` with its marker's pose perturbation
+    (``ids``' order in ``cov``), projected by :func:`shape_covariance`."""
+    ms = [m for m in ids if m in keep]
+    ms = list(dict.fromkeys(ms))
+    J = np.zeros((12 * len(ms), cov.shape[0]))
+    pts = []
+    for a, m in enumerate(ms):
+        R, p = poses[m]
+        j = 6 * ids.index(m)
+        for k, o in enumerate(marker_corners_local(sides[m])):
+            ro = R @ o
+            r = 12 * a + 3 * k
+            J[r : r + 3, j : j + 3] = -skew(ro)
+            J[r : r + 3, j + 3 : j + 6] = np.eye(3)
+            pts.append(p + ro)
+    S = shape_covariance(np.array(pts), J @ cov @ J.T)
+    d = np.clip(np.diag(S), 0.0, None).reshape(len(ms), 4, 3)
+    return {m: np.sqrt(d[a].sum(1) / 3.0) for a, m in enumerate(ms)}
+
+
 @dataclass
 class OutputFrame:
     """How the map's output frame is fixed and how well.
@@ -1534,7 +1585,15 @@ def _frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
         1e3 * residual,
         rho,
     )
-    return dict(poses=out_poses, cov=covs, frame=frame, transform=(Ro, to), gauge_poses=poses)
+    shape_std = _corner_shape_std(poses, ids, cov, sides, out_poses)
+    return dict(
+        poses=out_poses,
+        cov=covs,
+        frame=frame,
+        transform=(Ro, to),
+        gauge_poses=poses,
+        shape_std=shape_std,
+    )
 
 
 def _assemble(
@@ -1581,6 +1640,7 @@ def _assemble(
         corner_offset_px=prob.corner_offset(sol.x),
         frame=framed["frame"],
         coverage=_coverage(prob, Rf, Cf, framed["gauge_poses"], mstd, sides, options.coverage_std),
+        marker_shape_std=framed["shape_std"],
     )
 
 

@@ -228,8 +228,9 @@ class RobotDrive(RoomWalk):
 class OneSpot(RoomWalk):
     """A hand-held video from one spot: the camera stays near ``spot`` (x, y, height; m),
     shaking by about 2 cm, and pans its view from ``yaw_from`` to ``yaw_to`` (rad, world
-    yaw of the optical axis) and back in ``duration`` seconds, looking ``pitch`` rad up and
-    down: the far walls' markers are seen from one direction only. Same interface as
+    yaw of the optical axis) and back in ``duration`` seconds, with the hand-held yaw wobble
+    of :class:`RoomWalk` (``yaw_wobble`` rad at ``yaw_wobble_hz``), looking ``pitch`` rad up
+    and down: the far walls' markers are seen from one direction only. Same interface as
     :class:`RoomWalk`."""
 
     duration: float = 5.0
@@ -250,6 +251,7 @@ class OneSpot(RoomWalk):
         t = np.asarray(t, dtype=float)
         u = 0.5 - 0.5 * np.cos(2 * np.pi * t / self.duration)  # there and back
         yaw = self.yaw_from + (self.yaw_to - self.yaw_from) * u
+        yaw = yaw + self.yaw_wobble * np.sin(2 * np.pi * self.yaw_wobble_hz * t)  # the hand
         pitch = self.pitch * np.sin(2 * np.pi * 0.4 * t) - 0.05
         roll = 0.04 * np.sin(2 * np.pi * 0.7 * t + 0.5)
         z = np.zeros_like(t)

@@ -1,9 +1,11 @@
 """The marker-map benchmark compares localization against two maps on the frames both solve:
-a map that fails on the hard frames must not look better for it."""
+a map that fails on the hard frames must not look better for it; and it measures a map's shape
+after a rigid fit that a few markers far off do not turn."""
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from rs_localizer.evaluation.bench_mapping import paired_ratios
+from rs_localizer.evaluation.bench_mapping import paired_ratios, robust_rigid_fit
 
 
 def _result(per_frame: dict) -> dict:
@@ -36,3 +38,32 @@ def test_no_frame_in_common_gives_nan():
     a, b = _result({0: (1.0, 1.0)}), _result({1: (1.0, 1.0)})
     rr, rp, both = paired_ratios(a, b)
     assert both == 0 and np.isnan(rr) and np.isnan(rp)
+
+
+def test_robust_rigid_fit_recovers_a_known_motion_despite_gross_outliers():
+    rng = np.random.default_rng(3)
+    truth = rng.uniform([0, 0, 0], [4.5, 4.0, 2.6], (120, 3))  # corners of a room's markers
+    R = Rotation.from_rotvec([0.02, -0.03, 0.05]).as_matrix()
+    t = np.array([0.05, -0.10, 0.02])
+    built = (truth - t) @ R + rng.normal(0, 0.005, truth.shape)  # truth = built @ R.T + t
+    bad = rng.choice(len(truth), 8, replace=False)
+    built[bad] += rng.normal(0, 0.5, (8, 3))  # a few markers far off
+    Rr, tr = robust_rigid_fit(built, truth)
+    assert np.degrees(Rotation.from_matrix(Rr @ R.T).magnitude()) < 0.05
+    assert np.linalg.norm(tr - t) < 0.005
+    good = np.setdiff1d(np.arange(len(truth)), bad)
+    e = np.linalg.norm(built[good] @ Rr.T + tr - truth[good], axis=1)
+    assert np.median(e) < 1.1 * 0.005 * np.sqrt(3)  # the noise alone (median ~1.54 sigma)
+    # the least-squares fit of all points is turned by the outliers
+    ca, cb = built.mean(0), truth.mean(0)
+    rot, _ = Rotation.align_vectors(truth - cb, built - ca)
+    assert np.degrees((rot * Rotation.from_matrix(R).inv()).magnitude()) > 0.2
+
+
+def test_robust_rigid_fit_is_exact_without_noise():
+    rng = np.random.default_rng(4)
+    truth = rng.uniform(-2, 2, (40, 3))
+    R = Rotation.from_rotvec([0.3, 0.1, -0.2]).as_matrix()
+    t = np.array([1.0, 2.0, -0.5])
+    Rr, tr = robust_rigid_fit((truth - t) @ R, truth)
+    assert np.allclose(Rr, R, atol=1e-9) and np.allclose(tr, t, atol=1e-9)

@@ -103,6 +103,28 @@ def test_covariance_is_honest(scene, rs_map):
     assert np.mean(inside) >= 0.9
 
 
+def test_shape_std_is_honest_after_a_rigid_fit(scene, rs_map):
+    # the shape-only std states each corner's error relative to the others: the corners'
+    # errors after the best rigid fit of all of them onto the truth (SciPy, independent of the
+    # adjustment's covariance), not their errors in the anchor's frame
+    from scipy.spatial.transform import Rotation
+
+    from rs_localizer.evaluation.bench_mapping import corner_sigmas
+
+    room, *_ = scene
+    ids = sorted(rs_map.corners)
+    est = np.concatenate([rs_map.corners[m] for m in ids])
+    true = np.concatenate([room.corners()[m] for m in ids])
+    rot, _ = Rotation.align_vectors(true - true.mean(0), est - est.mean(0))
+    err = np.linalg.norm((est - est.mean(0)) @ rot.as_matrix().T + true.mean(0) - true, axis=1)
+    s = np.concatenate([rs_map.marker_shape_std[m] for m in ids])
+    assert s.shape == err.shape and np.all(s > 0)  # (the anchor too: it is not the gauge)
+    assert np.mean(err**2 <= s**2 * chi2.ppf(0.9973, 3)) >= 0.9  # (s: per axis)
+    # the frame's uncertainty, common to all markers, is left out
+    full = np.concatenate([corner_sigmas(rs_map)[m] for m in ids])
+    assert np.median(s) < np.median(full)
+
+
 def test_line_delay_is_calibrated(scene):
     _, camera, _, frames, _, opts = scene
     start = room_camera(line_delay=1.2 * camera.line_delay)
