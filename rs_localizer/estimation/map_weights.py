@@ -27,11 +27,11 @@ from .plausibility import finite_model
 from .prior import prior_arrays, prior_conflict
 from .refine import (
     RefineResult,
-    _prior_residuals,
     exact_errors,
     exact_jacobian,
     exact_residuals,
     posterior_step,
+    prior_residuals,
 )
 
 __all__ = ["check_point_sigma", "point_weights", "weighted_final_model"]
@@ -117,13 +117,13 @@ def weighted_final_model(
     def fun(p):
         r = ww * exact_residuals(full(p), R, X, x, tu)
         if on:
-            r = np.concatenate([r, _prior_residuals(full(p), mean, U, fr.spr, s_det)[0]])
+            r = np.concatenate([r, prior_residuals(full(p), mean, U, fr.spr, s_det)[0]])
         return r
 
     def jac(p):
         J = ww[:, None] * exact_jacobian(full(p), R, X, x, tu)
         if on:
-            J = np.concatenate([J, _prior_residuals(full(p), mean, U, fr.spr, s_det)[1]])
+            J = np.concatenate([J, prior_residuals(full(p), mean, U, fr.spr, s_det)[1]])
         return J[:, :n_free]
 
     from scipy.optimize import least_squares  # (here: the node's start-up otherwise)

@@ -32,6 +32,7 @@ __all__ = [
     "exact_errors",
     "exact_jacobian",
     "exact_residuals",
+    "prior_residuals",
     "refine_rs_pose",
     "refine_rs_pose_scipy",
     "untruncated_variance",
@@ -926,10 +927,23 @@ def posterior_step(
     return res
 
 
-def _prior_residuals(theta, mean, U, s, scale):
-    """(6,) whitened prior residuals ``scale U (z - mean)`` and their (6, 12) Jacobian, z the
-    camera's velocities (v, omega) from theta = (delta, C, w, t) (docs/architecture.md
-    "Conventions")."""
+def prior_residuals(
+    theta: np.ndarray, mean: np.ndarray, U: np.ndarray, s: float, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of a Gaussian motion prior, for a least-squares fit of the exact model.
+
+    Args:
+        theta: (12,) the model's parameters ``(delta, C, w, t)`` (docs/architecture.md
+            "Conventions"; ``delta`` the rotation increment, unused here).
+        mean: (6,) the prior's mean of the camera's velocities ``z = (v, omega)`` (m/s, rad/s).
+        U: (6, 6) a square root of the prior's information matrix (``U^T U = Lambda``).
+        s: seconds per unit of the row coordinate (the model's ``w`` and ``t`` are per unit).
+        scale: the factor that puts the prior in the units of the image residuals
+            (1 / the image noise those residuals are divided by).
+    Returns:
+        ``(r, J)``: (6,) whitened residuals ``scale U (z - mean)`` and their (6, 12) Jacobian
+        with respect to ``theta``.
+    """
     C, w, t = theta[3:6], theta[6:9], theta[9:12]
     z = np.concatenate([(np.cross(w, C) - t) / s, -w / s])
     Jz = np.zeros((6, 12))
@@ -983,17 +997,13 @@ def refine_rs_pose_scipy(
     def fun(p):
         r = exact_residuals(full(p), R0, X, x, tau)
         if on:
-            r = np.concatenate(
-                [r, _prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[0]]
-            )
+            r = np.concatenate([r, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[0]])
         return r
 
     def jac(p):
         J = exact_jacobian(full(p), R0, X, x, tau)
         if on:
-            J = np.concatenate(
-                [J, _prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[1]]
-            )
+            J = np.concatenate([J, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[1]])
         return J[:, free]
 
     from scipy.optimize import least_squares  # (here: 0.2 s of the node's start-up otherwise)
