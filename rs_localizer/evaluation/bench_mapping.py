@@ -595,7 +595,11 @@ def main(argv: list | None = None) -> int:
         ]
         print(
             f"\ntwo videos merged (walk + anchor sweep, robot drive), anchor 0: median "
-            f"{em['median_mm']:.1f} mm (singles {singles[0]:.1f}, {singles[1]:.1f}), stated std "
+            f"{em['median_mm']:.1f} mm (singles: "
+            + ", ".join(
+                f"{s:.1f}" if np.isfinite(s) else "not mappable in this frame" for s in singles
+            )
+            + "), stated std "
             f"median {em['std_median_mm']:.1f} mm (singles "
             + ", ".join(f"{s:.1f}" for s in std_single)
             + f"), {100 * em['honest']:.0f} % within 3 sigma"
