@@ -49,6 +49,7 @@ __all__ = [
     "final_estimate",
     "final_refinement",
     "image_alone",
+    "posterior_if_consistent",
     "refine_final_model",
 ]
 
@@ -166,11 +167,29 @@ def final_refinement(
     )
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None
+    return posterior_if_consistent(ref, prior, fr.spr)
+
+
+def posterior_if_consistent(
+    ref: RefineResult, prior: MotionPrior, seconds_per_unit_r: float
+) -> tuple[RefineResult, bool]:
+    """MAP from a maximum-likelihood refinement ``ref`` in closed form
+    (:func:`~.refine.posterior_step`) when ``prior`` does not conflict with its velocities
+    (:data:`PRIOR_CONFLICT`) and would move them by at least :data:`PRIOR_NEGLIGIBLE` of their
+    standard deviation (:func:`~.prior.prior_conflict`; see :func:`final_refinement`).
+
+    Args:
+        ref: the ML result (with its covariance and ``data_information``/``data_gradient``).
+        prior: the motion prior. seconds_per_unit_r: seconds per unit of the row coordinate.
+    Returns:
+        ``(the posterior, True)``, or ``(ref, False)`` when the prior does not apply or the
+        step fails.
+    """
     # (NaN in a failed refinement makes both tests false: the ML result stays)
-    conflict, shift = prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, fr.spr)
+    conflict, shift = prior_conflict(prior, ref.covariance, ref.C, ref.w, ref.t, seconds_per_unit_r)
     if not (conflict < PRIOR_CONFLICT and shift >= PRIOR_NEGLIGIBLE):
         return ref, False
-    post = posterior_step(ref, prior, fr.spr)  # (MAP from ML in closed form)
+    post = posterior_step(ref, prior, seconds_per_unit_r)  # (MAP from ML in closed form)
     return (ref, False) if post is None else (post, True)
 
 

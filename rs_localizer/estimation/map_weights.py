@@ -20,19 +20,12 @@ import numpy as np
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel
 from ..solvers.registry import solver_info
-from .finalize import FINAL_CUTOFF, PRIOR_CONFLICT, PRIOR_NEGLIGIBLE, FinalModel
+from .finalize import FINAL_CUTOFF, FinalModel, posterior_if_consistent
 from .frame import Frame
 from .outputs import final_inliers
 from .plausibility import finite_model
-from .prior import prior_arrays, prior_conflict
-from .refine import (
-    RefineResult,
-    exact_errors,
-    exact_jacobian,
-    exact_residuals,
-    posterior_step,
-    prior_residuals,
-)
+from .prior import prior_arrays
+from .refine import RefineResult, exact_errors, least_squares_exact_model
 
 __all__ = ["check_point_sigma", "point_weights", "weighted_final_model"]
 
@@ -100,41 +93,26 @@ def weighted_final_model(
     n_free = 12 if rolling else 6
     if use.sum() < max(min_inliers, n_free // 2 + 1):
         return final
-    X, x, tu = fr.X[use], fr.x[use], tau[use]
     huber = np.sqrt(th / np.maximum(e[use], th))
-    ww = np.repeat(wgt[use] * huber, 2)
-    theta0 = np.concatenate([np.zeros(3), C, w, t])
-    map_prior = fr.prior if rolling else None
-    on, mean, Lam = prior_arrays(map_prior)
-    ev, V = np.linalg.eigh(Lam)
-    U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
-
-    def full(p):
-        th_ = theta0.copy()
-        th_[:n_free] = p
-        return th_
-
-    def fun(p):
-        r = ww * exact_residuals(full(p), R, X, x, tu)
-        if on:
-            r = np.concatenate([r, prior_residuals(full(p), mean, U, fr.spr, s_det)[0]])
-        return r
-
-    def jac(p):
-        J = ww[:, None] * exact_jacobian(full(p), R, X, x, tu)
-        if on:
-            J = np.concatenate([J, prior_residuals(full(p), mean, U, fr.spr, s_det)[1]])
-        return J[:, :n_free]
-
-    from scipy.optimize import least_squares  # (here: the node's start-up otherwise)
-
-    res = least_squares(fun, theta0[:n_free], jac=jac, method="trf", x_scale="jac")
-    th_ = full(res.x)
+    fit_prior = fr.prior if rolling else None
+    fit = least_squares_exact_model(
+        R,
+        np.concatenate([np.zeros(3), C, w, t]),
+        n_free,
+        fr.X[use],
+        fr.x[use],
+        tau[use],
+        fit_prior,
+        fr.spr,
+        s_det,
+        row_weights=np.repeat(wgt[use] * huber, 2),
+    )
+    res, th_ = fit.result, fit.theta
     model = RSModel(rotvec_to_matrix(th_[:3]) @ R, th_[3:6], th_[6:9], th_[9:12])
     if not res.success or not finite_model(*model):
         return final
-    J = jac(res.x)
-    nd = 2 * len(X)
+    J = fit.jac(res.x)
+    nd = 2 * int(use.sum())
     Jd, rd = J[:nd], res.fun[:nd]
     s2 = float(rd @ rd) / max(nd - n_free, 1)
     info = np.zeros((12, 12))
@@ -146,17 +124,15 @@ def weighted_final_model(
         cov[:n_free, :n_free] = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         cov = None
-    prior_used = bool(on)
+    prior_used = bool(prior_arrays(fit_prior)[0])  # (a prior that constrains nothing is not used)
     if cov is not None and np.isfinite(cov).all():
         ref = RefineResult(*model, cov, float(np.sqrt(s2)), True, int(res.nfev))
         ref.data_information, ref.data_gradient = info, grad
-        if not on and rolling and fr.final_prior is not None:
-            conflict, shift = prior_conflict(fr.final_prior, cov, *model[1:], fr.spr)
-            if conflict < PRIOR_CONFLICT and shift >= PRIOR_NEGLIGIBLE:
-                post = posterior_step(ref, fr.final_prior, fr.spr)
-                if post is not None and finite_model(post.R, post.C, post.w, post.t):
-                    model = RSModel(post.R, post.C, post.w, post.t)
-                    cov, prior_used = post.covariance, True
+        if not prior_used and rolling and fr.final_prior is not None:
+            post, used = posterior_if_consistent(ref, fr.final_prior, fr.spr)
+            if used and finite_model(post.R, post.C, post.w, post.t):
+                model = RSModel(post.R, post.C, post.w, post.t)
+                cov, prior_used = post.covariance, True
     else:
         cov = None
     errors = exact_errors(*model, fr.X, fr.x, tau)

@@ -15,7 +15,9 @@ same problem with SciPy's ``least_squares`` and serves as the reference in the t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -27,11 +29,13 @@ from ..pose import RSModel
 from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
 
 __all__ = [
+    "ExactModelFit",
     "RefineResult",
     "RefineSettings",
     "exact_errors",
     "exact_jacobian",
     "exact_residuals",
+    "least_squares_exact_model",
     "prior_residuals",
     "refine_rs_pose",
     "refine_rs_pose_scipy",
@@ -954,6 +958,87 @@ def prior_residuals(
     return scale * U @ (z - mean), scale * U @ Jz
 
 
+@dataclass
+class ExactModelFit:
+    """What :func:`least_squares_exact_model` returns.
+
+    Attributes:
+        result: SciPy's ``OptimizeResult`` (``x`` the free parameters, ``fun`` the residuals:
+            the (2 M,) weighted image rows, then the prior's 6 rows if any).
+        theta: (12,) the fitted ``(delta, C, w, t)`` (the parameters not fitted as given).
+        jac: the residuals' Jacobian at free parameters ``p`` (n_free,): (rows, n_free).
+    """
+
+    result: Any
+    theta: np.ndarray
+    jac: Callable[[np.ndarray], np.ndarray]
+
+
+def least_squares_exact_model(
+    R0: np.ndarray,
+    theta0: np.ndarray,
+    n_free: int,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    prior: MotionPrior | None,
+    seconds_per_unit_r: float,
+    noise: float,
+    row_weights: np.ndarray | None = None,
+    **options: object,
+) -> ExactModelFit:
+    """The exact model (paper eq. 4) fitted by SciPy ``least_squares`` (trust region,
+    ``x_scale="jac"``) from ``theta0``, the first ``n_free`` parameters free (12: rolling
+    shutter; 6: rotation and centre).
+
+    Args:
+        R0: (3, 3) the rotation ``delta`` is applied to (camera from world).
+        theta0: (12,) the starting ``(delta, C, w, t)``; C in m, w in rad and t in m per unit
+            of the row coordinate.
+        n_free: 6 or 12.
+        X: (M, 3) world points (m). x: (M, 2) normalized image points. tau: (M,) their row
+            coordinates relative to the reference row.
+        prior: a motion prior (its six rows ``noise * U (z - mean)``, :func:`prior_residuals`,
+            join the residuals), or None.
+        seconds_per_unit_r: seconds per unit of the row coordinate (the prior's time scale).
+        noise: the image noise the prior's rows are scaled by (normalized units).
+        row_weights: optional (2 M,) factors of the image residual rows (not the prior's).
+        **options: passed on to ``least_squares`` (``loss``, ``f_scale``, tolerances).
+    Returns:
+        :class:`ExactModelFit`.
+    """
+    free = np.arange(n_free)
+    on, mean, Lam = prior_arrays(prior)
+    ev, V = np.linalg.eigh(Lam)
+    U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
+
+    def full(p):
+        th = theta0.copy()
+        th[free] = p
+        return th
+
+    def fun(p):
+        r = exact_residuals(full(p), R0, X, x, tau)
+        if row_weights is not None:
+            r = row_weights * r
+        if on:
+            r = np.concatenate([r, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[0]])
+        return r
+
+    def jac(p):
+        J = exact_jacobian(full(p), R0, X, x, tau)
+        if row_weights is not None:
+            J = row_weights[:, None] * J
+        if on:
+            J = np.concatenate([J, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[1]])
+        return J[:, free]
+
+    from scipy.optimize import least_squares  # (here: 0.2 s of the node's start-up otherwise)
+
+    res = least_squares(fun, theta0[free], jac=jac, method="trf", x_scale="jac", **options)
+    return ExactModelFit(res, full(res.x), jac)
+
+
 def refine_rs_pose_scipy(
     R0: np.ndarray,
     C0: np.ndarray,
@@ -976,7 +1061,7 @@ def refine_rs_pose_scipy(
     :func:`refine_rs_pose` with a given ``noise``; SciPy's Huber loss acts on every residual
     component, so compare with a ``loss_scale`` the residuals stay inside).
     """
-    free = np.arange(12) if rolling_shutter else np.arange(6)
+    n_free = 12 if rolling_shutter else 6
     theta0 = np.concatenate(
         [
             np.zeros(3),
@@ -985,42 +1070,23 @@ def refine_rs_pose_scipy(
             t0 if rolling_shutter else np.zeros(3),
         ]
     )
-    on, mean, Lam = prior_arrays(prior if rolling_shutter else None)
-    ev, V = np.linalg.eigh(Lam)
-    U = (V * np.sqrt(np.clip(ev, 0.0, None))).T
-
-    def full(p):
-        th = theta0.copy()
-        th[free] = p
-        return th
-
-    def fun(p):
-        r = exact_residuals(full(p), R0, X, x, tau)
-        if on:
-            r = np.concatenate([r, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[0]])
-        return r
-
-    def jac(p):
-        J = exact_jacobian(full(p), R0, X, x, tau)
-        if on:
-            J = np.concatenate([J, prior_residuals(full(p), mean, U, seconds_per_unit_r, noise)[1]])
-        return J[:, free]
-
-    from scipy.optimize import least_squares  # (here: 0.2 s of the node's start-up otherwise)
-
-    res = least_squares(
-        fun,
-        theta0[free],
-        jac=jac,
+    fit = least_squares_exact_model(
+        R0,
+        theta0,
+        n_free,
+        X,
+        x,
+        tau,
+        prior if rolling_shutter else None,
+        seconds_per_unit_r,
+        noise,
         loss="huber",
         f_scale=loss_scale,
-        method="trf",
-        x_scale="jac",
         xtol=1e-12,
         ftol=1e-12,
         gtol=1e-12,
     )
-    th = full(res.x)
+    th = fit.theta
     return RefineResult(
         rotvec_to_matrix(th[:3]) @ R0,
         th[3:6],
@@ -1028,6 +1094,6 @@ def refine_rs_pose_scipy(
         th[9:12],
         None,
         float("nan"),
-        bool(res.success),
-        int(res.nfev),
+        bool(fit.result.success),
+        int(fit.result.nfev),
     )
