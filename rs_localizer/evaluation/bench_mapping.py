@@ -52,12 +52,12 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..geometry import skew
 from ..mapping.marker_ba import (
     FrameDetections,
     MappingOptions,
     MarkerMapResult,
     concatenate_videos,
+    corner_jacobian,
     map_markers,
 )
 from ..sim.marker_room import (
@@ -377,7 +377,8 @@ def localization_errors(
 def corner_sigmas(result: MarkerMapResult) -> dict:
     """The stated standard deviation of each mapped corner (m, per axis): a corner
     ``c = p + R o`` of a marker whose pose (rotation, centre) has the covariance ``S``
-    (``result.marker_covariance``) has the covariance ``J S J^T``, ``J = [-[R o]x, I]``;
+    (``result.marker_covariance``) has the covariance ``J S J^T``, ``J = [-[R o]x, I]``
+    (:func:`~rs_localizer.mapping.marker_ba.corner_jacobian`);
     returned as ``sqrt(trace / 3)``. Returns id -> (4,)."""
     out = {}
     for m, c in result.corners.items():
@@ -385,7 +386,7 @@ def corner_sigmas(result: MarkerMapResult) -> dict:
         p = result.marker_poses[m][1]
         sig = []
         for ro in np.asarray(c, float) - p:
-            J = np.hstack([-skew(ro), np.eye(3)])
+            J = corner_jacobian(ro)
             sig.append(float(np.sqrt(max(np.trace(J @ S @ J.T), 0.0) / 3.0)))
         out[m] = np.array(sig)
     return out

@@ -43,6 +43,7 @@ __all__ = [
     "MarkerMapResult",
     "OutputFrame",
     "concatenate_videos",
+    "corner_jacobian",
     "map_markers",
     "marker_corners_local",
     "shape_covariance",
@@ -1136,6 +1137,14 @@ def shape_covariance(points: np.ndarray, cov: np.ndarray) -> np.ndarray:
     return P @ np.asarray(cov, float) @ P.T
 
 
+def corner_jacobian(R_o: np.ndarray) -> np.ndarray:
+    """(3, 6) derivative of a marker corner ``c = p + R o`` (m, map frame) with respect to its
+    marker's pose perturbation (rotation vector applied on the left, rad; centre, m), the
+    order of ``MarkerMapResult.marker_covariance``: ``[-[R o]x, I]``. ``R_o``: (3,) the
+    corner's offset ``R o`` from the marker centre (m, map frame)."""
+    return np.hstack([-skew(np.asarray(R_o, float)), np.eye(3)])
+
+
 def _corner_shape_std(poses: dict, ids: list, cov: np.ndarray, sides: dict, keep) -> dict:
     """id -> (4,) shape-only std of each corner of the markers in ``keep`` (m, rms per axis:
     ``sqrt(trace / 3)``): the joint covariance of all their corners, ``J cov J^T`` with a
@@ -1151,8 +1160,7 @@ def _corner_shape_std(poses: dict, ids: list, cov: np.ndarray, sides: dict, keep
         for k, o in enumerate(marker_corners_local(sides[m])):
             ro = R @ o
             r = 12 * a + 3 * k
-            J[r : r + 3, j : j + 3] = -skew(ro)
-            J[r : r + 3, j + 3 : j + 6] = np.eye(3)
+            J[r : r + 3, j : j + 6] = corner_jacobian(ro)
             pts.append(p + ro)
     S = shape_covariance(np.array(pts), J @ cov @ J.T)
     d = np.clip(np.diag(S), 0.0, None).reshape(len(ms), 4, 3)
