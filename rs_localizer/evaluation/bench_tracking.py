@@ -333,35 +333,37 @@ def main(argv: list | None = None) -> int:
     tr_tot = np.concatenate(
         [(r["frontend"] + r["estimation"])[r["kind"] == "tracked"] for r in on_tr]
     )
-    acc = [
-        (
-            np.nanmedian(results[n, True]["rot"]) / np.nanmedian(results[n, False]["rot"]),
-            np.nanmedian(results[n, True]["pos"]) / np.nanmedian(results[n, False]["pos"]),
-        )
-        for n in videos
-    ]
+    # median-error ratio, tracking on to off, and its interval: (video, metric, the whole
+    # video or only its last 50 frames) -> (ratio, low, high)
+    ratios = {}
+    for n in videos:
+        for k in ("rot", "pos"):
+            for part, sl, block in (
+                ("all", slice(None), BLOCK_FRAMES),
+                ("last", slice(-50, None), 10),
+            ):
+                on, off = results[n, True][k][sl], results[n, False][k][sl]
+                ratios[n, k, part] = (
+                    np.nanmedian(on) / np.nanmedian(off),
+                    *median_ratio_interval(on, off, block=block),
+                )
     print(
         "\nratios to per-frame global matching, median over the frames (95 % interval, "
-        f"moving-block bootstrap of {BLOCK_FRAMES}-frame runs):"
+        f"moving-block bootstrap of {BLOCK_FRAMES}-frame runs, 10-frame runs for the last 50):"
     )
     for n in videos:
-        on, off = results[n, True], results[n, False]
-        parts = []
-        for k, unit in (("rot", "rotation"), ("pos", "position")):
-            lo, hi = median_ratio_interval(on[k], off[k])
-            llo, lhi = median_ratio_interval(on[k][-50:], off[k][-50:], block=10)
-            parts.append(
-                f"{unit} {np.nanmedian(on[k]) / np.nanmedian(off[k]):.2f}x [{lo:.2f}, {hi:.2f}]"
-                f", last 50 frames {np.nanmedian(on[k][-50:]) / np.nanmedian(off[k][-50:]):.2f}x"
-                f" [{llo:.2f}, {lhi:.2f}]"
+        print(
+            f"  {n:10s} "
+            + "; ".join(
+                "{} {:.2f}x [{:.2f}, {:.2f}], last 50 frames {:.2f}x [{:.2f}, {:.2f}]".format(
+                    unit, *ratios[n, k, "all"], *ratios[n, k, "last"]
+                )
+                for k, unit in (("rot", "rotation"), ("pos", "position"))
             )
-        print(f"  {n:10s} " + "; ".join(parts))
-    worst = max(max(a) for a in acc)
-    drift = max(  # the last 50 frames against per-frame global matching's last 50
-        np.nanmedian(results[n, True][k][-50:]) / np.nanmedian(results[n, False][k][-50:])
-        for n in videos
-        for k in ("rot", "pos")
-    )
+        )
+    worst = max(r[0] for (_, _, part), r in ratios.items() if part == "all")
+    # (the last 50 frames against per-frame global matching's last 50)
+    drift = max(r[0] for (_, _, part), r in ratios.items() if part == "last")
     refound = _refound(results["walk", True])
     unposed = sum(int(np.sum(~np.isfinite(r["rot"]) & ~r["blank"])) for r in on_tr)
     targets = [
