@@ -577,7 +577,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
             return anc, anc_uv
         old = self._index - anc > self.max_anchor_age
         live = np.unique(anc[~old])
-        if len(live) >= self.max_anchors:  # (keep max_anchors - 1, plus this frame)
+        if len(live) > self.max_anchors:  # (keep max_anchors - 1, plus this frame)
             old |= (anc < live[-(self.max_anchors - 1)]) if self.max_anchors > 1 else True
         if not old.any():
             return anc, anc_uv
