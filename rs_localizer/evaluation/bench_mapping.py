@@ -21,9 +21,16 @@ Each is mapped with three choices of the output frame (marker 0 at its true pose
 best-observed marker, the default; marker 0 and the two markers seen most often, surveyed at
 their true corners) and with the global-shutter model in the default frame (the rolling- to
 global-shutter comparison is of the maps' shapes in that frame, which every video has: a
-video need not see marker 0). Printed per map, in its output frame:
-the marker-corner error (median, max; mm), the median after the least-squares rigid
-alignment of all corners and after a robust one (Huber weights on each corner's distance,
+video need not see marker 0), and each video's floor: the same video taken with a global
+shutter (the same motion, stamps, detected markers, noise and detector error; every corner
+where a camera reading all its lines at the frame's stamp sees it:
+``simulate_detections(readout_free=True)``), mapped by the same tool (the rolling-shutter
+model, zero line delay) in the default frame, and the walk's also with marker 0 at its true
+pose: the precision the detections allow when the shutter costs nothing. Its ratios to the
+rolling- and global-shutter maps are printed per video (global shutter / floor: the most the
+rolling- to global-shutter ratio can be with a map at the floor). Printed per map, in its
+output frame: the marker-corner error (median, max; mm), the median after the least-squares
+rigid alignment of all corners and after a robust one (Huber weights on each corner's distance,
 scale 10 mm, :func:`robust_rigid_fit`: the map's shape, which a few markers far off do not
 turn; the rolling- to global-shutter comparison uses it), the median stated standard
 deviation of the marker centres (sqrt of the covariance's trace), the fraction of markers
@@ -32,9 +39,9 @@ whose centre error lies within the stated 3-sigma (Mahalanobis distance below ch
 against its stated std and whether that lies within the stated 3-sigma, the correlation of
 the repeated detector errors found, the time. Then the walk and the drive mapped together;
 then a second drive (the same loop, other noise) localized frame by frame against the true
-map and the built maps (written and read as the node reads them; the walk's map also with the
-correspondences scored by the markers' stated std, and with the final fit weighing each
-corner by its stated std, :func:`corner_sigmas`, or by its shape-only std,
+map and the built maps (written and read as the node reads them; the walk's floor map; the
+walk's map also with the correspondences scored by the markers' stated std, and with the
+final fit weighing each corner by its stated std, :func:`corner_sigmas`, or by its shape-only std,
 ``MarkerMapResult.marker_shape_std``), each map's errors compared with the true
 map's on the frames both solve, and the targets. One BLAS thread.
 
