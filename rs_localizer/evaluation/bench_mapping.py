@@ -21,9 +21,16 @@ Each is mapped with three choices of the output frame (marker 0 at its true pose
 best-observed marker, the default; marker 0 and the two markers seen most often, surveyed at
 their true corners) and with the global-shutter model in the default frame (the rolling- to
 global-shutter comparison is of the maps' shapes in that frame, which every video has: a
-video need not see marker 0). Printed per map, in its output frame:
-the marker-corner error (median, max; mm), the median after the least-squares rigid
-alignment of all corners and after a robust one (Huber weights on each corner's distance,
+video need not see marker 0), and each video's floor: the same video taken with a global
+shutter (the same motion, stamps, detected markers, noise and detector error; every corner
+where a camera reading all its lines at the frame's stamp sees it:
+``simulate_detections(readout_free=True)``), mapped by the same tool (the rolling-shutter
+model, zero line delay) in the default frame, and the walk's also with marker 0 at its true
+pose: the precision the detections allow when the shutter costs nothing. Its ratios to the
+rolling- and global-shutter maps are printed per video (global shutter / floor: the most the
+rolling- to global-shutter ratio can be with a map at the floor). Printed per map, in its
+output frame: the marker-corner error (median, max; mm), the median after the least-squares
+rigid alignment of all corners and after a robust one (Huber weights on each corner's distance,
 scale 10 mm, :func:`robust_rigid_fit`: the map's shape, which a few markers far off do not
 turn; the rolling- to global-shutter comparison uses it), the median stated standard
 deviation of the marker centres (sqrt of the covariance's trace), the fraction of markers
@@ -32,9 +39,9 @@ whose centre error lies within the stated 3-sigma (Mahalanobis distance below ch
 against its stated std and whether that lies within the stated 3-sigma, the correlation of
 the repeated detector errors found, the time. Then the walk and the drive mapped together;
 then a second drive (the same loop, other noise) localized frame by frame against the true
-map and the built maps (written and read as the node reads them; the walk's map also with the
-correspondences scored by the markers' stated std, and with the final fit weighing each
-corner by its stated std, :func:`corner_sigmas`, or by its shape-only std,
+map and the built maps (written and read as the node reads them; the walk's floor map; the
+walk's map also with the correspondences scored by the markers' stated std, and with the
+final fit weighing each corner by its stated std, :func:`corner_sigmas`, or by its shape-only std,
 ``MarkerMapResult.marker_shape_std``), each map's errors compared with the true
 map's on the frames both solve, and the targets. One BLAS thread.
 
@@ -83,6 +90,7 @@ __all__ = [
     "paired_ratios",
     "robust_rigid_fit",
     "room_scene",
+    "same_video_but_readout",
     "truth_in_frame",
 ]
 
@@ -176,6 +184,7 @@ def room_scene(
     anchor_frames: int = 0,
     corner_bias_px: float = 0.0,
     view_error_px: float = 0.0,
+    readout_free: bool = False,
 ) -> tuple:
     """The benchmark's scene: a 4.5 x 4 x 2.6 m room with ``markers`` markers of mixed sizes, the
     hand-held walk around its centre seen by a 640x480 camera with a 30 ms readout, and the
@@ -184,7 +193,9 @@ def room_scene(
     :class:`~rs_localizer.sim.marker_room.AnchorSweep` 1 m in front of the anchor (marker 0),
     then a cut of 1 s, then the walk. ``corner_bias_px``: the detected corners lie that far
     inside their marker's square; ``view_error_px``: the detector's error that repeats from
-    one viewpoint (:func:`simulate_detections`).
+    one viewpoint (:func:`simulate_detections`). ``readout_free``: the same video taken
+    with a global shutter (same stamps, detections and noise; ``simulate_detections``), the
+    returned camera with zero line delay.
 
     Returns:
         ``(room, camera, walk, frames, truth, options)``: the
@@ -206,6 +217,7 @@ def room_scene(
         corner_bias_px=corner_bias_px,
         view_error_px=view_error_px,
         view_seed=seed,
+        readout_free=readout_free,
     )
     if anchor_frames > 0:
         sweep = AnchorSweep(tuple(room.p[0]), tuple(room.R[0][:, 2]))
@@ -218,6 +230,7 @@ def room_scene(
             corner_bias_px=corner_bias_px,
             view_error_px=view_error_px,
             view_seed=seed,
+            readout_free=readout_free,
         )
         shift = anchor_frames / 30.0 + 1.0
         dets = [(s - shift, d) for s, d in d0] + dets
@@ -229,6 +242,8 @@ def room_scene(
         anchor=0,
         anchor_pose=(room.R[0], room.p[0]),
     )
+    if readout_free:
+        camera = room_camera(readout_time=0.0)
     return room, camera, walk, frames, truth, options
 
 
@@ -240,11 +255,13 @@ def drive_detections(
     corner_bias_px: float = 0.0,
     view_error_px: float = 0.0,
     view_seed: int = 0,
+    readout_free: bool = False,
 ) -> tuple:
     """A second video in the benchmark's room: a robot driving one loop at 0.4 m height
     (:class:`~rs_localizer.sim.marker_room.RobotDrive`, 10 s) with the same camera, 0.4 px
     noise, ``corner_bias_px`` and ``view_error_px`` as :func:`room_scene` (``view_seed``: the
-    room's). Returns ``(detections, truth)`` as :func:`simulate_detections`."""
+    room's; ``readout_free``: the same video with a global shutter). Returns
+    ``(detections, truth)`` as :func:`simulate_detections`."""
     return simulate_detections(
         room,
         camera,
@@ -254,6 +271,7 @@ def drive_detections(
         corner_bias_px=corner_bias_px,
         view_error_px=view_error_px,
         view_seed=view_seed,
+        readout_free=readout_free,
     )
 
 
@@ -422,12 +440,15 @@ def _map_through_file(result: MarkerMapResult) -> dict:
         return load_marker_map(path)[1]
 
 
-def _videos(args) -> dict:
-    """The three mapping videos: name -> (room, detections as FrameDetections, options)."""
+def _videos(args, readout_free: bool = False) -> dict:
+    """The three mapping videos: name -> (room, detections as FrameDetections, options);
+    ``readout_free``: the same videos taken with a global shutter (same stamps, detections,
+    noise; :func:`~rs_localizer.sim.marker_room.simulate_detections`)."""
     bias, verr = args.corner_bias, args.view_error
     room, camera, _, frames, _, opts = room_scene(
-        args.frames, args.seed, args.markers, args.anchor_frames, bias, verr
+        args.frames, args.seed, args.markers, args.anchor_frames, bias, verr, readout_free
     )
+    camera = room_camera(readout_time=0.03)  # (the room's projections; not used to map)
     out = {"walk + anchor sweep": (room, frames, opts)}
     small = make_marker_room(args.markers, seed=args.seed, size=(4.5, 4.0, 2.6), anchor_side=0.16)
     d, _ = simulate_detections(
@@ -439,6 +460,7 @@ def _videos(args) -> dict:
         corner_bias_px=bias,
         view_error_px=verr,
         view_seed=args.seed,
+        readout_free=readout_free,
     )
     sizes = {int(i): float(s) for i, s in zip(small.ids, small.sides, strict=True)}
     out["one spot, small anchor"] = (
@@ -447,10 +469,26 @@ def _videos(args) -> dict:
         replace(opts, marker_sizes=sizes, anchor_pose=(small.R[0], small.p[0])),
     )
     d, _ = drive_detections(
-        room, camera, args.map_drive_frames, args.seed + 11, bias, verr, args.seed
+        room, camera, args.map_drive_frames, args.seed + 11, bias, verr, args.seed, readout_free
     )
     out["robot drive"] = (room, [FrameDetections(s, c) for s, c in d], opts)
     return out
+
+
+def same_video_but_readout(a: list, b: list, max_px: float = 50.0) -> bool:
+    """Whether two lists of :class:`FrameDetections` are one video and its readout-free twin:
+    the same stamps, the same markers detected in each frame, and every corner within
+    ``max_px`` pixels of its twin (the rolling-shutter distortion: up to half the readout
+    time's motion, about 20 px at the benchmark's fastest turns)."""
+    if len(a) != len(b):
+        return False
+    for fa, fb in zip(a, b, strict=True):
+        if fa.stamp != fb.stamp or sorted(fa.corners) != sorted(fb.corners):
+            return False
+        for m, c in fa.corners.items():
+            if np.abs(np.asarray(c) - np.asarray(fb.corners[m])).max() > max_px:
+                return False
+    return True
 
 
 def _frame_choices(room, frames: list, opts: MappingOptions) -> dict:
@@ -517,17 +555,34 @@ def main(argv: list | None = None) -> int:
         f"{'rob.med':>7s} {'std':>6s} {'3-sig':>6s} {'frame deg':>9s} {'stated':>7s} {'cov.':>5s} "
         f"{'rho':>5s} {'time s':>7s}"
     )
-    targets, medians, shapes, maps, built = [], {}, {}, {}, {}
+    targets, medians, shapes, maps, built, floors = [], {}, {}, {}, {}, []
+    floor_camera = room_camera(readout_time=0.0)
     with one_thread():
+        floor_videos = _videos(args, readout_free=True)
         for vname, (room, frames, opts) in _videos(args).items():
+            floor_frames = floor_videos[vname][1]
+            if not same_video_but_readout(frames, floor_frames):
+                raise RuntimeError(f"{vname}: the readout-free twin is not the same video")
             choices = _frame_choices(room, frames, opts)
             # the global-shutter model in the default frame (the best-observed marker): a frame
             # every video has (a video need not see marker 0)
             gs = replace(choices["best-observed"], global_shutter=True)
-            for fname, o in [*choices.items(), ("GS, best-observed", gs)]:
+            runs = [(f, o, frames, camera) for f, o in choices.items()]
+            runs.append(("GS, best-observed", gs, frames, camera))
+            # the floor: the same video taken with a global shutter, mapped by the same tool
+            # (rolling-shutter model, zero line delay) in the default frame; the walk's also
+            # with marker 0 at its true pose, to localize against
+            runs.append(
+                ("no readout (floor)", choices["best-observed"], floor_frames, floor_camera)
+            )
+            if vname == "walk + anchor sweep":
+                runs.append(
+                    ("no readout, anchor 0", choices["anchor 0"], floor_frames, floor_camera)
+                )
+            for fname, o, fr, cam in runs:
                 t0 = time.perf_counter()
                 try:
-                    res = map_markers(frames, camera, o)
+                    res = map_markers(fr, cam, o)
                 except ValueError as e:
                     print(f"{vname:24s} {fname:22s} refused: {e}")
                     continue
@@ -546,7 +601,7 @@ def main(argv: list | None = None) -> int:
                     f"{fe['stated_deg']:7.3f} {'yes' if fe['covered'] else 'no':>5s} "
                     f"{res.frame.shared_error_correlation:5.2f} {total:7.1f}"
                 )
-                if fname.startswith("GS"):
+                if fname.startswith(("GS", "no readout")):
                     continue
                 targets.append(
                     (
@@ -578,6 +633,25 @@ def main(argv: list | None = None) -> int:
                 )
             if (vname, "anchor 0") in built:
                 maps[vname] = _map_through_file(built[(vname, "anchor 0")])
+            keys = [
+                (vname, f) for f in ("best-observed", "GS, best-observed", "no readout (floor)")
+            ]
+            if all(k in shapes for k in keys):
+                rs, gs_, fl = (shapes[k] for k in keys)
+                rs0, gs0, fl0 = (medians[k] for k in keys)
+                floors.append(
+                    f"  {vname}: robust median RS {rs:.1f}, GS {gs_:.1f}, floor {fl:.1f} mm: "
+                    f"RS/floor {rs / fl:.2f}x, GS/floor {gs_ / fl:.2f}x (the most GS/RS can be "
+                    f"with a map at the floor); as built RS/floor {rs0 / fl0:.2f}x, GS/floor "
+                    f"{gs0 / fl0:.2f}x"
+                )
+
+        print(
+            "\nthe floor: each video taken with a global shutter (same motion, stamps, "
+            "detections and noise), mapped by the same tool, best-observed frame"
+        )
+        for line in floors:
+            print(line)
 
         # two videos merged
         vids = _videos(args)
@@ -640,6 +714,9 @@ def main(argv: list | None = None) -> int:
             ("true map", room.corners(), None, None),
             *((k, v, None, None) for k, v in maps.items()),
         ]
+        if ("walk + anchor sweep", "no readout, anchor 0") in built:
+            floor_walk = built[("walk + anchor sweep", "no readout, anchor 0")]
+            rows.append(("walk, no readout (floor)", _map_through_file(floor_walk), None, None))
         if walk is not None:
             std = {m: float(s[3:].max()) for m, s in walk.marker_std.items()}
             rows.append(("walk, scored by std", maps["walk + anchor sweep"], std, None))

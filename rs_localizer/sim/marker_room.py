@@ -332,6 +332,7 @@ def simulate_detections(
     corner_bias_px: float = 0.0,
     view_error_px: float = 0.0,
     view_seed: int = 0,
+    readout_free: bool = False,
 ) -> tuple[list[tuple[float, dict[int, np.ndarray]]], dict[str, np.ndarray]]:
     """Detections of the room's markers along the walk.
 
@@ -343,6 +344,13 @@ def simulate_detections(
     blurred images), before the noise. ``view_error_px`` adds a detector error that depends on
     the viewpoint (:func:`view_dependent_error`, rms per axis; ``view_seed`` fixes it: use
     the same for several videos of one room) before the noise.
+
+    ``readout_free``: the same video taken with a global shutter: every corner projected with
+    the camera pose at the frame's reference line (the frame's stamp), through the same lens,
+    and nothing else changed: the same stamps, the same markers detected (decided on the
+    rolling-shutter image), the same noise drawn, the same inward bias (along the diagonals of
+    the readout-free square) and detector error. What the detections would allow if the
+    shutter cost nothing: map it with ``camera`` at zero line delay.
 
     Returns:
         ``(detections, truth)``: a list of ``(stamp, {id: (4, 2) pixels})`` with ``stamp`` the
@@ -374,6 +382,10 @@ def simulate_detections(
             sides = np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1)
             if sides.min() < min_side_px:
                 continue
+            if readout_free:  # every line read at the reference line's time (may fall just
+                # outside the image where the rolling-shutter one does not)
+                Xc = (c - p) @ R
+                uv = camera.distort(Xc[:, :2] / Xc[:, 2:])
             d = uv - uv.mean(axis=0)
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             uv = uv - corner_bias_px * d + rng.normal(scale=noise_px, size=uv.shape)
