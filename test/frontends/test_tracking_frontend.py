@@ -249,3 +249,23 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
     # re-anchoring happens on refresh joins only (when a new anchor exceeds max_anchors)
     assert not np.any(reanchored & ~joins), np.flatnonzero(reanchored & ~joins)
     assert len(np.unique(fe._anc)) <= 2
+
+
+def test_benchmark_run_reports_kinds_errors_and_shuffled_positions(video):
+    """``bench_tracking.run_video`` on the short video with its truth: the first frame global,
+    the rest tracked; every inlier's distance to its true projection sub-pixel; the position
+    re-estimated with each tracked frame's own pixel errors shuffled among its inliers is there
+    for tracked frames only, and as close to the truth as the tracked estimate (both from the
+    same sub-pixel errors)."""
+    from rs_localizer.evaluation.bench_tracking import run_video
+
+    fmap, frames, camera, renderer, motion = video
+    r = run_video(fmap, [(f, False) for f in frames], camera, True, truth=(renderer, motion))
+    tracked = r["kind"] == "tracked"
+    assert r["kind"][0] == "global" and tracked[1:].all()
+    assert np.isfinite(r["pos"]).all()
+    assert np.isnan(r["pos_shuffled"][0]) and np.isfinite(r["pos_shuffled"][1:]).all()
+    assert np.median(r["px_err"]) < 0.5 and set(np.unique(r["px_kind"])) <= {0, 1, 2}
+    # (a few mm at most, like the frames' own estimates)
+    assert r["pos_shuffled"][1:].max() < 0.01, r["pos_shuffled"]
+    assert np.median(r["pos_shuffled"][1:]) < 3 * np.median(r["pos"][1:]) + 1e-3
