@@ -194,8 +194,8 @@ def room_scene(
     then a cut of 1 s, then the walk. ``corner_bias_px``: the detected corners lie that far
     inside their marker's square; ``view_error_px``: the detector's error that repeats from
     one viewpoint (:func:`simulate_detections`). ``readout_free``: the same video taken
-    with a global shutter (same stamps, detections and noise; ``simulate_detections``), the
-    returned camera with zero line delay.
+    with a global shutter (same stamps, detections and noise; ``simulate_detections``: map
+    it with the camera at zero line delay).
 
     Returns:
         ``(room, camera, walk, frames, truth, options)``: the
@@ -242,8 +242,6 @@ def room_scene(
         anchor=0,
         anchor_pose=(room.R[0], room.p[0]),
     )
-    if readout_free:
-        camera = room_camera(readout_time=0.0)
     return room, camera, walk, frames, truth, options
 
 
@@ -448,7 +446,6 @@ def _videos(args, readout_free: bool = False) -> dict:
     room, camera, _, frames, _, opts = room_scene(
         args.frames, args.seed, args.markers, args.anchor_frames, bias, verr, readout_free
     )
-    camera = room_camera(readout_time=0.03)  # (the room's projections; not used to map)
     out = {"walk + anchor sweep": (room, frames, opts)}
     small = make_marker_room(args.markers, seed=args.seed, size=(4.5, 4.0, 2.6), anchor_side=0.16)
     d, _ = simulate_detections(
@@ -559,7 +556,8 @@ def main(argv: list | None = None) -> int:
     floor_camera = room_camera(readout_time=0.0)
     with one_thread():
         floor_videos = _videos(args, readout_free=True)
-        for vname, (room, frames, opts) in _videos(args).items():
+        videos = _videos(args)
+        for vname, (room, frames, opts) in videos.items():
             floor_frames = floor_videos[vname][1]
             if not same_video_but_readout(frames, floor_frames):
                 raise RuntimeError(f"{vname}: the readout-free twin is not the same video")
@@ -654,9 +652,8 @@ def main(argv: list | None = None) -> int:
             print(line)
 
         # two videos merged
-        vids = _videos(args)
-        room, walk_frames, opts = vids["walk + anchor sweep"]
-        _, drive_frames, _ = vids["robot drive"]
+        room, walk_frames, opts = videos["walk + anchor sweep"]
+        _, drive_frames, _ = videos["robot drive"]
         merged = map_markers(concatenate_videos([walk_frames, drive_frames]), camera, opts)
         tc, tp = truth_in_frame(merged, room, opts)
         em = map_errors(merged, tc, tp)

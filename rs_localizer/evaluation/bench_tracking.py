@@ -142,19 +142,19 @@ def run_video(
         out["pos"].append(float(np.linalg.norm(est.position - f.position)) if ok else np.nan)
         out["blank"].append(bool(blank))
         out["waited"].append(rep.refresh_waited)
+        shuffled = np.nan
         if truth is not None and ok:
             gt, _ = truth[0].project(X, truth[1], f.t_first, occlusion=False)
             inl = np.asarray(est.inliers, bool) & np.isfinite(gt).all(axis=1)
             out["px_err"].append(np.linalg.norm(uv[inl] - gt[inl], axis=1))
             out["px_kind"].append(np.asarray(fe.last_kinds)[inl])
-        shuffled = np.nan
-        if truth is not None and ok and rep.kind == "tracked" and inl.sum() >= 6:
-            e = (uv - gt)[inl]
-            again = estimate_rs_pose(
-                gt[inl] + e[rng.permutation(len(e))], X[inl], camera, "r6p_1lin"
-            )
-            if again.success:
-                shuffled = float(np.linalg.norm(again.position - f.position))
+            if rep.kind == "tracked" and inl.sum() >= 6:
+                e = (uv - gt)[inl]
+                again = estimate_rs_pose(
+                    gt[inl] + e[rng.permutation(len(e))], X[inl], camera, "r6p_1lin"
+                )
+                if again.success:
+                    shuffled = float(np.linalg.norm(again.position - f.position))
         out["pos_shuffled"].append(shuffled)
         if period_s > 0:  # (the truth's checks above run within the frame period)
             time.sleep(max(0.0, period_s - (time.perf_counter() - t0)))
