@@ -46,7 +46,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--output-topic",
         action="append",
         default=None,
-        help="pose topic(s) to wait for in lock-step (repeatable; default /camera/pose)",
+        help="topic(s) to wait for in lock-step (repeatable; default: the pose topic of the "
+        "namespace each frame is played into, e.g. /camera/pose, or /robot/pose with "
+        "--remap /camera/image:=/robot/image)",
     )
     pl.add_argument(
         "--timeout", type=A.positive_float, default=2.0, help="lock-step wait per frame (s)"
@@ -65,7 +67,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         nargs="+",
         default=None,
         metavar="FROM:=TO",
-        help="publish topic FROM of the bag as TO",
+        help="publish topic FROM of the bag as TO; __ns:=NS publishes every other topic in "
+        "namespace NS (/camera/image -> NS/camera/image)",
     )
     pl.add_argument(
         "--wait",
@@ -78,12 +81,20 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     pl.add_argument("--limit", type=A.positive_int, default=None, help="stop after N frames")
     pl.add_argument("--loop", type=A.positive_int, default=1, help="play N times")
+    pl.add_argument(
+        "--give-up",
+        type=A.nonneg_int,
+        default=3,
+        help="lock-step: stop after N frames in a row without an answer while none was "
+        "answered (0: never)",
+    )
     pl.set_defaults(func=run)
     return pl
 
 
 def run(args: argparse.Namespace) -> int:
-    """Play the bag; returns 0, or 1 when a lock-step frame got no answer. Raises CliError for
+    """Play the bag; returns 0, or 1 when a lock-step frame got no answer or lock-step gave
+    up (no node answered the first frames). Raises CliError for
     a bag that cannot be read or has no messages on the chosen topics (before any waiting)."""
     bag = A.bag_dir(args.bag, require_messages=True)
     remap = parse_remap(args.remap)
@@ -97,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             )
     from ..ros.bags.play import play
 
-    output_topics = tuple(args.output_topic or ["/camera/pose"])
+    output_topics = tuple(args.output_topic) if args.output_topic else None
     res = play(
         bag,
         rate=args.rate,
@@ -111,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         reliable=not args.best_effort,
         limit=args.limit,
         loop=args.loop,
+        give_up=args.give_up,
     )
     msg = f"published {res.published} messages, {len(res.frames)} frames in {res.wall_time:.2f} s"
     if args.lockstep:
@@ -126,4 +138,6 @@ def run(args: argparse.Namespace) -> int:
                 f"{np.median(lat) * 1e3:.2f} ms p99 {np.percentile(lat, 99) * 1e3:.2f} ms"
             )
     print(msg)
-    return 0 if not args.lockstep or res.timeouts == 0 else 1
+    if res.gave_up:
+        print(f"stopped: {res.gave_up}")
+    return 0 if not args.lockstep or (res.timeouts == 0 and not res.gave_up) else 1

@@ -99,3 +99,123 @@ def test_lockstep_plays_one_frame_topic_and_each_imu_sample_once(imu_bag, ros_co
     n_imu = sum(1 for m in iter_messages(imu_bag, None) if m[0] == "/imu/data")
     assert len(got["imu"]) == n_imu > 0  # each sample once, none primed or republished
     assert len(set(got["imu"])) == n_imu
+
+
+def test_live_and_pose_topics_follow_remaps_and_namespace():
+    """A frame's live topic and the node's pose topic that answers it: an explicit remap
+    wins, ``__ns`` moves every other topic into a namespace."""
+    from rs_localizer.ros.bags.play import live_topic, pose_topic_of
+
+    assert live_topic("/camera/image", {}) == "/camera/image"
+    assert pose_topic_of("/camera/image", {}) == "/camera/pose"
+    assert pose_topic_of("/camera/image/compressed", {}) == "/camera/pose"
+    remap = {"/camera/image": "/robot/cam/image", "__ns": "/r2/"}
+    assert pose_topic_of("/camera/image", remap) == "/robot/cam/pose"
+    assert live_topic("/camera/camera_info", remap) == "/r2/camera/camera_info"
+    assert pose_topic_of("/cam1/correspondences", remap) == "/r2/cam1/pose"
+
+
+class _Responder:
+    """A node taking ``/<ns>/correspondences`` and answering each on ``answer_topic``."""
+
+    def __init__(self, ros_context, ns, answer_topic):
+        import rclpy
+        from geometry_msgs.msg import PoseStamped
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import PointCloud2
+
+        self.node = rclpy.create_node("play_test_ns_responder", context=ros_context)
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        pose = self.node.create_publisher(PoseStamped, answer_topic, qos)
+        self.frames = 0
+
+        def cb(msg):
+            self.frames += 1
+            pose.publish(PoseStamped(header=msg.header))
+
+        self.node.create_subscription(PointCloud2, f"{ns}/correspondences", cb, qos)
+        self.ex = SingleThreadedExecutor(context=ros_context)
+        self.ex.add_node(self.node)
+        self.stop = threading.Event()
+        self.th = threading.Thread(
+            target=lambda: [
+                self.ex.spin_once(timeout_sec=0.02) for _ in iter(self.stop.is_set, True)
+            ]
+        )
+        self.th.start()
+
+    def close(self):
+        self.stop.set()
+        self.th.join()
+        self.ex.remove_node(self.node)
+        self.node.destroy_node()
+        self.ex.shutdown()
+
+
+def test_lockstep_waits_on_the_pose_of_the_namespace_played_into(imu_bag, ros_context):
+    """``__ns`` (and a remap) move the frames into another namespace: lock-step waits for the
+    pose topic there, not for ``/camera/pose``."""
+    from rs_localizer.ros.bags.play import play
+
+    r = _Responder(ros_context, "/robot/camera", "/robot/camera/pose")
+    try:
+        t0 = time.monotonic()
+        res = play(
+            imu_bag,
+            lockstep=True,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            remap={"__ns": "/robot"},
+            context=ros_context,
+            wait_subscribers=20.0,
+            log=print,
+        )
+        took = time.monotonic() - t0
+    finally:
+        r.close()
+    assert res.answered == len(res.frames) == 5 and res.timeouts == 0 and not res.gave_up
+    assert r.frames == 5 and took < 15.0
+
+
+def test_lockstep_gives_up_naming_the_pose_topics_that_exist(imu_bag, ros_context):
+    """A node takes the frames but answers in another namespace: lock-step stops before the
+    first frame and names the pose topic that has a publisher; with nobody taking the frames
+    it stops after ``give_up`` unanswered frames instead of waiting through the bag."""
+    from rs_localizer.ros.bags.play import play
+
+    r = _Responder(ros_context, "/camera", "/elsewhere/pose")
+    notes = []
+    try:
+        res = play(
+            imu_bag,
+            lockstep=True,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            context=ros_context,
+            wait_subscribers=20.0,
+            timeout=0.3,
+            log=notes.append,
+        )
+    finally:
+        r.close()
+    assert res.frames == [] and r.frames == 0
+    asked, have = res.gave_up.split("with a publisher:")
+    assert "/camera/pose" in asked and "/elsewhere/pose" in have
+    assert "/camera/pose" not in have  # (the player's own subscription is no publisher)
+    assert any(n.startswith("error:") and "/elsewhere/pose" in n for n in notes)
+
+    t0 = time.monotonic()
+    res = play(
+        imu_bag,
+        lockstep=True,
+        topics=["/camera/correspondences", "/camera/camera_info"],
+        remap={"__ns": "/nobody"},
+        context=ros_context,
+        wait_subscribers=0.5,
+        timeout=0.2,
+        retries=0,
+        give_up=2,
+        log=print,
+    )
+    assert len(res.frames) == 2 and res.answered == 0 and res.timeouts == 2
+    assert "/nobody/camera/pose" in res.gave_up and "to the first 2 frames" in res.gave_up
+    assert time.monotonic() - t0 < 5.0

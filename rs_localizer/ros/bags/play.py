@@ -61,6 +61,8 @@ class PlayResult:
     republished: int = 0
     #: frame topics of the bag left out (another topic carries the same frames)
     skipped_topics: list = field(default_factory=list)
+    #: lock-step: why playing stopped before the end (no node answered), else ""
+    gave_up: str = ""
 
     @property
     def latencies(self) -> np.ndarray:
@@ -85,6 +87,23 @@ def _parent(topic: str) -> str:
     if t.endswith("/compressed"):
         t = t[: -len("/compressed")]
     return t.rsplit("/", 1)[0]
+
+
+def live_topic(topic: str, remap: Mapping[str, str]) -> str:
+    """The topic a bag topic is published on: ``remap[topic]`` when given, else the topic
+    moved into the namespace ``remap["__ns"]`` when given (``/camera/image`` with
+    ``__ns:=/robot`` -> ``/robot/camera/image``), else the topic itself."""
+    if topic in remap:
+        return remap[topic]
+    ns = remap.get("__ns", "").rstrip("/")
+    return f"{ns}{topic}" if ns else topic
+
+
+def pose_topic_of(frame_topic: str, remap: Mapping[str, str]) -> str:
+    """The node's pose topic answering a bag frame topic: ``pose`` in the namespace the frame
+    is published into (``/camera/image_raw`` remapped to ``/robot/cam/image_raw`` ->
+    ``/robot/cam/pose``)."""
+    return f"{_parent(live_topic(frame_topic, remap))}/pose"
 
 
 def choose_frame_topics(frame_topics: dict, subscribed: set) -> tuple[list, list]:
@@ -127,7 +146,7 @@ def play(
     lockstep: bool = False,
     topics: Iterable[str] | None = None,
     remap: Mapping[str, str] | None = None,
-    output_topics: Sequence[str] = ("/camera/pose",),
+    output_topics: Sequence[str] | None = None,
     timeout: float = 2.0,
     retries: int = 1,
     wait_subscribers: float = 30.0,
@@ -142,6 +161,7 @@ def play(
     log: Callable[[str], Any] = print,
     late_topics: Iterable[str] = (),
     imu_lead: float = 0.1,
+    give_up: int = 3,
 ) -> PlayResult:
     """Publish a bag into the ROS graph.
 
@@ -153,7 +173,12 @@ def play(
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
             subscription may drop a sample) before moving on, counted in
             ``PlayResult.timeouts`` and reported through ``log``.
-        topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``.
+        topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``;
+            the key ``__ns`` moves every other bag topic into that namespace
+            (:func:`live_topic`).
+        output_topics: the node's outputs to wait for in lock-step. Default: each frame waits
+            for the ``pose`` topic of the namespace it is published into
+            (:func:`pose_topic_of`: remaps and ``__ns`` followed).
         wait_subscribers: seconds to wait until every frame topic has a subscriber.
         reliable: publish with reliable QoS (depth 10); else best effort. Images go out with
             the sensor-data QoS (best effort, depth 5) of camera drivers, or as ``reliable``
@@ -175,6 +200,12 @@ def play(
             frame's readout, which would otherwise come only after the frame was answered).
             Each IMU message is sent once (never primed nor republished: a repeated sample
             would be rejected by the node as not increasing).
+        give_up: lock-step: stop after this many frames in a row without any answer while no
+            frame has been answered yet (the node is not running, or answers on another
+            topic); ``PlayResult.gave_up`` and ``log`` say why, naming the pose topics that
+            do have a publisher. Also stop before the first frame when, after
+            ``wait_subscribers``, a node takes the frames but none publishes a waited topic.
+            0: never give up.
 
     When ``topics`` is None and a camera namespace has several frame topics, only the one
     :func:`choose_frame_topics` picks is played (a note through ``log`` names the others and
@@ -186,7 +217,8 @@ def play(
     own_context = context is None
     if own_context:
         context = rclpy.Context()
-        rclpy.init(context=context, domain_id=domain_id)
+        # (args=[]: the player's own command line, e.g. a `__ns:=NS` remap, is no ROS argument)
+        rclpy.init(args=[], context=context, domain_id=domain_id)
     node = rclpy.create_node("rs_localizer_player", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
@@ -201,16 +233,28 @@ def play(
         types = {}
         for topic, msgtype, _, _ in msgs:
             types.setdefault(topic, msgtype)
-        s = _Session(node, executor, dict(remap or {}), types, reliable, result, log)
+        remap = dict(remap or {})
+        s = _Session(node, executor, remap, types, reliable, result, log)
         late = set(late_topics or ())
-        waited = [t for t in output_topics if t not in late]
+        frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
+        if output_topics is None:  # each frame waits for its own namespace's pose
+            waited = {t: [pose_topic_of(t, remap)] for t in frame_topics}
+            output_topics = sorted({p for ps in waited.values() for p in ps})
+        else:
+            waited = {t: [o for o in output_topics if o not in late] for t in frame_topics}
         if lockstep:
             s.subscribe_outputs(output_topics, late)
-        frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
         choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
         s.wait_for_subscribers(
             frame_topics, choose, output_topics if lockstep else (), wait_subscribers
         )
+        if lockstep and give_up > 0:  # the frames are taken, but nobody answers on these
+            taken = any(s.pubs[t].get_subscription_count() for t in frame_topics)
+            unpublished = [t for t in output_topics if not _published_by_others(node, t)]
+            if taken and unpublished:
+                result.gave_up = _no_answer_message(node, unpublished, "before the first frame")
+                log(f"error: {result.gave_up}")
+                return result
         if choose:
             msgs = s.choose_frames(frame_topics, msgs)
         if not msgs:
@@ -226,6 +270,7 @@ def play(
             loop=loop,
             stamp_offset_ns=stamp_offset_ns,
             on_frame=on_frame,
+            give_up=give_up,
         )
         # let reliable writers flush the tail (and the late outputs of the last frames come)
         s.flush_tail(timeout if lockstep and late else 0.0, late)
@@ -236,6 +281,33 @@ def play(
         if own_context:
             rclpy.try_shutdown(context=context)
     return result
+
+
+def _published_by_others(node: Any, topic: str) -> bool:
+    """Whether a node other than the player ``node`` (which publishes the bag's own topics)
+    publishes ``topic``."""
+    me = (node.get_namespace(), node.get_name())
+    infos = node.get_publishers_info_by_topic(topic)
+    return any((i.node_namespace, i.node_name) != me for i in infos)
+
+
+def _no_answer_message(node: Any, topics: Sequence[str], when: str) -> str:
+    """Why lock-step stops: no answer on ``topics``, and the pose topics that have a
+    publisher in the graph (the namespace the node may run in)."""
+    poses = sorted(
+        name
+        for name, kinds in node.get_topic_names_and_types()
+        if name.rstrip("/").endswith("/pose")
+        and "geometry_msgs/msg/PoseStamped" in kinds
+        and _published_by_others(node, name)
+    )
+    where = (
+        f"pose topics with a publisher: {', '.join(poses)} (wait for one with --output-topic, "
+        "or play into the node's namespace with --remap FROM:=TO or __ns:=NS)"
+        if poses
+        else "no pose topic has a publisher: is the node running, and on this ROS_DOMAIN_ID?"
+    )
+    return f"no node answered on {', '.join(topics)} {when}; {where}"
 
 
 class _Session:
@@ -269,10 +341,13 @@ class _Session:
         self.pubs = {
             t: (
                 node.create_publisher(
-                    _msg_class(mt), remap.get(t, t), qos_profile_sensor_data, event_callbacks=quiet
+                    _msg_class(mt),
+                    live_topic(t, remap),
+                    qos_profile_sensor_data,
+                    event_callbacks=quiet,
                 )
                 if mt in (IMAGE, COMPRESSED_IMAGE)
-                else node.create_publisher(_msg_class(mt), remap.get(t, t), self.qos)
+                else node.create_publisher(_msg_class(mt), live_topic(t, remap), self.qos)
             )
             for t, mt in types.items()
         }
@@ -313,11 +388,11 @@ class _Session:
                 continue
             if pubs[t].get_subscription_count():
                 continue
-            infos = self.node.get_subscriptions_info_by_topic(remap.get(t, t))
+            infos = self.node.get_subscriptions_info_by_topic(live_topic(t, remap))
             if any(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos):
                 self.node.destroy_publisher(pubs[t])
                 pubs[t] = self.node.create_publisher(
-                    _msg_class(types[t]), remap.get(t, t), self.qos
+                    _msg_class(types[t]), live_topic(t, remap), self.qos
                 )
                 self.reliable_images.add(t)
 
@@ -346,7 +421,7 @@ class _Session:
             self._match_reliable_image_readers(frame_topics)
             if time.monotonic() > deadline:
                 missing = [
-                    self.remap.get(t, t)
+                    live_topic(t, self.remap)
                     for t in frame_topics
                     if pubs[t].get_subscription_count() == 0
                 ]
@@ -426,17 +501,20 @@ class _Session:
         *,
         rate: float,
         lockstep: bool,
-        waited: Sequence[str],
+        waited: Mapping[str, Sequence[str]],
         timeout: float,
         retries: int,
         limit: int | None,
         loop: int,
         stamp_offset_ns: int,
         on_frame: Callable[[dict], None] | None,
+        give_up: int = 0,
     ) -> None:
         """Publish ``msgs`` ``loop`` times (stamps shifted by the bag duration each time), at
-        ``rate`` times the original timing or in lock-step, recording each frame in
-        ``result``; sets ``result.wall_time``."""
+        ``rate`` times the original timing or in lock-step (each frame waiting for the outputs
+        ``waited[frame_topic]``), recording each frame in ``result``; sets
+        ``result.wall_time``. Lock-step stops after ``give_up`` (> 0) frames in a row without
+        an answer while none was answered (``result.gave_up``)."""
         result, executor, pubs = self.result, self.executor, self.pubs
         t_first = min(m[2] for m in msgs)
         duration = max(m[2] for m in msgs) - t_first + 1
@@ -470,16 +548,21 @@ class _Session:
                     "stamp": _header_stamp(raw),
                     "t_pub": time.perf_counter(),
                     "outputs": {},
-                    "expected": len(waited) if lockstep else 0,
+                    "expected": len(waited[topic]) if lockstep else 0,
                 }
                 result.frames.append(frame)
                 if lockstep:
-                    self._await_outputs(frame, waited, last_pub, timeout, retries)
+                    self._await_outputs(frame, waited[topic], last_pub, timeout, retries)
                 if on_frame is not None:
                     on_frame(frame)
-                if limit is not None and n_frames >= limit:
+                if lockstep and give_up > 0 and result.answered == 0 and n_frames >= give_up:
+                    result.gave_up = _no_answer_message(
+                        self.node, waited[topic], f"to the first {n_frames} frames"
+                    )
+                    self.log(f"error: {result.gave_up}")
+                if result.gave_up or (limit is not None and n_frames >= limit):
                     break
-            if limit is not None and n_frames >= limit:
+            if result.gave_up or (limit is not None and n_frames >= limit):
                 break
         result.wall_time = time.perf_counter() - wall0
 
