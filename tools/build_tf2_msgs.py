@@ -18,6 +18,7 @@ otherwise (no compiler, generators missing, a compile error).
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import pathlib
 import shutil
@@ -44,6 +45,18 @@ TYPESUPPORTS = (
 )
 
 
+class _SameEntryPointTwice(logging.Filter):
+    """Drops rosidl_cli's warning about an entry point found twice when both are the same one
+    (the wheels' distribution is seen through two paths of the environment): nothing is wrong."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        text = record.getMessage()
+        if not text.startswith("Found duplicate entry point"):
+            return True
+        first, _, second = text.partition(": got ")[2].partition(" and ")
+        return first != second
+
+
 def generate(out: pathlib.Path, share: pathlib.Path) -> None:
     """The generators' C, C++ and Python sources of TFMessage under ``out``."""
     from rosidl_generator_c.cli import GenerateC
@@ -52,6 +65,7 @@ def generate(out: pathlib.Path, share: pathlib.Path) -> None:
     from rosidl_typesupport_fastrtps_c.cli import GenerateFastRTPSCTypesupport
     from rosidl_typesupport_introspection_c.cli import GenerateIntrospectionCTypesupport
 
+    logging.getLogger("rosidl_cli.entry_points").addFilter(_SameEntryPointTwice())
     (out / "idl" / "msg").mkdir(parents=True)
     (out / "idl" / "msg" / "TFMessage.idl").write_text(IDL)
     files = [f"{out / 'idl'}:msg/TFMessage.idl"]
