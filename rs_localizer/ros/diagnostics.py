@@ -26,6 +26,11 @@ def _ms(seconds: Sequence[float]) -> np.ndarray:
     return np.array(list(seconds)) * 1e3
 
 
+#: s: a frame whose stamp is further than this from the node's clock carries stamps of
+#: another clock (a recorded bag played without ``use_sim_time``), not a stamp age
+OFF_CLOCK_S = 60.0
+
+
 def diagnostic_status(
     cfg: LocalizerConfig,
     frames: FrameCounts,
@@ -160,6 +165,8 @@ def _core_values(
     """The values every status carries, through the stage times (see :func:`diagnostic_status`)."""
     c = stats.counts
     lat, age = _ms(latencies), _ms(stamp_ages)
+    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3
+    off_clock, age = int(np.sum(~on_clock)), age[on_clock]
     inliers = stats.inliers
     values: dict[str, Any] = {
         "solver": cfg.solver,
@@ -192,6 +199,7 @@ def _core_values(
         "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
         "stamp_age_ms_last": f"{age[-1]:.3f}" if len(age) else "nan",
         "stamp_age_ms_median": f"{np.median(age):.3f}" if len(age) else "nan",
+        "stamps_off_clock": off_clock,
     }
     for k, d in stats.stage_times.items():
         if k == "frontend" and cfg.frontend is None:
