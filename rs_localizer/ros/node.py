@@ -389,6 +389,8 @@ class LocalizerCore:
         then destroy the node."""
         if self.pipeline is not None:
             self._stop_worker()
+        if getattr(self, "viz", None) is not None:
+            self.viz.close()
         SHARED_MAPS.release(self)  # (maps no other camera of the process uses are freed)
         return super().destroy_node()
 

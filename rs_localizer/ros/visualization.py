@@ -18,6 +18,8 @@ Foxglove show it without any TF.
 
 from __future__ import annotations
 
+import threading
+import time
 from collections import deque
 from collections.abc import Iterable
 from typing import Any
@@ -69,6 +71,13 @@ VIZ_PARAMETERS = {
         10.0,
         "residual vectors in debug_image are drawn this many times longer",
         FloatingPointRange(from_value=0.0, to_value=1e4, step=0.0),
+    ),
+    "viz.max_rate": (
+        10.0,
+        "Hz; debug_image, markers and path are drawn on their own thread at most this often, "
+        "each time from the newest solved frame (frames in between are not drawn: viewers never "
+        "hold up the estimation); 0: every solved frame, as fast as the thread draws",
+        FloatingPointRange(from_value=0.0, to_value=1e3, step=0.0),
     ),
 }
 #: topic name -> message type name
@@ -245,8 +254,9 @@ class VisualizationBuilder:
             est, X, camera, out_stamp_ns, map_frame, self.frustum_depth, self.arrow_scale
         )
 
-    def path(self, out_stamp_ns: int, map_frame: str) -> Path:
-        return path_msg(self.poses, out_stamp_ns, map_frame)
+    def path(self, out_stamp_ns: int, map_frame: str, poses: Iterable[Any] | None = None) -> Path:
+        """``path`` of the kept poses (or of ``poses``, a snapshot of them)."""
+        return path_msg(self.poses if poses is None else poses, out_stamp_ns, map_frame)
 
 
 class NodeVisualization:
@@ -255,9 +265,16 @@ class NodeVisualization:
     node). Each message is built only when its topic has a subscriber; the path keeps every
     solved pose regardless.
 
+    Drawing is off the estimation path: :meth:`publish` only records the pose and hands the
+    frame to a drawing thread, which keeps the newest frame only and draws at most
+    ``viz.max_rate`` times a second. A slow viewer or a large debug image thus costs the
+    frames nothing but a share of the CPU; frames solved while a drawing is under way are
+    not drawn (the path still has their poses).
+
     Usage in the node: ``viz = NodeVisualization(node)``; in image mode
     ``viz.set_image(img, encoding, stamp_ns)`` with the decoded input; after a frame is solved
-    ``viz.publish(est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)``.
+    ``viz.publish(est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)``;
+    ``viz.close()`` before the node is destroyed.
     """
 
     def __init__(self, node: Any):
@@ -289,6 +306,13 @@ class NodeVisualization:
             )
         )
         self._image = None  # (image, encoding, stamp_ns) of the current input image
+        # the drawing thread's mailbox: the newest frame to draw (None: nothing), whether a
+        # drawing is under way, and whether the thread is to stop
+        self._cond = threading.Condition()
+        self._job: tuple | None = None
+        self._busy = False
+        self._closed = False
+        self._thread: threading.Thread | None = None
 
     def set_image(self, image: np.ndarray, encoding: str, stamp_ns: int) -> None:
         """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode) for
@@ -311,7 +335,6 @@ class NodeVisualization:
 
     def _read_parameters(self):
         b, get = self.builder, self.node.get_parameter
-        b.set_path_length(get("viz.path_length").value)
         b.frustum_depth = float(get("viz.frustum_depth").value)
         b.arrow_scale = float(get("viz.arrow_scale").value)
         b.residual_scale = float(get("viz.residual_scale").value)
@@ -327,11 +350,12 @@ class NodeVisualization:
         camera_frame: str,
         map_frame: str,
     ) -> None:
-        """Publish the visualization of a solved frame: ``uv`` (N, 2) and ``X`` (N, 3) are the
-        estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the reference
-        line's (the pose's) stamp."""
-        b = self.builder
-        b.add_pose(est, out_stamp_ns, map_frame)
+        """Record the pose of a solved frame in the path and hand the frame to the drawing
+        thread (which replaces a frame still waiting there): ``uv`` (N, 2) and ``X`` (N, 3) are
+        the estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the
+        reference line's (the pose's) stamp. Returns at once."""
+        self.builder.set_path_length(self.node.get_parameter("viz.path_length").value)
+        self.builder.add_pose(est, out_stamp_ns, map_frame)
         want = (
             self.pub_image.get_subscription_count() > 0,
             self.pub_markers.get_subscription_count() > 0,
@@ -340,17 +364,93 @@ class NodeVisualization:
         image, self._image = self._image, None
         if not any(want):
             return
+        img, enc = (image[0], image[1]) if image and image[2] == stamp_ns else (None, None)
+        poses = tuple(self.builder.poses) if want[2] else ()  # (the path as of this frame)
+        job = (want, est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)
+        with self._cond:
+            if self._closed:
+                return
+            self._job = (*job, img, enc, poses)
+            self._cond.notify_all()
+            if self._thread is None:
+                self._thread = threading.Thread(
+                    target=self._run, name="rs_localizer_viz", daemon=True
+                )
+                self._thread.start()
+
+    def wait_drawn(self, timeout: float = 10.0) -> bool:
+        """Block until the drawing thread has drawn every frame handed to it (or ``timeout``
+        s passed); True when it has."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._job is None and not self._busy, timeout)
+
+    def close(self) -> None:
+        """Stop the drawing thread (a drawing under way is finished; a waiting frame is not
+        drawn)."""
+        with self._cond:
+            self._closed = True
+            self._job = None
+            self._cond.notify_all()
+            th = self._thread
+        if th is not None and th is not threading.current_thread():
+            th.join(timeout=5.0)
+
+    def _run(self) -> None:
+        """The drawing thread: the newest frame, at most ``viz.max_rate`` times a second."""
+        next_draw = 0.0
+        cond = self._cond
+        while True:
+            with cond:
+                cond.wait_for(lambda: self._job is not None or self._closed)
+                # the rate cap: newer frames may replace the waiting one meanwhile
+                delay = next_draw - time.monotonic()
+                if delay > 0 and not self._closed:
+                    cond.wait_for(lambda: self._closed, delay)
+                if self._closed:
+                    return
+                job, self._job = self._job, None
+                self._busy = job is not None
+            if job is None:
+                continue
+            started = time.monotonic()
+            try:
+                self._draw(*job)
+            finally:
+                with cond:
+                    self._busy = False
+                    cond.notify_all()
+            try:
+                rate = float(self.node.get_parameter("viz.max_rate").value)
+            except Exception:  # (the node is being destroyed)
+                rate = 0.0
+            next_draw = started + 1.0 / rate if rate > 0 else 0.0
+
+    def _draw(
+        self,
+        want,
+        est,
+        uv,
+        X,
+        camera,
+        stamp_ns,
+        out_stamp_ns,
+        camera_frame,
+        map_frame,
+        img,
+        enc,
+        poses,
+    ) -> None:
+        b = self.builder
         try:
             self._read_parameters()
             if want[0]:
-                img, enc = (image[0], image[1]) if image and image[2] == stamp_ns else (None, None)
                 self.pub_image.publish(
                     b.debug_image(est, uv, X, camera, stamp_ns, camera_frame, img, enc)
                 )
             if want[1]:
                 self.pub_markers.publish(b.markers(est, X, camera, out_stamp_ns, map_frame))
             if want[2]:
-                self.pub_path.publish(b.path(out_stamp_ns, map_frame))
+                self.pub_path.publish(b.path(out_stamp_ns, map_frame, poses))
         except Exception as e:
             self.node.get_logger().warning(
                 f"visualization failed: {type(e).__name__}: {e}", throttle_duration_sec=5.0

@@ -162,6 +162,7 @@ def test_built_only_when_subscribed(ros_context):
         assert viz.pub_image.get_subscription_count() == 1
         viz.set_image(np.full((480, 640), 100, np.uint8), "mono8", 3000)
         viz.publish(est, uv, X, cam, 3000, 4000, "cam", "map")
+        assert viz.wait_drawn()
         assert built == {"debug_image": 1, "markers": 0, "path": 0}
         end = time.monotonic() + 10
         while not got and time.monotonic() < end:
@@ -186,8 +187,10 @@ def test_built_only_when_subscribed(ros_context):
 
         viz.builder.debug_image = broken  # logged, not raised: the frame is not lost
         viz.publish(est, uv, X, cam, 8000, 9000, "cam", "map")
+        assert viz.wait_drawn()
         assert len(viz.builder.poses) == 4
     finally:
+        viz.close()
         ex.shutdown()
         listener.destroy_node()
         node.destroy_node()
