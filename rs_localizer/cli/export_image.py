@@ -9,7 +9,10 @@ from pathlib import Path
 
 from . import args as A
 
-__all__ = ["register", "run"]
+__all__ = ["STAMPS_FILE", "register", "run"]
+
+#: ``--all``: each image file's header stamp (ns), one ``file,stamp_ns`` row per image
+STAMPS_FILE = "stamps.csv"
 
 HELP = "write an image of a bag (or all of them: --all) as PNG/JPEG files"
 
@@ -21,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=HELP,
         description="Write one sensor_msgs/Image or CompressedImage message of a bag as an "
         "image file, or with --all every image of the topic into the folder OUT "
-        "(000000.png, 000001.png, ... in bag order).",
+        "(000000.png, 000001.png, ... in bag order, and stamps.csv: each file's header stamp "
+        "in ns).",
         formatter_class=A.HelpFormatter,
     )
     e.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
@@ -83,7 +87,8 @@ def _decode(ts, raw: bytes, msgtype: str):
 
     msg = ts.deserialize_cdr(raw, msgtype)
     img, enc = image_from_compressed(msg) if msgtype == COMPRESSED_IMAGE else image_from_msg(msg)
-    return img, enc, to_bgr(img, enc)
+    stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return img, enc, to_bgr(img, enc), stamp_ns
 
 
 def run(args: argparse.Namespace) -> int:
@@ -112,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         count += 1
         if k != args.index:
             continue
-        img, enc, bgr = _decode(ts, raw, mt)
+        img, enc, bgr, _ = _decode(ts, raw, mt)
         out.parent.mkdir(parents=True, exist_ok=True)
         if args.colors:
             import numpy as np
@@ -144,18 +149,21 @@ def _export_all(bag: Path, topic: str, out: Path, args: argparse.Namespace, ts) 
     params = (
         [cv2.IMWRITE_JPEG_QUALITY, 95] if args.format == "jpg" else [cv2.IMWRITE_PNG_COMPRESSION, 1]
     )
-    n, size = 0, None
+    n, size, rows = 0, None, ["file,stamp_ns"]
     msgs = tqdm(
         iter_messages(bag, {topic}), total=total, desc="images", unit="img", disable=args.quiet
     )
     for _, mt, _, raw in msgs:
-        img, _, bgr = _decode(ts, raw, mt)
+        img, _, bgr, stamp_ns = _decode(ts, raw, mt)
         path = out / f"{n:06d}.{args.format}"
         if not cv2.imwrite(str(path), bgr, params):
             raise A.CliError(f"{path}: cannot write the image")
+        rows.append(f"{path.name},{stamp_ns}")
         n, size = n + 1, img.shape
+    (out / STAMPS_FILE).write_text("\n".join(rows) + "\n")
     print(
         f"wrote {n} images of {topic} into {out}"
         + (f" ({size[1]}x{size[0]}, {args.format})" if size else "")
+        + f", their header stamps in {out / STAMPS_FILE}"
     )
     return 0
