@@ -103,10 +103,22 @@ def read_bag_frames(
         spec = info.get("frontend", {})
         kind = frontend or spec.get("kind")
         fmap = frontend_map or (path / spec["map"] if "map" in spec else None)
-        if kind is None or fmap is None:
+        if kind is None:
             raise ValueError(
                 f"{path}: no front end given and none in sequence.json "
                 "(use --frontend and --frontend-map)"
+            )
+        if fmap is None:
+            hint = (
+                "; without a marker map, `rs-localizer map-markers BAG -o map.yaml "
+                "--marker-size M --calibrate-readout` builds one and estimates the readout "
+                "time from the same video"
+                if kind == "aruco"
+                else ""
+            )
+            raise ValueError(
+                f"{path}: the {kind} front end needs its map: --frontend-map MAP "
+                f"(sequence.json names none){hint}"
             )
         fe = make_frontend(kind, fmap)
     ts = typestore()

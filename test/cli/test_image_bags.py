@@ -1,4 +1,4 @@
-"""``rs-localizer export-image --all``: every image of a topic as files, with their stamps."""
+"""Image bags through the CLI: export-image --all with stamps, calibrate-readout without a map."""
 
 import csv
 
@@ -32,3 +32,23 @@ def test_export_all_keeps_each_image_and_its_stamp(sample_images_bag, tmp_path):
         back = cv2.imread(str(out / r["file"]), cv2.IMREAD_UNCHANGED)
         back = back if back.ndim == 2 else back[:, :, 0]
         np.testing.assert_array_equal(back, img if img.ndim == 2 else img[:, :, 0])
+
+
+def test_calibrate_readout_on_images_without_a_map_says_how_to_get_one(
+    sample_images_bag, tmp_path, capsys
+):
+    """An image bag whose sequence.json names no front end, calibrated with --frontend aruco
+    but no map: the error names the missing map and the command that builds one together
+    with the readout time (not 'no front end given': one was given)."""
+    import json
+    import shutil
+
+    bag = tmp_path / "bag"
+    shutil.copytree(sample_images_bag, bag)
+    info = json.loads((bag / "sequence.json").read_text())
+    del info["frontend"]
+    (bag / "sequence.json").write_text(json.dumps(info))
+    rc = cli(["calibrate-readout", str(bag), "--source", "image", "--frontend", "aruco"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "needs its map" in err and "--frontend-map" in err, err
+    assert "map-markers" in err and "--calibrate-readout" in err and "no front end" not in err
