@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..camera import CameraModel
+from ..maps.scenes import scene_names
 from ..ros.bags.bag_io import (
     CAMERA_INFO,
     GT_POSE,
@@ -311,7 +312,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--scene",
         default="aruco_room",
-        help="built-in scene (aruco_room, textured_room) or scene YAML",
+        help=f"built-in scene ({', '.join(scene_names())}) or a scene YAML (format: "
+        "docs/images.md#scene-files)",
     )
     p.add_argument("--motion", default="shake", choices=motion_names(), help="camera motion preset")
     p.add_argument("--frames", type=A.positive_int, default=30, help="frames to render")
