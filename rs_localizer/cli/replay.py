@@ -264,6 +264,8 @@ def run(args: argparse.Namespace) -> int:
     n = len(res.rows)
     solver = res.config.solver
     text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
+    for note in res.notes:
+        print(f"warning: {note}", file=sys.stderr)
     print(
         f"{solver}: solved {res.solved}/{n} frames"
         + (f"; failures {res.failures}" if res.failures else "")

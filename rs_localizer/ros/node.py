@@ -62,7 +62,14 @@ from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN, diagnostic_status
 from .frame_queue import FrameQueue
 from .outputs import frame_messages, fused_messages
-from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config, load_maps
+from .params import (
+    PARAMETERS,
+    ConfigError,
+    LocalizerConfig,
+    build_config,
+    default_timing_note,
+    load_maps,
+)
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
@@ -273,17 +280,10 @@ class LocalizerCore:
             )
         if cfg.republish_correspondences and cfg.frontend is not None and self._pubs:
             self._corr_out_publisher()
-        default_timing = (
-            cfg.line_delay == PARAMETERS["rs.line_delay"].default and not cfg.readout_time > 0
-        )
-        if cfg.frontend is not None and default_timing and not getattr(self, "_warned_rs", 0):
+        note = default_timing_note(cfg) if cfg.frontend is not None else None  # (images)
+        if note is not None and not getattr(self, "_warned_rs", 0):
             self._warned_rs = True  # (once per node)
-            self.get_logger().warning(
-                f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
-                "unset) on image input: set your camera's, measured with `rs-localizer "
-                "calibrate-readout` or from the published values in docs/video.md; a wrong "
-                "line delay biases the angular and linear velocity"
-            )
+            self.get_logger().warning(note)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         overrides = {p.name: p.value for p in params if p.name in PARAMETERS}

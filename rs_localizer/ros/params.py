@@ -1072,3 +1072,17 @@ def parameter_values(
         check_parameter(name, value)
         values[name] = value
     return values, ignored
+
+
+def default_timing_note(cfg: LocalizerConfig) -> str | None:
+    """A warning when the RS timing is the parameters' default (``rs.line_delay`` unchanged,
+    ``rs.readout_time`` unset): the line delay is then likely no camera's own, and a wrong
+    one biases the angular and linear velocity. None when the timing was set."""
+    if cfg.line_delay != PARAMETERS["rs.line_delay"].default or cfg.readout_time > 0:
+        return None
+    return (
+        f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
+        "unset): set your camera's, measured with `rs-localizer calibrate-readout` or from "
+        "the published values in docs/video.md; a wrong line delay biases the angular and "
+        "linear velocity"
+    )

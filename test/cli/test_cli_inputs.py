@@ -298,7 +298,7 @@ def test_export_image_all_writes_every_image_of_the_bag(tmp_path, capsys):
     n = sum(1 for _ in iter_messages(bag, {topic}))
     assert main(["export-image", str(bag), str(tmp_path / "all"), "--all", "--quiet"]) == 0
     files = sorted((tmp_path / "all").iterdir())
-    assert [f.name for f in files] == [f"{k:06d}.png" for k in range(n)]
+    assert [f.name for f in files] == [f"{k:06d}.png" for k in range(n)] + ["stamps.csv"]
     assert main(["export-image", str(bag), str(tmp_path / "one.png"), "--index", "7"]) == 0
     assert f"message 7 of {topic}" in capsys.readouterr().out
     np.testing.assert_array_equal(cv2.imread(str(files[7])), cv2.imread(str(tmp_path / "one.png")))

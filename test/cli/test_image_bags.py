@@ -52,3 +52,25 @@ def test_calibrate_readout_on_images_without_a_map_says_how_to_get_one(
     err = capsys.readouterr().err
     assert rc == 2 and "needs its map" in err and "--frontend-map" in err, err
     assert "map-markers" in err and "--calibrate-readout" in err and "no front end" not in err
+
+
+def test_replay_of_images_warns_when_the_line_delay_is_the_default(
+    sample_images_bag, tmp_path, capsys
+):
+    """The line delay comes from the parameters or the bag's sequence.json; a bag without
+    either replays with the default and says so (as the node does), once."""
+    import json
+    import shutil
+
+    assert cli(["replay", str(sample_images_bag), "--quiet"]) == 0
+    assert "rs.line_delay is the default" not in capsys.readouterr().err
+    bag = tmp_path / "bag"
+    shutil.copytree(sample_images_bag, bag)
+    info = json.loads((bag / "sequence.json").read_text())
+    del info["rs"]
+    (bag / "sequence.json").write_text(json.dumps(info))
+    assert cli(["replay", str(bag), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: rs.line_delay is the default 30 us/line") == 1, err
+    assert cli(["replay", str(bag), "--quiet", "-p", "rs.line_delay:=6.25e-05"]) == 0
+    assert "rs.line_delay is the default" not in capsys.readouterr().err

@@ -34,6 +34,7 @@ from ..outputs import frame_messages, fused_messages
 from ..params import (
     LocalizerConfig,
     build_config,
+    default_timing_note,
     load_maps,
     parameter_values,
     read_params_file,
@@ -92,6 +93,8 @@ class ReplayResult:
     counts: dict = field(default_factory=dict)
     gyro_bias: np.ndarray | None = None
     gyro_bias_std: np.ndarray | None = None
+    #: warnings about the replay's set-up for the user (e.g. a default line delay on images)
+    notes: list = field(default_factory=list)
 
     @property
     def solved(self) -> int:
@@ -221,6 +224,9 @@ def replay(
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
     result = ReplayResult(config=cfg, parameters=values)
+    note = default_timing_note(cfg)  # (set by neither the parameters nor sequence.json)
+    if note is not None:
+        result.notes.append(note)
     writer, conns = None, {}
     if out_bag is not None:
         writer, conns = _open_out_bag(Path(out_bag), storage, overwrite, ts)
