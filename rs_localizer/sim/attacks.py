@@ -39,6 +39,8 @@ class TestFrame:
     points (m), the ``camera``, the true camera centre ``position`` (3,) (m, world) and the
     estimator ``options``."""
 
+    __test__ = False  # (not a test class for pytest, where tests import it)
+
     points_px: np.ndarray
     points3d: np.ndarray
     camera: CameraModel
