@@ -296,7 +296,7 @@ def localization_errors(
         :class:`collections.Counter` of failure reasons), ``rotation_deg`` and
         ``position_cm`` (medians over the solved frames, against the truth), ``per_frame``
         (frame index -> ``(rotation_deg, position_cm)`` of each solved frame: for
-        :func:`paired_ratios`).
+        ``benchmarks.bench_mapping.paired_ratios``).
     """
     from collections import Counter
 
