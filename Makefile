@@ -75,7 +75,7 @@ sample-bag: venv
 	$(RSL) render-bag data/sample_images --frames 20 --mono --overwrite
 
 bench-node: venv
-	$(PY) -m rs_localizer.evaluation.bench_node --frames 300 --solver r6p_1lin
+	$(PY) -m benchmarks.bench_node --frames 300 --solver r6p_1lin
 
 # a new user's first hour: the README's and the docs' shell commands as written (the quick ones;
 # the others are listed with the reason), exit codes and quoted figures checked

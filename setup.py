@@ -13,6 +13,8 @@ package_name = "rs_localizer"
 setup(
     name=package_name,
     version="0.1.0",
+    # the library only: benchmarks/ (python -m benchmarks.X from a checkout), test/ and tools/
+    # are not installed
     packages=find_packages(include=[package_name, f"{package_name}.*"]),
     package_data={"rs_localizer": ["scenes/*.yaml", "ros/fastdds_profile.xml"]},
     data_files=[
@@ -52,9 +54,10 @@ setup(
             "ros-jazzy-rmw-fastrtps-cpp",
             "rosbags>=0.10",
         ],
-        # benchmarks: one BLAS thread (threadpoolctl); PoseLib, the global-shutter reference
-        # of the benchmarks and tests and an optional P3P backend (the default P3P is our own
-        # Lambda Twist; without PoseLib the "poselib" backend falls back to OpenCV)
+        # benchmarks (and experiments): one BLAS thread (threadpoolctl); PoseLib, the
+        # global-shutter reference of the benchmarks, experiments and tests and an optional P3P
+        # backend (the default P3P is our own Lambda Twist; without PoseLib the "poselib"
+        # backend falls back to OpenCV)
         "bench": ["threadpoolctl", "poselib"],
         # feature maps from photos (rs-localizer map-features): COLMAP's Python bindings
         "mapping": ["pycolmap>=4.2"],

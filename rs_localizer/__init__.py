@@ -13,7 +13,9 @@ A video (tracking, gyro, gyro bias): :class:`~rs_localizer.tracking.sequence.Seq
 Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :mod:`.maps`,
 :mod:`.accuracy`, :mod:`.pose`, :mod:`.correspondences`) <- :mod:`.solvers` <-
 :mod:`.estimation` <- :mod:`.tracking` <- :mod:`.frontends` <- :mod:`.ros`;
-:mod:`.sim` produces data; :mod:`.evaluation` and :mod:`.cli` compose everything.
+:mod:`.sim` produces data; :mod:`.experiments` (the paper's synthetic experiments) and
+:mod:`.cli` compose everything. The benchmarks are outside the package (``benchmarks/`` of a
+checkout).
 """
 
 # numba's cache directory must be chosen before anything imports numba (jit_cache docstring)

@@ -31,9 +31,9 @@ from hypothesis import strategies as st  # noqa: E402
 from rs_localizer.camera import CameraModel  # noqa: E402
 from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose  # noqa: E402
 from rs_localizer.estimation.plausibility import depths_at_capture  # noqa: E402
-from rs_localizer.evaluation.bench_consistency import ATTACKS, attack, corridor_frames  # noqa: E402
 from rs_localizer.frontends.image import ENCODINGS, image_from_msg  # noqa: E402
 from rs_localizer.geometry import rotation_angle_deg  # noqa: E402
+from rs_localizer.sim.attacks import ATTACKS, attack, corridor_frames  # noqa: E402
 
 _LONG = int(os.environ.get("RS_FUZZ_EXAMPLES", "0") or 0)
 _COMMON = dict(
@@ -488,7 +488,7 @@ def test_fuzz_estimator_corrupted_frames(seed, corruptions, frac):
 @given(st.integers(0, 2**16), st.sampled_from(ATTACKS), st.sampled_from(["r6p_1lin", "p3p"]))
 def test_fuzz_estimator_partial_fit_garbage(seed, kind, solver):
     """A corridor frame (walls, floor, ceiling, clutter; 300 points) whose every row is
-    mirrored or reflected (:func:`~rs_localizer.evaluation.bench_consistency.attack`): one
+    mirrored or reflected (:func:`~rs_localizer.sim.attacks.attack`): one
     wall fits from behind; never a success."""
     RUNS["estimator_partial_fit_garbage"] += 1
     f = attack(corridor_frames(1, seed)[0], kind)

@@ -1,6 +1,6 @@
-"""The package's layers: imports point down only, ``ros`` is the only rclpy importer (with the
-benchmark's DDS client), nothing in the library imports ``sim`` or ``evaluation``, and one solver
-registry (docs/architecture.md "Layers")."""
+"""The package's layers: imports point down only, ``ros`` is the only rclpy importer, nothing in
+the library imports ``sim``, nothing in the package (and no test but the benchmarks' own) imports
+the benchmarks outside it, and one solver registry (docs/architecture.md "Layers")."""
 
 import ast
 from pathlib import Path
@@ -11,7 +11,7 @@ PKG = Path(__file__).resolve().parents[1] / "rs_localizer"
 
 #: layer of each top-level module / subpackage, lowest first; a module may import only its own
 #: layer or lower ones (``sim`` produces data: it may use the model and the front ends' map
-#: formats; ``evaluation`` and ``cli`` compose everything)
+#: formats; ``experiments`` and ``cli`` compose everything)
 LAYER = {
     "geometry": 0,
     "camera": 0,
@@ -32,7 +32,7 @@ LAYER = {
     "sim": 4,
     "mapping": 4,
     "ros": 5,
-    "evaluation": 6,
+    "experiments": 6,
     "cli": 7,
 }
 #: the package's own top level (re-exports the public API) and ``python -m rs_localizer``
@@ -50,8 +50,8 @@ ROS_PACKAGES = {
     "builtin_interfaces",
     "lifecycle_msgs",
 }
-#: outside ``ros``, the benchmark's DDS client of the node (it measures the node from outside)
-ROS_CLIENTS = {PKG / "evaluation" / "bench_client.py"}
+#: the benchmarks (``python -m benchmarks.X`` from a checkout): outside the package, not installed
+BENCHMARKS = PKG.parent / "benchmarks"
 
 
 def _unit(path: Path) -> str:
@@ -97,8 +97,10 @@ def test_imports_point_down(path):
     bad = []
     for mod, line in _imports(path):
         parts = mod.split(".")
-        if parts[0] in ROS_PACKAGES and unit != "ros" and path not in ROS_CLIENTS:
+        if parts[0] in ROS_PACKAGES and unit != "ros":
             bad.append(f"line {line}: {mod} (only rs_localizer.ros imports ROS)")
+        if parts[0] == BENCHMARKS.name:
+            bad.append(f"line {line}: {mod} (the package never imports the benchmarks)")
         if parts[0] != "rs_localizer" or len(parts) < 2:
             continue
         target = parts[1]
@@ -109,15 +111,40 @@ def test_imports_point_down(path):
     assert not bad, f"{path.relative_to(PKG)}:\n" + "\n".join(bad)
 
 
+def test_benchmarks_are_outside_the_package():
+    """The benchmarks are a top-level package of the checkout, not of ``rs_localizer``; only
+    ``test/benchmarks/`` (the benchmarks' own logic) imports them among the tests."""
+    assert (BENCHMARKS / "__init__.py").is_file()
+    assert not (PKG / "evaluation").exists() and not (PKG / "benchmarks").exists()
+    tests = PKG.parent / "test"
+    found = []
+    for path in sorted(tests.rglob("*.py")):
+        if path.is_relative_to(tests / "benchmarks"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+                names = [node.module]
+            else:
+                continue
+            found += [
+                f"{path.relative_to(tests)}:{node.lineno} {n}"
+                for n in names
+                if n.split(".")[0] == BENCHMARKS.name
+            ]
+    assert not found, "library tests importing the benchmarks:\n" + "\n".join(found)
+
+
 def test_one_solver_registry():
     """The estimator, the front ends, the node and the CLI read the registry: no comparison with
-    a solver-name literal outside ``solvers/`` (the evaluation names solvers in its claims)."""
+    a solver-name literal outside ``solvers/`` (the experiments name solvers in their claims)."""
     from rs_localizer.solvers.registry import SOLVERS
 
     names = set(SOLVERS)
     offenders = []
     for path in FILES:
-        if _unit(path) in ("solvers", "evaluation"):
+        if _unit(path) in ("solvers", "experiments"):
             continue
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Compare):

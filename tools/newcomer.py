@@ -6,10 +6,10 @@ and, where the docs quote what a command prints, the figures compared (within 3 
 
 Commands that install or build (pip, make, colcon, rosdep, apt-get), need a ROS install
 (``ros2``), are templates (``BAG``, ``[...]``, ``|``), write into the repository, or take
-minutes (benchmarks, experiments, map building, rendering, compiling) are listed as skipped
-with the reason. The node quick start (``rs_localizer_node`` in one shell, ``play`` in a
-second one) runs both, the node in the background on a random ROS_DOMAIN_ID. Exit status 1
-when a command fails or a figure is off.
+minutes (benchmarks: ``python -m benchmarks.X``; experiments, map building, rendering,
+compiling) are listed as skipped with the reason. The node quick start (``rs_localizer_node``
+in one shell, ``play`` in a second one) runs both, the node in the background on a random
+ROS_DOMAIN_ID. Exit status 1 when a command fails or a figure is off.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns its exit code. Raises CliError for a bag or parameter file that
     cannot be used (before the node starts)."""
-    from ..evaluation.demo import run_demo
+    from .demo_runner import run_demo
 
     if args.bag is not None:
         A.bag_dir(args.bag, require_messages=True)

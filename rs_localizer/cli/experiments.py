@@ -1,5 +1,5 @@
 """``rs-localizer experiments``: the paper's synthetic experiments (PNG plots and a markdown
-report; :mod:`rs_localizer.evaluation.experiments`)."""
+report; :mod:`rs_localizer.experiments`)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ _TYPES = {
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``experiments`` subcommand to ``sub`` (``func`` = :func:`run`)."""
-    from ..evaluation.experiments import add_arguments
+    from ..experiments import add_arguments
 
     ex = sub.add_parser(
         "experiments",
@@ -44,8 +44,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Run the experiments; returns their exit code. Raises CliError for an output directory
     that cannot be written or an unknown experiment (before any trial)."""
-    from ..evaluation.experiments import EXPERIMENTS
-    from ..evaluation.experiments import run as run_experiments
+    from ..experiments import EXPERIMENTS
+    from ..experiments import run as run_experiments
 
     A.writable_dir(args.out, "output directory")
     unknown = [e.strip() for e in args.only.split(",") if e.strip() not in (*EXPERIMENTS, "")]

@@ -57,7 +57,7 @@ __all__ = [
 #: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
 #: inliers: a fit on the points inside the threshold alone is a 2-sigma-truncated least
 #: squares and doubled the angular-velocity error at RS speed 1 (0.49 % against the 0.24 %
-#: of the maximum-likelihood fit on the true inliers; ``test/evaluation/test_ml_accuracy.py``).
+#: of the maximum-likelihood fit on the true inliers; ``test/estimation/test_ml_accuracy.py``).
 FINAL_CUTOFF = 2.0
 #: The final refinement stops when an accepted step lowers the cost by less than this fraction
 #: (steps of a few hundredths of the parameters' standard deviation): the velocities then
@@ -66,7 +66,7 @@ FINAL_CUTOFF = 2.0
 FINAL_TOL = 1e-6
 #: ``inconsistent_fit``: a planar inlier set of a non-planar frame with more than this fraction
 #: of the other points beyond its plane, away from the camera (the plane seen from behind).
-#: ``python -m rs_localizer.evaluation.bench_consistency``: true fits 0.0 with coplanar inliers
+#: ``python -m benchmarks.bench_consistency``: true fits 0.0 with coplanar inliers
 #: (p3p on rolling-shutter corridor frames with 20-70 % outliers); mirrored or reflected
 #: correspondences 0.67-0.99
 FAR_SIDE_LIMIT = 0.5
@@ -84,7 +84,7 @@ MIRRORED_FIT_FRACTION = 0.5
 #: tail of true inliers beyond a threshold of 2 sigma is 0.16 of them; a part of a set of
 #: correspondences no rigid pose explains (3D points reflected through the camera centre) is
 #: fitted with its neighbours just missing: 0.7-1.9 in the paper protocol's frames, true fits
-#: at most 0.22 (``python -m rs_localizer.evaluation.bench_consistency``)
+#: at most 0.22 (``python -m benchmarks.bench_consistency``)
 NEAR_MISS_RATIO = 0.5
 NEAR_MISS_WINDOW = 5.0
 #: 6-dof chi-square quantile (P = 0.99) of the prior-data conflict test of

@@ -332,7 +332,7 @@ def gyro_image_chi2(
     frames :data:`GYRO_PLANAR_RATE_CHANGE_FACTOR` and :data:`GYRO_PLANAR_IMAGE_SCALE`). The
     constants are calibrated so that a right gyro exceeds :data:`GYRO_CHI2_THRESHOLD` with at
     most the stated probability (hand-held videos and single frames, 3D and planar:
-    ``python -m rs_localizer.evaluation.bench_gyro --false-alarms``).
+    ``python -m benchmarks.bench_gyro --false-alarms``).
 
     Args:
         gyro: the measurement. angular_velocity: (3,) the image's (rad/s, camera frame).

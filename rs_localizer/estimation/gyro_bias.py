@@ -7,7 +7,7 @@ gyro's rotation integrated over the same interval. The gyro integral is off by a
 ``-R_cam_imu b dt`` for a bias error ``b`` over ``dt`` seconds, and the poses of a tracked
 video are good to ~0.01-0.1 deg, so every pair of frames 33 ms apart measures the bias to a
 few 0.01 rad/s and a few seconds of video to a few 0.001 rad/s (the gyro's own noise and the
-pose errors average down; :mod:`rs_localizer.evaluation.bench_gyro` ``--video`` has the
+pose errors average down; :mod:`benchmarks.bench_gyro` ``--video`` has the
 numbers).
 
 :class:`GyroBiasEstimator` is a Kalman filter on the bias alone (3 states, IMU frame; a random

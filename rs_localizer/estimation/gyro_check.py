@@ -35,7 +35,7 @@ A wrong mount by an angle ``a`` leaves a residual of about ``2 sin(a / 2) |omega
 (2.7 deg at 1 rad/s over 33 ms for 90 deg); a time offset error ``d`` one of about ``d
 |omega(t1) - omega(t0)|`` (up to 0.8 deg on a hand-held shake for 10 ms). The numbers (frames
 until detection, false alarms with the right mount, errors against no gyro) are in
-docs/node.md "Gyro", from ``python -m rs_localizer.evaluation.bench_gyro --video --mount``.
+docs/node.md "Gyro", from ``python -m benchmarks.bench_gyro --video --mount``.
 
 Conventions as :mod:`rs_localizer.estimation.gyro`.
 """

@@ -7,7 +7,7 @@ misses, corner-detector bias, a board that is not quite flat. Neighbouring point
 OpenCV's still checkerboard photos (``test/data/photos/left*.jpg``) the global-shutter
 residuals of neighbouring corners correlate by ~0.5, and the 6 velocities of the RS model
 absorb that error as well with the column as "capture time" as with the row
-(``python -m rs_localizer.evaluation.still_boards``): the white-noise covariance then reports
+(``python -m benchmarks.still_boards``): the white-noise covariance then reports
 a still camera moving at 1-3 rad/s with twist Mahalanobis distances of 15-134.
 
 Model (per image axis, the two axes independent)::

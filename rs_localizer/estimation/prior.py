@@ -100,7 +100,7 @@ class MotionPrior:
     at 1-3 rad/s, moving at up to ~1.5 m/s) lies within ~1 sigma. The linear sigma is the one
     that matters on planes (rotation trades against linear velocity there; the angular sigma
     barely changes the result); it is a compromise measured with
-    ``python -m rs_localizer.evaluation.bench_planar`` (docs/planar.md). Raises ValueError
+    ``python -m benchmarks.bench_planar`` (docs/planar.md). Raises ValueError
     (on construction) for negative sigmas, a mean or
     covariance of the wrong shape, non-finite entries, or a covariance that is not symmetric
     positive definite.

@@ -31,7 +31,7 @@ velocity is ``omega = -w / s`` with ``s = line_delay * focal`` the seconds per u
   observable (std over ``max_rotation_std``, 0.5 deg, or ``max_bias_std``, 0.005 rad/s) with the
   motion that would determine them (rotating about all three axes). Over seeds 0-5 of that
   shake the errors are within 1.7 std; of a one-axis pan within 2.1 std, the stds about 1.4x
-  too small there (``python -m rs_localizer.evaluation.bench_imu_calibration``).
+  too small there (``python -m benchmarks.bench_imu_calibration``).
 * the gyro's time offset (``t_cam = t_imu + time_offset``, the node's ``imu.time_offset``): a
   shift of the gyro rates in time. For every offset of a grid (``time_offset_step``, 1 ms,
   over ``+-max_time_offset``, 50 ms) the similarity is fitted again and scored by its trimmed

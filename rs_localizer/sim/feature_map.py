@@ -1,6 +1,7 @@
 """Feature maps of simulated scenes: global-shutter renders at known poses, reconstructed by
 :func:`rs_localizer.frontends.features.feature_map_from_views` (the paper's real-data protocol:
-a 3D map built from global-shutter views)."""
+a 3D map built from global-shutter views), and the poses of photos to build one from
+(:func:`photo_walk`)."""
 
 from __future__ import annotations
 
@@ -11,10 +12,11 @@ import numpy as np
 from ..camera import CameraModel
 from ..frontends.features import feature_map_from_views
 from ..maps.features import FeatureMap
+from .render.motion import base_rotation
 from .render.renderer import Renderer
 from .render.scene import Scene
 
-__all__ = ["build_feature_map"]
+__all__ = ["build_feature_map", "photo_walk"]
 
 
 def build_feature_map(
@@ -64,3 +66,17 @@ def build_feature_map(
         edge_margin_px=edge_margin_px,
         descriptors_per_landmark=descriptors_per_landmark,
     )
+
+
+def photo_walk(n: int) -> list:
+    """(orientation camera -> world (3, 3), centre (3,) m) of ``n`` photos on a slow walk
+    through ``textured_room``: 1.4 m forward, weaving +-0.5 m, looking +-35 deg around."""
+    out = []
+    for s in np.linspace(0.0, 1.0, int(n)):
+        pos = np.array(
+            [0.6 + 1.4 * s, 0.5 * np.sin(2 * np.pi * s), 1.45 + 0.05 * np.sin(4 * np.pi * s)]
+        )
+        yaw = np.deg2rad(35 * np.sin(3 * np.pi * s))
+        pitch = np.deg2rad(-12 + 6 * np.cos(2 * np.pi * s))
+        out.append((base_rotation(yaw, pitch), pos))
+    return out

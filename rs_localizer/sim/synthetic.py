@@ -16,6 +16,7 @@ pixels.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from ..geometry import (
     skew,
 )
 
+if TYPE_CHECKING:
+    from ..estimation.estimate import EstimateOptions
+
 __all__ = [
     "FOCAL_PX",
     "FOV_DEG",
@@ -38,6 +42,7 @@ __all__ = [
     "SyntheticFrame",
     "make_frame",
     "paper_camera",
+    "protocol_options",
     "random_rotation",
 ]
 
@@ -90,6 +95,18 @@ def paper_camera(readout_time: float = 0.03) -> CameraModel:
     c = (IMAGE_SIZE - 1) / 2.0
     K = np.array([[FOCAL_PX, 0, c], [0, FOCAL_PX, c], [0, 0, 1.0]])
     return CameraModel.from_readout_time(K, readout_time, IMAGE_SIZE, IMAGE_SIZE)
+
+
+def protocol_options() -> EstimateOptions:
+    """:class:`EstimateOptions` for the paper protocol's frames: the defaults without
+    the motion-plausibility bounds, since the protocol's scene has no physical scale and at
+    RS speed 1.0 some frames move faster than 50 units/s (the default bound of a camera in
+    metres), which the estimator would rightly refuse (3 of the 40 frames of ``python -m
+    benchmarks.bench ml``, ~10 % of Exp. 7's fastest)."""
+    from ..estimation.estimate import EstimateOptions, PlausibilityOptions
+
+    unbounded = PlausibilityOptions(max_angular_velocity=np.inf, max_linear_velocity=np.inf)
+    return EstimateOptions(plausibility=unbounded)
 
 
 def random_rotation(rng: np.random.Generator, angle_deg: float | None = None) -> np.ndarray:

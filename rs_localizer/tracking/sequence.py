@@ -22,8 +22,8 @@ API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspon
 :class:`SequenceOutput`), :meth:`flush` (end of the video: the twists still pending),
 :meth:`reset` (forget everything but the configuration). The node's
 :class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages, picks the camera model of a
-frame's stamp and keeps the diagnostics; ``rs-localizer replay``, ``evaluation/bench_gyro.py``
-and ``evaluation/bench_video.py`` drive this same object.
+frame's stamp and keeps the diagnostics; ``rs-localizer replay``, ``benchmarks/bench_gyro.py``
+and ``benchmarks/bench_video.py`` drive this same object.
 
 Example (a video of correspondences and a gyro; ``camera`` a
 :class:`~rs_localizer.camera.CameraModel` with its rolling-shutter timing)::

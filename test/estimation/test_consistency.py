@@ -15,7 +15,7 @@ import pytest
 from rs_localizer.estimation import PlausibilityOptions, estimate_rs_pose
 from rs_localizer.estimation.degeneracy import far_side_fraction
 from rs_localizer.estimation.result import FAILURE_REASONS, INCONSISTENT_FIT
-from rs_localizer.evaluation.bench_consistency import (
+from rs_localizer.sim.attacks import (
     ATTACKS,
     TRUE_SETS,
     attack,

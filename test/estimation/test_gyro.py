@@ -24,8 +24,8 @@ from rs_localizer.estimation.hypotheses import (
     SampleBySample,
     hypothesis_source,
 )
-from rs_localizer.evaluation.bench_gyro import R_WRONG, simulated_gyro
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.sim.gyro import R_WRONG, simulated_gyro
 from rs_localizer.sim.planar import make_planar_frame
 from rs_localizer.sim.trajectory import R_IMU_CAMERA
 

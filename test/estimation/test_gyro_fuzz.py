@@ -26,8 +26,8 @@ from rs_localizer.estimation.gyro import (
     IMU_SAMPLE_REJECTIONS,
     ImuBuffer,
 )
-from rs_localizer.evaluation.bench_gyro import NOISE, RATE_HZ
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.sim.gyro import NOISE, RATE_HZ
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,
     SequenceConfig,

@@ -9,9 +9,8 @@ import pytest
 
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.result import INCONSISTENT_FIT
-from rs_localizer.evaluation.bench import protocol_options
-from rs_localizer.evaluation.bench_consistency import TestFrame, attack, corridor_frames
-from rs_localizer.sim.synthetic import make_frame, paper_camera
+from rs_localizer.sim.attacks import TestFrame, attack, corridor_frames
+from rs_localizer.sim.synthetic import make_frame, paper_camera, protocol_options
 
 OPTS = protocol_options()
 UNCHECKED = replace(OPTS, plausibility=replace(OPTS.plausibility, consistent_fit=False))

@@ -16,15 +16,15 @@ from rs_localizer.estimation.noise_model import (
 )
 from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import RefineSettings, refine_rs_pose
-from rs_localizer.evaluation.still_boards import correlated_field
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+from rs_localizer.sim.noise import correlated_field
 
 # the OpenCV sample camera of test/data/photos/left_intrinsics.yml (strong barrel distortion)
 K = np.array([[535.9157, 0.0, 342.2832], [0.0, 535.9157, 235.5708], [0.0, 0.0, 1.0]])
 D = np.array([-0.26637, -0.038589, 0.0017832, -0.00028122, 0.23839])
 CAM = CameraModel(K=K, D=D, width=640, height=480, line_delay=30e-6)
 Q6 = chi2.ppf(0.9973, 6)
-# a model of the size fitted on OpenCV's photos (python -m rs_localizer.evaluation.still_boards)
+# a model of the size fitted on OpenCV's photos (python -m benchmarks.still_boards)
 WHITE, CORR, LENGTH = 0.10, 0.21, 92.0
 
 

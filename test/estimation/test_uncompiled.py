@@ -26,7 +26,7 @@ from rs_localizer.sim.synthetic import make_frame, paper_camera
 
 ROOT = Path(__file__).resolve().parents[2]
 
-#: the protocol's scene has no physical scale (see evaluation.bench.protocol_options)
+#: the protocol's scene has no physical scale (see sim.synthetic.protocol_options)
 OPTS = EstimateOptions(
     plausibility=PlausibilityOptions(max_angular_velocity=np.inf, max_linear_velocity=np.inf)
 )

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.evaluation.bench_aruco import FPS, render_video, run_interleaved
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
+from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
 from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
 
 

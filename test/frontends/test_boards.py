@@ -7,7 +7,7 @@ still photos: our P3P estimate must agree with cv2.solvePnP (and the checkerboar
 extrinsics OpenCV's calibration stored in left_intrinsics.yml). The rolling-shutter estimate
 on the checkerboard photos agrees with P3P and reports a velocity consistent with zero once its
 covariance includes the photos' correlated image error
-(``python -m rs_localizer.evaluation.still_boards``).
+(``python -m benchmarks.still_boards``).
 
 Runs on OpenCV 4.6 (contrib) and on 4.7+ / 5.x (the compatibility layer cv_compat).
 """

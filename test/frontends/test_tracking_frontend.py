@@ -7,40 +7,19 @@ import time
 
 import numpy as np
 import pytest
+from helpers.videos import shake_video
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.maps.features import FeatureMap
-from rs_localizer.sim.feature_map import build_feature_map
-from rs_localizer.sim.render.motion import make_motion
-from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
-from rs_localizer.sim.render.scene import load_scene
 
 pytestmark = pytest.mark.slow  # (renders a map and a video)
 
 
-def _shake_video(seconds: float, frames: int, seed: int):
-    """A hand-held 640x480 video of ``textured_room`` with the SIFT map of four still views
-    of its path: (map, rendered frames, camera, renderer, motion)."""
-    scene = load_scene("textured_room")
-    camera = camera_preset("vga")
-    motion = make_motion("shake", scene, duration=seconds)
-    fmap = build_feature_map(
-        scene,
-        camera_preset("vga", line_delay=0.0),
-        (motion, np.linspace(0.0, seconds, 4)),
-        kind="sift",
-        n_features=1500,
-    )
-    renderer = Renderer(scene, camera, noise=NoiseModel())
-    rendered = list(renderer.render_sequence(motion, frames, seed=seed))
-    return fmap, rendered, camera, renderer, motion
-
-
 @pytest.fixture(scope="module")
 def video():
-    return _shake_video(1.0, 10, seed=1)
+    return shake_video(1.0, 10, seed=1)
 
 
 def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
@@ -184,7 +163,7 @@ def test_capped_tracks_cover_the_image(video):
 @pytest.fixture(scope="module")
 def long_video():
     """Two seconds (60 frames) of the hand-held video, with its map and truth."""
-    return _shake_video(2.0, 60, seed=2)
+    return shake_video(2.0, 60, seed=2)
 
 
 def _pixel_errors(got, frames, renderer, motion):
@@ -249,23 +228,3 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
     # re-anchoring happens on refresh joins only (when a new anchor exceeds max_anchors)
     assert not np.any(reanchored & ~joins), np.flatnonzero(reanchored & ~joins)
     assert len(np.unique(fe._anc)) <= 2
-
-
-def test_benchmark_run_reports_kinds_errors_and_shuffled_positions(video):
-    """``bench_tracking.run_video`` on the short video with its truth: the first frame global,
-    the rest tracked; every inlier's distance to its true projection sub-pixel; the position
-    re-estimated with each tracked frame's own pixel errors shuffled among its inliers is there
-    for tracked frames only, and as close to the truth as the tracked estimate (both from the
-    same sub-pixel errors)."""
-    from rs_localizer.evaluation.bench_tracking import run_video
-
-    fmap, frames, camera, renderer, motion = video
-    r = run_video(fmap, [(f, False) for f in frames], camera, True, truth=(renderer, motion))
-    tracked = r["kind"] == "tracked"
-    assert r["kind"][0] == "global" and tracked[1:].all()
-    assert np.isfinite(r["pos"]).all()
-    assert np.isnan(r["pos_shuffled"][0]) and np.isfinite(r["pos_shuffled"][1:]).all()
-    assert np.median(r["px_err"]) < 0.5 and set(np.unique(r["px_kind"])) <= {0, 1, 2}
-    # (a few mm at most, like the frames' own estimates)
-    assert r["pos_shuffled"][1:].max() < 0.01, r["pos_shuffled"]
-    assert np.median(r["pos_shuffled"][1:]) < 3 * np.median(r["pos"][1:]) + 1e-3

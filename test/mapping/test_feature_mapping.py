@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from rs_localizer.evaluation.bench_feature_map import photo_walk
 from rs_localizer.frontends.features import FeatureFrontend, make_detector
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.maps.features import FeatureMap
+from rs_localizer.sim.feature_map import photo_walk
 from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
 from rs_localizer.sim.render.scene import load_scene

@@ -9,16 +9,16 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rs_localizer.evaluation.bench_mapping import (
-    frame_errors,
-    map_errors,
-    room_scene,
-    truth_in_frame,
-)
 from rs_localizer.mapping.marker_ba import (
     FrameDetections,
     concatenate_videos,
     map_markers,
+)
+from rs_localizer.sim.marker_mapping import (
+    frame_errors,
+    map_errors,
+    room_scene,
+    truth_in_frame,
 )
 from rs_localizer.sim.marker_room import (
     OneSpot,

@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from rs_localizer.evaluation.bench_mapping import (
-    _map_through_file,
-    drive_detections,
-    localization_errors,
-    map_errors,
-    room_scene,
-)
 from rs_localizer.mapping.marker_ba import (
     FrameDetections,
     _marker_covariance,
     _Problem,
     map_markers,
+)
+from rs_localizer.sim.marker_mapping import (
+    drive_detections,
+    localization_errors,
+    map_errors,
+    map_through_file,
+    room_scene,
 )
 from rs_localizer.sim.marker_room import (
     room_camera,
@@ -109,7 +109,7 @@ def test_shape_std_is_honest_after_a_rigid_fit(scene, rs_map):
     # adjustment's covariance), not their errors in the anchor's frame
     from scipy.spatial.transform import Rotation
 
-    from rs_localizer.evaluation.bench_mapping import corner_sigmas
+    from rs_localizer.sim.marker_mapping import corner_sigmas
 
     room, *_ = scene
     ids = sorted(rs_map.corners)
@@ -269,7 +269,7 @@ def test_localization_against_the_built_map(sweep_scene, sweep_map):
     room, camera, _, frames, _, opts = sweep_scene
     dets, truth = drive_detections(room, camera, num_frames=120)
     true = localization_errors(dets, truth, room.corners(), camera)
-    built = localization_errors(dets, truth, _map_through_file(sweep_map), camera)
+    built = localization_errors(dets, truth, map_through_file(sweep_map), camera)
     gs = localization_errors(
         dets, truth, map_markers(frames, camera, replace(opts, global_shutter=True)).corners, camera
     )

@@ -59,7 +59,7 @@ def node(tmp_path_factory, keypoints_bag):
 
 
 def _play(ros_context, bag, offset_s=0.0, limit=None, outputs=OUTPUTS, topics=None):
-    from rs_localizer.evaluation.demo import evaluate_outputs
+    from rs_localizer.ros.bags.accuracy import evaluate_outputs
     from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.bags.play import play
 

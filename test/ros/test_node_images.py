@@ -74,7 +74,7 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
     """Lock-step replay of the rendered bag's images: every frame solved, accurate, stamped at
     the reference row; the republished correspondences are the front end's output."""
     from rs_localizer.accuracy import summarize_errors
-    from rs_localizer.evaluation.demo import evaluate_outputs
+    from rs_localizer.ros.bags.accuracy import evaluate_outputs
     from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.bags.play import play
     from rs_localizer.ros.conversions import stamp_to_ns

@@ -52,7 +52,7 @@ def test_base_frame_outputs(tmp_path, ros_context, sample_bag):
     from scipy.spatial.transform import Rotation
 
     from rs_localizer.accuracy import summarize_errors
-    from rs_localizer.evaluation.demo import evaluate_outputs
+    from rs_localizer.ros.bags.accuracy import evaluate_outputs
     from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.bags.play import play
 
