@@ -83,7 +83,13 @@ def run_bag_demo(
     from ..ros.bags.accuracy import evaluate_outputs
     from ..ros.bags.bag_io import load_ground_truth, read_bag_info
     from ..ros.bags.play import play
-    from ..ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
+    from ..ros.process import (
+        NodeProcess,
+        random_domain_id,
+        ros_env,
+        user_domain_id,
+        write_params_yaml,
+    )
 
     bag = Path(bag)
     info = read_bag_info(bag)
@@ -97,7 +103,8 @@ def run_bag_demo(
         frame_topic = topics.get("correspondences", "/camera/correspondences")
         remap_key = "correspondences"
     solver = _solver_from_yaml(*params_files)
-    domain = random_domain_id()
+    domain = user_domain_id()
+    domain = random_domain_id() if domain is None else domain  # (none set: an isolated one)
     env = ros_env(domain)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     os.environ.pop("ROS_LOCALHOST_ONLY", None)

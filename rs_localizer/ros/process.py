@@ -21,6 +21,7 @@ __all__ = [
     "repo_file",
     "ros_env",
     "share_dirs",
+    "user_domain_id",
     "write_params_yaml",
 ]
 
@@ -28,6 +29,17 @@ __all__ = [
 def random_domain_id() -> int:
     """A random ROS domain id in [1, 101] (valid on every platform)."""
     return random.SystemRandom().randint(1, 101)
+
+
+def user_domain_id(environ: Mapping[str, str] | None = None) -> int | None:
+    """The ``ROS_DOMAIN_ID`` the user set (``environ``, default ``os.environ``), or None when
+    it is unset or empty. Raises ValueError for a value that is no domain id (0-232)."""
+    text = (os.environ if environ is None else environ).get("ROS_DOMAIN_ID", "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or not 0 <= int(text) <= 232:
+        raise ValueError(f"ROS_DOMAIN_ID={text!r} is no ROS domain id (a whole number 0-232)")
+    return int(text)
 
 
 def ros_env(domain_id: int | None = None, base: Mapping[str, str] | None = None) -> dict:
