@@ -1,48 +1,43 @@
-"""The estimator without compiled kernels: NumPy, SciPy and OpenCV only.
+"""The estimator's NumPy implementation: NumPy, SciPy and OpenCV only, no compiled kernel.
 
-The compiled kernels (numba) are an accelerator, not a precondition. Until they are compiled
-(a cold cache: one to two minutes of CPU) or when numba is unavailable, frames are solved here,
+``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs here. The
+compiled kernels (numba) are an accelerator, not a precondition: until they are compiled (a
+cold cache: one to two minutes of CPU) or where numba is unavailable, frames are solved here,
 on the same model with the same outputs (:class:`~.result.RSPoseEstimate` with pose, twist,
-covariances, inliers and failure reasons), at a lower rate:
+covariances, inliers and failure reasons), at a lower rate. The stages are the compiled
+implementation's, each written in NumPy:
 
 1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
-   undistortion; the RS coordinate of the measured, distorted line), the same shuffle;
+   undistortion; the RS coordinate of the measured, distorted line), the same shuffle, and
+   the checks of :func:`.frame.configure_frame` in the same order;
 2. RANSAC: minimal samples pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of
    each sample, the root with the least error on the sample's other points; paper sec. 4),
    the paper's linear R6P (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples
    with ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
    exact constant-velocity model at each point's measured capture time (eq. 4), all hypotheses
-   of a batch scored at once, adaptive termination;
+   of a batch scored at once, adaptive termination (:func:`.ransac.required_iterations`);
 3. local optimization: the linear solver on all inliers, pre-rotated by the best model;
 4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
    (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
    :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
-   planar frames), its covariance from the analytic Jacobian, the motion-plausibility and
-   cheirality checks and the consistent-fit test of the compiled path.
+   planar frames), its covariance from the analytic Jacobian (:func:`~.refine.exact_jacobian`),
+   the motion-plausibility and cheirality checks and the consistent-fit test
+   (:func:`~.finalize.fit_is_inconsistent`); the estimate is assembled by the compiled
+   implementation's :func:`~.finalize.solved_estimate` and :func:`~.result.failed_estimate`.
 
-Not on this path: PROSAC ordering (``scores`` are ignored: uniform sampling), an
+Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
+was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling), an
 ``initial_model`` (the frame is solved without it), a gyro measurement (solved without it),
-the acceleration sensitivity and the correlated image-noise covariance. Solvers:
-:data:`UNCOMPILED_SOLVERS`. Nothing here calls a numba kernel, so nothing compiles; where numba
-is missing or broken, :mod:`rs_localizer.jit_cache` puts a stand-in in its place so that the
-package imports, and this path runs.
-
-Which path :func:`~.estimate.estimate_rs_pose` takes is this module's switch,
-:func:`use_compiled_kernels` (default: compiled, numba compiles on first use as before;
-``RS_LOCALIZER_COMPILED=0`` in the environment, or numba missing or failing to import
-(:func:`rs_localizer.jit_cache.numba_error`): uncompiled from the start); a
-node with a cold cache turns it off while the kernels compile in the background
-(:class:`rs_localizer.warmup.BackgroundCompile`) and on again once they are loaded.
+``point_sigma``, the acceleration sensitivity and the correlated image-noise covariance.
+Solvers: :data:`~.implementation.NUMPY_SOLVERS`. Nothing here calls a numba kernel, so nothing
+compiles; where numba is missing or broken, :mod:`rs_localizer.runtime.jit_cache` puts a
+stand-in in its place so that the package imports, and this implementation runs.
 """
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
-import threading
 import time
-from collections.abc import Iterator
 
 import cv2
 import numpy as np
@@ -50,11 +45,11 @@ from scipy.optimize import least_squares
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
-from ..jit_cache import numba_error
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
-from .options import EstimateOptions
+from .implementation import NUMPY, NUMPY_SOLVERS
+from .options import EstimateOptions, points_needed
 from .prior import prior_arrays
 from .ransac import required_iterations, seeded_rng
 from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
@@ -72,18 +67,8 @@ from .result import (
     failed_estimate,
 )
 
-__all__ = [
-    "COMPILED_ENV",
-    "UNCOMPILED_SOLVERS",
-    "compiled_kernels_in_use",
-    "compiled_path",
-    "estimate_uncompiled",
-    "use_compiled_kernels",
-]
+__all__ = ["estimate_numpy"]
 
-#: solvers this path runs (the paper's linear R6P, the node's default, and the
-#: global-shutter P3P baseline); others always take the compiled path
-UNCOMPILED_SOLVERS = ("r6p_1lin", "p3p")
 #: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
 _SAMPLE_ITERATIONS = 5
 #: robust fits of the final refinement, each on the points within the cutoff of the last
@@ -93,37 +78,6 @@ _FINAL_PASSES = 1
 _KEEP = 4
 #: collinearity tolerance of the degeneracy test (as the compiled one)
 _COLLINEAR_TOL = 1e-3
-
-#: environment variable: ``0`` starts the process on the uncompiled path (numba unusable on
-#: this machine, or to measure that path)
-COMPILED_ENV = "RS_LOCALIZER_COMPILED"
-_switch = {"compiled": os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_error() is None}
-_local = threading.local()
-
-
-def use_compiled_kernels(enabled: bool) -> None:
-    """Choose the path of :func:`~.estimate.estimate_rs_pose` for the whole process:
-    ``True`` (the default) the compiled kernels, ``False`` this module (for the solvers in
-    :data:`UNCOMPILED_SOLVERS`). Thread-safe (one flag)."""
-    _switch["compiled"] = bool(enabled)
-
-
-def compiled_kernels_in_use() -> bool:
-    """True when :func:`~.estimate.estimate_rs_pose` runs the compiled kernels in this thread
-    (the process-wide switch, or :func:`compiled_path` around the call)."""
-    return bool(getattr(_local, "forced", False) or _switch["compiled"])
-
-
-@contextlib.contextmanager
-def compiled_path() -> Iterator[None]:
-    """Within the block, this thread's estimates take the compiled path whatever the
-    switch says (the warm-up that loads the kernels while other threads solve uncompiled)."""
-    before = getattr(_local, "forced", False)
-    _local.forced = True
-    try:
-        yield
-    finally:
-        _local.forced = before
 
 
 class _Frame:
@@ -636,9 +590,17 @@ def _physical(R, C, w, t, s: float):
 
 
 def _finalize(
-    fr: _Frame, solver: str, opts: EstimateOptions, model, iterations, timings, min_inliers
+    fr: _Frame,
+    solver: str,
+    opts: EstimateOptions,
+    model,
+    iterations,
+    timings,
+    min_inliers,
+    ignored: tuple[str, ...],
 ):
-    """Refinement, last checks and outputs (:mod:`.finalize`)."""
+    """Refinement, last checks and outputs (:mod:`.finalize`); ``ignored``: the estimate's
+    ``ignored_inputs``."""
     th = opts.ransac.threshold_px / fr.f
     rolling = solver_info(solver).rolling
     R, C, w, t = (np.array(a, dtype=float) for a in model)
@@ -682,38 +644,39 @@ def _finalize(
         timings=timings,
         rmse_px=rmse_px,
         motion_prior_used=prior_used,
+        implementation=NUMPY,
+        ignored_inputs=ignored,
     )
 
 
-def estimate_uncompiled(
+def estimate_numpy(
     points2d_px: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
-    solver: str = "r6p_1lin",
-    options: EstimateOptions | None = None,
+    solver: str,
+    opts: EstimateOptions,
+    ignored: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
-    """:func:`~.estimate.estimate_rs_pose` without compiled kernels (module docstring): the
-    same model, outputs and failure reasons, for the solvers in :data:`UNCOMPILED_SOLVERS`.
+    """:func:`~.estimate.estimate_rs_pose` with ``implementation="numpy"`` (module docstring):
+    the same model, outputs and failure reasons, for the solvers in
+    :data:`~.implementation.NUMPY_SOLVERS`.
 
     Args:
         points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
         camera: the camera (intrinsics, distortion, RS timing).
         solver: ``r6p_1lin`` or ``p3p``.
-        options: :class:`~.options.EstimateOptions` (default ``EstimateOptions()``).
+        opts: :class:`~.options.EstimateOptions`.
+        ignored: the names of the inputs given that this implementation does not use (the
+            estimate's ``ignored_inputs``).
     Returns:
-        :class:`~.result.RSPoseEstimate`. Data problems give ``success=False`` with a
-        failure reason, never an exception.
+        :class:`~.result.RSPoseEstimate` with ``implementation="numpy"``. Data problems give
+        ``success=False`` with a failure reason, never an exception.
     Raises:
-        ValueError: a solver not in :data:`UNCOMPILED_SOLVERS`, or arrays that are not
-            (N, 2) / (N, 3).
+        ValueError: a solver not in :data:`~.implementation.NUMPY_SOLVERS`, or arrays that are
+            not (N, 2) / (N, 3).
     """
-    from .estimate import points_needed  # (estimate imports this module)
-
-    if solver not in UNCOMPILED_SOLVERS:
-        raise ValueError(
-            f"solver {solver!r} needs the compiled kernels; {UNCOMPILED_SOLVERS} do not"
-        )
-    opts = options or EstimateOptions()
+    if solver not in NUMPY_SOLVERS:
+        raise ValueError(f"solver {solver!r} needs the compiled kernels; {NUMPY_SOLVERS} do not")
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
@@ -733,11 +696,20 @@ def estimate_uncompiled(
         if _degenerate(fr, search.inliers, opts.ransac.threshold_px):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         t0 = time.perf_counter()
-        est = _finalize(fr, solver, opts, search.best, search.iterations, timings, min_inliers)
+        est = _finalize(
+            fr, solver, opts, search.best, search.iterations, timings, min_inliers, ignored
+        )
         timings["refine"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(
-            failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings
+            failure.reason,
+            solver,
+            fr.num_rows,
+            len(fr.x),
+            search.iterations,
+            timings,
+            NUMPY,
+            ignored,
         )
     timings["total"] = time.perf_counter() - t_start
     return est
