@@ -45,6 +45,7 @@ from scipy.optimize import least_squares
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
+from ..pose import model_twist, model_twist_jacobian
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE
 from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
@@ -534,12 +535,7 @@ def _refine(fr: _Frame, model, th: float, rolling: bool):
     Hp = H.copy()
     on, _, Lam = prior_arrays(fr.prior if rolling else None)
     if on:
-        s = fr.spr
-        Jz = np.zeros((6, 12))
-        Jz[0:3, 3:6] = skew(w) / s
-        Jz[0:3, 6:9] = -skew(C) / s
-        Jz[0:3, 9:12] = -np.eye(3) / s
-        Jz[3:6, 6:9] = -np.eye(3) / s
+        Jz = model_twist_jacobian.py_func(C, w, fr.spr)
         Hp = Hp + sigma2 * (Jz.T @ Lam @ Jz)[:n_free, :n_free]
     try:
         cov_free = sigma2 * np.linalg.inv(Hp)
@@ -564,11 +560,9 @@ def _output_covariance(cov12, R, C, w, s: float):
     J[0:3, 0:3] = -Rt  # phi = -R^T delta
     J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
     J[3:6, 3:6] = -Rt  # dc/dC
-    if s > 0:
-        J[6:9, 6:9] = -np.eye(3) / s  # omega = -w / s
-        J[9:12, 3:6] = skew(w) / s  # v = (w x C - t) / s
-        J[9:12, 6:9] = -skew(C) / s
-        J[9:12, 9:12] = -np.eye(3) / s
+    if s > 0:  # (omega, v) rows: the twist's Jacobian, (v, omega)
+        Jz = model_twist_jacobian.py_func(C, w, s)
+        J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
     out = J @ cov12 @ J.T
     out = 0.5 * (out + out.T)
     pose = np.zeros((6, 6))
@@ -584,8 +578,8 @@ def _physical(R, C, w, t, s: float):
     if s <= 0:
         z = np.zeros(3)
         return z, z.copy(), z.copy(), z.copy()
-    om = -w / s
-    vc = (_cross(w, C) - t) / s
+    z = model_twist.py_func(C, w, t, s)
+    om, vc = z[3:6], z[0:3]
     return om, vc, R.T @ om, R.T @ vc
 
 

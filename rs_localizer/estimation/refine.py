@@ -25,8 +25,8 @@ from numba import njit
 from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
-from ..pose import RSModel
-from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
+from ..pose import RSModel, model_twist, model_twist_jacobian
+from .prior import MotionPrior, prior_arrays
 
 __all__ = [
     "ExactModelFit",
@@ -949,12 +949,8 @@ def prior_residuals(
         with respect to ``theta``.
     """
     C, w, t = theta[3:6], theta[6:9], theta[9:12]
-    z = np.concatenate([(np.cross(w, C) - t) / s, -w / s])
-    Jz = np.zeros((6, 12))
-    Jz[0:3, 3:6] = skew(w) / s
-    Jz[0:3, 6:9] = -skew(C) / s
-    Jz[0:3, 9:12] = -np.eye(3) / s
-    Jz[3:6, 6:9] = -np.eye(3) / s
+    z = model_twist.py_func(C, w, t, s)
+    Jz = model_twist_jacobian.py_func(C, w, s)
     return scale * U @ (z - mean), scale * U @ Jz
 
 

@@ -49,6 +49,7 @@ from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
 from ..estimation.scoring import exact_msac_scores
 from ..estimation.tracker import RSTracker, TrackerOptions
 from ..geometry import rotvec_to_matrix
+from ..pose import model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
@@ -113,8 +114,7 @@ def _video(planar: bool, frames: int = 8, n: int = 60):
     for k in range(frames):
         R = rotvec_to_matrix(-om * k / 30.0)
         C = -v * k / 30.0
-        w = -om * s
-        t = np.cross(w, C) - v * s
+        w, t = model_from_twist(C, om, v, s)
         uv = cam.project_rs(X, R, C, w, t) + rng.normal(0.0, 0.3, (len(X), 2))
         ok = np.isfinite(uv).all(axis=1)
         out.append((k * 33_333_333, uv[ok], X[ok]))
