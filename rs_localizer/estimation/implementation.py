@@ -76,8 +76,12 @@ def numba_usable() -> bool:
 
 def compiled_by_default() -> bool:
     """True unless this process cannot or must not compile the kernels: numba is not usable
-    (:func:`numba_usable`) or :data:`COMPILED_ENV` is ``0`` in the environment."""
-    return os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_usable()
+    (:func:`numba_usable`) or :data:`COMPILED_ENV` is ``0`` in the environment (both as they
+    were when this module was imported: the package imports numba, or its stand-in, first)."""
+    return _BY_DEFAULT
+
+
+_BY_DEFAULT = os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_usable()
 
 
 def default_implementation(solver: str) -> str:
