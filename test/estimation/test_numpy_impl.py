@@ -238,3 +238,38 @@ def test_planar_frames_as_accurate(scene):
         assert u.num_inliers == c.num_inliers
     med_u, med_c = np.median(errs["u"], axis=0), np.median(errs["c"], axis=0)
     assert np.all(med_u <= 1.5 * med_c + np.array([0.05, 0.002, 0.05])), (med_u, med_c)
+
+
+def test_numpy_helpers_agree_with_the_compiled_ones():
+    """The NumPy copies of the prepare stage's helpers (frame, degeneracy and planarity
+    tests, condition number) give what the compiled ones give: the same rows and
+    normalization, the same verdicts, the same values to rounding."""
+    from rs_localizer.estimation.degeneracy import condition_number, planarity
+    from rs_localizer.estimation.frame import prepare_frame
+    from rs_localizer.estimation.ransac import seeded_rng
+
+    cam = paper_camera()
+    rng = np.random.default_rng(5)
+    for k in range(4):
+        f = make_frame(300 + k, 120, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+        uv = f.points_px.copy()
+        uv[:3] = np.nan
+        a = prepare_frame(uv, f.X, cam, 1e3, seeded_rng(k))
+        b = prepare_frame(uv, f.X, cam, 1e3, seeded_rng(k), compiled=False)
+        np.testing.assert_array_equal(a.rows, b.rows)
+        np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b.r, a.r, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b.r0e, a.r0e, rtol=0, atol=1e-12)
+        for mask in (np.ones(len(a.x), bool), rng.random(len(a.x)) < 0.5, np.arange(len(a.x)) < 3):
+            assert a.degenerate(mask, 2.0) == a.degenerate(mask, 2.0, compiled=False)
+            np.testing.assert_allclose(
+                planarity(a.X, mask, compiled=False), planarity(a.X, mask), rtol=1e-9, atol=1e-7
+            )
+    line = np.column_stack([np.linspace(-1, 1, 20), np.zeros(20), np.full(20, 5.0)])
+    fr = prepare_frame(cam.project_rs(line, np.eye(3), np.zeros(3)), line, cam, 1e3)
+    assert fr.degenerate(np.ones(20, bool), 2.0) and fr.degenerate(np.ones(20, bool), 2.0, False)
+    A = rng.normal(size=(12, 12))
+    H = A @ A.T
+    np.testing.assert_allclose(condition_number(H, compiled=False), condition_number(H), rtol=1e-8)
+    H[3, 3] = 0.0
+    assert condition_number(H, compiled=False) == condition_number(H) == np.inf
