@@ -179,8 +179,9 @@ def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]
     return True
 
 
-def _background_command() -> tuple[list[str], dict[str, str] | None]:
-    """The background compiling process's command and environment."""
+def _background_command() -> tuple[list[str], dict[str, str] | None, str | None]:
+    """The background compiling process's command, environment and working directory
+    (:func:`.warmup.package_command`)."""
     return warmup.package_command("rs_localizer.runtime.background_process")
 
 
@@ -202,10 +203,11 @@ def _background_run(args: tuple, log, warn, nice: int) -> None:
         _background_failed(reason, warn)
 
     try:
-        cmd, env = _background_command()
+        cmd, env, cwd = _background_command()
         proc = subprocess.Popen(
             cmd,
             env=env,
+            cwd=cwd,
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,

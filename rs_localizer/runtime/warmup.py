@@ -347,16 +347,22 @@ def fused_cached(solver: str, anchored: bool = True) -> bool:
 _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
 
 
-def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str]]:
-    """The command and environment of ``python -m module args`` in another process of this
-    interpreter that imports this very package: ``-P`` (the working directory, which may hold
-    another copy of the package, not on ``sys.path``) and the package's parent directory first
-    on ``PYTHONPATH``; the rest of the environment is this process's (numba caches where this
-    process does)."""
+def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str], str | None]:
+    """The command, environment and working directory (None: this process's) of ``python -m
+    module args`` in another process of this interpreter that imports this very package: the
+    package's parent directory first on ``PYTHONPATH`` and ``-P`` (the working directory,
+    which may hold another copy of the package, not on ``sys.path``); Python 3.10 has no
+    ``-P``: there the process runs in the package's parent directory (a relative
+    ``NUMBA_CACHE_DIR`` made absolute). The rest of the environment is this process's (numba
+    caches where this process does)."""
     env = dict(os.environ)
     parent = os.path.dirname(PACKAGE_DIR)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (parent, env.get("PYTHONPATH")) if p)
-    return [sys.executable, "-P", "-m", module, *args], env
+    if sys.version_info >= (3, 11):
+        return [sys.executable, "-P", "-m", module, *args], env, None
+    if env.get("NUMBA_CACHE_DIR"):
+        env["NUMBA_CACHE_DIR"] = os.path.abspath(env["NUMBA_CACHE_DIR"])
+    return [sys.executable, "-m", module, *args], env, parent
 
 
 class _SecondProcess:
@@ -370,13 +376,14 @@ class _SecondProcess:
     def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
         self.kernels: list[tuple[str, float]] = []
         self._log = log
-        cmd, env = package_command(
+        cmd, env, cwd = package_command(
             "rs_localizer.runtime.second_process", "track" if track else "alone", *solvers
         )
         try:
             self._proc = subprocess.Popen(
                 cmd,
                 env=env,
+                cwd=cwd,
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,

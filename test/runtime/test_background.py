@@ -67,7 +67,7 @@ def test_background_compile_failure_counted(monkeypatch):
     import rs_localizer.runtime.warmup as W
 
     crash = [sys.executable, "-c", "import sys; print('boom'); sys.exit(3)"]
-    monkeypatch.setattr(B, "_background_command", lambda: (crash, None))
+    monkeypatch.setattr(B, "_background_command", lambda: (crash, None, None))
     monkeypatch.setattr(W, "fused_cached", lambda *a, **k: False)
     before = B.background_state()["failures"]
     logs, warns = [], []
@@ -210,7 +210,9 @@ def test_compiled_but_not_cached(monkeypatch):
 
     import rs_localizer.runtime.warmup as W
 
-    monkeypatch.setattr(B, "_background_command", lambda: ([sys.executable, "-c", "pass"], None))
+    monkeypatch.setattr(
+        B, "_background_command", lambda: ([sys.executable, "-c", "pass"], None, None)
+    )
     monkeypatch.setattr(W, "fused_cached", lambda *a, **k: False)
     warns = []
     try:
