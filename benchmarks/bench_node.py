@@ -9,7 +9,7 @@ BLAS/numba), and from this process (pinned to another core):
 * lock-step: publish a frame, wait for its pose, repeat. Reports the throughput (frames/s)
   and the latency from publish to pose received (median, p99): the full round trip of
   serialization, DDS, decoding, estimation and publishing.
-* the uncompiled path (NumPy/SciPy/OpenCV, :mod:`rs_localizer.estimation.uncompiled`: what a
+* the uncompiled path (NumPy/SciPy/OpenCV, :mod:`rs_localizer.estimation.numpy_impl`: what a
   node solves with while its kernels compile in the background): timed alone, and the node on
   it lock-step (started with ``RS_LOCALIZER_COMPILED=0``; ``--no-uncompiled-node``: not);
 * pipelined: keep ``--window`` frames in flight (reliable QoS, nothing dropped), which is how
@@ -72,7 +72,7 @@ def run_benchmark(
     the lock-step idle time as a pause between frames. Returns the results, with
     ``overhead_ms``: lock-step latency median minus the alone median, and
     ``overhead_paced_ms``: minus the paced alone median. Both estimator paths are reported:
-    the uncompiled one (:mod:`rs_localizer.estimation.uncompiled`, the path of a node whose
+    the uncompiled one (:mod:`rs_localizer.estimation.numpy_impl`, the path of a node whose
     kernels compile in the background) timed alone (``uncompiled_ms_median``,
     ``uncompiled_hz``) and, with ``uncompiled_node``, the node on it lock-step
     (``uncompiled_node``: the node started with ``RS_LOCALIZER_COMPILED=0``)."""
@@ -131,7 +131,7 @@ def run_benchmark(
 def _alone_uncompiled(seq, cam, solver: str, frames: int) -> tuple[np.ndarray, np.ndarray]:
     """The uncompiled path (every frame alone, the node's options) timed on ``frames``
     frames: (wall s, CPU s of this thread) per frame."""
-    from rs_localizer.estimation.uncompiled import estimate_uncompiled
+    from rs_localizer.estimation.estimate import estimate_rs_pose
     from rs_localizer.ros import params as P
 
     cfg = P.build_config({**P.default_values(), "solver": solver})
@@ -139,7 +139,7 @@ def _alone_uncompiled(seq, cam, solver: str, frames: int) -> tuple[np.ndarray, n
     for i in range(frames + 2):
         f = seq[i % len(seq)]
         tic, tic_cpu = time.perf_counter(), time.thread_time()
-        estimate_uncompiled(f.uv, f.xyz, cam, solver, cfg.options)
+        estimate_rs_pose(f.uv, f.xyz, cam, solver, cfg.options, implementation="numpy")
         times.append(time.perf_counter() - tic)
         cpu.append(time.thread_time() - tic_cpu)
     return np.array(times[2:]), np.array(cpu[2:])
@@ -150,7 +150,7 @@ def _node_uncompiled(seq, cam, solver: str, frames: int, node_cpu, log) -> dict:
     lock-step and pipelined on ``frames`` frames (:func:`measure_node`)."""
     import os
 
-    from rs_localizer.estimation.uncompiled import COMPILED_ENV
+    from rs_localizer.estimation.implementation import COMPILED_ENV
 
     from .bench_client import measure_node
 

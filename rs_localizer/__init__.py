@@ -12,14 +12,14 @@ A video (tracking, gyro, gyro bias): :class:`~rs_localizer.tracking.sequence.Seq
 
 Layers (imports point down only): the model (:mod:`.geometry`, :mod:`.camera`, :mod:`.maps`,
 :mod:`.accuracy`, :mod:`.pose`, :mod:`.correspondences`) <- :mod:`.solvers` <-
-:mod:`.estimation` <- :mod:`.tracking` <- :mod:`.frontends` <- :mod:`.ros`;
+:mod:`.estimation` <- :mod:`.runtime` <- :mod:`.tracking` <- :mod:`.frontends` <- :mod:`.ros`;
 :mod:`.sim` produces data; :mod:`.experiments` (the paper's synthetic experiments) and
 :mod:`.cli` compose everything. The benchmarks are outside the package (``benchmarks/`` of a
 checkout).
 """
 
 # numba's cache directory must be chosen before anything imports numba (jit_cache docstring)
-from . import jit_cache as _jit_cache
+from .runtime import jit_cache as _jit_cache
 
 _jit_cache.configure()
 

@@ -201,12 +201,18 @@ class CameraModel:
         """Capture time of ``to_line`` minus that of ``from_line`` (s)."""
         return float(self.line_time(to_line) - self.line_time(from_line))
 
-    def undistort(self, points_px: np.ndarray) -> np.ndarray:
-        """(N, 2) measured pixels -> (N, 2) undistorted normalized coordinates (OpenCV)."""
+    def undistort(self, points_px: np.ndarray, compiled: bool = True) -> np.ndarray:
+        """(N, 2) measured pixels -> (N, 2) undistorted normalized coordinates (OpenCV).
+        ``compiled=False``: without the compiled pinhole kernel (the same formula in NumPy;
+        for code that compiles nothing)."""
         p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 1, 2)
         if len(p) == 0:
             return np.zeros((0, 2))
         if not self.has_distortion:
+            if not compiled:
+                K, q = self.K, p.reshape(-1, 2)
+                y = (q[:, 1] - K[1, 2]) / K[1, 1]
+                return np.stack([(q[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=1)
             return _pinhole_normalize(p.reshape(-1, 2), self.K)
         if self.distortion_model == "equidistant":
             return cv2.fisheye.undistortPoints(p, self.K, self.D[:4]).reshape(-1, 2)
@@ -232,8 +238,11 @@ class CameraModel:
             out, _ = cv2.projectPoints(P, z, z, self.K, self.D)
         return out.reshape(-1, 2)
 
-    def normalize(self, points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Everything the solvers need from measured pixels.
+    def normalize(
+        self, points_px: np.ndarray, compiled: bool = True
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Everything the solvers need from measured pixels (``compiled=False``: in NumPy,
+        for code that compiles nothing; the same formulas).
 
         Returns:
             (x, r, r0_eff): (N, 2) undistorted normalized points, (N,) RS coordinates of the
@@ -243,8 +252,12 @@ class CameraModel:
             distortion).
         """
         p = np.ascontiguousarray(points_px, dtype=np.float64).reshape(-1, 2)
-        x = self.undistort(p)
+        x = self.undistort(p, compiled)
         axis, sign, d = READOUT_DIRECTIONS[self.readout]
+        if not compiled:
+            K = self.K
+            r = sign * (p[:, axis] - K[axis, 2]) / K[axis, axis]
+            return x, r, self.r0 - (r - (d[0] * x[:, 0] + d[1] * x[:, 1]))
         r, r0e = _rs_coordinates(p, x, self.K, axis, sign, d[0], d[1], self.r0)
         return x, r, r0e
 

@@ -16,9 +16,12 @@ Rolling Shutter Problem", ACCV 2018, eq. 4: a point seen at RS coordinate ``r`` 
   reference row's capture time, ns; None when unknown).
 
 With ``s`` seconds per unit RS coordinate (``CameraModel.seconds_per_unit_r``), the camera's
-angular velocity is ``-w / s`` and its linear velocity ``(w x C - t) / s`` (camera frame); see
-:func:`rs_localizer.estimation.result.physical_velocities`, the compiled form the estimator
-uses, and :meth:`RSPose.from_model` / :meth:`RSPose.model`, the two directions here.
+angular velocity is ``-w / s`` and its linear velocity ``(w x C - t) / s`` (camera frame). The
+conversion is written here once: :func:`model_twist` (model -> twist, a numba kernel; its
+``py_func`` is the same code in plain Python, for code that compiles nothing),
+:func:`model_twist_jacobian` (its Jacobian over the model's ``(delta, C, w, t)``) and
+:func:`model_from_twist` (twist -> model); :meth:`RSPose.from_model` / :meth:`RSPose.model`
+use them.
 
 The library's types store these, not loose arrays: an estimate
 (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) holds its ``model`` and its ``pose``,
@@ -36,8 +39,64 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-__all__ = ["RSModel", "RSPose"]
+__all__ = ["RSModel", "RSPose", "model_from_twist", "model_twist", "model_twist_jacobian"]
+
+
+@njit(cache=True)
+def model_twist(C, w, t, s):
+    """(6,) the camera's velocities ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (ROS twist
+    order; m/s, rad/s, camera frame) from the model's ``C`` (3,) m, ``w`` (3,) rad and ``t``
+    (3,) m per unit RS coordinate and ``s > 0`` seconds per unit RS coordinate (module
+    docstring; docs/architecture.md "Conventions"). A numba kernel; ``model_twist.py_func``
+    runs the same code without compiling."""
+    z = np.empty(6)
+    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
+    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
+    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
+    for a in range(3):
+        z[3 + a] = -w[a] / s
+    return z
+
+
+@njit(cache=True)
+def model_twist_jacobian(C, w, s):
+    """(6, 12) Jacobian of :func:`model_twist` over the model's ``(delta, C, w, t)`` (``delta``
+    the rotation increment, on which the twist does not depend): ``dv/dC = [w]x / s``,
+    ``dv/dw = -[C]x / s``, ``dv/dt = -I / s``, ``domega/dw = -I / s``. A numba kernel;
+    ``model_twist_jacobian.py_func`` runs the same code without compiling."""
+    Jz = np.zeros((6, 12))
+    Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
+    Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
+    Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
+    Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
+    Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
+    Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
+    for a in range(3):
+        Jz[a, 9 + a] = -1.0 / s
+        Jz[3 + a, 6 + a] = -1.0 / s
+    return Jz
+
+
+def model_from_twist(
+    C: np.ndarray,
+    angular_velocity: np.ndarray,
+    linear_velocity: np.ndarray,
+    seconds_per_unit_r: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`model_twist`: the model's ``(w, t)`` (3,) per unit RS coordinate
+    of a camera at ``C`` (3,) m moving with ``angular_velocity`` (3,) rad/s and
+    ``linear_velocity`` (3,) m/s (camera frame), ``s = seconds_per_unit_r``:
+    ``w = -omega s``, ``t = w x C - v s``. Plain NumPy (the cross product written out: NumPy's
+    ``np.cross`` costs ~10x more at this size)."""
+    s = float(seconds_per_unit_r)
+    w = -np.asarray(angular_velocity, dtype=float) * s
+    C = np.asarray(C, dtype=float)
+    wxC = np.array(
+        [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
+    )
+    return w, wxC - np.asarray(linear_velocity, dtype=float) * s
 
 
 class RSModel(NamedTuple):
@@ -117,7 +176,8 @@ class RSPose:
         if s == 0:
             om, v = np.zeros(3), np.zeros(3)
         else:
-            om, v = -w / s, (np.cross(w, C) - t) / s
+            z = model_twist.py_func(C, w, t, s)
+            om, v = z[3:6], z[0:3]
         return cls(R.T, -R.T @ C, om, v, stamp_ns)
 
     def model(self, seconds_per_unit_r: float) -> RSModel:
@@ -130,11 +190,7 @@ class RSPose:
         C = -R @ np.asarray(self.position, dtype=float)
         if s <= 0:
             return RSModel(R, C, np.zeros(3), np.zeros(3))
-        w = -np.asarray(self.angular_velocity, dtype=float) * s
-        wxC = np.array(
-            [w[1] * C[2] - w[2] * C[1], w[2] * C[0] - w[0] * C[2], w[0] * C[1] - w[1] * C[0]]
-        )  # (np.cross costs ~10x more at this size)
-        t = wxC - np.asarray(self.linear_velocity, dtype=float) * s
+        w, t = model_from_twist(C, self.angular_velocity, self.linear_velocity, s)
         return RSModel(R, C, w, t)
 
     @property

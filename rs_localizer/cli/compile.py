@@ -43,8 +43,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Compile (or load from the cache) the kernels; returns 0."""
-    from ..jit_cache import cache_state
-    from ..warmup import DEFAULT_JOBS, DEFAULT_SOLVERS, compile_kernels
+    from ..runtime.jit_cache import cache_state
+    from ..runtime.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS, compile_kernels
 
     st = cache_state()
     print(

@@ -48,13 +48,15 @@ def _planarity(X, mask):
     return np.sqrt(max(ev[0], 0.0) / ev[2])
 
 
-def planarity(X: np.ndarray, mask: np.ndarray | None = None) -> float:
+def planarity(X: np.ndarray, mask: np.ndarray | None = None, compiled: bool = True) -> float:
     """Smallest over largest singular value of the centred points ``X`` (N, 3) (m), or of
     the rows ``mask`` (N,) bool selects (without copying them).
 
     0 for coplanar points (and for fewer than 3 points or a single repeated point: no extent,
     nothing to measure), up to 1 for an isotropic cloud; NaN if a selected point is not
-    finite. Raises ValueError for a wrong shape of ``X`` or ``mask``.
+    finite. ``compiled=False``: in NumPy (the estimator's NumPy implementation; fewer than 3
+    points give 0 before the finiteness test). Raises ValueError for a wrong shape of ``X``
+    or ``mask``.
     """
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim != 2 or X.shape[1] != 3:
@@ -65,7 +67,18 @@ def planarity(X: np.ndarray, mask: np.ndarray | None = None) -> float:
         mask = np.asarray(mask, dtype=np.bool_)
         if mask.shape != (len(X),):
             raise ValueError(f"mask must have shape ({len(X)},), got {mask.shape}")
+    if not compiled:
+        return _planarity_numpy(X[mask])
     return float(_planarity(X, mask))
+
+
+def _planarity_numpy(X: np.ndarray) -> float:
+    if len(X) < 3:
+        return 0.0
+    if not np.isfinite(X).all():
+        return float("nan")
+    ev = np.linalg.eigvalsh(np.cov(X.T, bias=True) * len(X))
+    return 0.0 if not ev[2] > 0 else float(np.sqrt(max(ev[0], 0.0) / ev[2]))
 
 
 def far_side_fraction(X: np.ndarray, inliers: np.ndarray, centre: np.ndarray) -> float:
@@ -124,11 +137,19 @@ def _condition_number(H):
     return ev[n - 1] / ev[0]
 
 
-def condition_number(information: np.ndarray) -> float:
+def condition_number(information: np.ndarray, compiled: bool = True) -> float:
     """Condition number of a symmetric information matrix (n, n) after Jacobi scaling
     ``D^-1/2 H D^-1/2`` with ``D = diag(H)`` (unit-free); ``inf`` if it is singular, has a
-    zero diagonal entry (an undetermined parameter) or a non-finite entry."""
+    zero diagonal entry (an undetermined parameter) or a non-finite entry.
+    ``compiled=False``: in NumPy (the estimator's NumPy implementation)."""
     H = np.ascontiguousarray(information, dtype=np.float64)
     if H.ndim != 2 or H.shape[0] != H.shape[1]:
         raise ValueError(f"information must be square, got shape {H.shape}")
+    if not compiled:
+        d = np.diag(H)
+        if not (np.all(d > 0) and np.isfinite(H).all()):
+            return float("inf")
+        s = 1.0 / np.sqrt(d)
+        ev = np.linalg.eigvalsh(s[:, None] * H * s[None, :])
+        return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
     return float(_condition_number(H))

@@ -13,6 +13,9 @@ It runs three stages, one module each:
 
 A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
 estimator turns it into a failed :class:`RSPoseEstimate` in one place.
+
+The same stages have a NumPy implementation (:mod:`.numpy_impl`), which the
+``implementation`` argument selects (:mod:`.implementation`); every estimate records which ran.
 """
 
 from __future__ import annotations
@@ -34,7 +37,9 @@ from .gyro import (
     gyro_image_chi2,
     gyro_prior,
 )
+from .implementation import NUMPY, NUMPY_UNUSED, resolve_implementation
 from .map_weights import check_point_sigma, weighted_final_model
+from .numpy_impl import estimate_numpy
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -43,11 +48,11 @@ from .options import (
     PlausibilityOptions,
     RansacOptions,
     RefineOptions,
+    points_needed,
 )
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import EstimationFailed, RSPoseEstimate, failed_estimate, physical_velocities
-from .uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use, estimate_uncompiled
 
 __all__ = [
     "SOLVERS",
@@ -82,6 +87,7 @@ def estimate_rs_pose(
     initial_model: InitialModel | None = None,
     gyro: GyroMeasurement | None = None,
     point_sigma: np.ndarray | None = None,
+    implementation: str | None = None,
 ) -> RSPoseEstimate:
     """Robust rolling-shutter absolute pose from 2D-3D correspondences.
 
@@ -132,12 +138,16 @@ def estimate_rs_pose(
             fit; the covariance is the weighted fit's, without acceleration sensitivity or
             correlated noise). Without it the estimator is unchanged.
 
-    While the compiled kernels are switched off
-    (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`: a node whose kernels
-    compile in the background), the solvers of
-    :data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS` run without them
-    (:func:`~rs_localizer.estimation.uncompiled.estimate_uncompiled`: the same model and
-    outputs; ``scores``, ``initial_model``, ``gyro`` and ``point_sigma`` are not used there).
+        implementation: ``"compiled"`` (the numba kernels), ``"numpy"`` (NumPy, SciPy and
+            OpenCV only, nothing compiles: the solvers of
+            :data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`, the same model and
+            outputs; it cannot use ``scores``, ``initial_model``, ``gyro``, ``point_sigma``,
+            the acceleration sensitivity and the correlated noise, and lists those it was given
+            in the estimate's ``ignored_inputs``), or ``None``:
+            :func:`~rs_localizer.estimation.implementation.default_implementation` (compiled,
+            unless numba is unusable here or ``RS_LOCALIZER_COMPILED=0``). A process whose
+            kernels compile in the background asks
+            :func:`rs_localizer.runtime.warmup.ready_implementation` which one is ready.
 
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
@@ -145,18 +155,23 @@ def estimate_rs_pose(
         (:data:`~.result.FAILURE_REASONS`), never an exception or a NaN pose. Rows that fail
         validation are counted in ``num_dropped``.
     Raises:
-        ValueError: unknown solver name, or arrays that are not (N, 2) / (N, 3) / (N,).
+        ValueError: unknown solver name, unknown implementation, ``"numpy"`` for a solver
+            without it, or arrays that are not (N, 2) / (N, 3) / (N,).
     """
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
-    if solver in UNCOMPILED_SOLVERS and not compiled_kernels_in_use():
-        return estimate_uncompiled(points2d_px, points3d, camera, solver, opts)
+    if resolve_implementation(implementation, solver) == NUMPY:
+        ignored = _unused_by_numpy(opts, scores, initial_model, gyro, point_sigma)
+        return estimate_numpy(points2d_px, points3d, camera, solver, opts, ignored)
     if point_sigma is not None:
         point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
     args = (points2d_px, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
-        return _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
+        ignored = () if gyro is None else ("gyro",)
+        return _estimate(
+            *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=ignored
+        )
     aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
     image: list[ImageAlone | None] = []
     est = _estimate(
@@ -198,12 +213,24 @@ def estimate_rs_pose(
     return unaided
 
 
-def points_needed(solver: str, options: EstimateOptions) -> int:
-    """Fewest correspondences (and inliers) a pose of ``solver`` needs: the options'
-    ``ransac.min_inliers``, and at least one more than the solver's minimal sample (a model
-    fitted to exactly its sample has no redundancy to check it). The node refuses a
-    ``max_points`` below this."""
-    return max(options.ransac.min_inliers, sample_size(solver) + 1)
+def _unused_by_numpy(
+    opts: EstimateOptions,
+    scores: np.ndarray | None,
+    initial_model: InitialModel | None,
+    gyro: GyroMeasurement | None,
+    point_sigma: np.ndarray | None,
+) -> tuple[str, ...]:
+    """The inputs given that the NumPy implementation does not use (its estimate's
+    ``ignored_inputs``; :data:`~.implementation.NUMPY_UNUSED`)."""
+    given = (
+        scores is not None,
+        initial_model is not None,
+        gyro is not None,
+        point_sigma is not None,
+        opts.refine.acceleration_sensitivity,
+        opts.correlated_noise.sigma_px > 0,
+    )
+    return tuple(name for name, g in zip(NUMPY_UNUSED, given, strict=True) if g)
 
 
 def _estimate(
@@ -219,6 +246,7 @@ def _estimate(
     image_prior: MotionPrior | None = None,
     *,
     point_sigma: np.ndarray | None = None,
+    ignored: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
     a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
@@ -226,7 +254,8 @@ def _estimate(
     ``image`` (a list), a success appends what the image alone (with ``image_prior``, the
     motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
     or None). ``point_sigma``: (num_rows,) the 3D points' standard deviations (m), or None
-    (:func:`~.map_weights.weighted_final_model`)."""
+    (:func:`~.map_weights.weighted_final_model`). ``ignored``: the estimate's
+    ``ignored_inputs``."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
@@ -267,6 +296,7 @@ def _estimate(
             opts.plausibility.consistent_fit,
             gyro is not None,
             opts.ransac.threshold_px / fr.f,
+            ignored,
         )
         if image is not None:
             t0 = time.perf_counter()
@@ -274,7 +304,13 @@ def _estimate(
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(
-            failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings
+            failure.reason,
+            solver,
+            fr.num_rows,
+            len(fr.x),
+            search.iterations,
+            timings,
+            ignored_inputs=ignored,
         )
     timings["total"] = time.perf_counter() - t_start
     return est

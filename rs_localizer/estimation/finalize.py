@@ -337,7 +337,8 @@ def fit_is_inconsistent(
     errors: Callable[[], np.ndarray],
 ) -> bool:
     """Whether a final fit of a non-planar frame is one no rigid camera explains (the three
-    tests of :func:`final_estimate`'s ``consistent_fit``; the uncompiled path uses it too).
+    tests of :func:`final_estimate`'s ``consistent_fit``; the NumPy implementation uses it
+    too).
 
     Args:
         X: (N, 3) m, the frame's valid world points; inliers: (N,) bool, the fit's inliers.
@@ -377,7 +378,7 @@ def solved_estimate(
     **fields: Any,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of a checked final model, for the compiled and
-    the uncompiled path alike.
+    the NumPy implementation alike.
 
     Args:
         fr: the prepared frame (``x`` (n, 2) valid rows, ``rows`` their indices among the
@@ -430,6 +431,7 @@ def final_estimate(
     consistent_fit: bool = False,
     gyro_used: bool = False,
     threshold: float = 0.0,
+    ignored_inputs: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
@@ -453,7 +455,8 @@ def final_estimate(
       only: a global-shutter model leaves near misses on any rolling-shutter frame).
 
     ``initial``: (points the initial model explained or -1, whether it was used);
-    ``gyro_used``: the model was solved with a gyro measurement (set on the estimate).
+    ``gyro_used``: the model was solved with a gyro measurement (set on the estimate);
+    ``ignored_inputs``: the estimate's (inputs given that were not used).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -510,4 +513,5 @@ def final_estimate(
         initial_used=initial[1],
         acceleration_sensitivity=final.sensitivity,
         gyro_used=gyro_used,
+        ignored_inputs=ignored_inputs,
     )

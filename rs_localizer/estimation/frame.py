@@ -11,7 +11,12 @@ from ..camera import CameraModel
 from ..pose import RSModel
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .plausibility import degenerate_points, motion_bounds, plausible_motion
+from .plausibility import (
+    degenerate_points,
+    degenerate_points_numpy,
+    motion_bounds,
+    plausible_motion,
+)
 from .prior import MotionPrior
 from .result import (
     DEGENERATE_GEOMETRY,
@@ -59,6 +64,9 @@ class Frame:
         known_w: (3,) the angular velocity a gyro measured, in the model's units (rad per
             unit r, camera frame): RANSAC's samples are then solved with it known
             (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); ``None``: no gyro.
+
+    The NumPy implementation (:mod:`.numpy_impl`) prepares its frames here too and adds its
+    own ``tau`` ((N,) ``r - r0``).
     """
 
     spr = 0.0
@@ -122,13 +130,13 @@ class Frame:
         )
         return sc, inl
 
-    def degenerate(self, mask: np.ndarray, threshold_px: float) -> bool:
+    def degenerate(self, mask: np.ndarray, threshold_px: float, compiled: bool = True) -> bool:
         """True if the points ``mask`` (N,) selects fix no pose: identical or collinear 3D
         points, or pixels within ``threshold_px`` of one image line (see
-        :func:`~.plausibility.degenerate_points`)."""
-        return bool(
-            degenerate_points(self.X, self.u_px, self.x, mask, float(self.f), float(threshold_px))
-        )
+        :func:`~.plausibility.degenerate_points`; ``compiled=False``:
+        :func:`~.plausibility.degenerate_points_numpy`)."""
+        test = degenerate_points if compiled else degenerate_points_numpy
+        return bool(test(self.X, self.u_px, self.x, mask, float(self.f), float(threshold_px)))
 
 
 def prepare_frame(
@@ -137,8 +145,10 @@ def prepare_frame(
     camera: CameraModel,
     max_point_norm: float,
     rng: np.random.Generator | None = None,
+    compiled: bool = True,
 ) -> Frame:
-    """Validate and normalize one frame's correspondences.
+    """Validate and normalize one frame's correspondences (both implementations of the
+    estimator; ``compiled=False``: NumPy only, the same rule and formulas).
 
     Rows with a non-finite pixel or point, a point farther than ``max_point_norm`` (m) from the
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
@@ -155,11 +165,16 @@ def prepare_frame(
     X = np.asarray(points3d, dtype=np.float64)
     if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
         raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
-    rows = np.flatnonzero(valid_rows(u, X, max_point_norm))
+    if compiled:
+        ok = valid_rows(u, X, max_point_norm)
+    else:
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
+    rows = np.flatnonzero(ok)
     if rng is not None:
         rows = rng.permutation(rows)
     # (``take``: NumPy's fancy indexing costs ~10x more at this size)
-    x, r, r0e = camera.normalize(u.take(rows, axis=0))
+    x, r, r0e = camera.normalize(u.take(rows, axis=0), compiled)
     if not (np.isfinite(x).all() and np.isfinite(r).all()):
         good = np.isfinite(x.sum(axis=1) + r)  # undistortion can fail far outside the image
         rows, x, r, r0e = rows[good], x[good], r[good], r0e[good]
@@ -185,9 +200,11 @@ def configure_frame(
     threshold_px: float,
     velocity_bounds: tuple[float, float],
     prior: MotionPrior | None,
+    compiled: bool = True,
 ) -> None:
     """Check that ``fr`` can fix a pose with ``solver`` and set its timing, velocity bounds
-    (rad/s, m/s), planarity and motion prior.
+    (rad/s, m/s), planarity and motion prior (both implementations of the estimator;
+    ``compiled=False``: the tests in NumPy).
 
     On planar scenes the RS solvers' hypotheses use the motion prior (damped solves for w, t:
     the plain ones let w, t absorb the noise); elsewhere the prior enters local optimization
@@ -201,13 +218,13 @@ def configure_frame(
     """
     if max(min_inliers, sample_size(solver) + 1) > len(fr.x):
         raise EstimationFailed(TOO_FEW_POINTS)
-    if fr.degenerate(np.ones(len(fr.x), dtype=bool), threshold_px):
+    if fr.degenerate(np.ones(len(fr.x), dtype=bool), threshold_px, compiled):
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     info = solver_info(solver)
     fr.threshold = threshold_px / fr.f
     fr.spr = spr = camera.seconds_per_unit_r
     fr.motion_bounds = motion_bounds(*velocity_bounds, spr)
-    fr.planar = bool(planarity(fr.X) < PLANAR_TOLERANCE)
+    fr.planar = bool(planarity(fr.X, compiled=compiled) < PLANAR_TOLERANCE)
     if fr.planar and not info.coplanar:
         raise EstimationFailed(PLANAR_SCENE)
     prior_on = bool(prior is not None and prior.enabled and spr > 0 and info.rolling)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..pose import RSModel
+from ..solvers.registry import sample_size
 from .prior import MotionPrior
 
 __all__ = [
@@ -24,6 +25,7 @@ __all__ = [
     "PlausibilityOptions",
     "RansacOptions",
     "RefineOptions",
+    "points_needed",
 ]
 
 
@@ -251,3 +253,11 @@ class InitialModel:
     def t(self) -> np.ndarray:
         """(3,) m per unit RS coordinate (``model.t``)."""
         return self.model.t
+
+
+def points_needed(solver: str, options: EstimateOptions) -> int:
+    """Fewest correspondences (and inliers) a pose of ``solver`` needs: the options'
+    ``ransac.min_inliers``, and at least one more than the solver's minimal sample (a model
+    fitted to exactly its sample has no redundancy to check it). The node refuses a
+    ``max_points`` below this."""
+    return max(options.ransac.min_inliers, sample_size(solver) + 1)

@@ -34,6 +34,7 @@ __all__ = [
     "check_final_model",
     "collinear_3d",
     "degenerate_points",
+    "degenerate_points_numpy",
     "depths_at_capture",
     "final_model_check",
     "finite_model",
@@ -341,6 +342,37 @@ def degenerate_points(X, points_px, points_normalized, mask, focal, threshold_px
         _line_rms_masked(points_px, mask, 1.0) < threshold_px
         or _line_rms_masked(points_normalized, mask, focal) < threshold_px
     )
+
+
+def degenerate_points_numpy(
+    X: np.ndarray,
+    points_px: np.ndarray,
+    points_normalized: np.ndarray,
+    mask: np.ndarray,
+    focal: float,
+    threshold_px: float,
+    tol: float = 1e-3,
+) -> bool:
+    """:func:`degenerate_points` in NumPy, for the estimator's NumPy implementation (nothing
+    compiles): the same tests on the same arrays."""
+    P = X[mask]
+    if len(P) < 3:
+        return True
+    ev = np.linalg.eigvalsh(np.cov(P.T, bias=True) * len(P))
+    if not ev[2] > 0 or ev[1] < tol**2 * ev[2]:
+        return True
+    return (
+        _line_rms_numpy(points_px[mask]) < threshold_px
+        or _line_rms_numpy(points_normalized[mask] * focal) < threshold_px
+    )
+
+
+def _line_rms_numpy(P: np.ndarray) -> float:
+    """:func:`line_rms` in NumPy."""
+    if len(P) < 3:
+        return 0.0
+    S = np.cov(P.T, bias=True) * len(P)
+    return math.sqrt(max(np.linalg.eigvalsh(S)[0], 0.0) / len(P))
 
 
 @njit(cache=True, nogil=True)

@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from .._linalg import solve_square
+from ..pose import model_twist, model_twist_jacobian
 
 __all__ = [
     "MotionPrior",
@@ -303,37 +304,6 @@ def sample_prior_rows(
         q,
     )
     return P, q
-
-
-@njit(cache=True)
-def model_twist(C, w, t, s):
-    """(6,) the camera's velocities ``z = (v, omega) = ((w x C - t) / s, -w / s)`` (ROS twist
-    order; m/s, rad/s, camera frame) from the model's C, w, t per unit r and ``s`` seconds per
-    unit r (docs/architecture.md "Conventions")."""
-    z = np.empty(6)
-    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
-    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
-    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
-    for a in range(3):
-        z[3 + a] = -w[a] / s
-    return z
-
-
-@njit(cache=True)
-def model_twist_jacobian(C, w, s):
-    """(6, 12) Jacobian of :func:`model_twist` over the model's (delta, C, w, t):
-    ``dv/dC = [w]x / s``, ``dv/dw = -[C]x / s``, ``dv/dt = -I / s``, ``domega/dw = -I / s``."""
-    Jz = np.zeros((6, 12))
-    Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
-    Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
-    Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
-    Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
-    Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
-    Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
-    for a in range(3):
-        Jz[a, 9 + a] = -1.0 / s
-        Jz[3 + a, 6 + a] = -1.0 / s
-    return Jz
 
 
 @njit(cache=True)

@@ -25,8 +25,9 @@ from numba import njit
 from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import rotvec_to_matrix, skew
-from ..pose import RSModel
-from .prior import MotionPrior, model_twist, model_twist_jacobian, prior_arrays
+from ..pose import RSModel, model_twist, model_twist_jacobian
+from .prior import MotionPrior, prior_arrays
+from .scoring import exact_error2
 
 __all__ = [
     "ExactModelFit",
@@ -694,17 +695,25 @@ def exact_errors(R, C, w, t, X, x, tau):
         q0 = R[0, 0] * X[i, 0] + R[0, 1] * X[i, 1] + R[0, 2] * X[i, 2]
         q1 = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2]
         q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
-        ti = tau[i]
-        Aq0, Aq1, Aq2, _, _, _ = rotate_small(ti * w[0], ti * w[1], ti * w[2], q0, q1, q2)
-        p0 = Aq0 + C[0] + ti * t[0]
-        p1 = Aq1 + C[1] + ti * t[1]
-        p2 = Aq2 + C[2] + ti * t[2]
-        if not p2 > 0.0:
-            out[i] = np.inf
-        else:
-            e0 = p0 / p2 - x[i, 0]
-            e1 = p1 / p2 - x[i, 1]
-            out[i] = np.sqrt(e0 * e0 + e1 * e1)
+        out[i] = np.sqrt(
+            exact_error2(
+                x[i, 0],
+                x[i, 1],
+                tau[i],
+                q0,
+                q1,
+                q2,
+                C[0],
+                C[1],
+                C[2],
+                w[0],
+                w[1],
+                w[2],
+                t[0],
+                t[1],
+                t[2],
+            )
+        )
     return out
 
 
@@ -949,12 +958,8 @@ def prior_residuals(
         with respect to ``theta``.
     """
     C, w, t = theta[3:6], theta[6:9], theta[9:12]
-    z = np.concatenate([(np.cross(w, C) - t) / s, -w / s])
-    Jz = np.zeros((6, 12))
-    Jz[0:3, 3:6] = skew(w) / s
-    Jz[0:3, 6:9] = -skew(C) / s
-    Jz[0:3, 9:12] = -np.eye(3) / s
-    Jz[3:6, 6:9] = -np.eye(3) / s
+    z = model_twist.py_func(C, w, t, s)
+    Jz = model_twist_jacobian.py_func(C, w, s)
     return scale * U @ (z - mean), scale * U @ Jz
 
 

@@ -139,6 +139,12 @@ class RSPoseEstimate:
             aided estimate failed where an unaided one succeeded); the estimate is the unaided
             one.
         gyro_rejection: why, with ``gyro_rejected`` (:data:`GYRO_REJECTIONS`), else ``""``.
+        implementation: the implementation that ran, ``"compiled"`` (the numba kernels) or
+            ``"numpy"`` (:mod:`~rs_localizer.estimation.implementation`).
+        ignored_inputs: the inputs given that this implementation could not use, by name
+            (:data:`~rs_localizer.estimation.implementation.NUMPY_UNUSED` on the NumPy
+            implementation; ``"gyro"`` for a gyro given to a global-shutter solver or camera);
+            ``()``: every input given was used.
     """
 
     success: bool
@@ -166,6 +172,8 @@ class RSPoseEstimate:
     gyro_used: bool = False
     gyro_rejected: bool = False
     gyro_rejection: str = ""
+    implementation: str = "compiled"
+    ignored_inputs: tuple[str, ...] = ()
 
     @property
     def num_inliers(self) -> int:
@@ -232,9 +240,12 @@ def failed_estimate(
     num_valid: int,
     iterations: int,
     timings: dict[str, float],
+    implementation: str = "compiled",
+    ignored_inputs: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
     """The unsuccessful :class:`RSPoseEstimate` of a frame with ``num_rows`` input rows, of which
-    ``num_valid`` passed validation, after ``iterations`` RANSAC hypotheses.
+    ``num_valid`` passed validation, after ``iterations`` RANSAC hypotheses, by
+    ``implementation`` (which could not use ``ignored_inputs``).
 
     Raises:
         ValueError: ``reason`` is not one of :data:`FAILURE_REASONS`.
@@ -250,6 +261,8 @@ def failed_estimate(
         num_dropped=num_rows - num_valid,
         ransac_iterations=iterations,
         timings=timings,
+        implementation=implementation,
+        ignored_inputs=ignored_inputs,
     )
 
 

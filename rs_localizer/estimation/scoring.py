@@ -55,7 +55,7 @@ def project_error2(x0, x1, d0, d1, r0, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t
         r = r1 if abs(r1 - r_gs) <= abs(r2 - r_gs) else r2
     tau = r - r0
     if exact:
-        return _exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2)
+        return exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2)
     return _image_error2(x0, x1, P00 + tau * P10, P01 + tau * P11, P02 + tau * P12)
 
 
@@ -71,10 +71,13 @@ def _image_error2(x0, x1, px, py, pz):
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
-def _exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
+def exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """Squared reprojection error of one point (``q = R X``) captured at ``tau = r - r0``,
     placed with the exact constant-velocity model ``expm(tau [w]x) q + C + tau t`` (paper
-    eq. 4); ``inf`` behind the camera."""
+    eq. 4); ``inf`` behind the camera. The one compiled form of the exact-model error: the
+    scoring kernels and :func:`rs_localizer.estimation.refine.exact_errors` inline it (with
+    their own fast-math flags); the NumPy implementation's is
+    :mod:`rs_localizer.estimation.numpy_impl`'s."""
     Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
     return _image_error2(x0, x1, Aq0 + C0 + tau * t0, Aq1 + C1 + tau * t1, Aq2 + C2 + tau * t2)
 
@@ -92,7 +95,7 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
     first-order row misplaces points by pixels (at RS speed 1, 30 deg per frame, the true
     model had 277 of 301 inliers under :func:`project_error2`). ``inf`` behind the camera.
     """
-    return _exact_error2(
+    return exact_error2(
         x0, x1, d0 * x0 + d1 * x1 - r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2
     )
 

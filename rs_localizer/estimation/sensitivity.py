@@ -25,6 +25,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import skew_matrix
+from ..pose import model_twist_jacobian
 from .refine import point_rows
 
 __all__ = ["acceleration_sensitivity", "output_jacobian"]
@@ -94,8 +95,6 @@ def _output_jacobian(R, C, w, s):
     J = np.zeros((12, 12))
     Rt = np.ascontiguousarray(R.T)
     RC = Rt @ skew_matrix(C)
-    SC = skew_matrix(C)
-    SW = skew_matrix(w)
     for i in range(3):
         for j in range(3):
             # camera orientation R^T = R0^T expm(-delta): world-axis rotation phi = -R^T delta
@@ -103,12 +102,12 @@ def _output_jacobian(R, C, w, s):
             # position c = -R^T C: dc/ddelta = -R^T [C]x, dc/dC = -R^T
             J[3 + i, j] = -RC[i, j]
             J[3 + i, 3 + j] = -Rt[i, j]
-            if s > 0:  # omega = -w / s, v = (w x C - t) / s
-                J[9 + i, 6 + j] = -SC[i, j] / s
-                J[9 + i, 3 + j] = SW[i, j] / s
-        if s > 0:
-            J[6 + i, 6 + i] = -1.0 / s
-            J[9 + i, 9 + i] = -1.0 / s
+    if s > 0:  # (omega, v) rows: the twist's Jacobian (pose.model_twist_jacobian, (v, omega))
+        Jz = model_twist_jacobian(C, w, s)
+        for i in range(3):
+            for j in range(12):
+                J[6 + i, j] = Jz[3 + i, j]
+                J[9 + i, j] = Jz[i, j]
     return J
 
 

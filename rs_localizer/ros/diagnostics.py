@@ -8,8 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..estimation.uncompiled import compiled_kernels_in_use
-from ..warmup import background_state
+from ..runtime.background import background_state, compiled_ready
 from .frame_queue import FrameCounts
 from .params import LocalizerConfig
 from .pipeline import StatsSnapshot
@@ -55,7 +54,7 @@ def diagnostic_status(
     camera (``camera_source``), frame accounting (received, solved, failed, skipped, pending),
     the estimator's path (``compiled``: the compiled kernels in use, else the uncompiled path;
     the background compile's state, failures and last error; frames solved on each path;
-    :func:`rs_localizer.warmup.background_state`), counters of ``stats`` and
+    :func:`rs_localizer.runtime.background.background_state`), counters of ``stats`` and
     ``messages_lost``, inliers, planarity, ``tracking`` (see
     :meth:`.pipeline.FramePipeline.tracking_values`), latency (``latencies``: s from arrival to
     published) and stamp age (``stamp_ages``: s from the input stamp to published) in ms,
@@ -75,7 +74,7 @@ def diagnostic_status(
     level, message = _level_and_message(
         cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s
     )
-    compiled, bg = compiled_kernels_in_use(), background_state()
+    compiled, bg = compiled_ready(), background_state()
     if not compiled:  # (a lower rate while the kernels compile is not a fault)
         message += (
             "; kernels compiling in the background: frames on the uncompiled path"

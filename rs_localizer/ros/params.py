@@ -24,7 +24,7 @@ import numpy as np
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..correspondences import Frontend
 from ..estimation import EstimateOptions
-from ..estimation.estimate import points_needed
+from ..estimation.options import points_needed
 from ..estimation.tracker import TrackerOptions
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
 from ..frontends import FRONTENDS

@@ -75,24 +75,19 @@ def log_warm_up(
 ) -> None:
     """Run the estimator (and, with ``tracking``, the video tracker) on small synthetic RS
     problems so that the numba JIT compiles (or loads from its cache) every kernel the node
-    will use before the first real frame (:func:`~rs_localizer.warmup.warm_up`),
+    will use before the first real frame (:func:`~rs_localizer.runtime.warmup.warm_up`),
     logging the cache, each kernel compiled and the time to ``logger``
     (``info``/``warning``). ``options``: the estimator options; ``tracking``: the tracker's
     (None: every frame alone); ``gyro``: also the gyro-aided path (``imu.enabled``). On a
     machine with two cores or more, kernels not yet compiled compile in two processes. With
     ``background`` and kernels not cached, nothing waits: the frames are solved on the
     uncompiled path while they compile in the background
-    (:func:`~rs_localizer.warmup.start_background_compile`), and a warm-up that fails (a
+    (:func:`~rs_localizer.runtime.background.start_background_compile`), and a warm-up that fails (a
     corrupt cache) leaves the frames on the uncompiled path. Never raises (a failure is
     logged)."""
-    from ..jit_cache import cache_state, compile_progress
-    from ..warmup import (
-        DEFAULT_JOBS,
-        fall_back_uncompiled,
-        fused_cached,
-        start_background_compile,
-        warm_up,
-    )
+    from ..runtime.background import fall_back_uncompiled, start_background_compile
+    from ..runtime.jit_cache import cache_state, compile_progress
+    from ..runtime.warmup import DEFAULT_JOBS, fused_cached, warm_up
 
     st = cache_state()
     if background and not fused_cached(solver, anchored=False):
@@ -266,7 +261,7 @@ class FrameResult:
         times: s per stage (``decode``, ``frontend``, ``estimate``) of a frame that reached the
             estimator (``frontend`` alone for one the front end dropped).
         compiled: the frame was solved with the compiled kernels (False: on the uncompiled
-            path while they compile, :mod:`rs_localizer.estimation.uncompiled`).
+            path while they compile, :mod:`rs_localizer.estimation.numpy_impl`).
     """
 
     failure: str | None = None

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, rs_project_exact
+from ..pose import model_from_twist
 from .trajectory import Scene
 
 __all__ = [
@@ -36,7 +37,6 @@ __all__ = [
     "PlanarFrame",
     "board_corners",
     "make_planar_frame",
-    "model_velocities",
     "planar_camera",
     "sequence_scene",
 ]
@@ -95,22 +95,6 @@ def board_corners(corners: tuple[int, int] = (6, 7), square: float = 0.08) -> np
         (np.arange(nx) - (nx - 1) / 2) * square, (np.arange(ny) - (ny - 1) / 2) * square
     )
     return np.stack([gx.ravel(), gy.ravel(), np.zeros(nx * ny)], axis=1)
-
-
-def model_velocities(
-    C: np.ndarray,
-    angular_velocity: np.ndarray,
-    linear_velocity: np.ndarray,
-    seconds_per_unit_r: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The camera's velocities (optical frame; rad/s, m/s) -> the model's (w, t) per unit r.
-
-    Inverse of docs/architecture.md "Conventions" (``omega = -w / s``, ``v = (w x C - t) / s``):
-    ``w = -s omega``, ``t = w x C - s v``. Returns (w (3,), t (3,))."""
-    s = float(seconds_per_unit_r)
-    w = -s * np.asarray(angular_velocity, dtype=float)
-    t = np.cross(w, np.asarray(C, dtype=float)) - s * np.asarray(linear_velocity, dtype=float)
-    return w, t
 
 
 def _unit(rng):
@@ -208,7 +192,7 @@ def make_planar_frame(
                 rng, ray / np.linalg.norm(ray) * rng.uniform(*board_distance), max_tilt_deg
             )
             X = board_corners(board, square)
-        w, t = model_velocities(C, omega, vel, s)
+        w, t = model_from_twist(C, omega, vel, s)
         x, _ = rs_project_exact(X, R, C, w, t, cam.r0)
         px = cam.distort(np.nan_to_num(x, nan=1e3))
         keep = np.isfinite(x).all(axis=1) & cam.in_image(px, margin=-2.0)

@@ -59,8 +59,8 @@ from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
 from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from ..estimation.gyro_check import GyroMountCheck
 from ..estimation.tracker import RSTracker, TrackerOptions
-from ..estimation.uncompiled import UNCOMPILED_SOLVERS, compiled_kernels_in_use
 from ..pose import RSPose
+from ..runtime.background import ready_implementation
 from ..solvers.registry import solver_info
 
 __all__ = [
@@ -245,7 +245,7 @@ class SequenceOutput:
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
         compiled: the frame was solved with the compiled kernels; False: alone (no tracker,
             no gyro) on the uncompiled path, while they compile in the background
-            (:mod:`rs_localizer.estimation.uncompiled`).
+            (:mod:`rs_localizer.runtime.background`).
     """
 
     estimate: RSPoseEstimate | None = None
@@ -594,8 +594,9 @@ class SequenceLocalizer:
         ref = reference_stamp_ns(stamp, camera, s.stamp_row)
         out = SequenceOutput(stamp_ns=ref)
         # (while the kernels compile in the background: every frame alone, without the gyro,
-        # on the uncompiled path; estimation.uncompiled)
-        out.compiled = compiled = compiled_kernels_in_use() or s.solver not in UNCOMPILED_SOLVERS
+        # on the NumPy implementation; runtime.background)
+        impl = ready_implementation(s.solver)
+        out.compiled = compiled = impl == "compiled"
         t0 = time.perf_counter()
         out.gyro = gyro = self._gyro_for(stamp, camera) if compiled else None
         out.gyro_seconds = time.perf_counter() - t0
@@ -623,6 +624,7 @@ class SequenceLocalizer:
                         options=s.options,
                         scores=scores,
                         gyro=gyro,
+                        implementation=impl,
                     )
             except Exception as e:
                 out.fused = self._fused(final)

@@ -19,7 +19,8 @@ from rs_localizer.estimation.refine import (
 )
 from rs_localizer.estimation.sampling import second_prerotations, select_prerotations
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.planar import make_planar_frame, model_velocities, sequence_scene
+from rs_localizer.pose import model_from_twist
+from rs_localizer.sim.planar import make_planar_frame, sequence_scene
 from rs_localizer.sim.synthetic import _physical_velocities, make_frame, paper_camera
 from rs_localizer.solvers import p3p_batch, r6p_1lin_batch
 
@@ -53,10 +54,10 @@ def test_planar_frame_ground_truth(scene):
     assert (flat < 1e-12) if scene != "depth" else (flat > 10 * PLANAR_TOLERANCE)
 
 
-def test_model_velocities_inverts_physical_velocities():
+def test_model_from_twist_inverts_physical_velocities():
     rng = np.random.default_rng(0)
     C, om, v = rng.normal(size=(3, 3))
-    w, t = model_velocities(C, om, v, 0.024)
+    w, t = model_from_twist(C, om, v, 0.024)
     om2, v2 = _physical_velocities(np.eye(3), C, w, t, 0.024)
     np.testing.assert_allclose(om2, om, atol=1e-6)
     np.testing.assert_allclose(v2, v, atol=1e-6)

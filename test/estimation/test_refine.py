@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from rs_localizer._linalg import solve_symmetric as _solve_symmetric
-from rs_localizer.estimation.prior import MotionPrior, model_twist, model_twist_jacobian
+from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import (
     RefineSettings,
     _normal_equations,
@@ -17,6 +17,7 @@ from rs_localizer.estimation.refine import (
     untruncated_variance,
 )
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.pose import model_twist, model_twist_jacobian
 from rs_localizer.sim.synthetic import make_frame
 
 

@@ -395,24 +395,26 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
 
 
 def test_pipeline_uncompiled_then_compiled(msgs, sequence):
-    """While the kernels compile (the estimator's switch off), frames are solved alone on the
-    uncompiled path with their own twist (no tracker, nothing pending), counted per path; the
-    first frame after the switch goes to the tracker."""
-    from rs_localizer.estimation.uncompiled import use_compiled_kernels
+    """While the kernels compile (the runtime's ready implementation is NumPy), frames are
+    solved alone on the NumPy implementation with their own twist (no tracker, nothing
+    pending), counted per path; the first frame once the kernels are ready goes to the
+    tracker."""
+    from rs_localizer.runtime import background
 
     frames, _, cam = sequence
     pipe = _pipeline()
     pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
-    use_compiled_kernels(False)
+    background._hold(True)
     try:
         for f in frames[:3]:
             res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
             assert res.solved, (res.failure, res.detail)
             assert not res.compiled and res.twist_now and res.fused == []
+            assert res.estimate.implementation == "numpy"
             assert np.degrees(np.linalg.norm(res.estimate.orientation - f.orientation)) < 0.5
         assert pipe.tracking_values()["track_state"] != "tracking"
     finally:
-        use_compiled_kernels(True)
+        background._hold(False)
     f = frames[3]
     res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
     assert res.solved and res.compiled and not res.twist_now

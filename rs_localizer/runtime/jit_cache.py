@@ -48,9 +48,9 @@ __all__ = [
     "user_cache_dir",
 ]
 
-#: the installed package directory as Python imports it (not symlink-resolved: numba names
-#: its cache directories after this path)
-PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+#: the installed package directory (``rs_localizer``) as Python imports it (not
+#: symlink-resolved: numba names its cache directories after this path)
+PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _SUFFIXES = (".nbi", ".nbc")  # numba's index and data files
 
 _state = {"mode": "unconfigured", "dir": None, "seeded": 0}
@@ -60,14 +60,14 @@ _numba = {"error": None}
 def numba_error() -> str | None:
     """Why numba could not be imported in this process (``None``: it was). Then
     :func:`configure` put a stand-in in its place, so that the package imports and runs on
-    its uncompiled path (:mod:`rs_localizer.estimation.uncompiled`); calling a kernel raises
+    its NumPy implementation (:mod:`rs_localizer.estimation.numpy_impl`); calling a kernel raises
     RuntimeError with this reason."""
     return _numba["error"]
 
 
 class _KernelUnavailable:
     """Stand-in for a numba kernel where numba is missing: calling it raises RuntimeError
-    (the uncompiled path never calls one); ``py_func`` is the Python function."""
+    (the NumPy implementation never calls one); ``py_func`` is the Python function."""
 
     def __init__(self, fn):
         self.py_func = fn

@@ -115,7 +115,7 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
 
     from rs_localizer.estimation import fusion, prior, refine, scoring
     from rs_localizer.estimation.tracker import TrackerOptions
-    from rs_localizer.warmup import _split_batch, fused_cached, warm_late, warm_up
+    from rs_localizer.runtime.warmup import fused_cached, split_batch, warm_late, warm_up
 
     warm_up("r6p_1lin", tracking=TrackerOptions())
     solvers = [
@@ -151,8 +151,8 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
     in_cache = {name: cached(name) for name in split}
     for name in split:
         assert in_cache[name], name
-    _split_batch("r6p_1lin", first=True)
-    _split_batch("r6p_1lin", first=False)
+    split_batch("r6p_1lin", first=True)
+    split_batch("r6p_1lin", first=False)
     warm_late("r6p_1lin", tracking=TrackerOptions())
     assert {name: set(k.signatures) for name, k in kernels.items() if name not in split} == {
         name: sigs for name, sigs in before.items() if name not in split
@@ -166,7 +166,7 @@ def test_second_compiling_process_uses_this_package(tmp_path, monkeypatch):
     directory), finds the kernels in the same cache (the cold batch included: it goes on to
     the tracker's videos and ends) and reports what it compiled."""
     from rs_localizer.estimation.tracker import TrackerOptions
-    from rs_localizer.warmup import _SecondProcess, warm_late
+    from rs_localizer.runtime.warmup import _SecondProcess, warm_late
 
     warm_late("r6p_1lin", tracking=TrackerOptions())  # (cached: the helper only loads)
     decoy = tmp_path / "rs_localizer"
@@ -192,7 +192,7 @@ def test_fused_kernels_not_cached_in_an_empty_cache(tmp_path):
     )
     code = (
         f"import rs_localizer; assert rs_localizer.__file__.startswith({str(tmp_path)!r}); "
-        "from rs_localizer.warmup import fused_cached; "
+        "from rs_localizer.runtime.warmup import fused_cached; "
         "print(fused_cached('r6p_1lin'), fused_cached('r6p'))"
     )
     env = {

@@ -1,4 +1,4 @@
-"""numba cache placement (rs_localizer.jit_cache) and the JIT warm-up.
+"""numba cache placement (rs_localizer.runtime.jit_cache) and the JIT warm-up.
 
 The seeding is tested against numba itself: a kernel compiled into a package's __pycache__
 must then load from a NUMBA_CACHE_DIR seeded from it without compiling (numba's own
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rs_localizer import jit_cache
+from rs_localizer.runtime import jit_cache
 
 KERNEL = textwrap.dedent("""
     from numba import njit
@@ -28,7 +28,7 @@ KERNEL = textwrap.dedent("""
 PROBE = textwrap.dedent("""
     import json, sys
     sys.path.insert(0, sys.argv[1])
-    from rs_localizer.jit_cache import compile_progress, seed_cache
+    from rs_localizer.runtime.jit_cache import compile_progress, seed_cache
     if len(sys.argv) > 2:
         seed_cache(sys.argv[1] + "/tinypkg", sys.argv[2])
     with compile_progress() as prog:
@@ -145,7 +145,7 @@ def test_warm_up_leaves_nothing_to_compile_for_real_frames(solver, sample_bag):
     from rs_localizer.ros.bags import bag_io
     from rs_localizer.ros.conversions import camera_model_from_camera_info
     from rs_localizer.ros.pointcloud import read_correspondences
-    from rs_localizer.warmup import warm_up
+    from rs_localizer.runtime.warmup import warm_up
 
     _, est = warm_up(solver, EstimateOptions())
     assert est.success

@@ -3,7 +3,7 @@ every kernel a real frame needs, before the first real frame (cold and tracked f
 planar scenes).
 
 Used by the node at start (and on a solver change) and by ``rs-localizer compile``, the
-install-time compilation step (see :mod:`rs_localizer.jit_cache` for where the kernels go).
+install-time compilation step (see :mod:`.jit_cache` for where the kernels go).
 
 Compiling takes one to two minutes on one core; a third of it is the fused RANSAC kernels
 (:mod:`.estimation.batch`), which every frame needs first. With ``jobs`` > 1 and those kernels
@@ -14,15 +14,15 @@ MAP step, the twist filter and its smoother) while this process runs the usual w
 then loads them from the cache (or compiles whatever the second process has not finished):
 the result is the same as compiling in one process.
 
-A node need not wait for any of this (:func:`start_background_compile`): on a cold cache it
-solves its frames at once without compiled kernels
-(:mod:`rs_localizer.estimation.uncompiled`) while another process compiles them, and switches
-to them, frame by frame, once they are cached and loaded.
+The second process is :mod:`.second_process` (``python -m rs_localizer.runtime.second_process``).
+A node need not wait for any of this (:mod:`.background`): on a cold cache it solves its frames
+at once with the estimator's NumPy implementation (:mod:`rs_localizer.estimation.numpy_impl`)
+while another process compiles the kernels, and uses them, frame by frame, once they are cached
+and loaded.
 """
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import os
 import re
@@ -35,29 +35,35 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .camera import CameraModel
-from .estimation.batch import fused_kernels, prerotated_batch, ransac_batch
-from .estimation.estimate import EstimateOptions, GyroMeasurement, RSPoseEstimate, estimate_rs_pose
-from .estimation.frame import prepare_frame
-from .estimation.prior import prior_conflict
-from .estimation.refine import RefineSettings, posterior_step, refine_rs_pose
-from .estimation.scoring import exact_msac_scores
-from .estimation.tracker import RSTracker, TrackerOptions
-from .geometry import rotvec_to_matrix
-from .jit_cache import PACKAGE_DIR, cache_state, compile_progress, numba_error
-from .solvers.kernels import KernelSetType, compile_kernel_set
-from .solvers.lambda_twist import lambda_twist_batch
-from .solvers.registry import SOLVER_NAMES, solver_info
+from ..camera import CameraModel
+from ..estimation.batch import fused_kernels, prerotated_batch, ransac_batch
+from ..estimation.estimate import (
+    EstimateOptions,
+    GyroMeasurement,
+    RSPoseEstimate,
+    estimate_rs_pose,
+)
+from ..estimation.frame import prepare_frame
+from ..estimation.prior import prior_conflict
+from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
+from ..estimation.scoring import exact_msac_scores
+from ..estimation.tracker import RSTracker, TrackerOptions
+from ..geometry import rotvec_to_matrix
+from ..pose import model_from_twist
+from ..solvers.kernels import KernelSetType, compile_kernel_set
+from ..solvers.lambda_twist import lambda_twist_batch
+from ..solvers.registry import SOLVER_NAMES, solver_info
+from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
 
 __all__ = [
     "DEFAULT_JOBS",
     "DEFAULT_SOLVERS",
-    "background_state",
     "compile_kernels",
-    "fall_back_uncompiled",
     "fused_cached",
-    "start_background_compile",
-    "uncompiled_rate",
+    "package_command",
+    "split_batch",
+    "synthetic_problem",
+    "track_videos",
     "warm_late",
     "warm_up",
 ]
@@ -81,7 +87,7 @@ def _camera() -> CameraModel:
     )
 
 
-def _problem(n: int = 60, seed: int = 1, scene: str = "3d"):
+def synthetic_problem(n: int = 60, seed: int = 1, scene: str = "3d"):
     """The camera and ``n`` correspondences with 0.3 px image noise and scores: camera, pixels
     (n, 2), world points (n, 3), scores (n,). ``scene``: ``3d`` (3-8 m deep over the whole
     image), ``planar`` (a plane 5 m ahead) or ``distant`` (a small object 20-30 m away, whose
@@ -98,9 +104,9 @@ def _problem(n: int = 60, seed: int = 1, scene: str = "3d"):
 
 def _video(planar: bool, frames: int = 8, n: int = 60):
     """``frames`` frames at 30 Hz of a camera turning (0.3 rad/s) and moving (0.5 m/s) in
-    front of the points of :func:`_problem`, projected through the exact RS model (0.3 px
+    front of the points of :func:`synthetic_problem`, projected through the exact RS model (0.3 px
     noise): (camera, [(stamp_ns, pixels (m, 2), points (m, 3))])."""
-    cam, _, X, _ = _problem(n, seed=2, scene="planar" if planar else "3d")
+    cam, _, X, _ = synthetic_problem(n, seed=2, scene="planar" if planar else "3d")
     rng = np.random.default_rng(3)
     s = cam.seconds_per_unit_r
     om, v = np.array([0.0, 0.3, 0.0]), np.array([0.5, 0.0, 0.0])  # camera frame, rad/s, m/s
@@ -108,8 +114,7 @@ def _video(planar: bool, frames: int = 8, n: int = 60):
     for k in range(frames):
         R = rotvec_to_matrix(-om * k / 30.0)
         C = -v * k / 30.0
-        w = -om * s
-        t = np.cross(w, C) - v * s
+        w, t = model_from_twist(C, om, v, s)
         uv = cam.project_rs(X, R, C, w, t) + rng.normal(0.0, 0.3, (len(X), 2))
         ok = np.isfinite(uv).all(axis=1)
         out.append((k * 33_333_333, uv[ok], X[ok]))
@@ -123,6 +128,7 @@ def warm_up(
     jobs: int = 1,
     log: Callable[[str], object] | None = None,
     gyro: bool = True,
+    implementation: str | None = None,
 ) -> tuple[float, RSPoseEstimate]:
     """Run everything a node with ``solver``, ``options`` and ``tracking`` runs on a frame, on
     small synthetic problems, so that numba compiles (or loads from its cache) every kernel
@@ -135,6 +141,8 @@ def warm_up(
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
     sensitivity). With ``gyro`` each of these again with a gyro measurement (RANSAC's
     samples solved with the angular velocity known, the gyro-aided prior).
+    ``implementation``: the estimator's (``estimate_rs_pose``'s argument; ``"compiled"``
+    loads or compiles the kernels whatever the process's default).
 
     With ``jobs`` > 1, when the solver's fused RANSAC kernels are not in numba's cache
     (:func:`fused_cached`), another process compiles part of them and the kernels a frame
@@ -150,7 +158,7 @@ def warm_up(
         raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
     with _parallel([solver], tracking is not None, jobs, log):
-        est = _run(solver, options, tracking, gyro)
+        est = _run(solver, options, tracking, gyro, implementation)
     return time.perf_counter() - tic, est
 
 
@@ -159,24 +167,25 @@ def warm_up(
 _GYRO = GyroMeasurement(np.array([0.2, -0.1, 0.3]), 1e-4 * np.eye(3))
 
 
-def _run(solver, options, tracking, gyro: bool = True) -> RSPoseEstimate:
+def _run(solver, options, tracking, gyro: bool = True, impl: str | None = None) -> RSPoseEstimate:
     """The warm-up's frames (:func:`warm_up`); returns the 3D scene's estimate."""
     gyros = (None, _GYRO) if gyro else (None,)
-    cam, uv, X, scores = _problem()
-    est = estimate_rs_pose(uv, X, cam, solver=solver, options=options)
-    estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores)
+    kw = {"solver": solver, "options": options, "implementation": impl}
+    cam, uv, X, scores = synthetic_problem()
+    est = estimate_rs_pose(uv, X, cam, **kw)
+    estimate_rs_pose(uv, X, cam, scores=scores, **kw)
     if gyro:
-        estimate_rs_pose(uv, X, cam, solver=solver, options=options, gyro=_GYRO)
+        estimate_rs_pose(uv, X, cam, gyro=_GYRO, **kw)
     for scene in ("distant", "planar") if solver_info(solver).coplanar else ("distant",):
-        cam, uv, X, scores = _problem(scene=scene)
+        cam, uv, X, scores = synthetic_problem(scene=scene)
         for g in gyros:
-            estimate_rs_pose(uv, X, cam, solver=solver, options=options, scores=scores, gyro=g)
+            estimate_rs_pose(uv, X, cam, scores=scores, gyro=g, **kw)
     if tracking is not None:
-        _track(solver, options, tracking, gyro=gyro)
+        track_videos(solver, options, tracking, gyro=gyro)
     return est
 
 
-def _track(solver, options, tracking, planar_first: bool = False, gyro: bool = True) -> None:
+def track_videos(solver, options, tracking, planar_first: bool = False, gyro: bool = True) -> None:
     """The warm-up's videos through an :class:`RSTracker` (with ``gyro`` also with a gyro
     measurement): a 3D scene, then a planar one for solvers that take one (the other way round
     with ``planar_first``)."""
@@ -210,7 +219,7 @@ def warm_late(
     if not solver_info(solver).rolling:
         return
     opts = options or EstimateOptions()
-    cam, uv, X, _ = _problem()
+    cam, uv, X, _ = synthetic_problem()
     fr = prepare_frame(uv, X, cam, opts.plausibility.max_point_norm, np.random.default_rng(0))
     spr, prior = cam.seconds_per_unit_r, opts.motion_prior
     ref = refine_rs_pose(
@@ -254,7 +263,7 @@ def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -
     filt.flush()
 
 
-def _split_batch(solver: str, first: bool) -> None:
+def split_batch(solver: str, first: bool) -> None:
     """Compile (or load) one share of the callees of ``solver``'s cold RANSAC batch
     (:func:`.estimation.batch.ransac_batch`, compiled first and alone on a cold frame's path)
     with the argument types the batch passes them: ``first``: the batched solver kernels (the first
@@ -268,7 +277,7 @@ def _split_batch(solver: str, first: bool) -> None:
         compile_kernel_set(fused[0])
         return
     lambda_twist_batch(np.zeros((1, 3, 3)), np.zeros((1, 3, 3)))
-    cam, uv, X, _ = _problem()
+    cam, uv, X, _ = synthetic_problem()
     fr = prepare_frame(uv, X, cam, np.inf, np.random.default_rng(0))
     H = 2
     exact_msac_scores(
@@ -295,7 +304,7 @@ def _parallel(solvers: list[str], track: bool, jobs: int, log: Callable[[str], o
     """While the body compiles: with ``jobs`` > 1 and some solver's fused RANSAC kernels not
     cached, a second compiling process (:class:`_SecondProcess`, with the tracker's frames if
     ``track``), and this process's share of each solver's cold batch compiled first
-    (:func:`_split_batch`); the second process is stopped when the body is done. Yields the
+    (:func:`split_batch`); the second process is stopped when the body is done. Yields the
     :class:`_SecondProcess` (its :attr:`~_SecondProcess.kernels` complete after the block) or
     None."""
     helper = None
@@ -304,7 +313,7 @@ def _parallel(solvers: list[str], track: bool, jobs: int, log: Callable[[str], o
     try:
         if helper is not None:
             for s in solvers:
-                _split_batch(s, first=True)
+                split_batch(s, first=True)
         yield helper
     finally:
         if helper is not None:
@@ -334,59 +343,47 @@ def fused_cached(solver: str, anchored: bool = True) -> bool:
     return True
 
 
-#: a progress line of :func:`~rs_localizer.jit_cache.compile_progress`: kernel, seconds
+#: a progress line of :func:`~.jit_cache.compile_progress`: kernel, seconds
 _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
 
-#: the helper process: the package's parent directory first on sys.path (not the working
-#: directory's copy of the package, if any), then :func:`_second_main`
-_HELPER = (
-    "import sys; sys.path.insert(0, sys.argv[1]); "
-    "from rs_localizer.warmup import _second_main; _second_main(sys.argv[2:])"
-)
 
-
-def _second_main(argv: list[str]) -> None:
-    """The helper process of :class:`_SecondProcess` (``argv``: ``track`` or ``alone``, then
-    the solvers): its share of each solver's cold RANSAC batch (:func:`_split_batch`), then
-    :func:`warm_late` for each solver; then, with ``track``, once the first
-    process has cached a solver's cold RANSAC batch, the tracker over the warm-up's videos
-    (planar first: the first process does the 3D scenes first), which compiles the kernels of
-    tracked and planar frames while the first process compiles the rest of a cold frame's.
-    Progress lines on stdout."""
-    tracking = TrackerOptions() if argv[0] == "track" else None
-    with compile_progress(lambda m: print(m, flush=True)):
-        for s in argv[1:]:
-            _split_batch(s, first=False)
-        for s in argv[1:]:
-            warm_late(s, tracking=tracking)
-        if tracking is None:
-            return
-        for s in argv[1:]:
-            while not fused_cached(s, anchored=False):  # (the first process stops us)
-                time.sleep(0.2)
-            _track(s, None, tracking, planar_first=True)
+def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str], str | None]:
+    """The command, environment and working directory (None: this process's) of ``python -m
+    module args`` in another process of this interpreter that imports this very package: the
+    package's parent directory first on ``PYTHONPATH`` and ``-P`` (the working directory,
+    which may hold another copy of the package, not on ``sys.path``); Python 3.10 has no
+    ``-P``: there the process runs in the package's parent directory (a relative
+    ``NUMBA_CACHE_DIR`` made absolute). The rest of the environment is this process's (numba
+    caches where this process does)."""
+    env = dict(os.environ)
+    parent = os.path.dirname(PACKAGE_DIR)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (parent, env.get("PYTHONPATH")) if p)
+    if sys.version_info >= (3, 11):
+        return [sys.executable, "-P", "-m", module, *args], env, None
+    if env.get("NUMBA_CACHE_DIR"):
+        env["NUMBA_CACHE_DIR"] = os.path.abspath(env["NUMBA_CACHE_DIR"])
+    return [sys.executable, "-m", module, *args], env, parent
 
 
 class _SecondProcess:
-    """:func:`_second_main` for ``solvers`` (with the default tracker if ``track``) in another
-    Python process (the same interpreter and package, the same environment: numba caches where
-    this process does), started at once. ``log`` receives its progress lines; :attr:`kernels`
-    the (name, seconds) of what it compiled. A helper that cannot start or fails only costs
-    time: this process compiles what is missing."""
+    """:func:`.second_process.main` for ``solvers`` (with the default tracker if ``track``)
+    in another Python process (:func:`package_command`: the same interpreter and package, the
+    same environment: numba caches where this process does), started at once. ``log``
+    receives its progress lines; :attr:`kernels` the (name, seconds) of what it compiled. A
+    helper that cannot start or fails only costs time: this process compiles what is
+    missing."""
 
     def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
         self.kernels: list[tuple[str, float]] = []
         self._log = log
+        cmd, env, cwd = package_command(
+            "rs_localizer.runtime.second_process", "track" if track else "alone", *solvers
+        )
         try:
             self._proc = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-c",
-                    _HELPER,
-                    os.path.dirname(PACKAGE_DIR),
-                    "track" if track else "alone",
-                    *solvers,
-                ],
+                cmd,
+                env=env,
+                cwd=cwd,
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
@@ -434,7 +431,7 @@ def compile_kernels(
 ) -> dict:
     """Compile (or load) every kernel the estimator needs for ``solvers`` (with the video
     tracker's, for ``tracking``: the node's default), reporting each kernel numba compiles
-    through ``log`` (see :func:`rs_localizer.jit_cache.compile_progress`); with ``jobs`` > 1
+    through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` > 1
     a second process compiles part of the RANSAC batch and the kernels a frame needs later
     meanwhile (module docstring).
 
@@ -462,222 +459,3 @@ def compile_kernels(
         "cache": cache_state(),
         "solvers": per,
     }
-
-
-#: the background compile's state (:func:`background_state`)
-_BACKGROUND = {
-    "state": "off",
-    "reason": None,
-    "seconds": None,
-    "failures": 0,
-    "uncompiled_hz": None,
-}
-_BACKGROUND_LOCK = threading.Lock()
-
-#: the background compiling process: the package's parent directory first on sys.path, then
-#: :func:`_background_main` with the pickled (solver, options, tracking, gyro) on stdin
-_BACKGROUND_HELPER = (
-    "import sys; sys.path.insert(0, sys.argv[1]); "
-    "from rs_localizer.warmup import _background_main; _background_main()"
-)
-
-
-def background_state() -> dict:
-    """The background compilation of this process (:func:`start_background_compile`):
-    ``{"state": "off" | "compiling" | "loading" | "compiled" | "failed", "reason": why it
-    failed or None, "seconds": compile-and-load time once compiled, "failures": background
-    compiles that failed, "uncompiled_hz": the uncompiled path's rate measured at start}``."""
-    with _BACKGROUND_LOCK:
-        return dict(_BACKGROUND)
-
-
-def _background_main() -> None:
-    """The background compiling process: :func:`warm_up` (one process: the node's process
-    keeps the other cores) for the pickled (solver, options, tracking, gyro) read from stdin,
-    so numba compiles and caches every kernel the node's frames need. Exit code 0 when
-    done."""
-    import pickle
-
-    solver, options, tracking, gyro, nice = pickle.loads(sys.stdin.buffer.read())
-    if nice and hasattr(os, "nice"):  # (the frames of the node's process come first)
-        os.nice(nice)
-    with _compile_lock(), compile_progress(lambda m: print(m, flush=True)):
-        warm_up(solver, options, tracking, jobs=1, gyro=gyro)
-
-
-@contextlib.contextmanager
-def _compile_lock():
-    """One background compile at a time per numba cache (several nodes starting at once on
-    a cold cache: the first compiles, the others then load most kernels from the cache): an
-    exclusive ``flock`` on a file in the temporary directory named after the cache. Without
-    ``fcntl`` (not POSIX) no lock."""
-    try:
-        import fcntl
-    except ImportError:
-        yield
-        return
-    import hashlib
-    import tempfile
-
-    key = hashlib.sha1(str(cache_state()["dir"]).encode()).hexdigest()[:16]
-    path = os.path.join(tempfile.gettempdir(), f"rs_localizer_compile_{key}.lock")
-    with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
-
-
-def uncompiled_rate(n: int = 500, frames: int = 2) -> float:
-    """Frames per second of the uncompiled path on :func:`_problem`'s 3D scene with ``n``
-    correspondences (a fifth of them outliers): the last of ``frames`` runs (the first one
-    also warms the path up: first calls into SciPy and OpenCV)."""
-    from .estimation.uncompiled import estimate_uncompiled
-
-    cam, uv, X, _ = _problem(n)
-    rng = np.random.default_rng(5)
-    bad = rng.random(n) < 0.2
-    uv = uv.copy()
-    uv[bad] = rng.uniform([0, 0], [639, 479], (int(bad.sum()), 2))
-    dt = np.inf
-    for _ in range(max(frames, 1)):
-        tic = time.perf_counter()
-        estimate_uncompiled(uv, X, cam)
-        dt = time.perf_counter() - tic
-    return 1.0 / dt
-
-
-def start_background_compile(
-    solver: str,
-    options: EstimateOptions | None = None,
-    tracking: TrackerOptions | None = None,
-    gyro: bool = False,
-    log: Callable[[str], object] = print,
-    warn: Callable[[str], object] | None = None,
-    nice: int = 10,
-) -> bool:
-    """Solve at once, compile meanwhile: switch this process's estimator to the uncompiled
-    path (:func:`~rs_localizer.estimation.uncompiled.use_compiled_kernels`), compile the
-    kernels ``solver`` (with ``options``, ``tracking``, ``gyro``) needs in another Python
-    process (at ``nice``), and once it has cached them, load them here in a background thread
-    (the frames go on uncompiled meanwhile) and switch back to the compiled path: the next
-    frame uses them. Logs what it does through ``log`` (once), a failure through ``warn``
-    (once: numba is not available, the compiling process cannot start, crashes or is killed,
-    the kernels were not cached, or loading them fails); the frames then stay on the
-    uncompiled path and :func:`background_state` counts it.
-
-    Returns:
-        False (nothing started) when the solver has no uncompiled path
-        (:data:`~rs_localizer.estimation.uncompiled.UNCOMPILED_SOLVERS`), else True.
-    """
-    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
-
-    if solver not in UNCOMPILED_SOLVERS:
-        return False
-    with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
-        if _BACKGROUND["state"] in ("compiling", "loading"):
-            return True
-    warn = warn or log
-    use_compiled_kernels(False)
-    hz = uncompiled_rate()
-    with _BACKGROUND_LOCK:
-        _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
-    log(
-        f"compiling kernels in the background: frames are solved on the uncompiled path, "
-        f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
-        "compile` after installing avoids this)"
-    )
-    if numba_error() is not None:
-        _background_failed(f"numba is not available: {numba_error()}", warn)
-        return True
-    args = (solver, options, tracking, gyro)
-    threading.Thread(
-        target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
-    ).start()
-    return True
-
-
-def _background_failed(reason: str, warn) -> None:
-    """Record and say once that the background compile failed (:func:`background_state`)."""
-    with _BACKGROUND_LOCK:
-        _BACKGROUND.update(state="failed", reason=reason)
-        _BACKGROUND["failures"] += 1
-    warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
-
-
-def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]) -> bool:
-    """The compiled kernels cannot be used (``reason``: e.g. a corrupt or foreign numba cache
-    the warm-up could not load): switch this process to the uncompiled path, say why once
-    through ``warn`` and count it (:func:`background_state`). False (nothing changed) for a
-    solver without an uncompiled path."""
-    from .estimation.uncompiled import UNCOMPILED_SOLVERS, use_compiled_kernels
-
-    if solver not in UNCOMPILED_SOLVERS:
-        return False
-    use_compiled_kernels(False)
-    _background_failed(reason, warn)
-    return True
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """End a background compiling process still running (at this process's exit)."""
-    _BACKGROUND["exiting"] = True
-    if proc.poll() is None:
-        proc.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(timeout=5.0)
-
-
-def _background_run(args: tuple, log, warn, nice: int) -> None:
-    """The thread of :func:`start_background_compile`."""
-    solver, options, tracking, gyro = args
-    import pickle
-
-    from .estimation.uncompiled import compiled_path, use_compiled_kernels
-
-    tic = time.perf_counter()
-
-    def fail(reason: str) -> None:
-        _background_failed(reason, warn)
-
-    try:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", _BACKGROUND_HELPER, os.path.dirname(PACKAGE_DIR)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-        )
-        atexit.register(_stop, proc)  # (not left compiling after this process ends)
-        out, _ = proc.communicate(pickle.dumps((*args, nice)))
-    except (OSError, pickle.PicklingError) as e:
-        fail(f"the compiling process could not start: {e}")
-        return
-    if proc.returncode != 0:
-        if _BACKGROUND.get("exiting"):  # (stopped at this process's exit: not a failure)
-            return
-        lines = out.decode(errors="replace").strip().splitlines()
-        how = (
-            f"was killed by signal {-proc.returncode}"
-            if proc.returncode < 0
-            else f"ended with exit code {proc.returncode}"
-        )
-        fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
-        return
-    if not fused_cached(solver, anchored=False):
-        fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
-        return
-    with _BACKGROUND_LOCK:
-        _BACKGROUND["state"] = "loading"
-    try:
-        with compiled_path(), compile_progress() as prog:
-            warm_up(solver, options, tracking, jobs=1, gyro=gyro)
-    except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
-        fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
-        return
-    use_compiled_kernels(True)
-    dt = time.perf_counter() - tic
-    with _BACKGROUND_LOCK:
-        _BACKGROUND.update(state="compiled", seconds=dt)
-    extra = f" ({len(prog.kernels)} compiled in this process)" if prog.kernels else ""
-    log(f"kernels compiled and loaded in {dt:.1f} s{extra}: frames use them from now on")

@@ -1,60 +1,56 @@
-"""The estimator without compiled kernels: NumPy, SciPy and OpenCV only.
+"""The estimator's NumPy implementation: NumPy, SciPy and OpenCV only, no compiled kernel.
 
-The compiled kernels (numba) are an accelerator, not a precondition. Until they are compiled
-(a cold cache: one to two minutes of CPU) or when numba is unavailable, frames are solved here,
+``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs here. The
+compiled kernels (numba) are an accelerator, not a precondition: until they are compiled (a
+cold cache: one to two minutes of CPU) or where numba is unavailable, frames are solved here,
 on the same model with the same outputs (:class:`~.result.RSPoseEstimate` with pose, twist,
-covariances, inliers and failure reasons), at a lower rate:
+covariances, inliers and failure reasons), at a lower rate. The stages are the compiled
+implementation's, each written in NumPy:
 
 1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
-   undistortion; the RS coordinate of the measured, distorted line), the same shuffle;
+   undistortion; the RS coordinate of the measured, distorted line), the same shuffle, and
+   the checks of :func:`.frame.configure_frame` in the same order;
 2. RANSAC: minimal samples pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of
    each sample, the root with the least error on the sample's other points; paper sec. 4),
    the paper's linear R6P (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples
    with ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
    exact constant-velocity model at each point's measured capture time (eq. 4), all hypotheses
-   of a batch scored at once, adaptive termination;
+   of a batch scored at once, adaptive termination (:func:`.ransac.required_iterations`);
 3. local optimization: the linear solver on all inliers, pre-rotated by the best model;
 4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
    (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
    :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
-   planar frames), its covariance from the analytic Jacobian, the motion-plausibility and
-   cheirality checks and the consistent-fit test of the compiled path.
+   planar frames), its covariance from the analytic Jacobian (:func:`~.refine.exact_jacobian`),
+   the motion-plausibility and cheirality checks and the consistent-fit test
+   (:func:`~.finalize.fit_is_inconsistent`); the estimate is assembled by the compiled
+   implementation's :func:`~.finalize.solved_estimate` and :func:`~.result.failed_estimate`.
 
-Not on this path: PROSAC ordering (``scores`` are ignored: uniform sampling), an
+Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
+was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling), an
 ``initial_model`` (the frame is solved without it), a gyro measurement (solved without it),
-the acceleration sensitivity and the correlated image-noise covariance. Solvers:
-:data:`UNCOMPILED_SOLVERS`. Nothing here calls a numba kernel, so nothing compiles; where numba
-is missing or broken, :mod:`rs_localizer.jit_cache` puts a stand-in in its place so that the
-package imports, and this path runs.
-
-Which path :func:`~.estimate.estimate_rs_pose` takes is this module's switch,
-:func:`use_compiled_kernels` (default: compiled, numba compiles on first use as before;
-``RS_LOCALIZER_COMPILED=0`` in the environment, or numba missing or failing to import
-(:func:`rs_localizer.jit_cache.numba_error`): uncompiled from the start); a
-node with a cold cache turns it off while the kernels compile in the background
-(:class:`rs_localizer.warmup.BackgroundCompile`) and on again once they are loaded.
+``point_sigma``, the acceleration sensitivity and the correlated image-noise covariance.
+Solvers: :data:`~.implementation.NUMPY_SOLVERS`. Nothing here calls a numba kernel, so nothing
+compiles; where numba is missing or broken, :mod:`rs_localizer.runtime.jit_cache` puts a
+stand-in in its place so that the package imports, and this implementation runs.
 """
 
 from __future__ import annotations
 
-import contextlib
-import math
-import os
-import threading
 import time
-from collections.abc import Iterator
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..camera import CameraModel
 from ..geometry import camera_position, rotvec_to_matrix, skew
-from ..jit_cache import numba_error
+from ..pose import model_twist, model_twist_jacobian
 from ..solvers.registry import sample_size, solver_info
-from .degeneracy import PLANAR_TOLERANCE
+from .degeneracy import condition_number, planarity
 from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
-from .options import EstimateOptions
+from .frame import Frame, configure_frame, prepare_frame
+from .implementation import NUMPY, NUMPY_SOLVERS
+from .options import EstimateOptions, points_needed
 from .prior import prior_arrays
 from .ransac import required_iterations, seeded_rng
 from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
@@ -64,26 +60,14 @@ from .result import (
     IMPLAUSIBLE_MOTION,
     INCONSISTENT_FIT,
     NO_HYPOTHESIS,
-    PLANAR_SCENE,
     TOO_FEW_INLIERS,
-    TOO_FEW_POINTS,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
 )
 
-__all__ = [
-    "COMPILED_ENV",
-    "UNCOMPILED_SOLVERS",
-    "compiled_kernels_in_use",
-    "compiled_path",
-    "estimate_uncompiled",
-    "use_compiled_kernels",
-]
+__all__ = ["estimate_numpy"]
 
-#: solvers this path runs (the paper's linear R6P, the node's default, and the
-#: global-shutter P3P baseline); others always take the compiled path
-UNCOMPILED_SOLVERS = ("r6p_1lin", "p3p")
 #: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
 _SAMPLE_ITERATIONS = 5
 #: robust fits of the final refinement, each on the points within the cutoff of the last
@@ -91,133 +75,6 @@ _SAMPLE_ITERATIONS = 5
 _FINAL_PASSES = 1
 #: models of a batch scored on all points after the preemptive test on a subset
 _KEEP = 4
-#: collinearity tolerance of the degeneracy test (as the compiled one)
-_COLLINEAR_TOL = 1e-3
-
-#: environment variable: ``0`` starts the process on the uncompiled path (numba unusable on
-#: this machine, or to measure that path)
-COMPILED_ENV = "RS_LOCALIZER_COMPILED"
-_switch = {"compiled": os.environ.get(COMPILED_ENV, "1").strip() != "0" and numba_error() is None}
-_local = threading.local()
-
-
-def use_compiled_kernels(enabled: bool) -> None:
-    """Choose the path of :func:`~.estimate.estimate_rs_pose` for the whole process:
-    ``True`` (the default) the compiled kernels, ``False`` this module (for the solvers in
-    :data:`UNCOMPILED_SOLVERS`). Thread-safe (one flag)."""
-    _switch["compiled"] = bool(enabled)
-
-
-def compiled_kernels_in_use() -> bool:
-    """True when :func:`~.estimate.estimate_rs_pose` runs the compiled kernels in this thread
-    (the process-wide switch, or :func:`compiled_path` around the call)."""
-    return bool(getattr(_local, "forced", False) or _switch["compiled"])
-
-
-@contextlib.contextmanager
-def compiled_path() -> Iterator[None]:
-    """Within the block, this thread's estimates take the compiled path whatever the
-    switch says (the warm-up that loads the kernels while other threads solve uncompiled)."""
-    before = getattr(_local, "forced", False)
-    _local.forced = True
-    try:
-        yield
-    finally:
-        _local.forced = before
-
-
-class _Frame:
-    """One frame's valid rows, shuffled and normalized (the fields of :class:`.frame.Frame`
-    this path uses)."""
-
-    def __init__(self, u_px, x, X, r, r0, f, rows, num_rows):
-        self.u_px, self.x, self.X, self.r, self.r0, self.f = u_px, x, X, r, r0, f
-        self.tau = r - r0
-        self.rows, self.num_rows = rows, num_rows
-        self.spr = 0.0
-        self.planar = False
-        self.bounds: tuple[float, float] | None = None
-        self.prior = None
-        self.final_prior = None
-
-
-def _undistort(camera: CameraModel, p: np.ndarray) -> np.ndarray:
-    """(N, 2) pixels -> undistorted normalized points, as :meth:`CameraModel.undistort`
-    (OpenCV) without its compiled pinhole kernel."""
-    if camera.has_distortion:
-        return camera.undistort(p)
-    K = camera.K
-    y = (p[:, 1] - K[1, 2]) / K[1, 1]
-    return np.stack([(p[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=1)
-
-
-def _prepare(points2d_px, points3d, camera: CameraModel, max_point_norm: float, rng) -> _Frame:
-    """:func:`.frame.prepare_frame` in NumPy (same validity rule, shuffle and normalization)."""
-    u = np.asarray(points2d_px, dtype=np.float64)
-    X = np.asarray(points3d, dtype=np.float64)
-    if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
-        raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(u).all(axis=1) & (np.abs(X) <= max_point_norm).all(axis=1)
-    rows = rng.permutation(np.flatnonzero(ok))
-    p = np.ascontiguousarray(u.take(rows, axis=0))
-    x = _undistort(camera, p) if len(p) else np.zeros((0, 2))
-    axis, sign, _ = READOUT_DIRECTIONS[camera.readout]
-    K = camera.K
-    r = sign * (p[:, axis] - K[axis, 2]) / K[axis, axis]
-    good = np.isfinite(x.sum(axis=1) + r)
-    rows, p, x, r = rows[good], p[good], x[good], r[good]
-    return _Frame(
-        p,
-        np.ascontiguousarray(x),
-        X.take(rows, axis=0),
-        r,
-        camera.r0,
-        camera.mean_focal,
-        rows,
-        len(u),
-    )
-
-
-def _line_rms(P: np.ndarray) -> float:
-    """RMS distance of 2D points (N, 2) from their total-least-squares line."""
-    if len(P) < 3:
-        return 0.0
-    S = np.cov(P.T, bias=True) * len(P)
-    return math.sqrt(max(np.linalg.eigvalsh(S)[0], 0.0) / len(P))
-
-
-def _degenerate(fr: _Frame, mask: np.ndarray, threshold_px: float) -> bool:
-    """:func:`~.plausibility.degenerate_points` in NumPy: identical or collinear 3D points,
-    or pixels (measured, or undistorted at the mean focal length) within ``threshold_px`` of
-    one image line."""
-    X = fr.X[mask]
-    if len(X) < 3:
-        return True
-    ev = np.linalg.eigvalsh(np.cov(X.T, bias=True) * len(X))
-    if not ev[2] > 0 or ev[1] < _COLLINEAR_TOL**2 * ev[2]:
-        return True
-    return _line_rms(fr.u_px[mask]) < threshold_px or _line_rms(fr.x[mask] * fr.f) < threshold_px
-
-
-def _planarity(X: np.ndarray) -> float:
-    """:func:`~.degeneracy.planarity` in NumPy."""
-    if len(X) < 3:
-        return 0.0
-    if not np.isfinite(X).all():
-        return float("nan")
-    ev = np.linalg.eigvalsh(np.cov(X.T, bias=True) * len(X))
-    return 0.0 if not ev[2] > 0 else float(np.sqrt(max(ev[0], 0.0) / ev[2]))
-
-
-def _condition_number(H: np.ndarray) -> float:
-    """:func:`~.degeneracy.condition_number` in NumPy (Jacobi-scaled, ``inf`` if singular)."""
-    d = np.diag(H)
-    if not (np.all(d > 0) and np.isfinite(H).all()):
-        return float("inf")
-    s = 1.0 / np.sqrt(d)
-    ev = np.linalg.eigvalsh(s[:, None] * H * s[None, :])
-    return float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -240,7 +97,7 @@ def _rotate_small(a: np.ndarray, q: np.ndarray) -> np.ndarray:
     return q + sa[..., None] * aq + ca[..., None] * _cross(a, aq)
 
 
-def _errors2(fr: _Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
+def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
@@ -270,7 +127,7 @@ def _plausible(C, w, t, bounds) -> np.ndarray:
         )
 
 
-def _p3p(fr: _Frame, samples: np.ndarray):
+def _p3p(fr: Frame, samples: np.ndarray):
     """P3P pre-rotation of each sample (K, s): OpenCV's P3P on its first three points, the
     root with the least squared error on its other points (all of them for P3P's own
     samples) in front of the camera. Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
@@ -367,7 +224,7 @@ def _solve_stack(A: np.ndarray, b: np.ndarray):
     return u, ok
 
 
-def _hypotheses(fr: _Frame, samples: np.ndarray, rolling: bool):
+def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
     """Models (R (H, 3, 3), C, w, t (H, 3)) of the minimal samples: P3P (global shutter) or
     R6P on the P3P-pre-rotated sample (rotation ``expm([v]x) R_p``)."""
     Rp, Cp, ok = _p3p(fr, samples)
@@ -386,7 +243,7 @@ class _Search:
     """MSAC over minimal samples in batches (adaptive termination, local optimization of
     every new best)."""
 
-    def __init__(self, fr: _Frame, solver: str, opts: EstimateOptions, rng):
+    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, rng):
         self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
         self.s = sample_size(solver)
         self.rolling = solver_info(solver).rolling
@@ -404,7 +261,7 @@ class _Search:
             R, C, w, t = R[None], C[None], w[None], t[None]
         if not len(R):
             return False
-        fine = _plausible(C, w, t, self.fr.bounds)
+        fine = _plausible(C, w, t, self.fr.motion_bounds)
         self.implausible |= bool((~fine).any())
         if not fine.any():
             return False
@@ -475,25 +332,7 @@ class _Search:
                 )
 
 
-def _configure(fr: _Frame, camera, solver: str, opts: EstimateOptions, min_inliers: int) -> None:
-    """:func:`.frame.configure_frame` (the same checks, in the same order)."""
-    if min_inliers > len(fr.x):
-        raise EstimationFailed(TOO_FEW_POINTS)
-    if _degenerate(fr, np.ones(len(fr.x), dtype=bool), opts.ransac.threshold_px):
-        raise EstimationFailed(DEGENERATE_GEOMETRY)
-    info = solver_info(solver)
-    fr.spr = spr = camera.seconds_per_unit_r
-    pl = opts.plausibility
-    fr.bounds = (pl.max_angular_velocity * spr, pl.max_linear_velocity * spr) if spr > 0 else None
-    fr.planar = bool(_planarity(fr.X) < PLANAR_TOLERANCE)
-    if fr.planar and not info.coplanar:
-        raise EstimationFailed(PLANAR_SCENE)
-    prior = opts.motion_prior
-    prior_on = bool(prior is not None and prior.enabled and spr > 0 and info.rolling)
-    fr.prior = prior if prior_on and (fr.planar or prior.always) else None
-
-
-def _fit(fr: _Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
+def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
     """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
     ``th``), SciPy ``least_squares``; MAP with the frame's prior
     (:func:`~.refine.refine_rs_pose_scipy`, whose prior rows take the image noise
@@ -543,7 +382,7 @@ def _fit(fr: _Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: f
     return R, C, w, t
 
 
-def _refine(fr: _Frame, model, th: float, rolling: bool):
+def _refine(fr: Frame, model, th: float, rolling: bool):
     """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
     (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model
     (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's
@@ -580,12 +419,7 @@ def _refine(fr: _Frame, model, th: float, rolling: bool):
     Hp = H.copy()
     on, _, Lam = prior_arrays(fr.prior if rolling else None)
     if on:
-        s = fr.spr
-        Jz = np.zeros((6, 12))
-        Jz[0:3, 3:6] = skew(w) / s
-        Jz[0:3, 6:9] = -skew(C) / s
-        Jz[0:3, 9:12] = -np.eye(3) / s
-        Jz[3:6, 6:9] = -np.eye(3) / s
+        Jz = model_twist_jacobian.py_func(C, w, fr.spr)
         Hp = Hp + sigma2 * (Jz.T @ Lam @ Jz)[:n_free, :n_free]
     try:
         cov_free = sigma2 * np.linalg.inv(Hp)
@@ -596,7 +430,7 @@ def _refine(fr: _Frame, model, th: float, rolling: bool):
     return R, C, w, t, (cov if np.isfinite(cov).all() else None), info
 
 
-def _depths(fr: _Frame, R, C, w, t) -> np.ndarray:
+def _depths(fr: Frame, R, C, w, t) -> np.ndarray:
     """(N,) depths of every point at its capture time under the exact model."""
     p = _rotate_small(fr.tau[:, None] * w, fr.X @ R.T) + C + fr.tau[:, None] * t
     return p[:, 2]
@@ -610,11 +444,9 @@ def _output_covariance(cov12, R, C, w, s: float):
     J[0:3, 0:3] = -Rt  # phi = -R^T delta
     J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
     J[3:6, 3:6] = -Rt  # dc/dC
-    if s > 0:
-        J[6:9, 6:9] = -np.eye(3) / s  # omega = -w / s
-        J[9:12, 3:6] = skew(w) / s  # v = (w x C - t) / s
-        J[9:12, 6:9] = -skew(C) / s
-        J[9:12, 9:12] = -np.eye(3) / s
+    if s > 0:  # (omega, v) rows: the twist's Jacobian, (v, omega)
+        Jz = model_twist_jacobian.py_func(C, w, s)
+        J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
     out = J @ cov12 @ J.T
     out = 0.5 * (out + out.T)
     pose = np.zeros((6, 6))
@@ -630,15 +462,23 @@ def _physical(R, C, w, t, s: float):
     if s <= 0:
         z = np.zeros(3)
         return z, z.copy(), z.copy(), z.copy()
-    om = -w / s
-    vc = (_cross(w, C) - t) / s
+    z = model_twist.py_func(C, w, t, s)
+    om, vc = z[3:6], z[0:3]
     return om, vc, R.T @ om, R.T @ vc
 
 
 def _finalize(
-    fr: _Frame, solver: str, opts: EstimateOptions, model, iterations, timings, min_inliers
+    fr: Frame,
+    solver: str,
+    opts: EstimateOptions,
+    model,
+    iterations,
+    timings,
+    min_inliers,
+    ignored: tuple[str, ...],
 ):
-    """Refinement, last checks and outputs (:mod:`.finalize`)."""
+    """Refinement, last checks and outputs (:mod:`.finalize`); ``ignored``: the estimate's
+    ``ignored_inputs``."""
     th = opts.ransac.threshold_px / fr.f
     rolling = solver_info(solver).rolling
     R, C, w, t = (np.array(a, dtype=float) for a in model)
@@ -651,16 +491,20 @@ def _finalize(
     if np.count_nonzero(inl) < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
     rmse_px = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
-    if not (np.isfinite(R).all() and _plausible(C[None], w[None], t[None], fr.bounds)[0]):
+    if not (np.isfinite(R).all() and _plausible(C[None], w[None], t[None], fr.motion_bounds)[0]):
         raise EstimationFailed(IMPLAUSIBLE_MOTION)
     behind = ~(_depths(fr, R, C, w, t) > 0)
     if (behind & inl).any():
         raise EstimationFailed(CHEIRALITY)
     n_behind = int(np.count_nonzero(behind))
-    flat = _planarity(fr.X[inl])
+    flat = planarity(fr.X, inl, compiled=False)
     position = camera_position(R, C)
     n_free = 12 if rolling else 6
-    cond = _condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
+    cond = (
+        condition_number(info[:n_free, :n_free], compiled=False)
+        if info is not None
+        else float("nan")
+    )
     if (
         opts.plausibility.consistent_fit
         and not fr.planar
@@ -682,46 +526,60 @@ def _finalize(
         timings=timings,
         rmse_px=rmse_px,
         motion_prior_used=prior_used,
+        implementation=NUMPY,
+        ignored_inputs=ignored,
     )
 
 
-def estimate_uncompiled(
+def estimate_numpy(
     points2d_px: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
-    solver: str = "r6p_1lin",
-    options: EstimateOptions | None = None,
+    solver: str,
+    opts: EstimateOptions,
+    ignored: tuple[str, ...] = (),
 ) -> RSPoseEstimate:
-    """:func:`~.estimate.estimate_rs_pose` without compiled kernels (module docstring): the
-    same model, outputs and failure reasons, for the solvers in :data:`UNCOMPILED_SOLVERS`.
+    """:func:`~.estimate.estimate_rs_pose` with ``implementation="numpy"`` (module docstring):
+    the same model, outputs and failure reasons, for the solvers in
+    :data:`~.implementation.NUMPY_SOLVERS`.
 
     Args:
         points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
         camera: the camera (intrinsics, distortion, RS timing).
         solver: ``r6p_1lin`` or ``p3p``.
-        options: :class:`~.options.EstimateOptions` (default ``EstimateOptions()``).
+        opts: :class:`~.options.EstimateOptions`.
+        ignored: the names of the inputs given that this implementation does not use (the
+            estimate's ``ignored_inputs``).
     Returns:
-        :class:`~.result.RSPoseEstimate`. Data problems give ``success=False`` with a
-        failure reason, never an exception.
+        :class:`~.result.RSPoseEstimate` with ``implementation="numpy"``. Data problems give
+        ``success=False`` with a failure reason, never an exception.
     Raises:
-        ValueError: a solver not in :data:`UNCOMPILED_SOLVERS`, or arrays that are not
-            (N, 2) / (N, 3).
+        ValueError: a solver not in :data:`~.implementation.NUMPY_SOLVERS`, or arrays that are
+            not (N, 2) / (N, 3).
     """
-    from .estimate import points_needed  # (estimate imports this module)
-
-    if solver not in UNCOMPILED_SOLVERS:
-        raise ValueError(
-            f"solver {solver!r} needs the compiled kernels; {UNCOMPILED_SOLVERS} do not"
-        )
-    opts = options or EstimateOptions()
+    if solver not in NUMPY_SOLVERS:
+        raise ValueError(f"solver {solver!r} needs the compiled kernels; {NUMPY_SOLVERS} do not")
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
-    fr = _prepare(points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng)
+    fr = prepare_frame(
+        points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
+    )
+    fr.tau = fr.r - fr.r0
     search = _Search(fr, solver, opts, rng)
     min_inliers = points_needed(solver, opts)
     try:
-        _configure(fr, camera, solver, opts, min_inliers)
+        pl = opts.plausibility
+        configure_frame(
+            fr,
+            camera,
+            solver,
+            opts.ransac.min_inliers,
+            opts.ransac.threshold_px,
+            (pl.max_angular_velocity, pl.max_linear_velocity),
+            opts.motion_prior,
+            compiled=False,
+        )
         timings["prepare"] = time.perf_counter() - t_start
         t0 = time.perf_counter()
         search.run()
@@ -730,14 +588,23 @@ def estimate_uncompiled(
             raise EstimationFailed(IMPLAUSIBLE_MOTION if search.implausible else NO_HYPOTHESIS)
         if np.count_nonzero(search.inliers) < min_inliers:
             raise EstimationFailed(TOO_FEW_INLIERS)
-        if _degenerate(fr, search.inliers, opts.ransac.threshold_px):
+        if fr.degenerate(search.inliers, opts.ransac.threshold_px, compiled=False):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         t0 = time.perf_counter()
-        est = _finalize(fr, solver, opts, search.best, search.iterations, timings, min_inliers)
+        est = _finalize(
+            fr, solver, opts, search.best, search.iterations, timings, min_inliers, ignored
+        )
         timings["refine"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(
-            failure.reason, solver, fr.num_rows, len(fr.x), search.iterations, timings
+            failure.reason,
+            solver,
+            fr.num_rows,
+            len(fr.x),
+            search.iterations,
+            timings,
+            NUMPY,
+            ignored,
         )
     timings["total"] = time.perf_counter() - t_start
     return est

@@ -1,0 +1,247 @@
+"""Solve at once, compile meanwhile: the background compile of a node's start on a cold numba
+cache, and which implementation of the estimator is ready in this process.
+
+The estimator has two implementations (:mod:`rs_localizer.estimation.implementation`):
+the compiled kernels and NumPy. Which one is *ready* is this process's state, kept here:
+:func:`ready_implementation` says it, and the callers that solve frames (the video's
+:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`, the node through it) pass it to
+``estimate_rs_pose(..., implementation=...)``. The compiled kernels are ready unless the
+process cannot or must not compile them
+(:func:`~rs_localizer.estimation.implementation.compiled_by_default`) or they are being
+compiled in the background, or that failed.
+
+:func:`start_background_compile` makes the NumPy implementation the ready one, compiles the
+kernels in another Python process (:mod:`.background_process`, ``python -m
+rs_localizer.runtime.background_process``), and once they are cached, loads them in a thread
+of this process and makes them the ready one: the next frame uses them.
+:func:`fall_back_uncompiled` keeps the frames on the NumPy implementation when the kernels
+cannot be used (a corrupt cache). :func:`background_state` reports it all (the node's
+diagnostics).
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import pickle
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from ..estimation.estimate import EstimateOptions, estimate_rs_pose
+from ..estimation.implementation import (
+    COMPILED,
+    NUMPY,
+    NUMPY_SOLVERS,
+    compiled_by_default,
+)
+from ..estimation.tracker import TrackerOptions
+from . import warmup
+from .jit_cache import cache_state, compile_progress, numba_error
+
+__all__ = [
+    "background_state",
+    "compiled_ready",
+    "fall_back_uncompiled",
+    "ready_implementation",
+    "start_background_compile",
+    "uncompiled_rate",
+]
+
+#: the background compile's state (:func:`background_state`)
+_BACKGROUND = {
+    "state": "off",
+    "reason": None,
+    "seconds": None,
+    "failures": 0,
+    "uncompiled_hz": None,
+}
+_BACKGROUND_LOCK = threading.Lock()
+#: the frames are held on the NumPy implementation (a background compile running, or one
+#: that failed)
+_HELD = {"numpy": False}
+
+
+def compiled_ready() -> bool:
+    """True when the compiled kernels are this process's ready implementation: the process
+    compiles them (:func:`~rs_localizer.estimation.implementation.compiled_by_default`) and
+    no background compile holds the frames on the NumPy implementation."""
+    return not _HELD["numpy"] and compiled_by_default()
+
+
+def ready_implementation(solver: str) -> str:
+    """The implementation ``solver``'s frames take now (``estimate_rs_pose``'s
+    ``implementation``): ``"compiled"`` when :func:`compiled_ready` or the solver has no NumPy
+    implementation (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else
+    ``"numpy"``."""
+    return COMPILED if solver not in NUMPY_SOLVERS or compiled_ready() else NUMPY
+
+
+def _hold(numpy: bool) -> None:
+    _HELD["numpy"] = bool(numpy)
+
+
+def background_state() -> dict:
+    """The background compilation of this process (:func:`start_background_compile`):
+    ``{"state": "off" | "compiling" | "loading" | "compiled" | "failed", "reason": why it
+    failed or None, "seconds": compile-and-load time once compiled, "failures": background
+    compiles that failed, "uncompiled_hz": the NumPy implementation's rate measured at
+    start}``."""
+    with _BACKGROUND_LOCK:
+        return dict(_BACKGROUND)
+
+
+def uncompiled_rate(n: int = 500, frames: int = 2) -> float:
+    """Frames per second of the NumPy implementation on :func:`.warmup.synthetic_problem`'s
+    3D scene with ``n`` correspondences (a fifth of them outliers): the last of ``frames``
+    runs (the first one also warms the path up: first calls into SciPy and OpenCV)."""
+    cam, uv, X, _ = warmup.synthetic_problem(n)
+    rng = np.random.default_rng(5)
+    bad = rng.random(n) < 0.2
+    uv = uv.copy()
+    uv[bad] = rng.uniform([0, 0], [639, 479], (int(bad.sum()), 2))
+    dt = np.inf
+    for _ in range(max(frames, 1)):
+        tic = time.perf_counter()
+        estimate_rs_pose(uv, X, cam, implementation=NUMPY)
+        dt = time.perf_counter() - tic
+    return 1.0 / dt
+
+
+def start_background_compile(
+    solver: str,
+    options: EstimateOptions | None = None,
+    tracking: TrackerOptions | None = None,
+    gyro: bool = False,
+    log: Callable[[str], object] = print,
+    warn: Callable[[str], object] | None = None,
+    nice: int = 10,
+) -> bool:
+    """Solve at once, compile meanwhile: make the NumPy implementation this process's ready
+    one (:func:`ready_implementation`), compile the kernels ``solver`` (with ``options``,
+    ``tracking``, ``gyro``) needs in another Python process (at ``nice``), and once it has
+    cached them, load them here in a background thread (the frames go on with NumPy
+    meanwhile) and make the compiled kernels the ready implementation again: the next frame
+    uses them. Logs what it does through ``log`` (once), a failure through ``warn`` (once:
+    numba is not available, the compiling process cannot start, crashes or is killed, the
+    kernels were not cached, or loading them fails); the frames then stay on the NumPy
+    implementation and :func:`background_state` counts it.
+
+    Returns:
+        False (nothing started) when the solver has no NumPy implementation
+        (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else True.
+    """
+    if solver not in NUMPY_SOLVERS:
+        return False
+    with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
+        if _BACKGROUND["state"] in ("compiling", "loading"):
+            return True
+    warn = warn or log
+    _hold(True)
+    hz = uncompiled_rate()
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
+    log(
+        f"compiling kernels in the background: frames are solved on the uncompiled path, "
+        f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
+        "compile` after installing avoids this)"
+    )
+    if numba_error() is not None:
+        _background_failed(f"numba is not available: {numba_error()}", warn)
+        return True
+    args = (solver, options, tracking, gyro)
+    threading.Thread(
+        target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
+    ).start()
+    return True
+
+
+def _background_failed(reason: str, warn) -> None:
+    """Record and say once that the background compile failed (:func:`background_state`)."""
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="failed", reason=reason)
+        _BACKGROUND["failures"] += 1
+    warn(f"kernels not compiled ({reason}): frames stay on the uncompiled path")
+
+
+def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]) -> bool:
+    """The compiled kernels cannot be used (``reason``: e.g. a corrupt or foreign numba cache
+    the warm-up could not load): make the NumPy implementation this process's ready one, say
+    why once through ``warn`` and count it (:func:`background_state`). False (nothing
+    changed) for a solver without a NumPy implementation."""
+    if solver not in NUMPY_SOLVERS:
+        return False
+    _hold(True)
+    _background_failed(reason, warn)
+    return True
+
+
+def _background_command() -> tuple[list[str], dict[str, str] | None, str | None]:
+    """The background compiling process's command, environment and working directory
+    (:func:`.warmup.package_command`)."""
+    return warmup.package_command("rs_localizer.runtime.background_process")
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """End a background compiling process still running (at this process's exit)."""
+    _BACKGROUND["exiting"] = True
+    if proc.poll() is None:
+        proc.terminate()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=5.0)
+
+
+def _background_run(args: tuple, log, warn, nice: int) -> None:
+    """The thread of :func:`start_background_compile`."""
+    solver, options, tracking, gyro = args
+    tic = time.perf_counter()
+
+    def fail(reason: str) -> None:
+        _background_failed(reason, warn)
+
+    try:
+        cmd, env, cwd = _background_command()
+        proc = subprocess.Popen(
+            cmd,
+            env=env,
+            cwd=cwd,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        atexit.register(_stop, proc)  # (not left compiling after this process ends)
+        out, _ = proc.communicate(pickle.dumps((*args, nice)))
+    except (OSError, pickle.PicklingError) as e:
+        fail(f"the compiling process could not start: {e}")
+        return
+    if proc.returncode != 0:
+        if _BACKGROUND.get("exiting"):  # (stopped at this process's exit: not a failure)
+            return
+        lines = out.decode(errors="replace").strip().splitlines()
+        how = (
+            f"was killed by signal {-proc.returncode}"
+            if proc.returncode < 0
+            else f"ended with exit code {proc.returncode}"
+        )
+        fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
+        return
+    if not warmup.fused_cached(solver, anchored=False):
+        fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
+        return
+    with _BACKGROUND_LOCK:
+        _BACKGROUND["state"] = "loading"
+    try:
+        with compile_progress() as prog:
+            warmup.warm_up(solver, options, tracking, jobs=1, gyro=gyro, implementation=COMPILED)
+    except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
+        fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
+        return
+    _hold(False)
+    dt = time.perf_counter() - tic
+    with _BACKGROUND_LOCK:
+        _BACKGROUND.update(state="compiled", seconds=dt)
+    extra = f" ({len(prog.kernels)} compiled in this process)" if prog.kernels else ""
+    log(f"kernels compiled and loaded in {dt:.1f} s{extra}: frames use them from now on")
