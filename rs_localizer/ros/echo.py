@@ -91,7 +91,8 @@ def echo_diagnostics(
     ``ns`` if given; every status with ``every_status``) as :func:`format_status` blocks.
 
     Returns after the first message with such a status when ``once``; when none arrived for
-    ``timeout`` s (0: wait forever) with ``timed_out`` set; or when ``stop()`` is true.
+    ``timeout`` s (0: wait forever) with ``timed_out`` set; at Ctrl-C; or when ``stop()`` is
+    true.
     ``context``: an initialized rclpy Context (default: a new one, shut down at the end).
     The subscription is best effort (it receives reliable and best-effort publishers alike).
     """
@@ -136,6 +137,8 @@ def echo_diagnostics(
             if timeout > 0 and time.monotonic() - last[0] > timeout:
                 res.timed_out = True
                 break
+    except KeyboardInterrupt:  # (Ctrl-C: the way to stop it)
+        pass
     finally:
         ex.remove_node(node)
         ex.shutdown()

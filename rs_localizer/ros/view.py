@@ -393,10 +393,16 @@ def serve(
         server = ViewServer(context, ns, port, host, channel_ns, log).start()
         try:
             first = server.topics[0]
+            names = (
+                f"layout foxglove/rs_localizer.json ({first.ros_topic} as "
+                f"{first.channel_topic}, ...)"
+                if first.channel_topic == _join(LAYOUT_NS, "pose")
+                else f"channels under their ROS names ({first.channel_topic}, ...; the layout "
+                f"foxglove/rs_localizer.json shows {LAYOUT_NS}/...)"
+            )
             log(
                 f"serving {server.ns or '/'} on {server.url}: in Foxglove, Open connection, "
-                f"Foxglove WebSocket, {server.url}; layout foxglove/rs_localizer.json "
-                f"({first.ros_topic} as {first.channel_topic}, ...). Ctrl-C stops."
+                f"Foxglove WebSocket, {server.url}; {names}. Ctrl-C stops."
             )
             start, hinted = time.monotonic(), False
             while duration is None or time.monotonic() - start < duration:

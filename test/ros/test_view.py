@@ -26,13 +26,13 @@ def _need_foxglove():
 class _Publisher:
     """A node publishing ``msgs`` ({topic: message}) every 50 ms on its own thread."""
 
-    def __init__(self, ros_context, msgs):
+    def __init__(self, ros_context, msgs, qos=10):
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
         self.node = rclpy.create_node("view_test_publisher", context=ros_context)
         self.pubs = [
-            (self.node.create_publisher(type(m), topic, 10), m) for topic, m in msgs.items()
+            (self.node.create_publisher(type(m), topic, qos), m) for topic, m in msgs.items()
         ]
         self.ex = SingleThreadedExecutor(context=ros_context)
         self.ex.add_node(self.node)
@@ -127,6 +127,38 @@ def test_view_forwards_pose_and_diagnostics(ros_context):
                 pub.close()
         # the last client left: the ROS subscription goes
         assert _wait(lambda: node.count_subscribers("/vt/pose") == 0, 10.0, lambda: time.sleep(0.1))
+
+
+def test_view_takes_a_best_effort_publisher_appearing_later(ros_context):
+    """A channel subscribed before any publisher exists is read reliably; a best-effort
+    publisher appearing then (as ``rs-localizer play`` publishes images) is still received."""
+    _need_foxglove()
+    from helpers.foxglove_ws import FoxgloveClient
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from rs_localizer.ros.view import ViewServer
+
+    img = Image(height=2, width=3, encoding="mono8", step=3, data=bytes(range(6)))
+    lines = []
+    with ViewServer(ros_context, ns="/be", port=0, log=lines.append) as view:
+        client = FoxgloveClient(view.port)
+        pub = None
+        try:
+            client.wait_channels(["/camera/debug_image"])
+            client.subscribe(["/camera/debug_image"])
+            subscribed = lambda: view.node.count_subscribers("/be/debug_image") == 1  # noqa: E731
+            assert _wait(subscribed, 10.0, lambda: client.poll(0.1))
+            pub = _Publisher(ros_context, {"/be/debug_image": img}, qos=qos_profile_sensor_data)
+            got = _wait(
+                lambda: client.received("/camera/debug_image"), 20.0, lambda: client.poll(0.1)
+            )
+            assert got, lines
+            assert any("best effort" in ln for ln in lines), lines
+        finally:
+            client.close()
+            if pub is not None:
+                pub.close()
 
 
 def test_view_names_where_the_outputs_are(ros_context):
