@@ -16,6 +16,7 @@ with ``rs-localizer play``) alike; ``/diagnostics``, ``/tf`` and ``/tf_static`` 
 
 from __future__ import annotations
 
+import functools
 import queue
 import threading
 import time
@@ -123,13 +124,18 @@ def served_topics(
     return out
 
 
+@functools.lru_cache(maxsize=1)
+def _typestore() -> Any:
+    from .bags.bag_io import typestore
+
+    return typestore()
+
+
 def ros2msg_schema(type_name: str) -> bytes:
     """The ``ros2msg`` schema of ``type_name`` (``pkg/msg/Type``): its definition followed by
     those of the messages it uses, as rosbag2 writes them into MCAP files and Foxglove reads
     them. Raises KeyError for a type rosbags' Jazzy type store does not know."""
-    from .bags.bag_io import typestore
-
-    text, _ = typestore().generate_msgdef(type_name, ros_version=2)
+    text, _ = _typestore().generate_msgdef(type_name, ros_version=2)
     return text.encode()
 
 
