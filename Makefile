@@ -26,7 +26,7 @@ $(STAMP): $(STAMP_DEPS)
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
-	$(PY) -m pip install -e '.[ros,test,bench,mapping]'
+	$(PY) -m pip install -e '.[ros,test,bench,mapping,view]'
 	touch $@
 
 # tf2_msgs is not among the PyPI wheels: build it with their rosidl generators (needs cc, c++)

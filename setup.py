@@ -61,6 +61,9 @@ setup(
         "bench": ["threadpoolctl", "poselib"],
         # feature maps from photos (rs-localizer map-features): COLMAP's Python bindings
         "mapping": ["pycolmap>=4.2"],
+        # a live view in the Foxglove app without a ROS install (rs-localizer view): the
+        # Foxglove SDK's WebSocket server
+        "view": ["foxglove-sdk>=0.30"],
         "test": ["pytest", "hypothesis", "ruff>=0.17,<0.18"],
     },
     tests_require=["pytest"],

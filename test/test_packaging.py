@@ -30,6 +30,7 @@ OPTIONAL = {
     "PIL": "Pillow, a dependency of matplotlib (python3-matplotlib depends on python3-pil)",
     "threadpoolctl": "benchmarks only (extra 'bench'), imported inside a try",
     "pycolmap": "map-features only (extra 'mapping'), imported where used, says how to install",
+    "foxglove": "rs-localizer view only (extra 'view'), imported where used, says how to install",
 }
 
 

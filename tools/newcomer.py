@@ -56,6 +56,11 @@ SLOW_COMMANDS = {
     "map-features": "a COLMAP reconstruction (minutes)",
     "render-bag": "renders a video (minutes on a shared machine)",
 }
+#: rs-localizer subcommands that watch a running node (test/ros/test_view.py runs them)
+LIVE_COMMANDS = {
+    "view": "serves a running node to the Foxglove app until Ctrl-C",
+    "diagnostics": "prints a running node's /diagnostics until Ctrl-C",
+}
 TEMPLATE = re.compile(r"\bBAG\b|\bOUT\b|\bMOTION\b|\[-|\.\.\.|\s\|\s")  # ([--option], a | b)
 
 
@@ -163,6 +168,8 @@ def why_skipped(cmd: str) -> str:
     sub = words[1] if len(words) > 1 else ""
     if sub in SLOW_COMMANDS:
         return SLOW_COMMANDS[sub]
+    if sub in LIVE_COMMANDS:
+        return LIVE_COMMANDS[sub]
     if any(a.startswith(("docs/", "data/", "test/", "config/")) for a in words[2:]) and sub in (
         "export-image",
         "make-bag",

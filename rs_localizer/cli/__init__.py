@@ -16,12 +16,14 @@ from . import args as A
 __all__ = ["COMMANDS", "build_parser", "main"]
 
 #: the subcommands' modules, in the order ``rs-localizer -h`` lists them: set-up, running the
-#: localizer on bags, making maps, making data, research
+#: localizer on bags, watching a running node, making maps, making data, research
 COMMANDS = (
     "compile",
     "demo",
     "replay",
     "play",
+    "view",
+    "diagnostics",
     "calibrate_readout",
     "export_image",
     "map_markers",

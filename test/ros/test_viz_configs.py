@@ -48,6 +48,8 @@ def _foxglove_topics(layout: dict) -> dict[str, list[str]]:
             for p in cfg["paths"]:
                 topic, _, field = p["value"].partition(".")
                 out.setdefault(topic, []).append(field)
+        elif kind in ("DiagnosticSummary", "DiagnosticStatusPanel"):
+            out.setdefault(cfg["topicToRender"], []).append("")
         else:
             raise AssertionError(f"a panel this test does not check: {pid}")
     return out
@@ -100,6 +102,7 @@ def test_topics_and_frames_are_the_nodes(ros_context):
     )
     try:
         published = dict(node.get_publisher_names_and_types_by_node("rs_localizer", NAMESPACE))
+        status = node.diagnostics_status()
     finally:
         node.destroy_node()
     # RViz: every topic a display names is published by the node with the display's type
@@ -123,6 +126,38 @@ def test_topics_and_frames_are_the_nodes(ros_context):
             assert not f or _has_field(msg_cls, f), (topic, f)
     scene = layout["configById"]["3D!rs_localizer_scene"]
     assert scene["followTf"] == map_frame == scene["layers"]["grid"]["frameId"]
+    # the diagnostics detail panel opens on this node's status
+    detail = layout["configById"]["DiagnosticStatusPanel!rs_localizer_status"]
+    assert "/diagnostics" in topics
+    assert (detail["selectedName"], detail["selectedHardwareId"]) == (
+        status.name,
+        status.hardware_id,
+    )
+
+
+@pytest.mark.parametrize("ns", [NAMESPACE, "/rs_localizer", "/robot/front"])
+def test_view_serves_every_layout_topic(ns):
+    """``rs-localizer view --ns NS`` serves the outputs of a node in NS (and those of a replay
+    bag, ``/rs_localizer/<name>``, with their types) under the names the layout shows."""
+    pytest.importorskip("rclpy")
+    from rs_localizer.ros.bags.bag_io import OUT_TYPES
+    from rs_localizer.ros.view import OUTPUT_TOPICS, served_topics
+    from rs_localizer.ros.visualization import VIZ_TOPICS
+
+    served = served_topics(ns)
+    channels = {t.channel_topic: t for t in served}
+    assert set(_foxglove_topics(_foxglove())) <= set(channels)
+    assert {t.ros_topic for t in served} >= {f"{ns}/{n}" for n in ("pose", "path", "markers")}
+    for t in served:
+        if t.ros_topic.startswith(f"{ns}/"):
+            assert t.channel_topic == f"{NAMESPACE}/{t.ros_topic[len(ns) + 1 :]}"
+        else:
+            assert t.channel_topic == t.ros_topic
+    # every output of the node and of a replay bag, with its type
+    assert OUTPUT_TOPICS == {**OUT_TYPES, **VIZ_TOPICS}
+    by_ros = {t.ros_topic: t.type_name for t in served}
+    for name, type_name in OUTPUT_TOPICS.items():
+        assert by_ros[f"{ns}/{name}"] == type_name, name
 
 
 @pytest.mark.parametrize("path", ["twist.angular.x", "twist.nope"])
