@@ -2,7 +2,7 @@
 of images with a camera YAML).
 
 Detects the markers in every image, builds the map with the rolling-shutter bundle adjustment
-(:func:`rs_localizer.mapping.marker_ba.map_markers`) and writes it in the marker-map format the
+(:func:`rs_localizer.mapping.marker_map.map_markers`) and writes it in the marker-map format the
 ArUco front end and the node's ``frontend_map`` read. The world frame is the anchor marker's
 (x right, y up on its face, z out of it, origin at its centre) or ``--anchor-pose``.
 """
@@ -60,7 +60,7 @@ def frames_from_bag(
     """
     from ..frontends.aruco import ArucoFrontend, to_gray
     from ..frontends.image import image_from_compressed, image_from_msg
-    from ..mapping.marker_ba import FrameDetections
+    from ..mapping import FrameDetections
     from ..mapping.outputs import detect_image
     from ..ros import conversions as cv
     from ..ros.bags.bag_io import (
@@ -152,7 +152,7 @@ def _options(args: argparse.Namespace):
     file without markers, or ``--anchor`` with ``--survey``."""
     from scipy.spatial.transform import Rotation
 
-    from ..mapping.marker_ba import MappingOptions
+    from ..mapping import MappingOptions
 
     anchor_pose, anchors = None, None
     if args.anchor_pose is not None:
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         another size, no detections, anchor not in view, surveyed markers that disagree with
         the video, a video of another place (see ``map_markers``).
     """
-    from ..mapping.marker_ba import concatenate_videos, map_markers
+    from ..mapping import concatenate_videos, map_markers
     from ..mapping.outputs import write_map, write_report
 
     out = A.output_file(args.output, args.overwrite, "marker map")

@@ -59,7 +59,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..mapping.marker_ba import (
+from ..mapping import (
     FrameDetections,
     MappingOptions,
     MarkerMapResult,

@@ -11,7 +11,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..maps.files import write_text_atomic
 from ..maps.markers import write_marker_map
-from .marker_ba import FrameDetections, MarkerMapResult
+from .marker_model import FrameDetections, MarkerMapResult
 
 __all__ = [
     "IMAGE_SUFFIXES",

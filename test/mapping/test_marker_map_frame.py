@@ -15,7 +15,7 @@ from rs_localizer.evaluation.bench_mapping import (
     room_scene,
     truth_in_frame,
 )
-from rs_localizer.mapping.marker_ba import (
+from rs_localizer.mapping import (
     FrameDetections,
     concatenate_videos,
     map_markers,

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from rs_localizer.evaluation.bench_mapping import same_video_but_readout
-from rs_localizer.mapping.marker_ba import FrameDetections
+from rs_localizer.mapping import FrameDetections
 from rs_localizer.sim.marker_room import (
     RoomWalk,
     make_marker_room,
