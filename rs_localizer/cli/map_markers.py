@@ -10,6 +10,7 @@ ArUco front end and the node's ``frontend_map`` read. The world frame is the anc
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -259,13 +260,24 @@ def run(args: argparse.Namespace) -> int:
     videos = [i for i, d in enumerate(detected) for _ in d[1]]
     counts = {k: sum(d[2][k] for d in detected) for k in detected[0][2]}
     t_detect = time.perf_counter() - t0
+    several = len(inputs) > 1
     result = map_markers(
-        frames, camera, opts, progress=not args.quiet, videos=videos if len(inputs) > 1 else None
+        frames,
+        camera,
+        opts,
+        progress=not args.quiet,
+        videos=videos if several else None,
+        video_names=[str(src) for src in inputs] if several else None,
     )
     result.timings["detection"] = t_detect
+    for why in result.refused_videos.values():  # (the map is built from the other videos)
+        print(f"WARNING: {why}", file=sys.stderr)
     singles = []
-    if len(inputs) > 1 and not args.quiet:  # precision of each video alone, for the report
-        for d in detected:
+    if several and not args.quiet:  # precision of each video alone, for the report
+        for v, d in enumerate(detected):
+            if v in result.refused_videos:
+                singles.append("refused, see above")
+                continue
             try:
                 singles.append(map_markers(d[1], camera, opts))
             except ValueError as e:

@@ -11,19 +11,8 @@ import numpy as np
 
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from .marker_covariance import corner_shape_std, covariance_in_gauge
-from .marker_model import MappingOptions, OutputFrame, marker_corners_local
+from .marker_model import MappingOptions, OutputFrame, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
-
-
-def _fit_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation (3, 3) and translation (3,) minimizing ``|R src + t - dst|`` over (N, 3)
-    points (Kabsch; SciPy ``Rotation.align_vectors`` on the centred points)."""
-    from scipy.spatial.transform import Rotation
-
-    cs, cd = src.mean(0), dst.mean(0)
-    rot, _ = Rotation.align_vectors(dst - cd, src - cs)
-    R = rot.as_matrix()
-    return R, cd - R @ cs
 
 
 def _pose_vector_map(poses: dict, ids: list, x: np.ndarray) -> dict:
@@ -45,7 +34,7 @@ def _output_transform(poses: dict, options: MappingOptions, gauge: int, sides: d
             [marker_corners_local(sides[m]) @ poses[m][0].T + poses[m][1] for m in ids]
         )
         dst = np.concatenate([np.asarray(options.anchors[m], float).reshape(4, 3) for m in ids])
-        R, t = _fit_rigid(src, dst)
+        R, t = fit_rigid(src, dst)
         res = np.linalg.norm(src @ R.T + t - dst, axis=1)
         return R, t, float(np.sqrt(np.mean(res**2)))
     anchor = gauge if options.anchor is None else int(options.anchor)
@@ -79,7 +68,7 @@ def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides) -
             y.append(R @ pm + t)
         # the output frame against the best fit of all centres
         C = np.array([P[m][1] for m in cent_ids])
-        Rb, tb = _fit_rigid(C, np.array([poses[m][1] for m in cent_ids]))
+        Rb, tb = fit_rigid(C, np.array([poses[m][1] for m in cent_ids]))
         # frame -> adjustment frame is (R^T, -R^T t); map it by the best fit
         Rf = Rb @ R.T
         y.append(matrix_to_rotvec(Rf @ R0_frame.T))
@@ -115,7 +104,7 @@ def _best_observed(poses: dict, ids: list, cov: np.ndarray) -> int:
     def outputs(x: np.ndarray) -> np.ndarray:
         P = _pose_vector_map(poses, ids, x)
         C = np.array([P[m][1] for m in all_ids])
-        Rb, tb = _fit_rigid(C, cent)
+        Rb, tb = fit_rigid(C, cent)
         y = []
         for m in all_ids:
             y.append(matrix_to_rotvec(Rb @ P[m][0] @ R0[m].T))

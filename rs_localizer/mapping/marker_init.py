@@ -14,7 +14,7 @@ from scipy.optimize import least_squares
 
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
-from .marker_model import FrameDetections, MappingOptions, marker_corners_local
+from .marker_model import FrameDetections, MappingOptions, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
 
 
@@ -423,6 +423,7 @@ def initialize(
     gauge: int,
     camera: CameraModel,
     videos: Sequence[int] | None,
+    names: Sequence[str] | None = None,
 ) -> MarkerInit:
     """Stage (1) of :func:`~rs_localizer.mapping.marker_map.map_markers`: the initialization in
     capture order (:class:`MarkerInit`), with at least two frames placed and every video placed
@@ -437,16 +438,18 @@ def initialize(
         init.run()
     except ValueError:
         if videos is not None:  # (a video of another place: say so)
-            _check_videos(videos, init, obs_px)
+            _check_videos(videos, init, obs_px, names)
         raise
     if len(init.frames) < 2:
         raise ValueError(f"anchor marker {gauge}: fewer than 2 frames with a pose")
     if videos is not None:
-        _check_videos(videos, init, obs_px)
+        _check_videos(videos, init, obs_px, names)
     return init
 
 
-def _check_videos(videos: Sequence[int], init: MarkerInit, obs_px: dict) -> None:
+def _check_videos(
+    videos: Sequence[int], init: MarkerInit, obs_px: dict, names: Sequence[str] | None
+) -> None:
     """Refuse a video of which the map places fewer than half the frames with markers: its
     markers are not the others' (another place), or disagree with them (the reprojection
     RMS of its frames against the map's markers is named)."""
@@ -465,7 +468,118 @@ def _check_videos(videos: Sequence[int], init: MarkerInit, obs_px: dict) -> None
                     errs.append(init._rms(k, m, *init.frames[k]))
         rms = f"{np.sqrt(np.mean(np.square(errs))):.1f} px" if errs else "no frame placed"
         raise ValueError(
-            f"video {v + 1}: the map places {len(posed)} of its {len(ks)} frames with markers "
-            f"(markers in common with the other videos: {common or 'none'}; reprojection "
+            f"{video_name(v, names)}: the map places {len(posed)} of its {len(ks)} frames with "
+            f"markers (markers in common with the other videos: {common or 'none'}; reprojection "
             f"RMS {rms}): another place, or markers moved between the videos"
         )
+
+
+def video_name(v: int, names: Sequence[str] | None) -> str:
+    """The name of video ``v`` (0-based) in messages: ``names[v]``, else ``video {v + 1}``."""
+    return str(names[v]) if names is not None and v < len(names) else f"video {v + 1}"
+
+
+def screen_videos(
+    obs_px: dict,
+    obs_n: dict,
+    stamps: dict,
+    videos: Sequence[int],
+    options: MappingOptions,
+    camera: CameraModel,
+    names: Sequence[str] | None = None,
+) -> dict:
+    """The videos of another place, found before the joint initialization: video index ->
+    why it is refused (naming it, ``names`` or ``video N``).
+
+    Each video is initialized alone (:class:`MarkerInit`, its most detected marker first):
+    its markers' layout up to a rigid motion. Starting from the reference video (the one
+    that detects ``options.anchor``, else the first surveyed anchor, else the one with the
+    most frames with detections), a video whose layout shares at least two markers with the
+    layout accepted so far is fitted onto it (corners, rigid best fit,
+    :func:`~rs_localizer.mapping.marker_model.fit_rigid`): it is refused when the RMS corner
+    residual exceeds ``max(0.25 m, the side)`` of its largest marker in common (another place
+    with the same ids, or markers moved), else its markers join the layout. A video that
+    shares no marker id with the accepted ones is refused too. A video sharing one marker, or
+    whose own initialization fails, is left to the joint initialization.
+
+    ``obs_px``, ``obs_n``, ``stamps``: :func:`read_detections`; ``videos``: the video index
+    of every input frame. With fewer than two videos nothing is refused.
+    """
+    by_video: dict = {}
+    for k in obs_px:
+        by_video.setdefault(int(videos[k]), []).append(k)
+    if len(by_video) < 2:
+        return {}
+    ids = {v: {m for k in ks for m in obs_px[k]} for v, ks in by_video.items()}
+    wanted = (
+        options.anchor if options.anchor is not None else next(iter(options.anchors or {}), None)
+    )
+    holders = [v for v in by_video if wanted is not None and int(wanted) in ids[v]]
+    ref = holders[0] if holders else max(by_video, key=lambda v: (len(by_video[v]), -v))
+    layouts = {
+        v: _video_layout(by_video[v], obs_px, obs_n, stamps, options, camera) for v in by_video
+    }
+    placed = dict(layouts[ref] or {})
+    known = set(ids[ref])
+    pending = sorted(v for v in by_video if v != ref)
+    refused: dict = {}
+    changed = True
+    while pending and changed:
+        changed = False
+        for v in list(pending):
+            lay = layouts[v] or {}
+            common = sorted(set(lay) & set(placed))
+            if len(common) < 2:
+                continue
+            src = np.concatenate([lay[m] for m in common])
+            dst = np.concatenate([placed[m] for m in common])
+            R, t = fit_rigid(src, dst)
+            err = np.linalg.norm(src @ R.T + t - dst, axis=1)
+            rms = float(np.sqrt(np.mean(err**2)))
+            bound = max(0.25, max(options.side(m) for m in common))
+            pending.remove(v)
+            changed = True
+            if rms > bound:
+                apart = ", ".join(
+                    f"{m}: {np.sqrt(np.mean(err[4 * i : 4 * i + 4] ** 2)):.2f} m"
+                    for i, m in enumerate(common)
+                )
+                refused[v] = (
+                    f"{video_name(v, names)}: refused, another place or markers moved between "
+                    f"the videos: its markers in common with the map {common} lie {rms:.2f} m "
+                    f"RMS from the map's after the best rigid fit (above {bound:.2f} m; per "
+                    f"marker {apart})"
+                )
+                continue
+            for m, c in lay.items():
+                placed.setdefault(m, c @ R.T + t)
+            known |= ids[v]
+    for v in pending:
+        if not ids[v] & (known | {m for u in pending if u != v for m in ids[u]}):
+            refused[v] = (
+                f"{video_name(v, names)}: refused, no marker in common with the other videos "
+                f"(its markers {sorted(ids[v])}): another place"
+            )
+    return refused
+
+
+def _video_layout(
+    ks: list, obs_px: dict, obs_n: dict, stamps: dict, options: MappingOptions, camera: CameraModel
+) -> dict | None:
+    """id -> (4, 3) corners (m) of the markers one video places alone (its own frame: the
+    initialization's, :class:`MarkerInit`, from its most detected marker), or None when its
+    initialization fails."""
+    count: dict = {}
+    for k in ks:
+        for m in obs_px[k]:
+            count[m] = count.get(m, 0) + 1
+    anchor = max(count, key=lambda m: (count[m], -m))
+    sub = {k: obs_n[k] for k in ks}
+    init = MarkerInit(
+        sub, {k: stamps[k] for k in ks}, options, anchor, camera, {k: obs_px[k] for k in ks}
+    )
+    try:
+        init.run()
+    except ValueError:
+        return None
+    return {m: init.world_corners(m) for m in init.markers}

@@ -20,6 +20,7 @@ from .marker_init import (
     ippe_candidates,
     read_detections,
     regauge,
+    screen_videos,
 )
 from .marker_model import FrameDetections, MappingOptions, MarkerMapResult, marker_corners_local
 from .marker_problem import MarkerProblem
@@ -48,6 +49,7 @@ def map_markers(
     options: MappingOptions,
     progress: bool = False,
     videos: Sequence[int] | None = None,
+    video_names: Sequence[str] | None = None,
 ) -> MarkerMapResult:
     """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
 
@@ -84,8 +86,13 @@ def map_markers(
             starting value with ``calibrate_readout``).
         options: :class:`MappingOptions`.
         progress: show the stages and adjustment rounds (tqdm, on stderr).
-        videos: (len(frames),) index of the video of each frame: a video whose frames the
-            map cannot place (no marker in common, or its markers disagree) is refused.
+        videos: (len(frames),) index of the video of each frame. A video of another place is
+            refused before the map is built and the map built from the others
+            (``MarkerMapResult.refused_videos``): one sharing no marker with the others, or
+            whose markers in common lie elsewhere
+            (:func:`~rs_localizer.mapping.marker_init.screen_videos`); one whose frames the
+            joint initialization cannot place is an error.
+        video_names: the videos' names in messages (default ``video 1``, ``video 2``...).
     Returns:
         :class:`MarkerMapResult` in the output frame (``options.anchor`` at
         ``options.anchor_pose``, ``options.anchors`` fitted, or the most detected marker).
@@ -102,14 +109,27 @@ def map_markers(
     t_start = time.perf_counter()
     timings: dict = {}
     obs_px, obs_n, stamps = read_detections(frames, camera)
-    gauge, _ = choose_gauge(obs_px, options)
+    refused: dict = {}
+    if videos is not None:
+        if len(videos) != len(frames):
+            raise ValueError(f"videos: {len(videos)} entries for {len(frames)} frames")
+        refused = screen_videos(obs_px, obs_n, stamps, videos, options, camera, video_names)
+        for k in [k for k in obs_px if videos[k] in refused]:
+            del obs_px[k], obs_n[k], stamps[k]
+        timings["video check"] = time.perf_counter() - t_start
+    try:
+        gauge, _ = choose_gauge(obs_px, options)
+    except ValueError as e:
+        if not refused:
+            raise
+        raise ValueError(f"{e}; {'; '.join(refused.values())}") from None
     if options.anchors:
         unknown = [m for m in options.anchors if np.asarray(options.anchors[m]).size != 12]
         if unknown:
             raise ValueError(f"surveyed anchors {unknown} need (4, 3) corners")
     bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
     bar.set_postfix_str("initialization")
-    init = initialize(obs_px, obs_n, stamps, options, gauge, camera, videos)
+    init = initialize(obs_px, obs_n, stamps, options, gauge, camera, videos, video_names)
     timings["initialization"] = time.perf_counter() - t_start
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
@@ -136,7 +156,7 @@ def map_markers(
     timings["covariance"] = time.perf_counter() - t0
     bar.update(1)
     bar.close()
-    return _assemble(
+    result = _assemble(
         prob,
         sol,
         init,
@@ -149,6 +169,8 @@ def map_markers(
         timings,
         t_start,
     )
+    result.refused_videos = refused
+    return result
 
 
 def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:

@@ -32,6 +32,7 @@ __all__ = [
     "MappingOptions",
     "MarkerMapResult",
     "OutputFrame",
+    "fit_rigid",
     "marker_corners_local",
 ]
 
@@ -48,6 +49,17 @@ def marker_corners_local(side: float) -> np.ndarray:
         raise ValueError(f"marker side must be finite and > 0, got {side}")
     h = 0.5 * float(side)
     return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def fit_rigid(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and translation (3,) minimizing ``|R src + t - dst|`` over (N, 3)
+    points (Kabsch; SciPy ``Rotation.align_vectors`` on the centred points)."""
+    from scipy.spatial.transform import Rotation
+
+    cs, cd = src.mean(0), dst.mean(0)
+    rot, _ = Rotation.align_vectors(dst - cd, src - cs)
+    R = rot.as_matrix()
+    return R, cd - R @ cs
 
 
 @dataclass(frozen=True)
@@ -218,6 +230,9 @@ class MarkerMapResult:
             whole left out (:func:`~rs_localizer.mapping.marker_covariance.shape_covariance`). A
             camera localized against the map sees these, not ``marker_std``: the latter also holds
             where the whole map sits in the output frame, which is common to all markers.
+        refused_videos: video index (0-based, ``videos`` of ``map_markers``) -> why the video
+            was refused (another place: no marker in common, or its markers in common lie
+            elsewhere; the message names it); the map is built from the others.
     """
 
     anchor: int
@@ -243,3 +258,4 @@ class MarkerMapResult:
     frame: OutputFrame | None = None
     coverage: dict = field(default_factory=dict)
     marker_shape_std: dict = field(default_factory=dict)
+    refused_videos: dict = field(default_factory=dict)
