@@ -31,7 +31,8 @@ __all__ = ["concatenate_videos", "map_markers"]
 def concatenate_videos(videos: Sequence[Sequence[FrameDetections]], gap: float = 10.0) -> list:
     """Several videos of one place as one sequence for :func:`map_markers`: each video's
     stamps shifted to start ``gap`` seconds after the previous one ends (no motion tie across
-    the cut). Returns the frames; :func:`video_of_frames` gives which video each came from."""
+    the cut). Returns the frames, the videos' in order (videos without frames skipped): pass
+    :func:`map_markers` the index of each frame's video as ``videos``."""
     out, t_end = [], None
     for v in videos:
         v = list(v)
