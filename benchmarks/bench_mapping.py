@@ -59,7 +59,7 @@ from dataclasses import replace
 import numpy as np
 
 from rs_localizer.experiments.timing import one_thread
-from rs_localizer.mapping.marker_ba import (
+from rs_localizer.mapping import (
     FrameDetections,
     MappingOptions,
     concatenate_videos,

@@ -127,6 +127,55 @@ def test_feature_maps_that_cannot_work_are_refused(tmp_path, over, match):
         FeatureMap.load(p)
 
 
+def _pickled_points(p):
+    d = _feature_map()
+    d["points"] = np.array([{"x": 1.0}] * 20, dtype=object)
+    np.savez(p, **d)  # (np.savez pickles an object array)
+
+
+def _zip_of_other_arrays(p):
+    import zipfile
+
+    with zipfile.ZipFile(p, "w") as z:
+        for name in ("points", "descriptors", "landmark_ids", "kind"):
+            z.writestr(f"{name}.npy", b"not an array")
+
+
+@pytest.mark.parametrize(
+    "make, why",
+    [
+        (lambda p: p.write_bytes(np.random.default_rng(3).bytes(4096)), "not a NumPy .npz"),
+        (lambda p: p.write_bytes(b""), "not a NumPy .npz"),
+        (_zip_of_other_arrays, "'points' is not a NumPy array"),
+        (lambda p: np.savez(p, foo=np.zeros(3)), "missing"),
+        (lambda p: np.savez(p, **_feature_map(points=np.array(["a"] * 20))), "'points'"),
+        (_pickled_points, "Python objects"),
+        (lambda p: p.write_bytes(_npy_bytes()), "single NumPy array"),
+    ],
+)
+def test_a_file_that_is_not_a_feature_map_is_named_never_unpickled(tmp_path, make, why):
+    p = tmp_path / "corrupt.npz"
+    make(p)
+    with pytest.raises(ValueError) as e:
+        FeatureMap.load(p)
+    assert f"{p}: not a feature map" in str(e.value) and why in str(e.value), e.value
+    # nothing the user sees (the error and what a traceback shows of its causes) suggests
+    # loading the file as a pickle
+    err, shown = e.value, []
+    while err is not None:
+        shown.append(str(err))
+        err = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
+    assert not any("pickle" in m.lower() for m in shown), shown
+
+
+def _npy_bytes() -> bytes:
+    import io
+
+    b = io.BytesIO()
+    np.save(b, np.zeros(3))
+    return b.getvalue()
+
+
 def test_the_node_keeps_its_old_map_when_a_new_one_is_refused(tmp_path):
     """A run-time change to a map that cannot work fails before anything is swapped."""
     from rs_localizer.frontends.shared import SHARED_MAPS

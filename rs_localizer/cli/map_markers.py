@@ -2,7 +2,7 @@
 of images with a camera YAML).
 
 Detects the markers in every image, builds the map with the rolling-shutter bundle adjustment
-(:func:`rs_localizer.mapping.marker_ba.map_markers`) and writes it in the marker-map format the
+(:func:`rs_localizer.mapping.marker_map.map_markers`) and writes it in the marker-map format the
 ArUco front end and the node's ``frontend_map`` read. The world frame is the anchor marker's
 (x right, y up on its face, z out of it, origin at its centre) or ``--anchor-pose``.
 """
@@ -10,6 +10,7 @@ ArUco front end and the node's ``frontend_map`` read. The world frame is the anc
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -60,7 +61,7 @@ def frames_from_bag(
     """
     from ..frontends.aruco import ArucoFrontend, to_gray
     from ..frontends.image import image_from_compressed, image_from_msg
-    from ..mapping.marker_ba import FrameDetections
+    from ..mapping import FrameDetections
     from ..mapping.outputs import detect_image
     from ..ros import conversions as cv
     from ..ros.bags.bag_io import (
@@ -152,7 +153,7 @@ def _options(args: argparse.Namespace):
     file without markers, or ``--anchor`` with ``--survey``."""
     from scipy.spatial.transform import Rotation
 
-    from ..mapping.marker_ba import MappingOptions
+    from ..mapping import MappingOptions
 
     anchor_pose, anchors = None, None
     if args.anchor_pose is not None:
@@ -232,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
         another size, no detections, anchor not in view, surveyed markers that disagree with
         the video, a video of another place (see ``map_markers``).
     """
-    from ..mapping.marker_ba import concatenate_videos, map_markers
+    from ..mapping import concatenate_videos, map_markers
     from ..mapping.outputs import write_map, write_report
 
     out = A.output_file(args.output, args.overwrite, "marker map")
@@ -259,13 +260,24 @@ def run(args: argparse.Namespace) -> int:
     videos = [i for i, d in enumerate(detected) for _ in d[1]]
     counts = {k: sum(d[2][k] for d in detected) for k in detected[0][2]}
     t_detect = time.perf_counter() - t0
+    several = len(inputs) > 1
     result = map_markers(
-        frames, camera, opts, progress=not args.quiet, videos=videos if len(inputs) > 1 else None
+        frames,
+        camera,
+        opts,
+        progress=not args.quiet,
+        videos=videos if several else None,
+        video_names=[str(src) for src in inputs] if several else None,
     )
     result.timings["detection"] = t_detect
+    for why in result.refused_videos.values():  # (the map is built from the other videos)
+        print(f"WARNING: {why}", file=sys.stderr)
     singles = []
-    if len(inputs) > 1 and not args.quiet:  # precision of each video alone, for the report
-        for d in detected:
+    if several and not args.quiet:  # precision of each video alone, for the report
+        for v, d in enumerate(detected):
+            if v in result.refused_videos:
+                singles.append("refused, see above")
+                continue
             try:
                 singles.append(map_markers(d[1], camera, opts))
             except ValueError as e:

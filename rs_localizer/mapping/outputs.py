@@ -11,7 +11,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..maps.files import write_text_atomic
 from ..maps.markers import write_marker_map
-from .marker_ba import FrameDetections, MarkerMapResult
+from .marker_model import FrameDetections, MarkerMapResult
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -207,8 +207,9 @@ def write_report(
 ) -> Sequence[Path]:
     """Write ``report.yaml`` (per marker: observations, position and rotation std; RMSE, line
     delay, the detector's corner offset, rejected detections, skipped frames, markers left out
-    and inconsistent ids, stage times) and ``map.png`` (matplotlib: markers and camera path
-    from above (x-y) and from the side (x-z)) into ``folder``. Returns the two paths.
+    and inconsistent ids, videos refused, stage times) and ``map.png`` (matplotlib: markers
+    and camera path from above (x-y) and from the side (x-z)) into ``folder``. Returns the two
+    paths.
     """
     import matplotlib
 
@@ -242,6 +243,11 @@ def write_report(
         "inconsistent": {
             int(m): [np.round(p, 3).tolist() for p in ps] for m, ps in result.inconsistent.items()
         },
+        **(
+            {"refused_videos": {int(v): why for v, why in result.refused_videos.items()}}
+            if result.refused_videos
+            else {}
+        ),
         "timings_s": {k: round(v, 3) for k, v in result.timings.items()},
     }
     yml = write_atomic(folder / "report.yaml", yaml.safe_dump(rep, sort_keys=False), True)

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,25 +112,24 @@ class FeatureMap:
         """Read a feature map ``.npz`` (:meth:`save`).
 
         Raises:
-            ValueError: a file that is not a feature map, or one no front end can use
-                (:func:`check_feature_map`). OSError: it cannot be read.
+            ValueError: a file that is not a feature map (not a NumPy ``.npz``, arrays missing,
+                not numeric, or holding Python objects, which are never unpickled), or one no
+                front end can use (:func:`check_feature_map`); the message names the file.
+            OSError: it cannot be read.
         """
-        with np.load(Path(path), allow_pickle=False) as z:
-            missing = {"points", "descriptors", "landmark_ids", "kind"} - set(z.files)
-            if missing:
-                raise ValueError(f"{path}: not a feature map (missing {sorted(missing)})")
-            raw_ids = z["landmark_ids"]
-            fm = cls(
-                z["points"].astype(float),
-                z["descriptors"],
-                np.nan_to_num(raw_ids).astype(np.int64),
-                str(z["kind"]),
-                track_length=z["track_length"].astype(np.int64) if "track_length" in z else None,
-                reprojection_error=(
-                    z["reprojection_error"].astype(float) if "reprojection_error" in z else None
-                ),
-                metric=bool(z["metric"]) if "metric" in z else None,
-            )
+        z = _read_arrays(Path(path))
+        raw_ids = z["landmark_ids"]
+        fm = cls(
+            z["points"].astype(float),
+            z["descriptors"],
+            np.nan_to_num(raw_ids).astype(np.int64),
+            str(z["kind"]),
+            track_length=z["track_length"].astype(np.int64) if "track_length" in z else None,
+            reprojection_error=(
+                z["reprojection_error"].astype(float) if "reprojection_error" in z else None
+            ),
+            metric=bool(z["metric"]) if "metric" in z else None,
+        )
         n = len(fm.points)
         if fm.points.shape != (len(fm.descriptors), 3) or len(fm.landmark_ids) != n:
             raise ValueError(f"{path}: inconsistent feature map arrays")
@@ -137,6 +138,64 @@ class FeatureMap:
                 raise ValueError(f"{path}: inconsistent feature map quality arrays")
         check_feature_map(fm, raw_ids, str(path))
         return fm
+
+
+#: the arrays of a feature map ``.npz`` (:meth:`FeatureMap.save`): required, then optional
+_REQUIRED = ("points", "descriptors", "landmark_ids", "kind")
+_OPTIONAL = ("track_length", "reprojection_error", "metric")
+
+#: what reading a member of a corrupt ``.npz`` may raise (beside OSError: cannot be read)
+_CORRUPT = (
+    ValueError,
+    EOFError,
+    KeyError,
+    TypeError,
+    NotImplementedError,
+    zipfile.BadZipFile,
+    zlib.error,
+)
+
+
+def _read_arrays(path: Path) -> dict:
+    """The arrays of a feature map ``.npz`` at ``path`` (required and present optional ones),
+    read without unpickling anything (``allow_pickle=False``). Raises ValueError naming
+    ``path`` for a file that is not a feature map: not a NumPy ``.npz``, arrays missing or not
+    arrays, holding Python objects, or non-numeric where numbers are expected; OSError when
+    it cannot be read."""
+
+    def refuse(why: str) -> ValueError:
+        return ValueError(
+            f"{path}: not a feature map ({why}); a feature map is the .npz that "
+            "rs-localizer map-features writes"
+        )
+
+    try:
+        z = np.load(path, allow_pickle=False)
+    except _CORRUPT:
+        # (numpy takes anything that is neither a zip nor a .npy for a pickle: never load it)
+        raise refuse("not a NumPy .npz archive") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise refuse("a single NumPy array, not a .npz archive of named arrays")
+    with z:
+        missing = [k for k in _REQUIRED if k not in z.files]
+        if missing:
+            raise refuse(f"missing {missing}")
+        out = {}
+        for k in (*_REQUIRED, *_OPTIONAL):
+            if k not in z.files:
+                continue
+            try:
+                a = z[k]
+            except _CORRUPT as e:
+                why = "holds Python objects" if "bject" in str(e) else "cannot be read"
+                raise refuse(f"array {k!r} {why}") from None
+            if not isinstance(a, np.ndarray):
+                raise refuse(f"{k!r} is not a NumPy array")
+            numeric = "biu" if k == "metric" else "U" if k == "kind" else "iuf"
+            if a.dtype.kind not in numeric or (k in ("kind", "metric") and a.size != 1):
+                raise refuse(f"array {k!r} is {a.dtype} {a.shape}")
+            out[k] = a
+    return out
 
 
 #: per descriptor kind: (dtype, width) the OpenCV detector produces (ORB: 32 bytes, SIFT: 128

@@ -108,7 +108,7 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
     code (1 with a one-line error for invalid parameters)."""
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
-    from .dds_profile import apply_default_profile
+    from .dds_profile import apply_default_profile, profile_in_effect
 
     argv = sys.argv if args is None else args
     apply_default_profile()  # (before the first participant: images over shared memory)
@@ -135,6 +135,8 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
             )
         else:
             nodes.append(node_class())
+        dds = profile_in_effect()  # (Fast DDS's own XML errors do not say what is in effect)
+        (nodes[0].get_logger().info if dds.ok else nodes[0].get_logger().warning)(dds.message())
         executor = SingleThreadedExecutor()
         for n in nodes:
             executor.add_node(n)

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..camera import CameraModel
-from ..mapping.marker_ba import (
+from ..mapping import (
     FrameDetections,
     MappingOptions,
     MarkerMapResult,
@@ -343,7 +343,7 @@ def corner_sigmas(result: MarkerMapResult) -> dict:
     """The stated standard deviation of each mapped corner (m, per axis): a corner
     ``c = p + R o`` of a marker whose pose (rotation, centre) has the covariance ``S``
     (``result.marker_covariance``) has the covariance ``J S J^T``, ``J = [-[R o]x, I]``
-    (:func:`~rs_localizer.mapping.marker_ba.corner_jacobian`);
+    (:func:`~rs_localizer.mapping.corner_jacobian`);
     returned as ``sqrt(trace / 3)``. Returns id -> (4,)."""
     out = {}
     for m, c in result.corners.items():

@@ -2,6 +2,9 @@
 (sim/render: every line rendered at its own capture time), the written map against the scene's
 true marker corners, and the command's refusals (no bent or partial map file)."""
 
+import os
+import stat
+
 import cv2
 import numpy as np
 import pytest
@@ -78,7 +81,15 @@ def test_map_from_rendered_images_matches_the_scene(rendered, tmp_path):
     _, images, _, true, _ = rendered
     out = tmp_path / "map.yaml"
     report = tmp_path / "report"
-    assert main(args(rendered, out, "--report", str(report))) == 0
+    old = os.umask(0o022)  # (every file the tool writes follows the user's umask)
+    try:
+        assert main(args(rendered, out, "--report", str(report))) == 0
+    finally:
+        os.umask(old)
+    written = sorted(tmp_path.rglob("*"))
+    assert {out, report / "report.yaml", report / "map.png"} <= set(written)
+    for f in written:
+        assert stat.S_IMODE(f.stat().st_mode) == (0o755 if f.is_dir() else 0o644), f
     dictionary, corners = load_marker_map(out)
     assert dictionary == "DICT_4X4_250"
     assert len(corners) >= 20

@@ -4,12 +4,13 @@ the frame fixed by surveyed markers or the best-observed marker, coverage guidan
 videos adjusted together, and the refusals. Ground truth: the simulated room
 (rs_localizer.sim.marker_room), detections only."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from rs_localizer.mapping.marker_ba import (
+from rs_localizer.mapping import (
     FrameDetections,
     concatenate_videos,
     map_markers,
@@ -22,6 +23,7 @@ from rs_localizer.sim.marker_mapping import (
 )
 from rs_localizer.sim.marker_room import (
     OneSpot,
+    RoomWalk,
     make_marker_room,
     room_camera,
     simulate_detections,
@@ -156,14 +158,56 @@ def test_two_videos_adjusted_together_and_another_place_refused(walk):
     assert after < before
     tc, tp = truth_in_frame(merged, room, opts)
     assert map_errors(merged, tc, tp)["honest"] >= 0.8
-    # a video of another room whose markers are other ids: refused, naming it
+    # a video of another room whose markers are other ids: refused, naming it, and the map
+    # built from the other video (the same map as that video's alone)
     other = make_marker_room(16, seed=9, size=(4.5, 4.0, 2.6))
     d, _ = simulate_detections(other, camera, OneSpot(), 30, seed=1)
     alien = [FrameDetections(s, {m + 100: c for m, c in dd.items()}) for s, dd in d]
-    with pytest.raises(ValueError, match="another place"):
-        map_markers(
-            concatenate_videos([walk, alien]),
-            camera,
-            opts,
-            videos=[0] * len(walk) + [1] * len(alien),
-        )
+    res = map_markers(
+        concatenate_videos([walk, alien]),
+        camera,
+        opts,
+        videos=[0] * len(walk) + [1] * len(alien),
+    )
+    assert list(res.refused_videos) == [1]
+    assert res.refused_videos[1].startswith("video 2: refused")
+    assert (
+        "another place" in res.refused_videos[1] and "no marker in common" in res.refused_videos[1]
+    )
+    assert sorted(res.corners) == sorted(single.corners)
+    for m in single.corners:
+        np.testing.assert_array_equal(res.corners[m], single.corners[m])
+
+
+def test_a_video_of_another_place_with_the_same_ids_is_refused_by_name(walk):
+    """A second video of another room whose markers carry the same ids (the same printed set
+    put up elsewhere): refused before the map is built, by name, with its markers in common and
+    how far they lie from the map's; the map is the first video's alone."""
+    room, camera, _, both, _, opts = walk
+    first = both[20:]
+    other = make_marker_room(16, seed=9, size=(4.5, 4.0, 2.6))
+    d, _ = simulate_detections(other, camera, RoomWalk(centre=(2.25, 2.0)), 30, seed=1)
+    lab = [FrameDetections(s, dd) for s, dd in d]
+    shared = sorted({m for f in lab for m in f.corners} & {m for f in first for m in f.corners})
+    assert len(shared) >= 3  # (ids in common: only where they lie tells the places apart)
+    res = map_markers(
+        concatenate_videos([first, lab]),
+        camera,
+        opts,
+        videos=[0] * len(first) + [1] * len(lab),
+        video_names=["hall.bag", "lab.bag"],
+    )
+    why = res.refused_videos[1]
+    assert list(res.refused_videos) == [1] and why.startswith("lab.bag: refused, another place")
+    common = re.search(r"markers in common with the map \[([\d, ]+)\]", why)
+    assert common and {int(m) for m in common.group(1).split(",")} <= set(shared), why
+    rms = re.search(r"lie ([\d.]+) m RMS", why)
+    assert rms and float(rms.group(1)) > 0.3, why
+    # (refused before the joint initialization: none of its frames has a pose)
+    assert res.frame_ids.max() < len(first) and "video check" in res.timings
+    alone = map_markers(first, camera, opts)
+    assert sorted(res.corners) == sorted(alone.corners)
+    for m in alone.corners:
+        np.testing.assert_array_equal(res.corners[m], alone.corners[m])
+    tc, tp = truth_in_frame(res, room, opts)
+    assert map_errors(res, tc, tp)["honest"] >= 0.8

@@ -1,4 +1,4 @@
-"""Marker mapping from a rolling-shutter video (rs_localizer.mapping.marker_ba) against the exact
+"""Marker mapping from a rolling-shutter video (rs_localizer.mapping) against the exact
 ground truth of a simulated room: corners are projected with the camera pose at each line's own
 capture time (rs_localizer.sim.marker_room), errors are measured in the anchor's gauge (the
 anchor placed at its true pose, no best-fit alignment)."""
@@ -10,12 +10,9 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from rs_localizer.mapping.marker_ba import (
-    FrameDetections,
-    _marker_covariance,
-    _Problem,
-    map_markers,
-)
+from rs_localizer.mapping import FrameDetections, map_markers
+from rs_localizer.mapping.marker_covariance import _marker_covariance
+from rs_localizer.mapping.marker_problem import MarkerProblem
 from rs_localizer.sim.marker_mapping import (
     drive_detections,
     localization_errors,
@@ -220,7 +217,7 @@ def test_marker_covariance_is_the_dense_inverse(scene):
     )
     seen = sorted({m for d in obs.values() for m in d} - {0})
     for o in (opts, replace(opts, calibrate_readout=True)):
-        prob = _Problem(init, obs, camera, o, fr, seen, 0)
+        prob = MarkerProblem(init, obs, camera, o, fr, seen, 0)
         sol = prob.solve(prob.x0(init, camera.line_delay))
         n_rep = 8 * len(prob.det)
         fast = _marker_covariance(sol.jac, n_rep, 0.4, prob)

@@ -5,11 +5,8 @@ import cv2
 import numpy as np
 
 from rs_localizer.geometry import rotvec_to_matrix
-from rs_localizer.mapping.marker_ba import (
-    _ippe_candidates,
-    _mirrored_tilt,
-    marker_corners_local,
-)
+from rs_localizer.mapping import marker_corners_local
+from rs_localizer.mapping.marker_init import ippe_candidates, mirrored_tilt
 
 OBJ = marker_corners_local(0.16)
 
@@ -45,7 +42,7 @@ def test_mirrored_tilt_is_the_other_ippe_solution():
             OBJ, uv.reshape(-1, 1, 2), np.eye(3), None, flags=cv2.SOLVEPNP_IPPE_SQUARE
         )
         sols = [Rcw @ rotvec_to_matrix(np.ravel(r)) for r in rvecs[:n]]
-        delta = _mirrored_tilt(R, (c - p)[None])
+        delta = mirrored_tilt(R, (c - p)[None])
         R_alt = rotvec_to_matrix(delta) @ R
         # one IPPE solution is the truth, the other the mirrored tilt
         errs = sorted(min(_normal_angle_deg(S, T) for S in sols) for T in (R, R_alt))
@@ -58,7 +55,7 @@ def test_ippe_candidates_are_finite_on_exact_corners():
     true pose among them (the last of these views puts OpenCV 4.6's square solver on a branch
     that returns NaN; the general planar solver then gives them)."""
     for R, _p, _c, Rcw, uv in _views():
-        cands = _ippe_candidates(OBJ, uv)
+        cands = ippe_candidates(OBJ, uv)
         assert len(cands) == 2
         assert all(np.isfinite(Rc).all() and np.isfinite(tc).all() for Rc, tc in cands)
         assert min(_normal_angle_deg(Rcw @ Rc, R) for Rc, _ in cands) < 0.01
@@ -66,4 +63,4 @@ def test_ippe_candidates_are_finite_on_exact_corners():
 
 def test_head_on_has_no_mirror():
     R = np.eye(3)
-    assert _mirrored_tilt(R, np.array([[0.0, 0.0, 2.0]])) is None
+    assert mirrored_tilt(R, np.array([[0.0, 0.0, 2.0]])) is None

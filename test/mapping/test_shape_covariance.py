@@ -1,4 +1,4 @@
-"""The shape-only covariance of a point set (rs_localizer.mapping.marker_ba.shape_covariance),
+"""The shape-only covariance of a point set (rs_localizer.mapping.shape_covariance),
 the minimum-trace gauge of bundle adjustment, against independent computations: its
 invariance to the gauge a covariance was computed in, and a Monte Carlo of the points after a
 best rigid fit of the whole set onto the mean (SciPy's ``Rotation.align_vectors``)."""
@@ -7,7 +7,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.geometry import skew
-from rs_localizer.mapping.marker_ba import shape_covariance
+from rs_localizer.mapping import shape_covariance
 
 
 def _scene(seed=0, n=12):

@@ -9,7 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from rs_localizer.ros.dds_profile import PROFILE_PATH, apply_default_profile
+from rs_localizer.ros.dds_profile import (
+    PROFILE_ENV,
+    PROFILE_PATH,
+    apply_default_profile,
+    profile_in_effect,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -107,3 +112,54 @@ def test_best_effort_640x480_rgb_at_30hz_with_the_profile(ros_domain):
     finally:
         sub.kill()
     assert out.strip().splitlines()[-1] == "GOT 30"
+
+
+def test_the_profile_in_effect_is_named_with_why(tmp_path, monkeypatch):
+    """What the node logs at start: which profile is in effect (the package's, the user's,
+    none) and why; a profile variable naming a missing or malformed file leaves neither that
+    profile nor the package's in effect, and says so."""
+    monkeypatch.chdir(tmp_path)
+    env = {}
+    apply_default_profile(env)
+    st = profile_in_effect(env, tmp_path)
+    assert (st.source, st.path, st.ok) == ("package", str(PROFILE_PATH), True)
+    assert "the package's" in st.message()
+    # the launch file's installed copy of it
+    copy = tmp_path / "share" / "fastdds_profile.xml"
+    copy.parent.mkdir()
+    copy.write_bytes(PROFILE_PATH.read_bytes())
+    st = profile_in_effect({"FASTRTPS_DEFAULT_PROFILES_FILE": str(copy)}, tmp_path)
+    assert (st.source, st.ok) == ("package", True)
+    mine = tmp_path / "mine.xml"
+    mine.write_text('<?xml version="1.0"?><dds><profiles/></dds>')
+    for var in PROFILE_ENV:
+        st = profile_in_effect({var: str(mine)}, tmp_path)
+        assert (st.source, st.path, st.ok) == ("user", str(mine), True) and var in st.reason
+    broken = {
+        "missing.xml": (None, "no such file"),
+        "malformed.xml": ("<profiles><participant>", "not well-formed XML"),
+        "other.xml": ("<launch/>", "not a Fast DDS profile"),
+    }
+    for name, (text, why) in broken.items():
+        f = tmp_path / name
+        if text is not None:
+            f.write_text(text)
+        env = {"FASTRTPS_DEFAULT_PROFILES_FILE": str(f)}
+        assert apply_default_profile(env) is None  # (the user's choice is kept)
+        st = profile_in_effect(env, tmp_path)
+        assert (st.source, st.ok) == ("none", False)
+        msg = st.message()
+        assert why in msg and str(f) in msg and "FASTRTPS_DEFAULT_PROFILES_FILE" in msg, msg
+        assert "neither that profile nor the package's" in msg, msg
+    st = profile_in_effect({"RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}, tmp_path)
+    assert (st.source, st.ok) == ("other middleware", True) and "cyclonedds" in st.message()
+    st = profile_in_effect({"RS_LOCALIZER_DDS_PROFILE": "0"}, tmp_path)
+    assert (st.source, st.ok) == ("none", True) and "turned off" in st.reason
+    st = profile_in_effect({}, tmp_path)  # (nothing applied it)
+    assert (st.source, st.ok) == ("none", False)
+    # Fast DDS's file in the working directory: the user's, or broken
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles/>")
+    assert profile_in_effect({}, tmp_path).source == "user"
+    (tmp_path / "DEFAULT_FASTRTPS_PROFILES.xml").write_text("<profiles>")
+    st = profile_in_effect({}, tmp_path)
+    assert (st.source, st.ok) == ("none", False) and "not well-formed" in st.message()

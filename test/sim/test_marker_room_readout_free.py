@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from rs_localizer.mapping.marker_ba import FrameDetections
+from rs_localizer.mapping import FrameDetections
 from rs_localizer.sim.marker_mapping import same_video_but_readout
 from rs_localizer.sim.marker_room import (
     RoomWalk,
