@@ -23,7 +23,7 @@ LAYER = {
     "pose": 0,
     "correspondences": 0,
     "jit_cache": 0,
-    "warmup": 2,
+    "warmup": 2.5,  # (warms the tracker up too)
     "solvers": 1,
     "estimation": 2,
     "tracking": 2.5,

@@ -176,8 +176,8 @@ def _alone(seq, cam, solver: str, frames: int, pause: float = 0.0) -> tuple[str,
     distinct frames replayed with increasing stamps), ``pause`` s of sleep between frames:
     (``"tracker"`` or ``"estimator"``, s per frame)."""
     from ..estimation import estimate_rs_pose
-    from ..estimation.tracker import RSTracker
     from ..ros import params as P
+    from ..tracking.tracker import RSTracker
 
     cfg = P.build_config({**P.default_values(), "solver": solver})
     period = 33_333_333

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences
+from ..correspondences import Correspondences, FrontendHooks
 from . import cv_compat
 
 __all__ = ["ArucoFrontend", "marker_scores", "to_gray"]
@@ -53,7 +53,7 @@ def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), code[(kind, img.shape[2])])
 
 
-class ArucoFrontend:
+class ArucoFrontend(FrontendHooks):
     """Detect ArUco markers and emit correspondences to their mapped 3D corners.
 
     Args:
@@ -131,9 +131,6 @@ class ArucoFrontend:
         self._times: list = []  # detection seconds per frame
         self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
         self.last_kind = "full"  # how the last frame was searched: full or windowed
-
-    #: the node passes the frame's stamp to process() (motion prediction)
-    takes_stamp = True
 
     @classmethod
     def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:

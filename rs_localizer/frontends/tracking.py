@@ -135,7 +135,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
     """
 
     name = "features"
-    takes_stamp = True
 
     def __init__(
         self,

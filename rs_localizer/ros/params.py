@@ -25,12 +25,12 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..correspondences import Frontend
 from ..estimation import EstimateOptions
 from ..estimation.estimate import points_needed
-from ..estimation.tracker import TrackerOptions
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
 from ..frontends import FRONTENDS
 from ..frontends.shared import SHARED_MAPS
 from ..maps import check_regular_file
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
+from ..tracking.tracker import TrackerOptions
 from . import conversions as cv
 
 __all__ = [

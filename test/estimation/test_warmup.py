@@ -113,8 +113,9 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
 
     from numba.core.registry import CPUDispatcher
 
-    from rs_localizer.estimation import fusion, prior, refine, scoring
-    from rs_localizer.estimation.tracker import TrackerOptions
+    from rs_localizer.estimation import prior, refine, scoring
+    from rs_localizer.tracking import fusion
+    from rs_localizer.tracking.tracker import TrackerOptions
     from rs_localizer.warmup import _split_batch, fused_cached, warm_late, warm_up
 
     warm_up("r6p_1lin", tracking=TrackerOptions())
@@ -165,7 +166,7 @@ def test_second_compiling_process_uses_this_package(tmp_path, monkeypatch):
     """The helper process imports the package this process runs (not a copy in the working
     directory), finds the kernels in the same cache (the cold batch included: it goes on to
     the tracker's videos and ends) and reports what it compiled."""
-    from rs_localizer.estimation.tracker import TrackerOptions
+    from rs_localizer.tracking.tracker import TrackerOptions
     from rs_localizer.warmup import _SecondProcess, warm_late
 
     warm_late("r6p_1lin", tracking=TrackerOptions())  # (cached: the helper only loads)
