@@ -42,6 +42,7 @@ from ..tracking.sequence import (
 )
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
+from .maps import LoadedMaps
 from .params import LocalizerConfig
 from .pointcloud import CloudError, read_correspondences, read_keypoints
 
@@ -298,6 +299,8 @@ class FramePipeline:
     Args:
         config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
             :meth:`configure` before the first frame).
+        maps: the landmarks and the front end loaded for ``config`` (:func:`~.maps.load_maps`;
+            None: none).
         log: :class:`ThrottledLog` (or a logger it wraps) for the warnings.
         stopped: ``stopped()`` true ends a frame's wait for its camera_info or gyro samples
             (shutdown).
@@ -314,6 +317,7 @@ class FramePipeline:
         log: Any = None,
         stopped: Callable[[], bool] = lambda: False,
         imu_span: float | None = None,
+        maps: LoadedMaps | None = None,
     ):
         self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
         self.stats = PipelineStats()
@@ -324,20 +328,23 @@ class FramePipeline:
         self.sequence = SequenceLocalizer(
             log=self.log, count=self.stats.add, stopped=stopped, imu_span=imu_span
         )
+        self.maps = LoadedMaps()
         if config is not None:
-            self.configure(config)
+            self.configure(config, maps)
 
     @property
     def config(self) -> LocalizerConfig | None:
         """The configuration frames are processed with."""
         return self._config
 
-    def configure(self, config: LocalizerConfig) -> None:
-        """Use ``config`` from the next frame on; the camera models of the camera_infos
+    def configure(self, config: LocalizerConfig, maps: LoadedMaps | None = None) -> None:
+        """Use ``config`` and the ``maps`` loaded for it (:func:`~.maps.load_maps`; None: no
+        landmarks, no front end) from the next frame on; the camera models of the camera_infos
         received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
         and logged), the video state keeps what still applies
         (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.configure`)."""
         self._config = config
+        self.maps = maps if maps is not None else LoadedMaps()
         self.sequence.configure(
             SequenceSettings(
                 solver=config.solver,
@@ -349,7 +356,7 @@ class FramePipeline:
                 max_points=config.max_points,
             )
         )
-        self.sequence.set_frontend(config.frontend, config.frontend_kind)
+        self.sequence.set_frontend(self.maps.frontend, config.frontend_kind)
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
 
@@ -567,10 +574,10 @@ class FramePipeline:
         return self._from_keypoints(msg)
 
     def _from_keypoints(self, msg):
-        if self._config.landmarks is None:
+        if self.maps.landmarks is None:
             raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
         kp = read_keypoints(msg)
-        ids, pts = self._config.landmarks
+        ids, pts = self.maps.landmarks
         j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
         known = ids[j] == kp.ids
         n_unknown = int(np.count_nonzero(~known))

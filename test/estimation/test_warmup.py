@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = r"""
 import json, sys
 from numba.core.registry import CPUDispatcher
-from rs_localizer.ros.params import build_config, load_maps
+from rs_localizer.ros.params import build_config
 from rs_localizer.ros.pipeline import log_warm_up
 from rs_localizer.ros.bags.replay import replay, replay_parameters
 
@@ -52,7 +52,7 @@ solved = {}
 for bag, source, files, params in runs:
     if before is None:  # the node's warm-up, for the configuration of the first run
         values, _ = replay_parameters(bag, files, params, source)
-        cfg = load_maps(build_config(values), owner=object())
+        cfg = build_config(values)
         assert cfg.tracking is not None, "the default node tracks"
         log_warm_up(cfg.solver, cfg.options, cfg.tracking, Log())
         before = signatures()

@@ -3,6 +3,8 @@ typed domain objects (rs_localizer.pose, rs_localizer.correspondences): a synthe
 against its ground truth and against the tracker driven directly, the gyro's timeline across a
 time reset, and the pose conversions against the estimator's own."""
 
+from typing import ClassVar
+
 import numpy as np
 import pytest
 
@@ -300,7 +302,7 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
             return Correspondences(self.frame.uv, self.frame.xyz)
 
     class Video(PerImage):
-        seen: list = []
+        seen: ClassVar[list] = []
 
         def process(self, image, camera=None, encoding="bgr8", stamp_ns=None):
             assert stamp_ns == self.frame.stamp_ns and camera is cam
