@@ -84,7 +84,7 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
 from ..maps.boards import BOARD_TYPES, read_board
 from . import cv_compat as cvc
-from .aruco import to_gray
+from .image import to_gray
 
 __all__ = [
     "BOARD_TYPES",

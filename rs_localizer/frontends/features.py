@@ -26,7 +26,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
 from ..maps.features import FeatureMap
-from .aruco import to_gray
+from .image import to_gray
 
 __all__ = [
     "FEW_MATCHES_FRACTION",
