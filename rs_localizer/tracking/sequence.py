@@ -16,14 +16,20 @@ OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
   gyro while it is declared inconsistent);
 - time resets: a frame stamp older than the previous one, or newer by more than
   ``time_reset_ns`` (:meth:`check_time`) starts the gyro's timeline again (the samples of the
-  previous timeline, the bias estimator's and the check's pairing).
+  previous timeline, the bias estimator's and the check's pairing);
+- the optional image front end (:meth:`set_frontend`) and its feedback: what
+  :meth:`process_image` calls on it is the
+  :class:`~rs_localizer.correspondences.VideoFrontend` protocol.
 
 API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspondences ->
+:class:`SequenceOutput`), :meth:`process_image` (an image, through the front end ->
 :class:`SequenceOutput`), :meth:`flush` (end of the video: the twists still pending),
-:meth:`reset` (forget everything but the configuration). The node's
-:class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages, picks the camera model of a
-frame's stamp and keeps the diagnostics; ``rs-localizer replay``, ``evaluation/bench_gyro.py``
-and ``evaluation/bench_video.py`` drive this same object.
+:meth:`reset` (forget everything but the configuration). Stamps are checked (a finite number
+within the int64 nanosecond range, else ValueError) and so is a frame's camera model (else
+TypeError). The node's :class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages,
+picks the camera model of a frame's stamp and keeps the frame accounting and the
+diagnostics; ``rs-localizer replay``, ``evaluation/bench_gyro.py`` and
+``evaluation/bench_video.py`` drive this same object.
 
 Example (a video of correspondences and a gyro; ``camera`` a
 :class:`~rs_localizer.camera.CameraModel` with its rolling-shutter timing)::
@@ -72,7 +78,9 @@ from .gyro_check import GyroMountCheck
 from .tracker import RSTracker, TrackerOptions
 
 __all__ = [
+    "FRONTEND_FAILURES",
     "MAX_PENDING",
+    "MAX_STAMP_NS",
     "FusedPose",
     "GyroSettings",
     "SequenceFrame",
@@ -86,6 +94,10 @@ __all__ = [
 MAX_PENDING = 64
 #: the largest stamp (ns) a frame or a gyro sample may carry: an int64 nanosecond count
 MAX_STAMP_NS = 2**63 - 1
+#: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
+#: (:attr:`SequenceOutput.failure`): the front end raised, or found fewer correspondences
+#: than the solver needs
+FRONTEND_FAILURES = ("frontend_error", "frontend_too_few_points")
 
 
 def checked_stamp(stamp_ns: Any, what: str = "frame") -> int:
@@ -758,7 +770,7 @@ class SequenceLocalizer:
         try:
             found = Correspondences.of(fe.process(image, camera, encoding=encoding, stamp_ns=stamp))
         except Exception as e:
-            out.failure, out.detail = "frontend_error", f"{name}: {type(e).__name__}: {e}"
+            out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"
             return out
         out.frontend_seconds = time.perf_counter() - t0
         out.correspondences = found
@@ -769,7 +781,7 @@ class SequenceLocalizer:
         need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
         if len(uv) < need:
             what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
-            out.failure = "frontend_too_few_points"
+            out.failure = FRONTEND_FAILURES[1]
             out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
