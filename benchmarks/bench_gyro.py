@@ -11,7 +11,7 @@ the median rotation error (deg) and angular and linear velocity errors (rad/s, m
   axes rotated from the camera's, the frame's constant angular velocity plus a bias of
   (0.01, -0.02, 0.005) rad/s known to 0.002 rad/s, 0.003 rad/s noise per sample) turned
   into a measurement over the frame's readout
-  (:func:`~rs_localizer.estimation.gyro.gyro_measurement`);
+  (:func:`~rs_localizer.tracking.gyro.gyro_measurement`);
 - ``gyro, rotation 90 deg off``: the same samples with a camera-IMU rotation that is wrong
   by 90 deg about the optical axis (how often the estimator notices and falls back, and the
   error of what it returns);
@@ -44,7 +44,7 @@ of the per-frame pose (rotation deg, position cm) and of the fused twist (the sm
 states: angular rad/s, linear m/s), with their ratios to the zero-bias run.
 
 ``--video --mount``: the check of the gyro against the rotation between frames
-(:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`, as the node runs it: frames solved
+(:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`, as the node runs it: frames solved
 without the gyro while it is declared inconsistent, the bias estimator not fed then) on the
 same kind of video of a planar scene (``--scene plane``, the default: 500 points on a wall 8 m
 ahead, :func:`~rs_localizer.sim.planar.sequence_scene`) or the corridor; the gyro's bias of
@@ -80,7 +80,7 @@ from rs_localizer.estimation import (
 )
 from rs_localizer.estimation.finalize import final_refinement
 from rs_localizer.estimation.frame import configure_frame, prepare_frame
-from rs_localizer.estimation.gyro import GyroMeasurement, ImuBuffer, gyro_prior
+from rs_localizer.estimation.gyro import GyroMeasurement, gyro_prior
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.gyro import NOISE, R_WRONG, RATE_HZ, simulated_gyro
@@ -92,6 +92,7 @@ from rs_localizer.sim.trajectory import (
     imu_samples,
     make_trajectory,
 )
+from rs_localizer.tracking.gyro import ImuBuffer
 from rs_localizer.tracking.sequence import (
     GyroSettings,
     SequenceFrame,
@@ -280,7 +281,7 @@ def track_video(
     ``imu`` (None: no gyro) mounted as ``R_cam_imu`` (default: the simulated mount), the bias
     prior ``VIDEO_PRIOR`` and, with ``estimate_bias``, the bias estimated online; the gyro is
     tested against the rotation between solved frames unless ``check`` is false
-    (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames solved without it
+    (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`: frames solved without it
     while inconsistent, the bias estimator not fed then). Returns per-frame pose errors
     (rotation deg, position m), the fused twist errors (angular rad/s, linear m/s), the bias
     error (rad/s, the largest over the three axes) after each frame with its time, the

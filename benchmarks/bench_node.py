@@ -177,8 +177,8 @@ def _alone(seq, cam, solver: str, frames: int, pause: float = 0.0) -> tuple[str,
     distinct frames replayed with increasing stamps), ``pause`` s of sleep between frames:
     (``"tracker"`` or ``"estimator"``, s per frame)."""
     from rs_localizer.estimation import estimate_rs_pose
-    from rs_localizer.estimation.tracker import RSTracker
     from rs_localizer.ros import params as P
+    from rs_localizer.tracking.tracker import RSTracker
 
     cfg = P.build_config({**P.default_values(), "solver": solver})
     period = 33_333_333

@@ -1,5 +1,7 @@
-"""What a front end makes of an image: :class:`Correspondences` (2D-3D rows), and the
-:class:`Frontend` protocol every front end (markers, boards, a feature map) follows.
+"""What a front end makes of an image: :class:`Correspondences` (2D-3D rows), the
+:class:`Frontend` protocol every front end (markers, boards, a feature map) follows, and
+:class:`VideoFrontend`, everything a camera's video
+(:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) calls on its front end.
 
 The 2D points are pixels of the distorted image (the estimator undistorts them with the camera
 model), the 3D points are in the world/map frame (m).
@@ -13,7 +15,14 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Correspondences", "Frontend", "TrackingFrontend"]
+__all__ = [
+    "Correspondences",
+    "Frontend",
+    "FrontendHooks",
+    "TrackingFrontend",
+    "VideoFrontend",
+    "video_frontend",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +95,8 @@ class Frontend(Protocol):
     (``bgr8``, ``rgb8``, ``mono8``), ``camera`` the frame's
     :class:`~rs_localizer.camera.CameraModel` (or None); returns :class:`Correspondences`.
 
-    A front end that tracks from frame to frame is a :class:`TrackingFrontend`.
+    A front end that tracks from frame to frame is a :class:`TrackingFrontend`; what a video
+    calls is :class:`VideoFrontend` (:func:`video_frontend` makes one of any front end).
     """
 
     def process(self, image: np.ndarray, camera: Any = None, encoding: str = "bgr8") -> Any:
@@ -109,3 +119,89 @@ class TrackingFrontend(Frontend, Protocol):
     def observe(self, stamp_ns: int, pixels: np.ndarray, estimate: Any) -> None:
         """Take note of how the previous frame was solved."""
         ...
+
+
+@runtime_checkable
+class VideoFrontend(Protocol):
+    """What :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` calls on the front end
+    of a camera's video, per image frame, in this order:
+
+    1. ``process(image, camera, encoding, stamp_ns)``: the frame's :class:`Correspondences`
+       (``image`` (H, W) or (H, W, C) uint8 in ``encoding``; ``camera`` the frame's
+       :class:`~rs_localizer.camera.CameraModel`; ``stamp_ns`` its header stamp, ns, for a
+       front end that predicts where to search). May raise: the frame is dropped
+       (``frontend_error``), the video goes on.
+    2. ``pop_warning()``: a warning the front end wants shown once (e.g. a feature map whose
+       descriptors do not match the detector's), or None.
+    3. ``observe(stamp_ns, pixels, estimate)``: how the frame was solved, after the
+       estimator ran (not for a frame dropped before it): ``pixels`` (M, 2) the rows the
+       estimator was given (non-finite rows dropped, capped to ``max_points``) and
+       ``estimate`` (``estimate.inliers`` (M,) the inlier mask over ``pixels``; ``success``
+       false on a failed frame) or None when the estimator raised.
+
+    The package's front ends all follow it (:class:`FrontendHooks` gives the no-op hooks).
+    """
+
+    def process(
+        self,
+        image: np.ndarray,
+        camera: Any = None,
+        encoding: str = "bgr8",
+        stamp_ns: int | None = None,
+    ) -> Any:
+        """The frame's :class:`Correspondences`."""
+        ...
+
+    def pop_warning(self) -> str | None:
+        """A warning to show once, or None."""
+        ...
+
+    def observe(self, stamp_ns: int, pixels: np.ndarray, estimate: Any) -> None:
+        """Take note of how the frame was solved."""
+        ...
+
+
+class FrontendHooks:
+    """The :class:`VideoFrontend` hooks of a front end that neither predicts nor warns:
+    ``observe`` does nothing, ``pop_warning`` returns None (a front end overrides either)."""
+
+    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+        """Nothing to take note of."""
+
+    def pop_warning(self) -> str | None:
+        """No warning."""
+        return None
+
+
+class _PerImage(FrontendHooks):
+    """A :class:`Frontend` (``process(image, camera, encoding)`` only) as a
+    :class:`VideoFrontend`: the stamp is not passed on, no hooks."""
+
+    def __init__(self, frontend: Frontend):
+        self.frontend = frontend
+
+    def process(
+        self,
+        image: np.ndarray,
+        camera: Any = None,
+        encoding: str = "bgr8",
+        stamp_ns: int | None = None,
+    ) -> Any:
+        return self.frontend.process(image, camera, encoding=encoding)
+
+
+def video_frontend(frontend: Any) -> VideoFrontend:
+    """``frontend`` itself when it is a :class:`VideoFrontend`, else a per-image
+    :class:`Frontend` wrapped into one (its ``process`` called without the stamp, no
+    feedback).
+
+    Raises:
+        TypeError: ``frontend`` has no ``process`` method.
+    """
+    if isinstance(frontend, VideoFrontend):
+        return frontend
+    if not isinstance(frontend, Frontend):
+        raise TypeError(
+            f"a front end needs process(image, camera, encoding), got {type(frontend).__name__}"
+        )
+    return _PerImage(frontend)

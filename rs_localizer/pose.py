@@ -25,7 +25,7 @@ use them.
 
 The library's types store these, not loose arrays: an estimate
 (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) holds its ``model`` and its ``pose``,
-a fused state (:class:`~rs_localizer.estimation.fusion.FusedState`), a fused frame
+a fused state (:class:`~rs_localizer.tracking.fusion.FusedState`), a fused frame
 (:class:`~rs_localizer.tracking.sequence.FusedPose`) and a base state
 (:class:`~rs_localizer.frames.BaseState`) their ``pose``, and a predicted model
 (:class:`~rs_localizer.estimation.options.InitialModel`) its ``model``; their ``R``, ``C``,

@@ -68,6 +68,9 @@ def _node_reasons() -> set:
 
     reasons = _literals(_modules("ros"), "_fail", "_Drop")
     reasons |= set(FAILURE_REASONS)
+    from rs_localizer.tracking.sequence import FRONTEND_FAILURES  # (the images' front end)
+
+    reasons |= set(FRONTEND_FAILURES)
     src = (PKG / "ros" / "pointcloud.py").read_text()
     reasons |= set(re.findall(r"CloudError\(\s*\"([a-z_]+)\"", src))
     reasons.add("bad_stamp")  # conversions.StampError.reason

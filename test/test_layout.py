@@ -24,8 +24,8 @@ LAYER = {
     "correspondences": 0,
     "solvers": 1,
     "estimation": 2,
-    "runtime": 2.2,
     "tracking": 2.5,
+    "runtime": 2.7,  # (warms the tracker up too)
     "frontends": 3,
     "viz": 3,
     "sim": 4,
@@ -245,3 +245,34 @@ def test_tests_import_helpers_not_tests():
                 if n.split(".")[0] == "conftest" or n.split(".")[0].startswith("test_")
             ]
     assert not found, "test modules importing tests or conftest:\n" + "\n".join(found)
+
+
+def test_no_import_circle_among_the_front_ends():
+    """Inside ``frontends/`` imports (function-level ones too) form no circle: the registry
+    (and the package's re-exports and its map cache) import the front-end modules, a front end
+    imports only the helpers it builds on (image codecs, OpenCV compatibility, the per-image
+    front end the video one extends), never the registry."""
+    pkg = PKG / "frontends"
+    graph = {}
+    for path in sorted(pkg.glob("*.py")):
+        deps = set()
+        for mod, _ in _imports(path):
+            parts = mod.split(".")
+            if parts[:2] == ["rs_localizer", "frontends"] and len(parts) > 2:
+                deps.add(parts[2])
+        graph[path.stem] = deps - {path.stem}
+    for name in set(graph) - {"registry", "shared", "__init__"}:
+        assert "registry" not in graph[name], f"frontends/{name}.py imports the registry"
+
+    def reach(start, node, seen):
+        for d in graph.get(node, ()):
+            if d == start:
+                return True
+            if d not in seen:
+                seen.add(d)
+                if reach(start, d, seen):
+                    return True
+        return False
+
+    circles = [n for n in graph if reach(n, n, set())]
+    assert not circles, f"import circle through frontends/{circles}"

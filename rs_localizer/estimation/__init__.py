@@ -12,13 +12,14 @@
   covariance;
 * :mod:`.prior`: the motion prior (:class:`MotionPrior`) of the MAP estimate;
   :mod:`.gyro`: a gyro's angular velocity over the readout as a measurement
-  (:class:`GyroMeasurement`, :func:`gyro_measurement`).
+  (:class:`GyroMeasurement`; made from a video's samples by
+  :func:`rs_localizer.tracking.gyro.gyro_measurement`).
 * :mod:`.noise_model`: spatially correlated image error in the covariance (its fit on still
   calibration views).
 """
 
 from .estimate import estimate_rs_pose
-from .gyro import GyroMeasurement, gyro_measurement, readout_window
+from .gyro import GyroMeasurement
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -49,8 +50,6 @@ __all__ = [
     "cap_points",
     "estimate_rs_pose",
     "exact_errors",
-    "gyro_measurement",
     "physical_velocities",
-    "readout_window",
     "refine_rs_pose",
 ]

@@ -205,7 +205,7 @@ class EstimateOptions:
 @dataclass(frozen=True)
 class InitialModel:
     """A predicted model for :func:`~rs_localizer.estimation.estimate_rs_pose` (e.g. from the
-    previous frames of a video, :class:`rs_localizer.estimation.tracker.RSTracker`).
+    previous frames of a video, :class:`rs_localizer.tracking.tracker.RSTracker`).
 
     The model is first tested as a hypothesis: the points within ``gate_px`` of it are counted
     ("explained"). If at least ``min_explained`` are, it is pulled onto them (robust

@@ -15,7 +15,7 @@ the estimate, D that in (beta, b), which is ``tau / 2`` times the w and t column
 refinement's covariance does not contain this error; on a hand-held shake (angular
 acceleration 20-30 rad/s^2) it dominates: the NEES of the 12 pose and twist errors is ~150
 instead of 12 on the synthetic shake, and ~13 once ``G alpha`` is removed with the true
-acceleration. :class:`~rs_localizer.estimation.fusion.TwistFilter` keeps the accelerations
+acceleration. :class:`~rs_localizer.tracking.fusion.TwistFilter` keeps the accelerations
 in its state and uses G in its measurement model.
 """
 

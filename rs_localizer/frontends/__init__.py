@@ -12,8 +12,9 @@ name.
 import os
 from typing import Any
 
-from .aruco import ArucoFrontend, to_gray
+from .aruco import ArucoFrontend
 from .features import FeatureFrontend, feature_map_from_views
+from .image import to_gray
 from .registry import FRONTENDS, frontend_kind
 
 __all__ = [

@@ -15,10 +15,11 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences
+from ..correspondences import Correspondences, FrontendHooks
 from . import cv_compat
+from .image import to_gray
 
-__all__ = ["ArucoFrontend", "marker_scores", "to_gray"]
+__all__ = ["ArucoFrontend", "marker_scores"]
 
 #: a marker whose stated position std is this (m) scores 0.5 (:func:`marker_scores`)
 SCORE_STD_M = 0.005
@@ -33,27 +34,7 @@ def marker_scores(std: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + s * s)
 
 
-def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
-    """(H, W) uint8 grayscale from mono8 / rgb8 / bgr8 / rgba8 / bgra8 arrays."""
-    img = np.asarray(image)
-    if img.ndim == 2:
-        return np.ascontiguousarray(img, dtype=np.uint8)
-    if img.ndim == 3 and img.shape[2] == 1:
-        return np.ascontiguousarray(img[:, :, 0], dtype=np.uint8)
-    enc = encoding.lower()
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ValueError(f"expected an (H, W), (H, W, 3) or (H, W, 4) image, got {img.shape}")
-    code = {
-        ("bgr", 3): cv2.COLOR_BGR2GRAY,
-        ("bgr", 4): cv2.COLOR_BGRA2GRAY,
-        ("rgb", 3): cv2.COLOR_RGB2GRAY,
-        ("rgb", 4): cv2.COLOR_RGBA2GRAY,
-    }
-    kind = "bgr" if enc.startswith("bgr") else "rgb"
-    return cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), code[(kind, img.shape[2])])
-
-
-class ArucoFrontend:
+class ArucoFrontend(FrontendHooks):
     """Detect ArUco markers and emit correspondences to their mapped 3D corners.
 
     Args:
@@ -132,22 +113,27 @@ class ArucoFrontend:
         self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
         self.last_kind = "full"  # how the last frame was searched: full or windowed
 
-    #: the node passes the frame's stamp to process() (motion prediction)
-    takes_stamp = True
-
     @classmethod
     def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:
         return cls(scene.marker_corners(), scene.dictionary, **kw)
 
     @classmethod
+    def from_map(cls, dictionary: str, corners: dict, std: dict, **kw: Any) -> ArucoFrontend:
+        """From a loaded marker map: its ``dictionary``, ``corners`` {id: (4, 3) m} and stated
+        position ``std`` {id: m} (empty: none), which score each marker's corners
+        (``marker_std``, unless given in ``kw``)."""
+        kw.setdefault("marker_std", std or None)
+        return cls(corners, dictionary, **kw)
+
+    @classmethod
     def from_file(cls, path: str | Path, **kw: Any) -> ArucoFrontend:
         """From a marker map YAML (:func:`rs_localizer.maps.markers.load_marker_map`) or a scene
         YAML / built-in scene name; the map's stated std, when it has them, score the
-        correspondences (``marker_std``)."""
-        from .registry import FRONTEND_KINDS
+        correspondences (``marker_std``): the front end of ``make_frontend("aruco", path)``."""
+        from ..maps.markers import load_marker_map, load_marker_std
 
-        kind = FRONTEND_KINDS["aruco"]  # (the same front end as make_frontend("aruco", path))
-        return kind.make(kind.load(path), **kw)
+        dictionary, corners = load_marker_map(Path(str(path)))
+        return cls.from_map(dictionary, corners, load_marker_std(path), **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""

@@ -81,10 +81,10 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences
+from ..correspondences import Correspondences, FrontendHooks
 from ..maps.boards import BOARD_TYPES, read_board
 from . import cv_compat as cvc
-from .aruco import to_gray
+from .image import to_gray
 
 __all__ = [
     "BOARD_TYPES",
@@ -571,7 +571,7 @@ def board_image(
 
 
 # ------------------------------------------------------------------------------- front ends
-class _BoardFrontend:
+class _BoardFrontend(FrontendHooks):
     """``process`` shared by the board front ends: detections -> map points by id."""
 
     name = ""
@@ -596,12 +596,17 @@ class _BoardFrontend:
         raise NotImplementedError
 
     def process(
-        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+        self,
+        image: np.ndarray,
+        camera: CameraModel | None = None,
+        encoding: str = "rgb8",
+        stamp_ns: int | None = None,
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`,
         unpacks as ``(points_px (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
         int64)``; no scores); detections whose id is not on the board are dropped.
-        ``camera`` is optional (the ChArUco front end uses it to interpolate corners)."""
+        ``camera`` is optional (the ChArUco front end uses it to interpolate corners);
+        ``stamp_ns`` is unused (every image alone)."""
         uv, ids = self._detect_ids(to_gray(image, encoding), camera)
         if len(ids) == 0:
             return Correspondences.empty()

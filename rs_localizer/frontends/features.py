@@ -24,9 +24,9 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences
+from ..correspondences import Correspondences, FrontendHooks
 from ..maps.features import FeatureMap
-from .aruco import to_gray
+from .image import to_gray
 
 __all__ = [
     "FEW_MATCHES_FRACTION",
@@ -153,7 +153,7 @@ def representative_descriptors(
     return np.sort(np.array(keep, dtype=np.int64))
 
 
-class FeatureFrontend:
+class FeatureFrontend(FrontendHooks):
     """Match each image's features to a :class:`FeatureMap` (ratio test, one match per
     landmark).
 
@@ -247,10 +247,15 @@ class FeatureFrontend:
         return cls(FeatureMap.load(path), **kw)
 
     def process(
-        self, image: np.ndarray, camera: CameraModel | None = None, encoding: str = "rgb8"
+        self,
+        image: np.ndarray,
+        camera: CameraModel | None = None,
+        encoding: str = "rgb8",
+        stamp_ns: int | None = None,
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`
-        with the scores ``1 - ratio``; pixels stay distorted; ``camera`` is unused)."""
+        with the scores ``1 - ratio``; pixels stay distorted; ``camera`` and ``stamp_ns`` are
+        unused: every image alone)."""
         empty = Correspondences(
             np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
         )

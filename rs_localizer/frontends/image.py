@@ -1,5 +1,6 @@
 """``sensor_msgs/Image`` <-> numpy without cv_bridge (works with rclpy and rosbags messages), and
-``sensor_msgs/CompressedImage`` (JPEG, PNG) -> numpy with OpenCV."""
+``sensor_msgs/CompressedImage`` (JPEG, PNG) -> numpy with OpenCV, and the grayscale image the
+front ends detect in (:func:`to_gray`)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ __all__ = [
     "image_fields",
     "image_from_compressed",
     "image_from_msg",
+    "to_gray",
 ]
 
 #: supported encodings -> channels (8-bit)
@@ -179,3 +181,30 @@ def image_fields(image: np.ndarray, encoding: str | None = None) -> dict:
         step=img.shape[1] * ch,
         data=img.reshape(-1),
     )
+
+
+def to_gray(image: np.ndarray, encoding: str = "rgb8") -> np.ndarray:
+    """(H, W) uint8 grayscale from mono8 / rgb8 / bgr8 / rgba8 / bgra8 arrays (``encoding``
+    tells RGB from BGR order for 3 and 4 channels; (H, W) and (H, W, 1) are taken as they are).
+
+    Raises:
+        ValueError: an array that is not (H, W), (H, W, 1), (H, W, 3) or (H, W, 4).
+    """
+    img = np.asarray(image)
+    if img.ndim == 2:
+        return np.ascontiguousarray(img, dtype=np.uint8)
+    if img.ndim == 3 and img.shape[2] == 1:
+        return np.ascontiguousarray(img[:, :, 0], dtype=np.uint8)
+    enc = encoding.lower()
+    if img.ndim != 3 or img.shape[2] not in (3, 4):
+        raise ValueError(f"expected an (H, W), (H, W, 3) or (H, W, 4) image, got {img.shape}")
+    import cv2  # (as image_from_compressed: the message codecs import without OpenCV)
+
+    code = {
+        ("bgr", 3): cv2.COLOR_BGR2GRAY,
+        ("bgr", 4): cv2.COLOR_BGRA2GRAY,
+        ("rgb", 3): cv2.COLOR_RGB2GRAY,
+        ("rgb", 4): cv2.COLOR_RGBA2GRAY,
+    }
+    kind = "bgr" if enc.startswith("bgr") else "rgb"
+    return cv2.cvtColor(np.ascontiguousarray(img, dtype=np.uint8), code[(kind, img.shape[2])])

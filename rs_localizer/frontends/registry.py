@@ -45,9 +45,7 @@ def _aruco(loaded: tuple, **kw: Any) -> Any:
     map's stated std when it has them (a map from ``map-markers``)."""
     from .aruco import ArucoFrontend
 
-    dictionary, corners, std = loaded
-    kw.setdefault("marker_std", std or None)
-    return ArucoFrontend(corners, dictionary, **kw)
+    return ArucoFrontend.from_map(*loaded, **kw)
 
 
 def _load_features(path: str | os.PathLike) -> Any:

@@ -55,8 +55,8 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences
 from ..geometry import rotvec_to_matrix
 from ..maps.features import FeatureMap
-from .aruco import to_gray
 from .features import FeatureFrontend, make_detector
+from .image import to_gray
 
 __all__ = ["FRAME_KINDS", "FrameReport", "TrackingFeatureFrontend"]
 
@@ -135,7 +135,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
     """
 
     name = "features"
-    takes_stamp = True
 
     def __init__(
         self,

@@ -43,6 +43,7 @@ def diagnostic_status(
     gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
     gyro_inconsistent: bool = False,
     imu_idle_s: float | None = None,
+    frontend: Any = None,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
@@ -67,7 +68,8 @@ def diagnostic_status(
     gyro against the rotation between frames: ``gyro_inconsistent``, the frames solved
     without the gyro because of it, its failed pairs and detections), then
     ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>`` and
-    ``imu_rejected.<reason>`` counts.
+    ``imu_rejected.<reason>`` counts. ``frontend``: the image front end in use
+    (:attr:`.pipeline.FramePipeline.maps`), None without one.
     """
     c = stats.counts
     failed = dict(sorted(frames.failures.items()))
@@ -92,9 +94,10 @@ def diagnostic_status(
         stamp_ages,
         compiled,
         bg,
+        frontend is not None,
     )
-    if cfg.frontend is not None:
-        values.update(_frontend_values(cfg, stats))
+    if frontend is not None:
+        values.update(_frontend_values(cfg, frontend, stats))
     if cfg.imu is not None:
         values.update(_imu_values(cfg, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s))
     values.update({f"failed.{k}": v for k, v in failed.items()})
@@ -160,6 +163,7 @@ def _core_values(
     stamp_ages: Sequence[float],
     compiled: bool,
     bg: dict[str, Any],
+    has_frontend: bool,
 ) -> dict[str, Any]:
     """The values every status carries, through the stage times (see :func:`diagnostic_status`)."""
     c = stats.counts
@@ -201,14 +205,14 @@ def _core_values(
         "stamps_off_clock": off_clock,
     }
     for k, d in stats.stage_times.items():
-        if k == "frontend" and cfg.frontend is None:
+        if k == "frontend" and not has_frontend:
             continue
         values[f"{k}_ms_median"] = f"{np.median(d) * 1e3:.3f}" if d else "nan"
     return values
 
 
-def _frontend_values(cfg: LocalizerConfig, stats: StatsSnapshot) -> dict[str, Any]:
-    """The front end's values of :func:`diagnostic_status` (``cfg.frontend`` set)."""
+def _frontend_values(cfg: LocalizerConfig, frontend: Any, stats: StatsSnapshot) -> dict[str, Any]:
+    """The front end's values of :func:`diagnostic_status` (with a ``frontend``)."""
     c = stats.counts
     values: dict[str, Any] = {}
     fe = stats.stage_times["frontend"]
@@ -225,9 +229,9 @@ def _frontend_values(cfg: LocalizerConfig, stats: StatsSnapshot) -> dict[str, An
             "frontend_ms_p99": f"{np.percentile(fe, 99) * 1e3:.3f}" if fe else "nan",
         }
     )
-    summary = getattr(cfg.frontend, "summary", None)  # (a tracking front end)
+    summary = getattr(frontend, "summary", None)  # (a tracking front end)
     values.update(summary() if summary is not None else {"frontend_frames_global": runs})
-    few = getattr(cfg.frontend, "few_match_frames", None)  # (a feature front end)
+    few = getattr(frontend, "few_match_frames", None)  # (a feature front end)
     if few is not None:
         values["frontend_few_match_frames"] = few
     return values

@@ -61,15 +61,9 @@ from . import conversions as cv
 from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN, diagnostic_status
 from .frame_queue import FrameQueue
+from .maps import LoadedMaps, load_maps
 from .outputs import frame_messages, fused_messages
-from .params import (
-    PARAMETERS,
-    ConfigError,
-    LocalizerConfig,
-    build_config,
-    default_timing_note,
-    load_maps,
-)
+from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config, default_timing_note
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
@@ -124,10 +118,10 @@ class LocalizerCore:
         the JIT warm-up. Raises RuntimeError for invalid parameters."""
         try:
             cfg = build_config(self._param_values({}))
-            cfg = load_maps(cfg, owner=self, current=self.cfg)
+            maps = load_maps(cfg, owner=self, current=self._maps())
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
-        self._apply_config(cfg)
+        self._apply_config(cfg, maps)
         if self.get_parameter("warmup").value:
             log_warm_up(
                 cfg.solver,
@@ -162,7 +156,7 @@ class LocalizerCore:
                     "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
                     "wheels): not publishing /tf"
                 )
-        if self.cfg.republish_correspondences and self.cfg.frontend is not None:
+        if self.cfg.republish_correspondences and self._maps().frontend is not None:
             self._corr_out_publisher()
 
     def _create_camera_info_input(self):
@@ -210,7 +204,7 @@ class LocalizerCore:
         )
         self.sub_kp = self._subscribe(PointCloud2, "keypoints", "keypoints", CLOUD_QOS)
         self.sub_image = None
-        if self.cfg.frontend is not None:  # (compressed: on image_transport's topic name)
+        if self._maps().frontend is not None:  # (compressed: on image_transport's topic name)
             compressed = self.cfg.image_transport == "compressed"
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
@@ -257,8 +251,9 @@ class LocalizerCore:
         if cfg.readout_time > 0:
             text += f", readout {cfg.readout_time * 1e3:.2f} ms"
         text += f", intrinsics from {'parameters' if cfg.fallback else 'camera_info'}"
-        if cfg.landmarks:
-            text += f", {len(cfg.landmarks[0])} landmarks from {cfg.landmarks_file}"
+        landmarks = self._maps().landmarks
+        if landmarks:
+            text += f", {len(landmarks[0])} landmarks from {cfg.landmarks_file}"
         if self.sub_image is not None:
             text += f", {cfg.frontend_kind} front end on {self.sub_image.topic_name} (map "
             text += f"{cfg.frontend_map})"
@@ -271,16 +266,22 @@ class LocalizerCore:
             for name in PARAMETERS
         }
 
-    def _apply_config(self, cfg: LocalizerConfig):
+    def _maps(self) -> LoadedMaps:
+        """The landmarks and the front end loaded for the configuration in use."""
+        return self.pipeline.maps
+
+    def _apply_config(self, cfg: LocalizerConfig, maps: LoadedMaps):
         old = self.cfg
-        self.pipeline.configure(cfg)  # (the RS timing may have changed: camera models rebuilt)
-        if old is not None and old.frontend is not None and cfg.frontend is not old.frontend:
+        old_fe = self._maps().frontend
+        # (the RS timing may have changed: camera models rebuilt)
+        self.pipeline.configure(cfg, maps)
+        if old is not None and old_fe is not None and maps.frontend is not old_fe:
             self.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
             )
-        if cfg.republish_correspondences and cfg.frontend is not None and self._pubs:
+        if cfg.republish_correspondences and maps.frontend is not None and self._pubs:
             self._corr_out_publisher()
-        note = default_timing_note(cfg) if cfg.frontend is not None else None  # (images)
+        note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
         if note is not None and not getattr(self, "_warned_rs", 0):
             self._warned_rs = True  # (once per node)
             self.get_logger().warning(note)
@@ -291,7 +292,7 @@ class LocalizerCore:
             return SetParametersResult(successful=True)
         try:
             cfg = build_config(self._param_values(overrides))
-            cfg = load_maps(cfg, owner=self, current=self.cfg)
+            maps = load_maps(cfg, owner=self, current=self._maps())
         except ConfigError as e:
             self.get_logger().warning(f"rejected parameter change: {e}")
             return SetParametersResult(successful=False, reason=str(e))
@@ -305,10 +306,10 @@ class LocalizerCore:
                     self.get_logger(),
                     cfg.imu is not None,
                 )
-        self._apply_config(cfg)
-        if overrides.get("landmarks_file") and cfg.landmarks is not None:
+        self._apply_config(cfg, maps)
+        if overrides.get("landmarks_file") and maps.landmarks is not None:
             self.get_logger().info(
-                f"reloaded {len(cfg.landmarks[0])} landmarks from {cfg.landmarks_file}"
+                f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.landmarks_file}"
             )
         return SetParametersResult(successful=True)
 
@@ -409,6 +410,7 @@ class LocalizerCore:
             self.pipeline.gyro_bias_values(),
             self.pipeline.gyro_inconsistent,
             self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
+            frontend=self._maps().frontend,
         )
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"

@@ -4,7 +4,8 @@
 range, read-only; ``config/rs_localizer.yaml`` lists them with their defaults). The node, the
 managed node and ``rs-localizer replay`` turn a full set of parameter values into a
 :class:`LocalizerConfig` with :func:`build_config`, which raises :class:`ConfigError` naming
-the parameter when a value cannot be used, then load its maps with :func:`load_maps`.
+the parameter when a value cannot be used, then load the maps it names with
+:func:`rs_localizer.ros.maps.load_maps`.
 Parameter files in the ROS 2 format are read by :func:`read_params_file` (for replay; the node
 gets them from ROS).
 """
@@ -22,15 +23,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..correspondences import Frontend
 from ..estimation import EstimateOptions
 from ..estimation.options import points_needed
-from ..estimation.tracker import TrackerOptions
 from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
 from ..frontends import FRONTENDS
-from ..frontends.shared import SHARED_MAPS
-from ..maps import check_regular_file
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
+from ..tracking.tracker import TrackerOptions
 from . import conversions as cv
 
 __all__ = [
@@ -49,7 +47,6 @@ __all__ = [
     "default_values",
     "estimate_options",
     "imu_config",
-    "load_maps",
     "option_fields",
     "parameter_values",
     "points_needed",
@@ -738,11 +735,14 @@ class LocalizerConfig:
             than this (ns) resets the time-dependent state. queue_size: frames waiting.
         camera_info_wait: s a frame may wait for its camera_info.
         fallback: the camera model of the ``camera.*`` parameters (None: camera.fx <= 0).
-        landmarks_file and landmarks: ``(sorted ids (N,), points (N, 3) m)`` or None.
-        frontend_kind (``none``, ``aruco``, ...), frontend_map, frontend: the image front end
-            object (None for ``none``), image_transport (``raw``/``compressed``),
-            republish_correspondences, frontend_options (the front end's keyword arguments:
-            the ``features.*`` parameters for ``features``).
+        landmarks_file: the landmark table (CSV) of keypoint frames.
+        frontend_kind (``none``, ``aruco``, ...), frontend_map: the image front end and its
+            map file, image_transport (``raw``/``compressed``), republish_correspondences,
+            frontend_options (the front end's keyword arguments: the ``features.*`` and
+            ``aruco.*`` parameters).
+
+    Values and paths only: the maps they name are loaded by
+    :func:`rs_localizer.ros.maps.load_maps` where the pipeline is built.
     """
 
     solver: str
@@ -763,10 +763,8 @@ class LocalizerConfig:
     camera_info_wait: float
     fallback: CameraModel | None
     landmarks_file: str
-    landmarks: tuple[np.ndarray, np.ndarray] | None
     frontend_kind: str
     frontend_map: str
-    frontend: Frontend | None
     image_transport: str
     republish_correspondences: bool
     imu: ImuConfig | None = None
@@ -958,8 +956,8 @@ def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
 
 def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
     """The configuration of a full set of parameter values (one per :data:`PARAMETERS` name),
-    without its maps: ``landmarks`` and ``frontend`` are None until :func:`load_maps` loads
-    them. Reads no file. Types and ranges are not checked here (ROS does it for the node,
+    values and paths (the maps are loaded by :func:`rs_localizer.ros.maps.load_maps`). Reads
+    no file. Types and ranges are not checked here (ROS does it for the node,
     :func:`check_parameter` for replay).
 
     Raises:
@@ -995,53 +993,13 @@ def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
         camera_info_wait=float(p["camera_info_wait"]),
         fallback=fallback,
         landmarks_file=p["landmarks_file"],
-        landmarks=None,
         frontend_kind=kind,
         frontend_map=fmap,
-        frontend=None,
         image_transport=transport,
         republish_correspondences=bool(p["republish_correspondences"]),
         imu=imu,
         frontend_options=_frontend_options(kind, p),
     )
-
-
-def load_maps(
-    cfg: LocalizerConfig, *, owner: object | None = None, current: LocalizerConfig | None = None
-) -> LocalizerConfig:
-    """``cfg`` with its maps: the landmark table of ``landmarks_file`` and the front end of
-    ``frontend_map``, loaded through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on
-    behalf of ``owner`` (one copy per process, released with ``SHARED_MAPS.release(owner)``).
-    The front end of ``current`` is reused when its kind and map are unchanged.
-
-    Raises:
-        ConfigError: a landmark table or front-end map that does not load (missing, not a
-            regular file, malformed), naming the parameter.
-    """
-    landmarks, frontend = None, None
-    path = cfg.landmarks_file
-    if path:
-        try:  # (loaded once per process: cameras naming the same file share it)
-            landmarks = SHARED_MAPS.landmarks(path, owner=owner)
-        except (OSError, ValueError) as e:
-            raise ConfigError(f"cannot load landmarks_file {path!r}: {e}") from None
-    kind, fmap = cfg.frontend_kind, cfg.frontend_map
-    if kind != "none":
-        if current is not None and (kind, fmap) == (current.frontend_kind, current.frontend_map):
-            frontend = current.frontend
-        else:
-            try:
-                if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
-                    check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
-                # (the map is loaded once per process and shared by cameras naming it)
-                frontend = SHARED_MAPS.frontend(
-                    kind, os.path.expanduser(fmap), owner=owner, **cfg.frontend_options
-                )
-            except Exception as e:
-                raise ConfigError(
-                    f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
-                ) from None
-    return dataclasses.replace(cfg, landmarks=landmarks, frontend=frontend)
 
 
 def parameter_values(

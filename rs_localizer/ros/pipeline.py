@@ -28,12 +28,12 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, TrackingFrontend
-from ..estimation.gyro import ImuBuffer
-from ..estimation.gyro_bias import GyroBiasEstimator
-from ..estimation.gyro_check import GyroMountCheck
-from ..estimation.points import cap_points
+from ..correspondences import Correspondences
 from ..frames import camera_to_base
+from ..runtime.background import ready_implementation
+from ..tracking.gyro import ImuBuffer
+from ..tracking.gyro_bias import GyroBiasEstimator
+from ..tracking.gyro_check import GyroMountCheck
 from ..tracking.sequence import (
     FusedPose,
     SequenceFrame,
@@ -43,6 +43,7 @@ from ..tracking.sequence import (
 )
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
+from .maps import LoadedMaps
 from .params import LocalizerConfig
 from .pointcloud import CloudError, read_correspondences, read_keypoints
 
@@ -294,6 +295,8 @@ class FramePipeline:
     Args:
         config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
             :meth:`configure` before the first frame).
+        maps: the landmarks and the front end loaded for ``config`` (:func:`~.maps.load_maps`;
+            None: none).
         log: :class:`ThrottledLog` (or a logger it wraps) for the warnings.
         stopped: ``stopped()`` true ends a frame's wait for its camera_info or gyro samples
             (shutdown).
@@ -310,6 +313,7 @@ class FramePipeline:
         log: Any = None,
         stopped: Callable[[], bool] = lambda: False,
         imu_span: float | None = None,
+        maps: LoadedMaps | None = None,
     ):
         self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
         self.stats = PipelineStats()
@@ -317,23 +321,31 @@ class FramePipeline:
         self._stopped = stopped
         self._config: LocalizerConfig | None = None
         # the camera's video state: tracker, fused twists pending, gyro, bias, gyro check
+        # (frames on the NumPy implementation while the kernels compile in the background)
         self.sequence = SequenceLocalizer(
-            log=self.log, count=self.stats.add, stopped=stopped, imu_span=imu_span
+            log=self.log,
+            count=self.stats.add,
+            stopped=stopped,
+            imu_span=imu_span,
+            implementation=ready_implementation,
         )
+        self.maps = LoadedMaps()
         if config is not None:
-            self.configure(config)
+            self.configure(config, maps)
 
     @property
     def config(self) -> LocalizerConfig | None:
         """The configuration frames are processed with."""
         return self._config
 
-    def configure(self, config: LocalizerConfig) -> None:
-        """Use ``config`` from the next frame on; the camera models of the camera_infos
+    def configure(self, config: LocalizerConfig, maps: LoadedMaps | None = None) -> None:
+        """Use ``config`` and the ``maps`` loaded for it (:func:`~.maps.load_maps`; None: no
+        landmarks, no front end) from the next frame on; the camera models of the camera_infos
         received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
         and logged), the video state keeps what still applies
         (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.configure`)."""
         self._config = config
+        self.maps = maps if maps is not None else LoadedMaps()
         self.sequence.configure(
             SequenceSettings(
                 solver=config.solver,
@@ -342,8 +354,10 @@ class FramePipeline:
                 imu=config.imu,
                 stamp_row=config.stamp_row,
                 time_reset_ns=config.time_reset_ns,
+                max_points=config.max_points,
             )
         )
+        self.sequence.set_frontend(self.maps.frontend, config.frontend_kind)
         for err in self.history.rebuild(config.camera_from_info):
             self.log.error(f"camera_info unusable with the new parameters: {err}")
 
@@ -424,7 +438,7 @@ class FramePipeline:
         the reason it was rejected, counted as ``imu_rejected.<reason>``: ``disabled``
         (``imu.enabled`` false: nothing counted), ``no_angular_velocity`` (covariance[0] = -1,
         the message's "no data"), ``bad_stamp`` and the reasons of
-        :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or repeated,
+        :meth:`~rs_localizer.tracking.gyro.ImuBuffer.add` (a stamp going back or repeated,
         NaN or saturated rates). A buffered sample that this one shows to have been a lone
         stamp jump ahead (dropped from the buffer) is counted as
         ``imu_rejected.stamp_jumped_ahead``."""
@@ -495,15 +509,23 @@ class FramePipeline:
                 "the reference row's offset) is outside [0, 2^31 s)",
             )
         res.out_stamp_ns = out_stamp
-        uv, xyz, scores = self._extract(msg, kind, camera, stamp, cfg, res)
-        uv, xyz, scores = self._valid_rows(uv, xyz, scores, cfg)
+        if kind == "image":
+            img, enc = self._decode(msg, camera, stamp, cfg, res)
+            t_decoded = time.perf_counter()
+            out = self.sequence.process_image(stamp, img, camera, enc, tag=res.frame_id)
+            self._frontend_ran(out, cfg, res)
+            uv, xyz = out.points2d, out.points3d
+            t_decoded += out.frontend_seconds
+        else:
+            uv, xyz, scores = self._extract(msg, kind, cfg)
+            uv, xyz, scores = self.sequence.valid_rows(uv, xyz, scores)
+            t_decoded = time.perf_counter()
+            out = self.sequence.process(SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id))
         res.points2d, res.points3d = uv, xyz
-        t_decoded = time.perf_counter()
-        out = self.sequence.process(SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id))
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")
         t_estimated = time.perf_counter()
-        t_frontend = res.times.get("frontend", 0.0)
+        t_frontend = out.frontend_seconds
         res.times = {  # (the wait for the gyro samples counts as decoding, as for camera_info)
             "decode": t_decoded - tic - t_frontend + out.gyro_seconds,
             "frontend": t_frontend,
@@ -511,8 +533,6 @@ class FramePipeline:
         }
         res.fused = self._fused_outputs(out.fused, cfg)
         est = out.estimate
-        if kind == "image" and isinstance(cfg.frontend, TrackingFrontend):
-            self._observe(cfg, stamp, uv, est)
         if est is None:
             raise _Drop("estimator_error", out.error or "no estimate")
         self.stats.add("points_dropped", int(est.num_dropped))
@@ -530,16 +550,6 @@ class FramePipeline:
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
 
-    def _observe(self, cfg: LocalizerConfig, stamp: int, uv: np.ndarray, est: Any) -> None:
-        """Tell a tracking front end how its frame was solved (an error is logged, the frame
-        goes on)."""
-        try:
-            cfg.frontend.observe(stamp, uv, est)
-        except Exception as e:
-            self.log.warning(
-                "frontend_error", f"{cfg.frontend_kind}.observe: {type(e).__name__}: {e}"
-            )
-
     def _check_time(self, stamp: int) -> None:
         """A stamp older than the previous frame's, or newer by more than
         ``time_reset_threshold``: a time reset (counted and logged; the camera_infos stamped
@@ -553,26 +563,8 @@ class FramePipeline:
         self.log.warning("time_reset", f"time reset: {why}")
         self.history.forget_after(stamp)
 
-    def _valid_rows(self, uv, xyz, scores, cfg: LocalizerConfig):
-        """Rows with NaN/inf dropped (before the cap, so that the cap keeps valid rows), then
-        the cap to ``max_points`` (counted and logged)."""
-        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
-        n_bad = len(uv) - int(np.count_nonzero(good))
-        if n_bad:
-            self.stats.add("points_dropped", n_bad)
-            uv, xyz = uv[good], xyz[good]
-            scores = None if scores is None else scores[good]
-        if len(uv) > cfg.max_points:
-            self.stats.add("capped_clouds")
-            self.stats.add("capped_points", len(uv) - cfg.max_points)
-            self.log.warning(
-                "capped", f"cloud of {len(uv)} points capped to max_points {cfg.max_points}"
-            )
-            uv, xyz, scores = cap_points(uv, xyz, scores, cfg.max_points)
-        return uv, xyz, scores
-
-    def _extract(self, msg, kind: str, camera: CameraModel, stamp: int, cfg, res: FrameResult):
-        """The frame's rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)``.
+    def _extract(self, msg, kind: str, cfg: LocalizerConfig):
+        """The rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)`` of a cloud.
 
         Raises:
             _Drop, CloudError: a frame that gives no usable rows (with the reason).
@@ -580,15 +572,13 @@ class FramePipeline:
         if kind == "correspondences":
             c = read_correspondences(msg)
             return c.uv, c.xyz, c.scores
-        if kind == "keypoints":
-            return self._from_keypoints(msg, cfg)
-        return self._from_image(msg, camera, stamp, cfg, res)
+        return self._from_keypoints(msg)
 
-    def _from_keypoints(self, msg, cfg: LocalizerConfig):
-        if cfg.landmarks is None:
+    def _from_keypoints(self, msg):
+        if self.maps.landmarks is None:
             raise _Drop("no_landmarks", "keypoints received but no landmarks_file is loaded")
         kp = read_keypoints(msg)
-        ids, pts = cfg.landmarks
+        ids, pts = self.maps.landmarks
         j = np.clip(np.searchsorted(ids, kp.ids), 0, len(ids) - 1)
         known = ids[j] == kp.ids
         n_unknown = int(np.count_nonzero(~known))
@@ -599,13 +589,12 @@ class FramePipeline:
         scores = None if kp.scores is None else kp.scores[known]
         return kp.uv[known], pts[j[known]], scores
 
-    def _from_image(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
-        """Decode (``sensor_msgs/Image``, or ``CompressedImage``: no ``encoding`` field), run
-        the front end."""
+    def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
+        """The image of ``sensor_msgs/Image``, or ``CompressedImage`` (no ``encoding``
+        field), checked against the camera model's size: ``(array, encoding)``."""
         from ..frontends.image import image_from_compressed, image_from_msg
 
-        fe = cfg.frontend
-        if fe is None:  # (the node subscribes images only with a front end)
+        if self.sequence.frontend is None:  # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
         if not hasattr(msg, "encoding"):
             try:
@@ -632,32 +621,22 @@ class FramePipeline:
                 f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
             )
         res.image = (img, enc, stamp)
-        t0 = time.perf_counter()
-        try:
-            kw = {"stamp_ns": stamp} if getattr(fe, "takes_stamp", False) else {}
-            found = Correspondences.of(fe.process(img, camera, encoding=enc, **kw))
-        except Exception as e:
-            raise _Drop("frontend_error", f"{cfg.frontend_kind}: {type(e).__name__}: {e}") from None
-        res.times["frontend"] = time.perf_counter() - t0
-        pop = getattr(fe, "pop_warning", None)  # (a front end's one-time warning)
-        text = pop() if pop is not None else None
-        if text:
-            self.log.warning(f"{cfg.frontend_kind}.warning", text)
-        uv, xyz, scores = found.pixels, found.points, found.valid_scores()
-        self.stats.frontend_ran(len(uv), res.times["frontend"])
+        return img, enc
+
+    def _frontend_ran(self, out: Any, cfg: LocalizerConfig, res: FrameResult) -> None:
+        """Account for the front end's run on an image frame (its correspondences to
+        republish with ``republish_correspondences``); raises :class:`_Drop` for a frame it
+        dropped."""
+        found = out.correspondences
+        if found is None:  # (the front end raised)
+            raise _Drop(out.failure, out.detail)
+        res.times["frontend"] = out.frontend_seconds
+        uv = found.pixels
+        self.stats.frontend_ran(len(uv), out.frontend_seconds)
         if cfg.republish_correspondences:
-            res.correspondences = Correspondences(uv, xyz, found.ids, scores)
-        need = cfg.min_points
-        if len(uv) < need:
-            what = (
-                f"{len(uv) // 4} markers" if cfg.frontend_kind == "aruco" else f"{len(uv)} matches"
-            )
-            raise _Drop(
-                "frontend_too_few_points",
-                f"{cfg.frontend_kind} front end found {what}: {len(uv)} correspondences, "
-                f"{need} needed",
-            )
-        return uv, xyz, scores
+            res.correspondences = Correspondences(uv, found.points, found.ids, found.valid_scores())
+        if out.failure is not None:
+            raise _Drop(out.failure, out.detail)
 
     # ---------------------------------------------------------------- tracking
     def drop_tracker(self) -> None:

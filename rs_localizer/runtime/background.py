@@ -38,7 +38,7 @@ from ..estimation.implementation import (
     NUMPY_SOLVERS,
     compiled_by_default,
 )
-from ..estimation.tracker import TrackerOptions
+from ..tracking.tracker import TrackerOptions
 from . import warmup
 from .jit_cache import cache_state, compile_progress, numba_error
 

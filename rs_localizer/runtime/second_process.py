@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 import time
 
-from ..estimation.tracker import TrackerOptions
+from ..tracking.tracker import TrackerOptions
 from .jit_cache import compile_progress
 from .warmup import fused_cached, split_batch, track_videos, warm_late
 

@@ -47,12 +47,12 @@ from ..estimation.frame import prepare_frame
 from ..estimation.prior import prior_conflict
 from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
 from ..estimation.scoring import exact_msac_scores
-from ..estimation.tracker import RSTracker, TrackerOptions
 from ..geometry import rotvec_to_matrix
 from ..pose import model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
+from ..tracking.tracker import RSTracker, TrackerOptions
 from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
 
 __all__ = [
@@ -137,7 +137,7 @@ def warm_up(
     distant object (the motion prior's MAP step) and on a planar scene (MAP refinement and
     damped hypotheses) for solvers that take one; with ``tracking`` (the video tracker's
     options, None: every frame alone) also an
-    :class:`~rs_localizer.estimation.tracker.RSTracker` over 8 frames of a moving camera in
+    :class:`~rs_localizer.tracking.tracker.RSTracker` over 8 frames of a moving camera in
     front of each scene (predicted RANSAC, the twist filter, its smoother, the acceleration
     sensitivity). With ``gyro`` each of these again with a gyro measurement (RANSAC's
     samples solved with the angular velocity known, the gyro-aided prior).
@@ -208,7 +208,7 @@ def warm_late(
     types do not depend on the values), the motion prior's MAP step
     (:func:`~.estimation.prior.prior_conflict`, :func:`~.estimation.refine.posterior_step`)
     and, with ``tracking``, the twist filter and its smoother
-    (:class:`~.estimation.fusion.TwistFilter` over synthetic per-frame estimates). The second
+    (:class:`~.tracking.fusion.TwistFilter` over synthetic per-frame estimates). The second
     process of a parallel warm-up runs it (:func:`warm_up`).
 
     Raises:

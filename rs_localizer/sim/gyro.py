@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..estimation import gyro_measurement
-from ..estimation.gyro import GyroMeasurement, readout_window
+from ..estimation.gyro import GyroMeasurement
 from ..geometry import rotvec_to_matrix
+from ..tracking.gyro import gyro_measurement, readout_window
 from .planar import PlanarFrame
 from .trajectory import R_IMU_CAMERA
 

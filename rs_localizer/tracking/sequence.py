@@ -3,27 +3,33 @@
 :class:`SequenceLocalizer` owns every piece of a camera's video state (in the spirit of
 OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
 
-- the video tracker (:class:`~rs_localizer.estimation.tracker.RSTracker`: predicted RANSAC,
+- the video tracker (:class:`~rs_localizer.tracking.tracker.RSTracker`: predicted RANSAC,
   relocalization, resets, the fused twist), made again when the solver, the estimator or
   tracking options or the camera model change;
 - the frames whose pose is out but whose fused twist is final only ``tracking.lag`` frames
   later (:attr:`SequenceOutput.fused` hands them out when they are);
-- the gyro samples (:class:`~rs_localizer.estimation.gyro.ImuBuffer`, fed by :meth:`add_imu`)
+- the gyro samples (:class:`~rs_localizer.tracking.gyro.ImuBuffer`, fed by :meth:`add_imu`)
   and each frame's gyro measurement over its readout;
-- the online gyro-bias estimate (:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`,
+- the online gyro-bias estimate (:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`,
   with ``estimate_bias``) and the check of the gyro against the rotation between solved frames
-  (:class:`~rs_localizer.estimation.gyro_check.GyroMountCheck`: frames are solved without the
+  (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`: frames are solved without the
   gyro while it is declared inconsistent);
 - time resets: a frame stamp older than the previous one, or newer by more than
   ``time_reset_ns`` (:meth:`check_time`) starts the gyro's timeline again (the samples of the
-  previous timeline, the bias estimator's and the check's pairing).
+  previous timeline, the bias estimator's and the check's pairing);
+- the optional image front end (:meth:`set_frontend`) and its feedback: what
+  :meth:`process_image` calls on it is the
+  :class:`~rs_localizer.correspondences.VideoFrontend` protocol.
 
 API: :meth:`add_imu` (a gyro sample), :meth:`process` (a frame's 2D-3D correspondences ->
+:class:`SequenceOutput`), :meth:`process_image` (an image, through the front end ->
 :class:`SequenceOutput`), :meth:`flush` (end of the video: the twists still pending),
-:meth:`reset` (forget everything but the configuration). The node's
-:class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages, picks the camera model of a
-frame's stamp and keeps the diagnostics; ``rs-localizer replay``, ``benchmarks/bench_gyro.py``
-and ``benchmarks/bench_video.py`` drive this same object.
+:meth:`reset` (forget everything but the configuration). Stamps are checked (a finite number
+within the int64 nanosecond range, else ValueError) and so is a frame's camera model (else
+TypeError). The node's :class:`~rs_localizer.ros.pipeline.FramePipeline` decodes messages,
+picks the camera model of a frame's stamp and keeps the frame accounting and the
+diagnostics; ``rs-localizer replay``, ``benchmarks/bench_gyro.py`` and
+``benchmarks/bench_video.py`` drive this same object.
 
 Example (a video of correspondences and a gyro; ``camera`` a
 :class:`~rs_localizer.camera.CameraModel` with its rolling-shutter timing)::
@@ -53,18 +59,28 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
-from ..estimation.estimate import EstimateOptions, RSPoseEstimate, estimate_rs_pose
-from ..estimation.fusion import FusedState
-from ..estimation.gyro import GyroMeasurement, ImuBuffer, readout_window
-from ..estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from ..estimation.gyro_check import GyroMountCheck
-from ..estimation.tracker import RSTracker, TrackerOptions
+from ..correspondences import Correspondences, VideoFrontend, video_frontend
+from ..estimation.estimate import (
+    EstimateOptions,
+    RSPoseEstimate,
+    estimate_rs_pose,
+    points_needed,
+)
+from ..estimation.gyro import GyroMeasurement
+from ..estimation.implementation import COMPILED, default_implementation
+from ..estimation.points import cap_points
 from ..pose import RSPose
-from ..runtime.background import ready_implementation
 from ..solvers.registry import solver_info
+from .fusion import FusedState
+from .gyro import ImuBuffer, readout_window
+from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
+from .gyro_check import GyroMountCheck
+from .tracker import RSTracker, TrackerOptions
 
 __all__ = [
+    "FRONTEND_FAILURES",
     "MAX_PENDING",
+    "MAX_STAMP_NS",
     "FusedPose",
     "GyroSettings",
     "SequenceFrame",
@@ -76,6 +92,37 @@ __all__ = [
 
 #: frames whose fused twist may wait at most (the oldest beyond are dropped)
 MAX_PENDING = 64
+#: the largest stamp (ns) a frame or a gyro sample may carry: an int64 nanosecond count
+MAX_STAMP_NS = 2**63 - 1
+#: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
+#: (:attr:`SequenceOutput.failure`): the front end raised, or found fewer correspondences
+#: than the solver needs
+FRONTEND_FAILURES = ("frontend_error", "frontend_too_few_points")
+
+
+def checked_stamp(stamp_ns: Any, what: str = "frame") -> int:
+    """``stamp_ns`` (ns) as an int (a float is truncated, as ``int`` does), checked.
+
+    Raises:
+        ValueError: a stamp that is not a finite number, or outside the int64 nanosecond
+            range ``[-2**63, 2**63 - 1]`` (:data:`MAX_STAMP_NS`, about the year 2262): no
+            ROS message, bag or clock carries it (e.g. a stamp in ns converted twice).
+    """
+    if isinstance(stamp_ns, (int, np.integer)) and not isinstance(stamp_ns, (bool, np.bool_)):
+        value = int(stamp_ns)
+    else:
+        try:
+            f = float(stamp_ns)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} stamp must be a number of ns, got {stamp_ns!r}") from None
+        if not np.isfinite(f):
+            raise ValueError(f"{what} stamp must be finite, got {stamp_ns!r}")
+        value = int(f)
+    if not -MAX_STAMP_NS - 1 <= value <= MAX_STAMP_NS:
+        raise ValueError(
+            f"{what} stamp {stamp_ns!r} ns is beyond the int64 range [-2**63, 2**63 - 1] ns"
+        )
+    return value
 
 
 @dataclass(frozen=True)
@@ -117,10 +164,16 @@ class SequenceSettings:
         options: the estimator's :class:`~rs_localizer.estimation.estimate.EstimateOptions`
             (None: the defaults).
         tracking: the video tracker's
-            :class:`~rs_localizer.estimation.tracker.TrackerOptions`; None: every frame alone.
+            :class:`~rs_localizer.tracking.tracker.TrackerOptions`; None: every frame alone.
         imu: how the gyro is used (:class:`GyroSettings`); None: no gyro.
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
-        time_reset_ns: a forward stamp jump larger than this (ns) is a time reset.
+        time_reset_ns: a forward stamp jump larger than this (ns) is a time reset (the gyro's
+            timeline starts again). The track itself is reset after ``tracking.max_gap`` s,
+            and the front end of :meth:`SequenceLocalizer.process_image` is given that same
+            gap (its own prediction is not trusted over a longer one).
+        max_points: the most rows a frame of :meth:`SequenceLocalizer.process_image` gives
+            the estimator (spread over the image, :func:`~rs_localizer.estimation.points.
+            cap_points`; also :meth:`SequenceLocalizer.valid_rows`); None: no cap.
         check_gyro: check the gyro against the rotation between solved frames and solve
             without it while they disagree (the node always does; off only to show what the
             check prevents).
@@ -133,6 +186,7 @@ class SequenceSettings:
     stamp_row: float = 0.0
     time_reset_ns: int = 10**9
     check_gyro: bool = True
+    max_points: int | None = None
 
 
 @dataclass(frozen=True)
@@ -145,6 +199,11 @@ class SequenceFrame:
         points2d: (N, 2) px, distorted image points; points3d: (N, 3) m, world points.
         scores: (N,) match quality (higher is better) or None.
         tag: anything the caller wants back with the frame's fused twist (e.g. its frame id).
+
+    Raises:
+        ValueError: a stamp that is not a finite number within the int64 nanosecond range
+            (:func:`checked_stamp`). TypeError: a ``camera`` that is not a
+            :class:`~rs_localizer.camera.CameraModel`.
     """
 
     stamp_ns: int
@@ -153,6 +212,18 @@ class SequenceFrame:
     points3d: np.ndarray
     scores: np.ndarray | None = None
     tag: Any = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
+        _check_camera(self.camera)
+
+
+def _check_camera(camera: Any) -> None:
+    if not isinstance(camera, CameraModel):
+        raise TypeError(
+            f"a frame needs a CameraModel (with its rolling-shutter timing), got "
+            f"{type(camera).__name__}"
+        )
 
 
 @dataclass(frozen=True)
@@ -239,13 +310,22 @@ class SequenceOutput:
             final now, oldest first (also after a failed frame).
         new_track: the frame started a track (first frame, reset, new tracker).
         path: the tracker's path for the frame (``cold``, ``tracked``, ``relocalized``,
-            ``reset``: :data:`~rs_localizer.estimation.tracker.STATES`); None without tracking.
+            ``reset``: :data:`~rs_localizer.tracking.tracker.STATES`); None without tracking.
         gyro: the gyro measurement the frame was solved with, or None.
         error: ``"<exception type>: <message>"`` when the estimator raised, else None.
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
         compiled: the frame was solved with the compiled kernels; False: alone (no tracker,
             no gyro) on the uncompiled path, while they compile in the background
             (:mod:`rs_localizer.runtime.background`).
+        failure, detail: an image frame (:meth:`SequenceLocalizer.process_image`) dropped
+            before the estimator: ``frontend_error`` (the front end raised) or
+            ``frontend_too_few_points`` (fewer correspondences than the solver needs), with
+            the text; else None and "".
+        correspondences: what the front end made of the image (before non-finite rows are
+            dropped and the cap), or None (no image, or the front end raised).
+        points2d, points3d: (M, 2) px and (M, 3) m, the rows the estimator was given (after
+            :meth:`SequenceLocalizer.valid_rows`); None when it did not run.
+        frontend_seconds: s spent in the front end.
     """
 
     estimate: RSPoseEstimate | None = None
@@ -258,6 +338,12 @@ class SequenceOutput:
     error: str | None = None
     gyro_seconds: float = 0.0
     compiled: bool = True
+    failure: str | None = None
+    detail: str = ""
+    correspondences: Correspondences | None = None
+    points2d: np.ndarray | None = None
+    points3d: np.ndarray | None = None
+    frontend_seconds: float = 0.0
 
 
 def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
@@ -303,6 +389,16 @@ class SequenceLocalizer:
         stopped: ``stopped()`` true ends a frame's wait for its gyro samples (shutdown).
         imu_span: s of gyro samples kept (default ``imu.buffer``; ``inf`` when every sample is
             added before the frames, e.g. a bag replayed offline).
+        frontend: the image front end of :meth:`process_image` (any
+            :class:`~rs_localizer.correspondences.Frontend`; see :meth:`set_frontend`), or
+            None; frontend_name: its name in warnings and errors (e.g. ``aruco``).
+        implementation: ``implementation(solver)`` names the estimator implementation a frame
+            runs on, ``"compiled"`` or ``"numpy"``
+            (:mod:`rs_localizer.estimation.implementation`), asked once per frame. Default:
+            the compiled kernels wherever numba works. A node whose kernels compile in the
+            background passes :func:`rs_localizer.runtime.background.ready_implementation`:
+            its frames are solved alone on the NumPy implementation (no tracker, no gyro)
+            until the kernels are ready.
 
     Threads: :meth:`process` on one thread at a time; :meth:`add_imu`, :meth:`flush_idle`
     and the read-outs from others.
@@ -316,8 +412,12 @@ class SequenceLocalizer:
         count: Callable[[str, int], None] | None = None,
         stopped: Callable[[], bool] = lambda: False,
         imu_span: float | None = None,
+        frontend: Any = None,
+        frontend_name: str = "frontend",
+        implementation: Callable[[str], str] = default_implementation,
     ):
         self.log = log if log is not None else _Silent()
+        self._implementation = implementation
         self.counts: Counter = Counter()
         self._count = count if count is not None else self._count_here
         self._stopped = stopped
@@ -339,7 +439,10 @@ class SequenceLocalizer:
         self._bias_key = None
         self.gyro_check: GyroMountCheck | None = None
         self._check_key = None
+        self._frontend: VideoFrontend | None = None
+        self.frontend_name = frontend_name
         self.configure(settings or SequenceSettings())
+        self.set_frontend(frontend, frontend_name)
 
     def _count_here(self, key: str, n: int = 1) -> None:
         self.counts[key] += n
@@ -446,12 +549,18 @@ class SequenceLocalizer:
     def add_imu(self, stamp_ns: int, rate: Any) -> str | None:
         """Buffer a gyro sample (``stamp_ns`` IMU clock, ``rate`` (3,) rad/s, IMU frame).
         Returns None, or why it was rejected: ``disabled`` (no gyro in the settings) or the
-        reasons of :meth:`~rs_localizer.estimation.gyro.ImuBuffer.add` (a stamp going back or
-        repeated, NaN or saturated rates)."""
+        reasons of :meth:`~rs_localizer.tracking.gyro.ImuBuffer.add` (a stamp going back or
+        repeated, NaN or saturated rates).
+
+        Raises:
+            ValueError: a stamp that is not a finite number within the int64 nanosecond
+                range (:func:`checked_stamp`).
+        """
+        stamp = checked_stamp(stamp_ns, "IMU")
         buf = self.imu
         if buf is None:
             return "disabled"
-        return buf.add(stamp_ns, rate)
+        return buf.add(stamp, rate)
 
     def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
         """The gyro measurement of the frame's readout (waiting up to ``imu.wait`` for the
@@ -549,8 +658,12 @@ class SequenceLocalizer:
         timeline's) are dropped, on a jump forward those older than the previous frame; the
         bias estimator's and the gyro check's pairing restart. (The tracker resets itself on
         the same stamps.) :meth:`process` calls it; calling it first for the same stamp (to
-        act on a reset before the frame is decoded) does not count it twice."""
-        stamp = int(stamp_ns)
+        act on a reset before the frame is decoded) does not count it twice.
+
+        Raises:
+            ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
+        """
+        stamp = checked_stamp(stamp_ns)
         last, self._last_stamp = self._last_stamp, stamp
         if last is None:
             return None
@@ -581,6 +694,115 @@ class SequenceLocalizer:
             if self.gyro_bias is not None:
                 self.gyro_bias.restart()
 
+    # ---------------------------------------------------------------- images
+    @property
+    def frontend(self) -> VideoFrontend | None:
+        """The image front end of :meth:`process_image` (None: none)."""
+        return self._frontend
+
+    def set_frontend(self, frontend: Any, name: str | None = None) -> None:
+        """Use ``frontend`` for the images from the next one on (None: none): a
+        :class:`~rs_localizer.correspondences.VideoFrontend` as it is, a per-image
+        :class:`~rs_localizer.correspondences.Frontend` wrapped
+        (:func:`~rs_localizer.correspondences.video_frontend`); ``name``: its name in
+        warnings and errors (None: unchanged).
+
+        Raises:
+            TypeError: an object without ``process``.
+        """
+        self._frontend = None if frontend is None else video_frontend(frontend)
+        if name is not None:
+            self.frontend_name = name
+
+    def valid_rows(
+        self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without
+        those holding a NaN or inf (counted as ``points_dropped``; before the cap, so that the
+        cap keeps valid rows), then capped to ``max_points`` (counted as ``capped_clouds``,
+        ``capped_points``; :func:`~rs_localizer.estimation.points.cap_points`)."""
+        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+        n_bad = len(uv) - int(np.count_nonzero(good))
+        if n_bad:
+            self._count("points_dropped", n_bad)
+            uv, xyz = uv[good], xyz[good]
+            scores = None if scores is None else scores[good]
+        cap = self.settings.max_points
+        if cap is not None and len(uv) > cap:
+            self._count("capped_clouds", 1)
+            self._count("capped_points", len(uv) - cap)
+            self.log.warning("capped", f"cloud of {len(uv)} points capped to max_points {cap}")
+            uv, xyz, scores = cap_points(uv, xyz, scores, cap)
+        return uv, xyz, scores
+
+    def process_image(
+        self,
+        stamp_ns: int,
+        image: np.ndarray,
+        camera: CameraModel,
+        encoding: str = "bgr8",
+        tag: Any = None,
+    ) -> SequenceOutput:
+        """Localize one image of the video: the front end's correspondences
+        (``frontend.process(image, camera, encoding, stamp_ns)``, its one-time warning
+        logged), the rows the estimator can use (:meth:`valid_rows`), :meth:`process`, then
+        the front end told how the frame was solved (``frontend.observe``; an error there is
+        logged, the frame goes on). The calls are those of
+        :class:`~rs_localizer.correspondences.VideoFrontend`.
+
+        Args:
+            stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``.
+            image: (H, W) or (H, W, C) uint8 in ``encoding`` (``bgr8``, ``rgb8``, ``mono8``,
+                ...).
+            camera: the frame's :class:`~rs_localizer.camera.CameraModel` with its
+                rolling-shutter timing.
+            tag: as :attr:`SequenceFrame.tag`.
+
+        Returns:
+            :class:`SequenceOutput`; a frame dropped before the estimator has ``failure``
+            (``frontend_error``, ``frontend_too_few_points``) and ``detail``.
+
+        Raises:
+            ValueError: no front end (:meth:`set_frontend`), or a stamp beyond the int64
+                nanosecond range (:func:`checked_stamp`). TypeError: ``camera`` is not a
+                :class:`~rs_localizer.camera.CameraModel`.
+        """
+        stamp = checked_stamp(stamp_ns)
+        _check_camera(camera)
+        fe, name = self._frontend, self.frontend_name
+        if fe is None:
+            raise ValueError("process_image needs a front end (set_frontend)")
+        self.check_time(stamp)
+        s = self.settings
+        out = SequenceOutput(stamp_ns=reference_stamp_ns(stamp, camera, s.stamp_row))
+        t0 = time.perf_counter()
+        try:
+            found = Correspondences.of(fe.process(image, camera, encoding=encoding, stamp_ns=stamp))
+        except Exception as e:
+            out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"
+            return out
+        out.frontend_seconds = time.perf_counter() - t0
+        out.correspondences = found
+        text = fe.pop_warning()
+        if text:
+            self.log.warning(f"{name}.warning", text)
+        uv, xyz, scores = found.pixels, found.points, found.valid_scores()
+        need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
+        if len(uv) < need:
+            what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
+            out.failure = FRONTEND_FAILURES[1]
+            out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
+            return out
+        uv, xyz, scores = self.valid_rows(uv, xyz, scores)
+        res = self.process(SequenceFrame(stamp, camera, uv, xyz, scores, tag))
+        try:
+            fe.observe(stamp, uv, res.estimate)
+        except Exception as e:
+            self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
+        res.correspondences, res.frontend_seconds = found, out.frontend_seconds
+        res.points2d, res.points3d = uv, xyz
+        return res
+
     # ---------------------------------------------------------------- frames
     def process(self, frame: SequenceFrame) -> SequenceOutput:
         """Estimate one frame (its gyro measurement from the buffered samples, the tracker's
@@ -595,8 +817,8 @@ class SequenceLocalizer:
         out = SequenceOutput(stamp_ns=ref)
         # (while the kernels compile in the background: every frame alone, without the gyro,
         # on the NumPy implementation; runtime.background)
-        impl = ready_implementation(s.solver)
-        out.compiled = compiled = impl == "compiled"
+        impl = self._implementation(s.solver)
+        out.compiled = compiled = impl == COMPILED
         t0 = time.perf_counter()
         out.gyro = gyro = self._gyro_for(stamp, camera) if compiled else None
         out.gyro_seconds = time.perf_counter() - t0

@@ -13,8 +13,6 @@ from rs_localizer.estimation import (
     MotionPrior,
     RansacOptions,
     estimate_rs_pose,
-    gyro_measurement,
-    readout_window,
 )
 from rs_localizer.estimation.frame import configure_frame, prepare_frame
 from rs_localizer.estimation.gyro import GYRO_CHI2_THRESHOLD, gyro_consistency, gyro_prior
@@ -28,6 +26,7 @@ from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.gyro import R_WRONG, simulated_gyro
 from rs_localizer.sim.planar import make_planar_frame
 from rs_localizer.sim.trajectory import R_IMU_CAMERA
+from rs_localizer.tracking.gyro import gyro_measurement, readout_window
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
 
@@ -248,7 +247,7 @@ def test_global_shutter_solver_ignores_the_gyro():
 
 
 def test_imu_buffer_rejects_bad_samples_and_keeps_its_span():
-    from rs_localizer.estimation.gyro import ImuBuffer
+    from rs_localizer.tracking.gyro import ImuBuffer
 
     buf = ImuBuffer(span=0.1, max_rate=10.0, max_gap=0.02)
     assert buf.add(1_000_000_000, [0.1, 0.2, 0.3]) is None
@@ -268,7 +267,7 @@ def test_imu_buffer_measurement_and_its_reasons():
     import threading
     import time
 
-    from rs_localizer.estimation.gyro import ImuBuffer
+    from rs_localizer.tracking.gyro import ImuBuffer
 
     R = rotvec_to_matrix(np.array([0.2, 0.1, -0.4]))
     bias = np.array([0.01, 0.0, -0.02])

@@ -7,7 +7,7 @@ real IMU stream goes wrong: spikes of +-30 rad/s on a few samples (under ``imu.m
 garbage rates under that bound, a bias offset far beyond the stated uncertainty, samples
 stamped far in the future or the past, dropouts, a wrong mount, a wrong time offset, a time
 reset of the IMU clock. Each frame is solved with the gyro measurement the
-:class:`~rs_localizer.estimation.gyro.ImuBuffer` gives for its readout and without any gyro;
+:class:`~rs_localizer.tracking.gyro.ImuBuffer` gives for its readout and without any gyro;
 per frame, the aided pose's rotation and position errors against the ground truth must not
 exceed the unaided one's by more than 1.2x (plus the noise floor :data:`ROT_FLOOR_DEG`,
 :data:`POS_FLOOR_M`: on a clean frame both are a few hundredths of a degree, and a right gyro
@@ -21,11 +21,6 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose
-from rs_localizer.estimation.gyro import (
-    GYRO_MISSING_REASONS,
-    IMU_SAMPLE_REJECTIONS,
-    ImuBuffer,
-)
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.gyro import NOISE, RATE_HZ
 from rs_localizer.sim.trajectory import (
@@ -34,6 +29,11 @@ from rs_localizer.sim.trajectory import (
     generate_sequence,
     imu_samples,
     make_trajectory,
+)
+from rs_localizer.tracking.gyro import (
+    GYRO_MISSING_REASONS,
+    IMU_SAMPLE_REJECTIONS,
+    ImuBuffer,
 )
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0))

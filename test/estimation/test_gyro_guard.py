@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose
-from rs_localizer.estimation.gyro import GyroMeasurement, gyro_image_chi2, gyro_measurement
+from rs_localizer.estimation.gyro import GyroMeasurement, gyro_image_chi2
 from rs_localizer.estimation.result import GYRO_REJECTIONS
 from rs_localizer.sim.gyro import simulated_gyro
 from rs_localizer.sim.planar import make_planar_frame
+from rs_localizer.tracking.gyro import gyro_measurement
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0, min_inliers=12))
 

@@ -113,7 +113,7 @@ def test_replay_of_a_rendered_video_tracks(tmp_path):
         source="image",
         progress=None,
     )
-    fe = res.config.frontend
+    fe = res.maps.frontend
     assert isinstance(fe, TrackingFeatureFrontend)
     assert res.solved == len(res.rows) == 8
     assert fe.counts == {"global": 1, "tracked": 7}

@@ -16,6 +16,7 @@ from rs_localizer.estimation.points import cap_points, capped_rows
 from rs_localizer.ros import params as P
 from rs_localizer.ros.camera_info_history import CameraInfoHistory, calibration_key
 from rs_localizer.ros.frame_queue import FrameQueue
+from rs_localizer.ros.maps import load_maps
 
 ROS_FREE = (
     "rs_localizer.ros.params",
@@ -125,14 +126,15 @@ def test_values_are_checked_as_ros_does(name, value, message):
 def test_invalid_configurations_raise_with_the_parameter_named(changes, message):
     """The configuration (or, for the map files, loading its maps) names the parameter."""
     with pytest.raises(P.ConfigError, match=message):
-        P.load_maps(P.build_config({**P.default_values(), **changes}))
+        load_maps(P.build_config({**P.default_values(), **changes}))
 
 
 def test_config_from_the_defaults():
     cfg = P.build_config(P.default_values())
     assert cfg.solver == "r6p_1lin" and cfg.tracking.fusion.lag == 1
     assert cfg.options == P.estimate_options(P.default_values())
-    assert cfg.reference_row is None and cfg.fallback is None and cfg.frontend is None
+    assert cfg.reference_row is None and cfg.fallback is None and cfg.frontend_kind == "none"
+    assert load_maps(cfg).frontend is None and load_maps(cfg).landmarks is None
     assert cfg.time_reset_ns == 1_000_000_000 and cfg.min_points == 12
     off = P.build_config({**P.default_values(), "tracking.enabled": False})
     assert off.tracking is None
@@ -359,17 +361,15 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
         rng.normal(size=(20, 3)), rng.random((20, 128), np.float32), np.arange(20), "sift"
     ).save(tmp_path / "features.npz")
     owner = object()
-    cfg = P.load_maps(
-        P.build_config(
-            {
-                **P.default_values(),
-                "camera_info_wait": 0.0,
-                "frontend": "features",
-                "frontend_map": str(fmap),
-            }
-        ),
-        owner=owner,
+    cfg = P.build_config(
+        {
+            **P.default_values(),
+            "camera_info_wait": 0.0,
+            "frontend": "features",
+            "frontend_map": str(fmap),
+        }
     )
+    maps = load_maps(cfg, owner=owner)
     warned = []
 
     class Log:
@@ -382,14 +382,14 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
         def error(self, text):
             pass
 
-    pipe = FramePipeline(cfg, log=Log())
+    pipe = FramePipeline(cfg, log=Log(), maps=maps)
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     texture = rng.integers(0, 256, (cam.height // 4, cam.width // 4), np.uint8)
     img = cv2.resize(texture, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
     for k in range(3):
         res = pipe.process(msgs.image(img, (k + 1) * 10**8, "cam"), "image")
         assert res.failure == "frontend_too_few_points"
-    assert cfg.frontend.few_match_frames == 3
+    assert maps.frontend.few_match_frames == 3
     assert len([w for w in warned if "frontend_few_match_frames" in w]) == 1
     SHARED_MAPS.release(owner)
 

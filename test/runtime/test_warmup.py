@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = r"""
 import json, sys
 from numba.core.registry import CPUDispatcher
-from rs_localizer.ros.params import build_config, load_maps
+from rs_localizer.ros.params import build_config
 from rs_localizer.ros.pipeline import log_warm_up
 from rs_localizer.ros.bags.replay import replay, replay_parameters
 
@@ -52,7 +52,7 @@ solved = {}
 for bag, source, files, params in runs:
     if before is None:  # the node's warm-up, for the configuration of the first run
         values, _ = replay_parameters(bag, files, params, source)
-        cfg = load_maps(build_config(values), owner=object())
+        cfg = build_config(values)
         assert cfg.tracking is not None, "the default node tracks"
         log_warm_up(cfg.solver, cfg.options, cfg.tracking, Log())
         before = signatures()
@@ -113,9 +113,10 @@ def test_late_warm_up_makes_the_signatures_the_estimator_uses():
 
     from numba.core.registry import CPUDispatcher
 
-    from rs_localizer.estimation import fusion, prior, refine, scoring
-    from rs_localizer.estimation.tracker import TrackerOptions
+    from rs_localizer.estimation import prior, refine, scoring
     from rs_localizer.runtime.warmup import fused_cached, split_batch, warm_late, warm_up
+    from rs_localizer.tracking import fusion
+    from rs_localizer.tracking.tracker import TrackerOptions
 
     warm_up("r6p_1lin", tracking=TrackerOptions())
     solvers = [
@@ -165,8 +166,8 @@ def test_second_compiling_process_uses_this_package(tmp_path, monkeypatch):
     """The helper process imports the package this process runs (not a copy in the working
     directory), finds the kernels in the same cache (the cold batch included: it goes on to
     the tracker's videos and ends) and reports what it compiled."""
-    from rs_localizer.estimation.tracker import TrackerOptions
     from rs_localizer.runtime.warmup import _SecondProcess, warm_late
+    from rs_localizer.tracking.tracker import TrackerOptions
 
     warm_late("r6p_1lin", tracking=TrackerOptions())  # (cached: the helper only loads)
     decoy = tmp_path / "rs_localizer"

@@ -3,13 +3,14 @@ typed domain objects (rs_localizer.pose, rs_localizer.correspondences): a synthe
 against its ground truth and against the tracker driven directly, the gyro's timeline across a
 time reset, and the pose conversions against the estimator's own."""
 
+from typing import ClassVar
+
 import numpy as np
 import pytest
 
 from rs_localizer.correspondences import Correspondences, Frontend, TrackingFrontend
 from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, RansacOptions
 from rs_localizer.estimation.result import physical_velocities
-from rs_localizer.estimation.tracker import RSTracker, model_from_state
 from rs_localizer.frames import Extrinsic, camera_to_base
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSModel, RSPose
@@ -20,6 +21,7 @@ from rs_localizer.tracking.sequence import (
     SequenceLocalizer,
     SequenceSettings,
 )
+from rs_localizer.tracking.tracker import RSTracker, model_from_state
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0))
 
@@ -258,3 +260,95 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
     assert max(err(x.state.angular_velocity, x.stamp_ns) for x in refused) > 0.5
     worst_own = max(err(e.angular_velocity, s) for s, e in own.items())
     assert max(err(x.angular_velocity, x.stamp_ns) for x in fused) <= worst_own
+
+
+def test_stamps_beyond_int64_and_a_missing_camera_are_refused(video):
+    """A frame stamp up to 2**63 - 1 ns is taken; one beyond (5e19 ns, 2**63) or an IMU stamp
+    of 2**70 raises ValueError naming the int64 range, and a frame without a camera model a
+    TypeError, before anything is solved or buffered."""
+    frames, cam = video
+    f = frames[0]
+    assert SequenceFrame(2**63 - 1, cam, f.uv, f.xyz).stamp_ns == 2**63 - 1
+    for bad in (5e19, 2**63, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="stamp"):
+            SequenceFrame(bad, cam, f.uv, f.xyz)
+    with pytest.raises(TypeError, match="CameraModel"):
+        SequenceFrame(f.stamp_ns, None, f.uv, f.xyz)
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, imu=GyroSettings()))
+    with pytest.raises(ValueError, match="int64"):
+        seq.add_imu(2**70, (0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="int64"):
+        seq.check_time(5 * 10**19)
+    with pytest.raises(TypeError, match="CameraModel"):
+        seq.process_image(f.stamp_ns, np.zeros((4, 4), np.uint8), None)
+    assert len(seq.imu) == 0 and seq.counts == {}
+    out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+    assert out.estimate.success  # (the refused inputs left no trace)
+
+
+def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
+    """process_image runs the front end (the stamp passed to a VideoFrontend, not to a
+    per-image Frontend), solves its rows as process does, tells the front end the estimate
+    and logs its one-time warning; a front end that raises or finds too few points drops the
+    frame with the reason."""
+    frames, cam = video
+    image = np.zeros((cam.height, cam.width), np.uint8)
+
+    class PerImage:  # (the Frontend protocol only)
+        def __init__(self):
+            self.frame = None
+
+        def process(self, image, camera=None, encoding="bgr8"):
+            return Correspondences(self.frame.uv, self.frame.xyz)
+
+    class Video(PerImage):
+        seen: ClassVar[list] = []
+
+        def process(self, image, camera=None, encoding="bgr8", stamp_ns=None):
+            assert stamp_ns == self.frame.stamp_ns and camera is cam
+            return super().process(image, camera, encoding)
+
+        def observe(self, stamp_ns, pixels, estimate):
+            self.seen.append((stamp_ns, len(pixels), estimate.success))
+
+        def pop_warning(self):
+            return "once" if not self.seen else None
+
+    warnings = []
+
+    class Log:
+        def info(self, text):
+            pass
+
+        def warning(self, key, text, count=0):
+            warnings.append((key, text))
+
+    for fe in (PerImage(), Video()):
+        seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=fe, log=Log())
+        ref = SequenceLocalizer(SequenceSettings(options=OPTS))
+        for f in frames[:4]:
+            fe.frame = f
+            out = seq.process_image(f.stamp_ns, image, cam, "mono8")
+            want = ref.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
+            assert out.failure is None and len(out.correspondences) == len(f.uv)
+            np.testing.assert_array_equal(out.estimate.orientation, want.orientation)
+            np.testing.assert_array_equal(out.estimate.position, want.position)
+            assert rotation_angle_deg(out.estimate.orientation, f.orientation) < 0.2
+    assert [s[0] for s in Video.seen] == [f.stamp_ns for f in frames[:4]]
+    assert all(ok for _, _, ok in Video.seen) and warnings == [("frontend.warning", "once")]
+    fe = Video()
+    fe.frame = frames[4]
+    few = type(frames[4])(**{**vars(frames[4]), "uv": frames[4].uv[:5], "xyz": frames[4].xyz[:5]})
+    fe.frame = few
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=fe, frontend_name="aruco")
+    out = seq.process_image(few.stamp_ns, image, cam)
+    assert out.failure == "frontend_too_few_points" and out.estimate is None
+    assert out.detail == "aruco front end found 1 markers: 5 correspondences, 12 needed"
+
+    class Broken(PerImage):
+        def process(self, image, camera=None, encoding="bgr8"):
+            raise RuntimeError("no image")
+
+    seq.set_frontend(Broken(), "board")
+    out = seq.process_image(few.stamp_ns + 1, image, cam)
+    assert out.failure == "frontend_error" and out.detail == "board: RuntimeError: no image"

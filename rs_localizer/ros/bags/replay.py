@@ -30,12 +30,12 @@ import numpy as np
 from ...accuracy import GroundTruth, frame_errors, summarize_errors
 from ...frontends.shared import SHARED_MAPS
 from .. import conversions as cv
+from ..maps import LoadedMaps, load_maps
 from ..outputs import frame_messages, fused_messages
 from ..params import (
     LocalizerConfig,
     build_config,
     default_timing_note,
-    load_maps,
     parameter_values,
     read_params_file,
 )
@@ -76,12 +76,12 @@ class ReplayResult:
     """Outcome of :func:`replay`: ``rows`` (one dict per frame, the CSV's columns),
     ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
     of the published pose and twist), ``failures`` (reason -> frames), the files written, the
-    configuration and parameter values used, and the pipeline's counters (``counts``: e.g.
-    ``frames_with_gyro``, ``gyro_rejected``, ``gyro_disabled_inconsistent``,
-    ``gyro_missing.<reason>``, as in the node's
-    diagnostics), ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the
-    last frame used, the online estimate with ``imu.estimate_bias``; None without
-    ``imu.enabled``)."""
+    configuration and parameter values used, the maps loaded for it (``maps``: the landmarks
+    and the front end, :class:`~rs_localizer.ros.maps.LoadedMaps`), and the pipeline's
+    counters (``counts``: e.g. ``frames_with_gyro``, ``gyro_rejected``,
+    ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the node's diagnostics),
+    ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used,
+    the online estimate with ``imu.estimate_bias``; None without ``imu.enabled``)."""
 
     rows: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
@@ -89,6 +89,7 @@ class ReplayResult:
     out_bag: Path | None = None
     out_csv: Path | None = None
     config: LocalizerConfig | None = None
+    maps: LoadedMaps | None = None
     parameters: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
     gyro_bias: np.ndarray | None = None
@@ -212,7 +213,7 @@ def replay(
     path = Path(path)
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
-    values, cfg, source = _replay_config(path, params_files, params, source)
+    values, cfg, maps, source = _replay_config(path, params_files, params, source)
     ts = typestore()
     topics = bag_topics(path)
     frame_topic, info_topic, viz_topic, imu_topic = _replay_topics(
@@ -223,7 +224,7 @@ def replay(
         cfg = dataclasses.replace(cfg, imu=dataclasses.replace(cfg.imu, wait=0.0))
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
-    result = ReplayResult(config=cfg, parameters=values)
+    result = ReplayResult(config=cfg, maps=maps, parameters=values)
     note = default_timing_note(cfg)  # (set by neither the parameters nor sequence.json)
     if note is not None:
         result.notes.append(note)
@@ -233,7 +234,7 @@ def replay(
         result.out_bag = Path(out_bag)
     viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
     rows = _Rows(gt)
-    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf)
+    pipeline = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
     _run_frames(
         path,
         ts,
@@ -254,8 +255,8 @@ def replay(
 
 def _replay_config(
     path: Path, params_files, params, source: str | None
-) -> tuple[dict[str, Any], LocalizerConfig, str]:
-    """Stage 1 of :func:`replay`: ``(parameter values, configuration with its maps loaded,
+) -> tuple[dict[str, Any], LocalizerConfig, LoadedMaps, str]:
+    """Stage 1 of :func:`replay`: ``(parameter values, configuration, its maps loaded,
     source)``; ``source`` None becomes ``image`` with a front end, else ``correspondences``.
 
     Raises:
@@ -264,16 +265,17 @@ def _replay_config(
     values, _ = replay_parameters(path, params_files, params, source)
     token = object()
     try:
-        cfg = load_maps(build_config(values), owner=token)
+        cfg = build_config(values)
+        maps = load_maps(cfg, owner=token)
     finally:
-        SHARED_MAPS.release(token)  # (the configuration keeps what it loaded)
+        SHARED_MAPS.release(token)  # (maps keeps what it loaded)
     if source is None:
-        source = "image" if cfg.frontend is not None else "correspondences"
-    if source == "image" and cfg.frontend is None:
+        source = "image" if maps.frontend is not None else "correspondences"
+    if source == "image" and maps.frontend is None:
         raise ValueError("--source image needs a front end (the frontend parameter is none)")
     # (offline every camera_info before a frame has been read: no waiting)
     cfg = dataclasses.replace(cfg, camera_info_wait=0.0)
-    return values, cfg, source
+    return values, cfg, maps, source
 
 
 def _replay_topics(

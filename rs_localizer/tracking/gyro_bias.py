@@ -28,7 +28,7 @@ walk, initialized from a prior such as the node's ``imu.gyro_bias`` and
   used (``rejected``: a pose or a gyro sample that is wrong); the later frame starts the next
   pair.
 
-Why a separate filter and not bias states in :class:`~rs_localizer.estimation.fusion.
+Why a separate filter and not bias states in :class:`~rs_localizer.tracking.fusion.
 TwistFilter`: the smoother's measurements are the per-frame estimates, which already contain
 the gyro (``estimate_rs_pose(..., gyro=...)`` is maximum a posteriori with it); a bias state
 there would count the gyro twice, and the smoother is restarted on every gated measurement,
@@ -58,8 +58,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..estimation.gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
-from .gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement, ImuBuffer
+from .gyro import ImuBuffer
 
 __all__ = [
     "BIAS_UPDATE_OUTCOMES",
@@ -119,7 +120,7 @@ def checked_mount(
     R_cam_imu: ArrayLike, noise: float, time_offset: float
 ) -> tuple[np.ndarray, float, float]:
     """The gyro's mounting and noise as :class:`GyroBiasEstimator` and
-    :class:`~rs_localizer.estimation.gyro_check.GyroMountCheck` take them: ``(R_cam_imu (3, 3)
+    :class:`~rs_localizer.tracking.gyro_check.GyroMountCheck` take them: ``(R_cam_imu (3, 3)
     float, noise rad/s per sample, time_offset s)``.
 
     Raises:
@@ -312,7 +313,7 @@ class GyroBiasEstimator:
         self, buffer: ImuBuffer, window_ns: tuple[int, int], bias_sigma: float = 0.0
     ) -> tuple[GyroMeasurement | None, str]:
         """A readout's gyro measurement with the current bias estimate and its covariance
-        (:meth:`~rs_localizer.estimation.gyro.ImuBuffer.measurement`; ``bias_sigma`` rad/s is
+        (:meth:`~rs_localizer.tracking.gyro.ImuBuffer.measurement`; ``bias_sigma`` rad/s is
         added per axis). ``window_ns``: the readout's first and last line (camera clock, ns).
         Returns ``(measurement, "")`` or ``(None, reason)``."""
         return buffer.measurement(
@@ -340,7 +341,7 @@ class GyroBiasEstimator:
             orientation: (3, 3) camera -> world at that time.
             rotation_covariance: (3, 3) covariance of the orientation (rad^2, world axes;
                 ``RSPoseEstimate.covariance[:3, :3]``).
-            buffer: the IMU's samples (:class:`~rs_localizer.estimation.gyro.ImuBuffer`).
+            buffer: the IMU's samples (:class:`~rs_localizer.tracking.gyro.ImuBuffer`).
         Returns:
             the outcome, one of :data:`BIAS_UPDATE_OUTCOMES` (also counted in ``counts``).
         """

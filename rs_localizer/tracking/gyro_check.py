@@ -5,7 +5,7 @@ image's angular velocity; on planar scenes one frame barely determines the angul
 a gyro mounted 90 deg off passes it and pulls every frame's estimate. The rotation between two
 solved frames is well determined even there: :class:`GyroMountCheck` compares it with the
 gyro's rotation integrated over the same interval (the measurement of
-:class:`~rs_localizer.estimation.gyro_bias.GyroBiasEstimator`, :func:`~rs_localizer.estimation.
+:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, :func:`~rs_localizer.estimation.
 gyro_bias.pair_innovation`) and keeps the outcome of the last ``window`` pairs:
 
 * a pair **fails** when its normalized innovation squared exceeds the chi-square threshold
@@ -48,8 +48,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..estimation.gyro import GYRO_CHI2_THRESHOLD
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
-from .gyro import GYRO_CHI2_THRESHOLD, ImuBuffer
+from .gyro import ImuBuffer
 from .gyro_bias import checked_mount, pair_innovation
 
 __all__ = ["MOUNT_CHECK_OUTCOMES", "GyroMountCheck", "MountCheckOptions"]

@@ -58,8 +58,8 @@ from scipy.stats import chi2
 
 from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
+from ..estimation.prior import MotionPrior, prior_arrays
 from ..pose import RSPose
-from .prior import MotionPrior, prior_arrays
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 

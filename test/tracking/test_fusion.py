@@ -1,4 +1,4 @@
-"""The fused twist (rs_localizer.estimation.fusion.TwistFilter).
+"""The fused twist (rs_localizer.tracking.fusion.TwistFilter).
 
 * On a problem where the error-state filter is exactly linear (rotation about one fixed axis,
   pose measurements), its fixed-lag output equals an independent linear Kalman filter + RTS
@@ -18,10 +18,10 @@ from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
-from rs_localizer.estimation.fusion import FusedState, FusionOptions, TwistFilter
-from rs_localizer.estimation.tracker import RSTracker, TrackerOptions
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
+from rs_localizer.tracking.fusion import FusedState, FusionOptions, TwistFilter
+from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
 
 NS = 1_000_000_000
 
@@ -317,7 +317,7 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
     textbook error-state EKF in NumPy/SciPy: F and H by central differences of the nominal
     models, Q by Van Loan, the covariance-form Kalman update, the correction applied to both
     frames, the output covariances by central differences of (O, p, omega, O^T v)."""
-    from rs_localizer.estimation import fusion as fu
+    from rs_localizer.tracking import fusion as fu
 
     acc = model == "acceleration"
     n = 18 if acc else 12

@@ -1,15 +1,15 @@
 """The check of a gyro against the rotation between solved frames
-(rs_localizer.estimation.gyro_check) on simulated hand-held motion with a known mount: a
+(rs_localizer.tracking.gyro_check) on simulated hand-held motion with a known mount: a
 90 deg wrong mount is detected, a right one with noisy and occasionally wrong poses is not,
 and a mount that becomes right again recovers."""
 
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.gyro import ImuBuffer
-from rs_localizer.estimation.gyro_check import GyroMountCheck, MountCheckOptions
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.trajectory import R_IMU_CAMERA, imu_samples, make_trajectory
+from rs_localizer.tracking.gyro import ImuBuffer
+from rs_localizer.tracking.gyro_check import GyroMountCheck, MountCheckOptions
 
 T0 = 1_000_000_000_000  # ns, the video's start on the camera clock
 NOISE = 0.003

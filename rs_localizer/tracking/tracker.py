@@ -3,7 +3,7 @@ and the fused twist.
 
 Every frame of a video can be solved alone (:func:`estimate_rs_pose`), but the previous frames
 predict the pose to a fraction of a degree. :class:`RSTracker` keeps a
-:class:`~rs_localizer.estimation.fusion.TwistFilter` over the per-frame estimates and, for
+:class:`~rs_localizer.tracking.fusion.TwistFilter` over the per-frame estimates and, for
 each new frame:
 
 1. predicts the pose and twist at the frame's time with the filter's motion model (constant
@@ -31,12 +31,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..camera import CameraModel
+from ..estimation.estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
+from ..estimation.gyro import GyroMeasurement
+from ..estimation.prior import MotionPrior
+from ..estimation.result import TOO_FEW_POINTS
 from ..pose import RSModel
-from .estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
 from .fusion import FusedState, FusionOptions, TwistFilter
-from .gyro import GyroMeasurement
-from .prior import MotionPrior
-from .result import TOO_FEW_POINTS
 
 __all__ = [
     "STATES",
@@ -79,7 +79,7 @@ class TrackerOptions:
             by a few percent and the frame costs ~0.1 ms more) or ``"never"``. The filter takes
             the prior's information out again before fusing.
         prior_inflation: the predicted twist covariance is multiplied by this for the prior.
-        fusion: :class:`~rs_localizer.estimation.fusion.FusionOptions` of the filter (its
+        fusion: :class:`~rs_localizer.tracking.fusion.FusionOptions` of the filter (its
             ``max_gap`` is set to the tracker's).
     """
 
@@ -126,7 +126,7 @@ class TrackResult:
             filter has no state; computed on first access).
         final: fused states that became final with this frame, oldest first (the frame
             ``lag`` frames back; on a reset, the frames still pending). Each is a
-            :class:`~rs_localizer.estimation.fusion.FusedState` whose ``stamp_ns`` names its
+            :class:`~rs_localizer.tracking.fusion.FusedState` whose ``stamp_ns`` names its
             frame.
         predicted: the prediction used (``None`` on cold and reset frames).
         explained: points the prediction explained (-1 without a prediction).

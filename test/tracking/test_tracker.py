@@ -1,4 +1,4 @@
-"""Video tracking (rs_localizer.estimation.tracker.RSTracker) and the estimator's initial-model
+"""Video tracking (rs_localizer.tracking.tracker.RSTracker) and the estimator's initial-model
 hook, against the synthetic sequences' ground truth and the cold estimator."""
 
 from __future__ import annotations
@@ -12,16 +12,16 @@ from rs_localizer.estimation.estimate import (
     RansacOptions,
     estimate_rs_pose,
 )
-from rs_localizer.estimation.fusion import FusionOptions
-from rs_localizer.estimation.tracker import (
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.pose import RSModel
+from rs_localizer.sim.trajectory import SequenceConfig, Teleport, generate_sequence, make_trajectory
+from rs_localizer.tracking.fusion import FusionOptions
+from rs_localizer.tracking.tracker import (
     RSTracker,
     TrackerOptions,
     model_from_state,
     motion_prior_from_state,
 )
-from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.pose import RSModel
-from rs_localizer.sim.trajectory import SequenceConfig, Teleport, generate_sequence, make_trajectory
 
 PERIOD = 1 / 30
 

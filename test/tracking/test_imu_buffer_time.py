@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rs_localizer.estimation.gyro import (
+from rs_localizer.tracking.gyro import (
     IMU_NEW_TIMELINE_SAMPLES,
     IMU_SAMPLE_REJECTIONS,
     ImuBuffer,

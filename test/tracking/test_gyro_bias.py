@@ -1,13 +1,13 @@
-"""Online gyro-bias estimation (rs_localizer.estimation.gyro_bias) against simulated
+"""Online gyro-bias estimation (rs_localizer.tracking.gyro_bias) against simulated
 trajectories with a known bias: the integrated rotation, convergence, outlier pairs, gaps."""
 
 import numpy as np
 import pytest
 
-from rs_localizer.estimation.gyro import ImuBuffer, gyro_measurement
-from rs_localizer.estimation.gyro_bias import GyroBiasEstimator, GyroBiasOptions, integrate_gyro
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import R_IMU_CAMERA, imu_samples, make_trajectory
+from rs_localizer.tracking.gyro import ImuBuffer, gyro_measurement
+from rs_localizer.tracking.gyro_bias import GyroBiasEstimator, GyroBiasOptions, integrate_gyro
 
 T0 = 1_000_000_000_000  # ns, the video's start on the camera clock
 NOISE = 0.003
