@@ -74,3 +74,10 @@ def test_replay_of_images_warns_when_the_line_delay_is_the_default(
     assert err.count("warning: rs.line_delay is the default 30 us/line") == 1, err
     assert cli(["replay", str(bag), "--quiet", "-p", "rs.line_delay:=6.25e-05"]) == 0
     assert "rs.line_delay is the default" not in capsys.readouterr().err
+    # the default value itself, set by the parameters or recorded in sequence.json: no warning
+    assert cli(["replay", str(bag), "--quiet", "-p", "rs.line_delay:=3.0e-05"]) == 0
+    assert "rs.line_delay is the default" not in capsys.readouterr().err
+    info["rs"] = {"line_delay": 3e-05}
+    (bag / "sequence.json").write_text(json.dumps(info))
+    assert cli(["replay", str(bag), "--quiet"]) == 0
+    assert "rs.line_delay is the default" not in capsys.readouterr().err

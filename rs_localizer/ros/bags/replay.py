@@ -143,6 +143,15 @@ def replay_parameters(
     return values, ignored
 
 
+def _timing_given(path: Path, params_files: list, params: Mapping[str, Any] | None) -> bool:
+    """Whether the parameters (files or overrides) or the bag's ``sequence.json`` set the RS
+    timing (``rs.line_delay`` or ``rs.readout_time``)."""
+    given = set(params or {}).union(*(read_params_file(f) for f in params_files))
+    rs = read_bag_info(Path(path)).get("rs", {})
+    from_bag = rs.get("line_delay") is not None or rs.get("readout_time") is not None
+    return bool(given & {"rs.line_delay", "rs.readout_time"}) or from_bag
+
+
 def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, image_topic):
     """The bag topic of the frames for ``source``."""
     if source != "image":
@@ -213,6 +222,7 @@ def replay(
     path = Path(path)
     if path.is_file() and (path.parent / "metadata.yaml").is_file():
         path = path.parent  # BAG/BAG.mcap: the bag directory, with its sequence.json
+    params_files = list(params_files)
     values, cfg, maps, source = _replay_config(path, params_files, params, source)
     ts = typestore()
     topics = bag_topics(path)
@@ -225,7 +235,7 @@ def replay(
     gt = load_ground_truth(path) if GT_POSE in topics else GroundTruth()
     n_frames = _count(path, frame_topic)
     result = ReplayResult(config=cfg, maps=maps, parameters=values)
-    note = default_timing_note(cfg)  # (set by neither the parameters nor sequence.json)
+    note = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
     if note is not None:
         result.notes.append(note)
     writer, conns = None, {}
