@@ -16,12 +16,15 @@ fully visible tags found, corner error against the renderer's exact rolling-shut
 of the mapped corners (median, p90, px; fully visible tags only), and the pose error of the
 package's estimator (``r6p_1lin``, per frame, the true marker map) against the truth (rotation
 deg, position cm; median over the frames posed). Then false markers: the same room with its
-tags removed (textured walls only), ``--false-frames`` frames, markers reported by each
-detector, and the largest decision margin of the AprilTag library's raw (unfiltered)
-detections there against the smallest on the true tags of the video.
+tags removed (textured walls only), ``--false-frames`` frames searched for each of
+``--false-dictionaries`` (36h11, and 16h5, the weakest family): markers reported by each
+detector, and the AprilTag library's raw (unfiltered: up to 2 corrected bits, any decision
+margin) detections there with their largest decision margin, against the smallest on the true
+tags of the video.
 
-    python benchmarks/bench_markers.py [--frames 20] [--presets vga,hd] [--decimate 1,2]
-        [--false-frames 100] [--seed 0]
+    python benchmarks/bench_markers.py [--frames 20] [--presets vga,hd] [--decimate 1,1.5,2]
+        [--false-frames 100] [--false-dictionaries DICT_APRILTAG_36h11,DICT_APRILTAG_16h5]
+        [--seed 0]
 """
 
 from __future__ import annotations
@@ -119,15 +122,17 @@ def run_video(preset: str, frames: int, decimations, seed: int = 0) -> dict:
     return {n: {k: np.asarray(v, float) for k, v in o.items()} for n, o in res.items()}
 
 
-def run_false(preset: str, frames: int, decimations, seed: int = 1000) -> dict:
-    """The room without its tags: {name: (markers reported (F,), raw decision margins (M,) of
-    the AprilTag library's unfiltered detections)}."""
+def run_false(
+    preset: str, frames: int, decimations, dictionary: str = "DICT_APRILTAG_36h11", seed: int = 1000
+) -> dict:
+    """The room without its tags, searched for ``dictionary``: {name: (markers reported (F,),
+    raw decision margins (M,) of the AprilTag library's unfiltered detections)}."""
     import yaml
 
     data = yaml.safe_load(scene_path(SCENE).read_text())
     data.pop("markers")
     bare = load_scene(data)
-    bare.dictionary = data["dictionary"]
+    bare.dictionary = dictionary
     camera = camera_preset(preset)
     motion = make_motion("shake", bare, duration=frames / FPS + 0.1)
     r = Renderer(bare, camera, noise=NoiseModel())
@@ -148,9 +153,14 @@ def main(argv: list | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=20, help="video frames per preset (30 Hz)")
     ap.add_argument("--presets", default="vga,hd", help="camera presets, comma-separated")
-    ap.add_argument("--decimate", default="1,2", help="AprilTag quad_decimate values")
+    ap.add_argument("--decimate", default="1,1.5,2", help="AprilTag quad_decimate values")
     ap.add_argument("--false-frames", type=int, default=100, help="frames without tags (vga)")
     ap.add_argument("--seed", type=int, default=0, help="sensor noise seed")
+    ap.add_argument(
+        "--false-dictionaries",
+        default="DICT_APRILTAG_36h11,DICT_APRILTAG_16h5",
+        help="dictionaries searched on the frames without tags (16h5: the weakest family)",
+    )
     a = ap.parse_args(argv)
     cv2.setNumThreads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -181,9 +191,12 @@ def main(argv: list | None = None) -> int:
                     f"  {name}: decision margin of the true tags: min {r['margins'].min():.1f}, "
                     f"1st percentile {np.percentile(r['margins'], 1):.1f}"
                 )
-    if a.false_frames > 0:
-        fr = run_false("vga", a.false_frames, dec)
-        print(f"false markers: {a.false_frames} frames 640x480 of {SCENE} without its tags")
+    for dictionary in [d for d in a.false_dictionaries.split(",") if d] * (a.false_frames > 0):
+        fr = run_false("vga", a.false_frames, dec, dictionary)
+        print(
+            f"false markers: {a.false_frames} frames 640x480 of {SCENE} without its tags, "
+            f"{dictionary}"
+        )
         for name, (n, m) in fr.items():
             extra = (
                 f"; raw detections {len(m)}, largest margin {m.max():.1f}"
