@@ -215,3 +215,28 @@ def test_debian_binding_through_the_same_adapter(tag_board):
     cb, ib, _ = b.detect(gray)
     assert a.binding == "apriltag" and sorted(ia.tolist()) == list(range(12))
     np.testing.assert_allclose(ca[np.argsort(ia)], cb[np.argsort(ib)], atol=1e-9)
+
+
+def test_node_parameters_reach_the_detector():
+    from rs_localizer.ros.params import ConfigError, build_config, default_values, load_maps
+
+    v = default_values()
+    v.update(
+        {
+            "frontend": "aruco",
+            "frontend_map": "apriltag_board",
+            "aruco.quad_decimate": 1.0,
+            "aruco.max_hamming": 1,
+            "aruco.min_decision_margin": 40.0,
+        }
+    )
+    cfg = build_config(v)
+    want = DetectorOptions(quad_decimate=1.0, max_hamming=1, min_decision_margin=40.0)
+    assert cfg.frontend_options["detector_options"] == want
+    det = load_maps(cfg).frontend.detector
+    assert det.backend == ("apriltag" if md.apriltag_binding() else "opencv")
+    if det.backend == "apriltag":
+        assert det.options == want and det.min_decision_margin == 40.0
+    v["aruco.detector"] = "zbar"
+    with pytest.raises(ConfigError, match="zbar"):
+        build_config(v)
