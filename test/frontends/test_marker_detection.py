@@ -240,3 +240,17 @@ def test_node_parameters_reach_the_detector():
     v["aruco.detector"] = "zbar"
     with pytest.raises(ConfigError, match="zbar"):
         build_config(v)
+
+
+def test_tag_boards_use_the_same_detector():
+    from rs_localizer.frontends import cv_compat
+    from rs_localizer.frontends.boards import TagBoard, TagFrontend
+
+    april = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_APRILTAG_36h11"))
+    assert april.detector.backend == ("apriltag" if md.apriltag_binding() else "opencv")
+    forced = TagFrontend(
+        TagBoard.grid(3, 2, 0.024, 0.008), detector_options=DetectorOptions(detector="opencv")
+    )
+    assert forced.detector.backend == "opencv"
+    aruco = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_6X6_250"))
+    assert isinstance(aruco.detector, cv_compat.MarkerDetector)
