@@ -221,6 +221,8 @@ def test_node_parameters_reach_the_detector():
     from rs_localizer.ros.params import ConfigError, build_config, default_values, load_maps
 
     v = default_values()
+    # the node's defaults are the detector's
+    assert DetectorOptions.from_mapping(v, "aruco.") == DetectorOptions()
     v.update(
         {
             "frontend": "aruco",
