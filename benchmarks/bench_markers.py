@@ -1,5 +1,5 @@
 """Marker detection on a textured AprilTag room, each detector and decimation:
-``python benchmarks/bench_markers.py`` (from the repository root).
+``python -m benchmarks.bench_markers`` (from the repository root).
 
 Renders a hand-held (``shake``) rolling-shutter video (30 Hz, 30 ms readout, sensor noise) of
 the built-in scene ``apriltag_room`` (AprilTag 36h11 tags of 14-25 cm on brick, gravel and
@@ -23,7 +23,7 @@ detector, and the AprilTag library's raw (unfiltered: up to 2 corrected bits, an
 margin) detections there with their largest decision margin, against the smallest on the true
 tags of the video.
 
-    python benchmarks/bench_markers.py [--frames 20] [--presets vga,hd] [--decimate 1,1.5,2]
+    python -m benchmarks.bench_markers [--frames 20] [--presets vga,hd] [--decimate 1,1.5,2]
         [--false-frames 100] [--false-dictionaries DICT_APRILTAG_36h11,DICT_APRILTAG_16h5]
         [--seed 0]
 """

@@ -256,31 +256,3 @@ def test_tag_boards_use_the_same_detector():
     assert forced.detector.backend == "opencv"
     aruco = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_6X6_250"))
     assert isinstance(aruco.detector, cv_compat.MarkerDetector)
-
-
-@pytest.mark.slow
-def test_bench_markers_runs():
-    """``benchmarks/bench_markers.py`` on one frame: a row per detector, poses, false markers."""
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[2]
-    out = subprocess.run(
-        [sys.executable, str(root / "benchmarks" / "bench_markers.py"), "--frames", "1"]
-        + ["--presets", "vga", "--decimate", "2", "--false-frames", "1"]
-        + ["--false-dictionaries", "DICT_APRILTAG_36h11"],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=600,
-    ).stdout
-    assert "vga 640x480, 1 frames of apriltag_room" in out
-    rows = [
-        line
-        for line in out.splitlines()
-        if line.strip().startswith(("opencv", "apriltag")) and "|" in line
-    ]
-    assert len(rows) == (2 if md.apriltag_binding() else 1)
-    assert all(line.rstrip().endswith("1/1") for line in rows[:2]), rows  # posed
-    assert "markers reported 0" in out
