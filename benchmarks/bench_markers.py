@@ -38,7 +38,8 @@ import cv2
 import numpy as np
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends.aruco import ArucoFrontend, to_gray
+from rs_localizer.frontends.aruco import ArucoFrontend
+from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import (
     DetectorOptions,
     apriltag_binding,

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from rs_localizer.frontends import marker_detection as md
-from rs_localizer.frontends.aruco import ArucoFrontend, to_gray
+from rs_localizer.frontends.aruco import ArucoFrontend
+from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import DetectorOptions, make_marker_detector
 from rs_localizer.sim.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
 
@@ -218,7 +219,8 @@ def test_debian_binding_through_the_same_adapter(tag_board):
 
 
 def test_node_parameters_reach_the_detector():
-    from rs_localizer.ros.params import ConfigError, build_config, default_values, load_maps
+    from rs_localizer.ros.maps import load_maps
+    from rs_localizer.ros.params import ConfigError, build_config, default_values
 
     v = default_values()
     # the node's defaults are the detector's
