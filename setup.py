@@ -45,6 +45,9 @@ setup(
         "pyyaml",
         "scikit-image",
         "tqdm",
+        # the AprilTag 3 C library with Python bindings (AprilTag marker families; the distro
+        # route uses Debian's python3-apriltag instead, package.xml's key apriltag)
+        "pupil-apriltags",
     ],
     extras_require={
         # ROS 2 Jazzy from PyPI (never mix with the un-prefixed ros-* wheels: those are Kilted)

@@ -31,6 +31,8 @@ OPTIONAL = {
     "threadpoolctl": "benchmarks only (extra 'bench'), imported inside a try",
     "pycolmap": "map-features only (extra 'mapping'), imported where used, says how to install",
     "foxglove": "rs-localizer view only (extra 'view'), imported where used, says how to install",
+    "pupil_apriltags": "the AprilTag library's PyPI binding (setup.py); the distro route has "
+    "Debian's python3-apriltag (key apriltag); imported inside a try, OpenCV stands in",
 }
 
 

@@ -44,8 +44,11 @@ def frames_from_bag(
     dictionary: str,
     readout_time: float,
     progress: bool = True,
+    detector_options: object = None,
 ) -> tuple:
-    """Marker detections of a bag's images (rosbags, no ROS installation needed).
+    """Marker detections of a bag's images (rosbags, no ROS installation needed), with the
+    marker detector of ``dictionary`` and ``detector_options``
+    (:class:`~rs_localizer.frontends.marker_detection.DetectorOptions`; None: its defaults).
 
     The camera is the first ``camera_info`` of the bag (K, D, binning and ROI;
     :func:`rs_localizer.ros.conversions.camera_model_from_camera_info`) with ``readout_time``
@@ -101,7 +104,7 @@ def frames_from_bag(
         raise ValueError(f"{path}: no camera_info message on {info_topic}")
     stamp_row = float(read_bag_info(path).get("rs", {}).get("stamp_row", 0.0))
     offset = float(camera.line_time(camera.reference_line) - camera.line_time(stamp_row))
-    front = ArucoFrontend({}, dictionary)
+    front = ArucoFrontend({}, dictionary, detector_options=detector_options)
     frames, counts = [], {"images": 0, "without_markers": 0, "duplicate_ids": 0}
     msgs = iter_messages(path, {image_topic})
     if progress:
@@ -136,7 +139,12 @@ def _detect(src: Path, args: argparse.Namespace) -> tuple:
 
     if (src / "metadata.yaml").exists():
         return frames_from_bag(
-            src, args.image_topic, args.dictionary, args.readout_time, progress=not args.quiet
+            src,
+            args.image_topic,
+            args.dictionary,
+            args.readout_time,
+            progress=not args.quiet,
+            detector_options=_detector_options(args),
         )
     if not src.is_dir():
         raise FileNotFoundError(f"{src}: neither a folder of images nor a bag")
@@ -144,8 +152,32 @@ def _detect(src: Path, args: argparse.Namespace) -> tuple:
         raise ValueError("a folder of images needs --camera CAMERA.yaml (ROS camera_info)")
     probe = camera_from_yaml(args.camera_file)
     camera = camera_from_yaml(args.camera_file, line_delay=args.readout_time / probe.lines)
-    frames, counts = detect_folder(src, camera, args.dictionary, args.fps, progress=not args.quiet)
+    frames, counts = detect_folder(
+        src,
+        camera,
+        args.dictionary,
+        args.fps,
+        progress=not args.quiet,
+        detector_options=_detector_options(args),
+    )
     return camera, frames, counts
+
+
+def _detector_options(args: argparse.Namespace):
+    """The marker detector's options from the command line
+    (:class:`~rs_localizer.frontends.marker_detection.DetectorOptions`)."""
+    from ..frontends.marker_detection import DetectorOptions
+
+    return DetectorOptions(
+        detector=args.detector,
+        quad_decimate=args.quad_decimate,
+        nthreads=args.nthreads,
+        quad_sigma=args.quad_sigma,
+        refine_edges=not args.no_refine_edges,
+        decode_sharpening=args.decode_sharpening,
+        max_hamming=args.max_hamming,
+        min_decision_margin=args.min_decision_margin,
+    )
 
 
 def _options(args: argparse.Namespace):
@@ -242,6 +274,12 @@ def run(args: argparse.Namespace) -> int:
     if args.anchor_pose is not None and not np.linalg.norm(args.anchor_pose[3:]) > 1e-9:
         raise A.CliError("--anchor-pose: the quaternion QX QY QZ QW must not be zero")
     opts = _options(args)
+    from ..frontends.marker_detection import make_marker_detector
+
+    # (an unknown dictionary or a missing AprilTag library, before any work)
+    detector = make_marker_detector(args.dictionary, _detector_options(args))
+    if not args.quiet:
+        print(f"marker detector: {detector.describe()}")
     inputs = args.input if isinstance(args.input, list) else [args.input]
     # (every input checked before any detection)
     inputs = [A.map_input(src, args.camera_file) for src in inputs]
@@ -373,5 +411,62 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--report", help="folder for report.yaml and map.png")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    _add_detector_arguments(p)
     p.set_defaults(func=run)
     return p
+
+
+def _add_detector_arguments(p: argparse.ArgumentParser) -> None:
+    """The marker detector's flags (the AprilTag library's option names)."""
+    from ..frontends.marker_detection import DETECTOR_BACKENDS, DetectorOptions
+
+    d = DetectorOptions()
+    g = p.add_argument_group(
+        "marker detector",
+        "AprilTag families with the AprilTag 3 library, ArUco dictionaries with OpenCV",
+    )
+    g.add_argument(
+        "--detector",
+        choices=DETECTOR_BACKENDS,
+        default=d.detector,
+        help="auto: the AprilTag library for AprilTag families when installed (else OpenCV, "
+        "saying so); apriltag: require it; opencv: OpenCV's ArUco detector for every dictionary",
+    )
+    g.add_argument(
+        "--quad-decimate",
+        type=A.positive_float,
+        default=d.quad_decimate,
+        help="AprilTag: find quads on the image decimated by this factor (>= 1; 1: full "
+        "resolution, finds smaller tags, slower)",
+    )
+    g.add_argument("--nthreads", type=A.positive_int, default=d.nthreads, help="AprilTag: threads")
+    g.add_argument(
+        "--quad-sigma",
+        type=A.nonneg_float,
+        default=d.quad_sigma,
+        help="AprilTag: Gaussian blur (px std) before finding quads (noisy images: 0.8)",
+    )
+    g.add_argument(
+        "--no-refine-edges",
+        action="store_true",
+        help="AprilTag: do not snap the quad edges to the image gradients",
+    )
+    g.add_argument(
+        "--decode-sharpening",
+        type=A.nonneg_float,
+        default=d.decode_sharpening,
+        help="AprilTag: sharpening of the decoded samples",
+    )
+    g.add_argument(
+        "--max-hamming",
+        type=int,
+        choices=(0, 1, 2),
+        default=d.max_hamming,
+        help="AprilTag: most corrected bits of a kept tag",
+    )
+    g.add_argument(
+        "--min-decision-margin",
+        type=A.nonneg_float,
+        default=d.min_decision_margin,
+        help="AprilTag: smallest decision margin of a kept tag (default: the binding's)",
+    )

@@ -18,6 +18,7 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
 from . import cv_compat
 from .image import to_gray
+from .marker_detection import DetectorOptions, make_marker_detector
 
 __all__ = ["ArucoFrontend", "marker_scores"]
 
@@ -56,6 +57,9 @@ class ArucoFrontend(FrontendHooks):
             adaptive-threshold half window plus the expected prediction error.
         full_frame_every: a full-frame detection at least every this many frames (0: only on
             the fallbacks above).
+        detector_options: the marker detector's
+            :class:`~rs_localizer.frontends.marker_detection.DetectorOptions` (AprilTag families
+            with the AprilTag library, ArUco dictionaries with OpenCV; default: its defaults).
 
     ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,) int64)``.
     """
@@ -72,9 +76,8 @@ class ArucoFrontend(FrontendHooks):
         windowed: bool = False,
         window_margin_px: float = 16.0,
         full_frame_every: int = 10,
+        detector_options: DetectorOptions | None = None,
     ):
-        from ..maps.markers import marker_dictionary
-
         self.dictionary = dictionary
         self.marker_corners = {
             int(k): np.asarray(v, dtype=float).reshape(4, 3) for k, v in marker_corners.items()
@@ -91,7 +94,7 @@ class ArucoFrontend(FrontendHooks):
             minMarkerPerimeterRate=float(min_marker_perimeter),
         )
         self.params = params
-        self.detector = cv_compat.MarkerDetector(marker_dictionary(dictionary), params)
+        self.detector = make_marker_detector(dictionary, detector_options, params)
         self.last_rejected = 0
         self.marker_std = (
             None if marker_std is None else {int(k): float(v) for k, v in marker_std.items()}

@@ -85,6 +85,7 @@ from ..correspondences import Correspondences, FrontendHooks
 from ..maps.boards import BOARD_TYPES, read_board
 from . import cv_compat as cvc
 from .image import to_gray
+from .marker_detection import DetectorOptions, apriltag_family, make_marker_detector
 
 __all__ = [
     "BOARD_TYPES",
@@ -394,6 +395,10 @@ class TagBoard(_BoardBase):
     ):
         if not corners_board:
             raise ValueError("a tag board needs at least one tag")
+        # a predefined dictionary's name (the marker detector's choice), else None
+        self.dictionary_name = (
+            dictionary if isinstance(dictionary, str) and dictionary.startswith("DICT_") else None
+        )
         self.dictionary = (
             load_dictionary(dictionary, base_dir)
             if isinstance(dictionary, (str, dict, Path))
@@ -799,6 +804,11 @@ class TagFrontend(_BoardFrontend):
         subpix_window: half size (px) of the subpixel window (at most one tag cell is used
             where OpenCV >= 4.9 supports ``relativeCornerRefinmentWinSize``).
         min_marker_perimeter: smallest tag perimeter as a fraction of the image's larger side.
+        detector_options: :class:`~rs_localizer.frontends.marker_detection.DetectorOptions`
+            of a board of a predefined AprilTag family (``DICT_APRILTAG_36h11``...), detected
+            with the AprilTag 3 library when it is installed (the module's notes); the
+            arguments above apply to OpenCV's detector (ArUco and custom dictionaries,
+            ``detector="opencv"``, or no AprilTag library).
     Raises:
         ValueError: unknown refinement.
 
@@ -821,6 +831,7 @@ class TagFrontend(_BoardFrontend):
         refinement: str = "subpix",
         subpix_window: int = 3,
         min_marker_perimeter: float = 0.02,
+        detector_options: DetectorOptions | None = None,
     ):
         super().__init__(board)
         if refinement not in self._REFINE:
@@ -833,7 +844,11 @@ class TagFrontend(_BoardFrontend):
             relativeCornerRefinmentWinSize=1.0,
             minMarkerPerimeterRate=float(min_marker_perimeter),
         )
-        self.detector = cvc.MarkerDetector(board.dictionary, params)
+        name = getattr(board, "dictionary_name", None)
+        if name is not None and apriltag_family(name) is not None:
+            self.detector = make_marker_detector(name, detector_options, params)
+        else:
+            self.detector = cvc.MarkerDetector(board.dictionary, params)
         self.last_unknown = 0
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:

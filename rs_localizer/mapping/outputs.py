@@ -78,19 +78,26 @@ def camera_from_yaml(path: str | Path, line_delay: float = 0.0) -> CameraModel:
 
 
 def detect_folder(
-    folder: str | Path, camera: CameraModel, dictionary: str, fps: float, progress: bool = True
+    folder: str | Path,
+    camera: CameraModel,
+    dictionary: str,
+    fps: float,
+    progress: bool = True,
+    detector_options: object = None,
 ) -> tuple[list, dict]:
     """Detect markers in every image of a folder (sorted by name; one frame each).
 
-    Detection: :class:`rs_localizer.frontends.aruco.ArucoFrontend` (OpenCV ArUco detector, any
-    predefined dictionary, AprilTag included). An id found twice in one image is dropped from
-    that image (counted). Frame ``i`` is stamped ``i / fps`` plus the reference line's capture
-    time.
+    Detection: :class:`rs_localizer.frontends.aruco.ArucoFrontend` (the AprilTag 3 library for
+    AprilTag families, OpenCV's ArUco detector for the ArUco dictionaries:
+    :func:`rs_localizer.frontends.marker_detection.make_marker_detector`, with
+    ``detector_options``). An id found twice in one image is dropped from that image
+    (counted). Frame ``i`` is stamped ``i / fps`` plus the reference line's capture time.
 
     Args:
         folder: directory of images (:data:`IMAGE_SUFFIXES`). camera: the camera (size check,
             RS timing). dictionary: OpenCV dictionary name, e.g. ``DICT_APRILTAG_36h11``.
-        fps: frame rate (Hz). progress: show a progress bar (tqdm).
+        fps: frame rate (Hz). progress: show a progress bar (tqdm). detector_options:
+            :class:`~rs_localizer.frontends.marker_detection.DetectorOptions` (None: defaults).
     Returns:
         ``(frames, counts)``: :class:`FrameDetections` per image, and counts ``images``,
         ``without_markers``, ``duplicate_ids``.
@@ -111,7 +118,7 @@ def detect_folder(
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not files:
         raise FileNotFoundError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
-    front = ArucoFrontend({}, dictionary)
+    front = ArucoFrontend({}, dictionary, detector_options=detector_options)
     t_ref = float(camera.line_time(camera.reference_line))
     frames, counts = [], {"images": len(files), "without_markers": 0, "duplicate_ids": 0}
     for i, f in enumerate(tqdm(files, desc="detecting markers", disable=not progress)):
@@ -132,8 +139,10 @@ def detect_folder(
 
 def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
     """Markers in one (H, W) uint8 image with an :class:`ArucoFrontend`: ``({id: (4, 2)
-    pixel corners}, number of ids found more than once)``; an id found twice is dropped."""
+    pixel corners}, number of ids found more than once)``; an id found twice is dropped (by the
+    front end's detector, which counts it, or here)."""
     corners, ids = front.detect(gray, "mono8")
+    dropped = int(getattr(getattr(front, "detector", None), "last_duplicates", 0))
     ids = [int(m) for m in np.ravel(ids)] if ids is not None else []
     dets, dup = {}, 0
     for m in set(ids):
@@ -142,7 +151,7 @@ def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
             dup += 1
             continue
         dets[m] = np.asarray(corners[idx[0]], dtype=float).reshape(4, 2)
-    return dets, dup
+    return dets, dup + dropped
 
 
 def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:

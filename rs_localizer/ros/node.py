@@ -279,6 +279,13 @@ class LocalizerCore:
             self.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
             )
+        det = getattr(maps.frontend, "detector", None)
+        if hasattr(det, "describe") and maps.frontend is not old_fe:
+            # which marker detector runs (a missing AprilTag library: a warning with the
+            # install line)
+            fallback = getattr(det, "fallback", None)
+            log = self.get_logger().warning if fallback else self.get_logger().info
+            log(f"marker detector: {det.describe()}")
         if cfg.republish_correspondences and maps.frontend is not None and self._pubs:
             self._corr_out_publisher()
         note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)

@@ -486,6 +486,51 @@ PARAMETERS = {
         IntRange(from_value=0, to_value=10_000),
         read_only=True,
     ),
+    "aruco.detector": Parameter(
+        "auto",
+        "marker detector: auto (AprilTag families with the AprilTag 3 library when it is "
+        "installed, else OpenCV, said at start; ArUco dictionaries with OpenCV), apriltag "
+        "(require the library) or opencv (OpenCV's ArUco detector for every dictionary)",
+        read_only=True,
+    ),
+    "aruco.quad_decimate": Parameter(
+        1.5,
+        "AprilTag: find quads on the image decimated by this factor (1: full resolution, "
+        "finds smaller tags, slower); corners refined and tags decoded at full resolution",
+        FloatRange(from_value=1.0, to_value=8.0),
+        read_only=True,
+    ),
+    "aruco.nthreads": Parameter(
+        1, "AprilTag: detector threads", IntRange(from_value=1, to_value=64), read_only=True
+    ),
+    "aruco.quad_sigma": Parameter(
+        0.0,
+        "AprilTag: px; Gaussian blur (std) before finding quads (0: none; noisy images: 0.8)",
+        FloatRange(from_value=0.0, to_value=10.0),
+        read_only=True,
+    ),
+    "aruco.refine_edges": Parameter(
+        True, "AprilTag: snap the quad edges to the image gradients", read_only=True
+    ),
+    "aruco.decode_sharpening": Parameter(
+        0.25,
+        "AprilTag: sharpening of the decoded samples",
+        FloatRange(from_value=0.0, to_value=10.0),
+        read_only=True,
+    ),
+    "aruco.max_hamming": Parameter(
+        0,
+        "AprilTag: most corrected bits of a kept tag",
+        IntRange(from_value=0, to_value=2),
+        read_only=True,
+    ),
+    "aruco.min_decision_margin": Parameter(
+        -1.0,
+        "AprilTag: smallest decision margin of a kept tag (the library's units; negative: the "
+        "binding's default)",
+        FloatRange(from_value=-1.0, to_value=10_000.0),
+        read_only=True,
+    ),
     "features.min_tracked_inliers": Parameter(
         150,
         "with tracking: fewer tracked inliers than this start a refresh detection",
@@ -810,7 +855,14 @@ def _frontend_options(kind: str, p) -> dict:
     """Keyword arguments of the front end ``kind`` from the ``features.*`` and ``aruco.*``
     parameters."""
     if kind == "aruco":
+        from ..frontends.marker_detection import DetectorOptions
+
+        try:
+            detector = DetectorOptions.from_mapping(p, "aruco.")
+        except ValueError as e:
+            raise ConfigError(f"aruco.detector options: {e}") from None
         return {
+            "detector_options": detector,
             "windowed": bool(p["aruco.windowed"]),
             "window_margin_px": float(p["aruco.window_margin_px"]),
             "full_frame_every": int(p["aruco.full_frame_every"]),

@@ -172,3 +172,61 @@ def test_an_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         outputs.write_atomic(tmp_path / "map.yaml", "markers: []\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_detector_choice_is_checked_before_any_work(tmp_path, capsys):
+    """An unknown dictionary, or the AprilTag detector asked for an ArUco dictionary: exit 2
+    naming what is supported, before any image is read (the folder is empty)."""
+    images = tmp_path / "images"
+    images.mkdir()
+    cam = tmp_path / "camera.yaml"
+    cam.write_text("image_width: 64\nimage_height: 48\n")
+    base = ["map-markers", str(images), "-o", str(tmp_path / "m.yaml"), "--camera", str(cam)]
+    base += ["--marker-size", "0.1", "--quiet"]
+    assert main([*base, "--dictionary", "DICT_9X9_1"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown marker dictionary 'DICT_9X9_1'" in err and "tag36h11" in err
+    assert main([*base, "--dictionary", "DICT_4X4_250", "--detector", "apriltag"]) == 2
+    assert "AprilTag families only" in capsys.readouterr().err
+    assert not (tmp_path / "m.yaml").exists()
+
+
+def test_detect_folder_with_the_apriltag_library(tmp_path):
+    """AprilTag images detected through the marker detector with the command's options: the
+    corners of every tag, a repeated tag dropped and counted."""
+    from rs_localizer.frontends.marker_detection import DetectorOptions, apriltag_binding
+    from rs_localizer.mapping.outputs import detect_folder
+
+    if apriltag_binding() is None:
+        pytest.skip("no AprilTag library binding installed")
+    scene = load_scene("apriltag_board")
+    camera = camera_preset("vga", line_delay=0.0)
+    renderer = Renderer(scene, camera)
+    motion = make_motion("shake", scene, duration=0.2)
+    images = tmp_path / "images"
+    images.mkdir()
+    gray = cv2.cvtColor(renderer.render(motion, 0.0).image, cv2.COLOR_RGB2GRAY)
+    cv2.imwrite(str(images / "0000.png"), gray)
+    twice = gray.copy()
+    twice[:, 320:] = gray[:, :320]  # the left tags twice
+    cv2.imwrite(str(images / "0001.png"), twice)
+    frames, counts = detect_folder(
+        images,
+        camera,
+        scene.dictionary,
+        30.0,
+        progress=False,
+        detector_options=DetectorOptions(detector="apriltag", quad_decimate=1.0),
+    )
+    assert sorted(frames[0].corners) == list(range(12))
+    truth, ok = renderer.project(
+        np.concatenate([scene.marker_corners()[m] for m in range(12)]),
+        motion,
+        0.0,
+        shutter="global",
+        occlusion=False,
+    )
+    got = np.concatenate([frames[0].corners[m] for m in range(12)])
+    assert ok.all() and np.median(np.linalg.norm(got - truth, axis=1)) < 0.15
+    assert counts["duplicate_ids"] >= 2 and counts["images"] == 2
+    assert len(frames[1].corners) + counts["duplicate_ids"] <= 12

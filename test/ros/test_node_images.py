@@ -173,6 +173,7 @@ def test_frontend_map_parameter(node, ros_context, sample_images_bag):
     finally:
         params.close()
     assert "reloaded the aruco front end" in node.log
+    assert "marker detector: OpenCV ArUco, DICT_4X4_250" in node.log  # which detector runs
 
 
 def test_bad_images(tmp_path, ros_context, sample_images_bag):

@@ -1,0 +1,456 @@
+"""Square fiducial markers in a grayscale image: one interface, two detectors.
+
+:func:`make_marker_detector` picks the detector from the marker map's ``dictionary``:
+
+* AprilTag families (OpenCV's ``DICT_APRILTAG_16h5``, ``_25h9``, ``_36h10``, ``_36h11`` or the
+  AprilTag library's own names, :data:`APRILTAG_FAMILIES`: ``tag36h11``, ``tagStandard41h12``,
+  ``tagCircle21h7``...) go to the AprilTag 3 C library (the detector of ``apriltag_ros`` and
+  ``isaac_ros_apriltag``), through either Python binding: ``pupil_apriltags`` (PyPI wheel,
+  library 3.1) or Debian's ``python3-apriltag`` (module ``apriltag``, library 3.3; no
+  ``decode_sharpening`` option, the library's default 0.25 is used).
+* ArUco dictionaries (``DICT_4X4_50`` ... ``DICT_ARUCO_ORIGINAL``) go to OpenCV's ArUco
+  detector (:class:`~rs_localizer.frontends.cv_compat.MarkerDetector`).
+
+Both return the same thing: corners (M, 4, 2) float64 in distorted pixels, in ArUco order
+(top-left, top-right, bottom-right, bottom-left of the printed marker, clockwise in the image),
+with OpenCV's pixel convention (integer coordinates at pixel centres). The AprilTag library
+reports its corners in another order (bottom-left, bottom-right, top-right, top-left of the tag
+seen with its y axis up, i.e. :data:`APRILTAG_TO_ARUCO_ORDER` away from ArUco's) and with
+integer coordinates at pixel corners, half a pixel off in x and y; both are converted here
+(measured on the renderer's exact corners: ``test/frontends/test_marker_detection.py``).
+
+Detections are refused when weak (AprilTag: more corrected bits than ``max_hamming`` or a
+decision margin below ``min_decision_margin``) and an id found more than once in one image is
+dropped from that image; both are counted (``last_weak``, ``last_duplicates``).
+
+Without an AprilTag binding installed an OpenCV dictionary name of an AprilTag family
+(``DICT_APRILTAG_36h11``) falls back to OpenCV's detector: much slower on textured images
+(about 20x at 640x480) and less exact. The detector says so (``fallback``, a
+:class:`RuntimeWarning` at construction) so that the caller can report it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "APRILTAG_FAMILIES",
+    "APRILTAG_INSTALL",
+    "APRILTAG_TO_ARUCO_ORDER",
+    "DETECTOR_BACKENDS",
+    "OPENCV_APRILTAG_FAMILIES",
+    "AprilTagDetector",
+    "DetectorOptions",
+    "OpenCVDetector",
+    "apriltag_binding",
+    "apriltag_family",
+    "drop_duplicates",
+    "make_marker_detector",
+    "supported_dictionaries",
+]
+
+#: OpenCV's dictionary names of the AprilTag families -> the AprilTag library's family names
+OPENCV_APRILTAG_FAMILIES = {
+    "DICT_APRILTAG_16h5": "tag16h5",
+    "DICT_APRILTAG_25h9": "tag25h9",
+    "DICT_APRILTAG_36h10": "tag36h10",
+    "DICT_APRILTAG_36h11": "tag36h11",
+}
+
+#: the families of the AprilTag 3 library (both bindings build all of them)
+APRILTAG_FAMILIES = (
+    "tag36h11",
+    "tag36h10",
+    "tag25h9",
+    "tag16h5",
+    "tagCircle21h7",
+    "tagCircle49h12",
+    "tagStandard41h12",
+    "tagStandard52h13",
+    "tagCustom48h12",
+)
+
+#: the families pupil_apriltags builds (all but tag36h10)
+PUPIL_FAMILIES = tuple(f for f in APRILTAG_FAMILIES if f != "tag36h10")
+
+#: index of the AprilTag library's corner for each ArUco corner (TL, TR, BR, BL)
+APRILTAG_TO_ARUCO_ORDER = (1, 0, 3, 2)
+
+#: the AprilTag library's corners minus OpenCV's pixel-centre convention (px, x and y)
+APRILTAG_PIXEL_OFFSET = 0.5
+
+#: how to install an AprilTag binding (messages)
+APRILTAG_INSTALL = "pip install pupil-apriltags (or apt install python3-apriltag)"
+
+#: ``DetectorOptions.detector`` values
+DETECTOR_BACKENDS = ("auto", "apriltag", "opencv")
+
+#: smallest decision margin kept per binding when ``min_decision_margin`` is None. The two
+#: library versions scale the margin differently: on the same 640x480 frames of
+#: ``apriltag_room`` the true 36h11 tags scored at least 28.5 (median 117) with library 3.1
+#: (pupil_apriltags) and at least 97.7 (median 226) with 3.3 (Debian); the false tag16h5
+#: detections of its walls without tags (hamming 1-2, but one with 0) at most 24.6 and 52.7.
+DEFAULT_MIN_MARGIN = {"pupil_apriltags": 25.0, "apriltag": 60.0}
+
+
+@dataclass(frozen=True)
+class DetectorOptions:
+    """Options of the marker detector, with the AprilTag library's names.
+
+    Attributes:
+        detector: ``auto`` (AprilTag families with the AprilTag library when a binding is
+            installed, else OpenCV, saying so; ArUco dictionaries with OpenCV), ``apriltag``
+            (the AprilTag library, an error when it is missing or the dictionary is not an
+            AprilTag family) or ``opencv`` (OpenCV's ArUco detector for every dictionary).
+        quad_decimate: detect quads on an image decimated by this factor (1: full
+            resolution); the corners are then refined on the full image (``refine_edges``) and
+            the tags decoded at full resolution. AprilTag only.
+        nthreads: threads of the AprilTag detector.
+        quad_sigma: standard deviation (px) of the Gaussian blur before quad detection (0:
+            none; noisy images: ~0.8). AprilTag only.
+        refine_edges: snap the quad edges to the strong gradients nearby. AprilTag only.
+        decode_sharpening: sharpening of the decoded samples (library default 0.25; the Debian
+            binding always uses 0.25). AprilTag only.
+        max_hamming: largest number of corrected bits of a kept detection (the library corrects
+            at most 2). AprilTag only.
+        min_decision_margin: smallest decision margin of a kept detection (the library's
+            units, which differ between library versions); None: the binding's measured
+            default (:data:`DEFAULT_MIN_MARGIN`). AprilTag only.
+    """
+
+    detector: str = "auto"
+    quad_decimate: float = 1.5
+    nthreads: int = 1
+    quad_sigma: float = 0.0
+    refine_edges: bool = True
+    decode_sharpening: float = 0.25
+    max_hamming: int = 0
+    min_decision_margin: float | None = None
+
+    def __post_init__(self):
+        if self.detector not in DETECTOR_BACKENDS:
+            raise ValueError(
+                f"unknown marker detector {self.detector!r}; expected one of {DETECTOR_BACKENDS}"
+            )
+        if not self.quad_decimate >= 1.0:
+            raise ValueError(f"quad_decimate must be >= 1, got {self.quad_decimate}")
+        if int(self.nthreads) < 1:
+            raise ValueError(f"nthreads must be >= 1, got {self.nthreads}")
+        if not self.quad_sigma >= 0.0:
+            raise ValueError(f"quad_sigma must be >= 0, got {self.quad_sigma}")
+        if not 0 <= int(self.max_hamming) <= 2:
+            raise ValueError(f"max_hamming must be 0, 1 or 2, got {self.max_hamming}")
+        if not self.decode_sharpening >= 0.0:
+            raise ValueError(f"decode_sharpening must be >= 0, got {self.decode_sharpening}")
+
+    @classmethod
+    def from_mapping(cls, values: Any, prefix: str = "") -> DetectorOptions:
+        """Options from a mapping of ``prefix + field name`` -> value (node parameters:
+        ``prefix="aruco."``); missing names keep their defaults, a negative
+        ``min_decision_margin`` means None (the binding's default)."""
+        kw = {}
+        for f in dataclasses.fields(cls):
+            key = prefix + f.name
+            try:
+                kw[f.name] = values[key]
+            except KeyError:
+                continue
+        if "min_decision_margin" in kw and kw["min_decision_margin"] is not None:
+            m = float(kw["min_decision_margin"])
+            kw["min_decision_margin"] = None if m < 0 else m
+        return cls(**kw)
+
+
+def supported_dictionaries() -> tuple:
+    """Every dictionary name a detector here knows: OpenCV's predefined ``DICT_*`` names (when
+    OpenCV has ArUco) and the AprilTag library's family names."""
+    names = []
+    try:
+        import cv2
+
+        names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    except (ImportError, AttributeError):
+        names = sorted(OPENCV_APRILTAG_FAMILIES)
+    return (*names, *APRILTAG_FAMILIES)
+
+
+def apriltag_family(dictionary: str) -> str | None:
+    """The AprilTag library's family of a dictionary name (``DICT_APRILTAG_36h11`` or
+    ``tag36h11`` -> ``tag36h11``); None for an ArUco dictionary."""
+    if dictionary in APRILTAG_FAMILIES:
+        return dictionary
+    return OPENCV_APRILTAG_FAMILIES.get(dictionary)
+
+
+def apriltag_binding() -> tuple[str, Any] | None:
+    """The installed AprilTag binding: ``("pupil_apriltags", module)`` (preferred) or
+    ``("apriltag", module)`` (Debian's ``python3-apriltag``); None without one. The PyPI
+    package also named ``apriltag`` (an AprilTag 2 detector with another API) is not used."""
+    try:
+        import pupil_apriltags
+
+        return "pupil_apriltags", pupil_apriltags
+    except (ImportError, OSError):
+        pass
+    try:
+        import apriltag
+    except (ImportError, OSError):
+        return None
+    if callable(getattr(apriltag, "apriltag", None)):
+        return "apriltag", apriltag
+    return None
+
+
+def drop_duplicates(corners: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Detections without the ids found more than once: ``(corners (K, 4, 2), ids (K,),
+    number of ids dropped)``, in the input order."""
+    ids = np.asarray(ids, dtype=np.int64).ravel()
+    if len(ids) < 2:
+        return corners, ids, 0
+    u, counts = np.unique(ids, return_counts=True)
+    dup = u[counts > 1]
+    if len(dup) == 0:
+        return corners, ids, 0
+    keep = ~np.isin(ids, dup)
+    return corners[keep], ids[keep], len(dup)
+
+
+def _check_gray(gray: np.ndarray) -> np.ndarray:
+    g = np.asarray(gray)
+    if g.ndim != 2 or g.dtype != np.uint8:
+        raise ValueError(f"expected an (H, W) uint8 image, got {g.shape} {g.dtype}")
+    return np.ascontiguousarray(g)
+
+
+class AprilTagDetector:
+    """One AprilTag family with the AprilTag 3 library (module notes).
+
+    Args:
+        family: an AprilTag library family name (:data:`APRILTAG_FAMILIES`).
+        options: :class:`DetectorOptions`.
+        binding: ``(name, module)`` of :func:`apriltag_binding` (default: the installed one).
+
+    ``detect(gray) -> (corners (M, 4, 2) float64 px, ids (M,) int64, weak count)``: ArUco
+    corner order, OpenCV pixel convention, weak detections and repeated ids dropped.
+    Attributes after each call: ``last_weak`` (refused as weak), ``last_duplicates`` (ids
+    dropped for being found more than once), ``last_margins`` (M,) and ``last_hamming`` (M,)
+    of the kept detections.
+
+    Raises:
+        ValueError: an unknown family. ImportError: no binding installed.
+    """
+
+    backend = "apriltag"
+    fallback = None
+
+    def __init__(self, family: str, options: DetectorOptions | None = None, binding: Any = None):
+        if family not in APRILTAG_FAMILIES:
+            raise ValueError(
+                f"unknown AprilTag family {family!r}; the AprilTag library has "
+                f"{', '.join(APRILTAG_FAMILIES)}"
+            )
+        binding = binding if binding is not None else apriltag_binding()
+        if binding is None:
+            raise ImportError(f"no AprilTag library binding installed ({APRILTAG_INSTALL})")
+        self.family = family
+        self.options = options if options is not None else DetectorOptions()
+        self.binding, mod = binding
+        o = self.options
+        if self.binding == "pupil_apriltags":
+            if family not in PUPIL_FAMILIES:
+                raise ValueError(
+                    f"pupil_apriltags has no family {family!r}; it has {', '.join(PUPIL_FAMILIES)}"
+                )
+            self._det = mod.Detector(
+                families=family,
+                nthreads=int(o.nthreads),
+                quad_decimate=float(o.quad_decimate),
+                quad_sigma=float(o.quad_sigma),
+                refine_edges=int(bool(o.refine_edges)),
+                decode_sharpening=float(o.decode_sharpening),
+            )
+        else:
+            self._det = mod.apriltag(
+                family,
+                threads=int(o.nthreads),
+                maxhamming=int(o.max_hamming),
+                decimate=float(o.quad_decimate),
+                blur=float(o.quad_sigma),
+                refine_edges=bool(o.refine_edges),
+            )
+        self.min_decision_margin = (
+            DEFAULT_MIN_MARGIN[self.binding]
+            if o.min_decision_margin is None
+            else float(o.min_decision_margin)
+        )
+        # OpenCV's dictionary of the same family (the front end's windowed search), if any
+        self.dictionary = None
+        cv_name = {v: k for k, v in OPENCV_APRILTAG_FAMILIES.items()}.get(family)
+        if cv_name is not None:
+            try:
+                from .cv_compat import get_dictionary
+
+                self.dictionary = get_dictionary(cv_name)
+            except (ImportError, ValueError):
+                pass
+        self.last_weak = 0
+        self.last_duplicates = 0
+        self.last_margins = np.zeros(0)
+        self.last_hamming = np.zeros(0, np.int64)
+
+    def __del__(self):
+        # pupil_apriltags' Detector.__del__ frees its families before the detector, whose
+        # destruction then reads the freed families' decode tables (a use-after-free that
+        # crashes now and then): detach the families first
+        det = getattr(self, "_det", None)
+        if det is None or getattr(self, "binding", None) != "pupil_apriltags":
+            return
+        ptr = getattr(det, "tag_detector_ptr", None)
+        if ptr is not None:
+            det.libc.apriltag_detector_clear_families.restype = None
+            det.libc.apriltag_detector_clear_families(ptr)
+
+    def describe(self) -> str:
+        """One line for logs: detector, binding and family."""
+        return f"AprilTag 3 library ({self.binding}), {self.family}"
+
+    def raw(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The library's detections unfiltered: ``(corners (M, 4, 2) in the library's order and
+        pixel convention, ids (M,), hamming (M,), decision margins (M,))``."""
+        g = _check_gray(gray)
+        dets = self._det.detect(g)
+        if not len(dets):
+            return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        if self.binding == "pupil_apriltags":
+            c = np.array([d.corners for d in dets], dtype=np.float64)
+            ids = np.array([d.tag_id for d in dets], dtype=np.int64)
+            ham = np.array([d.hamming for d in dets], dtype=np.int64)
+            mar = np.array([d.decision_margin for d in dets], dtype=np.float64)
+        else:
+            c = np.array([d["lb-rb-rt-lt"] for d in dets], dtype=np.float64)
+            ids = np.array([d["id"] for d in dets], dtype=np.int64)
+            ham = np.array([d["hamming"] for d in dets], dtype=np.int64)
+            mar = np.array([d["margin"] for d in dets], dtype=np.float64)
+        return c.reshape(-1, 4, 2), ids, ham, mar
+
+    def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        c, ids, ham, mar = self.raw(gray)
+        ok = (ham <= int(self.options.max_hamming)) & (mar >= self.min_decision_margin)
+        self.last_weak = int(np.count_nonzero(~ok))
+        c, ids, ham, mar = c[ok], ids[ok], ham[ok], mar[ok]
+        corners = c[:, APRILTAG_TO_ARUCO_ORDER, :] - APRILTAG_PIXEL_OFFSET
+        corners, kept, self.last_duplicates = drop_duplicates(corners, ids)
+        keep = np.isin(ids, kept)
+        self.last_margins, self.last_hamming = mar[keep], ham[keep]
+        return corners, kept, self.last_weak
+
+
+class OpenCVDetector:
+    """A predefined dictionary with OpenCV's ArUco detector
+    (:class:`~rs_localizer.frontends.cv_compat.MarkerDetector`).
+
+    Args:
+        dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``...).
+        params: ``cv2.aruco.DetectorParameters`` (:func:`~.cv_compat.detector_parameters`;
+            default: OpenCV's).
+        fallback: why OpenCV detects an AprilTag family here (None: it was asked for).
+
+    ``detect(gray) -> (corners (M, 4, 2) float64 px, ids (M,) int64, rejected candidates)``
+    with repeated ids dropped (``last_duplicates``); ``last_weak`` is always 0 (OpenCV refuses
+    weak codes itself, ``errorCorrectionRate``).
+
+    Raises:
+        ValueError: an unknown dictionary. ImportError: OpenCV without ArUco.
+    """
+
+    backend = "opencv"
+
+    def __init__(self, dictionary: str, params: Any = None, fallback: str | None = None):
+        from .cv_compat import MarkerDetector, get_dictionary
+
+        self.name = dictionary
+        self.dictionary = get_dictionary(dictionary)
+        self._det = MarkerDetector(self.dictionary, params)
+        self.params = self._det.params
+        self.fallback = fallback
+        self.last_weak = 0
+        self.last_duplicates = 0
+
+    def describe(self) -> str:
+        """One line for logs: detector and dictionary (and why, after a fallback)."""
+        s = f"OpenCV ArUco, {self.name}"
+        return s if self.fallback is None else f"{s} ({self.fallback})"
+
+    def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        corners, ids, rejected = self._det.detect(_check_gray(gray))
+        corners, ids, self.last_duplicates = drop_duplicates(corners, ids)
+        return corners, ids, rejected
+
+
+def make_marker_detector(
+    dictionary: str, options: DetectorOptions | None = None, opencv_params: Any = None
+) -> AprilTagDetector | OpenCVDetector:
+    """The detector of a marker map's ``dictionary`` (module notes).
+
+    Args:
+        dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``,
+            ``DICT_APRILTAG_36h11``...) or an AprilTag library family (``tag36h11``,
+            ``tagStandard41h12``...).
+        options: :class:`DetectorOptions` (default: its defaults).
+        opencv_params: ``cv2.aruco.DetectorParameters`` of the OpenCV detector.
+    Returns:
+        an :class:`AprilTagDetector` or an :class:`OpenCVDetector`; its ``fallback`` is a
+        sentence (also issued as a :class:`RuntimeWarning`) when OpenCV stands in for a missing
+        AprilTag library, else None.
+    Raises:
+        ValueError: a dictionary neither detector knows (naming the supported ones), or
+            ``detector="apriltag"`` with an ArUco dictionary, or ``detector="opencv"`` with a
+            family OpenCV lacks. ImportError: the AprilTag library is needed (``apriltag``, or a
+            family only it has) and missing.
+    """
+    o = options if options is not None else DetectorOptions()
+    family = apriltag_family(dictionary)
+    opencv_name = dictionary if str(dictionary).startswith("DICT_") else None
+    if family is None:
+        try:
+            from .cv_compat import get_dictionary
+
+            get_dictionary(dictionary)
+        except ValueError:
+            raise ValueError(
+                f"unknown marker dictionary {dictionary!r}; supported: "
+                f"{', '.join(supported_dictionaries())}"
+            ) from None
+        if o.detector == "apriltag":
+            raise ValueError(
+                f"detector 'apriltag' detects AprilTag families only, not {dictionary!r} "
+                f"(AprilTag families: {', '.join(APRILTAG_FAMILIES)}, "
+                f"{', '.join(OPENCV_APRILTAG_FAMILIES)})"
+            )
+        return OpenCVDetector(dictionary, opencv_params)
+    if o.detector == "opencv":
+        if opencv_name is None:
+            raise ValueError(
+                f"OpenCV has no AprilTag family {dictionary!r}; its AprilTag dictionaries: "
+                f"{', '.join(OPENCV_APRILTAG_FAMILIES)}"
+            )
+        return OpenCVDetector(opencv_name, opencv_params)
+    binding = apriltag_binding()
+    if binding is not None:
+        return AprilTagDetector(family, o, binding)
+    if o.detector == "apriltag" or opencv_name is None:
+        raise ImportError(
+            f"{dictionary!r} needs the AprilTag library, which is not installed "
+            f"({APRILTAG_INSTALL})"
+        )
+    why = (
+        f"the AprilTag library is not installed ({APRILTAG_INSTALL}): {opencv_name} is "
+        "detected with OpenCV's ArUco detector instead, about 20x slower on textured images"
+    )
+    warnings.warn(why, RuntimeWarning, stacklevel=2)
+    return OpenCVDetector(opencv_name, opencv_params, fallback=why)

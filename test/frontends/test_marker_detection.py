@@ -1,0 +1,260 @@
+"""The marker detector's two back ends against the renderer's exact corners: the AprilTag 3
+library for AprilTag families, OpenCV for ArUco dictionaries, one corner order and pixel
+convention; weak detections, repeated ids, unknown dictionaries and a missing library."""
+
+import time
+import types
+
+import numpy as np
+import pytest
+
+from rs_localizer.frontends import marker_detection as md
+from rs_localizer.frontends.aruco import ArucoFrontend
+from rs_localizer.frontends.image import to_gray
+from rs_localizer.frontends.marker_detection import DetectorOptions, make_marker_detector
+from rs_localizer.sim.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
+
+T_FRAME = 0.35
+
+needs_apriltag = pytest.mark.skipif(
+    md.apriltag_binding() is None, reason="no AprilTag library binding installed"
+)
+
+
+def _render(name):
+    scene = load_scene(name)
+    camera = camera_preset("vga")
+    motion = make_motion("shake", scene, duration=1.0)
+    r = Renderer(scene, camera, noise=NoiseModel())
+    return scene, camera, motion, r, to_gray(r.render(motion, T_FRAME, rng=3).image)
+
+
+@pytest.fixture(scope="module")
+def tag_board():
+    """A 640x480 rolling-shutter view of 12 AprilTag 36h11 tags (10 cm) on a board."""
+    return _render("apriltag_board")
+
+
+def _truth(scene, motion, r, ids):
+    mc = scene.marker_corners()
+    X = np.concatenate([mc[int(i)] for i in ids])
+    gt, ok = r.project(X, motion, T_FRAME, occlusion=False)
+    assert ok.all()
+    return gt.reshape(-1, 4, 2)
+
+
+@needs_apriltag
+def test_apriltag_corners_match_the_renderer(tag_board):
+    scene, _, motion, r, gray = tag_board
+    det = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=1.0))
+    assert det.backend == "apriltag" and det.fallback is None
+    corners, ids, weak = det.detect(gray)
+    assert sorted(ids.tolist()) == list(range(12)) and weak == 0
+    assert corners.shape == (12, 4, 2) and corners.dtype == np.float64
+    err = np.linalg.norm(corners - _truth(scene, motion, r, ids), axis=2)
+    # ArUco order and OpenCV's pixel-centre convention: without the library's order
+    # and half-pixel offset undone the error would be several pixels
+    assert np.median(err) < 0.15 and np.percentile(err, 90) < 0.4, err
+    # the library's raw corners: its own order, half a pixel off in x and y
+    raw, rids, _, _ = det.raw(gray)
+    order = np.argsort(rids)
+    d = raw[order][:, md.APRILTAG_TO_ARUCO_ORDER] - _truth(scene, motion, r, rids[order])
+    np.testing.assert_allclose(np.median(d.reshape(-1, 2), axis=0), [0.5, 0.5], atol=0.1)
+    # decimation keeps the corners (refine_edges) and is several times faster
+    det2 = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=2.0))
+    c2, i2, _ = det2.detect(gray)
+    assert sorted(i2.tolist()) == list(range(12))
+    e2 = np.linalg.norm(c2 - _truth(scene, motion, r, i2), axis=2)
+    assert np.median(e2) < 0.2
+    times = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        det2.detect(gray)
+        times.append(time.perf_counter() - t0)
+    assert np.median(times) < 0.1
+
+
+@needs_apriltag
+def test_both_back_ends_agree_on_an_apriltag_family(tag_board):
+    scene, _, motion, r, gray = tag_board
+    a = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=1.0))
+    o = make_marker_detector(scene.dictionary, DetectorOptions(detector="opencv"))
+    assert o.backend == "opencv" and o.fallback is None
+    ca, ia, _ = a.detect(gray)
+    co, io, _ = o.detect(gray)
+    assert set(ia.tolist()) == set(io.tolist())
+    ca, co = ca[np.argsort(ia)], co[np.argsort(io)]
+    assert np.max(np.linalg.norm(ca - co, axis=2)) < 1.5  # same order, same convention
+    # the ArUco front end uses it: correspondences from the AprilTag library
+    fe = ArucoFrontend.from_scene(scene, detector_options=DetectorOptions(quad_decimate=1.0))
+    assert fe.detector.backend == "apriltag"
+    uv, X, cids = fe.process(gray, encoding="mono8")
+    assert len(cids) == 48 and set(cids % 4) == {0, 1, 2, 3}
+    mc = scene.marker_corners()
+    np.testing.assert_allclose(X, [mc[m][k] for m, k in zip(cids // 4, cids % 4, strict=True)])
+    gt = _truth(scene, motion, r, cids[::4] // 4).reshape(-1, 2)
+    assert np.median(np.linalg.norm(uv - gt, axis=1)) < 0.15
+
+
+def test_aruco_dictionary_goes_to_opencv():
+    scene, _, motion, r, gray = _render("aruco_board")
+    det = ArucoFrontend.from_scene(scene).detector  # the front end's OpenCV settings
+    assert det.backend == "opencv" and det.fallback is None and "OpenCV" in det.describe()
+    corners, ids, _ = det.detect(gray)
+    assert len(ids) >= 10
+    err = np.linalg.norm(corners - _truth(scene, motion, r, ids), axis=2)
+    assert np.median(err) < 0.35
+
+
+def test_unknown_dictionary_and_options_are_refused():
+    with pytest.raises(ValueError, match=r"DICT_4X4_250.*tag36h11"):
+        make_marker_detector("DICT_5X5_7")
+    with pytest.raises(ValueError, match="AprilTag families only"):
+        make_marker_detector("DICT_4X4_250", DetectorOptions(detector="apriltag"))
+    with pytest.raises(ValueError, match="OpenCV has no AprilTag family"):
+        make_marker_detector("tagStandard41h12", DetectorOptions(detector="opencv"))
+    for bad in (
+        {"detector": "zbar"},
+        {"quad_decimate": 0.5},
+        {"nthreads": 0},
+        {"max_hamming": 3},
+        {"quad_sigma": -1.0},
+    ):
+        with pytest.raises(ValueError):
+            DetectorOptions(**bad)
+    o = DetectorOptions.from_mapping(
+        {"aruco.quad_decimate": 1.5, "aruco.min_decision_margin": -1.0, "other": 3}, "aruco."
+    )
+    assert o.quad_decimate == 1.5 and o.min_decision_margin is None and o.nthreads == 1
+
+
+def test_missing_library_falls_back_and_says_so(monkeypatch, tag_board):
+    _, _, _, _, gray = tag_board
+    monkeypatch.setattr(md, "apriltag_binding", lambda: None)
+    with pytest.warns(RuntimeWarning, match="not installed.*OpenCV"):
+        det = make_marker_detector("DICT_APRILTAG_36h11")
+    assert det.backend == "opencv" and "pip install pupil-apriltags" in det.fallback
+    assert "not installed" in det.describe()
+    assert sorted(det.detect(gray)[1].tolist()) == list(range(12))
+    with pytest.raises(ImportError, match="pupil-apriltags"):
+        make_marker_detector("DICT_APRILTAG_36h11", DetectorOptions(detector="apriltag"))
+    with pytest.raises(ImportError, match="needs the AprilTag library"):
+        make_marker_detector("tagStandard41h12")
+
+
+@pytest.mark.parametrize("backend", ["apriltag", "opencv"])
+def test_repeated_ids_are_dropped_and_counted(tag_board, backend):
+    if backend == "apriltag" and md.apriltag_binding() is None:
+        pytest.skip("no AprilTag library binding installed")
+    scene, _, _, _, gray = tag_board
+    det = make_marker_detector(scene.dictionary, DetectorOptions(detector=backend))
+    _, ids, _ = det.detect(gray)
+    assert det.last_duplicates == 0 and len(ids) == 12
+    twice = np.ascontiguousarray(np.hstack([gray, gray]))
+    corners, ids2, _ = det.detect(twice)
+    assert len(ids2) == 0 and corners.shape == (0, 4, 2) and det.last_duplicates == 12
+    # one tag repeated, the others once: only that id dropped
+    one = np.ascontiguousarray(np.hstack([gray, gray[:, :200]]))
+    _, ids3, _ = det.detect(one)
+    dropped = set(range(12)) - set(ids3.tolist())
+    assert len(ids3) == 12 - det.last_duplicates and det.last_duplicates == len(dropped) >= 1
+
+
+@needs_apriltag
+def test_weak_detections_are_refused(tag_board):
+    scene, _, _, _, gray = tag_board
+    det = make_marker_detector(scene.dictionary, DetectorOptions(min_decision_margin=1e6))
+    _, ids, weak = det.detect(gray)
+    assert len(ids) == 0 and weak == 12 and det.last_weak == 12
+    # textures without tags: no marker from either back end
+    rng = np.random.default_rng(0)
+    import cv2
+
+    for k in range(5):
+        noise = rng.integers(0, 256, (120, 160), dtype=np.uint8)
+        img = cv2.resize(noise, (640, 480), interpolation=cv2.INTER_NEAREST if k % 2 else 1)
+        for b in ("apriltag", "opencv"):
+            d = make_marker_detector("DICT_APRILTAG_36h11", DetectorOptions(detector=b))
+            assert len(d.detect(img)[1]) == 0
+
+
+@needs_apriltag
+def test_debian_binding_through_the_same_adapter(tag_board):
+    """Debian's python3-apriltag (module ``apriltag``: ``apriltag(family, threads=,
+    maxhamming=, decimate=, blur=, refine_edges=)``, detections as dicts with ``lb-rb-rt-lt``
+    corners) gives the same detections through the adapter; here imitated over the
+    installed library (both report the library's corners)."""
+    gray = tag_board[4]
+    name, mod = md.apriltag_binding()
+    if name == "apriltag":
+        fake = mod
+    else:
+        seen = {}
+
+        class _Debian:
+            def __init__(self, family, threads, maxhamming, decimate, blur, refine_edges):
+                seen.update(family=family, threads=threads, decimate=decimate, blur=blur)
+                self._d = mod.Detector(family, threads, decimate, blur, int(refine_edges))
+
+            def detect(self, img):
+                return tuple(
+                    {
+                        "id": d.tag_id,
+                        "hamming": d.hamming,
+                        "margin": 2 * d.decision_margin,
+                        "center": d.center,
+                        "lb-rb-rt-lt": d.corners,
+                    }
+                    for d in self._d.detect(img)
+                )
+
+        fake = types.SimpleNamespace(apriltag=_Debian)
+    opts = DetectorOptions(quad_decimate=1.0)
+    a = md.AprilTagDetector("tag36h11", opts, ("apriltag", fake))
+    b = md.AprilTagDetector("tag36h11", opts)
+    ca, ia, _ = a.detect(gray)
+    cb, ib, _ = b.detect(gray)
+    assert a.binding == "apriltag" and sorted(ia.tolist()) == list(range(12))
+    np.testing.assert_allclose(ca[np.argsort(ia)], cb[np.argsort(ib)], atol=1e-9)
+
+
+def test_node_parameters_reach_the_detector():
+    from rs_localizer.ros.maps import load_maps
+    from rs_localizer.ros.params import ConfigError, build_config, default_values
+
+    v = default_values()
+    # the node's defaults are the detector's
+    assert DetectorOptions.from_mapping(v, "aruco.") == DetectorOptions()
+    v.update(
+        {
+            "frontend": "aruco",
+            "frontend_map": "apriltag_board",
+            "aruco.quad_decimate": 1.0,
+            "aruco.max_hamming": 1,
+            "aruco.min_decision_margin": 40.0,
+        }
+    )
+    cfg = build_config(v)
+    want = DetectorOptions(quad_decimate=1.0, max_hamming=1, min_decision_margin=40.0)
+    assert cfg.frontend_options["detector_options"] == want
+    det = load_maps(cfg).frontend.detector
+    assert det.backend == ("apriltag" if md.apriltag_binding() else "opencv")
+    if det.backend == "apriltag":
+        assert det.options == want and det.min_decision_margin == 40.0
+    v["aruco.detector"] = "zbar"
+    with pytest.raises(ConfigError, match="zbar"):
+        build_config(v)
+
+
+def test_tag_boards_use_the_same_detector():
+    from rs_localizer.frontends import cv_compat
+    from rs_localizer.frontends.boards import TagBoard, TagFrontend
+
+    april = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_APRILTAG_36h11"))
+    assert april.detector.backend == ("apriltag" if md.apriltag_binding() else "opencv")
+    forced = TagFrontend(
+        TagBoard.grid(3, 2, 0.024, 0.008), detector_options=DetectorOptions(detector="opencv")
+    )
+    assert forced.detector.backend == "opencv"
+    aruco = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_6X6_250"))
+    assert isinstance(aruco.detector, cv_compat.MarkerDetector)
