@@ -282,7 +282,8 @@ def _make_texture(spec: dict, size, base: Path | None, seed: int) -> np.ndarray:
 
 # ------------------------------------------------------------------------------- loading
 def load_scene(name_or_path: str | Path | dict) -> Scene:
-    """Load a scene by built-in name (``aruco_room``, ``textured_room``), YAML path, or dict.
+    """Load a scene by built-in name (:func:`rs_localizer.maps.scenes.scene_names`: e.g.
+    ``aruco_room``, ``textured_room``, ``apriltag_room``), YAML path, or dict.
 
     Raises:
         FileNotFoundError: unknown name/path. ValueError: malformed scene (non-orthonormal quad
