@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from ..camera import CameraModel
@@ -157,37 +158,63 @@ class _Pool:
         return tuple(out)
 
 
-def _rotate(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Rodrigues rotation of vectors y (..., 3) by rotation vectors phi (..., 3)."""
-    th = np.linalg.norm(phi, axis=-1, keepdims=True)
-    small = th < 1e-12
-    k = phi / np.where(small, 1.0, th)
-    c, s = np.cos(th), np.sin(th)
-    kxy = np.cross(k, y)
-    out = y * c + kxy * s + k * np.sum(k * y, axis=-1, keepdims=True) * (1.0 - c)
-    # (small angles: first order, exact to ~1e-24)
-    return np.where(small, y + np.cross(phi, y), out)
+@njit(cache=True)
+def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, focal, out):
+    """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
+    normalized difference times the focal length; inf behind the camera)."""
+    H, N = R.shape[0], X.shape[0]
+    for h in range(H):
+        for i in range(N):
+            # y = R X, then the exact rotation expm(tau [w]x) y (Rodrigues)
+            y0 = R[h, 0, 0] * X[i, 0] + R[h, 0, 1] * X[i, 1] + R[h, 0, 2] * X[i, 2]
+            y1 = R[h, 1, 0] * X[i, 0] + R[h, 1, 1] * X[i, 1] + R[h, 1, 2] * X[i, 2]
+            y2 = R[h, 2, 0] * X[i, 0] + R[h, 2, 1] * X[i, 1] + R[h, 2, 2] * X[i, 2]
+            ti = tau[i]
+            p0, p1, p2 = ti * w[h, 0], ti * w[h, 1], ti * w[h, 2]
+            th = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+            if th < 1e-12:
+                z0 = y0 + p1 * y2 - p2 * y1
+                z1 = y1 + p2 * y0 - p0 * y2
+                z2 = y2 + p0 * y1 - p1 * y0
+            else:
+                k0, k1, k2 = p0 / th, p1 / th, p2 / th
+                c, s = np.cos(th), np.sin(th)
+                kd = (k0 * y0 + k1 * y1 + k2 * y2) * (1.0 - c)
+                z0 = y0 * c + (k1 * y2 - k2 * y1) * s + k0 * kd
+                z1 = y1 * c + (k2 * y0 - k0 * y2) * s + k1 * kd
+                z2 = y2 * c + (k0 * y1 - k1 * y0) * s + k2 * kd
+            z0 += C[h, 0] + ti * t[h, 0]
+            z1 += C[h, 1] + ti * t[h, 1]
+            z2 += C[h, 2] + ti * t[h, 2]
+            c_ = cam[i]
+            q0 = Rm[c_, 0, 0] * z0 + Rm[c_, 0, 1] * z1 + Rm[c_, 0, 2] * z2 + cm[c_, 0]
+            q1 = Rm[c_, 1, 0] * z0 + Rm[c_, 1, 1] * z1 + Rm[c_, 1, 2] * z2 + cm[c_, 1]
+            q2 = Rm[c_, 2, 0] * z0 + Rm[c_, 2, 1] * z1 + Rm[c_, 2, 2] * z2 + cm[c_, 2]
+            if q2 <= 1e-9:
+                out[h, i, 0] = np.inf
+                out[h, i, 1] = np.inf
+            else:
+                out[h, i, 0] = focal[i] * (q0 / q2 - x[i, 0])
+                out[h, i, 1] = focal[i] * (q1 / q2 - x[i, 1])
 
 
-def _errors_px(pool: _Pool, R, C, w, t, sel=None) -> np.ndarray:
-    """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points
-    (or ``sel``), with the exact rotation at each observation's measured capture time; inf for
-    a point behind its camera. Returns (H, N)."""
-    s = slice(None) if sel is None else sel
-    X, tau, cam = pool.X[s], pool.tau[s], pool.cam[s]
-    RX = np.einsum("hij,nj->hni", R, X)
-    p = (
-        _rotate(tau[None, :, None] * w[:, None, :], RX)
-        + C[:, None]
-        + tau[None, :, None] * t[:, None]
-    )
-    q = np.einsum("nij,hnj->hni", pool.R_mount[cam], p) + pool.c_mount[cam]
-    z = q[..., 2]
-    front = z > 1e-9
-    zs = np.where(front, z, 1.0)
-    d = q[..., :2] / zs[..., None] - pool.x[s]
-    e = pool.focal[s] * np.sqrt(np.sum(d * d, axis=-1))
-    return np.where(front, e, np.inf)
+def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
+    """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``."""
+    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
+    out = np.empty((len(f[0]), len(s), 2))
+    _residuals_kernel(
+        *f, pool.X[s], pool.tau[s], pool.cam[s], pool.R_mount, pool.c_mount, pool.x[s],
+        pool.focal[s], out,
+    )  # fmt: skip
+    return out
+
+
+def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
+    """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
+    with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time;
+    inf for a point behind its camera. Returns (H, N)."""
+    d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
+    return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
 
 
 def _sample(rng, pool: _Pool, n_samples: int):
@@ -257,21 +284,18 @@ def _refit(pool: _Pool, inl: np.ndarray, model, rounds: int = 2):
 
 def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float):
     """Levenberg-Marquardt (SciPy, Huber loss at the threshold) on the exact model over the
-    inliers: 12 parameters (rotation update, C, w, t)."""
+    inliers: 12 parameters (a rotation update left of R, C, w, t); residuals: the image errors
+    (px) of :func:`_errors_px`."""
     R0, C0, w0, t0 = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
         return model
-    X, tau, cam, x, f = pool.X[idx], pool.tau[idx], pool.cam[idx], pool.x[idx], pool.focal[idx]
-    Rm, cm = pool.R_mount[cam], pool.c_mount[cam]
-    RX0 = X @ R0.T
+    behind = 1e3 * threshold_px
 
     def res(u):
-        RX = _rotate(np.broadcast_to(u[0:3], RX0.shape), RX0)
-        p = _rotate(tau[:, None] * u[6:9], RX) + u[3:6] + tau[:, None] * u[9:12]
-        q = np.einsum("nij,nj->ni", Rm, p) + cm
-        z = np.where(np.abs(q[:, 2]) > 1e-9, q[:, 2], 1e-9)
-        return ((q[:, :2] / z[:, None] - x) * f[:, None]).ravel()
+        R = (rotvec_to_matrix(u[0:3]) @ R0)[None]
+        d = _residuals(pool, R, u[3:6][None], u[6:9][None], u[9:12][None], idx)[0]
+        return np.where(np.isfinite(d), d, behind).ravel()
 
     u0 = np.concatenate([np.zeros(3), C0, w0, t0])
     sol = least_squares(res, u0, loss="huber", f_scale=threshold_px, x_scale="jac")

@@ -170,3 +170,40 @@ def test_bad_input():
         estimate_rig_pose([])
     with pytest.raises(ValueError):
         estimate_rig_pose([RigView(np.zeros((3, 2)), np.zeros((4, 3)), cams[0])])
+
+
+def _poselib_generalized(views):
+    """PoseLib's generalized absolute pose (global shutter) on the same correspondences
+    (undistorted, as pinhole pixels of each camera's mean focal length), 2 px threshold."""
+    poselib = pytest.importorskip("poselib")
+    pts2, pts3, ext, cams = [], [], [], []
+    for v in views:
+        x, _, _ = v.camera.normalize(v.uv)
+        f = v.camera.mean_focal
+        pts2.append(x * f)
+        pts3.append(v.X)
+        e = poselib.CameraPose()
+        e.R, e.t = v.R_mount, v.c_mount
+        ext.append(e)
+        cams.append({"model": "PINHOLE", "width": 640, "height": 480, "params": [f, f, 0, 0]})
+    pose, _ = poselib.estimate_generalized_absolute_pose(
+        pts2, pts3, ext, cams, {"max_reproj_error": 2.0}, {}
+    )
+    return pose.R
+
+
+def test_rig_beats_poselib_generalized_global_shutter_while_turning():
+    """3 cameras x 100 correspondences, 20 % outliers, turning at 1.5 rad/s: the rig's rotation
+    error is at most a fifth of PoseLib's generalized (global-shutter) estimate's (median over
+    6 frames; measured 0.008 vs 0.46 deg here)."""
+    rng = np.random.default_rng(9)
+    rig, gs = [], []
+    for _ in range(6):
+        cams, R_m, c_m, stamps = make_rig(rng, 3)
+        truth = rig_truth(rng, w_mag=1.5)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [100, 100, 100], truth)
+        est = estimate_rig_pose(views, seed=2)
+        assert est.success
+        rig.append(rotation_angle_deg(est.R, truth[0]))
+        gs.append(rotation_angle_deg(_poselib_generalized(views), truth[0]))
+    assert np.median(rig) <= 0.2 * np.median(gs), (np.median(rig), np.median(gs))

@@ -199,7 +199,7 @@ def _poselib_pose(x, X, cam, Rm, cm):
 
 def test_global_shutter_rig_matches_poselib():
     """A still rig (w = t = 0) of 3 cameras, exact rotation: pre-rotating the world points
-    by PoseLib's minimal gP3P solution (the closest of its roots) and re-solving twice (each
+    by PoseLib's minimal gP3P solution (the closest of its roots) and solving three times (each
     pass re-pre-rotates with the last rotation, as the estimator does), the rig pose equals
     PoseLib's generalized absolute pose on the same inputs, and w, t come out zero."""
     poselib = pytest.importorskip("poselib")
