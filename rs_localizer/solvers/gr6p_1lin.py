@@ -1,0 +1,385 @@
+"""gR6P_{v,C,w,t}^{[v]x}: the linear iterative solver of paper sec. 3.3 for a rig of RS cameras.
+
+A rig carries M rolling-shutter cameras. Camera ``c`` is mounted at a known rotation ``R_c``
+and offset ``c_c`` (rig -> camera: ``x_cam = R_c x_rig + c_c``). The rig moves with the
+constant-velocity model of paper eq. 5, written in **time** instead of one camera's RS
+coordinate: with ``tau`` the time of an observation relative to the rig's reference time,
+the rig frame at that time sees a world point X at
+``p(X, tau) = (I + tau [w]x)(I + [v]x) X + C + tau t``, and camera ``c`` observes it at ``x``::
+
+    lambda [x; 1] = R_c p(X, tau) + c_c
+                  = R_c ((I + tau [w]x)(I + [v]x) X + C + tau t) + c_c            (eq. 5, rig)
+
+Unknowns (12, as R6P): ``v`` (rad, the linearized rig rotation at the reference time), ``C``
+(rig translation at the reference time, world units), ``w`` (rad per unit of tau), ``t``
+(world units per unit of tau).
+
+Time. Each camera has its own line delay, readout direction and stamp, so one camera's RS
+coordinate ``r`` is not a common clock. An observation at RS coordinate ``r`` of camera ``c``
+(``r`` as in the single-camera solvers: the normalized image coordinate along the camera's
+readout, e.g. ``x[:, 1]``) was taken at::
+
+    tau = (stamp_c - t_ref) + line_delay_c * (r - r0_c)
+
+with ``stamp_c`` the time of the camera's reference coordinate ``r0_c`` in that frame,
+``t_ref`` the rig's reference time and ``line_delay_c`` the camera's readout time per unit of
+``r`` (see :func:`rig_times`). The solver takes ``tau`` itself, in any time unit; ``w`` and
+``t`` come out per that unit (seconds give rad/s and world units/s). Gaussian elimination with
+partial pivoting and the Householder least squares do not depend on column scaling beyond the
+rank tolerance, so seconds (tau ~ 1e-2) work as well as the single camera's ``r`` (tau ~ 1).
+
+Linearization (as eq. 6 of sec. 3.3). Expanding,
+``(I + tau [w]x)(I + [v]x) X = X + [v]x X + tau [w]x X + tau [w]x [v]x X``; only the last term
+is bilinear. Each iteration fixes ``v_hat`` in it:
+``tau [w]x [v_hat]x X = tau w x Z`` with ``Z = X + v_hat x X``; everything else is linear in
+(v, C, w, t). The first iteration uses ``v_hat = v_init`` (default 0), each next one the
+previous estimate of ``v``; a fixed point satisfies the rig eq. 5 exactly.
+
+Rows per point. lambda is eliminated with the camera's ray: the rows ``E`` (2, 3) of
+``[x_hat]x`` (``E1 = [0, -1, y]``, ``E2 = [1, 0, -x]``, see ``_linear``) give
+``E . (R_c p + c_c) = 0``, i.e. ``F . p = -E . c_c`` with ``F = R_c^T E`` (the elimination rows
+turned into the rig frame). With the triple product ``F . (a x b) = a . (b x F)``, each row
+``F`` of point i gives one linear equation in ``u = [v; C; w; t]``::
+
+    [X x F | F | tau (Z x F) | tau F] . u = -F . X - E . c_c
+
+so N points give 2N equations; a camera at identity mounting (``R_c = I``, ``c_c = 0``) with
+``tau = r - r0`` gives exactly the rows of :func:`~.r6p_1lin.r6p_1lin`.
+
+Minimal number of points. 12 unknowns, 2 equations per point: 6 points in total, spread over
+the cameras in any way (all 6 in one camera is R6P_{v,C,w,t}^{[v]x} itself). The points must
+not all share one tau (then ``w`` and ``t`` only appear as ``tau w``, ``tau t`` next to ``v``
+and ``C``: rank 6): a global-shutter rig (every tau equal) is the generalized P3P problem, not
+this solver's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._common import DegenerateInputError, RSBatch, RSSolution
+from ._linear import PATIENCE, cross_into, lstsq
+
+__all__ = ["gr6p_1lin", "gr6p_1lin_batch", "rig_algebraic_error", "rig_times"]
+
+NAME = "gr6p_1lin"
+MIN_POINTS = 6
+
+
+def rig_times(
+    r: np.ndarray,
+    r0: float,
+    line_delay: float,
+    stamp_offset: float = 0.0,
+) -> np.ndarray:
+    """The time of each observation of one camera relative to the rig's reference time.
+
+    ``tau = stamp_offset + line_delay * (r - r0)`` (module docstring).
+
+    Args:
+        r: (N,) RS coordinates of the observations (normalized image units along the readout,
+            as the single-camera solvers' ``r``).
+        r0: the RS coordinate at which the camera's frame is stamped.
+        line_delay: time per unit of ``r`` (e.g. seconds per normalized unit: the readout time
+            of one pixel row times the focal length in pixels).
+        stamp_offset: the camera's frame stamp minus the rig's reference time (same time unit).
+    Returns:
+        (N,) tau in the time unit of ``line_delay`` and ``stamp_offset``.
+    """
+    return float(stamp_offset) + float(line_delay) * (np.asarray(r, dtype=np.float64) - float(r0))
+
+
+@njit(cache=True)
+def _rig_error(x, X, tau, cam, Rm, cm, v, C, w, t):
+    """RMS algebraic residual of the rig eq. 5 for one problem (module docstring)."""
+    n = x.shape[0]
+    acc = 0.0
+    for i in range(n):
+        ti = tau[i]
+        c = cam[i]
+        y0 = X[i, 0] + v[1] * X[i, 2] - v[2] * X[i, 1]
+        y1 = X[i, 1] + v[2] * X[i, 0] - v[0] * X[i, 2]
+        y2 = X[i, 2] + v[0] * X[i, 1] - v[1] * X[i, 0]
+        p0 = y0 + ti * (w[1] * y2 - w[2] * y1) + C[0] + ti * t[0]
+        p1 = y1 + ti * (w[2] * y0 - w[0] * y2) + C[1] + ti * t[1]
+        p2 = y2 + ti * (w[0] * y1 - w[1] * y0) + C[2] + ti * t[2]
+        q0 = Rm[c, 0, 0] * p0 + Rm[c, 0, 1] * p1 + Rm[c, 0, 2] * p2 + cm[c, 0]
+        q1 = Rm[c, 1, 0] * p0 + Rm[c, 1, 1] * p1 + Rm[c, 1, 2] * p2 + cm[c, 1]
+        q2 = Rm[c, 2, 0] * p0 + Rm[c, 2, 1] * p1 + Rm[c, 2, 2] * p2 + cm[c, 2]
+        e1 = -q1 + x[i, 1] * q2
+        e2 = q0 - x[i, 0] * q2
+        acc += e1 * e1 + e2 * e2
+    return np.sqrt(acc / n)
+
+
+@njit(cache=True)
+def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out, ok, its, err):
+    """The iteration of the module docstring for K problems (x (K, N, 2), X (K, N, 3),
+    tau (K, N), cam (K, N) indices into the mountings Rm (M, 3, 3), cm (M, 3)); with
+    ``use_prior`` each linear solve also takes the 6 rows ``P[k] (w, t) = q[k]``."""
+    K, N = x.shape[0], x.shape[1]
+    n_rows = 2 * N + 6 if use_prior else 2 * N
+    A = np.empty((n_rows, 12))
+    b = np.empty(n_rows)
+    u = np.zeros(12)
+    F = np.empty((N, 2, 3))  # the elimination rows in the rig frame, R_c^T E
+    d = np.empty((N, 2))  # -F . X - E . c_c (the part of the right-hand side without v_hat)
+    vhat = np.empty(3)
+    for k in range(K):
+        for i in range(N):
+            c = cam[k, i]
+            xi, yi = x[k, i, 0], x[k, i, 1]
+            X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+            # E1 = [0, -1, y], E2 = [1, 0, -x]; F = R_c^T E (sums in the order of r6p_1lin's
+            # identity case: 1 * e + 0 * ... is exact, so R_c = I gives its rows bit for bit)
+            for j in range(3):
+                F[i, 0, j] = Rm[c, 0, j] * 0.0 + Rm[c, 1, j] * -1.0 + Rm[c, 2, j] * yi
+                F[i, 1, j] = Rm[c, 0, j] * 1.0 + Rm[c, 1, j] * 0.0 + Rm[c, 2, j] * -xi
+            ec0 = -cm[c, 1] + yi * cm[c, 2]
+            ec1 = cm[c, 0] - xi * cm[c, 2]
+            d[i, 0] = -(F[i, 0, 0] * X0 + F[i, 0, 1] * X1 + F[i, 0, 2] * X2) - ec0
+            d[i, 1] = -(F[i, 1, 0] * X0 + F[i, 1, 1] * X1 + F[i, 1, 2] * X2) - ec1
+        for a in range(3):
+            vhat[a] = v_init[k, a]
+        best = np.inf
+        stale = 0
+        ok[k] = False
+        its[k] = 0
+        for it in range(iterations):
+            for i in range(N):
+                ti = tau[k, i]
+                X0, X1, X2 = X[k, i, 0], X[k, i, 1], X[k, i, 2]
+                Z0 = X0 + vhat[1] * X2 - vhat[2] * X1
+                Z1 = X1 + vhat[2] * X0 - vhat[0] * X2
+                Z2 = X2 + vhat[0] * X1 - vhat[1] * X0
+                for qq in range(2):
+                    row = A[2 * i + qq]
+                    f0, f1, f2 = F[i, qq, 0], F[i, qq, 1], F[i, qq, 2]
+                    cross_into(X0, X1, X2, f0, f1, f2, row, 0)
+                    row[3] = f0
+                    row[4] = f1
+                    row[5] = f2
+                    cross_into(Z0, Z1, Z2, f0, f1, f2, row, 6)
+                    row[6] *= ti
+                    row[7] *= ti
+                    row[8] *= ti
+                    row[9] = ti * f0
+                    row[10] = ti * f1
+                    row[11] = ti * f2
+                    b[2 * i + qq] = d[i, qq]
+            if use_prior:
+                for a in range(6):
+                    row = A[2 * N + a]
+                    for j in range(6):
+                        row[j] = 0.0
+                        row[6 + j] = P[k, a, j]
+                    b[2 * N + a] = q[k, a]
+            if not lstsq(A, b, u):
+                break
+            e = _rig_error(x[k], X[k], tau[k], cam[k], Rm, cm, u[0:3], u[3:6], u[6:9], u[9:12])
+            its[k] = it + 1
+            # stop as r6p_1lin: converged, or no new best by more than tol for PATIENCE steps
+            stale = 0 if e < best - tol else stale + 1
+            if e < best:
+                best = e
+                for a in range(12):
+                    out[k, a] = u[a]
+                ok[k] = True
+            for a in range(3):
+                vhat[a] = u[a]
+            if e <= tol or stale >= PATIENCE:
+                break
+        err[k] = best
+
+
+def _mountings(R_mount, c_mount, cam, name):
+    """Validated (M, 3, 3), (M, 3) float64 mountings and int64 camera indices."""
+    Rm = np.ascontiguousarray(R_mount, dtype=np.float64)
+    cm = np.ascontiguousarray(c_mount, dtype=np.float64)
+    if Rm.ndim != 3 or Rm.shape[1:] != (3, 3):
+        raise ValueError(f"{name}: R_mount must have shape (M, 3, 3), got {Rm.shape}")
+    if cm.shape != (len(Rm), 3):
+        raise ValueError(f"{name}: c_mount must have shape ({len(Rm)}, 3), got {cm.shape}")
+    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+        raise ValueError(f"{name}: mountings contain NaN or inf")
+    cam_a = np.asarray(cam)
+    if cam_a.size and not np.issubdtype(cam_a.dtype, np.integer):
+        raise ValueError(f"{name}: cam must hold integer camera indices, got {cam_a.dtype}")
+    cam_a = np.ascontiguousarray(cam_a, dtype=np.int64)
+    if cam_a.size and (cam_a.min() < 0 or cam_a.max() >= len(Rm)):
+        raise ValueError(f"{name}: cam indices must lie in [0, {len(Rm)}), got {cam_a.min()}..")
+    return Rm, cm, cam_a
+
+
+def _check(x, X, tau, cam, R_mount, c_mount, batched):
+    """Shapes (N or K, N) of the inputs; float64 contiguous copies."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    lead = x.shape[:-1]
+    nd = 3 if batched else 2
+    shape = "(K, N" if batched else "(N"
+    if x.ndim != nd or x.shape[-1] != 2:
+        raise ValueError(f"{NAME}: x must have shape {shape}, 2), got {x.shape}")
+    if X.shape != lead + (3,):
+        raise ValueError(f"{NAME}: X must have shape {lead + (3,)}, got {X.shape}")
+    if x.shape[-2] < MIN_POINTS:
+        raise ValueError(f"{NAME}: needs at least {MIN_POINTS} correspondences, got {x.shape[-2]}")
+    tau = np.ascontiguousarray(tau, dtype=np.float64)
+    if tau.shape != lead:
+        raise ValueError(f"{NAME}: tau must have shape {lead}, got {tau.shape}")
+    cam = np.broadcast_to(np.asarray(cam), lead) if np.ndim(cam) == 0 else cam
+    Rm, cm, cam = _mountings(R_mount, c_mount, cam, NAME)
+    if cam.shape != lead:
+        raise ValueError(f"{NAME}: cam must have shape {lead}, got {cam.shape}")
+    return x, X, tau, cam, Rm, cm
+
+
+def _v0(v_init, K):
+    if v_init is None:
+        return np.zeros((K, 3))
+    v0 = np.array(np.broadcast_to(np.asarray(v_init, dtype=float), (K, 3)), order="C")
+    if not np.isfinite(v0).all():
+        raise ValueError(f"{NAME}: v_init contains NaN or inf")
+    return v0
+
+
+_NO_P, _NO_Q = np.zeros((1, 6, 6)), np.zeros((1, 6))
+
+
+def gr6p_1lin(
+    x: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    cam: np.ndarray,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    iterations: int = 5,
+    v_init: np.ndarray | None = None,
+    tol: float = 1e-12,
+) -> RSSolution:
+    """gR6P_{v,C,w,t}^{[v]x}: linear iterative absolute pose of a rig of RS cameras (paper
+    sec. 3.3, eq. 5-6, generalized in the module docstring).
+
+    Args:
+        x: (N, 2) calibrated (undistorted, normalized) image points, each in its own camera;
+            N >= 6 over all cameras, N > 6 solves each iteration in the least-squares sense.
+        X: (N, 3) world points (any unit; C and t come out in it).
+        tau: (N,) time of each observation relative to the rig's reference time, any time unit
+            (:func:`rig_times` converts one camera's RS coordinates); not all equal.
+        cam: (N,) int index of the camera that observed each point (or one int for all).
+        R_mount: (M, 3, 3) camera rotations on the rig (``x_cam = R_c x_rig + c_c``).
+        c_mount: (M, 3) camera offsets ``c_c`` (world units).
+        iterations: maximum linear iterations (each one 2N x 12 system).
+        v_init: (3,) initial ``v_hat`` for the nonlinear term (default zeros).
+        tol: stop when the RMS algebraic error is <= tol, or when it has not decreased by more
+            than tol for 3 iterations.
+    Returns:
+        :class:`RSSolution` of the rig: v (rad), C (``x_rig = (I + [v]x) X + C`` at the
+        reference time), w (rad per unit of tau), t (world units per unit of tau), the
+        iterations run and the RMS algebraic error; the iterate with the lowest error is kept.
+    Raises:
+        ValueError: wrong shapes, N < 6, NaN/inf input, camera index out of range,
+            iterations < 1.
+        DegenerateInputError (a ValueError): rank-deficient system (collinear or duplicated
+            points, every tau equal).
+    """
+    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
+    if not (np.isfinite(x).all() and np.isfinite(X).all() and np.isfinite(tau).all()):
+        raise ValueError(f"{NAME}: inputs contain NaN or inf")
+    if iterations < 1:
+        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
+    v0 = _v0(v_init, 1)
+    out = np.zeros((1, 12))
+    ok = np.zeros(1, dtype=np.bool_)
+    its = np.zeros(1, dtype=np.int64)
+    err = np.zeros(1)
+    _solve(
+        x[None], X[None], tau[None], cam[None], Rm, cm, int(iterations), float(tol), v0,
+        _NO_P, _NO_Q, np.bool_(False), out, ok, its, err,
+    )  # fmt: skip
+    if not ok[0] or not np.isfinite(out[0]).all():
+        raise DegenerateInputError(
+            f"{NAME}: the correspondences do not determine a solution (rank-deficient system; "
+            "collinear or duplicated points, or every observation at the same time?)"
+        )
+    u = out[0]
+    return RSSolution(u[0:3], u[3:6], u[6:9], u[9:12], None, int(its[0]), float(err[0]))
+
+
+def gr6p_1lin_batch(
+    x: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    cam: np.ndarray,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    iterations: int = 5,
+    v_init: np.ndarray | None = None,
+    tol: float = 1e-12,
+    prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RSBatch:
+    """Batched :func:`gr6p_1lin` for K problems (RANSAC hypotheses) on one rig.
+
+    Args:
+        x: (K, N, 2), X: (K, N, 3), tau: (K, N), cam: (K, N) int (or one int).
+        R_mount: (M, 3, 3), c_mount: (M, 3): the mountings, shared by all problems.
+        v_init: (3,) or (K, 3) or None.
+        prior_rows: ``None``, or ``(P (K, 6, 6), q (K, 6))``: every linear solve then minimizes
+            ``|A u - b|^2 + |P[k] (w, t) - q[k]|^2`` (a linearized motion prior on the rig's
+            velocities, in the units of tau), as ``r6p_1lin_batch``.
+    Returns:
+        :class:`RSBatch` with (K, 3) v, C, w, t and a (K,) ``valid`` mask (False for rank loss
+        or non-finite input, never raises for those).
+    Raises:
+        ValueError: wrong shapes, N < 6, camera index out of range, non-finite mountings,
+            iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
+    """
+    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
+    K = x.shape[0]
+    if iterations < 1:
+        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
+    v0 = _v0(v_init, K)
+    if prior_rows is None:
+        P, q, use = _NO_P, _NO_Q, np.bool_(False)
+    else:
+        P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
+        q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
+        if P.shape != (K, 6, 6) or q.shape != (K, 6):
+            raise ValueError(
+                f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
+                f"got {P.shape} and {q.shape}"
+            )
+        use = np.bool_(True)
+    out = np.zeros((K, 12))
+    ok = np.zeros(K, dtype=np.bool_)
+    its = np.zeros(K, dtype=np.int64)
+    err = np.zeros(K)
+    _solve(x, X, tau, cam, Rm, cm, int(iterations), float(tol), v0, P, q, use, out, ok, its, err)
+    ok &= np.isfinite(out).all(axis=1)
+    out[~ok] = 0.0
+    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
+
+
+def rig_algebraic_error(
+    x: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    cam: np.ndarray,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    v: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+) -> float:
+    """RMS algebraic residual of the rig eq. 5 (module docstring) for one solution.
+
+    Args: as :func:`gr6p_1lin`, and the rig's v, C, w, t (3,) each.
+    Returns: the RMS over points of the two eliminated equations (normalized image units
+        times depth).
+    Raises: ValueError on wrong shapes (as :func:`gr6p_1lin`).
+    """
+    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=False)
+    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (v, C, w, t)]
+    return float(_rig_error(x, X, tau, cam, Rm, cm, *f))

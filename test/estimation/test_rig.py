@@ -1,0 +1,209 @@
+"""estimate_rig_pose: a rig of RS cameras posed as one body, against the truth and against each
+camera alone (the single-camera estimator)."""
+
+import numpy as np
+import pytest
+
+from rs_localizer.camera import CameraModel
+from rs_localizer.estimation import estimate_rs_pose
+from rs_localizer.estimation.rig import RigView, estimate_rig_pose
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+
+READOUTS = ("top_to_bottom", "left_to_right", "bottom_to_top", "top_to_bottom")
+
+
+def make_rig(rng, m):
+    """M cameras looking outward around the rig's y axis, 5-20 cm off its origin, readout
+    20-35 ms, stamps up to 10 ms apart; returns cameras, mountings and stamp offsets."""
+    cams, R, c, s = [], [], [], []
+    for k in range(m):
+        f = rng.uniform(450, 600)
+        K = np.array([[f, 0, 320.0], [0, f, 240.0], [0, 0, 1]])
+        cams.append(
+            CameraModel.from_readout_time(
+                K, rng.uniform(0.02, 0.035), 640, 480, readout=READOUTS[k % 4]
+            )
+        )
+        Rc = rotvec_to_matrix([0.0, 2 * np.pi * k / m, 0.0]) @ rotvec_to_matrix(
+            rng.normal(size=3) * 0.05
+        )
+        pos = rng.uniform(-0.2, 0.2, 3)
+        R.append(Rc)
+        c.append(-Rc @ pos)
+        s.append(rng.uniform(-0.005, 0.005))
+    return cams, R, c, s
+
+
+def camera_pose(Rc, cc, s, cam, R, C, w, t):
+    """The camera's single-camera model (R, C, w, t per unit r) at its reference line, from
+    the rig's (R, C at the rig's reference time, w rad/s, t m/s)."""
+    spr = cam.seconds_per_unit_r
+    return Rc @ rotvec_to_matrix(s * w) @ R, Rc @ (C + s * t) + cc, spr * Rc @ w, spr * Rc @ t
+
+
+def rig_frame(rng, cams, R_m, c_m, stamps, counts, truth, noise_px=0.5, outliers=0.2):
+    """Views of world points seen by each camera (exact RS projection, noise, outliers)."""
+    R, C, w, t = truth
+    views = []
+    for cam, Rc, cc, s, n in zip(cams, R_m, c_m, stamps, counts, strict=True):
+        Rp, Cp, wp, tp = camera_pose(Rc, cc, s, cam, R, C, w, t)
+        uv = np.zeros((0, 2))
+        X = np.zeros((0, 3))
+        while len(uv) < n:
+            xn = rng.uniform([-0.55, -0.4], [0.55, 0.4], (4 * n, 2))
+            z = rng.uniform(2.0, 8.0, 4 * n)
+            Xc = np.c_[xn * z[:, None], z]
+            Xw = (Xc - Cp) @ Rp  # world points near where the camera looks
+            p = cam.project_rs(Xw, Rp, Cp, wp, tp)
+            ok = np.isfinite(p).all(axis=1) & cam.in_image(p, -5)
+            uv = np.vstack([uv, p[ok]])[:n]
+            X = np.vstack([X, Xw[ok]])[:n]
+        uv = uv + rng.normal(size=uv.shape) * noise_px
+        bad = rng.random(n) < outliers
+        uv[bad] = rng.uniform([0, 0], [640, 480], (bad.sum(), 2))
+        views.append(RigView(uv, X, cam, Rc, cc, s))
+    return views
+
+
+def rig_truth(rng, w_mag=1.5):
+    w = rng.normal(size=3)
+    return (
+        rotvec_to_matrix(rng.normal(size=3)),
+        rng.normal(size=3),
+        w * w_mag / np.linalg.norm(w),
+        rng.normal(size=3),
+    )
+
+
+def test_three_camera_rig_with_outliers_recovers_the_truth():
+    """3 cameras x 80 correspondences, 20 % outliers, 0.5 px noise, turning at 1.5 rad/s,
+    moving at ~1.7 m/s, stamps up to 10 ms apart: pose, angular and linear velocity close to
+    the truth; the outliers are found."""
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        cams, R_m, c_m, stamps = make_rig(rng, 3)
+        truth = rig_truth(rng)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [80, 80, 80], truth)
+        est = estimate_rig_pose(views, seed=1)
+        assert est.success
+        R, C, w, t = truth
+        assert rotation_angle_deg(est.R, R) < 0.1
+        assert np.linalg.norm(est.position - (-R.T @ C)) < 0.02
+        assert np.linalg.norm(est.w - w) < 0.1
+        assert np.linalg.norm(est.t - t) < 0.3
+        assert 0.7 * 240 < est.num_inliers < 0.9 * 240
+        assert est.rmse_px < 1.0
+
+
+def _camera_errors(R, C, Rt, Ct):
+    """Rotation error (deg) and camera-centre error (m) of a camera pose."""
+    return rotation_angle_deg(R, Rt), np.linalg.norm(R.T @ C - Rt.T @ Ct)
+
+
+def test_rig_beats_the_camera_alone_when_the_other_sees_few_points():
+    """Camera 0 sees 20 points, camera 1 only 3 (10 % outliers over both): the rig is posed,
+    and camera 0's pose from the rig is more accurate than camera 0 estimated alone
+    (median over 12 frames; the second camera's rays fix what a narrow view leaves loose)."""
+    rng = np.random.default_rng(2)
+    rig_r, rig_p, one_r, one_p = [], [], [], []
+    for _ in range(12):
+        cams, R_m, c_m, stamps = make_rig(rng, 2)
+        truth = rig_truth(rng, w_mag=1.0)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [20, 3], truth, outliers=0.1)
+        est = estimate_rig_pose(views, seed=3, min_inliers=6)
+        assert est.success
+        Rt, Ct, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], *truth)
+        Re, Ce, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], est.R, est.C, est.w, est.t)
+        er, ep = _camera_errors(Re, Ce, Rt, Ct)
+        rig_r.append(er)
+        rig_p.append(ep)
+        alone = estimate_rs_pose(views[0].uv, views[0].X, cams[0])
+        if alone.success:
+            ar, ap = _camera_errors(alone.model.R, alone.model.C, Rt, Ct)
+        else:
+            ar, ap = np.inf, np.inf
+        one_r.append(ar)
+        one_p.append(ap)
+    print("rig", np.median(rig_r), np.median(rig_p), "alone", np.median(one_r), np.median(one_p))
+    assert np.median(rig_r) < np.median(one_r)
+    assert np.median(rig_p) < np.median(one_p)
+
+
+def test_rig_with_three_cameras_beats_the_best_single_camera():
+    """3 cameras with 60, 30 and 8 correspondences (15 % outliers): the rig's pose of each
+    camera is more accurate than that camera alone, in the median over 8 frames."""
+    rng = np.random.default_rng(4)
+    rig_err = {c: [] for c in range(3)}
+    one_err = {c: [] for c in range(3)}
+    for _ in range(8):
+        cams, R_m, c_m, stamps = make_rig(rng, 3)
+        truth = rig_truth(rng)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [60, 30, 8], truth, outliers=0.15)
+        est = estimate_rig_pose(views, seed=5)
+        assert est.success
+        for c in range(3):
+            Rt, Ct, *_ = camera_pose(R_m[c], c_m[c], stamps[c], cams[c], *truth)
+            Re, Ce, *_ = camera_pose(R_m[c], c_m[c], stamps[c], cams[c], est.R, est.C, est.w, est.t)
+            rig_err[c].append(_camera_errors(Re, Ce, Rt, Ct))
+            alone = estimate_rs_pose(views[c].uv, views[c].X, cams[c])
+            one_err[c].append(
+                _camera_errors(alone.model.R, alone.model.C, Rt, Ct)
+                if alone.success
+                else (np.inf, np.inf)
+            )
+    for c in range(3):
+        rig_m = np.median(np.array(rig_err[c]), axis=0)
+        one_m = np.median(np.array(one_err[c]), axis=0)
+        print(c, rig_m, one_m)
+        assert (rig_m < one_m).all(), (c, rig_m, one_m)
+
+
+def test_bad_input():
+    rng = np.random.default_rng(6)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    truth = rig_truth(rng)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [2, 2], truth)
+    est = estimate_rig_pose(views)
+    assert not est.success and est.failure == "too_few_points"
+    assert [len(m) for m in est.inliers] == [2, 2]
+    with pytest.raises(ValueError):
+        estimate_rig_pose([])
+    with pytest.raises(ValueError):
+        estimate_rig_pose([RigView(np.zeros((3, 2)), np.zeros((4, 3)), cams[0])])
+
+
+def _poselib_generalized(views):
+    """PoseLib's generalized absolute pose (global shutter) on the same correspondences
+    (undistorted, as pinhole pixels of each camera's mean focal length), 2 px threshold."""
+    poselib = pytest.importorskip("poselib")
+    pts2, pts3, ext, cams = [], [], [], []
+    for v in views:
+        x, _, _ = v.camera.normalize(v.uv)
+        f = v.camera.mean_focal
+        pts2.append(x * f)
+        pts3.append(v.X)
+        e = poselib.CameraPose()
+        e.R, e.t = v.R_mount, v.c_mount
+        ext.append(e)
+        cams.append({"model": "PINHOLE", "width": 640, "height": 480, "params": [f, f, 0, 0]})
+    pose, _ = poselib.estimate_generalized_absolute_pose(
+        pts2, pts3, ext, cams, {"max_reproj_error": 2.0}, {}
+    )
+    return pose.R
+
+
+def test_rig_beats_poselib_generalized_global_shutter_while_turning():
+    """3 cameras x 100 correspondences, 20 % outliers, turning at 1.5 rad/s: the rig's rotation
+    error is at most a fifth of PoseLib's generalized (global-shutter) estimate's (median over
+    6 frames; measured 0.008 vs 0.46 deg here)."""
+    rng = np.random.default_rng(9)
+    rig, gs = [], []
+    for _ in range(6):
+        cams, R_m, c_m, stamps = make_rig(rng, 3)
+        truth = rig_truth(rng, w_mag=1.5)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [100, 100, 100], truth)
+        est = estimate_rig_pose(views, seed=2)
+        assert est.success
+        rig.append(rotation_angle_deg(est.R, truth[0]))
+        gs.append(rotation_angle_deg(_poselib_generalized(views), truth[0]))
+    assert np.median(rig) <= 0.2 * np.median(gs), (np.median(rig), np.median(gs))
