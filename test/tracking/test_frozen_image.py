@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from helpers.videos import shake_video
 
+from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
@@ -56,11 +57,25 @@ def test_a_frozen_image_gives_no_wrong_pose(video):
 
 
 def test_collapsed_tracks_are_matched_whole(video):
-    """With the frozen-image check off, the front end's own guard still keeps the first new
-    image after the freeze from a pose on the few tracks that survived: the tracks collapsed
-    below a quarter of the video's recent inliers, so the frame is matched whole."""
-    got = _run(video, SequenceSettings(frozen_image_level=-1.0))
-    after = [(k, e) for k, (_, e) in enumerate(got) if k > FROZEN[-1] and e is not None]
-    wrong = [(k, e) for k, e in after if e[0] > 1.0 or e[1] > 5.0]
-    assert wrong == [], wrong
-    assert len(after) >= len(got) - FROZEN[-1] - 3, got[FROZEN[-1] :]
+    """The front end's own guard: an image that jumped (frame 23's image at frame 16's stamp,
+    after a frozen frame the front end was not told about) leaves few tracks; fewer than a
+    quarter of the video's recent inliers, so the frame is matched whole (``few_tracks``)
+    and its pose is right, where without the guard a pose rests on the survivors."""
+    fmap, frames, camera, _, _ = video
+    got = {}
+    for ratio in (0.25, 0.0):
+        fe = TrackingFeatureFrontend(fmap, collapse_ratio=ratio)
+        for k in [*range(16), 23]:
+            image = frames[14].image if k == 15 else frames[k].image
+            stamp = int(round(frames[16 if k == 23 else k].t_first * 1e9))
+            uv, X, _ = fe.process(image, camera, "rgb8", stamp_ns=stamp)
+            est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
+            fe.observe(stamp, None, est)
+            fe.wait_refresh(60.0)
+        got[ratio] = (fe.report.kind, fe.report.reason, len(uv), est)
+    kind, reason, n, est = got[0.25]
+    assert (kind, reason) == ("global", "few_tracks") and est.success
+    assert rotation_angle_deg(est.orientation, frames[23].orientation) < 1.0
+    assert np.linalg.norm(est.position - frames[23].position) < 0.05
+    kind, _, n_tracked, _ = got[0.0]
+    assert kind == "tracked" and n_tracked < 0.25 * n  # (what the guard caught)
