@@ -404,6 +404,8 @@ def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline, out_c
     into ``result``; the CSV written to ``out_csv`` (None: none)."""
     result.rows = rows.finish()
     result.counts = pipeline.stats.snapshot().counts
+    if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
+        result.notes.append(pipeline.map_fit_text())
     bias = pipeline.gyro_bias_values()
     if bias is not None:
         result.gyro_bias, result.gyro_bias_std = bias
