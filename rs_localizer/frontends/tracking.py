@@ -27,7 +27,10 @@ Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences 
   (:class:`~rs_localizer.frontends.features.FeatureFrontend`, FLANN for SIFT maps), run
   synchronously only when there is nothing to track: the first frame, after a frame that was
   not solved, after a time reset (a stamp going back, or further ahead than ``reset_gap_s``),
-  or when fewer than ``min_points`` tracks remain.
+  or when fewer than ``min_points`` tracks remain, or fewer than ``collapse_ratio`` times
+  the median inlier count of the video's last solved frames (the tracks collapsed: an image
+  that jumped, a stale prediction; a pose from their few survivors would be an accidental
+  fit, so the frame is matched whole as a relocalization is).
 
 The estimator stays the judge: every pose comes from a full rolling-shutter estimate over these
 correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end the frame's
@@ -114,6 +117,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
         search_radius_px: guided matching window around each predicted pixel (px).
         min_tracked_inliers: fewer tracked inliers than this start a refresh.
         min_points: fewer correspondences than this after tracking: a global frame.
+        collapse_ratio: fewer correspondences after tracking than this times the median
+            inlier count of the last ``recent_frames`` solved frames (at least 3 of them): a
+            global frame (reason ``few_tracks``); 0: never.
         max_tracks: at most this many tracks followed per frame (the best spread kept).
         lk_window, lk_levels: LK window (px) and pyramid levels. fb_max_px: forward-backward
             error bound (px).
@@ -156,6 +162,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         refresh_wait_frames: int | None = None,
         max_anchor_age: int = 30,
         max_anchors: int = 4,
+        collapse_ratio: float = 0.25,
+        recent_frames: int = 10,
     ):
         if not isinstance(feature_map, FeatureMap):
             feature_map = FeatureMap.load(feature_map)
@@ -202,6 +210,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self.fb_max_px = float(fb_max_px)
         self.max_anchor_age = int(max_anchor_age)
         self.max_anchors = int(max_anchors)
+        self.collapse_ratio = float(collapse_ratio)
+        self._recent = deque(maxlen=max(int(recent_frames), 1))  # inliers of solved frames
         self.reset_gap_ns = int(reset_gap_s * 1e9)
         self._n_features = int(n_features)
         self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
@@ -242,6 +252,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self.last_kinds = np.zeros(0, np.int8)
         self.last_ages = np.zeros(0, np.int64)
         self._lost = True
+        self._recent.clear()
 
     def _time_reset(self, stamp_ns: int | None) -> bool:
         if stamp_ns is None or self._stamp is None:
@@ -314,7 +325,9 @@ class TrackingFeatureFrontend(FeatureFrontend):
                 anc_uv = np.concatenate([anc_uv, g_anc_uv])
                 self._anchors[job.index] = job.gray
             anc, anc_uv = self._reanchor(anc, anc_uv, uv, gray)
-            if len(uv) < self.min_points:
+            recent = self._recent
+            collapsed = len(recent) >= 3 and len(uv) < self.collapse_ratio * np.median(recent)
+            if len(uv) < self.min_points or collapsed:
                 reason = "few_tracks"
                 self._drop_tracks(keep_refresh=False)
         if reason is not None:
@@ -388,6 +401,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         else:
             keep = np.zeros(0, np.int64)
         self._uv = np.asarray(uv[keep], np.float32).reshape(-1, 2)
+        self._recent.append(len(keep))
         self._rows = self._out_rows[keep]
         self._age = self._out_age[keep]
         self._anc, self._anc_uv = self._out_anc[keep], self._out_anc_uv[keep]

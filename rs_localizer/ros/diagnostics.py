@@ -149,6 +149,11 @@ def _level_and_message(
             if frames.received
             else "waiting for frames"
         )
+    if c.get("map_fit_doubtful", 0) and level != OK:
+        message += (
+            "; most frames with many matches refused: does the map fit this place? mirrored "
+            "or another room?"
+        )
     return level, message
 
 
@@ -192,6 +197,8 @@ def _core_values(
         "clouds_capped": c.get("capped_clouds", 0),
         "unknown_landmark_ids": c.get("unknown_landmark_ids", 0),
         "camera_info_rejected": c.get("camera_info_rejected", 0),
+        "frames_failed_with_matches": c.get("frames_failed_with_matches", 0),
+        "map_fit_doubtful": str(bool(c.get("map_fit_doubtful", 0))).lower(),
         "inliers_last": inliers[-1] if inliers else 0,
         "inliers_mean": f"{np.mean(inliers):.1f}" if inliers else "0",
         "planar": str(stats.planar).lower(),

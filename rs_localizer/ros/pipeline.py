@@ -64,6 +64,22 @@ FRAME_KINDS = ("correspondences", "keypoints", "image")
 #: s between two log lines of the same kind (per failure reason)
 LOG_PERIOD = 2.0
 _STATS_KEPT = 1000
+#: the map-fit check: a frame with at least ``MAP_FIT_MIN_POINTS`` correspondences that the
+#: estimator refused for one of ``MAP_FIT_REASONS`` (no pose explains its matches) counts in
+#: ``frames_failed_with_matches``; when at least 80 % of the last ``MAP_FIT_WINDOW`` frames
+#: with that many correspondences (at least half that many of them) were so refused, the map
+#: is doubted (``map_fit_doubtful``, a throttled warning): a mirrored (left-handed) map or a
+#: map of another place gives many matches and no pose
+MAP_FIT_MIN_POINTS = 20
+MAP_FIT_WINDOW = 20
+MAP_FIT_REASONS = (
+    "implausible_motion",
+    "too_few_inliers",
+    "inconsistent_fit",
+    "cheirality",
+    "no_hypothesis",
+    "degenerate_geometry",
+)
 
 
 def log_warm_up(
@@ -195,6 +211,11 @@ class PipelineStats:
         with self._lock:
             self._counts[key] += n
 
+    def set(self, key: str, value: int) -> None:
+        """Set the counter ``key`` to ``value`` (a state, e.g. ``map_fit_doubtful``)."""
+        with self._lock:
+            self._counts[key] = value
+
     def stage_time(self, stage: str, seconds: float) -> None:
         """Record the time (s) a frame spent in ``stage``."""
         with self._lock:
@@ -318,6 +339,8 @@ class FramePipeline:
         self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
         self.stats = PipelineStats()
         self.history = CameraInfoHistory()
+        # (the map-fit check: (refused, reason, correspondences) of the last frames with many)
+        self._fit: deque[tuple[bool, str, int]] = deque(maxlen=MAP_FIT_WINDOW)
         self._stopped = stopped
         self._config: LocalizerConfig | None = None
         # the camera's video state: tracker, fused twists pending, gyro, bias, gyro check
@@ -537,6 +560,7 @@ class FramePipeline:
             raise _Drop("estimator_error", out.error or "no estimate")
         self.stats.add("points_dropped", int(est.num_dropped))
         res.estimate = est
+        self._check_map_fit(len(uv), est)
         if not est.success:
             raise _Drop(
                 est.failure or "estimator_error",
@@ -549,6 +573,39 @@ class FramePipeline:
         res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
+
+    def _check_map_fit(self, n_points: int, est: Any) -> None:
+        """The map-fit check (:data:`MAP_FIT_REASONS`): a frame of ``n_points`` (at least
+        :data:`MAP_FIT_MIN_POINTS`) correspondences solved or refused for its geometry joins
+        the window; most of the window refused: ``map_fit_doubtful`` and a throttled warning
+        that names the map as the likely cause."""
+        if n_points < MAP_FIT_MIN_POINTS:
+            return
+        refused = not est.success and est.failure in MAP_FIT_REASONS
+        if not est.success and not refused:
+            return
+        if refused:
+            self.stats.add("frames_failed_with_matches")
+        self._fit.append((refused, est.failure or "", n_points))
+        w = self._fit
+        n_refused = sum(r for r, _, _ in w)
+        doubt = len(w) >= MAP_FIT_WINDOW // 2 and n_refused >= 0.8 * len(w)
+        self.stats.set("map_fit_doubtful", int(doubt))
+        if doubt and refused:
+            self.log.warning("map_fit", self.map_fit_text())
+
+    def map_fit_text(self) -> str:
+        """The map-fit warning for the current window (see :data:`MAP_FIT_REASONS`)."""
+        w = self._fit
+        reasons = Counter(why for r, why, _ in w if r)
+        median = int(np.median([n for _, _, n in w])) if w else 0
+        return (
+            f"{sum(reasons.values())} of the last {len(w)} frames with {MAP_FIT_MIN_POINTS} or "
+            f"more correspondences (median {median}) were refused "
+            f"({', '.join(f'{k} {v}' for k, v in reasons.most_common())}): does the map fit "
+            "this place? mirrored (left-handed, z -> -z) or another room? Matches that no pose "
+            "explains point at the map, not at the camera"
+        )
 
     def _check_time(self, stamp: int) -> None:
         """A stamp older than the previous frame's, or newer by more than

@@ -96,8 +96,35 @@ MAX_PENDING = 64
 MAX_STAMP_NS = 2**63 - 1
 #: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
 #: (:attr:`SequenceOutput.failure`): the front end raised, or found fewer correspondences
-#: than the solver needs
-FRONTEND_FAILURES = ("frontend_error", "frontend_too_few_points")
+#: than the solver needs, or the image is the previous one again (:func:`same_image`)
+FRONTEND_FAILURES = ("frontend_error", "frontend_too_few_points", "frozen_image")
+#: a frozen image: the mean absolute difference (gray levels) of the two images' pixel
+#: samples (:func:`image_sample`) at most this; a camera's own noise alone gives more
+FROZEN_IMAGE_LEVEL = 0.25
+
+
+def image_sample(image: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """A cheap fingerprint of an image (H, W) or (H, W, C) uint8: ``(one pixel in 8 x 8, every
+    channel, as int16 (K,), the image's shape)`` (images of different shapes never compare
+    equal). About 1/64 of the image is read."""
+    a = np.asarray(image)
+    if a.ndim < 2:
+        return np.zeros(0, np.int16), a.shape
+    return a[::8, ::8].astype(np.int16).ravel(), a.shape
+
+
+def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL) -> float | None:
+    """The mean absolute difference (gray levels) of two :func:`image_sample` fingerprints
+    when it is at most ``level`` (the same picture: a driver re-sending its last frame, a
+    stalled camera, a frozen stream), else None: also for images of different shapes, and
+    for an image without content (its sample's standard deviation under 2 gray levels: a
+    black or uniform image, which gives no correspondences anyway)."""
+    if prev is None or prev[1] != cur[1] or len(prev[0]) != len(cur[0]) or len(cur[0]) == 0:
+        return None
+    if float(np.std(cur[0])) < 2.0:
+        return None
+    d = float(np.mean(np.abs(prev[0] - cur[0])))
+    return d if d <= level else None
 
 
 def checked_stamp(stamp_ns: Any, what: str = "frame") -> int:
@@ -171,6 +198,13 @@ class SequenceSettings:
             timeline starts again). The track itself is reset after ``tracking.max_gap`` s,
             and the front end of :meth:`SequenceLocalizer.process_image` is given that same
             gap (its own prediction is not trusted over a longer one).
+        frozen_image_level: an image of :meth:`SequenceLocalizer.process_image` whose pixel
+            sample differs from the previous image's by at most this mean absolute
+            difference (gray levels; :func:`same_image`) is the same picture again (a driver
+            re-sending its last frame, a USB stall, a frozen stream): it is dropped as
+            ``frozen_image`` before the front end (its pose would be the old frame's, at a new
+            time), and the front end searches the next new image whole (the camera moved by an
+            unknown amount meanwhile). Negative: never.
         max_points: the most rows a frame of :meth:`SequenceLocalizer.process_image` gives
             the estimator (spread over the image, :func:`~rs_localizer.estimation.points.
             cap_points`; also :meth:`SequenceLocalizer.valid_rows`); None: no cap.
@@ -187,6 +221,7 @@ class SequenceSettings:
     time_reset_ns: int = 10**9
     check_gyro: bool = True
     max_points: int | None = None
+    frozen_image_level: float = FROZEN_IMAGE_LEVEL
 
 
 @dataclass(frozen=True)
@@ -440,6 +475,7 @@ class SequenceLocalizer:
         self.gyro_check: GyroMountCheck | None = None
         self._check_key = None
         self._frontend: VideoFrontend | None = None
+        self._last_image: tuple | None = None  # (image_sample of the previous image)
         self.frontend_name = frontend_name
         self.configure(settings or SequenceSettings())
         self.set_frontend(frontend, frontend_name)
@@ -760,7 +796,8 @@ class SequenceLocalizer:
 
         Returns:
             :class:`SequenceOutput`; a frame dropped before the estimator has ``failure``
-            (``frontend_error``, ``frontend_too_few_points``) and ``detail``.
+            (``frontend_error``, ``frontend_too_few_points``, ``frozen_image``: the previous
+            image again, see :attr:`SequenceSettings.frozen_image_level`) and ``detail``.
 
         Raises:
             ValueError: no front end (:meth:`set_frontend`), or a stamp beyond the int64
@@ -772,9 +809,28 @@ class SequenceLocalizer:
         fe, name = self._frontend, self.frontend_name
         if fe is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        self.check_time(stamp)
+        reset = self.check_time(stamp)
         s = self.settings
         out = SequenceOutput(stamp_ns=reference_stamp_ns(stamp, camera, s.stamp_row))
+        sample = image_sample(image)
+        prev, self._last_image = self._last_image, sample
+        diff = (
+            None
+            if reset or s.frozen_image_level < 0
+            else same_image(prev, sample, s.frozen_image_level)
+        )
+        if diff is not None:
+            out.failure = FRONTEND_FAILURES[2]
+            out.detail = (
+                f"the image is the previous one again (mean difference {diff:.2f} gray levels "
+                "over one pixel in 64): a driver re-sending its last frame or a stalled "
+                "camera; the next new image is searched whole"
+            )
+            try:  # (the tracks are stale: the next new image is a global one)
+                fe.observe(stamp, None, None)
+            except Exception as e:
+                self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
+            return out
         t0 = time.perf_counter()
         try:
             found = Correspondences.of(fe.process(image, camera, encoding=encoding, stamp_ns=stamp))
@@ -967,3 +1023,4 @@ class SequenceLocalizer:
             self._end_track()
             self._restart_gyro(None)
             self._last_stamp = None
+            self._last_image = None

@@ -288,3 +288,18 @@ def test_render_bag_writes_the_imu_of_its_motion(tmp_path):
         assert np.linalg.norm(om[k] - expected) < 0.02, (om[k], expected)
     with pytest.raises(ValueError, match="imu_rate"):
         render_bag(tmp_path / "bad", "aruco_room", "walk", 1, frontend="none", imu_rate=-1.0)
+
+
+def test_replay_names_the_bags_imu_mount(imu_bag):
+    """A replay whose imu.rotation differs from the mount the bag's sequence.json gives says so
+    with the rotation to pass; the right rotation raises no such note, and with the gyro off
+    there is none."""
+    from rs_localizer.ros.bags.replay import replay
+
+    off = {"tracking.enabled": False}
+    wrong = replay(imu_bag, params={**off, "imu.enabled": True}, progress=None)
+    note = [n for n in wrong.notes if "sequence.json gives the IMU's mount" in n]
+    assert len(note) == 1 and "imu.rotation:=[0.5, -0.5, 0.5, 0.5]" in note[0], wrong.notes
+    right = replay(imu_bag, params={**off, **GYRO}, progress=None)
+    assert not any("IMU's mount" in n for n in right.notes), right.notes
+    assert not any("IMU's mount" in n for n in replay(imu_bag, params=off, progress=None).notes)

@@ -386,8 +386,8 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
     pipe.add_camera_info(msgs.camera_info(cam, 0, "cam"))
     texture = rng.integers(0, 256, (cam.height // 4, cam.width // 4), np.uint8)
     img = cv2.resize(texture, (cam.width, cam.height), interpolation=cv2.INTER_CUBIC)
-    for k in range(3):
-        res = pipe.process(msgs.image(img, (k + 1) * 10**8, "cam"), "image")
+    for k in range(3):  # (three different images: the same one again would be frozen_image)
+        res = pipe.process(msgs.image(np.roll(img, 3 * k, axis=1), (k + 1) * 10**8, "cam"), "image")
         assert res.failure == "frontend_too_few_points"
     assert maps.frontend.few_match_frames == 3
     assert len([w for w in warned if "frontend_few_match_frames" in w]) == 1

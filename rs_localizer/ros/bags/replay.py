@@ -152,6 +152,27 @@ def _timing_given(path: Path, params_files: list, params: Mapping[str, Any] | No
     return bool(given & {"rs.line_delay", "rs.readout_time"}) or from_bag
 
 
+def _imu_mount_note(cfg: LocalizerConfig, info: dict) -> str | None:
+    """A note when the bag's ``sequence.json`` (make-bag, render-bag) gives the IMU's mount
+    (``imu.rotation_imu_from_camera``) and ``imu.rotation`` differs from it by over 1 deg:
+    the gyro would contradict the image (a wrong mount), and the frames be solved without it."""
+    R_imu_cam = info.get("imu", {}).get("rotation_imu_from_camera")
+    if cfg.imu is None or R_imu_cam is None:
+        return None
+    from ...geometry import rotation_angle_deg
+    from ..conversions import quaternion_from_matrix
+
+    R = np.asarray(R_imu_cam, float).T  # (IMU -> camera optical frame, as imu.rotation)
+    if rotation_angle_deg(R, np.asarray(cfg.imu.R_cam_imu, float)) <= 1.0:
+        return None
+    q = ", ".join(f"{v:.6g}" for v in quaternion_from_matrix(R, orthonormal=True))
+    return (
+        f"the bag's sequence.json gives the IMU's mount, imu.rotation:=[{q}], and imu.rotation "
+        "differs from it: the gyro will contradict the image and frames be solved without it "
+        f'(pass -p "imu.rotation:=[{q}]")'
+    )
+
+
 def _frame_topic(topics: dict, source: str, cfg: LocalizerConfig, info: dict, image_topic):
     """The bag topic of the frames for ``source``."""
     if source != "image":
@@ -236,6 +257,9 @@ def replay(
     n_frames = _count(path, frame_topic)
     result = ReplayResult(config=cfg, maps=maps, parameters=values)
     note = None if _timing_given(path, params_files, params) else default_timing_note(cfg)
+    if note is not None:
+        result.notes.append(note)
+    note = _imu_mount_note(cfg, read_bag_info(path))
     if note is not None:
         result.notes.append(note)
     writer, conns = None, {}
@@ -414,6 +438,8 @@ def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline, out_c
     into ``result``; the CSV written to ``out_csv`` (None: none)."""
     result.rows = rows.finish()
     result.counts = pipeline.stats.snapshot().counts
+    if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
+        result.notes.append(pipeline.map_fit_text())
     bias = pipeline.gyro_bias_values()
     if bias is not None:
         result.gyro_bias, result.gyro_bias_std = bias
