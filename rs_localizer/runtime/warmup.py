@@ -68,8 +68,9 @@ __all__ = [
     "warm_up",
 ]
 
-#: what ``rs-localizer compile`` compiles by default: the node's default solver
-DEFAULT_SOLVERS = ("r6p_1lin",)
+#: what :func:`compile_kernels` compiles by default: the node's default solver and ``p3p``, the
+#: global-shutter solver ``rs-localizer demo`` compares it with
+DEFAULT_SOLVERS = ("r6p_1lin", "p3p")
 
 #: processes that compile at once by default: two where the machine has two cores or more
 DEFAULT_JOBS = min(2, os.cpu_count() or 1)
@@ -157,7 +158,7 @@ def warm_up(
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
-    with _parallel([solver], tracking is not None, jobs, log):
+    with _parallel([solver], tracking is not None, jobs, log, gyro):
         est = _run(solver, options, tracking, gyro, implementation)
     return time.perf_counter() - tic, est
 
@@ -300,20 +301,26 @@ def split_batch(solver: str, first: bool) -> None:
 
 
 @contextlib.contextmanager
-def _parallel(solvers: list[str], track: bool, jobs: int, log: Callable[[str], object] | None):
+def _parallel(
+    solvers: list[str],
+    track: bool,
+    jobs: int,
+    log: Callable[[str], object] | None,
+    gyro: bool = True,
+):
     """While the body compiles: with ``jobs`` > 1 and some solver's fused RANSAC kernels not
     cached, a second compiling process (:class:`_SecondProcess`, with the tracker's frames if
-    ``track``), and this process's share of each solver's cold batch compiled first
-    (:func:`split_batch`); the second process is stopped when the body is done. Yields the
+    ``track``, the gyro path if ``gyro``), and this process's share of the first solver's cold
+    batch compiled first (:func:`split_batch`; the second process warms the other solvers
+    up); the second process is stopped when the body is done. Yields the
     :class:`_SecondProcess` (its :attr:`~_SecondProcess.kernels` complete after the block) or
     None."""
     helper = None
     if jobs > 1 and not all(fused_cached(s) for s in solvers):
-        helper = _SecondProcess(solvers, track, log)
+        helper = _SecondProcess(solvers, track, log, gyro)
     try:
         if helper is not None:
-            for s in solvers:
-                split_batch(s, first=True)
+            split_batch(solvers[0], first=True)
         yield helper
     finally:
         if helper is not None:
@@ -366,19 +373,25 @@ def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str],
 
 
 class _SecondProcess:
-    """:func:`.second_process.main` for ``solvers`` (with the default tracker if ``track``)
+    """:func:`.second_process.main` for ``solvers`` (with the default tracker if ``track``,
+    the gyro path if ``gyro``)
     in another Python process (:func:`package_command`: the same interpreter and package, the
     same environment: numba caches where this process does), started at once. ``log``
     receives its progress lines; :attr:`kernels` the (name, seconds) of what it compiled. A
     helper that cannot start or fails only costs time: this process compiles what is
     missing."""
 
-    def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
+    def __init__(
+        self,
+        solvers: list[str],
+        track: bool,
+        log: Callable[[str], object] | None,
+        gyro: bool = True,
+    ):
         self.kernels: list[tuple[str, float]] = []
         self._log = log
-        cmd, env, cwd = package_command(
-            "rs_localizer.runtime.second_process", "track" if track else "alone", *solvers
-        )
+        mode = ("track" if track else "alone") + ("+gyro" if gyro else "")
+        cmd, env, cwd = package_command("rs_localizer.runtime.second_process", mode, *solvers)
         try:
             self._proc = subprocess.Popen(
                 cmd,
@@ -428,12 +441,15 @@ def compile_kernels(
     log: Callable[[str], object] = print,
     tracking: TrackerOptions | None = TrackerOptions(),
     jobs: int = DEFAULT_JOBS,
+    options: EstimateOptions | None = None,
+    gyro: bool = False,
 ) -> dict:
-    """Compile (or load) every kernel the estimator needs for ``solvers`` (with the video
-    tracker's, for ``tracking``: the node's default), reporting each kernel numba compiles
-    through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` > 1
-    a second process compiles part of the RANSAC batch and the kernels a frame needs later
-    meanwhile (module docstring).
+    """Compile (or load) every kernel the estimator needs for ``solvers`` with ``options``
+    (with the video tracker's, for ``tracking``: the node's default; the gyro path with
+    ``gyro``, the node's ``imu.enabled``), as :func:`warm_up` runs them, reporting each kernel
+    numba compiles through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` >
+    1 a second process compiles part of the first solver's RANSAC batch, the kernels a frame
+    needs later and the other solvers' meanwhile (module docstring).
 
     Returns:
         ``{"seconds": total, "kernels": [(name, seconds)] (both processes'), "cache":
@@ -449,10 +465,10 @@ def compile_kernels(
     per = {}
     with (
         compile_progress(log) as prog,
-        _parallel(solvers, tracking is not None, jobs, log) as helper,
+        _parallel(solvers, tracking is not None, jobs, log, gyro) as helper,
     ):
         for s in solvers:
-            per[s], _ = warm_up(s, tracking=tracking)
+            per[s], _ = warm_up(s, options, tracking, gyro=gyro)
     return {
         "seconds": time.perf_counter() - tic,
         "kernels": prog.kernels + (helper.kernels if helper is not None else []),
