@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+from collections.abc import Sequence
 
 from ..solvers.registry import SOLVER_NAMES
 from . import args as A
@@ -58,7 +60,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return c
 
 
-def compile_targets(params_files=(), solvers=None) -> dict:
+def compile_targets(
+    params_files: Sequence[str | os.PathLike] = (), solvers: Sequence[str] | None = None
+) -> dict:
     """What the node started with ``params_files`` (none: its defaults) runs on a frame:
     ``{"solvers": [...], "options": EstimateOptions, "tracking": TrackerOptions or None,
     "gyro": bool}``; the solvers are ``solvers`` if given, else the node's solver (plus
