@@ -352,6 +352,8 @@ def fused_cached(solver: str, anchored: bool = True) -> bool:
 
 #: a progress line of :func:`~.jit_cache.compile_progress`: kernel, seconds
 _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
+#: the second process's line when it has warmed a further solver up: solver
+_WARMED = re.compile(r"warmed up (\S+)$")
 
 
 def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str], str | None]:
@@ -389,6 +391,7 @@ class _SecondProcess:
         gyro: bool = True,
     ):
         self.kernels: list[tuple[str, float]] = []
+        self.warmed: set[str] = set()
         self._log = log
         mode = ("track" if track else "alone") + ("+gyro" if gyro else "")
         cmd, env, cwd = package_command("rs_localizer.runtime.second_process", mode, *solvers)
@@ -417,8 +420,20 @@ class _SecondProcess:
             if m:
                 with contextlib.suppress(ValueError):
                     self.kernels.append((m.group(1), float(m.group(2))))
+            m = _WARMED.match(line)
+            if m:
+                self.warmed.add(m.group(1))
             if line and self._log is not None:
                 self._log(f"[second process] {line}")
+
+    def wait_warmed(self, solver: str) -> None:
+        """Wait until the helper has warmed ``solver`` up (one of the further solvers it
+        compiles, :mod:`.second_process`) or has ended: this process then loads that
+        solver's kernels from the cache instead of compiling them a second time."""
+        if self._proc is None:
+            return
+        while solver not in self.warmed and self._proc.poll() is None:
+            time.sleep(0.1)
 
     def stop(self) -> None:
         """End the helper: this process has then compiled or loaded every kernel it needs,
@@ -467,7 +482,9 @@ def compile_kernels(
         compile_progress(log) as prog,
         _parallel(solvers, tracking is not None, jobs, log, gyro) as helper,
     ):
-        for s in solvers:
+        for k, s in enumerate(solvers):
+            if k and helper is not None:  # (the second process warms it up: then it loads)
+                helper.wait_warmed(s)
             per[s], _ = warm_up(s, options, tracking, gyro=gyro)
     return {
         "seconds": time.perf_counter() - tic,
