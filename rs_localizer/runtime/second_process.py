@@ -4,14 +4,14 @@
 warm-up (:func:`.warmup.warm_up`) through :func:`.warmup.package_command`.
 
 Its share of the first solver's cold RANSAC batch (:func:`.warmup.split_batch`), then
-:func:`.warmup.warm_late` for it; then the warm-up of each further solver (e.g. ``p3p`` next
-to the node's solver), after which it prints ``warmed up SOLVER``: the first process, done with
-the first solver, waits for that line and then loads those kernels instead of compiling them a
-second time; then, with ``track``, once the first process has cached the first solver's cold
-RANSAC batch, the tracker over the warm-up's videos (planar first: the first process does the
-3D scenes first), which compiles the kernels of tracked and planar frames while the first
-process compiles the rest of a cold frame's. Progress lines on stdout
-(:func:`~.jit_cache.compile_progress`).
+:func:`.warmup.warm_late` for it, after which it prints ``warmed up SOLVER:late`` (the first
+process waits for that line before its tracker's frames, and loads their twist filter); then
+the warm-up of each further solver (e.g. ``p3p`` next to the node's solver), after which it
+prints ``warmed up SOLVER`` (the first process, done with the first solver, waits for that
+line and loads those kernels instead of compiling them a second time); then, with ``track``,
+once the first process has cached the first solver's cold RANSAC batch, the tracker over the
+warm-up's videos (planar first), which loads or compiles the kernels of tracked and planar
+frames. Progress lines on stdout (:func:`~.jit_cache.compile_progress`).
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ def main(argv: list[str]) -> None:
     with compile_progress(lambda m: print(m, flush=True)):
         split_batch(first, first=False)
         warm_late(first, tracking=tracking)
+        print(f"warmed up {first}:late", flush=True)  # (the first process waits for this line)
         for s in solvers[1:]:
             warm_up(s, tracking=tracking, gyro=gyro)
             print(f"warmed up {s}", flush=True)  # (the first process waits for this line)

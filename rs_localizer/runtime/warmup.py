@@ -428,8 +428,9 @@ class _SecondProcess:
 
     def wait_warmed(self, solver: str) -> None:
         """Wait until the helper has warmed ``solver`` up (one of the further solvers it
-        compiles, :mod:`.second_process`) or has ended: this process then loads that
-        solver's kernels from the cache instead of compiling them a second time."""
+        compiles; ``SOLVER:late``: :func:`warm_late` for the first solver;
+        :mod:`.second_process`) or has ended: this process then loads those kernels from the
+        cache instead of compiling them a second time."""
         if self._proc is None:
             return
         while solver not in self.warmed and self._proc.poll() is None:
@@ -483,9 +484,19 @@ def compile_kernels(
         _parallel(solvers, tracking is not None, jobs, log, gyro) as helper,
     ):
         for k, s in enumerate(solvers):
-            if k and helper is not None:  # (the second process warms it up: then it loads)
+            if helper is None:
+                per[s], _ = warm_up(s, options, tracking, gyro=gyro)
+            elif k:  # (the second process warms it up: then it loads)
                 helper.wait_warmed(s)
-            per[s], _ = warm_up(s, options, tracking, gyro=gyro)
+                per[s], _ = warm_up(s, options, tracking, gyro=gyro)
+            else:  # warm_up's frames, the tracker's once the second process's twist filter
+                # (warm_late) is cached: then it loads
+                t0 = time.perf_counter()
+                _run(s, options, None, gyro)
+                if tracking is not None:
+                    helper.wait_warmed(f"{s}:late")
+                    track_videos(s, options, tracking, gyro=gyro)
+                per[s] = time.perf_counter() - t0
     return {
         "seconds": time.perf_counter() - tic,
         "kernels": prog.kernels + (helper.kernels if helper is not None else []),
