@@ -1,15 +1,21 @@
-"""``rs-localizer compile``: compile the solvers' JIT kernels once after installing."""
+"""``rs-localizer compile``: compile the JIT kernels once after installing."""
 
 from __future__ import annotations
 
 import argparse
+import os
+from collections.abc import Sequence
 
 from ..solvers.registry import SOLVER_NAMES
 from . import args as A
 
-__all__ = ["register", "run"]
+__all__ = ["COMPARISON_SOLVER", "compile_targets", "register", "run"]
 
 HELP = "compile the JIT kernels now (once after installing: the node then starts in seconds)"
+
+#: the global-shutter solver `make demo` (``rs-localizer demo``) runs next to the node's for
+#: comparison: compiled by default with the node's
+COMPARISON_SOLVER = "p3p"
 
 
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -17,34 +23,87 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c = sub.add_parser(
         "compile",
         help=HELP,
-        description="Compile the JIT (numba) kernels of the solvers now and cache them, once "
+        description="Compile the JIT (numba) kernels the node needs now and cache them, once "
         "after installing while the package directory is writable: the node then starts in "
-        "seconds instead of compiling on its first frames.",
+        "seconds instead of compiling on its first frames. What is compiled follows the "
+        "node's parameters: its solver, the video tracker (tracking.enabled) and the gyro "
+        "path (imu.enabled). By default the node's defaults (config/rs_localizer.yaml) and "
+        f"{COMPARISON_SOLVER}, the solver `make demo` compares with; with --params-file "
+        "what the node started with those files needs.",
         formatter_class=A.HelpFormatter,
+    )
+    c.add_argument(
+        "--params-file",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="the node's ROS 2 parameter file, e.g. your robot's (repeatable; later ones "
+        "win): compile for its solver, tracking and imu settings (default: the node's "
+        f"defaults plus {COMPARISON_SOLVER})",
     )
     c.add_argument(
         "--solvers",
         nargs="+",
         default=None,
         choices=SOLVER_NAMES,
-        help="solvers to compile for (default: r6p_1lin, the node's; the demo's "
-        "global-shutter baseline: add p3p)",
+        help="solvers to compile for instead (default: the configured node's solver; "
+        f"without --params-file also {COMPARISON_SOLVER}, the demo's global-shutter "
+        "baseline)",
     )
     c.add_argument(
         "--jobs",
         type=A.positive_int,
         default=None,
-        help="processes compiling at once, the fused RANSAC kernels in a second one (default: "
-        "2 on a machine with two cores or more, else 1)",
+        help="processes compiling at once (default: 2 on a machine with two cores or more, else 1)",
     )
     c.set_defaults(func=run)
     return c
 
 
+def compile_targets(
+    params_files: Sequence[str | os.PathLike] = (), solvers: Sequence[str] | None = None
+) -> dict:
+    """What the node started with ``params_files`` (none: its defaults) runs on a frame:
+    ``{"solvers": [...], "options": EstimateOptions, "tracking": TrackerOptions or None,
+    "gyro": bool}``; the solvers are ``solvers`` if given, else the node's solver (plus
+    :data:`COMPARISON_SOLVER` without ``params_files``).
+
+    Raises:
+        CliError: a parameter file that cannot be read or holds an invalid value.
+    """
+    from ..ros.params import ConfigError, estimate_options, parameter_values, tracker_options
+
+    try:
+        values, _ = parameter_values(params_files)
+        options, tracking = estimate_options(values), tracker_options(values)
+    except (ConfigError, OSError, TypeError, ValueError) as e:
+        raise A.CliError(f"--params-file: {e}") from None
+    if values["solver"] not in SOLVER_NAMES:
+        raise A.CliError(
+            f"--params-file: unknown solver {values['solver']!r}; expected one of "
+            f"{list(SOLVER_NAMES)}"
+        )
+    if solvers is None:
+        solvers = [values["solver"]]
+        if not params_files and COMPARISON_SOLVER not in solvers:
+            solvers.append(COMPARISON_SOLVER)
+    return {
+        "solvers": list(solvers),
+        "options": options,
+        "tracking": tracking,
+        "gyro": bool(values["imu.enabled"]),
+    }
+
+
 def run(args: argparse.Namespace) -> int:
-    """Compile (or load from the cache) the kernels; returns 0."""
+    """Compile (or load from the cache) the kernels; returns 0. Raises CliError for a
+    parameter file that cannot be used."""
+    for f in args.params_file:
+        if not isinstance(A.yaml_file(f, "parameter file"), dict):
+            raise A.CliError(f"{f}: not a ROS 2 parameter file (expected a YAML mapping)")
+    what = compile_targets(args.params_file, args.solvers)
     from ..runtime.jit_cache import cache_state
-    from ..runtime.warmup import DEFAULT_JOBS, DEFAULT_SOLVERS, compile_kernels
+    from ..runtime.warmup import DEFAULT_JOBS, compile_kernels
 
     st = cache_state()
     print(
@@ -53,9 +112,21 @@ def run(args: argparse.Namespace) -> int:
         + ")",
         flush=True,
     )
-    solvers = args.solvers or list(DEFAULT_SOLVERS)
+    print(
+        f"compiling for {', '.join(what['solvers'])}"
+        + (", with the video tracker" if what["tracking"] is not None else ", frames alone")
+        + (", with the gyro" if what["gyro"] else ""),
+        flush=True,
+    )
     jobs = args.jobs or DEFAULT_JOBS
-    res = compile_kernels(solvers, log=lambda m: print(m, flush=True), jobs=jobs)
+    res = compile_kernels(
+        what["solvers"],
+        log=lambda m: print(m, flush=True),
+        tracking=what["tracking"],
+        jobs=jobs,
+        options=what["options"],
+        gyro=what["gyro"],
+    )
     n = len(res["kernels"])
     print(
         f"{', '.join(res['solvers'])}: ready in {res['seconds']:.1f} s ("

@@ -68,8 +68,9 @@ __all__ = [
     "warm_up",
 ]
 
-#: what ``rs-localizer compile`` compiles by default: the node's default solver
-DEFAULT_SOLVERS = ("r6p_1lin",)
+#: what :func:`compile_kernels` compiles by default: the node's default solver and ``p3p``, the
+#: global-shutter solver ``rs-localizer demo`` compares it with
+DEFAULT_SOLVERS = ("r6p_1lin", "p3p")
 
 #: processes that compile at once by default: two where the machine has two cores or more
 DEFAULT_JOBS = min(2, os.cpu_count() or 1)
@@ -157,7 +158,7 @@ def warm_up(
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {list(SOLVER_NAMES)}")
     tic = time.perf_counter()
-    with _parallel([solver], tracking is not None, jobs, log):
+    with _parallel([solver], tracking is not None, jobs, log, gyro):
         est = _run(solver, options, tracking, gyro, implementation)
     return time.perf_counter() - tic, est
 
@@ -300,20 +301,26 @@ def split_batch(solver: str, first: bool) -> None:
 
 
 @contextlib.contextmanager
-def _parallel(solvers: list[str], track: bool, jobs: int, log: Callable[[str], object] | None):
+def _parallel(
+    solvers: list[str],
+    track: bool,
+    jobs: int,
+    log: Callable[[str], object] | None,
+    gyro: bool = True,
+):
     """While the body compiles: with ``jobs`` > 1 and some solver's fused RANSAC kernels not
     cached, a second compiling process (:class:`_SecondProcess`, with the tracker's frames if
-    ``track``), and this process's share of each solver's cold batch compiled first
-    (:func:`split_batch`); the second process is stopped when the body is done. Yields the
+    ``track``, the gyro path if ``gyro``), and this process's share of the first solver's cold
+    batch compiled first (:func:`split_batch`; the second process warms the other solvers
+    up); the second process is stopped when the body is done. Yields the
     :class:`_SecondProcess` (its :attr:`~_SecondProcess.kernels` complete after the block) or
     None."""
     helper = None
     if jobs > 1 and not all(fused_cached(s) for s in solvers):
-        helper = _SecondProcess(solvers, track, log)
+        helper = _SecondProcess(solvers, track, log, gyro)
     try:
         if helper is not None:
-            for s in solvers:
-                split_batch(s, first=True)
+            split_batch(solvers[0], first=True)
         yield helper
     finally:
         if helper is not None:
@@ -345,6 +352,8 @@ def fused_cached(solver: str, anchored: bool = True) -> bool:
 
 #: a progress line of :func:`~.jit_cache.compile_progress`: kernel, seconds
 _COMPILED = re.compile(r"compiled (\S+) in ([0-9.]+) s")
+#: the second process's line when it has warmed a further solver up: solver
+_WARMED = re.compile(r"warmed up (\S+)$")
 
 
 def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str], str | None]:
@@ -366,19 +375,26 @@ def package_command(module: str, *args: str) -> tuple[list[str], dict[str, str],
 
 
 class _SecondProcess:
-    """:func:`.second_process.main` for ``solvers`` (with the default tracker if ``track``)
+    """:func:`.second_process.main` for ``solvers`` (with the default tracker if ``track``,
+    the gyro path if ``gyro``)
     in another Python process (:func:`package_command`: the same interpreter and package, the
     same environment: numba caches where this process does), started at once. ``log``
     receives its progress lines; :attr:`kernels` the (name, seconds) of what it compiled. A
     helper that cannot start or fails only costs time: this process compiles what is
     missing."""
 
-    def __init__(self, solvers: list[str], track: bool, log: Callable[[str], object] | None):
+    def __init__(
+        self,
+        solvers: list[str],
+        track: bool,
+        log: Callable[[str], object] | None,
+        gyro: bool = True,
+    ):
         self.kernels: list[tuple[str, float]] = []
+        self.warmed: set[str] = set()
         self._log = log
-        cmd, env, cwd = package_command(
-            "rs_localizer.runtime.second_process", "track" if track else "alone", *solvers
-        )
+        mode = ("track" if track else "alone") + ("+gyro" if gyro else "")
+        cmd, env, cwd = package_command("rs_localizer.runtime.second_process", mode, *solvers)
         try:
             self._proc = subprocess.Popen(
                 cmd,
@@ -404,8 +420,21 @@ class _SecondProcess:
             if m:
                 with contextlib.suppress(ValueError):
                     self.kernels.append((m.group(1), float(m.group(2))))
+            m = _WARMED.match(line)
+            if m:
+                self.warmed.add(m.group(1))
             if line and self._log is not None:
                 self._log(f"[second process] {line}")
+
+    def wait_warmed(self, solver: str) -> None:
+        """Wait until the helper has warmed ``solver`` up (one of the further solvers it
+        compiles; ``SOLVER:late``: :func:`warm_late` for the first solver;
+        :mod:`.second_process`) or has ended: this process then loads those kernels from the
+        cache instead of compiling them a second time."""
+        if self._proc is None:
+            return
+        while solver not in self.warmed and self._proc.poll() is None:
+            time.sleep(0.1)
 
     def stop(self) -> None:
         """End the helper: this process has then compiled or loaded every kernel it needs,
@@ -428,12 +457,15 @@ def compile_kernels(
     log: Callable[[str], object] = print,
     tracking: TrackerOptions | None = TrackerOptions(),
     jobs: int = DEFAULT_JOBS,
+    options: EstimateOptions | None = None,
+    gyro: bool = False,
 ) -> dict:
-    """Compile (or load) every kernel the estimator needs for ``solvers`` (with the video
-    tracker's, for ``tracking``: the node's default), reporting each kernel numba compiles
-    through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` > 1
-    a second process compiles part of the RANSAC batch and the kernels a frame needs later
-    meanwhile (module docstring).
+    """Compile (or load) every kernel the estimator needs for ``solvers`` with ``options``
+    (with the video tracker's, for ``tracking``: the node's default; the gyro path with
+    ``gyro``, the node's ``imu.enabled``), as :func:`warm_up` runs them, reporting each kernel
+    numba compiles through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` >
+    1 a second process compiles part of the first solver's RANSAC batch, the kernels a frame
+    needs later and the other solvers' meanwhile (module docstring).
 
     Returns:
         ``{"seconds": total, "kernels": [(name, seconds)] (both processes'), "cache":
@@ -449,10 +481,22 @@ def compile_kernels(
     per = {}
     with (
         compile_progress(log) as prog,
-        _parallel(solvers, tracking is not None, jobs, log) as helper,
+        _parallel(solvers, tracking is not None, jobs, log, gyro) as helper,
     ):
-        for s in solvers:
-            per[s], _ = warm_up(s, tracking=tracking)
+        for k, s in enumerate(solvers):
+            if helper is None:
+                per[s], _ = warm_up(s, options, tracking, gyro=gyro)
+            elif k:  # (the second process warms it up: then it loads)
+                helper.wait_warmed(s)
+                per[s], _ = warm_up(s, options, tracking, gyro=gyro)
+            else:  # warm_up's frames, the tracker's once the second process's twist filter
+                # (warm_late) is cached: then it loads
+                t0 = time.perf_counter()
+                _run(s, options, None, gyro)
+                if tracking is not None:
+                    helper.wait_warmed(f"{s}:late")
+                    track_videos(s, options, tracking, gyro=gyro)
+                per[s] = time.perf_counter() - t0
     return {
         "seconds": time.perf_counter() - tic,
         "kernels": prog.kernels + (helper.kernels if helper is not None else []),

@@ -305,3 +305,29 @@ def test_export_image_all_writes_every_image_of_the_bag(tmp_path, capsys):
     # into a folder that is not empty: only with --overwrite
     assert main(["export-image", str(bag), str(tmp_path / "all"), "--all"]) == 2
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_compile_compiles_what_the_configured_node_and_the_demo_run(tmp_path):
+    """``rs-localizer compile`` without arguments: the node's default solver (its parameter
+    table, config/rs_localizer.yaml), p3p (the demo's comparison), the tracker, no gyro
+    (imu.enabled is off by default); with --params-file: that configuration's solver, tracker
+    and gyro."""
+    from rs_localizer.cli.args import CliError
+    from rs_localizer.cli.compile import compile_targets
+    from rs_localizer.ros.params import PARAMETERS
+
+    what = compile_targets()
+    assert what["solvers"] == [PARAMETERS["solver"].default, "p3p"]
+    assert what["tracking"] is not None and what["gyro"] is False
+    assert compile_targets([ROOT / "config" / "rs_localizer.yaml"])["solvers"] == ["r6p_1lin"]
+    f = tmp_path / "robot.yaml"
+    f.write_text(
+        "/**:\n  ros__parameters:\n    solver: r6p\n    imu: {enabled: true}\n"
+        "    tracking: {enabled: false}\n"
+    )
+    what = compile_targets([f])
+    assert what["solvers"] == ["r6p"] and what["tracking"] is None and what["gyro"] is True
+    assert compile_targets([f], ["p3p"])["solvers"] == ["p3p"]
+    f.write_text("/**:\n  ros__parameters:\n    solver: nope\n")
+    with pytest.raises(CliError, match="solver"):
+        compile_targets([f])
