@@ -354,7 +354,6 @@ class NodeVisualization:
         thread (which replaces a frame still waiting there): ``uv`` (N, 2) and ``X`` (N, 3) are
         the estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the
         reference line's (the pose's) stamp. Returns at once."""
-        self.builder.set_path_length(self.node.get_parameter("viz.path_length").value)
         self.builder.add_pose(est, out_stamp_ns, map_frame)
         want = (
             self.pub_image.get_subscription_count() > 0,
@@ -364,6 +363,9 @@ class NodeVisualization:
         image, self._image = self._image, None
         if not any(want):
             return
+        # (read only while someone watches, as the other viz.* parameters; on this thread,
+        # which alone appends to the path)
+        self.builder.set_path_length(self.node.get_parameter("viz.path_length").value)
         img, enc = (image[0], image[1]) if image and image[2] == stamp_ns else (None, None)
         poses = tuple(self.builder.poses) if want[2] else ()  # (the path as of this frame)
         job = (want, est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)
