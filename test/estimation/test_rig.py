@@ -166,6 +166,7 @@ def test_bad_input():
     est = estimate_rig_pose(views)
     assert not est.success and est.failure == "too_few_points"
     assert [len(m) for m in est.inliers] == [2, 2]
+    assert est.num_inliers_per_camera == (0, 0) and est.num_valid_per_camera == (2, 2)
     with pytest.raises(ValueError):
         estimate_rig_pose([])
     with pytest.raises(ValueError):
@@ -207,3 +208,120 @@ def test_rig_beats_poselib_generalized_global_shutter_while_turning():
         rig.append(rotation_angle_deg(est.R, truth[0]))
         gs.append(rotation_angle_deg(_poselib_generalized(views), truth[0]))
     assert np.median(rig) <= 0.2 * np.median(gs), (np.median(rig), np.median(gs))
+
+
+def _errors12(est, truth):
+    """(12,) error of the estimate's (delta, C, w, t) against the truth (delta: the rotation
+    vector of R_est R_true^T)."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    R, C, w, t = truth
+    return np.r_[matrix_to_rotvec(est.R @ R.T), est.C - C, est.w - w, est.t - t]
+
+
+def test_covariance_covers_the_error_and_outputs_match_a_camera_estimate():
+    """3 cameras x 150 points, 0.5 px noise: the model covariance's normalized squared error
+    averages near 12 (its dimension) over 12 frames; the pose and twist covariances are
+    the propagation of it (as a camera's estimate: one second per unit of tau); ``pose`` is
+    the RSPose of the model; per-camera inlier counts add up."""
+    from rs_localizer.estimation.result import output_covariance
+    from rs_localizer.pose import model_twist
+
+    rng = np.random.default_rng(11)
+    chi = []
+    for _ in range(12):
+        cams, R_m, c_m, stamps = make_rig(rng, 3)
+        truth = rig_truth(rng)
+        views = rig_frame(rng, cams, R_m, c_m, stamps, [150] * 3, truth)
+        est = estimate_rig_pose(views, seed=0)
+        assert est.success and est.model_covariance is not None
+        e = _errors12(est, truth)
+        chi.append(e @ np.linalg.solve(est.model_covariance, e))
+        _, pose_cov, twist_cov = output_covariance(est.model_covariance, est.R, est.C, est.w, 1.0)
+        np.testing.assert_allclose(est.pose_covariance, pose_cov)
+        np.testing.assert_allclose(est.twist_covariance, twist_cov)
+        z = model_twist.py_func(est.C, est.w, est.t, 1.0)
+        np.testing.assert_allclose(est.pose.angular_velocity, -est.w)
+        np.testing.assert_allclose(est.linear_velocity, z[0:3])
+        np.testing.assert_allclose(est.pose.position, est.position)
+        np.testing.assert_allclose(est.orientation, est.R.T)
+        assert sum(est.num_inliers_per_camera) == est.num_inliers
+        assert est.num_inliers_per_camera == tuple(int(m.sum()) for m in est.inliers)
+        assert est.num_valid_per_camera == (150, 150, 150)
+        # the position's std (pose covariance, world) against the truth: within 5 sigma
+        sd = np.sqrt(np.diag(est.pose_covariance)[:3])
+        assert (np.abs(est.position - (-truth[0].T @ truth[1])) < 5 * sd).all()
+    assert 6 < np.mean(chi) < 24, np.mean(chi)
+
+
+def test_camera_model_of_the_rig_is_the_camera_truth_and_inverts():
+    """camera_model_of_rig maps the rig's truth to the camera's (what the simulation projects
+    with); rig_model_of_camera inverts it."""
+    from rs_localizer.estimation.rig import camera_model_of_rig, rig_model_of_camera
+
+    rng = np.random.default_rng(12)
+    cams, R_m, c_m, stamps = make_rig(rng, 3)
+    truth = rig_truth(rng)
+    for c in range(3):
+        spr = cams[c].seconds_per_unit_r
+        mine = camera_model_of_rig(truth, R_m[c], c_m[c], stamps[c], spr)
+        ref = camera_pose(R_m[c], c_m[c], stamps[c], cams[c], *truth)
+        for a, b in zip(mine, ref, strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        back = rig_model_of_camera(mine, R_m[c], c_m[c], stamps[c], spr)
+        for a, b in zip(back, truth, strict=True):
+            np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_a_camera_without_mounting_is_named():
+    rng = np.random.default_rng(13)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [20, 20], rig_truth(rng))
+    v = views[1]
+    bad = RigView(v.uv, v.X, v.camera, None, v.c_mount, v.stamp_offset, name="rear")
+    with pytest.raises(ValueError, match=r"camera 1 \('rear'\) has no mounting"):
+        estimate_rig_pose([views[0], bad])
+    mirrored = RigView(v.uv, v.X, v.camera, -np.eye(3), v.c_mount, name="left")
+    with pytest.raises(ValueError, match=r"'left'.*not a rotation"):
+        estimate_rig_pose([views[0], mirrored])
+    with pytest.raises(ValueError, match="camera 0"):
+        estimate_rig_pose([RigView(np.zeros((3, 3)), np.zeros((3, 3)), cams[0])])
+
+
+def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
+    """Every world point on one 3D line: degenerate_geometry; a rig turning at 1.5 rad/s with the
+    bound at 0.5 rad/s: no plausible model (no_model or implausible_motion); within the
+    bound: success."""
+    rng = np.random.default_rng(14)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    truth = rig_truth(rng, w_mag=1.5)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], truth, outliers=0.0)
+    line = []
+    a, b = views[0].X[0], views[0].X[-1]
+    for v in views:
+        X = a + np.linspace(0, 1, len(v.X))[:, None] * (b - a)
+        line.append(RigView(v.uv, X, v.camera, v.R_mount, v.c_mount, v.stamp_offset))
+    est = estimate_rig_pose(line)
+    assert not est.success and est.failure == "degenerate_geometry"
+    est = estimate_rig_pose(views, max_angular_velocity=0.5)
+    assert not est.success and est.failure in ("no_model", "implausible_motion")
+    assert estimate_rig_pose(views, max_angular_velocity=2.0).success
+
+
+def test_points_behind_a_camera_are_counted_not_inliers():
+    """Five rows of camera 0 whose world points are behind it (reflected through its centre):
+    counted in num_behind, never inliers; the rig is posed."""
+    rng = np.random.default_rng(15)
+    cams, R_m, c_m, stamps = make_rig(rng, 2)
+    truth = rig_truth(rng)
+    views = rig_frame(rng, cams, R_m, c_m, stamps, [40, 40], truth, outliers=0.0)
+    Rk, Ck, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], *truth)
+    centre = -Rk.T @ Ck
+    v = views[0]
+    X = np.vstack([v.X, 2 * centre - v.X[:5]])
+    uv = np.vstack([v.uv, v.uv[:5]])
+    est = estimate_rig_pose(
+        [RigView(uv, X, v.camera, v.R_mount, v.c_mount, v.stamp_offset), views[1]]
+    )
+    assert est.success and est.num_behind >= 5
+    assert not est.inliers[0][40:].any()
