@@ -4,34 +4,24 @@ camera alone (the single-camera estimator)."""
 import numpy as np
 import pytest
 
-from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.rig import RigView, estimate_rig_pose
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-
-READOUTS = ("top_to_bottom", "left_to_right", "bottom_to_top", "top_to_bottom")
+from rs_localizer.sim import rig as sim_rig
 
 
 def make_rig(rng, m):
-    """M cameras looking outward around the rig's y axis, 5-20 cm off its origin, readout
-    20-35 ms, stamps up to 10 ms apart; returns cameras, mountings and stamp offsets."""
-    cams, R, c, s = [], [], [], []
-    for k in range(m):
-        f = rng.uniform(450, 600)
-        K = np.array([[f, 0, 320.0], [0, f, 240.0], [0, 0, 1]])
-        cams.append(
-            CameraModel.from_readout_time(
-                K, rng.uniform(0.02, 0.035), 640, 480, readout=READOUTS[k % 4]
-            )
-        )
-        Rc = rotvec_to_matrix([0.0, 2 * np.pi * k / m, 0.0]) @ rotvec_to_matrix(
-            rng.normal(size=3) * 0.05
-        )
-        pos = rng.uniform(-0.2, 0.2, 3)
-        R.append(Rc)
-        c.append(-Rc @ pos)
-        s.append(rng.uniform(-0.005, 0.005))
-    return cams, R, c, s
+    """M cameras front/back/sides (:func:`rs_localizer.sim.rig.make_rig`), 5-20 cm off the
+    rig's origin, readout 15-35 ms, stamps up to 10 ms apart; returns cameras, mountings and
+    stamp offsets."""
+    rig = sim_rig.make_rig(m, rng)
+    k = rig.cameras
+    return (
+        [c.camera for c in k],
+        [c.R_mount for c in k],
+        [c.c_mount for c in k],
+        [c.stamp_offset for c in k],
+    )
 
 
 def camera_pose(Rc, cc, s, cam, R, C, w, t):
@@ -42,42 +32,24 @@ def camera_pose(Rc, cc, s, cam, R, C, w, t):
 
 
 def rig_frame(rng, cams, R_m, c_m, stamps, counts, truth, noise_px=0.5, outliers=0.2):
-    """Views of world points seen by each camera (exact RS projection, noise, outliers)."""
-    R, C, w, t = truth
-    views = []
-    for cam, Rc, cc, s, n in zip(cams, R_m, c_m, stamps, counts, strict=True):
-        Rp, Cp, wp, tp = camera_pose(Rc, cc, s, cam, R, C, w, t)
-        uv = np.zeros((0, 2))
-        X = np.zeros((0, 3))
-        while len(uv) < n:
-            xn = rng.uniform([-0.55, -0.4], [0.55, 0.4], (4 * n, 2))
-            z = rng.uniform(2.0, 8.0, 4 * n)
-            Xc = np.c_[xn * z[:, None], z]
-            Xw = (Xc - Cp) @ Rp  # world points near where the camera looks
-            p = cam.project_rs(Xw, Rp, Cp, wp, tp)
-            ok = np.isfinite(p).all(axis=1) & cam.in_image(p, -5)
-            uv = np.vstack([uv, p[ok]])[:n]
-            X = np.vstack([X, Xw[ok]])[:n]
-        uv = uv + rng.normal(size=uv.shape) * noise_px
-        bad = rng.random(n) < outliers
-        uv[bad] = rng.uniform([0, 0], [640, 480], (bad.sum(), 2))
-        views.append(RigView(uv, X, cam, Rc, cc, s))
-    return views
+    """Views of world points seen by each camera (:func:`rs_localizer.sim.rig.rig_frame`:
+    exact RS projection, noise, outliers)."""
+    rig = sim_rig.Rig(
+        tuple(
+            sim_rig.RigCamera(f"cam{i}", *k)
+            for i, k in enumerate(zip(cams, R_m, c_m, stamps, strict=True))
+        )
+    )
+    return sim_rig.rig_frame(rig, truth, counts, rng, noise_px, outliers).views
 
 
 def rig_truth(rng, w_mag=1.5):
-    w = rng.normal(size=3)
-    return (
-        rotvec_to_matrix(rng.normal(size=3)),
-        rng.normal(size=3),
-        w * w_mag / np.linalg.norm(w),
-        rng.normal(size=3),
-    )
+    return sim_rig.rig_motion(rng, w_mag, 1.5)
 
 
 def test_three_camera_rig_with_outliers_recovers_the_truth():
     """3 cameras x 80 correspondences, 20 % outliers, 0.5 px noise, turning at 1.5 rad/s,
-    moving at ~1.7 m/s, stamps up to 10 ms apart: pose, angular and linear velocity close to
+    moving at 1.5 m/s, stamps up to 10 ms apart: pose, angular and linear velocity close to
     the truth; the outliers are found."""
     rng = np.random.default_rng(1)
     for _ in range(3):
