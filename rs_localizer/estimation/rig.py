@@ -45,6 +45,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   on one 3D line, plausible motion, and every inlier in front of its camera at its capture
   time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
   model).
+
+A rig frame whose observations were all taken at one time (global-shutter cameras with equal
+stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
+pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
+parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ __all__ = [
     "FINAL_CUTOFF",
     "LO_ROUNDS",
     "RIG_FAILURE_REASONS",
+    "STILL_SPREAD",
     "RigPoseEstimate",
     "RigView",
     "camera_model_of_rig",
@@ -95,6 +101,9 @@ RIG_FAILURE_REASONS = {
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
 #: cost 2.3 ms of 10 per frame: the final refinement converges from the first
 LO_ROUNDS = 1
+
+#: s: observation times spread by at most this are one time (a global-shutter rig frame)
+STILL_SPREAD = 1e-9
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss at the
 #: threshold, re-selected at each iteration), as a single camera's final refinement
@@ -221,6 +230,10 @@ class RigPoseEstimate:
             or ``None``.
         model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R = expm([delta]x)
             R_0``; rad, m, rad/s, m/s), or ``None``.
+        global_shutter: every observation was taken at one time (global-shutter cameras with
+            equal stamps): the velocities are not observable, ``w = t = 0`` (zero rows and
+            columns in the covariances, ``twist_covariance`` None) and the pose is the
+            generalized absolute pose of the rig at that time.
     """
 
     success: bool
@@ -240,6 +253,7 @@ class RigPoseEstimate:
     pose_covariance: np.ndarray | None = None
     twist_covariance: np.ndarray | None = None
     model_covariance: np.ndarray | None = None
+    global_shutter: bool = False
 
     @property
     def position(self) -> np.ndarray:
@@ -511,9 +525,28 @@ def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None):
     return R, b.C[ok], b.w[ok], b.t[ok]
 
 
-def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray):
+    """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
+    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``.
+    Returns arrays of H models, or None."""
+    cam0 = pool.cam[samples[:, 0]]
+    xs = pool.x[samples[:, :3]]
+    bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
+    R_cam, C_cam, own = lambda_twist_batch(
+        np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
+    )
+    if len(own) == 0:
+        return None
+    Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
+    R = np.einsum("hji,hjk->hik", Rc, R_cam)
+    C = np.einsum("hji,hj->hi", Rc, C_cam - cc)
+    z = np.zeros((len(own), 3))
+    return R, C, z, z.copy()
+
+
+def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2, free=12):
     """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times
-    (``threshold_px``: unused, the signature of :func:`_refine`)."""
+    (``threshold_px``, ``free``: unused, the signature of :func:`_refine`)."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
@@ -563,11 +596,14 @@ def _apply(model, u: np.ndarray):
     return rotvec_to_matrix(u[0:3]) @ R0, C0 + u[3:6], w0 + u[6:9], t0 + u[9:12]
 
 
-def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterations: int = 20):
+def _refine(
+    pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterations: int = 20, free=12
+):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (Huber loss at ``threshold_px``, truncated beyond: the set re-selected at each
     iteration; ``inl`` unused, the signature of :func:`_refit`). 12 parameters: a rotation
-    update left of R, C, w, t; residuals: the image errors (px) of :func:`_errors_px`."""
+    update left of R, C, w, t (``free=6``: the pose alone, w and t kept); residuals: the image
+    errors (px) of :func:`_errors_px`."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     allp = np.arange(len(pool.cam))
     e = _errors_px(pool, *_one(model))[0]
@@ -579,7 +615,7 @@ def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterat
             break
         r, J = _jacobian(pool, model, idx)
         _, wts = _robust(e[idx], k, cut)
-        Jf = J.reshape(-1, 12)
+        Jf = J.reshape(-1, 12)[:, :free]
         W = np.repeat(wts, 2)
         H = Jf.T @ (Jf * W[:, None])
         g = Jf.T @ (W * r.ravel())
@@ -587,7 +623,8 @@ def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterat
         while lam < 1e8:
             A = H + lam * np.diag(np.diag(H) + 1e-12)
             try:
-                u = -np.linalg.solve(A, g)
+                u = np.zeros(12)
+                u[:free] = -np.linalg.solve(A, g)
             except np.linalg.LinAlgError:
                 lam *= 10
                 continue
@@ -606,11 +643,12 @@ def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterat
     return model
 
 
-def _covariance(pool: _Pool, model, threshold_px: float) -> np.ndarray | None:
+def _covariance(pool: _Pool, model, threshold_px: float, free: int = 12) -> np.ndarray | None:
     """(12, 12) covariance of ``(delta, C, w, t)`` at the final model: ``sigma^2 (J^T W J)^-1``
     over the points within ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2``
     the per-axis image variance (px^2) of the errors inside the threshold, corrected for the
-    truncation (:func:`~.refine.untruncated_variance`); ``None`` if singular or not finite."""
+    truncation (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero
+    rows and columns for w and t); ``None`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
@@ -619,11 +657,12 @@ def _covariance(pool: _Pool, model, threshold_px: float) -> np.ndarray | None:
         return None
     _, J = _jacobian(pool, model, idx)
     _, wts = _robust(e[idx], k, cut)
-    Jf = J.reshape(-1, 12)
+    Jf = J.reshape(-1, 12)[:, :free]
     H = Jf.T @ (Jf * np.repeat(wts, 2)[:, None])
-    sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
+    sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
+    cov = np.zeros((12, 12))
     try:
-        cov = sigma2 * np.linalg.inv(H)
+        cov[:free, :free] = sigma2 * np.linalg.inv(H)
     except np.linalg.LinAlgError:
         return None
     cov = 0.5 * (cov + cov.T)
@@ -702,9 +741,11 @@ def estimate_rig_pose(
             is not a rotation and offset, mismatched pixel and point counts or shapes,
             non-positive threshold.
 
-    Every observation at one time (global-shutter cameras with equal stamps) leaves ``w`` and
-    ``t`` undetermined: the rig solver rejects every sample and the estimate fails with
-    ``no_model``.
+    Every observation at one time (global-shutter cameras with equal stamps: capture times
+    within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
+    rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
+    refinement and covariance of the pose alone) with ``w = t = 0`` and ``global_shutter``
+    set.
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
@@ -729,6 +770,9 @@ def estimate_rig_pose(
         return failed("too_few_points")
     if pool.degenerate(threshold_px):
         return failed("degenerate_geometry")
+    # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
+    still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    free, size = (6, 3) if still else (12, 6)
     th2 = threshold_px**2
     best_cost, best = np.inf, None
     drawn = 0
@@ -737,7 +781,11 @@ def estimate_rig_pose(
         k = min(batch_size, max_iterations - drawn)
         samples = _sample(rng, pool, k)
         drawn += k
-        hyp = _hypotheses(pool, samples, solver_iterations, bounds)
+        hyp = (
+            _hypotheses_still(pool, samples)
+            if still
+            else _hypotheses(pool, samples, solver_iterations, bounds)
+        )
         if hyp is None:
             continue
         e = _errors_px(pool, *hyp)
@@ -748,7 +796,7 @@ def estimate_rig_pose(
             best = tuple(a[h] for a in hyp)
             frac = np.mean(e[h] < threshold_px)
             if frac > 0:
-                denom = np.log(max(1e-12, 1.0 - frac**6))
+                denom = np.log(max(1e-12, 1.0 - frac**size))
                 needed = np.log(1.0 - confidence) / denom if denom < 0 else 0
     if best is None:
         return failed("no_model", drawn)
@@ -758,16 +806,18 @@ def estimate_rig_pose(
         return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
 
     # each step is kept only if it does not raise the MSAC cost of the whole pool
+    steps = (_refit, _refine) if refine else (_refit,)
+    if still:  # (the rig solver needs a spread of capture times)
+        steps = (_refine,) if refine else ()
     for _ in range(LO_ROUNDS):
-        steps = (_refit, _refine) if refine else (_refit,)
         for step in steps:
             inl = _errors_px(pool, *_one(model))[0] < threshold_px
-            cand = step(pool, inl, model, threshold_px)
+            cand = step(pool, inl, model, threshold_px, free=free)
             cost = msac(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement (on every point within FINAL_CUTOFF thresholds)
-        model = _refine(pool, None, model, threshold_px)
+        model = _refine(pool, None, model, threshold_px, free=free)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     e = _errors_px(pool, *_one((R, C, w, t)))[0]
     inl = e < threshold_px
@@ -782,9 +832,13 @@ def estimate_rig_pose(
     if bad:
         return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    cov = _covariance(pool, (R, C, w, t), threshold_px) if refine else None
-    out = (None, None, None) if cov is None else output_covariance(cov, R, C, w, 1.0)
+    cov = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else None
+    out = (
+        (None, None, None)
+        if cov is None
+        else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
+    )
     return RigPoseEstimate(
         True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
-        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov,
+        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still,
     )  # fmt: skip

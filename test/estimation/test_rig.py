@@ -297,3 +297,89 @@ def test_points_behind_a_camera_are_counted_not_inliers():
     )
     assert est.success and est.num_behind >= 5
     assert not est.inliers[0][40:].any()
+
+
+def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
+    """A rig of one camera at the identity mounting, stamped at the rig's reference time: the
+    same model as estimate_rs_pose (r6p_1lin, the same exact model, threshold and robust
+    loss) to a small fraction of their error against the truth, the same inliers."""
+    rng = np.random.default_rng(16)
+    for _ in range(4):
+        cam = sim_rig.make_rig(1, rng).cameras[0].camera
+        rig = sim_rig.Rig((sim_rig.RigCamera("front", cam, np.eye(3), np.zeros(3), 0.0),))
+        f = sim_rig.rig_frame(rig, rig_truth(rng), [200], rng)
+        v = f.views[0]
+        est = estimate_rig_pose(f.views)
+        one = estimate_rs_pose(v.uv, v.X, v.camera)
+        assert est.success and one.success
+        np.testing.assert_array_equal(est.inliers[0], one.inliers)
+        mine, truth = est.camera_model(v), f.camera_truth(0)
+        assert rotation_angle_deg(mine.R, one.R) < 0.1 * rotation_angle_deg(one.R, truth.R) + 1e-4
+        assert np.linalg.norm(mine.C - one.C) < 0.1 * np.linalg.norm(one.C - truth.C) + 1e-6
+        assert np.linalg.norm(mine.w - one.w) < 0.3 * np.linalg.norm(one.w - truth.w) + 1e-6
+
+
+def _poselib_pose(views):
+    """PoseLib's generalized absolute pose (gP3P RANSAC and its refinement, global shutter) on
+    the raw pixels with each camera's pinhole intrinsics: (R, position)."""
+    poselib = pytest.importorskip("poselib")
+    pts2, pts3, ext, cams = [], [], [], []
+    for v in views:
+        K = v.camera.K
+        pts2.append(v.uv)
+        pts3.append(v.X)
+        e = poselib.CameraPose()
+        e.R, e.t = v.R_mount, v.c_mount
+        ext.append(e)
+        p = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
+        cams.append({"model": "PINHOLE", "width": 640, "height": 480, "params": p})
+    pose, _ = poselib.estimate_generalized_absolute_pose(
+        pts2, pts3, ext, cams, {"max_reproj_error": 2.0}, {}
+    )
+    R = np.asarray(pose.R)
+    return R, -R.T @ np.asarray(pose.t)
+
+
+def test_global_shutter_rig_is_poselib_generalized_pose():
+    """Global-shutter cameras with equal stamps (no time spread): the estimate is the rig's
+    generalized absolute pose with zero velocities; it agrees with PoseLib's gP3P estimate on
+    the same inputs to a fraction of their error against the truth; the twist covariance is
+    None, the pose covariance covers the error."""
+    rng = np.random.default_rng(17)
+    for _ in range(4):
+        rig = sim_rig.make_rig(3, rng, readout_time=(0.0, 0.0), stamp_spread=0.0)
+        truth = rig_truth(rng)
+        f = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
+        est = estimate_rig_pose(f.views)
+        assert est.success and est.global_shutter
+        assert not est.w.any() and not est.t.any() and est.twist_covariance is None
+        R, p = _poselib_pose(f.views)
+        p_true = -truth.R.T @ truth.C
+        err_rot = max(rotation_angle_deg(R, truth.R), rotation_angle_deg(est.R, truth.R))
+        err_pos = max(np.linalg.norm(p - p_true), np.linalg.norm(est.position - p_true))
+        assert rotation_angle_deg(est.R, R) < 0.5 * err_rot + 1e-3
+        assert np.linalg.norm(est.position - p) < 0.5 * err_pos + 1e-4
+        assert err_rot < 0.05 and err_pos < 0.01
+        sd = np.sqrt(np.diag(est.pose_covariance))
+        assert (np.abs(est.position - p_true) < 5 * sd[:3]).all()
+
+
+def test_rig_at_rest_agrees_with_poselib_generalized_pose():
+    """Rolling-shutter cameras on a rig at rest (zero velocities: the images are global
+    shutter): the rig estimate's velocities are near zero and its pose agrees with PoseLib's
+    generalized absolute pose on the same inputs within their errors against the truth."""
+    rng = np.random.default_rng(18)
+    for _ in range(4):
+        rig = sim_rig.make_rig(3, rng)
+        R0, C0, *_ = rig_truth(rng)
+        truth = (R0, C0, np.zeros(3), np.zeros(3))
+        f = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
+        est = estimate_rig_pose(f.views)
+        assert est.success and not est.global_shutter
+        assert np.linalg.norm(est.angular_velocity) < 0.05  # rad/s
+        R, p = _poselib_pose(f.views)
+        p_true = -R0.T @ C0
+        assert rotation_angle_deg(R, truth[0]) < 0.03 and rotation_angle_deg(est.R, R0) < 0.03
+        assert rotation_angle_deg(est.R, R) < 0.03
+        assert np.linalg.norm(est.position - p) < 0.005
+        assert np.linalg.norm(est.position - p_true) < 0.005
