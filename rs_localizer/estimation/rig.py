@@ -87,11 +87,11 @@ RIG_FAILURE_REASONS = {
     "too_few_points": "fewer than 6 valid correspondences over all cameras, or no camera with 3",
     "degenerate_geometry": (
         "the world points (or the final inliers) are identical or on one 3D line, or every "
-        "camera's pixels lie within the inlier threshold of one image line"
+        "camera's pixels lie within the inlier threshold of one image line (or number fewer "
+        "than 3: its rays in one plane through its centre)"
     ),
     "no_model": "no sample gave a valid model moving within the velocity bounds",
-    "too_few_inliers": "the best model has fewer than min_inliers inliers (before or after "
-    "the final refinement)",
+    "too_few_inliers": "the final (refined) model has fewer than min_inliers inliers",
     "implausible_motion": "the refined rig turns faster than max_angular_velocity or moves "
     "faster than max_linear_velocity (or is not finite)",
     "cheirality": "an inlier is not in front of its camera at its capture time",

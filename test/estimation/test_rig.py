@@ -261,7 +261,8 @@ def test_a_camera_without_mounting_is_named():
 
 
 def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
-    """Every world point on one 3D line: degenerate_geometry; a rig turning at 1.5 rad/s with the
+    """Every world point on one 3D line, or every camera's pixels on one image line:
+    degenerate_geometry; a rig turning at 1.5 rad/s with the
     bound at 0.5 rad/s: no plausible model (no_model or implausible_motion); within the
     bound: success."""
     rng = np.random.default_rng(14)
@@ -275,6 +276,16 @@ def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
         line.append(RigView(v.uv, X, v.camera, v.R_mount, v.c_mount, v.stamp_offset))
     est = estimate_rig_pose(line)
     assert not est.success and est.failure == "degenerate_geometry"
+    # every camera's pixels on one image row (each camera's rays in one plane)
+    flat = [
+        RigView(np.c_[v.uv[:, 0], np.full(len(v.uv), 240.0)], v.X, v.camera, v.R_mount, v.c_mount)
+        for v in views
+    ]
+    est = estimate_rig_pose(flat)
+    assert not est.success and est.failure == "degenerate_geometry"
+    # ... unless one camera's are not
+    est = estimate_rig_pose([flat[0], views[1]])
+    assert est.failure != "degenerate_geometry"
     est = estimate_rig_pose(views, max_angular_velocity=0.5)
     assert not est.success and est.failure in ("no_model", "implausible_motion")
     assert estimate_rig_pose(views, max_angular_velocity=2.0).success
