@@ -77,10 +77,12 @@ class RigHarness:
 
         self.probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
         ok = self.wait(
-            lambda: all(p.get_subscription_count() > 0 for ps in self.pub.values() for p in ps)
-            and self.probe.count_publishers("/rig/pose") > 0
-            and self.node._pubs["pose"].get_subscription_count() > 0
-            and self.node._pubs["odom"].get_subscription_count() > 0
+            lambda: (
+                all(p.get_subscription_count() > 0 for ps in self.pub.values() for p in ps)
+                and self.probe.count_publishers("/rig/pose") > 0
+                and self.node._pubs["pose"].get_subscription_count() > 0
+                and self.node._pubs["odom"].get_subscription_count() > 0
+            )
         )
         assert ok, "the rig node and the probe did not match"
 
@@ -163,7 +165,7 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
     """The left camera's camera_info never comes: its frames are counted
     ``skipped.no_camera_info``, the rig is posed from front and right, the status warns."""
     cams = default_rig(3)
-    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=12)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=12)
     h = RigHarness(ros_context, cams, rig_parameters(cams))
     try:
         h.send_info([c for c in cams if c.name != "left"])
@@ -205,5 +207,5 @@ def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
     with pytest.raises(RuntimeError, match="rig camera 'left' has no mounting"):
         RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
     bad = [p for p in params] + [Parameter("rig.left.mounting", value=[0.0, 1.0])]
-    with pytest.raises(RuntimeError, match="rig.left.mounting must be 7"):
+    with pytest.raises(RuntimeError, match=r"rig\.left\.mounting must be 7"):
         RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
