@@ -424,9 +424,17 @@ class _Points:
         """(N, 2) image errors (px) of the model ``x_rig(tau) = expm(tau [w]x) R X + C + tau
         t`` (predicted minus measured; inf behind a camera)."""
         y = self.X @ np.asarray(R).T
-        E = rotvec_to_matrix(self.tau[:, None] * np.asarray(w)[None])
-        z = np.einsum("nij,nj->ni", E, y) + np.asarray(C) + self.tau[:, None] * np.asarray(t)
-        q = np.einsum("nij,nj->ni", self.R_mount[self.cam], z) + self.c_mount[self.cam]
+        z = _rotate(self.tau[:, None] * np.asarray(w)[None], y)
+        z += np.asarray(C) + self.tau[:, None] * np.asarray(t)
+        return self.project(z)
+
+    def project(self, x_rig: np.ndarray) -> np.ndarray:
+        """(N, 2) image errors (px) of the points at ``x_rig`` (N, 3) in the rig frame (inf
+        behind their camera)."""
+        q = np.empty_like(x_rig)
+        for k in range(len(self.R_mount)):
+            s = self.cam == k
+            q[s] = x_rig[s] @ self.R_mount[k].T + self.c_mount[k]
         zq = q[:, 2:3]
         good = zq > 1e-9
         d = self.focal[:, None] * (q[:, :2] / np.where(good, zq, 1.0) - self.x)
@@ -436,6 +444,19 @@ class _Points:
         """(N,) reprojection errors (px)."""
         d = self.residuals(R, C, w, t)
         return np.sqrt(np.sum(d * d, axis=1))
+
+
+def _rotate(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``expm([phi_i]x) y_i`` for rotation vectors phi (N, 3) and vectors y (N, 3)
+    (Rodrigues, without the matrices)."""
+    th = np.sqrt(np.sum(phi * phi, axis=1))[:, None]
+    small = th < 1e-12
+    ths = np.where(small, 1.0, th)
+    k = phi / ths
+    c, s = np.cos(th), np.sin(th)
+    kxy = np.cross(k, y)
+    out = y * c + kxy * s + k * (np.sum(k * y, axis=1)[:, None] * (1.0 - c))
+    return np.where(small, y + np.cross(phi, y), out)
 
 
 def _model_of(Ori, p, omega, v):
@@ -454,15 +475,9 @@ def _state_residuals(points: _Points, Ori, p, omega, v, alpha, a) -> np.ndarray:
     ``alpha``, ``a`` (rad/s^2, m/s^2, rig frame) through the rig frame: orientation
     ``Ori expm([tau omega + tau^2 alpha / 2]x)``, origin ``p + Ori (tau v + tau^2 a / 2)``."""
     tau = points.tau[:, None]
-    E = rotvec_to_matrix(tau * omega + 0.5 * tau**2 * alpha)  # (N, 3, 3) body rotation
-    O_t = Ori @ E
     p_t = p + (tau * v + 0.5 * tau**2 * a) @ Ori.T
-    x_rig = np.einsum("nji,nj->ni", O_t, points.X - p_t)
-    q = np.einsum("nij,nj->ni", points.R_mount[points.cam], x_rig) + points.c_mount[points.cam]
-    zq = q[:, 2:3]
-    good = zq > 1e-9
-    d = points.focal[:, None] * (q[:, :2] / np.where(good, zq, 1.0) - points.x)
-    return np.where(good, d, np.inf).ravel()
+    x_rig = _rotate(-(tau * omega + 0.5 * tau**2 * alpha), (points.X - p_t) @ Ori)
+    return points.project(x_rig).ravel()
 
 
 def rig_covariance(
@@ -471,7 +486,7 @@ def rig_covariance(
     """The covariance of a rig frame's pose and twist from its inliers ``points``, and how
     the estimate moves under acceleration during the rig frame.
 
-    The covariance is ``sigma^2 (J^T J)^-1``, J the Jacobian (central differences) of the
+    The covariance is ``sigma^2 (J^T J)^-1``, J the Jacobian (forward differences) of the
     image errors (px) over (rotation [rad, world axes, left of the orientation], position [m,
     world], angular velocity [rad/s, rig], linear velocity [m/s, rig]) and ``sigma`` (px) the
     residuals' RMS over ``2 N - 12`` degrees of freedom, at least ``sigma_floor_px``. The
@@ -491,7 +506,6 @@ def rig_covariance(
     bad = np.full((12, 12), np.nan), None
     if n < 7:
         return bad
-    z3 = np.zeros(3)
 
     def res(u):
         Ou = rotvec_to_matrix(u[0:3]) @ Ori
@@ -503,12 +517,11 @@ def rig_covariance(
     if not np.isfinite(r0).all():
         return bad
     J = np.empty((2 * n, 18))
-    for k in range(18):
-        h = 1e-6 if k < 6 else 1e-5 if k < 12 else 1e-3
+    for k in range(18):  # (forward differences)
+        h = 1e-7 if k < 6 else 1e-6 if k < 12 else 1e-3
         e = np.zeros(18)
         e[k] = h
-        J[:, k] = (res(e) - res(-e)) / (2 * h)
-    del z3
+        J[:, k] = (res(e) - r0) / h
     sigma2 = max(float(r0 @ r0) / max(2 * n - 12, 1), sigma_floor_px**2)
     A = J[:, :12].T @ J[:, :12]
     try:
