@@ -18,18 +18,21 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     /diagnostics (one status: the rig's counts and every camera's, with warnings)
 
 The frames are solved in the subscription callbacks (one executor thread; a rig frame of
-3 x 150 correspondences takes ~40 ms): the node has no frame queue.
+3 x 150 correspondences takes ~40 ms): the node has no frame queue. The parameters are read
+once, at start (changes at run time are refused). The managed node has no rig mode.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from typing import Any
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
@@ -56,13 +59,16 @@ _ARRAY_TYPES = {"rig.cameras": RosParameter.Type.STRING_ARRAY}
 
 
 class _Log:
-    """The rig's warnings to the node's logger, each kind at most once per 5 s."""
+    """The rig's warnings to the node's logger, each kind (key) at most once per 5 s."""
 
-    def __init__(self, logger):
-        self.logger = logger
+    def __init__(self, logger, clock=time.monotonic):
+        self.logger, self._clock, self._last = logger, clock, {}
 
     def warning(self, key: str, text: str, count: int = 0) -> None:
-        self.logger.warning(text, throttle_duration_sec=5.0)
+        now = self._clock()
+        if now - self._last.get(key, -np.inf) >= 5.0:
+            self._last[key] = now
+            self.logger.warning(text)
 
     def info(self, text: str) -> None:
         self.logger.info(text)
@@ -177,7 +183,8 @@ class RigLocalizerNode(Node):
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
         self.map_frame = str(values["map_frame"])
-        self.rig = RigLocalizer(self.config.settings, log=_Log(self.get_logger()))
+        self._log = _Log(self.get_logger())
+        self.rig = RigLocalizer(self.config.settings, log=self._log)
         self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self._pubs = {
@@ -218,10 +225,19 @@ class RigLocalizerNode(Node):
         self._timer = self.create_timer(
             float(values["diagnostics_period"]), self.publish_diagnostics
         )
+        self.add_on_set_parameters_callback(self._refuse_changes)
         self.get_logger().info(
             f"ready: rig of {len(self.config.cameras)} cameras "
             f"({', '.join(c.name for c in self.config.cameras)}) posed as {self.config.base_frame}"
             f" in {self.map_frame}"
+        )
+
+    def _refuse_changes(self, params) -> SetParametersResult:
+        """The rig mode reads its parameters once, at start: changes are refused."""
+        names = ", ".join(p.name for p in params)
+        return SetParametersResult(
+            successful=False,
+            reason=f"the rig mode reads its parameters at start; restart to change {names}",
         )
 
     # ---------------------------------------------------------------- inputs
@@ -232,8 +248,8 @@ class RigLocalizerNode(Node):
             )
         except ValueError as e:
             self.bad_input[cam.name] += 1
-            self.get_logger().warning(
-                f"rig camera {cam.name!r}: camera_info rejected: {e}", throttle_duration_sec=5.0
+            self._log.warning(
+                f"info.{cam.name}", f"rig camera {cam.name!r}: camera_info rejected: {e}"
             )
 
     def _on_cloud(self, name: str, msg) -> None:
@@ -242,9 +258,7 @@ class RigLocalizerNode(Node):
             c = read_correspondences(msg)
         except ValueError as e:
             self.bad_input[name] += 1
-            self.get_logger().warning(
-                f"rig camera {name!r}: frame not read: {e}", throttle_duration_sec=5.0
-            )
+            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
             return
         frame = RigCameraFrame(name, stamp, self.models[name], c.pixels, c.points)
         for out in self.rig.add(frame):

@@ -143,6 +143,8 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
         if read_rig_cameras():  # (the rig mode: one node for every camera of the rig)
             from .rig_node import RigLocalizerNode
 
+            if prog != "rs_localizer_node":
+                raise RuntimeError("the rig mode (rig.cameras) runs in rs_localizer_node only")
             nodes.append(RigLocalizerNode())
         elif cams:
             cli = node_cli_args(argv)

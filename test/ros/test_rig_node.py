@@ -175,6 +175,11 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
         assert st.level == WARN and "left waits for its camera_info" in st.message, st.message
         assert v["left.received"] == v["left.skipped"] == v["left.skipped.no_camera_info"] == "9"
         assert v["left.camera_info"] == "waiting" and v["front.solved"] == v["rig_frames_solved"]
+        # the parameters are read at start: a change is refused
+        from rclpy.parameter import Parameter
+
+        (r,) = h.node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
+        assert not r.successful and "at start" in r.reason
     finally:
         h.close()
 
