@@ -214,3 +214,21 @@ def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
     bad = [p for p in params] + [Parameter("rig.left.mounting", value=[0.0, 1.0])]
     with pytest.raises(RuntimeError, match=r"rig\.left\.mounting must be 7"):
         RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
+
+
+def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mounting(
+    tmp_path, ros_domain
+):
+    """rs_localizer_node with rig.cameras set runs the rig mode (the process runner): a camera
+    without mounting stops it at start with an error naming the camera."""
+    from helpers.ros import refused_start
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: [front, left]\n"
+        "      front: {mounting: [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]}\n"
+    )
+    exited, rc, log = refused_start(tmp_path, [p], "/rig", 60)
+    assert exited and rc == 1, log
+    assert "rig camera 'left' has no mounting" in log, log
