@@ -107,7 +107,6 @@ class ArucoFrontend(FrontendHooks):
         self.windowed = bool(windowed)
         self.window_margin_px = float(window_margin_px)
         self.full_frame_every = int(full_frame_every)
-        self._min_perimeter_rate = float(min_marker_perimeter)
         self._pose = None  # (R, C, w, t) of the last solved frame
         self._stamp = None  # its stamp (ns)
         self._camera = None  # the camera of the last processed frame
@@ -229,12 +228,11 @@ class ArucoFrontend(FrontendHooks):
                     x1 - cc[:, 0].max(),
                     y1 - cc[:, 1].max(),
                 )
-                q = cc
                 k = int(ii)
-                if k in best and np.abs(best[k][1] - q).max() > DUPLICATE_PX:
+                if k in best and np.abs(best[k][1] - cc).max() > DUPLICATE_PX:
                     dup.add(k)  # the same id at another place of the image
                 elif k not in best or inside > best[k][0]:
-                    best[k] = (inside, q)
+                    best[k] = (inside, cc)  # (in two overlapping windows: the deeper one)
         self.last_duplicates = len(dup)
         ids = sorted(k for k in best if k not in dup)
         if not ids:
