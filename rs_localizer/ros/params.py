@@ -499,10 +499,11 @@ PARAMETERS = {
         read_only=True,
     ),
     "aruco.quad_decimate": Parameter(
-        1.5,
+        0.0,
         "AprilTag: find quads on the image decimated by this factor (1: full resolution, "
-        "finds smaller tags, slower); corners refined and tags decoded at full resolution",
-        FloatRange(from_value=1.0, to_value=8.0),
+        "finds smaller tags, slower; 1.5 or an integer); corners refined and tags decoded at "
+        "full resolution; 0: by image size (1.5 up to 640x480, 2 above)",
+        FloatRange(from_value=0.0, to_value=8.0),
         read_only=True,
     ),
     "aruco.nthreads": Parameter(
@@ -534,6 +535,27 @@ PARAMETERS = {
         "AprilTag: smallest decision margin of a kept tag (the library's units; negative: the "
         "binding's default)",
         FloatRange(from_value=-1.0, to_value=10_000.0),
+        read_only=True,
+    ),
+    "aruco.adaptive_thresh_constant": Parameter(
+        20.0,
+        "OpenCV: grey levels below the neighbourhood mean that make a marker candidate's dark "
+        "(OpenCV's adaptiveThreshConstant; its default 7 makes textured walls candidates)",
+        FloatRange(from_value=0.0, to_value=255.0),
+        read_only=True,
+    ),
+    "aruco.adaptive_thresh_win_size_step": Parameter(
+        20,
+        "OpenCV: px; step of the thresholding windows from 3 to 23 px (OpenCV's "
+        "adaptiveThreshWinSizeStep; 20: two passes, 10: three)",
+        IntRange(from_value=1, to_value=100),
+        read_only=True,
+    ),
+    "aruco.error_correction_rate": Parameter(
+        0.6,
+        "OpenCV: share of the dictionary's correctable bits a kept marker may have wrong "
+        "(OpenCV's errorCorrectionRate)",
+        FloatRange(from_value=0.0, to_value=1.0),
         read_only=True,
     ),
     "features.min_tracked_inliers": Parameter(
