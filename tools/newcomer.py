@@ -1,15 +1,32 @@
 """A new user's first hour, scripted: the shell commands of README.md and docs/*.md, run as
 written (``rs-localizer`` through this interpreter and this checkout), with their exit codes
-and, where the docs quote what a command prints, the figures compared (within 3 %).
+and, where the docs quote what a command prints, the figures compared (within 3 %); then a
+marker user's first day as named checks.
 
-    .venv/bin/python tools/newcomer.py [--list] [--only PAGE] [--timeout S]   # or: make newcomer
+    .venv/bin/python tools/newcomer.py [--list] [--only NAME[,NAME]] [--skip-slow]
+        [--timeout S] [--workdir DIR]                  # or: make newcomer [ARGS="--only day"]
 
 Commands that install or build (pip, make, colcon, rosdep, apt-get), need a ROS install
 (``ros2``), are templates (``BAG``, ``[...]``, ``|``), write into the repository, or take
 minutes (benchmarks: ``python -m benchmarks.X``; experiments, map building, rendering,
 compiling) are listed as skipped with the reason. The node quick start (``rs_localizer_node``
 in one shell, ``play`` in a second one) runs both, the node in the background on a random
-ROS_DOMAIN_ID. Exit status 1 when a command fails or a figure is off.
+ROS_DOMAIN_ID.
+
+The marker user's day: a rolling-shutter RGB camera (``render-bag --scene apriltag_room``,
+640x480, 62.5 us/line, standing in for the user's camera) in a room of AprilTag 36h11 tags,
+taken as the docs tell a new user: ``rs-localizer compile``, the video, ``map-markers
+--calibrate-readout`` (the readout time with its std and verdict, under ``--quiet``, in the
+map, the same with ``--anchor-pose``), the map's gravity-aligned frame, ``replay`` against the
+ground truth, docs/video.md's images-to-poses Python block run as written, ``export-image
+--all`` stamps, ``calibrate-readout``'s errors without a map, ``play --lockstep`` into another
+namespace, ``rs-localizer diagnostics``, the node with viewers subscribed on a 30 Hz video,
+and ``make demo``'s ROS_DOMAIN_ID and figures against the README. Each check prints PASS or
+FAIL with what it measured (REPORT: measured, not judged, e.g. a latency on a loaded shared
+machine), then a summary. ``--only`` runs single pages or checks (``pages``, ``day``: all of
+them; a check runs the steps it needs, e.g. the video and the map), ``--skip-slow`` leaves out
+the day's slow checks (the whole day takes 20-30 min on a 2-core machine). Not part of ``make
+test``. Exit status 1 when a command fails, a figure is off or a check fails.
 """
 
 from __future__ import annotations
