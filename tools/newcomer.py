@@ -587,19 +587,34 @@ def _diag_values(text: str) -> dict[str, float]:
 
 
 def check_compile(day: Day, c: Check) -> None:
-    """`rs-localizer compile` (the README's install step): its time against the 60 s target
-    (report-only on a loaded machine)."""
+    """`rs-localizer compile` (the README's install step) on an empty kernel cache, as right
+    after the install (a cache folder of its own: the checkout's may be warm from the pages'
+    commands): its time against the 60 s target (report-only on a loaded machine); then as
+    written, for the checkout's cache the later checks use."""
     before = os.getloadavg()[0]  # (others' load: the compile's own comes after)
-    r = day.run("rs-localizer compile", max(day.timeout, 900))
+    env = _env(day.domain)
+    env["NUMBA_CACHE_DIR"] = str(day.work / "numba_cache_cold")
+    shutil.rmtree(env["NUMBA_CACHE_DIR"], ignore_errors=True)
+    r = day.run("rs-localizer compile", max(day.timeout, 900), env=env)
+    day.ran[-1] = f"NUMBA_CACHE_DIR={env['NUMBA_CACHE_DIR']} {day.ran[-1]}"
     cores = os.cpu_count() or 1
-    c.value = f"{r.seconds:.0f} s (target <= 60 s; load {before:.1f} on {cores} cores before)"
+    c.value = (
+        f"{r.seconds:.0f} s on an empty cache (target <= 60 s; load {before:.1f} on {cores} "
+        "cores before)"
+    )
     if not c.expect(r.rc == 0, f"exit code {r.rc}: {_tail(r.output)}"):
         return
+    c.notes += [
+        m.strip() for m in re.findall(r"^(?:numba cache:|.*: ready in ).*$", r.output, re.M)
+    ]
     if r.seconds > 60 and before > 0.5 * cores:
         c.verdict = "REPORT"
         c.notes.append("over 60 s on a loaded machine: not judged (run again on a quiet one)")
     else:
         c.expect(r.seconds <= 60, f"compile took {r.seconds:.0f} s > 60 s on a quiet machine")
+    again = day.run("rs-localizer compile", max(day.timeout, 900))
+    c.notes.append(f"into the checkout's cache: {again.seconds:.0f} s")
+    c.expect(again.rc == 0, f"exit code {again.rc}: {_tail(again.output)}")
 
 
 def check_scenes_listed(day: Day, c: Check) -> None:
