@@ -260,6 +260,9 @@ def run_page(page: str, timeout: float, domain: int) -> list[Step]:
         if st.skip:
             missing |= _tmp_paths(st.command)
             continue
+        if node is None and " play " in f" {st.command} " and "--lockstep" in st.command:
+            st.skip = "lock-step with no node running (a node the page starts otherwise)"
+            continue
         _fresh(st.command)
         if "rs_localizer_node" in st.command.split()[0]:
             nxt = steps[k + 1] if k + 1 < len(steps) else None
