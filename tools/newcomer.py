@@ -1036,22 +1036,22 @@ print("VIEWER", *c, flush=True)
 
 def check_viewers(day: Day, c: Check) -> None:
     """The node on a 30 Hz 640x480 marker video keeps every frame with debug_image, markers
-    and path subscribed; its latency median rise (<= 2 ms) is measured and reported only
-    (a shared machine's load moves it more than that)."""
+    and path subscribed: fails when frames are dropped with viewers and not without (or many
+    more); when the node drops frames without viewers too, the machine does not keep up and
+    it is reported, not judged. The latency median rise (<= 2 ms) is measured and reported
+    only (a shared machine's load moves it more than that)."""
     _viewer_run(day, viewers=False)  # warm-up: a first node's start loads and caches kernels
     base = _viewer_run(day, viewers=False)
     seen = _viewer_run(day, viewers=True)
     n = DAY_FRAMES
 
-    def kept(v):
+    def dropped(v):
         return (
-            v.get("frames_received") == n
-            and v.get("frames_skipped", 0) == 0
-            and v.get("messages_lost", 0) == 0
+            n - v.get("frames_received", 0) + v.get("frames_skipped", 0) + v.get("messages_lost", 0)
         )
 
     def desc(v):
-        return (f"received {v.get('frames_received', '?'):g}/{n}, skipped "
+        return (f"received {v.get('frames_received', 0):g}/{n}, skipped "
                 f"{v.get('frames_skipped', 0):g}, lost {v.get('messages_lost', 0):g}, latency "
                 f"median {v.get('latency_ms_median', float('nan')):.1f} ms")  # fmt: skip
 
@@ -1065,8 +1065,18 @@ def check_viewers(day: Day, c: Check) -> None:
     if seen.get("viewer"):
         c.notes.append("the viewer got debug_image/markers/path: {}/{}/{}".format(*seen["viewer"]))
     c.expect(seen.get("viewer") and min(seen["viewer"]) > 0, "the viewer received nothing")
-    c.expect(kept(base), f"without viewers frames were lost: {desc(base)}")
-    c.expect(kept(seen), f"with viewers frames were lost: {desc(seen)}")
+    lost, lost0 = dropped(seen), dropped(base)
+    if lost0 == 0:
+        c.expect(lost == 0, f"with viewers {lost} of {n} frames were not solved (none without)")
+    elif lost > lost0 + max(2, n // 10):
+        c.fail(f"with viewers {lost} of {n} frames were not solved, without {lost0}")
+    elif c.verdict == "PASS":
+        c.verdict = "REPORT"
+        c.notes.append(
+            f"not judged: the node drops frames without viewers too ({lost0} of {n}; load "
+            f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores), with viewers {lost}: the "
+            "machine does not keep up at 30 Hz; run again on a quieter one"
+        )
 
 
 def check_demo_domain(day: Day, c: Check) -> None:
@@ -1093,10 +1103,11 @@ def check_demo_figures(day: Day, c: Check) -> None:
     if not c.expect(m, "README states no 'X-Yx more accurate in rotation' range"):
         return
     lo, hi = float(m.group(1)), float(m.group(2))
+    half = 0.5 * 10.0 ** -len(m.group(2).partition(".")[2])  # (the README's rounding)
     c.expect(len(ratios) == 2, f"{len(ratios)} ratios printed (expected 2: both parts)")
     c.expect(
-        all(lo - 0.05 <= x <= hi + 0.05 for x in ratios),
-        "a printed ratio is outside the README's range",
+        all(lo - half <= x < hi + half for x in ratios),
+        "a printed ratio is outside the README's range (as rounded there)",
     )
     c.expect(
         "no compiled kernels cached yet" not in r.output,
