@@ -288,6 +288,32 @@ def _check_gray(gray: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(g)
 
 
+_SAFE_PUPIL_CLASSES: dict = {}
+
+
+def pupil_detector(module: Any, **kwargs) -> Any:
+    """A ``pupil_apriltags.Detector(**kwargs)`` that tears down safely.
+
+    The binding's ``Detector.__del__`` frees its tag families before the library's detector,
+    whose destruction then reads the freed families (a use-after-free that aborts the process
+    now and then, e.g. when the garbage collector finalizes both in one pass). The detector
+    returned here detaches its families from the library's detector first, whatever order
+    the objects are finalized in."""
+    cls = _SAFE_PUPIL_CLASSES.get(module)
+    if cls is None:
+
+        class _Detector(module.Detector):
+            def __del__(self):
+                ptr = getattr(self, "tag_detector_ptr", None)
+                if ptr is not None:
+                    self.libc.apriltag_detector_clear_families.restype = None
+                    self.libc.apriltag_detector_clear_families(ptr)
+                super().__del__()
+
+        cls = _SAFE_PUPIL_CLASSES[module] = _Detector
+    return cls(**kwargs)
+
+
 class AprilTagDetector:
     """One AprilTag family with the AprilTag 3 library (module notes).
 
@@ -341,18 +367,6 @@ class AprilTagDetector:
         self.last_margins = np.zeros(0)
         self.last_hamming = np.zeros(0, np.int64)
 
-    def __del__(self):
-        # pupil_apriltags' Detector.__del__ frees its families before the detector, whose
-        # destruction then reads the freed families' decode tables (a use-after-free that
-        # crashes now and then): detach the families first
-        if getattr(self, "binding", None) != "pupil_apriltags":
-            return
-        for det in getattr(self, "_dets", {}).values():
-            ptr = getattr(det, "tag_detector_ptr", None)
-            if ptr is not None:
-                det.libc.apriltag_detector_clear_families.restype = None
-                det.libc.apriltag_detector_clear_families(ptr)
-
     def _detector(self, decimate: float) -> Any:
         """The library's detector at ``quad_decimate`` ``decimate`` (made on first use)."""
         det = self._dets.get(decimate)
@@ -360,7 +374,8 @@ class AprilTagDetector:
             return det
         o = self.options
         if self.binding == "pupil_apriltags":
-            det = self._mod.Detector(
+            det = pupil_detector(
+                self._mod,
                 families=self.family,
                 nthreads=int(o.nthreads),
                 quad_decimate=float(decimate),

@@ -203,7 +203,14 @@ def test_debian_binding_through_the_same_adapter(tag_board):
         class _Debian:
             def __init__(self, family, threads, maxhamming, decimate, blur, refine_edges):
                 seen.update(family=family, threads=threads, decimate=decimate, blur=blur)
-                self._d = mod.Detector(family, threads, decimate, blur, int(refine_edges))
+                self._d = md.pupil_detector(
+                    mod,
+                    families=family,
+                    nthreads=threads,
+                    quad_decimate=decimate,
+                    quad_sigma=blur,
+                    refine_edges=int(refine_edges),
+                )
 
             def detect(self, img):
                 return tuple(
