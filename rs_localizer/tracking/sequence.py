@@ -861,8 +861,8 @@ class SequenceLocalizer:
             except Exception as e:
                 self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
             return out
-        t0 = time.perf_counter()
         prediction = self.predict(stamp, camera)
+        t0 = time.perf_counter()
         try:
             found = Correspondences.of(
                 fe.process(image, camera, encoding=encoding, stamp_ns=stamp, prediction=prediction)

@@ -54,7 +54,8 @@ def test_the_front_end_is_handed_the_trackers_prediction(video):
     fe = Recorder()
     seq = SequenceLocalizer(SequenceSettings(options=OPTS), frontend=fe)
     tracker = RSTracker(options=OPTS)  # (driven directly beside it: the same predictions)
-    last, err_pred, err_carried = None, [], []
+    last = last_ref = None
+    err_pred, err_carried = [], []
     for k, f in enumerate(frames):
         fe.frame = f
         out = seq.process_image(f.stamp_ns, image, cam)
