@@ -434,10 +434,11 @@ def _add_detector_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--quad-decimate",
-        type=A.positive_float,
+        type=A.nonneg_float,
         default=d.quad_decimate,
-        help="AprilTag: find quads on the image decimated by this factor (>= 1; 1: full "
-        "resolution, finds smaller tags, slower)",
+        help="AprilTag: find quads on the image decimated by this factor (1, 1.5 or an "
+        "integer; 1: full resolution, finds smaller tags, slower; 0: by image size, 1.5 up to "
+        "640x480, 2 above)",
     )
     g.add_argument("--nthreads", type=A.positive_int, default=d.nthreads, help="AprilTag: threads")
     g.add_argument(

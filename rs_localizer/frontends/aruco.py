@@ -1,9 +1,13 @@
 """ArUco front end: marker corners -> 2D-3D correspondences.
 
-OpenCV's ``cv2.aruco.ArucoDetector`` finds the markers (subpixel corner refinement); each corner
-``k`` (top-left, top-right, bottom-right, bottom-left) of marker ``id`` found in the marker map
-becomes a correspondence with id ``4 * id + k`` and the corner's 3D position. Markers not in the
-map are ignored.
+The marker detector of the map's dictionary
+(:func:`~rs_localizer.frontends.marker_detection.make_marker_detector`: the AprilTag 3 library
+for AprilTag families, OpenCV's ArUco detector with subpixel corner refinement for ArUco
+dictionaries) finds the markers, over the full frame or, with ``windowed``, in windows around
+the predicted markers (the same detector and settings); each corner ``k`` (top-left, top-right,
+bottom-right, bottom-left) of marker ``id`` found in the marker map becomes a correspondence with
+id ``4 * id + k`` and the corner's 3D position. Markers not in the map are ignored; an id found
+twice in one image is dropped from that image (counted).
 """
 
 from __future__ import annotations
@@ -103,13 +107,14 @@ class ArucoFrontend(FrontendHooks):
         self.windowed = bool(windowed)
         self.window_margin_px = float(window_margin_px)
         self.full_frame_every = int(full_frame_every)
-        self._min_perimeter_rate = float(min_marker_perimeter)
         self._solved = False  # the last frame was solved (observe)
         self._camera = None  # the camera of the last processed frame
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
         self._last_found: set = set()  # marker ids found in the last frame
-        self.counts = {"windowed": 0, "full": 0}
+        self.counts = {"windowed": 0, "full": 0, "weak": 0, "duplicate": 0}
+        self.last_weak = 0  # detections refused as weak in the last frame (AprilTag)
+        self.last_duplicates = 0  # ids dropped from the last frame for being found twice
         self._times: list = []  # detection seconds per frame
         self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
         self.last_kind = "full"  # how the last frame was searched: full or windowed
@@ -137,8 +142,10 @@ class ArucoFrontend(FrontendHooks):
         return cls.from_map(dictionary, corners, load_marker_std(path), **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
-        """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
-        corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
+        """Raw detections over the full image: (corners (M, 4, 2) pixels, marker ids (M,)),
+        all markers found (ids found twice dropped)."""
+        corners, ids, rej = self.detector.detect(to_gray(image, encoding))
+        self.last_rejected = int(rej) if self.detector.backend == "opencv" else 0
         return corners, ids
 
     def predict_windows(
@@ -195,30 +202,36 @@ class ArucoFrontend(FrontendHooks):
         return merge_windows(boxes), {int(i) for i in mids[ok]}
 
     def _detect_windows(self, gray: np.ndarray, windows: list) -> tuple[np.ndarray, np.ndarray]:
-        """Detections in each window, corners offset back to full-frame pixels; the smallest
-        marker perimeter is kept at the full frame's (OpenCV scales it by the window size)."""
-        full = max(gray.shape)
+        """Detections in each window with the full-frame detector and its settings
+        (``detect_window``: OpenCV keeps the full frame's smallest marker perimeter, the
+        AprilTag library its decimation and grid), corners in full-frame pixels. A marker
+        seen in two overlapping windows is kept from the one it sits deeper in; an id found at
+        two places (corners more than ``DUPLICATE_PX`` apart) is dropped, counted in
+        ``last_duplicates``."""
         best: dict = {}  # marker id -> (distance of its corners to the window border, corners)
+        dup: set = set()
+        self.last_rejected = self.last_weak = self.last_duplicates = 0
         for x0, y0, x1, y1 in windows:
-            self.params.minMarkerPerimeterRate = (
-                self._min_perimeter_rate * full / max(x1 - x0, y1 - y0)
-            )
-            det = cv_compat.MarkerDetector(self.detector.dictionary, self.params)
-            c, i, _ = det.detect(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            c, i, rej = self.detector.detect_window(gray, (x0, y0, x1, y1))
+            self.last_rejected += int(rej) if self.detector.backend == "opencv" else 0
+            self.last_weak += self.detector.last_weak
+            dup.update(self.detector.last_duplicate_ids)
             for cc, ii in zip(c, i, strict=True):
-                # a marker seen in two overlapping windows: the one it sits deeper in
                 inside = min(
-                    cc[:, 0].min(),
-                    cc[:, 1].min(),
-                    x1 - x0 - cc[:, 0].max(),
-                    y1 - y0 - cc[:, 1].max(),
+                    cc[:, 0].min() - x0,
+                    cc[:, 1].min() - y0,
+                    x1 - cc[:, 0].max(),
+                    y1 - cc[:, 1].max(),
                 )
-                if int(ii) not in best or inside > best[int(ii)][0]:
-                    best[int(ii)] = (inside, cc + np.array([x0, y0], float))
-        self.params.minMarkerPerimeterRate = self._min_perimeter_rate
-        if not best:
+                k = int(ii)
+                if k in best and np.abs(best[k][1] - cc).max() > DUPLICATE_PX:
+                    dup.add(k)  # the same id at another place of the image
+                elif k not in best or inside > best[k][0]:
+                    best[k] = (inside, cc)  # (in two overlapping windows: the deeper one)
+        self.last_duplicates = len(dup)
+        ids = sorted(k for k in best if k not in dup)
+        if not ids:
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
-        ids = sorted(best)
         return np.asarray([best[i][1] for i in ids]), np.asarray(ids, np.int64)
 
     def _detect_frame(
@@ -242,12 +255,17 @@ class ArucoFrontend(FrontendHooks):
             self._since_full += 1
             self.counts["windowed"] += 1
         else:
-            corners, mids, self.last_rejected = self.detector.detect(gray)
+            corners, mids, rej = self.detector.detect(gray)
+            self.last_rejected = int(rej) if self.detector.backend == "opencv" else 0
+            self.last_weak = self.detector.last_weak
+            self.last_duplicates = self.detector.last_duplicates
             self.last_windows = []
             self.last_kind = "full"
             self._since_full = 0
             self.counts["full"] += 1
         self._times.append(time.perf_counter() - t0)
+        self.counts["weak"] += self.last_weak
+        self.counts["duplicate"] += self.last_duplicates
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
@@ -265,13 +283,21 @@ class ArucoFrontend(FrontendHooks):
 
     def summary(self) -> dict:
         """Counters since start: frames searched whole (``frontend_frames_global``) and in
-        windows (``aruco_frames_windowed``), and the median detection time per frame (ms;
-        ``nan`` before one)."""
+        windows (``aruco_frames_windowed``), the median detection time per frame (ms; ``nan``
+        before one), detections refused as weak (``aruco_markers_weak``) and ids dropped for
+        being found twice in one image (``aruco_markers_duplicate``); and the detector in use
+        (``aruco_detector``: which, and why OpenCV stands in for a missing AprilTag library,
+        with the install line) with its settings (``aruco_detector_settings``)."""
         t = self._times
+        det = self.detector
         return {
             "frontend_frames_global": self.counts["full"],
             "aruco_frames_windowed": self.counts["windowed"],
             "aruco_detect_ms_median": f"{np.median(t) * 1e3:.3f}" if t else "nan",
+            "aruco_markers_weak": self.counts["weak"],
+            "aruco_markers_duplicate": self.counts["duplicate"],
+            "aruco_detector": det.describe(),
+            "aruco_detector_settings": det.settings(),
         }
 
     def process(
@@ -306,6 +332,10 @@ class ArucoFrontend(FrontendHooks):
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
         return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)
+
+
+#: px: the same id found in two windows with corners further apart than this is two markers
+DUPLICATE_PX = 2.0
 
 
 def merge_windows(boxes: list) -> list:

@@ -1,5 +1,6 @@
-"""``python -m benchmarks.bench_markers`` on one frame: a row per detector, every frame
-posed, no false marker."""
+"""``python -m benchmarks.bench_markers`` on one frame: a row per detector (36h11 and the
+ArUco dictionary), every frame posed, no false marker, the targets printed; the OpenCV
+settings sweep."""
 
 import pytest
 
@@ -18,6 +19,18 @@ def test_bench_markers_runs(capsys):
         for line in out.splitlines()
         if line.strip().startswith(("opencv", "apriltag")) and "|" in line
     ]
-    assert len(rows) == (2 if apriltag_binding() else 1)
+    # 36h11: opencv, opencv default (+ apriltag d2); DICT_4X4_250: opencv, opencv default
+    assert len(rows) == (5 if apriltag_binding() else 4)
     assert all(line.rstrip().endswith("1/1") for line in rows), rows  # every frame posed
     assert "markers reported 0" in out
+    assert "with DICT_4X4_250 markers" in out and "targets" in out
+    assert "false markers, DICT_APRILTAG_36h11:" in out and "(target 0) met" in out
+
+
+@pytest.mark.slow
+def test_bench_markers_opencv_sweep(capsys):
+    args = ["--frames", "1", "--presets", "", "--false-frames", "0"]
+    assert main([*args, "--opencv-sweep", "7:10,20:20"]) == 0
+    out = capsys.readouterr().out
+    lines = [x for x in out.splitlines() if x.strip().startswith("constant")]
+    assert len(lines) == 2 and "constant    7 step  10" in lines[0], lines

@@ -5,7 +5,10 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
+from rs_localizer.frontends import cv_compat
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
+from rs_localizer.frontends.image import to_gray
+from rs_localizer.frontends.marker_detection import apriltag_binding
 from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
 from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
 from rs_localizer.tracking.tracker import CarriedPrediction
@@ -93,3 +96,57 @@ def test_merge_windows():
     assert len(merge_windows([[0, 0, 10, 10], [5, 5, 20, 20]])) == 2
     assert len(merge_windows([[0, 0, 10, 10], [30, 30, 40, 40]])) == 2
     assert merge_windows([[0, 0, 10, 10], [2, 2, 8, 8]]) == [(0, 0, 10, 10)]
+
+
+@pytest.mark.skipif(apriltag_binding() is None, reason="no AprilTag library binding installed")
+def test_windowed_search_uses_the_apriltag_library():
+    """An AprilTag map: the windows are searched with the AprilTag library (OpenCV's detector
+    never runs), with the corners of the full-frame search; the diagnostics name it."""
+    # (windows on the library's decimation grid: test_marker_detection.py)
+    scene, camera, frames = render_video("vga", 2, scene="apriltag_room")
+    full = ArucoFrontend.from_scene(scene)
+    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    assert win.detector.backend == "apriltag"
+    carry = CarriedPrediction()
+    _, est, stamp = _solve(win, frames[0], camera, carry)
+    win.observe(stamp, None, est)
+    called = []
+    orig = cv_compat.MarkerDetector.detect
+    cv_compat.MarkerDetector.detect = lambda *a: called.append(1) or orig(*a)
+    try:
+        c_w, _, _ = _solve(win, frames[1], camera, carry)
+    finally:
+        cv_compat.MarkerDetector.detect = orig
+    assert win.last_kind == "windowed" and not called
+    c_f = full.process(frames[1].image, camera)
+    common, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
+    assert len(common) >= 0.9 * len(c_f)
+    # most tags found as in the full frame; a few differ by the library's own noise (a tag's
+    # quad is fitted to its outline, which in the full frame may run on into the texture)
+    diff = np.abs(c_w.pixels[i_w] - c_f.pixels[i_f]).max(axis=1)
+    assert np.median(diff) < 1e-3 and np.mean(diff < 0.05) >= 0.9 and diff.max() < 0.2
+    s = win.summary()
+    assert s["aruco_detector"].startswith("AprilTag 3 library") and s["aruco_frames_windowed"] == 1
+    assert "quad_decimate by image size" in s["aruco_detector_settings"]
+    assert s["aruco_markers_duplicate"] == 0
+
+
+def test_an_id_twice_in_one_image_is_dropped_and_counted(video):
+    """The same marker at two places of one image (the image beside itself): its id dropped
+    from that image and counted, in a full-frame and in a windowed search."""
+    scene, camera, frames = video
+    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    img = frames[0].image
+    twice = np.ascontiguousarray(np.concatenate([img, img[:, :200]], axis=1))
+    c1 = fe.process(img, camera)
+    c2 = fe.process(twice, camera)
+    n = fe.summary()["aruco_markers_duplicate"]
+    twin = fe.detector.last_duplicate_ids  # the ids seen in the copy too
+    assert n == len(twin) >= 10 and twin <= set(c1.ids // 4) and not twin & set(c2.ids // 4)
+    gray = to_gray(twice)
+    h, w = img.shape[:2]
+    kept = set(c1.ids // 4) & set(c2.ids // 4)
+    dropped = set(c1.ids // 4) - kept
+    # windows around the whole image and its copy: found in both, so dropped
+    _, ids = fe._detect_windows(gray, [(0, 0, w, h), (w, 0, w + 200, h)])
+    assert fe.last_duplicates == len(dropped) and not dropped & set(ids.tolist())

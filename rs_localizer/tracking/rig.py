@@ -1,0 +1,968 @@
+"""A rig of rolling-shutter cameras through a video: frames grouped into rig frames by stamp,
+one pose per rig frame, tracked, with the rig's fused twist.
+
+Each camera of the rig sends its own frames (2D-3D correspondences, its own stamp, its own
+camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
+
+1. **groups** the frames into *rig frames* by the capture time of each frame's reference line
+   (:func:`~rs_localizer.tracking.sequence.reference_stamp_ns`): a rig frame holds at most one
+   frame per camera, all within ``window`` s of its earliest (:attr:`RigSettings.window`). A
+   rig frame is solved once every camera is in it or has *moved past* it (its newest frame is
+   later than the rig frame's earliest plus ``window``) or has *stopped* (no frame for
+   ``stop_after`` s of stamp time while others go on): cameras are free to miss a rig frame
+   (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not waited for and
+   the rig runs on the others, and a camera that sends again joins again;
+2. **estimates** the rig's pose at the rig frame's time (its earliest reference time) with
+   :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
+   its own stamp offset);
+3. **tracks** as the camera tracker (:mod:`rs_localizer.tracking.tracker`) does where the rig
+   estimator allows: the twist filter's prediction at the rig frame's time keeps the points it
+   explains (within ``gate_px``, or ``gate_sigmas`` of the predicted rotation, up to
+   ``max_gate_px``) and the rig estimator runs on those (``tracked``, fewer RANSAC samples);
+   when the prediction explains too few points the rig frame is solved on all of them
+   (``relocalized``); a stamp going back or a gap longer than ``max_gap`` starts the track
+   again (``reset``). (The rig estimator takes no initial model or motion prior: the
+   prediction only selects the points.)
+4. **fuses** the rig's twist with the camera tracker's filter
+   (:class:`~rs_localizer.tracking.fusion.TwistFilter`, fixed lag), the rig frame being the
+   filter's "camera": orientation rig -> world, position the rig origin, velocities in the
+   rig frame. The filter's measurement covariance is computed here (:func:`rig_covariance`:
+   Gauss-Newton on the exact rig model over the inliers, the image noise from their
+   residuals, at least ``sigma_floor_px``); the rig estimator's own covariance, when it has
+   one, is not read.
+
+Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
+failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
+rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + skipped +
+pending``. Per solved rig frame and camera: its points, inliers and share of the rig's inliers
+(:class:`CameraShare`); a camera whose points are outliers far more often than the others'
+over several rig frames is named as one that *disagrees* with the rig (a mounting off by
+degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning.
+
+Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
+
+    rig = RigLocalizer(RigSettings({"front": RigMount.from_pose(R_base_front, p_front),
+                                    "left": RigMount.from_pose(R_base_left, p_left)}))
+    for f in frames:
+        for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
+            if out.success:
+                ...  # out.pose: the rig's pose and its own twist at out.stamp_ns
+            for fused in out.fused:
+                ...  # an earlier rig frame's pose with its fused twist
+    for out in rig.close():  # the rig frames still open
+        ...
+    for fused in rig.flush():
+        ...
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..estimation.estimate import estimate_rs_pose
+from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
+from ..geometry import rotation_angle_deg, rotvec_to_matrix
+from ..pose import RSPose
+from .fusion import FusionOptions, TwistFilter
+from .sequence import FusedPose, checked_stamp, reference_stamp_ns
+from .tracker import predictable
+
+__all__ = [
+    "MISSED_REASONS",
+    "RIG_PATHS",
+    "SKIP_REASONS",
+    "CameraShare",
+    "RigCameraFrame",
+    "RigLocalizer",
+    "RigMeasurement",
+    "RigMount",
+    "RigOutput",
+    "RigSettings",
+    "RigTrackingOptions",
+    "rig_covariance",
+]
+
+#: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
+SKIP_REASONS = {
+    "no_camera_info": "the frame has no camera model (its camera_info has not arrived): the "
+    "camera waits, the rig runs on the others",
+    "out_of_order": "the frame's stamp is not later than the camera's previous frame's",
+    "late": "the frame is older than the last rig frame solved (it came after the other "
+    "cameras had moved past it)",
+    "time_reset": "stamps went back by more than time_reset_ns: the rig frames waiting were "
+    "dropped and the rig started again",
+}
+#: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
+MISSED_REASONS = {
+    "apart": "the camera had a frame within 2 x window of the rig frame but not within window: "
+    "stamps too far apart to be one rig frame (unsynchronized cameras, a wrong stamp offset); "
+    "that frame is in a rig frame of its own",
+    "dropped": "no frame of the camera near the rig frame (it skipped one)",
+    "stopped": "the camera sent no frame for stop_after s while the others did: the rig runs on "
+    "the others",
+}
+#: the paths a rig frame can take (as the camera tracker's)
+RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
+
+
+@dataclass(frozen=True, eq=False)
+class RigMount:
+    """A camera's mounting on the rig: ``x_cam = R x_rig + c``.
+
+    Attributes:
+        R: (3, 3) rig -> camera optical frame rotation. c: (3,) m.
+    """
+
+    R: np.ndarray
+    c: np.ndarray
+
+    def __post_init__(self):
+        R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        c = np.asarray(self.c, dtype=float).reshape(3)
+        if not (np.isfinite(R).all() and np.isfinite(c).all()):
+            raise ValueError("a mounting must be finite")
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            raise ValueError("a mounting's R must be a rotation")
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "c", c)
+
+    @classmethod
+    def from_pose(cls, R_rig_cam: np.ndarray, p_rig_cam: np.ndarray) -> RigMount:
+        """The mounting of a camera whose optical frame is at ``p_rig_cam`` (3,) m in the rig
+        frame, turned by ``R_rig_cam`` (3, 3) camera -> rig (a static transform rig ->
+        camera as tf gives it).
+
+        Raises:
+            ValueError: not finite, or not a rotation.
+        """
+        R = np.asarray(R_rig_cam, dtype=float).T
+        return cls(R, -R @ np.asarray(p_rig_cam, dtype=float))
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera's optical centre in the rig frame."""
+        return -self.R.T @ self.c
+
+
+@dataclass(frozen=True)
+class RigTrackingOptions:
+    """How the rig is tracked (module docstring, step 3); the fields of the camera tracker's
+    :class:`~rs_localizer.tracking.tracker.TrackerOptions` of the same names.
+
+    Attributes:
+        gate_px, gate_sigmas, max_gate_px: a point is explained by the prediction within
+            ``gate_px`` px, or ``gate_sigmas`` standard deviations of the predicted rotation
+            (times the focal length) when larger, up to ``max_gate_px``.
+        min_explained_ratio: the prediction is used when it explains at least this fraction of
+            the points the previous rig frame's inlier ratio promises.
+        max_gap: s between rig frames beyond which the track starts again.
+        tracked_max_iterations: RANSAC samples at most on a tracked rig frame.
+        fusion: the twist filter's :class:`~rs_localizer.tracking.fusion.FusionOptions` (its
+            ``max_gap`` is set to this one's).
+    """
+
+    gate_px: float = 20.0
+    gate_sigmas: float = 3.0
+    max_gate_px: float = 200.0
+    min_explained_ratio: float = 0.5
+    max_gap: float = 0.5
+    tracked_max_iterations: int = 200
+    fusion: FusionOptions = field(default_factory=FusionOptions)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.gate_px) and self.gate_px > 0):
+            raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
+        if not (self.gate_sigmas >= 0 and self.max_gate_px >= self.gate_px):
+            raise ValueError("need gate_sigmas >= 0 and max_gate_px >= gate_px")
+        if not 0.0 <= self.min_explained_ratio <= 1.0:
+            raise ValueError("min_explained_ratio must be in [0, 1]")
+        if not (np.isfinite(self.max_gap) and self.max_gap > 0):
+            raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
+        if self.tracked_max_iterations < 1:
+            raise ValueError("tracked_max_iterations must be >= 1")
+
+
+@dataclass(frozen=True)
+class RigSettings:
+    """The configuration of a :class:`RigLocalizer`.
+
+    Attributes:
+        mounts: camera name -> :class:`RigMount`; the order is the cameras' order in outputs.
+        window: s; the frames of one rig frame lie within this of its earliest (reference-line
+            capture times). Stamps further apart are different rig frames (``apart``).
+        stop_after: s of stamp time without a frame of a camera (while others send) after
+            which the rig stops waiting for it (``stopped``; also for a camera that never
+            sent, counted from the rig's first frame).
+        stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
+        time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
+            again (a bag played again); less is ``out_of_order``.
+        threshold_px, max_iterations, min_inliers, refine, seed: the rig estimator's
+            (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
+        tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
+        sigma_floor_px: the image noise (px) of the filter's measurement covariance is at
+            least this (noise-free data would make it zero).
+        disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
+            at least ``disagree_min_points`` points whose inlier ratio is below
+            ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
+            ``disagree_history`` rig frames *disagrees* with the rig.
+    """
+
+    mounts: dict
+    window: float = 0.015
+    stop_after: float = 0.5
+    stamp_row: float = 0.0
+    time_reset_ns: int = 10**9
+    threshold_px: float = 2.0
+    max_iterations: int = 1000
+    min_inliers: int = 8
+    refine: bool = True
+    seed: int | None = 0
+    tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
+    sigma_floor_px: float = 0.3
+    disagree_ratio: float = 0.5
+    disagree_min_points: int = 12
+    disagree_frames: int = 3
+    disagree_history: int = 5
+
+    def __post_init__(self):
+        if not self.mounts:
+            raise ValueError("a rig needs at least one camera")
+        for name, m in self.mounts.items():
+            if not isinstance(m, RigMount):
+                raise ValueError(f"camera {name!r} has no mounting (a RigMount)")
+        if not (np.isfinite(self.window) and self.window >= 0):
+            raise ValueError(f"window must be >= 0 s, got {self.window}")
+        if not (np.isfinite(self.stop_after) and self.stop_after > 0):
+            raise ValueError(f"stop_after must be > 0 s, got {self.stop_after}")
+        if not 1 <= self.disagree_frames <= self.disagree_history:
+            raise ValueError("need 1 <= disagree_frames <= disagree_history")
+
+    @property
+    def cameras(self) -> tuple:
+        """The cameras' names, in order."""
+        return tuple(self.mounts)
+
+
+@dataclass(frozen=True)
+class RigCameraFrame:
+    """One camera's frame.
+
+    Attributes:
+        camera_name: a camera of :attr:`RigSettings.mounts`.
+        stamp_ns: the capture time (ns) of row ``stamp_row`` (the header stamp).
+        camera: the camera model with its RS timing; None: not known yet (its camera_info
+            has not arrived; the frame is skipped as ``no_camera_info``).
+        points2d: (N, 2) px, distorted; points3d: (N, 3) m, world.
+        tag: anything the caller wants back with the rig frame.
+    """
+
+    camera_name: str
+    stamp_ns: int
+    camera: CameraModel | None
+    points2d: np.ndarray
+    points3d: np.ndarray
+    tag: Any = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
+        if self.camera is not None and not isinstance(self.camera, CameraModel):
+            raise TypeError(f"a frame needs a CameraModel or None, got {type(self.camera)}")
+
+
+@dataclass(frozen=True)
+class CameraShare:
+    """One camera in a solved rig frame: its ``points``, ``inliers`` (reprojection error of the
+    rig's pose within ``threshold_px``), ``share`` of the rig's inliers (0-1) and inlier
+    ``ratio`` (inliers / points; NaN without points)."""
+
+    points: int
+    inliers: int
+    share: float
+    ratio: float
+
+
+@dataclass(frozen=True, eq=False)
+class RigMeasurement:
+    """A solved rig frame as the twist filter's measurement (the fields the filter and
+    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate).
+
+    Attributes:
+        pose: :class:`~rs_localizer.pose.RSPose` of the rig at the rig frame's time:
+            orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
+            and linear (m/s) velocity in the rig frame, the rig frame's own.
+        covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
+            velocity [rad/s, rig], linear velocity [m/s, rig]) (:func:`rig_covariance`).
+        estimate: the rig estimator's :class:`~rs_localizer.estimation.rig.RigPoseEstimate`.
+    """
+
+    pose: RSPose
+    covariance: np.ndarray
+    estimate: RigPoseEstimate
+    success: bool = True
+    acceleration_sensitivity: Any = None
+
+    @property
+    def orientation(self) -> np.ndarray:
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        return self.pose.linear_velocity
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame."""
+        i = [3, 4, 5, 0, 1, 2]
+        return self.covariance[np.ix_(i, i)]
+
+    @property
+    def twist_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame."""
+        i = [9, 10, 11, 6, 7, 8]
+        return self.covariance[np.ix_(i, i)]
+
+
+@dataclass
+class RigOutput:
+    """A rig frame out of :class:`RigLocalizer`.
+
+    Attributes:
+        stamp_ns: the rig frame's time (ns): its earliest reference-line capture time; the
+            time of the pose.
+        cameras: the cameras in it (rig order); missing: camera -> a key of
+            :data:`MISSED_REASONS` for the others.
+        stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
+        estimate: the rig estimator's result (None when it raised: ``error``).
+        measurement: the pose, own twist and covariance (:class:`RigMeasurement`), None unless
+            solved.
+        path: ``cold``, ``tracked``, ``relocalized``, ``reset`` (:data:`RIG_PATHS`); None
+            without tracking.
+        shares: camera -> :class:`CameraShare` (solved rig frames).
+        disagreeing: cameras that disagree with the rig now (module docstring).
+        fused: earlier rig frames (and, on a reset, the track's last ones) whose fused twist
+            is final now, oldest first: :class:`~rs_localizer.tracking.sequence.FusedPose`
+            in the rig frame.
+        tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
+    """
+
+    stamp_ns: int
+    cameras: tuple = ()
+    missing: dict = field(default_factory=dict)
+    stamp_offsets: dict = field(default_factory=dict)
+    estimate: RigPoseEstimate | None = None
+    measurement: RigMeasurement | None = None
+    path: str | None = None
+    shares: dict = field(default_factory=dict)
+    disagreeing: tuple = ()
+    fused: list = field(default_factory=list)
+    tags: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def success(self) -> bool:
+        """The rig frame was posed."""
+        return self.measurement is not None
+
+    @property
+    def pose(self) -> RSPose | None:
+        """The rig's pose and own twist (None unless solved)."""
+        return None if self.measurement is None else self.measurement.pose
+
+
+# ---------------------------------------------------------------------- the rig model
+class _Points:
+    """A rig frame's valid correspondences stacked: normalized points x (N, 2), world points
+    X (N, 3), capture time tau (N,) s after the rig frame's time, camera index (N,), the
+    camera's mean focal length (N,) px, the row in the camera's input (N,)."""
+
+    def __init__(self, views: list[RigView]):
+        xs, Xs, taus, cams, foc, rows = [], [], [], [], [], []
+        self.R_mount = np.array([np.asarray(v.R_mount, float) for v in views]).reshape(-1, 3, 3)
+        self.c_mount = np.array([np.asarray(v.c_mount, float) for v in views]).reshape(-1, 3)
+        self.sizes = [len(v.uv) for v in views]
+        for k, v in enumerate(views):
+            uv = np.asarray(v.uv, float).reshape(-1, 2)
+            X = np.asarray(v.X, float).reshape(-1, 3)
+            idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
+            x, r, _ = v.camera.normalize(uv[idx])
+            ok = np.isfinite(x).all(axis=1)
+            idx, x, r = idx[ok], x[ok], r[ok]
+            cam = v.camera
+            xs.append(x)
+            Xs.append(X[idx])
+            taus.append(float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r)
+            cams.append(np.full(len(idx), k))
+            foc.append(np.full(len(idx), cam.mean_focal))
+            rows.append(idx)
+        self.x = np.vstack(xs)
+        self.X = np.vstack(Xs)
+        self.tau = np.concatenate(taus)
+        self.cam = np.concatenate(cams).astype(int)
+        self.focal = np.concatenate(foc)
+        self.row = np.concatenate(rows).astype(int)
+
+    def subset(self, keep: np.ndarray) -> _Points:
+        out = object.__new__(_Points)
+        out.R_mount, out.c_mount, out.sizes = self.R_mount, self.c_mount, self.sizes
+        for k in ("x", "X", "tau", "cam", "focal", "row"):
+            setattr(out, k, getattr(self, k)[keep])
+        return out
+
+    def residuals(self, R, C, w, t) -> np.ndarray:
+        """(N, 2) image errors (px) of the model ``x_rig(tau) = expm(tau [w]x) R X + C + tau
+        t`` (predicted minus measured; inf behind a camera)."""
+        y = self.X @ np.asarray(R).T
+        z = _rotate(self.tau[:, None] * np.asarray(w)[None], y)
+        z += np.asarray(C) + self.tau[:, None] * np.asarray(t)
+        return self.project(z)
+
+    def project(self, x_rig: np.ndarray) -> np.ndarray:
+        """(N, 2) image errors (px) of the points at ``x_rig`` (N, 3) in the rig frame (inf
+        behind their camera)."""
+        q = np.empty_like(x_rig)
+        for k in range(len(self.R_mount)):
+            s = self.cam == k
+            q[s] = x_rig[s] @ self.R_mount[k].T + self.c_mount[k]
+        zq = q[:, 2:3]
+        good = zq > 1e-9
+        d = self.focal[:, None] * (q[:, :2] / np.where(good, zq, 1.0) - self.x)
+        return np.where(good, d, np.inf)
+
+    def errors(self, R, C, w, t) -> np.ndarray:
+        """(N,) reprojection errors (px)."""
+        d = self.residuals(R, C, w, t)
+        return np.sqrt(np.sum(d * d, axis=1))
+
+
+def _rotate(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``expm([phi_i]x) y_i`` for rotation vectors phi (N, 3) and vectors y (N, 3)
+    (Rodrigues, without the matrices)."""
+    th = np.sqrt(np.sum(phi * phi, axis=1))[:, None]
+    small = th < 1e-12
+    ths = np.where(small, 1.0, th)
+    k = phi / ths
+    c, s = np.cos(th), np.sin(th)
+    kxy = np.cross(k, y)
+    out = y * c + kxy * s + k * (np.sum(k * y, axis=1)[:, None] * (1.0 - c))
+    return np.where(small, y + np.cross(phi, y), out)
+
+
+def _model_of(Ori, p, omega, v):
+    """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
+    in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
+    ``w = -omega``, ``t = w x C - v`` (:meth:`~rs_localizer.pose.RSPose.model` with 1 s per
+    unit)."""
+    R = Ori.T
+    C = -R @ p
+    w = -np.asarray(omega, float)
+    return R, C, w, np.cross(w, C) - v
+
+
+def _state_residuals(points: _Points, Ori, p, omega, v, alpha, a) -> np.ndarray:
+    """(2 N,) image errors (px) of a rig moving with angular and linear acceleration
+    ``alpha``, ``a`` (rad/s^2, m/s^2, rig frame) through the rig frame: orientation
+    ``Ori expm([tau omega + tau^2 alpha / 2]x)``, origin ``p + Ori (tau v + tau^2 a / 2)``."""
+    tau = points.tau[:, None]
+    p_t = p + (tau * v + 0.5 * tau**2 * a) @ Ori.T
+    x_rig = _rotate(-(tau * omega + 0.5 * tau**2 * alpha), (points.X - p_t) @ Ori)
+    return points.project(x_rig).ravel()
+
+
+def rig_covariance(
+    points: _Points, pose: RSPose, sigma_floor_px: float = 0.3
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The covariance of a rig frame's pose and twist from its inliers ``points``, and how
+    the estimate moves under acceleration during the rig frame.
+
+    The covariance is ``sigma^2 (J^T J)^-1``, J the Jacobian (forward differences) of the
+    image errors (px) over (rotation [rad, world axes, left of the orientation], position [m,
+    world], angular velocity [rad/s, rig], linear velocity [m/s, rig]) and ``sigma`` (px) the
+    residuals' RMS over ``2 N - 12`` degrees of freedom, at least ``sigma_floor_px``. The
+    sensitivity ``G = (J^T J)^-1 J^T D`` (12, 6), D the Jacobian of the image errors over the
+    angular and linear acceleration (rad/s^2, m/s^2, rig frame) of a rig moving as
+    :func:`_state_residuals`: the least-squares estimate of a rig that accelerates moves by
+    ``G (alpha, a)`` to first order (as the camera estimator's ``acceleration_sensitivity``,
+    :mod:`rs_localizer.estimation.sensitivity`; the twist filter uses it).
+
+    Returns:
+        (cov (12, 12), G (12, 6)); NaN and None when J is rank deficient or fewer than 7
+        points.
+    """
+    Ori, p = pose.orientation, pose.position
+    om, v = pose.angular_velocity, pose.linear_velocity
+    n = len(points.tau)
+    bad = np.full((12, 12), np.nan), None
+    if n < 7:
+        return bad
+
+    def res(u):
+        Ou = rotvec_to_matrix(u[0:3]) @ Ori
+        return _state_residuals(
+            points, Ou, p + u[3:6], om + u[6:9], v + u[9:12], u[12:15], u[15:18]
+        )
+
+    r0 = res(np.zeros(18))
+    if not np.isfinite(r0).all():
+        return bad
+    J = np.empty((2 * n, 18))
+    for k in range(18):  # (forward differences)
+        h = 1e-7 if k < 6 else 1e-6 if k < 12 else 1e-3
+        e = np.zeros(18)
+        e[k] = h
+        J[:, k] = (res(e) - r0) / h
+    sigma2 = max(float(r0 @ r0) / max(2 * n - 12, 1), sigma_floor_px**2)
+    A = J[:, :12].T @ J[:, :12]
+    try:
+        if np.linalg.cond(A) > 1e14:
+            return bad
+        Ainv = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        return bad
+    cov = sigma2 * Ainv
+    G = Ainv @ (J[:, :12].T @ J[:, 12:])
+    return 0.5 * (cov + cov.T), G
+
+
+# ---------------------------------------------------------------------- bookkeeping
+class _Camera:
+    def __init__(self, name: str, mount: RigMount, history: int):
+        self.name, self.mount = name, mount
+        self.newest: int | None = None  # ns, newest stamp (reference time when known)
+        self.last_ref: int | None = None  # ns, the last accepted frame's reference time
+        self.recent: deque = deque(maxlen=8)  # reference times of the last frames
+        self.stopped = False
+        self.flags: deque = deque(maxlen=history)
+        self.disagrees = False
+        self.last_share: CameraShare | None = None
+
+
+class _Group:
+    def __init__(self, name: str, frame: RigCameraFrame, ref: int):
+        self.frames = {name: (frame, ref)}
+        self.lo = self.hi = ref
+
+    def fits(self, name: str, ref: int, window_ns: int) -> bool:
+        return name not in self.frames and max(self.hi, ref) - min(self.lo, ref) <= window_ns
+
+    def add(self, name: str, frame: RigCameraFrame, ref: int) -> None:
+        self.frames[name] = (frame, ref)
+        self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
+
+
+class _Silent:
+    def info(self, text: str) -> None:
+        pass
+
+    def warning(self, key: str, text: str, count: int = 0) -> None:
+        pass
+
+
+class RigLocalizer:
+    """A rig's video (module docstring).
+
+    Args:
+        settings: :class:`RigSettings`.
+        log: an object with ``warning(key, text)`` and ``info(text)`` (None: silent): a camera
+            stopped or back, a camera that disagrees with the rig.
+
+    Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
+    ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
+    (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
+    was found to disagree); ``rig_frames``, ``rig.solved``, ``rig.failed``,
+    ``rig.failed.<reason>`` (the estimator's, or ``error``), ``rig.skipped``,
+    ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
+    ``rig.path.<path>``. Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
+    """
+
+    def __init__(self, settings: RigSettings, log: Any = None):
+        self.settings = settings
+        self.log = log if log is not None else _Silent()
+        self.counts: Counter = Counter()
+        self._cams = {
+            n: _Camera(n, m, settings.disagree_history) for n, m in settings.mounts.items()
+        }
+        self._open: list[_Group] = []
+        self._first: int | None = None
+        self._last_closed: int | None = None
+        self._filter: TwistFilter | None = None
+        self._pending: dict[int, tuple] = {}
+        self._inlier_ratio: float | None = None
+        self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
+        self._make_filter()
+
+    def _make_filter(self) -> None:
+        to = self.settings.tracking
+        self._filter = None if to is None else TwistFilter(replace(to.fusion, max_gap=to.max_gap))
+
+    # ---------------------------------------------------------------- read-outs
+    @property
+    def cameras(self) -> tuple:
+        return self.settings.cameras
+
+    def camera_counts(self, name: str) -> dict:
+        """``received``, ``solved``, ``failed``, ``skipped``, ``pending`` of a camera
+        (received = the other four summed)."""
+        c = self.counts
+        pending = sum(name in g.frames for g in self._open)
+        keys = ("received", "solved", "failed", "skipped")
+        out = {k: c[f"{name}.{k}"] for k in keys}
+        out["pending"] = pending
+        return out
+
+    def rig_counts(self) -> dict:
+        """``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending`` of the rig frames
+        (rig_frames = the other four summed)."""
+        c = self.counts
+        return {
+            "rig_frames": c["rig_frames"],
+            "solved": c["rig.solved"],
+            "failed": c["rig.failed"],
+            "skipped": c["rig.skipped"],
+            "pending": len(self._open),
+        }
+
+    def camera_state(self, name: str) -> str:
+        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees``."""
+        cam = self._cams[name]
+        if cam.disagrees:
+            return "disagrees"
+        if cam.stopped:
+            return "stopped"
+        return "waiting" if cam.newest is None else "running"
+
+    def last_share(self, name: str) -> CameraShare | None:
+        """The camera's :class:`CameraShare` in the last solved rig frame it was in."""
+        return self._cams[name].last_share
+
+    @property
+    def track_state(self) -> str:
+        """``tracking``, ``lost`` or ``disabled``."""
+        f = self._filter
+        return "disabled" if f is None else "tracking" if f.initialized else "lost"
+
+    # ---------------------------------------------------------------- frames
+    def add(self, frame: RigCameraFrame) -> list[RigOutput]:
+        """Take one camera's frame; returns the rig frames it completed, solved (oldest first;
+        often none, or one).
+
+        Raises:
+            ValueError: a camera not in the rig.
+        """
+        name = frame.camera_name
+        cam = self._cams.get(name)
+        if cam is None:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        self.counts[f"{name}.received"] += 1
+        stamp = frame.stamp_ns
+        if self._first is None:
+            self._first = stamp
+        if frame.camera is None:
+            self._skip(name, "no_camera_info")
+            cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
+            return self._ready()
+        ref = reference_stamp_ns(stamp, frame.camera, self.settings.stamp_row)
+        out: list[RigOutput] = []
+        if cam.last_ref is not None and ref <= cam.last_ref:
+            if cam.last_ref - ref > self.settings.time_reset_ns:
+                out += self._time_reset()
+            else:
+                self._skip(name, "out_of_order")
+                return out
+        if self._last_closed is not None and ref < self._last_closed:
+            self._skip(name, "late")
+            cam.last_ref = ref
+            return out
+        cam.last_ref = ref
+        cam.newest = ref if cam.newest is None else max(cam.newest, ref)
+        cam.recent.append(ref)
+        if self._first is None:  # (after a time reset)
+            self._first = ref
+        if cam.stopped:
+            cam.stopped = False
+            self.log.info(f"rig camera {name!r} sends frames again")
+        window_ns = int(round(self.settings.window * 1e9))
+        for g in self._open:
+            if g.fits(name, ref, window_ns):
+                g.add(name, frame, ref)
+                break
+        else:
+            self._open.append(_Group(name, frame, ref))
+            self._open.sort(key=lambda g: g.lo)
+            self.counts["rig_frames"] += 1
+        return out + self._ready()
+
+    def _skip(self, name: str, reason: str) -> None:
+        self.counts[f"{name}.skipped"] += 1
+        self.counts[f"{name}.skipped.{reason}"] += 1
+
+    def _time_reset(self) -> list:
+        """Stamps went back: the open rig frames dropped (``time_reset``), the track and the
+        cameras' timelines started again; the old track's pending twists go out with the next
+        rig frame (:attr:`RigOutput.fused`)."""
+        for g in self._open:
+            for n in g.frames:
+                self._skip(n, "time_reset")
+            self.counts["rig.skipped"] += 1
+            self.counts["rig.skipped.time_reset"] += 1
+        self._open = []
+        for cam in self._cams.values():
+            cam.newest = cam.last_ref = None
+            cam.recent.clear()
+            cam.stopped = False
+        self._first = self._last_closed = None
+        self._carry += self._end_track()
+        return []
+
+    def _ready(self) -> list[RigOutput]:
+        """Solve the open rig frames every camera has joined, moved past or stopped for."""
+        s = self.settings
+        now = max((c.newest for c in self._cams.values() if c.newest is not None), default=None)
+        if now is None:
+            return []
+        stop_ns = s.stop_after * 1e9
+        for cam in self._cams.values():
+            last = cam.newest if cam.newest is not None else self._first
+            if not cam.stopped and now - last > stop_ns:
+                cam.stopped = True
+                self.counts[f"{cam.name}.stopped"] += 1
+                self.log.warning(
+                    "rig.stopped",
+                    f"rig camera {cam.name!r}: no frame for {(now - last) * 1e-9:.2f} s "
+                    "(stop_after): the rig runs on the other cameras",
+                )
+        window_ns = int(round(s.window * 1e9))
+        out = []
+        while self._open:
+            g = self._open[0]
+            if not all(
+                n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + window_ns)
+                for n, c in self._cams.items()
+            ):
+                break
+            self._open.pop(0)
+            out.append(self._solve(g))
+        return out
+
+    def close(self) -> list[RigOutput]:
+        """Solve every rig frame still open (the end of a video), oldest first."""
+        out = []
+        while self._open:
+            out.append(self._solve(self._open.pop(0)))
+        return out
+
+    def flush(self) -> list[FusedPose]:
+        """The rig frames whose fused twist is still pending, as they are now (the track goes
+        on)."""
+        if self._filter is None or not self._pending:
+            return []
+        return self._fused(self._filter.flush())
+
+    def reset(self) -> list[FusedPose]:
+        """Forget the video (the configuration stays): the rig frames open are dropped (counted
+        as ``time_reset``), the track ends. Returns its twists still pending."""
+        self._time_reset()
+        out, self._carry = self._carry, []
+        return out
+
+    def _end_track(self) -> list[FusedPose]:
+        out = []
+        if self._filter is not None:
+            out = self._fused(self._filter.flush())
+            self._filter.reset()
+        self._pending.clear()
+        self._inlier_ratio = None
+        return out
+
+    # ---------------------------------------------------------------- solving
+    def _missing_reason(self, cam: _Camera, g: _Group) -> str:
+        if cam.stopped:
+            return "stopped"
+        w2 = 2 * self.settings.window * 1e9
+        if any(abs(r - g.lo) <= w2 for r in cam.recent):
+            return "apart"
+        return "dropped"
+
+    def _solve(self, g: _Group) -> RigOutput:
+        self._last_closed = g.lo
+        names = [n for n in self._cams if n in g.frames]
+        out = RigOutput(stamp_ns=g.lo, cameras=tuple(names))
+        out.fused, self._carry = self._carry, []
+        for n, c in self._cams.items():
+            if n not in g.frames:
+                reason = self._missing_reason(c, g)
+                out.missing[n] = reason
+                self.counts[f"{n}.missed.{reason}"] += 1
+        if out.missing:
+            self.counts["rig.incomplete"] += 1
+        views = []
+        for n in names:
+            frame, ref = g.frames[n]
+            m = self._cams[n].mount
+            off = (ref - g.lo) * 1e-9
+            out.stamp_offsets[n] = off
+            out.tags[n] = frame.tag
+            views.append(RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off))
+        try:
+            est, path, points = self._estimate(g.lo, views, out)
+        except Exception as e:  # (the estimator raised: the rig frame failed)
+            out.error = f"{type(e).__name__}: {e}"
+            self._count_rig(names, "error")
+            return out
+        out.estimate, out.path = est, path
+        if not est.success:
+            self._count_rig(names, est.failure or "error")
+            return out
+        self._finish(out, est, path, points, names, views)
+        return out
+
+    def _count_rig(self, names, failure: str | None) -> None:
+        if failure is None:
+            self.counts["rig.solved"] += 1
+            for n in names:
+                self.counts[f"{n}.solved"] += 1
+            return
+        self.counts["rig.failed"] += 1
+        self.counts[f"rig.failed.{failure}"] += 1
+        for n in names:
+            self.counts[f"{n}.failed"] += 1
+
+    def _run(self, views, max_iterations=None) -> RigPoseEstimate:
+        s = self.settings
+        return estimate_rig_pose(
+            views,
+            threshold_px=s.threshold_px,
+            max_iterations=max_iterations or s.max_iterations,
+            min_inliers=s.min_inliers,
+            refine=s.refine,
+            seed=s.seed,
+        )
+
+    def _estimate(self, stamp: int, views, out: RigOutput):
+        """The rig frame's estimate on the tracker's path. Returns (estimate, path, the
+        stacked points of all views)."""
+        points = _Points(views)
+        f, to = self._filter, self.settings.tracking
+        if f is None:
+            return self._run(views), None, points
+        path = "cold"
+        if f.initialized and not predictable(f.stamp_ns, stamp, to.max_gap):
+            out.fused += self._end_track()  # (the video tracker's time rule)
+            path = "reset"
+        if not f.initialized:
+            return self._run(views), path, points
+        pred = f.predict(stamp)
+        model = _model_of(pred.orientation, pred.position, pred.angular_velocity,
+                          pred.linear_velocity)  # fmt: skip
+        err = points.errors(*model)
+        sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
+        focal = float(points.focal.max()) if len(points.focal) else 1.0
+        gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
+        explained = err < gate
+        n = len(err)
+        ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
+        need = max(self.settings.min_inliers, int(to.min_explained_ratio * ratio * n))
+        if int(explained.sum()) >= need:
+            sub = []
+            for k, v in enumerate(views):
+                keep = points.row[(points.cam == k) & explained]
+                sub.append(replace(v, uv=np.asarray(v.uv)[keep], X=np.asarray(v.X)[keep]))
+            est = self._run(sub, to.tracked_max_iterations)
+            if est.success:
+                return est, "tracked", points
+        return self._run(views), "relocalized", points
+
+    def _finish(self, out: RigOutput, est, path, points: _Points, names, views) -> None:
+        s = self.settings
+        err = points.errors(est.R, est.C, est.w, est.t)
+        inl = err < s.threshold_px
+        pose = RSPose.from_model((est.R, est.C, est.w, est.t), 1.0, out.stamp_ns)
+        cov, G = rig_covariance(points.subset(inl), pose, s.sigma_floor_px)
+        meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=G)
+        out.measurement = meas
+        self._count_rig(names, None)
+        if path is not None:
+            self.counts[f"rig.path.{path}"] += 1
+        # per camera: points, inliers, share; who disagrees
+        total_in = int(inl.sum())
+        n_pts = np.bincount(points.cam, minlength=len(names))
+        n_in = np.bincount(points.cam[inl], minlength=len(names))
+        for k, n in enumerate(names):
+            pts, i = int(n_pts[k]), int(n_in[k])
+            share = CameraShare(pts, i, i / total_in if total_in else 0.0,
+                                i / pts if pts else float("nan"))  # fmt: skip
+            out.shares[n] = share
+            self._cams[n].last_share = share
+        self._update_disagreement(out, names, n_pts, n_in, views, est)
+        self._inlier_ratio = total_in / max(len(err), 1)
+        if self._filter is None:
+            return
+        step = self._filter.update(out.stamp_ns, meas, relocalized=path == "relocalized")
+        self._pending[out.stamp_ns] = (meas, dict(out.tags))
+        out.fused += self._fused(step.final)
+
+    def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
+        s = self.settings
+        for k, n in enumerate(names):
+            cam = self._cams[n]
+            pts = int(n_pts[k])
+            if pts < s.disagree_min_points:
+                continue
+            others_pts = int(n_pts.sum()) - pts
+            if others_pts < s.disagree_min_points:
+                continue
+            others = (int(n_in.sum()) - int(n_in[k])) / others_pts
+            cam.flags.append(bool(n_in[k] / pts < s.disagree_ratio * others))
+            was = cam.disagrees
+            cam.disagrees = sum(cam.flags) >= s.disagree_frames
+            if cam.disagrees and not was:
+                self.counts[f"{n}.disagreements"] += 1
+                self.log.warning(
+                    f"rig.disagrees.{n}",
+                    f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
+                    f"points fit the rig's pose ({100 * others:.0f} % of the others')"
+                    f"{_offset_text(views[k], est)}: its mounting is likely wrong (or its "
+                    "matches are)",
+                )
+            elif was and not cam.disagrees:
+                self.log.info(f"rig camera {n!r} agrees with the others again")
+        out.disagreeing = tuple(n for n, c in self._cams.items() if c.disagrees)
+
+    def _fused(self, final: list) -> list[FusedPose]:
+        out = []
+        for f in final:
+            item = self._pending.pop(f.stamp_ns, None)
+            if item is not None:
+                out.append(FusedPose.of(item[0], f, item[1]))
+        if len(self._pending) > 64:
+            for k in sorted(self._pending)[:-64]:
+                del self._pending[k]
+        return out
+
+
+def _offset_text(view: RigView, est: RigPoseEstimate) -> str:
+    """``", alone it is N deg from where its mounting puts it"`` when the camera alone is
+    posed (the single-camera estimator), else ``""``."""
+    try:
+        alone = estimate_rs_pose(view.uv, view.X, view.camera)
+    except Exception:
+        return ""
+    if not alone.success:
+        return ""
+    w = np.asarray(est.w, float)
+    # the camera's rotation (world -> camera) at its reference time, as the rig puts it
+    R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
+    deg = rotation_angle_deg(alone.model.R, R_c)
+    return f"; alone it is {deg:.1f} deg from where its mounting puts it"
