@@ -52,11 +52,11 @@ class ArucoFrontend(FrontendHooks):
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
-        windowed: detect only in windows around the markers' predicted pixels (the last
-            solved frame's pose and twist carried to this frame's stamp, each corner at its
-            own capture line) instead of over the full frame; the full frame is searched when
-            there is no prediction (start, after a failed frame or a stamp jump), when a
-            predicted marker is not found, and every ``full_frame_every`` frames (new markers).
+        windowed: detect only in windows around the markers' predicted pixels (the
+            ``prediction`` given to :meth:`process`, each corner at its own capture line)
+            instead of over the full frame; the full frame is searched when there is no
+            prediction (start, a time reset), after a failed frame, when a predicted marker is
+            not found, and every ``full_frame_every`` frames (new markers).
         window_margin_px: padding (px) of each predicted marker's bounding box; at least the
             adaptive-threshold half window plus the expected prediction error.
         full_frame_every: a full-frame detection at least every this many frames (0: only on
@@ -107,10 +107,8 @@ class ArucoFrontend(FrontendHooks):
         self.windowed = bool(windowed)
         self.window_margin_px = float(window_margin_px)
         self.full_frame_every = int(full_frame_every)
-        self._pose = None  # (R, C, w, t) of the last solved frame
-        self._stamp = None  # its stamp (ns)
+        self._solved = False  # the last frame was solved (observe)
         self._camera = None  # the camera of the last processed frame
-        self._frame_stamp = None
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
         self._last_found: set = set()  # marker ids found in the last frame
@@ -151,11 +149,11 @@ class ArucoFrontend(FrontendHooks):
         return corners, ids
 
     def predict_windows(
-        self, shape: tuple, camera: CameraModel | None, stamp_ns: int | None
+        self, shape: tuple, camera: CameraModel | None, prediction: Any
     ) -> tuple[list, set] | None:
-        """Windows to search in a frame of ``shape`` (H, W) taken at ``stamp_ns``: the last
-        solved pose (``R``, ``C``) moved by its twist (``w``, ``t``) over the stamp difference,
-        every corner of the markers found in the last frame projected at its own capture line
+        """Windows to search in a frame of ``shape`` (H, W) predicted at ``prediction`` (the
+        frame's model ``(R, C, w, t)``, :class:`~rs_localizer.pose.RSModel`): every corner of
+        the markers found in the last frame projected at its own capture line
         (:meth:`CameraModel.project_rs`), each marker's corner bounding box padded by
         ``window_margin_px`` and clipped to the image, overlapping boxes merged where that
         adds no pixel (:func:`merge_windows`). Markers predicted partly outside the image or
@@ -164,23 +162,20 @@ class ArucoFrontend(FrontendHooks):
         Returns:
             ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive) around
             the markers found in the last frame, and the ids of those predicted fully inside
-            the image; None without a prediction (no solved frame, no camera or RS timing, no
-            stamp, no marker found).
+            the image; None without a prediction, after a frame that was not solved, without
+            a camera or RS timing, or when no marker was found.
         """
         cam = camera if camera is not None else self._camera
-        if self._pose is None or cam is None or stamp_ns is None or self._stamp is None:
+        if prediction is None or not self._solved or cam is None:
             return None
         if cam.seconds_per_unit_r <= 0:
             return None
-        from ..geometry import rotvec_to_matrix
-
-        R, C, w, t = self._pose
-        dT = (int(stamp_ns) - self._stamp) * 1e-9 / cam.seconds_per_unit_r
+        R, C, w, t = prediction
         mids = np.array(sorted(self._last_found & self.marker_corners.keys()), np.int64)
         if len(mids) == 0:
             return None
         X = np.concatenate([self.marker_corners[int(m)] for m in mids])
-        uv = cam.project_rs(X, rotvec_to_matrix(dT * w) @ R, C + dT * t, w, t, iterations=4)
+        uv = cam.project_rs(X, R, C, w, t, iterations=4)
         uv = uv.reshape(-1, 4, 2)
         h, wd = int(shape[0]), int(shape[1])
         ok = np.isfinite(uv).all(axis=(1, 2))
@@ -240,7 +235,7 @@ class ArucoFrontend(FrontendHooks):
         return np.asarray([best[i][1] for i in ids]), np.asarray(ids, np.int64)
 
     def _detect_frame(
-        self, gray: np.ndarray, camera: CameraModel | None, stamp_ns: int | None
+        self, gray: np.ndarray, camera: CameraModel | None, prediction: Any
     ) -> tuple[np.ndarray, np.ndarray]:
         """Windowed detection when it applies (see ``windowed``), else full frame."""
         import time
@@ -249,7 +244,7 @@ class ArucoFrontend(FrontendHooks):
         pred = None
         due = self.full_frame_every > 0 and self._since_full + 1 >= self.full_frame_every
         if self.windowed and not self._missed and not due:
-            pred = self.predict_windows(gray.shape, camera, stamp_ns)
+            pred = self.predict_windows(gray.shape, camera, prediction)
         self._missed = False
         if pred is not None:
             windows, expect = pred
@@ -276,19 +271,14 @@ class ArucoFrontend(FrontendHooks):
 
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
         """The estimate of the last processed frame (the node calls this after each frame):
-        a solved one (``success``, ``R``, ``C``, ``w``, ``t``) predicts the next frame's
-        marker windows; a failed one (or None) makes the next frame a full-frame search.
-        ``stamp_ns``: the frame's stamp (None: the one given to :meth:`process`); ``pixels``
-        is not used."""
-        if estimate is None or not getattr(estimate, "success", False):
-            self._pose = None
-            return
-        self._pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
-        self._stamp = int(stamp_ns) if stamp_ns is not None else self._frame_stamp
+        after a solved one (``success``) the next frame's markers are searched around their
+        predicted pixels; a failed one (or None) makes the next frame a full-frame search.
+        ``stamp_ns`` and ``pixels`` are not used."""
+        self._solved = estimate is not None and bool(getattr(estimate, "success", False))
 
     def reset(self) -> None:
-        """Forget the motion: the next frame is searched in full."""
-        self._pose = None
+        """Forget the last frame: the next frame is searched in full."""
+        self._solved = False
         self._missed = False
 
     def summary(self) -> dict:
@@ -316,24 +306,20 @@ class ArucoFrontend(FrontendHooks):
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
         stamp_ns: int | None = None,
+        prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
         (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
         stated std when it has them (``marker_std``), else None; unpacks as
         ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
-        distorted, as the estimator expects; ``camera`` (the frame's model) and ``stamp_ns``
-        (its capture stamp, ns) serve the windowed detection (``windowed``), which without
-        them searches the full frame."""
-        if (
-            stamp_ns is not None
-            and self._frame_stamp is not None
-            and (int(stamp_ns) <= self._frame_stamp)
-        ):
-            self.reset()  # time went back (a replayed bag): no prediction
-        self._frame_stamp = None if stamp_ns is None else int(stamp_ns)
+        distorted, as the estimator expects; ``camera`` (the frame's model) and
+        ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
+        video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
+        serve the windowed detection (``windowed``), which without them searches the full
+        frame; ``stamp_ns`` is not used."""
         if camera is not None:
             self._camera = camera
-        corners, mids = self._detect_frame(to_gray(image, encoding), camera, stamp_ns)
+        corners, mids = self._detect_frame(to_gray(image, encoding), camera, prediction)
         keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
         if not keep:
             self.last_scores = None if self.marker_std is None else np.zeros(0)

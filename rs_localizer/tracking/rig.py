@@ -70,6 +70,7 @@ from ..geometry import rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSPose
 from .fusion import FusionOptions, TwistFilter
 from .sequence import FusedPose, checked_stamp, reference_stamp_ns
+from .tracker import predictable
 
 __all__ = [
     "MISSED_REASONS",
@@ -857,11 +858,9 @@ class RigLocalizer:
         if f is None:
             return self._run(views), None, points
         path = "cold"
-        if f.initialized:
-            dt = (stamp - f.stamp_ns) * 1e-9
-            if dt <= 0 or dt > to.max_gap:
-                out.fused += self._end_track()
-                path = "reset"
+        if f.initialized and not predictable(f.stamp_ns, stamp, to.max_gap):
+            out.fused += self._end_track()  # (the video tracker's time rule)
+            path = "reset"
         if not f.initialized:
             return self._run(views), path, points
         pred = f.predict(stamp)

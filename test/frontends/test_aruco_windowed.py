@@ -11,6 +11,7 @@ from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import apriltag_binding
 from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
 from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
+from rs_localizer.tracking.tracker import CarriedPrediction
 
 
 @pytest.fixture(scope="module")
@@ -18,10 +19,13 @@ def video():
     return render_video("vga", 8)
 
 
-def _solve(fe, f, camera):
+def _solve(fe, f, camera, carry):
+    """One frame searched from ``carry``'s prediction (the last solved frame carried to the
+    stamp), the prediction then given the frame's estimate."""
     stamp = int(round(f.t_first * 1e9))
-    c = fe.process(f.image, camera, stamp_ns=stamp)
+    c = fe.process(f.image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
     est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+    carry.update(stamp, est)
     return c, est, stamp
 
 
@@ -29,11 +33,12 @@ def test_windowed_corners_equal_full_frame(video):
     scene, camera, frames = video
     full = ArucoFrontend.from_scene(scene)
     win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
-    _, est, stamp = _solve(win, frames[0], camera)
+    carry = CarriedPrediction()
+    _, est, stamp = _solve(win, frames[0], camera, carry)
     assert win.last_kind == "full" and est.success  # no prediction on the first frame
     win.observe(stamp, None, est)
     f = frames[1]
-    c_w, _, _ = _solve(win, f, camera)
+    c_w, _, _ = _solve(win, f, camera, carry)
     assert win.last_kind == "windowed" and len(win.last_windows) > 1
     h, w = f.image.shape[:2]
     assert all(0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h for x0, y0, x1, y1 in win.last_windows)
@@ -54,9 +59,10 @@ def test_windowed_corners_equal_full_frame(video):
 def test_fallback_after_loss_and_periodic(video):
     scene, camera, frames = video
     fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=3)
+    carry = CarriedPrediction()
     kinds = []
     for k, f in enumerate(frames[:6]):
-        _, est, stamp = _solve(fe, f, camera)
+        _, est, stamp = _solve(fe, f, camera, carry)
         kinds.append(fe.last_kind)
         fe.observe(stamp, None, None if k == 3 else est)  # frame 3: a failed estimate
     # first frame full; after the failure at frame 3 the next one is full; at least every
@@ -66,7 +72,9 @@ def test_fallback_after_loss_and_periodic(video):
     assert all("full" in kinds[i : i + 3] for i in range(len(kinds) - 2))
     assert fe.summary()["frontend_frames_global"] == kinds.count("full")
     # a stamp going back (a replayed bag): no prediction
-    fe.process(frames[0].image, camera, stamp_ns=int(round(frames[0].t_first * 1e9)))
+    stamp = int(round(frames[0].t_first * 1e9))
+    assert carry.predict(stamp, camera) is None
+    fe.process(frames[0].image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
     assert fe.last_kind == "full"
 
 
@@ -99,13 +107,14 @@ def test_windowed_search_uses_the_apriltag_library():
     full = ArucoFrontend.from_scene(scene)
     win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
     assert win.detector.backend == "apriltag"
-    _, est, stamp = _solve(win, frames[0], camera)
+    carry = CarriedPrediction()
+    _, est, stamp = _solve(win, frames[0], camera, carry)
     win.observe(stamp, None, est)
     called = []
     orig = cv_compat.MarkerDetector.detect
     cv_compat.MarkerDetector.detect = lambda *a: called.append(1) or orig(*a)
     try:
-        c_w, _, _ = _solve(win, frames[1], camera)
+        c_w, _, _ = _solve(win, frames[1], camera, carry)
     finally:
         cv_compat.MarkerDetector.detect = orig
     assert win.last_kind == "windowed" and not called
