@@ -40,7 +40,9 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   of the inliers' errors (px^2, corrected for the threshold's truncation,
   :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
   covariances from it (:func:`~rs_localizer.estimation.result.output_covariance` with one
-  second per unit of ``tau``);
+  second per unit of ``tau``), and from the same Jacobian the estimate's sensitivity to the
+  rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
+  :mod:`~rs_localizer.estimation.sensitivity`);
 - the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
   on one 3D line, plausible motion, and every inlier in front of its camera at its capture
   time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
@@ -61,7 +63,7 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix
+from ..geometry import rotvec_to_matrix, skew
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
@@ -69,6 +71,7 @@ from ..solvers.lambda_twist import lambda_twist_batch
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .refine import untruncated_variance
 from .result import output_covariance
+from .sensitivity import output_jacobian
 
 __all__ = [
     "FINAL_CUTOFF",
@@ -234,6 +237,13 @@ class RigPoseEstimate:
             equal stamps): the velocities are not observable, ``w = t = 0`` (zero rows and
             columns in the covariances, ``twist_covariance`` None) and the pose is the
             generalized absolute pose of the rig at that time.
+        acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as
+            ``covariance``) per unit of angular and linear acceleration of the rig during the
+            frame (rad/s^2, m/s^2, rig frame; columns in that order): a rig that accelerates
+            is estimated ``G (alpha, a)`` away from its state at the reference time (as a
+            camera's estimate, :mod:`~rs_localizer.estimation.sensitivity`; the twist filter
+            uses it), or
+            ``None`` (no covariance, or ``global_shutter``).
     """
 
     success: bool
@@ -254,6 +264,7 @@ class RigPoseEstimate:
     twist_covariance: np.ndarray | None = None
     model_covariance: np.ndarray | None = None
     global_shutter: bool = False
+    acceleration_sensitivity: np.ndarray | None = None
 
     @property
     def position(self) -> np.ndarray:
@@ -643,30 +654,60 @@ def _refine(
     return model
 
 
-def _covariance(pool: _Pool, model, threshold_px: float, free: int = 12) -> np.ndarray | None:
-    """(12, 12) covariance of ``(delta, C, w, t)`` at the final model: ``sigma^2 (J^T W J)^-1``
-    over the points within ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2``
-    the per-axis image variance (px^2) of the errors inside the threshold, corrected for the
-    truncation (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero
-    rows and columns for w and t); ``None`` if singular or not finite."""
+def _covariance(
+    pool: _Pool, model, threshold_px: float, free: int = 12
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
+    acceleration, from one Jacobian.
+
+    The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
+    ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
+    variance (px^2) of the errors inside the threshold, corrected for the truncation
+    (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero rows and
+    columns for w and t). The sensitivity (12, 6) is ``(J^T W J)^-1 J^T W D`` over the same
+    points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
+    through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
+    + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
+    with ``free=6``. Returns ``(None, None)`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
     inside = e[e < k]
     if len(inside) <= 6:
-        return None
+        return None, None
     _, J = _jacobian(pool, model, idx)
     _, wts = _robust(e[idx], k, cut)
     Jf = J.reshape(-1, 12)[:, :free]
-    H = Jf.T @ (Jf * np.repeat(wts, 2)[:, None])
+    WJ = Jf * np.repeat(wts, 2)[:, None]
+    H = Jf.T @ WJ
     sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
     cov = np.zeros((12, 12))
     try:
-        cov[:free, :free] = sigma2 * np.linalg.inv(H)
+        Hinv = np.linalg.inv(H)
     except np.linalg.LinAlgError:
-        return None
+        return None, None
+    cov[:free, :free] = sigma2 * Hinv
     cov = 0.5 * (cov + cov.T)
-    return cov if np.isfinite(cov).all() else None
+    if not np.isfinite(cov).all():
+        return None, None
+    G = None
+    if free == 12:
+        D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
+        G = Hinv @ (WJ.T @ D)
+        G = G if np.isfinite(G).all() else None
+    return cov, G
+
+
+def _sensitivity_out(G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(12, 6) the estimate's outputs (as ``covariance``) per (angular acceleration [rad/s^2],
+    linear acceleration [m/s^2], rig frame) from the model's sensitivity ``G`` per
+    ``(beta, b)``: ``beta = -alpha``, ``b = beta x C - a`` (:mod:`~.sensitivity` with one
+    second per unit of tau), then :func:`~.sensitivity.output_jacobian`."""
+    M = np.zeros((6, 6))
+    M[:3, :3] = -np.eye(3)
+    M[3:, 3:] = -np.eye(3)
+    M[3:, :3] = skew(np.asarray(C, dtype=float))
+    return output_jacobian(R, C, w, 1.0) @ (G @ M)
 
 
 def _one(model):
@@ -832,13 +873,14 @@ def estimate_rig_pose(
     if bad:
         return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    cov = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else None
+    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else (None, None)
     out = (
         (None, None, None)
         if cov is None
         else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
     )
+    sens = None if G is None else _sensitivity_out(G, R, C, w)
     return RigPoseEstimate(
         True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
-        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still,
+        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still, sens,
     )  # fmt: skip

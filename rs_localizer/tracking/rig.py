@@ -26,10 +26,11 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 4. **fuses** the rig's twist with the camera tracker's filter
    (:class:`~rs_localizer.tracking.fusion.TwistFilter`, fixed lag), the rig frame being the
    filter's "camera": orientation rig -> world, position the rig origin, velocities in the
-   rig frame. The filter's measurement covariance is computed here (:func:`rig_covariance`:
-   Gauss-Newton on the exact rig model over the inliers, the image noise from their
-   residuals, at least ``sigma_floor_px``); the rig estimator's own covariance, when it has
-   one, is not read.
+   rig frame. The filter's measurement is the rig estimator's: its covariance and its
+   sensitivity to acceleration during the rig frame
+   (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`,
+   :attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`), as a
+   camera's estimate is for the camera tracker.
 
 Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
 failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
@@ -83,7 +84,6 @@ __all__ = [
     "RigOutput",
     "RigSettings",
     "RigTrackingOptions",
-    "rig_covariance",
 ]
 
 #: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
@@ -203,8 +203,6 @@ class RigSettings:
         threshold_px, max_iterations, min_inliers, refine, seed: the rig estimator's
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
         tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
-        sigma_floor_px: the image noise (px) of the filter's measurement covariance is at
-            least this (noise-free data would make it zero).
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
             at least ``disagree_min_points`` points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
@@ -222,7 +220,6 @@ class RigSettings:
     refine: bool = True
     seed: int | None = 0
     tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
-    sigma_floor_px: float = 0.3
     disagree_ratio: float = 0.5
     disagree_min_points: int = 12
     disagree_frames: int = 3
@@ -295,8 +292,12 @@ class RigMeasurement:
             orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
             and linear (m/s) velocity in the rig frame, the rig frame's own.
         covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
-            velocity [rad/s, rig], linear velocity [m/s, rig]) (:func:`rig_covariance`).
+            velocity [rad/s, rig], linear velocity [m/s, rig]): the estimate's
+            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`; NaN when it
+            has none).
         estimate: the rig estimator's :class:`~rs_localizer.estimation.rig.RigPoseEstimate`.
+        acceleration_sensitivity: (12, 6) or None: the estimate's
+            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`).
     """
 
     pose: RSPose
@@ -413,13 +414,6 @@ class _Points:
         self.focal = np.concatenate(foc)
         self.row = np.concatenate(rows).astype(int)
 
-    def subset(self, keep: np.ndarray) -> _Points:
-        out = object.__new__(_Points)
-        out.R_mount, out.c_mount, out.sizes = self.R_mount, self.c_mount, self.sizes
-        for k in ("x", "X", "tau", "cam", "focal", "row"):
-            setattr(out, k, getattr(self, k)[keep])
-        return out
-
     def residuals(self, R, C, w, t) -> np.ndarray:
         """(N, 2) image errors (px) of the model ``x_rig(tau) = expm(tau [w]x) R X + C + tau
         t`` (predicted minus measured; inf behind a camera)."""
@@ -468,71 +462,6 @@ def _model_of(Ori, p, omega, v):
     C = -R @ p
     w = -np.asarray(omega, float)
     return R, C, w, np.cross(w, C) - v
-
-
-def _state_residuals(points: _Points, Ori, p, omega, v, alpha, a) -> np.ndarray:
-    """(2 N,) image errors (px) of a rig moving with angular and linear acceleration
-    ``alpha``, ``a`` (rad/s^2, m/s^2, rig frame) through the rig frame: orientation
-    ``Ori expm([tau omega + tau^2 alpha / 2]x)``, origin ``p + Ori (tau v + tau^2 a / 2)``."""
-    tau = points.tau[:, None]
-    p_t = p + (tau * v + 0.5 * tau**2 * a) @ Ori.T
-    x_rig = _rotate(-(tau * omega + 0.5 * tau**2 * alpha), (points.X - p_t) @ Ori)
-    return points.project(x_rig).ravel()
-
-
-def rig_covariance(
-    points: _Points, pose: RSPose, sigma_floor_px: float = 0.3
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """The covariance of a rig frame's pose and twist from its inliers ``points``, and how
-    the estimate moves under acceleration during the rig frame.
-
-    The covariance is ``sigma^2 (J^T J)^-1``, J the Jacobian (forward differences) of the
-    image errors (px) over (rotation [rad, world axes, left of the orientation], position [m,
-    world], angular velocity [rad/s, rig], linear velocity [m/s, rig]) and ``sigma`` (px) the
-    residuals' RMS over ``2 N - 12`` degrees of freedom, at least ``sigma_floor_px``. The
-    sensitivity ``G = (J^T J)^-1 J^T D`` (12, 6), D the Jacobian of the image errors over the
-    angular and linear acceleration (rad/s^2, m/s^2, rig frame) of a rig moving as
-    :func:`_state_residuals`: the least-squares estimate of a rig that accelerates moves by
-    ``G (alpha, a)`` to first order (as the camera estimator's ``acceleration_sensitivity``,
-    :mod:`rs_localizer.estimation.sensitivity`; the twist filter uses it).
-
-    Returns:
-        (cov (12, 12), G (12, 6)); NaN and None when J is rank deficient or fewer than 7
-        points.
-    """
-    Ori, p = pose.orientation, pose.position
-    om, v = pose.angular_velocity, pose.linear_velocity
-    n = len(points.tau)
-    bad = np.full((12, 12), np.nan), None
-    if n < 7:
-        return bad
-
-    def res(u):
-        Ou = rotvec_to_matrix(u[0:3]) @ Ori
-        return _state_residuals(
-            points, Ou, p + u[3:6], om + u[6:9], v + u[9:12], u[12:15], u[15:18]
-        )
-
-    r0 = res(np.zeros(18))
-    if not np.isfinite(r0).all():
-        return bad
-    J = np.empty((2 * n, 18))
-    for k in range(18):  # (forward differences)
-        h = 1e-7 if k < 6 else 1e-6 if k < 12 else 1e-3
-        e = np.zeros(18)
-        e[k] = h
-        J[:, k] = (res(e) - r0) / h
-    sigma2 = max(float(r0 @ r0) / max(2 * n - 12, 1), sigma_floor_px**2)
-    A = J[:, :12].T @ J[:, :12]
-    try:
-        if np.linalg.cond(A) > 1e14:
-            return bad
-        Ainv = np.linalg.inv(A)
-    except np.linalg.LinAlgError:
-        return bad
-    cov = sigma2 * Ainv
-    G = Ainv @ (J[:, :12].T @ J[:, 12:])
-    return 0.5 * (cov + cov.T), G
 
 
 # ---------------------------------------------------------------------- bookkeeping
@@ -890,8 +819,8 @@ class RigLocalizer:
         err = points.errors(est.R, est.C, est.w, est.t)
         inl = err < s.threshold_px
         pose = RSPose.from_model((est.R, est.C, est.w, est.t), 1.0, out.stamp_ns)
-        cov, G = rig_covariance(points.subset(inl), pose, s.sigma_floor_px)
-        meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=G)
+        cov = est.covariance if est.covariance is not None else np.full((12, 12), np.nan)
+        meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=est.acceleration_sensitivity)
         out.measurement = meas
         self._count_rig(names, None)
         if path is not None:
