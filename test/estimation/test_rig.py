@@ -1,12 +1,15 @@
 """estimate_rig_pose: a rig of RS cameras posed as one body, against the truth and against each
 camera alone (the single-camera estimator)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.rig import RigView, estimate_rig_pose
-from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.pose import RSPose
 from rs_localizer.sim import rig as sim_rig
 
 
@@ -394,3 +397,70 @@ def test_rig_at_rest_agrees_with_poselib_generalized_pose():
         assert rotation_angle_deg(est.R, R) < 0.03
         assert np.linalg.norm(est.position - p) < 0.005
         assert np.linalg.norm(est.position - p_true) < 0.005
+
+
+def _accelerated_views(frame, alpha, a):
+    """The views of ``frame`` (noise-free) re-projected for a rig that accelerates through the
+    frame: orientation ``Ori expm([tau omega + tau^2 alpha / 2]x)``, origin ``p + Ori (tau v +
+    tau^2 a / 2)`` (alpha rad/s^2, a m/s^2, rig frame), each point at the capture time of the
+    line it lands on (fixed point of the rolling shutter)."""
+    pose = RSPose.from_model(frame.truth, 1.0)
+    Ori, p, om, v = pose.orientation, pose.position, pose.angular_velocity, pose.linear_velocity
+    out = []
+    for view in frame.views:
+        cam = view.camera
+        uv = np.asarray(view.uv, float).copy()
+        for _ in range(30):
+            _, r, _ = cam.normalize(uv)
+            tau = (view.stamp_offset + (r - cam.r0) * cam.seconds_per_unit_r)[:, None]
+            p_t = p + (tau * v + 0.5 * tau**2 * a) @ Ori.T
+            x_rig = np.einsum(
+                "nji,nj->ni",
+                rotvec_to_matrix(tau * om + 0.5 * tau**2 * alpha),
+                (view.X - p_t) @ Ori,
+            )
+            q = x_rig @ view.R_mount.T + view.c_mount
+            uv = (q[:, :2] / q[:, 2:3]) @ cam.K[:2, :2].T + cam.K[:2, 2]
+        out.append(replace(view, uv=uv))
+    return out
+
+
+def test_acceleration_sensitivity_predicts_how_an_accelerating_rig_is_estimated():
+    """A rig that accelerates through the frame (20 rad/s^2, 4 m/s^2; noise-free, no
+    outliers): the estimate moves from the truth at the reference time by
+    ``acceleration_sensitivity @ (alpha, a)`` to first order (rotation, position, angular
+    and linear velocity each within 25 % of the predicted move, which is far from zero)."""
+    rng = np.random.default_rng(4)
+    for _ in range(2):
+        rig = sim_rig.make_rig(3, rng)
+        frame = sim_rig.rig_frame(rig, rig_truth(rng), [150, 150, 150], rng, 0.0, 0.0)
+        alpha = 20.0 * rng.normal(size=3) / np.sqrt(3)
+        a = 4.0 * rng.normal(size=3) / np.sqrt(3)
+        est = estimate_rig_pose(_accelerated_views(frame, alpha, a), seed=0)
+        assert est.success and est.acceleration_sensitivity.shape == (12, 6)
+        truth = RSPose.from_model(frame.truth, 1.0)
+        phi = matrix_to_rotvec(est.orientation @ truth.orientation.T)
+        moved = np.concatenate(
+            [
+                phi,
+                est.position - truth.position,
+                est.angular_velocity - truth.angular_velocity,
+                est.linear_velocity - truth.linear_velocity,
+            ]
+        )
+        predicted = est.acceleration_sensitivity @ np.concatenate([alpha, a])
+        for k in range(4):
+            s = slice(3 * k, 3 * k + 3)
+            assert np.linalg.norm(moved[s] - predicted[s]) < 0.25 * np.linalg.norm(predicted[s])
+
+
+def test_a_global_shutter_rig_has_no_acceleration_sensitivity():
+    rng = np.random.default_rng(5)
+    rig = sim_rig.make_rig(2, rng)
+    cams = [
+        replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
+    ]
+    frame = sim_rig.rig_frame(sim_rig.Rig(tuple(cams)), rig_truth(rng), [60, 60], rng, 0.3, 0.0)
+    est = estimate_rig_pose(frame.views, seed=0)
+    assert est.success and est.global_shutter
+    assert est.covariance is not None and est.acceleration_sensitivity is None

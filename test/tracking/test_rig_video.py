@@ -244,3 +244,23 @@ def test_bad_settings():
     mount = RigMount.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
     assert np.allclose(mount.position, cams[1].p_rig_cam)
     assert np.allclose(mount.R, cams[1].R_mount) and np.allclose(mount.c, cams[1].c_mount)
+
+
+def test_the_filter_measures_with_the_estimators_covariance(video):
+    """Each rig frame's measurement carries the rig estimator's covariance and acceleration
+    sensitivity, and that covariance covers the pose's error against the truth (median NEES
+    of the 6 pose errors below 3 x 6)."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    cams, frames, traj = video
+    _, outs, _ = run(frames, cams)
+    nees = []
+    for o in outs:
+        m = o.measurement
+        assert m.covariance is o.estimate.covariance
+        assert m.acceleration_sensitivity is o.estimate.acceleration_sensitivity
+        assert m.acceleration_sensitivity.shape == (12, 6)
+        R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
+        e = np.concatenate([matrix_to_rotvec(m.orientation @ R.T), m.position - p])
+        nees.append(e @ np.linalg.solve(m.covariance[:6, :6], e))
+    assert np.median(nees) < 18.0, np.median(nees)
