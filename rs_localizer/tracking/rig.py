@@ -15,14 +15,14 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 2. **estimates** the rig's pose at the rig frame's time (its earliest reference time) with
    :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
    its own stamp offset);
-3. **tracks** as the camera tracker (:mod:`rs_localizer.tracking.tracker`) does where the rig
-   estimator allows: the twist filter's prediction at the rig frame's time keeps the points it
-   explains (within ``gate_px``, or ``gate_sigmas`` of the predicted rotation, up to
-   ``max_gate_px``) and the rig estimator runs on those (``tracked``, fewer RANSAC samples);
-   when the prediction explains too few points the rig frame is solved on all of them
-   (``relocalized``); a stamp going back or a gap longer than ``max_gap`` starts the track
-   again (``reset``). (The rig estimator takes no initial model or motion prior: the
-   prediction only selects the points.)
+3. **tracks** as the camera tracker (:mod:`rs_localizer.tracking.tracker`) does: the twist
+   filter's prediction at the rig frame's time is the rig estimator's initial model
+   (:class:`~rs_localizer.estimation.InitialModel`, the points within ``gate_px``, or
+   ``gate_sigmas`` of the predicted rotation, up to ``max_gate_px``, explained by it): when
+   it explains enough points it seeds RANSAC, pre-rotates its samples and is verified with
+   at most ``tracked_max_iterations`` samples (``tracked``); otherwise the rig frame is
+   solved as without it (``relocalized``; again from scratch if that failed); a stamp going
+   back or a gap longer than ``max_gap`` starts the track again (``reset``).
 4. **fuses** the rig's twist with the camera tracker's filter
    (:class:`~rs_localizer.tracking.fusion.TwistFilter`, fixed lag), the rig frame being the
    filter's "camera": orientation rig -> world, position the rig origin, velocities in the
@@ -66,6 +66,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
+from ..estimation.options import InitialModel
 from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
 from ..geometry import rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSPose
@@ -383,76 +384,6 @@ class RigOutput:
 
 
 # ---------------------------------------------------------------------- the rig model
-class _Points:
-    """A rig frame's valid correspondences stacked: normalized points x (N, 2), world points
-    X (N, 3), capture time tau (N,) s after the rig frame's time, camera index (N,), the
-    camera's mean focal length (N,) px, the row in the camera's input (N,)."""
-
-    def __init__(self, views: list[RigView]):
-        xs, Xs, taus, cams, foc, rows = [], [], [], [], [], []
-        self.R_mount = np.array([np.asarray(v.R_mount, float) for v in views]).reshape(-1, 3, 3)
-        self.c_mount = np.array([np.asarray(v.c_mount, float) for v in views]).reshape(-1, 3)
-        self.sizes = [len(v.uv) for v in views]
-        for k, v in enumerate(views):
-            uv = np.asarray(v.uv, float).reshape(-1, 2)
-            X = np.asarray(v.X, float).reshape(-1, 3)
-            idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
-            x, r, _ = v.camera.normalize(uv[idx])
-            ok = np.isfinite(x).all(axis=1)
-            idx, x, r = idx[ok], x[ok], r[ok]
-            cam = v.camera
-            xs.append(x)
-            Xs.append(X[idx])
-            taus.append(float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r)
-            cams.append(np.full(len(idx), k))
-            foc.append(np.full(len(idx), cam.mean_focal))
-            rows.append(idx)
-        self.x = np.vstack(xs)
-        self.X = np.vstack(Xs)
-        self.tau = np.concatenate(taus)
-        self.cam = np.concatenate(cams).astype(int)
-        self.focal = np.concatenate(foc)
-        self.row = np.concatenate(rows).astype(int)
-
-    def residuals(self, R, C, w, t) -> np.ndarray:
-        """(N, 2) image errors (px) of the model ``x_rig(tau) = expm(tau [w]x) R X + C + tau
-        t`` (predicted minus measured; inf behind a camera)."""
-        y = self.X @ np.asarray(R).T
-        z = _rotate(self.tau[:, None] * np.asarray(w)[None], y)
-        z += np.asarray(C) + self.tau[:, None] * np.asarray(t)
-        return self.project(z)
-
-    def project(self, x_rig: np.ndarray) -> np.ndarray:
-        """(N, 2) image errors (px) of the points at ``x_rig`` (N, 3) in the rig frame (inf
-        behind their camera)."""
-        q = np.empty_like(x_rig)
-        for k in range(len(self.R_mount)):
-            s = self.cam == k
-            q[s] = x_rig[s] @ self.R_mount[k].T + self.c_mount[k]
-        zq = q[:, 2:3]
-        good = zq > 1e-9
-        d = self.focal[:, None] * (q[:, :2] / np.where(good, zq, 1.0) - self.x)
-        return np.where(good, d, np.inf)
-
-    def errors(self, R, C, w, t) -> np.ndarray:
-        """(N,) reprojection errors (px)."""
-        d = self.residuals(R, C, w, t)
-        return np.sqrt(np.sum(d * d, axis=1))
-
-
-def _rotate(phi: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``expm([phi_i]x) y_i`` for rotation vectors phi (N, 3) and vectors y (N, 3)
-    (Rodrigues, without the matrices)."""
-    th = np.sqrt(np.sum(phi * phi, axis=1))[:, None]
-    small = th < 1e-12
-    ths = np.where(small, 1.0, th)
-    k = phi / ths
-    c, s = np.cos(th), np.sin(th)
-    kxy = np.cross(k, y)
-    out = y * c + kxy * s + k * (np.sum(k * y, axis=1)[:, None] * (1.0 - c))
-    return np.where(small, y + np.cross(phi, y), out)
-
-
 def _model_of(Ori, p, omega, v):
     """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
     in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
@@ -744,7 +675,7 @@ class RigLocalizer:
             out.tags[n] = frame.tag
             views.append(RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off))
         try:
-            est, path, points = self._estimate(g.lo, views, out)
+            est, path = self._estimate(g.lo, views, out)
         except Exception as e:  # (the estimator raised: the rig frame failed)
             out.error = f"{type(e).__name__}: {e}"
             self._count_rig(names, "error")
@@ -753,7 +684,7 @@ class RigLocalizer:
         if not est.success:
             self._count_rig(names, est.failure or "error")
             return out
-        self._finish(out, est, path, points, names, views)
+        self._finish(out, est, path, names, views)
         return out
 
     def _count_rig(self, names, failure: str | None) -> None:
@@ -767,7 +698,7 @@ class RigLocalizer:
         for n in names:
             self.counts[f"{n}.failed"] += 1
 
-    def _run(self, views, max_iterations=None) -> RigPoseEstimate:
+    def _run(self, views, max_iterations=None, initial=None) -> RigPoseEstimate:
         s = self.settings
         return estimate_rig_pose(
             views,
@@ -776,15 +707,15 @@ class RigLocalizer:
             min_inliers=s.min_inliers,
             refine=s.refine,
             seed=s.seed,
+            initial_model=initial,
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):
-        """The rig frame's estimate on the tracker's path. Returns (estimate, path, the
-        stacked points of all views)."""
-        points = _Points(views)
+        """The rig frame's estimate on the tracker's path (as the camera tracker's
+        :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
         f, to = self._filter, self.settings.tracking
         if f is None:
-            return self._run(views), None, points
+            return self._run(views), None
         path = "cold"
         if f.initialized:
             dt = (stamp - f.stamp_ns) * 1e-9
@@ -792,32 +723,25 @@ class RigLocalizer:
                 out.fused += self._end_track()
                 path = "reset"
         if not f.initialized:
-            return self._run(views), path, points
+            return self._run(views), path
         pred = f.predict(stamp)
         model = _model_of(pred.orientation, pred.position, pred.angular_velocity,
                           pred.linear_velocity)  # fmt: skip
-        err = points.errors(*model)
         sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
-        focal = float(points.focal.max()) if len(points.focal) else 1.0
+        focal = max(v.camera.mean_focal for v in views)
         gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
-        explained = err < gate
-        n = len(err)
+        n = sum(len(v.uv) for v in views)
         ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
         need = max(self.settings.min_inliers, int(to.min_explained_ratio * ratio * n))
-        if int(explained.sum()) >= need:
-            sub = []
-            for k, v in enumerate(views):
-                keep = points.row[(points.cam == k) & explained]
-                sub.append(replace(v, uv=np.asarray(v.uv)[keep], X=np.asarray(v.X)[keep]))
-            est = self._run(sub, to.tracked_max_iterations)
-            if est.success:
-                return est, "tracked", points
-        return self._run(views), "relocalized", points
+        est = self._run(views, to.tracked_max_iterations, InitialModel(model, gate, need))
+        if est.success and est.initial_used:
+            return est, "tracked"
+        if not est.success and est.failure != "too_few_points":
+            # the prediction does not hold, or it misled RANSAC on a bad frame: solve it cold
+            est = self._run(views)
+        return est, "relocalized"
 
-    def _finish(self, out: RigOutput, est, path, points: _Points, names, views) -> None:
-        s = self.settings
-        err = points.errors(est.R, est.C, est.w, est.t)
-        inl = err < s.threshold_px
+    def _finish(self, out: RigOutput, est, path, names, views) -> None:
         pose = RSPose.from_model((est.R, est.C, est.w, est.t), 1.0, out.stamp_ns)
         cov = est.covariance if est.covariance is not None else np.full((12, 12), np.nan)
         meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=est.acceleration_sensitivity)
@@ -826,9 +750,9 @@ class RigLocalizer:
         if path is not None:
             self.counts[f"rig.path.{path}"] += 1
         # per camera: points, inliers, share; who disagrees
-        total_in = int(inl.sum())
-        n_pts = np.bincount(points.cam, minlength=len(names))
-        n_in = np.bincount(points.cam[inl], minlength=len(names))
+        total_in = int(est.num_inliers)
+        n_pts = np.asarray(est.num_valid_per_camera)
+        n_in = np.asarray(est.num_inliers_per_camera)
         for k, n in enumerate(names):
             pts, i = int(n_pts[k]), int(n_in[k])
             share = CameraShare(pts, i, i / total_in if total_in else 0.0,
@@ -836,7 +760,7 @@ class RigLocalizer:
             out.shares[n] = share
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)
-        self._inlier_ratio = total_in / max(len(err), 1)
+        self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
         if self._filter is None:
             return
         step = self._filter.update(out.stamp_ns, meas, relocalized=path == "relocalized")
