@@ -68,7 +68,7 @@ from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import InitialModel
 from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
-from ..geometry import rotation_angle_deg, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSPose
 from .fusion import FusionOptions, TwistFilter
 from .sequence import FusedPose, checked_stamp, reference_stamp_ns
@@ -78,6 +78,7 @@ __all__ = [
     "RIG_PATHS",
     "SKIP_REASONS",
     "CameraShare",
+    "MountingEstimate",
     "RigCameraFrame",
     "RigLocalizer",
     "RigMeasurement",
@@ -85,6 +86,7 @@ __all__ = [
     "RigOutput",
     "RigSettings",
     "RigTrackingOptions",
+    "calibrate_mountings",
 ]
 
 #: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
@@ -820,3 +822,150 @@ def _offset_text(view: RigView, est: RigPoseEstimate) -> str:
     R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
     deg = rotation_angle_deg(alone.model.R, R_c)
     return f"; alone it is {deg:.1f} deg from where its mounting puts it"
+
+
+# ---------------------------------------------------------------------- mountings from data
+@dataclass(frozen=True, eq=False)
+class MountingEstimate:
+    """A camera's mounting estimated from a rig video (:func:`calibrate_mountings`).
+
+    Attributes:
+        name: the camera. mount: its :class:`RigMount` (``x_cam = R x_rig + c``).
+        frames: rig frames averaged; rejected: rig frames left out as outliers.
+        std_deg, std_mm: standard deviation of the averaged rotation (deg, the norm over its
+            three axes) and of the camera's position on the rig (mm, norm): the larger of the
+            frames' scatter over ``sqrt(frames)`` and the batch-means estimate (the scatter of
+            the means of 8 runs of consecutive frames over ``sqrt(8)``, which counts errors
+            neighbouring frames share); zero for the reference camera.
+        scatter_deg, scatter_mm: one rig frame's (the frames' RMS deviation from the mean).
+    """
+
+    name: str
+    mount: RigMount
+    frames: int
+    rejected: int
+    std_deg: float
+    std_mm: float
+    scatter_deg: float
+    scatter_mm: float
+
+
+def _robust_rotation_mean(Rs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) -> (their chordal mean over the inliers, the inlier mask): rotations
+    more than 3 times the median angle (and 0.05 deg) from the mean are outliers, twice."""
+    keep = np.ones(len(Rs), dtype=bool)
+    for _ in range(3):
+        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
+        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
+        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
+    return M, keep
+
+
+def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
+    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
+    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
+    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
+    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
+    n = len(d)
+    k = min(blocks, n // 2)
+    if k < 2:
+        return 0.0
+    means = np.array([b.mean(axis=0) for b in np.array_split(d, k)])
+    return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
+
+
+def calibrate_mountings(
+    frames: list,
+    reference: str,
+    *,
+    reference_mount: RigMount | None = None,
+    window: float = 0.015,
+    stamp_row: float = 0.0,
+    min_inliers: int = 20,
+    options: Any = None,
+) -> dict:
+    """Every camera's mounting on the rig from a video of a known map.
+
+    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
+    pose and twist at its reference line's capture time, camera optical frame). Per frame of
+    the ``reference`` camera, each other camera's frame nearest in time (within ``window``)
+    is carried to the reference frame's time with its own estimated twist (constant angular
+    and linear velocity over the stamp difference) and expressed in the reference camera's
+    optical frame: ``R_ref_c = Ori_ref^T Ori_c``, ``p_ref_c = Ori_ref^T (p_c - p_ref)``. The
+    relative rotations are averaged (chordal mean, outliers beyond 3 times the median angle
+    left out) and so are the positions (beyond 3 times the median distance left out).
+
+    Args:
+        frames: :class:`RigCameraFrame` of every camera (any order; frames without a camera
+            model are skipped).
+        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
+            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+        window: s; frames further from the reference frame are not paired with it.
+        stamp_row: the row whose capture time is a frame's stamp.
+        min_inliers: frames posed with fewer inliers are not used.
+        options: the single-camera estimator's
+            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+    Returns:
+        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
+        a camera never paired with the reference is missing).
+    Raises:
+        ValueError: no frame of ``reference`` posed.
+    """
+    poses: dict[str, list] = {}
+    for f in frames:
+        if f.camera is None:
+            continue
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        poses.setdefault(f.camera_name, [])
+        if not est.success or est.num_inliers < min_inliers:
+            continue
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        poses[f.camera_name].append((t, est.orientation, est.position, est.angular_velocity,
+                                     est.linear_velocity))  # fmt: skip
+    refs = poses.get(reference, [])
+    if not refs:
+        raise ValueError(
+            f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
+        )
+    base = reference_mount if reference_mount is not None else RigMount(np.eye(3), np.zeros(3))
+    R_base_ref, p_base_ref = base.R.T, base.position
+    out = {}
+    for name, items in poses.items():
+        if name == reference:
+            out[name] = MountingEstimate(name, base, len(refs), 0, 0.0, 0.0, 0.0, 0.0)
+            continue
+        if not items:
+            continue
+        times = np.array([i[0] for i in items])
+        Rs, ps = [], []
+        for t_r, O_r, p_r, _, _ in refs:
+            k = int(np.argmin(np.abs(times - t_r)))
+            dt = (t_r - times[k]) * 1e-9
+            if abs(dt) > window:
+                continue
+            _, Oc, p, om, v = items[k]
+            O_t = Oc @ rotvec_to_matrix(om * dt)
+            p_t = p + Oc @ v * dt
+            Rs.append(O_r.T @ O_t)
+            ps.append(O_r.T @ (p_t - p_r))
+        if len(Rs) < 2:
+            continue
+        Rs, ps = np.array(Rs), np.array(ps)
+        M, keep = _robust_rotation_mean(Rs)
+        d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
+        keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
+        p_mean = ps[keep].mean(axis=0)
+        r = matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs[keep]))
+        dp = ps[keep] - p_mean
+        n = int(keep.sum())
+        scat_r = float(np.sqrt(np.sum(r * r) / max(n - 1, 1)))
+        scat_p = float(np.sqrt(np.sum(dp * dp) / max(n - 1, 1)))
+        mount = RigMount.from_pose(R_base_ref @ M, R_base_ref @ p_mean + p_base_ref)
+        out[name] = MountingEstimate(
+            name, mount, n, len(Rs) - n,
+            float(np.rad2deg(max(_std_of_mean(r), scat_r / np.sqrt(n)))),
+            1e3 * max(_std_of_mean(dp), scat_p / np.sqrt(n)),
+            float(np.rad2deg(scat_r)), 1e3 * scat_p,
+        )  # fmt: skip
+    return out
