@@ -40,11 +40,20 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   of the inliers' errors (px^2, corrected for the threshold's truncation,
   :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
   covariances from it (:func:`~rs_localizer.estimation.result.output_covariance` with one
-  second per unit of ``tau``);
+  second per unit of ``tau``), and from the same Jacobian the estimate's sensitivity to the
+  rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
+  :mod:`~rs_localizer.estimation.sensitivity`);
 - the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
   on one 3D line, plausible motion, and every inlier in front of its camera at its capture
   time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
   model).
+
+With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
+starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
+the model is tested on every point, pulled onto those within its gate, seeds RANSAC and
+pre-rotates its samples instead of P3P, and when it explains the frame RANSAC only verifies it
+(one batch of samples among its inliers); local optimization and the final refinement run on
+every point as without it.
 
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
@@ -61,14 +70,16 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix
+from ..geometry import rotvec_to_matrix, skew
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from ..solvers.lambda_twist import lambda_twist_batch
+from .options import InitialModel
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .refine import untruncated_variance
 from .result import output_covariance
+from .sensitivity import output_jacobian
 
 __all__ = [
     "FINAL_CUTOFF",
@@ -234,6 +245,17 @@ class RigPoseEstimate:
             equal stamps): the velocities are not observable, ``w = t = 0`` (zero rows and
             columns in the covariances, ``twist_covariance`` None) and the pose is the
             generalized absolute pose of the rig at that time.
+        acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as
+            ``covariance``) per unit of angular and linear acceleration of the rig during the
+            frame (rad/s^2, m/s^2, rig frame; columns in that order): a rig that accelerates
+            is estimated ``G (alpha, a)`` away from its state at the reference time (as a
+            camera's estimate, :mod:`~rs_localizer.estimation.sensitivity`; the twist filter
+            uses it), or
+            ``None`` (no covariance, or ``global_shutter``).
+        initial_explained: points within the initial model's ``gate_px`` (-1 without one;
+            failed estimates do not report it). initial_used: the initial model seeded
+            RANSAC (and pre-rotated its samples): False when it explained too few points and
+            the estimator ran as without it.
     """
 
     success: bool
@@ -254,6 +276,9 @@ class RigPoseEstimate:
     twist_covariance: np.ndarray | None = None
     model_covariance: np.ndarray | None = None
     global_shutter: bool = False
+    acceleration_sensitivity: np.ndarray | None = None
+    initial_explained: int = -1
+    initial_used: bool = False
 
     @property
     def position(self) -> np.ndarray:
@@ -480,14 +505,17 @@ def _distinct3(rng, N: np.ndarray) -> np.ndarray:
     return np.stack([a, b, c], axis=1)
 
 
-def _sample(rng, pool: _Pool, n_samples: int):
+def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
-    proportion to its points), then 3 distinct others from all cameras. Returns (S, 6)."""
-    counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+    proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
+    pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
+    (S, 6)."""
+    cam = pool.cam if subset is None else pool.cam[subset]
+    counts = np.bincount(cam, minlength=len(pool.sizes))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
     eligible = np.flatnonzero(counts >= 3)
     p = counts[eligible] / counts[eligible].sum()
-    n = len(pool.cam)
+    n = len(cam)
     cams = eligible[rng.choice(len(eligible), size=n_samples, p=p)]
     first = starts[cams][:, None] + _distinct3(rng, counts[cams])
     rest = _distinct3(rng, np.full(n_samples, n - 3))
@@ -495,25 +523,32 @@ def _sample(rng, pool: _Pool, n_samples: int):
     taken = np.sort(first, axis=1)
     for j in range(3):
         rest += rest >= taken[:, j : j + 1]
-    return np.concatenate([first, rest], axis=1)
+    out = np.concatenate([first, rest], axis=1)
+    return out if subset is None else subset[out]
 
 
-def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None):
+def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None, anchor=None):
     """Models (R, C, w, t) of the samples: P3P in the sample's first camera, mapped to the
-    rig, pre-rotates the rig solver; ``bounds`` ``(w_max rad/s, v_max m/s)`` or None: models
-    moving faster are dropped (:func:`~.plausibility.plausible_motion` with one second per
-    unit of tau). Returns arrays of H valid models, or None."""
-    cam0 = pool.cam[samples[:, 0]]
-    Rc = pool.R_mount[cam0]
-    xs = pool.x[samples[:, :3]]
-    bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-    R_cam, _, own = lambda_twist_batch(
-        np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-    )
-    if len(own) == 0:
-        return None
-    R0 = np.einsum("hji,hjk->hik", Rc[own], R_cam)  # R_c^T R_cam
-    S = samples[own]
+    rig, pre-rotates the rig solver (``anchor``: this (3, 3) rotation pre-rotates every
+    sample instead, an initial model's or the best model's); ``bounds`` ``(w_max rad/s,
+    v_max m/s)`` or None: models moving faster are dropped
+    (:func:`~.plausibility.plausible_motion` with one second per unit of tau). Returns arrays
+    of H valid models, or None."""
+    if anchor is not None:
+        R0 = np.broadcast_to(np.asarray(anchor, dtype=float), (len(samples), 3, 3))
+        S = samples
+    else:
+        cam0 = pool.cam[samples[:, 0]]
+        Rc = pool.R_mount[cam0]
+        xs = pool.x[samples[:, :3]]
+        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
+        R_cam, _, own = lambda_twist_batch(
+            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
+        )
+        if len(own) == 0:
+            return None
+        R0 = np.einsum("hji,hjk->hik", Rc[own], R_cam)  # R_c^T R_cam
+        S = samples[own]
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
     b = gr6p_1lin_batch(
         pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations
@@ -597,14 +632,21 @@ def _apply(model, u: np.ndarray):
 
 
 def _refine(
-    pool: _Pool, inl: np.ndarray, model, threshold_px: float, max_iterations: int = 20, free=12
+    pool: _Pool,
+    inl: np.ndarray,
+    model,
+    threshold_px: float,
+    max_iterations: int = 20,
+    free=12,
+    cutoff_px: float | None = None,
 ):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
-    thresholds (Huber loss at ``threshold_px``, truncated beyond: the set re-selected at each
-    iteration; ``inl`` unused, the signature of :func:`_refit`). 12 parameters: a rotation
-    update left of R, C, w, t (``free=6``: the pose alone, w and t kept); residuals: the image
-    errors (px) of :func:`_errors_px`."""
-    k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
+    thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
+    truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
+    :func:`_refit`). 12 parameters: a rotation update left of R, C, w, t (``free=6``: the
+    pose alone, w and t kept); residuals: the image errors (px) of :func:`_errors_px`."""
+    k = float(threshold_px)
+    cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
     allp = np.arange(len(pool.cam))
     e = _errors_px(pool, *_one(model))[0]
     cost, _ = _robust(e, k, cut)
@@ -643,30 +685,60 @@ def _refine(
     return model
 
 
-def _covariance(pool: _Pool, model, threshold_px: float, free: int = 12) -> np.ndarray | None:
-    """(12, 12) covariance of ``(delta, C, w, t)`` at the final model: ``sigma^2 (J^T W J)^-1``
-    over the points within ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2``
-    the per-axis image variance (px^2) of the errors inside the threshold, corrected for the
-    truncation (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero
-    rows and columns for w and t); ``None`` if singular or not finite."""
+def _covariance(
+    pool: _Pool, model, threshold_px: float, free: int = 12
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
+    acceleration, from one Jacobian.
+
+    The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
+    ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
+    variance (px^2) of the errors inside the threshold, corrected for the truncation
+    (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero rows and
+    columns for w and t). The sensitivity (12, 6) is ``(J^T W J)^-1 J^T W D`` over the same
+    points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
+    through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
+    + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
+    with ``free=6``. Returns ``(None, None)`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
     inside = e[e < k]
     if len(inside) <= 6:
-        return None
+        return None, None
     _, J = _jacobian(pool, model, idx)
     _, wts = _robust(e[idx], k, cut)
     Jf = J.reshape(-1, 12)[:, :free]
-    H = Jf.T @ (Jf * np.repeat(wts, 2)[:, None])
+    WJ = Jf * np.repeat(wts, 2)[:, None]
+    H = Jf.T @ WJ
     sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
     cov = np.zeros((12, 12))
     try:
-        cov[:free, :free] = sigma2 * np.linalg.inv(H)
+        Hinv = np.linalg.inv(H)
     except np.linalg.LinAlgError:
-        return None
+        return None, None
+    cov[:free, :free] = sigma2 * Hinv
     cov = 0.5 * (cov + cov.T)
-    return cov if np.isfinite(cov).all() else None
+    if not np.isfinite(cov).all():
+        return None, None
+    G = None
+    if free == 12:
+        D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
+        G = Hinv @ (WJ.T @ D)
+        G = G if np.isfinite(G).all() else None
+    return cov, G
+
+
+def _sensitivity_out(G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(12, 6) the estimate's outputs (as ``covariance``) per (angular acceleration [rad/s^2],
+    linear acceleration [m/s^2], rig frame) from the model's sensitivity ``G`` per
+    ``(beta, b)``: ``beta = -alpha``, ``b = beta x C - a`` (:mod:`~.sensitivity` with one
+    second per unit of tau), then :func:`~.sensitivity.output_jacobian`."""
+    M = np.zeros((6, 6))
+    M[:3, :3] = -np.eye(3)
+    M[3:, 3:] = -np.eye(3)
+    M[3:, :3] = skew(np.asarray(C, dtype=float))
+    return output_jacobian(R, C, w, 1.0) @ (G @ M)
 
 
 def _one(model):
@@ -701,6 +773,49 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     return behind, bad
 
 
+def _seed(pool: _Pool, initial, threshold_px: float, still: bool, size: int, free: int):
+    """Test an initial model on every point (as a single camera's,
+    :func:`~.local_optimization.seed_from_initial_model`).
+
+    Returns:
+        (explained, seed, anchored, subset): ``explained`` counts the points within its
+        ``gate_px``; ``anchored`` is True when at least ``min_explained`` (and one) are: its
+        rotation, then the best model's, pre-rotates RANSAC's samples instead of P3P; ``seed``
+        is the model, pulled onto the explained points when it has fewer than
+        ``max(min_explained, size + 1)`` inliers within the threshold (Levenberg-Marquardt on
+        the exact model, Huber at the threshold, truncated at the gate; the better of the two
+        by MSAC), when it then has more than ``size`` inliers, else None; ``subset``: its
+        inliers (pool indices) when they number at least ``max(min_explained, size + 1)``
+        with 3 in one camera (RANSAC then only verifies it, sampling among them), else None.
+    """
+    im = initial if isinstance(initial, InitialModel) else InitialModel(initial)
+    model = tuple(np.array(a, dtype=float) for a in im.model)
+    if still:
+        model = (model[0], model[1], np.zeros(3), np.zeros(3))
+    if not all(np.isfinite(a).all() for a in model):
+        return 0, None, False, None
+    gate = float(im.gate_px)
+    e = _errors_px(pool, *_one(model))[0]
+    explained = int(np.count_nonzero(e < gate))
+    need = max(int(im.min_explained), size + 1)
+    if explained < max(int(im.min_explained), 1):
+        return explained, None, False, None
+    th2 = float(threshold_px) ** 2
+    if np.count_nonzero(e < threshold_px) < need:
+        pulled = _refine(pool, None, model, threshold_px, 10, free, cutoff_px=gate)
+        ep = _errors_px(pool, *_one(pulled))[0]
+        if np.minimum(ep * ep, th2).sum() < np.minimum(e * e, th2).sum():
+            model, e = pulled, ep
+    inl = e < threshold_px
+    n_in = int(np.count_nonzero(inl))
+    if n_in <= size:
+        return explained, None, True, None
+    subset = None
+    if n_in >= need and np.bincount(pool.cam[inl]).max() >= 3 and n_in >= 6:
+        subset = np.flatnonzero(inl)
+    return explained, model, True, subset
+
+
 def estimate_rig_pose(
     views: Sequence[RigView],
     threshold_px: float = 2.0,
@@ -713,6 +828,8 @@ def estimate_rig_pose(
     seed: int | None = 0,
     max_angular_velocity: float = 20.0,
     max_linear_velocity: float = 50.0,
+    *,
+    initial_model: InitialModel | RSModel | tuple | None = None,
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -730,6 +847,15 @@ def estimate_rig_pose(
         max_angular_velocity: rad/s, max_linear_velocity: m/s: hypotheses and final models of
             a rig moving faster are implausible (``inf``: no bound; the defaults are
             :class:`~rs_localizer.estimation.EstimateOptions`').
+        initial_model: optional :class:`~rs_localizer.estimation.InitialModel` whose
+            ``model`` is the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
+            reference time: a tracker's prediction; a bare model has the default gate):
+            tested first on every point; if at least ``min_explained`` are within its
+            ``gate_px`` it is pulled onto them and seeds RANSAC, and its rotation (then the
+            best model's) pre-rotates every sample instead of P3P; when it then has at least
+            ``min_explained`` inliers RANSAC only verifies it with one batch of samples drawn
+            among them (as a single camera's estimator does with its ``initial_model``).
+            Without it the estimator is unchanged.
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
@@ -774,18 +900,39 @@ def estimate_rig_pose(
     still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
     free, size = (6, 3) if still else (12, 6)
     th2 = threshold_px**2
+
+    def msac(m):
+        return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
+
+    def required(frac):
+        if not frac > 0:
+            return max_iterations
+        denom = np.log(max(1e-12, 1.0 - frac**size))
+        return np.log(1.0 - confidence) / denom if denom < 0 else 0
+
     best_cost, best = np.inf, None
-    drawn = 0
     needed = max_iterations
+    explained, used, anchored, subset = -1, False, False, None
+    if initial_model is not None:
+        explained, seed, anchored, subset = _seed(
+            pool, initial_model, threshold_px, still, size, free
+        )
+        if seed is not None:
+            best, used = seed, True
+            best_cost = msac(seed)
+            inl0 = _errors_px(pool, *_one(seed))[0] < threshold_px
+            # (verifying a seed that explains the frame: one batch among its inliers)
+            needed = batch_size if subset is not None else required(float(np.mean(inl0)))
+    drawn = 0
     while drawn < min(needed, max_iterations):
         k = min(batch_size, max_iterations - drawn)
-        samples = _sample(rng, pool, k)
+        samples = _sample(rng, pool, k, subset)
         drawn += k
-        hyp = (
-            _hypotheses_still(pool, samples)
-            if still
-            else _hypotheses(pool, samples, solver_iterations, bounds)
-        )
+        if still:
+            hyp = _hypotheses_still(pool, samples)
+        else:
+            anchor = best[0] if anchored and best is not None else None
+            hyp = _hypotheses(pool, samples, solver_iterations, bounds, anchor)
         if hyp is None:
             continue
         e = _errors_px(pool, *hyp)
@@ -794,16 +941,11 @@ def estimate_rig_pose(
         if cost[h] < best_cost:
             best_cost = cost[h]
             best = tuple(a[h] for a in hyp)
-            frac = np.mean(e[h] < threshold_px)
-            if frac > 0:
-                denom = np.log(max(1e-12, 1.0 - frac**size))
-                needed = np.log(1.0 - confidence) / denom if denom < 0 else 0
+            if subset is None:
+                needed = required(float(np.mean(e[h] < threshold_px)))
     if best is None:
         return failed("no_model", drawn)
     model = best
-
-    def msac(m):
-        return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
 
     # each step is kept only if it does not raise the MSAC cost of the whole pool
     steps = (_refit, _refine) if refine else (_refit,)
@@ -832,13 +974,15 @@ def estimate_rig_pose(
     if bad:
         return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    cov = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else None
+    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else (None, None)
     out = (
         (None, None, None)
         if cov is None
         else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
     )
+    sens = None if G is None else _sensitivity_out(G, R, C, w)
     return RigPoseEstimate(
         True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
-        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still,
+        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still, sens,
+        explained, used,
     )  # fmt: skip

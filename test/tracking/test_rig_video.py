@@ -244,3 +244,46 @@ def test_bad_settings():
     mount = RigMount.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
     assert np.allclose(mount.position, cams[1].p_rig_cam)
     assert np.allclose(mount.R, cams[1].R_mount) and np.allclose(mount.c, cams[1].c_mount)
+
+
+def test_the_filter_measures_with_the_estimators_covariance(video):
+    """Each rig frame's measurement carries the rig estimator's covariance and acceleration
+    sensitivity, and that covariance covers the pose's error against the truth (median NEES
+    of the 6 pose errors below 3 x 6)."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    cams, frames, traj = video
+    _, outs, _ = run(frames, cams)
+    nees = []
+    for o in outs:
+        m = o.measurement
+        assert m.covariance is o.estimate.covariance
+        assert m.acceleration_sensitivity is o.estimate.acceleration_sensitivity
+        assert m.acceleration_sensitivity.shape == (12, 6)
+        R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
+        e = np.concatenate([matrix_to_rotvec(m.orientation @ R.T), m.position - p])
+        nees.append(e @ np.linalg.solve(m.covariance[:6, :6], e))
+    assert np.median(nees) < 18.0, np.median(nees)
+
+
+def test_calibrate_mountings_from_the_video(video):
+    """Each camera's mounting from the 0.6 s video (18 rig frames, 150 points, 20 % outliers)
+    relative to the front camera's true one: within 0.05 deg and 3 mm of the truth and 3 of its
+    stated standard deviations; no frame of the reference camera is an error."""
+    from rs_localizer.tracking.rig import calibrate_mountings
+
+    cams, frames, _ = video
+    by = {c.name: c.camera for c in cams}
+    truth = mounts_of(cams)
+    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in frames]
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert sorted(out) == ["front", "left", "right"]
+    assert out["front"].mount is truth["front"] and out["front"].std_deg == 0.0
+    for n in ("left", "right"):
+        e = out[n]
+        deg = rotation_angle_deg(e.mount.R, truth[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
+        assert e.frames >= 15 and deg < 0.05 and mm < 3.0, (n, deg, mm)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e)
+    with pytest.raises(ValueError, match="nope"):
+        calibrate_mountings(fr, "nope")

@@ -48,7 +48,14 @@ from .bag_io import (
     typestore,
 )
 
-__all__ = ["RigReplay", "is_rig_bag", "replay_rig", "rig_parameter_values", "write_rig_bag"]
+__all__ = [
+    "RigReplay",
+    "is_rig_bag",
+    "read_rig_frames",
+    "replay_rig",
+    "rig_parameter_values",
+    "write_rig_bag",
+]
 
 
 def _mounting(cam) -> list[float]:
@@ -310,3 +317,70 @@ def replay_rig(
 def is_rig_bag(bag: str | os.PathLike) -> bool:
     """The bag's ``sequence.json`` has a ``rig`` entry (written by ``make-bag --rig``)."""
     return "rig" in read_bag_info(bag)
+
+
+def read_rig_frames(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> tuple[list, dict, dict]:
+    """Every camera's frames of a rig bag, without mountings (what ``calibrate-rig`` reads).
+
+    The cameras are ``rig.cameras`` of :func:`rig_parameter_values` (the bag's
+    ``rig_params.yaml``, the parameter files, ``params``); each camera's RS timing is its
+    ``rig.<camera>.*`` value, else the ``rs.*`` one; its frames are read from
+    ``<namespace>/<camera>/correspondences`` with the model of the camera_info received
+    before them (frames before any camera_info have ``camera`` None).
+
+    Returns:
+        (frames: :class:`~rs_localizer.tracking.rig.RigCameraFrame` in log-time order, the
+        parameter values, the cameras' values).
+    Raises:
+        ValueError: no ``rig.cameras``, or an unknown readout direction.
+    """
+    from ...camera import READOUT_DIRECTIONS
+    from ...tracking.rig import RigCameraFrame
+
+    values, cams = rig_parameter_values(bag, params_files, params)
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    if not names:
+        raise ValueError(f"{bag}: no rig.cameras (not a rig bag, and no --params-file with them)")
+    ref = float(values["rs.reference_row"])
+    timing = {}
+    for n in names:
+        c = cams[n]
+        ld, rt = float(c.get("line_delay", -1.0)), float(c.get("readout_time", -1.0))
+        d = str(c.get("direction", "") or values["rs.direction"]).strip()
+        if d not in READOUT_DIRECTIONS:
+            raise ValueError(f"rig.{n}.direction: unknown readout direction {d!r}")
+        timing[n] = (
+            float(values["rs.line_delay"]) if ld < 0 else ld,
+            float(values["rs.readout_time"]) if rt < 0 else rt,
+            d,
+            None if ref < 0 else ref,
+        )
+    info = read_bag_info(bag)
+    ns = str(info.get("rig", {}).get("namespace", "/rig")).rstrip("/")
+    topics = {}
+    for n in names:
+        topics[f"{ns}/{n}/camera_info"] = ("info", n)
+        topics[f"{ns}/{n}/correspondences"] = ("cloud", n)
+    models: dict = {n: None for n in names}
+    ts = typestore()
+    frames = []
+    for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
+        kind, n = topics[topic]
+        msg = ts.deserialize_cdr(raw, msgtype)
+        if kind == "info":
+            try:
+                models[n] = cv.camera_model_from_camera_info(msg, *timing[n])
+            except ValueError:
+                continue
+            continue
+        try:
+            corr = read_correspondences(msg)
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError:
+            continue
+        frames.append(RigCameraFrame(n, stamp, models[n], corr.pixels, corr.points))
+    return frames, values, cams
