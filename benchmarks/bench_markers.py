@@ -339,7 +339,7 @@ def corner_causes(preset: str, frames: int, decimations, seed: int = 0) -> dict:
     Returns {"speed" (F,) deg/s angular speed per frame, "line_fit" {"still"/"moving": [(N,)
     px per frame]},
     name: {"still"/"moving": (found, visible, [errors (N,) px per frame], [the corner's tag
-    side (N,) px per frame])}}."""
+    side (N,) px per frame], [|error| per axis (2N,) px per frame])}}."""
     scene = room()
     camera = camera_preset(preset)
     motion = make_motion("shake", scene, duration=frames / FPS + 0.1)
@@ -354,7 +354,7 @@ def corner_causes(preset: str, frames: int, decimations, seed: int = 0) -> dict:
     mids = np.array(sorted(mc), np.int64)
     X = np.concatenate([mc[int(m)] for m in mids])
     out = {"speed": [], "line_fit": {"still": [], "moving": []}}
-    out |= {n: {s: [0, 0, [], []] for s in ("still", "moving")} for n in dets}
+    out |= {n: {s: [0, 0, [], [], []] for s in ("still", "moving")} for n in dets}
     for k in range(frames):
         t = k / FPS
         for shutter, key in (("global", "still"), ("rolling", "moving")):
@@ -380,8 +380,8 @@ def corner_causes(preset: str, frames: int, decimations, seed: int = 0) -> dict:
                 o = out[name][key]
                 o[1] += len(visible)
                 seen = [int(i) for i in ids if int(i) in visible]
-                e = [
-                    np.linalg.norm(c - truth[int(i)], axis=1)
+                d = [
+                    c - truth[int(i)]
                     for c, i in zip(corners, ids, strict=True)
                     if int(i) in visible
                 ]
@@ -389,9 +389,11 @@ def corner_causes(preset: str, frames: int, decimations, seed: int = 0) -> dict:
                     np.full(4, np.linalg.norm(np.roll(truth[i], 1, 0) - truth[i], axis=1).mean())
                     for i in seen
                 ]
-                o[0] += len(e)
-                o[2].append(np.concatenate(e) if e else np.zeros(0))
+                d = np.concatenate(d) if d else np.zeros((0, 2))
+                o[0] += len(seen)
+                o[2].append(np.linalg.norm(d, axis=1))
                 o[3].append(np.concatenate(side) if side else np.zeros(0))
+                o[4].append(np.abs(d).ravel())
     return out
 
 
@@ -410,7 +412,7 @@ def print_corner_causes(cc: dict) -> None:
             continue
         row = f"  {name:14s}"
         for key in ("still", "moving"):
-            f, v, e, _ = o[key]
+            f, v, e = o[key][:3]
             a = np.concatenate(e)
             row += (
                 f" {'|' if key == 'moving' else ''} {f / max(v, 1):17.3f} "
@@ -433,6 +435,13 @@ def print_corner_causes(cc: dict) -> None:
             med = f"{np.median(e[sel]):.3f}" if sel.any() else "-"
             parts.append(f"{label} {med} ({sel.sum() // 4} tags)")
         print("    still, median by the tag's side: " + ", ".join(parts))
+        ax = {k: np.concatenate(o[k][4]) for k in ("still", "moving")}
+        print(
+            "    per axis (|error x| and |error y| pooled), median / p90: still "
+            + " / ".join(f"{v:.3f}" for v in _spread(ax["still"])[:2])
+            + ", moving "
+            + " / ".join(f"{v:.3f}" for v in _spread(ax["moving"])[:2])
+        )
     print(
         "  a perfect straight-edge quad fit (median / p90 / max px): still "
         + " / ".join(f"{v:.3f}" for v in _spread(fit["still"]))

@@ -66,7 +66,7 @@ def test_line_fit_corners_exact_on_straight_edges():
 
 @pytest.mark.slow
 def test_bench_markers_corner_causes(capsys):
-    args = ["--frames", "1", "--presets", "vga", "--decimate", "2", "--false-frames", "0"]
+    args = ["--frames", "1", "--presets", "vga", "--decimate", "0", "--false-frames", "0"]
     assert main([*args, "--aruco-dictionary", "", "--corner-views", "2"]) == 0
     out = capsys.readouterr().out
     if not apriltag_binding():
