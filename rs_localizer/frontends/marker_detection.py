@@ -291,7 +291,7 @@ def _check_gray(gray: np.ndarray) -> np.ndarray:
 _SAFE_PUPIL_CLASSES: dict = {}
 
 
-def pupil_detector(module: Any, **kwargs) -> Any:
+def pupil_detector(module: Any, **kwargs: Any) -> Any:
     """A ``pupil_apriltags.Detector(**kwargs)`` that tears down safely.
 
     The binding's ``Detector.__del__`` frees its tag families before the library's detector,
