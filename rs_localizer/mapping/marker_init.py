@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
 from .marker_model import FrameDetections, MappingOptions, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
 
@@ -44,6 +44,31 @@ def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f:
     with np.errstate(divide="ignore", invalid="ignore"):
         e = np.linalg.norm(p[:, :2] / p[:, 2:3] - x, axis=1) * f
     return np.where(p[:, 2] > 1e-6, e, np.inf)
+
+
+def _left_jacobian(q: np.ndarray) -> np.ndarray:
+    """(3, 3) left Jacobian of SO(3) at the rotation vector ``q`` (3,) (rad):
+    ``I + (1 - cos t) / t^2 [q]x + (t - sin t) / t^3 [q]x^2``, ``t = |q|``."""
+    t = float(np.linalg.norm(q))
+    K = skew(q)
+    if t < 1e-6:
+        b, c = 0.5 - t * t / 24.0, 1.0 / 6.0 - t * t / 120.0
+    else:
+        b, c = (1.0 - np.cos(t)) / t**2, (t - np.sin(t)) / t**3
+    return np.eye(3) + b * K + c * (K @ K)
+
+
+def _projection_jacobian(p: np.ndarray, f: float) -> np.ndarray:
+    """(..., 2, 3) derivative of ``f * p_xy / max(p_z, 1e-6)`` with respect to the camera
+    point ``p`` (..., 3) (m; zero along z where the depth is clamped)."""
+    z = p[..., 2]
+    zc = np.maximum(z, 1e-6)
+    J = np.zeros(p.shape[:-1] + (2, 3))
+    J[..., 0, 0] = J[..., 1, 1] = f / zc
+    live = z > 1e-6
+    J[..., 0, 2] = np.where(live, -f * p[..., 0] / zc**2, 0.0)
+    J[..., 1, 2] = np.where(live, -f * p[..., 1] / zc**2, 0.0)
+    return J
 
 
 def mirrored_tilt(R: np.ndarray, views: np.ndarray) -> np.ndarray | None:
@@ -181,12 +206,16 @@ class MarkerInit:
         if subsets is None:
             subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
         best = None
+        # (every known marker's reprojection RMS at once, as _rms)
+        X = np.concatenate([self.world_corners(m) for m in known])
+        x = np.concatenate([self.obs[k][m] for m in known])
         for sub, start in zip(subsets, starts, strict=False):
             pose = self._pnp(k, sub, start)
             if pose is None:
                 continue
             R, C = pose
-            agree = [m for m in known if self._rms(k, m, R, C) <= self.gate_px]
+            rms = np.sqrt(np.mean(_gs_errors_px(R, C, X, x, self.f).reshape(-1, 4) ** 2, axis=1))
+            agree = [m for m, r in zip(known, rms, strict=True) if r <= self.gate_px]
             away = np.linalg.norm(matrix_to_rotvec(R @ guess[0].T)) + np.linalg.norm(
                 R.T @ C - guess[0].T @ guess[1]
             )
@@ -224,6 +253,17 @@ class MarkerInit:
             z = np.maximum(p[..., 2:3], 1e-6)
             return ((p[..., :2] / z - xs) * self.f).ravel()
 
+        def jac(q):  # (analytic: d expm([q]x) v / dq = -[expm([q]x) v]x J_l(q))
+            Y = obj @ (rotvec_to_matrix(q[:3]) @ R0).T
+            p = np.einsum("kij,nj->kni", Rs, Y + q[3:]) + Cs[:, None, :]
+            dX = np.concatenate(
+                [-skew(Y) @ _left_jacobian(q[:3]), np.broadcast_to(np.eye(3), (len(Y), 3, 3))],
+                axis=2,
+            )  # (n, 3, 6)
+            return (_projection_jacobian(p, self.f) @ np.einsum("kij,njc->knic", Rs, dX)).reshape(
+                -1, 6
+            )
+
         starts = [np.zeros(3)]
         centres = -np.einsum("kji,kj->ki", Rs, Cs)  # (the cameras' centres in the world)
         delta = mirrored_tilt(R0, centres - p0)
@@ -231,7 +271,7 @@ class MarkerInit:
             starts.append(delta)
         best = None
         for r0 in starts:
-            sol = least_squares(res, np.r_[r0, p0], loss="soft_l1", f_scale=5.0)
+            sol = least_squares(res, np.r_[r0, p0], jac=jac, loss="soft_l1", f_scale=5.0)
             if best is None or sol.cost < best.cost:
                 best = sol
         self.markers[mid] = (rotvec_to_matrix(best.x[:3]) @ R0, best.x[3:])
