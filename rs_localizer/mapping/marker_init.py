@@ -10,7 +10,6 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
@@ -46,16 +45,72 @@ def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f:
     return np.where(p[:, 2] > 1e-6, e, np.inf)
 
 
-def _left_jacobian(q: np.ndarray) -> np.ndarray:
-    """(3, 3) left Jacobian of SO(3) at the rotation vector ``q`` (3,) (rad):
-    ``I + (1 - cos t) / t^2 [q]x + (t - sin t) / t^3 [q]x^2``, ``t = |q|``."""
-    t = float(np.linalg.norm(q))
-    K = skew(q)
-    if t < 1e-6:
-        b, c = 0.5 - t * t / 24.0, 1.0 / 6.0 - t * t / 120.0
+def robust_gauss_newton(
+    fun, x0: np.ndarray, f_scale: float, tol: float = 1e-8, max_iter: int = 100
+) -> tuple[np.ndarray, float]:
+    """Minimize ``f_scale^2 * sum(sqrt(1 + (r / f_scale)^2) - 1)`` (SciPy's ``soft_l1`` loss
+    and cost) over a small dense problem: Levenberg-Marquardt (damping ``lambda * max(diag H)``,
+    updated as Nielsen's) on the normal equations of the robust loss (gradient weighted by the
+    loss' first derivative, curvature by SciPy's scaling of a robust loss). ``fun(x,
+    with_jac)`` returns the residuals (M,) and their Jacobian (M, N) (None without
+    ``with_jac``). Stops when a step lowers the cost by at most ``tol`` of it or moves ``x`` by
+    at most ``tol * (tol + |x|)`` (SciPy's ``ftol`` and ``xtol``), or when no step lowers it.
+    Returns ``(x (N,), cost)``."""
+
+    def cost_of(r):
+        return float(f_scale**2 * np.sum(np.sqrt(1.0 + (r / f_scale) ** 2) - 1.0))
+
+    x = np.asarray(x0, dtype=float)
+    r, J = fun(x)
+    cost = cost_of(r)
+    lam, nu = 1e-3, 2.0
+    for _ in range(max_iter):
+        # soft_l1: first derivative (1 + z)^-0.5, SciPy's curvature scale (1 + z)^-1.5
+        s1 = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+        H = J.T @ ((s1**3)[:, None] * J)
+        g = J.T @ (s1 * r)
+        damp = max(float(np.max(np.diag(H))), 1e-12) * np.eye(len(x))
+        done = True
+        for _ in range(20):
+            try:
+                step = -np.linalg.solve(H + lam * damp, g)
+            except np.linalg.LinAlgError:
+                lam, nu = lam * nu, 2 * nu
+                continue
+            r_new, _ = fun(x + step, False)
+            c_new = cost_of(r_new)
+            if c_new < cost:
+                small = cost - c_new <= tol * cost or np.linalg.norm(step) <= tol * (
+                    tol + np.linalg.norm(x)
+                )
+                gain = (cost - c_new) / max(-(g @ step + 0.5 * step @ H @ step), 1e-300)
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                x, r, cost = x + step, r_new, c_new
+                done = small
+                break
+            lam, nu = lam * nu, 2 * nu
+        if done:
+            break
+        r, J = fun(x)
+    return x, cost
+
+
+def _rotation_and_left_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``expm([q]x)`` (3, 3) and its left Jacobian (3, 3) at one rotation vector ``q``
+    (3,) (rad) (:func:`~rs_localizer.geometry.rotvec_to_matrix`,
+    :func:`~rs_localizer.mapping.marker_problem.left_jacobian`; one vector, no broadcasting)."""
+    t2 = float(q @ q)
+    K = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]])
+    K2 = K @ K
+    if t2 < 1e-12:
+        a, b, c = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0
     else:
-        b, c = (1.0 - np.cos(t)) / t**2, (t - np.sin(t)) / t**3
-    return np.eye(3) + b * K + c * (K @ K)
+        t = np.sqrt(t2)
+        st, ct = np.sin(t), np.cos(t)
+        a, b, c = st / t, (1.0 - ct) / t2, (t - st) / (t2 * t)
+    eye = np.eye(3)
+    return eye + a * K + b * K2, eye + b * K + c * K2
 
 
 def _projection_jacobian(p: np.ndarray, f: float) -> np.ndarray:
@@ -97,7 +152,7 @@ class MarkerInit:
     markers it sees (OpenCV ``solvePnP``, Levenberg-Marquardt from the previous frame's pose, so
     a frame seeing a single marker keeps the continuous one of its two planar solutions); a
     marker first seen gets the better of its two IPPE poses in that view, and every marker is
-    refined over all its views so far (SciPy ``least_squares``) from its current tilt and from
+    refined over all its views so far (:func:`robust_gauss_newton`) from its current tilt and from
     that tilt mirrored, the better fit kept: a single view fixes a small marker's centre well
     but its tilt poorly, and may pick the wrong one of the two. The whole is moved onto the
     anchor afterwards (:func:`regauge`).
@@ -247,22 +302,21 @@ class MarkerInit:
         Cs = np.array([self.frames[k][1] for k in frames])
         xs = np.array([self.obs[k][mid] for k in frames])
 
-        def res(q):
-            X = obj @ (rotvec_to_matrix(q[:3]) @ R0).T + q[3:]
-            p = np.einsum("kij,nj->kni", Rs, X) + Cs[:, None, :]
-            z = np.maximum(p[..., 2:3], 1e-6)
-            return ((p[..., :2] / z - xs) * self.f).ravel()
-
-        def jac(q):  # (analytic: d expm([q]x) v / dq = -[expm([q]x) v]x J_l(q))
-            Y = obj @ (rotvec_to_matrix(q[:3]) @ R0).T
+        def fun(q, with_jac=True):
+            E, Jl = _rotation_and_left_jacobian(q[:3])
+            Y = obj @ (E @ R0).T
             p = np.einsum("kij,nj->kni", Rs, Y + q[3:]) + Cs[:, None, :]
+            z = np.maximum(p[..., 2:3], 1e-6)
+            r = ((p[..., :2] / z - xs) * self.f).ravel()
+            if not with_jac:
+                return r, None
+            # (analytic: d expm([q]x) v / dq = -[expm([q]x) v]x J_l(q))
             dX = np.concatenate(
-                [-skew(Y) @ _left_jacobian(q[:3]), np.broadcast_to(np.eye(3), (len(Y), 3, 3))],
+                [-skew(Y) @ Jl, np.broadcast_to(np.eye(3), (len(Y), 3, 3))],
                 axis=2,
             )  # (n, 3, 6)
-            return (_projection_jacobian(p, self.f) @ np.einsum("kij,njc->knic", Rs, dX)).reshape(
-                -1, 6
-            )
+            J = _projection_jacobian(p, self.f) @ np.einsum("kij,njc->knic", Rs, dX)
+            return r, J.reshape(-1, 6)
 
         starts = [np.zeros(3)]
         centres = -np.einsum("kji,kj->ki", Rs, Cs)  # (the cameras' centres in the world)
@@ -271,10 +325,10 @@ class MarkerInit:
             starts.append(delta)
         best = None
         for r0 in starts:
-            sol = least_squares(res, np.r_[r0, p0], jac=jac, loss="soft_l1", f_scale=5.0)
-            if best is None or sol.cost < best.cost:
-                best = sol
-        self.markers[mid] = (rotvec_to_matrix(best.x[:3]) @ R0, best.x[3:])
+            x, cost = robust_gauss_newton(fun, np.r_[r0, p0], f_scale=5.0)
+            if best is None or cost < best[1]:
+                best = (x, cost)
+        self.markers[mid] = (rotvec_to_matrix(best[0][:3]) @ R0, best[0][3:])
 
     def adjust(self) -> None:
         """Global-shutter bundle adjustment of everything placed so far (gauge: the seed
