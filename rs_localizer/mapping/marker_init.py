@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
+from ..geometry import rotvec_to_matrix, skew
 from .marker_model import FrameDetections, MappingOptions, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
 
@@ -198,7 +198,7 @@ class MarkerInit:
             x,
             np.eye(3),
             None,
-            rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
+            rvec=cv2.Rodrigues(np.asarray(R0, dtype=float))[0],
             tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
             useExtrinsicGuess=True,
             flags=cv2.SOLVEPNP_ITERATIVE,
@@ -225,7 +225,8 @@ class MarkerInit:
     def pose_frame(self, k: int, guess: tuple | None, cut: bool = False) -> bool:
         """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
 
-        With several markers, the pose from all of them and from each alone compete: the one
+        With several markers, the pose from all of them and from each alone compete (each
+        alone only when some marker disagrees with the pose from all of them): the one
         that most markers agree with wins (ties: the one nearest the guess, the video being
         continuous); markers that disagree with it (a misdetection, or one id at another place)
         are left out of this frame's initialization. After a cut (``cut``: a gap in the
@@ -257,8 +258,10 @@ class MarkerInit:
         subsets: list | None = None,
     ) -> tuple | None:
         """The best ``(score, pose, agreeing markers)`` over PnP from ``starts`` on
-        ``subsets`` (default: all known markers, then each alone), or None."""
-        if subsets is None:
+        ``subsets`` (default: all known markers, then each alone unless every marker agrees
+        with the pose from all of them), or None."""
+        every = subsets is None
+        if every:
             subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
         best = None
         # (every known marker's reprojection RMS at once, as _rms)
@@ -271,12 +274,14 @@ class MarkerInit:
             R, C = pose
             rms = np.sqrt(np.mean(_gs_errors_px(R, C, X, x, self.f).reshape(-1, 4) ** 2, axis=1))
             agree = [m for m, r in zip(known, rms, strict=True) if r <= self.gate_px]
-            away = np.linalg.norm(matrix_to_rotvec(R @ guess[0].T)) + np.linalg.norm(
+            away = np.linalg.norm(cv2.Rodrigues(R @ guess[0].T)[0]) + np.linalg.norm(
                 R.T @ C - guess[0].T @ guess[1]
             )
             score = (len(agree), -away)
             if best is None or score > best[0]:
                 best = (score, pose, agree)
+            if every and len(agree) == len(known):  # (all agree: no marker alone does better)
+                break
         return best
 
     def new_marker(self, k: int, mid: int) -> None:
