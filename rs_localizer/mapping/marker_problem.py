@@ -176,6 +176,31 @@ class MarkerProblem:
         """The detector's corner offset (pixels, inwards) in ``x``; 0 when not estimated."""
         return float(x[self.co_col]) if self.co_col is not None else 0.0
 
+    def corner_offset_std(self, x: np.ndarray) -> float:
+        """Standard deviation (pixels) of the corner offset at the solution ``x``: its diagonal
+        element of ``(J^T J)^-1`` (:meth:`jacobian`; the rows in pixels and the offset's prior
+        scaled by ``1 / noise_px``, every detection independent; the frames, markers and line
+        delay marginalized). NaN when it is not estimated or the normal matrix is singular."""
+        if self.co_col is None:
+            return float("nan")
+        from scipy.sparse import diags
+        from scipy.sparse.linalg import splu
+
+        J = self.jacobian(x)
+        scale = np.ones(J.shape[0])
+        n_px = 8 * int(self.keep.sum())
+        scale[:n_px] = 1.0 / max(self.noise_px, 1e-12)
+        scale[n_px + (6 if self.fix is not None else 0)] = 1.0 / max(self.noise_px, 1e-12)
+        J = diags(scale) @ J
+        e = np.zeros(self.n)
+        e[self.co_col] = 1.0
+        try:
+            with np.errstate(all="raise"):
+                v = float(splu((J.T @ J).tocsc()).solve(e)[self.co_col])
+        except (RuntimeError, FloatingPointError):
+            return float("nan")
+        return float(np.sqrt(v)) if v > 0 else float("nan")
+
     def corner_residuals(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) reprojection residuals (pixels) of all corners."""
         Rf, Cf, W, T, Rm, pm, ld = self.unpack(x)

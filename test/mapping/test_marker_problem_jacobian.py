@@ -92,3 +92,16 @@ def test_left_jacobians():
         lhs = matrix_to_rotvec(rotvec_to_matrix(q + d) @ rotvec_to_matrix(q).T)
         np.testing.assert_allclose(lhs, Jl @ d, atol=1e-11)
         np.testing.assert_allclose(inverse_left_jacobian(q) @ Jl, np.eye(3), atol=1e-9)
+
+
+def test_corner_offset_std_is_the_dense_inverse(scene):
+    """The corner offset's std: its diagonal element of the dense (J^T J)^-1, the pixel rows
+    and the offset's prior scaled by 1 / noise."""
+    prob, x = problem(scene)
+    J = prob.jacobian(x).toarray()
+    n_px = 8 * int(prob.keep.sum())
+    J[: n_px + 1] /= prob.noise_px  # (pixel rows, then the offset's prior)
+    dense = np.sqrt(np.linalg.inv(J.T @ J)[prob.co_col, prob.co_col])
+    assert prob.corner_offset_std(x) == pytest.approx(dense, rel=1e-6)
+    no_offset, x = problem(scene, corner_offset=False)
+    assert np.isnan(no_offset.corner_offset_std(x))
