@@ -5,7 +5,7 @@ place is refused (model: :mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import cv2
@@ -46,7 +46,11 @@ def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f:
 
 
 def robust_gauss_newton(
-    fun, x0: np.ndarray, f_scale: float, tol: float = 1e-8, max_iter: int = 100
+    fun: Callable[..., tuple],
+    x0: np.ndarray,
+    f_scale: float,
+    tol: float = 1e-8,
+    max_iter: int = 100,
 ) -> tuple[np.ndarray, float]:
     """Minimize ``f_scale^2 * sum(sqrt(1 + (r / f_scale)^2) - 1)`` (SciPy's ``soft_l1`` loss
     and cost) over a small dense problem: Levenberg-Marquardt (damping ``lambda * max(diag H)``,
