@@ -212,6 +212,21 @@ def _options(args: argparse.Namespace):
     )
 
 
+def _offset_note(result) -> str:
+    """The corner offset's std, and whether the detector needs the term: not when the offset
+    found is within 2 std of zero and the video fixes it to 0.025 px (std) or better."""
+    co, std = result.corner_offset_px, result.corner_offset_std_px
+    if not np.isfinite(std):
+        return ""
+    note = f" (std {std:.2f} px)"
+    if abs(co) <= 2 * std and std <= 0.025:
+        note += (
+            "; no offset within its std: this detector's corners need no corner-offset term "
+            "(--no-corner-offset)"
+        )
+    return note
+
+
 def _summary(out: Path, result, counts: dict, opts) -> list:
     """The lines the command prints about a map: size, fit, the frame and its uncertainty
     (with a warning naming the remedy above the bounds), markers left out and the markers
@@ -222,7 +237,7 @@ def _summary(out: Path, result, counts: dict, opts) -> list:
         f"({counts['without_markers']} without markers, {result.num_frames_skipped} without a "
         f"pose); reprojection RMSE {result.rmse_px:.2f} px, {result.num_rejected} detections "
         f"rejected, line delay {1e6 * result.line_delay:.2f} us, detected corners "
-        f"{result.corner_offset_px:+.2f} px inside the markers",
+        f"{result.corner_offset_px:+.2f} px inside the markers" + _offset_note(result),
         f"  frame: {f.kind} ({', '.join(map(str, f.anchors))}"
         + (f", residual {f.residual_mm:.1f} mm RMS" if f.kind == "surveyed" else "")
         + f"); its own uncertainty against the map as a whole: {f.rotation_std_deg:.2f} deg, "

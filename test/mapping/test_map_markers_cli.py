@@ -230,3 +230,20 @@ def test_detect_folder_with_the_apriltag_library(tmp_path):
     assert ok.all() and np.median(np.linalg.norm(got - truth, axis=1)) < 0.15
     assert counts["duplicate_ids"] >= 2 and counts["images"] == 2
     assert len(frames[1].corners) + counts["duplicate_ids"] <= 12
+
+
+def test_summary_says_when_the_corner_offset_is_not_needed():
+    """The summary names the corner offset's std, and says the term is not needed only when
+    the offset is within 2 std of zero and the video fixes it to 0.025 px or better."""
+    from types import SimpleNamespace
+
+    from rs_localizer.cli.map_markers import _offset_note
+
+    def note(co, std):
+        return _offset_note(SimpleNamespace(corner_offset_px=co, corner_offset_std_px=std))
+
+    assert "need no corner-offset term" in note(-0.004, 0.0125)
+    assert "(std 0.01 px)" in note(-0.004, 0.0125)
+    assert "need no" not in note(0.10, 0.012)  # (OpenCV's corners: inside the squares)
+    assert "need no" not in note(0.01, 0.15)  # (too loosely fixed to tell)
+    assert note(0.0, float("nan")) == ""  # (not estimated)
