@@ -473,8 +473,9 @@ PARAMETERS = {
     ),
     "aruco.windowed": Parameter(
         False,
-        "aruco front end: detect markers only in windows around their pixels predicted from "
-        "the last solved frame, the full frame on start, after a failed frame, when a "
+        "aruco front end: detect markers only in windows around their pixels predicted by "
+        "the tracker (or the last solved frame carried at its twist when tracking is off), "
+        "the full frame on start, after a failed frame, when a "
         "predicted marker is missing and every aruco.full_frame_every frames",
         read_only=True,
     ),
