@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -51,6 +52,7 @@ def map_markers(
     progress: bool = False,
     videos: Sequence[int] | None = None,
     video_names: Sequence[str] | None = None,
+    up_in_camera: dict | None = None,
 ) -> MarkerMapResult:
     """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
 
@@ -94,6 +96,10 @@ def map_markers(
             (:func:`~rs_localizer.mapping.marker_init.screen_videos`); one whose frames the
             joint initialization cannot place is an error.
         video_names: the videos' names in messages (default ``video 1``, ``video 2``...).
+        up_in_camera: index into ``frames`` -> (3,) unit up direction in that frame's camera
+            (optical frame): the accelerometer's mean specific force while still-ish, rotated
+            by the camera-IMU mounting; the gravity-aligned frame's first source
+            (``options.frame``, :func:`~rs_localizer.mapping.marker_frame.find_up`).
     Returns:
         :class:`MarkerMapResult` in the output frame (``options.anchor`` at
         ``options.anchor_pose``, ``options.anchors`` fitted, or the most detected marker).
@@ -119,7 +125,12 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
-        gauge, _ = choose_gauge(obs_px, options)
+        choose_gauge(obs_px, options)  # (an anchor no frame detects is named)
+        # the adjustment's gauge does not depend on the output frame: the motion tie of the
+        # camera centres is not invariant to where the world's origin lies, so the frame is
+        # applied after the adjustment (the same video gives the same map up to a rigid motion,
+        # the same line delay and the same frames' velocities whatever the output frame)
+        gauge, _ = choose_gauge(obs_px, replace(options, anchor=None, anchors=None))
     except ValueError as e:
         if not refused:
             raise
@@ -135,7 +146,7 @@ def map_markers(
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options))
+    _coarse_adjustment(init, obs_px, camera, options, gauge, (np.eye(3), np.zeros(3)))
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
@@ -153,7 +164,9 @@ def map_markers(
 
     bar.set_postfix_str("covariance")
     t0 = time.perf_counter()
-    framed = frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
+    framed = frame_and_covariance(
+        prob, sol, poses, options, gauge, sides, inconsistent, up_in_camera
+    )
     timings["covariance"] = time.perf_counter() - t0
     bar.update(1)
     bar.close()
@@ -171,7 +184,31 @@ def map_markers(
         t_start,
     )
     result.refused_videos = refused
+    if options.calibrate_readout:
+        from ..estimation.readout import line_delay_verdict
+
+        result.line_delay_std = framed["line_delay_std"]
+        result.readout_verdict = line_delay_verdict(result.line_delay, result.line_delay_std)
+    result.unmapped.update(_never_detected(obs_px, result.unmapped, refused))
     return result
+
+
+def _never_detected(obs_px: dict, unmapped: dict, refused: dict) -> dict:
+    """id -> why, for the ids between 0 and the largest detected id that no frame detected
+    (tags in the room the video missed, named when there are at most 10 and at most half as
+    many as the detected ids: a set of tags numbered from 0 with a few missing)."""
+    ids = {m for d in obs_px.values() for m in d}
+    if not ids:
+        return {}
+    gaps = [m for m in range(max(ids)) if m not in ids and m not in unmapped]
+    if not gaps or len(gaps) > min(10, len(ids) // 2):
+        return {}
+    return {
+        m: f"never detected (ids 0-{max(ids)} otherwise seen"
+        + ("; in the videos kept" if refused else "")
+        + "): if it is in the place, film it from closer"
+        for m in gaps
+    }
 
 
 def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:
@@ -280,16 +317,6 @@ def _marker_poses(prob: MarkerProblem, x: np.ndarray, gauge: int) -> dict:
     return poses
 
 
-def _gauge_pose(options: MappingOptions) -> tuple[np.ndarray, np.ndarray]:
-    """The adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at its pose when one is given
-    (the motion tie of the camera centres is not invariant to where the world's origin lies:
-    the output frame's origin is the one the tie sees), else the gauge marker's own frame."""
-    if options.anchor is not None and options.anchor_pose is not None:
-        Ra, pa = options.anchor_pose
-        return np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3)
-    return np.eye(3), np.zeros(3)
-
-
 def _check_anchors_placed(
     gauge: int, inconsistent: dict, options: MappingOptions, init: MarkerInit
 ) -> None:
@@ -299,6 +326,15 @@ def _check_anchors_placed(
             f"anchor marker {gauge} cannot be placed: detected at places that disagree "
             f"({inconsistent[gauge][0].round(2)} and {inconsistent[gauge][1].round(2)})"
         )
+    a = options.anchor
+    if a is not None and (a in inconsistent or a not in init.markers):
+        why = (
+            f"detected at places that disagree ({inconsistent[a][0].round(2)} and "
+            f"{inconsistent[a][1].round(2)})"
+            if a in inconsistent
+            else init.unmapped.get(a, "not placed")
+        )
+        raise ValueError(f"anchor marker {a} cannot be placed: {why}")
     bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
     if bad:
         raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")

@@ -132,6 +132,13 @@ class MappingOptions:
             in ``MarkerMapResult.unmapped``): its planar two-fold ambiguity and its depth are
             not fixed by one view.
         max_nfev: function-evaluation budget of each ``least_squares`` call.
+        frame: the output frame when neither ``anchor_pose`` nor ``anchors`` is given:
+            ``anchor`` (the anchor's own frame, z out of its face), ``auto`` (gravity-aligned,
+            z up, from the first of the accelerometer, markers on two or more walls, floor
+            markers that the video offers; the anchor's frame with a note when none), or
+            ``imu``, ``walls``, ``floor`` (that source only);
+            :func:`~rs_localizer.mapping.marker_frame.find_up`.
+        floor_markers: ids of markers lying on the floor (up = their normal).
     """
 
     marker_size: float
@@ -159,6 +166,8 @@ class MappingOptions:
     reject_px: float = 3.0
     min_views: int = 2
     max_nfev: int = 60
+    frame: str = "anchor"
+    floor_markers: tuple = ()
 
     def side(self, marker_id: int) -> float:
         """Side length (m) of marker ``marker_id``."""
@@ -171,7 +180,9 @@ class OutputFrame:
 
     Attributes:
         kind: ``anchor`` (one marker at its pose), ``surveyed`` (best fit to surveyed
-            markers) or ``best-observed`` (the most detected marker).
+            markers), ``best-observed`` (the most detected marker) or ``gravity`` (z up,
+            origin at the anchor's centre, x out of its wall:
+            :func:`~rs_localizer.mapping.marker_frame.gravity_transform`).
         anchors: the markers that fix it.
         rotation_std_deg, position_std_mm: the frame's own uncertainty against the map as a
             whole (the rigid best fit of all mapped markers' centres): standard deviation of
@@ -181,6 +192,10 @@ class OutputFrame:
         shared_error_correlation: correlation of the detections' errors from one viewpoint
             (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`) used in the
             covariances.
+        up_source: for ``gravity``, where up comes from: ``imu``, ``walls`` or ``floor``
+            (:func:`~rs_localizer.mapping.marker_frame.find_up`); else ``""``.
+        up_markers: the markers that fix up (walls, floor).
+        note: what fixed up, or why the map is not gravity-aligned (none of the sources).
     """
 
     kind: str
@@ -190,6 +205,9 @@ class OutputFrame:
     covariance: np.ndarray
     residual_mm: float = 0.0
     shared_error_correlation: float = 0.0
+    up_source: str = ""
+    up_markers: list = field(default_factory=list)
+    note: str = ""
 
 
 @dataclass
@@ -212,10 +230,19 @@ class MarkerMapResult:
         angular_velocity, linear_velocity: (K, 3) the camera's own velocities in its optical
             frame (rad/s, m/s); zeros with ``global_shutter``.
         line_delay: seconds between lines (calibrated or the camera's).
+        line_delay_std: its standard deviation (s) with ``calibrate_readout`` (the line
+            delay's marginal of the adjustment's ``(J^T J)^-1``, weighted as the markers'
+            covariance), NaN otherwise. Like ``line_delay`` it does not depend on the output
+            frame (the frame is applied after the adjustment).
+        readout_verdict: with ``calibrate_readout``, why the line delay is not observable
+            (the rule of ``rs-localizer calibrate-readout``:
+            :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;
+            ``None`` without ``calibrate_readout``.
         rmse_px: RMS reprojection error of the detections kept (pixels).
         num_rejected: detections rejected as outliers.
         num_frames_skipped: frames without detections or without a pose.
-        unmapped: id -> why the marker is not in the map.
+        unmapped: id -> why the marker is not in the map: seen in too few frames, or never
+            detected (an id missing between the detected ids 0..max, named when few are).
         inconsistent: id -> two (3,) world positions (m): one id detected at two places
             (left out of the map, never averaged).
         timings: stage -> seconds.
@@ -259,3 +286,5 @@ class MarkerMapResult:
     coverage: dict = field(default_factory=dict)
     marker_shape_std: dict = field(default_factory=dict)
     refused_videos: dict = field(default_factory=dict)
+    line_delay_std: float = float("nan")
+    readout_verdict: str | None = None
