@@ -69,18 +69,19 @@ def map_markers(
     rolling-shutter bundle adjustment of every frame's pose and velocities and every marker's
     6-DoF pose (:mod:`~rs_localizer.mapping.marker_model`: the estimator's model, paper eq. 4)
     with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line delay,
-    consecutive frames tied by the motion model, one marker held fixed (the gauge: the anchor,
-    or the most detected marker); detections whose RMS error exceeds ``reject_px`` are rejected
-    (counted) and the map adjusted again without robust loss (:func:`_adjust_and_reject`); (4)
-    the covariance ``(J^T J)^-1`` of the markers, the reprojection rows scaled by the estimated
-    noise and weighted for the errors that repeat from one viewpoint
-    (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`); (5) the map moved to
-    its output frame (one anchor at its pose, or a best fit to surveyed markers) with every
-    marker's covariance propagated through the frame's own uncertainty
-    (:func:`~rs_localizer.mapping.marker_frame.frame_and_covariance`), and that uncertainty
-    reported; (6) an id whose two groups of views still place it more than max(0.5 m, 3 sides)
-    apart is left out of the map and reported with both places (``inconsistent``, never
-    averaged).
+    consecutive frames tied by the motion model, one marker held fixed (the gauge: the most
+    detected marker not seen at two places, whatever the output frame, so that the output
+    frame does not change the adjustment); detections whose RMS error exceeds ``reject_px`` are
+    rejected (counted) and the map adjusted again without robust loss
+    (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
+    reprojection rows scaled by the estimated noise and weighted for the errors that repeat
+    from one viewpoint (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`);
+    (5) the map moved to its output frame (one anchor at its pose, a best fit to surveyed
+    markers, gravity-aligned) with every marker's covariance propagated through the frame's
+    own uncertainty (:func:`~rs_localizer.mapping.marker_frame.frame_and_covariance`), and
+    that uncertainty reported; (6) an id whose two groups of views still place it more than
+    max(0.5 m, 3 sides) apart is left out of the map and reported with both places
+    (``inconsistent``, never averaged).
 
     Args:
         frames: the video's detections in capture order (:class:`FrameDetections`; pixel
@@ -102,7 +103,8 @@ def map_markers(
             (``options.frame``, :func:`~rs_localizer.mapping.marker_frame.find_up`).
     Returns:
         :class:`MarkerMapResult` in the output frame (``options.anchor`` at
-        ``options.anchor_pose``, ``options.anchors`` fitted, or the most detected marker).
+        ``options.anchor_pose``, ``options.anchors`` fitted, gravity-aligned with
+        ``options.frame``, or the best-observed marker's own frame).
     Raises:
         ValueError: no detections in any frame (wrong dictionary?), an anchor not detected in
             any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
@@ -142,6 +144,11 @@ def map_markers(
     bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
     bar.set_postfix_str("initialization")
     init = initialize(obs_px, obs_n, stamps, options, gauge, camera, videos, video_names)
+    if gauge in init.suspects:  # (an id seen at two places cannot hold the map still)
+        count = {m: sum(m in d for d in obs_px.values()) for m in init.markers}
+        pool = [m for m in init.markers if m not in init.suspects]
+        if pool:  # (the coarse adjustment moves the map onto the new gauge)
+            gauge = max(pool, key=lambda m: (count[m], -m))
     timings["initialization"] = time.perf_counter() - t_start
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")

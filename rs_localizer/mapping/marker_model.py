@@ -15,7 +15,9 @@ are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
 consecutive frames can be tied by the same velocities. A marker is a square of known side:
 its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
 (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The world frame is the anchor marker's frame (or ``anchor_pose``): the anchor is not adjusted.
+The adjustment's world frame is the gauge marker's (the most detected one, not adjusted); the
+output frame (``MappingOptions``: an anchor, surveyed markers, gravity-aligned) is applied after
+the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
 
 The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
 ``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).

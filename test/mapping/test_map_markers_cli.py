@@ -245,9 +245,10 @@ def _z_error_deg(corners: dict, true: dict) -> float:
 @pytest.mark.slow
 def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, capsys):
     """A bag with an accelerometer (render-bag --imu-rate): the default frame is z up from it,
-    or from the aruco_room's three walls with --frame walls; --calibrate-readout prints the
-    line delay with its std and verdict under --quiet, writes it into the map, and gives the
-    same value with the anchor's frame at --anchor-pose."""
+    or from the aruco_room's three walls (--frame walls) or its floor markers (--frame
+    floor); --calibrate-readout prints the line delay with its std and verdict under --quiet,
+    writes it into the map, and gives the same value with the anchor's frame at
+    --anchor-pose."""
     from rs_localizer.maps import load_marker_readout
 
     true, pose = rendered[3], rendered[4]
@@ -262,6 +263,7 @@ def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, ca
     for name, extra in (
         ("imu", []),
         ("walls", ["--frame", "walls"]),
+        ("floor", ["--frame", "floor"]),
         ("anchor", ["--anchor", "0", "--anchor-pose", *pose]),
     ):
         out = tmp_path / f"{name}.yaml"
