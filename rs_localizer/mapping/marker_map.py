@@ -220,7 +220,9 @@ def _never_detected(obs_px: dict, unmapped: dict, refused: dict) -> dict:
 
 def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:
     """A coarse rolling-shutter adjustment (gauge: the starting frame, wide robust scale) that
-    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose``."""
+    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose`` and
+    shifted so that the world's origin is the mean of the camera centres (the adjustment's
+    frame; the output frame is applied after the adjustment)."""
     fr_ids = sorted(init.frames)
     all_ids = sorted(init.markers)
     free = MarkerProblem(
@@ -243,6 +245,12 @@ def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor
         anchor,
         anchor_pose,
     )
+    # the world's origin among the cameras: the motion tie of the world -> camera translation
+    # C = -R c is not invariant to where the origin lies (a turn moves C by the origin's
+    # distance times the rotation), and it holds best with the origin near the camera path
+    centre = np.mean([-R.T @ C for R, C in init.frames.values()], axis=0)
+    Rg, pg = init.markers[anchor]
+    init.frames, init.markers, _ = regauge(init.frames, init.markers, anchor, (Rg, pg - centre))
 
 
 def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, bar) -> tuple:
