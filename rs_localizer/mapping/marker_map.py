@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import replace
 
 import numpy as np
 
@@ -69,9 +68,11 @@ def map_markers(
     rolling-shutter bundle adjustment of every frame's pose and velocities and every marker's
     6-DoF pose (:mod:`~rs_localizer.mapping.marker_model`: the estimator's model, paper eq. 4)
     with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line delay,
-    consecutive frames tied by the motion model, one marker held fixed (the gauge: the most
-    detected marker not seen at two places, whatever the output frame, so that the output
-    frame does not change the adjustment); detections whose RMS error exceeds ``reject_px`` are
+    consecutive frames tied by the motion model (on the camera centres: independent of the
+    world frame), one marker held fixed (the gauge: the anchor, at its pose when given, else the
+    most detected surveyed marker, else the most detected marker, in its own frame; one seen
+    at two places is replaced by the most detected other), the output frame applied afterwards
+    (it changes the solution only within the solver's tolerance); detections whose RMS error exceeds ``reject_px`` are
     rejected (counted) and the map adjusted again without robust loss
     (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
     reprojection rows scaled by the estimated noise and weighted for the errors that repeat
@@ -127,12 +128,11 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
-        choose_gauge(obs_px, options)  # (an anchor no frame detects is named)
-        # the adjustment's gauge does not depend on the output frame: the motion tie of the
-        # camera centres is not invariant to where the world's origin lies, so the frame is
-        # applied after the adjustment (the same video gives the same map up to a rigid motion,
-        # the same line delay and the same frames' velocities whatever the output frame)
-        gauge, _ = choose_gauge(obs_px, replace(options, anchor=None, anchors=None))
+        # the adjustment's cost does not depend on the world frame (the motion tie is on the
+        # camera centres), so the output frame, applied after the adjustment, changes the map
+        # only by a rigid motion and the line delay and the frames' velocities only within the
+        # solver's tolerance
+        gauge, _ = choose_gauge(obs_px, options)
     except ValueError as e:
         if not refused:
             raise
@@ -153,7 +153,7 @@ def map_markers(
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    _coarse_adjustment(init, obs_px, camera, options, gauge, (np.eye(3), np.zeros(3)))
+    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options, gauge))
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
@@ -220,9 +220,8 @@ def _never_detected(obs_px: dict, unmapped: dict, refused: dict) -> dict:
 
 def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:
     """A coarse rolling-shutter adjustment (gauge: the starting frame, wide robust scale) that
-    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose`` and
-    shifted so that the world's origin is the mean of the camera centres (the adjustment's
-    frame; the output frame is applied after the adjustment)."""
+    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose`` (the
+    adjustment's frame; the output frame is applied after the adjustment)."""
     fr_ids = sorted(init.frames)
     all_ids = sorted(init.markers)
     free = MarkerProblem(
@@ -245,12 +244,6 @@ def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor
         anchor,
         anchor_pose,
     )
-    # the world's origin among the cameras: the motion tie of the world -> camera translation
-    # C = -R c is not invariant to where the origin lies (a turn moves C by the origin's
-    # distance times the rotation), and it holds best with the origin near the camera path
-    centre = np.mean([-R.T @ C for R, C in init.frames.values()], axis=0)
-    Rg, pg = init.markers[anchor]
-    init.frames, init.markers, _ = regauge(init.frames, init.markers, anchor, (Rg, pg - centre))
 
 
 def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, bar) -> tuple:
@@ -330,6 +323,16 @@ def _marker_poses(prob: MarkerProblem, x: np.ndarray, gauge: int) -> dict:
     poses = {gauge: (prob.Ra, prob.pa)}
     poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(prob.markers)})
     return poses
+
+
+def _gauge_pose(options: MappingOptions, gauge: int) -> tuple[np.ndarray, np.ndarray]:
+    """The gauge marker's pose in the adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at
+    its pose when it is the gauge and its pose is given (the solver then starts in the output
+    frame), else the gauge marker's own frame."""
+    if options.anchor is not None and options.anchor_pose is not None and gauge == options.anchor:
+        Ra, pa = options.anchor_pose
+        return np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3)
+    return np.eye(3), np.zeros(3)
 
 
 def _check_anchors_placed(

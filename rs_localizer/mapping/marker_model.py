@@ -15,9 +15,10 @@ are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
 consecutive frames can be tied by the same velocities. A marker is a square of known side:
 its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
 (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The adjustment's world frame is the gauge marker's (the most detected one, not adjusted); the
-output frame (``MappingOptions``: an anchor, surveyed markers, gravity-aligned) is applied after
-the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
+The adjustment's world frame is the gauge marker's own (the anchor or the most detected marker,
+not adjusted); the motion tie is written on the camera centres so that it does not depend on
+that frame, and the output frame (``MappingOptions``: an anchor, surveyed markers,
+gravity-aligned) is applied after the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
 
 The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
 ``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).
@@ -119,8 +120,9 @@ class MappingOptions:
             corner offset: where the video's views fix it poorly (markers seen from a narrow
             range of distances) it stays near zero instead of wandering.
         motion_sigma_rot, motion_sigma_pos: standard deviations (rad, m) of the motion-model tie
-            between consecutive frames (the change of pose between their reference lines
-            against the mean of their velocities times the time between them); ``None``
+            between consecutive frames (the change of rotation and of camera centre between
+            their reference lines against the mean of their velocities times the time between
+            them; independent of the world frame); ``None``
             (either): no tie.
         motion_sigma_angular_accel: standard deviation of the camera's angular acceleration
             (rad/s^2) between tied frames: their angular velocities differ by about this times

@@ -1,7 +1,8 @@
 """Marker maps: the rolling-shutter bundle adjustment's problem (parameter layout, corner
 residuals of the estimator's model with the exact rotation, paper eq. 4, the motion tie between
-consecutive frames, the corner offset's prior, the Jacobian's sparsity) solved by SciPy's
-``least_squares`` (model: :mod:`rs_localizer.mapping.marker_model`)."""
+consecutive frames on their camera centres, independent of the world frame, the corner offset's
+prior, the Jacobian's sparsity) solved by SciPy's ``least_squares`` (model:
+:mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
 
@@ -184,7 +185,12 @@ class MarkerProblem:
         j = np.array([b for _, b, _ in self.ties])
         dt = np.array([d for _, _, d in self.ties])[:, None]
         er = matrix_to_rotvec(Rf[j] @ np.swapaxes(Rf[i], 1, 2)) - dt * 0.5 * (W[i] + W[j])
-        ec = Cf[j] - Cf[i] - dt * 0.5 * (T[i] + T[j])
+        # the camera centres c = -R^T C and their velocities R^T (W x C - T) (world axes): the
+        # same residual wherever the world's origin lies (its norm, however the axes turn)
+        Rt = np.swapaxes(Rf, 1, 2)
+        c = -np.einsum("nij,nj->ni", Rt, Cf)
+        v = np.einsum("nij,nj->ni", Rt, np.cross(W, Cf) - T)
+        ec = c[j] - c[i] - dt * 0.5 * (v[i] + v[j])
         o = self.opts
         # the angular velocity changes by about the angular acceleration times the time between
         # frames (without it the mean of two frames' velocities is tied, their difference free)
