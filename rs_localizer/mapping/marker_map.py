@@ -72,8 +72,8 @@ def map_markers(
     world frame), one marker held fixed (the gauge: the anchor, at its pose when given, else the
     most detected surveyed marker, else the most detected marker, in its own frame; one seen
     at two places is replaced by the most detected other), the output frame applied afterwards
-    (it changes the solution only within the solver's tolerance); detections whose RMS error exceeds ``reject_px`` are
-    rejected (counted) and the map adjusted again without robust loss
+    (it changes the solution only within the solver's tolerance); detections whose RMS error
+    exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust loss
     (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
     reprojection rows scaled by the estimated noise and weighted for the errors that repeat
     from one viewpoint (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`);

@@ -284,8 +284,8 @@ def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, ca
     # the output frame does not change the calibrated line delay
     ld = np.array(list(values.values()))
     # (the same adjustment up to its gauge marker and start: within the solver's tolerance)
-    assert np.abs(ld[:, 0] - ld[0, 0]).max() < 0.1 * ld[0, 1]
-    assert np.allclose(ld[:, 1], ld[0, 1], rtol=0.02)
+    assert np.abs(ld[:, 0] - ld[0, 0]).max() < 0.3 * ld[0, 1]
+    assert np.allclose(ld[:, 1], ld[0, 1], rtol=0.05)
     # true: 30 ms over 480 lines
     assert abs(ld[0, 0] - 0.03 / 480) < 3 * ld[0, 1]
     assert load_marker_readout(tmp_path / "no_such.yaml") == {}
