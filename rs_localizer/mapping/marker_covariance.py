@@ -220,8 +220,9 @@ def line_delay_std(prob: MarkerProblem, sol: Any, weights: np.ndarray) -> float:
     the markers' covariance (:func:`_gauge_covariance`: ``weights`` per detection, scaled by
     the estimated pixel noise), every other parameter (frames, markers, corner offset)
     marginalized (a sparse LU solve of ``J^T J x = e``; the dense pseudo-inverse where it is
-    singular). The gauge marker is fixed, and the line delay is invariant to the gauge, so
-    the value does not depend on the output frame. NaN without ``calibrate_readout``."""
+    singular). The gauge marker is fixed; the adjustment's cost, and so the line delay and
+    its std, do not depend on the world frame (the output frame changes them only through the
+    solver's path). NaN without ``calibrate_readout``."""
     if prob.ld_col is None:
         return float("nan")
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]

@@ -236,8 +236,8 @@ class MarkerMapResult:
         line_delay: seconds between lines (calibrated or the camera's).
         line_delay_std: its standard deviation (s) with ``calibrate_readout`` (the line
             delay's marginal of the adjustment's ``(J^T J)^-1``, weighted as the markers'
-            covariance), NaN otherwise. Like ``line_delay`` it does not depend on the output
-            frame (the frame is applied after the adjustment).
+            covariance), NaN otherwise. Like ``line_delay`` it depends on the output frame only
+            through the solver's path (the adjustment's cost does not depend on the frame).
         readout_verdict: with ``calibrate_readout``, why the line delay is not observable
             (the rule of ``rs-localizer calibrate-readout``:
             :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;
