@@ -78,9 +78,11 @@ bench-node: venv
 	$(PY) -m benchmarks.bench_node --frames 300 --solver r6p_1lin
 
 # a new user's first hour: the README's and the docs' shell commands as written (the quick ones;
-# the others are listed with the reason), exit codes and quoted figures checked
+# the others are listed with the reason), exit codes and quoted figures checked; then a marker
+# user's first day as named checks (20-30 min; ARGS="--only gravity_frame", "--skip-slow",
+# "--list")
 newcomer: venv
-	$(PY) tools/newcomer.py
+	$(PY) tools/newcomer.py $(ARGS)
 
 clean:
 	rm -rf build *.egg-info .pytest_cache

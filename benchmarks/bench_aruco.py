@@ -39,11 +39,11 @@ __all__ = ["main", "threshold_steps"]
 
 def threshold_steps(scene, camera, frames: list, steps: list) -> dict:
     """Full-frame detection of ``frames`` with OpenCV's ``adaptiveThreshWinSizeStep`` set to
-    each of ``steps`` (thresholding windows 3..23 px; 10: 3, 13, 23 - the default; 20: 3, 23),
-    interleaved frame by frame. Returns ``{step: (detect times (F,) s, corner errors (N,) px
+    each of ``steps`` (thresholding windows 3..23 px; 10: 3, 13, 23 - OpenCV's default; 20: 3,
+    23 - the front end's), the front end's other settings, interleaved frame by frame.
+    Returns ``{step: (detect times (F,) s, corner errors (N,) px
     against the exact RS projection of the mapped corners, corners found)}``."""
-    from rs_localizer.frontends import cv_compat
-    from rs_localizer.maps import marker_dictionary
+    from rs_localizer.frontends.marker_detection import OpenCVDetector
 
     motion = make_motion("shake", scene, duration=len(frames) / FPS + 0.1)
     r = Renderer(scene, camera, noise=NoiseModel())
@@ -51,7 +51,7 @@ def threshold_steps(scene, camera, frames: list, steps: list) -> dict:
     for step in steps:
         fe = ArucoFrontend.from_scene(scene)
         fe.params.adaptiveThreshWinSizeStep = int(step)
-        fe.detector = cv_compat.MarkerDetector(marker_dictionary(scene.dictionary), fe.params)
+        fe.detector = OpenCVDetector(scene.dictionary, fe.params)
         fes[step] = fe
     out = {step: ([], [], 0) for step in steps}
     for k, f in enumerate(frames):

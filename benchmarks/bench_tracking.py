@@ -44,6 +44,7 @@ from rs_localizer.sim.feature_map import build_feature_map
 from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
 from rs_localizer.sim.render.scene import load_scene
+from rs_localizer.tracking.tracker import CarriedPrediction
 
 __all__ = ["main", "median_ratio_interval", "padded_map", "run_video"]
 
@@ -96,6 +97,7 @@ def run_video(
     its inliers plus the same pixel errors shuffled among them (the errors' sizes kept, their
     arrangement over the image lost)."""
     fe = TrackingFeatureFrontend(fm, tracking=tracking, **kw)
+    carry = CarriedPrediction()  # (the last solved frame carried: the front end's search)
     out = {
         k: []
         for k in (
@@ -122,11 +124,13 @@ def run_video(
         img = np.zeros_like(f.image) if blank else f.image
         stamp = int(round(f.t_first * 1e9))
         t0 = time.perf_counter()
-        uv, X, _ = fe.process(img, camera, encoding="rgb8", stamp_ns=stamp)
+        pred = carry.predict(stamp, camera)
+        uv, X, _ = fe.process(img, camera, encoding="rgb8", stamp_ns=stamp, prediction=pred)
         t1 = time.perf_counter()
         est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 6 else None
         t2 = time.perf_counter()
         fe.observe(stamp, None, est)
+        carry.update(stamp, est)
         rep = fe.report
         out["kind"].append(rep.kind)
         out["tracked"].append(rep.tracked)

@@ -9,6 +9,7 @@ model), the 3D points are in the world/map frame (m).
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -126,11 +127,16 @@ class VideoFrontend(Protocol):
     """What :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` calls on the front end
     of a camera's video, per image frame, in this order:
 
-    1. ``process(image, camera, encoding, stamp_ns)``: the frame's :class:`Correspondences`
-       (``image`` (H, W) or (H, W, C) uint8 in ``encoding``; ``camera`` the frame's
-       :class:`~rs_localizer.camera.CameraModel`; ``stamp_ns`` its header stamp, ns, for a
-       front end that predicts where to search). May raise: the frame is dropped
-       (``frontend_error``), the video goes on.
+    1. ``process(image, camera, encoding, stamp_ns, prediction)``: the frame's
+       :class:`Correspondences` (``image`` (H, W) or (H, W, C) uint8 in ``encoding``;
+       ``camera`` the frame's :class:`~rs_localizer.camera.CameraModel`; ``stamp_ns`` its
+       header stamp, ns). ``prediction``: where the video's tracker expects the camera, the
+       frame's model (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference
+       row, :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`: the one the
+       estimator starts from), for a front end that searches near the predicted pixels
+       (``camera.project_rs(X, *prediction)``); None when nothing predicts the frame (the
+       first frame, a time reset, a gap: search the image whole). A front end keeps no pose
+       of its own. May raise: the frame is dropped (``frontend_error``), the video goes on.
     2. ``pop_warning()``: a warning the front end wants shown once (e.g. a feature map whose
        descriptors do not match the detector's), or None.
     3. ``observe(stamp_ns, pixels, estimate)``: how the frame was solved, after the
@@ -139,7 +145,9 @@ class VideoFrontend(Protocol):
        ``estimate`` (``estimate.inliers`` (M,) the inlier mask over ``pixels``; ``success``
        false on a failed frame) or None when the estimator raised.
 
-    The package's front ends all follow it (:class:`FrontendHooks` gives the no-op hooks).
+    The package's front ends all follow it (:class:`FrontendHooks` gives the no-op hooks; a
+    front end that searches every image whole may leave ``prediction`` out of ``process``:
+    :func:`video_frontend` does not pass it then).
     """
 
     def process(
@@ -148,6 +156,7 @@ class VideoFrontend(Protocol):
         camera: Any = None,
         encoding: str = "bgr8",
         stamp_ns: int | None = None,
+        prediction: Any = None,
     ) -> Any:
         """The frame's :class:`Correspondences`."""
         ...
@@ -175,7 +184,7 @@ class FrontendHooks:
 
 class _PerImage(FrontendHooks):
     """A :class:`Frontend` (``process(image, camera, encoding)`` only) as a
-    :class:`VideoFrontend`: the stamp is not passed on, no hooks."""
+    :class:`VideoFrontend`: the stamp and the prediction are not passed on, no hooks."""
 
     def __init__(self, frontend: Frontend):
         self.frontend = frontend
@@ -186,20 +195,50 @@ class _PerImage(FrontendHooks):
         camera: Any = None,
         encoding: str = "bgr8",
         stamp_ns: int | None = None,
+        prediction: Any = None,
     ) -> Any:
         return self.frontend.process(image, camera, encoding=encoding)
 
 
+class _Unpredicted:
+    """A :class:`VideoFrontend` whose ``process`` takes no ``prediction`` (it searches every
+    image whole): the prediction is not passed on, the hooks are its own."""
+
+    def __init__(self, frontend: Any):
+        self.frontend = frontend
+        self.observe, self.pop_warning = frontend.observe, frontend.pop_warning
+
+    def process(
+        self,
+        image: np.ndarray,
+        camera: Any = None,
+        encoding: str = "bgr8",
+        stamp_ns: int | None = None,
+        prediction: Any = None,
+    ) -> Any:
+        return self.frontend.process(image, camera, encoding=encoding, stamp_ns=stamp_ns)
+
+
+def _takes_prediction(process: Any) -> bool:
+    """``process`` has a ``prediction`` parameter (or takes any keyword)."""
+    try:
+        params = inspect.signature(process).parameters.values()
+    except (TypeError, ValueError):  # (no signature to read: assume the full protocol)
+        return True
+    return any(p.name == "prediction" or p.kind is p.VAR_KEYWORD for p in params)
+
+
 def video_frontend(frontend: Any) -> VideoFrontend:
-    """``frontend`` itself when it is a :class:`VideoFrontend`, else a per-image
-    :class:`Frontend` wrapped into one (its ``process`` called without the stamp, no
-    feedback).
+    """``frontend`` itself when it is a :class:`VideoFrontend` (wrapped so that ``process``
+    is not given the ``prediction`` when it takes none), else a per-image :class:`Frontend`
+    wrapped into one (its ``process`` called without the stamp, no feedback). The signature
+    is read once, here.
 
     Raises:
         TypeError: ``frontend`` has no ``process`` method.
     """
     if isinstance(frontend, VideoFrontend):
-        return frontend
+        return frontend if _takes_prediction(frontend.process) else _Unpredicted(frontend)
     if not isinstance(frontend, Frontend):
         raise TypeError(
             f"a front end needs process(image, camera, encoding), got {type(frontend).__name__}"

@@ -8,6 +8,8 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -45,3 +47,55 @@ def test_every_checked_figure_is_quoted_next_to_its_command():
         assert any(fig.command in c and not nc.why_skipped(c) for c in cmds), fig
         quoted = f"{fig.value:g}"
         assert quoted in text or f"{fig.value}" in text, (fig.page, quoted)
+
+
+def test_the_day_checks_are_listed_and_selectable(capsys):
+    nc = _tool()
+    assert nc.main(["--list", "--only", "day"]) == 0
+    out = capsys.readouterr().out
+    for name, (_slow, fn) in nc.CHECKS.items():
+        assert f"check {name}" in out and fn.__doc__, name
+    assert nc.main(["--list", "--only", "gravity_frame,docs/tools.md"]) == 0
+    out = capsys.readouterr().out
+    assert "check gravity_frame (slow)" in out and "check replay_truth" not in out
+    assert "docs/tools.md: " in out and "README.md: " not in out
+    with pytest.raises(SystemExit):
+        nc.main(["--only", "no_such_check"])
+
+
+def test_the_day_reads_what_the_commands_print():
+    nc = _tool()
+    # the readout line map-markers --calibrate-readout is documented to print
+    line = (
+        "line delay 61.888 +- 1.479 us/line (readout time 29.706 ms) (calibrated, std): observable"
+    )
+    m = nc._READOUT_LINE.search(line)
+    assert m and m.groups() == ("61.888", "1.479", "observable")
+    assert nc._READOUT_LINE.search(line.replace(": observable", ": NOT observable")).group(3) == (
+        "NOT observable"
+    )
+    assert nc._READOUT_LINE.search("line delay 58.60 us, detected corners") is None
+    got = nc._diag_values("  frames_received=30 frames_skipped=0\n  latency_ms_median=1.28 x=a")
+    assert got == {"frames_received": 30.0, "frames_skipped": 0.0, "latency_ms_median": 1.28}
+    # docs/video.md's images-to-poses block is found (check python_example runs it)
+    text = (ROOT / "docs" / "video.md").read_text()
+    assert "process_image(stamp_ns, image, camera, encoding)" in text
+
+
+def test_the_day_geometry_against_independent_computations():
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    nc = _tool()
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        rot = Rotation.random(random_state=rng)
+        q = np.array(nc._quat_from_matrix(rot.as_matrix()))
+        assert min(np.abs(q - rot.as_quat()).max(), np.abs(q + rot.as_quat()).max()) < 1e-9
+    for R in (np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])):
+        q = nc._quat_from_matrix(R)  # (180 deg turns: the w ~ 0 branch)
+        assert np.allclose(Rotation.from_quat(q).as_matrix(), R)
+    src = rng.normal(size=(12, 3))
+    R0, t0 = Rotation.random(random_state=rng).as_matrix(), np.array([1.0, -2.0, 0.5])
+    R, t = nc._rigid_fit(src, src @ R0.T + t0)
+    assert np.allclose(R, R0) and np.allclose(t, t0)

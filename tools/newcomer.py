@@ -1,15 +1,32 @@
 """A new user's first hour, scripted: the shell commands of README.md and docs/*.md, run as
 written (``rs-localizer`` through this interpreter and this checkout), with their exit codes
-and, where the docs quote what a command prints, the figures compared (within 3 %).
+and, where the docs quote what a command prints, the figures compared (within 3 %); then a
+marker user's first day as named checks.
 
-    .venv/bin/python tools/newcomer.py [--list] [--only PAGE] [--timeout S]   # or: make newcomer
+    .venv/bin/python tools/newcomer.py [--list] [--only NAME[,NAME]] [--skip-slow]
+        [--timeout S] [--workdir DIR]                  # or: make newcomer [ARGS="--only day"]
 
 Commands that install or build (pip, make, colcon, rosdep, apt-get), need a ROS install
 (``ros2``), are templates (``BAG``, ``[...]``, ``|``), write into the repository, or take
 minutes (benchmarks: ``python -m benchmarks.X``; experiments, map building, rendering,
 compiling) are listed as skipped with the reason. The node quick start (``rs_localizer_node``
 in one shell, ``play`` in a second one) runs both, the node in the background on a random
-ROS_DOMAIN_ID. Exit status 1 when a command fails or a figure is off.
+ROS_DOMAIN_ID.
+
+The marker user's day: a rolling-shutter RGB camera (``render-bag --scene apriltag_room``,
+640x480, 62.5 us/line, standing in for the user's camera) in a room of AprilTag 36h11 tags,
+taken as the docs tell a new user: ``rs-localizer compile``, the video, ``map-markers
+--calibrate-readout`` (the readout time with its std and verdict, under ``--quiet``, in the
+map, the same with ``--anchor-pose``), the map's gravity-aligned frame, ``replay`` against the
+ground truth, docs/video.md's images-to-poses Python block run as written, ``export-image
+--all`` stamps, ``calibrate-readout``'s errors without a map, ``play --lockstep`` into another
+namespace, ``rs-localizer diagnostics``, the node with viewers subscribed on a 30 Hz video,
+and ``make demo``'s ROS_DOMAIN_ID and figures against the README. Each check prints PASS or
+FAIL with what it measured (REPORT: measured, not judged, e.g. a latency on a loaded shared
+machine), then a summary. ``--only`` runs single pages or checks (``pages``, ``day``: all of
+them; a check runs the steps it needs, e.g. the video and the map), ``--skip-slow`` leaves out
+the day's slow checks (the whole day takes 20-30 min on a 2-core machine). Not part of ``make
+test``. Exit status 1 when a command fails, a figure is off or a check fails.
 """
 
 from __future__ import annotations
@@ -21,12 +38,16 @@ import random
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
@@ -239,6 +260,9 @@ def run_page(page: str, timeout: float, domain: int) -> list[Step]:
         if st.skip:
             missing |= _tmp_paths(st.command)
             continue
+        if node is None and " play " in f" {st.command} " and "--lockstep" in st.command:
+            st.skip = "lock-step with no node running (a node the page starts otherwise)"
+            continue
         _fresh(st.command)
         if "rs_localizer_node" in st.command.split()[0]:
             nxt = steps[k + 1] if k + 1 < len(steps) else None
@@ -312,13 +336,870 @@ def run_page(page: str, timeout: float, domain: int) -> list[Step]:
     return steps
 
 
+# ---------------------------------------------------------------------------------------------
+# A marker user's first day: a rolling-shutter RGB camera (the renderer standing in: 640x480,
+# 62.5 us/line) filming a room of AprilTag 36h11 tags, from the video to a map, the readout
+# time, poses in Python and the node with viewers. Each check prints PASS or FAIL with what it
+# measured (REPORT: measured, not judged).
+
+#: the day's video: ``render-bag`` of the built-in AprilTag room, a hand-held walk
+DAY_FRAMES = 60
+DAY_RENDER = (
+    "rs-localizer render-bag {bag} --scene apriltag_room --frames 60 --motion walk "
+    "--imu-rate 200 --quiet"
+)
+#: node parameters of the image-mode quick start (a marker map on images)
+IMAGE_PARAMS = "config/rs_localizer_images.yaml"
+
+
+class CheckFailed(Exception):
+    """A step a check needs did not work (its message says which and why)."""
+
+
+@dataclass
+class Run:
+    command: str
+    rc: int
+    output: str
+    seconds: float
+
+
+@dataclass
+class Check:
+    name: str
+    verdict: str = "PASS"  # PASS, FAIL, REPORT (measured only), SKIP
+    value: str = ""
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def fail(self, why: str) -> None:
+        self.verdict = "FAIL"
+        self.notes.append(why)
+
+    def expect(self, ok: bool, why: str) -> bool:
+        """Fail with ``why`` unless ``ok``; returns ``ok``."""
+        if not ok:
+            self.fail(why)
+        return bool(ok)
+
+
+def _tail(text: str, n: int = 400) -> str:
+    text = text.strip()
+    return text if len(text) <= n else "..." + text[-n:]
+
+
+def _quat_from_matrix(R: np.ndarray) -> list[float]:
+    """(x, y, z, w) of a rotation matrix (3, 3)."""
+    w = np.sqrt(max(0.0, 1.0 + np.trace(R))) / 2.0
+    if w > 1e-6:
+        return [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
+                (R[1, 0] - R[0, 1]) / (4 * w), w]  # fmt: skip
+    i = int(np.argmax(np.diag(R)))
+    j, k = (i + 1) % 3, (i + 2) % 3
+    q = np.zeros(4)
+    q[i] = np.sqrt(max(0.0, 1.0 + R[i, i] - R[j, j] - R[k, k])) / 2.0
+    q[j] = (R[j, i] + R[i, j]) / (4 * q[i])
+    q[k] = (R[k, i] + R[i, k]) / (4 * q[i])
+    q[3] = (R[k, j] - R[j, k]) / (4 * q[i])
+    return q.tolist()
+
+
+def _rigid_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``R, t`` with ``dst ~ R src + t`` (points (N, 3))."""
+    cs, cd = src.mean(0), dst.mean(0)
+    U, _, Vt = np.linalg.svd((dst - cd).T @ (src - cs))
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return R, cd - R @ cs
+
+
+def _corners(path: Path) -> dict[int, np.ndarray]:
+    import yaml
+
+    data = yaml.safe_load(path.read_text())
+    return {int(m["id"]): np.asarray(m["corners"], float) for m in data["markers"]}
+
+
+class Day:
+    """The day's shared steps, each run once when a check first needs it (the video, the
+    maps, the demo, a node): ``--only`` a single check still runs what it needs."""
+
+    def __init__(self, work: Path, domain: int, timeout: float):
+        self.work, self.domain, self.timeout = work, domain, timeout
+        self._done: dict[str, object] = {}
+        self.ran: list[str] = []  # the commands run for the current check, as typed
+
+    def run(
+        self, cmd: str, timeout: float | None = None, env: dict | None = None, cwd: Path = ROOT
+    ) -> Run:
+        """Run ``cmd`` (an ``rs-localizer`` command line as a user types it) in the checkout;
+        a command that does not answer within the timeout has rc -1."""
+        self.ran.append(cmd)
+        t0 = time.perf_counter()
+        try:
+            argv = [sys.executable, *cmd.split()[1:]] if cmd.startswith("python ") else _argv(cmd)
+            res = subprocess.run(
+                argv,
+                cwd=cwd,
+                env=env or _env(self.domain),
+                capture_output=True,
+                text=True,
+                timeout=timeout or self.timeout,
+            )
+            rc, out = res.returncode, res.stdout + res.stderr
+        except subprocess.TimeoutExpired as e:
+            rc, out = -1, f"no answer within {timeout or self.timeout:g} s " + str(e.output or "")
+        return Run(cmd, rc, out, time.perf_counter() - t0)
+
+    def once(self, key: str, make):
+        if key not in self._done:
+            try:
+                self._done[key] = make()
+            except CheckFailed as e:
+                self._done[key] = e
+        got = self._done[key]
+        if isinstance(got, CheckFailed):
+            raise got
+        return got
+
+    def must(self, cmd: str, timeout: float | None = None) -> Run:
+        r = self.run(cmd, timeout)
+        if r.rc != 0:
+            raise CheckFailed(f"`{cmd}` exit code {r.rc}: {_tail(r.output)}")
+        return r
+
+    # -- the video, as the user's camera would record it
+    def bag(self) -> Path:
+        def make():
+            bag = self.work / "apriltag_room"
+            if bag.exists():
+                shutil.rmtree(bag)
+            r = self.must(DAY_RENDER.format(bag=bag), max(self.timeout, 600))
+            self._done["render_seconds"] = r.seconds
+            return bag
+
+        return self.once("bag", make)
+
+    def truth(self) -> dict:
+        """What the user knows of their camera and tags: the tags' sizes (printed), and for
+        checking only: the true line delay and the tags' true corners (the renderer's)."""
+
+        def make():
+            bag = self.bag()
+            info = json.loads((bag / "sequence.json").read_text())
+            corners = _corners(bag / info["frontend"]["map"])
+            sizes = {m: float(np.linalg.norm(c[0] - c[1])) for m, c in corners.items()}
+            common = max(set(np.round(list(sizes.values()), 3)), key=list(
+                np.round(list(sizes.values()), 3)).count)  # fmt: skip
+            others = ",".join(f"{m}:{s:.3f}" for m, s in sizes.items() if abs(s - common) > 1e-4)
+            return {
+                "line_delay": float(info["rs"]["line_delay"]),
+                "corners": corners,
+                "size_args": f"--marker-size {common:.3f} --marker-sizes {others}",
+                "info": info,
+            }
+
+        return self.once("truth", make)
+
+    def map_default(self) -> tuple[Path, Run]:
+        """map-markers as the docs' first map: default frame, readout calibrated, report."""
+
+        def make():
+            out = self.work / "markers.yaml"
+            cmd = (
+                f"rs-localizer map-markers {self.bag()} -o {out} {self.truth()['size_args']} "
+                f"--calibrate-readout --report {self.work / 'report'} --overwrite"
+            )
+            return out, self.must(cmd, max(self.timeout, 1200))
+
+        return self.once("map_default", make)
+
+    def map_anchored(self) -> tuple[Path, Run]:
+        """The same video, the map put into the room's frame by the anchor's surveyed pose
+        (a pure change of the output frame), under ``--quiet``."""
+
+        def make():
+            import yaml
+
+            first, _ = self.map_default()
+            anchor = int(yaml.safe_load(first.read_text()).get("anchor", -1))
+            c = self.truth()["corners"].get(anchor)
+            if c is None:
+                raise CheckFailed(f"the first map's anchor {anchor} is not a tag of the room")
+            x = (c[1] - c[0]) / np.linalg.norm(c[1] - c[0])  # TL -> TR: right on the face
+            y = (c[0] - c[3]) / np.linalg.norm(c[0] - c[3])  # BL -> TL: up on the face
+            R = np.column_stack([x, y, np.cross(x, y)])
+            pose = " ".join(f"{v:.6f}" for v in [*c.mean(0), *_quat_from_matrix(R)])
+            out = self.work / "markers_room.yaml"
+            cmd = (
+                f"rs-localizer map-markers {self.bag()} -o {out} {self.truth()['size_args']} "
+                f"--calibrate-readout --anchor {anchor} --anchor-pose {pose} --quiet --overwrite "
+                f"--report {self.work / 'report_room'}"
+            )
+            return out, self.must(cmd, max(self.timeout, 1200))
+
+        return self.once("map_anchored", make)
+
+    def demo(self, user_domain: int) -> Run:
+        def make():
+            env = _env(self.domain)
+            env["ROS_DOMAIN_ID"] = str(user_domain)
+            return self.run("rs-localizer demo", max(self.timeout, 900), env=env)
+
+        return self.once("demo", make)
+
+    def node(self, ros_args: str, timeout: float = 120.0):
+        """Start ``rs_localizer_node --ros-args ROS_ARGS`` in the background; returns
+        ``(process, output lines, seconds to ready:)``."""
+        cmd = f"rs_localizer_node --ros-args {ros_args}"
+        self.ran.append(cmd + " &")
+        proc = subprocess.Popen(
+            _argv(cmd),
+            cwd=ROOT,
+            env=_env(self.domain),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        lines: list[str] = []
+        threading.Thread(target=lines.extend, args=(proc.stdout,), daemon=True).start()
+        t0 = time.perf_counter()
+        while not any("ready:" in ln for ln in lines):
+            if proc.poll() is not None or time.perf_counter() - t0 > timeout:
+                _stop(proc)
+                raise CheckFailed(f"the node did not start: {_tail(''.join(lines))}")
+            time.sleep(0.1)
+        return proc, lines, time.perf_counter() - t0
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _diag_values(text: str) -> dict[str, float]:
+    """The numeric key=value pairs ``rs-localizer diagnostics`` printed (the last of each)."""
+    out = {}
+    for k, v in re.findall(r"([\w.<>-]+)=([-+\d.eE]+|nan|inf)\b", text):
+        out[k] = float(v)  # (the pattern takes numbers only)
+    return out
+
+
+# ---- the checks, in the order of the day
+
+
+def check_compile(day: Day, c: Check) -> None:
+    """`rs-localizer compile` (the README's install step) on an empty kernel cache, as right
+    after the install: in a copy of the package without its `__pycache__` (the checkout's is
+    warm from the pages' commands, and a cache folder of its own would be seeded from it): its
+    time against the 60 s target (report-only on a loaded machine); then as written, for the
+    checkout's cache the later checks use."""
+    before = os.getloadavg()[0]  # (others' load: the compile's own comes after)
+    cold = day.work / "cold_install"
+    shutil.rmtree(cold, ignore_errors=True)
+    shutil.copytree(
+        ROOT / "rs_localizer", cold / "rs_localizer", ignore=shutil.ignore_patterns("__pycache__")
+    )
+    env = _env(day.domain)
+    env["PYTHONPATH"] = str(cold)
+    env.pop("NUMBA_CACHE_DIR", None)
+    r = day.run("rs-localizer compile", max(day.timeout, 900), env=env, cwd=cold)
+    day.ran[-1] = f"(cd {cold}: the package copied without __pycache__) {day.ran[-1]}"
+    cores = os.cpu_count() or 1
+    c.value = (
+        f"{r.seconds:.0f} s on an empty cache (target <= 60 s; load {before:.1f} on {cores} "
+        "cores before)"
+    )
+    if not c.expect(r.rc == 0, f"exit code {r.rc}: {_tail(r.output)}"):
+        return
+    c.notes += [
+        m.strip() for m in re.findall(r"^(?:numba cache:|.*: ready in ).*$", r.output, re.M)
+    ]
+    if r.seconds > 60 and before > 0.5 * cores:
+        c.verdict = "REPORT"
+        c.notes.append("over 60 s on a loaded machine: not judged (run again on a quiet one)")
+    else:
+        c.expect(r.seconds <= 60, f"compile took {r.seconds:.0f} s > 60 s on a quiet machine")
+    again = day.run("rs-localizer compile", max(day.timeout, 900))
+    c.notes.append(f"into the checkout's cache: {again.seconds:.0f} s")
+    c.expect(again.rc == 0, f"exit code {again.rc}: {_tail(again.output)}")
+
+
+def check_scenes_listed(day: Day, c: Check) -> None:
+    """`render-bag -h` lists every built-in scene; tools.md lists them too; the scene YAML
+    format has its documented section."""
+    scenes = sorted(p.stem for p in (ROOT / "rs_localizer" / "scenes").glob("*.yaml"))
+    r = day.run("rs-localizer render-bag -h")
+    helptext = re.sub(r"\s+", " ", r.output)
+    missing = [s for s in scenes if s not in helptext]
+    tools = (ROOT / "docs" / "tools.md").read_text()
+    undocumented = [s for s in scenes if f"`{s}`" not in tools]
+    c.value = f"{len(scenes) - len(missing)}/{len(scenes)} built-in scenes in render-bag -h"
+    c.expect(r.rc == 0, f"render-bag -h: exit code {r.rc}")
+    c.expect(not missing, f"render-bag -h does not list {missing}")
+    c.expect(not undocumented, f"docs/tools.md (render-bag) does not list {undocumented}")
+    c.expect("apriltag_room" in scenes, "no built-in AprilTag room")
+    images = (ROOT / "docs" / "images.md").read_text()
+    c.expect(
+        re.search(r"^#+ Scene files", images, re.M | re.I) and "apriltag" in images.lower(),
+        "docs/images.md has no 'Scene files' section with an AprilTag room",
+    )
+
+
+def check_render(day: Day, c: Check) -> None:
+    """The day's video: the AprilTag room rendered as the user's camera would record it."""
+    bag = day.bag()
+    info = day.truth()["info"]
+    cam = info["camera"]
+    c.value = (
+        f"{info['frames']} frames {cam['width']}x{cam['height']}, "
+        f"{1e6 * info['rs']['line_delay']:.1f} us/line, {len(day.truth()['corners'])} tags, "
+        f"{day._done.get('render_seconds', 0):.0f} s"
+    )
+    c.expect(info["frames"] == DAY_FRAMES, f"{info['frames']} frames written of {DAY_FRAMES}")
+    c.expect((bag / "metadata.yaml").exists(), "no bag written")
+
+
+_READOUT_LINE = re.compile(
+    r"line delay ([\d.]+) \+- ([\d.]+) us/line.*?:\s*(NOT observable|not observable|observable)"
+)
+
+
+def check_readout_calibrated(day: Day, c: Check) -> None:
+    """`map-markers --calibrate-readout` prints the line delay with its std and an observable
+    verdict; an observable value lies within 3 std (or 2 %) of the truth."""
+    _, r = day.map_default()
+    true = day.truth()["line_delay"] * 1e6
+    m = _READOUT_LINE.search(r.output)
+    if not m:
+        plain = re.search(r"line delay ([\d.]+) us", r.output)
+        c.value = (
+            f"{plain.group(1)} us/line (true {true:.2f})" if plain else "no line delay printed"
+        )
+        c.fail("no 'line delay X +- STD us/line ...: observable|NOT observable' line")
+        return
+    val, std, verdict = float(m.group(1)), float(m.group(2)), m.group(3)
+    err = (val - true) / true
+    c.value = f"{val:.2f} +- {std:.2f} us/line ({verdict}), true {true:.2f} ({100 * err:+.1f} %)"
+    if verdict == "observable":
+        c.expect(
+            abs(val - true) <= max(3 * std, 0.02 * true),
+            f"off the truth by {abs(val - true) / std:.1f} std and {100 * abs(err):.1f} %",
+        )
+
+
+def check_readout_quiet(day: Day, c: Check) -> None:
+    """`--quiet` still prints the readout line (it is the command's result)."""
+    _, r = day.map_anchored()
+    m = _READOUT_LINE.search(r.output)
+    c.value = m.group(0) if m else "nothing printed under --quiet"
+    c.expect(m is not None, "map-markers --calibrate-readout --quiet prints no readout line")
+
+
+def check_readout_in_map(day: Day, c: Check) -> None:
+    """The calibrated readout is written into the map (its `readout` entry)."""
+    import yaml
+
+    path, _ = day.map_default()
+    ro = yaml.safe_load(path.read_text()).get("readout") or {}
+    c.value = json.dumps(ro) if ro else "no readout entry in the map"
+    need = {"line_delay_s", "readout_time_s", "calibrated", "line_delay_std_s", "observable"}
+    c.expect(not need - set(ro), f"the map's readout entry lacks {sorted(need - set(ro))}")
+    c.expect(ro.get("calibrated") is True, "readout.calibrated is not true")
+
+
+def check_readout_frame_invariant(day: Day, c: Check) -> None:
+    """The same video with and without `--anchor-pose` (a pure change of the output frame)
+    gives the same line delay (relative difference <= 1e-4)."""
+    import yaml
+
+    _, a = day.map_default()
+    _, b = day.map_anchored()
+    vals = []
+    for r, report in ((a, "report"), (b, "report_room")):
+        m = _READOUT_LINE.search(r.output) or re.search(r"line delay ([\d.]+) us", r.output)
+        if m is None:  # (not printed: the report's value)
+            c.notes.append(f"`{r.command[:60]}...` printed no line delay: read its report.yaml")
+            rep = yaml.safe_load((day.work / report / "report.yaml").read_text())
+            m = [None, 1e6 * float(rep["line_delay_s"])] if "line_delay_s" in rep else None
+        vals.append(float(m[1]) if m else None)
+    if None in vals:
+        c.value = f"default frame {vals[0]}, --anchor-pose {vals[1]} us/line"
+        c.fail("no line delay from both runs")
+        return
+    rel = abs(vals[0] - vals[1]) / vals[0]
+    c.value = f"{vals[0]:.3f} vs {vals[1]:.3f} us/line with --anchor-pose (rel. diff {rel:.1e})"
+    c.expect(rel <= 1e-4, "the output frame changes the line delay")
+
+
+def check_gravity_frame(day: Day, c: Check) -> None:
+    """The map's frame is gravity-aligned by default (z up, REP 105), the choice printed:
+    the map's z axis against the room's up after a rigid fit of the map onto the true tags."""
+    import yaml
+
+    path, r = day.map_default()
+    data = yaml.safe_load(path.read_text())
+    frame = data.get("frame") or {}
+    got, truth = _corners(path), day.truth()["corners"]
+    ids = sorted(set(got) & set(truth))
+    R, _ = _rigid_fit(np.vstack([got[m] for m in ids]), np.vstack([truth[m] for m in ids]))
+    tilt = float(np.degrees(np.arccos(np.clip((R @ [0, 0, 1.0])[2], -1, 1))))
+    printed = re.search(r"^\s*map frame:.*$", r.output, re.M)  # (its own line)
+    c.value = (
+        f"frame kind {frame.get('kind')!r}, map z {tilt:.2f} deg from up ({len(ids)} tags fitted)"
+    )
+    c.expect(frame.get("kind") == "gravity", f"frame kind {frame.get('kind')!r}, not 'gravity'")
+    c.expect(tilt <= 2.0, f"the map's z axis is {tilt:.1f} deg from up (> 2 deg)")
+    c.expect(printed is not None, "map-markers does not print the frame it chose ('map frame:')")
+    if printed:
+        c.notes.append(printed.group(0).strip())
+
+
+def _replay(day: Day, map_path: Path) -> dict:
+    r = day.run(
+        f"rs-localizer replay {day.bag()} --source image -p frontend:=aruco "
+        f"-p frontend_map:={map_path} --json --quiet",
+        max(day.timeout, 600),
+    )
+    if r.rc != 0:
+        raise CheckFailed(f"replay exit code {r.rc}: {_tail(r.output)}")
+    start = r.output.find("{\n")
+    try:
+        return json.JSONDecoder().raw_decode(r.output[start:])[0]
+    except ValueError:
+        raise CheckFailed(f"replay printed no JSON: {_tail(r.output)}") from None
+
+
+def check_replay_truth(day: Day, c: Check) -> None:
+    """`replay` against the bag's ground truth: small errors with the map in the room's frame
+    (`--anchor-pose`); with the default map (another frame than the truth's) it says so and
+    gives the errors after a rigid fit of the frames."""
+    room, _ = day.map_anchored()
+    s = _replay(day, room)
+    rot, pos = s["rot_deg"]["median"], 100 * s["pos_m"]["median"]
+    vals = [f"room frame: {s['solved']}/{s['frames_total']} solved, {rot:.3f} deg, {pos:.2f} cm"]
+    c.expect(s["solved"] >= 0.95 * s["frames_total"], f"room frame: solved {s['solved']}")
+    c.expect(
+        rot <= 0.5 and pos <= 5,
+        f"room frame: median {rot:.3f} deg, {pos:.2f} cm (> 0.5 deg or 5 cm)",
+    )
+    own, _ = day.map_default()
+    s = _replay(day, own)
+    rot, pos = s["rot_deg"]["median"], 100 * s["pos_m"]["median"]
+    fit = s.get("frame_fit")
+    if fit and fit.get("aligned"):
+        a = fit["aligned"]
+        frot, fpos = a["rot_deg"]["median"], 100 * a["pos_m"]["median"]
+        vals.append(f"map's own frame: raw {rot:.3g} deg, {pos:.3g} cm; after the rigid fit "
+                    f"{frot:.3f} deg, {fpos:.2f} cm")  # fmt: skip
+        c.expect(frot <= 0.5 and fpos <= 5, "errors after the rigid fit > 0.5 deg or 5 cm")
+        c.expect(
+            fit.get("other_frame") == (rot > 1 or pos > 5),
+            "other_frame disagrees with the raw errors",
+        )
+    else:
+        vals.append(f"map's own frame: raw {rot:.3g} deg, {pos:.3g} cm, no rigid fit reported")
+        c.expect(
+            rot <= 1 and pos <= 5,
+            "the ground truth is in another frame than the map's and replay reports no errors "
+            "after a rigid fit of the frames (no 'frame_fit' in --json)",
+        )
+    c.value = "; ".join(vals)
+
+
+def check_python_example(day: Day, c: Check) -> None:
+    """docs/video.md's 'images to poses' Python block, run as written; its poses against the
+    bag's ground truth."""
+    text = (ROOT / "docs" / "video.md").read_text()
+    blocks = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "process_image" in b]
+    if not c.expect(blocks, "docs/video.md has no Python block with process_image"):
+        return
+    check = """
+from rs_localizer.ros.bags.bag_io import load_ground_truth
+from rs_localizer.geometry import rotation_angle_deg
+import numpy as _np
+_gt = load_ground_truth(bag)
+_rot, _pos = [], []
+for _s, _p in poses.items():
+    _k = _gt.nearest(_s)
+    if _k is not None:
+        _rot.append(rotation_angle_deg(_p.orientation, _gt.orientation[_k]))
+        _pos.append(float(_np.linalg.norm(_p.position - _gt.position[_k])))
+print("NEWCOMER", len(poses), info["frames"], _np.median(_rot), _np.median(_pos), len(_rot))
+"""
+    script = day.work / "video_example.py"
+    script.write_text(blocks[0] + check)
+    r = day.run(f"python {script}")
+    m = re.search(r"NEWCOMER (\d+) (\d+) ([\d.eE+-]+|nan) ([\d.eE+-]+|nan) (\d+)", r.output)
+    if not c.expect(r.rc == 0 and m, f"exit code {r.rc}: {_tail(r.output)}"):
+        return
+    n, total, rot, pos = int(m.group(1)), int(m.group(2)), float(m.group(3)), float(m.group(4))
+    c.value = f"{n}/{total} frames with a pose, median {rot:.3f} deg, {100 * pos:.2f} cm"
+    c.expect(n >= 0.9 * total, f"only {n} of {total} frames got a pose")
+    c.expect(rot <= 0.5 and pos <= 0.05, "poses off the ground truth (> 0.5 deg or 5 cm)")
+
+
+def check_export_stamps(day: Day, c: Check) -> None:
+    """`export-image --all` keeps each image's stamp (stamps.csv), equal to the bag's."""
+    out = day.work / "frames"
+    if out.exists():
+        shutil.rmtree(out)
+    bag = ROOT / "data" / "sample_images"
+    r = day.run(f"rs-localizer export-image {bag} {out} --all --quiet")
+    if not c.expect(r.rc == 0, f"exit code {r.rc}: {_tail(r.output)}"):
+        return
+    images = sorted(out.glob("*.png"))
+    csv = out / "stamps.csv"
+    if not c.expect(csv.exists(), f"{len(images)} images and no stamps.csv"):
+        c.value = f"{len(images)} images, no stamps"
+        return
+    rows = [ln.split(",") for ln in csv.read_text().splitlines() if ln.strip()]
+    stamps = [int(x[-1]) for x in rows if x[-1].strip().isdigit()]
+    info = json.loads((bag / "sequence.json").read_text())
+    start = int(round(float(info["settings"].get("start_time", 1700000000.0)) * 1e9))
+    c.value = f"{len(images)} images, {len(stamps)} stamps in stamps.csv"
+    c.expect(len(stamps) == len(images) == info["frames"], "a stamp per image, per frame")
+    c.expect(stamps == sorted(stamps) and len(set(stamps)) == len(stamps), "stamps not increasing")
+    c.expect(
+        bool(stamps) and abs(stamps[0] - start) < 10**9,
+        f"first stamp {stamps[:1]} not the video's start {start}",
+    )
+
+
+def check_readout_howto(day: Day, c: Check) -> None:
+    """The readout-time how-to (docs/video.md) starts from what a user without a map has:
+    `map-markers --calibrate-readout`."""
+    text = (ROOT / "docs" / "video.md").read_text()
+    sec = text.split("### What is my camera's readout time?", 1)[-1].split("\n## ", 1)[0]
+    sec = sec.split("| camera |", 1)[0]  # (the prose before the table)
+    ok = "map-markers" in sec and "--calibrate-readout" in sec
+    c.value = "names map-markers --calibrate-readout" if ok else "only calibrate-readout"
+    c.expect(
+        ok, "docs/video.md's readout how-to does not start from map-markers --calibrate-readout"
+    )
+
+
+def check_calibrate_errors(day: Day, c: Check) -> None:
+    """`calibrate-readout` on an image bag without a marker map (a recording: no
+    sequence.json): the error names what is missing."""
+    src = ROOT / "data" / "sample_images"
+    bag = day.work / "recording"
+    if bag.exists():
+        shutil.rmtree(bag)
+    bag.mkdir()
+    for f in src.iterdir():  # the camera's recording: images, no sequence.json, no map
+        if f.name == "metadata.yaml" or f.suffix in (".mcap", ".db3"):
+            shutil.copy(f, bag / f.name)
+    said = []
+    for cmd, want, what in (
+        (f"rs-localizer calibrate-readout {bag} --source image --frontend aruco",
+         r"--frontend-map|marker map|\bmap\b", "the map"),
+        (f"rs-localizer calibrate-readout {bag} --source image", r"--frontend\b|front end",
+         "the front end"),
+    ):  # fmt: skip
+        r = day.run(cmd)
+        msg = _tail(r.output, 300).replace("\n", " ")
+        said.append(msg)
+        c.expect(r.rc not in (0, -1), f"`{cmd}` exit code {r.rc}")
+        c.expect(re.search(want, r.output, re.I), f"`{cmd}` does not name {what}: {msg}")
+        if what == "the map":
+            c.expect(
+                "no front end given" not in r.output,
+                f"`{cmd}` says 'no front end given' (one was)",
+            )
+    c.value = " | ".join(said)
+
+
+def check_lockstep_ns(day: Day, c: Check) -> None:
+    """`play --lockstep` into another namespace waits on that namespace's pose topic: a node
+    in /robot/camera answers every frame played with `--remap __ns:=/robot`, a node in /robot
+    every frame played with its topics remapped there; played where no node runs it stops
+    within a minute with a clear message (the 30 s wait for a subscriber included)."""
+    base = "--params-file config/rs_localizer.yaml -r __ns:="
+    nodes = []
+    answered = []
+    try:
+        nodes.append(day.node(base + "/robot/camera")[0])
+        nodes.append(day.node(base + "/robot")[0])
+        for how, remap in (
+            ("__ns", "__ns:=/robot"),
+            ("remaps", "/camera/correspondences:=/robot/correspondences "
+                       "/camera/camera_info:=/robot/camera_info"),
+        ):  # fmt: skip
+            r = day.run(f"rs-localizer play data/sample --lockstep --remap {remap}", 300)
+            m = re.search(r"(\d+) answered, (\d+) timed out", r.output)
+            ans = f"{m.group(1)} answered, {m.group(2)} timed out" if m else "no count"
+            answered.append(f"{how}: {ans}")
+            c.expect(
+                r.rc == 0 and m and int(m.group(1)) == 30,
+                f"play with --remap {remap}: {_tail(r.output, 300)}",
+            )
+        d = day.run("rs-localizer diagnostics --ns /robot/camera --once --timeout 20", 60)
+        day._done["diagnostics"] = d
+        t0 = time.perf_counter()
+        r2 = day.run("rs-localizer play data/sample --lockstep --remap __ns:=/nobody", 300)
+        waited = time.perf_counter() - t0
+        clear = re.search(r"no node answered", r2.output)
+        c.expect(r2.rc != 0 and clear, f"into /nobody: no clear stop: {_tail(r2.output, 300)}")
+        c.expect(waited <= 60, f"into /nobody: gave up after {waited:.0f} s (> 60 s)")
+        c.value = "; ".join(answered) + f"; into /nobody: stopped after {waited:.1f} s"
+        if clear:
+            c.notes.append(next(ln for ln in r2.output.splitlines() if clear.group(0) in ln))
+    finally:
+        for node in nodes:
+            _stop(node)
+
+
+def check_diagnostics(day: Day, c: Check) -> None:
+    """`rs-localizer diagnostics` prints a running node's counters (the /robot/camera node of
+    lockstep_ns after its 30 frames)."""
+    if "diagnostics" not in day._done:
+        check_lockstep_ns(day, Check("lockstep_ns"))
+    d = day._done.get("diagnostics")
+    if d is None:
+        c.fail("the node of lockstep_ns did not run")
+        return
+    v = _diag_values(d.output)
+    c.value = ", ".join(f"{k}={v[k]:g}" for k in ("frames_received", "frames_solved",
+                                                  "latency_ms_median") if k in v)  # fmt: skip
+    c.expect(d.rc == 0, f"exit code {d.rc}: {_tail(d.output, 300)}")
+    c.expect(v.get("frames_received") == 30, f"frames_received {v.get('frames_received')} of 30")
+
+
+def _viewer_run(day: Day, viewers: bool) -> dict:
+    """The node on the day's video played at 30 Hz (not lock-step), with or without a viewer
+    subscribed to debug_image, markers and path; the node's diagnostics at the end."""
+    bag = day.bag()
+    fmap = day.map_anchored()[0]
+    node, _, ready = day.node(
+        f"--params-file config/rs_localizer.yaml --params-file {IMAGE_PARAMS} -r __ns:=/camera "
+        f"-r image:=image_raw -p frontend_map:={fmap}"
+    )
+    viewer = None
+    try:
+        if viewers:
+            day.ran.append("(a viewer subscribing /camera/debug_image, markers and path)")
+            viewer = subprocess.Popen(
+                [sys.executable, "-c", _VIEWER],
+                cwd=ROOT,
+                env=_env(day.domain),
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
+            time.sleep(3.0)  # (discovery)
+        day.must(f"rs-localizer play {bag} --topics /camera/image_raw /camera/camera_info", 120)
+        time.sleep(2.0)
+        d = day.run("rs-localizer diagnostics --ns /camera --once --timeout 20", 60)
+        counts = ""
+        if viewer is not None:
+            viewer.send_signal(signal.SIGINT)
+            counts = viewer.communicate(timeout=15)[0]
+        v = _diag_values(d.output)
+        v["ready_s"] = ready
+        m = re.search(r"VIEWER (\d+) (\d+) (\d+)", counts)
+        v["viewer"] = tuple(map(int, m.groups())) if m else None
+        return v
+    finally:
+        if viewer is not None and viewer.poll() is None:
+            viewer.kill()
+        _stop(node)
+
+
+_VIEWER = """
+import signal, rclpy
+from rclpy.qos import qos_profile_sensor_data as q
+from sensor_msgs.msg import Image
+from visualization_msgs.msg import MarkerArray
+from nav_msgs.msg import Path
+rclpy.init()
+n = rclpy.create_node("newcomer_viewer")
+c = [0, 0, 0]
+def sub(t, topic, i):
+    def cb(_m):
+        c[i] += 1
+    n.create_subscription(t, topic, cb, q)
+sub(Image, "/camera/debug_image", 0)
+sub(MarkerArray, "/camera/markers", 1)
+sub(Path, "/camera/path", 2)
+try:
+    rclpy.spin(n)
+except (KeyboardInterrupt, Exception):
+    pass
+print("VIEWER", *c, flush=True)
+"""
+
+
+def check_viewers(day: Day, c: Check) -> None:
+    """The node on a 30 Hz 640x480 marker video keeps every frame with debug_image, markers
+    and path subscribed: fails when frames are dropped with viewers and not without (or many
+    more); when the node drops frames without viewers too, the machine does not keep up and
+    it is reported, not judged. The latency median rise (<= 2 ms) is measured and reported
+    only (a shared machine's load moves it more than that)."""
+    _viewer_run(day, viewers=False)  # warm-up: a first node's start loads and caches kernels
+    base = _viewer_run(day, viewers=False)
+    seen = _viewer_run(day, viewers=True)
+    n = DAY_FRAMES
+
+    def dropped(v):
+        return (
+            n - v.get("frames_received", 0) + v.get("frames_skipped", 0) + v.get("messages_lost", 0)
+        )
+
+    def desc(v):
+        return (f"received {v.get('frames_received', 0):g}/{n}, skipped "
+                f"{v.get('frames_skipped', 0):g}, lost {v.get('messages_lost', 0):g}, latency "
+                f"median {v.get('latency_ms_median', float('nan')):.1f} ms")  # fmt: skip
+
+    rise = seen.get("latency_ms_median", np.nan) - base.get("latency_ms_median", np.nan)
+    c.value = f"with viewers: {desc(seen)}; without: {desc(base)}; median rise {rise:+.1f} ms"
+    c.notes.append(
+        f"REPORT (not judged on a shared machine): latency median rise {rise:+.1f} ms "
+        f"(target <= 2 ms); node ready in {base['ready_s']:.1f} / {seen['ready_s']:.1f} s "
+        "(README: ~2.5 s)"
+    )
+    if seen.get("viewer"):
+        c.notes.append("the viewer got debug_image/markers/path: {}/{}/{}".format(*seen["viewer"]))
+    c.expect(seen.get("viewer") and min(seen["viewer"]) > 0, "the viewer received nothing")
+    lost, lost0 = dropped(seen), dropped(base)
+    if lost0 == 0:
+        c.expect(lost == 0, f"with viewers {lost} of {n} frames were not solved (none without)")
+    elif lost > lost0 + max(2, n // 10):
+        c.fail(f"with viewers {lost} of {n} frames were not solved, without {lost0}")
+    elif c.verdict == "PASS":
+        c.verdict = "REPORT"
+        c.notes.append(
+            f"not judged: the node drops frames without viewers too ({lost0} of {n}; load "
+            f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores), with viewers {lost}: the "
+            "machine does not keep up at 30 Hz; run again on a quieter one"
+        )
+
+
+def check_demo_domain(day: Day, c: Check) -> None:
+    """`make demo` (`rs-localizer demo`) keeps a ROS_DOMAIN_ID the user set."""
+    make = subprocess.run(["make", "-n", "demo"], cwd=ROOT, capture_output=True, text=True)
+    recipe = [ln for ln in make.stdout.splitlines() if " demo" in ln]
+    c.expect(not any("ROS_DOMAIN_ID" in ln for ln in recipe), f"make demo sets it: {recipe}")
+    user = 1 + (day.domain + 50) % 100  # (another id than the checker's own)
+    r = day.demo(user)
+    used = sorted(set(re.findall(r"ROS_DOMAIN_ID=(\d+)", r.output)))
+    c.value = f"set {user}, the demo used {', '.join(used) or 'nothing printed'}"
+    c.expect(r.rc == 0, f"demo exit code {r.rc}: {_tail(r.output)}")
+    c.expect(used == [str(user)], "the demo did not keep the user's ROS_DOMAIN_ID")
+
+
+def check_demo_figures(day: Day, c: Check) -> None:
+    """The README's rotation-accuracy ratio range holds what `make demo` prints (both parts),
+    and after `rs-localizer compile` the demo does not ask for it again."""
+    r = day.demo(1 + (day.domain + 50) % 100)
+    ratios = [float(x) for x in re.findall(r"median rotation error ([\d.]+)x smaller", r.output)]
+    readme = (ROOT / "README.md").read_text()
+    m = re.search(r"it is ([\d.]+)-([\d.]+)x more accurate\s+in rotation", readme)
+    c.value = f"demo prints {ratios}x; README says {m.group(1)}-{m.group(2)}x" if m else f"{ratios}"
+    if not c.expect(m, "README states no 'X-Yx more accurate in rotation' range"):
+        return
+    lo, hi = float(m.group(1)), float(m.group(2))
+    half = 0.5 * 10.0 ** -len(m.group(2).partition(".")[2])  # (the README's rounding)
+    c.expect(len(ratios) == 2, f"{len(ratios)} ratios printed (expected 2: both parts)")
+    c.expect(
+        all(lo - half <= x < hi + half for x in ratios),
+        "a printed ratio is outside the README's range (as rounded there)",
+    )
+    c.expect(
+        "no compiled kernels cached yet" not in r.output,
+        "the demo asks for `rs-localizer compile` (run before it, by check compile)",
+    )
+
+
+#: name -> (slow, function); in the order of the day
+CHECKS = {
+    "compile": (True, check_compile),
+    "scenes_listed": (False, check_scenes_listed),
+    "render": (True, check_render),
+    "readout_calibrated": (True, check_readout_calibrated),
+    "readout_quiet": (True, check_readout_quiet),
+    "readout_in_map": (True, check_readout_in_map),
+    "readout_frame_invariant": (True, check_readout_frame_invariant),
+    "gravity_frame": (True, check_gravity_frame),
+    "replay_truth": (True, check_replay_truth),
+    "python_example": (False, check_python_example),
+    "export_stamps": (False, check_export_stamps),
+    "readout_howto": (False, check_readout_howto),
+    "calibrate_errors": (False, check_calibrate_errors),
+    "lockstep_ns": (False, check_lockstep_ns),
+    "diagnostics": (False, check_diagnostics),
+    "viewers": (True, check_viewers),
+    "demo_domain": (True, check_demo_domain),
+    "demo_figures": (True, check_demo_figures),
+}
+
+
+def run_day(
+    names: list[str], skip_slow: bool, work: Path, domain: int, timeout: float
+) -> list[Check]:
+    """Run the named checks in the day's order, printing each as it ends."""
+    day = Day(work, domain, timeout)
+    out = []
+    for name, (slow, fn) in CHECKS.items():
+        if name not in names:
+            continue
+        c = Check(name)
+        if skip_slow and slow:
+            c.verdict, c.value = "SKIP", "slow (--skip-slow)"
+        else:
+            day.ran = []
+            t0 = time.perf_counter()
+            try:
+                fn(day, c)
+            except CheckFailed as e:
+                c.fail(str(e))
+            except Exception as e:  # a bug of the check itself is a failure too, shown
+                c.fail(f"{type(e).__name__}: {e}")
+            c.seconds = time.perf_counter() - t0
+            c.notes[:0] = [f"$ {cmd}" for cmd in day.ran]
+        print(f"{c.verdict:<6} {name}: {c.value}  ({c.seconds:.0f} s)", flush=True)
+        for note in c.notes:
+            print(f"         {note}", flush=True)
+        out.append(c)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--list", action="store_true", help="only list the commands and verdicts")
-    ap.add_argument("--only", help="one page (e.g. docs/tools.md)")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="checks of the marker user's day: " + ", ".join(CHECKS),
+    )
+    ap.add_argument("--list", action="store_true", help="only list the commands and checks")
+    ap.add_argument(
+        "--only",
+        help="comma-separated pages (docs/tools.md) and day checks (gravity_frame); "
+        "'pages': every page, 'day': every check (default: both)",
+    )
+    ap.add_argument(
+        "--skip-slow",
+        action="store_true",
+        help="skip the day's slow checks (compile, the rendered video and its maps, the "
+        "viewers, the demo: about 20 min in all)",
+    )
     ap.add_argument("--timeout", type=float, default=300.0, help="s per command (300)")
+    ap.add_argument(
+        "--workdir",
+        type=Path,
+        default=None,
+        help="where the day's video, maps and images go (default: a new temporary folder)",
+    )
     args = ap.parse_args(argv)
-    pages = [args.only] if args.only else PAGES
+    wanted = args.only.split(",") if args.only else ["pages", "day"]
+    unknown = [w for w in wanted if w not in ("pages", "day", *PAGES, *CHECKS)]
+    if unknown:
+        ap.error(f"--only: unknown {unknown} (pages: {', '.join(PAGES)}; checks: "
+                 f"{', '.join(CHECKS)})")  # fmt: skip
+    pages = PAGES if "pages" in wanted else [w for w in wanted if w in PAGES]
+    checks = list(CHECKS) if "day" in wanted else [w for w in wanted if w in CHECKS]
     domain = random.randint(1, 101)
     failed = ran = skipped = 0
     for page in pages:
@@ -338,9 +1219,32 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{'ok  ' if ok else 'FAIL'}  {page}: {st.command}  ({st.seconds:.1f} s)")
             for p in st.problems:
                 print(f"      {p}")
-    if not args.list:
-        print(f"{ran} commands run, {failed} failed, {skipped} skipped")
-    return 1 if failed else 0
+    if args.list:
+        for name in checks:
+            slow, fn = CHECKS[name]
+            doc = " ".join(fn.__doc__.split())
+            print(f"check {name}{' (slow)' if slow else ''}: {doc}")
+        return 0
+    if pages:
+        print(f"{ran} commands run, {failed} failed, {skipped} skipped", flush=True)
+    results = []
+    if checks:
+        print("\nthe marker user's day (AprilTag room, 640x480 rolling shutter):", flush=True)
+        work = args.workdir or Path(tempfile.mkdtemp(prefix="rs_newcomer_"))
+        work.mkdir(parents=True, exist_ok=True)
+        print(f"  work folder {work}, ROS_DOMAIN_ID {domain}", flush=True)
+        results = run_day(checks, args.skip_slow, work, domain, args.timeout)
+    if results:
+        print("\nsummary of the day:")
+        for c in results:
+            print(f"  {c.verdict:<6} {c.name}: {c.value}")
+        tally = {
+            v: sum(c.verdict == v for c in results) for v in ("PASS", "FAIL", "REPORT", "SKIP")
+        }
+        print("  " + ", ".join(f"{n} {v}" for v, n in tally.items()))
+    if pages:
+        print(f"docs' commands: {ran} run, {failed} failed, {skipped} skipped")
+    return 1 if failed or any(c.verdict == "FAIL" for c in results) else 0
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ COMMANDS = (
     "view",
     "diagnostics",
     "calibrate_readout",
+    "calibrate_rig",
     "export_image",
     "map_markers",
     "map_features",

@@ -138,6 +138,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="with --imu-rate: stamp the IMU on a clock S seconds behind the camera's "
         "(t_cam = t_imu + S, the node's imu.time_offset)",
     )
+    m.add_argument(
+        "--rig",
+        type=A.positive_int,
+        default=None,
+        metavar="N",
+        help="a rig bag instead: N (1-4) unsynchronized cameras (front, left, right, back; "
+        "their own line delays, readout directions and first frames 4 ms apart) on one body "
+        "walking the corridor, --frames per camera, topics <ns>/<camera>/correspondences and "
+        "camera_info (--namespace default /rig), and BAG/rig_params.yaml, the node's rig "
+        "parameters (docs/rig_node.md)",
+    )
     m.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.set_defaults(func=run)
@@ -149,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
     bag; returns 0. Raises CliError / ValueError for options that do not fit together or an
     output that cannot be written (checked before the simulation)."""
     A.output_dir(args.out, args.overwrite, "bag directory")
+    if args.rig is not None:
+        return _run_rig(args)
     if args.motion != "walk" and args.scene == "board":
         raise A.CliError(
             f"--motion applies to the corridor and plane scenes, not to {args.scene!r}"
@@ -209,5 +222,53 @@ def run(args: argparse.Namespace) -> int:
         f"wrote {out} ({len(seq.frames)} frames x {args.points} points, "
         f"{size / 1024:.0f} KiB, {args.storage}); line delay {cam.line_delay * 1e6:.1f} "
         f"us/row, readout {cam.readout_time * 1e3:.1f} ms"
+    )
+    return 0
+
+
+def _run_rig(args: argparse.Namespace) -> int:
+    """``make-bag --rig N``: a rig bag (:func:`rs_localizer.ros.bags.rig_bag.write_rig_bag`)."""
+    if not 1 <= args.rig <= 4:
+        raise A.CliError(f"--rig takes 1 to 4 cameras, got {args.rig}")
+    if args.scene != "corridor" or args.motion != "walk" or args.imu_rate > 0:
+        raise A.CliError("--rig walks the corridor: without --scene, --motion or --imu-rate")
+    from ..ros.bags.rig_bag import write_rig_bag
+    from ..sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(args.rig)
+    cams = [type(c)(**{**c.__dict__, "fps": args.fps}) for c in cams]
+    t0 = int(round(args.start_time * 1e9))
+    frames, _, traj = generate_rig_video(
+        cams,
+        duration=args.frames / args.fps,
+        num_points=args.points,
+        noise_px=args.noise,
+        outlier_ratio=args.outliers,
+        seed=args.seed,
+        t0_ns=t0,
+        stamp_row=args.stamp_row,
+    )
+    ns = "/rig" if args.namespace == "/camera" else args.namespace
+    out = write_rig_bag(
+        args.out,
+        frames,
+        cams,
+        traj,
+        t0_ns=t0,
+        namespace=ns,
+        stamp_row=args.stamp_row,
+        storage=args.storage,
+        overwrite=args.overwrite,
+        settings={
+            "points": args.points,
+            "noise": args.noise,
+            "outliers": args.outliers,
+            "seed": args.seed,
+            "fps": args.fps,
+        },
+    )
+    print(
+        f"wrote {out}: a rig of {args.rig} cameras ({', '.join(c.name for c in cams)}), "
+        f"{len(frames)} frames, {args.storage}; node parameters: {out / 'rig_params.yaml'}"
     )
     return 0

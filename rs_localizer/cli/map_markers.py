@@ -297,6 +297,21 @@ def _options(args: argparse.Namespace):
     )
 
 
+def _offset_note(result) -> str:
+    """The corner offset's std, and whether the detector needs the term: not when the offset
+    found is within 2 std of zero and the video fixes it to 0.025 px (std) or better."""
+    co, std = result.corner_offset_px, result.corner_offset_std_px
+    if not np.isfinite(std):
+        return ""
+    note = f" (std {std:.2f} px)"
+    if abs(co) <= 2 * std and std <= 0.025:
+        note += (
+            "; no offset within its std: this detector's corners need no corner-offset term "
+            "(--no-corner-offset)"
+        )
+    return note
+
+
 def _summary(out: Path, result, counts: dict, opts, lines: int | None = None) -> list:
     """The lines the command prints about a map: size, fit, the frame and its uncertainty
     (with a warning naming the remedy above the bounds), markers left out and the markers
@@ -317,7 +332,8 @@ def _summary(out: Path, result, counts: dict, opts, lines: int | None = None) ->
         f"{out}: {len(result.corners)} markers from {counts['images']} images "
         f"({counts['without_markers']} without markers, {result.num_frames_skipped} without a "
         f"pose); reprojection RMSE {result.rmse_px:.2f} px, {result.num_rejected} detections "
-        f"rejected, detected corners {result.corner_offset_px:+.2f} px inside the markers",
+        f"rejected, detected corners {result.corner_offset_px:+.2f} px inside the markers"
+        + _offset_note(result),
         f"  {readout_line(result, lines)}",
         f"  map frame: {what}" + (f"; {f.note}" if f.note else ""),
         f"  frame: {f.kind} ({', '.join(map(str, f.anchors))}"
@@ -595,10 +611,11 @@ def _add_detector_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--quad-decimate",
-        type=A.positive_float,
+        type=A.nonneg_float,
         default=d.quad_decimate,
-        help="AprilTag: find quads on the image decimated by this factor (>= 1; 1: full "
-        "resolution, finds smaller tags, slower)",
+        help="AprilTag: find quads on the image decimated by this factor (1, 1.5 or an "
+        "integer; 1: full resolution, finds smaller tags, slower; 0: by image size, 1.5 up to "
+        "640x480, 2 above)",
     )
     g.add_argument("--nthreads", type=A.positive_int, default=d.nthreads, help="AprilTag: threads")
     g.add_argument(

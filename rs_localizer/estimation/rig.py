@@ -10,7 +10,12 @@ velocity ``t`` through the frame (the exact constant-velocity model, paper eq. 4
 with ``tau`` (s) the capture time of an observation minus the rig's reference time: for a point
 on measured line ``r`` (RS coordinate, :class:`~rs_localizer.camera.CameraModel`) of camera c,
 ``tau = stamp_offset_c + (r - r0_c) * seconds_per_unit_r_c`` (``stamp_offset_c``: the capture
-time of the camera's reference line minus the rig's reference time).
+time of the camera's reference line minus the rig's reference time). ``(R, C, w, t)`` is the
+single-camera :class:`~rs_localizer.pose.RSModel` with one second as the unit of ``tau``: the
+rig's :class:`~rs_localizer.pose.RSPose` is ``RSPose.from_model((R, C, w, t), 1.0)``
+(orientation rig -> world, position, angular velocity ``-w`` rad/s and linear velocity
+``w x C - t`` m/s in the rig frame; :func:`~rs_localizer.pose.model_twist` with ``s = 1``).
+Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 
 :func:`estimate_rig_pose` runs RANSAC on every camera's correspondences at once:
 
@@ -20,12 +25,40 @@ time of the camera's reference line minus the rig's reference time).
 - the camera's 3 points give P3P poses (Lambda Twist, global shutter), mapped to the rig
   (``R_rig = R_c^T R_cam``); each pre-rotates the sample's world points and the batched
   :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch` solves the 6 points;
-- hypotheses are scored by MSAC on the reprojection error in pixels with each camera's exact
+- models moving faster than ``max_angular_velocity`` / ``max_linear_velocity`` are dropped;
+  the others are scored by MSAC on the reprojection error in pixels with each camera's exact
   model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
   camera's focal length turning normalized errors into pixels);
-- the best model is refit on its inliers with the rig solver (pre-rotated by the model, twice),
-  then refined by Levenberg-Marquardt on the exact model (SciPy), inliers re-selected in
-  between, twice; a step that raises the MSAC cost of all points is not taken.
+- local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
+  by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
+  that raises the MSAC cost of all points is not taken;
+- the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
+  point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
+  re-selected at each iteration, as a single camera's final refinement,
+  :mod:`~rs_localizer.estimation.finalize`); its covariance ``sigma^2 (J^T W J)^-1`` over
+  ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``), ``sigma^2`` the per-axis image variance
+  of the inliers' errors (px^2, corrected for the threshold's truncation,
+  :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
+  covariances from it (:func:`~rs_localizer.estimation.result.output_covariance` with one
+  second per unit of ``tau``), and from the same Jacobian the estimate's sensitivity to the
+  rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
+  :mod:`~rs_localizer.estimation.sensitivity`);
+- the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
+  on one 3D line, plausible motion, and every inlier in front of its camera at its capture
+  time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
+  model).
+
+With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
+starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
+the model is tested on every point, pulled onto those within its gate, seeds RANSAC and
+pre-rotates its samples instead of P3P, and when it explains the frame RANSAC only verifies it
+(one batch of samples among its inliers); local optimization and the final refinement run on
+every point as without it.
+
+A rig frame whose observations were all taken at one time (global-shutter cameras with equal
+stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
+pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
+parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 """
 
 from __future__ import annotations
@@ -35,22 +68,66 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from scipy.optimize import least_squares
 
 from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix
+from ..geometry import rotvec_to_matrix, skew
+from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from ..solvers.lambda_twist import lambda_twist_batch
+from .options import InitialModel
+from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
+from .refine import untruncated_variance
+from .result import output_covariance
+from .sensitivity import output_jacobian
 
-__all__ = ["RIG_FAILURE_REASONS", "RigPoseEstimate", "RigView", "estimate_rig_pose"]
+__all__ = [
+    "FINAL_CUTOFF",
+    "LO_ROUNDS",
+    "RIG_FAILURE_REASONS",
+    "STILL_SPREAD",
+    "RigPoseEstimate",
+    "RigView",
+    "camera_model_of_rig",
+    "estimate_rig_pose",
+    "rig_model_of_camera",
+]
 
-#: failure reason -> meaning
+#: failure reason -> meaning, in the order the estimator checks them
 RIG_FAILURE_REASONS = {
     "too_few_points": "fewer than 6 valid correspondences over all cameras, or no camera with 3",
-    "no_model": "no sample gave a valid model",
-    "too_few_inliers": "the best model has fewer than min_inliers inliers",
+    "degenerate_geometry": (
+        "the world points (or the final inliers) are identical or on one 3D line, or every "
+        "camera's pixels lie within the inlier threshold of one image line (or number fewer "
+        "than 3: its rays in one plane through its centre)"
+    ),
+    "no_model": "no sample gave a valid model moving within the velocity bounds",
+    "too_few_inliers": "the final (refined) model has fewer than min_inliers inliers",
+    "implausible_motion": "the refined rig turns faster than max_angular_velocity or moves "
+    "faster than max_linear_velocity (or is not finite)",
+    "cheirality": "an inlier is not in front of its camera at its capture time",
 }
+
+#: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
+#: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
+#: cost 2.3 ms of 10 per frame: the final refinement converges from the first
+LO_ROUNDS = 1
+
+#: s: observation times spread by at most this are one time (a global-shutter rig frame)
+STILL_SPREAD = 1e-9
+
+#: The final refinement fits every point within this many inlier thresholds (Huber loss at the
+#: threshold, re-selected at each iteration), as a single camera's final refinement
+#: (:data:`rs_localizer.estimation.finalize.FINAL_CUTOFF`)
+FINAL_CUTOFF = 2.0
+
+
+def _eye3() -> np.ndarray:
+    return np.eye(3)
+
+
+def _zeros3() -> np.ndarray:
+    return np.zeros(3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,33 +138,124 @@ class RigView:
         uv: (N, 2) measured (distorted) pixels. X: (N, 3) world points (m).
         camera: the camera's intrinsics and RS timing.
         R_mount: (3, 3) rig -> camera rotation. c_mount: (3,) rig -> camera offset (m):
-            ``x_cam = R_mount x_rig + c_mount``.
+            ``x_cam = R_mount x_rig + c_mount`` (default: the identity mounting). ``None``
+            stands for a camera whose mounting is unknown: :func:`estimate_rig_pose` refuses
+            it, naming the camera.
         stamp_offset: capture time of the camera's reference line (``camera.reference_line``)
             minus the rig's reference time (s).
+        name: the camera's name in error messages (default: its index in the rig frame).
     """
 
     uv: np.ndarray
     X: np.ndarray
     camera: CameraModel
-    R_mount: np.ndarray = field(default_factory=lambda: np.eye(3))
-    c_mount: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    R_mount: np.ndarray | None = field(default_factory=_eye3)
+    c_mount: np.ndarray | None = field(default_factory=_zeros3)
     stamp_offset: float = 0.0
+    name: str = ""
+
+
+def camera_model_of_rig(
+    model: RSModel | tuple,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    stamp_offset: float,
+    seconds_per_unit_r: float,
+) -> RSModel:
+    """Camera c's single-camera model at its reference line from the rig's model.
+
+    With the rig's ``(R, C, w, t)`` (module docstring; ``w``, ``t`` per second) and
+    ``s = stamp_offset``, the rig at ``s + sigma`` sees ``expm(sigma [w]x) R' X + C' + sigma t``
+    with ``R' = expm(s [w]x) R``, ``C' = C + s t``; camera c sees that through its mounting,
+    and per unit RS coordinate (``sigma = seconds_per_unit_r (r - r0)``)::
+
+        R_cam = R_c R', C_cam = R_c C' + c_c, w_cam = spr R_c w, t_cam = spr R_c t
+
+    Args:
+        model: the rig's ``(R (3, 3), C (3,) m, w (3,) rad/s, t (3,) m/s)``.
+        R_mount (3, 3), c_mount (3,) m: the camera's mounting (``x_cam = R_c x_rig + c_c``).
+        stamp_offset: the camera's reference line's capture time minus the rig's reference
+            time (s). seconds_per_unit_r: the camera's ``seconds_per_unit_r`` (s).
+    Returns:
+        the camera's :class:`~rs_localizer.pose.RSModel` (``w``, ``t`` per unit r), what
+        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for that camera alone.
+    """
+    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+    Rc = np.asarray(R_mount, dtype=float)
+    cc = np.asarray(c_mount, dtype=float).reshape(3)
+    s, spr = float(stamp_offset), float(seconds_per_unit_r)
+    return RSModel(
+        Rc @ rotvec_to_matrix(s * w) @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t)
+    )
+
+
+def rig_model_of_camera(
+    model: RSModel | tuple,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    stamp_offset: float,
+    seconds_per_unit_r: float,
+) -> RSModel:
+    """The inverse of :func:`camera_model_of_rig`: the rig's model ``(R, C, w, t)`` (per
+    second, at the rig's reference time) of one camera's single-camera model (per unit r at its
+    reference line); a global-shutter camera (``seconds_per_unit_r <= 0``) gives zero ``w``
+    and ``t``. Arguments as :func:`camera_model_of_rig`."""
+    Rk, Ck, wk, tk = (np.asarray(a, dtype=float) for a in model)
+    Rc = np.asarray(R_mount, dtype=float)
+    cc = np.asarray(c_mount, dtype=float).reshape(3)
+    spr = float(seconds_per_unit_r)
+    w = Rc.T @ wk / spr if spr > 0 else np.zeros(3)
+    t = Rc.T @ tk / spr if spr > 0 else np.zeros(3)
+    s = float(stamp_offset)
+    R1, C1 = Rc.T @ Rk, Rc.T @ (Ck - cc)
+    return RSModel(rotvec_to_matrix(-s * w) @ R1, C1 - s * t, w, t)
 
 
 @dataclass(frozen=True, eq=False)
 class RigPoseEstimate:
-    """Result of :func:`estimate_rig_pose`.
+    """Result of :func:`estimate_rig_pose`. Frames: world/map, the rig's frame (the frame of
+    the mountings).
 
     Attributes:
-        success: a model with at least ``min_inliers`` inliers was found.
+        success: a pose passed every check (:data:`RIG_FAILURE_REASONS`).
         failure: a key of :data:`RIG_FAILURE_REASONS`, ``None`` on success.
         R: (3, 3) world -> rig rotation at the reference time. C: (3,) world -> rig
             translation (m): ``x_rig = R X + C``.
-        w: (3,) angular velocity (rad/s, rig frame: ``expm(tau [w]x)`` left of ``R``).
-        t: (3,) linear velocity term of the model (m/s, rig frame).
+        w: (3,) rad/s, the model's rotation rate (rig frame: ``expm(tau [w]x)`` left of
+            ``R``); the rig's angular velocity is ``-w`` (:attr:`angular_velocity`).
+        t: (3,) m/s, the model's translation rate (rig frame); the rig's linear velocity is
+            ``w x C - t`` (:attr:`linear_velocity`).
         inliers: one (N_c,) bool array per camera (invalid rows False).
         num_inliers: inliers over all cameras. iterations: RANSAC samples drawn.
         rmse_px: RMS reprojection error of the inliers (pixels; NaN on failure).
+        num_inliers_per_camera: (M,) inliers of each camera (zeros on failure).
+        num_valid_per_camera: (M,) rows of each camera that passed validation (finite,
+            undistortable).
+        num_behind: valid rows behind their camera at their capture time under the final
+            model (0 without one).
+        covariance: (12, 12) over (rotation of the rig in the world [rad, world axes],
+            position [m, world], angular velocity [rad/s, rig frame], linear velocity [m/s,
+            rig frame]), or ``None`` (failure, or a singular information matrix).
+        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame, or
+            ``None``. twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame,
+            or ``None``.
+        model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R = expm([delta]x)
+            R_0``; rad, m, rad/s, m/s), or ``None``.
+        global_shutter: every observation was taken at one time (global-shutter cameras with
+            equal stamps): the velocities are not observable, ``w = t = 0`` (zero rows and
+            columns in the covariances, ``twist_covariance`` None) and the pose is the
+            generalized absolute pose of the rig at that time.
+        acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as
+            ``covariance``) per unit of angular and linear acceleration of the rig during the
+            frame (rad/s^2, m/s^2, rig frame; columns in that order): a rig that accelerates
+            is estimated ``G (alpha, a)`` away from its state at the reference time (as a
+            camera's estimate, :mod:`~rs_localizer.estimation.sensitivity`; the twist filter
+            uses it), or
+            ``None`` (no covariance, or ``global_shutter``).
+        initial_explained: points within the initial model's ``gate_px`` (-1 without one;
+            failed estimates do not report it). initial_used: the initial model seeded
+            RANSAC (and pre-rotated its samples): False when it explained too few points and
+            the estimator ran as without it.
     """
 
     success: bool
@@ -100,32 +268,117 @@ class RigPoseEstimate:
     num_inliers: int
     iterations: int
     rmse_px: float
+    num_inliers_per_camera: tuple[int, ...] = ()
+    num_valid_per_camera: tuple[int, ...] = ()
+    num_behind: int = 0
+    covariance: np.ndarray | None = None
+    pose_covariance: np.ndarray | None = None
+    twist_covariance: np.ndarray | None = None
+    model_covariance: np.ndarray | None = None
+    global_shutter: bool = False
+    acceleration_sensitivity: np.ndarray | None = None
+    initial_explained: int = -1
+    initial_used: bool = False
 
     @property
     def position(self) -> np.ndarray:
         """(3,) rig origin in the world at the reference time (m): ``-R^T C``."""
         return -self.R.T @ self.C
 
+    @property
+    def model(self) -> RSModel:
+        """The rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``, velocities per
+        second (one second per unit of ``tau``)."""
+        return RSModel(self.R, self.C, self.w, self.t)
+
+    @property
+    def pose(self) -> RSPose:
+        """The rig's :class:`~rs_localizer.pose.RSPose` at the reference time (no stamp):
+        orientation (3, 3) rig -> world, position (3,) m, angular and linear velocity (3,)
+        rad/s and m/s in the rig frame (``RSPose.from_model(model, 1.0)``)."""
+        return RSPose.from_model(self.model, 1.0)
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """(3, 3) rig -> world rotation (``pose.orientation``)."""
+        return self.R.T
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(3,) rad/s, rig frame (``pose.angular_velocity``: ``-w``)."""
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(3,) m/s, rig frame (``pose.linear_velocity``: ``w x C - t``)."""
+        return self.pose.linear_velocity
+
+    def camera_model(self, view: RigView) -> RSModel:
+        """The model of the camera of ``view`` at its reference line
+        (:func:`camera_model_of_rig`: per unit r, as its own estimate's ``model``)."""
+        return camera_model_of_rig(
+            self.model,
+            view.R_mount,
+            view.c_mount,
+            view.stamp_offset,
+            view.camera.seconds_per_unit_r,
+        )
+
+
+def _label(c: int, v: RigView) -> str:
+    return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
+
 
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
-    camera index, the camera's focal length (px per normalized unit)."""
+    camera index, the camera's focal length (px per normalized unit), measured pixels."""
 
     def __init__(self, views: Sequence[RigView]):
-        xs, Xs, taus, cams, rows, foc = [], [], [], [], [], []
+        xs, Xs, taus, cams, rows, foc, uvs = [], [], [], [], [], [], []
+        for c, v in enumerate(views):
+            if not isinstance(v, RigView):
+                raise ValueError(
+                    f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView"
+                )
+            if v.R_mount is None or v.c_mount is None:
+                raise ValueError(
+                    f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
+                    "rig -> camera rotation and offset)"
+                )
+            if not isinstance(v.camera, CameraModel):
+                raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
+            Rm = np.asarray(v.R_mount, dtype=float)
+            cm = np.asarray(v.c_mount, dtype=float)
+            if Rm.shape != (3, 3) or cm.size != 3:
+                raise ValueError(
+                    f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
+                    f"got {Rm.shape} and {cm.shape}"
+                )
+            if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
+            if not np.allclose(Rm.T @ Rm, np.eye(3), atol=1e-6) or np.linalg.det(Rm) < 0:
+                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
+            if not np.isfinite(float(v.stamp_offset)):
+                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
         self.R_mount = np.array([np.asarray(v.R_mount, dtype=float) for v in views])
         self.c_mount = np.array([np.asarray(v.c_mount, dtype=float).reshape(3) for v in views])
-        if self.R_mount.shape != (len(views), 3, 3):
-            raise ValueError("estimate_rig_pose: every R_mount must be (3, 3)")
-        if not (np.isfinite(self.R_mount).all() and np.isfinite(self.c_mount).all()):
-            raise ValueError("estimate_rig_pose: mountings contain NaN or inf")
         self.sizes = []
+        self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
         for c, v in enumerate(views):
-            uv = np.asarray(v.uv, dtype=float).reshape(-1, 2)
-            X = np.asarray(v.X, dtype=float).reshape(-1, 3)
+            uv = np.asarray(v.uv, dtype=float)
+            X = np.asarray(v.X, dtype=float)
+            if uv.size == 0:
+                uv = uv.reshape(0, 2)
+            if X.size == 0:
+                X = X.reshape(0, 3)
+            if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
+                raise ValueError(
+                    f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
+                    f"{uv.shape} and {X.shape}"
+                )
             if len(uv) != len(X):
                 raise ValueError(
-                    f"estimate_rig_pose: camera {c} has {len(uv)} pixels and {len(X)} points"
+                    f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
                 )
             self.sizes.append(len(uv))
             good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
@@ -136,12 +389,14 @@ class _Pool:
             cam = v.camera
             xs.append(x)
             Xs.append(X[idx])
+            uvs.append(uv[idx])
             taus.append(float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r)
             cams.append(np.full(len(idx), c, dtype=np.int64))
             rows.append(idx)
             foc.append(np.full(len(idx), cam.mean_focal))
         self.x = np.vstack(xs) if xs else np.zeros((0, 2))
         self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
+        self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
         self.tau = np.concatenate(taus) if taus else np.zeros(0)
         self.cam = np.concatenate(cams) if cams else np.zeros(0, dtype=np.int64)
         self.row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
@@ -156,6 +411,26 @@ class _Pool:
             m[self.row[s]] = mask[s]
             out.append(m)
         return tuple(out)
+
+    def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
+        """(M,) number of pool points (``mask``: of those selected) per camera."""
+        sel = self.cam if mask is None else self.cam[mask]
+        return tuple(int(n) for n in np.bincount(sel, minlength=len(self.sizes)))
+
+    def degenerate(self, threshold_px: float) -> bool:
+        """The world points identical or on one 3D line, or every camera's pixels (measured or
+        undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
+        rays in one plane through its centre)."""
+        if collinear_3d(self.X):
+            return True
+        for c in range(len(self.sizes)):
+            s = self.cam == c
+            # (one or two rays always lie in a plane through the camera's centre)
+            if s.sum() >= 3 and not image_degenerate(
+                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px
+            ):
+                return False
+        return True
 
 
 @njit(cache=True)
@@ -217,56 +492,96 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
 
 
-def _sample(rng, pool: _Pool, n_samples: int):
+def _distinct3(rng, N: np.ndarray) -> np.ndarray:
+    """(S, 3) three distinct uniform integers in ``[0, N[s])`` per row (``N`` (S,) >= 3)."""
+    S = len(N)
+    a = (rng.random(S) * N).astype(np.int64)
+    b = (rng.random(S) * (N - 1)).astype(np.int64)
+    b += b >= a
+    c = (rng.random(S) * (N - 2)).astype(np.int64)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    c += c >= lo
+    c += c >= hi
+    return np.stack([a, b, c], axis=1)
+
+
+def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     """n_samples samples of 6 pool indices: 3 from one camera with >= 3 points (chosen in
-    proportion to its points), then 3 distinct others from all cameras. Returns (S, 6)."""
-    counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+    proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
+    pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
+    (S, 6)."""
+    cam = pool.cam if subset is None else pool.cam[subset]
+    counts = np.bincount(cam, minlength=len(pool.sizes))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
     eligible = np.flatnonzero(counts >= 3)
     p = counts[eligible] / counts[eligible].sum()
-    members = [np.flatnonzero(pool.cam == c) for c in range(len(counts))]
-    n = len(pool.cam)
-    out = np.empty((n_samples, 6), dtype=np.int64)
-    for k in range(n_samples):
-        c = eligible[rng.choice(len(eligible), p=p)]
-        first = rng.choice(members[c], 3, replace=False)
-        rest = rng.choice(n - 3, 3, replace=False)
-        # map 0..n-4 onto the pool without the first three
-        taken = np.sort(first)
-        for j in taken:
-            rest = rest + (rest >= j)
-        out[k, :3] = first
-        out[k, 3:] = rest
-    return out
+    n = len(cam)
+    cams = eligible[rng.choice(len(eligible), size=n_samples, p=p)]
+    first = starts[cams][:, None] + _distinct3(rng, counts[cams])
+    rest = _distinct3(rng, np.full(n_samples, n - 3))
+    # map 0..n-4 onto the pool without the first three
+    taken = np.sort(first, axis=1)
+    for j in range(3):
+        rest += rest >= taken[:, j : j + 1]
+    out = np.concatenate([first, rest], axis=1)
+    return out if subset is None else subset[out]
 
 
-def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int):
+def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None, anchor=None):
     """Models (R, C, w, t) of the samples: P3P in the sample's first camera, mapped to the
-    rig, pre-rotates the rig solver. Returns arrays of H valid models."""
-    cam0 = pool.cam[samples[:, 0]]
-    Rc = pool.R_mount[cam0]
-    xs = pool.x[samples[:, :3]]
-    bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-    R_cam, _, own = lambda_twist_batch(
-        np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-    )
-    if len(own) == 0:
-        return None
-    R0 = np.einsum("hji,hjk->hik", Rc[own], R_cam)  # R_c^T R_cam
-    S = samples[own]
+    rig, pre-rotates the rig solver (``anchor``: this (3, 3) rotation pre-rotates every
+    sample instead, an initial model's or the best model's); ``bounds`` ``(w_max rad/s,
+    v_max m/s)`` or None: models moving faster are dropped
+    (:func:`~.plausibility.plausible_motion` with one second per unit of tau). Returns arrays
+    of H valid models, or None."""
+    if anchor is not None:
+        R0 = np.broadcast_to(np.asarray(anchor, dtype=float), (len(samples), 3, 3))
+        S = samples
+    else:
+        cam0 = pool.cam[samples[:, 0]]
+        Rc = pool.R_mount[cam0]
+        xs = pool.x[samples[:, :3]]
+        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
+        R_cam, _, own = lambda_twist_batch(
+            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
+        )
+        if len(own) == 0:
+            return None
+        R0 = np.einsum("hji,hjk->hik", Rc[own], R_cam)  # R_c^T R_cam
+        S = samples[own]
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
     b = gr6p_1lin_batch(
         pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations
     )
-    ok = b.valid
+    ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds)
     if not ok.any():
         return None
     R = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok])
     return R, b.C[ok], b.w[ok], b.t[ok]
 
 
-def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray):
+    """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
+    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``.
+    Returns arrays of H models, or None."""
+    cam0 = pool.cam[samples[:, 0]]
+    xs = pool.x[samples[:, :3]]
+    bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
+    R_cam, C_cam, own = lambda_twist_batch(
+        np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
+    )
+    if len(own) == 0:
+        return None
+    Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
+    R = np.einsum("hji,hjk->hik", Rc, R_cam)
+    C = np.einsum("hji,hj->hi", Rc, C_cam - cc)
+    z = np.zeros((len(own), 3))
+    return R, C, z, z.copy()
+
+
+def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2, free=12):
     """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times
-    (``threshold_px``: unused, the signature of :func:`_refine`)."""
+    (``threshold_px``, ``free``: unused, the signature of :func:`_refine`)."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
@@ -283,31 +598,222 @@ def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int
     return R, C, w, t
 
 
-def _refine(pool: _Pool, inl: np.ndarray, model, threshold_px: float):
-    """Levenberg-Marquardt (SciPy, Huber loss at the threshold) on the exact model over the
-    inliers: 12 parameters (a rotation update left of R, C, w, t); residuals: the image errors
-    (px) of :func:`_errors_px`."""
+def _robust(e: np.ndarray, k: float, cutoff: float) -> tuple[float, np.ndarray]:
+    """Truncated Huber cost of image errors ``e`` (px; inf behind): ``e^2`` up to ``k``,
+    ``2 k e - k^2`` up to ``cutoff``, constant beyond; and the IRLS weights (1, ``k / e``, 0)."""
+    ec = np.minimum(np.where(np.isfinite(e), e, cutoff), cutoff)
+    rho = np.where(ec <= k, ec * ec, 2.0 * k * ec - k * k)
+    wts = np.where(e <= k, 1.0, np.where(e < cutoff, k / np.maximum(e, k), 0.0))
+    return float(rho.sum()), wts
+
+
+#: central-difference steps of the Jacobian over (delta rad, C m, w rad/s, t m/s)
+_STEP = 1e-6
+
+
+def _jacobian(pool: _Pool, model, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(residuals (n, 2) px, Jacobian (n, 2, 12)) of the image errors of points ``idx`` over
+    ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``) by central differences: the 24 perturbed
+    models in one call of the compiled residual kernel."""
     R0, C0, w0, t0 = model
-    idx = np.flatnonzero(inl)
-    if len(idx) < 6:
-        return model
-    behind = 1e3 * threshold_px
+    D = np.zeros((25, 12))
+    for j in range(12):
+        D[1 + 2 * j, j] = _STEP
+        D[2 + 2 * j, j] = -_STEP
+    Rs = rotvec_to_matrix(D[:, 0:3]) @ R0
+    d = _residuals(pool, Rs, C0 + D[:, 3:6], w0 + D[:, 6:9], t0 + D[:, 9:12], idx)
+    J = (d[1::2] - d[2::2]) / (2 * _STEP)  # (12, n, 2)
+    return d[0], np.moveaxis(J, 0, -1)
 
-    def res(u):
-        R = (rotvec_to_matrix(u[0:3]) @ R0)[None]
-        d = _residuals(pool, R, u[3:6][None], u[6:9][None], u[9:12][None], idx)[0]
-        return np.where(np.isfinite(d), d, behind).ravel()
 
-    u0 = np.concatenate([np.zeros(3), C0, w0, t0])
-    sol = least_squares(res, u0, loss="huber", f_scale=threshold_px, x_scale="jac")
-    if not np.isfinite(sol.x).all():
-        return model
-    u = sol.x
-    return rotvec_to_matrix(u[0:3]) @ R0, u[3:6], u[6:9], u[9:12]
+def _apply(model, u: np.ndarray):
+    R0, C0, w0, t0 = model
+    return rotvec_to_matrix(u[0:3]) @ R0, C0 + u[3:6], w0 + u[6:9], t0 + u[9:12]
+
+
+def _refine(
+    pool: _Pool,
+    inl: np.ndarray,
+    model,
+    threshold_px: float,
+    max_iterations: int = 20,
+    free=12,
+    cutoff_px: float | None = None,
+):
+    """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
+    thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
+    truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
+    :func:`_refit`). 12 parameters: a rotation update left of R, C, w, t (``free=6``: the
+    pose alone, w and t kept); residuals: the image errors (px) of :func:`_errors_px`."""
+    k = float(threshold_px)
+    cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
+    allp = np.arange(len(pool.cam))
+    e = _errors_px(pool, *_one(model))[0]
+    cost, _ = _robust(e, k, cut)
+    lam = 1e-3
+    for _ in range(max_iterations):
+        idx = allp[e < cut]
+        if len(idx) < 6:
+            break
+        r, J = _jacobian(pool, model, idx)
+        _, wts = _robust(e[idx], k, cut)
+        Jf = J.reshape(-1, 12)[:, :free]
+        W = np.repeat(wts, 2)
+        H = Jf.T @ (Jf * W[:, None])
+        g = Jf.T @ (W * r.ravel())
+        improved = False
+        while lam < 1e8:
+            A = H + lam * np.diag(np.diag(H) + 1e-12)
+            try:
+                u = np.zeros(12)
+                u[:free] = -np.linalg.solve(A, g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            cand = _apply(model, u)
+            ec = _errors_px(pool, *_one(cand))[0]
+            cc, _ = _robust(ec, k, cut)
+            if np.isfinite(cc) and cc <= cost:
+                rel = (cost - cc) / max(cost, 1e-300)
+                model, e, cost = cand, ec, cc
+                lam = max(lam / 10, 1e-12)
+                improved = True
+                break
+            lam *= 10
+        if not improved or rel < 1e-9:
+            break
+    return model
+
+
+def _covariance(
+    pool: _Pool, model, threshold_px: float, free: int = 12
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
+    acceleration, from one Jacobian.
+
+    The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
+    ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
+    variance (px^2) of the errors inside the threshold, corrected for the truncation
+    (:func:`~.refine.untruncated_variance`); ``free=6``: of the pose alone (zero rows and
+    columns for w and t). The sensitivity (12, 6) is ``(J^T W J)^-1 J^T W D`` over the same
+    points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
+    through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
+    + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
+    with ``free=6``. Returns ``(None, None)`` if singular or not finite."""
+    k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
+    e = _errors_px(pool, *_one(model))[0]
+    idx = np.flatnonzero(e < cut)
+    inside = e[e < k]
+    if len(inside) <= 6:
+        return None, None
+    _, J = _jacobian(pool, model, idx)
+    _, wts = _robust(e[idx], k, cut)
+    Jf = J.reshape(-1, 12)[:, :free]
+    WJ = Jf * np.repeat(wts, 2)[:, None]
+    H = Jf.T @ WJ
+    sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
+    cov = np.zeros((12, 12))
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return None, None
+    cov[:free, :free] = sigma2 * Hinv
+    cov = 0.5 * (cov + cov.T)
+    if not np.isfinite(cov).all():
+        return None, None
+    G = None
+    if free == 12:
+        D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
+        G = Hinv @ (WJ.T @ D)
+        G = G if np.isfinite(G).all() else None
+    return cov, G
+
+
+def _sensitivity_out(G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(12, 6) the estimate's outputs (as ``covariance``) per (angular acceleration [rad/s^2],
+    linear acceleration [m/s^2], rig frame) from the model's sensitivity ``G`` per
+    ``(beta, b)``: ``beta = -alpha``, ``b = beta x C - a`` (:mod:`~.sensitivity` with one
+    second per unit of tau), then :func:`~.sensitivity.output_jacobian`."""
+    M = np.zeros((6, 6))
+    M[:3, :3] = -np.eye(3)
+    M[3:, 3:] = -np.eye(3)
+    M[3:, :3] = skew(np.asarray(C, dtype=float))
+    return output_jacobian(R, C, w, 1.0) @ (G @ M)
 
 
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
+
+
+def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bool]:
+    """(valid rows not in front of their camera at their capture time, whether one of them is
+    an inlier): the depths of each camera's own model in seconds, ``(R_c R, R_c C + c_c, R_c w,
+    R_c t)`` (``expm(tau [R_c w]x) R_c = R_c expm(tau [w]x)``), by
+    :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
+    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+    behind, bad = 0, False
+    for c in range(len(pool.sizes)):
+        s = pool.cam == c
+        if not s.any():
+            continue
+        Rc, cc = pool.R_mount[c], pool.c_mount[c]
+        code, n = final_model_check(
+            np.ascontiguousarray(Rc @ R),
+            Rc @ C + cc,
+            Rc @ w,
+            Rc @ t,
+            np.ascontiguousarray(pool.X[s]),
+            np.ascontiguousarray(pool.tau[s]),
+            np.ascontiguousarray(inl[s]),
+            np.inf,
+            np.inf,
+        )
+        behind += int(n)
+        bad |= code == 2
+    return behind, bad
+
+
+def _seed(pool: _Pool, initial, threshold_px: float, still: bool, size: int, free: int):
+    """Test an initial model on every point (as a single camera's,
+    :func:`~.local_optimization.seed_from_initial_model`).
+
+    Returns:
+        (explained, seed, anchored, subset): ``explained`` counts the points within its
+        ``gate_px``; ``anchored`` is True when at least ``min_explained`` (and one) are: its
+        rotation, then the best model's, pre-rotates RANSAC's samples instead of P3P; ``seed``
+        is the model, pulled onto the explained points when it has fewer than
+        ``max(min_explained, size + 1)`` inliers within the threshold (Levenberg-Marquardt on
+        the exact model, Huber at the threshold, truncated at the gate; the better of the two
+        by MSAC), when it then has more than ``size`` inliers, else None; ``subset``: its
+        inliers (pool indices) when they number at least ``max(min_explained, size + 1)``
+        with 3 in one camera (RANSAC then only verifies it, sampling among them), else None.
+    """
+    im = initial if isinstance(initial, InitialModel) else InitialModel(initial)
+    model = tuple(np.array(a, dtype=float) for a in im.model)
+    if still:
+        model = (model[0], model[1], np.zeros(3), np.zeros(3))
+    if not all(np.isfinite(a).all() for a in model):
+        return 0, None, False, None
+    gate = float(im.gate_px)
+    e = _errors_px(pool, *_one(model))[0]
+    explained = int(np.count_nonzero(e < gate))
+    need = max(int(im.min_explained), size + 1)
+    if explained < max(int(im.min_explained), 1):
+        return explained, None, False, None
+    th2 = float(threshold_px) ** 2
+    if np.count_nonzero(e < threshold_px) < need:
+        pulled = _refine(pool, None, model, threshold_px, 10, free, cutoff_px=gate)
+        ep = _errors_px(pool, *_one(pulled))[0]
+        if np.minimum(ep * ep, th2).sum() < np.minimum(e * e, th2).sum():
+            model, e = pulled, ep
+    inl = e < threshold_px
+    n_in = int(np.count_nonzero(inl))
+    if n_in <= size:
+        return explained, None, True, None
+    subset = None
+    if n_in >= need and np.bincount(pool.cam[inl]).max() >= 3 and n_in >= 6:
+        subset = np.flatnonzero(inl)
+    return explained, model, True, subset
 
 
 def estimate_rig_pose(
@@ -320,6 +826,10 @@ def estimate_rig_pose(
     solver_iterations: int = 3,
     refine: bool = True,
     seed: int | None = 0,
+    max_angular_velocity: float = 20.0,
+    max_linear_velocity: float = 50.0,
+    *,
+    initial_model: InitialModel | RSModel | tuple | None = None,
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -331,40 +841,98 @@ def estimate_rig_pose(
         min_inliers: inliers over all cameras for success.
         batch_size: samples solved per batched call.
         solver_iterations: rig-solver iterations per sample (after the P3P pre-rotation).
-        refine: run the Levenberg-Marquardt refinement on the exact model.
+        refine: run the Levenberg-Marquardt refinement on the exact model (and compute the
+            covariance); without it the estimate is the rig solver's refit of RANSAC's model.
         seed: random seed of the sampling.
+        max_angular_velocity: rad/s, max_linear_velocity: m/s: hypotheses and final models of
+            a rig moving faster are implausible (``inf``: no bound; the defaults are
+            :class:`~rs_localizer.estimation.EstimateOptions`').
+        initial_model: optional :class:`~rs_localizer.estimation.InitialModel` whose
+            ``model`` is the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
+            reference time: a tracker's prediction; a bare model has the default gate):
+            tested first on every point; if at least ``min_explained`` are within its
+            ``gate_px`` it is pulled onto them and seeds RANSAC, and its rotation (then the
+            best model's) pre-rotates every sample instead of P3P; when it then has at least
+            ``min_explained`` inliers RANSAC only verifies it with one batch of samples drawn
+            among them (as a single camera's estimator does with its ``initial_model``).
+            Without it the estimator is unchanged.
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
-        angular velocity (rad/s) and linear velocity (m/s), the inliers per camera.
+        velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
+        inliers per camera; ``success=False`` with a :data:`RIG_FAILURE_REASONS` key when the
+        frame gives no pose.
     Raises:
-        ValueError: no views, mismatched pixel and point counts, bad mountings.
+        ValueError: no views, a view that is not a :class:`RigView`, a camera without a
+            mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
+            is not a rotation and offset, mismatched pixel and point counts or shapes,
+            non-positive threshold.
 
-    Every observation at one time (global-shutter cameras with equal stamps) leaves ``w`` and
-    ``t`` undetermined: the rig solver rejects every sample and the estimate fails with
-    ``no_model``.
+    Every observation at one time (global-shutter cameras with equal stamps: capture times
+    within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
+    rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
+    refinement and covariance of the pose alone) with ``w = t = 0`` and ``global_shutter``
+    set.
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
+    if not (np.isfinite(threshold_px) and threshold_px > 0):
+        raise ValueError(f"estimate_rig_pose: threshold_px must be > 0, got {threshold_px}")
     pool = _Pool(views)
     rng = np.random.default_rng(seed)
     counts = np.bincount(pool.cam, minlength=len(views))
+    valid = pool.counts()
+    bounds = (float(max_angular_velocity), float(max_linear_velocity))
+    M = len(views)
 
-    def failed(reason, its=0):
+    def failed(reason, its=0, behind=0):
         z = np.zeros(3)
         no = pool.per_camera(np.zeros(len(pool.cam), dtype=bool))
-        return RigPoseEstimate(False, reason, np.eye(3), z, z, z.copy(), no, 0, its, np.nan)
+        return RigPoseEstimate(
+            False, reason, np.eye(3), z, z, z.copy(), no, 0, its, np.nan,
+            (0,) * M, valid, behind,
+        )  # fmt: skip
 
     if len(pool.cam) < 6 or counts.max() < 3:
         return failed("too_few_points")
+    if pool.degenerate(threshold_px):
+        return failed("degenerate_geometry")
+    # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
+    still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    free, size = (6, 3) if still else (12, 6)
     th2 = threshold_px**2
+
+    def msac(m):
+        return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
+
+    def required(frac):
+        if not frac > 0:
+            return max_iterations
+        denom = np.log(max(1e-12, 1.0 - frac**size))
+        return np.log(1.0 - confidence) / denom if denom < 0 else 0
+
     best_cost, best = np.inf, None
-    drawn = 0
     needed = max_iterations
+    explained, used, anchored, subset = -1, False, False, None
+    if initial_model is not None:
+        explained, seed, anchored, subset = _seed(
+            pool, initial_model, threshold_px, still, size, free
+        )
+        if seed is not None:
+            best, used = seed, True
+            best_cost = msac(seed)
+            inl0 = _errors_px(pool, *_one(seed))[0] < threshold_px
+            # (verifying a seed that explains the frame: one batch among its inliers)
+            needed = batch_size if subset is not None else required(float(np.mean(inl0)))
+    drawn = 0
     while drawn < min(needed, max_iterations):
         k = min(batch_size, max_iterations - drawn)
-        samples = _sample(rng, pool, k)
+        samples = _sample(rng, pool, k, subset)
         drawn += k
-        hyp = _hypotheses(pool, samples, solver_iterations)
+        if still:
+            hyp = _hypotheses_still(pool, samples)
+        else:
+            anchor = best[0] if anchored and best is not None else None
+            hyp = _hypotheses(pool, samples, solver_iterations, bounds, anchor)
         if hyp is None:
             continue
         e = _errors_px(pool, *hyp)
@@ -373,31 +941,48 @@ def estimate_rig_pose(
         if cost[h] < best_cost:
             best_cost = cost[h]
             best = tuple(a[h] for a in hyp)
-            frac = np.mean(e[h] < threshold_px)
-            if frac > 0:
-                denom = np.log(max(1e-12, 1.0 - frac**6))
-                needed = np.log(1.0 - confidence) / denom if denom < 0 else 0
+            if subset is None:
+                needed = required(float(np.mean(e[h] < threshold_px)))
     if best is None:
         return failed("no_model", drawn)
     model = best
 
-    def msac(m):
-        return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
-
     # each step is kept only if it does not raise the MSAC cost of the whole pool
-    for _ in range(2):
-        steps = (_refit, _refine) if refine else (_refit,)
+    steps = (_refit, _refine) if refine else (_refit,)
+    if still:  # (the rig solver needs a spread of capture times)
+        steps = (_refine,) if refine else ()
+    for _ in range(LO_ROUNDS):
         for step in steps:
             inl = _errors_px(pool, *_one(model))[0] < threshold_px
-            cand = step(pool, inl, model, threshold_px)
+            cand = step(pool, inl, model, threshold_px, free=free)
             cost = msac(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
-    e = _errors_px(pool, *_one(model))[0]
+    if refine:  # the final refinement (on every point within FINAL_CUTOFF thresholds)
+        model = _refine(pool, None, model, threshold_px, free=free)
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    e = _errors_px(pool, *_one((R, C, w, t)))[0]
     inl = e < threshold_px
     n_in = int(inl.sum())
     if n_in < min_inliers:
         return failed("too_few_inliers", drawn)
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    if collinear_3d(pool.X[inl]):
+        return failed("degenerate_geometry", drawn)
+    if not (np.isfinite(R).all() and plausible_motion(None, C, w, t, bounds)):
+        return failed("implausible_motion", drawn)
+    behind, bad = _behind_and_cheirality(pool, (R, C, w, t), inl)
+    if bad:
+        return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    return RigPoseEstimate(True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse)
+    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else (None, None)
+    out = (
+        (None, None, None)
+        if cov is None
+        else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
+    )
+    sens = None if G is None else _sensitivity_out(G, R, C, w)
+    return RigPoseEstimate(
+        True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
+        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still, sens,
+        explained, used,
+    )  # fmt: skip

@@ -1,9 +1,13 @@
 """ArUco front end: marker corners -> 2D-3D correspondences.
 
-OpenCV's ``cv2.aruco.ArucoDetector`` finds the markers (subpixel corner refinement); each corner
-``k`` (top-left, top-right, bottom-right, bottom-left) of marker ``id`` found in the marker map
-becomes a correspondence with id ``4 * id + k`` and the corner's 3D position. Markers not in the
-map are ignored.
+The marker detector of the map's dictionary
+(:func:`~rs_localizer.frontends.marker_detection.make_marker_detector`: the AprilTag 3 library
+for AprilTag families, OpenCV's ArUco detector with subpixel corner refinement for ArUco
+dictionaries) finds the markers, over the full frame or, with ``windowed``, in windows around
+the predicted markers (the same detector and settings); each corner ``k`` (top-left, top-right,
+bottom-right, bottom-left) of marker ``id`` found in the marker map becomes a correspondence with
+id ``4 * id + k`` and the corner's 3D position. Markers not in the map are ignored; an id found
+twice in one image is dropped from that image (counted).
 """
 
 from __future__ import annotations
@@ -48,11 +52,11 @@ class ArucoFrontend(FrontendHooks):
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
-        windowed: detect only in windows around the markers' predicted pixels (the last
-            solved frame's pose and twist carried to this frame's stamp, each corner at its
-            own capture line) instead of over the full frame; the full frame is searched when
-            there is no prediction (start, after a failed frame or a stamp jump), when a
-            predicted marker is not found, and every ``full_frame_every`` frames (new markers).
+        windowed: detect only in windows around the markers' predicted pixels (the
+            ``prediction`` given to :meth:`process`, each corner at its own capture line)
+            instead of over the full frame; the full frame is searched when there is no
+            prediction (start, a time reset), after a failed frame, when a predicted marker is
+            not found, and every ``full_frame_every`` frames (new markers).
         window_margin_px: padding (px) of each predicted marker's bounding box; at least the
             adaptive-threshold half window plus the expected prediction error.
         full_frame_every: a full-frame detection at least every this many frames (0: only on
@@ -103,15 +107,14 @@ class ArucoFrontend(FrontendHooks):
         self.windowed = bool(windowed)
         self.window_margin_px = float(window_margin_px)
         self.full_frame_every = int(full_frame_every)
-        self._min_perimeter_rate = float(min_marker_perimeter)
-        self._pose = None  # (R, C, w, t) of the last solved frame
-        self._stamp = None  # its stamp (ns)
+        self._solved = False  # the last frame was solved (observe)
         self._camera = None  # the camera of the last processed frame
-        self._frame_stamp = None
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
         self._last_found: set = set()  # marker ids found in the last frame
-        self.counts = {"windowed": 0, "full": 0}
+        self.counts = {"windowed": 0, "full": 0, "weak": 0, "duplicate": 0}
+        self.last_weak = 0  # detections refused as weak in the last frame (AprilTag)
+        self.last_duplicates = 0  # ids dropped from the last frame for being found twice
         self._times: list = []  # detection seconds per frame
         self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
         self.last_kind = "full"  # how the last frame was searched: full or windowed
@@ -139,16 +142,18 @@ class ArucoFrontend(FrontendHooks):
         return cls.from_map(dictionary, corners, load_marker_std(path), **kw)
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
-        """Raw detections: (corners (M, 4, 2) pixels, marker ids (M,)), all markers found."""
-        corners, ids, self.last_rejected = self.detector.detect(to_gray(image, encoding))
+        """Raw detections over the full image: (corners (M, 4, 2) pixels, marker ids (M,)),
+        all markers found (ids found twice dropped)."""
+        corners, ids, rej = self.detector.detect(to_gray(image, encoding))
+        self.last_rejected = int(rej) if self.detector.backend == "opencv" else 0
         return corners, ids
 
     def predict_windows(
-        self, shape: tuple, camera: CameraModel | None, stamp_ns: int | None
+        self, shape: tuple, camera: CameraModel | None, prediction: Any
     ) -> tuple[list, set] | None:
-        """Windows to search in a frame of ``shape`` (H, W) taken at ``stamp_ns``: the last
-        solved pose (``R``, ``C``) moved by its twist (``w``, ``t``) over the stamp difference,
-        every corner of the markers found in the last frame projected at its own capture line
+        """Windows to search in a frame of ``shape`` (H, W) predicted at ``prediction`` (the
+        frame's model ``(R, C, w, t)``, :class:`~rs_localizer.pose.RSModel`): every corner of
+        the markers found in the last frame projected at its own capture line
         (:meth:`CameraModel.project_rs`), each marker's corner bounding box padded by
         ``window_margin_px`` and clipped to the image, overlapping boxes merged where that
         adds no pixel (:func:`merge_windows`). Markers predicted partly outside the image or
@@ -157,23 +162,20 @@ class ArucoFrontend(FrontendHooks):
         Returns:
             ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive) around
             the markers found in the last frame, and the ids of those predicted fully inside
-            the image; None without a prediction (no solved frame, no camera or RS timing, no
-            stamp, no marker found).
+            the image; None without a prediction, after a frame that was not solved, without
+            a camera or RS timing, or when no marker was found.
         """
         cam = camera if camera is not None else self._camera
-        if self._pose is None or cam is None or stamp_ns is None or self._stamp is None:
+        if prediction is None or not self._solved or cam is None:
             return None
         if cam.seconds_per_unit_r <= 0:
             return None
-        from ..geometry import rotvec_to_matrix
-
-        R, C, w, t = self._pose
-        dT = (int(stamp_ns) - self._stamp) * 1e-9 / cam.seconds_per_unit_r
+        R, C, w, t = prediction
         mids = np.array(sorted(self._last_found & self.marker_corners.keys()), np.int64)
         if len(mids) == 0:
             return None
         X = np.concatenate([self.marker_corners[int(m)] for m in mids])
-        uv = cam.project_rs(X, rotvec_to_matrix(dT * w) @ R, C + dT * t, w, t, iterations=4)
+        uv = cam.project_rs(X, R, C, w, t, iterations=4)
         uv = uv.reshape(-1, 4, 2)
         h, wd = int(shape[0]), int(shape[1])
         ok = np.isfinite(uv).all(axis=(1, 2))
@@ -200,34 +202,40 @@ class ArucoFrontend(FrontendHooks):
         return merge_windows(boxes), {int(i) for i in mids[ok]}
 
     def _detect_windows(self, gray: np.ndarray, windows: list) -> tuple[np.ndarray, np.ndarray]:
-        """Detections in each window, corners offset back to full-frame pixels; the smallest
-        marker perimeter is kept at the full frame's (OpenCV scales it by the window size)."""
-        full = max(gray.shape)
+        """Detections in each window with the full-frame detector and its settings
+        (``detect_window``: OpenCV keeps the full frame's smallest marker perimeter, the
+        AprilTag library its decimation and grid), corners in full-frame pixels. A marker
+        seen in two overlapping windows is kept from the one it sits deeper in; an id found at
+        two places (corners more than ``DUPLICATE_PX`` apart) is dropped, counted in
+        ``last_duplicates``."""
         best: dict = {}  # marker id -> (distance of its corners to the window border, corners)
+        dup: set = set()
+        self.last_rejected = self.last_weak = self.last_duplicates = 0
         for x0, y0, x1, y1 in windows:
-            self.params.minMarkerPerimeterRate = (
-                self._min_perimeter_rate * full / max(x1 - x0, y1 - y0)
-            )
-            det = cv_compat.MarkerDetector(self.detector.dictionary, self.params)
-            c, i, _ = det.detect(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            c, i, rej = self.detector.detect_window(gray, (x0, y0, x1, y1))
+            self.last_rejected += int(rej) if self.detector.backend == "opencv" else 0
+            self.last_weak += self.detector.last_weak
+            dup.update(self.detector.last_duplicate_ids)
             for cc, ii in zip(c, i, strict=True):
-                # a marker seen in two overlapping windows: the one it sits deeper in
                 inside = min(
-                    cc[:, 0].min(),
-                    cc[:, 1].min(),
-                    x1 - x0 - cc[:, 0].max(),
-                    y1 - y0 - cc[:, 1].max(),
+                    cc[:, 0].min() - x0,
+                    cc[:, 1].min() - y0,
+                    x1 - cc[:, 0].max(),
+                    y1 - cc[:, 1].max(),
                 )
-                if int(ii) not in best or inside > best[int(ii)][0]:
-                    best[int(ii)] = (inside, cc + np.array([x0, y0], float))
-        self.params.minMarkerPerimeterRate = self._min_perimeter_rate
-        if not best:
+                k = int(ii)
+                if k in best and np.abs(best[k][1] - cc).max() > DUPLICATE_PX:
+                    dup.add(k)  # the same id at another place of the image
+                elif k not in best or inside > best[k][0]:
+                    best[k] = (inside, cc)  # (in two overlapping windows: the deeper one)
+        self.last_duplicates = len(dup)
+        ids = sorted(k for k in best if k not in dup)
+        if not ids:
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64)
-        ids = sorted(best)
         return np.asarray([best[i][1] for i in ids]), np.asarray(ids, np.int64)
 
     def _detect_frame(
-        self, gray: np.ndarray, camera: CameraModel | None, stamp_ns: int | None
+        self, gray: np.ndarray, camera: CameraModel | None, prediction: Any
     ) -> tuple[np.ndarray, np.ndarray]:
         """Windowed detection when it applies (see ``windowed``), else full frame."""
         import time
@@ -236,7 +244,7 @@ class ArucoFrontend(FrontendHooks):
         pred = None
         due = self.full_frame_every > 0 and self._since_full + 1 >= self.full_frame_every
         if self.windowed and not self._missed and not due:
-            pred = self.predict_windows(gray.shape, camera, stamp_ns)
+            pred = self.predict_windows(gray.shape, camera, prediction)
         self._missed = False
         if pred is not None:
             windows, expect = pred
@@ -247,41 +255,49 @@ class ArucoFrontend(FrontendHooks):
             self._since_full += 1
             self.counts["windowed"] += 1
         else:
-            corners, mids, self.last_rejected = self.detector.detect(gray)
+            corners, mids, rej = self.detector.detect(gray)
+            self.last_rejected = int(rej) if self.detector.backend == "opencv" else 0
+            self.last_weak = self.detector.last_weak
+            self.last_duplicates = self.detector.last_duplicates
             self.last_windows = []
             self.last_kind = "full"
             self._since_full = 0
             self.counts["full"] += 1
         self._times.append(time.perf_counter() - t0)
+        self.counts["weak"] += self.last_weak
+        self.counts["duplicate"] += self.last_duplicates
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
         """The estimate of the last processed frame (the node calls this after each frame):
-        a solved one (``success``, ``R``, ``C``, ``w``, ``t``) predicts the next frame's
-        marker windows; a failed one (or None) makes the next frame a full-frame search.
-        ``stamp_ns``: the frame's stamp (None: the one given to :meth:`process`); ``pixels``
-        is not used."""
-        if estimate is None or not getattr(estimate, "success", False):
-            self._pose = None
-            return
-        self._pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
-        self._stamp = int(stamp_ns) if stamp_ns is not None else self._frame_stamp
+        after a solved one (``success``) the next frame's markers are searched around their
+        predicted pixels; a failed one (or None) makes the next frame a full-frame search.
+        ``stamp_ns`` and ``pixels`` are not used."""
+        self._solved = estimate is not None and bool(getattr(estimate, "success", False))
 
     def reset(self) -> None:
-        """Forget the motion: the next frame is searched in full."""
-        self._pose = None
+        """Forget the last frame: the next frame is searched in full."""
+        self._solved = False
         self._missed = False
 
     def summary(self) -> dict:
         """Counters since start: frames searched whole (``frontend_frames_global``) and in
-        windows (``aruco_frames_windowed``), and the median detection time per frame (ms;
-        ``nan`` before one)."""
+        windows (``aruco_frames_windowed``), the median detection time per frame (ms; ``nan``
+        before one), detections refused as weak (``aruco_markers_weak``) and ids dropped for
+        being found twice in one image (``aruco_markers_duplicate``); and the detector in use
+        (``aruco_detector``: which, and why OpenCV stands in for a missing AprilTag library,
+        with the install line) with its settings (``aruco_detector_settings``)."""
         t = self._times
+        det = self.detector
         return {
             "frontend_frames_global": self.counts["full"],
             "aruco_frames_windowed": self.counts["windowed"],
             "aruco_detect_ms_median": f"{np.median(t) * 1e3:.3f}" if t else "nan",
+            "aruco_markers_weak": self.counts["weak"],
+            "aruco_markers_duplicate": self.counts["duplicate"],
+            "aruco_detector": det.describe(),
+            "aruco_detector_settings": det.settings(),
         }
 
     def process(
@@ -290,24 +306,20 @@ class ArucoFrontend(FrontendHooks):
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
         stamp_ns: int | None = None,
+        prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
         (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
         stated std when it has them (``marker_std``), else None; unpacks as
         ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
-        distorted, as the estimator expects; ``camera`` (the frame's model) and ``stamp_ns``
-        (its capture stamp, ns) serve the windowed detection (``windowed``), which without
-        them searches the full frame."""
-        if (
-            stamp_ns is not None
-            and self._frame_stamp is not None
-            and (int(stamp_ns) <= self._frame_stamp)
-        ):
-            self.reset()  # time went back (a replayed bag): no prediction
-        self._frame_stamp = None if stamp_ns is None else int(stamp_ns)
+        distorted, as the estimator expects; ``camera`` (the frame's model) and
+        ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
+        video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
+        serve the windowed detection (``windowed``), which without them searches the full
+        frame; ``stamp_ns`` is not used."""
         if camera is not None:
             self._camera = camera
-        corners, mids = self._detect_frame(to_gray(image, encoding), camera, stamp_ns)
+        corners, mids = self._detect_frame(to_gray(image, encoding), camera, prediction)
         keep = [i for i, m in enumerate(mids) if int(m) in self.marker_corners]
         if not keep:
             self.last_scores = None if self.marker_std is None else np.zeros(0)
@@ -320,6 +332,10 @@ class ArucoFrontend(FrontendHooks):
         X = np.concatenate([self.marker_corners[int(mids[i])] for i in keep])
         ids = (4 * mids[keep][:, None] + np.arange(4)[None, :]).ravel()
         return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)
+
+
+#: px: the same id found in two windows with corners further apart than this is two markers
+DUPLICATE_PX = 2.0
 
 
 def merge_windows(boxes: list) -> list:

@@ -26,16 +26,24 @@ Per frame, :class:`TrackingFeatureFrontend` gives the estimator correspondences 
 - **global**: full detection and matching against the whole map
   (:class:`~rs_localizer.frontends.features.FeatureFrontend`, FLANN for SIFT maps), run
   synchronously only when there is nothing to track: the first frame, after a frame that was
-  not solved, after a time reset (a stamp going back, or further ahead than ``reset_gap_s``),
-  or when fewer than ``min_points`` tracks remain, or fewer than ``collapse_ratio`` times
+  not solved, after a time reset (no ``prediction``: a stamp going back, or a gap longer than
+  the video's :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`), or when
+  fewer than ``min_points`` tracks remain, or fewer than ``collapse_ratio`` times
   the median inlier count of the video's last solved frames (the tracks collapsed: an image
   that jumped, a stale prediction; a pose from their few survivors would be an accidental
   fit, so the frame is matched whole as a relocalization is).
 
+The motion model is not the front end's: each frame's ``prediction`` (the frame's predicted
+model ``(R, C, w, t)``, :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`: the
+video tracker's, the one the estimator starts from) places the tracks' optical flow and the
+refresh's matches; the front end keeps no pose.
+
 The estimator stays the judge: every pose comes from a full rolling-shutter estimate over these
 correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end the frame's
 estimate, and only its inliers are tracked further (tracked outliers are dropped). Without
-``observe`` (a caller that does not report estimates) every frame is a global one.
+``observe`` (a caller that does not report estimates), or without a ``prediction``, every
+frame is a global one (:class:`~rs_localizer.tracking.tracker.CarriedPrediction` predicts for
+a caller driving the front end by hand).
 ``observe(stamp_ns, pixels, estimate)`` is the ``TrackingFrontend`` protocol the node calls.
 
 This is the standard design of video trackers (PTAM, ORB-SLAM's localization mode, VINS's
@@ -56,7 +64,6 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences
-from ..geometry import rotvec_to_matrix
 from ..maps.features import FeatureMap
 from .features import FeatureFrontend, make_detector
 from .image import to_gray
@@ -127,8 +134,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
             this many frames, then anchored again at its tracked pixel.
         max_anchors: at most this many anchor frames tracked from (one optical-flow call
             each); the tracks of older ones are anchored again in the current frame.
-        reset_gap_s: a frame further than this after the previous one (or before it) resets
-            tracking.
         refresh_wait_frames: a refresh still running this many frames after it started,
             while fewer than ``min_tracked_inliers`` tracks remain, is waited for (a CPU too
             busy to detect within a few frame periods: the frame waits rather than the tracks
@@ -158,7 +163,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         lk_window: int = 11,
         lk_levels: int = 2,
         fb_max_px: float = 1.0,
-        reset_gap_s: float = 0.5,
         refresh_wait_frames: int | None = None,
         max_anchor_age: int = 30,
         max_anchors: int = 4,
@@ -212,7 +216,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self.max_anchors = int(max_anchors)
         self.collapse_ratio = float(collapse_ratio)
         self._recent = deque(maxlen=max(int(recent_frames), 1))  # inliers of solved frames
-        self.reset_gap_ns = int(reset_gap_s * 1e9)
         self._n_features = int(n_features)
         self._norm = cv2.NORM_HAMMING if feature_map.kind.lower() == "orb" else cv2.NORM_L2
         self.report = FrameReport()
@@ -236,10 +239,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._anc = np.zeros(0, np.int64)  # each track's anchor: the frame index it is tracked from
         self._anc_uv = np.zeros((0, 2), np.float32)  # its pixel in that frame
         self._anchors: dict[int, np.ndarray] = {}  # anchor frame index -> gray image
-        self._pose = None  # (R, C, w, t) of the previous frame's estimate
-        self._camera = None
-        self._frame_camera = None
-        self._stamp = None
+        self._frame_camera = None  # the camera of the last processed frame
         self._index = -1
         self._solved_index = -2
         self._since_refresh = 0
@@ -254,11 +254,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._lost = True
         self._recent.clear()
 
-    def _time_reset(self, stamp_ns: int | None) -> bool:
-        if stamp_ns is None or self._stamp is None:
-            return False
-        return stamp_ns < self._stamp or stamp_ns - self._stamp > self.reset_gap_ns
-
     # ------------------------------------------------------------------ per frame
     def process(
         self,
@@ -266,24 +261,27 @@ class TrackingFeatureFrontend(FeatureFrontend):
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
         stamp_ns: int | None = None,
+        prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one frame (:class:`~rs_localizer.correspondences.Correspondences`:
         pixels (N, 2) distorted px, points (N, 3) world m, landmark ids (N,), scores (N,));
-        ``report`` says how they were found. ``stamp_ns``: the frame's capture time (ns), for
-        the motion prediction and time resets."""
+        ``report`` says how they were found. ``prediction``: the frame's predicted
+        :class:`~rs_localizer.pose.RSModel` (module docstring), where the tracks and the
+        refresh's matches are looked for; None: nothing predicts the frame (the first one,
+        a time reset or a gap: a global frame). ``stamp_ns`` is not used."""
         t_start = time.perf_counter()
         gray = to_gray(image, encoding)
         rep = FrameReport(times={})
         reason = None
         if not self.tracking:
             reason = "tracking_off"
-        elif self._time_reset(stamp_ns):
-            reason = "time_reset"
         elif self._gray is None:
             reason = "start"
         elif self._lost:
             reason = "lost"
-        elif self._pose is None or self._gray.shape != gray.shape:
+        elif prediction is None:
+            reason = "time_reset"
+        elif self._gray.shape != gray.shape:
             reason = "start"
         if reason is not None and reason not in ("tracking_off",):
             self._drop_tracks(keep_refresh=False)
@@ -295,7 +293,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         anc, anc_uv = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
         if reason is None:
             t0 = time.perf_counter()
-            guess = self._predict(self._rows, stamp_ns)
+            guess = self._predict(self._rows, prediction, camera)
             uv, rows, idx = self._track_anchored(gray, guess)
             ages = self._age[idx] + 1
             anc, anc_uv = self._anc[idx], self._anc_uv[idx]
@@ -310,7 +308,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
             ):  # (a CPU too busy to finish the refresh in time: wait rather than drift)
                 job.done.wait()
                 rep.refresh_waited = True
-            g_uv, g_rows, g_anc_uv, job = self._join_refresh(gray, stamp_ns)
+            g_uv, g_rows, g_anc_uv, job = self._join_refresh(gray, prediction, camera)
             rep.times["guided"] = time.perf_counter() - t0
             if len(g_uv):  # (a guided match replaces the track of its landmark: re-anchored)
                 lm = self.map.landmark_ids
@@ -356,7 +354,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._totals["global"] += rep.global_
         self._times[rep.kind].append(time.perf_counter() - t_start)
         self._gray = gray
-        self._stamp = stamp_ns if stamp_ns is not None else self._stamp
         self._frame_camera = camera
         self._out_rows, self._out_uv, self._out_age = rows, np.asarray(uv, float), ages
         self._out_anc, self._out_anc_uv = anc, np.asarray(anc_uv, np.float32).reshape(-1, 2)
@@ -375,7 +372,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         frame, the rest dropped; a failed estimate (or None) makes the next frame global.
 
         Args:
-            stamp_ns: the frame's stamp (ns; None: the one given to :meth:`process`).
+            stamp_ns: the frame's stamp (ns; not used).
             pixels: (M, 2) px, the rows the estimator was given, when the caller removed or
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
@@ -384,8 +381,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         """
         points2d = pixels
         camera = self._frame_camera
-        if stamp_ns is not None:
-            self._stamp = int(stamp_ns)
         if estimate is None or not getattr(estimate, "success", False):
             self._drop_tracks(keep_refresh=False)
             self._lost = True
@@ -408,13 +403,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         used = set(np.unique(self._anc).tolist())
         self._anchors = {k: g for k, g in self._anchors.items() if k in used}
         rows = self._rows
-        self._camera = camera
-        self._pose = (
-            np.asarray(estimate.R, float),
-            np.asarray(estimate.C, float),
-            np.asarray(estimate.w, float),
-            np.asarray(estimate.t, float),
-        )
         self._lost = False
         self._solved_index = self._index
         if not self.tracking or camera is None:
@@ -422,7 +410,8 @@ class TrackingFeatureFrontend(FeatureFrontend):
         low = len(rows) < self.min_tracked_inliers
         due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
         if (low or due) and self._pending is None:
-            self._start_refresh(camera)
+            pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
+            self._start_refresh(camera, pose)
 
     def wait_refresh(self, timeout: float | None = None) -> bool:
         """Block until the background refresh in flight (if any) has detected (offline runs
@@ -463,24 +452,22 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._anc = np.zeros(0, np.int64)
         self._anc_uv = np.zeros((0, 2), np.float32)
         self._anchors = {}
-        self._pose = None
         if not keep_refresh:
             self._pending = None
 
-    def _predict(self, rows: np.ndarray, stamp_ns: int | None) -> np.ndarray | None:
-        """(K, 2) px: where the map points ``rows`` land in the next frame under the last
-        frame's pose and twist held constant over ``stamp_ns`` - the last stamp (each point
-        at its own capture line, :meth:`CameraModel.project_rs`); None without a motion or
-        a rolling-shutter timing."""
-        cam = self._camera
-        if self._pose is None or cam is None or stamp_ns is None or self._stamp is None:
+    def _predict(
+        self, rows: np.ndarray, prediction: Any, cam: CameraModel | None
+    ) -> np.ndarray | None:
+        """(K, 2) px: where the map points ``rows`` land in this frame under its
+        ``prediction`` (the model ``(R, C, w, t)``; each point at its own capture line,
+        :meth:`CameraModel.project_rs` of the frame's camera ``cam``); None without a
+        prediction or a rolling-shutter timing."""
+        if prediction is None or cam is None:
             return None
         if cam.seconds_per_unit_r <= 0 or len(rows) == 0:
             return None
-        R, C, w, t = self._pose
-        dT = (stamp_ns - self._stamp) * 1e-9 / cam.seconds_per_unit_r  # (RS units)
-        Rp = rotvec_to_matrix(dT * w) @ R
-        uv = cam.project_rs(self.map.points[rows], Rp, C + dT * t, w, t, iterations=4)
+        R, C, w, t = prediction
+        uv = cam.project_rs(self.map.points[rows], R, C, w, t, iterations=4)
         return uv if np.isfinite(uv).all() else None
 
     def _cap(self, uv: np.ndarray, n: int, age: np.ndarray | None = None) -> np.ndarray:
@@ -600,9 +587,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         self._anchors[self._index] = gray
         return anc, anc_uv
 
-    def _start_refresh(self, camera: CameraModel) -> None:
-        """Detect on the last frame in a background thread (OpenCV releases the GIL)."""
-        job = _Refresh(self._index, self._gray, self._pose, camera)
+    def _start_refresh(self, camera: CameraModel, pose: tuple) -> None:
+        """Detect on the last frame in a background thread (OpenCV releases the GIL);
+        ``pose``: that frame's solved model ``(R, C, w, t)``, for its guided matching."""
+        job = _Refresh(self._index, self._gray, pose, camera)
         self._pending = job
         self.report.refresh_started = True
         # (a detector per job: a dropped job's thread may still be running)
@@ -623,9 +611,10 @@ class TrackingFeatureFrontend(FeatureFrontend):
         threading.Thread(target=run, name="tracking-refresh").start()
         self._since_refresh = 0
 
-    def _join_refresh(self, gray: np.ndarray, stamp_ns: int | None):
+    def _join_refresh(self, gray: np.ndarray, prediction: Any, camera: CameraModel | None):
         """A finished refresh (detection and guided matching in its frame, done in the
-        background): its matches followed by LK into this frame ``gray``.
+        background): its matches followed by LK into this frame ``gray``, from their pixels
+        under the frame's ``prediction``.
 
         Returns ``(uv (G, 2) float32, rows (G,), uv_k (G, 2), job)``: ``uv_k`` their
         detected pixels in the refresh frame, ``job`` the refresh (its ``index``, ``gray``)."""
@@ -637,7 +626,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         if job.result is None or self._index - job.index > 90:  # (3 s at 30 Hz: too old)
             return empty
         uv_k, rows = job.result
-        guess = self._predict(rows, stamp_ns)  # (the refresh frame may be a few frames back)
+        guess = self._predict(rows, prediction, camera)  # (the refresh frame: a few back)
         uv, rows, idx = self._track(job.gray, gray, uv_k, rows, cap=False, guess=guess)
         return uv, rows, uv_k[idx], job
 

@@ -5,15 +5,14 @@ place is refused (model: :mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import rotvec_to_matrix, skew
 from .marker_model import FrameDetections, MappingOptions, fit_rigid, marker_corners_local
 from .marker_problem import MarkerProblem
 
@@ -46,6 +45,91 @@ def _gs_errors_px(R: np.ndarray, C: np.ndarray, X: np.ndarray, x: np.ndarray, f:
     return np.where(p[:, 2] > 1e-6, e, np.inf)
 
 
+def robust_gauss_newton(
+    fun: Callable[..., tuple],
+    x0: np.ndarray,
+    f_scale: float,
+    tol: float = 1e-8,
+    max_iter: int = 100,
+) -> tuple[np.ndarray, float]:
+    """Minimize ``f_scale^2 * sum(sqrt(1 + (r / f_scale)^2) - 1)`` (SciPy's ``soft_l1`` loss
+    and cost) over a small dense problem: Levenberg-Marquardt (damping ``lambda * max(diag H)``,
+    updated as Nielsen's) on the normal equations of the robust loss (gradient weighted by the
+    loss' first derivative, curvature by SciPy's scaling of a robust loss). ``fun(x,
+    with_jac)`` returns the residuals (M,) and their Jacobian (M, N) (None without
+    ``with_jac``). Stops when a step lowers the cost by at most ``tol`` of it or moves ``x`` by
+    at most ``tol * (tol + |x|)`` (SciPy's ``ftol`` and ``xtol``), or when no step lowers it.
+    Returns ``(x (N,), cost)``."""
+
+    def cost_of(r):
+        return float(f_scale**2 * np.sum(np.sqrt(1.0 + (r / f_scale) ** 2) - 1.0))
+
+    x = np.asarray(x0, dtype=float)
+    r, J = fun(x)
+    cost = cost_of(r)
+    lam, nu = 1e-3, 2.0
+    for _ in range(max_iter):
+        # soft_l1: first derivative (1 + z)^-0.5, SciPy's curvature scale (1 + z)^-1.5
+        s1 = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+        H = J.T @ ((s1**3)[:, None] * J)
+        g = J.T @ (s1 * r)
+        damp = max(float(np.max(np.diag(H))), 1e-12) * np.eye(len(x))
+        done = True
+        for _ in range(20):
+            try:
+                step = -np.linalg.solve(H + lam * damp, g)
+            except np.linalg.LinAlgError:
+                lam, nu = lam * nu, 2 * nu
+                continue
+            r_new, _ = fun(x + step, False)
+            c_new = cost_of(r_new)
+            if c_new < cost:
+                small = cost - c_new <= tol * cost or np.linalg.norm(step) <= tol * (
+                    tol + np.linalg.norm(x)
+                )
+                gain = (cost - c_new) / max(-(g @ step + 0.5 * step @ H @ step), 1e-300)
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+                x, r, cost = x + step, r_new, c_new
+                done = small
+                break
+            lam, nu = lam * nu, 2 * nu
+        if done:
+            break
+        r, J = fun(x)
+    return x, cost
+
+
+def _rotation_and_left_jacobian(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation ``expm([q]x)`` (3, 3) and its left Jacobian (3, 3) at one rotation vector ``q``
+    (3,) (rad) (:func:`~rs_localizer.geometry.rotvec_to_matrix`,
+    :func:`~rs_localizer.mapping.marker_problem.left_jacobian`; one vector, no broadcasting)."""
+    t2 = float(q @ q)
+    K = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]])
+    K2 = K @ K
+    if t2 < 1e-12:
+        a, b, c = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0
+    else:
+        t = np.sqrt(t2)
+        st, ct = np.sin(t), np.cos(t)
+        a, b, c = st / t, (1.0 - ct) / t2, (t - st) / (t2 * t)
+    eye = np.eye(3)
+    return eye + a * K + b * K2, eye + b * K + c * K2
+
+
+def _projection_jacobian(p: np.ndarray, f: float) -> np.ndarray:
+    """(..., 2, 3) derivative of ``f * p_xy / max(p_z, 1e-6)`` with respect to the camera
+    point ``p`` (..., 3) (m; zero along z where the depth is clamped)."""
+    z = p[..., 2]
+    zc = np.maximum(z, 1e-6)
+    J = np.zeros(p.shape[:-1] + (2, 3))
+    J[..., 0, 0] = J[..., 1, 1] = f / zc
+    live = z > 1e-6
+    J[..., 0, 2] = np.where(live, -f * p[..., 0] / zc**2, 0.0)
+    J[..., 1, 2] = np.where(live, -f * p[..., 1] / zc**2, 0.0)
+    return J
+
+
 def mirrored_tilt(R: np.ndarray, views: np.ndarray) -> np.ndarray | None:
     """Rotation vector (world axes, left perturbation) that mirrors the tilt of a marker
     (rotation ``R``, marker -> world) through its mean viewing direction: the other of the two
@@ -72,7 +156,7 @@ class MarkerInit:
     markers it sees (OpenCV ``solvePnP``, Levenberg-Marquardt from the previous frame's pose, so
     a frame seeing a single marker keeps the continuous one of its two planar solutions); a
     marker first seen gets the better of its two IPPE poses in that view, and every marker is
-    refined over all its views so far (SciPy ``least_squares``) from its current tilt and from
+    refined over all its views so far (:func:`robust_gauss_newton`) from its current tilt and from
     that tilt mirrored, the better fit kept: a single view fixes a small marker's centre well
     but its tilt poorly, and may pick the wrong one of the two. The whole is moved onto the
     anchor afterwards (:func:`regauge`).
@@ -118,7 +202,7 @@ class MarkerInit:
             x,
             np.eye(3),
             None,
-            rvec=matrix_to_rotvec(R0).reshape(3, 1).copy(),
+            rvec=cv2.Rodrigues(np.asarray(R0, dtype=float))[0],
             tvec=np.asarray(C0, dtype=float).reshape(3, 1).copy(),
             useExtrinsicGuess=True,
             flags=cv2.SOLVEPNP_ITERATIVE,
@@ -145,7 +229,8 @@ class MarkerInit:
     def pose_frame(self, k: int, guess: tuple | None, cut: bool = False) -> bool:
         """Pose of frame ``k`` from the placed markers it sees, started from ``guess``.
 
-        With several markers, the pose from all of them and from each alone compete: the one
+        With several markers, the pose from all of them and from each alone compete (each
+        alone only when some marker disagrees with the pose from all of them): the one
         that most markers agree with wins (ties: the one nearest the guess, the video being
         continuous); markers that disagree with it (a misdetection, or one id at another place)
         are left out of this frame's initialization. After a cut (``cut``: a gap in the
@@ -177,22 +262,30 @@ class MarkerInit:
         subsets: list | None = None,
     ) -> tuple | None:
         """The best ``(score, pose, agreeing markers)`` over PnP from ``starts`` on
-        ``subsets`` (default: all known markers, then each alone), or None."""
-        if subsets is None:
+        ``subsets`` (default: all known markers, then each alone unless every marker agrees
+        with the pose from all of them), or None."""
+        every = subsets is None
+        if every:
             subsets = [known] + ([[m] for m in known] if len(known) > 1 else [])
         best = None
+        # (every known marker's reprojection RMS at once, as _rms)
+        X = np.concatenate([self.world_corners(m) for m in known])
+        x = np.concatenate([self.obs[k][m] for m in known])
         for sub, start in zip(subsets, starts, strict=False):
             pose = self._pnp(k, sub, start)
             if pose is None:
                 continue
             R, C = pose
-            agree = [m for m in known if self._rms(k, m, R, C) <= self.gate_px]
-            away = np.linalg.norm(matrix_to_rotvec(R @ guess[0].T)) + np.linalg.norm(
+            rms = np.sqrt(np.mean(_gs_errors_px(R, C, X, x, self.f).reshape(-1, 4) ** 2, axis=1))
+            agree = [m for m, r in zip(known, rms, strict=True) if r <= self.gate_px]
+            away = np.linalg.norm(cv2.Rodrigues(R @ guess[0].T)[0]) + np.linalg.norm(
                 R.T @ C - guess[0].T @ guess[1]
             )
             score = (len(agree), -away)
             if best is None or score > best[0]:
                 best = (score, pose, agree)
+            if every and len(agree) == len(known):  # (all agree: no marker alone does better)
+                break
         return best
 
     def new_marker(self, k: int, mid: int) -> None:
@@ -218,11 +311,21 @@ class MarkerInit:
         Cs = np.array([self.frames[k][1] for k in frames])
         xs = np.array([self.obs[k][mid] for k in frames])
 
-        def res(q):
-            X = obj @ (rotvec_to_matrix(q[:3]) @ R0).T + q[3:]
-            p = np.einsum("kij,nj->kni", Rs, X) + Cs[:, None, :]
+        def fun(q, with_jac=True):
+            E, Jl = _rotation_and_left_jacobian(q[:3])
+            Y = obj @ (E @ R0).T
+            p = np.einsum("kij,nj->kni", Rs, Y + q[3:]) + Cs[:, None, :]
             z = np.maximum(p[..., 2:3], 1e-6)
-            return ((p[..., :2] / z - xs) * self.f).ravel()
+            r = ((p[..., :2] / z - xs) * self.f).ravel()
+            if not with_jac:
+                return r, None
+            # (analytic: d expm([q]x) v / dq = -[expm([q]x) v]x J_l(q))
+            dX = np.concatenate(
+                [-skew(Y) @ Jl, np.broadcast_to(np.eye(3), (len(Y), 3, 3))],
+                axis=2,
+            )  # (n, 3, 6)
+            J = _projection_jacobian(p, self.f) @ np.einsum("kij,njc->knic", Rs, dX)
+            return r, J.reshape(-1, 6)
 
         starts = [np.zeros(3)]
         centres = -np.einsum("kji,kj->ki", Rs, Cs)  # (the cameras' centres in the world)
@@ -231,10 +334,10 @@ class MarkerInit:
             starts.append(delta)
         best = None
         for r0 in starts:
-            sol = least_squares(res, np.r_[r0, p0], loss="soft_l1", f_scale=5.0)
-            if best is None or sol.cost < best.cost:
-                best = sol
-        self.markers[mid] = (rotvec_to_matrix(best.x[:3]) @ R0, best.x[3:])
+            x, cost = robust_gauss_newton(fun, np.r_[r0, p0], f_scale=5.0)
+            if best is None or cost < best[1]:
+                best = (x, cost)
+        self.markers[mid] = (rotvec_to_matrix(best[0][:3]) @ R0, best[0][3:])
 
     def adjust(self) -> None:
         """Global-shutter bundle adjustment of everything placed so far (gauge: the seed

@@ -400,6 +400,7 @@ def _assemble(
         timings=timings,
         global_shutter=options.global_shutter,
         corner_offset_px=prob.corner_offset(sol.x),
+        corner_offset_std_px=prob.corner_offset_std(sol.x),
         frame=framed["frame"],
         coverage=_coverage(prob, Rf, Cf, framed["gauge_poses"], mstd, sides, options.coverage_std),
         marker_shape_std=framed["shape_std"],

@@ -253,6 +253,8 @@ class MarkerMapResult:
         global_shutter: the global-shutter model was used.
         corner_offset_px: the detector's corner offset found (pixels, inwards along the
             diagonals; ``MappingOptions.corner_offset``), 0 when not estimated.
+        corner_offset_std_px: its standard deviation (pixels; every detection independent),
+            NaN when not estimated.
         frame: :class:`OutputFrame`: how the output frame is fixed, and how well.
         coverage: id -> why the marker's stated std exceeds ``MappingOptions.coverage_std``
             and what would help.
@@ -286,6 +288,7 @@ class MarkerMapResult:
     timings: dict
     global_shutter: bool
     corner_offset_px: float = 0.0
+    corner_offset_std_px: float = float("nan")
     frame: OutputFrame | None = None
     coverage: dict = field(default_factory=dict)
     marker_shape_std: dict = field(default_factory=dict)

@@ -11,10 +11,10 @@ from typing import Any, Protocol
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix, lil_matrix
+from scipy.sparse import coo_matrix, csr_matrix, lil_matrix
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
 from .marker_model import MappingOptions, marker_corners_local
 
 
@@ -30,6 +30,34 @@ class Placement(Protocol):
     frames: dict
     markers: dict
     stamps: dict
+
+
+def left_jacobian(q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) left Jacobian of SO(3) at rotation vectors ``q`` (..., 3) (rad):
+    ``J_l(q) = I + (1 - cos t) / t^2 [q]x + (t - sin t) / t^3 [q]x^2``, ``t = |q|``, so that
+    ``expm([q + d]x) = expm([J_l(q) d]x) expm([q]x)`` to first order in ``d``."""
+    q = np.asarray(q, dtype=float)
+    t = np.linalg.norm(q, axis=-1)[..., None, None]
+    K = skew(q)
+    small = t < 1e-6
+    th = np.where(small, 1.0, t)
+    b = np.where(small, 0.5 - t**2 / 24.0, (1.0 - np.cos(th)) / th**2)
+    c = np.where(small, 1.0 / 6.0 - t**2 / 120.0, (th - np.sin(th)) / th**3)
+    return np.eye(3) + b * K + c * (K @ K)
+
+
+def inverse_left_jacobian(q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) inverse of :func:`left_jacobian`:
+    ``I - [q]x / 2 + (1 / t^2 - (1 + cos t) / (2 t sin t)) [q]x^2``, ``t = |q| < pi``."""
+    q = np.asarray(q, dtype=float)
+    t = np.linalg.norm(q, axis=-1)[..., None, None]
+    K = skew(q)
+    small = t < 1e-4
+    th = np.where(small, 1.0, t)
+    c = np.where(
+        small, 1.0 / 12.0 + t**2 / 720.0, 1.0 / th**2 - (1 + np.cos(th)) / (2 * th * np.sin(th))
+    )
+    return np.eye(3) - 0.5 * K + c * (K @ K)
 
 
 class MarkerProblem:
@@ -149,6 +177,31 @@ class MarkerProblem:
         """The detector's corner offset (pixels, inwards) in ``x``; 0 when not estimated."""
         return float(x[self.co_col]) if self.co_col is not None else 0.0
 
+    def corner_offset_std(self, x: np.ndarray) -> float:
+        """Standard deviation (pixels) of the corner offset at the solution ``x``: its diagonal
+        element of ``(J^T J)^-1`` (:meth:`jacobian`; the rows in pixels and the offset's prior
+        scaled by ``1 / noise_px``, every detection independent; the frames, markers and line
+        delay marginalized). NaN when it is not estimated or the normal matrix is singular."""
+        if self.co_col is None:
+            return float("nan")
+        from scipy.sparse import diags
+        from scipy.sparse.linalg import splu
+
+        J = self.jacobian(x)
+        scale = np.ones(J.shape[0])
+        n_px = 8 * int(self.keep.sum())
+        scale[:n_px] = 1.0 / max(self.noise_px, 1e-12)
+        scale[n_px + (6 if self.fix is not None else 0)] = 1.0 / max(self.noise_px, 1e-12)
+        J = diags(scale) @ J
+        e = np.zeros(self.n)
+        e[self.co_col] = 1.0
+        try:
+            with np.errstate(all="raise"):
+                v = float(splu((J.T @ J).tocsc()).solve(e)[self.co_col])
+        except (RuntimeError, FloatingPointError):
+            return float("nan")
+        return float(np.sqrt(v)) if v > 0 else float("nan")
+
     def corner_residuals(self, x: np.ndarray) -> np.ndarray:
         """(N, 2) reprojection residuals (pixels) of all corners."""
         Rf, Cf, W, T, Rm, pm, ld = self.unpack(x)
@@ -204,6 +257,139 @@ class MarkerProblem:
             ]
         )
 
+    def jacobian(self, x: np.ndarray) -> csr_matrix:
+        """Sparse analytic Jacobian of :meth:`residuals` at ``x`` (rows and columns as there;
+        the pattern of :meth:`sparsity`). Rotations are perturbed as the parameters are: on
+        the left of the starting rotation, ``expm([r + d]x) = expm([J_l(r) d]x) expm([r]x)``
+        (:func:`left_jacobian`)."""
+        Rf, Cf, W, T, Rm, pm, ld = self.unpack(x)
+        fpar, fi, mi = self.fpar, self.fi, self.mi
+        F = x[: self.moff].reshape(self.nf, fpar)
+        M = x[self.moff : self.moff + 6 * self.nm].reshape(self.nm, 6)
+        Jlf = left_jacobian(F[:, :3])
+        Jlm = np.concatenate([left_jacobian(M[:, :3]), np.eye(3)[None]])  # (anchor last)
+        Rm_all = np.concatenate([Rm, self.Ra[None]])
+        pm_all = np.concatenate([pm, self.pa[None]])
+        Y = np.einsum("nij,nj->ni", Rm_all[mi], self.loc)
+        X = Y + pm_all[mi]
+        foc = self.camera.focal
+        ts = self.tau * (ld * foc)
+        A = rotvec_to_matrix(ts[:, None] * W[fi])
+        ARf = A @ Rf[fi]
+        AQ = np.einsum("nij,nj->ni", ARf, X)
+        p = AQ + Cf[fi] + ts[:, None] * T[fi]
+        N = len(p)
+        has_ld = self.ld_col is not None
+        nl = fpar + 6 + has_ld  # local columns: frame, marker, line delay
+        dp = np.zeros((N, 3, nl))
+        # frame rotation: p = A expm(r) R0 X + ...
+        Q = np.einsum("nij,nj->ni", Rf[fi], X)
+        dp[:, :, 0:3] = A @ (-skew(Q) @ Jlf[fi])
+        dp[:, :, 3:6] = np.eye(3)
+        if self.vel:
+            tW = ts[:, None] * W[fi]
+            dp[:, :, 6:9] = (-skew(AQ) @ left_jacobian(tW)) * ts[:, None, None]
+            dp[:, :, 9:12] = np.eye(3) * ts[:, None, None]
+        dp[:, :, fpar : fpar + 3] = ARf @ (-skew(Y) @ Jlm[mi])
+        dp[:, :, fpar + 3 : fpar + 6] = ARf
+        if has_ld:  # ts = tau * ld * focal, ld = x * 1e-6
+            dts = np.einsum("nij,nj->ni", skew(W[fi]), AQ) + T[fi]
+            dp[:, :, -1] = dts * (self.tau * foc * 1e-6)[:, None]
+        z = p[:, 2]
+        live = z > 1e-6
+        zc = np.where(live, z, 1e-6)
+        P = np.zeros((N, 2, 3))
+        P[:, 0, 0] = self.fxy[0] / zc
+        P[:, 1, 1] = self.fxy[1] / zc
+        P[:, 0, 2] = np.where(live, -self.fxy[0] * p[:, 0] / zc**2, 0.0)
+        P[:, 1, 2] = np.where(live, -self.fxy[1] * p[:, 1] / zc**2, 0.0)
+        de = P @ dp  # (N, 2, nl)
+        if self.co_col is not None:  # e -= co * d, d the unit direction of u from its centre
+            u = p[:, :2] / zc[:, None] * self.fxy
+            v = (u.reshape(-1, 4, 2) - u.reshape(-1, 4, 2).mean(axis=1, keepdims=True)).reshape(
+                -1, 2
+            )
+            nv = np.maximum(np.linalg.norm(v, axis=1), 1e-9)
+            d = v / nv[:, None]
+            q4 = de.reshape(-1, 4, 2, nl)
+            dv = (q4 - q4.mean(axis=1, keepdims=True)).reshape(N, 2, nl)
+            proj = (np.eye(2) - d[:, :, None] * d[:, None, :]) / nv[:, None, None]
+            de = de - x[self.co_col] * (proj @ dv)
+        # rows of the kept detections (two per corner)
+        kc = np.repeat(self.keep, 4)
+        de, d_kept = de[kc], (d[kc] if self.co_col is not None else None)
+        fk, mk = fi[kc], mi[kc]
+        nk = len(fk)
+        rows = np.arange(2 * nk).reshape(nk, 2)
+        cols = np.empty((nk, nl), dtype=np.int64)
+        cols[:, :fpar] = fk[:, None] * fpar + np.arange(fpar)
+        cols[:, fpar : fpar + 6] = self.moff + 6 * mk[:, None] + np.arange(6)
+        if has_ld:
+            cols[:, -1] = self.ld_col
+        use = np.ones((nk, nl), dtype=bool)
+        use[:, fpar : fpar + 6] = (mk >= 0)[:, None]  # (the anchor is not adjusted)
+        R_ = np.broadcast_to(rows[:, :, None], (nk, 2, nl))
+        C_ = np.broadcast_to(cols[:, None, :], (nk, 2, nl))
+        U_ = np.broadcast_to(use[:, None, :], (nk, 2, nl))
+        r_l, c_l, v_l = [R_[U_]], [C_[U_]], [de[U_]]
+        if self.co_col is not None:
+            r_l.append(rows.ravel())
+            c_l.append(np.full(2 * nk, self.co_col))
+            v_l.append(-d_kept.ravel())
+        row = 2 * nk
+        if self.fix is not None:
+            r_l.append(row + np.arange(6))
+            c_l.append(self.fix * fpar + np.arange(6))
+            v_l.append(np.full(6, 1e3))
+            row += 6
+        if self.co_col is not None:
+            r_l.append([row])
+            c_l.append([self.co_col])
+            v_l.append([self.noise_px / self.opts.corner_offset_sigma_px])
+            row += 1
+        if self.ties:
+            o = self.opts
+            i = np.array([a for a, _, _ in self.ties])
+            j = np.array([b for _, b, _ in self.ties])
+            dt = np.array([dd for _, _, dd in self.ties])
+            nt = len(i)
+            phi = matrix_to_rotvec(Rf[j] @ np.swapaxes(Rf[i], 1, 2))
+            Jinv = inverse_left_jacobian(phi)
+            eye = np.broadcast_to(np.eye(3), (nt, 3, 3))
+            blocks = []  # (row offset, frame index per tie, first column in the frame, (nt, 3, 3))
+            blocks.append((0, j, 0, Jinv @ Jlf[j] / o.motion_sigma_rot))
+            blocks.append((0, i, 0, -np.swapaxes(Jinv, 1, 2) @ Jlf[i] / o.motion_sigma_rot))
+            hw = (-0.5 * dt / o.motion_sigma_rot)[:, None, None] * eye
+            blocks += [(0, i, 6, hw), (0, j, 6, hw)]
+            # ec = c_j - c_i - dt / 2 (v_i + v_j), c = -R^T C, v = R^T u, u = W x C - T; with
+            # R -> expm([a]x) R, a = J_l d: dc = -R^T [C]x a, dv = R^T [u]x a
+            Rt = np.swapaxes(Rf, 1, 2)
+            u = np.cross(W, Cf) - T
+            sp = 1.0 / o.motion_sigma_pos
+            h = (0.5 * dt * sp)[:, None, None]
+            for fr, sign in ((j, sp), (i, -sp)):
+                Rtn, Jn = Rt[fr], Jlf[fr]
+                dc_r = -Rtn @ skew(Cf[fr]) @ Jn
+                dv_r = Rtn @ skew(u[fr]) @ Jn
+                blocks.append((3 * nt, fr, 0, sign * dc_r - h * dv_r))
+                blocks.append((3 * nt, fr, 3, -sign * Rtn - h * (Rtn @ skew(W[fr]))))
+                blocks.append((3 * nt, fr, 6, h * (Rtn @ skew(Cf[fr]))))
+                blocks.append((3 * nt, fr, 9, h * Rtn))
+            ia = (1.0 / (o.motion_sigma_angular_accel * dt))[:, None, None] * eye
+            blocks += [(6 * nt, j, 6, ia), (6 * nt, i, 6, -ia)]
+            for off, fr, c0, B in blocks:
+                rr = row + off + 3 * np.arange(nt)[:, None, None] + np.arange(3)[None, :, None]
+                cc = fr[:, None, None] * fpar + c0 + np.arange(3)[None, None, :]
+                r_l.append(np.broadcast_to(rr, (nt, 3, 3)).ravel())
+                c_l.append(np.broadcast_to(cc, (nt, 3, 3)).ravel())
+                v_l.append(B.ravel())
+            row += 9 * nt
+        J = coo_matrix(
+            (np.concatenate(v_l), (np.concatenate(r_l), np.concatenate(c_l))),
+            shape=(row, self.n),
+        )
+        return J.tocsr()
+
     def solve(
         self,
         x0: np.ndarray,
@@ -220,7 +406,7 @@ class MarkerProblem:
         return least_squares(
             self.residuals,
             x0,
-            jac_sparsity=self.sparsity(),
+            jac=self.jacobian,
             loss=loss,
             f_scale=f_scale,
             x_scale="jac",

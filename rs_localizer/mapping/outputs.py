@@ -283,6 +283,7 @@ def write_report(
         "line_delay_s": float(result.line_delay),
         "readout": readout_dict(result),
         "corner_offset_px": round(float(result.corner_offset_px), 4),
+        "corner_offset_std_px": round(float(result.corner_offset_std_px), 4),
         "rejected_detections": int(result.num_rejected),
         "frames_with_pose": len(result.frame_ids),
         "frames_skipped": int(result.num_frames_skipped),

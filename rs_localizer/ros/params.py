@@ -36,12 +36,16 @@ __all__ = [
     "IMAGE_TRANSPORTS",
     "OPTION_GROUPS",
     "PARAMETERS",
+    "RIG_CAMERA_PARAMETERS",
+    "RIG_PARAMETERS",
     "ConfigError",
     "FloatRange",
     "ImuConfig",
     "IntRange",
     "LocalizerConfig",
     "Parameter",
+    "RigCameraConfig",
+    "RigConfig",
     "build_config",
     "check_parameter",
     "default_values",
@@ -51,6 +55,7 @@ __all__ = [
     "parameter_values",
     "points_needed",
     "read_params_file",
+    "rig_config",
     "tracker_options",
 ]
 
@@ -494,10 +499,11 @@ PARAMETERS = {
         read_only=True,
     ),
     "aruco.quad_decimate": Parameter(
-        1.5,
+        0.0,
         "AprilTag: find quads on the image decimated by this factor (1: full resolution, "
-        "finds smaller tags, slower); corners refined and tags decoded at full resolution",
-        FloatRange(from_value=1.0, to_value=8.0),
+        "finds smaller tags, slower; 1.5 or an integer); corners refined and tags decoded at "
+        "full resolution; 0: by image size (1.5 up to 640x480, 2 above)",
+        FloatRange(from_value=0.0, to_value=8.0),
         read_only=True,
     ),
     "aruco.nthreads": Parameter(
@@ -529,6 +535,27 @@ PARAMETERS = {
         "AprilTag: smallest decision margin of a kept tag (the library's units; negative: the "
         "binding's default)",
         FloatRange(from_value=-1.0, to_value=10_000.0),
+        read_only=True,
+    ),
+    "aruco.adaptive_thresh_constant": Parameter(
+        20.0,
+        "OpenCV: grey levels below the neighbourhood mean that make a marker candidate's dark "
+        "(OpenCV's adaptiveThreshConstant; its default 7 makes textured walls candidates)",
+        FloatRange(from_value=0.0, to_value=255.0),
+        read_only=True,
+    ),
+    "aruco.adaptive_thresh_win_size_step": Parameter(
+        20,
+        "OpenCV: px; step of the thresholding windows from 3 to 23 px (OpenCV's "
+        "adaptiveThreshWinSizeStep; 20: two passes, 10: three)",
+        IntRange(from_value=1, to_value=100),
+        read_only=True,
+    ),
+    "aruco.error_correction_rate": Parameter(
+        0.6,
+        "OpenCV: share of the dictionary's correctable bits a kept marker may have wrong "
+        "(OpenCV's errorCorrectionRate)",
+        FloatRange(from_value=0.0, to_value=1.0),
         read_only=True,
     ),
     "features.min_tracked_inliers": Parameter(
@@ -1096,3 +1123,164 @@ def default_timing_note(cfg: LocalizerConfig) -> str | None:
         "the published values in docs/video.md; a wrong line delay biases the angular and "
         "linear velocity"
     )
+
+
+# ---------------------------------------------------------------------- the rig mode
+#: the rig mode's parameters (docs/rig_node.md): with ``rig.cameras`` set the process runs one
+#: :class:`~rs_localizer.ros.rig_node.RigLocalizerNode` for the rig instead of one localizer per
+#: camera; every parameter of :data:`PARAMETERS` applies to it too (``ransac.*``, ``tracking.*``,
+#: ``rs.*`` as every camera's default timing, ``map_frame``, ``base_frame``, ``publish_tf``,
+#: ``time_reset_threshold``, ``diagnostics_period``). ``rig.cameras`` is a string array (its
+#: empty default is declared with that type).
+RIG_PARAMETERS = {
+    "rig.cameras": Parameter(
+        [],
+        "the rig's camera names: one pose for all of them (topics <camera>/correspondences "
+        "and <camera>/camera_info; each needs rig.<camera>.mounting); empty: no rig",
+        read_only=True,
+    ),
+    "rig.window": Parameter(
+        0.015,
+        "s; the frames of one rig frame lie within this of its earliest (reference-row "
+        "capture times); stamps further apart are different rig frames",
+        FloatRange(from_value=0.0, to_value=1.0),
+        read_only=True,
+    ),
+    "rig.stop_after": Parameter(
+        0.5,
+        "s of stamp time without a frame of a camera (while the others send) after which the "
+        "rig stops waiting for it and runs on the others",
+        FloatRange(from_value=0.001, to_value=3600.0),
+        read_only=True,
+    ),
+}
+#: each rig camera's parameters, declared as ``rig.<camera>.<name>`` for every camera of
+#: ``rig.cameras`` (``mounting`` has no default: a camera without one stops the node at start)
+RIG_CAMERA_PARAMETERS = {
+    "mounting": Parameter(
+        [],
+        "x, y, z (m), qx, qy, qz, qw: the camera optical frame's pose in base_frame (required)",
+        read_only=True,
+    ),
+    "line_delay": Parameter(
+        -1.0,
+        "s per line of the camera's rolling shutter; negative: rs.line_delay",
+        FloatRange(from_value=-1.0, to_value=1.0),
+        read_only=True,
+    ),
+    "readout_time": Parameter(
+        -1.0,
+        "s per frame (wins over line_delay when > 0); negative: rs.readout_time",
+        FloatRange(from_value=-1.0, to_value=10.0),
+        read_only=True,
+    ),
+    "direction": Parameter(
+        "", "the camera's readout direction; empty: rs.direction", read_only=True
+    ),
+}
+
+
+@dataclass(frozen=True)
+class RigCameraConfig:
+    """One camera of the rig: its ``name``, ``mount`` (a
+    :class:`~rs_localizer.tracking.rig.RigMount`, rig = ``base_frame``) and RS timing
+    (``line_delay`` s/line, ``readout_time`` s, ``direction``) for its camera_info's model."""
+
+    name: str
+    mount: Any
+    line_delay: float
+    readout_time: float
+    direction: str
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
+    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`), ``base_frame`` (the rig's
+    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``."""
+
+    cameras: tuple
+    settings: Any
+    base_frame: str
+    reference_row: float | None
+
+
+def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:
+    """The rig's configuration of a full set of :data:`PARAMETERS` and :data:`RIG_PARAMETERS`
+    values and, per camera of ``rig.cameras``, its :data:`RIG_CAMERA_PARAMETERS` values
+    (``mounting`` None: not given).
+
+    Raises:
+        ConfigError: no cameras, a camera listed twice or without a usable mounting (naming
+            it), an unknown readout direction, estimator or tracking options their classes
+            reject.
+    """
+    from ..tracking.rig import RigMount, RigSettings, RigTrackingOptions
+
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    if not names or any(not n for n in names):
+        raise ConfigError(f"rig.cameras: needs camera names, got {list(values['rig.cameras'])}")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
+    opts, tracking, _ = _estimation(values)
+    line_delay, readout_time, direction, reference_row = _timing(values)
+    out = []
+    for n in names:
+        c = cameras.get(n, {})
+        m = c.get("mounting")
+        if m is None or len(m) == 0:
+            raise ConfigError(
+                f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
+                "qw] (its optical frame's pose in base_frame)"
+            )
+        if len(m) != 7 or not np.isfinite(np.asarray(m, dtype=float)).all():
+            raise ConfigError(
+                f"rig.{n}.mounting must be 7 finite numbers x, y, z, qx, qy, qz, qw, got {list(m)}"
+            )
+        try:
+            R = cv.matrix_from_quaternion(m[3:])
+            mount = RigMount.from_pose(R, m[:3])
+        except ValueError as e:
+            raise ConfigError(f"rig.{n}.mounting: {e}") from None
+        ld = float(c.get("line_delay", -1.0))
+        rt = float(c.get("readout_time", -1.0))
+        d = str(c.get("direction", "") or direction).strip()
+        if d not in READOUT_DIRECTIONS:
+            raise ConfigError(
+                f"rig.{n}.direction: unknown readout direction {d!r}; expected one of "
+                f"{list(READOUT_DIRECTIONS)}"
+            )
+        out.append(
+            RigCameraConfig(
+                n, mount, line_delay if ld < 0 else ld, readout_time if rt < 0 else rt, d
+            )
+        )
+    to = None
+    if tracking is not None:
+        to = RigTrackingOptions(
+            gate_px=tracking.gate_px,
+            gate_sigmas=tracking.gate_sigmas,
+            max_gate_px=tracking.max_gate_px,
+            min_explained_ratio=tracking.min_explained_ratio,
+            max_gap=tracking.max_gap,
+            fusion=tracking.fusion,
+        )
+    r = opts.ransac
+    try:
+        settings = RigSettings(
+            {c.name: c.mount for c in out},
+            window=float(values["rig.window"]),
+            stop_after=float(values["rig.stop_after"]),
+            stamp_row=float(values["rs.stamp_row"]),
+            time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
+            threshold_px=r.threshold_px,
+            max_iterations=r.max_iterations,
+            min_inliers=r.min_inliers,
+            refine=opts.refine.enabled,
+            seed=r.seed,
+            tracking=to,
+        )
+    except ValueError as e:
+        raise ConfigError(f"rig: {e}") from None
+    base = str(values["base_frame"]).strip() or "base_link"
+    return RigConfig(tuple(out), settings, base, reference_row)

@@ -12,6 +12,9 @@ command-line ROS argument except the namespace and node-name remaps (so ``--para
 ``-p`` and topic remaps such as ``-r image:=image_raw`` apply to every camera) and reads its own
 section of the parameter file too, e.g. ``/robot/front/rs_localizer: ros__parameters:
 {camera_frame: front_optical}``.
+
+With ``rig.cameras`` set (the rig mode, docs/rig_node.md) the process runs one
+:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` posing all of the rig's cameras as one body.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from collections.abc import Sequence
 
 import rclpy
 
-__all__ = ["camera_namespaces", "node_cli_args", "read_cameras", "run"]
+__all__ = ["camera_namespaces", "node_cli_args", "read_cameras", "read_rig_cameras", "run"]
 
 
 def camera_namespaces(cameras: Sequence[str], base_namespace: str = "/") -> list[str]:
@@ -102,6 +105,26 @@ def read_cameras(node_name: str = "rs_localizer") -> tuple[list[str], str, str]:
         probe.destroy_node()
 
 
+def read_rig_cameras(node_name: str = "rs_localizer") -> list[str]:
+    """The ``rig.cameras`` parameter as the single node would see it (empty: no rig), via a
+    short-lived probe node."""
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.exceptions import ParameterUninitializedException
+    from rclpy.parameter import Parameter
+
+    probe = rclpy.create_node(node_name)
+    try:
+        probe.declare_parameter(
+            "rig.cameras", Parameter.Type.STRING_ARRAY, ParameterDescriptor(read_only=True)
+        )
+        try:
+            return list(probe.get_parameter("rig.cameras").value or [])
+        except ParameterUninitializedException:
+            return []
+    finally:
+        probe.destroy_node()
+
+
 def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localizer_node") -> int:
     """Initialize rclpy with ``args`` (default ``sys.argv``), create the node(s) of
     ``node_class`` (see the module docstring) and spin them until shutdown. Returns the exit
@@ -117,7 +140,13 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
     executor = None
     try:
         cams, base_ns, name = read_cameras()
-        if cams:
+        if read_rig_cameras():  # (the rig mode: one node for every camera of the rig)
+            from .rig_node import RigLocalizerNode
+
+            if prog != "rs_localizer_node":
+                raise RuntimeError("the rig mode (rig.cameras) runs in rs_localizer_node only")
+            nodes.append(RigLocalizerNode())
+        elif cams:
             cli = node_cli_args(argv)
             try:
                 namespaces = camera_namespaces(cams, base_ns)

@@ -8,7 +8,8 @@
 * :mod:`.noise`: correlated image noise;
 * :mod:`.attacks`: correspondences no camera can produce, and true data sets;
 * :mod:`.aruco_video`: a rendered marker video and the ArUco front end on it;
-* :mod:`.marker_mapping`: marker maps of simulated rooms against their truth.
+* :mod:`.marker_mapping`: marker maps of simulated rooms against their truth;
+* :mod:`.rig`: rigs of 2-4 rolling-shutter cameras and their frames.
 
 Simulation produces data; nothing in the library imports it (the CLI, the experiments and the
 benchmarks outside the package do).

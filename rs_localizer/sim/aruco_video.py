@@ -13,6 +13,7 @@ from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
 from ..frontends.aruco import ArucoFrontend
 from ..geometry import rotation_angle_deg
+from ..tracking.tracker import CarriedPrediction
 from .render.motion import make_motion
 from .render.renderer import NoiseModel, RenderedFrame, Renderer, camera_preset
 from .render.scene import Scene, load_scene
@@ -42,7 +43,8 @@ def run_interleaved(
     window options) and ``r6p_1lin``, frame by frame in turn.
     Returns ``{"full": ..., "windowed": ...}`` of per-frame arrays ``detect`` (s), ``n``
     (correspondences), ``rot`` (deg), ``pos`` (m) (NaN: not posed), ``win`` (bool: searched
-    in windows), plus ``corner_diff``
+    in windows; each front end searches from the last solved frame carried to the frame's
+    stamp, :class:`~rs_localizer.tracking.tracker.CarriedPrediction`), plus ``corner_diff``
     (px): the largest distance between a corner found by both on the same frame, and
     ``summary`` (the windowed front end's :meth:`~ArucoFrontend.summary`)."""
     fes = {
@@ -50,16 +52,19 @@ def run_interleaved(
         "windowed": ArucoFrontend.from_scene(scene, windowed=True, **windowed_kw),
     }
     out = {m: {k: [] for k in ("detect", "n", "rot", "pos", "win")} for m in fes}
+    carry = {m: CarriedPrediction() for m in fes}
     diff = 0.0
     for f in frames:
         stamp = int(round(f.t_first * 1e9))
         got = {}
         for mode, fe in fes.items():
             t0 = time.perf_counter()
-            c = fe.process(f.image, camera, encoding="rgb8", stamp_ns=stamp)
+            pred = carry[mode].predict(stamp, camera)
+            c = fe.process(f.image, camera, encoding="rgb8", stamp_ns=stamp, prediction=pred)
             out[mode]["detect"].append(time.perf_counter() - t0)
             est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
             fe.observe(stamp, None, est)
+            carry[mode].update(stamp, est)
             ok = est is not None and est.success
             out[mode]["n"].append(len(c))
             out[mode]["win"].append(fe.last_kind == "windowed")

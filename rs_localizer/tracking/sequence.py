@@ -14,9 +14,14 @@ OpenVINS' ``VioManager``, which its ROS wrappers and bag runner only drive):
   with ``estimate_bias``) and the check of the gyro against the rotation between solved frames
   (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`: frames are solved without the
   gyro while it is declared inconsistent);
-- time resets: a frame stamp older than the previous one, or newer by more than
-  ``time_reset_ns`` (:meth:`check_time`) starts the gyro's timeline again (the samples of the
-  previous timeline, the bias estimator's and the check's pairing);
+- the time policy, decided here (:class:`SequenceSettings`) and passed down: a frame stamp
+  older than the previous one, or newer by more than ``time_reset_ns`` (:meth:`check_time`),
+  starts the gyro's timeline again (the samples of the previous timeline, the bias
+  estimator's and the check's pairing); frames further apart than
+  :attr:`SequenceSettings.max_gap` share nothing across the gap (the track resets, the front
+  end gets no prediction, the gyro check and the bias estimator form no pair);
+- the prediction of each frame (:meth:`predict`): the tracker's, the one its estimator
+  starts from, is what the front end searches with (no front end keeps a pose);
 - the optional image front end (:meth:`set_frontend`) and its feedback: what
   :meth:`process_image` calls on it is the
   :class:`~rs_localizer.correspondences.VideoFrontend` protocol.
@@ -69,13 +74,13 @@ from ..estimation.estimate import (
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
-from ..pose import RSPose
+from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .gyro_check import GyroMountCheck
-from .tracker import RSTracker, TrackerOptions
+from .gyro_check import GyroMountCheck, MountCheckOptions
+from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -194,10 +199,12 @@ class SequenceSettings:
             :class:`~rs_localizer.tracking.tracker.TrackerOptions`; None: every frame alone.
         imu: how the gyro is used (:class:`GyroSettings`); None: no gyro.
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
-        time_reset_ns: a forward stamp jump larger than this (ns) is a time reset (the gyro's
-            timeline starts again). The track itself is reset after ``tracking.max_gap`` s,
-            and the front end of :meth:`SequenceLocalizer.process_image` is given that same
-            gap (its own prediction is not trusted over a longer one).
+        time_reset_ns: a forward stamp jump larger than this (ns), or any step back, is a time
+            reset: the clock may have started again (a bag replayed, a driver restarted), so
+            the gyro's timeline starts again (its samples older than the previous frame are
+            dropped; the node counts ``time_resets``). Longer than :attr:`max_gap` by default
+            (1 s against 0.5 s): frames lost for half a second leave the gyro's samples
+            usable, while nothing is predicted across the gap.
         frozen_image_level: an image of :meth:`SequenceLocalizer.process_image` whose pixel
             sample differs from the previous image's by at most this mean absolute
             difference (gray levels; :func:`same_image`) is the same picture again (a driver
@@ -222,6 +229,19 @@ class SequenceSettings:
     check_gyro: bool = True
     max_points: int | None = None
     frozen_image_level: float = FROZEN_IMAGE_LEVEL
+
+    @property
+    def max_gap(self) -> float:
+        """s: the one gap policy of the video, ``tracking.max_gap`` (the
+        :class:`~rs_localizer.tracking.tracker.TrackerOptions` default, 0.5 s, without
+        tracking). Frames further apart, or a stamp going back or repeated, share nothing
+        across the gap (:func:`~rs_localizer.tracking.tracker.predictable`): the tracker
+        resets, the front end gets no prediction (it searches the image whole), and the gyro
+        check and the gyro-bias estimator form no pair across it (their ``max_interval``);
+        after this long without frames (wall clock) the pending twists go out
+        (:meth:`SequenceLocalizer.flush_idle`)."""
+        t = self.tracking
+        return float(t.max_gap if t is not None else TrackerOptions.max_gap)
 
 
 @dataclass(frozen=True)
@@ -476,6 +496,8 @@ class SequenceLocalizer:
         self._check_key = None
         self._frontend: VideoFrontend | None = None
         self._last_image: tuple | None = None  # (image_sample of the previous image)
+        # the last solved frame carried at its own twist: the prediction without a tracker
+        self._carried = CarriedPrediction()
         self.frontend_name = frontend_name
         self.configure(settings or SequenceSettings())
         self.set_frontend(frontend, frontend_name)
@@ -491,6 +513,7 @@ class SequenceLocalizer:
         anew); the tracker is made again at the next frame when the solver, the options or the
         tracking options changed."""
         self.settings = settings
+        self._carried.max_gap = settings.max_gap
         imu = settings.imu
         if imu is None:
             self.imu = None
@@ -514,7 +537,8 @@ class SequenceLocalizer:
         if imu is None or not imu.estimate_bias:
             self.gyro_bias = self._bias_key = None
             return
-        key = (*_gyro_calibration(imu), imu.bias_random_walk)
+        gap = self.settings.max_gap
+        key = (*_gyro_calibration(imu), imu.bias_random_walk, gap)
         if self.gyro_bias is None or key != self._bias_key:
             self.gyro_bias = GyroBiasEstimator(
                 imu.gyro_bias,
@@ -522,7 +546,7 @@ class SequenceLocalizer:
                 imu.R_cam_imu,
                 imu.gyro_noise,
                 imu.time_offset,
-                GyroBiasOptions(random_walk=imu.bias_random_walk),
+                GyroBiasOptions(random_walk=imu.bias_random_walk, max_interval=gap),
             )
             self._bias_key = key
 
@@ -530,9 +554,15 @@ class SequenceLocalizer:
         if imu is None or not self.settings.check_gyro:
             self.gyro_check = self._check_key = None
             return
-        key = (*_gyro_calibration(imu), imu.estimate_bias)
+        gap = self.settings.max_gap
+        key = (*_gyro_calibration(imu), imu.estimate_bias, gap)
         if self.gyro_check is None or key != self._check_key:
-            self.gyro_check = GyroMountCheck(imu.R_cam_imu, imu.gyro_noise, imu.time_offset)
+            self.gyro_check = GyroMountCheck(
+                imu.R_cam_imu,
+                imu.gyro_noise,
+                imu.time_offset,
+                MountCheckOptions(max_interval=gap),
+            )
             self._check_key = key
 
     # ---------------------------------------------------------------- read-outs
@@ -780,11 +810,11 @@ class SequenceLocalizer:
         tag: Any = None,
     ) -> SequenceOutput:
         """Localize one image of the video: the front end's correspondences
-        (``frontend.process(image, camera, encoding, stamp_ns)``, its one-time warning
-        logged), the rows the estimator can use (:meth:`valid_rows`), :meth:`process`, then
-        the front end told how the frame was solved (``frontend.observe``; an error there is
-        logged, the frame goes on). The calls are those of
-        :class:`~rs_localizer.correspondences.VideoFrontend`.
+        (``frontend.process(image, camera, encoding, stamp_ns, prediction)``, with the frame's
+        :meth:`predict`; its one-time warning logged), the rows the estimator can use
+        (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
+        solved (``frontend.observe``; an error there is logged, the frame goes on). The calls
+        are those of :class:`~rs_localizer.correspondences.VideoFrontend`.
 
         Args:
             stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``.
@@ -831,9 +861,12 @@ class SequenceLocalizer:
             except Exception as e:
                 self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
             return out
+        prediction = self.predict(stamp, camera)
         t0 = time.perf_counter()
         try:
-            found = Correspondences.of(fe.process(image, camera, encoding=encoding, stamp_ns=stamp))
+            found = Correspondences.of(
+                fe.process(image, camera, encoding=encoding, stamp_ns=stamp, prediction=prediction)
+            )
         except Exception as e:
             out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"
             return out
@@ -858,6 +891,39 @@ class SequenceLocalizer:
         res.correspondences, res.frontend_seconds = found, out.frontend_seconds
         res.points2d, res.points3d = uv, xyz
         return res
+
+    def predict(self, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+        """The prediction of a frame at ``stamp_ns`` (ns, header stamp: the capture time of
+        row ``stamp_row``) seen by ``camera``: its model (:class:`~rs_localizer.pose.RSModel`
+        ``(R, C, w, t)``, at the reference row's capture time) before it is estimated, what
+        :meth:`process_image` hands the front end to search with. While the tracker tracks
+        with this camera and configuration, its prediction
+        (:meth:`~rs_localizer.tracking.tracker.RSTracker.predict`: the model the estimator
+        then tests first); else (tracking off, the kernels still compiling, no tracker state)
+        the last solved frame carried to the stamp at its own twist
+        (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`). None when nothing
+        predicts the frame: no frame solved yet, or it starts a new track (a stamp going back
+        or repeated, or more than :attr:`SequenceSettings.max_gap` after the last solved
+        frame: :func:`~rs_localizer.tracking.tracker.predictable`).
+
+        Raises:
+            ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
+            TypeError: ``camera`` is not a :class:`~rs_localizer.camera.CameraModel`.
+        """
+        stamp = checked_stamp(stamp_ns)
+        _check_camera(camera)
+        s = self.settings
+        ref = reference_stamp_ns(stamp, camera, s.stamp_row)
+        with self._lock:
+            t = self._tracker
+            if (
+                t is not None
+                and t.filter.initialized
+                and self._tracker_key == (s.solver, s.options, s.tracking, id(camera))
+            ):
+                state = t.predict(ref)
+                return None if state is None else model_from_state(state, camera)
+            return self._carried.predict(ref, camera)
 
     # ---------------------------------------------------------------- frames
     def process(self, frame: SequenceFrame) -> SequenceOutput:
@@ -910,6 +976,7 @@ class SequenceLocalizer:
                 out.estimate = None
                 return out
             out.estimate, out.new_track = est, new_track
+            self._carried.update(ref, est)
             if est.gyro_rejected:
                 self._count("gyro_rejected", 1)
                 self.log.warning(
@@ -972,6 +1039,7 @@ class SequenceLocalizer:
         the next frame starts a new track. The gyro state is kept."""
         with self._lock:
             self._end_track()
+            self._carried.reset()
 
     def _fused(self, final: list) -> list[FusedPose]:
         """The frames whose fused state is final: their pose with the fused twist."""
@@ -1022,5 +1090,6 @@ class SequenceLocalizer:
         with self._lock:
             self._end_track()
             self._restart_gyro(None)
+            self._carried.reset()
             self._last_stamp = None
             self._last_image = None

@@ -15,12 +15,19 @@ each new frame:
    Fig. 6: the linear solvers need a rotation within a few degrees, not P3P's);
 3. falls back to the cold estimator when the prediction explains too few points (a
    *relocalization*: a teleport, a lost track), and restarts everything on a stamp going back
-   or a gap longer than ``max_gap`` (a *reset*);
+   or a gap longer than ``max_gap`` (a *reset*: :func:`predictable`, the one rule of when a
+   frame is predicted, also for the front end's search);
 4. fuses the estimate into the filter (the fused twist, final ``lag`` frames later).
 
 Each :class:`TrackResult` says which path the frame took: ``cold`` (no state: the first
 frame), ``tracked``, ``relocalized`` or ``reset``. A failed frame changes nothing but the
 counters: no state is made up for it, so a bad frame never becomes a pose or a twist.
+
+:meth:`RSTracker.predict` gives the prediction of step 1 before the frame is estimated (the
+same one: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` hands its model to the
+image front end, which searches where it puts the map); without a tracker (tracking off, or
+driving a front end by hand) :class:`CarriedPrediction` carries the last solved frame at its
+own twist instead.
 """
 
 from __future__ import annotations
@@ -35,16 +42,20 @@ from ..estimation.estimate import EstimateOptions, InitialModel, RSPoseEstimate,
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
+from ..geometry import rotvec_to_matrix
 from ..pose import RSModel
 from .fusion import FusedState, FusionOptions, TwistFilter
 
 __all__ = [
     "STATES",
+    "CarriedPrediction",
     "RSTracker",
     "TrackResult",
     "TrackerOptions",
+    "carried_model",
     "model_from_state",
     "motion_prior_from_state",
+    "predictable",
 ]
 
 #: the paths a frame can take
@@ -65,7 +76,10 @@ class TrackerOptions:
             the points the previous frame's inlier ratio promises (and at least
             ``min_inliers``); otherwise the frame relocalizes (cold estimator).
         max_gap: seconds; a longer gap between frames, or a stamp going back, resets the
-            tracker (a prediction over that long is not trusted).
+            tracker (a prediction over that long is not trusted; :func:`predictable`).
+            :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` applies the same gap
+            to everything it predicts or pairs across frames
+            (:attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`).
         tracked_options: :class:`EstimateOptions` for tracked frames (``None``: the tracker's
             estimator options with ``min_iterations = tracked_min_iterations``).
         tracked_min_iterations: RANSAC's minimum number of samples on tracked frames (the
@@ -144,6 +158,74 @@ class TrackResult:
         return None if self.step is None else self.step.current
 
 
+def predictable(last_ns: int | None, stamp_ns: int, max_gap: float) -> bool:
+    """Whether a frame at ``stamp_ns`` (ns) is predicted from the last solved frame at
+    ``last_ns`` (ns; None: none yet): it is later, by at most ``max_gap`` s. A stamp going
+    back (a bag replayed again), the same stamp again, or a longer gap (frames lost, a
+    stalled camera) starts a new track: the tracker resets, and the front end is given no
+    prediction (it searches the image whole). The one rule of the tracker and of
+    :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`'s prediction."""
+    return last_ns is not None and stamp_ns > last_ns and (stamp_ns - last_ns) * 1e-9 <= max_gap
+
+
+def carried_model(model: RSModel, dt: float, seconds_per_unit_r: float) -> RSModel:
+    """A solved frame's model ``(R, C, w, t)`` carried ``dt`` s later at its own constant
+    twist (``w``, ``t`` per unit RS coordinate, ``seconds_per_unit_r`` s each): ``R' =
+    exp([dT w]x) R``, ``C' = C + dT t`` with ``dT = dt / seconds_per_unit_r``, the twist
+    kept. Shapes (3, 3), (3,), (3,), (3,). Requires ``seconds_per_unit_r > 0`` (a global
+    shutter's model has no twist to carry: the model is returned as it is)."""
+    R, C, w, t = model
+    if seconds_per_unit_r <= 0:
+        return RSModel(R, C, w, t)
+    dT = dt / seconds_per_unit_r
+    return RSModel(rotvec_to_matrix(dT * w) @ R, C + dT * t, w, t)
+
+
+class CarriedPrediction:
+    """The prediction without a tracker: the last solved frame's model carried to the new
+    frame's time at its own twist (:func:`carried_model`), under the tracker's time rule
+    (:func:`predictable`). What
+    :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` gives its front end when
+    no tracker predicts (tracking off, or no tracker state yet), and what a caller driving
+    a front end by hand passes as its ``prediction``::
+
+        carry = CarriedPrediction()
+        for stamp, image in video:
+            c = frontend.process(image, camera, "rgb8", stamp, carry.predict(stamp, camera))
+            est = estimate_rs_pose(c.pixels, c.points, camera)
+            frontend.observe(stamp, None, est)
+            carry.update(stamp, est)
+
+    Args:
+        max_gap: s; no prediction over a longer gap (:func:`predictable`).
+    """
+
+    def __init__(self, max_gap: float = TrackerOptions.max_gap):
+        self.max_gap = float(max_gap)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the last solved frame (the next frame has no prediction)."""
+        self.stamp_ns: int | None = None
+        self.model: RSModel | None = None
+
+    def update(self, stamp_ns: int, estimate: object) -> None:
+        """Note a frame's estimate (``stamp_ns`` ns, the time ``predict`` is asked at): a
+        solved one (``success``, ``model``) is the one carried from now on; a failed one (or
+        None) changes nothing (the last solved frame is still carried)."""
+        if estimate is not None and getattr(estimate, "success", False):
+            self.stamp_ns, self.model = int(stamp_ns), estimate.model
+
+    def predict(self, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+        """The model (:class:`~rs_localizer.pose.RSModel`) of a frame at ``stamp_ns`` (ns)
+        seen by ``camera``; None without a solved frame or when :func:`predictable` says
+        the frame starts a new track."""
+        if self.model is None or not predictable(self.stamp_ns, int(stamp_ns), self.max_gap):
+            return None
+        dt = (int(stamp_ns) - self.stamp_ns) * 1e-9
+        return carried_model(self.model, dt, camera.seconds_per_unit_r)
+
+
 def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     """The estimator's model ``(R, C, w, t)`` (:class:`~rs_localizer.pose.RSModel`) of a fused
     state: its pose's :meth:`~rs_localizer.pose.RSPose.model` with the camera's seconds per
@@ -208,6 +290,7 @@ class RSTracker:
         self._inlier_ratio = None
         self._stamp = None
         self._planar = False
+        self._predicted: FusedState | None = None  # (predict's last answer, until an update)
 
     @property
     def track_state(self) -> str:
@@ -222,7 +305,24 @@ class RSTracker:
         self._inlier_ratio = None
         self._stamp = None
         self._planar = False
+        self._predicted = None
         return out
+
+    def predict(self, stamp_ns: int) -> FusedState | None:
+        """The filter's prediction of the pose and twist at ``stamp_ns`` (ns, the time
+        :meth:`process` will be given): the one :meth:`process` then tests, seeds RANSAC with
+        and takes the motion prior from (computed once). None when :meth:`process` will not
+        predict the frame: no track yet, or it starts a new one (:func:`predictable`). Its
+        model for a camera: :func:`model_from_state`."""
+        stamp_ns = int(stamp_ns)
+        if not self.filter.initialized or not predictable(
+            self._stamp, stamp_ns, self.tracker_options.max_gap
+        ):
+            return None
+        p = self._predicted
+        if p is None or p.stamp_ns != stamp_ns:
+            p = self._predicted = self.filter.predict(stamp_ns)
+        return p
 
     def flush(self) -> list:
         """The fused states not yet final (oldest first, e.g. at the end of a video); they
@@ -258,15 +358,12 @@ class RSTracker:
         self.frames += 1
         final, state = [], "cold"
         to = self.tracker_options
-        if self._stamp is not None and (
-            stamp_ns <= self._stamp or (stamp_ns - self._stamp) * 1e-9 > to.max_gap
-        ):
+        if self._stamp is not None and not predictable(self._stamp, stamp_ns, to.max_gap):
             final += self.reset()
             state = "reset"
             self.resets += 1
-        predicted, explained = None, -1
-        if self.filter.initialized:
-            predicted = self.filter.predict(stamp_ns)
+        predicted, explained = self.predict(stamp_ns), -1
+        if predicted is not None:
             est, state, opts, explained = self._tracked(
                 predicted, points2d_px, points3d, camera, scores, gyro
             )
@@ -285,6 +382,7 @@ class RSTracker:
         self._stamp = stamp_ns
         self._inlier_ratio = est.num_inliers / max(len(points2d_px), 1)
         self._planar = bool(est.planar)
+        self._predicted = None
         step = self.filter.update(
             stamp_ns,
             est,

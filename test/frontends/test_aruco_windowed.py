@@ -5,9 +5,13 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.estimate import estimate_rs_pose
+from rs_localizer.frontends import cv_compat
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
+from rs_localizer.frontends.image import to_gray
+from rs_localizer.frontends.marker_detection import apriltag_binding
 from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
 from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
+from rs_localizer.tracking.tracker import CarriedPrediction
 
 
 @pytest.fixture(scope="module")
@@ -15,10 +19,13 @@ def video():
     return render_video("vga", 8)
 
 
-def _solve(fe, f, camera):
+def _solve(fe, f, camera, carry):
+    """One frame searched from ``carry``'s prediction (the last solved frame carried to the
+    stamp), the prediction then given the frame's estimate."""
     stamp = int(round(f.t_first * 1e9))
-    c = fe.process(f.image, camera, stamp_ns=stamp)
+    c = fe.process(f.image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
     est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+    carry.update(stamp, est)
     return c, est, stamp
 
 
@@ -26,11 +33,12 @@ def test_windowed_corners_equal_full_frame(video):
     scene, camera, frames = video
     full = ArucoFrontend.from_scene(scene)
     win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
-    _, est, stamp = _solve(win, frames[0], camera)
+    carry = CarriedPrediction()
+    _, est, stamp = _solve(win, frames[0], camera, carry)
     assert win.last_kind == "full" and est.success  # no prediction on the first frame
     win.observe(stamp, None, est)
     f = frames[1]
-    c_w, _, _ = _solve(win, f, camera)
+    c_w, _, _ = _solve(win, f, camera, carry)
     assert win.last_kind == "windowed" and len(win.last_windows) > 1
     h, w = f.image.shape[:2]
     assert all(0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h for x0, y0, x1, y1 in win.last_windows)
@@ -51,9 +59,10 @@ def test_windowed_corners_equal_full_frame(video):
 def test_fallback_after_loss_and_periodic(video):
     scene, camera, frames = video
     fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=3)
+    carry = CarriedPrediction()
     kinds = []
     for k, f in enumerate(frames[:6]):
-        _, est, stamp = _solve(fe, f, camera)
+        _, est, stamp = _solve(fe, f, camera, carry)
         kinds.append(fe.last_kind)
         fe.observe(stamp, None, None if k == 3 else est)  # frame 3: a failed estimate
     # first frame full; after the failure at frame 3 the next one is full; at least every
@@ -63,7 +72,9 @@ def test_fallback_after_loss_and_periodic(video):
     assert all("full" in kinds[i : i + 3] for i in range(len(kinds) - 2))
     assert fe.summary()["frontend_frames_global"] == kinds.count("full")
     # a stamp going back (a replayed bag): no prediction
-    fe.process(frames[0].image, camera, stamp_ns=int(round(frames[0].t_first * 1e9)))
+    stamp = int(round(frames[0].t_first * 1e9))
+    assert carry.predict(stamp, camera) is None
+    fe.process(frames[0].image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
     assert fe.last_kind == "full"
 
 
@@ -85,3 +96,57 @@ def test_merge_windows():
     assert len(merge_windows([[0, 0, 10, 10], [5, 5, 20, 20]])) == 2
     assert len(merge_windows([[0, 0, 10, 10], [30, 30, 40, 40]])) == 2
     assert merge_windows([[0, 0, 10, 10], [2, 2, 8, 8]]) == [(0, 0, 10, 10)]
+
+
+@pytest.mark.skipif(apriltag_binding() is None, reason="no AprilTag library binding installed")
+def test_windowed_search_uses_the_apriltag_library():
+    """An AprilTag map: the windows are searched with the AprilTag library (OpenCV's detector
+    never runs), with the corners of the full-frame search; the diagnostics name it."""
+    # (windows on the library's decimation grid: test_marker_detection.py)
+    scene, camera, frames = render_video("vga", 2, scene="apriltag_room")
+    full = ArucoFrontend.from_scene(scene)
+    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    assert win.detector.backend == "apriltag"
+    carry = CarriedPrediction()
+    _, est, stamp = _solve(win, frames[0], camera, carry)
+    win.observe(stamp, None, est)
+    called = []
+    orig = cv_compat.MarkerDetector.detect
+    cv_compat.MarkerDetector.detect = lambda *a: called.append(1) or orig(*a)
+    try:
+        c_w, _, _ = _solve(win, frames[1], camera, carry)
+    finally:
+        cv_compat.MarkerDetector.detect = orig
+    assert win.last_kind == "windowed" and not called
+    c_f = full.process(frames[1].image, camera)
+    common, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
+    assert len(common) >= 0.9 * len(c_f)
+    # most tags found as in the full frame; a few differ by the library's own noise (a tag's
+    # quad is fitted to its outline, which in the full frame may run on into the texture)
+    diff = np.abs(c_w.pixels[i_w] - c_f.pixels[i_f]).max(axis=1)
+    assert np.median(diff) < 1e-3 and np.mean(diff < 0.05) >= 0.9 and diff.max() < 0.2
+    s = win.summary()
+    assert s["aruco_detector"].startswith("AprilTag 3 library") and s["aruco_frames_windowed"] == 1
+    assert "quad_decimate by image size" in s["aruco_detector_settings"]
+    assert s["aruco_markers_duplicate"] == 0
+
+
+def test_an_id_twice_in_one_image_is_dropped_and_counted(video):
+    """The same marker at two places of one image (the image beside itself): its id dropped
+    from that image and counted, in a full-frame and in a windowed search."""
+    scene, camera, frames = video
+    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    img = frames[0].image
+    twice = np.ascontiguousarray(np.concatenate([img, img[:, :200]], axis=1))
+    c1 = fe.process(img, camera)
+    c2 = fe.process(twice, camera)
+    n = fe.summary()["aruco_markers_duplicate"]
+    twin = fe.detector.last_duplicate_ids  # the ids seen in the copy too
+    assert n == len(twin) >= 10 and twin <= set(c1.ids // 4) and not twin & set(c2.ids // 4)
+    gray = to_gray(twice)
+    h, w = img.shape[:2]
+    kept = set(c1.ids // 4) & set(c2.ids // 4)
+    dropped = set(c1.ids // 4) - kept
+    # windows around the whole image and its copy: found in both, so dropped
+    _, ids = fe._detect_windows(gray, [(0, 0, w, h), (w, 0, w + 200, h)])
+    assert fe.last_duplicates == len(dropped) and not dropped & set(ids.tolist())

@@ -13,6 +13,7 @@ from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.maps.features import FeatureMap
+from rs_localizer.tracking.tracker import CarriedPrediction
 
 pytestmark = pytest.mark.slow  # (renders a map and a video)
 
@@ -23,16 +24,21 @@ def video():
 
 
 def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
+    """The front end over ``frames``, each searched from the last solved frame carried to its
+    stamp (:class:`CarriedPrediction`: none after a stamp going back)."""
     out = []
+    carry = CarriedPrediction()
     for k, f in enumerate(frames):
         img = np.zeros_like(f.image) if k in blank else f.image
         stamp = int(f.t_first * 1e9) + (shift_ns[1] if shift_ns and k >= shift_ns[0] else 0)
+        pred = carry.predict(stamp, camera)
         t0 = time.perf_counter()
-        uv, X, _ = fe.process(img, camera, stamp_ns=stamp)
+        uv, X, _ = fe.process(img, camera, stamp_ns=stamp, prediction=pred)
         if times is not None:  # (the front end's time per frame, s)
             times.append(time.perf_counter() - t0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
         fe.observe(stamp, None, est)
+        carry.update(stamp, est)
         fe.wait_refresh(60.0)
         ok = est is not None and est.success
         err = rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
@@ -211,9 +217,12 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
     fmap, frames, camera, *_ = long_video
     fe = TrackingFeatureFrontend(fmap, refresh_frames=4, max_anchors=2, max_anchor_age=100)
     reanchored, joins = [], []
+    carry = CarriedPrediction()
     for f in frames:
         stamp = int(f.t_first * 1e9)
-        uv, X, _ = fe.process(f.image, camera, stamp_ns=stamp)
+        uv, X, _ = fe.process(
+            f.image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera)
+        )
         rep = fe.report
         if rep.kind == "tracked":
             # (tracks anchored in this very frame: a refresh's matches are anchored in the
@@ -222,6 +231,7 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
             joins.append(rep.guided > 0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
         fe.observe(stamp, None, est)
+        carry.update(stamp, est)
         fe.wait_refresh(60.0)
     reanchored, joins = np.array(reanchored), np.array(joins)
     assert joins.sum() >= 5  # (a refresh joins every few frames)

@@ -289,3 +289,20 @@ def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, ca
     # true: 30 ms over 480 lines
     assert abs(ld[0, 0] - 0.03 / 480) < 3 * ld[0, 1]
     assert load_marker_readout(tmp_path / "no_such.yaml") == {}
+
+
+def test_summary_says_when_the_corner_offset_is_not_needed():
+    """The summary names the corner offset's std, and says the term is not needed only when
+    the offset is within 2 std of zero and the video fixes it to 0.025 px or better."""
+    from types import SimpleNamespace
+
+    from rs_localizer.cli.map_markers import _offset_note
+
+    def note(co, std):
+        return _offset_note(SimpleNamespace(corner_offset_px=co, corner_offset_std_px=std))
+
+    assert "need no corner-offset term" in note(-0.004, 0.0125)
+    assert "(std 0.01 px)" in note(-0.004, 0.0125)
+    assert "need no" not in note(0.10, 0.012)  # (OpenCV's corners: inside the squares)
+    assert "need no" not in note(0.01, 0.15)  # (too loosely fixed to tell)
+    assert note(0.0, float("nan")) == ""  # (not estimated)

@@ -12,6 +12,7 @@ from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
+from rs_localizer.tracking.tracker import CarriedPrediction
 
 pytestmark = pytest.mark.slow  # (renders a map and a 40-frame video)
 
@@ -65,12 +66,15 @@ def test_collapsed_tracks_are_matched_whole(video):
     got = {}
     for ratio in (0.25, 0.0):
         fe = TrackingFeatureFrontend(fmap, collapse_ratio=ratio)
+        carry = CarriedPrediction()  # (the last solved frame carried: the search's prediction)
         for k in [*range(16), 23]:
             image = frames[14].image if k == 15 else frames[k].image
             stamp = int(round(frames[16 if k == 23 else k].t_first * 1e9))
-            uv, X, _ = fe.process(image, camera, "rgb8", stamp_ns=stamp)
+            pred = carry.predict(stamp, camera)
+            uv, X, _ = fe.process(image, camera, "rgb8", stamp_ns=stamp, prediction=pred)
             est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
             fe.observe(stamp, None, est)
+            carry.update(stamp, est)
             fe.wait_refresh(60.0)
         got[ratio] = (fe.report.kind, fe.report.reason, len(uv), est)
     kind, reason, n, est = got[0.25]

@@ -1,0 +1,184 @@
+"""``rs-localizer calibrate-rig``: every camera's mounting on a rig from a rig bag of a known
+map, with its uncertainty, written as the node's rig parameters."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from . import args as A
+
+__all__ = ["register", "run"]
+
+HELP = "estimate each rig camera's mounting from a rig bag of a known map"
+
+
+def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``calibrate-rig`` subcommand to ``sub`` (``func`` = :func:`run`)."""
+    c = sub.add_parser(
+        "calibrate-rig",
+        help=HELP,
+        description="Estimate every camera's mounting on the rig from a rig bag (each camera's "
+        "correspondences with a known map and camera_info, e.g. make-bag --rig N): each camera "
+        "frame is posed alone, carried to its reference camera frame's time with its estimated "
+        "twist, and the cameras' poses relative to the reference camera are averaged over the "
+        "rig frames (outliers left out), with their standard deviation. Writes the node's rig "
+        "parameters (rig.<camera>.mounting, docs/rig_node.md) with each camera's RS timing. "
+        "The cameras and their timing come from the bag's rig_params.yaml, then --params-file.",
+        formatter_class=A.HelpFormatter,
+    )
+    c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
+    c.add_argument(
+        "-o",
+        "--output",
+        default=None,
+        help="parameter file to write (default: print it on stdout)",
+    )
+    c.add_argument(
+        "--params-file",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="the node's parameter file with rig.cameras and the cameras' RS timing "
+        "(repeatable; later ones win; over the bag's rig_params.yaml)",
+    )
+    c.add_argument(
+        "--reference",
+        default=None,
+        help="the camera the others are measured from (default: the first of rig.cameras)",
+    )
+    c.add_argument(
+        "--optical-frame",
+        action="store_true",
+        help="the rig frame is the reference camera's optical frame (its mounting the "
+        "identity); default: base_frame, with the reference camera's mounting of the "
+        "parameters (the optical frame if it has none)",
+    )
+    c.add_argument(
+        "--window",
+        type=A.nonneg_float,
+        default=0.015,
+        help="s; a camera frame further than this from the reference camera's is not paired",
+    )
+    c.add_argument("--threshold", type=A.positive_float, default=2.0, help="RANSAC threshold (px)")
+    c.add_argument(
+        "--min-inliers",
+        type=A.positive_int,
+        default=20,
+        help="camera frames posed with fewer inliers are not used",
+    )
+    c.add_argument(
+        "--json",
+        action="store_true",
+        help="print the mountings and their uncertainty as JSON on stdout (the parameter "
+        "file then needs -o)",
+    )
+    c.set_defaults(func=run)
+    return c
+
+
+def _mounting7(mount) -> list[float]:
+    from ..ros import conversions as cv
+
+    q = cv.quaternion_from_matrix(mount.R.T)
+    return [round(float(x), 9) + 0.0 for x in (*mount.position, *q)]
+
+
+def params_yaml(values: dict, cams: dict, names: list, mountings: dict, notes: list) -> str:
+    """The node's parameter file of the calibrated rig: ``base_frame``, ``rs.stamp_row``,
+    ``rig.cameras`` and per camera its ``mounting`` and the RS timing it was read with;
+    ``notes``: comment lines on top."""
+    import yaml
+
+    body_cams = {}
+    for n in names:
+        entry = {"mounting": _mounting7(mountings[n])}
+        for k in ("line_delay", "readout_time", "direction"):
+            v = cams[n].get(k)
+            if v not in (None, "", -1.0):
+                entry[k] = v
+        body_cams[n] = entry
+    body = {
+        "base_frame": values.get("base_frame") or "base_link",
+        "rs": {"stamp_row": float(values["rs.stamp_row"])},
+        "rig": {"cameras": list(names), **body_cams},
+    }
+    tree = {"/**/rs_localizer": {"ros__parameters": body}}
+    head = "".join(f"# {line}\n" for line in notes)
+    return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..estimation import EstimateOptions, RansacOptions
+    from ..ros import conversions as cv
+    from ..ros.bags.rig_bag import read_rig_frames
+    from ..tracking.rig import RigMount, calibrate_mountings
+
+    bag = A.bag_dir(args.bag, require_messages=True)
+    out_path = A.output_file(args.output, what="parameter file") if args.output else None
+    for f in args.params_file:
+        A.input_file(f, "parameter file")
+    frames, values, cams = read_rig_frames(bag, args.params_file)
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    ref = args.reference or names[0]
+    if ref not in names:
+        raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
+    ref_mount = None
+    m = cams[ref].get("mounting")
+    if not args.optical_frame and m is not None and len(m) == 7:
+        ref_mount = RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+    opts = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
+    est = calibrate_mountings(
+        frames,
+        ref,
+        reference_mount=ref_mount,
+        window=args.window,
+        stamp_row=float(values["rs.stamp_row"]),
+        min_inliers=args.min_inliers,
+        options=opts,
+    )
+    missing = [n for n in names if n not in est]
+    if missing:
+        raise A.CliError(
+            f"no rig frame pairs camera(s) {missing} with the reference camera {ref!r} "
+            f"(frames posed alone within --window {args.window} s of its own)"
+        )
+    frame = f"{ref!r}'s optical frame" if ref_mount is None else "base_frame"
+    notes = [
+        f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
+        f"(rig frame: {frame})"
+    ]
+    report = {}
+    for n in names:
+        e = est[n]
+        report[n] = {
+            "mounting": _mounting7(e.mount),
+            "frames": e.frames,
+            "rejected": e.rejected,
+            "std_deg": e.std_deg,
+            "std_mm": e.std_mm,
+            "scatter_deg": e.scatter_deg,
+            "scatter_mm": e.scatter_mm,
+        }
+        if n == ref:
+            notes.append(f"{n}: the reference ({e.frames} frames posed)")
+        else:
+            notes.append(
+                f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
+                f"{e.std_mm:.2f} mm (one frame: {e.scatter_deg:.3f} deg {e.scatter_mm:.1f} mm)"
+            )
+    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes)
+    if out_path is not None:
+        out_path.write_text(text)
+    for line in notes:
+        print(line, file=sys.stderr)
+    if args.json:
+        print(json.dumps({"reference": ref, "rig_frame": frame, "cameras": report}, indent=2))
+    elif out_path is None:
+        sys.stdout.write(text)
+    else:
+        print(f"wrote {out_path}", file=sys.stderr)
+    return 0 if np.isfinite([r["std_deg"] for r in report.values()]).all() else 1

@@ -1,0 +1,984 @@
+"""A rig of rolling-shutter cameras through a video: frames grouped into rig frames by stamp,
+one pose per rig frame, tracked, with the rig's fused twist.
+
+Each camera of the rig sends its own frames (2D-3D correspondences, its own stamp, its own
+camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
+
+1. **groups** the frames into *rig frames* by the capture time of each frame's reference line
+   (:func:`~rs_localizer.tracking.sequence.reference_stamp_ns`): a rig frame holds at most one
+   frame per camera, all within ``window`` s of its earliest (:attr:`RigSettings.window`). A
+   rig frame is solved once every camera is in it or has *moved past* it (its newest frame is
+   later than the rig frame's earliest plus ``window``) or has *stopped* (no frame for
+   ``stop_after`` s of stamp time while others go on): cameras are free to miss a rig frame
+   (:data:`MISSED_REASONS` says why one did), a camera whose frames stop is not waited for and
+   the rig runs on the others, and a camera that sends again joins again;
+2. **estimates** the rig's pose at the rig frame's time (its earliest reference time) with
+   :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
+   its own stamp offset);
+3. **tracks** as the camera tracker (:mod:`rs_localizer.tracking.tracker`) does: the twist
+   filter's prediction at the rig frame's time is the rig estimator's initial model
+   (:class:`~rs_localizer.estimation.InitialModel`, the points within ``gate_px``, or
+   ``gate_sigmas`` of the predicted rotation, up to ``max_gate_px``, explained by it): when
+   it explains enough points it seeds RANSAC, pre-rotates its samples and is verified with
+   at most ``tracked_max_iterations`` samples (``tracked``); otherwise the rig frame is
+   solved as without it (``relocalized``; again from scratch if that failed); a stamp going
+   back or a gap longer than ``max_gap`` starts the track again (``reset``).
+4. **fuses** the rig's twist with the camera tracker's filter
+   (:class:`~rs_localizer.tracking.fusion.TwistFilter`, fixed lag), the rig frame being the
+   filter's "camera": orientation rig -> world, position the rig origin, velocities in the
+   rig frame. The filter's measurement is the rig estimator's: its covariance and its
+   sensitivity to acceleration during the rig frame
+   (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`,
+   :attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`), as a
+   camera's estimate is for the camera tracker.
+
+Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
+failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
+rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + skipped +
+pending``. Per solved rig frame and camera: its points, inliers and share of the rig's inliers
+(:class:`CameraShare`); a camera whose points are outliers far more often than the others'
+over several rig frames is named as one that *disagrees* with the rig (a mounting off by
+degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning.
+
+Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
+
+    rig = RigLocalizer(RigSettings({"front": RigMount.from_pose(R_base_front, p_front),
+                                    "left": RigMount.from_pose(R_base_left, p_left)}))
+    for f in frames:
+        for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
+            if out.success:
+                ...  # out.pose: the rig's pose and its own twist at out.stamp_ns
+            for fused in out.fused:
+                ...  # an earlier rig frame's pose with its fused twist
+    for out in rig.close():  # the rig frames still open
+        ...
+    for fused in rig.flush():
+        ...
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..estimation.estimate import estimate_rs_pose
+from ..estimation.options import InitialModel
+from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
+from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from ..pose import RSPose
+from .fusion import FusionOptions, TwistFilter
+from .sequence import FusedPose, checked_stamp, reference_stamp_ns
+from .tracker import predictable
+
+__all__ = [
+    "MISSED_REASONS",
+    "RIG_PATHS",
+    "SKIP_REASONS",
+    "CameraShare",
+    "MountingEstimate",
+    "RigCameraFrame",
+    "RigLocalizer",
+    "RigMeasurement",
+    "RigMount",
+    "RigOutput",
+    "RigSettings",
+    "RigTrackingOptions",
+    "calibrate_mountings",
+]
+
+#: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
+SKIP_REASONS = {
+    "no_camera_info": "the frame has no camera model (its camera_info has not arrived): the "
+    "camera waits, the rig runs on the others",
+    "out_of_order": "the frame's stamp is not later than the camera's previous frame's",
+    "late": "the frame is older than the last rig frame solved (it came after the other "
+    "cameras had moved past it)",
+    "time_reset": "stamps went back by more than time_reset_ns: the rig frames waiting were "
+    "dropped and the rig started again",
+}
+#: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
+MISSED_REASONS = {
+    "apart": "the camera had a frame within 2 x window of the rig frame but not within window: "
+    "stamps too far apart to be one rig frame (unsynchronized cameras, a wrong stamp offset); "
+    "that frame is in a rig frame of its own",
+    "dropped": "no frame of the camera near the rig frame (it skipped one)",
+    "stopped": "the camera sent no frame for stop_after s while the others did: the rig runs on "
+    "the others",
+}
+#: the paths a rig frame can take (as the camera tracker's)
+RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
+
+
+@dataclass(frozen=True, eq=False)
+class RigMount:
+    """A camera's mounting on the rig: ``x_cam = R x_rig + c``.
+
+    Attributes:
+        R: (3, 3) rig -> camera optical frame rotation. c: (3,) m.
+    """
+
+    R: np.ndarray
+    c: np.ndarray
+
+    def __post_init__(self):
+        R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        c = np.asarray(self.c, dtype=float).reshape(3)
+        if not (np.isfinite(R).all() and np.isfinite(c).all()):
+            raise ValueError("a mounting must be finite")
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            raise ValueError("a mounting's R must be a rotation")
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "c", c)
+
+    @classmethod
+    def from_pose(cls, R_rig_cam: np.ndarray, p_rig_cam: np.ndarray) -> RigMount:
+        """The mounting of a camera whose optical frame is at ``p_rig_cam`` (3,) m in the rig
+        frame, turned by ``R_rig_cam`` (3, 3) camera -> rig (a static transform rig ->
+        camera as tf gives it).
+
+        Raises:
+            ValueError: not finite, or not a rotation.
+        """
+        R = np.asarray(R_rig_cam, dtype=float).T
+        return cls(R, -R @ np.asarray(p_rig_cam, dtype=float))
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera's optical centre in the rig frame."""
+        return -self.R.T @ self.c
+
+
+@dataclass(frozen=True)
+class RigTrackingOptions:
+    """How the rig is tracked (module docstring, step 3); the fields of the camera tracker's
+    :class:`~rs_localizer.tracking.tracker.TrackerOptions` of the same names.
+
+    Attributes:
+        gate_px, gate_sigmas, max_gate_px: a point is explained by the prediction within
+            ``gate_px`` px, or ``gate_sigmas`` standard deviations of the predicted rotation
+            (times the focal length) when larger, up to ``max_gate_px``.
+        min_explained_ratio: the prediction is used when it explains at least this fraction of
+            the points the previous rig frame's inlier ratio promises.
+        max_gap: s between rig frames beyond which the track starts again.
+        tracked_max_iterations: RANSAC samples at most on a tracked rig frame.
+        fusion: the twist filter's :class:`~rs_localizer.tracking.fusion.FusionOptions` (its
+            ``max_gap`` is set to this one's).
+    """
+
+    gate_px: float = 20.0
+    gate_sigmas: float = 3.0
+    max_gate_px: float = 200.0
+    min_explained_ratio: float = 0.5
+    max_gap: float = 0.5
+    tracked_max_iterations: int = 200
+    fusion: FusionOptions = field(default_factory=FusionOptions)
+
+    def __post_init__(self):
+        if not (np.isfinite(self.gate_px) and self.gate_px > 0):
+            raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
+        if not (self.gate_sigmas >= 0 and self.max_gate_px >= self.gate_px):
+            raise ValueError("need gate_sigmas >= 0 and max_gate_px >= gate_px")
+        if not 0.0 <= self.min_explained_ratio <= 1.0:
+            raise ValueError("min_explained_ratio must be in [0, 1]")
+        if not (np.isfinite(self.max_gap) and self.max_gap > 0):
+            raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
+        if self.tracked_max_iterations < 1:
+            raise ValueError("tracked_max_iterations must be >= 1")
+
+
+@dataclass(frozen=True)
+class RigSettings:
+    """The configuration of a :class:`RigLocalizer`.
+
+    Attributes:
+        mounts: camera name -> :class:`RigMount`; the order is the cameras' order in outputs.
+        window: s; the frames of one rig frame lie within this of its earliest (reference-line
+            capture times). Stamps further apart are different rig frames (``apart``).
+        stop_after: s of stamp time without a frame of a camera (while others send) after
+            which the rig stops waiting for it (``stopped``; also for a camera that never
+            sent, counted from the rig's first frame).
+        stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
+        time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
+            again (a bag played again); less is ``out_of_order``.
+        threshold_px, max_iterations, min_inliers, refine, seed: the rig estimator's
+            (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
+        tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
+        disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
+            at least ``disagree_min_points`` points whose inlier ratio is below
+            ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
+            ``disagree_history`` rig frames *disagrees* with the rig.
+    """
+
+    mounts: dict
+    window: float = 0.015
+    stop_after: float = 0.5
+    stamp_row: float = 0.0
+    time_reset_ns: int = 10**9
+    threshold_px: float = 2.0
+    max_iterations: int = 1000
+    min_inliers: int = 8
+    refine: bool = True
+    seed: int | None = 0
+    tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
+    disagree_ratio: float = 0.5
+    disagree_min_points: int = 12
+    disagree_frames: int = 3
+    disagree_history: int = 5
+
+    def __post_init__(self):
+        if not self.mounts:
+            raise ValueError("a rig needs at least one camera")
+        for name, m in self.mounts.items():
+            if not isinstance(m, RigMount):
+                raise ValueError(f"camera {name!r} has no mounting (a RigMount)")
+        if not (np.isfinite(self.window) and self.window >= 0):
+            raise ValueError(f"window must be >= 0 s, got {self.window}")
+        if not (np.isfinite(self.stop_after) and self.stop_after > 0):
+            raise ValueError(f"stop_after must be > 0 s, got {self.stop_after}")
+        if not 1 <= self.disagree_frames <= self.disagree_history:
+            raise ValueError("need 1 <= disagree_frames <= disagree_history")
+
+    @property
+    def cameras(self) -> tuple:
+        """The cameras' names, in order."""
+        return tuple(self.mounts)
+
+
+@dataclass(frozen=True)
+class RigCameraFrame:
+    """One camera's frame.
+
+    Attributes:
+        camera_name: a camera of :attr:`RigSettings.mounts`.
+        stamp_ns: the capture time (ns) of row ``stamp_row`` (the header stamp).
+        camera: the camera model with its RS timing; None: not known yet (its camera_info
+            has not arrived; the frame is skipped as ``no_camera_info``).
+        points2d: (N, 2) px, distorted; points3d: (N, 3) m, world.
+        tag: anything the caller wants back with the rig frame.
+    """
+
+    camera_name: str
+    stamp_ns: int
+    camera: CameraModel | None
+    points2d: np.ndarray
+    points3d: np.ndarray
+    tag: Any = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
+        if self.camera is not None and not isinstance(self.camera, CameraModel):
+            raise TypeError(f"a frame needs a CameraModel or None, got {type(self.camera)}")
+
+
+@dataclass(frozen=True)
+class CameraShare:
+    """One camera in a solved rig frame: its ``points``, ``inliers`` (reprojection error of the
+    rig's pose within ``threshold_px``), ``share`` of the rig's inliers (0-1) and inlier
+    ``ratio`` (inliers / points; NaN without points)."""
+
+    points: int
+    inliers: int
+    share: float
+    ratio: float
+
+
+@dataclass(frozen=True, eq=False)
+class RigMeasurement:
+    """A solved rig frame as the twist filter's measurement (the fields the filter and
+    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate).
+
+    Attributes:
+        pose: :class:`~rs_localizer.pose.RSPose` of the rig at the rig frame's time:
+            orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
+            and linear (m/s) velocity in the rig frame, the rig frame's own.
+        covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
+            velocity [rad/s, rig], linear velocity [m/s, rig]): the estimate's
+            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`; NaN when it
+            has none).
+        estimate: the rig estimator's :class:`~rs_localizer.estimation.rig.RigPoseEstimate`.
+        acceleration_sensitivity: (12, 6) or None: the estimate's
+            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`).
+    """
+
+    pose: RSPose
+    covariance: np.ndarray
+    estimate: RigPoseEstimate
+    success: bool = True
+    acceleration_sensitivity: Any = None
+
+    @property
+    def orientation(self) -> np.ndarray:
+        return self.pose.orientation
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.pose.position
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        return self.pose.angular_velocity
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        return self.pose.linear_velocity
+
+    @property
+    def pose_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame."""
+        i = [3, 4, 5, 0, 1, 2]
+        return self.covariance[np.ix_(i, i)]
+
+    @property
+    def twist_covariance(self) -> np.ndarray:
+        """(6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame."""
+        i = [9, 10, 11, 6, 7, 8]
+        return self.covariance[np.ix_(i, i)]
+
+
+@dataclass
+class RigOutput:
+    """A rig frame out of :class:`RigLocalizer`.
+
+    Attributes:
+        stamp_ns: the rig frame's time (ns): its earliest reference-line capture time; the
+            time of the pose.
+        cameras: the cameras in it (rig order); missing: camera -> a key of
+            :data:`MISSED_REASONS` for the others.
+        stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
+        estimate: the rig estimator's result (None when it raised: ``error``).
+        measurement: the pose, own twist and covariance (:class:`RigMeasurement`), None unless
+            solved.
+        path: ``cold``, ``tracked``, ``relocalized``, ``reset`` (:data:`RIG_PATHS`); None
+            without tracking.
+        shares: camera -> :class:`CameraShare` (solved rig frames).
+        disagreeing: cameras that disagree with the rig now (module docstring).
+        fused: earlier rig frames (and, on a reset, the track's last ones) whose fused twist
+            is final now, oldest first: :class:`~rs_localizer.tracking.sequence.FusedPose`
+            in the rig frame.
+        tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
+    """
+
+    stamp_ns: int
+    cameras: tuple = ()
+    missing: dict = field(default_factory=dict)
+    stamp_offsets: dict = field(default_factory=dict)
+    estimate: RigPoseEstimate | None = None
+    measurement: RigMeasurement | None = None
+    path: str | None = None
+    shares: dict = field(default_factory=dict)
+    disagreeing: tuple = ()
+    fused: list = field(default_factory=list)
+    tags: dict = field(default_factory=dict)
+    error: str | None = None
+
+    @property
+    def success(self) -> bool:
+        """The rig frame was posed."""
+        return self.measurement is not None
+
+    @property
+    def pose(self) -> RSPose | None:
+        """The rig's pose and own twist (None unless solved)."""
+        return None if self.measurement is None else self.measurement.pose
+
+
+# ---------------------------------------------------------------------- the rig model
+def _model_of(Ori, p, omega, v):
+    """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
+    in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
+    ``w = -omega``, ``t = w x C - v`` (:meth:`~rs_localizer.pose.RSPose.model` with 1 s per
+    unit)."""
+    R = Ori.T
+    C = -R @ p
+    w = -np.asarray(omega, float)
+    return R, C, w, np.cross(w, C) - v
+
+
+# ---------------------------------------------------------------------- bookkeeping
+class _Camera:
+    def __init__(self, name: str, mount: RigMount, history: int):
+        self.name, self.mount = name, mount
+        self.newest: int | None = None  # ns, newest stamp (reference time when known)
+        self.last_ref: int | None = None  # ns, the last accepted frame's reference time
+        self.recent: deque = deque(maxlen=8)  # reference times of the last frames
+        self.stopped = False
+        self.flags: deque = deque(maxlen=history)
+        self.disagrees = False
+        self.last_share: CameraShare | None = None
+
+
+class _Group:
+    def __init__(self, name: str, frame: RigCameraFrame, ref: int):
+        self.frames = {name: (frame, ref)}
+        self.lo = self.hi = ref
+
+    def fits(self, name: str, ref: int, window_ns: int) -> bool:
+        return name not in self.frames and max(self.hi, ref) - min(self.lo, ref) <= window_ns
+
+    def add(self, name: str, frame: RigCameraFrame, ref: int) -> None:
+        self.frames[name] = (frame, ref)
+        self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
+
+
+class _Silent:
+    def info(self, text: str) -> None:
+        pass
+
+    def warning(self, key: str, text: str, count: int = 0) -> None:
+        pass
+
+
+class RigLocalizer:
+    """A rig's video (module docstring).
+
+    Args:
+        settings: :class:`RigSettings`.
+        log: an object with ``warning(key, text)`` and ``info(text)`` (None: silent): a camera
+            stopped or back, a camera that disagrees with the rig.
+
+    Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
+    ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
+    (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
+    was found to disagree); ``rig_frames``, ``rig.solved``, ``rig.failed``,
+    ``rig.failed.<reason>`` (the estimator's, or ``error``), ``rig.skipped``,
+    ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
+    ``rig.path.<path>``. Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
+    """
+
+    def __init__(self, settings: RigSettings, log: Any = None):
+        self.settings = settings
+        self.log = log if log is not None else _Silent()
+        self.counts: Counter = Counter()
+        self._cams = {
+            n: _Camera(n, m, settings.disagree_history) for n, m in settings.mounts.items()
+        }
+        self._open: list[_Group] = []
+        self._first: int | None = None
+        self._last_closed: int | None = None
+        self._filter: TwistFilter | None = None
+        self._pending: dict[int, tuple] = {}
+        self._inlier_ratio: float | None = None
+        self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
+        self._make_filter()
+
+    def _make_filter(self) -> None:
+        to = self.settings.tracking
+        self._filter = None if to is None else TwistFilter(replace(to.fusion, max_gap=to.max_gap))
+
+    # ---------------------------------------------------------------- read-outs
+    @property
+    def cameras(self) -> tuple:
+        return self.settings.cameras
+
+    def camera_counts(self, name: str) -> dict:
+        """``received``, ``solved``, ``failed``, ``skipped``, ``pending`` of a camera
+        (received = the other four summed)."""
+        c = self.counts
+        pending = sum(name in g.frames for g in self._open)
+        keys = ("received", "solved", "failed", "skipped")
+        out = {k: c[f"{name}.{k}"] for k in keys}
+        out["pending"] = pending
+        return out
+
+    def rig_counts(self) -> dict:
+        """``rig_frames``, ``solved``, ``failed``, ``skipped``, ``pending`` of the rig frames
+        (rig_frames = the other four summed)."""
+        c = self.counts
+        return {
+            "rig_frames": c["rig_frames"],
+            "solved": c["rig.solved"],
+            "failed": c["rig.failed"],
+            "skipped": c["rig.skipped"],
+            "pending": len(self._open),
+        }
+
+    def camera_state(self, name: str) -> str:
+        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees``."""
+        cam = self._cams[name]
+        if cam.disagrees:
+            return "disagrees"
+        if cam.stopped:
+            return "stopped"
+        return "waiting" if cam.newest is None else "running"
+
+    def last_share(self, name: str) -> CameraShare | None:
+        """The camera's :class:`CameraShare` in the last solved rig frame it was in."""
+        return self._cams[name].last_share
+
+    @property
+    def track_state(self) -> str:
+        """``tracking``, ``lost`` or ``disabled``."""
+        f = self._filter
+        return "disabled" if f is None else "tracking" if f.initialized else "lost"
+
+    # ---------------------------------------------------------------- frames
+    def add(self, frame: RigCameraFrame) -> list[RigOutput]:
+        """Take one camera's frame; returns the rig frames it completed, solved (oldest first;
+        often none, or one).
+
+        Raises:
+            ValueError: a camera not in the rig.
+        """
+        name = frame.camera_name
+        cam = self._cams.get(name)
+        if cam is None:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        self.counts[f"{name}.received"] += 1
+        stamp = frame.stamp_ns
+        if self._first is None:
+            self._first = stamp
+        if frame.camera is None:
+            self._skip(name, "no_camera_info")
+            cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
+            return self._ready()
+        ref = reference_stamp_ns(stamp, frame.camera, self.settings.stamp_row)
+        out: list[RigOutput] = []
+        if cam.last_ref is not None and ref <= cam.last_ref:
+            if cam.last_ref - ref > self.settings.time_reset_ns:
+                out += self._time_reset()
+            else:
+                self._skip(name, "out_of_order")
+                return out
+        if self._last_closed is not None and ref < self._last_closed:
+            self._skip(name, "late")
+            cam.last_ref = ref
+            return out
+        cam.last_ref = ref
+        cam.newest = ref if cam.newest is None else max(cam.newest, ref)
+        cam.recent.append(ref)
+        if self._first is None:  # (after a time reset)
+            self._first = ref
+        if cam.stopped:
+            cam.stopped = False
+            self.log.info(f"rig camera {name!r} sends frames again")
+        window_ns = int(round(self.settings.window * 1e9))
+        for g in self._open:
+            if g.fits(name, ref, window_ns):
+                g.add(name, frame, ref)
+                break
+        else:
+            self._open.append(_Group(name, frame, ref))
+            self._open.sort(key=lambda g: g.lo)
+            self.counts["rig_frames"] += 1
+        return out + self._ready()
+
+    def _skip(self, name: str, reason: str) -> None:
+        self.counts[f"{name}.skipped"] += 1
+        self.counts[f"{name}.skipped.{reason}"] += 1
+
+    def _time_reset(self) -> list:
+        """Stamps went back: the open rig frames dropped (``time_reset``), the track and the
+        cameras' timelines started again; the old track's pending twists go out with the next
+        rig frame (:attr:`RigOutput.fused`)."""
+        for g in self._open:
+            for n in g.frames:
+                self._skip(n, "time_reset")
+            self.counts["rig.skipped"] += 1
+            self.counts["rig.skipped.time_reset"] += 1
+        self._open = []
+        for cam in self._cams.values():
+            cam.newest = cam.last_ref = None
+            cam.recent.clear()
+            cam.stopped = False
+        self._first = self._last_closed = None
+        self._carry += self._end_track()
+        return []
+
+    def _ready(self) -> list[RigOutput]:
+        """Solve the open rig frames every camera has joined, moved past or stopped for."""
+        s = self.settings
+        now = max((c.newest for c in self._cams.values() if c.newest is not None), default=None)
+        if now is None:
+            return []
+        stop_ns = s.stop_after * 1e9
+        for cam in self._cams.values():
+            last = cam.newest if cam.newest is not None else self._first
+            if not cam.stopped and now - last > stop_ns:
+                cam.stopped = True
+                self.counts[f"{cam.name}.stopped"] += 1
+                self.log.warning(
+                    "rig.stopped",
+                    f"rig camera {cam.name!r}: no frame for {(now - last) * 1e-9:.2f} s "
+                    "(stop_after): the rig runs on the other cameras",
+                )
+        window_ns = int(round(s.window * 1e9))
+        out = []
+        while self._open:
+            g = self._open[0]
+            if not all(
+                n in g.frames or c.stopped or (c.newest is not None and c.newest > g.lo + window_ns)
+                for n, c in self._cams.items()
+            ):
+                break
+            self._open.pop(0)
+            out.append(self._solve(g))
+        return out
+
+    def close(self) -> list[RigOutput]:
+        """Solve every rig frame still open (the end of a video), oldest first."""
+        out = []
+        while self._open:
+            out.append(self._solve(self._open.pop(0)))
+        return out
+
+    def flush(self) -> list[FusedPose]:
+        """The rig frames whose fused twist is still pending, as they are now (the track goes
+        on)."""
+        if self._filter is None or not self._pending:
+            return []
+        return self._fused(self._filter.flush())
+
+    def reset(self) -> list[FusedPose]:
+        """Forget the video (the configuration stays): the rig frames open are dropped (counted
+        as ``time_reset``), the track ends. Returns its twists still pending."""
+        self._time_reset()
+        out, self._carry = self._carry, []
+        return out
+
+    def _end_track(self) -> list[FusedPose]:
+        out = []
+        if self._filter is not None:
+            out = self._fused(self._filter.flush())
+            self._filter.reset()
+        self._pending.clear()
+        self._inlier_ratio = None
+        return out
+
+    # ---------------------------------------------------------------- solving
+    def _missing_reason(self, cam: _Camera, g: _Group) -> str:
+        if cam.stopped:
+            return "stopped"
+        w2 = 2 * self.settings.window * 1e9
+        if any(abs(r - g.lo) <= w2 for r in cam.recent):
+            return "apart"
+        return "dropped"
+
+    def _solve(self, g: _Group) -> RigOutput:
+        self._last_closed = g.lo
+        names = [n for n in self._cams if n in g.frames]
+        out = RigOutput(stamp_ns=g.lo, cameras=tuple(names))
+        out.fused, self._carry = self._carry, []
+        for n, c in self._cams.items():
+            if n not in g.frames:
+                reason = self._missing_reason(c, g)
+                out.missing[n] = reason
+                self.counts[f"{n}.missed.{reason}"] += 1
+        if out.missing:
+            self.counts["rig.incomplete"] += 1
+        views = []
+        for n in names:
+            frame, ref = g.frames[n]
+            m = self._cams[n].mount
+            off = (ref - g.lo) * 1e-9
+            out.stamp_offsets[n] = off
+            out.tags[n] = frame.tag
+            views.append(RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off))
+        try:
+            est, path = self._estimate(g.lo, views, out)
+        except Exception as e:  # (the estimator raised: the rig frame failed)
+            out.error = f"{type(e).__name__}: {e}"
+            self._count_rig(names, "error")
+            return out
+        out.estimate, out.path = est, path
+        if not est.success:
+            self._count_rig(names, est.failure or "error")
+            return out
+        self._finish(out, est, path, names, views)
+        return out
+
+    def _count_rig(self, names, failure: str | None) -> None:
+        if failure is None:
+            self.counts["rig.solved"] += 1
+            for n in names:
+                self.counts[f"{n}.solved"] += 1
+            return
+        self.counts["rig.failed"] += 1
+        self.counts[f"rig.failed.{failure}"] += 1
+        for n in names:
+            self.counts[f"{n}.failed"] += 1
+
+    def _run(self, views, max_iterations=None, initial=None) -> RigPoseEstimate:
+        s = self.settings
+        return estimate_rig_pose(
+            views,
+            threshold_px=s.threshold_px,
+            max_iterations=max_iterations or s.max_iterations,
+            min_inliers=s.min_inliers,
+            refine=s.refine,
+            seed=s.seed,
+            initial_model=initial,
+        )
+
+    def _estimate(self, stamp: int, views, out: RigOutput):
+        """The rig frame's estimate on the tracker's path (as the camera tracker's
+        :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
+        f, to = self._filter, self.settings.tracking
+        if f is None:
+            return self._run(views), None
+        path = "cold"
+        if f.initialized and not predictable(f.stamp_ns, stamp, to.max_gap):
+            out.fused += self._end_track()  # (the video tracker's time rule)
+            path = "reset"
+        if not f.initialized:
+            return self._run(views), path
+        pred = f.predict(stamp)
+        model = _model_of(pred.orientation, pred.position, pred.angular_velocity,
+                          pred.linear_velocity)  # fmt: skip
+        sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
+        focal = max(v.camera.mean_focal for v in views)
+        gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
+        n = sum(len(v.uv) for v in views)
+        ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
+        need = max(self.settings.min_inliers, int(to.min_explained_ratio * ratio * n))
+        est = self._run(views, to.tracked_max_iterations, InitialModel(model, gate, need))
+        if est.success and est.initial_used:
+            return est, "tracked"
+        if not est.success and est.failure != "too_few_points":
+            # the prediction does not hold, or it misled RANSAC on a bad frame: solve it cold
+            est = self._run(views)
+        return est, "relocalized"
+
+    def _finish(self, out: RigOutput, est, path, names, views) -> None:
+        pose = RSPose.from_model((est.R, est.C, est.w, est.t), 1.0, out.stamp_ns)
+        cov = est.covariance if est.covariance is not None else np.full((12, 12), np.nan)
+        meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=est.acceleration_sensitivity)
+        out.measurement = meas
+        self._count_rig(names, None)
+        if path is not None:
+            self.counts[f"rig.path.{path}"] += 1
+        # per camera: points, inliers, share; who disagrees
+        total_in = int(est.num_inliers)
+        n_pts = np.asarray(est.num_valid_per_camera)
+        n_in = np.asarray(est.num_inliers_per_camera)
+        for k, n in enumerate(names):
+            pts, i = int(n_pts[k]), int(n_in[k])
+            share = CameraShare(pts, i, i / total_in if total_in else 0.0,
+                                i / pts if pts else float("nan"))  # fmt: skip
+            out.shares[n] = share
+            self._cams[n].last_share = share
+        self._update_disagreement(out, names, n_pts, n_in, views, est)
+        self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
+        if self._filter is None:
+            return
+        step = self._filter.update(out.stamp_ns, meas, relocalized=path == "relocalized")
+        self._pending[out.stamp_ns] = (meas, dict(out.tags))
+        out.fused += self._fused(step.final)
+
+    def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
+        s = self.settings
+        for k, n in enumerate(names):
+            cam = self._cams[n]
+            pts = int(n_pts[k])
+            if pts < s.disagree_min_points:
+                continue
+            others_pts = int(n_pts.sum()) - pts
+            if others_pts < s.disagree_min_points:
+                continue
+            others = (int(n_in.sum()) - int(n_in[k])) / others_pts
+            cam.flags.append(bool(n_in[k] / pts < s.disagree_ratio * others))
+            was = cam.disagrees
+            cam.disagrees = sum(cam.flags) >= s.disagree_frames
+            if cam.disagrees and not was:
+                self.counts[f"{n}.disagreements"] += 1
+                self.log.warning(
+                    f"rig.disagrees.{n}",
+                    f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
+                    f"points fit the rig's pose ({100 * others:.0f} % of the others')"
+                    f"{_offset_text(views[k], est)}: its mounting is likely wrong (or its "
+                    "matches are)",
+                )
+            elif was and not cam.disagrees:
+                self.log.info(f"rig camera {n!r} agrees with the others again")
+        out.disagreeing = tuple(n for n, c in self._cams.items() if c.disagrees)
+
+    def _fused(self, final: list) -> list[FusedPose]:
+        out = []
+        for f in final:
+            item = self._pending.pop(f.stamp_ns, None)
+            if item is not None:
+                out.append(FusedPose.of(item[0], f, item[1]))
+        if len(self._pending) > 64:
+            for k in sorted(self._pending)[:-64]:
+                del self._pending[k]
+        return out
+
+
+def _offset_text(view: RigView, est: RigPoseEstimate) -> str:
+    """``", alone it is N deg from where its mounting puts it"`` when the camera alone is
+    posed (the single-camera estimator), else ``""``."""
+    try:
+        alone = estimate_rs_pose(view.uv, view.X, view.camera)
+    except Exception:
+        return ""
+    if not alone.success:
+        return ""
+    w = np.asarray(est.w, float)
+    # the camera's rotation (world -> camera) at its reference time, as the rig puts it
+    R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
+    deg = rotation_angle_deg(alone.model.R, R_c)
+    return f"; alone it is {deg:.1f} deg from where its mounting puts it"
+
+
+# ---------------------------------------------------------------------- mountings from data
+@dataclass(frozen=True, eq=False)
+class MountingEstimate:
+    """A camera's mounting estimated from a rig video (:func:`calibrate_mountings`).
+
+    Attributes:
+        name: the camera. mount: its :class:`RigMount` (``x_cam = R x_rig + c``).
+        frames: rig frames averaged; rejected: rig frames left out as outliers.
+        std_deg, std_mm: standard deviation of the averaged rotation (deg, the norm over its
+            three axes) and of the camera's position on the rig (mm, norm): the larger of the
+            frames' scatter over ``sqrt(frames)`` and the batch-means estimate (the scatter of
+            the means of 8 runs of consecutive frames over ``sqrt(8)``, which counts errors
+            neighbouring frames share); zero for the reference camera.
+        scatter_deg, scatter_mm: one rig frame's (the frames' RMS deviation from the mean).
+    """
+
+    name: str
+    mount: RigMount
+    frames: int
+    rejected: int
+    std_deg: float
+    std_mm: float
+    scatter_deg: float
+    scatter_mm: float
+
+
+def _robust_rotation_mean(Rs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) -> (their chordal mean over the inliers, the inlier mask): rotations
+    more than 3 times the median angle (and 0.05 deg) from the mean are outliers, twice."""
+    keep = np.ones(len(Rs), dtype=bool)
+    for _ in range(3):
+        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
+        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
+        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
+    return M, keep
+
+
+def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
+    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
+    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
+    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
+    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
+    n = len(d)
+    k = min(blocks, n // 2)
+    if k < 2:
+        return 0.0
+    means = np.array([b.mean(axis=0) for b in np.array_split(d, k)])
+    return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
+
+
+def calibrate_mountings(
+    frames: list,
+    reference: str,
+    *,
+    reference_mount: RigMount | None = None,
+    window: float = 0.015,
+    stamp_row: float = 0.0,
+    min_inliers: int = 20,
+    options: Any = None,
+    max_step: float = 0.1,
+) -> dict:
+    """Every camera's mounting on the rig from a video of a known map.
+
+    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
+    pose and twist at its reference line's capture time, camera optical frame). Per frame of
+    the ``reference`` camera, each other camera's frame nearest in time (within ``window``)
+    is carried to the reference frame's time with the camera's estimated motion: the
+    constant twist between its own two frames around that time (interpolated poses; its
+    frame's own twist when it has no frame on the other side within ``max_step`` s), and
+    expressed in the reference camera's optical frame: ``R_ref_c = Ori_ref^T Ori_c``,
+    ``p_ref_c = Ori_ref^T (p_c - p_ref)``. The relative rotations are averaged (chordal mean,
+    outliers beyond 3 times the median angle left out) and so are the positions (beyond 3
+    times the median distance left out).
+
+    Args:
+        frames: :class:`RigCameraFrame` of every camera (any order; frames without a camera
+            model are skipped).
+        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
+            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+        window: s; frames further from the reference frame are not paired with it.
+        stamp_row: the row whose capture time is a frame's stamp.
+        min_inliers: frames posed with fewer inliers are not used.
+        max_step: s; the longest interval between a camera's two frames to interpolate
+            over. (On the synthetic rig walk, 6 s, 0.5 px noise, the camera 8 ms from the
+            reference: interpolated 0.001 deg and 0.44 mm from the truth, carried by its own
+            frame's twist 0.012 deg and 0.63 mm, by the true twist 0.003 deg and 0.44 mm.)
+        options: the single-camera estimator's
+            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+    Returns:
+        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
+        a camera never paired with the reference is missing).
+    Raises:
+        ValueError: no frame of ``reference`` posed.
+    """
+    poses: dict[str, list] = {}
+    for f in frames:
+        if f.camera is None:
+            continue
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        poses.setdefault(f.camera_name, [])
+        if not est.success or est.num_inliers < min_inliers:
+            continue
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        poses[f.camera_name].append((t, est.orientation, est.position, est.angular_velocity,
+                                     est.linear_velocity))  # fmt: skip
+    refs = poses.get(reference, [])
+    if not refs:
+        raise ValueError(
+            f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
+        )
+    base = reference_mount if reference_mount is not None else RigMount(np.eye(3), np.zeros(3))
+    R_base_ref, p_base_ref = base.R.T, base.position
+    out = {}
+    for name, items in poses.items():
+        if name == reference:
+            out[name] = MountingEstimate(name, base, len(refs), 0, 0.0, 0.0, 0.0, 0.0)
+            continue
+        if not items:
+            continue
+        times = np.array([i[0] for i in items])
+        Rs, ps = [], []
+        for t_r, O_r, p_r, _, _ in refs:
+            k = int(np.argmin(np.abs(times - t_r)))
+            dt = (t_r - times[k]) * 1e-9
+            if abs(dt) > window:
+                continue
+            _, Oc, p, om, v = items[k]
+            j = k + 1 if dt > 0 else k - 1
+            if 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
+                # the motion between the camera's own two frames around the reference time
+                s_ = (t_r - times[k]) / (times[j] - times[k])
+                O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
+                p_t = p + s_ * (items[j][2] - p)
+            else:  # (its own twist)
+                O_t = Oc @ rotvec_to_matrix(om * dt)
+                p_t = p + Oc @ v * dt
+            Rs.append(O_r.T @ O_t)
+            ps.append(O_r.T @ (p_t - p_r))
+        if len(Rs) < 2:
+            continue
+        Rs, ps = np.array(Rs), np.array(ps)
+        M, keep = _robust_rotation_mean(Rs)
+        d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
+        keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
+        p_mean = ps[keep].mean(axis=0)
+        r = matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs[keep]))
+        dp = ps[keep] - p_mean
+        n = int(keep.sum())
+        scat_r = float(np.sqrt(np.sum(r * r) / max(n - 1, 1)))
+        scat_p = float(np.sqrt(np.sum(dp * dp) / max(n - 1, 1)))
+        mount = RigMount.from_pose(R_base_ref @ M, R_base_ref @ p_mean + p_base_ref)
+        out[name] = MountingEstimate(
+            name, mount, n, len(Rs) - n,
+            float(np.rad2deg(max(_std_of_mean(r), scat_r / np.sqrt(n)))),
+            1e3 * max(_std_of_mean(dp), scat_p / np.sqrt(n)),
+            float(np.rad2deg(scat_r)), 1e3 * scat_p,
+        )  # fmt: skip
+    return out

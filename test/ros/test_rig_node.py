@@ -1,0 +1,234 @@
+"""The node's rig mode in this process: a simulated 3-camera rig (unsynchronized RS cameras) sent
+frame by frame, one pose for the rig against the truth, per-camera diagnostics, a camera
+without camera_info, a camera without mounting, a mounting off by degrees."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+
+pytest.importorskip("rclpy")
+
+T0 = 1_700_000_000_000_000_000
+OK, WARN = b"\x00", b"\x01"  # (diagnostic_msgs/DiagnosticStatus levels)
+
+
+def rig_parameters(cams, mountings=None, **extra):
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.conversions import quaternion_from_matrix
+
+    p = {
+        "warmup": False,
+        "publish_tf": False,
+        "diagnostics_period": 0.1,
+        "rig.cameras": [c.name for c in cams],
+        **extra,
+    }
+    for c in cams:
+        R = c.R_rig_cam if mountings is None else mountings.get(c.name, c.R_rig_cam)
+        q = quaternion_from_matrix(R)
+        p[f"rig.{c.name}.mounting"] = [float(x) for x in (*c.p_rig_cam, *q)]
+        p[f"rig.{c.name}.line_delay"] = float(c.camera.line_delay)
+        p[f"rig.{c.name}.direction"] = c.camera.readout
+    return [Parameter(k, value=v) for k, v in p.items()]
+
+
+class RigHarness:
+    """The rig node and a probe node on one executor: the probe publishes each camera's
+    camera_info and frames, and records pose, odom and the node's diagnostics."""
+
+    def __init__(self, ctx, cams, params):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import CameraInfo, PointCloud2
+
+        from rs_localizer.ros.rig_node import RigLocalizerNode
+
+        self.node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+                                     parameter_overrides=params)  # fmt: skip
+        self.probe = rclpy.create_node("rig_probe", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.probe)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = {
+            c.name: (
+                self.probe.create_publisher(PointCloud2, f"/rig/{c.name}/correspondences", qos),
+                self.probe.create_publisher(CameraInfo, f"/rig/{c.name}/camera_info", qos),
+            )
+            for c in cams
+        }
+        self.poses, self.odom, self.diag = [], [], []
+        self.probe.create_subscription(PoseStamped, "/rig/pose", self.poses.append, qos)
+        self.probe.create_subscription(Odometry, "/rig/odom", self.odom.append, qos)
+
+        def on_diag(msg):
+            self.diag += [s for s in msg.status if "/rig/rs_localizer" in s.name]
+
+        self.probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
+        ok = self.wait(
+            lambda: (
+                all(p.get_subscription_count() > 0 for ps in self.pub.values() for p in ps)
+                and self.probe.count_publishers("/rig/pose") > 0
+                and self.node._pubs["pose"].get_subscription_count() > 0
+                and self.node._pubs["odom"].get_subscription_count() > 0
+            )
+        )
+        assert ok, "the rig node and the probe did not match"
+
+    def wait(self, predicate, timeout=20.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self.ex.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def send_info(self, cams):
+        from rs_localizer.ros.conversions import camera_info_msg
+
+        for c in cams:
+            self.pub[c.name][1].publish(camera_info_msg(c.camera, c.name, T0))
+        assert self.wait(lambda: all(self.node.models[c.name] is not None for c in cams))
+
+    def send(self, frames):
+        """Each frame in turn, waiting until the node took it in (lock-step)."""
+        from rs_localizer.ros.conversions import ns_to_stamp
+        from rs_localizer.ros.pointcloud import correspondence_cloud
+
+        for f in frames:
+            key = f"{f.name}.received"
+            n = self.node.rig.counts[key]
+            self.pub[f.name][0].publish(
+                correspondence_cloud(f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
+            )
+            assert self.wait(lambda key=key, n=n: self.node.rig.counts[key] > n), f
+
+    def last_diag(self):
+        n = len(self.diag)
+        assert self.wait(lambda: len(self.diag) > n + 1)
+        st = self.diag[-1]
+        return st, {kv.key: kv.value for kv in st.values}
+
+    def close(self):
+        self.ex.shutdown()
+        self.probe.destroy_node()
+        self.node.destroy_node()
+
+
+def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context):
+    """3 unsynchronized cameras, 0.5 s: one pose per rig frame for base_link within 0.05 deg
+    and 5 mm of the truth, the fused twist on odom (child frame base_link), every camera's
+    counts, inliers and share in the diagnostics (shares summing to 1)."""
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=120, seed=11)
+    h = RigHarness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info(cams)
+        h.send(frames)
+        assert h.wait(lambda: len(h.poses) == 15)
+        assert h.wait(lambda: len(h.odom) >= 14)
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+            from rs_localizer.ros.conversions import pose_from_msg
+
+            Re, pe = pose_from_msg(m.pose)
+            assert m.header.frame_id == "map"
+            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        assert all(o.child_frame_id == "base_link" for o in h.odom)
+        st, v = h.last_diag()
+        assert st.level == OK, st.message
+        assert v["rig_frames"] == "15" and v["rig_frames_solved"] == "15"
+        shares = 0.0
+        for c in cams:
+            assert v[f"{c.name}.received"] == "15" and v[f"{c.name}.solved"] == "15"
+            assert v[f"{c.name}.state"] == "running" and v[f"{c.name}.camera_info"] == "received"
+            assert int(v[f"{c.name}.inliers"]) > 40
+            shares += float(v[f"{c.name}.inlier_share"])
+        assert abs(shares - 1.0) < 0.01
+    finally:
+        h.close()
+
+
+def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_context):
+    """The left camera's camera_info never comes: its frames are counted
+    ``skipped.no_camera_info``, the rig is posed from front and right, the status warns."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=12)
+    h = RigHarness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info([c for c in cams if c.name != "left"])
+        h.send(frames)
+        assert h.wait(lambda: len(h.poses) >= 8)
+        st, v = h.last_diag()
+        assert st.level == WARN and "left waits for its camera_info" in st.message, st.message
+        assert v["left.received"] == v["left.skipped"] == v["left.skipped.no_camera_info"] == "9"
+        assert v["left.camera_info"] == "waiting" and v["front.solved"] == v["rig_frames_solved"]
+        # the parameters are read at start: a change is refused
+        from rclpy.parameter import Parameter
+
+        (r,) = h.node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
+        assert not r.successful and "at start" in r.reason
+    finally:
+        h.close()
+
+
+def test_a_mounting_off_by_degrees_is_named_in_the_diagnostics(ros_context):
+    """The right camera's mounting given 4 degrees off: the status warns that it disagrees with
+    the rig, a likely wrong mounting; its inlier ratio is low."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=13)
+    off = {"right": cams[2].R_rig_cam @ rotvec_to_matrix(np.radians([0.0, 4.0, 0.0]))}
+    h = RigHarness(ros_context, cams, rig_parameters(cams, off))
+    try:
+        h.send_info(cams)
+        h.send(frames)
+        st, v = h.last_diag()
+        assert st.level == WARN and "right disagrees with the rig" in st.message, st.message
+        assert "mounting" in st.message and v["right.state"] == "disagrees"
+        assert float(v["right.inlier_ratio"]) < 0.2 < float(v["front.inlier_ratio"])
+    finally:
+        h.close()
+
+
+def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cams = default_rig(2)
+    params = [p for p in rig_parameters(cams) if p.name != "rig.left.mounting"]
+    with pytest.raises(RuntimeError, match="rig camera 'left' has no mounting"):
+        RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
+    bad = [p for p in params] + [Parameter("rig.left.mounting", value=[0.0, 1.0])]
+    with pytest.raises(RuntimeError, match=r"rig\.left\.mounting must be 7"):
+        RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
+
+
+def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mounting(
+    tmp_path, ros_domain
+):
+    """rs_localizer_node with rig.cameras set runs the rig mode (the process runner): a camera
+    without mounting stops it at start with an error naming the camera."""
+    from helpers.ros import refused_start
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: [front, left]\n"
+        "      front: {mounting: [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]}\n"
+    )
+    exited, rc, log = refused_start(tmp_path, [p], "/rig", 60)
+    assert exited and rc == 1, log
+    assert "rig camera 'left' has no mounting" in log, log

@@ -1,0 +1,90 @@
+"""The rig mode's parameters without ROS: documented in docs/rig_node.md with their defaults,
+the page's example parameter file gives the mountings of the simulated rig, and the errors
+name the camera."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rs_localizer.ros.params import (
+    RIG_CAMERA_PARAMETERS,
+    RIG_PARAMETERS,
+    ConfigError,
+    default_values,
+    read_params_file,
+    rig_config,
+)
+from rs_localizer.sim.rig_video import default_rig
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "rig_node.md"
+
+
+def _rows() -> dict:
+    rows = {}
+    for line in DOC.read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        names = re.findall(r"`([^`]+)`", cells[0]) if line.startswith("|") else []
+        if len(names) == 1 and names[0].startswith("rig."):
+            rows[names[0]] = cells[1]
+    return rows
+
+
+def test_every_rig_parameter_is_documented_with_its_default():
+    rows = _rows()
+    expected = set(RIG_PARAMETERS) | {f"rig.<camera>.{k}" for k in RIG_CAMERA_PARAMETERS}
+    assert set(rows) == expected, set(rows) ^ expected
+    for name, par in {
+        **RIG_PARAMETERS,
+        **{f"rig.<camera>.{k}": v for k, v in RIG_CAMERA_PARAMETERS.items()},
+    }.items():
+        shown = re.findall(r"`([^`]*)`", rows[name])
+        if name.endswith(".mounting"):
+            assert "required" in rows[name]
+        elif isinstance(par.default, list):
+            assert shown == ["[]"], name
+        elif isinstance(par.default, float):
+            assert float(shown[0]) == par.default, name
+        else:
+            assert shown[0] == (par.default or '""'), name
+
+
+def _values(tree: dict) -> tuple[dict, dict]:
+    values = default_values()
+    values.update({k: v.default for k, v in RIG_PARAMETERS.items()})
+    values.update({k: v for k, v in tree.items() if k in values})
+    cams = {}
+    for n in values["rig.cameras"]:
+        cams[n] = {k: tree.get(f"rig.{n}.{k}", p.default) for k, p in RIG_CAMERA_PARAMETERS.items()}
+        cams[n]["mounting"] = tree.get(f"rig.{n}.mounting")
+    return values, cams
+
+
+def test_the_pages_example_gives_the_simulated_rigs_mountings(tmp_path):
+    text = DOC.read_text().split("```yaml\n")[1].split("```")[0]
+    (tmp_path / "rig.yaml").write_text(text)
+    cfg = rig_config(*_values(read_params_file(tmp_path / "rig.yaml")))
+    assert cfg.base_frame == "base_link" and cfg.settings.window == 0.015
+    for c, sim in zip(cfg.cameras, default_rig(3), strict=True):
+        assert c.name == sim.name and c.direction == sim.camera.readout
+        assert c.line_delay == pytest.approx(sim.camera.line_delay)
+        assert np.allclose(c.mount.R, sim.R_mount, atol=1e-6)
+        assert np.allclose(c.mount.c, sim.c_mount, atol=1e-6)
+
+
+def test_errors_name_the_camera():
+    good = {"rig.cameras": ["a", "b"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0]}
+    with pytest.raises(ConfigError, match="rig camera 'b' has no mounting"):
+        rig_config(*_values(good))
+    with pytest.raises(ConfigError, match=r"rig\.b\.mounting must be 7"):
+        rig_config(*_values({**good, "rig.b.mounting": [1.0, 2.0]}))
+    with pytest.raises(ConfigError, match=r"rig\.b\.direction"):
+        bad = {**good, "rig.b.mounting": [0, 0, 0, 0, 0, 0, 1.0], "rig.b.direction": "sideways"}
+        rig_config(*_values(bad))
+    with pytest.raises(ConfigError, match="listed twice"):
+        rig_config(*_values({**good, "rig.cameras": ["a", "a"]}))
+    with pytest.raises(ConfigError, match="needs camera names"):
+        rig_config(*_values({"rig.cameras": []}))

@@ -1,0 +1,289 @@
+"""RigLocalizer: unsynchronized RS cameras on one rig through a video (simulated with
+rs_localizer.sim.rig_video), against the rig's true trajectory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.tracking.rig import (
+    MISSED_REASONS,
+    SKIP_REASONS,
+    RigCameraFrame,
+    RigLocalizer,
+    RigMount,
+    RigSettings,
+)
+
+T0 = 1_700_000_000_000_000_000
+
+
+class Log:
+    def __init__(self):
+        self.warnings, self.infos = [], []
+
+    def warning(self, key, text, count=0):
+        self.warnings.append((key, text))
+
+    def info(self, text):
+        self.infos.append(text)
+
+
+def mounts_of(cams):
+    return {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+
+
+def run(frames, cams, settings=None, log=None, camera_of=None):
+    """Every frame through a RigLocalizer in the given order; returns (rig, outputs, fused)."""
+    by = {c.name: c.camera for c in cams}
+    rig = RigLocalizer(settings or RigSettings(mounts_of(cams)), log=log)
+    outs, fused = [], []
+    for f in frames:
+        cam = by[f.name] if camera_of is None else camera_of(f)
+        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, cam, f.uv, f.xyz)):
+            outs.append(o)
+            fused += o.fused
+    for o in rig.close():
+        outs.append(o)
+        fused += o.fused
+    fused += rig.flush()
+    return rig, outs, fused
+
+
+def errors(o, traj):
+    R, p, w, v = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
+    pose = o.pose
+    return (
+        rotation_angle_deg(pose.orientation, R),
+        np.linalg.norm(pose.position - p),
+        np.linalg.norm(pose.angular_velocity - w),
+        np.linalg.norm(pose.linear_velocity - v),
+    )
+
+
+def assert_balanced(rig):
+    for n in rig.cameras:
+        c = rig.camera_counts(n)
+        assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"], (n, c)
+    r = rig.rig_counts()
+    assert r["rig_frames"] == r["solved"] + r["failed"] + r["skipped"] + r["pending"], r
+
+
+@pytest.fixture(scope="module")
+def video():
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.6, num_points=150, seed=3)
+    return cams, frames, traj
+
+
+def test_three_unsynchronized_cameras_one_pose_per_rig_frame_and_a_fused_twist(video):
+    """3 cameras, first frames 0, 4 and 8 ms apart, 20 % outliers, turning at ~1 rad/s: one
+    rig frame per trio of frames, each posed within 0.03 deg and 3 mm; tracked after the
+    first; the fused twist (fixed lag) at least 2x closer to the truth than each rig frame's
+    own."""
+    cams, frames, traj = video
+    rig, outs, fused = run(frames, cams)
+    assert len(outs) == 18 and all(o.success for o in outs)
+    assert all(o.cameras == ("front", "left", "right") and not o.missing for o in outs)
+    assert [o.path for o in outs] == ["cold"] + ["tracked"] * 17
+    e = np.array([errors(o, traj) for o in outs])
+    assert np.median(e[:, 0]) < 0.03 and np.median(e[:, 1]) < 0.003, np.median(e, axis=0)
+    assert len(fused) == 18 and [f.stamp_ns for f in fused] == [o.stamp_ns for o in outs]
+    fw, fv = [], []
+    for f in fused:
+        _, _, w, v = rig_truth(traj, (f.stamp_ns - T0) * 1e-9)
+        fw.append(np.linalg.norm(f.angular_velocity - w))
+        fv.append(np.linalg.norm(f.linear_velocity - v))
+    assert np.median(fw) < 0.5 * np.median(e[:, 2]), (np.median(fw), np.median(e[:, 2]))
+    assert np.median(fv) < 0.5 * np.median(e[:, 3]), (np.median(fv), np.median(e[:, 3]))
+    # every camera's share of the rig's inliers, and the counts balance
+    o = outs[5]
+    assert abs(sum(s.share for s in o.shares.values()) - 1.0) < 1e-9
+    assert all(0.6 < s.ratio < 0.95 for s in o.shares.values())
+    assert_balanced(rig)
+    assert rig.camera_counts("left") == dict(received=18, solved=18, failed=0, skipped=0, pending=0)
+    # the stamp offsets: each camera's reference time after the rig frame's
+    by = {c.name: c for c in cams}
+    o = outs[3]
+    for n, off in o.stamp_offsets.items():
+        cam = by[n].camera
+        t_ref = by[n].offset + 3 / 30 + cam.line_time(cam.reference_line)
+        assert abs(round(t_ref * 1e9) - (o.stamp_ns - T0 + round(off * 1e9))) <= 2
+
+
+def test_arrival_order_does_not_matter(video):
+    """Frames arriving in another interleaving (a camera's frames in order, the cameras
+    delayed by up to 30 ms each) give the same rig frames and poses."""
+    cams, frames, _ = video
+    rng = np.random.default_rng(0)
+    key = [f.stamp_ns + rng.uniform(0, 30e6) for f in frames]
+    shuffled = [frames[i] for i in np.argsort(key, kind="stable")]
+    for n in ("front", "left", "right"):  # (each camera's own frames stay in order)
+        own = [f.stamp_ns for f in shuffled if f.name == n]
+        assert own == sorted(own)
+    _, a, _ = run(frames, cams)
+    _, b, _ = run(shuffled, cams)
+    assert [o.stamp_ns for o in a] == [o.stamp_ns for o in b]
+    for x, y in zip(a, b, strict=True):
+        assert rotation_angle_deg(x.pose.orientation, y.pose.orientation) < 0.01
+
+
+def test_a_camera_whose_frames_stop_the_rig_runs_on_the_others():
+    """The right camera stops at 0.3 s: the rig frames after it have two cameras, counted as
+    missed (``stopped``) after ``stop_after``, still posed within 0.05 deg and 5 mm; a camera
+    whose frames come back joins again."""
+    cams = default_rig(3)
+    cams[2] = type(cams[2])(**{**cams[2].__dict__, "stop": 0.3})
+    frames, _, traj = generate_rig_video(cams, duration=0.9, num_points=150, seed=4)
+    log = Log()
+    settings = RigSettings(mounts_of(cams), stop_after=0.2)
+    rig, outs, _ = run(frames, cams, settings, log)
+    assert all(o.success for o in outs)
+    late = [o for o in outs if (o.stamp_ns - T0) * 1e-9 > 0.55]
+    assert late and all(o.cameras == ("front", "left") for o in late)
+    assert all(o.missing == {"right": "stopped"} for o in late)
+    assert rig.counts["right.stopped"] == 1 and rig.camera_state("right") == "stopped"
+    assert any("'right'" in t and "stop_after" in t for _, t in log.warnings)
+    e = np.array([errors(o, traj) for o in late])
+    assert e[:, 0].max() < 0.05 and e[:, 1].max() < 0.005
+    assert_balanced(rig)
+    assert set(MISSED_REASONS) >= {k.split(".")[-1] for k in rig.counts if ".missed." in k}
+
+
+def test_frames_too_far_apart_are_separate_rig_frames_counted():
+    """The left camera's frames 16 ms after the front's with a 10 ms window: never one rig
+    frame; each posed alone from its camera, the other counted missing as ``apart``."""
+    cams = default_rig(2, offsets_s=(0.0, 0.0161))
+    frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=150, seed=5)
+    rig, outs, _ = run(frames, cams, RigSettings(mounts_of(cams), window=0.010))
+    assert all(len(o.cameras) == 1 for o in outs)
+    assert rig.counts["front.missed.apart"] >= 10 and rig.counts["left.missed.apart"] >= 10
+    assert rig.counts["rig.incomplete"] == len(outs)
+    ok = [o for o in outs if o.success]
+    assert len(ok) >= 0.9 * len(outs)
+    assert np.median([errors(o, traj)[0] for o in ok]) < 0.1
+    assert_balanced(rig)
+    # with a 20 ms window the same frames pair up
+    _, outs2, _ = run(frames, cams, RigSettings(mounts_of(cams), window=0.020))
+    assert sum(len(o.cameras) == 2 for o in outs2) >= 10
+
+
+def test_dropped_frames_and_a_camera_waiting_for_its_camera_info(video):
+    """The left camera's first 5 frames come without a camera model (its camera_info has not
+    arrived: skipped as ``no_camera_info``, the rig runs on the others) and its frame 9 is
+    dropped (``dropped``); the counts balance."""
+    cams, frames, _ = video
+    frames = [f for f in frames if not (f.name == "left" and f.index == 9)]
+    by = {c.name: c.camera for c in cams}
+
+    def camera_of(f):
+        return None if f.name == "left" and f.index < 5 else by[f.name]
+
+    rig, outs, _ = run(frames, cams, camera_of=camera_of)
+    assert rig.counts["left.skipped.no_camera_info"] == 5
+    assert sum(o.missing.get("left") == "dropped" for o in outs) == 6
+    assert all(o.success for o in outs)
+    assert_balanced(rig)
+    assert "no_camera_info" in SKIP_REASONS
+
+
+def test_a_mounting_off_by_degrees_is_named():
+    """The left camera's mounting given 3 degrees off: its points become outliers of the rig's
+    pose, the rig is named ``disagreeing`` with a warning naming the camera and the offset
+    measured from the camera alone; the rig's pose stays accurate (the other two)."""
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=150, seed=6)
+    mounts = mounts_of(cams)
+    bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
+    mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+    log = Log()
+    rig, outs, _ = run(frames, cams, RigSettings(mounts), log)
+    assert outs[-1].disagreeing == ("left",)
+    assert rig.camera_state("left") == "disagrees" and rig.counts["left.disagreements"] == 1
+    text = [t for k, t in log.warnings if k == "rig.disagrees.left"]
+    assert len(text) == 1 and "'left'" in text[0] and "mounting" in text[0]
+    deg = float(text[0].split("alone it is ")[1].split(" deg")[0])
+    assert 2.0 < deg < 4.0, text[0]
+    assert outs[-1].shares["left"].ratio < 0.2 < outs[-1].shares["front"].ratio
+    e = np.array([errors(o, traj) for o in outs if o.success])
+    assert np.median(e[:, 0]) < 0.05 and np.median(e[:, 1]) < 0.005
+    # the right mountings: nobody disagrees
+    _, good, _ = run(frames, cams)
+    assert all(o.disagreeing == () for o in good)
+
+
+def test_stamps_going_back_start_the_rig_again(video):
+    """The video played twice (stamps going back by more than ``time_reset_ns``): the rig
+    starts again, the track cold; a camera's frame older than its previous one (by less) is
+    skipped as ``out_of_order``."""
+    cams, frames, _ = video
+    settings = RigSettings(mounts_of(cams), time_reset_ns=200_000_000)
+    rig, outs, _ = run(frames + frames, cams, settings)
+    assert [o.path for o in outs].count("cold") == 2
+    assert sum(o.success for o in outs) >= 34
+    assert_balanced(rig)
+    rig2, _, _ = run([frames[0], frames[3], frames[0]], cams)
+    assert rig2.counts["front.skipped.out_of_order"] == 1
+    assert_balanced(rig2)
+
+
+def test_bad_settings():
+    cams = default_rig(2)
+    m = mounts_of(cams)
+    with pytest.raises(ValueError, match="'left' has no mounting"):
+        RigSettings({"front": m["front"], "left": None})
+    with pytest.raises(ValueError, match="at least one camera"):
+        RigSettings({})
+    with pytest.raises(ValueError, match="rotation"):
+        RigMount(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
+    rig = RigLocalizer(RigSettings(m))
+    with pytest.raises(ValueError, match="'back' is not in the rig"):
+        rig.add(RigCameraFrame("back", T0, cams[0].camera, np.zeros((0, 2)), np.zeros((0, 3))))
+    mount = RigMount.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
+    assert np.allclose(mount.position, cams[1].p_rig_cam)
+    assert np.allclose(mount.R, cams[1].R_mount) and np.allclose(mount.c, cams[1].c_mount)
+
+
+def test_the_filter_measures_with_the_estimators_covariance(video):
+    """Each rig frame's measurement carries the rig estimator's covariance and acceleration
+    sensitivity, and that covariance covers the pose's error against the truth (median NEES
+    of the 6 pose errors below 3 x 6)."""
+    from rs_localizer.geometry import matrix_to_rotvec
+
+    cams, frames, traj = video
+    _, outs, _ = run(frames, cams)
+    nees = []
+    for o in outs:
+        m = o.measurement
+        assert m.covariance is o.estimate.covariance
+        assert m.acceleration_sensitivity is o.estimate.acceleration_sensitivity
+        assert m.acceleration_sensitivity.shape == (12, 6)
+        R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
+        e = np.concatenate([matrix_to_rotvec(m.orientation @ R.T), m.position - p])
+        nees.append(e @ np.linalg.solve(m.covariance[:6, :6], e))
+    assert np.median(nees) < 18.0, np.median(nees)
+
+
+def test_calibrate_mountings_from_the_video(video):
+    """Each camera's mounting from the 0.6 s video (18 rig frames, 150 points, 20 % outliers)
+    relative to the front camera's true one: within 0.05 deg and 3 mm of the truth and 3 of its
+    stated standard deviations; no frame of the reference camera is an error."""
+    from rs_localizer.tracking.rig import calibrate_mountings
+
+    cams, frames, _ = video
+    by = {c.name: c.camera for c in cams}
+    truth = mounts_of(cams)
+    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in frames]
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert sorted(out) == ["front", "left", "right"]
+    assert out["front"].mount is truth["front"] and out["front"].std_deg == 0.0
+    for n in ("left", "right"):
+        e = out[n]
+        deg = rotation_angle_deg(e.mount.R, truth[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
+        assert e.frames >= 15 and deg < 0.05 and mm < 3.0, (n, deg, mm)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e)
+    with pytest.raises(ValueError, match="nope"):
+        calibrate_mountings(fr, "nope")
