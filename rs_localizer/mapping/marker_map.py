@@ -271,7 +271,7 @@ def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, ba
         kept = e8[prob.keep]
         prob.noise_px = float(np.sqrt(np.mean(kept**2))) if kept.size else 1.0
         t0 = time.perf_counter()
-        sol = prob.solve(sol.x)
+        sol = prob.solve(sol.x, max_nfev=options.final_max_nfev)
         timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
             time.perf_counter() - t0
         )

@@ -135,7 +135,9 @@ class MappingOptions:
         min_views: a marker seen in fewer frames with a pose is left out of the map (reported
             in ``MarkerMapResult.unmapped``): its planar two-fold ambiguity and its depth are
             not fixed by one view.
-        max_nfev: function-evaluation budget of each ``least_squares`` call.
+        max_nfev: function-evaluation budget of each ``least_squares`` call but the last.
+        final_max_nfev: budget of the last, plain least-squares adjustment (the map, the line
+            delay and their stds are its solution: it is run to convergence).
         frame: the output frame when neither ``anchor_pose`` nor ``anchors`` is given:
             ``anchor`` (the anchor's own frame, z out of its face), ``auto`` (gravity-aligned,
             z up, from the first of the accelerometer, markers on two or more walls, floor
@@ -170,6 +172,7 @@ class MappingOptions:
     reject_px: float = 3.0
     min_views: int = 2
     max_nfev: int = 60
+    final_max_nfev: int = 200
     frame: str = "anchor"
     floor_markers: tuple = ()
 
@@ -237,7 +240,9 @@ class MarkerMapResult:
         line_delay_std: its standard deviation (s) with ``calibrate_readout`` (the line
             delay's marginal of the adjustment's ``(J^T J)^-1``, weighted as the markers'
             covariance), NaN otherwise. Like ``line_delay`` it depends on the output frame only
-            through the solver's path (the adjustment's cost does not depend on the frame).
+            through the gauge marker's place: the motion tie does not depend on the world
+            frame, the corner model (the exact rotation ``expm(tau [w]x)`` with a translation
+            linear in time) on its origin at second order in ``tau |w|``.
         readout_verdict: with ``calibrate_readout``, why the line delay is not observable
             (the rule of ``rs-localizer calibrate-readout``:
             :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;

@@ -113,8 +113,9 @@ def test_line_delay_does_not_depend_on_the_output_frame(scene):
     a = map_markers(frames, start, o)
     b = map_markers(frames, start, replace(o, anchor=None, anchor_pose=None))
     assert a.frame.kind == "anchor" and b.frame.kind == "best-observed"
-    # (the adjustment's cost does not depend on the frame; its gauge, the anchor or the most
-    # detected marker, changes only the solver's path: a difference far below the std)
+    # (the motion tie does not depend on the frame; the gauge marker, the anchor or the most
+    # detected one, moves the world's origin, on which the corner model depends at second
+    # order in tau |w|: a difference far below the std)
     assert abs(a.line_delay - b.line_delay) < 0.3 * a.line_delay_std
     assert abs(a.line_delay_std / b.line_delay_std - 1) < 0.05
     assert 0 < a.line_delay_std < 0.05 * a.line_delay and a.readout_verdict == ""
