@@ -12,7 +12,18 @@ import numpy as np
 
 from .geometry import rotation_angle_deg
 
-__all__ = ["GroundTruth", "format_summary", "frame_errors", "summarize_errors"]
+__all__ = [
+    "GroundTruth",
+    "align_frames",
+    "format_summary",
+    "frame_errors",
+    "frame_fit_summary",
+    "summarize_errors",
+]
+
+#: a rigid fit of the estimate's frame onto the ground truth's beyond these (deg, m) means the
+#: two are in different frames (a map not in the ground truth's frame)
+OTHER_FRAME_DEG, OTHER_FRAME_M = 1.0, 0.05
 
 
 @dataclass
@@ -59,6 +70,46 @@ def frame_errors(
         out["linvel"] = float(np.linalg.norm(np.asarray(linear_velocity) - gt.linear_velocity[s]))
         out["angvel_gt"] = float(np.linalg.norm(gt.angular_velocity[s]))
     return out
+
+
+def align_frames(est: list, gt: list) -> tuple[np.ndarray, np.ndarray]:
+    """The rigid transform ``(R (3, 3), t (3,))`` taking the estimate's frame onto the ground
+    truth's, from pairs of camera -> frame poses ``(R, p)`` (``est``, ``gt``: same length):
+    the rotation is the chordal mean of ``R_gt R_est^T`` (SVD projection of their sum), the
+    translation the mean of ``p_gt - R p_est``. Raises ValueError without pairs."""
+    if not est or len(est) != len(gt):
+        raise ValueError(f"align_frames: {len(est)} estimates for {len(gt)} ground truths")
+    M = sum(np.asarray(g[0]) @ np.asarray(e[0]).T for e, g in zip(est, gt, strict=True))
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    t = np.mean([np.asarray(g[1]) - R @ np.asarray(e[1]) for e, g in zip(est, gt, strict=True)], 0)
+    return R, t
+
+
+def frame_fit_summary(est: list, gt: list) -> dict | None:
+    """The estimate's poses against ground truth after the rigid fit of the frames
+    (:func:`align_frames`): ``rot_deg``/``pos_m`` of the fit itself, ``other_frame`` (the fit
+    moves more than ``OTHER_FRAME_DEG`` or ``OTHER_FRAME_M``: the ground truth is in another
+    frame than the estimate's) and ``aligned`` (:func:`summarize_errors` of the rotation and
+    position errors after the fit). None for fewer than 3 pairs."""
+    if len(est) < 3:
+        return None
+    R, t = align_frames(est, gt)
+    errs = [
+        {
+            "rot_deg": rotation_angle_deg(R @ np.asarray(e[0]), g[0]),
+            "pos_m": float(np.linalg.norm(R @ np.asarray(e[1]) + t - g[1])),
+        }
+        for e, g in zip(est, gt, strict=True)
+    ]
+    rot = rotation_angle_deg(R, np.eye(3))
+    pos = float(np.linalg.norm(t))
+    return {
+        "rot_deg": rot,
+        "pos_m": pos,
+        "other_frame": bool(rot > OTHER_FRAME_DEG or pos > OTHER_FRAME_M),
+        "aligned": summarize_errors(errs),
+    }
 
 
 def summarize_errors(errors: list) -> dict:

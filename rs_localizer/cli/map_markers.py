@@ -3,8 +3,11 @@ of images with a camera YAML).
 
 Detects the markers in every image, builds the map with the rolling-shutter bundle adjustment
 (:func:`rs_localizer.mapping.marker_map.map_markers`) and writes it in the marker-map format the
-ArUco front end and the node's ``frontend_map`` read. The world frame is the anchor marker's
-(x right, y up on its face, z out of it, origin at its centre) or ``--anchor-pose``.
+ArUco front end and the node's ``frontend_map`` read. The world frame is gravity-aligned
+(REP 105: z up) from the first of the bag's accelerometer, markers on two or more walls, a floor
+marker that the video offers, with its origin at the anchor's centre and x out of its wall (y
+left, z up); or, with ``--anchor``/``--anchor-pose``/``--frame anchor``, the anchor marker's own
+frame (x right, y up on its face, z out of it) or ``--anchor-pose``.
 """
 
 from __future__ import annotations
@@ -18,7 +21,13 @@ import numpy as np
 
 from . import args as A
 
-__all__ = ["frames_from_bag", "parse_sizes", "register", "run"]
+__all__ = ["frames_from_bag", "parse_sizes", "register", "run", "up_from_imu"]
+
+#: the accelerometer's samples count as still-ish within this rate (rad/s; 2 rad/s turns 5 cm
+#: from the IMU make 0.2 m/s^2) and this far from
+#: 1 g (m/s^2); a frame's up is their mean within ``UP_WINDOW`` s of its stamp
+STILL_RATE, STILL_ACCEL, UP_WINDOW = 2.0, 1.5, 0.25
+GRAVITY = 9.81
 
 
 def parse_sizes(text: str) -> dict:
@@ -132,6 +141,71 @@ def frames_from_bag(
     return camera, frames, counts
 
 
+def up_from_imu(
+    path: str | Path,
+    stamps: np.ndarray,
+    imu_topic: str | None = None,
+    R_cam_imu: np.ndarray | None = None,
+) -> tuple[dict, str]:
+    """Up in the camera's optical frame at the frames of a bag, from its ``sensor_msgs/Imu``
+    accelerometer: the mean specific force (up when still: the accelerometer feels the
+    floor's push, not gravity) of the samples within ``UP_WINDOW`` s of a frame's stamp that
+    are still-ish (rate below ``STILL_RATE``, magnitude within ``STILL_ACCEL`` of 1 g),
+    rotated by the camera-IMU mounting ``R_cam_imu`` (IMU -> camera; default: the bag's
+    ``sequence.json`` ``imu.rotation_imu_from_camera``, transposed).
+
+    Args:
+        path: the bag directory. stamps: (N,) the frames' stamps (s, the bag's clock).
+        imu_topic: the IMU topic (default: the bag's only one).
+    Returns:
+        ``(up, why)``: frame index -> (3,) unit up, camera frame (frames without still
+        samples left out), and why it is empty (no IMU, mounting unknown, never still).
+    """
+    from ..ros.bags.bag_io import IMU, bag_topics, iter_messages, read_bag_info, typestore
+
+    path = Path(path)
+    if not (path / "metadata.yaml").exists():
+        return {}, "not a bag (no IMU)"
+    imus = sorted(t for t, mt in bag_topics(path).items() if mt == IMU)
+    if not imus:
+        return {}, "the bag has no sensor_msgs/Imu"
+    if imu_topic is None:
+        if len(imus) != 1:
+            return {}, f"IMU topics {imus}: choose one with --imu-topic"
+        imu_topic = imus[0]
+    elif imu_topic not in imus:
+        return {}, f"no IMU topic {imu_topic!r} (IMU topics: {imus})"
+    if R_cam_imu is None:
+        R_ic = read_bag_info(path).get("imu", {}).get("rotation_imu_from_camera")
+        if R_ic is None:
+            return {}, (
+                "the IMU's mounting is unknown: give --imu-rotation QX QY QZ QW (the node's "
+                "imu.rotation, IMU -> camera)"
+            )
+        R_cam_imu = np.asarray(R_ic, float).reshape(3, 3).T
+    ts = typestore()
+    t, w, f = [], [], []
+    for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
+        m = ts.deserialize_cdr(raw, msgtype)
+        t.append(m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec)
+        w.append([m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z])
+        a = m.linear_acceleration
+        f.append([a.x, a.y, a.z])
+    if not t:
+        return {}, f"no messages on {imu_topic}"
+    t, w, f = np.array(t), np.array(w), np.array(f)
+    still = (np.linalg.norm(w, axis=1) < STILL_RATE) & (
+        np.abs(np.linalg.norm(f, axis=1) - GRAVITY) < STILL_ACCEL
+    )
+    out = {}
+    for k, s in enumerate(np.asarray(stamps, float)):
+        sel = still & (np.abs(t - s) < UP_WINDOW)
+        if sel.sum() >= 3:
+            u = np.asarray(R_cam_imu) @ f[sel].mean(0)
+            out[k] = u / np.linalg.norm(u)
+    return out, "" if out else "the IMU is never still-ish near a frame"
+
+
 def _detect(src: Path, args: argparse.Namespace) -> tuple:
     """``(camera, frames, counts)`` of one input (a bag, or a folder of images with
     ``--camera``)."""
@@ -199,6 +273,15 @@ def _options(args: argparse.Namespace):
         _, anchors = load_marker_map(args.survey)
         if not anchors:
             raise ValueError(f"{args.survey}: no markers")
+    frame = args.frame
+    explicit = args.anchor is not None or anchor_pose is not None or anchors is not None
+    if frame is None:
+        frame = "anchor" if explicit else "auto"
+    frame = {"gravity": "auto"}.get(frame, frame)
+    if frame != "anchor" and (anchor_pose is not None or anchors is not None):
+        raise ValueError(
+            f"--frame {args.frame}: --anchor-pose and --survey give the frame themselves"
+        )
     return MappingOptions(
         marker_size=args.marker_size,
         marker_sizes=parse_sizes(args.marker_sizes or ""),
@@ -209,6 +292,8 @@ def _options(args: argparse.Namespace):
         calibrate_readout=args.calibrate_readout,
         corner_offset=not args.no_corner_offset,
         coverage_std=args.coverage_std / 1000.0,
+        frame=frame,
+        floor_markers=tuple(int(m) for m in (args.floor_markers or "").split(",") if m.strip()),
     )
 
 
@@ -227,17 +312,30 @@ def _offset_note(result) -> str:
     return note
 
 
-def _summary(out: Path, result, counts: dict, opts) -> list:
+def _summary(out: Path, result, counts: dict, opts, lines: int | None = None) -> list:
     """The lines the command prints about a map: size, fit, the frame and its uncertainty
     (with a warning naming the remedy above the bounds), markers left out and the markers
     whose stated std exceeds ``--coverage-std`` with what would help."""
+    from ..mapping.outputs import readout_line
+
     f = result.frame
+    what = {
+        "gravity": f"gravity-aligned (z up), origin at marker {f.anchors[0]}'s centre, x out "
+        "of its wall, y left",
+        "best-observed": "the best-observed marker's own frame (z out of its face)",
+        "anchor": "the anchor's own frame (z out of its face)"
+        if opts.anchor_pose is None
+        else "the anchor at --anchor-pose",
+        "surveyed": "the best fit to the surveyed markers",
+    }.get(f.kind, f.kind)
     lines = [
         f"{out}: {len(result.corners)} markers from {counts['images']} images "
         f"({counts['without_markers']} without markers, {result.num_frames_skipped} without a "
         f"pose); reprojection RMSE {result.rmse_px:.2f} px, {result.num_rejected} detections "
-        f"rejected, line delay {1e6 * result.line_delay:.2f} us, detected corners "
-        f"{result.corner_offset_px:+.2f} px inside the markers" + _offset_note(result),
+        f"rejected, detected corners {result.corner_offset_px:+.2f} px inside the markers"
+        + _offset_note(result),
+        f"  {readout_line(result, lines)}",
+        f"  map frame: {what}" + (f"; {f.note}" if f.note else ""),
         f"  frame: {f.kind} ({', '.join(map(str, f.anchors))}"
         + (f", residual {f.residual_mm:.1f} mm RMS" if f.kind == "surveyed" else "")
         + f"); its own uncertainty against the map as a whole: {f.rotation_std_deg:.2f} deg, "
@@ -247,9 +345,10 @@ def _summary(out: Path, result, counts: dict, opts) -> list:
     if f.rotation_std_deg > opts.max_frame_rotation_deg or (
         f.position_std_mm > opts.max_frame_position_mm
     ):
+        lever = _lever_arm(result, f)
         lines.append(
             f"  WARNING: the frame is poorly fixed ({f.rotation_std_deg:.2f} deg, "
-            f"{f.position_std_mm:.0f} mm): every marker far from "
+            f"{f.position_std_mm:.0f} mm){lever}: every marker far from "
             f"{'the anchor' if f.kind != 'surveyed' else 'the surveyed markers'} inherits it. "
             "Look at the anchor from closer and from several directions, or fix the frame by "
             "a better-observed marker (leave out --anchor) or by several surveyed markers "
@@ -271,6 +370,24 @@ def _summary(out: Path, result, counts: dict, opts) -> list:
     return lines
 
 
+def _lever_arm(result, f) -> str:
+    """The part of the frame's position std that is its rotation std acting over the distance
+    from the anchor to the map's origin (``--anchor-pose`` far from the origin), said in words;
+    "" when the origin is near the anchor."""
+    if f.kind != "anchor" or result.anchor not in result.marker_poses:
+        return ""
+    d = float(np.linalg.norm(result.marker_poses[result.anchor][1]))
+    arm = np.radians(f.rotation_std_deg) * d * 1e3
+    if d < 0.5 or arm < 0.3 * f.position_std_mm:
+        return ""
+    return (
+        f"; of the {f.position_std_mm:.0f} mm, about {arm:.0f} mm is the frame's rotation "
+        f"uncertainty acting over the {d:.1f} m from the anchor to the map's origin (a lever "
+        "arm: the origin is fixed by the anchor's tilt, not only its position; markers near "
+        "the anchor do not inherit it)"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the command (see :func:`register`); returns 0.
 
@@ -281,7 +398,7 @@ def run(args: argparse.Namespace) -> int:
         the video, a video of another place (see ``map_markers``).
     """
     from ..mapping import concatenate_videos, map_markers
-    from ..mapping.outputs import write_map, write_report
+    from ..mapping.outputs import readout_line, write_map, write_report
 
     out = A.output_file(args.output, args.overwrite, "marker map")
     if args.report:
@@ -313,6 +430,23 @@ def run(args: argparse.Namespace) -> int:
     videos = [i for i, d in enumerate(detected) for _ in d[1]]
     counts = {k: sum(d[2][k] for d in detected) for k in detected[0][2]}
     t_detect = time.perf_counter() - t0
+    up_in_camera, imu_note = None, ""
+    if opts.frame in ("auto", "imu"):
+        R_ci = None
+        if args.imu_rotation is not None:
+            from scipy.spatial.transform import Rotation
+
+            R_ci = Rotation.from_quat(np.asarray(args.imu_rotation, float)).as_matrix()
+        up_in_camera, off, notes = {}, 0, []
+        for src, d in zip(inputs, detected, strict=True):
+            ups, why = up_from_imu(src, np.array([fr.stamp for fr in d[1]]), args.imu_topic, R_ci)
+            up_in_camera.update({off + k: u for k, u in ups.items()})
+            off += len(d[1])
+            if why:
+                notes.append(f"{src}: {why}")
+        imu_note = "; ".join(notes)
+        if opts.frame == "imu" and not up_in_camera:
+            raise ValueError(f"--frame imu: {imu_note}")
     several = len(inputs) > 1
     result = map_markers(
         frames,
@@ -321,8 +455,13 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         videos=videos if several else None,
         video_names=[str(src) for src in inputs] if several else None,
+        up_in_camera=up_in_camera or None,
     )
     result.timings["detection"] = t_detect
+    if imu_note and result.frame is not None and result.frame.up_source != "imu":
+        result.frame.note = (result.frame.note + "; " if result.frame.note else "") + (
+            f"accelerometer not used ({imu_note})"
+        )
     for why in result.refused_videos.values():  # (the map is built from the other videos)
         print(f"WARNING: {why}", file=sys.stderr)
     singles = []
@@ -335,11 +474,13 @@ def run(args: argparse.Namespace) -> int:
                 singles.append(map_markers(d[1], camera, opts))
             except ValueError as e:
                 singles.append(str(e))
-    write_map(out, result, args.dictionary, overwrite=args.overwrite)
+    write_map(out, result, args.dictionary, overwrite=args.overwrite, lines=camera.lines)
     if args.report:
         write_report(args.report, result, counts)
+    if args.quiet and opts.calibrate_readout:  # (the value asked for, even under --quiet)
+        print(readout_line(result, camera.lines))
     if not args.quiet:
-        print("\n".join(_summary(out, result, counts, opts)))
+        print("\n".join(_summary(out, result, counts, opts, camera.lines)))
         for src, single in zip(inputs, singles, strict=False):
             if isinstance(single, str):
                 print(f"  {src} alone: no map ({single})")
@@ -390,6 +531,27 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         nargs=7,
         metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
         help="the anchor's centre (m) and orientation (marker -> world) in the world",
+    )
+    p.add_argument(
+        "--frame",
+        choices=("gravity", "auto", "anchor", "imu", "walls", "floor"),
+        help="the map's frame: gravity (= auto: z up from the first of the bag's "
+        "accelerometer, markers on two or more walls, a floor marker; origin at the anchor's "
+        "centre, x out of its wall, y left; the default without --anchor, --anchor-pose or "
+        "--survey), one of those sources only (imu, walls, floor), or anchor (the anchor's "
+        "own frame, z out of its face; the default with --anchor)",
+    )
+    p.add_argument(
+        "--floor-markers", metavar="ID,...", help="markers lying on the floor (up: their normal)"
+    )
+    p.add_argument("--imu-topic", help="the bag's sensor_msgs/Imu topic (default: its only one)")
+    p.add_argument(
+        "--imu-rotation",
+        type=A.finite_float,
+        nargs=4,
+        metavar=("QX", "QY", "QZ", "QW"),
+        help="IMU -> camera optical frame rotation (the node's imu.rotation; default: the "
+        "bag's sequence.json)",
     )
     p.add_argument(
         "--readout-time", type=A.nonneg_float, default=0.03, help="frame readout time (s)"

@@ -299,6 +299,14 @@ def run(args: argparse.Namespace) -> int:
             )
     if res.summary.get("frames"):
         print(format_summary(solver, res.summary, n), file=text)
+        fit = res.summary.get("frame_fit")
+        if fit and fit["other_frame"]:
+            print(
+                f"  the ground truth is in another frame than the map's (a rigid fit of the "
+                f"frames moves them {fit['rot_deg']:.3g} deg, {100 * fit['pos_m']:.3g} cm); "
+                "after that fit: " + format_summary(solver, fit["aligned"]),
+                file=text,
+            )
     if res.out_bag:
         print(
             f"estimates: {res.out_bag}"

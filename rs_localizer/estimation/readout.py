@@ -71,7 +71,13 @@ from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec
 from .estimate import EstimateOptions, estimate_rs_pose
 
-__all__ = ["ReadoutCalibration", "calibrate_line_delay", "fit_line_delay", "per_frame_rates"]
+__all__ = [
+    "ReadoutCalibration",
+    "calibrate_line_delay",
+    "fit_line_delay",
+    "line_delay_verdict",
+    "per_frame_rates",
+]
 
 
 @dataclass(frozen=True)
@@ -409,6 +415,20 @@ def _unobservable(
         return (
             f"too little rotation: relative std {std / abs(s):.3g} > "
             f"{max_relative_std:g} (rotation rms {rot:.3g} rad/s)"
+        )
+    return ""
+
+
+def line_delay_verdict(line_delay: float, std: float, max_relative_std: float = 0.05) -> str:
+    """Why a line delay (s) of standard deviation ``std`` (s) fitted elsewhere (the marker
+    map's bundle adjustment) is not a calibration, or ``""`` if it is: the rule
+    :func:`fit_line_delay` applies to its own fit (a positive value, a relative standard
+    deviation within ``max_relative_std``, the same default)."""
+    if not line_delay > 0:
+        return "the fitted line delay is not positive (wrong readout direction?)"
+    if not std <= max_relative_std * line_delay:
+        return (
+            f"too little rotation: relative std {std / abs(line_delay):.3g} > {max_relative_std:g}"
         )
     return ""
 

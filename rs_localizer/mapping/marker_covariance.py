@@ -214,6 +214,44 @@ def corner_shape_std(poses: dict, ids: list, cov: np.ndarray, sides: dict, keep:
     return {m: np.sqrt(d[a].sum(1) / 3.0) for a, m in enumerate(ms)}
 
 
+def line_delay_std(prob: MarkerProblem, sol: Any, weights: np.ndarray) -> float:
+    """Standard deviation (s) of the calibrated line delay at the adjustment's solution: the
+    line delay's diagonal element of ``(J^T J)^-1`` with the reprojection rows weighted as
+    the markers' covariance (:func:`_gauge_covariance`: ``weights`` per detection, scaled by
+    the estimated pixel noise), every other parameter (frames, markers, corner offset)
+    marginalized (a sparse LU solve of ``J^T J x = e``; the dense pseudo-inverse where it is
+    singular). The gauge marker is fixed; the motion tie does not depend on the world frame,
+    the corner model on its origin only at second order in ``tau |w|`` (the exact rotation
+    ``expm(tau [w]x)`` with a translation linear in time), so the output frame changes the line
+    delay and its std only through the gauge marker's place. NaN without
+    ``calibrate_readout``."""
+    if prob.ld_col is None:
+        return float("nan")
+    e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
+    n_rep = e.size
+    sigma = float(np.sqrt(np.sum(e**2) / max(n_rep - prob.n, 1)))
+    scale = np.ones(sol.jac.shape[0])
+    scale[:n_rep] = np.repeat(np.sqrt(weights[prob.keep]), 8) / max(sigma, 1e-12)
+    n_px = n_rep + (1 if prob.co_col is not None else 0)
+    scale[n_rep:n_px] /= max(sigma, 1e-12)
+    J = diags(scale) @ csr_matrix(sol.jac)
+    H = (J.T @ J).tocsc()
+    rhs = np.zeros(H.shape[0])
+    rhs[prob.ld_col] = 1.0
+    try:
+        with np.errstate(all="raise"):
+            x = splu(H).solve(rhs)
+        var = float(x[prob.ld_col])
+        if not np.isfinite(var):
+            raise FloatingPointError
+    except (RuntimeError, FloatingPointError):
+        var = float(
+            np.linalg.pinv(H.toarray(), rcond=1e-12, hermitian=True)[prob.ld_col, prob.ld_col]
+        )
+    # (the parameter is in microseconds)
+    return float(np.sqrt(max(var, 0.0))) * 1e-6
+
+
 def covariance_in_gauge(
     prob: MarkerProblem, sol: Any, poses: dict, options: MappingOptions, gauge: int
 ) -> tuple[list, np.ndarray, float]:
@@ -227,10 +265,11 @@ def covariance_in_gauge(
     adjustment's frame.
 
     Returns:
-        ``(ids, cov, rho)``: the adjusted markers then ``gauge``; the (6 M, 6 M) covariance
-        in that order (rotation vector rad, world axes, left perturbation; centre m; the gauge
-        marker uncorrelated with the others, only its tilt's ambiguity); the correlation of
-        the detections' errors from one viewpoint (0 when not estimated).
+        ``(ids, cov, rho, line_delay_std)``: the adjusted markers then ``gauge``; the (6 M,
+        6 M) covariance in that order (rotation vector rad, world axes, left perturbation;
+        centre m; the gauge marker uncorrelated with the others, only its tilt's ambiguity);
+        the correlation of the detections' errors from one viewpoint (0 when not estimated);
+        the calibrated line delay's std (s, :func:`line_delay_std`; NaN when not calibrated).
     """
     Rf, Cf, *_ = prob.unpack(sol.x)
     labels = _view_clusters(prob, Rf, Cf, poses, options.view_cluster_rad)
@@ -252,4 +291,4 @@ def covariance_in_gauge(
             lin = float(d @ cov[i : i + 3, i : i + 3] @ d)
             if var > lin:
                 cov[i : i + 3, i : i + 3] += (var - lin) * np.outer(d, d)
-    return ids, cov, rho
+    return ids, cov, rho, line_delay_std(prob, sol, weights)

@@ -1,10 +1,11 @@
 """Marker maps, stage (5): the output frame (one anchor at its pose, a best fit to surveyed
-markers, or the best-observed marker), the markers' poses and covariances moved into it with
-the frame's own uncertainty propagated, and that uncertainty."""
+markers, the best-observed marker, or a gravity-aligned frame: z up from the accelerometer, the
+walls or a floor marker, REP 105), the markers' poses and covariances moved into it with the
+frame's own uncertainty propagated, and that uncertainty."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -25,9 +26,190 @@ def _pose_vector_map(poses: dict, ids: list, x: np.ndarray) -> dict:
     return out
 
 
-def _output_transform(poses: dict, options: MappingOptions, gauge: int, sides: dict) -> tuple:
+#: a marker whose normal lies within this angle of horizontal hangs on a wall (rad)
+WALL_TOLERANCE = np.radians(5.0)
+#: two walls are not parallel when their normals differ by more than this (rad)
+MIN_WALL_ANGLE = np.radians(30.0)
+#: a marker is taken for a floor marker when its normal lies within this angle of the
+#: cameras' mean image-up direction (rad; the camera held about upright)
+FLOOR_TOLERANCE = np.radians(20.0)
+
+
+@dataclass(frozen=True)
+class UpDirection:
+    """Where the gravity-aligned frame's up comes from.
+
+    Attributes:
+        source: ``imu`` (the accelerometer's mean specific force, per frame in the camera
+            frame, rotated by each frame's pose), ``walls`` (the direction most orthogonal to
+            the normals of markers on vertical walls, at least two walls not parallel) or
+            ``floor`` (the mean normal of markers lying on the floor).
+        up: (3,) unit up in the adjustment's frame at the solution.
+        markers: the markers that fix it (walls, floor), empty for ``imu``.
+        note: what was used, for the user (e.g. ``18 markers on 4 walls``).
+    """
+
+    source: str
+    up: np.ndarray
+    markers: tuple = ()
+    note: str = ""
+
+    def at(self, poses: dict) -> np.ndarray:
+        """Up (3,) with the markers at ``poses`` (id -> ``(R, p)``; the same markers, sign
+        kept): the smallest-eigenvalue direction of the walls' normals' scatter, the mean of
+        the floor markers' normals, or the fixed accelerometer's up."""
+        if self.source == "imu":
+            return self.up
+        n = np.array([poses[m][0][:, 2] for m in self.markers])
+        u = np.linalg.eigh(n.T @ n)[1][:, 0] if self.source == "walls" else n.mean(0)
+        u = u / np.linalg.norm(u)
+        return u if u @ self.up >= 0 else -u
+
+
+def _wall_up(poses: dict, image_up: np.ndarray) -> UpDirection | None:
+    """Up from the markers on vertical walls: every pair of marker normals at least
+    ``MIN_WALL_ANGLE`` apart proposes their cross product; the proposal with the most normals
+    within ``WALL_TOLERANCE`` of horizontal wins (markers tilted out of their wall, on the
+    floor or the ceiling do not agree), refined as the direction most orthogonal to its
+    walls' normals (smallest eigenvector of their scatter). None without two walls that are
+    not parallel. ``image_up``: (3,) the cameras' mean image-up direction (the sign)."""
+    ids = sorted(poses)
+    if len(ids) < 3:
+        return None
+    n = np.array([poses[m][0][:, 2] for m in ids])
+    best, best_in = None, np.zeros(len(ids), bool)
+    sin_tol = np.sin(WALL_TOLERANCE)
+    for i in range(len(ids)):
+        c = np.cross(n[i], n[i + 1 :])
+        norm = np.linalg.norm(c, axis=1)
+        for j in np.flatnonzero(norm > np.sin(MIN_WALL_ANGLE)):
+            u = c[j] / norm[j]
+            inl = np.abs(n @ u) < sin_tol
+            if inl.sum() > best_in.sum():
+                best, best_in = u, inl
+    if best is None or best_in.sum() < 3:
+        return None
+    for _ in range(3):
+        u = np.linalg.eigh(n[best_in].T @ n[best_in])[1][:, 0]
+        inl = np.abs(n @ u) < sin_tol
+        if inl.sum() < 3:
+            return None
+        best_in = inl
+    w = np.linalg.eigvalsh(n[best_in].T @ n[best_in])
+    # two walls not parallel: the normals spread along two horizontal axes
+    if w[1] < 0.5 * np.sin(MIN_WALL_ANGLE) ** 2 * best_in.sum() / 2:
+        return None
+    u = u if u @ image_up >= 0 else -u
+    walls = _count_walls(n[best_in], u)
+    markers = tuple(m for m, k in zip(ids, best_in, strict=True) if k)
+    return UpDirection(
+        "walls",
+        u,
+        markers,
+        f"{len(markers)} markers on {walls} vertical walls (within "
+        f"{np.degrees(WALL_TOLERANCE):.0f} deg of vertical)",
+    )
+
+
+def _count_walls(n: np.ndarray, u: np.ndarray) -> int:
+    """Number of wall directions among horizontal normals ``n`` (N, 3) (groups 30 deg apart)."""
+    x = np.cross(u, [1.0, 0, 0]) if abs(u[0]) < 0.9 else np.cross(u, [0, 1.0, 0])
+    x /= np.linalg.norm(x)
+    y = np.cross(u, x)
+    a = np.sort(np.arctan2(n @ y, n @ x))
+    gaps = np.diff(np.r_[a, a[0] + 2 * np.pi])
+    return max(1, int(np.sum(gaps > MIN_WALL_ANGLE)))  # (one gap per wall on a full circle)
+
+
+def _floor_up(poses: dict, image_up: np.ndarray, flagged: tuple) -> UpDirection | None:
+    """Up from markers on the floor: the ones ``flagged`` (placed), else those whose normal
+    lies within ``FLOOR_TOLERANCE`` of the cameras' mean image-up direction; the markers
+    within ``WALL_TOLERANCE`` of their mean normal (so a tilted one does not pull it)."""
+    ids = [m for m in flagged if m in poses]
+    how = "given as floor markers"
+    if not ids:
+        ids = [m for m in sorted(poses) if poses[m][0][:, 2] @ image_up > np.cos(FLOOR_TOLERANCE)]
+        how = "facing up (the cameras' mean image-up within 20 deg)"
+    if not ids:
+        return None
+    n = np.array([poses[m][0][:, 2] for m in ids])
+    u = np.median(n, axis=0)
+    u /= np.linalg.norm(u)
+    keep = n @ u > np.cos(WALL_TOLERANCE)
+    if flagged and not keep.all():
+        keep[:] = True  # (the user's floor markers are all used)
+    markers = tuple(m for m, k in zip(ids, keep, strict=True) if k)
+    u = n[keep].mean(0)
+    u /= np.linalg.norm(u)
+    return UpDirection("floor", u, markers, f"floor marker(s) {list(markers)}, {how}")
+
+
+def find_up(
+    poses: dict,
+    cam_to_world: dict,
+    options: MappingOptions,
+    up_in_camera: dict | None = None,
+) -> tuple[UpDirection | None, str]:
+    """The up direction of the gravity-aligned frame, from what the video offers, in this
+    order (``options.frame``: ``auto`` the first available, or one source by name): the
+    accelerometer (``up_in_camera``: frame index -> (3,) unit up in the camera's optical
+    frame, the mean specific force while still-ish rotated by the camera-IMU mounting; each
+    rotated into the map by the frame's pose ``cam_to_world`` (frame index -> (3, 3)) and
+    averaged), markers on vertical walls (:func:`_wall_up`), floor markers
+    (:func:`_floor_up`, ``options.floor_markers`` or detected). ``poses``: id -> ``(R, p)``
+    in the adjustment's frame. Returns ``(up or None, why none: the sources tried)``."""
+    image_up = -np.mean([R[:, 1] for R in cam_to_world.values()], axis=0)
+    image_up /= max(np.linalg.norm(image_up), 1e-12)
+    mode = options.frame
+    tried = []
+    if mode in ("auto", "imu"):
+        used = [k for k in (up_in_camera or {}) if k in cam_to_world]
+        if used:
+            u = np.sum([cam_to_world[k] @ np.asarray(up_in_camera[k], float) for k in used], 0)
+            u /= np.linalg.norm(u)
+            return UpDirection("imu", u, (), f"the accelerometer at {len(used)} frames"), ""
+        tried.append("no accelerometer")
+    if mode in ("auto", "walls"):
+        up = _wall_up(poses, image_up)
+        if up is not None:
+            return up, ""
+        tried.append("no two non-parallel walls of markers")
+    if mode in ("auto", "floor"):
+        up = _floor_up(poses, image_up, tuple(options.floor_markers))
+        if up is not None:
+            return up, ""
+        tried.append("no floor marker")
+    return None, ", ".join(tried)
+
+
+def gravity_transform(poses: dict, anchor: int, up: UpDirection) -> tuple:
+    """Rigid transform ``(R, t)`` adjustment frame -> the gravity-aligned frame: z up
+    (``up.at(poses)``), origin at the ``anchor``'s centre, x the horizontal part of its face
+    normal (out of its wall, into the room; for a marker lying flat, its own y axis, the
+    top edge's direction), y = z x x (a robot standing at the anchor facing the room: x
+    ahead, y left, z up)."""
+    z = up.at(poses)
+    Ra, pa = poses[anchor]
+    for axis in (Ra[:, 2], Ra[:, 1]):
+        h = axis - (axis @ z) * z
+        if np.linalg.norm(h) > np.sin(np.radians(30.0)):
+            break
+    x = h / np.linalg.norm(h)
+    y = np.cross(z, x)
+    R = np.array([x, y, z])
+    return R, -R @ pa
+
+
+def _output_transform(
+    poses: dict, options: MappingOptions, gauge: int, sides: dict, up: UpDirection | None = None
+) -> tuple:
     """Rigid transform ``(R, t)`` from the adjustment's frame to the output frame, and the RMS
-    corner residual (m) of the surveyed anchors (0 for one anchor)."""
+    corner residual (m) of the surveyed anchors (0 for one anchor). ``up``: the
+    gravity-aligned frame's (:func:`gravity_transform` at the anchor)."""
+    if up is not None:
+        anchor = gauge if options.anchor is None else int(options.anchor)
+        R, t = gravity_transform(poses, anchor, up)
+        return R, t, 0.0
     if options.anchors:
         ids = sorted(options.anchors)
         src = np.concatenate(
@@ -44,7 +226,7 @@ def _output_transform(poses: dict, options: MappingOptions, gauge: int, sides: d
     return R, np.asarray(pt, float) - R @ pa, 0.0
 
 
-def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides) -> tuple:
+def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides, up=None) -> tuple:
     """Marker poses and covariances in the output frame, and the frame's covariance.
 
     The adjustment holds the gauge marker fixed; the output frame is a function of the
@@ -60,7 +242,7 @@ def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides) -
 
     def outputs(x: np.ndarray) -> np.ndarray:
         P = _pose_vector_map(poses, ids, x)
-        R, t, _ = _output_transform(P, options, gauge, sides)
+        R, t, _ = _output_transform(P, options, gauge, sides, up)
         y = []
         for m in all_out:
             Rm, pm = P[m]
@@ -75,7 +257,7 @@ def _propagate(poses: dict, ids: list, cov: np.ndarray, options, gauge, sides) -
         y.append(tb - Rb @ R.T @ t)
         return np.concatenate(y)
 
-    R_, _, _ = _output_transform(poses, options, gauge, sides)
+    R_, _, _ = _output_transform(poses, options, gauge, sides, up)
     R0_frame = R_.T
     R0_out = {m: R_ @ poses[m][0] for m in all_out}
     y0 = outputs(np.zeros(6 * len(ids)))
@@ -137,6 +319,7 @@ def frame_and_covariance(
     gauge: int,
     sides: dict,
     inconsistent: dict,
+    up_in_camera: dict | None = None,
 ) -> dict:
     """Stages (4)-(5) of :func:`~rs_localizer.mapping.marker_map.map_markers`: the
     covariance of the markers in the gauge
@@ -147,16 +330,31 @@ def frame_and_covariance(
     markers in the adjustment's frame; ``sides``: id -> side (m); ``inconsistent``: ids left
     out of the map. Returns a dict of ``poses`` / ``cov`` (id -> output pose, (6, 6)),
     ``frame`` (:class:`OutputFrame`), ``transform`` ``(R, t)`` (adjustment frame -> output
-    frame), ``gauge_poses`` (``poses``) and ``shape_std`` (id -> (4,),
-    :func:`~rs_localizer.mapping.marker_covariance.corner_shape_std`). Raises ValueError for
+    frame), ``gauge_poses`` (``poses``), ``shape_std`` (id -> (4,),
+    :func:`~rs_localizer.mapping.marker_covariance.corner_shape_std`) and ``line_delay_std``
+    (s, NaN when not calibrated). Raises ValueError for
     surveyed anchors that disagree."""
-    ids, cov, rho = covariance_in_gauge(prob, sol, poses, options, gauge)
+    ids, cov, rho, ld_std = covariance_in_gauge(prob, sol, poses, options, gauge)
     kind = "surveyed" if options.anchors else "anchor" if options.anchor is not None else None
-    if kind is None:
-        kind = "best-observed"
-        options = replace(options, anchor=_best_observed(poses, ids, cov))
-    out_cov, frame_cov = _propagate(poses, ids, cov, options, gauge, sides)
-    Ro, to, residual = _output_transform(poses, options, gauge, sides)
+    up, note = None, ""
+    if options.frame != "anchor" and not options.anchors and options.anchor_pose is None:
+        Rf, *_ = prob.unpack(sol.x)
+        cam_to_world = {k: Rf[i].T for i, k in enumerate(prob.frames)}
+        live = {m: v for m, v in poses.items() if m not in inconsistent}
+        up, why = find_up(live, cam_to_world, options, up_in_camera)
+        if up is not None:
+            kind = "gravity"
+        else:
+            note = (
+                f"not gravity-aligned ({why}): z out of the anchor's face; give the IMU, "
+                "markers on two walls or a floor marker"
+            )
+    if kind is None or (kind == "gravity" and options.anchor is None):
+        best = _best_observed(poses, ids, cov)
+        kind = kind or "best-observed"
+        options = replace(options, anchor=best)
+    out_cov, frame_cov = _propagate(poses, ids, cov, options, gauge, sides, up)
+    Ro, to, residual = _output_transform(poses, options, gauge, sides, up)
     if options.anchors:
         # what the map states for the surveyed markers' positions (rms per axis)
         stated = float(
@@ -190,6 +388,9 @@ def frame_and_covariance(
         frame_cov,
         1e3 * residual,
         rho,
+        up_source="" if up is None else up.source,
+        up_markers=[] if up is None else [int(m) for m in up.markers],
+        note=note if up is None else f"z up from {up.note}",
     )
     shape_std = corner_shape_std(poses, ids, cov, sides, out_poses)
     return dict(
@@ -199,4 +400,5 @@ def frame_and_covariance(
         transform=(Ro, to),
         gauge_poses=poses,
         shape_std=shape_std,
+        line_delay_std=ld_std,
     )

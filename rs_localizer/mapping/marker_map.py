@@ -51,6 +51,7 @@ def map_markers(
     progress: bool = False,
     videos: Sequence[int] | None = None,
     video_names: Sequence[str] | None = None,
+    up_in_camera: dict | None = None,
 ) -> MarkerMapResult:
     """Build a marker map from a video's detections with rolling-shutter bundle adjustment.
 
@@ -67,18 +68,21 @@ def map_markers(
     rolling-shutter bundle adjustment of every frame's pose and velocities and every marker's
     6-DoF pose (:mod:`~rs_localizer.mapping.marker_model`: the estimator's model, paper eq. 4)
     with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line delay,
-    consecutive frames tied by the motion model, one marker held fixed (the gauge: the anchor,
-    or the most detected marker); detections whose RMS error exceeds ``reject_px`` are rejected
-    (counted) and the map adjusted again without robust loss (:func:`_adjust_and_reject`); (4)
-    the covariance ``(J^T J)^-1`` of the markers, the reprojection rows scaled by the estimated
-    noise and weighted for the errors that repeat from one viewpoint
-    (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`); (5) the map moved to
-    its output frame (one anchor at its pose, or a best fit to surveyed markers) with every
-    marker's covariance propagated through the frame's own uncertainty
-    (:func:`~rs_localizer.mapping.marker_frame.frame_and_covariance`), and that uncertainty
-    reported; (6) an id whose two groups of views still place it more than max(0.5 m, 3 sides)
-    apart is left out of the map and reported with both places (``inconsistent``, never
-    averaged).
+    consecutive frames tied by the motion model (on the camera centres: independent of the
+    world frame), one marker held fixed (the gauge: the anchor, at its pose when given, else the
+    most detected surveyed marker, else the most detected marker, in its own frame; one seen
+    at two places is replaced by the most detected other), the output frame applied afterwards
+    (it changes the solution only within the solver's tolerance); detections whose RMS error
+    exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust loss
+    (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
+    reprojection rows scaled by the estimated noise and weighted for the errors that repeat
+    from one viewpoint (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`);
+    (5) the map moved to its output frame (one anchor at its pose, a best fit to surveyed
+    markers, gravity-aligned) with every marker's covariance propagated through the frame's
+    own uncertainty (:func:`~rs_localizer.mapping.marker_frame.frame_and_covariance`), and
+    that uncertainty reported; (6) an id whose two groups of views still place it more than
+    max(0.5 m, 3 sides) apart is left out of the map and reported with both places
+    (``inconsistent``, never averaged).
 
     Args:
         frames: the video's detections in capture order (:class:`FrameDetections`; pixel
@@ -94,9 +98,14 @@ def map_markers(
             (:func:`~rs_localizer.mapping.marker_init.screen_videos`); one whose frames the
             joint initialization cannot place is an error.
         video_names: the videos' names in messages (default ``video 1``, ``video 2``...).
+        up_in_camera: index into ``frames`` -> (3,) unit up direction in that frame's camera
+            (optical frame): the accelerometer's mean specific force while still-ish, rotated
+            by the camera-IMU mounting; the gravity-aligned frame's first source
+            (``options.frame``, :func:`~rs_localizer.mapping.marker_frame.find_up`).
     Returns:
         :class:`MarkerMapResult` in the output frame (``options.anchor`` at
-        ``options.anchor_pose``, ``options.anchors`` fitted, or the most detected marker).
+        ``options.anchor_pose``, ``options.anchors`` fitted, gravity-aligned with
+        ``options.frame``, or the best-observed marker's own frame).
     Raises:
         ValueError: no detections in any frame (wrong dictionary?), an anchor not detected in
             any frame, corners that are not (4, 2) and finite, an anchor that cannot be placed
@@ -119,6 +128,10 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
+        # the adjustment's cost does not depend on the world frame (the motion tie is on the
+        # camera centres), so the output frame, applied after the adjustment, changes the map
+        # only by a rigid motion and the line delay and the frames' velocities only within the
+        # solver's tolerance
         gauge, _ = choose_gauge(obs_px, options)
     except ValueError as e:
         if not refused:
@@ -131,11 +144,16 @@ def map_markers(
     bar = tqdm(total=5, desc="marker map", disable=not progress, leave=False)
     bar.set_postfix_str("initialization")
     init = initialize(obs_px, obs_n, stamps, options, gauge, camera, videos, video_names)
+    if gauge in init.suspects:  # (an id seen at two places cannot hold the map still)
+        count = {m: sum(m in d for d in obs_px.values()) for m in init.markers}
+        pool = [m for m in init.markers if m not in init.suspects]
+        if pool:  # (the coarse adjustment moves the map onto the new gauge)
+            gauge = max(pool, key=lambda m: (count[m], -m))
     timings["initialization"] = time.perf_counter() - t_start
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options))
+    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options, gauge))
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
@@ -153,7 +171,9 @@ def map_markers(
 
     bar.set_postfix_str("covariance")
     t0 = time.perf_counter()
-    framed = frame_and_covariance(prob, sol, poses, options, gauge, sides, inconsistent)
+    framed = frame_and_covariance(
+        prob, sol, poses, options, gauge, sides, inconsistent, up_in_camera
+    )
     timings["covariance"] = time.perf_counter() - t0
     bar.update(1)
     bar.close()
@@ -171,12 +191,37 @@ def map_markers(
         t_start,
     )
     result.refused_videos = refused
+    if options.calibrate_readout:
+        from ..estimation.readout import line_delay_verdict
+
+        result.line_delay_std = framed["line_delay_std"]
+        result.readout_verdict = line_delay_verdict(result.line_delay, result.line_delay_std)
+    result.unmapped.update(_never_detected(obs_px, result.unmapped, refused))
     return result
+
+
+def _never_detected(obs_px: dict, unmapped: dict, refused: dict) -> dict:
+    """id -> why, for the ids between 0 and the largest detected id that no frame detected
+    (tags in the room the video missed, named when there are at most 10 and at most half as
+    many as the detected ids: a set of tags numbered from 0 with a few missing)."""
+    ids = {m for d in obs_px.values() for m in d}
+    if not ids:
+        return {}
+    gaps = [m for m in range(max(ids)) if m not in ids and m not in unmapped]
+    if not gaps or len(gaps) > min(10, len(ids) // 2):
+        return {}
+    return {
+        m: f"never detected (ids 0-{max(ids)} otherwise seen"
+        + ("; in the videos kept" if refused else "")
+        + "): if it is in the place, film it from closer"
+        for m in gaps
+    }
 
 
 def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:
     """A coarse rolling-shutter adjustment (gauge: the starting frame, wide robust scale) that
-    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose``."""
+    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose`` (the
+    adjustment's frame; the output frame is applied after the adjustment)."""
     fr_ids = sorted(init.frames)
     all_ids = sorted(init.markers)
     free = MarkerProblem(
@@ -226,7 +271,7 @@ def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, ba
         kept = e8[prob.keep]
         prob.noise_px = float(np.sqrt(np.mean(kept**2))) if kept.size else 1.0
         t0 = time.perf_counter()
-        sol = prob.solve(sol.x)
+        sol = prob.solve(sol.x, max_nfev=options.final_max_nfev)
         timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
             time.perf_counter() - t0
         )
@@ -280,11 +325,11 @@ def _marker_poses(prob: MarkerProblem, x: np.ndarray, gauge: int) -> dict:
     return poses
 
 
-def _gauge_pose(options: MappingOptions) -> tuple[np.ndarray, np.ndarray]:
-    """The adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at its pose when one is given
-    (the motion tie of the camera centres is not invariant to where the world's origin lies:
-    the output frame's origin is the one the tie sees), else the gauge marker's own frame."""
-    if options.anchor is not None and options.anchor_pose is not None:
+def _gauge_pose(options: MappingOptions, gauge: int) -> tuple[np.ndarray, np.ndarray]:
+    """The gauge marker's pose in the adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at
+    its pose when it is the gauge and its pose is given (the solver then starts in the output
+    frame), else the gauge marker's own frame."""
+    if options.anchor is not None and options.anchor_pose is not None and gauge == options.anchor:
         Ra, pa = options.anchor_pose
         return np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3)
     return np.eye(3), np.zeros(3)
@@ -299,6 +344,15 @@ def _check_anchors_placed(
             f"anchor marker {gauge} cannot be placed: detected at places that disagree "
             f"({inconsistent[gauge][0].round(2)} and {inconsistent[gauge][1].round(2)})"
         )
+    a = options.anchor
+    if a is not None and (a in inconsistent or a not in init.markers):
+        why = (
+            f"detected at places that disagree ({inconsistent[a][0].round(2)} and "
+            f"{inconsistent[a][1].round(2)})"
+            if a in inconsistent
+            else init.unmapped.get(a, "not placed")
+        )
+        raise ValueError(f"anchor marker {a} cannot be placed: {why}")
     bad = [m for m in (options.anchors or {}) if m in inconsistent or m not in init.markers]
     if bad:
         raise ValueError(f"surveyed anchor(s) {bad} cannot be placed (seen too little, or twice)")

@@ -15,7 +15,10 @@ are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
 consecutive frames can be tied by the same velocities. A marker is a square of known side:
 its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
 (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The world frame is the anchor marker's frame (or ``anchor_pose``): the anchor is not adjusted.
+The adjustment's world frame is the gauge marker's own (the anchor or the most detected marker,
+not adjusted); the motion tie is written on the camera centres so that it does not depend on
+that frame, and the output frame (``MappingOptions``: an anchor, surveyed markers,
+gravity-aligned) is applied after the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
 
 The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
 ``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).
@@ -117,8 +120,9 @@ class MappingOptions:
             corner offset: where the video's views fix it poorly (markers seen from a narrow
             range of distances) it stays near zero instead of wandering.
         motion_sigma_rot, motion_sigma_pos: standard deviations (rad, m) of the motion-model tie
-            between consecutive frames (the change of pose between their reference lines
-            against the mean of their velocities times the time between them); ``None``
+            between consecutive frames (the change of rotation and of camera centre between
+            their reference lines against the mean of their velocities times the time between
+            them; independent of the world frame); ``None``
             (either): no tie.
         motion_sigma_angular_accel: standard deviation of the camera's angular acceleration
             (rad/s^2) between tied frames: their angular velocities differ by about this times
@@ -131,7 +135,16 @@ class MappingOptions:
         min_views: a marker seen in fewer frames with a pose is left out of the map (reported
             in ``MarkerMapResult.unmapped``): its planar two-fold ambiguity and its depth are
             not fixed by one view.
-        max_nfev: function-evaluation budget of each ``least_squares`` call.
+        max_nfev: function-evaluation budget of each ``least_squares`` call but the last.
+        final_max_nfev: budget of the last, plain least-squares adjustment (the map, the line
+            delay and their stds are its solution: it is run to convergence).
+        frame: the output frame when neither ``anchor_pose`` nor ``anchors`` is given:
+            ``anchor`` (the anchor's own frame, z out of its face), ``auto`` (gravity-aligned,
+            z up, from the first of the accelerometer, markers on two or more walls, floor
+            markers that the video offers; the anchor's frame with a note when none), or
+            ``imu``, ``walls``, ``floor`` (that source only);
+            :func:`~rs_localizer.mapping.marker_frame.find_up`.
+        floor_markers: ids of markers lying on the floor (up = their normal).
     """
 
     marker_size: float
@@ -159,6 +172,9 @@ class MappingOptions:
     reject_px: float = 3.0
     min_views: int = 2
     max_nfev: int = 60
+    final_max_nfev: int = 200
+    frame: str = "anchor"
+    floor_markers: tuple = ()
 
     def side(self, marker_id: int) -> float:
         """Side length (m) of marker ``marker_id``."""
@@ -171,7 +187,9 @@ class OutputFrame:
 
     Attributes:
         kind: ``anchor`` (one marker at its pose), ``surveyed`` (best fit to surveyed
-            markers) or ``best-observed`` (the most detected marker).
+            markers), ``best-observed`` (the most detected marker) or ``gravity`` (z up,
+            origin at the anchor's centre, x out of its wall:
+            :func:`~rs_localizer.mapping.marker_frame.gravity_transform`).
         anchors: the markers that fix it.
         rotation_std_deg, position_std_mm: the frame's own uncertainty against the map as a
             whole (the rigid best fit of all mapped markers' centres): standard deviation of
@@ -181,6 +199,10 @@ class OutputFrame:
         shared_error_correlation: correlation of the detections' errors from one viewpoint
             (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`) used in the
             covariances.
+        up_source: for ``gravity``, where up comes from: ``imu``, ``walls`` or ``floor``
+            (:func:`~rs_localizer.mapping.marker_frame.find_up`); else ``""``.
+        up_markers: the markers that fix up (walls, floor).
+        note: what fixed up, or why the map is not gravity-aligned (none of the sources).
     """
 
     kind: str
@@ -190,6 +212,9 @@ class OutputFrame:
     covariance: np.ndarray
     residual_mm: float = 0.0
     shared_error_correlation: float = 0.0
+    up_source: str = ""
+    up_markers: list = field(default_factory=list)
+    note: str = ""
 
 
 @dataclass
@@ -212,10 +237,21 @@ class MarkerMapResult:
         angular_velocity, linear_velocity: (K, 3) the camera's own velocities in its optical
             frame (rad/s, m/s); zeros with ``global_shutter``.
         line_delay: seconds between lines (calibrated or the camera's).
+        line_delay_std: its standard deviation (s) with ``calibrate_readout`` (the line
+            delay's marginal of the adjustment's ``(J^T J)^-1``, weighted as the markers'
+            covariance), NaN otherwise. Like ``line_delay`` it depends on the output frame only
+            through the gauge marker's place: the motion tie does not depend on the world
+            frame, the corner model (the exact rotation ``expm(tau [w]x)`` with a translation
+            linear in time) on its origin at second order in ``tau |w|``.
+        readout_verdict: with ``calibrate_readout``, why the line delay is not observable
+            (the rule of ``rs-localizer calibrate-readout``:
+            :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;
+            ``None`` without ``calibrate_readout``.
         rmse_px: RMS reprojection error of the detections kept (pixels).
         num_rejected: detections rejected as outliers.
         num_frames_skipped: frames without detections or without a pose.
-        unmapped: id -> why the marker is not in the map.
+        unmapped: id -> why the marker is not in the map: seen in too few frames, or never
+            detected (an id missing between the detected ids 0..max, named when few are).
         inconsistent: id -> two (3,) world positions (m): one id detected at two places
             (left out of the map, never averaged).
         timings: stage -> seconds.
@@ -262,3 +298,5 @@ class MarkerMapResult:
     coverage: dict = field(default_factory=dict)
     marker_shape_std: dict = field(default_factory=dict)
     refused_videos: dict = field(default_factory=dict)
+    line_delay_std: float = float("nan")
+    readout_verdict: str | None = None

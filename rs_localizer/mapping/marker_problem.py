@@ -1,7 +1,8 @@
 """Marker maps: the rolling-shutter bundle adjustment's problem (parameter layout, corner
 residuals of the estimator's model with the exact rotation, paper eq. 4, the motion tie between
-consecutive frames, the corner offset's prior, the Jacobian's sparsity) solved by SciPy's
-``least_squares`` (model: :mod:`rs_localizer.mapping.marker_model`)."""
+consecutive frames on their camera centres, independent of the world frame, the corner offset's
+prior, the Jacobian's sparsity) solved by SciPy's ``least_squares`` (model:
+:mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
 
@@ -237,7 +238,12 @@ class MarkerProblem:
         j = np.array([b for _, b, _ in self.ties])
         dt = np.array([d for _, _, d in self.ties])[:, None]
         er = matrix_to_rotvec(Rf[j] @ np.swapaxes(Rf[i], 1, 2)) - dt * 0.5 * (W[i] + W[j])
-        ec = Cf[j] - Cf[i] - dt * 0.5 * (T[i] + T[j])
+        # the camera centres c = -R^T C and their velocities R^T (W x C - T) (world axes): the
+        # same residual wherever the world's origin lies (its norm, however the axes turn)
+        Rt = np.swapaxes(Rf, 1, 2)
+        c = -np.einsum("nij,nj->ni", Rt, Cf)
+        v = np.einsum("nij,nj->ni", Rt, np.cross(W, Cf) - T)
+        ec = c[j] - c[i] - dt * 0.5 * (v[i] + v[j])
         o = self.opts
         # the angular velocity changes by about the angular acceleration times the time between
         # frames (without it the mean of two frames' velocities is tied, their difference free)
@@ -355,10 +361,20 @@ class MarkerProblem:
             blocks.append((0, i, 0, -np.swapaxes(Jinv, 1, 2) @ Jlf[i] / o.motion_sigma_rot))
             hw = (-0.5 * dt / o.motion_sigma_rot)[:, None, None] * eye
             blocks += [(0, i, 6, hw), (0, j, 6, hw)]
-            blocks.append((3 * nt, j, 3, eye / o.motion_sigma_pos))
-            blocks.append((3 * nt, i, 3, -eye / o.motion_sigma_pos))
-            ht = (-0.5 * dt / o.motion_sigma_pos)[:, None, None] * eye
-            blocks += [(3 * nt, i, 9, ht), (3 * nt, j, 9, ht)]
+            # ec = c_j - c_i - dt / 2 (v_i + v_j), c = -R^T C, v = R^T u, u = W x C - T; with
+            # R -> expm([a]x) R, a = J_l d: dc = -R^T [C]x a, dv = R^T [u]x a
+            Rt = np.swapaxes(Rf, 1, 2)
+            u = np.cross(W, Cf) - T
+            sp = 1.0 / o.motion_sigma_pos
+            h = (0.5 * dt * sp)[:, None, None]
+            for fr, sign in ((j, sp), (i, -sp)):
+                Rtn, Jn = Rt[fr], Jlf[fr]
+                dc_r = -Rtn @ skew(Cf[fr]) @ Jn
+                dv_r = Rtn @ skew(u[fr]) @ Jn
+                blocks.append((3 * nt, fr, 0, sign * dc_r - h * dv_r))
+                blocks.append((3 * nt, fr, 3, -sign * Rtn - h * (Rtn @ skew(W[fr]))))
+                blocks.append((3 * nt, fr, 6, h * (Rtn @ skew(Cf[fr]))))
+                blocks.append((3 * nt, fr, 9, h * Rtn))
             ia = (1.0 / (o.motion_sigma_angular_accel * dt))[:, None, None] * eye
             blocks += [(6 * nt, j, 6, ia), (6 * nt, i, 6, -ia)]
             for off, fr, c0, B in blocks:

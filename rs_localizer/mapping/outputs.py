@@ -18,6 +18,8 @@ __all__ = [
     "camera_from_yaml",
     "detect_folder",
     "detect_image",
+    "readout_dict",
+    "readout_line",
     "write_atomic",
     "write_map",
     "write_report",
@@ -165,7 +167,11 @@ def write_atomic(path: str | Path, text: str, overwrite: bool = False) -> Path:
 
 
 def write_map(
-    path: str | Path, result: MarkerMapResult, dictionary: str, overwrite: bool = False
+    path: str | Path,
+    result: MarkerMapResult,
+    dictionary: str,
+    overwrite: bool = False,
+    lines: int | None = None,
 ) -> Path:
     """Write the map in the marker-map format through its one writer
     (:func:`rs_localizer.maps.markers.write_marker_map`; :func:`rs_localizer.maps.load_marker_map`,
@@ -173,9 +179,10 @@ def write_map(
     ``anchor`` id, ``frame``: how the frame is fixed (``kind``, ``anchors``) and its own
     uncertainty (``rotation_std_deg``, ``position_std_mm``), and per marker ``id``, ``corners``
     (4, 3) m in ArUco order, plus ``std_position`` (3,) m and ``std_rotation`` (3,) rad (world
-    axes; in the map's frame, the frame's own uncertainty included) and ``observations``.
-    Readers that know only ``dictionary`` and the markers' ``id`` and ``corners`` read it as
-    before. Written atomically.
+    axes; in the map's frame, the frame's own uncertainty included) and ``observations``;
+    ``readout``: the line delay used (:func:`readout_dict`; ``lines``: the camera's lines, for
+    the readout time). Readers that know only ``dictionary`` and the markers' ``id`` and
+    ``corners`` read it as before. Written atomically.
 
     Raises:
         FileExistsError: ``path`` exists and ``overwrite`` is False.
@@ -194,9 +201,43 @@ def write_map(
         result.corners,
         anchor=int(result.anchor),
         frame=None if result.frame is None else _frame_dict(result.frame),
+        readout=readout_dict(result, lines),
         marker_fields=fields,
         overwrite=overwrite,
     )
+
+
+def readout_dict(result: MarkerMapResult, lines: int | None = None) -> dict:
+    """The map's ``readout`` entry (:func:`rs_localizer.maps.markers.load_marker_readout`):
+    ``line_delay_s`` (s per line; copy it to the node's ``rs.line_delay``), ``readout_time_s``
+    (``line_delay_s`` times ``lines`` when given: ``rs.readout_time``), ``calibrated`` and,
+    when calibrated, ``line_delay_std_s``, ``observable`` and ``reason`` (why not, empty when
+    observable)."""
+    out: dict = {"line_delay_s": float(result.line_delay)}
+    if lines:
+        out["readout_time_s"] = float(result.line_delay * lines)
+    out["calibrated"] = result.readout_verdict is not None
+    if result.readout_verdict is not None:
+        out["line_delay_std_s"] = float(result.line_delay_std)
+        out["observable"] = not result.readout_verdict
+        out["reason"] = result.readout_verdict
+    return out
+
+
+def readout_line(result: MarkerMapResult, lines: int | None = None) -> str:
+    """One line on the line delay the map was built with: value, and when calibrated its std
+    and the observable / not observable verdict (the rule of ``calibrate-readout``)."""
+    ld = 1e6 * result.line_delay
+    rt = f" (readout time {1e3 * result.line_delay * lines:.3f} ms)" if lines else ""
+    if result.readout_verdict is None:
+        return f"line delay {ld:.3f} us/line{rt}, not calibrated (--calibrate-readout)"
+    std = 1e6 * result.line_delay_std
+    verdict = (
+        "observable"
+        if not result.readout_verdict
+        else f"NOT observable: {result.readout_verdict}; keep your camera's value"
+    )
+    return f"line delay {ld:.3f} +- {std:.3f} us/line{rt} (calibrated, std): {verdict}"
 
 
 def _frame_dict(frame: object) -> dict:
@@ -208,6 +249,12 @@ def _frame_dict(frame: object) -> dict:
         "position_std_mm": round(float(frame.position_std_mm), 2),
         "surveyed_residual_mm": round(float(frame.residual_mm), 2),
         "shared_error_correlation": round(float(frame.shared_error_correlation), 3),
+        **(
+            {"up_source": frame.up_source, "up_markers": [int(m) for m in frame.up_markers]}
+            if frame.up_source
+            else {}
+        ),
+        **({"note": frame.note} if frame.note else {}),
     }
 
 
@@ -217,7 +264,8 @@ def write_report(
     """Write ``report.yaml`` (per marker: observations, position and rotation std; RMSE, line
     delay, the detector's corner offset, rejected detections, skipped frames, markers left out
     and inconsistent ids, videos refused, stage times) and ``map.png`` (matplotlib: markers
-    and camera path from above (x-y) and from the side (x-z)) into ``folder``. Returns the two
+    and camera path on the map's x-y plane (from above in a gravity-aligned frame) and x-z
+    plane (from the side)) into ``folder``. Returns the two
     paths.
     """
     import matplotlib
@@ -233,6 +281,7 @@ def write_report(
         "model": "global shutter" if result.global_shutter else "rolling shutter",
         "reprojection_rmse_px": round(result.rmse_px, 4),
         "line_delay_s": float(result.line_delay),
+        "readout": readout_dict(result),
         "corner_offset_px": round(float(result.corner_offset_px), 4),
         "corner_offset_std_px": round(float(result.corner_offset_std_px), 4),
         "rejected_detections": int(result.num_rejected),
@@ -273,6 +322,8 @@ def write_report(
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)" if j == 1 else "z (m)")
         ax.set_title(f"{title}: markers (anchor {result.anchor} red), camera path (grey)")
+        if j == 1 and result.frame is not None and result.frame.kind != "gravity":
+            ax.set_title(f"x-y plane (not gravity-aligned): markers (anchor {result.anchor} red)")
         ax.grid(alpha=0.3)
     fig.tight_layout()
     png = folder / "map.png"

@@ -89,13 +89,14 @@ def write_marker_map(
     *,
     anchor: int | None = None,
     frame: dict | None = None,
+    readout: dict | None = None,
     marker_fields: dict | None = None,
     overwrite: bool = True,
 ) -> Path:
     """Write a marker map as YAML, atomically (:func:`~rs_localizer.maps.files.write_text_atomic`):
-    a comment line, then ``dictionary``, ``scene`` (when given), ``anchor`` and ``frame`` (when
-    given) and ``markers``: per marker, by increasing id, ``id``, ``corners`` (rounded to 1 um)
-    and its ``marker_fields`` entries.
+    a comment line, then ``dictionary``, ``scene`` (when given), ``anchor``, ``frame`` and
+    ``readout`` (when given) and ``markers``: per marker, by increasing id, ``id``,
+    ``corners`` (rounded to 1 um) and its ``marker_fields`` entries.
 
     Args:
         path: the YAML to write (its directory is created).
@@ -105,6 +106,9 @@ def write_marker_map(
         anchor: id of the marker whose frame is the map's (``map-markers``).
         frame: how the map frame is fixed and its own uncertainty (``map-markers``: ``kind``,
             ``anchors``, ``rotation_std_deg``, ``position_std_mm``...), written as given.
+        readout: the line delay the map was built with (``map-markers``: ``line_delay_s``,
+            ``readout_time_s``, and with ``--calibrate-readout`` ``line_delay_std_s``,
+            ``observable``, ``reason``; :func:`load_marker_readout`), written as given.
         marker_fields: {marker id: {key: plain YAML value}} written after the marker's corners
             (``map-markers``: ``std_position`` (3,) m, ``std_rotation`` (3,) rad,
             ``observations``).
@@ -125,6 +129,8 @@ def write_marker_map(
         data["anchor"] = int(anchor)
     if frame is not None:
         data["frame"] = frame
+    if readout is not None:
+        data["readout"] = readout
     data["markers"] = [
         {"id": int(k), "corners": np.round(c, 6).tolist(), **fields.get(k, {})}
         for k, c in sorted(corners.items())
@@ -202,3 +208,21 @@ def load_marker_std(path: str | os.PathLike) -> dict:
         if std is not None and np.all(np.isfinite(np.asarray(std, dtype=float))):
             out[int(m["id"])] = float(np.max(std))
     return out
+
+
+def load_marker_readout(path: str | os.PathLike) -> dict:
+    """The ``readout`` entry of a marker map written by ``map-markers``
+    (:func:`write_marker_map`): ``line_delay_s`` (s per line), ``readout_time_s`` (s per
+    frame), ``calibrated`` (estimated with ``--calibrate-readout``: then also
+    ``line_delay_std_s``, ``observable`` and ``reason``, empty when observable). {} for a map
+    without it (older maps, scenes) or a name that is not a file. Validation of the markers
+    is :func:`load_marker_map`'s.
+    """
+    import yaml
+
+    p = Path(str(path))
+    if not p.is_file():
+        return {}
+    data = yaml.safe_load(p.read_text())
+    out = data.get("readout") if isinstance(data, dict) else None
+    return dict(out) if isinstance(out, dict) else {}

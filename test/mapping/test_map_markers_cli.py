@@ -232,6 +232,65 @@ def test_detect_folder_with_the_apriltag_library(tmp_path):
     assert len(frames[1].corners) + counts["duplicate_ids"] <= 12
 
 
+def _z_error_deg(corners: dict, true: dict) -> float:
+    """Angle between the map's z axis and the scene's up (z), after the rigid best fit of the
+    map's corners onto the scene's (SciPy)."""
+    ids = sorted(set(corners) & set(true))
+    a = np.concatenate([corners[m] for m in ids])
+    b = np.concatenate([true[m] for m in ids])
+    rot, _ = Rotation.align_vectors(b - b.mean(0), a - a.mean(0))
+    return float(np.degrees(np.arccos(np.clip(rot.as_matrix()[2, 2], -1.0, 1.0))))
+
+
+@pytest.mark.slow
+def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, capsys):
+    """A bag with an accelerometer (render-bag --imu-rate): the default frame is z up from it,
+    or from the aruco_room's three walls (--frame walls) or its floor markers (--frame
+    floor); --calibrate-readout prints the line delay with its std and verdict under --quiet,
+    writes it into the map, and gives the same value with the anchor's frame at
+    --anchor-pose."""
+    from rs_localizer.maps import load_marker_readout
+
+    true, pose = rendered[3], rendered[4]
+    bag = tmp_path / "bag"
+    assert (
+        main(["render-bag", str(bag), "--frames", "12", "--motion", "pan", "--imu-rate", "200"])
+        == 0
+    )
+    capsys.readouterr()
+    common = ["--marker-size", "0.3", "--dictionary", "DICT_4X4_250", "--calibrate-readout"]
+    values = {}
+    for name, extra in (
+        ("imu", []),
+        ("walls", ["--frame", "walls"]),
+        ("floor", ["--frame", "floor"]),
+        ("anchor", ["--anchor", "0", "--anchor-pose", *pose]),
+    ):
+        out = tmp_path / f"{name}.yaml"
+        assert main(["map-markers", str(bag), "-o", str(out), *common, "--quiet", *extra]) == 0
+        printed = capsys.readouterr().out
+        assert "us/line" in printed and "+-" in printed and "observable" in printed
+        r = load_marker_readout(out)
+        assert r["calibrated"] and r["line_delay_std_s"] > 0 and "observable" in r
+        values[name] = (r["line_delay_s"], r["line_delay_std_s"])
+        frame = yaml.safe_load(out.read_text())["frame"]
+        _, corners = load_marker_map(out)
+        if name == "anchor":
+            assert frame["kind"] == "anchor"
+            continue
+        assert frame["kind"] == "gravity" and frame["up_source"] == name
+        # (the accelerometer: 12 frames of a pan, the map's own rotation error included)
+        assert _z_error_deg(corners, true) < (1.2 if name == "imu" else 1.0)
+    # the output frame does not change the calibrated line delay
+    ld = np.array(list(values.values()))
+    # (the same adjustment up to its gauge marker and start: within the solver's tolerance)
+    assert np.abs(ld[:, 0] - ld[0, 0]).max() < 0.3 * ld[0, 1]
+    assert np.allclose(ld[:, 1], ld[0, 1], rtol=0.05)
+    # true: 30 ms over 480 lines
+    assert abs(ld[0, 0] - 0.03 / 480) < 3 * ld[0, 1]
+    assert load_marker_readout(tmp_path / "no_such.yaml") == {}
+
+
 def test_summary_says_when_the_corner_offset_is_not_needed():
     """The summary names the corner offset's std, and says the term is not needed only when
     the offset is within 2 std of zero and the video fixes it to 0.025 px or better."""

@@ -27,7 +27,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ...accuracy import GroundTruth, frame_errors, summarize_errors
+from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_errors
 from ...frontends.shared import SHARED_MAPS
 from .. import conversions as cv
 from ..maps import LoadedMaps, load_maps
@@ -448,6 +448,9 @@ def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline, out_c
             result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
     errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
     result.summary = summarize_errors(errors)
+    fit = frame_fit_summary(*rows.pose_pairs())
+    if fit is not None and result.summary.get("frames"):
+        result.summary["frame_fit"] = fit  # (the errors after a rigid fit of the frames)
     if out_csv is not None:
         result.out_csv = Path(out_csv)
         _write_csv(result.out_csv, result.rows)
@@ -519,6 +522,18 @@ class _Rows:
         err = frame_errors(R, p, w, v, self.gt, stamp)
         if err:
             row.update({f"err_{k}": val for k, val in err.items()})
+
+    def pose_pairs(self) -> tuple[list, list]:
+        """The solved frames' poses ``(R, p)`` and their ground truth's, for the rigid fit of
+        the frames."""
+        est, gt = [], []
+        for r in self.rows:
+            s = self.gt.nearest(r.get("out_stamp_ns", r["stamp_ns"])) if "qw" in r else None
+            if s is not None:
+                q = [r[f"q{a}"] for a in "xyzw"]
+                est.append((cv.matrix_from_quaternion(q), np.array([r[f"p{a}"] for a in "xyz"])))
+                gt.append((self.gt.orientation[s], np.asarray(self.gt.position[s])))
+        return est, gt
 
     def finish(self) -> list[dict]:
         """The rows; solved frames whose twist never came get their pose errors alone."""
