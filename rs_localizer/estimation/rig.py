@@ -538,16 +538,10 @@ def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None, 
         R0 = np.broadcast_to(np.asarray(anchor, dtype=float), (len(samples), 3, 3))
         S = samples
     else:
-        cam0 = pool.cam[samples[:, 0]]
-        Rc = pool.R_mount[cam0]
-        xs = pool.x[samples[:, :3]]
-        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-        R_cam, _, own = lambda_twist_batch(
-            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-        )
-        if len(own) == 0:
+        p3p = _p3p_on_rig(pool, samples)
+        if p3p is None:
             return None
-        R0 = np.einsum("hji,hjk->hik", Rc[own], R_cam)  # R_c^T R_cam
+        R0, _, own = p3p
         S = samples[own]
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
     b = gr6p_1lin_batch(
@@ -564,6 +558,18 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
     (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``.
     Returns arrays of H models, or None."""
+    p3p = _p3p_on_rig(pool, samples)
+    if p3p is None:
+        return None
+    R, C, own = p3p
+    z = np.zeros((len(own), 3))
+    return R, C, z, z.copy()
+
+
+def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
+    """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
+    rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
+    (H,) of the samples that gave a solution; None when none did."""
     cam0 = pool.cam[samples[:, 0]]
     xs = pool.x[samples[:, :3]]
     bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
@@ -575,8 +581,7 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray):
     Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
     R = np.einsum("hji,hjk->hik", Rc, R_cam)
     C = np.einsum("hji,hj->hi", Rc, C_cam - cc)
-    z = np.zeros((len(own), 3))
-    return R, C, z, z.copy()
+    return R, C, own
 
 
 def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2, free=12):
