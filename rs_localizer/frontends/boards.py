@@ -605,13 +605,12 @@ class _BoardFrontend(FrontendHooks):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        stamp_ns: int | None = None,
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`,
         unpacks as ``(points_px (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
         int64)``; no scores); detections whose id is not on the board are dropped.
         ``camera`` is optional (the ChArUco front end uses it to interpolate corners);
-        ``stamp_ns`` is unused (every image alone)."""
+        every image alone."""
         uv, ids = self._detect_ids(to_gray(image, encoding), camera)
         if len(ids) == 0:
             return Correspondences.empty()
