@@ -18,9 +18,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .. import cv_compat
 from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
-from . import cv_compat
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 

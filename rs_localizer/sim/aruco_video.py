@@ -11,7 +11,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
-from ..frontends.aruco import ArucoFrontend
+from ..frontends import ArucoFrontend
 from ..geometry import rotation_angle_deg
 from ..tracking.tracker import CarriedPrediction
 from .render.motion import make_motion

@@ -4,8 +4,8 @@ renderer's truth."""
 import numpy as np
 import pytest
 
+from rs_localizer import cv_compat
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends import cv_compat
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
 from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import apriltag_binding
