@@ -64,8 +64,8 @@ import time
 import cv2
 import numpy as np
 
+from rs_localizer import cv_compat
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends import cv_compat
 from rs_localizer.frontends.aruco import ArucoFrontend
 from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import (

@@ -48,8 +48,9 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation.estimate import CorrelatedNoise, EstimateOptions, estimate_rs_pose
 from rs_localizer.estimation.noise_model import fit_correlated_noise
 from rs_localizer.estimation.refine import RefineSettings, exact_errors, refine_rs_pose
-from rs_localizer.frontends.boards import CheckerboardFrontend, load_board
+from rs_localizer.frontends.boards import CheckerboardFrontend
 from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.maps.boards import load_board
 from rs_localizer.sim.noise import correlated_field
 
 PHOTOS = Path("test/data/photos")

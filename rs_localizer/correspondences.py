@@ -127,12 +127,12 @@ class VideoFrontend(Protocol):
     """What :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` calls on the front end
     of a camera's video, per image frame, in this order:
 
-    1. ``process(image, camera, encoding, stamp_ns, prediction)``: the frame's
+    1. ``process(image, camera, encoding, prediction)``: the frame's
        :class:`Correspondences` (``image`` (H, W) or (H, W, C) uint8 in ``encoding``;
-       ``camera`` the frame's :class:`~rs_localizer.camera.CameraModel`; ``stamp_ns`` its
-       header stamp, ns). ``prediction``: where the video's tracker expects the camera, the
-       frame's model (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference
-       row, :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`: the one the
+       ``camera`` the frame's :class:`~rs_localizer.camera.CameraModel`). ``prediction``:
+       where the video's tracker expects the camera, the frame's model
+       (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its reference row,
+       :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`: the one the
        estimator starts from), for a front end that searches near the predicted pixels
        (``camera.project_rs(X, *prediction)``); None when nothing predicts the frame (the
        first frame, a time reset, a gap: search the image whole). A front end keeps no pose
@@ -155,7 +155,6 @@ class VideoFrontend(Protocol):
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        stamp_ns: int | None = None,
         prediction: Any = None,
     ) -> Any:
         """The frame's :class:`Correspondences`."""
@@ -184,7 +183,7 @@ class FrontendHooks:
 
 class _PerImage(FrontendHooks):
     """A :class:`Frontend` (``process(image, camera, encoding)`` only) as a
-    :class:`VideoFrontend`: the stamp and the prediction are not passed on, no hooks."""
+    :class:`VideoFrontend`: the prediction is not passed on, no hooks."""
 
     def __init__(self, frontend: Frontend):
         self.frontend = frontend
@@ -194,7 +193,6 @@ class _PerImage(FrontendHooks):
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        stamp_ns: int | None = None,
         prediction: Any = None,
     ) -> Any:
         return self.frontend.process(image, camera, encoding=encoding)
@@ -213,10 +211,9 @@ class _Unpredicted:
         image: np.ndarray,
         camera: Any = None,
         encoding: str = "bgr8",
-        stamp_ns: int | None = None,
         prediction: Any = None,
     ) -> Any:
-        return self.frontend.process(image, camera, encoding=encoding, stamp_ns=stamp_ns)
+        return self.frontend.process(image, camera, encoding=encoding)
 
 
 def _takes_prediction(process: Any) -> bool:
@@ -231,7 +228,7 @@ def _takes_prediction(process: Any) -> bool:
 def video_frontend(frontend: Any) -> VideoFrontend:
     """``frontend`` itself when it is a :class:`VideoFrontend` (wrapped so that ``process``
     is not given the ``prediction`` when it takes none), else a per-image :class:`Frontend`
-    wrapped into one (its ``process`` called without the stamp, no feedback). The signature
+    wrapped into one (no feedback). The signature
     is read once, here.
 
     Raises:

@@ -24,6 +24,8 @@ __all__ = [
     "READOUT_TOP_TO_BOTTOM",
     "camera_position",
     "compose",
+    "cross",
+    "exact_camera_points",
     "invert",
     "matrix_to_rotvec",
     "nearest_rotation",
@@ -84,6 +86,48 @@ def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(th) / th)
     b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(th)) / th**2)
     return np.eye(3) + a * K + b * (K @ K)
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products over the last axis (..., 3), broadcast, without ``np.cross``'s axis
+    handling (a third of the NumPy estimator's time otherwise)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def _rotate_small(a: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """``expm([a]x) q`` for stacked rotation vectors ``a`` and points ``q`` (..., 3)."""
+    th2 = np.einsum("...i,...i->...", a, a)
+    th = np.sqrt(th2)
+    small = th2 < 1e-12
+    ths = np.where(small, 1.0, th)
+    sa = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    ca = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    aq = cross(a, q)
+    return q + sa[..., None] * aq + ca[..., None] * cross(a, aq)
+
+
+def exact_camera_points(
+    R: np.ndarray, C: np.ndarray, w: np.ndarray, t: np.ndarray, X: np.ndarray, tau: np.ndarray
+) -> np.ndarray:
+    """Camera-frame points of the exact constant-velocity RS model at given capture times,
+    ``p_i = expm(tau_i [w]x) R X_i + C + tau_i t`` (paper eq. 2-4 with the exact rotation): the
+    NumPy form of the model whose image error the estimator scores and refines (the compiled
+    one: :func:`rs_localizer.estimation.scoring.exact_error2`).
+
+    Args:
+        R: (..., 3, 3) rotation at ``tau = 0``; C, w, t: (..., 3) translation, angular and
+            linear velocity per unit RS coordinate (one model, or a stack of H models).
+        X: (N, 3) world points (m). tau: (N,) RS coordinate of each point's capture minus the
+            reference coordinate.
+    Returns:
+        (..., N, 3) camera-frame points (m): one row per point, per model.
+    """
+    q = X @ np.swapaxes(R, -1, -2)
+    p = _rotate_small(tau[:, None] * w[..., None, :], q)
+    p += C[..., None, :] + tau[:, None] * t[..., None, :]
+    return p
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:

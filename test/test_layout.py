@@ -22,6 +22,7 @@ LAYER = {
     "frames": 0,
     "pose": 0,
     "correspondences": 0,
+    "cv_compat": 0,  # (OpenCV's API across versions: the board models', detectors', renderer's)
     "solvers": 1,
     "estimation": 2,
     "tracking": 2.5,
@@ -182,6 +183,7 @@ ANNOTATED = [
     *sorted((PKG / "maps").glob("*.py")),
     *sorted((PKG / "viz").glob("*.py")),
     PKG / "camera.py",
+    PKG / "cv_compat.py",
 ]
 
 
@@ -245,6 +247,29 @@ def test_tests_import_helpers_not_tests():
                 if n.split(".")[0] == "conftest" or n.split(".")[0].startswith("test_")
             ]
     assert not found, "test modules importing tests or conftest:\n" + "\n".join(found)
+
+
+#: the modules that define front ends: the registry builds them by name, the package re-exports
+#: what the rest of the library uses
+FRONTEND_MODULES = {"aruco", "boards", "features", "tracking"}
+
+
+def test_front_end_modules_imported_through_the_registry_or_the_package():
+    """Outside ``frontends/`` no module of the package imports a front-end module by path:
+    it uses :mod:`rs_localizer.frontends` (its re-exports, ``make_frontend``) or the registry."""
+    bad = []
+    for path in FILES:
+        if _unit(path) == "frontends":
+            continue
+        for mod, line in _imports(path):
+            parts = mod.split(".")
+            if (
+                parts[:2] == ["rs_localizer", "frontends"]
+                and parts[2:3]
+                and (parts[2] in FRONTEND_MODULES)
+            ):
+                bad.append(f"{path.relative_to(PKG)}:{line} {mod}")
+    assert not bad, "front-end modules imported by path:\n" + "\n".join(bad)
 
 
 def test_no_import_circle_among_the_front_ends():

@@ -71,7 +71,7 @@ def frames_from_bag(
         FileNotFoundError: not a bag directory. ValueError: no or several image topics, no
         camera_info, an image of another size than the camera, an undecodable image.
     """
-    from ..frontends.aruco import ArucoFrontend
+    from ..frontends import ArucoFrontend
     from ..frontends.image import image_from_compressed, image_from_msg, to_gray
     from ..mapping import FrameDetections
     from ..mapping.outputs import detect_image

@@ -76,7 +76,7 @@ def _make_frontend(
             "dictionary": scene.dictionary,
         }
     if frontend == "features":
-        from ..frontends.features import FeatureFrontend
+        from ..frontends import FeatureFrontend
         from ..maps.features import FeatureMap
         from ..sim.feature_map import build_feature_map
 

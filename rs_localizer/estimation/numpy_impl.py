@@ -43,7 +43,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..camera import CameraModel
-from ..geometry import camera_position, rotvec_to_matrix, skew
+from ..geometry import camera_position, cross, exact_camera_points, rotvec_to_matrix, skew
 from ..pose import model_twist, model_twist_jacobian
 from ..solvers.registry import sample_size, solver_info
 from .degeneracy import condition_number, planarity
@@ -77,35 +77,12 @@ _FINAL_PASSES = 1
 _KEEP = 4
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products over the last axis (broadcast), without ``np.cross``'s axis handling
-    (a third of this path's time otherwise)."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
-
-
-def _rotate_small(a: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """``expm([a]x) q`` for stacked rotation vectors ``a`` and points ``q`` (..., 3)."""
-    th2 = np.einsum("...i,...i->...", a, a)
-    th = np.sqrt(th2)
-    small = th2 < 1e-12
-    ths = np.where(small, 1.0, th)
-    sa = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    ca = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
-    aq = _cross(a, q)
-    return q + sa[..., None] * aq + ca[..., None] * _cross(a, aq)
-
-
 def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
     X, x, tau = fr.X[:m], fr.x[:m], fr.tau[:m]
-    q = X @ R.transpose(0, 2, 1)
-    tau3 = tau[None, :, None]
-    p = _rotate_small(tau3 * w[:, None, :], q)
-    p += C[:, None, :] + tau3 * t[:, None, :]
+    p = exact_camera_points(R, C, w, t, X, tau)
     z = p[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = 1.0 / z
@@ -123,7 +100,7 @@ def _plausible(C, w, t, bounds) -> np.ndarray:
         return (
             ok
             & (np.einsum("hi,hi->h", w, w) <= bounds[0] ** 2)
-            & (np.sum((_cross(w, C) - t) ** 2, axis=1) <= bounds[1] ** 2)
+            & (np.sum((cross(w, C) - t) ** 2, axis=1) <= bounds[1] ** 2)
         )
 
 
@@ -178,7 +155,7 @@ def _r6p_1lin(x, X, tau, iterations: int):
     E[..., 1, 0], E[..., 1, 2] = 1.0, -x[..., 0]
     te = tau[:, :, None, None]
     A = np.empty((K, n, 2, 12))
-    A[..., 0:3] = _cross(X[:, :, None, :], E)
+    A[..., 0:3] = cross(X[:, :, None, :], E)
     A[..., 3:6] = E
     A[..., 9:12] = te * E
     b = -np.einsum("knqa,kna->knq", E, X).reshape(K, 2 * n)
@@ -187,13 +164,13 @@ def _r6p_1lin(x, X, tau, iterations: int):
     out = np.full((K, 12), np.nan)
     ok = np.zeros(K, dtype=bool)
     for _ in range(iterations):
-        Z = X + _cross(vhat[:, None, :], X)
-        A[..., 6:9] = te * _cross(Z[:, :, None, :], E)
+        Z = X + cross(vhat[:, None, :], X)
+        A[..., 6:9] = te * cross(Z[:, :, None, :], E)
         u, good = _solve_stack(A.reshape(K, 2 * n, 12), b)
         vn, Cn, wn, tn = u[:, None, 0:3], u[:, None, 3:6], u[:, None, 6:9], u[:, None, 9:12]
         # algebraic error of eq. 5 at the iterate
-        vX = X + _cross(vn, X)
-        P = vX + tau[..., None] * (_cross(wn, vX) + tn) + Cn
+        vX = X + cross(vn, X)
+        P = vX + tau[..., None] * (cross(wn, vX) + tn) + Cn
         res = np.einsum("knqa,kna->knq", E, P)
         err = np.sqrt(np.mean(res.reshape(K, -1) ** 2, axis=1))
         better = good & (err < best)
@@ -432,8 +409,7 @@ def _refine(fr: Frame, model, th: float, rolling: bool):
 
 def _depths(fr: Frame, R, C, w, t) -> np.ndarray:
     """(N,) depths of every point at its capture time under the exact model."""
-    p = _rotate_small(fr.tau[:, None] * w, fr.X @ R.T) + C + fr.tau[:, None] * t
-    return p[:, 2]
+    return exact_camera_points(R, C, w, t, fr.X, fr.tau)[:, 2]
 
 
 def _output_covariance(cov12, R, C, w, s: float):

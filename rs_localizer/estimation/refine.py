@@ -24,7 +24,7 @@ from numba import njit
 
 from .._linalg import solve_symmetric
 from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
-from ..geometry import rotvec_to_matrix, skew
+from ..geometry import exact_camera_points, rotvec_to_matrix, skew
 from ..pose import RSModel, model_twist, model_twist_jacobian
 from .prior import MotionPrior, prior_arrays
 from .scoring import exact_error2
@@ -73,19 +73,17 @@ def _left_jacobian(phi: np.ndarray) -> np.ndarray:
 
 
 def _camera_points(theta, R0, X, tau):
+    """The exact model's camera points (:func:`~rs_localizer.geometry.exact_camera_points`) at
+    ``theta`` = (delta, C, w, t) with ``R = expm([delta]x) R0``, and that ``R``."""
     R = rotvec_to_matrix(theta[:3]) @ R0
-    q = X @ R.T
-    A = rotvec_to_matrix(tau[:, None] * theta[6:9])
-    Aq = np.einsum("nij,nj->ni", A, q)
-    p = Aq + theta[3:6] + tau[:, None] * theta[9:12]
-    return p, q, A, Aq
+    return exact_camera_points(R, theta[3:6], theta[6:9], theta[9:12], X, tau), R
 
 
 def exact_residuals(
     theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
 ) -> np.ndarray:
     """(2N,) residuals ``pi(p_i) - x_i`` (normalized units) of the exact model; theta (12,)."""
-    p, *_ = _camera_points(theta, R0, X, tau)
+    p, _ = _camera_points(theta, R0, X, tau)
     return (p[:, :2] / p[:, 2:3] - x).ravel()
 
 
@@ -93,7 +91,10 @@ def exact_jacobian(
     theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
 ) -> np.ndarray:
     """(2N, 12) analytic Jacobian of :func:`exact_residuals` w.r.t. (delta, C, w, t)."""
-    p, q, A, Aq = _camera_points(theta, R0, X, tau)
+    p, R = _camera_points(theta, R0, X, tau)
+    q = X @ R.T
+    A = rotvec_to_matrix(tau[:, None] * theta[6:9])
+    Aq = np.einsum("nij,nj->ni", A, q)  # (the derivative's rotated points)
     n = len(X)
     z = p[:, 2]
     dpi = np.zeros((n, 2, 3))

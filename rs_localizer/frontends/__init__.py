@@ -6,14 +6,15 @@ metres (N, 3), int64 ids (N,) and optional match scores; it unpacks as ``pixels,
 ready for :func:`rs_localizer.estimate_rs_pose` (the protocols:
 :class:`~rs_localizer.correspondences.Frontend`,
 :class:`~rs_localizer.correspondences.TrackingFrontend`). :func:`make_frontend` builds one by
-name.
+name. Outside this package the front-end modules are reached through these names (and the
+registry), never imported by path.
 """
 
 import os
 from typing import Any
 
-from .aruco import ArucoFrontend
-from .features import FeatureFrontend, feature_map_from_views
+from .aruco import ArucoFrontend, marker_scores
+from .features import FeatureFrontend, feature_map_from_views, representative_descriptors
 from .image import to_gray
 from .registry import FRONTENDS, frontend_kind
 
@@ -23,6 +24,8 @@ __all__ = [
     "FeatureFrontend",
     "feature_map_from_views",
     "make_frontend",
+    "marker_scores",
+    "representative_descriptors",
     "to_gray",
 ]
 
@@ -33,8 +36,8 @@ def make_frontend(kind: str, map_path: str | os.PathLike, **kw: Any) -> Any:
     :func:`rs_localizer.maps.load_marker_map`; scored by the map's stated std when it has them)
     or ``features`` (``map_path``: a feature map ``.npz``,
     :meth:`rs_localizer.maps.features.FeatureMap.load`) or ``board`` (``map_path``: a board
-    YAML, :func:`rs_localizer.frontends.boards.load_board`: checkerboard, ChArUco or tag
-    board); ``kw`` go to the front end's constructor.
+    YAML, :func:`rs_localizer.maps.boards.load_board`: checkerboard, ChArUco or tag board);
+    ``kw`` go to the front end's constructor.
 
     Raises:
         ValueError: an unknown kind or a bad map. FileNotFoundError: a missing map.

@@ -18,9 +18,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .. import cv_compat
 from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
-from . import cv_compat
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
@@ -305,7 +305,6 @@ class ArucoFrontend(FrontendHooks):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        stamp_ns: int | None = None,
         prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
@@ -316,7 +315,7 @@ class ArucoFrontend(FrontendHooks):
         ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
         video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
         serve the windowed detection (``windowed``), which without them searches the full
-        frame; ``stamp_ns`` is not used."""
+        frame."""
         if camera is not None:
             self._camera = camera
         corners, mids = self._detect_frame(to_gray(image, encoding), camera, prediction)

@@ -251,11 +251,10 @@ class FeatureFrontend(FrontendHooks):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        stamp_ns: int | None = None,
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`
-        with the scores ``1 - ratio``; pixels stay distorted; ``camera`` and ``stamp_ns`` are
-        unused: every image alone)."""
+        with the scores ``1 - ratio``; pixels stay distorted; ``camera`` is unused: every
+        image alone)."""
         empty = Correspondences(
             np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
         )

@@ -9,7 +9,7 @@
   library 3.1) or Debian's ``python3-apriltag`` (module ``apriltag``, library 3.3; no
   ``decode_sharpening`` option, the library's default 0.25 is used).
 * ArUco dictionaries (``DICT_4X4_50`` ... ``DICT_ARUCO_ORIGINAL``) go to OpenCV's ArUco
-  detector (:class:`~rs_localizer.frontends.cv_compat.MarkerDetector`), with an adaptive
+  detector (:class:`~rs_localizer.cv_compat.MarkerDetector`), with an adaptive
   threshold constant of 20 grey levels and two thresholding passes (window step 20) instead of
   OpenCV's 7 and three: on textured walls OpenCV's defaults turn every dark speck into a marker
   candidate, each one warped and identified (about 300 candidates per 640x480 frame of
@@ -473,12 +473,13 @@ class AprilTagDetector:
 
 class OpenCVDetector:
     """A predefined dictionary with OpenCV's ArUco detector
-    (:class:`~rs_localizer.frontends.cv_compat.MarkerDetector`).
+    (:class:`~rs_localizer.cv_compat.MarkerDetector`).
 
     Args:
         dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``...).
-        params: ``cv2.aruco.DetectorParameters`` (:func:`~.cv_compat.detector_parameters`;
-            default: OpenCV's), changed in place by ``options``.
+        params: ``cv2.aruco.DetectorParameters``
+            (:func:`~rs_localizer.cv_compat.detector_parameters`; default: OpenCV's), changed
+            in place by ``options``.
         fallback: why OpenCV detects an AprilTag family here (None: it was asked for).
         options: :class:`DetectorOptions` whose OpenCV settings
             (:meth:`DetectorOptions.opencv_overrides`) are applied to ``params`` (None: none).
@@ -500,7 +501,7 @@ class OpenCVDetector:
         fallback: str | None = None,
         options: DetectorOptions | None = None,
     ):
-        from .cv_compat import MarkerDetector, detector_parameters, get_dictionary
+        from ..cv_compat import MarkerDetector, detector_parameters, get_dictionary
 
         self.name = dictionary
         self.dictionary = get_dictionary(dictionary)
@@ -544,7 +545,7 @@ class OpenCVDetector:
         """:meth:`detect` in ``window`` ``(x0, y0, x1, y1)`` (px, end exclusive) of the frame
         ``gray``: corners in the frame's pixels, the smallest marker perimeter kept at the
         frame's (OpenCV scales it by the image size)."""
-        from .cv_compat import MarkerDetector
+        from ..cv_compat import MarkerDetector
 
         g = _check_gray(gray)
         x0, y0, x1, y1 = (int(v) for v in window)
@@ -588,7 +589,7 @@ def make_marker_detector(
     opencv_name = dictionary if str(dictionary).startswith("DICT_") else None
     if family is None:
         try:
-            from .cv_compat import get_dictionary
+            from ..cv_compat import get_dictionary
 
             get_dictionary(dictionary)
         except ValueError:

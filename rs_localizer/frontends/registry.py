@@ -67,7 +67,7 @@ def _features_video(fm: Any, **kw: Any) -> Any:
 
 
 def _load_board(path: str | os.PathLike) -> Any:
-    from .boards import load_board
+    from ..maps.boards import load_board
 
     return load_board(path)
 

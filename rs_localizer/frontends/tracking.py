@@ -260,7 +260,6 @@ class TrackingFeatureFrontend(FeatureFrontend):
         image: np.ndarray,
         camera: CameraModel | None = None,
         encoding: str = "rgb8",
-        stamp_ns: int | None = None,
         prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one frame (:class:`~rs_localizer.correspondences.Correspondences`:
@@ -268,7 +267,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         ``report`` says how they were found. ``prediction``: the frame's predicted
         :class:`~rs_localizer.pose.RSModel` (module docstring), where the tracks and the
         refresh's matches are looked for; None: nothing predicts the frame (the first one,
-        a time reset or a gap: a global frame). ``stamp_ns`` is not used."""
+        a time reset or a gap: a global frame)."""
         t_start = time.perf_counter()
         gray = to_gray(image, encoding)
         rep = FrameReport(times={})

@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..frontends.features import representative_descriptors
+from ..frontends import representative_descriptors
 from ..maps.features import FeatureMap
 
 __all__ = [
@@ -339,7 +339,7 @@ def _marker_rays(rec: Any, images_dir: str | Path, corners3d: dict, dictionary: 
 
     Raises:
         FileNotFoundError: a registered photo missing from ``images_dir``."""
-    from ..frontends.aruco import ArucoFrontend
+    from ..frontends import ArucoFrontend
 
     det = ArucoFrontend(corners3d, dictionary)
     obs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}

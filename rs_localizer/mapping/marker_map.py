@@ -22,7 +22,13 @@ from .marker_init import (
     regauge,
     screen_videos,
 )
-from .marker_model import FrameDetections, MappingOptions, MarkerMapResult, marker_corners_local
+from .marker_model import (
+    FrameDetections,
+    MappingOptions,
+    MarkerMapResult,
+    frame_velocities,
+    marker_corners_local,
+)
 from .marker_problem import MarkerProblem
 
 __all__ = ["concatenate_videos", "map_markers"]
@@ -374,9 +380,10 @@ def _assemble(
     # the frames in the output frame: world -> camera (R, C) becomes (R Ro^T, C - R Ro^T to)
     Rf_out = Rf @ Ro.T
     Cf_out = Cf - np.einsum("nij,j->ni", Rf_out, to)
-    # camera's own velocities (docs/architecture.md): omega = -w / s, v = (w x C - t) / s with
-    # w = s W, t = s T (C the world -> camera translation of the adjustment's frame: the
-    # camera's velocities in its own frame do not depend on the world frame)
+    # camera's own velocities (frame_velocities: pose.model_twist with W, T per second; C the
+    # world -> camera translation of the adjustment's frame: the camera's velocities in its
+    # own frame do not depend on the world frame)
+    omega, v = frame_velocities(Cf, W, T)
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
     timings["total"] = time.perf_counter() - t0
     return MarkerMapResult(
@@ -389,8 +396,8 @@ def _assemble(
         frame_ids=np.array(list(prob.frames)),
         orientation=np.swapaxes(Rf_out, 1, 2),
         position=-np.einsum("nji,nj->ni", Rf_out, Cf_out),
-        angular_velocity=-W,
-        linear_velocity=np.cross(W, Cf) - T,
+        angular_velocity=omega,
+        linear_velocity=v,
         line_delay=float(ld),
         rmse_px=float(np.sqrt(np.mean(e**2))) if e.size else float("nan"),
         num_rejected=num_rejected,

@@ -30,14 +30,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..pose import model_twist
+
 __all__ = [
     "FrameDetections",
     "MappingOptions",
     "MarkerMapResult",
     "OutputFrame",
     "fit_rigid",
+    "frame_velocities",
     "marker_corners_local",
 ]
+
+
+def frame_velocities(C: np.ndarray, W: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's own velocities of the adjustment's frames: ``(omega (N, 3) rad/s, v (N, 3)
+    m/s)`` in each camera's frame, ``omega = -W``, ``v = W x C - T``, from ``C`` (N, 3) the
+    world -> camera translations (m) and the per-second velocities ``W`` (N, 3) rad/s, ``T``
+    (N, 3) m/s (module docstring). The estimator's conversion
+    :func:`~rs_localizer.pose.model_twist` with ``s = 1``: its ``w = s W`` and ``t = s T``
+    per unit RS coordinate give the same twist as ``(W, T)`` per second."""
+    z = np.array([model_twist(C[k], W[k], T[k], 1.0) for k in range(len(C))]).reshape(-1, 6)
+    return z[:, 3:], z[:, :3]
 
 
 def marker_corners_local(side: float) -> np.ndarray:

@@ -15,7 +15,7 @@ from scipy.sparse import coo_matrix, csr_matrix, lil_matrix
 
 from ..camera import CameraModel
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
-from .marker_model import MappingOptions, marker_corners_local
+from .marker_model import MappingOptions, frame_velocities, marker_corners_local
 
 
 class Placement(Protocol):
@@ -242,7 +242,7 @@ class MarkerProblem:
         # same residual wherever the world's origin lies (its norm, however the axes turn)
         Rt = np.swapaxes(Rf, 1, 2)
         c = -np.einsum("nij,nj->ni", Rt, Cf)
-        v = np.einsum("nij,nj->ni", Rt, np.cross(W, Cf) - T)
+        v = np.einsum("nij,nj->ni", Rt, frame_velocities(Cf, W, T)[1])
         ec = c[j] - c[i] - dt * 0.5 * (v[i] + v[j])
         o = self.opts
         # the angular velocity changes by about the angular acceleration times the time between
@@ -364,7 +364,7 @@ class MarkerProblem:
             # ec = c_j - c_i - dt / 2 (v_i + v_j), c = -R^T C, v = R^T u, u = W x C - T; with
             # R -> expm([a]x) R, a = J_l d: dc = -R^T [C]x a, dv = R^T [u]x a
             Rt = np.swapaxes(Rf, 1, 2)
-            u = np.cross(W, Cf) - T
+            u = frame_velocities(Cf, W, T)[1]
             sp = 1.0 / o.motion_sigma_pos
             h = (0.5 * dt * sp)[:, None, None]
             for fr, sign in ((j, sp), (i, -sp)):

@@ -110,7 +110,7 @@ def detect_folder(
     import cv2
     from tqdm import tqdm
 
-    from ..frontends.aruco import ArucoFrontend
+    from ..frontends import ArucoFrontend
 
     folder = Path(folder)
     if not folder.is_dir():

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
-from ..frontends.aruco import ArucoFrontend
+from ..frontends import ArucoFrontend
 from ..geometry import rotation_angle_deg
 from ..tracking.tracker import CarriedPrediction
 from .render.motion import make_motion
@@ -60,7 +60,7 @@ def run_interleaved(
         for mode, fe in fes.items():
             t0 = time.perf_counter()
             pred = carry[mode].predict(stamp, camera)
-            c = fe.process(f.image, camera, encoding="rgb8", stamp_ns=stamp, prediction=pred)
+            c = fe.process(f.image, camera, encoding="rgb8", prediction=pred)
             out[mode]["detect"].append(time.perf_counter() - t0)
             est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
             fe.observe(stamp, None, est)

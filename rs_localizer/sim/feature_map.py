@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..camera import CameraModel
-from ..frontends.features import feature_map_from_views
+from ..frontends import feature_map_from_views
 from ..maps.features import FeatureMap
 from .render.motion import base_rotation
 from .render.renderer import Renderer

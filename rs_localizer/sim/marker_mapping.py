@@ -301,7 +301,7 @@ def localization_errors(
     from collections import Counter
 
     from ..estimation import estimate_rs_pose
-    from ..frontends.aruco import marker_scores
+    from ..frontends import marker_scores
     from ..geometry import rotation_angle_deg
 
     rot, pos, per_frame, failed, n = [], [], {}, Counter(), 0

@@ -69,7 +69,7 @@ from ..estimation.estimate import estimate_rs_pose
 from ..estimation.options import InitialModel
 from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from ..pose import RSPose
+from ..pose import RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .sequence import FusedPose, checked_stamp, reference_stamp_ns
 from .tracker import predictable
@@ -390,12 +390,12 @@ class RigOutput:
 def _model_of(Ori, p, omega, v):
     """The rig estimator's model (R, C, w, t) of a rig pose (orientation rig -> world, origin
     in the world) and twist (rig frame; time in s): ``R = Ori^T``, ``C = -R p``,
-    ``w = -omega``, ``t = w x C - v`` (:meth:`~rs_localizer.pose.RSPose.model` with 1 s per
-    unit)."""
+    ``w = -omega``, ``t = w x C - v`` (:func:`~rs_localizer.pose.model_from_twist` with 1 s
+    per unit)."""
     R = Ori.T
     C = -R @ p
-    w = -np.asarray(omega, float)
-    return R, C, w, np.cross(w, C) - v
+    w, t = model_from_twist(C, omega, v, 1.0)
+    return R, C, w, t
 
 
 # ---------------------------------------------------------------------- bookkeeping

@@ -810,7 +810,7 @@ class SequenceLocalizer:
         tag: Any = None,
     ) -> SequenceOutput:
         """Localize one image of the video: the front end's correspondences
-        (``frontend.process(image, camera, encoding, stamp_ns, prediction)``, with the frame's
+        (``frontend.process(image, camera, encoding, prediction)``, with the frame's
         :meth:`predict`; its one-time warning logged), the rows the estimator can use
         (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
         solved (``frontend.observe``; an error there is logged, the frame goes on). The calls
@@ -865,7 +865,7 @@ class SequenceLocalizer:
         t0 = time.perf_counter()
         try:
             found = Correspondences.of(
-                fe.process(image, camera, encoding=encoding, stamp_ns=stamp, prediction=prediction)
+                fe.process(image, camera, encoding=encoding, prediction=prediction)
             )
         except Exception as e:
             out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"

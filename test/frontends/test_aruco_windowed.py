@@ -4,8 +4,8 @@ renderer's truth."""
 import numpy as np
 import pytest
 
+from rs_localizer import cv_compat
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends import cv_compat
 from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
 from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import apriltag_binding
@@ -23,7 +23,7 @@ def _solve(fe, f, camera, carry):
     """One frame searched from ``carry``'s prediction (the last solved frame carried to the
     stamp), the prediction then given the frame's estimate."""
     stamp = int(round(f.t_first * 1e9))
-    c = fe.process(f.image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
+    c = fe.process(f.image, camera, prediction=carry.predict(stamp, camera))
     est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
     carry.update(stamp, est)
     return c, est, stamp
@@ -74,7 +74,7 @@ def test_fallback_after_loss_and_periodic(video):
     # a stamp going back (a replayed bag): no prediction
     stamp = int(round(frames[0].t_first * 1e9))
     assert carry.predict(stamp, camera) is None
-    fe.process(frames[0].image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera))
+    fe.process(frames[0].image, camera, prediction=carry.predict(stamp, camera))
     assert fe.last_kind == "full"
 
 

@@ -19,24 +19,26 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from rs_localizer import cv_compat as cvc
 from rs_localizer import estimate_rs_pose
 from rs_localizer.camera import CameraModel
-from rs_localizer.frontends import cv_compat as cvc
 from rs_localizer.frontends.boards import (
-    CharucoBoardModel,
     CharucoFrontend,
     CheckerboardFrontend,
-    CheckerboardModel,
-    TagBoard,
     TagFrontend,
     _canonical_checkerboard,
-    board_image,
-    load_board,
-    load_dictionary,
     make_board_frontend,
-    pose_from_spec,
 )
 from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.maps.boards import (
+    CharucoBoardModel,
+    CheckerboardModel,
+    TagBoard,
+    load_board,
+    load_dictionary,
+    pose_from_spec,
+)
+from rs_localizer.sim.render.boards import board_image
 
 PHOTOS = Path(__file__).resolve().parents[1] / "data" / "photos"
 LEFT = ["01", "02", "03", "04", "05", "06", "07", "08", "09", "11", "12", "13", "14"]

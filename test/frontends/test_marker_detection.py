@@ -263,8 +263,9 @@ def test_node_parameters_reach_the_detector():
 
 
 def test_tag_boards_use_the_same_detector():
-    from rs_localizer.frontends import cv_compat
-    from rs_localizer.frontends.boards import TagBoard, TagFrontend
+    from rs_localizer import cv_compat
+    from rs_localizer.frontends.boards import TagFrontend
+    from rs_localizer.maps.boards import TagBoard
 
     april = TagFrontend(TagBoard.grid(3, 2, 0.024, 0.008, "DICT_APRILTAG_36h11"))
     assert april.detector.backend == ("apriltag" if md.apriltag_binding() else "opencv")
@@ -319,7 +320,7 @@ def test_opencv_settings_on_a_textured_room():
     markers."""
     import yaml
 
-    from rs_localizer.frontends import cv_compat
+    from rs_localizer import cv_compat
     from rs_localizer.maps.scenes import scene_path
 
     data = yaml.safe_load(scene_path("apriltag_room").read_text())

@@ -33,7 +33,7 @@ def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
         stamp = int(f.t_first * 1e9) + (shift_ns[1] if shift_ns and k >= shift_ns[0] else 0)
         pred = carry.predict(stamp, camera)
         t0 = time.perf_counter()
-        uv, X, _ = fe.process(img, camera, stamp_ns=stamp, prediction=pred)
+        uv, X, _ = fe.process(img, camera, prediction=pred)
         if times is not None:  # (the front end's time per frame, s)
             times.append(time.perf_counter() - t0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
@@ -220,9 +220,7 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
     carry = CarriedPrediction()
     for f in frames:
         stamp = int(f.t_first * 1e9)
-        uv, X, _ = fe.process(
-            f.image, camera, stamp_ns=stamp, prediction=carry.predict(stamp, camera)
-        )
+        uv, X, _ = fe.process(f.image, camera, prediction=carry.predict(stamp, camera))
         rep = fe.report
         if rep.kind == "tracked":
             # (tracks anchored in this very frame: a refresh's matches are anchored in the

@@ -71,7 +71,7 @@ def test_collapsed_tracks_are_matched_whole(video):
             image = frames[14].image if k == 15 else frames[k].image
             stamp = int(round(frames[16 if k == 23 else k].t_first * 1e9))
             pred = carry.predict(stamp, camera)
-            uv, X, _ = fe.process(image, camera, "rgb8", stamp_ns=stamp, prediction=pred)
+            uv, X, _ = fe.process(image, camera, "rgb8", prediction=pred)
             est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
             fe.observe(stamp, None, est)
             carry.update(stamp, est)

@@ -28,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ...frontends.cv_compat import marker_image
+from ...cv_compat import marker_image
 from ...maps.markers import marker_dictionary
 from ...maps.scenes import (
     SCENE_DIR,
