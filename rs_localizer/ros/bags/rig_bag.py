@@ -440,3 +440,83 @@ def iter_rig_frames(
         except ValueError:
             continue
         yield RigCameraFrame(n, stamp, models[n], corr.pixels, corr.points)
+
+
+def rig_frame_ends(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> dict[tuple[str, int], int]:
+    """Which camera frames of a rig bag complete a rig frame when played in log-time order
+    into the rig mode (what ``play --lockstep`` waits after).
+
+    The frames (:func:`iter_rig_frames`, the cameras and timing of
+    :func:`rig_parameter_values`) are grouped as
+    :meth:`~rs_localizer.tracking.rig.RigLocalizer.add` groups them: by reference-line time,
+    one frame per camera within ``rig.window`` of the rig frame's earliest; a rig frame is
+    complete once every camera has joined it, sent a frame past it, or stopped (no frame for
+    ``rig.stop_after`` s). Frames before their camera's camera_info, out of order or late
+    join no rig frame. Rig frames still open at the end (completed only when the node closes)
+    are in no entry.
+
+    Returns:
+        ``{(camera name, header stamp ns): number of rig frames its arrival completes}``
+        (frames completing none are left out).
+    Raises:
+        ValueError: no ``rig.cameras`` or an unknown readout direction (as
+        :func:`read_rig_frames`).
+    """
+    from ...tracking.sequence import reference_stamp_ns
+
+    frames, values, _ = read_rig_frames(bag, params_files, params)
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    window = int(round(float(values["rig.window"]) * 1e9))
+    stop = float(values["rig.stop_after"]) * 1e9
+    stamp_row = float(values["rs.stamp_row"])
+    newest: dict = {n: None for n in names}
+    last_ref: dict = {n: None for n in names}
+    stopped = {n: False for n in names}
+    first = None
+    groups: list = []  # [lo, hi, names]
+    closed = None
+    out: dict[tuple[str, int], int] = {}
+    for f in frames:
+        n = f.camera_name
+        first = f.stamp_ns if first is None else first
+        if f.camera is None:
+            newest[n] = f.stamp_ns if newest[n] is None else max(newest[n], f.stamp_ns)
+        else:
+            ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+            if last_ref[n] is not None and ref <= last_ref[n]:
+                continue  # (out of order)
+            if closed is not None and ref < closed:
+                last_ref[n] = ref  # (late)
+                continue
+            last_ref[n] = ref
+            newest[n] = ref if newest[n] is None else max(newest[n], ref)
+            stopped[n] = False
+            for g in groups:
+                if n not in g[2] and max(g[1], ref) - min(g[0], ref) <= window:
+                    g[0], g[1] = min(g[0], ref), max(g[1], ref)
+                    g[2].add(n)
+                    break
+            else:
+                groups.append([ref, ref, {n}])
+                groups.sort(key=lambda g: g[0])
+        now = max((t for t in newest.values() if t is not None), default=None)
+        for m in names:
+            last = newest[m] if newest[m] is not None else first
+            if now - last > stop:
+                stopped[m] = True
+        done = 0
+        while groups and all(
+            m in groups[0][2]
+            or stopped[m]
+            or (newest[m] is not None and newest[m] > groups[0][0] + window)
+            for m in names
+        ):
+            closed = groups.pop(0)[0]
+            done += 1
+        if done:
+            out[(n, f.stamp_ns)] = out.get((n, f.stamp_ns), 0) + done
+    return out
