@@ -197,3 +197,21 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
         R, p = pose_from_msg(m.pose)
         e = frame_errors(R, p, None, None, gt, s)
         assert e["rot_deg"] < 0.2 and e["pos_m"] < 0.01
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--rig", "5"], "--rig takes 1 to 4 cameras"),
+        (["--rig", "3", "--frontend", "features"], "no --frontend"),
+        (["--rig", "3", "--mono"], "no --mono"),
+        (["--rig", "2", "--scene", "checkerboard"], "has no markers"),
+    ],
+)
+def test_render_bag_rig_refuses_what_it_cannot_render(tmp_path, capsys, extra, message):
+    from rs_localizer.cli import main
+
+    out = tmp_path / "rig"
+    assert main(["render-bag", str(out), "--frames", "1", "--quiet", *extra]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
