@@ -27,7 +27,7 @@ import numpy as np
 from ...camera import CameraModel
 from ...geometry import rotvec_to_matrix
 from ..rig import LAYOUTS, READOUTS
-from ..rig_video import RigCameraSim, RigTrajectory
+from ..rig_video import RigCameraSim, RigTrajectory, _Mounted
 from ..trajectory import R_FORWARD
 from .motion import make_motion
 from .renderer import NoiseModel, Renderer, camera_preset
@@ -115,19 +115,6 @@ def rig_trajectory(
     times ``scale``, its camera axes turned into the rig's base frame (x forward, y left,
     z up). Raises ValueError for an unknown preset."""
     return RigTrajectory(make_motion(motion, scene, duration=duration, scale=scale))
-
-
-@dataclass(frozen=True)
-class _Mounted:
-    """The camera's optical-frame pose along the rig's trajectory (what the renderer needs)."""
-
-    rig: RigTrajectory
-    R_rig_cam: np.ndarray
-    p_rig_cam: np.ndarray
-
-    def pose(self, t):
-        R, p = self.rig.pose(t)
-        return R @ self.R_rig_cam, p + R @ self.p_rig_cam
 
 
 def render_rig_video(
