@@ -10,6 +10,7 @@ pytest.importorskip("poselib")
 from benchmarks.bench_rig_rendered import main, render, run, summary
 
 
+@pytest.mark.slow  # (renders the rigs)
 def test_rendered_rig_against_single_cameras_and_poselib(capsys):
     """3 cameras, 4 rendered rig frames turning ~1.5-2 rad/s: the rig poses every frame, its
     median rotation and position errors (against the renderer's truth) below 0.5x the best

@@ -28,6 +28,7 @@ def rendered_rig_bag(tmp_path_factory):
     return bag
 
 
+@pytest.mark.slow  # (renders the rig bag)
 def test_render_bag_rig_writes_every_camera_and_replays(rendered_rig_bag, capsys):
     from rs_localizer.cli import main
     from rs_localizer.maps.markers import load_marker_map
@@ -75,6 +76,7 @@ def test_render_bag_rig_writes_every_camera_and_replays(rendered_rig_bag, capsys
     assert s["rot_deg"] < 0.2 and s["pos_m"] < 0.01
 
 
+@pytest.mark.slow  # (renders the rig bag)
 def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
     """``read_rig_frames`` (calibrate-rig) and ``replay_rig`` read the frames through
     ``iter_rig_frames``: every correspondences message once, with its camera's model."""
@@ -137,6 +139,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     assert sum(ends.values()) >= 6 and max(ends.values()) >= 2
 
 
+@pytest.mark.slow  # (renders the rig bag)
 def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
     """``play --lockstep`` of a rendered 3-camera rig bag into the rig node: each rig frame
     answered on /rig/pose (the node's correspondences path; the images are not played to a
