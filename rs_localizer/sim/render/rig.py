@@ -27,7 +27,7 @@ import numpy as np
 from ...camera import CameraModel
 from ...geometry import rotvec_to_matrix
 from ..rig import LAYOUTS, READOUTS
-from ..rig_video import RigCameraSim, RigTrajectory, _Mounted
+from ..rig_video import MountedTrajectory, RigCameraSim, RigTrajectory
 from ..trajectory import R_FORWARD
 from .motion import make_motion
 from .renderer import NoiseModel, Renderer, camera_preset
@@ -165,7 +165,9 @@ def render_rig_video(
         for c in cameras
     ]
     mounted = [
-        _Mounted(trajectory, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float))
+        MountedTrajectory(
+            trajectory, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float)
+        )
         for c in cameras
     ]
     fes = [make_fe(c.name) for c in cameras]
