@@ -65,7 +65,7 @@ class MountedTrajectory:
     R_rig_cam: np.ndarray
     p_rig_cam: np.ndarray
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, p = self.rig.pose(t)
         return R @ self.R_rig_cam, p + R @ self.p_rig_cam
 
