@@ -183,6 +183,10 @@ def play(
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
             subscription may drop a sample) before moving on, counted in
             ``PlayResult.timeouts`` and reported through ``log``.
+            A rig bag (:func:`~rs_localizer.ros.bags.rig_bag.is_rig_bag`) waits only after the
+            camera frames that complete a rig frame
+            (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), for the rig's pose
+            (``<ns>/pose``; ``PlayResult.rig_frames`` counts them).
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``;
             the key ``__ns`` moves every other bag topic into that namespace
             (:func:`live_topic`).
