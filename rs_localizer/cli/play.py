@@ -30,7 +30,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=HELP,
         description="Publish the messages of a bag on their topics, at the bag's pace (--rate) "
         "or in lock-step (--lockstep: each frame waits for the node's pose before the next "
-        "is sent; prints the rate and latency).",
+        "is sent; prints the rate and latency). A rig bag (make-bag --rig, render-bag --rig) "
+        "publishes every camera's topics; lock-step waits for the rig's pose (e.g. /rig/pose) "
+        "after the camera frame that completes each rig frame.",
         formatter_class=A.HelpFormatter,
     )
     pl.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
@@ -48,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=None,
         help="topic(s) to wait for in lock-step (repeatable; default: the pose topic of the "
         "namespace each frame is played into, e.g. /camera/pose, or /robot/pose with "
-        "--remap /camera/image:=/robot/image)",
+        "--remap /camera/image:=/robot/image; a rig bag: the rig's, /rig/pose)",
     )
     pl.add_argument(
         "--timeout", type=A.positive_float, default=2.0, help="lock-step wait per frame (s)"
@@ -127,14 +129,20 @@ def run(args: argparse.Namespace) -> int:
     msg = f"published {res.published} messages, {len(res.frames)} frames in {res.wall_time:.2f} s"
     if args.lockstep:
         lat = res.latencies
-        msg += f"; {res.answered} answered, {res.timeouts} timed out"
+        what = ""
+        if res.rig_frames:
+            what = " rig frames"
+            msg += f" ({res.rig_frames} rig frames)"
+        msg += f"; {res.answered}{what} answered, {res.timeouts} timed out"
         if res.republished:
             msg += f" ({res.republished} sent again after no answer)"
         if len(lat):
             import numpy as np
 
+            n = res.rig_frames or len(res.frames)
             msg += (
-                f"; {len(res.frames) / max(res.wall_time, 1e-9):.1f} Hz, latency median "
+                f"; {n / max(res.wall_time, 1e-9):.1f} {'rig frames/s' if what else 'Hz'}, "
+                f"latency median "
                 f"{np.median(lat) * 1e3:.2f} ms p99 {np.percentile(lat, 99) * 1e3:.2f} ms"
             )
     print(msg)

@@ -15,12 +15,20 @@ front end's map (``markers.yaml`` for ArUco, ``feature_map.npz`` for features).
 Stamps: an image's header stamp is the capture time of its first line (``rs.stamp_row = 0``);
 the ground truth is stamped with the reference line's capture time.
 
+:func:`render_rig_bag` (``--rig N``) renders a rig of N unsynchronized rolling-shutter cameras
+(:mod:`rs_localizer.sim.render.rig`) into a rig bag
+(:func:`rs_localizer.ros.bags.rig_bag.write_rig_bag`: per camera its images, camera_info and
+the front end's correspondences, the rig's ground truth, ``rig_params.yaml``), which
+``replay``, ``play`` and ``calibrate-rig`` read like a ``make-bag --rig`` bag.
+
     rs-localizer render-bag data/sample_images --frames 20 --mono
+    rs-localizer render-bag /tmp/rig --rig 3 --frames 30
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import time
@@ -51,7 +59,7 @@ if TYPE_CHECKING:  # (for the annotations only: imported when rendering)
     from ..maps.features import FeatureMap
     from ..sim.render.scene import Scene
 
-__all__ = ["register", "render_bag", "run"]
+__all__ = ["register", "render_bag", "render_rig_bag", "run"]
 
 HELP = "render a rolling-shutter image sequence (images, correspondences, ground truth) to a bag"
 
@@ -127,6 +135,7 @@ def render_bag(
     progress: Callable[[int, int, int], Any] | None = None,
     imu_rate: float = 0.0,
     imu_topic: str = "/imu/data",
+    motion_scale: float = 1.0,
 ) -> Path:
     """Render a sequence into a ROS 2 bag directory; returns its path.
 
@@ -134,7 +143,8 @@ def render_bag(
         path: bag directory to create.
         scene: built-in scene name, YAML path or :class:`~rs_localizer.sim.render.scene.Scene`.
         motion: preset name (:data:`~rs_localizer.sim.render.motion.MOTIONS`) or a motion object
-            with ``pose(t)``/``velocity_body(t)``.
+            with ``pose(t)``/``velocity_body(t)``; motion_scale: a preset's rotation
+            amplitudes times this.
         frames, fps: sequence length; frame ``k``'s first line is read at ``k / fps``.
         camera: preset name (``vga``, ``hd``) or a :class:`CameraModel`.
         frontend: ``aruco``, ``features``, ``none``/None, or an object with
@@ -176,7 +186,11 @@ def render_bag(
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     cam = camera if isinstance(camera, CameraModel) else camera_preset(str(camera))
     duration = frames / fps
-    mot = make_motion(motion, sc, duration=duration) if isinstance(motion, str) else motion
+    mot = (
+        make_motion(motion, sc, duration=duration, scale=motion_scale)
+        if isinstance(motion, str)
+        else motion
+    )
     renderer = Renderer(
         sc, cam, supersample=supersample, exposure=exposure, noise=NoiseModel() if noise else None
     )
@@ -294,6 +308,127 @@ def render_bag(
     return path
 
 
+def render_rig_bag(
+    path: str | os.PathLike,
+    cameras: int = 3,
+    scene: str | os.PathLike | Scene = "apriltag_rig_room",
+    motion: str = "pan",
+    frames: int = 30,
+    *,
+    fps: float = 30.0,
+    motion_scale: float = 1.0,
+    noise: bool = True,
+    supersample: int = 2,
+    seed: int = 0,
+    start_time: float = 1_700_000_000.0,
+    namespace: str = "/rig",
+    map_frame: str = "map",
+    storage: str = "mcap",
+    compress: bool = True,
+    overwrite: bool = False,
+    progress: Callable[[int, int, int], Any] | None = None,
+) -> Path:
+    """Render a rig of ``cameras`` (1-4) rolling-shutter cameras into a rig bag; returns its
+    path.
+
+    The rig (:func:`rs_localizer.sim.render.rig.rendered_rig`: 640x480 cameras front, back and
+    to the sides, readout times 20-30 ms, four readout directions, first frames 0-9 ms apart)
+    moves along the renderer's ``motion`` preset around ``scene``'s viewpoint (rotation
+    amplitudes times ``motion_scale``: ``pan`` turns up to 1.4 rad/s at 1, 2.1 rad/s at 1.5).
+    Each camera renders ``frames`` images at ``fps``; the marker front end
+    (:class:`~rs_localizer.frontends.ArucoFrontend` of the scene's markers: AprilTag or ArUco
+    by the scene's dictionary) turns each image into correspondences. Written: per camera
+    ``<ns>/<camera>/image_raw`` (rgb8), ``camera_info`` and ``correspondences`` (u, v, x, y,
+    z, id = 4 * marker id + corner), the rig's ground truth, ``sequence.json`` (the ``rig``
+    entry: mountings, RS timing; ``settings``: the render's CPU time per camera frame),
+    ``rig_params.yaml`` (the node's parameters) and ``markers.yaml`` (the front end's map).
+
+    Args:
+        path: bag directory. scene: built-in name, YAML path or
+            :class:`~rs_localizer.sim.render.scene.Scene` with markers (default: the closed
+            ``apriltag_rig_room``). progress: callable ``(k, total, n_correspondences)`` per
+            camera frame or None. Others as :func:`render_bag`.
+    Raises:
+        FileExistsError: ``path`` exists and not ``overwrite``. ValueError: bad arguments
+        (cameras outside 1-4, a scene without markers, an unknown motion or storage).
+    """
+    from ..maps.markers import write_marker_map
+    from ..ros.bags.rig_bag import write_rig_bag
+    from ..sim.render.rig import render_rig_video, rendered_rig, rig_trajectory
+    from ..sim.render.scene import Scene, load_scene
+
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists (use overwrite)")
+    if storage not in ("mcap", "sqlite3"):
+        raise ValueError(f"unknown storage {storage!r}; use mcap or sqlite3")
+    if frames < 1:
+        raise ValueError("frames must be >= 1")
+    sc = scene if isinstance(scene, Scene) else load_scene(scene)
+    if not sc.markers:
+        raise ValueError(f"scene {sc.name!r} has no markers: a rendered rig needs a marker scene")
+    rig = rendered_rig(cameras, fps)
+    duration = max(c.offset for c in rig) + frames / fps
+    traj = rig_trajectory(motion, sc, duration, scale=motion_scale)
+    t0_ns = int(round(start_time * 1e9))
+    total = frames * len(rig)
+    stats: dict = {"render_s": [], "frontend_s": [], "n": {c.name: [] for c in rig}}
+
+    def frames_iter():
+        for k, f in enumerate(
+            render_rig_video(
+                rig, sc, traj, frames, t0_ns=t0_ns, supersample=supersample, noise=noise,
+                seed=seed,
+            )
+        ):  # fmt: skip
+            stats["render_s"].append(f.render_s)
+            stats["frontend_s"].append(f.frontend_s)
+            stats["n"][f.name].append(len(f.uv))
+            if progress:
+                progress(k, total, len(f.uv))
+            yield f
+
+    settings = {
+        "scene": sc.name,
+        "motion": motion,
+        "motion_scale": motion_scale,
+        "fps": fps,
+        "encoding": "rgb8",
+        "noise": bool(noise),
+        "supersample": supersample,
+        "seed": seed,
+        "start_time": start_time,
+    }
+    out = write_rig_bag(
+        path,
+        frames_iter(),
+        rig,
+        traj,
+        t0_ns=t0_ns,
+        namespace=namespace,
+        map_frame=map_frame,
+        storage=storage,
+        overwrite=overwrite,
+        settings=settings,
+        generator="rs-localizer render-bag --rig",
+        compress=compress,
+        extra={"frontend": {"kind": "aruco", "map": "markers.yaml", "dictionary": sc.dictionary}},
+    )
+    write_marker_map(out / "markers.yaml", sc.dictionary, sc.marker_corners(), scene=sc.name)
+    meta = json.loads((out / "sequence.json").read_text())
+    meta["settings"].update(
+        {
+            "correspondences_per_frame": {
+                n: round(float(np.mean(v)), 1) for n, v in stats["n"].items()
+            },
+            "render_cpu_ms_per_frame": round(1e3 * float(np.median(stats["render_s"])), 1),
+            "frontend_cpu_ms_per_frame": round(1e3 * float(np.median(stats["frontend_s"])), 1),
+        }
+    )
+    (out / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return out
+
+
 # ------------------------------------------------------------------------------ CLI
 def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``render-bag`` subcommand to ``sub`` (``func`` = :func:`run`)."""
@@ -311,11 +446,34 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("out", help="bag directory to write")
     p.add_argument(
         "--scene",
-        default="aruco_room",
+        default=None,
         help=f"built-in scene ({', '.join(scene_names())}) or a scene YAML (format: "
-        "docs/images.md#scene-files)",
+        "docs/images.md#scene-files); default aruco_room, with --rig apriltag_rig_room",
     )
-    p.add_argument("--motion", default="shake", choices=motion_names(), help="camera motion preset")
+    p.add_argument(
+        "--motion",
+        default=None,
+        choices=motion_names(),
+        help="camera motion preset; default shake, with --rig pan (the rig turning)",
+    )
+    p.add_argument(
+        "--motion-scale",
+        type=A.nonneg_float,
+        default=1.0,
+        help="scale of the motion's rotation amplitudes (pan: 1 turns up to 1.4 rad/s, "
+        "1.5 up to 2.1 rad/s)",
+    )
+    p.add_argument(
+        "--rig",
+        type=A.positive_int,
+        default=None,
+        metavar="N",
+        help="a rig bag instead: N (1-4) unsynchronized 640x480 rolling-shutter cameras "
+        "(2: front, back; 3: front, left, right; 4: front, right, back, left; readout 20-30 ms "
+        "in four directions, first frames 0-9 ms apart) on one body, --frames per camera, "
+        "topics /rig/<camera>/image_raw, camera_info and correspondences (the marker front "
+        "end), the rig's ground truth and BAG/rig_params.yaml (docs/rig_node.md)",
+    )
     p.add_argument("--frames", type=A.positive_int, default=30, help="frames to render")
     p.add_argument("--fps", type=A.positive_float, default=30.0, help="frame rate (Hz)")
     p.add_argument(
@@ -384,8 +542,11 @@ def run(a: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     A.output_dir(a.out, a.overwrite, "bag directory")
-    if Path(a.scene).suffix in (".yaml", ".yml"):
+    if a.scene is not None and Path(a.scene).suffix in (".yaml", ".yml"):
         A.yaml_file(a.scene, "scene YAML")
+    if a.rig is not None:
+        return _run_rig(a)
+    a.scene = a.scene or "aruco_room"
     if a.feature_map is not None:
         A.input_file(a.feature_map, "feature map (.npz)")
     bar = tqdm(total=a.frames, desc="rendering", unit="frame", disable=a.quiet)
@@ -398,7 +559,7 @@ def run(a: argparse.Namespace) -> int:
         path = render_bag(
             a.out,
             a.scene,
-            a.motion,
+            a.motion or "shake",
             a.frames,
             camera=a.camera,
             fps=a.fps,
@@ -417,9 +578,64 @@ def run(a: argparse.Namespace) -> int:
             progress=prog,
             imu_rate=a.imu_rate,
             imu_topic=a.imu_topic,
+            motion_scale=a.motion_scale,
         )
     finally:
         bar.close()
     size = sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
     print(f"wrote {path} ({size / 1e6:.1f} MB)")
+    return 0
+
+
+def _run_rig(a: argparse.Namespace) -> int:
+    """``render-bag --rig N`` (:func:`render_rig_bag`)."""
+    from tqdm import tqdm
+
+    if not 1 <= a.rig <= 4:
+        raise A.CliError(f"--rig takes 1 to 4 cameras, got {a.rig}")
+    if a.frontend != "aruco" or a.feature_map is not None:
+        raise A.CliError("--rig writes the marker front end's correspondences: no --frontend")
+    if a.mono or a.global_shutter or a.exposure > 0 or a.imu_rate > 0 or a.camera != "vga":
+        raise A.CliError(
+            "--rig renders rgb8 640x480 rolling-shutter cameras without blur or IMU: "
+            "no --mono, --global-shutter, --exposure, --imu-rate or --camera"
+        )
+    bar = tqdm(total=a.rig * a.frames, desc="rendering", unit="frame", disable=a.quiet)
+
+    def prog(k, n, nc):
+        bar.update(1)
+        bar.set_postfix(correspondences=nc, refresh=False)
+
+    try:
+        path = render_rig_bag(
+            a.out,
+            a.rig,
+            a.scene or "apriltag_rig_room",
+            a.motion or "pan",
+            a.frames,
+            fps=a.fps,
+            motion_scale=a.motion_scale,
+            noise=not a.no_noise,
+            supersample=a.supersample,
+            seed=a.seed,
+            start_time=a.start_time,
+            storage=a.storage,
+            compress=not a.no_compression,
+            overwrite=a.overwrite,
+            progress=prog,
+        )
+    except ValueError as e:
+        raise A.CliError(str(e)) from None
+    finally:
+        bar.close()
+    meta = json.loads((Path(path) / "sequence.json").read_text())
+    st = meta["settings"]
+    per = ", ".join(f"{n} {v:g}" for n, v in st["correspondences_per_frame"].items())
+    size = sum(f.stat().st_size for f in Path(path).rglob("*") if f.is_file())
+    print(
+        f"wrote {path} ({size / 1e6:.1f} MB): a rig of {a.rig} cameras, {meta['frames']} "
+        f"camera frames; correspondences per frame: {per}; CPU per camera frame: render "
+        f"{st['render_cpu_ms_per_frame']:g} ms, front end {st['frontend_cpu_ms_per_frame']:g} "
+        f"ms; node parameters: {Path(path) / 'rig_params.yaml'}"
+    )
     return 0

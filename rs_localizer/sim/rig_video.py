@@ -23,6 +23,7 @@ from ..geometry import rotvec_to_matrix
 from .trajectory import R_FORWARD, Scene, Trajectory, default_camera, make_scene, project_rs
 
 __all__ = [
+    "MountedTrajectory",
     "RigCameraSim",
     "RigFrameSim",
     "RigTrajectory",
@@ -55,14 +56,16 @@ class RigTrajectory:
 
 
 @dataclass(frozen=True)
-class _Mounted:
-    """A camera's trajectory: the rig's with the camera's mounting."""
+class MountedTrajectory:
+    """A camera's trajectory: the rig's (``rig``) with the camera's mounting (``R_rig_cam``
+    (3, 3) optical frame -> rig, ``p_rig_cam`` (3,) m); ``pose(t)``: (orientation (..., 3, 3)
+    camera -> world, position (..., 3) m) at rig time(s) ``t`` (s)."""
 
     rig: RigTrajectory
     R_rig_cam: np.ndarray
     p_rig_cam: np.ndarray
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, p = self.rig.pose(t)
         return R @ self.R_rig_cam, p + R @ self.p_rig_cam
 
@@ -182,7 +185,9 @@ def generate_rig_video(
     frames = []
     for rc in cameras:
         cam = rc.camera
-        mounted = _Mounted(trajectory, np.asarray(rc.R_rig_cam, float), np.asarray(rc.p_rig_cam))
+        mounted = MountedTrajectory(
+            trajectory, np.asarray(rc.R_rig_cam, float), np.asarray(rc.p_rig_cam)
+        )
         lim = np.array([cam.width, cam.height]) / np.diag(cam.K)[:2]
         k = 0
         while True:

@@ -5,7 +5,13 @@ Images (``sensor_msgs/Image``, ``CompressedImage``) go out with the sensor-data 
 drivers use (best effort), the other topics reliable by default. When a camera namespace has
 frames on several topics (``make-bag`` writes ``correspondences`` and ``keypoints`` of the same
 frames; a rendered bag may add the image), only one of them is played, the one the node can use
-(:func:`choose_frame_topics`), unless ``topics`` names them."""
+(:func:`choose_frame_topics`), unless ``topics`` names them.
+
+A rig bag (``make-bag --rig``, ``render-bag --rig``: cameras ``<ns>/<camera>/...``) is played
+the same way, every camera's topics in log-time order; in lock-step the player waits for the
+rig's ``<ns>/pose`` after each camera frame that completes a rig frame in the rig mode
+(:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), and sends the other cameras' frames
+without waiting."""
 
 from __future__ import annotations
 
@@ -63,6 +69,8 @@ class PlayResult:
     skipped_topics: list = field(default_factory=list)
     #: lock-step: why playing stopped before the end (no node answered), else ""
     gave_up: str = ""
+    #: a rig bag: frames after which lock-step waited (the rig frames completed), else 0
+    rig_frames: int = 0
 
     @property
     def latencies(self) -> np.ndarray:
@@ -99,11 +107,13 @@ def live_topic(topic: str, remap: Mapping[str, str]) -> str:
     return f"{ns}{topic}" if ns else topic
 
 
-def pose_topic_of(frame_topic: str, remap: Mapping[str, str]) -> str:
+def pose_topic_of(frame_topic: str, remap: Mapping[str, str], rig: bool = False) -> str:
     """The node's pose topic answering a bag frame topic: ``pose`` in the namespace the frame
     is published into (``/camera/image_raw`` remapped to ``/robot/cam/image_raw`` ->
-    ``/robot/cam/pose``)."""
-    return f"{_parent(live_topic(frame_topic, remap))}/pose"
+    ``/robot/cam/pose``); ``rig``: in the namespace above the camera's (the rig node's:
+    ``/rig/front/correspondences`` -> ``/rig/pose``)."""
+    parent = _parent(live_topic(frame_topic, remap))
+    return f"{_parent(parent) if rig else parent}/pose"
 
 
 def choose_frame_topics(frame_topics: dict, subscribed: set) -> tuple[list, list]:
@@ -173,6 +183,10 @@ def play(
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
             subscription may drop a sample) before moving on, counted in
             ``PlayResult.timeouts`` and reported through ``log``.
+            A rig bag (:func:`~rs_localizer.ros.bags.rig_bag.is_rig_bag`) waits only after the
+            camera frames that complete a rig frame
+            (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), for the rig's pose
+            (``<ns>/pose``; ``PlayResult.rig_frames`` counts them).
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``;
             the key ``__ns`` moves every other bag topic into that namespace
             (:func:`live_topic`).
@@ -214,6 +228,14 @@ def play(
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
+    from .rig_bag import is_rig_bag
+
+    rig_waits = None
+    if lockstep and is_rig_bag(path):  # (before any ROS: a bag it cannot group raises)
+        from .rig_bag import rig_frame_ends, rig_namespace
+
+        ns = rig_namespace(path)
+        rig_waits = {(f"{ns}/{n}", st): k for (n, st), k in rig_frame_ends(path).items()}
     own_context = context is None
     if own_context:
         context = rclpy.Context()
@@ -237,11 +259,13 @@ def play(
         s = _Session(node, executor, remap, types, reliable, result, log)
         late = set(late_topics or ())
         frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
-        if output_topics is None:  # each frame waits for its own namespace's pose
-            waited = {t: [pose_topic_of(t, remap)] for t in frame_topics}
+        if output_topics is None:  # each frame waits for its own namespace's (or rig's) pose
+            rig = rig_waits is not None
+            waited = {t: [pose_topic_of(t, remap, rig)] for t in frame_topics}
             output_topics = sorted({p for ps in waited.values() for p in ps})
         else:
             waited = {t: [o for o in output_topics if o not in late] for t in frame_topics}
+        s.rig_waits = rig_waits
         if lockstep:
             s.subscribe_outputs(output_topics, late)
         choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
@@ -354,6 +378,8 @@ class _Session:
         self.outputs: dict[str, Any] = {}
         self.pending: dict[str, dict | None] = {"frame": None}
         self.reliable_images: set[str] = set()
+        #: a rig bag in lock-step: {(camera namespace, header stamp): rig frames completed}
+        self.rig_waits: dict | None = None
 
     def subscribe_outputs(self, output_topics: Sequence[str], late: set[str]) -> None:
         """Lock-step: subscribe to every output topic; a message goes to the frame being
@@ -456,8 +482,15 @@ class _Session:
         before the first frame three times (not the IMU: a sample sent twice is rejected as
         not increasing)."""
         first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
+        early = list(msgs[:first])
+        if self.rig_waits is not None:  # (a rig: every camera's first camera_info too)
+            seen = {m[0] for m in early}
+            for m in msgs[first:]:
+                if m[1] == CAMERA_INFO and m[0] not in seen:
+                    seen.add(m[0])
+                    early.append(m)
         for _ in range(3):
-            for topic, msgtype, _, raw in msgs[:first]:
+            for topic, msgtype, _, raw in early:
                 if msgtype == IMU:
                     continue
                 self.pubs[topic].publish(_shift_stamp(raw, msgtype, stamp_offset_ns))
@@ -519,13 +552,16 @@ class _Session:
         t_first = min(m[2] for m in msgs)
         duration = max(m[2] for m in msgs) - t_first + 1
         wall0 = time.perf_counter()
-        n_frames = 0
+        n_frames = n_waited = 0
         last_pub = {}
         if lockstep:
             self._prime(msgs, stamp_offset_ns)
         for rep in range(max(int(loop), 1)):
             shift = rep * (duration + 33_000_000) + stamp_offset_ns
             for topic, msgtype, t_ns, raw in msgs:
+                wait = lockstep
+                if lockstep and self.rig_waits is not None and is_frame_topic(topic, msgtype):
+                    wait = self.rig_waits.get((_parent(topic), _header_stamp(raw)), 0) > 0
                 if shift:
                     raw = _shift_stamp(raw, msgtype, shift)
                 if not lockstep and rate > 0:
@@ -548,16 +584,18 @@ class _Session:
                     "stamp": _header_stamp(raw),
                     "t_pub": time.perf_counter(),
                     "outputs": {},
-                    "expected": len(waited[topic]) if lockstep else 0,
+                    "expected": len(waited[topic]) if wait else 0,
                 }
                 result.frames.append(frame)
-                if lockstep:
+                if wait:
+                    n_waited += 1
+                    result.rig_frames += self.rig_waits is not None
                     self._await_outputs(frame, waited[topic], last_pub, timeout, retries)
                 if on_frame is not None:
                     on_frame(frame)
-                if lockstep and give_up > 0 and result.answered == 0 and n_frames >= give_up:
+                if wait and give_up > 0 and result.answered == 0 and n_waited >= give_up:
                     result.gave_up = _no_answer_message(
-                        self.node, waited[topic], f"to the first {n_frames} frames"
+                        self.node, waited[topic], f"to the first {n_waited} frames"
                     )
                     self.log(f"error: {result.gave_up}")
                 if result.gave_up or (limit is not None and n_frames >= limit):

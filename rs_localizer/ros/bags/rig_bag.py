@@ -3,7 +3,8 @@ rig video, replayed offline through the rig mode's :class:`~rs_localizer.trackin
 RigLocalizer` with the node's parameters.
 
 A rig bag holds, per camera ``<c>``, ``<ns>/<c>/camera_info`` and ``<ns>/<c>/correspondences``
-(u, v, x, y, z, id), each stamped with the camera's own capture time of ``stamp_row``, the
+(u, v, x, y, z, id) and, from ``render-bag --rig``, ``<ns>/<c>/image_raw`` (rgb8), each
+stamped with the camera's own capture time of ``stamp_row``, the
 rig's ground truth ``/ground_truth/pose`` (``base_frame`` in ``map``) and
 ``/ground_truth/twist`` (rig frame) at every camera frame's reference-row time, a
 ``sequence.json`` whose ``rig`` entry lists the cameras (name, mounting, RS timing), and
@@ -16,10 +17,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -37,6 +38,7 @@ from .bag_io import (
     CAMERA_INFO,
     GT_POSE,
     GT_TWIST,
+    IMAGE,
     PC2,
     POSE,
     TWIST,
@@ -48,11 +50,17 @@ from .bag_io import (
     typestore,
 )
 
+if TYPE_CHECKING:
+    from ...tracking.rig import RigCameraFrame
+
 __all__ = [
     "RigReplay",
+    "RigTopics",
     "is_rig_bag",
+    "iter_rig_frames",
     "read_rig_frames",
     "replay_rig",
+    "rig_namespace",
     "rig_parameter_values",
     "write_rig_bag",
 ]
@@ -77,23 +85,39 @@ def write_rig_bag(
     storage: str = "mcap",
     overwrite: bool = False,
     settings: dict | None = None,
+    generator: str = "rs-localizer make-bag --rig",
+    compress: bool = False,
+    extra: dict | None = None,
 ) -> Path:
-    """Write a simulated rig video (:func:`rs_localizer.sim.rig_video.generate_rig_video`:
-    ``frames``, ``cameras``, ``trajectory``; rig time 0 at ``t0_ns``) as a rig bag (module
-    docstring); returns its path. Log times: camera_info at stamp + 1 ms, the cloud and the
-    ground truth at stamp + 2 ms.
+    """Write a simulated rig video as a rig bag (module docstring); returns its path.
+
+    Args:
+        frames: camera frames in stamp order, each with ``name``, ``stamp_ns``, ``t_ref_ns``,
+            ``uv`` (N, 2) px, ``xyz`` (N, 3) m, optionally ``ids`` (N,) (default 0..N-1) and
+            ``image`` ((H, W, 3) uint8 RGB: then ``<ns>/<c>/image_raw`` is written too):
+            :func:`rs_localizer.sim.rig_video.generate_rig_video`,
+            :func:`rs_localizer.sim.render.rig.render_rig_video`; an iterator is consumed
+            as it is written.
+        cameras: the rig's cameras (``name``, ``camera``, ``R_rig_cam``, ``p_rig_cam``,
+            ``offset``, ``fps``). trajectory: the rig's motion (``pose(t)``,
+            ``velocity_body(t)``; rig time 0 at ``t0_ns``).
+        generator, settings, extra: recorded in ``sequence.json`` (``extra``: further
+            top-level entries, e.g. the front end). compress: zstd (mcap chunks, sqlite3
+            messages).
+
+    Log times: camera_info at stamp + 1 ms, the image, the cloud and the ground truth at
+    stamp + 2 ms.
 
     Raises:
         FileExistsError: ``path`` exists and not ``overwrite``.
     """
-    from rosbags.rosbag2 import Writer
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, Writer
 
     path = Path(path)
     if path.exists():
         if not overwrite:
             raise FileExistsError(f"{path} exists (use --overwrite)")
         shutil.rmtree(path)
-    frames = list(frames)
     ns = namespace.rstrip("/")
     M = RosbagsMessages()
     topics = {}
@@ -101,7 +125,14 @@ def write_rig_bag(
         topics[f"{c.name}/camera_info"] = f"{ns}/{c.name}/camera_info"
         topics[f"{c.name}/correspondences"] = f"{ns}/{c.name}/correspondences"
     by = {c.name: c for c in cameras}
-    with Writer(path, version=9, storage_plugin=storage_plugin(storage)) as w:
+    writer = Writer(path, version=9, storage_plugin=storage_plugin(storage))
+    if compress:
+        writer.set_compression(
+            CompressionMode.STORAGE if storage == "mcap" else CompressionMode.MESSAGE,
+            CompressionFormat.ZSTD,
+        )
+    n_frames = 0
+    with writer as w:
         conns = {}
         for c in cameras:
             conns[f"{c.name}/camera_info"] = w.add_connection(
@@ -114,15 +145,24 @@ def write_rig_bag(
         gt_twist = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
         written = set()
         for f in frames:
+            n_frames += 1
             cam = by[f.name]
             frame_id = f"{f.name}_optical_frame"
             info = M.camera_info(cam.camera, f.stamp_ns, frame_id)
             w.write(
                 conns[f"{f.name}/camera_info"], f.stamp_ns + 1_000_000, M.cdr(info, CAMERA_INFO)
             )
-            ids = np.arange(len(f.uv), dtype=np.uint32)
-            cloud = M.cloud(f.uv, f.xyz, ids, f.stamp_ns, frame_id)
             t_log = f.stamp_ns + 2_000_000
+            image = getattr(f, "image", None)
+            if image is not None:
+                key = f"{f.name}/image_raw"
+                if key not in conns:
+                    topics[key] = f"{ns}/{f.name}/image_raw"
+                    conns[key] = w.add_connection(topics[key], IMAGE, typestore=M.ts)
+                w.write(conns[key], t_log, M.cdr(M.image(image, f.stamp_ns, frame_id), IMAGE))
+            ids = getattr(f, "ids", None)
+            ids = np.arange(len(f.uv), dtype=np.uint32) if ids is None else ids.astype(np.uint32)
+            cloud = M.cloud(f.uv, f.xyz, ids, f.stamp_ns, frame_id)
             w.write(conns[f"{f.name}/correspondences"], t_log, M.cdr(cloud, PC2))
             if f.t_ref_ns in written:
                 continue
@@ -148,13 +188,14 @@ def write_rig_bag(
         ],
     }
     meta = {
-        "generator": "rs-localizer make-bag --rig",
+        "generator": generator,
         "topics": {**topics, "gt_pose": GT_POSE, "gt_twist": GT_TWIST},
-        "frames": len(frames),
+        "frames": n_frames,
         "map_frame": map_frame,
         "rs": {"stamp_row": float(stamp_row)},
         "rig": rig,
         "settings": settings or {},
+        **(extra or {}),
     }
     (path / "sequence.json").write_text(json.dumps(meta, indent=2) + "\n")
     (path / "rig_params.yaml").write_text(_params_yaml(rig, stamp_row))
@@ -257,37 +298,16 @@ def replay_rig(
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
             no ``rig.cameras``).
     """
-    from ...tracking.rig import RigCameraFrame, RigLocalizer
+    from ...tracking.rig import RigLocalizer
 
     values, cams = rig_parameter_values(bag, params_files, params)
     cfg = rig_config(values, cams)
-    info = read_bag_info(bag)
-    ns = str(info.get("rig", {}).get("namespace", "/rig")).rstrip("/")
-    topics = {}
-    for c in cfg.cameras:
-        topics[f"{ns}/{c.name}/camera_info"] = ("info", c)
-        topics[f"{ns}/{c.name}/correspondences"] = ("cloud", c)
+    timing = {c.name: (c.line_delay, c.readout_time, c.direction, cfg.reference_row)
+              for c in cfg.cameras}  # fmt: skip
     rig = RigLocalizer(cfg.settings)
-    models = {c.name: None for c in cfg.cameras}
-    ts = typestore()
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
-    for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
-        kind, c = topics[topic]
-        msg = ts.deserialize_cdr(raw, msgtype)
-        if kind == "info":
-            try:
-                models[c.name] = cv.camera_model_from_camera_info(
-                    msg, c.line_delay, c.readout_time, c.direction, cfg.reference_row
-                )
-            except ValueError:
-                continue
-            continue
-        try:
-            corr = read_correspondences(msg)
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError:
-            continue
-        outs = rig.add(RigCameraFrame(c.name, stamp, models[c.name], corr.pixels, corr.points))
+    for frame in iter_rig_frames(bag, timing):
+        outs = rig.add(frame)
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
         if progress is not None and outs:
@@ -307,8 +327,9 @@ def replay_rig(
             if e is not None:
                 res.errors.append(e)
     for f in res.fused:
-        e = frame_errors(f.orientation, f.position, f.angular_velocity, f.linear_velocity, gt,
-                         f.stamp_ns)  # fmt: skip
+        q = f.pose
+        e = frame_errors(q.orientation, q.position, q.angular_velocity, q.linear_velocity, gt,
+                         q.stamp_ns)  # fmt: skip
         if e is not None:
             res.fused_errors.append(e)
     return res
@@ -339,7 +360,6 @@ def read_rig_frames(
         ValueError: no ``rig.cameras``, or an unknown readout direction.
     """
     from ...camera import READOUT_DIRECTIONS
-    from ...tracking.rig import RigCameraFrame
 
     values, cams = rig_parameter_values(bag, params_files, params)
     names = [str(n).strip() for n in values["rig.cameras"]]
@@ -359,15 +379,52 @@ def read_rig_frames(
             d,
             None if ref < 0 else ref,
         )
-    info = read_bag_info(bag)
-    ns = str(info.get("rig", {}).get("namespace", "/rig")).rstrip("/")
-    topics = {}
-    for n in names:
-        topics[f"{ns}/{n}/camera_info"] = ("info", n)
-        topics[f"{ns}/{n}/correspondences"] = ("cloud", n)
-    models: dict = {n: None for n in names}
+    return list(iter_rig_frames(bag, timing)), values, cams
+
+
+def rig_namespace(bag: str | os.PathLike) -> str:
+    """The namespace of a rig bag's camera topics (``sequence.json``'s ``rig.namespace``,
+    default ``/rig``), without a trailing slash."""
+    return str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
+
+
+@dataclass(frozen=True)
+class RigTopics:
+    """A rig bag's topics of the cameras ``names``: ``<namespace>/<camera>/camera_info``,
+    ``.../correspondences`` and ``.../image_raw`` (:meth:`of`: topic -> ``(kind, camera)``,
+    kind ``info``, ``cloud`` or ``image``)."""
+
+    namespace: str
+    names: tuple
+
+    def topic(self, name: str, kind: str) -> str:
+        """The topic of camera ``name``'s ``kind`` (``info``, ``cloud``, ``image``)."""
+        leaf = {"info": "camera_info", "cloud": "correspondences", "image": "image_raw"}[kind]
+        return f"{self.namespace}/{name}/{leaf}"
+
+    def of(self, kinds: Iterable[str] = ("info", "cloud")) -> dict[str, tuple[str, str]]:
+        return {self.topic(n, k): (k, n) for n in self.names for k in kinds}
+
+
+def iter_rig_frames(
+    bag: str | os.PathLike, timing: Mapping[str, tuple]
+) -> Iterator[RigCameraFrame]:
+    """The one reader of a rig bag's camera frames: every camera of ``timing`` (name ->
+    ``(line_delay s/line, readout_time s, direction, reference_row px or None)``, the RS timing
+    its camera_info's model gets), in log-time order, from ``<namespace>/<camera>/
+    correspondences``, each with the model of that camera's latest camera_info (None before
+    one); a camera_info whose model fails is skipped (the camera keeps its last model), a
+    cloud without the x, y, z / u, v fields or with an invalid stamp is skipped.
+
+    Yields:
+        :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
+        pixels (N, 2) px, points (N, 3) m).
+    """
+    from ...tracking.rig import RigCameraFrame
+
+    topics = RigTopics(rig_namespace(bag), tuple(timing)).of()
+    models: dict = {n: None for n in timing}
     ts = typestore()
-    frames = []
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
         kind, n = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
@@ -382,5 +439,84 @@ def read_rig_frames(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError:
             continue
-        frames.append(RigCameraFrame(n, stamp, models[n], corr.pixels, corr.points))
-    return frames, values, cams
+        yield RigCameraFrame(n, stamp, models[n], corr.pixels, corr.points)
+
+
+def rig_frame_ends(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> dict[tuple[str, int], int]:
+    """Which camera frames of a rig bag complete a rig frame when played in log-time order
+    into the rig mode (what ``play --lockstep`` waits after).
+
+    The frames (:func:`iter_rig_frames`, the cameras and timing of
+    :func:`rig_parameter_values`) are grouped as
+    :meth:`~rs_localizer.tracking.rig.RigLocalizer.add` groups them: by reference-line time,
+    one frame per camera within ``rig.window`` of the rig frame's earliest; a rig frame is
+    complete once every camera has joined it, sent a frame past it, or stopped (no frame for
+    ``rig.stop_after`` s). Frames before their camera's camera_info, out of order or late
+    join no rig frame. Rig frames still open at the end (completed only when the node closes)
+    are in no entry.
+
+    Returns:
+        ``{(camera name, header stamp ns): number of rig frames its arrival completes}``
+        (frames completing none are left out).
+    Raises:
+        ValueError: no ``rig.cameras`` or an unknown readout direction (as
+        :func:`read_rig_frames`).
+    """
+    from ...tracking.sequence import reference_stamp_ns
+
+    frames, values, _ = read_rig_frames(bag, params_files, params)
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    window = int(round(float(values["rig.window"]) * 1e9))
+    stop = float(values["rig.stop_after"]) * 1e9
+    stamp_row = float(values["rs.stamp_row"])
+    newest: dict = {n: None for n in names}
+    last_ref: dict = {n: None for n in names}
+    stopped = {n: False for n in names}
+    first = None
+    groups: list = []  # [lo, hi, names]
+    closed = None
+    out: dict[tuple[str, int], int] = {}
+    for f in frames:
+        n = f.camera_name
+        first = f.stamp_ns if first is None else first
+        if f.camera is None:
+            newest[n] = f.stamp_ns if newest[n] is None else max(newest[n], f.stamp_ns)
+        else:
+            ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+            if last_ref[n] is not None and ref <= last_ref[n]:
+                continue  # (out of order)
+            if closed is not None and ref < closed:
+                last_ref[n] = ref  # (late)
+                continue
+            last_ref[n] = ref
+            newest[n] = ref if newest[n] is None else max(newest[n], ref)
+            stopped[n] = False
+            for g in groups:
+                if n not in g[2] and max(g[1], ref) - min(g[0], ref) <= window:
+                    g[0], g[1] = min(g[0], ref), max(g[1], ref)
+                    g[2].add(n)
+                    break
+            else:
+                groups.append([ref, ref, {n}])
+                groups.sort(key=lambda g: g[0])
+        now = max((t for t in newest.values() if t is not None), default=None)
+        for m in names:
+            last = newest[m] if newest[m] is not None else first
+            if now - last > stop:
+                stopped[m] = True
+        done = 0
+        while groups and all(
+            m in groups[0][2]
+            or stopped[m]
+            or (newest[m] is not None and newest[m] > groups[0][0] + window)
+            for m in names
+        ):
+            closed = groups.pop(0)[0]
+            done += 1
+        if done:
+            out[(n, f.stamp_ns)] = out.get((n, f.stamp_ns), 0) + done
+    return out
