@@ -92,6 +92,7 @@ from .sensitivity import output_jacobian
 __all__ = [
     "FINAL_CUTOFF",
     "LO_ROUNDS",
+    "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
     "RigPoseEstimate",
@@ -120,6 +121,9 @@ RIG_FAILURE_REASONS = {
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
 #: cost 2.3 ms of 10 per frame: the final refinement converges from the first
 LO_ROUNDS = 1
+
+#: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
+PRE_ROTATIONS = ("p3p", "gp3p")
 
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
@@ -600,9 +604,11 @@ def _hypotheses(
     anchor=None,
     prior: _GyroPrior | None = None,
     threshold_px: float = 2.0,
+    p3p=None,
 ):
     """Models (R, C, w, t) of the samples: P3P in the sample's first camera, mapped to the
-    rig, pre-rotates the rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
+    rig (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`), pre-rotates the
+    rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
     every sample instead, an initial model's or the best model's; ``(R, C)``); ``bounds``
     ``(w_max rad/s, v_max m/s)`` or None: models moving faster are dropped
     (:func:`~.plausibility.plausible_motion` with one second per unit of tau); ``prior``: a
@@ -614,10 +620,10 @@ def _hypotheses(
         C0 = np.broadcast_to(np.asarray(anchor[1], dtype=float), (len(samples), 3))
         S = samples
     else:
-        p3p = _p3p_on_rig(pool, samples)
-        if p3p is None:
+        pre = (p3p or _p3p_on_rig)(pool, samples)
+        if pre is None:
             return None
-        R0, C0, own = p3p
+        R0, C0, own = pre
         S = samples[own]
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
     rows = None
@@ -634,16 +640,54 @@ def _hypotheses(
     return R, b.C[ok], b.w[ok], b.t[ok]
 
 
-def _hypotheses_still(pool: _Pool, samples: np.ndarray):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
-    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``.
-    Returns arrays of H models, or None."""
-    p3p = _p3p_on_rig(pool, samples)
+    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``
+    (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). Returns arrays of H
+    models, or None."""
+    p3p = (p3p or _p3p_on_rig)(pool, samples)
     if p3p is None:
         return None
     R, C, own = p3p
     z = np.zeros((len(own), 3))
     return R, C, z, z.copy()
+
+
+def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
+    """n_samples samples of 6 distinct pool indices drawn uniformly (``subset``: among those
+    sorted pool indices, at least 6): the samples of the generalized P3P pre-rotation, whose
+    first 3 points may lie in any cameras. Returns (S, 6)."""
+    n = len(pool.cam) if subset is None else len(subset)
+    u = rng.random((n_samples, n)).argpartition(6, axis=1)[:, :6]
+    return u if subset is None else subset[u]
+
+
+def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
+    """Generalized P3P (PoseLib's ``gp3p``) on each sample's first 3 points, in whatever
+    cameras they lie: the rays ``R_c^T x`` from the camera centres ``-R_c^T c_c`` in the rig
+    frame give the rig's ``R`` (H, 3, 3) and ``C`` (H, 3) directly (``x_rig = R X + C``); and
+    the indices (H,) of the samples that gave them (up to 8 per sample); None when none did.
+    A global-shutter solver, as :func:`_p3p_on_rig`."""
+    import poselib  # (an optional comparison: imported on use)
+
+    centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
+    first = samples[:, :3]
+    rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
+    rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    Rs, Cs, own = [], [], []
+    for h in range(len(samples)):
+        for sol in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]]):
+            Rs.append(sol.R)
+            Cs.append(sol.t)
+            own.append(h)
+    if not own:
+        return None
+    R, C = np.array(Rs), np.array(Cs)
+    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
+    if not ok.any():
+        return None
+    return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
@@ -962,6 +1006,7 @@ def estimate_rig_pose(
     *,
     initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
+    pre_rotation: str = "p3p",
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -1008,13 +1053,20 @@ def estimate_rig_pose(
             or the image-alone refinement explains more than it), the rig frame is solved
             again without it, with ``gyro_rejected`` and ``gyro_rejection`` set. Ignored on a
             global-shutter rig frame (and without ``refine``: the estimate is then unaided).
+        pre_rotation: how RANSAC's samples are pre-rotated: ``"p3p"`` (default: 3 points of
+            one camera, Lambda Twist, mapped to the rig) or ``"gp3p"`` (PoseLib's generalized
+            P3P on 3 points drawn from all cameras, Nister-Stewenius' problem; samples of 6
+            points drawn uniformly; needs ``poselib``). Measured against each other with
+            ``python -m benchmarks.bench_rig --pre-rotation`` (docs/rig.md).
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
         inliers per camera; ``success=False`` with a :data:`RIG_FAILURE_REASONS` key when the
         frame gives no pose.
     Raises:
-        ValueError: no views, a view that is not a :class:`RigView`, a camera without a
+        ValueError: unknown ``pre_rotation``, a gyro that is not a
+            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
+            not a :class:`RigView`, a camera without a
             mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
             is not a rotation and offset, mismatched pixel and point counts or shapes,
             non-positive threshold.
@@ -1029,12 +1081,17 @@ def estimate_rig_pose(
         raise ValueError("estimate_rig_pose: needs at least one camera")
     if not (np.isfinite(threshold_px) and threshold_px > 0):
         raise ValueError(f"estimate_rig_pose: threshold_px must be > 0, got {threshold_px}")
+    if pre_rotation not in PRE_ROTATIONS:
+        raise ValueError(
+            f"estimate_rig_pose: pre_rotation must be one of {PRE_ROTATIONS}, got {pre_rotation!r}"
+        )
     if gyro is not None and not isinstance(gyro, GyroMeasurement):
         raise ValueError(f"estimate_rig_pose: gyro must be a GyroMeasurement, got {gyro!r}")
     pool = _Pool(views)
     settings = (
         threshold_px, max_iterations, confidence, min_inliers, batch_size, solver_iterations,
         refine, seed, (float(max_angular_velocity), float(max_linear_velocity)), initial_model,
+        pre_rotation == "gp3p",
     )  # fmt: skip
     still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
     if gyro is None or still or not refine:
@@ -1101,6 +1158,7 @@ def _estimate(
     seed: int | None,
     bounds: tuple[float, float],
     initial_model,
+    generalized: bool,
     prior: _GyroPrior | None = None,
 ) -> RigPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
@@ -1153,13 +1211,16 @@ def _estimate(
     drawn = 0
     while drawn < min(needed, max_iterations):
         k = min(batch_size, max_iterations - drawn)
-        samples = _sample(rng, pool, k, subset)
+        samples = (_sample_spread if generalized else _sample)(rng, pool, k, subset)
         drawn += k
+        p3p = _gp3p_on_rig if generalized else None
         if still:
-            hyp = _hypotheses_still(pool, samples)
+            hyp = _hypotheses_still(pool, samples, p3p)
         else:
             anchor = best[:2] if anchored and best is not None else None
-            hyp = _hypotheses(pool, samples, solver_iterations, bounds, anchor, prior, threshold_px)
+            hyp = _hypotheses(
+                pool, samples, solver_iterations, bounds, anchor, prior, threshold_px, p3p
+            )
         if hyp is None:
             continue
         e = _errors_px(pool, *hyp)
