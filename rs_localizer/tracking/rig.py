@@ -73,6 +73,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
@@ -503,7 +504,7 @@ class RigLocalizer:
                                     max_interval=settings.stop_after),
                 )  # fmt: skip
 
-    def add_imu(self, stamp_ns: int, rate) -> str | None:
+    def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
         """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
         frame). Returns None, ``"disabled"`` (no :attr:`RigSettings.imu`), or why the sample
         was rejected (:meth:`~rs_localizer.tracking.gyro.ImuBuffer.add`).
