@@ -359,17 +359,21 @@ def _label(c: int, v: RigView) -> str:
 class _GyroPrior:
     """A gyro measurement of the rig's angular velocity as a prior on the model's ``w``
     (rad/s, rig frame; ``w = -omega``): mean ``w`` (3,), information ``info`` (3, 3)
-    (s^2/rad^2) and its square root ``U`` (``U^T U = info``)."""
+    (s^2/rad^2) and its square root ``U`` (``U^T U = info``); ``time`` (s from the rig's
+    reference time): when the rig turned at the measured rate (the middle of the gyro's
+    window; for the sensitivity to acceleration)."""
 
     w: np.ndarray
     info: np.ndarray
     U: np.ndarray
+    time: float = 0.0
 
     @classmethod
-    def of(cls, gyro: GyroMeasurement) -> _GyroPrior:
+    def of(cls, gyro: GyroMeasurement, time: float = 0.0) -> _GyroPrior:
         info = np.linalg.inv(gyro.covariance)
         info = 0.5 * (info + info.T)
-        return cls(-np.asarray(gyro.angular_velocity, float), info, np.linalg.cholesky(info).T)
+        w = -np.asarray(gyro.angular_velocity, float)
+        return cls(w, info, np.linalg.cholesky(info).T, float(time))
 
     def cost(self, w: np.ndarray, scale2: float) -> float:
         """``scale2 (w - w_g)^T info (w - w_g)``: the prior in the refinement's px^2."""
@@ -864,7 +868,9 @@ def _covariance(
     + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
     with ``free=6``. ``prior`` (a gyro, ``free=12``): the posterior covariance ``sigma^2 (J^T W
     J + sigma^2 P)^-1`` (``P`` the gyro's information on ``w``), and the sensitivity with that
-    matrix. Returns ``(None, None)`` if singular or not finite."""
+    matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
+    ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
+    Returns ``(None, None)`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
@@ -891,7 +897,10 @@ def _covariance(
     G = None
     if free == 12:
         D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
-        G = Hinv @ (WJ.T @ D)
+        JD = WJ.T @ D
+        if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
+            JD[6:9, 0:3] += sigma2 * prior.time * prior.info
+        G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
 
@@ -1006,6 +1015,7 @@ def estimate_rig_pose(
     *,
     initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
+    gyro_time: float | None = None,
     pre_rotation: str = "p3p",
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
@@ -1053,6 +1063,10 @@ def estimate_rig_pose(
             or the image-alone refinement explains more than it), the rig frame is solved
             again without it, with ``gyro_rejected`` and ``gyro_rejection`` set. Ignored on a
             global-shutter rig frame (and without ``refine``: the estimate is then unaided).
+        gyro_time: s from the rig's reference time: the middle of the gyro's window (the
+            rig turned at the measured rate then, when it accelerates; the estimate's
+            ``acceleration_sensitivity`` includes the gyro's with it); None: the middle of
+            the rig frame's observation times.
         pre_rotation: how RANSAC's samples are pre-rotated: ``"p3p"`` (default: 3 points of
             one camera, Lambda Twist, mapped to the rig) or ``"gp3p"`` (PoseLib's generalized
             P3P on 3 points drawn from all cameras, Nister-Stewenius' problem; samples of 6
@@ -1096,7 +1110,9 @@ def estimate_rig_pose(
     still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
     if gyro is None or still or not refine:
         return _estimate(pool, *settings)
-    prior = _GyroPrior.of(gyro)
+    if gyro_time is None:
+        gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
+    prior = _GyroPrior.of(gyro, gyro_time)
     est = _estimate(pool, *settings, prior=prior)
     unaided = None
     why = "aided_failed"

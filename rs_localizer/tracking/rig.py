@@ -493,6 +493,7 @@ class RigLocalizer:
         self.imu: ImuBuffer | None = None
         self.gyro_bias: GyroBiasEstimator | None = None
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
+        self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
         imu = settings.imu
         if imu is not None:
             self.imu = ImuBuffer(imu.buffer, imu.max_rate, imu.max_gap)
@@ -538,6 +539,7 @@ class RigLocalizer:
             first.append(a)
             last.append(b)
         win = (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
+        self._gyro_time = 0.5 * (min(first) + max(last))
         buf.wait_until(win[1] - int(round(imu.time_offset * 1e9)), imu.wait)
         if self.gyro_bias is not None:
             gyro, reason = self.gyro_bias.measurement(buf, win)
@@ -828,6 +830,7 @@ class RigLocalizer:
             seed=s.seed,
             initial_model=initial,
             gyro=self._gyro,
+            gyro_time=self._gyro_time,
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):

@@ -8,7 +8,9 @@ rig's ground truth ``/ground_truth/pose`` (``base_frame`` in ``map``) and
 ``/ground_truth/twist`` (rig frame) at every camera frame's reference-row time, a
 ``sequence.json`` whose ``rig`` entry lists the cameras (name, mounting, RS timing), and
 ``rig_params.yaml``: the node's parameter file for the rig (``--params-file`` of the node and
-of ``replay``).
+of ``replay``). With a gyro on the rig (``make-bag --rig N --imu-rate HZ``) it also holds
+``<ns>/imu`` (``sensor_msgs/Imu``, the rig's ``imu`` topic), the ``rig`` entry's ``imu`` and
+``imu.enabled``, ``imu.rotation`` (IMU -> base_frame) in ``rig_params.yaml``.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from .bag_io import (
     CAMERA_INFO,
     GT_POSE,
     GT_TWIST,
+    IMU,
     PC2,
     POSE,
     TWIST,
@@ -77,11 +80,14 @@ def write_rig_bag(
     storage: str = "mcap",
     overwrite: bool = False,
     settings: dict | None = None,
+    imu: tuple | None = None,
 ) -> Path:
     """Write a simulated rig video (:func:`rs_localizer.sim.rig_video.generate_rig_video`:
     ``frames``, ``cameras``, ``trajectory``; rig time 0 at ``t0_ns``) as a rig bag (module
     docstring); returns its path. Log times: camera_info at stamp + 1 ms, the cloud and the
-    ground truth at stamp + 2 ms.
+    ground truth at stamp + 2 ms. ``imu``: optional ``(t_ns (M,), omega (M, 3) rad/s,
+    R_rig_imu (3, 3))``, a gyro on the rig (:func:`rs_localizer.sim.rig_video.rig_gyro`)
+    written on ``<namespace>/imu`` at its stamps.
 
     Raises:
         FileExistsError: ``path`` exists and not ``overwrite``.
@@ -112,6 +118,10 @@ def write_rig_bag(
             )
         gt_pose = w.add_connection(GT_POSE, POSE, typestore=M.ts)
         gt_twist = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
+        if imu is not None:  # (a gyro on the rig)
+            c_imu = w.add_connection(f"{ns}/imu", IMU, typestore=M.ts)
+            for t_ns, om in zip(imu[0], imu[1], strict=True):
+                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, np.zeros(3), int(t_ns), "imu_link"), IMU))
         written = set()
         for f in frames:
             cam = by[f.name]
@@ -147,6 +157,9 @@ def write_rig_bag(
             for c in cameras
         ],
     }
+    if imu is not None:
+        q = cv.quaternion_from_matrix(np.asarray(imu[2], dtype=float))
+        rig["imu"] = {"topic": f"{ns}/imu", "rotation": [float(x) for x in q]}
     meta = {
         "generator": "rs-localizer make-bag --rig",
         "topics": {**topics, "gt_pose": GT_POSE, "gt_twist": GT_TWIST},
@@ -178,6 +191,8 @@ def _params_yaml(rig: dict, stamp_row: float) -> str:
         "rs": {"stamp_row": float(stamp_row)},
         "rig": {"cameras": [c["name"] for c in rig["cameras"]], **cams},
     }
+    if "imu" in rig:
+        body["imu"] = {"enabled": True, "rotation": [round(x, 12) for x in rig["imu"]["rotation"]]}
     tree = {"/**/rs_localizer": {"ros__parameters": body}}
     return yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
 
@@ -271,6 +286,7 @@ def replay_rig(
     models = {c.name: None for c in cfg.cameras}
     ts = typestore()
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
+    gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
         kind, c = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
@@ -287,6 +303,8 @@ def replay_rig(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError:
             continue
+        while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's samples first)
+            rig.add_imu(*gyro.pop())
         outs = rig.add(RigCameraFrame(c.name, stamp, models[c.name], corr.pixels, corr.points))
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
@@ -312,6 +330,30 @@ def replay_rig(
         if e is not None:
             res.fused_errors.append(e)
     return res
+
+
+#: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
+#: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
+GYRO_AHEAD_NS = 50_000_000
+
+
+def _read_rig_gyro(bag: str | os.PathLike, ns: str) -> list:
+    """The ``<ns>/imu`` samples of a rig bag as ``(stamp_ns, (wx, wy, wz))``, newest first
+    (popped oldest first); samples without an angular velocity or a readable stamp left out."""
+    ts = typestore()
+    out = []
+    for _, msgtype, _, raw in iter_messages(bag, {f"{ns}/imu"}):
+        m = ts.deserialize_cdr(raw, msgtype)
+        if float(m.angular_velocity_covariance[0]) == -1.0:
+            continue
+        try:
+            stamp = cv.checked_stamp_ns(m.header.stamp)
+        except ValueError:
+            continue
+        a = m.angular_velocity
+        out.append((stamp, (a.x, a.y, a.z)))
+    out.sort(key=lambda x: x[0])
+    return out[::-1]
 
 
 def is_rig_bag(bag: str | os.PathLike) -> bool:
