@@ -55,6 +55,11 @@ pre-rotates its samples instead of P3P, and when it explains the frame RANSAC on
 (one batch of samples among its inliers); local optimization and the final refinement run on
 every point as without it.
 
+With a gyro on the rig (``gyro``: the rig's angular velocity in the rig frame) the estimator
+uses it as a single camera's does (``estimate_rs_pose(..., gyro=)``): its rows in every
+sample's linear solve, maximum a posteriori local optimization and refinement, then the gyro
+judged by the image alone and rejected when they disagree (:func:`estimate_rig_pose`).
+
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
 pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
