@@ -26,7 +26,18 @@ where one camera sees 20 points and the other 3 (10 % outliers): frames posed an
 pose error from the rig against camera 0 alone. Last, the targets with pass/fail (exit code 1
 if one fails).
 
+``--gyro`` runs the rig with a gyro on it instead (:func:`gyro_run`): the same rig frames
+estimated without a gyro, with a right one (the true angular velocity plus
+``GYRO_SIGMA`` noise) and with wrong ones (biased by 0.087 rad/s or 0.017 rad/s, or mounted 5
+degrees off): frames posed, gyro rejections, median errors and the 90th percentile of the
+angular velocity error, CPU time; then its targets. ``--pre-rotation`` compares the
+pre-rotations of RANSAC's samples (:func:`pre_rotation_run`): P3P within one camera
+(default) against PoseLib's generalized P3P (``gp3p``) on 2-4 cameras and the 20 + 3 points
+rig.
+
     python -m benchmarks.bench_rig [--frames 40] [--points 300] [--rigs 2 3 4] [--seed 0]
+    python -m benchmarks.bench_rig --gyro [--frames 40] [--points 300] [--rigs 3]
+    python -m benchmarks.bench_rig --pre-rotation [--frames 40] [--points 300] [--rigs 2 3 4]
 """
 
 from __future__ import annotations
@@ -36,14 +47,22 @@ import time
 
 import numpy as np
 
-from rs_localizer.estimation import EstimateOptions, estimate_rs_pose
+from rs_localizer.estimation import EstimateOptions, GyroMeasurement, estimate_rs_pose
 from rs_localizer.estimation.rig import estimate_rig_pose, rig_model_of_camera
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
-from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig import make_rig, rig_frame, rig_motion
 
-__all__ = ["few_points", "main", "run", "targets"]
+__all__ = [
+    "few_points",
+    "gyro_run",
+    "gyro_targets",
+    "main",
+    "pre_rotation_run",
+    "run",
+    "targets",
+]
 
 #: the settings every method runs at (the single camera's defaults)
 OPTIONS = EstimateOptions()
@@ -202,6 +221,133 @@ def few_points(frames: int, seed: int = 0, counts=(20, 3)) -> dict:
     }
 
 
+#: s.d. (rad/s) of the gyro's mean rate over one rig frame (its noise averaged over the frame)
+GYRO_SIGMA = 0.003
+#: the gyros of :func:`gyro_run`: name -> (bias rad/s (3,), mounting error deg about a random
+#: axis); "none" runs without a gyro
+GYROS = {
+    "none": None,
+    "right": (np.zeros(3), 0.0),
+    "biased 0.087 rad/s": (np.array([0.05, -0.05, 0.05]), 0.0),
+    "biased 0.017 rad/s": (np.array([0.01, -0.01, 0.01]), 0.0),
+    "mounted 5 deg off": (np.zeros(3), 5.0),
+}
+
+
+def _gyro_of(kind, omega, rng):
+    """The gyro measurement ``kind`` (:data:`GYROS`) of the rig's true angular velocity
+    ``omega`` (rad/s, rig frame), with the gyro's noise."""
+    if GYROS[kind] is None:
+        return None
+    bias, mount_deg = GYROS[kind]
+    axis = rng.normal(size=3)
+    R = rotvec_to_matrix(np.radians(mount_deg) * axis / np.linalg.norm(axis))
+    meas = R @ omega + bias + rng.normal(size=3) * GYRO_SIGMA
+    return GyroMeasurement(meas, GYRO_SIGMA**2 * np.eye(3))
+
+
+def gyro_run(m: int, frames: int, points: int, seed: int = 0) -> dict:
+    """``frames`` rig frames of ``m`` cameras with ``points`` correspondences each (as
+    :func:`run`), each estimated with every gyro of :data:`GYROS`. Returns {gyro: {"err": (F,
+    3) rotation deg, position cm, angular velocity deg/s (NaN: not posed), "time": (F,) s,
+    "rejected": (F,) bool, "used": (F,) bool}}."""
+    rng = np.random.default_rng(seed + 500 + 1000 * m)
+    out = {k: {"err": [], "time": [], "rejected": [], "used": []} for k in GYROS}
+    for _ in range(frames):
+        rig = make_rig(m, rng)
+        truth = rig_motion(rng, rng.uniform(*ANGULAR_SPEED), LINEAR_SPEED)
+        f = rig_frame(rig, truth, [points] * m, rng, NOISE_PX, OUTLIERS)
+        for kind in GYROS:
+            g = _gyro_of(kind, -truth.w, rng)
+            est, dt = _timed(lambda f=f, g=g: estimate_rig_pose(f.views, gyro=g, **_rig_kwargs()))
+            d = out[kind]
+            d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)
+            d["time"].append(dt)
+            d["rejected"].append(est.gyro_rejected)
+            d["used"].append(est.gyro_used)
+    for d in out.values():
+        for k in d:
+            d[k] = np.array(d[k])
+    return out
+
+
+def gyro_summary(res: dict) -> dict:
+    """{gyro: (posed, frames, used, rejected, median rotation deg, position cm, angular
+    velocity deg/s, 90th percentile angular velocity deg/s, median ms)}."""
+    out = {}
+    for kind, d in res.items():
+        e = d["err"]
+        ok = np.isfinite(e[:, 0])
+        p90 = float(np.percentile(e[ok, 2], 90)) if ok.any() else np.nan
+        out[kind] = (
+            int(ok.sum()), len(e), int(d["used"].sum()), int(d["rejected"].sum()),
+            *[_median(e[:, j]) for j in range(3)], p90, 1e3 * float(np.median(d["time"])),
+        )  # fmt: skip
+    return out
+
+
+#: the wrong gyros whose error one rig frame cannot show: a bias of 0.017 rad/s (1 deg/s) is
+#: within the image's own angular velocity error (0.4-0.9 deg/s); :func:`gyro_targets`
+#: prints their ratios without a target (a video's gyro-bias estimate removes such a bias)
+BELOW_RESOLUTION = ("biased 0.017 rad/s",)
+
+
+def gyro_targets(s: dict) -> list[tuple[str, bool | None, str]]:
+    """(target, passed, measured) of the gyro on the rig from :func:`gyro_summary`: a right
+    gyro gives a better angular velocity; a wrong one is never worse than none (medians of
+    rotation, position and angular velocity, within 5 %; ``passed`` None, no target, for
+    :data:`BELOW_RESOLUTION`)."""
+    none, right = s["none"], s["right"]
+    out = [
+        (
+            "right gyro: angular velocity error < without a gyro",
+            bool(right[6] < none[6]),
+            f"{right[6]:.3f} vs {none[6]:.3f} deg/s ({right[6] / none[6]:.2f}x)",
+        )
+    ]
+    for kind, v in s.items():
+        if kind in ("none", "right"):
+            continue
+        worse = max(v[4] / none[4], v[5] / none[5], v[6] / none[6])
+        passed = bool(worse <= 1.05 and v[0] >= none[0])
+        out.append(
+            (
+                f"{kind}: rotation, position, angular velocity <= 1.05x without a gyro",
+                None if kind in BELOW_RESOLUTION else passed,
+                f"worst ratio {worse:.2f}x, {v[3]}/{v[1]} rejected",
+            )
+        )
+    return out
+
+
+def pre_rotation_run(m: int, frames: int, points, seed: int = 0, outliers=OUTLIERS) -> dict:
+    """``frames`` rig frames of ``m`` cameras (``points``: per camera, an int or a list),
+    each estimated with both pre-rotations of RANSAC's samples (``estimate_rig_pose(...,
+    pre_rotation=)``: ``p3p`` within one camera, ``gp3p`` PoseLib's generalized P3P) from
+    the same seed. Returns {pre-rotation: {"err": (F, 3), "time": (F,) s, "iterations":
+    (F,)}}."""
+    rng = np.random.default_rng(seed + 300 + 1000 * m)
+    counts = [points] * m if np.ndim(points) == 0 else list(points)
+    out = {k: {"err": [], "time": [], "iterations": []} for k in ("p3p", "gp3p")}
+    for _ in range(frames):
+        rig = make_rig(m, rng)
+        truth = rig_motion(rng, rng.uniform(*ANGULAR_SPEED), LINEAR_SPEED)
+        f = rig_frame(rig, truth, counts, rng, NOISE_PX, outliers)
+        for kind, d in out.items():
+            est, dt = _timed(
+                lambda f=f, k=kind: estimate_rig_pose(
+                    f.views, pre_rotation=k, min_inliers=6, **_rig_kwargs()
+                )
+            )
+            d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)
+            d["time"].append(dt)
+            d["iterations"].append(est.iterations)
+    for d in out.values():
+        for k in d:
+            d[k] = np.array(d[k], dtype=float)
+    return out
+
+
 def _median(a):
     """Median over the frames with a value (NaN where none)."""
     a = np.asarray(a, dtype=float)
@@ -289,11 +435,20 @@ def main(argv=None) -> int:
     p.add_argument("--points", type=int, default=300, help="correspondences per camera")
     p.add_argument("--rigs", type=int, nargs="+", default=[2, 3, 4], help="cameras per rig")
     p.add_argument("--seed", type=int, default=0)
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--gyro", action="store_true", help="the rig with and without a gyro")
+    mode.add_argument(
+        "--pre-rotation", action="store_true", help="P3P in one camera against generalized P3P"
+    )
     args = p.parse_args(argv)
     if args.frames < 1 or args.points < 6:
         p.error("--frames must be >= 1 and --points >= 6")
     if any(m not in (2, 3, 4) for m in args.rigs):
         p.error("--rigs: 2, 3 or 4 cameras")
+    if args.gyro:
+        return _main_gyro(args)
+    if args.pre_rotation:
+        return _main_pre_rotation(args)
     with one_thread():
         # (warm-up: numba compiles the kernels on first use)
         run(2, 1, 50, args.seed + 999)
@@ -328,6 +483,63 @@ def main(argv=None) -> int:
         ok &= passed
         print(f"  {'PASS' if passed else 'FAIL'}  {name}: {measured}")
     return 0 if ok else 1
+
+
+def _main_gyro(args) -> int:
+    ok = True
+    with one_thread():
+        gyro_run(2, 1, 50, args.seed + 999)  # (warm-up: numba compiles the kernels)
+        print(
+            f"{args.points} correspondences per camera, {OUTLIERS:.0%} outliers, {NOISE_PX} px "
+            f"noise, turning {ANGULAR_SPEED[0]}-{ANGULAR_SPEED[1]} rad/s, gyro noise "
+            f"{GYRO_SIGMA} rad/s, {args.frames} frames per rig; medians"
+        )
+        print(
+            f"{'cameras':>7s}  {'gyro':20s} {'posed':>7s} {'used':>4s} {'rej':>4s} "
+            f"{'rot deg':>9s} {'pos cm':>8s} {'w deg/s':>8s} {'w p90':>7s} {'ms/frame':>8s}"
+        )
+        for m in args.rigs:
+            s = gyro_summary(gyro_run(m, args.frames, args.points, args.seed))
+            for kind, (posed, n, used, rej, rot, pos, om, p90, ms) in s.items():
+                print(
+                    f"{m:7d}  {kind:20s} {posed:3d}/{n:<3d} {used:4d} {rej:4d} {rot:9.4f} "
+                    f"{pos:8.3f} {om:8.3f} {p90:7.3f} {ms:8.1f}"
+                )
+            print(f"targets, {m} cameras")
+            for name, passed, measured in gyro_targets(s):
+                if passed is None:
+                    print(f"  info  {name} (below one frame's resolution): {measured}")
+                    continue
+                ok &= passed
+                print(f"  {'PASS' if passed else 'FAIL'}  {name}: {measured}")
+    return 0 if ok else 1
+
+
+def _main_pre_rotation(args) -> int:
+    with one_thread():
+        pre_rotation_run(2, 1, 50, args.seed + 999)  # (warm-up)
+        print(
+            f"pre-rotation of RANSAC's samples: {OUTLIERS:.0%} outliers ({args.points} points "
+            f"per camera; 20 + 3: 10 %), {args.frames} frames per rig; medians"
+        )
+        print(
+            f"{'rig':>10s}  {'pre-rotation':12s} {'posed':>7s} {'rot deg':>9s} {'pos cm':>8s} "
+            f"{'w deg/s':>8s} {'samples':>7s} {'ms/frame':>8s}"
+        )
+        cases = [(m, args.points, OUTLIERS, f"{m} x {args.points}") for m in args.rigs]
+        cases.append((2, [20, 3], 0.1, "20 + 3"))
+        for m, pts, out, label in cases:
+            r = pre_rotation_run(m, args.frames, pts, args.seed, out)
+            for kind, d in r.items():
+                e = d["err"]
+                posed = int(np.isfinite(e[:, 0]).sum())
+                med = [_median(e[:, j]) for j in range(3)]
+                print(
+                    f"{label:>10s}  {kind:12s} {posed:3d}/{len(e):<3d} {med[0]:9.4f} "
+                    f"{med[1]:8.3f} {med[2]:8.3f} {np.median(d['iterations']):7.0f} "
+                    f"{1e3 * np.median(d['time']):8.1f}"
+                )
+    return 0
 
 
 if __name__ == "__main__":

@@ -127,7 +127,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=A.nonneg_float,
         default=0.0,
         help="also write a sensor_msgs/Imu topic at this rate (Hz; gyro with "
-        "bias and noise, IMU axes x forward, y left, z up; 0: no IMU)",
+        "bias and noise, IMU axes x forward, y left, z up; 0: no IMU; with --rig: the rig's "
+        "gyro on <namespace>/imu, noise only, its axes base_frame's)",
     )
     m.add_argument("--imu-topic", default="/imu/data", help="topic of --imu-rate")
     m.add_argument(
@@ -230,8 +231,8 @@ def _run_rig(args: argparse.Namespace) -> int:
     """``make-bag --rig N``: a rig bag (:func:`rs_localizer.ros.bags.rig_bag.write_rig_bag`)."""
     if not 1 <= args.rig <= 4:
         raise A.CliError(f"--rig takes 1 to 4 cameras, got {args.rig}")
-    if args.scene != "corridor" or args.motion != "walk" or args.imu_rate > 0:
-        raise A.CliError("--rig walks the corridor: without --scene, --motion or --imu-rate")
+    if args.scene != "corridor" or args.motion != "walk" or args.imu_time_offset != 0:
+        raise A.CliError("--rig walks the corridor: without --scene, --motion or --imu-time-offset")
     from ..ros.bags.rig_bag import write_rig_bag
     from ..sim.rig_video import default_rig, generate_rig_video
 
@@ -249,6 +250,14 @@ def _run_rig(args: argparse.Namespace) -> int:
         stamp_row=args.stamp_row,
     )
     ns = "/rig" if args.namespace == "/camera" else args.namespace
+    imu = None
+    if args.imu_rate > 0:  # (a gyro on the rig, its axes the base frame's)
+        import numpy as np
+
+        from ..sim.rig_video import rig_gyro
+
+        g = rig_gyro(traj, args.frames / args.fps, args.imu_rate, seed=args.seed, t0_ns=t0)
+        imu = (g[0], g[1], np.eye(3))
     out = write_rig_bag(
         args.out,
         frames,
@@ -265,7 +274,9 @@ def _run_rig(args: argparse.Namespace) -> int:
             "outliers": args.outliers,
             "seed": args.seed,
             "fps": args.fps,
+            "imu_rate": args.imu_rate,
         },
+        imu=imu,
     )
     print(
         f"wrote {out}: a rig of {args.rig} cameras ({', '.join(c.name for c in cams)}), "

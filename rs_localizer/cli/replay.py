@@ -333,6 +333,18 @@ def run(args: argparse.Namespace) -> int:
     return 0 if res.solved else 1
 
 
+def _rig_gyro_counts(outputs) -> dict:
+    """The rig frames solved with the gyro (``used``), with it rejected (``rejected``) and
+    without its samples (``missing``) of a replay with a gyro on the rig."""
+    ests = [o.estimate for o in outputs if o.estimate is not None]
+    given = sum(o.gyro is not None for o in outputs)
+    return {
+        "used": sum(bool(e.gyro_used) for e in ests),
+        "rejected": sum(bool(e.gyro_rejected) for e in ests),
+        "missing": len(outputs) - given,
+    }
+
+
 def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     """A rig bag (``make-bag --rig``): every camera through the rig mode
     (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`); prints the rig's counts and its errors
@@ -358,6 +370,11 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     for n in res.cameras:
         c = res.counts[n]
         print(f"  {n}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
+    from ..ros.bags.rig_bag import rig_parameter_values
+
+    if rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]["imu.enabled"]:
+        gyro = _rig_gyro_counts(res.outputs)
+        print("  gyro: " + ", ".join(f"{k} {v}" for k, v in gyro.items()), file=text)
     if s["solved"]:
         print(
             f"median errors: rotation {s['rot_deg']:.4f} deg, position {1e3 * s['pos_m']:.2f} "

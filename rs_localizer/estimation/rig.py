@@ -55,6 +55,11 @@ pre-rotates its samples instead of P3P, and when it explains the frame RANSAC on
 (one batch of samples among its inliers); local optimization and the final refinement run on
 every point as without it.
 
+With a gyro on the rig (``gyro``: the rig's angular velocity in the rig frame) the estimator
+uses it as a single camera's does (``estimate_rs_pose(..., gyro=)``): its rows in every
+sample's linear solve, maximum a posteriori local optimization and refinement, then the gyro
+judged by the image alone and rejected when they disagree (:func:`estimate_rig_pose`).
+
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
 pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
@@ -64,7 +69,7 @@ parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -75,15 +80,24 @@ from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from ..solvers.lambda_twist import lambda_twist_batch
+from .degeneracy import PLANAR_TOLERANCE, planarity
+from .gyro import (
+    GYRO_CHI2_THRESHOLD,
+    GYRO_INLIER_MARGIN,
+    GYRO_RECHECK_FRACTION,
+    GyroMeasurement,
+    gyro_image_chi2,
+)
 from .options import InitialModel
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .refine import untruncated_variance
-from .result import output_covariance
+from .result import GYRO_REJECTIONS, output_covariance
 from .sensitivity import output_jacobian
 
 __all__ = [
     "FINAL_CUTOFF",
     "LO_ROUNDS",
+    "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
     "RigPoseEstimate",
@@ -112,6 +126,9 @@ RIG_FAILURE_REASONS = {
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
 #: cost 2.3 ms of 10 per frame: the final refinement converges from the first
 LO_ROUNDS = 1
+
+#: the pre-rotations of RANSAC's samples (``estimate_rig_pose(..., pre_rotation=)``)
+PRE_ROTATIONS = ("p3p", "gp3p")
 
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
@@ -256,6 +273,16 @@ class RigPoseEstimate:
             failed estimates do not report it). initial_used: the initial model seeded
             RANSAC (and pre-rotated its samples): False when it explained too few points and
             the estimator ran as without it.
+        gyro_used: the estimate used the gyro measurement passed to the estimator (its
+            velocities, pose and covariances include it).
+        gyro_rejected: a gyro measurement was passed but the image disagreed with it (or the
+            aided estimate failed where an unaided one succeeded); the estimate is the
+            unaided one.
+        gyro_rejection: why, with ``gyro_rejected`` (one of
+            :data:`~rs_localizer.estimation.result.GYRO_REJECTIONS`), else ``""``.
+        gyro_chi2: chi-square (3 dof) of the gyro against the angular velocity the image alone
+            gives near the aided estimate
+            (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; NaN when not computed).
     """
 
     success: bool
@@ -279,6 +306,10 @@ class RigPoseEstimate:
     acceleration_sensitivity: np.ndarray | None = None
     initial_explained: int = -1
     initial_used: bool = False
+    gyro_used: bool = False
+    gyro_rejected: bool = False
+    gyro_rejection: str = ""
+    gyro_chi2: float = float("nan")
 
     @property
     def position(self) -> np.ndarray:
@@ -327,6 +358,53 @@ class RigPoseEstimate:
 
 def _label(c: int, v: RigView) -> str:
     return f"camera {c}" + (f" ({v.name!r})" if v.name else "")
+
+
+@dataclass(frozen=True, eq=False)
+class _GyroPrior:
+    """A gyro measurement of the rig's angular velocity as a prior on the model's ``w``
+    (rad/s, rig frame; ``w = -omega``): mean ``w`` (3,), information ``info`` (3, 3)
+    (s^2/rad^2) and its square root ``U`` (``U^T U = info``); ``time`` (s from the rig's
+    reference time): when the rig turned at the measured rate (the middle of the gyro's
+    window; for the sensitivity to acceleration)."""
+
+    w: np.ndarray
+    info: np.ndarray
+    U: np.ndarray
+    time: float = 0.0
+
+    @classmethod
+    def of(cls, gyro: GyroMeasurement, time: float = 0.0) -> _GyroPrior:
+        info = np.linalg.inv(gyro.covariance)
+        info = 0.5 * (info + info.T)
+        w = -np.asarray(gyro.angular_velocity, float)
+        return cls(w, info, np.linalg.cholesky(info).T, float(time))
+
+    def cost(self, w: np.ndarray, scale2: float) -> float:
+        """``scale2 (w - w_g)^T info (w - w_g)``: the prior in the refinement's px^2."""
+        d = np.asarray(w, float) - self.w
+        return float(scale2 * d @ self.info @ d)
+
+    def rows(self, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K samples whose
+        equations have noise ``scale`` (K,) (image noise times depth): ``|P (w, t) - q|^2 =
+        scale^2 (w - w_g)^T info (w - w_g)`` (3 rows; the other 3 zero: t is free)."""
+        k = np.asarray(scale, dtype=float)
+        P = np.zeros((len(k), 6, 6))
+        q = np.zeros((len(k), 6))
+        P[:, :3, :3] = k[:, None, None] * self.U[None]
+        q[:, :3] = k[:, None] * (self.U @ self.w)[None]
+        return P, q
+
+
+def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> np.ndarray:
+    """(K,) noise of the rig solver's equations for K samples ``idx`` (K, n) under models
+    ``R`` (K, 3, 3), ``C`` (K, 3): half the inlier threshold in normalized units times the
+    mean distance of the sample's points from the rig (as a single camera's damped samples,
+    :func:`~rs_localizer.estimation.prior.sample_prior_rows`)."""
+    p = np.einsum("kij,knj->kni", R, pool.X[idx]) + C[:, None, :]
+    depth = np.linalg.norm(p, axis=2).mean(axis=1)
+    return 0.5 * threshold_px / pool.focal[idx[:, 0]] * np.maximum(depth, 1e-9)
 
 
 class _Pool:
@@ -527,26 +605,43 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     return out if subset is None else subset[out]
 
 
-def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None, anchor=None):
+def _hypotheses(
+    pool: _Pool,
+    samples: np.ndarray,
+    iterations: int,
+    bounds=None,
+    anchor=None,
+    prior: _GyroPrior | None = None,
+    threshold_px: float = 2.0,
+    p3p=None,
+):
     """Models (R, C, w, t) of the samples: P3P in the sample's first camera, mapped to the
-    rig, pre-rotates the rig solver (``anchor``: this (3, 3) rotation pre-rotates every
-    sample instead, an initial model's or the best model's); ``bounds`` ``(w_max rad/s,
-    v_max m/s)`` or None: models moving faster are dropped
-    (:func:`~.plausibility.plausible_motion` with one second per unit of tau). Returns arrays
-    of H valid models, or None."""
+    rig (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`), pre-rotates the
+    rig solver (``anchor``: this model's (3, 3) rotation pre-rotates
+    every sample instead, an initial model's or the best model's; ``(R, C)``); ``bounds``
+    ``(w_max rad/s, v_max m/s)`` or None: models moving faster are dropped
+    (:func:`~.plausibility.plausible_motion` with one second per unit of tau); ``prior``: a
+    gyro, whose rows (weighted by :func:`_equation_noise` at the pre-rotation, P3P's or the
+    anchor's translation) join every linear solve. Returns arrays of H valid models, or
+    None."""
     if anchor is not None:
-        R0 = np.broadcast_to(np.asarray(anchor, dtype=float), (len(samples), 3, 3))
+        R0 = np.broadcast_to(np.asarray(anchor[0], dtype=float), (len(samples), 3, 3))
+        C0 = np.broadcast_to(np.asarray(anchor[1], dtype=float), (len(samples), 3))
         S = samples
     else:
-        p3p = _p3p_on_rig(pool, samples)
-        if p3p is None:
+        pre = (p3p or _p3p_on_rig)(pool, samples)
+        if pre is None:
             return None
-        R0, _, own = p3p
+        R0, C0, own = pre
         S = samples[own]
     Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
+    rows = None
+    if prior is not None:
+        rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
     b = gr6p_1lin_batch(
-        pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations
-    )
+        pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations,
+        prior_rows=rows,
+    )  # fmt: skip
     ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds)
     if not ok.any():
         return None
@@ -554,16 +649,54 @@ def _hypotheses(pool: _Pool, samples: np.ndarray, iterations: int, bounds=None, 
     return R, b.C[ok], b.w[ok], b.t[ok]
 
 
-def _hypotheses_still(pool: _Pool, samples: np.ndarray):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
-    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``.
-    Returns arrays of H models, or None."""
-    p3p = _p3p_on_rig(pool, samples)
+    (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``
+    (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). Returns arrays of H
+    models, or None."""
+    p3p = (p3p or _p3p_on_rig)(pool, samples)
     if p3p is None:
         return None
     R, C, own = p3p
     z = np.zeros((len(own), 3))
     return R, C, z, z.copy()
+
+
+def _sample_spread(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
+    """n_samples samples of 6 distinct pool indices drawn uniformly (``subset``: among those
+    sorted pool indices, at least 6): the samples of the generalized P3P pre-rotation, whose
+    first 3 points may lie in any cameras. Returns (S, 6)."""
+    n = len(pool.cam) if subset is None else len(subset)
+    u = rng.random((n_samples, n)).argpartition(6, axis=1)[:, :6]
+    return u if subset is None else subset[u]
+
+
+def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
+    """Generalized P3P (PoseLib's ``gp3p``) on each sample's first 3 points, in whatever
+    cameras they lie: the rays ``R_c^T x`` from the camera centres ``-R_c^T c_c`` in the rig
+    frame give the rig's ``R`` (H, 3, 3) and ``C`` (H, 3) directly (``x_rig = R X + C``); and
+    the indices (H,) of the samples that gave them (up to 8 per sample); None when none did.
+    A global-shutter solver, as :func:`_p3p_on_rig`."""
+    import poselib  # (an optional comparison: imported on use)
+
+    centres = -np.einsum("cji,cj->ci", pool.R_mount, pool.c_mount)
+    first = samples[:, :3]
+    rays = np.concatenate([pool.x[first], np.ones(first.shape + (1,))], axis=2)
+    rays = np.einsum("hnji,hnj->hni", pool.R_mount[pool.cam[first]], rays)
+    rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    Rs, Cs, own = [], [], []
+    for h in range(len(samples)):
+        for sol in poselib.gp3p(centres[pool.cam[first[h]]], rays[h], pool.X[first[h]]):
+            Rs.append(sol.R)
+            Cs.append(sol.t)
+            own.append(h)
+    if not own:
+        return None
+    R, C = np.array(Rs), np.array(Cs)
+    ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(C).all(axis=1)
+    if not ok.any():
+        return None
+    return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
@@ -584,14 +717,33 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     return R, C, own
 
 
-def _refit(pool: _Pool, inl: np.ndarray, model, threshold_px: float, rounds: int = 2, free=12):
+def _refit(
+    pool: _Pool,
+    inl: np.ndarray,
+    model,
+    threshold_px: float,
+    rounds: int = 2,
+    free=12,
+    prior: _GyroPrior | None = None,
+):
     """The rig solver on the inliers, pre-rotated by the current model, ``rounds`` times
-    (``threshold_px``, ``free``: unused, the signature of :func:`_refine`)."""
+    (``free``: unused, the signature of :func:`_refine`); ``prior``: a gyro's rows join the
+    solve (weighted by :func:`_equation_noise` at ``threshold_px``)."""
     R, C, w, t = model
     idx = np.flatnonzero(inl)
     if len(idx) < 6:
         return model
     for _ in range(rounds):
+        if prior is not None:
+            rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
+            b = gr6p_1lin_batch(
+                pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
+                pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
+            )  # fmt: skip
+            if not b.valid[0]:
+                return model
+            R, C, w, t = rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]
+            continue
         try:
             s = gr6p_1lin(
                 pool.x[idx], pool.X[idx] @ R.T, pool.tau[idx], pool.cam[idx],
@@ -644,17 +796,27 @@ def _refine(
     max_iterations: int = 20,
     free=12,
     cutoff_px: float | None = None,
+    prior: _GyroPrior | None = None,
 ):
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
     truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
     :func:`_refit`). 12 parameters: a rotation update left of R, C, w, t (``free=6``: the
-    pose alone, w and t kept); residuals: the image errors (px) of :func:`_errors_px`."""
+    pose alone, w and t kept); residuals: the image errors (px) of :func:`_errors_px`.
+    ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
+    ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
+    starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`)."""
     k = float(threshold_px)
     cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
     allp = np.arange(len(pool.cam))
     e = _errors_px(pool, *_one(model))[0]
     cost, _ = _robust(e, k, cut)
+    sp2 = 0.0
+    if prior is not None and free == 12:
+        inside = e[e < k]
+        sp2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
+        sp2 = max(sp2, 1e-6 * k * k)
+        cost += prior.cost(model[2], sp2)
     lam = 1e-3
     for _ in range(max_iterations):
         idx = allp[e < cut]
@@ -666,6 +828,9 @@ def _refine(
         W = np.repeat(wts, 2)
         H = Jf.T @ (Jf * W[:, None])
         g = Jf.T @ (W * r.ravel())
+        if sp2 > 0:
+            H[6:9, 6:9] += sp2 * prior.info
+            g[6:9] += sp2 * prior.info @ (model[2] - prior.w)
         improved = False
         while lam < 1e8:
             A = H + lam * np.diag(np.diag(H) + 1e-12)
@@ -678,6 +843,8 @@ def _refine(
             cand = _apply(model, u)
             ec = _errors_px(pool, *_one(cand))[0]
             cc, _ = _robust(ec, k, cut)
+            if sp2 > 0:
+                cc += prior.cost(cand[2], sp2)
             if np.isfinite(cc) and cc <= cost:
                 rel = (cost - cc) / max(cost, 1e-300)
                 model, e, cost = cand, ec, cc
@@ -691,7 +858,7 @@ def _refine(
 
 
 def _covariance(
-    pool: _Pool, model, threshold_px: float, free: int = 12
+    pool: _Pool, model, threshold_px: float, free: int = 12, prior: _GyroPrior | None = None
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
     acceleration, from one Jacobian.
@@ -704,7 +871,11 @@ def _covariance(
     points, D the Jacobian of the image errors over ``(beta, b)`` of a rig that accelerates
     through the frame (:mod:`~.sensitivity`: ``expm([tau w + tau^2 beta / 2]x) R X + C + tau t
     + tau^2 b / 2``), which is ``tau / 2`` times the ``w`` and ``t`` columns of J; ``None``
-    with ``free=6``. Returns ``(None, None)`` if singular or not finite."""
+    with ``free=6``. ``prior`` (a gyro, ``free=12``): the posterior covariance ``sigma^2 (J^T W
+    J + sigma^2 P)^-1`` (``P`` the gyro's information on ``w``), and the sensitivity with that
+    matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
+    ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
+    Returns ``(None, None)`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
@@ -717,6 +888,8 @@ def _covariance(
     WJ = Jf * np.repeat(wts, 2)[:, None]
     H = Jf.T @ WJ
     sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
+    if prior is not None and free == 12:
+        H[6:9, 6:9] += sigma2 * prior.info
     cov = np.zeros((12, 12))
     try:
         Hinv = np.linalg.inv(H)
@@ -729,7 +902,10 @@ def _covariance(
     G = None
     if free == 12:
         D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
-        G = Hinv @ (WJ.T @ D)
+        JD = WJ.T @ D
+        if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
+            JD[6:9, 0:3] += sigma2 * prior.time * prior.info
+        G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
 
@@ -778,7 +954,15 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     return behind, bad
 
 
-def _seed(pool: _Pool, initial, threshold_px: float, still: bool, size: int, free: int):
+def _seed(
+    pool: _Pool,
+    initial,
+    threshold_px: float,
+    still: bool,
+    size: int,
+    free: int,
+    prior: _GyroPrior | None = None,
+):
     """Test an initial model on every point (as a single camera's,
     :func:`~.local_optimization.seed_from_initial_model`).
 
@@ -807,7 +991,7 @@ def _seed(pool: _Pool, initial, threshold_px: float, still: bool, size: int, fre
         return explained, None, False, None
     th2 = float(threshold_px) ** 2
     if np.count_nonzero(e < threshold_px) < need:
-        pulled = _refine(pool, None, model, threshold_px, 10, free, cutoff_px=gate)
+        pulled = _refine(pool, None, model, threshold_px, 10, free, cutoff_px=gate, prior=prior)
         ep = _errors_px(pool, *_one(pulled))[0]
         if np.minimum(ep * ep, th2).sum() < np.minimum(e * e, th2).sum():
             model, e = pulled, ep
@@ -835,6 +1019,9 @@ def estimate_rig_pose(
     max_linear_velocity: float = 50.0,
     *,
     initial_model: InitialModel | RSModel | tuple | None = None,
+    gyro: GyroMeasurement | None = None,
+    gyro_time: float | None = None,
+    pre_rotation: str = "p3p",
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -861,13 +1048,44 @@ def estimate_rig_pose(
             ``min_explained`` inliers RANSAC only verifies it with one batch of samples drawn
             among them (as a single camera's estimator does with its ``initial_model``).
             Without it the estimator is unchanged.
+        gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's
+            angular velocity during the rig frame (rad/s, **rig frame**: an IMU on the rig,
+            its rates turned by ``R_rig_imu``; e.g.
+            :func:`~rs_localizer.tracking.gyro.gyro_measurement` over the rig frame's capture
+            times). It is used as a single camera's estimator uses its gyro
+            (``estimate_rs_pose(..., gyro=)``): every RANSAC sample is solved with the gyro's
+            rows in the rig solver's linear system (the angular velocity held to the gyro's
+            within its covariance), and local optimization and the final refinement are
+            maximum a posteriori with it, the covariances including it; scoring is unchanged.
+            The gyro is then judged by the image alone: the aided model is refined once more
+            without it; if the gyro disagrees with that angular velocity
+            (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2` above
+            :data:`~rs_localizer.estimation.gyro.GYRO_CHI2_THRESHOLD`), if the aided estimate
+            fails, or if it explains fewer than ``1 -``
+            :data:`~rs_localizer.estimation.gyro.GYRO_INLIER_MARGIN` of the inliers of the
+            unaided estimate (run when the aided one explains fewer than
+            :data:`~rs_localizer.estimation.gyro.GYRO_RECHECK_FRACTION` of the valid points,
+            or the image-alone refinement explains more than it), the rig frame is solved
+            again without it, with ``gyro_rejected`` and ``gyro_rejection`` set. Ignored on a
+            global-shutter rig frame (and without ``refine``: the estimate is then unaided).
+        gyro_time: s from the rig's reference time: the middle of the gyro's window (the
+            rig turned at the measured rate then, when it accelerates; the estimate's
+            ``acceleration_sensitivity`` includes the gyro's with it); None: the middle of
+            the rig frame's observation times.
+        pre_rotation: how RANSAC's samples are pre-rotated: ``"p3p"`` (default: 3 points of
+            one camera, Lambda Twist, mapped to the rig) or ``"gp3p"`` (PoseLib's generalized
+            P3P on 3 points drawn from all cameras, Nister-Stewenius' problem; samples of 6
+            points drawn uniformly; needs ``poselib``). Measured against each other with
+            ``python -m benchmarks.bench_rig --pre-rotation`` (docs/rig.md).
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
         inliers per camera; ``success=False`` with a :data:`RIG_FAILURE_REASONS` key when the
         frame gives no pose.
     Raises:
-        ValueError: no views, a view that is not a :class:`RigView`, a camera without a
+        ValueError: unknown ``pre_rotation``, a gyro that is not a
+            :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
+            not a :class:`RigView`, a camera without a
             mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
             is not a rotation and offset, mismatched pixel and point counts or shapes,
             non-positive threshold.
@@ -882,11 +1100,94 @@ def estimate_rig_pose(
         raise ValueError("estimate_rig_pose: needs at least one camera")
     if not (np.isfinite(threshold_px) and threshold_px > 0):
         raise ValueError(f"estimate_rig_pose: threshold_px must be > 0, got {threshold_px}")
+    if pre_rotation not in PRE_ROTATIONS:
+        raise ValueError(
+            f"estimate_rig_pose: pre_rotation must be one of {PRE_ROTATIONS}, got {pre_rotation!r}"
+        )
+    if gyro is not None and not isinstance(gyro, GyroMeasurement):
+        raise ValueError(f"estimate_rig_pose: gyro must be a GyroMeasurement, got {gyro!r}")
     pool = _Pool(views)
+    settings = (
+        threshold_px, max_iterations, confidence, min_inliers, batch_size, solver_iterations,
+        refine, seed, (float(max_angular_velocity), float(max_linear_velocity)), initial_model,
+        pre_rotation == "gp3p",
+    )  # fmt: skip
+    still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    if gyro is None or still or not refine:
+        return _estimate(pool, *settings)
+    if gyro_time is None:
+        gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
+    prior = _GyroPrior.of(gyro, gyro_time)
+    est = _estimate(pool, *settings, prior=prior)
+    unaided = None
+    why = "aided_failed"
+    if est.success:
+        image = _image_alone(pool, est, threshold_px)
+        chi2 = np.inf
+        if image is not None:
+            inl = _errors_px(pool, *_one(est.model))[0] < threshold_px
+            planar = bool(planarity(pool.X[inl]) < PLANAR_TOLERANCE)
+            chi2 = gyro_image_chi2(gyro, image[0], image[1], planar)
+        est = replace(est, gyro_chi2=float(chi2))
+        if not chi2 <= GYRO_CHI2_THRESHOLD:
+            why = "contradicted"
+        elif est.num_inliers >= GYRO_RECHECK_FRACTION * len(pool.cam) and image[
+            2
+        ] <= est.num_inliers * (1.0 + GYRO_INLIER_MARGIN):
+            return est
+        else:
+            unaided = _estimate(pool, *settings)
+            if not (
+                unaided.success
+                and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
+            ):
+                return est
+            why = "fewer_inliers"
+    if unaided is None:
+        unaided = _estimate(pool, *settings)
+    assert why in GYRO_REJECTIONS
+    if est.success or unaided.success:
+        return replace(unaided, gyro_rejected=True, gyro_rejection=why, gyro_chi2=est.gyro_chi2)
+    return unaided
+
+
+def _image_alone(
+    pool: _Pool, est: RigPoseEstimate, threshold_px: float
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """What the image alone says near a gyro-aided rig estimate: the final refinement of its
+    model without the gyro (maximum likelihood), its angular velocity (3,) rad/s (rig frame),
+    that velocity's covariance (3, 3) from the data alone, and the inliers it explains; None
+    when it gives no finite model or covariance (as a single camera's,
+    :func:`~rs_localizer.estimation.finalize.image_alone`)."""
+    model = _refine(pool, None, est.model, threshold_px)
+    cov, _ = _covariance(pool, model, threshold_px)
+    if cov is None or not all(np.isfinite(a).all() for a in model):
+        return None
+    n = int(np.count_nonzero(_errors_px(pool, *_one(model))[0] < threshold_px))
+    return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
+
+
+def _estimate(
+    pool: _Pool,
+    threshold_px: float,
+    max_iterations: int,
+    confidence: float,
+    min_inliers: int,
+    batch_size: int,
+    solver_iterations: int,
+    refine: bool,
+    seed: int | None,
+    bounds: tuple[float, float],
+    initial_model,
+    generalized: bool,
+    prior: _GyroPrior | None = None,
+) -> RigPoseEstimate:
+    """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
+    a rig frame that is not still) or without one (arguments as there)."""
     rng = np.random.default_rng(seed)
+    views = pool.sizes
     counts = np.bincount(pool.cam, minlength=len(views))
     valid = pool.counts()
-    bounds = (float(max_angular_velocity), float(max_linear_velocity))
     M = len(views)
 
     def failed(reason, its=0, behind=0):
@@ -919,25 +1220,28 @@ def estimate_rig_pose(
     needed = max_iterations
     explained, used, anchored, subset = -1, False, False, None
     if initial_model is not None:
-        explained, seed, anchored, subset = _seed(
-            pool, initial_model, threshold_px, still, size, free
+        explained, seeded, anchored, subset = _seed(
+            pool, initial_model, threshold_px, still, size, free, prior
         )
-        if seed is not None:
-            best, used = seed, True
-            best_cost = msac(seed)
-            inl0 = _errors_px(pool, *_one(seed))[0] < threshold_px
+        if seeded is not None:
+            best, used = seeded, True
+            best_cost = msac(seeded)
+            inl0 = _errors_px(pool, *_one(seeded))[0] < threshold_px
             # (verifying a seed that explains the frame: one batch among its inliers)
             needed = batch_size if subset is not None else required(float(np.mean(inl0)))
     drawn = 0
     while drawn < min(needed, max_iterations):
         k = min(batch_size, max_iterations - drawn)
-        samples = _sample(rng, pool, k, subset)
+        samples = (_sample_spread if generalized else _sample)(rng, pool, k, subset)
         drawn += k
+        p3p = _gp3p_on_rig if generalized else None
         if still:
-            hyp = _hypotheses_still(pool, samples)
+            hyp = _hypotheses_still(pool, samples, p3p)
         else:
-            anchor = best[0] if anchored and best is not None else None
-            hyp = _hypotheses(pool, samples, solver_iterations, bounds, anchor)
+            anchor = best[:2] if anchored and best is not None else None
+            hyp = _hypotheses(
+                pool, samples, solver_iterations, bounds, anchor, prior, threshold_px, p3p
+            )
         if hyp is None:
             continue
         e = _errors_px(pool, *hyp)
@@ -959,12 +1263,12 @@ def estimate_rig_pose(
     for _ in range(LO_ROUNDS):
         for step in steps:
             inl = _errors_px(pool, *_one(model))[0] < threshold_px
-            cand = step(pool, inl, model, threshold_px, free=free)
+            cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
             cost = msac(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement (on every point within FINAL_CUTOFF thresholds)
-        model = _refine(pool, None, model, threshold_px, free=free)
+        model = _refine(pool, None, model, threshold_px, free=free, prior=prior)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     e = _errors_px(pool, *_one((R, C, w, t)))[0]
     inl = e < threshold_px
@@ -979,7 +1283,7 @@ def estimate_rig_pose(
     if bad:
         return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free) if refine else (None, None)
+    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free, prior) if refine else (None, None)
     out = (
         (None, None, None)
         if cov is None
@@ -989,5 +1293,5 @@ def estimate_rig_pose(
     return RigPoseEstimate(
         True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
         pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still, sens,
-        explained, used,
+        explained, used, prior is not None,
     )  # fmt: skip

@@ -311,8 +311,8 @@ PARAMETERS = {
     ),
     "imu.rotation": Parameter(
         [0.0, 0.0, 0.0, 1.0],
-        "rotation IMU frame -> camera optical frame, quaternion x y z w "
-        "(rs-localizer calibrate-readout --imu-topic prints it)",
+        "rotation IMU frame -> camera optical frame (rig mode: -> base_frame), quaternion "
+        "x y z w (rs-localizer calibrate-readout --imu-topic prints it)",
     ),
     "imu.time_offset": Parameter(
         0.0,
@@ -1223,7 +1223,9 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
         raise ConfigError(f"rig.cameras: needs camera names, got {list(values['rig.cameras'])}")
     if len(set(names)) != len(names):
         raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
-    opts, tracking, _ = _estimation(values)
+    opts, tracking, imu = _estimation(values)
+    if imu is not None:  # (a gyro on the rig: imu.rotation is IMU -> base_frame; no waiting)
+        imu = dataclasses.replace(imu, wait=0.0)
     line_delay, readout_time, direction, reference_row = _timing(values)
     out = []
     for n in names:
@@ -1280,6 +1282,7 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
             refine=opts.refine.enabled,
             seed=r.seed,
             tracking=to,
+            imu=imu,
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None

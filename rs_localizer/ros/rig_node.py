@@ -11,6 +11,14 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
     <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics; until one arrives
                          the camera's frames wait (counted ``<c>.skipped.no_camera_info``) and
                          the rig runs on the others
+and, with ``imu.enabled``, one for the rig:
+    imu                  sensor_msgs/Imu (sensor-data QoS): a gyro on the rig, ``imu.rotation``
+                         its rotation IMU -> base_frame; every rig frame is solved with its
+                         angular velocity over the rig frame's capture times (rejected when
+                         the image contradicts it; counted ``rig.gyro_used``,
+                         ``rig.gyro_rejected``, ``rig.gyro_missing``); a rig frame does not
+                         wait for samples (``imu.wait`` unused: it is solved once its cameras
+                         moved past it)
 Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_frame``:
     pose, pose_with_covariance, twist_single_frame (the rig frame's own twist), twist and odom
     (the fused twist ``tracking.lag`` rig frames later, stamped with that rig frame's time;
@@ -37,7 +45,7 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
@@ -51,7 +59,7 @@ from .params import (
     rig_config,
 )
 from .pointcloud import read_correspondences
-from .qos import CLOUD_QOS, RELIABLE, output_events
+from .qos import CLOUD_QOS, IMU_QOS, RELIABLE, output_events
 
 __all__ = ["RigLocalizerNode", "rig_diagnostics"]
 
@@ -93,7 +101,8 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[str, str, dic
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
-    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts."""
+    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts; with a gyro the
+    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame)."""
     r = rig.rig_counts()
     values: dict[str, Any] = {
         "rig_frames": r["rig_frames"],
@@ -127,6 +136,14 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[str, str, dic
             warnings.append(f"camera {n} stopped")
         if n in waiting_info:
             warnings.append(f"camera {n} waits for its camera_info")
+    for k, v in sorted(rig.counts.items()):
+        if k.startswith("rig.gyro_"):
+            values[k] = v
+    b = rig.gyro_bias_values()
+    if b is not None:
+        values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
+        if rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
+            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
         return "ERROR", "no rig frame posed", values
     if r["failed"]:
@@ -222,6 +239,9 @@ class RigLocalizerNode(Node):
                     CLOUD_QOS,
                 )
             )
+        self.imu_rejected: dict[str, int] = {}
+        if self.config.settings.imu is not None:
+            self._subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
         self._timer = self.create_timer(
             float(values["diagnostics_period"]), self.publish_diagnostics
         )
@@ -264,6 +284,23 @@ class RigLocalizerNode(Node):
         for out in self.rig.add(frame):
             self.publish_output(out)
 
+    def _on_imu(self, msg) -> str | None:
+        """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
+        ``imu_rejected.<reason>``, as the single-camera node's)."""
+        if float(msg.angular_velocity_covariance[0]) == -1.0:
+            reason = "no_angular_velocity"
+        else:
+            try:
+                stamp = cv.checked_stamp_ns(msg.header.stamp)
+            except cv.StampError:
+                reason = "bad_stamp"
+            else:
+                a = msg.angular_velocity
+                reason = self.rig.add_imu(stamp, (a.x, a.y, a.z))
+        if reason is not None:
+            self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
+        return reason
+
     # ---------------------------------------------------------------- outputs
     def _wanted(self, topic: str) -> bool:
         pub = self._pubs.get(topic)
@@ -297,6 +334,8 @@ class RigLocalizerNode(Node):
         level, message, values = rig_diagnostics(self.rig, waiting)
         for n, k in self.bad_input.items():
             values[f"{n}.bad_input"] = k
+        for why, k in sorted(self.imu_rejected.items()):
+            values[f"imu_rejected.{why}"] = k
         st = DiagnosticStatus()
         st.name = f"rs_localizer: {self.get_fully_qualified_name()}"
         st.hardware_id = self.config.base_frame

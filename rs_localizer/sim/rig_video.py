@@ -29,6 +29,7 @@ __all__ = [
     "RigTrajectory",
     "default_rig",
     "generate_rig_video",
+    "rig_gyro",
     "rig_truth",
 ]
 
@@ -230,3 +231,36 @@ def generate_rig_video(
     order = {rc.name: i for i, rc in enumerate(cameras)}
     frames.sort(key=lambda f: (f.stamp_ns, order[f.name]))
     return frames, scene, trajectory
+
+
+def rig_gyro(
+    trajectory: RigTrajectory,
+    duration: float,
+    rate_hz: float = 400.0,
+    R_rig_imu: np.ndarray | None = None,
+    bias: np.ndarray | None = None,
+    noise: float = 0.003,
+    seed: int = 0,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    margin: float = 0.05,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A gyro on the rig: its samples over ``[-margin, duration + margin]`` s of rig time.
+
+    ``omega_imu = R_rig_imu^T omega_rig + bias + n`` (``omega_rig`` the trajectory's angular
+    velocity in the rig frame, :func:`rig_truth`; ``n`` Gaussian, ``noise`` rad/s per axis),
+    stamped ``t0_ns + t * 1e9`` ns as :func:`generate_rig_video`'s frames.
+
+    Args:
+        trajectory: the rig's. duration: s. rate_hz: samples per second.
+        R_rig_imu: (3, 3) rotation IMU -> rig frame (default identity). bias: (3,) rad/s, IMU
+            frame (default zero). noise: rad/s. seed: of the noise.
+    Returns:
+        (stamps (M,) int64 ns, rates (M, 3) rad/s, IMU frame).
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(-margin, duration + margin, 1.0 / rate_hz)
+    w, _ = trajectory.velocity_body(t)
+    R = np.eye(3) if R_rig_imu is None else np.asarray(R_rig_imu, dtype=float)
+    b = np.zeros(3) if bias is None else np.asarray(bias, dtype=float)
+    rates = w @ R + b + rng.normal(0.0, noise, (len(t), 3))
+    return t0_ns + np.round(t * 1e9).astype(np.int64), rates

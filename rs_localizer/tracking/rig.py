@@ -32,6 +32,16 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
    :attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`), as a
    camera's estimate is for the camera tracker.
 
+With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
+each rig frame is solved with the gyro's measurement over the rig frame's capture times
+(from the first line of its earliest camera to the last line of its latest; in the rig frame
+through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which rejects a gyro the image
+contradicts. With ``imu.estimate_bias`` the gyro's bias is estimated online from the rotation
+between consecutive solved rig frames
+(:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
+"camera"). Counted: ``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``,
+``rig.gyro_missing[.<reason>]`` (:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`).
+
 Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
 failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
 rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + skipped +
@@ -63,14 +73,18 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
+from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import InitialModel
 from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
+from .gyro import ImuBuffer, readout_window
+from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from .sequence import FusedPose, checked_stamp, reference_stamp_ns
 from .tracker import predictable
 
@@ -211,6 +225,13 @@ class RigSettings:
             at least ``disagree_min_points`` points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
             ``disagree_history`` rig frames *disagrees* with the rig.
+        imu: a gyro on the rig: a :class:`~rs_localizer.tracking.sequence.GyroSettings` (or
+            any object with its attributes, e.g. the node's ``ImuConfig``) whose
+            ``R_cam_imu`` is the rotation IMU -> **rig** frame (``R_rig_imu``: the rig's
+            angular velocity is ``R_rig_imu (omega_imu - bias)``), ``time_offset`` s added to
+            the IMU stamps to get the cameras' clock; ``wait``, ``buffer``, ``max_rate``,
+            ``max_gap``, ``gyro_noise``, ``gyro_bias``, ``gyro_bias_sigma``,
+            ``estimate_bias``, ``bias_random_walk`` as for one camera. None: no gyro.
     """
 
     mounts: dict
@@ -228,6 +249,7 @@ class RigSettings:
     disagree_min_points: int = 12
     disagree_frames: int = 3
     disagree_history: int = 5
+    imu: Any = None
 
     def __post_init__(self):
         if not self.mounts:
@@ -356,6 +378,9 @@ class RigOutput:
             without tracking.
         shares: camera -> :class:`CameraShare` (solved rig frames).
         disagreeing: cameras that disagree with the rig now (module docstring).
+        gyro: the gyro measurement the rig frame was solved with (rig frame), or None (no
+            gyro, or its samples missing: ``rig.gyro_missing``); the estimate says whether it
+            was used or rejected.
         fused: earlier rig frames (and, on a reset, the track's last ones) whose fused twist
             is final now, oldest first: :class:`~rs_localizer.tracking.sequence.FusedPose`
             in the rig frame.
@@ -372,6 +397,7 @@ class RigOutput:
     shares: dict = field(default_factory=dict)
     disagreeing: tuple = ()
     fused: list = field(default_factory=list)
+    gyro: GyroMeasurement | None = None
     tags: dict = field(default_factory=dict)
     error: str | None = None
 
@@ -464,6 +490,90 @@ class RigLocalizer:
         self._inlier_ratio: float | None = None
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         self._make_filter()
+        self.imu: ImuBuffer | None = None
+        self.gyro_bias: GyroBiasEstimator | None = None
+        self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
+        self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
+        imu = settings.imu
+        if imu is not None:
+            self.imu = ImuBuffer(imu.buffer, imu.max_rate, imu.max_gap)
+            if imu.estimate_bias:
+                self.gyro_bias = GyroBiasEstimator(
+                    imu.gyro_bias, imu.gyro_bias_sigma, imu.R_cam_imu, imu.gyro_noise,
+                    imu.time_offset,
+                    GyroBiasOptions(random_walk=imu.bias_random_walk,
+                                    max_interval=settings.stop_after),
+                )  # fmt: skip
+
+    def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
+        """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
+        frame). Returns None, ``"disabled"`` (no :attr:`RigSettings.imu`), or why the sample
+        was rejected (:meth:`~rs_localizer.tracking.gyro.ImuBuffer.add`).
+
+        Raises:
+            ValueError: a stamp that is not a nanosecond count
+                (:func:`~rs_localizer.tracking.sequence.checked_stamp`).
+        """
+        stamp = checked_stamp(stamp_ns, "IMU")
+        return "disabled" if self.imu is None else self.imu.add(stamp, rate)
+
+    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(bias (3,) rad/s, std (3,) rad/s)`` of the gyro (IMU frame): the online estimate
+        with ``estimate_bias``, else the settings'; None without a gyro."""
+        imu = self.settings.imu
+        if imu is None:
+            return None
+        if self.gyro_bias is not None:
+            return self.gyro_bias.bias.copy(), self.gyro_bias.std
+        return np.array(imu.gyro_bias, dtype=float), np.full(3, float(imu.gyro_bias_sigma))
+
+    def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
+        """The gyro measurement over the rig frame's capture times (rig frame), waiting up to
+        ``imu.wait`` for its samples; None without a gyro or its samples (counted)."""
+        imu, buf = self.settings.imu, self.imu
+        if imu is None or buf is None:
+            return None
+        first, last = [], []
+        for v in views:
+            a, b = readout_window(v.camera, v.stamp_offset)  # (s after the rig frame's time)
+            first.append(a)
+            last.append(b)
+        win = (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
+        self._gyro_time = 0.5 * (min(first) + max(last))
+        buf.wait_until(win[1] - int(round(imu.time_offset * 1e9)), imu.wait)
+        if self.gyro_bias is not None:
+            gyro, reason = self.gyro_bias.measurement(buf, win)
+        else:
+            gyro, reason = buf.measurement(
+                win, imu.R_cam_imu, imu.gyro_bias, imu.gyro_noise, imu.gyro_bias_sigma,
+                imu.time_offset,
+            )  # fmt: skip
+        if gyro is None:
+            self.counts["rig.gyro_missing"] += 1
+            self.counts[f"rig.gyro_missing.{reason}"] += 1
+            self.log.warning(
+                f"rig.gyro.{reason}",
+                f"rig frame solved without the gyro ({reason}): check the imu topic, its rate "
+                "and imu.time_offset",
+            )
+        return gyro
+
+    def _gyro_done(self, out: RigOutput) -> None:
+        """Count the gyro's outcome of a rig frame and feed the bias estimate."""
+        est = out.estimate
+        if out.gyro is not None and est is not None:
+            if est.gyro_used:
+                self.counts["rig.gyro_used"] += 1
+            if est.gyro_rejected:
+                self.counts["rig.gyro_rejected"] += 1
+                self.counts[f"rig.gyro_rejected.{est.gyro_rejection}"] += 1
+        bias = self.gyro_bias
+        if bias is None:
+            return
+        if out.success and est.covariance is not None:
+            bias.update(out.stamp_ns, est.R.T, est.covariance[:3, :3], self.imu)
+        else:
+            bias.restart()
 
     def _make_filter(self) -> None:
         to = self.settings.tracking
@@ -586,6 +696,10 @@ class RigLocalizer:
             cam.stopped = False
         self._first = self._last_closed = None
         self._carry += self._end_track()
+        if self.imu is not None:
+            self.imu.reset()
+        if self.gyro_bias is not None:
+            self.gyro_bias.restart()
         return []
 
     def _ready(self) -> list[RigOutput]:
@@ -677,17 +791,21 @@ class RigLocalizer:
             out.stamp_offsets[n] = off
             out.tags[n] = frame.tag
             views.append(RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off))
+        out.gyro = self._gyro = self._gyro_for(g, views)
         try:
             est, path = self._estimate(g.lo, views, out)
         except Exception as e:  # (the estimator raised: the rig frame failed)
             out.error = f"{type(e).__name__}: {e}"
             self._count_rig(names, "error")
+            self._gyro_done(out)
             return out
         out.estimate, out.path = est, path
         if not est.success:
             self._count_rig(names, est.failure or "error")
+            self._gyro_done(out)
             return out
         self._finish(out, est, path, names, views)
+        self._gyro_done(out)
         return out
 
     def _count_rig(self, names, failure: str | None) -> None:
@@ -711,6 +829,8 @@ class RigLocalizer:
             refine=s.refine,
             seed=s.seed,
             initial_model=initial,
+            gyro=self._gyro,
+            gyro_time=self._gyro_time,
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):

@@ -232,3 +232,58 @@ def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mount
     exited, rc, log = refused_start(tmp_path, [p], "/rig", 60)
     assert exited and rc == 1, log
     assert "rig camera 'left' has no mounting" in log, log
+
+
+def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
+    """imu.enabled with imu.rotation the IMU's rotation on the rig: the node subscribes imu,
+    every rig frame is solved with the gyro (``rig.gyro_used`` in the diagnostics, none
+    missing or rejected), and the poses stay within 0.05 deg and 5 mm of the truth; a sample
+    with no angular velocity (covariance[0] = -1) is counted as rejected."""
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu
+
+    from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg, quaternion_from_matrix
+    from rs_localizer.sim.rig_video import rig_gyro
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=80, seed=4)
+    R_rig_imu = rotvec_to_matrix(np.array([0.2, 0.5, -1.0]))
+    stamps, rates = rig_gyro(traj, 0.4, rate_hz=300.0, R_rig_imu=R_rig_imu, seed=1)
+    q = [float(x) for x in quaternion_from_matrix(R_rig_imu)]
+    params = rig_parameters(cams, **{"imu.enabled": True, "imu.rotation": q})
+    h = RigHarness(ros_context, cams, params)
+    pub = h.probe.create_publisher(Imu, "/rig/imu", qos_profile_sensor_data)
+    try:
+        assert h.wait(lambda: pub.get_subscription_count() > 0)
+        h.send_info(cams)
+
+        def send_imu(t, w, cov=0.0):
+            m = Imu()
+            m.header.stamp = ns_to_stamp(int(t))
+            m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = map(float, w)
+            m.angular_velocity_covariance[0] = cov
+            n = h.node.rig.imu.received + sum(h.node.imu_rejected.values())
+            pub.publish(m)
+            assert h.wait(lambda: h.node.rig.imu.received + sum(h.node.imu_rejected.values()) > n)
+
+        send_imu(stamps[0], rates[0], -1.0)
+        k = 0
+        for f in frames:  # (a frame arrives once its readout is over: 30 ms after its stamp)
+            while k < len(stamps) and stamps[k] <= f.stamp_ns + 30_000_000:
+                send_imu(stamps[k], rates[k])
+                k += 1
+            h.send([f])
+        n = len(frames) // 2
+        assert h.wait(lambda: len(h.poses) == n)
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, p, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+            Re, pe = pose_from_msg(m.pose)
+            assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
+        st, v = h.last_diag()
+        assert st.level == OK, st.message
+        assert v["rig.gyro_used"] == str(n), v
+        assert "rig.gyro_missing" not in v and "rig.gyro_rejected" not in v
+        assert v["imu_rejected.no_angular_velocity"] == "1"
+    finally:
+        h.close()

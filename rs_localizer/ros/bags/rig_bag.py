@@ -9,7 +9,9 @@ rig's ground truth ``/ground_truth/pose`` (``base_frame`` in ``map``) and
 ``/ground_truth/twist`` (rig frame) at every camera frame's reference-row time, a
 ``sequence.json`` whose ``rig`` entry lists the cameras (name, mounting, RS timing), and
 ``rig_params.yaml``: the node's parameter file for the rig (``--params-file`` of the node and
-of ``replay``).
+of ``replay``). With a gyro on the rig (``make-bag --rig N --imu-rate HZ``) it also holds
+``<ns>/imu`` (``sensor_msgs/Imu``, the rig's ``imu`` topic), the ``rig`` entry's ``imu`` and
+``imu.enabled``, ``imu.rotation`` (IMU -> base_frame) in ``rig_params.yaml``.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from .bag_io import (
     GT_POSE,
     GT_TWIST,
     IMAGE,
+    IMU,
     PC2,
     POSE,
     TWIST,
@@ -88,6 +91,7 @@ def write_rig_bag(
     generator: str = "rs-localizer make-bag --rig",
     compress: bool = False,
     extra: dict | None = None,
+    imu: tuple | None = None,
 ) -> Path:
     """Write a simulated rig video as a rig bag (module docstring); returns its path.
 
@@ -104,6 +108,9 @@ def write_rig_bag(
         generator, settings, extra: recorded in ``sequence.json`` (``extra``: further
             top-level entries, e.g. the front end). compress: zstd (mcap chunks, sqlite3
             messages).
+        imu: optional ``(t_ns (M,), omega (M, 3) rad/s, R_rig_imu (3, 3))``, a gyro on the
+            rig (:func:`rs_localizer.sim.rig_video.rig_gyro`) written on ``<namespace>/imu``
+            at its stamps.
 
     Log times: camera_info at stamp + 1 ms, the image, the cloud and the ground truth at
     stamp + 2 ms.
@@ -143,6 +150,10 @@ def write_rig_bag(
             )
         gt_pose = w.add_connection(GT_POSE, POSE, typestore=M.ts)
         gt_twist = w.add_connection(GT_TWIST, TWIST, typestore=M.ts)
+        if imu is not None:  # (a gyro on the rig)
+            c_imu = w.add_connection(f"{ns}/imu", IMU, typestore=M.ts)
+            for t_ns, om in zip(imu[0], imu[1], strict=True):
+                w.write(c_imu, int(t_ns), M.cdr(M.imu(om, np.zeros(3), int(t_ns), "imu_link"), IMU))
         written = set()
         for f in frames:
             n_frames += 1
@@ -187,6 +198,9 @@ def write_rig_bag(
             for c in cameras
         ],
     }
+    if imu is not None:
+        q = cv.quaternion_from_matrix(np.asarray(imu[2], dtype=float))
+        rig["imu"] = {"topic": f"{ns}/imu", "rotation": [float(x) for x in q]}
     meta = {
         "generator": generator,
         "topics": {**topics, "gt_pose": GT_POSE, "gt_twist": GT_TWIST},
@@ -219,6 +233,8 @@ def _params_yaml(rig: dict, stamp_row: float) -> str:
         "rs": {"stamp_row": float(stamp_row)},
         "rig": {"cameras": [c["name"] for c in rig["cameras"]], **cams},
     }
+    if "imu" in rig:
+        body["imu"] = {"enabled": True, "rotation": [round(x, 12) for x in rig["imu"]["rotation"]]}
     tree = {"/**/rs_localizer": {"ros__parameters": body}}
     return yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
 
@@ -306,7 +322,11 @@ def replay_rig(
               for c in cfg.cameras}  # fmt: skip
     rig = RigLocalizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
+    ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
+    gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     for frame in iter_rig_frames(bag, timing):
+        while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
+            rig.add_imu(*gyro.pop())
         outs = rig.add(frame)
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
@@ -333,6 +353,30 @@ def replay_rig(
         if e is not None:
             res.fused_errors.append(e)
     return res
+
+
+#: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
+#: frame (a camera's frame arrives after its readout; the bag logs it at its stamp)
+GYRO_AHEAD_NS = 50_000_000
+
+
+def _read_rig_gyro(bag: str | os.PathLike, ns: str) -> list:
+    """The ``<ns>/imu`` samples of a rig bag as ``(stamp_ns, (wx, wy, wz))``, newest first
+    (popped oldest first); samples without an angular velocity or a readable stamp left out."""
+    ts = typestore()
+    out = []
+    for _, msgtype, _, raw in iter_messages(bag, {f"{ns}/imu"}):
+        m = ts.deserialize_cdr(raw, msgtype)
+        if float(m.angular_velocity_covariance[0]) == -1.0:
+            continue
+        try:
+            stamp = cv.checked_stamp_ns(m.header.stamp)
+        except ValueError:
+            continue
+        a = m.angular_velocity
+        out.append((stamp, (a.x, a.y, a.z)))
+    out.sort(key=lambda x: x[0])
+    return out[::-1]
 
 
 def is_rig_bag(bag: str | os.PathLike) -> bool:
