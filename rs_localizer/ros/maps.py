@@ -1,7 +1,7 @@
 """The map files of a configuration, loaded: the landmark table of ``landmarks_file`` and the
 image front end built around the map of ``frontend_map``.
 
-:class:`~rs_localizer.ros.params.LocalizerConfig` holds values and paths only; the node and
+:class:`~rs_localizer.ros.config.LocalizerConfig` holds values and paths only; the node and
 ``rs-localizer replay`` load what they name with :func:`load_maps` where they build their
 :class:`~rs_localizer.ros.pipeline.FramePipeline` (and again when a parameter names another
 file), and hand the :class:`LoadedMaps` to it.
@@ -17,7 +17,8 @@ import numpy as np
 
 from ..frontends.shared import SHARED_MAPS
 from ..maps import check_regular_file
-from .params import ConfigError, LocalizerConfig
+from .config import LocalizerConfig
+from .params import ConfigError
 
 __all__ = ["LoadedMaps", "load_maps"]
 

@@ -43,8 +43,8 @@ from ..tracking.sequence import (
 )
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
+from .config import LocalizerConfig
 from .maps import LoadedMaps
-from .params import LocalizerConfig
 from .pointcloud import CloudError, read_correspondences, read_keypoints
 
 __all__ = [
@@ -314,7 +314,7 @@ class FramePipeline:
     """The per-frame pipeline of the localizer (see the module docstring).
 
     Args:
-        config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
+        config: the :class:`~rs_localizer.ros.config.LocalizerConfig` (None: set it with
             :meth:`configure` before the first frame).
         maps: the landmarks and the front end loaded for ``config`` (:func:`~.maps.load_maps`;
             None: none).
