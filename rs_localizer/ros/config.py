@@ -8,7 +8,8 @@ into a :class:`RigConfig` with :func:`rig_config`. The configuration holds value
 the library's settings (the estimator's and tracker's options, the gyro's use, built with
 :mod:`rs_localizer.tracking.settings`; the front end's options,
 :func:`rs_localizer.frontends.registry.frontend_options`), the frames, the fallback camera,
-the queue; the maps it names are loaded by :func:`rs_localizer.ros.maps.load_maps`.
+the queue; the maps it names are loaded by :func:`load_maps` (into the process's shared map
+cache, :data:`~rs_localizer.frontends.shared.SHARED_MAPS`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Extrinsic
 from ..frontends.registry import frontend_options
+from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from ..tracking.rig import RigMount
 from ..tracking.sequence import GyroSettings
@@ -41,6 +43,7 @@ __all__ = [
     "default_timing_note",
     "estimate_options",
     "imu_config",
+    "load_maps",
     "rig_config",
     "tracker_options",
 ]
@@ -110,7 +113,7 @@ class LocalizerConfig:
             ``aruco.*`` parameters).
 
     Values and paths only: the maps they name are loaded by
-    :func:`rs_localizer.ros.maps.load_maps` where the pipeline is built.
+    :func:`load_maps` where the pipeline is built.
     """
 
     solver: str
@@ -282,7 +285,7 @@ def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
 def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
     """The configuration of a full set of parameter values (one per
     :data:`.params.PARAMETERS` name), values and paths (the maps are loaded by
-    :func:`rs_localizer.ros.maps.load_maps`). Reads no file. Types and ranges are not checked
+    :func:`load_maps`). Reads no file. Types and ranges are not checked
     here (ROS does it for the node, :func:`.params.check_parameter` for replay).
 
     Raises:
@@ -332,6 +335,33 @@ def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
     ``features.*`` parameters (:func:`~rs_localizer.frontends.registry.frontend_options`)."""
     try:
         return frontend_options(kind, p)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+
+
+def load_maps(
+    cfg: LocalizerConfig, *, owner: object | None = None, current: LoadedMaps | None = None
+) -> LoadedMaps:
+    """The maps ``cfg`` names: the landmark table of ``landmarks_file`` and the front end of
+    ``frontend_map``, loaded through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on
+    behalf of ``owner`` (one copy per process, released with ``SHARED_MAPS.release(owner)``;
+    :meth:`~rs_localizer.frontends.shared.MapCache.load_maps`). The front end of ``current``
+    is reused when its kind and map are unchanged. Called where the node and replay build
+    their pipeline, and again when a parameter names another file.
+
+    Raises:
+        ConfigError: a landmark table or front-end map that does not load (missing, not a
+            regular file, malformed), naming the parameter.
+    """
+    try:
+        return SHARED_MAPS.load_maps(
+            cfg.landmarks_file,
+            cfg.frontend_kind,
+            cfg.frontend_map,
+            cfg.frontend_options,
+            owner=owner,
+            current=current,
+        )
     except ValueError as e:
         raise ConfigError(str(e)) from None
 

@@ -17,8 +17,8 @@ from rs_localizer.ros import config as C
 from rs_localizer.ros import param_files as F
 from rs_localizer.ros import params as P
 from rs_localizer.ros.camera_info_history import CameraInfoHistory, calibration_key
+from rs_localizer.ros.config import load_maps
 from rs_localizer.ros.frame_queue import FrameQueue
-from rs_localizer.ros.maps import load_maps
 
 ROS_FREE = (
     "rs_localizer.ros.params",

@@ -29,10 +29,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_errors
-from ...frontends.shared import SHARED_MAPS
+from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from .. import conversions as cv
-from ..config import LocalizerConfig, build_config, default_timing_note
-from ..maps import LoadedMaps, load_maps
+from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
 from ..outputs import frame_messages, fused_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput
@@ -73,7 +72,7 @@ class ReplayResult:
     ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
     of the published pose and twist), ``failures`` (reason -> frames), the files written, the
     configuration and parameter values used, the maps loaded for it (``maps``: the landmarks
-    and the front end, :class:`~rs_localizer.ros.maps.LoadedMaps`), and the pipeline's
+    and the front end, :class:`~rs_localizer.frontends.shared.LoadedMaps`), and the pipeline's
     counters (``counts``: e.g. ``frames_with_gyro``, ``gyro_rejected``,
     ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the node's diagnostics),
     ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used,
