@@ -27,6 +27,7 @@ class FrontendKind:
         make: ``make(loaded map, **kw)`` -> the per-image front end (``kw``: its constructor's
             options).
         make_video: ``make_video(loaded map, **kw)`` -> the node's front end for a video.
+        map_file: what its map file is, for the user (``frontend_map`` missing).
         options: ``options(values)`` -> the keyword arguments of ``make_video`` from the node's
             parameter values by name (``aruco.*``, ``features.*``; raises ValueError naming
             the parameter).
@@ -35,6 +36,7 @@ class FrontendKind:
     load: Callable[[str | os.PathLike], Any]
     make: Callable[..., Any]
     make_video: Callable[..., Any]
+    map_file: str
     options: Callable[[Mapping[str, Any]], dict] = lambda values: {}  # (no options)
 
 
@@ -120,11 +122,13 @@ def _features_options(p: Mapping[str, Any]) -> dict:
 
 #: name -> :class:`FrontendKind`
 FRONTEND_KINDS = {
-    "aruco": FrontendKind(_load_markers, _aruco, _aruco, _aruco_options),  # marker map, scene
+    "aruco": FrontendKind(
+        _load_markers, _aruco, _aruco, "marker map YAML, scene YAML or aruco_room", _aruco_options
+    ),
     "features": FrontendKind(
-        _load_features, _features, _features_video, _features_options
-    ),  # feature map .npz
-    "board": FrontendKind(_load_board, _board, _board),  # board YAML
+        _load_features, _features, _features_video, "feature map .npz", _features_options
+    ),
+    "board": FrontendKind(_load_board, _board, _board, "board YAML"),
 }
 
 #: the front ends' names

@@ -25,7 +25,7 @@ import numpy as np
 from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Extrinsic
-from ..frontends.registry import frontend_options
+from ..frontends.registry import frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from ..tracking.rig import RigMount
@@ -159,14 +159,6 @@ class LocalizerConfig:
         )
 
 
-def _frontend_needs(kind: str) -> str:
-    if kind == "aruco":
-        return "marker map YAML, scene YAML or aruco_room)"
-    if kind == "board":
-        return "board YAML)"
-    return "feature map .npz)"
-
-
 def _estimation(
     p: Mapping[str, Any],
 ) -> tuple[EstimateOptions, TrackerOptions | None, GyroSettings | None]:
@@ -278,7 +270,7 @@ def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
             f"{list(IMAGE_TRANSPORTS)}"
         )
     if kind != "none" and not fmap:
-        raise ConfigError(f"frontend {kind} needs frontend_map (" + _frontend_needs(kind))
+        raise ConfigError(f"frontend {kind} needs frontend_map ({frontend_kind(kind).map_file})")
     return kind, fmap, transport
 
 
