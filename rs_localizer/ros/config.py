@@ -55,7 +55,8 @@ def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
     ``max_linear_velocity``, ``correlated_noise.*``); every other option at its default.
 
     Raises:
-        TypeError, ValueError: from :class:`EstimateOptions` (e.g. a confidence outside (0, 1)).
+        TypeError, ValueError: from :class:`EstimateOptions` (e.g. a
+            ``max_angular_velocity`` <= 0).
     """
     return with_fields(EstimateOptions(), option_fields("estimate", values))
 

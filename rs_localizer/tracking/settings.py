@@ -42,7 +42,7 @@ def with_fields(obj: T, fields: Mapping[str, Any]) -> T:
 
     Raises:
         TypeError: a name that is not a field of its dataclass. TypeError, ValueError: from
-            the classes' own validation (e.g. a RANSAC confidence outside (0, 1)).
+            the classes' own validation (e.g. a ``max_angular_velocity`` <= 0).
     """
     changes = {
         k: with_fields(getattr(obj, k), v) if isinstance(v, Mapping) else v
