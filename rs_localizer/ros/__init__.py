@@ -2,8 +2,8 @@
 
 The node (:mod:`.node`, managed: :mod:`.lifecycle`, several cameras: :mod:`.runner`) is wiring
 around ROS-free parts: :mod:`.params` (the parameters), :mod:`.param_files` (parameter files),
-:mod:`.config` (parameter values -> configuration), :mod:`.maps` (its maps loaded),
-:mod:`.pipeline` (what happens to each frame), :mod:`.camera_info_history`,
+:mod:`.config` (parameter values -> configuration; :func:`.config.load_maps`, its maps
+loaded), :mod:`.pipeline` (what happens to each frame), :mod:`.camera_info_history`,
 :mod:`.frame_queue` (the worker and the frame accounting), :mod:`.outputs` (a frame's
 messages) and :mod:`.diagnostics`.
 :mod:`.bags.replay` runs the same pipeline over a bag, offline.

@@ -10,7 +10,7 @@ gives every parameter's default, :func:`check_parameter` checks a value as ROS d
 :mod:`.param_files`, the node's configuration is built from the values by :mod:`.config`
 (the library's settings by :mod:`rs_localizer.tracking.settings` and
 :func:`rs_localizer.frontends.registry.frontend_options`), and the maps it names are loaded by
-:mod:`.maps`.
+:func:`.config.load_maps`.
 """
 
 from __future__ import annotations
