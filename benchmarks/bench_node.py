@@ -132,9 +132,10 @@ def _alone_uncompiled(seq, cam, solver: str, frames: int) -> tuple[np.ndarray, n
     """The uncompiled path (every frame alone, the node's options) timed on ``frames``
     frames: (wall s, CPU s of this thread) per frame."""
     from rs_localizer.estimation.estimate import estimate_rs_pose
+    from rs_localizer.ros import config as C
     from rs_localizer.ros import params as P
 
-    cfg = P.build_config({**P.default_values(), "solver": solver})
+    cfg = C.build_config({**P.default_values(), "solver": solver})
     times, cpu = [], []
     for i in range(frames + 2):
         f = seq[i % len(seq)]
@@ -177,10 +178,11 @@ def _alone(seq, cam, solver: str, frames: int, pause: float = 0.0) -> tuple[str,
     distinct frames replayed with increasing stamps), ``pause`` s of sleep between frames:
     (``"tracker"`` or ``"estimator"``, s per frame)."""
     from rs_localizer.estimation import estimate_rs_pose
+    from rs_localizer.ros import config as C
     from rs_localizer.ros import params as P
     from rs_localizer.tracking.tracker import RSTracker
 
-    cfg = P.build_config({**P.default_values(), "solver": solver})
+    cfg = C.build_config({**P.default_values(), "solver": solver})
     period = 33_333_333
     if cfg.tracking is not None:
         tracker = RSTracker(solver, cfg.options, cfg.tracking)

@@ -301,3 +301,25 @@ def test_no_import_circle_among_the_front_ends():
 
     circles = [n for n in graph if reach(n, n, set())]
     assert not circles, f"import circle through frontends/{circles}"
+
+
+def test_architecture_names_every_module():
+    """docs/architecture.md's "Modules" table has one row per module of the package (its path
+    under ``rs_localizer/``; ``__init__.py`` files aside), and no row for a module that does not
+    exist; the "Layers" table's rows name the package's subpackages."""
+    doc = (PKG.parent / "docs" / "architecture.md").read_text()
+    section = doc.split("\n## Modules\n", 1)[1].split("\n## ", 1)[0]
+    named = []
+    for line in section.splitlines():
+        cells = line.split("|")
+        if line.startswith("| `") and len(cells) > 2:
+            named.append(cells[1].strip().strip("`"))
+    modules = sorted(str(p.relative_to(PKG)) for p in FILES if p.name != "__init__.py")
+    assert len(named) == len(set(named)), "modules named twice in the Modules table"
+    missing, extra = sorted(set(modules) - set(named)), sorted(set(named) - set(modules))
+    assert not missing, f"modules missing from the Modules table: {missing}"
+    assert not extra, f"Modules table rows for no module: {extra}"
+    layers = doc.split("\n## Layers\n", 1)[1].split("\n## ", 1)[0]
+    for unit in sorted({_unit(p) for p in FILES} - TOP):
+        if (PKG / unit).is_dir():
+            assert f"`{unit}/`" in layers, f"{unit}/ has no row in the Layers table"

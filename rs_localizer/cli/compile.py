@@ -71,7 +71,9 @@ def compile_targets(
     Raises:
         CliError: a parameter file that cannot be read or holds an invalid value.
     """
-    from ..ros.params import ConfigError, estimate_options, parameter_values, tracker_options
+    from ..ros.config import estimate_options, tracker_options
+    from ..ros.param_files import parameter_values
+    from ..ros.params import ConfigError
 
     try:
         values, _ = parameter_values(params_files)

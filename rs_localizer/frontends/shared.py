@@ -10,21 +10,45 @@ Lifetime: a caller passes ``owner`` (e.g. the node); each owner holds at most on
 and one landmark table (a new one replaces its previous one), and :meth:`MapCache.release`
 drops its holds. A map no owner holds leaves the cache (it is freed once the last front end
 using it is gone). Without ``owner`` a map stays cached for the life of the process.
+
+:meth:`MapCache.load_maps` loads what a camera's configuration names (its landmark table and
+its front end around its map) as :class:`LoadedMaps`: the node and ``rs-localizer replay`` do
+so through :func:`rs_localizer.ros.config.load_maps`.
 """
 
 from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..maps import check_regular_file
 from .registry import frontend_kind
 
-__all__ = ["SHARED_MAPS", "MapCache"]
+__all__ = ["SHARED_MAPS", "LoadedMaps", "MapCache"]
+
+
+@dataclass(frozen=True, eq=False)
+class LoadedMaps:
+    """What :meth:`MapCache.load_maps` loaded for a camera.
+
+    Attributes:
+        landmarks: ``(sorted ids (N,), points (N, 3) m)`` of the landmark table, or None.
+        frontend: the image front end (a
+            :class:`~rs_localizer.correspondences.VideoFrontend`) around the front end's map,
+            or None (no front end).
+        frontend_kind, frontend_map: what ``frontend`` was built for.
+    """
+
+    landmarks: tuple[np.ndarray, np.ndarray] | None = None
+    frontend: Any = None
+    frontend_kind: str = "none"
+    frontend_map: str = ""
 
 
 class MapCache:
@@ -124,6 +148,55 @@ class MapCache:
             return ids[order], pts[order]
 
         return self.get("landmarks", path, load, owner)
+
+    def load_maps(
+        self,
+        landmarks_file: str = "",
+        kind: str = "none",
+        frontend_map: str = "",
+        frontend_options: Mapping[str, Any] | None = None,
+        *,
+        owner: object | None = None,
+        current: LoadedMaps | None = None,
+    ) -> LoadedMaps:
+        """The maps a camera names, loaded through this cache on behalf of ``owner`` (one copy
+        per process, released with :meth:`release`): the landmark table of ``landmarks_file``
+        ("" none; :meth:`landmarks`) and the front end ``kind`` ("none": none) around the map
+        of ``frontend_map`` with ``frontend_options`` (:meth:`frontend`). The front end of
+        ``current`` is reused when its kind and map are unchanged.
+
+        Raises:
+            ValueError: a landmark table or front-end map that does not load (missing, not a
+                regular file, malformed), naming the parameter (``landmarks_file``,
+                ``frontend_map``).
+        """
+        landmarks, frontend = None, None
+        path = landmarks_file
+        if path:
+            try:  # (loaded once per process: cameras naming the same file share it)
+                landmarks = self.landmarks(path, owner=owner)
+            except (OSError, ValueError) as e:
+                raise ValueError(f"cannot load landmarks_file {path!r}: {e}") from None
+        fmap = frontend_map
+        if kind != "none":
+            if current is not None and (kind, fmap) == (
+                current.frontend_kind,
+                current.frontend_map,
+            ):
+                frontend = current.frontend
+            else:
+                try:
+                    if os.path.lexists(os.path.expanduser(fmap)):  # (not a built-in name)
+                        check_regular_file(os.path.expanduser(fmap))  # a FIFO would block
+                    # (the map is loaded once per process and shared by cameras naming it)
+                    frontend = self.frontend(
+                        kind, os.path.expanduser(fmap), owner=owner, **(frontend_options or {})
+                    )
+                except Exception as e:
+                    raise ValueError(
+                        f"cannot load frontend_map {fmap!r} ({kind}): {type(e).__name__}: {e}"
+                    ) from None
+        return LoadedMaps(landmarks, frontend, kind, fmap)
 
 
 #: the process-wide cache the node uses

@@ -1,9 +1,11 @@
 """ROS 2 layer of rs_localizer: message conversions, the node and bag tools.
 
 The node (:mod:`.node`, managed: :mod:`.lifecycle`, several cameras: :mod:`.runner`) is wiring
-around ROS-free parts: :mod:`.params` (parameters -> configuration), :mod:`.pipeline` (what
-happens to each frame), :mod:`.camera_info_history`, :mod:`.frame_queue` (the worker and the
-frame accounting), :mod:`.outputs` (a frame's messages) and :mod:`.diagnostics`.
+around ROS-free parts: :mod:`.params` (the parameters), :mod:`.param_files` (parameter files),
+:mod:`.config` (parameter values -> configuration; :func:`.config.load_maps`, its maps
+loaded), :mod:`.pipeline` (what happens to each frame), :mod:`.camera_info_history`,
+:mod:`.frame_queue` (the worker and the frame accounting), :mod:`.outputs` (a frame's
+messages) and :mod:`.diagnostics`.
 :mod:`.bags.replay` runs the same pipeline over a bag, offline.
 
 Importing this package does not import rclpy; :mod:`.node`, :mod:`.bags.play` and the message

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 
 from ..runtime.background import background_state, compiled_ready
+from .config import LocalizerConfig
 from .frame_queue import FrameCounts
-from .params import LocalizerConfig
 from .pipeline import StatsSnapshot
 
 __all__ = ["ERROR", "IMU_IDLE_WARN_S", "OK", "WARN", "diagnostic_status"]

@@ -56,14 +56,14 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
-from ..frontends.shared import SHARED_MAPS
+from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from . import conversions as cv
+from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN, diagnostic_status
 from .frame_queue import FrameQueue
-from .maps import LoadedMaps, load_maps
 from .outputs import frame_messages, fused_messages
-from .params import PARAMETERS, ConfigError, LocalizerConfig, build_config, default_timing_note
+from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events

@@ -1,62 +1,45 @@
-"""The node's parameters and the configuration built from them (no ROS needed).
+"""The node's parameters: each declared once, with its default, description, range and
+read-only flag, and the checks of their values (no ROS needed).
 
-:data:`PARAMETERS` declares every parameter of ``rs_localizer_node`` (default, description,
-range, read-only; ``config/rs_localizer.yaml`` lists them with their defaults). The node, the
-managed node and ``rs-localizer replay`` turn a full set of parameter values into a
-:class:`LocalizerConfig` with :func:`build_config`, which raises :class:`ConfigError` naming
-the parameter when a value cannot be used, then load the maps it names with
-:func:`rs_localizer.ros.maps.load_maps`.
-Parameter files in the ROS 2 format are read by :func:`read_params_file` (for replay; the node
-gets them from ROS).
+:data:`PARAMETERS` declares every parameter of ``rs_localizer_node`` (``config/rs_localizer.yaml``
+lists them with their defaults; ``make params`` writes the docs' tables from it), and
+:data:`RIG_PARAMETERS` and :data:`RIG_CAMERA_PARAMETERS` the rig mode's. :func:`default_values`
+gives every parameter's default, :func:`check_parameter` checks a value as ROS does, and
+:func:`option_fields` groups the values by the settings field each sets
+(:attr:`Parameter.field`). Elsewhere: the ROS 2 parameter files are read by
+:mod:`.param_files`, the node's configuration is built from the values by :mod:`.config`
+(the library's settings by :mod:`rs_localizer.tracking.settings` and
+:func:`rs_localizer.frontends.registry.frontend_options`), and the maps it names are loaded by
+:func:`.config.load_maps`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
-
-from ..camera import READOUT_DIRECTIONS, CameraModel
-from ..estimation import EstimateOptions
-from ..estimation.options import points_needed
-from ..frames import OPTICAL_TO_BODY_QUATERNION, Extrinsic
-from ..frontends import FRONTENDS
+from ..camera import READOUT_DIRECTIONS
+from ..frames import OPTICAL_TO_BODY_QUATERNION
+from ..frontends.registry import FRONTENDS
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
-from ..tracking.tracker import TrackerOptions
-from . import conversions as cv
 
 __all__ = [
     "FRONTEND_CHOICES",
     "IMAGE_TRANSPORTS",
     "OPTION_GROUPS",
+    "OTHER_NODE_PARAMETERS",
     "PARAMETERS",
     "RIG_CAMERA_PARAMETERS",
     "RIG_PARAMETERS",
     "ConfigError",
     "FloatRange",
-    "ImuConfig",
     "IntRange",
-    "LocalizerConfig",
     "Parameter",
-    "RigCameraConfig",
-    "RigConfig",
-    "build_config",
     "check_parameter",
     "default_values",
-    "estimate_options",
-    "imu_config",
     "option_fields",
-    "parameter_values",
-    "points_needed",
-    "read_params_file",
-    "rig_config",
-    "tracker_options",
 ]
 
 
@@ -91,12 +74,13 @@ class Parameter(NamedTuple):
         range: :class:`FloatRange`, :class:`IntRange` or None (any value).
         read_only: the node refuses changes at run time.
         field: the options field it sets, ``"<group>"`` or ``"<group>:<path>"`` with
-            ``<group>`` one of :data:`OPTION_GROUPS` (``estimate``: :class:`EstimateOptions`,
-            ``tracking``: :class:`TrackerOptions`, ``imu``: :class:`ImuConfig`). Without a path
+            ``<group>`` one of :data:`OPTION_GROUPS` (``estimate``: ``EstimateOptions``,
+            ``tracking``: ``TrackerOptions``, ``imu``: ``GyroSettings``). Without a path
             the field has the parameter's name less the group's prefix (``ransac.seed`` ->
             ``EstimateOptions.ransac.seed``, ``tracking.gate_px`` -> ``TrackerOptions.gate_px``);
             a path says where the names differ (``refine`` -> ``refine.enabled``). None: read
-            by :func:`build_config` itself (frames, camera, queue, front end).
+            by :func:`rs_localizer.ros.config.build_config` itself (frames, camera, queue,
+            front end).
     """
 
     default: Any
@@ -573,8 +557,8 @@ FRONTEND_CHOICES = ("none",) + FRONTENDS
 #: values of the ``image_transport`` parameter
 IMAGE_TRANSPORTS = ("raw", "compressed")
 #: options groups a :attr:`Parameter.field` names -> the prefix its parameter names drop
-#: (``estimate``: :class:`EstimateOptions`, ``tracking``: :class:`TrackerOptions`, ``imu``:
-#: :class:`ImuConfig`)
+#: (``estimate``: ``EstimateOptions``, ``tracking``: ``TrackerOptions``, ``imu``:
+#: ``GyroSettings``)
 OPTION_GROUPS = {"estimate": "", "tracking": "tracking.", "imu": "imu."}
 
 
@@ -636,57 +620,9 @@ def check_parameter(name: str, value: Any) -> None:
         raise ConfigError(f"parameter {name!r}: {value!r} is outside [{lo}, {hi}] ({desc})")
 
 
-def _flatten(tree: Mapping, prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for k, v in tree.items():
-        name = f"{prefix}{k}"
-        if isinstance(v, Mapping):
-            out.update(_flatten(v, name + "."))
-        else:
-            out[name] = v
-    return out
-
-
-def _section_applies(section: str, node_name: str) -> bool:
-    """Whether a parameter-file section applies to a node named ``node_name`` outside any
-    namespace: the wildcards (``/**``, ``/*``) and the node's own name (``rs_localizer``,
-    ``/rs_localizer``, ``/**/rs_localizer``)."""
-    s = str(section).strip()
-    return s in ("/**", "**", "/*", "*") or s.lstrip("/") in (node_name, f"**/{node_name}")
-
-
-def read_params_file(path: str | os.PathLike, node_name: str = "rs_localizer") -> dict[str, Any]:
-    """The parameters a ROS 2 parameter file gives a node named ``node_name`` (no namespace):
-    its sections ``/**`` and ``rs_localizer`` (also ``/rs_localizer``, ``/**/rs_localizer``) in
-    file order, each ``ros__parameters`` tree flattened to dotted names (``ransac:
-    {seed: 3}`` -> ``ransac.seed``). Sections of other nodes or namespaces
-    (``/camera/rs_localizer``) are not read. Values are as YAML parses them (checked later,
-    against :data:`PARAMETERS`, by :func:`check_parameter`).
-
-    Raises:
-        ConfigError: the file is not a ROS 2 parameter file (YAML mapping of node name ->
-            ``ros__parameters`` mapping). OSError: the file cannot be read.
-    """
-    import yaml
-
-    try:
-        tree = yaml.safe_load(Path(path).read_text())
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{path}: not YAML: {e}") from None
-    if not isinstance(tree, Mapping):
-        raise ConfigError(f"{path}: not a ROS 2 parameter file (node name: ros__parameters: ...)")
-    out: dict[str, Any] = {}
-    for section, body in tree.items():
-        if not isinstance(body, Mapping) or not isinstance(body.get("ros__parameters"), Mapping):
-            raise ConfigError(f"{path}: section {section!r} has no ros__parameters mapping")
-        if _section_applies(section, node_name):
-            out.update(_flatten(body["ros__parameters"]))
-    return out
-
-
 def _typed(default: Any, value: Any) -> Any:
     """``value`` as its parameter's type (ROS gives the declared type; a parameter file read by
-    :func:`read_params_file` is checked by :func:`check_parameter` first)."""
+    :func:`.param_files.read_params_file` is checked by :func:`check_parameter` first)."""
     if isinstance(default, bool):
         return bool(value)
     if isinstance(default, (int, float, str)):
@@ -696,7 +632,8 @@ def _typed(default: Any, value: Any) -> Any:
 
 def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
     """The fields of options group ``group`` that parameters set (:attr:`Parameter.field`),
-    as a tree ``{field: value or {subfield: ...}}`` of the values in ``values``.
+    as a tree ``{field: value or {subfield: ...}}`` of the values in ``values`` (what
+    :func:`rs_localizer.tracking.settings.with_fields` takes).
 
     Raises:
         KeyError: ``values`` lacks one of the group's parameters.
@@ -717,416 +654,6 @@ def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
     return tree
 
 
-def _replace(obj: Any, tree: Mapping[str, Any]) -> Any:
-    """Frozen dataclass ``obj`` with the fields of ``tree`` replaced (nested dataclasses
-    recursively); the classes validate the result."""
-    changes = {
-        k: _replace(getattr(obj, k), v) if isinstance(v, Mapping) else v for k, v in tree.items()
-    }
-    return dataclasses.replace(obj, **changes)
-
-
-def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
-    """The estimator options of the parameters whose :attr:`Parameter.field` is in the
-    ``estimate`` group (``ransac.*``, ``refine``, ``motion_prior.*``, ``max_angular_velocity``,
-    ``max_linear_velocity``, ``correlated_noise.*``); every other option at its default.
-
-    Raises:
-        TypeError, ValueError: from :class:`EstimateOptions` (e.g. a confidence outside (0, 1)).
-    """
-    return _replace(EstimateOptions(), option_fields("estimate", values))
-
-
-def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
-    """The video tracker's options of the parameters in the ``tracking`` group; None when
-    ``tracking.enabled`` is false (every frame alone).
-
-    Raises:
-        TypeError, ValueError: from :class:`TrackerOptions` / :class:`FusionOptions`.
-    """
-    if not bool(values["tracking.enabled"]):
-        return None
-    return _replace(TrackerOptions(), option_fields("tracking", values))
-
-
-@dataclass(frozen=True)
-class ImuConfig:
-    """The gyro's use in the estimate (the ``imu.*`` parameters).
-
-    Attributes:
-        R_cam_imu: (3, 3) rotation IMU -> camera optical frame. time_offset: s added to the
-            IMU stamps. gyro_noise, gyro_bias_sigma: rad/s. gyro_bias: (3,) rad/s, IMU frame.
-        estimate_bias: estimate the bias online (initial value ``gyro_bias``, standard
-            deviation ``gyro_bias_sigma``). bias_random_walk: rad/s per sqrt(s).
-        wait: s a frame waits for its samples. buffer: s kept. max_rate: rad/s saturation.
-        max_gap: s between samples beyond which a readout is ``sparse``.
-    """
-
-    R_cam_imu: np.ndarray
-    time_offset: float
-    gyro_noise: float
-    gyro_bias: np.ndarray
-    gyro_bias_sigma: float
-    wait: float
-    buffer: float
-    max_rate: float
-    max_gap: float
-    estimate_bias: bool = False
-    bias_random_walk: float = 1e-4
-
-
-def imu_config(values: Mapping[str, Any]) -> ImuConfig | None:
-    """The :class:`ImuConfig` of the ``imu.*`` parameters; None when ``imu.enabled`` is false.
-
-    Raises:
-        ValueError: ``imu.rotation`` not a quaternion (4 finite numbers of norm near 1),
-            ``imu.gyro_bias`` not 3 finite numbers.
-    """
-    if not bool(values["imu.enabled"]):
-        return None
-    R = Extrinsic.from_translation_quaternion([0.0, 0.0, 0.0], values["imu.rotation"]).rotation
-    bias = np.asarray(values["imu.gyro_bias"], dtype=float).reshape(-1)
-    if bias.shape != (3,) or not np.isfinite(bias).all():
-        raise ValueError(f"imu.gyro_bias must be 3 finite numbers (rad/s), got {bias.tolist()}")
-    return ImuConfig(R_cam_imu=R, gyro_bias=bias, **option_fields("imu", values))
-
-
-@dataclass(frozen=True, eq=False)
-class LocalizerConfig:
-    """Everything the localizer derives from its parameters (see :data:`PARAMETERS` for the
-    meaning of each; built by :func:`build_config`).
-
-    Attributes:
-        solver: minimal solver name. options: the estimator's options.
-        tracking: the video tracker's options, None = every frame alone.
-        imu: the gyro's use (:class:`ImuConfig`), None = no gyro.
-        line_delay (s/line), readout_time (s, > 0 wins), direction, reference_row (px, None =
-            image centre), stamp_row (px): the rolling-shutter timing of every camera model.
-        map_frame, camera_frame ("" = the input's frame id), base_frame ("" = none) and
-            extrinsic (the base_frame -> camera mounting, None without base_frame).
-        max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
-            than this (ns) resets the time-dependent state. queue_size: frames waiting.
-        camera_info_wait: s a frame may wait for its camera_info.
-        fallback: the camera model of the ``camera.*`` parameters (None: camera.fx <= 0).
-        landmarks_file: the landmark table (CSV) of keypoint frames.
-        frontend_kind (``none``, ``aruco``, ...), frontend_map: the image front end and its
-            map file, image_transport (``raw``/``compressed``), republish_correspondences,
-            frontend_options (the front end's keyword arguments: the ``features.*`` and
-            ``aruco.*`` parameters).
-
-    Values and paths only: the maps they name are loaded by
-    :func:`rs_localizer.ros.maps.load_maps` where the pipeline is built.
-    """
-
-    solver: str
-    options: EstimateOptions
-    tracking: TrackerOptions | None
-    line_delay: float
-    readout_time: float
-    direction: str
-    reference_row: float | None
-    stamp_row: float
-    map_frame: str
-    camera_frame: str
-    base_frame: str
-    extrinsic: Extrinsic | None
-    max_points: int
-    time_reset_ns: int
-    queue_size: int
-    camera_info_wait: float
-    fallback: CameraModel | None
-    landmarks_file: str
-    frontend_kind: str
-    frontend_map: str
-    image_transport: str
-    republish_correspondences: bool
-    imu: ImuConfig | None = None
-    #: keyword arguments of the front end (``features.*`` for ``features``)
-    frontend_options: dict = dataclasses.field(default_factory=dict)
-
-    @property
-    def min_points(self) -> int:
-        """Fewest correspondences a pose needs (:func:`points_needed`)."""
-        return points_needed(self.solver, self.options)
-
-    def camera_with_timing(self, camera: CameraModel) -> CameraModel:
-        """``camera``'s intrinsics with this configuration's rolling-shutter timing.
-
-        Raises:
-            ValueError: timing the camera model rejects.
-        """
-        return cv.camera_model(
-            camera.K,
-            camera.D,
-            camera.width,
-            camera.height,
-            camera.distortion_model,
-            self.line_delay,
-            self.readout_time,
-            self.direction,
-            self.reference_row,
-        )
-
-    def camera_from_info(self, msg: Any) -> CameraModel:
-        """The camera model of a ``sensor_msgs/CameraInfo`` (rclpy or rosbags) with this
-        configuration's timing.
-
-        Raises:
-            CameraInfoError (a ValueError): see :func:`.conversions.camera_model_from_camera_info`.
-        """
-        return cv.camera_model_from_camera_info(
-            msg, self.line_delay, self.readout_time, self.direction, self.reference_row
-        )
-
-
-def _frontend_options(kind: str, p) -> dict:
-    """Keyword arguments of the front end ``kind`` from the ``features.*`` and ``aruco.*``
-    parameters."""
-    if kind == "aruco":
-        from ..frontends.marker_detection import DetectorOptions
-
-        try:
-            detector = DetectorOptions.from_mapping(p, "aruco.")
-        except ValueError as e:
-            raise ConfigError(f"aruco.detector options: {e}") from None
-        return {
-            "detector_options": detector,
-            "windowed": bool(p["aruco.windowed"]),
-            "window_margin_px": float(p["aruco.window_margin_px"]),
-            "full_frame_every": int(p["aruco.full_frame_every"]),
-        }
-    if kind != "features":
-        return {}
-    matcher = str(p["features.matcher"]).strip().lower()
-    if matcher not in ("auto", "bf", "flann"):
-        raise ConfigError(
-            f"unknown features.matcher {p['features.matcher']!r}; expected auto, bf or flann"
-        )
-    return {
-        "tracking": bool(p["features.tracking"]),
-        "matcher": None if matcher == "auto" else matcher,
-        "flann_checks": int(p["features.flann_checks"]),
-        "n_features": int(p["features.max_features"]),
-        "refresh_frames": int(p["features.refresh_frames"]),
-        "search_radius_px": float(p["features.search_radius_px"]),
-        "min_tracked_inliers": int(p["features.min_tracked_inliers"]),
-    }
-
-
-def _frontend_needs(kind: str) -> str:
-    if kind == "aruco":
-        return "marker map YAML, scene YAML or aruco_room)"
-    if kind == "board":
-        return "board YAML)"
-    return "feature map .npz)"
-
-
-def _estimation(p: Mapping[str, Any]) -> tuple[EstimateOptions, TrackerOptions | None, Any]:
-    """Stage of :func:`build_config`: solver, estimator options (and what a pose needs against
-    ``max_points``), tracker options and the gyro's use."""
-    if p["solver"] not in SOLVERS:
-        raise ConfigError(f"unknown solver {p['solver']!r}; expected one of {list(SOLVERS)}")
-    if p["rs.direction"] not in READOUT_DIRECTIONS:
-        raise ConfigError(
-            f"unknown rs.direction {p['rs.direction']!r}; expected one of "
-            f"{list(READOUT_DIRECTIONS)}"
-        )
-    try:
-        opts = estimate_options(p)
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"invalid RANSAC options: {e}") from None
-    need = points_needed(p["solver"], opts)
-    if int(p["max_points"]) < need:
-        raise ConfigError(
-            f"max_points {p['max_points']} is below the {need} points a pose needs "
-            f"(ransac.min_inliers {int(p['ransac.min_inliers'])}, solver {p['solver']}): every "
-            "frame would fail"
-        )
-    try:
-        tracking = tracker_options(p)
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"invalid tracking parameters: {e}") from None
-    try:
-        imu = imu_config(p)
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"invalid imu parameters: {e}") from None
-    return opts, tracking, imu
-
-
-def _timing(p: Mapping[str, Any]) -> tuple[float, float, str, float | None]:
-    """Stage of :func:`build_config`: the rolling-shutter timing ``(line_delay, readout_time,
-    direction, reference_row or None)`` of the ``rs.*`` parameters (checked with the fallback
-    camera, then alone)."""
-    ref = float(p["rs.reference_row"])
-    line_delay, readout_time = float(p["rs.line_delay"]), float(p["rs.readout_time"])
-    return line_delay, readout_time, p["rs.direction"], (None if ref < 0 else ref)
-
-
-def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
-    """Stage of :func:`build_config`: the camera model of the ``camera.*`` parameters (None:
-    ``camera.fx <= 0``), then the check of the rolling-shutter timing on its own."""
-    if not all(
-        math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx", "camera.cy")
-    ):
-        raise ConfigError("invalid fallback camera parameters: camera.fx/fy/cx/cy must be finite")
-    d = p["camera.d"] if p["camera.d"] is not None else []
-    if not all(math.isfinite(float(x)) for x in d):
-        raise ConfigError(
-            f"invalid fallback camera parameters: camera.d must be finite, got {list(d)}"
-        )
-    fallback = None
-    if float(p["camera.fx"]) > 0:
-        K = np.array(
-            [
-                [p["camera.fx"], 0.0, p["camera.cx"]],
-                [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
-                [0.0, 0.0, 1.0],
-            ],
-            dtype=float,
-        )
-        try:
-            fallback = cv.camera_model(
-                K,
-                list(d),
-                p["camera.width"],
-                p["camera.height"],
-                p["camera.distortion_model"],
-                *timing,
-            )
-        except ValueError as e:
-            raise ConfigError(f"invalid fallback camera parameters: {e}") from None
-    try:
-        cv.camera_model(np.eye(3), [], 10, 10, "plumb_bob", *timing)
-    except ValueError as e:
-        raise ConfigError(f"invalid rolling-shutter parameters: {e}") from None
-    return fallback
-
-
-def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
-    """Stage of :func:`build_config`: ``(base_frame, the base_frame -> camera mounting or
-    None)``."""
-    base_frame, extrinsic = str(p["base_frame"]).strip(), None
-    if base_frame:
-        try:
-            extrinsic = Extrinsic.from_translation_quaternion(
-                p["camera_to_base.translation"], p["camera_to_base.rotation"]
-            )
-        except ValueError as e:
-            raise ConfigError(f"invalid camera_to_base: {e}") from None
-    return base_frame, extrinsic
-
-
-def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
-    """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
-    kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
-    if kind not in FRONTEND_CHOICES:
-        raise ConfigError(
-            f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_CHOICES)}"
-        )
-    transport = str(p["image_transport"]).strip().lower()
-    if transport not in IMAGE_TRANSPORTS:
-        raise ConfigError(
-            f"unknown image_transport {p['image_transport']!r}; expected one of "
-            f"{list(IMAGE_TRANSPORTS)}"
-        )
-    if kind != "none" and not fmap:
-        raise ConfigError(f"frontend {kind} needs frontend_map (" + _frontend_needs(kind))
-    return kind, fmap, transport
-
-
-def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
-    """The configuration of a full set of parameter values (one per :data:`PARAMETERS` name),
-    values and paths (the maps are loaded by :func:`rs_localizer.ros.maps.load_maps`). Reads
-    no file. Types and ranges are not checked here (ROS does it for the node,
-    :func:`check_parameter` for replay).
-
-    Raises:
-        ConfigError: the first unusable value, with a message naming the parameter (unknown
-            solver, direction, front end or transport; estimator or tracking options their
-            classes reject; ``max_points`` below what a pose needs; non-finite or invalid
-            fallback intrinsics; rolling-shutter timing; ``camera_to_base``; a front end
-            without ``frontend_map``).
-    """
-    p = values
-    opts, tracking, imu = _estimation(p)
-    timing = _timing(p)
-    fallback = _fallback_camera(p, timing)
-    base_frame, extrinsic = _mounting(p)
-    kind, fmap, transport = _image_input(p)
-    line_delay, readout_time, direction, reference_row = timing
-    return LocalizerConfig(
-        solver=p["solver"],
-        options=opts,
-        tracking=tracking,
-        line_delay=line_delay,
-        readout_time=readout_time,
-        direction=direction,
-        reference_row=reference_row,
-        stamp_row=float(p["rs.stamp_row"]),
-        map_frame=p["map_frame"],
-        camera_frame=p["camera_frame"],
-        base_frame=base_frame,
-        extrinsic=extrinsic,
-        max_points=int(p["max_points"]),
-        time_reset_ns=int(float(p["time_reset_threshold"]) * 1e9),
-        queue_size=int(p["queue_size"]),
-        camera_info_wait=float(p["camera_info_wait"]),
-        fallback=fallback,
-        landmarks_file=p["landmarks_file"],
-        frontend_kind=kind,
-        frontend_map=fmap,
-        image_transport=transport,
-        republish_correspondences=bool(p["republish_correspondences"]),
-        imu=imu,
-        frontend_options=_frontend_options(kind, p),
-    )
-
-
-def parameter_values(
-    files: Iterable[str | os.PathLike] = (), overrides: Mapping[str, Any] | None = None
-) -> tuple[dict[str, Any], list[str]]:
-    """Every parameter's value from its default, then each parameter file in order
-    (:func:`read_params_file`), then ``overrides``, each value checked
-    (:func:`check_parameter`). Returns ``(values, ignored)``: ``ignored`` lists file entries
-    that are not localizer parameters (``viz.*``, ``qos_overrides.*`` and ``cameras`` belong
-    to the node but not to the estimation; other names are unknown to the node, which ignores
-    them too).
-
-    Raises:
-        ConfigError: a file that is not a parameter file, an unknown override, or a value of
-            the wrong type or outside its range. OSError: a file cannot be read.
-    """
-    values = default_values()
-    ignored = []
-    for f in files:
-        for name, value in read_params_file(f).items():
-            if name not in PARAMETERS:
-                if not name.startswith(OTHER_NODE_PARAMETERS):
-                    ignored.append(name)
-                continue
-            check_parameter(name, value)
-            values[name] = value
-    for name, value in (overrides or {}).items():
-        check_parameter(name, value)
-        values[name] = value
-    return values, ignored
-
-
-def default_timing_note(cfg: LocalizerConfig) -> str | None:
-    """A warning when the RS timing is the parameters' default (``rs.line_delay`` unchanged,
-    ``rs.readout_time`` unset): the line delay is then likely no camera's own, and a wrong
-    one biases the angular and linear velocity. None when the timing was set."""
-    if cfg.line_delay != PARAMETERS["rs.line_delay"].default or cfg.readout_time > 0:
-        return None
-    return (
-        f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
-        "unset): set your camera's, measured with `rs-localizer calibrate-readout` or from "
-        "the published values in docs/video.md; a wrong line delay biases the angular and "
-        "linear velocity"
-    )
-
-
-# ---------------------------------------------------------------------- the rig mode
 #: the rig mode's parameters (docs/rig_node.md): with ``rig.cameras`` set the process runs one
 #: :class:`~rs_localizer.ros.rig_node.RigLocalizerNode` for the rig instead of one localizer per
 #: camera; every parameter of :data:`PARAMETERS` applies to it too (``ransac.*``, ``tracking.*``,
@@ -1179,112 +706,3 @@ RIG_CAMERA_PARAMETERS = {
         "", "the camera's readout direction; empty: rs.direction", read_only=True
     ),
 }
-
-
-@dataclass(frozen=True)
-class RigCameraConfig:
-    """One camera of the rig: its ``name``, ``mount`` (a
-    :class:`~rs_localizer.tracking.rig.RigMount`, rig = ``base_frame``) and RS timing
-    (``line_delay`` s/line, ``readout_time`` s, ``direction``) for its camera_info's model."""
-
-    name: str
-    mount: Any
-    line_delay: float
-    readout_time: float
-    direction: str
-
-
-@dataclass(frozen=True)
-class RigConfig:
-    """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
-    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`), ``base_frame`` (the rig's
-    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``."""
-
-    cameras: tuple
-    settings: Any
-    base_frame: str
-    reference_row: float | None
-
-
-def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:
-    """The rig's configuration of a full set of :data:`PARAMETERS` and :data:`RIG_PARAMETERS`
-    values and, per camera of ``rig.cameras``, its :data:`RIG_CAMERA_PARAMETERS` values
-    (``mounting`` None: not given).
-
-    Raises:
-        ConfigError: no cameras, a camera listed twice or without a usable mounting (naming
-            it), an unknown readout direction, estimator or tracking options their classes
-            reject.
-    """
-    from ..tracking.rig import RigMount, RigSettings, RigTrackingOptions
-
-    names = [str(n).strip() for n in values["rig.cameras"]]
-    if not names or any(not n for n in names):
-        raise ConfigError(f"rig.cameras: needs camera names, got {list(values['rig.cameras'])}")
-    if len(set(names)) != len(names):
-        raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
-    opts, tracking, imu = _estimation(values)
-    if imu is not None:  # (a gyro on the rig: imu.rotation is IMU -> base_frame; no waiting)
-        imu = dataclasses.replace(imu, wait=0.0)
-    line_delay, readout_time, direction, reference_row = _timing(values)
-    out = []
-    for n in names:
-        c = cameras.get(n, {})
-        m = c.get("mounting")
-        if m is None or len(m) == 0:
-            raise ConfigError(
-                f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
-                "qw] (its optical frame's pose in base_frame)"
-            )
-        if len(m) != 7 or not np.isfinite(np.asarray(m, dtype=float)).all():
-            raise ConfigError(
-                f"rig.{n}.mounting must be 7 finite numbers x, y, z, qx, qy, qz, qw, got {list(m)}"
-            )
-        try:
-            R = cv.matrix_from_quaternion(m[3:])
-            mount = RigMount.from_pose(R, m[:3])
-        except ValueError as e:
-            raise ConfigError(f"rig.{n}.mounting: {e}") from None
-        ld = float(c.get("line_delay", -1.0))
-        rt = float(c.get("readout_time", -1.0))
-        d = str(c.get("direction", "") or direction).strip()
-        if d not in READOUT_DIRECTIONS:
-            raise ConfigError(
-                f"rig.{n}.direction: unknown readout direction {d!r}; expected one of "
-                f"{list(READOUT_DIRECTIONS)}"
-            )
-        out.append(
-            RigCameraConfig(
-                n, mount, line_delay if ld < 0 else ld, readout_time if rt < 0 else rt, d
-            )
-        )
-    to = None
-    if tracking is not None:
-        to = RigTrackingOptions(
-            gate_px=tracking.gate_px,
-            gate_sigmas=tracking.gate_sigmas,
-            max_gate_px=tracking.max_gate_px,
-            min_explained_ratio=tracking.min_explained_ratio,
-            max_gap=tracking.max_gap,
-            fusion=tracking.fusion,
-        )
-    r = opts.ransac
-    try:
-        settings = RigSettings(
-            {c.name: c.mount for c in out},
-            window=float(values["rig.window"]),
-            stop_after=float(values["rig.stop_after"]),
-            stamp_row=float(values["rs.stamp_row"]),
-            time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
-            threshold_px=r.threshold_px,
-            max_iterations=r.max_iterations,
-            min_inliers=r.min_inliers,
-            refine=opts.refine.enabled,
-            seed=r.seed,
-            tracking=to,
-            imu=imu,
-        )
-    except ValueError as e:
-        raise ConfigError(f"rig: {e}") from None
-    base = str(values["base_frame"]).strip() or "base_link"
-    return RigConfig(tuple(out), settings, base, reference_row)

@@ -30,6 +30,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..correspondences import Correspondences
 from ..frames import camera_to_base
+from ..frontends.shared import LoadedMaps
 from ..runtime.background import ready_implementation
 from ..tracking.gyro import ImuBuffer
 from ..tracking.gyro_bias import GyroBiasEstimator
@@ -43,8 +44,7 @@ from ..tracking.sequence import (
 )
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
-from .maps import LoadedMaps
-from .params import LocalizerConfig
+from .config import LocalizerConfig
 from .pointcloud import CloudError, read_correspondences, read_keypoints
 
 __all__ = [
@@ -314,9 +314,9 @@ class FramePipeline:
     """The per-frame pipeline of the localizer (see the module docstring).
 
     Args:
-        config: the :class:`~rs_localizer.ros.params.LocalizerConfig` (None: set it with
+        config: the :class:`~rs_localizer.ros.config.LocalizerConfig` (None: set it with
             :meth:`configure` before the first frame).
-        maps: the landmarks and the front end loaded for ``config`` (:func:`~.maps.load_maps`;
+        maps: the landmarks and the front end loaded for ``config`` (:func:`~.config.load_maps`;
             None: none).
         log: :class:`ThrottledLog` (or a logger it wraps) for the warnings.
         stopped: ``stopped()`` true ends a frame's wait for its camera_info or gyro samples
@@ -362,7 +362,7 @@ class FramePipeline:
         return self._config
 
     def configure(self, config: LocalizerConfig, maps: LoadedMaps | None = None) -> None:
-        """Use ``config`` and the ``maps`` loaded for it (:func:`~.maps.load_maps`; None: no
+        """Use ``config`` and the ``maps`` loaded for it (:func:`~.config.load_maps`; None: no
         landmarks, no front end) from the next frame on; the camera models of the camera_infos
         received so far are rebuilt with its rolling-shutter timing (one it rejects is dropped
         and logged), the video state keeps what still applies

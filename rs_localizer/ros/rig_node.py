@@ -49,15 +49,9 @@ from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
 
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
+from .config import RigConfig, rig_config
 from .declare import declare_parameters
-from .params import (
-    PARAMETERS,
-    RIG_CAMERA_PARAMETERS,
-    RIG_PARAMETERS,
-    ConfigError,
-    RigConfig,
-    rig_config,
-)
+from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMU_QOS, RELIABLE, output_events
 

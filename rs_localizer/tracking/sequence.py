@@ -159,8 +159,8 @@ def checked_stamp(stamp_ns: Any, what: str = "frame") -> int:
 
 @dataclass(frozen=True)
 class GyroSettings:
-    """How the gyro is used (the node's ``imu.*`` parameters; any object with these attributes
-    will do, e.g. the node's ``ImuConfig``).
+    """How the gyro is used (the node's ``imu.*`` parameters:
+    :func:`rs_localizer.tracking.settings.gyro_settings` builds it from their values).
 
     Attributes:
         R_cam_imu: (3, 3) rotation IMU -> camera optical frame.
@@ -223,7 +223,7 @@ class SequenceSettings:
     solver: str = "r6p_1lin"
     options: EstimateOptions | None = None
     tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
-    imu: Any = None
+    imu: GyroSettings | None = None
     stamp_row: float = 0.0
     time_reset_ns: int = 10**9
     check_gyro: bool = True

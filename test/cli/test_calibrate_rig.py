@@ -35,7 +35,7 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
     with a mounting and its timing)."""
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
-    from rs_localizer.ros.params import read_params_file
+    from rs_localizer.ros.param_files import read_params_file
 
     out = tmp_path / "rig.yaml"
     capsys.readouterr()

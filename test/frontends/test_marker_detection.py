@@ -235,8 +235,8 @@ def test_debian_binding_through_the_same_adapter(tag_board):
 
 
 def test_node_parameters_reach_the_detector():
-    from rs_localizer.ros.maps import load_maps
-    from rs_localizer.ros.params import ConfigError, build_config, default_values
+    from rs_localizer.ros.config import build_config, load_maps
+    from rs_localizer.ros.params import ConfigError, default_values
 
     v = default_values()
     # the node's defaults are the detector's

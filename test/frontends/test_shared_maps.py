@@ -133,3 +133,62 @@ def test_node_and_library_score_markers_by_the_stated_std(tmp_path):
         assert fe.marker_std == pytest.approx(std)
     expected = marker_scores(np.array([std[i] for i in ids]))
     assert expected[0] > expected[1] > expected[2]
+
+
+def test_load_maps_loads_what_a_camera_names_and_reuses_its_front_end(tmp_path):
+    from rs_localizer.frontends.aruco import ArucoFrontend
+    from rs_localizer.maps import save_landmarks_csv
+
+    ids = np.array([7, 3, 5])
+    pts = np.arange(9.0).reshape(3, 3)
+    save_landmarks_csv(tmp_path / "lm.csv", ids, pts)
+    cache, owner = MapCache(), object()
+    m = cache.load_maps(str(tmp_path / "lm.csv"), "aruco", "aruco_room", {}, owner=owner)
+    np.testing.assert_array_equal(m.landmarks[0], [3, 5, 7])  # sorted by id, rows with them
+    np.testing.assert_array_equal(m.landmarks[1], pts[[1, 2, 0]])
+    assert isinstance(m.frontend, ArucoFrontend) and (m.frontend_kind, m.frontend_map) == (
+        "aruco",
+        "aruco_room",
+    )
+    again = cache.load_maps("", "aruco", "aruco_room", {}, owner=owner, current=m)
+    assert again.frontend is m.frontend and again.landmarks is None
+    other = cache.load_maps("", "aruco", "aruco_room", {"windowed": True}, owner=owner)
+    assert other.frontend is not m.frontend and cache.loads == 2  # (the map itself: shared)
+    assert cache.load_maps().frontend is None
+    cache.release(owner)
+    assert len(cache) == 0
+
+
+def test_load_maps_names_the_parameter_of_a_map_that_does_not_load(tmp_path):
+    cache = MapCache()
+    with pytest.raises(ValueError, match=r"cannot load landmarks_file .*missing\.csv"):
+        cache.load_maps(str(tmp_path / "missing.csv"))
+    (tmp_path / "bad.npz").write_text("not a feature map")
+    with pytest.raises(ValueError, match=r"cannot load frontend_map .*bad\.npz' \(features\)"):
+        cache.load_maps("", "features", str(tmp_path / "bad.npz"))
+    os.mkfifo(tmp_path / "fifo.yaml")  # (refused without opening it: no blocking)
+    with pytest.raises(ValueError, match=r"cannot load frontend_map .*fifo\.yaml' \(board\)"):
+        cache.load_maps("", "board", str(tmp_path / "fifo.yaml"))
+
+
+def test_front_end_options_from_the_node_parameters():
+    from rs_localizer.frontends.marker_detection import DetectorOptions
+    from rs_localizer.frontends.registry import FRONTENDS, frontend_kind, frontend_options
+    from rs_localizer.ros.params import default_values
+
+    v = default_values()
+    assert frontend_options("none", v) == {} and frontend_options("board", v) == {}
+    f = frontend_options(
+        "features", {**v, "features.matcher": " FLANN ", "features.max_features": 500}
+    )
+    assert f["matcher"] == "flann" and f["n_features"] == 500 and f["tracking"] is True
+    assert frontend_options("features", v)["matcher"] is None  # auto: by the map's descriptors
+    a = frontend_options("aruco", {**v, "aruco.windowed": True, "aruco.quad_decimate": 2.0})
+    assert a["windowed"] is True and a["detector_options"] == DetectorOptions(quad_decimate=2.0)
+    with pytest.raises(ValueError, match=r"unknown features\.matcher 'x'"):
+        frontend_options("features", {**v, "features.matcher": "x"})
+    with pytest.raises(ValueError, match=r"aruco\.detector options: "):
+        frontend_options("aruco", {**v, "aruco.detector": "x"})
+    with pytest.raises(ValueError, match="unknown front end"):
+        frontend_options("nope", v)
+    assert all(frontend_kind(k).map_file for k in FRONTENDS)

@@ -1,8 +1,9 @@
 """The node's diagnostics values from its counters, without a node."""
 
+from rs_localizer.ros.config import build_config
 from rs_localizer.ros.diagnostics import diagnostic_status
 from rs_localizer.ros.frame_queue import FrameCounts
-from rs_localizer.ros.params import build_config, default_values
+from rs_localizer.ros.params import default_values
 from rs_localizer.ros.pipeline import FramePipeline
 
 

@@ -32,7 +32,8 @@ def _angular_errors(res):
 
 
 def test_mounting_matches_the_simulated_imu():
-    from rs_localizer.ros.params import default_values, imu_config
+    from rs_localizer.ros.config import imu_config
+    from rs_localizer.ros.params import default_values
     from rs_localizer.sim.trajectory import R_IMU_CAMERA
 
     cfg = imu_config({**default_values(), **GYRO})
@@ -168,7 +169,8 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
 def test_a_new_bias_parameter_restarts_the_estimate():
     """The estimate survives a change of other parameters; a new imu.gyro_bias (a new
     calibration) starts it again from the parameters; imu.estimate_bias false drops it."""
-    from rs_localizer.ros.params import build_config, default_values
+    from rs_localizer.ros.config import build_config
+    from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pipeline import FramePipeline
 
     values = {**default_values(), **GYRO}
@@ -196,7 +198,8 @@ def test_a_new_bias_parameter_restarts_the_estimate():
 def test_pipeline_counts_rejected_imu_messages():
     from types import SimpleNamespace
 
-    from rs_localizer.ros.params import build_config, default_values
+    from rs_localizer.ros.config import build_config
+    from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pipeline import FramePipeline
 
     pipe = FramePipeline(build_config({**default_values(), **GYRO}))

@@ -13,10 +13,12 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation.points import cap_points, capped_rows
+from rs_localizer.ros import config as C
+from rs_localizer.ros import param_files as F
 from rs_localizer.ros import params as P
 from rs_localizer.ros.camera_info_history import CameraInfoHistory, calibration_key
+from rs_localizer.ros.config import load_maps
 from rs_localizer.ros.frame_queue import FrameQueue
-from rs_localizer.ros.maps import load_maps
 
 ROS_FREE = (
     "rs_localizer.ros.params",
@@ -62,7 +64,7 @@ def test_cap_points_keeps_the_best_scores_else_evenly_spaced():
 def test_the_config_file_holds_every_default():
     from helpers.paths import CONFIG
 
-    values, ignored = P.parameter_values([CONFIG])
+    values, ignored = F.parameter_values([CONFIG])
     assert values == P.default_values() and ignored == []
 
 
@@ -74,19 +76,19 @@ def test_params_file_sections_and_overrides(tmp_path):
         "rs_localizer:\n  ros__parameters:\n    solver: p3p\n"
         "/camera/rs_localizer:\n  ros__parameters:\n    solver: r9p\n"
     )
-    assert P.read_params_file(f) == {
+    assert F.read_params_file(f) == {
         "ransac.seed": 3,
         "viz.path_length": 5,
         "typo_name": 1,
         "solver": "p3p",
     }
-    values, ignored = P.parameter_values([f], {"tracking.lag": 2})
+    values, ignored = F.parameter_values([f], {"tracking.lag": 2})
     assert values["ransac.seed"] == 3 and values["solver"] == "p3p" and values["tracking.lag"] == 2
     assert ignored == ["typo_name"]
     bad = tmp_path / "bad.yaml"
     bad.write_text("solver: p3p\n")
     with pytest.raises(P.ConfigError, match="ros__parameters"):
-        P.read_params_file(bad)
+        F.read_params_file(bad)
 
 
 @pytest.mark.parametrize(
@@ -126,17 +128,17 @@ def test_values_are_checked_as_ros_does(name, value, message):
 def test_invalid_configurations_raise_with_the_parameter_named(changes, message):
     """The configuration (or, for the map files, loading its maps) names the parameter."""
     with pytest.raises(P.ConfigError, match=message):
-        load_maps(P.build_config({**P.default_values(), **changes}))
+        load_maps(C.build_config({**P.default_values(), **changes}))
 
 
 def test_config_from_the_defaults():
-    cfg = P.build_config(P.default_values())
+    cfg = C.build_config(P.default_values())
     assert cfg.solver == "r6p_1lin" and cfg.tracking.fusion.lag == 1
-    assert cfg.options == P.estimate_options(P.default_values())
+    assert cfg.options == C.estimate_options(P.default_values())
     assert cfg.reference_row is None and cfg.fallback is None and cfg.frontend_kind == "none"
     assert load_maps(cfg).frontend is None and load_maps(cfg).landmarks is None
     assert cfg.time_reset_ns == 1_000_000_000 and cfg.min_points == 12
-    off = P.build_config({**P.default_values(), "tracking.enabled": False})
+    off = C.build_config({**P.default_values(), "tracking.enabled": False})
     assert off.tracking is None
 
 
@@ -276,7 +278,7 @@ def test_frame_queue_drops_the_oldest_and_stops():
 def _pipeline(**changes):
     from rs_localizer.ros.pipeline import FramePipeline
 
-    cfg = P.build_config({**P.default_values(), "camera_info_wait": 0.0, **changes})
+    cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0, **changes})
     return FramePipeline(cfg)
 
 
@@ -361,7 +363,7 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
         rng.normal(size=(20, 3)), rng.random((20, 128), np.float32), np.arange(20), "sift"
     ).save(tmp_path / "features.npz")
     owner = object()
-    cfg = P.build_config(
+    cfg = C.build_config(
         {
             **P.default_values(),
             "camera_info_wait": 0.0,

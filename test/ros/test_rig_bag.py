@@ -16,7 +16,7 @@ def test_make_bag_rig_and_replay(tmp_path, capsys):
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import bag_topics
     from rs_localizer.ros.bags.rig_bag import replay_rig
-    from rs_localizer.ros.params import read_params_file
+    from rs_localizer.ros.param_files import read_params_file
     from rs_localizer.sim.rig_video import default_rig
 
     bag = tmp_path / "rig"

@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rs_localizer.ros.config import rig_config
+from rs_localizer.ros.param_files import read_params_file
 from rs_localizer.ros.params import (
     RIG_CAMERA_PARAMETERS,
     RIG_PARAMETERS,
     ConfigError,
     default_values,
-    read_params_file,
-    rig_config,
 )
 from rs_localizer.sim.rig_video import default_rig
 

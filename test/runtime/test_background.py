@@ -127,13 +127,14 @@ class Block(importlib.abc.MetaPathFinder):
 sys.meta_path.insert(0, Block())
 from rs_localizer.runtime.jit_cache import numba_error
 from rs_localizer.runtime.background import background_state, compiled_ready
+from rs_localizer.ros import config as C
 from rs_localizer.ros import params as P
 from rs_localizer.ros.bags.bag_io import RosbagsMessages
 from rs_localizer.ros.pipeline import FramePipeline, log_warm_up
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
 frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=3, num_points=200, seed=4))
-cfg = P.build_config({**P.default_values(), "camera_info_wait": 0.0})
+cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0})
 logs = []
 log = type("L", (), {"info": lambda s, m: logs.append(m), "warning": lambda s, m: logs.append(m)})()
 log_warm_up(cfg.solver, cfg.options, cfg.tracking, log, background=True)

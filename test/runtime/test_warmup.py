@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = r"""
 import json, sys
 from numba.core.registry import CPUDispatcher
-from rs_localizer.ros.params import build_config
+from rs_localizer.ros.config import build_config
 from rs_localizer.ros.pipeline import log_warm_up
 from rs_localizer.ros.bags.replay import replay, replay_parameters
 

@@ -97,9 +97,10 @@ def test_idle_seconds_counts_from_the_last_usable_sample():
 
 
 def test_diagnostics_warn_when_no_usable_imu_sample_arrives():
+    from rs_localizer.ros.config import build_config
     from rs_localizer.ros.diagnostics import IMU_IDLE_WARN_S, OK, WARN, diagnostic_status
     from rs_localizer.ros.frame_queue import FrameCounts
-    from rs_localizer.ros.params import build_config, default_values
+    from rs_localizer.ros.params import default_values
     from rs_localizer.ros.pipeline import FramePipeline
 
     cfg = build_config({**default_values(), "imu.enabled": True})

@@ -2,13 +2,14 @@
 
 The frames go through the node's own per-frame pipeline
 (:class:`~rs_localizer.ros.pipeline.FramePipeline`) configured from the node's parameters
-(:mod:`.params`: defaults, then ROS 2 parameter files, then overrides), so a replay publishes
-what the node would: the pose, the frame's own twist (``twist_single_frame``) and, with
-tracking (the default), the fused twist on ``twist`` and ``odom`` when it is final. The outputs
-are written as a bag (``/rs_localizer/<topic>``) and a CSV (one line per frame), and compared
-with the bag's ground truth (``/ground_truth/*``) when it has one. With ``debug_outputs`` the
-output bag also gets the node's visualization topics (``debug_image``, ``markers``, ``path``:
-:mod:`rs_localizer.ros.visualization`), to open in Foxglove or RViz.
+(:mod:`..params`; :mod:`..param_files`: defaults, then ROS 2 parameter files, then
+overrides), so a replay publishes what the node would: the pose, the frame's own twist
+(``twist_single_frame``) and, with tracking (the default), the fused twist on ``twist`` and
+``odom`` when it is final. The outputs are written as a bag (``/rs_localizer/<topic>``) and a
+CSV (one line per frame), and compared with the bag's ground truth (``/ground_truth/*``) when
+it has one. With ``debug_outputs`` the output bag also gets the node's visualization topics
+(``debug_image``, ``markers``, ``path``: :mod:`rs_localizer.ros.visualization`), to open in
+Foxglove or RViz.
 """
 
 from __future__ import annotations
@@ -28,17 +29,11 @@ from typing import Any, TextIO
 import numpy as np
 
 from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_errors
-from ...frontends.shared import SHARED_MAPS
+from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from .. import conversions as cv
-from ..maps import LoadedMaps, load_maps
+from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
 from ..outputs import frame_messages, fused_messages
-from ..params import (
-    LocalizerConfig,
-    build_config,
-    default_timing_note,
-    parameter_values,
-    read_params_file,
-)
+from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput
 from .bag_io import (
     CAMERA_INFO,
@@ -77,7 +72,7 @@ class ReplayResult:
     ``summary`` (accuracy against ground truth, :func:`~rs_localizer.accuracy.summarize_errors`
     of the published pose and twist), ``failures`` (reason -> frames), the files written, the
     configuration and parameter values used, the maps loaded for it (``maps``: the landmarks
-    and the front end, :class:`~rs_localizer.ros.maps.LoadedMaps`), and the pipeline's
+    and the front end, :class:`~rs_localizer.frontends.shared.LoadedMaps`), and the pipeline's
     counters (``counts``: e.g. ``frames_with_gyro``, ``gyro_rejected``,
     ``gyro_disabled_inconsistent``, ``gyro_missing.<reason>``, as in the node's diagnostics),
     ``gyro_bias`` and ``gyro_bias_std`` ((3,) rad/s, IMU frame: the bias the last frame used,
@@ -128,7 +123,7 @@ def replay_parameters(
     bag's ``landmarks.csv`` as ``landmarks_file``. Returns ``(values, ignored file entries)``.
 
     Raises:
-        ConfigError (a ValueError): see :func:`.params.parameter_values`.
+        ConfigError (a ValueError): see :func:`..param_files.parameter_values`.
     """
     params_files = list(params_files)
     values, ignored = parameter_values(params_files, params)
@@ -208,7 +203,7 @@ def replay(
         path: bag directory (make-bag or render-bag output, or a recording), or its storage
             file (then its directory is read, with its sequence.json).
         params_files: the node's ROS 2 parameter files (later ones win; see
-            :func:`.params.read_params_file` for the sections read).
+            :func:`..param_files.read_params_file` for the sections read).
         params: overrides by parameter name (``{"solver": "p3p", "tracking.enabled": False}``).
             RS timing and the keypoints' landmarks that nothing sets come from the bag
             (:func:`replay_parameters`).

@@ -28,13 +28,9 @@ import numpy as np
 
 from ...accuracy import frame_errors
 from .. import conversions as cv
-from ..params import (
-    RIG_CAMERA_PARAMETERS,
-    RIG_PARAMETERS,
-    default_values,
-    read_params_file,
-    rig_config,
-)
+from ..config import rig_config
+from ..param_files import read_params_file
+from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, default_values
 from ..pointcloud import read_correspondences
 from .bag_io import (
     CAMERA_INFO,
@@ -244,7 +240,7 @@ def rig_parameter_values(
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
 ) -> tuple[dict, dict]:
-    """``(values, camera values)`` for :func:`~rs_localizer.ros.params.rig_config`: the
+    """``(values, camera values)`` for :func:`~rs_localizer.ros.config.rig_config`: the
     defaults, then the bag's ``rig_params.yaml``, each parameter file, then ``params``."""
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)

@@ -1,0 +1,463 @@
+"""The node's configuration built from its parameter values (no ROS needed).
+
+The node, the managed node and ``rs-localizer replay`` turn a full set of parameter values
+(:mod:`.params`: :data:`~.params.PARAMETERS`; :func:`.param_files.parameter_values` for files)
+into a :class:`LocalizerConfig` with :func:`build_config`, which raises
+:class:`~.params.ConfigError` naming the parameter when a value cannot be used; the rig mode
+into a :class:`RigConfig` with :func:`rig_config`. The configuration holds values and paths:
+the library's settings (the estimator's and tracker's options, the gyro's use, built with
+:mod:`rs_localizer.tracking.settings`; the front end's options,
+:func:`rs_localizer.frontends.registry.frontend_options`), the frames, the fallback camera,
+the queue; the maps it names are loaded by :func:`load_maps` (into the process's shared map
+cache, :data:`~rs_localizer.frontends.shared.SHARED_MAPS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..estimation.options import EstimateOptions, points_needed
+from ..frames import Extrinsic
+from ..frontends.registry import frontend_kind, frontend_options
+from ..frontends.shared import SHARED_MAPS, LoadedMaps
+from ..solvers.registry import SOLVER_NAMES as SOLVERS
+from ..tracking.rig import RigMount
+from ..tracking.sequence import GyroSettings
+from ..tracking.settings import gyro_settings, rig_settings, with_fields
+from ..tracking.tracker import TrackerOptions
+from . import conversions as cv
+from .params import FRONTEND_CHOICES, IMAGE_TRANSPORTS, PARAMETERS, ConfigError, option_fields
+
+__all__ = [
+    "LocalizerConfig",
+    "RigCameraConfig",
+    "RigConfig",
+    "build_config",
+    "default_timing_note",
+    "estimate_options",
+    "imu_config",
+    "load_maps",
+    "rig_config",
+    "tracker_options",
+]
+
+
+def estimate_options(values: Mapping[str, Any]) -> EstimateOptions:
+    """The estimator options of the parameters whose :attr:`~.params.Parameter.field` is in the
+    ``estimate`` group (``ransac.*``, ``refine``, ``motion_prior.*``, ``max_angular_velocity``,
+    ``max_linear_velocity``, ``correlated_noise.*``); every other option at its default.
+
+    Raises:
+        TypeError, ValueError: from :class:`EstimateOptions` (e.g. a
+            ``max_angular_velocity`` <= 0).
+    """
+    return with_fields(EstimateOptions(), option_fields("estimate", values))
+
+
+def tracker_options(values: Mapping[str, Any]) -> TrackerOptions | None:
+    """The video tracker's options of the parameters in the ``tracking`` group; None when
+    ``tracking.enabled`` is false (every frame alone).
+
+    Raises:
+        TypeError, ValueError: from :class:`TrackerOptions` / ``FusionOptions``.
+    """
+    if not bool(values["tracking.enabled"]):
+        return None
+    return with_fields(TrackerOptions(), option_fields("tracking", values))
+
+
+def imu_config(values: Mapping[str, Any]) -> GyroSettings | None:
+    """The gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`) of the ``imu.*``
+    parameters; None when ``imu.enabled`` is false.
+
+    Raises:
+        ValueError: ``imu.rotation`` not a quaternion (4 finite numbers of norm near 1),
+            ``imu.gyro_bias`` not 3 finite numbers.
+    """
+    if not bool(values["imu.enabled"]):
+        return None
+    bias = np.asarray(values["imu.gyro_bias"], dtype=float).reshape(-1)
+    if bias.shape != (3,) or not np.isfinite(bias).all():
+        raise ValueError(f"imu.gyro_bias must be 3 finite numbers (rad/s), got {bias.tolist()}")
+    return gyro_settings(values["imu.rotation"], bias, option_fields("imu", values))
+
+
+@dataclass(frozen=True, eq=False)
+class LocalizerConfig:
+    """Everything the localizer derives from its parameters (see :data:`.params.PARAMETERS` for
+    the meaning of each; built by :func:`build_config`).
+
+    Attributes:
+        solver: minimal solver name. options: the estimator's options.
+        tracking: the video tracker's options, None = every frame alone.
+        imu: the gyro's use (:class:`~rs_localizer.tracking.sequence.GyroSettings`), None = no
+            gyro.
+        line_delay (s/line), readout_time (s, > 0 wins), direction, reference_row (px, None =
+            image centre), stamp_row (px): the rolling-shutter timing of every camera model.
+        map_frame, camera_frame ("" = the input's frame id), base_frame ("" = none) and
+            extrinsic (the base_frame -> camera mounting, None without base_frame).
+        max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
+            than this (ns) resets the time-dependent state. queue_size: frames waiting.
+        camera_info_wait: s a frame may wait for its camera_info.
+        fallback: the camera model of the ``camera.*`` parameters (None: camera.fx <= 0).
+        landmarks_file: the landmark table (CSV) of keypoint frames.
+        frontend_kind (``none``, ``aruco``, ...), frontend_map: the image front end and its
+            map file, image_transport (``raw``/``compressed``), republish_correspondences,
+            frontend_options (the front end's keyword arguments: the ``features.*`` and
+            ``aruco.*`` parameters).
+
+    Values and paths only: the maps they name are loaded by
+    :func:`load_maps` where the pipeline is built.
+    """
+
+    solver: str
+    options: EstimateOptions
+    tracking: TrackerOptions | None
+    line_delay: float
+    readout_time: float
+    direction: str
+    reference_row: float | None
+    stamp_row: float
+    map_frame: str
+    camera_frame: str
+    base_frame: str
+    extrinsic: Extrinsic | None
+    max_points: int
+    time_reset_ns: int
+    queue_size: int
+    camera_info_wait: float
+    fallback: CameraModel | None
+    landmarks_file: str
+    frontend_kind: str
+    frontend_map: str
+    image_transport: str
+    republish_correspondences: bool
+    imu: GyroSettings | None = None
+    #: keyword arguments of the front end (``features.*`` for ``features``)
+    frontend_options: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def min_points(self) -> int:
+        """Fewest correspondences a pose needs (:func:`points_needed`)."""
+        return points_needed(self.solver, self.options)
+
+    def camera_from_info(self, msg: Any) -> CameraModel:
+        """The camera model of a ``sensor_msgs/CameraInfo`` (rclpy or rosbags) with this
+        configuration's timing.
+
+        Raises:
+            CameraInfoError (a ValueError): see :func:`.conversions.camera_model_from_camera_info`.
+        """
+        return cv.camera_model_from_camera_info(
+            msg, self.line_delay, self.readout_time, self.direction, self.reference_row
+        )
+
+
+def _estimation(
+    p: Mapping[str, Any],
+) -> tuple[EstimateOptions, TrackerOptions | None, GyroSettings | None]:
+    """Stage of :func:`build_config`: solver, estimator options (and what a pose needs against
+    ``max_points``), tracker options and the gyro's use."""
+    if p["solver"] not in SOLVERS:
+        raise ConfigError(f"unknown solver {p['solver']!r}; expected one of {list(SOLVERS)}")
+    if p["rs.direction"] not in READOUT_DIRECTIONS:
+        raise ConfigError(
+            f"unknown rs.direction {p['rs.direction']!r}; expected one of "
+            f"{list(READOUT_DIRECTIONS)}"
+        )
+    try:
+        opts = estimate_options(p)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"invalid RANSAC options: {e}") from None
+    need = points_needed(p["solver"], opts)
+    if int(p["max_points"]) < need:
+        raise ConfigError(
+            f"max_points {p['max_points']} is below the {need} points a pose needs "
+            f"(ransac.min_inliers {int(p['ransac.min_inliers'])}, solver {p['solver']}): every "
+            "frame would fail"
+        )
+    try:
+        tracking = tracker_options(p)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"invalid tracking parameters: {e}") from None
+    try:
+        imu = imu_config(p)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"invalid imu parameters: {e}") from None
+    return opts, tracking, imu
+
+
+def _timing(p: Mapping[str, Any]) -> tuple[float, float, str, float | None]:
+    """Stage of :func:`build_config`: the rolling-shutter timing ``(line_delay, readout_time,
+    direction, reference_row or None)`` of the ``rs.*`` parameters (checked with the fallback
+    camera, then alone)."""
+    ref = float(p["rs.reference_row"])
+    line_delay, readout_time = float(p["rs.line_delay"]), float(p["rs.readout_time"])
+    return line_delay, readout_time, p["rs.direction"], (None if ref < 0 else ref)
+
+
+def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
+    """Stage of :func:`build_config`: the camera model of the ``camera.*`` parameters (None:
+    ``camera.fx <= 0``), then the check of the rolling-shutter timing on its own."""
+    if not all(
+        math.isfinite(float(p[k])) for k in ("camera.fx", "camera.fy", "camera.cx", "camera.cy")
+    ):
+        raise ConfigError("invalid fallback camera parameters: camera.fx/fy/cx/cy must be finite")
+    d = p["camera.d"] if p["camera.d"] is not None else []
+    if not all(math.isfinite(float(x)) for x in d):
+        raise ConfigError(
+            f"invalid fallback camera parameters: camera.d must be finite, got {list(d)}"
+        )
+    fallback = None
+    if float(p["camera.fx"]) > 0:
+        K = np.array(
+            [
+                [p["camera.fx"], 0.0, p["camera.cx"]],
+                [0.0, p["camera.fy"] or p["camera.fx"], p["camera.cy"]],
+                [0.0, 0.0, 1.0],
+            ],
+            dtype=float,
+        )
+        try:
+            fallback = cv.camera_model(
+                K,
+                list(d),
+                p["camera.width"],
+                p["camera.height"],
+                p["camera.distortion_model"],
+                *timing,
+            )
+        except ValueError as e:
+            raise ConfigError(f"invalid fallback camera parameters: {e}") from None
+    try:
+        cv.camera_model(np.eye(3), [], 10, 10, "plumb_bob", *timing)
+    except ValueError as e:
+        raise ConfigError(f"invalid rolling-shutter parameters: {e}") from None
+    return fallback
+
+
+def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
+    """Stage of :func:`build_config`: ``(base_frame, the base_frame -> camera mounting or
+    None)``."""
+    base_frame, extrinsic = str(p["base_frame"]).strip(), None
+    if base_frame:
+        try:
+            extrinsic = Extrinsic.from_translation_quaternion(
+                p["camera_to_base.translation"], p["camera_to_base.rotation"]
+            )
+        except ValueError as e:
+            raise ConfigError(f"invalid camera_to_base: {e}") from None
+    return base_frame, extrinsic
+
+
+def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
+    """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
+    kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
+    if kind not in FRONTEND_CHOICES:
+        raise ConfigError(
+            f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_CHOICES)}"
+        )
+    transport = str(p["image_transport"]).strip().lower()
+    if transport not in IMAGE_TRANSPORTS:
+        raise ConfigError(
+            f"unknown image_transport {p['image_transport']!r}; expected one of "
+            f"{list(IMAGE_TRANSPORTS)}"
+        )
+    if kind != "none" and not fmap:
+        raise ConfigError(f"frontend {kind} needs frontend_map ({frontend_kind(kind).map_file})")
+    return kind, fmap, transport
+
+
+def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
+    """The configuration of a full set of parameter values (one per
+    :data:`.params.PARAMETERS` name), values and paths (the maps are loaded by
+    :func:`load_maps`). Reads no file. Types and ranges are not checked
+    here (ROS does it for the node, :func:`.params.check_parameter` for replay).
+
+    Raises:
+        ConfigError: the first unusable value, with a message naming the parameter (unknown
+            solver, direction, front end or transport; estimator or tracking options their
+            classes reject; ``max_points`` below what a pose needs; non-finite or invalid
+            fallback intrinsics; rolling-shutter timing; ``camera_to_base``; a front end
+            without ``frontend_map``).
+    """
+    p = values
+    opts, tracking, imu = _estimation(p)
+    timing = _timing(p)
+    fallback = _fallback_camera(p, timing)
+    base_frame, extrinsic = _mounting(p)
+    kind, fmap, transport = _image_input(p)
+    line_delay, readout_time, direction, reference_row = timing
+    return LocalizerConfig(
+        solver=p["solver"],
+        options=opts,
+        tracking=tracking,
+        line_delay=line_delay,
+        readout_time=readout_time,
+        direction=direction,
+        reference_row=reference_row,
+        stamp_row=float(p["rs.stamp_row"]),
+        map_frame=p["map_frame"],
+        camera_frame=p["camera_frame"],
+        base_frame=base_frame,
+        extrinsic=extrinsic,
+        max_points=int(p["max_points"]),
+        time_reset_ns=int(float(p["time_reset_threshold"]) * 1e9),
+        queue_size=int(p["queue_size"]),
+        camera_info_wait=float(p["camera_info_wait"]),
+        fallback=fallback,
+        landmarks_file=p["landmarks_file"],
+        frontend_kind=kind,
+        frontend_map=fmap,
+        image_transport=transport,
+        republish_correspondences=bool(p["republish_correspondences"]),
+        imu=imu,
+        frontend_options=_frontend_options(kind, p),
+    )
+
+
+def _frontend_options(kind: str, p: Mapping[str, Any]) -> dict:
+    """Stage of :func:`build_config`: the front end's keyword arguments of the ``aruco.*`` and
+    ``features.*`` parameters (:func:`~rs_localizer.frontends.registry.frontend_options`)."""
+    try:
+        return frontend_options(kind, p)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+
+
+def load_maps(
+    cfg: LocalizerConfig, *, owner: object | None = None, current: LoadedMaps | None = None
+) -> LoadedMaps:
+    """The maps ``cfg`` names: the landmark table of ``landmarks_file`` and the front end of
+    ``frontend_map``, loaded through :data:`~rs_localizer.frontends.shared.SHARED_MAPS` on
+    behalf of ``owner`` (one copy per process, released with ``SHARED_MAPS.release(owner)``;
+    :meth:`~rs_localizer.frontends.shared.MapCache.load_maps`). The front end of ``current``
+    is reused when its kind and map are unchanged. Called where the node and replay build
+    their pipeline, and again when a parameter names another file.
+
+    Raises:
+        ConfigError: a landmark table or front-end map that does not load (missing, not a
+            regular file, malformed), naming the parameter.
+    """
+    try:
+        return SHARED_MAPS.load_maps(
+            cfg.landmarks_file,
+            cfg.frontend_kind,
+            cfg.frontend_map,
+            cfg.frontend_options,
+            owner=owner,
+            current=current,
+        )
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+
+
+def default_timing_note(cfg: LocalizerConfig) -> str | None:
+    """A warning when the RS timing is the parameters' default (``rs.line_delay`` unchanged,
+    ``rs.readout_time`` unset): the line delay is then likely no camera's own, and a wrong
+    one biases the angular and linear velocity. None when the timing was set."""
+    if cfg.line_delay != PARAMETERS["rs.line_delay"].default or cfg.readout_time > 0:
+        return None
+    return (
+        f"rs.line_delay is the default {cfg.line_delay * 1e6:g} us/line (rs.readout_time "
+        "unset): set your camera's, measured with `rs-localizer calibrate-readout` or from "
+        "the published values in docs/video.md; a wrong line delay biases the angular and "
+        "linear velocity"
+    )
+
+
+@dataclass(frozen=True)
+class RigCameraConfig:
+    """One camera of the rig: its ``name``, ``mount`` (a
+    :class:`~rs_localizer.tracking.rig.RigMount`, rig = ``base_frame``) and RS timing
+    (``line_delay`` s/line, ``readout_time`` s, ``direction``) for its camera_info's model."""
+
+    name: str
+    mount: Any
+    line_delay: float
+    readout_time: float
+    direction: str
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
+    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`), ``base_frame`` (the rig's
+    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``."""
+
+    cameras: tuple
+    settings: Any
+    base_frame: str
+    reference_row: float | None
+
+
+def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:
+    """The rig's configuration of a full set of :data:`.params.PARAMETERS` and
+    :data:`.params.RIG_PARAMETERS` values and, per camera of ``rig.cameras``, its
+    :data:`.params.RIG_CAMERA_PARAMETERS` values (``mounting`` None: not given).
+
+    Raises:
+        ConfigError: no cameras, a camera listed twice or without a usable mounting (naming
+            it), an unknown readout direction, estimator or tracking options their classes
+            reject.
+    """
+    names = [str(n).strip() for n in values["rig.cameras"]]
+    if not names or any(not n for n in names):
+        raise ConfigError(f"rig.cameras: needs camera names, got {list(values['rig.cameras'])}")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
+    opts, tracking, imu = _estimation(values)
+    line_delay, readout_time, direction, reference_row = _timing(values)
+    out = []
+    for n in names:
+        c = cameras.get(n, {})
+        m = c.get("mounting")
+        if m is None or len(m) == 0:
+            raise ConfigError(
+                f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
+                "qw] (its optical frame's pose in base_frame)"
+            )
+        if len(m) != 7 or not np.isfinite(np.asarray(m, dtype=float)).all():
+            raise ConfigError(
+                f"rig.{n}.mounting must be 7 finite numbers x, y, z, qx, qy, qz, qw, got {list(m)}"
+            )
+        try:
+            R = cv.matrix_from_quaternion(m[3:])
+            mount = RigMount.from_pose(R, m[:3])
+        except ValueError as e:
+            raise ConfigError(f"rig.{n}.mounting: {e}") from None
+        ld = float(c.get("line_delay", -1.0))
+        rt = float(c.get("readout_time", -1.0))
+        d = str(c.get("direction", "") or direction).strip()
+        if d not in READOUT_DIRECTIONS:
+            raise ConfigError(
+                f"rig.{n}.direction: unknown readout direction {d!r}; expected one of "
+                f"{list(READOUT_DIRECTIONS)}"
+            )
+        out.append(
+            RigCameraConfig(
+                n, mount, line_delay if ld < 0 else ld, readout_time if rt < 0 else rt, d
+            )
+        )
+    try:
+        settings = rig_settings(
+            {c.name: c.mount for c in out},
+            opts,
+            tracking,
+            window=float(values["rig.window"]),
+            stop_after=float(values["rig.stop_after"]),
+            stamp_row=float(values["rs.stamp_row"]),
+            time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
+            imu=imu,
+        )
+    except ValueError as e:
+        raise ConfigError(f"rig: {e}") from None
+    base = str(values["base_frame"]).strip() or "base_link"
+    return RigConfig(tuple(out), settings, base, reference_row)
