@@ -72,7 +72,7 @@ def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import bag_topics
     from rs_localizer.ros.bags.rig_bag import replay_rig
-    from rs_localizer.ros.params import read_params_file
+    from rs_localizer.ros.param_files import read_params_file
 
     bag = tmp_path / "rig"
     assert main(["make-bag", str(bag), "--rig", "2", "--frames", "12", "--points", "100",

@@ -33,7 +33,7 @@ def test_render_bag_rig_writes_every_camera_and_replays(rendered_rig_bag, capsys
     from rs_localizer.cli import main
     from rs_localizer.maps.markers import load_marker_map
     from rs_localizer.ros.bags.bag_io import bag_topics, iter_messages, typestore
-    from rs_localizer.ros.params import read_params_file
+    from rs_localizer.ros.param_files import read_params_file
     from rs_localizer.ros.pointcloud import read_correspondences
 
     bag = rendered_rig_bag
@@ -154,7 +154,7 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
     from rs_localizer.ros.bags.bag_io import load_ground_truth
     from rs_localizer.ros.bags.play import play
     from rs_localizer.ros.conversions import pose_from_msg
-    from rs_localizer.ros.params import read_params_file
+    from rs_localizer.ros.param_files import read_params_file
     from rs_localizer.ros.rig_node import RigLocalizerNode
 
     bag = rendered_rig_bag
