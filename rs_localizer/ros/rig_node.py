@@ -18,6 +18,8 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
                          node does (``bad_image``, ``image_size_mismatch``, counted
                          ``<c>.skipped.<reason>``); ``image_transport: compressed``:
                          ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage)
+    The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
+    single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_frame``:
     pose, pose_with_covariance, twist_single_frame (the rig frame's own twist), twist and odom
     (the fused twist ``tracking.lag`` rig frames later, stamped with that rig frame's time;
@@ -45,6 +47,7 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from ..frontends.shared import SHARED_MAPS
@@ -275,6 +278,7 @@ class RigCore:
                     f"{c.name}/correspondences",
                     lambda msg, n=c.name: self._on_cloud(n, msg),
                     CLOUD_QOS,
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 )
             )
             if self.frontend_kind != "none":
@@ -286,6 +290,7 @@ class RigCore:
                         topic,
                         lambda msg, n=c.name: self._on_image(n, msg),
                         IMAGE_QOS,
+                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                     )
                 )
         self._timer = self.create_timer(
@@ -334,7 +339,9 @@ class RigCore:
 
     def _refuse_changes(self, params) -> SetParametersResult:
         """The rig mode reads its parameters at start (configure): changes are refused."""
-        if not getattr(self, "_configured", True):
+        if not getattr(self, "_configured", True) or all(
+            p.name.startswith("qos_overrides.") for p in params
+        ):  # (unconfigured; the QoS overrides a subscription declares, read-only)
             return SetParametersResult(successful=True)
         names = ", ".join(p.name for p in params)
         return SetParametersResult(
