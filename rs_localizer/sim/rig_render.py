@@ -13,6 +13,7 @@ capture time. Ground truth: :func:`rendered_rig_truth`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,15 +37,15 @@ class RigMotion:
     """The rig's motion from a renderer motion ``base`` (optical axes): ``orientation(t)``
     (..., 3, 3) rig -> world, ``position(t)`` (..., 3) m."""
 
-    base: object
+    base: Any
 
-    def orientation(self, t):
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         return self.base.orientation(t) @ R_FORWARD.T
 
-    def position(self, t):
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         return self.base.position(t)
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
     #: (angular (rad/s), linear (m/s) velocity) in the rig frame, by central differences
@@ -61,14 +62,14 @@ class MountedMotion:
     R_rig_cam: np.ndarray
     p_rig_cam: np.ndarray
 
-    def orientation(self, t):
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
         return self.rig.orientation(t) @ self.R_rig_cam
 
-    def position(self, t):
+    def position(self, t: float | np.ndarray) -> np.ndarray:
         R = self.rig.orientation(t)
         return self.rig.position(t) + R @ self.p_rig_cam
 
-    def pose(self, t):
+    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.orientation(t), self.position(t)
 
     velocity_body = Trajectory.velocity_body

@@ -546,7 +546,8 @@ class RigLocalizer:
         }
 
     def camera_state(self, name: str) -> str:
-        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees``."""
+        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees`` (also the
+        partner of a camera that disagrees with it alone, :meth:`camera_partner`)."""
         cam = self._cams[name]
         if cam.disagrees or any(c.disagrees and c.partner == name for c in self._cams.values()):
             return "disagrees"
@@ -1022,11 +1023,11 @@ class RigLocalizer:
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
         """Flag the cameras whose points fit the rig's pose far worse than the others' (module
-        docstring). The others' verdict names a camera only when at least two other cameras
-        (each with ``disagree_min_points`` points), or several weaker ones, stand against it:
-        with a single other camera, the two disagree and either mounting may be the wrong one
-        (the camera with fewer points is outvoted by the one with more, not shown wrong), so
-        both are named (:meth:`camera_partner`)."""
+        docstring). The others' verdict names a camera alone when at least two other cameras
+        with points stand against it: when its points are compared with one other camera's
+        only, the two disagree and either mounting may be the wrong one (the camera with fewer
+        points is outvoted by the one with more, not shown wrong), so both are named
+        (:meth:`camera_partner`)."""
         s = self.settings
         strong = [j for j in range(len(names)) if int(n_pts[j]) >= s.disagree_min_points]
         for k, n in enumerate(names):
@@ -1070,8 +1071,9 @@ class RigLocalizer:
                         )
                     )
                     text = (
-                        f"rig cameras {n!r} and {p!r} disagree: {int(n_in[k])} of {n!r}'s {pts} "
-                        f"points fit the rig's pose ({100 * others:.0f} % of {p!r}'s){alone}: "
+                        f"rig cameras {n!r} and {p!r} disagree: {int(n_in[k])} of the {pts} points "
+                        f"of {n!r} fit the rig's pose ({100 * others:.0f} % of those of {p!r})"
+                        f"{alone}: "
                         "the mounting of one of them is likely wrong (or its matches are); two "
                         "cameras cannot tell which (the rig follows the one with more points): "
                         "check both mountings, or let a third camera see the map"
