@@ -6,7 +6,8 @@ Renders every camera's view of the ``aruco_room`` marker scene at the rig's ``sh
 composed with its mounting (:mod:`rs_localizer.sim.rig_render`: the ``vga`` camera preset, 30 ms
 readout, cameras looking front, 35 deg left and right, first frames 0, 4 and 8 ms apart), starts
 ``rs_localizer_node`` with ``rig.cameras`` (``frontend: aruco``, reliable image subscriptions)
-in a subprocess pinned to one core, and from this process (pinned to the other) publishes each
+in a subprocess pinned to one core, and from this process (pinned to the other; the package's
+Fast DDS profile, so that an image goes through shared memory) publishes each
 rig frame's images on ``/rig/<camera>/image_raw`` and waits for its pose (lock-step). Reports
 the rig frames posed, the lock-step rate (rig frames per second of wall time, the round trip
 included), the node process's CPU time per rig frame (all its threads, ``/proc``) and the
@@ -56,6 +57,7 @@ def run_benchmark(frames: int = 30, cameras: int = 3, warm: int = 3, log=print) 
 
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg, quaternion_from_matrix
+    from rs_localizer.ros.dds_profile import apply_default_profile
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
     from rs_localizer.sim.rig_render import render_rig_frames, rendered_rig_truth, vga_rig
 
@@ -94,6 +96,7 @@ def run_benchmark(frames: int = 30, cameras: int = 3, warm: int = 3, log=print) 
     )  # fmt: skip
     if node_cpu is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
+    apply_default_profile()  # (the sender's shared-memory segment must hold an image)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("bench_rig_client", context=ctx)

@@ -38,7 +38,13 @@ rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + sk
 pending``. Per solved rig frame and camera: its points, inliers and share of the rig's inliers
 (:class:`CameraShare`); a camera whose points are outliers far more often than the others'
 over several rig frames is named as one that *disagrees* with the rig (a mounting off by
-degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning.
+degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning;
+when its points are compared with one other camera's only, both are named
+(:meth:`RigLocalizer.camera_partner`): two cameras cannot tell which mounting is wrong.
+
+Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
+(:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
+(:meth:`RigLocalizer.predict_camera`), then takes the frame as :meth:`RigLocalizer.add` does.
 
 Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
 
