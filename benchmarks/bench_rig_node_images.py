@@ -47,8 +47,12 @@ def _image_msg(img, stamp_ns, frame_id):
     return m
 
 
-def run_benchmark(frames: int = 30, cameras: int = 3, warm: int = 3, log=print) -> dict:
-    """Render, start the node, send lock-step; returns the figures (see the module docstring)."""
+def run_benchmark(
+    frames: int = 30, cameras: int = 3, warm: int = 3, dds_profile: bool = True, log=print
+) -> dict:
+    """Render, start the node, send lock-step; returns the figures (see the module docstring).
+    ``dds_profile`` False: this process (the images' sender) without the package's Fast DDS
+    profile, as a camera driver started without it."""
     import rclpy
     from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
@@ -96,7 +100,8 @@ def run_benchmark(frames: int = 30, cameras: int = 3, warm: int = 3, log=print) 
     )  # fmt: skip
     if node_cpu is not None and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {(node_cpu + 1) % ncpu})
-    apply_default_profile()  # (the sender's shared-memory segment must hold an image)
+    if dds_profile:  # (the sender's shared-memory segment must hold an image)
+        apply_default_profile()
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("bench_rig_client", context=ctx)
@@ -174,6 +179,7 @@ def run_benchmark(frames: int = 30, cameras: int = 3, warm: int = 3, log=print) 
             "position_mm_median": float(np.median(e[:, 1])),
             "position_mm_max": float(np.max(e[:, 1])),
             "node_cpu": node_cpu,
+            "sender_dds_profile": dds_profile,
             "load_average": os.getloadavg()[0],
         }
         return out
@@ -190,10 +196,21 @@ def main(argv=None) -> int:
     ap.add_argument("--cameras", type=int, default=3, choices=(1, 2, 3))
     ap.add_argument("--warm", type=int, default=3, help="rig frames sent before timing")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
+    ap.add_argument(
+        "--no-dds-profile",
+        action="store_true",
+        help="send the images without the package's Fast DDS profile (as a driver without it)",
+    )
     a = ap.parse_args(argv)
     if a.frames <= a.warm:
         ap.error("--frames must exceed --warm")
-    r = run_benchmark(a.frames, a.cameras, a.warm, log=(lambda *x: None) if a.json else print)
+    r = run_benchmark(
+        a.frames,
+        a.cameras,
+        a.warm,
+        not a.no_dds_profile,
+        log=(lambda *x: None) if a.json else print,
+    )
     if a.json:
         print(json.dumps(r, indent=1))
         return 0

@@ -1136,8 +1136,9 @@ def default_timing_note(cfg: LocalizerConfig) -> str | None:
 RIG_PARAMETERS = {
     "rig.cameras": Parameter(
         [],
-        "the rig's camera names: one pose for all of them (topics <camera>/correspondences "
-        "and <camera>/camera_info; each needs rig.<camera>.mounting); empty: no rig",
+        "the rig's camera names: one pose for all of them (topics <camera>/correspondences, "
+        "<camera>/image_raw with a frontend, and <camera>/camera_info; each needs "
+        "rig.<camera>.mounting); empty: no rig",
         read_only=True,
     ),
     "rig.window": Parameter(
