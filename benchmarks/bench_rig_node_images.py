@@ -42,8 +42,9 @@ def _image_msg(img, stamp_ns, frame_id):
     m.header.frame_id = frame_id
     m.height, m.width = int(img.shape[0]), int(img.shape[1])
     m.encoding = "rgb8"
+    img = np.ascontiguousarray(img)
     m.step = int(img.strides[0])
-    m.data = np.ascontiguousarray(img).tobytes()
+    m.data = img.tobytes()
     return m
 
 

@@ -51,8 +51,9 @@ def image_msg(img: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rg
     m.header.frame_id = frame_id
     m.height, m.width = int(img.shape[0]), int(img.shape[1])
     m.encoding = encoding
+    img = np.ascontiguousarray(img)
     m.step = int(img.strides[0])
-    m.data = np.ascontiguousarray(img).tobytes()
+    m.data = img.tobytes()
     return m
 
 
@@ -314,3 +315,58 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         else:
             assert "camera left disagrees with the rig" in message, message
             assert "front" not in message and values["front.state"] == "running"
+
+
+def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):
+    """rs_localizer_lifecycle_node with rig.cameras runs the managed rig node (the process
+    runner): it starts unconfigured in the rig mode and stops cleanly on SIGINT."""
+    from rs_localizer.ros.process import NodeProcess, ros_env
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: [front, left]\n"
+        "      front: {mounting: [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]}\n"
+        "      left: {mounting: [0.0, 0.12, 0.12, -0.7071068, 0.0, 0.0, 0.7071068]}\n"
+    )
+    n = NodeProcess([p], namespace="/rig", env=ros_env(), log=tmp_path / "lc.log",
+                    module="rs_localizer.ros.lifecycle")  # fmt: skip
+    try:
+        assert n.wait_ready(60.0, marker="unconfigured (lifecycle node, rig mode"), n.log
+    finally:
+        rc = n.stop()
+    assert rc == 0, n.log
+
+
+def test_image_decoding_and_checks_as_the_single_camera_node():
+    """The rig node's image check: an Image of the camera's size decodes to its pixels; a
+    compressed JPEG decodes (bgr8); another size, an unknown encoding, a truncated raw image or
+    a payload that is no image are refused under the single-camera node's reasons, the size
+    before decoding (its camera_info unknown: not checked)."""
+    import cv2
+    from sensor_msgs.msg import CompressedImage
+
+    from rs_localizer.ros.rig_node import _decode_image
+    from rs_localizer.sim.render.renderer import camera_preset
+
+    cam = camera_preset("vga")
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    out, enc, why = _decode_image(image_msg(img, T0, "c"), cam)
+    assert why is None and enc == "rgb8" and np.array_equal(out, img)
+    small = image_msg(img[:240, :320], T0, "c")
+    assert _decode_image(small, cam)[2][0] == "image_size_mismatch"
+    assert _decode_image(small, None)[2] is None
+    assert _decode_image(image_msg(img, T0, "c", "yuv422"), cam)[2][0] == "bad_image"
+    cut = image_msg(img, T0, "c")
+    cut.data = bytes(cut.data)[:1000]
+    assert _decode_image(cut, cam)[2][0] == "bad_image"
+    c = CompressedImage()
+    c.format = "jpeg"
+    c.data = cv2.imencode(".jpg", img)[1].tobytes()
+    out, enc, why = _decode_image(c, cam)
+    assert why is None and enc == "bgr8" and out.shape == (480, 640, 3)
+    c.data = b"not an image"
+    assert _decode_image(c, cam)[2][0] == "bad_image"
+    c.data = cv2.imencode(".jpg", img[:240, :320])[1].tobytes()
+    assert _decode_image(c, cam)[2][0] == "image_size_mismatch"
