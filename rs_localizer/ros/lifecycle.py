@@ -20,6 +20,17 @@ The same processing, parameters and topics as ``rs_localizer_node``
 
 The ``cameras`` parameter runs one managed node per camera namespace (:mod:`.runner`); each is
 managed separately (``/robot/front/rs_localizer/change_state``, ...).
+
+With ``rig.cameras`` set the process runs the rig mode as one managed node
+(:class:`RigLocalizerLifecycleNode`, :mod:`.rig_node`): configure reads the rig's parameters
+(each camera's ``rig.<camera>.*``; a camera without mounting fails the transition, naming it),
+builds each camera's front end and creates the publishers (inactive) and the cameras'
+``camera_info`` subscriptions; activate subscribes every camera's frame inputs
+(``<camera>/correspondences``, ``<camera>/image_raw``) and publishes diagnostics; deactivate
+unsubscribes them, solves and publishes the rig frames still open and ends the track (the next
+activation starts a new one; the counters go on); cleanup releases everything (the counters
+too). Parameters may be changed while unconfigured; once configured, changes are refused
+until cleanup.
 """
 
 from __future__ import annotations
@@ -32,8 +43,9 @@ from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackRet
 from ..frontends.shared import SHARED_MAPS
 from .node import LocalizerCore
 from .qos import output_events
+from .rig_node import RigCore
 
-__all__ = ["RSLocalizerLifecycleNode", "main"]
+__all__ = ["RSLocalizerLifecycleNode", "RigLocalizerLifecycleNode", "main"]
 
 _OK = TransitionCallbackReturn.SUCCESS
 
@@ -109,6 +121,73 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         SHARED_MAPS.release(self)
         self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
         # the counters reset too)
+
+
+class RigLocalizerLifecycleNode(RigCore, LifecycleNode):
+    """The rig mode as a managed node (see the module docstring). ``node_name`` and ``kwargs``
+    go to :class:`rclpy.lifecycle.LifecycleNode`."""
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
+        LifecycleNode.__init__(self, node_name, **kwargs)
+        self._declare_rig_parameters()
+        self.add_on_set_parameters_callback(self._refuse_changes)
+        self.get_logger().info("unconfigured (lifecycle node, rig mode: configure, then activate)")
+
+    def _make_publisher(self, msg_type, topic, qos):
+        pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
+        self._outputs.append(pub)
+        return pub
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self._configure_rig()
+        except RuntimeError as e:
+            self.get_logger().error(f"configure failed: {e}")
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        self._create_rig_outputs()
+        self._create_rig_info_inputs()
+        self.get_logger().info(f"configured: rig of {len(self.config.cameras)} cameras (inactive)")
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        ret = super().on_activate(state)  # enables the lifecycle publishers
+        if ret == _OK:
+            self._create_rig_frame_inputs()
+            self._log_rig_ready()
+        return ret
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_rig_frame_inputs()
+        self._end_rig_video()  # (published while the publishers are still active)
+        self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("cleaned up: unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_rig_frame_inputs()
+        self._release()
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.get_logger().error("error in a transition: releasing everything (unconfigured)")
+        self._destroy_rig_frame_inputs()
+        self._release()
+        return _OK
+
+    def _release(self):
+        for pub in self._outputs:
+            self.destroy_lifecycle_publisher(pub)
+        self._outputs = []
+        self._release_rig()
+
+    def destroy_node(self) -> None:
+        SHARED_MAPS.release(self)
+        return super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:

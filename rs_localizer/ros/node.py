@@ -46,7 +46,7 @@ import time
 from collections import deque
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
@@ -60,19 +60,19 @@ from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from . import conversions as cv
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
 from .declare import declare_parameters
-from .diagnostics import ERROR, OK, WARN, diagnostic_status
+from .diagnostics import diagnostic_status
 from .frame_queue import FrameQueue
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
+from .status_msg import status_message
 from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode", "main"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
-_LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN, ERROR: DiagnosticStatus.ERROR}
 
 
 class LocalizerCore:
@@ -419,12 +419,13 @@ class LocalizerCore:
             self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
             frontend=self._maps().frontend,
         )
-        st = DiagnosticStatus()
-        st.name = f"rs_localizer: {self.get_fully_qualified_name()}"
-        st.hardware_id = self.cfg.camera_frame or "camera"
-        st.level, st.message = _LEVELS[level], message
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        return st
+        return status_message(
+            f"rs_localizer: {self.get_fully_qualified_name()}",
+            self.cfg.camera_frame or "camera",
+            level,
+            message,
+            values,
+        )
 
     def publish_diagnostics(self) -> None:
         msg = DiagnosticArray()

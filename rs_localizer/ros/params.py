@@ -663,8 +663,9 @@ def option_fields(group: str, values: Mapping[str, Any]) -> dict[str, Any]:
 RIG_PARAMETERS = {
     "rig.cameras": Parameter(
         [],
-        "the rig's camera names: one pose for all of them (topics <camera>/correspondences "
-        "and <camera>/camera_info; each needs rig.<camera>.mounting); empty: no rig",
+        "the rig's camera names: one pose for all of them (topics <camera>/correspondences, "
+        "<camera>/image_raw with a frontend, and <camera>/camera_info; each needs "
+        "rig.<camera>.mounting); empty: no rig",
         read_only=True,
     ),
     "rig.window": Parameter(

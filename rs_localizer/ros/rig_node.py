@@ -11,6 +11,15 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
     <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics; until one arrives
                          the camera's frames wait (counted ``<c>.skipped.no_camera_info``) and
                          the rig runs on the others
+    <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
+                         set: each camera's own front end (``frontend``, ``frontend_map``,
+                         ``aruco.*`` / ``features.*``) searching with the rig's prediction
+                         mapped into the camera; decoded and checked as the single-camera
+                         node does (``bad_image``, ``image_size_mismatch``, counted
+                         ``<c>.skipped.<reason>``); ``image_transport: compressed``:
+                         ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage)
+    The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
+    single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
 and, with ``imu.enabled``, one for the rig:
     imu                  sensor_msgs/Imu (sensor-data QoS): a gyro on the rig, ``imu.rotation``
                          its rotation IMU -> base_frame; every rig frame is solved with its
@@ -25,19 +34,20 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
     /diagnostics (one status: the rig's counts and every camera's, with warnings)
 
-The frames are solved in the subscription callbacks (one executor thread; a rig frame of
-3 x 150 correspondences takes ~40 ms): the node has no frame queue. The parameters are read
-once, at start (changes at run time are refused). The managed node has no rig mode.
+The frames are solved in the subscription callbacks (one executor thread): the node has no
+frame queue. The parameters are read once, at start (changes at run time are refused). The
+managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -45,17 +55,21 @@ from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Imu, PointCloud2
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
+from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
-from .config import RigConfig, rig_config
+from .config import RigConfig, build_config, load_maps, rig_config
 from .declare import declare_parameters
+from .diagnostics import ERROR, OK, WARN
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import read_correspondences
-from .qos import CLOUD_QOS, IMU_QOS, RELIABLE, output_events
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
+from .status_msg import status_message
 
-__all__ = ["RigLocalizerNode", "rig_diagnostics"]
+__all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
 _ARRAY_TYPES = {"rig.cameras": RosParameter.Type.STRING_ARRAY}
 
@@ -87,10 +101,11 @@ def _declare_typed(node: Node, name: str, par, array_type) -> Any:
         return None
 
 
-def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[str, str, dict]:
-    """``(level, message, values)`` of the rig's status: level ``OK``, ``WARN`` (a camera
-    disagrees with the rig, has stopped, waits for its camera_info, or rig frames failed) or
-    ``ERROR`` (rig frames formed and none was posed). Values: ``rig_frames``,
+def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dict]:
+    """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
+    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; a camera has
+    stopped, waits for its camera_info, or rig frames failed) or ``ERROR`` (rig frames formed
+    and none was posed). Values: ``rig_frames``,
     ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, and per
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
@@ -124,7 +139,15 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[str, str, dic
         for k, v in sorted(rig.counts.items()):
             if k.startswith((f"{n}.skipped.", f"{n}.missed.")):
                 values[k] = v
-        if state == "disagrees":
+        partner = rig.camera_partner(n) if state == "disagrees" else None
+        if partner is not None:
+            pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
+            if not any(w.startswith(pair) for w in warnings):
+                warnings.append(
+                    f"{pair}: the mounting of one of them is likely wrong (two cameras cannot "
+                    "tell which)"
+                )
+        elif state == "disagrees":
             warnings.append(f"camera {n} disagrees with the rig: likely a wrong mounting")
         elif state == "stopped":
             warnings.append(f"camera {n} stopped")
@@ -139,67 +162,96 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[str, str, dic
         if rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
             warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
-        return "ERROR", "no rig frame posed", values
+        return ERROR, "no rig frame posed", values
     if r["failed"]:
         warnings.append(f"{r['failed']} rig frames failed")
     if warnings:
-        return "WARN", "; ".join(warnings), values
-    return "OK", f"{r['solved']} rig frames posed", values
+        return WARN, "; ".join(warnings), values
+    return OK, f"{r['solved']} rig frames posed", values
 
 
-_LEVELS = {
-    "OK": DiagnosticStatus.OK,
-    "WARN": DiagnosticStatus.WARN,
-    "ERROR": DiagnosticStatus.ERROR,
-}
+class RigCore:
+    """Everything of the rig mode but the order of its construction, shared by
+    :class:`RigLocalizerNode` (all at once) and the managed
+    :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
+    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_rig_parameters`,
+    :meth:`_configure_rig` (parameters -> configuration, the cameras' front ends, the
+    :class:`~rs_localizer.tracking.rig.RigLocalizer`), :meth:`_create_rig_outputs`,
+    :meth:`_create_rig_info_inputs`, :meth:`_create_rig_frame_inputs` (and
+    :meth:`_destroy_rig_frame_inputs`), :meth:`_end_rig_video`, :meth:`_release_rig`."""
 
+    rig = None  # (None: not configured)
+    config = None
 
-class RigLocalizerNode(Node):
-    """The rig mode (module docstring). ``node_name`` and ``kwargs`` go to
-    :class:`rclpy.node.Node`.
+    def _make_publisher(self, msg_type, topic, qos):
+        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
 
-    Raises:
-        RuntimeError: invalid parameters, e.g. a camera without ``rig.<camera>.mounting``
-            (the message names it).
-    """
-
-    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
-        Node.__init__(self, node_name, **kwargs)
+    def _declare_rig_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
-        names = _declare_typed(
+        _declare_typed(
             self, "rig.cameras", RIG_PARAMETERS["rig.cameras"], _ARRAY_TYPES["rig.cameras"]
         )
+        self._outputs, self._subs, self._frame_subs = [], [], []
+        self._pubs, self.pub_diag, self._timer = {}, None, None
+        self._configured = False
+
+    def _configure_rig(self) -> None:
+        """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
+        use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
+        rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
+        try:
+            names = self.get_parameter("rig.cameras").value
+        except ParameterUninitializedException:
+            names = None
         values = {n: self.get_parameter(n).value for n in PARAMETERS}
         values.update(
             {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
         values["rig.cameras"] = list(names or [])
         cams = {}
+        own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
         for n in values["rig.cameras"]:
             n = str(n).strip()
-            if not n or self.has_parameter(f"rig.{n}.line_delay"):
+            if not n:
                 continue
-            own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
-            declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
+            if not self.has_parameter(f"rig.{n}.line_delay"):
+                declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
+                _declare_typed(
+                    self,
+                    f"rig.{n}.mounting",
+                    RIG_CAMERA_PARAMETERS["mounting"],
+                    RosParameter.Type.DOUBLE_ARRAY,
+                )
             cams[n] = {k: self.get_parameter(f"rig.{n}.{k}").value for k in own}
-            cams[n]["mounting"] = _declare_typed(
-                self,
-                f"rig.{n}.mounting",
-                RIG_CAMERA_PARAMETERS["mounting"],
-                RosParameter.Type.DOUBLE_ARRAY,
-            )
+            try:
+                cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
+            except ParameterUninitializedException:
+                cams[n]["mounting"] = None
         try:
             self.config: RigConfig = rig_config(values, cams)
+            single = build_config(values)  # (the front end: frontend, frontend_map, aruco.*)
+            frontends = {}
+            if single.frontend_kind != "none":
+                for c in self.config.cameras:  # (one map, a front end object per camera)
+                    frontends[c.name] = load_maps(single, owner=self).frontend
         except ConfigError as e:
+            SHARED_MAPS.release(self)
             raise RuntimeError(f"invalid parameters: {e}") from None
         self.map_frame = str(values["map_frame"])
+        self.frontend_kind = single.frontend_kind
+        self.image_transport = single.image_transport
         self._log = _Log(self.get_logger())
         self.rig = RigLocalizer(self.config.settings, log=self._log)
+        for n, fe in frontends.items():
+            self.rig.set_frontend(n, fe, single.frontend_kind)
         self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
+        self._configured = True
+
+    def _create_rig_outputs(self) -> None:
         self._pubs = {
-            topic: self.create_publisher(t, topic, RELIABLE, event_callbacks=output_events())
+            topic: self._make_publisher(t, topic, RELIABLE)
             for topic, t in (
                 ("pose", PoseStamped),
                 ("pose_with_covariance", PoseWithCovarianceStamped),
@@ -208,14 +260,13 @@ class RigLocalizerNode(Node):
                 ("odom", Odometry),
             )
         }
-        if values["publish_tf"] and cv.have_tf2_msgs():
+        if self.get_parameter("publish_tf").value and cv.have_tf2_msgs():
             from tf2_msgs.msg import TFMessage
 
-            self._pubs["tf"] = self.create_publisher(
-                TFMessage, "/tf", RELIABLE, event_callbacks=output_events()
-            )
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
-        self._subs = []
+            self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
+        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+
+    def _create_rig_info_inputs(self) -> None:
         for c in self.config.cameras:
             self._subs.append(
                 self.create_subscription(
@@ -225,29 +276,85 @@ class RigLocalizerNode(Node):
                     qos_profile_sensor_data,
                 )
             )
-            self._subs.append(
+
+    def _create_rig_frame_inputs(self) -> None:
+        """Per camera ``<c>/correspondences`` and, with a front end, ``<c>/image_raw`` (or
+        ``<c>/image_raw/compressed``); the diagnostics timer."""
+        for c in self.config.cameras:
+            self._frame_subs.append(
                 self.create_subscription(
                     PointCloud2,
                     f"{c.name}/correspondences",
                     lambda msg, n=c.name: self._on_cloud(n, msg),
                     CLOUD_QOS,
+                    qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 )
             )
+            if self.frontend_kind != "none":
+                compressed = self.image_transport == "compressed"
+                topic = f"{c.name}/image_raw" + ("/compressed" if compressed else "")
+                self._frame_subs.append(
+                    self.create_subscription(
+                        CompressedImage if compressed else Image,
+                        topic,
+                        lambda msg, n=c.name: self._on_image(n, msg),
+                        IMAGE_QOS,
+                        qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                    )
+                )
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
-            self._subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
+            self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
         self._timer = self.create_timer(
-            float(values["diagnostics_period"]), self.publish_diagnostics
+            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
-        self.add_on_set_parameters_callback(self._refuse_changes)
+
+    def _destroy_rig_frame_inputs(self) -> None:
+        for sub in self._frame_subs:
+            self.destroy_subscription(sub)
+        self._frame_subs = []
+        if self._timer is not None:
+            self.destroy_timer(self._timer)
+            self._timer = None
+
+    def _end_rig_video(self) -> None:
+        """Solve the rig frames still open and publish them and the twists still pending; the
+        next frame starts a new track."""
+        if self.rig is None:
+            return
+        for out in self.rig.close():
+            self.publish_output(out)
+        for f in self.rig.flush() + self.rig.reset():
+            self._publish_fused(f)
+
+    def _release_rig(self) -> None:
+        """Drop what configure made: publishers, subscriptions, front ends and their map, the
+        rig and its counters."""
+        for sub in self._subs:
+            self.destroy_subscription(sub)
+        self._subs = []
+        SHARED_MAPS.release(self)
+        self.rig, self.config, self._pubs, self.pub_diag = None, None, {}, None
+        self._configured = False
+
+    def _log_rig_ready(self) -> None:
+        images = (
+            f", {self.frontend_kind} front end on each camera's image_raw"
+            if self.frontend_kind != "none"
+            else ""
+        )
         self.get_logger().info(
             f"ready: rig of {len(self.config.cameras)} cameras "
             f"({', '.join(c.name for c in self.config.cameras)}) posed as {self.config.base_frame}"
-            f" in {self.map_frame}"
+            f" in {self.map_frame}{images}"
         )
 
     def _refuse_changes(self, params) -> SetParametersResult:
-        """The rig mode reads its parameters once, at start: changes are refused."""
+        """The rig mode reads its parameters at start (configure): changes are refused."""
+        if not getattr(self, "_configured", True) or all(
+            p.name.startswith("qos_overrides.") for p in params
+        ):  # (unconfigured; the QoS overrides a subscription declares, read-only)
+            return SetParametersResult(successful=True)
         names = ", ".join(p.name for p in params)
         return SetParametersResult(
             successful=False,
@@ -295,10 +402,38 @@ class RigLocalizerNode(Node):
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
         return reason
 
+    def _on_image(self, name: str, msg) -> None:
+        """An image: decoded and checked against the camera's camera_info as the single-camera
+        node does (a message that does not decode: ``bad_image``; another size than the
+        camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
+        the camera's front end and the rig (:meth:`RigLocalizer.process_image`)."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError as e:
+            self.bad_input[name] += 1
+            self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
+            return
+        camera = self.models[name]
+        img, enc, why = _decode_image(msg, camera)
+        if why is not None:
+            self._log.warning(
+                f"image.{name}", f"rig camera {name!r}: image dropped ({why[0]}): {why[1]}"
+            )
+            outs = self.rig.drop(name, stamp, camera, why[0])
+        else:
+            outs = self.rig.process_image(name, stamp, img, camera, enc)
+        for out in outs:
+            self.publish_output(out)
+
     # ---------------------------------------------------------------- outputs
     def _wanted(self, topic: str) -> bool:
         pub = self._pubs.get(topic)
         return pub is not None and pub.get_subscription_count() > 0
+
+    def _publish_fused(self, f) -> None:
+        base, mf = self.config.base_frame, self.map_frame
+        self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
+        self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
@@ -320,8 +455,7 @@ class RigLocalizerNode(Node):
             if "tf" in self._pubs:
                 self._pubs["tf"].publish(cv.tf_message(m, stamp, mf, base))
         for f in out.fused:
-            self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
-            self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
+            self._publish_fused(f)
 
     def diagnostics_status(self) -> DiagnosticStatus:
         waiting = {n for n, m in self.models.items() if m is None}
@@ -330,31 +464,90 @@ class RigLocalizerNode(Node):
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
             values[f"imu_rejected.{why}"] = k
-        st = DiagnosticStatus()
-        st.name = f"rs_localizer: {self.get_fully_qualified_name()}"
-        st.hardware_id = self.config.base_frame
-        st.level, st.message = _LEVELS[level], message
-        st.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-        return st
+        return status_message(
+            f"rs_localizer: {self.get_fully_qualified_name()}",
+            self.config.base_frame,
+            level,
+            message,
+            values,
+        )
 
     def publish_diagnostics(self) -> None:
+        if self.pub_diag is None or self.rig is None:
+            return
         msg = DiagnosticArray()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostics_status()]
         self.pub_diag.publish(msg)
 
+
+def _decode_image(msg, camera) -> tuple:
+    """``(image, encoding, None)`` of an ``Image`` or ``CompressedImage`` message, or
+    ``(None, None, (reason, detail))`` with the single-camera node's reasons (``bad_image``,
+    ``image_size_mismatch``, :meth:`~rs_localizer.ros.pipeline.FramePipeline.process`); the size
+    is checked against ``camera`` when it is known (before decoding a raw image)."""
+    from ..frontends.image import image_from_compressed, image_from_msg
+
+    def size_ok(w, h):
+        return camera is None or camera.width <= 0 or (w, h) == (camera.width, camera.height)
+
+    try:
+        if not hasattr(msg, "encoding"):
+            img, enc = image_from_compressed(msg)
+            h, w = img.shape[:2]
+        else:
+            h, w = int(msg.height), int(msg.width)
+            if h * w == 0:
+                return None, None, ("bad_image", f"empty image ({w}x{h})")
+            if not size_ok(w, h):
+                raise _SizeError(w, h)
+            img, enc = image_from_msg(msg)
+        if not size_ok(w, h):
+            raise _SizeError(w, h)
+    except _SizeError as e:
+        return (
+            None,
+            None,
+            (
+                "image_size_mismatch",
+                f"image is {e.args[0]}x{e.args[1]}, the camera model "
+                f"{camera.width}x{camera.height}",
+            ),
+        )
+    except ValueError as e:
+        return None, None, ("bad_image", str(e))
+    return img, enc, None
+
+
+class _SizeError(Exception):
+    pass
+
+
+class RigLocalizerNode(RigCore, Node):
+    """The rig mode (module docstring): configured, subscribed and publishing from
+    construction. ``node_name`` and ``kwargs`` go to :class:`rclpy.node.Node`.
+
+    Raises:
+        RuntimeError: invalid parameters, e.g. a camera without ``rig.<camera>.mounting``
+            (the message names it).
+    """
+
+    def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
+        Node.__init__(self, node_name, **kwargs)
+        self._declare_rig_parameters()
+        self._configure_rig()
+        self._create_rig_outputs()
+        self._create_rig_info_inputs()
+        self._create_rig_frame_inputs()
+        self.add_on_set_parameters_callback(self._refuse_changes)
+        self._log_rig_ready()
+
     def destroy_node(self) -> None:
         """Solve the rig frames still open and publish them and the pending twists, then
         destroy the node."""
-        try:
-            for out in self.rig.close():
-                self.publish_output(out)
-            base, mf = self.config.base_frame, self.map_frame
-            for f in self.rig.flush():
-                self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
-                self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
-        except Exception:  # (shutting down: the context may be gone)
-            pass
+        with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
+            self._end_rig_video()
+        SHARED_MAPS.release(self)
         return super().destroy_node()
 
 

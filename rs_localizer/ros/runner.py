@@ -14,7 +14,9 @@ section of the parameter file too, e.g. ``/robot/front/rs_localizer: ros__parame
 {camera_frame: front_optical}``.
 
 With ``rig.cameras`` set (the rig mode, docs/rig_node.md) the process runs one
-:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` posing all of the rig's cameras as one body.
+:class:`~rs_localizer.ros.rig_node.RigLocalizerNode` posing all of the rig's cameras as one body
+(``rs_localizer_lifecycle_node``: one
+:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`).
 """
 
 from __future__ import annotations
@@ -141,11 +143,11 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
     try:
         cams, base_ns, name = read_cameras()
         if read_rig_cameras():  # (the rig mode: one node for every camera of the rig)
-            from .rig_node import RigLocalizerNode
-
-            if prog != "rs_localizer_node":
-                raise RuntimeError("the rig mode (rig.cameras) runs in rs_localizer_node only")
-            nodes.append(RigLocalizerNode())
+            if prog == "rs_localizer_lifecycle_node":
+                from .lifecycle import RigLocalizerLifecycleNode as rig_class
+            else:
+                from .rig_node import RigLocalizerNode as rig_class
+            nodes.append(rig_class())
         elif cams:
             cli = node_cli_args(argv)
             try:

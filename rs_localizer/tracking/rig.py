@@ -48,7 +48,13 @@ rig frame not solved yet), and per rig frame ``rig_frames = solved + failed + sk
 pending``. Per solved rig frame and camera: its points, inliers and share of the rig's inliers
 (:class:`CameraShare`); a camera whose points are outliers far more often than the others'
 over several rig frames is named as one that *disagrees* with the rig (a mounting off by
-degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning.
+degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with a warning;
+when its points are compared with one other camera's only, both are named
+(:meth:`RigLocalizer.camera_partner`): two cameras cannot tell which mounting is wrong.
+
+Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
+(:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
+(:meth:`RigLocalizer.predict_camera`), then takes the frame as :meth:`RigLocalizer.add` does.
 
 Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
 
@@ -76,16 +82,17 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
+from ..correspondences import Correspondences, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import InitialModel
-from ..estimation.rig import RigPoseEstimate, RigView, estimate_rig_pose
+from ..estimation.rig import RigPoseEstimate, RigView, camera_model_of_rig, estimate_rig_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from ..pose import RSPose, model_from_twist
+from ..pose import RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .sequence import FusedPose, checked_stamp, reference_stamp_ns
+from .sequence import FusedPose, checked_stamp, image_sample, reference_stamp_ns, same_image
 from .tracker import predictable
 
 __all__ = [
@@ -93,6 +100,7 @@ __all__ = [
     "RIG_PATHS",
     "SKIP_REASONS",
     "CameraShare",
+    "CameraVerdict",
     "MountingEstimate",
     "RigCameraFrame",
     "RigLocalizer",
@@ -113,6 +121,12 @@ SKIP_REASONS = {
     "cameras had moved past it)",
     "time_reset": "stamps went back by more than time_reset_ns: the rig frames waiting were "
     "dropped and the rig started again",
+    "frontend_error": "an image: the camera's front end raised (RigLocalizer.process_image)",
+    "frozen_image": "an image: the camera's previous image again (a driver re-sending its last "
+    "frame, a stalled camera; the single-camera localizer's frozen_image rule)",
+    "bad_image": "an image message that does not decode (the node: unsupported encoding, "
+    "truncated data, a compressed payload that does not decode, an empty image)",
+    "image_size_mismatch": "an image whose size is not its camera_info's (the node)",
 }
 #: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
 MISSED_REASONS = {
@@ -434,6 +448,7 @@ class _Camera:
         self.stopped = False
         self.flags: deque = deque(maxlen=history)
         self.disagrees = False
+        self.partner: str | None = None  # (two cameras that disagree: the other one)
         self.last_share: CameraShare | None = None
 
 
@@ -448,6 +463,46 @@ class _Group:
     def add(self, name: str, frame: RigCameraFrame, ref: int) -> None:
         self.frames[name] = (frame, ref)
         self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
+
+
+class _ImageInput:
+    """The image input's state (:meth:`RigLocalizer.process_image`): per camera its front end
+    and label, its last image's fingerprint, the frames waiting for their rig frame
+    (``(camera, reference time)`` -> ``(stamp, pixels, camera model)``), and the last rig pose
+    ``(stamp, model)``."""
+
+    def __init__(self):
+        self.frontends: dict = {}
+        self.labels: dict = {}
+        self.samples: dict = {}
+        self.waiting: dict = {}
+        self.last: tuple | None = None
+
+
+_NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
+
+
+@dataclass(frozen=True, eq=False)
+class CameraVerdict:
+    """One camera's part of a solved (or failed) rig frame, as its front end's ``observe`` is
+    given it (:class:`~rs_localizer.correspondences.VideoFrontend`).
+
+    Attributes:
+        success: the rig frame was posed. inliers: (M,) bool over the camera's pixels given
+            to the rig. R (3, 3), C (3,), w (3,), t (3,): the camera's own model at its
+            reference line (per unit RS coordinate) from the rig's pose and its mounting.
+    """
+
+    success: bool
+    inliers: np.ndarray
+    R: np.ndarray
+    C: np.ndarray
+    w: np.ndarray
+    t: np.ndarray
+
+    @property
+    def model(self) -> RSModel:
+        return RSModel(self.R, self.C, self.w, self.t)
 
 
 class _Silent:
@@ -607,9 +662,10 @@ class RigLocalizer:
         }
 
     def camera_state(self, name: str) -> str:
-        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees``."""
+        """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees`` (also the
+        partner of a camera that disagrees with it alone, :meth:`camera_partner`)."""
         cam = self._cams[name]
-        if cam.disagrees:
+        if cam.disagrees or any(c.disagrees and c.partner == name for c in self._cams.values()):
             return "disagrees"
         if cam.stopped:
             return "stopped"
@@ -753,6 +809,209 @@ class RigLocalizer:
         out, self._carry = self._carry, []
         return out
 
+    # ---------------------------------------------------------------- images
+    def _image_input(self) -> _ImageInput:
+        img = self.__dict__.get("_img")
+        if img is None:
+            img = self._img = _ImageInput()
+        return img
+
+    def set_frontend(self, name: str, frontend: Any, label: str | None = None) -> None:
+        """Use ``frontend`` for camera ``name``'s images (:meth:`process_image`; None: none): a
+        :class:`~rs_localizer.correspondences.VideoFrontend` as it is, a per-image
+        :class:`~rs_localizer.correspondences.Frontend` wrapped
+        (:func:`~rs_localizer.correspondences.video_frontend`). Every camera needs its own
+        front end object (a video front end keeps its last image's state); they may share a
+        map. ``label``: its name in warnings (default: its class name).
+
+        Raises:
+            ValueError: a camera not in the rig. TypeError: an object without ``process``.
+        """
+        if name not in self._cams:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        img = self._image_input()
+        if frontend is None:
+            img.frontends.pop(name, None)
+            return
+        img.frontends[name] = video_frontend(frontend)
+        img.labels[name] = label or type(frontend).__name__
+
+    def frontend(self, name: str) -> Any:
+        """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
+        return self._image_input().frontends.get(name)
+
+    def predict_camera(self, name: str, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+        """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
+        of row ``stamp_row``): the camera's model (:class:`~rs_localizer.pose.RSModel`
+        ``(R, C, w, t)`` at its reference row, ``w``, ``t`` per unit RS coordinate, what
+        :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for it alone) of the rig's
+        predicted pose and twist at the frame's reference time mapped through the camera's
+        mounting (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`). The rig's
+        prediction is the twist filter's (tracking), or without tracking the last rig frame
+        posed through :meth:`process_image` carried at its own twist. None when nothing
+        predicts the frame: no rig frame posed yet, or more than ``max_gap`` s (0.5 s without
+        tracking) after the last, or not after it
+        (:func:`~rs_localizer.tracking.tracker.predictable`).
+
+        Raises:
+            ValueError: a camera not in the rig, a stamp beyond the int64 ns range.
+        """
+        cam = self._cams.get(name)
+        if cam is None:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        ref = reference_stamp_ns(checked_stamp(stamp_ns), camera, self.settings.stamp_row)
+        spr = camera.seconds_per_unit_r
+        f, to = self._filter, self.settings.tracking
+        if f is not None:
+            if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
+                return None
+            pred = f.predict(ref)
+            rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
+                            pred.linear_velocity)  # fmt: skip
+            return camera_model_of_rig(rig, cam.mount.R, cam.mount.c, 0.0, spr)
+        last = self._image_input().last
+        if last is None or not predictable(last[0], ref, RigTrackingOptions.max_gap):
+            return None
+        return camera_model_of_rig(last[1], cam.mount.R, cam.mount.c, (ref - last[0]) * 1e-9, spr)
+
+    def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
+        """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
+        :data:`SKIP_REASONS`: e.g. an image the caller could not decode); the camera still
+        counts as having sent a frame at that time (the rig does not wait for it). Returns the
+        rig frames that completes, solved (as :meth:`add`).
+
+        Raises:
+            ValueError: a camera not in the rig, an unknown reason.
+        """
+        cam = self._cams.get(name)
+        if cam is None:
+            raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
+        if reason not in SKIP_REASONS:
+            raise ValueError(
+                f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
+            )
+        stamp = checked_stamp(stamp_ns)
+        self.counts[f"{name}.received"] += 1
+        self._skip(name, reason)
+        if self._first is None:
+            self._first = stamp
+        t = stamp if camera is None else reference_stamp_ns(stamp, camera, self.settings.stamp_row)
+        if cam.last_ref is None or t > cam.last_ref:
+            cam.newest = t if cam.newest is None else max(cam.newest, t)
+        return self._ready()
+
+    def process_image(
+        self,
+        name: str,
+        stamp_ns: int,
+        image: np.ndarray,
+        camera: CameraModel | None,
+        encoding: str = "bgr8",
+        tag: Any = None,
+    ) -> list[RigOutput]:
+        """Take one camera's image: its front end's correspondences
+        (``frontend.process(image, camera, encoding, stamp_ns, prediction)`` with the rig's
+        prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
+        :meth:`add`; each camera's front end is told how its frame was solved
+        (``frontend.observe(stamp_ns, pixels, estimate)``, ``estimate`` the camera's part of
+        the rig's, :class:`CameraVerdict`) when its rig frame is solved: with unsynchronized
+        cameras often after the camera's next image (a front end that searches around its last
+        solved markers still does; one that tracks the pixels of its last image matches them
+        by pixel and keeps those it finds). A camera's frame joins
+        its rig frame whatever its number of correspondences (even none: the rig is posed from
+        the others); an image whose front end raised (``frontend_error``) or that is the
+        camera's previous image again (``frozen_image``) is skipped (:data:`SKIP_REASONS`).
+
+        Args:
+            name: a camera of the rig. stamp_ns: the capture time (ns) of row ``stamp_row``.
+            image: (H, W) or (H, W, C) uint8 in ``encoding``.
+            camera: the camera's model with its RS timing; None: not known yet (the frame is
+                skipped as ``no_camera_info``, the front end does not run).
+            tag: as :attr:`RigCameraFrame.tag`.
+        Returns:
+            the rig frames completed, solved (as :meth:`add`).
+        Raises:
+            ValueError: a camera not in the rig or without a front end (:meth:`set_frontend`),
+                a stamp beyond the int64 ns range.
+        """
+        img = self._image_input()
+        fe = img.frontends.get(name)
+        if name not in self._cams or fe is None:
+            raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
+        stamp = checked_stamp(stamp_ns)
+        if camera is None:
+            return self._observed(self.add(RigCameraFrame(name, stamp, None, _NO_UV, _NO_XYZ, tag)))
+        label = img.labels.get(name, "frontend")
+        sample = image_sample(image)
+        prev, img.samples[name] = img.samples.get(name), sample
+        diff = same_image(prev, sample)
+        if diff is not None:
+            self.log.warning(
+                f"rig.frozen.{name}",
+                f"rig camera {name!r}: the image is the previous one again (mean difference "
+                f"{diff:.2f} gray levels): skipped",
+            )
+            try:  # (the front end's tracks are stale: its next new image is searched whole)
+                fe.observe(stamp, None, None)
+            except Exception as e:
+                self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
+            return self._observed(self.drop(name, stamp, camera, "frozen_image"))
+        prediction = self.predict_camera(name, stamp, camera)
+        try:
+            found = Correspondences.of(
+                fe.process(image, camera, encoding=encoding, stamp_ns=stamp, prediction=prediction)
+            )
+        except Exception as e:
+            self.log.warning(
+                f"rig.frontend.{name}",
+                f"rig camera {name!r}: {label} front end failed: {type(e).__name__}: {e}",
+            )
+            return self._observed(self.drop(name, stamp, camera, "frontend_error"))
+        text = fe.pop_warning()
+        if text:
+            self.log.warning(f"{label}.warning", text)
+        uv = np.asarray(found.pixels, float).reshape(-1, 2)
+        xyz = np.asarray(found.points, float).reshape(-1, 3)
+        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+        uv, xyz = uv[good], xyz[good]
+        ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
+        img.waiting[(name, ref)] = (stamp, uv, camera)
+        return self._observed(self.add(RigCameraFrame(name, stamp, camera, uv, xyz, tag)))
+
+    def _observed(self, outs: list[RigOutput]) -> list[RigOutput]:
+        """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)
+        and keep the last rig pose (the prediction without tracking)."""
+        img = self._image_input()
+        for out in outs:
+            est = out.estimate
+            if out.success:
+                img.last = (out.stamp_ns, est.model)
+            for k, n in enumerate(out.cameras):
+                ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
+                item = img.waiting.pop((n, ref), None)
+                fe = img.frontends.get(n)
+                if item is None or fe is None:
+                    continue
+                stamp, uv, camera = item
+                verdict = None
+                if est is not None:
+                    model = RSModel(est.R, est.C, est.w, est.t)
+                    cam = self._cams[n]
+                    cm = camera_model_of_rig(model, cam.mount.R, cam.mount.c,
+                                             out.stamp_offsets.get(n, 0.0),
+                                             camera.seconds_per_unit_r)  # fmt: skip
+                    inl = est.inliers[k] if k < len(est.inliers) else np.zeros(len(uv), bool)
+                    verdict = CameraVerdict(bool(est.success), np.asarray(inl, bool), *cm)
+                try:
+                    fe.observe(stamp, uv, verdict)
+                except Exception as e:
+                    label = img.labels.get(n, "frontend")
+                    self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
+        if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
+            for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
+                del img.waiting[key]
+        return outs
+
     def _end_track(self) -> list[FusedPose]:
         out = []
         if self._filter is not None:
@@ -889,7 +1148,14 @@ class RigLocalizer:
         out.fused += self._fused(step.final)
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
+        """Flag the cameras whose points fit the rig's pose far worse than the others' (module
+        docstring). The others' verdict names a camera alone when at least two other cameras
+        with points stand against it: when its points are compared with one other camera's
+        only, the two disagree and either mounting may be the wrong one (the camera with fewer
+        points is outvoted by the one with more, not shown wrong), so both are named
+        (:meth:`camera_partner`)."""
         s = self.settings
+        strong = [j for j in range(len(names)) if int(n_pts[j]) >= s.disagree_min_points]
         for k, n in enumerate(names):
             cam = self._cams[n]
             pts = int(n_pts[k])
@@ -900,20 +1166,60 @@ class RigLocalizer:
                 continue
             others = (int(n_in.sum()) - int(n_in[k])) / others_pts
             cam.flags.append(bool(n_in[k] / pts < s.disagree_ratio * others))
-            was = cam.disagrees
+            was, was_partner = cam.disagrees, cam.partner
             cam.disagrees = sum(cam.flags) >= s.disagree_frames
-            if cam.disagrees and not was:
+            witnesses = [names[j] for j in strong if j != k]
+            weak = [m for j, m in enumerate(names) if j != k and int(n_pts[j]) > 0]
+            single = len(witnesses) == 1 and len(weak) == 1
+            cam.partner = witnesses[0] if cam.disagrees and single else None
+            if cam.disagrees and (not was or cam.partner != was_partner):
                 self.counts[f"{n}.disagreements"] += 1
-                self.log.warning(
-                    f"rig.disagrees.{n}",
-                    f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
-                    f"points fit the rig's pose ({100 * others:.0f} % of the others')"
-                    f"{_offset_text(views[k], est)}: its mounting is likely wrong (or its "
-                    "matches are)",
-                )
+                deg = _alone_deg(views[k], est)
+                if cam.partner is None:
+                    alone = (
+                        ""
+                        if deg is None
+                        else (f"; alone it is {deg:.1f} deg from where its mounting puts it")
+                    )
+                    text = (
+                        f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
+                        f"points fit the rig's pose ({100 * others:.0f} % of the others')"
+                        f"{alone}: its mounting is likely wrong (or its matches are)"
+                    )
+                else:
+                    p = cam.partner
+                    alone = (
+                        ""
+                        if deg is None
+                        else (
+                            f"; alone {n!r} is {deg:.1f} deg from where the mountings put it "
+                            f"relative to {p!r}"
+                        )
+                    )
+                    text = (
+                        f"rig cameras {n!r} and {p!r} disagree: {int(n_in[k])} of the {pts} points "
+                        f"of {n!r} fit the rig's pose ({100 * others:.0f} % of those of {p!r})"
+                        f"{alone}: "
+                        "the mounting of one of them is likely wrong (or its matches are); two "
+                        "cameras cannot tell which (the rig follows the one with more points): "
+                        "check both mountings, or let a third camera see the map"
+                    )  # fmt: skip
+                self.log.warning(f"rig.disagrees.{n}", text)
             elif was and not cam.disagrees:
                 self.log.info(f"rig camera {n!r} agrees with the others again")
-        out.disagreeing = tuple(n for n, c in self._cams.items() if c.disagrees)
+        out.disagreeing = tuple(n for n in self._cams if self.camera_state(n) == "disagrees")
+
+    def camera_partner(self, name: str) -> str | None:
+        """The other camera when ``name`` is one of two cameras that disagree with each other
+        and no third camera tells which mounting is wrong (both are named: :meth:`camera_state`
+        is ``disagrees`` for both), else None."""
+        cam = self._cams[name]
+        if cam.disagrees and cam.partner is not None:
+            return cam.partner
+        for c in self._cams.values():
+            if c.disagrees and c.partner == name:
+                return c.name
+        return None
 
     def _fused(self, final: list) -> list[FusedPose]:
         out = []
@@ -927,20 +1233,19 @@ class RigLocalizer:
         return out
 
 
-def _offset_text(view: RigView, est: RigPoseEstimate) -> str:
-    """``", alone it is N deg from where its mounting puts it"`` when the camera alone is
-    posed (the single-camera estimator), else ``""``."""
+def _alone_deg(view: RigView, est: RigPoseEstimate) -> float | None:
+    """deg between the camera's rotation posed alone (the single-camera estimator) and where
+    the rig's pose and the camera's mounting put it; None when it is not posed alone."""
     try:
         alone = estimate_rs_pose(view.uv, view.X, view.camera)
     except Exception:
-        return ""
+        return None
     if not alone.success:
-        return ""
+        return None
     w = np.asarray(est.w, float)
     # the camera's rotation (world -> camera) at its reference time, as the rig puts it
     R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
-    deg = rotation_angle_deg(alone.model.R, R_c)
-    return f"; alone it is {deg:.1f} deg from where its mounting puts it"
+    return float(rotation_angle_deg(alone.model.R, R_c))
 
 
 # ---------------------------------------------------------------------- mountings from data

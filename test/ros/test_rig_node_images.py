@@ -1,0 +1,372 @@
+"""The rig mode with images over DDS: three 640x480 RGB cameras of the marker room (each view
+rendered at the rig's motion composed with its mounting, rs_localizer.sim.rig_render) published
+per camera on ``<camera>/image_raw``, each camera's ArUco front end, one pose for the rig against
+the truth, every image counted (undecodable and wrong-size images under the single-camera
+node's reasons); the managed rig node through a transition cycle; the diagnostics converter
+shared with the single-camera node; the status naming two cameras that disagree."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+
+pytest.importorskip("rclpy")
+
+T0 = 1_700_000_000_000_000_000
+OK, WARN = b"\x00", b"\x01"  # (diagnostic_msgs/DiagnosticStatus levels)
+
+
+def rig_parameters(cams, mountings=None, **extra):
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.conversions import quaternion_from_matrix
+
+    p = {
+        "warmup": False,
+        "publish_tf": False,
+        "diagnostics_period": 0.1,
+        "rig.cameras": [c.name for c in cams],
+        **extra,
+    }
+    for c in cams:
+        R = c.R_rig_cam if mountings is None else mountings.get(c.name, c.R_rig_cam)
+        q = quaternion_from_matrix(R)
+        p[f"rig.{c.name}.mounting"] = [float(x) for x in (*c.p_rig_cam, *q)]
+        p[f"rig.{c.name}.line_delay"] = float(c.camera.line_delay)
+        p[f"rig.{c.name}.direction"] = c.camera.readout
+    return [Parameter(k, value=v) for k, v in p.items()]
+
+
+def image_msg(img: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rgb8"):
+    from sensor_msgs.msg import Image
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+
+    m = Image()
+    m.header.stamp = ns_to_stamp(stamp_ns)
+    m.header.frame_id = frame_id
+    m.height, m.width = int(img.shape[0]), int(img.shape[1])
+    m.encoding = encoding
+    img = np.ascontiguousarray(img)
+    m.step = int(img.strides[0])
+    m.data = img.tobytes()
+    return m
+
+
+class Harness:
+    """A rig node (or the managed one) and a probe on one executor: the probe publishes each
+    camera's camera_info, images and clouds (reliable, lock-step on the node's counts) and
+    records pose, odom and the node's diagnostics."""
+
+    def __init__(self, ctx, cams, node):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+        self.node = node
+        self.probe = rclpy.create_node("rig_probe", context=ctx)
+        self.ex = SingleThreadedExecutor(context=ctx)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.probe)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        self.pub = {
+            c.name: {
+                "image": self.probe.create_publisher(Image, f"/rig/{c.name}/image_raw", qos),
+                "cloud": self.probe.create_publisher(
+                    PointCloud2, f"/rig/{c.name}/correspondences", qos
+                ),
+                "info": self.probe.create_publisher(CameraInfo, f"/rig/{c.name}/camera_info", qos),
+            }
+            for c in cams
+        }
+        self.poses, self.odom, self.diag = [], [], []
+        self.probe.create_subscription(PoseStamped, "/rig/pose", self.poses.append, qos)
+        self.probe.create_subscription(Odometry, "/rig/odom", self.odom.append, qos)
+
+        def on_diag(msg):
+            self.diag += [s for s in msg.status if "/rig/rs_localizer" in s.name]
+
+        self.probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
+
+    def matched(self, kinds=("image", "info")) -> bool:
+        return self.wait(
+            lambda: (
+                all(ps[k].get_subscription_count() > 0 for ps in self.pub.values() for k in kinds)
+                and self.node._pubs["pose"].get_subscription_count() > 0
+            )
+        )
+
+    def wait(self, predicate, timeout=30.0) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if predicate():
+                return True
+            self.ex.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def send_info(self, cams):
+        from rs_localizer.ros.conversions import camera_info_msg
+
+        for c in cams:
+            self.pub[c.name]["info"].publish(camera_info_msg(c.camera, c.name, T0))
+        assert self.wait(lambda: all(self.node.models[c.name] is not None for c in cams))
+
+    def send(self, name, kind, msg, taken=True):
+        """Publish one frame; with ``taken``, wait until the node counted it."""
+        key = f"{name}.received"
+        n = self.node.rig.counts[key]
+        self.pub[name][kind].publish(msg)
+        if taken:
+            assert self.wait(lambda: self.node.rig.counts[key] > n), (name, kind)
+
+    def last_diag(self):
+        n = len(self.diag)
+        assert self.wait(lambda: len(self.diag) > n + 1)
+        st = self.diag[-1]
+        return st, {kv.key: kv.value for kv in st.values}
+
+    def close(self):
+        self.ex.shutdown()
+        self.probe.destroy_node()
+        self.node.destroy_node()
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+
+    cams = vga_rig(3)
+    frames, motion = render_rig_frames(cams, 6, seed=5)
+    return cams, frames, motion
+
+
+def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context, rendered):
+    """18 RGB images (3 cameras x 6, unsynchronized) on each camera's image_raw, lock-step:
+    6 rig poses within 0.1 deg and 3 mm of the truth, each from the three cameras' markers;
+    then an image of another size and one of an unknown encoding, counted
+    ``skipped.image_size_mismatch`` and ``skipped.bad_image``; received = solved + failed +
+    skipped + pending per camera and per rig frame in the diagnostics."""
+    from rs_localizer.ros.conversions import pose_from_msg
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+    from rs_localizer.sim.rig_render import rendered_rig_truth
+
+    cams, frames, motion = rendered
+    params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
+    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    h = Harness(ros_context, cams, node)
+    try:
+        assert h.matched(), "the rig node and the probe did not match"
+        h.send_info(cams)
+        for f in frames:
+            h.send(f.name, "image", image_msg(f.image, f.stamp_ns, f.name))
+        last = frames[-1].stamp_ns
+        h.send("front", "image", image_msg(frames[0].image[:240, :320], last + 40_000_000, "front"))
+        bad = image_msg(frames[0].image, last + 50_000_000, "left", encoding="yuv422")
+        h.send("left", "image", bad)
+        assert h.wait(lambda: len(h.poses) >= 5)
+        _, v = h.last_diag()
+        assert len(h.poses) == int(v["rig_frames_solved"]) >= 5, v
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, p, _, _ = rendered_rig_truth(motion, (stamp - T0) * 1e-9)
+            Re, pe = pose_from_msg(m.pose)
+            assert rotation_angle_deg(Re, R) < 0.1 and np.linalg.norm(pe - p) < 0.003
+        assert v["front.skipped.image_size_mismatch"] == "1", v
+        assert v["left.skipped.bad_image"] == "1", v
+        rig_sum = sum(int(v[f"rig_frames_{k}"]) for k in ("solved", "failed", "skipped", "pending"))
+        assert int(v["rig_frames"]) == rig_sum
+        for c in cams:
+            n = c.name
+            got = sum(int(v[f"{n}.{k}"]) for k in ("solved", "failed", "skipped", "pending"))
+            assert int(v[f"{n}.received"]) == got == 6 + (n != "right"), (n, v)
+            assert int(v[f"{n}.inliers"]) > 60, v
+    finally:
+        h.close()
+
+
+def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
+    """configure (a camera without mounting: the transition fails naming it; with it: the
+    publishers and camera_info subscriptions, no frame input), activate (frames posed),
+    deactivate (frames not taken, the open rig frames published), cleanup (unconfigured),
+    configure + activate again (posed again, a new track)."""
+    from rclpy.lifecycle import TransitionCallbackReturn
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.lifecycle import RigLocalizerLifecycleNode
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=21)
+    full = rig_parameters(cams)
+    params = [p for p in full if p.name != "rig.left.mounting"]
+    broken = RigLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/broken",
+                                       parameter_overrides=params)  # fmt: skip
+    assert broken.trigger_configure() == FAILURE and broken.rig is None
+    broken.destroy_node()
+    node = RigLocalizerLifecycleNode("rs_localizer", context=ros_context, namespace="/rig",
+                                     parameter_overrides=full)  # fmt: skip
+    (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=2.5)])
+    assert r.successful  # (unconfigured: read at configure)
+    assert node.trigger_configure() == SUCCESS
+    h = Harness(ros_context, cams, node)
+
+    def clouds(fs, taken=True):
+        from rs_localizer.ros.conversions import ns_to_stamp
+        from rs_localizer.ros.pointcloud import correspondence_cloud
+
+        for f in fs:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            h.send(f.name, "cloud", cloud, taken)
+
+    try:
+        assert h.wait(lambda: h.pub["front"]["info"].get_subscription_count() > 0)
+        assert h.pub["front"]["cloud"].get_subscription_count() == 0  # (inactive)
+        (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
+        assert not r.successful and "at start" in r.reason
+        h.send_info(cams)
+        assert node.trigger_activate() == SUCCESS
+        assert h.matched(("cloud",))
+        clouds(frames[:15])
+        assert h.wait(lambda: len(h.poses) >= 4)
+        assert node.trigger_deactivate() == SUCCESS
+        assert len(h.poses) == 5 or h.wait(lambda: len(h.poses) == 5)  # (the open one too)
+        assert node.rig.rig_counts()["pending"] == 0
+        received = node.rig.counts["front.received"]
+        clouds(frames[15:18], taken=False)
+        h.wait(lambda: False, timeout=0.5)
+        assert node.rig.counts["front.received"] == received  # (not subscribed)
+        assert node.trigger_cleanup() == SUCCESS and node.rig is None
+        assert node.trigger_configure() == SUCCESS and node.trigger_activate() == SUCCESS
+        assert h.matched(("cloud", "info"))
+        h.send_info(cams)
+        n0 = len(h.poses)
+        clouds(frames[15:])
+        assert h.wait(lambda: len(h.poses) >= n0 + 3)
+        assert (
+            node.rig.counts["rig.path.cold"] == 1 and node.rig.counts["front.received"] == 4
+        )  # (counters anew)
+    finally:
+        h.close()
+
+
+def test_one_diagnostics_converter_for_both_nodes():
+    """status_message: the levels of .diagnostics and their names give the same message; the
+    values keep their order as strings; an unknown level is refused. Both nodes build their
+    status with it."""
+    import inspect
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from rs_localizer.ros import node as single
+    from rs_localizer.ros import rig_node
+    from rs_localizer.ros.diagnostics import ERROR, OK, WARN
+    from rs_localizer.ros.status_msg import status_message
+
+    for lv, name, byte in ((OK, "OK", DiagnosticStatus.OK), (WARN, "WARN", DiagnosticStatus.WARN),
+                           (ERROR, "ERROR", DiagnosticStatus.ERROR)):  # fmt: skip
+        a = status_message("n", "hw", lv, "m", {"b": 2, "a": 1.5})
+        b = status_message("n", "hw", name, "m", {"b": 2, "a": 1.5})
+        assert a.level == b.level == byte
+        assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
+    with pytest.raises(ValueError, match="unknown diagnostic level"):
+        status_message("n", "hw", "FINE", "m", {})
+    for mod in (single, rig_node):
+        assert "status_message(" in inspect.getsource(mod)
+        assert "DiagnosticStatus()" not in inspect.getsource(mod)
+
+
+def test_the_status_names_both_of_two_cameras_that_disagree():
+    """Two cameras, the left mounting 3 deg off: the rig status warns that the two disagree and
+    one of their mountings is likely wrong, both cameras' state ``disagrees``; with a third
+    camera the status names left alone."""
+    from rs_localizer.ros.diagnostics import WARN as W
+    from rs_localizer.ros.rig_node import rig_diagnostics
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+
+    for k in (2, 3):
+        cams = default_rig(k)
+        frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=7)
+        mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+        bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
+        mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+        rig = RigLocalizer(RigSettings(mounts))
+        by = {c.name: c.camera for c in cams}
+        for f in frames:
+            rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        level, message, values = rig_diagnostics(rig, set())
+        assert level == W, message
+        if k == 2:
+            assert "cameras front and left disagree" in message, message
+            assert "cannot tell which" in message
+            assert values["front.state"] == values["left.state"] == "disagrees"
+        else:
+            assert "camera left disagrees with the rig" in message, message
+            assert "front" not in message and values["front.state"] == "running"
+
+
+def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):
+    """rs_localizer_lifecycle_node with rig.cameras runs the managed rig node (the process
+    runner): it starts unconfigured in the rig mode and stops cleanly on SIGINT."""
+    from rs_localizer.ros.process import NodeProcess, ros_env
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: [front, left]\n"
+        "      front: {mounting: [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]}\n"
+        "      left: {mounting: [0.0, 0.12, 0.12, -0.7071068, 0.0, 0.0, 0.7071068]}\n"
+    )
+    n = NodeProcess([p], namespace="/rig", env=ros_env(), log=tmp_path / "lc.log",
+                    module="rs_localizer.ros.lifecycle")  # fmt: skip
+    try:
+        assert n.wait_ready(60.0, marker="unconfigured (lifecycle node, rig mode"), n.log
+    finally:
+        rc = n.stop()
+    assert rc == 0, n.log
+
+
+def test_image_decoding_and_checks_as_the_single_camera_node():
+    """The rig node's image check: an Image of the camera's size decodes to its pixels; a
+    compressed JPEG decodes (bgr8); another size, an unknown encoding, a truncated raw image or
+    a payload that is no image are refused under the single-camera node's reasons, the size
+    before decoding (its camera_info unknown: not checked)."""
+    import cv2
+    from sensor_msgs.msg import CompressedImage
+
+    from rs_localizer.ros.rig_node import _decode_image
+    from rs_localizer.sim.render.renderer import camera_preset
+
+    cam = camera_preset("vga")
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
+    out, enc, why = _decode_image(image_msg(img, T0, "c"), cam)
+    assert why is None and enc == "rgb8" and np.array_equal(out, img)
+    small = image_msg(img[:240, :320], T0, "c")
+    assert _decode_image(small, cam)[2][0] == "image_size_mismatch"
+    assert _decode_image(small, None)[2] is None
+    assert _decode_image(image_msg(img, T0, "c", "yuv422"), cam)[2][0] == "bad_image"
+    cut = image_msg(img, T0, "c")
+    cut.data = bytes(cut.data)[:1000]
+    assert _decode_image(cut, cam)[2][0] == "bad_image"
+    c = CompressedImage()
+    c.format = "jpeg"
+    c.data = cv2.imencode(".jpg", img)[1].tobytes()
+    out, enc, why = _decode_image(c, cam)
+    assert why is None and enc == "bgr8" and out.shape == (480, 640, 3)
+    c.data = b"not an image"
+    assert _decode_image(c, cam)[2][0] == "bad_image"
+    c.data = cv2.imencode(".jpg", img[:240, :320])[1].tobytes()
+    assert _decode_image(c, cam)[2][0] == "image_size_mismatch"
