@@ -125,7 +125,7 @@ def run_video(
         stamp = int(round(f.t_first * 1e9))
         t0 = time.perf_counter()
         pred = carry.predict(stamp, camera)
-        uv, X, _ = fe.process(img, camera, encoding="rgb8", stamp_ns=stamp, prediction=pred)
+        uv, X, _ = fe.process(img, camera, encoding="rgb8", prediction=pred)
         t1 = time.perf_counter()
         est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 6 else None
         t2 = time.perf_counter()

@@ -910,7 +910,7 @@ class RigLocalizer:
         tag: Any = None,
     ) -> list[RigOutput]:
         """Take one camera's image: its front end's correspondences
-        (``frontend.process(image, camera, encoding, stamp_ns, prediction)`` with the rig's
+        (``frontend.process(image, camera, encoding, prediction)`` with the rig's
         prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
         :meth:`add`; each camera's front end is told how its frame was solved
         (``frontend.observe(stamp_ns, pixels, estimate)``, ``estimate`` the camera's part of
@@ -959,7 +959,7 @@ class RigLocalizer:
         prediction = self.predict_camera(name, stamp, camera)
         try:
             found = Correspondences.of(
-                fe.process(image, camera, encoding=encoding, stamp_ns=stamp, prediction=prediction)
+                fe.process(image, camera, encoding=encoding, prediction=prediction)
             )
         except Exception as e:
             self.log.warning(
