@@ -377,7 +377,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
             estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of those rows
-                (``success``, ``inliers`` (M,), ``R``, ``C``, ``w``, ``t``), or None.
+                (``success``, ``inliers`` (M,)), or None.
         """
         points2d = pixels
         camera = self._frame_camera

@@ -276,21 +276,21 @@ class RigLocalizerNode(Node):
         m = out.measurement
         if m is not None:
             stamp = out.stamp_ns
-            self._pubs["pose"].publish(cv.pose_stamped(m, stamp, mf))
+            self._pubs["pose"].publish(cv.pose_stamped(m.pose, stamp, mf))
             if self._wanted("pose_with_covariance"):
                 self._pubs["pose_with_covariance"].publish(
                     cv.pose_with_covariance_stamped(m, stamp, mf)
                 )
             if self._wanted("twist_single_frame"):
-                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m, stamp, base))
+                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
             if self.config.settings.tracking is None:
-                self._pubs["twist"].publish(cv.twist_stamped(m, stamp, base))
+                self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:
-                self._pubs["tf"].publish(cv.tf_message(m, stamp, mf, base))
+                self._pubs["tf"].publish(cv.tf_message(m.pose, stamp, mf, base))
         for f in out.fused:
-            self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
-            self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
+            self._pubs["twist"].publish(cv.twist_stamped(f.pose, f.pose.stamp_ns, base))
+            self._pubs["odom"].publish(cv.odometry(f, f.pose.stamp_ns, mf, base))
 
     def diagnostics_status(self) -> DiagnosticStatus:
         waiting = {n for n, m in self.models.items() if m is None}
@@ -318,8 +318,8 @@ class RigLocalizerNode(Node):
                 self.publish_output(out)
             base, mf = self.config.base_frame, self.map_frame
             for f in self.rig.flush():
-                self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
-                self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
+                self._pubs["twist"].publish(cv.twist_stamped(f.pose, f.pose.stamp_ns, base))
+                self._pubs["odom"].publish(cv.odometry(f, f.pose.stamp_ns, mf, base))
         except Exception:  # (shutting down: the context may be gone)
             pass
         return super().destroy_node()

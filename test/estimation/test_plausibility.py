@@ -99,7 +99,7 @@ def test_rows_behind_the_camera_are_counted_as_dropped(seq):
     u[n + 5] = np.nan  # one invalid row too
     e = estimate_rs_pose(u, X, cam, options=_opts())
     assert e.success
-    assert rotation_angle_deg(e.orientation, f.orientation) < 0.1
+    assert rotation_angle_deg(e.pose.orientation, f.orientation) < 0.1
     assert e.num_behind == n
     assert e.num_dropped == n + 1
     assert e.num_valid == len(X) - 1
@@ -154,7 +154,7 @@ def test_velocities_beyond_the_bounds_are_never_reported(seq):
     for f in fr[:4]:
         e = estimate_rs_pose(f.uv, f.xyz, cam, options=_opts())
         assert e.success
-        assert np.linalg.norm(e.angular_velocity - f.angular_velocity) < 0.2
+        assert np.linalg.norm(e.pose.angular_velocity - f.angular_velocity) < 0.2
         for kw, key in (
             ({"max_angular_velocity": 0.5}, "angular_velocity"),
             ({"max_linear_velocity": 0.3}, "linear_velocity"),

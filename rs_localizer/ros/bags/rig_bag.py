@@ -301,14 +301,15 @@ def replay_rig(
     gt = load_ground_truth(bag)
     for o in res.outputs:
         if o.success:
-            q = o.pose
+            q = o.measurement.pose
             e = frame_errors(q.orientation, q.position, q.angular_velocity,
                              q.linear_velocity, gt, o.stamp_ns)  # fmt: skip
             if e is not None:
                 res.errors.append(e)
     for f in res.fused:
-        e = frame_errors(f.orientation, f.position, f.angular_velocity, f.linear_velocity, gt,
-                         f.stamp_ns)  # fmt: skip
+        q = f.pose
+        e = frame_errors(q.orientation, q.position, q.angular_velocity, q.linear_velocity, gt,
+                         q.stamp_ns)  # fmt: skip
         if e is not None:
             res.fused_errors.append(e)
     return res
