@@ -497,5 +497,5 @@ def test_fuzz_estimator_partial_fit_garbage(seed, kind, solver):
     RUNS["estimator_partial_fit_garbage"] += 1
     f = attack(corridor_frames(1, seed)[0], kind)
     e = estimate_rs_pose(f.points_px, f.points3d, f.camera, solver, f.options)
-    assert not e.success, (e.inliers.sum(), e.position, f.position)
+    assert not e.success, (e.inliers.sum(), e.pose.position, f.position)
     assert e.failure in REASONS

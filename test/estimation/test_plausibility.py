@@ -62,8 +62,8 @@ def test_v_equal_u_cloud_is_never_a_pose(seq):
         e = estimate_rs_pose(uv, f.xyz, cam, options=_opts())
         assert not e.success, (
             f.index,
-            np.linalg.norm(e.position - f.position),
-            np.linalg.norm(e.angular_velocity),
+            np.linalg.norm(e.pose.position - f.position),
+            np.linalg.norm(e.pose.angular_velocity),
         )
         assert e.failure == "degenerate_geometry"
 
@@ -76,8 +76,8 @@ def test_reflected_points_are_never_a_pose(seq):
         e = estimate_rs_pose(f.uv, 2 * f.position - f.xyz, cam, options=_opts())
         assert not e.success, (
             f.index,
-            rotation_angle_deg(e.orientation, f.orientation),
-            np.linalg.norm(e.angular_velocity),
+            rotation_angle_deg(e.pose.orientation, f.orientation),
+            np.linalg.norm(e.pose.angular_velocity),
         )
         assert e.failure in REASONS
 

@@ -123,8 +123,8 @@ def test_checkerboard_pose_p3p_matches_solvepnp(left_board):
         R_cv, t_cv = solve_pnp(uv, X, camera)
         est = estimate_rs_pose(uv, X, camera, "p3p")
         assert est.success and est.num_inliers == 54, n
-        assert rotation_angle_deg(est.R, R_cv) < 0.05, n
-        assert np.linalg.norm(est.C - t_cv) < 2e-4, n
+        assert rotation_angle_deg(est.model.R, R_cv) < 0.05, n
+        assert np.linalg.norm(est.model.C - t_cv) < 2e-4, n
         assert est.rmse_px < 0.35, n
 
 
@@ -584,11 +584,11 @@ def _pose_table():  # pragma: no cover - run by hand: python test/frontends/test
         gs = estimate_rs_pose(uv, X, cam, "p3p")
         rs = estimate_rs_pose(uv, X, cam, "r6p_1lin")
         print(
-            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.R, R_cv):10.3f}  "
-            f"{1e3 * np.linalg.norm(gs.C - t_cv):10.3f}  {rotation_angle_deg(rs.R, R_cv):10.3f}"
-            f"  {1e3 * np.linalg.norm(rs.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
-            f"  {np.linalg.norm(rs.angular_velocity):9.3f}  "
-            f"{np.linalg.norm(rs.linear_velocity):7.3f}"
+            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.model.R, R_cv):10.3f}  "
+            f"{1e3 * np.linalg.norm(gs.model.C - t_cv):10.3f}  {rotation_angle_deg(rs.model.R, R_cv):10.3f}"
+            f"  {1e3 * np.linalg.norm(rs.model.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
+            f"  {np.linalg.norm(rs.pose.angular_velocity):9.3f}  "
+            f"{np.linalg.norm(rs.pose.linear_velocity):7.3f}"
         )
 
 
