@@ -583,10 +583,11 @@ def _pose_table():  # pragma: no cover - run by hand: python test/frontends/test
         R_cv, t_cv = solve_pnp(uv, X, cam)
         gs = estimate_rs_pose(uv, X, cam, "p3p")
         rs = estimate_rs_pose(uv, X, cam, "r6p_1lin")
+        g, r = gs.model, rs.model
         print(
-            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.model.R, R_cv):10.3f}  "
-            f"{1e3 * np.linalg.norm(gs.model.C - t_cv):10.3f}  {rotation_angle_deg(rs.model.R, R_cv):10.3f}"
-            f"  {1e3 * np.linalg.norm(rs.model.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
+            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(g.R, R_cv):10.3f}  "
+            f"{1e3 * np.linalg.norm(g.C - t_cv):10.3f}  {rotation_angle_deg(r.R, R_cv):10.3f}"
+            f"  {1e3 * np.linalg.norm(r.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
             f"  {np.linalg.norm(rs.pose.angular_velocity):9.3f}  "
             f"{np.linalg.norm(rs.pose.linear_velocity):7.3f}"
         )
