@@ -158,7 +158,7 @@ def run_video(
                     gt[inl] + e[rng.permutation(len(e))], X[inl], camera, "r6p_1lin"
                 )
                 if again.success:
-                    shuffled = float(np.linalg.norm(again.position - f.position))
+                    shuffled = float(np.linalg.norm(again.pose.position - f.position))
         out["pos_shuffled"].append(shuffled)
         if period_s > 0:  # (the truth's checks above run within the frame period)
             time.sleep(max(0.0, period_s - (time.perf_counter() - t0)))

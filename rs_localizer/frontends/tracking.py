@@ -410,7 +410,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         low = len(rows) < self.min_tracked_inliers
         due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
         if (low or due) and self._pending is None:
-            pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
+            pose = tuple(np.asarray(a, float) for a in estimate.model)
             self._start_refresh(camera, pose)
 
     def wait_refresh(self, timeout: float | None = None) -> bool:
