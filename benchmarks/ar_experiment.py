@@ -187,19 +187,22 @@ def run_sequence(cfg: ARConfig, progress=None):
             if not est.success:
                 res.est[s] = dict(success=False, failure=est.failure, time=dt)
                 continue
-            res.poses[s] = (est.R, est.C, est.w, est.t)
+            res.poses[s] = (est.model.R, est.model.C, est.model.w, est.model.t)
             res.est[s] = dict(
                 success=True,
                 time=dt,
                 inliers=est.num_inliers,
-                rot_deg=rotation_angle_deg(est.orientation, fr.orientation),
-                pos_m=float(np.linalg.norm(est.position - fr.position)),
-                angvel=float(np.linalg.norm(est.angular_velocity - fr.angular_velocity)),
-                linvel=float(np.linalg.norm(est.linear_velocity - fr.linear_velocity)),
+                rot_deg=rotation_angle_deg(est.pose.orientation, fr.orientation),
+                pos_m=float(np.linalg.norm(est.pose.position - fr.position)),
+                angvel=float(np.linalg.norm(est.pose.angular_velocity - fr.angular_velocity)),
+                linvel=float(np.linalg.norm(est.pose.linear_velocity - fr.linear_velocity)),
             )
-            e = exact_errors(est.R, est.C, est.w, est.t, X, x, tau) * camera.mean_focal
+            e = (
+                exact_errors(est.model.R, est.model.C, est.model.w, est.model.t, X, x, tau)
+                * camera.mean_focal
+            )
             res.reproj[s] = e
-            p = project_estimate(est.R, est.C, est.w, est.t, camera, X)
+            p = project_estimate(est.model.R, est.model.C, est.model.w, est.model.t, camera, X)
             res.reproj_gt[s] = np.where(vis, np.linalg.norm(p - true_uv, axis=1), np.nan)
         out.append(res)
         if progress:

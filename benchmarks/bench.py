@@ -189,7 +189,7 @@ def _ours(f, cam, solver, opts):
     e = estimate_rs_pose(f.points_px, f.X, cam, solver, opts)
     if not e.success:
         return None, None, 0, e.timings, None
-    return e.R, e.C, e.num_inliers, e.timings, e.angular_velocity
+    return e.model.R, e.model.C, e.num_inliers, e.timings, e.pose.angular_velocity
 
 
 def bench_ml(
@@ -222,10 +222,10 @@ def bench_ml(
         R, C, w, t = ml_fit(f)
         om = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)[0]
         n = np.linalg.norm(f.angular_velocity)
-        ours.append(100 * np.linalg.norm(e.angular_velocity - f.angular_velocity) / n)
+        ours.append(100 * np.linalg.norm(e.pose.angular_velocity - f.angular_velocity) / n)
         ml.append(100 * np.linalg.norm(om - f.angular_velocity) / n)
-        apart.append(100 * np.linalg.norm(e.angular_velocity - om) / n)
-        rot_ours.append(rotation_angle_deg(e.R, f.R))
+        apart.append(100 * np.linalg.norm(e.pose.angular_velocity - om) / n)
+        rot_ours.append(rotation_angle_deg(e.model.R, f.R))
         rot_ml.append(rotation_angle_deg(R, f.R))
     return dict(
         frames=frames,

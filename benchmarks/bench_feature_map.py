@@ -184,8 +184,8 @@ def _localize(
                 t_est = time.perf_counter() - t3
             row += (
                 [
-                    rotation_angle_deg(est.orientation, f.orientation),
-                    float(np.linalg.norm(est.position - f.position)),
+                    rotation_angle_deg(est.pose.orientation, f.orientation),
+                    float(np.linalg.norm(est.pose.position - f.position)),
                 ]
                 if est.success
                 else [np.nan, np.nan]
@@ -249,7 +249,7 @@ def _timing(big: FeatureMap, frames: list, camera) -> dict:
             t2 = time.perf_counter()
             est = estimate_rs_pose(uv, X, camera, "r6p_1lin")
             t3 = time.perf_counter()
-            rot = rotation_angle_deg(est.orientation, f.orientation) if est.success else np.nan
+            rot = rotation_angle_deg(est.pose.orientation, f.orientation) if est.success else np.nan
             rows[name].append(
                 [(t1 - t0) * 1e3, ((t2 - t1) - (t1 - t0)) * 1e3, (t3 - t2) * 1e3, len(uv), rot]
             )

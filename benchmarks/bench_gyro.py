@@ -105,9 +105,9 @@ def _errors(e, f: PlanarFrame) -> tuple:
     if not e.success:
         return (np.nan,) * 3
     return (
-        rotation_angle_deg(e.orientation, f.orientation),
-        float(np.linalg.norm(e.angular_velocity - f.angular_velocity)),
-        float(np.linalg.norm(e.linear_velocity - f.linear_velocity)),
+        rotation_angle_deg(e.pose.orientation, f.orientation),
+        float(np.linalg.norm(e.pose.angular_velocity - f.angular_velocity)),
+        float(np.linalg.norm(e.pose.linear_velocity - f.linear_velocity)),
     )
 
 
@@ -322,8 +322,8 @@ def track_video(
         if e.success:
             pose.append(
                 (
-                    rotation_angle_deg(e.orientation, f.orientation),
-                    float(np.linalg.norm(e.position - f.position)),
+                    rotation_angle_deg(e.pose.orientation, f.orientation),
+                    float(np.linalg.norm(e.pose.position - f.position)),
                 )
             )
         if seq.gyro_inconsistent and first_detection is None:
@@ -337,8 +337,10 @@ def track_video(
     finals += seq.flush()
     twist = [
         (
-            float(np.linalg.norm(x.angular_velocity - truth[x.stamp_ns].angular_velocity)),
-            float(np.linalg.norm(x.linear_velocity - truth[x.stamp_ns].linear_velocity)),
+            float(
+                np.linalg.norm(x.pose.angular_velocity - truth[x.pose.stamp_ns].angular_velocity)
+            ),
+            float(np.linalg.norm(x.pose.linear_velocity - truth[x.pose.stamp_ns].linear_velocity)),
         )
         for x in finals
     ]

@@ -181,10 +181,10 @@ def run_video(
             est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 12 else None
             ok = est is not None and est.success
             res[name]["rot"].append(
-                rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
+                rotation_angle_deg(est.pose.orientation, f.orientation) if ok else np.nan
             )
             res[name]["pos"].append(
-                float(np.linalg.norm(est.position - f.position)) if ok else np.nan
+                float(np.linalg.norm(est.pose.position - f.position)) if ok else np.nan
             )
     return {n: {k: np.asarray(v, float) for k, v in o.items()} for n, o in res.items()}
 

@@ -72,17 +72,17 @@ def _estimator_row(f, solver, prior):
     out = dict(
         ok=True,
         ms=ms,
-        rot=rotation_angle_deg(e.orientation, f.orientation),
+        rot=rotation_angle_deg(e.pose.orientation, f.orientation),
         cond=e.condition_number,
     )
     if solver != "p3p":
-        out["ang"] = float(np.linalg.norm(e.angular_velocity - f.angular_velocity))
-        out["lin"] = float(np.linalg.norm(e.linear_velocity - f.linear_velocity))
+        out["ang"] = float(np.linalg.norm(e.pose.angular_velocity - f.angular_velocity))
+        out["lin"] = float(np.linalg.norm(e.pose.linear_velocity - f.linear_velocity))
         if e.pose_covariance is not None and e.twist_covariance is not None:
-            phi = matrix_to_rotvec(e.orientation @ f.orientation.T)  # world axes, as reported
+            phi = matrix_to_rotvec(e.pose.orientation @ f.orientation.T)  # world axes, as reported
             out["nees_rot"] = _nees(phi, e.pose_covariance[3:, 3:])
             out["nees_ang"] = _nees(
-                e.angular_velocity - f.angular_velocity, e.twist_covariance[3:, 3:]
+                e.pose.angular_velocity - f.angular_velocity, e.twist_covariance[3:, 3:]
             )
     return out
 

@@ -53,7 +53,7 @@ def main(argv=None) -> None:
     for f in frames:
         for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name].camera, f.uv, f.xyz)):
             if o.success:
-                q = o.pose
+                q = o.measurement.pose
                 own.append(_errors(traj, o.stamp_ns, q.orientation, q.position,
                                    q.angular_velocity, q.linear_velocity))  # fmt: skip
             fused += o.fused
@@ -61,8 +61,8 @@ def main(argv=None) -> None:
     fused += [f for o in outs for f in o.fused] + rig.flush()
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     n_rig = rig.rig_counts()["rig_frames"]
-    fz = [_errors(traj, f.stamp_ns, f.orientation, f.position, f.angular_velocity,
-                  f.linear_velocity) for f in fused]  # fmt: skip
+    fz = [_errors(traj, f.pose.stamp_ns, f.pose.orientation, f.pose.position,
+                  f.pose.angular_velocity, f.pose.linear_velocity) for f in fused]  # fmt: skip
     print(f"{a.cameras} cameras x {a.points} correspondences, {a.seconds:.1f} s, {n_rig} rig "
           f"frames ({rig.rig_counts()['solved']} posed), {1e3 * seconds / n_rig:.1f} ms per rig "
           f"frame ({1e3 * cpu / n_rig:.1f} ms of processor time)")  # fmt: skip
@@ -79,16 +79,19 @@ def main(argv=None) -> None:
             out = seq.process(SequenceFrame(f.stamp_ns, c.camera, f.uv, f.xyz))
             est = out.estimate
             for g in out.fused:  # (the camera's fused twist, turned into the rig frame)
-                Ori = g.orientation @ c.R_rig_cam.T
-                wr = c.R_rig_cam @ g.angular_velocity
-                vr = c.R_rig_cam @ g.linear_velocity - np.cross(wr, c.p_rig_cam)
-                ef.append(_errors(traj, g.stamp_ns, Ori, g.position - Ori @ c.p_rig_cam, wr, vr))
+                q = g.pose
+                Ori = q.orientation @ c.R_rig_cam.T
+                wr = c.R_rig_cam @ q.angular_velocity
+                vr = c.R_rig_cam @ q.linear_velocity - np.cross(wr, c.p_rig_cam)
+                ef.append(_errors(traj, q.stamp_ns, Ori, q.position - Ori @ c.p_rig_cam, wr, vr))
             if est is None or not est.success:
                 continue
-            Ori = est.orientation @ c.R_rig_cam.T
-            wr = c.R_rig_cam @ est.angular_velocity
-            vr = c.R_rig_cam @ est.linear_velocity - np.cross(wr, c.p_rig_cam)
-            e.append(_errors(traj, out.stamp_ns, Ori, est.position - Ori @ c.p_rig_cam, wr, vr))
+            Ori = est.pose.orientation @ c.R_rig_cam.T
+            wr = c.R_rig_cam @ est.pose.angular_velocity
+            vr = c.R_rig_cam @ est.pose.linear_velocity - np.cross(wr, c.p_rig_cam)
+            e.append(
+                _errors(traj, out.stamp_ns, Ori, est.pose.position - Ori @ c.p_rig_cam, wr, vr)
+            )
         m = np.median(e, axis=0)
         mf = np.median(ef, axis=0) if ef else np.full(4, np.nan)
         print(f"{c.name + ' alone':17s} {m[0]:8.4f} {m[1]:8.2f} {m[2]:9.4f} {m[3]:7.3f}"

@@ -142,8 +142,8 @@ def run_video(
         out["estimation"].append(t2 - t1)
         out["frontend"].append(t1 - t0)
         ok = est is not None and est.success
-        out["rot"].append(rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan)
-        out["pos"].append(float(np.linalg.norm(est.position - f.position)) if ok else np.nan)
+        out["rot"].append(rotation_angle_deg(est.pose.orientation, f.orientation) if ok else np.nan)
+        out["pos"].append(float(np.linalg.norm(est.pose.position - f.position)) if ok else np.nan)
         out["blank"].append(bool(blank))
         out["waited"].append(rep.refresh_waited)
         shuffled = np.nan
@@ -158,7 +158,7 @@ def run_video(
                     gt[inl] + e[rng.permutation(len(e))], X[inl], camera, "r6p_1lin"
                 )
                 if again.success:
-                    shuffled = float(np.linalg.norm(again.position - f.position))
+                    shuffled = float(np.linalg.norm(again.pose.position - f.position))
         out["pos_shuffled"].append(shuffled)
         if period_s > 0:  # (the truth's checks above run within the frame period)
             time.sleep(max(0.0, period_s - (time.perf_counter() - t0)))

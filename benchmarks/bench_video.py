@@ -98,21 +98,21 @@ def fused_twist(frames, cam, truth) -> dict:
     final += [x.state for x in seq.flush()]
 
     def err(x, stamp, i, attr):
-        return float(np.linalg.norm(getattr(x, attr) - truth[stamp][i]))
+        return float(np.linalg.norm(getattr(x.pose, attr) - truth[stamp][i]))
 
     out = {"frames": len(frames), "fused_frames": len(final)}
     for i, attr, key in ((2, "angular_velocity", "ang"), (3, "linear_velocity", "lin")):
         out["single_" + key] = float(np.median([err(e, s, i, attr) for s, e in single.items()]))
-        out["fused_" + key] = float(np.median([err(x, x.stamp_ns, i, attr) for x in final]))
+        out["fused_" + key] = float(np.median([err(x, x.pose.stamp_ns, i, attr) for x in final]))
     nees = []
     for x in final:
-        Ori, p, w, v = truth[x.stamp_ns]
+        Ori, p, w, v = truth[x.pose.stamp_ns]
         e = np.concatenate(
             [
-                matrix_to_rotvec(x.orientation @ Ori.T),
-                x.position - p,
-                x.angular_velocity - w,
-                x.linear_velocity - v,
+                matrix_to_rotvec(x.pose.orientation @ Ori.T),
+                x.pose.position - p,
+                x.pose.angular_velocity - w,
+                x.pose.linear_velocity - v,
             ]
         )
         nees.append(float(e @ np.linalg.solve(x.covariance, e)))
@@ -178,9 +178,9 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
             cpu_cold.append(c1 - c0)
             cpu_track.append(c2 - c1)
             rc.append(rotation_angle_deg(cold.orientation, Ori))
-            rt.append(rotation_angle_deg(r.estimate.orientation, Ori))
+            rt.append(rotation_angle_deg(r.estimate.pose.orientation, Ori))
             pc.append(np.linalg.norm(cold.position - p))
-            pt.append(np.linalg.norm(r.estimate.position - p))
+            pt.append(np.linalg.norm(r.estimate.pose.position - p))
             iters_c.append(cold.ransac_iterations)
             iters_t.append(r.estimate.ransac_iterations)
         for _stamp, uv, xyz in frames:
@@ -272,7 +272,7 @@ def events() -> dict:
         f = by[k]
         uv = np.full_like(f.uv, np.nan) if bad else f.uv
         r = tr.process(SequenceFrame(f.stamp_ns, cam, uv, f.xyz))
-        finals.extend(x.stamp_ns for x in r.fused)
+        finals.extend(x.pose.stamp_ns for x in r.fused)
         return r
 
     for k in (0, 1, 2, 3, 4):
@@ -289,7 +289,7 @@ def events() -> dict:
     log["after_teleport"] = feed(13).path
     back = feed(3)
     log["jump_back"] = (back.path, back.estimate.success)
-    finals.extend(x.stamp_ns for x in tr.flush())
+    finals.extend(x.pose.stamp_ns for x in tr.flush())
     log["solved_frames_with_final_twist"] = (len(finals), 13)
     return log
 

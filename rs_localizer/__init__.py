@@ -37,7 +37,7 @@ from .estimation import (
     RSPoseEstimate,
     estimate_rs_pose,
 )
-from .pose import RSModel, RSPose
+from .pose import PoseWithCovariance, RSModel, RSPose
 from .tracking import GyroSettings, SequenceFrame, SequenceLocalizer, SequenceSettings
 
 __version__ = "0.1.0"
@@ -53,6 +53,7 @@ __all__ = [
     "LocalOptimizationOptions",
     "MotionPrior",
     "PlausibilityOptions",
+    "PoseWithCovariance",
     "RSModel",
     "RSPose",
     "RSPoseEstimate",

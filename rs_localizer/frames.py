@@ -31,11 +31,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .geometry import skew
-from .pose import RSPose
+from .pose import PoseWithCovariance, RSPose
 
 __all__ = [
     "OPTICAL_TO_BODY_QUATERNION",
-    "BaseState",
     "Extrinsic",
     "base_pose",
     "base_pose_covariance",
@@ -93,46 +92,6 @@ class Extrinsic:
         T[:3, :3] = self.rotation
         T[:3, 3] = self.translation
         return T
-
-
-@dataclass(frozen=True)
-class BaseState:
-    """Pose, twist and covariances of the base frame (the estimator's camera quantities, for
-    the base: the message conversions take either).
-
-    Attributes:
-        pose: the base's :class:`~rs_localizer.pose.RSPose`: ``orientation`` (3, 3) base -> map
-            rotation ``R_mb``, ``position`` (3,) base origin in the map (m),
-            ``angular_velocity``, ``linear_velocity`` (3,) the base's rigid-body velocity in
-            the base frame (rad/s, m/s), ``stamp_ns`` the camera pose's. Read-only properties
-            of the same names give them here.
-        pose_covariance: (6, 6) or None, ROS order, map frame (rotation about map axes).
-        twist_covariance: (6, 6) or None, ROS order, base frame.
-    """
-
-    pose: RSPose
-    pose_covariance: np.ndarray | None = None
-    twist_covariance: np.ndarray | None = None
-
-    @property
-    def orientation(self) -> np.ndarray:
-        """(3, 3) base -> map rotation (``pose.orientation``)."""
-        return self.pose.orientation
-
-    @property
-    def position(self) -> np.ndarray:
-        """(3,) m, the base origin in the map (``pose.position``)."""
-        return self.pose.position
-
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        """(3,) rad/s, base frame (``pose.angular_velocity``)."""
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        """(3,) m/s, the base origin's velocity in the base frame (``pose.linear_velocity``)."""
-        return self.pose.linear_velocity
 
 
 def base_pose(orientation, position, extrinsic: Extrinsic):
@@ -208,21 +167,24 @@ def base_twist_covariance(cov, extrinsic: Extrinsic):
     return J @ cov @ J.T
 
 
-def camera_to_base(camera, extrinsic: Extrinsic) -> BaseState:
-    """All of it at once: ``camera`` has the camera's ``pose`` (an
-    :class:`~rs_localizer.pose.RSPose`) and, optionally, its (6, 6) ``pose_covariance`` and
-    ``twist_covariance`` (e.g. an :class:`~rs_localizer.RSPoseEstimate` or a
-    :class:`~rs_localizer.tracking.FusedPose`; see the module docstring for frames and units).
-    The base's pose keeps the camera pose's ``stamp_ns``."""
+def camera_to_base(camera: PoseWithCovariance, extrinsic: Extrinsic) -> PoseWithCovariance:
+    """All of it at once: the camera's ``pose`` and (6, 6) ``pose_covariance`` and
+    ``twist_covariance`` (or None; e.g. an :class:`~rs_localizer.RSPoseEstimate` or a
+    :class:`~rs_localizer.tracking.FusedPose`) -> the base's: ``pose`` orientation (3, 3)
+    base -> map ``R_mb``, position (3,) base origin in the map (m), angular and linear
+    velocity (3,) of the base in the base frame (rad/s, m/s), the camera pose's
+    ``stamp_ns``; ``pose_covariance`` (6, 6) ROS order, map frame (rotation about the map
+    axes), ``twist_covariance`` (6, 6) ROS order, base frame; None stays None (module
+    docstring).
+
+    Raises:
+        ValueError: a covariance that is not 6x6.
+    """
     cam = camera.pose
     R_mb, p_b = base_pose(cam.orientation, cam.position, extrinsic)
     om_b, v_b = base_twist(cam.angular_velocity, cam.linear_velocity, extrinsic)
-    return BaseState(
+    return PoseWithCovariance(
         pose=RSPose(R_mb, p_b, om_b, v_b, cam.stamp_ns),
-        pose_covariance=base_pose_covariance(
-            getattr(camera, "pose_covariance", None), cam.orientation, extrinsic
-        ),
-        twist_covariance=base_twist_covariance(
-            getattr(camera, "twist_covariance", None), extrinsic
-        ),
+        pose_covariance=base_pose_covariance(camera.pose_covariance, cam.orientation, extrinsic),
+        twist_covariance=base_twist_covariance(camera.twist_covariance, extrinsic),
     )

@@ -23,14 +23,20 @@ conversion is written here once: :func:`model_twist` (model -> twist, a numba ke
 :func:`model_from_twist` (twist -> model); :meth:`RSPose.from_model` / :meth:`RSPose.model`
 use them.
 
-The library's types store these, not loose arrays: an estimate
-(:class:`~rs_localizer.estimation.result.RSPoseEstimate`) holds its ``model`` and its ``pose``,
-a fused state (:class:`~rs_localizer.tracking.fusion.FusedState`), a fused frame
-(:class:`~rs_localizer.tracking.sequence.FusedPose`) and a base state
-(:class:`~rs_localizer.frames.BaseState`) their ``pose``, and a predicted model
-(:class:`~rs_localizer.estimation.options.InitialModel`) its ``model``; their ``R``, ``C``,
-``w``, ``t``, ``orientation``, ``position``, ... are read-only views of these. The numba
-kernels take the model's bare arrays (an :class:`RSModel` unpacks as them).
+:class:`PoseWithCovariance` holds an :class:`RSPose` and its (6, 6) pose and twist covariances
+(ROS order); the message conversions take it. The library's results are one (subclasses that
+add their own fields): an estimate
+(:class:`~rs_localizer.estimation.result.RSPoseEstimate`, which also holds its ``model``), a
+rig's estimate (:class:`~rs_localizer.estimation.rig.RigPoseEstimate`), a fused frame
+(:class:`~rs_localizer.tracking.sequence.FusedPose`), a solved rig frame
+(:class:`~rs_localizer.tracking.rig.RigMeasurement`) and a base state
+(:func:`~rs_localizer.frames.camera_to_base`) hold ``pose``, ``pose_covariance`` and
+``twist_covariance`` as their own fields: read ``x.pose.orientation``, ``x.pose.position``,
+..., and the solver's model as ``x.model.R``, ... The fused state
+(:class:`~rs_localizer.tracking.fusion.FusedState`) holds its ``pose`` and (12, 12)
+``covariance``, and a predicted model (:class:`~rs_localizer.estimation.options.InitialModel`)
+its ``model``. The numba kernels take the model's bare arrays (an :class:`RSModel` unpacks as
+them).
 """
 
 from __future__ import annotations
@@ -41,7 +47,14 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-__all__ = ["RSModel", "RSPose", "model_from_twist", "model_twist", "model_twist_jacobian"]
+__all__ = [
+    "PoseWithCovariance",
+    "RSModel",
+    "RSPose",
+    "model_from_twist",
+    "model_twist",
+    "model_twist_jacobian",
+]
 
 
 @njit(cache=True)
@@ -218,3 +231,25 @@ class RSPose:
             linear_velocity,
             self.stamp_ns if stamp_ns is None else stamp_ns,
         )
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class PoseWithCovariance:
+    """A pose and twist with their covariances (geometry_msgs' ``PoseWithCovariance`` and
+    ``TwistWithCovariance`` together); the results of the library are this type (they add
+    their own fields), and the message conversions (:mod:`rs_localizer.ros.conversions`) take
+    it. Keyword arguments only.
+
+    Attributes:
+        pose: the :class:`RSPose` (orientation (3, 3) body -> world, position (3,) m, angular
+            (rad/s) and linear (m/s) velocity in the body frame, ``stamp_ns``). The body is
+            the camera's optical frame, or the base's or the rig's frame for their states.
+        pose_covariance: (6, 6) over (x, y, z [m], rot x, rot y, rot z [rad]) (ROS order),
+            world frame (rotation about the world axes), or None: unknown.
+        twist_covariance: (6, 6) over (vx, vy, vz [m/s], wx, wy, wz [rad/s]) (ROS order),
+            body frame, or None: unknown (e.g. a global shutter, which measures no twist).
+    """
+
+    pose: RSPose = field(default_factory=RSPose)
+    pose_covariance: np.ndarray | None = None
+    twist_covariance: np.ndarray | None = None

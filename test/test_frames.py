@@ -9,13 +9,12 @@ from scipy.spatial.transform import Rotation
 
 from rs_localizer.frames import (
     OPTICAL_TO_BODY_QUATERNION,
-    BaseState,
     Extrinsic,
     base_pose_covariance,
     base_twist_covariance,
     camera_to_base,
 )
-from rs_localizer.pose import RSPose
+from rs_localizer.pose import PoseWithCovariance, RSPose
 from rs_localizer.sim.trajectory import Trajectory
 
 
@@ -33,10 +32,8 @@ def _body_twist_fd(T_of_t, t, h=1e-5):
     return np.array([W[2, 1], W[0, 2], W[1, 0]]), X[:3, 3]
 
 
-class _Cam:
-    def __init__(self, R, p, om, v, pc=None, tc=None):
-        self.pose = RSPose(R, p, om, v)
-        self.pose_covariance, self.twist_covariance = pc, tc
+def _Cam(R, p, om, v, pc=None, tc=None):
+    return PoseWithCovariance(pose=RSPose(R, p, om, v), pose_covariance=pc, twist_covariance=tc)
 
 
 def _random_extrinsic(rng):
@@ -70,14 +67,14 @@ def test_pose_and_twist_match_4x4_transforms_and_finite_differences(seed):
     for t in rng.uniform(0.0, 5.0, 5):
         om_c, v_c = _body_twist_fd(T_mc, t)
         out = camera_to_base(_Cam(traj.orientation(t), traj.position(t), om_c, v_c), ext)
-        assert isinstance(out, BaseState)
+        assert isinstance(out, PoseWithCovariance)
         want = T_mb(t)
-        np.testing.assert_allclose(out.orientation, want[:3, :3], atol=1e-12)
-        np.testing.assert_allclose(out.position, want[:3, 3], atol=1e-12)
+        np.testing.assert_allclose(out.pose.orientation, want[:3, :3], atol=1e-12)
+        np.testing.assert_allclose(out.pose.position, want[:3, 3], atol=1e-12)
         om_b, v_b = _body_twist_fd(T_mb, t)
         assert np.linalg.norm(om_b) > 0.05 and np.linalg.norm(v_b) > 0.5  # a real motion
-        np.testing.assert_allclose(out.angular_velocity, om_b, atol=2e-7)
-        np.testing.assert_allclose(out.linear_velocity, v_b, atol=2e-7)
+        np.testing.assert_allclose(out.pose.angular_velocity, om_b, atol=2e-7)
+        np.testing.assert_allclose(out.pose.linear_velocity, v_b, atol=2e-7)
         assert out.pose_covariance is None and out.twist_covariance is None
 
 
@@ -88,10 +85,10 @@ def test_twist_is_the_velocity_of_the_base_origin():
     om_c = ext.rotation.T @ [0, 0, 1.0]  # yaw rate 1 rad/s in camera axes
     v_c = ext.rotation.T @ [0, 1.0, 0]  # camera centre moving to the left (base +y)
     out = camera_to_base(_Cam(ext.rotation, [1.0, 0, 0], om_c, v_c), ext)
-    np.testing.assert_allclose(out.angular_velocity, [0, 0, 1.0], atol=1e-15)
-    np.testing.assert_allclose(out.linear_velocity, [0, 0, 0], atol=1e-15)
-    np.testing.assert_allclose(out.position, [0, 0, 0], atol=1e-15)
-    np.testing.assert_allclose(out.orientation, np.eye(3), atol=1e-15)
+    np.testing.assert_allclose(out.pose.angular_velocity, [0, 0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(out.pose.linear_velocity, [0, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(out.pose.position, [0, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(out.pose.orientation, np.eye(3), atol=1e-15)
 
 
 def _random_cov(rng, scale):
@@ -159,7 +156,7 @@ def test_twist_covariance_matches_the_numerical_jacobian_of_finite_differences()
     cam = _Cam(T0[:3, :3], T0[:3, 3], xi[3:], xi[:3])
     out = camera_to_base(cam, ext)
     np.testing.assert_allclose(
-        np.concatenate([out.linear_velocity, out.angular_velocity]), J @ xi, atol=1e-7
+        np.concatenate([out.pose.linear_velocity, out.pose.angular_velocity]), J @ xi, atol=1e-7
     )
     cov = _random_cov(rng, 0.1)
     np.testing.assert_allclose(base_twist_covariance(cov, ext), J @ cov @ J.T, atol=1e-7)
@@ -177,7 +174,7 @@ def test_identity_extrinsic_changes_nothing():
     cam = _Cam(R, rng.normal(size=3), rng.normal(size=3), rng.normal(size=3), pc, tc)
     out = camera_to_base(cam, ext)
     for a in ("orientation", "position", "angular_velocity", "linear_velocity"):
-        np.testing.assert_allclose(getattr(out, a), getattr(cam.pose, a), atol=1e-14)
+        np.testing.assert_allclose(getattr(out.pose, a), getattr(cam.pose, a), atol=1e-14)
     for a in ("pose_covariance", "twist_covariance"):
         np.testing.assert_allclose(getattr(out, a), getattr(cam, a), atol=1e-14)
 

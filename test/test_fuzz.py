@@ -364,19 +364,23 @@ REASONS = {
 def _check_estimate(e, u, X, opts=OPTS):
     """Nothing implausible as a success: finite rotation, bounded velocities, enough inliers,
     every inlier in front of the camera at its capture time and within the threshold."""
-    assert np.isfinite(e.R).all() and np.isfinite(e.position).all()
+    assert np.isfinite(e.model.R).all() and np.isfinite(e.pose.position).all()
     if not e.success:
         assert e.failure in REASONS, e.failure
         assert e.num_inliers == 0
         return
     assert e.failure is None
     assert e.num_inliers >= opts.ransac.min_inliers
-    np.testing.assert_allclose(e.R @ e.R.T, np.eye(3), atol=1e-9)
-    assert np.linalg.norm(e.angular_velocity) <= opts.plausibility.max_angular_velocity * (1 + 1e-9)
-    assert np.linalg.norm(e.linear_velocity) <= opts.plausibility.max_linear_velocity * (1 + 1e-9)
+    np.testing.assert_allclose(e.model.R @ e.model.R.T, np.eye(3), atol=1e-9)
+    assert np.linalg.norm(e.pose.angular_velocity) <= opts.plausibility.max_angular_velocity * (
+        1 + 1e-9
+    )
+    assert np.linalg.norm(e.pose.linear_velocity) <= opts.plausibility.max_linear_velocity * (
+        1 + 1e-9
+    )
     inl = e.inliers
     _, r, _ = CAM.normalize(u[inl])
-    z = depths_at_capture(e.R, e.C, e.w, e.t, X[inl], r - CAM.r0)
+    z = depths_at_capture(e.model.R, e.model.C, e.model.w, e.model.t, X[inl], r - CAM.r0)
     assert (z > 0).all()
     assert e.rmse_px <= opts.ransac.threshold_px
 
@@ -481,7 +485,7 @@ def test_fuzz_estimator_corrupted_frames(seed, corruptions, frac):
         if np.linalg.svd(p, compute_uv=False)[-1] / np.sqrt(ok.sum()) < 1.0:
             assert not e.success
     if not m.any() and "u=v" not in corruptions and "one_point" not in corruptions:
-        assert e.success and rotation_angle_deg(e.R, R) < 0.5
+        assert e.success and rotation_angle_deg(e.model.R, R) < 0.5
 
 
 @settings(settings.get_profile(_PROFILE), max_examples=_EST_EXAMPLES)
@@ -493,5 +497,5 @@ def test_fuzz_estimator_partial_fit_garbage(seed, kind, solver):
     RUNS["estimator_partial_fit_garbage"] += 1
     f = attack(corridor_frames(1, seed)[0], kind)
     e = estimate_rs_pose(f.points_px, f.points3d, f.camera, solver, f.options)
-    assert not e.success, (e.inliers.sum(), e.position, f.position)
+    assert not e.success, (e.inliers.sum(), e.pose.position, f.position)
     assert e.failure in REASONS

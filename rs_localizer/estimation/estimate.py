@@ -77,7 +77,7 @@ SOLVERS = SOLVER_NAMES
 
 
 def estimate_rs_pose(
-    points2d_px: np.ndarray,
+    points2d: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
     solver: str = "r6p_1lin",
@@ -100,7 +100,7 @@ def estimate_rs_pose(
     Huber loss on all points within ``FINAL_CUTOFF`` thresholds) with covariance.
 
     Args:
-        points2d_px: (N, 2) measured (distorted) pixel coordinates.
+        points2d: (N, 2) px, the measured (distorted) pixel coordinates.
         points3d: (N, 3) world (map) points in metres.
         camera: :class:`~rs_localizer.camera.CameraModel` (intrinsics, distortion, RS timing).
         solver: one of :data:`SOLVERS`; ``p3p`` is the global-shutter baseline (w = t = 0).
@@ -163,10 +163,10 @@ def estimate_rs_pose(
     opts = options or EstimateOptions()
     if resolve_implementation(implementation, solver) == NUMPY:
         ignored = _unused_by_numpy(opts, scores, initial_model, gyro, point_sigma)
-        return estimate_numpy(points2d_px, points3d, camera, solver, opts, ignored)
+        return estimate_numpy(points2d, points3d, camera, solver, opts, ignored)
     if point_sigma is not None:
         point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
-    args = (points2d_px, points3d, camera, solver)
+    args = (points2d, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
         ignored = () if gyro is None else ("gyro",)
         return _estimate(
@@ -234,7 +234,7 @@ def _unused_by_numpy(
 
 
 def _estimate(
-    points2d_px: np.ndarray,
+    points2d: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
     solver: str,
@@ -259,7 +259,7 @@ def _estimate(
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
-    fr = prepare_frame(points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng)
+    fr = prepare_frame(points2d, points3d, camera, opts.plausibility.max_point_norm, rng)
     if gyro is not None:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)

@@ -140,7 +140,7 @@ class Frame:
 
 
 def prepare_frame(
-    points2d_px: np.ndarray,
+    points2d: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
     max_point_norm: float,
@@ -157,11 +157,11 @@ def prepare_frame(
     the measured, distorted line).
 
     Args:
-        points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
     Raises:
         ValueError: arrays that are not (N, 2) and (N, 3) with the same N.
     """
-    u = np.asarray(points2d_px, dtype=np.float64)
+    u = np.asarray(points2d, dtype=np.float64)
     X = np.asarray(points3d, dtype=np.float64)
     if u.ndim != 2 or u.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3 or len(u) != len(X):
         raise ValueError(f"expected (N, 2) pixels and (N, 3) points, got {u.shape} and {X.shape}")

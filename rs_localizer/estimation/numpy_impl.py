@@ -508,7 +508,7 @@ def _finalize(
 
 
 def estimate_numpy(
-    points2d_px: np.ndarray,
+    points2d: np.ndarray,
     points3d: np.ndarray,
     camera: CameraModel,
     solver: str,
@@ -520,7 +520,7 @@ def estimate_numpy(
     :data:`~.implementation.NUMPY_SOLVERS`.
 
     Args:
-        points2d_px: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
+        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
         camera: the camera (intrinsics, distortion, RS timing).
         solver: ``r6p_1lin`` or ``p3p``.
         opts: :class:`~.options.EstimateOptions`.
@@ -539,7 +539,7 @@ def estimate_numpy(
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
     fr = prepare_frame(
-        points2d_px, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
+        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
     )
     fr.tau = fr.r - fr.r0
     search = _Search(fr, solver, opts, rng)

@@ -220,8 +220,8 @@ class InitialModel:
         model: the predicted :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` (a bare
             4-tuple is converted): ``R`` (3, 3), ``C`` (3,) world -> camera at the reference
             row (``X_cam = R X + C``), ``w``, ``t`` (3,) model velocities per unit RS
-            coordinate (rad, m per normalized unit; as ``RSPoseEstimate.w``, ``t``; zeros: no
-            motion during the readout). Read-only properties ``R``, ``C``, ``w``, ``t``.
+            coordinate (rad, m per normalized unit; as ``RSPoseEstimate.model``; zeros: no
+            motion during the readout).
         gate_px: distance (px) within which a point counts as explained.
         min_explained: fewest explained points to use the model.
     """
@@ -233,26 +233,6 @@ class InitialModel:
     def __post_init__(self):
         if not isinstance(self.model, RSModel):
             object.__setattr__(self, "model", RSModel(*self.model))
-
-    @property
-    def R(self) -> np.ndarray:
-        """(3, 3) world -> camera rotation at the reference row (``model.R``)."""
-        return self.model.R
-
-    @property
-    def C(self) -> np.ndarray:
-        """(3,) m, ``X_cam = R X + C`` at the reference row (``model.C``)."""
-        return self.model.C
-
-    @property
-    def w(self) -> np.ndarray:
-        """(3,) rad per unit RS coordinate (``model.w``)."""
-        return self.model.w
-
-    @property
-    def t(self) -> np.ndarray:
-        """(3,) m per unit RS coordinate (``model.t``)."""
-        return self.model.t
 
 
 def points_needed(solver: str, options: EstimateOptions) -> int:

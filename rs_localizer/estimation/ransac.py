@@ -199,8 +199,8 @@ class Ransac:
         )
         if anchored:
             self.anchor = (
-                np.ascontiguousarray(initial.R, dtype=np.float64),
-                np.ascontiguousarray(initial.C, dtype=np.float64),
+                np.ascontiguousarray(initial.model.R, dtype=np.float64),
+                np.ascontiguousarray(initial.model.C, dtype=np.float64),
             )
         if seed is not None:
             self.score, self.best, self.inliers = seed

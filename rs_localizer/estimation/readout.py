@@ -189,8 +189,8 @@ def per_frame_rates(
     the previous frame's camera centre (the first frame is solved twice for that).
 
     Args:
-        frames: iterable of ``(stamp_ns, points2d_px (N, 2), points3d (N, 3))`` or
-            ``(stamp_ns, points2d_px, points3d, scores)``, in time order.
+        frames: iterable of ``(stamp_ns, points2d (N, 2), points3d (N, 3))`` or
+            ``(stamp_ns, points2d, points3d, scores)``, in time order.
         camera: intrinsics, distortion and readout direction (line delay ignored).
     Returns:
         (stamps (K,) int64, orientations (K, 3, 3) camera -> world, w (K, 3) rotation per
@@ -221,9 +221,9 @@ def per_frame_rates(
                 if not est.success:
                     break
                 if origin is None:
-                    origin = est.position
+                    origin = est.pose.position
                     continue
-                origin = origin + est.position
+                origin = origin + est.pose.position
                 break
         except ValueError:
             failed += 1
@@ -232,8 +232,8 @@ def per_frame_rates(
             failed += 1
             continue
         stamps.append(int(stamp))
-        Os.append(est.orientation)
-        ws.append(est.w)
+        Os.append(est.pose.orientation)
+        ws.append(est.model.w)
     return (
         np.array(stamps, dtype=np.int64),
         np.array(Os).reshape(-1, 3, 3),
@@ -842,7 +842,7 @@ def calibrate_line_delay(
     with rotation, ignoring the line delay ``camera`` states.
 
     Args:
-        frames: iterable of ``(stamp_ns, points2d_px (N, 2), points3d (N, 3)[, scores])`` in
+        frames: iterable of ``(stamp_ns, points2d (N, 2), points3d (N, 3)[, scores])`` in
             time order (2D-3D correspondences per frame, as :func:`estimate_rs_pose` takes).
         camera: :class:`CameraModel` with the intrinsics, distortion and readout direction.
         solver, options: the per-frame estimator's.

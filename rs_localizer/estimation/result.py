@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..pose import RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
@@ -75,9 +75,11 @@ class EstimationFailed(Exception):
 
 
 @dataclass(frozen=True)
-class RSPoseEstimate:
-    """Result of :func:`~rs_localizer.estimation.estimate_rs_pose`. Frames: world/map, camera
-    optical frame (REP 103).
+class RSPoseEstimate(PoseWithCovariance):
+    """Result of :func:`~rs_localizer.estimation.estimate_rs_pose`: a
+    :class:`~rs_localizer.pose.PoseWithCovariance` (``pose``, ``pose_covariance``,
+    ``twist_covariance``: keyword arguments) with the solver's ``model`` and the estimator's
+    record. Frames: world/map, camera optical frame (REP 103).
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
@@ -96,13 +98,13 @@ class RSPoseEstimate:
         model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
             ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
             (3,) model velocities per unit RS coordinate (rad, m per normalized unit); the
-            identity and zeros on failure. Read-only properties ``R``, ``C``, ``w``, ``t``.
+            identity and zeros on failure.
         pose: the same as a :class:`~rs_localizer.pose.RSPose` (no stamp): ``orientation``
             (3, 3) camera -> world (``R^T``), ``position`` (3,) camera centre in the world (m),
             ``angular_velocity``, ``linear_velocity`` (3,) the camera's own velocity in its
             optical frame (rad/s, m/s), with ``angular_velocity_world`` and
-            ``linear_velocity_world`` (3,) in the world frame; read-only properties of the
-            same names here.
+            ``linear_velocity_world`` (3,) in the world frame; the identity and zeros on
+            failure.
         inliers: (N,) bool over the input rows (invalid rows are False).
         num_valid: rows that passed validation (finite, undistortable, within
             ``max_point_norm``); num_behind: valid rows behind the camera at their capture
@@ -112,8 +114,9 @@ class RSPoseEstimate:
         covariance: (12, 12) over (rotation of the camera in the world [rad, world axes],
             position [m, world], angular velocity [rad/s, camera frame], linear velocity [m/s,
             camera frame]), or ``None``.
-        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame.
-        twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera frame.
+        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame, or
+            ``None``. twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), camera
+            frame, or ``None`` (global shutter).
         rmse_px: RMS reprojection error of the inliers (pixels).
         planar: the inliers' 3D points are coplanar (:func:`~.degeneracy.planarity` below
             :data:`~.degeneracy.PLANAR_TOLERANCE`): the per-frame RS model is near-degenerate
@@ -151,7 +154,6 @@ class RSPoseEstimate:
     failure: str | None = None
     solver: str = ""
     model: RSModel = field(default_factory=RSModel.identity)
-    pose: RSPose = field(default_factory=RSPose)
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     num_valid: int = 0
     num_dropped: int = 0
@@ -159,8 +161,6 @@ class RSPoseEstimate:
     ransac_iterations: int = 0
     timings: dict = field(default_factory=dict)
     covariance: np.ndarray | None = None
-    pose_covariance: np.ndarray | None = None
-    twist_covariance: np.ndarray | None = None
     rmse_px: float = float("nan")
     planar: bool = False
     planarity: float = float("nan")
@@ -179,58 +179,6 @@ class RSPoseEstimate:
     def num_inliers(self) -> int:
         """Inliers of the final model (0 on failure)."""
         return int(np.count_nonzero(self.inliers))
-
-    # read-only views of ``model`` and ``pose`` (the names the callers and the message
-    # conversions use)
-    @property
-    def R(self) -> np.ndarray:
-        """(3, 3) world -> camera rotation at the reference row (``model.R``)."""
-        return self.model.R
-
-    @property
-    def C(self) -> np.ndarray:
-        """(3,) m, ``X_cam = R X + C`` at the reference row (``model.C``)."""
-        return self.model.C
-
-    @property
-    def w(self) -> np.ndarray:
-        """(3,) rad per unit RS coordinate (``model.w``)."""
-        return self.model.w
-
-    @property
-    def t(self) -> np.ndarray:
-        """(3,) m per unit RS coordinate (``model.t``)."""
-        return self.model.t
-
-    @property
-    def orientation(self) -> np.ndarray:
-        """(3, 3) camera -> world rotation (``pose.orientation``)."""
-        return self.pose.orientation
-
-    @property
-    def position(self) -> np.ndarray:
-        """(3,) m, the camera centre in the world (``pose.position``)."""
-        return self.pose.position
-
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        """(3,) rad/s, camera optical frame (``pose.angular_velocity``)."""
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        """(3,) m/s, camera optical frame (``pose.linear_velocity``)."""
-        return self.pose.linear_velocity
-
-    @property
-    def angular_velocity_world(self) -> np.ndarray:
-        """(3,) rad/s, world frame (``pose.angular_velocity_world``)."""
-        return self.pose.angular_velocity_world
-
-    @property
-    def linear_velocity_world(self) -> np.ndarray:
-        """(3,) m/s, world frame (``pose.linear_velocity_world``)."""
-        return self.pose.linear_velocity_world
 
 
 def failed_estimate(

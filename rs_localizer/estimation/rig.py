@@ -76,7 +76,7 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..geometry import rotvec_to_matrix, skew
-from ..pose import RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -229,9 +229,10 @@ def rig_model_of_camera(
 
 
 @dataclass(frozen=True, eq=False)
-class RigPoseEstimate:
-    """Result of :func:`estimate_rig_pose`. Frames: world/map, the rig's frame (the frame of
-    the mountings).
+class RigPoseEstimate(PoseWithCovariance):
+    """Result of :func:`estimate_rig_pose`: a :class:`~rs_localizer.pose.PoseWithCovariance`
+    (``pose``, ``pose_covariance``, ``twist_covariance``: keyword arguments) of the rig, with
+    the estimator's record. Frames: world/map, the rig's frame (the frame of the mountings).
 
     Attributes:
         success: a pose passed every check (:data:`RIG_FAILURE_REASONS`).
@@ -239,9 +240,13 @@ class RigPoseEstimate:
         R: (3, 3) world -> rig rotation at the reference time. C: (3,) world -> rig
             translation (m): ``x_rig = R X + C``.
         w: (3,) rad/s, the model's rotation rate (rig frame: ``expm(tau [w]x)`` left of
-            ``R``); the rig's angular velocity is ``-w`` (:attr:`angular_velocity`).
+            ``R``); the rig's angular velocity is ``-w`` (``pose.angular_velocity``).
         t: (3,) m/s, the model's translation rate (rig frame); the rig's linear velocity is
-            ``w x C - t`` (:attr:`linear_velocity`).
+            ``w x C - t`` (``pose.linear_velocity``).
+        pose: the rig's :class:`~rs_localizer.pose.RSPose` at the reference time (no stamp):
+            orientation (3, 3) rig -> world (``R^T``), position (3,) m the rig origin in the
+            world (``-R^T C``), angular and linear velocity (3,) rad/s and m/s in the rig
+            frame (``RSPose.from_model(model, 1.0)``); the identity and zeros on failure.
         inliers: one (N_c,) bool array per camera (invalid rows False).
         num_inliers: inliers over all cameras. iterations: RANSAC samples drawn.
         rmse_px: RMS reprojection error of the inliers (pixels; NaN on failure).
@@ -299,8 +304,6 @@ class RigPoseEstimate:
     num_valid_per_camera: tuple[int, ...] = ()
     num_behind: int = 0
     covariance: np.ndarray | None = None
-    pose_covariance: np.ndarray | None = None
-    twist_covariance: np.ndarray | None = None
     model_covariance: np.ndarray | None = None
     global_shutter: bool = False
     acceleration_sensitivity: np.ndarray | None = None
@@ -312,37 +315,10 @@ class RigPoseEstimate:
     gyro_chi2: float = float("nan")
 
     @property
-    def position(self) -> np.ndarray:
-        """(3,) rig origin in the world at the reference time (m): ``-R^T C``."""
-        return -self.R.T @ self.C
-
-    @property
     def model(self) -> RSModel:
         """The rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``, velocities per
         second (one second per unit of ``tau``)."""
         return RSModel(self.R, self.C, self.w, self.t)
-
-    @property
-    def pose(self) -> RSPose:
-        """The rig's :class:`~rs_localizer.pose.RSPose` at the reference time (no stamp):
-        orientation (3, 3) rig -> world, position (3,) m, angular and linear velocity (3,)
-        rad/s and m/s in the rig frame (``RSPose.from_model(model, 1.0)``)."""
-        return RSPose.from_model(self.model, 1.0)
-
-    @property
-    def orientation(self) -> np.ndarray:
-        """(3, 3) rig -> world rotation (``pose.orientation``)."""
-        return self.R.T
-
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        """(3,) rad/s, rig frame (``pose.angular_velocity``: ``-w``)."""
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        """(3,) m/s, rig frame (``pose.linear_velocity``: ``w x C - t``)."""
-        return self.pose.linear_velocity
 
     def camera_model(self, view: RigView) -> RSModel:
         """The model of the camera of ``view`` at its reference line
@@ -1196,6 +1172,7 @@ def _estimate(
         return RigPoseEstimate(
             False, reason, np.eye(3), z, z, z.copy(), no, 0, its, np.nan,
             (0,) * M, valid, behind,
+            pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0),
         )  # fmt: skip
 
     if len(pool.cam) < 6 or counts.max() < 3:
@@ -1292,6 +1269,8 @@ def _estimate(
     sens = None if G is None else _sensitivity_out(G, R, C, w)
     return RigPoseEstimate(
         True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
-        pool.counts(inl), valid, behind, out[0], out[1], out[2], cov, still, sens,
-        explained, used, prior is not None,
+        pool.counts(inl), valid, behind, out[0], cov, still, sens, explained, used,
+        prior is not None,
+        pose=RSPose.from_model(RSModel(R, C, w, t), 1.0),
+        pose_covariance=out[1], twist_covariance=out[2],
     )  # fmt: skip

@@ -587,7 +587,7 @@ def exp7_estimator(
                         )
                         e = estimate_rs_pose(f.points_px, f.X, cam, m, o)
                         R, C, w, t, n = (
-                            (e.R, e.C, e.w, e.t, e.num_inliers)
+                            (e.model.R, e.model.C, e.model.w, e.model.t, e.num_inliers)
                             if e.success
                             else (None, None, None, None, 0)
                         )

@@ -376,7 +376,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
             estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of those rows
-                (``success``, ``inliers`` (M,), ``R``, ``C``, ``w``, ``t``), or None.
+                (``success``, ``inliers`` (M,)), or None.
         """
         points2d = pixels
         camera = self._frame_camera
@@ -409,7 +409,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         low = len(rows) < self.min_tracked_inliers
         due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
         if (low or due) and self._pending is None:
-            pose = tuple(np.asarray(getattr(estimate, k), float) for k in ("R", "C", "w", "t"))
+            pose = tuple(np.asarray(a, float) for a in estimate.model)
             self._start_refresh(camera, pose)
 
     def wait_refresh(self, timeout: float | None = None) -> bool:

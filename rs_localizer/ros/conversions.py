@@ -1,9 +1,15 @@
-"""ROS message <-> rs_localizer conversions (CameraInfo, stamps, estimates, quaternions).
+"""ROS message <-> rs_localizer conversions (CameraInfo, stamps, poses, quaternions).
 
-Frames: the estimate's ``orientation``/``position`` are the camera optical frame's pose in the map
-(camera -> map), so they go into ``PoseStamped`` as they are; velocities are in the camera optical
-frame (REP 103: z forward, x right, y down). Covariances are 6x6 in ROS order
-(x, y, z, rot x, rot y, rot z) / (vx, vy, vz, wx, wy, wz), row-major.
+Poses go out as an :class:`~rs_localizer.pose.RSPose` (``PoseStamped``, ``TwistStamped``,
+``TFMessage``) or a :class:`~rs_localizer.pose.PoseWithCovariance` (an estimate, a fused frame,
+a base or rig state: ``PoseWithCovarianceStamped``, ``Odometry``). Frames: the pose's
+``orientation``/``position`` are the camera optical frame's (or the base's, the rig's) pose in
+the map (body -> map), so they go into ``PoseStamped`` as they are; velocities are in the body
+frame (the camera's REP 103 optical frame: z forward, x right, y down). Covariances are 6x6 in
+ROS order (x, y, z, rot x, rot y, rot z) / (vx, vy, vz, wx, wy, wz), row-major.
+
+The messages read (``CameraInfo``, ``Time``, ``Pose``, ``Twist``) may be rclpy's or rosbags'
+classes: both have the fields read here.
 """
 
 from __future__ import annotations
@@ -11,17 +17,24 @@ from __future__ import annotations
 import functools
 import importlib
 import threading
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
 from ..camera import DISTORTION_MODELS, CameraModel
+from ..pose import PoseWithCovariance, RSPose
 
 if TYPE_CHECKING:  # (the message packages are imported where a message is built)
     from builtin_interfaces.msg import Time
-    from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+    from geometry_msgs.msg import (
+        Pose,
+        PoseStamped,
+        PoseWithCovarianceStamped,
+        Twist,
+        TwistStamped,
+    )
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import CameraInfo
     from tf2_msgs.msg import TFMessage
@@ -111,13 +124,13 @@ class StampError(ValueError):
     reason = "bad_stamp"
 
 
-def stamp_to_ns(stamp: Any) -> int:
+def stamp_to_ns(stamp: Time) -> int:
     """``builtin_interfaces/Time`` (rclpy or rosbags) -> integer nanoseconds (not checked: see
     :func:`checked_stamp_ns`)."""
     return int(stamp.sec) * _NS + int(stamp.nanosec)
 
 
-def checked_stamp_ns(stamp: Any) -> int:
+def checked_stamp_ns(stamp: Time) -> int:
     """Like :func:`stamp_to_ns`, for stamps from the outside world.
 
     Raises:
@@ -243,7 +256,7 @@ def _normalize_distortion(D: np.ndarray, model: str) -> np.ndarray:
 
 
 def camera_model_from_camera_info(
-    info: Any,
+    info: CameraInfo,
     line_delay: float = 0.0,
     readout_time: float = 0.0,
     readout: str = "top_to_bottom",
@@ -347,10 +360,10 @@ def covariance36(C: ArrayLike | None) -> np.ndarray:
     return np.ascontiguousarray(C)
 
 
-def _quaternion(est):
-    """Quaternion of ``est.orientation``, computed once per orientation array: a frame's pose
+def _quaternion(pose: RSPose) -> np.ndarray:
+    """Quaternion of ``pose.orientation``, computed once per orientation array: a frame's pose
     and, frames later, its fused twist's odom share it (the last 8 are kept)."""
-    R = est.orientation
+    R = pose.orientation
     with _QUATERNIONS_LOCK:  # (the worker thread and the executor's flush timer)
         hit = _QUATERNIONS.get(id(R))
         if hit is None or hit[0] is not R:
@@ -364,9 +377,9 @@ _QUATERNIONS: dict = {}  # id(orientation) -> (orientation, quaternion), oldest 
 _QUATERNIONS_LOCK = threading.Lock()
 
 
-def _fill_pose(pose, est):
-    q = _quaternion(est)
-    p = np.asarray(est.position, dtype=float)
+def _fill_pose(pose, rs: RSPose):
+    q = _quaternion(rs)
+    p = np.asarray(rs.position, dtype=float)
     pose.position.x, pose.position.y, pose.position.z = (float(x) for x in p)
     (pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w) = (
         float(x) for x in q
@@ -374,47 +387,59 @@ def _fill_pose(pose, est):
     return pose
 
 
-def _fill_twist(twist, est):
-    w = np.asarray(est.angular_velocity, dtype=float)
-    v = np.asarray(est.linear_velocity, dtype=float)
+def _fill_twist(twist, rs: RSPose):
+    w = np.asarray(rs.angular_velocity, dtype=float)
+    v = np.asarray(rs.linear_velocity, dtype=float)
     twist.linear.x, twist.linear.y, twist.linear.z = (float(x) for x in v)
     twist.angular.x, twist.angular.y, twist.angular.z = (float(x) for x in w)
     return twist
 
 
-def pose_stamped(est: Any, stamp_ns: int, map_frame: str) -> PoseStamped:
-    """Camera optical frame pose in ``map_frame`` at the reference row."""
+def pose_stamped(pose: RSPose, stamp_ns: int, map_frame: str) -> PoseStamped:
+    """``geometry_msgs/PoseStamped``: ``pose``'s orientation (3, 3) and position (3,) m (the
+    camera optical frame's, or the base's, pose in ``map_frame``), stamped ``stamp_ns`` (ns;
+    the reference row's time). Raises :class:`StampError` on a stamp outside
+    [0, 2^31 s)."""
     msg = _stamped(_message_class("geometry_msgs", "PoseStamped"), stamp_ns, map_frame)
-    _fill_pose(msg.pose, est)
+    _fill_pose(msg.pose, pose)
     return msg
 
 
-def twist_stamped(est: Any, stamp_ns: int, camera_frame: str) -> TwistStamped:
-    """Camera velocity (rad/s, m/s) in its own optical frame."""
+def twist_stamped(pose: RSPose, stamp_ns: int, camera_frame: str) -> TwistStamped:
+    """``geometry_msgs/TwistStamped``: ``pose``'s angular (rad/s) and linear (m/s) velocity in
+    its own frame ``camera_frame`` (the camera optical frame, or the base's), stamped
+    ``stamp_ns`` (ns). Raises :class:`StampError` on a stamp outside [0, 2^31 s)."""
     msg = _stamped(_message_class("geometry_msgs", "TwistStamped"), stamp_ns, camera_frame)
-    _fill_twist(msg.twist, est)
+    _fill_twist(msg.twist, pose)
     return msg
 
 
 def pose_with_covariance_stamped(
-    est: Any, stamp_ns: int, map_frame: str
+    state: PoseWithCovariance, stamp_ns: int, map_frame: str
 ) -> PoseWithCovarianceStamped:
+    """``geometry_msgs/PoseWithCovarianceStamped``: ``state.pose`` as :func:`pose_stamped` with
+    ``state.pose_covariance`` (6, 6, ROS order, ``map_frame``; None: zeros, unknown)."""
     msg = _stamped(
         _message_class("geometry_msgs", "PoseWithCovarianceStamped"), stamp_ns, map_frame
     )
-    _fill_pose(msg.pose.pose, est)
-    msg.pose.covariance = covariance36(est.pose_covariance)
+    _fill_pose(msg.pose.pose, state.pose)
+    msg.pose.covariance = covariance36(state.pose_covariance)
     return msg
 
 
-def odometry(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> Odometry:
-    """nav_msgs/Odometry: pose in ``map_frame``, twist in ``camera_frame`` (child frame)."""
+def odometry(
+    state: PoseWithCovariance, stamp_ns: int, map_frame: str, camera_frame: str
+) -> Odometry:
+    """``nav_msgs/Odometry``: ``state.pose``'s pose in ``map_frame`` and twist in
+    ``camera_frame`` (the child frame), with ``state.pose_covariance`` and
+    ``state.twist_covariance`` (6, 6, ROS order; None: zeros, unknown), stamped ``stamp_ns``
+    (ns)."""
     msg = _stamped(_message_class("nav_msgs", "Odometry"), stamp_ns, map_frame)
     msg.child_frame_id = camera_frame
-    _fill_pose(msg.pose.pose, est)
-    msg.pose.covariance = covariance36(est.pose_covariance)
-    _fill_twist(msg.twist.twist, est)
-    msg.twist.covariance = covariance36(est.twist_covariance)
+    _fill_pose(msg.pose.pose, state.pose)
+    msg.pose.covariance = covariance36(state.pose_covariance)
+    _fill_twist(msg.twist.twist, state.pose)
+    msg.twist.covariance = covariance36(state.twist_covariance)
     return msg
 
 
@@ -426,16 +451,17 @@ def have_tf2_msgs() -> bool:
     return True
 
 
-def tf_message(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> TFMessage:
-    """tf2_msgs/TFMessage with the transform map -> camera. Raises ImportError without
-    tf2_msgs (not in the PyPI wheels)."""
+def tf_message(pose: RSPose, stamp_ns: int, map_frame: str, camera_frame: str) -> TFMessage:
+    """``tf2_msgs/TFMessage`` with the transform ``map_frame`` -> ``camera_frame`` of ``pose``
+    (orientation (3, 3), position (3,) m), stamped ``stamp_ns`` (ns). Raises ImportError
+    without tf2_msgs (not in the PyPI wheels)."""
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
 
     tr = _stamped(TransformStamped, stamp_ns, map_frame)
     tr.child_frame_id = camera_frame
-    q = _quaternion(est)
-    p = np.asarray(est.position, dtype=float)
+    q = _quaternion(pose)
+    p = np.asarray(pose.position, dtype=float)
     (tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z) = (
         float(x) for x in p
     )
@@ -448,15 +474,15 @@ def tf_message(est: Any, stamp_ns: int, map_frame: str, camera_frame: str) -> TF
     return TFMessage(transforms=[tr])
 
 
-def pose_from_msg(pose: Any) -> tuple[np.ndarray, np.ndarray]:
-    """geometry_msgs/Pose (rclpy or rosbags) -> (orientation (3, 3), position (3,))."""
+def pose_from_msg(pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """``geometry_msgs/Pose`` (rclpy or rosbags) -> (orientation (3, 3), position (3,) m)."""
     q = [pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w]
     p = np.array([pose.position.x, pose.position.y, pose.position.z], dtype=float)
     return matrix_from_quaternion(q), p
 
 
-def twist_from_msg(twist: Any) -> tuple[np.ndarray, np.ndarray]:
-    """geometry_msgs/Twist -> (angular (3,), linear (3,))."""
+def twist_from_msg(twist: Twist) -> tuple[np.ndarray, np.ndarray]:
+    """``geometry_msgs/Twist`` (rclpy or rosbags) -> (angular (3,) rad/s, linear (3,) m/s)."""
     w = np.array([twist.angular.x, twist.angular.y, twist.angular.z], dtype=float)
     v = np.array([twist.linear.x, twist.linear.y, twist.linear.z], dtype=float)
     return w, v

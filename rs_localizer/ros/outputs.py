@@ -36,7 +36,7 @@ def fused_messages(
     out = []
     for f in fused:
         if twist:
-            out.append(("twist", cv.twist_stamped(f.source, f.stamp_ns, f.frame_id)))
+            out.append(("twist", cv.twist_stamped(f.source.pose, f.stamp_ns, f.frame_id)))
         if odom:
             out.append(("odom", cv.odometry(f.source, f.stamp_ns, map_frame, f.frame_id)))
     return out
@@ -53,12 +53,12 @@ def frame_messages(
     if not res.solved:
         return fused_messages(res.fused, map_frame, wanted)
     out, frame, stamp = res.output, res.output_frame, res.out_stamp_ns
-    msgs: list[tuple[str, Any]] = [("pose", cv.pose_stamped(out, stamp, map_frame))]
+    msgs: list[tuple[str, Any]] = [("pose", cv.pose_stamped(out.pose, stamp, map_frame))]
     if wanted("twist_single_frame"):
-        msgs.append(("twist_single_frame", cv.twist_stamped(out, stamp, frame)))
+        msgs.append(("twist_single_frame", cv.twist_stamped(out.pose, stamp, frame)))
     if res.twist_now:
         if wanted("twist"):
-            msgs.append(("twist", cv.twist_stamped(out, stamp, frame)))
+            msgs.append(("twist", cv.twist_stamped(out.pose, stamp, frame)))
         if wanted("odom"):
             msgs.append(("odom", cv.odometry(out, stamp, map_frame, frame)))
     else:
@@ -68,5 +68,5 @@ def frame_messages(
             ("pose_with_covariance", cv.pose_with_covariance_stamped(out, stamp, map_frame))
         )
     if wanted("tf"):
-        msgs.append(("tf", cv.tf_message(out, stamp, map_frame, frame)))
+        msgs.append(("tf", cv.tf_message(out.pose, stamp, map_frame, frame)))
     return msgs

@@ -31,6 +31,7 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences
 from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
+from ..pose import PoseWithCovariance
 from ..runtime.background import ready_implementation
 from ..tracking.gyro import ImuBuffer
 from ..tracking.gyro_bias import GyroBiasEstimator
@@ -255,7 +256,7 @@ class FusedOutput:
     ``base_frame``, the robot's), stamped ``stamp_ns`` (the frame's output stamp)."""
 
     stamp_ns: int
-    source: Any
+    source: PoseWithCovariance
     frame_id: str
 
 
@@ -296,7 +297,7 @@ class FrameResult:
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
     estimate: Any = None
-    output: Any = None
+    output: PoseWithCovariance | None = None
     output_frame: str = ""
     twist_now: bool = False
     fused: list[FusedOutput] = field(default_factory=list)
@@ -706,11 +707,11 @@ class FramePipeline:
         published) with the fused twist and its covariance, stamped with the frame's time."""
         out = []
         for f in fused:
-            src: Any = f
+            src: PoseWithCovariance = f
             frame = f.tag
             if cfg.extrinsic is not None:
                 src, frame = camera_to_base(src, cfg.extrinsic), cfg.base_frame
-            out.append(FusedOutput(f.stamp_ns, src, frame))
+            out.append(FusedOutput(f.pose.stamp_ns, src, frame))
         return out
 
     def flush_idle(self, now: float | None = None) -> list[FusedOutput]:

@@ -432,8 +432,8 @@ class RigCore:
 
     def _publish_fused(self, f) -> None:
         base, mf = self.config.base_frame, self.map_frame
-        self._pubs["twist"].publish(cv.twist_stamped(f, f.stamp_ns, base))
-        self._pubs["odom"].publish(cv.odometry(f, f.stamp_ns, mf, base))
+        self._pubs["twist"].publish(cv.twist_stamped(f.pose, f.pose.stamp_ns, base))
+        self._pubs["odom"].publish(cv.odometry(f, f.pose.stamp_ns, mf, base))
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
@@ -442,18 +442,18 @@ class RigCore:
         m = out.measurement
         if m is not None:
             stamp = out.stamp_ns
-            self._pubs["pose"].publish(cv.pose_stamped(m, stamp, mf))
+            self._pubs["pose"].publish(cv.pose_stamped(m.pose, stamp, mf))
             if self._wanted("pose_with_covariance"):
                 self._pubs["pose_with_covariance"].publish(
                     cv.pose_with_covariance_stamped(m, stamp, mf)
                 )
             if self._wanted("twist_single_frame"):
-                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m, stamp, base))
+                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
             if self.config.settings.tracking is None:
-                self._pubs["twist"].publish(cv.twist_stamped(m, stamp, base))
+                self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:
-                self._pubs["tf"].publish(cv.tf_message(m, stamp, mf, base))
+                self._pubs["tf"].publish(cv.tf_message(m.pose, stamp, mf, base))
         for f in out.fused:
             self._publish_fused(f)
 

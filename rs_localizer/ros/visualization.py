@@ -156,9 +156,9 @@ def marker_array(
     out = MarkerArray()
     fr = _marker("frustum", Marker.LINE_LIST, stamp_ns, map_frame)
     fr.scale.x = 0.02 * d
-    fr.points = _points(frustum_segments(camera, est.orientation, est.position, d))
+    fr.points = _points(frustum_segments(camera, est.pose.orientation, est.pose.position, d))
     out.markers.append(fr)
-    for ns, (a, b) in velocity_arrows(est, arrow_scale).items():
+    for ns, (a, b) in velocity_arrows(est.pose, arrow_scale).items():
         m = _marker(ns, Marker.ARROW, stamp_ns, map_frame)
         if np.linalg.norm(b - a) < 1e-9:
             m.action = Marker.DELETE
@@ -216,7 +216,7 @@ class VisualizationBuilder:
 
     def add_pose(self, est: RSPoseEstimate, out_stamp_ns: int, map_frame: str) -> None:
         """Append the frame's pose (reference-line stamp) to the path."""
-        self.poses.append(cv.pose_stamped(est, out_stamp_ns, map_frame))
+        self.poses.append(cv.pose_stamped(est.pose, out_stamp_ns, map_frame))
 
     def debug_image(
         self,

@@ -31,7 +31,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -48,7 +47,7 @@ from ..estimation.prior import prior_conflict
 from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
-from ..pose import model_from_twist
+from ..pose import RSPose, model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
@@ -248,12 +247,14 @@ def _warm_filter(solver: str, opts: EstimateOptions, tracking: TrackerOptions) -
     filt = RSTracker(solver, opts, tracking).filter  # (the tracker's own filter)
     cov = np.diag(np.full(12, 1e-4))
     for k in range(4):
-        est = SimpleNamespace(
+        est = RSPoseEstimate(
             success=True,
-            orientation=rotvec_to_matrix(np.array([0.0, 0.01 * k, 0.0])).T,  # (as R.T)
-            position=np.array([0.01 * k, 0.0, 0.0]),
-            angular_velocity=np.array([0.0, 0.3, 0.0]),
-            linear_velocity=np.array([0.3, 0.0, 0.0]),
+            pose=RSPose(
+                rotvec_to_matrix(np.array([0.0, 0.01 * k, 0.0])).T,  # (as R.T)
+                np.array([0.01 * k, 0.0, 0.0]),
+                np.array([0.0, 0.3, 0.0]),
+                np.array([0.3, 0.0, 0.0]),
+            ),
             covariance=cov,
             twist_covariance=cov[6:, 6:],
             acceleration_sensitivity=np.zeros((12, 6)),

@@ -69,10 +69,10 @@ def run_interleaved(
             out[mode]["n"].append(len(c))
             out[mode]["win"].append(fe.last_kind == "windowed")
             out[mode]["rot"].append(
-                rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
+                rotation_angle_deg(est.pose.orientation, f.orientation) if ok else np.nan
             )
             out[mode]["pos"].append(
-                float(np.linalg.norm(est.position - f.position)) if ok else np.nan
+                float(np.linalg.norm(est.pose.position - f.position)) if ok else np.nan
             )
             got[mode] = dict(zip(c.ids.tolist(), c.pixels, strict=True))
         common = got["full"].keys() & got["windowed"].keys()

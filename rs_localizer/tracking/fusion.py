@@ -50,7 +50,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numba import njit
@@ -59,7 +58,7 @@ from scipy.stats import chi2
 from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
 from ..estimation.prior import MotionPrior, prior_arrays
-from ..pose import RSPose
+from ..pose import PoseWithCovariance, RSPose
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 
@@ -137,16 +136,16 @@ class FusedState:
         pose: the fused pose and twist, a :class:`~rs_localizer.pose.RSPose` at the frame's
             stamp (``pose.stamp_ns``, ns, as fed to the filter): ``orientation`` (3, 3)
             camera -> world, ``position`` (3,) camera centre (m), ``angular_velocity``,
-            ``linear_velocity`` (3,) camera frame (rad/s, m/s). Read-only properties of the
-            same names (and ``stamp_ns``, ``linear_velocity_world`` (3,) m/s, world frame)
-            give them here.
+            ``linear_velocity`` (3,) camera frame (rad/s, m/s).
         angular_acceleration (3,, camera frame, rad/s^2), linear_acceleration (3,, world,
             m/s^2): zero for the velocity model.
         covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
             velocity [rad/s, camera], linear velocity [m/s, camera]), the layout of
             ``RSPoseEstimate.covariance``.
         pose_covariance, twist_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z;
-            vx, vy, vz, wx, wy, wz).
+            vx, vy, vz, wx, wy, wz): read-only blocks of ``covariance``, made on access (the
+            filter hands out a state per frame and per prediction; most are never
+            published).
         fused: the frame's own measurement was fused (False: gated out or unusable).
         restarted: the filter (re)started from this frame.
         smoothed: frames after this one have been fused into it (its lag).
@@ -161,36 +160,6 @@ class FusedState:
     restarted: bool = False
     smoothed: int = 0
     nis: float = float("nan")
-
-    @property
-    def stamp_ns(self) -> int:
-        """The frame's stamp (ns, as fed to the filter; ``pose.stamp_ns``)."""
-        return self.pose.stamp_ns
-
-    @property
-    def orientation(self) -> np.ndarray:
-        """(3, 3) camera -> world rotation (``pose.orientation``)."""
-        return self.pose.orientation
-
-    @property
-    def position(self) -> np.ndarray:
-        """(3,) m, the camera centre in the world (``pose.position``)."""
-        return self.pose.position
-
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        """(3,) rad/s, camera frame (``pose.angular_velocity``)."""
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        """(3,) m/s, camera frame (``pose.linear_velocity``)."""
-        return self.pose.linear_velocity
-
-    @property
-    def linear_velocity_world(self) -> np.ndarray:
-        """(3,) m/s, world frame (``pose.linear_velocity_world``)."""
-        return self.pose.linear_velocity_world
 
     @property
     def pose_covariance(self) -> np.ndarray:
@@ -917,10 +886,10 @@ class TwistFilter:
         return (
             m,
             cov,
-            np.asarray(est.orientation, dtype=float),
-            np.asarray(est.position, dtype=float),
-            np.asarray(est.angular_velocity, dtype=float),
-            np.asarray(est.linear_velocity, dtype=float),
+            np.asarray(est.pose.orientation, dtype=float),
+            np.asarray(est.pose.position, dtype=float),
+            np.asarray(est.pose.angular_velocity, dtype=float),
+            np.asarray(est.pose.linear_velocity, dtype=float),
             G if has_G else _NO_G,
             has_G,
             on,
@@ -1000,7 +969,7 @@ class TwistFilter:
     def update(
         self,
         stamp_ns: int,
-        estimate: Any,
+        estimate: PoseWithCovariance,
         relocalized: bool = False,
         prior: MotionPrior | None = None,
     ) -> FusionStep:
@@ -1008,9 +977,9 @@ class TwistFilter:
 
         Args:
             stamp_ns: the frame's time (ns).
-            estimate: an object with ``success``, ``orientation`` (3, 3), ``position``,
-                ``angular_velocity``, ``linear_velocity`` (3,), ``covariance`` (12, 12) and
-                ``twist_covariance`` as :class:`RSPoseEstimate`. A failed estimate or one
+            estimate: a :class:`~rs_localizer.pose.PoseWithCovariance` with ``success``,
+                ``covariance`` (12, 12) and ``acceleration_sensitivity`` as
+                :class:`RSPoseEstimate` (or a rig's measurement). A failed estimate or one
                 without a finite covariance is not fused: the frame gets the prediction.
             relocalized: the frame was not found from the previous one (the tracker's
                 relocalization): a measurement the gate rejects restarts the filter at once.

@@ -63,7 +63,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
     for f in frames:
         for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
             if out.success:
-                ...  # out.pose: the rig's pose and its own twist at out.stamp_ns
+                ...  # out.measurement.pose: the rig's pose and its own twist at out.stamp_ns
             for fused in out.fused:
                 ...  # an earlier rig frame's pose with its fused twist
     for out in rig.close():  # the rig frames still open
@@ -88,7 +88,7 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import InitialModel
 from ..estimation.rig import RigPoseEstimate, RigView, camera_model_of_rig, estimate_rig_pose
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from ..pose import RSModel, RSPose, model_from_twist
+from ..pose import PoseWithCovariance, RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
@@ -323,14 +323,18 @@ class CameraShare:
 
 
 @dataclass(frozen=True, eq=False)
-class RigMeasurement:
+class RigMeasurement(PoseWithCovariance):
     """A solved rig frame as the twist filter's measurement (the fields the filter and
-    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate).
+    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate): a
+    :class:`~rs_localizer.pose.PoseWithCovariance` (keyword arguments).
 
     Attributes:
         pose: :class:`~rs_localizer.pose.RSPose` of the rig at the rig frame's time:
             orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
             and linear (m/s) velocity in the rig frame, the rig frame's own.
+        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame;
+            twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame: blocks of
+            ``covariance`` (:meth:`of`).
         covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
             velocity [rad/s, rig], linear velocity [m/s, rig]): the estimate's
             (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`; NaN when it
@@ -340,39 +344,33 @@ class RigMeasurement:
             (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`).
     """
 
-    pose: RSPose
     covariance: np.ndarray
     estimate: RigPoseEstimate
     success: bool = True
     acceleration_sensitivity: Any = None
 
-    @property
-    def orientation(self) -> np.ndarray:
-        return self.pose.orientation
+    @classmethod
+    def of(cls, estimate: RigPoseEstimate, stamp_ns: int) -> RigMeasurement:
+        """The measurement of a solved rig estimate at the rig frame's time ``stamp_ns``
+        (ns): its pose and twist, its (12, 12) ``covariance`` (NaN when it has none) and the
+        ROS-order blocks of it."""
+        pose = RSPose.from_model(estimate.model, 1.0, stamp_ns)
+        cov = estimate.covariance if estimate.covariance is not None else np.full((12, 12), np.nan)
+        return cls(
+            pose=pose,
+            pose_covariance=cov[np.ix_(_ROS_POSE, _ROS_POSE)],
+            twist_covariance=cov[np.ix_(_ROS_TWIST, _ROS_TWIST)],
+            covariance=cov,
+            estimate=estimate,
+            acceleration_sensitivity=estimate.acceleration_sensitivity,
+        )
 
-    @property
-    def position(self) -> np.ndarray:
-        return self.pose.position
 
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        return self.pose.linear_velocity
-
-    @property
-    def pose_covariance(self) -> np.ndarray:
-        """(6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame."""
-        i = [3, 4, 5, 0, 1, 2]
-        return self.covariance[np.ix_(i, i)]
-
-    @property
-    def twist_covariance(self) -> np.ndarray:
-        """(6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame."""
-        i = [9, 10, 11, 6, 7, 8]
-        return self.covariance[np.ix_(i, i)]
+#: rows of the ROS pose order (x, y, z, rot x, rot y, rot z) and twist order (vx, vy, vz,
+#: wx, wy, wz) in the (12,) layout of a covariance over (rotation, position, angular
+#: velocity, linear velocity)
+_ROS_POSE = [3, 4, 5, 0, 1, 2]
+_ROS_TWIST = [9, 10, 11, 6, 7, 8]
 
 
 @dataclass
@@ -419,11 +417,6 @@ class RigOutput:
     def success(self) -> bool:
         """The rig frame was posed."""
         return self.measurement is not None
-
-    @property
-    def pose(self) -> RSPose | None:
-        """The rig's pose and own twist (None unless solved)."""
-        return None if self.measurement is None else self.measurement.pose
 
 
 # ---------------------------------------------------------------------- the rig model
@@ -1105,8 +1098,8 @@ class RigLocalizer:
         if not f.initialized:
             return self._run(views), path
         pred = f.predict(stamp)
-        model = _model_of(pred.orientation, pred.position, pred.angular_velocity,
-                          pred.linear_velocity)  # fmt: skip
+        pp = pred.pose
+        model = _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
         sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
         focal = max(v.camera.mean_focal for v in views)
         gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
@@ -1122,10 +1115,7 @@ class RigLocalizer:
         return est, "relocalized"
 
     def _finish(self, out: RigOutput, est, path, names, views) -> None:
-        pose = RSPose.from_model((est.R, est.C, est.w, est.t), 1.0, out.stamp_ns)
-        cov = est.covariance if est.covariance is not None else np.full((12, 12), np.nan)
-        meas = RigMeasurement(pose, cov, est, acceleration_sensitivity=est.acceleration_sensitivity)
-        out.measurement = meas
+        out.measurement = meas = RigMeasurement.of(est, out.stamp_ns)
         self._count_rig(names, None)
         if path is not None:
             self.counts[f"rig.path.{path}"] += 1
@@ -1224,7 +1214,7 @@ class RigLocalizer:
     def _fused(self, final: list) -> list[FusedPose]:
         out = []
         for f in final:
-            item = self._pending.pop(f.stamp_ns, None)
+            item = self._pending.pop(f.pose.stamp_ns, None)
             if item is not None:
                 out.append(FusedPose.of(item[0], f, item[1]))
         if len(self._pending) > 64:
@@ -1352,8 +1342,9 @@ def calibrate_mountings(
         if not est.success or est.num_inliers < min_inliers:
             continue
         t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        poses[f.camera_name].append((t, est.orientation, est.position, est.angular_velocity,
-                                     est.linear_velocity))  # fmt: skip
+        q = est.pose
+        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
+                                     q.linear_velocity))  # fmt: skip
     refs = poses.get(reference, [])
     if not refs:
         raise ValueError(

@@ -74,7 +74,7 @@ from ..estimation.estimate import (
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
-from ..pose import RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
@@ -282,15 +282,15 @@ def _check_camera(camera: Any) -> None:
 
 
 @dataclass(frozen=True)
-class FusedPose:
-    """A frame's pose as estimated with its fused twist: what the node's twist and odom carry.
+class FusedPose(PoseWithCovariance):
+    """A frame's pose as estimated with its fused twist: what the node's twist and odom carry
+    (a :class:`~rs_localizer.pose.PoseWithCovariance`; keyword arguments).
 
     Attributes:
         pose: a :class:`~rs_localizer.pose.RSPose` at the frame's reference time
             (``pose.stamp_ns``, ns): ``orientation`` (3, 3) camera -> world and ``position``
             (3,) m as estimated, ``angular_velocity`` (3,) rad/s and ``linear_velocity`` (3,)
-            m/s fused (camera frame). Read-only properties of the same names (and
-            ``stamp_ns``) give them here.
+            m/s fused (camera frame).
         pose_covariance: (6, 6) of the estimated pose (ROS order, world frame).
         twist_covariance: (6, 6) of the fused twist (ROS order, camera frame).
         tag: the frame's :attr:`SequenceFrame.tag`.
@@ -303,52 +303,33 @@ class FusedPose:
             keeps the prediction.
     """
 
-    pose: RSPose
-    pose_covariance: Any
-    twist_covariance: Any
     tag: Any = None
     state: FusedState | None = None
     own_twist: bool = False
 
-    @property
-    def stamp_ns(self) -> int:
-        """The frame's reference time (ns; ``pose.stamp_ns``)."""
-        return self.pose.stamp_ns
-
-    @property
-    def orientation(self) -> np.ndarray:
-        """(3, 3) camera -> world rotation, as estimated (``pose.orientation``)."""
-        return self.pose.orientation
-
-    @property
-    def position(self) -> np.ndarray:
-        """(3,) m, the camera centre in the world, as estimated (``pose.position``)."""
-        return self.pose.position
-
-    @property
-    def angular_velocity(self) -> np.ndarray:
-        """(3,) rad/s, fused, camera frame (``pose.angular_velocity``)."""
-        return self.pose.angular_velocity
-
-    @property
-    def linear_velocity(self) -> np.ndarray:
-        """(3,) m/s, fused, camera frame (``pose.linear_velocity``)."""
-        return self.pose.linear_velocity
-
     @classmethod
-    def of(cls, estimate: RSPoseEstimate, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose with the fused state's twist, at the fused state's stamp; the
+    def of(cls, estimate: PoseWithCovariance, fused: FusedState, tag: Any = None) -> FusedPose:
+        """The estimate's pose (an :class:`~rs_localizer.estimation.result.RSPoseEstimate` or
+        a rig's measurement) with the fused state's twist, at the fused state's stamp; the
         estimate's own twist and covariance where the filter did not fuse the frame
         (:attr:`own_twist`)."""
+        est, stamp = estimate.pose, fused.pose.stamp_ns
         if not fused.fused and estimate.twist_covariance is not None:
-            pose = estimate.pose.with_twist(
-                estimate.angular_velocity, estimate.linear_velocity, fused.stamp_ns
+            return cls(
+                pose=est.with_twist(est.angular_velocity, est.linear_velocity, stamp),
+                pose_covariance=estimate.pose_covariance,
+                twist_covariance=estimate.twist_covariance,
+                tag=tag,
+                state=fused,
+                own_twist=True,
             )
-            return cls(pose, estimate.pose_covariance, estimate.twist_covariance, tag, fused, True)
-        pose = estimate.pose.with_twist(
-            fused.angular_velocity, fused.linear_velocity, fused.stamp_ns
+        return cls(
+            pose=est.with_twist(fused.pose.angular_velocity, fused.pose.linear_velocity, stamp),
+            pose_covariance=estimate.pose_covariance,
+            twist_covariance=fused.twist_covariance,
+            tag=tag,
+            state=fused,
         )
-        return cls(pose, estimate.pose_covariance, fused.twist_covariance, tag, fused)
 
 
 @dataclass
@@ -689,7 +670,7 @@ class SequenceLocalizer:
         if check is not None and check.inconsistent:
             bias.restart()
             return
-        if bias.update(stamp, est.orientation, cov, buf) == "rejected":
+        if bias.update(stamp, est.pose.orientation, cov, buf) == "rejected":
             self._count("gyro_bias_rejected", 1)
 
     def _check_pair(self, check, bias, buf, est, cov, stamp: int) -> None:
@@ -701,7 +682,7 @@ class SequenceLocalizer:
         else:
             b, Pb = np.asarray(imu.gyro_bias, float), imu.gyro_bias_sigma**2 * np.eye(3)
         was = check.inconsistent
-        if check.update(stamp, est.orientation, cov, buf, b, Pb) == "failed":
+        if check.update(stamp, est.pose.orientation, cov, buf, b, Pb) == "failed":
             self._count("gyro_pairs_failed", 1)
         if check.inconsistent and not was:
             self._count("gyro_inconsistent_detections", 1)
@@ -1045,7 +1026,7 @@ class SequenceLocalizer:
         """The frames whose fused state is final: their pose with the fused twist."""
         out = []
         for f in final:
-            item = self._pending.pop(f.stamp_ns, None)
+            item = self._pending.pop(f.pose.stamp_ns, None)
             if item is None:
                 continue
             est, tag = item

@@ -240,7 +240,7 @@ def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> Motion
     :class:`~rs_localizer.estimation.prior.MotionPrior` with the state's linear and angular
     velocity (ROS twist order vx, vy, vz, wx, wy, wz; camera frame) as mean, its twist
     covariance times ``inflation`` as covariance, used on every frame (``always``)."""
-    mean = np.concatenate([state.linear_velocity, state.angular_velocity])
+    mean = np.concatenate([state.pose.linear_velocity, state.pose.angular_velocity])
     cov = np.asarray(state.twist_covariance, dtype=float) * float(inflation)
     return MotionPrior(mean=mean, covariance=0.5 * (cov + cov.T), always=True)
 
@@ -320,7 +320,7 @@ class RSTracker:
         ):
             return None
         p = self._predicted
-        if p is None or p.stamp_ns != stamp_ns:
+        if p is None or p.pose.stamp_ns != stamp_ns:
             p = self._predicted = self.filter.predict(stamp_ns)
         return p
 
@@ -332,7 +332,7 @@ class RSTracker:
     def process(
         self,
         stamp_ns: int,
-        points2d_px: np.ndarray,
+        points2d: np.ndarray,
         points3d: np.ndarray,
         camera: CameraModel,
         scores: np.ndarray | None = None,
@@ -344,7 +344,7 @@ class RSTracker:
         Args:
             stamp_ns: the frame's time (ns). Any constant offset from the reference row's
                 capture time is fine (e.g. the header stamp of row 0).
-            points2d_px (N, 2), points3d (N, 3), camera, scores (N,) or None: as
+            points2d (N, 2), points3d (N, 3), camera, scores (N,) or None: as
                 :func:`estimate_rs_pose`. The camera must not change without :meth:`reset`.
             gyro: optional gyro measurement of the frame's readout, passed to
                 :func:`estimate_rs_pose` (it adds to the prediction's motion prior; the filter
@@ -365,13 +365,11 @@ class RSTracker:
         predicted, explained = self.predict(stamp_ns), -1
         if predicted is not None:
             est, state, opts, explained = self._tracked(
-                predicted, points2d_px, points3d, camera, scores, gyro
+                predicted, points2d, points3d, camera, scores, gyro
             )
         else:
             opts = self.options
-            est = estimate_rs_pose(
-                points2d_px, points3d, camera, self.solver, opts, scores, gyro=gyro
-            )
+            est = estimate_rs_pose(points2d, points3d, camera, self.solver, opts, scores, gyro=gyro)
         if not est.success:
             self.failures += 1
             return TrackResult(est, state, None, final, predicted, explained)
@@ -380,7 +378,7 @@ class RSTracker:
         elif state == "relocalized":
             self.relocalizations += 1
         self._stamp = stamp_ns
-        self._inlier_ratio = est.num_inliers / max(len(points2d_px), 1)
+        self._inlier_ratio = est.num_inliers / max(len(points2d), 1)
         self._planar = bool(est.planar)
         self._predicted = None
         step = self.filter.update(
@@ -394,7 +392,7 @@ class RSTracker:
     def _tracked(
         self,
         predicted: FusedState,
-        points2d_px,
+        points2d,
         points3d,
         camera: CameraModel,
         scores,
@@ -406,7 +404,7 @@ class RSTracker:
         options used, the points the prediction explained)."""
         to = self.tracker_options
         model = model_from_state(predicted, camera)
-        n = len(points2d_px)
+        n = len(points2d)
         ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
         need = max(self.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n))
         sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
@@ -422,7 +420,7 @@ class RSTracker:
                     opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
                 )
         est = estimate_rs_pose(
-            points2d_px,
+            points2d,
             points3d,
             camera,
             self.solver,
@@ -438,7 +436,5 @@ class RSTracker:
             # the prediction does not hold (its twist must not be the prior), or it misled
             # RANSAC on a bad frame: solve the frame cold
             opts = self.options
-            est = estimate_rs_pose(
-                points2d_px, points3d, camera, self.solver, opts, scores, gyro=gyro
-            )
+            est = estimate_rs_pose(points2d, points3d, camera, self.solver, opts, scores, gyro=gyro)
         return est, "relocalized", opts, explained

@@ -108,12 +108,15 @@ def to_bgr(image: np.ndarray, encoding: str | None = None) -> np.ndarray:
     raise ValueError(f"expected an (H, W) or (H, W, 3|4) image, got shape {img.shape}")
 
 
-def frame_residuals(camera: CameraModel, uv: ArrayLike, X: ArrayLike, est: Any) -> np.ndarray:
-    """(N, 2) pixels the estimate predicts for the world points ``X`` (N, 3): their
-    rolling-shutter projection with ``est.R, est.C, est.w, est.t``, each at the capture time of
-    its own line (:meth:`CameraModel.project_rs`). The residual of a measured pixel ``uv`` is
-    ``prediction - uv`` (px). ``nan`` rows for points behind the camera."""
-    return camera.project_rs(X, est.R, est.C, est.w, est.t)
+def frame_residuals(
+    camera: CameraModel, points2d: ArrayLike, points3d: ArrayLike, est: Any
+) -> np.ndarray:
+    """(N, 2) pixels the estimate predicts for the world points ``points3d`` (N, 3): their
+    rolling-shutter projection with ``est.model`` ``(R, C, w, t)``, each at the capture
+    time of its own line (:meth:`CameraModel.project_rs`). The residual of a measured pixel
+    (a row of ``points2d`` (N, 2) px) is ``prediction - pixel`` (px). ``nan`` rows for points
+    behind the camera."""
+    return camera.project_rs(points3d, est.model.R, est.model.C, est.model.w, est.model.t)
 
 
 def auto_cube(
@@ -125,12 +128,12 @@ def auto_cube(
     X = np.asarray(X, dtype=float).reshape(-1, 3)
     if inliers is not None and np.count_nonzero(inliers) >= 3:
         X = X[np.asarray(inliers, dtype=bool)]
-    z = (X @ np.asarray(est.R).T + est.C)[:, 2]
+    z = (X @ np.asarray(est.model.R).T + est.model.C)[:, 2]
     z = z[np.isfinite(z) & (z > 0)]
     if not len(z):
         return None
     depth = float(np.median(z))
-    center = est.position + depth * est.orientation[:, 2]
+    center = est.pose.position + depth * est.pose.orientation[:, 2]
     side = 0.5 * depth * camera.height / camera.K[1, 1]
     return center, side
 
@@ -151,7 +154,7 @@ def cube_edge_points(center: ArrayLike, side: float, samples: int = 16) -> np.nd
 def _in_view(camera: CameraModel, est, P) -> np.ndarray:
     """(N,) points in front of the camera and within 1.5x the field of view (distortion
     polynomials fold points far outside it back into the image)."""
-    Pc = P @ np.asarray(est.R).T + est.C
+    Pc = P @ np.asarray(est.model.R).T + est.model.C
     z = Pc[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         xn = Pc[:, :2] / z[:, None]
@@ -210,8 +213,8 @@ def _text_lines(img, lines, color):
 
 def draw_debug_image(
     camera: CameraModel,
-    uv: ArrayLike,
-    X: ArrayLike,
+    points2d: ArrayLike,
+    points3d: ArrayLike,
     est: Any,
     image: np.ndarray | None = None,
     encoding: str | None = None,
@@ -221,8 +224,8 @@ def draw_debug_image(
 
     Args:
         camera: the frame's camera model (intrinsics, distortion, RS timing).
-        uv: (N, 2) measured (distorted) pixels, the estimator's input rows.
-        X: (N, 3) their world points (m, map frame).
+        points2d: (N, 2) px, the measured (distorted) pixels, the estimator's input rows.
+        points3d: (N, 3) their world points (m, map frame).
         est: the :class:`rs_localizer.estimation.RSPoseEstimate` of the frame (``inliers`` over
             the same N rows). A failed estimate draws the points uncoloured (grey) and its
             failure reason; ``None`` likewise with no reason.
@@ -233,13 +236,14 @@ def draw_debug_image(
     Returns:
         (H, W, 3) uint8 BGR image (``bgr8``).
     Raises:
-        ValueError: ``uv``/``X`` of different lengths or wrong shapes, a bad image.
+        ValueError: ``points2d``/``points3d`` of different lengths or wrong shapes, a bad
+            image.
     """
     o = options or DebugImageOptions()
-    uv = np.asarray(uv, dtype=float).reshape(-1, 2)
-    X = np.asarray(X, dtype=float).reshape(-1, 3)
+    uv = np.asarray(points2d, dtype=float).reshape(-1, 2)
+    X = np.asarray(points3d, dtype=float).reshape(-1, 3)
     if len(uv) != len(X):
-        raise ValueError(f"uv has {len(uv)} rows, X {len(X)}")
+        raise ValueError(f"points2d has {len(uv)} rows, points3d {len(X)}")
     if image is None:
         img = np.full((camera.height, camera.width, 3), CANVAS_GREY, np.uint8)
     else:
@@ -279,9 +283,9 @@ def _draw_cubes(
     edges = cube_edge_points(center, side, o.cube_samples)
     P = edges.reshape(-1, 3)
     vis = _in_view(camera, est, P)
-    for key, w, t, thick in (("cube_gs", None, None, 1), ("cube_rs", est.w, est.t, 2)):
+    for key, w, t, thick in (("cube_gs", None, None, 1), ("cube_rs", est.model.w, est.model.t, 2)):
         px = np.full((len(P), 2), np.nan)
-        px[vis] = camera.project_rs(P[vis], est.R, est.C, w, t)
+        px[vis] = camera.project_rs(P[vis], est.model.R, est.model.C, w, t)
         for e in px.reshape(edges.shape[0], edges.shape[1], 2):
             _polyline(img, e, COLORS[key], thick)
 
@@ -344,8 +348,8 @@ def _caption(est: Any, ok_est: bool, inl: np.ndarray, n: int, o: DebugImageOptio
     """Stage 4 of :func:`draw_debug_image`: the text lines (solver, inliers, RMSE, twist
     magnitudes and the legend; or the failure reason)."""
     if ok_est:
-        w = float(np.linalg.norm(est.angular_velocity))
-        v = float(np.linalg.norm(est.linear_velocity))
+        w = float(np.linalg.norm(est.pose.angular_velocity))
+        v = float(np.linalg.norm(est.pose.linear_velocity))
         lines = [
             f"{est.solver}  inliers {int(inl.sum())}/{n}  RMSE {est.rmse_px:.2f} px  "
             f"|omega| {w:.3f} rad/s  |v| {v:.3f} m/s"

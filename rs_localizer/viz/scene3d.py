@@ -7,12 +7,11 @@ right, y down).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..camera import CameraModel
+from ..pose import RSPose
 
 __all__ = ["frustum_corners", "frustum_segments", "velocity_arrows"]
 
@@ -48,15 +47,16 @@ def frustum_segments(
     return np.array([p for s in segs for p in s])
 
 
-def velocity_arrows(est: Any, scale: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+def velocity_arrows(pose: RSPose, scale: float = 1.0) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Start and end (3,) map points of the angular- and linear-velocity arrows at the camera
-    centre: ``end = position + scale * velocity_world`` (``scale`` m per rad/s and per m/s).
+    centre of ``pose``: ``end = position + scale * velocity_world`` (``scale`` m per rad/s
+    and per m/s).
 
     Returns:
         ``{"angular_velocity": (start, end), "linear_velocity": (start, end)}``.
     """
-    p = np.asarray(est.position, dtype=float)
+    p = np.asarray(pose.position, dtype=float)
     return {
-        "angular_velocity": (p, p + scale * np.asarray(est.angular_velocity_world)),
-        "linear_velocity": (p, p + scale * np.asarray(est.linear_velocity_world)),
+        "angular_velocity": (p, p + scale * np.asarray(pose.angular_velocity_world)),
+        "linear_velocity": (p, p + scale * np.asarray(pose.linear_velocity_world)),
     }

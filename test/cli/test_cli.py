@@ -90,9 +90,9 @@ def test_readme_library_snippet_runs(tmp_path, monkeypatch):
     est, frame, camera = ns["est"], ns["frame"], ns["camera"]
     assert est.success, est.failure
     assert est.solver == "r6p_1lin"
-    assert rotation_angle_deg(est.orientation, frame.orientation) < 0.1
-    assert np.linalg.norm(est.position - frame.position) < 0.03
-    assert np.linalg.norm(est.angular_velocity - frame.angular_velocity) < 0.2
+    assert rotation_angle_deg(est.pose.orientation, frame.orientation) < 0.1
+    assert np.linalg.norm(est.pose.position - frame.position) < 0.03
+    assert np.linalg.norm(est.pose.angular_velocity - frame.angular_velocity) < 0.2
     # the frame was generated with the snippet's camera (its size and intrinsics)
     assert camera.width == 1280 and np.allclose(camera.K[0, 0], 1000.0)
     assert frame.uv[:, 0].max() < camera.width and frame.uv[:, 1].max() < camera.height

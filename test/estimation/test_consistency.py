@@ -80,4 +80,4 @@ def test_the_check_can_be_turned_off(corridor):
     unchecked = estimate_rs_pose(f.points_px, f.points3d, f.camera, "p3p", off)
     assert on.failure == INCONSISTENT_FIT
     assert unchecked.success and unchecked.inliers.mean() < 0.15  # one wall, from behind
-    assert np.linalg.norm(unchecked.position - f.position) > 1.0
+    assert np.linalg.norm(unchecked.pose.position - f.position) > 1.0

@@ -20,11 +20,11 @@ CAM = paper_camera()
 def frame_errors(est, f):
     depth = np.linalg.norm(f.position)  # distance camera - scene centre
     return dict(
-        rot=rotation_angle_deg(est.R, f.R),
-        pos=np.linalg.norm(est.position - f.position) / depth,
-        om=np.linalg.norm(est.angular_velocity - f.angular_velocity)
+        rot=rotation_angle_deg(est.model.R, f.R),
+        pos=np.linalg.norm(est.pose.position - f.position) / depth,
+        om=np.linalg.norm(est.pose.angular_velocity - f.angular_velocity)
         / np.linalg.norm(f.angular_velocity),
-        vel=np.linalg.norm(est.linear_velocity - f.linear_velocity)
+        vel=np.linalg.norm(est.pose.linear_velocity - f.linear_velocity)
         / np.linalg.norm(f.linear_velocity),
     )
 
@@ -78,13 +78,17 @@ def test_velocity_signs_follow_the_generator():
         f = make_frame(rng, 300, rs_speed=0.7, noise_px=0.2, **kw)
         e = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin")
         for est, gt in (
-            (e.angular_velocity, f.angular_velocity),
-            (e.linear_velocity, f.linear_velocity),
+            (e.pose.angular_velocity, f.angular_velocity),
+            (e.pose.linear_velocity, f.linear_velocity),
         ):
             if np.linalg.norm(gt) > 0:
                 assert np.dot(est, gt) / np.linalg.norm(gt) ** 2 == pytest.approx(1.0, abs=0.1)
-        np.testing.assert_allclose(e.angular_velocity_world, e.orientation @ e.angular_velocity)
-        np.testing.assert_allclose(e.linear_velocity_world, e.orientation @ e.linear_velocity)
+        np.testing.assert_allclose(
+            e.pose.angular_velocity_world, e.pose.orientation @ e.pose.angular_velocity
+        )
+        np.testing.assert_allclose(
+            e.pose.linear_velocity_world, e.pose.orientation @ e.pose.linear_velocity
+        )
 
 
 def test_physical_velocities_formula_matches_finite_differences():
@@ -111,9 +115,9 @@ def test_global_shutter_frames_match_p3p_and_give_zero_velocity():
         f = make_frame(2000 + k, 500, rs_speed=0.0, noise_px=1.0, outlier_ratio=0.3)
         a = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin")
         b = estimate_rs_pose(f.points_px, f.X, CAM, "p3p")
-        rs.append(rotation_angle_deg(a.R, f.R))
-        gs.append(rotation_angle_deg(b.R, f.R))
-        om.append(np.linalg.norm(a.angular_velocity))
+        rs.append(rotation_angle_deg(a.model.R, f.R))
+        gs.append(rotation_angle_deg(b.model.R, f.R))
+        om.append(np.linalg.norm(a.pose.angular_velocity))
     # equal within noise: same order of magnitude, both tiny
     assert np.median(rs) < 2.5 * np.median(gs) and np.median(rs) < 0.05
     # angular speed of the 0.5-speed frames is ~15 deg per 30 ms = 8.7 rad/s; here ~0
@@ -127,7 +131,7 @@ def test_other_solvers_work_end_to_end():
         e = estimate_rs_pose(f.points_px, f.X, CAM, solver, opts)
         assert e.success, solver
         limit = 10.0 if solver == "p3p" else 0.3  # P3P is off by degrees at this speed
-        assert rotation_angle_deg(e.R, f.R) < limit, solver
+        assert rotation_angle_deg(e.model.R, f.R) < limit, solver
 
 
 def test_r9p_estimator_works_without_motion():
@@ -137,7 +141,7 @@ def test_r9p_estimator_works_without_motion():
     for k in range(15):
         f = make_frame(3000 + k, 500, rs_speed=0.0, noise_px=1.0, outlier_ratio=0.3)
         e = estimate_rs_pose(f.points_px, f.X, CAM, "r9p")
-        ok.append(e.success and rotation_angle_deg(e.R, f.R) < 0.1)
+        ok.append(e.success and rotation_angle_deg(e.model.R, f.R) < 0.1)
     assert np.mean(ok) >= 0.9
 
 
@@ -149,7 +153,7 @@ def test_deterministic_for_a_fixed_seed():
     b = estimate_rs_pose(
         f.points_px, f.X, CAM, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=7))
     )
-    np.testing.assert_array_equal(a.R, b.R)
+    np.testing.assert_array_equal(a.model.R, b.model.R)
     np.testing.assert_array_equal(a.inliers, b.inliers)
     assert a.ransac_iterations == b.ransac_iterations
 
@@ -159,7 +163,7 @@ def test_prosac_scores_help():
     scores = np.where(f.inlier, 1.0, 0.0) + np.random.default_rng(0).uniform(0, 0.5, 500)
     a = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin", scores=scores)
     b = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin")
-    assert a.success and rotation_angle_deg(a.R, f.R) < 0.1
+    assert a.success and rotation_angle_deg(a.model.R, f.R) < 0.1
     assert a.ransac_iterations <= b.ransac_iterations
     with pytest.raises(ValueError):
         estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin", scores=scores[:10])
@@ -173,8 +177,10 @@ def test_covariance_is_consistent_with_the_errors(rs_frames, rs_results):
     for e, f in zip(rs_results["r6p_1lin"], rs_frames, strict=False):
         P = e.pose_covariance
         assert np.allclose(P, P.T) and np.all(np.linalg.eigvalsh(P) > 0)
-        phi = matrix_to_rotvec(e.orientation @ f.R)  # world-axis rotation from truth to estimate
-        dp = e.position - f.position
+        phi = matrix_to_rotvec(
+            e.pose.orientation @ f.R
+        )  # world-axis rotation from truth to estimate
+        dp = e.pose.position - f.position
         err = np.r_[dp, phi]
         errs.append(err @ np.linalg.solve(e.pose_covariance, err))
     assert 6 / 2.5 < np.mean(errs) < 6 * 2.5
@@ -188,7 +194,7 @@ def test_all_outliers_fail_cleanly():
     e = estimate_rs_pose(pts, X, CAM, "r6p_1lin")
     # (random pixels: every minimal-sample model moves implausibly fast)
     assert not e.success and e.failure in ("too_few_inliers", "no_hypothesis", "implausible_motion")
-    assert np.isfinite(e.R).all() and e.num_inliers == 0
+    assert np.isfinite(e.model.R).all() and e.num_inliers == 0
 
 
 def test_too_few_valid_points_and_nan_rows():
@@ -204,7 +210,7 @@ def test_too_few_valid_points_and_nan_rows():
     e = estimate_rs_pose(u, X, CAM, "r6p_1lin")
     assert e.success and e.num_dropped == 3
     assert not e.inliers[[3, 5, 7]].any() and e.inliers.shape == (40,)
-    assert rotation_angle_deg(e.R, f.R) < 0.2
+    assert rotation_angle_deg(e.model.R, f.R) < 0.2
 
 
 def test_collinear_and_duplicated_points_fail_cleanly():
@@ -215,7 +221,7 @@ def test_collinear_and_duplicated_points_fail_cleanly():
     px = CAM.distort(Xc[:, :2] / Xc[:, 2:])
     for solver in ("r6p_1lin", "p3p", "r9p"):
         e = estimate_rs_pose(px, X, CAM, solver)
-        assert not e.success and np.isfinite(e.R).all()
+        assert not e.success and np.isfinite(e.model.R).all()
     Xd = np.repeat(X[:1], 50, axis=0)
     e = estimate_rs_pose(np.repeat(px[:1], 50, axis=0), Xd, CAM, "r6p_1lin")
     assert not e.success
@@ -279,9 +285,9 @@ def test_distorted_camera_and_readout_directions(readout):
     keep = cam.in_image(px)
     e = estimate_rs_pose(px[keep], X[keep], cam, "r6p_1lin")
     assert e.success
-    assert rotation_angle_deg(e.R, R) < 0.1
-    np.testing.assert_allclose(e.angular_velocity, om_cam, atol=0.05)
-    np.testing.assert_allclose(e.linear_velocity, v_cam, atol=0.15)
+    assert rotation_angle_deg(e.model.R, R) < 0.1
+    np.testing.assert_allclose(e.pose.angular_velocity, om_cam, atol=0.05)
+    np.testing.assert_allclose(e.pose.linear_velocity, v_cam, atol=0.15)
     assert e.rmse_px < 1.0
 
 

@@ -146,11 +146,11 @@ def test_gyro_aided_estimate_has_the_gyros_angular_velocity(scene):
         assert not b.gyro_used
         rows.append(
             (
-                np.linalg.norm(a.angular_velocity - f.angular_velocity),
-                np.linalg.norm(b.angular_velocity - f.angular_velocity),
+                np.linalg.norm(a.pose.angular_velocity - f.angular_velocity),
+                np.linalg.norm(b.pose.angular_velocity - f.angular_velocity),
                 np.linalg.norm(g.angular_velocity - f.angular_velocity),
-                rotation_angle_deg(a.orientation, f.orientation),
-                rotation_angle_deg(b.orientation, f.orientation),
+                rotation_angle_deg(a.pose.orientation, f.orientation),
+                rotation_angle_deg(b.pose.orientation, f.orientation),
             )
         )
     m = np.median(np.array(rows), axis=0)
@@ -202,9 +202,9 @@ def test_gyro_on_a_board_is_better_and_not_slower():
         assert a.success and b.success and a.gyro_used
         rows.append(
             (
-                rotation_angle_deg(a.orientation, f.orientation),
-                rotation_angle_deg(b.orientation, f.orientation),
-                np.linalg.norm(a.angular_velocity - f.angular_velocity),
+                rotation_angle_deg(a.pose.orientation, f.orientation),
+                rotation_angle_deg(b.pose.orientation, f.orientation),
+                np.linalg.norm(a.pose.angular_velocity - f.angular_velocity),
             )
         )
     m = np.median(np.array(rows), axis=0)
@@ -231,9 +231,9 @@ def test_a_gyro_the_image_contradicts_is_dropped():
         a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS, gyro=bad)
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
         assert a.success and a.gyro_rejected and not a.gyro_used
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.angular_velocity, b.angular_velocity)
-        chi2 = gyro_consistency(bad, b.angular_velocity, b.twist_covariance[3:, 3:])
+        np.testing.assert_array_equal(a.model.R, b.model.R)
+        np.testing.assert_array_equal(a.pose.angular_velocity, b.pose.angular_velocity)
+        chi2 = gyro_consistency(bad, b.pose.angular_velocity, b.twist_covariance[3:, 3:])
         assert chi2 > GYRO_CHI2_THRESHOLD
 
 
@@ -243,7 +243,7 @@ def test_global_shutter_solver_ignores_the_gyro():
     a = estimate_rs_pose(f.points_px, f.X, f.camera, "p3p", OPTS, gyro=g)
     b = estimate_rs_pose(f.points_px, f.X, f.camera, "p3p", OPTS)
     assert a.success and not a.gyro_used and not a.gyro_rejected
-    np.testing.assert_array_equal(a.R, b.R)
+    np.testing.assert_array_equal(a.model.R, b.model.R)
 
 
 def test_imu_buffer_rejects_bad_samples_and_keeps_its_span():

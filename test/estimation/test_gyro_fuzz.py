@@ -142,10 +142,10 @@ def _run(video, kind: str, seed: int):
         counts["used" if e.gyro_used else "rejected"] += 1
         if not (e.success and u.success):
             continue
-        rot = rotation_angle_deg(e.orientation, f.orientation)
-        rot_u = rotation_angle_deg(u.orientation, f.orientation)
-        pos = float(np.linalg.norm(e.position - f.position))
-        pos_u = float(np.linalg.norm(u.position - f.position))
+        rot = rotation_angle_deg(e.pose.orientation, f.orientation)
+        rot_u = rotation_angle_deg(u.pose.orientation, f.orientation)
+        pos = float(np.linalg.norm(e.pose.position - f.position))
+        pos_u = float(np.linalg.norm(u.pose.position - f.position))
         if rot > 1.2 * rot_u + ROT_FLOOR_DEG or pos > 1.2 * pos_u + POS_FLOOR_M:
             worse.append((f.t_ref_ns, rot, rot_u, pos, pos_u, e.gyro_used))
     assert sum(counts.values()) == len(frames)

@@ -29,8 +29,8 @@ def test_a_gyro_off_by_rad_per_second_stated_precise_is_refused(scene):
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
         assert a.gyro_rejected and not a.gyro_used and a.gyro_rejection in GYRO_REJECTIONS
         assert a.success == b.success
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.angular_velocity, b.angular_velocity)
+        np.testing.assert_array_equal(a.model.R, b.model.R)
+        np.testing.assert_array_equal(a.pose.angular_velocity, b.pose.angular_velocity)
 
 
 def test_a_right_gyro_is_used_and_carries_no_reason():

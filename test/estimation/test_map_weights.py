@@ -29,8 +29,12 @@ def test_weighting_by_the_map_precision_beats_weighing_all_points_alike():
         a = estimate_rs_pose(f.points_px, X, CAM, "r6p_1lin")
         b = estimate_rs_pose(f.points_px, X, CAM, "r6p_1lin", point_sigma=sigma)
         assert a.success and b.success
-        plain.append((rotation_angle_deg(a.R, f.R), np.linalg.norm(a.position - f.position)))
-        weighted.append((rotation_angle_deg(b.R, f.R), np.linalg.norm(b.position - f.position)))
+        plain.append(
+            (rotation_angle_deg(a.model.R, f.R), np.linalg.norm(a.pose.position - f.position))
+        )
+        weighted.append(
+            (rotation_angle_deg(b.model.R, f.R), np.linalg.norm(b.pose.position - f.position))
+        )
     plain, weighted = np.median(plain, axis=0), np.median(weighted, axis=0)
     assert weighted[0] < 0.8 * plain[0]
     assert weighted[1] < 0.8 * plain[1]
@@ -40,7 +44,7 @@ def test_exact_points_leave_the_estimate_unchanged():
     f = make_frame(7, 150, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
     a = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin")
     b = estimate_rs_pose(f.points_px, f.X, CAM, "r6p_1lin", point_sigma=np.zeros(len(f.X)))
-    assert np.array_equal(a.R, b.R) and np.array_equal(a.position, b.position)
+    assert np.array_equal(a.model.R, b.model.R) and np.array_equal(a.pose.position, b.pose.position)
     assert np.array_equal(a.inliers, b.inliers)
     assert np.array_equal(a.covariance, b.covariance)
 

@@ -136,7 +136,9 @@ def test_no_correlated_error_leaves_the_covariance_alone():
     c = estimate_rs_pose(
         u + 0.1, X, CAM, "r6p_1lin", EstimateOptions(correlated_noise=CorrelatedNoise(sigma_px=0.2))
     )
-    np.testing.assert_array_equal(a.R, c.R)  # the estimate is unchanged, only its covariance
+    np.testing.assert_array_equal(
+        a.model.R, c.model.R
+    )  # the estimate is unchanged, only its covariance
     assert np.all(np.linalg.eigvalsh(c.covariance - a.covariance) > -1e-12)
 
 
@@ -196,7 +198,7 @@ def test_covariance_is_calibrated_on_still_boards(still_frames):
         for opt, out in ((opts, m_on), (EstimateOptions(), m_off)):
             e = estimate_rs_pose(u, X, CAM, "r6p_1lin", opt)
             assert e.success
-            tw = np.r_[e.linear_velocity, e.angular_velocity]
+            tw = np.r_[e.pose.linear_velocity, e.pose.angular_velocity]
             out.append(tw @ np.linalg.solve(e.twist_covariance, tw))
     m_on, m_off = np.asarray(m_on), np.asarray(m_off)
     assert 4.0 < np.median(m_on) < 7.5 and 4.0 < m_on.mean() < 10.0, m_on

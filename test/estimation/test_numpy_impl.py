@@ -59,11 +59,11 @@ def test_same_pose_as_compiled(solver):
         assert u.success and c.success
         assert (u.implementation, c.implementation) == ("numpy", "compiled")
         assert u.ignored_inputs == c.ignored_inputs == ()
-        rot_u, rot_c = rotation_angle_deg(u.R, f.R), rotation_angle_deg(c.R, f.R)
+        rot_u, rot_c = rotation_angle_deg(u.model.R, f.R), rotation_angle_deg(c.model.R, f.R)
         assert rot_u <= 1.5 * rot_c + 0.01
-        assert rotation_angle_deg(u.R, c.R) <= 0.02 + rot_c
-        pos_u = np.linalg.norm(u.position - f.position)
-        pos_c = np.linalg.norm(c.position - f.position)
+        assert rotation_angle_deg(u.model.R, c.model.R) <= 0.02 + rot_c
+        pos_u = np.linalg.norm(u.pose.position - f.position)
+        pos_c = np.linalg.norm(c.pose.position - f.position)
         assert pos_u <= 1.5 * pos_c + 1e-3
         assert np.mean(u.inliers == c.inliers) >= 0.97
         assert u.num_valid == c.num_valid
@@ -75,14 +75,14 @@ def test_same_pose_as_compiled(solver):
         assert u.pose_covariance.shape == (6, 6)
         if solver == "r6p_1lin":
             om = np.linalg.norm(f.angular_velocity)
-            err_u = np.linalg.norm(u.angular_velocity - f.angular_velocity) / om
-            err_c = np.linalg.norm(c.angular_velocity - f.angular_velocity) / om
+            err_u = np.linalg.norm(u.pose.angular_velocity - f.angular_velocity) / om
+            err_c = np.linalg.norm(c.pose.angular_velocity - f.angular_velocity) / om
             assert err_u <= 1.5 * err_c + 0.01
             assert u.twist_covariance.shape == (6, 6)
             np.testing.assert_allclose(u.pose_covariance, u.pose_covariance.T)
         else:
             assert u.twist_covariance is None and c.twist_covariance is None
-            np.testing.assert_array_equal(u.angular_velocity, 0.0)
+            np.testing.assert_array_equal(u.pose.angular_velocity, 0.0)
 
 
 def _bad_inputs():
@@ -157,7 +157,7 @@ def test_ignored_inputs_recorded():
     assert u.implementation == "numpy"
     assert u.ignored_inputs == ("scores", "gyro", "point_sigma", "refine.acceleration_sensitivity")
     assert set(u.ignored_inputs) <= set(NUMPY_UNUSED)
-    np.testing.assert_array_equal(u.R, plain.R)
+    np.testing.assert_array_equal(u.model.R, plain.model.R)
     np.testing.assert_array_equal(u.inliers, plain.inliers)
     c = estimate_compiled(f.points_px, f.X, cam, "r6p_1lin", OPTS)
     assert c.ignored_inputs == ()
@@ -230,9 +230,9 @@ def test_planar_frames_as_accurate(scene):
             om = np.linalg.norm(f.angular_velocity)
             errs[key].append(
                 (
-                    rotation_angle_deg(e.R, f.R),
-                    np.linalg.norm(e.position - f.position),
-                    np.linalg.norm(e.angular_velocity - f.angular_velocity) / om,
+                    rotation_angle_deg(e.model.R, f.R),
+                    np.linalg.norm(e.pose.position - f.position),
+                    np.linalg.norm(e.pose.angular_velocity - f.angular_velocity) / om,
                 )
             )
         assert u.num_inliers == c.num_inliers

@@ -161,7 +161,13 @@ def test_prior_off_switches():
             "r6p_1lin",
             EstimateOptions(motion_prior=MotionPrior(0.0, 0.0)),
         )
-        for p, q in ((a.R, b.R), (a.C, b.C), (a.w, b.w), (a.t, b.t), (a.covariance, b.covariance)):
+        for p, q in (
+            (a.model.R, b.model.R),
+            (a.model.C, b.model.C),
+            (a.model.w, b.model.w),
+            (a.model.t, b.model.t),
+            (a.covariance, b.covariance),
+        ):
             assert np.array_equal(p, q)
         assert np.array_equal(a.inliers, b.inliers)
     x, tau = _normalized(f)
@@ -192,8 +198,8 @@ def test_weak_prior_leaves_3d_scenes_at_the_exact_model_limit():
         o = refine_rs_pose(
             (f.R, f.C, f.w, f.t), f.X, x, tau, 2 / 600, RefineSettings(max_iterations=50)
         )
-        ml.append(np.linalg.norm(a.angular_velocity - f.angular_velocity))
-        mp.append(np.linalg.norm(b.angular_velocity - f.angular_velocity))
+        ml.append(np.linalg.norm(a.pose.angular_velocity - f.angular_velocity))
+        mp.append(np.linalg.norm(b.pose.angular_velocity - f.angular_velocity))
         oracle.append(np.linalg.norm(-o.w / f.camera.seconds_per_unit_r - f.angular_velocity))
         assert not b.planar and b.condition_number < 1e4
     assert np.median(mp) <= 1.1 * np.median(oracle) and np.median(mp) <= 1.1 * np.median(ml)
@@ -209,7 +215,7 @@ def test_prior_is_not_used_against_a_much_faster_camera():
         a = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin")
         b = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin", EstimateOptions(motion_prior=None))
         if not a.motion_prior_used:
-            assert np.array_equal(a.R, b.R) and np.array_equal(a.w, b.w)
+            assert np.array_equal(a.model.R, b.model.R) and np.array_equal(a.model.w, b.model.w)
             assert np.array_equal(a.covariance, b.covariance)
         assert not a.planar and a.condition_number < 1e3
     used = [
@@ -329,7 +335,7 @@ def test_board_with_outliers_finds_every_inlier():
         )
         assert e.success and np.array_equal(e.inliers, f.inlier), seed
         assert e.planar and e.planarity < 1e-9 and e.condition_number > 1e4
-        assert rotation_angle_deg(e.orientation, f.orientation) < 4.0
+        assert rotation_angle_deg(e.pose.orientation, f.orientation) < 4.0
         ml = estimate_rs_pose(
             f.points_px,
             f.X,
@@ -389,11 +395,11 @@ def _summary(scene, seeds, outliers=0.0):
             f.points_px, f.X, f.camera, "p3p", EstimateOptions(ransac=RansacOptions(seed=seed))
         )
         assert e.success and g.success
-        rows["map"].append(rotation_angle_deg(e.orientation, f.orientation))
-        rows["p3p"].append(rotation_angle_deg(g.orientation, f.orientation))
-        d = e.angular_velocity - f.angular_velocity
+        rows["map"].append(rotation_angle_deg(e.pose.orientation, f.orientation))
+        rows["p3p"].append(rotation_angle_deg(g.pose.orientation, f.orientation))
+        d = e.pose.angular_velocity - f.angular_velocity
         rows["ang"].append(np.linalg.norm(d))
-        phi = matrix_to_rotvec(e.orientation @ f.orientation.T)
+        phi = matrix_to_rotvec(e.pose.orientation @ f.orientation.T)
         rows["nees_rot"].append(phi @ np.linalg.solve(e.pose_covariance[3:, 3:], phi))
         rows["nees_ang"].append(d @ np.linalg.solve(e.twist_covariance[3:, 3:], d))
     return {k: np.array(v) for k, v in rows.items()}
@@ -435,7 +441,7 @@ def test_prior_mean_and_covariance_from_a_tracker():
         "r6p_1lin",
         EstimateOptions(motion_prior=MotionPrior(mean=mean, covariance=cov)),
     )
-    assert np.linalg.norm(e.angular_velocity - f.angular_velocity) < 0.3
+    assert np.linalg.norm(e.pose.angular_velocity - f.angular_velocity) < 0.3
     assert np.sqrt(np.trace(e.twist_covariance[3:, 3:])) < np.sqrt(3) * 0.1
     a = estimate_rs_pose(
         f.points_px,
@@ -445,8 +451,8 @@ def test_prior_mean_and_covariance_from_a_tracker():
         EstimateOptions(motion_prior=MotionPrior(covariance=np.diag([1.5**2] * 3 + [3.0**2] * 3))),
     )
     b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin")
-    np.testing.assert_allclose(a.R, b.R, atol=1e-12)
-    np.testing.assert_allclose(a.w, b.w, atol=1e-12)
+    np.testing.assert_allclose(a.model.R, b.model.R, atol=1e-12)
+    np.testing.assert_allclose(a.model.w, b.model.w, atol=1e-12)
 
 
 # ------------------------------------------------------------------------- sequences, scenes
@@ -467,8 +473,8 @@ def test_planar_sequences(kind):
             fr.uv, fr.xyz, camera, "p3p", EstimateOptions(ransac=RansacOptions(min_inliers=8))
         )
         assert e.success and e.planar
-        rs.append(rotation_angle_deg(e.orientation, fr.orientation))
-        gs.append(rotation_angle_deg(g.orientation, fr.orientation))
+        rs.append(rotation_angle_deg(e.pose.orientation, fr.orientation))
+        gs.append(rotation_angle_deg(g.pose.orientation, fr.orientation))
     assert np.median(rs) < 0.5 * np.median(gs) and max(rs) < 1.0, (rs, gs)
     if kind == "board":
         assert len(frames[0].xyz) == 42
@@ -538,8 +544,8 @@ def test_board_scenes_render_and_detect(name):
     )
     g = estimate_rs_pose(uv, X, cam, "p3p", EstimateOptions(ransac=RansacOptions(min_inliers=8)))
     assert e.success and e.planar
-    assert rotation_angle_deg(e.orientation, frame.orientation) < rotation_angle_deg(
-        g.orientation, frame.orientation
+    assert rotation_angle_deg(e.pose.orientation, frame.orientation) < rotation_angle_deg(
+        g.pose.orientation, frame.orientation
     )
 
 

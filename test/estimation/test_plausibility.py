@@ -62,8 +62,8 @@ def test_v_equal_u_cloud_is_never_a_pose(seq):
         e = estimate_rs_pose(uv, f.xyz, cam, options=_opts())
         assert not e.success, (
             f.index,
-            np.linalg.norm(e.position - f.position),
-            np.linalg.norm(e.angular_velocity),
+            np.linalg.norm(e.pose.position - f.position),
+            np.linalg.norm(e.pose.angular_velocity),
         )
         assert e.failure == "degenerate_geometry"
 
@@ -76,8 +76,8 @@ def test_reflected_points_are_never_a_pose(seq):
         e = estimate_rs_pose(f.uv, 2 * f.position - f.xyz, cam, options=_opts())
         assert not e.success, (
             f.index,
-            rotation_angle_deg(e.orientation, f.orientation),
-            np.linalg.norm(e.angular_velocity),
+            rotation_angle_deg(e.pose.orientation, f.orientation),
+            np.linalg.norm(e.pose.angular_velocity),
         )
         assert e.failure in REASONS
 
@@ -99,7 +99,7 @@ def test_rows_behind_the_camera_are_counted_as_dropped(seq):
     u[n + 5] = np.nan  # one invalid row too
     e = estimate_rs_pose(u, X, cam, options=_opts())
     assert e.success
-    assert rotation_angle_deg(e.orientation, f.orientation) < 0.1
+    assert rotation_angle_deg(e.pose.orientation, f.orientation) < 0.1
     assert e.num_behind == n
     assert e.num_dropped == n + 1
     assert e.num_valid == len(X) - 1
@@ -154,7 +154,7 @@ def test_velocities_beyond_the_bounds_are_never_reported(seq):
     for f in fr[:4]:
         e = estimate_rs_pose(f.uv, f.xyz, cam, options=_opts())
         assert e.success
-        assert np.linalg.norm(e.angular_velocity - f.angular_velocity) < 0.2
+        assert np.linalg.norm(e.pose.angular_velocity - f.angular_velocity) < 0.2
         for kw, key in (
             ({"max_angular_velocity": 0.5}, "angular_velocity"),
             ({"max_linear_velocity": 0.3}, "linear_velocity"),

@@ -208,8 +208,8 @@ def test_estimator_gives_the_same_result_with_and_without_fusion(solver, monkeyp
             m.setattr(hypotheses_module, "fused_kernels", lambda name: None)
             b = estimate_rs_pose(f.points_px, f.X, CAM, solver)
         assert a.success and b.success
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.w, b.w)
+        np.testing.assert_array_equal(a.model.R, b.model.R)
+        np.testing.assert_array_equal(a.model.w, b.model.w)
         np.testing.assert_array_equal(a.inliers, b.inliers)
         assert a.ransac_iterations == b.ransac_iterations
 

@@ -63,7 +63,7 @@ def test_three_camera_rig_with_outliers_recovers_the_truth():
         assert est.success
         R, C, w, t = truth
         assert rotation_angle_deg(est.R, R) < 0.1
-        assert np.linalg.norm(est.position - (-R.T @ C)) < 0.02
+        assert np.linalg.norm(est.pose.position - (-R.T @ C)) < 0.02
         assert np.linalg.norm(est.w - w) < 0.1
         assert np.linalg.norm(est.t - t) < 0.3
         assert 0.7 * 240 < est.num_inliers < 0.9 * 240
@@ -217,15 +217,15 @@ def test_covariance_covers_the_error_and_outputs_match_a_camera_estimate():
         np.testing.assert_allclose(est.twist_covariance, twist_cov)
         z = model_twist.py_func(est.C, est.w, est.t, 1.0)
         np.testing.assert_allclose(est.pose.angular_velocity, -est.w)
-        np.testing.assert_allclose(est.linear_velocity, z[0:3])
-        np.testing.assert_allclose(est.pose.position, est.position)
-        np.testing.assert_allclose(est.orientation, est.R.T)
+        np.testing.assert_allclose(est.pose.linear_velocity, z[0:3])
+        np.testing.assert_allclose(est.pose.position, -est.R.T @ est.C)
+        np.testing.assert_allclose(est.pose.orientation, est.R.T)
         assert sum(est.num_inliers_per_camera) == est.num_inliers
         assert est.num_inliers_per_camera == tuple(int(m.sum()) for m in est.inliers)
         assert est.num_valid_per_camera == (150, 150, 150)
         # the position's std (pose covariance, world) against the truth: within 5 sigma
         sd = np.sqrt(np.diag(est.pose_covariance)[:3])
-        assert (np.abs(est.position - (-truth[0].T @ truth[1])) < 5 * sd).all()
+        assert (np.abs(est.pose.position - (-truth[0].T @ truth[1])) < 5 * sd).all()
     assert 6 < np.mean(chi) < 24, np.mean(chi)
 
 
@@ -328,9 +328,18 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
         assert est.success and one.success
         np.testing.assert_array_equal(est.inliers[0], one.inliers)
         mine, truth = est.camera_model(v), f.camera_truth(0)
-        assert rotation_angle_deg(mine.R, one.R) < 0.1 * rotation_angle_deg(one.R, truth.R) + 1e-4
-        assert np.linalg.norm(mine.C - one.C) < 0.1 * np.linalg.norm(one.C - truth.C) + 1e-6
-        assert np.linalg.norm(mine.w - one.w) < 0.3 * np.linalg.norm(one.w - truth.w) + 1e-6
+        assert (
+            rotation_angle_deg(mine.R, one.model.R)
+            < 0.1 * rotation_angle_deg(one.model.R, truth.R) + 1e-4
+        )
+        assert (
+            np.linalg.norm(mine.C - one.model.C)
+            < 0.1 * np.linalg.norm(one.model.C - truth.C) + 1e-6
+        )
+        assert (
+            np.linalg.norm(mine.w - one.model.w)
+            < 0.3 * np.linalg.norm(one.model.w - truth.w) + 1e-6
+        )
 
 
 def _poselib_pose(views):
@@ -370,12 +379,12 @@ def test_global_shutter_rig_is_poselib_generalized_pose():
         R, p = _poselib_pose(f.views)
         p_true = -truth.R.T @ truth.C
         err_rot = max(rotation_angle_deg(R, truth.R), rotation_angle_deg(est.R, truth.R))
-        err_pos = max(np.linalg.norm(p - p_true), np.linalg.norm(est.position - p_true))
+        err_pos = max(np.linalg.norm(p - p_true), np.linalg.norm(est.pose.position - p_true))
         assert rotation_angle_deg(est.R, R) < 0.5 * err_rot + 1e-3
-        assert np.linalg.norm(est.position - p) < 0.5 * err_pos + 1e-4
+        assert np.linalg.norm(est.pose.position - p) < 0.5 * err_pos + 1e-4
         assert err_rot < 0.05 and err_pos < 0.01
         sd = np.sqrt(np.diag(est.pose_covariance))
-        assert (np.abs(est.position - p_true) < 5 * sd[:3]).all()
+        assert (np.abs(est.pose.position - p_true) < 5 * sd[:3]).all()
 
 
 def test_rig_at_rest_agrees_with_poselib_generalized_pose():
@@ -390,13 +399,13 @@ def test_rig_at_rest_agrees_with_poselib_generalized_pose():
         f = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
         est = estimate_rig_pose(f.views)
         assert est.success and not est.global_shutter
-        assert np.linalg.norm(est.angular_velocity) < 0.05  # rad/s
+        assert np.linalg.norm(est.pose.angular_velocity) < 0.05  # rad/s
         R, p = _poselib_pose(f.views)
         p_true = -R0.T @ C0
         assert rotation_angle_deg(R, truth[0]) < 0.03 and rotation_angle_deg(est.R, R0) < 0.03
         assert rotation_angle_deg(est.R, R) < 0.03
-        assert np.linalg.norm(est.position - p) < 0.005
-        assert np.linalg.norm(est.position - p_true) < 0.005
+        assert np.linalg.norm(est.pose.position - p) < 0.005
+        assert np.linalg.norm(est.pose.position - p_true) < 0.005
 
 
 def _accelerated_views(frame, alpha, a):
@@ -439,13 +448,13 @@ def test_acceleration_sensitivity_predicts_how_an_accelerating_rig_is_estimated(
         est = estimate_rig_pose(_accelerated_views(frame, alpha, a), seed=0)
         assert est.success and est.acceleration_sensitivity.shape == (12, 6)
         truth = RSPose.from_model(frame.truth, 1.0)
-        phi = matrix_to_rotvec(est.orientation @ truth.orientation.T)
+        phi = matrix_to_rotvec(est.pose.orientation @ truth.orientation.T)
         moved = np.concatenate(
             [
                 phi,
-                est.position - truth.position,
-                est.angular_velocity - truth.angular_velocity,
-                est.linear_velocity - truth.linear_velocity,
+                est.pose.position - truth.position,
+                est.pose.angular_velocity - truth.angular_velocity,
+                est.pose.linear_velocity - truth.linear_velocity,
             ]
         )
         predicted = est.acceleration_sensitivity @ np.concatenate([alpha, a])
@@ -491,7 +500,7 @@ def test_an_initial_model_near_the_truth_seeds_ransac_and_is_verified():
         assert est.initial_explained >= est.num_inliers - 5
         assert est.iterations <= 32 < cold.iterations
         rot = [rotation_angle_deg(e.R, R) for e in (est, cold)]
-        pos = [np.linalg.norm(e.position + R.T @ C) for e in (est, cold)]
+        pos = [np.linalg.norm(e.pose.position + R.T @ C) for e in (est, cold)]
         assert rot[0] < 1.5 * rot[1] + 1e-3 and pos[0] < 1.5 * pos[1] + 1e-3, (rot, pos)
         assert np.linalg.norm(est.w - w) < 1.5 * np.linalg.norm(cold.w - w) + 0.02
         for a, b in zip(est.inliers, cold.inliers, strict=True):

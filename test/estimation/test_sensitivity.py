@@ -88,7 +88,7 @@ def test_estimator_returns_it_on_request():
     )
     est = estimate_rs_pose(f.uv, f.xyz, cam, options=opts)
     assert est.acceleration_sensitivity.shape == (12, 6)
-    np.testing.assert_array_equal(est.R, plain.R)  # nothing else changes
+    np.testing.assert_array_equal(est.model.R, plain.model.R)  # nothing else changes
     # removing the shift the true angular acceleration causes brings the per-frame angular
     # velocity closer to the truth (the shake turns at 20-30 rad/s^2)
     raw, corrected = [], []
@@ -98,9 +98,9 @@ def test_estimator_returns_it_on_request():
         h = 1e-4
         alpha = (traj.velocity_body(t_ref + h)[0] - traj.velocity_body(t_ref - h)[0]) / (2 * h)
         G = est.acceleration_sensitivity
-        raw.append(np.linalg.norm(est.angular_velocity - f.angular_velocity))
+        raw.append(np.linalg.norm(est.pose.angular_velocity - f.angular_velocity))
         corrected.append(
-            np.linalg.norm(est.angular_velocity - G[6:9, :3] @ alpha - f.angular_velocity)
+            np.linalg.norm(est.pose.angular_velocity - G[6:9, :3] @ alpha - f.angular_velocity)
         )
     assert np.median(corrected) < 0.7 * np.median(raw)
 

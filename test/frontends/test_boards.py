@@ -125,8 +125,8 @@ def test_checkerboard_pose_p3p_matches_solvepnp(left_board):
         R_cv, t_cv = solve_pnp(uv, X, camera)
         est = estimate_rs_pose(uv, X, camera, "p3p")
         assert est.success and est.num_inliers == 54, n
-        assert rotation_angle_deg(est.R, R_cv) < 0.05, n
-        assert np.linalg.norm(est.C - t_cv) < 2e-4, n
+        assert rotation_angle_deg(est.model.R, R_cv) < 0.05, n
+        assert np.linalg.norm(est.model.C - t_cv) < 2e-4, n
         assert est.rmse_px < 0.35, n
 
 
@@ -164,7 +164,7 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
     for n in LEFT:
         uv, X, _ = fe.process(photo(f"left{n}.jpg"))
         frames.append((n, uv, X, estimate_rs_pose(uv, X, camera, "p3p")))
-    fit = fit_correlated_noise(camera, [(uv, X, g.R, g.C) for _, uv, X, g in frames])
+    fit = fit_correlated_noise(camera, [(uv, X, g.model.R, g.model.C) for _, uv, X, g in frames])
     assert fit.log_likelihood_ratio > 100  # strong evidence for a correlated error
     assert 0.1 < fit.correlated_px < 0.4 and 40 < fit.length_px < 200, fit
     opts = EstimateOptions(
@@ -176,10 +176,10 @@ def test_checkerboard_still_photos_rs_consistent_with_p3p(left_board):
         rs = estimate_rs_pose(uv, X, camera, "r6p_1lin", opts)
         rs0 = estimate_rs_pose(uv, X, camera, "r6p_1lin")
         assert rs.success and rs.num_inliers == 54, n
-        tw = np.r_[rs.linear_velocity, rs.angular_velocity]
-        phi = Rotation.from_matrix(gs.R.T @ rs.R).as_rotvec()  # world axes
-        dp = np.r_[gs.position - rs.position, phi]
-        assert rotation_angle_deg(rs.R, gs.R) < 4.5, n
+        tw = np.r_[rs.pose.linear_velocity, rs.pose.angular_velocity]
+        phi = Rotation.from_matrix(gs.model.R.T @ rs.model.R).as_rotvec()  # world axes
+        dp = np.r_[gs.pose.position - rs.pose.position, phi]
+        assert rotation_angle_deg(rs.model.R, gs.model.R) < 4.5, n
         assert tw @ np.linalg.solve(rs.twist_covariance, tw) < q6, n
         assert dp @ np.linalg.solve(rs.pose_covariance, dp) < q6, n
         assert phi @ np.linalg.solve(rs.pose_covariance[3:, 3:], phi) < q3, n
@@ -203,8 +203,8 @@ def test_charuco_photo(use_camera):
     R_cv, t_cv = solve_pnp(uv, X, camera)
     est = estimate_rs_pose(uv, X, camera, "p3p")
     assert est.success and est.num_inliers == 24
-    assert rotation_angle_deg(est.R, R_cv) < 0.05
-    assert np.linalg.norm(est.C - t_cv) < 2e-4
+    assert rotation_angle_deg(est.model.R, R_cv) < 0.05
+    assert np.linalg.norm(est.model.C - t_cv) < 2e-4
     assert est.rmse_px < 0.3
 
 
@@ -321,9 +321,9 @@ def test_synthetic_checkerboard_ids_follow_the_board(roll_deg, method):
     camera = CameraModel(K=K_SYN)
     est = estimate_rs_pose(uv, X, camera, "p3p")
     R_cv, _t_cv = solve_pnp(uv, X, camera)
-    assert est.success and rotation_angle_deg(est.R, R_cv) < 0.05
-    assert rotation_angle_deg(est.R, R) < 0.25
-    assert np.linalg.norm(est.position - (-R.T @ C)) < 5e-3
+    assert est.success and rotation_angle_deg(est.model.R, R_cv) < 0.05
+    assert rotation_angle_deg(est.model.R, R) < 0.25
+    assert np.linalg.norm(est.pose.position - (-R.T @ C)) < 5e-3
 
 
 def test_checkerboard_order_from_any_of_the_four_grid_orders():
@@ -363,8 +363,8 @@ def test_synthetic_charuco():
     # no systematic shift (OpenCV 4.5.4 .. 4.12 alone: about +0.5 px in x and y)
     assert np.all(np.abs(d.mean(axis=0)) < 0.1)
     est = estimate_rs_pose(uv, X, camera, "p3p")
-    assert est.success and rotation_angle_deg(est.R, R) < 0.1
-    assert np.linalg.norm(est.position - (-R.T @ C)) < 1e-3
+    assert est.success and rotation_angle_deg(est.model.R, R) < 0.1
+    assert np.linalg.norm(est.pose.position - (-R.T @ C)) < 1e-3
 
 
 def test_synthetic_apriltag_grid():
@@ -389,8 +389,8 @@ def test_synthetic_apriltag_grid():
     # subpixel refinement of square-marker corners pulls them ~0.1 px inwards
     assert err.max() < 0.5 and np.median(err) < 0.3
     est = estimate_rs_pose(uv, X, CameraModel(K=K_SYN), "p3p")
-    assert est.success and rotation_angle_deg(est.R, R) < 0.2
-    assert np.linalg.norm(est.position - (-R.T @ C)) < 3e-3
+    assert est.success and rotation_angle_deg(est.model.R, R) < 0.2
+    assert np.linalg.norm(est.pose.position - (-R.T @ C)) < 3e-3
 
 
 def test_board_image_unrotated_detections():
@@ -585,12 +585,13 @@ def _pose_table():  # pragma: no cover - run by hand: python test/frontends/test
         R_cv, t_cv = solve_pnp(uv, X, cam)
         gs = estimate_rs_pose(uv, X, cam, "p3p")
         rs = estimate_rs_pose(uv, X, cam, "r6p_1lin")
+        g, r = gs.model, rs.model
         print(
-            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(gs.R, R_cv):10.3f}  "
-            f"{1e3 * np.linalg.norm(gs.C - t_cv):10.3f}  {rotation_angle_deg(rs.R, R_cv):10.3f}"
-            f"  {1e3 * np.linalg.norm(rs.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
-            f"  {np.linalg.norm(rs.angular_velocity):9.3f}  "
-            f"{np.linalg.norm(rs.linear_velocity):7.3f}"
+            f"{name:15s} {len(uv):3d}  {rotation_angle_deg(g.R, R_cv):10.3f}  "
+            f"{1e3 * np.linalg.norm(g.C - t_cv):10.3f}  {rotation_angle_deg(r.R, R_cv):10.3f}"
+            f"  {1e3 * np.linalg.norm(r.C - t_cv):9.2f}  {rs.rmse_px:7.3f}  {gs.rmse_px:8.3f}"
+            f"  {np.linalg.norm(rs.pose.angular_velocity):9.3f}  "
+            f"{np.linalg.norm(rs.pose.linear_velocity):7.3f}"
         )
 
 

@@ -41,7 +41,7 @@ def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
         carry.update(stamp, est)
         fe.wait_refresh(60.0)
         ok = est is not None and est.success
-        err = rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
+        err = rotation_angle_deg(est.pose.orientation, f.orientation) if ok else np.nan
         out.append((fe.report, uv, X, err))
     return out
 

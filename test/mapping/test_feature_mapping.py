@@ -124,8 +124,8 @@ def _localize(feature_map, camera, scene, times):
             est = estimate_rs_pose(uv, X, camera, solver)
             assert est.success, (solver, t, est.failure)
             row += [
-                rotation_angle_deg(est.orientation, f.orientation),
-                np.linalg.norm(est.position - f.position),
+                rotation_angle_deg(est.pose.orientation, f.orientation),
+                np.linalg.norm(est.pose.position - f.position),
             ]
         out.append(row)
     return np.median(np.array(out), axis=0)

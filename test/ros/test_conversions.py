@@ -74,8 +74,8 @@ def test_messages_of_interleaved_estimates_carry_their_own_orientation():
         ests.append(dataclasses.replace(est, pose=pose))
     for k in range(2, 12):
         for est, build in ((ests[k], cv.pose_stamped), (ests[k - 2], cv.pose_stamped)):
-            R, _ = cv.pose_from_msg(build(est, 1, "map").pose)
-            np.testing.assert_allclose(R, est.orientation, atol=1e-12)
+            R, _ = cv.pose_from_msg(build(est.pose, 1, "map").pose)
+            np.testing.assert_allclose(R, est.pose.orientation, atol=1e-12)
 
 
 def test_stamps():
@@ -225,12 +225,12 @@ def _estimate():
 def test_estimate_messages():
     est, R = _estimate()
     ns = 1_000_000_000 * 42 + 7
-    pose = cv.pose_stamped(est, ns, "map")
+    pose = cv.pose_stamped(est.pose, ns, "map")
     assert pose.header.frame_id == "map" and cv.stamp_to_ns(pose.header.stamp) == ns
     Rb, p = cv.pose_from_msg(pose.pose)
     np.testing.assert_allclose(Rb, R, atol=1e-12)
     np.testing.assert_array_equal(p, [1, 2, 3])
-    tw = cv.twist_stamped(est, ns, "cam")
+    tw = cv.twist_stamped(est.pose, ns, "cam")
     assert tw.header.frame_id == "cam"
     w, v = cv.twist_from_msg(tw.twist)
     np.testing.assert_array_equal(w, [0.1, 0.2, 0.3])
@@ -252,11 +252,11 @@ def test_covariance_unknown():
 def test_tf_message_availability():
     est, _ = _estimate()
     if cv.have_tf2_msgs():
-        tf = cv.tf_message(est, 5, "map", "cam")
+        tf = cv.tf_message(est.pose, 5, "map", "cam")
         assert tf.transforms[0].child_frame_id == "cam"
     else:
         with pytest.raises(ImportError):
-            cv.tf_message(est, 5, "map", "cam")
+            cv.tf_message(est.pose, 5, "map", "cam")
 
 
 # ------------------------------------------------------------------ validation

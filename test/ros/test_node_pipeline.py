@@ -304,7 +304,7 @@ def test_pipeline_tracks_a_sequence(msgs, sequence):
         )
         assert res.solved, (res.failure, res.detail)
         assert res.out_stamp_ns == f.t_ref_ns and res.frame_id == "cam" and not res.twist_now
-        assert np.degrees(np.linalg.norm(res.estimate.orientation - f.orientation)) < 0.5
+        assert np.degrees(np.linalg.norm(res.estimate.pose.orientation - f.orientation)) < 0.5
         fused += [o.stamp_ns for o in res.fused]
         if with_messages:  # the node's publishing order
             topics = [t for t, _ in frame_messages(res, "map", lambda t: t != "tf")]
@@ -413,7 +413,7 @@ def test_pipeline_uncompiled_then_compiled(msgs, sequence):
             assert res.solved, (res.failure, res.detail)
             assert not res.compiled and res.twist_now and res.fused == []
             assert res.estimate.implementation == "numpy"
-            assert np.degrees(np.linalg.norm(res.estimate.orientation - f.orientation)) < 0.5
+            assert np.degrees(np.linalg.norm(res.estimate.pose.orientation - f.orientation)) < 0.5
         assert pipe.tracking_values()["track_state"] != "tracking"
     finally:
         background._hold(False)

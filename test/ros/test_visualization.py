@@ -72,21 +72,23 @@ def test_marker_array_against_the_pose():
     fr = m["frustum"]
     assert fr.type == Marker.LINE_LIST and len(fr.points) == 16 and fr.scale.x > 0
     P = np.array([[p.x, p.y, p.z] for p in fr.points])
-    np.testing.assert_allclose(P[0:8:2], np.tile(est.position, (4, 1)), atol=1e-12)
+    np.testing.assert_allclose(P[0:8:2], np.tile(est.pose.position, (4, 1)), atol=1e-12)
     # far corners: K^-1 of the pixel corners at 0.8 m along the optical axis, into the map
     px = np.array([[-0.5, -0.5], [639.5, -0.5], [639.5, 479.5], [-0.5, 479.5]])
     rays = np.c_[px, np.ones(4)] @ np.linalg.inv(K).T * 0.8
-    np.testing.assert_allclose(P[1:8:2], rays @ est.orientation.T + est.position, atol=1e-9)
+    np.testing.assert_allclose(
+        P[1:8:2], rays @ est.pose.orientation.T + est.pose.position, atol=1e-9
+    )
     np.testing.assert_allclose(P[9::2], np.roll(P[1:8:2], -1, axis=0), atol=1e-12)
     for ns, vel in (
-        ("angular_velocity", est.angular_velocity),
-        ("linear_velocity", est.linear_velocity),
+        ("angular_velocity", est.pose.angular_velocity),
+        ("linear_velocity", est.pose.linear_velocity),
     ):
         a = m[ns]
         assert a.type == Marker.ARROW and len(a.points) == 2 and a.scale.x > 0
         s, e = (np.array([p.x, p.y, p.z]) for p in a.points)
-        np.testing.assert_allclose(s, est.position, atol=1e-12)
-        np.testing.assert_allclose(e - s, 0.5 * est.orientation @ vel, atol=1e-9)
+        np.testing.assert_allclose(s, est.pose.position, atol=1e-12)
+        np.testing.assert_allclose(e - s, 0.5 * est.pose.orientation @ vel, atol=1e-9)
     pts = m["inliers"]
     assert pts.type == Marker.POINTS and pts.scale.x > 0
     np.testing.assert_allclose([[p.x, p.y, p.z] for p in pts.points], X[est.inliers])

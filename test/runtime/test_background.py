@@ -57,7 +57,7 @@ def test_default_is_compiled_and_explicit():
         _release()
     assert default.implementation == "compiled"
     assert est.implementation == "numpy"
-    np.testing.assert_array_equal(est.R, ref.R)
+    np.testing.assert_array_equal(est.model.R, ref.model.R)
     np.testing.assert_array_equal(est.inliers, ref.inliers)
 
 

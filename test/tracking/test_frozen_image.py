@@ -36,8 +36,8 @@ def _run(video, settings=None, **fe_args):
         est = res.estimate
         if est is not None and est.success:
             err = (
-                rotation_angle_deg(est.orientation, f.orientation),
-                100 * np.linalg.norm(est.position - f.position),
+                rotation_angle_deg(est.pose.orientation, f.orientation),
+                100 * np.linalg.norm(est.pose.position - f.position),
                 int(np.count_nonzero(est.inliers)),
             )
         else:
@@ -79,7 +79,7 @@ def test_collapsed_tracks_are_matched_whole(video):
         got[ratio] = (fe.report.kind, fe.report.reason, len(uv), est)
     kind, reason, n, est = got[0.25]
     assert (kind, reason) == ("global", "few_tracks") and est.success
-    assert rotation_angle_deg(est.orientation, frames[23].orientation) < 1.0
-    assert np.linalg.norm(est.position - frames[23].position) < 0.05
+    assert rotation_angle_deg(est.pose.orientation, frames[23].orientation) < 1.0
+    assert np.linalg.norm(est.pose.position - frames[23].position) < 0.05
     kind, _, n_tracked, _ = got[0.0]
     assert kind == "tracked" and n_tracked < 0.25 * n  # (what the guard caught)

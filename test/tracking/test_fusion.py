@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
+from rs_localizer.pose import RSPose
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
 from rs_localizer.tracking.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
@@ -88,27 +89,24 @@ def test_linear_case_equals_kalman_rts_smoother(lag):
     for k in range(n):
         est = SimpleNamespace(
             success=True,
-            orientation=rotvec_to_matrix([0, 0, yaw_m[k]]),
-            position=pos_m[k],
-            angular_velocity=np.zeros(3),
-            linear_velocity=np.zeros(3),
+            pose=RSPose(rotvec_to_matrix([0, 0, yaw_m[k]]), pos_m[k], np.zeros(3), np.zeros(3)),
             covariance=cov,
             twist_covariance=None,
         )  # pose-only measurement
         final += filt.update(int(round(t[k] * NS)), est).final
     final += filt.flush()
-    assert [f.stamp_ns for f in final] == [int(round(x * NS)) for x in t]
+    assert [f.pose.stamp_ns for f in final] == [int(round(x * NS)) for x in t]
     p0 = (None, opts.initial_velocity**2, opts.angular_acceleration_std**2)
     ref_yaw = _linear_smoother(yaw_m, sr**2, dt, opts.angular_noise**2, p0, lag)
     p0l = (None, opts.initial_velocity**2, opts.linear_acceleration_std**2)
     for k, f in enumerate(final[: n - lag]):  # frames the smoother finished
-        assert matrix_to_rotvec(f.orientation)[2] == pytest.approx(ref_yaw[k, 0], abs=1e-9)
-        assert f.angular_velocity[2] == pytest.approx(ref_yaw[k, 1], abs=1e-7)
+        assert matrix_to_rotvec(f.pose.orientation)[2] == pytest.approx(ref_yaw[k, 0], abs=1e-9)
+        assert f.pose.angular_velocity[2] == pytest.approx(ref_yaw[k, 1], abs=1e-7)
         assert f.angular_acceleration[2] == pytest.approx(ref_yaw[k, 2], abs=1e-5)
         for a in range(3):
             ref = _linear_smoother(pos_m[:, a], sp**2, dt, opts.linear_noise**2, p0l, lag)
-            assert f.position[a] == pytest.approx(ref[k, 0], abs=1e-9)
-            assert f.linear_velocity_world[a] == pytest.approx(ref[k, 1], abs=1e-7)
+            assert f.pose.position[a] == pytest.approx(ref[k, 0], abs=1e-9)
+            assert f.pose.linear_velocity_world[a] == pytest.approx(ref[k, 1], abs=1e-7)
 
 
 def test_options_are_validated():
@@ -149,20 +147,23 @@ def _errors(frames, single, final):
     out = {}
     for key in ("angular_velocity", "linear_velocity"):
         out["single_" + key] = np.median(
-            [np.linalg.norm(getattr(e, key) - getattr(by[s], key)) for s, e in single.items()]
+            [np.linalg.norm(getattr(e.pose, key) - getattr(by[s], key)) for s, e in single.items()]
         )
         out["fused_" + key] = np.median(
-            [np.linalg.norm(getattr(x, key) - getattr(by[x.stamp_ns], key)) for x in final]
+            [
+                np.linalg.norm(getattr(x.pose, key) - getattr(by[x.pose.stamp_ns], key))
+                for x in final
+            ]
         )
     nees = []
     for x in final:
-        f = by[x.stamp_ns]
+        f = by[x.pose.stamp_ns]
         e = np.concatenate(
             [
-                matrix_to_rotvec(x.orientation @ f.orientation.T),
-                x.position - f.position,
-                x.angular_velocity - f.angular_velocity,
-                x.linear_velocity - f.linear_velocity,
+                matrix_to_rotvec(x.pose.orientation @ f.orientation.T),
+                x.pose.position - f.position,
+                x.pose.angular_velocity - f.angular_velocity,
+                x.pose.linear_velocity - f.linear_velocity,
             ]
         )
         nees.append(e @ np.linalg.solve(x.covariance, e))
@@ -206,10 +207,7 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
     def est(p, v=(0.0, 0.0, 0.0)):
         return SimpleNamespace(
             success=True,
-            orientation=np.eye(3),
-            position=np.asarray(p),
-            angular_velocity=np.zeros(3),
-            linear_velocity=np.asarray(v),
+            pose=RSPose(np.eye(3), np.asarray(p), np.zeros(3), np.asarray(v)),
             covariance=cov,
             twist_covariance=np.eye(6),
         )
@@ -219,22 +217,22 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
         step = filt.update(k * NS // 30, est([0.01 * k, 0, 0], [0.3, 0, 0]))
         assert step.current.fused and (k == 0) == step.current.restarted
         out += step.final
-    assert [f.stamp_ns for f in out] == [0, NS // 30]  # lag 2: frames 0, 1 final
+    assert [f.pose.stamp_ns for f in out] == [0, NS // 30]  # lag 2: frames 0, 1 final
     # 5 m away: gated twice, restarts on the third (max_rejections = 2)
     steps = [filt.update(k * NS // 30, est([5.0, 0, 0])) for k in (4, 5, 6)]
     assert [s.current.fused for s in steps] == [False, False, True]
     assert steps[2].current.restarted and not steps[1].current.restarted
-    assert np.allclose(steps[2].current.position, [5, 0, 0])
+    assert np.allclose(steps[2].current.pose.position, [5, 0, 0])
     # the restart returned the frames still pending (2, 3, 4, 5), all once
-    stamps = [f.stamp_ns for s in steps for f in s.final]
+    stamps = [f.pose.stamp_ns for s in steps for f in s.final]
     assert stamps == [k * NS // 30 for k in (2, 3, 4, 5)]
     # relocalized: restart at once; a failed estimate is not fused; a stamp going back resets
     s = filt.update(7 * NS // 30, est([9.0, 0, 0]), relocalized=True)
     assert s.current.restarted
     assert filt.update(8 * NS // 30, SimpleNamespace(success=False)).current.fused is False
     s = filt.update(NS // 30, est([0, 0, 0]))
-    assert s.current.restarted and s.current.stamp_ns == NS // 30
-    assert [f.stamp_ns for f in s.final] == [7 * NS // 30, 8 * NS // 30]
+    assert s.current.restarted and s.current.pose.stamp_ns == NS // 30
+    assert [f.pose.stamp_ns for f in s.final] == [7 * NS // 30, 8 * NS // 30]
 
 
 def test_prior_information_is_taken_out():
@@ -262,10 +260,7 @@ def test_prior_information_is_taken_out():
     G_d = rng.normal(size=(12, 6)) * 1e-3
     est = SimpleNamespace(
         success=True,
-        orientation=rotvec_to_matrix(z_post[:3]) @ O_d,
-        position=z_post[3:6],
-        angular_velocity=z_post[6:9],
-        linear_velocity=z_post[9:12],
+        pose=RSPose(rotvec_to_matrix(z_post[:3]) @ O_d, z_post[3:6], z_post[6:9], z_post[9:12]),
         covariance=0.5 * (R_post + R_post.T),
         twist_covariance=np.eye(6),
         acceleration_sensitivity=(np.eye(12) - K @ H) @ G_d,
@@ -497,10 +492,7 @@ def test_fused_states_are_fused_state_dataclasses():
     filt = TwistFilter(FusionOptions(lag=1))
     est = SimpleNamespace(
         success=True,
-        orientation=np.eye(3),
-        position=np.zeros(3),
-        angular_velocity=np.zeros(3),
-        linear_velocity=np.ones(3),
+        pose=RSPose(np.eye(3), np.zeros(3), np.zeros(3), np.ones(3)),
         covariance=np.eye(12) * 1e-4,
         twist_covariance=np.eye(6),
     )

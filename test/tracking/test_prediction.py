@@ -95,7 +95,12 @@ def test_without_tracking_the_last_solved_frame_is_carried(video):
         else:
             est, ref = last
             dT = (f.t_ref_ns - ref) * 1e-9 / cam.seconds_per_unit_r
-            want = (rotvec_to_matrix(dT * est.w) @ est.R, est.C + dT * est.t, est.w, est.t)
+            want = (
+                rotvec_to_matrix(dT * est.model.w) @ est.model.R,
+                est.model.C + dT * est.model.t,
+                est.model.w,
+                est.model.t,
+            )
             for a, b in zip(pred, want, strict=True):
                 np.testing.assert_array_equal(a, b)
             assert _true_px_error(cam, pred, f) < 10.0

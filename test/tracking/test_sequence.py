@@ -13,7 +13,7 @@ from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, Rans
 from rs_localizer.estimation.result import physical_velocities
 from rs_localizer.frames import Extrinsic, camera_to_base
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.pose import RSModel, RSPose
+from rs_localizer.pose import PoseWithCovariance, RSModel, RSPose
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
 from rs_localizer.tracking.sequence import (
     GyroSettings,
@@ -46,19 +46,21 @@ def test_sequence_tracks_a_video_as_the_tracker_does(video):
         direct += r.final
         e = out.estimate
         assert e.success and not out.twist_now
-        assert rotation_angle_deg(e.orientation, f.orientation) < 0.2
-        assert np.linalg.norm(e.position - f.position) < 0.05
-        np.testing.assert_array_equal(e.orientation, r.estimate.orientation)
+        assert rotation_angle_deg(e.pose.orientation, f.orientation) < 0.2
+        assert np.linalg.norm(e.pose.position - f.position) < 0.05
+        np.testing.assert_array_equal(e.pose.orientation, r.estimate.pose.orientation)
         fused += out.fused
     fused += seq.flush()
     direct += tracker.flush()
     # every frame's fused twist comes out once, in order, with the frame's own pose and tag
-    assert [x.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
+    assert [x.pose.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
     assert [x.tag for x in fused] == [f.index for f in frames]
     truth = {f.t_ref_ns: f for f in frames}
     for x, d in zip(fused, direct, strict=True):
-        np.testing.assert_array_equal(x.angular_velocity, d.angular_velocity)
-        assert np.linalg.norm(x.angular_velocity - truth[x.stamp_ns].angular_velocity) < 0.3
+        np.testing.assert_array_equal(x.pose.angular_velocity, d.pose.angular_velocity)
+        assert (
+            np.linalg.norm(x.pose.angular_velocity - truth[x.pose.stamp_ns].angular_velocity) < 0.3
+        )
     assert seq.tracking_values()["frames_tracked"] == len(frames) - 1
     assert seq.pending == 0
 
@@ -140,13 +142,14 @@ def test_estimate_pose_and_model_views(video):
     p = RSPose.from_model(e.model, cam.seconds_per_unit_r)
     np.testing.assert_allclose(p.orientation, e.pose.orientation, atol=1e-12)
     np.testing.assert_allclose(p.position, e.pose.position, atol=1e-9)
-    np.testing.assert_allclose(p.angular_velocity, e.angular_velocity, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(p.linear_velocity, e.linear_velocity, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(p.angular_velocity, e.pose.angular_velocity, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(p.linear_velocity, e.pose.linear_velocity, rtol=1e-9, atol=1e-12)
 
 
 def test_estimates_and_states_store_their_pose_and_model(video):
     """The estimate, the fused states and frames, a base state and an initial model hold an
-    RSPose / RSModel; their old attribute names are views of it."""
+    RSPose / RSModel; the estimate, the fused frame and the base state are a
+    PoseWithCovariance (the type the message conversions take)."""
     frames, cam = video
     s = cam.seconds_per_unit_r
     seq = SequenceLocalizer(SequenceSettings(options=OPTS))
@@ -155,31 +158,34 @@ def test_estimates_and_states_store_their_pose_and_model(video):
         out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
         estimates[out.stamp_ns] = e = out.estimate
         assert isinstance(e.pose, RSPose) and isinstance(e.model, RSModel)
-        assert e.orientation is e.pose.orientation and e.position is e.pose.position
-        assert e.R is e.model.R and e.t is e.model.t and e.pose.stamp_ns is None
-        np.testing.assert_allclose(e.linear_velocity_world, e.orientation @ e.linear_velocity)
+        assert isinstance(e, PoseWithCovariance) and e.pose.stamp_ns is None
+        np.testing.assert_array_equal(e.pose.orientation, e.model.R.T)
+        np.testing.assert_allclose(
+            e.pose.linear_velocity_world, e.pose.orientation @ e.pose.linear_velocity
+        )
         fused += out.fused
     fused += seq.flush()
     assert len(fused) == 4
     ext = Extrinsic(np.eye(3), np.array([0.1, 0.0, 0.2]))
     for x in fused:
-        e, st = estimates[x.stamp_ns], x.state
+        e, st = estimates[x.pose.stamp_ns], x.state
         # the frame's own pose as estimated, with the fused twist, at the frame's time
-        assert x.pose.stamp_ns == st.pose.stamp_ns == st.stamp_ns == x.stamp_ns
-        assert x.orientation is e.pose.orientation and x.position is e.pose.position
-        assert x.angular_velocity is st.pose.angular_velocity
-        assert x.linear_velocity is st.linear_velocity
+        assert isinstance(x, PoseWithCovariance) and x.pose.stamp_ns == st.pose.stamp_ns
+        assert x.pose.orientation is e.pose.orientation and x.pose.position is e.pose.position
+        assert x.pose.angular_velocity is st.pose.angular_velocity
+        assert x.pose.linear_velocity is st.pose.linear_velocity
         base = camera_to_base(x, ext)
-        assert base.pose.stamp_ns == x.stamp_ns and base.orientation is base.pose.orientation
+        assert isinstance(base, PoseWithCovariance) and base.pose.stamp_ns == x.pose.stamp_ns
         # the tracker's prediction model is the state's pose as a model, and back
         model = model_from_state(st, cam)
         for a, b in zip(model, st.pose.model(s), strict=True):
             np.testing.assert_array_equal(a, b)
         back = RSPose.from_model(model, s)
-        np.testing.assert_allclose(back.position, st.position, atol=1e-12)
-        np.testing.assert_allclose(back.linear_velocity, st.linear_velocity, atol=1e-9)
-    init = InitialModel(tuple(estimates[fused[0].stamp_ns].model), gate_px=5.0)
-    assert isinstance(init.model, RSModel) and init.C is init.model.C
+        np.testing.assert_allclose(back.position, st.pose.position, atol=1e-12)
+        np.testing.assert_allclose(back.linear_velocity, st.pose.linear_velocity, atol=1e-9)
+    init = InitialModel(tuple(estimates[fused[0].pose.stamp_ns].model), gate_px=5.0)
+    assert isinstance(init.model, RSModel)
+    np.testing.assert_array_equal(init.model.C, estimates[fused[0].pose.stamp_ns].model.C)
     gs = fused[0].pose.model(0.0)  # a global shutter: exact zeros, no -0.0
     assert not np.signbit(gs.w).any() and not gs.w.any() and not gs.t.any()
 
@@ -239,7 +245,7 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
         fused += out.fused
     fused += seq.flush()
     truth = {f.t_ref_ns: f.angular_velocity for f in frames}
-    assert [x.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
+    assert [x.pose.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
 
     def err(w, stamp):
         return float(np.linalg.norm(np.asarray(w) - truth[stamp]))
@@ -248,18 +254,18 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
     assert len(refused) >= 1
     assert seq.tracking_values()["twists_own_frame"] == len(refused)
     for x in fused:
-        e = own[x.stamp_ns]
+        e = own[x.pose.stamp_ns]
         assert x.own_twist == (not x.state.fused)
         if x.own_twist:
-            np.testing.assert_array_equal(x.angular_velocity, e.angular_velocity)
-            np.testing.assert_array_equal(x.linear_velocity, e.linear_velocity)
+            np.testing.assert_array_equal(x.pose.angular_velocity, e.pose.angular_velocity)
+            np.testing.assert_array_equal(x.pose.linear_velocity, e.pose.linear_velocity)
             np.testing.assert_array_equal(x.twist_covariance, e.twist_covariance)
         else:
-            np.testing.assert_array_equal(x.angular_velocity, x.state.angular_velocity)
+            np.testing.assert_array_equal(x.pose.angular_velocity, x.state.pose.angular_velocity)
     # the refused frames are where the prediction went wrong: publishing it would be far off
-    assert max(err(x.state.angular_velocity, x.stamp_ns) for x in refused) > 0.5
-    worst_own = max(err(e.angular_velocity, s) for s, e in own.items())
-    assert max(err(x.angular_velocity, x.stamp_ns) for x in fused) <= worst_own
+    assert max(err(x.state.pose.angular_velocity, x.pose.stamp_ns) for x in refused) > 0.5
+    worst_own = max(err(e.pose.angular_velocity, s) for s, e in own.items())
+    assert max(err(x.pose.angular_velocity, x.pose.stamp_ns) for x in fused) <= worst_own
 
 
 def test_stamps_beyond_int64_and_a_missing_camera_are_refused(video):
@@ -331,9 +337,9 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
             out = seq.process_image(f.stamp_ns, image, cam, "mono8")
             want = ref.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
             assert out.failure is None and len(out.correspondences) == len(f.uv)
-            np.testing.assert_array_equal(out.estimate.orientation, want.orientation)
-            np.testing.assert_array_equal(out.estimate.position, want.position)
-            assert rotation_angle_deg(out.estimate.orientation, f.orientation) < 0.2
+            np.testing.assert_array_equal(out.estimate.pose.orientation, want.pose.orientation)
+            np.testing.assert_array_equal(out.estimate.pose.position, want.pose.position)
+            assert rotation_angle_deg(out.estimate.pose.orientation, f.orientation) < 0.2
     assert [s[0] for s in Video.seen] == [f.stamp_ns for f in frames[:4]]
     assert all(ok for _, _, ok in Video.seen) and warnings == [("frontend.warning", "once")]
     fe = Video()

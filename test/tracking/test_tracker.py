@@ -40,9 +40,9 @@ def test_initial_model_hook(hard_sequence):
     assert cold.success and cold.initial_explained == -1 and not cold.initial_used
     # a model near the truth explains the frame: RANSAC verifies it with few samples drawn
     # from its inliers, pre-rotated by its rotation (no P3P) and lands on the cold pose
-    R, C = cold.R, cold.C
+    R, C = cold.model.R, cold.model.C
     near = InitialModel(
-        RSModel(rotvec_to_matrix([0.002, -0.001, 0.001]) @ R, C + 0.01, cold.w, cold.t),
+        RSModel(rotvec_to_matrix([0.002, -0.001, 0.001]) @ R, C + 0.01, cold.model.w, cold.model.t),
         gate_px=20.0,
         min_explained=200,
     )
@@ -55,8 +55,8 @@ def test_initial_model_hook(hard_sequence):
     )
     assert warm.success and warm.initial_used and warm.initial_explained >= 300
     assert warm.ransac_iterations < 0.25 * cold.ransac_iterations
-    assert rotation_angle_deg(warm.orientation, cold.orientation) < 0.01
-    assert np.linalg.norm(warm.position - cold.position) < 2e-3
+    assert rotation_angle_deg(warm.pose.orientation, cold.pose.orientation) < 0.01
+    assert np.linalg.norm(warm.pose.position - cold.pose.position) < 2e-3
     assert np.count_nonzero(warm.inliers != cold.inliers) <= 15  # of ~300, near the threshold
     # a wrong model explains nothing: the estimator runs exactly as without it
     far = InitialModel(
@@ -66,7 +66,7 @@ def test_initial_model_hook(hard_sequence):
     )
     other = estimate_rs_pose(f.uv, f.xyz, cam, options=opts, initial_model=far)
     assert not other.initial_used and other.initial_explained < 10
-    np.testing.assert_array_equal(other.R, cold.R)
+    np.testing.assert_array_equal(other.model.R, cold.model.R)
     np.testing.assert_array_equal(other.inliers, cold.inliers)
     assert other.ransac_iterations == cold.ransac_iterations
 
@@ -83,10 +83,10 @@ def test_tracked_frames_match_cold_accuracy(hard_sequence):
             f.uv, f.xyz, cam, options=EstimateOptions(ransac=RansacOptions(seed=0))
         )
         if r.state == "tracked":
-            rot_t.append(rotation_angle_deg(r.estimate.orientation, f.orientation))
-            pos_t.append(np.linalg.norm(r.estimate.position - f.position))
-            rot_c.append(rotation_angle_deg(cold.orientation, f.orientation))
-            pos_c.append(np.linalg.norm(cold.position - f.position))
+            rot_t.append(rotation_angle_deg(r.estimate.pose.orientation, f.orientation))
+            pos_t.append(np.linalg.norm(r.estimate.pose.position - f.position))
+            rot_c.append(rotation_angle_deg(cold.pose.orientation, f.orientation))
+            pos_c.append(np.linalg.norm(cold.pose.position - f.position))
             iters_t.append(r.estimate.ransac_iterations)
             iters_c.append(cold.ransac_iterations)
             assert r.explained > 250 and r.predicted is not None
@@ -120,10 +120,10 @@ def test_teleport_jump_back_drops_and_bad_frames():
     def feed(k, uv=None):
         f = by_index[k]
         r = tr.process(f.t_ref_ns, f.uv if uv is None else uv, f.xyz, cam)
-        seen_final.extend(x.stamp_ns for x in r.final)
+        seen_final.extend(x.pose.stamp_ns for x in r.final)
         if r.estimate.success:
-            assert rotation_angle_deg(r.estimate.orientation, f.orientation) < 0.1
-            assert np.linalg.norm(r.estimate.position - f.position) < 0.02
+            assert rotation_angle_deg(r.estimate.pose.orientation, f.orientation) < 0.1
+            assert np.linalg.norm(r.estimate.pose.position - f.position) < 0.02
         return r
 
     assert [feed(k).state for k in range(5)] == ["cold"] + ["tracked"] * 4
@@ -145,7 +145,7 @@ def test_teleport_jump_back_drops_and_bad_frames():
     assert tr.resets == 1 and tr.relocalizations == 1 and tr.failures == 1
     assert tr.frames == 15 and tr.frames_tracked == 11
     # every frame that was solved (14 calls) gets exactly one final fused state
-    seen_final.extend(x.stamp_ns for x in tr.flush())
+    seen_final.extend(x.pose.stamp_ns for x in tr.flush())
     assert len(seen_final) == 14
     # a long gap resets
     f = by_index[15]
@@ -163,13 +163,13 @@ def test_state_model_roundtrip_and_prior(hard_sequence):
     e = r.estimate
     R, C, w, t = model_from_state(r.fused, cam)
     # the filter starts at the measurement: its model is the estimate's
-    np.testing.assert_allclose(R, e.R, atol=1e-12)
-    np.testing.assert_allclose(C, e.C, atol=1e-9)
-    np.testing.assert_allclose(w, e.w, atol=1e-12)
-    np.testing.assert_allclose(t, e.t, atol=1e-9)
+    np.testing.assert_allclose(R, e.model.R, atol=1e-12)
+    np.testing.assert_allclose(C, e.model.C, atol=1e-9)
+    np.testing.assert_allclose(w, e.model.w, atol=1e-12)
+    np.testing.assert_allclose(t, e.model.t, atol=1e-9)
     prior = motion_prior_from_state(r.fused, inflation=2.0)
     np.testing.assert_allclose(
-        prior.mean_vector(), np.concatenate([e.linear_velocity, e.angular_velocity])
+        prior.mean_vector(), np.concatenate([e.pose.linear_velocity, e.pose.angular_velocity])
     )
     np.testing.assert_allclose(prior.covariance, 2.0 * r.fused.twist_covariance, rtol=1e-12)
     assert prior.always and np.all(np.linalg.eigvalsh(prior.covariance) > 0)

@@ -95,7 +95,7 @@ def test_debug_image_points_residuals_and_text():
     # changes no pixel (a different string would)
     from rs_localizer.viz.debug_image import _text_lines
 
-    w, v = np.linalg.norm(est.angular_velocity), np.linalg.norm(est.linear_velocity)
+    w, v = np.linalg.norm(est.pose.angular_velocity), np.linalg.norm(est.pose.linear_velocity)
     assert 1.0 < w < 5.0 and 0.05 < v < 5.0
     expected = [
         f"r6p_1lin  inliers 31/35  RMSE 0.42 px  |omega| {w:.3f} rad/s  |v| {v:.3f} m/s",
@@ -134,7 +134,7 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
     w = np.array([0.0, 0.1, 0.0])  # ~3.2 rad/s pan (per unit r: 31 ms)
     uv, X, est, _ = known_frame(cam, w=w, t=(0, 0, 0))
-    center = est.position + 4.0 * est.orientation[:, 2]
+    center = est.pose.position + 4.0 * est.pose.orientation[:, 2]
     side = 1.6
     img = draw_debug_image(
         cam,
@@ -146,9 +146,11 @@ def test_debug_image_cube_rs_next_to_global_shutter():
     from rs_localizer.viz.debug_image import cube_edge_points
 
     P = cube_edge_points(center, side, 60).reshape(-1, 3)  # dense points along the 12 edges
-    x, _ = rs_project_exact(P, est.R, est.C, est.w, est.t, r0=cam.r0, readout=cam.readout_vector)
+    x, _ = rs_project_exact(
+        P, est.model.R, est.model.C, est.model.w, est.model.t, r0=cam.r0, readout=cam.readout_vector
+    )
     rs = x @ K[:2, :2].T + K[:2, 2]
-    gs, _ = cv2.projectPoints(P, cv2.Rodrigues(est.R)[0], est.C, K, None)
+    gs, _ = cv2.projectPoints(P, cv2.Rodrigues(est.model.R)[0], est.model.C, K, None)
     gs = gs.reshape(-1, 2)
     for p in rs:
         assert _near(img, p, COLORS["cube_rs"]), p
@@ -222,9 +224,13 @@ def test_frustum_corners_against_the_pose():
 def test_velocity_arrows_in_the_map():
     cam = CameraModel(K, [], 640, 480, line_delay=60e-6)
     _, _, est, _ = known_frame(cam)
-    a = velocity_arrows(est, scale=2.0)
+    a = velocity_arrows(est.pose, scale=2.0)
     s, e = a["angular_velocity"]
-    np.testing.assert_allclose(s, est.position)
-    np.testing.assert_allclose(e - s, 2.0 * est.orientation @ est.angular_velocity, atol=1e-12)
+    np.testing.assert_allclose(s, est.pose.position)
+    np.testing.assert_allclose(
+        e - s, 2.0 * est.pose.orientation @ est.pose.angular_velocity, atol=1e-12
+    )
     s, e = a["linear_velocity"]
-    np.testing.assert_allclose(e - s, 2.0 * est.orientation @ est.linear_velocity, atol=1e-12)
+    np.testing.assert_allclose(
+        e - s, 2.0 * est.pose.orientation @ est.pose.linear_velocity, atol=1e-12
+    )

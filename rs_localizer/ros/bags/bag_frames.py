@@ -1,6 +1,6 @@
 """Frames of a bag as 2D-3D correspondences (offline, rosbags; no middleware), and its gyro.
 
-:func:`read_bag_frames` turns every frame of a bag into ``(stamp_ns, points2d_px, points3d,
+:func:`read_bag_frames` turns every frame of a bag into ``(stamp_ns, points2d, points3d,
 scores)``: from a correspondence cloud, from keypoints with the bag's landmark map, or from
 images through an image front end (ArUco or feature map). :func:`read_gyro` reads the angular
 velocity of ``sensor_msgs/Imu`` messages. Used by ``rs-localizer calibrate-readout``.
@@ -27,7 +27,7 @@ SOURCES = ("correspondences", "keypoints", "image")
 class BagFrames:
     """Frames of a bag. ``camera``: from the first ``camera_info`` (line delay 0, the bag's
     readout direction, reference line at the image centre); ``frames``: list of ``(stamp_ns,
-    points2d_px (N, 2), points3d (N, 3), scores (N,) or None)``; ``skipped``: reason ->
+    points2d (N, 2), points3d (N, 3), scores (N,) or None)``; ``skipped``: reason ->
     count of frames without usable correspondences; ``stamp_row``: the line whose capture time
     the stamps are (from ``sequence.json``, default 0)."""
 

@@ -490,7 +490,7 @@ class _Rows:
         self.rows.append(row)
         if not res.solved:
             return
-        out = res.output
+        out = res.output.pose
         q = cv.quaternion_from_matrix(out.orientation)
         row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
         row.update(_xyz("p", out.position))
@@ -502,7 +502,7 @@ class _Rows:
 
     def fused(self, fused: Iterable[FusedOutput]) -> None:
         for f in fused:
-            self._twist(f.stamp_ns, f.source.angular_velocity, f.source.linear_velocity)
+            self._twist(f.stamp_ns, f.source.pose.angular_velocity, f.source.pose.linear_velocity)
 
     def _twist(self, stamp: int, w, v) -> None:
         item = self.waiting.pop(stamp, None)

@@ -337,7 +337,7 @@ def replay_rig(
     gt = load_ground_truth(bag)
     for o in res.outputs:
         if o.success:
-            q = o.pose
+            q = o.measurement.pose
             e = frame_errors(q.orientation, q.position, q.angular_velocity,
                              q.linear_velocity, gt, o.stamp_ns)  # fmt: skip
             if e is not None:
