@@ -858,7 +858,7 @@ class RigLocalizer:
         if f is not None:
             if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
                 return None
-            pred = f.predict(ref)
+            pred = f.predict(ref).pose
             rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
                             pred.linear_velocity)  # fmt: skip
             return camera_model_of_rig(rig, cam.mount.R, cam.mount.c, 0.0, spr)

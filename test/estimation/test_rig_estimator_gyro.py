@@ -47,9 +47,11 @@ def test_a_right_gyro_improves_the_angular_velocity_and_keeps_the_pose():
         assert not base.gyro_used and not base.gyro_rejected
         assert np.isfinite(est.gyro_chi2) and est.gyro_chi2 < 16.27
         plain.append(
-            (_omega_error(base, truth), rotation_angle_deg(base.R, truth.R), base.position)
+            (_omega_error(base, truth), rotation_angle_deg(base.R, truth.R), base.pose.position)
         )
-        aided.append((_omega_error(est, truth), rotation_angle_deg(est.R, truth.R), est.position))
+        aided.append(
+            (_omega_error(est, truth), rotation_angle_deg(est.R, truth.R), est.pose.position)
+        )
         S = est.twist_covariance[3:, 3:]
         assert np.trace(S) < 3 * SIGMA**2
         d = est.pose.angular_velocity + truth.w
