@@ -1,6 +1,6 @@
 """Marker maps, stage (1): the detections read, the gauge marker chosen, and the incremental
 initialization in capture order (frame poses by PnP, marker poses by the better of their two
-planar IPPE solutions, refined from both tilts), moved onto the anchor; a video the map cannot
+planar IPPE solutions, refined from both tilts), moved onto the gauge marker; a video the map cannot
 place is refused (model: :mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ class MarkerInit:
     refined over all its views so far (:func:`robust_gauss_newton`) from its current tilt and from
     that tilt mirrored, the better fit kept: a single view fixes a small marker's centre well
     but its tilt poorly, and may pick the wrong one of the two. The whole is moved onto the
-    anchor afterwards (:func:`regauge`).
+    gauge marker (``anchor``) afterwards (:func:`regauge`).
     """
 
     def __init__(
@@ -497,11 +497,16 @@ def read_detections(frames: Sequence[FrameDetections], camera: CameraModel) -> t
 
 
 def choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
-    """The marker held fixed in the adjustment (the internal gauge) and the surveyed anchors.
+    """The marker held fixed in the adjustment (the internal gauge) and the markers that fix
+    the output frame.
 
-    ``options.anchor`` given: that marker. ``options.anchors`` given: the most detected of
-    them. Neither: the most detected marker (its pose is fixed by the most views). Raises
-    ValueError naming an anchor that no frame detects."""
+    The gauge is ``options.anchor`` when given, else the most detected of the surveyed
+    markers ``options.anchors``, else the most detected marker (its pose is fixed by the most
+    views); it is held at the identity. The anchor's pose and the surveyed markers' positions
+    only move the adjusted map afterwards, so they change no estimate but the map's frame: the
+    same video with and without ``anchor_pose`` gives the same line delay and frame
+    velocities. Returns ``(gauge, wanted)``: ``wanted`` the ids of ``options.anchor`` and
+    ``options.anchors``. Raises ValueError naming an anchor that no frame detects."""
     ids = {m for d in obs_px.values() for m in d}
     count = {m: sum(m in d for d in obs_px.values()) for m in ids}
     wanted = [int(options.anchor)] if options.anchor is not None else []

@@ -20,9 +20,16 @@ import time
 
 
 class FoxgloveClient:
-    """Connect to ``ws://host:port`` (raises OSError when nothing listens)."""
+    """Connect to ``ws://host:port`` offering the WebSocket subprotocols ``protocols`` (the
+    one the server agreed to: :attr:`protocol`); raises OSError when nothing listens."""
 
-    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 5.0):
+    def __init__(
+        self,
+        port: int,
+        host: str = "127.0.0.1",
+        timeout: float = 5.0,
+        protocols: tuple[str, ...] = ("foxglove.sdk.v1", "foxglove.websocket.v1"),
+    ):
         self.sock = socket.create_connection((host, port), timeout=timeout)
         key = base64.b64encode(os.urandom(16)).decode()
         self.sock.sendall(
@@ -30,7 +37,7 @@ class FoxgloveClient:
                 f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\n"
                 f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
                 "Sec-WebSocket-Version: 13\r\n"
-                "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
+                f"Sec-WebSocket-Protocol: {', '.join(protocols)}\r\n\r\n"
             ).encode()
         )
         head = b""
@@ -159,3 +166,25 @@ class FoxgloveClient:
         with contextlib.suppress(OSError):
             self._send(0x8, struct.pack(">H", 1000))
         self.sock.close()
+
+
+def layout_topics(layout: dict) -> dict[str, list[str]]:
+    """topic -> the message paths a Foxglove layout (``foxglove/rs_localizer.json`` parsed)
+    reads from it ('' = the whole message); AssertionError on a panel kind not known here."""
+    out: dict[str, list[str]] = {}
+    for pid, cfg in layout["configById"].items():
+        kind = pid.split("!")[0]
+        if kind == "3D":
+            for t in cfg["topics"]:
+                out.setdefault(t, []).append("")
+        elif kind == "Image":
+            out.setdefault(cfg["imageMode"]["imageTopic"], []).append("")
+        elif kind == "Plot":
+            for p in cfg["paths"]:
+                topic, _, field = p["value"].partition(".")
+                out.setdefault(topic, []).append(field)
+        elif kind in ("DiagnosticSummary", "DiagnosticStatusPanel"):
+            out.setdefault(cfg["topicToRender"], []).append("")
+        else:
+            raise AssertionError(f"a panel this test does not check: {pid}")
+    return out

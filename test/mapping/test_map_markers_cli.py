@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from rs_localizer.cli import main
 from rs_localizer.frontends.aruco import ArucoFrontend
+from rs_localizer.mapping.marker_model import fit_rigid
 from rs_localizer.maps import load_marker_map
 from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import Renderer, camera_preset, frame_times
@@ -265,6 +266,7 @@ def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, ca
         ("walls", ["--frame", "walls"]),
         ("floor", ["--frame", "floor"]),
         ("anchor", ["--anchor", "0", "--anchor-pose", *pose]),
+        ("anchor_own", ["--anchor", "0"]),
     ):
         out = tmp_path / f"{name}.yaml"
         assert main(["map-markers", str(bag), "-o", str(out), *common, "--quiet", *extra]) == 0
@@ -275,17 +277,31 @@ def test_gravity_frame_and_readout_from_a_bag_with_an_imu(rendered, tmp_path, ca
         values[name] = (r["line_delay_s"], r["line_delay_std_s"])
         frame = yaml.safe_load(out.read_text())["frame"]
         _, corners = load_marker_map(out)
-        if name == "anchor":
+        if name.startswith("anchor"):
             assert frame["kind"] == "anchor"
             continue
         assert frame["kind"] == "gravity" and frame["up_source"] == name
         # (the accelerometer: 12 frames of a pan, the map's own rotation error included)
         assert _z_error_deg(corners, true) < (1.2 if name == "imu" else 1.0)
-    # the output frame does not change the calibrated line delay
+    # the output frame does not change the calibrated line delay nor its std (the same
+    # adjustment, the frame applied after it), and moves the map rigidly
+    # (the same tag held fixed: the gravity frames, from whichever source, alike; tag 0 with
+    # and without its surveyed pose alike; tag 0 held instead moves the value by a small
+    # fraction of its std: the corner model's second-order dependence on the origin)
     ld = np.array(list(values.values()))
-    # (the same adjustment up to its gauge marker and start: within the solver's tolerance)
-    assert np.abs(ld[:, 0] - ld[0, 0]).max() < 0.3 * ld[0, 1]
-    assert np.allclose(ld[:, 1], ld[0, 1], rtol=0.05)
+    np.testing.assert_allclose(ld[:3], ld[:1].repeat(3, 0), rtol=1e-9, atol=0)
+    np.testing.assert_allclose(values["anchor"], values["anchor_own"], rtol=1e-9, atol=0)
+    assert abs(values["anchor"][0] - ld[0, 0]) < 0.3 * ld[0, 1]
+    for name in values:  # (each map against the one of the same tag held fixed)
+        _, first = load_marker_map(tmp_path / f"{'anchor_own' if 'anchor' in name else 'imu'}.yaml")
+        ids = sorted(first)
+        src = np.concatenate([first[m] for m in ids])
+        _, corners = load_marker_map(tmp_path / f"{name}.yaml")
+        assert sorted(corners) == ids
+        dst = np.concatenate([corners[m] for m in ids])
+        R, t = fit_rigid(src, dst)
+        # (the map file's 6-decimal corners)
+        assert np.abs(src @ R.T + t - dst).max() < 2e-6, name
     # true: 30 ms over 480 lines
     assert abs(ld[0, 0] - 0.03 / 480) < 3 * ld[0, 1]
     assert load_marker_readout(tmp_path / "no_such.yaml") == {}

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from helpers.foxglove_ws import layout_topics
 
 ROOT = Path(__file__).resolve().parents[2]
 RVIZ = ROOT / "rviz" / "rs_localizer.rviz"
@@ -32,27 +33,6 @@ def _rviz_displays() -> list[dict]:
 
 def _foxglove() -> dict:
     return json.loads(FOXGLOVE.read_text())
-
-
-def _foxglove_topics(layout: dict) -> dict[str, list[str]]:
-    """topic -> the message paths the layout reads from it ('' = the whole message)."""
-    out: dict[str, list[str]] = {}
-    for pid, cfg in layout["configById"].items():
-        kind = pid.split("!")[0]
-        if kind == "3D":
-            for t in cfg["topics"]:
-                out.setdefault(t, []).append("")
-        elif kind == "Image":
-            out.setdefault(cfg["imageMode"]["imageTopic"], []).append("")
-        elif kind == "Plot":
-            for p in cfg["paths"]:
-                topic, _, field = p["value"].partition(".")
-                out.setdefault(topic, []).append(field)
-        elif kind in ("DiagnosticSummary", "DiagnosticStatusPanel"):
-            out.setdefault(cfg["topicToRender"], []).append("")
-        else:
-            raise AssertionError(f"a panel this test does not check: {pid}")
-    return out
 
 
 def _panels(node) -> list[str]:
@@ -115,7 +95,7 @@ def test_topics_and_frames_are_the_nodes(ros_context):
     assert cfg["Global Options"]["Fixed Frame"] == map_frame
     # Foxglove: every topic is the node's, every plotted field exists in its message
     layout = _foxglove()
-    topics = _foxglove_topics(layout)
+    topics = layout_topics(layout)
     assert f"{NAMESPACE}/twist" in topics and f"{NAMESPACE}/debug_image" in topics
     for topic, fields in topics.items():
         assert topic in published, (topic, sorted(published))
@@ -146,7 +126,7 @@ def test_view_serves_every_layout_topic(ns):
 
     served = served_topics(ns)
     channels = {t.channel_topic: t for t in served}
-    assert set(_foxglove_topics(_foxglove())) <= set(channels)
+    assert set(layout_topics(_foxglove())) <= set(channels)
     assert {t.ros_topic for t in served} >= {f"{ns}/{n}" for n in ("pose", "path", "markers")}
     for t in served:
         if t.ros_topic.startswith(f"{ns}/"):
