@@ -86,26 +86,29 @@ FPS = 30.0
 SCENE = "apriltag_room"
 
 
+#: the OpenCV path the front end had before its textured-room settings (OpenCV's default
+#: thresholding, OpenCV's own one-window corner refinement, the smallest perimeter 0.02)
+BEFORE = dict(
+    cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
+    cornerRefinementWinSize=3,
+    cornerRefinementMaxIterations=50,
+    cornerRefinementMinAccuracy=0.01,
+    relativeCornerRefinmentWinSize=1.0,
+    minMarkerPerimeterRate=0.02,
+)
+
+
 def detectors(scene, decimations) -> dict:
-    """name -> detector: OpenCV with the front end's settings and with OpenCV's default
-    thresholding, the AprilTag library per decimation (an AprilTag family, when a binding is
-    installed)."""
+    """name -> detector: OpenCV with the front end's settings (``opencv``) and as the front
+    end had it before (``opencv default``: OpenCV's default thresholding and its own corner
+    refinement, :data:`BEFORE`), the AprilTag library per decimation (an AprilTag family, when
+    a binding is installed)."""
     fe = ArucoFrontend.from_scene(scene, detector_options=DetectorOptions(detector="opencv"))
-    default = cv_compat.detector_parameters(
-        **{
-            k: getattr(fe.params, k)
-            for k in (
-                "cornerRefinementMethod",
-                "cornerRefinementWinSize",
-                "cornerRefinementMaxIterations",
-                "cornerRefinementMinAccuracy",
-                "relativeCornerRefinmentWinSize",
-                "minMarkerPerimeterRate",
-            )
-            if hasattr(fe.params, k)
-        }
-    )
-    out = {"opencv": fe.detector, "opencv default": OpenCVDetector(fe.detector.name, default)}
+    default = cv_compat.detector_parameters(**BEFORE)
+    out = {
+        "opencv": fe.detector,
+        "opencv default": OpenCVDetector(fe.detector.name, default, refine="opencv"),
+    }
     if apriltag_binding() is not None and apriltag_family(scene.dictionary) is not None:
         for d in decimations:
             out["apriltag auto" if d == 0 else f"apriltag d{d:g}"] = make_marker_detector(
@@ -181,10 +184,10 @@ def run_video(
             est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 12 else None
             ok = est is not None and est.success
             res[name]["rot"].append(
-                rotation_angle_deg(est.orientation, f.orientation) if ok else np.nan
+                rotation_angle_deg(est.pose.orientation, f.orientation) if ok else np.nan
             )
             res[name]["pos"].append(
-                float(np.linalg.norm(est.position - f.position)) if ok else np.nan
+                float(np.linalg.norm(est.pose.position - f.position)) if ok else np.nan
             )
     return {n: {k: np.asarray(v, float) for k, v in o.items()} for n, o in res.items()}
 
