@@ -49,11 +49,11 @@ class ArucoFrontend(FrontendHooks):
             dictionaries: :func:`~rs_localizer.frontends.marker_detection.refine_corners`,
             window 2 px, then up to 0.8 marker cell and this).
         min_marker_perimeter: smallest marker perimeter as a fraction of the image's larger
-            side (OpenCV ``minMarkerPerimeterRate``; 0.06: 38 px at 640x480, a 4x4 marker of
-            1.6 px per cell, which OpenCV does not decode; the smallest it decodes on
-            ``python -m benchmarks.bench_markers``' textured room are 52 px around; every
-            smaller outline is a candidate that costs time on textured walls: 24 against 13 ms
-            per 640x480 frame there with 0.02).
+            side (OpenCV ``minMarkerPerimeterRate``; 0.07: 45 px at 640x480, a 4x4 marker of
+            1.9 px per cell; the smallest OpenCV decodes on ``python -m
+            benchmarks.bench_markers``' textured room are 52 px around; every smaller outline
+            is a candidate that costs time on textured walls: 13 ms per 640x480 frame there
+            with 0.07, 24 ms with 0.02, as many markers found).
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
@@ -80,7 +80,7 @@ class ArucoFrontend(FrontendHooks):
         marker_corners: dict,
         dictionary: str = "DICT_4X4_250",
         subpix_window: int = 3,
-        min_marker_perimeter: float = 0.06,
+        min_marker_perimeter: float = 0.07,
         marker_std: dict | None = None,
         windowed: bool = False,
         window_margin_px: float = 16.0,

