@@ -609,9 +609,10 @@ def targets(videos: dict, aruco: dict, false: dict, causes: dict | None = None) 
                 ratio = np.nanmedian(cv[k]) / np.nanmedian(r[k])
                 ratio_now = np.nanmedian(now[k]) / np.nanmedian(r[k])
                 out.append(
-                    f"  pose {k} vs OpenCV's defaults (default thresholding and corner refinement): "
-                    f"{ratio:.2f}x better (target >= 3x) {'met' if ratio >= 3 else 'MISSED'}; vs "
-                    f"the front end's OpenCV settings: {ratio_now:.2f}x"
+                    f"  pose {k} vs OpenCV's defaults (default thresholding and corner "
+                    f"refinement): {ratio:.2f}x better (target >= 3x) "
+                    f"{'met' if ratio >= 3 else 'MISSED'}; vs the front end's OpenCV settings: "
+                    f"{ratio_now:.2f}x"
                 )
         elif preset == "hd":
             out.append(_target("1280x720 36h11 detection median", t, 25, "ms", c))
