@@ -52,8 +52,8 @@ class ArucoFrontend(FrontendHooks):
             side (OpenCV ``minMarkerPerimeterRate``; 0.07: 45 px at 640x480, a 4x4 marker of
             1.9 px per cell; the smallest OpenCV decodes on ``python -m
             benchmarks.bench_markers``' textured room are 52 px around; every smaller outline
-            is a candidate that costs time on textured walls: 13 ms per 640x480 frame there
-            with 0.07, 24 ms with 0.02, as many markers found).
+            is a candidate that costs time on textured walls: 14 ms of CPU per 640x480 frame
+            there with 0.07, 20-24 ms with 0.02, as many markers found).
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
