@@ -45,10 +45,15 @@ class ArucoFrontend(FrontendHooks):
     Args:
         marker_corners: {marker id: (4, 3) world corners in ArUco order}.
         dictionary: cv2.aruco predefined dictionary name (e.g. ``DICT_4X4_250``).
-        subpix_window: half size (px) of the subpixel corner refinement window (at most one
-            marker cell is used).
+        subpix_window: largest half size (px) of the subpixel corner refinement window (ArUco
+            dictionaries: :func:`~rs_localizer.frontends.marker_detection.refine_corners`,
+            window 2 px, then up to 0.8 marker cell and this).
         min_marker_perimeter: smallest marker perimeter as a fraction of the image's larger
-            side (OpenCV ``minMarkerPerimeterRate``).
+            side (OpenCV ``minMarkerPerimeterRate``; 0.07: 45 px at 640x480, a 4x4 marker of
+            1.9 px per cell; the smallest OpenCV decodes on ``python -m
+            benchmarks.bench_markers``' textured room are 52 px around; every smaller outline
+            is a candidate that costs time on textured walls: 14 ms of CPU per 640x480 frame
+            there with 0.07, 20-24 ms with 0.02, as many markers found).
         marker_std: {marker id: stated position std (m)} of the map: each correspondence
             gets the score of its marker (:func:`marker_scores`, in ``last_scores``); a marker
             without one scores 1. None: no scores.
@@ -75,7 +80,7 @@ class ArucoFrontend(FrontendHooks):
         marker_corners: dict,
         dictionary: str = "DICT_4X4_250",
         subpix_window: int = 3,
-        min_marker_perimeter: float = 0.02,
+        min_marker_perimeter: float = 0.07,
         marker_std: dict | None = None,
         windowed: bool = False,
         window_margin_px: float = 16.0,
@@ -86,9 +91,9 @@ class ArucoFrontend(FrontendHooks):
         self.marker_corners = {
             int(k): np.asarray(v, dtype=float).reshape(4, 3) for k, v in marker_corners.items()
         }
-        # relativeCornerRefinmentWinSize (sic, OpenCV >= 4.9, skipped before): window up to one
-        # marker cell (default 0.3 cell: ~0.27 px median error on rendered 30-40 px markers;
-        # 1.0: ~0.22 px)
+        # the corners are refined in stages (marker_detection.refine_corners: OpenCV's one
+        # window leaves some corners unrefined); relativeCornerRefinmentWinSize (sic, OpenCV
+        # >= 4.9) serves OpenCV's own refinement (refine="opencv")
         params = cv_compat.detector_parameters(
             cornerRefinementMethod=cv2.aruco.CORNER_REFINE_SUBPIX,
             cornerRefinementWinSize=int(subpix_window),

@@ -13,8 +13,9 @@
   threshold constant of 20 grey levels and two thresholding passes (window step 20) instead of
   OpenCV's 7 and three: on textured walls OpenCV's defaults turn every dark speck into a marker
   candidate, each one warped and identified (about 300 candidates per 640x480 frame of
-  ``apriltag_room``; 20 with these settings, which find as many markers there and on the plain
-  ``aruco_room``: ``python -m benchmarks.bench_markers``).
+  ``apriltag_room``; 15 with these settings and the front end's smallest perimeter, which find
+  as many markers there and on the plain ``aruco_room``: ``python -m benchmarks.bench_markers``).
+  Their corners are refined in stages (:func:`refine_corners`), not by OpenCV's one window.
 
 Both return the same thing: corners (M, 4, 2) float64 in distorted pixels, in ArUco order
 (top-left, top-right, bottom-right, bottom-left of the printed marker, clockwise in the image),
@@ -32,8 +33,8 @@ frame's settings.
 
 Without an AprilTag binding installed an OpenCV dictionary name of an AprilTag family
 (``DICT_APRILTAG_36h11``) falls back to OpenCV's detector: slower on textured images and
-less exact (at 640x480 on ``apriltag_room``: 3.3x the CPU time, 5.7x the corner error, with the
-thresholding above; 48x the time with OpenCV's defaults). The detector says so (``fallback``, a
+less exact (at 640x480 on ``apriltag_room``: 1.6x the CPU time, 2.5x the corner error, with the
+settings above; 49x the time with OpenCV's defaults). The detector says so (``fallback``, a
 :class:`RuntimeWarning` at construction) so that the caller can report it.
 """
 
@@ -60,6 +61,7 @@ __all__ = [
     "auto_decimate",
     "drop_duplicates",
     "make_marker_detector",
+    "refine_corners",
     "supported_dictionaries",
 ]
 
@@ -269,6 +271,97 @@ def drop_duplicates(corners: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, n
     return corners[keep], ids[keep], len(dup)
 
 
+#: the first window (half size, px) of the staged corner refinement (:func:`refine_corners`)
+REFINE_FIRST_WINDOW = 2
+
+#: the larger window of :func:`refine_corners` spans at most this share of a marker cell
+REFINE_CELL_SHARE = 0.8
+
+#: px: a corner the larger window moves further than this keeps the first window's position
+REFINE_AGREE_PX = 0.15
+
+
+def refine_corners(
+    gray: np.ndarray,
+    corners: np.ndarray,
+    cells: int,
+    max_window: int = 3,
+    iterations: int = 50,
+    accuracy: float = 0.01,
+) -> np.ndarray:
+    """Marker corners refined to subpixel with OpenCV's ``cornerSubPix`` in two stages.
+
+    OpenCV's own refinement (``CORNER_REFINE_SUBPIX``) runs ``cornerSubPix`` once with a
+    window of up to a cell, and ``cornerSubPix`` returns its starting point unchanged when the
+    iteration wanders further than the window: such corners stay on the integer pixel the
+    contour gave (0.5-1 px off; their count and place then depend on the thresholding). Here:
+
+    1. a window of :data:`REFINE_FIRST_WINDOW` px half size (1 px where that one returns its
+       start unchanged);
+    2. from there, for markers whose cell is large enough, a window of
+       ``floor(REFINE_CELL_SHARE * cell)`` px (at most ``max_window``), kept where it moves
+       the corner by less than :data:`REFINE_AGREE_PX` (more pixels of the same edges; a
+       larger move means the window reached texture beyond the marker's margin).
+
+    Measured with ``python -m benchmarks.bench_markers --refine-study``: OpenCV's one-window
+    refinement leaves 0.48 px median (1.35 px p90) on ``DICT_4X4_250`` markers on textured walls
+    at 640x480, these stages 0.25 (0.60) px; on plain walls 0.22 px either way.
+
+    Args:
+        gray: (H, W) uint8 image.
+        corners: (M, 4, 2) px, integer or subpixel starting corners (OpenCV's pixel-centre
+            convention).
+        cells: cells across a marker, its border included (``markerSize + 2 *
+            markerBorderBits``).
+        max_window: largest half window (px; OpenCV's ``cornerRefinementWinSize``).
+        iterations, accuracy: ``cornerSubPix``'s stopping criteria (iterations, px).
+    Returns:
+        (M, 4, 2) float64 refined corners.
+    """
+    import cv2
+
+    c = np.asarray(corners, dtype=np.float64)
+    if len(c) == 0:
+        return c.reshape(0, 4, 2)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, int(iterations), float(accuracy))
+
+    def subpix(pts: np.ndarray, w: int) -> np.ndarray:
+        q = np.ascontiguousarray(pts, dtype=np.float32).copy()
+        cv2.cornerSubPix(gray, q, (int(w), int(w)), (-1, -1), crit)
+        return q
+
+    p0 = c.reshape(-1, 1, 2).astype(np.float32)
+    first = min(REFINE_FIRST_WINDOW, max(int(max_window), 1))
+    p = subpix(p0, first)
+    stuck = (p == p0).all(axis=(1, 2))
+    if first > 1 and stuck.any():
+        p[stuck] = subpix(p0[stuck], 1)
+    side = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).mean(axis=1)
+    win = np.floor(REFINE_CELL_SHARE * side / max(int(cells), 1)).astype(int)
+    win = np.repeat(np.minimum(win, int(max_window)), 4)
+    for w in np.unique(win[win > first]):
+        idx = np.flatnonzero(win == w)
+        q = subpix(p[idx], int(w))
+        moved = np.linalg.norm(q - p[idx], axis=2).ravel()
+        ok = (moved > 0) & (moved < REFINE_AGREE_PX)
+        p[idx[ok]] = q[ok]
+    return p.reshape(-1, 4, 2).astype(np.float64)
+
+
+def copy_parameters(params: Any, **overrides: Any) -> Any:
+    """A copy of ``cv2.aruco.DetectorParameters`` ``params`` with ``overrides`` set."""
+    from ..cv_compat import detector_parameters
+
+    names = [n for n in dir(params) if not n.startswith("_")]
+    values = {}
+    for n in names:
+        v = getattr(params, n)
+        if not callable(v):
+            values[n] = v
+    values.update(overrides)
+    return detector_parameters(**values)
+
+
 #: largest image (pixels) that ``quad_decimate`` 0 decimates by 1.5 (above: by 2)
 AUTO_DECIMATE_MAX_PIXELS = 640 * 480
 
@@ -353,8 +446,10 @@ class AprilTagDetector:
                 f"pupil_apriltags has no family {family!r}; it has {', '.join(PUPIL_FAMILIES)}"
             )
         self._dets: dict = {}  # quad_decimate -> the library's detector
-        if self.options.quad_decimate > 0:
-            self._detector(float(self.options.quad_decimate))
+        # made now, not on the first frame: building a family's decoding tables costs about
+        # twice a 640x480 detection (36h11: ~23 ms), the slowest frame of a video otherwise
+        q = float(self.options.quad_decimate)
+        self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
             DEFAULT_MIN_MARGIN[self.binding]
@@ -368,7 +463,13 @@ class AprilTagDetector:
         self.last_hamming = np.zeros(0, np.int64)
 
     def _detector(self, decimate: float) -> Any:
-        """The library's detector at ``quad_decimate`` ``decimate`` (made on first use)."""
+        """The library's detector at ``quad_decimate`` ``decimate``: with ``pupil_apriltags``
+        one detector whose decimation is set per call (the library reads it on every
+        detection), with the Debian binding one per decimation (made on first use)."""
+        if self.binding == "pupil_apriltags" and self._dets:
+            det = next(iter(self._dets.values()))
+            det.tag_detector_ptr.contents.quad_decimate = float(decimate)
+            return det
         det = self._dets.get(decimate)
         if det is not None:
             return det
@@ -500,9 +601,14 @@ class OpenCVDetector:
         params: Any = None,
         fallback: str | None = None,
         options: DetectorOptions | None = None,
+        refine: str = "staged",
     ):
+        import cv2
+
         from ..cv_compat import MarkerDetector, detector_parameters, get_dictionary
 
+        if refine not in ("staged", "opencv"):
+            raise ValueError(f"refine must be 'staged' or 'opencv', got {refine!r}")
         self.name = dictionary
         self.dictionary = get_dictionary(dictionary)
         params = params if params is not None else detector_parameters()
@@ -510,8 +616,16 @@ class OpenCVDetector:
             for k, v in options.opencv_overrides().items():
                 if hasattr(params, k):
                     setattr(params, k, v)
-        self._det = MarkerDetector(self.dictionary, params)
-        self.params = self._det.params
+        self.params = params
+        self.refine = refine
+        subpix = int(params.cornerRefinementMethod) == int(cv2.aruco.CORNER_REFINE_SUBPIX)
+        self._staged = refine == "staged" and subpix
+        self._det_params = params
+        if self._staged:
+            # OpenCV finds the integer corners, :func:`refine_corners` refines them
+            self._det_params = copy_parameters(params, cornerRefinementMethod=0)
+        self._det = MarkerDetector(self.dictionary, self._det_params)
+        self._cells = int(self.dictionary.markerSize) + 2 * int(params.markerBorderBits)
         self.fallback = fallback
         self.last_weak = 0
         self.last_duplicates = 0
@@ -531,11 +645,32 @@ class OpenCVDetector:
             f"{p.adaptiveThreshWinSizeStep}, errorCorrectionRate {p.errorCorrectionRate:g}, "
             f"minMarkerPerimeterRate {p.minMarkerPerimeterRate:g}, cornerRefinementMethod "
             f"{int(p.cornerRefinementMethod)}"
+            + (
+                f" (staged: window 2 px, then up to {int(p.cornerRefinementWinSize)} px)"
+                if self._staged
+                else ""
+            )
+        )
+
+    def _refine(self, gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
+        """The corners refined by :func:`refine_corners` (staged refinement), else as found."""
+        if not self._staged or len(corners) == 0:
+            return corners
+        p = self.params
+        return refine_corners(
+            gray,
+            corners,
+            self._cells,
+            int(p.cornerRefinementWinSize),
+            int(p.cornerRefinementMaxIterations),
+            float(p.cornerRefinementMinAccuracy),
         )
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """Detections of ``gray`` (class notes)."""
-        corners, ids, rejected = self._det.detect(_check_gray(gray))
+        g = _check_gray(gray)
+        corners, ids, rejected = self._det.detect(g)
+        corners = self._refine(g, corners)
         found = set(np.asarray(ids, np.int64).ravel().tolist())
         corners, ids, self.last_duplicates = drop_duplicates(corners, ids)
         self.last_duplicate_ids = found - set(ids.tolist())
@@ -550,13 +685,13 @@ class OpenCVDetector:
         g = _check_gray(gray)
         x0, y0, x1, y1 = (int(v) for v in window)
         crop = np.ascontiguousarray(g[y0:y1, x0:x1])
-        rate = self.params.minMarkerPerimeterRate
+        rate = self._det_params.minMarkerPerimeterRate
         try:
-            self.params.minMarkerPerimeterRate = rate * max(g.shape) / max(crop.shape)
-            corners, ids, rejected = MarkerDetector(self.dictionary, self.params).detect(crop)
+            self._det_params.minMarkerPerimeterRate = rate * max(g.shape) / max(crop.shape)
+            corners, ids, rejected = MarkerDetector(self.dictionary, self._det_params).detect(crop)
         finally:
-            self.params.minMarkerPerimeterRate = rate
-        corners = corners + np.array([x0, y0], float)
+            self._det_params.minMarkerPerimeterRate = rate
+        corners = self._refine(g, corners + np.array([x0, y0], float))
         found = set(np.asarray(ids, np.int64).ravel().tolist())
         corners, ids, self.last_duplicates = drop_duplicates(corners, ids)
         self.last_duplicate_ids = found - set(ids.tolist())
@@ -621,8 +756,8 @@ def make_marker_detector(
         )
     why = (
         f"the AprilTag library is not installed ({APRILTAG_INSTALL}): {opencv_name} is "
-        "detected with OpenCV's ArUco detector instead: slower (about 3x on textured images) "
-        "and less exact (about 6x the corner error)"
+        "detected with OpenCV's ArUco detector instead: slower (about 1.6x on textured images) "
+        "and less exact (about 2.5x the corner error)"
     )
     warnings.warn(why, RuntimeWarning, stacklevel=2)
     return OpenCVDetector(opencv_name, opencv_params, fallback=why, options=o)

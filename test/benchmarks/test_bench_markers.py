@@ -79,3 +79,18 @@ def test_bench_markers_corner_causes(capsys):
     assert float(fit.split("moving ")[1].split()[0]) < 0.05, fit
     target = next(x for x in out.splitlines() if "corner error median, still views" in x)
     assert "on the moving RS video" in target, target
+
+
+@pytest.mark.slow
+def test_bench_markers_refine_study(capsys):
+    args = ["--frames", "1", "--presets", "", "--false-frames", "0", "--aruco-dictionary", ""]
+    assert main([*args, "--corner-views", "0", "--refine-study"]) == 0
+    out = capsys.readouterr().out
+    rows = [x for x in out.splitlines() if x.strip().startswith("threshold")]
+    assert len(rows) == 8, rows  # 2 videos x 2 thresholdings x 2 refinements
+    for row in rows:
+        stuck = int(row.split("left on a pixel")[1].split()[0])
+        err = float(row.split("error median")[1].split()[0])
+        assert err < 0.6, row
+        if row.split(",")[1].split()[0] == "staged":
+            assert stuck <= 1, row  # (corners refined off the contour's pixel)

@@ -66,11 +66,11 @@ def test_apriltag_corners_match_the_renderer(tag_board):
     assert sorted(i2.tolist()) == list(range(12))
     e2 = np.linalg.norm(c2 - _truth(scene, motion, r, i2), axis=2)
     assert np.median(e2) < 0.2
-    times = []
+    times = []  # (CPU time of this thread: the wall time follows the machine's load)
     for _ in range(5):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         det2.detect(gray)
-        times.append(time.perf_counter() - t0)
+        times.append(time.thread_time() - t0)
     assert np.median(times) < 0.1
 
 
@@ -350,3 +350,93 @@ def test_opencv_settings_on_a_textured_room():
     for k in range(3):
         g = to_gray(rb.render(make_motion("shake", bare, duration=1.0), 0.1 * k, rng=k).image)
         assert len(ours.detect(g)[1]) == 0
+
+
+def _aruco_room_textured():
+    import yaml
+
+    from rs_localizer.maps.scenes import scene_path
+
+    data = yaml.safe_load(scene_path("apriltag_room").read_text())
+    data["dictionary"] = "DICT_4X4_250"
+    scene = load_scene(data)
+    motion = make_motion("shake", scene, duration=1.0)
+    r = Renderer(scene, camera_preset("vga"), noise=NoiseModel())
+    return scene, motion, r, to_gray(r.render(motion, T_FRAME, rng=3).image)
+
+
+def test_staged_corner_refinement_against_the_renderer():
+    """The ArUco corners' staged refinement (window 2 px, then up to 0.8 cell where it agrees)
+    against OpenCV's one-window refinement with the same detections: closer to the renderer's
+    exact corners on textured walls, no corner left on the integer pixel of the contour, and on
+    plain walls the same corners whatever the thresholding (OpenCV's one window leaves some
+    corners where the contour of each thresholding put them)."""
+    from rs_localizer import cv_compat
+
+    scene, motion, r, gray = _aruco_room_textured()
+    fe = ArucoFrontend.from_scene(scene)
+    staged = fe.detector
+    assert staged.refine == "staged" and "staged" in staged.settings()
+    one = md.OpenCVDetector(
+        "DICT_4X4_250",
+        md.copy_parameters(fe.params),
+        refine="opencv",
+        options=DetectorOptions(detector="opencv"),
+    )
+    c, ids, _ = staged.detect(gray)
+    c1, ids1, _ = one.detect(gray)
+    assert np.array_equal(ids, ids1) and len(ids) >= 20
+    truth = _truth(scene, motion, r, ids)
+    err = np.linalg.norm(c - truth, axis=2)
+    err1 = np.linalg.norm(c1 - truth, axis=2)
+    assert np.median(err) < 0.8 * np.median(err1) and np.median(err) < 0.4
+    assert not (c == np.round(c)).all(axis=2).any()  # (every corner moved off its pixel)
+    # plain walls (frames of data/sample_images' video): both thresholdings give the same
+    # corners for the markers both find; OpenCV's one window does not on these frames
+    scene = load_scene("aruco_room")
+    motion = make_motion("shake", scene, duration=20 / 30)
+    r = Renderer(scene, camera_preset("vga"), noise=NoiseModel())
+    worst = {"staged": 0.0, "opencv": 0.0}
+    for k in (0, 2, 6):
+        gray = r.render(motion, k / 30, rng=np.random.default_rng([0, k]), mono=True).image
+        for refine in worst:
+            got = {}
+            for const, step in ((7.0, 10), (20.0, 20)):
+                o = DetectorOptions(
+                    adaptive_thresh_constant=const, adaptive_thresh_win_size_step=step
+                )
+                params = cv_compat.detector_parameters(**_FRONT_END_SUBPIX)
+                det = md.OpenCVDetector("DICT_4X4_250", params, options=o, refine=refine)
+                cc, ii, _ = det.detect(gray)
+                got[const] = dict(zip(ii.tolist(), cc, strict=True))
+            common = sorted(set(got[7.0]) & set(got[20.0]))
+            assert len(common) >= 30
+            diff = max(np.abs(got[7.0][i] - got[20.0][i]).max() for i in common)
+            worst[refine] = max(worst[refine], diff)
+    assert worst["staged"] < 0.3 and worst["opencv"] > 0.5, worst
+    with pytest.raises(ValueError, match="refine"):
+        md.OpenCVDetector("DICT_4X4_250", refine="exact")
+
+
+_FRONT_END_SUBPIX = {
+    "cornerRefinementMethod": 1,  # CORNER_REFINE_SUBPIX
+    "cornerRefinementWinSize": 3,
+    "minMarkerPerimeterRate": 0.07,
+    "relativeCornerRefinmentWinSize": 1.0,
+}
+
+
+@needs_apriltag
+def test_apriltag_detector_made_at_start_and_shared_across_decimations(tag_board):
+    """The library's detector exists before the first frame (building the family's tables is
+    not paid by a frame), and one detector serves every decimation with the corners of a
+    detector made for that decimation."""
+    scene, _, _, _, gray = tag_board
+    det = make_marker_detector(scene.dictionary)
+    assert len(det._dets) == 1
+    for shape, dec in (((720, 1280), 2.0), ((480, 640), 1.5), ((720, 1280), 2.0)):
+        c, ids, _ = det.detect(gray, shape)
+        own = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=dec))
+        c2, ids2, _ = own.detect(gray)
+        assert np.array_equal(ids, ids2) and len(ids) >= 10
+        np.testing.assert_allclose(c, c2, atol=1e-9)

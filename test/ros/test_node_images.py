@@ -2,7 +2,7 @@
 
 The bag: 20 mono8 640x480 frames of the ``aruco_room`` scene under handheld shake (angular
 speed 0.2-1.1 rad/s, linear speed ~0.3 m/s), 30 ms readout (62.5 us/line), markers 1-5 m away,
-~276 ArUco corners per frame with ~0.2-0.3 px corner error (subpixel refinement on rendered,
+~279 ArUco corners per frame with ~0.2-0.3 px corner error (subpixel refinement on rendered,
 noisy images). Offline, the same front end + estimator give r6p_1lin median/max errors of
 0.009/0.043 deg, 0.7/2.0 mm, 0.064/0.17 rad/s and 0.23/0.55 m/s; p3p on the same corners has
 0.42 deg / 2.6 cm median (the rolling-shutter distortion it cannot model).
