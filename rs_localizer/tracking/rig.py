@@ -1260,7 +1260,7 @@ class MountingEstimate:
               (mostly along a camera's depth) that is the same in every run of a video, so
               averaging does not remove it and the scatter of the run means does not show
               it. Against the truth it was 0.02-0.15 of one frame's scatter in rotation and
-              0.07-0.25 in position on synthetic and rendered rig videos of 5-10 s; it does
+              0.07-0.26 in position on synthetic and rendered rig videos of 5-10 s; it does
               not shrink with the video's length.
         scatter_deg, scatter_mm: one rig frame's (the frames' RMS deviation from the mean).
     """
