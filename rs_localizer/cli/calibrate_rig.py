@@ -25,7 +25,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "correspondences with a known map and camera_info, e.g. make-bag --rig N): each camera "
         "frame is posed alone, carried to its reference camera frame's time with its estimated "
         "twist, and the cameras' poses relative to the reference camera are averaged over the "
-        "rig frames (outliers left out), with their standard deviation. Writes the node's rig "
+        "rig frames (outliers left out), with their standard deviation (the average's and a "
+        "bias every frame's pose shares, docs/rig_node.md). Writes the node's rig "
         "parameters (rig.<camera>.mounting, docs/rig_node.md) with each camera's RS timing. "
         "The cameras and their timing come from the bag's rig_params.yaml, then --params-file.",
         formatter_class=A.HelpFormatter,
