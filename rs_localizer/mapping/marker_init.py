@@ -500,13 +500,12 @@ def choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
     """The marker held fixed in the adjustment (the internal gauge) and the markers that fix
     the output frame.
 
-    The gauge is ``options.anchor`` when given, else the most detected of the surveyed
-    markers ``options.anchors``, else the most detected marker (its pose is fixed by the most
-    views); it is held at the identity. The anchor's pose and the surveyed markers' positions
-    only move the adjusted map afterwards, so they change no estimate but the map's frame: the
-    same video with and without ``anchor_pose`` gives the same line delay and frame
-    velocities. Returns ``(gauge, wanted)``: ``wanted`` the ids of ``options.anchor`` and
-    ``options.anchors``. Raises ValueError naming an anchor that no frame detects."""
+    The gauge is the most detected marker (its pose is fixed by the most views), whatever the
+    output frame: the anchor, its pose and the surveyed markers only move the adjusted map
+    afterwards, so they change no estimate but the map's frame (the line delay and the
+    frames' velocities are the same). Returns ``(gauge, wanted)``: ``wanted`` the ids of
+    ``options.anchor`` and ``options.anchors``. Raises ValueError naming an anchor that no
+    frame detects."""
     ids = {m for d in obs_px.values() for m in d}
     count = {m: sum(m in d for d in obs_px.values()) for m in ids}
     wanted = [int(options.anchor)] if options.anchor is not None else []
@@ -517,10 +516,7 @@ def choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
             f"anchor marker {', '.join(map(str, missing))} is not detected in any frame "
             f"(detected ids: {sorted(ids)})"
         )
-    if options.anchor is not None:
-        return int(options.anchor), wanted
-    pool = wanted or sorted(ids)
-    return max(pool, key=lambda m: (count[m], -m)), wanted
+    return max(sorted(ids), key=lambda m: (count[m], -m)), wanted
 
 
 def initialize(

@@ -75,11 +75,10 @@ def map_markers(
     6-DoF pose (:mod:`~rs_localizer.mapping.marker_model`: the estimator's model, paper eq. 4)
     with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line delay,
     consecutive frames tied by the motion model (on the camera centres: independent of the
-    world frame), one marker held fixed at the identity (the gauge: the anchor, else the most
-    detected surveyed marker, else the most detected marker; one seen at two places is
-    replaced by the most detected other), the output frame (the anchor's pose, the surveyed
-    positions, gravity) applied afterwards as a rigid motion (the line delay and the frames'
-    own velocities do not depend on it); detections whose RMS error
+    world frame), one marker held fixed (the gauge: the most detected marker at the identity,
+    whatever the output frame; one seen at two places is replaced by the most detected
+    other), the output frame applied afterwards as a rigid motion (the line delay and the
+    frames' own velocities do not depend on it); detections whose RMS error
     exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust loss
     (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
     reprojection rows scaled by the estimated noise and weighted for the errors that repeat
@@ -135,10 +134,11 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
-        # the adjustment holds the gauge marker at the identity; the output frame (the
-        # anchor's pose, surveyed positions, gravity) is applied after it as a rigid motion of
-        # the map, so it changes no estimate but the map's frame: the line delay and the
-        # frames' own velocities are the same numbers
+        # the adjustment is solved in the same gauge whatever the output frame (the most
+        # detected marker held at the identity); the output frame (an anchor at its pose,
+        # surveyed markers, gravity) is applied after it as a rigid motion of the map, so it
+        # changes no estimate but the map's frame: the line delay and the frames' own
+        # velocities are the same numbers
         gauge, _ = choose_gauge(obs_px, options)
     except ValueError as e:
         if not refused:

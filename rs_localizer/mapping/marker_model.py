@@ -15,8 +15,8 @@ are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
 consecutive frames can be tied by the same velocities. A marker is a square of known side:
 its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
 (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The adjustment's world frame is the gauge marker's own (the anchor, else the most detected
-surveyed or detected marker; not adjusted); the motion tie is written on the camera centres, and the
+The adjustment's world frame is the gauge marker's own (the most detected marker, not
+adjusted, whatever the output frame); the motion tie is written on the camera centres, and the
 output frame (``MappingOptions``: an anchor at its pose, surveyed markers, gravity-aligned) is
 applied after the adjustment as a rigid motion of the map
 (:mod:`~rs_localizer.mapping.marker_frame`), so the line delay does not depend on it.
