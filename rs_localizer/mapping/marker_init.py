@@ -1,6 +1,6 @@
 """Marker maps, stage (1): the detections read, the gauge marker chosen, and the incremental
 initialization in capture order (frame poses by PnP, marker poses by the better of their two
-planar IPPE solutions, refined from both tilts), moved onto the gauge marker; a video the map cannot
+planar IPPE solutions, refined from both tilts), moved onto the anchor; a video the map cannot
 place is refused (model: :mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ class MarkerInit:
     refined over all its views so far (:func:`robust_gauss_newton`) from its current tilt and from
     that tilt mirrored, the better fit kept: a single view fixes a small marker's centre well
     but its tilt poorly, and may pick the wrong one of the two. The whole is moved onto the
-    gauge marker (``anchor``) afterwards (:func:`regauge`).
+    anchor afterwards (:func:`regauge`).
     """
 
     def __init__(
@@ -497,15 +497,11 @@ def read_detections(frames: Sequence[FrameDetections], camera: CameraModel) -> t
 
 
 def choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
-    """The marker held fixed in the adjustment (the internal gauge) and the markers that fix
-    the output frame.
+    """The marker held fixed in the adjustment (the internal gauge) and the surveyed anchors.
 
-    The gauge is the most detected marker (its pose is fixed by the most views), whatever the
-    output frame: the anchor, its pose and the surveyed markers only move the adjusted map
-    afterwards, so they change no estimate but the map's frame (the line delay and the
-    frames' velocities are the same). Returns ``(gauge, wanted)``: ``wanted`` the ids of
-    ``options.anchor`` and ``options.anchors``. Raises ValueError naming an anchor that no
-    frame detects."""
+    ``options.anchor`` given: that marker. ``options.anchors`` given: the most detected of
+    them. Neither: the most detected marker (its pose is fixed by the most views). Raises
+    ValueError naming an anchor that no frame detects."""
     ids = {m for d in obs_px.values() for m in d}
     count = {m: sum(m in d for d in obs_px.values()) for m in ids}
     wanted = [int(options.anchor)] if options.anchor is not None else []
@@ -516,7 +512,10 @@ def choose_gauge(obs_px: dict, options: MappingOptions) -> tuple[int, list]:
             f"anchor marker {', '.join(map(str, missing))} is not detected in any frame "
             f"(detected ids: {sorted(ids)})"
         )
-    return max(sorted(ids), key=lambda m: (count[m], -m)), wanted
+    if options.anchor is not None:
+        return int(options.anchor), wanted
+    pool = wanted or sorted(ids)
+    return max(pool, key=lambda m: (count[m], -m)), wanted
 
 
 def initialize(

@@ -75,10 +75,10 @@ def map_markers(
     6-DoF pose (:mod:`~rs_localizer.mapping.marker_model`: the estimator's model, paper eq. 4)
     with SciPy ``least_squares`` (sparse Jacobian, robust loss), optionally one line delay,
     consecutive frames tied by the motion model (on the camera centres: independent of the
-    world frame), one marker held fixed (the gauge: the most detected marker at the identity,
-    whatever the output frame; one seen at two places is replaced by the most detected
-    other), the output frame applied afterwards as a rigid motion (the line delay and the
-    frames' own velocities do not depend on it); detections whose RMS error
+    world frame), one marker held fixed (the gauge: the anchor, at its pose when given, else the
+    most detected surveyed marker, else the most detected marker, in its own frame; one seen
+    at two places is replaced by the most detected other), the output frame applied afterwards
+    (it changes the solution only within the solver's tolerance); detections whose RMS error
     exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust loss
     (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
     reprojection rows scaled by the estimated noise and weighted for the errors that repeat
@@ -134,11 +134,10 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
-        # the adjustment is solved in the same gauge whatever the output frame (the most
-        # detected marker held at the identity); the output frame (an anchor at its pose,
-        # surveyed markers, gravity) is applied after it as a rigid motion of the map, so it
-        # changes no estimate but the map's frame: the line delay and the frames' own
-        # velocities are the same numbers
+        # the adjustment's cost does not depend on the world frame (the motion tie is on the
+        # camera centres), so the output frame, applied after the adjustment, changes the map
+        # only by a rigid motion and the line delay and the frames' velocities only within the
+        # solver's tolerance
         gauge, _ = choose_gauge(obs_px, options)
     except ValueError as e:
         if not refused:
@@ -156,12 +155,11 @@ def map_markers(
         pool = [m for m in init.markers if m not in init.suspects]
         if pool:  # (the coarse adjustment moves the map onto the new gauge)
             gauge = max(pool, key=lambda m: (count[m], -m))
-    _check_anchors_placed(gauge, {}, options, init)  # (before the adjustment's minutes)
     timings["initialization"] = time.perf_counter() - t_start
     bar.update(1)
     bar.set_postfix_str("coarse adjustment")
     t0 = time.perf_counter()
-    _coarse_adjustment(init, obs_px, camera, options, gauge)
+    _coarse_adjustment(init, obs_px, camera, options, gauge, _gauge_pose(options, gauge))
     timings["coarse adjustment"] = time.perf_counter() - t0
     bar.update(1)
     prob, sol, inconsistent, exclude = _adjust_and_reject(
@@ -226,11 +224,10 @@ def _never_detected(obs_px: dict, unmapped: dict, refused: dict) -> dict:
     }
 
 
-def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, gauge) -> None:
+def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor_pose) -> None:
     """A coarse rolling-shutter adjustment (gauge: the starting frame, wide robust scale) that
-    pulls the initialization together, then the whole moved rigidly so that the ``gauge``
-    marker sits at the identity (the adjustment's frame; the output frame is applied after the
-    adjustment)."""
+    pulls the initialization together, then the whole moved rigidly onto ``anchor_pose`` (the
+    adjustment's frame; the output frame is applied after the adjustment)."""
     fr_ids = sorted(init.frames)
     all_ids = sorted(init.markers)
     free = MarkerProblem(
@@ -250,8 +247,8 @@ def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, gauge) -> None
     init.frames, init.markers, _ = regauge(
         {k: (Rf[i], Cf[i]) for i, k in enumerate(fr_ids)},
         {m: (Rm[i], pm[i]) for i, m in enumerate(all_ids)},
-        gauge,
-        (np.eye(3), np.zeros(3)),
+        anchor,
+        anchor_pose,
     )
 
 
@@ -332,6 +329,16 @@ def _marker_poses(prob: MarkerProblem, x: np.ndarray, gauge: int) -> dict:
     poses = {gauge: (prob.Ra, prob.pa)}
     poses.update({m: (Rm[i], pm[i]) for i, m in enumerate(prob.markers)})
     return poses
+
+
+def _gauge_pose(options: MappingOptions, gauge: int) -> tuple[np.ndarray, np.ndarray]:
+    """The gauge marker's pose in the adjustment's frame, ``(R (3, 3), p (3,))``: the anchor at
+    its pose when it is the gauge and its pose is given (the solver then starts in the output
+    frame), else the gauge marker's own frame."""
+    if options.anchor is not None and options.anchor_pose is not None and gauge == options.anchor:
+        Ra, pa = options.anchor_pose
+        return np.asarray(Ra, float).reshape(3, 3), np.asarray(pa, float).reshape(3)
+    return np.eye(3), np.zeros(3)
 
 
 def _check_anchors_placed(

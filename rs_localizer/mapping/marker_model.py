@@ -15,11 +15,10 @@ are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
 consecutive frames can be tied by the same velocities. A marker is a square of known side:
 its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
 (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The adjustment's world frame is the gauge marker's own (the most detected marker, not
-adjusted, whatever the output frame); the motion tie is written on the camera centres, and the
-output frame (``MappingOptions``: an anchor at its pose, surveyed markers, gravity-aligned) is
-applied after the adjustment as a rigid motion of the map
-(:mod:`~rs_localizer.mapping.marker_frame`), so the line delay does not depend on it.
+The adjustment's world frame is the gauge marker's own (the anchor or the most detected marker,
+not adjusted); the motion tie is written on the camera centres so that it does not depend on
+that frame, and the output frame (``MappingOptions``: an anchor, surveyed markers,
+gravity-aligned) is applied after the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
 
 The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
 ``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).
