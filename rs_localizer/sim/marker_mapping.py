@@ -326,8 +326,8 @@ def localization_errors(
         if not est.success:
             failed[est.failure] += 1
             continue
-        rot.append(rotation_angle_deg(est.orientation, truth["orientation"][k]))
-        pos.append(100 * np.linalg.norm(est.position - truth["position"][k]))
+        rot.append(rotation_angle_deg(est.pose.orientation, truth["orientation"][k]))
+        pos.append(100 * np.linalg.norm(est.pose.position - truth["position"][k]))
         per_frame[k] = (rot[-1], pos[-1])
     return dict(
         frames=n,
