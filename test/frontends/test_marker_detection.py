@@ -412,11 +412,13 @@ def test_staged_corner_refinement_against_the_renderer():
             common = sorted(set(got[7.0]) & set(got[20.0]))
             assert len(common) >= 30
             diffs = sorted(np.abs(got[7.0][i] - got[20.0][i]).max() for i in common)
-            # (OpenCV 4.6, Debian 12's: its contours put 1-2 markers a frame 2-3 px apart
-            # between the two thresholdings before any refinement; they are left out there)
+            # (OpenCV 4.6, Debian 12's: 1-2 markers a frame end 2-3 px apart between the two
+            # thresholdings with either refinement; they are left out there)
             diff = diffs[-1] if cv_compat.NEW_ARUCO_API else diffs[-3]
             worst[refine] = max(worst[refine], diff)
-    assert worst["staged"] < 0.3 and worst["opencv"] > 0.5, worst
+    assert worst["staged"] < 0.3, worst
+    if cv_compat.NEW_ARUCO_API:  # (on OpenCV 4.6 its one window leaves no such corner here)
+        assert worst["opencv"] > 0.5, worst
     with pytest.raises(ValueError, match="refine"):
         md.OpenCVDetector("DICT_4X4_250", refine="exact")
 
