@@ -64,7 +64,8 @@ def run_benchmark(
     from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg, quaternion_from_matrix
     from rs_localizer.ros.dds_profile import apply_default_profile
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
-    from rs_localizer.sim.rig_render import render_rig_frames, rendered_rig_truth, vga_rig
+    from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+    from rs_localizer.sim.rig_video import rig_truth
 
     from .bench_client import SINGLE_THREAD_ENV
 
@@ -163,7 +164,7 @@ def run_benchmark(
         errs = []
         for m in poses:
             stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rendered_rig_truth(motion, (stamp - T0) * 1e-9)
+            R, p, _, _ = rig_truth(motion, (stamp - T0) * 1e-9)
             Re, pe = pose_from_msg(m.pose)
             errs.append((rotation_angle_deg(Re, R), np.linalg.norm(pe - p) * 1e3))
         e = np.array(errs) if errs else np.full((1, 2), np.nan)

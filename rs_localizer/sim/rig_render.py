@@ -6,73 +6,28 @@ motions (:func:`~rs_localizer.sim.render.motion.make_motion`, a camera's motion 
 turned into the base frame: ``R_rig(t) = R_motion(t) R_FORWARD^T``. Each camera
 (:class:`~rs_localizer.sim.rig_video.RigCameraSim`: its optical frame's pose on the rig, first
 frame offset, frame rate) is rendered by :class:`~rs_localizer.sim.render.renderer.Renderer`
-along :class:`MountedMotion`, the rig's motion composed with its mounting, every line at its own
-capture time. Ground truth: :func:`rendered_rig_truth`.
+along :class:`~rs_localizer.sim.rig_video.MountedTrajectory`, the rig's motion
+(:class:`~rs_localizer.sim.rig_video.RigTrajectory` of the renderer's motion) composed with its
+mounting, every line at its own capture time. Ground truth:
+:func:`~rs_localizer.sim.rig_video.rig_truth`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ..geometry import rotvec_to_matrix
 from .render.renderer import camera_preset
-from .rig_video import RigCameraSim
-from .trajectory import R_FORWARD, Trajectory
+from .rig_video import MountedTrajectory, RigCameraSim, RigTrajectory
+from .trajectory import R_FORWARD
 
 __all__ = [
-    "MountedMotion",
     "RenderedRigFrame",
-    "RigMotion",
     "render_rig_frames",
-    "rendered_rig_truth",
     "vga_rig",
 ]
-
-
-@dataclass(frozen=True)
-class RigMotion:
-    """The rig's motion from a renderer motion ``base`` (optical axes): ``orientation(t)``
-    (..., 3, 3) rig -> world, ``position(t)`` (..., 3) m."""
-
-    base: Any
-
-    def orientation(self, t: float | np.ndarray) -> np.ndarray:
-        return self.base.orientation(t) @ R_FORWARD.T
-
-    def position(self, t: float | np.ndarray) -> np.ndarray:
-        return self.base.position(t)
-
-    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.orientation(t), self.position(t)
-
-    #: (angular (rad/s), linear (m/s) velocity) in the rig frame, by central differences
-    velocity_body = Trajectory.velocity_body
-
-
-@dataclass(frozen=True)
-class MountedMotion:
-    """A camera's motion: the rig's (:class:`RigMotion`) with the camera's mounting
-    (``R_rig_cam`` (3, 3) camera -> rig, ``p_rig_cam`` (3,) m): ``R(t) = R_rig(t) R_rig_cam``,
-    ``p(t) = p_rig(t) + R_rig(t) p_rig_cam``; what the renderer takes."""
-
-    rig: RigMotion
-    R_rig_cam: np.ndarray
-    p_rig_cam: np.ndarray
-
-    def orientation(self, t: float | np.ndarray) -> np.ndarray:
-        return self.rig.orientation(t) @ self.R_rig_cam
-
-    def position(self, t: float | np.ndarray) -> np.ndarray:
-        R = self.rig.orientation(t)
-        return self.rig.position(t) + R @ self.p_rig_cam
-
-    def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.orientation(t), self.position(t)
-
-    velocity_body = Trajectory.velocity_body
 
 
 def _yaw(deg: float) -> np.ndarray:
@@ -127,7 +82,7 @@ def render_rig_frames(
     supersample: int = 1,
     noise: bool = True,
     mono: bool = False,
-) -> tuple[list[RenderedRigFrame], RigMotion]:
+) -> tuple[list[RenderedRigFrame], RigTrajectory]:
     """Render ``frames`` frames of every camera (frame ``k`` of camera c: its first line read
     at ``offset_c + k / fps_c`` s of rig time, stamped ``t0_ns`` + the capture time of its row
     0), sorted by stamp.
@@ -138,7 +93,8 @@ def render_rig_frames(
             rendered time, around the scene's viewpoint).
         supersample, noise, mono: as :class:`~rs_localizer.sim.render.renderer.Renderer`.
     Returns:
-        (frames, the rig's motion; :func:`rendered_rig_truth` gives its truth).
+        (frames, the rig's motion; :func:`~rs_localizer.sim.rig_video.rig_truth` gives its
+        truth).
     """
     from .render.motion import make_motion
     from .render.renderer import NoiseModel, Renderer
@@ -146,11 +102,13 @@ def render_rig_frames(
 
     sc = load_scene(scene)
     duration = max(c.offset + frames / c.fps for c in cameras)
-    rig = RigMotion(make_motion(motion, sc, duration=duration))
+    rig = RigTrajectory(make_motion(motion, sc, duration=duration))
     out = []
     for ci, c in enumerate(cameras):
         r = Renderer(sc, c.camera, supersample=supersample, noise=NoiseModel() if noise else None)
-        mounted = MountedMotion(rig, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam))
+        mounted = MountedTrajectory(
+            rig, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float)
+        )
         for k in range(int(frames)):
             t_first = c.offset + k / c.fps
             fr = r.render(
@@ -168,11 +126,3 @@ def render_rig_frames(
     order = {c.name: i for i, c in enumerate(cameras)}
     out.sort(key=lambda f: (f.stamp_ns, order[f.name]))
     return out, rig
-
-
-def rendered_rig_truth(rig: RigMotion, t: float) -> tuple:
-    """(orientation (3, 3) rig -> world, position (3,) m, angular velocity (3,) rad/s, linear
-    velocity (3,) m/s; velocities in the rig frame) at rig time ``t`` (s after ``t0_ns``)."""
-    R, p = rig.pose(t)
-    w, v = rig.velocity_body(t)
-    return R, p, w, v

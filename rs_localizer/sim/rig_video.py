@@ -38,8 +38,9 @@ __all__ = [
 class RigTrajectory:
     """The rig's motion: ``orientation(t)`` (..., 3, 3) rig -> world and ``position(t)``
     (..., 3) m, the rig origin in the world; the base frame is x forward, y left, z up. The
-    camera walk ``base`` (:class:`~rs_localizer.sim.trajectory.Trajectory`, optical-frame
-    axes) turned into it: ``R_rig(t) = R_cam(t) R_FORWARD^T``."""
+    camera walk ``base`` (:class:`~rs_localizer.sim.trajectory.Trajectory`, or a renderer
+    motion of :func:`~rs_localizer.sim.render.motion.make_motion`; optical-frame axes) turned
+    into it: ``R_rig(t) = R_cam(t) R_FORWARD^T``."""
 
     base: Trajectory = field(default_factory=Trajectory)
 
@@ -60,7 +61,7 @@ class RigTrajectory:
 class MountedTrajectory:
     """A camera's trajectory: the rig's (``rig``) with the camera's mounting (``R_rig_cam``
     (3, 3) optical frame -> rig, ``p_rig_cam`` (3,) m); ``pose(t)``: (orientation (..., 3, 3)
-    camera -> world, position (..., 3) m) at rig time(s) ``t`` (s)."""
+    camera -> world, position (..., 3) m) at rig time(s) ``t`` (s); what the renderer takes."""
 
     rig: RigTrajectory
     R_rig_cam: np.ndarray
@@ -69,6 +70,15 @@ class MountedTrajectory:
     def pose(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, p = self.rig.pose(t)
         return R @ self.R_rig_cam, p + R @ self.p_rig_cam
+
+    def orientation(self, t: float | np.ndarray) -> np.ndarray:
+        return self.pose(t)[0]
+
+    def position(self, t: float | np.ndarray) -> np.ndarray:
+        return self.pose(t)[1]
+
+    #: (angular (rad/s), linear (m/s) velocity) in the camera frame, by central differences
+    velocity_body = Trajectory.velocity_body
 
 
 @dataclass(frozen=True, eq=False)

@@ -156,7 +156,7 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
     skipped + pending per camera and per rig frame in the diagnostics."""
     from rs_localizer.ros.conversions import pose_from_msg
     from rs_localizer.ros.rig_node import RigLocalizerNode
-    from rs_localizer.sim.rig_render import rendered_rig_truth
+    from rs_localizer.sim.rig_video import rig_truth
 
     cams, frames, motion = rendered
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
@@ -177,7 +177,7 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
         assert len(h.poses) == int(v["rig_frames_solved"]) >= 5, v
         for m in h.poses:
             stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rendered_rig_truth(motion, (stamp - T0) * 1e-9)
+            R, p, _, _ = rig_truth(motion, (stamp - T0) * 1e-9)
             Re, pe = pose_from_msg(m.pose)
             assert rotation_angle_deg(Re, R) < 0.1 and np.linalg.norm(pe - p) < 0.003
         assert v["front.skipped.image_size_mismatch"] == "1", v

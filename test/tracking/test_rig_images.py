@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_render import render_rig_frames, rendered_rig_truth, vga_rig
-from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.rig import (
     SKIP_REASONS,
     RigCameraFrame,
@@ -78,7 +78,7 @@ def test_images_of_three_cameras_pose_the_rig_and_the_prediction_guides_each_fro
         pred = rig.predict_camera(f.name, f.stamp_ns, c.camera)
         if pred is not None:
             t = (f.t_ref_ns - T0) * 1e-9
-            R_rig, p_rig, _, _ = rendered_rig_truth(motion, t)
+            R_rig, p_rig, _, _ = rig_truth(motion, t)
             R_true = (R_rig @ c.R_rig_cam).T  # world -> camera
             C_true = -R_true @ (p_rig + R_rig @ c.p_rig_cam)
             pred_err.append((rotation_angle_deg(pred.R, R_true), np.linalg.norm(pred.C - C_true)))
@@ -86,7 +86,7 @@ def test_images_of_three_cameras_pose_the_rig_and_the_prediction_guides_each_fro
     outs += rig.close()
     assert len(outs) == 6 and all(o.success and len(o.cameras) == 3 for o in outs)
     for o in outs:
-        R, p, _, _ = rendered_rig_truth(motion, (o.stamp_ns - T0) * 1e-9)
+        R, p, _, _ = rig_truth(motion, (o.stamp_ns - T0) * 1e-9)
         assert rotation_angle_deg(o.measurement.pose.orientation, R) < 0.1
         assert np.linalg.norm(o.measurement.pose.position - p) < 0.003
         assert all(s.inliers > 60 for s in o.shares.values()), o.shares
