@@ -36,19 +36,21 @@ if TYPE_CHECKING:  # (the message packages are imported where a message is built
         TwistStamped,
     )
     from nav_msgs.msg import Odometry
-    from sensor_msgs.msg import CameraInfo
+    from sensor_msgs.msg import CameraInfo, Imu
     from tf2_msgs.msg import TFMessage
 
 __all__ = [
     "CAMERA_INFO_REASONS",
     "STAMP_MAX_NS",
     "CameraInfoError",
+    "ImuError",
     "StampError",
     "camera_info_msg",
     "camera_model",
     "camera_model_from_camera_info",
     "checked_stamp_ns",
     "covariance36",
+    "gyro_sample",
     "have_tf2_msgs",
     "matrix_from_quaternion",
     "ns_to_stamp",
@@ -143,6 +145,32 @@ def checked_stamp_ns(stamp: Time) -> int:
     if sec < 0:
         raise StampError(f"invalid stamp: negative sec {sec}")
     return sec * _NS + nsec
+
+
+class ImuError(ValueError):
+    """A ``sensor_msgs/Imu`` without a usable gyro sample; ``reason``: ``no_angular_velocity``
+    (covariance[0] = -1, the message's "no data") or ``bad_stamp``."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(detail or reason)
+        self.reason = reason
+
+
+def gyro_sample(msg: Imu) -> tuple[int, tuple[float, float, float]]:
+    """The gyro sample of a ``sensor_msgs/Imu`` (rclpy or rosbags): its stamp (ns, checked as
+    :func:`checked_stamp_ns`) and angular velocity ``(x, y, z)`` (rad/s, the message's frame).
+
+    Raises:
+        ImuError: no angular velocity in the message, or an invalid stamp (``reason``).
+    """
+    if float(msg.angular_velocity_covariance[0]) == -1.0:
+        raise ImuError("no_angular_velocity")
+    try:
+        stamp = checked_stamp_ns(msg.header.stamp)
+    except StampError as e:
+        raise ImuError("bad_stamp", str(e)) from None
+    a = msg.angular_velocity
+    return stamp, (a.x, a.y, a.z)
 
 
 def ns_to_stamp(ns: int) -> Time:

@@ -470,16 +470,12 @@ class FramePipeline:
         if buf is None:
             return "disabled"
         dropped = buf.dropped
-        if float(msg.angular_velocity_covariance[0]) == -1.0:
-            reason = "no_angular_velocity"
+        try:
+            stamp, omega = cv.gyro_sample(msg)
+        except cv.ImuError as e:
+            reason = e.reason
         else:
-            try:
-                stamp = cv.checked_stamp_ns(msg.header.stamp)
-            except cv.StampError:
-                reason = "bad_stamp"
-            else:
-                a = msg.angular_velocity
-                reason = self.sequence.add_imu(stamp, (a.x, a.y, a.z))
+            reason = self.sequence.add_imu(stamp, omega)
         for why in ([reason] if reason is not None else []) + ["stamp_jumped_ahead"] * (
             buf.dropped - dropped
         ):

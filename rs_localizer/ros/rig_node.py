@@ -388,16 +388,12 @@ class RigCore:
     def _on_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
         ``imu_rejected.<reason>``, as the single-camera node's)."""
-        if float(msg.angular_velocity_covariance[0]) == -1.0:
-            reason = "no_angular_velocity"
+        try:
+            stamp, omega = cv.gyro_sample(msg)
+        except cv.ImuError as e:
+            reason = e.reason
         else:
-            try:
-                stamp = cv.checked_stamp_ns(msg.header.stamp)
-            except cv.StampError:
-                reason = "bad_stamp"
-            else:
-                a = msg.angular_velocity
-                reason = self.rig.add_imu(stamp, (a.x, a.y, a.z))
+            reason = self.rig.add_imu(stamp, omega)
         if reason is not None:
             self.imu_rejected[reason] = self.imu_rejected.get(reason, 0) + 1
         return reason

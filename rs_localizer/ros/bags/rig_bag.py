@@ -362,15 +362,10 @@ def _read_rig_gyro(bag: str | os.PathLike, ns: str) -> list:
     ts = typestore()
     out = []
     for _, msgtype, _, raw in iter_messages(bag, {f"{ns}/imu"}):
-        m = ts.deserialize_cdr(raw, msgtype)
-        if float(m.angular_velocity_covariance[0]) == -1.0:
-            continue
         try:
-            stamp = cv.checked_stamp_ns(m.header.stamp)
-        except ValueError:
+            out.append(cv.gyro_sample(ts.deserialize_cdr(raw, msgtype)))
+        except cv.ImuError:
             continue
-        a = m.angular_velocity
-        out.append((stamp, (a.x, a.y, a.z)))
     out.sort(key=lambda x: x[0])
     return out[::-1]
 
