@@ -77,8 +77,8 @@ setup(
     license="BSD-3-Clause",
     entry_points={
         "console_scripts": [
-            "rs_localizer_node = rs_localizer.ros.node:main",
-            "rs_localizer_lifecycle_node = rs_localizer.ros.lifecycle:main",
+            "rs_localizer_node = rs_localizer.ros.runner:main",
+            "rs_localizer_lifecycle_node = rs_localizer.ros.runner:lifecycle_main",
             "rs-localizer = rs_localizer.cli:main",
         ],
     },

@@ -212,8 +212,9 @@ def _argv(cmd: str) -> list[str]:
     words = shlex.split(cmd)
     if words[0].endswith("rs-localizer"):
         return [sys.executable, "-m", "rs_localizer", *words[1:]]
-    if words[0].endswith("rs_localizer_node"):
-        return [sys.executable, "-m", "rs_localizer.ros.node", *words[1:]]
+    if words[0].endswith(("rs_localizer_node", "rs_localizer_lifecycle_node")):
+        executable = words[0].rsplit("/", 1)[-1]
+        return [sys.executable, "-m", "rs_localizer.ros.runner", executable, *words[1:]]
     return words
 
 

@@ -1,6 +1,7 @@
 """ROS 2 layer of rs_localizer: message conversions, the node and bag tools.
 
-The node (:mod:`.node`, managed: :mod:`.lifecycle`, several cameras: :mod:`.runner`) is wiring
+The node (:mod:`.node`, managed: :mod:`.lifecycle`, the rig: :mod:`.rig_node`; the executables,
+one or several cameras: :mod:`.runner`) is wiring
 around ROS-free parts: :mod:`.params` (the parameters), :mod:`.param_files` (parameter files),
 :mod:`.config` (parameter values -> configuration; :func:`.config.load_maps`, its maps
 loaded), :mod:`.pipeline` (what happens to each frame), :mod:`.camera_info_history`,

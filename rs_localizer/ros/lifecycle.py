@@ -31,11 +31,14 @@ unsubscribes them, solves and publishes the rig frames still open and ends the t
 activation starts a new one; the counters go on); cleanup releases everything (the counters
 too). Parameters may be changed while unconfigured; once configured, changes are refused
 until cleanup.
+
+Both managed nodes run the transitions of one template, :class:`ManagedTransitions`: the
+camera and the rig node each name the phases of their core (:class:`~.node.LocalizerCore`,
+:class:`~.rig_node.RigCore`) that a transition runs.
 """
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -45,12 +48,102 @@ from .node import LocalizerCore
 from .qos import output_events
 from .rig_node import RigCore
 
-__all__ = ["RSLocalizerLifecycleNode", "RigLocalizerLifecycleNode", "main"]
+__all__ = ["ManagedTransitions", "RSLocalizerLifecycleNode", "RigLocalizerLifecycleNode"]
 
 _OK = TransitionCallbackReturn.SUCCESS
 
 
-class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
+class ManagedTransitions:
+    """The lifecycle transitions of a managed node, written once (see the module docstring).
+
+    Mixed in before the node's core and :class:`rclpy.lifecycle.LifecycleNode`
+    (``class X(ManagedTransitions, Core, LifecycleNode)``); the node class names its core's
+    phases in the hooks below. Its outputs are lifecycle publishers (``self._outputs``),
+    enabled and disabled by the lifecycle node's own transitions.
+    """
+
+    _outputs: list
+
+    # ------------------------------------------------------------------ hooks
+    def _configure_core(self) -> None:
+        """Parameters -> configuration. Raises RuntimeError for invalid parameters."""
+        raise NotImplementedError
+
+    def _create_configured(self) -> str:
+        """Create the outputs (inactive) and the ``camera_info`` inputs; returns what the log
+        line ``configured: ... (inactive)`` names."""
+        raise NotImplementedError
+
+    def _create_inputs(self) -> None:
+        """Subscribe the frame inputs, start diagnostics and log ``ready: ...``."""
+        raise NotImplementedError
+
+    def _destroy_inputs(self) -> None:
+        """Undo :meth:`_create_inputs`."""
+        raise NotImplementedError
+
+    def _end_track(self) -> None:
+        """At deactivate, the frame inputs gone and the publishers still active: publish what
+        the track still holds (nothing, unless the node says so)."""
+
+    def _release_core(self) -> None:
+        """Drop what configure made besides the publishers."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ the template
+    def _make_publisher(self, msg_type, topic, qos):
+        pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
+        self._outputs.append(pub)
+        return pub
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        try:
+            self._configure_core()
+        except RuntimeError as e:
+            self.get_logger().error(f"configure failed: {e}")
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        what = self._create_configured()
+        self.get_logger().info(f"configured: {what} (inactive)")
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        ret = super().on_activate(state)  # enables the lifecycle publishers
+        if ret == _OK:
+            self._create_inputs()
+        return ret
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_inputs()
+        self._end_track()  # (published while the publishers are still active)
+        self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release()
+        self.get_logger().info("cleaned up: unconfigured")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy_inputs()
+        self._release()
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.get_logger().error("error in a transition: releasing everything (unconfigured)")
+        self._destroy_inputs()
+        self._release()
+        return _OK
+
+    def _release(self):
+        """Drop what configure made: the publishers, then the core's part."""
+        for pub in self._outputs:
+            self.destroy_lifecycle_publisher(pub)
+        self._outputs = []
+        self._release_core()
+
+
+class RSLocalizerLifecycleNode(ManagedTransitions, LocalizerCore, LifecycleNode):
     """The managed localizer node (see the module docstring). ``node_name`` and ``kwargs`` go to
     :class:`rclpy.lifecycle.LifecycleNode`."""
 
@@ -62,58 +155,24 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         self._outputs = []
         self.get_logger().info("unconfigured (lifecycle node: configure, then activate)")
 
-    def _make_publisher(self, msg_type, topic, qos):
-        pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
-        self._outputs.append(pub)
-        return pub
+    def _configure_core(self) -> None:
+        self._configure()
 
-    # ------------------------------------------------------------------ transitions
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        try:
-            self._configure()
-        except RuntimeError as e:
-            self.get_logger().error(f"configure failed: {e}")
-            self._release()
-            return TransitionCallbackReturn.FAILURE
+    def _create_configured(self) -> str:
         self._create_outputs()
         self._create_camera_info_input()
-        self.get_logger().info(f"configured: solver {self.cfg.solver} (inactive)")
-        return super().on_configure(state)
+        return f"solver {self.cfg.solver}"
 
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        ret = super().on_activate(state)  # enables the lifecycle publishers
-        if ret == _OK:
-            self._create_frame_inputs()
-            self._log_ready()
-        return ret
+    def _create_inputs(self) -> None:
+        self._create_frame_inputs()
+        self._log_ready()
 
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _destroy_inputs(self) -> None:
         self._destroy_frame_inputs()
-        self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
-        return super().on_deactivate(state)
 
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._release()
-        self.get_logger().info("cleaned up: unconfigured")
-        return super().on_cleanup(state)
-
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._destroy_frame_inputs()
-        self._release()
-        return super().on_shutdown(state)
-
-    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.get_logger().error("error in a transition: releasing everything (unconfigured)")
-        self._destroy_frame_inputs()
-        self._release()
-        return _OK
-
-    def _release(self):
-        """Drop what configure made: publishers, the camera_info and imu subscriptions, maps, the
-        camera model, the configuration and the counters."""
-        for pub in self._outputs:
-            self.destroy_lifecycle_publisher(pub)
-        self._outputs = []
+    def _release_core(self) -> None:
+        """The camera_info and imu subscriptions, maps, the camera model, the configuration
+        and the counters."""
         self.pub_diag = None
         for sub in (self.sub_info, self.sub_imu):
             if sub is not None:
@@ -123,7 +182,7 @@ class RSLocalizerLifecycleNode(LocalizerCore, LifecycleNode):
         # the counters reset too)
 
 
-class RigLocalizerLifecycleNode(RigCore, LifecycleNode):
+class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
     """The rig mode as a managed node (see the module docstring). ``node_name`` and ``kwargs``
     go to :class:`rclpy.lifecycle.LifecycleNode`."""
 
@@ -133,69 +192,27 @@ class RigLocalizerLifecycleNode(RigCore, LifecycleNode):
         self.add_on_set_parameters_callback(self._refuse_changes)
         self.get_logger().info("unconfigured (lifecycle node, rig mode: configure, then activate)")
 
-    def _make_publisher(self, msg_type, topic, qos):
-        pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
-        self._outputs.append(pub)
-        return pub
+    def _configure_core(self) -> None:
+        self._configure_rig()
 
-    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        try:
-            self._configure_rig()
-        except RuntimeError as e:
-            self.get_logger().error(f"configure failed: {e}")
-            self._release()
-            return TransitionCallbackReturn.FAILURE
+    def _create_configured(self) -> str:
         self._create_rig_outputs()
         self._create_rig_info_inputs()
-        self.get_logger().info(f"configured: rig of {len(self.config.cameras)} cameras (inactive)")
-        return super().on_configure(state)
+        return f"rig of {len(self.config.cameras)} cameras"
 
-    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        ret = super().on_activate(state)  # enables the lifecycle publishers
-        if ret == _OK:
-            self._create_rig_frame_inputs()
-            self._log_rig_ready()
-        return ret
+    def _create_inputs(self) -> None:
+        self._create_rig_frame_inputs()
+        self._log_rig_ready()
 
-    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+    def _destroy_inputs(self) -> None:
         self._destroy_rig_frame_inputs()
-        self._end_rig_video()  # (published while the publishers are still active)
-        self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
-        return super().on_deactivate(state)
 
-    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._release()
-        self.get_logger().info("cleaned up: unconfigured")
-        return super().on_cleanup(state)
+    def _end_track(self) -> None:
+        self._end_rig_video()
 
-    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._destroy_rig_frame_inputs()
-        self._release()
-        return super().on_shutdown(state)
-
-    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.get_logger().error("error in a transition: releasing everything (unconfigured)")
-        self._destroy_rig_frame_inputs()
-        self._release()
-        return _OK
-
-    def _release(self):
-        for pub in self._outputs:
-            self.destroy_lifecycle_publisher(pub)
-        self._outputs = []
+    def _release_core(self) -> None:
         self._release_rig()
 
     def destroy_node(self) -> None:
         SHARED_MAPS.release(self)
         return super().destroy_node()
-
-
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``rs_localizer_lifecycle_node``."""
-    from .runner import run
-
-    return run(RSLocalizerLifecycleNode, args, "rs_localizer_lifecycle_node")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -70,7 +70,7 @@ from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .status_msg import status_message
 from .visualization import NodeVisualization
 
-__all__ = ["PARAMETERS", "RSLocalizerNode", "main"]
+__all__ = ["PARAMETERS", "RSLocalizerNode"]
 
 _yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
@@ -452,15 +452,3 @@ class RSLocalizerNode(LocalizerCore, Node):
         self._create_camera_info_input()
         self._create_frame_inputs()
         self._log_ready()
-
-
-def main(args: list[str] | None = None) -> int:
-    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``): one
-    node, or one per camera namespace in the ``cameras`` parameter (:mod:`.runner`)."""
-    from .runner import run
-
-    return run(RSLocalizerNode, args, "rs_localizer_node")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -130,7 +130,8 @@ def repo_file(*parts: str) -> Path | None:
 
 
 class NodeProcess:
-    """``python -m rs_localizer.ros.node --ros-args ...`` in a subprocess.
+    """``rs_localizer_node --ros-args ...`` (``python -m rs_localizer.ros.runner``) in a
+    subprocess.
 
     Args:
         params_files: parameter files in order (later ones win).
@@ -138,7 +139,8 @@ class NodeProcess:
         params: ``-p name:=value`` extra parameters.
         env: environment (see :func:`ros_env`). log: file for stdout+stderr (default: temp).
         cpus: pin the process (and all its threads) to these CPU ids (Linux).
-        module: the node's module (``rs_localizer.ros.lifecycle`` for the managed node).
+        executable: ``rs_localizer_node`` or ``rs_localizer_lifecycle_node`` (the managed node):
+            a key of :data:`rs_localizer.ros.runner.NODES`.
     """
 
     def __init__(
@@ -151,9 +153,9 @@ class NodeProcess:
         env: Mapping[str, str] | None = None,
         log: str | os.PathLike | None = None,
         cpus: Iterable[int] | None = None,
-        module: str = "rs_localizer.ros.node",
+        executable: str = "rs_localizer_node",
     ):
-        args = [sys.executable, "-m", module, "--ros-args"]
+        args = [sys.executable, "-m", "rs_localizer.ros.runner", executable, "--ros-args"]
         for f in params_files:
             args += ["--params-file", str(f)]
         if namespace:

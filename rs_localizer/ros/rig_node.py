@@ -42,7 +42,6 @@ managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifec
 from __future__ import annotations
 
 import contextlib
-import sys
 import time
 from typing import Any
 
@@ -545,15 +544,3 @@ class RigLocalizerNode(RigCore, Node):
             self._end_rig_video()
         SHARED_MAPS.release(self)
         return super().destroy_node()
-
-
-def main(args: list[str] | None = None) -> int:
-    """The rig mode alone (``python -m rs_localizer.ros.rig_node --ros-args ...``);
-    ``rs_localizer_node`` starts it when ``rig.cameras`` is set."""
-    from .runner import run
-
-    return run(RigLocalizerNode, args, "rs_localizer_node")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,5 +1,5 @@
-"""Process entry point shared by ``rs_localizer_node`` and ``rs_localizer_lifecycle_node``: one
-node, or one node per camera in one process.
+"""The entry points of ``rs_localizer_node`` (:func:`main`) and ``rs_localizer_lifecycle_node``
+(:func:`lifecycle_main`): one node, or one node per camera in one process.
 
 The ``cameras`` parameter (string array, read once at start; from the parameter file or
 ``-p cameras:="[front, rear]"``) lists camera namespaces. Empty (the default): one node, as
@@ -17,6 +17,9 @@ With ``rig.cameras`` set (the rig mode, docs/rig_node.md) the process runs one
 :class:`~rs_localizer.ros.rig_node.RigLocalizerNode` posing all of the rig's cameras as one body
 (``rs_localizer_lifecycle_node``: one
 :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`).
+
+From a checkout: ``python -m rs_localizer.ros.runner --ros-args ...`` (``rs_localizer_node``) or
+``python -m rs_localizer.ros.runner rs_localizer_lifecycle_node --ros-args ...``.
 """
 
 from __future__ import annotations
@@ -26,7 +29,26 @@ from collections.abc import Sequence
 
 import rclpy
 
-__all__ = ["camera_namespaces", "node_cli_args", "read_cameras", "read_rig_cameras", "run"]
+from .lifecycle import RigLocalizerLifecycleNode, RSLocalizerLifecycleNode
+from .node import RSLocalizerNode
+from .rig_node import RigLocalizerNode
+
+__all__ = [
+    "NODES",
+    "camera_namespaces",
+    "lifecycle_main",
+    "main",
+    "node_cli_args",
+    "read_cameras",
+    "read_rig_cameras",
+    "run",
+]
+
+#: executable name -> (the camera node's class, the rig node's class: ``rig.cameras`` set)
+NODES = {
+    "rs_localizer_node": (RSLocalizerNode, RigLocalizerNode),
+    "rs_localizer_lifecycle_node": (RSLocalizerLifecycleNode, RigLocalizerLifecycleNode),
+}
 
 
 def camera_namespaces(cameras: Sequence[str], base_namespace: str = "/") -> list[str]:
@@ -127,14 +149,19 @@ def read_rig_cameras(node_name: str = "rs_localizer") -> list[str]:
         probe.destroy_node()
 
 
-def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localizer_node") -> int:
-    """Initialize rclpy with ``args`` (default ``sys.argv``), create the node(s) of
-    ``node_class`` (see the module docstring) and spin them until shutdown. Returns the exit
-    code (1 with a one-line error for invalid parameters)."""
+def run(prog: str = "rs_localizer_node", args: list[str] | None = None) -> int:
+    """Initialize rclpy with ``args`` (default ``sys.argv``), create the node(s) of the
+    executable ``prog`` (a key of :data:`NODES`; see the module docstring) and spin them until
+    shutdown. Returns the exit code (1 with a one-line error for invalid parameters).
+
+    Raises:
+        KeyError: ``prog`` is not in :data:`NODES`.
+    """
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
     from .dds_profile import apply_default_profile, profile_in_effect
 
+    node_class, rig_class = NODES[prog]
     argv = sys.argv if args is None else args
     apply_default_profile()  # (before the first participant: images over shared memory)
     rclpy.init(args=argv)
@@ -143,10 +170,6 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
     try:
         cams, base_ns, name = read_cameras()
         if read_rig_cameras():  # (the rig mode: one node for every camera of the rig)
-            if prog == "rs_localizer_lifecycle_node":
-                from .lifecycle import RigLocalizerLifecycleNode as rig_class
-            else:
-                from .rig_node import RigLocalizerNode as rig_class
             nodes.append(rig_class())
         elif cams:
             cli = node_cli_args(argv)
@@ -184,3 +207,18 @@ def run(node_class: type, args: list[str] | None = None, prog: str = "rs_localiz
             n.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``rs_localizer_node`` (``ros2 run rs_localizer rs_localizer_node``): one
+    node, one per camera namespace in the ``cameras`` parameter, or the rig node."""
+    return run("rs_localizer_node", args)
+
+
+def lifecycle_main(args: list[str] | None = None) -> int:
+    """Entry point of ``rs_localizer_lifecycle_node``: the managed node(s), as :func:`main`."""
+    return run("rs_localizer_lifecycle_node", args)
+
+
+if __name__ == "__main__":
+    sys.exit(run(sys.argv[1] if sys.argv[1:2] and sys.argv[1] in NODES else "rs_localizer_node"))

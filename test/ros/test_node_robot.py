@@ -287,7 +287,7 @@ def test_lifecycle(tmp_path, ros_context, sample_bag):
         [CONFIG, overlay],
         namespace=ns,
         env=ros_env(),
-        module="rs_localizer.ros.lifecycle",
+        executable="rs_localizer_lifecycle_node",
         log=tmp_path / "lc.log",
     )
     clouds, info = _frames(sample_bag, 8)
