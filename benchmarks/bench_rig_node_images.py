@@ -3,7 +3,7 @@
     python -m benchmarks.bench_rig_node_images [--frames 30] [--cameras 3]
 
 Renders every camera's view of the ``aruco_room`` marker scene at the rig's ``shake`` motion
-composed with its mounting (:mod:`rs_localizer.sim.rig_render`: the ``vga`` camera preset, 30 ms
+composed with its mounting (:mod:`rs_localizer.sim.render.rig`: the ``vga`` camera preset, 30 ms
 readout, cameras looking front, 35 deg left and right, first frames 0, 4 and 8 ms apart), starts
 ``rs_localizer_node`` with ``rig.cameras`` (``frontend: aruco``, reliable image subscriptions)
 in a subprocess pinned to one core, and from this process (pinned to the other; the package's
@@ -64,7 +64,7 @@ def run_benchmark(
     from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg, quaternion_from_matrix
     from rs_localizer.ros.dds_profile import apply_default_profile
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
-    from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
     from rs_localizer.sim.rig_video import rig_truth
 
     from .bench_client import SINGLE_THREAD_ENV

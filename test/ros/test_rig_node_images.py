@@ -1,5 +1,5 @@
 """The rig mode with images over DDS: three 640x480 RGB cameras of the marker room (each view
-rendered at the rig's motion composed with its mounting, rs_localizer.sim.rig_render) published
+rendered at the rig's motion composed with its mounting, rs_localizer.sim.render.rig) published
 per camera on ``<camera>/image_raw``, each camera's ArUco front end, one pose for the rig against
 the truth, every image counted (undecodable and wrong-size images under the single-camera
 node's reasons); the managed rig node through a transition cycle; the diagnostics converter
@@ -141,7 +141,7 @@ class Harness:
 
 @pytest.fixture(scope="module")
 def rendered():
-    from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+    from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
 
     cams = vga_rig(3)
     frames, motion = render_rig_frames(cams, 6, seed=5)
@@ -330,7 +330,7 @@ def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):
         "      left: {mounting: [0.0, 0.12, 0.12, -0.7071068, 0.0, 0.0, 0.7071068]}\n"
     )
     n = NodeProcess([p], namespace="/rig", env=ros_env(), log=tmp_path / "lc.log",
-                    module="rs_localizer.ros.lifecycle")  # fmt: skip
+                    executable="rs_localizer_lifecycle_node")  # fmt: skip
     try:
         assert n.wait_ready(60.0, marker="unconfigured (lifecycle node, rig mode"), n.log
     finally:

@@ -1,5 +1,5 @@
 """RigLocalizer.process_image: every camera's 640x480 images of the marker room (rendered at the
-rig's motion composed with each camera's mounting, rs_localizer.sim.rig_render) through its own
+rig's motion composed with each camera's mounting, rs_localizer.sim.render.rig) through its own
 ArUco front end, the rig posed against the true trajectory; the rig's prediction handed to each
 camera's front end; dropped images counted; and which camera is named when mountings disagree
 (two cameras: both; three: the wrong one)."""
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
-from rs_localizer.sim.rig_render import render_rig_frames, vga_rig
+from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.rig import (
     SKIP_REASONS,

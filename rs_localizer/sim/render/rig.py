@@ -1,19 +1,24 @@
-"""Rendered video of a rig of rolling-shutter cameras (ROS-free): images, the front end's
-correspondences and the rig's ground truth.
+"""Rendered rigs of rolling-shutter cameras (ROS-free): every camera's images at its
+mounting-composed poses with its own timing (:func:`render_rig_images`, the one rendering
+core), and a rig's rendered video with an image front end's correspondences
+(:func:`render_rig_video`, for ``render-bag --rig`` and the rendered-rig benchmark).
 
-A rig (base frame x forward, y left, z up, REP 103) of 1-4 cameras (:func:`rendered_rig`:
-640x480 with mild lens distortion, each its own line delay, readout direction and
-first-frame offset, mounted front, back and to the sides as in
-:data:`rs_localizer.sim.rig.LAYOUTS`) moves along a motion preset of the renderer
-(:func:`rig_trajectory`: :func:`~rs_localizer.sim.render.motion.make_motion` around the
-scene's viewpoint, turned into the base frame as
-:class:`~rs_localizer.sim.rig_video.RigTrajectory` does). Every camera renders its own
-rolling-shutter images (:class:`~rs_localizer.sim.render.renderer.Renderer`: every line at its
-own capture time, with the camera's pose on the rig) and an image front end turns each image
-into correspondences, as ``render-bag`` does for one camera.
+The rig (base frame x forward, y left, z up, REP 103) moves along a motion preset of the
+renderer (:func:`rig_trajectory`: :func:`~rs_localizer.sim.render.motion.make_motion` around the
+scene's viewpoint, a camera's motion in optical axes turned into the base frame as
+:class:`~rs_localizer.sim.rig_video.RigTrajectory` does: ``R_rig(t) = R_motion(t) R_FORWARD^T``).
+Each camera (:class:`~rs_localizer.sim.rig_video.RigCameraSim`: its optical frame's pose on the
+rig, first-frame offset, frame rate) is rendered by
+:class:`~rs_localizer.sim.render.renderer.Renderer` along
+:class:`~rs_localizer.sim.rig_video.MountedTrajectory`, the rig's motion composed with its
+mounting, every line at its own capture time. Ground truth:
+:func:`~rs_localizer.sim.rig_video.rig_truth`.
 
-The built-in scene ``apriltag_rig_room`` (a closed room with tags on all four walls) gives
-every camera of the rig markers to see.
+Two rigs: :func:`rendered_rig` (1-4 cameras laid out as :data:`rs_localizer.sim.rig.LAYOUTS`,
+mild lens distortion; the built-in scene ``apriltag_rig_room``, a closed room with tags on all
+four walls, gives every camera markers to see) and :func:`vga_rig` (1-3 cameras looking front,
+left and right, seeing the ``aruco_room`` walls; the image tests' rig, rendered by
+:func:`render_rig_frames`).
 """
 
 from __future__ import annotations
@@ -24,7 +29,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...camera import CameraModel
 from ...geometry import rotvec_to_matrix
 from ..rig import LAYOUTS, READOUTS
 from ..rig_video import MountedTrajectory, RigCameraSim, RigTrajectory
@@ -35,10 +39,14 @@ from .scene import Scene, load_scene
 
 __all__ = [
     "RIG_MOUNTS",
+    "RigCameraImage",
     "RigRenderedFrame",
+    "render_rig_frames",
+    "render_rig_images",
     "render_rig_video",
     "rendered_rig",
     "rig_trajectory",
+    "vga_rig",
 ]
 
 #: name -> (yaw deg about the base z axis, optical centre (m) in the base frame, frame readout
@@ -76,6 +84,53 @@ class RigRenderedFrame:
     frontend_s: float = 0.0
 
 
+@dataclass(frozen=True, eq=False)
+class RigCameraImage:
+    """One camera's rendered image of a rig (:func:`render_rig_images`).
+
+    ``stamp_ns``: capture time of line ``stamp_row`` (the header stamp; row 0: its first line
+    read unless it reads bottom-up); ``t_ref_ns``: of the camera's reference line, ``t_ref``
+    the same in s of rig time (the rig's pose there is the frame's truth). ``image``:
+    (H, W, 3) uint8 RGB (or (H, W) mono8). ``render_s``: CPU time of rendering it, s."""
+
+    name: str
+    index: int
+    stamp_ns: int
+    t_ref_ns: int
+    image: np.ndarray
+    t_ref: float
+    render_s: float = 0.0
+
+
+def _camera_on_rig(name, camera, yaw_deg, position, offset, fps) -> RigCameraSim:
+    """``camera`` turned ``yaw_deg`` about the base z axis from looking forward, its optical
+    centre at ``position`` (m, base frame)."""
+    R = rotvec_to_matrix(np.array([0.0, 0.0, np.radians(yaw_deg)])) @ R_FORWARD
+    return RigCameraSim(name, camera, R, np.array(position, float), offset, float(fps))
+
+
+def vga_rig(num_cameras: int = 3, offsets_s: tuple = (0.0, 0.004, 0.008)) -> list:
+    """``num_cameras`` (1-3) 640x480 cameras (the renderer's ``vga`` preset, 30 ms readout)
+    looking front, 35 deg left and 35 deg right, 5-15 cm off the rig origin, readouts
+    top-down, bottom-up and left-right (62.5, 62.5 and 46.9 us/line), first frames
+    ``offsets_s`` apart, 30 fps: a rig that sees the ``aruco_room`` walls from its viewpoint.
+
+    Raises:
+        ValueError: ``num_cameras`` outside 1-3.
+    """
+    if not 1 <= num_cameras <= 3:
+        raise ValueError(f"num_cameras must be 1-3, got {num_cameras}")
+    spec = [
+        ("front", 0.0, (0.10, 0.0, 0.05), "top_to_bottom"),
+        ("left", 35.0, (0.0, 0.08, 0.06), "bottom_to_top"),
+        ("right", -35.0, (0.0, -0.08, 0.06), "left_to_right"),
+    ]
+    return [
+        _camera_on_rig(name, camera_preset("vga", readout=readout), yaw, pos, offsets_s[k], 30.0)
+        for k, (name, yaw, pos, readout) in enumerate(spec[:num_cameras])
+    ]
+
+
 def rendered_rig(
     num_cameras: int = 3,
     fps: float = 30.0,
@@ -102,8 +157,7 @@ def rendered_rig(
             raise ValueError(f"unknown rig camera {name!r}; expected one of {sorted(RIG_MOUNTS)}")
         yaw, pos, readout_time, offset = RIG_MOUNTS[name]
         cam = camera_preset(camera, readout_time=readout_time, readout=READOUTS[k % 4])
-        R = rotvec_to_matrix(np.array([0.0, 0.0, np.radians(yaw)])) @ R_FORWARD
-        out.append(RigCameraSim(name, cam, R, np.array(pos, float), offset, float(fps)))
+        out.append(_camera_on_rig(name, cam, yaw, pos, offset, fps))
     return out
 
 
@@ -115,6 +169,105 @@ def rig_trajectory(
     times ``scale``, its camera axes turned into the rig's base frame (x forward, y left,
     z up). Raises ValueError for an unknown preset."""
     return RigTrajectory(make_motion(motion, scene, duration=duration, scale=scale))
+
+
+def _duration(cameras: list[RigCameraSim], frames: int) -> float:
+    """s of rig time until the last camera's last frame starts."""
+    return max(c.offset + frames / c.fps for c in cameras)
+
+
+def render_rig_images(
+    cameras: list[RigCameraSim],
+    scene: Scene,
+    trajectory: RigTrajectory,
+    frames: int,
+    *,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    stamp_row: float = 0.0,
+    supersample: int = 2,
+    noise: bool = True,
+    seed: int = 0,
+    mono: bool = False,
+) -> Iterator[RigCameraImage]:
+    """Yield every camera's rendered images (``frames`` per camera), sorted by stamp (then by
+    camera, in ``cameras`` order), each rendered when it is asked for.
+
+    Camera c's frame k has its first line read at rig time ``c.offset + k / c.fps`` (rig time
+    t is stamped ``t0_ns + t * 1e9`` ns; the header stamp is the capture time of line
+    ``stamp_row``); each line is rendered with the camera's pose on the rig (``trajectory``
+    composed with its mounting) at its own capture time.
+
+    Args:
+        cameras: the rig (:func:`rendered_rig`, :func:`vga_rig`). scene: the scene.
+        trajectory: the rig's motion (:func:`rig_trajectory`).
+        supersample: anti-aliasing samples per axis. noise: sensor noise
+            (:class:`~rs_localizer.sim.render.renderer.NoiseModel`), seeded per camera and frame
+            from ``seed``. mono: mono8 images instead of RGB.
+    """
+    cameras = list(cameras)
+    jobs = []
+    for ci, c in enumerate(cameras):
+        for k in range(int(frames)):
+            t_first = c.offset + k / c.fps
+            jobs.append((t_first + float(c.camera.line_time(stamp_row)), ci, k, t_first))
+    jobs.sort()
+    renderers = [
+        Renderer(scene, c.camera, supersample=supersample, noise=NoiseModel() if noise else None)
+        for c in cameras
+    ]
+    mounted = [
+        MountedTrajectory(
+            trajectory, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float)
+        )
+        for c in cameras
+    ]
+    for stamp, ci, k, t_first in jobs:
+        tic = time.process_time()
+        fr = renderers[ci].render(
+            mounted[ci], t_first, index=k, mono=mono, rng=np.random.default_rng([seed, ci, k])
+        )
+        yield RigCameraImage(
+            cameras[ci].name,
+            k,
+            int(t0_ns) + int(round(stamp * 1e9)),
+            int(t0_ns) + int(round(fr.t_ref * 1e9)),
+            fr.image,
+            fr.t_ref,
+            time.process_time() - tic,
+        )
+
+
+def render_rig_frames(
+    cameras: list,
+    frames: int,
+    *,
+    scene: str = "aruco_room",
+    motion: str = "shake",
+    seed: int = 0,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    supersample: int = 1,
+    noise: bool = True,
+    mono: bool = False,
+) -> tuple[list[RigCameraImage], RigTrajectory]:
+    """Render ``frames`` frames of every camera, stamped at their row 0, sorted by stamp:
+    :func:`render_rig_images` along the renderer's ``motion`` preset over the rendered time,
+    around ``scene``'s viewpoint.
+
+    Args:
+        cameras: :class:`~rs_localizer.sim.rig_video.RigCameraSim` (e.g. :func:`vga_rig`).
+        scene, motion: the renderer's scene and motion preset names.
+        supersample, noise, mono: as :func:`render_rig_images`.
+    Returns:
+        (frames, the rig's motion; :func:`~rs_localizer.sim.rig_video.rig_truth` gives its
+        truth).
+    """
+    sc = load_scene(scene)
+    rig = rig_trajectory(motion, sc, _duration(cameras, frames))
+    images = render_rig_images(
+        cameras, sc, rig, frames, t0_ns=t0_ns, supersample=supersample, noise=noise, seed=seed,
+        mono=mono,
+    )  # fmt: skip
+    return list(images), rig
 
 
 def render_rig_video(
@@ -130,11 +283,9 @@ def render_rig_video(
     noise: bool = True,
     seed: int = 0,
 ) -> Iterator[RigRenderedFrame]:
-    """Yield every camera's rendered frames (``frames`` per camera), sorted by stamp.
-
-    Camera c's frame k has its first line read at rig time ``c.offset + k / c.fps`` (rig time
-    t is stamped ``t0_ns + t * 1e9`` ns); each line is rendered with the camera's pose on the
-    rig at its own capture time.
+    """Yield every camera's rendered frames (``frames`` per camera; :func:`render_rig_images`),
+    sorted by stamp, each with its front end's correspondences and the rig's pose at its
+    reference line.
 
     Args:
         cameras: the rig (:func:`rendered_rig`). scene: a built-in name, YAML path or
@@ -150,49 +301,29 @@ def render_rig_video(
 
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     cameras = list(cameras)
-    duration = max(c.offset + frames / c.fps for c in cameras)
-    trajectory = trajectory or rig_trajectory("pan", sc, duration)
+    trajectory = trajectory or rig_trajectory("pan", sc, _duration(cameras, frames))
     make_fe = frontend or (lambda name: ArucoFrontend.from_scene(sc))
-    jobs = []
-    for ci, c in enumerate(cameras):
-        cam: CameraModel = c.camera
-        for k in range(int(frames)):
-            t_first = c.offset + k / c.fps
-            jobs.append((t_first + float(cam.line_time(stamp_row)), ci, k, t_first))
-    jobs.sort()
-    renderers = [
-        Renderer(sc, c.camera, supersample=supersample, noise=NoiseModel() if noise else None)
-        for c in cameras
-    ]
-    mounted = [
-        MountedTrajectory(
-            trajectory, np.asarray(c.R_rig_cam, float), np.asarray(c.p_rig_cam, float)
-        )
-        for c in cameras
-    ]
-    fes = [make_fe(c.name) for c in cameras]
-    for stamp, ci, k, t_first in jobs:
-        c, r = cameras[ci], renderers[ci]
+    by_name = {c.name: (c.camera, make_fe(c.name)) for c in cameras}
+    images = render_rig_images(
+        cameras, sc, trajectory, frames, t0_ns=t0_ns, stamp_row=stamp_row,
+        supersample=supersample, noise=noise, seed=seed,
+    )  # fmt: skip
+    for f in images:
+        camera, fe = by_name[f.name]
         tic = time.process_time()
-        img = r.render_image(mounted[ci], t_first)
-        if r.noise is not None:
-            img = r.noise.apply(img, np.random.default_rng([seed, ci, k]))
-        img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-        toc = time.process_time()
-        uv, xyz, ids = fes[ci].process(img, c.camera)
-        t_ref = t_first + float(c.camera.line_time(c.camera.reference_line))
-        R, p = trajectory.pose(t_ref)
+        uv, xyz, ids = fe.process(f.image, camera)
+        R, p = trajectory.pose(f.t_ref)
         yield RigRenderedFrame(
-            c.name,
-            k,
-            t0_ns + int(round(stamp * 1e9)),
-            t0_ns + int(round(t_ref * 1e9)),
-            img,
+            f.name,
+            f.index,
+            f.stamp_ns,
+            f.t_ref_ns,
+            f.image,
             np.asarray(uv, float).reshape(-1, 2),
             np.asarray(xyz, float).reshape(-1, 3),
             np.asarray(ids, np.uint32).reshape(-1),
             R,
             p,
-            toc - tic,
-            time.process_time() - toc,
+            f.render_s,
+            time.process_time() - tic,
         )
