@@ -32,9 +32,9 @@ activation starts a new one; the counters go on); cleanup releases everything (t
 too). Parameters may be changed while unconfigured; once configured, changes are refused
 until cleanup.
 
-Both managed nodes run the transitions of one template, :class:`ManagedTransitions`: the
-camera and the rig node each name the phases of their core (:class:`~.node.LocalizerCore`,
-:class:`~.rig_node.RigCore`) that a transition runs.
+Both managed nodes run the transitions of one template, :class:`ManagedTransitions`, over the
+phases that the camera's and the rig's cores (:class:`~.node.LocalizerCore`,
+:class:`~.rig_node.RigCore`) both have.
 """
 
 from __future__ import annotations
@@ -57,40 +57,22 @@ class ManagedTransitions:
     """The lifecycle transitions of a managed node, written once (see the module docstring).
 
     Mixed in before the node's core and :class:`rclpy.lifecycle.LifecycleNode`
-    (``class X(ManagedTransitions, Core, LifecycleNode)``); the node class names its core's
-    phases in the hooks below. Its outputs are lifecycle publishers (``self._outputs``),
-    enabled and disabled by the lifecycle node's own transitions.
+    (``class X(ManagedTransitions, Core, LifecycleNode)``). The core
+    (:class:`~.node.LocalizerCore`, :class:`~.rig_node.RigCore`) has the phases a transition
+    runs: ``_configure`` (parameters -> configuration; RuntimeError for invalid parameters),
+    ``_create_outputs``, ``_create_info_inputs``, ``_create_frame_inputs``, ``_log_ready``,
+    ``_destroy_frame_inputs``, ``_end_video`` (publish what the track still holds, the
+    publishers still active) and ``_release_configured`` (what configure made but the
+    publishers); the node class says what the log line ``configured: ... (inactive)`` names
+    (``_configured_as``). The outputs are lifecycle publishers (``self._outputs``), enabled
+    and disabled by the lifecycle node's own transitions.
     """
 
     _outputs: list
 
-    # ------------------------------------------------------------------ hooks
-    def _configure_core(self) -> None:
-        """Parameters -> configuration. Raises RuntimeError for invalid parameters."""
+    def _configured_as(self) -> str:
         raise NotImplementedError
 
-    def _create_configured(self) -> str:
-        """Create the outputs (inactive) and the ``camera_info`` inputs; returns what the log
-        line ``configured: ... (inactive)`` names."""
-        raise NotImplementedError
-
-    def _create_inputs(self) -> None:
-        """Subscribe the frame inputs, start diagnostics and log ``ready: ...``."""
-        raise NotImplementedError
-
-    def _destroy_inputs(self) -> None:
-        """Undo :meth:`_create_inputs`."""
-        raise NotImplementedError
-
-    def _end_track(self) -> None:
-        """At deactivate, the frame inputs gone and the publishers still active: publish what
-        the track still holds (nothing, unless the node says so)."""
-
-    def _release_core(self) -> None:
-        """Drop what configure made besides the publishers."""
-        raise NotImplementedError
-
-    # ------------------------------------------------------------------ the template
     def _make_publisher(self, msg_type, topic, qos):
         pub = self.create_lifecycle_publisher(msg_type, topic, qos, event_callbacks=output_events())
         self._outputs.append(pub)
@@ -98,24 +80,26 @@ class ManagedTransitions:
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         try:
-            self._configure_core()
+            self._configure()
         except RuntimeError as e:
             self.get_logger().error(f"configure failed: {e}")
             self._release()
             return TransitionCallbackReturn.FAILURE
-        what = self._create_configured()
-        self.get_logger().info(f"configured: {what} (inactive)")
+        self._create_outputs()
+        self._create_info_inputs()
+        self.get_logger().info(f"configured: {self._configured_as()} (inactive)")
         return super().on_configure(state)
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         ret = super().on_activate(state)  # enables the lifecycle publishers
         if ret == _OK:
-            self._create_inputs()
+            self._create_frame_inputs()
+            self._log_ready()
         return ret
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._destroy_inputs()
-        self._end_track()  # (published while the publishers are still active)
+        self._destroy_frame_inputs()
+        self._end_video()  # (published while the publishers are still active)
         self.get_logger().info("deactivated: frame inputs unsubscribed, not publishing")
         return super().on_deactivate(state)
 
@@ -125,13 +109,13 @@ class ManagedTransitions:
         return super().on_cleanup(state)
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._destroy_inputs()
+        self._destroy_frame_inputs()
         self._release()
         return super().on_shutdown(state)
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.get_logger().error("error in a transition: releasing everything (unconfigured)")
-        self._destroy_inputs()
+        self._destroy_frame_inputs()
         self._release()
         return _OK
 
@@ -140,7 +124,7 @@ class ManagedTransitions:
         for pub in self._outputs:
             self.destroy_lifecycle_publisher(pub)
         self._outputs = []
-        self._release_core()
+        self._release_configured()
 
 
 class RSLocalizerLifecycleNode(ManagedTransitions, LocalizerCore, LifecycleNode):
@@ -155,31 +139,8 @@ class RSLocalizerLifecycleNode(ManagedTransitions, LocalizerCore, LifecycleNode)
         self._outputs = []
         self.get_logger().info("unconfigured (lifecycle node: configure, then activate)")
 
-    def _configure_core(self) -> None:
-        self._configure()
-
-    def _create_configured(self) -> str:
-        self._create_outputs()
-        self._create_camera_info_input()
+    def _configured_as(self) -> str:
         return f"solver {self.cfg.solver}"
-
-    def _create_inputs(self) -> None:
-        self._create_frame_inputs()
-        self._log_ready()
-
-    def _destroy_inputs(self) -> None:
-        self._destroy_frame_inputs()
-
-    def _release_core(self) -> None:
-        """The camera_info and imu subscriptions, maps, the camera model, the configuration
-        and the counters."""
-        self.pub_diag = None
-        for sub in (self.sub_info, self.sub_imu):
-            if sub is not None:
-                self.destroy_subscription(sub)
-        SHARED_MAPS.release(self)
-        self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
-        # the counters reset too)
 
 
 class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
@@ -188,30 +149,12 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         LifecycleNode.__init__(self, node_name, **kwargs)
-        self._declare_rig_parameters()
+        self._declare_parameters()
         self.add_on_set_parameters_callback(self._refuse_changes)
         self.get_logger().info("unconfigured (lifecycle node, rig mode: configure, then activate)")
 
-    def _configure_core(self) -> None:
-        self._configure_rig()
-
-    def _create_configured(self) -> str:
-        self._create_rig_outputs()
-        self._create_rig_info_inputs()
+    def _configured_as(self) -> str:
         return f"rig of {len(self.config.cameras)} cameras"
-
-    def _create_inputs(self) -> None:
-        self._create_rig_frame_inputs()
-        self._log_rig_ready()
-
-    def _destroy_inputs(self) -> None:
-        self._destroy_rig_frame_inputs()
-
-    def _end_track(self) -> None:
-        self._end_rig_video()
-
-    def _release_core(self) -> None:
-        self._release_rig()
 
     def destroy_node(self) -> None:
         SHARED_MAPS.release(self)

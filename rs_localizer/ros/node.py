@@ -81,7 +81,10 @@ class LocalizerCore:
     :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode` (by lifecycle transition).
     Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`, :meth:`_init_state`,
     :meth:`_configure` (parameters -> configuration, maps, JIT warm-up), :meth:`_create_outputs`,
-    :meth:`_create_camera_info_input`, :meth:`_create_frame_inputs`, :meth:`_log_ready`.
+    :meth:`_create_info_inputs`, :meth:`_create_frame_inputs`, :meth:`_log_ready` (and
+    :meth:`_destroy_frame_inputs`, :meth:`_end_video`, :meth:`_release_configured`): the rig's
+    :class:`~rs_localizer.ros.rig_node.RigCore` has the same, so that one template of the
+    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives both.
     The frames go through a :class:`~rs_localizer.ros.pipeline.FramePipeline` on the worker
     thread of a :class:`~rs_localizer.ros.frame_queue.FrameQueue`; this class subscribes,
     publishes what the pipeline returns and reports diagnostics."""
@@ -159,7 +162,7 @@ class LocalizerCore:
         if self.cfg.republish_correspondences and self._maps().frontend is not None:
             self._corr_out_publisher()
 
-    def _create_camera_info_input(self):
+    def _create_info_inputs(self):
         """camera_info and, with imu.enabled (read-only), the gyro's imu; created before the
         frame inputs: a camera_info or IMU sample ready together with a frame is taken first."""
         qos = QoSOverridingOptions.with_default_policies()
@@ -239,6 +242,22 @@ class LocalizerCore:
         self._diag_timer = self._flush_timer = None
         self._stop_worker(drop_queued=True)
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
+
+    def _end_video(self):
+        """Nothing to publish at the end of the frame inputs: :meth:`_destroy_frame_inputs`
+        dropped the frames still queued and the track."""
+
+    def _release_configured(self):
+        """Drop what configure made but the publishers (the managed node destroys those): the
+        camera_info and imu subscriptions, maps, the camera model, the configuration and the
+        counters."""
+        self.pub_diag = None
+        for sub in (self.sub_info, self.sub_imu):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        SHARED_MAPS.release(self)
+        self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
+        # the counters reset too)
 
     def _log_ready(self):
         cfg = self.cfg
@@ -449,6 +468,6 @@ class RSLocalizerNode(LocalizerCore, Node):
         self._configure()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._create_outputs()
-        self._create_camera_info_input()
+        self._create_info_inputs()
         self._create_frame_inputs()
         self._log_ready()

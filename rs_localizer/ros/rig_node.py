@@ -173,11 +173,14 @@ class RigCore:
     """Everything of the rig mode but the order of its construction, shared by
     :class:`RigLocalizerNode` (all at once) and the managed
     :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
-    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_rig_parameters`,
-    :meth:`_configure_rig` (parameters -> configuration, the cameras' front ends, the
-    :class:`~rs_localizer.tracking.rig.RigLocalizer`), :meth:`_create_rig_outputs`,
-    :meth:`_create_rig_info_inputs`, :meth:`_create_rig_frame_inputs` (and
-    :meth:`_destroy_rig_frame_inputs`), :meth:`_end_rig_video`, :meth:`_release_rig`."""
+    Mixed into an rclpy ``Node``; the phases: :meth:`_declare_parameters`,
+    :meth:`_configure` (parameters -> configuration, the cameras' front ends, the
+    :class:`~rs_localizer.tracking.rig.RigLocalizer`), :meth:`_create_outputs`,
+    :meth:`_create_info_inputs`, :meth:`_create_frame_inputs` (and
+    :meth:`_destroy_frame_inputs`), :meth:`_end_video`, :meth:`_release_configured`: those of
+    the camera's :class:`~rs_localizer.ros.node.LocalizerCore`, so that one template of the
+    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives
+    both."""
 
     rig = None  # (None: not configured)
     config = None
@@ -185,7 +188,7 @@ class RigCore:
     def _make_publisher(self, msg_type, topic, qos):
         return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
 
-    def _declare_rig_parameters(self) -> None:
+    def _declare_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
         _declare_typed(
@@ -195,7 +198,7 @@ class RigCore:
         self._pubs, self.pub_diag, self._timer = {}, None, None
         self._configured = False
 
-    def _configure_rig(self) -> None:
+    def _configure(self) -> None:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
         use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
         rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
@@ -248,7 +251,7 @@ class RigCore:
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self._configured = True
 
-    def _create_rig_outputs(self) -> None:
+    def _create_outputs(self) -> None:
         self._pubs = {
             topic: self._make_publisher(t, topic, RELIABLE)
             for topic, t in (
@@ -265,7 +268,7 @@ class RigCore:
             self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
         self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
 
-    def _create_rig_info_inputs(self) -> None:
+    def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
             self._subs.append(
                 self.create_subscription(
@@ -276,7 +279,7 @@ class RigCore:
                 )
             )
 
-    def _create_rig_frame_inputs(self) -> None:
+    def _create_frame_inputs(self) -> None:
         """Per camera ``<c>/correspondences`` and, with a front end, ``<c>/image_raw`` (or
         ``<c>/image_raw/compressed``); the diagnostics timer."""
         for c in self.config.cameras:
@@ -308,7 +311,7 @@ class RigCore:
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
 
-    def _destroy_rig_frame_inputs(self) -> None:
+    def _destroy_frame_inputs(self) -> None:
         for sub in self._frame_subs:
             self.destroy_subscription(sub)
         self._frame_subs = []
@@ -316,7 +319,7 @@ class RigCore:
             self.destroy_timer(self._timer)
             self._timer = None
 
-    def _end_rig_video(self) -> None:
+    def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
         next frame starts a new track."""
         if self.rig is None:
@@ -326,7 +329,7 @@ class RigCore:
         for f in self.rig.flush() + self.rig.reset():
             self._publish_fused(f)
 
-    def _release_rig(self) -> None:
+    def _release_configured(self) -> None:
         """Drop what configure made: publishers, subscriptions, front ends and their map, the
         rig and its counters."""
         for sub in self._subs:
@@ -336,7 +339,7 @@ class RigCore:
         self.rig, self.config, self._pubs, self.pub_diag = None, None, {}, None
         self._configured = False
 
-    def _log_rig_ready(self) -> None:
+    def _log_ready(self) -> None:
         images = (
             f", {self.frontend_kind} front end on each camera's image_raw"
             if self.frontend_kind != "none"
@@ -529,18 +532,18 @@ class RigLocalizerNode(RigCore, Node):
 
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         Node.__init__(self, node_name, **kwargs)
-        self._declare_rig_parameters()
-        self._configure_rig()
-        self._create_rig_outputs()
-        self._create_rig_info_inputs()
-        self._create_rig_frame_inputs()
+        self._declare_parameters()
+        self._configure()
+        self._create_outputs()
+        self._create_info_inputs()
+        self._create_frame_inputs()
         self.add_on_set_parameters_callback(self._refuse_changes)
-        self._log_rig_ready()
+        self._log_ready()
 
     def destroy_node(self) -> None:
         """Solve the rig frames still open and publish them and the pending twists, then
         destroy the node."""
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
-            self._end_rig_video()
+            self._end_video()
         SHARED_MAPS.release(self)
         return super().destroy_node()
