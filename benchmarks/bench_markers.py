@@ -13,7 +13,12 @@ runs on every frame, one thread each:
   10, three passes; OpenCV's own one-window corner refinement; the smallest marker perimeter
   0.02 of the image's side);
 * ``apriltag dN``: the AprilTag 3 library at ``quad_decimate`` N (``--decimate``; 0: ``apriltag
-  auto``, the default, by image size).
+  auto``, the default, by image size), its corners refined from the tags' edge profiles (the
+  detector's default); ``apriltag dN lib``: the library's own corners;
+* ``exact corners``: the estimator fed the renderer's exact corners of the tags ``apriltag
+  auto`` found (what the estimator's constant-velocity model leaves on this motion, which
+  corner noise adds to or, by chance, offsets), and ``exact + 0.07 px`` those corners with
+  Gaussian noise of 0.07 px per axis.
 
 Prints per preset and detector: detection time per frame (median, p99, ms; and the median CPU
 time of the detecting thread, what a loaded machine does not inflate), the share of the
@@ -48,7 +53,8 @@ stages, with OpenCV's default thresholding and the front end's, on 640x480 video
 ``aruco_room`` (as ``data/sample_images``) and of the textured room with ``DICT_4X4_250``
 markers: corner error, corners left on an integer pixel, per-frame pose error.
 ``--corner-study``: the AprilTag library's corners with ``refine_edges`` off, ``quad_sigma``
-0.4 / 0.8 and OpenCV's ``cornerSubPix`` on them, against the renderer's exact corners.
+0.4 / 0.8 and OpenCV's ``cornerSubPix`` on them, and the detector's edge-profile refinement,
+against the renderer's exact corners.
 
     python -m benchmarks.bench_markers [--frames 20] [--presets vga,hd] [--decimate 0,1,1.5,2]
         [--false-frames 100]
@@ -160,7 +166,7 @@ def run_video(
     marker candidates (OpenCV), "err" (N,) px, "rot" (F,) deg, "pos" (F,) m (NaN: not posed),
     "margins" (M,) raw decision margins of the true tags (AprilTag)}}; with ``apriltag auto``
     also :data:`EXACT` (the estimator fed the renderer's exact corners of the tags ``apriltag
-    auto`` found: the pose error the estimator's constant-velocity model leaves on this motion)
+    auto`` found: the pose error of the estimator's constant-velocity model on this motion)
     and :data:`EXACT_NOISE` (those corners plus Gaussian noise of :data:`EXACT_NOISE_PX` px per
     axis)."""
     scene = room(dictionary)
@@ -376,11 +382,17 @@ def corner_study(preset: str, frames: int, seed: int = 0) -> dict:
     """Corner error of the AprilTag library's variants against the renderer's exact corners
     on the room's video (fully visible tags): ``refine_edges`` off, ``quad_sigma`` 0.4 and 0.8,
     and OpenCV's ``cornerSubPix`` (windows 2-5 px) on the library's corners, at
-    ``quad_decimate`` 1 and 1.5. Returns {name: (found, visible, errors (N,) px, signed
-    errors (N, 2) px)}."""
+    ``quad_decimate`` 1 and 1.5, each without the edge-profile refinement (the library's
+    corners), and the default detector (``edge profiles``: the library's corners refined by
+    :func:`~rs_localizer.frontends.marker_detection.refine_tag_edges`). Returns {name: (found,
+    visible, errors (N,) px, signed errors (N, 2) px)}."""
     variants = {}
     for d in (1.0, 1.5):
         variants[f"d{d:g}"] = (DetectorOptions(detector="apriltag", quad_decimate=d), 0)
+        variants[f"d{d:g} edge profiles"] = (
+            DetectorOptions(detector="apriltag", quad_decimate=d),
+            -1,
+        )
         variants[f"d{d:g} refine_edges off"] = (
             DetectorOptions(detector="apriltag", quad_decimate=d, refine_edges=False),
             0,
@@ -396,7 +408,8 @@ def corner_study(preset: str, frames: int, seed: int = 0) -> dict:
                 w,
             )
     dets = {
-        n: (make_marker_detector("DICT_APRILTAG_36h11", o), w) for n, (o, w) in variants.items()
+        n: (AprilTagDetector("tag36h11", o, edge_refinement=w < 0), max(w, 0))
+        for n, (o, w) in variants.items()
     }
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
     out = {n: [0, 0, [], []] for n in dets}
@@ -660,7 +673,8 @@ def targets(videos: dict, aruco: dict, false: dict, causes: dict | None = None) 
                 out.append(
                     "    the same estimator on the renderer's exact corners of the same tags: "
                     f"rotation {bound[0]:.2f}x, position {bound[1]:.2f}x better than OpenCV's "
-                    f"defaults (the most any detector can reach on this video); with "
+                    f"defaults (the error of the estimator's constant-velocity model on this "
+                    f"motion, which corner noise adds to or, by chance, offsets); with "
                     f"{EXACT_NOISE_PX:g} px of noise per axis {noisy[0]:.2f}x, {noisy[1]:.2f}x"
                 )
         elif preset == "hd":
