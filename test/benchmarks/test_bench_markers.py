@@ -24,8 +24,9 @@ def test_bench_markers_runs(capsys):
         for line in out.splitlines()
         if line.strip().startswith(("opencv", "apriltag")) and "|" in line
     ]
-    # 36h11: opencv, opencv default (+ apriltag d2); DICT_4X4_250: opencv, opencv default
-    assert len(rows) == (5 if apriltag_binding() else 4)
+    # 36h11: opencv, opencv default (+ apriltag d2 and its library corners, d2 lib);
+    # DICT_4X4_250: opencv, opencv default
+    assert len(rows) == (6 if apriltag_binding() else 4)
     assert all(line.rstrip().endswith("1/1") for line in rows), rows  # every frame posed
     assert "markers reported 0" in out
     assert "with DICT_4X4_250 markers" in out and "targets" in out
@@ -79,6 +80,11 @@ def test_bench_markers_corner_causes(capsys):
     assert float(fit.split("moving ")[1].split()[0]) < 0.05, fit
     target = next(x for x in out.splitlines() if "corner error median, still views" in x)
     assert "on the moving RS video" in target, target
+    # the estimator on the renderer's exact corners of the tags found: a row and the bound
+    exact = next(x for x in out.splitlines() if x.startswith("  exact corners"))
+    assert "0.000 0.000" in exact and exact.rstrip().endswith("1/1"), exact
+    assert any(x.startswith("  exact + 0.07 px") for x in out.splitlines())
+    assert "on the renderer's exact corners of the same tags: rotation" in out
 
 
 @pytest.mark.slow
