@@ -220,11 +220,9 @@ def line_delay_std(prob: MarkerProblem, sol: Any, weights: np.ndarray) -> float:
     the markers' covariance (:func:`_gauge_covariance`: ``weights`` per detection, scaled by
     the estimated pixel noise), every other parameter (frames, markers, corner offset)
     marginalized (a sparse LU solve of ``J^T J x = e``; the dense pseudo-inverse where it is
-    singular). The gauge marker is fixed; the motion tie does not depend on the world frame,
-    the corner model on its origin only at second order in ``tau |w|`` (the exact rotation
-    ``expm(tau [w]x)`` with a translation linear in time), so the output frame changes the line
-    delay and its std only through the gauge marker's place. NaN without
-    ``calibrate_readout``."""
+    singular). The gauge marker is fixed; neither the corner model (in a world centred on each
+    frame's camera) nor the motion tie depends on the world frame, so the output frame does not
+    change the line delay or its std. NaN without ``calibrate_readout``."""
     if prob.ld_col is None:
         return float("nan")
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]

@@ -78,9 +78,11 @@ def map_markers(
     world frame), one marker held fixed (the gauge: the anchor, at its pose when given, else the
     most detected surveyed marker, else the most detected marker, in its own frame; one seen
     at two places is replaced by the most detected other), the output frame applied afterwards
-    (it changes the solution only within the solver's tolerance); detections whose RMS error
-    exceeds ``reject_px`` are rejected (counted) and the map adjusted again without robust loss
-    (:func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
+    (the cost does not depend on the world frame: the map changes by a rigid motion only);
+    detections whose RMS error exceeds ``reject_px`` are rejected (counted) and the map adjusted
+    again without robust loss, to convergence (Levenberg-Marquardt with exact sparse solves,
+    :meth:`~rs_localizer.mapping.marker_problem.MarkerProblem.polish`;
+    :func:`_adjust_and_reject`); (4) the covariance ``(J^T J)^-1`` of the markers, the
     reprojection rows scaled by the estimated noise and weighted for the errors that repeat
     from one viewpoint (:func:`~rs_localizer.mapping.marker_covariance.covariance_in_gauge`);
     (5) the map moved to its output frame (one anchor at its pose, a best fit to surveyed
@@ -134,10 +136,10 @@ def map_markers(
             del obs_px[k], obs_n[k], stamps[k]
         timings["video check"] = time.perf_counter() - t_start
     try:
-        # the adjustment's cost does not depend on the world frame (the motion tie is on the
-        # camera centres), so the output frame, applied after the adjustment, changes the map
-        # only by a rigid motion and the line delay and the frames' velocities only within the
-        # solver's tolerance
+        # the adjustment's cost does not depend on the world frame (the corner model in a
+        # camera-centred world, the motion tie on the camera centres) and the last adjustment
+        # is run to convergence, so the output frame changes the map only by a rigid motion
+        # and neither the line delay nor the frames' velocities
         gauge, _ = choose_gauge(obs_px, options)
     except ValueError as e:
         if not refused:
@@ -254,7 +256,7 @@ def _coarse_adjustment(init: MarkerInit, obs_px, camera, options, anchor, anchor
 
 def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, bar) -> tuple:
     """Rolling-shutter bundle adjustment with the gauge marker fixed: robust loss, rejection of
-    detections over ``reject_px``, plain least squares; views split by drift of the
+    detections over ``reject_px``, plain least squares to convergence; views split by drift of the
     initialization (not a second copy of the id) are taken back and the map adjusted again.
     Returns ``(problem, solution, inconsistent ids, excluded detections)``."""
     fr_ids = sorted(init.frames)
@@ -277,7 +279,7 @@ def _adjust_and_reject(init, obs_px, obs_n, camera, options, anchor, timings, ba
         kept = e8[prob.keep]
         prob.noise_px = float(np.sqrt(np.mean(kept**2))) if kept.size else 1.0
         t0 = time.perf_counter()
-        sol = prob.solve(sol.x, max_nfev=options.final_max_nfev)
+        sol = prob.polish(sol.x, max_iter=options.final_max_iter)
         timings["final adjustment"] = timings.get("final adjustment", 0.0) + (
             time.perf_counter() - t0
         )
@@ -383,7 +385,7 @@ def _assemble(
     # camera's own velocities (frame_velocities: pose.model_twist with W, T per second; C the
     # world -> camera translation of the adjustment's frame: the camera's velocities in its
     # own frame do not depend on the world frame)
-    omega, v = frame_velocities(Cf, W, T)
+    omega, v = frame_velocities(W, T)
     e = prob.corner_residuals(sol.x).reshape(-1, 8)[prob.keep]
     timings["total"] = time.perf_counter() - t0
     return MarkerMapResult(

@@ -5,23 +5,32 @@ BR, BL, measured pixels) and the frame's capture time. Output: each marker's 6-D
 world corners, with a gauge-fixed covariance, and each frame's pose and twist.
 
 Model. Every corner observation is explained by the estimator's model (paper eq. 4 with the exact
-rotation, docs/architecture.md "Conventions"; :mod:`rs_localizer.estimation.refine`)::
+rotation, docs/architecture.md "Conventions"; :mod:`rs_localizer.estimation.refine`) written in
+a world centred on the frame's camera at its reference line::
 
-    x_i ~ pi( expm(tau_i [w]x) R X_i + C + tau_i t ),   tau_i = r_i - r0 (measured line)
+    x_i ~ pi( expm(tau_i [w]x) (R X_i + C) + tau_i t ),   tau_i = r_i - r0 (measured line)
 
-with ``x_i`` the undistorted normalized corner and ``X_i`` a marker corner. Here the velocities
-are per second: ``w = s * w_s``, ``t = s * t_s`` with ``s = line_delay * focal``
-(:attr:`CameraModel.seconds_per_unit_r`), so that one global line delay can be calibrated and
-consecutive frames can be tied by the same velocities. A marker is a square of known side:
-its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's ``SOLVEPNP_IPPE_SQUARE``
-(``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the side; z out of the face).
-The adjustment's world frame is the gauge marker's own (the anchor or the most detected marker,
-not adjusted); the motion tie is written on the camera centres so that it does not depend on
-that frame, and the output frame (``MappingOptions``: an anchor, surveyed markers,
-gravity-aligned) is applied after the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
+with ``x_i`` the undistorted normalized corner and ``X_i`` a marker corner: the point in the
+camera at the reference line, turned by the rotation over ``tau_i`` and moved by the camera's
+velocity. With ``C = 0`` this is eq. 4; written so, it is the same for every world frame (a rigid
+change of the world changes ``R`` and ``C`` only, never ``w`` or ``t``), where eq. 4 with the exact
+rotation depends on the world's origin at second order in ``tau |w|`` (``expm`` acting on ``R X``
+but not on ``C``). Here the velocities are per second: ``w = s * w_s``, ``t = s * t_s`` with
+``s = line_delay * focal`` (:attr:`CameraModel.seconds_per_unit_r`), so that one global line
+delay can be calibrated and consecutive frames can be tied by the same velocities. A marker is a
+square of known side: its corners are ``R_m c_k + p_m`` with ``c_k`` the corners of OpenCV's
+``SOLVEPNP_IPPE_SQUARE`` (``(-h, h, 0), (h, h, 0), (h, -h, 0), (-h, -h, 0)``, ``h`` half the
+side; z out of the face). The adjustment's world frame is the gauge marker's (the anchor at its
+pose when given, else the most detected marker in its own frame; not adjusted); the motion tie
+is written on the camera centres, so the whole cost does not depend on that frame, and the
+output frame (``MappingOptions``: an anchor, surveyed markers, gravity-aligned) is applied
+after the adjustment (:mod:`~rs_localizer.mapping.marker_frame`).
 
 The solver is SciPy's ``least_squares`` (trust-region reflective with a sparse Jacobian from
-``jac_sparsity``; a robust loss, then outlier rejection and a final plain least-squares pass).
+``jac_sparsity``; a robust loss, then outlier rejection), and a last plain least-squares
+adjustment run to convergence with exact sparse solves
+(:meth:`~rs_localizer.mapping.marker_problem.MarkerProblem.polish`): the map, the line delay and
+the velocities are then the same, up to a rigid motion of the map, in every output frame.
 """
 
 from __future__ import annotations
@@ -43,14 +52,15 @@ __all__ = [
 ]
 
 
-def frame_velocities(C: np.ndarray, W: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def frame_velocities(W: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The camera's own velocities of the adjustment's frames: ``(omega (N, 3) rad/s, v (N, 3)
-    m/s)`` in each camera's frame, ``omega = -W``, ``v = W x C - T``, from ``C`` (N, 3) the
-    world -> camera translations (m) and the per-second velocities ``W`` (N, 3) rad/s, ``T``
-    (N, 3) m/s (module docstring). The estimator's conversion
-    :func:`~rs_localizer.pose.model_twist` with ``s = 1``: its ``w = s W`` and ``t = s T``
-    per unit RS coordinate give the same twist as ``(W, T)`` per second."""
-    z = np.array([model_twist(C[k], W[k], T[k], 1.0) for k in range(len(C))]).reshape(-1, 6)
+    m/s)`` in each camera's frame, ``omega = -W``, ``v = -T``, from the per-second velocities
+    ``W`` (N, 3) rad/s and ``T`` (N, 3) m/s of the corner model (module docstring: the
+    estimator's model in a world centred on the camera). The estimator's conversion
+    :func:`~rs_localizer.pose.model_twist` with ``C = 0`` and ``s = 1``; like the model, it
+    does not depend on the world frame."""
+    z = np.array([model_twist(np.zeros(3), W[k], T[k], 1.0) for k in range(len(W))])
+    z = z.reshape(-1, 6)
     return z[:, 3:], z[:, :3]
 
 
@@ -150,8 +160,10 @@ class MappingOptions:
             in ``MarkerMapResult.unmapped``): its planar two-fold ambiguity and its depth are
             not fixed by one view.
         max_nfev: function-evaluation budget of each ``least_squares`` call but the last.
-        final_max_nfev: budget of the last, plain least-squares adjustment (the map, the line
-            delay and their stds are its solution: it is run to convergence).
+        final_max_iter: steps of the last, plain least-squares adjustment (the map, the line
+            delay and their stds are its solution: Levenberg-Marquardt with exact sparse solves,
+            :meth:`~rs_localizer.mapping.marker_problem.MarkerProblem.polish`, run to
+            convergence; a few steps from the robust adjustment's end point).
         frame: the output frame when neither ``anchor_pose`` nor ``anchors`` is given:
             ``anchor`` (the anchor's own frame, z out of its face), ``auto`` (gravity-aligned,
             z up, from the first of the accelerometer, markers on two or more walls, floor
@@ -186,7 +198,7 @@ class MappingOptions:
     reject_px: float = 3.0
     min_views: int = 2
     max_nfev: int = 60
-    final_max_nfev: int = 200
+    final_max_iter: int = 50
     frame: str = "anchor"
     floor_markers: tuple = ()
 
@@ -253,10 +265,8 @@ class MarkerMapResult:
         line_delay: seconds between lines (calibrated or the camera's).
         line_delay_std: its standard deviation (s) with ``calibrate_readout`` (the line
             delay's marginal of the adjustment's ``(J^T J)^-1``, weighted as the markers'
-            covariance), NaN otherwise. Like ``line_delay`` it depends on the output frame only
-            through the gauge marker's place: the motion tie does not depend on the world
-            frame, the corner model (the exact rotation ``expm(tau [w]x)`` with a translation
-            linear in time) on its origin at second order in ``tau |w|``.
+            covariance), NaN otherwise. Neither depends on the output frame (``--anchor-pose``,
+            ``frame``; module docstring): the same to the solver's precision.
         readout_verdict: with ``calibrate_readout``, why the line delay is not observable
             (the rule of ``rs-localizer calibrate-readout``:
             :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;

@@ -1,8 +1,9 @@
 """Marker maps: the rolling-shutter bundle adjustment's problem (parameter layout, corner
-residuals of the estimator's model with the exact rotation, paper eq. 4, the motion tie between
-consecutive frames on their camera centres, independent of the world frame, the corner offset's
-prior, the Jacobian's sparsity) solved by SciPy's ``least_squares`` (model:
-:mod:`rs_localizer.mapping.marker_model`)."""
+residuals of the estimator's model with the exact rotation, paper eq. 4, in a world centred on
+each frame's camera, the motion tie between consecutive frames on their camera centres: both
+independent of the world frame; the corner offset's prior, the Jacobian's sparsity) solved by
+SciPy's ``least_squares`` and, last, by Levenberg-Marquardt steps with exact sparse solves
+(:meth:`MarkerProblem.polish`; model: :mod:`rs_localizer.mapping.marker_model`)."""
 
 from __future__ import annotations
 
@@ -155,7 +156,8 @@ class MarkerProblem:
                 if b == a or dt <= 0 or dt > 3 * self.opts.max_frame_gap * np.median(np.diff(st)):
                     continue
                 F[i, 6:9] = matrix_to_rotvec(self.R0f[b] @ self.R0f[a].T) / dt
-                F[i, 9:12] = (self.C0f[b] - self.C0f[a]) / dt
+                # (T = -R dc/dt, the camera centre c = -R^T C: dC/dt - W x C)
+                F[i, 9:12] = (self.C0f[b] - self.C0f[a]) / dt - np.cross(F[i, 6:9], self.C0f[i])
         x[self.moff : self.moff + 6 * self.nm].reshape(self.nm, 6)[:, 3:6] = self.p0m
         if self.ld_col is not None:
             x[self.ld_col] = line_delay * 1e6
@@ -210,7 +212,10 @@ class MarkerProblem:
         X = np.einsum("nij,nj->ni", Rm_all[self.mi], self.loc) + pm_all[self.mi]
         ts = self.tau * (ld * self.camera.focal)
         A = rotvec_to_matrix(ts[:, None] * W[self.fi])
-        p = np.einsum("nij,nj->ni", A @ Rf[self.fi], X) + Cf[self.fi] + ts[:, None] * T[self.fi]
+        # (the point in the frame's camera at its reference line, turned by the rotation over
+        # tau: the model in a world centred on that camera, the same wherever the world lies)
+        Pc = np.einsum("nij,nj->ni", Rf[self.fi], X) + Cf[self.fi]
+        p = np.einsum("nij,nj->ni", A, Pc) + ts[:, None] * T[self.fi]
         z = np.where(p[:, 2] > 1e-6, p[:, 2], 1e-6)
         u = p[:, :2] / z[:, None] * self.fxy
         e = u - self.x * self.fxy
@@ -242,7 +247,7 @@ class MarkerProblem:
         # same residual wherever the world's origin lies (its norm, however the axes turn)
         Rt = np.swapaxes(Rf, 1, 2)
         c = -np.einsum("nij,nj->ni", Rt, Cf)
-        v = np.einsum("nij,nj->ni", Rt, frame_velocities(Cf, W, T)[1])
+        v = np.einsum("nij,nj->ni", Rt, frame_velocities(W, T)[1])
         ec = c[j] - c[i] - dt * 0.5 * (v[i] + v[j])
         o = self.opts
         # the angular velocity changes by about the angular acceleration times the time between
@@ -276,8 +281,9 @@ class MarkerProblem:
         ts = self.tau * (ld * foc)
         A = rotvec_to_matrix(ts[:, None] * W[fi])
         ARf = A @ Rf[fi]
-        AQ = np.einsum("nij,nj->ni", ARf, X)
-        p = AQ + Cf[fi] + ts[:, None] * T[fi]
+        # AQ: the point turned by the rotation over tau (camera-centred world, module docstring)
+        AQ = np.einsum("nij,nj->ni", A, np.einsum("nij,nj->ni", Rf[fi], X) + Cf[fi])
+        p = AQ + ts[:, None] * T[fi]
         N = len(p)
         has_ld = self.ld_col is not None
         nl = fpar + 6 + has_ld  # local columns: frame, marker, line delay
@@ -285,7 +291,7 @@ class MarkerProblem:
         # frame rotation: p = A expm(r) R0 X + ...
         Q = np.einsum("nij,nj->ni", Rf[fi], X)
         dp[:, :, 0:3] = A @ (-skew(Q) @ Jlf[fi])
-        dp[:, :, 3:6] = np.eye(3)
+        dp[:, :, 3:6] = A
         if self.vel:
             tW = ts[:, None] * W[fi]
             dp[:, :, 6:9] = (-skew(AQ) @ left_jacobian(tW)) * ts[:, None, None]
@@ -361,10 +367,10 @@ class MarkerProblem:
             blocks.append((0, i, 0, -np.swapaxes(Jinv, 1, 2) @ Jlf[i] / o.motion_sigma_rot))
             hw = (-0.5 * dt / o.motion_sigma_rot)[:, None, None] * eye
             blocks += [(0, i, 6, hw), (0, j, 6, hw)]
-            # ec = c_j - c_i - dt / 2 (v_i + v_j), c = -R^T C, v = R^T u, u = W x C - T; with
+            # ec = c_j - c_i - dt / 2 (v_i + v_j), c = -R^T C, v = R^T u, u = -T; with
             # R -> expm([a]x) R, a = J_l d: dc = -R^T [C]x a, dv = R^T [u]x a
             Rt = np.swapaxes(Rf, 1, 2)
-            u = frame_velocities(Cf, W, T)[1]
+            u = frame_velocities(W, T)[1]
             sp = 1.0 / o.motion_sigma_pos
             h = (0.5 * dt * sp)[:, None, None]
             for fr, sign in ((j, sp), (i, -sp)):
@@ -372,8 +378,7 @@ class MarkerProblem:
                 dc_r = -Rtn @ skew(Cf[fr]) @ Jn
                 dv_r = Rtn @ skew(u[fr]) @ Jn
                 blocks.append((3 * nt, fr, 0, sign * dc_r - h * dv_r))
-                blocks.append((3 * nt, fr, 3, -sign * Rtn - h * (Rtn @ skew(W[fr]))))
-                blocks.append((3 * nt, fr, 6, h * (Rtn @ skew(Cf[fr]))))
+                blocks.append((3 * nt, fr, 3, -sign * Rtn))
                 blocks.append((3 * nt, fr, 9, h * Rtn))
             ia = (1.0 / (o.motion_sigma_angular_accel * dt))[:, None, None] * eye
             blocks += [(6 * nt, j, 6, ia), (6 * nt, i, 6, -ia)]
@@ -414,6 +419,63 @@ class MarkerProblem:
             ftol=tol,
             xtol=tol,
             method="trf",
+        )
+
+    def polish(self, x0: np.ndarray, *, max_iter: int = 50, rtol: float = 1e-12) -> Any:
+        """Plain least squares on :meth:`residuals` from ``x0`` run to convergence:
+        Levenberg-Marquardt steps ``(J^T J + lam diag(J^T J)) dx = -J^T r`` with this problem's
+        sparse Jacobian solved exactly (SuperLU), ``lam`` divided by 10 after a step that lowers
+        the cost and multiplied by 10 (the step refused) otherwise. Stops when a step lowers
+        the cost by less than ``rtol`` times it (or the step is refused at the largest
+        damping), or after ``max_iter`` steps. The exact solves make the end point the cost's
+        minimum to the solver's precision wherever the world frame lies (SciPy's trust-region
+        reflective with its iterative ``lsmr`` solves creeps towards it on an ill-conditioned
+        problem and stops by its tolerance at a point that depends on where it started).
+
+        Returns:
+            ``scipy.optimize.OptimizeResult`` with ``x``, ``fun`` (the residuals), ``cost``
+            (half their squared norm), ``jac`` (:meth:`jacobian` at ``x``), ``nfev``, ``nit``,
+            ``status`` (1: converged, 0: ``max_iter`` reached) and ``success``.
+        """
+        from scipy.optimize import OptimizeResult
+        from scipy.sparse import diags
+        from scipy.sparse.linalg import splu
+
+        x = np.array(x0, dtype=float)
+        r = self.residuals(x)
+        cost = 0.5 * float(r @ r)
+        lam, nfev, status, it = 1e-6, 1, 0, 0
+        J = self.jacobian(x)
+        for it in range(1, max_iter + 1):  # noqa: B007 (the count is reported)
+            H = (J.T @ J).tocsc()
+            g = J.T @ r
+            d = np.maximum(H.diagonal(), 1e-12)
+            accepted = False
+            while lam <= 1e8:
+                try:
+                    with np.errstate(all="raise"):
+                        dx = -splu((H + diags(lam * d)).tocsc()).solve(g)
+                except (RuntimeError, FloatingPointError):
+                    lam *= 10.0
+                    continue
+                rn = self.residuals(x + dx)
+                nfev += 1
+                cn = 0.5 * float(rn @ rn)
+                if np.isfinite(cn) and cn < cost:
+                    accepted = True
+                    break
+                lam *= 10.0
+            if not accepted:
+                status = 1
+                break
+            x, r, gain, cost = x + dx, rn, cost - cn, cn
+            lam = max(lam / 10.0, 1e-12)
+            J = self.jacobian(x)
+            if gain <= rtol * cost:
+                status = 1
+                break
+        return OptimizeResult(
+            x=x, fun=r, cost=cost, jac=J, nfev=nfev, nit=it, status=status, success=status == 1
         )
 
     def sparsity(self) -> csr_matrix:
