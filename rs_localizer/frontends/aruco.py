@@ -63,7 +63,8 @@ class ArucoFrontend(FrontendHooks):
             predicted in view); the full frame is searched when there is no prediction (start,
             a time reset), after a failed frame, when a marker found in the last frame and
             predicted inside the image is not found, when the windows would cover more than
-            ``window_max_share`` of the frame, and every ``full_frame_every`` frames.
+            ``window_max_share`` of the frame (then the next :data:`DENSE_SKIP` frames as
+            well), and every ``full_frame_every`` frames.
         windowed_min_pixels: with ``windowed``, search in windows only on images of at least
             this many pixels (smaller ones in full; 0: every size). On ``apriltag_room`` the
             windows save half the detection at 1280x720 and find the same markers, but at
@@ -129,6 +130,7 @@ class ArucoFrontend(FrontendHooks):
         self._camera = None  # the camera of the last processed frame
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
+        self._dense = 0  # frames still searched whole after windows covered most of one
         self._last_found: set = set()  # marker ids found in the last frame
         self.counts = {"windowed": 0, "full": 0, "weak": 0, "duplicate": 0}
         self.last_weak = 0  # detections refused as weak in the last frame (AprilTag)
@@ -281,10 +283,14 @@ class ArucoFrontend(FrontendHooks):
         pred = None
         due = self.full_frame_every > 0 and self._since_full + 1 >= self.full_frame_every
         small = gray.shape[0] * gray.shape[1] < self.windowed_min_pixels
-        if self.windowed and not small and not self._missed and not due:
+        # (after windows over most of the frame, the next DENSE_SKIP frames are searched whole
+        # without predicting: a dense view stays dense for a while, predicting costs ~1 ms)
+        dense, self._dense = self._dense > 0, max(self._dense - 1, 0)
+        if self.windowed and not small and not self._missed and not due and not dense:
             pred = self.predict_windows(gray.shape, camera, prediction)
-        if pred is not None and window_share(pred[0], gray.shape) > self.window_max_share:
-            pred = None  # (windows over most of the frame cost more than the frame)
+            if pred is not None and window_share(pred[0], gray.shape) > self.window_max_share:
+                pred = None  # (windows over most of the frame cost more than the frame)
+                self._dense = DENSE_SKIP
         self._missed = False
         if pred is not None:
             windows, expect = pred
@@ -320,6 +326,7 @@ class ArucoFrontend(FrontendHooks):
         """Forget the last frame: the next frame is searched in full."""
         self._solved = False
         self._missed = False
+        self._dense = 0
 
     def summary(self) -> dict:
         """Counters since start: frames searched whole (``frontend_frames_global``) and in
@@ -378,6 +385,9 @@ class ArucoFrontend(FrontendHooks):
 #: smallest perimeter)
 WINDOW_MIN_SIDE_PX = 6.0
 
+#: frames searched whole, without predicting, after windows covering most of a frame
+DENSE_SKIP = 5
+
 #: px: the same id found in two windows with corners further apart than this is two markers
 DUPLICATE_PX = 2.0
 
@@ -385,10 +395,11 @@ DUPLICATE_PX = 2.0
 def window_share(windows: list, shape: tuple) -> float:
     """The share of a frame of ``shape`` (H, W) that ``windows`` ``[(x0, y0, x1, y1)]`` (end
     exclusive) cover together (overlaps counted once)."""
-    covered = np.zeros((int(shape[0]), int(shape[1])), bool)
+    h, w = int(shape[0]), int(shape[1])
+    covered = np.zeros((h, w), bool)
     for x0, y0, x1, y1 in windows:
         covered[y0:y1, x0:x1] = True
-    return float(covered.mean())
+    return float(np.count_nonzero(covered)) / (h * w)
 
 
 def merge_windows(boxes: list) -> list:
