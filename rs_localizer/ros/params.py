@@ -480,8 +480,8 @@ PARAMETERS = {
     ),
     "aruco.full_frame_every": Parameter(
         10,
-        "with aruco.windowed: a full-frame detection at least every this many frames (new "
-        "markers; 0: only on the fallbacks)",
+        "with aruco.windowed: a full-frame detection at least every this many frames (markers "
+        "the prediction misplaced; 0: only on the fallbacks)",
         IntRange(from_value=0, to_value=10_000),
         read_only=True,
     ),
