@@ -62,7 +62,8 @@ class ArucoFrontend(FrontendHooks):
             instead of over the full frame (:meth:`predict_windows`: every map marker
             predicted in view); the full frame is searched when there is no prediction (start,
             a time reset), after a failed frame, when a marker found in the last frame and
-            predicted inside the image is not found, when the windows would cover more than
+            predicted inside the image is not found while the markers found lie off their
+            predicted corners (the prediction may be off), when the windows would cover more than
             ``window_max_share`` of the frame (then the next :data:`DENSE_SKIP` frames as
             well), and every ``full_frame_every`` frames.
         windowed_min_pixels: with ``windowed``, search in windows only on images of at least
@@ -131,6 +132,7 @@ class ArucoFrontend(FrontendHooks):
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
         self._dense = 0  # frames still searched whole after windows covered most of one
+        self._predicted: dict = {}  # marker id -> predicted corners (4, 2) of the windows
         self._last_found: set = set()  # marker ids found in the last frame
         self.counts = {"windowed": 0, "full": 0, "weak": 0, "duplicate": 0}
         self.last_weak = 0  # detections refused as weak in the last frame (AprilTag)
@@ -238,6 +240,7 @@ class ArucoFrontend(FrontendHooks):
         lo = np.maximum(np.floor(q.min(axis=1) - m), 0).astype(int)
         hi = np.minimum(np.ceil(q.max(axis=1) + m).astype(int) + 1, [wd, h])
         boxes = np.concatenate([lo, hi], axis=1).tolist()
+        self._predicted = dict(zip(mids[ok].tolist(), q, strict=True))
         return merge_windows(boxes), {int(i) for i in mids[ok & inside]} & self._last_found
 
     def _detect_windows(self, gray: np.ndarray, windows: list) -> tuple[np.ndarray, np.ndarray]:
@@ -297,7 +300,7 @@ class ArucoFrontend(FrontendHooks):
             corners, mids = self._detect_windows(gray, windows)
             self.last_windows = windows
             self.last_kind = "windowed"
-            self._missed = not expect.issubset({int(i) for i in mids})
+            self._missed = self._prediction_missed(expect, corners, mids)
             self._since_full += 1
             self.counts["windowed"] += 1
         else:
@@ -314,6 +317,24 @@ class ArucoFrontend(FrontendHooks):
         self.counts["duplicate"] += self.last_duplicates
         self._last_found = {int(i) for i in mids}
         return corners, mids
+
+    def _prediction_missed(self, expect: set, corners: np.ndarray, mids: np.ndarray) -> bool:
+        """Whether a windowed frame calls for a full-frame search: a marker of ``expect`` (found
+        in the last frame, predicted inside the image) is missing and the markers found lie
+        further than half ``window_margin_px`` from their predicted corners (or none was
+        found): the prediction may have put the windows off. With the found markers where
+        predicted, a missing one was not detectable there (occluded, too oblique or blurred
+        to decode), which a full-frame search would not change."""
+        found = {int(i) for i in mids}
+        if expect.issubset(found):
+            return False
+        pred = self._predicted
+        err = [
+            float(np.abs(c - pred[int(i)]).max())
+            for c, i in zip(corners, mids, strict=True)
+            if int(i) in pred
+        ]
+        return not err or max(err) > 0.5 * self.window_margin_px
 
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
         """The estimate of the last processed frame (the node calls this after each frame):

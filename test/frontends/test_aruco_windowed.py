@@ -117,6 +117,46 @@ def test_markers_not_seen_last_frame_are_searched_where_predicted(video):
     np.testing.assert_allclose(c_w.pixels[i_w], c_f.pixels[i_f], atol=0.05)
 
 
+def test_a_marker_missing_where_predicted_keeps_the_windows(video):
+    """A marker found in the last frame and hidden in this one, the others found where
+    predicted: the next frame is searched in windows again (a full frame would not find the
+    hidden one either); with the markers found far from their predicted corners (a wrong
+    prediction) the next frame is searched whole."""
+    scene, camera, frames = video
+    kinds = {}
+    for case in ("hidden", "off"):
+        fe = ArucoFrontend.from_scene(
+            scene, windowed=True, full_frame_every=0, window_max_share=1.0
+        )
+        carry = CarriedPrediction()
+        _, est, stamp = _solve(fe, frames[0], camera, carry)
+        fe.observe(stamp, None, est)
+        f = frames[1]
+        stamp = int(round(f.t_first * 1e9))
+        pred = carry.predict(stamp, camera)
+        full = ArucoFrontend.from_scene(scene).process(f.image, camera)
+        quads = full.pixels.reshape(-1, 4, 2)
+        h, w = f.image.shape[:2]
+        room = np.minimum(quads.min(axis=1), [w, h] - quads.max(axis=1)).min(axis=1)
+        uv = quads[np.argmax(room)]  # the marker furthest inside the image, painted over
+        x0, y0 = np.floor(uv.min(axis=0)).astype(int) - 2
+        x1, y1 = np.ceil(uv.max(axis=0)).astype(int) + 3
+        img = f.image.copy()
+        img[y0:y1, x0:x1] = 128
+        if case == "off":  # the prediction turned by 11 px: within the windows, off-centre
+            a = 11.0 / camera.K[0, 0]
+            turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+            pred = pred._replace(R=turn @ pred.R, C=turn @ pred.C)
+        c = fe.process(img, camera, prediction=pred)
+        assert fe.last_kind == "windowed"
+        est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+        fe.observe(stamp, None, est)
+        carry.update(stamp, est)
+        _solve(fe, frames[2], camera, carry)
+        kinds[case] = fe.last_kind
+    assert kinds == {"hidden": "windowed", "off": "full"}
+
+
 def test_full_frame_when_windows_cover_most_of_it_or_the_image_is_small(video):
     """The dense ``aruco_room`` at 640x480: the windows of the markers in view cover more
     than half the frame, which is then searched whole; ``windowed_min_pixels`` above the
