@@ -461,7 +461,7 @@ PARAMETERS = {
         "in windows around the pixels the tracker predicts for every map marker in view (or "
         "the last solved frame carried at its twist when tracking is off), the full frame on "
         "start, after a failed frame, when a marker found in the last frame is missing and "
-        "every aruco.full_frame_every frames",
+        "those found lie off their predicted corners, and every aruco.full_frame_every frames",
         read_only=True,
     ),
     "aruco.windowed_min_pixels": Parameter(
