@@ -10,7 +10,8 @@ detection (``windowed=True``), the two runs interleaved frame by frame on the sa
 
 Prints per preset and mode: the detection time per frame (median and p90, ms), frames
 detected in windows / over the full frame, correspondences per frame, rotation and position
-errors against the renderer's truth (median over the frames posed) and the frames posed; and
+errors against the renderer's truth (median over the frames posed) and the frames posed, the
+detection's CPU time (the thread's) and the corners found over the video; and
 the largest difference between a marker corner found in a window and the same corner found
 over the full frame (px). ``--threshold-steps`` adds full-frame detection time and corner
 error against the renderer's truth per OpenCV ``adaptiveThreshWinSizeStep``. One OpenCV / BLAS
@@ -99,7 +100,8 @@ def main(argv: list | None = None) -> int:
             print(
                 f"  {mode:9s} detect ms median {np.median(r['detect']) * 1e3:5.1f} "
                 f"p90 {np.percentile(r['detect'], 90) * 1e3:5.1f} "
-                f"(windowed frames {tw})  corr/frame {np.mean(r['n']):5.1f}  "
+                f"(windowed frames {tw})  CPU ms median {np.median(r['cpu']) * 1e3:5.1f}  "
+                f"corners {int(r['n'].sum())} ({np.mean(r['n']):5.1f}/frame)  "
                 f"rot err {np.nanmedian(r['rot']):.4f} deg  "
                 f"pos err {np.nanmedian(r['pos']) * 1e3:.2f} mm  posed {ok.sum()}/{len(ok)}"
             )

@@ -24,7 +24,7 @@ from ..correspondences import Correspondences, FrontendHooks
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
-__all__ = ["ArucoFrontend", "marker_scores"]
+__all__ = ["ArucoFrontend", "marker_scores", "merge_windows", "window_share"]
 
 #: a marker whose stated position std is this (m) scores 0.5 (:func:`marker_scores`)
 SCORE_STD_M = 0.005
@@ -59,11 +59,22 @@ class ArucoFrontend(FrontendHooks):
             without one scores 1. None: no scores.
         windowed: detect only in windows around the markers' predicted pixels (the
             ``prediction`` given to :meth:`process`, each corner at its own capture line)
-            instead of over the full frame; the full frame is searched when there is no
-            prediction (start, a time reset), after a failed frame, when a predicted marker is
-            not found, and every ``full_frame_every`` frames (new markers).
+            instead of over the full frame (:meth:`predict_windows`: every map marker
+            predicted in view); the full frame is searched when there is no prediction (start,
+            a time reset), after a failed frame, when a marker found in the last frame and
+            predicted inside the image is not found while the markers found lie off their
+            predicted corners (the prediction may be off), when the windows would cover more than
+            ``window_max_share`` of the frame (then the next :data:`DENSE_SKIP` frames as
+            well), and every ``full_frame_every`` frames.
+        windowed_min_pixels: with ``windowed``, search in windows only on images of at least
+            this many pixels (smaller ones in full; 0: every size). On ``apriltag_room`` the
+            windows save half the detection at 1280x720 and find the same markers, but at
+            640x480 they cover half the frame and cost more than it (module notes).
         window_margin_px: padding (px) of each predicted marker's bounding box; at least the
             adaptive-threshold half window plus the expected prediction error.
+        window_max_share: windows covering more than this share of the frame make it a
+            full-frame search (the detectors' cost grows with the pixels searched, plus some
+            per window: on a room dense with markers the windows cost more than the frame).
         full_frame_every: a full-frame detection at least every this many frames (0: only on
             the fallbacks above).
         detector_options: the marker detector's
@@ -83,7 +94,9 @@ class ArucoFrontend(FrontendHooks):
         min_marker_perimeter: float = 0.07,
         marker_std: dict | None = None,
         windowed: bool = False,
+        windowed_min_pixels: int = 0,
         window_margin_px: float = 16.0,
+        window_max_share: float = 0.5,
         full_frame_every: int = 10,
         detector_options: DetectorOptions | None = None,
     ):
@@ -110,12 +123,16 @@ class ArucoFrontend(FrontendHooks):
         )
         self.last_scores = None  # per correspondence, from marker_std
         self.windowed = bool(windowed)
+        self.windowed_min_pixels = int(windowed_min_pixels)
         self.window_margin_px = float(window_margin_px)
+        self.window_max_share = float(window_max_share)
         self.full_frame_every = int(full_frame_every)
         self._solved = False  # the last frame was solved (observe)
         self._camera = None  # the camera of the last processed frame
         self._since_full = 0
         self._missed = False  # a predicted marker was not found in the last windowed frame
+        self._dense = 0  # frames still searched whole after windows covered most of one
+        self._predicted: dict = {}  # marker id -> predicted corners (4, 2) of the windows
         self._last_found: set = set()  # marker ids found in the last frame
         self.counts = {"windowed": 0, "full": 0, "weak": 0, "duplicate": 0}
         self.last_weak = 0  # detections refused as weak in the last frame (AprilTag)
@@ -123,6 +140,13 @@ class ArucoFrontend(FrontendHooks):
         self._times: list = []  # detection seconds per frame
         self.last_windows: list = []  # (x0, y0, x1, y1) of the last windowed frame
         self.last_kind = "full"  # how the last frame was searched: full or windowed
+        # every map marker's corners, for the windows (predict_windows)
+        self._map_ids = np.array(sorted(self.marker_corners), np.int64)
+        self._map_X = (
+            np.concatenate([self.marker_corners[int(m)] for m in self._map_ids])
+            if len(self._map_ids)
+            else np.zeros((0, 3))
+        )
 
     @classmethod
     def from_scene(cls, scene: Any, **kw: Any) -> ArucoFrontend:
@@ -158,17 +182,21 @@ class ArucoFrontend(FrontendHooks):
     ) -> tuple[list, set] | None:
         """Windows to search in a frame of ``shape`` (H, W) predicted at ``prediction`` (the
         frame's model ``(R, C, w, t)``, :class:`~rs_localizer.pose.RSModel`): every corner of
-        the markers found in the last frame projected at its own capture line
-        (:meth:`CameraModel.project_rs`), each marker's corner bounding box padded by
-        ``window_margin_px`` and clipped to the image, overlapping boxes merged where that
-        adds no pixel (:func:`merge_windows`). Markers predicted partly outside the image or
-        seen from behind get no window.
+        every map marker projected at its own capture line (:meth:`CameraModel.project_rs`),
+        each marker predicted fully inside the image and facing the camera getting its corner
+        bounding box padded by ``window_margin_px`` and clipped to the image, overlapping
+        boxes merged where that adds no pixel (:func:`merge_windows`). The markers coming
+        into view are searched where the prediction puts them, as the ones already seen.
+        Markers predicted outside the image by more than the margin, seen from behind or from
+        their back, or smaller than :data:`WINDOW_MIN_SIDE_PX` (no detector decodes them) get
+        no window.
 
         Returns:
-            ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive) around
-            the markers found in the last frame, and the ids of those predicted fully inside
-            the image; None without a prediction, after a frame that was not solved, without
-            a camera or RS timing, or when no marker was found.
+            ``(windows, ids)``: windows ``[(x0, y0, x1, y1)]`` (px, end exclusive), and the
+            ids of the markers found in the last frame that are predicted fully inside the
+            image (the ones whose absence makes the next frame a full-frame search); None without a
+            prediction, after a frame that was not solved, without a camera or RS timing, or
+            when no marker was found in the last frame.
         """
         cam = camera if camera is not None else self._camera
         if prediction is None or not self._solved or cam is None:
@@ -176,35 +204,44 @@ class ArucoFrontend(FrontendHooks):
         if cam.seconds_per_unit_r <= 0:
             return None
         R, C, w, t = prediction
-        mids = np.array(sorted(self._last_found & self.marker_corners.keys()), np.int64)
+        if not self._last_found & self.marker_corners.keys():
+            return None
+        mids, X = self._map_ids, self._map_X
+        h, wd = int(shape[0]), int(shape[1])
+        # (pinhole, no lens: far outside the view the distortion may fold points back in)
+        Xc = X @ np.asarray(R, float).T + np.asarray(C, float).reshape(3)
+        z = Xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = Xc[:, :2] / z[:, None]
+        lim = np.array([wd, h], float) / np.array([cam.K[0, 0], cam.K[1, 1]])
+        near = (z > 0) & (np.abs(xy) <= 2.0 * lim).all(axis=1)
+        near = near.reshape(-1, 4).all(axis=1)
+        mids = mids[near]
         if len(mids) == 0:
             return None
-        X = np.concatenate([self.marker_corners[int(m)] for m in mids])
-        uv = cam.project_rs(X, R, C, w, t, iterations=4)
+        uv = cam.project_rs(X.reshape(-1, 4, 3)[near].reshape(-1, 3), R, C, w, t, iterations=4)
         uv = uv.reshape(-1, 4, 2)
-        h, wd = int(shape[0]), int(shape[1])
         ok = np.isfinite(uv).all(axis=(1, 2))
-        ok &= (uv[..., 0] >= 0).all(1) & (uv[..., 0] <= wd - 1).all(1)
-        ok &= (uv[..., 1] >= 0).all(1) & (uv[..., 1] <= h - 1).all(1)
+        # (up to the margin outside: a marker at the border may be inside, the prediction off)
+        m = self.window_margin_px
+        ok &= (uv[..., 0] >= -m).all(1) & (uv[..., 0] <= wd - 1 + m).all(1)
+        ok &= (uv[..., 1] >= -m).all(1) & (uv[..., 1] <= h - 1 + m).all(1)
+        inside = (uv[..., 0] >= 0).all(1) & (uv[..., 0] <= wd - 1).all(1)
+        inside &= (uv[..., 1] >= 0).all(1) & (uv[..., 1] <= h - 1).all(1)
         # front face towards the camera (ArUco corners run clockwise in the image)
         a, b, c = uv[:, 0], uv[:, 1], uv[:, 2]
         cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (
             c[:, 0] - a[:, 0]
         )
         ok &= np.nan_to_num(cross) > 0
-        m = self.window_margin_px
-        boxes = []
-        for q in uv[ok]:
-            lo, hi = q.min(0) - m, q.max(0) + m
-            boxes.append(
-                [
-                    max(0, int(np.floor(lo[0]))),
-                    max(0, int(np.floor(lo[1]))),
-                    min(wd, int(np.ceil(hi[0])) + 1),
-                    min(h, int(np.ceil(hi[1])) + 1),
-                ]
-            )
-        return merge_windows(boxes), {int(i) for i in mids[ok]}
+        side = np.linalg.norm(np.roll(uv, -1, axis=1) - uv, axis=2).min(axis=1)
+        ok &= np.nan_to_num(side) >= WINDOW_MIN_SIDE_PX
+        q = uv[ok]
+        lo = np.maximum(np.floor(q.min(axis=1) - m), 0).astype(int)
+        hi = np.minimum(np.ceil(q.max(axis=1) + m).astype(int) + 1, [wd, h])
+        boxes = np.concatenate([lo, hi], axis=1).tolist()
+        self._predicted = dict(zip(mids[ok].tolist(), q, strict=True))
+        return merge_windows(boxes), {int(i) for i in mids[ok & inside]} & self._last_found
 
     def _detect_windows(self, gray: np.ndarray, windows: list) -> tuple[np.ndarray, np.ndarray]:
         """Detections in each window with the full-frame detector and its settings
@@ -248,15 +285,22 @@ class ArucoFrontend(FrontendHooks):
         t0 = time.perf_counter()
         pred = None
         due = self.full_frame_every > 0 and self._since_full + 1 >= self.full_frame_every
-        if self.windowed and not self._missed and not due:
+        small = gray.shape[0] * gray.shape[1] < self.windowed_min_pixels
+        # (after windows over most of the frame, the next DENSE_SKIP frames are searched whole
+        # without predicting: a dense view stays dense for a while, predicting costs ~1 ms)
+        dense, self._dense = self._dense > 0, max(self._dense - 1, 0)
+        if self.windowed and not small and not self._missed and not due and not dense:
             pred = self.predict_windows(gray.shape, camera, prediction)
+            if pred is not None and window_share(pred[0], gray.shape) > self.window_max_share:
+                pred = None  # (windows over most of the frame cost more than the frame)
+                self._dense = DENSE_SKIP
         self._missed = False
         if pred is not None:
             windows, expect = pred
             corners, mids = self._detect_windows(gray, windows)
             self.last_windows = windows
             self.last_kind = "windowed"
-            self._missed = not expect.issubset({int(i) for i in mids})
+            self._missed = self._prediction_missed(expect, corners, mids)
             self._since_full += 1
             self.counts["windowed"] += 1
         else:
@@ -274,6 +318,24 @@ class ArucoFrontend(FrontendHooks):
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
+    def _prediction_missed(self, expect: set, corners: np.ndarray, mids: np.ndarray) -> bool:
+        """Whether a windowed frame calls for a full-frame search: a marker of ``expect`` (found
+        in the last frame, predicted inside the image) is missing and the markers found lie
+        further than half ``window_margin_px`` from their predicted corners (or none was
+        found): the prediction may have put the windows off. With the found markers where
+        predicted, a missing one was not detectable there (occluded, too oblique or blurred
+        to decode), which a full-frame search would not change."""
+        found = {int(i) for i in mids}
+        if expect.issubset(found):
+            return False
+        pred = self._predicted
+        err = [
+            float(np.abs(c - pred[int(i)]).max())
+            for c, i in zip(corners, mids, strict=True)
+            if int(i) in pred
+        ]
+        return not err or max(err) > 0.5 * self.window_margin_px
+
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
         """The estimate of the last processed frame (the node calls this after each frame):
         after a solved one (``success``) the next frame's markers are searched around their
@@ -285,6 +347,7 @@ class ArucoFrontend(FrontendHooks):
         """Forget the last frame: the next frame is searched in full."""
         self._solved = False
         self._missed = False
+        self._dense = 0
 
     def summary(self) -> dict:
         """Counters since start: frames searched whole (``frontend_frames_global``) and in
@@ -338,8 +401,26 @@ class ArucoFrontend(FrontendHooks):
         return Correspondences(uv, X, ids.astype(np.int64), self.last_scores)
 
 
+#: px: markers predicted with a side shorter than this get no window (the AprilTag library
+#: finds no 36h11 tag under ~12 px at quad_decimate 1.5, OpenCV no marker under the front end's
+#: smallest perimeter)
+WINDOW_MIN_SIDE_PX = 6.0
+
+#: frames searched whole, without predicting, after windows covering most of a frame
+DENSE_SKIP = 5
+
 #: px: the same id found in two windows with corners further apart than this is two markers
 DUPLICATE_PX = 2.0
+
+
+def window_share(windows: list, shape: tuple) -> float:
+    """The share of a frame of ``shape`` (H, W) that ``windows`` ``[(x0, y0, x1, y1)]`` (end
+    exclusive) cover together (overlaps counted once)."""
+    h, w = int(shape[0]), int(shape[1])
+    covered = np.zeros((h, w), bool)
+    for x0, y0, x1, y1 in windows:
+        covered[y0:y1, x0:x1] = True
+    return float(np.count_nonzero(covered)) / (h * w)
 
 
 def merge_windows(boxes: list) -> list:

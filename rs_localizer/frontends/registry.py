@@ -97,6 +97,7 @@ def _aruco_options(p: Mapping[str, Any]) -> dict:
     return {
         "detector_options": detector,
         "windowed": bool(p["aruco.windowed"]),
+        "windowed_min_pixels": int(p["aruco.windowed_min_pixels"]),
         "window_margin_px": float(p["aruco.window_margin_px"]),
         "full_frame_every": int(p["aruco.full_frame_every"]),
     }

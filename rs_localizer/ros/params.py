@@ -456,11 +456,20 @@ PARAMETERS = {
         read_only=True,
     ),
     "aruco.windowed": Parameter(
-        False,
-        "aruco front end: detect markers only in windows around their pixels predicted by "
-        "the tracker (or the last solved frame carried at its twist when tracking is off), "
-        "the full frame on start, after a failed frame, when a "
-        "predicted marker is missing and every aruco.full_frame_every frames",
+        True,
+        "aruco front end, on images of at least aruco.windowed_min_pixels: detect markers only "
+        "in windows around the pixels the tracker predicts for every map marker in view (or "
+        "the last solved frame carried at its twist when tracking is off), the full frame on "
+        "start, after a failed frame, when a marker found in the last frame is missing and "
+        "those found lie off their predicted corners, and every aruco.full_frame_every frames",
+        read_only=True,
+    ),
+    "aruco.windowed_min_pixels": Parameter(
+        640 * 480 + 1,
+        "with aruco.windowed: the windowed search on images of at least this many pixels "
+        "(default: above 640x480, where it halves the detection and finds the same markers; "
+        "at 640x480 the windows cover half the frame and cost more than it); 0: every size",
+        IntRange(from_value=0, to_value=100_000_000),
         read_only=True,
     ),
     "aruco.window_margin_px": Parameter(
@@ -471,8 +480,8 @@ PARAMETERS = {
     ),
     "aruco.full_frame_every": Parameter(
         10,
-        "with aruco.windowed: a full-frame detection at least every this many frames (new "
-        "markers; 0: only on the fallbacks)",
+        "with aruco.windowed: a full-frame detection at least every this many frames (markers "
+        "the prediction misplaced; 0: only on the fallbacks)",
         IntRange(from_value=0, to_value=10_000),
         read_only=True,
     ),

@@ -41,7 +41,8 @@ def run_interleaved(
     """Localize ``frames`` (:func:`render_video`) with a full-frame and a windowed
     :class:`~rs_localizer.frontends.aruco.ArucoFrontend` of ``scene`` (``windowed_kw``: its
     window options) and ``r6p_1lin``, frame by frame in turn.
-    Returns ``{"full": ..., "windowed": ...}`` of per-frame arrays ``detect`` (s), ``n``
+    Returns ``{"full": ..., "windowed": ...}`` of per-frame arrays ``detect`` (s), ``cpu``
+    (s, the thread's CPU time of the same), ``n``
     (correspondences), ``rot`` (deg), ``pos`` (m) (NaN: not posed), ``win`` (bool: searched
     in windows; each front end searches from the last solved frame carried to the frame's
     stamp, :class:`~rs_localizer.tracking.tracker.CarriedPrediction`), plus ``corner_diff``
@@ -51,17 +52,18 @@ def run_interleaved(
         "full": ArucoFrontend.from_scene(scene),
         "windowed": ArucoFrontend.from_scene(scene, windowed=True, **windowed_kw),
     }
-    out = {m: {k: [] for k in ("detect", "n", "rot", "pos", "win")} for m in fes}
+    out = {m: {k: [] for k in ("detect", "cpu", "n", "rot", "pos", "win")} for m in fes}
     carry = {m: CarriedPrediction() for m in fes}
     diff = 0.0
     for f in frames:
         stamp = int(round(f.t_first * 1e9))
         got = {}
         for mode, fe in fes.items():
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             pred = carry[mode].predict(stamp, camera)
             c = fe.process(f.image, camera, encoding="rgb8", prediction=pred)
             out[mode]["detect"].append(time.perf_counter() - t0)
+            out[mode]["cpu"].append(time.thread_time() - c0)
             est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
             fe.observe(stamp, None, est)
             carry[mode].update(stamp, est)

@@ -6,7 +6,7 @@ import pytest
 
 from rs_localizer import cv_compat
 from rs_localizer.estimation.estimate import estimate_rs_pose
-from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows
+from rs_localizer.frontends.aruco import ArucoFrontend, merge_windows, window_share
 from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import apriltag_binding
 from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
@@ -32,7 +32,7 @@ def _solve(fe, f, camera, carry):
 def test_windowed_corners_equal_full_frame(video):
     scene, camera, frames = video
     full = ArucoFrontend.from_scene(scene)
-    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0, window_max_share=1.0)
     carry = CarriedPrediction()
     _, est, stamp = _solve(win, frames[0], camera, carry)
     assert win.last_kind == "full" and est.success  # no prediction on the first frame
@@ -58,7 +58,7 @@ def test_windowed_corners_equal_full_frame(video):
 
 def test_fallback_after_loss_and_periodic(video):
     scene, camera, frames = video
-    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=3)
+    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=3, window_max_share=1.0)
     carry = CarriedPrediction()
     kinds = []
     for k, f in enumerate(frames[:6]):
@@ -80,7 +80,9 @@ def test_fallback_after_loss_and_periodic(video):
 
 def test_pose_accuracy_unchanged_on_video(video):
     scene, camera, frames = video
-    res = run_interleaved(scene, camera, frames, window_margin_px=16.0, full_frame_every=4)
+    res = run_interleaved(
+        scene, camera, frames, window_margin_px=16.0, full_frame_every=4, window_max_share=1.0
+    )
     full, win = res["full"], res["windowed"]
     assert win["win"].sum() >= 2
     assert np.isfinite(win["rot"]).all() and np.isfinite(full["rot"]).all()
@@ -90,12 +92,114 @@ def test_pose_accuracy_unchanged_on_video(video):
     assert np.median(win["pos"]) < 1.5 * np.median(full["pos"]) + 0.001
 
 
+def test_markers_not_seen_last_frame_are_searched_where_predicted(video):
+    """Markers hidden in the last frame (coming into view) get windows from the map and the
+    prediction: the windowed frame finds every marker the full-frame search finds."""
+    scene, camera, frames = video
+    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0, window_max_share=1.0)
+    full = ArucoFrontend.from_scene(scene)
+    carry = CarriedPrediction()
+    hidden = frames[0].image.copy()
+    hidden[:, hidden.shape[1] // 2 :] = 128  # the right half's markers not seen on frame 0
+    stamp = int(round(frames[0].t_first * 1e9))
+    c0 = win.process(hidden, camera, prediction=carry.predict(stamp, camera))
+    est = estimate_rs_pose(c0.pixels, c0.points, camera, "r6p_1lin")
+    assert est.success
+    carry.update(stamp, est)
+    win.observe(stamp, None, est)
+    c_w, _, _ = _solve(win, frames[1], camera, carry)
+    c_f = full.process(frames[1].image, camera)
+    assert win.last_kind == "windowed"
+    new = set((c_f.ids // 4).tolist()) - set((c0.ids // 4).tolist())
+    assert len(new) >= 5  # markers the last frame did not see
+    assert set(c_w.ids.tolist()) >= set(c_f.ids.tolist())
+    _, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
+    np.testing.assert_allclose(c_w.pixels[i_w], c_f.pixels[i_f], atol=0.05)
+
+
+def test_a_marker_missing_where_predicted_keeps_the_windows(video):
+    """A marker found in the last frame and hidden in this one, the others found where
+    predicted: the next frame is searched in windows again (a full frame would not find the
+    hidden one either); with the markers found far from their predicted corners (a wrong
+    prediction) the next frame is searched whole."""
+    scene, camera, frames = video
+    kinds = {}
+    for case in ("hidden", "off"):
+        fe = ArucoFrontend.from_scene(
+            scene, windowed=True, full_frame_every=0, window_max_share=1.0
+        )
+        carry = CarriedPrediction()
+        _, est, stamp = _solve(fe, frames[0], camera, carry)
+        fe.observe(stamp, None, est)
+        f = frames[1]
+        stamp = int(round(f.t_first * 1e9))
+        pred = carry.predict(stamp, camera)
+        full = ArucoFrontend.from_scene(scene).process(f.image, camera)
+        quads = full.pixels.reshape(-1, 4, 2)
+        h, w = f.image.shape[:2]
+        room = np.minimum(quads.min(axis=1), [w, h] - quads.max(axis=1)).min(axis=1)
+        uv = quads[np.argmax(room)]  # the marker furthest inside the image, painted over
+        x0, y0 = np.floor(uv.min(axis=0)).astype(int) - 2
+        x1, y1 = np.ceil(uv.max(axis=0)).astype(int) + 3
+        img = f.image.copy()
+        img[y0:y1, x0:x1] = 128
+        if case == "off":  # the prediction turned by 11 px: within the windows, off-centre
+            a = 11.0 / camera.K[0, 0]
+            turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+            pred = pred._replace(R=turn @ pred.R, C=turn @ pred.C)
+        c = fe.process(img, camera, prediction=pred)
+        assert fe.last_kind == "windowed"
+        est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+        fe.observe(stamp, None, est)
+        carry.update(stamp, est)
+        _solve(fe, frames[2], camera, carry)
+        kinds[case] = fe.last_kind
+    assert kinds == {"hidden": "windowed", "off": "full"}
+
+
+def test_full_frame_when_windows_cover_most_of_it_or_the_image_is_small(video):
+    """The dense ``aruco_room`` at 640x480: the windows of the markers in view cover more
+    than half the frame, which is then searched whole; ``windowed_min_pixels`` above the
+    image's pixels: searched whole too; either way as many corners as the windows find."""
+    scene, camera, frames = video
+    fes = {
+        "dense": ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0),
+        "small": ArucoFrontend.from_scene(
+            scene,
+            windowed=True,
+            full_frame_every=0,
+            window_max_share=1.0,
+            windowed_min_pixels=640 * 480 + 1,
+        ),
+        "windows": ArucoFrontend.from_scene(
+            scene, windowed=True, full_frame_every=0, window_max_share=1.0
+        ),
+    }
+    n = {}
+    for name, fe in fes.items():
+        carry = CarriedPrediction()
+        kinds = []
+        for f in frames[:3]:
+            c, est, stamp = _solve(fe, f, camera, carry)
+            fe.observe(stamp, None, est)
+            kinds.append(fe.last_kind)
+        n[name] = len(c)
+        if name == "windows":
+            assert kinds[1:] == ["windowed", "windowed"]
+            assert window_share(fe.last_windows, f.image.shape) > 0.5
+        else:
+            assert kinds == ["full"] * 3
+    assert n["dense"] == n["small"] and n["windows"] >= 0.95 * n["dense"]
+
+
 def test_merge_windows():
     # side by side with the same rows: joined; diagonal overlap: kept apart; disjoint: apart
     assert merge_windows([[0, 0, 10, 10], [5, 0, 20, 10]]) == [(0, 0, 20, 10)]
     assert len(merge_windows([[0, 0, 10, 10], [5, 5, 20, 20]])) == 2
     assert len(merge_windows([[0, 0, 10, 10], [30, 30, 40, 40]])) == 2
     assert merge_windows([[0, 0, 10, 10], [2, 2, 8, 8]]) == [(0, 0, 10, 10)]
+    # the share of the frame covered, overlaps counted once
+    assert window_share([(0, 0, 10, 10), (5, 0, 15, 10)], (20, 20)) == 150 / 400
 
 
 @pytest.mark.skipif(apriltag_binding() is None, reason="no AprilTag library binding installed")
@@ -105,7 +209,7 @@ def test_windowed_search_uses_the_apriltag_library():
     # (windows on the library's decimation grid: test_marker_detection.py)
     scene, camera, frames = render_video("vga", 2, scene="apriltag_room")
     full = ArucoFrontend.from_scene(scene)
-    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    win = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0, window_max_share=1.0)
     assert win.detector.backend == "apriltag"
     carry = CarriedPrediction()
     _, est, stamp = _solve(win, frames[0], camera, carry)
@@ -135,7 +239,7 @@ def test_an_id_twice_in_one_image_is_dropped_and_counted(video):
     """The same marker at two places of one image (the image beside itself): its id dropped
     from that image and counted, in a full-frame and in a windowed search."""
     scene, camera, frames = video
-    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0)
+    fe = ArucoFrontend.from_scene(scene, windowed=True, full_frame_every=0, window_max_share=1.0)
     img = frames[0].image
     twice = np.ascontiguousarray(np.concatenate([img, img[:, :200]], axis=1))
     c1 = fe.process(img, camera)

@@ -58,7 +58,9 @@ def aruco_rig(cams, **kw):
 
     rig = RigLocalizer(RigSettings(mounts_of(cams)), **kw)
     for c in cams:
-        rig.set_frontend(c.name, make_frontend("aruco", "aruco_room", windowed=True), "aruco")
+        # (windows however much of the frame they cover: aruco_room is dense with markers)
+        fe = make_frontend("aruco", "aruco_room", windowed=True, window_max_share=1.0)
+        rig.set_frontend(c.name, fe, "aruco")
     return rig
 
 
