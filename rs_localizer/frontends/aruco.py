@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import cv_compat
 from ..camera import CameraModel
-from ..correspondences import Correspondences, FrontendHooks
+from ..correspondences import Correspondences, FrontendHooks, accepts_pixels_keyword
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
@@ -274,11 +274,12 @@ class ArucoFrontend(FrontendHooks):
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
-    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+    @accepts_pixels_keyword
+    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
         """The estimate of the last processed frame (the node calls this after each frame):
         after a solved one (``success``) the next frame's markers are searched around their
         predicted pixels; a failed one (or None) makes the next frame a full-frame search.
-        ``stamp_ns`` and ``pixels`` are not used."""
+        ``stamp_ns`` and ``points2d`` are not used."""
         self._solved = estimate is not None and bool(getattr(estimate, "success", False))
 
     def reset(self) -> None:
@@ -313,9 +314,9 @@ class ArucoFrontend(FrontendHooks):
         prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
-        (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
+        (``points2d`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
         stated std when it has them (``marker_std``), else None; unpacks as
-        ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
+        ``(points2d, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
         distorted, as the estimator expects; ``camera`` (the frame's model) and
         ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
         video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
