@@ -63,7 +63,7 @@ def threshold_steps(scene, camera, frames: list, steps: list) -> dict:
             gt, _ = r.project(c.points, motion, k / FPS, occlusion=False)
             ts, es, n = out[step]
             ts.append(dt)
-            es.append(np.linalg.norm(c.pixels - gt, axis=1))
+            es.append(np.linalg.norm(c.points2d - gt, axis=1))
             out[step] = (ts, es, n + len(c))
     return {s_: (np.array(t), np.concatenate(e), n) for s_, (t, e, n) in out.items()}
 

@@ -198,8 +198,14 @@ class CameraModel:
         return (line if sign > 0 else (n - 1) - line) * self.line_delay
 
     def time_offset(self, from_line: float, to_line: float) -> float:
-        """Capture time of ``to_line`` minus that of ``from_line`` (s)."""
-        return float(self.line_time(to_line) - self.line_time(from_line))
+        """Capture time of ``to_line`` minus that of ``from_line`` (s): :meth:`line_time`'s
+        arithmetic on two floats (no arrays: every frame's output stamp goes through here)."""
+        a, b = float(from_line), float(to_line)
+        if READOUT_DIRECTIONS[self.readout][1] < 0:
+            n = self.lines
+            a, b = (n - 1) - a, (n - 1) - b
+        d = self.line_delay
+        return float(b * d - a * d)
 
     def undistort(self, points_px: np.ndarray, compiled: bool = True) -> np.ndarray:
         """(N, 2) measured pixels -> (N, 2) undistorted normalized coordinates (OpenCV).

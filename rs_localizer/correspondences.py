@@ -3,14 +3,21 @@
 :class:`VideoFrontend`, everything a camera's video
 (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) calls on its front end.
 
-The 2D points are pixels of the distorted image (the estimator undistorts them with the camera
+The 2D points (``points2d``, as :func:`~rs_localizer.estimation.estimate.estimate_rs_pose`
+names them) are pixels of the distorted image (the estimator undistorts them with the camera
 model), the 3D points are in the world/map frame (m).
+
+``pixels``, the former name of ``points2d`` (:attr:`Correspondences.pixels`, the
+``Correspondences(pixels=...)`` keyword and ``observe(..., pixels=...)`` of the package's front
+ends), still works for one more release and warns (``DeprecationWarning``).
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
-from collections.abc import Iterator
+import warnings
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -22,31 +29,78 @@ __all__ = [
     "FrontendHooks",
     "TrackingFrontend",
     "VideoFrontend",
+    "accepts_pixels_keyword",
     "video_frontend",
 ]
 
 
-@dataclass(frozen=True, eq=False)
+_PIXELS_DEPRECATED = (
+    "'pixels' is deprecated and will be removed in the next release: use 'points2d' "
+    "(the same (N, 2) px array)"
+)
+
+
+def _warn_pixels(stacklevel: int = 3) -> None:
+    warnings.warn(_PIXELS_DEPRECATED, DeprecationWarning, stacklevel=stacklevel)
+
+
+@dataclass(frozen=True, eq=False, init=False)
 class Correspondences:
     """2D-3D correspondences of one frame.
 
+    ``Correspondences(points2d, points, ids=None, scores=None)``.
+
     Attributes:
-        pixels: (N, 2) px, distorted image points.
+        points2d: (N, 2) px, distorted image points.
         points: (N, 3) m, world points.
         ids: (N,) int64 landmark / corner ids, or None.
         scores: (N,) match quality (higher is better, e.g. ``1 - ratio`` of a feature match),
             or None; used by PROSAC-style sampling.
 
-    It unpacks, and indexes, as ``pixels, points, ids`` (``uv, xyz, ids =
+    It unpacks, and indexes, as ``points2d, points, ids`` (``uv, xyz, ids =
     frontend.process(image)``); ``len`` is the number of rows. ``uv`` and ``xyz`` name
-    ``pixels`` and ``points`` as the fields of a ``correspondences`` PointCloud2 do
+    ``points2d`` and ``points`` as the fields of a ``correspondences`` PointCloud2 do
     (:func:`rs_localizer.ros.pointcloud.read_correspondences` returns this type).
+
+    Deprecated: ``pixels`` (the keyword and the attribute), the former name of ``points2d``,
+    works for one more release and warns (``DeprecationWarning``).
+
+    Raises:
+        TypeError: ``points2d`` or ``points`` missing, or both ``points2d`` and ``pixels``.
     """
 
-    pixels: np.ndarray
+    points2d: np.ndarray
     points: np.ndarray
     ids: np.ndarray | None = None
     scores: np.ndarray | None = None
+
+    def __init__(
+        self,
+        points2d: np.ndarray | None = None,
+        points: np.ndarray | None = None,
+        ids: np.ndarray | None = None,
+        scores: np.ndarray | None = None,
+        *,
+        pixels: np.ndarray | None = None,
+    ):
+        if pixels is not None:
+            _warn_pixels()
+            if points2d is not None:
+                raise TypeError("Correspondences takes points2d or pixels, not both")
+            points2d = pixels
+        if points2d is None or points is None:
+            raise TypeError("Correspondences needs points2d (N, 2) and points (N, 3)")
+        set_ = object.__setattr__  # (frozen)
+        set_(self, "points2d", points2d)
+        set_(self, "points", points)
+        set_(self, "ids", ids)
+        set_(self, "scores", scores)
+
+    @property
+    def pixels(self) -> np.ndarray:
+        """Deprecated name of ``points2d`` (warns; removed in the next release)."""
+        _warn_pixels()
+        return self.points2d
 
     @classmethod
     def empty(cls) -> Correspondences:
@@ -55,17 +109,17 @@ class Correspondences:
 
     @classmethod
     def of(cls, result: Any) -> Correspondences:
-        """``result`` itself, or the :class:`Correspondences` of a ``(pixels, points, ids)``
+        """``result`` itself, or the :class:`Correspondences` of a ``(points2d, points, ids)``
         tuple (a front end written before this type: no scores)."""
         if isinstance(result, Correspondences):
             return result
-        pixels, points, ids = result
-        return cls(pixels, points, ids)
+        points2d, points, ids = result
+        return cls(points2d, points, ids)
 
     @property
     def uv(self) -> np.ndarray:
-        """``pixels`` (N, 2) px, by the name of the cloud fields ``u, v``."""
-        return self.pixels
+        """``points2d`` (N, 2) px, by the name of the cloud fields ``u, v``."""
+        return self.points2d
 
     @property
     def xyz(self) -> np.ndarray:
@@ -73,19 +127,34 @@ class Correspondences:
         return self.points
 
     def __len__(self) -> int:
-        return len(self.pixels)
+        return len(self.points2d)
 
     def __iter__(self) -> Iterator[Any]:
-        return iter((self.pixels, self.points, self.ids))
+        return iter((self.points2d, self.points, self.ids))
 
     def __getitem__(self, i: int) -> Any:
-        """``pixels``, ``points``, ``ids`` by position (as the former 3-tuple)."""
-        return (self.pixels, self.points, self.ids)[i]
+        """``points2d``, ``points``, ``ids`` by position (as the former 3-tuple)."""
+        return (self.points2d, self.points, self.ids)[i]
 
     def valid_scores(self) -> np.ndarray | None:
         """``scores`` when there is one per row, else None."""
         s = self.scores
-        return s if s is not None and len(s) == len(self.pixels) else None
+        return s if s is not None and len(s) == len(self.points2d) else None
+
+
+def accepts_pixels_keyword(observe: Callable) -> Callable:
+    """Decorator of a front end's ``observe(self, stamp_ns, points2d, estimate)``: a call with
+    the deprecated keyword ``pixels=`` (the former name of ``points2d``) still works for one
+    more release and warns (``DeprecationWarning``). The package's front ends use it."""
+
+    @functools.wraps(observe)
+    def wrapper(self, *args, **kwargs):
+        if "pixels" in kwargs:
+            _warn_pixels()
+            kwargs["points2d"] = kwargs.pop("pixels")
+        return observe(self, *args, **kwargs)
+
+    return wrapper
 
 
 @runtime_checkable
@@ -110,14 +179,15 @@ class TrackingFrontend(Frontend, Protocol):
     """A :class:`Frontend` that follows points from frame to frame and wants to know how each
     frame was solved.
 
-    ``observe(stamp_ns, pixels, estimate)``: called by the node after each image frame it
-    estimated, with the frame's header stamp (ns), ``pixels`` (M, 2) the rows the estimator
-    was given (the front end's rows without non-finite ones, capped to ``max_points``) and
-    ``estimate`` (an ``RSPoseEstimate``: ``estimate.inliers`` (M,) is the inlier mask over
-    ``pixels``; ``estimate.success`` false on a failed frame) or None when the estimator raised.
+    ``observe(stamp_ns, points2d, estimate)``: called by the node after each image frame it
+    estimated, with the frame's header stamp (ns), ``points2d`` (M, 2) px the rows the
+    estimator was given (the front end's rows without non-finite ones, capped to
+    ``max_points``) and ``estimate`` (an ``RSPoseEstimate``: ``estimate.inliers`` (M,) is the
+    inlier mask over ``points2d``; ``estimate.success`` false on a failed frame) or None when
+    the estimator raised. The arguments are passed by position.
     """
 
-    def observe(self, stamp_ns: int, pixels: np.ndarray, estimate: Any) -> None:
+    def observe(self, stamp_ns: int, points2d: np.ndarray, estimate: Any) -> None:
         """Take note of how the previous frame was solved."""
         ...
 
@@ -139,10 +209,10 @@ class VideoFrontend(Protocol):
        of its own. May raise: the frame is dropped (``frontend_error``), the video goes on.
     2. ``pop_warning()``: a warning the front end wants shown once (e.g. a feature map whose
        descriptors do not match the detector's), or None.
-    3. ``observe(stamp_ns, pixels, estimate)``: how the frame was solved, after the
-       estimator ran (not for a frame dropped before it): ``pixels`` (M, 2) the rows the
-       estimator was given (non-finite rows dropped, capped to ``max_points``) and
-       ``estimate`` (``estimate.inliers`` (M,) the inlier mask over ``pixels``; ``success``
+    3. ``observe(stamp_ns, points2d, estimate)`` (by position): how the frame was solved,
+       after the estimator ran (not for a frame dropped before it): ``points2d`` (M, 2) px the
+       rows the estimator was given (non-finite rows dropped, capped to ``max_points``) and
+       ``estimate`` (``estimate.inliers`` (M,) the inlier mask over ``points2d``; ``success``
        false on a failed frame) or None when the estimator raised.
 
     The package's front ends all follow it (:class:`FrontendHooks` gives the no-op hooks; a
@@ -164,7 +234,7 @@ class VideoFrontend(Protocol):
         """A warning to show once, or None."""
         ...
 
-    def observe(self, stamp_ns: int, pixels: np.ndarray, estimate: Any) -> None:
+    def observe(self, stamp_ns: int, points2d: np.ndarray, estimate: Any) -> None:
         """Take note of how the frame was solved."""
         ...
 
@@ -173,7 +243,8 @@ class FrontendHooks:
     """The :class:`VideoFrontend` hooks of a front end that neither predicts nor warns:
     ``observe`` does nothing, ``pop_warning`` returns None (a front end overrides either)."""
 
-    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+    @accepts_pixels_keyword
+    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
         """Nothing to take note of."""
 
     def pop_warning(self) -> str | None:

@@ -63,13 +63,18 @@ def model_twist(C, w, t, s):
     order; m/s, rad/s, camera frame) from the model's ``C`` (3,) m, ``w`` (3,) rad and ``t``
     (3,) m per unit RS coordinate and ``s > 0`` seconds per unit RS coordinate (module
     docstring; docs/architecture.md "Conventions"). A numba kernel; ``model_twist.py_func``
-    runs the same code without compiling."""
+    runs the same code without compiling. Every caller (the estimator's outputs, prior,
+    refinement and sensitivity, the NumPy path, :class:`RSPose`, mapping) goes through here, so
+    the twist is the same to the last bit wherever it is computed: it multiplies by the one
+    reciprocal ``1 / s`` (a division per entry can differ from it in the last bit, which the
+    tracker's feedback would carry into the next frames)."""
     z = np.empty(6)
-    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) / s
-    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) / s
-    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) / s
+    inv = 1.0 / s
+    z[0] = (w[1] * C[2] - w[2] * C[1] - t[0]) * inv
+    z[1] = (w[2] * C[0] - w[0] * C[2] - t[1]) * inv
+    z[2] = (w[0] * C[1] - w[1] * C[0] - t[2]) * inv
     for a in range(3):
-        z[3 + a] = -w[a] / s
+        z[3 + a] = -w[a] * inv
     return z
 
 
@@ -77,18 +82,20 @@ def model_twist(C, w, t, s):
 def model_twist_jacobian(C, w, s):
     """(6, 12) Jacobian of :func:`model_twist` over the model's ``(delta, C, w, t)`` (``delta``
     the rotation increment, on which the twist does not depend): ``dv/dC = [w]x / s``,
-    ``dv/dw = -[C]x / s``, ``dv/dt = -I / s``, ``domega/dw = -I / s``. A numba kernel;
+    ``dv/dw = -[C]x / s``, ``dv/dt = -I / s``, ``domega/dw = -I / s`` (each entry times the
+    reciprocal ``1 / s``, as :func:`model_twist`). A numba kernel;
     ``model_twist_jacobian.py_func`` runs the same code without compiling."""
     Jz = np.zeros((6, 12))
-    Jz[0, 4], Jz[0, 5] = -w[2] / s, w[1] / s
-    Jz[1, 3], Jz[1, 5] = w[2] / s, -w[0] / s
-    Jz[2, 3], Jz[2, 4] = -w[1] / s, w[0] / s
-    Jz[0, 7], Jz[0, 8] = C[2] / s, -C[1] / s
-    Jz[1, 6], Jz[1, 8] = -C[2] / s, C[0] / s
-    Jz[2, 6], Jz[2, 7] = C[1] / s, -C[0] / s
+    inv = 1.0 / s
+    Jz[0, 4], Jz[0, 5] = -w[2] * inv, w[1] * inv
+    Jz[1, 3], Jz[1, 5] = w[2] * inv, -w[0] * inv
+    Jz[2, 3], Jz[2, 4] = -w[1] * inv, w[0] * inv
+    Jz[0, 7], Jz[0, 8] = C[2] * inv, -C[1] * inv
+    Jz[1, 6], Jz[1, 8] = -C[2] * inv, C[0] * inv
+    Jz[2, 6], Jz[2, 7] = C[1] * inv, -C[0] * inv
     for a in range(3):
-        Jz[a, 9 + a] = -1.0 / s
-        Jz[3 + a, 6 + a] = -1.0 / s
+        Jz[a, 9 + a] = -inv
+        Jz[3 + a, 6 + a] = -inv
     return Jz
 
 

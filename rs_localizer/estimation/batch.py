@@ -31,6 +31,7 @@ from ..solvers.kernels import (
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.p3p import DEFAULT_BACKEND
 from ..solvers.registry import BATCHED, GLOBAL_SHUTTER, solver_info
+from .plausibility import motion_norms2
 from .sampling import draw_samples, gather_prerotated, select_prerotations
 from .scoring import msac_scores
 
@@ -322,14 +323,18 @@ def _solve_and_score(
     n_implausible = 0
     for q in range(ok.shape[0]):  # an implausibly moving hypothesis has no inliers
         if ok[q]:
-            w0, w1, w2 = ws[q, 0], ws[q, 1], ws[q, 2]
-            v0 = w1 * Cs[q, 2] - w2 * Cs[q, 1] - ts[q, 0]
-            v1 = w2 * Cs[q, 0] - w0 * Cs[q, 2] - ts[q, 1]
-            v2 = w0 * Cs[q, 1] - w1 * Cs[q, 0] - ts[q, 2]
-            if not (
-                w0 * w0 + w1 * w1 + w2 * w2 <= w_max * w_max
-                and v0 * v0 + v1 * v1 + v2 * v2 <= v_max * v_max
-            ):
+            wn2, vn2 = motion_norms2(
+                Cs[q, 0],
+                Cs[q, 1],
+                Cs[q, 2],
+                ws[q, 0],
+                ws[q, 1],
+                ws[q, 2],
+                ts[q, 0],
+                ts[q, 1],
+                ts[q, 2],
+            )
+            if not (wn2 <= w_max * w_max and vn2 <= v_max * v_max):
                 ok[q] = False
                 n_implausible += 1
     scores, _ = msac_scores(

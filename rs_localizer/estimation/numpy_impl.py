@@ -51,6 +51,7 @@ from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estim
 from .frame import Frame, configure_frame, prepare_frame
 from .implementation import NUMPY, NUMPY_SOLVERS
 from .options import EstimateOptions, points_needed
+from .plausibility import motion_norms2
 from .prior import prior_arrays
 from .ransac import required_iterations, seeded_rng
 from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
@@ -92,16 +93,14 @@ def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
 
 def _plausible(C, w, t, bounds) -> np.ndarray:
     """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
-    and ``|w x C - t| <= v_max`` (:func:`~.plausibility.plausible_motion`)."""
+    and ``|w x C - t| <= v_max`` (:func:`~.plausibility.plausible_motion`; the squared norms
+    by :func:`~.plausibility.motion_norms2`'s own code, on the (H,) columns)."""
     ok = np.isfinite(C).all(axis=1) & np.isfinite(w).all(axis=1) & np.isfinite(t).all(axis=1)
     if bounds is None:
         return ok
-    with np.errstate(invalid="ignore"):
-        return (
-            ok
-            & (np.einsum("hi,hi->h", w, w) <= bounds[0] ** 2)
-            & (np.sum((cross(w, C) - t) ** 2, axis=1) <= bounds[1] ** 2)
-        )
+    with np.errstate(invalid="ignore", over="ignore"):
+        wn2, vn2 = motion_norms2.py_func(*C.T, *w.T, *t.T)
+        return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
 def _p3p(fr: Frame, samples: np.ndarray):

@@ -1,6 +1,7 @@
 """Numba kernels for the estimator's last steps: the final inlier set and RMS error, physical
 velocities and the covariance propagation (the degeneracy and plausibility tests are in
-:mod:`.plausibility`).
+:mod:`.plausibility`). The model -> twist conversion and its Jacobian are
+:func:`rs_localizer.pose.model_twist` and :func:`rs_localizer.pose.model_twist_jacobian`.
 
 Each replaces a handful of small NumPy calls (``np.cross``, fancy indexing, 12 x 12 products:
 ~200 us per frame with the former SVD collinearity test, more than the final refinement itself)
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from ..pose import model_twist, model_twist_jacobian
 
 __all__ = ["final_inliers", "output_covariance_kernel", "physical_velocities_kernel"]
 
@@ -34,17 +37,13 @@ def final_inliers(e, th):
 @njit(cache=True)
 def physical_velocities_kernel(R, C, w, t, s):
     """See :func:`rs_localizer.estimation.estimate.physical_velocities` (``s > 0``): returns
-    (omega_cam, v_cam, omega_world, v_world), each (3,)."""
-    om = np.empty(3)
-    vc = np.empty(3)
+    (omega_cam, v_cam, omega_world, v_world), each (3,); the camera-frame twist is
+    :func:`rs_localizer.pose.model_twist`'s."""
+    z = model_twist(C, w, t, s)
+    om = z[3:6].copy()
+    vc = z[0:3].copy()
     om_w = np.empty(3)
     vc_w = np.empty(3)
-    inv = 1.0 / s
-    wxC0 = w[1] * C[2] - w[2] * C[1]
-    wxC1 = w[2] * C[0] - w[0] * C[2]
-    wxC2 = w[0] * C[1] - w[1] * C[0]
-    om[0], om[1], om[2] = -w[0] * inv, -w[1] * inv, -w[2] * inv
-    vc[0], vc[1], vc[2] = (wxC0 - t[0]) * inv, (wxC1 - t[1]) * inv, (wxC2 - t[2]) * inv
     for a in range(3):
         om_w[a] = R[0, a] * om[0] + R[1, a] * om[1] + R[2, a] * om[2]
         vc_w[a] = R[0, a] * vc[0] + R[1, a] * vc[1] + R[2, a] * vc[2]
@@ -67,7 +66,8 @@ def output_covariance_kernel(cov12, R, C, w, s):
     """See :func:`rs_localizer.estimation.estimate._output_covariance`: the (12, 12)
     covariance ``J cov12 J^T`` of (camera rotation in the world, position, omega_cam, v_cam),
     the (6, 6) ROS pose block (x, y, z, rot x, rot y, rot z) and the (6, 6) ROS twist block
-    (vx, vy, vz, wx, wy, wz; zeros if ``s <= 0``)."""
+    (vx, vy, vz, wx, wy, wz; zeros if ``s <= 0``). The twist rows are
+    :func:`rs_localizer.pose.model_twist_jacobian`'s."""
     J = np.zeros((12, 12))
     for i in range(3):
         for j in range(3):
@@ -83,11 +83,11 @@ def output_covariance_kernel(cov12, R, C, w, s):
                 acc -= R[k, i] * Cx[k, j]
             J[3 + i, j] = acc
     if s > 0:
+        Jz = model_twist_jacobian(C, w, s)  # (v, omega) rows
         for i in range(3):
-            J[6 + i, 6 + i] = -1.0 / s
-            J[9 + i, 9 + i] = -1.0 / s
-        _skew_into(C, J, 9, 6, -1.0 / s)
-        _skew_into(w, J, 9, 3, 1.0 / s)
+            for j in range(12):
+                J[6 + i, j] = Jz[3 + i, j]
+                J[9 + i, j] = Jz[i, j]
     out = J @ cov12 @ J.T
     pose = np.empty((6, 6))
     twist = np.zeros((6, 6))

@@ -40,6 +40,7 @@ __all__ = [
     "finite_model",
     "image_degenerate",
     "motion_bounds",
+    "motion_norms2",
     "plausible_motion",
 ]
 
@@ -109,6 +110,20 @@ def plausible_motion(
 
 
 @njit(cache=True, nogil=True)
+def motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2):
+    """``(|w|^2, |w x C - t|^2)`` of a model's ``C`` (m), ``w`` (rad) and ``t`` (m per unit r),
+    given as their nine components: the squared angular and linear speeds per unit RS
+    coordinate (:func:`rs_localizer.pose.model_twist` before its division by ``s``), which
+    :func:`plausible_motion`, :func:`check_final_model` and RANSAC's hypothesis filter
+    (:func:`rs_localizer.estimation.batch.ransac_batch`) compare with the squared bounds of
+    :func:`motion_bounds`. A numba kernel (scalars in and out: no array per hypothesis)."""
+    v0 = w1 * C2 - w2 * C1 - t0
+    v1 = w2 * C0 - w0 * C2 - t1
+    v2 = w0 * C1 - w1 * C0 - t2
+    return w0 * w0 + w1 * w1 + w2 * w2, v0 * v0 + v1 * v1 + v2 * v2
+
+
+@njit(cache=True, nogil=True)
 def _plausible1(C, w, t, w_max2, v_max2):
     """:func:`plausible_motion` of one model (C, w, t (3,))."""
     C0, C1, C2, w0, w1, w2, t0, t1, t2 = C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2]
@@ -124,8 +139,8 @@ def _plausible1(C, w, t, w_max2, v_max2):
         and np.isfinite(t2)
     ):
         return False
-    v0, v1, v2 = w1 * C2 - w2 * C1 - t0, w2 * C0 - w0 * C2 - t1, w0 * C1 - w1 * C0 - t2
-    return w0 * w0 + w1 * w1 + w2 * w2 <= w_max2 and v0 * v0 + v1 * v1 + v2 * v2 <= v_max2
+    wn2, vn2 = motion_norms2(C0, C1, C2, w0, w1, w2, t0, t1, t2)
+    return wn2 <= w_max2 and vn2 <= v_max2
 
 
 @njit(cache=True, nogil=True)
@@ -144,12 +159,9 @@ def _plausible(Cs, ws, ts, w_max2, v_max2):
     out = np.empty(Cs.shape[0], dtype=np.bool_)
     for k in range(Cs.shape[0]):
         C0, C1, C2 = Cs[k, 0], Cs[k, 1], Cs[k, 2]
-        w0, w1, w2 = ws[k, 0], ws[k, 1], ws[k, 2]
-        v0 = w1 * C2 - w2 * C1 - ts[k, 0]
-        v1 = w2 * C0 - w0 * C2 - ts[k, 1]
-        v2 = w0 * C1 - w1 * C0 - ts[k, 2]
-        wn2 = w0 * w0 + w1 * w1 + w2 * w2
-        vn2 = v0 * v0 + v1 * v1 + v2 * v2
+        wn2, vn2 = motion_norms2(
+            C0, C1, C2, ws[k, 0], ws[k, 1], ws[k, 2], ts[k, 0], ts[k, 1], ts[k, 2]
+        )
         finite = (
             np.isfinite(C0)
             and np.isfinite(C1)

@@ -208,7 +208,8 @@ def linear_prior_rows(
 
     ``z = (v, omega)`` is linear in (w, t) once ``w x C`` is linearized at a rough centre
     ``C0`` (the sample's P3P pose): ``w x C ~ w x C0``, so ``z ~ M (w, t)`` with
-    ``M = [[-[C0]x, -I], [-I, 0]] / s`` (docs/architecture.md "Conventions").
+    ``M = [[-[C0]x, -I], [-I, 0]] / s`` (docs/architecture.md "Conventions"): the (w, t)
+    columns of :func:`rs_localizer.pose.model_twist_jacobian` at ``C0``.
 
     Args:
         prior: an enabled :class:`MotionPrior`.
@@ -230,13 +231,9 @@ def linear_prior_rows(
         raise ValueError(f"seconds_per_unit_r must be > 0, got {seconds_per_unit_r}")
     c = np.atleast_2d(np.asarray(C0, dtype=float))
     K = len(c)
-    M = np.zeros((K, 6, 6))
-    M[:, 0, 1], M[:, 0, 2] = c[:, 2], -c[:, 1]  # -[C0]x
-    M[:, 1, 0], M[:, 1, 2] = -c[:, 2], c[:, 0]
-    M[:, 2, 0], M[:, 2, 1] = c[:, 1], -c[:, 0]
-    M[:, 0:3, 3:6] = -np.eye(3)
-    M[:, 3:6, 0:3] = -np.eye(3)
-    M /= s
+    # M: the twist's Jacobian over (w, t), which does not depend on w (pose.model_twist_jacobian)
+    zero = np.zeros(3)
+    M = np.array([model_twist_jacobian.py_func(ck, zero, s)[:, 6:12] for ck in c])
     Lam = prior.information()
     ev, V = np.linalg.eigh(0.5 * (Lam + Lam.T))
     U = (V * np.sqrt(np.clip(ev, 0.0, None))).T

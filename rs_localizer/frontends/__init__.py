@@ -1,8 +1,9 @@
 """Image front ends: an image in, 2D-3D correspondences out.
 
 Every front end has ``process(image, camera, encoding)`` returning
-:class:`~rs_localizer.correspondences.Correspondences` (distorted pixels (N, 2), world points in
-metres (N, 3), int64 ids (N,) and optional match scores; it unpacks as ``pixels, points, ids``),
+:class:`~rs_localizer.correspondences.Correspondences` (``points2d``: distorted pixels (N, 2),
+world points in metres (N, 3), int64 ids (N,) and optional match scores; it unpacks as
+``points2d, points, ids``),
 ready for :func:`rs_localizer.estimate_rs_pose` (the protocols:
 :class:`~rs_localizer.correspondences.Frontend`,
 :class:`~rs_localizer.correspondences.TrackingFrontend`). :func:`make_frontend` builds one by

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import cv_compat
 from ..camera import CameraModel
-from ..correspondences import Correspondences, FrontendHooks
+from ..correspondences import Correspondences, FrontendHooks, accepts_pixels_keyword
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
@@ -318,6 +318,7 @@ class ArucoFrontend(FrontendHooks):
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
+<<<<<<< HEAD
     def _prediction_missed(self, expect: set, corners: np.ndarray, mids: np.ndarray) -> bool:
         """Whether a windowed frame calls for a full-frame search: a marker of ``expect`` (found
         in the last frame, predicted inside the image) is missing and the markers found lie
@@ -337,10 +338,14 @@ class ArucoFrontend(FrontendHooks):
         return not err or max(err) > 0.5 * self.window_margin_px
 
     def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+=======
+    @accepts_pixels_keyword
+    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
+>>>>>>> w4-49
         """The estimate of the last processed frame (the node calls this after each frame):
         after a solved one (``success``) the next frame's markers are searched around their
         predicted pixels; a failed one (or None) makes the next frame a full-frame search.
-        ``stamp_ns`` and ``pixels`` are not used."""
+        ``stamp_ns`` and ``points2d`` are not used."""
         self._solved = estimate is not None and bool(getattr(estimate, "success", False))
 
     def reset(self) -> None:
@@ -376,9 +381,9 @@ class ArucoFrontend(FrontendHooks):
         prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one image: :class:`~rs_localizer.correspondences.Correspondences`
-        (``pixels`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
+        (``points2d`` (N, 2), ``points`` (N, 3), ``ids`` (N,), ``scores`` (N,) from the map's
         stated std when it has them (``marker_std``), else None; unpacks as
-        ``(points_px, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
+        ``(points2d, points3d, ids)``) with ``ids = 4 * marker_id + corner``. Pixels stay
         distorted, as the estimator expects; ``camera`` (the frame's model) and
         ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
         video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)

@@ -12,7 +12,7 @@ model (``type`` in YAML)                  front end
 ``CheckerboardModel`` (``checkerboard``)  :class:`CheckerboardFrontend`
 ========================================  =============================
 
-Every front end has ``process(image, camera=None, encoding="rgb8") -> (points_px (N, 2),
+Every front end has ``process(image, camera=None, encoding="rgb8") -> (points2d (N, 2),
 points3d (N, 3), ids (N,) int64)`` like :class:`~rs_localizer.frontends.aruco.ArucoFrontend`:
 pixels as measured (distorted), map points in metres, ready for
 :func:`rs_localizer.estimate_rs_pose`. :func:`make_board_frontend` builds the front end of a
@@ -85,7 +85,7 @@ class _BoardFrontend(FrontendHooks):
         encoding: str = "rgb8",
     ) -> Correspondences:
         """Correspondences of one image (:class:`~rs_localizer.correspondences.Correspondences`,
-        unpacks as ``(points_px (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
+        unpacks as ``(points2d (N, 2) distorted pixels, points3d (N, 3) map metres, ids (N,)
         int64)``; no scores); detections whose id is not on the board are dropped.
         ``camera`` is optional (the ChArUco front end uses it to interpolate corners);
         every image alone."""

@@ -172,7 +172,7 @@ class FeatureFrontend(FrontendHooks):
     Raises:
         ValueError: an unknown ``matcher``, or ``flann`` with a binary (ORB) map.
 
-    ``process(image, camera) -> (points_px (N, 2), points3d (N, 3), ids (N,))``; the ids are
+    ``process(image, camera) -> (points2d (N, 2), points3d (N, 3), ids (N,))``; the ids are
     landmark ids, ``last_scores`` holds ``1 - ratio`` per match (higher is better).
 
     ``few_match_frames`` counts the images with at least :data:`FEW_MATCHES_MIN_KEYPOINTS`

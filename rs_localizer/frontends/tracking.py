@@ -44,7 +44,7 @@ estimate, and only its inliers are tracked further (tracked outliers are dropped
 ``observe`` (a caller that does not report estimates), or without a ``prediction``, every
 frame is a global one (:class:`~rs_localizer.tracking.tracker.CarriedPrediction` predicts for
 a caller driving the front end by hand).
-``observe(stamp_ns, pixels, estimate)`` is the ``TrackingFrontend`` protocol the node calls.
+``observe(stamp_ns, points2d, estimate)`` is the ``TrackingFrontend`` protocol the node calls.
 
 This is the standard design of video trackers (PTAM, ORB-SLAM's localization mode, VINS's
 feature tracker) with a rolling-shutter motion model for the guided search.
@@ -63,7 +63,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences
+from ..correspondences import Correspondences, accepts_pixels_keyword
 from ..maps.features import FeatureMap
 from .features import FeatureFrontend, make_detector
 from .image import to_gray
@@ -263,7 +263,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         prediction: Any = None,
     ) -> Correspondences:
         """Correspondences of one frame (:class:`~rs_localizer.correspondences.Correspondences`:
-        pixels (N, 2) distorted px, points (N, 3) world m, landmark ids (N,), scores (N,));
+        points2d (N, 2) distorted px, points (N, 3) world m, landmark ids (N,), scores (N,));
         ``report`` says how they were found. ``prediction``: the frame's predicted
         :class:`~rs_localizer.pose.RSModel` (module docstring), where the tracks and the
         refresh's matches are looked for; None: nothing predicts the frame (the first one,
@@ -366,19 +366,19 @@ class TrackingFeatureFrontend(FeatureFrontend):
             np.asarray(self.last_scores, float),
         )
 
-    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
+    @accepts_pixels_keyword
+    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
         """The estimator's verdict on the last frame: its inliers are tracked into the next
         frame, the rest dropped; a failed estimate (or None) makes the next frame global.
 
         Args:
             stamp_ns: the frame's stamp (ns; not used).
-            pixels: (M, 2) px, the rows the estimator was given, when the caller removed or
+            points2d: (M, 2) px, the rows the estimator was given, when the caller removed or
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
             estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of those rows
                 (``success``, ``inliers`` (M,)), or None.
         """
-        points2d = pixels
         camera = self._frame_camera
         if estimate is None or not getattr(estimate, "success", False):
             self._drop_tracks(keep_refresh=False)

@@ -367,7 +367,7 @@ class LocalizerCore:
         if getattr(res, "correspondences", None) is not None:
             c = res.correspondences
             cloud = correspondence_cloud(
-                c.pixels, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
+                c.points2d, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
             )
             self._corr_out_publisher().publish(cloud)
         if res.failure is not None:

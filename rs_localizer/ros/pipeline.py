@@ -685,7 +685,7 @@ class FramePipeline:
         if found is None:  # (the front end raised)
             raise _Drop(out.failure, out.detail)
         res.times["frontend"] = out.frontend_seconds
-        uv = found.pixels
+        uv = found.points2d
         self.stats.frontend_ran(len(uv), out.frontend_seconds)
         if cfg.republish_correspondences:
             res.correspondences = Correspondences(uv, found.points, found.ids, found.valid_scores())

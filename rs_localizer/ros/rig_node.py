@@ -383,7 +383,7 @@ class RigCore:
             self.bad_input[name] += 1
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
             return
-        frame = RigCameraFrame(name, stamp, self.models[name], c.pixels, c.points)
+        frame = RigCameraFrame(name, stamp, self.models[name], c.points2d, c.points)
         for out in self.rig.add(frame):
             self.publish_output(out)
 

@@ -64,7 +64,9 @@ def run_interleaved(
             c = fe.process(f.image, camera, encoding="rgb8", prediction=pred)
             out[mode]["detect"].append(time.perf_counter() - t0)
             out[mode]["cpu"].append(time.thread_time() - c0)
-            est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
+            est = (
+                estimate_rs_pose(c.points2d, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
+            )
             fe.observe(stamp, None, est)
             carry[mode].update(stamp, est)
             ok = est is not None and est.success
@@ -76,7 +78,7 @@ def run_interleaved(
             out[mode]["pos"].append(
                 float(np.linalg.norm(est.pose.position - f.position)) if ok else np.nan
             )
-            got[mode] = dict(zip(c.ids.tolist(), c.pixels, strict=True))
+            got[mode] = dict(zip(c.ids.tolist(), c.points2d, strict=True))
         common = got["full"].keys() & got["windowed"].keys()
         if common:
             d = max(float(np.linalg.norm(got["full"][i] - got["windowed"][i])) for i in common)

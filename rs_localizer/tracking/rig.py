@@ -907,7 +907,7 @@ class RigLocalizer:
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's
         prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
         :meth:`add`; each camera's front end is told how its frame was solved
-        (``frontend.observe(stamp_ns, pixels, estimate)``, ``estimate`` the camera's part of
+        (``frontend.observe(stamp_ns, points2d, estimate)``, ``estimate`` the camera's part of
         the rig's, :class:`CameraVerdict`) when its rig frame is solved: with unsynchronized
         cameras often after the camera's next image (a front end that searches around its last
         solved markers still does; one that tracks the pixels of its last image matches them
@@ -964,7 +964,7 @@ class RigLocalizer:
         text = fe.pop_warning()
         if text:
             self.log.warning(f"{label}.warning", text)
-        uv = np.asarray(found.pixels, float).reshape(-1, 2)
+        uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
         uv, xyz = uv[good], xyz[good]

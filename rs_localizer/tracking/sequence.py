@@ -856,7 +856,7 @@ class SequenceLocalizer:
         text = fe.pop_warning()
         if text:
             self.log.warning(f"{name}.warning", text)
-        uv, xyz, scores = found.pixels, found.points, found.valid_scores()
+        uv, xyz, scores = found.points2d, found.points, found.valid_scores()
         need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
         if len(uv) < need:
             what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"

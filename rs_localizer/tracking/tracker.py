@@ -192,7 +192,7 @@ class CarriedPrediction:
         carry = CarriedPrediction()
         for stamp, image in video:
             c = frontend.process(image, camera, "rgb8", carry.predict(stamp, camera))
-            est = estimate_rs_pose(c.pixels, c.points, camera)
+            est = estimate_rs_pose(c.points2d, c.points, camera)
             frontend.observe(stamp, None, est)
             carry.update(stamp, est)
 

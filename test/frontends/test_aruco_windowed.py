@@ -24,7 +24,7 @@ def _solve(fe, f, camera, carry):
     stamp), the prediction then given the frame's estimate."""
     stamp = int(round(f.t_first * 1e9))
     c = fe.process(f.image, camera, prediction=carry.predict(stamp, camera))
-    est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+    est = estimate_rs_pose(c.points2d, c.points, camera, "r6p_1lin")
     carry.update(stamp, est)
     return c, est, stamp
 
@@ -45,14 +45,14 @@ def test_windowed_corners_equal_full_frame(video):
     c_f = full.process(f.image, camera)
     common, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
     assert len(common) >= 0.9 * len(c_f)
-    np.testing.assert_allclose(c_w.pixels[i_w], c_f.pixels[i_f], atol=0.05)
+    np.testing.assert_allclose(c_w.points2d[i_w], c_f.points2d[i_f], atol=0.05)
     np.testing.assert_array_equal(c_w.points[i_w], c_f.points[i_f])
     # against the exact RS projection of the mapped corners: the accuracy of full frames
     motion = make_motion("shake", scene, duration=len(frames) / FPS + 0.1)
     gt, ok = Renderer(scene, camera, noise=NoiseModel()).project(
         c_w.points, motion, 1 / FPS, occlusion=False
     )
-    err = np.linalg.norm(c_w.pixels - gt, axis=1)
+    err = np.linalg.norm(c_w.points2d - gt, axis=1)
     assert ok.all() and np.median(err) < 0.35 and np.percentile(err, 95) < 1.0
 
 
@@ -227,7 +227,7 @@ def test_windowed_search_uses_the_apriltag_library():
     assert len(common) >= 0.9 * len(c_f)
     # most tags found as in the full frame; a few differ by the library's own noise (a tag's
     # quad is fitted to its outline, which in the full frame may run on into the texture)
-    diff = np.abs(c_w.pixels[i_w] - c_f.pixels[i_f]).max(axis=1)
+    diff = np.abs(c_w.points2d[i_w] - c_f.points2d[i_f]).max(axis=1)
     assert np.median(diff) < 1e-3 and np.mean(diff < 0.05) >= 0.9 and diff.max() < 0.2
     s = win.summary()
     assert s["aruco_detector"].startswith("AprilTag 3 library") and s["aruco_frames_windowed"] == 1

@@ -41,7 +41,7 @@ def test_roundtrip_correspondences_float32_with_id_and_score():
     # the library's one correspondence type: what a front end returns, same fields
     from rs_localizer.correspondences import Correspondences
 
-    assert type(c) is Correspondences and c.pixels is c.uv and c.points is c.xyz
+    assert type(c) is Correspondences and c.points2d is c.uv and c.points is c.xyz
     assert c.ids.dtype == np.int64
     pixels, points, found_ids = c  # unpacks like a front end's result
     np.testing.assert_array_equal(pixels, c.uv)

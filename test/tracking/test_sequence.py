@@ -204,7 +204,7 @@ def test_correspondences_type():
             return c
 
     class Tracks(Markers):
-        def observe(self, stamp_ns, pixels, estimate):
+        def observe(self, stamp_ns, points2d, estimate):
             pass
 
     assert isinstance(Markers(), Frontend) and not isinstance(Markers(), TrackingFrontend)
@@ -314,8 +314,8 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
             assert camera is cam
             return super().process(image, camera, encoding)
 
-        def observe(self, stamp_ns, pixels, estimate):
-            self.seen.append((stamp_ns, len(pixels), estimate.success))
+        def observe(self, stamp_ns, points2d, estimate):
+            self.seen.append((stamp_ns, len(points2d), estimate.success))
 
         def pop_warning(self):
             return "once" if not self.seen else None

@@ -142,7 +142,7 @@ def read_bag_frames(
                 scores = None
             else:
                 c = read_correspondences(msg)
-                uv, xyz, scores = c.pixels, c.points, c.scores
+                uv, xyz, scores = c.points2d, c.points, c.scores
         except ValueError as e:
             reason = getattr(e, "reason", "bad_frame")
             out.skipped[reason] = out.skipped.get(reason, 0) + 1

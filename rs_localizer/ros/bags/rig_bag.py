@@ -474,7 +474,7 @@ def iter_rig_frames(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError:
             continue
-        yield RigCameraFrame(n, stamp, models[n], corr.pixels, corr.points)
+        yield RigCameraFrame(n, stamp, models[n], corr.points2d, corr.points)
 
 
 def rig_frame_ends(
