@@ -103,7 +103,7 @@ def test_markers_not_seen_last_frame_are_searched_where_predicted(video):
     hidden[:, hidden.shape[1] // 2 :] = 128  # the right half's markers not seen on frame 0
     stamp = int(round(frames[0].t_first * 1e9))
     c0 = win.process(hidden, camera, prediction=carry.predict(stamp, camera))
-    est = estimate_rs_pose(c0.pixels, c0.points, camera, "r6p_1lin")
+    est = estimate_rs_pose(c0.points2d, c0.points, camera, "r6p_1lin")
     assert est.success
     carry.update(stamp, est)
     win.observe(stamp, None, est)
@@ -114,7 +114,7 @@ def test_markers_not_seen_last_frame_are_searched_where_predicted(video):
     assert len(new) >= 5  # markers the last frame did not see
     assert set(c_w.ids.tolist()) >= set(c_f.ids.tolist())
     _, i_w, i_f = np.intersect1d(c_w.ids, c_f.ids, return_indices=True)
-    np.testing.assert_allclose(c_w.pixels[i_w], c_f.pixels[i_f], atol=0.05)
+    np.testing.assert_allclose(c_w.points2d[i_w], c_f.points2d[i_f], atol=0.05)
 
 
 def test_a_marker_missing_where_predicted_keeps_the_windows(video):
@@ -135,7 +135,7 @@ def test_a_marker_missing_where_predicted_keeps_the_windows(video):
         stamp = int(round(f.t_first * 1e9))
         pred = carry.predict(stamp, camera)
         full = ArucoFrontend.from_scene(scene).process(f.image, camera)
-        quads = full.pixels.reshape(-1, 4, 2)
+        quads = full.points2d.reshape(-1, 4, 2)
         h, w = f.image.shape[:2]
         room = np.minimum(quads.min(axis=1), [w, h] - quads.max(axis=1)).min(axis=1)
         uv = quads[np.argmax(room)]  # the marker furthest inside the image, painted over
@@ -149,7 +149,7 @@ def test_a_marker_missing_where_predicted_keeps_the_windows(video):
             pred = pred._replace(R=turn @ pred.R, C=turn @ pred.C)
         c = fe.process(img, camera, prediction=pred)
         assert fe.last_kind == "windowed"
-        est = estimate_rs_pose(c.pixels, c.points, camera, "r6p_1lin")
+        est = estimate_rs_pose(c.points2d, c.points, camera, "r6p_1lin")
         fe.observe(stamp, None, est)
         carry.update(stamp, est)
         _solve(fe, frames[2], camera, carry)
