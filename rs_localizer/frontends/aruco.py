@@ -318,7 +318,6 @@ class ArucoFrontend(FrontendHooks):
         self._last_found = {int(i) for i in mids}
         return corners, mids
 
-<<<<<<< HEAD
     def _prediction_missed(self, expect: set, corners: np.ndarray, mids: np.ndarray) -> bool:
         """Whether a windowed frame calls for a full-frame search: a marker of ``expect`` (found
         in the last frame, predicted inside the image) is missing and the markers found lie
@@ -337,11 +336,8 @@ class ArucoFrontend(FrontendHooks):
         ]
         return not err or max(err) > 0.5 * self.window_margin_px
 
-    def observe(self, stamp_ns: int | None, pixels: np.ndarray | None, estimate: Any) -> None:
-=======
     @accepts_pixels_keyword
     def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
->>>>>>> w4-49
         """The estimate of the last processed frame (the node calls this after each frame):
         after a solved one (``success``) the next frame's markers are searched around their
         predicted pixels; a failed one (or None) makes the next frame a full-frame search.
