@@ -451,18 +451,15 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     det = np.where(ok, det, 1.0)
     # x = (r1 ny - rho n1y) / det, y = (rho n1x - r1 nx) / det
     out = (r1 * nn[::-1] - rho * n1[::-1]) * _OUTWARD[:, None, None] / det  # (2, M, 4)
-    # a tag keeps its corners where a corner fails (M, 4): the profiles stay within w + 1 px
-    # of the corners (in the image when these are), contrast, moves
-    reach = wt[:, None] + 1.0
+    # a tag keeps its corners where a corner fails: contrast, move, and the profiles stay
+    # within w + 1 px of the corners (in the image when these are)
     move = out - ct
-    bad = (move[0] * move[0] + move[1] * move[1]) > EDGE_MAX_MOVE**2
-    bad |= (ct[0] < reach) | (ct[1] < reach) | (ct[0] > (w_img - 1) - reach)
-    bad |= ct[1] > (h - 1) - reach
+    bad = (move[0] * move[0] + move[1] * move[1]) > EDGE_MAX_MOVE**2  # (M, 4)
     bad |= ~(ok & (contrast.reshape(m, 4) >= EDGE_MIN_CONTRAST) & (span.reshape(m, 4) > 0))
-    bad = bad.any(axis=1)
-    out = out.transpose(1, 2, 0).astype(np.float64, order="C")
-    out[bad] = c[bad]
-    return out
+    reach = wt[:, None] + 1.0
+    outside = (ct < reach) | (ct > np.array([w_img - 1, h - 1], np.float32)[:, None, None] - reach)
+    bad = (outside | bad).any(axis=(0, 2))
+    return np.where(bad[:, None, None], c, out.transpose(1, 2, 0))
 
 
 # constants of :func:`refine_tag_edges`
