@@ -266,7 +266,7 @@ def drop_duplicates(corners: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, n
     """Detections without the ids found more than once: ``(corners (K, 4, 2), ids (K,),
     number of ids dropped)``, in the input order."""
     ids = np.asarray(ids, dtype=np.int64).ravel()
-    if len(ids) < 2:
+    if len(ids) < 2 or len(set(ids.tolist())) == len(ids):
         return corners, ids, 0
     u, counts = np.unique(ids, return_counts=True)
     dup = u[counts > 1]
@@ -390,8 +390,9 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     than :data:`EDGE_MAX_MOVE` px. Measured with ``python -m benchmarks.bench_markers``
     (640x480 ``apriltag_room``, ``quad_decimate`` 1.5): corner error median 0.118 -> 0.031 px
     against the renderer's exact corners (p90 0.252 -> 0.141 px); tags under 20 px keep
-    0.10-0.12 px (their cells are too narrow for the profiles); about 0.4 ms of CPU per frame
-    of 30 tags.
+    0.10-0.12 px (their cells are too narrow for the profiles). All tags are processed
+    together: one bilinear sampling (``cv2.remap``) of every profile point of the frame, the
+    fits and intersections as array operations over all edges.
 
     Args:
         gray: (H, W) uint8 image.
@@ -407,56 +408,58 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     if m == 0:
         return c.reshape(0, 4, 2)
     h, w_img = gray.shape
-    c32 = c.astype(np.float32)
-    p0 = c32.reshape(-1, 2)
-    v = c32[:, _NEXT].reshape(-1, 2) - p0
-    length = np.sqrt(v[:, 0] ** 2 + v[:, 1] ** 2)
-    e = v / np.maximum(length, 1e-9)[:, None]
-    n = e[:, ::-1] * _OUTWARD  # outward for clockwise corners (ArUco order)
+    # all edges of all tags at once, coordinates first: (2, E) for the E = 4 M edges; the
+    # places along an edge (J) and samples across it (K) on the leading axes after them
+    ct = c.transpose(2, 0, 1)  # (2, M, 4) view
+    c32 = ct.astype(np.float32, order="C")
+    p0 = c32.reshape(2, -1)
+    v = c32.take(_NEXT, axis=2).reshape(2, -1) - p0
+    length = np.sqrt(v[0] ** 2 + v[1] ** 2)
+    e = v / np.maximum(length, 1e-9)
+    n = e[::-1] * _OUTWARD[:, None]  # outward for clockwise corners (ArUco order)
     side = length.reshape(m, 4) @ _QUARTER
-    w = np.repeat(np.maximum(EDGE_HALF_WIDTH_CELLS / cells * side, EDGE_HALF_WIDTH_MIN), 4)
+    wt = np.maximum(EDGE_HALF_WIDTH_CELLS / cells * side, EDGE_HALF_WIDTH_MIN)  # (M,)
+    w = np.repeat(wt, 4)
     a = w + 0.5  # the places stay this far from the corners (the adjacent edge's profile)
     span = np.maximum(length - 2 * a, 0.0)
-    t = a[:, None] + span[:, None] * _PLACES  # (E, J) along the edge
-    d = w[:, None] * _ACROSS  # (E, K) across it
-    mx = p0[:, 0, None] + t * e[:, 0, None]
-    my = p0[:, 1, None] + t * e[:, 1, None]
-    mx = (mx[:, :, None] + (d * n[:, 0, None])[:, None, :]).reshape(len(p0), -1)
-    my = (my[:, :, None] + (d * n[:, 1, None])[:, None, :]).reshape(len(p0), -1)
-    prof = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    prof = prof.reshape(len(p0), EDGE_POSITIONS, EDGE_PROFILE_SAMPLES).astype(np.float32)
-    dark = prof[:, :, 0] @ _MEAN
-    contrast = prof[:, :, -1] @ _MEAN - dark
-    area = prof @ _TRAPEZOID - (EDGE_PROFILE_SAMPLES - 1) * dark[:, None]
+    t = a + span * _PLACES[:, None]  # (J, E) along the edge
+    # (2, J, K, E): the profile points p0 + t e + d n, d = w * _ACROSS across the edge
+    along = p0[:, None, :] + t * e[:, None, :]
+    across = (_ACROSS[:, None] * w) * n[:, None, :]
+    pts = (along[:, :, None, :] + across[:, None, :, :]).reshape(2, -1, len(w))
+    prof = cv2.remap(gray, pts[0], pts[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # one product for each place's profile integral (trapezoid rule) and the edge's mean
+    # profile ends (dark, bright): (J + 2, E), exact in float32 (grey levels times 1/2, 1/8)
+    sums = _PROFILE_SUMS @ prof.astype(np.float32)
+    dark = sums[EDGE_POSITIONS]
+    contrast = sums[EDGE_POSITIONS + 1] - dark
+    area = sums[:EDGE_POSITIONS] - (EDGE_PROFILE_SAMPLES - 1) * dark
     step = w * (2.0 / (EDGE_PROFILE_SAMPLES - 1))
     # (E, J): the edge's offset along n at each place
-    cross = w[:, None] - (step / np.maximum(contrast, 1.0))[:, None] * area
+    cross = np.ascontiguousarray((w - (step / np.maximum(contrast, 1.0)) * area).T)
     c0 = cross @ _MEAN
     slope = (cross @ _CENTRED) / (np.maximum(span, 1e-9) * _CENTRED_NORM)
     # the edge: through p0 + (a + span / 2) e + c0 n, direction e + slope n
-    nn = n - slope[:, None] * e
-    nn /= np.sqrt(nn[:, 0] ** 2 + nn[:, 1] ** 2)[:, None]
-    x0 = p0 + (a + 0.5 * span)[:, None] * e + c0[:, None] * n
-    rho = (nn * x0).sum(axis=1).reshape(m, 4)
-    nn = nn.reshape(m, 4, 2)
-    n1, r1 = nn[:, _PREV], rho[:, _PREV]  # corner k: edges k-1 and k
-    det = n1[..., 0] * nn[..., 1] - n1[..., 1] * nn[..., 0]
+    nn = n - slope * e
+    nn /= np.sqrt(nn[0] ** 2 + nn[1] ** 2)
+    x0 = p0 + (a + 0.5 * span) * e + c0 * n
+    rho = (nn[0] * x0[0] + nn[1] * x0[1]).reshape(m, 4)
+    nn = nn.reshape(2, m, 4)
+    n1, r1 = nn.take(_PREV, axis=2), rho.take(_PREV, axis=1)  # corner k: edges k-1 and k
+    det = n1[0] * nn[1] - n1[1] * nn[0]
     ok = np.abs(det) > 1e-6
     det = np.where(ok, det, 1.0)
-    out = np.empty(c.shape)
-    out[..., 0] = (r1 * nn[..., 1] - rho * n1[..., 1]) / det
-    out[..., 1] = (n1[..., 0] * rho - nn[..., 0] * r1) / det
-    # the profiles stay within w_max + 1 px of the corners: in the image when these are
-    reach = w.reshape(m, 4)[:, 0] + 1.0
-    lo, hi = c.min(axis=1), c.max(axis=1)
-    bad = (lo[:, 0] < reach) | (lo[:, 1] < reach)
-    bad |= (hi[:, 0] > w_img - 1 - reach) | (hi[:, 1] > h - 1 - reach)
-    bad |= ~(ok & (contrast.reshape(m, 4) >= EDGE_MIN_CONTRAST) & (span.reshape(m, 4) > 0)).all(
-        axis=1
-    )
-    bad |= (((out - c) ** 2).sum(axis=2) > EDGE_MAX_MOVE**2).any(axis=1)
-    out[bad] = c[bad]
-    return out
+    # x = (r1 ny - rho n1y) / det, y = (rho n1x - r1 nx) / det
+    out = (r1 * nn[::-1] - rho * n1[::-1]) * _OUTWARD[:, None, None] / det  # (2, M, 4)
+    # a tag keeps its corners where a corner fails: contrast, move, and the profiles stay
+    # within w + 1 px of the corners (in the image when these are)
+    move = out - ct
+    bad = (move[0] * move[0] + move[1] * move[1]) > EDGE_MAX_MOVE**2  # (M, 4)
+    bad |= ~(ok & (contrast.reshape(m, 4) >= EDGE_MIN_CONTRAST) & (span.reshape(m, 4) > 0))
+    reach = wt[:, None] + 1.0
+    outside = (ct < reach) | (ct > np.array([w_img - 1, h - 1], np.float32)[:, None, None] - reach)
+    bad = (outside | bad).any(axis=(0, 2))
+    return np.where(bad[:, None, None], c, out.transpose(1, 2, 0))
 
 
 # constants of :func:`refine_tag_edges`
@@ -471,6 +474,13 @@ _CENTRED_NORM = _F(_CENTRED @ _CENTRED)
 _MEAN = np.full(EDGE_POSITIONS, 1.0 / EDGE_POSITIONS, _F)
 _ACROSS = np.linspace(-1.0, 1.0, EDGE_PROFILE_SAMPLES).astype(_F)
 _TRAPEZOID = np.r_[0.5, np.ones(EDGE_PROFILE_SAMPLES - 2), 0.5].astype(_F)
+#: (J + 2, J K): an edge's profile samples (place-major) -> each place's trapezoid sum, the
+#: mean of the places' first samples, the mean of their last samples
+_PROFILE_SUMS = np.zeros((EDGE_POSITIONS + 2, EDGE_POSITIONS, EDGE_PROFILE_SAMPLES), _F)
+_PROFILE_SUMS[np.arange(EDGE_POSITIONS), np.arange(EDGE_POSITIONS)] = _TRAPEZOID
+_PROFILE_SUMS[EDGE_POSITIONS, :, 0] = 1.0 / EDGE_POSITIONS
+_PROFILE_SUMS[EDGE_POSITIONS + 1, :, -1] = 1.0 / EDGE_POSITIONS
+_PROFILE_SUMS = _PROFILE_SUMS.reshape(EDGE_POSITIONS + 2, -1)
 
 
 def copy_parameters(params: Any, **overrides: Any) -> Any:
@@ -666,15 +676,13 @@ class AprilTagDetector:
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         if self.binding == "pupil_apriltags":
             c = np.array([d.corners for d in dets], dtype=np.float64)
-            ids = np.array([d.tag_id for d in dets], dtype=np.int64)
-            ham = np.array([d.hamming for d in dets], dtype=np.int64)
+            ids, ham = np.array([(d.tag_id, d.hamming) for d in dets], dtype=np.int64).T
             mar = np.array([d.decision_margin for d in dets], dtype=np.float64)
         else:
             c = np.array([d["lb-rb-rt-lt"] for d in dets], dtype=np.float64)
-            ids = np.array([d["id"] for d in dets], dtype=np.int64)
-            ham = np.array([d["hamming"] for d in dets], dtype=np.int64)
+            ids, ham = np.array([(d["id"], d["hamming"]) for d in dets], dtype=np.int64).T
             mar = np.array([d["margin"] for d in dets], dtype=np.float64)
-        return c.reshape(-1, 4, 2), ids, ham, mar
+        return c.reshape(-1, 4, 2), ids.copy(), ham.copy(), mar
 
     def detect(
         self, gray: np.ndarray, frame_shape: tuple | None = None
@@ -693,8 +701,9 @@ class AprilTagDetector:
         ``origin`` (x, y px): corners in ``frame``'s pixels, refined on ``frame``."""
         c, ids, ham, mar = self.raw(gray, frame_shape)
         ok = (ham <= int(self.options.max_hamming)) & (mar >= self.min_decision_margin)
-        self.last_weak = int(np.count_nonzero(~ok))
-        c, ids, ham, mar = c[ok], ids[ok], ham[ok], mar[ok]
+        self.last_weak = len(ok) - int(np.count_nonzero(ok))
+        if self.last_weak:
+            c, ids, ham, mar = c[ok], ids[ok], ham[ok], mar[ok]
         corners = c[:, APRILTAG_TO_ARUCO_ORDER, :] - APRILTAG_PIXEL_OFFSET
         if origin != (0, 0):
             corners = corners + np.array(origin, float)
@@ -702,9 +711,13 @@ class AprilTagDetector:
             image = _check_gray(gray if frame is None else frame)
             corners = refine_tag_edges(image, corners, self.edge_cells)
         corners, kept, self.last_duplicates = drop_duplicates(corners, ids)
-        self.last_duplicate_ids = set(ids.tolist()) - set(kept.tolist())
-        keep = np.isin(ids, kept)
-        self.last_margins, self.last_hamming = mar[keep], ham[keep]
+        if self.last_duplicates:
+            self.last_duplicate_ids = set(ids.tolist()) - set(kept.tolist())
+            keep = np.isin(ids, kept)
+            mar, ham = mar[keep], ham[keep]
+        else:
+            self.last_duplicate_ids = set()
+        self.last_margins, self.last_hamming = mar, ham
         return corners, kept, self.last_weak
 
     def detect_window(self, gray: np.ndarray, window: tuple) -> tuple[np.ndarray, np.ndarray, int]:

@@ -499,6 +499,34 @@ def test_tag_edges_refine_corners_to_the_truth():
     assert md.refine_tag_edges(flat, np.zeros((0, 4, 2)), 8).shape == (0, 4, 2)
 
 
+def test_tag_edges_of_all_tags_at_once_as_each_alone():
+    """refine_tag_edges on many tags in one call gives each tag what a call on it alone
+    gives (the tags are processed together): an image of synthetic tags side by side, some
+    refined, one on a flat patch and one at the image's border kept as given (within float32
+    rounding)."""
+    truth = np.array([[50.3, 30.7], [94.1, 36.2], [88.6, 79.8], [44.8, 74.3]])
+    truth[2] = truth[1] + truth[3] - truth[0]
+    rng = np.random.default_rng(7)
+    tiles, starts = [], []
+    for k in range(6):
+        tile = _synthetic_tag(truth, seed=20 + k)
+        if k == 4:
+            tile = np.full_like(tile, 128)
+        tiles.append(tile)
+        starts.append(truth + [160.0 * k, 0.0] + rng.uniform(-0.35, 0.35, (4, 2)))
+    starts.append(truth - truth[0] + [0.5, 20.0])  # (its profiles leave the image)
+    gray = np.hstack(tiles)
+    corners = np.array(starts)
+    got = md.refine_tag_edges(gray, corners, 8)
+    alone = np.concatenate([md.refine_tag_edges(gray, corners[i : i + 1], 8) for i in range(7)])
+    # (float32 arithmetic: the matrix products' rounding depends on how many rows they get)
+    np.testing.assert_allclose(got, alone, rtol=0.0, atol=1e-4)
+    kept = (got == corners).all(axis=(1, 2))
+    assert kept.tolist() == [False] * 4 + [True, False, True], kept
+    # the order of the tags does not matter either
+    np.testing.assert_allclose(md.refine_tag_edges(gray, corners[::-1], 8), got[::-1], atol=1e-4)
+
+
 @needs_apriltag
 def test_apriltag_corners_refined_on_a_textured_room():
     """On 640x480 rolling-shutter frames of the textured ``apriltag_room`` the edge-profile
