@@ -225,17 +225,24 @@ class LifecycleClient:
         self.change = node.create_client(ChangeState, f"{node_name}/change_state")
         self.get = node.create_client(GetState, f"{node_name}/get_state")
 
-    def _call(self, executor, cli, req, timeout=120.0):
+    def _call(self, executor, cli, req, timeout=120.0, attempts=1):
         assert cli.wait_for_service(timeout_sec=30.0), cli.srv_name
-        fut = cli.call_async(req)
-        executor.spin_until_future_complete(fut, timeout_sec=timeout)
-        assert fut.done(), f"{cli.srv_name} did not answer"
-        return fut.result()
+        for _ in range(attempts):
+            fut = cli.call_async(req)
+            executor.spin_until_future_complete(fut, timeout_sec=timeout / attempts)
+            if fut.done():
+                return fut.result()
+            cli.remove_pending_request(fut)
+        raise AssertionError(f"{cli.srv_name} did not answer")
 
     def state(self, executor) -> str:
+        """The node's state label. The request is sent again when no answer comes within 30 s:
+        a service can take a request before it has matched the client's reply reader (Fast
+        DDS then drops the reply, "failed to send response"), and asking again changes
+        nothing."""
         from lifecycle_msgs.srv import GetState
 
-        return self._call(executor, self.get, GetState.Request()).current_state.label
+        return self._call(executor, self.get, GetState.Request(), attempts=4).current_state.label
 
     def transition(self, executor, transition_id) -> bool:
         from lifecycle_msgs.msg import Transition
