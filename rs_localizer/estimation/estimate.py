@@ -30,10 +30,8 @@ from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .finalize import ImageAlone, final_estimate, image_alone, refine_final_model
 from .frame import configure_frame, prepare_frame
 from .gyro import (
-    GYRO_CHI2_THRESHOLD,
-    GYRO_INLIER_MARGIN,
-    GYRO_RECHECK_FRACTION,
     GyroMeasurement,
+    gyro_checked,
     gyro_image_chi2,
     gyro_prior,
 )
@@ -184,33 +182,18 @@ def estimate_rs_pose(
         opts.motion_prior,
         point_sigma=point_sigma,
     )
-    unaided = None
-    why = "aided_failed"
-    if est.success:
-        img = image[0] if image else None
-        if img is None or (
-            gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar)
-            > GYRO_CHI2_THRESHOLD
-        ):
-            why = "contradicted"
-        elif (
-            est.num_inliers >= GYRO_RECHECK_FRACTION * est.num_valid
-            and img.num_inliers <= est.num_inliers * (1.0 + GYRO_INLIER_MARGIN)
-        ):
-            return est
-        else:
-            unaided = _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
-            if not (
-                unaided.success
-                and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
-            ):
-                return est
-            why = "fewer_inliers"
-    if unaided is None:
-        unaided = _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma)
-    if est.success or unaided.success:
-        return replace(unaided, gyro_rejected=True, gyro_rejection=why)
-    return unaided
+    img = image[0] if image else None
+    chi2, image_inliers = np.inf, 0
+    if est.success and img is not None:
+        chi2 = gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar)
+        image_inliers = img.num_inliers
+    return gyro_checked(
+        est,
+        chi2,
+        image_inliers,
+        est.num_valid,
+        lambda: _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma),
+    )
 
 
 def _unused_by_numpy(

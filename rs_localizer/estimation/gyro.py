@@ -20,7 +20,9 @@ stamps to put them on the camera clock (``t_cam = t_imu + time_offset``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 from numba import njit
@@ -37,6 +39,7 @@ __all__ = [
     "GYRO_RATE_CHANGE_FACTOR",
     "GYRO_RECHECK_FRACTION",
     "GyroMeasurement",
+    "gyro_checked",
     "gyro_consistency",
     "gyro_image_chi2",
     "gyro_prior",
@@ -93,6 +96,59 @@ class GyroMeasurement:
         object.__setattr__(self, "angular_velocity", w)
         object.__setattr__(self, "covariance", 0.5 * (S + S.T))
         object.__setattr__(self, "rate_change", d)
+
+
+_Estimate = TypeVar("_Estimate")
+
+
+def gyro_checked(
+    aided: _Estimate,
+    chi2: float,
+    image_inliers: int,
+    num_valid: int,
+    unaided: Callable[[], _Estimate],
+) -> _Estimate:
+    """The gyro-aided estimate, or the image's own when the gyro is not to be trusted: the
+    rule of the camera's and the rig's estimator alike.
+
+    ``aided`` (a successful one) is kept when the image agrees with the gyro (``chi2``, from
+    :func:`gyro_image_chi2`, within :data:`GYRO_CHI2_THRESHOLD`) and it explains at least
+    :data:`GYRO_RECHECK_FRACTION` of the ``num_valid`` points and within
+    :data:`GYRO_INLIER_MARGIN` as many as the image-alone refinement (``image_inliers``);
+    otherwise the unaided estimate (``unaided()``, run at most once) is run, and ``aided`` is
+    still kept unless the unaided one succeeds with more than ``1 / (1 - margin)`` times its
+    inliers. A rejected gyro gives the unaided estimate with ``gyro_rejected`` and
+    ``gyro_rejection`` (``contradicted``, ``fewer_inliers`` or ``aided_failed``), unless both
+    failed (then the unaided one as it is).
+
+    Args:
+        aided: the gyro-aided estimate (``success``, ``num_inliers``).
+        chi2: the gyro against the image alone (``inf`` when the image gives no rate).
+        image_inliers: the inliers of the image-alone refinement near ``aided``.
+        num_valid: the points the estimate could use.
+        unaided: runs the estimator without the gyro.
+    """
+    done = None
+    why = "aided_failed"
+    if aided.success:
+        if not chi2 <= GYRO_CHI2_THRESHOLD:
+            why = "contradicted"
+        elif aided.num_inliers >= GYRO_RECHECK_FRACTION * num_valid and image_inliers <= (
+            aided.num_inliers * (1.0 + GYRO_INLIER_MARGIN)
+        ):
+            return aided
+        else:
+            done = unaided()
+            if not (
+                done.success and aided.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * done.num_inliers
+            ):
+                return aided
+            why = "fewer_inliers"
+    if done is None:
+        done = unaided()
+    if aided.success or done.success:
+        return replace(done, gyro_rejected=True, gyro_rejection=why)
+    return done
 
 
 def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> MotionPrior:

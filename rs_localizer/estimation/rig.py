@@ -82,16 +82,14 @@ from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
 from .gyro import (
-    GYRO_CHI2_THRESHOLD,
-    GYRO_INLIER_MARGIN,
-    GYRO_RECHECK_FRACTION,
     GyroMeasurement,
+    gyro_checked,
     gyro_image_chi2,
 )
 from .options import InitialModel
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .refine import untruncated_variance
-from .result import GYRO_REJECTIONS, output_covariance
+from .result import output_covariance
 from .sensitivity import output_jacobian
 
 __all__ = [
@@ -1095,36 +1093,17 @@ def estimate_rig_pose(
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
     prior = _GyroPrior.of(gyro, gyro_time)
     est = _estimate(pool, *settings, prior=prior)
-    unaided = None
-    why = "aided_failed"
+    chi2, image_inliers = np.inf, 0
     if est.success:
         image = _image_alone(pool, est, threshold_px)
-        chi2 = np.inf
         if image is not None:
             inl = _errors_px(pool, *_one(est.model))[0] < threshold_px
             planar = bool(planarity(pool.X[inl]) < PLANAR_TOLERANCE)
             chi2 = gyro_image_chi2(gyro, image[0], image[1], planar)
+            image_inliers = image[2]
         est = replace(est, gyro_chi2=float(chi2))
-        if not chi2 <= GYRO_CHI2_THRESHOLD:
-            why = "contradicted"
-        elif est.num_inliers >= GYRO_RECHECK_FRACTION * len(pool.cam) and image[
-            2
-        ] <= est.num_inliers * (1.0 + GYRO_INLIER_MARGIN):
-            return est
-        else:
-            unaided = _estimate(pool, *settings)
-            if not (
-                unaided.success
-                and est.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * unaided.num_inliers
-            ):
-                return est
-            why = "fewer_inliers"
-    if unaided is None:
-        unaided = _estimate(pool, *settings)
-    assert why in GYRO_REJECTIONS
-    if est.success or unaided.success:
-        return replace(unaided, gyro_rejected=True, gyro_rejection=why, gyro_chi2=est.gyro_chi2)
-    return unaided
+    out = gyro_checked(est, chi2, image_inliers, len(pool.cam), lambda: _estimate(pool, *settings))
+    return replace(out, gyro_chi2=est.gyro_chi2) if out.gyro_rejected else out
 
 
 def _image_alone(
