@@ -539,8 +539,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 def run(a: argparse.Namespace) -> int:
     """Render the bag (:func:`render_bag`) with a progress bar on stderr; returns 0. Raises
     CliError for an output, scene or feature map that cannot be used (before rendering)."""
-    from tqdm import tqdm
-
     A.output_dir(a.out, a.overwrite, "bag directory")
     if a.scene is not None and Path(a.scene).suffix in (".yaml", ".yml"):
         A.yaml_file(a.scene, "scene YAML")
@@ -549,11 +547,7 @@ def run(a: argparse.Namespace) -> int:
     a.scene = a.scene or "aruco_room"
     if a.feature_map is not None:
         A.input_file(a.feature_map, "feature map (.npz)")
-    bar = tqdm(total=a.frames, desc="rendering", unit="frame", disable=a.quiet)
-
-    def prog(k, n, nc):
-        bar.update(1)
-        bar.set_postfix(correspondences=nc, refresh=False)
+    bar, prog = _progress_bar(a.frames, a.quiet)
 
     try:
         path = render_bag(
@@ -587,10 +581,22 @@ def run(a: argparse.Namespace) -> int:
     return 0
 
 
-def _run_rig(a: argparse.Namespace) -> int:
-    """``render-bag --rig N`` (:func:`render_rig_bag`)."""
+def _progress_bar(total: int, quiet: bool):
+    """A tqdm bar over ``total`` rendered frames and the renderer's ``progress(k, n,
+    correspondences)`` callback that advances it (showing the frame's correspondences)."""
     from tqdm import tqdm
 
+    bar = tqdm(total=total, desc="rendering", unit="frame", disable=quiet)
+
+    def prog(k, n, nc):
+        bar.update(1)
+        bar.set_postfix(correspondences=nc, refresh=False)
+
+    return bar, prog
+
+
+def _run_rig(a: argparse.Namespace) -> int:
+    """``render-bag --rig N`` (:func:`render_rig_bag`)."""
     if not 1 <= a.rig <= 4:
         raise A.CliError(f"--rig takes 1 to 4 cameras, got {a.rig}")
     if a.frontend != "aruco" or a.feature_map is not None:
@@ -600,11 +606,7 @@ def _run_rig(a: argparse.Namespace) -> int:
             "--rig renders rgb8 640x480 rolling-shutter cameras without blur or IMU: "
             "no --mono, --global-shutter, --exposure, --imu-rate or --camera"
         )
-    bar = tqdm(total=a.rig * a.frames, desc="rendering", unit="frame", disable=a.quiet)
-
-    def prog(k, n, nc):
-        bar.update(1)
-        bar.set_postfix(correspondences=nc, refresh=False)
+    bar, prog = _progress_bar(a.rig * a.frames, a.quiet)
 
     try:
         path = render_rig_bag(
