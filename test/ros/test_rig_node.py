@@ -4,126 +4,30 @@ without camera_info, a camera without mounting, a mounting off by degrees."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
+from helpers.rig_node import T0, RigHarness, rig_parameters
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 
 pytest.importorskip("rclpy")
 
-T0 = 1_700_000_000_000_000_000
 OK, WARN = b"\x00", b"\x01"  # (diagnostic_msgs/DiagnosticStatus levels)
 
 
-def rig_parameters(cams, mountings=None, **extra):
-    from rclpy.parameter import Parameter
+def rig_harness(ctx, cams, params) -> RigHarness:
+    """The rig node under ``/rig`` with ``params`` and the probe, matched on the cameras'
+    clouds and camera_info and on pose and odom."""
+    from rs_localizer.ros.rig_node import RigLocalizerNode
 
-    from rs_localizer.ros.conversions import quaternion_from_matrix
-
-    p = {
-        "warmup": False,
-        "publish_tf": False,
-        "diagnostics_period": 0.1,
-        "rig.cameras": [c.name for c in cams],
-        **extra,
-    }
-    for c in cams:
-        R = c.R_rig_cam if mountings is None else mountings.get(c.name, c.R_rig_cam)
-        q = quaternion_from_matrix(R)
-        p[f"rig.{c.name}.mounting"] = [float(x) for x in (*c.p_rig_cam, *q)]
-        p[f"rig.{c.name}.line_delay"] = float(c.camera.line_delay)
-        p[f"rig.{c.name}.direction"] = c.camera.readout
-    return [Parameter(k, value=v) for k, v in p.items()]
-
-
-class RigHarness:
-    """The rig node and a probe node on one executor: the probe publishes each camera's
-    camera_info and frames, and records pose, odom and the node's diagnostics."""
-
-    def __init__(self, ctx, cams, params):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import PoseStamped
-        from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from sensor_msgs.msg import CameraInfo, PointCloud2
-
-        from rs_localizer.ros.rig_node import RigLocalizerNode
-
-        self.node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
-                                     parameter_overrides=params)  # fmt: skip
-        self.probe = rclpy.create_node("rig_probe", context=ctx)
-        self.ex = SingleThreadedExecutor(context=ctx)
-        self.ex.add_node(self.node)
-        self.ex.add_node(self.probe)
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = {
-            c.name: (
-                self.probe.create_publisher(PointCloud2, f"/rig/{c.name}/correspondences", qos),
-                self.probe.create_publisher(CameraInfo, f"/rig/{c.name}/camera_info", qos),
-            )
-            for c in cams
-        }
-        self.poses, self.odom, self.diag = [], [], []
-        self.probe.create_subscription(PoseStamped, "/rig/pose", self.poses.append, qos)
-        self.probe.create_subscription(Odometry, "/rig/odom", self.odom.append, qos)
-
-        def on_diag(msg):
-            self.diag += [s for s in msg.status if "/rig/rs_localizer" in s.name]
-
-        self.probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
-        ok = self.wait(
-            lambda: (
-                all(p.get_subscription_count() > 0 for ps in self.pub.values() for p in ps)
-                and self.probe.count_publishers("/rig/pose") > 0
-                and self.node._pubs["pose"].get_subscription_count() > 0
-                and self.node._pubs["odom"].get_subscription_count() > 0
-            )
-        )
-        assert ok, "the rig node and the probe did not match"
-
-    def wait(self, predicate, timeout=20.0) -> bool:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if predicate():
-                return True
-            self.ex.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def send_info(self, cams):
-        from rs_localizer.ros.conversions import camera_info_msg
-
-        for c in cams:
-            self.pub[c.name][1].publish(camera_info_msg(c.camera, c.name, T0))
-        assert self.wait(lambda: all(self.node.models[c.name] is not None for c in cams))
-
-    def send(self, frames):
-        """Each frame in turn, waiting until the node took it in (lock-step)."""
-        from rs_localizer.ros.conversions import ns_to_stamp
-        from rs_localizer.ros.pointcloud import correspondence_cloud
-
-        for f in frames:
-            key = f"{f.name}.received"
-            n = self.node.rig.counts[key]
-            self.pub[f.name][0].publish(
-                correspondence_cloud(f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
-            )
-            assert self.wait(lambda key=key, n=n: self.node.rig.counts[key] > n), f
-
-    def last_diag(self):
-        n = len(self.diag)
-        assert self.wait(lambda: len(self.diag) > n + 1)
-        st = self.diag[-1]
-        return st, {kv.key: kv.value for kv in st.values}
-
-    def close(self):
-        self.ex.shutdown()
-        self.probe.destroy_node()
-        self.node.destroy_node()
+    node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    h = RigHarness(ctx, cams, node, timeout=20.0)
+    assert h.matched(("cloud", "info"), ("pose", "odom")), (
+        "the rig node and the probe did not match"
+    )
+    return h
 
 
 def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context):
@@ -132,10 +36,10 @@ def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context
     counts, inliers and share in the diagnostics (shares summing to 1)."""
     cams = default_rig(3)
     frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=120, seed=11)
-    h = RigHarness(ros_context, cams, rig_parameters(cams))
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
     try:
         h.send_info(cams)
-        h.send(frames)
+        h.send_clouds(frames)
         assert h.wait(lambda: len(h.poses) == 15)
         assert h.wait(lambda: len(h.odom) >= 14)
         for m in h.poses:
@@ -166,10 +70,10 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
     ``skipped.no_camera_info``, the rig is posed from front and right, the status warns."""
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=12)
-    h = RigHarness(ros_context, cams, rig_parameters(cams))
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
     try:
         h.send_info([c for c in cams if c.name != "left"])
-        h.send(frames)
+        h.send_clouds(frames)
         assert h.wait(lambda: len(h.poses) >= 8)
         st, v = h.last_diag()
         assert st.level == WARN and "left waits for its camera_info" in st.message, st.message
@@ -190,10 +94,10 @@ def test_a_mounting_off_by_degrees_is_named_in_the_diagnostics(ros_context):
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=13)
     off = {"right": cams[2].R_rig_cam @ rotvec_to_matrix(np.radians([0.0, 4.0, 0.0]))}
-    h = RigHarness(ros_context, cams, rig_parameters(cams, off))
+    h = rig_harness(ros_context, cams, rig_parameters(cams, off))
     try:
         h.send_info(cams)
-        h.send(frames)
+        h.send_clouds(frames)
         st, v = h.last_diag()
         assert st.level == WARN and "right disagrees with the rig" in st.message, st.message
         assert "mounting" in st.message and v["right.state"] == "disagrees"
@@ -251,7 +155,7 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
     stamps, rates = rig_gyro(traj, 0.4, rate_hz=300.0, R_rig_imu=R_rig_imu, seed=1)
     q = [float(x) for x in quaternion_from_matrix(R_rig_imu)]
     params = rig_parameters(cams, **{"imu.enabled": True, "imu.rotation": q})
-    h = RigHarness(ros_context, cams, params)
+    h = rig_harness(ros_context, cams, params)
     pub = h.probe.create_publisher(Imu, "/rig/imu", qos_profile_sensor_data)
     try:
         assert h.wait(lambda: pub.get_subscription_count() > 0)
@@ -272,7 +176,7 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
             while k < len(stamps) and stamps[k] <= f.stamp_ns + 30_000_000:
                 send_imu(stamps[k], rates[k])
                 k += 1
-            h.send([f])
+            h.send_clouds([f])
         n = len(frames) // 2
         assert h.wait(lambda: len(h.poses) == n)
         for m in h.poses:

@@ -7,38 +7,15 @@ shared with the single-camera node; the status naming two cameras that disagree.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
+from helpers.rig_node import T0, RigHarness, rig_parameters
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 
 pytest.importorskip("rclpy")
 
-T0 = 1_700_000_000_000_000_000
 OK, WARN = b"\x00", b"\x01"  # (diagnostic_msgs/DiagnosticStatus levels)
-
-
-def rig_parameters(cams, mountings=None, **extra):
-    from rclpy.parameter import Parameter
-
-    from rs_localizer.ros.conversions import quaternion_from_matrix
-
-    p = {
-        "warmup": False,
-        "publish_tf": False,
-        "diagnostics_period": 0.1,
-        "rig.cameras": [c.name for c in cams],
-        **extra,
-    }
-    for c in cams:
-        R = c.R_rig_cam if mountings is None else mountings.get(c.name, c.R_rig_cam)
-        q = quaternion_from_matrix(R)
-        p[f"rig.{c.name}.mounting"] = [float(x) for x in (*c.p_rig_cam, *q)]
-        p[f"rig.{c.name}.line_delay"] = float(c.camera.line_delay)
-        p[f"rig.{c.name}.direction"] = c.camera.readout
-    return [Parameter(k, value=v) for k, v in p.items()]
 
 
 def image_msg(img: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rgb8"):
@@ -55,88 +32,6 @@ def image_msg(img: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rg
     m.step = int(img.strides[0])
     m.data = img.tobytes()
     return m
-
-
-class Harness:
-    """A rig node (or the managed one) and a probe on one executor: the probe publishes each
-    camera's camera_info, images and clouds (reliable, lock-step on the node's counts) and
-    records pose, odom and the node's diagnostics."""
-
-    def __init__(self, ctx, cams, node):
-        import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import PoseStamped
-        from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-
-        self.node = node
-        self.probe = rclpy.create_node("rig_probe", context=ctx)
-        self.ex = SingleThreadedExecutor(context=ctx)
-        self.ex.add_node(self.node)
-        self.ex.add_node(self.probe)
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        self.pub = {
-            c.name: {
-                "image": self.probe.create_publisher(Image, f"/rig/{c.name}/image_raw", qos),
-                "cloud": self.probe.create_publisher(
-                    PointCloud2, f"/rig/{c.name}/correspondences", qos
-                ),
-                "info": self.probe.create_publisher(CameraInfo, f"/rig/{c.name}/camera_info", qos),
-            }
-            for c in cams
-        }
-        self.poses, self.odom, self.diag = [], [], []
-        self.probe.create_subscription(PoseStamped, "/rig/pose", self.poses.append, qos)
-        self.probe.create_subscription(Odometry, "/rig/odom", self.odom.append, qos)
-
-        def on_diag(msg):
-            self.diag += [s for s in msg.status if "/rig/rs_localizer" in s.name]
-
-        self.probe.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos)
-
-    def matched(self, kinds=("image", "info")) -> bool:
-        return self.wait(
-            lambda: (
-                all(ps[k].get_subscription_count() > 0 for ps in self.pub.values() for k in kinds)
-                and self.node._pubs["pose"].get_subscription_count() > 0
-            )
-        )
-
-    def wait(self, predicate, timeout=30.0) -> bool:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if predicate():
-                return True
-            self.ex.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def send_info(self, cams):
-        from rs_localizer.ros.conversions import camera_info_msg
-
-        for c in cams:
-            self.pub[c.name]["info"].publish(camera_info_msg(c.camera, c.name, T0))
-        assert self.wait(lambda: all(self.node.models[c.name] is not None for c in cams))
-
-    def send(self, name, kind, msg, taken=True):
-        """Publish one frame; with ``taken``, wait until the node counted it."""
-        key = f"{name}.received"
-        n = self.node.rig.counts[key]
-        self.pub[name][kind].publish(msg)
-        if taken:
-            assert self.wait(lambda: self.node.rig.counts[key] > n), (name, kind)
-
-    def last_diag(self):
-        n = len(self.diag)
-        assert self.wait(lambda: len(self.diag) > n + 1)
-        st = self.diag[-1]
-        return st, {kv.key: kv.value for kv in st.values}
-
-    def close(self):
-        self.ex.shutdown()
-        self.probe.destroy_node()
-        self.node.destroy_node()
 
 
 @pytest.fixture(scope="module")
@@ -162,7 +57,7 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
     params = rig_parameters(cams, frontend="aruco", frontend_map="aruco_room")
     node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
                             parameter_overrides=params)  # fmt: skip
-    h = Harness(ros_context, cams, node)
+    h = RigHarness(ros_context, cams, node)
     try:
         assert h.matched(), "the rig node and the probe did not match"
         h.send_info(cams)
@@ -218,7 +113,7 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
     (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=2.5)])
     assert r.successful  # (unconfigured: read at configure)
     assert node.trigger_configure() == SUCCESS
-    h = Harness(ros_context, cams, node)
+    h = RigHarness(ros_context, cams, node)
 
     def clouds(fs, taken=True):
         from rs_localizer.ros.conversions import ns_to_stamp
