@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import time
 
-#: the stamp of the cameras' camera_info (ns)
-T0 = 1_700_000_000_000_000_000
+from .rig import T0
 
 
 def rig_parameters(cams, mountings=None, **extra):

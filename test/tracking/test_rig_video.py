@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.rig import T0, Log, mounts_of
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
@@ -16,23 +17,6 @@ from rs_localizer.tracking.rig import (
     RigMount,
     RigSettings,
 )
-
-T0 = 1_700_000_000_000_000_000
-
-
-class Log:
-    def __init__(self):
-        self.warnings, self.infos = [], []
-
-    def warning(self, key, text, count=0):
-        self.warnings.append((key, text))
-
-    def info(self, text):
-        self.infos.append(text)
-
-
-def mounts_of(cams):
-    return {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
 
 
 def run(frames, cams, settings=None, log=None, camera_of=None):

@@ -8,13 +8,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from helpers.rig import T0
 
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
 
-T0 = 1_700_000_000_000_000_000
 NOISE = 0.003  # rad/s per sample
 R_RIG_IMU = rotvec_to_matrix(np.array([0.3, -0.2, 1.0]))  # an IMU mounted turned on the rig
 
