@@ -418,11 +418,16 @@ def targets(s3: dict, few: dict) -> list[tuple[str, bool, str]]:
     ]
 
 
-def print_table(m: int, s: dict) -> None:
+def print_table(m: int, s: dict, ms_digits: int = 1) -> None:
+    """One row per estimator of :func:`summary`'s ``s`` for rigs of ``m`` cameras (the time
+    with ``ms_digits`` decimals)."""
     for key, (posed, n, rot, pos, om, ms) in s.items():
         name = "PoseLib generalized GS" if key == "poselib" else key
         oms = "-" if not np.isfinite(om) else f"{om:.3f}"
-        print(f"{m:7d}  {name:24s} {posed:3d}/{n:<3d} {rot:9.4f} {pos:8.3f} {oms:>10s} {ms:8.1f}")
+        print(
+            f"{m:7d}  {name:24s} {posed:3d}/{n:<3d} {rot:9.4f} {pos:8.3f} {oms:>10s} "
+            f"{ms:8.{ms_digits}f}"
+        )
 
 
 def main(argv=None) -> int:

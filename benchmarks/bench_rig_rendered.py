@@ -40,7 +40,15 @@ import time
 
 import numpy as np
 
-from benchmarks.bench_rig import OPTIONS, _mean_model, _median, _poselib, _rig_kwargs, _timed
+from benchmarks.bench_rig import (
+    OPTIONS,
+    _mean_model,
+    _median,
+    _poselib,
+    _rig_kwargs,
+    _timed,
+    print_table,
+)
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.rig import RigView, estimate_rig_pose, rig_model_of_camera
 from rs_localizer.experiments.timing import one_thread
@@ -248,13 +256,6 @@ def targets(res3: dict) -> list[tuple[str, bool, str]]:
     return out
 
 
-def print_table(m: int, s: dict) -> None:
-    for key, (posed, n, rot, pos, om, ms) in s.items():
-        name = "PoseLib generalized GS" if key == "poselib" else key
-        oms = "-" if not np.isfinite(om) else f"{om:.3f}"
-        print(f"{m:7d}  {name:24s} {posed:3d}/{n:<3d} {rot:9.4f} {pos:8.3f} {oms:>10s} {ms:8.2f}")
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m benchmarks.bench_rig_rendered",
@@ -294,7 +295,7 @@ def main(argv=None) -> int:
             f"{'w deg/s':>10s} {'ms/frame':>8s}"
         )
         for m, res, _, _ in tables:
-            print_table(m, summary(res))
+            print_table(m, summary(res), ms_digits=2)
         print()
         for m, res, rd, t_render in tables:
             pts = np.median(res["points"], axis=0)
