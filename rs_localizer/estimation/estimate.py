@@ -27,7 +27,17 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
-from .finalize import ImageAlone, final_estimate, image_alone, refine_final_model
+from .finalize import (
+    MOTION_SIGNIFICANCE_CHI2,
+    ImageAlone,
+    final_estimate,
+    global_shutter_final,
+    image_alone,
+    motion_chi2,
+    prior_at_rest,
+    refine_final_model,
+    rolling_shutter_check,
+)
 from .frame import configure_frame, prepare_frame
 from .gyro import (
     GyroMeasurement,
@@ -48,9 +58,16 @@ from .options import (
     RefineOptions,
     points_needed,
 )
+from .plausibility import IMPLAUSIBLE_MOTION
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
-from .result import EstimationFailed, RSPoseEstimate, failed_estimate, physical_velocities
+from .result import (
+    EstimationFailed,
+    RSPoseEstimate,
+    failed_estimate,
+    output_covariance,
+    physical_velocities,
+)
 
 __all__ = [
     "SOLVERS",
@@ -72,6 +89,10 @@ __all__ = [
 
 #: solver names (:data:`rs_localizer.solvers.registry.SOLVERS` holds what is known of each)
 SOLVERS = SOLVER_NAMES
+
+#: the solver of the global-shutter model (``w = t = 0``), which a rolling-shutter solver's
+#: frames take where they cannot observe motion (``RSPoseEstimate.motion_model``)
+GS_SOLVER = "p3p"
 
 
 def estimate_rs_pose(
@@ -159,6 +180,21 @@ def estimate_rs_pose(
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVERS}")
     opts = options or EstimateOptions()
+    if camera.line_delay <= 0 and solver_info(solver).rolling:
+        # a global shutter: every row at one time, nothing to fit the velocities to
+        est = estimate_rs_pose(
+            points2d,
+            points3d,
+            camera,
+            GS_SOLVER,
+            opts,
+            scores,
+            initial_model=initial_model,
+            gyro=gyro,
+            point_sigma=point_sigma,
+            implementation=implementation,
+        )
+        return replace(est, solver=solver)
     if resolve_implementation(implementation, solver) == NUMPY:
         ignored = _unused_by_numpy(opts, scores, initial_model, gyro, point_sigma)
         return estimate_numpy(points2d, points3d, camera, solver, opts, ignored)
@@ -265,13 +301,23 @@ def _estimate(
         model = search.result(min_inliers, opts.ransac.threshold_px)
         t0 = time.perf_counter()
         final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
+        model_solver = solver
+        if (
+            gyro is None
+            and solver_info(solver).rolling
+            and final.motion_chi2 < MOTION_SIGNIFICANCE_CHI2
+            and (not final.prior_used or prior_at_rest(fr.final_prior))
+        ):
+            still = global_shutter_final(fr, final, min_inliers)
+            if still is not None:
+                final, model_solver = still, GS_SOLVER
         if point_sigma is not None:
-            final = weighted_final_model(fr, solver, final, point_sigma[fr.rows], min_inliers)
+            final = weighted_final_model(fr, model_solver, final, point_sigma[fr.rows], min_inliers)
         timings["refine"] = time.perf_counter() - t0
         initial = (search.explained, search.anchor is not None)
         est = final_estimate(
             fr,
-            solver,
+            model_solver,
             final,
             search.iterations,
             initial,
@@ -286,6 +332,12 @@ def _estimate(
             image.append(image_alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
+        if failure.reason == IMPLAUSIBLE_MOTION and gyro is None and solver_info(solver).rolling:
+            still = _still_frame(
+                fr, points2d, points3d, camera, opts, scores, initial_model, point_sigma, ignored
+            )
+            if still is not None:
+                return replace(still, solver=solver)
         return failed_estimate(
             failure.reason,
             solver,
@@ -296,4 +348,52 @@ def _estimate(
             ignored_inputs=ignored,
         )
     timings["total"] = time.perf_counter() - t_start
-    return est
+    if model_solver == solver:
+        return est
+    # (a rolling-shutter solver's frame on the global-shutter model: the twist covariance is
+    # the rolling-shutter fit's, what the frame says of its motion)
+    twist = None
+    if final.covariance is not None:
+        twist = output_covariance(final.covariance, *final.model[:2], np.zeros(3), fr.spr)[2]
+    return replace(est, solver=solver, twist_covariance=twist)
+
+
+def _still_frame(
+    fr,
+    points2d: np.ndarray,
+    points3d: np.ndarray,
+    camera: CameraModel,
+    opts: EstimateOptions,
+    scores: np.ndarray | None,
+    initial_model: InitialModel | None,
+    point_sigma: np.ndarray | None,
+    ignored: tuple[str, ...],
+) -> RSPoseEstimate | None:
+    """A frame whose rolling-shutter models were all implausible, posed on the global-shutter
+    model when the frame shows no motion: the global-shutter estimate (P3P samples, pose-only
+    refinement) if it succeeds and the rolling-shutter model refined from it finds velocities
+    its noise explains (:func:`~.finalize.motion_chi2` below
+    :data:`~.finalize.MOTION_SIGNIFICANCE_CHI2`). A readout too short to observe motion
+    (nanoseconds to microseconds per line) turns the noise's apparent motion into absurd
+    velocities in every minimal sample; such frames are posed as P3P poses them, with the
+    twist covariance of that refinement. ``None``: the frame stays refused (a frame whose
+    points do show motion is not posed without it)."""
+    est = _estimate(
+        points2d,
+        points3d,
+        camera,
+        GS_SOLVER,
+        opts,
+        scores,
+        initial_model,
+        point_sigma=point_sigma,
+        ignored=ignored,
+    )
+    if not est.success:
+        return None
+    check = rolling_shutter_check(fr, est.model)
+    if check is None or motion_chi2(check.covariance, check.w, check.t) >= MOTION_SIGNIFICANCE_CHI2:
+        return None
+    R, C = est.model.R, est.model.C
+    twist = output_covariance(check.covariance, R, C, np.zeros(3), fr.spr)[2]
+    return replace(est, twist_covariance=twist)

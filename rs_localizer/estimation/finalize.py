@@ -37,20 +37,27 @@ __all__ = [
     "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
+    "GLOBAL_SHUTTER",
     "MIRRORED_FIT_FRACTION",
+    "MOTION_SIGNIFICANCE_CHI2",
     "NEAR_MISS_RATIO",
     "NEAR_MISS_WINDOW",
     "PARTIAL_FIT_CONDITION",
     "PARTIAL_FIT_FRACTION",
     "PRIOR_CONFLICT",
     "PRIOR_NEGLIGIBLE",
+    "ROLLING_SHUTTER",
     "FinalModel",
     "ImageAlone",
     "final_estimate",
     "final_refinement",
+    "global_shutter_final",
     "image_alone",
+    "motion_chi2",
     "posterior_if_consistent",
+    "prior_at_rest",
     "refine_final_model",
+    "rolling_shutter_check",
 ]
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss with
@@ -115,6 +122,8 @@ class FinalModel:
         information: (12, 12) the data's information matrix, or None.
         sensitivity: (12, 6) acceleration sensitivity, or None.
         prior_used: the refinement was maximum a posteriori.
+        motion_chi2: :func:`motion_chi2` of the maximum-likelihood velocities (the frame's own
+            evidence of motion; ``inf``: not computed).
     """
 
     model: RSModel
@@ -124,6 +133,7 @@ class FinalModel:
     information: np.ndarray | None = None
     sensitivity: np.ndarray | None = None
     prior_used: bool = False
+    motion_chi2: float = float("inf")
 
 
 def final_refinement(
@@ -154,7 +164,9 @@ def final_refinement(
     ``J^T W D`` block for :func:`~.sensitivity.acceleration_sensitivity`.
 
     Returns:
-        (the refinement's result, whether the prior was used).
+        (the refinement's result, whether the prior was used, :func:`motion_chi2` of the
+        maximum-likelihood velocities: the frame's own evidence of motion, ``inf`` when the
+        refinement was MAP from the start or is global-shutter).
     """
     th = float(th)
     ref = refine_rs_pose(
@@ -172,9 +184,10 @@ def final_refinement(
         ),
         prior=fr.prior,
     )
+    evidence = motion_chi2(ref.covariance, ref.w, ref.t) if rolling and fr.prior is None else np.inf
     if fr.prior is not None or prior is None:
-        return ref, fr.prior is not None
-    return posterior_if_consistent(ref, prior, fr.spr)
+        return ref, fr.prior is not None, evidence
+    return (*posterior_if_consistent(ref, prior, fr.spr), evidence)
 
 
 def posterior_if_consistent(
@@ -198,6 +211,114 @@ def posterior_if_consistent(
         return ref, False
     post = posterior_step(ref, prior, seconds_per_unit_r)  # (MAP from ML in closed form)
     return (ref, False) if post is None else (post, True)
+
+
+#: 0.999 quantile of the chi-square distribution with 6 degrees of freedom: a frame whose
+#: velocities ``(w, t)`` lie within this squared Mahalanobis distance of zero under their own
+#: covariance shows no motion that its noise could not produce (:func:`motion_chi2`)
+MOTION_SIGNIFICANCE_CHI2 = 22.458
+
+#: ``RSPoseEstimate.motion_model`` of an estimate on the rolling-shutter model (eq. 4)
+ROLLING_SHUTTER = "rolling_shutter"
+#: ``RSPoseEstimate.motion_model`` of an estimate on the global-shutter model (``w = t = 0``)
+GLOBAL_SHUTTER = "global_shutter"
+
+
+def motion_chi2(covariance: np.ndarray | None, w: np.ndarray, t: np.ndarray) -> float:
+    """Squared Mahalanobis distance of a frame's velocities ``(w, t)`` (per unit r) from zero
+    under their covariance (the (6, 6) block of the (12, 12) ``covariance`` over
+    ``(delta, C, w, t)``): the frame's own evidence of motion, from its points' capture-time
+    spread, their number and its noise. ``inf`` when the covariance is missing, not finite or
+    singular (no evidence either way is claimed)."""
+    if covariance is None:
+        return float("inf")
+    S = np.asarray(covariance, dtype=float)[6:12, 6:12]
+    z = np.concatenate([np.asarray(w, dtype=float), np.asarray(t, dtype=float)])
+    if not (np.isfinite(S).all() and np.isfinite(z).all()):
+        return float("inf")
+    try:
+        return float(z @ np.linalg.solve(S, z))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def prior_at_rest(prior: MotionPrior | None) -> bool:
+    """The motion ``prior`` expects no motion: none, or a mean within
+    :data:`MOTION_SIGNIFICANCE_CHI2` of zero under its own information (the default zero-mean
+    prior; a tracker's prediction of a camera at rest). A prior that predicts motion (a
+    tracked camera turning) keeps a frame on the rolling-shutter model even where the frame
+    alone shows none."""
+    if prior is None or not prior.enabled:
+        return True
+    m = prior.mean_vector()
+    return float(m @ prior.information() @ m) < MOTION_SIGNIFICANCE_CHI2
+
+
+def rolling_shutter_check(fr: Frame, model: Model) -> RefineResult | None:
+    """The rolling-shutter model refined by maximum likelihood from a global-shutter ``model``
+    on the frame's points (the final refinement's truncated loss): the frame's evidence of
+    motion around a global-shutter pose (:func:`motion_chi2` of its velocities). ``None``
+    when the refinement gives no finite model or covariance, or the camera has no readout
+    time (``fr.spr <= 0``)."""
+    if not fr.spr > 0:
+        return None
+    th = float(fr.threshold)
+    R, C = (np.array(a, dtype=float) for a in model[:2])
+    ref = refine_rs_pose(
+        (R, C, np.zeros(3), np.zeros(3)),
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        RefineSettings(
+            rolling_shutter=True, seconds_per_unit_r=fr.spr, cutoff=FINAL_CUTOFF * th, tol=FINAL_TOL
+        ),
+    )
+    cov = ref.covariance
+    if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
+        return None
+    return ref
+
+
+def global_shutter_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | None:
+    """The global-shutter model (``w = t = 0``) refined from a rolling-shutter ``final`` whose
+    velocities are not significant (:func:`motion_chi2` below
+    :data:`MOTION_SIGNIFICANCE_CHI2`): the frame shows no motion, and the six velocity
+    parameters would only fit its noise into the pose. The inliers are re-selected on the
+    refined model; the covariance stays the rolling-shutter fit's (its pose block is the pose's
+    uncertainty with the velocities unknown, its twist block what the frame says of them: zero
+    within that). ``None`` when the refinement gives no finite model or fewer than
+    ``min_inliers`` inliers (the rolling-shutter model then stays)."""
+    th = float(fr.threshold)
+    R, C = (np.array(a, dtype=float) for a in final.model[:2])
+    zero = np.zeros(3)
+    ref = refine_rs_pose(
+        (R, C, zero, zero),
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        RefineSettings(
+            rolling_shutter=False,
+            seconds_per_unit_r=fr.spr,
+            cutoff=FINAL_CUTOFF * th,
+            tol=FINAL_TOL,
+        ),
+    )
+    if not finite_model(ref.R, ref.C, zero, zero):
+        return None
+    R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
+    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0)
+    inl, n, rms = final_inliers(errors, th)
+    if n < min_inliers:
+        return None
+    return FinalModel(
+        RSModel(R, C, zero.copy(), zero.copy()),
+        inl,
+        float(rms * fr.f),
+        covariance=final.covariance,
+        information=final.information,
+    )
 
 
 @dataclass(frozen=True)
@@ -283,8 +404,12 @@ def refine_final_model(
         return FinalModel(RSModel(R, C, w, t), inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling
     want_sens = bool(opts.refine.acceleration_sensitivity and rolling and fr.spr > 0)
-    ref, prior_used = final_refinement(fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens)
-    final = FinalModel(RSModel(R, C, w, t), inliers, np.nan, prior_used=prior_used)
+    ref, prior_used, evidence = final_refinement(
+        fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens
+    )
+    final = FinalModel(
+        RSModel(R, C, w, t), inliers, np.nan, prior_used=prior_used, motion_chi2=evidence
+    )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
         final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
@@ -426,6 +551,7 @@ def solved_estimate(
         planar=bool(flat < PLANAR_TOLERANCE),
         planarity=flat,
         condition_number=condition,
+        motion_model=ROLLING_SHUTTER if solver_info(solver).rolling else GLOBAL_SHUTTER,
         **fields,
     )
 

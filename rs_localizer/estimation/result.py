@@ -144,6 +144,14 @@ class RSPoseEstimate(PoseWithCovariance):
         gyro_rejection: why, with ``gyro_rejected`` (:data:`GYRO_REJECTIONS`), else ``""``.
         implementation: the implementation that ran, ``"compiled"`` (the numba kernels) or
             ``"numpy"`` (:mod:`~rs_localizer.estimation.implementation`).
+        motion_model: ``"rolling_shutter"`` (the pose and velocities of eq. 4) or
+            ``"global_shutter"`` (``w = t = 0``: the global-shutter ``p3p``; a camera with no
+            readout time, ``line_delay`` 0; or a frame whose own points show no significant
+            motion, :data:`~.finalize.MOTION_SIGNIFICANCE_CHI2`, so the six velocity parameters
+            would only fit its noise into the pose). A global-shutter estimate of a
+            rolling-shutter solver reports zero velocities with the rolling-shutter fit's
+            ``twist_covariance`` (what the frame says of the motion: none, within it), or
+            ``None`` where the camera has no readout time (unobserved).
         ignored_inputs: the inputs given that this implementation could not use, by name
             (:data:`~rs_localizer.estimation.implementation.NUMPY_UNUSED` on the NumPy
             implementation; ``"gyro"`` for a gyro given to a global-shutter solver or camera);
@@ -174,6 +182,7 @@ class RSPoseEstimate(PoseWithCovariance):
     gyro_rejection: str = ""
     implementation: str = "compiled"
     ignored_inputs: tuple[str, ...] = ()
+    motion_model: str = "rolling_shutter"
 
     @property
     def num_inliers(self) -> int:
