@@ -131,19 +131,20 @@ def test_documented_apriltag_corner_order_localizes_real_detections():
     assert not np.any((wrong[:, 0] < 50) & (wrong[:, 1] < 5)), wrong
 
 
-def _rendered_tag(order_image: np.ndarray) -> np.ndarray:
-    """A 600x600 white image with a 10-cell tag image (white border included) of 40 px cells."""
+def _on_white(image: np.ndarray, cell: int = 30) -> np.ndarray:
+    """``image`` (one pixel a cell) scaled to ``cell`` px a cell on a white page, 100 px margin."""
     import cv2
 
-    img = np.full((600, 600), 255, np.uint8)
-    img[100:500, 100:500] = cv2.resize(order_image, (400, 400), interpolation=cv2.INTER_NEAREST)
-    return img
+    h, w = image.shape
+    big = cv2.resize(image, (w * cell, h * cell), interpolation=cv2.INTER_NEAREST)
+    return np.pad(big, 100, constant_values=255)
 
 
-def _apriltag_library_image(idx: int) -> np.ndarray | None:
-    """The AprilTag library's own image of tag36h11 ``idx`` (its ``apriltag_to_image`` layout:
-    the code's bits at the family's ``bit_x``, ``bit_y`` cells, row 0 at the top), read from
-    the library pupil_apriltags bundles; None without it."""
+def _apriltag_library_image(family: str, idx: int) -> np.ndarray | None:
+    """The AprilTag library's own image of ``family`` tag ``idx``, one pixel a cell, row 0 at
+    the top (the layout of its ``apriltag_to_image``: a one-cell white ring, the code's bits at
+    the family's ``bit_x``, ``bit_y`` cells), from the family tables of the library
+    pupil_apriltags bundles; None without it."""
     import ctypes
 
     try:
@@ -162,28 +163,61 @@ def _apriltag_library_image(idx: int) -> np.ndarray | None:
             ("total_width", ctypes.c_int),
             ("reversed_border", ctypes.c_bool),
             ("nbits", ctypes.c_uint32),
-            ("bit_x", ctypes.POINTER(ctypes.c_uint32)),
-            ("bit_y", ctypes.POINTER(ctypes.c_uint32)),
+            ("bit_x", ctypes.POINTER(ctypes.c_int32)),
+            ("bit_y", ctypes.POINTER(ctypes.c_int32)),
         ]
 
-    lib = ctypes.CDLL(str(libs[0]))
-    lib.tag36h11_create.restype = ctypes.POINTER(Family)
-    fam = lib.tag36h11_create().contents
-    assert (fam.width_at_border, fam.total_width, fam.nbits) == (8, 10, 36)
-    img = np.zeros((10, 10), np.uint8)
-    img[0, :] = img[-1, :] = img[:, 0] = img[:, -1] = 255
+    create = getattr(ctypes.CDLL(str(libs[0])), f"{family}_create")
+    create.restype = ctypes.POINTER(Family)
+    fam = create().contents
+    tw = fam.total_width
+    img = np.zeros((tw, tw), np.uint8)
+    ring = fam.width_at_border + (0 if fam.reversed_border else 2)
+    s = (tw - ring) // 2
+    img[s, s : s + ring] = img[s + ring - 1, s : s + ring] = 255
+    img[s : s + ring, s] = img[s : s + ring, s + ring - 1] = 255
+    b = (tw - fam.width_at_border) // 2
     for i in range(fam.nbits):
         if fam.codes[idx] >> (fam.nbits - i - 1) & 1:
-            img[fam.bit_y[i] + 1, fam.bit_x[i] + 1] = 255
+            img[fam.bit_y[i] + b, fam.bit_x[i] + b] = 255
     return img
 
 
-def test_corner_order_by_family_on_printed_images():
-    """Corner 0 of the detector, on the printed images: ArUco (OpenCV's marker image): the
-    top-left; AprilTag (the library's own image): the bottom-right, as the docs' table says;
-    OpenCV's image of DICT_APRILTAG_36h11 is the AprilTag image turned by 180 degrees."""
-    import cv2
+def test_aruco_corner_order_on_printed_image():
+    """ArUco (OpenCV's marker image): corner 0 is the printed top-left, then clockwise."""
+    from rs_localizer.cv_compat import get_dictionary, marker_image
+    from rs_localizer.frontends.marker_detection import make_marker_detector
 
+    # 8 cells (6 bits + the black border) and a white cell around: the black square spans
+    # 130..370 px of the page
+    aruco = np.pad(marker_image(get_dictionary("DICT_6X6_50"), 3, 8), 1, constant_values=255)
+    c, ids, _ = make_marker_detector("DICT_6X6_50").detect(_on_white(aruco))
+    assert ids.tolist() == [3]
+    np.testing.assert_allclose(c[0], [[130, 130], [369, 130], [369, 369], [130, 369]], atol=1.5)
+
+
+#: the AprilTag families pupil_apriltags builds, and OpenCV's names of those it has
+_OPENCV_NAMES = {"tag16h5": "16h5", "tag25h9": "25h9", "tag36h11": "36h11"}
+
+
+@pytest.mark.parametrize(
+    "family",
+    [
+        "tag16h5",
+        "tag25h9",
+        "tag36h11",
+        "tagStandard41h12",
+        "tagCircle21h7",
+        # (the library builds these three families' decoding tables in 25-40 s each)
+        pytest.param("tagStandard52h13", marks=pytest.mark.slow),
+        pytest.param("tagCircle49h12", marks=pytest.mark.slow),
+        pytest.param("tagCustom48h12", marks=pytest.mark.slow),
+    ],
+)
+def test_apriltag_corner_order_on_printed_image(family):
+    """AprilTag families (the library's own image): corner 0 is the printed bottom-right, then
+    bottom-left, top-left, top-right, with either detector; OpenCV's image of the same tag is
+    the library's turned by 180 degrees."""
     from rs_localizer.cv_compat import get_dictionary, marker_image
     from rs_localizer.frontends.marker_detection import (
         DetectorOptions,
@@ -191,27 +225,23 @@ def test_corner_order_by_family_on_printed_images():
         make_marker_detector,
     )
 
-    # the black square spans 140..460 px: (x, y) of the printed corners
-    where = {"TL": (140, 140), "TR": (460, 140), "BR": (460, 460), "BL": (140, 460)}
-    aruco = np.pad(marker_image(get_dictionary("DICT_6X6_50"), 3, 8), 1, constant_values=255)
-    c, ids, _ = make_marker_detector("DICT_6X6_50").detect(_rendered_tag(aruco))
-    assert ids.tolist() == [3]
-    np.testing.assert_allclose(c[0], [where[k] for k in ("TL", "TR", "BR", "BL")], atol=1.5)
-
-    official = _apriltag_library_image(3)
+    official = _apriltag_library_image(family, 3)
     if official is None or apriltag_binding() is None:
         pytest.skip("the AprilTag library (pupil_apriltags) is not installed")
-    opencv = np.pad(
-        marker_image(get_dictionary("DICT_APRILTAG_36h11"), 3, 8), 1, constant_values=255
-    )
-    np.testing.assert_array_equal(opencv > 127, np.rot90(official, 2) > 127)
-    for name, det in (("tag36h11", "apriltag"), ("DICT_APRILTAG_36h11", "opencv")):
-        c, ids, _ = make_marker_detector(name, DetectorOptions(detector=det)).detect(
-            _rendered_tag(official)
-        )
+    page = _on_white(official)
+    names = [(family, "apriltag")]
+    if family in _OPENCV_NAMES:
+        cv_name = f"DICT_APRILTAG_{_OPENCV_NAMES[family]}"
+        inner = official[1:-1, 1:-1]
+        opencv = marker_image(get_dictionary(cv_name), 3, inner.shape[0])
+        np.testing.assert_array_equal(opencv > 127, np.rot90(inner, 2) > 127)
+        names.append((cv_name, "opencv"))
+    for name, det in names:
+        c, ids, _ = make_marker_detector(name, DetectorOptions(detector=det)).detect(page)
         assert ids.tolist() == [3], name
-        np.testing.assert_allclose(c[0], [where[k] for k in ("BR", "BL", "TL", "TR")], atol=1.5)
-    assert cv2 is not None
+        # (image x right, y down: bottom-right is (+, +))
+        signs = np.sign(c[0] - c[0].mean(axis=0))
+        np.testing.assert_array_equal(signs, [[1, 1], [-1, 1], [-1, -1], [1, -1]], err_msg=name)
 
 
 def _board_layouts(tmp_path: Path) -> dict:
