@@ -501,3 +501,40 @@ def test_documented_aruco_corner_order_localizes_real_photo(photo):
     assert np.degrees(Rotation.from_matrix(est.pose.orientation.T @ flip @ R.T).magnitude()) < 0.5
     wrong = localize(board_map(("BR", "BL", "TL", "TR")))
     assert not wrong.success or wrong.num_inliers < 2 * len(ids)
+
+
+def test_tag_map_with_a_custom_dictionary_file(tmp_path):
+    """``--dictionary`` a dictionary file: the map names it relative to itself, loads it from
+    any working directory, and its corners are in ArUco order (top-left first)."""
+    import cv2
+
+    from rs_localizer.cv_compat import get_dictionary
+
+    (tmp_path / "dicts").mkdir()
+    fs = cv2.FileStorage(str(tmp_path / "dicts" / "mine.yml"), cv2.FILE_STORAGE_WRITE)
+    get_dictionary("DICT_5X5_50").writeDictionary(fs)
+    fs.release()
+    layout = tmp_path / "tags.yaml"
+    pose = {"position": [0, 0, 0], "orientation": [0, 0, 0, 1]}
+    layout.write_text(yaml.safe_dump({"tags": [{"id": 4, "size": 0.1, "pose": pose}]}))
+    out = tmp_path / "maps" / "map.yaml"
+    argv = [
+        "tag-map",
+        str(layout),
+        "-o",
+        str(out),
+        "--dictionary",
+        str(tmp_path / "dicts" / "mine.yml"),
+    ]
+    assert main(argv) == 0
+    assert yaml.safe_load(out.read_text())["dictionary"] == "../dicts/mine.yml"
+    dictionary, corners = load_marker_map(out)
+    assert Path(dictionary).resolve() == (tmp_path / "dicts" / "mine.yml").resolve()
+    np.testing.assert_allclose(corners[4][0], [-0.05, 0.05, 0.0])
+    bad = tmp_path / "bad.yml"
+    bad.write_text("%YAML:1.0\nnmarkers: 1\n")
+    assert (
+        main(["tag-map", str(layout), "-o", str(tmp_path / "m2.yaml"), "--dictionary", str(bad)])
+        == 2
+    )
+    assert not (tmp_path / "m2.yaml").exists()

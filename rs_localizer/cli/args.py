@@ -182,6 +182,10 @@ def nonneg_int(text: str) -> int:
 
 
 # ------------------------------------------------------------------------------ marker sizes
+#: the most ids one ``--marker-sizes`` range may span (the largest AprilTag family has 48714)
+MAX_SIZE_RANGE = 100_000
+
+
 def _size_entries(text: str, where: str) -> list:
     """``(key, size)`` pairs of ``--marker-sizes``: its text, or the entries of the YAML file it
     names (a mapping ``ID or FIRST-LAST: SIZE``, or lines of ``ID:SIZE``)."""
@@ -236,8 +240,11 @@ def parse_marker_sizes(text: str, where: str = "--marker-sizes") -> dict[int, fl
             raise ValueError(
                 f"{where}: expected ID:SIZE or FIRST-LAST:SIZE (m, > 0), got {entry!r}"
             ) from None
-        if lo < 0 or hi < lo:
-            raise ValueError(f"{where}: bad id range {key!r} (FIRST-LAST, 0 <= FIRST <= LAST)")
+        if lo < 0 or hi < lo or hi - lo >= MAX_SIZE_RANGE:
+            raise ValueError(
+                f"{where}: bad id range {key!r} (FIRST-LAST, 0 <= FIRST <= LAST, at most "
+                f"{MAX_SIZE_RANGE} ids)"
+            )
         if not (math.isfinite(size) and size > 0):
             raise ValueError(f"{where}: expected a size (m) > 0, got {entry!r}")
         for mid in range(lo, hi + 1):
