@@ -76,14 +76,14 @@ def check_marker_corners(corners: np.ndarray, size: float | None = None, what: s
 
 
 def marker_dictionary(name: str) -> Any:
-    """cv2.aruco predefined dictionary by name (e.g. ``DICT_4X4_250``).
+    """cv2.aruco dictionary by name (e.g. ``DICT_4X4_250``) or a custom dictionary file
+    (OpenCV's dictionary YAML, a path ending ``.yml``/``.yaml``):
+    :func:`rs_localizer.cv_compat.get_dictionary`.
 
-    Raises ValueError for a name OpenCV does not know."""
-    import cv2
+    Raises ValueError for a name OpenCV does not know or a file that is not a dictionary."""
+    from ..cv_compat import get_dictionary
 
-    if not hasattr(cv2.aruco, name):
-        raise ValueError(f"unknown ArUco dictionary {name!r}")
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    return get_dictionary(name)
 
 
 def write_marker_map(
