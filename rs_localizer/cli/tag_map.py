@@ -45,7 +45,6 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument(
         "--marker-sizes",
         type=A.marker_sizes,
-        default={},
         help="sides by id over the layout's: ID:SIZE or FIRST-LAST:SIZE, comma-separated, or "
         "a YAML file of them (m)",
     )
@@ -74,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     A.input_file(args.layout, "tag layout")
     A.output_file(args.output, args.overwrite, "marker map")
     layout = read_tag_layout(
-        args.layout, args.format, args.marker_sizes, args.marker_size, args.bundle
+        args.layout, args.format, args.marker_sizes or {}, args.marker_size, args.bundle
     )
     dictionary = args.dictionary or layout.dictionary or "DICT_APRILTAG_36h11"
     if dictionary not in APRILTAG_FAMILIES:
