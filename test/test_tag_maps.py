@@ -427,8 +427,13 @@ def test_tag_map_sizes_by_id_range(tmp_path):
     np.testing.assert_allclose(
         [sides[k] for k in range(1, 6)], [0.3, 0.3, 0.1651, 0.1651, 0.1651], atol=1e-5
     )
-    # WPILib's identity pose faces the tag along +x: its corners lie in the plane x = ID
+    # WPILib's identity pose faces the tag along +x (its corners lie in the plane x = ID), z up;
+    # seen from +x looking back, the viewer's right is +y: corner 0, the printed bottom-right of
+    # an AprilTag, is at (+h, -h) in (y, z) from the centre
     np.testing.assert_allclose(corners[3][:, 0], 3.0)
+    h = 0.1651 / 2
+    np.testing.assert_allclose(corners[3][0], [3.0, h, 1 - h], atol=1e-6)
+    np.testing.assert_allclose(corners[3][2], [3.0, -h, 1 + h], atol=1e-6)
     # without any size the tags are refused
     assert main(["tag-map", str(layout), "-o", str(tmp_path / "m2.yaml"), "--overwrite"]) == 2
 
