@@ -53,7 +53,9 @@ __all__ = [
     "get_dictionary",
     "grid_board",
     "has_aruco",
+    "is_dictionary_file",
     "marker_image",
+    "read_dictionary",
 ]
 
 #: True when cv2.aruco has the detector objects of OpenCV >= 4.7
@@ -73,16 +75,82 @@ def _require_aruco():
         )
 
 
+#: file name endings of a custom dictionary (OpenCV's dictionary YAML)
+DICTIONARY_FILE_SUFFIXES = (".yml", ".yaml")
+
+
+def is_dictionary_file(name: Any) -> bool:
+    """Whether ``name`` names a custom dictionary file (ends with ``.yml`` or ``.yaml``)."""
+    return isinstance(name, str) and name.lower().endswith(DICTIONARY_FILE_SUFFIXES)
+
+
 def get_dictionary(name: str) -> Any:
-    """Predefined dictionary by name (``DICT_4X4_50`` ... ``DICT_APRILTAG_36h11``).
+    """Predefined dictionary by name (``DICT_4X4_50`` ... ``DICT_APRILTAG_36h11``), or a
+    custom dictionary from OpenCV's dictionary YAML (a path ending ``.yml``/``.yaml``:
+    :func:`read_dictionary`).
 
     Raises:
-        ValueError: unknown name.
+        ValueError: unknown name; a dictionary file that is not one. OSError: a file that
+        cannot be read.
     """
     _require_aruco()
+    if is_dictionary_file(name):
+        return read_dictionary(name)
     if not isinstance(name, str) or not name.startswith("DICT_") or not hasattr(cv2.aruco, name):
         raise ValueError(f"unknown ArUco dictionary {name!r}")
     return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+
+def read_dictionary(path: Any) -> Any:
+    """A custom dictionary from OpenCV's dictionary YAML, the file
+    ``cv2.aruco.Dictionary.readDictionary`` reads and ``writeDictionary`` writes:
+    ``nmarkers``, ``markersize`` (bits per side, without the black border), optionally
+    ``maxCorrectionBits`` (default 0) and ``marker_0`` ... ``marker_{nmarkers-1}``, each a
+    string of ``markersize**2`` ``0``/``1`` characters, row by row from the marker's top-left.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError (naming the file and the entry): a
+        missing or malformed entry.
+    """
+    from pathlib import Path
+
+    _require_aruco()
+    p = Path(str(path))
+    if not p.is_file():
+        raise FileNotFoundError(f"no dictionary file {p}")
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    except cv2.error:
+        raise ValueError(f"{p}: not an OpenCV YAML dictionary file") from None
+    try:
+        root = fs.root()
+
+        def integer(key: str, default: int | None = None) -> int:
+            node = root.getNode(key)
+            if node.empty():
+                if default is None:
+                    raise ValueError(f"{p}: no '{key}' (an OpenCV dictionary YAML needs it)")
+                return default
+            v = node.real()
+            if not (node.isInt() or node.isReal()) or v != int(v) or v < 0:
+                raise ValueError(f"{p}: '{key}' must be an integer >= 0")
+            return int(v)
+
+        n, size = integer("nmarkers"), integer("markersize")
+        correction = integer("maxCorrectionBits", 0)
+        if n < 1 or size < 1:
+            raise ValueError(f"{p}: nmarkers and markersize must be >= 1")
+        bits = np.zeros((n, size, size), np.uint8)
+        for k in range(n):
+            text = root.getNode(f"marker_{k}").string()
+            if len(text) != size * size or set(text) - {"0", "1"}:
+                raise ValueError(
+                    f"{p}: marker_{k} must be {size * size} characters 0/1, got {text!r}"
+                )
+            bits[k] = np.frombuffer(text.encode(), np.uint8).reshape(size, size) - ord("0")
+    finally:
+        fs.release()
+    return custom_dictionary(bits, correction)
 
 
 def custom_dictionary(bits: np.ndarray, max_correction_bits: int = 0) -> Any:

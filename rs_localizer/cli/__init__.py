@@ -30,6 +30,7 @@ COMMANDS = (
     "map_markers",
     "map_features",
     "marker_map",
+    "tag_map",
     "make_bag",
     "render_bag",
     "experiments",

@@ -31,11 +31,13 @@ __all__ = [
     "input_file",
     "map_input",
     "marker_map_file",
+    "marker_sizes",
     "node_default",
     "nonneg_float",
     "nonneg_int",
     "output_dir",
     "output_file",
+    "parse_marker_sizes",
     "plain",
     "positive_float",
     "positive_int",
@@ -177,6 +179,87 @@ def nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return v
+
+
+# ------------------------------------------------------------------------------ marker sizes
+#: the most ids one ``--marker-sizes`` range may span (the largest AprilTag family has 48714)
+MAX_SIZE_RANGE = 100_000
+
+
+def _size_entries(text: str, where: str) -> list:
+    """``(key, size)`` pairs of ``--marker-sizes``: its text, or the entries of the YAML file it
+    names (a mapping ``ID or FIRST-LAST: SIZE``, or lines of ``ID:SIZE``)."""
+    path = Path(text.strip())
+    if text.strip().lower().endswith((".yaml", ".yml", ".txt")) or (
+        "," not in text and ":" not in text and text.strip() and path.is_file()
+    ):
+        import yaml
+
+        if not path.is_file():
+            raise ValueError(f"{where}: no such file {str(path)!r}")
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError):
+            raise ValueError(f"{where}: {path} is not YAML") from None
+        if isinstance(data, dict):
+            return [(str(k), str(v)) for k, v in data.items()]
+        if isinstance(data, str):  # ("ID:SIZE,..." or lines of it)
+            text = data.replace("\n", ",")
+        elif data is None:
+            return []
+        else:
+            raise ValueError(f"{where}: {path}: expected 'ID: SIZE' or 'FIRST-LAST: SIZE' lines")
+        where = f"{where} ({path})"
+    out = []
+    for part in filter(None, (q.strip() for q in text.replace("\n", ",").split(","))):
+        key, sep, size = part.partition(":")
+        if not sep:
+            raise ValueError(f"{where}: expected ID:SIZE or FIRST-LAST:SIZE (m), got {part!r}")
+        out.append((key.strip(), size.strip()))
+    return out
+
+
+def parse_marker_sizes(text: str, where: str = "--marker-sizes") -> dict[int, float]:
+    """Marker sides by id: ``"12:0.30,14:0.1"``, id ranges ``"0-9:0.165,10-52:0.1"`` (both
+    ends included), or a YAML file of them (``{0-9: 0.165, 12: 0.3}`` or lines ``ID:SIZE``).
+    Returns {id: side (m)}.
+
+    Raises:
+        ValueError (one line naming ``where`` and the entry): a malformed entry, a range whose
+        end is below its start, an id given twice (also through overlapping ranges), a size
+        that is not a finite number > 0, a file that cannot be read.
+    """
+    out: dict[int, float] = {}
+    for key, value in _size_entries(text or "", where):
+        entry = f"{key}:{value}"
+        first, dash, last = key.partition("-")
+        try:
+            lo, hi = int(first), int(last if dash else first)
+            size = float(value)
+        except ValueError:
+            raise ValueError(
+                f"{where}: expected ID:SIZE or FIRST-LAST:SIZE (m, > 0), got {entry!r}"
+            ) from None
+        if lo < 0 or hi < lo or hi - lo >= MAX_SIZE_RANGE:
+            raise ValueError(
+                f"{where}: bad id range {key!r} (FIRST-LAST, 0 <= FIRST <= LAST, at most "
+                f"{MAX_SIZE_RANGE} ids)"
+            )
+        if not (math.isfinite(size) and size > 0):
+            raise ValueError(f"{where}: expected a size (m) > 0, got {entry!r}")
+        for mid in range(lo, hi + 1):
+            if mid in out:
+                raise ValueError(f"{where}: marker {mid} is given twice")
+            out[mid] = size
+    return out
+
+
+def marker_sizes(text: str) -> dict[int, float]:
+    """``--marker-sizes`` as an argparse type (:func:`parse_marker_sizes`)."""
+    try:
+        return parse_marker_sizes(text)
+    except (ValueError, OSError) as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--marker-sizes: ")) from None
 
 
 # ------------------------------------------------------------------------------ paths

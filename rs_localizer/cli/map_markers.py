@@ -31,20 +31,11 @@ GRAVITY = 9.81
 
 
 def parse_sizes(text: str) -> dict:
-    """``"12:0.30,14:0.1"`` -> {12: 0.30, 14: 0.1}. Raises ValueError on a malformed entry or a
-    size that is not a finite number > 0."""
-    out = {}
-    for part in filter(None, (p.strip() for p in text.split(","))):
-        mid, sep, size = part.partition(":")
-        try:
-            if not sep:
-                raise ValueError
-            out[int(mid)] = float(size)
-            if not (np.isfinite(out[int(mid)]) and out[int(mid)] > 0):
-                raise ValueError
-        except ValueError:
-            raise ValueError(f"--marker-sizes: expected ID:SIZE (m, > 0), got {part!r}") from None
-    return out
+    """``--marker-sizes``: ``"12:0.30,14:0.1"``, id ranges ``"0-9:0.165,10-52:0.1"`` or a YAML
+    file of them -> {id: side (m)} (:func:`~rs_localizer.cli.args.parse_marker_sizes`).
+    Raises ValueError on a malformed entry, an id given twice or a size that is not a finite
+    number > 0."""
+    return A.parse_marker_sizes(text)
 
 
 def frames_from_bag(
@@ -517,7 +508,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     )
     p.add_argument("--image-topic", help="image topic of a bag (default: its only one)")
     p.add_argument("--marker-size", type=A.positive_float, required=True, help="marker side (m)")
-    p.add_argument("--marker-sizes", help="other sides, ID:SIZE,... (m)")
+    p.add_argument(
+        "--marker-sizes",
+        help="other sides: ID:SIZE or FIRST-LAST:SIZE, comma-separated, or a YAML file of them (m)",
+    )
     p.add_argument("--dictionary", default="DICT_APRILTAG_36h11", help="OpenCV dictionary")
     p.add_argument(
         "--anchor",

@@ -742,7 +742,8 @@ class OpenCVDetector:
     (:class:`~rs_localizer.cv_compat.MarkerDetector`).
 
     Args:
-        dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``...).
+        dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``...) or a custom
+            dictionary file (OpenCV's dictionary YAML).
         params: ``cv2.aruco.DetectorParameters``
             (:func:`~rs_localizer.cv_compat.detector_parameters`; default: OpenCV's), changed
             in place by ``options``.
@@ -870,8 +871,10 @@ def make_marker_detector(
 
     Args:
         dictionary: OpenCV's predefined dictionary name (``DICT_4X4_250``,
-            ``DICT_APRILTAG_36h11``...) or an AprilTag library family (``tag36h11``,
-            ``tagStandard41h12``...).
+            ``DICT_APRILTAG_36h11``...), an AprilTag library family (``tag36h11``,
+            ``tagStandard41h12``...) or a custom dictionary: OpenCV's dictionary YAML, a path
+            ending ``.yml``/``.yaml`` (:func:`~rs_localizer.cv_compat.read_dictionary`),
+            detected with OpenCV.
         options: :class:`DetectorOptions` (default: its defaults).
         opencv_params: ``cv2.aruco.DetectorParameters`` of the OpenCV detector.
     Returns:
@@ -879,7 +882,8 @@ def make_marker_detector(
         sentence (also issued as a :class:`RuntimeWarning`) when OpenCV stands in for a missing
         AprilTag library, else None.
     Raises:
-        ValueError: a dictionary neither detector knows (naming the supported ones), or
+        ValueError: a dictionary neither detector knows (naming the supported ones), a
+            dictionary file that is not one (naming the entry), or
             ``detector="apriltag"`` with an ArUco dictionary, or ``detector="opencv"`` with a
             family OpenCV lacks. ImportError: the AprilTag library is needed (``apriltag``, or a
             family only it has) and missing.
@@ -888,11 +892,13 @@ def make_marker_detector(
     family = apriltag_family(dictionary)
     opencv_name = dictionary if str(dictionary).startswith("DICT_") else None
     if family is None:
-        try:
-            from ..cv_compat import get_dictionary
+        from ..cv_compat import get_dictionary, is_dictionary_file
 
+        try:
             get_dictionary(dictionary)
         except ValueError:
+            if is_dictionary_file(dictionary):  # (the file's own error names what is wrong)
+                raise
             raise ValueError(
                 f"unknown marker dictionary {dictionary!r}; supported: "
                 f"{', '.join(supported_dictionaries())}"

@@ -14,6 +14,8 @@ module                 format                                               writ
                                                                             / ``load_landmarks_csv``
 :mod:`.scenes`         scene YAMLs (``rs_localizer/scenes/``): where their  - / ``scene_path``
                        quads, markers and checkerboards are
+:mod:`.tag_poses`      marker maps from tag poses (``{id, size, pose}``     ``write_tag_map``
+                       YAML, WPILib field JSON, apriltag_ros bundles)       / ``read_tag_layout``
 :mod:`.files`          atomic writes, the umask mode, regular-file checks
 =====================  ===================================================  ==================
 

@@ -1,5 +1,8 @@
 """ArUco marker maps: YAML with the ``dictionary`` name and per marker its ``id`` and the four
-3D ``corners`` (map frame, metres, ArUco order TL, TR, BR, BL), optionally ``scene`` (the scene
+3D ``corners`` (map frame, metres, in the order the detector returns them: for ArUco
+dictionaries the printed marker's top-left, top-right, bottom-right, bottom-left; for AprilTag
+families printed from the AprilTag images bottom-right, bottom-left, top-left, top-right, see
+``docs/marker_maps.md``, "Corner order"), optionally ``scene`` (the scene
 it was rendered from) or, from ``map-markers``, the ``anchor``, the ``frame`` and per marker
 ``std_position``, ``std_rotation`` and ``observations``.
 
@@ -30,7 +33,9 @@ __all__ = [
 ]
 
 #: the first line of every marker map written
-MARKER_MAP_HEADER = "# ArUco marker map: corners in ArUco order (TL, TR, BR, BL), metres\n"
+MARKER_MAP_HEADER = (
+    "# marker map: corners in the detector's order (docs/marker_maps.md, Corner order), metres\n"
+)
 
 
 #: relative tolerance on a marker's sides and diagonals (:func:`check_marker_corners`)
@@ -71,14 +76,14 @@ def check_marker_corners(corners: np.ndarray, size: float | None = None, what: s
 
 
 def marker_dictionary(name: str) -> Any:
-    """cv2.aruco predefined dictionary by name (e.g. ``DICT_4X4_250``).
+    """cv2.aruco dictionary by name (e.g. ``DICT_4X4_250``) or a custom dictionary file
+    (OpenCV's dictionary YAML, a path ending ``.yml``/``.yaml``):
+    :func:`rs_localizer.cv_compat.get_dictionary`.
 
-    Raises ValueError for a name OpenCV does not know."""
-    import cv2
+    Raises ValueError for a name OpenCV does not know or a file that is not a dictionary."""
+    from ..cv_compat import get_dictionary
 
-    if not hasattr(cv2.aruco, name):
-        raise ValueError(f"unknown ArUco dictionary {name!r}")
-    return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    return get_dictionary(name)
 
 
 def write_marker_map(
@@ -100,8 +105,10 @@ def write_marker_map(
 
     Args:
         path: the YAML to write (its directory is created).
-        dictionary: OpenCV predefined dictionary name (e.g. ``DICT_4X4_250``).
-        corners: {marker id: (4, 3) map-frame corners in ArUco order (TL, TR, BR, BL), metres}.
+        dictionary: OpenCV predefined dictionary name (e.g. ``DICT_4X4_250``), an AprilTag
+            family (``tag36h11``) or a custom dictionary file (OpenCV's dictionary YAML).
+        corners: {marker id: (4, 3) map-frame corners in the detector's order (module notes),
+            metres}.
         scene: name of the scene the map was rendered from.
         anchor: id of the marker whose frame is the map's (``map-markers``).
         frame: how the map frame is fixed and its own uncertainty (``map-markers``: ``kind``,
@@ -145,7 +152,9 @@ def write_marker_map(
 def load_marker_map(path: str | os.PathLike) -> tuple[str, dict[int, np.ndarray]]:
     """Read a marker map (:func:`write_marker_map`), or a scene YAML / built-in scene name
     (``aruco_room``: the corners of its markers). Returns ``(dictionary name, {id: (4, 3)
-    corners in ArUco order, metres})``.
+    corners in the detector's order, metres})``; a custom dictionary file the map names
+    (``.yml``/``.yaml``, OpenCV's dictionary YAML) relative to its own directory is returned
+    with that directory.
 
     Raises:
         FileNotFoundError: no such file or built-in scene. ValueError: neither a marker map nor
@@ -169,6 +178,7 @@ def load_marker_map(path: str | os.PathLike) -> tuple[str, dict[int, np.ndarray]
     dictionary = data.get("dictionary", "DICT_4X4_250")
     if not isinstance(dictionary, str):
         raise ValueError(f"{p}: 'dictionary' must be a name, got {dictionary!r}")
+    dictionary = _dictionary_path(dictionary, p)
     size = data.get("marker_size")
     corners = {}
     for k, m in enumerate(markers):
@@ -188,6 +198,15 @@ def load_marker_map(path: str | os.PathLike) -> tuple[str, dict[int, np.ndarray]
         check_marker_corners(c, msize, f"{p}: marker {mid}: ")
         corners[mid] = c
     return dictionary, corners
+
+
+def _dictionary_path(dictionary: str, map_path: Path) -> str:
+    """A custom dictionary file (``.yml``/``.yaml``) named by a map, relative to the map's
+    directory when it is there (else as given: relative to the working directory)."""
+    if not dictionary.lower().endswith((".yml", ".yaml")) or os.path.isabs(dictionary):
+        return dictionary
+    beside = map_path.parent / dictionary
+    return str(beside) if beside.is_file() else dictionary
 
 
 def load_marker_std(path: str | os.PathLike) -> dict:
