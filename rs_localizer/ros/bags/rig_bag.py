@@ -236,18 +236,19 @@ def _params_yaml(rig: dict, stamp_row: float) -> str:
 
 
 def rig_parameter_values(
-    bag: str | os.PathLike,
+    bag: str | os.PathLike | None,
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
 ) -> tuple[dict, dict]:
     """``(values, camera values)`` for :func:`~rs_localizer.ros.config.rig_config`: the
-    defaults, then the bag's ``rig_params.yaml``, each parameter file, then ``params``."""
+    defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
+    then ``params``."""
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
                    for k, p in RIG_PARAMETERS.items()})  # fmt: skip
     tree: dict[str, Any] = {}
-    own = Path(bag) / "rig_params.yaml"
-    for f in ([own] if own.is_file() else []) + list(params_files):
+    own = None if bag is None else Path(bag) / "rig_params.yaml"
+    for f in ([own] if own is not None and own.is_file() else []) + list(params_files):
         tree.update(read_params_file(f))
     tree.update(params or {})
     values.update({k: v for k, v in tree.items() if k in values})
