@@ -224,7 +224,12 @@ def capture_live(
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from rosidl_runtime_py.utilities import get_message
+
+    def get_message(msgtype: str):  # ("geometry_msgs/msg/PoseStamped" -> its rclpy class)
+        import importlib
+
+        pkg, _, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
     own = context is None
     if own:
