@@ -97,3 +97,19 @@ def test_evaluate_mistakes_are_one_line_errors(replayed, sample_bag, tmp_path, c
         assert main(["evaluate", *argv]) == 2, argv
         err = capsys.readouterr().err
         assert msg in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_a_rig_replay_out_bag_evaluated_as_replay_prints_it(tmp_path, capsys):
+    """``replay --out`` of a rig bag writes the rig's poses; evaluate's APE medians are the
+    medians replay prints for the rig."""
+    bag, out = tmp_path / "rig", tmp_path / "out"
+    assert main(["make-bag", str(bag), "--rig", "2", "--frames", "8", "--points", "100",
+                 "--quiet"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--out", str(out), "--quiet", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    res = _evaluate(capsys, out, "--truth", bag)
+    assert res["matched"] == s["solved"] == 8
+    assert res["ape"]["rot_deg"]["median"] == pytest.approx(s["rot_deg"], rel=1e-6)
+    assert res["ape"]["pos_m"]["median"] == pytest.approx(s["pos_m"], rel=1e-6)
+    assert res["covariance"]["poses"] == 8
