@@ -60,8 +60,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=A.positive_float,
         default=None,
         metavar="SECONDS",
-        help="subscribe to --topic (and --truth-topic without --truth) for this many seconds "
-        "from its first publisher (start it, then play the bag)",
+        help="subscribe to --topic (and --truth-topic without --truth) and listen for this "
+        "many seconds from the first pose (start it, then play the bag)",
+    )
+    e.add_argument(
+        "--wait",
+        type=A.positive_float,
+        default=60.0,
+        help="with --live: give up when no pose arrives on --topic within this many seconds",
     )
     e.add_argument(
         "--align",
@@ -128,18 +134,27 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"listening to {args.topic}"
             + ("" if ref is not None else f" and {args.truth_topic}")
-            + f" for {args.live:g} s",
+            + f" for {args.live:g} s from its first pose (waiting up to {args.wait:g} s)",
             file=sys.stderr,
         )
         try:
             est, live_ref = capture_live(
-                args.topic, args.live, None if ref is not None else args.truth_topic
+                args.topic,
+                args.live,
+                None if ref is not None else args.truth_topic,
+                wait=args.wait,
             )
         except TimeoutError as err:
-            raise A.CliError(f"{err} (is the node running, with the same ROS_DOMAIN_ID?)") from None
-        ref = ref if ref is not None else live_ref
-        if not len(est):
-            raise A.CliError(f"no pose on {args.topic} within {args.live:g} s")
+            raise A.CliError(
+                f"{err} (is the node running and the bag playing, with the same ROS_DOMAIN_ID?)"
+            ) from None
+        if ref is None:
+            ref = live_ref
+            if not len(ref):
+                raise A.CliError(
+                    f"no pose on {args.truth_topic} while listening (give the reference with "
+                    "--truth BAG or FILE)"
+                )
     else:
         if not args.estimates:
             raise A.CliError("give the estimates: a bag or a TUM file (or --live SECONDS)")

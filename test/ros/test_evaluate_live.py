@@ -65,4 +65,4 @@ def test_live_capture_of_a_pose_topic_and_the_ground_truth(ros_context):
     assert res["ape"]["rot_deg"]["max"] < 1e-5
     assert res["covariance"]["within_3_sigma"] == res["matched"]
     with pytest.raises(TimeoutError, match="no publisher"):
-        capture_live("/nobody/pose", 0.1, context=ros_context, discovery_timeout=0.5)
+        capture_live("/nobody/pose", 0.1, context=ros_context, wait=0.5)

@@ -206,30 +206,27 @@ def capture_live(
     seconds: float,
     truth_topic: str | None = None,
     context: Any = None,
-    discovery_timeout: float = 10.0,
+    wait: float = 60.0,
     stop: Callable[[], bool] | None = None,
 ) -> tuple[Trajectory, Trajectory | None]:
     """The poses published on ``topic`` (and ``truth_topic``, if given) during ``seconds`` s
-    from the moment ``topic`` has a publisher: a running node's outputs while a bag plays
-    (``rs-localizer play``, ``ros2 bag play``). The message type is the publisher's (one of
-    :data:`POSE_TYPES`); the subscription's reliability matches the publishers' (reliable when
-    they all are), depth 1000.
+    from the first pose on ``topic``: a running node's outputs while a bag plays
+    (``rs-localizer play``, ``ros2 bag play``). Each topic is subscribed as soon as it has a
+    publisher, with the publisher's message type (one of :data:`POSE_TYPES`) and a
+    reliability that matches the publishers' (reliable when they all are), depth 1000.
 
     ``context``: an initialized rclpy Context (default: a new one, shut down at the end).
+    ``stop``: called while listening; true ends the capture.
 
     Raises:
-        TimeoutError: no publisher of ``topic`` within ``discovery_timeout`` s.
-        ValueError: the topic's type is not a pose (:data:`POSE_TYPES`).
+        TimeoutError: no pose on ``topic`` within ``wait`` s.
+        ValueError: a topic's type is not a pose (:data:`POSE_TYPES`).
     """
+    import importlib
+
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
-
-    def get_message(msgtype: str):  # ("geometry_msgs/msg/PoseStamped" -> its rclpy class)
-        import importlib
-
-        pkg, _, name = msgtype.split("/")
-        return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
     own = context is None
     if own:
@@ -238,37 +235,44 @@ def capture_live(
     node = rclpy.create_node("rs_localizer_evaluate", context=context)
     ex = SingleThreadedExecutor(context=context)
     ex.add_node(node)
-    rows: dict[str, list] = {}
+    names = [topic] + ([truth_topic] if truth_topic else [])
+    rows: dict[str, list] = {n: [] for n in names}
+    waiting = list(names)
+
+    def subscribe(name: str) -> bool:
+        infos = node.get_publishers_info_by_topic(name)
+        if not infos:
+            return False
+        mt = _norm_type(infos[0].topic_type)
+        if mt not in POSE_TYPES:
+            raise ValueError(f"{name} is a {mt}, not a pose ({', '.join(POSE_TYPES)})")
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        qos = QoSProfile(
+            depth=1000,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        )
+        pkg, _, cls = mt.split("/")
+        msg_class = getattr(importlib.import_module(f"{pkg}.msg"), cls)
+        node.create_subscription(
+            msg_class, name, lambda msg: rows[name].append(_pose_row(msg, mt)), qos
+        )
+        return True
+
+    t_wait = time.monotonic() + wait
+    t_end = None
     try:
-
-        def discover(name: str) -> tuple[str, QoSProfile]:
-            t_end = time.monotonic() + discovery_timeout
-            while time.monotonic() < t_end and context.ok():
-                infos = node.get_publishers_info_by_topic(name)
-                if infos:
-                    mt = _norm_type(infos[0].topic_type)
-                    if mt not in POSE_TYPES:
-                        raise ValueError(f"{name} is a {mt}, not a pose ({', '.join(POSE_TYPES)})")
-                    reliable = all(
-                        i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos
-                    )
-                    rel = ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT
-                    return mt, QoSProfile(depth=1000, reliability=rel)
-                ex.spin_once(timeout_sec=0.05)
-            raise TimeoutError(f"no publisher of {name} within {discovery_timeout:g} s")
-
-        for name in [topic] + ([truth_topic] if truth_topic else []):
-            mt, qos = discover(name)
-            rows[name] = []
-
-            def on_msg(msg: Any, name: str = name, mt: str = mt) -> None:
-                rows[name].append(_pose_row(msg, mt))
-
-            node.create_subscription(get_message(mt), name, on_msg, qos)
-        t_end = time.monotonic() + seconds
-        while context.ok() and time.monotonic() < t_end:
-            ex.spin_once(timeout_sec=0.05)
-            if stop is not None and stop():
+        while context.ok():
+            waiting = [n for n in waiting if not subscribe(n)]
+            ex.spin_once(timeout_sec=0.02)
+            now = time.monotonic()
+            if t_end is None and rows[topic]:
+                t_end = now + seconds  # (the window starts at the first pose)
+            if t_end is None and now > t_wait:
+                raise TimeoutError(
+                    f"no pose on {topic} within {wait:g} s"
+                    + (" (no publisher)" if topic in waiting else "")
+                )
+            if (t_end is not None and now >= t_end) or (stop is not None and stop()):
                 break
     except KeyboardInterrupt:  # (Ctrl-C: evaluate what came so far)
         pass
@@ -277,7 +281,7 @@ def capture_live(
         node.destroy_node()
         if own:
             rclpy.try_shutdown(context=context)
-    est = Trajectory.from_poses(rows.get(topic, []), f"live {topic}")
+    est = Trajectory.from_poses(rows[topic], f"live {topic}")
     truth = Trajectory.from_poses(rows[truth_topic], f"live {truth_topic}") if truth_topic else None
     return est, truth
 
