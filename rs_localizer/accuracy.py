@@ -9,16 +9,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .geometry import rotation_angle_deg
 
 __all__ = [
     "GroundTruth",
+    "absolute_pose_errors",
     "align_frames",
+    "covariance_distances",
+    "error_statistics",
     "format_summary",
     "frame_errors",
     "frame_fit_summary",
+    "relative_pose_errors",
     "summarize_errors",
+    "umeyama_alignment",
 ]
 
 #: a rigid fit of the estimate's frame onto the ground truth's beyond these (deg, m) means the
@@ -146,3 +152,132 @@ def format_summary(name: str, summary: dict, total: int | None = None) -> str:
                 f"max {s['max'] * scale:.3g} {unit}"
             )
     return "; ".join(parts)
+
+
+# ---------------------------------------------------------------- trajectories (evaluate)
+def umeyama_alignment(
+    source: np.ndarray, target: np.ndarray, with_scale: bool = False
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The similarity ``(R (3, 3), t (3,), s)`` minimizing ``sum_i |target_i - (s R source_i +
+    t)|^2`` over the point pairs ``source``, ``target`` (N, 3) (Umeyama, IEEE TPAMI 13(4),
+    1991); ``s = 1`` unless ``with_scale``. Raises ValueError for fewer than 3 pairs, shapes
+    that differ, or points on one line (the rotation is not determined)."""
+    x = np.asarray(source, dtype=float)
+    y = np.asarray(target, dtype=float)
+    if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3 or len(x) < 3:
+        raise ValueError(
+            f"umeyama_alignment: expected two (N >= 3, 3) arrays, got {x.shape}, {y.shape}"
+        )
+    mx, my = x.mean(0), y.mean(0)
+    xc, yc = x - mx, y - my
+    cov = yc.T @ xc / len(x)
+    U, d, Vt = np.linalg.svd(cov)
+    if d[1] <= 1e-12 * max(d[0], 1e-300):
+        raise ValueError("umeyama_alignment: the points are on one line (rotation undetermined)")
+    S = np.diag([1.0, 1.0, np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0])
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(d) @ S) / np.mean(np.sum(xc**2, 1))) if with_scale else 1.0
+    t = my - s * R @ mx
+    return R, t, s
+
+
+def _angles_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation angles (deg) of a stack of rotations (N, 3, 3)."""
+    c = (np.trace(R, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def absolute_pose_errors(
+    R_est: np.ndarray, p_est: np.ndarray, R_ref: np.ndarray, p_ref: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The absolute pose error (APE) of matched poses, as evo defines it: ``E_i = Q_i^-1 P_i``
+    with ``P_i`` the estimate, ``Q_i`` the reference (body -> map: orientations (N, 3, 3),
+    positions (N, 3) in m). Returns ``rot_deg`` (N,): the angle of ``E_i``'s rotation (deg),
+    ``pos_m`` (N,): the norm of its translation (m), which is ``|p_est - p_ref|``."""
+    R_est, R_ref = np.asarray(R_est, float), np.asarray(R_ref, float)
+    return {
+        "rot_deg": _angles_deg(np.swapaxes(R_ref, 1, 2) @ R_est),
+        "pos_m": np.linalg.norm(np.asarray(p_est, float) - np.asarray(p_ref, float), axis=1),
+    }
+
+
+def relative_pose_errors(
+    R_est: np.ndarray,
+    p_est: np.ndarray,
+    R_ref: np.ndarray,
+    p_ref: np.ndarray,
+    delta: int = 1,
+    all_pairs: bool = False,
+) -> dict[str, np.ndarray]:
+    """The relative pose error (RPE) of matched poses over ``delta`` frames, as evo defines it
+    (its default ``--delta_unit f``): ``E_ij = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)`` for the pairs
+    ``(i, j = i + delta)``, ``i`` = 0, delta, 2 delta, ... (``all_pairs``: every ``i``).
+    Arguments as :func:`absolute_pose_errors`. Returns ``rot_deg`` (deg) and ``pos_m`` (m),
+    the rotation angle and translation norm of each ``E_ij``, and ``pairs`` (M, 2) the indices.
+    Raises ValueError for ``delta < 1``."""
+    if delta < 1:
+        raise ValueError(f"relative_pose_errors: delta must be >= 1, got {delta}")
+    R_est, R_ref = np.asarray(R_est, float), np.asarray(R_ref, float)
+    p_est, p_ref = np.asarray(p_est, float), np.asarray(p_ref, float)
+    n = len(R_est)
+    i = np.arange(n - delta) if all_pairs else np.arange(0, n, delta)[:-1]
+    i = i[i + delta < n]
+    j = i + delta
+
+    def motion(R, p):  # T_i^-1 T_j: rotation R_i^T R_j, translation R_i^T (p_j - p_i)
+        Ri_T = np.swapaxes(R[i], 1, 2)
+        return Ri_T @ R[j], np.einsum("nab,nb->na", Ri_T, p[j] - p[i])
+
+    Rq, tq = motion(R_ref, p_ref)
+    Rp, tp = motion(R_est, p_est)
+    Rq_T = np.swapaxes(Rq, 1, 2)  # E = (Rq, tq)^-1 (Rp, tp) = (Rq^T Rp, Rq^T (tp - tq))
+    return {
+        "rot_deg": _angles_deg(Rq_T @ Rp),
+        "pos_m": np.linalg.norm(tp - tq, axis=1),
+        "pairs": np.stack([i, j], 1),
+    }
+
+
+def covariance_distances(
+    R_est: np.ndarray,
+    p_est: np.ndarray,
+    R_ref: np.ndarray,
+    p_ref: np.ndarray,
+    covariance: np.ndarray,
+) -> np.ndarray:
+    """The squared Mahalanobis distance ``e^T C^-1 e`` (N,) of each pose error under its stated
+    covariance ``C`` (N, 6, 6), ROS order (x, y, z, rot x, rot y, rot z), map frame, rotation
+    about the map axes as the node publishes it: ``e = (p_est - p_ref, log(R_est R_ref^T))``
+    (m, rad). NaN where ``C`` is not positive definite (unknown: zeros)."""
+    R_est, R_ref = np.asarray(R_est, float), np.asarray(R_ref, float)
+    dR = R_est @ np.swapaxes(R_ref, 1, 2)
+    rot = Rotation.from_matrix(dR).as_rotvec()
+    e = np.concatenate([np.asarray(p_est, float) - np.asarray(p_ref, float), rot], 1)
+    out = np.full(len(e), np.nan)
+    for k, (ek, C) in enumerate(zip(e, np.asarray(covariance, float), strict=True)):
+        try:
+            L = np.linalg.cholesky(C)
+        except np.linalg.LinAlgError:
+            continue
+        z = np.linalg.solve(L, ek)
+        out[k] = float(z @ z)
+    return out
+
+
+def error_statistics(values) -> dict:
+    """``count``, ``rmse``, ``mean``, ``median``, ``p90``, ``std``, ``min``, ``max`` of the
+    finite ``values`` (evo's statistics plus the 90th percentile); ``{"count": 0}`` without."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return {"count": 0}
+    return {
+        "count": len(v),
+        "rmse": float(np.sqrt(np.mean(v**2))),
+        "mean": float(np.mean(v)),
+        "median": float(np.median(v)),
+        "p90": float(np.percentile(v, 90)),
+        "std": float(np.std(v)),
+        "min": float(np.min(v)),
+        "max": float(np.max(v)),
+    }

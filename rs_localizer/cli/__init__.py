@@ -22,6 +22,7 @@ COMMANDS = (
     "demo",
     "replay",
     "play",
+    "evaluate",
     "view",
     "diagnostics",
     "calibrate_readout",

@@ -55,8 +55,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--optical-frame",
         action="store_true",
         help="the rig frame is the reference camera's optical frame (its mounting the "
-        "identity); default: base_frame, with the reference camera's mounting of the "
-        "parameters (the optical frame if it has none)",
+        "identity; the file's base_frame then names that frame, its camera_info's frame_id); "
+        "default: base_frame, with the reference camera's mounting of the parameters (the "
+        "optical frame if it has none)",
     )
     c.add_argument(
         "--window",
@@ -88,10 +89,12 @@ def _mounting7(mount) -> list[float]:
     return [round(float(x), 9) + 0.0 for x in (*mount.position, *q)]
 
 
-def params_yaml(values: dict, cams: dict, names: list, mountings: dict, notes: list) -> str:
-    """The node's parameter file of the calibrated rig: ``base_frame``, ``rs.stamp_row``,
-    ``rig.cameras`` and per camera its ``mounting`` and the RS timing it was read with;
-    ``notes``: comment lines on top."""
+def params_yaml(
+    values: dict, cams: dict, names: list, mountings: dict, notes: list, base_frame: str
+) -> str:
+    """The node's parameter file of the calibrated rig: ``base_frame`` (the rig frame the
+    mountings are in), ``rs.stamp_row``, ``rig.cameras`` and per camera its ``mounting`` and
+    the RS timing it was read with; ``notes``: comment lines on top."""
     import yaml
 
     body_cams = {}
@@ -103,13 +106,28 @@ def params_yaml(values: dict, cams: dict, names: list, mountings: dict, notes: l
                 entry[k] = v
         body_cams[n] = entry
     body = {
-        "base_frame": values.get("base_frame") or "base_link",
+        "base_frame": base_frame,
         "rs": {"stamp_row": float(values["rs.stamp_row"])},
         "rig": {"cameras": list(names), **body_cams},
     }
     tree = {"/**/rs_localizer": {"ros__parameters": body}}
     head = "".join(f"# {line}\n" for line in notes)
     return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
+
+
+def _optical_frame_id(bag, camera: str) -> str:
+    """The optical frame of ``camera`` in a rig bag: the ``frame_id`` of its first camera_info
+    (``<namespace>/<camera>/camera_info``), else ``<camera>_optical_frame``."""
+    from ..ros.bags.bag_io import bag_topics, iter_messages, typestore
+
+    topics = [t for t in bag_topics(bag) if t.endswith(f"/{camera}/camera_info")]
+    ts = typestore()
+    for _, msgtype, _, raw in iter_messages(bag, topics[:1]) if topics else ():
+        frame_id = str(ts.deserialize_cdr(raw, msgtype).header.frame_id).strip()
+        if frame_id:
+            return frame_id
+        break
+    return f"{camera}_optical_frame"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -147,10 +165,15 @@ def run(args: argparse.Namespace) -> int:
             f"no rig frame pairs camera(s) {missing} with the reference camera {ref!r} "
             f"(frames posed alone within --window {args.window} s of its own)"
         )
-    frame = f"{ref!r}'s optical frame" if ref_mount is None else "base_frame"
+    if ref_mount is None:
+        frame = _optical_frame_id(bag, ref)
+        where = f"camera {ref}'s optical frame: z forward, x right, y down"
+    else:
+        frame = str(values.get("base_frame") or "").strip() or "base_link"
+        where = f"base_frame, camera {ref} at its mounting of the parameters"
     notes = [
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
-        f"(rig frame: {frame})"
+        f"in the rig frame {frame} ({where})"
     ]
     report = {}
     for n in names:
@@ -171,11 +194,22 @@ def run(args: argparse.Namespace) -> int:
                 f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
                 f"{e.std_mm:.2f} mm (one frame: {e.scatter_deg:.3f} deg {e.scatter_mm:.1f} mm)"
             )
-    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes)
+    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame)
     if out_path is not None:
         out_path.write_text(text)
     for line in notes:
         print(line, file=sys.stderr)
+    if ref_mount is None:
+        again = "without --optical-frame" if args.optical_frame else "with it"
+        print(
+            f"the rig frame is {frame}, camera {ref}'s optical frame (base_frame: {frame} in "
+            "the file): the node publishes that camera's pose. To publish the robot's base "
+            f"instead, give camera {ref}'s pose in it (rig.{ref}.mounting: [x, y, z, qx, qy, "
+            f"qz, qw], e.g. from 'ros2 run tf2_ros tf2_echo base_link {frame}') and the "
+            f"base's name (base_frame) in a --params-file and run again {again}: every "
+            "mounting is then written in the base's frame",
+            file=sys.stderr,
+        )
     if args.json:
         print(json.dumps({"reference": ref, "rig_frame": frame, "cameras": report}, indent=2))
     elif out_path is None:

@@ -26,8 +26,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         description="Compile the JIT (numba) kernels the node needs now and cache them, once "
         "after installing while the package directory is writable: the node then starts in "
         "seconds instead of compiling on its first frames. What is compiled follows the "
-        "node's parameters: its solver, the video tracker (tracking.enabled) and the gyro "
-        "path (imu.enabled). By default the node's defaults (config/rs_localizer.yaml) and "
+        "node's parameters: its solver, the video tracker (tracking.enabled), the gyro "
+        "path (imu.enabled) and, with rig.cameras set, the rig's estimator, tracking and "
+        "gyro over a synthetic rig of its cameras. By default the node's defaults "
+        "(config/rs_localizer.yaml) and "
         f"{COMPARISON_SOLVER}, the solver `make demo` compares with; with --params-file "
         "what the node started with those files needs.",
         formatter_class=A.HelpFormatter,
@@ -38,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         default=[],
         metavar="FILE",
         help="the node's ROS 2 parameter file, e.g. your robot's (repeatable; later ones "
-        "win): compile for its solver, tracking and imu settings (default: the node's "
+        "win): compile for its solver, tracking, imu and rig settings (default: the node's "
         f"defaults plus {COMPARISON_SOLVER})",
     )
     c.add_argument(
@@ -94,7 +96,29 @@ def compile_targets(
         "options": options,
         "tracking": tracking,
         "gyro": bool(values["imu.enabled"]),
+        "rig": _rig_target(params_files),
     }
+
+
+def _rig_target(params_files: Sequence[str | os.PathLike]) -> tuple | None:
+    """``(RigSettings, {camera: (line_delay, readout_time, direction)})`` of the rig mode the
+    parameter files configure (``rig.cameras`` set), else None. Raises CliError on a rig
+    configuration the node would refuse."""
+    if not params_files:
+        return None
+    from ..ros.bags.rig_bag import rig_parameter_values
+    from ..ros.config import rig_config
+    from ..ros.params import ConfigError
+
+    try:
+        values, cams = rig_parameter_values(None, params_files)
+        if not values["rig.cameras"]:
+            return None
+        cfg = rig_config(values, cams)
+    except (ConfigError, OSError, TypeError, ValueError) as e:
+        raise A.CliError(f"--params-file: {e}") from None
+    timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in cfg.cameras}
+    return cfg.settings, timing
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"compiling for {', '.join(what['solvers'])}"
         + (", with the video tracker" if what["tracking"] is not None else ", frames alone")
-        + (", with the gyro" if what["gyro"] else ""),
+        + (", with the gyro" if what["gyro"] else "")
+        + (f", the rig of {len(what['rig'][0].mounts)} cameras" if what["rig"] is not None else ""),
         flush=True,
     )
     jobs = args.jobs or DEFAULT_JOBS
@@ -128,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
         jobs=jobs,
         options=what["options"],
         gyro=what["gyro"],
+        rig=what["rig"],
     )
     n = len(res["kernels"])
     print(

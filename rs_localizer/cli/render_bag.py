@@ -32,7 +32,7 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -327,6 +327,7 @@ def render_rig_bag(
     compress: bool = True,
     overwrite: bool = False,
     progress: Callable[[int, int, int], Any] | None = None,
+    camera: str | Sequence[str] = "vga",
 ) -> Path:
     """Render a rig of ``cameras`` (1-4) rolling-shutter cameras into a rig bag; returns its
     path.
@@ -347,7 +348,9 @@ def render_rig_bag(
         path: bag directory. scene: built-in name, YAML path or
             :class:`~rs_localizer.sim.render.scene.Scene` with markers (default: the closed
             ``apriltag_rig_room``). progress: callable ``(k, total, n_correspondences)`` per
-            camera frame or None. Others as :func:`render_bag`.
+            camera frame or None. camera: the cameras' preset (``vga`` 640x480, ``hd``
+            1280x720), or one per camera in the rig's order (mixed resolutions). Others as
+            :func:`render_bag`.
     Raises:
         FileExistsError: ``path`` exists and not ``overwrite``. ValueError: bad arguments
         (cameras outside 1-4, a scene without markers, an unknown motion or storage).
@@ -367,7 +370,7 @@ def render_rig_bag(
     sc = scene if isinstance(scene, Scene) else load_scene(scene)
     if not sc.markers:
         raise ValueError(f"scene {sc.name!r} has no markers: a rendered rig needs a marker scene")
-    rig = rendered_rig(cameras, fps)
+    rig = rendered_rig(cameras, fps, camera=camera)
     duration = max(c.offset for c in rig) + frames / fps
     traj = rig_trajectory(motion, sc, duration, scale=motion_scale)
     t0_ns = int(round(start_time * 1e9))
@@ -468,7 +471,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=A.positive_int,
         default=None,
         metavar="N",
-        help="a rig bag instead: N (1-4) unsynchronized 640x480 rolling-shutter cameras "
+        help="a rig bag instead: N (1-4) unsynchronized rolling-shutter cameras (--camera: "
+        "640x480 by default) "
         "(2: front, back; 3: front, left, right; 4: front, right, back, left; readout 20-30 ms "
         "in four directions, first frames 0-9 ms apart) on one body, --frames per camera, "
         "topics /rig/<camera>/image_raw, camera_info and correspondences (the marker front "
@@ -484,7 +488,17 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         + ", ".join(
             f"{k} ({v[0]}x{v[1]}, fx {v[2]:g} px, {v[7] * 1e3:g} ms readout)"
             for k, v in sorted(CAMERA_PRESETS.items())
-        ),
+        )
+        + "; with --rig every camera's (a rig camera keeps its own readout time)",
+    )
+    p.add_argument(
+        "--rig-cameras",
+        nargs="+",
+        default=None,
+        choices=sorted(CAMERA_PRESETS),
+        metavar="PRESET",
+        help="with --rig N: N presets, one per camera in the rig's order (mixed resolutions), "
+        "e.g. --rig 3 --rig-cameras hd vga vga; instead of --camera",
     )
     p.add_argument(
         "--frontend",
@@ -544,6 +558,8 @@ def run(a: argparse.Namespace) -> int:
         A.yaml_file(a.scene, "scene YAML")
     if a.rig is not None:
         return _run_rig(a)
+    if a.rig_cameras is not None:
+        raise A.CliError("--rig-cameras gives the presets of a rig's cameras: it needs --rig N")
     a.scene = a.scene or "aruco_room"
     if a.feature_map is not None:
         A.input_file(a.feature_map, "feature map (.npz)")
@@ -595,17 +611,32 @@ def _progress_bar(total: int, quiet: bool):
     return bar, prog
 
 
+def _rig_presets(a: argparse.Namespace) -> str | list[str]:
+    """The rig cameras' presets: ``--rig-cameras`` (one per camera) or ``--camera`` (every
+    camera's). Raises CliError on another count than ``--rig``'s, or both options given."""
+    if a.rig_cameras is None:
+        return a.camera
+    if a.camera != "vga":
+        raise A.CliError("give --camera (every camera's preset) or --rig-cameras, not both")
+    if len(a.rig_cameras) != a.rig:
+        raise A.CliError(
+            f"--rig-cameras: {len(a.rig_cameras)} presets for --rig {a.rig}: give one per camera"
+        )
+    return list(a.rig_cameras)
+
+
 def _run_rig(a: argparse.Namespace) -> int:
     """``render-bag --rig N`` (:func:`render_rig_bag`)."""
     if not 1 <= a.rig <= 4:
         raise A.CliError(f"--rig takes 1 to 4 cameras, got {a.rig}")
     if a.frontend != "aruco" or a.feature_map is not None:
         raise A.CliError("--rig writes the marker front end's correspondences: no --frontend")
-    if a.mono or a.global_shutter or a.exposure > 0 or a.imu_rate > 0 or a.camera != "vga":
+    if a.mono or a.global_shutter or a.exposure > 0 or a.imu_rate > 0:
         raise A.CliError(
-            "--rig renders rgb8 640x480 rolling-shutter cameras without blur or IMU: "
-            "no --mono, --global-shutter, --exposure, --imu-rate or --camera"
+            "--rig renders rgb8 rolling-shutter cameras without blur or IMU: "
+            "no --mono, --global-shutter, --exposure or --imu-rate"
         )
+    presets = _rig_presets(a)
     bar, prog = _progress_bar(a.rig * a.frames, a.quiet)
 
     try:
@@ -625,6 +656,7 @@ def _run_rig(a: argparse.Namespace) -> int:
             compress=not a.no_compression,
             overwrite=a.overwrite,
             progress=prog,
+            camera=presets,
         )
     except ValueError as e:
         raise A.CliError(str(e)) from None

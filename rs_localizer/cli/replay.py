@@ -349,9 +349,10 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     """A rig bag (``make-bag --rig``): every camera through the rig mode
     (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`); prints the rig's counts and its errors
     against the ground truth. Returns 0, or 1 when no rig frame was posed."""
-    if args.out or args.csv or args.debug_outputs:
-        raise A.CliError("a rig bag is replayed without --out, --csv or --debug-outputs")
-    from ..ros.bags.rig_bag import replay_rig
+    if args.csv or args.debug_outputs:
+        raise A.CliError("a rig bag is replayed without --csv or --debug-outputs")
+    out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
+    from ..ros.bags.rig_bag import replay_rig, rig_parameter_values, write_rig_outputs
     from ..ros.params import ConfigError
 
     try:
@@ -370,9 +371,8 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     for n in res.cameras:
         c = res.counts[n]
         print(f"  {n}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
-    from ..ros.bags.rig_bag import rig_parameter_values
-
-    if rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]["imu.enabled"]:
+    values = rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]
+    if values["imu.enabled"]:
         gyro = _rig_gyro_counts(res.outputs)
         print("  gyro: " + ", ".join(f"{k} {v}" for k, v in gyro.items()), file=text)
     if s["solved"]:
@@ -382,6 +382,11 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
             f"linear velocity {s['linvel']:.3f} m/s (fused {s['fused_linvel']:.3f})",
             file=text,
         )
+    if out_bag is not None:
+        base = str(values["base_frame"]).strip() or "base_link"
+        write_rig_outputs(res, out_bag, str(values["map_frame"]), base, args.storage, True)
+        print(f"estimates: {out_bag} (the rig's pose, pose_with_covariance and own twist)",
+              file=text)  # fmt: skip
     if args.json:
         print(json.dumps({**s, "counts": res.counts}, indent=2))
     return 0 if s["solved"] else 1

@@ -45,12 +45,15 @@ from ..estimation.estimate import (
 from ..estimation.frame import prepare_frame
 from ..estimation.prior import prior_conflict
 from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
+from ..estimation.rig import camera_model_of_rig
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
 from ..pose import RSPose, model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
+from ..tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from ..tracking.sequence import reference_stamp_ns
 from ..tracking.tracker import RSTracker, TrackerOptions
 from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
 
@@ -64,6 +67,7 @@ __all__ = [
     "synthetic_problem",
     "track_videos",
     "warm_late",
+    "warm_rig",
     "warm_up",
 ]
 
@@ -453,6 +457,61 @@ class _SecondProcess:
         self._reader.join(timeout=5.0)
 
 
+def warm_rig(
+    settings: RigSettings,
+    timing: dict[str, tuple[float, float, str]] | None = None,
+    frames: int = 8,
+) -> int:
+    """Run a :class:`~rs_localizer.tracking.rig.RigLocalizer` with ``settings`` (the rig node's:
+    its mountings, estimator options, tracking, gyro) over ``frames`` rig frames at 30 Hz of a
+    rig turning (0.3 rad/s) and moving (0.5 m/s) among points in front of every camera,
+    projected through each camera's exact RS model (0.3 px noise), with gyro samples at 200 Hz
+    when ``settings.imu`` is set: numba compiles (or loads) every kernel the rig's estimator
+    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`: gR6P, P3P, its residuals), its
+    tracking and twist filter and the per-camera checks run. ``timing``: camera name ->
+    ``(line_delay s, readout_time s, direction)`` (default: 30 us per line, top to bottom; the
+    kernels' types do not depend on the values).
+    Returns the rig frames posed (all of them on this scene)."""
+    rng = np.random.default_rng(4)
+    om, v = np.array([0.0, 0.3, 0.1]), np.array([0.5, 0.0, 0.1])  # rig frame, rad/s, m/s
+    w, t = -om, -v  # (the rig's model per second, C = 0 at T = 0: its twist is (om, v))
+    loc = RigLocalizer(settings)
+    cams, points = {}, {}
+    for name, m in settings.mounts.items():
+        ld, rt, d = (timing or {}).get(name, (3e-5, 0.0, "top_to_bottom"))
+        cams[name] = CameraModel(
+            K=np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]]),
+            D=np.array([0.05, -0.05, 0.0, 0.0, 0.0]),
+            width=640,
+            height=480,
+            line_delay=ld if ld > 0 else (rt / 480 if rt > 0 else 0.0),
+            readout=d,
+            distortion_model="plumb_bob",
+        )
+        cam_pts = _camera().undistort(rng.uniform([0, 0], [639, 479], (60, 2)))
+        Xc = np.concatenate([cam_pts, np.ones((60, 1))], 1) * rng.uniform(3, 8, 60)[:, None]
+        points[name] = (Xc - m.c) @ m.R  # camera -> rig (= world at T = 0)
+    if settings.imu is not None:
+        R_rig_imu = np.asarray(settings.imu.R_cam_imu, dtype=float)
+        for j in range(int(frames / 30 * 200) + 40):  # (200 Hz, the IMU frame's rate)
+            loc.add_imu(j * 5_000_000, R_rig_imu.T @ om)
+    posed = 0
+    for f in range(frames):
+        for k, (name, m) in enumerate(settings.mounts.items()):
+            cam = cams[name]
+            stamp = f * 33_333_333 + 2_000_000 * k
+            T = reference_stamp_ns(stamp, cam, settings.stamp_row) / 1e9
+            rig = (rotvec_to_matrix(T * w), T * t, w, t)  # (the rig's model at time T)
+            model = camera_model_of_rig(rig, m.R, m.c, 0.0, cam.seconds_per_unit_r)
+            uv = cam.project_rs(points[name], *model) + rng.normal(0, 0.3, (60, 2))
+            ok = np.isfinite(uv).all(1)
+            outs = loc.add(RigCameraFrame(name, stamp, cam, uv[ok], points[name][ok]))
+            posed += sum(o.success for o in outs)
+    posed += sum(o.success for o in loc.close())
+    loc.flush()
+    return posed
+
+
 def compile_kernels(
     solvers: Iterable[str] = DEFAULT_SOLVERS,
     log: Callable[[str], object] = print,
@@ -460,13 +519,16 @@ def compile_kernels(
     jobs: int = DEFAULT_JOBS,
     options: EstimateOptions | None = None,
     gyro: bool = False,
+    rig: tuple | None = None,
 ) -> dict:
     """Compile (or load) every kernel the estimator needs for ``solvers`` with ``options``
     (with the video tracker's, for ``tracking``: the node's default; the gyro path with
     ``gyro``, the node's ``imu.enabled``), as :func:`warm_up` runs them, reporting each kernel
     numba compiles through ``log`` (see :func:`.jit_cache.compile_progress`); with ``jobs`` >
     1 a second process compiles part of the first solver's RANSAC batch, the kernels a frame
-    needs later and the other solvers' meanwhile (module docstring).
+    needs later and the other solvers' meanwhile (module docstring). ``rig``: ``(RigSettings,
+    timing)`` of a rig node (:func:`warm_rig`'s arguments): its kernels too, after the solvers'
+    (``solvers`` then maps ``"rig"`` to its seconds).
 
     Returns:
         ``{"seconds": total, "kernels": [(name, seconds)] (both processes'), "cache":
@@ -498,6 +560,10 @@ def compile_kernels(
                     helper.wait_warmed(f"{s}:late")
                     track_videos(s, options, tracking, gyro=gyro)
                 per[s] = time.perf_counter() - t0
+        if rig is not None:
+            t0 = time.perf_counter()
+            warm_rig(*rig)
+            per["rig"] = time.perf_counter() - t0
     return {
         "seconds": time.perf_counter() - tic,
         "kernels": prog.kernels + (helper.kernels if helper is not None else []),

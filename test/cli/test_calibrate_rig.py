@@ -41,7 +41,7 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
     capsys.readouterr()
     assert main(["calibrate-rig", str(rig_bag), "-o", str(out), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["reference"] == "front" and report["rig_frame"] == "base_frame"
+    assert report["reference"] == "front" and report["rig_frame"] == "base_link"
     truth = {
         c["name"]: c for c in json.loads((rig_bag / "sequence.json").read_text())["rig"]["cameras"]
     }
@@ -63,18 +63,31 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
         assert deg < 3 * got["std_deg"] and mm < 3 * got["std_mm"], (name, deg, mm, got)
 
 
-def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, capsys):
+def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, capsys):
     """--optical-frame: the reference camera at the identity and the others relative to it (as
-    the true mountings relative to it); an unknown reference camera is a user error."""
+    the true mountings relative to it), the file's base_frame that camera's optical frame and
+    how to move it to the robot's base printed; an unknown reference camera is a user
+    error."""
     from rs_localizer.cli import main
     from rs_localizer.geometry import rotation_angle_deg
 
     capsys.readouterr()
-    args = ["calibrate-rig", str(rig_bag), "--json", "--optical-frame", "--reference", "left"]
+    out = tmp_path / "rig.yaml"
+    args = ["calibrate-rig", str(rig_bag), "--json", "--optical-frame", "--reference", "left",
+            "-o", str(out)]  # fmt: skip
     assert main(args) == 0
-    report = json.loads(capsys.readouterr().out)
+    cap = capsys.readouterr()
+    report = json.loads(cap.out)
     truth = {c["name"]: _mount(c["mounting"]) for c in
              json.loads((rig_bag / "sequence.json").read_text())["rig"]["cameras"]}  # fmt: skip
+    # the rig frame is named: the left camera's optical frame (its camera_info's frame_id),
+    # and how to move it to the robot's base is printed
+    from rs_localizer.ros.param_files import read_params_file
+
+    assert report["rig_frame"] == "left_optical_frame"
+    assert read_params_file(out)["base_frame"] == "left_optical_frame"
+    assert "tf2_echo base_link left_optical_frame" in cap.err
+    assert "rig.left.mounting" in cap.err
     ref = _mount(report["cameras"]["left"]["mounting"])
     assert np.allclose(ref.R, np.eye(3)) and np.allclose(ref.c, 0.0)
     for name in ("front", "right"):

@@ -62,6 +62,7 @@ __all__ = [
     "rig_namespace",
     "rig_parameter_values",
     "write_rig_bag",
+    "write_rig_outputs",
 ]
 
 
@@ -236,18 +237,19 @@ def _params_yaml(rig: dict, stamp_row: float) -> str:
 
 
 def rig_parameter_values(
-    bag: str | os.PathLike,
+    bag: str | os.PathLike | None,
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
 ) -> tuple[dict, dict]:
     """``(values, camera values)`` for :func:`~rs_localizer.ros.config.rig_config`: the
-    defaults, then the bag's ``rig_params.yaml``, each parameter file, then ``params``."""
+    defaults, then the bag's ``rig_params.yaml`` (``bag`` None: none), each parameter file,
+    then ``params``."""
     values = default_values()
     values.update({k: (list(p.default) if isinstance(p.default, list) else p.default)
                    for k, p in RIG_PARAMETERS.items()})  # fmt: skip
     tree: dict[str, Any] = {}
-    own = Path(bag) / "rig_params.yaml"
-    for f in ([own] if own.is_file() else []) + list(params_files):
+    own = None if bag is None else Path(bag) / "rig_params.yaml"
+    for f in ([own] if own is not None and own.is_file() else []) + list(params_files):
         tree.update(read_params_file(f))
     tree.update(params or {})
     values.update({k: v for k, v in tree.items() if k in values})
@@ -554,4 +556,61 @@ def rig_frame_ends(
             done += 1
         if done:
             out[(n, f.stamp_ns)] = out.get((n, f.stamp_ns), 0) + done
+    return out
+
+
+#: the outputs :func:`write_rig_outputs` writes, as the rig node publishes them
+RIG_OUT_TYPES = {
+    "pose": "geometry_msgs/msg/PoseStamped",
+    "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "twist_single_frame": "geometry_msgs/msg/TwistStamped",
+}
+
+
+def write_rig_outputs(
+    res: RigReplay,
+    out: str | os.PathLike,
+    map_frame: str = "map",
+    base_frame: str = "base_link",
+    storage: str = "mcap",
+    overwrite: bool = False,
+) -> Path:
+    """Write every posed rig frame of ``res`` into the bag ``out`` as the rig node publishes
+    it: ``/rs_localizer/pose``, ``pose_with_covariance`` (the rig frame's pose in
+    ``map_frame``) and ``twist_single_frame`` (its own twist in ``base_frame``), stamped and
+    logged at the rig frame's time. Returns the bag's path.
+
+    Raises:
+        FileExistsError: ``out`` exists and not ``overwrite``.
+    """
+    from rosbags.rosbag2 import Writer
+
+    from .replay import to_cdr
+
+    out = Path(out)
+    if out.exists():
+        if not overwrite:
+            raise FileExistsError(f"{out} exists (use --overwrite)")
+        shutil.rmtree(out)
+    ts = typestore()
+    writer = Writer(out, version=9, storage_plugin=storage_plugin(storage))
+    writer.open()
+    try:
+        conns = {
+            n: writer.add_connection(f"/rs_localizer/{n}", mt, typestore=ts)
+            for n, mt in RIG_OUT_TYPES.items()
+        }
+        for o in res.outputs:
+            if not o.success:
+                continue
+            m, t = o.measurement, o.stamp_ns
+            msgs = {
+                "pose": cv.pose_stamped(m.pose, t, map_frame),
+                "pose_with_covariance": cv.pose_with_covariance_stamped(m, t, map_frame),
+                "twist_single_frame": cv.twist_stamped(m.pose, t, base_frame),
+            }
+            for n, msg in msgs.items():
+                writer.write(conns[n], t, to_cdr(msg, RIG_OUT_TYPES[n], ts))
+    finally:
+        writer.close()
     return out

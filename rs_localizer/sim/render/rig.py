@@ -24,7 +24,7 @@ left and right, seeing the ``aruco_room`` walls; the image tests' rig, rendered 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,28 +135,35 @@ def rendered_rig(
     num_cameras: int = 3,
     fps: float = 30.0,
     names: tuple[str, ...] | None = None,
-    camera: str = "vga",
+    camera: str | Sequence[str] = "vga",
 ) -> list[RigCameraSim]:
     """``num_cameras`` (1-4) cameras laid out as :data:`rs_localizer.sim.rig.LAYOUTS` (2:
     front, back; 3: front, left, right; 4: front, right, back, left), each the ``camera``
-    preset (default 640x480, mild plumb_bob distortion) with its :data:`RIG_MOUNTS` readout
+    preset (default 640x480, mild plumb_bob distortion; a sequence: one preset per camera, in
+    layout order, e.g. ``("hd", "vga", "vga")``) with its :data:`RIG_MOUNTS` readout
     time (30, 25, 20, 28 ms: front, left, right, back) over its lines, the readout directions
     of :data:`rs_localizer.sim.rig.READOUTS` in layout order (top-down, left-right, bottom-up,
     right-left), and first frames 0-9 ms apart (unsynchronized).
 
     Raises:
-        ValueError: ``num_cameras`` outside 1-4, or an unknown name.
+        ValueError: ``num_cameras`` outside 1-4, an unknown name, or a sequence of presets of
+            another length than the cameras.
     """
     if names is None:
         if num_cameras not in LAYOUTS:
             raise ValueError(f"a rendered rig has 1 to 4 cameras, got {num_cameras}")
         names = tuple(n for n, _ in LAYOUTS[num_cameras])
+    presets = [camera] * len(names) if isinstance(camera, str) else list(camera)
+    if len(presets) != len(names):
+        raise ValueError(
+            f"{len(presets)} camera presets {presets} for the {len(names)} cameras {list(names)}"
+        )
     out = []
     for k, name in enumerate(names):
         if name not in RIG_MOUNTS:
             raise ValueError(f"unknown rig camera {name!r}; expected one of {sorted(RIG_MOUNTS)}")
         yaw, pos, readout_time, offset = RIG_MOUNTS[name]
-        cam = camera_preset(camera, readout_time=readout_time, readout=READOUTS[k % 4])
+        cam = camera_preset(presets[k], readout_time=readout_time, readout=READOUTS[k % 4])
         out.append(_camera_on_rig(name, cam, yaw, pos, offset, fps))
     return out
 
