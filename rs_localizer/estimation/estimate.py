@@ -31,12 +31,13 @@ from .finalize import (
     MOTION_SIGNIFICANCE_CHI2,
     ImageAlone,
     final_estimate,
-    global_shutter_final,
     image_alone,
     motion_chi2,
+    motion_score,
     prior_at_rest,
     refine_final_model,
     rolling_shutter_check,
+    still_final,
 )
 from .frame import configure_frame, prepare_frame
 from .gyro import (
@@ -305,10 +306,9 @@ def _estimate(
         if (
             gyro is None
             and solver_info(solver).rolling
-            and final.motion_chi2 < MOTION_SIGNIFICANCE_CHI2
             and (not final.prior_used or prior_at_rest(fr.final_prior))
         ):
-            still = global_shutter_final(fr, final, min_inliers)
+            still = still_final(fr, final, min_inliers)
             if still is not None:
                 final, model_solver = still, GS_SOLVER
         if point_sigma is not None:
@@ -376,7 +376,8 @@ def _still_frame(
     :data:`~.finalize.MOTION_SIGNIFICANCE_CHI2`). A readout too short to observe motion
     (nanoseconds to microseconds per line) turns the noise's apparent motion into absurd
     velocities in every minimal sample; such frames are posed as P3P poses them, with the
-    twist covariance of that refinement. ``None``: the frame stays refused (a frame whose
+    twist covariance of that refinement (:func:`~.finalize.motion_score`: the evidence with
+    the global-shutter fit's noise). ``None``: the frame stays refused (a frame whose
     points do show motion is not posed without it)."""
     est = _estimate(
         points2d,
@@ -392,7 +393,10 @@ def _still_frame(
     if not est.success:
         return None
     check = rolling_shutter_check(fr, est.model)
-    if check is None or motion_chi2(check.covariance, check.w, check.t) >= MOTION_SIGNIFICANCE_CHI2:
+    if check is None:
+        return None
+    evidence = motion_chi2(check.covariance, check.w, check.t)
+    if motion_score(evidence, check.sigma, est.rmse_px / fr.f) >= MOTION_SIGNIFICANCE_CHI2:
         return None
     R, C = est.model.R, est.model.C
     twist = output_covariance(check.covariance, R, C, np.zeros(3), fr.spr)[2]

@@ -34,6 +34,7 @@ from .scoring import exact_errors2
 from .sensitivity import acceleration_sensitivity
 
 __all__ = [
+    "CLEAR_MOTION",
     "FAR_SIDE_LIMIT",
     "FINAL_CUTOFF",
     "FINAL_TOL",
@@ -51,13 +52,14 @@ __all__ = [
     "ImageAlone",
     "final_estimate",
     "final_refinement",
-    "global_shutter_final",
     "image_alone",
     "motion_chi2",
+    "motion_score",
     "posterior_if_consistent",
     "prior_at_rest",
     "refine_final_model",
     "rolling_shutter_check",
+    "still_final",
 ]
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss with
@@ -123,7 +125,8 @@ class FinalModel:
         sensitivity: (12, 6) acceleration sensitivity, or None.
         prior_used: the refinement was maximum a posteriori.
         motion_chi2: :func:`motion_chi2` of the maximum-likelihood velocities (the frame's own
-            evidence of motion; ``inf``: not computed).
+            evidence of motion; ``inf``: not computed); motion_sigma: that fit's noise sigma
+            (normalized units).
     """
 
     model: RSModel
@@ -134,6 +137,7 @@ class FinalModel:
     sensitivity: np.ndarray | None = None
     prior_used: bool = False
     motion_chi2: float = float("inf")
+    motion_sigma: float = float("nan")
 
 
 def final_refinement(
@@ -164,9 +168,11 @@ def final_refinement(
     ``J^T W D`` block for :func:`~.sensitivity.acceleration_sensitivity`.
 
     Returns:
-        (the refinement's result, whether the prior was used, :func:`motion_chi2` of the
-        maximum-likelihood velocities: the frame's own evidence of motion, ``inf`` when the
-        refinement was MAP from the start or is global-shutter).
+        (the refinement's result, whether the prior was used, (:func:`motion_chi2` of the
+        maximum-likelihood velocities, that fit's noise sigma in normalized units): the
+        frame's own evidence of motion, from one more maximum-likelihood refinement where the
+        refinement was MAP from the start (planar frames); ``(inf, nan)`` for a
+        global-shutter refinement).
     """
     th = float(th)
     ref = refine_rs_pose(
@@ -184,7 +190,26 @@ def final_refinement(
         ),
         prior=fr.prior,
     )
-    evidence = motion_chi2(ref.covariance, ref.w, ref.t) if rolling and fr.prior is None else np.inf
+    evidence = (np.inf, np.nan)
+    if rolling and fr.prior is None:
+        evidence = (motion_chi2(ref.covariance, ref.w, ref.t), ref.sigma)
+    elif rolling and finite_model(ref.R, ref.C, ref.w, ref.t):
+        # (MAP from the start, planar frames: the data's own evidence from the maximum-likelihood
+        # fit near the MAP model)
+        ml = refine_rs_pose(
+            (ref.R, ref.C, ref.w, ref.t),
+            fr.X,
+            fr.x,
+            fr.r - fr.r0,
+            th,
+            RefineSettings(
+                rolling_shutter=True,
+                seconds_per_unit_r=fr.spr,
+                cutoff=FINAL_CUTOFF * th,
+                tol=FINAL_TOL,
+            ),
+        )
+        evidence = (motion_chi2(ml.covariance, ml.w, ml.t), ml.sigma)
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None, evidence
     return (*posterior_if_consistent(ref, prior, fr.spr), evidence)
@@ -217,6 +242,11 @@ def posterior_if_consistent(
 #: velocities ``(w, t)`` lie within this squared Mahalanobis distance of zero under their own
 #: covariance shows no motion that its noise could not produce (:func:`motion_chi2`)
 MOTION_SIGNIFICANCE_CHI2 = 22.458
+
+#: evidence of motion at this multiple of :data:`MOTION_SIGNIFICANCE_CHI2` by its linearized
+#: score (:func:`still_final`) is clear: the frame keeps the rolling-shutter model without a
+#: global-shutter refinement to compare with
+CLEAR_MOTION = 4.0
 
 #: ``RSPoseEstimate.motion_model`` of an estimate on the rolling-shutter model (eq. 4)
 ROLLING_SHUTTER = "rolling_shutter"
@@ -280,15 +310,39 @@ def rolling_shutter_check(fr: Frame, model: Model) -> RefineResult | None:
     return ref
 
 
-def global_shutter_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | None:
+def motion_score(chi2: float, sigma_motion: float, sigma_still: float) -> float:
+    """The frame's evidence of motion with the noise of the model without motion: the
+    velocities' :func:`motion_chi2` (computed with the rolling-shutter fit's noise
+    ``sigma_motion``) scaled by ``(sigma_motion / sigma_still)^2``, ``sigma_still`` the
+    global-shutter fit's noise on the same points (a score test: the noise estimated under
+    the hypothesis of no motion). A rolling-shutter model fitting a detector's systematic
+    corner errors with its six velocities (real corners on a small board: a few tenths of a
+    pixel it would otherwise leave) shrinks its own noise estimate and with it every
+    covariance; the global-shutter fit's noise does not. Never above ``chi2``."""
+    if not (np.isfinite(sigma_motion) and np.isfinite(sigma_still)) or sigma_still <= 0:
+        return float(chi2)
+    return float(chi2) * (float(sigma_motion) / max(float(sigma_still), float(sigma_motion))) ** 2
+
+
+def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | None:
     """The global-shutter model (``w = t = 0``) refined from a rolling-shutter ``final`` whose
-    velocities are not significant (:func:`motion_chi2` below
+    velocities are not significant (:func:`motion_score` below
     :data:`MOTION_SIGNIFICANCE_CHI2`): the frame shows no motion, and the six velocity
     parameters would only fit its noise into the pose. The inliers are re-selected on the
     refined model; the covariance stays the rolling-shutter fit's (its pose block is the pose's
     uncertainty with the velocities unknown, its twist block what the frame says of them: zero
-    within that). ``None`` when the refinement gives no finite model or fewer than
-    ``min_inliers`` inliers (the rolling-shutter model then stays)."""
+    within that). ``None``: the frame shows motion, or the evidence is unknown
+    (``final.motion_chi2`` not finite), or the global-shutter refinement gives no finite model
+    or fewer than ``min_inliers`` inliers (the rolling-shutter model then stays)."""
+    if not np.isfinite(final.motion_chi2):
+        return None
+    # (linearized, the global-shutter fit's noise follows from the evidence itself: SSR grows
+    # by chi2 sigma^2 on 6 fewer parameters; evidence far above the bound by that estimate
+    # needs no global-shutter refinement)
+    m = 2 * int(np.count_nonzero(final.inliers))
+    linearized = final.motion_chi2 * (m - 6) / max(m - 12 + final.motion_chi2, 1.0)
+    if linearized >= CLEAR_MOTION * MOTION_SIGNIFICANCE_CHI2:
+        return None
     th = float(fr.threshold)
     R, C = (np.array(a, dtype=float) for a in final.model[:2])
     zero = np.zeros(3)
@@ -306,6 +360,8 @@ def global_shutter_final(fr: Frame, final: FinalModel, min_inliers: int) -> Fina
         ),
     )
     if not finite_model(ref.R, ref.C, zero, zero):
+        return None
+    if motion_score(final.motion_chi2, final.motion_sigma, ref.sigma) >= MOTION_SIGNIFICANCE_CHI2:
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
     errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0)
@@ -408,7 +464,12 @@ def refine_final_model(
         fr, (R, C, w, t), th, rolling, fr.final_prior, want_sens
     )
     final = FinalModel(
-        RSModel(R, C, w, t), inliers, np.nan, prior_used=prior_used, motion_chi2=evidence
+        RSModel(R, C, w, t),
+        inliers,
+        np.nan,
+        prior_used=prior_used,
+        motion_chi2=evidence[0],
+        motion_sigma=evidence[1],
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
