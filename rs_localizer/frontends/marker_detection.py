@@ -24,10 +24,12 @@ reports its corners in another order (bottom-left, bottom-right, top-right, top-
 seen with its y axis up, i.e. :data:`APRILTAG_TO_ARUCO_ORDER` away from ArUco's) and with
 integer coordinates at pixel corners, half a pixel off in x and y; both are converted here
 (measured on the renderer's exact corners: ``test/frontends/test_marker_detection.py``). The
-corners of the families whose black square is framed by the tag's white border (36h11, 36h10,
-25h9, 16h5) are then refined from their edges' grey-level profiles (:func:`refine_tag_edges`;
-on 640x480 frames of a textured room the median corner error drops from 0.12 to 0.03 px, for
-about 0.4 ms of CPU per frame of 30 tags).
+detector returns the library's corners. With ``edge_refinement`` the corners of the families
+whose black square is framed by the tag's white border (36h11, 36h10, 25h9, 16h5) are refined
+from their edges' grey-level profiles (:func:`refine_tag_edges`): on renders (640x480 frames of
+a textured room) the median corner error drops from 0.12 to 0.03 px, but on real photos with a
+calibrated camera the refined corners fit their squares and the board worse than the library's
+(``python -m benchmarks.bench_real_markers``), so it is off by default.
 
 Detections are refused when weak (AprilTag: more corrected bits than ``max_hamming`` or a
 decision margin below ``min_decision_margin``) and an id found more than once in one image is
@@ -148,6 +150,11 @@ class DetectorOptions:
             two). OpenCV only.
         error_correction_rate: OpenCV's ``errorCorrectionRate``: the share of a dictionary's
             correctable bits a kept marker may have wrong. OpenCV only.
+        edge_refinement: refine the library's corners of 36h11, 36h10, 25h9 and 16h5 tags
+            from their edges' grey-level profiles (:func:`refine_tag_edges`). Off by default:
+            it brings rendered corners closer to the truth (0.12 -> 0.03 px median) but on
+            real photos with a calibrated camera the library's corners fit their squares
+            and the board better (``python -m benchmarks.bench_real_markers``). AprilTag only.
     """
 
     detector: str = "auto"
@@ -161,6 +168,7 @@ class DetectorOptions:
     adaptive_thresh_constant: float = 20.0
     adaptive_thresh_win_size_step: int = 20
     error_correction_rate: float = 0.6
+    edge_refinement: bool = False
 
     def __post_init__(self):
         if self.detector not in DETECTOR_BACKENDS:
@@ -551,7 +559,8 @@ class AprilTagDetector:
         binding: ``(name, module)`` of :func:`apriltag_binding` (default: the installed one).
         edge_refinement: refine the corners of the families with a white-framed black square
             (:data:`EDGE_REFINE_CELLS`: 36h11, 36h10, 25h9, 16h5) from their edges'
-            profiles (:func:`refine_tag_edges`); False: the library's corners.
+            profiles (:func:`refine_tag_edges`); False: the library's corners; None (default):
+            ``options.edge_refinement``.
 
     ``detect(gray) -> (corners (M, 4, 2) float64 px, ids (M,) int64, weak count)``: ArUco
     corner order, OpenCV pixel convention, weak detections and repeated ids dropped.
@@ -572,7 +581,7 @@ class AprilTagDetector:
         family: str,
         options: DetectorOptions | None = None,
         binding: Any = None,
-        edge_refinement: bool = True,
+        edge_refinement: bool | None = None,
     ):
         if family not in APRILTAG_FAMILIES:
             raise ValueError(
@@ -583,10 +592,12 @@ class AprilTagDetector:
         if binding is None:
             raise ImportError(f"no AprilTag library binding installed ({APRILTAG_INSTALL})")
         self.family = family
+        self.options = options if options is not None else DetectorOptions()
+        if edge_refinement is None:
+            edge_refinement = bool(self.options.edge_refinement)
         #: cells across the black square when its corners are refined by
         #: :func:`refine_tag_edges` (None: the library's corners as they are)
         self.edge_cells = EDGE_REFINE_CELLS.get(family) if edge_refinement else None
-        self.options = options if options is not None else DetectorOptions()
         self.binding, self._mod = binding
         if self.binding == "pupil_apriltags" and family not in PUPIL_FAMILIES:
             raise ValueError(
@@ -660,7 +671,8 @@ class AprilTagDetector:
         return (
             f"quad_decimate {dec}, nthreads {int(o.nthreads)}, quad_sigma {o.quad_sigma:g}, "
             f"refine_edges {bool(o.refine_edges)}, decode_sharpening {sharp}, max_hamming "
-            f"{int(o.max_hamming)}, min_decision_margin {self.min_decision_margin:g}"
+            f"{int(o.max_hamming)}, min_decision_margin {self.min_decision_margin:g}, "
+            f"edge_refinement {self.edge_cells is not None}"
         )
 
     def raw(

@@ -530,18 +530,18 @@ def test_tag_edges_of_all_tags_at_once_as_each_alone():
 @needs_apriltag
 def test_apriltag_corners_refined_on_a_textured_room():
     """On 640x480 rolling-shutter frames of the textured ``apriltag_room`` the edge-profile
-    refinement brings the library's corners much closer to the renderer's exact corners, for
-    the same tags; without it the detector gives the library's corners (order and pixel
-    convention converted)."""
+    refinement (``edge_refinement``) brings the library's corners much closer to the
+    renderer's exact corners, for the same tags; by default the detector gives the library's
+    corners (order and pixel convention converted)."""
     scene = load_scene("apriltag_room")
     camera = camera_preset("vga")
     motion = make_motion("shake", scene, duration=1.0)
     r = Renderer(scene, camera, noise=NoiseModel())
     mc = scene.marker_corners()
-    refined = make_marker_detector(scene.dictionary)
+    refined = make_marker_detector(scene.dictionary, DetectorOptions(edge_refinement=True))
     assert refined.edge_cells == 8
-    library = md.AprilTagDetector("tag36h11", refined.options, edge_refinement=False)
-    assert library.edge_cells is None
+    library = make_marker_detector(scene.dictionary)
+    assert library.edge_cells is None and library.options == DetectorOptions()
     err = {"refined": [], "library": []}
     for k in range(3):
         gray = to_gray(r.render(motion, k / 30, rng=k).image)
