@@ -41,6 +41,7 @@ median of ``--repeats`` rounds) as a ratio to the default decimation's.
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 import cv2
@@ -64,6 +65,7 @@ __all__ = [
     "corner_methods",
     "main",
     "read_expected",
+    "small_tags",
     "square_fit_rms",
 ]
 
@@ -309,11 +311,95 @@ def print_charuco(r: dict) -> None:
         )
 
 
+def _found(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
+    """``det``'s kept tags of ``gray`` (repeated ids kept), its small-tag look included,
+    in the library's convention."""
+    c, _, ham, mar = det.raw(gray)
+    if det.options.small_tags:
+        more = det.small_tag_look(gray, c)
+        c, ham, mar = (
+            np.concatenate([a, b])
+            for a, b in zip((c, ham, mar), (more[0], more[2], more[3]), strict=True)
+        )
+    return c[(ham <= det.options.max_hamming) & (mar >= det.min_decision_margin)]
+
+
+#: the detectors of the small-tag table: name -> options
+SMALL_ROWS = {
+    "full resolution (quad_decimate 1)": DetectorOptions(quad_decimate=1),
+    "default (by image size)": DetectorOptions(),
+    "default + small_tags": DetectorOptions(small_tags=True),
+}
+
+
+def small_tags(data: Path, repeats: int, render_frames: int = 0) -> dict:
+    """Tags found and detection time (``detect``, thread CPU, one thread) of the
+    :data:`SMALL_ROWS` detectors, interleaved image by image over ``repeats`` rounds:
+    ``{"photos": {name: (found, expected, cpu (R,) s per round)}, "renders": ...}``; renders:
+    ``render_frames`` 640x480 frames of ``bench_markers``' room (fully visible tags found)."""
+    dets = {n: AprilTagDetector("tag36h11", o) for n, o in SMALL_ROWS.items()}
+    photos = []
+    for img in sorted((data / "apriltag_photos").glob("*.jpg")):
+        gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE)
+        photos.append((gray, read_expected(img.with_suffix(".txt")) + APRILTAG_PIXEL_OFFSET))
+    out = {"photos": {}, "images": {"photos": len(photos), "renders": render_frames}}
+    for n, det in dets.items():
+        found = sum(int((_match(_found(det, g), e) >= 0).sum()) for g, e in photos)
+        out["photos"][n] = [found, sum(len(e) for _, e in photos), []]
+    frames = []
+    if render_frames:
+        from .bench_markers import video_truth
+
+        frames = [(g, vis) for g, _, vis in video_truth("vga", render_frames)]
+        out["renders"] = {}
+        for n, det in dets.items():
+            found = sum(len(set(det.detect(g)[1].tolist()) & vis) for g, vis in frames)
+            out["renders"][n] = [found, sum(len(v) for _, v in frames), []]
+    for _ in range(repeats):
+        for key, images in (
+            ("photos", [g for g, _ in photos]),
+            ("renders", [g for g, _ in frames]),
+        ):
+            if key not in out:
+                continue
+            cpu = dict.fromkeys(dets, 0.0)
+            for g in images:
+                for n, det in dets.items():
+                    t0 = time.thread_time()
+                    det.detect(g)
+                    cpu[n] += time.thread_time() - t0
+            for n in dets:
+                out[key][n][2].append(cpu[n])
+    return out
+
+
+def print_small(r: dict) -> None:
+    ref = "default (by image size)"
+    for key, what in (
+        (
+            "photos",
+            "apriltag_photos (799x533, 36h11 tags of 13-45 px; found: of the regression test's)",
+        ),
+        ("renders", "640x480 renders of apriltag_room (found: fully visible tags)"),
+    ):
+        if key not in r:
+            continue
+        print(f"\nsmall tags, {what}; CPU: median of the rounds, ratio to the default")
+        print(f"{'detector':<36} {'found':>9} {'CPU ms / image':>15} {'ratio':>6}")
+        base = np.median(r[key][ref][2])
+        for name, (found, total, cpu) in r[key].items():
+            per = np.median(cpu) * 1e3 / r["images"][key]
+            print(f"{name:<36} {found:>4}/{total:<4} {per:>15.1f} {np.median(cpu) / base:>6.2f}")
+
+
 def main(argv: list | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=DATA, help="the real_markers folder")
     ap.add_argument("--small", action="store_true", help="also the small tags' recall and time")
     ap.add_argument("--repeats", type=int, default=7, help="timing rounds (--small)")
+    ap.add_argument(
+        "--render-frames", type=int, default=10, help="640x480 rendered frames (--small; 0: none)"
+    )
     a = ap.parse_args(argv)
     cv2.setNumThreads(1)
     if not a.data.is_dir():
@@ -324,6 +410,8 @@ def main(argv: list | None = None) -> int:
         return 1
     print_apriltag(apriltag_photos(a.data))
     print_charuco(charuco_photos(a.data))
+    if a.small:
+        print_small(small_tags(a.data, a.repeats, a.render_frames))
     return 0
 
 

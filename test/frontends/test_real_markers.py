@@ -147,3 +147,34 @@ def test_default_corner_method_on_a_real_calibrated_board():
             assert angle < 0.5 and apart < 0.005, (name, k, angle, apart)
     assert np.median(fit["default"]) <= np.median(fit["library"]) + 1e-6
     assert np.mean(rms["default"]) <= np.mean(rms["library"]) + 1e-6, rms
+
+
+@needs_real
+@needs_apriltag
+def test_small_tags_on_real_tag_photos():
+    """On the three regression photos (36h11 tags of 13-45 px, 799x533: decimated by 2 by
+    default) the small-tag look finds tags the decimated pass misses, each of them a tag of
+    the library's regression test (no false tag), with corners within half a pixel (median)
+    of its corners."""
+    det = md.AprilTagDetector("tag36h11", DetectorOptions(small_tags=True))
+    found = {"default": 0, "small_tags": 0}
+    errs = []
+    for img in sorted((REAL / "apriltag_photos").glob("*.jpg")):
+        gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE)
+        # (the library's order and convention: the order's permutation is its own inverse)
+        exp = (_expected(img.with_suffix(".txt")) + md.APRILTAG_PIXEL_OFFSET)[
+            :, md.APRILTAG_TO_ARUCO_ORDER
+        ]
+        c, _, ham, mar = det.raw(gray)
+        weak = (ham > 0) | (mar < det.min_decision_margin)
+        more, _, ham2, mar2 = det.small_tag_look(gray, c)
+        more = more[(ham2 == 0) & (mar2 >= det.min_decision_margin)]
+        for name, tags in (("default", c[~weak]), ("small_tags", np.concatenate([c[~weak], more]))):
+            d = np.linalg.norm(tags.mean(axis=1)[:, None] - exp.mean(axis=1)[None], axis=2)
+            assert (d.min(axis=1) < 3).all(), name  # every tag found is a true one
+            found[name] += int((d.min(axis=0) < 3).sum())
+        if len(more):
+            d = np.linalg.norm(more.mean(axis=1)[:, None] - exp.mean(axis=1)[None], axis=2)
+            errs.extend(np.linalg.norm(more - exp[d.argmin(axis=1)], axis=2).ravel())
+    assert found["small_tags"] >= found["default"] + 6, found
+    assert np.median(errs) < 0.5, np.median(errs)
