@@ -158,10 +158,10 @@ def _library_corners(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
 
 
 def apriltag_photos(data: Path) -> dict:
-    """The corner methods on ``apriltag_photos``: {method: {"fit" (N,) px square fit, "agree"
-    (N,) px corner distance to the regression test's corners, "lib" (N,) px to the library's
-    corners, "tags" int}} plus
-    ``"expected"`` (tags in the regression test) and ``"library"`` (tags found)."""
+    """The corner methods on ``apriltag_photos`` at full resolution, on the tags the library
+    finds there that its regression test has: ``{"methods": {method: {"fit" (N,) px square
+    fit, "agree" (4 N,) px corner distance to the regression test's corners, "lib" (4 N,) px
+    to the library's corners, "tags" int}}, "expected": tags in the regression test}``."""
     folder = data / "apriltag_photos"
     full = AprilTagDetector("tag36h11", DetectorOptions(quad_decimate=1), edge_refinement=False)
     default = AprilTagDetector("tag36h11", DetectorOptions(quad_decimate=1))
@@ -201,8 +201,8 @@ def default_corners(det: AprilTagDetector, gray: np.ndarray, like: np.ndarray) -
 
 
 def _default_detect(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
-    """``det``'s corners of ``gray`` with repeated ids kept (these photos' tags are all id 0):
-    its detection of each tag's own window."""
+    """``det``'s corners of ``gray`` with repeated ids kept (these photos' tags are all id 0:
+    ``detect`` would drop them): the library's, refined when ``det`` refines them."""
     lib = _library_corners(det, gray)
     if det.edge_cells is None or len(lib) == 0:
         return lib

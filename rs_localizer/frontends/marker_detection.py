@@ -512,9 +512,9 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
 
 
 #: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px),
-#: the share of their box the dark blob fills, how much darker (grey levels) than the ring
-#: around them they are (a kept tag's black and white differ by about twice its decision
-#: margin, at least 25 with pupil_apriltags), and the windows' padding (px)
+#: the share of their box the dark blob fills, how much darker (grey levels) the blob's pixels
+#: are than a ring around its box (a kept tag's black and white differ by about twice its
+#: decision margin, at least 25 with pupil_apriltags), and the windows' padding (px)
 SMALL_TAG_SIDE = (10, 52)
 SMALL_TAG_FILL = (0.3, 0.9)
 SMALL_TAG_MIN_CONTRAST = 50.0
@@ -643,6 +643,8 @@ class AprilTagDetector:
         # made now, not on the first frame: building a family's decoding tables costs about
         # twice a 640x480 detection (36h11: ~23 ms), the slowest frame of a video otherwise
         q = float(self.options.quad_decimate)
+        if self.options.small_tags:
+            self._detector(1.0)  # (the small-tag look's)
         self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
@@ -741,11 +743,11 @@ class AprilTagDetector:
         The decimated pass needs a few decimated pixels per cell; smaller or strongly
         foreshortened tags are lost before decoding. Candidates: the dark blobs of the
         decimated image (adaptive threshold, connected components) whose size suits a tag
-        (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, are
-        :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker than a ring around them (a tag's
-        white border) and lie on no tag of ``found``. Their windows (padded by half their size
-        and :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected again at
-        ``quad_decimate`` 1.
+        (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, whose pixels
+        are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring around the box
+        (a tag's white border) and that lie on no tag of ``found``. Their windows (padded by
+        half their size and :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected
+        again at ``quad_decimate`` 1.
 
         Args:
             gray: (H, W) uint8 frame.
