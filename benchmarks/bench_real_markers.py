@@ -327,6 +327,7 @@ def _found(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
 #: the detectors of the small-tag table: name -> options
 SMALL_ROWS = {
     "full resolution (quad_decimate 1)": DetectorOptions(quad_decimate=1),
+    "quad_decimate 1.5": DetectorOptions(quad_decimate=1.5),
     "default (by image size)": DetectorOptions(),
     "default + small_tags": DetectorOptions(small_tags=True),
 }
