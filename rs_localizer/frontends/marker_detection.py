@@ -514,11 +514,12 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
 #: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px),
 #: the share of their box the dark blob fills, how much darker (grey levels) the blob's pixels
 #: are than a ring around its box (a kept tag's black and white differ by about twice its
-#: decision margin, at least 25 with pupil_apriltags), and the windows' padding (px)
+#: decision margin, at least 25 with pupil_apriltags), and the windows' padding beyond the
+#: blob's white border (px: one of the library's 4 px threshold tiles)
 SMALL_TAG_SIDE = (10, 52)
 SMALL_TAG_FILL = (0.3, 0.9)
 SMALL_TAG_MIN_CONTRAST = 50.0
-SMALL_TAG_PAD = 6
+SMALL_TAG_PAD = 4
 
 
 def _merge_boxes(boxes: np.ndarray) -> list:
@@ -746,8 +747,8 @@ class AprilTagDetector:
         (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, whose pixels
         are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring around the box
         (a tag's white border) and that lie on no tag of ``found``. Their windows (padded by
-        half their size and :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected
-        again at ``quad_decimate`` 1.
+        an eighth of their size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping
+        ones merged) are detected again at ``quad_decimate`` 1.
 
         Args:
             gray: (H, W) uint8 frame.
@@ -802,7 +803,7 @@ class AprilTagDetector:
             x, y, bw, bh = x[keep], y[keep], bw[keep], bh[keep]
         if not len(x):
             return empty
-        pad = np.maximum(bw, bh) // 2 + SMALL_TAG_PAD
+        pad = np.maximum(bw, bh) // 8 + SMALL_TAG_PAD
         boxes = np.c_[
             np.maximum(x - pad, 0),
             np.maximum(y - pad, 0),
