@@ -13,8 +13,9 @@ runs on every frame, one thread each:
   10, three passes; OpenCV's own one-window corner refinement; the smallest marker perimeter
   0.02 of the image's side);
 * ``apriltag dN``: the AprilTag 3 library at ``quad_decimate`` N (``--decimate``; 0: ``apriltag
-  auto``, the default, by image size), its corners refined from the tags' edge profiles (the
-  detector's default); ``apriltag dN lib``: the library's own corners;
+  auto``, the default, by image size), the library's own corners (the detector's default);
+  ``apriltag dN edge``: those corners refined from the tags' edge profiles
+  (``DetectorOptions.edge_refinement``);
 * ``exact corners``: the estimator fed the renderer's exact corners of the tags ``apriltag
   auto`` found (what the estimator's constant-velocity model leaves on this motion, which
   corner noise adds to or, by chance, offsets), and ``exact + 0.07 px`` those corners with
@@ -124,8 +125,8 @@ def detectors(scene, decimations, library_corners: bool = True) -> dict:
     """name -> detector: OpenCV with the front end's settings (``opencv``) and as the front
     end had it before (``opencv default``: OpenCV's default thresholding and its own corner
     refinement, :data:`BEFORE`), the AprilTag library per decimation (an AprilTag family, when
-    a binding is installed; with ``library_corners`` also ``... lib``: the library's corners
-    without the edge-profile refinement,
+    a binding is installed; with ``library_corners`` also ``... edge``: the library's corners
+    refined from the tags' edge profiles,
     :func:`~rs_localizer.frontends.marker_detection.refine_tag_edges`)."""
     fe = ArucoFrontend.from_scene(scene, detector_options=DetectorOptions(detector="opencv"))
     default = cv_compat.detector_parameters(**BEFORE)
@@ -140,7 +141,7 @@ def detectors(scene, decimations, library_corners: bool = True) -> dict:
             o = DetectorOptions(detector="apriltag", quad_decimate=d)
             out[name] = make_marker_detector(scene.dictionary, o)
             if library_corners and family in EDGE_REFINE_CELLS:
-                out[f"{name} lib"] = AprilTagDetector(family, o, edge_refinement=False)
+                out[f"{name} edge"] = AprilTagDetector(family, o, edge_refinement=True)
     return out
 
 
@@ -383,8 +384,8 @@ def corner_study(preset: str, frames: int, seed: int = 0) -> dict:
     on the room's video (fully visible tags): ``refine_edges`` off, ``quad_sigma`` 0.4 and 0.8,
     and OpenCV's ``cornerSubPix`` (windows 2-5 px) on the library's corners, at
     ``quad_decimate`` 1 and 1.5, each without the edge-profile refinement (the library's
-    corners), and the default detector (``edge profiles``: the library's corners refined by
-    :func:`~rs_localizer.frontends.marker_detection.refine_tag_edges`). Returns {name: (found,
+    corners, the detector's default), and ``edge profiles``: the library's corners refined by
+    :func:`~rs_localizer.frontends.marker_detection.refine_tag_edges`. Returns {name: (found,
     visible, errors (N,) px, signed errors (N, 2) px)}."""
     variants = {}
     for d in (1.0, 1.5):

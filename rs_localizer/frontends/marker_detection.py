@@ -24,10 +24,12 @@ reports its corners in another order (bottom-left, bottom-right, top-right, top-
 seen with its y axis up, i.e. :data:`APRILTAG_TO_ARUCO_ORDER` away from ArUco's) and with
 integer coordinates at pixel corners, half a pixel off in x and y; both are converted here
 (measured on the renderer's exact corners: ``test/frontends/test_marker_detection.py``). The
-corners of the families whose black square is framed by the tag's white border (36h11, 36h10,
-25h9, 16h5) are then refined from their edges' grey-level profiles (:func:`refine_tag_edges`;
-on 640x480 frames of a textured room the median corner error drops from 0.12 to 0.03 px, for
-about 0.4 ms of CPU per frame of 30 tags).
+detector returns the library's corners. With ``edge_refinement`` the corners of the families
+whose black square is framed by the tag's white border (36h11, 36h10, 25h9, 16h5) are refined
+from their edges' grey-level profiles (:func:`refine_tag_edges`): on renders (640x480 frames of
+a textured room) the median corner error drops from 0.12 to 0.03 px, but on real photos with a
+calibrated camera the refined corners fit their squares and the board worse than the library's
+(``python -m benchmarks.bench_real_markers``), so it is off by default.
 
 Detections are refused when weak (AprilTag: more corrected bits than ``max_hamming`` or a
 decision margin below ``min_decision_margin``) and an id found more than once in one image is
@@ -148,6 +150,16 @@ class DetectorOptions:
             two). OpenCV only.
         error_correction_rate: OpenCV's ``errorCorrectionRate``: the share of a dictionary's
             correctable bits a kept marker may have wrong. OpenCV only.
+        edge_refinement: refine the library's corners of 36h11, 36h10, 25h9 and 16h5 tags
+            from their edges' grey-level profiles (:func:`refine_tag_edges`). Off by default:
+            it brings rendered corners closer to the truth (0.12 -> 0.03 px median) but on
+            real photos with a calibrated camera the library's corners fit their squares
+            and the board better (``python -m benchmarks.bench_real_markers``). AprilTag only.
+        small_tags: with ``quad_decimate`` above 1, a full-resolution look for the tags the
+            decimated pass is too coarse for (:meth:`AprilTagDetector.small_tag_look`): on the
+            real photos of ``benchmarks.bench_real_markers --small`` it finds most of the tags a
+            full-resolution pass finds, for less time, but more than the decimated pass alone
+            takes; off by default. AprilTag only.
     """
 
     detector: str = "auto"
@@ -161,6 +173,8 @@ class DetectorOptions:
     adaptive_thresh_constant: float = 20.0
     adaptive_thresh_win_size_step: int = 20
     error_correction_rate: float = 0.6
+    edge_refinement: bool = False
+    small_tags: bool = False
 
     def __post_init__(self):
         if self.detector not in DETECTOR_BACKENDS:
@@ -497,6 +511,37 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
     return detector_parameters(**values)
 
 
+#: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px),
+#: the share of their box the dark blob fills, how much darker (grey levels) the blob's pixels
+#: are than a ring around its box (a kept tag's black and white differ by about twice its
+#: decision margin, at least 25 with pupil_apriltags), and the windows' padding beyond the
+#: blob's white border (px: one of the library's 4 px threshold tiles)
+SMALL_TAG_SIDE = (10, 52)
+SMALL_TAG_FILL = (0.3, 0.9)
+SMALL_TAG_MIN_CONTRAST = 50.0
+SMALL_TAG_PAD = 4
+
+
+def _merge_boxes(boxes: np.ndarray) -> list:
+    """Boxes ``(x0, y0, x1, y1)`` (N, 4) with the overlapping ones merged into their union
+    (repeated until none overlap): a list of int tuples."""
+    out = [tuple(int(v) for v in b) for b in boxes]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(out)):
+            for j in range(i + 1, len(out)):
+                a, b = out[i], out[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    out[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]), max(a[3], b[3]))
+                    del out[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    return out
+
+
 #: largest image (pixels) that ``quad_decimate`` 0 decimates by 1.5 (above: by 2)
 AUTO_DECIMATE_MAX_PIXELS = 640 * 480
 
@@ -551,7 +596,8 @@ class AprilTagDetector:
         binding: ``(name, module)`` of :func:`apriltag_binding` (default: the installed one).
         edge_refinement: refine the corners of the families with a white-framed black square
             (:data:`EDGE_REFINE_CELLS`: 36h11, 36h10, 25h9, 16h5) from their edges'
-            profiles (:func:`refine_tag_edges`); False: the library's corners.
+            profiles (:func:`refine_tag_edges`); False: the library's corners; None (default):
+            ``options.edge_refinement``.
 
     ``detect(gray) -> (corners (M, 4, 2) float64 px, ids (M,) int64, weak count)``: ArUco
     corner order, OpenCV pixel convention, weak detections and repeated ids dropped.
@@ -572,7 +618,7 @@ class AprilTagDetector:
         family: str,
         options: DetectorOptions | None = None,
         binding: Any = None,
-        edge_refinement: bool = True,
+        edge_refinement: bool | None = None,
     ):
         if family not in APRILTAG_FAMILIES:
             raise ValueError(
@@ -583,10 +629,12 @@ class AprilTagDetector:
         if binding is None:
             raise ImportError(f"no AprilTag library binding installed ({APRILTAG_INSTALL})")
         self.family = family
+        self.options = options if options is not None else DetectorOptions()
+        if edge_refinement is None:
+            edge_refinement = bool(self.options.edge_refinement)
         #: cells across the black square when its corners are refined by
         #: :func:`refine_tag_edges` (None: the library's corners as they are)
         self.edge_cells = EDGE_REFINE_CELLS.get(family) if edge_refinement else None
-        self.options = options if options is not None else DetectorOptions()
         self.binding, self._mod = binding
         if self.binding == "pupil_apriltags" and family not in PUPIL_FAMILIES:
             raise ValueError(
@@ -596,6 +644,8 @@ class AprilTagDetector:
         # made now, not on the first frame: building a family's decoding tables costs about
         # twice a 640x480 detection (36h11: ~23 ms), the slowest frame of a video otherwise
         q = float(self.options.quad_decimate)
+        if self.options.small_tags:
+            self._detector(1.0)  # (the small-tag look's)
         self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
@@ -660,18 +710,20 @@ class AprilTagDetector:
         return (
             f"quad_decimate {dec}, nthreads {int(o.nthreads)}, quad_sigma {o.quad_sigma:g}, "
             f"refine_edges {bool(o.refine_edges)}, decode_sharpening {sharp}, max_hamming "
-            f"{int(o.max_hamming)}, min_decision_margin {self.min_decision_margin:g}"
+            f"{int(o.max_hamming)}, min_decision_margin {self.min_decision_margin:g}, "
+            f"edge_refinement {self.edge_cells is not None}, small_tags {bool(o.small_tags)}"
         )
 
     def raw(
-        self, gray: np.ndarray, frame_shape: tuple | None = None
+        self, gray: np.ndarray, frame_shape: tuple | None = None, decimate: float | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The library's detections unfiltered: ``(corners (M, 4, 2) in the library's order and
         pixel convention, ids (M,), hamming (M,), decision margins (M,))``; ``frame_shape``:
         the shape of the frame ``gray`` is cut from (the decimation by image size), default
-        ``gray``'s."""
+        ``gray``'s; ``decimate``: this ``quad_decimate`` instead of the options'."""
         g = _check_gray(gray)
-        dets = self._detector(self.decimation(frame_shape or g.shape)).detect(g)
+        dec = self.decimation(frame_shape or g.shape) if decimate is None else float(decimate)
+        dets = self._detector(dec).detect(g)
         if not len(dets):
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         if self.binding == "pupil_apriltags":
@@ -683,6 +735,98 @@ class AprilTagDetector:
             ids, ham = np.array([(d["id"], d["hamming"]) for d in dets], dtype=np.int64).T
             mar = np.array([d["margin"] for d in dets], dtype=np.float64)
         return c.reshape(-1, 4, 2), ids.copy(), ham.copy(), mar
+
+    def small_tag_look(
+        self, gray: np.ndarray, found: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Tags the decimated pass missed, found at full resolution where they may be.
+
+        The decimated pass needs a few decimated pixels per cell; smaller or strongly
+        foreshortened tags are lost before decoding. Candidates: the dark blobs of the
+        decimated image (adaptive threshold, connected components) whose size suits a tag
+        (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, whose pixels
+        are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring around the box
+        (a tag's white border) and that lie on no tag of ``found``. Their windows (padded by
+        an eighth of their size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping
+        ones merged) are detected again at ``quad_decimate`` 1.
+
+        Args:
+            gray: (H, W) uint8 frame.
+            found: (M, 4, 2) the decimated pass's corners (the library's convention).
+        Returns:
+            the new detections as :meth:`raw` returns them (the library's order and pixel
+            convention, unfiltered), empty when the frame's decimation is 1.
+        """
+        import cv2
+
+        empty = (np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+        g = _check_gray(gray)
+        dec = int(np.ceil(self.decimation(g.shape)))
+        if dec <= 1:
+            return empty
+        h, w = g.shape
+        small = cv2.resize(g, (w // dec, h // dec), interpolation=cv2.INTER_LINEAR)
+        dark = cv2.adaptiveThreshold(
+            small, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, 11, 15
+        )
+        n, labels, st, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+        x, y, bw, bh, area = (v.astype(np.int64) for v in st[1:].T)
+        side = np.maximum(bw, bh)
+        lo, hi = SMALL_TAG_SIDE
+        k = (side * dec >= lo) & (side * dec <= hi) & (2 * np.minimum(bw, bh) >= side)
+        k &= (area >= SMALL_TAG_FILL[0] * bw * bh) & (area <= SMALL_TAG_FILL[1] * bw * bh)
+        x, y, bw, bh, area, blob = x[k], y[k], bw[k], bh[k], area[k], np.flatnonzero(k) + 1
+        if len(x):
+            integral = cv2.integral(small).astype(np.float64)
+            sh, sw = small.shape
+
+            def box_sum(x0, y0, x1, y1):
+                x0, x1 = np.clip(x0, 0, sw), np.clip(x1, 0, sw)
+                y0, y1 = np.clip(y0, 0, sh), np.clip(y1, 0, sh)
+                s = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+                return s, np.maximum((x1 - x0) * (y1 - y0), 1)
+
+            r = np.maximum(np.maximum(bw, bh) // 5, 1)
+            s_in, a_in = box_sum(x, y, x + bw, y + bh)
+            s_out, a_out = box_sum(x - r, y - r, x + bw + r, y + bh + r)
+            ring = (s_out - s_in) / np.maximum(a_out - a_in, 1)
+            # the blob's own mean (its dark pixels: a tag's black border and bits)
+            grey = np.bincount(labels.ravel(), weights=small.ravel(), minlength=n)[blob] / area
+            k = ring - grey >= SMALL_TAG_MIN_CONTRAST
+            x, y, bw, bh = x[k] * dec, y[k] * dec, bw[k] * dec, bh[k] * dec
+        if len(x) and len(found):
+            centre = np.c_[x + bw / 2, y + bh / 2]
+            fc = found.mean(axis=1)
+            fs = np.linalg.norm(found - np.roll(found, -1, axis=1), axis=2).max(axis=1)
+            near = np.linalg.norm(centre[:, None] - fc[None], axis=2) < fs[None]
+            keep = ~near.any(axis=1)
+            x, y, bw, bh = x[keep], y[keep], bw[keep], bh[keep]
+        if not len(x):
+            return empty
+        pad = np.maximum(bw, bh) // 8 + SMALL_TAG_PAD
+        boxes = np.c_[
+            np.maximum(x - pad, 0),
+            np.maximum(y - pad, 0),
+            np.minimum(x + bw + pad, w),
+            np.minimum(y + bh + pad, h),
+        ]
+        out = []
+        for x0, y0, x1, y1 in _merge_boxes(boxes):
+            c, ids, ham, mar = self.raw(np.ascontiguousarray(g[y0:y1, x0:x1]), decimate=1.0)
+            if len(ids):
+                out.append((c + np.array([x0, y0], float), ids, ham, mar))
+        if not out:
+            return empty
+        c, ids, ham, mar = (np.concatenate(v) for v in zip(*out, strict=True))
+        # a tag in two merged windows or beside a found one: kept once
+        keep = np.ones(len(c), bool)
+        seen = found.mean(axis=1)
+        for i, centre in enumerate(c.mean(axis=1)):
+            if (np.linalg.norm(seen - centre, axis=1) < 2.0).any():
+                keep[i] = False
+            else:
+                seen = np.vstack([seen, centre])
+        return c[keep], ids[keep], ham[keep], mar[keep]
 
     def detect(
         self, gray: np.ndarray, frame_shape: tuple | None = None
@@ -700,6 +844,11 @@ class AprilTagDetector:
         """:meth:`detect` of ``gray``, a window of ``frame`` (None: ``gray`` itself) at
         ``origin`` (x, y px): corners in ``frame``'s pixels, refined on ``frame``."""
         c, ids, ham, mar = self.raw(gray, frame_shape)
+        if frame is None and self.options.small_tags:
+            more = self.small_tag_look(gray, c)
+            c, ids, ham, mar = (
+                np.concatenate(v) for v in zip((c, ids, ham, mar), more, strict=True)
+            )
         ok = (ham <= int(self.options.max_hamming)) & (mar >= self.min_decision_margin)
         self.last_weak = len(ok) - int(np.count_nonzero(ok))
         if self.last_weak:

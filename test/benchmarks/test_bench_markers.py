@@ -24,7 +24,7 @@ def test_bench_markers_runs(capsys):
         for line in out.splitlines()
         if line.strip().startswith(("opencv", "apriltag")) and "|" in line
     ]
-    # 36h11: opencv, opencv default (+ apriltag d2 and its library corners, d2 lib);
+    # 36h11: opencv, opencv default (+ apriltag d2 and its edge-profile corners, d2 edge);
     # DICT_4X4_250: opencv, opencv default
     assert len(rows) == (6 if apriltag_binding() else 4)
     assert all(line.rstrip().endswith("1/1") for line in rows), rows  # every frame posed

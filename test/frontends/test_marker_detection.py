@@ -530,18 +530,18 @@ def test_tag_edges_of_all_tags_at_once_as_each_alone():
 @needs_apriltag
 def test_apriltag_corners_refined_on_a_textured_room():
     """On 640x480 rolling-shutter frames of the textured ``apriltag_room`` the edge-profile
-    refinement brings the library's corners much closer to the renderer's exact corners, for
-    the same tags; without it the detector gives the library's corners (order and pixel
-    convention converted)."""
+    refinement (``edge_refinement``) brings the library's corners much closer to the
+    renderer's exact corners, for the same tags; by default the detector gives the library's
+    corners (order and pixel convention converted)."""
     scene = load_scene("apriltag_room")
     camera = camera_preset("vga")
     motion = make_motion("shake", scene, duration=1.0)
     r = Renderer(scene, camera, noise=NoiseModel())
     mc = scene.marker_corners()
-    refined = make_marker_detector(scene.dictionary)
+    refined = make_marker_detector(scene.dictionary, DetectorOptions(edge_refinement=True))
     assert refined.edge_cells == 8
-    library = md.AprilTagDetector("tag36h11", refined.options, edge_refinement=False)
-    assert library.edge_cells is None
+    library = make_marker_detector(scene.dictionary)
+    assert library.edge_cells is None and library.options == DetectorOptions()
     err = {"refined": [], "library": []}
     for k in range(3):
         gray = to_gray(r.render(motion, k / 30, rng=k).image)
@@ -562,3 +562,69 @@ def test_apriltag_corners_refined_on_a_textured_room():
     med = {n: float(np.median(e)) for n, e in err.items()}
     assert med["refined"] < 0.06 and med["refined"] < 0.5 * med["library"], med
     assert np.percentile(err["refined"], 90) < np.percentile(err["library"], 90), med
+
+
+def _small_tags_image(seed: int = 0, sides=(11.0, 15.0)):
+    """A 1280x720 image of 12 AprilTag 36h11 tags (ids 0-11) whose black squares are
+    ``sides`` px wide, turned and on a smooth textured background, drawn 4x larger and
+    averaged down (antialiased); returns (gray, {id: corners (4, 2) px, ArUco order, OpenCV's
+    pixel convention})."""
+    import cv2
+
+    from rs_localizer import cv_compat
+
+    rng = np.random.default_rng(seed)
+    s, h, w = 4, 720, 1280
+    canvas = cv2.resize(
+        rng.uniform(90, 170, (h // 40, w // 40)), (w * s, h * s), interpolation=cv2.INTER_CUBIC
+    ).astype(np.float32)
+    dictionary = cv_compat.get_dictionary("DICT_APRILTAG_36h11")
+    tile = np.full((100, 100), 255, np.uint8)  # the tag, 10 px cells, with its white border
+    square = np.array([[9.5, 9.5], [89.5, 9.5], [89.5, 89.5], [9.5, 89.5]])  # black square
+    truth = {}
+    for k in range(12):
+        tile[10:90, 10:90] = cv_compat.marker_image(dictionary, k, 80)
+        scale = rng.uniform(*sides) * s / 80
+        a = rng.uniform(-0.6, 0.6)
+        rot = scale * np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        centre = np.array([110 + (k % 6) * 210, 180 + (k // 6) * 360]) + rng.uniform(-30, 30, 2)
+        centre_c = (centre + 0.5) * s - 0.5
+        half = int(60 * scale) + 4
+        x0, y0 = (np.round(centre_c) - half).astype(int)
+        m = np.c_[rot, centre_c - rot @ [49.5, 49.5] - [x0, y0]]
+        patch = cv2.warpAffine(
+            tile.astype(np.float32), m, (2 * half, 2 * half), flags=cv2.INTER_LINEAR
+        )
+        inside = cv2.warpAffine(np.ones((100, 100), np.float32), m, (2 * half, 2 * half))
+        roi = canvas[y0 : y0 + 2 * half, x0 : x0 + 2 * half]
+        roi[:] = roi * (1 - inside) + patch * inside
+        corners_c = square @ rot.T + (centre_c - rot @ [49.5, 49.5])
+        truth[k] = (corners_c + 0.5) / s - 0.5
+    gray = cv2.resize(canvas, (w, h), interpolation=cv2.INTER_AREA)
+    gray = gray + rng.normal(0.0, 2.0, gray.shape)
+    return np.clip(np.round(gray), 0, 255).astype(np.uint8), truth
+
+
+@needs_apriltag
+def test_small_tags_found_at_full_resolution():
+    """Tags too small for the decimated pass (black squares of 11-15 px at 1280x720, where the
+    default decimation is 2): ``small_tags`` finds them at full resolution where the candidate
+    blobs are, with corners as exact as a full-resolution pass's, and no tag that is not
+    there; on a frame detected at full resolution it adds nothing."""
+    gray, truth = _small_tags_image()
+    default = make_marker_detector("DICT_APRILTAG_36h11")
+    small = make_marker_detector("DICT_APRILTAG_36h11", DetectorOptions(small_tags=True))
+    full = make_marker_detector("DICT_APRILTAG_36h11", DetectorOptions(quad_decimate=1))
+    assert default.decimation(gray.shape) == 2.0
+    _, ids_d, _ = default.detect(gray)
+    c_s, ids_s, _ = small.detect(gray)
+    c_f, ids_f, _ = full.detect(gray)
+    assert set(ids_s.tolist()) <= set(truth) and set(ids_f.tolist()) <= set(truth)
+    assert set(ids_d.tolist()) <= set(ids_s.tolist())
+    assert len(ids_d) <= 6 and len(ids_s) >= max(10, len(ids_f) - 1), (ids_d, ids_s, ids_f)
+    err = [np.linalg.norm(c - truth[int(i)], axis=1) for c, i in zip(c_s, ids_s, strict=True)]
+    err_f = [np.linalg.norm(c - truth[int(i)], axis=1) for c, i in zip(c_f, ids_f, strict=True)]
+    assert np.median(err) < 0.3 and np.median(err) < np.median(err_f) + 0.05, (err, err_f)
+    # at full resolution the first pass is the look: nothing more
+    empty = full.small_tag_look(gray, full.raw(gray)[0])
+    assert len(empty[0]) == 0 and len(empty[1]) == 0
