@@ -23,7 +23,24 @@ from numba import njit
 
 from .geometry import rotvec_to_matrix
 
-__all__ = ["DISTORTION_MODELS", "READOUT_DIRECTIONS", "CameraModel"]
+__all__ = [
+    "DISTORTION_MODELS",
+    "MAX_LINE_DELAY",
+    "MAX_READOUT_TIME",
+    "READOUT_DIRECTIONS",
+    "CameraModel",
+]
+
+#: s/line: the largest ``line_delay`` a :class:`CameraModel` takes (the node's
+#: ``rs.line_delay`` range). Rolling-shutter sensors read a line in about 5-100 us; 10 ms
+#: leaves room for slow sensors and for the readout calibration's stand-in camera of one
+#: second per unit of ``r`` (``1 / focal`` s/line, focal >= 100 px), and refuses delays of
+#: seconds per line, which give readout times of minutes
+MAX_LINE_DELAY = 0.01
+
+#: s: the largest ``readout_time`` (a whole frame's) :meth:`CameraModel.from_readout_time`
+#: takes (the node's ``rs.readout_time`` range)
+MAX_READOUT_TIME = 1.0
 
 #: readout direction name -> (image axis: 0 = u/columns, 1 = v/rows; sign; direction vector d)
 #: undistortion stops when the point re-distorts to within this many pixels of the measured
@@ -57,7 +74,8 @@ class CameraModel:
             ``k1 k2 k3 k4``. Empty or all zeros: no distortion.
         width, height: image size in pixels.
         line_delay: seconds between the exposure of consecutive lines (rows for vertical
-            readout). 0 means a global shutter.
+            readout), in ``[0, MAX_LINE_DELAY]`` (:data:`MAX_LINE_DELAY`: 0.01 s). 0 means a
+            global shutter.
         readout: one of ``top_to_bottom`` (default), ``bottom_to_top``, ``left_to_right``,
             ``right_to_left``.
         reference_row: pixel coordinate along the readout axis (a row for vertical readout) at
@@ -65,8 +83,9 @@ class CameraModel:
         distortion_model: ``plumb_bob``, ``rational_polynomial``, ``equidistant`` or ``none``.
 
     Raises:
-        ValueError: for a non-finite or singular K, non-positive size, negative line delay,
-            unknown readout or distortion model, or a coefficient count the model does not take.
+        ValueError: for a non-finite or singular K, non-positive size, a line delay that is
+            negative, not finite or above :data:`MAX_LINE_DELAY`, unknown readout or
+            distortion model, or a coefficient count the model does not take.
     """
 
     K: np.ndarray
@@ -87,8 +106,11 @@ class CameraModel:
             raise ValueError("distortion coefficients contain NaN or inf")
         if int(self.width) <= 0 or int(self.height) <= 0:
             raise ValueError(f"invalid image size {self.width}x{self.height}")
-        if not np.isfinite(self.line_delay) or self.line_delay < 0:
-            raise ValueError(f"line_delay must be finite and >= 0, got {self.line_delay}")
+        if not 0.0 <= float(self.line_delay) <= MAX_LINE_DELAY:
+            raise ValueError(
+                f"line_delay must be in [0, {MAX_LINE_DELAY:g}] s/line (finite; rolling "
+                f"shutters read a line in about 5-100 us), got {self.line_delay}"
+            )
         if self.readout not in READOUT_DIRECTIONS:
             raise ValueError(
                 f"unknown readout direction {self.readout!r}; "
@@ -121,13 +143,21 @@ class CameraModel:
         cls, K: np.ndarray, readout_time: float, width: int, height: int, **kw: object
     ) -> CameraModel:
         """Build from the time to read one whole frame (s): ``line_delay = readout_time / lines``,
-        ``lines`` = height for vertical readout, width for horizontal."""
+        ``lines`` = height for vertical readout, width for horizontal.
+
+        Raises:
+            ValueError: a ``readout_time`` that is negative, not finite or above
+                :data:`MAX_READOUT_TIME` (1 s), and as the constructor.
+        """
         readout = kw.get("readout", "top_to_bottom")
         if readout not in READOUT_DIRECTIONS:
             raise ValueError(f"unknown readout direction {readout!r}")
         lines = height if READOUT_DIRECTIONS[readout][0] == 1 else width
-        if not np.isfinite(readout_time) or readout_time < 0:
-            raise ValueError(f"readout_time must be finite and >= 0, got {readout_time}")
+        if not 0.0 <= float(readout_time) <= MAX_READOUT_TIME:
+            raise ValueError(
+                f"readout_time must be in [0, {MAX_READOUT_TIME:g}] s (finite; a frame's "
+                f"rolling-shutter readout), got {readout_time}"
+            )
         return cls(K=K, width=width, height=height, line_delay=readout_time / lines, **kw)
 
     # ---------------------------------------------------------------- properties

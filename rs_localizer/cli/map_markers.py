@@ -59,8 +59,9 @@ def frames_from_bag(
     Returns:
         ``(camera, frames, counts)`` as :func:`rs_localizer.mapping.outputs.detect_folder`.
     Raises:
-        FileNotFoundError: not a bag directory. ValueError: no or several image topics, no
-        camera_info, an image of another size than the camera, an undecodable image.
+        FileNotFoundError: not a bag directory. ValueError: no image topic (naming the bag's
+        topics), several image topics without ``image_topic``, no camera_info, an image of
+        another size than the camera, an undecodable image.
     """
     from ..frontends import ArucoFrontend
     from ..frontends.image import image_from_compressed, image_from_msg, to_gray
@@ -82,6 +83,12 @@ def frames_from_bag(
         raise FileNotFoundError(f"{path}: neither a folder of images nor a bag (no metadata.yaml)")
     topics = bag_topics(path)
     images = sorted(t for t, mt in topics.items() if mt in (IMAGE, COMPRESSED_IMAGE))
+    if not images:
+        have = ", ".join(f"{t} ({mt})" for t, mt in sorted(topics.items())) or "none"
+        raise ValueError(
+            f"{path}: the bag has no image topic (sensor_msgs/Image or CompressedImage) to "
+            f"detect markers in; its topics: {have}"
+        )
     if image_topic is None:
         if len(images) != 1:
             raise ValueError(f"{path}: image topics {images}: choose one with --image-topic")

@@ -25,8 +25,68 @@ __all__ = [
     "PlausibilityOptions",
     "RansacOptions",
     "RefineOptions",
+    "check_ransac_settings",
     "points_needed",
 ]
+
+
+def _check_int(name: str, value: object, low: int, high: int | None = None) -> None:
+    """Raise ValueError unless ``value`` is an integer (``bool`` excluded) in
+    ``[low, high]`` (``high`` None: no upper bound)."""
+    ok = isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+    ok = ok and low <= int(value) and (high is None or int(value) <= high)
+    if not ok:
+        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise ValueError(f"{name} must be an integer {rng}, got {value!r}")
+
+
+def _check_positive(name: str, value: object) -> None:
+    """Raise ValueError unless ``value`` is a finite number > 0."""
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+
+
+def check_ransac_settings(prefix: str = "", **settings: object) -> None:
+    """Check RANSAC settings by name (those given): ``threshold_px`` finite > 0,
+    ``max_iterations`` and ``batch_size`` integers >= 1, ``min_iterations`` and
+    ``pretest_points`` integers >= 0, ``confidence`` in (0, 1), ``min_inliers`` an integer
+    >= 1, ``seed`` an integer >= 0 (None allowed: a fresh random seed), ``prosac_growth`` an
+    integer >= 1, ``solver_iterations`` None or an integer >= 1 (values that would make RANSAC
+    run forever, never draw a sample or accept any model).
+
+    Args:
+        prefix: put before the names in the messages (e.g. ``"estimate_rig_pose: "``).
+        settings: name -> value.
+    Raises:
+        ValueError: naming the first setting out of its range, the range and the value.
+    """
+    for name, v in settings.items():
+        label = prefix + name
+        if name == "threshold_px":
+            _check_positive(label, v)
+        elif name in ("max_iterations", "batch_size", "min_inliers", "prosac_growth"):
+            _check_int(label, v, 1)
+        elif name in ("min_iterations", "pretest_points"):
+            _check_int(label, v, 0)
+        elif name == "solver_iterations":
+            if v is not None:
+                _check_int(label, v, 1)
+        elif name == "seed":
+            if v is not None:
+                _check_int(label, v, 0)
+        elif name == "confidence":
+            try:
+                c = float(v)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                c = float("nan")
+            if not 0.0 < c < 1.0:
+                raise ValueError(f"{label} must be in (0, 1) (exclusive), got {v!r}")
+        else:
+            raise TypeError(f"check_ransac_settings: unknown setting {name!r}")
 
 
 @dataclass(frozen=True)
@@ -54,6 +114,11 @@ class RansacOptions:
             default; they need them). Local optimization runs at least 2 (it starts from the
             current best rotation, so v is tiny and the [w]x[v]x term it fixes is second
             order).
+
+    Raises:
+        ValueError: a value out of its range (:func:`check_ransac_settings`: e.g.
+            ``batch_size`` or ``max_iterations`` below 1, ``confidence`` outside (0, 1),
+            ``min_inliers`` below 1), naming it.
     """
 
     threshold_px: float = 2.0
@@ -67,6 +132,21 @@ class RansacOptions:
     pretest_points: int = 24
     solver_iterations: int | None = None
 
+    def __post_init__(self) -> None:
+        check_ransac_settings(
+            "ransac.",
+            threshold_px=self.threshold_px,
+            max_iterations=self.max_iterations,
+            min_iterations=self.min_iterations,
+            confidence=self.confidence,
+            min_inliers=self.min_inliers,
+            seed=self.seed,
+            batch_size=self.batch_size,
+            prosac_growth=self.prosac_growth,
+            pretest_points=self.pretest_points,
+            solver_iterations=self.solver_iterations,
+        )
+
 
 @dataclass(frozen=True)
 class LocalOptimizationOptions:
@@ -79,12 +159,21 @@ class LocalOptimizationOptions:
         refine_iterations: Levenberg-Marquardt iterations of each round.
         max_points: rounds work on a random subset of this many points (the final
             refinement uses every point).
+
+    Raises:
+        ValueError: ``steps`` or ``refine_iterations`` not an integer >= 0, ``max_points`` not
+            an integer >= 1.
     """
 
     nonminimal: bool = True
     steps: int = 4
     refine_iterations: int = 5
     max_points: int = 150
+
+    def __post_init__(self) -> None:
+        _check_int("local_optimization.steps", self.steps, 0)
+        _check_int("local_optimization.refine_iterations", self.refine_iterations, 0)
+        _check_int("local_optimization.max_points", self.max_points, 1)
 
 
 @dataclass(frozen=True)

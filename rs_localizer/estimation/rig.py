@@ -86,7 +86,7 @@ from .gyro import (
     gyro_checked,
     gyro_image_chi2,
 )
-from .options import InitialModel
+from .options import InitialModel, check_ransac_settings
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .refine import untruncated_variance
 from .result import output_covariance
@@ -1061,8 +1061,11 @@ def estimate_rig_pose(
             :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
             not a :class:`RigView`, a camera without a
             mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
-            is not a rotation and offset, mismatched pixel and point counts or shapes,
-            non-positive threshold.
+            is not a rotation and offset, mismatched pixel and point counts or shapes; a
+            setting out of its range, named in the message: ``threshold_px`` not > 0,
+            ``max_iterations``, ``batch_size``, ``min_inliers`` or ``solver_iterations`` not an
+            integer >= 1, ``confidence`` outside (0, 1), ``seed`` negative, a velocity bound
+            not > 0.
 
     Every observation at one time (global-shutter cameras with equal stamps: capture times
     within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
@@ -1072,8 +1075,22 @@ def estimate_rig_pose(
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
-    if not (np.isfinite(threshold_px) and threshold_px > 0):
-        raise ValueError(f"estimate_rig_pose: threshold_px must be > 0, got {threshold_px}")
+    check_ransac_settings(
+        "estimate_rig_pose: ",
+        threshold_px=threshold_px,
+        max_iterations=max_iterations,
+        confidence=confidence,
+        min_inliers=min_inliers,
+        batch_size=batch_size,
+        solver_iterations=solver_iterations,
+        seed=seed,
+    )
+    for name, v in (
+        ("max_angular_velocity", max_angular_velocity),
+        ("max_linear_velocity", max_linear_velocity),
+    ):
+        if not float(v) > 0:
+            raise ValueError(f"estimate_rig_pose: {name} must be > 0 (inf: no bound), got {v!r}")
     if pre_rotation not in PRE_ROTATIONS:
         raise ValueError(
             f"estimate_rig_pose: pre_rotation must be one of {PRE_ROTATIONS}, got {pre_rotation!r}"

@@ -172,7 +172,7 @@ class ArucoFrontend(FrontendHooks):
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """Raw detections over the full image: (corners (M, 4, 2) pixels, marker ids (M,)),
-        all markers found (ids found twice dropped)."""
+        all markers found (ids found twice dropped). Raises ValueError as :meth:`process`."""
         corners, ids, rej = self.detector.detect(to_gray(image, encoding))
         self.last_rejected = int(rej) if self.detector.backend == "opencv" else 0
         return corners, ids
@@ -384,7 +384,13 @@ class ArucoFrontend(FrontendHooks):
         ``prediction`` (the frame's predicted :class:`~rs_localizer.pose.RSModel`, from the
         video's tracker: :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.predict`)
         serve the windowed detection (``windowed``), which without them searches the full
-        frame."""
+        frame.
+
+        Raises:
+            ValueError: an image narrower or lower than the detector takes
+                (:func:`~rs_localizer.frontends.marker_detection.min_image_side`: 16 px, more
+                at a ``quad_decimate`` above 2), never given to the detector library.
+        """
         if camera is not None:
             self._camera = camera
         corners, mids = self._detect_frame(to_gray(image, encoding), camera, prediction)

@@ -11,6 +11,8 @@ import numpy as np
 __all__ = [
     "COMPRESSED_FORMATS",
     "ENCODINGS",
+    "MIN_IMAGE_SIDE",
+    "check_image_size",
     "compressed_fields",
     "image_fields",
     "image_from_compressed",
@@ -29,6 +31,31 @@ ENCODINGS = {
     "bgra8": 4,
     "8uc4": 4,
 }
+
+
+#: px: the smallest image width and height the front ends take. The AprilTag 3 library
+#: (pupil_apriltags 1.0.4) ends the process (SIGFPE, SIGSEGV) on images whose side is 2-3 px
+#: or less after its decimation (0x0-5x5, 640x1, 1x640 and 4x640 at ``quad_decimate`` 1.5);
+#: OpenCV raises on empty images and on ``cornerSubPix`` windows larger than the image. No
+#: marker, board or feature map is localized from fewer pixels than this.
+MIN_IMAGE_SIDE = 16
+
+
+def check_image_size(shape: tuple, min_side: int = MIN_IMAGE_SIDE, what: str = "image") -> None:
+    """Refuse an image of ``shape`` (H, W, ...) whose width or height is below ``min_side``
+    px (default :data:`MIN_IMAGE_SIDE`).
+
+    Raises:
+        ValueError: a side below ``min_side`` (naming the size and the minimum), or fewer
+            than two dimensions.
+    """
+    if len(shape) < 2:
+        raise ValueError(f"{what} has shape {tuple(shape)}, expected (H, W) or (H, W, C)")
+    h, w = int(shape[0]), int(shape[1])
+    if min(h, w) < min_side:
+        raise ValueError(
+            f"{what} is {w}x{h} px, smaller than the {min_side}x{min_side} px the front ends take"
+        )
 
 
 def image_from_msg(msg: Any) -> tuple[np.ndarray, str]:

@@ -37,6 +37,13 @@ dropped from that image; both are counted (``last_weak``, ``last_duplicates``). 
 also search windows of a frame (``detect_window``: the front end's predicted search) with the
 frame's settings.
 
+Images smaller than the libraries take are refused before they are called (a
+:class:`ValueError`: both sides at least :data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`
+px, and for the AprilTag library :data:`MIN_DECIMATED_SIDE` px after its decimation,
+:func:`min_image_side`); a search window is clipped to the frame, skipped when nothing of it
+is left, grown within the frame to that size when smaller. Corners whose refinement window
+or profiles do not fit in the image keep their position.
+
 Without an AprilTag binding installed an OpenCV dictionary name of an AprilTag family
 (``DICT_APRILTAG_36h11``) falls back to OpenCV's detector: slower on textured images and
 less exact (at 640x480 on ``apriltag_room``: 1.6x the CPU time, 2.5x the corner error, with the
@@ -67,6 +74,7 @@ __all__ = [
     "auto_decimate",
     "drop_duplicates",
     "make_marker_detector",
+    "min_image_side",
     "refine_corners",
     "refine_tag_edges",
     "supported_dictionaries",
@@ -335,29 +343,48 @@ def refine_corners(
         max_window: largest half window (px; OpenCV's ``cornerRefinementWinSize``).
         iterations, accuracy: ``cornerSubPix``'s stopping criteria (iterations, px).
     Returns:
-        (M, 4, 2) float64 refined corners.
+        (M, 4, 2) float64 refined corners; corners outside the image or not finite as given,
+        windows no larger than ``cornerSubPix`` takes in the image (``2 w + 5`` px).
+    Raises:
+        ValueError: ``gray`` not an (H, W) uint8 image, ``corners`` not (M, 4, 2), ``cells``,
+            ``max_window`` or ``iterations`` below 1, ``accuracy`` negative or not finite.
     """
     import cv2
 
-    c = np.asarray(corners, dtype=np.float64)
-    if len(c) == 0:
-        return c.reshape(0, 4, 2)
+    c = _check_corners(gray, corners, cells)
+    if int(max_window) < 1 or int(iterations) < 1:
+        raise ValueError(
+            f"max_window and iterations must be >= 1, got {max_window} and {iterations}"
+        )
+    if not (np.isfinite(accuracy) and accuracy >= 0):
+        raise ValueError(f"accuracy must be a finite number >= 0 px, got {accuracy}")
+    # (cornerSubPix takes windows up to (side - 5) / 2 and points inside the image only)
+    max_window = min(int(max_window), (min(gray.shape) - 5) // 2)
+    if len(c) == 0 or max_window < 1:
+        return c.copy()
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, int(iterations), float(accuracy))
+    hi = np.array([gray.shape[1] - 1, gray.shape[0] - 1], np.float32)
 
     def subpix(pts: np.ndarray, w: int) -> np.ndarray:
         q = np.ascontiguousarray(pts, dtype=np.float32).copy()
-        cv2.cornerSubPix(gray, q, (int(w), int(w)), (-1, -1), crit)
+        inside = ((q >= 0) & (q <= hi)).all(axis=(1, 2))
+        if inside.all():
+            cv2.cornerSubPix(gray, q, (int(w), int(w)), (-1, -1), crit)
+        elif inside.any():
+            r = np.ascontiguousarray(q[inside])
+            cv2.cornerSubPix(gray, r, (int(w), int(w)), (-1, -1), crit)
+            q[inside] = r
         return q
 
     p0 = c.reshape(-1, 1, 2).astype(np.float32)
-    first = min(REFINE_FIRST_WINDOW, max(int(max_window), 1))
+    first = min(REFINE_FIRST_WINDOW, max_window)
     p = subpix(p0, first)
     stuck = (p == p0).all(axis=(1, 2))
     if first > 1 and stuck.any():
         p[stuck] = subpix(p0[stuck], 1)
     side = np.linalg.norm(np.roll(c, -1, axis=1) - c, axis=2).mean(axis=1)
-    win = np.floor(REFINE_CELL_SHARE * side / max(int(cells), 1)).astype(int)
-    win = np.repeat(np.minimum(win, int(max_window)), 4)
+    win = np.floor(np.nan_to_num(REFINE_CELL_SHARE * side / int(cells))).astype(int)
+    win = np.repeat(np.clip(win, 0, max_window), 4)
     for w in np.unique(win[win > first]):
         idx = np.flatnonzero(win == w)
         q = subpix(p[idx], int(w))
@@ -384,6 +411,38 @@ EDGE_POSITIONS = 8
 EDGE_MIN_CONTRAST = 20.0
 EDGE_MAX_MOVE = 1.0
 
+#: px: :func:`refine_tag_edges` keeps the detector's corners of a tag when the edge offsets
+#: at an edge's places scatter about their fitted line by more than this (RMS): image noise
+#: too strong for the profiles. Measured on synthetic tags (25-90 px, noise sigma 35-70 grey
+#: levels, some squeezed to 60 % and 15 % width; ``test/frontends/test_tag_edges_degraded.py``
+#: renders them): without it 27 of 760 corners ended more than 0.5 px worse than the
+#: library's, at 0.2 px none (at most 0.37 px worse). On the room's 640x480 renders
+#: (``python -m benchmarks.bench_markers --corner-study``, 20 frames) the median corner error
+#: stays 0.032 / 0.031 px at ``quad_decimate`` 1 / 1.5 (p90 0.129 / 0.141 -> 0.143 px)
+EDGE_MAX_SCATTER = 0.2
+
+#: :func:`refine_tag_edges` keeps the detector's corners of a tag whose shortest side is below
+#: this share of its mean side (a tag squeezed by a grazing view or a strong perspective): the
+#: profiles, a share of the mean cell wide, would reach past the one-cell border at the short
+#: side (a trapezoid with sides 0.4 of each other moved corners 0.8 px off)
+EDGE_MIN_SIDE_SHARE = 0.5
+
+
+def _check_corners(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.ndarray:
+    """The argument checks of :func:`refine_corners` and :func:`refine_tag_edges`: corners
+    as (M, 4, 2) float64."""
+    g = np.asarray(gray)
+    if g.ndim != 2 or g.dtype != np.uint8:
+        raise ValueError(f"expected an (H, W) uint8 image, got {g.shape} {g.dtype}")
+    c = np.asarray(corners, dtype=np.float64)
+    if c.size == 0:
+        return c.reshape(0, 4, 2)
+    if c.ndim != 3 or c.shape[1:] != (4, 2):
+        raise ValueError(f"corners must be (M, 4, 2) px, got shape {c.shape}")
+    if isinstance(cells, bool) or not float(cells) >= 1 or float(cells) != int(cells):
+        raise ValueError(f"cells must be an integer >= 1 (cells across the marker), got {cells}")
+    return c
+
 
 def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.ndarray:
     """AprilTag corners refined from their edges' grey-level profiles.
@@ -400,27 +459,39 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     already put within a fraction of a pixel).
 
     A tag keeps its corners as given when an edge's contrast ``B - A`` is below
-    :data:`EDGE_MIN_CONTRAST`, a profile leaves the image, or a corner would move by more
-    than :data:`EDGE_MAX_MOVE` px. Measured with ``python -m benchmarks.bench_markers``
-    (640x480 ``apriltag_room``, ``quad_decimate`` 1.5): corner error median 0.118 -> 0.031 px
-    against the renderer's exact corners (p90 0.252 -> 0.141 px); tags under 20 px keep
-    0.10-0.12 px (their cells are too narrow for the profiles). All tags are processed
-    together: one bilinear sampling (``cv2.remap``) of every profile point of the frame, the
-    fits and intersections as array operations over all edges.
+    :data:`EDGE_MIN_CONTRAST`, its places scatter about the fitted line by more than
+    :data:`EDGE_MAX_SCATTER` px (noise), its shortest side is below
+    :data:`EDGE_MIN_SIDE_SHARE` of its mean side, a profile leaves the image, or a corner
+    would move by more than :data:`EDGE_MAX_MOVE` px. Measured with
+    ``python -m benchmarks.bench_markers`` (640x480 ``apriltag_room``, ``quad_decimate``
+    1.5): corner error median 0.118 -> 0.031 px against the renderer's exact corners (p90
+    0.252 -> 0.141 px); tags under 20 px keep 0.10-0.12 px (their cells are too narrow for
+    the profiles). All tags are processed together: one bilinear sampling (``cv2.remap``) of
+    every profile point of the frame, the fits and intersections as array operations over
+    all edges.
 
     Args:
         gray: (H, W) uint8 image.
         corners: (M, 4, 2) px, ArUco order, OpenCV's pixel-centre convention.
         cells: width of the tag's black square in cells (:data:`EDGE_REFINE_CELLS`).
     Returns:
-        (M, 4, 2) float64 corners, same order and convention.
+        (M, 4, 2) float64 corners, same order and convention; a tag with a corner that is
+        not finite as given.
+    Raises:
+        ValueError: ``gray`` not an (H, W) uint8 image, ``corners`` not (M, 4, 2), ``cells``
+            not an integer >= 1.
     """
     import cv2
 
-    c = np.asarray(corners, dtype=np.float64)
+    c = _check_corners(gray, corners, cells)
     m = len(c)
-    if m == 0:
-        return c.reshape(0, 4, 2)
+    finite = np.isfinite(c).all(axis=(1, 2))
+    if m == 0 or not finite.any():
+        return c.copy()
+    if not finite.all():
+        out = c.copy()
+        out[finite] = refine_tag_edges(gray, c[finite], cells)
+        return out
     h, w_img = gray.shape
     # all edges of all tags at once, coordinates first: (2, E) for the E = 4 M edges; the
     # places along an edge (J) and samples across it (K) on the leading axes after them
@@ -453,6 +524,9 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     cross = np.ascontiguousarray((w - (step / np.maximum(contrast, 1.0)) * area).T)
     c0 = cross @ _MEAN
     slope = (cross @ _CENTRED) / (np.maximum(span, 1e-9) * _CENTRED_NORM)
+    # the places' scatter about the fitted line (px, RMS)
+    resid = cross - c0[:, None] - (slope * span)[:, None] * _CENTRED
+    scatter = np.sqrt((resid * resid) @ _MEAN)
     # the edge: through p0 + (a + span / 2) e + c0 n, direction e + slope n
     nn = n - slope * e
     nn /= np.sqrt(nn[0] ** 2 + nn[1] ** 2)
@@ -470,6 +544,8 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     move = out - ct
     bad = (move[0] * move[0] + move[1] * move[1]) > EDGE_MAX_MOVE**2  # (M, 4)
     bad |= ~(ok & (contrast.reshape(m, 4) >= EDGE_MIN_CONTRAST) & (span.reshape(m, 4) > 0))
+    bad |= ~(scatter.reshape(m, 4) <= EDGE_MAX_SCATTER)  # (NaN too)
+    bad |= ~(length.reshape(m, 4) >= EDGE_MIN_SIDE_SHARE * side[:, None])
     reach = wt[:, None] + 1.0
     outside = (ct < reach) | (ct > np.array([w_img - 1, h - 1], np.float32)[:, None, None] - reach)
     bad = (outside | bad).any(axis=(0, 2))
@@ -554,11 +630,69 @@ def auto_decimate(shape: tuple) -> float:
     return 1.5 if int(shape[0]) * int(shape[1]) <= AUTO_DECIMATE_MAX_PIXELS else 2.0
 
 
-def _check_gray(gray: np.ndarray) -> np.ndarray:
+#: px: the smallest side, after the AprilTag library's decimation, of an image it is given
+#: (:func:`min_image_side`). Measured in child processes (pupil_apriltags 1.0.4, zero, noise
+#: and striped images): the library ends the process on images of 2-3 px or less after its
+#: decimation (e.g. 5x5 at ``quad_decimate`` 2, 8x8 at 4, 0x0-5x5, 640x1 and 4x640 at 1.5),
+#: never at 8 or more px (``quad_decimate`` 1, 1.5, 2, 3, 4, 8)
+MIN_DECIMATED_SIDE = 8
+
+
+def min_image_side(decimate: float = 1.0) -> int:
+    """The smallest image side (px) the detectors take at ``quad_decimate`` ``decimate``:
+    :data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`, and :data:`MIN_DECIMATED_SIDE` px
+    after the decimation."""
+    from .image import MIN_IMAGE_SIDE
+
+    return max(MIN_IMAGE_SIDE, int(np.ceil(MIN_DECIMATED_SIDE * max(float(decimate), 1.0))))
+
+
+def _check_gray(gray: np.ndarray, min_side: int | None = None) -> np.ndarray:
+    """``gray`` as a contiguous (H, W) uint8 array; raises ValueError for another shape or
+    dtype, or a side below ``min_side`` (default :func:`min_image_side` at decimation 1)."""
+    from .image import check_image_size
+
     g = np.asarray(gray)
     if g.ndim != 2 or g.dtype != np.uint8:
         raise ValueError(f"expected an (H, W) uint8 image, got {g.shape} {g.dtype}")
+    check_image_size(g.shape, min_image_side() if min_side is None else int(min_side))
     return np.ascontiguousarray(g)
+
+
+def _no_detections() -> tuple[np.ndarray, np.ndarray, int]:
+    return np.zeros((0, 4, 2)), np.zeros(0, np.int64), 0
+
+
+def clip_window(window: tuple, shape: tuple, min_side: int) -> tuple[int, int, int, int] | None:
+    """``window`` ``(x0, y0, x1, y1)`` (px, end exclusive) clipped to an image of ``shape``
+    (H, W): None when nothing of it is left (off the image, empty, not finite), else the
+    clipped window grown within the image to at least ``min_side`` px on each side (about
+    its centre; the image is assumed at least that large).
+
+    Raises:
+        ValueError: a window that is not four numbers.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    try:
+        x0, y0, x1, y1 = (float(v) for v in window)
+    except (TypeError, ValueError):
+        raise ValueError(f"a window is (x0, y0, x1, y1), got {window!r}") from None
+    if not np.isfinite([x0, y0, x1, y1]).all():
+        return None
+    x0, x1 = int(max(np.floor(x0), 0)), int(min(np.ceil(x1), w))
+    y0, y1 = int(max(np.floor(y0), 0)), int(min(np.ceil(y1), h))
+    if x1 <= x0 or y1 <= y0:
+        return None
+
+    def grow(a: int, b: int, n: int) -> tuple[int, int]:
+        if b - a >= min_side:
+            return a, b
+        a = min(max((a + b - min_side) // 2, 0), max(n - min_side, 0))
+        return a, min(a + min_side, n)
+
+    x0, x1 = grow(x0, x1, w)
+    y0, y1 = grow(y0, y1, h)
+    return x0, y0, x1, y1
 
 
 _SAFE_PUPIL_CLASSES: dict = {}
@@ -720,9 +854,11 @@ class AprilTagDetector:
         """The library's detections unfiltered: ``(corners (M, 4, 2) in the library's order and
         pixel convention, ids (M,), hamming (M,), decision margins (M,))``; ``frame_shape``:
         the shape of the frame ``gray`` is cut from (the decimation by image size), default
-        ``gray``'s; ``decimate``: this ``quad_decimate`` instead of the options'."""
-        g = _check_gray(gray)
+        ``gray``'s; ``decimate``: this ``quad_decimate`` instead of the options'. Images
+        smaller than the library can take at that decimation raise ``ValueError``."""
+        g = np.asarray(gray)
         dec = self.decimation(frame_shape or g.shape) if decimate is None else float(decimate)
+        g = _check_gray(g, min_image_side(dec))
         dets = self._detector(dec).detect(g)
         if not len(dets):
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
@@ -875,11 +1011,23 @@ class AprilTagDetector:
         and end are moved out to the grid of the library's decimation and threshold tiles (4
         decimated pixels), so that a tag away from other edges is found as in the full frame
         (off the grid its corners move by up to ~0.1 px; a tag whose outline runs on into the
-        texture may still differ by that much)."""
-        g = _check_gray(gray)
-        dec = self.decimation(g.shape)
+        texture may still differ by that much). A window is clipped to the frame (none left:
+        no detections, the library not called) and grown to :func:`min_image_side` px.
+
+        Raises:
+            ValueError: a frame the library does not take (:func:`min_image_side`), a window
+                that is not four numbers.
+        """
+        dec = self.decimation(np.shape(gray))
+        g = _check_gray(gray, min_image_side(dec))
         step = 4 * (3 if dec == 1.5 else max(int(dec), 1))
-        x0, y0, x1, y1 = (int(v) for v in window)
+        win = clip_window(window, g.shape, min_image_side(dec))
+        if win is None:
+            self.last_weak = self.last_duplicates = 0
+            self.last_duplicate_ids = set()
+            self.last_margins, self.last_hamming = np.zeros(0), np.zeros(0, np.int64)
+            return _no_detections()
+        x0, y0, x1, y1 = win
         x0, y0 = x0 - x0 % step, y0 - y0 % step
         x1 = min(g.shape[1], x1 + (-x1) % step)
         y1 = min(g.shape[0], y1 + (-y1) % step)
@@ -994,11 +1142,21 @@ class OpenCVDetector:
     def detect_window(self, gray: np.ndarray, window: tuple) -> tuple[np.ndarray, np.ndarray, int]:
         """:meth:`detect` in ``window`` ``(x0, y0, x1, y1)`` (px, end exclusive) of the frame
         ``gray``: corners in the frame's pixels, the smallest marker perimeter kept at the
-        frame's (OpenCV scales it by the image size)."""
+        frame's (OpenCV scales it by the image size). A window is clipped to the frame (none
+        left: no detections) and grown to :func:`min_image_side` px.
+
+        Raises:
+            ValueError: a frame smaller than :func:`min_image_side` px, a window that is not
+                four numbers.
+        """
         from ..cv_compat import MarkerDetector
 
         g = _check_gray(gray)
-        x0, y0, x1, y1 = (int(v) for v in window)
+        win = clip_window(window, g.shape, min_image_side())
+        if win is None:
+            self.last_duplicates, self.last_duplicate_ids = 0, set()
+            return _no_detections()
+        x0, y0, x1, y1 = win
         crop = np.ascontiguousarray(g[y0:y1, x0:x1])
         rate = self._det_params.minMarkerPerimeterRate
         try:

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import READOUT_DIRECTIONS, CameraModel
+from ..camera import MAX_LINE_DELAY, MAX_READOUT_TIME, READOUT_DIRECTIONS, CameraModel
 from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Extrinsic
 from ..frontends.registry import frontend_kind, frontend_options
@@ -435,6 +435,12 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
             raise ConfigError(f"rig.{n}.mounting: {e}") from None
         ld = float(c.get("line_delay", -1.0))
         rt = float(c.get("readout_time", -1.0))
+        for key, v, top in (
+            ("line_delay", ld, MAX_LINE_DELAY),
+            ("readout_time", rt, MAX_READOUT_TIME),
+        ):
+            if not (math.isfinite(v) and v <= top):  # (negative: the rs.* value)
+                raise ConfigError(f"rig.{n}.{key} must be at most {top:g} s, got {v!r}")
         d = str(c.get("direction", "") or direction).strip()
         if d not in READOUT_DIRECTIONS:
             raise ConfigError(

@@ -703,13 +703,13 @@ RIG_CAMERA_PARAMETERS = {
     "line_delay": Parameter(
         -1.0,
         "s per line of the camera's rolling shutter; negative: rs.line_delay",
-        FloatRange(from_value=-1.0, to_value=1.0),
+        FloatRange(from_value=-1.0, to_value=0.01),
         read_only=True,
     ),
     "readout_time": Parameter(
         -1.0,
         "s per frame (wins over line_delay when > 0); negative: rs.readout_time",
-        FloatRange(from_value=-1.0, to_value=10.0),
+        FloatRange(from_value=-1.0, to_value=1.0),
         read_only=True,
     ),
     "direction": Parameter(

@@ -645,8 +645,10 @@ class FramePipeline:
 
     def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
         """The image of ``sensor_msgs/Image``, or ``CompressedImage`` (no ``encoding``
-        field), checked against the camera model's size: ``(array, encoding)``."""
-        from ..frontends.image import image_from_compressed, image_from_msg
+        field), checked against the camera model's size and the front ends' smallest image
+        (:data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`; a smaller one is
+        ``bad_image``, never given to the detector libraries): ``(array, encoding)``."""
+        from ..frontends.image import check_image_size, image_from_compressed, image_from_msg
 
         if self.sequence.frontend is None:  # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
@@ -660,6 +662,10 @@ class FramePipeline:
             h, w = int(msg.height), int(msg.width)
             if h * w == 0:
                 raise _Drop("bad_image", f"empty image ({w}x{h})")
+            try:
+                check_image_size((h, w))
+            except ValueError as e:
+                raise _Drop("bad_image", str(e)) from None
             if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
                 raise _Drop(  # (before decoding: no copy of an image of the wrong size)
                     "image_size_mismatch",
@@ -674,6 +680,10 @@ class FramePipeline:
                 "image_size_mismatch",
                 f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
             )
+        try:
+            check_image_size((h, w))
+        except ValueError as e:
+            raise _Drop("bad_image", str(e)) from None
         res.image = (img, enc, stamp)
         return img, enc
 

@@ -161,6 +161,7 @@ CASES = [
     (["map-markers", "notes.txt", "-o", "m.yaml", *_M], "not a bag"),
     (["map-markers", "trunc", "-o", "m.yaml", *_M], "cannot read the bag"),
     (["map-markers", "empty", "-o", "m.yaml", *_M], "no messages"),
+    (["map-markers", "bag", "-o", "m.yaml", *_M], "no image topic (sensor_msgs/Image"),
     (["demo", "--bag", "nosuch"], "no such bag"),
 ]
 
