@@ -62,6 +62,10 @@ class FrameQueue:
             exceptions propagate to ``on_error`` (default: ignored) and do not change the
             counts.
         name: the worker thread's name.
+        on_skip: ``on_skip(item, reason)`` for each frame dropped unsolved, ``reason``
+            ``queue_full`` (:meth:`put`) or ``stopped`` (:meth:`request_stop` with
+            ``drop_queued``), e.g. to count it per camera; called with the queue's lock held
+            (it must not call the queue).
     """
 
     def __init__(
@@ -70,11 +74,13 @@ class FrameQueue:
         deliver: Callable[[Any, Outcome], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
         name: str = "rs_localizer_worker",
+        on_skip: Callable[[Any, str], None] | None = None,
     ):
         self._process = process
         self._deliver = deliver
         self._on_error = on_error
         self._name = name
+        self._on_skip = on_skip
         self._cond = threading.Condition()
         self._queue: deque = deque()
         self._in_flight = False  # the worker is on a frame (counted as pending)
@@ -91,8 +97,10 @@ class FrameQueue:
             self._received += 1
             skipped = 0
             while self._queue and len(self._queue) >= max_waiting:
-                self._queue.popleft()
+                dropped = self._queue.popleft()
                 skipped += 1
+                if self._on_skip is not None:
+                    self._on_skip(dropped, "queue_full")
             self._skipped += skipped
             self._queue.append(item)
             self._cond.notify_all()
@@ -135,6 +143,9 @@ class FrameQueue:
             self._stop = True
             if drop_queued:
                 self._skipped += len(self._queue)
+                if self._on_skip is not None:
+                    for item in self._queue:
+                        self._on_skip(item, "stopped")
                 self._queue.clear()
             self._cond.notify_all()
 

@@ -34,15 +34,25 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
     /diagnostics (one status: the rig's counts and every camera's, with warnings)
 
-The frames are solved in the subscription callbacks (one executor thread): the node has no
-frame queue. The parameters are read once, at start (changes at run time are refused). The
-managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
+``queue_size`` frames per camera waiting; a full queue drops its oldest frame, counted
+``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order and
+publishes what they complete, so the executor stays free for the cameras' next frames however
+slow a rig frame is. Per camera ``received = solved + failed + skipped + pending`` in every
+diagnostics snapshot (pending: waiting in the queue or in an open rig frame). The parameters
+are read once, at start (changes at run time are refused). The managed
+node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
+import threading
 import time
+from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,9 +60,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
@@ -60,9 +68,10 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
-from .config import RigConfig, build_config, load_maps, rig_config
+from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN
+from .frame_queue import FrameQueue
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
@@ -70,7 +79,26 @@ from .status_msg import status_message
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
-_ARRAY_TYPES = {"rig.cameras": RosParameter.Type.STRING_ARRAY}
+_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
+
+INPUT_SKIP_REASONS = {
+    "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
+    "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
+    "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
+    "bad_input": "the message could not be read (a stamp out of range, a cloud without its fields)",
+}
+"""The node's reasons for a camera frame dropped before it reaches the rig (counted
+``<c>.skipped.<reason>``, beside the rig's own :data:`~rs_localizer.tracking.rig.SKIP_REASONS`)."""
+
+
+@dataclass
+class _Taken:
+    """The worker's outcome of one camera frame: the rig frames it completed (solved). The
+    frame's own accounting is the rig's and the node's per camera counts, so for the queue it
+    is always done (``failure`` None)."""
+
+    outs: list = field(default_factory=list)
+    failure: str | None = None
 
 
 class _Log:
@@ -89,18 +117,20 @@ class _Log:
         self.logger.info(text)
 
 
-def _declare_typed(node: Node, name: str, par, array_type) -> Any:
-    """Declare a parameter whose default is an empty array with its type; returns its value
-    (None: not set)."""
-    d = ParameterDescriptor(description=par.description, read_only=par.read_only)
-    node.declare_parameter(name, array_type, d)
-    try:
-        return node.get_parameter(name).value
-    except ParameterUninitializedException:
-        return None
+def _declare_dynamic(node: Node, name: str, par) -> Any:
+    """Declare a parameter of any type (its value checked by :func:`.config.rig_config`, which
+    names the parameter and the fix: ``rig.cameras: front`` instead of ``[front]``, a mounting
+    of integers); returns its value (None: not set)."""
+    d = ParameterDescriptor(
+        description=par.description, read_only=par.read_only, dynamic_typing=True
+    )
+    node.declare_parameter(name, None, d)
+    return node.get_parameter(name).value
 
 
-def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dict]:
+def rig_diagnostics(
+    rig: RigLocalizer, waiting_info: set, inputs: Counter | None = None
+) -> tuple[int, str, dict]:
     """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
     ``WARN`` (a camera disagrees with the rig, or two cameras with each other; a camera has
     stopped, waits for its camera_info, or rig frames failed) or ``ERROR`` (rig frames formed
@@ -110,7 +140,14 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
     ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts; with a gyro the
-    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame)."""
+    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame); ``rig_frames_failed.<reason>``
+    for each failure reason of the rig estimator (or ``error``: it raised).
+
+    ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
+    ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
+    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`) and ``<c>.failed.internal_error``;
+    then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
+    to the rig's and the frames still queued to ``<c>.pending``."""
     r = rig.rig_counts()
     values: dict[str, Any] = {
         "rig_frames": r["rig_frames"],
@@ -120,9 +157,25 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
         "rig_frames_pending": r["pending"],
         "track_state": rig.track_state,
     }
+    for k, v in sorted(rig.counts.items()):
+        if k.startswith("rig.failed."):
+            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
     warnings = []
+    busy = 0
     for n in rig.cameras:
         c = rig.camera_counts(n)
+        if inputs is not None:
+            own = {k[len(n) + 1 :]: v for k, v in inputs.items() if k.startswith(f"{n}.")}
+            early = sum(v for k, v in own.items() if k.startswith("skipped."))
+            queued = early - own.get("skipped.bad_input", 0)
+            c["received"] = own.get("received", 0)
+            c["skipped"] += early
+            c["failed"] += own.get("failed.internal_error", 0)
+            c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+            busy += own.get("skipped.queue_full", 0)
+            for k, v in own.items():
+                if k.startswith(("skipped.", "failed.")):
+                    values[f"{n}.{k}"] = v
         for k, v in c.items():
             values[f"{n}.{k}"] = v
         state = rig.camera_state(n)
@@ -162,8 +215,15 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
             warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
         return ERROR, "no rig frame posed", values
+    if busy:
+        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
     if r["failed"]:
-        warnings.append(f"{r['failed']} rig frames failed")
+        why = ", ".join(
+            f"{k[len('rig_frames_failed.') :]} {v}"
+            for k, v in values.items()
+            if k.startswith("rig_frames_failed.")
+        )
+        warnings.append(f"{r['failed']} rig frames failed ({why})")
     if warnings:
         return WARN, "; ".join(warnings), values
     return OK, f"{r['solved']} rig frames posed", values
@@ -191,9 +251,7 @@ class RigCore:
     def _declare_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
-        _declare_typed(
-            self, "rig.cameras", RIG_PARAMETERS["rig.cameras"], _ARRAY_TYPES["rig.cameras"]
-        )
+        _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
         self._outputs, self._subs, self._frame_subs = [], [], []
         self._pubs, self.pub_diag, self._timer = {}, None, None
         self._configured = False
@@ -202,34 +260,23 @@ class RigCore:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
         use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
         rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
-        try:
-            names = self.get_parameter("rig.cameras").value
-        except ParameterUninitializedException:
-            names = None
+        try:  # (the names first: they make parameter and topic names)
+            names = rig_camera_names(self.get_parameter("rig.cameras").value)
+        except ConfigError as e:
+            raise RuntimeError(f"invalid parameters: {e}") from None
         values = {n: self.get_parameter(n).value for n in PARAMETERS}
         values.update(
             {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
-        values["rig.cameras"] = list(names or [])
+        values["rig.cameras"] = names
         cams = {}
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
-        for n in values["rig.cameras"]:
-            n = str(n).strip()
-            if not n:
-                continue
+        for n in names:
             if not self.has_parameter(f"rig.{n}.line_delay"):
                 declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
-                _declare_typed(
-                    self,
-                    f"rig.{n}.mounting",
-                    RIG_CAMERA_PARAMETERS["mounting"],
-                    RosParameter.Type.DOUBLE_ARRAY,
-                )
+                _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
             cams[n] = {k: self.get_parameter(f"rig.{n}.{k}").value for k in own}
-            try:
-                cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
-            except ParameterUninitializedException:
-                cams[n]["mounting"] = None
+            cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
         try:
             self.config: RigConfig = rig_config(values, cams)
             single = build_config(values)  # (the front end: frontend, frontend_map, aruco.*)
@@ -249,6 +296,17 @@ class RigCore:
             self.rig.set_frontend(n, fe, single.frontend_kind)
         self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
+        self.queue_size = int(values["queue_size"])
+        self._frames = FrameQueue(
+            self._process,
+            self._deliver,
+            self._delivery_failed,
+            name="rs_localizer_rig_worker",
+            on_skip=self._queue_skipped,
+        )
+        self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
+        self._acc = threading.Lock()  # (the node's own counts, self._inputs)
+        self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         self._configured = True
 
     def _create_outputs(self) -> None:
@@ -310,23 +368,34 @@ class RigCore:
         self._timer = self.create_timer(
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
+        # the worker holds the GIL while it solves; hand it to the subscription callbacks
+        # often, so that frames leave the middleware's queue quickly (as the camera's node)
+        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
+        self._frames.start()
 
     def _destroy_frame_inputs(self) -> None:
+        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped (counted
+        ``<c>.skipped.stopped``)."""
         for sub in self._frame_subs:
             self.destroy_subscription(sub)
         self._frame_subs = []
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
+        if getattr(self, "_frames", None) is not None:
+            self._frames.stop(drop_queued=True)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
         next frame starts a new track."""
         if self.rig is None:
             return
-        for out in self.rig.close():
+        with self._rig_lock:
+            outs = self.rig.close()
+            fused = self.rig.flush() + self.rig.reset()
+        for out in outs:
             self.publish_output(out)
-        for f in self.rig.flush() + self.rig.reset():
+        for f in fused:
             self._publish_fused(f)
 
     def _release_configured(self) -> None:
@@ -376,16 +445,89 @@ class RigCore:
             )
 
     def _on_cloud(self, name: str, msg) -> None:
+        self._enqueue(name, "cloud", msg)
+
+    def _enqueue(self, name: str, kind: str, msg) -> None:
+        """Subscription callbacks: count the camera's frame and queue it for the worker. A full
+        queue (``queue_size`` frames per camera) drops its oldest frame (counted
+        ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
+        with self._acc:
+            self._inputs[f"{name}.received"] += 1
+        size = self.queue_size * len(self.config.cameras)
+        skipped = self._frames.put((name, kind, msg), size)
+        _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
+        if skipped:
+            self._log.warning(
+                "queue_full",
+                f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
+                f"camera), dropped the oldest waiting frame "
+                f"[{self._frames.counts().skipped} dropped so far]",
+            )
+
+    def _queue_skipped(self, item, reason: str) -> None:
+        """A frame the queue dropped (with the queue's lock held): counted for its camera."""
+        with self._acc:
+            self._inputs[f"{item[0]}.skipped.{reason}"] += 1
+
+    def _process(self, item) -> _Taken:
+        """The worker: one camera frame to the rig; counted (handed on, or why not) together
+        with the rig's counts, so that a diagnostics snapshot sees it once."""
+        name, kind, msg = item
+        with self._rig_lock:
+            outs, skip, failure = [], None, None
+            try:
+                if kind == "cloud":
+                    outs, skip = self._take_cloud(name, msg)
+                else:
+                    outs, skip = self._take_image(name, msg)
+            except Exception as e:  # (a defect: the frame is counted, the node goes on)
+                failure = "internal_error"
+                self._log.warning(
+                    "internal_error",
+                    f"rig camera {name!r}: frame failed (internal_error): {type(e).__name__}: {e}",
+                )
+            with self._acc:
+                self._inputs[f"{name}.taken"] += 1
+                if skip is not None:
+                    self._inputs[f"{name}.skipped.{skip}"] += 1
+                if failure is not None:
+                    self._inputs[f"{name}.failed.{failure}"] += 1
+        return _Taken(outs)
+
+    def _deliver(self, item, taken: _Taken) -> None:
+        """The worker, after the frame is counted: publish the rig frames it completed, log
+        the failed ones (each reason at most once per 5 s)."""
+        for out in taken.outs:
+            self._log_failure(out)
+            self.publish_output(out)
+
+    def _log_failure(self, out: RigOutput) -> None:
+        if out.error is not None:
+            reason, detail = "error", f"the estimator raised {out.error}"
+        elif out.estimate is not None and not out.estimate.success:
+            reason = out.estimate.failure or "error"
+            detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
+        else:
+            return
+        n = self.rig.counts[f"rig.failed.{reason}"]
+        self._log.warning(
+            f"rig.failed.{reason}",
+            f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
+        )
+
+    def _delivery_failed(self, e: BaseException) -> None:
+        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
+
+    def _take_cloud(self, name: str, msg) -> tuple[list, str | None]:
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
             c = read_correspondences(msg)
         except ValueError as e:
             self.bad_input[name] += 1
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
-            return
+            return [], "bad_input"
         frame = RigCameraFrame(name, stamp, self.models[name], c.points2d, c.points)
-        for out in self.rig.add(frame):
-            self.publish_output(out)
+        return self.rig.add(frame), None
 
     def _on_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
@@ -401,6 +543,9 @@ class RigCore:
         return reason
 
     def _on_image(self, name: str, msg) -> None:
+        self._enqueue(name, "image", msg)
+
+    def _take_image(self, name: str, msg) -> tuple[list, str | None]:
         """An image: decoded and checked against the camera's camera_info as the single-camera
         node does (a message that does not decode: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
@@ -410,7 +555,7 @@ class RigCore:
         except ValueError as e:
             self.bad_input[name] += 1
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
-            return
+            return [], "bad_input"
         camera = self.models[name]
         img, enc, why = _decode_image(msg, camera)
         if why is not None:
@@ -420,8 +565,7 @@ class RigCore:
             outs = self.rig.drop(name, stamp, camera, why[0])
         else:
             outs = self.rig.process_image(name, stamp, img, camera, enc)
-        for out in outs:
-            self.publish_output(out)
+        return outs, None
 
     # ---------------------------------------------------------------- outputs
     def _wanted(self, topic: str) -> bool:
@@ -457,7 +601,10 @@ class RigCore:
 
     def diagnostics_status(self) -> DiagnosticStatus:
         waiting = {n for n, m in self.models.items() if m is None}
-        level, message, values = rig_diagnostics(self.rig, waiting)
+        with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
+            with self._acc:
+                inputs = Counter(self._inputs)
+            level, message, values = rig_diagnostics(self.rig, waiting, inputs)
         for n, k in self.bad_input.items():
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
@@ -543,6 +690,8 @@ class RigLocalizerNode(RigCore, Node):
     def destroy_node(self) -> None:
         """Solve the rig frames still open and publish them and the pending twists, then
         destroy the node."""
+        if getattr(self, "_frames", None) is not None:
+            self._frames.stop()
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
         SHARED_MAPS.release(self)

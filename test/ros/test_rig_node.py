@@ -120,6 +120,72 @@ def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
         RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
 
 
+@pytest.mark.parametrize(
+    "overrides, error",
+    [
+        ({"rig.cameras": "front"}, r"write \[front\], not front"),
+        ({"rig.cameras": [1, 2]}, "camera name 1 is not valid in a topic name"),
+        ({"rig.cameras": ["front cam"]}, "'front cam' is not valid in a topic name"),
+        ({"rig.cameras": ["1cam"]}, "'1cam' is not valid in a topic name"),
+        ({"rig.cameras": ["front-cam"]}, "'front-cam' is not valid in a topic name"),
+        ({"rig.front.line_delay": 0}, r"'rig\.front\.line_delay' must be of type float"),
+    ],
+)
+def test_a_parameter_of_the_wrong_shape_stops_the_node_with_one_line(ros_context, overrides, error):
+    """Each parameter file shape that raised deep inside rclpy: one RuntimeError line naming
+    the parameter and the fix."""
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = {"warmup": False, "rig.cameras": ["front"]}
+    params["rig.front.mounting"] = [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]
+    params.update(overrides)
+    with pytest.raises(RuntimeError, match=error) as e:
+        RigLocalizerNode(
+            "rs_localizer",
+            context=ros_context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+        )
+    assert "\n" not in str(e.value)
+
+
+def test_an_integer_mounting_is_taken(ros_context):
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = {
+        "warmup": False,
+        "rig.cameras": ["front"],
+        "rig.front.mounting": [0, 0, 0, 0, 0, 0, 1],
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    try:
+        m = node.config.cameras[0].mount
+        assert np.allclose(m.R, np.eye(3)) and np.allclose(m.c, 0.0)
+    finally:
+        node.destroy_node()
+
+
+def test_the_node_process_refuses_a_camera_name_without_a_list_in_one_line(tmp_path, ros_domain):
+    """``rig.cameras: front`` in a parameter file: the process exits with one line naming the
+    fix, no traceback."""
+    from helpers.ros import refused_start
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: front\n"
+        "      front: {mounting: [0, 0, 0, 0, 0, 0, 1]}\n"
+    )
+    exited, rc, log = refused_start(tmp_path, [p], "/rig", 60)
+    assert exited and rc == 1, log
+    assert "rig.cameras must be a list of camera names: write [front], not front" in log, log
+    assert "Traceback" not in log, log
+
+
 def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mounting(
     tmp_path, ros_domain
 ):
@@ -189,5 +255,98 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
         assert v["rig.gyro_used"] == str(n), v
         assert "rig.gyro_missing" not in v and "rig.gyro_rejected" not in v
         assert v["imu_rejected.no_angular_velocity"] == "1"
+    finally:
+        h.close()
+
+
+def _balanced(v: dict, cams) -> bool:
+    """Every camera's ``received = solved + failed + skipped + pending`` and the rig frames'
+    ``rig_frames = solved + failed + skipped + pending`` in one diagnostics status."""
+    parts = ("solved", "failed", "skipped", "pending")
+    ok = int(v["rig_frames"]) == sum(int(v[f"rig_frames_{p}"]) for p in parts)
+    for c in cams:
+        n = c.name
+        ok &= int(v[f"{n}.received"]) == sum(int(v[f"{n}.{p}"]) for p in parts)
+        reasons = [k for k in v if k.startswith(f"{n}.skipped.")]
+        ok &= int(v[f"{n}.skipped"]) == sum(int(v[k]) for k in reasons)
+    return bool(ok)
+
+
+def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounted(ros_context):
+    """45 clouds sent at once to a rig that takes 20 ms per camera frame, queue_size 1: every
+    frame is received (the callbacks only queue), the queue drops the oldest waiting ones
+    (``skipped.queue_full``, the status warns busy), every status balances each camera's and
+    the rig frames' counts, and every rig frame solved is published."""
+    import time
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.5, num_points=120, seed=14)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, queue_size=1))
+    slow_add = h.node.rig.add
+
+    def add(frame):
+        time.sleep(0.02)
+        return slow_add(frame)
+
+    h.node.rig.add = add
+    try:
+        h.send_info(cams)
+        for f in frames:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            h.send(f.name, "cloud", cloud, taken=False)
+        q = h.node._frames
+        assert h.wait(lambda: q.counts().received == 45 and q.counts().pending == 0)
+        h.node._end_video()  # (the open rig frames solved, as at the end of a video)
+        st, v = h.last_diag()
+        statuses = [{kv.key: kv.value for kv in s.values} for s in h.diag]
+        assert len(statuses) > 3
+        assert all(_balanced(s, cams) for s in statuses), statuses
+        dropped = sum(int(v.get(f"{c.name}.skipped.queue_full", 0)) for c in cams)
+        assert dropped > 0 and "busy" in st.message, (dropped, st.message)
+        for c in cams:
+            assert v[f"{c.name}.received"] == "15" and v[f"{c.name}.pending"] == "0"
+        assert h.wait(lambda: len(h.poses) == int(v["rig_frames_solved"]) > 0)
+    finally:
+        h.close()
+
+
+def test_an_estimator_exception_is_logged_and_its_reason_in_the_diagnostics(ros_context):
+    """Points at 1e200 m (float64) in one rig frame: the estimator raises, the rig frame fails
+    as ``error``, its reason is in the status (``rig_frames_failed.error``, named in the
+    message) and a warning is logged with the exception."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=15)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, **{"tracking.enabled": False}))
+    logged = []
+    h.node._log.logger = type("L", (), {"warning": logged.append, "info": logged.append})()
+    for f in frames:
+        if f.index == 2:  # (the third rig frame: every camera's points at 1e200 m)
+            f.xyz = f.xyz * 1e200
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    try:
+        h.send_info(cams)
+        for f in frames:  # (float64: 1e200 stays finite)
+            stamp = ns_to_stamp(f.stamp_ns)
+            h.send(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, stamp=stamp, dtype="f8"))
+        st, v = h.last_diag()
+        failed = {
+            k.split(".", 1)[1]: int(x) for k, x in v.items() if k.startswith("rig_frames_failed.")
+        }
+        assert int(v["rig_frames_failed"]) >= 1 and sum(failed.values()) == int(
+            v["rig_frames_failed"]
+        )
+        for reason in failed:
+            assert reason in st.message, st.message
+            assert any(f"rig frame failed ({reason})" in t for t in logged), logged
+        assert int(v["rig_frames_solved"]) >= 6
+        assert "error" in failed, failed  # (the estimator raises on these: LinAlgError)
+        assert any("the estimator raised" in t for t in logged), logged
     finally:
         h.close()
