@@ -233,7 +233,8 @@ class RigSettings:
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
         time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
             again (a bag played again); less is ``out_of_order``.
-        threshold_px, max_iterations, min_inliers, refine, seed: the rig estimator's
+        threshold_px, max_iterations, min_inliers, refine, seed, confidence,
+            max_angular_velocity, max_linear_velocity: the rig estimator's
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
         tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
@@ -259,6 +260,9 @@ class RigSettings:
     min_inliers: int = 8
     refine: bool = True
     seed: int | None = 0
+    confidence: float = 0.999
+    max_angular_velocity: float = 20.0
+    max_linear_velocity: float = 50.0
     tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
     disagree_ratio: float = 0.5
     disagree_min_points: int = 12
@@ -1081,6 +1085,9 @@ class RigLocalizer:
             min_inliers=s.min_inliers,
             refine=s.refine,
             seed=s.seed,
+            confidence=s.confidence,
+            max_angular_velocity=s.max_angular_velocity,
+            max_linear_velocity=s.max_linear_velocity,
             initial_model=initial,
             gyro=self._gyro,
             gyro_time=self._gyro_time,

@@ -350,3 +350,48 @@ def test_an_estimator_exception_is_logged_and_its_reason_in_the_diagnostics(ros_
         assert any("the estimator raised" in t for t in logged), logged
     finally:
         h.close()
+
+
+def test_the_node_s_velocity_bound_and_ransac_confidence_reach_the_rig(ros_context):
+    """``max_angular_velocity`` below the rig's motion: no rig frame is posed, each refused for
+    its motion (every hypothesis implausible: ``no_model``; a final model:
+    ``implausible_motion``), while the same frames at the default bound are all posed;
+    ``ransac.confidence`` and the bounds are the rig estimator's."""
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.2, num_points=120, seed=16)
+    t = np.linspace(0.0, 0.2, 21)
+    R = traj.orientation(t)
+    rate = np.radians([rotation_angle_deg(R[k + 1], R[k]) for k in range(20)]) / 0.01
+    assert rate.min() > 0.05  # (rad/s: the rig turns well beyond the bound below)
+    for bound, solved in ((0.01, False), (20.0, True)):
+        params = rig_parameters(
+            cams,
+            max_angular_velocity=bound,
+            max_linear_velocity=7.0,
+            **{"ransac.confidence": 0.99, "tracking.enabled": False},
+        )
+        h = rig_harness(ros_context, cams, params)
+        try:
+            s = h.node.rig.settings
+            assert (s.confidence, s.max_angular_velocity, s.max_linear_velocity) == (
+                0.99,
+                bound,
+                7.0,
+            )
+            h.send_info(cams)
+            h.send_clouds(frames)
+            _, v = h.last_diag()
+            n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+            assert n >= 5, v
+            if solved:
+                assert v["rig_frames_solved"] == str(n), v
+                continue
+            assert v["rig_frames_solved"] == "0" and not h.poses, v
+            why = {k: x for k, x in v.items() if k.startswith("rig_frames_failed.")}
+            assert set(why) <= {
+                "rig_frames_failed.no_model",
+                "rig_frames_failed.implausible_motion",
+            }, why
+            assert sum(int(x) for x in why.values()) == n, v
+        finally:
+            h.close()
