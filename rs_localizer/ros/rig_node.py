@@ -60,6 +60,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -145,7 +146,8 @@ def rig_diagnostics(
 
     ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
     ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
-    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`) and ``<c>.failed.internal_error``;
+    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``
+    and ``<c>.messages_lost`` (lost by the middleware, never received: a value of its own);
     then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
     to the rig's and the frames still queued to ``<c>.pending``."""
     r = rig.rig_counts()
@@ -161,7 +163,7 @@ def rig_diagnostics(
         if k.startswith("rig.failed."):
             values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
     warnings = []
-    busy = 0
+    busy = lost = 0
     for n in rig.cameras:
         c = rig.camera_counts(n)
         if inputs is not None:
@@ -173,12 +175,16 @@ def rig_diagnostics(
             c["failed"] += own.get("failed.internal_error", 0)
             c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
             busy += own.get("skipped.queue_full", 0)
+            lost += own.get("messages_lost", 0)
+            values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
             for k, v in own.items():
                 if k.startswith(("skipped.", "failed.")):
                     values[f"{n}.{k}"] = v
         for k, v in c.items():
             values[f"{n}.{k}"] = v
         state = rig.camera_state(n)
+        if n in waiting_info and state in ("running", "stopped"):
+            state = "waiting"  # (its frames wait for the camera_info)
         values[f"{n}.state"] = state
         values[f"{n}.camera_info"] = "waiting" if n in waiting_info else "received"
         s = rig.last_share(n)
@@ -217,6 +223,8 @@ def rig_diagnostics(
         return ERROR, "no rig frame posed", values
     if busy:
         warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
     if r["failed"]:
         why = ", ".join(
             f"{k[len('rig_frames_failed.') :]} {v}"
@@ -307,6 +315,8 @@ class RigCore:
         self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
         self._acc = threading.Lock()  # (the node's own counts, self._inputs)
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
+        self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
+        self._first_frame: float | None = None  # (monotonic s: the first frame received)
         self._configured = True
 
     def _create_outputs(self) -> None:
@@ -347,6 +357,7 @@ class RigCore:
                     f"{c.name}/correspondences",
                     lambda msg, n=c.name: self._on_cloud(n, msg),
                     CLOUD_QOS,
+                    event_callbacks=self._lost_events(c.name, "cloud"),
                     qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 )
             )
@@ -359,6 +370,7 @@ class RigCore:
                         topic,
                         lambda msg, n=c.name: self._on_image(n, msg),
                         IMAGE_QOS,
+                        event_callbacks=self._lost_events(c.name, "image"),
                         qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                     )
                 )
@@ -372,6 +384,21 @@ class RigCore:
         # often, so that frames leave the middleware's queue quickly (as the camera's node)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
+
+    def _stop_worker(self) -> None:
+        """Stop the worker thread after the frame it is on (frames still queued stay pending)."""
+        if getattr(self, "_frames", None) is not None:
+            self._frames.stop()
+
+    def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
+        """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
+        middleware lost before the node saw them (never received; ``<c>.messages_lost``)."""
+
+        def on_lost(status):
+            with self._acc:
+                self._lost[(name, kind)] = int(status.total_count)
+
+        return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def _destroy_frame_inputs(self) -> None:
         """Undo :meth:`_create_frame_inputs`; frames still queued are dropped (counted
@@ -414,10 +441,17 @@ class RigCore:
             if self.frontend_kind != "none"
             else ""
         )
+        timing = []
+        for c in self.config.cameras:
+            t = (
+                f"readout {c.readout_time * 1e3:.2f} ms"
+                if c.readout_time > 0
+                else f"line delay {c.line_delay * 1e6:.2f} us/line"
+            )
+            timing.append(f"{c.name} {t} {c.direction}")
         self.get_logger().info(
-            f"ready: rig of {len(self.config.cameras)} cameras "
-            f"({', '.join(c.name for c in self.config.cameras)}) posed as {self.config.base_frame}"
-            f" in {self.map_frame}{images}"
+            f"ready: rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
+            f"{self.config.base_frame} in {self.map_frame}{images}"
         )
 
     def _refuse_changes(self, params) -> SetParametersResult:
@@ -453,6 +487,8 @@ class RigCore:
         ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
         with self._acc:
             self._inputs[f"{name}.received"] += 1
+        if self._first_frame is None:
+            self._first_frame = time.monotonic()
         size = self.queue_size * len(self.config.cameras)
         skipped = self._frames.put((name, kind, msg), size)
         _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
@@ -526,8 +562,18 @@ class RigCore:
             self.bad_input[name] += 1
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
             return [], "bad_input"
+        self._warn_no_info(name, "correspondences")
         frame = RigCameraFrame(name, stamp, self.models[name], c.points2d, c.points)
         return self.rig.add(frame), None
+
+    def _warn_no_info(self, name: str, kind: str) -> None:
+        if self.models[name] is None:
+            self._log.warning(
+                f"no_info.{name}",
+                f"rig camera {name!r}: {kind} but no camera_info yet on "
+                f"{self.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
+                f"{name}.skipped.no_camera_info), the rig runs on the others",
+            )
 
     def _on_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
@@ -557,6 +603,7 @@ class RigCore:
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
             return [], "bad_input"
         camera = self.models[name]
+        self._warn_no_info(name, "images")
         img, enc, why = _decode_image(msg, camera)
         if why is not None:
             self._log.warning(
@@ -604,7 +651,15 @@ class RigCore:
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
             with self._acc:
                 inputs = Counter(self._inputs)
+                for (n, _), k in self._lost.items():
+                    inputs[f"{n}.messages_lost"] += k
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
+        first = self._first_frame
+        absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
+        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
+        if absent and waited and values["rig_frames_solved"] == 0:
+            level = ERROR
+            message = f"no rig frame posed: no frame from camera {', '.join(absent)}; " + message
         for n, k in self.bad_input.items():
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
@@ -690,8 +745,7 @@ class RigLocalizerNode(RigCore, Node):
     def destroy_node(self) -> None:
         """Solve the rig frames still open and publish them and the pending twists, then
         destroy the node."""
-        if getattr(self, "_frames", None) is not None:
-            self._frames.stop()
+        self._stop_worker()
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
         SHARED_MAPS.release(self)

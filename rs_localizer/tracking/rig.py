@@ -137,6 +137,8 @@ MISSED_REASONS = {
     "dropped": "no frame of the camera near the rig frame (it skipped one)",
     "stopped": "the camera sent no frame for stop_after s while the others did: the rig runs on "
     "the others",
+    "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
+    "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
 }
 #: the paths a rig frame can take (as the camera tracker's)
 RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
@@ -444,6 +446,7 @@ class _Camera:
         self.last_ref: int | None = None  # ns, the last accepted frame's reference time
         self.recent: deque = deque(maxlen=8)  # reference times of the last frames
         self.stopped = False
+        self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
         self.flags: deque = deque(maxlen=history)
         self.disagrees = False
         self.partner: str | None = None  # (two cameras that disagree: the other one)
@@ -696,6 +699,7 @@ class RigLocalizer:
         if self._first is None:
             self._first = stamp
         if frame.camera is None:
+            cam.no_info.append(stamp)
             self._skip(name, "no_camera_info")
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
@@ -1021,9 +1025,11 @@ class RigLocalizer:
 
     # ---------------------------------------------------------------- solving
     def _missing_reason(self, cam: _Camera, g: _Group) -> str:
+        w2 = 2 * self.settings.window * 1e9
+        if any(abs(r - g.lo) <= w2 for r in cam.no_info):
+            return "no_camera_info"
         if cam.stopped:
             return "stopped"
-        w2 = 2 * self.settings.window * 1e9
         if any(abs(r - g.lo) <= w2 for r in cam.recent):
             return "apart"
         return "dropped"
