@@ -66,9 +66,11 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
+from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
+from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .declare import declare_parameters
 from .diagnostics import ERROR, OK, WARN
@@ -146,8 +148,9 @@ def rig_diagnostics(
 
     ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
     ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
-    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``
-    and ``<c>.messages_lost`` (lost by the middleware, never received: a value of its own);
+    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
+    ``<c>.capped_clouds`` (clouds capped to ``max_points``) and ``<c>.messages_lost`` (lost
+    by the middleware, never received: a value of its own);
     then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
     to the rig's and the frames still queued to ``<c>.pending``."""
     r = rig.rig_counts()
@@ -177,6 +180,7 @@ def rig_diagnostics(
             busy += own.get("skipped.queue_full", 0)
             lost += own.get("messages_lost", 0)
             values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
+            values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
             for k, v in own.items():
                 if k.startswith(("skipped.", "failed.")):
                     values[f"{n}.{k}"] = v
@@ -302,9 +306,11 @@ class RigCore:
         self.rig = RigLocalizer(self.config.settings, log=self._log)
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
-        self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}
+        self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}  # (newest)
+        self._infos = {c.name: CameraInfoHistory() for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self.queue_size = int(values["queue_size"])
+        self.max_points = int(values["max_points"])
         self._frames = FrameQueue(
             self._process,
             self._deliver,
@@ -468,15 +474,31 @@ class RigCore:
 
     # ---------------------------------------------------------------- inputs
     def _on_info(self, cam, msg) -> None:
+        """A camera_info: kept by its stamp in the camera's
+        :class:`~rs_localizer.ros.camera_info_history.CameraInfoHistory` (a frame uses the
+        newest stamped at or before it, as the single-camera node's; one camera model per
+        calibration)."""
+        hist = self._infos[cam.name]
         try:
-            self.models[cam.name] = cv.camera_model_from_camera_info(
-                msg, cam.line_delay, cam.readout_time, cam.direction, self.config.reference_row
-            )
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+            key = calibration_key(msg)
+            model = hist.camera_with_key(key)
+            if model is None:
+                model = cv.camera_model_from_camera_info(
+                    msg, cam.line_delay, cam.readout_time, cam.direction, self.config.reference_row
+                )
         except ValueError as e:
             self.bad_input[cam.name] += 1
             self._log.warning(
                 f"info.{cam.name}", f"rig camera {cam.name!r}: camera_info rejected: {e}"
             )
+            return
+        hist.add(stamp, key, msg, model)
+        self.models[cam.name] = model
+
+    def _camera(self, name: str, stamp_ns: int):
+        """Camera ``name``'s model for a frame stamped ``stamp_ns`` (None: no camera_info yet)."""
+        return self._infos[name].camera_for(stamp_ns)
 
     def _on_cloud(self, name: str, msg) -> None:
         self._enqueue(name, "cloud", msg)
@@ -563,7 +585,17 @@ class RigCore:
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
             return [], "bad_input"
         self._warn_no_info(name, "correspondences")
-        frame = RigCameraFrame(name, stamp, self.models[name], c.points2d, c.points)
+        uv, xyz = c.points2d, c.points
+        if len(uv) > self.max_points:  # (as the single-camera node: highest scores first)
+            with self._acc:
+                self._inputs[f"{name}.capped_clouds"] += 1
+            self._log.warning(
+                "capped",
+                f"rig camera {name!r}: cloud of {len(uv)} points capped to max_points "
+                f"{self.max_points}",
+            )
+            uv, xyz, _ = cap_points(uv, xyz, c.scores, self.max_points)
+        frame = RigCameraFrame(name, stamp, self._camera(name, stamp), uv, xyz)
         return self.rig.add(frame), None
 
     def _warn_no_info(self, name: str, kind: str) -> None:
@@ -602,7 +634,7 @@ class RigCore:
             self.bad_input[name] += 1
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
             return [], "bad_input"
-        camera = self.models[name]
+        camera = self._camera(name, stamp)
         self._warn_no_info(name, "images")
         img, enc, why = _decode_image(msg, camera)
         if why is not None:

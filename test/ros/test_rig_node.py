@@ -423,3 +423,54 @@ def test_a_camera_absent_from_the_start_is_an_error_after_stop_after(ros_context
         assert v["right.received"] == "0" and v["right.state"] == "waiting"
     finally:
         h.close()
+
+
+def test_each_frame_uses_the_camera_info_of_its_stamp(ros_context):
+    """Each camera's true camera_info stamped at the start and a wrong one (focal 30 % longer)
+    stamped 10 s later, both before the frames: the frames use the one of their stamp, as
+    the single-camera node does (the newest posed them degrees off); every rig frame is
+    posed within 0.05 deg of the truth."""
+    from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg
+
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=18)
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info(cams)
+        for c in cams:
+            wrong = camera_info_msg(c.camera, c.name, T0 + 10 * 10**9)
+            wrong.k[0] *= 1.3
+            wrong.k[4] *= 1.3
+            h.pub[c.name]["info"].publish(wrong)
+        assert h.wait(lambda: all(len(h.node._infos[c.name]) == 2 for c in cams))
+        assert h.node.models["front"].K[0, 0] == pytest.approx(cams[0].camera.K[0, 0] * 1.3)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+        assert n >= 8 and v["rig_frames_solved"] == str(n), v
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, _, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+            assert rotation_angle_deg(pose_from_msg(m.pose)[0], R) < 0.05
+    finally:
+        h.close()
+
+
+def test_max_points_caps_every_camera_s_cloud(ros_context):
+    """``max_points`` 40 with clouds of 120 points: every cloud is capped (counted
+    ``<c>.capped_clouds``), each camera's inliers are at most 40, the rig is still posed."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=19)
+    assert min(len(f.uv) for f in frames) > 40
+    h = rig_harness(ros_context, cams, rig_parameters(cams, max_points=40))
+    try:
+        h.send_info(cams)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+        assert n >= 5 and v["rig_frames_solved"] == str(n), v
+        for c in cams:
+            assert v[f"{c.name}.capped_clouds"] == v[f"{c.name}.received"] != "0", v
+            assert 8 <= int(v[f"{c.name}.inliers"]) <= 40, v
+    finally:
+        h.close()
