@@ -17,7 +17,8 @@ caches loading, OpenCV's first calls) are sent but not timed.
 With ``--rate HZ`` the rig frames are sent at that rate, as cameras do, without waiting for
 the poses; then the node's /diagnostics are read once it is idle: every camera's received,
 solved, failed, skipped and pending frames (with the reasons), the rig frames' counts, and the
-share of the poses more than 0.1 deg from the truth.
+share of the poses more than 0.1 deg from the truth, and how long after the last images the
+last pose came (how far the node lags behind the cameras).
 """
 
 from __future__ import annotations
@@ -248,6 +249,7 @@ def _send_at_rate(node, ex, wait, pub_img, msgs, poses, rate, motion, warm, diag
         for name, m in msgs[k]:
             pub_img[name].publish(m)
     sent_s = time.perf_counter() - t0
+    sent_at = time.monotonic()
     n, quiet = -1, time.monotonic()
     while time.monotonic() - quiet < 5.0:  # (until no pose for 5 s)
         if len(poses) != n:
@@ -268,6 +270,7 @@ def _send_at_rate(node, ex, wait, pub_img, msgs, poses, rate, motion, warm, diag
         "rig_frames_sent_lockstep": min(warm, len(msgs)),
         "send_seconds": sent_s,
         "send_late_max_ms": late * 1e3,
+        "last_pose_after_send_s": quiet - sent_at,
         "poses": len(poses),
         "poses_off_0.1deg": int(off.sum()),
         "rotation_deg_max": float(e[:, 0].max()) if len(e) else float("nan"),

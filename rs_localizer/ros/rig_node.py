@@ -35,8 +35,9 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     /diagnostics (one status: the rig's counts and every camera's, with warnings)
 
 The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
-``queue_size`` frames per camera waiting; a full queue drops its oldest frame, counted
-``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order and
+``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted
+``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order (a rig
+frame's frames taken together) and
 publishes what they complete, so the executor stays free for the cameras' next frames however
 slow a rig frame is. Per camera ``received = solved + failed + skipped + pending`` in every
 diagnostics snapshot (pending: waiting in the queue or in an open rig frame). The parameters
@@ -69,6 +70,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
+from ..tracking.sequence import reference_stamp_ns
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
@@ -317,7 +319,9 @@ class RigCore:
             self._delivery_failed,
             name="rs_localizer_rig_worker",
             on_skip=self._queue_skipped,
+            group=self._same_rig_frame,
         )
+        self._group_ns = int(self.config.settings.window * 1e9)
         self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
         self._acc = threading.Lock()  # (the node's own counts, self._inputs)
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
@@ -521,6 +525,27 @@ class RigCore:
                 f"camera), dropped the oldest waiting frame "
                 f"[{self._frames.counts().skipped} dropped so far]",
             )
+
+    def _same_rig_frame(self, batch: list, item) -> bool:
+        """Whether a waiting frame goes with the frames the worker takes (``batch``): another
+        camera's whose reference-line time (by the camera's newest camera_info) is within
+        ``rig.window`` of the first's, as the rig groups them. A rig frame's frames are then
+        taken together, and a full queue drops whole rig frames, not the rest of the one
+        being solved."""
+        if any(b[0] == item[0] for b in batch):
+            return False
+        try:
+            return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
+        except Exception:  # (a stamp the worker will refuse: not grouped)
+            return False
+
+    def _ref_ns(self, item) -> int:
+        name, _, msg = item
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        camera = self.models[name]
+        if camera is None:
+            return stamp
+        return reference_stamp_ns(stamp, camera, self.config.settings.stamp_row)
 
     def _queue_skipped(self, item, reason: str) -> None:
         """A frame the queue dropped (with the queue's lock held): counted for its camera."""

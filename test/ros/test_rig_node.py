@@ -474,3 +474,61 @@ def test_max_points_caps_every_camera_s_cloud(ros_context):
             assert 8 <= int(v[f"{c.name}.inliers"]) <= 40, v
     finally:
         h.close()
+
+
+def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
+    """With ``group`` the worker takes the other cameras' frames of the oldest frame's rig
+    frame with it, and a full queue drops whole rig frames (the oldest frame and those that
+    go with it), never the rest of the one being solved; every snapshot balances."""
+    import threading
+    from dataclasses import dataclass
+
+    from rs_localizer.ros.frame_queue import FrameQueue
+
+    @dataclass
+    class Done:
+        failure: str | None = None
+
+    gates = {("x", 0): threading.Event(), ("a", 1): threading.Event()}
+    started = {k: threading.Event() for k in gates}
+    solved = []
+
+    def process(item):
+        if item in gates:
+            started[item].set()
+            assert gates[item].wait(5)
+        solved.append(item)
+        return Done()
+
+    def group(batch, item):
+        return item[1] == batch[0][1] and all(b[0] != item[0] for b in batch)
+
+    def balanced():
+        c = q.counts()
+        return c.received == c.solved + c.failed + c.skipped + c.pending
+
+    skipped = []
+    q = FrameQueue(process, on_skip=lambda item, why: skipped.append((item, why)), group=group)
+    q.start()
+    try:
+        q.put(("x", 0), 10)
+        assert started[("x", 0)].wait(5)
+        q.put(("a", 1), 10)
+        q.put(("b", 1), 10)
+        gates[("x", 0)].set()  # (the worker takes a1 and b1 together and stops on a1)
+        assert started[("a", 1)].wait(5)
+        assert q.counts().pending == 2 and balanced()
+        for item in [("a", 2), ("b", 2), ("a", 3)]:
+            q.put(item, 2)  # (b1 is the worker's: the full queue drops rig frame 2, a2 and b2)
+            assert balanced()
+        gates[("a", 1)].set()
+        for _ in range(500):
+            if q.counts().pending == 0:
+                break
+            threading.Event().wait(0.01)
+        c = q.counts()
+        assert (c.received, c.solved, c.skipped, c.pending) == (6, 4, 2, 0), c
+        assert solved == [("x", 0), ("a", 1), ("b", 1), ("a", 3)], solved
+        assert skipped == [(("a", 2), "queue_full"), (("b", 2), "queue_full")]
+    finally:
+        q.stop()
