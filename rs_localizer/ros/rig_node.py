@@ -52,7 +52,7 @@ import os
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -327,6 +327,7 @@ class RigCore:
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
+        self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
         self._configured = True
 
     def _create_outputs(self) -> None:
@@ -516,7 +517,7 @@ class RigCore:
         if self._first_frame is None:
             self._first_frame = time.monotonic()
         size = self.queue_size * len(self.config.cameras)
-        skipped = self._frames.put((name, kind, msg), size)
+        skipped = self._frames.put((name, kind, msg, time.perf_counter()), size)
         _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
         if skipped:
             self._log.warning(
@@ -540,7 +541,7 @@ class RigCore:
             return False
 
     def _ref_ns(self, item) -> int:
-        name, _, msg = item
+        name, _, msg, _ = item
         stamp = cv.stamp_to_ns(msg.header.stamp)
         camera = self.models[name]
         if camera is None:
@@ -555,7 +556,8 @@ class RigCore:
     def _process(self, item) -> _Taken:
         """The worker: one camera frame to the rig; counted (handed on, or why not) together
         with the rig's counts, so that a diagnostics snapshot sees it once."""
-        name, kind, msg = item
+        name, kind, msg, _ = item
+        tic = time.perf_counter()
         with self._rig_lock:
             outs, skip, failure = [], None, None
             try:
@@ -575,6 +577,7 @@ class RigCore:
                     self._inputs[f"{name}.skipped.{skip}"] += 1
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
+                self._timing["frame"].append(time.perf_counter() - tic)
         return _Taken(outs)
 
     def _deliver(self, item, taken: _Taken) -> None:
@@ -583,6 +586,12 @@ class RigCore:
         for out in taken.outs:
             self._log_failure(out)
             self.publish_output(out)
+            if out.measurement is not None:
+                toc = time.perf_counter()
+                age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
+                with self._acc:
+                    self._timing["latency"].append(toc - item[3])
+                    self._timing["stamp_age"].append(age)
 
     def _log_failure(self, out: RigOutput) -> None:
         if out.error is not None:
@@ -708,9 +717,11 @@ class RigCore:
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
             with self._acc:
                 inputs = Counter(self._inputs)
+                timing = {k: np.array(v) * 1e3 for k, v in self._timing.items()}
                 for (n, _), k in self._lost.items():
                     inputs[f"{n}.messages_lost"] += k
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
+        values.update(_timing_values(timing))
         first = self._first_frame
         absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
@@ -736,6 +747,27 @@ class RigCore:
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostics_status()]
         self.pub_diag.publish(msg)
+
+
+def _timing_values(ms: dict) -> dict:
+    """The rig node's timing values (ms) of the last 1000: ``latency_ms_*`` (a camera frame's
+    arrival to the pose of the rig frame it completed), ``stamp_age_ms_*`` (the rig frame's
+    time to that pose, node clock) and ``camera_frame_ms_median`` (the worker's time per
+    camera frame: decoding, front end, rig), as the single-camera node's keys."""
+
+    def f(x):
+        return f"{x:.3f}"
+
+    lat, age, frame = ms["latency"], ms["stamp_age"], ms["frame"]
+    nan = "nan"
+    return {
+        "latency_ms_last": f(lat[-1]) if len(lat) else nan,
+        "latency_ms_median": f(np.median(lat)) if len(lat) else nan,
+        "latency_ms_p99": f(np.percentile(lat, 99)) if len(lat) else nan,
+        "stamp_age_ms_last": f(age[-1]) if len(age) else nan,
+        "stamp_age_ms_median": f(np.median(age)) if len(age) else nan,
+        "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
+    }
 
 
 def _decode_image(msg, camera) -> tuple:
