@@ -104,6 +104,7 @@ class _Taken:
 
     outs: list = field(default_factory=list)
     failure: str | None = None
+    fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
 
 
 class _Log:
@@ -151,7 +152,8 @@ def rig_diagnostics(
     ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
     ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
     ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``) and ``<c>.messages_lost`` (lost
+    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
+    (frames that started the rig again) and ``<c>.messages_lost`` (lost
     by the middleware, never received: a value of its own);
     then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
     to the rig's and the frames still queued to ``<c>.pending``."""
@@ -183,6 +185,7 @@ def rig_diagnostics(
             lost += own.get("messages_lost", 0)
             values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
             values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
+            values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
             for k, v in own.items():
                 if k.startswith(("skipped.", "failed.")):
                     values[f"{n}.{k}"] = v
@@ -327,6 +330,7 @@ class RigCore:
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
+        self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
         self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
         self._configured = True
 
@@ -559,12 +563,14 @@ class RigCore:
         name, kind, msg, _ = item
         tic = time.perf_counter()
         with self._rig_lock:
-            outs, skip, failure = [], None, None
+            outs, skip, failure, fused = [], None, None, []
             try:
+                outs, fused = self._stamp_jump(name, msg)
                 if kind == "cloud":
-                    outs, skip = self._take_cloud(name, msg)
+                    more, skip = self._take_cloud(name, msg)
                 else:
-                    outs, skip = self._take_image(name, msg)
+                    more, skip = self._take_image(name, msg)
+                outs += more
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"
                 self._log.warning(
@@ -578,11 +584,36 @@ class RigCore:
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
                 self._timing["frame"].append(time.perf_counter() - tic)
-        return _Taken(outs)
+        return _Taken(outs, None, fused)
+
+    def _stamp_jump(self, name: str, msg) -> tuple[list, list]:
+        """A frame stamped more than ``time_reset_threshold`` after every frame the rig has
+        had (a gap in a bag, a clock jump) starts the rig again, as a camera's node resets
+        its time-dependent state: the open rig frames are solved, the track ends and the
+        cameras' timelines restart (no camera counts as stopped for the gap); counted
+        ``<c>.stamp_jumped_ahead``. Returns the rig frames solved and the track's twists."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError:  # (counted bad_input when it is taken)
+            return [], []
+        newest, self._newest_ns = self._newest_ns, max(self._newest_ns or stamp, stamp)
+        if newest is None or stamp - newest <= self.config.settings.time_reset_ns:
+            return [], []
+        with self._acc:
+            self._inputs[f"{name}.stamp_jumped_ahead"] += 1
+        self._log.warning(
+            "stamp_jumped_ahead",
+            f"rig camera {name!r}: stamp {(stamp - newest) * 1e-9:.3f} s after the rig's newest "
+            "frame (more than time_reset_threshold): the rig starts again",
+        )
+        outs = self.rig.close()
+        return outs, self.rig.flush() + self.rig.reset()
 
     def _deliver(self, item, taken: _Taken) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log
         the failed ones (each reason at most once per 5 s)."""
+        for f in taken.fused:
+            self._publish_fused(f)
         for out in taken.outs:
             self._log_failure(out)
             self.publish_output(out)

@@ -534,3 +534,27 @@ def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
         assert skipped == [(("a", 2), "queue_full"), (("b", 2), "queue_full")]
     finally:
         q.stop()
+
+
+def test_a_forward_stamp_jump_starts_the_rig_again(ros_context):
+    """The rig's video sent again 5 s later (a gap in a bag): the first frame after the gap
+    starts the rig again (``stamp_jumped_ahead`` once; ``time_reset_threshold`` 1 s), no
+    camera counts as stopped for the gap and every rig frame after it has all three cameras."""
+    import dataclasses
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=20)
+    later = [dataclasses.replace(f, stamp_ns=f.stamp_ns + 5 * 10**9) for f in frames]
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info(cams)
+        h.send_clouds(frames + later)
+        h.node._end_video()
+        _, v = h.last_diag()
+        assert sum(int(v[f"{c.name}.stamp_jumped_ahead"]) for c in cams) == 1, v
+        assert int(v["rig_frames_solved"]) == 2 * len(frames) // 3 == len(h.poses), v
+        for c in cams:
+            assert h.node.rig.counts[f"{c.name}.stopped"] == 0
+            assert v[f"{c.name}.missed"] == "0", v
+    finally:
+        h.close()
