@@ -9,8 +9,9 @@ one pose per rig frame from all cameras, tracked, the rig's twist fused) and pub
 Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.cameras``:
     <c>/correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
     <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics; until one arrives
-                         the camera's frames wait (counted ``<c>.skipped.no_camera_info``) and
-                         the rig runs on the others
+                         the camera's frames wait (state ``waiting``, counted
+                         ``<c>.skipped.no_camera_info``, a warning names the topic) and the
+                         rig runs on the others
     <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
                          set: each camera's own front end (``frontend``, ``frontend_map``,
                          ``aruco.*`` / ``features.*``) searching with the rig's prediction
@@ -37,12 +38,13 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
 The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
 ``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted
 ``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order (a rig
-frame's frames taken together) and
-publishes what they complete, so the executor stays free for the cameras' next frames however
-slow a rig frame is. Per camera ``received = solved + failed + skipped + pending`` in every
-diagnostics snapshot (pending: waiting in the queue or in an open rig frame). The parameters
-are read once, at start (changes at run time are refused). The managed
-node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+frame's frames taken together) and publishes what they complete, so the executor stays free
+for the cameras' next frames however slow a rig frame is. Per camera ``received = solved +
+failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
+in an open rig frame). Each camera's frame uses the camera_info of its stamp
+(:mod:`.camera_info_history`). The parameters are read once, at start (changes at run time
+are refused). The managed node's rig mode is
+:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
