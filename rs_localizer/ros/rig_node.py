@@ -77,7 +77,7 @@ from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .declare import declare_parameters
-from .diagnostics import ERROR, OK, WARN
+from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
 from .frame_queue import FrameQueue
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import read_correspondences
@@ -785,13 +785,17 @@ class RigCore:
 def _timing_values(ms: dict) -> dict:
     """The rig node's timing values (ms) of the last 1000: ``latency_ms_*`` (a camera frame's
     arrival to the pose of the rig frame it completed), ``stamp_age_ms_*`` (the rig frame's
-    time to that pose, node clock) and ``camera_frame_ms_median`` (the worker's time per
-    camera frame: decoding, front end, rig), as the single-camera node's keys."""
+    time to that pose, node clock; ``stamps_off_clock`` counts those more than
+    :data:`.diagnostics.OFF_CLOCK_S` off, another clock's stamps) and
+    ``camera_frame_ms_median`` (the worker's time per camera frame: decoding, front end,
+    rig), as the single-camera node's keys."""
 
     def f(x):
         return f"{x:.3f}"
 
     lat, age, frame = ms["latency"], ms["stamp_age"], ms["frame"]
+    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3  # (as the camera's node: another clock's
+    off_clock, age = int(np.sum(~on_clock)), age[on_clock]  # stamps are not a stamp age)
     nan = "nan"
     return {
         "latency_ms_last": f(lat[-1]) if len(lat) else nan,
@@ -799,6 +803,7 @@ def _timing_values(ms: dict) -> dict:
         "latency_ms_p99": f(np.percentile(lat, 99)) if len(lat) else nan,
         "stamp_age_ms_last": f(age[-1]) if len(age) else nan,
         "stamp_age_ms_median": f(np.median(age)) if len(age) else nan,
+        "stamps_off_clock": off_clock,
         "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
     }
 

@@ -62,7 +62,9 @@ def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context
             shares += float(v[f"{c.name}.inlier_share"])
         assert abs(shares - 1.0) < 0.01
         lat, frame = float(v["latency_ms_median"]), float(v["camera_frame_ms_median"])
-        assert frame > 0.0 and 0.0 < lat < 10_000.0 and v["stamp_age_ms_median"] != "nan", v
+        assert frame > 0.0 and 0.0 < lat < 10_000.0, v
+        # (the simulated stamps are of 2023, not the node's clock: no stamp age)
+        assert v["stamp_age_ms_median"] == "nan" and v["stamps_off_clock"] == "15", v
     finally:
         h.close()
 
