@@ -1,6 +1,6 @@
-"""The node's rig mode on images over DDS: 3 cameras x 640x480 RGB, lock-step.
+"""The node's rig mode on images over DDS: 3 cameras x 640x480 RGB, lock-step or at a rate.
 
-    python -m benchmarks.bench_rig_node_images [--frames 30] [--cameras 3]
+    python -m benchmarks.bench_rig_node_images [--frames 30] [--cameras 3] [--rate HZ]
 
 Renders every camera's view of the ``aruco_room`` marker scene at the rig's ``shake`` motion
 composed with its mounting (:mod:`rs_localizer.sim.render.rig`: the ``vga`` camera preset, 30 ms
@@ -13,6 +13,12 @@ the rig frames posed, the lock-step rate (rig frames per second of wall time, th
 included), the node process's CPU time per rig frame (all its threads, ``/proc``) and the
 poses' median and maximum errors against the truth. The first ``--warm`` rig frames (numba
 caches loading, OpenCV's first calls) are sent but not timed.
+
+With ``--rate HZ`` the rig frames are sent at that rate, as cameras do, without waiting for
+the poses; then the node's /diagnostics are read once it is idle: every camera's received,
+solved, failed, skipped and pending frames (with the reasons), the rig frames' counts, and the
+share of the poses more than 0.1 deg from the truth, and how long after the last images the
+last pose came (how far the node lags behind the cameras).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import pickle
 import sys
 import tempfile
 import time
@@ -49,29 +56,45 @@ def _image_msg(img, stamp_ns, frame_id):
 
 
 def run_benchmark(
-    frames: int = 30, cameras: int = 3, warm: int = 3, dds_profile: bool = True, log=print
+    frames: int = 30,
+    cameras: int = 3,
+    warm: int = 3,
+    dds_profile: bool = True,
+    log=print,
+    rate: float | None = None,
+    render_cache: str | None = None,
 ) -> dict:
-    """Render, start the node, send lock-step; returns the figures (see the module docstring).
-    ``dds_profile`` False: this process (the images' sender) without the package's Fast DDS
-    profile, as a camera driver started without it."""
+    """Render, start the node, send lock-step (``rate`` None) or at ``rate`` Hz; returns the
+    figures (see the module docstring). ``dds_profile`` False: this process (the images'
+    sender) without the package's Fast DDS profile, as a camera driver started without it.
+    ``render_cache``: a directory keeping the rendered images between runs (your own files:
+    loaded with pickle)."""
     import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, Image
 
-    from rs_localizer.geometry import rotation_angle_deg
-    from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg, quaternion_from_matrix
+    from rs_localizer.ros.conversions import camera_info_msg, quaternion_from_matrix
     from rs_localizer.ros.dds_profile import apply_default_profile
     from rs_localizer.ros.process import NodeProcess, random_domain_id, ros_env, write_params_yaml
     from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
-    from rs_localizer.sim.rig_video import rig_truth
 
     from .bench_client import SINGLE_THREAD_ENV
 
     cams = vga_rig(cameras)
     tic = time.perf_counter()
-    rendered, motion = render_rig_frames(cams, frames, seed=0)
+    cache = None if render_cache is None else Path(render_cache) / f"rig_{cameras}_{frames}.pkl"
+    if cache is not None and cache.exists():
+        with cache.open("rb") as f:
+            rendered, motion = pickle.load(f)
+    else:
+        rendered, motion = render_rig_frames(cams, frames, seed=0)
+        if cache is not None:
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            with cache.open("wb") as f:
+                pickle.dump((rendered, motion), f)
     log(f"rendered {len(rendered)} images in {time.perf_counter() - tic:.1f} s")
     params = {
         "warmup": False,
@@ -144,6 +167,9 @@ def run_benchmark(
             by_index.setdefault(f.index, []).append(f)
         msgs = {k: [(f.name, _image_msg(f.image, f.stamp_ns, f.name)) for f in fs]
                 for k, fs in by_index.items()}  # fmt: skip
+        if rate is not None:
+            return _send_at_rate(node, ex, wait, pub_img, msgs, poses, rate, motion, warm,
+                                 DiagnosticArray)  # fmt: skip
         timed = []
         cpu0 = t0 = None
         for k in sorted(msgs):
@@ -161,13 +187,8 @@ def run_benchmark(
         wall = time.perf_counter() - t0
         cpu = proc.cpu_seconds() - cpu0
         n_timed = len(msgs) - warm
-        errs = []
-        for m in poses:
-            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-            R, p, _, _ = rig_truth(motion, (stamp - T0) * 1e-9)
-            Re, pe = pose_from_msg(m.pose)
-            errs.append((rotation_angle_deg(Re, R), np.linalg.norm(pe - p) * 1e3))
-        e = np.array(errs) if errs else np.full((1, 2), np.nan)
+        e = _pose_errors(poses, motion)
+        e = e if len(e) else np.full((1, 2), np.nan)
         out = {
             "cameras": len(cams),
             "rig_frames_sent": len(msgs),
@@ -192,6 +213,73 @@ def run_benchmark(
         proc.stop()
 
 
+def _pose_errors(poses, motion) -> np.ndarray:
+    """(N, 2) rotation (deg) and position (mm) errors of the poses against the truth."""
+    from rs_localizer.geometry import rotation_angle_deg
+    from rs_localizer.ros.conversions import pose_from_msg
+    from rs_localizer.sim.rig_video import rig_truth
+
+    errs = []
+    for m in poses:
+        stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+        R, p, _, _ = rig_truth(motion, (stamp - T0) * 1e-9)
+        Re, pe = pose_from_msg(m.pose)
+        errs.append((rotation_angle_deg(Re, R), np.linalg.norm(pe - p) * 1e3))
+    return np.array(errs) if errs else np.zeros((0, 2))
+
+
+def _send_at_rate(node, ex, wait, pub_img, msgs, poses, rate, motion, warm, diag_type) -> dict:
+    """Send the first ``warm`` rig frames lock-step (the node's first calls), then rig frame
+    k's images at k / rate s; read the node's counts once it is idle (no pose for 5 s)."""
+    statuses = []
+    node.create_subscription(diag_type, "/diagnostics", statuses.append, 10)
+    keys = sorted(msgs)
+    for k in keys[:warm]:
+        n = len(poses)
+        for name, m in msgs[k]:
+            pub_img[name].publish(m)
+        wait(lambda n=n: len(poses) > n, 60.0)
+    t0 = time.perf_counter()
+    late = 0.0
+    for k in keys[warm:]:
+        due = t0 + (k - keys[warm]) / rate
+        while time.perf_counter() < due:
+            ex.spin_once(timeout_sec=max(0.0, min(0.002, due - time.perf_counter())))
+        late = max(late, time.perf_counter() - due)
+        for name, m in msgs[k]:
+            pub_img[name].publish(m)
+    sent_s = time.perf_counter() - t0
+    sent_at = time.monotonic()
+    n, quiet = -1, time.monotonic()
+    while time.monotonic() - quiet < 5.0:  # (until no pose for 5 s)
+        if len(poses) != n:
+            n, quiet = len(poses), time.monotonic()
+        wait(lambda: False, 0.1)
+    statuses.clear()
+    wait(lambda: bool(statuses), 30.0)
+    values = {}
+    for arr in statuses[-1:]:
+        for st in arr.status:
+            values = {kv.key: kv.value for kv in st.values}
+            values["level"], values["message"] = int.from_bytes(st.level, "little"), st.message
+    e = _pose_errors(poses, motion)
+    off = e[:, 0] > 0.1 if len(e) else np.zeros(0, bool)
+    return {
+        "rate_hz": rate,
+        "rig_frames_sent": len(msgs),
+        "rig_frames_sent_lockstep": min(warm, len(msgs)),
+        "send_seconds": sent_s,
+        "send_late_max_ms": late * 1e3,
+        "last_pose_after_send_s": quiet - sent_at,
+        "poses": len(poses),
+        "poses_off_0.1deg": int(off.sum()),
+        "rotation_deg_max": float(e[:, 0].max()) if len(e) else float("nan"),
+        "position_mm_max": float(e[:, 1].max()) if len(e) else float("nan"),
+        "diagnostics": values,
+        "load_average": os.getloadavg()[0],
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=30, help="frames per camera (default 30)")
@@ -203,6 +291,18 @@ def main(argv=None) -> int:
         action="store_true",
         help="send the images without the package's Fast DDS profile (as a driver without it)",
     )
+    ap.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        help="send the rig frames at this rate (Hz) instead of lock-step and report the node's "
+        "frame counts",
+    )
+    ap.add_argument(
+        "--render-cache",
+        default=None,
+        help="a directory of your own keeping the rendered images between runs (pickle)",
+    )
     a = ap.parse_args(argv)
     if a.frames <= a.warm:
         ap.error("--frames must exceed --warm")
@@ -212,8 +312,10 @@ def main(argv=None) -> int:
         a.warm,
         not a.no_dds_profile,
         log=(lambda *x: None) if a.json else print,
+        rate=a.rate,
+        render_cache=a.render_cache,
     )
-    if a.json:
+    if a.json or a.rate is not None:
         print(json.dumps(r, indent=1))
         return 0
     print(

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -398,41 +399,78 @@ class RigConfig:
     reference_row: float | None
 
 
+_TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def rig_camera_names(value: Any) -> list[str]:
+    """The ``rig.cameras`` value as its camera names: a list of names, each a valid ROS topic
+    name token (a letter or ``_`` first, then letters, digits and ``_``: the camera's topics are
+    ``<camera>/image_raw``, ``<camera>/camera_info``), none listed twice.
+
+    Raises:
+        ConfigError: not a list, an empty list, a name that is not a string or not a topic
+            name token, a name listed twice (one line naming the parameter and the fix).
+    """
+    if isinstance(value, str):
+        raise ConfigError(
+            f"rig.cameras must be a list of camera names: write [{value}], not {value}"
+        )
+    if not isinstance(value, (list, tuple)) or not value:
+        raise ConfigError(
+            f"rig.cameras: needs camera names (a list, e.g. [front, left]), got {value!r}"
+        )
+    names = []
+    for n in value:
+        if not isinstance(n, str) or not _TOPIC_TOKEN.fullmatch(n.strip()):
+            raise ConfigError(
+                f"rig.cameras: camera name {n!r} is not valid in a topic name (<camera>/"
+                "image_raw): use letters, digits and _, a letter or _ first, e.g. front_cam"
+            )
+        names.append(n.strip())
+    if len(set(names)) != len(names):
+        raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
+    return names
+
+
+def _rig_mounting(n: str, m: Any) -> RigMount:
+    """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers; integers taken as floats)."""
+    if m is None or (isinstance(m, (list, tuple)) and len(m) == 0):
+        raise ConfigError(
+            f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
+            "qw] (its optical frame's pose in base_frame)"
+        )
+    numbers = isinstance(m, (list, tuple)) and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in m
+    )
+    if not numbers or len(m) != 7 or not np.isfinite(np.asarray(m, dtype=float)).all():
+        raise ConfigError(
+            f"rig.{n}.mounting must be 7 finite numbers x, y, z, qx, qy, qz, qw, got "
+            f"{list(m) if isinstance(m, (list, tuple)) else m!r}"
+        )
+    m = [float(x) for x in m]
+    try:
+        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+    except ValueError as e:
+        raise ConfigError(f"rig.{n}.mounting: {e}") from None
+
+
 def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any]]) -> RigConfig:
     """The rig's configuration of a full set of :data:`.params.PARAMETERS` and
     :data:`.params.RIG_PARAMETERS` values and, per camera of ``rig.cameras``, its
     :data:`.params.RIG_CAMERA_PARAMETERS` values (``mounting`` None: not given).
 
     Raises:
-        ConfigError: no cameras, a camera listed twice or without a usable mounting (naming
-            it), an unknown readout direction, estimator or tracking options their classes
-            reject.
+        ConfigError: no cameras, a camera name that is not valid in a topic name or listed
+            twice, a camera without a usable mounting (naming it), an unknown readout
+            direction, estimator or tracking options their classes reject.
     """
-    names = [str(n).strip() for n in values["rig.cameras"]]
-    if not names or any(not n for n in names):
-        raise ConfigError(f"rig.cameras: needs camera names, got {list(values['rig.cameras'])}")
-    if len(set(names)) != len(names):
-        raise ConfigError(f"rig.cameras: a camera listed twice in {names}")
+    names = rig_camera_names(values["rig.cameras"])
     opts, tracking, imu = _estimation(values)
     line_delay, readout_time, direction, reference_row = _timing(values)
     out = []
     for n in names:
         c = cameras.get(n, {})
-        m = c.get("mounting")
-        if m is None or len(m) == 0:
-            raise ConfigError(
-                f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
-                "qw] (its optical frame's pose in base_frame)"
-            )
-        if len(m) != 7 or not np.isfinite(np.asarray(m, dtype=float)).all():
-            raise ConfigError(
-                f"rig.{n}.mounting must be 7 finite numbers x, y, z, qx, qy, qz, qw, got {list(m)}"
-            )
-        try:
-            R = cv.matrix_from_quaternion(m[3:])
-            mount = RigMount.from_pose(R, m[:3])
-        except ValueError as e:
-            raise ConfigError(f"rig.{n}.mounting: {e}") from None
+        mount = _rig_mounting(n, c.get("mounting"))
         ld = float(c.get("line_delay", -1.0))
         rt = float(c.get("readout_time", -1.0))
         for key, v, top in (

@@ -6,9 +6,9 @@ thread takes them out in order and hands each to ``process``. When the queue is 
 waiting frame is dropped (skipped), so the newest frames are the ones solved.
 
 Accounting: every frame put is, at every instant, exactly one of solved, failed, skipped or
-pending (waiting, or the one being solved), so ``received = solved + failed + skipped +
-pending`` holds in every :meth:`FrameQueue.counts` snapshot: a frame's outcome is counted in the
-same critical section that ends its pending state. No ROS import.
+pending (waiting, or taken by the worker and not yet counted), so ``received = solved +
+failed + skipped + pending`` holds in every :meth:`FrameQueue.counts` snapshot: a frame's
+outcome is counted in the same critical section that ends its pending state. No ROS import.
 """
 
 from __future__ import annotations
@@ -62,6 +62,16 @@ class FrameQueue:
             exceptions propagate to ``on_error`` (default: ignored) and do not change the
             counts.
         name: the worker thread's name.
+        group: ``group(batch, item) -> bool``: with it the worker takes, with the oldest
+            waiting frame, every waiting frame that belongs with those it took (``batch``, a
+            list, oldest first), e.g. the other cameras' frames of one rig frame; they are
+            then solved one after another and no longer dropped by a full queue (still
+            pending). A full queue drops its oldest frame with the waiting frames that belong
+            with it. None: one frame at a time.
+        on_skip: ``on_skip(item, reason)`` for each frame dropped unsolved, ``reason``
+            ``queue_full`` (:meth:`put`) or ``stopped`` (:meth:`request_stop` with
+            ``drop_queued``), e.g. to count it per camera; called with the queue's lock held
+            (it must not call the queue).
     """
 
     def __init__(
@@ -70,14 +80,18 @@ class FrameQueue:
         deliver: Callable[[Any, Outcome], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
         name: str = "rs_localizer_worker",
+        on_skip: Callable[[Any, str], None] | None = None,
+        group: Callable[[list, Any], bool] | None = None,
     ):
         self._process = process
         self._deliver = deliver
         self._on_error = on_error
         self._name = name
+        self._on_skip = on_skip
+        self._group = group
         self._cond = threading.Condition()
         self._queue: deque = deque()
-        self._in_flight = False  # the worker is on a frame (counted as pending)
+        self._in_flight = 0  # frames the worker took and has not counted yet (pending)
         self._stop = False
         self._worker: threading.Thread | None = None
         self._received = self._solved = self._failed = self._skipped = 0
@@ -91,8 +105,10 @@ class FrameQueue:
             self._received += 1
             skipped = 0
             while self._queue and len(self._queue) >= max_waiting:
-                self._queue.popleft()
-                skipped += 1
+                for dropped in self._take_group():
+                    skipped += 1
+                    if self._on_skip is not None:
+                        self._on_skip(dropped, "queue_full")
             self._skipped += skipped
             self._queue.append(item)
             self._cond.notify_all()
@@ -106,7 +122,7 @@ class FrameQueue:
                 solved=self._solved,
                 failed=self._failed,
                 skipped=self._skipped,
-                pending=len(self._queue) + int(self._in_flight),
+                pending=len(self._queue) + self._in_flight,
                 failures=dict(self._failures),
             )
 
@@ -135,6 +151,9 @@ class FrameQueue:
             self._stop = True
             if drop_queued:
                 self._skipped += len(self._queue)
+                if self._on_skip is not None:
+                    for item in self._queue:
+                        self._on_skip(item, "stopped")
                 self._queue.clear()
             self._cond.notify_all()
 
@@ -157,22 +176,37 @@ class FrameQueue:
                     self._cond.wait()
                 if self._stop:
                     return
-                item = self._queue.popleft()
-                self._in_flight = True
+                batch = self._take_group()
+                self._in_flight = len(batch)
+            for item in batch:
+                self._solve(item)
+
+    def _take_group(self) -> list:
+        """Take the oldest waiting frame and those that belong with it (``group``; with the
+        lock held)."""
+        batch = [self._queue.popleft()]
+        if self._group is not None and self._queue:
+            rest: deque = deque()
+            for other in self._queue:
+                (batch if self._group(batch, other) else rest).append(other)
+            self._queue = rest
+        return batch
+
+    def _solve(self, item: Any) -> None:
+        try:
+            outcome = self._process(item)
+        except Exception as e:
+            outcome = Failed("internal_error", f"{type(e).__name__}: {e}")
+        with self._cond:  # (the outcome and the end of pending: one step)
+            if outcome.failure is None:
+                self._solved += 1
+            else:
+                self._failed += 1
+                self._failures[outcome.failure] += 1
+            self._in_flight -= 1
+        if self._deliver is not None:
             try:
-                outcome = self._process(item)
+                self._deliver(item, outcome)
             except Exception as e:
-                outcome = Failed("internal_error", f"{type(e).__name__}: {e}")
-            with self._cond:  # (the outcome and the end of pending: one step)
-                if outcome.failure is None:
-                    self._solved += 1
-                else:
-                    self._failed += 1
-                    self._failures[outcome.failure] += 1
-                self._in_flight = False
-            if self._deliver is not None:
-                try:
-                    self._deliver(item, outcome)
-                except Exception as e:
-                    if self._on_error is not None:
-                        self._on_error(e)
+                if self._on_error is not None:
+                    self._on_error(e)

@@ -157,5 +157,6 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
         return f"rig of {len(self.config.cameras)} cameras"
 
     def destroy_node(self) -> None:
+        self._stop_worker()  # (the frame it is on is finished)
         SHARED_MAPS.release(self)
         return super().destroy_node()

@@ -9,8 +9,9 @@ one pose per rig frame from all cameras, tracked, the rig's twist fused) and pub
 Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.cameras``:
     <c>/correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
     <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics; until one arrives
-                         the camera's frames wait (counted ``<c>.skipped.no_camera_info``) and
-                         the rig runs on the others
+                         the camera's frames wait (state ``waiting``, counted
+                         ``<c>.skipped.no_camera_info``, a warning names the topic) and the
+                         rig runs on the others
     <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
                          set: each camera's own front end (``frontend``, ``frontend_map``,
                          ``aruco.*`` / ``features.*``) searching with the rig's prediction
@@ -34,15 +35,27 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
     /diagnostics (one status: the rig's counts and every camera's, with warnings)
 
-The frames are solved in the subscription callbacks (one executor thread): the node has no
-frame queue. The parameters are read once, at start (changes at run time are refused). The
-managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
+``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted
+``<c>.skipped.queue_full``); one worker thread hands them to the rig in arrival order (a rig
+frame's frames taken together) and publishes what they complete, so the executor stays free
+for the cameras' next frames however slow a rig frame is. Per camera ``received = solved +
+failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
+in an open rig frame). Each camera's frame uses the camera_info of its stamp
+(:mod:`.camera_info_history`). The parameters are read once, at start (changes at run time
+are refused). The managed node's rig mode is
+:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
+import sys
+import threading
 import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,19 +63,22 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterUninitializedException
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.parameter import Parameter as RosParameter
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
+from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
+from ..tracking.sequence import reference_stamp_ns
 from . import conversions as cv
-from .config import RigConfig, build_config, load_maps, rig_config
+from .camera_info_history import CameraInfoHistory, calibration_key
+from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .declare import declare_parameters
-from .diagnostics import ERROR, OK, WARN
+from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
+from .frame_queue import FrameQueue
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
@@ -70,7 +86,27 @@ from .status_msg import status_message
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
-_ARRAY_TYPES = {"rig.cameras": RosParameter.Type.STRING_ARRAY}
+_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
+
+INPUT_SKIP_REASONS = {
+    "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
+    "camera) and this, the oldest waiting frame, was dropped so that the newest are solved",
+    "stopped": "the frame inputs stopped (deactivate) while the frame waited in the queue",
+    "bad_input": "the message could not be read (a stamp out of range, a cloud without its fields)",
+}
+"""The node's reasons for a camera frame dropped before it reaches the rig (counted
+``<c>.skipped.<reason>``, beside the rig's own :data:`~rs_localizer.tracking.rig.SKIP_REASONS`)."""
+
+
+@dataclass
+class _Taken:
+    """The worker's outcome of one camera frame: the rig frames it completed (solved). The
+    frame's own accounting is the rig's and the node's per camera counts, so for the queue it
+    is always done (``failure`` None)."""
+
+    outs: list = field(default_factory=list)
+    failure: str | None = None
+    fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
 
 
 class _Log:
@@ -89,18 +125,20 @@ class _Log:
         self.logger.info(text)
 
 
-def _declare_typed(node: Node, name: str, par, array_type) -> Any:
-    """Declare a parameter whose default is an empty array with its type; returns its value
-    (None: not set)."""
-    d = ParameterDescriptor(description=par.description, read_only=par.read_only)
-    node.declare_parameter(name, array_type, d)
-    try:
-        return node.get_parameter(name).value
-    except ParameterUninitializedException:
-        return None
+def _declare_dynamic(node: Node, name: str, par) -> Any:
+    """Declare a parameter of any type (its value checked by :func:`.config.rig_config`, which
+    names the parameter and the fix: ``rig.cameras: front`` instead of ``[front]``, a mounting
+    of integers); returns its value (None: not set)."""
+    d = ParameterDescriptor(
+        description=par.description, read_only=par.read_only, dynamic_typing=True
+    )
+    node.declare_parameter(name, None, d)
+    return node.get_parameter(name).value
 
 
-def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dict]:
+def rig_diagnostics(
+    rig: RigLocalizer, waiting_info: set, inputs: Counter | None = None
+) -> tuple[int, str, dict]:
     """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
     ``WARN`` (a camera disagrees with the rig, or two cameras with each other; a camera has
     stopped, waits for its camera_info, or rig frames failed) or ``ERROR`` (rig frames formed
@@ -110,7 +148,17 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
     ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts; with a gyro the
-    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame)."""
+    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame); ``rig_frames_failed.<reason>``
+    for each failure reason of the rig estimator (or ``error``: it raised).
+
+    ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
+    ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
+    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
+    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
+    (frames that started the rig again) and ``<c>.messages_lost`` (lost
+    by the middleware, never received: a value of its own);
+    then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
+    to the rig's and the frames still queued to ``<c>.pending``."""
     r = rig.rig_counts()
     values: dict[str, Any] = {
         "rig_frames": r["rig_frames"],
@@ -120,12 +168,34 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
         "rig_frames_pending": r["pending"],
         "track_state": rig.track_state,
     }
+    for k, v in sorted(rig.counts.items()):
+        if k.startswith("rig.failed."):
+            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
     warnings = []
+    busy = lost = 0
     for n in rig.cameras:
         c = rig.camera_counts(n)
+        if inputs is not None:
+            own = {k[len(n) + 1 :]: v for k, v in inputs.items() if k.startswith(f"{n}.")}
+            early = sum(v for k, v in own.items() if k.startswith("skipped."))
+            queued = early - own.get("skipped.bad_input", 0)
+            c["received"] = own.get("received", 0)
+            c["skipped"] += early
+            c["failed"] += own.get("failed.internal_error", 0)
+            c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+            busy += own.get("skipped.queue_full", 0)
+            lost += own.get("messages_lost", 0)
+            values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
+            values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
+            values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
+            for k, v in own.items():
+                if k.startswith(("skipped.", "failed.")):
+                    values[f"{n}.{k}"] = v
         for k, v in c.items():
             values[f"{n}.{k}"] = v
         state = rig.camera_state(n)
+        if n in waiting_info and state in ("running", "stopped"):
+            state = "waiting"  # (its frames wait for the camera_info)
         values[f"{n}.state"] = state
         values[f"{n}.camera_info"] = "waiting" if n in waiting_info else "received"
         s = rig.last_share(n)
@@ -162,8 +232,17 @@ def rig_diagnostics(rig: RigLocalizer, waiting_info: set) -> tuple[int, str, dic
             warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
         return ERROR, "no rig frame posed", values
+    if busy:
+        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
     if r["failed"]:
-        warnings.append(f"{r['failed']} rig frames failed")
+        why = ", ".join(
+            f"{k[len('rig_frames_failed.') :]} {v}"
+            for k, v in values.items()
+            if k.startswith("rig_frames_failed.")
+        )
+        warnings.append(f"{r['failed']} rig frames failed ({why})")
     if warnings:
         return WARN, "; ".join(warnings), values
     return OK, f"{r['solved']} rig frames posed", values
@@ -191,9 +270,7 @@ class RigCore:
     def _declare_parameters(self) -> None:
         declare_parameters(self, PARAMETERS)
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
-        _declare_typed(
-            self, "rig.cameras", RIG_PARAMETERS["rig.cameras"], _ARRAY_TYPES["rig.cameras"]
-        )
+        _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
         self._outputs, self._subs, self._frame_subs = [], [], []
         self._pubs, self.pub_diag, self._timer = {}, None, None
         self._configured = False
@@ -202,34 +279,23 @@ class RigCore:
         """Parameters -> configuration (each camera's ``rig.<camera>.*`` declared on first
         use), a front end per camera when ``frontend`` is set (one map loaded, shared), the
         rig localizer. Raises RuntimeError for invalid parameters (naming them)."""
-        try:
-            names = self.get_parameter("rig.cameras").value
-        except ParameterUninitializedException:
-            names = None
+        try:  # (the names first: they make parameter and topic names)
+            names = rig_camera_names(self.get_parameter("rig.cameras").value)
+        except ConfigError as e:
+            raise RuntimeError(f"invalid parameters: {e}") from None
         values = {n: self.get_parameter(n).value for n in PARAMETERS}
         values.update(
             {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
-        values["rig.cameras"] = list(names or [])
+        values["rig.cameras"] = names
         cams = {}
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
-        for n in values["rig.cameras"]:
-            n = str(n).strip()
-            if not n:
-                continue
+        for n in names:
             if not self.has_parameter(f"rig.{n}.line_delay"):
                 declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
-                _declare_typed(
-                    self,
-                    f"rig.{n}.mounting",
-                    RIG_CAMERA_PARAMETERS["mounting"],
-                    RosParameter.Type.DOUBLE_ARRAY,
-                )
+                _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
             cams[n] = {k: self.get_parameter(f"rig.{n}.{k}").value for k in own}
-            try:
-                cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
-            except ParameterUninitializedException:
-                cams[n]["mounting"] = None
+            cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
         try:
             self.config: RigConfig = rig_config(values, cams)
             single = build_config(values)  # (the front end: frontend, frontend_map, aruco.*)
@@ -247,8 +313,27 @@ class RigCore:
         self.rig = RigLocalizer(self.config.settings, log=self._log)
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
-        self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}
+        self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}  # (newest)
+        self._infos = {c.name: CameraInfoHistory() for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
+        self.queue_size = int(values["queue_size"])
+        self.max_points = int(values["max_points"])
+        self._frames = FrameQueue(
+            self._process,
+            self._deliver,
+            self._delivery_failed,
+            name="rs_localizer_rig_worker",
+            on_skip=self._queue_skipped,
+            group=self._same_rig_frame,
+        )
+        self._group_ns = int(self.config.settings.window * 1e9)
+        self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
+        self._acc = threading.Lock()  # (the node's own counts, self._inputs)
+        self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
+        self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
+        self._first_frame: float | None = None  # (monotonic s: the first frame received)
+        self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
+        self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
         self._configured = True
 
     def _create_outputs(self) -> None:
@@ -289,6 +374,7 @@ class RigCore:
                     f"{c.name}/correspondences",
                     lambda msg, n=c.name: self._on_cloud(n, msg),
                     CLOUD_QOS,
+                    event_callbacks=self._lost_events(c.name, "cloud"),
                     qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                 )
             )
@@ -301,6 +387,7 @@ class RigCore:
                         topic,
                         lambda msg, n=c.name: self._on_image(n, msg),
                         IMAGE_QOS,
+                        event_callbacks=self._lost_events(c.name, "image"),
                         qos_overriding_options=QoSOverridingOptions.with_default_policies(),
                     )
                 )
@@ -310,23 +397,49 @@ class RigCore:
         self._timer = self.create_timer(
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
+        # the worker holds the GIL while it solves; hand it to the subscription callbacks
+        # often, so that frames leave the middleware's queue quickly (as the camera's node)
+        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
+        self._frames.start()
+
+    def _stop_worker(self) -> None:
+        """Stop the worker thread after the frame it is on (frames still queued stay pending)."""
+        if getattr(self, "_frames", None) is not None:
+            self._frames.stop()
+
+    def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
+        """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
+        middleware lost before the node saw them (never received; ``<c>.messages_lost``)."""
+
+        def on_lost(status):
+            with self._acc:
+                self._lost[(name, kind)] = int(status.total_count)
+
+        return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def _destroy_frame_inputs(self) -> None:
+        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped (counted
+        ``<c>.skipped.stopped``)."""
         for sub in self._frame_subs:
             self.destroy_subscription(sub)
         self._frame_subs = []
         if self._timer is not None:
             self.destroy_timer(self._timer)
             self._timer = None
+        if getattr(self, "_frames", None) is not None:
+            self._frames.stop(drop_queued=True)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
         next frame starts a new track."""
         if self.rig is None:
             return
-        for out in self.rig.close():
+        with self._rig_lock:
+            outs = self.rig.close()
+            fused = self.rig.flush() + self.rig.reset()
+        for out in outs:
             self.publish_output(out)
-        for f in self.rig.flush() + self.rig.reset():
+        for f in fused:
             self._publish_fused(f)
 
     def _release_configured(self) -> None:
@@ -345,10 +458,17 @@ class RigCore:
             if self.frontend_kind != "none"
             else ""
         )
+        timing = []
+        for c in self.config.cameras:
+            t = (
+                f"readout {c.readout_time * 1e3:.2f} ms"
+                if c.readout_time > 0
+                else f"line delay {c.line_delay * 1e6:.2f} us/line"
+            )
+            timing.append(f"{c.name} {t} {c.direction}")
         self.get_logger().info(
-            f"ready: rig of {len(self.config.cameras)} cameras "
-            f"({', '.join(c.name for c in self.config.cameras)}) posed as {self.config.base_frame}"
-            f" in {self.map_frame}{images}"
+            f"ready: rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
+            f"{self.config.base_frame} in {self.map_frame}{images}"
         )
 
     def _refuse_changes(self, params) -> SetParametersResult:
@@ -365,27 +485,194 @@ class RigCore:
 
     # ---------------------------------------------------------------- inputs
     def _on_info(self, cam, msg) -> None:
+        """A camera_info: kept by its stamp in the camera's
+        :class:`~rs_localizer.ros.camera_info_history.CameraInfoHistory` (a frame uses the
+        newest stamped at or before it, as the single-camera node's; one camera model per
+        calibration)."""
+        hist = self._infos[cam.name]
         try:
-            self.models[cam.name] = cv.camera_model_from_camera_info(
-                msg, cam.line_delay, cam.readout_time, cam.direction, self.config.reference_row
-            )
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+            key = calibration_key(msg)
+            model = hist.camera_with_key(key)
+            if model is None:
+                model = cv.camera_model_from_camera_info(
+                    msg, cam.line_delay, cam.readout_time, cam.direction, self.config.reference_row
+                )
         except ValueError as e:
             self.bad_input[cam.name] += 1
             self._log.warning(
                 f"info.{cam.name}", f"rig camera {cam.name!r}: camera_info rejected: {e}"
             )
+            return
+        hist.add(stamp, key, msg, model)
+        self.models[cam.name] = model
+
+    def _camera(self, name: str, stamp_ns: int):
+        """Camera ``name``'s model for a frame stamped ``stamp_ns`` (None: no camera_info yet)."""
+        return self._infos[name].camera_for(stamp_ns)
 
     def _on_cloud(self, name: str, msg) -> None:
+        self._enqueue(name, "cloud", msg)
+
+    def _enqueue(self, name: str, kind: str, msg) -> None:
+        """Subscription callbacks: count the camera's frame and queue it for the worker. A full
+        queue (``queue_size`` frames per camera) drops its oldest frame (counted
+        ``<c>.skipped.queue_full``): the newest frames are the ones solved."""
+        with self._acc:
+            self._inputs[f"{name}.received"] += 1
+        if self._first_frame is None:
+            self._first_frame = time.monotonic()
+        size = self.queue_size * len(self.config.cameras)
+        skipped = self._frames.put((name, kind, msg, time.perf_counter()), size)
+        _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
+        if skipped:
+            self._log.warning(
+                "queue_full",
+                f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
+                f"camera), dropped the oldest waiting frame "
+                f"[{self._frames.counts().skipped} dropped so far]",
+            )
+
+    def _same_rig_frame(self, batch: list, item) -> bool:
+        """Whether a waiting frame goes with the frames the worker takes (``batch``): another
+        camera's whose reference-line time (by the camera's newest camera_info) is within
+        ``rig.window`` of the first's, as the rig groups them. A rig frame's frames are then
+        taken together, and a full queue drops whole rig frames, not the rest of the one
+        being solved."""
+        if any(b[0] == item[0] for b in batch):
+            return False
+        try:
+            return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
+        except Exception:  # (a stamp the worker will refuse: not grouped)
+            return False
+
+    def _ref_ns(self, item) -> int:
+        name, _, msg, _ = item
+        stamp = cv.stamp_to_ns(msg.header.stamp)
+        camera = self.models[name]
+        if camera is None:
+            return stamp
+        return reference_stamp_ns(stamp, camera, self.config.settings.stamp_row)
+
+    def _queue_skipped(self, item, reason: str) -> None:
+        """A frame the queue dropped (with the queue's lock held): counted for its camera."""
+        with self._acc:
+            self._inputs[f"{item[0]}.skipped.{reason}"] += 1
+
+    def _process(self, item) -> _Taken:
+        """The worker: one camera frame to the rig; counted (handed on, or why not) together
+        with the rig's counts, so that a diagnostics snapshot sees it once."""
+        name, kind, msg, _ = item
+        tic = time.perf_counter()
+        with self._rig_lock:
+            outs, skip, failure, fused = [], None, None, []
+            try:
+                outs, fused = self._stamp_jump(name, msg)
+                if kind == "cloud":
+                    more, skip = self._take_cloud(name, msg)
+                else:
+                    more, skip = self._take_image(name, msg)
+                outs += more
+            except Exception as e:  # (a defect: the frame is counted, the node goes on)
+                failure = "internal_error"
+                self._log.warning(
+                    "internal_error",
+                    f"rig camera {name!r}: frame failed (internal_error): {type(e).__name__}: {e}",
+                )
+            with self._acc:
+                self._inputs[f"{name}.taken"] += 1
+                if skip is not None:
+                    self._inputs[f"{name}.skipped.{skip}"] += 1
+                if failure is not None:
+                    self._inputs[f"{name}.failed.{failure}"] += 1
+                self._timing["frame"].append(time.perf_counter() - tic)
+        return _Taken(outs, None, fused)
+
+    def _stamp_jump(self, name: str, msg) -> tuple[list, list]:
+        """A frame stamped more than ``time_reset_threshold`` after every frame the rig has
+        had (a gap in a bag, a clock jump) starts the rig again, as a camera's node resets
+        its time-dependent state: the open rig frames are solved, the track ends and the
+        cameras' timelines restart (no camera counts as stopped for the gap); counted
+        ``<c>.stamp_jumped_ahead``. Returns the rig frames solved and the track's twists."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError:  # (counted bad_input when it is taken)
+            return [], []
+        newest, self._newest_ns = self._newest_ns, max(self._newest_ns or stamp, stamp)
+        if newest is None or stamp - newest <= self.config.settings.time_reset_ns:
+            return [], []
+        with self._acc:
+            self._inputs[f"{name}.stamp_jumped_ahead"] += 1
+        self._log.warning(
+            "stamp_jumped_ahead",
+            f"rig camera {name!r}: stamp {(stamp - newest) * 1e-9:.3f} s after the rig's newest "
+            "frame (more than time_reset_threshold): the rig starts again",
+        )
+        outs = self.rig.close()
+        return outs, self.rig.flush() + self.rig.reset()
+
+    def _deliver(self, item, taken: _Taken) -> None:
+        """The worker, after the frame is counted: publish the rig frames it completed, log
+        the failed ones (each reason at most once per 5 s)."""
+        for f in taken.fused:
+            self._publish_fused(f)
+        for out in taken.outs:
+            self._log_failure(out)
+            self.publish_output(out)
+            if out.measurement is not None:
+                toc = time.perf_counter()
+                age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
+                with self._acc:
+                    self._timing["latency"].append(toc - item[3])
+                    self._timing["stamp_age"].append(age)
+
+    def _log_failure(self, out: RigOutput) -> None:
+        if out.error is not None:
+            reason, detail = "error", f"the estimator raised {out.error}"
+        elif out.estimate is not None and not out.estimate.success:
+            reason = out.estimate.failure or "error"
+            detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
+        else:
+            return
+        n = self.rig.counts[f"rig.failed.{reason}"]
+        self._log.warning(
+            f"rig.failed.{reason}",
+            f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
+        )
+
+    def _delivery_failed(self, e: BaseException) -> None:
+        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
+
+    def _take_cloud(self, name: str, msg) -> tuple[list, str | None]:
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
             c = read_correspondences(msg)
         except ValueError as e:
             self.bad_input[name] += 1
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
-            return
-        frame = RigCameraFrame(name, stamp, self.models[name], c.points2d, c.points)
-        for out in self.rig.add(frame):
-            self.publish_output(out)
+            return [], "bad_input"
+        self._warn_no_info(name, "correspondences")
+        uv, xyz = c.points2d, c.points
+        if len(uv) > self.max_points:  # (as the single-camera node: highest scores first)
+            with self._acc:
+                self._inputs[f"{name}.capped_clouds"] += 1
+            self._log.warning(
+                "capped",
+                f"rig camera {name!r}: cloud of {len(uv)} points capped to max_points "
+                f"{self.max_points}",
+            )
+            uv, xyz, _ = cap_points(uv, xyz, c.scores, self.max_points)
+        frame = RigCameraFrame(name, stamp, self._camera(name, stamp), uv, xyz)
+        return self.rig.add(frame), None
+
+    def _warn_no_info(self, name: str, kind: str) -> None:
+        if self.models[name] is None:
+            self._log.warning(
+                f"no_info.{name}",
+                f"rig camera {name!r}: {kind} but no camera_info yet on "
+                f"{self.resolve_topic_name(f'{name}/camera_info')}: its frames wait (counted "
+                f"{name}.skipped.no_camera_info), the rig runs on the others",
+            )
 
     def _on_imu(self, msg) -> str | None:
         """A gyro sample of the rig's IMU; returns None or why it was rejected (counted
@@ -401,6 +688,9 @@ class RigCore:
         return reason
 
     def _on_image(self, name: str, msg) -> None:
+        self._enqueue(name, "image", msg)
+
+    def _take_image(self, name: str, msg) -> tuple[list, str | None]:
         """An image: decoded and checked against the camera's camera_info as the single-camera
         node does (a message that does not decode: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
@@ -410,8 +700,9 @@ class RigCore:
         except ValueError as e:
             self.bad_input[name] += 1
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
-            return
-        camera = self.models[name]
+            return [], "bad_input"
+        camera = self._camera(name, stamp)
+        self._warn_no_info(name, "images")
         img, enc, why = _decode_image(msg, camera)
         if why is not None:
             self._log.warning(
@@ -420,8 +711,7 @@ class RigCore:
             outs = self.rig.drop(name, stamp, camera, why[0])
         else:
             outs = self.rig.process_image(name, stamp, img, camera, enc)
-        for out in outs:
-            self.publish_output(out)
+        return outs, None
 
     # ---------------------------------------------------------------- outputs
     def _wanted(self, topic: str) -> bool:
@@ -457,7 +747,20 @@ class RigCore:
 
     def diagnostics_status(self) -> DiagnosticStatus:
         waiting = {n for n, m in self.models.items() if m is None}
-        level, message, values = rig_diagnostics(self.rig, waiting)
+        with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
+            with self._acc:
+                inputs = Counter(self._inputs)
+                timing = {k: np.array(v) * 1e3 for k, v in self._timing.items()}
+                for (n, _), k in self._lost.items():
+                    inputs[f"{n}.messages_lost"] += k
+            level, message, values = rig_diagnostics(self.rig, waiting, inputs)
+        values.update(_timing_values(timing))
+        first = self._first_frame
+        absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
+        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
+        if absent and waited and values["rig_frames_solved"] == 0:
+            level = ERROR
+            message = f"no rig frame posed: no frame from camera {', '.join(absent)}; " + message
         for n, k in self.bad_input.items():
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
@@ -477,6 +780,32 @@ class RigCore:
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.status = [self.diagnostics_status()]
         self.pub_diag.publish(msg)
+
+
+def _timing_values(ms: dict) -> dict:
+    """The rig node's timing values (ms) of the last 1000: ``latency_ms_*`` (a camera frame's
+    arrival to the pose of the rig frame it completed), ``stamp_age_ms_*`` (the rig frame's
+    time to that pose, node clock; ``stamps_off_clock`` counts those more than
+    :data:`.diagnostics.OFF_CLOCK_S` off, another clock's stamps) and
+    ``camera_frame_ms_median`` (the worker's time per camera frame: decoding, front end,
+    rig), as the single-camera node's keys."""
+
+    def f(x):
+        return f"{x:.3f}"
+
+    lat, age, frame = ms["latency"], ms["stamp_age"], ms["frame"]
+    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3  # (as the camera's node: another clock's
+    off_clock, age = int(np.sum(~on_clock)), age[on_clock]  # stamps are not a stamp age)
+    nan = "nan"
+    return {
+        "latency_ms_last": f(lat[-1]) if len(lat) else nan,
+        "latency_ms_median": f(np.median(lat)) if len(lat) else nan,
+        "latency_ms_p99": f(np.percentile(lat, 99)) if len(lat) else nan,
+        "stamp_age_ms_last": f(age[-1]) if len(age) else nan,
+        "stamp_age_ms_median": f(np.median(age)) if len(age) else nan,
+        "stamps_off_clock": off_clock,
+        "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
+    }
 
 
 def _decode_image(msg, camera) -> tuple:
@@ -543,6 +872,7 @@ class RigLocalizerNode(RigCore, Node):
     def destroy_node(self) -> None:
         """Solve the rig frames still open and publish them and the pending twists, then
         destroy the node."""
+        self._stop_worker()
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
         SHARED_MAPS.release(self)

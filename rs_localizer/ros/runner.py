@@ -131,20 +131,18 @@ def read_cameras(node_name: str = "rs_localizer") -> tuple[list[str], str, str]:
 
 def read_rig_cameras(node_name: str = "rs_localizer") -> list[str]:
     """The ``rig.cameras`` parameter as the single node would see it (empty: no rig), via a
-    short-lived probe node."""
+    short-lived probe node; a value of another type than a list of names (``front`` for
+    ``[front]``, integers) as a one-element list, for the rig node to refuse naming the fix."""
     from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.exceptions import ParameterUninitializedException
-    from rclpy.parameter import Parameter
 
     probe = rclpy.create_node(node_name)
     try:
-        probe.declare_parameter(
-            "rig.cameras", Parameter.Type.STRING_ARRAY, ParameterDescriptor(read_only=True)
-        )
-        try:
-            return list(probe.get_parameter("rig.cameras").value or [])
-        except ParameterUninitializedException:
+        d = ParameterDescriptor(read_only=True, dynamic_typing=True)
+        probe.declare_parameter("rig.cameras", None, d)
+        value = probe.get_parameter("rig.cameras").value
+        if value is None or (isinstance(value, (list, tuple, str)) and len(value) == 0):
             return []
+        return list(value) if isinstance(value, (list, tuple)) else [value]
     finally:
         probe.destroy_node()
 

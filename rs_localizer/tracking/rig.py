@@ -137,6 +137,8 @@ MISSED_REASONS = {
     "dropped": "no frame of the camera near the rig frame (it skipped one)",
     "stopped": "the camera sent no frame for stop_after s while the others did: the rig runs on "
     "the others",
+    "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
+    "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
 }
 #: the paths a rig frame can take (as the camera tracker's)
 RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
@@ -233,7 +235,8 @@ class RigSettings:
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
         time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
             again (a bag played again); less is ``out_of_order``.
-        threshold_px, max_iterations, min_inliers, refine, seed: the rig estimator's
+        threshold_px, max_iterations, min_inliers, refine, seed, confidence,
+            max_angular_velocity, max_linear_velocity: the rig estimator's
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
         tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
@@ -259,6 +262,9 @@ class RigSettings:
     min_inliers: int = 8
     refine: bool = True
     seed: int | None = 0
+    confidence: float = 0.999
+    max_angular_velocity: float = 20.0
+    max_linear_velocity: float = 50.0
     tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
     disagree_ratio: float = 0.5
     disagree_min_points: int = 12
@@ -440,6 +446,7 @@ class _Camera:
         self.last_ref: int | None = None  # ns, the last accepted frame's reference time
         self.recent: deque = deque(maxlen=8)  # reference times of the last frames
         self.stopped = False
+        self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
         self.flags: deque = deque(maxlen=history)
         self.disagrees = False
         self.partner: str | None = None  # (two cameras that disagree: the other one)
@@ -692,6 +699,7 @@ class RigLocalizer:
         if self._first is None:
             self._first = stamp
         if frame.camera is None:
+            cam.no_info.append(stamp)
             self._skip(name, "no_camera_info")
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
@@ -1017,9 +1025,11 @@ class RigLocalizer:
 
     # ---------------------------------------------------------------- solving
     def _missing_reason(self, cam: _Camera, g: _Group) -> str:
+        w2 = 2 * self.settings.window * 1e9
+        if any(abs(r - g.lo) <= w2 for r in cam.no_info):
+            return "no_camera_info"
         if cam.stopped:
             return "stopped"
-        w2 = 2 * self.settings.window * 1e9
         if any(abs(r - g.lo) <= w2 for r in cam.recent):
             return "apart"
         return "dropped"
@@ -1081,6 +1091,9 @@ class RigLocalizer:
             min_inliers=s.min_inliers,
             refine=s.refine,
             seed=s.seed,
+            confidence=s.confidence,
+            max_angular_velocity=s.max_angular_velocity,
+            max_linear_velocity=s.max_linear_velocity,
             initial_model=initial,
             gyro=self._gyro,
             gyro_time=self._gyro_time,

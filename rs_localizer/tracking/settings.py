@@ -83,7 +83,8 @@ def rig_settings(
     imu: GyroSettings | None = None,
 ) -> RigSettings:
     """A rig's settings with the single camera's estimator and tracker options: the RANSAC
-    threshold, iterations, inliers and seed and the refinement of ``options``, the tracker
+    threshold, iterations, confidence, inliers and seed, the refinement and the velocity bounds
+    (``plausibility``) of ``options``, the tracker
     fields of the same names of ``tracking`` (gates, explained ratio, ``max_gap``, the twist
     filter; None: every rig frame alone).
 
@@ -119,6 +120,9 @@ def rig_settings(
         min_inliers=r.min_inliers,
         refine=options.refine.enabled,
         seed=r.seed,
+        confidence=r.confidence,
+        max_angular_velocity=options.plausibility.max_angular_velocity,
+        max_linear_velocity=options.plausibility.max_linear_velocity,
         tracking=to,
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
     )

@@ -61,16 +61,24 @@ def test_a_three_camera_rig_one_pose_odom_and_per_camera_diagnostics(ros_context
             assert int(v[f"{c.name}.inliers"]) > 40
             shares += float(v[f"{c.name}.inlier_share"])
         assert abs(shares - 1.0) < 0.01
+        lat, frame = float(v["latency_ms_median"]), float(v["camera_frame_ms_median"])
+        assert frame > 0.0 and 0.0 < lat < 10_000.0, v
+        # (the simulated stamps are of 2023, not the node's clock: no stamp age)
+        assert v["stamp_age_ms_median"] == "nan" and v["stamps_off_clock"] == "15", v
     finally:
         h.close()
 
 
 def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_context):
     """The left camera's camera_info never comes: its frames are counted
-    ``skipped.no_camera_info``, the rig is posed from front and right, the status warns."""
+    ``skipped.no_camera_info`` (and the rig frames without it ``missed.no_camera_info``), its
+    state is ``waiting``, a warning names its camera_info topic, the rig is posed from front
+    and right, the status warns."""
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=12)
     h = rig_harness(ros_context, cams, rig_parameters(cams))
+    logged = []
+    h.node._log.logger = type("L", (), {"warning": logged.append, "info": logged.append})()
     try:
         h.send_info([c for c in cams if c.name != "left"])
         h.send_clouds(frames)
@@ -79,6 +87,9 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
         assert st.level == WARN and "left waits for its camera_info" in st.message, st.message
         assert v["left.received"] == v["left.skipped"] == v["left.skipped.no_camera_info"] == "9"
         assert v["left.camera_info"] == "waiting" and v["front.solved"] == v["rig_frames_solved"]
+        assert v["left.state"] == "waiting" and "left.missed.dropped" not in v, v
+        assert v["left.missed.no_camera_info"] == v["rig_frames_solved"], v
+        assert any("'left'" in t and "/rig/left/camera_info" in t for t in logged), logged
         # the parameters are read at start: a change is refused
         from rclpy.parameter import Parameter
 
@@ -118,6 +129,72 @@ def test_a_camera_without_mounting_stops_the_node_naming_it(ros_context):
     bad = [p for p in params] + [Parameter("rig.left.mounting", value=[0.0, 1.0])]
     with pytest.raises(RuntimeError, match=r"rig\.left\.mounting must be 7"):
         RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=bad)
+
+
+@pytest.mark.parametrize(
+    "overrides, error",
+    [
+        ({"rig.cameras": "front"}, r"write \[front\], not front"),
+        ({"rig.cameras": [1, 2]}, "camera name 1 is not valid in a topic name"),
+        ({"rig.cameras": ["front cam"]}, "'front cam' is not valid in a topic name"),
+        ({"rig.cameras": ["1cam"]}, "'1cam' is not valid in a topic name"),
+        ({"rig.cameras": ["front-cam"]}, "'front-cam' is not valid in a topic name"),
+        ({"rig.front.line_delay": 0}, r"'rig\.front\.line_delay' must be of type float"),
+    ],
+)
+def test_a_parameter_of_the_wrong_shape_stops_the_node_with_one_line(ros_context, overrides, error):
+    """Each parameter file shape that raised deep inside rclpy: one RuntimeError line naming
+    the parameter and the fix."""
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = {"warmup": False, "rig.cameras": ["front"]}
+    params["rig.front.mounting"] = [0.15, 0.0, 0.1, -0.5, 0.5, -0.5, 0.5]
+    params.update(overrides)
+    with pytest.raises(RuntimeError, match=error) as e:
+        RigLocalizerNode(
+            "rs_localizer",
+            context=ros_context,
+            parameter_overrides=[Parameter(k, value=v) for k, v in params.items()],
+        )
+    assert "\n" not in str(e.value)
+
+
+def test_an_integer_mounting_is_taken(ros_context):
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = {
+        "warmup": False,
+        "rig.cameras": ["front"],
+        "rig.front.mounting": [0, 0, 0, 0, 0, 0, 1],
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    try:
+        m = node.config.cameras[0].mount
+        assert np.allclose(m.R, np.eye(3)) and np.allclose(m.c, 0.0)
+    finally:
+        node.destroy_node()
+
+
+def test_the_node_process_refuses_a_camera_name_without_a_list_in_one_line(tmp_path, ros_domain):
+    """``rig.cameras: front`` in a parameter file: the process exits with one line naming the
+    fix, no traceback."""
+    from helpers.ros import refused_start
+
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    warmup: false\n    rig:\n"
+        "      cameras: front\n"
+        "      front: {mounting: [0, 0, 0, 0, 0, 0, 1]}\n"
+    )
+    exited, rc, log = refused_start(tmp_path, [p], "/rig", 60)
+    assert exited and rc == 1, log
+    assert "rig.cameras must be a list of camera names: write [front], not front" in log, log
+    assert "Traceback" not in log, log
 
 
 def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mounting(
@@ -189,5 +266,297 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
         assert v["rig.gyro_used"] == str(n), v
         assert "rig.gyro_missing" not in v and "rig.gyro_rejected" not in v
         assert v["imu_rejected.no_angular_velocity"] == "1"
+    finally:
+        h.close()
+
+
+def _balanced(v: dict, cams) -> bool:
+    """Every camera's ``received = solved + failed + skipped + pending`` and the rig frames'
+    ``rig_frames = solved + failed + skipped + pending`` in one diagnostics status."""
+    parts = ("solved", "failed", "skipped", "pending")
+    ok = int(v["rig_frames"]) == sum(int(v[f"rig_frames_{p}"]) for p in parts)
+    for c in cams:
+        n = c.name
+        ok &= int(v[f"{n}.received"]) == sum(int(v[f"{n}.{p}"]) for p in parts)
+        reasons = [k for k in v if k.startswith(f"{n}.skipped.")]
+        ok &= int(v[f"{n}.skipped"]) == sum(int(v[k]) for k in reasons)
+    return bool(ok)
+
+
+def test_a_burst_faster_than_the_rig_solves_is_received_and_every_frame_accounted(ros_context):
+    """45 clouds sent at once to a rig that takes 20 ms per camera frame, queue_size 1: every
+    frame is received (the callbacks only queue), the queue drops the oldest waiting ones
+    (``skipped.queue_full``, the status warns busy), every status balances each camera's and
+    the rig frames' counts, and every rig frame solved is published."""
+    import time
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.5, num_points=120, seed=14)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, queue_size=1))
+    slow_add = h.node.rig.add
+
+    def add(frame):
+        time.sleep(0.02)
+        return slow_add(frame)
+
+    h.node.rig.add = add
+    try:
+        h.send_info(cams)
+        for f in frames:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            h.send(f.name, "cloud", cloud, taken=False)
+        q = h.node._frames
+        assert h.wait(lambda: q.counts().received == 45 and q.counts().pending == 0)
+        h.node._end_video()  # (the open rig frames solved, as at the end of a video)
+        st, v = h.last_diag()
+        statuses = [{kv.key: kv.value for kv in s.values} for s in h.diag]
+        assert len(statuses) >= 2
+        assert all(_balanced(s, cams) for s in statuses), statuses
+        dropped = sum(int(v.get(f"{c.name}.skipped.queue_full", 0)) for c in cams)
+        assert dropped > 0 and "busy" in st.message, (dropped, st.message)
+        for c in cams:
+            assert v[f"{c.name}.received"] == "15" and v[f"{c.name}.pending"] == "0"
+        assert h.wait(lambda: len(h.poses) == int(v["rig_frames_solved"]) > 0)
+    finally:
+        h.close()
+
+
+def test_an_estimator_exception_is_logged_and_its_reason_in_the_diagnostics(ros_context):
+    """Points at 1e200 m (float64) in one rig frame: the estimator raises, the rig frame fails
+    as ``error``, its reason is in the status (``rig_frames_failed.error``, named in the
+    message) and a warning is logged with the exception."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=15)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, **{"tracking.enabled": False}))
+    logged = []
+    h.node._log.logger = type("L", (), {"warning": logged.append, "info": logged.append})()
+    for f in frames:
+        if f.index == 2:  # (the third rig frame: every camera's points at 1e200 m)
+            f.xyz = f.xyz * 1e200
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    try:
+        h.send_info(cams)
+        for f in frames:  # (float64: 1e200 stays finite)
+            stamp = ns_to_stamp(f.stamp_ns)
+            h.send(f.name, "cloud", correspondence_cloud(f.uv, f.xyz, stamp=stamp, dtype="f8"))
+        st, v = h.last_diag()
+        failed = {
+            k.split(".", 1)[1]: int(x) for k, x in v.items() if k.startswith("rig_frames_failed.")
+        }
+        assert int(v["rig_frames_failed"]) >= 1 and sum(failed.values()) == int(
+            v["rig_frames_failed"]
+        )
+        for reason in failed:
+            assert reason in st.message, st.message
+            assert any(f"rig frame failed ({reason})" in t for t in logged), logged
+        assert int(v["rig_frames_solved"]) >= 6
+        assert "error" in failed, failed  # (the estimator raises on these: LinAlgError)
+        assert any("the estimator raised" in t for t in logged), logged
+    finally:
+        h.close()
+
+
+def test_the_node_s_velocity_bound_and_ransac_confidence_reach_the_rig(ros_context):
+    """``max_angular_velocity`` below the rig's motion: no rig frame is posed, each refused for
+    its motion (every hypothesis implausible: ``no_model``; a final model:
+    ``implausible_motion``), while the same frames at the default bound are all posed;
+    ``ransac.confidence`` and the bounds are the rig estimator's."""
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.2, num_points=120, seed=16)
+    t = np.linspace(0.0, 0.2, 21)
+    R = traj.orientation(t)
+    rate = np.radians([rotation_angle_deg(R[k + 1], R[k]) for k in range(20)]) / 0.01
+    assert rate.min() > 0.05  # (rad/s: the rig turns well beyond the bound below)
+    for bound, solved in ((0.01, False), (20.0, True)):
+        params = rig_parameters(
+            cams,
+            max_angular_velocity=bound,
+            max_linear_velocity=7.0,
+            **{"ransac.confidence": 0.99, "tracking.enabled": False},
+        )
+        h = rig_harness(ros_context, cams, params)
+        try:
+            s = h.node.rig.settings
+            assert (s.confidence, s.max_angular_velocity, s.max_linear_velocity) == (
+                0.99,
+                bound,
+                7.0,
+            )
+            h.send_info(cams)
+            h.send_clouds(frames)
+            _, v = h.last_diag()
+            n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+            assert n >= 5, v
+            if solved:
+                assert v["rig_frames_solved"] == str(n), v
+                continue
+            assert v["rig_frames_solved"] == "0" and not h.poses, v
+            why = {k: x for k, x in v.items() if k.startswith("rig_frames_failed.")}
+            assert set(why) <= {
+                "rig_frames_failed.no_model",
+                "rig_frames_failed.implausible_motion",
+            }, why
+            assert sum(int(x) for x in why.values()) == n, v
+        finally:
+            h.close()
+
+
+def test_a_camera_absent_from_the_start_is_an_error_after_stop_after(ros_context):
+    """The right camera never sends: in lock-step nothing can be posed (the rig waits for it
+    up to ``rig.stop_after`` of stamp time); after ``rig.stop_after`` s the status is ERROR
+    naming it, not OK."""
+    import time
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=120, seed=17)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, **{"rig.stop_after": 0.3}))
+    try:
+        h.send_info(cams)
+        h.send_clouds([f for f in frames if f.name != "right" and f.index == 0])
+        time.sleep(0.4)
+        st, v = h.last_diag()
+        assert st.level == b"\x02", st.message
+        assert "no frame from camera right" in st.message and v["rig_frames_solved"] == "0"
+        assert v["right.received"] == "0" and v["right.state"] == "waiting"
+    finally:
+        h.close()
+
+
+def test_each_frame_uses_the_camera_info_of_its_stamp(ros_context):
+    """Each camera's true camera_info stamped at the start and a wrong one (focal 30 % longer)
+    stamped 10 s later, both before the frames: the frames use the one of their stamp, as
+    the single-camera node does (the newest posed them degrees off); every rig frame is
+    posed within 0.05 deg of the truth."""
+    from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg
+
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=18)
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info(cams)
+        for c in cams:
+            wrong = camera_info_msg(c.camera, c.name, T0 + 10 * 10**9)
+            wrong.k[0] *= 1.3
+            wrong.k[4] *= 1.3
+            h.pub[c.name]["info"].publish(wrong)
+        assert h.wait(lambda: all(len(h.node._infos[c.name]) == 2 for c in cams))
+        assert h.node.models["front"].K[0, 0] == pytest.approx(cams[0].camera.K[0, 0] * 1.3)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+        assert n >= 8 and v["rig_frames_solved"] == str(n), v
+        for m in h.poses:
+            stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+            R, _, _, _ = rig_truth(traj, (stamp - T0) * 1e-9)
+            assert rotation_angle_deg(pose_from_msg(m.pose)[0], R) < 0.05
+    finally:
+        h.close()
+
+
+def test_max_points_caps_every_camera_s_cloud(ros_context):
+    """``max_points`` 40 with clouds of 120 points: every cloud is capped (counted
+    ``<c>.capped_clouds``), each camera's inliers are at most 40, the rig is still posed."""
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=19)
+    assert min(len(f.uv) for f in frames) > 40
+    h = rig_harness(ros_context, cams, rig_parameters(cams, max_points=40))
+    try:
+        h.send_info(cams)
+        h.send_clouds(frames)
+        _, v = h.last_diag()
+        n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
+        assert n >= 5 and v["rig_frames_solved"] == str(n), v
+        for c in cams:
+            assert v[f"{c.name}.capped_clouds"] == v[f"{c.name}.received"] != "0", v
+            assert 8 <= int(v[f"{c.name}.inliers"]) <= 40, v
+    finally:
+        h.close()
+
+
+def test_the_frame_queue_takes_a_rig_frame_s_frames_together():
+    """With ``group`` the worker takes the other cameras' frames of the oldest frame's rig
+    frame with it, and a full queue drops whole rig frames (the oldest frame and those that
+    go with it), never the rest of the one being solved; every snapshot balances."""
+    import threading
+    from dataclasses import dataclass
+
+    from rs_localizer.ros.frame_queue import FrameQueue
+
+    @dataclass
+    class Done:
+        failure: str | None = None
+
+    gates = {("x", 0): threading.Event(), ("a", 1): threading.Event()}
+    started = {k: threading.Event() for k in gates}
+    solved = []
+
+    def process(item):
+        if item in gates:
+            started[item].set()
+            assert gates[item].wait(5)
+        solved.append(item)
+        return Done()
+
+    def group(batch, item):
+        return item[1] == batch[0][1] and all(b[0] != item[0] for b in batch)
+
+    def balanced():
+        c = q.counts()
+        return c.received == c.solved + c.failed + c.skipped + c.pending
+
+    skipped = []
+    q = FrameQueue(process, on_skip=lambda item, why: skipped.append((item, why)), group=group)
+    q.start()
+    try:
+        q.put(("x", 0), 10)
+        assert started[("x", 0)].wait(5)
+        q.put(("a", 1), 10)
+        q.put(("b", 1), 10)
+        gates[("x", 0)].set()  # (the worker takes a1 and b1 together and stops on a1)
+        assert started[("a", 1)].wait(5)
+        assert q.counts().pending == 2 and balanced()
+        for item in [("a", 2), ("b", 2), ("a", 3)]:
+            q.put(item, 2)  # (b1 is the worker's: the full queue drops rig frame 2, a2 and b2)
+            assert balanced()
+        gates[("a", 1)].set()
+        for _ in range(500):
+            if q.counts().pending == 0:
+                break
+            threading.Event().wait(0.01)
+        c = q.counts()
+        assert (c.received, c.solved, c.skipped, c.pending) == (6, 4, 2, 0), c
+        assert solved == [("x", 0), ("a", 1), ("b", 1), ("a", 3)], solved
+        assert skipped == [(("a", 2), "queue_full"), (("b", 2), "queue_full")]
+    finally:
+        q.stop()
+
+
+def test_a_forward_stamp_jump_starts_the_rig_again(ros_context):
+    """The rig's video sent again 5 s later (a gap in a bag): the first frame after the gap
+    starts the rig again (``stamp_jumped_ahead`` once; ``time_reset_threshold`` 1 s), no
+    camera counts as stopped for the gap and every rig frame after it has all three cameras."""
+    import dataclasses
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=120, seed=20)
+    later = [dataclasses.replace(f, stamp_ns=f.stamp_ns + 5 * 10**9) for f in frames]
+    h = rig_harness(ros_context, cams, rig_parameters(cams))
+    try:
+        h.send_info(cams)
+        h.send_clouds(frames + later)
+        h.node._end_video()
+        _, v = h.last_diag()
+        assert sum(int(v[f"{c.name}.stamp_jumped_ahead"]) for c in cams) == 1, v
+        assert int(v["rig_frames_solved"]) == 2 * len(frames) // 3 == len(h.poses), v
+        for c in cams:
+            assert h.node.rig.counts[f"{c.name}.stopped"] == 0
+            assert v[f"{c.name}.missed"] == "0", v
     finally:
         h.close()

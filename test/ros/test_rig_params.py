@@ -88,3 +88,41 @@ def test_errors_name_the_camera():
         rig_config(*_values({**good, "rig.cameras": ["a", "a"]}))
     with pytest.raises(ConfigError, match="needs camera names"):
         rig_config(*_values({"rig.cameras": []}))
+
+
+@pytest.mark.parametrize(
+    "cameras, error",
+    [
+        ("front", r"rig\.cameras must be a list of camera names: write \[front\], not front"),
+        ([1, 2], r"rig\.cameras: camera name 1 is not valid in a topic name"),
+        (["front cam"], r"camera name 'front cam' is not valid in a topic name"),
+        (["1cam"], r"camera name '1cam' is not valid in a topic name"),
+        (["front-cam"], r"camera name 'front-cam' is not valid in a topic name"),
+        (["front", "~left"], r"camera name '~left' is not valid"),
+    ],
+)
+def test_camera_names_must_be_a_list_of_topic_name_tokens(cameras, error):
+    """Every name the rig refuses is refused by ROS as a topic name token too (checked with
+    rclpy's own validator when it is there); one line names the parameter and the fix."""
+    with pytest.raises(ConfigError, match=error) as e:
+        rig_config(*_values({"rig.cameras": cameras, "rig.front.mounting": [0.0] * 6 + [1.0]}))
+    assert "\n" not in str(e.value)
+    if isinstance(cameras, list) and all(isinstance(c, str) for c in cameras):
+        rclpy_names = pytest.importorskip("rclpy.validate_topic_name")
+        bad = [c for c in cameras if c != "front"]
+        with pytest.raises(Exception, match="Invalid topic name"):
+            rclpy_names.validate_topic_name(f"{bad[0]}/camera_info")
+
+
+def test_names_ros_takes_are_taken_and_an_integer_mounting_is_read_as_floats():
+    names = ["front", "_rear", "cam_2", "Left"]
+    good = {"rig.cameras": names}
+    good.update({f"rig.{n}.mounting": [0.0, 0.1 * k, 0.0, 0.0, 0.0, 0.0, 1.0]
+                 for k, n in enumerate(names)})  # fmt: skip
+    good["rig.front.mounting"] = [0, 0, 0, 0, 0, 0, 1]  # (integers, as YAML reads them)
+    cfg = rig_config(*_values(good))
+    assert [c.name for c in cfg.cameras] == names
+    assert np.allclose(cfg.cameras[0].mount.R, np.eye(3)) and np.allclose(cfg.cameras[0].mount.c, 0)
+    assert np.allclose(cfg.cameras[2].mount.position, [0.0, 0.2, 0.0])
+    with pytest.raises(ConfigError, match=r"rig\.front\.mounting must be 7 finite numbers"):
+        rig_config(*_values({**good, "rig.front.mounting": ["0"] * 6 + ["1"]}))

@@ -161,8 +161,9 @@ def test_frames_too_far_apart_are_separate_rig_frames_counted():
 
 def test_dropped_frames_and_a_camera_waiting_for_its_camera_info(video):
     """The left camera's first 5 frames come without a camera model (its camera_info has not
-    arrived: skipped as ``no_camera_info``, the rig runs on the others) and its frame 9 is
-    dropped (``dropped``); the counts balance."""
+    arrived: skipped as ``no_camera_info``, the rig runs on the others, missing from those rig
+    frames as ``no_camera_info``) and its frame 9 is dropped (``dropped``); the counts
+    balance."""
     cams, frames, _ = video
     frames = [f for f in frames if not (f.name == "left" and f.index == 9)]
     by = {c.name: c.camera for c in cams}
@@ -172,7 +173,8 @@ def test_dropped_frames_and_a_camera_waiting_for_its_camera_info(video):
 
     rig, outs, _ = run(frames, cams, camera_of=camera_of)
     assert rig.counts["left.skipped.no_camera_info"] == 5
-    assert sum(o.missing.get("left") == "dropped" for o in outs) == 6
+    assert sum(o.missing.get("left") == "no_camera_info" for o in outs) == 5
+    assert sum(o.missing.get("left") == "dropped" for o in outs) == 1
     assert all(o.success for o in outs)
     assert_balanced(rig)
     assert "no_camera_info" in SKIP_REASONS
