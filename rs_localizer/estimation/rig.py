@@ -100,10 +100,12 @@ __all__ = [
     "AGREE_SHARE",
     "FINAL_CUTOFF",
     "LO_ROUNDS",
+    "PREDICTION_GATE",
     "PREDICTION_MARGIN",
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
+    "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
     "RigPoseEstimate",
     "RigView",
@@ -152,6 +154,15 @@ VOTE_MIN_POINTS = 8
 #: best-fitting voting camera's under that model (a camera whose mounting or stamp is wrong
 #: has almost no inliers: 0-5 % of its points at a mounting 2 deg off or a clock 5 ms off)
 AGREE_SHARE = 0.3
+
+#: with a prediction, a voting camera is explained by it when its share of points within
+#: this many inlier thresholds of the prediction is at least :data:`AGREE_SHARE` times the
+#: best voting camera's
+PREDICTION_GATE = 3.0
+
+#: ``verify_cameras``: camera d agrees with camera c's own pose when that pose explains at
+#: least this share of the inliers d's own pose has
+VERIFY_SHARE = 0.5
 
 #: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
 #: other group's is at least this many times farther (rotation in rad plus position over
@@ -1032,6 +1043,7 @@ def estimate_rig_pose(
     pre_rotation: str = "p3p",
     prediction: RSModel | tuple | None = None,
     consensus: bool = True,
+    verify_cameras: bool = False,
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -1092,6 +1104,9 @@ def estimate_rig_pose(
             below); None: ``initial_model``'s model, if any.
         consensus: check that the cameras with points agree (below); False: the joint
             estimate as it is, whatever its cameras' inlier ratios.
+        verify_cameras: also pose every voting camera alone and compare (below): for a rig
+            frame nothing else checks (a track's first), at the cost of one more solve per
+            camera.
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
@@ -1121,7 +1136,15 @@ def estimate_rig_pose(
     cameras, whatever their numbers of points; the other group's cameras are
     ``disagreeing`` (none of their points an inlier). Equal groups and no prediction that
     tells them apart: ``cameras_disagree``. When all cameras agree (the common case) this
-    costs nothing.
+    costs nothing. With a prediction, the cameras whose points it explains
+    (:data:`PREDICTION_GATE`) are checked first: when some voting cameras' points are not and
+    they disagree with the pose of the others alone, the rig is posed by the others (the track
+    decides, whatever the number of cameras on each side). A wrong stamp on one of two
+    cameras can leave both with a fair share of inliers under a joint pose that is wrong (the
+    velocities absorb part of the time error);
+    ``verify_cameras`` catches it: every voting camera is posed alone, two cameras agree when
+    either's own pose explains at least :data:`VERIFY_SHARE` of the other's own inliers, and
+    the largest group of cameras that agree poses the rig (a tie as above).
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
@@ -1147,6 +1170,7 @@ def estimate_rig_pose(
     return _consensus(
         views, pool, est, threshold_px,
         lambda vs: _estimate_pool(_Pool(vs), settings, gyro, gyro_time), prediction,
+        verify_cameras,
     )  # fmt: skip
 
 
@@ -1199,6 +1223,7 @@ def _consensus(
     threshold_px: float,
     solve,
     prediction,
+    verify: bool = False,
 ) -> RigPoseEstimate:
     """The cameras' consensus on a solved joint estimate (:func:`estimate_rig_pose`).
 
@@ -1216,6 +1241,14 @@ def _consensus(
     voters = [c for c in range(len(valid)) if valid[c] >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
+    if prediction is not None:
+        tracked = _by_track(views, pool, est, threshold_px, voters, solve, prediction)
+        if tracked is not None:
+            return tracked
+    if verify:
+        checked = _verified(views, pool, est, threshold_px, voters, solve, prediction)
+        if checked is not None:
+            return checked
     a = _agreeing(est, voters)
     rest = set(voters) - a
     if not rest:
@@ -1238,12 +1271,89 @@ def _consensus(
         return _outvoted(est, pool, rest)
     if choice == 1:
         return _outvoted(sub, pool, set(voters) - b)
+    return _disagree(est, pool, a | b)
+
+
+def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
+    """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
+    not: the estimate of the explained cameras alone with the others ``disagreeing`` when
+    those disagree with it too, else None (the prediction explains every camera, or the
+    cameras it does not explain agree with the others: the prediction was off for them)."""
+    valid = np.asarray(est.num_valid_per_camera)
+    model = tuple(np.asarray(a, dtype=float) for a in prediction)
+    ok = _errors_px(pool, *_one(model))[0] < PREDICTION_GATE * threshold_px
+    n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
+    ratio = {c: n_ok[c] / valid[c] for c in voters}
+    best = max(ratio.values())
+    explained = {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+    suspect = set(voters) - explained
+    if not explained or not suspect:
+        return None
+    if _agreeing(est, voters) == explained:
+        return _outvoted(est, pool, suspect)
+    sub = solve(_only(views, suspect))
+    if not sub.success:
+        return None
+    sub = _restored(sub, valid)
+    agree = _agreeing(sub, voters)
+    if explained <= agree and not suspect & agree:
+        return _outvoted(sub, pool, suspect)
+    return None
+
+
+def _verified(views, pool, est, threshold_px, voters, solve, prediction):
+    """``verify_cameras`` (:func:`estimate_rig_pose`): the estimate of the largest group of
+    voting cameras that agree posed alone, ``cameras_disagree`` on a tie the prediction does
+    not break, or None when every camera posed alone agrees with the others."""
+    M = len(pool.sizes)
+    inl = {}
+    for c in voters:
+        e = solve(_only(views, set(voters) - {c}))
+        if e.success:
+            ok = _errors_px(pool, *_one(e.model))[0] < threshold_px
+            inl[c] = np.bincount(pool.cam[ok], minlength=M)
+    cams = list(inl)
+
+    def agree(c, d):
+        return inl[c][d] >= VERIFY_SHARE * inl[d][d] or inl[d][c] >= VERIFY_SHARE * inl[c][c]
+
+    groups, seen = [], set()
+    for c in cams:  # (connected components of the agreement)
+        if c in seen:
+            continue
+        group, todo = {c}, [c]
+        while todo:
+            x = todo.pop()
+            for d in cams:
+                if d not in group and agree(x, d):
+                    group.add(d)
+                    todo.append(d)
+        seen |= group
+        groups.append(group)
+    if len(groups) < 2:
+        return None
+    groups.sort(key=len, reverse=True)
+    fits = [solve(_only(views, set(voters) - g)) for g in groups[:2]]
+    valid = np.asarray(est.num_valid_per_camera)
+    if len(groups[0]) > len(groups[1]):
+        choice = 0
+    else:
+        ok = all(f.success for f in fits)
+        choice = _by_prediction(pool, fits[0], fits[1], prediction) if ok else None
+    if choice is None or not fits[choice].success:
+        return _disagree(est, pool, groups[0] | groups[1])
+    return _outvoted(_restored(fits[choice], valid), pool, set(voters) - groups[choice])
+
+
+def _disagree(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
+    """The failure ``cameras_disagree`` of cameras ``cams``, with the joint estimate's per
+    camera counts."""
     z = np.zeros(3)
     return replace(
         est, success=False, failure="cameras_disagree", R=np.eye(3), C=z, w=z, t=z.copy(),
         inliers=pool.per_camera(np.zeros(len(pool.cam), dtype=bool)), num_inliers=0,
         rmse_px=np.nan, num_behind=0, covariance=None, model_covariance=None,
-        acceleration_sensitivity=None, disagreeing=tuple(sorted(a | b)),
+        acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
         pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0), pose_covariance=None,
         twist_covariance=None,
     )  # fmt: skip
