@@ -52,6 +52,20 @@ degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with
 when its points are compared with one other camera's only, both are named
 (:meth:`RigLocalizer.camera_partner`): two cameras cannot tell which mounting is wrong.
 
+The rig publishes only what its cameras agree on. The estimator's consensus
+(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`) outvotes a camera whose points
+contradict the others' (the track's prediction decides, else the number of cameras, never
+the number of points; a tie is refused, ``cameras_disagree``); without a track every camera
+is also posed alone (``verify_cameras``). A rig frame posed from one camera's points alone
+while other cameras run is refused when the track contradicts it (``contradicts_track``), or
+when there is no track and two or more other cameras run (``unconfirmed``): :data:`RIG_REFUSALS`.
+A camera whose frames never join the others' (its clock or stamp offset likely wrong) is
+named with its apparent clock offsets (:meth:`RigLocalizer.camera_apart`,
+:meth:`RigLocalizer.clock_offsets`, a warning, ``<camera>.apart``); its stamps are not
+shifted (stamps alone give an offset only up to the frame period and cannot tell a clock
+error from cameras out of phase by design): its frames are posed alone only where the
+track agrees.
+
 Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
 (:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
 (:meth:`RigLocalizer.predict_camera`), then takes the frame as :meth:`RigLocalizer.add` does.
@@ -553,8 +567,9 @@ class RigLocalizer:
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
-    was found to disagree); ``rig_frames``, ``rig.solved``, ``rig.failed``,
-    ``rig.failed.<reason>`` (the estimator's, or ``error``), ``rig.skipped``,
+    was found to disagree), ``.apart`` (times its frames were found apart from the others');
+    ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
+    :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
     ``rig.path.<path>``. Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
