@@ -49,8 +49,9 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   model).
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
-  decided by the prediction, else by the number of cameras on each side, never by their
-  numbers of points; a tie is refused (``cameras_disagree``, :func:`estimate_rig_pose`).
+  decided by the number of cameras on each side, a tie by the prediction, never by their
+  numbers of points; a tie the prediction does not break is refused (``cameras_disagree``,
+  :func:`estimate_rig_pose`).
 
 With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
 starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
@@ -1131,17 +1132,17 @@ def estimate_rig_pose(
     ratio under the joint estimate is below :data:`AGREE_SHARE` times the best voting
     camera's disagrees. The rig is then solved again from the cameras that disagree; when
     that pose explains the agreeing cameras' points no better, the two groups contradict each
-    other (a wrong mounting or stamp on one side) and the rig is posed by the group whose
-    pose is nearer ``prediction`` (:data:`PREDICTION_MARGIN`), else by the group of more
-    cameras, whatever their numbers of points; the other group's cameras are
+    other (a wrong mounting or stamp on one side) and the rig is posed by the group of more
+    cameras, whatever their numbers of points, on a tie by the group whose pose is nearer
+    ``prediction`` (:data:`PREDICTION_MARGIN`); the other group's cameras are
     ``disagreeing`` (none of their points an inlier). Equal groups and no prediction that
     tells them apart: ``cameras_disagree``. When all cameras agree (the common case) this
     costs nothing. With a prediction, the cameras whose points it explains
-    (:data:`PREDICTION_GATE`) are checked first: when some voting cameras' points are not and
-    they disagree with the pose of the others alone, the rig is posed by the others (the track
-    decides, whatever the number of cameras on each side). A wrong stamp on one of two
-    cameras can leave both with a fair share of inliers under a joint pose that is wrong (the
-    velocities absorb part of the time error);
+    (:data:`PREDICTION_GATE`) are checked first: when some voting cameras' points are not, no
+    more cameras than those it explains, and they disagree with the pose of the others alone,
+    the rig is posed by the others (a track never outvotes more cameras than it keeps). A
+    wrong stamp on one of two cameras can leave both with a fair share of inliers under a
+    joint pose that is wrong (the velocities absorb part of the time error);
     ``verify_cameras`` catches it: every voting camera is posed alone, two cameras agree when
     either's own pose explains at least :data:`VERIFY_SHARE` of the other's own inliers, and
     the largest group of cameras that agree poses the rig (a tie as above).
@@ -1232,11 +1233,11 @@ def _consensus(
     is. Otherwise the rig is solved again (``solve``) on the cameras that disagree alone (and
     the cameras too small to vote): if that pose explains none of the agreeing cameras, the
     two groups contradict each other (e.g. a wrong mounting or stamp on one side), and the
-    group whose pose is nearer the ``prediction`` (by :data:`PREDICTION_MARGIN`), else the
-    group of more cameras, poses the rig; the other group's cameras are ``disagreeing``. A tie
-    without a prediction that decides fails as ``cameras_disagree``. The joint estimate's
-    point count never decides: a camera with most of the points is outvoted by two that
-    agree with each other."""
+    group of more cameras, on a tie the group whose pose is nearer the ``prediction`` (by
+    :data:`PREDICTION_MARGIN`), poses the rig; the other group's cameras are
+    ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``.
+    The joint estimate's point count never decides: a camera with most of the points is
+    outvoted by two that agree with each other."""
     valid = np.asarray(est.num_valid_per_camera)
     voters = [c for c in range(len(valid)) if valid[c] >= VOTE_MIN_POINTS]
     if len(voters) < 2:
@@ -1264,9 +1265,9 @@ def _consensus(
         if not sub.success:
             return _outvoted(est, pool, rest)
     sub = _restored(sub, valid)
-    choice = _by_prediction(pool, est, sub, prediction)
+    choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
-        choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
+        choice = _by_prediction(pool, est, sub, prediction)
     if choice == 0:
         return _outvoted(est, pool, rest)
     if choice == 1:
@@ -1277,8 +1278,9 @@ def _consensus(
 def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
     not: the estimate of the explained cameras alone with the others ``disagreeing`` when
-    those disagree with it too, else None (the prediction explains every camera, or the
-    cameras it does not explain agree with the others: the prediction was off for them)."""
+    those disagree with it too and are no more than the explained ones, else None (the
+    prediction explains every camera, or fewer cameras than it does not, or the cameras it
+    does not explain agree with the others: the prediction was off for them)."""
     valid = np.asarray(est.num_valid_per_camera)
     model = tuple(np.asarray(a, dtype=float) for a in prediction)
     ok = _errors_px(pool, *_one(model))[0] < PREDICTION_GATE * threshold_px
@@ -1287,8 +1289,8 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     best = max(ratio.values())
     explained = {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
     suspect = set(voters) - explained
-    if not explained or not suspect:
-        return None
+    if not explained or not suspect or len(explained) < len(suspect):
+        return None  # (a track never outvotes more cameras than it keeps)
     if _agreeing(est, voters) == explained:
         return _outvoted(est, pool, suspect)
     sub = solve(_only(views, suspect))
