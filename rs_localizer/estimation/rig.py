@@ -47,6 +47,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   on one 3D line, plausible motion, and every inlier in front of its camera at its capture
   time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
   model).
+- the cameras' consensus: every camera with enough points must agree with the pose; cameras
+  that contradict each other (one side's pose explains none of the other side's points) are
+  decided by the number of cameras on each side, a tie by the prediction, never by their
+  numbers of points; a tie the prediction does not break is refused (``cameras_disagree``,
+  :func:`estimate_rig_pose`).
 
 With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
 starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
@@ -75,7 +80,7 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
-from ..geometry import rotvec_to_matrix, skew
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
 from ..pose import PoseWithCovariance, RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
@@ -93,11 +98,16 @@ from .result import output_covariance
 from .sensitivity import output_jacobian
 
 __all__ = [
+    "AGREE_SHARE",
     "FINAL_CUTOFF",
     "LO_ROUNDS",
+    "PREDICTION_GATE",
+    "PREDICTION_MARGIN",
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
+    "VERIFY_SHARE",
+    "VOTE_MIN_POINTS",
     "RigPoseEstimate",
     "RigView",
     "camera_model_of_rig",
@@ -118,6 +128,12 @@ RIG_FAILURE_REASONS = {
     "implausible_motion": "the refined rig turns faster than max_angular_velocity or moves "
     "faster than max_linear_velocity (or is not finite)",
     "cheirality": "an inlier is not in front of its camera at its capture time",
+    "cameras_disagree": (
+        "cameras with points contradict each other (each group explains its own points and "
+        "not the others', e.g. a wrong mounting or stamp) and neither the number of cameras "
+        "on each side nor the prediction (initial_model) tells which are right "
+        "(estimate_rig_pose: the cameras' consensus)"
+    ),
 }
 
 #: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
@@ -130,6 +146,29 @@ PRE_ROTATIONS = ("p3p", "gp3p")
 
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
+
+#: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
+#: many valid points; cameras with fewer are fitted with every group, never outvoted
+VOTE_MIN_POINTS = 8
+
+#: a voting camera agrees with a model when its inlier ratio is at least this share of the
+#: best-fitting voting camera's under that model (a camera whose mounting or stamp is wrong
+#: has almost no inliers: 0-5 % of its points at a mounting 2 deg off or a clock 5 ms off)
+AGREE_SHARE = 0.3
+
+#: with a prediction, a voting camera is explained by it when its share of points within
+#: this many inlier thresholds of the prediction is at least :data:`AGREE_SHARE` times the
+#: best voting camera's
+PREDICTION_GATE = 3.0
+
+#: ``verify_cameras``: camera d agrees with camera c's own pose when that pose explains at
+#: least this share of the inliers d's own pose has
+VERIFY_SHARE = 0.5
+
+#: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
+#: other group's is at least this many times farther (rotation in rad plus position over
+#: the points' median depth)
+PREDICTION_MARGIN = 2.0
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss at the
 #: threshold, re-selected at each iteration), as a single camera's final refinement
@@ -286,6 +325,12 @@ class RigPoseEstimate(PoseWithCovariance):
         gyro_chi2: chi-square (3 dof) of the gyro against the angular velocity the image alone
             gives near the aided estimate
             (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; NaN when not computed).
+        disagreeing: indices of the voting cameras (at least :data:`VOTE_MIN_POINTS` points)
+            the cameras' consensus left out: on success those outvoted by the cameras that
+            posed the rig (their points are no inliers, their inliers and
+            ``num_inliers_per_camera`` zero); with ``cameras_disagree`` every camera of the
+            groups that contradict each other (``num_valid_per_camera`` and
+            ``num_inliers_per_camera`` are then the joint fit's, the rest as any failure's).
     """
 
     success: bool
@@ -311,6 +356,7 @@ class RigPoseEstimate(PoseWithCovariance):
     gyro_rejected: bool = False
     gyro_rejection: str = ""
     gyro_chi2: float = float("nan")
+    disagreeing: tuple[int, ...] = ()
 
     @property
     def model(self) -> RSModel:
@@ -996,6 +1042,9 @@ def estimate_rig_pose(
     gyro: GyroMeasurement | None = None,
     gyro_time: float | None = None,
     pre_rotation: str = "p3p",
+    prediction: RSModel | tuple | None = None,
+    consensus: bool = True,
+    verify_cameras: bool = False,
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -1051,6 +1100,14 @@ def estimate_rig_pose(
             P3P on 3 points drawn from all cameras, Nister-Stewenius' problem; samples of 6
             points drawn uniformly; needs ``poselib``). Measured against each other with
             ``python -m benchmarks.bench_rig --pre-rotation`` (docs/rig.md).
+        prediction: the rig's predicted model ``(R, C, w, t)`` (as ``initial_model``'s)
+            that decides between cameras that contradict each other (the cameras' consensus,
+            below); None: ``initial_model``'s model, if any.
+        consensus: check that the cameras with points agree (below); False: the joint
+            estimate as it is, whatever its cameras' inlier ratios.
+        verify_cameras: also pose every voting camera alone and compare (below): for a rig
+            frame nothing else checks (a track's first), at the cost of one more solve per
+            camera.
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
@@ -1072,6 +1129,26 @@ def estimate_rig_pose(
     rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
     refinement and covariance of the pose alone) with ``w = t = 0`` and ``global_shutter``
     set.
+
+    The cameras' consensus: a pose is returned only when the cameras with points agree on it.
+    Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
+    ratio under the joint estimate is below :data:`AGREE_SHARE` times the best voting
+    camera's disagrees. The rig is then solved again from the cameras that disagree; when
+    that pose explains the agreeing cameras' points no better, the two groups contradict each
+    other (a wrong mounting or stamp on one side) and the rig is posed by the group of more
+    cameras, whatever their numbers of points, on a tie by the group whose pose is nearer
+    ``prediction`` (:data:`PREDICTION_MARGIN`); the other group's cameras are
+    ``disagreeing`` (none of their points an inlier). Equal groups and no prediction that
+    tells them apart: ``cameras_disagree``. When all cameras agree (the common case) this
+    costs nothing. With a prediction, the cameras whose points it explains
+    (:data:`PREDICTION_GATE`) are checked first: when some voting cameras' points are not, no
+    more cameras than those it explains, and they disagree with the pose of the others alone,
+    the rig is posed by the others (a track never outvotes more cameras than it keeps). A
+    wrong stamp on one of two cameras can leave both with a fair share of inliers under a
+    joint pose that is wrong (the velocities absorb part of the time error);
+    ``verify_cameras`` catches it: every voting camera is posed alone, two cameras agree when
+    either's own pose explains at least :data:`VERIFY_SHARE` of the other's own inliers, and
+    the largest group of cameras that agree poses the rig (a tie as above).
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
@@ -1103,6 +1180,22 @@ def estimate_rig_pose(
         refine, seed, (float(max_angular_velocity), float(max_linear_velocity)), initial_model,
         pre_rotation == "gp3p",
     )  # fmt: skip
+    est = _estimate_pool(pool, settings, gyro, gyro_time)
+    if not consensus or not est.success:
+        return est
+    if prediction is None and initial_model is not None:
+        prediction = getattr(initial_model, "model", initial_model)
+    return _consensus(
+        views, pool, est, threshold_px,
+        lambda vs: _estimate_pool(_Pool(vs), settings, gyro, gyro_time), prediction,
+        verify_cameras,
+    )  # fmt: skip
+
+
+def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEstimate:
+    """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
+    (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
+    refine, threshold_px = settings[6], settings[0]
     still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
     if gyro is None or still or not refine:
         return _estimate(pool, *settings)
@@ -1121,6 +1214,207 @@ def estimate_rig_pose(
         est = replace(est, gyro_chi2=float(chi2))
     out = gyro_checked(est, chi2, image_inliers, len(pool.cam), lambda: _estimate(pool, *settings))
     return replace(out, gyro_chi2=est.gyro_chi2) if out.gyro_rejected else out
+
+
+def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
+    """The voting cameras that agree with a solved estimate: inlier ratio at least
+    :data:`AGREE_SHARE` times the best voting camera's."""
+    n = np.asarray(est.num_valid_per_camera, dtype=float)
+    k = np.asarray(est.num_inliers_per_camera, dtype=float)
+    ratio = {c: k[c] / n[c] for c in voters}
+    best = max(ratio.values())
+    return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+
+
+def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
+    """The views with the points of cameras ``drop`` removed (the cameras keep their place)."""
+    return [
+        replace(v, uv=np.zeros((0, 2)), X=np.zeros((0, 3))) if c in drop else v
+        for c, v in enumerate(views)
+    ]
+
+
+def _consensus(
+    views: Sequence[RigView],
+    pool: _Pool,
+    est: RigPoseEstimate,
+    threshold_px: float,
+    solve,
+    prediction,
+    verify: bool = False,
+) -> RigPoseEstimate:
+    """The cameras' consensus on a solved joint estimate (:func:`estimate_rig_pose`).
+
+    Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes. When all agree with
+    the joint estimate (:func:`_agreeing`: the common case, no extra work) it is returned as
+    is. Otherwise the rig is solved again (``solve``) on the cameras that disagree alone (and
+    the cameras too small to vote): if that pose explains none of the agreeing cameras, the
+    two groups contradict each other (e.g. a wrong mounting or stamp on one side), and the
+    group of more cameras, on a tie the group whose pose is nearer the ``prediction`` (by
+    :data:`PREDICTION_MARGIN`), poses the rig; the other group's cameras are
+    ``disagreeing``. A tie without a prediction that decides fails as ``cameras_disagree``.
+    The joint estimate's point count never decides: a camera with most of the points is
+    outvoted by two that agree with each other."""
+    valid = np.asarray(est.num_valid_per_camera)
+    voters = [c for c in range(len(valid)) if valid[c] >= VOTE_MIN_POINTS]
+    if len(voters) < 2:
+        return est
+    if prediction is not None:
+        tracked = _by_track(views, pool, est, threshold_px, voters, solve, prediction)
+        if tracked is not None:
+            return tracked
+    if verify:
+        checked = _verified(views, pool, est, threshold_px, voters, solve, prediction)
+        if checked is not None:
+            return checked
+    a = _agreeing(est, voters)
+    rest = set(voters) - a
+    if not rest:
+        return est
+    sub = solve(_only(views, a))
+    b = _agreeing(_restored(sub, valid), voters) if sub.success else set()
+    if not b or b & a:
+        # the others explain no consistent pose of their own, or one the agreeing cameras
+        # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
+        return est if b & a else _outvoted(est, pool, rest)
+    if b != rest:  # (solved on the cameras that agree with the second pose only)
+        sub = solve(_only(views, set(voters) - b))
+        if not sub.success:
+            return _outvoted(est, pool, rest)
+    sub = _restored(sub, valid)
+    choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
+    if choice is None:
+        choice = _by_prediction(pool, est, sub, prediction)
+    if choice == 0:
+        return _outvoted(est, pool, rest)
+    if choice == 1:
+        return _outvoted(sub, pool, set(voters) - b)
+    return _disagree(est, pool, a | b)
+
+
+def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
+    """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
+    not: the estimate of the explained cameras alone with the others ``disagreeing`` when
+    those disagree with it too and are no more than the explained ones, else None (the
+    prediction explains every camera, or fewer cameras than it does not, or the cameras it
+    does not explain agree with the others: the prediction was off for them)."""
+    valid = np.asarray(est.num_valid_per_camera)
+    model = tuple(np.asarray(a, dtype=float) for a in prediction)
+    ok = _errors_px(pool, *_one(model))[0] < PREDICTION_GATE * threshold_px
+    n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
+    ratio = {c: n_ok[c] / valid[c] for c in voters}
+    best = max(ratio.values())
+    explained = {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
+    suspect = set(voters) - explained
+    if not explained or not suspect or len(explained) < len(suspect):
+        return None  # (a track never outvotes more cameras than it keeps)
+    if _agreeing(est, voters) == explained:
+        return _outvoted(est, pool, suspect)
+    sub = solve(_only(views, suspect))
+    if not sub.success:
+        return None
+    sub = _restored(sub, valid)
+    agree = _agreeing(sub, voters)
+    if explained <= agree and not suspect & agree:
+        return _outvoted(sub, pool, suspect)
+    return None
+
+
+def _verified(views, pool, est, threshold_px, voters, solve, prediction):
+    """``verify_cameras`` (:func:`estimate_rig_pose`): the estimate of the largest group of
+    voting cameras that agree posed alone, ``cameras_disagree`` on a tie the prediction does
+    not break, or None when every camera posed alone agrees with the others."""
+    M = len(pool.sizes)
+    inl = {}
+    for c in voters:
+        e = solve(_only(views, set(voters) - {c}))
+        if e.success:
+            ok = _errors_px(pool, *_one(e.model))[0] < threshold_px
+            inl[c] = np.bincount(pool.cam[ok], minlength=M)
+    cams = list(inl)
+
+    def agree(c, d):
+        return inl[c][d] >= VERIFY_SHARE * inl[d][d] or inl[d][c] >= VERIFY_SHARE * inl[c][c]
+
+    groups, seen = [], set()
+    for c in cams:  # (connected components of the agreement)
+        if c in seen:
+            continue
+        group, todo = {c}, [c]
+        while todo:
+            x = todo.pop()
+            for d in cams:
+                if d not in group and agree(x, d):
+                    group.add(d)
+                    todo.append(d)
+        seen |= group
+        groups.append(group)
+    if len(groups) < 2:
+        return None
+    groups.sort(key=len, reverse=True)
+    fits = [solve(_only(views, set(voters) - g)) for g in groups[:2]]
+    valid = np.asarray(est.num_valid_per_camera)
+    if len(groups[0]) > len(groups[1]):
+        choice = 0
+    else:
+        ok = all(f.success for f in fits)
+        choice = _by_prediction(pool, fits[0], fits[1], prediction) if ok else None
+    if choice is None or not fits[choice].success:
+        return _disagree(est, pool, groups[0] | groups[1])
+    return _outvoted(_restored(fits[choice], valid), pool, set(voters) - groups[choice])
+
+
+def _disagree(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
+    """The failure ``cameras_disagree`` of cameras ``cams``, with the joint estimate's per
+    camera counts."""
+    z = np.zeros(3)
+    return replace(
+        est, success=False, failure="cameras_disagree", R=np.eye(3), C=z, w=z, t=z.copy(),
+        inliers=pool.per_camera(np.zeros(len(pool.cam), dtype=bool)), num_inliers=0,
+        rmse_px=np.nan, num_behind=0, covariance=None, model_covariance=None,
+        acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
+        pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0), pose_covariance=None,
+        twist_covariance=None,
+    )  # fmt: skip
+
+
+def _restored(est: RigPoseEstimate, valid: np.ndarray) -> RigPoseEstimate:
+    """An estimate on views some of whose points were removed (:func:`_only`), with the
+    cameras' valid point counts ``valid`` (M,) of the full views."""
+    return replace(est, num_valid_per_camera=tuple(int(n) for n in valid))
+
+
+def _outvoted(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
+    """``est`` with the voting cameras ``cams`` left out: none of their points an inlier."""
+    inliers = tuple(
+        np.zeros(pool.sizes[c], dtype=bool) if c in cams else np.asarray(m, dtype=bool)
+        for c, m in enumerate(est.inliers)
+    )
+    per = tuple(0 if c in cams else int(n) for c, n in enumerate(est.num_inliers_per_camera))
+    return replace(
+        est, inliers=inliers, num_inliers_per_camera=per, num_inliers=int(sum(per)),
+        disagreeing=tuple(sorted(cams)),
+    )  # fmt: skip
+
+
+def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
+    """0 or 1: the estimate whose pose is nearer the predicted model ``(R, C, ...)`` by
+    :data:`PREDICTION_MARGIN` (rotation angle in rad plus the positions' distance over the
+    points' median depth), None without a prediction or when neither is."""
+    if prediction is None:
+        return None
+    Rp = np.asarray(prediction[0], dtype=float)
+    pp = -Rp.T @ np.asarray(prediction[1], dtype=float)
+    depth = float(np.median(np.linalg.norm(pool.X @ first.R.T + first.C, axis=1)))
+    d = []
+    for e in (first, second):
+        ang = np.linalg.norm(matrix_to_rotvec(e.R @ Rp.T))
+        d.append(float(ang + np.linalg.norm(-e.R.T @ e.C - pp) / max(depth, 0.1)))
+    if d[0] * PREDICTION_MARGIN <= d[1]:
+        return 0
+    if d[1] * PREDICTION_MARGIN <= d[0]:
+        return 1
+    return None
 
 
 def _image_alone(

@@ -52,6 +52,20 @@ degrees, or the camera's matches are wrong): :attr:`RigOutput.disagreeing`, with
 when its points are compared with one other camera's only, both are named
 (:meth:`RigLocalizer.camera_partner`): two cameras cannot tell which mounting is wrong.
 
+The rig publishes only what its cameras agree on. The estimator's consensus
+(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`) outvotes a camera whose points
+contradict the others' (the track's prediction decides, else the number of cameras, never
+the number of points; a tie is refused, ``cameras_disagree``); without a track every camera
+is also posed alone (``verify_cameras``). A rig frame posed from one camera's points alone
+while other cameras run is refused when the track contradicts it (``contradicts_track``), or
+when there is no track and two or more other cameras run (``unconfirmed``): :data:`RIG_REFUSALS`.
+A camera whose frames never join the others' (its clock or stamp offset likely wrong) is
+named with its apparent clock offsets (:meth:`RigLocalizer.camera_apart`,
+:meth:`RigLocalizer.clock_offsets`, a warning, ``<camera>.apart``); its stamps are not
+shifted (stamps alone give an offset only up to the frame period and cannot tell a clock
+error from cameras out of phase by design): its frames are posed alone only where the
+track agrees.
+
 Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
 (:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
 (:meth:`RigLocalizer.predict_camera`), then takes the frame as :meth:`RigLocalizer.add` does.
@@ -80,13 +94,20 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.stats import chi2
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import InitialModel
-from ..estimation.rig import RigPoseEstimate, RigView, camera_model_of_rig, estimate_rig_pose
+from ..estimation.rig import (
+    VOTE_MIN_POINTS,
+    RigPoseEstimate,
+    RigView,
+    camera_model_of_rig,
+    estimate_rig_pose,
+)
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import PoseWithCovariance, RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
@@ -99,6 +120,7 @@ __all__ = [
     "MISSED_REASONS",
     "MOUNTING_BIAS_SHARE",
     "RIG_PATHS",
+    "RIG_REFUSALS",
     "SKIP_REASONS",
     "CameraShare",
     "CameraVerdict",
@@ -140,6 +162,31 @@ MISSED_REASONS = {
     "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
     "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
 }
+#: why the rig refused a rig frame the estimator posed (counted ``rig.failed.<reason>``, as the
+#: estimator's failure reasons)
+RIG_REFUSALS = {
+    "contradicts_track": "posed from one camera's points alone while other cameras of the rig "
+    "run, and the pose contradicts the rig's track (the prediction of the cameras' rig frames "
+    "before it): a camera whose clock or stamp is off, or whose matches are wrong, is not "
+    "posed alone",
+    "unconfirmed": "posed from one camera's points alone with no track to check it against "
+    "(the rig's start, or after the track ended) while two or more other cameras run: the "
+    "track of a rig of three or more cameras starts from a rig frame of cameras that agree "
+    "with each other",
+}
+#: a pose contradicts the track when its normalized squared distance from the prediction
+#: (rotation and position, the prediction's and the estimate's covariances) exceeds this
+#: chi-square quantile (6 degrees of freedom) and it is at least CONTRADICTION_MIN_DEG or
+#: CONTRADICTION_MIN_M away from it
+CONTRADICTION_GATE = 0.9999
+CONTRADICTION_MIN_DEG = 0.3
+CONTRADICTION_MIN_M = 0.02
+#: a camera is *apart* (its clock likely off) when it missed, or was alone in, at least
+#: APART_SHARE of its last APART_HISTORY rig frames as ``apart`` (at least APART_MIN of them)
+APART_HISTORY = 10
+APART_MIN = 6
+APART_SHARE = 0.8
+
 #: the paths a rig frame can take (as the camera tracker's)
 RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
 
@@ -451,6 +498,8 @@ class _Camera:
         self.disagrees = False
         self.partner: str | None = None  # (two cameras that disagree: the other one)
         self.last_share: CameraShare | None = None
+        self.apart_flags: deque = deque(maxlen=APART_HISTORY)  # (rig frames it was apart in)
+        self.apart = False
 
 
 class _Group:
@@ -525,8 +574,9 @@ class RigLocalizer:
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
-    was found to disagree); ``rig_frames``, ``rig.solved``, ``rig.failed``,
-    ``rig.failed.<reason>`` (the estimator's, or ``error``), ``rig.skipped``,
+    was found to disagree), ``.apart`` (times its frames were found apart from the others');
+    ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
+    :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
     ``rig.path.<path>``. Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
@@ -1046,6 +1096,7 @@ class RigLocalizer:
                 self.counts[f"{n}.missed.{reason}"] += 1
         if out.missing:
             self.counts["rig.incomplete"] += 1
+        self._update_apart(out)
         views = []
         for n in names:
             frame, ref = g.frames[n]
@@ -1063,8 +1114,21 @@ class RigLocalizer:
             self._gyro_done(out)
             return out
         out.estimate, out.path = est, path
+        refusal = self._refusal(out, est) if est.success else None
+        if refusal is not None:
+            est = out.estimate = replace(est, success=False, failure=refusal)
+            if refusal == "contradicts_track":
+                self.log.warning(
+                    "rig.contradicts_track",
+                    f"rig frame of camera {names[0]!r} alone refused: its pose contradicts the "
+                    "rig's track (its clock or stamp is likely off, or its matches are wrong)",
+                )
         if not est.success:
             self._count_rig(names, est.failure or "error")
+            if est.failure == "cameras_disagree":  # (who disagrees: the joint fit's counts)
+                n_pts = np.asarray(est.num_valid_per_camera)
+                n_in = np.asarray(est.num_inliers_per_camera)
+                self._update_disagreement(out, names, n_pts, n_in, views, est)
             self._gyro_done(out)
             return out
         self._finish(out, est, path, names, views)
@@ -1082,7 +1146,10 @@ class RigLocalizer:
         for n in names:
             self.counts[f"{n}.failed"] += 1
 
-    def _run(self, views, max_iterations=None, initial=None) -> RigPoseEstimate:
+    def _run(self, views, max_iterations=None, initial=None, prediction=None) -> RigPoseEstimate:
+        """The rig estimator on the rig frame's views; with neither an initial model nor a
+        prediction (no track to check it against) every camera is also posed alone
+        (``verify_cameras``)."""
         s = self.settings
         return estimate_rig_pose(
             views,
@@ -1097,12 +1164,15 @@ class RigLocalizer:
             initial_model=initial,
             gyro=self._gyro,
             gyro_time=self._gyro_time,
+            prediction=prediction,
+            verify_cameras=initial is None and prediction is None,
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):
         """The rig frame's estimate on the tracker's path (as the camera tracker's
         :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
         f, to = self._filter, self.settings.tracking
+        self._prediction = None
         if f is None:
             return self._run(views), None
         path = "cold"
@@ -1112,6 +1182,7 @@ class RigLocalizer:
         if not f.initialized:
             return self._run(views), path
         pred = f.predict(stamp)
+        self._prediction = pred
         pp = pred.pose
         model = _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
         sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
@@ -1125,8 +1196,110 @@ class RigLocalizer:
             return est, "tracked"
         if not est.success and est.failure != "too_few_points":
             # the prediction does not hold, or it misled RANSAC on a bad frame: solve it cold
-            est = self._run(views)
+            # (the prediction still decides between cameras that contradict each other)
+            est = self._run(views, prediction=model)
         return est, "relocalized"
+
+    def _refusal(self, out: RigOutput, est: RigPoseEstimate) -> str | None:
+        """Why a rig frame posed from one voting camera alone (the others' points
+        disagreeing, absent or too few) while another camera of the rig runs is refused
+        (:data:`RIG_REFUSALS`), or None: its pose contradicts the track's prediction
+        (``contradicts_track``), or there is no prediction and two or more other cameras run
+        (``unconfirmed``)."""
+        valid = np.asarray(est.num_valid_per_camera)
+        voting = [k for k in range(len(valid)) if valid[k] >= VOTE_MIN_POINTS]
+        posing = [k for k in voting if k not in est.disagreeing]
+        if len(posing) > 1:
+            return None
+        mine = {out.cameras[k] for k in posing} or set(out.cameras)
+        running = sum(not c.stopped and n not in mine for n, c in self._cams.items())
+        if running == 0:
+            return None  # (the rig runs on this camera alone)
+        pred = getattr(self, "_prediction", None)
+        if pred is None:
+            return "unconfirmed" if running >= 2 else None
+        return "contradicts_track" if self._contradicts(est, pred) else None
+
+    @staticmethod
+    def _contradicts(est: RigPoseEstimate, pred) -> bool:
+        """The estimate's pose is further from the prediction than their covariances allow
+        (:data:`CONTRADICTION_GATE`) and at least :data:`CONTRADICTION_MIN_DEG` or
+        :data:`CONTRADICTION_MIN_M` away."""
+        pose = RSPose.from_model(est.model, 1.0)
+        d_rot = matrix_to_rotvec(pose.orientation @ pred.pose.orientation.T)
+        d_pos = pose.position - pred.pose.position
+        deg, dist = float(np.degrees(np.linalg.norm(d_rot))), float(np.linalg.norm(d_pos))
+        if deg < CONTRADICTION_MIN_DEG and dist < CONTRADICTION_MIN_M:
+            return False
+        S = np.asarray(pred.covariance, float)[:6, :6]
+        if est.covariance is not None and np.isfinite(est.covariance[:6, :6]).all():
+            S = S + np.asarray(est.covariance, float)[:6, :6]
+        d = np.concatenate([d_rot, d_pos])
+        try:
+            nis = float(d @ np.linalg.solve(S, d))
+        except np.linalg.LinAlgError:
+            return True
+        return not nis <= float(chi2.ppf(CONTRADICTION_GATE, 6))
+
+    def _update_apart(self, out: RigOutput) -> None:
+        """Flag the cameras whose frames are kept apart from the others' (module docstring):
+        a camera missing as ``apart`` from a rig frame of others, or alone in one the others
+        missed as ``apart``; named (a warning with its apparent clock offsets,
+        :meth:`clock_offsets`) in :data:`APART_SHARE` of its last :data:`APART_HISTORY`."""
+        alone = len(out.cameras) == 1 and "apart" in out.missing.values()
+        for n, cam in self._cams.items():
+            if n in out.cameras:
+                cam.apart_flags.append(alone)
+            elif out.missing.get(n) == "apart":
+                cam.apart_flags.append(True)
+            else:
+                continue
+            f = cam.apart_flags
+            apart = len(f) >= APART_MIN and sum(f) >= APART_SHARE * len(f)
+            if apart and not cam.apart:
+                self.counts[f"{n}.apart"] += 1
+                text = _offsets_text(self.clock_offsets(n))
+                self.log.warning(
+                    f"rig.apart.{n}",
+                    f"rig camera {n!r}: its frames never join the others' (window "
+                    f"{1e3 * self.settings.window:.0f} ms): stamps {text} (median of nearest "
+                    "stamps): its clock or stamp offset is likely wrong; its frames are posed "
+                    "alone only where the rig's track agrees",
+                )
+            elif cam.apart and not apart:
+                self.log.info(f"rig camera {n!r} joins the others' rig frames again")
+            cam.apart = apart
+
+    def clock_offsets(self, name: str) -> dict:
+        """Camera ``name``'s apparent clock offset against each other camera (other camera ->
+        s): the median over its recent frames of its reference time minus the nearest
+        reference time of that camera's recent frames (empty before frames of both). Stamps
+        alone tell an offset only up to the cameras' frame period.
+
+        Raises:
+            KeyError: a camera not in the rig.
+        """
+        cam = self._cams[name]
+        out = {}
+        mine = np.array(cam.recent, dtype=np.int64)
+        for m, other in self._cams.items():
+            if m == name or not other.recent or not len(mine):
+                continue
+            theirs = np.array(other.recent, dtype=np.int64)
+            diff = mine[:, None] - theirs[None, :]
+            near = diff[np.arange(len(mine)), np.argmin(np.abs(diff), axis=1)]
+            out[m] = float(np.median(near)) * 1e-9
+        return out
+
+    def camera_apart(self, name: str) -> dict | None:
+        """The camera's apparent clock offsets (:meth:`clock_offsets`) when its frames are
+        kept apart from the others' (module docstring: its clock or stamp offset is likely
+        wrong), else None.
+
+        Raises:
+            KeyError: a camera not in the rig.
+        """
+        return self.clock_offsets(name) if self._cams[name].apart else None
 
     def _finish(self, out: RigOutput, est, path, names, views) -> None:
         out.measurement = meas = RigMeasurement.of(est, out.stamp_ns)
@@ -1174,7 +1347,9 @@ class RigLocalizer:
             cam.disagrees = sum(cam.flags) >= s.disagree_frames
             witnesses = [names[j] for j in strong if j != k]
             weak = [m for j, m in enumerate(names) if j != k and int(n_pts[j]) > 0]
-            single = len(witnesses) == 1 and len(weak) == 1
+            # (two cameras whose contradiction the rig's track decided: the outvoted one alone)
+            decided = bool(est.success and est.disagreeing)
+            single = len(witnesses) == 1 and len(weak) == 1 and not decided
             cam.partner = witnesses[0] if cam.disagrees and single else None
             if cam.disagrees and (not was or cam.partner != was_partner):
                 self.counts[f"{n}.disagreements"] += 1
@@ -1188,7 +1363,8 @@ class RigLocalizer:
                     text = (
                         f"rig camera {n!r} disagrees with the others: {int(n_in[k])} of its {pts} "
                         f"points fit the rig's pose ({100 * others:.0f} % of the others')"
-                        f"{alone}: its mounting is likely wrong (or its matches are)"
+                        f"{alone}: its mounting is likely wrong (or its matches are, or its "
+                        f"clock: its stamps are {_offsets_text(self.clock_offsets(n))})"
                     )
                 else:
                     p = cam.partner
@@ -1205,7 +1381,8 @@ class RigLocalizer:
                         f"of {n!r} fit the rig's pose ({100 * others:.0f} % of those of {p!r})"
                         f"{alone}: "
                         "the mounting of one of them is likely wrong (or its matches are); two "
-                        "cameras cannot tell which (the rig follows the one with more points): "
+                        "cameras cannot tell which (the rig frames they disagree on are "
+                        "refused unless the rig's track tells): "
                         "check both mountings, or let a third camera see the map"
                     )  # fmt: skip
                 self.log.warning(f"rig.disagrees.{n}", text)
@@ -1237,9 +1414,17 @@ class RigLocalizer:
         return out
 
 
+def _offsets_text(offsets: dict) -> str:
+    """Apparent clock offsets (other camera -> s) as ``+12.7 ms from 'front''s, ...``."""
+    return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
+
+
 def _alone_deg(view: RigView, est: RigPoseEstimate) -> float | None:
     """deg between the camera's rotation posed alone (the single-camera estimator) and where
-    the rig's pose and the camera's mounting put it; None when it is not posed alone."""
+    the rig's pose and the camera's mounting put it; None when it is not posed alone (or the
+    rig frame was not posed)."""
+    if not est.success:
+        return None
     try:
         alone = estimate_rs_pose(view.uv, view.X, view.camera)
     except Exception:

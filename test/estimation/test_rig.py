@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rs_localizer.estimation import estimate_rs_pose
-from rs_localizer.estimation.rig import RigView, estimate_rig_pose
+from rs_localizer.estimation.rig import RIG_FAILURE_REASONS, RigView, estimate_rig_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
 from rs_localizer.sim import rig as sim_rig
@@ -525,3 +525,53 @@ def test_an_initial_model_that_explains_too_little_changes_nothing():
     for a, b in ((est.R, cold.R), (est.C, cold.C), (est.w, cold.w), (est.t, cold.t)):
         assert np.array_equal(a, b)
     assert est.iterations == cold.iterations
+
+
+def _frames_with_a_wrong_mounting(counts, deg, n=4, seed=100):
+    """``n`` simulated rig frames of ``counts`` points per camera, the last camera's mounting
+    given ``deg`` degrees off (about its y axis); yields (views, truth)."""
+    bad = rotvec_to_matrix(np.radians([0.0, deg, 0.0]))
+    for k in range(n):
+        rng = np.random.default_rng(seed + k)
+        rig = sim_rig.make_rig(len(counts), rng)
+        truth = sim_rig.rig_motion(rng)
+        views = list(sim_rig.rig_frame(rig, truth, counts, rng).views)
+        views[-1] = replace(views[-1], R_mount=bad @ views[-1].R_mount)
+        yield views, truth
+
+
+@pytest.mark.parametrize("deg", [2.0, 20.0])
+def test_a_wrong_mounting_on_the_camera_with_most_points_is_outvoted(deg):
+    """Two cameras of 30 points against one of 300 whose mounting is off: the joint fit follows
+    the 300 points (every frame off by the full mounting error, which the consensus turned off
+    reproduces), the cameras' consensus poses the rig from the two that agree, within 0.2 deg
+    of the truth, and names the wrong camera (index 2) as disagreeing."""
+    for views, truth in _frames_with_a_wrong_mounting([30, 30, 300], deg):
+        joint = estimate_rig_pose(views, consensus=False)
+        assert joint.success and abs(rotation_angle_deg(joint.R, truth.R) - deg) < 0.1
+        est = estimate_rig_pose(views)
+        assert est.success and est.disagreeing == (2,)
+        assert rotation_angle_deg(est.R, truth.R) < 0.2
+        assert est.num_inliers_per_camera[2] == 0 and not est.inliers[2].any()
+        assert est.num_valid_per_camera == joint.num_valid_per_camera
+
+
+def test_two_cameras_that_contradict_each_other_are_refused_unless_the_prediction_decides():
+    """Two cameras (60 and 300 points), the one with 300 mounted 5 deg off: neither the number
+    of cameras nor points tells which is right: ``cameras_disagree`` (both named), no pose;
+    a prediction near the truth decides for the right camera, one near the wrong pose for the
+    other; right mountings: posed as without the consensus."""
+    for views, truth in _frames_with_a_wrong_mounting([60, 300], 5.0, n=3):
+        est = estimate_rig_pose(views)
+        assert not est.success and est.failure == "cameras_disagree"
+        assert est.disagreeing == (0, 1) and "cameras_disagree" in RIG_FAILURE_REASONS
+        near = (rotvec_to_matrix(np.radians([0.3, 0.0, 0.0])) @ truth.R, truth.C, truth.w, truth.t)
+        est = estimate_rig_pose(views, prediction=near)
+        assert est.success and est.disagreeing == (1,)
+        assert rotation_angle_deg(est.R, truth.R) < 0.2
+        wrong = estimate_rig_pose(views, consensus=False)
+        est = estimate_rig_pose(views, prediction=wrong.model)
+        assert est.success and est.disagreeing == (0,)
+    for views, _ in _frames_with_a_wrong_mounting([60, 300], 0.0, n=2):
+        a, b = estimate_rig_pose(views), estimate_rig_pose(views, consensus=False)
+        assert a.success and a.disagreeing == () and np.array_equal(a.R, b.R)

@@ -183,9 +183,11 @@ def test_one_diagnostics_converter_for_both_nodes():
 
 
 def test_the_status_names_both_of_two_cameras_that_disagree():
-    """Two cameras, the left mounting 3 deg off: the rig status warns that the two disagree and
-    one of their mountings is likely wrong, both cameras' state ``disagrees``; with a third
-    camera the status names left alone."""
+    """Two cameras, the left mounting 3 deg off: nothing tells which mounting is wrong, so every
+    rig frame is refused (``cameras_disagree``: the status is ERROR, no rig frame posed) and
+    both cameras' state is ``disagrees``; with a third camera the status warns and names left
+    alone."""
+    from rs_localizer.ros.diagnostics import ERROR
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
@@ -202,14 +204,14 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         for f in frames:
             rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
         level, message, values = rig_diagnostics(rig, set())
-        assert level == W, message
         if k == 2:
-            assert "cameras front and left disagree" in message, message
-            assert "cannot tell which" in message
+            assert level == ERROR and rig.counts["rig.failed.cameras_disagree"] > 0, message
             assert values["front.state"] == values["left.state"] == "disagrees"
-        else:
-            assert "camera left disagrees with the rig" in message, message
-            assert "front" not in message and values["front.state"] == "running"
+            assert rig.camera_partner("front") == "left"
+            continue
+        assert level == W, message
+        assert "camera left disagrees with the rig" in message, message
+        assert "front" not in message and values["front.state"] == "running"
 
 
 def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):

@@ -1,0 +1,156 @@
+"""RigLocalizer: the rig publishes a pose only where its cameras agree with each other and with
+the rig's track (a camera's clock off, a wrong mounting on the camera with the most points, a
+rig frame of one camera the track contradicts), against the rig's true trajectory
+(rs_localizer.sim.rig_video)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from helpers.rig import T0, Log, mounts_of
+
+from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
+from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
+from rs_localizer.tracking.rig import (
+    RIG_REFUSALS,
+    RigCameraFrame,
+    RigLocalizer,
+    RigMount,
+    RigSettings,
+)
+
+
+def run(frames, cams, mounts=None, shift=None, log=None):
+    """The frames through a RigLocalizer in stamp order, camera ``c``'s stamps moved by
+    ``shift[c]`` s (its clock off); returns (rig, outputs)."""
+    by = {c.name: c.camera for c in cams}
+    rig = RigLocalizer(RigSettings(mounts or mounts_of(cams)), log=log)
+    shift = shift or {}
+    stamped = sorted(
+        ((f.stamp_ns + int(round(shift.get(f.name, 0.0) * 1e9)), f) for f in frames),
+        key=lambda x: x[0],
+    )
+    outs = []
+    for s, f in stamped:
+        outs += rig.add(RigCameraFrame(f.name, s, by[f.name], f.uv, f.xyz))
+    return rig, outs + rig.close()
+
+
+def pose_errors(outs, traj):
+    """(rotation deg, position m) of every published pose against the truth at its stamp."""
+    e = []
+    for o in outs:
+        if o.success:
+            R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
+            pose = o.measurement.pose
+            e.append((rotation_angle_deg(pose.orientation, R), np.linalg.norm(pose.position - p)))
+    return np.array(e).reshape(-1, 2)
+
+
+def assert_balanced(rig):
+    for n in rig.cameras:
+        c = rig.camera_counts(n)
+        assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"], (n, c)
+    r = rig.rig_counts()
+    assert r["rig_frames"] == r["solved"] + r["failed"] + r["skipped"] + r["pending"], r
+
+
+@pytest.fixture(scope="module")
+def video():
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.8, num_points=150, seed=11)
+    return cams, frames, traj
+
+
+@pytest.mark.parametrize("offset", [-0.05, -0.02, 0.005, 0.05])
+def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, offset):
+    """The left camera's clock off by -50, -20, +5 or +50 ms (its frames join the others' at a
+    wrong stamp, or never): no published pose is more than 1 deg or 5 cm off (before, its
+    lone rig frames were posed at its wrong stamps, up to 3.9 deg off, and a joint fit with
+    one other camera absorbed the time error); the others' rig frames are posed, at least
+    one per frame period; the cameras named (apart or disagreeing) are left alone."""
+    cams, frames, traj = video
+    log = Log()
+    rig, outs = run(frames, cams, shift={"left": offset}, log=log)
+    e = pose_errors(outs, traj)
+    assert len(e) >= 20, len(e)
+    assert e[:, 0].max() < 1.0 and e[:, 1].max() < 0.05, (offset, e.max(axis=0))
+    named = {n for n in rig.cameras if rig.camera_apart(n) is not None}
+    named |= {n for o in outs for n in o.disagreeing}
+    assert named <= {"left"}, named
+    refused = {k.split(".")[-1] for k in rig.counts if k.startswith("rig.failed.")}
+    assert refused <= {"contradicts_track", "unconfirmed", "cameras_disagree"}, refused
+    assert_balanced(rig)
+    if offset == -0.02:  # (its frames never join: named with its apparent clock offsets)
+        offs = rig.camera_apart("left")
+        assert set(offs) == {"front", "right"} and abs(offs["front"]) > 0.015
+        text = [t for k, t in log.warnings if k == "rig.apart.left"]
+        assert len(text) == 1 and "'left'" in text[0] and "clock" in text[0], text
+        assert rig.counts["rig.failed.contradicts_track"] >= 15
+        assert "contradicts_track" in RIG_REFUSALS
+
+
+def thin(frames, dominant, n_other=15, seed=0):
+    """The frames with every camera but ``dominant`` cut to ``n_other`` points."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for f in frames:
+        if f.name != dominant:
+            k = rng.choice(len(f.uv), n_other, replace=False)
+            f = replace(f, uv=f.uv[k], xyz=f.xyz[k], inlier=f.inlier[k])
+        out.append(f)
+    return out
+
+
+def test_a_wrong_mounting_on_the_camera_with_most_points_is_outvoted():
+    """Left sees 300 points, front and right 15 each, left's mounting 5 deg off: every rig
+    frame was published 5 deg off and the two right cameras named; now the rig frames are
+    posed by front and right (all but at most 2 refused) within 1 deg and 5 cm, and left is
+    the camera named."""
+    cams = default_rig(3)
+    frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=300, seed=12)
+    frames = thin(frames, "left")
+    mounts = mounts_of(cams)
+    bad = rotvec_to_matrix(np.radians([0.0, 5.0, 0.0]))
+    mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+    log = Log()
+    rig, outs = run(frames, cams, mounts, log=log)
+    e = pose_errors(outs, traj)
+    assert len(e) >= len(outs) - 2 and e[:, 0].max() < 1.0 and e[:, 1].max() < 0.05, e.max(axis=0)
+    assert outs[-1].disagreeing == ("left",)
+    assert all(o.estimate.disagreeing in ((), (1,)) for o in outs if o.success)
+    assert [k for k, _ in log.warnings if k.startswith("rig.disagrees.")] == ["rig.disagrees.left"]
+    # two cameras (left 300 points, front 15): nothing tells which is wrong: refused, both named
+    two = [f for f in frames if f.name != "right"]
+    rig, outs = run(two, cams[:2], {n: mounts[n] for n in ("front", "left")})
+    assert pose_errors(outs, traj).shape[0] == 0
+    assert rig.counts["rig.failed.cameras_disagree"] == len(outs)
+    assert outs[-1].disagreeing == ("front", "left")
+    assert_balanced(rig)
+
+
+def test_a_partial_rig_frame_the_track_contradicts_is_refused(video):
+    """Rig frames of the left camera alone (front and right dropped their frames 8 and 16):
+    a right one is posed (the track agrees), one whose matches are wrong (its world points
+    turned 15 deg about the rig, a pose that fits them all) is refused as
+    ``contradicts_track`` instead of published 15 deg off."""
+    cams, frames, traj = video
+    turn = rotvec_to_matrix(np.radians([0.0, 0.0, 15.0]))
+    out = []
+    for f in frames:
+        if f.name != "left" and f.index in (8, 16):
+            continue
+        if f.name == "left" and f.index == 16:
+            f = replace(f, xyz=(f.xyz - f.position) @ turn.T + f.position)
+        out.append(f)
+    rig, outs = run(out, cams)
+    alone = [o for o in outs if o.cameras == ("left",)]
+    assert len(alone) == 2
+    assert alone[0].success
+    assert not alone[1].success and alone[1].estimate.failure == "contradicts_track"
+    e = pose_errors(outs, traj)
+    assert e[:, 0].max() < 1.0 and e[:, 1].max() < 0.05, e.max(axis=0)
+    assert rig.counts["rig.failed.contradicts_track"] == 1
+    assert_balanced(rig)
