@@ -170,9 +170,10 @@ def final_refinement(
     Returns:
         (the refinement's result, whether the prior was used, (:func:`motion_chi2` of the
         maximum-likelihood velocities, that fit's noise sigma in normalized units): the
-        frame's own evidence of motion, from one more maximum-likelihood refinement where the
-        refinement was MAP from the start (planar frames); ``(inf, nan)`` for a
-        global-shutter refinement).
+        frame's own evidence of motion; ``(inf, nan)``, not judged, for a global-shutter
+        refinement and where the refinement was MAP from the start (planar frames: one plane
+        barely separates the velocities from the pose, so a moving camera's maximum-likelihood
+        velocities can look insignificant while the pose needs them)).
     """
     th = float(th)
     ref = refine_rs_pose(
@@ -193,23 +194,6 @@ def final_refinement(
     evidence = (np.inf, np.nan)
     if rolling and fr.prior is None:
         evidence = (motion_chi2(ref.covariance, ref.w, ref.t), ref.sigma)
-    elif rolling and finite_model(ref.R, ref.C, ref.w, ref.t):
-        # (MAP from the start, planar frames: the data's own evidence from the maximum-likelihood
-        # fit near the MAP model)
-        ml = refine_rs_pose(
-            (ref.R, ref.C, ref.w, ref.t),
-            fr.X,
-            fr.x,
-            fr.r - fr.r0,
-            th,
-            RefineSettings(
-                rolling_shutter=True,
-                seconds_per_unit_r=fr.spr,
-                cutoff=FINAL_CUTOFF * th,
-                tol=FINAL_TOL,
-            ),
-        )
-        evidence = (motion_chi2(ml.covariance, ml.w, ml.t), ml.sigma)
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None, evidence
     return (*posterior_if_consistent(ref, prior, fr.spr), evidence)
