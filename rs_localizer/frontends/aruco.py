@@ -4,10 +4,12 @@ The marker detector of the map's dictionary
 (:func:`~rs_localizer.frontends.marker_detection.make_marker_detector`: the AprilTag 3 library
 for AprilTag families, OpenCV's ArUco detector with subpixel corner refinement for ArUco
 dictionaries) finds the markers, over the full frame or, with ``windowed``, in windows around
-the predicted markers (the same detector and settings); each corner ``k`` (top-left, top-right,
-bottom-right, bottom-left) of marker ``id`` found in the marker map becomes a correspondence with
-id ``4 * id + k`` and the corner's 3D position. Markers not in the map are ignored; an id found
-twice in one image is dropped from that image (counted).
+the predicted markers (the same detector and settings); each corner ``k`` (in the detector's
+order: for ArUco dictionaries the printed top-left, top-right, bottom-right, bottom-left; for
+AprilTag families ``docs/marker_maps.md``'s "Corner order") of marker ``id`` found in the
+marker map becomes a correspondence with id ``4 * id + k`` and the corner's 3D position.
+Markers not in the map are ignored; an id found twice in one image is dropped from that image
+(counted).
 """
 
 from __future__ import annotations

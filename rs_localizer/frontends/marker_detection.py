@@ -17,9 +17,12 @@
   as many markers there and on the plain ``aruco_room``: ``python -m benchmarks.bench_markers``).
   Their corners are refined in stages (:func:`refine_corners`), not by OpenCV's one window.
 
-Both return the same thing: corners (M, 4, 2) float64 in distorted pixels, in ArUco order
-(top-left, top-right, bottom-right, bottom-left of the printed marker, clockwise in the image),
-with OpenCV's pixel convention (integer coordinates at pixel centres). The AprilTag library
+Both return the same thing: corners (M, 4, 2) float64 in distorted pixels, in OpenCV's ArUco
+order (for ArUco dictionaries the printed marker's top-left, top-right, bottom-right,
+bottom-left, clockwise in the image; for AprilTag families printed from the AprilTag library's
+images its bottom-right, bottom-left, top-left, top-right: OpenCV's ``DICT_APRILTAG_*`` images
+are those turned by 180 degrees; ``docs/marker_maps.md``, "Corner order"), with OpenCV's pixel
+convention (integer coordinates at pixel centres). The AprilTag library
 reports its corners in another order (bottom-left, bottom-right, top-right, top-left of the tag
 seen with its y axis up, i.e. :data:`APRILTAG_TO_ARUCO_ORDER` away from ArUco's) and with
 integer coordinates at pixel corners, half a pixel off in x and y; both are converted here
