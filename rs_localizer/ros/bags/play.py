@@ -305,15 +305,16 @@ def play(
 
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")
-    rig_waits = None
-    rig_total = 0
-    if is_rig_bag(path):  # (before any ROS: a bag it cannot group raises)
+    rig = is_rig_bag(path)
+    grouping = None
+    if rig:  # (its grouping is read beside the first messages sent: it reads the whole bag)
+        from concurrent.futures import ThreadPoolExecutor
+
         from .rig_bag import rig_frame_grouping, rig_namespace
 
-        ns = rig_namespace(path)
-        ends, rig_total = rig_frame_grouping(path)
-        if lockstep:
-            rig_waits = {(f"{ns}/{n}", st): k for (n, st), k in ends.items()}
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
+        grouping = (rig_namespace(path), pool.submit(rig_frame_grouping, path))
+        pool.shutdown(wait=False)
     own_context = context is None
     if own_context:
         context = rclpy.Context()
@@ -322,7 +323,7 @@ def play(
     node = rclpy.create_node("rs_localizer_player", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    result = PlayResult(rig_frames_in_bag=rig_total)
+    result = PlayResult()
     try:
         lead = int(imu_lead * 1e9) if lockstep else 0
         if messages is not None:
@@ -339,7 +340,7 @@ def play(
         s = _Session(node, executor, remap, types, reliable, result, log)
         late = set(late_topics or ())
         frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
-        s.rig_waits = rig_waits
+        s.rig, s.grouping = rig, grouping
         s.compile_wait = compile_wait if lockstep else 0.0
         if lockstep:
             s.watch_compiling()
@@ -350,8 +351,7 @@ def play(
             s.choose_frames(frame_topics, source)
         frame_topics = [t for t in frame_topics if t not in result.skipped_topics]
         if output_topics is None:  # each frame waits for its own namespace's (or rig's) pose
-            rig = rig_waits is not None
-            waited = {t: [pose_topic_of(t, remap, rig)] for t in frame_topics}
+            waited = {t: [pose_topic_of(t, remap, rig and lockstep)] for t in frame_topics}
             output_topics = sorted({p for ps in waited.values() for p in ps})
         else:
             waited = {t: [o for o in output_topics if o not in late] for t in frame_topics}
@@ -395,6 +395,8 @@ def play(
         )
         # let reliable writers flush the tail (and the late outputs of the last frames come)
         s.flush_tail(timeout if lockstep and late else 0.0, late)
+        if grouping is not None and (lockstep or grouping[1].exception() is None):
+            result.rig_frames_in_bag = grouping[1].result()[1]
     finally:
         executor.remove_node(node)
         node.destroy_node()
@@ -511,6 +513,9 @@ class _Session:
         self.reliable_images: set[str] = set()
         #: a rig bag in lock-step: {(camera namespace, header stamp): rig frames completed}
         self.rig_waits: dict | None = None
+        #: a rig bag: whether it is one, and ``(namespace, future of its grouping)``
+        self.rig = False
+        self.grouping: tuple | None = None
         #: lock-step: the longest wait (s) for a node compiling its kernels (0: none)
         self.compile_wait = 0.0
         #: nodes (logger or status name) that said they compile, and the time they said so
@@ -765,7 +770,7 @@ class _Session:
             if is_frame_topic(m[0], m[1]):
                 break
             early.append(m)
-        if self.rig_waits is not None:  # (a rig: every camera's first camera_info too)
+        if self.rig:  # (a rig: every camera's first camera_info too)
             infos = {t for t, mt in self.types.items() if mt == CAMERA_INFO}
             seen = {m[0] for m in early}
             for m in itertools.islice(stream, 1000):
@@ -852,6 +857,10 @@ class _Session:
             msgs = stream()
             if rep == 0 and lockstep:
                 msgs = self._prime(msgs, stamp_offset_ns)
+                if self.grouping is not None:  # (raises what grouping the bag raised)
+                    ns, fut = self.grouping
+                    ends = fut.result()[0]
+                    self.rig_waits = {(f"{ns}/{n}", st): k for (n, st), k in ends.items()}
             if rep > 0:
                 if t_first is None:
                     break
