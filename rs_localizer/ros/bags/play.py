@@ -657,8 +657,10 @@ class _Session:
         def has_reader(t):
             if pubs[t].get_subscription_count():
                 return True
-            image = types[t] in (IMAGE, COMPRESSED_IMAGE)
-            return image and self._node_image_topic(t) is not None
+            if types[t] not in (IMAGE, COMPRESSED_IMAGE):
+                return False
+            target = self._node_image_topic(t)  # (its own topic: a reader of another QoS)
+            return target is not None and target != live_topic(t, self.remap)
 
         def unmatched():
             # choosing: one subscribed frame topic per namespace is enough (then 0.5 s more
