@@ -140,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
         give_up=args.give_up,
         source=args.source,
     )
-    msg = f"published {res.published} messages, {len(res.frames)} frames in {res.wall_time:.2f} s"
+    kind = "camera frames" if res.rig_frames_in_bag else "frames"
+    msg = f"published {res.published} messages, {len(res.frames)} {kind} in {res.wall_time:.2f} s"
     if res.rig_frames_in_bag:  # (counted as the rig node counts its rig_frames)
         msg += (
             f" ({res.rig_frames_in_bag} rig frames: the camera frames grouped as the rig node "
