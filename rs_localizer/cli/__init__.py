@@ -22,6 +22,7 @@ COMMANDS = (
     "demo",
     "replay",
     "play",
+    "lifecycle",
     "evaluate",
     "view",
     "diagnostics",

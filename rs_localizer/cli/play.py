@@ -30,9 +30,13 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=HELP,
         description="Publish the messages of a bag on their topics, at the bag's pace (--rate) "
         "or in lock-step (--lockstep: each frame waits for the node's pose before the next "
-        "is sent; prints the rate and latency). A rig bag (make-bag --rig, render-bag --rig) "
-        "publishes every camera's topics; lock-step waits for the rig's pose (e.g. /rig/pose) "
-        "after the camera frame that completes each rig frame.",
+        "is sent; prints the rate and latency). A bag image topic is published on the image "
+        "topic the node subscribes in its namespace (/camera/image_raw as /camera/image), "
+        "and a node running a front end gets the images, not the bag's correspondences "
+        "(--source). A node still compiling its kernels is waited for. A rig bag (make-bag "
+        "--rig, render-bag --rig) publishes every camera's topics; lock-step waits for the "
+        "rig's pose (e.g. /rig/pose) after the camera frame that completes each rig frame; "
+        "the rig frames it prints are counted as the rig node counts them.",
         formatter_class=A.HelpFormatter,
     )
     pl.add_argument("bag", help="bag directory (or its .mcap / .db3 file)")
@@ -60,6 +64,15 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         type=A.nonneg_int,
         default=1,
         help="times a frame without answer is republished (lock-step)",
+    )
+    pl.add_argument(
+        "--source",
+        choices=("auto", "image", "correspondences"),
+        default="auto",
+        help="a camera with frames on several topics (a rendered bag's images and the "
+        "correspondences computed from its true map): auto plays what the node listens to "
+        "(the images when it subscribes an image topic, i.e. runs a front end; else the "
+        "correspondences), or name it",
     )
     pl.add_argument(
         "--topics", nargs="+", default=None, help="only these bag topics (default: all)"
@@ -125,17 +138,28 @@ def run(args: argparse.Namespace) -> int:
         limit=args.limit,
         loop=args.loop,
         give_up=args.give_up,
+        source=args.source,
     )
-    msg = f"published {res.published} messages, {len(res.frames)} frames in {res.wall_time:.2f} s"
+    kind = "camera frames" if res.rig_frames_in_bag else "frames"
+    msg = f"published {res.published} messages, {len(res.frames)} {kind} in {res.wall_time:.2f} s"
+    if res.rig_frames_in_bag:  # (counted as the rig node counts its rig_frames)
+        msg += (
+            f" ({res.rig_frames_in_bag} rig frames: the camera frames grouped as the rig node "
+            "groups them, one per camera within rig.window)"
+        )
     if args.lockstep:
         lat = res.latencies
-        what = ""
-        if res.rig_frames:
-            what = " rig frames"
-            msg += f" ({res.rig_frames} rig frames)"
-        msg += f"; {res.answered}{what} answered, {res.timeouts} timed out"
+        what = " rig frames" if res.rig_frames_in_bag else ""
+        n_answered = res.answered
+        if what:
+            msg += f"; {res.rig_frames} rig frames completed in {res.answered} waits answered"
+        else:
+            msg += f"; {n_answered} answered"
+        msg += f", {res.timeouts} timed out"
         if res.republished:
             msg += f" ({res.republished} sent again after no answer)"
+        if res.compile_waited:
+            msg += f" ({res.compile_waited:.0f} s waited for the node to compile)"
         if len(lat):
             import numpy as np
 

@@ -228,6 +228,7 @@ def _frontend_values(cfg: LocalizerConfig, frontend: Any, stats: StatsSnapshot) 
         {
             "frontend": cfg.frontend_kind,
             "image_frames": c.get("image_frames", 0),
+            "frames_beside_frontend": c.get("frames_beside_frontend", 0),
             "frontend_ms_last": f"{fe[-1] * 1e3:.3f}" if fe else "nan",
             "frontend_correspondences_last": stats.frontend_last,
             "frontend_correspondences_mean": (

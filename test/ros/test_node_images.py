@@ -368,3 +368,40 @@ def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
         assert len(p) > 200 and green.mean() > 0.9, green.mean()
     finally:
         probe.close()
+
+
+@pytest.mark.slow  # (a node of its own in the bag's namespace)
+def test_play_sends_a_frontend_node_its_images(tmp_path, ros_context, sample_images_bag):
+    """``play`` of the rendered bag (``/camera/image_raw``, ``camera_info`` and the
+    correspondences the renderer computed from the true map) into a node running the ArUco
+    front end on ``/camera/image``: the images go out, on the node's image topic, and the
+    correspondences stay in the bag; played with ``--source correspondences`` instead, the
+    node counts them (``frames_beside_frontend``) and says so once, naming both topics."""
+    from rs_localizer.ros.bags.play import play
+
+    node = _node(tmp_path, "/camera", "cam")
+    probe = Probe(ros_context, namespace="/camera")
+    try:
+        notes = []
+        res = play(sample_images_bag, lockstep=True, limit=4, timeout=10.0,
+                   context=ros_context, log=notes.append)  # fmt: skip
+        assert res.answered == len(res.frames) == 4, (notes, node.log)
+        assert {f["topic"] for f in res.frames} == {IMAGE_TOPIC}
+        assert res.skipped_topics == ["/camera/correspondences"], notes
+        assert f"note: playing {IMAGE_TOPIC} as /camera/image" in "\n".join(notes)
+        _st, v = probe.wait_diag(lambda v: int(v.get("frames_solved", 0)) >= 4)
+        assert int(v["image_frames"]) == 4 and int(v["frames_beside_frontend"]) == 0, v
+
+        res = play(sample_images_bag, lockstep=True, limit=3, timeout=10.0,
+                   context=ros_context, log=notes.append, source="correspondences")  # fmt: skip
+        assert {f["topic"] for f in res.frames} == {"/camera/correspondences"}
+        _st, v = probe.wait_diag(lambda v: int(v.get("frames_beside_frontend", 0)) >= 3)
+        assert int(v["frames_beside_frontend"]) == 3 and int(v["image_frames"]) == 4, v
+        warning = (
+            "received correspondences on /camera/correspondences while the aruco front end "
+            "runs on /camera/image"
+        )
+        assert node.log.count(warning) == 1, node.log
+    finally:
+        alive, rc = stop_node(node, probe)
+    assert alive and rc == 0, node.log

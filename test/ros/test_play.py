@@ -30,6 +30,12 @@ def test_choose_frame_topics():
     assert "/cam/image_raw" in kept
     kept, skipped = choose_frame_topics({"/cam/keypoints": PC2}, set())
     assert kept == ["/cam/keypoints"] and skipped == []
+    # source: images even when none is subscribed yet, or the correspondences even when the
+    # node subscribes an image
+    kept, _ = choose_frame_topics(bag, subscribed=set(), source="image")
+    assert sorted(kept) == ["/cam/image_raw", "/other/image/compressed"]
+    kept, _ = choose_frame_topics(bag, subscribed={"/cam/image_raw"}, source="correspondences")
+    assert sorted(kept) == ["/cam/correspondences", "/other/keypoints"]
     assert is_frame_topic("/c/image/compressed", COMPRESSED_IMAGE)
     assert not is_frame_topic("/c/camera_info", CAMERA_INFO)
 
@@ -219,3 +225,88 @@ def test_lockstep_gives_up_naming_the_pose_topics_that_exist(imu_bag, ros_contex
     assert len(res.frames) == 2 and res.answered == 0 and res.timeouts == 2
     assert "/nobody/camera/pose" in res.gave_up and "to the first 2 frames" in res.gave_up
     assert time.monotonic() - t0 < 5.0
+
+
+class _CompilingResponder(_Responder):
+    """A responder that answers no frame during its first ``busy`` seconds (a node compiling
+    its kernels); with ``say``, it logs as the node's warm-up does (``/rosout``) when it
+    starts and when it is done."""
+
+    def __init__(self, ros_context, busy, say):
+        super().__init__(ros_context, "/cam_busy", "/unused/pose")
+        from geometry_msgs.msg import PoseStamped
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        pose = self.node.create_publisher(PoseStamped, "/cam_busy/pose", qos)
+        self.ready_at = time.monotonic() + busy
+        self.pending = []
+        log = self.node.get_logger()
+        if say:  # (log_warm_up's first and last lines)
+            log.info("warm-up (r6p_1lin): numba cache /tmp/x (writable)")
+
+        def cb(msg):
+            self.frames += 1
+            self.pending.append(msg.header)
+
+        def tick():
+            if time.monotonic() < self.ready_at:
+                return
+            if say and self.pending is not None:
+                log.info(f"warm-up (r6p_1lin): {busy:.2f} s, ok, compiled 3 kernels")
+            for h in self.pending:
+                pose.publish(PoseStamped(header=h))
+            self.pending.clear()
+
+        from sensor_msgs.msg import PointCloud2
+
+        self.node.create_subscription(PointCloud2, "/cam_busy/frames", cb, qos)
+        self.node.create_timer(0.05, tick)
+
+
+@pytest.mark.parametrize("say", [True, False])
+def test_lockstep_waits_for_a_node_that_says_it_compiles(imu_bag, ros_context, say):
+    """A node that logs that it compiles (as the warm-up does) answers its first frame only
+    after 2.5 s: lock-step waits on beyond its 0.5 s timeout, without a timeout or a resend;
+    the same node silent about it times the first frame out (the control)."""
+    from rs_localizer.ros.bags.play import play
+
+    r = _CompilingResponder(ros_context, busy=2.5, say=say)
+    notes = []
+    try:
+        res = play(
+            imu_bag,
+            lockstep=True,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            remap={"/camera/correspondences": "/cam_busy/frames", "__ns": "/cam_busy"},
+            output_topics=["/cam_busy/pose"],
+            context=ros_context,
+            wait_subscribers=10.0,
+            timeout=0.5,
+            retries=0,
+            limit=2,
+            log=notes.append,
+        )
+    finally:
+        r.close()
+    if say:
+        assert res.answered == 2 and res.timeouts == 0 and res.republished == 0, notes
+        assert res.compile_waited >= 1.5
+        assert any("is compiling its kernels: waiting" in n for n in notes), notes
+    else:
+        assert res.timeouts >= 1 and res.compile_waited == 0, notes
+
+
+def test_play_counts_rig_frames_as_the_rig_node(tmp_path, ros_domain, capsys):
+    """``play`` of a rig bag prints its camera frames and the rig frames they form, the count
+    of the rig node's own grouping (``RigLocalizer`` through ``replay``: its ``rig_frames``)."""
+    from rs_localizer.ros.bags.rig_bag import replay_rig
+
+    bag = tmp_path / "rig"
+    assert cli(["make-bag", str(bag), "--rig", "3", "--frames", "5", "--quiet"]) == 0
+    capsys.readouterr()
+    assert cli(["play", str(bag), "--rate", "0", "--wait", "0"]) == 0
+    out = capsys.readouterr().out
+    n_rig = replay_rig(bag).counts["rig"]["rig_frames"]
+    assert n_rig == 5
+    assert "15 camera frames" in out and f"({n_rig} rig frames: the camera frames grouped" in out

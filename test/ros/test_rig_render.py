@@ -182,6 +182,7 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
         res = play(bag, lockstep=True, context=ros_context, wait_subscribers=20.0,
                    timeout=5.0, log=print)  # fmt: skip
         time.sleep(0.3)
+        node_rig_frames = node.rig.counts["rig_frames"]  # (the node's own count)
     finally:
         stop.set()
         th.join()
@@ -192,6 +193,7 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
         ex.shutdown()
     assert res.rig_frames == FRAMES and res.answered == FRAMES and res.timeouts == 0
     assert not res.gave_up
+    assert res.rig_frames_in_bag == FRAMES == node_rig_frames
     assert len(res.frames) == 3 * FRAMES and all("image" not in f["topic"] for f in res.frames)
     assert len(poses) == FRAMES
     gt = load_ground_truth(bag)

@@ -15,21 +15,42 @@ without waiting."""
 
 from __future__ import annotations
 
+import heapq
 import importlib
+import itertools
 import os
+import re
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .. import conversions as cv
-from .bag_io import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, IMU, PC2, POSE, TWIST, iter_messages
+from .bag_io import (
+    CAMERA_INFO,
+    COMPRESSED_IMAGE,
+    IMAGE,
+    IMU,
+    PC2,
+    POSE,
+    TWIST,
+    bag_topics,
+    iter_messages,
+)
 
-__all__ = ["PlayResult", "choose_frame_topics", "is_frame_topic", "output_type", "play"]
+__all__ = ["SOURCES", "PlayResult", "choose_frame_topics", "is_frame_topic", "output_type", "play"]
 
 FRAME_TOPIC_SUFFIXES = ("correspondences", "keypoints")  # + every sensor_msgs/Image topic
+#: ``play(source=...)``: what a camera namespace with several frame topics sends
+SOURCES = ("auto", "image", "correspondences")
+#: the node's log lines (``/rosout``) that say it starts and ends compiling its kernels
+#: (:func:`~rs_localizer.ros.pipeline.log_warm_up`, :mod:`rs_localizer.runtime.jit_cache`)
+_COMPILING = re.compile(r"^(warm-up \(.*\): numba cache|compiling )")
+_COMPILED = re.compile(
+    r"^(warm-up \(.*\): ([\d.]+ s|failed)|kernels compiled and loaded|kernels not compiled)"
+)
 
 
 def output_type(topic: str) -> type:
@@ -69,8 +90,14 @@ class PlayResult:
     skipped_topics: list = field(default_factory=list)
     #: lock-step: why playing stopped before the end (no node answered), else ""
     gave_up: str = ""
-    #: a rig bag: frames after which lock-step waited (the rig frames completed), else 0
+    #: a rig bag in lock-step: the rig frames the frames sent completed, grouped as the rig
+    #: node groups them (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`), else 0
     rig_frames: int = 0
+    #: a rig bag: the rig frames its camera frames form in all (the node's ``rig_frames``
+    #: after the whole bag), else 0
+    rig_frames_in_bag: int = 0
+    #: lock-step: seconds waited beyond the timeouts for a node compiling its kernels
+    compile_waited: float = 0.0
 
     @property
     def latencies(self) -> np.ndarray:
@@ -116,27 +143,35 @@ def pose_topic_of(frame_topic: str, remap: Mapping[str, str], rig: bool = False)
     return f"{_parent(parent) if rig else parent}/pose"
 
 
-def choose_frame_topics(frame_topics: dict, subscribed: set) -> tuple[list, list]:
+def choose_frame_topics(
+    frame_topics: dict, subscribed: set, source: str = "auto"
+) -> tuple[list, list]:
     """The frame topic to play in each camera namespace, and the ones left out.
 
     ``frame_topics``: ``{topic: msgtype}`` of the bag's frame topics; ``subscribed``: those with
-    a live subscriber. Per namespace (the topic's parent) one topic is kept, the first of: an
-    image with a subscriber (the node runs an image front end), ``correspondences`` (needs
-    nothing else), a compressed or raw image, ``keypoints`` (needs the node's
-    ``landmarks_file``). Returns ``(kept, skipped)`` topic lists.
+    a live subscriber. Per namespace (the topic's parent) one topic is kept, the first of
+    (``source`` ``auto``): an image with a subscriber (the node runs an image front end),
+    ``correspondences`` (needs nothing else), a compressed or raw image, ``keypoints`` (needs
+    the node's ``landmarks_file``); ``image``: an image with a subscriber, any image, then as
+    ``auto``; ``correspondences``: ``correspondences``, ``keypoints``, then the images.
+    Returns ``(kept, skipped)`` topic lists.
     """
 
     def rank(t):
         mt = frame_topics[t]
         image = mt in (IMAGE, COMPRESSED_IMAGE)
         last = t.rstrip("/").rsplit("/", 1)[-1]
+        if source == "correspondences":
+            return {"correspondences": 0, "keypoints": 1}.get(last, 2 if t in subscribed else 3)
         if image and t in subscribed:
             return 0
-        if last == "correspondences":
+        if image and source == "image":
             return 1
-        if image:
+        if last == "correspondences":
             return 2
-        return 3
+        if image:
+            return 3
+        return 4
 
     groups = {}
     for t in frame_topics:
@@ -147,6 +182,27 @@ def choose_frame_topics(frame_topics: dict, subscribed: set) -> tuple[list, list
         kept.append(best)
         skipped += [t for t in ts if t != best]
     return kept, skipped
+
+
+def _bag_stream(
+    path: str | os.PathLike,
+    wanted: set[str],
+    types: Mapping[str, str],
+    imu_lead_ns: int,
+) -> Iterator[tuple[str, str, int, bytes]]:
+    """The bag's messages on the ``wanted`` topics, read as they are sent (never the whole bag
+    in memory), in log-time order; ``imu_lead_ns`` > 0: the ``sensor_msgs/Imu`` topics that
+    far ahead (two readers merged)."""
+    imu = {t for t in wanted if types[t] == IMU}
+    if imu_lead_ns <= 0 or not imu:
+        yield from iter_messages(path, wanted)
+        return
+    rest = iter_messages(path, wanted - imu) if wanted - imu else iter(())
+    yield from heapq.merge(
+        rest,
+        iter_messages(path, imu),
+        key=lambda m: m[2] - imu_lead_ns if m[1] == IMU else m[2],
+    )
 
 
 def play(
@@ -172,17 +228,22 @@ def play(
     late_topics: Iterable[str] = (),
     imu_lead: float = 0.1,
     give_up: int = 3,
+    source: str = "auto",
+    compile_wait: float = 600.0,
 ) -> PlayResult:
     """Publish a bag into the ROS graph.
 
     Args:
-        path: bag directory.
+        path: bag directory. Its messages are read while they are sent (the first one goes out
+            as soon as the node is found, whatever the bag's size).
         rate: time scale of the original timing (ignored in lock-step).
         lockstep: after each frame (a ``*/correspondences``, ``*/keypoints`` or image message) wait
             until every ``output_topics`` topic delivered a message stamped within 1 s of the
             frame, or ``timeout``; then republish it up to ``retries`` times (a best-effort
             subscription may drop a sample) before moving on, counted in
-            ``PlayResult.timeouts`` and reported through ``log``.
+            ``PlayResult.timeouts`` and reported through ``log``. While the node says it
+            compiles its kernels (its log on ``/rosout``, ``compile_state`` on
+            ``/diagnostics``) the wait goes on, up to ``compile_wait`` s in all.
             A rig bag (:func:`~rs_localizer.ros.bags.rig_bag.is_rig_bag`) waits only after the
             camera frames that complete a rig frame
             (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_ends`), for the rig's pose
@@ -190,10 +251,18 @@ def play(
         topics: only these bag topics (default: all). remap: ``{bag_topic: live_topic}``;
             the key ``__ns`` moves every other bag topic into that namespace
             (:func:`live_topic`).
+        source: which frames a camera namespace with several frame topics sends: ``auto``
+            (what the node listens to: the images when it subscribes an image topic in that
+            namespace, i.e. runs a front end; else the correspondences), ``image`` or
+            ``correspondences`` (:func:`choose_frame_topics`). In every mode a bag image topic
+            nobody subscribes is published on the node's image topic of the same namespace and
+            type (``/camera/image_raw`` as ``/camera/image``), unless ``remap`` names it.
         output_topics: the node's outputs to wait for in lock-step. Default: each frame waits
             for the ``pose`` topic of the namespace it is published into
             (:func:`pose_topic_of`: remaps and ``__ns`` followed).
-        wait_subscribers: seconds to wait until every frame topic has a subscriber.
+        wait_subscribers: seconds to wait until every frame topic has a subscriber (longer
+            while the node compiles). A managed node found not active meanwhile is named
+            through ``log``, with the command that activates it.
         reliable: publish with reliable QoS (depth 10); else best effort. Images go out with
             the sensor-data QoS (best effort, depth 5) of camera drivers, or as ``reliable``
             says when a subscriber asks for reliable images (which a best-effort publisher
@@ -215,27 +284,37 @@ def play(
             Each IMU message is sent once (never primed nor republished: a repeated sample
             would be rejected by the node as not increasing).
         give_up: lock-step: stop after this many frames in a row without any answer while no
-            frame has been answered yet (the node is not running, or answers on another
-            topic); ``PlayResult.gave_up`` and ``log`` say why, naming the pose topics that
-            do have a publisher. Also stop before the first frame when, after
-            ``wait_subscribers``, a node takes the frames but none publishes a waited topic.
-            0: never give up.
+            frame has been answered yet (the node is not running, not active, or answers on
+            another topic); ``PlayResult.gave_up`` and ``log`` say why: a managed node that is
+            not active by name, else the pose topics that do have a publisher. Also stop
+            before the first frame when, after ``wait_subscribers``, a node takes the frames
+            but none publishes a waited topic. 0: never give up.
+        compile_wait: lock-step: the longest wait (s) for a node that compiles.
 
     When ``topics`` is None and a camera namespace has several frame topics, only the one
     :func:`choose_frame_topics` picks is played (a note through ``log`` names the others and
     the ``--topics`` to pass instead).
+
+    Raises:
+        ValueError: an unknown ``source``.
     """
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     from .rig_bag import is_rig_bag
 
-    rig_waits = None
-    if lockstep and is_rig_bag(path):  # (before any ROS: a bag it cannot group raises)
-        from .rig_bag import rig_frame_ends, rig_namespace
+    if source not in SOURCES:
+        raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")
+    rig = is_rig_bag(path)
+    grouping = None
+    if rig:  # (its grouping is read beside the first messages sent: it reads the whole bag)
+        from concurrent.futures import ThreadPoolExecutor
 
-        ns = rig_namespace(path)
-        rig_waits = {(f"{ns}/{n}", st): k for (n, st), k in rig_frame_ends(path).items()}
+        from .rig_bag import rig_frame_grouping, rig_namespace
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig_grouping")
+        grouping = (rig_namespace(path), pool.submit(rig_frame_grouping, path))
+        pool.shutdown(wait=False)
     own_context = context is None
     if own_context:
         context = rclpy.Context()
@@ -246,45 +325,63 @@ def play(
     executor.add_node(node)
     result = PlayResult()
     try:
-        msgs = messages if messages is not None else list(iter_messages(path, topics))
-        if topics is not None:
-            msgs = [m for m in msgs if m[0] in topics]
-        if lockstep and imu_lead > 0:  # (stable: the rest keeps its order)
-            lead = int(imu_lead * 1e9)
-            msgs = sorted(msgs, key=lambda m: m[2] - lead if m[1] == IMU else m[2])
-        types = {}
-        for topic, msgtype, _, _ in msgs:
-            types.setdefault(topic, msgtype)
+        lead = int(imu_lead * 1e9) if lockstep else 0
+        if messages is not None:
+            msgs = [m for m in messages if topics is None or m[0] in topics]
+            if lead > 0:  # (stable: the rest keeps its order)
+                msgs = sorted(msgs, key=lambda m: m[2] - lead if m[1] == IMU else m[2])
+            types = {}
+            for topic, msgtype, _, _ in msgs:
+                types.setdefault(topic, msgtype)
+        else:
+            types = {t: mt for t, mt in bag_topics(path).items() if topics is None or t in topics}
         remap = dict(remap or {})
+        user_remapped = set(remap)
         s = _Session(node, executor, remap, types, reliable, result, log)
         late = set(late_topics or ())
         frame_topics = [t for t in s.pubs if is_frame_topic(t, types[t])]
+        s.rig, s.grouping = rig, grouping
+        s.compile_wait = compile_wait if lockstep else 0.0
+        if lockstep:
+            s.watch_compiling()
+        choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
+        s.wait_for_subscribers(frame_topics, choose, (), wait_subscribers)
+        s.publish_images_on_node_topics(frame_topics, user_remapped)
+        if choose:
+            s.choose_frames(frame_topics, source)
+        frame_topics = [t for t in frame_topics if t not in result.skipped_topics]
         if output_topics is None:  # each frame waits for its own namespace's (or rig's) pose
-            rig = rig_waits is not None
-            waited = {t: [pose_topic_of(t, remap, rig)] for t in frame_topics}
+            waited = {t: [pose_topic_of(t, remap, rig and lockstep)] for t in frame_topics}
             output_topics = sorted({p for ps in waited.values() for p in ps})
         else:
             waited = {t: [o for o in output_topics if o not in late] for t in frame_topics}
-        s.rig_waits = rig_waits
         if lockstep:
             s.subscribe_outputs(output_topics, late)
-        choose = topics is None and len({_parent(t) for t in frame_topics}) < len(frame_topics)
-        s.wait_for_subscribers(
-            frame_topics, choose, output_topics if lockstep else (), wait_subscribers
-        )
+            s.wait_for_subscribers(frame_topics, False, output_topics, 2.0, quiet=True)
         if lockstep and give_up > 0:  # the frames are taken, but nobody answers on these
             taken = any(s.pubs[t].get_subscription_count() for t in frame_topics)
             unpublished = [t for t in output_topics if not _published_by_others(node, t)]
             if taken and unpublished:
-                result.gave_up = _no_answer_message(node, unpublished, "before the first frame")
+                result.gave_up = _no_answer_message(
+                    node, executor, unpublished, "before the first frame"
+                )
                 log(f"error: {result.gave_up}")
                 return result
-        if choose:
-            msgs = s.choose_frames(frame_topics, msgs)
-        if not msgs:
-            return result
+        skipped = set(result.skipped_topics)
+        if messages is not None:
+            msgs = [m for m in msgs if m[0] not in skipped]
+
+            def stream():
+                return iter(msgs)
+
+        else:
+            wanted = set(types) - skipped
+
+            def stream():
+                return _bag_stream(path, wanted, types, lead)
+
         s.publish_all(
-            msgs,
+            stream,
             rate=rate,
             lockstep=lockstep,
             waited=waited,
@@ -298,6 +395,8 @@ def play(
         )
         # let reliable writers flush the tail (and the late outputs of the last frames come)
         s.flush_tail(timeout if lockstep and late else 0.0, late)
+        if grouping is not None and (lockstep or grouping[1].exception() is None):
+            result.rig_frames_in_bag = grouping[1].result()[1]
     finally:
         executor.remove_node(node)
         node.destroy_node()
@@ -315,9 +414,47 @@ def _published_by_others(node: Any, topic: str) -> bool:
     return any((i.node_namespace, i.node_name) != me for i in infos)
 
 
-def _no_answer_message(node: Any, topics: Sequence[str], when: str) -> str:
-    """Why lock-step stops: no answer on ``topics``, and the pose topics that have a
+def _not_active(node: Any, executor: Any, live_topics: Iterable[str]) -> dict[str, str]:
+    """The managed nodes that are not active (``{full name: state}``), those whose namespace
+    holds one of ``live_topics`` if any does, else all of them."""
+    from ..lifecycle_client import inactive_nodes
+
+    found = inactive_nodes(node, executor)
+    topics = list(live_topics)
+    mine = {
+        n: st
+        for n, st in found.items()
+        if any(t.startswith(n.rsplit("/", 1)[0] + "/") for t in topics)
+    }
+    return mine or found
+
+
+def _activate_hint(not_active: Mapping[str, str]) -> str:
+    """``the managed node /camera/rs_localizer is inactive: activate it with ...``."""
+    parts = []
+    for name, state in not_active.items():
+        steps = ["activate"] if state == "inactive" else ["configure", "activate"]
+        cmds = " and ".join(f"rs-localizer lifecycle {name} {st}" for st in steps)
+        parts.append(f"the managed node {name} is {state}: {cmds}")
+    return "; ".join(parts)
+
+
+def _subscribed_by_others(node: Any, topic: str) -> bool:
+    """Whether a node other than the player ``node`` subscribes ``topic``."""
+    me = (node.get_namespace(), node.get_name())
+    infos = node.get_subscriptions_info_by_topic(topic)
+    return any((i.node_namespace, i.node_name) != me for i in infos)
+
+
+def _no_answer_message(
+    node: Any, executor: Any, topics: Sequence[str], when: str, frame_topics: Iterable[str] = ()
+) -> str:
+    """Why lock-step stops: no answer on ``topics``; the cause: a managed node that is not
+    active (by name, with the commands that activate it), else the pose topics that have a
     publisher in the graph (the namespace the node may run in)."""
+    not_active = _not_active(node, executor, [*topics, *frame_topics])
+    if not_active:
+        return f"no node answered on {', '.join(topics)} {when}; {_activate_hint(not_active)}"
     poses = sorted(
         name
         for name, kinds in node.get_topic_names_and_types()
@@ -350,7 +487,7 @@ class _Session:
         log: Callable[[str], Any],
     ) -> None:
         from rclpy.event_handler import PublisherEventCallbacks
-        from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
 
         self.node, self.executor, self.remap, self.types = node, executor, remap, types
         self.result, self.log = result, log
@@ -362,14 +499,10 @@ class _Session:
         # answers it with a reliable one (match_reliable_image_readers below), so rclpy's
         # "incompatible QoS" warning on the first publisher would be noise
         quiet = PublisherEventCallbacks(incompatible_qos=lambda event: None)
+        self._quiet = quiet
         self.pubs = {
             t: (
-                node.create_publisher(
-                    _msg_class(mt),
-                    live_topic(t, remap),
-                    qos_profile_sensor_data,
-                    event_callbacks=quiet,
-                )
+                self._image_publisher(t)
                 if mt in (IMAGE, COMPRESSED_IMAGE)
                 else node.create_publisher(_msg_class(mt), live_topic(t, remap), self.qos)
             )
@@ -380,6 +513,74 @@ class _Session:
         self.reliable_images: set[str] = set()
         #: a rig bag in lock-step: {(camera namespace, header stamp): rig frames completed}
         self.rig_waits: dict | None = None
+        #: a rig bag: whether it is one, and ``(namespace, future of its grouping)``
+        self.rig = False
+        self.grouping: tuple | None = None
+        #: lock-step: the longest wait (s) for a node compiling its kernels (0: none)
+        self.compile_wait = 0.0
+        #: nodes (logger or status name) that said they compile, and the time they said so
+        self.compiling: dict[str, float] = {}
+        self._told: set[str] = set()
+
+    def watch_compiling(self) -> None:
+        """Follow the nodes' log (``/rosout``: the warm-up's and the compile's lines, the
+        history a node keeps for late subscribers included) and ``/diagnostics``
+        (``compile_state`` ``compiling`` or ``loading``) for a node compiling its kernels."""
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rcl_interfaces.msg import Log
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+        me = self.node.get_logger().name
+
+        def on_log(msg):
+            if msg.name == me:
+                return
+            if _COMPILED.match(msg.msg):
+                self.compiling.pop(msg.name, None)
+            elif _COMPILING.match(msg.msg):
+                self.compiling[msg.name] = time.monotonic()
+
+        def on_diag(msg):
+            for st in msg.status:
+                v = {kv.key: kv.value for kv in st.values}
+                if "compile_state" not in v:
+                    continue
+                if v["compile_state"] in ("compiling", "loading"):
+                    self.compiling.setdefault(st.name, time.monotonic())
+                else:
+                    self.compiling.pop(st.name, None)
+
+        rosout = QoSProfile(
+            depth=1000,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.node.create_subscription(Log, "/rosout", on_log, rosout)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
+
+    def busy_compiling(self) -> bool:
+        """Whether a node said it compiles its kernels (and has not said it is done)."""
+        return bool(self.compiling)
+
+    def _tell_compiling(self) -> None:
+        if "compiling" not in self._told:
+            self._told.add("compiling")
+            self.log(
+                f"note: {', '.join(sorted(self.compiling))} is compiling its kernels: waiting "
+                f"(up to {self.compile_wait:.0f} s; `rs-localizer compile` after installing "
+                "saves this wait)"
+            )
+
+    def _image_publisher(self, topic: str) -> Any:
+        """The sensor-data (best effort) publisher of a bag image topic on its live topic."""
+        from rclpy.qos import qos_profile_sensor_data
+
+        return self.node.create_publisher(
+            _msg_class(self.types[topic]),
+            live_topic(topic, self.remap),
+            qos_profile_sensor_data,
+            event_callbacks=self._quiet,
+        )
 
     def subscribe_outputs(self, output_topics: Sequence[str], late: set[str]) -> None:
         """Lock-step: subscribe to every output topic; a message goes to the frame being
@@ -422,73 +623,165 @@ class _Session:
                 )
                 self.reliable_images.add(t)
 
+    def _node_image_topic(self, topic: str) -> str | None:
+        """The image topic a node (not the player) subscribes in the live namespace of the bag
+        image topic ``topic``, of the same message type (None: none, or several)."""
+        live = live_topic(topic, self.remap)
+        ns, mt = _parent(live), self.types[topic]
+        found = [
+            name
+            for name, kinds in self.node.get_topic_names_and_types()
+            if mt in kinds and _parent(name) == ns and _subscribed_by_others(self.node, name)
+        ]
+        return found[0] if len(found) == 1 else None
+
     def wait_for_subscribers(
         self,
         frame_topics: Sequence[str],
         choose: bool,
         output_topics: Sequence[str],
         wait_subscribers: float,
+        quiet: bool = False,
     ) -> None:
         """Spin until the frame topics have subscribers and every ``output_topics`` topic a
-        publisher, or ``wait_subscribers`` s passed (then a warning through ``log``)."""
-        pubs = self.pubs
-        deadline = time.monotonic() + wait_subscribers
+        publisher, or ``wait_subscribers`` s passed (then a warning through ``log`` unless
+        ``quiet``; longer while a node compiles). A bag image topic counts as subscribed when
+        a node subscribes an image topic of its type in its namespace
+        (:meth:`publish_images_on_node_topics` plays it there). After 2 s without subscribers
+        a managed node that is not active is named through ``log``, once."""
+        pubs, types = self.pubs, self.types
+        t0 = time.monotonic()
+        deadline = t0 + wait_subscribers
+        asked_lifecycle = False
+
+        def has_reader(t):
+            if pubs[t].get_subscription_count():
+                return True
+            if types[t] not in (IMAGE, COMPRESSED_IMAGE):
+                return False
+            target = self._node_image_topic(t)  # (its own topic: a reader of another QoS)
+            return target is not None and target != live_topic(t, self.remap)
 
         def unmatched():
             # choosing: one subscribed frame topic per namespace is enough (then 0.5 s more
             # for the others to match); else every frame topic needs its subscriber
             if choose:
                 ns = {_parent(t) for t in frame_topics}
-                ok = {_parent(t) for t in frame_topics if pubs[t].get_subscription_count()}
+                ok = {_parent(t) for t in frame_topics if has_reader(t)}
                 return bool(ns - ok)
-            return any(pubs[t].get_subscription_count() == 0 for t in frame_topics)
+            return not all(has_reader(t) for t in frame_topics)
 
         while unmatched() or any(self.node.count_publishers(t) == 0 for t in output_topics):
             self._match_reliable_image_readers(frame_topics)
-            if time.monotonic() > deadline:
+            now = time.monotonic()
+            if not asked_lifecycle and not quiet and now - t0 > 2.0:
+                asked_lifecycle = True
+                live = [live_topic(t, self.remap) for t in frame_topics]
+                not_active = _not_active(self.node, self.executor, live)
+                if not_active:
+                    self.log(f"waiting: {_activate_hint(not_active)}")
+            if now > deadline and self.busy_compiling() and now < t0 + self.compile_wait:
+                self._tell_compiling()
+                deadline = now + 1.0
+            if now > deadline:
                 missing = [
                     live_topic(t, self.remap)
                     for t in frame_topics
                     if pubs[t].get_subscription_count() == 0
                 ]
-                self.log(
-                    f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
-                    "playing anyway"
-                )
+                if not quiet:
+                    self.log(
+                        f"warning: no subscriber on {missing} after {wait_subscribers:.0f} s; "
+                        "playing anyway"
+                    )
                 break
             self.executor.spin_once(timeout_sec=0.05)
 
-    def choose_frames(self, frame_topics: Sequence[str], msgs: list) -> list:
-        """After 0.5 s more for subscribers: ``msgs`` without the frame topics that
-        :func:`choose_frame_topics` leaves out (named in ``result`` and through ``log``)."""
+    def publish_images_on_node_topics(
+        self, frame_topics: Sequence[str], user_remapped: set[str]
+    ) -> None:
+        """A bag image topic nobody subscribes (and ``remap`` does not name), while a node
+        subscribes one image topic of its type in its namespace (``/camera/image_raw`` and
+        the node's ``/camera/image``): published there instead (a note through ``log``);
+        then up to 2 s for the new publisher to match."""
+        moved = []
+        for t in frame_topics:
+            if self.types[t] not in (IMAGE, COMPRESSED_IMAGE) or t in user_remapped:
+                continue
+            if self.pubs[t].get_subscription_count():
+                continue
+            target = self._node_image_topic(t)
+            if target is None or target == live_topic(t, self.remap):
+                continue
+            self.remap[t] = target
+            self.node.destroy_publisher(self.pubs[t])
+            self.pubs[t] = self._image_publisher(t)
+            moved.append(t)
+            self.log(f"note: playing {t} as {target} (the image topic the node subscribes)")
+        end = time.monotonic() + 2.0
+        while moved and time.monotonic() < end:
+            self._match_reliable_image_readers(moved)
+            if all(self.pubs[t].get_subscription_count() for t in moved):
+                break
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def choose_frames(self, frame_topics: Sequence[str], source: str = "auto") -> None:
+        """After 0.5 s more for subscribers: the frame topics :func:`choose_frame_topics`
+        leaves out, in ``result.skipped_topics`` (named through ``log``)."""
         end = time.monotonic() + 0.5
         while time.monotonic() < end:
             self.executor.spin_once(timeout_sec=0.05)
         pubs, types = self.pubs, self.types
         subscribed = {t for t in frame_topics if pubs[t].get_subscription_count()}
-        kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed)
+        kept, skipped = choose_frame_topics({t: types[t] for t in frame_topics}, subscribed, source)
         if skipped:
             self.result.skipped_topics = skipped
-            msgs = [m for m in msgs if m[0] not in skipped]
             others = [t for t in types if t not in skipped and t not in kept]
             self.log(
                 f"note: frames on several topics; playing {', '.join(kept)} and not "
-                f"{', '.join(skipped)} (choose with --topics {' '.join(kept + others)})"
+                f"{', '.join(skipped)} (choose with --source, or --topics "
+                f"{' '.join(kept + others)})"
             )
-        return msgs
+        for t in kept:  # (the node runs a front end but cannot take the bag's images)
+            ns = _parent(live_topic(t, self.remap))
+            if types[t] in (IMAGE, COMPRESSED_IMAGE):
+                continue
+            node_images = [
+                name
+                for name, kinds in self.node.get_topic_names_and_types()
+                if _parent(name) == ns
+                and set(kinds) & {IMAGE, COMPRESSED_IMAGE}
+                and _subscribed_by_others(self.node, name)
+            ]
+            if node_images and source != "correspondences":
+                self.log(
+                    f"warning: the node subscribes {', '.join(node_images)} (a front end) but "
+                    f"the bag has no image of that type beside {t}: playing {t}, which the "
+                    "node solves as given, without its front end and map"
+                )
 
-    def _prime(self, msgs: list, stamp_offset_ns: int) -> None:
+    def _prime(self, stream: Iterator, stamp_offset_ns: int) -> Iterator:
         """Lock-step: best-effort subscribers drop early samples: publish the messages
         before the first frame three times (not the IMU: a sample sent twice is rejected as
-        not increasing)."""
-        first = next((k for k, m in enumerate(msgs) if is_frame_topic(m[0], m[1])), len(msgs))
-        early = list(msgs[:first])
-        if self.rig_waits is not None:  # (a rig: every camera's first camera_info too)
+        not increasing). Reads ahead of ``stream`` only that far (a rig: until every camera's
+        first camera_info, at most 1000 messages); returns the stream from its start."""
+        head: list = []
+        early: list = []
+        for m in stream:
+            head.append(m)
+            if is_frame_topic(m[0], m[1]):
+                break
+            early.append(m)
+        if self.rig:  # (a rig: every camera's first camera_info too)
+            infos = {t for t, mt in self.types.items() if mt == CAMERA_INFO}
             seen = {m[0] for m in early}
-            for m in msgs[first:]:
+            for m in itertools.islice(stream, 1000):
+                head.append(m)
                 if m[1] == CAMERA_INFO and m[0] not in seen:
                     seen.add(m[0])
                     early.append(m)
+                if infos <= seen:
+                    break
         for _ in range(3):
             for topic, msgtype, _, raw in early:
                 if msgtype == IMU:
@@ -497,12 +790,14 @@ class _Session:
             end = time.perf_counter() + 0.05
             while time.perf_counter() < end:
                 self.executor.spin_once(timeout_sec=0.01)
+        return itertools.chain(head, stream)
 
     def _await_outputs(
         self, frame: dict, waited: Sequence[str], last_pub: dict, timeout: float, retries: int
     ) -> None:
         """Lock-step: spin until ``frame`` has every ``waited`` output, republishing the last
-        messages of each topic up to ``retries`` times after ``timeout`` s without them."""
+        messages of each topic up to ``retries`` times after ``timeout`` s without them. While
+        a node says it compiles, a timeout only waits on (up to ``compile_wait`` s in all)."""
         result = self.result
         self.pending["frame"] = frame
         attempt = 0
@@ -510,6 +805,11 @@ class _Session:
         while any(t not in frame["outputs"] for t in waited):
             now = time.perf_counter()
             if now >= t_end:
+                if self.busy_compiling() and result.compile_waited < self.compile_wait:
+                    self._tell_compiling()
+                    result.compile_waited += timeout
+                    t_end = now + timeout
+                    continue
                 if attempt >= retries:
                     result.timeouts += 1
                     missing = [t for t in waited if t not in frame["outputs"]]
@@ -530,7 +830,7 @@ class _Session:
 
     def publish_all(
         self,
-        msgs: list,
+        stream: Callable[[], Iterator],
         *,
         rate: float,
         lockstep: bool,
@@ -543,25 +843,39 @@ class _Session:
         on_frame: Callable[[dict], None] | None,
         give_up: int = 0,
     ) -> None:
-        """Publish ``msgs`` ``loop`` times (stamps shifted by the bag duration each time), at
-        ``rate`` times the original timing or in lock-step (each frame waiting for the outputs
-        ``waited[frame_topic]``), recording each frame in ``result``; sets
-        ``result.wall_time``. Lock-step stops after ``give_up`` (> 0) frames in a row without
-        an answer while none was answered (``result.gave_up``)."""
+        """Publish the messages of ``stream()`` (each call: the bag from its start) ``loop``
+        times (stamps shifted by the bag duration each time), at ``rate`` times the original
+        timing or in lock-step (each frame waiting for the outputs ``waited[frame_topic]``),
+        recording each frame in ``result``; sets ``result.wall_time``. Lock-step stops after
+        ``give_up`` (> 0) frames in a row without an answer while none was answered
+        (``result.gave_up``)."""
         result, executor, pubs = self.result, self.executor, self.pubs
-        t_first = min(m[2] for m in msgs)
-        duration = max(m[2] for m in msgs) - t_first + 1
         wall0 = time.perf_counter()
         n_frames = n_waited = 0
         last_pub = {}
-        if lockstep:
-            self._prime(msgs, stamp_offset_ns)
+        t_first = t_last = None
+        shift = stamp_offset_ns
         for rep in range(max(int(loop), 1)):
-            shift = rep * (duration + 33_000_000) + stamp_offset_ns
+            msgs = stream()
+            if rep == 0 and lockstep:
+                msgs = self._prime(msgs, stamp_offset_ns)
+                if self.grouping is not None:  # (raises what grouping the bag raised)
+                    ns, fut = self.grouping
+                    ends = fut.result()[0]
+                    self.rig_waits = {(f"{ns}/{n}", st): k for (n, st), k in ends.items()}
+            if rep > 0:
+                if t_first is None:
+                    break
+                shift = rep * (t_last - t_first + 1 + 33_000_000) + stamp_offset_ns
             for topic, msgtype, t_ns, raw in msgs:
+                if rep == 0:
+                    t_first = t_ns if t_first is None else t_first
+                    t_last = t_ns if t_last is None else max(t_last, t_ns)
                 wait = lockstep
+                completes = 1
                 if lockstep and self.rig_waits is not None and is_frame_topic(topic, msgtype):
-                    wait = self.rig_waits.get((_parent(topic), _header_stamp(raw)), 0) > 0
+                    completes = self.rig_waits.get((_parent(topic), _header_stamp(raw)), 0)
+                    wait = completes > 0
                 if shift:
                     raw = _shift_stamp(raw, msgtype, shift)
                 if not lockstep and rate > 0:
@@ -589,13 +903,18 @@ class _Session:
                 result.frames.append(frame)
                 if wait:
                     n_waited += 1
-                    result.rig_frames += self.rig_waits is not None
+                    if self.rig_waits is not None:
+                        result.rig_frames += completes
                     self._await_outputs(frame, waited[topic], last_pub, timeout, retries)
                 if on_frame is not None:
                     on_frame(frame)
                 if wait and give_up > 0 and result.answered == 0 and n_waited >= give_up:
                     result.gave_up = _no_answer_message(
-                        self.node, waited[topic], f"to the first {n_waited} frames"
+                        self.node,
+                        self.executor,
+                        waited[topic],
+                        f"to the first {n_waited} frames",
+                        [live_topic(topic, self.remap)],
                     )
                     self.log(f"error: {result.gave_up}")
                 if result.gave_up or (limit is not None and n_frames >= limit):

@@ -484,6 +484,16 @@ def rig_frame_ends(
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
 ) -> dict[tuple[str, int], int]:
+    """The first item of :func:`rig_frame_grouping`: ``{(camera name, header stamp ns):
+    number of rig frames its arrival completes}``."""
+    return rig_frame_grouping(bag, params_files, params)[0]
+
+
+def rig_frame_grouping(
+    bag: str | os.PathLike,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+) -> tuple[dict[tuple[str, int], int], int]:
     """Which camera frames of a rig bag complete a rig frame when played in log-time order
     into the rig mode (what ``play --lockstep`` waits after).
 
@@ -497,8 +507,9 @@ def rig_frame_ends(
     are in no entry.
 
     Returns:
-        ``{(camera name, header stamp ns): number of rig frames its arrival completes}``
-        (frames completing none are left out).
+        ``({(camera name, header stamp ns): number of rig frames its arrival completes}``
+        (frames completing none are left out), the number of rig frames formed in all (those
+        still open at the end included: the rig node's ``rig_frames`` once it closes them)).
     Raises:
         ValueError: no ``rig.cameras`` or an unknown readout direction (as
         :func:`read_rig_frames`).
@@ -517,6 +528,7 @@ def rig_frame_ends(
     groups: list = []  # [lo, hi, names]
     closed = None
     out: dict[tuple[str, int], int] = {}
+    formed = 0
     for f in frames:
         n = f.camera_name
         first = f.stamp_ns if first is None else first
@@ -540,6 +552,7 @@ def rig_frame_ends(
             else:
                 groups.append([ref, ref, {n}])
                 groups.sort(key=lambda g: g[0])
+                formed += 1
         now = max((t for t in newest.values() if t is not None), default=None)
         for m in names:
             last = newest[m] if newest[m] is not None else first
@@ -556,7 +569,7 @@ def rig_frame_ends(
             done += 1
         if done:
             out[(n, f.stamp_ns)] = out.get((n, f.stamp_ns), 0) + done
-    return out
+    return out, formed
 
 
 #: the outputs :func:`write_rig_outputs` writes, as the rig node publishes them
