@@ -375,6 +375,13 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     if values["imu.enabled"]:
         gyro = _rig_gyro_counts(res.outputs)
         print("  gyro: " + ", ".join(f"{k} {v}" for k, v in gyro.items()), file=text)
+    for n, d in s["disagreeing"].items():
+        print(
+            f"  camera {n} disagrees with the others in {d['rig_frames']} rig frames (median "
+            f"{d['median_deg']:.2f} deg off: its rotation posed alone against the rig's pose "
+            "through its mounting; a wrong mounting shows its own error)",
+            file=text,
+        )
     if s["solved"]:
         print(
             f"median errors: rotation {s['rot_deg']:.4f} deg, position {1e3 * s['pos_m']:.2f} "

@@ -140,14 +140,20 @@ def rig_diagnostics(
     rig: RigLocalizer, waiting_info: set, inputs: Counter | None = None
 ) -> tuple[int, str, dict]:
     """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
-    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; a camera has
-    stopped, waits for its camera_info, or rig frames failed) or ``ERROR`` (rig frames formed
-    and none was posed). Values: ``rig_frames``,
+    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
+    consensus outvoted a camera in its last rig frame; a camera's frames never join the
+    others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
+    off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
+    ``ERROR`` (rig frames formed and none was posed; the message goes on with the cameras'
+    warnings and the failures by reason). Values: ``rig_frames``,
     ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, and per
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
-    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts; with a gyro the
+    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts, ``.outvoted`` (posed
+    rig frames whose consensus outvoted it), ``.frames_apart`` (yes: its frames never join the
+    others', :meth:`RigLocalizer.camera_apart`) and then ``.clock_offset_ms.<other>`` (its
+    apparent clock offset from each other camera, ms); with a gyro the
     ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame); ``rig_frames_failed.<reason>``
     for each failure reason of the rig estimator (or ``error``: it raised).
 
@@ -190,7 +196,7 @@ def rig_diagnostics(
             values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
             for k, v in own.items():
                 if k.startswith(("skipped.", "failed.")):
-                    values[f"{n}.{k}"] = v
+                    values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
         for k, v in c.items():
             values[f"{n}.{k}"] = v
         state = rig.camera_state(n)
@@ -206,8 +212,20 @@ def rig_diagnostics(
             v for k, v in rig.counts.items() if k.startswith(f"{n}.missed.")
         )
         for k, v in sorted(rig.counts.items()):
-            if k.startswith((f"{n}.skipped.", f"{n}.missed.")):
+            if k.startswith((f"{n}.skipped.", f"{n}.missed.")) and k not in values:
                 values[k] = v
+        outvoted = rig.counts.get(f"{n}.outvoted", 0)
+        values[f"{n}.outvoted"] = outvoted
+        apart = rig.camera_apart(n)
+        values[f"{n}.frames_apart"] = "yes" if apart is not None else "no"
+        for m, off in (apart or {}).items():
+            values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
+        if apart is not None:
+            offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
+            warnings.append(
+                f"camera {n}: frames never join the others' ({offs or 'offset unknown'}): "
+                "clock likely off"
+            )
         partner = rig.camera_partner(n) if state == "disagrees" else None
         if partner is not None:
             pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
@@ -217,7 +235,13 @@ def rig_diagnostics(
                     "tell which)"
                 )
         elif state == "disagrees":
-            warnings.append(f"camera {n} disagrees with the rig: likely a wrong mounting")
+            also = f" (outvoted by the others in {outvoted} rig frames)" if outvoted else ""
+            warnings.append(f"camera {n} disagrees with the rig{also}: likely a wrong mounting")
+        elif s is not None and s.outvoted:
+            warnings.append(
+                f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
+                "its mounting, clock or matches are likely wrong"
+            )
         elif state == "stopped":
             warnings.append(f"camera {n} stopped")
         if n in waiting_info:
@@ -230,19 +254,23 @@ def rig_diagnostics(
         values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
         if rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
             warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
-        return ERROR, "no rig frame posed", values
-    if busy:
-        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
+    failed = ""
     if r["failed"]:
         why = ", ".join(
             f"{k[len('rig_frames_failed.') :]} {v}"
             for k, v in values.items()
             if k.startswith("rig_frames_failed.")
         )
-        warnings.append(f"{r['failed']} rig frames failed ({why})")
+        failed = f"{r['failed']} rig frames failed ({why})"
+    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
+        why = "; ".join([*warnings, failed] if failed else warnings)
+        return ERROR, "no rig frame posed" + (f": {why}" if why else ""), values
+    if busy:
+        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
+    if failed:
+        warnings.append(failed)
     if warnings:
         return WARN, "; ".join(warnings), values
     return OK, f"{r['solved']} rig frames posed", values
@@ -632,7 +660,17 @@ class RigCore:
         elif out.estimate is not None and not out.estimate.success:
             reason = out.estimate.failure or "error"
             detail = f"{len(out.cameras)} cameras ({', '.join(out.cameras)})"
+            if reason == "cameras_disagree" and out.outvoted:
+                detail += f"; {', '.join(out.outvoted)} contradict each other"
         else:
+            if out.outvoted:
+                names = ", ".join(out.outvoted)
+                self._log.warning(
+                    f"rig.outvoted.{names}",
+                    f"rig camera {names}: outvoted by the others (its points contradict their "
+                    "pose; its mounting, clock or matches are likely wrong) "
+                    f"[{self.rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
+                )
             return
         n = self.rig.counts[f"rig.failed.{reason}"]
         self._log.warning(
@@ -644,13 +682,23 @@ class RigCore:
         self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
 
     def _take_cloud(self, name: str, msg) -> tuple[list, str | None]:
+        """A cloud of correspondences to the rig. One that cannot be read is counted
+        ``<c>.skipped.bad_input``: with a readable stamp it goes to the rig as a frame
+        skipped (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
+        ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
+        as one whose clock is off); with none, by the node alone."""
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
-            c = read_correspondences(msg)
         except ValueError as e:
             self.bad_input[name] += 1
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
             return [], "bad_input"
+        try:
+            c = read_correspondences(msg)
+        except ValueError as e:
+            self.bad_input[name] += 1
+            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
+            return self.rig.drop(name, stamp, self._camera(name, stamp), "bad_input"), None
         self._warn_no_info(name, "correspondences")
         uv, xyz = c.points2d, c.points
         if len(uv) > self.max_points:  # (as the single-camera node: highest scores first)
@@ -759,8 +807,11 @@ class RigCore:
         absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
         if absent and waited and values["rig_frames_solved"] == 0:
+            rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
+            rest = "" if rest == "no rig frame posed" else rest
             level = ERROR
-            message = f"no rig frame posed: no frame from camera {', '.join(absent)}; " + message
+            message = f"no rig frame posed: no frame from camera {', '.join(absent)}"
+            message += f"; {rest}" if rest else ""
         for n, k in self.bad_input.items():
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
@@ -812,8 +863,10 @@ def _decode_image(msg, camera) -> tuple:
     """``(image, encoding, None)`` of an ``Image`` or ``CompressedImage`` message, or
     ``(None, None, (reason, detail))`` with the single-camera node's reasons (``bad_image``,
     ``image_size_mismatch``, :meth:`~rs_localizer.ros.pipeline.FramePipeline.process`); the size
-    is checked against ``camera`` when it is known (before decoding a raw image)."""
-    from ..frontends.image import image_from_compressed, image_from_msg
+    is checked against ``camera`` when it is known (before decoding a raw image) and against
+    the front ends' smallest image (:data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`: a
+    smaller one is ``bad_image``, never given to a front end)."""
+    from ..frontends.image import check_image_size, image_from_compressed, image_from_msg
 
     def size_ok(w, h):
         return camera is None or camera.width <= 0 or (w, h) == (camera.width, camera.height)
@@ -826,11 +879,13 @@ def _decode_image(msg, camera) -> tuple:
             h, w = int(msg.height), int(msg.width)
             if h * w == 0:
                 return None, None, ("bad_image", f"empty image ({w}x{h})")
+            check_image_size((h, w))  # (smaller than the front ends take: bad_image)
             if not size_ok(w, h):
                 raise _SizeError(w, h)
             img, enc = image_from_msg(msg)
         if not size_ok(w, h):
             raise _SizeError(w, h)
+        check_image_size((h, w))
     except _SizeError as e:
         return (
             None,

@@ -150,6 +150,8 @@ SKIP_REASONS = {
     "bad_image": "an image message that does not decode (the node: unsupported encoding, "
     "truncated data, a compressed payload that does not decode, an empty image)",
     "image_size_mismatch": "an image whose size is not its camera_info's (the node)",
+    "bad_input": "a message with a readable stamp the caller could not read (the node: a cloud "
+    "without its u, v, x, y, z fields)",
 }
 #: why a camera is missing from a solved rig frame (counted ``<camera>.missed.<reason>``)
 MISSED_REASONS = {
@@ -161,6 +163,9 @@ MISSED_REASONS = {
     "the others",
     "no_camera_info": "the camera's frame within 2 x window of the rig frame had no camera model "
     "(its camera_info had not arrived; the frame is counted skipped.no_camera_info)",
+    "skipped": "the camera's frame within 2 x window of the rig frame was skipped (RigLocalizer."
+    "drop: an image that did not decode, a front end error, a frozen image, an unreadable "
+    "cloud; counted skipped.<reason>), not a frame apart",
 }
 #: why the rig refused a rig frame the estimator posed (counted ``rig.failed.<reason>``, as the
 #: estimator's failure reasons)
@@ -368,12 +373,14 @@ class RigCameraFrame:
 class CameraShare:
     """One camera in a solved rig frame: its ``points``, ``inliers`` (reprojection error of the
     rig's pose within ``threshold_px``), ``share`` of the rig's inliers (0-1) and inlier
-    ``ratio`` (inliers / points; NaN without points)."""
+    ``ratio`` (inliers / points; NaN without points); ``outvoted``: the estimator's consensus
+    left its points out (:attr:`RigOutput.outvoted`)."""
 
     points: int
     inliers: int
     share: float
     ratio: float
+    outvoted: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -472,6 +479,17 @@ class RigOutput:
         """The rig frame was posed."""
         return self.measurement is not None
 
+    @property
+    def outvoted(self) -> tuple:
+        """The cameras of :attr:`cameras` the estimator's consensus left out
+        (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.disagreeing`): on a posed rig
+        frame those outvoted by the cameras that posed it, on ``cameras_disagree`` every
+        camera of the groups that contradict each other; () otherwise."""
+        est = self.estimate
+        if est is None:
+            return ()
+        return tuple(self.cameras[k] for k in est.disagreeing if k < len(self.cameras))
+
 
 # ---------------------------------------------------------------------- the rig model
 def _model_of(Ori, p, omega, v):
@@ -494,6 +512,7 @@ class _Camera:
         self.recent: deque = deque(maxlen=8)  # reference times of the last frames
         self.stopped = False
         self.no_info: deque = deque(maxlen=8)  # stamps of its last frames without a model
+        self.dropped: deque = deque(maxlen=8)  # reference times of its last frames skipped
         self.flags: deque = deque(maxlen=history)
         self.disagrees = False
         self.partner: str | None = None  # (two cameras that disagree: the other one)
@@ -574,7 +593,8 @@ class RigLocalizer:
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
-    was found to disagree), ``.apart`` (times its frames were found apart from the others');
+    was found to disagree), ``.apart`` (times its frames were found apart from the others'),
+    ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`);
     ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
@@ -948,6 +968,7 @@ class RigLocalizer:
         if self._first is None:
             self._first = stamp
         t = stamp if camera is None else reference_stamp_ns(stamp, camera, self.settings.stamp_row)
+        cam.dropped.append(t)
         if cam.last_ref is None or t > cam.last_ref:
             cam.newest = t if cam.newest is None else max(cam.newest, t)
         return self._ready()
@@ -1078,6 +1099,8 @@ class RigLocalizer:
         w2 = 2 * self.settings.window * 1e9
         if any(abs(r - g.lo) <= w2 for r in cam.no_info):
             return "no_camera_info"
+        if any(abs(r - g.lo) <= w2 for r in cam.dropped):
+            return "skipped"
         if cam.stopped:
             return "stopped"
         if any(abs(r - g.lo) <= w2 for r in cam.recent):
@@ -1301,6 +1324,24 @@ class RigLocalizer:
         """
         return self.clock_offsets(name) if self._cams[name].apart else None
 
+    def camera_off_deg(self, out: RigOutput, frame: RigCameraFrame) -> float | None:
+        """deg between camera ``frame.camera_name``'s rotation posed alone from its frame in
+        rig frame ``out`` (the single-camera estimator) and where ``out``'s pose and the
+        camera's mounting put it: how far off a camera that disagrees with the others is
+        (a wrong mounting shows its own error). None when ``out`` was not posed, the camera
+        is not in it or its frame cannot be posed alone.
+
+        Raises:
+            KeyError: a camera not in the rig.
+        """
+        n = frame.camera_name
+        m = self._cams[n].mount
+        if not out.success or n not in out.stamp_offsets or frame.camera is None:
+            return None
+        view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c,
+                       out.stamp_offsets[n])  # fmt: skip
+        return _alone_deg(view, out.estimate)
+
     def _finish(self, out: RigOutput, est, path, names, views) -> None:
         out.measurement = meas = RigMeasurement.of(est, out.stamp_ns)
         self._count_rig(names, None)
@@ -1308,12 +1349,15 @@ class RigLocalizer:
             self.counts[f"rig.path.{path}"] += 1
         # per camera: points, inliers, share; who disagrees
         total_in = int(est.num_inliers)
+        for k in est.disagreeing:  # (outvoted by the cameras that posed the rig)
+            self.counts[f"{names[k]}.outvoted"] += 1
         n_pts = np.asarray(est.num_valid_per_camera)
         n_in = np.asarray(est.num_inliers_per_camera)
         for k, n in enumerate(names):
             pts, i = int(n_pts[k]), int(n_in[k])
             share = CameraShare(pts, i, i / total_in if total_in else 0.0,
-                                i / pts if pts else float("nan"))  # fmt: skip
+                                i / pts if pts else float("nan"),
+                                k in est.disagreeing)  # fmt: skip
             out.shares[n] = share
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)

@@ -560,3 +560,93 @@ def test_a_forward_stamp_jump_starts_the_rig_again(ros_context):
             assert v[f"{c.name}.missed"] == "0", v
     finally:
         h.close()
+
+
+def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
+    """Without DDS: the left camera's stamps 20 ms early, so its frames never join the others'
+    (window 15 ms). The status warns ``camera left: frames never join the others' (... ms
+    from front, ... ms from right): clock likely off`` with its apparent offsets, the median
+    of its shifted reference times minus the other camera's nearest (computed here from the
+    simulator's reference times), and counts its lone rig frames refused as the rig's
+    refusals (``rig_frames_failed.contradicts_track``, ``.unconfirmed``); front and right are
+    not named."""
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros.diagnostics import WARN as W
+    from rs_localizer.ros.rig_node import rig_diagnostics
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=21)
+    shift = -20_000_000
+    by = {c.name: c.camera for c in cams}
+    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    for s, f in sorted((f.stamp_ns + shift * (f.name == "left"), f) for f in frames):
+        rig.add(RigCameraFrame(f.name, s, by[f.name], f.uv, f.xyz))
+    level, message, v = rig_diagnostics(rig, set())
+    assert level == W, message
+    assert v["left.frames_apart"] == "yes" and v["front.frames_apart"] == "no", v
+    ref = {c.name: np.array([f.t_ref_ns for f in frames if f.name == c.name]) for c in cams}
+    mine = ref["left"][-8:] + shift
+    for other in ("front", "right"):
+        d = mine[:, None] - ref[other][None, :]
+        near = d[np.arange(len(mine)), np.argmin(np.abs(d), axis=1)]
+        expect = 1e-6 * np.median(near)
+        assert float(v[f"left.clock_offset_ms.{other}"]) == pytest.approx(expect, abs=0.1), v
+    offs = ", ".join(f"{v[f'left.clock_offset_ms.{o}']} ms from {o}" for o in ("front", "right"))
+    assert f"camera left: frames never join the others' ({offs}): clock likely off" in message
+    assert "camera front" not in message and "camera right" not in message, message
+    refused = {k: x for k, x in v.items() if k.startswith("rig_frames_failed.")}
+    assert set(refused) <= {"rig_frames_failed.contradicts_track", "rig_frames_failed.unconfirmed"}
+    assert sum(refused.values()) == v["rig_frames_failed"] > 0, refused
+    assert "rig frames failed (" in message and "contradicts_track" in message, message
+
+
+def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
+    """The left camera's clouds 3..6 without their ``x`` field (the stamp readable): counted
+    ``left.skipped.bad_input``, passed on to the rig, so the rig frames without them count
+    left ``missed.skipped`` (they were counted 2 ``missed.apart`` and 2 ``missed.dropped``
+    when the node kept them from the rig: a camera missing as ``apart`` is taken for one whose
+    clock is off); every camera balances, every rig frame is posed. Frames handed to the
+    node's callbacks directly (no DDS)."""
+    import time
+
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
+    # (all handed on at once; window 20 ms: the camera's next frame, 33 ms on, within 2 x window)
+    params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02})
+    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    try:
+        for c in node.config.cameras:
+            cam = next(x for x in cams if x.name == c.name)
+            node._on_info(c, camera_info_msg(cam.camera, c.name, T0))
+        bad = 0
+        for f in frames:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            if f.name == "left" and 3 <= f.index <= 6:
+                cloud.fields = [x for x in cloud.fields if x.name != "x"]
+                bad += 1
+            node._on_cloud(f.name, cloud)
+        for _ in range(3000):
+            if node._frames.counts().pending == 0:
+                break
+            time.sleep(0.01)
+        node._end_video()
+        v = {kv.key: kv.value for kv in node.diagnostics_status().values}
+        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "4", v
+        assert v["left.missed.skipped"] == str(bad) and "left.missed.apart" not in v, v
+        assert v["left.frames_apart"] == "no", v
+        for c in cams:
+            n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
+                                                       "skipped", "pending")}  # fmt: skip
+            assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+        assert int(v["rig_frames_solved"]) == len(frames) // 3, v
+    finally:
+        node.destroy_node()

@@ -185,8 +185,9 @@ def test_one_diagnostics_converter_for_both_nodes():
 def test_the_status_names_both_of_two_cameras_that_disagree():
     """Two cameras, the left mounting 3 deg off: nothing tells which mounting is wrong, so every
     rig frame is refused (``cameras_disagree``: the status is ERROR, no rig frame posed) and
-    both cameras' state is ``disagrees``; with a third camera the status warns and names left
-    alone."""
+    both cameras' state is ``disagrees``, the ERROR message going on with the cameras'
+    warning and the failures by reason; with a third camera the status warns and names left
+    alone, outvoted by the others (``left.outvoted``)."""
     from rs_localizer.ros.diagnostics import ERROR
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
@@ -206,12 +207,43 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         level, message, values = rig_diagnostics(rig, set())
         if k == 2:
             assert level == ERROR and rig.counts["rig.failed.cameras_disagree"] > 0, message
+            n = rig.counts["rig.failed.cameras_disagree"]
+            assert message.startswith("no rig frame posed: cameras front and left disagree")
+            assert f"rig frames failed (cameras_disagree {n})" in message, message
+            assert values["rig_frames_failed.cameras_disagree"] == n
             assert values["front.state"] == values["left.state"] == "disagrees"
             assert rig.camera_partner("front") == "left"
             continue
         assert level == W, message
         assert "camera left disagrees with the rig" in message, message
         assert "front" not in message and values["front.state"] == "running"
+        assert "outvoted by the others" in message and values["front.outvoted"] == 0
+        assert values["left.outvoted"] == rig.counts["rig.solved"] > 0, values
+
+
+def test_an_image_smaller_than_the_front_ends_take_is_a_bad_image():
+    """As the single-camera node: an image below ``MIN_IMAGE_SIDE`` px a side (raw or
+    compressed, the camera's size unknown or not) is ``bad_image``, never given to a front end
+    (where it was counted ``frontend_error``); one of exactly that side decodes."""
+    import cv2
+    from sensor_msgs.msg import CompressedImage
+
+    from rs_localizer.frontends.image import MIN_IMAGE_SIDE
+    from rs_localizer.ros.rig_node import _decode_image
+    from rs_localizer.sim.render.renderer import camera_preset
+
+    k = MIN_IMAGE_SIDE
+    tiny = np.full((k - 1, 40, 3), 128, np.uint8)
+    for cam in (None, camera_preset("vga")):
+        img, _, why = _decode_image(image_msg(tiny, T0, "c"), cam)
+        assert img is None and why[0] == "bad_image" and f"{k}x{k}" in why[1], why
+    c = CompressedImage()
+    c.format = "png"
+    c.data = cv2.imencode(".png", tiny)[1].tobytes()
+    assert _decode_image(c, None)[2][0] == "bad_image"
+    ok = np.full((k, k, 3), 128, np.uint8)
+    img, _, why = _decode_image(image_msg(ok, T0, "c"), None)
+    assert why is None and img.shape == (k, k, 3)
 
 
 def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections import deque
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -266,7 +267,11 @@ class RigReplay:
     :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused`` (the fused poses), the rig's
     ``counts`` (per camera and per rig frame), ``errors`` (per posed rig frame with ground
     truth: ``rot_deg``, ``pos_m``, ``angvel``, ``linvel`` of its own twist) and
-    ``fused_errors`` (of the fused twist)."""
+    ``fused_errors`` (of the fused twist); ``off_deg``: camera -> one entry per posed rig
+    frame in which it disagreed with the others (the cameras' consensus outvoted it, or the
+    rig names it as disagreeing), how far off it is: deg between its rotation posed alone
+    and where the rig's pose and its mounting put it (NaN where it could not be posed
+    alone; :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`)."""
 
     outputs: list = field(default_factory=list)
     fused: list = field(default_factory=list)
@@ -274,13 +279,17 @@ class RigReplay:
     errors: list = field(default_factory=list)
     fused_errors: list = field(default_factory=list)
     cameras: tuple = ()
+    off_deg: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> int:
         return sum(o.success for o in self.outputs)
 
     def summary(self) -> dict:
-        """Medians of the errors (NaN without ground truth) and the counts."""
+        """Medians of the errors (NaN without ground truth), the counts and ``disagreeing``:
+        camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera that disagreed with
+        the others in N posed rig frames, X the median of :attr:`off_deg` (NaN: never posed
+        alone)."""
 
         def med(rows, k):
             vals = [r[k] for r in rows if k in r]
@@ -295,6 +304,13 @@ class RigReplay:
             "linvel": med(self.errors, "linvel"),
             "fused_angvel": med(self.fused_errors, "angvel"),
             "fused_linvel": med(self.fused_errors, "linvel"),
+            "disagreeing": {
+                n: {
+                    "rig_frames": len(d),
+                    "median_deg": float(np.nanmedian(d)) if np.isfinite(d).any() else float("nan"),
+                }
+                for n, d in self.off_deg.items()
+            },
         }
 
 
@@ -312,6 +328,8 @@ def replay_rig(
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
             no ``rig.cameras``).
     """
+    from dataclasses import replace
+
     from ...tracking.rig import RigLocalizer
 
     values, cams = rig_parameter_values(bag, params_files, params)
@@ -322,15 +340,20 @@ def replay_rig(
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
+    recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
     for frame in iter_rig_frames(bag, timing):
         while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
+        frame = replace(frame, tag=frame.stamp_ns)
+        recent[frame.camera_name].append(frame)
         outs = rig.add(frame)
+        _note_disagreeing(rig, outs, recent, res.off_deg)
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
         if progress is not None and outs:
             print(f"\rrig frames: {len(res.outputs)}", end="", file=progress)
     tail = rig.close()
+    _note_disagreeing(rig, tail, recent, res.off_deg)
     res.outputs += tail
     res.fused += [f for o in tail for f in o.fused] + rig.flush()
     if progress is not None:
@@ -351,6 +374,23 @@ def replay_rig(
         if e is not None:
             res.fused_errors.append(e)
     return res
+
+
+def _note_disagreeing(rig, outs: list, recent: dict, off_deg: dict) -> None:
+    """For each posed rig frame of ``outs``, each of its cameras that disagrees with the others
+    (:attr:`~rs_localizer.tracking.rig.RigOutput.outvoted` or ``disagreeing``): how far off it
+    is (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`, NaN when it cannot be
+    posed alone) appended to ``off_deg[camera]``; ``recent``: camera -> its recent frames,
+    tagged with their stamps."""
+    for o in outs:
+        if not o.success:
+            continue
+        for n in o.cameras:
+            if n not in o.outvoted and n not in o.disagreeing:
+                continue
+            frame = next((f for f in recent[n] if f.tag == o.tags.get(n)), None)
+            deg = None if frame is None else rig.camera_off_deg(o, frame)
+            off_deg.setdefault(n, []).append(float("nan") if deg is None else deg)
 
 
 #: ns: a rig bag's replay feeds the gyro samples up to this after a frame's stamp before the
