@@ -92,9 +92,12 @@ MIRRORED_FIT_FRACTION = 0.5
 #: from the model) than this fraction of its inliers. Wrong matches land anywhere, and the noise
 #: tail of true inliers beyond a threshold of 2 sigma is 0.16 of them; a part of a set of
 #: correspondences no rigid pose explains (3D points reflected through the camera centre) is
-#: fitted with its neighbours just missing: 0.7-1.9 in the paper protocol's frames, true fits
-#: at most 0.22 (``python -m benchmarks.bench_consistency``)
-NEAR_MISS_RATIO = 0.5
+#: fitted with its neighbours just missing: 0.7-1.9 in the paper protocol's frames at 1 px
+#: noise, and 0.46-0.50 where a camera turned half a turn at the true centre explains a third of
+#: them (no or 0.2 px noise: the points near the plane the turn maps onto itself); true fits at
+#: most 0.25 (paper protocol's frames with 50-70 % outliers at 1 px noise, corridor frames;
+#: ``python -m benchmarks.bench_consistency``)
+NEAR_MISS_RATIO = 0.35
 NEAR_MISS_WINDOW = 5.0
 #: ``inconsistent_fit``: a fit explaining fewer than :data:`MIRRORED_FIT_FRACTION` of the valid
 #: points of a non-planar frame with a condition number above this. 3D points reflected through

@@ -87,13 +87,15 @@ def attack(frame: TestFrame, kind: str) -> TestFrame:
 ATTACKS = ("reflected", "mirror_image", "flip_image", "mirror_world")
 
 
-def protocol_frames(frames: int, seed: int, n_points: int = 100) -> Iterator[TestFrame]:
+def protocol_frames(
+    frames: int, seed: int, n_points: int = 100, noise_px: float = 1.0, rs_speed: float = 0.5
+) -> Iterator[TestFrame]:
     """``frames`` frames of the paper protocol (:func:`~rs_localizer.sim.synthetic.make_frame`,
-    RS speed 0.5, 1 px noise, ``n_points`` correspondences, seeds ``seed``, ``seed + 1``, ...)
-    with :func:`~rs_localizer.sim.synthetic.protocol_options`."""
+    RS speed ``rs_speed``, ``noise_px`` px noise, ``n_points`` correspondences, seeds ``seed``,
+    ``seed + 1``, ...) with :func:`~rs_localizer.sim.synthetic.protocol_options`."""
     cam = paper_camera()
     for i in range(frames):
-        f = make_frame(seed + i, n_points=n_points, rs_speed=0.5, noise_px=1.0)
+        f = make_frame(seed + i, n_points=n_points, rs_speed=rs_speed, noise_px=noise_px)
         yield TestFrame(f.points_px, f.X, cam, f.position, protocol_options())
 
 

@@ -210,8 +210,9 @@ class SequenceSettings:
             difference (gray levels; :func:`same_image`) is the same picture again (a driver
             re-sending its last frame, a USB stall, a frozen stream): it is dropped as
             ``frozen_image`` before the front end (its pose would be the old frame's, at a new
-            time), and the front end searches the next new image whole (the camera moved by an
-            unknown amount meanwhile). Negative: never.
+            time), and the next new image is searched whole and starts a new track (the
+            camera moved by an unknown amount meanwhile: a prediction carried over the frozen
+            frames misplaced the optical flow's tracks). Negative: never.
         max_points: the most rows a frame of :meth:`SequenceLocalizer.process_image` gives
             the estimator (spread over the image, :func:`~rs_localizer.estimation.points.
             cap_points`; also :meth:`SequenceLocalizer.valid_rows`); None: no cap.
@@ -477,6 +478,7 @@ class SequenceLocalizer:
         self._check_key = None
         self._frontend: VideoFrontend | None = None
         self._last_image: tuple | None = None  # (image_sample of the previous image)
+        self._track_over = False  # (a frozen image: the next frame starts a new track)
         # the last solved frame carried at its own twist: the prediction without a tracker
         self._carried = CarriedPrediction()
         self.frontend_name = frontend_name
@@ -841,6 +843,8 @@ class SequenceLocalizer:
                 fe.observe(stamp, None, None)
             except Exception as e:
                 self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
+            # (the camera moved on unseen: the next new image starts a new track)
+            self._track_over = True
             return out
         prediction = self.predict(stamp, camera)
         t0 = time.perf_counter()
@@ -884,8 +888,9 @@ class SequenceLocalizer:
         the last solved frame carried to the stamp at its own twist
         (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`). None when nothing
         predicts the frame: no frame solved yet, or it starts a new track (a stamp going back
-        or repeated, or more than :attr:`SequenceSettings.max_gap` after the last solved
-        frame: :func:`~rs_localizer.tracking.tracker.predictable`).
+        or repeated, more than :attr:`SequenceSettings.max_gap` after the last solved
+        frame: :func:`~rs_localizer.tracking.tracker.predictable`; or the first image after a
+        ``frozen_image``).
 
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
@@ -897,6 +902,8 @@ class SequenceLocalizer:
         ref = reference_stamp_ns(stamp, camera, s.stamp_row)
         with self._lock:
             t = self._tracker
+            if self._track_over:  # (after a frozen image: searched whole, a new track)
+                return None
             if (
                 t is not None
                 and t.filter.initialized
@@ -930,8 +937,14 @@ class SequenceLocalizer:
             final = []
             try:
                 if s.tracking is not None and compiled:
+                    if self._track_over and self._tracker is not None:
+                        # (after a frozen image: the track's pending twists are final, the
+                        # frame starts a new track, as after a gap)
+                        final = self._end_track(flush=True)
+                        self._track_counts["resets"] += 1
                     old = self._tracker
-                    tracker, final = self._tracker_for(camera)
+                    tracker, more = self._tracker_for(camera)
+                    final = final + more
                     r = tracker.process(ref, uv, xyz, camera, scores, gyro=gyro)
                     est, out.path = r.estimate, r.state
                     new_track = tracker is not old or r.state in ("cold", "reset")
@@ -956,6 +969,7 @@ class SequenceLocalizer:
                 out.error = f"{type(e).__name__}: {e}"
                 out.estimate = None
                 return out
+            self._track_over = False
             out.estimate, out.new_track = est, new_track
             self._carried.update(ref, est)
             if est.gyro_rejected:
@@ -1074,3 +1088,4 @@ class SequenceLocalizer:
             self._carried.reset()
             self._last_stamp = None
             self._last_image = None
+            self._track_over = False

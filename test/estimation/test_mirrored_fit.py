@@ -101,3 +101,34 @@ def test_p3p_partial_fit_of_reflected_points_is_refused(seed):
     unchecked = replace(opts, plausibility=replace(opts.plausibility, consistent_fit=False))
     e = estimate_rs_pose(uv, X, cam, "p3p", unchecked)
     assert e.success and e.num_inliers < 0.25 * e.num_valid  # (the garbage the check is for)
+
+
+@pytest.mark.parametrize(
+    "noise_px, rs_speed, seed", [(0.2, 0.0, 6), (0.2, 0.0, 17), (0.0, 0.0, 23), (0.0, 0.5, 38)]
+)
+def test_a_half_turned_camera_at_the_true_centre_is_refused(noise_px, rs_speed, seed):
+    """Reflected correspondences of nearly exact frames: a camera at the true centre turned half
+    a turn (and spinning through the readout) explains a third of them, the points near the
+    plane the turn maps onto itself, with 0.46-0.50 of its inlier count just missing; without
+    the consistency check the frame is solved (no motion bound in the protocol's options)."""
+    import numpy as np
+
+    from rs_localizer.geometry import rotation_angle_deg
+
+    f = make_frame(seed, n_points=300, rs_speed=rs_speed, noise_px=noise_px)
+    a = attack(TestFrame(f.points_px, f.X, paper_camera(), f.position, OPTS), "reflected")
+    e = estimate_rs_pose(a.points_px, a.points3d, a.camera, "r6p_1lin", UNCHECKED)
+    assert e.success and e.num_inliers < 0.5 * e.num_valid  # (the garbage the check is for)
+    assert np.linalg.norm(e.pose.position - f.position) < 0.05
+    assert rotation_angle_deg(e.pose.orientation, f.R.T) > 170.0
+    e = estimate_rs_pose(a.points_px, a.points3d, a.camera, "r6p_1lin", OPTS)
+    assert not e.success and e.failure == INCONSISTENT_FIT
+
+
+def test_true_partial_fits_at_1px_noise_are_not_refused():
+    """The paper protocol's frames at 1 px noise with 60 % outliers: fits of under half the
+    points whose near misses are the noise tail (at most 0.25 of the inliers)."""
+    for seed in range(6):
+        f = make_frame(seed, n_points=300, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.6)
+        e = estimate_rs_pose(f.points_px, f.X, paper_camera(), "r6p_1lin", OPTS)
+        assert e.success, (seed, e.failure)

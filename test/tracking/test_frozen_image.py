@@ -24,13 +24,13 @@ def video():
     return shake_video(40 / 30, 40, seed=0)
 
 
-def _run(video, settings=None, **fe_args):
+def _run(video, settings=None, frozen=FROZEN, **fe_args):
     fmap, frames, camera, _, _ = video
     fe = TrackingFeatureFrontend(fmap, **fe_args)
     seq = SequenceLocalizer(settings or SequenceSettings(), frontend=fe, frontend_name="features")
     out = []
     for k, f in enumerate(frames):
-        image = frames[FROZEN[0] - 1].image if k in FROZEN else f.image
+        image = frames[frozen[0] - 1].image if k in frozen else f.image
         res = seq.process_image(int(round(f.t_first * 1e9)), image, camera, "rgb8")
         fe.wait_refresh(60.0)  # (the refresh joins at a fixed frame: every run the same)
         est = res.estimate
@@ -55,6 +55,24 @@ def test_a_frozen_image_gives_no_wrong_pose(video):
     assert set(range(FROZEN[0])) <= set(solved)  # (before the freeze: every frame)
     after = [k for k in solved if k > FROZEN[-1]]
     assert len(after) >= len(got) - FROZEN[-1] - 3, got[FROZEN[-1] :]  # (it relocalizes)
+
+
+@pytest.mark.parametrize("start, length", [(10, 13), (18, 13)])
+def test_the_track_restarts_after_a_frozen_image(video, start, length):
+    """Longer freezes (13 frames, 0.43 s: still within the tracker's ``max_gap``) at two places
+    of the video: no wrong pose, and the optical flow's tracks hold after the freeze. A
+    prediction from the track before the freeze (the relocalized frame fused into a window of
+    frames from before it) misplaced them: two frames after the freeze the tracks collapsed to
+    a quarter of the video's inliers (266 of ~950, 249 inliers), the weak consensus a pose
+    7 cm off came from in some runs of the background refresh."""
+    frozen = range(start, start + length)
+    got = _run(video, frozen=frozen)
+    wrong = [(k, e) for k, (_, e) in enumerate(got) if e and (e[0] > 1.0 or e[1] > 5.0)]
+    assert wrong == [], wrong
+    assert [got[k][0] for k in frozen] == ["frozen_image"] * length
+    before = np.median([got[k][1][2] for k in range(start)])
+    after = [got[k][1][2] if got[k][1] else 0 for k in range(frozen[-1] + 1, frozen[-1] + 6)]
+    assert min(after) > 0.6 * before, (before, after)
 
 
 def test_collapsed_tracks_are_matched_whole(video):
