@@ -274,6 +274,61 @@ class CameraModel:
             out, _ = cv2.projectPoints(P, z, z, self.K, self.D)
         return out.reshape(-1, 2)
 
+    @property
+    def field_limit(self) -> float:
+        """The edge of the lens model's field of view: for ``equidistant`` the largest angle
+        from the optical axis (rad, beyond 90 degrees where the model says the lens sees
+        it), elsewhere the largest undistorted normalized radius ``sqrt(x^2 + y^2)`` (``inf``
+        without distortion). Beyond it the model's radial distortion stops growing with the
+        angle (its polynomial turns back), so points there have no image: :meth:`project`
+        gives them none. Computed once per camera."""
+        cached = self.__dict__.get("_field_limit")
+        if cached is None:
+            cached = _field_limit(self.distortion_model, self.D, self.has_distortion)
+            object.__setattr__(self, "_field_limit", cached)
+        return cached
+
+    def project(self, P: np.ndarray) -> np.ndarray:
+        """(N, 3) points in the camera's optical frame (m) -> (N, 2) distorted pixels, over
+        the lens model's whole field of view (:attr:`field_limit`): the ``equidistant`` model
+        from the angle to the optical axis, so also beyond 90 degrees where the lens sees
+        there (OpenCV's fisheye projection divides by z first); the others in front of the
+        camera. Rows outside the field of view (or behind a non-fisheye camera) are ``nan``.
+        The same pixels as OpenCV's ``projectPoints`` / ``fisheye.projectPoints`` where
+        those are valid."""
+        P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
+        out = np.full((len(P), 2), np.nan)
+        if len(P) == 0:
+            return out
+        rho = np.hypot(P[:, 0], P[:, 1])
+        K = self.K
+        if self.distortion_model == "equidistant" and self.has_distortion:
+            theta = np.arctan2(rho, P[:, 2])
+            ok = np.isfinite(theta) & (theta <= self.field_limit)
+            k = np.zeros(4)
+            k[: min(4, len(self.D))] = self.D[:4]
+            t2 = theta * theta
+            td = theta * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+            scale = np.where(
+                rho > 0, td / np.where(rho > 0, rho, 1.0), 1.0 / np.where(P[:, 2] > 0, P[:, 2], 1.0)
+            )
+            xd = P[:, :2] * scale[:, None]
+        else:
+            ok = P[:, 2] > 1e-12
+            z = np.where(ok, P[:, 2], 1.0)
+            xn = P[:, :2] / z[:, None]
+            ok &= np.hypot(xn[:, 0], xn[:, 1]) <= self.field_limit
+            xd = np.where(ok[:, None], xn, 0.0)
+            if self.has_distortion and ok.any():
+                out[ok] = self.distort(xn[ok])
+                return out
+        uv = np.stack(
+            [K[0, 0] * xd[:, 0] + K[0, 1] * xd[:, 1] + K[0, 2], K[1, 1] * xd[:, 1] + K[1, 2]],
+            axis=1,
+        )
+        out[ok] = uv[ok]
+        return out
+
     def normalize(
         self, points_px: np.ndarray, compiled: bool = True
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -322,8 +377,10 @@ class CameraModel:
             iterations: fixed-point iterations on the line (stops earlier once every line
                 moves by less than 1e-6 px).
         Returns:
-            (N, 2) distorted pixels; ``nan`` rows for points behind the camera. Points far
-            outside the field of view are not flagged (lens distortion may fold them back).
+            (N, 2) distorted pixels (:meth:`project`: over the lens model's whole field of
+            view); ``nan`` rows for points outside it at their capture time (behind a
+            non-fisheye camera, or where the model's distortion turns back:
+            :attr:`field_limit`).
         Raises:
             ValueError: if ``X`` cannot be reshaped to (N, 3).
         """
@@ -335,20 +392,17 @@ class CameraModel:
         axis = self._axis
         line = np.full(len(X), self.reference_line)
         uv = np.full((len(X), 2), np.nan)
-        ok = np.ones(len(X), dtype=bool)
         for _ in range(max(int(iterations), 1)):
             tau = self.rs_coordinate_of_line(line) - self.r0
             Rt = rotvec_to_matrix(tau[:, None] * w[None, :])
             p = np.einsum("nij,nj->ni", Rt, RX) + C + tau[:, None] * t
-            ok = p[:, 2] > 1e-6
-            xn = np.where(ok[:, None], p[:, :2] / np.where(ok, p[:, 2], 1.0)[:, None], 0.0)
-            uv = self.distort(np.clip(xn, -3.0, 3.0))
-            new = np.clip(uv[:, axis], -self.lines, 2 * self.lines)
+            uv = self.project(p)
+            seen = np.isfinite(uv[:, axis])
+            new = np.where(seen, np.clip(uv[:, axis], -self.lines, 2 * self.lines), line)
             done = np.all(np.abs(new - line) < 1e-6)
             line = new
             if done:
                 break
-        uv[~ok] = np.nan
         return uv
 
     def in_image(self, points_px: np.ndarray, margin: float = 0.0) -> np.ndarray:
@@ -360,6 +414,54 @@ class CameraModel:
             & (p[:, 1] >= -margin)
             & (p[:, 1] <= self.height - 1 + margin)
         )
+
+
+def _field_limit(model: str, D: np.ndarray, distorted: bool) -> float:
+    """:attr:`CameraModel.field_limit` of a distortion ``model`` with coefficients ``D``: the
+    first angle (equidistant, up to 180 degrees) or normalized radius (others, up to 1e3)
+    where the radial distortion stops increasing, found on a fine grid and refined by
+    bisection; ``pi`` / ``inf`` where it never does."""
+    if not distorted:
+        return np.pi if model == "equidistant" else np.inf
+    d = np.zeros(8)
+    d[: min(8, len(D))] = D[:8]
+    if model == "equidistant":
+
+        def radial(a):
+            a2 = a * a
+            return a * (1 + a2 * (d[0] + a2 * (d[1] + a2 * (d[2] + a2 * d[3]))))
+
+        top = np.pi
+    else:
+        k1, k2, _, _, k3, k4, k5, k6 = d
+
+        def radial(a):
+            a2 = a * a
+            num = 1 + a2 * (k1 + a2 * (k2 + a2 * k3))
+            den = 1 + a2 * (k4 + a2 * (k5 + a2 * k6))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return a * num / den
+
+        top = 1e3
+    grid = np.concatenate(
+        [np.linspace(0.0, min(top, 10.0), 20001)[1:], np.geomspace(10.0, top, 2001)]
+    )
+    grid = grid[grid <= top]
+    r = radial(grid)
+    bad = ~(np.isfinite(r) & (np.diff(np.concatenate([[0.0], r])) > 0))
+    if not bad.any():
+        return float(top)
+    k = int(np.argmax(bad))
+    lo, hi = (grid[k - 2] if k > 1 else 0.0), grid[k]
+    for _ in range(60):  # (the last point where the radius still grows)
+        mid = 0.5 * (lo + hi)
+        h = 1e-7 * max(mid, 1e-9)
+        up, down = radial(mid + h), radial(mid - h)
+        if np.isfinite(up) and up > down:
+            lo = mid
+        else:
+            hi = mid
+    return float(lo)
 
 
 @njit(cache=True)

@@ -97,3 +97,74 @@ def test_normalize_offsets_for_distorted_rows():
 def test_invalid_camera_raises(kw):
     with pytest.raises(ValueError):
         CameraModel(**kw)
+
+
+# a real fisheye lens (PointGrey Chameleon, 1280x1024, equidistant: TagSLAM's test_2 calibration)
+FISHEYE = dict(
+    K=np.array([[470.338, 0, 620.702], [0, 470.294, 534.861], [0, 0, 1]]),
+    D=[-0.0177484, -0.00281825, 0.00696388, -0.0030704],
+    width=1280,
+    height=1024,
+    distortion_model="equidistant",
+)
+
+
+def _directions(angles_deg, rng):
+    """Unit vectors at the given angles from the optical axis, random azimuths."""
+    th = np.radians(angles_deg)
+    phi = rng.uniform(0, 2 * np.pi, len(th))
+    return np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], axis=1)
+
+
+def test_fisheye_projection_matches_opencv_to_the_edge_of_the_field():
+    """Corners 74-89 deg off-axis (where the projection used to clip at 71.6 deg): the same
+    pixels as OpenCV's fisheye model on the 3D points."""
+    cam = CameraModel(**FISHEYE)
+    P = 2.5 * _directions(np.linspace(1.0, 89.0, 200), np.random.default_rng(0))
+    ref, _ = cv2.fisheye.projectPoints(
+        P.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K, cam.D[:4]
+    )
+    np.testing.assert_allclose(cam.project(P), ref.reshape(-1, 2), atol=1e-6)
+    uv = cam.project_rs(P, np.eye(3), np.zeros(3))
+    np.testing.assert_allclose(uv, ref.reshape(-1, 2), atol=1e-6)
+
+
+def test_fisheye_projection_beyond_90_degrees_follows_the_lens_model():
+    """Beyond 90 degrees (z < 0), where the lens model still grows: the radius is f times the
+    distorted angle (the equidistant model written out here), on the ray's azimuth."""
+    cam = CameraModel(**FISHEYE)
+    assert cam.field_limit > np.radians(95)  # (97.2 deg for this lens)
+    angles = np.linspace(90.5, np.degrees(cam.field_limit) - 0.5, 50)
+    P = _directions(angles, np.random.default_rng(1))
+    uv = cam.project(P)
+    k = cam.D
+    th = np.radians(angles)
+    td = th * (1 + k[0] * th**2 + k[1] * th**4 + k[2] * th**6 + k[3] * th**8)
+    rho = np.hypot(P[:, 0], P[:, 1])
+    expected = np.stack(
+        [
+            cam.K[0, 0] * td * P[:, 0] / rho + cam.K[0, 2],
+            cam.K[1, 1] * td * P[:, 1] / rho + cam.K[1, 2],
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(uv, expected, atol=1e-9)
+    # (straight behind, past the model's turning point: no image)
+    assert np.isnan(cam.project(np.array([[0.0, 1e-3, -1.0]]))).all()
+
+
+def test_projection_refuses_points_where_the_distortion_turns_back():
+    """plumb_bob with k1 < 0: the radius r (1 + k1 r^2) peaks at r = 1 / sqrt(-3 k1); beyond it
+    the model folds points back into the image, so they get no pixel (nan) instead."""
+    k1 = -0.2
+    cam = CameraModel(K=np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]), D=[k1, 0, 0, 0, 0])
+    assert cam.field_limit == pytest.approx(1 / np.sqrt(-3 * k1), rel=1e-5)
+    r = np.array([0.5, 1.2, 1.3, 2.0])  # (limit 1.29)
+    P = np.stack([r, np.zeros(4), np.ones(4)], axis=1)
+    uv = cam.project(P)
+    ref, _ = cv2.projectPoints(P[:2].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), cam.K, cam.D)
+    np.testing.assert_allclose(uv[:2], ref.reshape(-1, 2), atol=1e-9)
+    assert np.isnan(uv[2:]).all()
+    assert np.isnan(cam.project(np.array([[0.0, 0.0, -1.0]]))).all()  # (behind)
+    plain = CameraModel(K=cam.K)
+    assert plain.field_limit == np.inf
