@@ -58,16 +58,18 @@ from .options import (
     RefineOptions,
     points_needed,
 )
-from .plausibility import IMPLAUSIBLE_MOTION
+from .plausibility import IMPLAUSIBLE_MOTION, motion_bounds
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import (
+    DEGENERATE_GEOMETRY,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
     output_covariance,
     physical_velocities,
 )
+from .single_tag import planar_points, single_tag_estimate
 
 __all__ = [
     "SOLVERS",
@@ -283,6 +285,8 @@ def _estimate(
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
     min_inliers = points_needed(solver, opts)
+    if len(fr.x) < min_inliers and planar_points(fr):
+        return _single_tag(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
     try:
         try:
             configure_frame(
@@ -356,6 +360,41 @@ def _estimate(
     if final.covariance is not None:
         twist = output_covariance(final.covariance, *final.model[:2], np.zeros(3), fr.spr)[2]
     return replace(est, solver=solver, twist_covariance=twist)
+
+
+def _single_tag(
+    fr,
+    camera: CameraModel,
+    solver: str,
+    opts: EstimateOptions,
+    initial_model: InitialModel | None,
+    gyro: GyroMeasurement | None,
+    timings: dict[str, float],
+    ignored: tuple[str, ...],
+) -> RSPoseEstimate:
+    """A frame of too few points for ``solver`` but at least four coplanar ones (one square
+    marker's corners) posed from them alone (:func:`~.single_tag.single_tag_estimate`), or
+    its failure."""
+    t_start = time.perf_counter()
+    th_px = opts.ransac.threshold_px
+    try:
+        if fr.degenerate(np.ones(len(fr.x), dtype=bool), th_px):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        fr.threshold = th_px / fr.f
+        fr.spr = spr = camera.seconds_per_unit_r
+        fr.motion_bounds = motion_bounds(
+            opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
+        )
+        fr.planar = True
+        est = single_tag_estimate(
+            fr, solver, opts, initial_model, gyro is not None, timings, ignored
+        )
+    except EstimationFailed as failure:
+        return failed_estimate(
+            failure.reason, solver, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
+        )
+    timings["single_tag"] = time.perf_counter() - t_start
+    return est
 
 
 def _still_frame(
