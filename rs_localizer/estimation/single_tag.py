@@ -193,8 +193,8 @@ def single_tag_estimate(
     prediction's ``(w, t)`` when ``initial_model`` explains every point within its
     ``gate_px``, the gyro's angular velocity when ``fr.known_w`` is set, else zero. The better
     fit is taken when the other one's squared errors exceed its own by
-    :data:`AMBIGUITY_CHI2` corner noise variances; else the pose the prediction's rotation is nearer by
-    :data:`PREDICTION_RATIO`. Every point is an inlier when their RMS error is within the
+    :data:`AMBIGUITY_CHI2` corner noise variances; else the pose the prediction's rotation is
+    nearer by :data:`PREDICTION_RATIO`. Every point is an inlier when their RMS error is within the
     threshold. The covariance is the pose fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
     residuals with 2N - 6 degrees of freedom, at least :data:`MIN_CORNER_SIGMA_PX`); held
     velocities carry the motion prior's covariance (``opts.motion_prior``: a tracker's
@@ -208,8 +208,9 @@ def single_tag_estimate(
 
     Returns:
         the successful :class:`RSPoseEstimate`: ``motion_model`` ``"global_shutter"`` (zero
-        velocities) or :data:`PREDICTED_MOTION`; ``initial_used`` when the prediction chose
-        the pose or gave its velocities; ``ransac_iterations`` 0.
+        velocities) or :data:`PREDICTED_MOTION`; ``initial_used`` when the prediction
+        explained every point (it then gives the velocities and resolves an ambiguity);
+        ``ransac_iterations`` 0.
 
     Raises:
         EstimationFailed: ``too_few_points`` (not :func:`planar_points`),
@@ -232,16 +233,15 @@ def single_tag_estimate(
         fits = fits[:1]  # (both IPPE poses refine to the same one: no ambiguity)
     th, n = float(fr.threshold), len(fr.x)
     sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
-    choice, by_prediction = fits[0], False
-    if len(fits) > 1:
-        if n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
-            if pred is None:
-                raise EstimationFailed(AMBIGUOUS_TAG)
-            d = [rotation_angle_deg(f[1], pred.R) for f in fits[:2]]
-            near = int(np.argmin(d))
-            if not d[near] <= PREDICTION_RATIO * d[1 - near]:
-                raise EstimationFailed(AMBIGUOUS_TAG)
-            choice, by_prediction = fits[near], True
+    choice = fits[0]
+    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
+        if pred is None:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        d = [rotation_angle_deg(f[1], pred.R) for f in fits[:2]]
+        near = int(np.argmin(d))
+        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        choice = fits[near]
     rms, R, C, res, J = choice
     if rms > th:
         raise EstimationFailed(TOO_FEW_INLIERS)
@@ -266,7 +266,7 @@ def single_tag_estimate(
         solver if moving else "p3p",
         final,
         0,
-        (explained, pred is not None and (by_prediction or moving)),
+        (explained, pred is not None),
         timings,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
