@@ -37,7 +37,16 @@ from rs_localizer.estimation import InitialModel, estimate_rs_pose
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 
-__all__ = ["DATA", "load_test22", "main", "opencv_ippe", "real", "rendered", "tag_corners"]
+__all__ = [
+    "DATA",
+    "load_test22",
+    "main",
+    "opencv_ippe",
+    "real",
+    "relative_errors",
+    "rendered",
+    "tag_corners",
+]
 
 _ROOT = Path(__file__).resolve().parents[1]
 #: the TagSLAM recordings (outside the repository, next to the checkout or one level up;
@@ -159,18 +168,19 @@ def load_test22(folder: Path):
 
 def real(folder: Path = DATA / "test_22"):
     """Per frame of :func:`load_test22`: the estimate (the previous solved frame as its
-    prediction), OpenCV's IPPE rotation (world -> camera) and the reference's."""
+    prediction), OpenCV's IPPE rotation (world -> camera), the reference's, and the estimate
+    without a prediction."""
     cam, X, frames = load_test22(folder)
     out, prev = [], None
     for _stamp, uv, Rwc, _c in frames:
         e = estimate_rs_pose(uv, X, cam, initial_model=prev)
         if e.success:
             prev = InitialModel(e.model)
-        out.append((e, opencv_ippe(uv, X, cam)[0], Rwc.T))
+        out.append((e, opencv_ippe(uv, X, cam)[0], Rwc.T, estimate_rs_pose(uv, X, cam)))
     return out
 
 
-def _relative_errors(Rs: list, Rref: list) -> np.ndarray:
+def relative_errors(Rs: list, Rref: list) -> np.ndarray:
     """Errors (deg) of the rotations between consecutive frames against the reference's."""
     return np.array(
         [
@@ -204,17 +214,22 @@ def main(argv: list[str] | None = None) -> None:
         print(f"real: {folder} absent, skipped")
         return
     res = real(folder)
-    ours = [e.model.R if e.success else None for e, _, _ in res]
-    cv = [r for _, r, _ in res]
-    ref = [r for _, _, r in res]
+    ours = [e.model.R if e.success else None for e, _, _, _ in res]
+    cv = [r for _, r, _, _ in res]
+    ref = [r for _, _, r, _ in res]
     abs_ours = [rotation_angle_deg(r, q) for r, q in zip(ours, ref, strict=True) if r is not None]
     abs_cv = [rotation_angle_deg(r, q) for r, q in zip(cv, ref, strict=True)]
-    print(f"real test_22, {len(res)} frames with the tag: posed {sum(r is not None for r in ours)}")
+    alone = [e for *_, e in res]
+    print(
+        f"real test_22, {len(res)} frames with the tag: posed {sum(r is not None for r in ours)}"
+        f" (without a prediction: {sum(e.success for e in alone)}, refused "
+        f"{', '.join(sorted({e.failure for e in alone if not e.success})) or 'none'})"
+    )
     print(
         f"  rotation vs reference, median: ours {np.median(abs_ours):.3f} deg, OpenCV IPPE "
         f"{np.median(abs_cv):.3f} deg; frame to frame: ours "
-        f"{np.median(_relative_errors(ours, ref)):.3f}, OpenCV IPPE "
-        f"{np.median(_relative_errors(cv, ref)):.3f} deg"
+        f"{np.median(relative_errors(ours, ref)):.3f}, OpenCV IPPE "
+        f"{np.median(relative_errors(cv, ref)):.3f} deg"
     )
 
 

@@ -194,7 +194,9 @@ def single_tag_estimate(
     ``gate_px``, the gyro's angular velocity when ``fr.known_w`` is set, else zero. The better
     fit is taken when the other one's squared errors exceed its own by
     :data:`AMBIGUITY_CHI2` corner noise variances; else the pose the prediction's rotation is
-    nearer by :data:`PREDICTION_RATIO`. Every point is an inlier when their RMS error is within the
+    nearer by :data:`PREDICTION_RATIO` (whether or not it explains the points: a prediction
+    from frames long before, off by more than the gate, still tells two poses tens of degrees
+    apart). Every point is an inlier when their RMS error is within the
     threshold. The covariance is the pose fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
     residuals with 2N - 6 degrees of freedom, at least :data:`MIN_CORNER_SIGMA_PX`); held
     velocities carry the motion prior's covariance (``opts.motion_prior``: a tracker's
@@ -209,7 +211,7 @@ def single_tag_estimate(
     Returns:
         the successful :class:`RSPoseEstimate`: ``motion_model`` ``"global_shutter"`` (zero
         velocities) or :data:`PREDICTED_MOTION`; ``initial_used`` when the prediction
-        explained every point (it then gives the velocities and resolves an ambiguity);
+        explained every point (it then gives the velocities);
         ``ransac_iterations`` 0.
 
     Raises:
@@ -235,9 +237,9 @@ def single_tag_estimate(
     sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
     choice = fits[0]
     if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
-        if pred is None:
+        if initial_model is None:
             raise EstimationFailed(AMBIGUOUS_TAG)
-        d = [rotation_angle_deg(f[1], pred.R) for f in fits[:2]]
+        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
         near = int(np.argmin(d))
         if not d[near] <= PREDICTION_RATIO * d[1 - near]:
             raise EstimationFailed(AMBIGUOUS_TAG)
