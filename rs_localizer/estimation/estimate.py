@@ -220,6 +220,8 @@ def estimate_rs_pose(
         opts.motion_prior,
         point_sigma=point_sigma,
     )
+    if est.single_tag:  # (four corners cannot judge the gyro: its rate is held, not checked)
+        return est
     img = image[0] if image else None
     chi2, image_inliers = np.inf, 0
     if est.success and img is not None:

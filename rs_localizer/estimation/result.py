@@ -162,9 +162,9 @@ class RSPoseEstimate(PoseWithCovariance):
             ``None`` where the camera has no readout time (unobserved); or
             ``"predicted_motion"``: a frame of a few coplanar points (one marker's corners,
             :mod:`.single_tag`) posed on the rolling-shutter model with the velocities held at
-            the tracker's prediction or the gyro's (not estimated from the frame; their
-            covariance is the motion prior's). A single-marker frame without either is
-            ``"global_shutter"``.
+            the tracker's prediction or the gyro's (not estimated from the frame: no
+            ``twist_covariance``; the (12, 12) ``covariance`` gives them the motion prior's).
+            A single-marker frame without either is ``"global_shutter"``.
         single_tag: the frame had too few points for the solver and was posed from a few
             coplanar ones, e.g. one square marker's four corners (:mod:`.single_tag`).
         ignored_inputs: the inputs given that this implementation could not use, by name

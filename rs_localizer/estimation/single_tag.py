@@ -92,10 +92,13 @@ def planar_points(fr: Frame) -> bool:
 def _fixed_velocities(
     fr: Frame, initial_model: InitialModel | None, known_w: np.ndarray | None
 ) -> tuple[np.ndarray, np.ndarray, RSModel | None, int]:
-    """(w, t) per unit r held fixed in the fit, the prediction if it explains every point
-    within its ``gate_px`` (else ``None``), and how many points it explains (-1: none
-    given)."""
-    w, t = np.zeros(3), np.zeros(3)
+    """The velocities held in the fit, as ``(w, b)`` per unit r with the model's
+    ``t = w x C + b`` (``b = -s v``: the camera's own linear velocity ``v`` held, whatever its
+    fitted ``C``): the prediction's if it explains every point within its ``gate_px``, with
+    the gyro's angular velocity instead of the prediction's when ``known_w`` is set, else
+    zero; the prediction if it explains them (else ``None``), and how many points it explains
+    (-1: none given)."""
+    w, b = np.zeros(3), np.zeros(3)
     pred, explained = None, -1
     if initial_model is not None:
         m = initial_model.model
@@ -106,10 +109,11 @@ def _fixed_velocities(
         if explained == len(fr.x):
             pred = m
             if fr.spr > 0:
-                w, t = np.array(m.w, dtype=float), np.array(m.t, dtype=float)
+                w = np.array(m.w, dtype=float)
+                b = np.array(m.t, dtype=float) - np.cross(w, np.asarray(m.C, dtype=float))
     if known_w is not None and fr.spr > 0:
         w = np.array(known_w, dtype=float)
-    return w, t, pred, explained
+    return w, b, pred, explained
 
 
 def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -134,28 +138,33 @@ def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, t: np.ndarray):
-    """Least-squares pose (6 parameters) on the exact model with ``w``, ``t`` fixed, from
-    ``(R0, C0)``: (R, C, (2N,) residuals, (2N, 6) Jacobian), normalized units."""
+def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
+    """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
+    velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
+    (R, C, t, (2N,) residuals, (2N, 6) Jacobian), normalized units."""
     tau = fr.r - fr.r0
     X, x = fr.X, fr.x
+    W = skew(w)
 
     def theta(p):
-        return np.concatenate([p, w, t])
+        return np.concatenate([p, w, np.cross(w, p[3:]) + b])
+
+    def jac(p):
+        J = exact_jacobian(theta(p), R0, X, x, tau)
+        return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
 
     sol = least_squares(
         lambda p: exact_residuals(theta(p), R0, X, x, tau),
         np.concatenate([np.zeros(3), C0]),
-        jac=lambda p: exact_jacobian(theta(p), R0, X, x, tau)[:, :6],
+        jac=jac,
         method="lm",
         xtol=1e-12,
         ftol=1e-12,
     )
     p = sol.x
     R = cv2.Rodrigues(p[:3])[0] @ R0
-    res = exact_residuals(np.concatenate([np.zeros(3), p[3:], w, t]), R, X, x, tau)
-    J = exact_jacobian(np.concatenate([np.zeros(3), p[3:], w, t]), R, X, x, tau)[:, :6]
-    return R, p[3:].copy(), res, J
+    q = np.concatenate([np.zeros(3), p[3:]])
+    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), jac(q)
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:
@@ -199,8 +208,10 @@ def single_tag_estimate(
     apart). Every point is an inlier when their RMS error is within the
     threshold. The covariance is the pose fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
     residuals with 2N - 6 degrees of freedom, at least :data:`MIN_CORNER_SIGMA_PX`); held
-    velocities carry the motion prior's covariance (``opts.motion_prior``: a tracker's
-    prediction), zero velocities none (``twist_covariance`` ``None``).
+    velocities carry the motion prior's covariance in the (12, 12) ``covariance``
+    (``opts.motion_prior``: a tracker's prediction), zero velocities none. The
+    ``twist_covariance`` is ``None`` either way: the frame does not measure its velocities
+    (a video's twist filter takes its pose only).
 
     Args:
         fr: the prepared frame (:func:`~.frame.prepare_frame`), its threshold, timing and
@@ -222,12 +233,12 @@ def single_tag_estimate(
     """
     if not planar_points(fr):
         raise EstimationFailed(TOO_FEW_POINTS)
-    w, t, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
+    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
     fits = []
     for R0, C0 in _ippe(fr):
-        R, C, res, J = _fit(fr, R0, C0, w, t)
+        R, C, t, res, J = _fit(fr, R0, C0, w, b)
         if np.isfinite(R).all() and np.isfinite(res).all():
-            fits.append((float(np.sqrt(res @ res / len(fr.x))), R, C, res, J))
+            fits.append((float(np.sqrt(res @ res / len(fr.x))), R, C, t, res, J))
     if not fits:
         raise EstimationFailed(DEGENERATE_GEOMETRY)
     fits.sort(key=lambda f: f[0])
@@ -244,10 +255,10 @@ def single_tag_estimate(
         if not d[near] <= PREDICTION_RATIO * d[1 - near]:
             raise EstimationFailed(AMBIGUOUS_TAG)
         choice = fits[near]
-    rms, R, C, res, J = choice
+    rms, R, C, t, res, J = choice
     if rms > th:
         raise EstimationFailed(TOO_FEW_INLIERS)
-    moving = bool(np.any(w) or np.any(t))
+    moving = bool(np.any(w) or np.any(b))
     sigma2 = max(float(res @ res) / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
     H = J.T @ J
     cov = np.zeros((12, 12))
@@ -280,4 +291,5 @@ def single_tag_estimate(
         condition_number=condition_number(H),
         planarity=float(planarity(fr.X)),
         single_tag=True,
+        twist_covariance=None,
     )

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation import InitialModel, estimate_rs_pose
+from rs_localizer.estimation import InitialModel, estimate_rs_pose, physical_velocities
 from rs_localizer.estimation.result import FAILURE_REASONS
 from rs_localizer.geometry import rotation_angle_deg
 
@@ -76,11 +76,14 @@ def test_the_estimate_of_one_tag_is_complete_and_counted_as_such():
     e = estimate_rs_pose(uv, X, cam, initial_model=InitialModel((R, C, w, t)))
     assert e.success and e.single_tag and e.num_inliers == 4
     assert e.motion_model == "predicted_motion"
-    np.testing.assert_allclose(e.model.w, w)
-    np.testing.assert_allclose(e.model.t, t)
+    # (the camera's own velocities held at the prediction's, whatever the fitted position)
+    om, v, _, _ = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
+    np.testing.assert_allclose(e.pose.angular_velocity, om, rtol=1e-9)
+    np.testing.assert_allclose(e.pose.linear_velocity, v, rtol=1e-9, atol=1e-12)
     assert e.rmse_px <= 2.0 and e.pose_covariance is not None
     assert np.all(np.linalg.eigvalsh(e.pose_covariance) > 0)
-    assert e.twist_covariance is not None
+    assert e.twist_covariance is None  # (the velocities are the prediction's, not measured)
+    assert np.all(np.linalg.eigvalsh(e.covariance[6:, 6:]) > 0)  # (the motion prior's)
     # (its rotation standard deviation matches its error in size, no more than 5x off)
     sd = np.sqrt(np.trace(e.pose_covariance[3:, 3:]))
     err = np.radians(rotation_angle_deg(e.model.R, R))
@@ -100,3 +103,49 @@ def test_the_estimate_of_one_tag_is_complete_and_counted_as_such():
             assert 1.0 < e.rmse_px < 1.5 and e.num_inliers == 4
         else:
             assert e.failure == "too_few_inliers"
+
+
+def test_a_gyro_gives_one_tag_its_angular_velocity():
+    from rs_localizer.estimation.gyro import GyroMeasurement
+
+    rng = np.random.default_rng(4)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    s = cam.seconds_per_unit_r
+    X = tag_corners(0.2)
+    a = np.radians(30)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.0, 0.0, 0.7])
+    omega = np.array([0.5, -2.0, 0.3])  # rad/s, camera frame
+    uv = cam.project_rs(X, R, C, -s * omega, s * np.cross(C, omega))
+    uv = uv + rng.normal(0, 0.3, (4, 2))
+    g = GyroMeasurement(angular_velocity=omega, covariance=np.eye(3) * 1e-4)
+    e = estimate_rs_pose(uv, X, cam, gyro=g)
+    assert e.success and e.single_tag and e.gyro_used and not e.gyro_rejected
+    assert e.motion_model == "predicted_motion"
+    np.testing.assert_allclose(e.pose.angular_velocity, omega, atol=1e-9)
+    assert rotation_angle_deg(e.model.R, R) < 2.0
+
+
+def test_a_video_of_one_tag_is_tracked():
+    from rs_localizer.tracking.tracker import RSTracker
+
+    rng = np.random.default_rng(6)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    s = cam.seconds_per_unit_r
+    X = tag_corners(0.2)
+    omega = np.array([0.0, 0.6, 0.0])  # a slow pan, rad/s
+    tracker = RSTracker()
+    states, errors = [], []
+    for k in range(12):
+        a = np.radians(30 + 0.6 * np.degrees(k / 30))
+        R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        R = R @ np.diag([1.0, -1.0, -1.0])
+        C = np.array([0.0, 0.0, 0.8])
+        uv = cam.project_rs(X, R, C, -s * omega, s * np.cross(C, omega))
+        r = tracker.process(k * 33_333_333, uv + rng.normal(0, 0.3, (4, 2)), X, cam)
+        assert r.estimate.success and r.estimate.single_tag, r.estimate.failure
+        states.append(r.state)
+        errors.append(rotation_angle_deg(r.estimate.model.R, R))
+    assert states[0] == "cold" and states[-4:] == ["tracked"] * 4, states
+    assert np.median(errors) < 2.0
