@@ -69,7 +69,7 @@ from .result import (
     output_covariance,
     physical_velocities,
 )
-from .single_tag import planar_points, single_tag_estimate
+from .single_tag import MIN_PLANAR_POINTS, planar_points, single_tag_estimate
 
 __all__ = [
     "SOLVERS",
@@ -287,7 +287,7 @@ def _estimate(
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
     min_inliers = points_needed(solver, opts)
-    if len(fr.x) < min_inliers and planar_points(fr):
+    if (len(fr.x) < min_inliers or len(fr.x) == MIN_PLANAR_POINTS) and planar_points(fr):
         return _single_tag(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
     try:
         try:
@@ -374,8 +374,10 @@ def _single_tag(
     timings: dict[str, float],
     ignored: tuple[str, ...],
 ) -> RSPoseEstimate:
-    """A frame of too few points for ``solver`` but at least four coplanar ones (one square
-    marker's corners) posed from them alone (:func:`~.single_tag.single_tag_estimate`), or
+    """A frame of too few points for ``solver`` but at least four coplanar ones, or exactly
+    four coplanar ones whatever the solver (one square marker's corners: a minimal sample and
+    one point to check it cannot pose a tag whose corners fit a square only to a pixel) posed
+    from them alone (:func:`~.single_tag.single_tag_estimate`), or
     its failure."""
     t_start = time.perf_counter()
     th_px = opts.ransac.threshold_px

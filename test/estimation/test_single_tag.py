@@ -8,7 +8,13 @@ import cv2
 import numpy as np
 
 from rs_localizer.camera import CameraModel
-from rs_localizer.estimation import InitialModel, estimate_rs_pose, physical_velocities
+from rs_localizer.estimation import (
+    EstimateOptions,
+    InitialModel,
+    RansacOptions,
+    estimate_rs_pose,
+    physical_velocities,
+)
 from rs_localizer.estimation.result import FAILURE_REASONS
 from rs_localizer.geometry import rotation_angle_deg
 
@@ -149,3 +155,19 @@ def test_a_video_of_one_tag_is_tracked():
         errors.append(rotation_angle_deg(r.estimate.model.R, R))
     assert states[0] == "cold" and states[-4:] == ["tracked"] * 4, states
     assert np.median(errors) < 2.0
+
+
+def test_p3p_with_four_inliers_poses_one_tag_from_all_its_corners():
+    # (P3P's minimal sample and the fourth corner to check it: a corner 4 px off, the corners
+    # fitting a square to ~1.2 px, fails that check at 2 px; the four-corner fit does not)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    X = tag_corners(0.2)
+    a = np.radians(35)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.0, 0.0, 0.8])
+    uv = cam.project_rs(X, R, C) + np.array([[4.0, 0.0], [0, 0], [0, 0], [0, 0]])
+    opts = EstimateOptions(ransac=RansacOptions(min_inliers=4))
+    e = estimate_rs_pose(uv, X, cam, "p3p", opts)
+    assert e.success and e.single_tag and e.num_inliers == 4 and 1.0 < e.rmse_px < 1.5
+    assert rotation_angle_deg(e.model.R, R) < 3.0
