@@ -11,6 +11,10 @@ It runs three stages, one module each:
 3. finalize (:mod:`.finalize`): the refinement on the exact constant-velocity model with its
    covariance, the last checks, the outputs (:mod:`.result`).
 
+A frame of too few points for its solver but four or more coplanar ones (one square marker's
+corners), or of exactly four coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from
+them alone.
+
 A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
 estimator turns it into a failed :class:`RSPoseEstimate` in one place.
 
@@ -169,6 +173,13 @@ def estimate_rs_pose(
             unless numba is unusable here or ``RS_LOCALIZER_COMPILED=0``). A process whose
             kernels compile in the background asks
             :func:`rs_localizer.runtime.warmup.ready_implementation` which one is ready.
+
+    A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones,
+    or exactly four coplanar ones (one square marker's corners), is posed from them alone
+    (:func:`~.single_tag.single_tag_estimate`: IPPE's two poses, the velocities held at
+    ``initial_model``'s or ``gyro``'s, the plane's ambiguity resolved by the image or
+    ``initial_model``, else ``ambiguous_tag``; ``RSPoseEstimate.single_tag``); compiled
+    implementation only.
 
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
