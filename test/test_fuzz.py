@@ -352,6 +352,7 @@ OPTS = EstimateOptions(ransac=RansacOptions(max_iterations=60, min_iterations=10
 #: every failure reason estimate_rs_pose documents
 REASONS = {
     "too_few_points",
+    "ambiguous_tag",
     "no_hypothesis",
     "too_few_inliers",
     "degenerate_geometry",

@@ -11,6 +11,10 @@ It runs three stages, one module each:
 3. finalize (:mod:`.finalize`): the refinement on the exact constant-velocity model with its
    covariance, the last checks, the outputs (:mod:`.result`).
 
+A frame of too few points for its solver but four or more coplanar ones (one square marker's
+corners), or of exactly four coplanar ones, skips RANSAC: :mod:`.single_tag` poses it from
+them alone.
+
 A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
 estimator turns it into a failed :class:`RSPoseEstimate` in one place.
 
@@ -59,16 +63,18 @@ from .options import (
     RefineOptions,
     points_needed,
 )
-from .plausibility import IMPLAUSIBLE_MOTION
+from .plausibility import IMPLAUSIBLE_MOTION, motion_bounds
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import (
+    DEGENERATE_GEOMETRY,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
     output_covariance,
     physical_velocities,
 )
+from .single_tag import MIN_PLANAR_POINTS, planar_points, single_tag_estimate
 
 __all__ = [
     "SOLVERS",
@@ -169,6 +175,13 @@ def estimate_rs_pose(
             kernels compile in the background asks
             :func:`rs_localizer.runtime.warmup.ready_implementation` which one is ready.
 
+    A frame with fewer valid points than :func:`points_needed` but four or more coplanar ones,
+    or exactly four coplanar ones (one square marker's corners), is posed from them alone
+    (:func:`~.single_tag.single_tag_estimate`: IPPE's two poses, the velocities held at
+    ``initial_model``'s or ``gyro``'s, the plane's ambiguity resolved by the image or
+    ``initial_model``, else ``ambiguous_tag``; ``RSPoseEstimate.single_tag``); compiled
+    implementation only.
+
     Returns:
         :class:`RSPoseEstimate`. Data problems (NaN rows, too few points, all outliers,
         degenerate geometry) give ``success=False`` with a ``failure`` reason
@@ -219,6 +232,8 @@ def estimate_rs_pose(
         opts.motion_prior,
         point_sigma=point_sigma,
     )
+    if est.single_tag:  # (four corners cannot judge the gyro: its rate is held, not checked)
+        return est
     img = image[0] if image else None
     chi2, image_inliers = np.inf, 0
     if est.success and img is not None:
@@ -284,6 +299,8 @@ def _estimate(
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
     min_inliers = points_needed(solver, opts)
+    if (len(fr.x) < min_inliers or len(fr.x) == MIN_PLANAR_POINTS) and planar_points(fr):
+        return _single_tag(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
     try:
         try:
             configure_frame(
@@ -356,6 +373,43 @@ def _estimate(
     if final.covariance is not None:
         twist = output_covariance(final.covariance, *final.model[:2], np.zeros(3), fr.spr)[2]
     return replace(est, solver=solver, twist_covariance=twist)
+
+
+def _single_tag(
+    fr,
+    camera: CameraModel,
+    solver: str,
+    opts: EstimateOptions,
+    initial_model: InitialModel | None,
+    gyro: GyroMeasurement | None,
+    timings: dict[str, float],
+    ignored: tuple[str, ...],
+) -> RSPoseEstimate:
+    """A frame of too few points for ``solver`` but at least four coplanar ones, or exactly
+    four coplanar ones whatever the solver (one square marker's corners: a minimal sample and
+    one point to check it cannot pose a tag whose corners fit a square only to a pixel) posed
+    from them alone (:func:`~.single_tag.single_tag_estimate`), or
+    its failure."""
+    t_start = time.perf_counter()
+    th_px = opts.ransac.threshold_px
+    try:
+        if fr.degenerate(np.ones(len(fr.x), dtype=bool), th_px):
+            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        fr.threshold = th_px / fr.f
+        fr.spr = spr = camera.seconds_per_unit_r
+        fr.motion_bounds = motion_bounds(
+            opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity, spr
+        )
+        fr.planar = True
+        est = single_tag_estimate(
+            fr, solver, opts, initial_model, gyro is not None, timings, ignored
+        )
+    except EstimationFailed as failure:
+        return failed_estimate(
+            failure.reason, solver, fr.num_rows, len(fr.x), 0, timings, ignored_inputs=ignored
+        )
+    timings["single_tag"] = time.perf_counter() - t_start
+    return est
 
 
 def _still_frame(

@@ -14,6 +14,7 @@ from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
 __all__ = [
+    "AMBIGUOUS_TAG",
     "CHEIRALITY",
     "DEGENERATE_GEOMETRY",
     "FAILURE_REASONS",
@@ -45,11 +46,15 @@ PLANAR_SCENE = "planar_scene"
 #: the inliers are one plane of a 3D scene seen from behind it: most of the other points lie
 #: beyond that plane, on the far side from the camera (:func:`~.finalize.final_estimate`)
 INCONSISTENT_FIT = "inconsistent_fit"
+#: a frame of a few coplanar points (one square marker's corners) whose two plane poses fit
+#: them alike and no prediction tells apart (:mod:`.single_tag`)
+AMBIGUOUS_TAG = "ambiguous_tag"
 #: every reason an unsuccessful estimate can give, in the order the estimator checks them
 FAILURE_REASONS = (
     TOO_FEW_POINTS,
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
+    AMBIGUOUS_TAG,
     NO_HYPOTHESIS,
     IMPLAUSIBLE_MOTION,
     TOO_FEW_INLIERS,
@@ -93,7 +98,10 @@ class RSPoseEstimate(PoseWithCovariance):
             ``cheirality`` (an inlier of the best model is not in front of the camera at its
             capture time), ``inconsistent_fit`` (the inliers are one plane of a 3D scene
             and most other points lie beyond it, away from the camera: the plane is seen
-            from behind, as mirrored or reflected correspondences make it).
+            from behind, as mirrored or reflected correspondences make it),
+            ``ambiguous_tag`` (a frame of a few coplanar points, too few for the solver, e.g.
+            one marker's four corners, whose two plane poses fit them alike and no prediction
+            tells apart: :mod:`.single_tag`).
         solver: solver name used.
         model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
             ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
@@ -151,7 +159,14 @@ class RSPoseEstimate(PoseWithCovariance):
             would only fit its noise into the pose). A global-shutter estimate of a
             rolling-shutter solver reports zero velocities with the rolling-shutter fit's
             ``twist_covariance`` (what the frame says of the motion: none, within it), or
-            ``None`` where the camera has no readout time (unobserved).
+            ``None`` where the camera has no readout time (unobserved); or
+            ``"predicted_motion"``: a frame of a few coplanar points (one marker's corners,
+            :mod:`.single_tag`) posed on the rolling-shutter model with the velocities held at
+            the tracker's prediction or the gyro's (not estimated from the frame: no
+            ``twist_covariance``; the (12, 12) ``covariance`` gives them the motion prior's).
+            A single-marker frame without either is ``"global_shutter"``.
+        single_tag: the frame had too few points for the solver and was posed from a few
+            coplanar ones, e.g. one square marker's four corners (:mod:`.single_tag`).
         ignored_inputs: the inputs given that this implementation could not use, by name
             (:data:`~rs_localizer.estimation.implementation.NUMPY_UNUSED` on the NumPy
             implementation; ``"gyro"`` for a gyro given to a global-shutter solver or camera);
@@ -183,6 +198,7 @@ class RSPoseEstimate(PoseWithCovariance):
     implementation: str = "compiled"
     ignored_inputs: tuple[str, ...] = ()
     motion_model: str = "rolling_shutter"
+    single_tag: bool = False
 
     @property
     def num_inliers(self) -> int:

@@ -564,6 +564,8 @@ class FramePipeline:
                 f"{len(uv)} points, {est.num_inliers} inliers, solver {cfg.solver}",
             )
         self.stats.solved(est.num_inliers, est.planar, est.condition_number)
+        if est.single_tag:
+            self.stats.add("frames_single_tag")
         res.output, res.output_frame = est, res.frame_id
         if cfg.extrinsic is not None:
             res.output, res.output_frame = camera_to_base(est, cfg.extrinsic), cfg.base_frame

@@ -74,6 +74,7 @@ from ..estimation.estimate import (
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
+from ..estimation.single_tag import coplanar_points
 from ..pose import PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
 from .fusion import FusedState
@@ -862,7 +863,7 @@ class SequenceLocalizer:
             self.log.warning(f"{name}.warning", text)
         uv, xyz, scores = found.points2d, found.points, found.valid_scores()
         need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
-        if len(uv) < need:
+        if len(uv) < need and not coplanar_points(xyz):  # (one marker's: the estimator's)
             what = f"{len(uv) // 4} markers" if name == "aruco" else f"{len(uv)} matches"
             out.failure = FRONTEND_FAILURES[1]
             out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"

@@ -31,6 +31,7 @@ from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 #: the failure reasons :func:`estimate_rs_pose` documents
 REASONS = {
     "too_few_points",
+    "ambiguous_tag",
     "no_hypothesis",
     "too_few_inliers",
     "degenerate_geometry",

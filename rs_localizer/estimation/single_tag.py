@@ -1,0 +1,295 @@
+"""A frame with too few points for the robust estimator but a few coplanar ones, above all the
+four corners of one square marker (the most common AprilTag or ArUco scene): posed from them
+alone (:func:`single_tag_estimate`).
+
+OpenCV's IPPE (``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE``, Collins and Bartoli 2014) gives
+the two poses a plane admits; each is refined on the exact model (paper eq. 4) with the
+velocities held fixed: those of the tracker's prediction or the gyro where there is one, else
+zero (the global-shutter model). A plane seen small and nearly frontally is ambiguous (the two
+poses mirror each other about the line of sight and fit the corners equally well); the image
+decides where the other pose fits clearly worse (:data:`AMBIGUITY_CHI2`), the prediction
+where it is clearly nearer one of them (:data:`PREDICTION_RATIO`); otherwise the frame is
+refused as ``ambiguous_tag``. The pose must pass the estimator's last checks
+(:func:`~.finalize.final_estimate`: plausible motion, every corner in front of the camera at
+its capture time), and the corners must fit it within the inlier threshold (their RMS error).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..geometry import rotation_angle_deg, skew
+from ..pose import RSModel
+from .degeneracy import PLANAR_TOLERANCE, condition_number, planarity
+from .finalize import GLOBAL_SHUTTER, FinalModel, final_estimate
+from .frame import Frame
+from .options import EstimateOptions, InitialModel
+from .prior import MotionPrior
+from .refine import exact_errors, exact_jacobian, exact_residuals
+from .result import (
+    AMBIGUOUS_TAG,
+    DEGENERATE_GEOMETRY,
+    TOO_FEW_INLIERS,
+    TOO_FEW_POINTS,
+    EstimationFailed,
+    RSPoseEstimate,
+)
+
+__all__ = [
+    "AMBIGUITY_CHI2",
+    "MIN_CORNER_SIGMA_PX",
+    "MIN_PLANAR_POINTS",
+    "PREDICTED_MOTION",
+    "PREDICTION_RATIO",
+    "SAME_POSE_DEG",
+    "coplanar_points",
+    "planar_points",
+    "single_tag_estimate",
+]
+
+#: fewest coplanar points the path poses (one square marker's four corners)
+MIN_PLANAR_POINTS = 4
+#: the image alone decides between the two IPPE poses when the other one's sum of squared
+#: reprojection errors (after its own refinement) exceeds the better one's by at least this
+#: many corner noise variances (the variance from the better fit's residuals, 2N - 6 degrees
+#: of freedom, at least :data:`MIN_CORNER_SIGMA_PX` squared): a 3-sigma separation
+AMBIGUITY_CHI2 = 9.0
+#: a prediction decides when the rotation to one pose is at most this fraction of the
+#: rotation to the other (the two poses of an ambiguous plane differ by a turn about an axis
+#: in the plane: a prediction within a few degrees tells them apart)
+PREDICTION_RATIO = 0.5
+#: two refined poses whose rotations differ by less than this (degrees) are one pose (both IPPE
+#: solutions of a plane seen off its axis often refine to the same minimum)
+SAME_POSE_DEG = 0.05
+#: the corner noise (px) below which the covariance does not go: 4 corners leave 2 degrees of
+#: freedom to estimate it from, and a fit that happens to be near exact is not a sure pose
+MIN_CORNER_SIGMA_PX = 0.5
+#: ``RSPoseEstimate.motion_model`` of a pose on the rolling-shutter model with the velocities
+#: held at the prediction's or the gyro's (not estimated from the frame)
+PREDICTED_MOTION = "predicted_motion"
+
+
+def coplanar_points(points3d: np.ndarray) -> bool:
+    """At least :data:`MIN_PLANAR_POINTS` of the (N, 3) world points (m), coplanar
+    (:func:`~.degeneracy.planarity` below :data:`~.degeneracy.PLANAR_TOLERANCE`): what
+    :func:`single_tag_estimate` poses when they are too few for the solver."""
+    X = np.ascontiguousarray(points3d, dtype=np.float64).reshape(-1, 3)
+    if len(X) < MIN_PLANAR_POINTS or not np.isfinite(X).all():
+        return False
+    return bool(planarity(X) < PLANAR_TOLERANCE)
+
+
+def planar_points(fr: Frame) -> bool:
+    """The frame's valid points can go to :func:`single_tag_estimate`
+    (:func:`coplanar_points`)."""
+    return coplanar_points(fr.X)
+
+
+def _fixed_velocities(
+    fr: Frame, initial_model: InitialModel | None, known_w: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, RSModel | None, int]:
+    """The velocities held in the fit, as ``(w, b)`` per unit r with the model's
+    ``t = w x C + b`` (``b = -s v``: the camera's own linear velocity ``v`` held, whatever its
+    fitted ``C``): the prediction's if it explains every point within its ``gate_px``, with
+    the gyro's angular velocity instead of the prediction's when ``known_w`` is set, else
+    zero; the prediction if it explains them (else ``None``), and how many points it explains
+    (-1: none given)."""
+    w, b = np.zeros(3), np.zeros(3)
+    pred, explained = None, -1
+    if initial_model is not None:
+        m = initial_model.model
+        e = exact_errors(
+            *(np.ascontiguousarray(a, dtype=float) for a in m), fr.X, fr.x, fr.r - fr.r0
+        )
+        explained = int(np.count_nonzero(e * fr.f <= initial_model.gate_px))
+        if explained == len(fr.x):
+            pred = m
+            if fr.spr > 0:
+                w = np.array(m.w, dtype=float)
+                b = np.array(m.t, dtype=float) - np.cross(w, np.asarray(m.C, dtype=float))
+    if known_w is not None and fr.spr > 0:
+        w = np.array(known_w, dtype=float)
+    return w, b, pred, explained
+
+
+def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The (at most two) IPPE poses ``(R, C)`` (world -> camera) of the frame's coplanar
+    points from their normalized image points."""
+    try:
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            np.ascontiguousarray(fr.X, dtype=np.float64),
+            np.ascontiguousarray(fr.x, dtype=np.float64),
+            np.eye(3),
+            None,
+            flags=cv2.SOLVEPNP_IPPE,
+        )
+    except cv2.error:
+        return []
+    out = []
+    for rv, tv in zip(rvecs[:n], tvecs[:n], strict=True):
+        R, _ = cv2.Rodrigues(np.asarray(rv, dtype=float))
+        C = np.asarray(tv, dtype=float).ravel()
+        if np.isfinite(R).all() and np.isfinite(C).all():
+            out.append((R, C))
+    return out
+
+
+def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray):
+    """Least-squares pose (6 parameters) on the exact model with ``w`` and the camera's linear
+    velocity fixed (``t = w x C + b``, :func:`_fixed_velocities`), from ``(R0, C0)``:
+    (R, C, t, (2N,) residuals, (2N, 6) Jacobian), normalized units."""
+    tau = fr.r - fr.r0
+    X, x = fr.X, fr.x
+    W = skew(w)
+
+    def theta(p):
+        return np.concatenate([p, w, np.cross(w, p[3:]) + b])
+
+    def jac(p):
+        J = exact_jacobian(theta(p), R0, X, x, tau)
+        return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
+
+    sol = least_squares(
+        lambda p: exact_residuals(theta(p), R0, X, x, tau),
+        np.concatenate([np.zeros(3), C0]),
+        jac=jac,
+        method="lm",
+        xtol=1e-12,
+        ftol=1e-12,
+    )
+    p = sol.x
+    R = cv2.Rodrigues(p[:3])[0] @ R0
+    q = np.concatenate([np.zeros(3), p[3:]])
+    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), jac(q)
+
+
+def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:
+    """(6, 6) covariance of the model's ``(w, t)`` per unit r held at a prediction: the motion
+    prior's twist covariance (the tracker puts its prediction's there; else the default
+    prior's), mapped with ``w = -s omega``, ``t = s (C x omega) - s v``."""
+    cov = None
+    if prior is not None and prior.enabled:
+        info = prior.information()
+        if np.linalg.matrix_rank(info) == 6:
+            cov = np.linalg.inv(info)
+    if cov is None:
+        cov = np.linalg.inv(MotionPrior().information())
+    A = np.zeros((6, 6))  # d(w, t) / d(v, omega), ROS twist order
+    A[0:3, 3:6] = -s * np.eye(3)
+    A[3:6, 0:3] = -s * np.eye(3)
+    A[3:6, 3:6] = s * skew(np.asarray(C, dtype=float))
+    return A @ cov @ A.T
+
+
+def single_tag_estimate(
+    fr: Frame,
+    solver: str,
+    opts: EstimateOptions,
+    initial_model: InitialModel | None,
+    gyro_used: bool,
+    timings: dict[str, float],
+    ignored_inputs: tuple[str, ...] = (),
+) -> RSPoseEstimate:
+    """The pose of a frame of a few coplanar points (:func:`planar_points`; too few for
+    ``solver``'s robust estimate), e.g. one square marker's four corners.
+
+    IPPE's two poses are each refined (Levenberg-Marquardt on the 6 pose parameters, the
+    exact model at each point's measured capture time) with the velocities fixed: the
+    prediction's ``(w, t)`` when ``initial_model`` explains every point within its
+    ``gate_px``, the gyro's angular velocity when ``fr.known_w`` is set, else zero. The better
+    fit is taken when the other one's squared errors exceed its own by
+    :data:`AMBIGUITY_CHI2` corner noise variances; else the pose the prediction's rotation is
+    nearer by :data:`PREDICTION_RATIO` (whether or not it explains the points: a prediction
+    from frames long before, off by more than the gate, still tells two poses tens of degrees
+    apart). Every point is an inlier when their RMS error is within the
+    threshold. The covariance is the pose fit's (``sigma^2 (J^T J)^-1``, ``sigma`` from the
+    residuals with 2N - 6 degrees of freedom, at least :data:`MIN_CORNER_SIGMA_PX`); held
+    velocities carry the motion prior's covariance in the (12, 12) ``covariance``
+    (``opts.motion_prior``: a tracker's prediction), zero velocities none. The
+    ``twist_covariance`` is ``None`` either way: the frame does not measure its velocities
+    (a video's twist filter takes its pose only).
+
+    Args:
+        fr: the prepared frame (:func:`~.frame.prepare_frame`), its threshold, timing and
+            velocity bounds set (:func:`~.frame.configure_frame`'s fields).
+        solver: the estimator's solver (recorded on the estimate).
+        gyro_used: ``fr.known_w`` is a gyro's (set on the estimate).
+
+    Returns:
+        the successful :class:`RSPoseEstimate`: ``motion_model`` ``"global_shutter"`` (zero
+        velocities) or :data:`PREDICTED_MOTION`; ``initial_used`` when the prediction
+        explained every point (it then gives the velocities);
+        ``ransac_iterations`` 0.
+
+    Raises:
+        EstimationFailed: ``too_few_points`` (not :func:`planar_points`),
+            ``degenerate_geometry`` (IPPE gives no pose), ``ambiguous_tag`` (neither the image
+            nor a prediction tells the two poses apart), ``too_few_inliers`` (the RMS error
+            is above the threshold), and those of :func:`~.finalize.final_estimate`.
+    """
+    if not planar_points(fr):
+        raise EstimationFailed(TOO_FEW_POINTS)
+    w, b, pred, explained = _fixed_velocities(fr, initial_model, fr.known_w)
+    fits = []
+    for R0, C0 in _ippe(fr):
+        R, C, t, res, J = _fit(fr, R0, C0, w, b)
+        if np.isfinite(R).all() and np.isfinite(res).all():
+            fits.append((float(np.sqrt(res @ res / len(fr.x))), R, C, t, res, J))
+    if not fits:
+        raise EstimationFailed(DEGENERATE_GEOMETRY)
+    fits.sort(key=lambda f: f[0])
+    if len(fits) > 1 and rotation_angle_deg(fits[0][1], fits[1][1]) < SAME_POSE_DEG:
+        fits = fits[:1]  # (both IPPE poses refine to the same one: no ambiguity)
+    th, n = float(fr.threshold), len(fr.x)
+    sigma2 = max(n * fits[0][0] ** 2 / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    choice = fits[0]
+    if len(fits) > 1 and n * (fits[1][0] ** 2 - fits[0][0] ** 2) < AMBIGUITY_CHI2 * sigma2:
+        if initial_model is None:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        d = [rotation_angle_deg(f[1], initial_model.model.R) for f in fits[:2]]
+        near = int(np.argmin(d))
+        if not d[near] <= PREDICTION_RATIO * d[1 - near]:
+            raise EstimationFailed(AMBIGUOUS_TAG)
+        choice = fits[near]
+    rms, R, C, t, res, J = choice
+    if rms > th:
+        raise EstimationFailed(TOO_FEW_INLIERS)
+    moving = bool(np.any(w) or np.any(b))
+    sigma2 = max(float(res @ res) / max(2 * n - 6, 1), (MIN_CORNER_SIGMA_PX / fr.f) ** 2)
+    H = J.T @ J
+    cov = np.zeros((12, 12))
+    try:
+        cov[:6, :6] = sigma2 * np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        raise EstimationFailed(DEGENERATE_GEOMETRY) from None
+    if moving:
+        cov[6:, 6:] = _velocity_covariance(opts.motion_prior, C, fr.spr)
+    final = FinalModel(
+        RSModel(R, C, w.copy(), t.copy()),
+        np.ones(n, dtype=bool),
+        float(rms * fr.f),
+        covariance=cov,
+    )
+    est = final_estimate(
+        fr,
+        solver if moving else "p3p",
+        final,
+        0,
+        (explained, pred is not None),
+        timings,
+        gyro_used=gyro_used,
+        ignored_inputs=ignored_inputs,
+    )
+    return replace(
+        est,
+        solver=solver,
+        motion_model=PREDICTED_MOTION if moving else GLOBAL_SHUTTER,
+        condition_number=condition_number(H),
+        planarity=float(planarity(fr.X)),
+        single_tag=True,
+        twist_covariance=None,
+    )

@@ -1,0 +1,173 @@
+"""One square marker in view: its four corners posed alone (too few for the robust
+estimator): the plane's ambiguity refused without a prediction and resolved with one, the
+estimate's fields, the inlier threshold on a tag whose corners fit a square only roughly.
+Ground truth: rendered corners. (Against OpenCV's IPPE and a real tag:
+test/benchmarks/test_bench_single_tag.py.)"""
+
+import cv2
+import numpy as np
+
+from rs_localizer.camera import CameraModel
+from rs_localizer.estimation import (
+    EstimateOptions,
+    InitialModel,
+    RansacOptions,
+    estimate_rs_pose,
+    physical_velocities,
+)
+from rs_localizer.estimation.result import FAILURE_REASONS
+from rs_localizer.geometry import rotation_angle_deg
+
+K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+
+
+def tag_corners(side):
+    s = side / 2
+    return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
+
+
+def _frontal_small_tag(rng):
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    X = tag_corners(0.1)
+    a = np.radians(20)  # (20 degrees off the tag's axis: its mirror pose is ~40 degrees away)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.02, -0.01, 4.0])
+    uv = cam.project_rs(X, R, C) + rng.normal(0, 0.5, (4, 2))
+    return cam, X, R, C, uv
+
+
+def test_a_small_distant_frontal_tag_is_refused_without_a_prediction_and_resolved_with_one():
+    rng = np.random.default_rng(0)
+    refused = resolved = 0
+    for _ in range(10):
+        cam, X, R, C, uv = _frontal_small_tag(rng)
+        e = estimate_rs_pose(uv, X, cam)
+        if not e.success:
+            assert e.failure == "ambiguous_tag"
+            refused += 1
+        p = estimate_rs_pose(
+            uv, X, cam, initial_model=InitialModel((R, C, np.zeros(3), np.zeros(3)))
+        )
+        if not p.success:  # (the prediction nearer neither pose by the ratio: refused too)
+            assert p.failure == "ambiguous_tag"
+            continue
+        assert p.single_tag and p.initial_used
+        # (the one of IPPE's two poses on the true pose's side, not its mirror image)
+        x = cam.undistort(uv)
+        n, rvecs, _, _ = cv2.solvePnPGeneric(X, x, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+        both = [cv2.Rodrigues(rv)[0] for rv in rvecs[:n]]
+        mirror = max(both, key=lambda Q: rotation_angle_deg(Q, R))
+        assert rotation_angle_deg(mirror, R) > 25.0
+        assert rotation_angle_deg(p.model.R, R) < 0.5 * rotation_angle_deg(mirror, R)
+        if e.success:  # (the image told the two apart: the pose the prediction takes)
+            assert rotation_angle_deg(e.model.R, p.model.R) < 1e-6
+        assert p.motion_model == "global_shutter"  # (the prediction holds no motion)
+        resolved += 1
+    assert refused >= 8 and resolved >= 9
+    assert "ambiguous_tag" in FAILURE_REASONS
+
+
+def test_the_estimate_of_one_tag_is_complete_and_counted_as_such():
+    rng = np.random.default_rng(3)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    X = tag_corners(0.2)
+    a = np.radians(35)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]) @ np.diag(
+        [1.0, -1.0, -1.0]
+    )
+    C = np.array([0.0, 0.0, 0.8])
+    w, t = np.array([0.01, -0.02, 0.005]), np.array([0.002, 0.0, -0.001])
+    uv = cam.project_rs(X, R, C, w, t) + rng.normal(0, 0.5, (4, 2))
+    e = estimate_rs_pose(uv, X, cam, initial_model=InitialModel((R, C, w, t)))
+    assert e.success and e.single_tag and e.num_inliers == 4
+    assert e.motion_model == "predicted_motion"
+    # (the camera's own velocities held at the prediction's, whatever the fitted position)
+    om, v, _, _ = physical_velocities(R, C, w, t, cam.seconds_per_unit_r)
+    np.testing.assert_allclose(e.pose.angular_velocity, om, rtol=1e-9)
+    np.testing.assert_allclose(e.pose.linear_velocity, v, rtol=1e-9, atol=1e-12)
+    assert e.rmse_px <= 2.0 and e.pose_covariance is not None
+    assert np.all(np.linalg.eigvalsh(e.pose_covariance) > 0)
+    assert e.twist_covariance is None  # (the velocities are the prediction's, not measured)
+    assert np.all(np.linalg.eigvalsh(e.covariance[6:, 6:]) > 0)  # (the motion prior's)
+    # (its rotation standard deviation matches its error in size, no more than 5x off)
+    sd = np.sqrt(np.trace(e.pose_covariance[3:, 3:]))
+    err = np.radians(rotation_angle_deg(e.model.R, R))
+    assert err < 5 * sd
+    # non-coplanar points as few stay refused
+    X3 = np.array([[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0], [0.1, 0.1, 0.3]])
+    bad = estimate_rs_pose(cam.project_rs(X3, R, C), X3, cam)
+    assert not bad.success and bad.failure == "too_few_points"
+    # a corner 4 px off (the corners fit a square to ~1.2 px, as a real tag's may): posed at
+    # the default threshold (2 px); 10 px off: refused
+    exact = cam.project_rs(X, R, C, w, t)
+    for off, ok in ((4.0, True), (10.0, False)):
+        moved = exact + np.array([[off, 0.0], [0, 0], [0, 0], [0, 0]])
+        e = estimate_rs_pose(moved, X, cam, initial_model=InitialModel((R, C, w, t)))
+        assert e.success == ok, (off, e.failure)
+        if ok:
+            assert 1.0 < e.rmse_px < 1.5 and e.num_inliers == 4
+        else:
+            assert e.failure == "too_few_inliers"
+
+
+def test_a_gyro_gives_one_tag_its_angular_velocity():
+    from rs_localizer.estimation.gyro import GyroMeasurement
+
+    rng = np.random.default_rng(4)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    s = cam.seconds_per_unit_r
+    X = tag_corners(0.2)
+    a = np.radians(30)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.0, 0.0, 0.7])
+    omega = np.array([0.5, -2.0, 0.3])  # rad/s, camera frame
+    uv = cam.project_rs(X, R, C, -s * omega, s * np.cross(C, omega))
+    uv = uv + rng.normal(0, 0.3, (4, 2))
+    g = GyroMeasurement(angular_velocity=omega, covariance=np.eye(3) * 1e-4)
+    e = estimate_rs_pose(uv, X, cam, gyro=g)
+    assert e.success and e.single_tag and e.gyro_used and not e.gyro_rejected
+    assert e.motion_model == "predicted_motion"
+    np.testing.assert_allclose(e.pose.angular_velocity, omega, atol=1e-9)
+    assert rotation_angle_deg(e.model.R, R) < 2.0
+
+
+def test_a_video_of_one_tag_is_tracked():
+    from rs_localizer.tracking.tracker import RSTracker
+
+    rng = np.random.default_rng(6)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    s = cam.seconds_per_unit_r
+    X = tag_corners(0.2)
+    omega = np.array([0.0, 0.6, 0.0])  # a slow pan, rad/s
+    tracker = RSTracker()
+    states, errors = [], []
+    for k in range(12):
+        a = np.radians(30 + 0.6 * np.degrees(k / 30))
+        R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+        R = R @ np.diag([1.0, -1.0, -1.0])
+        C = np.array([0.0, 0.0, 0.8])
+        uv = cam.project_rs(X, R, C, -s * omega, s * np.cross(C, omega))
+        r = tracker.process(k * 33_333_333, uv + rng.normal(0, 0.3, (4, 2)), X, cam)
+        assert r.estimate.success and r.estimate.single_tag, r.estimate.failure
+        states.append(r.state)
+        errors.append(rotation_angle_deg(r.estimate.model.R, R))
+    assert states[0] == "cold" and states[-4:] == ["tracked"] * 4, states
+    assert np.median(errors) < 2.0
+
+
+def test_p3p_with_four_inliers_poses_one_tag_from_all_its_corners():
+    # (P3P's minimal sample and the fourth corner to check it: a corner 4 px off, the corners
+    # fitting a square to ~1.2 px, fails that check at 2 px; the four-corner fit does not)
+    cam = CameraModel(K=K, width=640, height=480, line_delay=30e-6)
+    X = tag_corners(0.2)
+    a = np.radians(35)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.0, 0.0, 0.8])
+    uv = cam.project_rs(X, R, C) + np.array([[4.0, 0.0], [0, 0], [0, 0], [0, 0]])
+    opts = EstimateOptions(ransac=RansacOptions(min_inliers=4))
+    e = estimate_rs_pose(uv, X, cam, "p3p", opts)
+    assert e.success and e.single_tag and e.num_inliers == 4 and 1.0 < e.rmse_px < 1.5
+    assert rotation_angle_deg(e.model.R, R) < 3.0
