@@ -7,7 +7,8 @@ ArUco front end and the node's ``frontend_map`` read. The world frame is gravity
 (REP 105: z up) from the first of the bag's accelerometer, markers on two or more walls, a floor
 marker that the video offers, with its origin at the anchor's centre and x out of its wall (y
 left, z up); or, with ``--anchor``/``--anchor-pose``/``--frame anchor``, the anchor marker's own
-frame (x right, y up on its face, z out of it) or ``--anchor-pose``.
+frame (x right, y up on its face, z out of it) or ``--anchor-pose``. Exit code 3: a video was
+refused as another place, the map written from the other videos.
 """
 
 from __future__ import annotations
@@ -388,8 +389,13 @@ def _lever_arm(result, f) -> str:
     )
 
 
+#: the exit code when a video was refused (another place) and the map written from the others
+EXIT_REFUSED_VIDEO = 3
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the command (see :func:`register`); returns 0.
+    """Run the command (see :func:`register`); returns 0, or ``EXIT_REFUSED_VIDEO`` (3) when
+    a video was refused as another place and the map written from the other videos.
 
     Raises:
         FileExistsError: the output exists without ``--overwrite``. FileNotFoundError: no
@@ -492,6 +498,14 @@ def run(args: argparse.Namespace) -> int:
                 f"  {src} alone: {len(single.corners)} markers; median std of the markers it "
                 f"maps {1e3 * before:.1f} mm alone, {1e3 * after:.1f} mm with all videos"
             )
+    if result.refused_videos:  # (said even under --quiet, and in the exit code)
+        print(
+            f"{out}: written from {len(inputs) - len(result.refused_videos)} of the "
+            f"{len(inputs)} videos, {len(result.refused_videos)} refused (exit code "
+            f"{EXIT_REFUSED_VIDEO})",
+            file=sys.stderr,
+        )
+        return EXIT_REFUSED_VIDEO
     return 0
 
 
