@@ -22,7 +22,14 @@ import numpy as np
 
 from . import args as A
 
-__all__ = ["frames_from_bag", "parse_sizes", "register", "run", "up_from_imu"]
+__all__ = [
+    "coverage_lines",
+    "frames_from_bag",
+    "parse_sizes",
+    "register",
+    "run",
+    "up_from_imu",
+]
 
 #: the accelerometer's samples count as still-ish within this rate (rad/s; 2 rad/s turns 5 cm
 #: from the IMU make 0.2 m/s^2) and this far from
@@ -361,14 +368,44 @@ def _summary(out: Path, result, counts: dict, opts, lines: int | None = None) ->
                 else ""
             )
         )
-    for m, why in sorted(result.coverage.items()):
-        lines.append(f"  marker {m}: {why}")
+    lines += coverage_lines(result.coverage, opts.coverage_std)
     for m, why in sorted(result.unmapped.items()):
         lines.append(f"  marker {m} left out: {why}")
     for m, ps in sorted(result.inconsistent.items()):
         where = " and ".join(np.array2string(p, precision=2) for p in ps)
         lines.append(f"  marker {m} left out: detected at places that disagree ({where})")
     return lines
+
+
+def coverage_lines(coverage: dict, bound_m: float) -> list:
+    """One line per reason for the markers whose stated std exceeds ``bound_m`` (m):
+    ``coverage`` is ``MarkerMapResult.coverage`` (id -> ``std N mm: reason, reason (...);
+    remedy``); the markers of each reason listed with their std range (the report keeps
+    each marker's details)."""
+    import re
+
+    if not coverage:
+        return []
+    kinds: dict = {}
+    stds = {}
+    for m, why in coverage.items():
+        head, _, rest = why.partition(": ")
+        stds[m] = float(head.split()[1]) if head.startswith("std ") else float("nan")
+        reasons = re.sub(r"\s*\([^)]*\)", "", rest.split(";")[0])
+        for r in reasons.split(", "):
+            r = re.sub(r"^seen in \d+ frames$", "seen in fewer than 10 frames", r.strip())
+            kinds.setdefault(r, []).append(m)
+    out = [
+        f"  {len(coverage)} markers above --coverage-std {1e3 * bound_m:.0f} mm; views from "
+        "closer and at an angle would fix them (each marker's reasons: --report):"
+    ]
+    for r, ms in sorted(kinds.items(), key=lambda kv: -len(kv[1])):
+        v = [stds[m] for m in ms]
+        out.append(
+            f"    {r}: {len(ms)} markers, std {min(v):.0f}-{max(v):.0f} mm: "
+            + ", ".join(str(m) for m in sorted(ms))
+        )
+    return out
 
 
 def _lever_arm(result, f) -> str:
