@@ -69,4 +69,4 @@ def test_coverage_is_one_line_per_reason():
     }
     far = [int(x) for x in by["only from far"].split(": ")[-1].split(", ")]
     assert far == [m for m in range(56) if m % 3 == 0]
-    assert "18 markers, std 11-65 mm" in by["only from far"]
+    assert "19 markers, std 11-65 mm" in by["only from far"]
