@@ -37,9 +37,9 @@ FLOOR_TOLERANCE = np.radians(20.0)
 #: an up proposal agrees with the cameras when the median angle between it and the cameras'
 #: image-up directions (optical -y) over the video's frames is below this (rad)
 UPRIGHT_ANGLE = np.radians(40.0)
-#: another up proposal (more than ``DISTINCT_UP`` away, with at least ``RIVAL_SHARE`` of the
-#: winner's markers) makes up ambiguous unless its median angle to the cameras' image-up is
-#: larger by ``UPRIGHT_MARGIN`` (rad)
+#: another up proposal (more than ``DISTINCT_UP`` away, with at least ``RIVAL_SHARE`` as many
+#: markers of its own as the winner: markers both fit count for neither) makes up ambiguous
+#: unless its median angle to the cameras' image-up is larger by ``UPRIGHT_MARGIN`` (rad)
 UPRIGHT_MARGIN = np.radians(25.0)
 DISTINCT_UP = np.radians(20.0)
 RIVAL_SHARE = 0.75
@@ -130,7 +130,8 @@ def _wall_up(poses: dict, image_ups: np.ndarray) -> tuple[UpDirection | None, st
     only when the cameras' image-up directions (optical -y, ``image_ups`` (K, 3)) lie within
     ``UPRIGHT_ANGLE`` of it (median over frames). The kept proposal with the most markers
     wins, refined by :func:`_refine_up`; when another proposal more than ``DISTINCT_UP`` away
-    with at least ``RIVAL_SHARE`` of its markers is within ``UPRIGHT_MARGIN`` of it as seen from the
+    with at least ``RIVAL_SHARE`` as many markers of its own (markers both fit count for
+    neither) is within ``UPRIGHT_MARGIN`` of it as seen from the
     cameras, up is ambiguous and None is returned with the reason.
 
     Returns ``(up or None, why none)``."""
@@ -170,18 +171,24 @@ def _wall_up(poses: dict, image_ups: np.ndarray) -> tuple[UpDirection | None, st
         )
     best = max(upright, key=lambda c: (c[0], -c[1]))
     count, angle, u, walls, level = best
+    mine = walls | level
     for c in cands:
         apart = np.arccos(min(1.0, abs(float(c[2] @ u))))
+        theirs = c[3] | c[4]
+        # (markers both proposals fit, e.g. walls parallel to the axis between them, count
+        # for neither)
+        own, rival = int((mine & ~theirs).sum()), int((theirs & ~mine).sum())
         if (
             apart > DISTINCT_UP
-            and c[0] >= max(3, RIVAL_SHARE * count)
+            and c[0] >= 3
+            and rival >= RIVAL_SHARE * own
             and c[1] < angle + UPRIGHT_MARGIN
         ):
             return None, (
                 f"up ambiguous: {count} markers fit one up and {c[0]} another "
-                f"{np.degrees(apart):.0f} deg from it, and the cameras' image-up does not tell "
-                f"them apart ({np.degrees(angle):.0f} and {np.degrees(c[1]):.0f} deg from it, "
-                "median)"
+                f"{np.degrees(apart):.0f} deg from it ({own} and {rival} of them not both), "
+                "and the cameras' image-up does not tell them apart "
+                f"({np.degrees(angle):.0f} and {np.degrees(c[1]):.0f} deg from it, median)"
             )
     image_up = image_ups.mean(0)
     u = u if u @ image_up >= 0 else -u
