@@ -125,9 +125,12 @@ def _mirror_covariance(prob: MarkerProblem, x, weights, sigma: float, poses: dic
     both fit almost equally, and the linearized covariance at one of them, which can be sharp
     there, says nothing of the other. For each marker the tilt is mirrored through its mean
     viewing direction (rotation ``delta``, the frames and the centre held), and the rise of
-    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` gives the variance along
-    ``delta`` that the cost's secant implies, ``|delta|^2 / d``; where that exceeds the
-    linearized variance along ``delta``, the difference is added along it (rotation block)."""
+    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` weighs the mirror against the
+    solution as two hypotheses, the mirror's probability ``p = 1 / (1 + exp(d / 2))``: the
+    variance of that mixture along ``delta`` is ``p (1 - p) |delta|^2`` (a quarter of
+    ``|delta|^2`` when both fit alike, nothing when the cost rejects the mirror by many
+    sigmas); where that exceeds the linearized variance along ``delta``, the difference is
+    added along it (rotation block)."""
     Rf, Cf, *_ = prob.unpack(x)
     fidx = {k: i for i, k in enumerate(prob.frames)}
     midx = {m: i for i, m in enumerate(prob.markers)}
@@ -156,9 +159,14 @@ def _mirror_covariance(prob: MarkerProblem, x, weights, sigma: float, poses: dic
             prob.Ra = Ra_save
         w = weights[rows]
         rise = float(np.sum(w * (np.sum(e_alt[rows] ** 2, 1) - np.sum(e8[rows] ** 2, 1))))
-        rise = max(rise / sigma**2, 1.0)
+        rise = max(rise / sigma**2, 0.0)
         d = delta / ang
-        var = ang**2 / rise
+        # the two tilts as two hypotheses weighted by their likelihoods (the mirror's
+        # exp(-rise / 2)): the variance of that mixture along delta, p (1 - p) |delta|^2.
+        # A mirror the cost rejects by many sigmas adds nothing; one that fits as well adds
+        # a quarter of |delta|^2
+        p = 1.0 / (1.0 + np.exp(min(0.5 * rise, 700.0)))
+        var = ang**2 * p * (1.0 - p)
         out[m] = (d, var)
     return out
 
