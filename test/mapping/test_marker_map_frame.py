@@ -215,9 +215,10 @@ def test_a_video_of_another_place_with_the_same_ids_is_refused_by_name(walk):
 
 def test_precise_corners_state_precise_rotations():
     """Corners detected to 0.05 px (the AprilTag library's on rendered images), one spot: a
-    marker's mirrored tilt that the cost rejects by many sigmas adds nothing to its stated
-    rotation std, which stays within a few times its true error while covering it (the
-    mirror's secant stated 8.8x here, median; 14x on the rendered apriltag_room walk)."""
+    marker's mirrored tilt that the cost rejects by more than 10 sigmas adds nothing to its
+    stated rotation std, which stays within a few times its true error while covering it
+    (widened by the secant whatever the rise: 8.8x here, median; 14x on the rendered
+    apriltag_room walk)."""
     room = make_marker_room(20, seed=4, size=(4.5, 4.0, 2.6))
     camera = room_camera()
     d, _ = simulate_detections(room, camera, OneSpot(), 60, noise_px=0.05)
