@@ -82,6 +82,27 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return c
 
 
+#: fewer rig frames than this make the stated std a warning: it is the scatter of that few
+#: frames, itself that uncertain (docs/rig_node.md#mountings-from-data-calibrate-rig)
+MIN_RIG_FRAMES = 10
+
+
+def short_video_warning(name: str, frames: int) -> str:
+    """The warning for a camera whose mounting rests on ``frames`` rig frames (fewer than
+    ``MIN_RIG_FRAMES``): the std is the scatter of that few frames; the factor by which the
+    true std may exceed it is the 95 % upper bound of a std estimated from ``frames``
+    samples, ``sqrt((n - 1) / chi2_0.05(n - 1))``."""
+    from scipy.stats import chi2
+
+    dof = max(frames - 1, 1)
+    factor = float(np.sqrt(dof / chi2.ppf(0.05, dof)))
+    return (
+        f"WARNING: {name}: only {frames} rig frames: the std is their scatter, which that few "
+        f"frames fix poorly (the error may be up to {factor:.1f}x the std, 95 % bound); record "
+        f"{MIN_RIG_FRAMES} or more rig frames"
+    )
+
+
 def _mounting7(mount) -> list[float]:
     from ..ros import conversions as cv
 
@@ -194,6 +215,8 @@ def run(args: argparse.Namespace) -> int:
                 f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
                 f"{e.std_mm:.2f} mm (one frame: {e.scatter_deg:.3f} deg {e.scatter_mm:.1f} mm)"
             )
+            if e.frames < MIN_RIG_FRAMES:
+                notes.append(short_video_warning(n, e.frames))
     text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame)
     if out_path is not None:
         out_path.write_text(text)

@@ -7,7 +7,8 @@ ArUco front end and the node's ``frontend_map`` read. The world frame is gravity
 (REP 105: z up) from the first of the bag's accelerometer, markers on two or more walls, a floor
 marker that the video offers, with its origin at the anchor's centre and x out of its wall (y
 left, z up); or, with ``--anchor``/``--anchor-pose``/``--frame anchor``, the anchor marker's own
-frame (x right, y up on its face, z out of it) or ``--anchor-pose``.
+frame (x right, y up on its face, z out of it) or ``--anchor-pose``. Exit code 3: a video was
+refused as another place, the map written from the other videos.
 """
 
 from __future__ import annotations
@@ -21,7 +22,14 @@ import numpy as np
 
 from . import args as A
 
-__all__ = ["frames_from_bag", "parse_sizes", "register", "run", "up_from_imu"]
+__all__ = [
+    "coverage_lines",
+    "frames_from_bag",
+    "parse_sizes",
+    "register",
+    "run",
+    "up_from_imu",
+]
 
 #: the accelerometer's samples count as still-ish within this rate (rad/s; 2 rad/s turns 5 cm
 #: from the IMU make 0.2 m/s^2) and this far from
@@ -358,14 +366,44 @@ def _summary(out: Path, result, counts: dict, opts, lines: int | None = None) ->
                 else ""
             )
         )
-    for m, why in sorted(result.coverage.items()):
-        lines.append(f"  marker {m}: {why}")
+    lines += coverage_lines(result.coverage, opts.coverage_std)
     for m, why in sorted(result.unmapped.items()):
         lines.append(f"  marker {m} left out: {why}")
     for m, ps in sorted(result.inconsistent.items()):
         where = " and ".join(np.array2string(p, precision=2) for p in ps)
         lines.append(f"  marker {m} left out: detected at places that disagree ({where})")
     return lines
+
+
+def coverage_lines(coverage: dict, bound_m: float) -> list:
+    """One line per reason for the markers whose stated std exceeds ``bound_m`` (m):
+    ``coverage`` is ``MarkerMapResult.coverage`` (id -> ``std N mm: reason, reason (...);
+    remedy``); the markers of each reason listed with their std range (the report keeps
+    each marker's details)."""
+    import re
+
+    if not coverage:
+        return []
+    kinds: dict = {}
+    stds = {}
+    for m, why in coverage.items():
+        head, _, rest = why.partition(": ")
+        stds[m] = float(head.split()[1]) if head.startswith("std ") else float("nan")
+        reasons = re.sub(r"\s*\([^)]*\)", "", rest.split(";")[0])
+        for r in reasons.split(", "):
+            r = re.sub(r"^seen in \d+ frames$", "seen in fewer than 10 frames", r.strip())
+            kinds.setdefault(r, []).append(m)
+    out = [
+        f"  {len(coverage)} markers above --coverage-std {1e3 * bound_m:.0f} mm; views from "
+        "closer and at an angle would fix them (each marker's reasons: --report):"
+    ]
+    for r, ms in sorted(kinds.items(), key=lambda kv: -len(kv[1])):
+        v = [stds[m] for m in ms]
+        out.append(
+            f"    {r}: {len(ms)} markers, std {min(v):.0f}-{max(v):.0f} mm: "
+            + ", ".join(str(m) for m in sorted(ms))
+        )
+    return out
 
 
 def _lever_arm(result, f) -> str:
@@ -386,8 +424,13 @@ def _lever_arm(result, f) -> str:
     )
 
 
+#: the exit code when a video was refused (another place) and the map written from the others
+EXIT_REFUSED_VIDEO = 3
+
+
 def run(args: argparse.Namespace) -> int:
-    """Run the command (see :func:`register`); returns 0.
+    """Run the command (see :func:`register`); returns 0, or ``EXIT_REFUSED_VIDEO`` (3) when
+    a video was refused as another place and the map written from the other videos.
 
     Raises:
         FileExistsError: the output exists without ``--overwrite``. FileNotFoundError: no
@@ -490,6 +533,14 @@ def run(args: argparse.Namespace) -> int:
                 f"  {src} alone: {len(single.corners)} markers; median std of the markers it "
                 f"maps {1e3 * before:.1f} mm alone, {1e3 * after:.1f} mm with all videos"
             )
+    if result.refused_videos:  # (said even under --quiet, and in the exit code)
+        print(
+            f"{out}: written from {len(inputs) - len(result.refused_videos)} of the "
+            f"{len(inputs)} videos, {len(result.refused_videos)} refused (exit code "
+            f"{EXIT_REFUSED_VIDEO})",
+            file=sys.stderr,
+        )
+        return EXIT_REFUSED_VIDEO
     return 0
 
 

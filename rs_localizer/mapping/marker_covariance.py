@@ -117,6 +117,11 @@ def _gauge_covariance(prob: MarkerProblem, sol, weights: np.ndarray) -> tuple[np
     return _marker_covariance(diags(scale) @ J, n_px, sigma, prob), sigma
 
 
+#: a marker's mirrored tilt whose weighted cost rise (in squared sigmas) exceeds this is
+#: rejected: it no longer widens the marker's rotation covariance by the secant
+MIRROR_PLAUSIBLE_RISE = 100.0
+
+
 def _mirror_covariance(prob: MarkerProblem, x, weights, sigma: float, poses: dict) -> dict:
     """id -> (6, 6) covariance to add to a marker's pose for the planar ambiguity of its tilt.
 
@@ -125,9 +130,13 @@ def _mirror_covariance(prob: MarkerProblem, x, weights, sigma: float, poses: dic
     both fit almost equally, and the linearized covariance at one of them, which can be sharp
     there, says nothing of the other. For each marker the tilt is mirrored through its mean
     viewing direction (rotation ``delta``, the frames and the centre held), and the rise of
-    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` gives the variance along
-    ``delta`` that the cost's secant implies, ``|delta|^2 / d``; where that exceeds the
-    linearized variance along ``delta``, the difference is added along it (rotation block)."""
+    its weighted reprojection cost ``d = sum w e^2 / sigma^2`` (the frames held, so it
+    overstates the rise a re-adjusted map would show) gives the variance along ``delta``:
+    up to ``MIRROR_PLAUSIBLE_RISE`` (the mirror within 10 sigmas) the cost's secant,
+    ``|delta|^2 / d``; above it the mirror is rejected and the variance is that of the two
+    tilts as two hypotheses, the mirror's probability ``p = 1 / (1 + exp(d / 2))``,
+    ``p (1 - p) |delta|^2`` (about nothing). Where that exceeds the linearized variance
+    along ``delta``, the difference is added along it (rotation block)."""
     Rf, Cf, *_ = prob.unpack(x)
     fidx = {k: i for i, k in enumerate(prob.frames)}
     midx = {m: i for i, m in enumerate(prob.markers)}
@@ -158,7 +167,11 @@ def _mirror_covariance(prob: MarkerProblem, x, weights, sigma: float, poses: dic
         rise = float(np.sum(w * (np.sum(e_alt[rows] ** 2, 1) - np.sum(e8[rows] ** 2, 1))))
         rise = max(rise / sigma**2, 1.0)
         d = delta / ang
-        var = ang**2 / rise
+        if rise <= MIRROR_PLAUSIBLE_RISE:  # (the cost's secant up to the mirror)
+            var = ang**2 / rise
+        else:  # (rejected: the two tilts' mixture, the mirror's weight exp(-rise / 2))
+            p = 1.0 / (1.0 + np.exp(min(0.5 * rise, 700.0)))
+            var = ang**2 * p * (1.0 - p)
         out[m] = (d, var)
     return out
 

@@ -26,13 +26,23 @@ def _pose_vector_map(poses: dict, ids: list, x: np.ndarray) -> dict:
     return out
 
 
-#: a marker whose normal lies within this angle of horizontal hangs on a wall (rad)
+#: a marker whose normal lies within this angle of horizontal hangs on a wall (rad); within
+#: this angle of vertical it lies on the floor or the ceiling
 WALL_TOLERANCE = np.radians(5.0)
 #: two walls are not parallel when their normals differ by more than this (rad)
 MIN_WALL_ANGLE = np.radians(30.0)
 #: a marker is taken for a floor marker when its normal lies within this angle of the
 #: cameras' mean image-up direction (rad; the camera held about upright)
 FLOOR_TOLERANCE = np.radians(20.0)
+#: an up proposal agrees with the cameras when the median angle between it and the cameras'
+#: image-up directions (optical -y) over the video's frames is below this (rad)
+UPRIGHT_ANGLE = np.radians(40.0)
+#: another up proposal (more than ``DISTINCT_UP`` away, with at least ``RIVAL_SHARE`` as many
+#: markers of its own as the winner: markers both fit count for neither) makes up ambiguous
+#: unless its median angle to the cameras' image-up is larger by ``UPRIGHT_MARGIN`` (rad)
+UPRIGHT_MARGIN = np.radians(25.0)
+DISTINCT_UP = np.radians(20.0)
+RIVAL_SHARE = 0.75
 
 
 @dataclass(frozen=True)
@@ -42,73 +52,165 @@ class UpDirection:
     Attributes:
         source: ``imu`` (the accelerometer's mean specific force, per frame in the camera
             frame, rotated by each frame's pose), ``walls`` (the direction most orthogonal to
-            the normals of markers on vertical walls, at least two walls not parallel) or
-            ``floor`` (the mean normal of markers lying on the floor).
+            the normals of markers on vertical walls and most parallel to those of markers on
+            the floor or the ceiling, checked against the cameras' image-up) or ``floor``
+            (the mean normal of markers lying on the floor).
         up: (3,) unit up in the adjustment's frame at the solution.
         markers: the markers that fix it (walls, floor), empty for ``imu``.
         note: what was used, for the user (e.g. ``18 markers on 4 walls``).
+        level: for ``walls``, the markers on the floor or the ceiling that also fix it.
     """
 
     source: str
     up: np.ndarray
     markers: tuple = ()
     note: str = ""
+    level: tuple = ()
 
     def at(self, poses: dict) -> np.ndarray:
         """Up (3,) with the markers at ``poses`` (id -> ``(R, p)``; the same markers, sign
-        kept): the smallest-eigenvalue direction of the walls' normals' scatter, the mean of
-        the floor markers' normals, or the fixed accelerometer's up."""
+        kept): the smallest-eigenvalue direction of the walls' normals' scatter less the
+        floor and ceiling markers' (:func:`_refine_up`), the mean of the floor markers'
+        normals, or the fixed accelerometer's up."""
         if self.source == "imu":
             return self.up
         n = np.array([poses[m][0][:, 2] for m in self.markers])
-        u = np.linalg.eigh(n.T @ n)[1][:, 0] if self.source == "walls" else n.mean(0)
+        if self.source == "walls":
+            level = np.array([poses[m][0][:, 2] for m in self.level]).reshape(-1, 3)
+            u = _refine_up(n, level)
+        else:
+            u = n.mean(0)
         u = u / np.linalg.norm(u)
         return u if u @ self.up >= 0 else -u
 
 
-def _wall_up(poses: dict, image_up: np.ndarray) -> UpDirection | None:
-    """Up from the markers on vertical walls: every pair of marker normals at least
-    ``MIN_WALL_ANGLE`` apart proposes their cross product; the proposal with the most normals
-    within ``WALL_TOLERANCE`` of horizontal wins (markers tilted out of their wall, on the
-    floor or the ceiling do not agree), refined as the direction most orthogonal to its
-    walls' normals (smallest eigenvector of their scatter). None without two walls that are
-    not parallel. ``image_up``: (3,) the cameras' mean image-up direction (the sign)."""
+def _refine_up(walls: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """The unit direction most orthogonal to the wall markers' normals ``walls`` (N, 3) and
+    most parallel to the floor and ceiling markers' ``level`` (L, 3): the smallest
+    eigenvector of ``sum n n^T`` (walls) ``- sum n n^T`` (level), which minimizes the summed
+    squared sines of their tilts (least squares, sign arbitrary)."""
+    M = walls.T @ walls - level.T @ level
+    return np.linalg.eigh(M)[1][:, 0]
+
+
+def _upright_angle(u: np.ndarray, image_ups: np.ndarray) -> float:
+    """Median angle (rad) between the axis ``u`` (3,) (either sign) and the cameras'
+    image-up directions ``image_ups`` (K, 3): small for up when the camera is held about
+    upright, about 90 deg for a horizontal axis."""
+    return float(np.median(np.arccos(np.clip(np.abs(image_ups @ u), 0.0, 1.0))))
+
+
+def _fixes_up(walls: np.ndarray, level: np.ndarray) -> bool:
+    """Whether these wall and level normals fix up: two walls that are not parallel (the
+    normals spread along two horizontal axes), or a wall and a floor or ceiling marker."""
+    if len(walls) + len(level) < 3 or len(walls) == 0:
+        return False
+    if len(level):
+        return True
+    w = np.linalg.eigvalsh(walls.T @ walls)
+    return bool(w[1] >= 0.5 * np.sin(MIN_WALL_ANGLE) ** 2 * len(walls) / 2)
+
+
+def _support(n: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Markers on walls (normal within ``WALL_TOLERANCE`` of horizontal) and on the floor or
+    the ceiling (within it of vertical) for up ``u``: two (N,) masks."""
+    c = np.abs(n @ u)
+    return c < np.sin(WALL_TOLERANCE), c > np.cos(WALL_TOLERANCE)
+
+
+def _wall_up(poses: dict, image_ups: np.ndarray) -> tuple[UpDirection | None, str]:
+    """Up from the markers on vertical walls, the floor and the ceiling.
+
+    A room's markers fit more than one up: in a box room any of its three axes leaves the
+    other walls vertical and the remaining two level. The proposals are every marker's normal
+    (up if it lies on the floor) and the cross product of every pair of normals at least
+    ``MIN_WALL_ANGLE`` apart (up if both hang on walls); each proposal's markers are those
+    within ``WALL_TOLERANCE`` of a wall or of the floor or ceiling (tilted markers do not
+    agree). What tells the room's axes apart is how the camera was held: a proposal is kept
+    only when the cameras' image-up directions (optical -y, ``image_ups`` (K, 3)) lie within
+    ``UPRIGHT_ANGLE`` of it (median over frames). The kept proposal with the most markers
+    wins, refined by :func:`_refine_up`; when another proposal more than ``DISTINCT_UP`` away
+    with at least ``RIVAL_SHARE`` as many markers of its own (markers both fit count for
+    neither) is within ``UPRIGHT_MARGIN`` of it as seen from the
+    cameras, up is ambiguous and None is returned with the reason.
+
+    Returns ``(up or None, why none)``."""
     ids = sorted(poses)
     if len(ids) < 3:
-        return None
+        return None, "no two non-parallel walls of markers"
     n = np.array([poses[m][0][:, 2] for m in ids])
-    best, best_in = None, np.zeros(len(ids), bool)
-    sin_tol = np.sin(WALL_TOLERANCE)
-    for i in range(len(ids)):
+    props = [n]
+    for i in range(len(ids) - 1):
         c = np.cross(n[i], n[i + 1 :])
         norm = np.linalg.norm(c, axis=1)
-        for j in np.flatnonzero(norm > np.sin(MIN_WALL_ANGLE)):
-            u = c[j] / norm[j]
-            inl = np.abs(n @ u) < sin_tol
-            if inl.sum() > best_in.sum():
-                best, best_in = u, inl
-    if best is None or best_in.sum() < 3:
-        return None
-    for _ in range(3):
-        u = np.linalg.eigh(n[best_in].T @ n[best_in])[1][:, 0]
-        inl = np.abs(n @ u) < sin_tol
-        if inl.sum() < 3:
-            return None
-        best_in = inl
-    w = np.linalg.eigvalsh(n[best_in].T @ n[best_in])
-    # two walls not parallel: the normals spread along two horizontal axes
-    if w[1] < 0.5 * np.sin(MIN_WALL_ANGLE) ** 2 * best_in.sum() / 2:
-        return None
+        keep = norm > np.sin(MIN_WALL_ANGLE)
+        props.append(c[keep] / norm[keep, None])
+    props = np.concatenate(props)
+    cands = []  # (markers, -upright angle, up, wall mask, level mask)
+    for u in props:
+        walls, level = _support(n, u)
+        if not _fixes_up(n[walls], n[level]):
+            continue
+        for _ in range(3):  # refined on its own markers
+            u = _refine_up(n[walls], n[level])
+            walls, level = _support(n, u)
+            if not _fixes_up(n[walls], n[level]):
+                break
+        else:
+            a = _upright_angle(u, image_ups)
+            cands.append((int(walls.sum() + level.sum()), a, u, walls, level))
+    if not cands:
+        return None, "no two non-parallel walls of markers"
+    upright = [c for c in cands if c[1] < UPRIGHT_ANGLE]
+    if not upright:
+        best = max(cands, key=lambda c: c[0])
+        return None, (
+            f"up unknown: the walls' up ({best[0]} markers) lies "
+            f"{np.degrees(best[1]):.0f} deg from the cameras' image-up (median), no proposal "
+            f"within {np.degrees(UPRIGHT_ANGLE):.0f} deg: was the camera held upright?"
+        )
+    best = max(upright, key=lambda c: (c[0], -c[1]))
+    count, angle, u, walls, level = best
+    mine = walls | level
+    for c in cands:
+        apart = np.arccos(min(1.0, abs(float(c[2] @ u))))
+        theirs = c[3] | c[4]
+        # (markers both proposals fit, e.g. walls parallel to the axis between them, count
+        # for neither)
+        own, rival = int((mine & ~theirs).sum()), int((theirs & ~mine).sum())
+        if (
+            apart > DISTINCT_UP
+            and c[0] >= 3
+            and rival >= RIVAL_SHARE * own
+            and c[1] < angle + UPRIGHT_MARGIN
+        ):
+            return None, (
+                f"up ambiguous: {count} markers fit one up and {c[0]} another "
+                f"{np.degrees(apart):.0f} deg from it ({own} and {rival} of them not both), "
+                "and the cameras' image-up does not tell them apart "
+                f"({np.degrees(angle):.0f} and {np.degrees(c[1]):.0f} deg from it, median)"
+            )
+    image_up = image_ups.mean(0)
     u = u if u @ image_up >= 0 else -u
-    walls = _count_walls(n[best_in], u)
-    markers = tuple(m for m, k in zip(ids, best_in, strict=True) if k)
-    return UpDirection(
-        "walls",
-        u,
-        markers,
-        f"{len(markers)} markers on {walls} vertical walls (within "
-        f"{np.degrees(WALL_TOLERANCE):.0f} deg of vertical)",
+    nw = n[walls]
+    n_walls = _count_walls(nw, u)
+    markers = tuple(m for m, k in zip(ids, walls, strict=True) if k)
+    lv = [(m, float(v @ u)) for m, v, k in zip(ids, n, level, strict=True) if k]
+    floor = [m for m, c in lv if c > 0]
+    ceiling = [m for m, c in lv if c < 0]
+    note = (
+        f"{len(markers)} markers on {n_walls} vertical walls (within "
+        f"{np.degrees(WALL_TOLERANCE):.0f} deg of vertical)"
     )
+    if floor:
+        note += f", {len(floor)} on the floor"
+    if ceiling:
+        note += f", {len(ceiling)} on the ceiling"
+    note += (
+        f"; the cameras' image-up {np.degrees(angle):.0f} deg from it (median), "
+        "checked against the room's other axes"
+    )
+    return UpDirection("walls", u, markers, note, tuple(m for m, _ in lv)), ""
 
 
 def _count_walls(n: np.ndarray, u: np.ndarray) -> int:
@@ -158,7 +260,8 @@ def find_up(
     averaged), markers on vertical walls (:func:`_wall_up`), floor markers
     (:func:`_floor_up`, ``options.floor_markers`` or detected). ``poses``: id -> ``(R, p)``
     in the adjustment's frame. Returns ``(up or None, why none: the sources tried)``."""
-    image_up = -np.mean([R[:, 1] for R in cam_to_world.values()], axis=0)
+    image_ups = -np.array([R[:, 1] for R in cam_to_world.values()]).reshape(-1, 3)
+    image_up = image_ups.mean(axis=0)
     image_up /= max(np.linalg.norm(image_up), 1e-12)
     mode = options.frame
     tried = []
@@ -170,10 +273,12 @@ def find_up(
             return UpDirection("imu", u, (), f"the accelerometer at {len(used)} frames"), ""
         tried.append("no accelerometer")
     if mode in ("auto", "walls"):
-        up = _wall_up(poses, image_up)
+        up, why = _wall_up(poses, image_ups)
         if up is not None:
             return up, ""
-        tried.append("no two non-parallel walls of markers")
+        tried.append(why)
+        if why.startswith("up "):
+            return None, ", ".join(tried)  # (not a floor marker's either: said plainly)
     if mode in ("auto", "floor"):
         up = _floor_up(poses, image_up, tuple(options.floor_markers))
         if up is not None:

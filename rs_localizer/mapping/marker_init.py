@@ -599,9 +599,12 @@ def screen_videos(
     that detects ``options.anchor``, else the first surveyed anchor, else the one with the
     most frames with detections), a video whose layout shares at least two markers with the
     layout accepted so far is fitted onto it (corners, rigid best fit,
-    :func:`~rs_localizer.mapping.marker_model.fit_rigid`): it is refused when the RMS corner
-    residual exceeds ``max(0.25 m, the side)`` of its largest marker in common (another place
-    with the same ids, or markers moved), else its markers join the layout. A video that
+    :func:`_consensus_fit`: the best rigid fit of the markers in common that agree): it is
+    refused when fewer than half of them (or fewer than two) lie within ``max(0.25 m, the
+    side of its largest marker in common)`` RMS (another place with the same ids, or most
+    markers moved), else its markers join the layout. A few markers off (placed poorly by
+    one video's initialization, or one moved) do not refuse a video: the joint
+    initialization's check of one id at two places deals with them. A video that
     shares no marker id with the accepted ones is refused too. A video sharing one marker, or
     whose own initialization fails, is left to the joint initialization.
 
@@ -634,24 +637,23 @@ def screen_videos(
             common = sorted(set(lay) & set(placed))
             if len(common) < 2:
                 continue
-            src = np.concatenate([lay[m] for m in common])
-            dst = np.concatenate([placed[m] for m in common])
-            R, t = fit_rigid(src, dst)
-            err = np.linalg.norm(src @ R.T + t - dst, axis=1)
-            rms = float(np.sqrt(np.mean(err**2)))
             bound = max(0.25, max(options.side(m) for m in common))
+            R, t, per_marker, agree = _consensus_fit(
+                [lay[m] for m in common], [placed[m] for m in common], bound
+            )
             pending.remove(v)
             changed = True
-            if rms > bound:
+            if agree.sum() < max(2, 0.5 * len(common)):
+                rms = float(np.sqrt(np.mean(per_marker**2)))
                 apart = ", ".join(
-                    f"{m}: {np.sqrt(np.mean(err[4 * i : 4 * i + 4] ** 2)):.2f} m"
-                    for i, m in enumerate(common)
+                    f"{m}: {e:.2f} m" for m, e in zip(common, per_marker, strict=True)
                 )
                 refused[v] = (
                     f"{video_name(v, names)}: refused, another place or markers moved between "
                     f"the videos: its markers in common with the map {common} lie {rms:.2f} m "
-                    f"RMS from the map's after the best rigid fit (above {bound:.2f} m; per "
-                    f"marker {apart})"
+                    f"RMS from the map's after the best rigid fit of those that agree; "
+                    f"{int(agree.sum())} of {len(common)} within {bound:.2f} m, fewer than half "
+                    f"(per marker {apart})"
                 )
                 continue
             for m, c in lay.items():
@@ -664,6 +666,39 @@ def screen_videos(
                 f"(its markers {sorted(ids[v])}): another place"
             )
     return refused
+
+
+def _consensus_fit(src: list, dst: list, bound: float) -> tuple:
+    """The rigid motion that best moves the markers' corners ``src`` onto ``dst`` (lists of
+    (4, 3), m, the same markers) when some of them are off (a marker the initialization
+    placed poorly, or moved): each marker's own corners propose a motion, the one that most
+    markers agree with (RMS corner residual within ``bound`` m) is kept and refitted on those
+    markers until they no longer change. Returns ``(R, t, per-marker RMS residual (M,),
+    agreeing (M,) bool)``."""
+    S, D = np.concatenate(src), np.concatenate(dst)
+    n = len(src)
+
+    def residuals(R, t):
+        e = np.linalg.norm(S @ R.T + t - D, axis=1).reshape(n, 4)
+        return np.sqrt(np.mean(e**2, axis=1))
+
+    best = None
+    for i in range(n):
+        R, t = fit_rigid(src[i], dst[i])
+        agree = residuals(R, t) <= bound
+        if best is None or agree.sum() > best.sum():
+            best = agree
+    R, t = fit_rigid(S, D)
+    agree = best if best.sum() >= 2 else np.ones(n, bool)
+    for _ in range(10):
+        keep = np.repeat(agree, 4)
+        R, t = fit_rigid(S[keep], D[keep])
+        e = residuals(R, t)
+        new = e <= bound
+        if new.sum() < 2 or (new == agree).all():
+            break
+        agree = new
+    return R, t, e, e <= bound
 
 
 def _video_layout(

@@ -29,6 +29,7 @@ __all__ = [
     "OneSpot",
     "RobotDrive",
     "RoomWalk",
+    "make_front_room",
     "make_marker_room",
     "room_camera",
     "simulate_detections",
@@ -132,6 +133,38 @@ def make_marker_room(
         ps.append(pos + n * (0.001 + side / 2 * tilt_sin))
         sides.append(side)
     return MarkerRoom(np.arange(num_markers), np.array(sides), np.array(Rs), np.array(ps))
+
+
+def make_front_room(size: tuple = (5.0, 4.0, 2.6), side: float = 0.2) -> MarkerRoom:
+    """A room's end seen from its middle: markers of ``side`` m on the front wall (x =
+    size[0], 4 markers, ids 0-3; marker 0 the anchor), the two side walls (y = 0 and y =
+    size[1], 2 each near the front, ids 4-7), the floor (2, ids 8-9) and one panel leaning
+    back 25 deg from vertical near the front wall (id 10): a room whose markers fit more than
+    one up direction (with x up the front and floor markers hang on "walls" and the side
+    walls' are "floor" and "ceiling"). In-plane angles vary. Use with :class:`OneSpot` at
+    ``spot=(1.0, size[1] / 2, 1.5)`` panning across the front wall."""
+    lx, ly = size[:2]
+    rng = np.random.default_rng(3)
+    Rs, ps = [], []
+
+    def add(normal, pos):
+        R = _wall_frame(np.asarray(normal, float)) @ rotvec_to_matrix(
+            [0, 0, rng.uniform(-np.pi, np.pi)]
+        )
+        Rs.append(R)
+        ps.append(np.asarray(pos, float) + 0.001 * R[:, 2])
+
+    for y, z in ((ly / 2, 1.5), (ly / 2 - 0.9, 1.1), (ly / 2 + 0.8, 1.7), (ly / 2 + 0.2, 0.7)):
+        add([-1.0, 0, 0], [lx, y, z])
+    for x, z in ((lx - 1.0, 1.3), (lx - 2.0, 1.6)):
+        add([0, 1.0, 0], [x, 0.0, z])
+        add([0, -1.0, 0], [x - 0.3, ly, z - 0.2])
+    add([0, 0, 1.0], [lx - 1.6, ly / 2 - 0.4, 0.0])
+    add([0, 0, 1.0], [lx - 1.1, ly / 2 + 0.5, 0.0])
+    lean = rotvec_to_matrix([0, np.radians(-25.0), 0]) @ np.array([-1.0, 0, 0])
+    add(lean, [lx - 0.4, ly / 2 - 1.2, 0.5])
+    n = len(ps)
+    return MarkerRoom(np.arange(n), np.full(n, side), np.array(Rs), np.array(ps))
 
 
 @dataclass(frozen=True)

@@ -42,3 +42,31 @@ def test_readout_line_and_entry():
     assert "NOT observable: too little rotation" in readout_line(r)
     r.readout_verdict = None
     assert "not calibrated" in readout_line(r) and not readout_dict(r)["calibrated"]
+
+
+def test_coverage_is_one_line_per_reason():
+    """56 markers above --coverage-std make 1 + one line per reason, every marker named once
+    under each of its reasons (the per-marker reasons stay in the report)."""
+    from rs_localizer.cli.map_markers import coverage_lines
+
+    cov = {}
+    for m in range(56):
+        why = [f"seen in {3 + m % 5} frames"] if m % 2 else []
+        if m % 3 == 0:
+            why.append("only from far (closest 4.1 m, 16 cm side)")
+        if m % 7 == 0:
+            why.append("only head-on (within 12 deg of its face normal)")
+        text = ", ".join(why) if why else "far from the markers that fix the frame"
+        cov[m] = f"std {11 + m} mm: {text}; views from closer and at an angle would fix it"
+    lines = coverage_lines(cov, 0.01)
+    assert len(lines) == 1 + 4 and lines[0].startswith("  56 markers above --coverage-std 10 mm")
+    by = {ln.split(":")[0].strip(): ln for ln in lines[1:]}
+    assert set(by) == {
+        "seen in fewer than 10 frames",
+        "only from far",
+        "only head-on",
+        "far from the markers that fix the frame",
+    }
+    far = [int(x) for x in by["only from far"].split(": ")[-1].split(", ")]
+    assert far == [m for m in range(56) if m % 3 == 0]
+    assert "19 markers, std 11-65 mm" in by["only from far"]
