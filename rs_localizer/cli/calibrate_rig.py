@@ -28,8 +28,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "camera over the cameras that share rig frames (a ring or a chain of cameras need not "
         "all see the map with the reference), then every rig frame's pose and every mounting "
         "are adjusted jointly by least squares (outliers left out), each mounting with its "
-        "covariance (the adjustment's, a bias every frame's pose shares, docs/rig.md). Writes "
-        "the node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
+        "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
+        "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
         "docs/rig_node.md) with each camera's RS timing. The cameras and their timing come "
         "from the bag's rig_params.yaml, then --params-file.",
         formatter_class=A.HelpFormatter,
@@ -205,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
             "scatter_mm": e.scatter_mm,
         }
         if n == ref:
-            notes.append(f"{n}: the reference ({e.frames} frames posed)")
+            notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
             notes.append(
                 f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
