@@ -61,6 +61,18 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
         assert got["frames"] >= 30
         assert deg < 0.05 and mm < 2.0, (name, deg, mm)
         assert deg < 3 * got["std_deg"] and mm < 3 * got["std_mm"], (name, deg, mm, got)
+        # the covariance written (x, y, z, rot x, rot y, rot z) is the printed std's
+        C = np.array(params[f"rig.{name}.mounting_covariance"]).reshape(6, 6)
+        assert np.allclose(C, np.array(got["mounting_covariance"]).reshape(6, 6))
+        assert 1e3 * np.sqrt(np.trace(C[:3, :3])) == pytest.approx(got["std_mm"], rel=1e-4)
+        assert np.degrees(np.sqrt(np.trace(C[3:, 3:]))) == pytest.approx(got["std_deg"], rel=1e-4)
+    # the node's configuration reads it back as each mounting's covariance
+    from rs_localizer.ros.bags.rig_bag import rig_parameter_values
+    from rs_localizer.ros.config import rig_config
+
+    cfg = rig_config(*rig_parameter_values(None, [out]))
+    covs = {c.name: c.mount.covariance for c in cfg.cameras}
+    assert covs["front"] is None and covs["left"].shape == covs["right"].shape == (6, 6)
 
 
 def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, capsys):
