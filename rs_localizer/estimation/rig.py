@@ -896,10 +896,9 @@ def _refine(
 
 
 def _mount_jacobian(pool: _Pool, model, idx: np.ndarray, c: int) -> np.ndarray:
-    """(len(idx), 2, 6) the image errors (px) of points ``idx`` over camera ``c``'s mounting
-    (rotation [rad, rig axes] of the camera on the rig, its position in the rig frame [m];
-    :attr:`RigView.mount_covariance`) by central differences; zero for other cameras'
-    points."""
+    """(len(idx), 2, 6) the image errors (px) of camera ``c``'s points ``idx`` over its
+    mounting (rotation [rad, rig axes] of the camera on the rig, its position in the rig frame
+    [m]; :attr:`RigView.mount_covariance`) by central differences."""
     R0, C0, w0, t0 = (np.ascontiguousarray(a, dtype=np.float64)[None] for a in model)
     Rm0, cm0 = pool.R_mount[c], pool.c_mount[c]
     p0 = -Rm0.T @ cm0

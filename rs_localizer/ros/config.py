@@ -450,8 +450,11 @@ def _rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
         )
     m = [float(x) for x in m]
     cov = None
-    if cov_values is not None and len(cov_values) and any(float(x) != 0.0 for x in cov_values):
-        C = np.asarray(cov_values, dtype=float)
+    try:
+        C = np.asarray([] if cov_values is None else cov_values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        C = np.full(1, np.nan)
+    if C.any():
         if C.size != 36 or not np.isfinite(C).all():
             raise ConfigError(
                 f"rig.{n}.mounting_covariance must be 36 finite numbers (6 x 6 over x, y, z, "
