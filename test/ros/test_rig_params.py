@@ -150,3 +150,29 @@ def test_names_ros_takes_are_taken_and_an_integer_mounting_is_read_as_floats():
     assert np.allclose(cfg.cameras[2].mount.position, [0.0, 0.2, 0.0])
     with pytest.raises(ConfigError, match=r"rig\.front\.mounting must be 7 finite numbers"):
         rig_config(*_values({**good, "rig.front.mounting": ["0"] * 6 + ["1"]}))
+
+
+def test_the_node_takes_a_mounting_covariance(ros_context):
+    """The node declares rig.<camera>.mounting_covariance and passes it to the rig's
+    mounting; without it the mounting is exact."""
+    pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-8])
+    params = {
+        "warmup": False,
+        "rig.cameras": ["front", "left"],
+        "rig.front.mounting": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting": [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting_covariance": [float(x) for x in cov.ravel()],
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    try:
+        front, left = (c.mount for c in node.config.cameras)
+        assert front.covariance is None
+        assert np.allclose(np.diag(left.covariance), [1e-8] * 3 + [1e-6] * 3)
+    finally:
+        node.destroy_node()
