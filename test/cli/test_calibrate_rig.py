@@ -113,7 +113,6 @@ def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, ca
     assert "nope" in capsys.readouterr().err
 
 
-@pytest.mark.slow
 def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     """A rig bag of a ring of four cameras (front, left, back, right) where only neighbours
     see the map at the same time (front and back never): every mounting within 0.3 deg and
