@@ -17,15 +17,10 @@ import argparse
 import numpy as np
 from scipy.stats import chi2
 
+from rs_localizer.calibration import calibrate_mountings
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import (
-    RigCameraFrame,
-    RigLocalizer,
-    RigMount,
-    RigSettings,
-    calibrate_mountings,
-)
+from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
 
 T0 = 1_700_000_000_000_000_000
 

@@ -146,10 +146,11 @@ def _optical_frame_id(bag, camera: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
     from ..ros import conversions as cv
     from ..ros.bags.rig_bag import read_rig_frames
-    from ..tracking.rig import RigMount, calibrate_mountings
+    from ..tracking.rig import RigMount
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None

@@ -261,7 +261,7 @@ def test_calibrate_mountings_from_the_video(video):
     """Each camera's mounting from the 0.6 s video (18 rig frames, 150 points, 20 % outliers)
     relative to the front camera's true one: within 0.05 deg and 3 mm of the truth and 3 of its
     stated standard deviations; no frame of the reference camera is an error."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
@@ -286,7 +286,7 @@ def test_a_mountings_stated_std_covers_its_error_over_a_longer_video():
     position errors are 2.1-2.5 times the batch-means std of the mean alone); each mounting's
     error against the truth is within 2 of its stated std, which is never below the
     independent frames' std of the mean nor 10 times the errors' size (not inflated)."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=5.0, num_points=300, seed=2)
@@ -337,7 +337,7 @@ def test_calibrate_mountings_of_a_ring_of_cameras():
     outliers): every mounting within 0.3 deg and 5 mm of the truth and 3 of its stated
     standard deviations (the back camera only through the left and right ones), with a
     positive-definite covariance whose trace gives the stated std."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     cams, fr = ring_frames(2.0, 1)
     times = {n: {f.stamp_ns // 10**7 for f in fr if f.camera_name == n} for n in RING}
@@ -361,7 +361,7 @@ def test_cameras_not_connected_to_the_reference_are_missing():
     camera's frames of the first quarter alone: with left as the reference back and right
     are calibrated (right through back) and front, which shares no rig frame, is missing;
     with front as the reference only front is returned."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     _, part = ring_frames(0.8, 2, phases=(0, 1, 2))
     part = [f for f in part if not (f.camera_name == "left" and f.stamp_ns < T0 + 2 * 10**8)]
