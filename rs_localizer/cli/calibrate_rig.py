@@ -23,12 +23,15 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help=HELP,
         description="Estimate every camera's mounting on the rig from a rig bag (each camera's "
         "correspondences with a known map and camera_info, e.g. make-bag --rig N): each camera "
-        "frame is posed alone, carried to its reference camera frame's time with its estimated "
-        "twist, and the cameras' poses relative to the reference camera are averaged over the "
-        "rig frames (outliers left out), with their standard deviation (the average's and a "
-        "bias every frame's pose shares, docs/rig_node.md). Writes the node's rig "
-        "parameters (rig.<camera>.mounting, docs/rig_node.md) with each camera's RS timing. "
-        "The cameras and their timing come from the bag's rig_params.yaml, then --params-file.",
+        "frame is posed alone and carried to its rig frame's time with its estimated twist; "
+        "the mountings start from the cameras' relative poses chained from the reference "
+        "camera over the cameras that share rig frames (a ring or a chain of cameras need not "
+        "all see the map with the reference), then every rig frame's pose and every mounting "
+        "are adjusted jointly by least squares (outliers left out), each mounting with its "
+        "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
+        "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
+        "docs/rig_node.md) with each camera's RS timing. The cameras and their timing come "
+        "from the bag's rig_params.yaml, then --params-file.",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
@@ -110,6 +113,16 @@ def _mounting7(mount) -> list[float]:
     return [round(float(x), 9) + 0.0 for x in (*mount.position, *q)]
 
 
+def _covariance36(mount) -> list[float] | None:
+    """The mounting's covariance as the node's ``rig.<camera>.mounting_covariance``: 36
+    numbers, row by row over x, y, z (m), rot x, rot y, rot z (rad) in the rig frame; None
+    without one."""
+    if mount.covariance is None:
+        return None
+    P = [3, 4, 5, 0, 1, 2]  # (RigMount.covariance: rotation first)
+    return [float(f"{x:.6g}") + 0.0 for x in mount.covariance[np.ix_(P, P)].ravel()]
+
+
 def params_yaml(
     values: dict, cams: dict, names: list, mountings: dict, notes: list, base_frame: str
 ) -> str:
@@ -121,6 +134,8 @@ def params_yaml(
     body_cams = {}
     for n in names:
         entry = {"mounting": _mounting7(mountings[n])}
+        if mountings[n].covariance is not None:
+            entry["mounting_covariance"] = _covariance36(mountings[n])
         for k in ("line_delay", "readout_time", "direction"):
             v = cams[n].get(k)
             if v not in (None, "", -1.0):
@@ -152,10 +167,11 @@ def _optical_frame_id(bag, camera: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
     from ..ros import conversions as cv
     from ..ros.bags.rig_bag import read_rig_frames
-    from ..tracking.rig import RigMount, calibrate_mountings
+    from ..tracking.rig import RigMount
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
@@ -183,8 +199,9 @@ def run(args: argparse.Namespace) -> int:
     missing = [n for n in names if n not in est]
     if missing:
         raise A.CliError(
-            f"no rig frame pairs camera(s) {missing} with the reference camera {ref!r} "
-            f"(frames posed alone within --window {args.window} s of its own)"
+            f"camera(s) {missing} share no rig frame with the reference camera {ref!r}, "
+            f"directly or through other cameras (frames posed alone within --window "
+            f"{args.window} s of each other)"
         )
     if ref_mount is None:
         frame = _optical_frame_id(bag, ref)
@@ -205,15 +222,17 @@ def run(args: argparse.Namespace) -> int:
             "rejected": e.rejected,
             "std_deg": e.std_deg,
             "std_mm": e.std_mm,
+            "mounting_covariance": _covariance36(e.mount),
             "scatter_deg": e.scatter_deg,
             "scatter_mm": e.scatter_mm,
         }
         if n == ref:
-            notes.append(f"{n}: the reference ({e.frames} frames posed)")
+            notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
             notes.append(
                 f"{n}: {e.frames} rig frames ({e.rejected} left out), std {e.std_deg:.4f} deg "
-                f"{e.std_mm:.2f} mm (one frame: {e.scatter_deg:.3f} deg {e.scatter_mm:.1f} mm)"
+                f"{e.std_mm:.2f} mm (one frame about the rig: {e.scatter_deg:.3f} deg "
+                f"{e.scatter_mm:.1f} mm)"
             )
             if e.frames < MIN_RIG_FRAMES:
                 notes.append(short_video_warning(n, e.frames))

@@ -198,6 +198,11 @@ class RigView:
         stamp_offset: capture time of the camera's reference line (``camera.reference_line``)
             minus the rig's reference time (s).
         name: the camera's name in error messages (default: its index in the rig frame).
+        mount_covariance: (6, 6) the mounting's uncertainty over (rotation of the camera on
+            the rig [rad, rig axes: ``R_mount^T`` turned by ``expm([theta]x)``], its optical
+            centre in the rig frame [m]), or None (the mounting taken as exact). The rig
+            pose's covariance includes it to first order: the refined model's sensitivity to
+            the mounting times this covariance.
     """
 
     uv: np.ndarray
@@ -207,6 +212,7 @@ class RigView:
     c_mount: np.ndarray | None = field(default_factory=_zeros3)
     stamp_offset: float = 0.0
     name: str = ""
+    mount_covariance: np.ndarray | None = None
 
 
 def camera_model_of_rig(
@@ -460,6 +466,18 @@ class _Pool:
                 raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
         self.R_mount = np.array([np.asarray(v.R_mount, dtype=float) for v in views])
         self.c_mount = np.array([np.asarray(v.c_mount, dtype=float).reshape(3) for v in views])
+        self.mount_cov = []
+        for c, v in enumerate(views):
+            mc = v.mount_covariance
+            if mc is not None:
+                mc = np.asarray(mc, dtype=float)
+                if mc.shape != (6, 6) or not np.isfinite(mc).all():
+                    raise ValueError(
+                        f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) "
+                        "and finite"
+                    )
+                mc = None if not mc.any() else 0.5 * (mc + mc.T)
+            self.mount_cov.append(mc)
         self.sizes = []
         self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
         for c, v in enumerate(views):
@@ -877,8 +895,40 @@ def _refine(
     return model
 
 
+def _mount_jacobian(pool: _Pool, model, idx: np.ndarray, c: int) -> np.ndarray:
+    """(len(idx), 2, 6) the image errors (px) of camera ``c``'s points ``idx`` over its
+    mounting (rotation [rad, rig axes] of the camera on the rig, its position in the rig frame
+    [m]; :attr:`RigView.mount_covariance`) by central differences."""
+    R0, C0, w0, t0 = (np.ascontiguousarray(a, dtype=np.float64)[None] for a in model)
+    Rm0, cm0 = pool.R_mount[c], pool.c_mount[c]
+    p0 = -Rm0.T @ cm0
+    out = np.empty((6, len(idx), 2))
+    for j in range(6):
+        d = []
+        for sgn in (1.0, -1.0):
+            u = np.zeros(6)
+            u[j] = sgn * _STEP
+            Rm = pool.R_mount.copy()
+            cm = pool.c_mount.copy()
+            Rm[c] = Rm0 @ rotvec_to_matrix(-u[:3])
+            cm[c] = -Rm[c] @ (p0 + u[3:])
+            r = np.empty((1, len(idx), 2))
+            _residuals_kernel(
+                R0, C0, w0, t0, pool.X[idx], pool.tau[idx], pool.cam[idx], Rm, cm,
+                pool.x[idx], pool.focal[idx], r,
+            )  # fmt: skip
+            d.append(r[0])
+        out[j] = (d[0] - d[1]) / (2 * _STEP)
+    return np.moveaxis(out, 0, -1)
+
+
 def _covariance(
-    pool: _Pool, model, threshold_px: float, free: int = 12, prior: _GyroPrior | None = None
+    pool: _Pool,
+    model,
+    threshold_px: float,
+    free: int = 12,
+    prior: _GyroPrior | None = None,
+    mounts: bool = False,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
     acceleration, from one Jacobian.
@@ -895,7 +945,11 @@ def _covariance(
     J + sigma^2 P)^-1`` (``P`` the gyro's information on ``w``), and the sensitivity with that
     matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
     ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
-    Returns ``(None, None)`` if singular or not finite."""
+    ``mounts``: the covariance adds each camera's mounting uncertainty
+    (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
+    J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
+    Jacobian over it, :func:`_mount_jacobian`). Returns ``(None, None)`` if singular or not
+    finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
@@ -916,6 +970,14 @@ def _covariance(
     except np.linalg.LinAlgError:
         return None, None
     cov[:free, :free] = sigma2 * Hinv
+    if mounts:
+        for c, mc in enumerate(pool.mount_cov):
+            on = pool.cam[idx] == c
+            if mc is None or not on.any():
+                continue
+            Jm = _mount_jacobian(pool, model, idx[on], c).reshape(-1, 6)
+            A = Hinv @ (WJ[np.repeat(on, 2)].T @ Jm)
+            cov[:free, :free] += A @ mc @ A.T
     cov = 0.5 * (cov + cov.T)
     if not np.isfinite(cov).all():
         return None, None
@@ -1550,7 +1612,11 @@ def _estimate(
     if bad:
         return failed("cheirality", drawn, behind)
     rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
-    cov, G = _covariance(pool, (R, C, w, t), threshold_px, free, prior) if refine else (None, None)
+    cov, G = (
+        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True)
+        if refine
+        else (None, None)
+    )
     out = (
         (None, None, None)
         if cov is None

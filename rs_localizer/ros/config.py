@@ -432,8 +432,9 @@ def rig_camera_names(value: Any) -> list[str]:
     return names
 
 
-def _rig_mounting(n: str, m: Any) -> RigMount:
-    """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers; integers taken as floats)."""
+def _rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
+    """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers; integers taken as floats) with its
+    ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none)."""
     if m is None or (isinstance(m, (list, tuple)) and len(m) == 0):
         raise ConfigError(
             f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
@@ -448,8 +449,21 @@ def _rig_mounting(n: str, m: Any) -> RigMount:
             f"{list(m) if isinstance(m, (list, tuple)) else m!r}"
         )
     m = [float(x) for x in m]
+    cov = None
     try:
-        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+        C = np.asarray([] if cov_values is None else cov_values, dtype=float).ravel()
+    except (TypeError, ValueError):
+        C = np.full(1, np.nan)
+    if C.any():
+        if C.size != 36 or not np.isfinite(C).all():
+            raise ConfigError(
+                f"rig.{n}.mounting_covariance must be 36 finite numbers (6 x 6 over x, y, z, "
+                f"rot x, rot y, rot z) or all zero, got {C.size} numbers"
+            )
+        P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as RigMount.covariance)
+        cov = C.reshape(6, 6)[np.ix_(P, P)]
+    try:
+        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov)
     except ValueError as e:
         raise ConfigError(f"rig.{n}.mounting: {e}") from None
 
@@ -470,7 +484,7 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
     out = []
     for n in names:
         c = cameras.get(n, {})
-        mount = _rig_mounting(n, c.get("mounting"))
+        mount = _rig_mounting(n, c.get("mounting"), c.get("mounting_covariance"))
         ld = float(c.get("line_delay", -1.0))
         rt = float(c.get("readout_time", -1.0))
         for key, v, top in (

@@ -700,6 +700,14 @@ RIG_CAMERA_PARAMETERS = {
         "x, y, z (m), qx, qy, qz, qw: the camera optical frame's pose in base_frame (required)",
         read_only=True,
     ),
+    "mounting_covariance": Parameter(
+        [0.0] * 36,
+        "the mounting's uncertainty: 36 numbers, the 6 x 6 covariance row by row over x, y, "
+        "z (m) and rotations about base_frame's x, y, z axes (rad) of the camera's pose "
+        "(calibrate-rig writes it); added to the rig pose's covariance; all zero: the "
+        "mounting is taken as exact",
+        read_only=True,
+    ),
     "line_delay": Parameter(
         -1.0,
         "s per line of the camera's rolling shutter; negative: rs.line_delay",

@@ -118,13 +118,11 @@ from .tracker import predictable
 
 __all__ = [
     "MISSED_REASONS",
-    "MOUNTING_BIAS_SHARE",
     "RIG_PATHS",
     "RIG_REFUSALS",
     "SKIP_REASONS",
     "CameraShare",
     "CameraVerdict",
-    "MountingEstimate",
     "RigCameraFrame",
     "RigLocalizer",
     "RigMeasurement",
@@ -132,7 +130,6 @@ __all__ = [
     "RigOutput",
     "RigSettings",
     "RigTrackingOptions",
-    "calibrate_mountings",
 ]
 
 #: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
@@ -202,10 +199,16 @@ class RigMount:
 
     Attributes:
         R: (3, 3) rig -> camera optical frame rotation. c: (3,) m.
+        covariance: (6, 6) the mounting's uncertainty over (rotation of the camera on the rig
+            [rad, rig axes: ``R_rig_cam = expm([theta]x) R_rig_cam_0``], the camera's position
+            in the rig frame [m]), e.g. from
+            :func:`~rs_localizer.calibration.calibrate_mountings`; the rig estimator adds it
+            to the rig pose's covariance. None: the mounting is taken as exact.
     """
 
     R: np.ndarray
     c: np.ndarray
+    covariance: np.ndarray | None = None
 
     def __post_init__(self):
         R = np.asarray(self.R, dtype=float).reshape(3, 3)
@@ -216,18 +219,29 @@ class RigMount:
             raise ValueError("a mounting's R must be a rotation")
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "c", c)
+        if self.covariance is not None:
+            C = np.asarray(self.covariance, dtype=float)
+            if C.shape != (6, 6) or not np.isfinite(C).all():
+                raise ValueError("a mounting's covariance must be (6, 6) and finite")
+            C = 0.5 * (C + C.T)
+            if np.linalg.eigvalsh(C).min() < -1e-12 * max(1.0, float(np.abs(C).max())):
+                raise ValueError("a mounting's covariance must be positive semi-definite")
+            object.__setattr__(self, "covariance", C)
 
     @classmethod
-    def from_pose(cls, R_rig_cam: np.ndarray, p_rig_cam: np.ndarray) -> RigMount:
+    def from_pose(
+        cls, R_rig_cam: np.ndarray, p_rig_cam: np.ndarray, covariance: np.ndarray | None = None
+    ) -> RigMount:
         """The mounting of a camera whose optical frame is at ``p_rig_cam`` (3,) m in the rig
         frame, turned by ``R_rig_cam`` (3, 3) camera -> rig (a static transform rig ->
-        camera as tf gives it).
+        camera as tf gives it); ``covariance`` as the attribute.
 
         Raises:
-            ValueError: not finite, or not a rotation.
+            ValueError: not finite, not a rotation, or a covariance that is not (6, 6)
+                positive semi-definite.
         """
         R = np.asarray(R_rig_cam, dtype=float).T
-        return cls(R, -R @ np.asarray(p_rig_cam, dtype=float))
+        return cls(R, -R @ np.asarray(p_rig_cam, dtype=float), covariance)
 
     @property
     def position(self) -> np.ndarray:
@@ -1127,7 +1141,9 @@ class RigLocalizer:
             off = (ref - g.lo) * 1e-9
             out.stamp_offsets[n] = off
             out.tags[n] = frame.tag
-            views.append(RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off))
+            view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off,
+                           mount_covariance=m.covariance)  # fmt: skip
+            views.append(view)
         out.gyro = self._gyro = self._gyro_for(g, views)
         try:
             est, path = self._estimate(g.lo, views, out)
@@ -1479,184 +1495,3 @@ def _alone_deg(view: RigView, est: RigPoseEstimate) -> float | None:
     # the camera's rotation (world -> camera) at its reference time, as the rig puts it
     R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
     return float(rotation_angle_deg(alone.model.R, R_c))
-
-
-# ---------------------------------------------------------------------- mountings from data
-@dataclass(frozen=True, eq=False)
-class MountingEstimate:
-    """A camera's mounting estimated from a rig video (:func:`calibrate_mountings`).
-
-    Attributes:
-        name: the camera. mount: its :class:`RigMount` (``x_cam = R x_rig + c``).
-        frames: rig frames averaged; rejected: rig frames left out as outliers.
-        std_deg, std_mm: standard deviation of the averaged rotation (deg, the norm over its
-            three axes) and of the camera's position on the rig (mm, norm); zero for the
-            reference camera. Two terms added in quadrature:
-
-            * the mean's statistical error: the larger of the frames' scatter over
-              ``sqrt(frames)`` and the batch-means estimate (the scatter of the means of 8
-              runs of consecutive frames over ``sqrt(8)``, which counts errors neighbouring
-              frames share);
-            * a systematic term, one frame's scatter times :data:`MOUNTING_BIAS_SHARE` (0.1
-              for the rotation, 0.2 for the position): the single-camera poses carry a bias
-              (mostly along a camera's depth) that is the same in every run of a video, so
-              averaging does not remove it and the scatter of the run means does not show
-              it. Against the truth it was 0.02-0.15 of one frame's scatter in rotation and
-              0.07-0.26 in position on synthetic and rendered rig videos of 5-10 s; it does
-              not shrink with the video's length.
-        scatter_deg, scatter_mm: one rig frame's (the frames' RMS deviation from the mean).
-    """
-
-    name: str
-    mount: RigMount
-    frames: int
-    rejected: int
-    std_deg: float
-    std_mm: float
-    scatter_deg: float
-    scatter_mm: float
-
-
-#: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
-#: share of one rig frame's scatter of the rotation and of the position: the bias of the
-#: single-camera poses, which averaging over a video does not remove
-MOUNTING_BIAS_SHARE = {"rotation": 0.1, "position": 0.2}
-
-
-def _robust_rotation_mean(Rs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rotations (n, 3, 3) -> (their chordal mean over the inliers, the inlier mask): rotations
-    more than 3 times the median angle (and 0.05 deg) from the mean are outliers, twice."""
-    keep = np.ones(len(Rs), dtype=bool)
-    for _ in range(3):
-        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
-        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
-        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
-        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
-    return M, keep
-
-
-def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
-    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
-    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
-    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
-    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
-    n = len(d)
-    k = min(blocks, n // 2)
-    if k < 2:
-        return 0.0
-    means = np.array([b.mean(axis=0) for b in np.array_split(d, k)])
-    return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
-
-
-def calibrate_mountings(
-    frames: list,
-    reference: str,
-    *,
-    reference_mount: RigMount | None = None,
-    window: float = 0.015,
-    stamp_row: float = 0.0,
-    min_inliers: int = 20,
-    options: Any = None,
-    max_step: float = 0.1,
-) -> dict:
-    """Every camera's mounting on the rig from a video of a known map.
-
-    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
-    pose and twist at its reference line's capture time, camera optical frame). Per frame of
-    the ``reference`` camera, each other camera's frame nearest in time (within ``window``)
-    is carried to the reference frame's time with the camera's estimated motion: the
-    constant twist between its own two frames around that time (interpolated poses; its
-    frame's own twist when it has no frame on the other side within ``max_step`` s), and
-    expressed in the reference camera's optical frame: ``R_ref_c = Ori_ref^T Ori_c``,
-    ``p_ref_c = Ori_ref^T (p_c - p_ref)``. The relative rotations are averaged (chordal mean,
-    outliers beyond 3 times the median angle left out) and so are the positions (beyond 3
-    times the median distance left out).
-
-    Args:
-        frames: :class:`RigCameraFrame` of every camera (any order; frames without a camera
-            model are skipped).
-        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
-            (its known mounting on the rig) places it: the rig frame is then that mounting's.
-        window: s; frames further from the reference frame are not paired with it.
-        stamp_row: the row whose capture time is a frame's stamp.
-        min_inliers: frames posed with fewer inliers are not used.
-        max_step: s; the longest interval between a camera's two frames to interpolate
-            over. (On the synthetic rig walk, 6 s, 0.5 px noise, the camera 8 ms from the
-            reference: interpolated 0.001 deg and 0.44 mm from the truth, carried by its own
-            frame's twist 0.012 deg and 0.63 mm, by the true twist 0.003 deg and 0.44 mm.)
-        options: the single-camera estimator's
-            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
-    Returns:
-        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
-        a camera never paired with the reference is missing).
-    Raises:
-        ValueError: no frame of ``reference`` posed.
-    """
-    poses: dict[str, list] = {}
-    for f in frames:
-        if f.camera is None:
-            continue
-        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
-        poses.setdefault(f.camera_name, [])
-        if not est.success or est.num_inliers < min_inliers:
-            continue
-        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        q = est.pose
-        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
-                                     q.linear_velocity))  # fmt: skip
-    refs = poses.get(reference, [])
-    if not refs:
-        raise ValueError(
-            f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
-        )
-    base = reference_mount if reference_mount is not None else RigMount(np.eye(3), np.zeros(3))
-    R_base_ref, p_base_ref = base.R.T, base.position
-    out = {}
-    for name, items in poses.items():
-        if name == reference:
-            out[name] = MountingEstimate(name, base, len(refs), 0, 0.0, 0.0, 0.0, 0.0)
-            continue
-        if not items:
-            continue
-        times = np.array([i[0] for i in items])
-        Rs, ps = [], []
-        for t_r, O_r, p_r, _, _ in refs:
-            k = int(np.argmin(np.abs(times - t_r)))
-            dt = (t_r - times[k]) * 1e-9
-            if abs(dt) > window:
-                continue
-            _, Oc, p, om, v = items[k]
-            j = k + 1 if dt > 0 else k - 1
-            if 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
-                # the motion between the camera's own two frames around the reference time
-                s_ = (t_r - times[k]) / (times[j] - times[k])
-                O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
-                p_t = p + s_ * (items[j][2] - p)
-            else:  # (its own twist)
-                O_t = Oc @ rotvec_to_matrix(om * dt)
-                p_t = p + Oc @ v * dt
-            Rs.append(O_r.T @ O_t)
-            ps.append(O_r.T @ (p_t - p_r))
-        if len(Rs) < 2:
-            continue
-        Rs, ps = np.array(Rs), np.array(ps)
-        M, keep = _robust_rotation_mean(Rs)
-        d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
-        keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
-        p_mean = ps[keep].mean(axis=0)
-        r = matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs[keep]))
-        dp = ps[keep] - p_mean
-        n = int(keep.sum())
-        scat_r = float(np.sqrt(np.sum(r * r) / max(n - 1, 1)))
-        scat_p = float(np.sqrt(np.sum(dp * dp) / max(n - 1, 1)))
-        mount = RigMount.from_pose(R_base_ref @ M, R_base_ref @ p_mean + p_base_ref)
-        # the mean's statistical error (batch means, at least the independent frames') and
-        # the poses' bias, which every run of the video shares (MOUNTING_BIAS_SHARE)
-        bias = MOUNTING_BIAS_SHARE
-        std_r = np.hypot(max(_std_of_mean(r), scat_r / np.sqrt(n)), bias["rotation"] * scat_r)
-        std_p = np.hypot(max(_std_of_mean(dp), scat_p / np.sqrt(n)), bias["position"] * scat_p)
-        out[name] = MountingEstimate(
-            name, mount, n, len(Rs) - n, float(np.rad2deg(std_r)), float(1e3 * std_p),
-            float(np.rad2deg(scat_r)), 1e3 * scat_p,
-        )  # fmt: skip
-    return out

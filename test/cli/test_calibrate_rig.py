@@ -63,6 +63,18 @@ def test_mountings_match_the_truth_within_their_stated_std(rig_bag, tmp_path, ca
         assert got["frames"] >= 30
         assert deg < 0.05 and mm < 2.0, (name, deg, mm)
         assert deg < 3 * got["std_deg"] and mm < 3 * got["std_mm"], (name, deg, mm, got)
+        # the covariance written (x, y, z, rot x, rot y, rot z) is the printed std's
+        C = np.array(params[f"rig.{name}.mounting_covariance"]).reshape(6, 6)
+        assert np.allclose(C, np.array(got["mounting_covariance"]).reshape(6, 6))
+        assert 1e3 * np.sqrt(np.trace(C[:3, :3])) == pytest.approx(got["std_mm"], rel=1e-4)
+        assert np.degrees(np.sqrt(np.trace(C[3:, 3:]))) == pytest.approx(got["std_deg"], rel=1e-4)
+    # the node's configuration reads it back as each mounting's covariance
+    from rs_localizer.ros.bags.rig_bag import rig_parameter_values
+    from rs_localizer.ros.config import rig_config
+
+    cfg = rig_config(*rig_parameter_values(None, [out]))
+    covs = {c.name: c.mount.covariance for c in cfg.cameras}
+    assert covs["front"] is None and covs["left"].shape == covs["right"].shape == (6, 6)
 
 
 def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, capsys):
@@ -101,6 +113,50 @@ def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, ca
         assert np.linalg.norm(e.c - c_rel) < 0.002
     assert main(["calibrate-rig", str(rig_bag), "--reference", "nope"]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
+    """A rig bag of a ring of four cameras (front, left, back, right) where only neighbours
+    see the map at the same time (front and back never): every mounting within 0.3 deg and
+    5 mm of the truth and 3 of its std. With the front camera's frames only where no other
+    camera sees the map, it is refused by name (one line, exit 2)."""
+    from rs_localizer.cli import main
+    from rs_localizer.geometry import rotation_angle_deg
+    from rs_localizer.ros.bags.rig_bag import write_rig_bag
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    ring = ("front", "left", "back", "right")
+    cams = default_rig(4)
+    frames, _, traj = generate_rig_video(cams, duration=1.6, num_points=150, seed=1)
+    t0 = 1_700_000_000_000_000_000
+
+    def quarter(f):
+        return min(int(4 * (f.stamp_ns - t0) * 1e-9 / 1.6), 3)
+
+    seen = [f for f in frames if f.name in (ring[quarter(f)], ring[(quarter(f) + 1) % 4])]
+    bag = write_rig_bag(tmp_path / "ring", seen, cams, traj)
+    capsys.readouterr()
+    assert main(["calibrate-rig", str(bag), "--json", "-o", str(tmp_path / "r.yaml")]) == 0
+    report = json.loads(capsys.readouterr().out)["cameras"]
+    for c in cams[1:]:
+        t, e = _mount([*c.p_rig_cam, *_quat(c.R_rig_cam)]), _mount(report[c.name]["mounting"])
+        deg = rotation_angle_deg(t.R, e.R)
+        mm = 1e3 * np.linalg.norm(t.position - e.position)
+        got = report[c.name]
+        assert deg < 0.3 and mm < 5.0, (c.name, deg, mm)
+        assert deg < 3 * got["std_deg"] and mm < 3 * got["std_mm"], (c.name, deg, mm, got)
+    # front alone in the first quarter (left's frames there left out), then nowhere
+    alone = [f for f in seen if quarter(f) in (1, 2) or (quarter(f) == 0 and f.name == "front")]
+    bag = write_rig_bag(tmp_path / "apart", alone, cams, traj)
+    assert main(["calibrate-rig", str(bag), "--reference", "left"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "['front']" in err[0] and "'left'" in err[0], err
+
+
+def _quat(R):
+    from rs_localizer.ros import conversions as cv
+
+    return cv.quaternion_from_matrix(np.asarray(R))
 
 
 def test_a_short_video_is_warned_about(tmp_path, capsys):

@@ -44,6 +44,8 @@ def test_every_rig_parameter_is_documented_with_its_default():
         shown = re.findall(r"`([^`]*)`", rows[name])
         if name.endswith(".mounting"):
             assert "required" in rows[name]
+        elif name.endswith(".mounting_covariance"):
+            assert par.default == [0.0] * 36 and rows[name] == "36 zeros", name
         elif isinstance(par.default, list):
             assert shown == ["[]"], name
         elif isinstance(par.default, float):
@@ -84,10 +86,32 @@ def test_errors_name_the_camera():
     with pytest.raises(ConfigError, match=r"rig\.b\.direction"):
         bad = {**good, "rig.b.mounting": [0, 0, 0, 0, 0, 0, 1.0], "rig.b.direction": "sideways"}
         rig_config(*_values(bad))
+    with pytest.raises(ConfigError, match=r"rig\.a\.mounting_covariance must be 36"):
+        rig_config(*_values({**good, "rig.a.mounting_covariance": [1.0] * 6}))
+    with pytest.raises(ConfigError, match="positive semi-definite"):
+        rig_config(*_values({**good, "rig.a.mounting_covariance": [-1.0] * 36}))
     with pytest.raises(ConfigError, match="listed twice"):
         rig_config(*_values({**good, "rig.cameras": ["a", "a"]}))
     with pytest.raises(ConfigError, match="needs camera names"):
         rig_config(*_values({"rig.cameras": []}))
+
+
+def test_a_mounting_covariance_in_ros_order_is_the_mountings():
+    """rig.<camera>.mounting_covariance (x, y, z, rot x, rot y, rot z) becomes the mounting's
+    covariance over (rotation, position); all zero (the default): none."""
+    cov = np.diag([1e-6, 2e-6, 3e-6, 1e-8, 2e-8, 3e-8])
+    cov[0, 3] = cov[3, 0] = 1e-7
+    tree = {
+        "rig.cameras": ["a", "b"],
+        "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0],
+        "rig.b.mounting": [0.1, 0, 0, 0, 0, 0, 1.0],
+        "rig.b.mounting_covariance": [float(x) for x in cov.ravel()],
+    }
+    a, b = rig_config(*_values(tree)).cameras
+    assert a.mount.covariance is None
+    P = [3, 4, 5, 0, 1, 2]
+    assert np.array_equal(b.mount.covariance, cov[np.ix_(P, P)])
+    assert b.mount.covariance[0, 0] == 1e-8 and b.mount.covariance[3, 3] == 1e-6
 
 
 @pytest.mark.parametrize(
@@ -126,3 +150,29 @@ def test_names_ros_takes_are_taken_and_an_integer_mounting_is_read_as_floats():
     assert np.allclose(cfg.cameras[2].mount.position, [0.0, 0.2, 0.0])
     with pytest.raises(ConfigError, match=r"rig\.front\.mounting must be 7 finite numbers"):
         rig_config(*_values({**good, "rig.front.mounting": ["0"] * 6 + ["1"]}))
+
+
+def test_the_node_takes_a_mounting_covariance(ros_context):
+    """The node declares rig.<camera>.mounting_covariance and passes it to the rig's
+    mounting; without it the mounting is exact."""
+    pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 1e-8])
+    params = {
+        "warmup": False,
+        "rig.cameras": ["front", "left"],
+        "rig.front.mounting": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting": [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting_covariance": [float(x) for x in cov.ravel()],
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    try:
+        front, left = (c.mount for c in node.config.cameras)
+        assert front.covariance is None
+        assert np.allclose(np.diag(left.covariance), [1e-8] * 3 + [1e-6] * 3)
+    finally:
+        node.destroy_node()

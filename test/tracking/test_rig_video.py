@@ -261,7 +261,7 @@ def test_calibrate_mountings_from_the_video(video):
     """Each camera's mounting from the 0.6 s video (18 rig frames, 150 points, 20 % outliers)
     relative to the front camera's true one: within 0.05 deg and 3 mm of the truth and 3 of its
     stated standard deviations; no frame of the reference camera is an error."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
@@ -286,7 +286,7 @@ def test_a_mountings_stated_std_covers_its_error_over_a_longer_video():
     position errors are 2.1-2.5 times the batch-means std of the mean alone); each mounting's
     error against the truth is within 2 of its stated std, which is never below the
     independent frames' std of the mean nor 10 times the errors' size (not inflated)."""
-    from rs_localizer.tracking.rig import calibrate_mountings
+    from rs_localizer.calibration import calibrate_mountings
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=5.0, num_points=300, seed=2)
@@ -311,3 +311,59 @@ def test_a_mountings_stated_std_covers_its_error_over_a_longer_video():
         assert e.std_deg >= e.scatter_deg / np.sqrt(e.frames)
         assert e.std_mm >= e.scatter_mm / np.sqrt(e.frames)
         assert e.std_deg < 10 * scale_deg and e.std_mm < 10 * scale_mm, (n, deg, mm, e)
+
+
+#: the ring of four cameras, in order round the rig
+RING = ("front", "left", "back", "right")
+
+
+def ring_frames(duration, seed, phases=(0, 1, 2, 3)):
+    """A 4-camera ring (front, left, back, right) where only neighbours see the map at the
+    same time: in quarter q of the video, cameras RING[q] and RING[q + 1] send frames (the
+    quarters not in ``phases``: none). Front and back never share a rig frame."""
+    cams = default_rig(4)
+    frames, _, _ = generate_rig_video(cams, duration=duration, num_points=150, seed=seed)
+    by = {c.name: c.camera for c in cams}
+    out = []
+    for f in frames:
+        q = min(int(4 * (f.stamp_ns - T0) * 1e-9 / duration), 3)
+        if q in phases and f.name in (RING[q], RING[(q + 1) % 4]):
+            out.append(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    return cams, out
+
+
+def test_calibrate_mountings_of_a_ring_of_cameras():
+    """A ring of four cameras, only neighbours sharing rig frames (2 s, 150 points, 20 %
+    outliers): every mounting within 0.3 deg and 5 mm of the truth and 3 of its stated
+    standard deviations (the back camera only through the left and right ones), with a
+    positive-definite covariance whose trace gives the stated std."""
+    from rs_localizer.calibration import calibrate_mountings
+
+    cams, fr = ring_frames(2.0, 1)
+    times = {n: {f.stamp_ns // 10**7 for f in fr if f.camera_name == n} for n in RING}
+    assert not times["front"] & times["back"]  # (never within 10 ms of each other)
+    truth = mounts_of(cams)
+    out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
+    assert sorted(out) == sorted(RING)
+    assert out["front"].mount is truth["front"]
+    for n in ("left", "back", "right"):
+        e = out[n]
+        deg = rotation_angle_deg(e.mount.R, truth[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - truth[n].position)
+        assert e.frames >= 25 and deg < 0.3 and mm < 5.0, (n, deg, mm)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e)
+        assert np.linalg.eigvalsh(e.mount.covariance).min() > 0
+        assert e.std_deg == pytest.approx(np.degrees(np.sqrt(np.trace(e.mount.covariance[:3, :3]))))
+
+
+def test_cameras_not_connected_to_the_reference_are_missing():
+    """The ring's quarters where left sees with back and back with right, and the front
+    camera's frames of the first quarter alone: with left as the reference back and right
+    are calibrated (right through back) and front, which shares no rig frame, is missing;
+    with front as the reference only front is returned."""
+    from rs_localizer.calibration import calibrate_mountings
+
+    _, part = ring_frames(0.8, 2, phases=(0, 1, 2))
+    part = [f for f in part if not (f.camera_name == "left" and f.stamp_ns < T0 + 2 * 10**8)]
+    assert sorted(calibrate_mountings(part, "left")) == ["back", "left", "right"]
+    assert sorted(calibrate_mountings(part, "front")) == ["front"]

@@ -1,0 +1,457 @@
+"""A rig's camera mountings from a video of a known map (``rs-localizer calibrate-rig``).
+
+Each camera frame is posed alone; the cameras' frames close in time make rig frames; the
+mountings start from the cameras' relative poses chained over a spanning tree of the cameras
+that share rig frames, then every rig frame's pose and every mounting are adjusted in one
+least-squares problem (:func:`calibrate_mountings`), each mounting with its covariance
+(:class:`MountingEstimate`), which the rig estimator adds to the rig pose's
+(:attr:`~rs_localizer.tracking.rig.RigMount.covariance`). docs/rig_node.md, "Mountings from
+data".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..estimation.estimate import estimate_rs_pose
+from ..geometry import matrix_to_rotvec, rotvec_to_matrix
+from ..tracking.rig import RigMount
+from ..tracking.sequence import reference_stamp_ns
+
+__all__ = ["MOUNTING_BIAS_SHARE", "MountingEstimate", "calibrate_mountings"]
+
+
+@dataclass(frozen=True, eq=False)
+class MountingEstimate:
+    """A camera's mounting estimated from a rig video (:func:`calibrate_mountings`).
+
+    Attributes:
+        name: the camera. mount: its :class:`RigMount` (``x_cam = R x_rig + c``) with its
+            ``covariance`` (None for the reference camera, whose mounting is given).
+        frames: rig frames the camera's pose entered the adjustment with (rig frames with at
+            least two cameras); rejected: its camera frames left out as outliers.
+        std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
+            its three axes) and of the camera's position on the rig (mm, norm), from
+            ``mount.covariance``; zero for the reference camera. The covariance adds:
+
+            * the adjustment's ``s^2 (J^T J)^-1`` (``J`` the Jacobian of the camera frames'
+              whitened pose errors, ``s^2`` their variance factor), scaled up by how much
+              more the means of 8 runs of consecutive rig frames scatter than independent
+              frames would (neighbouring frames share errors, e.g. of the motion);
+            * a systematic term: the single-camera poses carry a bias (mostly along a
+              camera's depth) that is the same in every frame of a video, so averaging does
+              not remove it. Each camera's is taken as :data:`MOUNTING_BIAS_SHARE` (0.1 for
+              the rotation, 0.2 for the position) of its frames' per-axis scatter in its own
+              axes, and propagated through the adjustment to every mounting (to first
+              order; a camera reached through others carries their biases too). Against the
+              truth the bias was 0.02-0.15 of one frame's scatter in rotation and 0.07-0.26
+              in position on synthetic and rendered rig videos of 5-10 s; it does not shrink
+              with the video's length.
+        scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
+    """
+
+    name: str
+    mount: RigMount
+    frames: int
+    rejected: int
+    std_deg: float
+    std_mm: float
+    scatter_deg: float
+    scatter_mm: float
+
+
+#: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
+#: share of one rig frame's scatter of the rotation and of the position: the bias of the
+#: single-camera poses, which averaging over a video does not remove
+MOUNTING_BIAS_SHARE = {"rotation": 0.1, "position": 0.2}
+
+
+def _robust_rotation_mean(Rs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotations (n, 3, 3) -> (their chordal mean over the inliers, the inlier mask): rotations
+    more than 3 times the median angle (and 0.05 deg) from the mean are outliers, twice."""
+    keep = np.ones(len(Rs), dtype=bool)
+    for _ in range(3):
+        U, _, Vt = np.linalg.svd(Rs[keep].sum(axis=0))
+        M = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+        a = np.linalg.norm(matrix_to_rotvec(np.einsum("ji,njk->nik", M, Rs)), axis=1)
+        keep = a <= max(3.0 * float(np.median(a[keep])), np.deg2rad(0.05))
+    return M, keep
+
+
+def _std_of_mean(d: np.ndarray, blocks: int = 8) -> float:
+    """The standard deviation (norm over the axes) of the mean of deviations ``d`` (n, 3) in
+    time order, by batch means: the frames of a video are not independent (a slow error, e.g.
+    of the motion, is shared by neighbours), so the means of ``blocks`` consecutive runs
+    scatter by what the mean's error is; 0 with fewer than 2 frames per block."""
+    n = len(d)
+    k = min(blocks, n // 2)
+    if k < 2:
+        return 0.0
+    means = np.array([b.mean(axis=0) for b in np.array_split(d, k)])
+    return float(np.sqrt(np.sum((means - means.mean(axis=0)) ** 2) / (k - 1) / k))
+
+
+def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: float):
+    """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
+    carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s): the
+    constant twist between its own two frames around ``t_r`` (interpolated poses), or its
+    frame's own twist when it has no frame on the other side within ``max_step`` s."""
+    k = int(np.argmin(np.abs(times - t_r)))
+    dt = (t_r - times[k]) * 1e-9
+    if abs(dt) > window:
+        return None
+    _, Oc, p, om, v, cov = items[k]
+    j = k + 1 if dt > 0 else k - 1
+    if dt == 0:
+        return Oc, p, cov
+    if 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
+        s_ = (t_r - times[k]) / (times[j] - times[k])
+        O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
+        return O_t, p + s_ * (items[j][2] - p), cov
+    return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov
+
+
+def _rig_frames(poses: dict, window: float, max_step: float) -> list:
+    """The rig frames of cameras posed alone: every camera frame's time, in order, starts a
+    rig frame unless within ``window`` of the current one's start; per rig frame, each camera
+    with a frame within ``window`` carried to the start (:func:`_carried`). Returns a list of
+    ``(t_ns, {camera: (O, p, cov)})`` with at least two cameras."""
+    stamps = sorted(t for items in poses.values() for t, *_ in items)
+    times = {n: np.array([i[0] for i in items]) for n, items in poses.items() if items}
+    out, start = [], None
+    for t in stamps:
+        if start is not None and (t - start) * 1e-9 <= window:
+            continue
+        start = t
+        seen = {}
+        for n, ts in times.items():
+            c = _carried(poses[n], ts, t, window, max_step)
+            if c is not None:
+                seen[n] = c
+        if len(seen) >= 2:
+            out.append((t, seen))
+    return out
+
+
+def _pair_mean(rel: list) -> tuple:
+    """Relative poses ``(R, p)`` of one camera in another's frame over rig frames -> their
+    robust mean (chordal mean and mean position over the inliers)."""
+    Rs = np.array([r for r, _ in rel])
+    ps = np.array([p for _, p in rel])
+    M, keep = _robust_rotation_mean(Rs)
+    d = np.linalg.norm(ps - np.median(ps, axis=0), axis=1)
+    keep &= d <= max(3.0 * float(np.median(d)), 1e-4)
+    return M, ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
+
+
+def _initial_mounts(rig_frames: list, reference: str, base: RigMount) -> dict:
+    """Each camera's mounting (camera -> rig rotation, position) chained from the reference's
+    over a spanning tree of the cameras that share rig frames (breadth first, the pairs that
+    share the most rig frames first); cameras not connected to the reference are missing."""
+    rel: dict = {}
+    for _, seen in rig_frames:
+        for a in seen:
+            for b in seen:
+                if a != b:
+                    Oa, pa, _ = seen[a]
+                    Ob, pb, _ = seen[b]
+                    rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
+    mounts = {reference: (base.R.T, base.position)}
+    frontier = [reference]
+    while frontier:
+        nxt = []
+        for a in frontier:
+            pairs = sorted(
+                ((len(v), b) for (a_, b), v in rel.items() if a_ == a and b not in mounts),
+                reverse=True,
+            )
+            for _, b in pairs:
+                if b in mounts:
+                    continue
+                M, p = _pair_mean(rel[(a, b)])
+                Ra, pa = mounts[a]
+                mounts[b] = (Ra @ M, pa + Ra @ p)
+                nxt.append(b)
+        frontier = nxt
+    return mounts
+
+
+#: rig frames whose camera's whitened pose error (squared) is beyond this quantile of the
+#: chi-square distribution with 6 degrees of freedom (times the median's scale) are left out
+#: of the mountings' adjustment
+_OUTLIER_QUANTILE = 0.999
+
+
+def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None = None):
+    """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
+    frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
+    rig rotation, position), the start) to the cameras' poses posed alone, each camera's
+    errors whitened by its frames' typical covariance; camera frames in ``outlier`` ((rig
+    frame, camera) -> True) left out, and cameras no longer connected to the reference.
+    Returns ``(mounts, the whitened Jacobian (sparse), whitened errors (m, 6), the
+    observations (rig frame used, rig frame, camera, O, p, whitening), rig frames used,
+    adjusted cameras)``."""
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    # each camera's pose errors weighted by its frames' typical covariance (the mean of
+    # those within 3 times the median trace)
+    covs: dict = {}
+    for _, seen in rig_frames:
+        for n, (_, _, c6) in seen.items():
+            covs.setdefault(n, []).append(np.asarray(c6, dtype=float)[:6, :6])
+    whiten = {}
+    for n, cs in covs.items():
+        cs = np.array(cs)
+        tr = np.trace(cs, axis1=1, axis2=2)
+        C6 = cs[tr <= 3.0 * np.median(tr)].mean(axis=0)
+        try:
+            whiten[n] = np.linalg.inv(np.linalg.cholesky(0.5 * (C6 + C6.T)))
+        except np.linalg.LinAlgError:
+            continue
+    use = []
+    for g, (_, seen) in enumerate(rig_frames):
+        known = [n for n in seen if n in mounts and n in whiten and not (outlier or {}).get((g, n))]
+        if len(known) >= 2:
+            use.append((g, known))
+    # the cameras still connected to the reference through the rig frames used
+    linked, grow = {reference}, True
+    while grow:
+        grow = False
+        for _, known in use:
+            if linked & set(known) and not set(known) <= linked:
+                linked |= set(known)
+                grow = True
+    free = [n for n in mounts if n != reference and n in linked]
+    fidx = {n: i for i, n in enumerate(free)}
+    obs = []  # (rig frame index, its index in rig_frames, camera, O, p, whitening (6, 6))
+    R0g, P0g = [], []
+    for g, known in use:
+        known = [n for n in known if n in linked]
+        if len(known) < 2:
+            continue
+        seen = rig_frames[g][1]
+        a = reference if reference in known else known[0]
+        Ra, pa = mounts[a]
+        Oa, ppa, _ = seen[a]
+        gi = len(R0g)
+        R0g.append(Oa @ Ra.T)
+        P0g.append(ppa - R0g[-1] @ pa)
+        for n in known:
+            Oc, p, _ = seen[n]
+            obs.append((gi, g, n, Oc, p, whiten[n]))
+    G, F = len(R0g), len(free)
+    R0m = [mounts[n][0] for n in free]
+    p0m = [mounts[n][1] for n in free]
+    Rref, pref = mounts[reference]
+
+    def unpack(x):
+        xg = x[: 6 * G].reshape(G, 6)
+        xm = x[6 * G :].reshape(F, 6)
+        return xg, xm
+
+    gi_ = np.array([o[0] for o in obs], dtype=int)
+    ci_ = np.array([-1 if o[2] == reference else fidx[o[2]] for o in obs], dtype=int)
+    Ot = np.array([o[3].T for o in obs]).reshape(-1, 3, 3)
+    po = np.array([o[4] for o in obs]).reshape(-1, 3)
+    Whs = np.array([o[5] for o in obs]).reshape(-1, 6, 6)
+    R0g_, P0g_ = np.array(R0g).reshape(-1, 3, 3), np.array(P0g).reshape(-1, 3)
+    R0m_, p0m_ = np.array(R0m).reshape(-1, 3, 3), np.array(p0m).reshape(-1, 3)
+
+    def fun(x):
+        xg, xm = unpack(x)
+        Rg = rotvec_to_matrix(xg[:, :3]) @ R0g_
+        Pg = P0g_ + xg[:, 3:]
+        Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m_, Rref[None]]) if F else Rref[None]
+        pm = np.concatenate([p0m_ + xm[:, 3:], pref[None]])
+        Rgi, Rci = Rg[gi_], Rm[ci_]
+        e = np.concatenate(
+            [matrix_to_rotvec(Rgi @ Rci @ Ot),
+             Pg[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - po], axis=1,
+        )  # fmt: skip
+        return np.einsum("nij,nj->ni", Whs, e).ravel()
+
+    sp = lil_matrix((6 * len(obs), 6 * (G + F)), dtype=int)
+    for i, (gi, _, n, *_) in enumerate(obs):
+        sp[6 * i : 6 * i + 6, 6 * gi : 6 * gi + 6] = 1
+        if n != reference:
+            k = 6 * G + 6 * fidx[n]
+            sp[6 * i : 6 * i + 6, k : k + 6] = 1
+    x0 = np.zeros(6 * (G + F))
+    res = least_squares(fun, x0, jac_sparsity=sp, method="trf", xtol=1e-10, ftol=1e-10,
+                        max_nfev=100)  # fmt: skip
+    _, xm = unpack(res.x)
+    out = {reference: (Rref, pref)}
+    for n in free:
+        i = fidx[n]
+        out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
+    return out, res.jac, res.fun.reshape(-1, 6), obs, G, free
+
+
+def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list, reference: str):
+    """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
+    [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J`` of the
+    whitened errors, ``s^2`` their variance factor), scaled by how much more the means of 8
+    runs of consecutive rig frames scatter than independent frames would (neighbouring frames
+    share errors, e.g. of the motion), plus the bias every frame of a camera shares
+    (:data:`MOUNTING_BIAS_SHARE` of the camera's per-axis scatter in its own axes, which
+    averaging does not remove), propagated through the adjustment (first order)."""
+    m, n = r.shape[0], J.shape[1]
+    H = (J.T @ J).toarray() if hasattr(J, "toarray") else J.T @ J
+    dof = max(6 * m - n, 1)
+    s2 = float(np.sum(r * r)) / dof
+    inflate = 1.0
+    cams = sorted({o[2] for o in obs})
+    for c in cams:
+        rc = r[[i for i, o in enumerate(obs) if o[2] == c]]
+        if len(rc) >= 16:
+            iid = np.sum(np.var(rc, axis=0, ddof=1)) / len(rc)
+            inflate = max(inflate, _std_of_mean(rc) ** 2 / max(iid, 1e-300))
+    cols = np.arange(6 * G, n)
+    E = np.zeros((n, len(cols)))
+    E[cols, np.arange(len(cols))] = 1.0
+    try:
+        Hinv_m = np.linalg.solve(H, E)[cols]
+    except np.linalg.LinAlgError:  # (not expected: every camera is connected)
+        nan = np.full((6, 6), np.nan)
+        return {name: nan for name in free}
+    cov = s2 * inflate * Hinv_m
+    Jt = J.T.tocsr() if hasattr(J, "tocsr") else J.T
+    bias = np.concatenate([np.full(3, MOUNTING_BIAS_SHARE["rotation"]),
+                           np.full(3, MOUNTING_BIAS_SHARE["position"])])  # fmt: skip
+    for c in cams:
+        rows = [i for i, o in enumerate(obs) if o[2] == c]
+        Z = np.zeros((6 * m, 6))
+        e_cam = []
+        for i in rows:
+            _, _, _, Oc, _, Wh = obs[i]
+            T = np.zeros((6, 6))
+            T[:3, :3] = Oc
+            T[3:, 3:] = Oc
+            Z[6 * i : 6 * i + 6] = Wh @ T
+            e = np.linalg.solve(Wh, r[i])
+            e_cam.append(np.concatenate([Oc.T @ e[:3], Oc.T @ e[3:]]))
+        B = np.diag((bias * np.sqrt(np.mean(np.square(e_cam), axis=0))) ** 2)
+        K = np.linalg.solve(H, Jt @ Z)[cols]
+        cov = cov + K @ B @ K.T
+    cov = 0.5 * (cov + cov.T)
+    return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}
+
+
+def calibrate_mountings(
+    frames: list,
+    reference: str,
+    *,
+    reference_mount: RigMount | None = None,
+    window: float = 0.015,
+    stamp_row: float = 0.0,
+    min_inliers: int = 20,
+    options: Any = None,
+    max_step: float = 0.1,
+) -> dict:
+    """Every camera's mounting on the rig from a video of a known map, adjusted jointly.
+
+    Each camera frame is posed alone (:func:`~rs_localizer.estimation.estimate_rs_pose`: its
+    pose, twist and covariance at its reference line's capture time, camera optical frame).
+    Rig frames: every camera frame's time starts one unless within ``window`` of the current
+    rig frame's start; each camera's frame nearest that start (within ``window``) is carried
+    to it with the camera's estimated motion: the constant twist between its own two frames
+    around that time (interpolated poses; its frame's own twist when it has no frame on the
+    other side within ``max_step`` s). Rig frames with at least two cameras are used.
+
+    The cameras need not share rig frames with the reference camera: any set of cameras
+    connected through shared rig frames (a ring, a chain) is calibrated. The mountings start
+    from the pairwise relative poses (robust means over the rig frames two cameras share)
+    chained from the reference over a spanning tree of the cameras, then every rig frame's
+    pose and every mounting are adjusted in one least-squares problem over all rig frames
+    (SciPy ``least_squares``, sparse Jacobian), each camera's pose errors whitened by its
+    frames' typical covariance (the mean of those within 3 times the median trace; weighting
+    each frame by its own gave larger errors against the truth on the synthetic rig walk);
+    camera frames whose error is beyond the 99.9 % quantile (chi-square,
+    6 degrees of freedom, at the errors' median scale) are left out and the adjustment is
+    run again.
+
+    Args:
+        frames: :class:`~rs_localizer.tracking.rig.RigCameraFrame` of every camera (any
+            order; frames without a camera model are skipped).
+        reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
+            (its known mounting on the rig) places it: the rig frame is then that mounting's.
+        window: s; frames further apart are not one rig frame.
+        stamp_row: the row whose capture time is a frame's stamp.
+        min_inliers: frames posed with fewer inliers are not used.
+        max_step: s; the longest interval between a camera's two frames to interpolate
+            over. (On the synthetic rig walk, 6 s, 0.5 px noise, the camera 8 ms from the
+            reference: interpolated 0.001 deg and 0.44 mm from the truth, carried by its own
+            frame's twist 0.012 deg and 0.63 mm, by the true twist 0.003 deg and 0.44 mm.)
+        options: the single-camera estimator's
+            :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+    Returns:
+        camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
+        a camera not connected to the reference through shared rig frames is missing).
+    Raises:
+        ValueError: no frame of ``reference`` posed.
+    """
+    poses: dict[str, list] = {}
+    for f in frames:
+        if f.camera is None:
+            continue
+        est = estimate_rs_pose(f.points2d, f.points3d, f.camera, options=options)
+        poses.setdefault(f.camera_name, [])
+        if not est.success or est.num_inliers < min_inliers or est.covariance is None:
+            continue
+        if not np.isfinite(est.covariance[:6, :6]).all():
+            continue
+        t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        q = est.pose
+        poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
+                                     q.linear_velocity, est.covariance))  # fmt: skip
+    for items in poses.values():
+        items.sort(key=lambda i: i[0])
+    if not poses.get(reference):
+        raise ValueError(
+            f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
+        )
+    base = reference_mount if reference_mount is not None else RigMount(np.eye(3), np.zeros(3))
+    rig_frames = _rig_frames(poses, window, max_step)
+    mounts = _initial_mounts(rig_frames, reference, base)
+    if len(mounts) < 2:  # (no camera shares a rig frame with the reference)
+        n_ref = len(poses[reference])
+        return {reference: MountingEstimate(reference, base, n_ref, 0, 0.0, 0.0, 0.0, 0.0)}
+    mounts, J, r, obs, G, free = _adjust(rig_frames, mounts, reference)
+    # camera frames that contradict the others, left out (at the errors' median scale)
+    d2 = np.sum(r * r, axis=1)
+    scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
+    bad = {(g, n): True for (_, g, n, *_), e in zip(obs, d2, strict=True)
+           if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
+    if bad:
+        mounts, J, r, obs, G, free = _adjust(rig_frames, mounts, reference, bad)
+    cov = _mounting_covariance(J, r, obs, G, free, reference)
+    out = {}
+    for name in poses:
+        if name not in mounts:
+            continue
+        n_used = sum(1 for o in obs if o[2] == name)
+        n_bad = sum(1 for (_, n) in bad if n == name)
+        if name == reference:
+            out[name] = MountingEstimate(name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0)
+            continue
+        if not np.isfinite(cov[name]).all():
+            continue
+        R, p = mounts[name]
+        C = cov[name]
+        # one camera frame's scatter about the rig: its pose errors against the adjustment
+        mine = [i for i, o in enumerate(obs) if o[2] == name]
+        e = np.array([np.linalg.solve(obs[i][5], r[i]) for i in mine])
+        scat_r = float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))) if len(e) else 0.0
+        scat_p = float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))) if len(e) else 0.0
+        out[name] = MountingEstimate(
+            name, RigMount.from_pose(R, p, covariance=C), n_used, n_bad,
+            float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
+            float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
+            float(np.rad2deg(scat_r)), 1e3 * scat_p,
+        )  # fmt: skip
+    return out
