@@ -99,3 +99,31 @@ def test_the_day_geometry_against_independent_computations():
     R0, t0 = Rotation.random(random_state=rng).as_matrix(), np.array([1.0, -2.0, 0.5])
     R, t = nc._rigid_fit(src, src @ R0.T + t0)
     assert np.allclose(R, R0) and np.allclose(t, t0)
+
+
+def test_the_rig_checks_are_listed_and_selectable(capsys):
+    nc = _tool()
+    assert nc.RIG_CHECKS and not set(nc.RIG_CHECKS) & set(nc.CHECKS)
+    assert nc.main(["--list", "--only", "rig"]) == 0
+    out = capsys.readouterr().out
+    for name, (_slow, fn) in nc.RIG_CHECKS.items():
+        assert f"check {name}" in out and fn.__doc__, name
+    assert "check gravity_frame" not in out and "README.md: " not in out
+    assert nc.main(["--list", "--only", "rig_calibrate,gravity_frame"]) == 0
+    out = capsys.readouterr().out
+    assert "check rig_calibrate (slow)" in out and "check gravity_frame (slow)" in out
+    assert "check rig_lockstep" not in out
+    assert nc.main(["--list"]) == 0  # (everything: the pages, both days)
+    out = capsys.readouterr().out
+    assert all(f"check {n}" in out for n in (*nc.CHECKS, *nc.RIG_CHECKS))
+    # the diagnostics' per-camera accounting, as the rig checks read it
+    v = nc._diag_values(
+        "  front.received=40 front.solved=30 front.failed=1 front.skipped=8 front.pending=1\n"
+        "  left.received=40 left.solved=39 left.failed=0 left.skipped=0 left.pending=0"
+    )
+    bad = nc._rig_accounting(v, ("front", "left", "right"))
+    assert bad == ["left: received 40 != 39 + 0 + 0 + 0", "right: counts not printed"]
+    assert nc._diag_words("  right.state=stopped right.camera_info=received") == {
+        "right.state": "stopped",
+        "right.camera_info": "received",
+    }
