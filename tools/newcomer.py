@@ -29,7 +29,7 @@ the day's slow checks (the whole day takes 20-30 min on a 2-core machine). Not p
 test``. Exit status 1 when a command fails, a figure is off or a check fails.
 
 The rig user's day (``--only rig``): a wheeled robot with three rolling-shutter cameras
-(front, left, right; ``render-bag --rig 3 --frames 40``, 640x480 each) in a lab of AprilTag
+(front, left, right; ``render-bag --rig 3 --frames 60``, 640x480 each) in a lab of AprilTag
 36h11 tags, as docs/rig_node.md and docs/tools.md tell it: ``rig_render`` (the bag),
 ``rig_calibrate`` (``calibrate-rig``: the mountings against the renderer's, the printed std
 covering the error, the rig frame named), ``rig_lockstep`` (the rig node and ``play
@@ -1141,7 +1141,7 @@ def check_demo_figures(day: Day, c: Check) -> None:
 # camera_info, a mounting off), the managed node and the viewer.
 
 #: the rig's video: frames per camera (each a rig frame)
-RIG_FRAMES = 40
+RIG_FRAMES = 60
 RIG_RENDER = "rs-localizer render-bag {bag} --rig 3 --frames {n}"
 RIG_CAMERAS = ("front", "left", "right")
 #: calibrate-rig against the renderer's mountings: largest error (deg, mm) on the short video
@@ -1195,6 +1195,15 @@ def _rig_counts(v: dict[str, float], cams=RIG_CAMERAS) -> str:
         f"{v.get(c + '.failed', 0):g} + {v.get(c + '.skipped', 0):g} + {v.get(c + '.pending', 0):g}"
         for c in cams
     )
+
+
+def _reasons(v: dict[str, float]) -> str:
+    """The nonzero ``<camera>.skipped.<reason>``, ``.failed.<reason>`` and
+    ``rig_frames_failed.<reason>`` counts of the diagnostics."""
+    keys = [
+        k for k, x in v.items() if x and re.search(r"\.(skipped|failed)\.|^rig_frames_failed\.", k)
+    ]
+    return ", ".join(f"{k}={v[k]:g}" for k in keys) or "none"
 
 
 def _copy_bag(src: Path, dst: Path, keep) -> int:
@@ -1320,22 +1329,23 @@ def check_rig_calibrate(day: Day, c: Check) -> None:
 
 def check_rig_lockstep(day: Day, c: Check) -> None:
     """The rig node (`rs_localizer_node` with the bag's `rig_params.yaml`) and `play
-    --lockstep`: every rig frame answered (posed, or failed with a counted reason; >= 95 %
-    posed), the poses (`evaluate --live` on /rig/pose_with_covariance against the bag's truth)
-    within 0.1 deg and 5 mm (median)."""
+    --lockstep` with the true mountings: every rig frame posed (play's answered count and the
+    node's rig_frames_solved; a failed one is named with its reason), the poses (`evaluate
+    --live` on /rig/pose_with_covariance against the bag's truth) within 0.1 deg and 5 mm
+    (median)."""
     rig = _rig(day)
     bag = rig.bag()
     node = rig.node(bag / "rig_params.yaml")[0]
     ev = None
     try:
-        cmd = (f"rs-localizer evaluate --live 20 --wait 120 --topic /rig/pose_with_covariance "
+        cmd = (f"rs-localizer evaluate --live 40 --wait 120 --topic /rig/pose_with_covariance "
                f"--truth {bag} --json")  # fmt: skip
         day.ran.append(cmd + " &")
         ev = subprocess.Popen(_argv(cmd), cwd=ROOT, env=_env(day.domain), text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
         time.sleep(4.0)  # (evaluate subscribes)
         r = day.run(f"rs-localizer play {bag} --lockstep --timeout 10", 600)
-        m = re.search(r"(\d+) answered, (\d+) timed out", r.output)
+        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
         _, v, _ = rig.diagnostics()
         out, err = ev.communicate(timeout=120)
     finally:
@@ -1348,9 +1358,10 @@ def check_rig_lockstep(day: Day, c: Check) -> None:
         f"{m.group(1)} answered, {m.group(2)} timed out" if m else "play: no count",
         f"{solved:g}/{RIG_FRAMES} rig frames posed, {failed:g} failed {reasons or ''}",
     ]
-    c.expect(r.rc == 0 and m, f"play exit code {r.rc}: {_tail(r.output, 300)}")
+    c.expect(r.rc == 0 and m, f"play exit code {r.rc}: {_tail(r.output, 200)}")
     c.expect(solved + failed == RIG_FRAMES, f"{solved + failed:g} of {RIG_FRAMES} rig frames done")
-    c.expect(solved >= 0.95 * RIG_FRAMES, f"only {solved:g} of {RIG_FRAMES} rig frames posed")
+    c.expect(solved == RIG_FRAMES, f"{solved:g} of {RIG_FRAMES} rig frames posed")
+    c.expect(m and int(m.group(1)) == RIG_FRAMES, "play: not every rig frame answered")
     try:
         res = json.loads(out)
         rot, pos = res["ape"]["rot_deg"]["median"], 1e3 * res["ape"]["pos_m"]["median"]
@@ -1380,6 +1391,7 @@ def check_rig_realtime(day: Day, c: Check) -> None:
     finally:
         _stop(node)
     c.value = _rig_counts(v) + f"; rig frames posed {v.get('rig_frames_solved', 0):g}/{RIG_FRAMES}"
+    c.notes.append("not solved: " + _reasons(v))
     c.expect(r.rc == 0, f"play exit code {r.rc}: {_tail(r.output, 300)}")
     c.expect(d.rc == 0, f"diagnostics exit code {d.rc}: {_tail(d.output, 300)}")
     for bad in _rig_accounting(v):
@@ -1433,38 +1445,32 @@ def _rig_fault_run(day: Day, c: Check, bag: Path, params: Path, play: str, extra
     diagnostics (numbers, words, text) and, with ``watch``, every status printed meanwhile)."""
     rig = _rig(day)
     node, lines, _ = rig.node(params, extra)
-    watcher = None
+    watcher, seen = None, day.work / "rig_diagnostics.txt"
     try:
         if watch:
             cmd = "rs-localizer diagnostics --ns /rig --timeout 60"
             day.ran.append(cmd + " &")
-            watcher = subprocess.Popen(
-                _argv(cmd),
-                cwd=ROOT,
-                env=_env(day.domain),
-                text=True,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-            )
+            env = _env(day.domain)
+            env["PYTHONUNBUFFERED"] = "1"  # (its output is read after it is stopped)
+            with seen.open("w") as f:
+                watcher = subprocess.Popen(_argv(cmd), cwd=ROOT, env=env, text=True, stdout=f,
+                                           stderr=subprocess.STDOUT)  # fmt: skip
             time.sleep(3.0)
         r = day.run(f"rs-localizer play {bag} {play}".strip(), 600)
         c.expect(r.rc == 0, f"play exit code {r.rc}: {_tail(r.output, 300)}")
         d, v, w = rig.diagnostics()
-        seen = ""
-        if watcher is not None:
-            watcher.send_signal(signal.SIGINT)
-            seen = watcher.communicate(timeout=15)[0]
-        return "".join(lines), v, w, d.output, seen
+        return "".join(lines), v, w, d.output, seen.read_text() if watch else ""
     finally:
-        if watcher is not None and watcher.poll() is None:
-            watcher.kill()
+        if watcher is not None:
+            _stop(watcher)
         _stop(node)
 
 
 def check_rig_unplugged(day: Day, c: Check) -> None:
     """A camera unplugged mid-run: the right camera's topics end half way (a copy of the bag
-    cut there), played at the bag's rate: the rig runs on, the right camera's state is
-    `stopped` with a WARN status, every frame accounted."""
+    cut there), played at half the bag's rate (the loaded machine keeps up): the right
+    camera's state is `stopped` with a WARN status, the rig poses rig frames without it (more
+    than the right camera's solved frames), every frame accounted."""
     rig = _rig(day)
     lean = rig.lean()
     from rs_localizer.ros.bags.bag_io import iter_messages
@@ -1475,17 +1481,18 @@ def check_rig_unplugged(day: Day, c: Check) -> None:
     _copy_bag(lean, bag, lambda topic, t: not (topic.startswith("/rig/right/") and t >= cut))
     day.ran.append(f"(a copy of the bag without the right camera's messages from frame "
                    f"{len(stamps) // 2} on: {bag})")  # fmt: skip
-    _, v, w, text, _ = _rig_fault_run(day, c, bag, bag / "rig_params.yaml", "")
+    _, v, w, text, _ = _rig_fault_run(day, c, bag, bag / "rig_params.yaml", "--rate 0.5")
     head = re.search(r"\[(\w+)\] [^\n]*", text)
     status = head.group(0) if head else "no status"
     c.value = (f"right.state={w.get('right.state')}, {status}; rig frames posed "
                f"{v.get('rig_frames_solved', 0):g}; " + _rig_counts(v))  # fmt: skip
     c.expect(w.get("right.state") == "stopped", f"right.state {w.get('right.state')!r}")
     c.expect(head and head.group(1) == "WARN", "the status is not WARN")
-    c.expect(v.get("rig_frames_solved", 0) >= 0.9 * RIG_FRAMES,
-             f"the rig posed {v.get('rig_frames_solved', 0):g} of {RIG_FRAMES}")  # fmt: skip
+    c.expect(v.get("rig_frames_solved", 0) > v.get("right.solved", 0),
+             "the rig posed no rig frame without the right camera")  # fmt: skip
     for bad in _rig_accounting(v):
         c.fail(bad)
+    c.notes.append("not solved: " + _reasons(v))
 
 
 def check_rig_absent(day: Day, c: Check) -> None:
@@ -1512,37 +1519,39 @@ def check_rig_absent(day: Day, c: Check) -> None:
 
 
 def check_rig_no_camera_info(day: Day, c: Check) -> None:
-    """A camera without camera_info (the left camera's not played): its state `waiting`, its
-    frames counted `skipped.no_camera_info`, a log line naming its camera_info topic, the rig
-    runs on the others."""
+    """A camera without camera_info (the left camera's not played; half the bag's rate): its
+    state `waiting`, none of its frames used and every one waiting counted
+    `skipped.no_camera_info`, a log line naming its camera_info topic, the rig runs on the
+    others (rig frames posed)."""
     rig = _rig(day)
     lean = rig.lean()
     topics = " ".join(f"/rig/{cam}/{t}" for cam in RIG_CAMERAS for t in ("camera_info",
                       "correspondences") if not (cam == "left" and t == "camera_info"))  # fmt: skip
     log, v, w, _, _ = _rig_fault_run(day, c, lean, lean / "rig_params.yaml",
-                                     f"--topics {topics}")  # fmt: skip
+                                     f"--rate 0.5 --topics {topics}")  # fmt: skip
     named = next((ln.strip() for ln in log.splitlines() if "/rig/left/camera_info" in ln), "")
     c.value = (f"left.state={w.get('left.state')}, left.skipped.no_camera_info="
                f"{v.get('left.skipped.no_camera_info', 0):g} of {v.get('left.received', 0):g}, "
                f"rig frames posed {v.get('rig_frames_solved', 0):g}")  # fmt: skip
     c.expect(w.get("left.state") == "waiting", f"left.state {w.get('left.state')!r}")
-    waited = v.get("left.skipped.no_camera_info")
     c.expect(
-        v.get("left.received", 0) > 0 and waited == v.get("left.received"),
+        v.get("left.received", 0) > 0 and v.get("left.skipped.no_camera_info", 0) > 0,
         "left's frames not counted skipped.no_camera_info",
     )
+    c.expect(v.get("left.solved", 0) + v.get("left.failed", 0) == 0, "left's frames were used")
     c.expect(named, "no log line names /rig/left/camera_info")
-    c.expect(v.get("rig_frames_solved", 0) >= 0.9 * RIG_FRAMES, "the rig did not run on the others")
+    c.expect(v.get("rig_frames_solved", 0) > 0, "the rig did not run on the others")
     for bad in _rig_accounting(v):
         c.fail(bad)
+    c.notes.append("not solved: " + _reasons(v))
     if named:
         c.notes.append(named[-200:])
 
 
 def check_rig_mounting_off(day: Day, c: Check) -> None:
-    """The right camera's mounting given 5 deg off (turned about the rig's z axis): the node's
-    status names `right` as disagreeing (state `disagrees`, WARN), and so does `replay` with
-    that parameter file."""
+    """The right camera's mounting given 5 deg off (turned about the rig's z axis), the bag
+    played at half its rate: the node's status names `right` as disagreeing (state
+    `disagrees`), and so does `replay` with that parameter file."""
     import yaml
     from scipy.spatial.transform import Rotation
 
@@ -1556,10 +1565,13 @@ def check_rig_mounting_off(day: Day, c: Check) -> None:
     off = day.work / "rig_right_off5deg.yaml"
     off.write_text(yaml.safe_dump(data))
     day.ran.append(f"(the rig's parameters, right's mounting turned by 5 deg: {off})")
-    _, _, w, text, _ = _rig_fault_run(day, c, lean, off, "--lockstep --timeout 10")
+    _, v, w, text, _ = _rig_fault_run(day, c, lean, off, "--rate 0.5")
     head = re.search(r"\[(\w+)\] [^\n]*", text)
+    c.notes.append(f"rig frames posed {v.get('rig_frames_solved', 0):g}/{RIG_FRAMES}; not solved: "
+                   + _reasons(v))  # fmt: skip
     c.expect(w.get("right.state") == "disagrees", f"right.state {w.get('right.state')!r}")
-    c.expect(head and "right disagrees" in head.group(0), "the status does not name right")
+    c.expect(head and re.search(r"\bright\b[^\n]*disagree", head.group(0)),
+             "the status does not name right as disagreeing")  # fmt: skip
     r = day.run(f"rs-localizer replay {lean} --params-file {off}", max(day.timeout, 900))
     said = next((ln.strip() for ln in r.output.splitlines() if "disagree" in ln), "")
     status = head.group(0) if head else "no status"
@@ -1642,7 +1654,7 @@ def check_rig_lifecycle(day: Day, c: Check) -> None:
             time.sleep(0.2)
         up = drive("configure", "activate")
         r = day.run(f"rs-localizer play {lean} --lockstep --timeout 10", 600)
-        m = re.search(r"(\d+) answered, (\d+) timed out", r.output)
+        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
         down = drive("deactivate", "cleanup")
     finally:
         _stop(proc)
