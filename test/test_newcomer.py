@@ -127,3 +127,28 @@ def test_the_rig_checks_are_listed_and_selectable(capsys):
         "right.state": "stopped",
         "right.camera_info": "received",
     }
+
+
+def test_the_rig_day_helpers_against_independent_computations(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    nc = _tool()
+    a = [0.1, 0.2, 0.3, *Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()]
+    turn = Rotation.from_euler("z", 5, degrees=True) * Rotation.from_quat(a[3:])
+    b = [0.1, 0.2, 0.304, *turn.as_quat()]
+    deg, mm = nc._mounting_error(a, b)
+    assert abs(deg - 5.0) < 1e-9 and abs(mm - 4.0) < 1e-9
+    # a copy of a bag with some messages left out (the faults' bags), its side files too
+    from rs_localizer.ros.bags.bag_io import iter_messages
+
+    src = ROOT / "data" / "sample"
+    every = list(iter_messages(src))
+    cut = sorted(t for _, _, t, _ in every)[len(every) // 2]
+    n = nc._copy_bag(
+        src, tmp_path / "cut", lambda topic, t: topic.endswith("camera_info") or t < cut
+    )
+    kept = list(iter_messages(tmp_path / "cut"))
+    want = [m for m in every if m[0].endswith("camera_info") or m[2] < cut]
+    assert n == len(kept) == len(want) < len(every)
+    assert [(m[0], m[2], m[3]) for m in kept] == [(m[0], m[2], m[3]) for m in want]
+    assert (tmp_path / "cut" / "sequence.json").exists()

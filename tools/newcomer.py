@@ -1612,7 +1612,9 @@ for word in sys.argv[2:]:
 def check_rig_lifecycle(day: Day, c: Check) -> None:
     """The managed rig node (`rs_localizer_lifecycle_node` with the rig's parameters):
     configure, activate (through `rs-localizer lifecycle` if the CLI has it, else rclpy's
-    lifecycle services), `play --lockstep` posed, then deactivate and cleanup."""
+    lifecycle services; the check says which), `play --lockstep` answered (>= 95 % of the rig
+    frames; rig_lockstep judges every one), then deactivate and cleanup, each transition's
+    state read back."""
     rig = _rig(day)
     lean = rig.lean()
     helptext = day.run("rs-localizer --help").output
