@@ -99,3 +99,56 @@ def test_the_day_geometry_against_independent_computations():
     R0, t0 = Rotation.random(random_state=rng).as_matrix(), np.array([1.0, -2.0, 0.5])
     R, t = nc._rigid_fit(src, src @ R0.T + t0)
     assert np.allclose(R, R0) and np.allclose(t, t0)
+
+
+def test_the_rig_checks_are_listed_and_selectable(capsys):
+    nc = _tool()
+    assert nc.RIG_CHECKS and not set(nc.RIG_CHECKS) & set(nc.CHECKS)
+    assert nc.main(["--list", "--only", "rig"]) == 0
+    out = capsys.readouterr().out
+    for name, (_slow, fn) in nc.RIG_CHECKS.items():
+        assert f"check {name}" in out and fn.__doc__, name
+    assert "check gravity_frame" not in out and "README.md: " not in out
+    assert nc.main(["--list", "--only", "rig_calibrate,gravity_frame"]) == 0
+    out = capsys.readouterr().out
+    assert "check rig_calibrate (slow)" in out and "check gravity_frame (slow)" in out
+    assert "check rig_lockstep" not in out
+    assert nc.main(["--list"]) == 0  # (everything: the pages, both days)
+    out = capsys.readouterr().out
+    assert all(f"check {n}" in out for n in (*nc.CHECKS, *nc.RIG_CHECKS))
+    # the diagnostics' per-camera accounting, as the rig checks read it
+    v = nc._diag_values(
+        "  front.received=40 front.solved=30 front.failed=1 front.skipped=8 front.pending=1\n"
+        "  left.received=40 left.solved=39 left.failed=0 left.skipped=0 left.pending=0"
+    )
+    bad = nc._rig_accounting(v, ("front", "left", "right"))
+    assert bad == ["left: received 40 != 39 + 0 + 0 + 0", "right: counts not printed"]
+    assert nc._diag_words("  right.state=stopped right.camera_info=received") == {
+        "right.state": "stopped",
+        "right.camera_info": "received",
+    }
+
+
+def test_the_rig_day_helpers_against_independent_computations(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    nc = _tool()
+    a = [0.1, 0.2, 0.3, *Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()]
+    turn = Rotation.from_euler("z", 5, degrees=True) * Rotation.from_quat(a[3:])
+    b = [0.1, 0.2, 0.304, *turn.as_quat()]
+    deg, mm = nc._mounting_error(a, b)
+    assert abs(deg - 5.0) < 1e-9 and abs(mm - 4.0) < 1e-9
+    # a copy of a bag with some messages left out (the faults' bags), its side files too
+    from rs_localizer.ros.bags.bag_io import iter_messages
+
+    src = ROOT / "data" / "sample"
+    every = list(iter_messages(src))
+    cut = sorted(t for _, _, t, _ in every)[len(every) // 2]
+    n = nc._copy_bag(
+        src, tmp_path / "cut", lambda topic, t: topic.endswith("camera_info") or t < cut
+    )
+    kept = list(iter_messages(tmp_path / "cut"))
+    want = [m for m in every if m[0].endswith("camera_info") or m[2] < cut]
+    assert n == len(kept) == len(want) < len(every)
+    assert [(m[0], m[2], m[3]) for m in kept] == [(m[0], m[2], m[3]) for m in want]
+    assert (tmp_path / "cut" / "sequence.json").exists()

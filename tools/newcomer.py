@@ -27,6 +27,23 @@ machine), then a summary. ``--only`` runs single pages or checks (``pages``, ``d
 them; a check runs the steps it needs, e.g. the video and the map), ``--skip-slow`` leaves out
 the day's slow checks (the whole day takes 20-30 min on a 2-core machine). Not part of ``make
 test``. Exit status 1 when a command fails, a figure is off or a check fails.
+
+The rig user's day (``--only rig``): a wheeled robot with three rolling-shutter cameras
+(front, left, right; ``render-bag --rig 3 --frames 60``, 640x480 each) in a lab of AprilTag
+36h11 tags, as docs/rig_node.md and docs/tools.md tell it: ``rig_render`` (the bag),
+``rig_calibrate`` (``calibrate-rig``: the mountings against the renderer's, the printed std
+covering the error, the rig frame named), ``rig_lockstep`` (the rig node and ``play
+--lockstep``: every rig frame answered, ``evaluate --live`` against the truth),
+``rig_realtime`` (``play`` at the bag's rate: every camera frame accounted in /diagnostics),
+``rig_replay_evaluate`` (``replay --out`` and ``evaluate`` of its output), the faults
+``rig_unplugged`` (a camera's topics end half way: ``stopped``, WARN), ``rig_absent`` (a camera
+never sends: ERROR naming it after ``rig.stop_after``), ``rig_no_camera_info`` (``waiting``,
+``skipped.no_camera_info``, a log line naming its topic), ``rig_mounting_off`` (a mounting 5
+deg off: the node and ``replay`` name the camera), ``rig_lifecycle`` (the managed rig node
+driven through configure, activate, deactivate, cleanup: ``rs-localizer lifecycle`` if the CLI
+has it, else rclpy's lifecycle services, the check says which) and ``rig_view`` (``rs-localizer
+view`` and a Foxglove WebSocket client receiving the poses). About 15 min on a loaded 2-core
+machine.
 """
 
 from __future__ import annotations
@@ -548,9 +565,9 @@ class Day:
 
         return self.once("demo", make)
 
-    def node(self, ros_args: str, timeout: float = 120.0):
+    def node(self, ros_args: str, timeout: float = 120.0, marker: str = "ready:"):
         """Start ``rs_localizer_node --ros-args ROS_ARGS`` in the background; returns
-        ``(process, output lines, seconds to ready:)``."""
+        ``(process, output lines, seconds to the line with ``marker``)``."""
         cmd = f"rs_localizer_node --ros-args {ros_args}"
         self.ran.append(cmd + " &")
         proc = subprocess.Popen(
@@ -564,7 +581,7 @@ class Day:
         lines: list[str] = []
         threading.Thread(target=lines.extend, args=(proc.stdout,), daemon=True).start()
         t0 = time.perf_counter()
-        while not any("ready:" in ln for ln in lines):
+        while not any(marker in ln for ln in lines):
             if proc.poll() is not None or time.perf_counter() - t0 > timeout:
                 _stop(proc)
                 raise CheckFailed(f"the node did not start: {_tail(''.join(lines))}")
@@ -1116,6 +1133,594 @@ def check_demo_figures(day: Day, c: Check) -> None:
     )
 
 
+# ---------------------------------------------------------------------------------------------
+# A rig user's first day: a wheeled robot with three rolling-shutter cameras (front, left,
+# right; the renderer standing in: ``render-bag --rig 3``, 640x480 each) in a lab with AprilTag
+# 36h11 tags on its walls: the mountings from data, the rig node in lock-step and at the bag's
+# rate, replay and evaluate, the faults a robot meets (a camera unplugged, absent, without
+# camera_info, a mounting off), the managed node and the viewer.
+
+#: the rig's video: frames per camera (each a rig frame)
+RIG_FRAMES = 60
+RIG_RENDER = "rs-localizer render-bag {bag} --rig 3 --frames {n}"
+RIG_CAMERAS = ("front", "left", "right")
+#: calibrate-rig against the renderer's mountings: largest error (deg, mm) on the short video
+#: (docs/rig_node.md: 0.1 deg and 5 mm on 300 frames), and the std covers the error within
+#: this many standard deviations
+RIG_CAL_TOL = (0.3, 10.0)
+RIG_CAL_SIGMAS = 3.0
+
+
+def _rig_params(path: Path) -> dict:
+    """The ``ros__parameters`` of a rig parameter file (``rig_params.yaml``)."""
+    import yaml
+
+    data = yaml.safe_load(path.read_text())
+    return next(iter(data.values()))["ros__parameters"]
+
+
+def _mounting_error(a: list[float], b: list[float]) -> tuple[float, float]:
+    """Rotation (deg) and position (mm) between two mountings ``[x, y, z, qx, qy, qz, qw]``."""
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_quat(a[3:]).inv() * Rotation.from_quat(b[3:])
+    return float(np.degrees(rot.magnitude())), 1e3 * float(
+        np.linalg.norm(np.subtract(a[:3], b[:3]))
+    )
+
+
+def _diag_words(text: str) -> dict[str, str]:
+    """Every key=value pair ``rs-localizer diagnostics`` printed, as text (the last of each)."""
+    return dict(re.findall(r"([\w.<>-]+)=(\S+)", text))
+
+
+def _rig_accounting(v: dict[str, float], cams=RIG_CAMERAS) -> list[str]:
+    """Per camera ``received = solved + failed + skipped + pending`` from the diagnostics'
+    numbers: the cameras where it does not hold (or is not printed), described."""
+    bad = []
+    for cam in cams:
+        parts = [
+            v.get(f"{cam}.{k}") for k in ("received", "solved", "failed", "skipped", "pending")
+        ]
+        if None in parts:
+            bad.append(f"{cam}: counts not printed")
+        elif parts[0] != sum(parts[1:]):
+            bad.append(f"{cam}: received {parts[0]:g} != {' + '.join(f'{p:g}' for p in parts[1:])}")
+    return bad
+
+
+def _rig_counts(v: dict[str, float], cams=RIG_CAMERAS) -> str:
+    return "; ".join(
+        f"{c} {v.get(c + '.received', 0):g} = {v.get(c + '.solved', 0):g} + "
+        f"{v.get(c + '.failed', 0):g} + {v.get(c + '.skipped', 0):g} + {v.get(c + '.pending', 0):g}"
+        for c in cams
+    )
+
+
+def _reasons(v: dict[str, float]) -> str:
+    """The nonzero ``<camera>.skipped.<reason>``, ``.failed.<reason>`` and
+    ``rig_frames_failed.<reason>`` counts of the diagnostics."""
+    keys = [
+        k for k, x in v.items() if x and re.search(r"\.(skipped|failed)\.|^rig_frames_failed\.", k)
+    ]
+    return ", ".join(f"{k}={v[k]:g}" for k in keys) or "none"
+
+
+def _copy_bag(src: Path, dst: Path, keep) -> int:
+    """A copy of the rig bag ``src`` at ``dst`` with the messages ``keep(topic, log_time_ns)``
+    accepts (its parameter files too), as a robot would have recorded it; returns the number
+    of messages written."""
+    from rosbags.rosbag2 import Reader, Writer
+
+    from rs_localizer.ros.bags.bag_io import storage_plugin, typestore
+
+    shutil.rmtree(dst, ignore_errors=True)
+    ts, n = typestore(), 0
+    with Reader(src) as r, Writer(dst, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in r.connections}
+        for conn, t_ns, raw in r.messages():
+            if keep(conn.topic, t_ns):
+                w.write(conns[conn.id], t_ns, raw)
+                n += 1
+    for f in src.iterdir():
+        if f.suffix in (".yaml", ".json") and f.name != "metadata.yaml":
+            shutil.copy(f, dst / f.name)
+    return n
+
+
+class RigDay:
+    """The rig day's shared steps on top of a :class:`Day` (its commands, node, work folder)."""
+
+    def __init__(self, day: Day):
+        self.day = day
+
+    def bag(self) -> Path:
+        def make():
+            bag = self.day.work / "rig"
+            shutil.rmtree(bag, ignore_errors=True)
+            r = self.day.must(RIG_RENDER.format(bag=bag, n=RIG_FRAMES), max(self.day.timeout, 900))
+            self.day._done["rig_render_seconds"] = r.seconds
+            return bag
+
+        return self.day.once("rig_bag", make)
+
+    def lean(self) -> Path:
+        """The rig bag without its images (the rig node takes the correspondences): the faults'
+        bags are cut from it."""
+
+        def make():
+            out = self.day.work / "rig_lean"
+            _copy_bag(self.bag(), out, lambda topic, _t: not topic.endswith("image_raw"))
+            return out
+
+        return self.day.once("rig_lean", make)
+
+    def node(self, params: str, extra: str = "", marker: str = "ready:"):
+        return self.day.node(f"--params-file {params} -r __ns:=/rig {extra}".strip(), marker=marker)
+
+    def diagnostics(self) -> tuple[Run, dict[str, float], dict[str, str]]:
+        time.sleep(2.0)  # (a status after the last frame)
+        d = self.day.run("rs-localizer diagnostics --ns /rig --once --timeout 20", 60)
+        return d, _diag_values(d.output), _diag_words(d.output)
+
+
+def _rig(day: Day) -> RigDay:
+    return day.once("rig_day", lambda: RigDay(day))
+
+
+def check_rig_render(day: Day, c: Check) -> None:
+    """The robot's video: `render-bag --rig 3` (front, left, right rolling-shutter cameras,
+    640x480, in a lab of AprilTag 36h11 tags) writes every camera's images, camera_info and
+    correspondences, the rig's ground truth and the true mountings (`rig_params.yaml`)."""
+    from rs_localizer.ros.bags.bag_io import bag_topics
+
+    bag = _rig(day).bag()
+    topics = bag_topics(bag)
+    kinds = ("image_raw", "camera_info", "correspondences")
+    want = {f"/rig/{cam}/{t}" for cam in RIG_CAMERAS for t in kinds} | {"/ground_truth/pose"}
+    cams = _rig_params(bag / "rig_params.yaml").get("rig", {}).get("cameras", [])
+    from rs_localizer.ros.bags.bag_io import iter_messages
+
+    n = sum(1 for _ in iter_messages(bag, {f"/rig/{cam}/correspondences" for cam in RIG_CAMERAS}))
+    c.value = (
+        f"{len(cams)} cameras {cams}, {n} camera frames ({RIG_FRAMES} per camera), "
+        f"{day._done.get('rig_render_seconds', 0):.0f} s"
+    )
+    c.expect(list(cams) == list(RIG_CAMERAS), f"rig_params.yaml names cameras {cams}")
+    c.expect(not want - set(topics), f"topics missing: {sorted(want - set(topics))}")
+    c.expect(n == 3 * RIG_FRAMES, f"{n} camera frames of {3 * RIG_FRAMES}")
+
+
+def check_rig_calibrate(day: Day, c: Check) -> None:
+    """`calibrate-rig` (`--min-inliers 8`: the side cameras see few tags, docs/rig_node.md)
+    finds every camera's mounting within 0.3 deg and 10 mm of the renderer's, its printed std
+    covering the error (within 3 std), and names the rig frame it wrote."""
+    bag = _rig(day).bag()
+    out = day.work / "rig_calibrated.yaml"
+    r = day.run(f"rs-localizer calibrate-rig {bag} -o {out} --min-inliers 8 --json")
+    if not c.expect(r.rc == 0, f"exit code {r.rc}: {_tail(r.output)}"):
+        return
+    got = json.loads(r.output[r.output.find("{") :].rsplit("}", 1)[0] + "}")
+    truth = _rig_params(bag / "rig_params.yaml")["rig"]
+    vals = []
+    for cam, m in got["cameras"].items():
+        if cam == got.get("reference"):
+            continue
+        deg, mm = _mounting_error(m["mounting"], truth[cam]["mounting"])
+        vals.append(f"{cam} {deg:.3f} deg {mm:.2f} mm (std {m['std_deg']:.3f} deg "
+                    f"{m['std_mm']:.2f} mm, {m['frames']} frames)")  # fmt: skip
+        c.expect(
+            deg <= RIG_CAL_TOL[0] and mm <= RIG_CAL_TOL[1],
+            f"{cam}: {deg:.3f} deg, {mm:.2f} mm off the truth (> {RIG_CAL_TOL[0]} deg or "
+            f"{RIG_CAL_TOL[1]} mm)",
+        )
+        c.expect(
+            deg <= RIG_CAL_SIGMAS * m["std_deg"] and mm <= RIG_CAL_SIGMAS * m["std_mm"],
+            f"{cam}: the std does not cover the error ({deg / max(m['std_deg'], 1e-12):.1f} "
+            f"and {mm / max(m['std_mm'], 1e-12):.1f} std)",
+        )
+    named = re.search(r"rig frame (\S+)", r.output)
+    c.value = "; ".join(vals) + (f"; rig frame {named.group(1)}" if named else "")
+    c.expect(named, "calibrate-rig does not name the rig frame it wrote")
+    c.expect(got.get("rig_frame") == _rig_params(bag / "rig_params.yaml").get("base_frame"),
+             f"rig frame {got.get('rig_frame')!r}, the parameters' base_frame differs")  # fmt: skip
+    c.expect(out.exists() and "mounting" in out.read_text(), "no parameter file written")
+
+
+def check_rig_lockstep(day: Day, c: Check) -> None:
+    """The rig node (`rs_localizer_node` with the bag's `rig_params.yaml`) and `play
+    --lockstep` with the true mountings: every rig frame posed (play's answered count and the
+    node's rig_frames_solved; a failed one is named with its reason), the poses (`evaluate
+    --live` on /rig/pose_with_covariance against the bag's truth) within 0.1 deg and 5 mm
+    (median)."""
+    rig = _rig(day)
+    bag = rig.bag()
+    node = rig.node(bag / "rig_params.yaml")[0]
+    ev = None
+    try:
+        cmd = (f"rs-localizer evaluate --live 40 --wait 120 --topic /rig/pose_with_covariance "
+               f"--truth {bag} --json")  # fmt: skip
+        day.ran.append(cmd + " &")
+        ev = subprocess.Popen(_argv(cmd), cwd=ROOT, env=_env(day.domain), text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+        time.sleep(4.0)  # (evaluate subscribes)
+        r = day.run(f"rs-localizer play {bag} --lockstep --timeout 10", 600)
+        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
+        _, v, _ = rig.diagnostics()
+        out, err = ev.communicate(timeout=120)
+    finally:
+        if ev is not None and ev.poll() is None:
+            ev.kill()
+        _stop(node)
+    solved, failed = v.get("rig_frames_solved", 0), v.get("rig_frames_failed", 0)
+    reasons = {k: x for k, x in v.items() if k.startswith("rig_frames_failed.")}
+    vals = [
+        f"{m.group(1)} answered, {m.group(2)} timed out" if m else "play: no count",
+        f"{solved:g}/{RIG_FRAMES} rig frames posed, {failed:g} failed {reasons or ''}",
+    ]
+    c.expect(r.rc == 0 and m, f"play exit code {r.rc}: {_tail(r.output, 200)}")
+    c.expect(solved + failed == RIG_FRAMES, f"{solved + failed:g} of {RIG_FRAMES} rig frames done")
+    c.expect(solved == RIG_FRAMES, f"{solved:g} of {RIG_FRAMES} rig frames posed")
+    c.expect(m and int(m.group(1)) == RIG_FRAMES, "play: not every rig frame answered")
+    try:
+        res = json.loads(out)
+        rot, pos = res["ape"]["rot_deg"]["median"], 1e3 * res["ape"]["pos_m"]["median"]
+        vals.append(f"evaluate: {res['matched']} poses matched, APE median {rot:.4f} deg "
+                    f"{pos:.2f} mm")  # fmt: skip
+        c.expect(
+            rot <= 0.1 and pos <= 5, f"APE median {rot:.4f} deg {pos:.2f} mm (> 0.1 deg or 5 mm)"
+        )
+        c.expect(
+            res["matched"] >= solved - 1, f"evaluate matched {res['matched']} of {solved:g} poses"
+        )
+    except (ValueError, KeyError, TypeError):
+        c.fail(f"evaluate --live printed no figures: {_tail(out + err, 300)}")
+    c.value = "; ".join(vals)
+
+
+def check_rig_realtime(day: Day, c: Check) -> None:
+    """The rig node and `play` at the bag's rate (30 Hz per camera, not lock-step): every camera
+    frame accounted in /diagnostics (per camera received = solved + failed + skipped +
+    pending, received = the frames played)."""
+    rig = _rig(day)
+    bag = rig.bag()
+    node = rig.node(bag / "rig_params.yaml")[0]
+    try:
+        r = day.run(f"rs-localizer play {bag}", 600)
+        d, v, _ = rig.diagnostics()
+    finally:
+        _stop(node)
+    c.value = _rig_counts(v) + f"; rig frames posed {v.get('rig_frames_solved', 0):g}/{RIG_FRAMES}"
+    c.notes.append("not solved: " + _reasons(v))
+    c.expect(r.rc == 0, f"play exit code {r.rc}: {_tail(r.output, 300)}")
+    c.expect(d.rc == 0, f"diagnostics exit code {d.rc}: {_tail(d.output, 300)}")
+    for bad in _rig_accounting(v):
+        c.fail(bad)
+    for cam in RIG_CAMERAS:
+        got = v.get(f"{cam}.received", 0) + v.get(f"{cam}.messages_lost", 0)
+        c.expect(got == RIG_FRAMES, f"{cam}: {got:g} of {RIG_FRAMES} frames received or lost")
+
+
+def check_rig_replay_evaluate(day: Day, c: Check) -> None:
+    """`replay` of the rig bag (`--out`, `--json`): its counts and median errors; `rs-localizer
+    evaluate` of the recorded output against the bag's truth gives the same medians (5 %, or
+    0.001 deg and 0.05 mm) within 0.1 deg and 5 mm."""
+    bag = _rig(day).bag()
+    out = day.work / "rig_out"
+    shutil.rmtree(out, ignore_errors=True)
+    r = day.run(f"rs-localizer replay {bag} --out {out} --json --quiet", max(day.timeout, 900))
+    if not c.expect(r.rc == 0, f"replay exit code {r.rc}: {_tail(r.output)}"):
+        return
+    try:
+        s = json.JSONDecoder().raw_decode(r.output[r.output.find("{\n") :])[0]
+    except ValueError:
+        c.fail(f"replay printed no JSON: {_tail(r.output)}")
+        return
+    rot, pos = s["rot_deg"], 1e3 * s["pos_m"]
+    vals = [f"replay {s['solved']}/{s['rig_frames']} posed, {rot:.4f} deg {pos:.3f} mm"]
+    c.expect(s["solved"] >= 0.95 * s["rig_frames"], f"replay posed {s['solved']}")
+    for cam in RIG_CAMERAS:
+        k = s["counts"].get(cam, {})
+        c.expect(k.get("received") == sum(k.get(x, 0) for x in ("solved", "failed", "skipped",
+                 "pending")), f"replay {cam}: {k}")  # fmt: skip
+    e = day.run(f"rs-localizer evaluate {out} --truth {bag} --json")
+    try:
+        res = json.loads(e.output[e.output.find("{\n") :].rsplit("}", 1)[0] + "}")
+        erot, epos = res["ape"]["rot_deg"]["median"], 1e3 * res["ape"]["pos_m"]["median"]
+    except (ValueError, KeyError, TypeError):
+        c.fail(f"evaluate exit code {e.rc}: {_tail(e.output)}")
+        c.value = vals[0]
+        return
+    vals.append(f"evaluate {res['matched']} matched, APE median {erot:.4f} deg {epos:.3f} mm")
+    c.value = "; ".join(vals)
+    c.expect(res["matched"] == s["solved"], f"evaluate matched {res['matched']} of {s['solved']}")
+    c.expect(abs(erot - rot) <= max(0.05 * rot, 1e-3) and abs(epos - pos) <= max(0.05 * pos, 0.05),
+             "evaluate's medians differ from replay's")  # fmt: skip
+    c.expect(erot <= 0.1 and epos <= 5, "APE median > 0.1 deg or 5 mm")
+
+
+def _rig_fault_run(day: Day, c: Check, bag: Path, params: Path, play: str, extra: str = "",
+                   watch: bool = False):  # fmt: skip
+    """The rig node with ``params`` and ``play`` of ``bag``; returns (node log, the final
+    diagnostics (numbers, words, text) and, with ``watch``, every status printed meanwhile)."""
+    rig = _rig(day)
+    node, lines, _ = rig.node(params, extra)
+    watcher, seen = None, day.work / "rig_diagnostics.txt"
+    try:
+        if watch:
+            cmd = "rs-localizer diagnostics --ns /rig --timeout 60"
+            day.ran.append(cmd + " &")
+            env = _env(day.domain)
+            env["PYTHONUNBUFFERED"] = "1"  # (its output is read after it is stopped)
+            with seen.open("w") as f:
+                watcher = subprocess.Popen(_argv(cmd), cwd=ROOT, env=env, text=True, stdout=f,
+                                           stderr=subprocess.STDOUT)  # fmt: skip
+            time.sleep(3.0)
+        r = day.run(f"rs-localizer play {bag} {play}".strip(), 600)
+        c.expect(r.rc == 0, f"play exit code {r.rc}: {_tail(r.output, 300)}")
+        d, v, w = rig.diagnostics()
+        return "".join(lines), v, w, d.output, seen.read_text() if watch else ""
+    finally:
+        if watcher is not None:
+            _stop(watcher)
+        _stop(node)
+
+
+def check_rig_unplugged(day: Day, c: Check) -> None:
+    """A camera unplugged mid-run: the right camera's topics end half way (a copy of the bag
+    cut there), played at half the bag's rate (the loaded machine keeps up): the right
+    camera's state is `stopped` with a WARN status, the rig poses rig frames without it (more
+    than the right camera's solved frames), every frame accounted."""
+    rig = _rig(day)
+    lean = rig.lean()
+    from rs_localizer.ros.bags.bag_io import iter_messages
+
+    stamps = sorted(t for _, _, t, _ in iter_messages(lean, {"/rig/right/correspondences"}))
+    cut = stamps[len(stamps) // 2]
+    bag = day.work / "rig_unplugged"
+    _copy_bag(lean, bag, lambda topic, t: not (topic.startswith("/rig/right/") and t >= cut))
+    day.ran.append(f"(a copy of the bag without the right camera's messages from frame "
+                   f"{len(stamps) // 2} on: {bag})")  # fmt: skip
+    _, v, w, text, _ = _rig_fault_run(day, c, bag, bag / "rig_params.yaml", "--rate 0.5")
+    head = re.search(r"\[(\w+)\] [^\n]*", text)
+    status = head.group(0) if head else "no status"
+    c.value = (f"right.state={w.get('right.state')}, {status}; rig frames posed "
+               f"{v.get('rig_frames_solved', 0):g}; " + _rig_counts(v))  # fmt: skip
+    c.expect(w.get("right.state") == "stopped", f"right.state {w.get('right.state')!r}")
+    c.expect(head and head.group(1) == "WARN", "the status is not WARN")
+    c.expect(v.get("rig_frames_solved", 0) > v.get("right.solved", 0),
+             "the rig posed no rig frame without the right camera")  # fmt: skip
+    for bad in _rig_accounting(v):
+        c.fail(bad)
+    c.notes.append("not solved: " + _reasons(v))
+
+
+def check_rig_absent(day: Day, c: Check) -> None:
+    """A camera absent from the start (the right camera's topics not played; played at half
+    the bag's rate): while the rig waits for it the status is ERROR naming it (`no frame from
+    camera right`, after `rig.stop_after`); then the rig runs on the other two."""
+    rig = _rig(day)
+    lean = rig.lean()
+    topics = " ".join(f"/rig/{cam}/{t}" for cam in ("front", "left")
+                      for t in ("camera_info", "correspondences"))  # fmt: skip
+    _, v, w, text, seen = _rig_fault_run(
+        day, c, lean, lean / "rig_params.yaml", f"--rate 0.5 --topics {topics}",
+        extra="-p diagnostics_period:=0.25", watch=True,
+    )  # fmt: skip
+    err = re.search(r"\[ERROR\] [^\n]*no frame from camera right[^\n]*", seen)
+    head = re.search(r"\[(\w+)\] [^\n]*", text)
+    status = head.group(0) if head else "no status"
+    c.value = (f"{err.group(0) if err else 'no ERROR naming right seen'}; at the end {status}, "
+               f"rig frames posed {v.get('rig_frames_solved', 0):g}, "
+               f"right.state={w.get('right.state')}")  # fmt: skip
+    c.expect(err, "no ERROR status naming the absent camera while the rig waited")
+    c.expect(v.get("rig_frames_solved", 0) > 0, "the rig did not run on the other two")
+    c.expect(v.get("right.received", -1) == 0, f"right.received {v.get('right.received')}")
+
+
+def check_rig_no_camera_info(day: Day, c: Check) -> None:
+    """A camera without camera_info (the left camera's not played; half the bag's rate): its
+    state `waiting`, none of its frames used and every one waiting counted
+    `skipped.no_camera_info`, a log line naming its camera_info topic, the rig runs on the
+    others (rig frames posed)."""
+    rig = _rig(day)
+    lean = rig.lean()
+    topics = " ".join(f"/rig/{cam}/{t}" for cam in RIG_CAMERAS for t in ("camera_info",
+                      "correspondences") if not (cam == "left" and t == "camera_info"))  # fmt: skip
+    log, v, w, _, _ = _rig_fault_run(day, c, lean, lean / "rig_params.yaml",
+                                     f"--rate 0.5 --topics {topics}")  # fmt: skip
+    named = next((ln.strip() for ln in log.splitlines() if "/rig/left/camera_info" in ln), "")
+    c.value = (f"left.state={w.get('left.state')}, left.skipped.no_camera_info="
+               f"{v.get('left.skipped.no_camera_info', 0):g} of {v.get('left.received', 0):g}, "
+               f"rig frames posed {v.get('rig_frames_solved', 0):g}")  # fmt: skip
+    c.expect(w.get("left.state") == "waiting", f"left.state {w.get('left.state')!r}")
+    c.expect(
+        v.get("left.received", 0) > 0 and v.get("left.skipped.no_camera_info", 0) > 0,
+        "left's frames not counted skipped.no_camera_info",
+    )
+    c.expect(v.get("left.solved", 0) + v.get("left.failed", 0) == 0, "left's frames were used")
+    c.expect(named, "no log line names /rig/left/camera_info")
+    c.expect(v.get("rig_frames_solved", 0) > 0, "the rig did not run on the others")
+    for bad in _rig_accounting(v):
+        c.fail(bad)
+    c.notes.append("not solved: " + _reasons(v))
+    if named:
+        c.notes.append(named[-200:])
+
+
+def check_rig_mounting_off(day: Day, c: Check) -> None:
+    """The right camera's mounting given 5 deg off (turned about the rig's z axis), the bag
+    played at half its rate: the node's status names `right` as disagreeing (state
+    `disagrees`), and so does `replay` with that parameter file."""
+    import yaml
+    from scipy.spatial.transform import Rotation
+
+    rig = _rig(day)
+    lean = rig.lean()
+    data = yaml.safe_load((lean / "rig_params.yaml").read_text())
+    p = next(iter(data.values()))["ros__parameters"]
+    m = p["rig"]["right"]["mounting"]
+    q = (Rotation.from_euler("z", 5, degrees=True) * Rotation.from_quat(m[3:])).as_quat()
+    p["rig"]["right"]["mounting"] = [*m[:3], *map(float, q)]
+    off = day.work / "rig_right_off5deg.yaml"
+    off.write_text(yaml.safe_dump(data))
+    day.ran.append(f"(the rig's parameters, right's mounting turned by 5 deg: {off})")
+    _, v, w, text, _ = _rig_fault_run(day, c, lean, off, "--rate 0.5")
+    head = re.search(r"\[(\w+)\] [^\n]*", text)
+    c.notes.append(f"rig frames posed {v.get('rig_frames_solved', 0):g}/{RIG_FRAMES}; not solved: "
+                   + _reasons(v))  # fmt: skip
+    c.expect(w.get("right.state") == "disagrees", f"right.state {w.get('right.state')!r}")
+    c.expect(head and re.search(r"\bright\b[^\n]*disagree", head.group(0)),
+             "the status does not name right as disagreeing")  # fmt: skip
+    r = day.run(f"rs-localizer replay {lean} --params-file {off}", max(day.timeout, 900))
+    said = next((ln.strip() for ln in r.output.splitlines() if "disagree" in ln), "")
+    status = head.group(0) if head else "no status"
+    c.value = (f"node: {status}, right.state={w.get('right.state')}; replay: "
+               f"{said or 'names no camera disagreeing'}")  # fmt: skip
+    c.expect(r.rc == 0, f"replay exit code {r.rc}: {_tail(r.output, 300)}")
+    c.expect("right" in said, "replay does not name right as disagreeing")
+
+
+_LIFECYCLE = """
+import sys, rclpy
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
+rclpy.init()
+n = rclpy.create_node("newcomer_lifecycle")
+name = sys.argv[1]
+change = n.create_client(ChangeState, name + "/change_state")
+get = n.create_client(GetState, name + "/get_state")
+def call(cli, req):
+    assert cli.wait_for_service(timeout_sec=60.0), cli.srv_name
+    for _ in range(4):
+        fut = cli.call_async(req)
+        rclpy.spin_until_future_complete(n, fut, timeout_sec=30.0)
+        if fut.done():
+            return fut.result()
+        cli.remove_pending_request(fut)
+    raise SystemExit(cli.srv_name + " did not answer")
+for word in sys.argv[2:]:
+    ok = True
+    if word != "state":
+        tid = getattr(Transition, "TRANSITION_" + word.upper())
+        ok = call(change, ChangeState.Request(transition=Transition(id=tid))).success
+    label = call(get, GetState.Request()).current_state.label
+    print("LIFECYCLE", word, ok, label, flush=True)
+"""
+
+
+def check_rig_lifecycle(day: Day, c: Check) -> None:
+    """The managed rig node (`rs_localizer_lifecycle_node` with the rig's parameters):
+    configure, activate (through `rs-localizer lifecycle` if the CLI has it, else rclpy's
+    lifecycle services; the check says which), `play --lockstep` answered (>= 95 % of the rig
+    frames; rig_lockstep judges every one), then deactivate and cleanup, each transition's
+    state read back."""
+    rig = _rig(day)
+    lean = rig.lean()
+    helptext = day.run("rs-localizer --help").output
+    has_cli = "lifecycle" in re.findall(r"^\s{4}(\w[\w-]*)", helptext, re.M)
+    params = lean / "rig_params.yaml"
+    cmd = f"rs_localizer_lifecycle_node --ros-args --params-file {params} -r __ns:=/rig"
+    day.ran.append(cmd + " &")
+    proc = subprocess.Popen(_argv(cmd), cwd=ROOT, env=_env(day.domain), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+    lines: list[str] = []
+    threading.Thread(target=lines.extend, args=(proc.stdout,), daemon=True).start()
+
+    def services(*words) -> list[tuple[str, str, str]]:
+        """(transition, succeeded, state label after it) of each word through rclpy's lifecycle
+        services (``state``: the state only)."""
+        r = subprocess.run([sys.executable, "-c", _LIFECYCLE, "/rig/rs_localizer", *words],
+                           cwd=ROOT, env=_env(day.domain), capture_output=True, text=True,
+                           timeout=600)  # fmt: skip
+        got = re.findall(r"LIFECYCLE (\w+) (\w+) (\w+)", r.stdout)
+        if len(got) != len(words):
+            raise CheckFailed(f"lifecycle services: {_tail(r.stdout + r.stderr, 300)}")
+        return got
+
+    def drive(*words) -> list[tuple[str, str, str]]:
+        if not has_cli:
+            day.ran.append(f"(rclpy's lifecycle services of /rig/rs_localizer: {' '.join(words)})")
+            return services(*words)
+        got = []
+        for wd in words:
+            r = day.run(f"rs-localizer lifecycle /rig/rs_localizer {wd}", 180)
+            got.append((wd, str(r.rc == 0), services("state")[0][2]))
+        return got
+
+    try:
+        t0 = time.perf_counter()
+        while not any("unconfigured" in ln for ln in lines):
+            if proc.poll() is not None or time.perf_counter() - t0 > 120:
+                raise CheckFailed(f"the lifecycle node did not start: {_tail(''.join(lines))}")
+            time.sleep(0.2)
+        up = drive("configure", "activate")
+        r = day.run(f"rs-localizer play {lean} --lockstep --timeout 10", 600)
+        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
+        down = drive("deactivate", "cleanup")
+    finally:
+        _stop(proc)
+    how = "`rs-localizer lifecycle`" if has_cli else "rclpy's lifecycle services (no CLI command)"
+    steps = ", ".join(f"{wd} -> {label}" for wd, _, label in up + down)
+    answered = int(m.group(1)) if m else 0
+    c.value = f"via {how}: {steps}; play --lockstep {answered}/{RIG_FRAMES} answered"
+    c.expect(all(ok == "True" for _, ok, _ in up + down), f"a transition failed: {steps}")
+    want = ["inactive", "active", "inactive", "unconfigured"]
+    c.expect([label for *_, label in up + down] == want, f"states {steps}")
+    c.expect(answered >= 0.95 * RIG_FRAMES, f"{answered} of {RIG_FRAMES} rig frames answered")
+
+
+def check_rig_view(day: Day, c: Check) -> None:
+    """`rs-localizer view --ns /rig` next to the running rig node: a Foxglove WebSocket client
+    (as the app) connects, gets the server's info and the node's outputs advertised, and
+    receives poses while the bag plays."""
+    sys.path.insert(0, str(ROOT / "test"))
+    from helpers.foxglove_ws import FoxgloveClient
+
+    rig = _rig(day)
+    lean = rig.lean()
+    node = rig.node(lean / "rig_params.yaml")[0]
+    port = 20000 + random.randint(0, 20000)
+    cmd = f"rs-localizer view --ns /rig --port {port} --duration 120"
+    day.ran.append(cmd + " &")
+    view = subprocess.Popen(_argv(cmd), cwd=ROOT, env=_env(day.domain), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
+    client = None
+    try:
+        t0 = time.perf_counter()
+        while client is None:
+            try:
+                client = FoxgloveClient(port)
+            except OSError:
+                if view.poll() is not None or time.perf_counter() - t0 > 60:
+                    said = view.stdout.read() if view.poll() is not None else ""
+                    raise CheckFailed(f"view does not listen: {_tail(said)}") from None
+                time.sleep(0.5)
+        client.poll(3.0)
+        pose = next((t for t in client.channels if t.endswith("/pose")), None)
+        if pose:
+            client.subscribe([pose])
+        r = day.run(f"rs-localizer play {lean}", 600)
+        client.poll(3.0)
+        got = len(client.received(pose)) if pose else 0
+    finally:
+        if client is not None:
+            client.close()
+        if view.poll() is None:
+            view.send_signal(signal.SIGINT)
+            try:
+                view.wait(15)
+            except subprocess.TimeoutExpired:
+                view.kill()
+        _stop(node)
+    c.value = (f"connected ({client.protocol}), {len(client.channels)} channels advertised, "
+               f"{got} poses received on {pose}")  # fmt: skip
+    c.expect(client.server_info is not None, "no serverInfo from view")
+    c.expect(pose is not None, f"no pose channel among {sorted(client.channels)}")
+    c.expect(got > 0, "no pose arrived over the WebSocket while the bag played")
+    c.expect(r.rc == 0, f"play exit code {r.rc}")
+
+
 #: name -> (slow, function); in the order of the day
 CHECKS = {
     "compile": (True, check_compile),
@@ -1137,6 +1742,21 @@ CHECKS = {
     "demo_domain": (True, check_demo_domain),
     "demo_figures": (True, check_demo_figures),
 }
+#: the rig user's day (``--only rig``): name -> (slow, function), in the order of the day
+RIG_CHECKS = {
+    "rig_render": (True, check_rig_render),
+    "rig_calibrate": (True, check_rig_calibrate),
+    "rig_lockstep": (True, check_rig_lockstep),
+    "rig_realtime": (True, check_rig_realtime),
+    "rig_replay_evaluate": (True, check_rig_replay_evaluate),
+    "rig_unplugged": (True, check_rig_unplugged),
+    "rig_absent": (True, check_rig_absent),
+    "rig_no_camera_info": (True, check_rig_no_camera_info),
+    "rig_mounting_off": (True, check_rig_mounting_off),
+    "rig_lifecycle": (True, check_rig_lifecycle),
+    "rig_view": (True, check_rig_view),
+}
+ALL_CHECKS = {**CHECKS, **RIG_CHECKS}
 
 
 def run_day(
@@ -1145,7 +1765,7 @@ def run_day(
     """Run the named checks in the day's order, printing each as it ends."""
     day = Day(work, domain, timeout)
     out = []
-    for name, (slow, fn) in CHECKS.items():
+    for name, (slow, fn) in ALL_CHECKS.items():
         if name not in names:
             continue
         c = Check(name)
@@ -1172,13 +1792,15 @@ def run_day(
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
-        epilog="checks of the marker user's day: " + ", ".join(CHECKS),
+        epilog="checks of the marker user's day: " + ", ".join(CHECKS) + "; of the rig user's "
+        "day: " + ", ".join(RIG_CHECKS),
     )
     ap.add_argument("--list", action="store_true", help="only list the commands and checks")
     ap.add_argument(
         "--only",
-        help="comma-separated pages (docs/tools.md) and day checks (gravity_frame); "
-        "'pages': every page, 'day': every check (default: both)",
+        help="comma-separated pages (docs/tools.md) and checks (gravity_frame, rig_calibrate); "
+        "'pages': every page, 'day': every check of the marker user's day, 'rig': of the rig "
+        "user's day (default: all three)",
     )
     ap.add_argument(
         "--skip-slow",
@@ -1194,13 +1816,19 @@ def main(argv: list[str] | None = None) -> int:
         help="where the day's video, maps and images go (default: a new temporary folder)",
     )
     args = ap.parse_args(argv)
-    wanted = args.only.split(",") if args.only else ["pages", "day"]
-    unknown = [w for w in wanted if w not in ("pages", "day", *PAGES, *CHECKS)]
+    wanted = args.only.split(",") if args.only else ["pages", "day", "rig"]
+    unknown = [w for w in wanted if w not in ("pages", "day", "rig", *PAGES, *ALL_CHECKS)]
     if unknown:
         ap.error(f"--only: unknown {unknown} (pages: {', '.join(PAGES)}; checks: "
-                 f"{', '.join(CHECKS)})")  # fmt: skip
+                 f"{', '.join(ALL_CHECKS)})")  # fmt: skip
     pages = PAGES if "pages" in wanted else [w for w in wanted if w in PAGES]
-    checks = list(CHECKS) if "day" in wanted else [w for w in wanted if w in CHECKS]
+    checks = [
+        name
+        for name in ALL_CHECKS
+        if name in wanted
+        or ("day" in wanted and name in CHECKS)
+        or ("rig" in wanted and name in RIG_CHECKS)
+    ]
     domain = random.randint(1, 101)
     failed = ran = skipped = 0
     for page in pages:
@@ -1222,7 +1850,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"      {p}")
     if args.list:
         for name in checks:
-            slow, fn = CHECKS[name]
+            slow, fn = ALL_CHECKS[name]
             doc = " ".join(fn.__doc__.split())
             print(f"check {name}{' (slow)' if slow else ''}: {doc}")
         return 0
@@ -1230,7 +1858,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{ran} commands run, {failed} failed, {skipped} skipped", flush=True)
     results = []
     if checks:
-        print("\nthe marker user's day (AprilTag room, 640x480 rolling shutter):", flush=True)
+        days = [what for what, table in (
+            ("the marker user's day (AprilTag room, 640x480 rolling shutter)", CHECKS),
+            (f"the rig user's day (3 rolling-shutter cameras, 640x480, {RIG_FRAMES} frames)",
+             RIG_CHECKS),
+        ) if set(checks) & set(table)]  # fmt: skip
+        print("\n" + "; ".join(days) + ":", flush=True)
         work = args.workdir or Path(tempfile.mkdtemp(prefix="rs_newcomer_"))
         work.mkdir(parents=True, exist_ok=True)
         print(f"  work folder {work}, ROS_DOMAIN_ID {domain}", flush=True)
