@@ -106,6 +106,7 @@ __all__ = [
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
+    "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
     "RigPoseEstimate",
@@ -164,6 +165,12 @@ PREDICTION_GATE = 3.0
 #: ``verify_cameras``: camera d agrees with camera c's own pose when that pose explains at
 #: least this share of the inliers d's own pose has
 VERIFY_SHARE = 0.5
+
+#: ``verify_cameras``: a camera is posed alone to check the others only with at least this
+#: many valid points. Posed alone from a tag or two (8-12 corners for the twelve parameters
+#: of a rolling-shutter pose) its velocities fit its noise and its pose misses cameras that
+#: agree with the rig: a correct first rig frame was refused as ``cameras_disagree``
+VERIFY_MIN_POINTS = 20
 
 #: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
 #: other group's is at least this many times farther (rotation in rad plus position over
@@ -1387,6 +1394,10 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     voting cameras that agree posed alone, ``cameras_disagree`` on a tie the prediction does
     not break, or None when every camera posed alone agrees with the others."""
     M = len(pool.sizes)
+    valid = np.asarray(est.num_valid_per_camera)
+    voters = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
+    if len(voters) < 2:
+        return None
     inl = {}
     for c in voters:
         e = solve(_only(views, set(voters) - {c}))
