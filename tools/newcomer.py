@@ -1327,14 +1327,21 @@ def check_rig_calibrate(day: Day, c: Check) -> None:
     c.expect(out.exists() and "mounting" in out.read_text(), "no parameter file written")
 
 
+#: play's lock-step count on a rig bag: rig frames completed, waits answered, timed out
+PLAY_RIG_COUNT = re.compile(r"(\d+) rig frames completed in \d+ waits answered, (\d+) timed out")
+
+
 def check_rig_lockstep(day: Day, c: Check) -> None:
     """The rig node (`rs_localizer_node` with the bag's `rig_params.yaml`) and `play
-    --lockstep` with the true mountings: every rig frame posed (play's answered count and the
-    node's rig_frames_solved; a failed one is named with its reason), the poses (`evaluate
-    --live` on /rig/pose_with_covariance against the bag's truth) within 0.1 deg and 5 mm
-    (median)."""
+    --lockstep` with the true mountings, after the install step `rs-localizer compile
+    --params-file` with the rig's parameters (docs/install.md): every rig frame posed (play's
+    count of rig frames completed, none timed out, and the node's rig_frames_solved; a failed
+    one is named with its reason), the poses (`evaluate --live` on /rig/pose_with_covariance
+    against the bag's truth) within 0.1 deg and 5 mm (median)."""
     rig = _rig(day)
     bag = rig.bag()
+    r = day.run(f"rs-localizer compile --params-file {bag / 'rig_params.yaml'}", 900)
+    c.expect(r.rc == 0, f"compile exit code {r.rc}: {_tail(r.output, 200)}")
     node = rig.node(bag / "rig_params.yaml")[0]
     ev = None
     try:
@@ -1345,7 +1352,7 @@ def check_rig_lockstep(day: Day, c: Check) -> None:
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
         time.sleep(4.0)  # (evaluate subscribes)
         r = day.run(f"rs-localizer play {bag} --lockstep --timeout 10", 600)
-        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
+        m = PLAY_RIG_COUNT.search(r.output)
         _, v, _ = rig.diagnostics()
         out, err = ev.communicate(timeout=120)
     finally:
@@ -1355,7 +1362,9 @@ def check_rig_lockstep(day: Day, c: Check) -> None:
     solved, failed = v.get("rig_frames_solved", 0), v.get("rig_frames_failed", 0)
     reasons = {k: x for k, x in v.items() if k.startswith("rig_frames_failed.")}
     vals = [
-        f"{m.group(1)} answered, {m.group(2)} timed out" if m else "play: no count",
+        f"play: {m.group(1)} rig frames completed, {m.group(2)} timed out"
+        if m
+        else "play: no count",
         f"{solved:g}/{RIG_FRAMES} rig frames posed, {failed:g} failed {reasons or ''}",
     ]
     c.expect(r.rc == 0 and m, f"play exit code {r.rc}: {_tail(r.output, 200)}")
@@ -1656,7 +1665,7 @@ def check_rig_lifecycle(day: Day, c: Check) -> None:
             time.sleep(0.2)
         up = drive("configure", "activate")
         r = day.run(f"rs-localizer play {lean} --lockstep --timeout 10", 600)
-        m = re.search(r"(\d+) (?:rig frames )?answered, (\d+) timed out", r.output)
+        m = PLAY_RIG_COUNT.search(r.output)
         down = drive("deactivate", "cleanup")
     finally:
         _stop(proc)
