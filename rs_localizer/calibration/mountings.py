@@ -212,7 +212,8 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None
     # those within 3 times the median trace), taken in the camera's own axes: the depth
     # direction and the rotation-position coupling turn with the camera, so a mean in world
     # axes blurs them as the rig turns (on make-bag --rig 3 --frames 300 --points 300 the
-    # world-axes mean gave 0.57/0.98 mm against the truth, the camera-axes 0.40/0.39 mm)
+    # world-axes mean gave 0.57/0.98 mm against the truth, the camera-axes 0.40/0.39 mm);
+    # each frame's weight then scaled by its own covariance's size (below)
     covs: dict = {}
     for _, seen in rig_frames:
         for n, (R_wc, _, c6) in seen.items():
@@ -256,8 +257,13 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None
         R0g.append(Oa @ Ra.T)
         P0g.append(ppa - R0g[-1] @ pa)
         for n in known:
-            Oc, p, _ = seen[n]
-            obs.append((gi, g, n, Oc, p, whiten[n] @ _camera_axes(Oc)))
+            Oc, p, c6 = seen[n]
+            # the typical covariance's shape, scaled to the size of the frame's own (its
+            # mean variance in the typical's whitened units): a frame of few inliers
+            # counts less, its own shape (noisy with few points) is not used
+            Wn = whiten[n] @ _camera_axes(Oc)
+            size = np.trace(Wn @ np.asarray(c6, dtype=float)[:6, :6] @ Wn.T) / 6.0
+            obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12))))
     G, F = len(R0g), len(free)
     R0m = [mounts[n][0] for n in free]
     p0m = [mounts[n][1] for n in free]
@@ -384,8 +390,10 @@ def calibrate_mountings(
     pose and every mounting are adjusted in one least-squares problem over all rig frames
     (SciPy ``least_squares``, sparse Jacobian), each camera's pose errors whitened by its
     frames' typical covariance in the camera's own axes (the mean of those within 3 times the
-    median trace, turned with the camera into the world in every frame; weighting
-    each frame by its own gave larger errors against the truth on the synthetic rig walk);
+    median trace, turned with the camera into the world in every frame), scaled in each
+    frame to the size of the frame's own covariance (a frame of few inliers counts less;
+    whitening each frame by its own covariance, shape included, gave larger errors against
+    the truth on the synthetic rig walk);
     camera frames whose error is beyond the 99.9 % quantile (chi-square,
     6 degrees of freedom, at the errors' median scale) are left out and the adjustment is
     run again.
