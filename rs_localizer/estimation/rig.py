@@ -106,6 +106,7 @@ __all__ = [
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "STILL_SPREAD",
+    "VERIFY_ALL_EXPLAINED",
     "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
@@ -171,6 +172,12 @@ VERIFY_SHARE = 0.5
 #: of a rolling-shutter pose) its velocities fit its noise and its pose misses cameras that
 #: agree with the rig: a correct first rig frame was refused as ``cameras_disagree``
 VERIFY_MIN_POINTS = 20
+
+#: ``verify_cameras``: a joint estimate that explains at least this share of every voting
+#: camera's points is not checked camera by camera (a camera posed alone extrapolates its
+#: velocities to cameras looking elsewhere: a front and a back camera each explaining all of
+#: their 32 and 48 corners under the joint pose were refused as disagreeing)
+VERIFY_ALL_EXPLAINED = 0.95
 
 #: with a prediction, the group of cameras whose pose is nearer to it is chosen when the
 #: other group's is at least this many times farther (rotation in rad plus position over
@@ -1398,6 +1405,9 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     voters = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(voters) < 2:
         return None
+    inliers = np.asarray(est.num_inliers_per_camera, dtype=float)
+    if all(inliers[c] >= VERIFY_ALL_EXPLAINED * valid[c] for c in voters):
+        return None  # (one pose explains every camera's points: nothing contradicts)
     inl = {}
     for c in voters:
         e = solve(_only(views, set(voters) - {c}))
