@@ -32,12 +32,11 @@ import numpy as np
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .finalize import (
-    MOTION_SIGNIFICANCE_CHI2,
     ImageAlone,
     final_estimate,
     image_alone,
     motion_chi2,
-    motion_score,
+    motion_significant,
     prior_at_rest,
     refine_final_model,
     rolling_shutter_check,
@@ -423,16 +422,15 @@ def _still_frame(
     point_sigma: np.ndarray | None,
     ignored: tuple[str, ...],
 ) -> RSPoseEstimate | None:
-    """A frame whose rolling-shutter models were all implausible, posed on the global-shutter
-    model when the frame shows no motion: the global-shutter estimate (P3P samples, pose-only
-    refinement) if it succeeds and the rolling-shutter model refined from it finds velocities
-    its noise explains (:func:`~.finalize.motion_chi2` below
-    :data:`~.finalize.MOTION_SIGNIFICANCE_CHI2`). A readout too short to observe motion
-    (nanoseconds to microseconds per line) turns the noise's apparent motion into absurd
-    velocities in every minimal sample; such frames are posed as P3P poses them, with the
-    twist covariance of that refinement (:func:`~.finalize.motion_score`: the evidence with
-    the global-shutter fit's noise). ``None``: the frame stays refused (a frame whose
-    points do show motion is not posed without it)."""
+    """A frame whose rolling-shutter models were all implausible, posed on the global-shutter model
+    when the frame shows no motion: the global-shutter estimate (P3P samples, pose-only refinement)
+    if it succeeds and the rolling-shutter model refined from it finds velocities its noise explains
+    (not :func:`~.finalize.motion_significant`). A readout too short to observe motion (nanoseconds
+    to microseconds per line) turns the noise's apparent motion into absurd velocities in every
+    minimal sample; such frames are posed as P3P poses them, with the twist covariance of that
+    refinement. ``None``: the frame stays refused (a frame whose points do show motion is not posed
+    without it).
+    """
     est = _estimate(
         points2d,
         points3d,
@@ -449,8 +447,7 @@ def _still_frame(
     check = rolling_shutter_check(fr, est.model)
     if check is None:
         return None
-    evidence = motion_chi2(check.covariance, check.w, check.t)
-    if motion_score(evidence, check.sigma, est.rmse_px / fr.f) >= MOTION_SIGNIFICANCE_CHI2:
+    if motion_significant(motion_chi2(check.covariance, check.w, check.t), est.num_inliers):
         return None
     R, C = est.model.R, est.model.C
     twist = output_covariance(check.covariance, R, C, np.zeros(3), fr.spr)[2]

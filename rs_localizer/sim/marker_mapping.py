@@ -275,6 +275,7 @@ def localization_errors(
     solver: str = "r6p_1lin",
     marker_std: dict | None = None,
     corner_sigma: dict | None = None,
+    min_markers: int = 1,
 ) -> dict:
     """Localize every frame of a video against a marker map, one frame at a time, the way the
     ``aruco`` front end and the estimator do in the node (the detected corners of the mapped
@@ -291,8 +292,11 @@ def localization_errors(
         corner_sigma: id -> (4,) stated std of each corner (m, per axis;
             :func:`corner_sigmas`): the estimator's final fit weighs each corner by it
             (``estimate_rs_pose(..., point_sigma=)``).
+        min_markers: only frames that see at least this many mapped markers (3: the frames
+            the default solver's RANSAC takes; fewer coplanar markers are posed by IPPE from
+            their corners alone).
     Returns:
-        dict: ``frames`` (with at least one mapped marker), ``solved``, ``failed`` (a
+        dict: ``frames`` (with at least ``min_markers`` mapped markers), ``solved``, ``failed`` (a
         :class:`collections.Counter` of failure reasons), ``rotation_deg`` and
         ``position_cm`` (medians over the solved frames, against the truth), ``per_frame``
         (frame index -> ``(rotation_deg, position_cm)`` of each solved frame: for
@@ -307,7 +311,7 @@ def localization_errors(
     rot, pos, per_frame, failed, n = [], [], {}, Counter(), 0
     for k, (_, d) in enumerate(detections):
         ids = [m for m in sorted(d) if m in marker_corners]
-        if not ids:
+        if not ids or len(ids) < min_markers:
             continue
         n += 1
         uv = np.concatenate([d[m] for m in ids])

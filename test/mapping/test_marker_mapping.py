@@ -267,17 +267,16 @@ def test_localization_against_the_built_map(sweep_scene, sweep_map):
     global-shutter map of the same detections does worse."""
     room, camera, _, frames, _, opts = sweep_scene
     dets, truth = drive_detections(room, camera, num_frames=120)
-    true = localization_errors(dets, truth, room.corners(), camera)
-    built = localization_errors(dets, truth, map_through_file(sweep_map), camera)
-    gs = localization_errors(
-        dets, truth, map_markers(frames, camera, replace(opts, global_shutter=True)).corners, camera
-    )
+    # (the frames of three or more markers, the 12 points the default solver's RANSAC needs:
+    # fewer coplanar corners are posed by IPPE from the map's corners of one or two markers
+    # alone, which is not what this comparison of whole maps is about)
+    true = localization_errors(dets, truth, room.corners(), camera, min_markers=3)
+    built = localization_errors(dets, truth, map_through_file(sweep_map), camera, min_markers=3)
+    gs_map = map_markers(frames, camera, replace(opts, global_shutter=True)).corners
+    gs = localization_errors(dets, truth, gs_map, camera, min_markers=3)
     for r in (true, built, gs):
-        assert r["solved"] + sum(r["failed"].values()) == r["frames"] > 60
-    # (frames with one marker in view are posed from its 4 corners, which must fit the
-    # threshold: more of them on the true map than on the built one, whose corners are off by
-    # about a centimetre: 64 against 56 frames on this seed)
-    assert true["solved"] >= 30 and built["solved"] >= 0.85 * true["solved"]
+        assert r["solved"] + sum(r["failed"].values()) == r["frames"] > 30
+    assert true["solved"] >= 30 and built["solved"] >= 0.9 * true["solved"]
     assert true["rotation_deg"] < 1.0 and true["position_cm"] < 3.0
     assert built["rotation_deg"] < 3 * true["rotation_deg"]
     # (this seed: 5.3 cm against 1.5 cm on the true map; seeds 1-3 of room_scene: 2.3x, 2.0x,
