@@ -10,7 +10,9 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
+from numba import njit
 
+from .._linalg import solve_square
 from ..camera import CameraModel
 from ..geometry import camera_position
 from ..pose import RSModel, RSPose
@@ -256,14 +258,38 @@ def motion_chi2(covariance: np.ndarray | None, w: np.ndarray, t: np.ndarray) -> 
     singular (no evidence either way is claimed)."""
     if covariance is None:
         return float("inf")
-    S = np.asarray(covariance, dtype=float)[6:12, 6:12]
-    z = np.concatenate([np.asarray(w, dtype=float), np.asarray(t, dtype=float)])
-    if not (np.isfinite(S).all() and np.isfinite(z).all()):
-        return float("inf")
-    try:
-        return float(z @ np.linalg.solve(S, z))
-    except np.linalg.LinAlgError:
-        return float("inf")
+    return float(
+        _velocity_chi2(
+            np.ascontiguousarray(covariance, dtype=np.float64),
+            np.ascontiguousarray(w, dtype=np.float64),
+            np.ascontiguousarray(t, dtype=np.float64),
+        )
+    )
+
+
+@njit(cache=True)
+def _velocity_chi2(cov, w, t):
+    """:func:`motion_chi2` on arrays: ``z^T S^-1 z`` with ``z = (w, t)`` and ``S`` the
+    ``[6:12, 6:12]`` block of ``cov``, by pivoted Gaussian elimination; ``inf`` where
+    anything is not finite or ``S`` is singular."""
+    S = np.empty((6, 6))
+    z = np.empty(6)
+    for i in range(6):
+        z[i] = w[i] if i < 3 else t[i - 3]
+        if not np.isfinite(z[i]):
+            return np.inf
+        for j in range(6):
+            S[i, j] = cov[6 + i, 6 + j]
+            if not np.isfinite(S[i, j]):
+                return np.inf
+    b = z.copy()
+    u = np.empty(6)
+    if not solve_square(S, b, u, 0.0):
+        return np.inf
+    out = 0.0
+    for i in range(6):
+        out += z[i] * u[i]
+    return out
 
 
 def prior_at_rest(prior: MotionPrior | None) -> bool:
