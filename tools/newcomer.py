@@ -98,6 +98,8 @@ SLOW_COMMANDS = {
 LIVE_COMMANDS = {
     "view": "serves a running node to the Foxglove app until Ctrl-C",
     "diagnostics": "prints a running node's /diagnostics until Ctrl-C",
+    "lifecycle": "drives a running managed node (the rig day's rig_lifecycle check and "
+    "test/ros/test_lifecycle_cli.py run it)",
 }
 TEMPLATE = re.compile(r"\bBAG\b|\bOUT\b|\bMOTION\b|\[-|\.\.\.|\s\|\s")  # ([--option], a | b)
 
@@ -199,7 +201,9 @@ def why_skipped(cmd: str) -> str:
         return SKIP_PREFIXES[words[0]]
     if TEMPLATE.search(cmd):
         return "a template (placeholders)"
-    if "rs_localizer_node" in words[0] or "rs_localizer_lifecycle_node" in words[0]:
+    if "rs_localizer_lifecycle_node" in words[0]:
+        return "a managed node, driven by rs-localizer lifecycle (the rig_lifecycle check runs it)"
+    if "rs_localizer_node" in words[0]:
         return ""  # (run with the play command that follows it)
     if not words[0].endswith("rs-localizer"):
         return f"not an rs-localizer command ({words[0]})"
@@ -208,6 +212,8 @@ def why_skipped(cmd: str) -> str:
         return SLOW_COMMANDS[sub]
     if sub in LIVE_COMMANDS:
         return LIVE_COMMANDS[sub]
+    if sub == "evaluate" and "--live" in words:
+        return "records a running node (the rig day's rig_lockstep check runs it)"
     if any(a.startswith(("docs/", "data/", "test/", "config/")) for a in words[2:]) and sub in (
         "export-image",
         "make-bag",
