@@ -56,6 +56,7 @@ __all__ = [
     "ImageAlone",
     "final_estimate",
     "final_refinement",
+    "frame_refinement",
     "image_alone",
     "motion_chi2",
     "motion_significant",
@@ -132,8 +133,7 @@ class FinalModel:
         sensitivity: (12, 6) acceleration sensitivity, or None.
         prior_used: the refinement was maximum a posteriori.
         motion_chi2: :func:`motion_chi2` of the maximum-likelihood velocities (the frame's own
-            evidence of motion; ``inf``: not computed); motion_sigma: that fit's noise sigma
-            (normalized units).
+            evidence of motion; ``inf``: not computed).
     """
 
     model: RSModel
@@ -144,7 +144,38 @@ class FinalModel:
     sensitivity: np.ndarray | None = None
     prior_used: bool = False
     motion_chi2: float = float("inf")
-    motion_sigma: float = float("nan")
+
+
+def frame_refinement(
+    fr: Frame,
+    model: Model,
+    th: float,
+    rolling: bool,
+    prior: MotionPrior | None = None,
+    acceleration: bool = False,
+) -> RefineResult:
+    """:func:`~.refine.refine_rs_pose` of ``model`` on every point of the frame with the final
+    refinement's truncated Huber loss (scale ``th``, normalized units; points beyond
+    ``FINAL_CUTOFF * th`` ignored, re-selected at every iteration; tolerance ``FINAL_TOL``):
+    rolling-shutter or global-shutter (``rolling``), maximum likelihood or MAP with ``prior``,
+    ``acceleration``: with the ``J^T W D`` block. The one call the final refinement, the
+    image-alone check and the global-shutter switch share."""
+    th = float(th)
+    return refine_rs_pose(
+        model,
+        fr.X,
+        fr.x,
+        fr.r - fr.r0,
+        th,
+        RefineSettings(
+            rolling_shutter=rolling,
+            seconds_per_unit_r=fr.spr,
+            cutoff=FINAL_CUTOFF * th,
+            tol=FINAL_TOL,
+            acceleration_block=acceleration,
+        ),
+        prior=prior,
+    )
 
 
 def final_refinement(
@@ -154,7 +185,7 @@ def final_refinement(
     rolling: bool,
     prior: MotionPrior | None,
     acceleration: bool = False,
-) -> tuple[RefineResult, bool]:
+) -> tuple[RefineResult, bool, float]:
     """The final refinement, on every point of the frame with the truncated Huber loss of
     local optimization (scale ``th``, normalized units; points beyond ``FINAL_CUTOFF * th``
     ignored and the set re-selected at every iteration): fitting only RANSAC's inliers (the
@@ -175,32 +206,16 @@ def final_refinement(
     ``J^T W D`` block for :func:`~.sensitivity.acceleration_sensitivity`.
 
     Returns:
-        (the refinement's result, whether the prior was used, (:func:`motion_chi2` of the
-        maximum-likelihood velocities, that fit's noise sigma in normalized units): the
-        frame's own evidence of motion; ``(inf, nan)``, not judged, for a global-shutter
-        refinement and where the refinement was MAP from the start (planar frames: one plane
-        barely separates the velocities from the pose, so a moving camera's maximum-likelihood
-        velocities can look insignificant while the pose needs them)).
+        (the refinement's result, whether the prior was used, :func:`motion_chi2` of the
+        maximum-likelihood velocities: the frame's own evidence of motion; ``inf``, not judged,
+        for a global-shutter refinement and where the refinement was MAP from the start (planar
+        frames: one plane barely separates the velocities from the pose, so a moving camera's
+        maximum-likelihood velocities can look insignificant while the pose needs them)).
     """
-    th = float(th)
-    ref = refine_rs_pose(
-        model,
-        fr.X,
-        fr.x,
-        fr.r - fr.r0,
-        th,
-        RefineSettings(
-            rolling_shutter=rolling,
-            seconds_per_unit_r=fr.spr,
-            cutoff=FINAL_CUTOFF * th,
-            tol=FINAL_TOL,
-            acceleration_block=acceleration,
-        ),
-        prior=fr.prior,
-    )
-    evidence = (np.inf, np.nan)
+    ref = frame_refinement(fr, model, th, rolling, fr.prior, acceleration)
+    evidence = np.inf
     if rolling and fr.prior is None:
-        evidence = (motion_chi2(ref.covariance, ref.w, ref.t), ref.sigma)
+        evidence = motion_chi2(ref.covariance, ref.w, ref.t)
     if fr.prior is not None or prior is None:
         return ref, fr.prior is not None, evidence
     return (*posterior_if_consistent(ref, prior, fr.spr), evidence)
@@ -312,18 +327,8 @@ def rolling_shutter_check(fr: Frame, model: Model) -> RefineResult | None:
     time (``fr.spr <= 0``)."""
     if not fr.spr > 0:
         return None
-    th = float(fr.threshold)
     R, C = (np.array(a, dtype=float) for a in model[:2])
-    ref = refine_rs_pose(
-        (R, C, np.zeros(3), np.zeros(3)),
-        fr.X,
-        fr.x,
-        fr.r - fr.r0,
-        th,
-        RefineSettings(
-            rolling_shutter=True, seconds_per_unit_r=fr.spr, cutoff=FINAL_CUTOFF * th, tol=FINAL_TOL
-        ),
-    )
+    ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), fr.threshold, True)
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
@@ -360,9 +365,9 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     the refined model; the covariance stays the rolling-shutter fit's (its pose block is the pose's
     uncertainty with the velocities unknown, its twist block what the frame says of them: zero
     within that). ``None``: the frame shows motion, or has fewer than :data:`STILL_MIN_POINTS`
-    inliers, or the evidence is unknown
-    (``final.motion_chi2`` not finite), or the global-shutter refinement gives no finite model or
-    fewer than ``min_inliers`` inliers (the rolling-shutter model then stays).
+    inliers, or the evidence is unknown (``final.motion_chi2`` not finite), or the
+    global-shutter refinement gives no finite model or fewer than ``min_inliers`` inliers (the
+    rolling-shutter model then stays).
     """
     n = int(np.count_nonzero(final.inliers))
     if n < STILL_MIN_POINTS or motion_significant(final.motion_chi2, n):
@@ -370,19 +375,7 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     th = float(fr.threshold)
     R, C = (np.array(a, dtype=float) for a in final.model[:2])
     zero = np.zeros(3)
-    ref = refine_rs_pose(
-        (R, C, zero, zero),
-        fr.X,
-        fr.x,
-        fr.r - fr.r0,
-        th,
-        RefineSettings(
-            rolling_shutter=False,
-            seconds_per_unit_r=fr.spr,
-            cutoff=FINAL_CUTOFF * th,
-            tol=FINAL_TOL,
-        ),
-    )
+    ref = frame_refinement(fr, (R, C, zero, zero), th, False)
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
@@ -435,17 +428,7 @@ def image_alone(
     if not fr.spr > 0:
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
-    ref = refine_rs_pose(
-        final.model,
-        fr.X,
-        fr.x,
-        fr.r - fr.r0,
-        th,
-        RefineSettings(
-            rolling_shutter=True, seconds_per_unit_r=fr.spr, cutoff=FINAL_CUTOFF * th, tol=FINAL_TOL
-        ),
-        prior=prior if on else None,
-    )
+    ref = frame_refinement(fr, final.model, th, True, prior if on else None)
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
@@ -490,8 +473,7 @@ def refine_final_model(
         inliers,
         np.nan,
         prior_used=prior_used,
-        motion_chi2=evidence[0],
-        motion_sigma=evidence[1],
+        motion_chi2=evidence,
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
