@@ -1,5 +1,6 @@
 """Shared pieces of the rig tests (library and node): the rig videos' start stamp, a log that
-records what the rig localizer says, the true mountings of simulated rig cameras."""
+records what the rig localizer says, the true mountings of simulated rig cameras, the rig's
+frame accounting checked."""
 
 from __future__ import annotations
 
@@ -26,3 +27,13 @@ def mounts_of(cams):
     from rs_localizer.tracking.rig import RigMount
 
     return {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+
+
+def assert_balanced(rig):
+    """Every camera's and the rig's accounting balances: received = solved + failed + skipped +
+    pending (rig frames for the rig)."""
+    for n in rig.cameras:
+        c = rig.camera_counts(n)
+        assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"], (n, c)
+    r = rig.rig_counts()
+    assert r["rig_frames"] == r["solved"] + r["failed"] + r["skipped"] + r["pending"], r

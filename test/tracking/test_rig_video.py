@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers.rig import T0, Log, mounts_of
+from helpers.rig import T0, Log, assert_balanced, mounts_of
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
@@ -45,14 +45,6 @@ def errors(o, traj):
         np.linalg.norm(pose.angular_velocity - w),
         np.linalg.norm(pose.linear_velocity - v),
     )
-
-
-def assert_balanced(rig):
-    for n in rig.cameras:
-        c = rig.camera_counts(n)
-        assert c["received"] == c["solved"] + c["failed"] + c["skipped"] + c["pending"], (n, c)
-    r = rig.rig_counts()
-    assert r["rig_frames"] == r["solved"] + r["failed"] + r["skipped"] + r["pending"], r
 
 
 @pytest.fixture(scope="module")
