@@ -50,6 +50,23 @@ def test_lifecycle_command_and_play_naming_an_inactive_node(
         print(f"lifecycle {' '.join(argv)}: {time.monotonic() - t0:.2f} s", file=sys.stderr)
         return rc, out
 
+    def play_to_nobody(wait_subscribers):
+        """The sample bag in lock-step, giving up after 2 unanswered frames: (result, notes)."""
+        notes = []
+        res = play(
+            sample_bag,
+            lockstep=True,
+            topics=["/camera/correspondences", "/camera/camera_info"],
+            remap=REMAP,
+            context=ros_context,
+            wait_subscribers=wait_subscribers,
+            timeout=0.2,
+            retries=0,
+            give_up=2,
+            log=notes.append,
+        )
+        return res, notes
+
     try:
         assert node.wait_ready(60, marker="unconfigured"), node.log
         assert lifecycle(NODE, "get") == (0, "unconfigured")
@@ -59,19 +76,7 @@ def test_lifecycle_command_and_play_naming_an_inactive_node(
         assert rc == 0 and f"{NODE}: unconfigured" in listed.splitlines(), listed
 
         # nothing takes the frames: play names the node and the commands, not a remap
-        notes = []
-        res = play(
-            sample_bag,
-            lockstep=True,
-            topics=["/camera/correspondences", "/camera/camera_info"],
-            remap=REMAP,
-            context=ros_context,
-            wait_subscribers=3.0,
-            timeout=0.2,
-            retries=0,
-            give_up=2,
-            log=notes.append,
-        )
+        res, notes = play_to_nobody(3.0)
         assert res.answered == 0 and res.gave_up, notes
         assert f"the managed node {NODE} is unconfigured" in res.gave_up
         assert f"rs-localizer lifecycle {NODE} configure" in res.gave_up
@@ -82,19 +87,7 @@ def test_lifecycle_command_and_play_naming_an_inactive_node(
         rc, out = lifecycle(NODE, "configure")  # (not valid from inactive)
         assert rc == 1 and out.startswith(f"configure refused: {NODE} is inactive"), out
         assert lifecycle(NODE, "get") == (0, "inactive")
-        notes = []
-        res = play(
-            sample_bag,
-            lockstep=True,
-            topics=["/camera/correspondences", "/camera/camera_info"],
-            remap=REMAP,
-            context=ros_context,
-            wait_subscribers=1.0,
-            timeout=0.2,
-            retries=0,
-            give_up=2,
-            log=notes.append,
-        )
+        res, notes = play_to_nobody(1.0)
         assert f"the managed node {NODE} is inactive" in res.gave_up, res.gave_up
         assert f"rs-localizer lifecycle {NODE} activate" in res.gave_up
 
