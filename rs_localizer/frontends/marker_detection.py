@@ -311,6 +311,21 @@ REFINE_CELL_SHARE = 0.8
 REFINE_AGREE_PX = 0.15
 
 
+def _library_detect(detector: Any, gray: np.ndarray, binding: str) -> Any:
+    """``detector.detect(gray)``. Debian's binding (``python3-apriltag``) raises
+    ``RuntimeError("Unable to create N threads for detector")`` whenever a detection finds no
+    tag while the calling thread's ``errno`` is ``EAGAIN``, which any earlier non-blocking call
+    of that thread (a lock tried by Python, a socket) leaves behind: the library ran and found
+    nothing. That error is taken as what the library returned, no detection; any other error
+    is raised."""
+    try:
+        return detector.detect(gray)
+    except RuntimeError as e:
+        if binding == "pupil_apriltags" or not str(e).startswith("Unable to create"):
+            raise
+        return ()
+
+
 def refine_corners(
     gray: np.ndarray,
     corners: np.ndarray,
@@ -489,7 +504,7 @@ def refine_tag_edges(gray: np.ndarray, corners: np.ndarray, cells: int) -> np.nd
     c = _check_corners(gray, corners, cells)
     m = len(c)
     finite = np.isfinite(c).all(axis=(1, 2))
-    if m == 0 or not finite.any():
+    if m == 0 or not finite.any() or gray.size == 0:  # (an empty image: every profile leaves it)
         return c.copy()
     if not finite.all():
         out = c.copy()
@@ -862,7 +877,7 @@ class AprilTagDetector:
         g = np.asarray(gray)
         dec = self.decimation(frame_shape or g.shape) if decimate is None else float(decimate)
         g = _check_gray(g, min_image_side(dec))
-        dets = self._detector(dec).detect(g)
+        dets = _library_detect(self._detector(dec), g, self.binding)
         if not len(dets):
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         if self.binding == "pupil_apriltags":
