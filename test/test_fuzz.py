@@ -31,8 +31,8 @@ from hypothesis import strategies as st  # noqa: E402
 from rs_localizer.camera import CameraModel  # noqa: E402
 from rs_localizer.estimation import EstimateOptions, RansacOptions, estimate_rs_pose  # noqa: E402
 from rs_localizer.estimation.plausibility import depths_at_capture  # noqa: E402
-from rs_localizer.frontends.image import ENCODINGS, image_from_msg  # noqa: E402
 from rs_localizer.geometry import rotation_angle_deg  # noqa: E402
+from rs_localizer.ros.image_codec import ENCODINGS, decode_image  # noqa: E402
 from rs_localizer.sim.attacks import ATTACKS, attack, corridor_frames  # noqa: E402
 
 _LONG = int(os.environ.get("RS_FUZZ_EXAMPLES", "0") or 0)
@@ -327,7 +327,7 @@ def test_fuzz_image_decoder(msg):
     ``bad_image``)."""
     RUNS["image"] += 1
     try:
-        img, _enc = image_from_msg(msg)
+        img, _enc = decode_image(msg, min_side=0)
     except ValueError:
         return
     ch = ENCODINGS[msg.encoding.lower()]

@@ -81,13 +81,12 @@ def _image_topic(bag: Path, topic: str | None) -> str:
 
 
 def _decode(ts, raw: bytes, msgtype: str):
-    from ..frontends.image import image_from_compressed, image_from_msg
-    from ..ros.bags.bag_io import COMPRESSED_IMAGE
     from ..ros.conversions import stamp_to_ns
+    from ..ros.image_codec import decode_image
     from ..viz.debug_image import to_bgr
 
     msg = ts.deserialize_cdr(raw, msgtype)
-    img, enc = image_from_compressed(msg) if msgtype == COMPRESSED_IMAGE else image_from_msg(msg)
+    img, enc = decode_image(msg, min_side=0)
     stamp_ns = stamp_to_ns(msg.header.stamp)
     return img, enc, to_bgr(img, enc), stamp_ns
 

@@ -72,7 +72,7 @@ def frames_from_bag(
         another size than the camera, an undecodable image.
     """
     from ..frontends import ArucoFrontend
-    from ..frontends.image import image_from_compressed, image_from_msg, to_gray
+    from ..frontends.image import to_gray
     from ..mapping import FrameDetections
     from ..mapping.outputs import detect_image
     from ..ros import conversions as cv
@@ -85,6 +85,7 @@ def frames_from_bag(
         read_bag_info,
         typestore,
     )
+    from ..ros.image_codec import decode_image
 
     path = Path(path)
     if not (path / "metadata.yaml").exists():
@@ -128,9 +129,7 @@ def frames_from_bag(
         msgs = tqdm(msgs, desc="detecting markers")
     for _, msgtype, _, raw in msgs:
         msg = ts.deserialize_cdr(raw, msgtype)
-        img, enc = (
-            image_from_compressed(msg) if msgtype == COMPRESSED_IMAGE else image_from_msg(msg)
-        )
+        img, enc = decode_image(msg, min_side=0)
         gray = to_gray(img, enc)
         if gray.shape != (camera.height, camera.width):
             raise ValueError(

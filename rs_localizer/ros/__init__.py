@@ -5,8 +5,9 @@ one or several cameras: :mod:`.runner`) is wiring
 around ROS-free parts: :mod:`.params` (the parameters), :mod:`.param_files` (parameter files),
 :mod:`.config` (parameter values -> configuration; :func:`.config.load_maps`, its maps
 loaded), :mod:`.pipeline` (what happens to each frame), :mod:`.camera_info_history`,
-:mod:`.frame_queue` (the worker and the frame accounting), :mod:`.outputs` (a frame's
-messages) and :mod:`.diagnostics`.
+:mod:`.frame_queue` (the worker and the frame accounting), :mod:`.image_codec` (the image
+messages to numpy, for both nodes, replay and the tools), :mod:`.outputs` (a frame's messages)
+and :mod:`.diagnostics`.
 :mod:`.bags.replay` runs the same pipeline over a bag, offline.
 
 Importing this package does not import rclpy; :mod:`.node`, :mod:`.bags.play` and the message

@@ -646,46 +646,19 @@ class FramePipeline:
         return kp.uv[known], pts[j[known]], scores
 
     def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
-        """The image of ``sensor_msgs/Image``, or ``CompressedImage`` (no ``encoding``
-        field), checked against the camera model's size and the front ends' smallest image
-        (:data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`; a smaller one is
-        ``bad_image``, never given to the detector libraries): ``(array, encoding)``."""
-        from ..frontends.image import check_image_size, image_from_compressed, image_from_msg
+        """The image of ``sensor_msgs/Image``, or ``CompressedImage``, decoded and checked
+        against the camera model's size and the front ends' smallest image by
+        :func:`~rs_localizer.ros.image_codec.decode_image` (the rig node's decoder too):
+        ``(array, encoding)``; a refused one is dropped under its reason (``bad_image``,
+        ``image_size_mismatch``), never given to the detector libraries."""
+        from .image_codec import ImageRejected, decode_image
 
         if self.sequence.frontend is None:  # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
-        if not hasattr(msg, "encoding"):
-            try:
-                img, enc = image_from_compressed(msg)
-            except ValueError as e:
-                raise _Drop("bad_image", str(e)) from None
-            h, w = img.shape[:2]
-        else:
-            h, w = int(msg.height), int(msg.width)
-            if h * w == 0:
-                raise _Drop("bad_image", f"empty image ({w}x{h})")
-            try:
-                check_image_size((h, w))
-            except ValueError as e:
-                raise _Drop("bad_image", str(e)) from None
-            if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
-                raise _Drop(  # (before decoding: no copy of an image of the wrong size)
-                    "image_size_mismatch",
-                    f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
-                )
-            try:
-                img, enc = image_from_msg(msg)
-            except ValueError as e:
-                raise _Drop("bad_image", str(e)) from None
-        if camera.width > 0 and camera.height > 0 and (w, h) != (camera.width, camera.height):
-            raise _Drop(
-                "image_size_mismatch",
-                f"image is {w}x{h}, the camera model {camera.width}x{camera.height}",
-            )
         try:
-            check_image_size((h, w))
-        except ValueError as e:
-            raise _Drop("bad_image", str(e)) from None
+            img, enc = decode_image(msg, camera)
+        except ImageRejected as e:
+            raise _Drop(e.reason, str(e)) from None
         res.image = (img, enc, stamp)
         return img, enc
 

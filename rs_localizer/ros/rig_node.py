@@ -739,10 +739,13 @@ class RigCore:
         self._enqueue(name, "image", msg)
 
     def _take_image(self, name: str, msg) -> tuple[list, str | None]:
-        """An image: decoded and checked against the camera's camera_info as the single-camera
-        node does (a message that does not decode: ``bad_image``; another size than the
+        """An image: decoded and checked against the camera's camera_info by the single-camera
+        node's decoder (:func:`~rs_localizer.ros.image_codec.decode_image`: a message that does
+        not decode or is smaller than the front ends take: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
         the camera's front end and the rig (:meth:`RigLocalizer.process_image`)."""
+        from .image_codec import ImageRejected, decode_image
+
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError as e:
@@ -751,12 +754,13 @@ class RigCore:
             return [], "bad_input"
         camera = self._camera(name, stamp)
         self._warn_no_info(name, "images")
-        img, enc, why = _decode_image(msg, camera)
-        if why is not None:
+        try:
+            img, enc = decode_image(msg, camera)
+        except ImageRejected as e:
             self._log.warning(
-                f"image.{name}", f"rig camera {name!r}: image dropped ({why[0]}): {why[1]}"
+                f"image.{name}", f"rig camera {name!r}: image dropped ({e.reason}): {e}"
             )
-            outs = self.rig.drop(name, stamp, camera, why[0])
+            outs = self.rig.drop(name, stamp, camera, e.reason)
         else:
             outs = self.rig.process_image(name, stamp, img, camera, enc)
         return outs, None
@@ -857,52 +861,6 @@ def _timing_values(ms: dict) -> dict:
         "stamps_off_clock": off_clock,
         "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
     }
-
-
-def _decode_image(msg, camera) -> tuple:
-    """``(image, encoding, None)`` of an ``Image`` or ``CompressedImage`` message, or
-    ``(None, None, (reason, detail))`` with the single-camera node's reasons (``bad_image``,
-    ``image_size_mismatch``, :meth:`~rs_localizer.ros.pipeline.FramePipeline.process`); the size
-    is checked against ``camera`` when it is known (before decoding a raw image) and against
-    the front ends' smallest image (:data:`~rs_localizer.frontends.image.MIN_IMAGE_SIDE`: a
-    smaller one is ``bad_image``, never given to a front end)."""
-    from ..frontends.image import check_image_size, image_from_compressed, image_from_msg
-
-    def size_ok(w, h):
-        return camera is None or camera.width <= 0 or (w, h) == (camera.width, camera.height)
-
-    try:
-        if not hasattr(msg, "encoding"):
-            img, enc = image_from_compressed(msg)
-            h, w = img.shape[:2]
-        else:
-            h, w = int(msg.height), int(msg.width)
-            if h * w == 0:
-                return None, None, ("bad_image", f"empty image ({w}x{h})")
-            check_image_size((h, w))  # (smaller than the front ends take: bad_image)
-            if not size_ok(w, h):
-                raise _SizeError(w, h)
-            img, enc = image_from_msg(msg)
-        if not size_ok(w, h):
-            raise _SizeError(w, h)
-        check_image_size((h, w))
-    except _SizeError as e:
-        return (
-            None,
-            None,
-            (
-                "image_size_mismatch",
-                f"image is {e.args[0]}x{e.args[1]}, the camera model "
-                f"{camera.width}x{camera.height}",
-            ),
-        )
-    except ValueError as e:
-        return None, None, ("bad_image", str(e))
-    return img, enc, None
-
-
-class _SizeError(Exception):
-    pass
 
 
 class RigLocalizerNode(RigCore, Node):

@@ -37,6 +37,7 @@ from ..estimation.result import RSPoseEstimate
 from ..viz.debug_image import DebugImageOptions, draw_debug_image
 from ..viz.scene3d import frustum_segments, velocity_arrows
 from . import conversions as cv
+from .image_codec import image_fields
 from .qos import DEBUG_IMAGE_QOS, RELIABLE, output_events
 
 __all__ = [
@@ -97,18 +98,24 @@ MAX_MARKER_POINTS = 5000
 
 
 def debug_image_msg(bgr: np.ndarray, stamp_ns: int, frame_id: str) -> Image:
-    """(H, W, 3) uint8 BGR -> ``sensor_msgs/Image`` (``bgr8``, no row padding)."""
-    img = np.ascontiguousarray(bgr, dtype=np.uint8)
+    """(H, W, 3) uint8 BGR -> ``sensor_msgs/Image`` (``bgr8``, no row padding:
+    :func:`~rs_localizer.ros.image_codec.image_fields`).
+
+    Raises:
+        ValueError: an array of another shape.
+    """
+    img = np.asarray(bgr)
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValueError(f"expected an (H, W, 3) image, got {img.shape}")
+    f = image_fields(img, "bgr8")
     m = Image()
     m.header.stamp = cv.ns_to_stamp(stamp_ns)
     m.header.frame_id = frame_id
-    m.height, m.width = int(img.shape[0]), int(img.shape[1])
-    m.encoding = "bgr8"
-    m.is_bigendian = 0
-    m.step = 3 * m.width
-    m.data = img.tobytes()
+    m.height, m.width = int(f["height"]), int(f["width"])
+    m.encoding = f["encoding"]
+    m.is_bigendian = f["is_bigendian"]
+    m.step = int(f["step"])
+    m.data = f["data"].tobytes()
     return m
 
 

@@ -85,7 +85,7 @@ def to_bgr(image: np.ndarray, encoding: str | None = None) -> np.ndarray:
     """(H, W) or (H, W, 3|4) uint8 image -> (H, W, 3) uint8 BGR copy.
 
     ``encoding`` (``sensor_msgs/Image`` name, e.g. from
-    :func:`rs_localizer.frontends.image.image_from_msg`): ``mono8``/``8uc1``, ``rgb8``,
+    :func:`rs_localizer.ros.image_codec.decode_image`): ``mono8``/``8uc1``, ``rgb8``,
     ``bgr8``/``8uc3``, ``rgba8``, ``bgra8``/``8uc4``; ``None``: 3 channels are taken as RGB.
 
     Raises:

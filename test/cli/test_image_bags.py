@@ -11,8 +11,8 @@ from rs_localizer.cli import main as cli
 def test_export_all_keeps_each_image_and_its_stamp(sample_images_bag, tmp_path):
     """Every image in bag order, the same pixels, and stamps.csv naming each file with its
     header stamp: the camera_info of the same frame carries the same stamp."""
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.image_codec import decode_image
 
     out = tmp_path / "frames"
     assert cli(["export-image", str(sample_images_bag), str(out), "--all", "--quiet"]) == 0
@@ -20,7 +20,7 @@ def test_export_all_keeps_each_image_and_its_stamp(sample_images_bag, tmp_path):
     images, info_stamps = [], []
     for topic, mt, _, raw in iter_messages(sample_images_bag, None):
         if topic == "/camera/image_raw":
-            images.append(image_from_msg(ts.deserialize_cdr(raw, mt))[0])
+            images.append(decode_image(ts.deserialize_cdr(raw, mt))[0])
         elif topic == "/camera/camera_info":
             st = ts.deserialize_cdr(raw, mt).header.stamp
             info_stamps.append(st.sec * 1_000_000_000 + st.nanosec)

@@ -1,12 +1,9 @@
 """Image front ends on rendered frames: ArUco corners and natural-feature matches."""
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
 from rs_localizer.frontends import ArucoFrontend, make_frontend, to_gray
-from rs_localizer.frontends.image import image_fields, image_from_msg
 from rs_localizer.maps.markers import write_marker_map
 from rs_localizer.sim.render import NoiseModel, Renderer, camera_preset, load_scene, make_motion
 
@@ -63,27 +60,14 @@ def test_aruco_from_map_file(aruco_frame, tmp_path):
     assert empty[0].shape == (0, 2) and empty[1].shape == (0, 3) and empty[2].shape == (0,)
 
 
-def test_image_message_roundtrip():
+def test_to_gray_takes_the_channel_order_from_the_encoding():
     rng = np.random.default_rng(0)
     rgb = rng.integers(0, 255, (6, 5, 3), dtype=np.uint8)
-    msg = SimpleNamespace(**image_fields(rgb))
-    out, enc = image_from_msg(msg)
-    np.testing.assert_array_equal(out, rgb)
-    assert enc == "rgb8"
-    # padded rows (step > width * channels), mono8
-    mono = rng.integers(0, 255, (4, 3), dtype=np.uint8)
-    padded = np.zeros((4, 8), np.uint8)
-    padded[:, :3] = mono
-    msg = SimpleNamespace(
-        height=4, width=3, encoding="mono8", is_bigendian=0, step=8, data=padded.tobytes()
-    )
-    np.testing.assert_array_equal(image_from_msg(msg)[0], mono)
-    with pytest.raises(ValueError):
-        image_from_msg(SimpleNamespace(height=4, width=3, encoding="16UC1", step=6, data=b""))
-    with pytest.raises(ValueError):
-        image_from_msg(SimpleNamespace(height=4, width=3, encoding="rgb8", step=9, data=b"12"))
     bgr = rgb[:, :, ::-1]
     np.testing.assert_array_equal(to_gray(bgr, "bgr8"), to_gray(rgb, "rgb8"))
+    gray = to_gray(rgb, "rgb8")  # (ITU-R BT.601 luma, as OpenCV computes it)
+    luma = rgb.astype(float) @ np.array([0.299, 0.587, 0.114])
+    assert np.abs(gray.astype(float) - luma).max() <= 1.0
 
 
 def test_feature_matches_mostly_correct(tmp_path):

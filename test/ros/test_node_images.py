@@ -103,7 +103,7 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
         assert s[key]["max"] < mx, f"{key} max {s[key]['max']:.4g} >= {mx}"
 
     from rs_localizer.frontends import make_frontend
-    from rs_localizer.frontends.image import image_from_msg
+    from rs_localizer.ros.image_codec import decode_image
 
     msgs = _bag_messages(sample_images_bag)
     images = {stamp_to_ns(m.header.stamp): m for m in msgs[IMAGE_TOPIC]}
@@ -127,7 +127,7 @@ def test_sample_images_accuracy(node, ros_context, sample_images_bag):
         assert cout.header.frame_id == "camera_optical_frame"
         mine = read_correspondences(cout)
         # the node republishes its front end's output: the same front end on the same image
-        img, encoding = image_from_msg(images[f["stamp"]])
+        img, encoding = decode_image(images[f["stamp"]])
         uv, xyz, ids = fe.process(img, encoding=encoding)
         assert len(mine.uv) == len(uv) > 200
         np.testing.assert_allclose(mine.uv, uv, atol=1e-3)
@@ -326,8 +326,8 @@ def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.conversions import ns_to_stamp, stamp_to_ns
+    from rs_localizer.ros.image_codec import decode_image
     from rs_localizer.ros.pointcloud import read_correspondences
     from rs_localizer.viz import COLORS
 
@@ -358,8 +358,8 @@ def test_debug_image_on_the_input_image(node, ros_context, sample_images_bag):
         im = got[0]
         assert stamp_to_ns(im.header.stamp) == stamp
         assert (im.encoding, im.width, im.height) == ("bgr8", 640, 480)
-        img, _ = image_from_msg(im)
-        raw, _ = image_from_msg(frame)
+        img, _ = decode_image(im)
+        raw, _ = decode_image(frame)
         dimmed = cv2.cvtColor(cv2.convertScaleAbs(raw, alpha=0.7), cv2.COLOR_GRAY2BGR)
         assert (img == dimmed).all(axis=2).mean() > 0.8
         p = np.round(corners).astype(int)

@@ -132,9 +132,9 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
     from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
     from rs_localizer.accuracy import frame_errors
-    from rs_localizer.frontends.image import compressed_fields, image_from_msg
     from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth
     from rs_localizer.ros.conversions import ns_to_stamp, pose_from_msg, stamp_to_ns
+    from rs_localizer.ros.image_codec import compressed_fields, decode_image
     from rs_localizer.ros.process import NodeProcess, ros_env, write_params_yaml
 
     ns = "/cimg"
@@ -175,7 +175,7 @@ def test_compressed_images(tmp_path, ros_context, sample_images_bag):
         n_bad = n_good = 0
         errs = []
         for k, im in enumerate(msgs["/camera/image_raw"][:6]):
-            arr, _ = image_from_msg(im)
+            arr, _ = decode_image(im)
             kind = "jpeg" if k % 2 == 0 else "png"
             f = compressed_fields(arr, kind, quality=95, encoding=im.encoding)
             stamp = stamp_to_ns(im.header.stamp)

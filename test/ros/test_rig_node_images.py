@@ -221,31 +221,6 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         assert values["left.outvoted"] == rig.counts["rig.solved"] > 0, values
 
 
-def test_an_image_smaller_than_the_front_ends_take_is_a_bad_image():
-    """As the single-camera node: an image below ``MIN_IMAGE_SIDE`` px a side (raw or
-    compressed, the camera's size unknown or not) is ``bad_image``, never given to a front end
-    (where it was counted ``frontend_error``); one of exactly that side decodes."""
-    import cv2
-    from sensor_msgs.msg import CompressedImage
-
-    from rs_localizer.frontends.image import MIN_IMAGE_SIDE
-    from rs_localizer.ros.rig_node import _decode_image
-    from rs_localizer.sim.render.renderer import camera_preset
-
-    k = MIN_IMAGE_SIDE
-    tiny = np.full((k - 1, 40, 3), 128, np.uint8)
-    for cam in (None, camera_preset("vga")):
-        img, _, why = _decode_image(image_msg(tiny, T0, "c"), cam)
-        assert img is None and why[0] == "bad_image" and f"{k}x{k}" in why[1], why
-    c = CompressedImage()
-    c.format = "png"
-    c.data = cv2.imencode(".png", tiny)[1].tobytes()
-    assert _decode_image(c, None)[2][0] == "bad_image"
-    ok = np.full((k, k, 3), 128, np.uint8)
-    img, _, why = _decode_image(image_msg(ok, T0, "c"), None)
-    assert why is None and img.shape == (k, k, 3)
-
-
 def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):
     """rs_localizer_lifecycle_node with rig.cameras runs the managed rig node (the process
     runner): it starts unconfigured in the rig mode and stops cleanly on SIGINT."""
@@ -265,37 +240,3 @@ def test_the_lifecycle_process_runs_the_rig_mode(tmp_path, ros_domain):
     finally:
         rc = n.stop()
     assert rc == 0, n.log
-
-
-def test_image_decoding_and_checks_as_the_single_camera_node():
-    """The rig node's image check: an Image of the camera's size decodes to its pixels; a
-    compressed JPEG decodes (bgr8); another size, an unknown encoding, a truncated raw image or
-    a payload that is no image are refused under the single-camera node's reasons, the size
-    before decoding (its camera_info unknown: not checked)."""
-    import cv2
-    from sensor_msgs.msg import CompressedImage
-
-    from rs_localizer.ros.rig_node import _decode_image
-    from rs_localizer.sim.render.renderer import camera_preset
-
-    cam = camera_preset("vga")
-    rng = np.random.default_rng(0)
-    img = rng.integers(0, 255, (480, 640, 3), dtype=np.uint8)
-    out, enc, why = _decode_image(image_msg(img, T0, "c"), cam)
-    assert why is None and enc == "rgb8" and np.array_equal(out, img)
-    small = image_msg(img[:240, :320], T0, "c")
-    assert _decode_image(small, cam)[2][0] == "image_size_mismatch"
-    assert _decode_image(small, None)[2] is None
-    assert _decode_image(image_msg(img, T0, "c", "yuv422"), cam)[2][0] == "bad_image"
-    cut = image_msg(img, T0, "c")
-    cut.data = bytes(cut.data)[:1000]
-    assert _decode_image(cut, cam)[2][0] == "bad_image"
-    c = CompressedImage()
-    c.format = "jpeg"
-    c.data = cv2.imencode(".jpg", img)[1].tobytes()
-    out, enc, why = _decode_image(c, cam)
-    assert why is None and enc == "bgr8" and out.shape == (480, 640, 3)
-    c.data = b"not an image"
-    assert _decode_image(c, cam)[2][0] == "bad_image"
-    c.data = cv2.imencode(".jpg", img[:240, :320])[1].tobytes()
-    assert _decode_image(c, cam)[2][0] == "image_size_mismatch"

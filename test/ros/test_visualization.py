@@ -107,14 +107,14 @@ def test_marker_array_against_the_pose():
 
 
 def test_debug_image_message_roundtrip():
-    from rs_localizer.frontends.image import image_from_msg
+    from rs_localizer.ros.image_codec import decode_image
     from rs_localizer.ros.visualization import debug_image_msg
 
     img = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
     msg = debug_image_msg(img, 5_000_000_001, "cam")
     assert (msg.encoding, msg.step, msg.header.frame_id) == ("bgr8", 192, "cam")
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (5, 1)
-    back, enc = image_from_msg(msg)
+    back, enc = decode_image(msg)
     assert enc == "bgr8"
     np.testing.assert_array_equal(back, img)
 
@@ -170,9 +170,9 @@ def test_built_only_when_subscribed(ros_context):
         while not got and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
         assert len(got) == 1 and got[0].header.stamp.nanosec == 3000
-        from rs_localizer.frontends.image import image_from_msg
+        from rs_localizer.ros.image_codec import decode_image
 
-        img, _ = image_from_msg(got[0])
+        img, _ = decode_image(got[0])
         assert tuple(img[455, 300]) == (70, 70, 70)  # 0.7 x the input image
         # an image of another stamp is not drawn under this frame
         viz.set_image(np.full((480, 640), 100, np.uint8), "mono8", 5000)
@@ -180,7 +180,7 @@ def test_built_only_when_subscribed(ros_context):
         end = time.monotonic() + 10
         while len(got) < 2 and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
-        img, _ = image_from_msg(got[1])
+        img, _ = decode_image(got[1])
         assert tuple(img[455, 300]) == (40, 40, 40)  # the blank canvas
         assert len(viz.builder.poses) == 3
 
@@ -207,10 +207,10 @@ def test_node_publishes_visualization(tmp_path, ros_context):
     from sensor_msgs.msg import Image
     from visualization_msgs.msg import MarkerArray
 
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.geometry import rotation_angle_deg
     from rs_localizer.ros import pointcloud as pc
     from rs_localizer.ros.conversions import camera_info_msg, pose_from_msg, stamp_to_ns
+    from rs_localizer.ros.image_codec import decode_image
     from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence
 
     frames, _, cam, _ = generate_sequence(SequenceConfig(num_frames=4, num_points=500, seed=7))
@@ -244,7 +244,7 @@ def test_node_publishes_visualization(tmp_path, ros_context):
             im = got["debug_image"][k]
             assert (im.encoding, im.width, im.height) == ("bgr8", 1280, 720)
             assert stamp_to_ns(im.header.stamp) == f.stamp_ns and im.header.frame_id == "cam"
-            img, _ = image_from_msg(im)
+            img, _ = decode_image(im)
             green, red = _colour_fractions(img, f.uv, f.inlier)
             assert green >= 0.9 and red >= 0.8, (green, red)
             ma = got["markers"][k]
@@ -292,9 +292,9 @@ def _topic_messages(bag, topic):
 
 def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
     from rs_localizer.cli import main as cli
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.bags.bag_io import bag_topics
     from rs_localizer.ros.conversions import pose_from_msg, stamp_to_ns
+    from rs_localizer.ros.image_codec import decode_image
 
     bag, frames, cam = labelled_bag
     out = tmp_path / "out"
@@ -327,7 +327,7 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
     assert len(images) == len(markers) == len(paths) == len(poses) == 3
     for f, im, ma, path, pose in zip(frames, images, markers, paths, poses, strict=True):
         assert stamp_to_ns(im.header.stamp) == f.stamp_ns
-        img, enc = image_from_msg(im)
+        img, enc = decode_image(im)
         assert enc == "bgr8" and img.shape == (720, 1280, 3)
         green, red = _colour_fractions(img, f.uv, f.inlier)
         assert green >= 0.9 and red >= 0.8, (green, red)
@@ -343,7 +343,7 @@ def test_replay_writes_the_visualization(labelled_bag, tmp_path, capsys):
     import cv2
 
     assert cli(["export-image", str(out), str(tmp_path / "d.png"), "--index", "1"]) == 0
-    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png")), image_from_msg(images[1])[0])
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "d.png")), decode_image(images[1])[0])
     assert cli(["export-image", str(out), str(tmp_path / "p.png"), "--colors", "16"]) == 0
     assert cv2.imread(str(tmp_path / "p.png")).shape == (720, 1280, 3)
     assert cli(["export-image", str(out), str(tmp_path / "x.png"), "--index", "3"]) == 2
@@ -363,13 +363,13 @@ def test_replay_draws_on_the_bag_images(sample_images_bag, tmp_path):
     dimmed to 0.7, under the overlay."""
     import cv2
 
-    from rs_localizer.frontends.image import image_from_msg
     from rs_localizer.ros.bags.replay import replay
+    from rs_localizer.ros.image_codec import decode_image
 
     res = replay(sample_images_bag, out_bag=tmp_path / "out", debug_outputs=True, progress=None)
     assert res.solved == 20
     raw = {
-        im.header.stamp.sec * 10**9 + im.header.stamp.nanosec: image_from_msg(im)[0]
+        im.header.stamp.sec * 10**9 + im.header.stamp.nanosec: decode_image(im)[0]
         for im in _topic_messages(sample_images_bag, "/camera/image_raw")[::7]
     }
     debug = _topic_messages(tmp_path / "out", "/rs_localizer/debug_image")
@@ -380,7 +380,7 @@ def test_replay_draws_on_the_bag_images(sample_images_bag, tmp_path):
         if stamp not in raw:
             continue
         n += 1
-        img, _ = image_from_msg(im)
+        img, _ = decode_image(im)
         dimmed = cv2.cvtColor(cv2.convertScaleAbs(raw[stamp], alpha=0.7), cv2.COLOR_GRAY2BGR)
         same = (img == dimmed).all(axis=2)
         assert same.mean() > 0.8, same.mean()  # the rest: points, cube, text band

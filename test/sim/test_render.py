@@ -210,7 +210,7 @@ def test_render_bag_roundtrip(tmp_path):
     from rosbags.typesys import Stores, get_typestore
 
     from rs_localizer.cli.render_bag import render_bag
-    from rs_localizer.frontends.image import image_from_msg
+    from rs_localizer.ros.image_codec import decode_image
     from rs_localizer.ros.pointcloud import read_correspondences
 
     bag = render_bag(tmp_path / "bag", "aruco_room", "shake", 3, mono=True, supersample=1)
@@ -226,7 +226,7 @@ def test_render_bag_roundtrip(tmp_path):
         "/ground_truth/pose": 3,
         "/ground_truth/twist": 3,
     }
-    img, enc = image_from_msg(msgs["/camera/image_raw"][1])
+    img, enc = decode_image(msgs["/camera/image_raw"][1])
     assert img.shape == (480, 640) and enc == "mono8"
     c = read_correspondences(msgs["/camera/correspondences"][1])
     assert len(c) > 100 and set(c.ids.astype(int) % 4) == {0, 1, 2, 3}

@@ -98,7 +98,7 @@ def read_bag_frames(
         lm_index = (ids[order], pts[order])
     elif source == "image":
         from ...frontends import make_frontend
-        from ...frontends.image import image_from_msg
+        from ..image_codec import decode_image
 
         spec = info.get("frontend", {})
         kind = frontend or spec.get("kind")
@@ -137,7 +137,7 @@ def read_bag_frames(
                 uv, xyz = kp.uv[known], lm_index[1][j[known]]
                 scores = None if kp.scores is None else kp.scores[known]
             elif source == "image":
-                img, enc = image_from_msg(msg)
+                img, enc = decode_image(msg)
                 uv, xyz, _ = fe.process(img, out.camera, encoding=enc)
                 scores = None
             else:

@@ -24,9 +24,9 @@ import numpy as np
 
 from ...accuracy import GroundTruth
 from ...camera import CameraModel
-from ...frontends.image import image_fields
 from ...maps import save_landmarks_csv
 from .. import conversions as cv
+from ..image_codec import image_fields
 from ..pointcloud import correspondence_array, is_dense, keypoint_array, pack_cloud
 
 __all__ = [

@@ -555,11 +555,11 @@ class _DebugWriter:
         self.pending = None
 
     def add_image(self, msg):
-        from ...frontends.image import image_from_msg
+        from ..image_codec import ImageRejected, decode_image
 
         try:
-            self.add_decoded(*image_from_msg(msg), cv.stamp_to_ns(msg.header.stamp))
-        except ValueError:
+            self.add_decoded(*decode_image(msg), cv.stamp_to_ns(msg.header.stamp))
+        except ImageRejected:
             return
 
     def add_decoded(self, image, encoding, stamp_ns: int):
