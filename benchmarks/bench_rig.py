@@ -44,11 +44,12 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from rs_localizer.estimation import EstimateOptions, GyroMeasurement, estimate_rs_pose
-from rs_localizer.estimation.rig import estimate_rig_pose, rig_model_of_camera
+from rs_localizer.estimation.rig import RIG_OPTIONS, estimate_rig_pose, rig_model_of_camera
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
@@ -72,13 +73,10 @@ OUTLIERS = 0.2
 NOISE_PX = 0.5
 
 
-def _rig_kwargs() -> dict:
-    r = OPTIONS.ransac
-    return {
-        "threshold_px": r.threshold_px,
-        "max_iterations": r.max_iterations,
-        "confidence": r.confidence,
-    }
+def _rig_options(min_inliers: int = RIG_OPTIONS.ransac.min_inliers) -> EstimateOptions:
+    """The rig's options: the single camera's (:data:`OPTIONS`) with ``min_inliers`` over all
+    cameras (the rig's default, :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`)."""
+    return replace(OPTIONS, ransac=replace(OPTIONS.ransac, min_inliers=min_inliers))
 
 
 def errors(model, truth) -> tuple[float, float, float]:
@@ -155,7 +153,7 @@ def run(m: int, frames: int, points: int, seed: int = 0) -> dict:
         names = [k.name for k in rig.cameras]
         truth = rig_motion(rng, rng.uniform(*ANGULAR_SPEED), LINEAR_SPEED)
         f = rig_frame(rig, truth, [points] * m, rng, NOISE_PX, OUTLIERS)
-        est, dt = _timed(lambda f=f: estimate_rig_pose(f.views, **_rig_kwargs()))
+        est, dt = _timed(lambda f=f: estimate_rig_pose(f.views, _rig_options()))
         add("rig", errors(est.model, truth) if est.success else nan3, dt)
         alone, total = [], 0.0
         for v, k in zip(f.views, rig.cameras, strict=True):
@@ -201,7 +199,7 @@ def few_points(frames: int, seed: int = 0, counts=(20, 3)) -> dict:
         f = rig_frame(rig, truth, list(counts), rng, NOISE_PX, 0.1)
         k = rig.cameras[0]
         true0 = f.camera_truth(0)
-        est = estimate_rig_pose(f.views, min_inliers=6, **_rig_kwargs())
+        est = estimate_rig_pose(f.views, _rig_options(min_inliers=6))
         if est.success:
             posed += 1
             mdl = camera_model_of_rig(
@@ -259,7 +257,7 @@ def gyro_run(m: int, frames: int, points: int, seed: int = 0) -> dict:
         f = rig_frame(rig, truth, [points] * m, rng, NOISE_PX, OUTLIERS)
         for kind in GYROS:
             g = _gyro_of(kind, -truth.w, rng)
-            est, dt = _timed(lambda f=f, g=g: estimate_rig_pose(f.views, gyro=g, **_rig_kwargs()))
+            est, dt = _timed(lambda f=f, g=g: estimate_rig_pose(f.views, _rig_options(), gyro=g))
             d = out[kind]
             d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)
             d["time"].append(dt)
@@ -336,7 +334,7 @@ def pre_rotation_run(m: int, frames: int, points, seed: int = 0, outliers=OUTLIE
         for kind, d in out.items():
             est, dt = _timed(
                 lambda f=f, k=kind: estimate_rig_pose(
-                    f.views, pre_rotation=k, min_inliers=6, **_rig_kwargs()
+                    f.views, _rig_options(min_inliers=6), pre_rotation=k
                 )
             )
             d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)

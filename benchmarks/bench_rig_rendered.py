@@ -45,7 +45,7 @@ from benchmarks.bench_rig import (
     _mean_model,
     _median,
     _poselib,
-    _rig_kwargs,
+    _rig_options,
     _timed,
     print_table,
 )
@@ -137,7 +137,7 @@ def run(rendered: dict, fps: float = 30.0) -> dict:
                 RigView(f.uv, f.xyz, c.camera, c.R_mount, c.c_mount, t_ref - t_rig, c.name)
             )
         points.append([len(v.uv) for v in views])
-        est, dt = _timed(lambda views=views: estimate_rig_pose(views, **_rig_kwargs()))
+        est, dt = _timed(lambda views=views: estimate_rig_pose(views, _rig_options()))
         add("rig", _errors(est.pose, truth) if est.success else nan3, dt)
         alone, total = [], 0.0
         for v, c in zip(views, cams, strict=True):

@@ -59,7 +59,7 @@ def check_ransac_settings(prefix: str = "", **settings: object) -> None:
     run forever, never draw a sample or accept any model).
 
     Args:
-        prefix: put before the names in the messages (e.g. ``"estimate_rig_pose: "``).
+        prefix: put before the names in the messages (e.g. ``"ransac."``).
         settings: name -> value.
     Raises:
         ValueError: naming the first setting out of its range, the range and the value.

@@ -1,5 +1,13 @@
 """The RANSAC stage of the estimator: LO-RANSAC over one prepared frame (paper sec. 4).
 
+One search for one camera or a rig of them (as PoseLib's ``ransac<Estimator>``):
+:class:`RansacLoop` holds what every search keeps (the best model and its score, the samples
+drawn, the adaptive termination: :func:`required_iterations`, the batches:
+:func:`batch_sizes`) and asks a :class:`RansacEstimator` for the rest
+(``generate_models``: a batch of hypotheses from minimal samples, ``score_models``,
+``refine_model``: a new best). The single camera's :class:`Ransac` is its own estimator; the
+rig's is in :mod:`.rig`. Both draw from :func:`seeded_rng`.
+
 :class:`Ransac` holds the search's state (the best model, its score and inliers, the
 hypotheses drawn, the adaptive termination) and draws batches of minimal samples from a
 :class:`~.hypotheses.HypothesisSource`; every new best is polished by local optimization
@@ -11,14 +19,16 @@ from __future__ import annotations
 
 import functools
 import time
+from collections.abc import Iterator
+from typing import Any, Protocol
 
 import numpy as np
 
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
-from .hypotheses import KNOWN_W_SAMPLE, hypothesis_source
+from .hypotheses import KNOWN_W_SAMPLE, ScoredBatch, hypothesis_source
 from .local_optimization import local_optimization, seed_from_initial_model
-from .options import EstimateOptions, InitialModel
+from .options import EstimateOptions, InitialModel, RansacOptions
 from .result import (
     DEGENERATE_GEOMETRY,
     IMPLAUSIBLE_MOTION,
@@ -27,7 +37,15 @@ from .result import (
     EstimationFailed,
 )
 
-__all__ = ["Ransac", "prosac_order", "required_iterations", "seeded_rng"]
+__all__ = [
+    "Ransac",
+    "RansacEstimator",
+    "RansacLoop",
+    "batch_sizes",
+    "prosac_order",
+    "required_iterations",
+    "seeded_rng",
+]
 
 
 @functools.lru_cache(maxsize=16)
@@ -73,8 +91,93 @@ def prosac_order(fr: Frame, scores: np.ndarray | None) -> np.ndarray:
     return np.argsort(-np.where(np.isfinite(sc), sc, -np.inf), kind="stable")
 
 
-class Ransac:
-    """LO-RANSAC on one frame with one solver.
+def batch_sizes(loop: RansacLoop, r: RansacOptions) -> Iterator[int]:
+    """The sizes of the batches of minimal samples a search draws, until adaptive termination
+    (``loop.needed``, read before each batch) or ``r.max_iterations``: the first batch
+    ``r.batch_size``, each next one twice as large, but none more than termination still asks
+    for (at least ``r.min_iterations`` in all). The caller adds each to ``loop.iterations``."""
+    batch = max(int(r.batch_size), 1)
+    while loop.iterations < r.max_iterations and (
+        loop.iterations < loop.needed or loop.iterations < r.min_iterations
+    ):
+        # batches double (fewer calls), but draw no more samples than termination asks for
+        yield min(
+            batch,
+            r.max_iterations - loop.iterations,
+            max(
+                int(np.ceil(min(loop.needed, r.max_iterations))) - loop.iterations,
+                r.min_iterations - loop.iterations,
+                1,
+            ),
+        )
+        batch *= 2
+
+
+class RansacEstimator(Protocol):
+    """What :meth:`RansacLoop.search` asks of one estimator (a camera's, a rig's), as
+    PoseLib's estimators' ``generate_models``, ``score_model`` and ``refine_model``."""
+
+    def generate_models(self, loop: RansacLoop, K: int) -> Any:
+        """Hypotheses of ``K`` new minimal samples (``loop.iterations`` not yet counting
+        them), or None when none gave a model; adds those dropped for their motion alone to
+        ``loop.implausible``."""
+
+    def score_models(self, hypotheses: Any) -> tuple[float, Any]:
+        """The best of ``generate_models``'s hypotheses: (its MSAC score, its model)."""
+
+    def refine_model(self, loop: RansacLoop, model: Any) -> tuple[float, Any, float]:
+        """A new best model polished (local optimization, or as it is): (its score, the
+        model, the inlier ratio that adaptive termination counts on)."""
+
+
+class RansacLoop:
+    """What every RANSAC search keeps, whatever its estimator.
+
+    Attributes:
+        s: the minimal sample's size. confidence: adaptive termination's.
+        best: the best model so far or None; score: its MSAC score.
+        iterations: hypotheses (minimal samples) drawn; needed: samples adaptive termination
+            asks for; implausible: hypotheses rejected for their motion alone.
+    """
+
+    def __init__(self, s: int, r: RansacOptions):
+        self.s = s
+        self.confidence = r.confidence
+        self.best: Any = None
+        self.score = np.inf
+        self.iterations = 0
+        self.needed = float(r.max_iterations)
+        self.implausible = 0
+
+    def search(self, estimator: RansacEstimator, r: RansacOptions) -> None:
+        """Draw batches (:func:`batch_sizes`) of ``estimator``'s hypotheses; a better score
+        than the best's is refined and becomes the best, and termination is updated from its
+        inlier ratio (:func:`required_iterations`)."""
+        for K in batch_sizes(self, r):
+            hypotheses = estimator.generate_models(self, K)
+            self.iterations += K
+            if hypotheses is None:
+                continue
+            score, model = estimator.score_models(hypotheses)
+            if score < self.score:
+                self.score, self.best, ratio = estimator.refine_model(self, model)
+                self.needed = required_iterations(ratio, self.s, self.confidence)
+
+    def found(self) -> Any:
+        """The best model.
+
+        Raises:
+            EstimationFailed: ``implausible_motion`` (no model, and some hypotheses moved too
+                fast) or ``no_hypothesis`` (no sample gave a model).
+        """
+        if self.best is None:
+            raise EstimationFailed(IMPLAUSIBLE_MOTION if self.implausible else NO_HYPOTHESIS)
+        return self.best
+
+
+class Ransac(RansacLoop):
+    """LO-RANSAC on one frame with one solver: a :class:`RansacLoop` that is its own
+    :class:`RansacEstimator`.
 
     Attributes:
         best: the best model (R, C, w, t) so far or None; score: its MSAC score; inliers: its
@@ -97,18 +200,13 @@ class Ransac:
         order: np.ndarray,
         scored: bool,
     ):
+        # (with a gyro the samples are solved with the angular velocity known: 5 points)
+        super().__init__(sample_size(solver) if fr.known_w is None else KNOWN_W_SAMPLE, opts.ransac)
         self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
         self.order, self.scored = order, scored
-        # (with a gyro the samples are solved with the angular velocity known: 5 points)
-        self.s = sample_size(solver) if fr.known_w is None else KNOWN_W_SAMPLE
         self.th2 = np.nan  # (squared normalized threshold: set by run, on the configured frame)
-        self.best: Model | None = None
-        self.score = np.inf
         self.inliers = np.zeros(len(fr.x), dtype=bool)
         self.count = 0
-        self.iterations = 0
-        self.needed = float(opts.ransac.max_iterations)
-        self.implausible = 0
         self.anchor: tuple[np.ndarray, np.ndarray] | None = None
         self.explained = -1
         self.guided = 0
@@ -125,41 +223,10 @@ class Ransac:
         self.th2 = self.fr.threshold * self.fr.threshold
         if initial is not None:
             self._seed(initial)
-        source = hypothesis_source(
+        self._source = hypothesis_source(
             self.fr, self.solver, self.opts, self.th2, self.anchor is not None
         )
-        r = self.opts.ransac
-        batch = max(int(r.batch_size), 1)
-        N = len(self.fr.x)
-        while self.iterations < r.max_iterations and (
-            self.iterations < self.needed or self.iterations < r.min_iterations
-        ):
-            # batches double (fewer calls), but draw no more samples than termination asks for
-            K = min(
-                batch,
-                r.max_iterations - self.iterations,
-                max(
-                    int(np.ceil(min(self.needed, r.max_iterations))) - self.iterations,
-                    r.min_iterations - self.iterations,
-                    1,
-                ),
-            )
-            batch *= 2
-            pool = self._pool(K)
-            self.iterations += K
-            pretest_min = int(0.5 * r.pretest_points * self.count / N)
-            if self.anchor is not None and self.best is not None:
-                self.anchor = (
-                    np.ascontiguousarray(self.best[0], dtype=np.float64),
-                    np.ascontiguousarray(self.best[1], dtype=np.float64),
-                )
-            out = source.best_of_batch(
-                self.rng.random((K, self.s)), pool, self.order, self.score, pretest_min, self.anchor
-            )
-            self.implausible += out.implausible
-            if out.score < self.score:
-                h = out.best
-                self._new_best((out.R[h], out.C[h], out.w[h], out.t[h]))
+        self.search(self, self.opts.ransac)
         self.timings = {
             "ransac": time.perf_counter() - t0 - self._t_local,
             "local_optimization": self._t_local,
@@ -173,8 +240,7 @@ class Ransac:
                 fast), ``no_hypothesis``, ``too_few_inliers`` (fewer than ``min_inliers``),
                 ``degenerate_geometry`` (its inliers fix no pose).
         """
-        if self.best is None:
-            raise EstimationFailed(IMPLAUSIBLE_MOTION if self.implausible else NO_HYPOTHESIS)
+        self.found()
         if self.count < min_inliers:
             raise EstimationFailed(TOO_FEW_INLIERS)
         if self.fr.degenerate(self.inliers, threshold_px):
@@ -220,16 +286,36 @@ class Ransac:
                 self.needed = 0.0
         self._t_local += time.perf_counter() - t_lo
 
-    def _new_best(self, model: Model) -> None:
+    def generate_models(self, loop: RansacLoop, K: int) -> ScoredBatch:
+        """The best of K samples' hypotheses, scored preemptively in the same compiled call
+        (:meth:`~.hypotheses.HypothesisSource.best_of_batch`)."""
+        pool = self._pool(K)
+        pretest_min = int(0.5 * self.opts.ransac.pretest_points * self.count / len(self.fr.x))
+        if self.anchor is not None and self.best is not None:
+            self.anchor = (
+                np.ascontiguousarray(self.best[0], dtype=np.float64),
+                np.ascontiguousarray(self.best[1], dtype=np.float64),
+            )
+        out = self._source.best_of_batch(
+            self.rng.random((K, self.s)), pool, self.order, self.score, pretest_min, self.anchor
+        )
+        self.implausible += out.implausible
+        return out
+
+    def score_models(self, out: ScoredBatch) -> tuple[float, Model]:
+        h = out.best
+        return out.score, (out.R[h], out.C[h], out.w[h], out.t[h])
+
+    def refine_model(self, loop: RansacLoop, model: Model) -> tuple[float, Model, float]:
         """LO-RANSAC: score a new best on every point, polish it (unless verifying a seed: a
         verification sample that beats the seed is polished by the final refinement, on every
-        point, as local optimization would) and update the termination."""
+        point, as local optimization would); the inlier ratio of termination is that of the
+        verified seed's inliers when verifying it."""
         t_lo = time.perf_counter()
-        self.best = model
-        self.score, self.inliers = self.fr.evaluate(model, self.th2)
+        score, self.inliers = self.fr.evaluate(model, self.th2)
         if not self.guided:
-            self.score, self.best, self.inliers = local_optimization(
-                self.fr, self.solver, (self.score, self.best, self.inliers), self.th2, self.opts
+            score, model, self.inliers = local_optimization(
+                self.fr, self.solver, (score, model, self.inliers), self.th2, self.opts
             )
         self._t_local += time.perf_counter() - t_lo
         self.count = int(np.count_nonzero(self.inliers))
@@ -238,4 +324,4 @@ class Ransac:
             if self.guided
             else self.count / len(self.fr.x)
         )
-        self.needed = required_iterations(ratio, self.s, self.opts.ransac.confidence)
+        return score, model, ratio

@@ -1,6 +1,7 @@
 """What :func:`~rs_localizer.estimation.estimate_rs_pose` returns: :class:`RSPoseEstimate`, its
-failure reasons, and the conversions of the model (R, C, w, t per unit RS coordinate) to the
-camera's physical velocities and the output covariances.
+failure reasons (a camera's and a rig's, documented once: :data:`FAILURE_REASONS`,
+:data:`RIG_FAILURE_REASONS`, :data:`RIG_REFUSALS`), and the conversions of the model (R, C, w,
+t per unit RS coordinate) to the camera's physical velocities and the output covariances.
 """
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
 __all__ = [
     "AMBIGUOUS_TAG",
+    "CAMERAS_DISAGREE",
     "CHEIRALITY",
+    "CONTRADICTS_TRACK",
     "DEGENERATE_GEOMETRY",
     "FAILURE_REASONS",
     "GYRO_REJECTIONS",
@@ -23,8 +26,11 @@ __all__ = [
     "INCONSISTENT_FIT",
     "NO_HYPOTHESIS",
     "PLANAR_SCENE",
+    "RIG_FAILURE_REASONS",
+    "RIG_REFUSALS",
     "TOO_FEW_INLIERS",
     "TOO_FEW_POINTS",
+    "UNCONFIRMED",
     "EstimationFailed",
     "RSPoseEstimate",
     "failed_estimate",
@@ -32,14 +38,22 @@ __all__ = [
     "physical_velocities",
 ]
 
-#: fewer valid rows than ``min_inliers``
+# The reasons a frame (a camera's, or a rig's: :func:`~.rig.estimate_rig_pose`, the rig
+# estimator, and :class:`~rs_localizer.tracking.rig.RigLocalizer`, its tracker) gives no pose,
+# each documented here once. The velocity bounds and ``min_inliers`` are
+# :class:`~.options.EstimateOptions`', the rig's as a camera's.
+
+#: fewer valid rows than ``min_inliers`` (a rig: fewer than 6 over all cameras, or no camera
+#: with 3)
 TOO_FEW_POINTS = "too_few_points"
-#: no minimal sample gave a model
+#: no minimal sample gave a model (a camera or a rig)
 NO_HYPOTHESIS = "no_hypothesis"
-#: the best model has fewer than ``min_inliers`` inliers (before or after the refinement)
+#: the best model has fewer than ``min_inliers`` inliers (before or after the refinement; a
+#: rig: over all cameras, after it)
 TOO_FEW_INLIERS = "too_few_inliers"
 #: the points, or the inliers, are identical or on one 3D line, or their pixels lie within the
-#: inlier threshold of one image line
+#: inlier threshold of one image line (a rig: every camera's, or fewer than 3 in each: its
+#: rays in one plane through its centre)
 DEGENERATE_GEOMETRY = "degenerate_geometry"
 #: a solver that cannot work on coplanar points (R9P) was given a planar scene
 PLANAR_SCENE = "planar_scene"
@@ -49,6 +63,21 @@ INCONSISTENT_FIT = "inconsistent_fit"
 #: a frame of a few coplanar points (one square marker's corners) whose two plane poses fit
 #: them alike and no prediction tells apart (:mod:`.single_tag`)
 AMBIGUOUS_TAG = "ambiguous_tag"
+#: a rig's cameras with points contradict each other (each group explains its own points and
+#: not the others', e.g. a wrong mounting or stamp) and neither the number of cameras on each
+#: side nor the prediction tells which are right (:func:`~.rig.estimate_rig_pose`: the
+#: cameras' consensus)
+CAMERAS_DISAGREE = "cameras_disagree"
+#: the rig's tracker refused a rig frame posed from one camera's points alone while other
+#: cameras of the rig run, whose pose contradicts the rig's track (the prediction of the rig
+#: frames before it): a camera whose clock or stamp is off, or whose matches are wrong, is not
+#: posed alone
+CONTRADICTS_TRACK = "contradicts_track"
+#: the rig's tracker refused a rig frame posed from one camera's points alone with no track to
+#: check it against (the rig's start, or after the track ended) while two or more other
+#: cameras run: the track of a rig of three or more cameras starts from a rig frame of cameras
+#: that agree with each other
+UNCONFIRMED = "unconfirmed"
 #: every reason an unsuccessful estimate can give, in the order the estimator checks them
 FAILURE_REASONS = (
     TOO_FEW_POINTS,
@@ -61,6 +90,22 @@ FAILURE_REASONS = (
     CHEIRALITY,
     INCONSISTENT_FIT,
 )
+#: every reason an unsuccessful rig estimate (:func:`~.rig.estimate_rig_pose`) can give, in
+#: the order the rig estimator checks them: the camera's of the same names (a rig's
+#: implausible motion is its own angular and linear velocity's; its cheirality every
+#: inlier's in its own camera), and ``cameras_disagree``
+RIG_FAILURE_REASONS = (
+    TOO_FEW_POINTS,
+    DEGENERATE_GEOMETRY,
+    NO_HYPOTHESIS,
+    IMPLAUSIBLE_MOTION,
+    TOO_FEW_INLIERS,
+    CHEIRALITY,
+    CAMERAS_DISAGREE,
+)
+#: why the rig's tracker refused a rig frame the estimator posed (counted
+#: ``rig.failed.<reason>``, as the estimator's failure reasons)
+RIG_REFUSALS = (CONTRADICTS_TRACK, UNCONFIRMED)
 
 
 #: why a gyro measurement was not used (``RSPoseEstimate.gyro_rejection``): ``contradicted``

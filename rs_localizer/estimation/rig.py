@@ -29,6 +29,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   the others are scored by MSAC on the reprojection error in pixels with each camera's exact
   model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
   camera's focal length turning normalized errors into pixels);
+- the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
+  options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
+  adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
+  random stream; no sample gives a model: ``no_hypothesis``, or ``implausible_motion`` when
+  some moved beyond the bounds;
 - local optimization: the best model is refit on its inliers with the rig solver (pre-rotated
   by the model, twice), then refined on the exact model (:data:`LO_ROUNDS` rounds); a step
   that raises the MSAC cost of all points is not taken;
@@ -57,7 +62,8 @@ With an initial model (``initial_model``, a tracker's prediction of the rig) the
 starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
 the model is tested on every point, pulled onto those within its gate, seeds RANSAC and
 pre-rotates its samples instead of P3P, and when it explains the frame RANSAC only verifies it
-(one batch of samples among its inliers); local optimization and the final refinement run on
+(samples among its inliers, as a camera's verification, at least
+``ransac.min_iterations``); local optimization and the final refinement run on
 every point as without it.
 
 With a gyro on the rig (``gyro``: the rig's angular velocity in the rig frame) the estimator
@@ -91,10 +97,21 @@ from .gyro import (
     gyro_checked,
     gyro_image_chi2,
 )
-from .options import InitialModel, check_ransac_settings
+from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
+from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import untruncated_variance
-from .result import output_covariance
+from .result import (
+    CAMERAS_DISAGREE,
+    CHEIRALITY,
+    DEGENERATE_GEOMETRY,
+    IMPLAUSIBLE_MOTION,
+    RIG_FAILURE_REASONS,
+    TOO_FEW_INLIERS,
+    TOO_FEW_POINTS,
+    EstimationFailed,
+    output_covariance,
+)
 from .sensitivity import output_jacobian
 
 __all__ = [
@@ -105,6 +122,8 @@ __all__ = [
     "PREDICTION_MARGIN",
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
+    "RIG_OPTIONS",
+    "RIG_SOLVER_ITERATIONS",
     "STILL_SPREAD",
     "VERIFY_ALL_EXPLAINED",
     "VERIFY_MIN_POINTS",
@@ -117,26 +136,19 @@ __all__ = [
     "rig_model_of_camera",
 ]
 
-#: failure reason -> meaning, in the order the estimator checks them
-RIG_FAILURE_REASONS = {
-    "too_few_points": "fewer than 6 valid correspondences over all cameras, or no camera with 3",
-    "degenerate_geometry": (
-        "the world points (or the final inliers) are identical or on one 3D line, or every "
-        "camera's pixels lie within the inlier threshold of one image line (or number fewer "
-        "than 3: its rays in one plane through its centre)"
-    ),
-    "no_model": "no sample gave a valid model moving within the velocity bounds",
-    "too_few_inliers": "the final (refined) model has fewer than min_inliers inliers",
-    "implausible_motion": "the refined rig turns faster than max_angular_velocity or moves "
-    "faster than max_linear_velocity (or is not finite)",
-    "cheirality": "an inlier is not in front of its camera at its capture time",
-    "cameras_disagree": (
-        "cameras with points contradict each other (each group explains its own points and "
-        "not the others', e.g. a wrong mounting or stamp) and neither the number of cameras "
-        "on each side nor the prediction (initial_model) tells which are right "
-        "(estimate_rig_pose: the cameras' consensus)"
-    ),
-}
+#: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
+#: many valid points; cameras with fewer are fitted with every group, never outvoted
+VOTE_MIN_POINTS = 8
+
+#: the rig estimator's default options: a camera's (``EstimateOptions()``: threshold,
+#: iterations, confidence 0.9999, seed, refinement, velocity bounds) with ``min_inliers``
+#: :data:`VOTE_MIN_POINTS` over all cameras, so that the cameras' consensus can pose a
+#: voting camera of a few points alone
+RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
+
+#: the rig solver's iterations per sample after the pre-rotation when
+#: ``EstimateOptions.ransac.solver_iterations`` is None (the single camera's choice per solver)
+RIG_SOLVER_ITERATIONS = 3
 
 #: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
@@ -148,10 +160,6 @@ PRE_ROTATIONS = ("p3p", "gp3p")
 
 #: s: observation times spread by at most this are one time (a global-shutter rig frame)
 STILL_SPREAD = 1e-9
-
-#: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
-#: many valid points; cameras with fewer are fitted with every group, never outvoted
-VOTE_MIN_POINTS = 8
 
 #: a voting camera agrees with a model when its inlier ratio is at least this share of the
 #: best-fitting voting camera's under that model (a camera whose mounting or stamp is wrong
@@ -293,7 +301,8 @@ class RigPoseEstimate(PoseWithCovariance):
 
     Attributes:
         success: a pose passed every check (:data:`RIG_FAILURE_REASONS`).
-        failure: a key of :data:`RIG_FAILURE_REASONS`, ``None`` on success.
+        failure: one of :data:`~.result.RIG_FAILURE_REASONS` (their meanings are in
+            :mod:`~.result`), ``None`` on success.
         R: (3, 3) world -> rig rotation at the reference time. C: (3,) world -> rig
             translation (m): ``x_rig = R X + C``.
         w: (3,) rad/s, the model's rotation rate (rig frame: ``expm(tau [w]x)`` left of
@@ -1103,16 +1112,7 @@ def _seed(
 
 def estimate_rig_pose(
     views: Sequence[RigView],
-    threshold_px: float = 2.0,
-    max_iterations: int = 1000,
-    confidence: float = 0.999,
-    min_inliers: int = 8,
-    batch_size: int = 32,
-    solver_iterations: int = 3,
-    refine: bool = True,
-    seed: int | None = 0,
-    max_angular_velocity: float = 20.0,
-    max_linear_velocity: float = 50.0,
+    options: EstimateOptions | None = None,
     *,
     initial_model: InitialModel | RSModel | tuple | None = None,
     gyro: GyroMeasurement | None = None,
@@ -1127,26 +1127,29 @@ def estimate_rig_pose(
     Args:
         views: one :class:`RigView` per camera (pixels, world points, camera, mounting, stamp
             offset); a camera may have no points.
-        threshold_px: inlier threshold on the reprojection error (px).
-        max_iterations: most RANSAC samples. confidence: adaptive termination's confidence.
-        min_inliers: inliers over all cameras for success.
-        batch_size: samples solved per batched call.
-        solver_iterations: rig-solver iterations per sample (after the P3P pre-rotation).
-        refine: run the Levenberg-Marquardt refinement on the exact model (and compute the
-            covariance); without it the estimate is the rig solver's refit of RANSAC's model.
-        seed: random seed of the sampling.
-        max_angular_velocity: rad/s, max_linear_velocity: m/s: hypotheses and final models of
-            a rig moving faster are implausible (``inf``: no bound; the defaults are
-            :class:`~rs_localizer.estimation.EstimateOptions`').
+        options: the single camera's
+            :class:`~rs_localizer.estimation.options.EstimateOptions` (default
+            :data:`RIG_OPTIONS`), of which the rig uses ``ransac`` (``threshold_px``: the
+            inlier threshold on the reprojection error in px; ``max_iterations``,
+            ``min_iterations``, ``confidence``, ``batch_size``: the search and its adaptive
+            termination, as a camera's; ``min_inliers`` over all cameras; ``seed``;
+            ``solver_iterations``: rig-solver iterations per sample after the pre-rotation,
+            None: :data:`RIG_SOLVER_ITERATIONS`), ``refine.enabled`` (the Levenberg-Marquardt
+            refinement on the exact model and the covariance; without it the estimate is the
+            rig solver's refit of RANSAC's model) and ``plausibility``'s
+            ``max_angular_velocity`` (rad/s) and ``max_linear_velocity`` (m/s): hypotheses and
+            final models of a rig moving faster are implausible (``inf``: no bound). Its
+            other fields (local optimization, motion prior, correlated noise, sampling order
+            and pre-test) are the single camera's alone.
         initial_model: optional :class:`~rs_localizer.estimation.InitialModel` whose
             ``model`` is the rig's predicted ``(R, C, w, t)`` (per second, at the rig's
             reference time: a tracker's prediction; a bare model has the default gate):
             tested first on every point; if at least ``min_explained`` are within its
             ``gate_px`` it is pulled onto them and seeds RANSAC, and its rotation (then the
             best model's) pre-rotates every sample instead of P3P; when it then has at least
-            ``min_explained`` inliers RANSAC only verifies it with one batch of samples drawn
-            among them (as a single camera's estimator does with its ``initial_model``).
-            Without it the estimator is unchanged.
+            ``min_explained`` inliers RANSAC only verifies it with samples drawn among them
+            (at least ``ransac.min_iterations``; as a single camera's estimator does with its
+            ``initial_model``). Without it the estimator is unchanged.
         gyro: optional :class:`~rs_localizer.estimation.gyro.GyroMeasurement` of the rig's
             angular velocity during the rig frame (rad/s, **rig frame**: an IMU on the rig,
             its rates turned by ``R_rig_imu``; e.g.
@@ -1187,18 +1190,16 @@ def estimate_rig_pose(
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
-        inliers per camera; ``success=False`` with a :data:`RIG_FAILURE_REASONS` key when the
+        inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
         frame gives no pose.
     Raises:
-        ValueError: unknown ``pre_rotation``, a gyro that is not a
+        ValueError: unknown ``pre_rotation``, ``options`` that are not
+            :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
+            refuse a setting out of its range, naming it), a gyro that is not a
             :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
             not a :class:`RigView`, a camera without a
             mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
-            is not a rotation and offset, mismatched pixel and point counts or shapes; a
-            setting out of its range, named in the message: ``threshold_px`` not > 0,
-            ``max_iterations``, ``batch_size``, ``min_inliers`` or ``solver_iterations`` not an
-            integer >= 1, ``confidence`` outside (0, 1), ``seed`` negative, a velocity bound
-            not > 0.
+            is not a rotation and offset, mismatched pixel and point counts or shapes.
 
     Every observation at one time (global-shutter cameras with equal stamps: capture times
     within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
@@ -1228,22 +1229,11 @@ def estimate_rig_pose(
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
-    check_ransac_settings(
-        "estimate_rig_pose: ",
-        threshold_px=threshold_px,
-        max_iterations=max_iterations,
-        confidence=confidence,
-        min_inliers=min_inliers,
-        batch_size=batch_size,
-        solver_iterations=solver_iterations,
-        seed=seed,
-    )
-    for name, v in (
-        ("max_angular_velocity", max_angular_velocity),
-        ("max_linear_velocity", max_linear_velocity),
-    ):
-        if not float(v) > 0:
-            raise ValueError(f"estimate_rig_pose: {name} must be > 0 (inf: no bound), got {v!r}")
+    options = RIG_OPTIONS if options is None else options
+    if not isinstance(options, EstimateOptions):
+        raise ValueError(
+            f"estimate_rig_pose: options must be an EstimateOptions, got {type(options).__name__}"
+        )
     if pre_rotation not in PRE_ROTATIONS:
         raise ValueError(
             f"estimate_rig_pose: pre_rotation must be one of {PRE_ROTATIONS}, got {pre_rotation!r}"
@@ -1251,11 +1241,8 @@ def estimate_rig_pose(
     if gyro is not None and not isinstance(gyro, GyroMeasurement):
         raise ValueError(f"estimate_rig_pose: gyro must be a GyroMeasurement, got {gyro!r}")
     pool = _Pool(views)
-    settings = (
-        threshold_px, max_iterations, confidence, min_inliers, batch_size, solver_iterations,
-        refine, seed, (float(max_angular_velocity), float(max_linear_velocity)), initial_model,
-        pre_rotation == "gp3p",
-    )  # fmt: skip
+    settings = (options, initial_model, pre_rotation == "gp3p")
+    threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
     if not consensus or not est.success:
         return est
@@ -1271,7 +1258,7 @@ def estimate_rig_pose(
 def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
     (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
-    refine, threshold_px = settings[6], settings[0]
+    refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
     still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
     if gyro is None or still or not refine:
         return _estimate(pool, *settings)
@@ -1452,7 +1439,7 @@ def _disagree(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstim
     camera counts."""
     z = np.zeros(3)
     return replace(
-        est, success=False, failure="cameras_disagree", R=np.eye(3), C=z, w=z, t=z.copy(),
+        est, success=False, failure=CAMERAS_DISAGREE, R=np.eye(3), C=z, w=z, t=z.copy(),
         inliers=pool.per_camera(np.zeros(len(pool.cam), dtype=bool)), num_inliers=0,
         rmse_px=np.nan, num_behind=0, covariance=None, model_covariance=None,
         acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
@@ -1516,95 +1503,143 @@ def _image_alone(
     return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
 
 
+class _RigSearch(RansacLoop):
+    """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
+    batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
+    ``generate_models`` draws 6 points (:func:`_sample`, or :func:`_sample_spread` for the
+    generalized P3P) and solves them (:func:`_hypotheses`, :func:`_hypotheses_still`),
+    dropping models beyond the velocity bounds (``implausible``); ``score_models`` is MSAC on
+    every point's reprojection error in pixels; ``refine_model`` keeps the model as it is (the
+    rig's local optimization runs once, after the search) and gives termination its inlier
+    ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
+
+    def __init__(self, pool, options, still, generalized, prior, anchored, subset):
+        r = options.ransac
+        super().__init__(3 if still else 6, r)
+        self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
+        self.anchored, self.subset = anchored, subset
+        self.rng = seeded_rng(r.seed)
+        self.threshold_px = float(r.threshold_px)
+        self.th2 = self.threshold_px**2
+        self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
+        p = options.plausibility
+        self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
+        self._e = np.zeros(0)
+
+    def cost(self, model) -> float:
+        """MSAC cost (px^2) of one model on every point."""
+        return float(np.minimum(_errors_px(self.pool, *_one(model))[0] ** 2, self.th2).sum())
+
+    def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
+        pool = self.pool
+        samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
+        p3p = _gp3p_on_rig if self.generalized else None
+        if self.still:
+            return _hypotheses_still(pool, samples, p3p)
+        anchor = self.best[:2] if self.anchored and self.best is not None else None
+        hyp = _hypotheses(
+            pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
+            p3p,
+        )  # fmt: skip
+        if hyp is None:
+            return None
+        ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds)
+        self.implausible += int(np.count_nonzero(~ok))
+        return tuple(a[ok] for a in hyp) if ok.any() else None
+
+    def score_models(self, hyp: tuple) -> tuple[float, tuple]:
+        e = _errors_px(self.pool, *hyp)
+        cost = np.minimum(e * e, self.th2).sum(axis=1)
+        h = int(np.argmin(cost))
+        self._e = e[h]
+        return float(cost[h]), tuple(a[h] for a in hyp)
+
+    def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
+        inl = self._e < self.threshold_px
+        ratio = np.mean(inl if self.subset is None else inl[self.subset])
+        return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
+
+
+def _rig_estimate(
+    pool: _Pool,
+    model=None,
+    inliers: np.ndarray | None = None,
+    outputs=(None, None, None),
+    **record,
+) -> RigPoseEstimate:
+    """The :class:`RigPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R, C, w,
+    t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the ROS pose
+    and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the identity
+    and zeros, no inliers); ``record``: the other fields by name."""
+    if model is None:
+        z = np.zeros(3)
+        model = (np.eye(3), z, z, z.copy())
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
+    record.setdefault("rmse_px", np.nan)
+    return RigPoseEstimate(
+        success=record.get("failure") is None,
+        R=R,
+        C=C,
+        w=w,
+        t=t,
+        inliers=pool.per_camera(inl),
+        num_inliers=int(np.count_nonzero(inl)),
+        num_inliers_per_camera=pool.counts(inl),
+        num_valid_per_camera=pool.counts(),
+        covariance=outputs[0],
+        pose=RSPose.from_model(RSModel(R, C, w, t), 1.0),
+        pose_covariance=outputs[1],
+        twist_covariance=outputs[2],
+        **record,
+    )
+
+
 def _estimate(
     pool: _Pool,
-    threshold_px: float,
-    max_iterations: int,
-    confidence: float,
-    min_inliers: int,
-    batch_size: int,
-    solver_iterations: int,
-    refine: bool,
-    seed: int | None,
-    bounds: tuple[float, float],
+    options: EstimateOptions,
     initial_model,
     generalized: bool,
     prior: _GyroPrior | None = None,
 ) -> RigPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
     a rig frame that is not still) or without one (arguments as there)."""
-    rng = np.random.default_rng(seed)
-    views = pool.sizes
-    counts = np.bincount(pool.cam, minlength=len(views))
-    valid = pool.counts()
-    M = len(views)
+    r = options.ransac
+    threshold_px, refine = float(r.threshold_px), options.refine.enabled
 
-    def failed(reason, its=0, behind=0):
-        z = np.zeros(3)
-        no = pool.per_camera(np.zeros(len(pool.cam), dtype=bool))
-        return RigPoseEstimate(
-            False, reason, np.eye(3), z, z, z.copy(), no, 0, its, np.nan,
-            (0,) * M, valid, behind,
-            pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0),
-        )  # fmt: skip
+    def failed(reason, iterations=0, behind=0):
+        return _rig_estimate(pool, failure=reason, iterations=iterations, num_behind=behind)
 
-    if len(pool.cam) < 6 or counts.max() < 3:
-        return failed("too_few_points")
+    if len(pool.cam) < 6 or np.bincount(pool.cam, minlength=len(pool.sizes)).max() < 3:
+        return failed(TOO_FEW_POINTS)
     if pool.degenerate(threshold_px):
-        return failed("degenerate_geometry")
+        return failed(DEGENERATE_GEOMETRY)
     # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
     still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
     free, size = (6, 3) if still else (12, 6)
-    th2 = threshold_px**2
-
-    def msac(m):
-        return float(np.minimum(_errors_px(pool, *_one(m))[0] ** 2, th2).sum())
-
-    def required(frac):
-        if not frac > 0:
-            return max_iterations
-        denom = np.log(max(1e-12, 1.0 - frac**size))
-        return np.log(1.0 - confidence) / denom if denom < 0 else 0
-
-    best_cost, best = np.inf, None
-    needed = max_iterations
-    explained, used, anchored, subset = -1, False, False, None
+    explained, used, anchored, subset, seeded = -1, False, False, None, None
     if initial_model is not None:
         explained, seeded, anchored, subset = _seed(
             pool, initial_model, threshold_px, still, size, free, prior
         )
-        if seeded is not None:
-            best, used = seeded, True
-            best_cost = msac(seeded)
-            inl0 = _errors_px(pool, *_one(seeded))[0] < threshold_px
-            # (verifying a seed that explains the frame: one batch among its inliers)
-            needed = batch_size if subset is not None else required(float(np.mean(inl0)))
-    drawn = 0
-    while drawn < min(needed, max_iterations):
-        k = min(batch_size, max_iterations - drawn)
-        samples = (_sample_spread if generalized else _sample)(rng, pool, k, subset)
-        drawn += k
-        p3p = _gp3p_on_rig if generalized else None
-        if still:
-            hyp = _hypotheses_still(pool, samples, p3p)
-        else:
-            anchor = best[:2] if anchored and best is not None else None
-            hyp = _hypotheses(
-                pool, samples, solver_iterations, bounds, anchor, prior, threshold_px, p3p
-            )
-        if hyp is None:
-            continue
-        e = _errors_px(pool, *hyp)
-        cost = np.minimum(e * e, th2).sum(axis=1)
-        h = int(np.argmin(cost))
-        if cost[h] < best_cost:
-            best_cost = cost[h]
-            best = tuple(a[h] for a in hyp)
-            if subset is None:
-                needed = required(float(np.mean(e[h] < threshold_px)))
-    if best is None:
-        return failed("no_model", drawn)
-    model = best
+    search = _RigSearch(pool, options, still, generalized, prior, anchored, subset)
+    if seeded is not None:
+        used = True
+        search.best, search.score = seeded, search.cost(seeded)
+        inl0 = _errors_px(pool, *_one(seeded))[0] < threshold_px
+        # (verifying a seed that explains the frame: RANSAC samples among its inliers, whose
+        # all-inlier probability is 1, as the single camera's verification)
+        search.needed = (
+            0.0
+            if subset is not None
+            else required_iterations(float(np.mean(inl0)), size, r.confidence)
+        )
+    search.search(search, r)
+    try:
+        model = search.found()
+    except EstimationFailed as e:
+        return failed(e.reason, search.iterations)
+    best_cost, drawn = search.score, search.iterations
 
     # each step is kept only if it does not raise the MSAC cost of the whole pool
     steps = (_refit, _refine) if refine else (_refit,)
@@ -1614,7 +1649,7 @@ def _estimate(
         for step in steps:
             inl = _errors_px(pool, *_one(model))[0] < threshold_px
             cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
-            cost = msac(cand)
+            cost = search.cost(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement (on every point within FINAL_CUTOFF thresholds)
@@ -1622,17 +1657,15 @@ def _estimate(
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     e = _errors_px(pool, *_one((R, C, w, t)))[0]
     inl = e < threshold_px
-    n_in = int(inl.sum())
-    if n_in < min_inliers:
-        return failed("too_few_inliers", drawn)
+    if int(inl.sum()) < r.min_inliers:
+        return failed(TOO_FEW_INLIERS, drawn)
     if collinear_3d(pool.X[inl]):
-        return failed("degenerate_geometry", drawn)
-    if not (np.isfinite(R).all() and plausible_motion(None, C, w, t, bounds)):
-        return failed("implausible_motion", drawn)
+        return failed(DEGENERATE_GEOMETRY, drawn)
+    if not (np.isfinite(R).all() and plausible_motion(None, C, w, t, search.bounds)):
+        return failed(IMPLAUSIBLE_MOTION, drawn)
     behind, bad = _behind_and_cheirality(pool, (R, C, w, t), inl)
     if bad:
-        return failed("cheirality", drawn, behind)
-    rmse = float(np.sqrt(np.mean(e[inl] ** 2)))
+        return failed(CHEIRALITY, drawn, behind)
     cov, G = (
         _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True)
         if refine
@@ -1643,11 +1676,19 @@ def _estimate(
         if cov is None
         else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
     )
-    sens = None if G is None else _sensitivity_out(G, R, C, w)
-    return RigPoseEstimate(
-        True, None, R, C, w, t, pool.per_camera(inl), n_in, drawn, rmse,
-        pool.counts(inl), valid, behind, out[0], cov, still, sens, explained, used,
-        prior is not None,
-        pose=RSPose.from_model(RSModel(R, C, w, t), 1.0),
-        pose_covariance=out[1], twist_covariance=out[2],
-    )  # fmt: skip
+    return _rig_estimate(
+        pool,
+        (R, C, w, t),
+        inl,
+        out,
+        failure=None,
+        iterations=drawn,
+        rmse_px=float(np.sqrt(np.mean(e[inl] ** 2))),
+        num_behind=behind,
+        model_covariance=cov,
+        global_shutter=still,
+        acceleration_sensitivity=None if G is None else _sensitivity_out(G, R, C, w),
+        initial_explained=explained,
+        initial_used=used,
+        gyro_used=prior is not None,
+    )

@@ -100,8 +100,10 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.options import InitialModel
+from ..estimation.options import EstimateOptions, InitialModel
+from ..estimation.result import CAMERAS_DISAGREE, CONTRADICTS_TRACK, RIG_REFUSALS, UNCONFIRMED
 from ..estimation.rig import (
+    RIG_OPTIONS,
     VOTE_MIN_POINTS,
     RigPoseEstimate,
     RigView,
@@ -163,18 +165,6 @@ MISSED_REASONS = {
     "skipped": "the camera's frame within 2 x window of the rig frame was skipped (RigLocalizer."
     "drop: an image that did not decode, a front end error, a frozen image, an unreadable "
     "cloud; counted skipped.<reason>), not a frame apart",
-}
-#: why the rig refused a rig frame the estimator posed (counted ``rig.failed.<reason>``, as the
-#: estimator's failure reasons)
-RIG_REFUSALS = {
-    "contradicts_track": "posed from one camera's points alone while other cameras of the rig "
-    "run, and the pose contradicts the rig's track (the prediction of the cameras' rig frames "
-    "before it): a camera whose clock or stamp is off, or whose matches are wrong, is not "
-    "posed alone",
-    "unconfirmed": "posed from one camera's points alone with no track to check it against "
-    "(the rig's start, or after the track ended) while two or more other cameras run: the "
-    "track of a rig of three or more cameras starts from a rig frame of cameras that agree "
-    "with each other",
 }
 #: a pose contradicts the track when its normalized squared distance from the prediction
 #: (rotation and position, the prediction's and the estimate's covariances) exceeds this
@@ -301,9 +291,11 @@ class RigSettings:
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
         time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
             again (a bag played again); less is ``out_of_order``.
-        threshold_px, max_iterations, min_inliers, refine, seed, confidence,
-            max_angular_velocity, max_linear_velocity: the rig estimator's
-            (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`).
+        options: the rig estimator's options, the single camera's
+            :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
+            iterations, confidence, inliers and seed, the refinement and the velocity bounds;
+            :func:`~rs_localizer.estimation.rig.estimate_rig_pose`; default
+            :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`).
         tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
             at least ``disagree_min_points`` points whose inlier ratio is below
@@ -323,14 +315,7 @@ class RigSettings:
     stop_after: float = 0.5
     stamp_row: float = 0.0
     time_reset_ns: int = 10**9
-    threshold_px: float = 2.0
-    max_iterations: int = 1000
-    min_inliers: int = 8
-    refine: bool = True
-    seed: int | None = 0
-    confidence: float = 0.999
-    max_angular_velocity: float = 20.0
-    max_linear_velocity: float = 50.0
+    options: EstimateOptions = RIG_OPTIONS
     tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
     disagree_ratio: float = 0.5
     disagree_min_points: int = 12
@@ -1156,7 +1141,7 @@ class RigLocalizer:
         refusal = self._refusal(out, est) if est.success else None
         if refusal is not None:
             est = out.estimate = replace(est, success=False, failure=refusal)
-            if refusal == "contradicts_track":
+            if refusal == CONTRADICTS_TRACK:
                 self.log.warning(
                     "rig.contradicts_track",
                     f"rig frame of camera {names[0]!r} alone refused: its pose contradicts the "
@@ -1164,7 +1149,7 @@ class RigLocalizer:
                 )
         if not est.success:
             self._count_rig(names, est.failure or "error")
-            if est.failure == "cameras_disagree":  # (who disagrees: the joint fit's counts)
+            if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
                 n_pts = np.asarray(est.num_valid_per_camera)
                 n_in = np.asarray(est.num_inliers_per_camera)
                 self._update_disagreement(out, names, n_pts, n_in, views, est)
@@ -1189,17 +1174,14 @@ class RigLocalizer:
         """The rig estimator on the rig frame's views; with neither an initial model nor a
         prediction (no track to check it against) every camera is also posed alone
         (``verify_cameras``)."""
-        s = self.settings
+        options = self.settings.options
+        if max_iterations:
+            options = replace(
+                options, ransac=replace(options.ransac, max_iterations=max_iterations)
+            )
         return estimate_rig_pose(
             views,
-            threshold_px=s.threshold_px,
-            max_iterations=max_iterations or s.max_iterations,
-            min_inliers=s.min_inliers,
-            refine=s.refine,
-            seed=s.seed,
-            confidence=s.confidence,
-            max_angular_velocity=s.max_angular_velocity,
-            max_linear_velocity=s.max_linear_velocity,
+            options,
             initial_model=initial,
             gyro=self._gyro,
             gyro_time=self._gyro_time,
@@ -1229,7 +1211,9 @@ class RigLocalizer:
         gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
         n = sum(len(v.uv) for v in views)
         ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
-        need = max(self.settings.min_inliers, int(to.min_explained_ratio * ratio * n))
+        need = max(
+            self.settings.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n)
+        )
         est = self._run(views, to.tracked_max_iterations, InitialModel(model, gate, need))
         if est.success and est.initial_used:
             return est, "tracked"
@@ -1256,8 +1240,8 @@ class RigLocalizer:
             return None  # (the rig runs on this camera alone)
         pred = getattr(self, "_prediction", None)
         if pred is None:
-            return "unconfirmed" if running >= 2 else None
-        return "contradicts_track" if self._contradicts(est, pred) else None
+            return UNCONFIRMED if running >= 2 else None
+        return CONTRADICTS_TRACK if self._contradicts(est, pred) else None
 
     @staticmethod
     def _contradicts(est: RigPoseEstimate, pred) -> bool:

@@ -82,9 +82,9 @@ def rig_settings(
     time_reset_ns: int,
     imu: GyroSettings | None = None,
 ) -> RigSettings:
-    """A rig's settings with the single camera's estimator and tracker options: the RANSAC
-    threshold, iterations, confidence, inliers and seed, the refinement and the velocity bounds
-    (``plausibility``) of ``options``, the tracker
+    """A rig's settings with the single camera's estimator and tracker options: ``options``
+    as they are (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
+    and seed, the refinement and the velocity bounds from them), the tracker
     fields of the same names of ``tracking`` (gates, explained ratio, ``max_gap``, the twist
     filter; None: every rig frame alone).
 
@@ -108,21 +108,13 @@ def rig_settings(
             max_gap=tracking.max_gap,
             fusion=tracking.fusion,
         )
-    r = options.ransac
     return RigSettings(
         dict(mounts),
         window=window,
         stop_after=stop_after,
         stamp_row=stamp_row,
         time_reset_ns=time_reset_ns,
-        threshold_px=r.threshold_px,
-        max_iterations=r.max_iterations,
-        min_inliers=r.min_inliers,
-        refine=options.refine.enabled,
-        seed=r.seed,
-        confidence=r.confidence,
-        max_angular_velocity=options.plausibility.max_angular_velocity,
-        max_linear_velocity=options.plausibility.max_linear_velocity,
+        options=options,
         tracking=to,
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
     )

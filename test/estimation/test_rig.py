@@ -6,11 +6,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from rs_localizer.estimation import estimate_rs_pose
+from rs_localizer.estimation import (
+    EstimateOptions,
+    PlausibilityOptions,
+    RansacOptions,
+    estimate_rs_pose,
+)
 from rs_localizer.estimation.rig import RIG_FAILURE_REASONS, RigView, estimate_rig_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
 from rs_localizer.sim import rig as sim_rig
+
+
+def _opts(**ransac) -> EstimateOptions:
+    """The estimator's default options with some RANSAC fields set."""
+    return EstimateOptions(ransac=RansacOptions(**ransac))
 
 
 def make_rig(rng, m):
@@ -59,7 +69,7 @@ def test_three_camera_rig_with_outliers_recovers_the_truth():
         cams, R_m, c_m, stamps = make_rig(rng, 3)
         truth = rig_truth(rng)
         views = rig_frame(rng, cams, R_m, c_m, stamps, [80, 80, 80], truth)
-        est = estimate_rig_pose(views, seed=1)
+        est = estimate_rig_pose(views, _opts(seed=1))
         assert est.success
         R, C, w, t = truth
         assert rotation_angle_deg(est.R, R) < 0.1
@@ -85,7 +95,7 @@ def test_rig_beats_the_camera_alone_when_the_other_sees_few_points():
         cams, R_m, c_m, stamps = make_rig(rng, 2)
         truth = rig_truth(rng, w_mag=1.0)
         views = rig_frame(rng, cams, R_m, c_m, stamps, [20, 3], truth, outliers=0.1)
-        est = estimate_rig_pose(views, seed=3, min_inliers=6)
+        est = estimate_rig_pose(views, _opts(seed=3, min_inliers=6))
         assert est.success
         Rt, Ct, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], *truth)
         Re, Ce, *_ = camera_pose(R_m[0], c_m[0], stamps[0], cams[0], est.R, est.C, est.w, est.t)
@@ -114,7 +124,7 @@ def test_rig_with_three_cameras_beats_the_best_single_camera():
         cams, R_m, c_m, stamps = make_rig(rng, 3)
         truth = rig_truth(rng)
         views = rig_frame(rng, cams, R_m, c_m, stamps, [60, 30, 8], truth, outliers=0.15)
-        est = estimate_rig_pose(views, seed=5)
+        est = estimate_rig_pose(views, _opts(seed=5))
         assert est.success
         for c in range(3):
             Rt, Ct, *_ = camera_pose(R_m[c], c_m[c], stamps[c], cams[c], *truth)
@@ -178,7 +188,7 @@ def test_rig_beats_poselib_generalized_global_shutter_while_turning():
         cams, R_m, c_m, stamps = make_rig(rng, 3)
         truth = rig_truth(rng, w_mag=1.5)
         views = rig_frame(rng, cams, R_m, c_m, stamps, [100, 100, 100], truth)
-        est = estimate_rig_pose(views, seed=2)
+        est = estimate_rig_pose(views, _opts(seed=2))
         assert est.success
         rig.append(rotation_angle_deg(est.R, truth[0]))
         gs.append(rotation_angle_deg(_poselib_generalized(views), truth[0]))
@@ -208,7 +218,7 @@ def test_covariance_covers_the_error_and_outputs_match_a_camera_estimate():
         cams, R_m, c_m, stamps = make_rig(rng, 3)
         truth = rig_truth(rng)
         views = rig_frame(rng, cams, R_m, c_m, stamps, [150] * 3, truth)
-        est = estimate_rig_pose(views, seed=0)
+        est = estimate_rig_pose(views, _opts(seed=0))
         assert est.success and est.model_covariance is not None
         e = _errors12(est, truth)
         chi.append(e @ np.linalg.solve(est.model_covariance, e))
@@ -266,8 +276,9 @@ def test_a_camera_without_mounting_is_named():
 def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
     """Every world point on one 3D line, or every camera's pixels on one image line:
     degenerate_geometry; a rig turning at 1.5 rad/s with the
-    bound at 0.5 rad/s: no plausible model (no_model or implausible_motion); within the
-    bound: success."""
+    bound at 0.5 rad/s: every hypothesis moves too fast, or the refined model does:
+    implausible_motion (as a camera's estimate; no_hypothesis is only for samples that gave no
+    model at all); within the bound: success."""
     rng = np.random.default_rng(14)
     cams, R_m, c_m, stamps = make_rig(rng, 2)
     truth = rig_truth(rng, w_mag=1.5)
@@ -289,9 +300,13 @@ def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
     # ... unless one camera's are not
     est = estimate_rig_pose([flat[0], views[1]])
     assert est.failure != "degenerate_geometry"
-    est = estimate_rig_pose(views, max_angular_velocity=0.5)
-    assert not est.success and est.failure in ("no_model", "implausible_motion")
-    assert estimate_rig_pose(views, max_angular_velocity=2.0).success
+    est = estimate_rig_pose(
+        views, EstimateOptions(plausibility=PlausibilityOptions(max_angular_velocity=0.5))
+    )
+    assert not est.success and est.failure == "implausible_motion"
+    assert estimate_rig_pose(
+        views, EstimateOptions(plausibility=PlausibilityOptions(max_angular_velocity=2.0))
+    ).success
 
 
 def test_points_behind_a_camera_are_counted_not_inliers():
@@ -445,7 +460,7 @@ def test_acceleration_sensitivity_predicts_how_an_accelerating_rig_is_estimated(
         frame = sim_rig.rig_frame(rig, rig_truth(rng), [150, 150, 150], rng, 0.0, 0.0)
         alpha = 20.0 * rng.normal(size=3) / np.sqrt(3)
         a = 4.0 * rng.normal(size=3) / np.sqrt(3)
-        est = estimate_rig_pose(_accelerated_views(frame, alpha, a), seed=0)
+        est = estimate_rig_pose(_accelerated_views(frame, alpha, a), _opts(seed=0))
         assert est.success and est.acceleration_sensitivity.shape == (12, 6)
         truth = RSPose.from_model(frame.truth, 1.0)
         phi = matrix_to_rotvec(est.pose.orientation @ truth.orientation.T)
@@ -470,7 +485,7 @@ def test_a_global_shutter_rig_has_no_acceleration_sensitivity():
         replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
     ]
     frame = sim_rig.rig_frame(sim_rig.Rig(tuple(cams)), rig_truth(rng), [60, 60], rng, 0.3, 0.0)
-    est = estimate_rig_pose(frame.views, seed=0)
+    est = estimate_rig_pose(frame.views, _opts(seed=0))
     assert est.success and est.global_shutter
     assert est.covariance is not None and est.acceleration_sensitivity is None
 
@@ -478,8 +493,8 @@ def test_a_global_shutter_rig_has_no_acceleration_sensitivity():
 def test_an_initial_model_near_the_truth_seeds_ransac_and_is_verified():
     """A prediction 0.5 deg and 3 cm off the truth (a tracker's), 3 cameras x 120 points, 20 %
     outliers: it explains the inliers within its gate, seeds RANSAC, which only verifies it
-    (one batch); the estimate is as close to the truth as without it and finds the same
-    outliers."""
+    (samples among its inliers); the estimate is as close to the truth as without it and finds
+    the same outliers."""
     from rs_localizer.estimation import InitialModel
 
     rng = np.random.default_rng(11)
@@ -494,8 +509,8 @@ def test_an_initial_model_near_the_truth_seeds_ransac_and_is_verified():
             w + 0.1,
             t - 0.1,
         )
-        cold = estimate_rig_pose(views, seed=1)
-        est = estimate_rig_pose(views, seed=1, initial_model=InitialModel(guess, 30.0, 40))
+        cold = estimate_rig_pose(views, _opts(seed=1))
+        est = estimate_rig_pose(views, _opts(seed=1), initial_model=InitialModel(guess, 30.0, 40))
         assert cold.success and est.success and est.initial_used
         assert est.initial_explained >= est.num_inliers - 5
         assert est.iterations <= 32 < cold.iterations
@@ -518,8 +533,8 @@ def test_an_initial_model_that_explains_too_little_changes_nothing():
     views = rig_frame(rng, cams, R_m, c_m, stamps, [80, 80, 80], truth)
     R, C, w, t = truth
     wrong = (rotvec_to_matrix(np.deg2rad(20.0) * np.array([0.0, 1.0, 0.0])) @ R, C, w, t)
-    cold = estimate_rig_pose(views, seed=2)
-    est = estimate_rig_pose(views, seed=2, initial_model=InitialModel(wrong, 20.0, 50))
+    cold = estimate_rig_pose(views, _opts(seed=2))
+    est = estimate_rig_pose(views, _opts(seed=2), initial_model=InitialModel(wrong, 20.0, 50))
     assert est.success and not est.initial_used and 0 <= est.initial_explained < 50
     assert cold.initial_explained == -1 and not cold.initial_used
     for a, b in ((est.R, cold.R), (est.C, cold.C), (est.w, cold.w), (est.t, cold.t)):
@@ -587,24 +602,24 @@ def test_the_mountings_covariance_is_the_poses_first_order_shift():
     cams, R_m, c_m, stamps = make_rig(rng, 3)
     truth = rig_truth(rng)
     views = rig_frame(rng, cams, R_m, c_m, stamps, [60, 60, 60], truth, 0.0, 0.0)
-    base = estimate_rig_pose(views, threshold_px=2.0, seed=0)
+    base = estimate_rig_pose(views, _opts(threshold_px=2.0, seed=0))
     d = np.array([0.002, -0.003, 0.001, 0.003, -0.001, 0.002])  # (rad, rig axes; m)
     p = -R_m[1].T @ c_m[1]
     Rm = R_m[1] @ rotvec_to_matrix(-d[:3])
     moved = list(views)
     moved[1] = replace(views[1], R_mount=Rm, c_mount=-Rm @ (p + d[3:]))
-    shifted = estimate_rig_pose(moved, threshold_px=2.0, seed=0)
+    shifted = estimate_rig_pose(moved, _opts(threshold_px=2.0, seed=0))
     v = np.concatenate([
         matrix_to_rotvec(shifted.pose.orientation @ base.pose.orientation.T),
         shifted.pose.position - base.pose.position,
     ])  # fmt: skip
     with_cov = list(views)
     with_cov[1] = replace(views[1], mount_covariance=np.outer(d, d))
-    grown = estimate_rig_pose(with_cov, threshold_px=2.0, seed=0)
+    grown = estimate_rig_pose(with_cov, _opts(threshold_px=2.0, seed=0))
     added = grown.covariance[:6, :6] - base.covariance[:6, :6]
     assert np.abs(v).max() > 1e-4
     assert np.allclose(added, np.outer(v, v), atol=0.05 * np.abs(v).max() ** 2), (added, v)
     zero = list(views)
     zero[1] = replace(views[1], mount_covariance=np.zeros((6, 6)))
-    assert np.array_equal(estimate_rig_pose(zero, threshold_px=2.0, seed=0).covariance,
+    assert np.array_equal(estimate_rig_pose(zero, _opts(threshold_px=2.0, seed=0)).covariance,
                           base.covariance)  # fmt: skip

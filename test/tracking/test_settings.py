@@ -58,12 +58,9 @@ def test_rig_settings_take_the_camera_estimator_and_tracker_options():
         mounts, opts, tr, window=0.02, stop_after=0.4, stamp_row=5.0, time_reset_ns=2 * 10**9
     )
     assert list(s.mounts) == ["front"] and s.mounts["front"] is mounts["front"]
-    assert (s.threshold_px, s.seed, s.max_iterations, s.min_inliers, s.refine) == (
+    assert s.options is opts and (s.options.ransac.threshold_px, s.options.ransac.seed) == (
         1.25,
         7,
-        opts.ransac.max_iterations,
-        opts.ransac.min_inliers,
-        opts.refine.enabled,
     )
     assert (s.window, s.stop_after, s.stamp_row, s.time_reset_ns) == (0.02, 0.4, 5.0, 2 * 10**9)
     t = s.tracking
