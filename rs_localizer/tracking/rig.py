@@ -77,7 +77,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
     for f in frames:
         for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
             if out.success:
-                ...  # out.measurement.pose: the rig's pose and its own twist at out.stamp_ns
+                ...  # out.estimate.pose: the rig's pose and its own twist at out.stamp_ns
             for fused in out.fused:
                 ...  # an earlier rig frame's pose with its fused twist
     for out in rig.close():  # the rig frames still open
@@ -109,7 +109,7 @@ from ..estimation.rig import (
     estimate_rig_pose,
 )
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from ..pose import PoseWithCovariance, RSModel, RSPose, model_from_twist
+from ..pose import RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
@@ -125,7 +125,6 @@ __all__ = [
     "CameraVerdict",
     "RigCameraFrame",
     "RigLocalizer",
-    "RigMeasurement",
     "RigMount",
     "RigOutput",
     "RigSettings",
@@ -397,57 +396,6 @@ class CameraShare:
     outvoted: bool = False
 
 
-@dataclass(frozen=True, eq=False)
-class RigMeasurement(PoseWithCovariance):
-    """A solved rig frame as the twist filter's measurement (the fields the filter and
-    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate): a
-    :class:`~rs_localizer.pose.PoseWithCovariance` (keyword arguments).
-
-    Attributes:
-        pose: :class:`~rs_localizer.pose.RSPose` of the rig at the rig frame's time:
-            orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
-            and linear (m/s) velocity in the rig frame, the rig frame's own.
-        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame;
-            twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame: blocks of
-            ``covariance`` (:meth:`of`).
-        covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
-            velocity [rad/s, rig], linear velocity [m/s, rig]): the estimate's
-            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`; NaN when it
-            has none).
-        estimate: the rig estimator's :class:`~rs_localizer.estimation.rig.RigPoseEstimate`.
-        acceleration_sensitivity: (12, 6) or None: the estimate's
-            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`).
-    """
-
-    covariance: np.ndarray
-    estimate: RigPoseEstimate
-    success: bool = True
-    acceleration_sensitivity: Any = None
-
-    @classmethod
-    def of(cls, estimate: RigPoseEstimate, stamp_ns: int) -> RigMeasurement:
-        """The measurement of a solved rig estimate at the rig frame's time ``stamp_ns``
-        (ns): its pose and twist, its (12, 12) ``covariance`` (NaN when it has none) and the
-        ROS-order blocks of it."""
-        pose = RSPose.from_model(estimate.model, 1.0, stamp_ns)
-        cov = estimate.covariance if estimate.covariance is not None else np.full((12, 12), np.nan)
-        return cls(
-            pose=pose,
-            pose_covariance=cov[np.ix_(_ROS_POSE, _ROS_POSE)],
-            twist_covariance=cov[np.ix_(_ROS_TWIST, _ROS_TWIST)],
-            covariance=cov,
-            estimate=estimate,
-            acceleration_sensitivity=estimate.acceleration_sensitivity,
-        )
-
-
-#: rows of the ROS pose order (x, y, z, rot x, rot y, rot z) and twist order (vx, vy, vz,
-#: wx, wy, wz) in the (12,) layout of a covariance over (rotation, position, angular
-#: velocity, linear velocity)
-_ROS_POSE = [3, 4, 5, 0, 1, 2]
-_ROS_TWIST = [9, 10, 11, 6, 7, 8]
-
-
 @dataclass
 class RigOutput:
     """A rig frame out of :class:`RigLocalizer`.
@@ -458,9 +406,9 @@ class RigOutput:
         cameras: the cameras in it (rig order); missing: camera -> a key of
             :data:`MISSED_REASONS` for the others.
         stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
-        estimate: the rig estimator's result (None when it raised: ``error``).
-        measurement: the pose, own twist and covariance (:class:`RigMeasurement`), None unless
-            solved.
+        estimate: the rig estimator's result (None when it raised: ``error``): when
+            ``success``, the rig's pose and own twist at ``stamp_ns`` (``estimate.pose``, rig
+            frame) with their covariances, what the twist filter fuses.
         path: ``cold``, ``tracked``, ``relocalized``, ``reset`` (:data:`RIG_PATHS`); None
             without tracking.
         shares: camera -> :class:`CameraShare` (solved rig frames).
@@ -479,7 +427,6 @@ class RigOutput:
     missing: dict = field(default_factory=dict)
     stamp_offsets: dict = field(default_factory=dict)
     estimate: RigPoseEstimate | None = None
-    measurement: RigMeasurement | None = None
     path: str | None = None
     shares: dict = field(default_factory=dict)
     disagreeing: tuple = ()
@@ -490,8 +437,8 @@ class RigOutput:
 
     @property
     def success(self) -> bool:
-        """The rig frame was posed."""
-        return self.measurement is not None
+        """The rig frame was posed (``estimate.success``)."""
+        return self.estimate is not None and self.estimate.success
 
     @property
     def outvoted(self) -> tuple:
@@ -1359,7 +1306,6 @@ class RigLocalizer:
         return _alone_deg(view, out.estimate)
 
     def _finish(self, out: RigOutput, est, path, names, views) -> None:
-        out.measurement = meas = RigMeasurement.of(est, out.stamp_ns)
         self._count_rig(names, None)
         if path is not None:
             self.counts[f"rig.path.{path}"] += 1
@@ -1380,8 +1326,8 @@ class RigLocalizer:
         self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
         if self._filter is None:
             return
-        step = self._filter.update(out.stamp_ns, meas, relocalized=path == "relocalized")
-        self._pending[out.stamp_ns] = (meas, dict(out.tags))
+        step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
+        self._pending[out.stamp_ns] = (est, dict(out.tags))
         out.fused += self._fused(step.final)
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:

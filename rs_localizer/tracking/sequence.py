@@ -75,7 +75,7 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
-from ..pose import PoseWithCovariance, RSModel
+from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
@@ -310,11 +310,12 @@ class FusedPose(PoseWithCovariance):
     own_twist: bool = False
 
     @classmethod
-    def of(cls, estimate: PoseWithCovariance, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose (an :class:`~rs_localizer.estimation.result.RSPoseEstimate` or
-        a rig's measurement) with the fused state's twist, at the fused state's stamp; the
-        estimate's own twist and covariance where the filter did not fuse the frame
-        (:attr:`own_twist`)."""
+    def of(cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None) -> FusedPose:
+        """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
+        :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+        :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
+        at the fused state's stamp; the estimate's own twist and covariance where the filter
+        did not fuse the frame (:attr:`own_twist`)."""
         est, stamp = estimate.pose, fused.pose.stamp_ns
         if not fused.fused and estimate.twist_covariance is not None:
             return cls(
