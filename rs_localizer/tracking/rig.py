@@ -97,7 +97,7 @@ from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, video_frontend
+from ..correspondences import Correspondences, FrameFeedback, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import InitialModel
@@ -122,7 +122,6 @@ __all__ = [
     "RIG_REFUSALS",
     "SKIP_REASONS",
     "CameraShare",
-    "CameraVerdict",
     "RigCameraFrame",
     "RigLocalizer",
     "RigMount",
@@ -510,29 +509,6 @@ class _ImageInput:
 
 
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
-
-
-@dataclass(frozen=True, eq=False)
-class CameraVerdict:
-    """One camera's part of a solved (or failed) rig frame, as its front end's ``observe`` is
-    given it (:class:`~rs_localizer.correspondences.VideoFrontend`).
-
-    Attributes:
-        success: the rig frame was posed. inliers: (M,) bool over the camera's pixels given
-            to the rig. R (3, 3), C (3,), w (3,), t (3,): the camera's own model at its
-            reference line (per unit RS coordinate) from the rig's pose and its mounting.
-    """
-
-    success: bool
-    inliers: np.ndarray
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray
-    t: np.ndarray
-
-    @property
-    def model(self) -> RSModel:
-        return RSModel(self.R, self.C, self.w, self.t)
 
 
 class _Silent:
@@ -947,8 +923,10 @@ class RigLocalizer:
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's
         prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
         :meth:`add`; each camera's front end is told how its frame was solved
-        (``frontend.observe(stamp_ns, points2d, estimate)``, ``estimate`` the camera's part of
-        the rig's, :class:`CameraVerdict`) when its rig frame is solved: with unsynchronized
+        (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
+        the rig's estimate, a :class:`~rs_localizer.correspondences.FrameFeedback`: the rig
+        frame's success, the camera's inliers and its model from the rig's pose and its
+        mounting) when its rig frame is solved: with unsynchronized
         cameras often after the camera's next image (a front end that searches around its last
         solved markers still does; one that tracks the pixels of its last image matches them
         by pixel and keeps those it finds). A camera's frame joins
@@ -1027,7 +1005,7 @@ class RigLocalizer:
                 if item is None or fe is None:
                     continue
                 stamp, uv, camera = item
-                verdict = None
+                feedback = None
                 if est is not None:
                     model = RSModel(est.R, est.C, est.w, est.t)
                     cam = self._cams[n]
@@ -1035,9 +1013,9 @@ class RigLocalizer:
                                              out.stamp_offsets.get(n, 0.0),
                                              camera.seconds_per_unit_r)  # fmt: skip
                     inl = est.inliers[k] if k < len(est.inliers) else np.zeros(len(uv), bool)
-                    verdict = CameraVerdict(bool(est.success), np.asarray(inl, bool), *cm)
+                    feedback = FrameFeedback(bool(est.success), np.asarray(inl, bool), cm)
                 try:
-                    fe.observe(stamp, uv, verdict)
+                    fe.observe(stamp, uv, feedback)
                 except Exception as e:
                     label = img.labels.get(n, "frontend")
                     self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
