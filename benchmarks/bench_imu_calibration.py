@@ -18,7 +18,7 @@ import argparse
 
 import numpy as np
 
-from rs_localizer.estimation.readout import fit_line_delay, per_frame_rates
+from rs_localizer.calibration.readout import fit_line_delay, per_frame_rates
 from rs_localizer.geometry import matrix_to_rotvec
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,

@@ -55,7 +55,7 @@ def main(argv=None) -> None:
         for o in outs:
             if not o.success:
                 continue
-            m = o.measurement
+            m = o.estimate
             R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
             e_r = matrix_to_rotvec(m.pose.orientation @ R.T)
             e_p = m.pose.position - p

@@ -53,7 +53,7 @@ def main(argv=None) -> None:
     for f in frames:
         for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name].camera, f.uv, f.xyz)):
             if o.success:
-                q = o.measurement.pose
+                q = o.estimate.pose
                 own.append(_errors(traj, o.stamp_ns, q.orientation, q.position,
                                    q.angular_velocity, q.linear_velocity))  # fmt: skip
             fused += o.fused

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rs_localizer.calibration.readout import calibrate_line_delay
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
-from rs_localizer.estimation.readout import calibrate_line_delay
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.sim.trajectory import (

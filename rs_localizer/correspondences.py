@@ -1,7 +1,8 @@
 """What a front end makes of an image: :class:`Correspondences` (2D-3D rows), the
-:class:`Frontend` protocol every front end (markers, boards, a feature map) follows, and
+:class:`Frontend` protocol every front end (markers, boards, a feature map) follows,
 :class:`VideoFrontend`, everything a camera's video
-(:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) calls on its front end.
+(:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) calls on its front end, and
+:class:`FrameFeedback`, what the video tells its front end after each frame.
 
 The 2D points (``points2d``, as :func:`~rs_localizer.estimation.estimate.estimate_rs_pose`
 names them) are pixels of the distorted image (the estimator undistorts them with the camera
@@ -23,8 +24,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from .pose import RSModel
+
 __all__ = [
     "Correspondences",
+    "FrameFeedback",
     "Frontend",
     "FrontendHooks",
     "TrackingFrontend",
@@ -142,8 +146,31 @@ class Correspondences:
         return s if s is not None and len(s) == len(self.points2d) else None
 
 
+@dataclass(frozen=True, eq=False)
+class FrameFeedback:
+    """How a frame was solved: what a video gives its front end's ``observe`` after the
+    estimator ran (:class:`VideoFrontend`), a camera's video
+    (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) from the frame's estimate, a
+    rig's (:class:`~rs_localizer.tracking.rig.RigLocalizer`) from the rig frame's estimate
+    for each of its cameras.
+
+    Attributes:
+        success: the frame was posed (a rig's camera: the rig frame it is part of).
+        inliers: (M,) bool, the inlier mask over the ``points2d`` given with it (the rows the
+            estimator was given).
+        model: the camera's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its
+            reference row (``R`` (3, 3), ``C`` (3,) world -> camera; ``w``, ``t`` (3,) per unit
+            RS coordinate), as ``RSPoseEstimate.model``: the estimate's, or for a rig's camera
+            the rig's pose through the camera's mounting; the identity and zeros on failure.
+    """
+
+    success: bool
+    inliers: np.ndarray
+    model: RSModel
+
+
 def accepts_pixels_keyword(observe: Callable) -> Callable:
-    """Decorator of a front end's ``observe(self, stamp_ns, points2d, estimate)``: a call with
+    """Decorator of a front end's ``observe(self, stamp_ns, points2d, feedback)``: a call with
     the deprecated keyword ``pixels=`` (the former name of ``points2d``) still works for one
     more release and warns (``DeprecationWarning``). The package's front ends use it."""
 
@@ -179,15 +206,15 @@ class TrackingFrontend(Frontend, Protocol):
     """A :class:`Frontend` that follows points from frame to frame and wants to know how each
     frame was solved.
 
-    ``observe(stamp_ns, points2d, estimate)``: called by the node after each image frame it
+    ``observe(stamp_ns, points2d, feedback)``: called by the node after each image frame it
     estimated, with the frame's header stamp (ns), ``points2d`` (M, 2) px the rows the
     estimator was given (the front end's rows without non-finite ones, capped to
-    ``max_points``) and ``estimate`` (an ``RSPoseEstimate``: ``estimate.inliers`` (M,) is the
-    inlier mask over ``points2d``; ``estimate.success`` false on a failed frame) or None when
-    the estimator raised. The arguments are passed by position.
+    ``max_points``) and ``feedback`` (a :class:`FrameFeedback`: ``feedback.inliers`` (M,) is
+    the inlier mask over ``points2d``; ``feedback.success`` false on a failed frame) or None
+    when the estimator raised. The arguments are passed by position.
     """
 
-    def observe(self, stamp_ns: int, points2d: np.ndarray, estimate: Any) -> None:
+    def observe(self, stamp_ns: int, points2d: np.ndarray, feedback: FrameFeedback | None) -> None:
         """Take note of how the previous frame was solved."""
         ...
 
@@ -209,11 +236,12 @@ class VideoFrontend(Protocol):
        of its own. May raise: the frame is dropped (``frontend_error``), the video goes on.
     2. ``pop_warning()``: a warning the front end wants shown once (e.g. a feature map whose
        descriptors do not match the detector's), or None.
-    3. ``observe(stamp_ns, points2d, estimate)`` (by position): how the frame was solved,
+    3. ``observe(stamp_ns, points2d, feedback)`` (by position): how the frame was solved,
        after the estimator ran (not for a frame dropped before it): ``points2d`` (M, 2) px the
        rows the estimator was given (non-finite rows dropped, capped to ``max_points``) and
-       ``estimate`` (``estimate.inliers`` (M,) the inlier mask over ``points2d``; ``success``
-       false on a failed frame) or None when the estimator raised.
+       ``feedback`` (a :class:`FrameFeedback`: ``feedback.inliers`` (M,) the inlier mask over
+       ``points2d``; ``success`` false on a failed frame) or None when the estimator raised
+       (or the image was not searched: the next one is searched whole).
 
     The package's front ends all follow it (:class:`FrontendHooks` gives the no-op hooks; a
     front end that searches every image whole may leave ``prediction`` out of ``process``:
@@ -234,7 +262,7 @@ class VideoFrontend(Protocol):
         """A warning to show once, or None."""
         ...
 
-    def observe(self, stamp_ns: int, points2d: np.ndarray, estimate: Any) -> None:
+    def observe(self, stamp_ns: int, points2d: np.ndarray, feedback: FrameFeedback | None) -> None:
         """Take note of how the frame was solved."""
         ...
 
@@ -244,7 +272,9 @@ class FrontendHooks:
     ``observe`` does nothing, ``pop_warning`` returns None (a front end overrides either)."""
 
     @accepts_pixels_keyword
-    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
+    def observe(
+        self, stamp_ns: int | None, points2d: np.ndarray | None, feedback: FrameFeedback | None
+    ) -> None:
         """Nothing to take note of."""
 
     def pop_warning(self) -> str | None:

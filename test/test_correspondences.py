@@ -51,17 +51,17 @@ def test_observe_takes_the_deprecated_pixels_keyword():
         seen = None
 
         @accepts_pixels_keyword
-        def observe(self, stamp_ns, points2d, estimate):
-            self.seen = (stamp_ns, points2d, estimate)
+        def observe(self, stamp_ns, points2d, feedback):
+            self.seen = (stamp_ns, points2d, feedback)
 
     fe = Frontend()
     with pytest.warns(DeprecationWarning, match="points2d"):
-        fe.observe(5, pixels=uv, estimate="e")
+        fe.observe(5, pixels=uv, feedback="e")
     assert fe.seen[0] == 5 and fe.seen[1] is uv and fe.seen[2] == "e"
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fe.observe(6, points2d=uv, estimate=None)
+        fe.observe(6, points2d=uv, feedback=None)
         fe.observe(7, uv, None)
     assert fe.seen[0] == 7 and fe.seen[1] is uv
     with pytest.warns(DeprecationWarning):
-        FrontendHooks().observe(0, pixels=uv, estimate=None)
+        FrontendHooks().observe(0, pixels=uv, feedback=None)

@@ -26,7 +26,7 @@ LAYER = {
     "solvers": 1,
     "estimation": 2,
     "tracking": 2.5,
-    "calibration": 2.6,  # (a rig's mountings: posed by the estimator, RigMount of tracking)
+    "calibration": 2.6,  # (mountings, line delay: posed by the estimator, RigMount of tracking)
     "runtime": 2.7,  # (warms the tracker up too)
     "frontends": 3,
     "viz": 3,

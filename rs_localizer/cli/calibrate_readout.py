@@ -95,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
             raise A.CliError(f"{path}: no sensor_msgs/Imu topic {args.imu_topic!r}")
     import numpy as np
 
+    from ..calibration.readout import calibrate_line_delay
     from ..estimation.estimate import EstimateOptions, RansacOptions
-    from ..estimation.readout import calibrate_line_delay
     from ..ros.bags.bag_frames import read_bag_frames, read_gyro
 
     bag = read_bag_frames(

@@ -22,7 +22,12 @@ import numpy as np
 
 from .. import cv_compat
 from ..camera import CameraModel
-from ..correspondences import Correspondences, FrontendHooks, accepts_pixels_keyword
+from ..correspondences import (
+    Correspondences,
+    FrameFeedback,
+    FrontendHooks,
+    accepts_pixels_keyword,
+)
 from .image import to_gray
 from .marker_detection import DetectorOptions, make_marker_detector
 
@@ -339,12 +344,14 @@ class ArucoFrontend(FrontendHooks):
         return not err or max(err) > 0.5 * self.window_margin_px
 
     @accepts_pixels_keyword
-    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
-        """The estimate of the last processed frame (the node calls this after each frame):
-        after a solved one (``success``) the next frame's markers are searched around their
-        predicted pixels; a failed one (or None) makes the next frame a full-frame search.
-        ``stamp_ns`` and ``points2d`` are not used."""
-        self._solved = estimate is not None and bool(getattr(estimate, "success", False))
+    def observe(
+        self, stamp_ns: int | None, points2d: np.ndarray | None, feedback: FrameFeedback | None
+    ) -> None:
+        """How the last processed frame was solved (the node calls this after each frame):
+        after a solved one (``feedback.success``) the next frame's markers are searched around
+        their predicted pixels; a failed one (or None) makes the next frame a full-frame
+        search. ``stamp_ns`` and ``points2d`` are not used."""
+        self._solved = feedback is not None and bool(feedback.success)
 
     def reset(self) -> None:
         """Forget the last frame: the next frame is searched in full."""

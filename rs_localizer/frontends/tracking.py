@@ -39,12 +39,13 @@ video tracker's, the one the estimator starts from) places the tracks' optical f
 refresh's matches; the front end keeps no pose.
 
 The estimator stays the judge: every pose comes from a full rolling-shutter estimate over these
-correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end the frame's
-estimate, and only its inliers are tracked further (tracked outliers are dropped). Without
+correspondences; :meth:`TrackingFeatureFrontend.observe` gives the front end how the frame
+was solved (:class:`~rs_localizer.correspondences.FrameFeedback`), and only its inliers are
+tracked further (tracked outliers are dropped). Without
 ``observe`` (a caller that does not report estimates), or without a ``prediction``, every
 frame is a global one (:class:`~rs_localizer.tracking.tracker.CarriedPrediction` predicts for
 a caller driving the front end by hand).
-``observe(stamp_ns, points2d, estimate)`` is the ``TrackingFrontend`` protocol the node calls.
+``observe(stamp_ns, points2d, feedback)`` is the ``TrackingFrontend`` protocol the node calls.
 
 This is the standard design of video trackers (PTAM, ORB-SLAM's localization mode, VINS's
 feature tracker) with a rolling-shutter motion model for the guided search.
@@ -63,7 +64,7 @@ import cv2
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, accepts_pixels_keyword
+from ..correspondences import Correspondences, FrameFeedback, accepts_pixels_keyword
 from ..maps.features import FeatureMap
 from .features import FeatureFrontend, make_detector
 from .image import to_gray
@@ -367,24 +368,26 @@ class TrackingFeatureFrontend(FeatureFrontend):
         )
 
     @accepts_pixels_keyword
-    def observe(self, stamp_ns: int | None, points2d: np.ndarray | None, estimate: Any) -> None:
+    def observe(
+        self, stamp_ns: int | None, points2d: np.ndarray | None, feedback: FrameFeedback | None
+    ) -> None:
         """The estimator's verdict on the last frame: its inliers are tracked into the next
-        frame, the rest dropped; a failed estimate (or None) makes the next frame global.
+        frame, the rest dropped; a failed frame (or None) makes the next frame global.
 
         Args:
             stamp_ns: the frame's stamp (ns; not used).
             points2d: (M, 2) px, the rows the estimator was given, when the caller removed or
                 reordered rows of the front end's output (matched back by pixel); None: the
                 output as returned.
-            estimate: :class:`~rs_localizer.estimation.result.RSPoseEstimate` of those rows
-                (``success``, ``inliers`` (M,)), or None.
+            feedback: :class:`~rs_localizer.correspondences.FrameFeedback` of those rows
+                (``success``, ``inliers`` (M,), the camera's ``model``), or None.
         """
         camera = self._frame_camera
-        if estimate is None or not getattr(estimate, "success", False):
+        if feedback is None or not feedback.success:
             self._drop_tracks(keep_refresh=False)
             self._lost = True
             return
-        inl = np.asarray(estimate.inliers, bool)
+        inl = np.asarray(feedback.inliers, bool)
         uv = self._out_uv
         if points2d is not None and (len(points2d) != len(uv) or not np.array_equal(points2d, uv)):
             pos = {(float(a), float(b)): k for k, (a, b) in enumerate(uv)}
@@ -409,7 +412,7 @@ class TrackingFeatureFrontend(FeatureFrontend):
         low = len(rows) < self.min_tracked_inliers
         due = self.refresh_frames > 0 and self._since_refresh >= self.refresh_frames
         if (low or due) and self._pending is None:
-            pose = tuple(np.asarray(a, float) for a in estimate.model)
+            pose = tuple(np.asarray(a, float) for a in feedback.model)
             self._start_refresh(camera, pose)
 
     def wait_refresh(self, timeout: float | None = None) -> bool:

@@ -200,7 +200,7 @@ def map_markers(
     )
     result.refused_videos = refused
     if options.calibrate_readout:
-        from ..estimation.readout import line_delay_verdict
+        from ..calibration.readout import line_delay_verdict
 
         result.line_delay_std = framed["line_delay_std"]
         result.readout_verdict = line_delay_verdict(result.line_delay, result.line_delay_std)

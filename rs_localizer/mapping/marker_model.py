@@ -269,7 +269,7 @@ class MarkerMapResult:
             ``frame``; module docstring): the same to the solver's precision.
         readout_verdict: with ``calibrate_readout``, why the line delay is not observable
             (the rule of ``rs-localizer calibrate-readout``:
-            :func:`~rs_localizer.estimation.readout.line_delay_verdict`), ``""`` when it is;
+            :func:`~rs_localizer.calibration.readout.line_delay_verdict`), ``""`` when it is;
             ``None`` without ``calibrate_readout``.
         rmse_px: RMS reprojection error of the detections kept (pixels).
         num_rejected: detections rejected as outliers.

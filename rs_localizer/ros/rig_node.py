@@ -647,7 +647,7 @@ class RigCore:
         for out in taken.outs:
             self._log_failure(out)
             self.publish_output(out)
-            if out.measurement is not None:
+            if out.success:
                 toc = time.perf_counter()
                 age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
                 with self._acc:
@@ -779,8 +779,8 @@ class RigCore:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
         final (or its own twist without tracking)."""
         base, mf = self.config.base_frame, self.map_frame
-        m = out.measurement
-        if m is not None:
+        m = out.estimate
+        if out.success:
             stamp = out.stamp_ns
             self._pubs["pose"].publish(cv.pose_stamped(m.pose, stamp, mf))
             if self._wanted("pose_with_covariance"):

@@ -58,7 +58,7 @@ from scipy.stats import chi2
 from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
 from ..estimation.prior import MotionPrior, prior_arrays
-from ..pose import PoseWithCovariance, RSPose
+from ..pose import PoseMeasurement, RSPose
 
 __all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
 
@@ -860,25 +860,22 @@ class TwistFilter:
         return out
 
     # ------------------------------------------------------------------ measurement
-    def _measurement_inputs(self, est, prior=None):
+    def _measurement_inputs(self, est: PoseMeasurement, prior: MotionPrior | None = None):
         """The arguments of :func:`_prepare_measurement` for an estimate up to
         ``measurement_scale`` (m, cov, O, p, omega, v_cam, G, has_G, prior_on, mean, info),
-        or None when it is unusable by its type or shapes (failed, no (12, 12) covariance;
+        or None when it is unusable by its shapes (failed, no (12, 12) covariance;
         finiteness is checked by the kernel)."""
-        if not getattr(est, "success", False):
+        if not est.success or est.covariance is None:
             return None
-        cov = getattr(est, "covariance", None)
-        if cov is None:
-            return None
-        cov = np.asarray(cov, dtype=float)
+        cov = np.asarray(est.covariance, dtype=float)
         if cov.shape != (12, 12):
             return None
-        m = 12 if getattr(est, "twist_covariance", None) is not None else 6
-        G = getattr(est, "acceleration_sensitivity", None)
+        m = 12 if est.twist_covariance is not None else 6
+        G = est.acceleration_sensitivity
         if G is not None:
             G = np.asarray(G, dtype=float)
         has_G = G is not None and G.shape == (12, 6)
-        if prior is not None and m == 12 and getattr(prior, "enabled", False):
+        if prior is not None and m == 12 and prior.enabled:
             _, mean, info = prior_arrays(prior)  # ROS (v, omega) order
             on = True
         else:
@@ -897,7 +894,7 @@ class TwistFilter:
             info,
         )
 
-    def _measurement(self, est, prior=None):
+    def _measurement(self, est: PoseMeasurement, prior: MotionPrior | None = None):
         """The measurement an estimate gives: a :class:`_Measurement` with m = 12 (pose and
         twist with the (12, 12) covariance) or 6 (pose only: no twist covariance, a global
         shutter), or None when unusable. R is scaled by ``measurement_scale``; G (m, 6) is the
@@ -969,18 +966,20 @@ class TwistFilter:
     def update(
         self,
         stamp_ns: int,
-        estimate: PoseWithCovariance,
+        estimate: PoseMeasurement,
         relocalized: bool = False,
         prior: MotionPrior | None = None,
     ) -> FusionStep:
         """Fuse one per-frame estimate.
 
         Args:
-            stamp_ns: the frame's time (ns).
-            estimate: a :class:`~rs_localizer.pose.PoseWithCovariance` with ``success``,
-                ``covariance`` (12, 12) and ``acceleration_sensitivity`` as
-                :class:`RSPoseEstimate` (or a rig's measurement). A failed estimate or one
-                without a finite covariance is not fused: the frame gets the prediction.
+            stamp_ns: the frame's time (ns): the time of ``estimate.pose``.
+            estimate: a :class:`~rs_localizer.pose.PoseMeasurement`: a camera's
+                :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+                :class:`~rs_localizer.estimation.rig.RigPoseEstimate`. A failed estimate or
+                one without a finite (12, 12) ``covariance`` is not fused: the frame gets the
+                prediction; one without ``twist_covariance`` (a global shutter) is fused as a
+                pose only.
             relocalized: the frame was not found from the previous one (the tracker's
                 relocalization): a measurement the gate rejects restarts the filter at once.
             prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's

@@ -77,7 +77,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
     for f in frames:
         for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
             if out.success:
-                ...  # out.measurement.pose: the rig's pose and its own twist at out.stamp_ns
+                ...  # out.estimate.pose: the rig's pose and its own twist at out.stamp_ns
             for fused in out.fused:
                 ...  # an earlier rig frame's pose with its fused twist
     for out in rig.close():  # the rig frames still open
@@ -97,7 +97,7 @@ from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, video_frontend
+from ..correspondences import Correspondences, FrameFeedback, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions, InitialModel
@@ -111,7 +111,7 @@ from ..estimation.rig import (
     estimate_rig_pose,
 )
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
-from ..pose import PoseWithCovariance, RSModel, RSPose, model_from_twist
+from ..pose import RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
@@ -124,10 +124,8 @@ __all__ = [
     "RIG_REFUSALS",
     "SKIP_REASONS",
     "CameraShare",
-    "CameraVerdict",
     "RigCameraFrame",
     "RigLocalizer",
-    "RigMeasurement",
     "RigMount",
     "RigOutput",
     "RigSettings",
@@ -382,57 +380,6 @@ class CameraShare:
     outvoted: bool = False
 
 
-@dataclass(frozen=True, eq=False)
-class RigMeasurement(PoseWithCovariance):
-    """A solved rig frame as the twist filter's measurement (the fields the filter and
-    :class:`~rs_localizer.tracking.sequence.FusedPose` read from a camera's estimate): a
-    :class:`~rs_localizer.pose.PoseWithCovariance` (keyword arguments).
-
-    Attributes:
-        pose: :class:`~rs_localizer.pose.RSPose` of the rig at the rig frame's time:
-            orientation (3, 3) rig -> world, position (3,) m (the rig origin), angular (rad/s)
-            and linear (m/s) velocity in the rig frame, the rig frame's own.
-        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame;
-            twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame: blocks of
-            ``covariance`` (:meth:`of`).
-        covariance: (12, 12) over (rotation [rad, world axes], position [m, world], angular
-            velocity [rad/s, rig], linear velocity [m/s, rig]): the estimate's
-            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`; NaN when it
-            has none).
-        estimate: the rig estimator's :class:`~rs_localizer.estimation.rig.RigPoseEstimate`.
-        acceleration_sensitivity: (12, 6) or None: the estimate's
-            (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`).
-    """
-
-    covariance: np.ndarray
-    estimate: RigPoseEstimate
-    success: bool = True
-    acceleration_sensitivity: Any = None
-
-    @classmethod
-    def of(cls, estimate: RigPoseEstimate, stamp_ns: int) -> RigMeasurement:
-        """The measurement of a solved rig estimate at the rig frame's time ``stamp_ns``
-        (ns): its pose and twist, its (12, 12) ``covariance`` (NaN when it has none) and the
-        ROS-order blocks of it."""
-        pose = RSPose.from_model(estimate.model, 1.0, stamp_ns)
-        cov = estimate.covariance if estimate.covariance is not None else np.full((12, 12), np.nan)
-        return cls(
-            pose=pose,
-            pose_covariance=cov[np.ix_(_ROS_POSE, _ROS_POSE)],
-            twist_covariance=cov[np.ix_(_ROS_TWIST, _ROS_TWIST)],
-            covariance=cov,
-            estimate=estimate,
-            acceleration_sensitivity=estimate.acceleration_sensitivity,
-        )
-
-
-#: rows of the ROS pose order (x, y, z, rot x, rot y, rot z) and twist order (vx, vy, vz,
-#: wx, wy, wz) in the (12,) layout of a covariance over (rotation, position, angular
-#: velocity, linear velocity)
-_ROS_POSE = [3, 4, 5, 0, 1, 2]
-_ROS_TWIST = [9, 10, 11, 6, 7, 8]
-
-
 @dataclass
 class RigOutput:
     """A rig frame out of :class:`RigLocalizer`.
@@ -443,9 +390,9 @@ class RigOutput:
         cameras: the cameras in it (rig order); missing: camera -> a key of
             :data:`MISSED_REASONS` for the others.
         stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
-        estimate: the rig estimator's result (None when it raised: ``error``).
-        measurement: the pose, own twist and covariance (:class:`RigMeasurement`), None unless
-            solved.
+        estimate: the rig estimator's result (None when it raised: ``error``): when
+            ``success``, the rig's pose and own twist at ``stamp_ns`` (``estimate.pose``, rig
+            frame) with their covariances, what the twist filter fuses.
         path: ``cold``, ``tracked``, ``relocalized``, ``reset`` (:data:`RIG_PATHS`); None
             without tracking.
         shares: camera -> :class:`CameraShare` (solved rig frames).
@@ -464,7 +411,6 @@ class RigOutput:
     missing: dict = field(default_factory=dict)
     stamp_offsets: dict = field(default_factory=dict)
     estimate: RigPoseEstimate | None = None
-    measurement: RigMeasurement | None = None
     path: str | None = None
     shares: dict = field(default_factory=dict)
     disagreeing: tuple = ()
@@ -475,8 +421,8 @@ class RigOutput:
 
     @property
     def success(self) -> bool:
-        """The rig frame was posed."""
-        return self.measurement is not None
+        """The rig frame was posed (``estimate.success``)."""
+        return self.estimate is not None and self.estimate.success
 
     @property
     def outvoted(self) -> tuple:
@@ -548,29 +494,6 @@ class _ImageInput:
 
 
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
-
-
-@dataclass(frozen=True, eq=False)
-class CameraVerdict:
-    """One camera's part of a solved (or failed) rig frame, as its front end's ``observe`` is
-    given it (:class:`~rs_localizer.correspondences.VideoFrontend`).
-
-    Attributes:
-        success: the rig frame was posed. inliers: (M,) bool over the camera's pixels given
-            to the rig. R (3, 3), C (3,), w (3,), t (3,): the camera's own model at its
-            reference line (per unit RS coordinate) from the rig's pose and its mounting.
-    """
-
-    success: bool
-    inliers: np.ndarray
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray
-    t: np.ndarray
-
-    @property
-    def model(self) -> RSModel:
-        return RSModel(self.R, self.C, self.w, self.t)
 
 
 class _Silent:
@@ -985,8 +908,10 @@ class RigLocalizer:
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's
         prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
         :meth:`add`; each camera's front end is told how its frame was solved
-        (``frontend.observe(stamp_ns, points2d, estimate)``, ``estimate`` the camera's part of
-        the rig's, :class:`CameraVerdict`) when its rig frame is solved: with unsynchronized
+        (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
+        the rig's estimate, a :class:`~rs_localizer.correspondences.FrameFeedback`: the rig
+        frame's success, the camera's inliers and its model from the rig's pose and its
+        mounting) when its rig frame is solved: with unsynchronized
         cameras often after the camera's next image (a front end that searches around its last
         solved markers still does; one that tracks the pixels of its last image matches them
         by pixel and keeps those it finds). A camera's frame joins
@@ -1065,7 +990,7 @@ class RigLocalizer:
                 if item is None or fe is None:
                     continue
                 stamp, uv, camera = item
-                verdict = None
+                feedback = None
                 if est is not None:
                     model = RSModel(est.R, est.C, est.w, est.t)
                     cam = self._cams[n]
@@ -1073,9 +998,9 @@ class RigLocalizer:
                                              out.stamp_offsets.get(n, 0.0),
                                              camera.seconds_per_unit_r)  # fmt: skip
                     inl = est.inliers[k] if k < len(est.inliers) else np.zeros(len(uv), bool)
-                    verdict = CameraVerdict(bool(est.success), np.asarray(inl, bool), *cm)
+                    feedback = FrameFeedback(bool(est.success), np.asarray(inl, bool), cm)
                 try:
-                    fe.observe(stamp, uv, verdict)
+                    fe.observe(stamp, uv, feedback)
                 except Exception as e:
                     label = img.labels.get(n, "frontend")
                     self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
@@ -1343,7 +1268,6 @@ class RigLocalizer:
         return _alone_deg(view, out.estimate)
 
     def _finish(self, out: RigOutput, est, path, names, views) -> None:
-        out.measurement = meas = RigMeasurement.of(est, out.stamp_ns)
         self._count_rig(names, None)
         if path is not None:
             self.counts[f"rig.path.{path}"] += 1
@@ -1364,8 +1288,8 @@ class RigLocalizer:
         self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
         if self._filter is None:
             return
-        step = self._filter.update(out.stamp_ns, meas, relocalized=path == "relocalized")
-        self._pending[out.stamp_ns] = (meas, dict(out.tags))
+        step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
+        self._pending[out.stamp_ns] = (est, dict(out.tags))
         out.fused += self._fused(step.final)
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:

@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, VideoFrontend, video_frontend
+from ..correspondences import Correspondences, FrameFeedback, VideoFrontend, video_frontend
 from ..estimation.estimate import (
     EstimateOptions,
     RSPoseEstimate,
@@ -75,7 +75,7 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
-from ..pose import PoseWithCovariance, RSModel
+from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
@@ -93,6 +93,7 @@ __all__ = [
     "SequenceLocalizer",
     "SequenceOutput",
     "SequenceSettings",
+    "frame_feedback",
     "reference_stamp_ns",
 ]
 
@@ -310,11 +311,12 @@ class FusedPose(PoseWithCovariance):
     own_twist: bool = False
 
     @classmethod
-    def of(cls, estimate: PoseWithCovariance, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose (an :class:`~rs_localizer.estimation.result.RSPoseEstimate` or
-        a rig's measurement) with the fused state's twist, at the fused state's stamp; the
-        estimate's own twist and covariance where the filter did not fuse the frame
-        (:attr:`own_twist`)."""
+    def of(cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None) -> FusedPose:
+        """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
+        :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+        :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
+        at the fused state's stamp; the estimate's own twist and covariance where the filter
+        did not fuse the frame (:attr:`own_twist`)."""
         est, stamp = estimate.pose, fused.pose.stamp_ns
         if not fused.fused and estimate.twist_covariance is not None:
             return cls(
@@ -382,6 +384,17 @@ class SequenceOutput:
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
     frontend_seconds: float = 0.0
+
+
+def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
+    """What a camera's front end is told of a frame its estimate solved (or failed):
+    :class:`~rs_localizer.correspondences.FrameFeedback` of the estimate's ``success``,
+    ``inliers`` (M,) over the rows it was given and ``model``; None for None (the estimator
+    raised). :meth:`SequenceLocalizer.process_image` calls the front end's ``observe`` with it;
+    so does a caller driving a front end by hand."""
+    if estimate is None:
+        return None
+    return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
 def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
@@ -797,8 +810,9 @@ class SequenceLocalizer:
         (``frontend.process(image, camera, encoding, prediction)``, with the frame's
         :meth:`predict`; its one-time warning logged), the rows the estimator can use
         (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
-        solved (``frontend.observe``; an error there is logged, the frame goes on). The calls
-        are those of :class:`~rs_localizer.correspondences.VideoFrontend`.
+        solved (``frontend.observe`` with its :func:`frame_feedback`; an error there is logged,
+        the frame goes on). The calls are those of
+        :class:`~rs_localizer.correspondences.VideoFrontend`.
 
         Args:
             stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``.
@@ -871,7 +885,7 @@ class SequenceLocalizer:
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
         res = self.process(SequenceFrame(stamp, camera, uv, xyz, scores, tag))
         try:
-            fe.observe(stamp, uv, res.estimate)
+            fe.observe(stamp, uv, frame_feedback(res.estimate))
         except Exception as e:
             self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
         res.correspondences, res.frontend_seconds = found, out.frontend_seconds

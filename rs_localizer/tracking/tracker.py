@@ -193,7 +193,7 @@ class CarriedPrediction:
         for stamp, image in video:
             c = frontend.process(image, camera, "rgb8", carry.predict(stamp, camera))
             est = estimate_rs_pose(c.points2d, c.points, camera)
-            frontend.observe(stamp, None, est)
+            frontend.observe(stamp, None, frame_feedback(est))  # (tracking.sequence)
             carry.update(stamp, est)
 
     Args:
@@ -209,11 +209,11 @@ class CarriedPrediction:
         self.stamp_ns: int | None = None
         self.model: RSModel | None = None
 
-    def update(self, stamp_ns: int, estimate: object) -> None:
+    def update(self, stamp_ns: int, estimate: RSPoseEstimate | None) -> None:
         """Note a frame's estimate (``stamp_ns`` ns, the time ``predict`` is asked at): a
         solved one (``success``, ``model``) is the one carried from now on; a failed one (or
         None) changes nothing (the last solved frame is still carried)."""
-        if estimate is not None and getattr(estimate, "success", False):
+        if estimate is not None and estimate.success:
             self.stamp_ns, self.model = int(stamp_ns), estimate.model
 
     def predict(self, stamp_ns: int, camera: CameraModel) -> RSModel | None:

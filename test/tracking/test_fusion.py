@@ -18,8 +18,11 @@ from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions, estimate_rs_pose
+from rs_localizer.estimation.result import RSPoseEstimate
+from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
-from rs_localizer.pose import RSPose
+from rs_localizer.pose import PoseMeasurement, RSPose
+from rs_localizer.sim import rig as sim_rig
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
 from rs_localizer.tracking.fusion import FusedState, FusionOptions, TwistFilter
 from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
@@ -87,7 +90,7 @@ def test_linear_case_equals_kalman_rts_smoother(lag):
     cov[3:6, 3:6] = np.eye(3) * sp**2
     final = []
     for k in range(n):
-        est = SimpleNamespace(
+        est = RSPoseEstimate(
             success=True,
             pose=RSPose(rotvec_to_matrix([0, 0, yaw_m[k]]), pos_m[k], np.zeros(3), np.zeros(3)),
             covariance=cov,
@@ -205,7 +208,7 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
     filt = TwistFilter(FusionOptions(lag=2))
 
     def est(p, v=(0.0, 0.0, 0.0)):
-        return SimpleNamespace(
+        return RSPoseEstimate(
             success=True,
             pose=RSPose(np.eye(3), np.asarray(p), np.zeros(3), np.asarray(v)),
             covariance=cov,
@@ -229,7 +232,7 @@ def test_gate_restarts_on_a_jump_and_flush_returns_pending_frames():
     # relocalized: restart at once; a failed estimate is not fused; a stamp going back resets
     s = filt.update(7 * NS // 30, est([9.0, 0, 0]), relocalized=True)
     assert s.current.restarted
-    assert filt.update(8 * NS // 30, SimpleNamespace(success=False)).current.fused is False
+    assert filt.update(8 * NS // 30, RSPoseEstimate(success=False)).current.fused is False
     s = filt.update(NS // 30, est([0, 0, 0]))
     assert s.current.restarted and s.current.pose.stamp_ns == NS // 30
     assert [f.pose.stamp_ns for f in s.final] == [7 * NS // 30, 8 * NS // 30]
@@ -258,7 +261,7 @@ def test_prior_information_is_taken_out():
     z_post = z_d + K @ (m - H @ z_d)
     R_post = (np.eye(12) - K @ H) @ R_d
     G_d = rng.normal(size=(12, 6)) * 1e-3
-    est = SimpleNamespace(
+    est = RSPoseEstimate(
         success=True,
         pose=RSPose(rotvec_to_matrix(z_post[:3]) @ O_d, z_post[3:6], z_post[6:9], z_post[9:12]),
         covariance=0.5 * (R_post + R_post.T),
@@ -490,7 +493,7 @@ def test_update_kernel_equals_a_plain_numpy_error_state_update(model):
 
 def test_fused_states_are_fused_state_dataclasses():
     filt = TwistFilter(FusionOptions(lag=1))
-    est = SimpleNamespace(
+    est = RSPoseEstimate(
         success=True,
         pose=RSPose(np.eye(3), np.zeros(3), np.zeros(3), np.ones(3)),
         covariance=np.eye(12) * 1e-4,
@@ -503,3 +506,28 @@ def test_fused_states_are_fused_state_dataclasses():
         assert repr(s) == repr(ref) and vars(s).keys() == vars(ref).keys()
         with pytest.raises(dataclasses.FrozenInstanceError):
             s.fused = True
+
+
+def test_a_camera_estimate_and_a_rig_estimate_are_the_filters_measurement():
+    """Both estimators' results are :class:`~rs_localizer.pose.PoseMeasurement`, which the
+    filter takes as they are (a rig of one camera, its frame also posed by the camera's
+    estimator): the measurement is the estimate's pose and twist with its (12, 12) covariance,
+    the frame's stamp passed beside it; an object without those fields is none."""
+    rng = np.random.default_rng(4)
+    rig = sim_rig.make_rig(1, rng, stamp_spread=0.0)
+    frame = sim_rig.rig_frame(rig, sim_rig.rig_motion(rng, 1.0, 1.0), [150], rng, outliers=0.0)
+    rig_est = estimate_rig_pose(frame.views, seed=0)
+    view = frame.views[0]
+    cam_est = estimate_rs_pose(view.uv, view.X, view.camera, "r6p_1lin")
+    for est in (cam_est, rig_est):
+        assert est.success and isinstance(est, PoseMeasurement)
+        z = TwistFilter()._measurement(est)
+        assert z.m == 12 and not z.deprior
+        np.testing.assert_allclose(z.Ori, est.pose.orientation, atol=1e-12)
+        np.testing.assert_allclose(z.p, est.pose.position, atol=1e-12)
+        np.testing.assert_allclose(z.omega, est.pose.angular_velocity, atol=1e-12)
+        np.testing.assert_allclose(z.v, est.pose.linear_velocity, atol=1e-12)
+        np.testing.assert_allclose(z.R, est.covariance, rtol=1e-9, atol=1e-15)
+        step = TwistFilter().update(123, est)
+        assert step.current.fused and step.current.pose.stamp_ns == 123
+    assert not isinstance(SimpleNamespace(success=True, pose=RSPose()), PoseMeasurement)

@@ -44,7 +44,7 @@ def pose_errors(outs, traj):
     for o in outs:
         if o.success:
             R, p, _, _ = rig_truth(traj, (o.stamp_ns - T0) * 1e-9)
-            pose = o.measurement.pose
+            pose = o.estimate.pose
             e.append((rotation_angle_deg(pose.orientation, R), np.linalg.norm(pose.position - p)))
     return np.array(e).reshape(-1, 2)
 

@@ -65,8 +65,8 @@ def test_images_of_three_cameras_pose_the_rig_and_the_prediction_guides_each_fro
     assert len(outs) == 6 and all(o.success and len(o.cameras) == 3 for o in outs)
     for o in outs:
         R, p, _, _ = rig_truth(motion, (o.stamp_ns - T0) * 1e-9)
-        assert rotation_angle_deg(o.measurement.pose.orientation, R) < 0.1
-        assert np.linalg.norm(o.measurement.pose.position - p) < 0.003
+        assert rotation_angle_deg(o.estimate.pose.orientation, R) < 0.1
+        assert np.linalg.norm(o.estimate.pose.position - p) < 0.003
         assert all(s.inliers > 60 for s in o.shares.values()), o.shares
     assert len(pred_err) >= 3 * 4, len(pred_err)  # (nothing predicts the first rig frame)
     e = np.array(pred_err)

@@ -8,7 +8,12 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from rs_localizer.correspondences import Correspondences, Frontend, TrackingFrontend
+from rs_localizer.correspondences import (
+    Correspondences,
+    FrameFeedback,
+    Frontend,
+    TrackingFrontend,
+)
 from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, RansacOptions
 from rs_localizer.estimation.result import physical_velocities
 from rs_localizer.frames import Extrinsic, camera_to_base
@@ -204,7 +209,7 @@ def test_correspondences_type():
             return c
 
     class Tracks(Markers):
-        def observe(self, stamp_ns, points2d, estimate):
+        def observe(self, stamp_ns, points2d, feedback):
             pass
 
     assert isinstance(Markers(), Frontend) and not isinstance(Markers(), TrackingFrontend)
@@ -314,8 +319,10 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
             assert camera is cam
             return super().process(image, camera, encoding)
 
-        def observe(self, stamp_ns, points2d, estimate):
-            self.seen.append((stamp_ns, len(points2d), estimate.success))
+        def observe(self, stamp_ns, points2d, feedback):
+            assert isinstance(feedback, FrameFeedback)
+            assert feedback.inliers.shape == (len(points2d),)
+            self.seen.append((stamp_ns, len(points2d), feedback.success))
 
         def pop_warning(self):
             return "once" if not self.seen else None

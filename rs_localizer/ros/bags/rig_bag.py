@@ -362,7 +362,7 @@ def replay_rig(
     gt = load_ground_truth(bag)
     for o in res.outputs:
         if o.success:
-            q = o.measurement.pose
+            q = o.estimate.pose
             e = frame_errors(q.orientation, q.position, q.angular_velocity,
                              q.linear_velocity, gt, o.stamp_ns)  # fmt: skip
             if e is not None:
@@ -656,7 +656,7 @@ def write_rig_outputs(
         for o in res.outputs:
             if not o.success:
                 continue
-            m, t = o.measurement, o.stamp_ns
+            m, t = o.estimate, o.stamp_ns
             msgs = {
                 "pose": cv.pose_stamped(m.pose, t, map_frame),
                 "pose_with_covariance": cv.pose_with_covariance_stamped(m, t, map_frame),

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from rs_localizer.calibration.readout import calibrate_line_delay, fit_line_delay
 from rs_localizer.cli import main as cli_main
-from rs_localizer.estimation.readout import calibrate_line_delay, fit_line_delay
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.trajectory import (
     R_IMU_CAMERA,
@@ -301,7 +301,7 @@ def test_cli_prints_the_time_offset_as_a_parameter(tmp_path, capsys):
 def test_gyro_lines_say_what_is_not_determined():
     """The printed lines carry each std and verdict; an undetermined rotation gets the
     warning; no gyro, no lines."""
-    from rs_localizer.estimation.readout import ReadoutCalibration
+    from rs_localizer.calibration.readout import ReadoutCalibration
 
     assert ReadoutCalibration(3e-5, 1e-7, 60, True).gyro_lines() == []
     res = ReadoutCalibration(

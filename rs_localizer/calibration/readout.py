@@ -45,7 +45,7 @@ velocity is ``omega = -w / s`` with ``s = line_delay * focal`` the seconds per u
   deviation exceeds ``max_time_offset_std`` (1 ms) or the best offset is at the grid's end.
   On 2 s of simulated hand-held shake (60 frames, a gyro 10 ms late) the error is at most
   0.39 ms over seeds 0-5 with a standard deviation of 0.37-0.46 ms
-  (``test/estimation/test_readout.py``).
+  (``test/calibration/test_readout.py``).
 
 The fit is least squares through the origin with Huber weights (threshold 3 robust sigma),
 repeated to convergence. Its standard deviation is a heteroscedasticity- and
@@ -68,8 +68,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..camera import CameraModel
+from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..geometry import matrix_to_rotvec
-from .estimate import EstimateOptions, estimate_rs_pose
 
 __all__ = [
     "ReadoutCalibration",
