@@ -33,7 +33,11 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     pose, pose_with_covariance, twist_single_frame (the rig frame's own twist), twist and odom
     (the fused twist ``tracking.lag`` rig frames later, stamped with that rig frame's time;
     the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
-    /diagnostics (one status: the rig's counts and every camera's, with warnings)
+    /diagnostics (one status: the rig's counts and every camera's, with warnings);
+    path (the rig's poses), <c>/debug_image and <c>/markers (each camera as the rig's pose and
+    its mounting put it): the single-camera node's visualization (:mod:`.visualization`,
+    ``viz.*``), built only when subscribed. After ``tracking.max_gap`` without camera frames
+    the twists still pending are published (as by the single-camera node).
 
 The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
 ``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted

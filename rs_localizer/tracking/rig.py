@@ -39,8 +39,14 @@ through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which rejects a 
 contradicts. With ``imu.estimate_bias`` the gyro's bias is estimated online from the rotation
 between consecutive solved rig frames
 (:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
-"camera"). Counted: ``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``,
-``rig.gyro_missing[.<reason>]`` (:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`).
+"camera"), and the IMU's mounting is checked as a camera's
+(:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`,
+:func:`~rs_localizer.tracking.gyro_check.update_gyro_checks`): while the rotation between
+posed rig frames contradicts the gyro, rig frames are solved without it. Counted:
+``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``, ``rig.gyro_missing[.<reason>]``
+(:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`), ``rig.gyro_pairs_failed``,
+``rig.gyro_inconsistent_detections``, ``rig.gyro_disabled_inconsistent``,
+``rig.gyro_bias_rejected``.
 
 Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
 failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
