@@ -379,7 +379,40 @@ class RigCore:
         self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
         self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
+        if values["warmup"]:
+            self._warm_up()
         self._configured = True
+
+    def _warm_up(self) -> None:
+        """``warmup``: the rig's kernels compiled (or loaded from the cache) before the first
+        frame, as the single-camera node does for its own
+        (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every
+        camera's RS timing, ``rs-localizer compile --params-file``'s); logged with the
+        kernels compiled and the time. Without it the first rig frame pays for them while the
+        cameras' frames queue (a full queue drops them). Never raises (a failure is
+        logged)."""
+        from ..runtime.jit_cache import compile_progress
+        from ..runtime.warmup import warm_rig
+
+        log = self.get_logger()
+        timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
+        tic = time.perf_counter()
+        try:
+            with compile_progress(log.info) as prog:
+                posed = warm_rig(self.config.settings, timing)
+        except Exception as e:  # (e.g. a corrupt numba cache: the frames compile instead)
+            log.warning(f"warm-up (rig) failed: {type(e).__name__}: {e}")
+            return
+        kernels = (
+            f"compiled {len(prog.kernels)} kernels (`rs-localizer compile --params-file` after "
+            "installing avoids this)"
+            if prog.kernels
+            else "kernels from the cache"
+        )
+        log.info(
+            f"warm-up (rig): {time.perf_counter() - tic:.2f} s, {posed} synthetic rig frames "
+            f"posed, {kernels}"
+        )
 
     def _create_outputs(self) -> None:
         self._pubs = {

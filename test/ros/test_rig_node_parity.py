@@ -269,3 +269,37 @@ def test_each_camera_s_debug_image_and_markers_and_the_rig_s_path(ros_context):
         assert [_stamp(p) for p in last.poses] == [_stamp(m) for m in h.poses]
     finally:
         h.close()
+
+
+def test_warmup_runs_the_rig_s_kernels_before_the_first_frame(ros_context, monkeypatch):
+    """``warmup`` true: at start the node runs the rig's synthetic rig frames
+    (:func:`~rs_localizer.runtime.warmup.warm_rig`) with its settings and every camera's RS
+    timing, as the single-camera node warms its own kernels up, and all of them are posed;
+    ``warmup`` false: not."""
+    from rclpy.parameter import Parameter
+
+    import rs_localizer.runtime.warmup as warmup
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    calls = []
+    real = warmup.warm_rig
+
+    def spy(settings, timing=None, frames=8):
+        calls.append((settings, timing, real(settings, timing, frames)))
+        return calls[-1][2]
+
+    monkeypatch.setattr(warmup, "warm_rig", spy)
+    cams = default_rig(3)
+    for on in (False, True):
+        params = [p for p in rig_parameters(cams) if p.name != "warmup"]
+        params.append(Parameter("warmup", value=on))
+        node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=params)
+        try:
+            if not on:
+                assert calls == []
+                continue
+            ((settings, timing, posed),) = calls
+            assert settings is node.rig.settings and posed == 8
+            assert timing == {c.name: (c.camera.line_delay, 0.0, c.camera.readout) for c in cams}
+        finally:
+            node.destroy_node()
