@@ -47,7 +47,7 @@ for the cameras' next frames however slow a rig frame is. Per camera ``received 
 failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
 in an open rig frame). Each camera's frame uses the camera_info of its stamp
 (:mod:`.camera_info_history`). The parameters are read once, at start (changes at run time
-are refused). The managed node's rig mode is
+are refused, but for ``viz.*``, read when drawing). The managed node's rig mode is
 :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 

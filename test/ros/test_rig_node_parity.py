@@ -193,12 +193,12 @@ def test_a_camera_info_change_mid_stream_applies_from_its_own_stamp(ros_context)
 
 def test_the_pending_twists_go_out_when_the_input_stops(ros_context):
     """15 rig frames, then nothing: the last ``tracking.lag`` rig frames' fused twists wait
-    for later rig frames; after ``tracking.max_gap`` (0.5 s) without camera frames they are
-    published (``odom`` for every posed rig frame), as the single-camera node does, without
-    the video's end (deactivate) being signalled."""
+    for later rig frames; after ``tracking.max_gap`` (1.5 s here: time to see them wait)
+    without camera frames they are published (``odom`` for every posed rig frame), as the
+    single-camera node does, without the video's end (deactivate) being signalled."""
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.5, num_points=120, seed=26)
-    h = _harness(ros_context, cams, rig_parameters(cams))
+    h = _harness(ros_context, cams, rig_parameters(cams, **{"tracking.max_gap": 1.5}))
     try:
         h.send_info(cams)
         h.send_clouds(frames)
@@ -216,7 +216,8 @@ def test_each_camera_s_debug_image_and_markers_and_the_rig_s_path(ros_context):
     camera's canvas (its size, ``bgr8``, its frame id) with the simulator's inliers drawn as
     inliers under the rig's pose; ``<camera>/markers`` has the camera's frustum with its
     apex at the camera's true position (the rig's truth through its mounting) at the
-    camera's reference time; ``path`` is the rig's poses."""
+    camera's reference time; ``path`` is the rig's poses. ``viz.*`` may change at run time
+    (read when drawing, as by the single-camera node); other parameters are refused."""
     from nav_msgs.msg import Path
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
@@ -267,6 +268,13 @@ def test_each_camera_s_debug_image_and_markers_and_the_rig_s_path(ros_context):
             assert np.linalg.norm(apex - true) < 0.005 and fr.header.frame_id == "map"
         last = got["path"][-1]
         assert [_stamp(p) for p in last.poses] == [_stamp(m) for m in h.poses]
+        # viz.* change at run time (read when drawing), the others are refused
+        from rclpy.parameter import Parameter
+
+        ok, refused = h.node.set_parameters(
+            [Parameter("viz.frustum_depth", value=0.2), Parameter("max_points", value=10)]
+        )
+        assert ok.successful and not refused.successful
     finally:
         h.close()
 
