@@ -158,5 +158,6 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
 
     def destroy_node(self) -> None:
         self._stop_worker()  # (the frame it is on is finished)
+        self._close_viz()
         SHARED_MAPS.release(self)
         return super().destroy_node()

@@ -33,7 +33,11 @@ Publications (reliable, depth 10), the rig's (``base_frame``) pose in ``map_fram
     pose, pose_with_covariance, twist_single_frame (the rig frame's own twist), twist and odom
     (the fused twist ``tracking.lag`` rig frames later, stamped with that rig frame's time;
     the own twist without tracking), /tf (map_frame -> base_frame, with ``publish_tf``),
-    /diagnostics (one status: the rig's counts and every camera's, with warnings)
+    /diagnostics (one status: the rig's counts and every camera's, with warnings);
+    path (the rig's poses), <c>/debug_image and <c>/markers (each camera as the rig's pose and
+    its mounting put it): the single-camera node's visualization (:mod:`.visualization`,
+    ``viz.*``), built only when subscribed. After ``tracking.max_gap`` without camera frames
+    the twists still pending are published (as by the single-camera node).
 
 The subscription callbacks count each camera frame and queue it (:mod:`.frame_queue`, at most
 ``queue_size`` frames per camera waiting; a full queue drops its oldest rig frame, counted
@@ -43,7 +47,7 @@ for the cameras' next frames however slow a rig frame is. Per camera ``received 
 failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
 in an open rig frame). Each camera's frame uses the camera_info of its stamp
 (:mod:`.camera_info_history`). The parameters are read once, at start (changes at run time
-are refused). The managed node's rig mode is
+are refused, but for ``viz.*``, read when drawing). The managed node's rig mode is
 :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
@@ -79,10 +83,13 @@ from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_co
 from .declare import declare_parameters
 from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
 from .frame_queue import FrameQueue
+from .outputs import fused_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
+from .pipeline import FusedOutput
 from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
 from .status_msg import status_message
+from .visualization import NodeVisualization, RigCameraView
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
@@ -154,7 +161,9 @@ def rig_diagnostics(
     rig frames whose consensus outvoted it), ``.frames_apart`` (yes: its frames never join the
     others', :meth:`RigLocalizer.camera_apart`) and then ``.clock_offset_ms.<other>`` (its
     apparent clock offset from each other camera, ms); with a gyro the
-    ``rig.gyro_*`` counts and ``gyro_bias`` (rad/s, IMU frame); ``rig_frames_failed.<reason>``
+    ``rig.gyro_*`` counts, ``gyro_bias`` (rad/s, IMU frame) and ``gyro_inconsistent`` (``true``
+    while the rotation between rig frames contradicts the gyro and rig frames are solved
+    without it: WARN, as for one camera); ``rig_frames_failed.<reason>``
     for each failure reason of the rig estimator (or ``error``: it raised).
 
     ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
@@ -252,7 +261,13 @@ def rig_diagnostics(
     b = rig.gyro_bias_values()
     if b is not None:
         values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
-        if rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
+        values["gyro_inconsistent"] = str(rig.gyro_inconsistent).lower()
+        if rig.gyro_inconsistent:  # (the single-camera node's warning)
+            warnings.append(
+                "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
+                "frames solved without it"
+            )
+        elif rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
             warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     failed = ""
     if r["failed"]:
@@ -300,7 +315,8 @@ class RigCore:
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
         _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
         self._outputs, self._subs, self._frame_subs = [], [], []
-        self._pubs, self.pub_diag, self._timer = {}, None, None
+        self._pubs, self.pub_diag, self._timer, self._flush_timer = {}, None, None, None
+        self.viz, self.camera_viz = None, {}  # (path; each camera's debug_image, markers)
         self._configured = False
 
     def _configure(self) -> None:
@@ -362,7 +378,41 @@ class RigCore:
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
         self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
+        self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
+        if values["warmup"]:
+            self._warm_up()
         self._configured = True
+
+    def _warm_up(self) -> None:
+        """``warmup``: the rig's kernels compiled (or loaded from the cache) before the first
+        frame, as the single-camera node does for its own
+        (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every
+        camera's RS timing, ``rs-localizer compile --params-file``'s); logged with the
+        kernels compiled and the time. Without it the first rig frame pays for them while the
+        cameras' frames queue (a full queue drops them). Never raises (a failure is
+        logged)."""
+        from ..runtime.jit_cache import compile_progress
+        from ..runtime.warmup import warm_rig
+
+        log = self.get_logger()
+        timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
+        tic = time.perf_counter()
+        try:
+            with compile_progress(log.info) as prog:
+                posed = warm_rig(self.config.settings, timing)
+        except Exception as e:  # (e.g. a corrupt numba cache: the frames compile instead)
+            log.warning(f"warm-up (rig) failed: {type(e).__name__}: {e}")
+            return
+        kernels = (
+            f"compiled {len(prog.kernels)} kernels (`rs-localizer compile --params-file` after "
+            "installing avoids this)"
+            if prog.kernels
+            else "kernels from the cache"
+        )
+        log.info(
+            f"warm-up (rig): {time.perf_counter() - tic:.2f} s, {posed} synthetic rig frames "
+            f"posed, {kernels}"
+        )
 
     def _create_outputs(self) -> None:
         self._pubs = {
@@ -380,6 +430,13 @@ class RigCore:
 
             self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
         self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        if self.viz is None:  # (declares the viz.* parameters: once; the camera names are
+            # read-only, so they stay the cameras' of every configure)
+            self.viz = NodeVisualization(self, topics=("path",))  # (the rig's poses)
+            self.camera_viz = {
+                c.name: NodeVisualization(self, f"{c.name}/", ("debug_image", "markers"))
+                for c in self.config.cameras
+            }
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
@@ -425,10 +482,20 @@ class RigCore:
         self._timer = self.create_timer(
             float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
         )
+        # (as the single-camera node: after tracking.max_gap without frames, the pending
+        # twists go out within 0.1 s)
+        self._flush_timer = self.create_timer(0.1, self._flush_idle_track)
         # the worker holds the GIL while it solves; hand it to the subscription callbacks
         # often, so that frames leave the middleware's queue quickly (as the camera's node)
         sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
         self._frames.start()
+
+    def _close_viz(self) -> None:
+        """Stop the drawing threads of ``path`` and the cameras' ``debug_image`` and
+        ``markers`` (before the node is destroyed)."""
+        for viz in [getattr(self, "viz", None), *getattr(self, "camera_viz", {}).values()]:
+            if viz is not None:
+                viz.close()
 
     def _stop_worker(self) -> None:
         """Stop the worker thread after the frame it is on (frames still queued stay pending)."""
@@ -451,9 +518,10 @@ class RigCore:
         for sub in self._frame_subs:
             self.destroy_subscription(sub)
         self._frame_subs = []
-        if self._timer is not None:
-            self.destroy_timer(self._timer)
-            self._timer = None
+        for timer in (self._timer, self._flush_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._timer = self._flush_timer = None
         if getattr(self, "_frames", None) is not None:
             self._frames.stop(drop_queued=True)
 
@@ -502,8 +570,9 @@ class RigCore:
     def _refuse_changes(self, params) -> SetParametersResult:
         """The rig mode reads its parameters at start (configure): changes are refused."""
         if not getattr(self, "_configured", True) or all(
-            p.name.startswith("qos_overrides.") for p in params
-        ):  # (unconfigured; the QoS overrides a subscription declares, read-only)
+            p.name.startswith(("qos_overrides.", "viz.")) for p in params
+        ):  # (unconfigured; the QoS overrides a subscription declares, read-only; viz.*, read
+            # when drawing, as by the single-camera node)
             return SetParametersResult(successful=True)
         names = ", ".join(p.name for p in params)
         return SetParametersResult(
@@ -710,7 +779,8 @@ class RigCore:
                 f"{self.max_points}",
             )
             uv, xyz, _ = cap_points(uv, xyz, c.scores, self.max_points)
-        frame = RigCameraFrame(name, stamp, self._camera(name, stamp), uv, xyz)
+        frame = RigCameraFrame(name, stamp, self._camera(name, stamp), uv, xyz,
+                               msg.header.frame_id or name)  # fmt: skip
         return self.rig.add(frame), None
 
     def _warn_no_info(self, name: str, kind: str) -> None:
@@ -762,7 +832,12 @@ class RigCore:
             )
             outs = self.rig.drop(name, stamp, camera, e.reason)
         else:
-            outs = self.rig.process_image(name, stamp, img, camera, enc)
+            viz = self.camera_viz.get(name)
+            if viz is not None and viz.wants("debug_image"):  # (only while someone watches)
+                kept = self._images.setdefault(name, deque(maxlen=4))
+                kept.append((img, enc, stamp))
+            tag = msg.header.frame_id or name
+            outs = self.rig.process_image(name, stamp, img, camera, enc, tag)
         return outs, None
 
     # ---------------------------------------------------------------- outputs
@@ -771,9 +846,48 @@ class RigCore:
         return pub is not None and pub.get_subscription_count() > 0
 
     def _publish_fused(self, f) -> None:
-        base, mf = self.config.base_frame, self.map_frame
-        self._pubs["twist"].publish(cv.twist_stamped(f.pose, f.pose.stamp_ns, base))
-        self._pubs["odom"].publish(cv.odometry(f, f.pose.stamp_ns, mf, base))
+        """twist and odom of an earlier rig frame whose fused twist is final (the
+        single-camera node's messages, :func:`.outputs.fused_messages`)."""
+        fused = [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame)]
+        for topic, msg in fused_messages(fused, self.map_frame, self._wanted):
+            self._pubs[topic].publish(msg)
+
+    def _flush_idle_track(self) -> None:
+        """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
+        frames the track is over (the next frame starts a new one): publish the twists still
+        pending (:meth:`RigLocalizer.flush_idle`)."""
+        if self.rig is None or not self._rig_lock.acquire(blocking=False):
+            return  # (the worker is on a frame: not idle)
+        try:
+            fused = self.rig.flush_idle()
+        finally:
+            self._rig_lock.release()
+        for f in fused:
+            self._publish_fused(f)
+
+    def _publish_viz(self, out: RigOutput) -> None:
+        """The rig's pose to ``path``; each camera of a posed rig frame to its
+        ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
+        built only while subscribed, on its drawing thread), the camera as the rig's pose
+        and its mounting put it (:class:`.visualization.RigCameraView`)."""
+        m, mf = out.measurement, self.map_frame
+        self.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
+        mounts = {c.name: c.mount for c in self.config.cameras}
+        for k, n in enumerate(out.cameras):
+            viz, frame = self.camera_viz.get(n), out.frames.get(n)
+            if viz is None or frame is None:
+                continue
+            if not (viz.wants("debug_image") or viz.wants("markers")):
+                continue
+            off = out.stamp_offsets.get(n, 0.0)
+            view = RigCameraView(out.estimate, k, mounts[n].R, mounts[n].c, off, frame.camera,
+                                 frame.points2d, frame.points3d)  # fmt: skip
+            for img in self._images.get(n, ()):
+                if img[2] == frame.stamp_ns:
+                    viz.set_image(*img)
+            ref = out.stamp_ns + int(round(off * 1e9))
+            viz.publish(view, frame.points2d, frame.points3d, frame.camera, frame.stamp_ns, ref,
+                        frame.tag or n, mf)  # fmt: skip
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
@@ -794,6 +908,8 @@ class RigCore:
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:
                 self._pubs["tf"].publish(cv.tf_message(m.pose, stamp, mf, base))
+            if self.viz is not None:
+                self._publish_viz(out)
         for f in out.fused:
             self._publish_fused(f)
 
@@ -888,5 +1004,6 @@ class RigLocalizerNode(RigCore, Node):
         self._stop_worker()
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
+        self._close_viz()
         SHARED_MAPS.release(self)
         return super().destroy_node()

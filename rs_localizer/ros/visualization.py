@@ -45,6 +45,7 @@ __all__ = [
     "VIZ_PARAMETERS",
     "VIZ_TOPICS",
     "NodeVisualization",
+    "RigCameraView",
     "VisualizationBuilder",
     "debug_image_msg",
     "marker_array",
@@ -87,6 +88,8 @@ VIZ_TOPICS = {
     "markers": "visualization_msgs/msg/MarkerArray",
     "path": "nav_msgs/msg/Path",
 }
+#: topic -> the attribute of :class:`NodeVisualization` holding its publisher
+_PUBLISHERS = {"debug_image": "pub_image", "markers": "pub_markers", "path": "pub_path"}
 #: RGBA (0..1) of the markers
 MARKER_COLORS = {
     "frustum": (0.0, 1.0, 1.0, 1.0),
@@ -266,6 +269,62 @@ class VisualizationBuilder:
         return path_msg(self.poses if poses is None else poses, out_stamp_ns, map_frame)
 
 
+class RigCameraView:
+    """One camera's part of a posed rig frame, read as the drawing reads a camera's estimate
+    (:func:`~rs_localizer.viz.draw_debug_image`, :func:`marker_array`): the camera's own model
+    ``(R, C, w, t)`` at its reference line (per unit RS coordinate) from the rig's pose through
+    its mounting (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`), its pose (camera
+    optical frame, :class:`~rs_localizer.pose.RSPose`), its ``inliers`` (N,) bool under the
+    rig's pose and their ``rmse_px``.
+
+    Args:
+        est: the rig frame's :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (posed).
+        index: the camera's index in the rig frame's cameras.
+        R_mount (3, 3), c_mount (3,) m: its mounting (``x_cam = R x_rig + c``).
+        stamp_offset: s, its frame's reference time after the rig frame's.
+        camera: its camera model. points2d (N, 2) px, points3d (N, 3) m: its rows given to
+            the rig.
+    """
+
+    solver = "rig"
+    success = True
+
+    def __init__(
+        self,
+        est: Any,
+        index: int,
+        R_mount: np.ndarray,
+        c_mount: np.ndarray,
+        stamp_offset: float,
+        camera: CameraModel,
+        points2d: np.ndarray,
+        points3d: np.ndarray,
+    ) -> None:
+        from ..estimation.rig import camera_model_of_rig
+        from ..pose import RSModel, RSPose
+
+        spr = camera.seconds_per_unit_r
+        rig = RSModel(est.R, est.C, est.w, est.t)
+        self.model = RSModel(*camera_model_of_rig(rig, R_mount, c_mount, stamp_offset, spr))
+        self.pose = RSPose.from_model(self.model, spr)
+        n = len(points2d)
+        inl = est.inliers[index] if index < len(est.inliers) else np.zeros(n, bool)
+        self.inliers = np.asarray(inl, bool) if len(inl) == n else np.zeros(n, bool)
+        self._rows = (camera, points2d, points3d)
+
+    @property
+    def rmse_px(self) -> float:
+        """RMS reprojection error (px) of the camera's inliers under the rig's pose (NaN
+        without inliers)."""
+        from ..viz.debug_image import frame_residuals
+
+        camera, uv, X = self._rows
+        if not self.inliers.any():
+            return float("nan")
+        e = frame_residuals(camera, uv[self.inliers], X[self.inliers], self) - uv[self.inliers]
+        return float(np.sqrt(np.nanmean(np.sum(e * e, axis=1))))
+
+
 class NodeVisualization:
     """The node's ``debug_image`` (reliable, depth 2), ``markers`` and ``path`` (reliable,
     depth 10) publishers (created at start) and the ``viz.*`` parameters (declared on the
@@ -278,29 +337,39 @@ class NodeVisualization:
     frames nothing but a share of the CPU; frames solved while a drawing is under way are
     not drawn (the path still has their poses).
 
+    ``prefix``: the topics' names start with it (the rig mode's cameras: ``front/``);
+    ``topics``: the topics published (of :data:`VIZ_TOPICS`); the ``viz.*`` parameters are
+    declared by the first one on the node.
+
     Usage in the node: ``viz = NodeVisualization(node)``; in image mode
     ``viz.set_image(img, encoding, stamp_ns)`` with the decoded input; after a frame is solved
     ``viz.publish(est, uv, X, camera, stamp_ns, out_stamp_ns, camera_frame, map_frame)``;
     ``viz.close()`` before the node is destroyed.
     """
 
-    def __init__(self, node: Any):
+    def __init__(self, node: Any, prefix: str = "", topics: Iterable[str] = tuple(VIZ_TOPICS)):
         self.node = node
         for name, (default, desc, rng) in VIZ_PARAMETERS.items():
+            if node.has_parameter(name):  # (declared once: the rig mode has one per camera)
+                continue
             d = ParameterDescriptor(description=desc)
             if isinstance(rng, FloatingPointRange):
                 d.floating_point_range = [rng]
             else:
                 d.integer_range = [rng]
             node.declare_parameter(name, default, d)
+        topics = set(topics)
         self.pub_image, self.pub_markers, self.pub_path = (
-            node.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
+            node.create_publisher(msg_type, prefix + topic, qos, event_callbacks=output_events())
+            if topic in topics
+            else None
             for msg_type, topic, qos in (
                 (Image, "debug_image", DEBUG_IMAGE_QOS),  # (images are large: a short queue)
                 (MarkerArray, "markers", RELIABLE),
                 (Path, "path", RELIABLE),
             )
         )
+        self._name = f"rs_localizer_viz{'_' + prefix.strip('/') if prefix else ''}"
         self.builder = VisualizationBuilder(
             *(
                 node.get_parameter(n).value
@@ -325,8 +394,13 @@ class NodeVisualization:
         """Remember the decoded input image of the frame stamped ``stamp_ns`` (image mode) for
         the next :meth:`publish`, only while ``debug_image`` has a subscriber: nothing else
         needs it, and an image can be hundreds of MB."""
-        wanted = self.pub_image.get_subscription_count() > 0
-        self._image = (image, encoding, int(stamp_ns)) if wanted else None
+        self._image = (image, encoding, int(stamp_ns)) if self.wants("debug_image") else None
+
+    def wants(self, topic: str) -> bool:
+        """Whether ``topic`` (``debug_image``, ``markers``, ``path``) is published and has a
+        subscriber."""
+        pub = getattr(self, _PUBLISHERS[topic])
+        return pub is not None and pub.get_subscription_count() > 0
 
     def clear_image(self) -> None:
         """Forget the remembered input image (its frame was not solved: no publish)."""
@@ -362,11 +436,7 @@ class NodeVisualization:
         the estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the
         reference line's (the pose's) stamp. Returns at once."""
         self.builder.add_pose(est, out_stamp_ns, map_frame)
-        want = (
-            self.pub_image.get_subscription_count() > 0,
-            self.pub_markers.get_subscription_count() > 0,
-            self.pub_path.get_subscription_count() > 0,
-        )
+        want = tuple(self.wants(t) for t in ("debug_image", "markers", "path"))
         image, self._image = self._image, None
         if not any(want):
             return
@@ -382,9 +452,7 @@ class NodeVisualization:
             self._job = (*job, img, enc, poses)
             self._cond.notify_all()
             if self._thread is None:
-                self._thread = threading.Thread(
-                    target=self._run, name="rs_localizer_viz", daemon=True
-                )
+                self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
                 self._thread.start()
 
     def wait_drawn(self, timeout: float = 10.0) -> bool:

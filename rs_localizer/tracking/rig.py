@@ -39,8 +39,14 @@ through the IMU's mounting): ``estimate_rig_pose(..., gyro=)``, which rejects a 
 contradicts. With ``imu.estimate_bias`` the gyro's bias is estimated online from the rotation
 between consecutive solved rig frames
 (:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
-"camera"). Counted: ``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``,
-``rig.gyro_missing[.<reason>]`` (:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`).
+"camera"), and the IMU's mounting is checked as a camera's
+(:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`,
+:func:`~rs_localizer.tracking.gyro_check.update_gyro_checks`): while the rotation between
+posed rig frames contradicts the gyro, rig frames are solved without it. Counted:
+``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``, ``rig.gyro_missing[.<reason>]``
+(:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`), ``rig.gyro_pairs_failed``,
+``rig.gyro_inconsistent_detections``, ``rig.gyro_disabled_inconsistent``,
+``rig.gyro_bias_rejected``.
 
 Per camera it counts ``received = solved + failed + skipped + pending`` (a frame is solved or
 failed with its rig frame; skipped before any rig frame: :data:`SKIP_REASONS`; pending: in a
@@ -88,6 +94,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
+import time
 from collections import Counter, deque
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -115,6 +122,7 @@ from ..pose import RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
+from .gyro_check import GyroMountCheck, MountCheckOptions, gyro_if_consistent, update_gyro_checks
 from .sequence import FusedPose, checked_stamp, image_sample, reference_stamp_ns, same_image
 from .tracker import predictable
 
@@ -404,6 +412,8 @@ class RigOutput:
             is final now, oldest first: :class:`~rs_localizer.tracking.sequence.FusedPose`
             in the rig frame.
         tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
+        frames: camera -> its :class:`RigCameraFrame` (the rows given to the estimator: the
+            rig's inliers per camera index them; e.g. a camera's debug image).
     """
 
     stamp_ns: int
@@ -418,6 +428,7 @@ class RigOutput:
     gyro: GyroMeasurement | None = None
     tags: dict = field(default_factory=dict)
     error: str | None = None
+    frames: dict = field(default_factory=dict)
 
     @property
     def success(self) -> bool:
@@ -537,9 +548,11 @@ class RigLocalizer:
         self._pending: dict[int, tuple] = {}
         self._inlier_ratio: float | None = None
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
+        self._last_wall: float | None = None  # (monotonic s: the last camera frame taken)
         self._make_filter()
         self.imu: ImuBuffer | None = None
         self.gyro_bias: GyroBiasEstimator | None = None
+        self.gyro_check: GyroMountCheck | None = None
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
         imu = settings.imu
@@ -552,6 +565,12 @@ class RigLocalizer:
                     GyroBiasOptions(random_walk=imu.bias_random_walk,
                                     max_interval=settings.stop_after),
                 )  # fmt: skip
+            # (the IMU's mounting on the rig checked as a camera's: rig frames are solved
+            # without the gyro while the rotation between them contradicts it)
+            self.gyro_check = GyroMountCheck(
+                imu.R_cam_imu, imu.gyro_noise, imu.time_offset,
+                MountCheckOptions(max_interval=settings.stop_after),
+            )  # fmt: skip
 
     def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
         """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
@@ -564,6 +583,16 @@ class RigLocalizer:
         """
         stamp = checked_stamp(stamp_ns, "IMU")
         return "disabled" if self.imu is None else self.imu.add(stamp, rate)
+
+    @property
+    def gyro_inconsistent(self) -> bool:
+        """True while the rotation between posed rig frames contradicts the gyro (its
+        ``imu.rotation``, time offset or bias likely wrong) and rig frames are solved without
+        it (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`, as for one camera)."""
+        return self.gyro_check is not None and self.gyro_check.inconsistent
+
+    def _count_gyro(self, key: str, n: int = 1) -> None:
+        self.counts[f"rig.{key}"] += n
 
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(bias (3,) rad/s, std (3,) rad/s)`` of the gyro (IMU frame): the online estimate
@@ -604,7 +633,7 @@ class RigLocalizer:
                 f"rig frame solved without the gyro ({reason}): check the imu topic, its rate "
                 "and imu.time_offset",
             )
-        return gyro
+        return gyro_if_consistent(gyro, self.gyro_check, self._count_gyro)
 
     def _gyro_done(self, out: RigOutput) -> None:
         """Count the gyro's outcome of a rig frame and feed the bias estimate."""
@@ -615,13 +644,14 @@ class RigLocalizer:
             if est.gyro_rejected:
                 self.counts["rig.gyro_rejected"] += 1
                 self.counts[f"rig.gyro_rejected.{est.gyro_rejection}"] += 1
-        bias = self.gyro_bias
-        if bias is None:
-            return
-        if out.success and est.covariance is not None:
-            bias.update(out.stamp_ns, est.R.T, est.covariance[:3, :3], self.imu)
-        else:
-            bias.restart()
+        ok = out.success and est.covariance is not None
+        update_gyro_checks(
+            self.gyro_check, self.gyro_bias, self.imu, self.settings.imu,
+            stamp_ns=out.stamp_ns, success=ok, orientation=est.R.T if ok else None,
+            rotation_covariance=est.covariance[:3, :3] if ok else None,
+            new_track=out.path in ("cold", "reset"), count=self._count_gyro, log=self.log,
+            what="rig frames", mount="IMU -> base_frame",
+        )  # fmt: skip
 
     def _make_filter(self) -> None:
         to = self.settings.tracking
@@ -687,6 +717,7 @@ class RigLocalizer:
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         self.counts[f"{name}.received"] += 1
+        self._last_wall = time.monotonic()
         stamp = frame.stamp_ns
         if self._first is None:
             self._first = stamp
@@ -750,6 +781,8 @@ class RigLocalizer:
             self.imu.reset()
         if self.gyro_bias is not None:
             self.gyro_bias.restart()
+        if self.gyro_check is not None:
+            self.gyro_check.restart()
         return []
 
     def _ready(self) -> list[RigOutput]:
@@ -795,6 +828,20 @@ class RigLocalizer:
         if self._filter is None or not self._pending:
             return []
         return self._fused(self._filter.flush())
+
+    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
+        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
+        without a camera frame (:meth:`add`, :meth:`drop`) the video has stopped: the rig
+        frames whose fused twist is still pending, final now (as a camera's
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.flush_idle`; the rig frames
+        still open stay open, and a frame more than ``max_gap`` later starts a new track).
+        Empty without tracking, with nothing pending, or before that time."""
+        to, last = self.settings.tracking, self._last_wall
+        if to is None or last is None or not self._pending:
+            return []
+        if (time.monotonic() if now is None else now) - last < to.max_gap:
+            return []
+        return self.flush()
 
     def reset(self) -> list[FusedPose]:
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
@@ -886,6 +933,7 @@ class RigLocalizer:
             )
         stamp = checked_stamp(stamp_ns)
         self.counts[f"{name}.received"] += 1
+        self._last_wall = time.monotonic()
         self._skip(name, reason)
         if self._first is None:
             self._first = stamp
@@ -1051,6 +1099,7 @@ class RigLocalizer:
             off = (ref - g.lo) * 1e-9
             out.stamp_offsets[n] = off
             out.tags[n] = frame.tag
+            out.frames[n] = frame
             view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off,
                            mount_covariance=m.covariance)  # fmt: skip
             views.append(view)

@@ -80,7 +80,12 @@ from ..solvers.registry import solver_info
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .gyro_check import GyroMountCheck, MountCheckOptions
+from .gyro_check import (
+    GyroMountCheck,
+    MountCheckOptions,
+    gyro_if_consistent,
+    update_gyro_checks,
+)
 from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
@@ -655,63 +660,29 @@ class SequenceLocalizer:
                 f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
                 "imu.time_offset",
             )
-        elif self.gyro_inconsistent:  # (the image refutes the gyro over the last pairs)
-            self._count("gyro_disabled_inconsistent", 1)
-            return None
-        return gyro
+        # (the image refutes the gyro over the last pairs: solved without it)
+        return gyro_if_consistent(gyro, self.gyro_check, self._count)
 
     def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
         """Feed a frame to the check of the gyro against the image and to the online bias
-        estimator: a solved frame pairs with the previous one; a failed frame or a new track
-        restarts the pairing. A pair the check fails is counted in ``gyro_pairs_failed``; when
-        the check declares the gyro inconsistent it is warned about once, and the bias
-        estimator gets no pairs until it is consistent again (a wrong mount would pull the
-        bias). A pair the bias estimator's chi-square test rejects is counted in
-        ``gyro_bias_rejected``."""
-        check, bias, buf = self.gyro_check, self.gyro_bias, self.imu
-        if buf is None or (check is None and bias is None):
-            return
-        if new_track or not est.success:
-            if check is not None:
-                check.restart()
-            if bias is not None:
-                bias.restart()
-        if not est.success:
-            return
-        cov = est.covariance[:3, :3] if est.covariance is not None else np.full((3, 3), np.nan)
-        if check is not None:
-            self._check_pair(check, bias, buf, est, cov, stamp)
-        if bias is None:
-            return
-        if check is not None and check.inconsistent:
-            bias.restart()
-            return
-        if bias.update(stamp, est.pose.orientation, cov, buf) == "rejected":
-            self._count("gyro_bias_rejected", 1)
-
-    def _check_pair(self, check, bias, buf, est, cov, stamp: int) -> None:
-        """The gyro check's test of a solved frame against the previous one (counted, and
-        the first detection of an inconsistent gyro warned about)."""
-        imu = self.settings.imu
-        if bias is not None:
-            b, Pb = bias.bias, bias.covariance
-        else:
-            b, Pb = np.asarray(imu.gyro_bias, float), imu.gyro_bias_sigma**2 * np.eye(3)
-        was = check.inconsistent
-        if check.update(stamp, est.pose.orientation, cov, buf, b, Pb) == "failed":
-            self._count("gyro_pairs_failed", 1)
-        if check.inconsistent and not was:
-            self._count("gyro_inconsistent_detections", 1)
-            n_failed, n_pairs = check.window_failures
-            self.log.warning(
-                "gyro.inconsistent",
-                f"the rotation between frames contradicts the gyro ({n_failed} of the last "
-                f"{n_pairs} pairs, last residual {check.last_residual_deg:.2f} deg): frames "
-                "are solved without the gyro until it agrees again; check imu.rotation (IMU "
-                "-> camera optical frame), imu.time_offset and imu.gyro_bias",
-            )
-        elif was and not check.inconsistent:
-            self.log.info("the gyro agrees with the image again: frames use it")
+        estimator (:func:`~rs_localizer.tracking.gyro_check.update_gyro_checks`, the rig's
+        rule too): a solved frame pairs with the previous one; a failed frame or a new track
+        restarts the pairing; counted ``gyro_pairs_failed``, ``gyro_inconsistent_detections``
+        (warned about once), ``gyro_bias_rejected``."""
+        cov = est.covariance[:3, :3] if est.covariance is not None else None
+        update_gyro_checks(
+            self.gyro_check,
+            self.gyro_bias,
+            self.imu,
+            self.settings.imu,
+            stamp_ns=stamp,
+            success=bool(est.success),
+            orientation=est.pose.orientation,
+            rotation_covariance=cov,
+            new_track=new_track,
+            count=self._count,
+            log=self.log,
+        )
 
     # ---------------------------------------------------------------- time
     def check_time(self, stamp_ns: int) -> str | None:

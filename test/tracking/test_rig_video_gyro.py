@@ -4,6 +4,7 @@ one is rejected and counted, a biased one's bias is estimated online."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import replace
 
 import numpy as np
@@ -26,13 +27,13 @@ def video():
     return cams, frames, traj
 
 
-def _run(video, imu=None, gyro=None):
+def _run(video, imu=None, gyro=None, log=None):
     """The frames and gyro samples (``(stamps, rates)``) through a RigLocalizer in the order
     they would arrive (a frame once its readout is over: 30 ms after its stamp). Returns
     (rig, outputs)."""
     cams, frames, _ = video
     mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
-    rig = RigLocalizer(RigSettings(mounts, imu=imu))
+    rig = RigLocalizer(RigSettings(mounts, imu=imu), log=log)
     by = {c.name: c.camera for c in cams}
     events = [(f.stamp_ns + 30_000_000, 1, f) for f in frames]
     if gyro is not None:
@@ -156,3 +157,55 @@ def test_the_gyro_aided_sensitivity_predicts_the_shift_of_an_accelerating_rig():
         left.append(np.linalg.norm(err - pred))
     assert np.median(shift) > 0.01  # (rad/s: the shift is there)
     assert np.median(left) < 0.5 * np.median(shift), (np.median(left), np.median(shift))
+
+
+def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(video):
+    """The IMU's rotation on the rig given 90 degrees off: the rotation between posed rig
+    frames contradicts the gyro (the single camera's
+    :class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`), it is declared inconsistent
+    once (``rig.gyro_inconsistent_detections``, a warning naming ``imu.rotation``) and the
+    rig frames after it are solved without it (``rig.gyro_disabled_inconsistent``, no gyro
+    measurement); the rig's diagnostics say so (WARN, ``gyro_inconsistent: true``). The same
+    wrong mount on the front camera alone (``SequenceLocalizer``) is found too; the right
+    mount is never declared inconsistent."""
+    from helpers.rig import Log
+
+    from rs_localizer.ros.diagnostics import WARN
+    from rs_localizer.tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
+
+    rig_diagnostics = pytest.importorskip("rs_localizer.ros.rig_node").rig_diagnostics
+    cams, frames, traj = video
+    gyro = rig_gyro(traj, 0.8, R_rig_imu=R_RIG_IMU, noise=NOISE, seed=4)
+    wrong = rotvec_to_matrix(np.radians([90.0, 0.0, 0.0])) @ R_RIG_IMU
+    imu = GyroSettings(R_cam_imu=wrong, gyro_noise=NOISE, gyro_bias_sigma=0.001)
+    log = Log()
+    rig, outs = _run(video, imu, gyro, log)
+    c = rig.counts
+    assert rig.gyro_inconsistent and c["rig.gyro_inconsistent_detections"] == 1, dict(c)
+    assert c["rig.gyro_pairs_failed"] >= 6, dict(c)
+    first = next(k for k, o in enumerate(outs) if o.success and o.gyro is None)
+    assert first <= 12 and all(o.gyro is None for o in outs[first:])
+    assert c["rig.gyro_disabled_inconsistent"] == len(outs) - first > 5, dict(c)
+    assert all(o.success for o in outs)
+    warned = [t for k, t in log.warnings if k == "gyro.inconsistent"]
+    assert len(warned) == 1 and "rig frames" in warned[0] and "imu.rotation" in warned[0]
+    level, message, v = rig_diagnostics(rig, set())
+    assert level == WARN and "the gyro contradicts the image" in message, message
+    assert v["gyro_inconsistent"] == "true" and v["rig.gyro_disabled_inconsistent"] > 5, v
+    # the front camera alone, its gyro as wrong (IMU -> camera: the mounting's rotation)
+    front = cams[0]
+    R_front = front.R_rig_cam.T  # (rig -> camera optical frame)
+    alone = GyroSettings(R_cam_imu=R_front @ wrong, gyro_noise=NOISE, gyro_bias_sigma=0.001)
+    seq = SequenceLocalizer(SequenceSettings(imu=dataclasses.replace(alone, wait=0.0)))
+    for t, w in zip(*gyro, strict=True):
+        seq.add_imu(int(t), w)
+    for f in frames:
+        if f.name == front.name:
+            seq.process(SequenceFrame(f.stamp_ns, front.camera, f.uv, f.xyz))
+    assert seq.gyro_inconsistent and seq.counts["gyro_inconsistent_detections"] == 1
+    # the right mount: never inconsistent
+    right = GyroSettings(R_cam_imu=R_RIG_IMU, gyro_noise=NOISE, gyro_bias_sigma=0.001)
+    rig2, outs2 = _run(video, right, gyro)
+    assert not rig2.gyro_inconsistent and rig2.counts["rig.gyro_inconsistent_detections"] == 0
+    assert rig2.counts["rig.gyro_used"] == len(outs2)
+    assert rig_diagnostics(rig2, set())[2]["gyro_inconsistent"] == "false"
