@@ -870,7 +870,7 @@ class RigCore:
         ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
         built only while subscribed, on its drawing thread), the camera as the rig's pose
         and its mounting put it (:class:`.visualization.RigCameraView`)."""
-        m, mf = out.measurement, self.map_frame
+        m, mf = out.estimate, self.map_frame
         self.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
         mounts = {c.name: c.mount for c in self.config.cameras}
         for k, n in enumerate(out.cameras):

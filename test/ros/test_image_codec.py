@@ -272,7 +272,7 @@ def _rig_node_decode(msg, cam):
     got, logged = [], []
 
     class Rig:
-        def process_image(self, name, stamp, img, camera, enc):
+        def process_image(self, name, stamp, img, camera, enc, tag=None):
             got.append(("image", img, enc))
             return []
 
@@ -286,6 +286,8 @@ def _rig_node_decode(msg, cam):
         _log=SimpleNamespace(warning=lambda key, text: logged.append(text)),
         _camera=lambda name, stamp: cam,
         _warn_no_info=lambda name, what: None,
+        camera_viz={},
+        _images={},
     )
     assert RigCore._take_image(core, "c", msg) == ([], None)
     (out,) = got

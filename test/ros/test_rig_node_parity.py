@@ -61,7 +61,7 @@ def test_an_angular_velocity_bound_below_the_motion_refuses_every_rig_frame_as_i
     assert alone == {"implausible_motion"}, alone
     h = _harness(ros_context, cams, rig_parameters(cams, max_angular_velocity=bound))
     try:
-        assert h.node.rig.settings.max_angular_velocity == bound
+        assert h.node.rig.settings.options.plausibility.max_angular_velocity == bound
         h.send_info(cams)
         h.send_clouds(frames)
         _, v = h.last_diag()
@@ -82,9 +82,21 @@ def test_the_ransac_parameters_reach_the_rig_estimator(ros_context, monkeypatch)
     calls = []
     real = rig_module.estimate_rig_pose
 
-    def spy(views, **kw):
-        calls.append(kw)
-        return real(views, **kw)
+    def spy(views, options, **kw):
+        r, p = options.ransac, options.plausibility
+        calls.append(
+            {
+                "threshold_px": r.threshold_px,
+                "confidence": r.confidence,
+                "min_inliers": r.min_inliers,
+                "max_iterations": r.max_iterations,
+                "seed": r.seed,
+                "refine": options.refine.enabled,
+                "max_angular_velocity": p.max_angular_velocity,
+                "max_linear_velocity": p.max_linear_velocity,
+            }
+        )
+        return real(views, options, **kw)
 
     monkeypatch.setattr(rig_module, "estimate_rig_pose", spy)
     cams = default_rig(3)
@@ -92,7 +104,7 @@ def test_the_ransac_parameters_reach_the_rig_estimator(ros_context, monkeypatch)
     given = {
         "ransac.threshold_px": 0.05,
         "ransac.confidence": 0.95,
-        "ransac.min_inliers": 11,
+        "ransac.min_inliers": 20,
         "ransac.max_iterations": 700,
         "ransac.seed": 5,
         "refine": True,
@@ -111,7 +123,7 @@ def test_the_ransac_parameters_reach_the_rig_estimator(ros_context, monkeypatch)
             assert n >= 5 and len(calls) >= n, (n, len(calls))
             for kw in calls:
                 assert kw["threshold_px"] == threshold and kw["confidence"] == 0.95, kw
-                assert (kw["min_inliers"], kw["seed"], kw["refine"]) == (11, 5, True), kw
+                assert (kw["min_inliers"], kw["seed"], kw["refine"]) == (20, 5, True), kw
                 assert kw["max_iterations"] <= 700, kw  # (a tracked rig frame: fewer)
                 assert (kw["max_angular_velocity"], kw["max_linear_velocity"]) == (9.0, 4.0)
             assert any(kw["max_iterations"] == 700 for kw in calls)

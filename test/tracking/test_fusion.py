@@ -516,7 +516,7 @@ def test_a_camera_estimate_and_a_rig_estimate_are_the_filters_measurement():
     rng = np.random.default_rng(4)
     rig = sim_rig.make_rig(1, rng, stamp_spread=0.0)
     frame = sim_rig.rig_frame(rig, sim_rig.rig_motion(rng, 1.0, 1.0), [150], rng, outliers=0.0)
-    rig_est = estimate_rig_pose(frame.views, seed=0)
+    rig_est = estimate_rig_pose(frame.views)  # (the default options: seed 0)
     view = frame.views[0]
     cam_est = estimate_rs_pose(view.uv, view.X, view.camera, "r6p_1lin")
     for est in (cam_est, rig_est):
