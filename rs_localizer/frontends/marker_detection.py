@@ -950,7 +950,8 @@ class AprilTagDetector:
             np.minimum(y + bh + pad, h),
         ]
         out = []
-        for x0, y0, x1, y1 in _merge_boxes(boxes):
+        for box in _merge_boxes(boxes):
+            x0, y0, x1, y1 = clip_window(box, g.shape, min_image_side(1.0))
             c, ids, ham, mar = self.raw(np.ascontiguousarray(g[y0:y1, x0:x1]), decimate=1.0)
             if len(ids):
                 out.append((c + np.array([x0, y0], float), ids, ham, mar))
