@@ -908,7 +908,11 @@ class AprilTagDetector:
         dark = cv2.adaptiveThreshold(
             small, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, 11, 15
         )
-        n, labels, st, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+        # (16-bit labels where they cannot overflow: separate 8-connected blobs start at
+        # least 2 px apart in x or y, so at most one in each 2x2 cell of the image)
+        cells = ((dark.shape[0] + 1) // 2) * ((dark.shape[1] + 1) // 2)
+        ltype = cv2.CV_16U if cells < 65535 else cv2.CV_32S
+        n, labels, st, _ = cv2.connectedComponentsWithStats(dark, connectivity=8, ltype=ltype)
         x, y, bw, bh, area = (v.astype(np.int64) for v in st[1:].T)
         side = np.maximum(bw, bh)
         lo, hi = SMALL_TAG_SIDE
@@ -916,7 +920,7 @@ class AprilTagDetector:
         k &= (area >= SMALL_TAG_FILL[0] * bw * bh) & (area <= SMALL_TAG_FILL[1] * bw * bh)
         x, y, bw, bh, area, blob = x[k], y[k], bw[k], bh[k], area[k], np.flatnonzero(k) + 1
         if len(x):
-            integral = cv2.integral(small).astype(np.float64)
+            integral = cv2.integral(small, sdepth=cv2.CV_64F)
             sh, sw = small.shape
 
             def box_sum(x0, y0, x1, y1):
