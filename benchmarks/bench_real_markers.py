@@ -31,9 +31,10 @@ Photos and metrics:
   corners do not enter): rotation (deg) and position (mm) apart.
 
 Small tags (``--small``): the tags of the ``apriltag_photos`` found by the library at full
-resolution, by the detector's default decimation, and by the detector with its small-tag look,
-with the detection time of each (thread CPU, one thread, interleaved photo by photo, the
-median of ``--repeats`` rounds) as a ratio to the default decimation's.
+resolution, by the detector's default decimation, and by the detector with ``small_tags`` (a
+coarser pass and the small-tag look), with the detection time of each (thread CPU, one
+thread, interleaved photo by photo, the median of ``--repeats`` rounds) as a ratio to the
+default decimation's.
 
     python -m benchmarks.bench_real_markers [--data DIR] [--small] [--repeats 7]
 """
@@ -314,13 +315,7 @@ def print_charuco(r: dict) -> None:
 def _found(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
     """``det``'s kept tags of ``gray`` (repeated ids kept), its small-tag look included,
     in the library's convention."""
-    c, _, ham, mar = det.raw(gray)
-    if det.options.small_tags:
-        more = det.small_tag_look(gray, c)
-        c, ham, mar = (
-            np.concatenate([a, b])
-            for a, b in zip((c, ham, mar), (more[0], more[2], more[3]), strict=True)
-        )
+    c, _, ham, mar = det.raw_frame(gray)
     return c[(ham <= det.options.max_hamming) & (mar >= det.min_decision_margin)]
 
 

@@ -166,11 +166,13 @@ class DetectorOptions:
             it brings rendered corners closer to the truth (0.12 -> 0.03 px median) but on
             real photos with a calibrated camera the library's corners fit their squares
             and the board better (``python -m benchmarks.bench_real_markers``). AprilTag only.
-        small_tags: with ``quad_decimate`` above 1, a full-resolution look for the tags the
-            decimated pass is too coarse for (:meth:`AprilTagDetector.small_tag_look`): on the
-            real photos of ``benchmarks.bench_real_markers --small`` it finds most of the tags a
-            full-resolution pass finds, for less time, but more than the decimated pass alone
-            takes; off by default. AprilTag only.
+        small_tags: with ``quad_decimate`` above 1, a whole frame is detected by a coarser
+            pass (:data:`SMALL_TAGS_PASS_DECIMATE`) and a full-resolution look for the tags it
+            is too coarse for (:meth:`AprilTagDetector.raw_frame`); windows
+            (``detect_window``) keep the frame's decimation. With
+            ``python -m benchmarks.bench_real_markers --small``: 0.98x the tags of a
+            full-resolution pass on 640x480 renders for 1.19x the default's time, 0.86x on the
+            real photos for 1.43x; off by default. AprilTag only.
     """
 
     detector: str = "auto"
@@ -590,15 +592,28 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
     return detector_parameters(**values)
 
 
-#: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px),
-#: the share of their box the dark blob fills, how much darker (grey levels) the blob's pixels
-#: are than a ring around its box (a kept tag's black and white differ by about twice its
-#: decision margin, at least 25 with pupil_apriltags), and the windows' padding beyond the
-#: blob's white border (px: one of the library's 4 px threshold tiles)
-SMALL_TAG_SIDE = (10, 52)
+#: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px;
+#: larger tags are left to the decimated pass, :data:`SMALL_TAGS_PASS_DECIMATE`), the
+#: smallest ratio of the short to the long side of their box (0.2: a square seen about 78
+#: degrees from its normal), the share of their box the dark blob fills, how much darker (grey
+#: levels) the blob's pixels are than a ring around its box (a kept tag's black and white
+#: differ by about twice its decision margin, at least 25 with pupil_apriltags), and the
+#: windows' padding beyond the blob's white border (px: one of the library's 4 px threshold
+#: tiles)
+SMALL_TAG_SIDE = (10, 64)
+SMALL_TAG_MIN_ASPECT = 0.2
 SMALL_TAG_FILL = (0.3, 0.9)
 SMALL_TAG_MIN_CONTRAST = 50.0
 SMALL_TAG_PAD = 4
+
+#: with ``small_tags``: the ``quad_decimate`` of the full-frame pass when the frame's own is
+#: above 1 and smaller (the small-tag look finds the tags of up to ``SMALL_TAG_SIDE[1]`` px
+#: that this coarser pass loses), and the decimation of the look's candidate image. Measured
+#: with ``python -m benchmarks.bench_real_markers --small``: on the regression photos the
+#: pass at 3 and the look find about as many tags as the pass at 2 and the look, in less time;
+#: on 640x480 renders (decimation 1.5 by image size) more tags than the pass at 1.5 alone
+SMALL_TAGS_PASS_DECIMATE = 3.0
+SMALL_TAGS_LOOK_DECIMATE = 2
 
 
 def _merge_boxes(boxes: np.ndarray) -> list:
@@ -783,6 +798,7 @@ class AprilTagDetector:
         q = float(self.options.quad_decimate)
         if self.options.small_tags:
             self._detector(1.0)  # (the small-tag look's)
+            self._detector(max(q, SMALL_TAGS_PASS_DECIMATE))
         self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
@@ -875,6 +891,22 @@ class AprilTagDetector:
             mar = np.array([d["margin"] for d in dets], dtype=np.float64)
         return c.reshape(-1, 4, 2), ids.copy(), ham.copy(), mar
 
+    def raw_frame(
+        self, gray: np.ndarray, frame_shape: tuple | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The library's detections of a whole frame as :meth:`raw` returns them; with
+        ``small_tags`` and a decimation above 1: a pass at ``quad_decimate``
+        :data:`SMALL_TAGS_PASS_DECIMATE` (or the options' when larger), then
+        :meth:`small_tag_look` for the tags that pass found no tag on."""
+        if not self.options.small_tags:
+            return self.raw(gray, frame_shape)
+        dec = self.decimation(frame_shape or np.shape(gray))
+        if dec <= 1:
+            return self.raw(gray, frame_shape)
+        found = self.raw(gray, frame_shape, decimate=max(dec, SMALL_TAGS_PASS_DECIMATE))
+        more = self.small_tag_look(gray, found[0])
+        return tuple(np.concatenate(v) for v in zip(found, more, strict=True))
+
     def small_tag_look(
         self, gray: np.ndarray, found: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -882,12 +914,14 @@ class AprilTagDetector:
 
         The decimated pass needs a few decimated pixels per cell; smaller or strongly
         foreshortened tags are lost before decoding. Candidates: the dark blobs of the
-        decimated image (adaptive threshold, connected components) whose size suits a tag
-        (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, whose pixels
-        are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring around the box
-        (a tag's white border) and that lie on no tag of ``found``. Their windows (padded by
-        an eighth of their size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping
-        ones merged) are detected again at ``quad_decimate`` 1.
+        image decimated by :data:`SMALL_TAGS_LOOK_DECIMATE` (adaptive threshold, connected
+        components) whose box suits a tag (sides :data:`SMALL_TAG_SIDE`, short to long at
+        least :data:`SMALL_TAG_MIN_ASPECT`), that fill :data:`SMALL_TAG_FILL` of their box,
+        whose pixels are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring
+        around the box (a tag's white border) and that lie on no tag of ``found``. Their
+        windows (padded by an eighth of their size, a tag's white border, and
+        :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected again at
+        ``quad_decimate`` 1.
 
         Args:
             gray: (H, W) uint8 frame.
@@ -900,9 +934,9 @@ class AprilTagDetector:
 
         empty = (np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
         g = _check_gray(gray)
-        dec = int(np.ceil(self.decimation(g.shape)))
-        if dec <= 1:
+        if self.decimation(g.shape) <= 1:
             return empty
+        dec = SMALL_TAGS_LOOK_DECIMATE
         h, w = g.shape
         small = cv2.resize(g, (w // dec, h // dec), interpolation=cv2.INTER_LINEAR)
         dark = cv2.adaptiveThreshold(
@@ -916,7 +950,8 @@ class AprilTagDetector:
         x, y, bw, bh, area = (v.astype(np.int64) for v in st[1:].T)
         side = np.maximum(bw, bh)
         lo, hi = SMALL_TAG_SIDE
-        k = (side * dec >= lo) & (side * dec <= hi) & (2 * np.minimum(bw, bh) >= side)
+        k = (side * dec >= lo) & (side * dec <= hi)
+        k &= np.minimum(bw, bh) >= SMALL_TAG_MIN_ASPECT * side
         k &= (area >= SMALL_TAG_FILL[0] * bw * bh) & (area <= SMALL_TAG_FILL[1] * bw * bh)
         x, y, bw, bh, area, blob = x[k], y[k], bw[k], bh[k], area[k], np.flatnonzero(k) + 1
         if len(x):
@@ -987,12 +1022,10 @@ class AprilTagDetector:
     ) -> tuple[np.ndarray, np.ndarray, int]:
         """:meth:`detect` of ``gray``, a window of ``frame`` (None: ``gray`` itself) at
         ``origin`` (x, y px): corners in ``frame``'s pixels, refined on ``frame``."""
-        c, ids, ham, mar = self.raw(gray, frame_shape)
-        if frame is None and self.options.small_tags:
-            more = self.small_tag_look(gray, c)
-            c, ids, ham, mar = (
-                np.concatenate(v) for v in zip((c, ids, ham, mar), more, strict=True)
-            )
+        if frame is None:
+            c, ids, ham, mar = self.raw_frame(gray, frame_shape)
+        else:
+            c, ids, ham, mar = self.raw(gray, frame_shape)
         ok = (ham <= int(self.options.max_hamming)) & (mar >= self.min_decision_margin)
         self.last_weak = len(ok) - int(np.count_nonzero(ok))
         if self.last_weak:
