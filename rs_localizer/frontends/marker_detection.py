@@ -166,13 +166,13 @@ class DetectorOptions:
             it brings rendered corners closer to the truth (0.12 -> 0.03 px median) but on
             real photos with a calibrated camera the library's corners fit their squares
             and the board better (``python -m benchmarks.bench_real_markers``). AprilTag only.
-        small_tags: with ``quad_decimate`` above 1, a whole frame is detected by a coarser
+        small_tags: with ``quad_decimate`` above 1, a whole frame is detected by a coarse
             pass (:data:`SMALL_TAGS_PASS_DECIMATE`) and a full-resolution look for the tags it
             is too coarse for (:meth:`AprilTagDetector.raw_frame`); windows
             (``detect_window``) keep the frame's decimation. With
             ``python -m benchmarks.bench_real_markers --small``: 0.98x the tags of a
-            full-resolution pass on 640x480 renders for 1.19x the default's time, 0.86x on the
-            real photos for 1.43x; off by default. AprilTag only.
+            full-resolution pass on the real photos for 1.28x the default's time, all of them
+            on 640x480 renders for 1.06x; off by default. AprilTag only.
     """
 
     detector: str = "auto"
@@ -595,24 +595,24 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
 #: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px;
 #: larger tags are left to the decimated pass, :data:`SMALL_TAGS_PASS_DECIMATE`), the
 #: smallest ratio of the short to the long side of their box (0.2: a square seen about 78
-#: degrees from its normal), the share of their box the dark blob fills, how much darker (grey
-#: levels) the blob's pixels are than a ring around its box (a kept tag's black and white
-#: differ by about twice its decision margin, at least 25 with pupil_apriltags), and the
-#: windows' padding beyond the blob's white border (px: one of the library's 4 px threshold
-#: tiles)
-SMALL_TAG_SIDE = (10, 64)
+#: degrees from its normal), the share of their box the dark blob fills, how much darker the
+#: blob's pixels are (mean) than a ring around its box as a share of the image's grey range
+#: (:data:`SMALL_TAG_CONTRAST_RANGE` percentiles; a share, not grey levels: a dim or hazy
+#: image keeps its candidates), and the windows' padding beyond the blob's white border (px:
+#: one of the library's 4 px threshold tiles)
+SMALL_TAG_SIDE = (10, 80)
 SMALL_TAG_MIN_ASPECT = 0.2
 SMALL_TAG_FILL = (0.3, 0.9)
-SMALL_TAG_MIN_CONTRAST = 50.0
+SMALL_TAG_CONTRAST_SHARE = 0.35
+SMALL_TAG_CONTRAST_RANGE = (5, 95)
 SMALL_TAG_PAD = 4
 
 #: with ``small_tags``: the ``quad_decimate`` of the full-frame pass when the frame's own is
-#: above 1 and smaller (the small-tag look finds the tags of up to ``SMALL_TAG_SIDE[1]`` px
-#: that this coarser pass loses), and the decimation of the look's candidate image. Measured
-#: with ``python -m benchmarks.bench_real_markers --small``: on the regression photos the
-#: pass at 3 and the look find about as many tags as the pass at 2 and the look, in less time;
-#: on 640x480 renders (decimation 1.5 by image size) more tags than the pass at 1.5 alone
-SMALL_TAGS_PASS_DECIMATE = 3.0
+#: above 1 and smaller (it finds the tags larger than the look's ``SMALL_TAG_SIDE[1]`` px;
+#: the look, at full resolution, the others), and the decimation of the look's candidate
+#: image. A coarser pass leaves more tags to the look, which finds them at full resolution,
+#: and costs less (``python -m benchmarks.bench_real_markers --small``, docs/node.md)
+SMALL_TAGS_PASS_DECIMATE = 6.0
 SMALL_TAGS_LOOK_DECIMATE = 2
 
 
@@ -917,8 +917,9 @@ class AprilTagDetector:
         image decimated by :data:`SMALL_TAGS_LOOK_DECIMATE` (adaptive threshold, connected
         components) whose box suits a tag (sides :data:`SMALL_TAG_SIDE`, short to long at
         least :data:`SMALL_TAG_MIN_ASPECT`), that fill :data:`SMALL_TAG_FILL` of their box,
-        whose pixels are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring
-        around the box (a tag's white border) and that lie on no tag of ``found``. Their
+        whose pixels are darker (mean) than a ring around the box (a tag's white border) by
+        :data:`SMALL_TAG_CONTRAST_SHARE` of the decimated image's grey range, and that lie on
+        no tag of ``found``. Their
         windows (padded by an eighth of their size, a tag's white border, and
         :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected again at
         ``quad_decimate`` 1.
@@ -970,7 +971,8 @@ class AprilTagDetector:
             ring = (s_out - s_in) / np.maximum(a_out - a_in, 1)
             # the blob's own mean (its dark pixels: a tag's black border and bits)
             grey = np.bincount(labels.ravel(), weights=small.ravel(), minlength=n)[blob] / area
-            k = ring - grey >= SMALL_TAG_MIN_CONTRAST
+            lo_grey, hi_grey = np.percentile(small[::4, ::4], SMALL_TAG_CONTRAST_RANGE)
+            k = ring - grey >= SMALL_TAG_CONTRAST_SHARE * (hi_grey - lo_grey)
             x, y, bw, bh = x[k] * dec, y[k] * dec, bw[k] * dec, bh[k] * dec
         if len(x) and len(found):
             centre = np.c_[x + bw / 2, y + bh / 2]
