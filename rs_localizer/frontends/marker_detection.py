@@ -171,8 +171,8 @@ class DetectorOptions:
             is too coarse for (:meth:`AprilTagDetector.raw_frame`); windows
             (``detect_window``) keep the frame's decimation. With
             ``python -m benchmarks.bench_real_markers --small``: 0.98x the tags of a
-            full-resolution pass on the real photos for 1.28x the default's time, all of them
-            on 640x480 renders for 1.06x; off by default. AprilTag only.
+            full-resolution pass on the real photos for 1.25x the default's time, all of them
+            on 640x480 renders for 1.03x; off by default. AprilTag only.
     """
 
     detector: str = "auto"
@@ -600,7 +600,7 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
 #: (:data:`SMALL_TAG_CONTRAST_RANGE` percentiles; a share, not grey levels: a dim or hazy
 #: image keeps its candidates), and the windows' padding beyond the blob's white border (px:
 #: one of the library's 4 px threshold tiles)
-SMALL_TAG_SIDE = (10, 80)
+SMALL_TAG_SIDE = (10, 160)
 SMALL_TAG_MIN_ASPECT = 0.2
 SMALL_TAG_FILL = (0.3, 0.9)
 SMALL_TAG_CONTRAST_SHARE = 0.35
@@ -608,11 +608,12 @@ SMALL_TAG_CONTRAST_RANGE = (5, 95)
 SMALL_TAG_PAD = 4
 
 #: with ``small_tags``: the ``quad_decimate`` of the full-frame pass when the frame's own is
-#: above 1 and smaller (it finds the tags larger than the look's ``SMALL_TAG_SIDE[1]`` px;
-#: the look, at full resolution, the others), and the decimation of the look's candidate
-#: image. A coarser pass leaves more tags to the look, which finds them at full resolution,
-#: and costs less (``python -m benchmarks.bench_real_markers --small``, docs/node.md)
-SMALL_TAGS_PASS_DECIMATE = 6.0
+#: above 1 and smaller and the frame is large enough for it (:func:`min_image_side`): it
+#: finds the tags larger than the look's ``SMALL_TAG_SIDE[1]`` px (20 decimated px), the
+#: look, at full resolution, the others; and the decimation of the look's candidate image.
+#: A coarser pass leaves more tags to the look, which finds them at full resolution, and
+#: costs less (``python -m benchmarks.bench_real_markers --small``, docs/node.md)
+SMALL_TAGS_PASS_DECIMATE = 8.0
 SMALL_TAGS_LOOK_DECIMATE = 2
 
 
@@ -798,7 +799,7 @@ class AprilTagDetector:
         q = float(self.options.quad_decimate)
         if self.options.small_tags:
             self._detector(1.0)  # (the small-tag look's)
-            self._detector(max(q, SMALL_TAGS_PASS_DECIMATE))
+            self._detector(max(q, SMALL_TAGS_PASS_DECIMATE))  # (the coarse pass's)
         self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
@@ -896,14 +897,18 @@ class AprilTagDetector:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The library's detections of a whole frame as :meth:`raw` returns them; with
         ``small_tags`` and a decimation above 1: a pass at ``quad_decimate``
-        :data:`SMALL_TAGS_PASS_DECIMATE` (or the options' when larger), then
-        :meth:`small_tag_look` for the tags that pass found no tag on."""
+        :data:`SMALL_TAGS_PASS_DECIMATE` (or the options' when larger; the frame's own when
+        the frame is too small for it), then :meth:`small_tag_look` for the tags that pass
+        did not find."""
         if not self.options.small_tags:
             return self.raw(gray, frame_shape)
         dec = self.decimation(frame_shape or np.shape(gray))
         if dec <= 1:
             return self.raw(gray, frame_shape)
-        found = self.raw(gray, frame_shape, decimate=max(dec, SMALL_TAGS_PASS_DECIMATE))
+        coarse = max(dec, SMALL_TAGS_PASS_DECIMATE)
+        if min(np.shape(gray)[:2]) < min_image_side(coarse):
+            coarse = dec  # (a frame too small for the coarse pass)
+        found = self.raw(gray, frame_shape, decimate=coarse)
         more = self.small_tag_look(gray, found[0])
         return tuple(np.concatenate(v) for v in zip(found, more, strict=True))
 
@@ -918,11 +923,10 @@ class AprilTagDetector:
         components) whose box suits a tag (sides :data:`SMALL_TAG_SIDE`, short to long at
         least :data:`SMALL_TAG_MIN_ASPECT`), that fill :data:`SMALL_TAG_FILL` of their box,
         whose pixels are darker (mean) than a ring around the box (a tag's white border) by
-        :data:`SMALL_TAG_CONTRAST_SHARE` of the decimated image's grey range, and that lie on
-        no tag of ``found``. Their
-        windows (padded by an eighth of their size, a tag's white border, and
-        :data:`SMALL_TAG_PAD` px, overlapping ones merged) are detected again at
-        ``quad_decimate`` 1.
+        :data:`SMALL_TAG_CONTRAST_SHARE` of the decimated image's grey range, and whose box
+        centre lies inside no quad of ``found``. Their windows (padded by an eighth of their
+        size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping ones merged)
+        are detected again at ``quad_decimate`` 1.
 
         Args:
             gray: (H, W) uint8 frame.
@@ -975,11 +979,13 @@ class AprilTagDetector:
             k = ring - grey >= SMALL_TAG_CONTRAST_SHARE * (hi_grey - lo_grey)
             x, y, bw, bh = x[k] * dec, y[k] * dec, bw[k] * dec, bh[k] * dec
         if len(x) and len(found):
-            centre = np.c_[x + bw / 2, y + bh / 2]
-            fc = found.mean(axis=1)
-            fs = np.linalg.norm(found - np.roll(found, -1, axis=1), axis=2).max(axis=1)
-            near = np.linalg.norm(centre[:, None] - fc[None], axis=2) < fs[None]
-            keep = ~near.any(axis=1)
+            # (a blob whose box centre lies inside a found tag's quad is that tag)
+            centre = np.c_[x + bw / 2, y + bh / 2][:, None, None, :]  # (C, 1, 1, 2)
+            edge = np.roll(found, -1, axis=1) - found  # (F, 4, 2)
+            rel = centre - found[None]  # (C, F, 4, 2)
+            cross = edge[None, ..., 0] * rel[..., 1] - edge[None, ..., 1] * rel[..., 0]
+            inside = (cross >= 0).all(axis=2) | (cross <= 0).all(axis=2)  # (C, F)
+            keep = ~inside.any(axis=1)
             x, y, bw, bh = x[keep], y[keep], bw[keep], bh[keep]
         if not len(x):
             return empty

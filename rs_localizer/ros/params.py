@@ -541,9 +541,9 @@ PARAMETERS = {
     "aruco.small_tags": Parameter(
         False,
         "AprilTag, with quad_decimate above 1: detect whole frames by a coarse pass "
-        "(quad_decimate 6) and a look at full resolution in windows around the tag-sized dark "
-        "blobs it found no tag on (finds tags of 10-80 px the decimation loses, for more "
-        "detection time: python -m benchmarks.bench_real_markers --small)",
+        "(quad_decimate 8) and a look at full resolution in windows around the tag-sized dark "
+        "blobs it found no tag on (finds tags of 10-160 px the decimation loses: python -m "
+        "benchmarks.bench_real_markers --small)",
         read_only=True,
     ),
     "aruco.adaptive_thresh_constant": Parameter(

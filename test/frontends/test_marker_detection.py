@@ -659,3 +659,10 @@ def test_small_tag_look_at_the_image_border():
     c, ids, _, _ = det.small_tag_look(gray, np.zeros((0, 4, 2)))
     assert len(c) == len(ids) == 0  # (no tag there: nothing found, nothing raised)
     assert len(det.detect(gray)[1]) == 0
+    # frames too small for the coarse pass (64 px at quad_decimate 8) use the frame's own
+    two = make_marker_detector(
+        "DICT_APRILTAG_36h11", DetectorOptions(small_tags=True, quad_decimate=2)
+    )
+    for shape in ((16, 16), (40, 60), (63, 200)):
+        assert md.min_image_side(md.SMALL_TAGS_PASS_DECIMATE) > min(shape)
+        assert all(len(v) == 0 for v in two.raw_frame(np.full(shape, 128, np.uint8)))
