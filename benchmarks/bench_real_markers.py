@@ -31,11 +31,12 @@ Photos and metrics:
   corners do not enter): rotation (deg) and position (mm) apart.
 
 Small tags (``--small``): the tags of the ``apriltag_photos`` found by the library at full
-resolution, by the detector's default decimation, and by the detector with its small-tag look,
-with the detection time of each (thread CPU, one thread, interleaved photo by photo, the
-median of ``--repeats`` rounds) as a ratio to the default decimation's.
+resolution, by the detector's default decimation, and by the detector with ``small_tags`` (a
+coarser pass and the small-tag look), with the detection time of each (thread CPU, one
+thread, interleaved photo by photo, the median of ``--repeats`` rounds) as a ratio to the
+default decimation's.
 
-    python -m benchmarks.bench_real_markers [--data DIR] [--small] [--repeats 7]
+    python -m benchmarks.bench_real_markers [--data DIR] [--small] [--repeats 7] [--camera hd]
 """
 
 from __future__ import annotations
@@ -314,15 +315,12 @@ def print_charuco(r: dict) -> None:
 def _found(det: AprilTagDetector, gray: np.ndarray) -> np.ndarray:
     """``det``'s kept tags of ``gray`` (repeated ids kept), its small-tag look included,
     in the library's convention."""
-    c, _, ham, mar = det.raw(gray)
-    if det.options.small_tags:
-        more = det.small_tag_look(gray, c)
-        c, ham, mar = (
-            np.concatenate([a, b])
-            for a, b in zip((c, ham, mar), (more[0], more[2], more[3]), strict=True)
-        )
+    c, _, ham, mar = det.raw_frame(gray)
     return c[(ham <= det.options.max_hamming) & (mar >= det.min_decision_margin)]
 
+
+#: the renders' camera presets (``--camera``) -> their size
+RENDER_SIZES = {"vga": "640x480", "hd": "1280x720"}
 
 #: the detectors of the small-tag table: name -> options
 SMALL_ROWS = {
@@ -333,17 +331,22 @@ SMALL_ROWS = {
 }
 
 
-def small_tags(data: Path, repeats: int, render_frames: int = 0) -> dict:
+def small_tags(data: Path, repeats: int, render_frames: int = 0, camera: str = "vga") -> dict:
     """Tags found and detection time (``detect``, thread CPU, one thread) of the
     :data:`SMALL_ROWS` detectors, interleaved image by image over ``repeats`` rounds:
     ``{"photos": {name: (found, expected, cpu (R,) s per round)}, "renders": ...}``; renders:
-    ``render_frames`` 640x480 frames of ``bench_markers``' room (fully visible tags found)."""
+    ``render_frames`` frames of ``bench_markers``' room with its ``camera`` preset (``vga``
+    640x480, ``hd`` 1280x720; fully visible tags found)."""
     dets = {n: AprilTagDetector("tag36h11", o) for n, o in SMALL_ROWS.items()}
     photos = []
     for img in sorted((data / "apriltag_photos").glob("*.jpg")):
         gray = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE)
         photos.append((gray, read_expected(img.with_suffix(".txt")) + APRILTAG_PIXEL_OFFSET))
-    out = {"photos": {}, "images": {"photos": len(photos), "renders": render_frames}}
+    out = {
+        "photos": {},
+        "images": {"photos": len(photos), "renders": render_frames},
+        "camera": camera,
+    }
     for n, det in dets.items():
         found = sum(int((_match(_found(det, g), e) >= 0).sum()) for g, e in photos)
         out["photos"][n] = [found, sum(len(e) for _, e in photos), []]
@@ -351,7 +354,7 @@ def small_tags(data: Path, repeats: int, render_frames: int = 0) -> dict:
     if render_frames:
         from .bench_markers import video_truth
 
-        frames = [(g, vis) for g, _, vis in video_truth("vga", render_frames)]
+        frames = [(g, vis) for g, _, vis in video_truth(camera, render_frames)]
         out["renders"] = {}
         for n, det in dets.items():
             found = sum(len(set(det.detect(g)[1].tolist()) & vis) for g, vis in frames)
@@ -381,7 +384,11 @@ def print_small(r: dict) -> None:
             "photos",
             "apriltag_photos (799x533, 36h11 tags of 13-45 px; found: of the regression test's)",
         ),
-        ("renders", "640x480 renders of apriltag_room (found: fully visible tags)"),
+        (
+            "renders",
+            f"{RENDER_SIZES.get(r.get('camera'), r.get('camera'))} renders of apriltag_room "
+            "(found: fully visible tags)",
+        ),
     ):
         if key not in r:
             continue
@@ -399,7 +406,13 @@ def main(argv: list | None = None) -> int:
     ap.add_argument("--small", action="store_true", help="also the small tags' recall and time")
     ap.add_argument("--repeats", type=int, default=7, help="timing rounds (--small)")
     ap.add_argument(
-        "--render-frames", type=int, default=10, help="640x480 rendered frames (--small; 0: none)"
+        "--render-frames", type=int, default=10, help="rendered frames (--small; 0: none)"
+    )
+    ap.add_argument(
+        "--camera",
+        choices=sorted(RENDER_SIZES),
+        default="vga",
+        help="the renders' camera (--small)",
     )
     a = ap.parse_args(argv)
     cv2.setNumThreads(1)
@@ -412,7 +425,7 @@ def main(argv: list | None = None) -> int:
     print_apriltag(apriltag_photos(a.data))
     print_charuco(charuco_photos(a.data))
     if a.small:
-        print_small(small_tags(a.data, a.repeats, a.render_frames))
+        print_small(small_tags(a.data, a.repeats, a.render_frames, a.camera))
     return 0
 
 

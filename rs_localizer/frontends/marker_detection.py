@@ -166,11 +166,13 @@ class DetectorOptions:
             it brings rendered corners closer to the truth (0.12 -> 0.03 px median) but on
             real photos with a calibrated camera the library's corners fit their squares
             and the board better (``python -m benchmarks.bench_real_markers``). AprilTag only.
-        small_tags: with ``quad_decimate`` above 1, a full-resolution look for the tags the
-            decimated pass is too coarse for (:meth:`AprilTagDetector.small_tag_look`): on the
-            real photos of ``benchmarks.bench_real_markers --small`` it finds most of the tags a
-            full-resolution pass finds, for less time, but more than the decimated pass alone
-            takes; off by default. AprilTag only.
+        small_tags: with ``quad_decimate`` above 1, a whole frame is detected by a coarse
+            pass (:data:`SMALL_TAGS_PASS_DECIMATE`) and a full-resolution look for the tags it
+            is too coarse for (:meth:`AprilTagDetector.raw_frame`); windows
+            (``detect_window``) keep the frame's decimation. With
+            ``python -m benchmarks.bench_real_markers --small``: 0.98x the tags of a
+            full-resolution pass on the real photos for 1.25x the default's time, all of them
+            on 640x480 renders for 1.03x; off by default. AprilTag only.
     """
 
     detector: str = "auto"
@@ -605,15 +607,29 @@ def copy_parameters(params: Any, **overrides: Any) -> Any:
     return detector_parameters(**values)
 
 
-#: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px),
-#: the share of their box the dark blob fills, how much darker (grey levels) the blob's pixels
-#: are than a ring around its box (a kept tag's black and white differ by about twice its
-#: decision margin, at least 25 with pupil_apriltags), and the windows' padding beyond the
-#: blob's white border (px: one of the library's 4 px threshold tiles)
-SMALL_TAG_SIDE = (10, 52)
+#: :meth:`AprilTagDetector.small_tag_look`: candidate tags' side range (full-resolution px;
+#: larger tags are left to the decimated pass, :data:`SMALL_TAGS_PASS_DECIMATE`), the
+#: smallest ratio of the short to the long side of their box (0.2: a square seen about 78
+#: degrees from its normal), the share of their box the dark blob fills, how much darker the
+#: blob's pixels are (mean) than a ring around its box as a share of the image's grey range
+#: (:data:`SMALL_TAG_CONTRAST_RANGE` percentiles; a share, not grey levels: a dim or hazy
+#: image keeps its candidates), and the windows' padding beyond the blob's white border (px:
+#: one of the library's 4 px threshold tiles)
+SMALL_TAG_SIDE = (10, 160)
+SMALL_TAG_MIN_ASPECT = 0.2
 SMALL_TAG_FILL = (0.3, 0.9)
-SMALL_TAG_MIN_CONTRAST = 50.0
+SMALL_TAG_CONTRAST_SHARE = 0.35
+SMALL_TAG_CONTRAST_RANGE = (5, 95)
 SMALL_TAG_PAD = 4
+
+#: with ``small_tags``: the ``quad_decimate`` of the full-frame pass when the frame's own is
+#: above 1 and smaller and the frame is large enough for it (:func:`min_image_side`): it
+#: finds the tags larger than the look's ``SMALL_TAG_SIDE[1]`` px (20 decimated px), the
+#: look, at full resolution, the others; and the decimation of the look's candidate image.
+#: A coarser pass leaves more tags to the look, which finds them at full resolution, and
+#: costs less (``python -m benchmarks.bench_real_markers --small``, docs/node.md)
+SMALL_TAGS_PASS_DECIMATE = 8.0
+SMALL_TAGS_LOOK_DECIMATE = 2
 
 
 def _merge_boxes(boxes: np.ndarray) -> list:
@@ -798,6 +814,7 @@ class AprilTagDetector:
         q = float(self.options.quad_decimate)
         if self.options.small_tags:
             self._detector(1.0)  # (the small-tag look's)
+            self._detector(max(q, SMALL_TAGS_PASS_DECIMATE))  # (the coarse pass's)
         self._detector(q if q > 0 else auto_decimate((480, 640)))
         o = self.options
         self.min_decision_margin = (
@@ -890,6 +907,26 @@ class AprilTagDetector:
             mar = np.array([d["margin"] for d in dets], dtype=np.float64)
         return c.reshape(-1, 4, 2), ids.copy(), ham.copy(), mar
 
+    def raw_frame(
+        self, gray: np.ndarray, frame_shape: tuple | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The library's detections of a whole frame as :meth:`raw` returns them; with
+        ``small_tags`` and a decimation above 1: a pass at ``quad_decimate``
+        :data:`SMALL_TAGS_PASS_DECIMATE` (or the options' when larger; the frame's own when
+        the frame is too small for it), then :meth:`small_tag_look` for the tags that pass
+        did not find."""
+        if not self.options.small_tags:
+            return self.raw(gray, frame_shape)
+        dec = self.decimation(frame_shape or np.shape(gray))
+        if dec <= 1:
+            return self.raw(gray, frame_shape)
+        coarse = max(dec, SMALL_TAGS_PASS_DECIMATE)
+        if min(np.shape(gray)[:2]) < min_image_side(coarse):
+            coarse = dec  # (a frame too small for the coarse pass)
+        found = self.raw(gray, frame_shape, decimate=coarse)
+        more = self.small_tag_look(gray, found[0])
+        return tuple(np.concatenate(v) for v in zip(found, more, strict=True))
+
     def small_tag_look(
         self, gray: np.ndarray, found: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -897,12 +934,14 @@ class AprilTagDetector:
 
         The decimated pass needs a few decimated pixels per cell; smaller or strongly
         foreshortened tags are lost before decoding. Candidates: the dark blobs of the
-        decimated image (adaptive threshold, connected components) whose size suits a tag
-        (:data:`SMALL_TAG_SIDE`), that fill :data:`SMALL_TAG_FILL` of their box, whose pixels
-        are :data:`SMALL_TAG_MIN_CONTRAST` grey levels darker (mean) than a ring around the box
-        (a tag's white border) and that lie on no tag of ``found``. Their windows (padded by
-        an eighth of their size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping
-        ones merged) are detected again at ``quad_decimate`` 1.
+        image decimated by :data:`SMALL_TAGS_LOOK_DECIMATE` (adaptive threshold, connected
+        components) whose box suits a tag (sides :data:`SMALL_TAG_SIDE`, short to long at
+        least :data:`SMALL_TAG_MIN_ASPECT`), that fill :data:`SMALL_TAG_FILL` of their box,
+        whose pixels are darker (mean) than a ring around the box (a tag's white border) by
+        :data:`SMALL_TAG_CONTRAST_SHARE` of the decimated image's grey range, and whose box
+        centre lies inside no quad of ``found``. Their windows (padded by an eighth of their
+        size, a tag's white border, and :data:`SMALL_TAG_PAD` px, overlapping ones merged)
+        are detected again at ``quad_decimate`` 1.
 
         Args:
             gray: (H, W) uint8 frame.
@@ -915,23 +954,28 @@ class AprilTagDetector:
 
         empty = (np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
         g = _check_gray(gray)
-        dec = int(np.ceil(self.decimation(g.shape)))
-        if dec <= 1:
+        if self.decimation(g.shape) <= 1:
             return empty
+        dec = SMALL_TAGS_LOOK_DECIMATE
         h, w = g.shape
         small = cv2.resize(g, (w // dec, h // dec), interpolation=cv2.INTER_LINEAR)
         dark = cv2.adaptiveThreshold(
             small, 255, cv2.ADAPTIVE_THRESH_MEAN_C, cv2.THRESH_BINARY_INV, 11, 15
         )
-        n, labels, st, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+        # (16-bit labels where they cannot overflow: separate 8-connected blobs start at
+        # least 2 px apart in x or y, so at most one in each 2x2 cell of the image)
+        cells = ((dark.shape[0] + 1) // 2) * ((dark.shape[1] + 1) // 2)
+        ltype = cv2.CV_16U if cells < 65535 else cv2.CV_32S
+        n, labels, st, _ = cv2.connectedComponentsWithStats(dark, connectivity=8, ltype=ltype)
         x, y, bw, bh, area = (v.astype(np.int64) for v in st[1:].T)
         side = np.maximum(bw, bh)
         lo, hi = SMALL_TAG_SIDE
-        k = (side * dec >= lo) & (side * dec <= hi) & (2 * np.minimum(bw, bh) >= side)
+        k = (side * dec >= lo) & (side * dec <= hi)
+        k &= np.minimum(bw, bh) >= SMALL_TAG_MIN_ASPECT * side
         k &= (area >= SMALL_TAG_FILL[0] * bw * bh) & (area <= SMALL_TAG_FILL[1] * bw * bh)
         x, y, bw, bh, area, blob = x[k], y[k], bw[k], bh[k], area[k], np.flatnonzero(k) + 1
         if len(x):
-            integral = cv2.integral(small).astype(np.float64)
+            integral = cv2.integral(small, sdepth=cv2.CV_64F)
             sh, sw = small.shape
 
             def box_sum(x0, y0, x1, y1):
@@ -946,14 +990,17 @@ class AprilTagDetector:
             ring = (s_out - s_in) / np.maximum(a_out - a_in, 1)
             # the blob's own mean (its dark pixels: a tag's black border and bits)
             grey = np.bincount(labels.ravel(), weights=small.ravel(), minlength=n)[blob] / area
-            k = ring - grey >= SMALL_TAG_MIN_CONTRAST
+            lo_grey, hi_grey = np.percentile(small[::4, ::4], SMALL_TAG_CONTRAST_RANGE)
+            k = ring - grey >= SMALL_TAG_CONTRAST_SHARE * (hi_grey - lo_grey)
             x, y, bw, bh = x[k] * dec, y[k] * dec, bw[k] * dec, bh[k] * dec
         if len(x) and len(found):
-            centre = np.c_[x + bw / 2, y + bh / 2]
-            fc = found.mean(axis=1)
-            fs = np.linalg.norm(found - np.roll(found, -1, axis=1), axis=2).max(axis=1)
-            near = np.linalg.norm(centre[:, None] - fc[None], axis=2) < fs[None]
-            keep = ~near.any(axis=1)
+            # (a blob whose box centre lies inside a found tag's quad is that tag)
+            centre = np.c_[x + bw / 2, y + bh / 2][:, None, None, :]  # (C, 1, 1, 2)
+            edge = np.roll(found, -1, axis=1) - found  # (F, 4, 2)
+            rel = centre - found[None]  # (C, F, 4, 2)
+            cross = edge[None, ..., 0] * rel[..., 1] - edge[None, ..., 1] * rel[..., 0]
+            inside = (cross >= 0).all(axis=2) | (cross <= 0).all(axis=2)  # (C, F)
+            keep = ~inside.any(axis=1)
             x, y, bw, bh = x[keep], y[keep], bw[keep], bh[keep]
         if not len(x):
             return empty
@@ -965,7 +1012,8 @@ class AprilTagDetector:
             np.minimum(y + bh + pad, h),
         ]
         out = []
-        for x0, y0, x1, y1 in _merge_boxes(boxes):
+        for box in _merge_boxes(boxes):
+            x0, y0, x1, y1 = clip_window(box, g.shape, min_image_side(1.0))
             c, ids, ham, mar = self.raw(np.ascontiguousarray(g[y0:y1, x0:x1]), decimate=1.0)
             if len(ids):
                 out.append((c + np.array([x0, y0], float), ids, ham, mar))
@@ -997,12 +1045,10 @@ class AprilTagDetector:
     ) -> tuple[np.ndarray, np.ndarray, int]:
         """:meth:`detect` of ``gray``, a window of ``frame`` (None: ``gray`` itself) at
         ``origin`` (x, y px): corners in ``frame``'s pixels, refined on ``frame``."""
-        c, ids, ham, mar = self.raw(gray, frame_shape)
-        if frame is None and self.options.small_tags:
-            more = self.small_tag_look(gray, c)
-            c, ids, ham, mar = (
-                np.concatenate(v) for v in zip((c, ids, ham, mar), more, strict=True)
-            )
+        if frame is None:
+            c, ids, ham, mar = self.raw_frame(gray, frame_shape)
+        else:
+            c, ids, ham, mar = self.raw(gray, frame_shape)
         ok = (ham <= int(self.options.max_hamming)) & (mar >= self.min_decision_margin)
         self.last_weak = len(ok) - int(np.count_nonzero(ok))
         if self.last_weak:

@@ -531,6 +531,21 @@ PARAMETERS = {
         FloatRange(from_value=-1.0, to_value=10_000.0),
         read_only=True,
     ),
+    "aruco.edge_refinement": Parameter(
+        False,
+        "AprilTag 36h11, 36h10, 25h9, 16h5: refine the library's corners from their edges' "
+        "grey-level profiles (closer on clean renders; on real photos the library's corners "
+        "fit the tags better: python -m benchmarks.bench_real_markers)",
+        read_only=True,
+    ),
+    "aruco.small_tags": Parameter(
+        False,
+        "AprilTag, with quad_decimate above 1: detect whole frames by a coarse pass "
+        "(quad_decimate 8) and a look at full resolution in windows around the tag-sized dark "
+        "blobs it found no tag on (finds tags of 10-160 px the decimation loses: python -m "
+        "benchmarks.bench_real_markers --small)",
+        read_only=True,
+    ),
     "aruco.adaptive_thresh_constant": Parameter(
         20.0,
         "OpenCV: grey levels below the neighbourhood mean that make a marker candidate's dark "

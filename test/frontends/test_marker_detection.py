@@ -248,15 +248,29 @@ def test_node_parameters_reach_the_detector():
             "aruco.quad_decimate": 1.0,
             "aruco.max_hamming": 1,
             "aruco.min_decision_margin": 40.0,
+            "aruco.edge_refinement": True,
+            "aruco.small_tags": True,
         }
     )
     cfg = build_config(v)
-    want = DetectorOptions(quad_decimate=1.0, max_hamming=1, min_decision_margin=40.0)
+    want = DetectorOptions(
+        quad_decimate=1.0,
+        max_hamming=1,
+        min_decision_margin=40.0,
+        edge_refinement=True,
+        small_tags=True,
+    )
     assert cfg.frontend_options["detector_options"] == want
     det = load_maps(cfg).frontend.detector
     assert det.backend == ("apriltag" if md.apriltag_binding() else "opencv")
     if det.backend == "apriltag":
         assert det.options == want and det.min_decision_margin == 40.0
+        # edge_refinement: the 36h11 corners are refined from their edges (8 cells)
+        assert det.edge_cells == md.EDGE_REFINE_CELLS["tag36h11"]
+        assert "edge_refinement True, small_tags True" in det.settings()
+    # off by default: the library's corners, no small-tag look
+    assert default_values()["aruco.edge_refinement"] is False
+    assert default_values()["aruco.small_tags"] is False
     v["aruco.detector"] = "zbar"
     with pytest.raises(ConfigError, match="zbar"):
         build_config(v)
@@ -628,3 +642,27 @@ def test_small_tags_found_at_full_resolution():
     # at full resolution the first pass is the look: nothing more
     empty = full.small_tag_look(gray, full.raw(gray)[0])
     assert len(empty[0]) == 0 and len(empty[1]) == 0
+
+
+@needs_apriltag
+def test_small_tag_look_at_the_image_border():
+    """A tag-sized dark blob in a corner of the frame: its window, clipped to the frame, is
+    grown to the smallest image the detector takes instead of being refused (a ValueError
+    from the whole detection)."""
+    gray = np.full((720, 1280), 200, np.uint8)
+    ring = np.zeros((10, 10), np.uint8)
+    ring[3:7, 3:7] = 200  # a dark square with a light centre, a tag's side (10 px) at least
+    gray[-10:, -10:] = ring  # (its padded window: 15 px inside the frame)
+    gray[:10, :10] = ring
+    det = make_marker_detector("DICT_APRILTAG_36h11", DetectorOptions(small_tags=True))
+    assert det.decimation(gray.shape) == 2.0
+    c, ids, _, _ = det.small_tag_look(gray, np.zeros((0, 4, 2)))
+    assert len(c) == len(ids) == 0  # (no tag there: nothing found, nothing raised)
+    assert len(det.detect(gray)[1]) == 0
+    # frames too small for the coarse pass (64 px at quad_decimate 8) use the frame's own
+    two = make_marker_detector(
+        "DICT_APRILTAG_36h11", DetectorOptions(small_tags=True, quad_decimate=2)
+    )
+    for shape in ((16, 16), (40, 60), (63, 200)):
+        assert md.min_image_side(md.SMALL_TAGS_PASS_DECIMATE) > min(shape)
+        assert all(len(v) == 0 for v in two.raw_frame(np.full(shape, 128, np.uint8)))
