@@ -11,6 +11,17 @@ weighted Levenberg-Marquardt, the whole loop in one numba call: one evaluation (
 normal equations) takes ~65 ns per point, a refinement of 300 points ~130 us with 6
 evaluations (one core; ~70x faster than SciPy here). :func:`refine_rs_pose_scipy` solves the
 same problem with SciPy's ``least_squares`` and serves as the reference in the tests.
+
+A rig of cameras is the same problem (``mountings``, :class:`Mountings`): the model is the
+rig's, observation i is seen by its camera through that camera's mounting, at its own capture
+time ``tau_i`` and with its error in its camera's pixels::
+
+    x_i ~ pi( R_c (expm(tau_i [w]x) R X_i + C + tau_i t) + c_c )
+
+One camera alone is the rig of one camera at the identity mounting. The loop, the prior, the
+covariance and the acceleration block are shared; only the points' Jacobian rows differ
+(:func:`point_rows_mounted`, compiled as a second specialization, so the single camera keeps
+its own :func:`point_rows`).
 """
 
 from __future__ import annotations

@@ -34,8 +34,10 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   that raises the MSAC cost of all points is not taken;
 - the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
   point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
-  re-selected at each iteration, as a single camera's final refinement,
-  :mod:`~rs_localizer.estimation.finalize`); its covariance ``sigma^2 (J^T W J)^-1`` over
+  re-selected at each iteration): a single camera's compiled refinement
+  (:func:`~rs_localizer.estimation.refine.refine_rs_pose`, analytic Jacobian) with each point
+  seen through its camera's mounting at its own time, errors in its camera's pixels; its
+  covariance ``sigma^2 (J^T W J)^-1`` over
   ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``), ``sigma^2`` the per-axis image variance
   of the inliers' errors (px^2, corrected for the threshold's truncation,
   :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
