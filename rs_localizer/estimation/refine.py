@@ -333,10 +333,10 @@ def point_rows(pose, X, x, tau, i, k, cutoff, rho_cut):
 
 @njit(cache=True, inline=INLINE)
 def _store_rows(Jt, j0, j1, v):
-    """Write a point's two weighted Jacobian rows (and residuals, row 12; its ``tau``, row 13
-    of the even column) from ``v`` (as returned by :func:`point_rows`) as columns j0 (even)
-    and j1 = j0 + 1 of Jt (16, M), rows in parameter order (delta, C, w, t). The structural
-    zeros (rows 4, 10 of even and 3, 9 of odd columns) are set once by :func:`_workspace`."""
+    """Write a point's two weighted Jacobian rows (and residuals, row 12) from ``v`` (as
+    returned by :func:`point_rows`) as columns j0 (even) and j1 = j0 + 1 of Jt (16, M), rows
+    in parameter order (delta, C, w, t). The structural zeros (rows 4, 10 of even and 3, 9
+    of odd columns) are set once by :func:`_workspace`."""
     e0, e1 = v[2], v[3]
     d, d02, d12, ti = v[16], v[17], v[18], v[19]
     Jt[0, j0] = v[4]
@@ -350,7 +350,6 @@ def _store_rows(Jt, j0, j1, v):
     Jt[9, j0] = ti * d
     Jt[11, j0] = ti * d02
     Jt[12, j0] = e0
-    Jt[13, j0] = ti
     Jt[0, j1] = v[7]
     Jt[1, j1] = v[8]
     Jt[2, j1] = v[9]
@@ -470,7 +469,8 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
 
 @njit(cache=True, inline=INLINE)
 def _store_rows_mounted(Jt, j0, j1, v):
-    """:func:`_store_rows` for :func:`point_rows_mounted`'s ``v`` (no structural zeros)."""
+    """:func:`_store_rows` for :func:`point_rows_mounted`'s ``v`` (no structural zeros), and
+    the point's ``tau`` in row 13 of the even column (for :func:`_acceleration_block`)."""
     ti = v[22]
     # (constant indices: v is a heterogeneous tuple)
     Jt[0, j0], Jt[1, j0], Jt[2, j0] = v[4], v[5], v[6]
@@ -611,16 +611,18 @@ def _normal_matrix(Jt, m, G, H, g):
 
 
 @njit(cache=True)
-def _acceleration_block(Jt, m, B):
+def _acceleration_block(Jt, m, B, mounted):
     """B (12, 6) overwritten with ``J^T W D`` over the m used points of :func:`_evaluate`,
     D the columns of an in-readout acceleration (beta, b): ``tau / 2`` times the w and t
-    columns of J (see :mod:`.sensitivity`). A point's ``tau`` is row 13 of its even column."""
+    columns of J (see :mod:`.sensitivity`). A point's ``tau``: row 13 of its even column if
+    ``mounted`` (:func:`_store_rows_mounted`), else read back from its rows (``Jt[9] / Jt[3]``
+    of its even column: ``tau d / d``, ``d > 0`` for a used point)."""
     for a in range(12):
         for b in range(6):
             B[a, b] = 0.0
     for j in range(m):
         c0 = 2 * j
-        h = 0.5 * Jt[13, c0]
+        h = 0.5 * Jt[13, c0] if mounted else 0.5 * Jt[9, c0] / Jt[3, c0]
         for c in range(c0, c0 + 2):
             for a in range(12):
                 ra = Jt[a, c] * h
@@ -885,7 +887,7 @@ def _lm_refine(
         if want_acc:
             if not current:  # (the last step was rejected: rows at the result again)
                 m, _, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings)
-            _acceleration_block(Jt, m, A)
+            _acceleration_block(Jt, m, A, mountings is not None)
             for i in range(12):
                 for j in range(6):
                     out[OUT_ACC + 6 * i + j] = A[i, j]
