@@ -11,13 +11,24 @@ weighted Levenberg-Marquardt, the whole loop in one numba call: one evaluation (
 normal equations) takes ~65 ns per point, a refinement of 300 points ~130 us with 6
 evaluations (one core; ~70x faster than SciPy here). :func:`refine_rs_pose_scipy` solves the
 same problem with SciPy's ``least_squares`` and serves as the reference in the tests.
+
+A rig of cameras is the same problem (``mountings``, :class:`Mountings`): the model is the
+rig's, observation i is seen by its camera through that camera's mounting, at its own capture
+time ``tau_i`` and with its error in its camera's pixels::
+
+    x_i ~ pi( R_c (expm(tau_i [w]x) R X_i + C + tau_i t) + c_c )
+
+One camera alone is the rig of one camera at the identity mounting. The loop, the prior, the
+covariance and the acceleration block are shared; only the points' Jacobian rows differ
+(:func:`point_rows_mounted`, compiled as a second specialization, so the single camera keeps
+its own :func:`point_rows`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -31,10 +42,12 @@ from .scoring import exact_error2
 
 __all__ = [
     "ExactModelFit",
+    "Mountings",
     "RefineResult",
     "RefineSettings",
     "exact_errors",
     "exact_jacobian",
+    "exact_mounting_jacobian",
     "exact_residuals",
     "least_squares_exact_model",
     "prior_residuals",
@@ -79,16 +92,122 @@ def _camera_points(theta, R0, X, tau):
     return exact_camera_points(R, theta[3:6], theta[6:9], theta[9:12], X, tau), R
 
 
+class Mountings(NamedTuple):
+    """Each observation's camera on a rig, for :func:`refine_rs_pose` and the exact model's
+    NumPy functions: observation i is seen by camera ``cam[i]`` mounted at ``x_cam =
+    R_mount[c] x_rig + c_mount[c]`` (the model's pose is then the rig's), and its image
+    error is ``scale[i]`` times the normalized one (the camera's focal length: errors and
+    thresholds in px). One camera alone is the rig of one camera at the identity mounting
+    with scale 1 (``mountings=None``).
+
+    Attributes:
+        cam: (N,) int64 camera index of each observation, in ``[0, M)``.
+        R_mount: (M, 3, 3) rig -> camera rotations. c_mount: (M, 3) rig -> camera offsets (m).
+        scale: (N,) the factor of each observation's normalized error (px per normalized
+            unit), > 0.
+    """
+
+    cam: np.ndarray
+    R_mount: np.ndarray
+    c_mount: np.ndarray
+    scale: np.ndarray
+
+
+def _checked_mountings(mountings: Mountings, n: int) -> tuple:
+    """The kernels' contiguous ``(cam, R_mount, c_mount, scale)`` of ``mountings`` for n
+    observations. Raises ValueError on shapes that do not match or an index out of range."""
+    cam = np.ascontiguousarray(mountings.cam, dtype=np.int64)
+    Rm = np.ascontiguousarray(mountings.R_mount, dtype=np.float64)
+    cm = np.ascontiguousarray(mountings.c_mount, dtype=np.float64)
+    scale = np.ascontiguousarray(mountings.scale, dtype=np.float64)
+    M = Rm.shape[0] if Rm.ndim == 3 else -1
+    if Rm.shape != (M, 3, 3) or cm.shape != (M, 3) or cam.shape != (n,) or scale.shape != (n,):
+        raise ValueError(
+            f"mountings: cam and scale must be ({n},), R_mount (M, 3, 3) and c_mount (M, 3), "
+            f"got {cam.shape}, {scale.shape}, {Rm.shape}, {cm.shape}"
+        )
+    if n and (cam.min() < 0 or cam.max() >= M):
+        raise ValueError(f"mountings: camera index out of [0, {M})")
+    return cam, Rm, cm, scale
+
+
+def _mounted(p: np.ndarray, mountings: Mountings | None) -> np.ndarray:
+    """(N, 3) rig-frame points ``p`` in their cameras' frames (unchanged without mountings)."""
+    if mountings is None:
+        return p
+    c = np.asarray(mountings.cam)
+    return (
+        np.einsum("nij,nj->ni", np.asarray(mountings.R_mount)[c], p)
+        + np.asarray(mountings.c_mount)[c]
+    )
+
+
 def exact_residuals(
-    theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
+    theta: np.ndarray,
+    R0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    mountings: Mountings | None = None,
 ) -> np.ndarray:
-    """(2N,) residuals ``pi(p_i) - x_i`` (normalized units) of the exact model; theta (12,)."""
+    """(2N,) residuals ``pi(p_i) - x_i`` (normalized units) of the exact model; theta (12,).
+    With ``mountings`` (:class:`Mountings`) ``p_i`` is in its camera's frame and the
+    residuals are scaled by ``scale``."""
     p, _ = _camera_points(theta, R0, X, tau)
-    return (p[:, :2] / p[:, 2:3] - x).ravel()
+    p = _mounted(p, mountings)
+    r = p[:, :2] / p[:, 2:3] - x
+    if mountings is not None:
+        r = r * np.asarray(mountings.scale)[:, None]
+    return r.ravel()
+
+
+def _projection_rows(p: np.ndarray, mountings: Mountings | None) -> np.ndarray:
+    """(N, 2, 3) ``d residual / d p_rig`` at the rig-frame points p (N, 3)."""
+    pc = _mounted(p, mountings)
+    n, z = len(p), pc[:, 2]
+    dpi = np.zeros((n, 2, 3))
+    dpi[:, 0, 0] = 1 / z
+    dpi[:, 1, 1] = 1 / z
+    dpi[:, 0, 2] = -pc[:, 0] / z**2
+    dpi[:, 1, 2] = -pc[:, 1] / z**2
+    if mountings is None:
+        return dpi
+    dpi *= np.asarray(mountings.scale)[:, None, None]
+    return dpi @ np.asarray(mountings.R_mount)[np.asarray(mountings.cam)]
+
+
+def exact_mounting_jacobian(
+    theta: np.ndarray,
+    R0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    mountings: Mountings,
+) -> np.ndarray:
+    """(2N, 6) analytic Jacobian of :func:`exact_residuals` (with ``mountings``) w.r.t. the
+    mounting of each observation's own camera: its rotation on the rig (rad, rig axes:
+    ``R_mount^T`` turned by ``expm([phi]x)``) and its optical centre in the rig frame (m),
+    the parametrization of :attr:`~rs_localizer.estimation.rig.RigView.mount_covariance`.
+    With ``x_cam = R_mount (y - o)``, o the centre: the rows are ``D x (y - o)`` and ``-D``,
+    ``D`` the residual's row over the rig-frame point y."""
+    y, _ = _camera_points(theta, R0, X, tau)
+    c = np.asarray(mountings.cam)
+    Rm = np.asarray(mountings.R_mount)
+    o = -np.einsum("mji,mj->mi", Rm, np.asarray(mountings.c_mount))[c]
+    D = _projection_rows(y, mountings)
+    J = np.empty((len(X), 2, 6))
+    J[:, :, :3] = np.cross(D, (y - o)[:, None, :])
+    J[:, :, 3:] = -D
+    return J.reshape(2 * len(X), 6)
 
 
 def exact_jacobian(
-    theta: np.ndarray, R0: np.ndarray, X: np.ndarray, x: np.ndarray, tau: np.ndarray
+    theta: np.ndarray,
+    R0: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    mountings: Mountings | None = None,
 ) -> np.ndarray:
     """(2N, 12) analytic Jacobian of :func:`exact_residuals` w.r.t. (delta, C, w, t)."""
     p, R = _camera_points(theta, R0, X, tau)
@@ -96,12 +215,7 @@ def exact_jacobian(
     A = rotvec_to_matrix(tau[:, None] * theta[6:9])
     Aq = np.einsum("nij,nj->ni", A, q)  # (the derivative's rotated points)
     n = len(X)
-    z = p[:, 2]
-    dpi = np.zeros((n, 2, 3))
-    dpi[:, 0, 0] = 1 / z
-    dpi[:, 1, 1] = 1 / z
-    dpi[:, 0, 2] = -p[:, 0] / z**2
-    dpi[:, 1, 2] = -p[:, 1] / z**2
+    dpi = _projection_rows(p, mountings)
     J = np.empty((n, 3, 12))
     # d(A R X)/d delta with R = expm([delta]x) R0: -A [q]x J_l(delta)
     J[:, :, 0:3] = -A @ skew(q) @ _left_jacobian(theta[:3])
@@ -282,6 +396,122 @@ def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
     return m, cost, ss, n_in
 
 
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scale):
+    """:func:`point_rows` for an observation of a camera mounted on a rig: the pose is the
+    rig's, point i is seen by camera ``cam[i]`` at ``x_cam = Rm[c] x_rig + cm[c]`` and its
+    image error is ``scale[i]`` times the normalized one (e.g. the focal length: errors in
+    px). With ``Rm = I``, ``cm = 0``, ``scale = 1`` it is :func:`point_rows`' model.
+
+    Returns ``(used, rho, e0, e1, P0, P1, W0, W1, D0, D1, tau_i, e2_inside)`` (vectors as 3
+    scalars): as :func:`point_rows`, the rows ``(P_r, D_r, tau W_r, tau D_r)`` with ``D_r``
+    the row of ``d pi / d x_rig`` (the camera's row times ``Rm[c]``), all three entries
+    general.
+    """
+    (r00, r01, r02, r10, r11, r12, r20, r21, r22, C0, C1, C2, w0, w1, w2, t0, t1, t2) = pose
+    X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
+    q0 = r00 * X0 + r01 * X1 + r02 * X2
+    q1 = r10 * X0 + r11 * X1 + r12 * X2
+    q2 = r20 * X0 + r21 * X1 + r22 * X2
+    ti = tau[i]
+    a0, a1, a2 = ti * w0, ti * w1, ti * w2
+    Aq0, Aq1, Aq2, sa, ca, cb = rotate_small(a0, a1, a2, q0, q1, q2)  # Aq = expm([a]x) q
+    y0 = Aq0 + C0 + ti * t0  # (the rig frame)
+    y1 = Aq1 + C1 + ti * t1
+    y2 = Aq2 + C2 + ti * t2
+    c = cam[i]
+    m00, m01, m02 = Rm[c, 0, 0], Rm[c, 0, 1], Rm[c, 0, 2]
+    m10, m11, m12 = Rm[c, 1, 0], Rm[c, 1, 1], Rm[c, 1, 2]
+    m20, m21, m22 = Rm[c, 2, 0], Rm[c, 2, 1], Rm[c, 2, 2]
+    p0 = m00 * y0 + m01 * y1 + m02 * y2 + cm[c, 0]
+    p1 = m10 * y0 + m11 * y1 + m12 * y2 + cm[c, 1]
+    p2 = m20 * y0 + m21 * y1 + m22 * y2 + cm[c, 2]
+    f = scale[i]
+    iz = 1.0 / (p2 if p2 > 1e-12 else 1.0)  # (unused point otherwise; no division by 0)
+    u0 = p0 * iz
+    u1 = p1 * iz
+    e0 = f * (u0 - x[i, 0])
+    e1 = f * (u1 - x[i, 1])
+    en = np.sqrt(e0 * e0 + e1 * e1)
+    used = p2 > 1e-12 and not en > cutoff
+    e2_inside = -1.0
+    if en <= k:
+        rho = en * en
+        sw = 1.0
+        if p2 > 1e-12:
+            e2_inside = rho
+    else:
+        rho = 2.0 * k * en - k * k
+        sw = np.sqrt(k / en)
+    if not used:
+        rho = rho_cut
+    # the camera's rows (d, 0, d02), (0, d, d12) turned into the rig frame: D_r = D Rm
+    d = sw * f * iz
+    d02 = -u0 * d
+    d12 = -u1 * d
+    g00, g01, g02 = d * m00 + d02 * m20, d * m01 + d02 * m21, d * m02 + d02 * m22
+    g10, g11, g12 = d * m10 + d12 * m20, d * m11 + d12 * m21, d * m12 + d12 * m22
+    # m = Aq x D_r, then the rows as in point_rows
+    P00, P01, P02, W00, W01, W02 = _rotation_rows(
+        Aq1 * g02 - Aq2 * g01, Aq2 * g00 - Aq0 * g02, Aq0 * g01 - Aq1 * g00,
+        a0, a1, a2, sa, ca, cb,
+    )  # fmt: skip
+    P10, P11, P12, W10, W11, W12 = _rotation_rows(
+        Aq1 * g12 - Aq2 * g11, Aq2 * g10 - Aq0 * g12, Aq0 * g11 - Aq1 * g10,
+        a0, a1, a2, sa, ca, cb,
+    )  # fmt: skip
+    return (
+        used, rho, sw * e0, sw * e1,
+        P00, P01, P02, P10, P11, P12, W00, W01, W02, W10, W11, W12,
+        g00, g01, g02, g10, g11, g12, ti, e2_inside,
+    )  # fmt: skip
+
+
+@njit(cache=True, inline=INLINE)
+def _store_rows_mounted(Jt, j0, j1, v):
+    """:func:`_store_rows` for :func:`point_rows_mounted`'s ``v`` (no structural zeros), and
+    the point's ``tau`` in row 13 of the even column (for :func:`_acceleration_block`)."""
+    ti = v[22]
+    # (constant indices: v is a heterogeneous tuple)
+    Jt[0, j0], Jt[1, j0], Jt[2, j0] = v[4], v[5], v[6]
+    Jt[3, j0], Jt[4, j0], Jt[5, j0] = v[16], v[17], v[18]
+    Jt[6, j0], Jt[7, j0], Jt[8, j0] = ti * v[10], ti * v[11], ti * v[12]
+    Jt[9, j0], Jt[10, j0], Jt[11, j0] = ti * v[16], ti * v[17], ti * v[18]
+    Jt[0, j1], Jt[1, j1], Jt[2, j1] = v[7], v[8], v[9]
+    Jt[3, j1], Jt[4, j1], Jt[5, j1] = v[19], v[20], v[21]
+    Jt[6, j1], Jt[7, j1], Jt[8, j1] = ti * v[13], ti * v[14], ti * v[15]
+    Jt[9, j1], Jt[10, j1], Jt[11, j1] = ti * v[19], ti * v[20], ti * v[21]
+    Jt[12, j0] = v[2]
+    Jt[12, j1] = v[3]
+    Jt[13, j0] = ti
+
+
+@njit(cache=True, inline=INLINE)
+def _add_point_mounted(v, m, cost, ss, n_in, Jt):
+    """:func:`_add_point` for :func:`point_rows_mounted`'s ``v``."""
+    cost += v[1]
+    if v[23] >= 0.0:
+        ss += v[23]
+        n_in += 1
+    _store_rows_mounted(Jt, 2 * m, 2 * m + 1, v)
+    return m + (1 if v[0] else 0), cost, ss, n_in
+
+
+@njit(cache=True, fastmath=FMA)
+def _fill_columns_mounted(pose, X, x, tau, k, cutoff, rho_cut, Jt, cam, Rm, cm, scale):
+    """:func:`_fill_columns` with :func:`point_rows_mounted` (arguments as there)."""
+    n = X.shape[0]
+    m, cost, ss, n_in = 0, 0.0, 0.0, 0
+    for i in range(0, n, 2):
+        j = i + 1 if i + 1 < n else i
+        a = point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scale)
+        b = point_rows_mounted(pose, X, x, tau, j, k, cutoff, rho_cut, cam, Rm, cm, scale)
+        m, cost, ss, n_in = _add_point_mounted(a, m, cost, ss, n_in, Jt)
+        if j > i:
+            m, cost, ss, n_in = _add_point_mounted(b, m, cost, ss, n_in, Jt)
+    return m, cost, ss, n_in
+
+
 @njit(cache=True, fastmath=_FMA_REASSOC)
 def _gram16(Jt, m, G):
     """``G[a, b] = sum_j Jt[a, j] Jt[b, j]`` over the first m columns of Jt (16, M) for the
@@ -320,9 +550,15 @@ def _gram16(Jt, m, G):
 
 
 @njit(cache=True, fastmath=FMA)
-def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt):
+def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     """Cost and weighted Jacobian of the exact model at (R, C, w, t), for the increments
     (delta, dC, dw, dt) of all 12 parameters, ``R <- expm([delta]x) R``.
+
+    ``mountings``: None (one camera, the identity mounting: :func:`point_rows`) or the
+    tuple ``(cam (N,) int64, R_mount (M, 3, 3), c_mount (M, 3), scale (N,))`` of
+    :class:`Mountings` (a rig: :func:`point_rows_mounted`; k and cutoff in the units of
+    ``scale`` times normalized ones). numba compiles each case on its own (the other branch
+    is pruned), so the single camera runs its own code.
 
     Huber weight per point, on the image distance ``e`` (normalized units): 1 for ``e <= k``,
     ``k / e`` above (IRLS form of the Huber loss ``rho``). Points with ``e > cutoff`` or depth
@@ -356,7 +592,10 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt):
         t[1],
         t[2],
     )
-    return _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt)
+    if mountings is None:
+        return _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt)
+    cam, Rm, cm, scale = mountings
+    return _fill_columns_mounted(pose, X, x, tau, k, cutoff, rho_cut, Jt, cam, Rm, cm, scale)
 
 
 @njit(cache=True)
@@ -372,17 +611,18 @@ def _normal_matrix(Jt, m, G, H, g):
 
 
 @njit(cache=True)
-def _acceleration_block(Jt, m, B):
+def _acceleration_block(Jt, m, B, mounted):
     """B (12, 6) overwritten with ``J^T W D`` over the m used points of :func:`_evaluate`,
     D the columns of an in-readout acceleration (beta, b): ``tau / 2`` times the w and t
-    columns of J (see :mod:`.sensitivity`). A point's ``tau`` is read back from its rows
-    (``Jt[9] / Jt[3]`` of its even column: ``tau d / d``, ``d > 0`` for a used point)."""
+    columns of J (see :mod:`.sensitivity`). A point's ``tau``: row 13 of its even column if
+    ``mounted`` (:func:`_store_rows_mounted`), else read back from its rows (``Jt[9] / Jt[3]``
+    of its even column: ``tau d / d``, ``d > 0`` for a used point)."""
     for a in range(12):
         for b in range(6):
             B[a, b] = 0.0
     for j in range(m):
         c0 = 2 * j
-        h = 0.5 * Jt[9, c0] / Jt[3, c0]
+        h = 0.5 * Jt[13, c0] if mounted else 0.5 * Jt[9, c0] / Jt[3, c0]
         for c in range(c0, c0 + 2):
             for a in range(12):
                 ra = Jt[a, c] * h
@@ -406,14 +646,14 @@ def _workspace(n):
 
 
 @njit(cache=True)
-def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff):
-    """Huber-weighted normal equations (see :func:`_evaluate`) for the first ``n_free``
-    parameters (6: global shutter, ``w = t = 0`` fixed). Returns (H (n_free, n_free),
-    g (n_free,), cost)."""
+def _normal_equations(R, C, w, t, X, x, tau, k, n_free, cutoff, mountings):
+    """Huber-weighted normal equations (see :func:`_evaluate`; ``mountings`` as there) for
+    the first ``n_free`` parameters (6: global shutter, ``w = t = 0`` fixed). Returns
+    (H (n_free, n_free), g (n_free,), cost)."""
     H = np.empty((12, 12))
     g = np.empty(12)
     Jt, G = _workspace(X.shape[0])
-    m, cost, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
+    m, cost, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings)
     _normal_matrix(Jt, m, G, H, g)
     return H[:n_free, :n_free].copy(), g[:n_free].copy(), cost
 
@@ -530,9 +770,11 @@ def _lm_refine(
     s,
     noise2,
     want_acc,
+    mountings,
 ):
     """The whole Levenberg-Marquardt loop of :func:`refine_rs_pose` (arguments as there;
-    n_free 12 or 6, the latter keeping w, t fixed; inputs are not modified).
+    n_free 12 or 6, the latter keeping w, t fixed; ``mountings`` None or the tuple of
+    :func:`_evaluate`; inputs are not modified).
 
     With ``prior_on`` (and n_free 12) the cost gains the motion prior of
     :func:`_prior_terms` (mean ``mu`` (6,), information ``Lam`` (6, 6), ``s`` seconds per unit
@@ -554,7 +796,7 @@ def _lm_refine(
     L = np.empty((12, 12))
     M = np.empty((12, 12))
     Jt, G = _workspace(X.shape[0])
-    m, cost, ss, n_in = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
+    m, cost, ss, n_in = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings)
     current = True  # Jt holds the rows at (R, C, w, t) (not at a rejected step)
     use_prior = prior_on and n_free == 12
     sp2 = 0.0
@@ -586,7 +828,7 @@ def _lm_refine(
         if pred <= 0.1 * tol * cost:
             break
         Rn, Cn, wn, tn = _apply_step(R, C, w, t, B, n_free)
-        mn, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt)
+        mn, cn, ssn, n_inn = _evaluate(Rn, Cn, wn, tn, X, x, tau, k, cutoff, Jt, mountings)
         current = False
         if use_prior:
             cn += _prior_terms(Cn, wn, tn, s, mu, Lam, sp2, H, g, False)
@@ -644,8 +886,8 @@ def _lm_refine(
                     out[OUT_COV + 12 * i + j] = 0.0
         if want_acc:
             if not current:  # (the last step was rejected: rows at the result again)
-                m, _, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt)
-            _acceleration_block(Jt, m, A)
+                m, _, _, _ = _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings)
+            _acceleration_block(Jt, m, A, mountings is not None)
             for i in range(12):
                 for j in range(6):
                     out[OUT_ACC + 6 * i + j] = A[i, j]
@@ -794,8 +1036,10 @@ def refine_rs_pose(
     loss_scale: float,
     settings: RefineSettings = DEFAULT_REFINE,
     prior: MotionPrior | None = None,
+    mountings: Mountings | None = None,
 ) -> RefineResult:
-    """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model.
+    """Robust (Huber) Levenberg-Marquardt refinement of one pose on the exact model, of one
+    camera or of a rig of cameras (``mountings``).
 
     Args:
         model: the initial :class:`~rs_localizer.pose.RSModel` ``(R0, C0, w0, t0)`` (or the
@@ -823,6 +1067,13 @@ def refine_rs_pose(
             ``covariance``; rolling shutter), D the columns of an in-readout acceleration:
             what :func:`~rs_localizer.estimation.sensitivity.acceleration_sensitivity` needs,
             from the refinement's last Jacobian instead of another pass over the points.
+        mountings (argument): ``None`` (one camera) or a :class:`Mountings`: the model is
+            then a rig's, each observation seen by its camera through that camera's mounting
+            (``tau`` each observation's own capture time, e.g. in s with
+            ``seconds_per_unit_r = 1``), its error scaled by its ``scale``; ``loss_scale``,
+            ``cutoff``, ``noise``, sigma and the normal equations are in those units (px with
+            the focal lengths as ``scale``). The same loop, prior and covariance; only the
+            points' Jacobian rows differ (:func:`point_rows_mounted`).
     Returns:
         :class:`RefineResult`; the covariance is ``sigma^2 H^-1`` over (delta, C, w, t) at the
         optimum (zero rows/columns for fixed parameters), ``sigma^2`` the residual variance of
@@ -834,6 +1085,10 @@ def refine_rs_pose(
     loop runs in numba (:func:`_lm_refine`); measured on one core: ~70 us for 150 points and
     ~130 us for 300 with 6 evaluations (~20 us per evaluation of 300 points). The returned
     arrays are views of one buffer.
+
+    Raises:
+        ValueError: ``mountings`` whose shapes do not match the N observations, or a camera
+            index out of range.
     """
     R0, C0, w0, t0 = model
     rolling_shutter, max_iterations, tol = (
@@ -852,6 +1107,7 @@ def refine_rs_pose(
     out = np.empty(OUT_SIZE_ACC if want_acc else OUT_SIZE)
     on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
     noise2 = -1.0 if noise is None else float(noise) ** 2
+    views = None if mountings is None else _checked_mountings(mountings, len(X))
     sigma, success, nfev = _lm_refine(
         np.ascontiguousarray(R0, dtype=f64),
         np.ascontiguousarray(C0, dtype=f64),
@@ -873,6 +1129,7 @@ def refine_rs_pose(
         float(seconds_per_unit_r) if on else 1.0,
         noise2,
         want_acc,
+        views,
     )
     res = _unpack(out, float(sigma), success, nfev, covariance)
     if covariance:
@@ -991,6 +1248,7 @@ def least_squares_exact_model(
     seconds_per_unit_r: float,
     noise: float,
     row_weights: np.ndarray | None = None,
+    mountings: Mountings | None = None,
     **options: object,
 ) -> ExactModelFit:
     """The exact model (paper eq. 4) fitted by SciPy ``least_squares`` (trust region,
@@ -1009,6 +1267,7 @@ def least_squares_exact_model(
         seconds_per_unit_r: seconds per unit of the row coordinate (the prior's time scale).
         noise: the image noise the prior's rows are scaled by (normalized units).
         row_weights: optional (2 M,) factors of the image residual rows (not the prior's).
+        mountings: optional :class:`Mountings` (a rig's observations, :func:`exact_residuals`).
         **options: passed on to ``least_squares`` (``loss``, ``f_scale``, tolerances).
     Returns:
         :class:`ExactModelFit`.
@@ -1024,7 +1283,7 @@ def least_squares_exact_model(
         return th
 
     def fun(p):
-        r = exact_residuals(full(p), R0, X, x, tau)
+        r = exact_residuals(full(p), R0, X, x, tau, mountings)
         if row_weights is not None:
             r = row_weights * r
         if on:
@@ -1032,7 +1291,7 @@ def least_squares_exact_model(
         return r
 
     def jac(p):
-        J = exact_jacobian(full(p), R0, X, x, tau)
+        J = exact_jacobian(full(p), R0, X, x, tau, mountings)
         if row_weights is not None:
             J = row_weights[:, None] * J
         if on:

@@ -39,8 +39,10 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   that raises the MSAC cost of all points is not taken;
 - the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
   point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
-  re-selected at each iteration, as a single camera's final refinement,
-  :mod:`~rs_localizer.estimation.finalize`); its covariance ``sigma^2 (J^T W J)^-1`` over
+  re-selected at each iteration): a single camera's compiled refinement
+  (:func:`~rs_localizer.estimation.refine.refine_rs_pose`, analytic Jacobian) with each point
+  seen through its camera's mounting at its own time, errors in its camera's pixels; its
+  covariance ``sigma^2 (J^T W J)^-1`` over
   ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``), ``sigma^2`` the per-axis image variance
   of the inliers' errors (px^2, corrected for the threshold's truncation,
   :func:`~rs_localizer.estimation.refine.untruncated_variance`), and the pose and twist
@@ -96,11 +98,20 @@ from .gyro import (
     GyroMeasurement,
     gyro_checked,
     gyro_image_chi2,
+    gyro_prior,
 )
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
+from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
-from .refine import untruncated_variance
+from .refine import (
+    Mountings,
+    RefineSettings,
+    exact_jacobian,
+    exact_mounting_jacobian,
+    refine_rs_pose,
+    untruncated_variance,
+)
 from .result import (
     CAMERAS_DISAGREE,
     CHEIRALITY,
@@ -415,24 +426,22 @@ class _GyroPrior:
     (rad/s, rig frame; ``w = -omega``): mean ``w`` (3,), information ``info`` (3, 3)
     (s^2/rad^2) and its square root ``U`` (``U^T U = info``); ``time`` (s from the rig's
     reference time): when the rig turned at the measured rate (the middle of the gyro's
-    window; for the sensitivity to acceleration)."""
+    window; for the sensitivity to acceleration); ``motion``: the same as a single camera's
+    motion prior (:func:`~.gyro.gyro_prior`, the rig's twist with one second per unit of
+    tau), what the refinement takes."""
 
     w: np.ndarray
     info: np.ndarray
     U: np.ndarray
     time: float = 0.0
+    motion: MotionPrior | None = None
 
     @classmethod
     def of(cls, gyro: GyroMeasurement, time: float = 0.0) -> _GyroPrior:
         info = np.linalg.inv(gyro.covariance)
         info = 0.5 * (info + info.T)
         w = -np.asarray(gyro.angular_velocity, float)
-        return cls(w, info, np.linalg.cholesky(info).T, float(time))
-
-    def cost(self, w: np.ndarray, scale2: float) -> float:
-        """``scale2 (w - w_g)^T info (w - w_g)``: the prior in the refinement's px^2."""
-        d = np.asarray(w, float) - self.w
-        return float(scale2 * d @ self.info @ d)
+        return cls(w, info, np.linalg.cholesky(info).T, float(time), gyro_prior(gyro))
 
     def rows(self, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K samples whose
@@ -816,37 +825,19 @@ def _refit(
     return R, C, w, t
 
 
-def _robust(e: np.ndarray, k: float, cutoff: float) -> tuple[float, np.ndarray]:
-    """Truncated Huber cost of image errors ``e`` (px; inf behind): ``e^2`` up to ``k``,
-    ``2 k e - k^2`` up to ``cutoff``, constant beyond; and the IRLS weights (1, ``k / e``, 0)."""
-    ec = np.minimum(np.where(np.isfinite(e), e, cutoff), cutoff)
-    rho = np.where(ec <= k, ec * ec, 2.0 * k * ec - k * k)
-    wts = np.where(e <= k, 1.0, np.where(e < cutoff, k / np.maximum(e, k), 0.0))
-    return float(rho.sum()), wts
-
-
-#: central-difference steps of the Jacobian over (delta rad, C m, w rad/s, t m/s)
-_STEP = 1e-6
-
-
-def _jacobian(pool: _Pool, model, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(residuals (n, 2) px, Jacobian (n, 2, 12)) of the image errors of points ``idx`` over
-    ``(delta, C, w, t)`` (``R = expm([delta]x) R_0``) by central differences: the 24 perturbed
-    models in one call of the compiled residual kernel."""
-    R0, C0, w0, t0 = model
-    D = np.zeros((25, 12))
-    for j in range(12):
-        D[1 + 2 * j, j] = _STEP
-        D[2 + 2 * j, j] = -_STEP
-    Rs = rotvec_to_matrix(D[:, 0:3]) @ R0
-    d = _residuals(pool, Rs, C0 + D[:, 3:6], w0 + D[:, 6:9], t0 + D[:, 9:12], idx)
-    J = (d[1::2] - d[2::2]) / (2 * _STEP)  # (12, n, 2)
-    return d[0], np.moveaxis(J, 0, -1)
-
-
-def _apply(model, u: np.ndarray):
-    R0, C0, w0, t0 = model
-    return rotvec_to_matrix(u[0:3]) @ R0, C0 + u[3:6], w0 + u[6:9], t0 + u[9:12]
+def _mountings(pool: _Pool) -> Mountings:
+    """The pool's observations as the refinement's :class:`~.refine.Mountings`: each camera's
+    mounting, errors in px (its focal length as the scale). Built once per pool."""
+    m = pool.__dict__.get("_mountings")
+    if m is None:
+        m = Mountings(
+            np.ascontiguousarray(pool.cam, dtype=np.int64),
+            np.ascontiguousarray(pool.R_mount),
+            np.ascontiguousarray(pool.c_mount),
+            np.ascontiguousarray(pool.focal, dtype=np.float64),
+        )
+        pool._mountings = m
+    return m
 
 
 def _refine(
@@ -862,87 +853,29 @@ def _refine(
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
     truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
-    :func:`_refit`). 12 parameters: a rotation update left of R, C, w, t (``free=6``: the
-    pose alone, w and t kept); residuals: the image errors (px) of :func:`_errors_px`.
-    ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
+    :func:`_refit`): a single camera's refinement (:func:`~.refine.refine_rs_pose`) with
+    each point seen through its camera's mounting at its own capture time, errors in px.
+    12 parameters: a rotation update left of R, C, w, t (``free=6``: the pose alone, w and t
+    kept at zero). ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
     ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
-    starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`)."""
+    starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`,
+    at least ``1e-6`` threshold^2)."""
     k = float(threshold_px)
     cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
-    allp = np.arange(len(pool.cam))
-    e = _errors_px(pool, *_one(model))[0]
-    cost, _ = _robust(e, k, cut)
-    sp2 = 0.0
+    noise, motion = None, None
     if prior is not None and free == 12:
+        e = _errors_px(pool, *_one(model))[0]
         inside = e[e < k]
         sp2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
-        sp2 = max(sp2, 1e-6 * k * k)
-        cost += prior.cost(model[2], sp2)
-    lam = 1e-3
-    for _ in range(max_iterations):
-        idx = allp[e < cut]
-        if len(idx) < 6:
-            break
-        r, J = _jacobian(pool, model, idx)
-        _, wts = _robust(e[idx], k, cut)
-        Jf = J.reshape(-1, 12)[:, :free]
-        W = np.repeat(wts, 2)
-        H = Jf.T @ (Jf * W[:, None])
-        g = Jf.T @ (W * r.ravel())
-        if sp2 > 0:
-            H[6:9, 6:9] += sp2 * prior.info
-            g[6:9] += sp2 * prior.info @ (model[2] - prior.w)
-        improved = False
-        while lam < 1e8:
-            A = H + lam * np.diag(np.diag(H) + 1e-12)
-            try:
-                u = np.zeros(12)
-                u[:free] = -np.linalg.solve(A, g)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            cand = _apply(model, u)
-            ec = _errors_px(pool, *_one(cand))[0]
-            cc, _ = _robust(ec, k, cut)
-            if sp2 > 0:
-                cc += prior.cost(cand[2], sp2)
-            if np.isfinite(cc) and cc <= cost:
-                rel = (cost - cc) / max(cost, 1e-300)
-                model, e, cost = cand, ec, cc
-                lam = max(lam / 10, 1e-12)
-                improved = True
-                break
-            lam *= 10
-        if not improved or rel < 1e-9:
-            break
-    return model
-
-
-def _mount_jacobian(pool: _Pool, model, idx: np.ndarray, c: int) -> np.ndarray:
-    """(len(idx), 2, 6) the image errors (px) of camera ``c``'s points ``idx`` over its
-    mounting (rotation [rad, rig axes] of the camera on the rig, its position in the rig frame
-    [m]; :attr:`RigView.mount_covariance`) by central differences."""
-    R0, C0, w0, t0 = (np.ascontiguousarray(a, dtype=np.float64)[None] for a in model)
-    Rm0, cm0 = pool.R_mount[c], pool.c_mount[c]
-    p0 = -Rm0.T @ cm0
-    out = np.empty((6, len(idx), 2))
-    for j in range(6):
-        d = []
-        for sgn in (1.0, -1.0):
-            u = np.zeros(6)
-            u[j] = sgn * _STEP
-            Rm = pool.R_mount.copy()
-            cm = pool.c_mount.copy()
-            Rm[c] = Rm0 @ rotvec_to_matrix(-u[:3])
-            cm[c] = -Rm[c] @ (p0 + u[3:])
-            r = np.empty((1, len(idx), 2))
-            _residuals_kernel(
-                R0, C0, w0, t0, pool.X[idx], pool.tau[idx], pool.cam[idx], Rm, cm,
-                pool.x[idx], pool.focal[idx], r,
-            )  # fmt: skip
-            d.append(r[0])
-        out[j] = (d[0] - d[1]) / (2 * _STEP)
-    return np.moveaxis(out, 0, -1)
+        noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
+    settings = RefineSettings(
+        rolling_shutter=free == 12, max_iterations=int(max_iterations), covariance=False,
+        cutoff=cut, seconds_per_unit_r=1.0, noise=noise,
+    )  # fmt: skip
+    res = refine_rs_pose(
+        model, pool.X, pool.x, pool.tau, k, settings, motion, _mountings(pool)
+    )  # fmt: skip
+    return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
 
 def _covariance(
@@ -954,7 +887,8 @@ def _covariance(
     mounts: bool = False,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
-    acceleration, from one Jacobian.
+    acceleration, from one Jacobian (the refinement's kernel at the model, no step:
+    :func:`~.refine.refine_rs_pose` with ``max_iterations=0``).
 
     The covariance (12, 12) is ``sigma^2 (J^T W J)^-1`` over the points within
     ``FINAL_CUTOFF`` thresholds (``W`` the Huber weights), ``sigma^2`` the per-axis image
@@ -971,48 +905,65 @@ def _covariance(
     ``mounts``: the covariance adds each camera's mounting uncertainty
     (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
     J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
-    Jacobian over it, :func:`_mount_jacobian`). Returns ``(None, None)`` if singular or not
-    finite."""
+    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). Returns
+    ``(None, None)`` if singular or not finite."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
-    idx = np.flatnonzero(e < cut)
-    inside = e[e < k]
-    if len(inside) <= 6:
+    if np.count_nonzero(e < k) <= 6:
         return None, None
-    _, J = _jacobian(pool, model, idx)
-    _, wts = _robust(e[idx], k, cut)
-    Jf = J.reshape(-1, 12)[:, :free]
-    WJ = Jf * np.repeat(wts, 2)[:, None]
-    H = Jf.T @ WJ
-    sigma2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
-    if prior is not None and free == 12:
+    rolling = free == 12
+    settings = RefineSettings(
+        rolling_shutter=rolling, max_iterations=0, covariance=True, cutoff=cut,
+        seconds_per_unit_r=1.0, acceleration_block=rolling,
+    )  # fmt: skip
+    res = refine_rs_pose(model, pool.X, pool.x, pool.tau, k, settings, None, _mountings(pool))
+    sigma2 = res.sigma**2
+    H = res.data_information[:free, :free].copy()
+    if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
-    cov = np.zeros((12, 12))
     try:
         Hinv = np.linalg.inv(H)
     except np.linalg.LinAlgError:
         return None, None
+    cov = np.zeros((12, 12))
     cov[:free, :free] = sigma2 * Hinv
-    if mounts:
-        for c, mc in enumerate(pool.mount_cov):
-            on = pool.cam[idx] == c
-            if mc is None or not on.any():
-                continue
-            Jm = _mount_jacobian(pool, model, idx[on], c).reshape(-1, 6)
-            A = Hinv @ (WJ[np.repeat(on, 2)].T @ Jm)
-            cov[:free, :free] += A @ mc @ A.T
+    if mounts and any(mc is not None for mc in pool.mount_cov):
+        cov[:free, :free] += _mounting_covariance(pool, model, e, k, cut, free, Hinv)
     cov = 0.5 * (cov + cov.T)
     if not np.isfinite(cov).all():
         return None, None
     G = None
-    if free == 12:
-        D = (0.5 * np.repeat(pool.tau[idx], 2))[:, None] * J.reshape(-1, 12)[:, 6:12]
-        JD = WJ.T @ D
+    if rolling:
+        JD = res.acceleration_block.copy()
         if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
             JD[6:9, 0:3] += sigma2 * prior.time * prior.info
         G = Hinv @ JD
         G = G if np.isfinite(G).all() else None
     return cov, G
+
+
+def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarray:
+    """(free, free) the mountings' share of the model's covariance (:func:`_covariance`),
+    with the analytic Jacobians over the model and over each camera's mounting on the points
+    within ``cut`` px (errors ``e`` px, Huber weights at ``k``)."""
+    idx = np.flatnonzero(e < cut)
+    m = _mountings(pool)
+    sub = Mountings(m.cam[idx], m.R_mount, m.c_mount, m.scale[idx])
+    R0, C0, w0, t0 = model
+    theta = np.concatenate([np.zeros(3), C0, w0, t0])
+    X, x, tau = pool.X[idx], pool.x[idx], pool.tau[idx]
+    W = np.repeat(np.where(e[idx] <= k, 1.0, k / np.maximum(e[idx], k)), 2)
+    WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
+    Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
+    rows = np.repeat(pool.cam[idx], 2)
+    out = np.zeros((free, free))
+    for c, mc in enumerate(pool.mount_cov):
+        on = rows == c
+        if mc is None or not on.any():
+            continue
+        A = Hinv @ (WJ[on].T @ Jm[on])
+        out += A @ mc @ A.T
+    return out
 
 
 def _sensitivity_out(G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:

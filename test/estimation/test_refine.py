@@ -143,7 +143,7 @@ def test_normal_equations_match_numpy_reference(rolling, w_scale):
     if rolling:  # both branches of the rotation coefficients
         th = np.abs(tau) * np.linalg.norm(w)
         assert (th.max() > 0.2) == (w_scale > 1)
-    H, g, cost = _normal_equations(R, C, w, t, X, f.x, tau, k, n_free, cutoff)
+    H, g, cost = _normal_equations(R, C, w, t, X, f.x, tau, k, n_free, cutoff, None)
     assert H.shape == (n_free, n_free) and g.shape == (n_free,)
     np.testing.assert_allclose(H, H.T, rtol=0, atol=0)
     np.testing.assert_allclose(H, H_ref, rtol=1e-10, atol=1e-12 * np.abs(H_ref).max())
@@ -176,7 +176,7 @@ def test_covariance_is_sigma2_inverse_normal_matrix(rolling):
     # checked against Monte Carlo in test_planar.py)
     sigma2 = untruncated_variance(np.sum(e[inside] ** 2) / (2 * inside.sum() - n_free), k)
     assert ref.sigma == pytest.approx(np.sqrt(sigma2), rel=1e-10)
-    H = _normal_equations(ref.R, ref.C, ref.w, ref.t, f.X, f.x, tau, k, n_free, 3 * k)[0]
+    H = _normal_equations(ref.R, ref.C, ref.w, ref.t, f.X, f.x, tau, k, n_free, 3 * k, None)[0]
     cov = np.zeros((12, 12))
     cov[:n_free, :n_free] = sigma2 * np.linalg.inv(H)
     np.testing.assert_allclose(ref.covariance, cov, rtol=1e-8, atol=1e-8 * np.abs(cov).max())
