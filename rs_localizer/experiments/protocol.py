@@ -86,7 +86,6 @@ METRIC_LABEL = {
     "angvel": "angular velocity error [deg/frame]",
     "linvel": "linear velocity error [units/frame]",
 }
-ITERATIVE = tuple(k for k, v in SOLVER_TABLE.items() if v.iterative and k != "r6p_joined")
 
 #: one label and colour per solver, used in every plot (paper Fig. 7 colours where it has them:
 #: P3P red, R6P magenta, R6P_{v,C,w,t}^{[v]x} green, R6P_{v,C,t}^{w} cyan)
@@ -112,15 +111,19 @@ NAME = {
     "poselib": "PoseLib (GS)",
     "opencv": "OpenCV (GS)",
 }
-#: the paper's solvers (the joined solver is run as its own spec)
-ALL_SOLVERS = tuple(k for k in SOLVER_TABLE if k != "r6p_joined")
+#: the paper's solvers: the registry's with a :data:`STYLE` row (a solver added to the registry
+#: joins these figures with its label and colour there); the joined solver is run as its own
+#: spec
+ALL_SOLVERS = tuple(k for k in SOLVER_TABLE if k in STYLE and k != "r6p_joined")
+#: the iterative ones among them (Fig. 6, the iterations)
+ITERATIVE = tuple(k for k in ALL_SOLVERS if SOLVER_TABLE[k].iterative)
 
 #: paper Table 1 (2.5 GHz i7), microseconds per iteration, and the maximum number of solutions
 PAPER_US = {k: v.paper_us for k, v in SOLVER_TABLE.items() if v.paper_us is not None}
 
 MAX_SOLUTIONS = {k: v.max_solutions for k, v in SOLVER_TABLE.items()}
 
-_ITER_FN = {k: v.single for k, v in SOLVER_TABLE.items() if v.iterative and k != "r6p_joined"}
+_ITER_FN = {k: SOLVER_TABLE[k].single for k in ITERATIVE}
 
 
 # ------------------------------------------------------------------------------ configuration

@@ -26,7 +26,7 @@ import numpy as np
 from ..camera import MAX_LINE_DELAY, MAX_READOUT_TIME, READOUT_DIRECTIONS, CameraModel
 from ..estimation.options import EstimateOptions, points_needed
 from ..frames import Extrinsic
-from ..frontends.registry import frontend_kind, frontend_options
+from ..frontends.registry import FRONTEND_KINDS, frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
 from ..tracking.rig import RigMount
@@ -34,7 +34,7 @@ from ..tracking.sequence import GyroSettings
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
 from ..tracking.tracker import TrackerOptions
 from . import conversions as cv
-from .params import FRONTEND_CHOICES, IMAGE_TRANSPORTS, PARAMETERS, ConfigError, option_fields
+from .params import IMAGE_TRANSPORTS, PARAMETERS, ConfigError, option_fields
 
 __all__ = [
     "LocalizerConfig",
@@ -261,10 +261,9 @@ def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
 def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
     """Stage of :func:`build_config`: ``(front end kind, its map, image transport)``."""
     kind, fmap = str(p["frontend"]).strip().lower(), str(p["frontend_map"])
-    if kind not in FRONTEND_CHOICES:
-        raise ConfigError(
-            f"unknown frontend {p['frontend']!r}; expected one of {list(FRONTEND_CHOICES)}"
-        )
+    choices = ("none", *FRONTEND_KINDS)  # (read now: the registry is the one list)
+    if kind not in choices:
+        raise ConfigError(f"unknown frontend {p['frontend']!r}; expected one of {list(choices)}")
     transport = str(p["image_transport"]).strip().lower()
     if transport not in IMAGE_TRANSPORTS:
         raise ConfigError(

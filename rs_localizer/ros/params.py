@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-from ..camera import READOUT_DIRECTIONS
+from ..camera import DISTORTION_MODELS, READOUT_DIRECTIONS
 from ..frames import OPTICAL_TO_BODY_QUATERNION
 from ..frontends.registry import FRONTENDS
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
@@ -89,6 +89,9 @@ class Parameter(NamedTuple):
     read_only: bool = False
     field: str | None = None
 
+
+#: the lens models of ``camera.distortion_model`` (:data:`~rs_localizer.camera.DISTORTION_MODELS`)
+_MODELS = tuple(DISTORTION_MODELS)
 
 #: name -> :class:`Parameter`: every parameter of the node, in the order of
 #: config/rs_localizer.yaml and docs/node.md (``python -m rs_localizer.ros.param_docs --write``
@@ -388,7 +391,7 @@ PARAMETERS = {
     ),
     "camera.distortion_model": Parameter(
         "plumb_bob",
-        "fallback distortion model: plumb_bob, rational_polynomial, equidistant or none",
+        f"fallback distortion model: {', '.join(_MODELS[:-1])} or {_MODELS[-1]}",
     ),
     "camera.d": Parameter(
         [0.0, 0.0, 0.0, 0.0, 0.0], "fallback distortion coefficients (OpenCV order)"

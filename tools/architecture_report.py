@@ -1,0 +1,349 @@
+"""The package's shape in figures, read from the source (nothing is imported or run): lines
+per package, the lines only a rig of cameras uses, the estimators and the pose carriers (the
+lists below, each entry with why it is one, checked against the code), the longest functions
+and the import circles among the package's modules.
+
+    .venv/bin/python tools/architecture_report.py [--json] [--top N]
+
+Lines are physical lines (``wc -l``); "code" leaves out blank lines and comment lines.
+Import circles are the strongly connected components of the graph of ``import`` statements
+between the package's modules: module-level imports (what Python runs at import time; those
+under ``if TYPE_CHECKING:`` left out), and again with the imports inside functions too.
+``from .pkg import name`` is an edge to ``pkg/name.py`` when that module exists, else to
+``pkg/__init__.py``. Exit status 1 when a listed estimator or pose carrier is not found where
+the list says (the list is out of date).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PKG = ROOT / "rs_localizer"
+
+#: the modules only a rig of cameras uses (path under rs_localizer/ -> why); a single camera
+#: runs none of them
+RIG_ONLY = {
+    "estimation/rig.py": "estimate_rig_pose: one pose for a rig frame of several cameras",
+    "tracking/rig.py": "RigLocalizer: a rig's cameras grouped into rig frames, tracked",
+    "ros/rig_node.py": "the rig mode of the node (rig.cameras set)",
+    "ros/bags/rig_bag.py": "rig bags: written from a simulated rig video, read for replay",
+    "calibration/mountings.py": "calibrate_mountings: the cameras' mountings on the rig",
+    "cli/calibrate_rig.py": "rs-localizer calibrate-rig",
+    "solvers/gr6p_1lin.py": "gR6P: the linear RS solver for points seen by several cameras",
+    "sim/rig.py": "simulated rigs of 2-4 RS cameras and their frames",
+    "sim/rig_video.py": "a simulated video of a rig of unsynchronized cameras",
+    "sim/render/rig.py": "rendered rigs: each camera's images at its mounting-composed pose",
+}
+
+#: what computes a pose from observations: (module, name) -> why it is one
+ESTIMATORS = {
+    ("estimation/estimate.py", "estimate_rs_pose"): "one camera's frame: RANSAC + refinement",
+    ("estimation/numpy_impl.py", "estimate_numpy"): "the same stages in NumPy (cold start)",
+    ("estimation/single_tag.py", "single_tag_estimate"): "too few points but one marker: IPPE",
+    ("estimation/rig.py", "estimate_rig_pose"): "one rig frame of several cameras",
+    ("tracking/tracker.py", "RSTracker"): "a camera's video: predicted RANSAC, relocalization",
+    ("tracking/sequence.py", "SequenceLocalizer"): "a camera's video, the library entry point",
+    ("tracking/rig.py", "RigLocalizer"): "a rig's video: rig frames tracked",
+    ("tracking/fusion.py", "TwistFilter"): "the fixed-lag smoother of a camera's or rig's twist",
+    ("calibration/mountings.py", "calibrate_mountings"): "mountings from a video: poses jointly",
+    ("mapping/marker_map.py", "map_markers"): "marker maps: the camera's poses with the map",
+}
+
+#: the types that hold a pose (or the solvers' model of one): (module, class) -> why
+POSE_CARRIERS = {
+    ("pose.py", "RSModel"): "the solvers' (R, C, w, t), the kernels' model",
+    ("pose.py", "RSPose"): "the domain pose: orientation, position, twist, stamp",
+    ("pose.py", "PoseWithCovariance"): "an RSPose with its 6x6 covariances: what is published",
+    ("estimation/result.py", "RSPoseEstimate"): "a camera frame's estimate (a PoseWithCovariance)",
+    ("estimation/rig.py", "RigPoseEstimate"): "a rig frame's estimate (a PoseWithCovariance)",
+    ("tracking/sequence.py", "FusedPose"): "a frame with its fused twist (a PoseWithCovariance)",
+    ("tracking/fusion.py", "FusedState"): "the twist filter's state of a frame (an RSPose)",
+    ("estimation/options.py", "InitialModel"): "a model to start RANSAC from (an RSModel)",
+    ("estimation/finalize.py", "FinalModel"): "the refined model before the last checks",
+    ("solvers/_common.py", "RSSolution"): "one solver solution (v, C, w, t)",
+    ("correspondences.py", "FrameFeedback"): "how a frame was solved, for its front end",
+    ("calibration/mountings.py", "MountingEstimate"): "a camera's mounting on the rig",
+    ("tracking/rig.py", "RigMount"): "a camera's mounting, as the rig uses it",
+}
+
+
+@dataclass(frozen=True)
+class Function:
+    module: str  # path under rs_localizer/
+    name: str  # Class.method or function
+    line: int
+    lines: int
+
+
+def modules() -> list[Path]:
+    """The package's Python modules, sorted."""
+    return sorted(p for p in PKG.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def _rel(p: Path) -> str:
+    return p.relative_to(PKG).as_posix()
+
+
+def package_of(rel: str) -> str:
+    """``estimation/rig.py`` -> ``estimation``; a module at the package root -> ``(root)``."""
+    return rel.split("/")[0] if "/" in rel else "(root)"
+
+
+def line_counts(path: Path) -> tuple[int, int]:
+    """(physical lines, code lines: neither blank nor a comment) of a file."""
+    text = path.read_text(encoding="utf-8").splitlines()
+    code = sum(1 for s in text if s.strip() and not s.lstrip().startswith("#"))
+    return len(text), code
+
+
+def functions(path: Path, tree: ast.AST | None = None) -> list[Function]:
+    """Every function and method of a module with its length in lines (decorators left out;
+    a nested function counted inside its parent and again on its own)."""
+    tree = tree or ast.parse(path.read_text(encoding="utf-8"))
+    out: list[Function] = []
+
+    def visit(node: ast.AST, prefix: str) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef):
+                name = prefix + child.name
+                out.append(
+                    Function(_rel(path), name, child.lineno, child.end_lineno - child.lineno + 1)
+                )
+                visit(child, name + ".")
+            elif isinstance(child, ast.ClassDef):
+                visit(child, prefix + child.name + ".")
+
+    visit(tree, "")
+    return out
+
+
+def top_level_names(tree: ast.AST) -> set[str]:
+    return {
+        n.name
+        for n in tree.body
+        if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef)
+    }
+
+
+def _module_name(rel: str) -> str:
+    parts = rel[: -len(".py")].split("/")
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(["rs_localizer", *parts])
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING"
+    )
+
+
+def _known() -> set[str]:
+    return {_module_name(_rel(p)) for p in modules()}
+
+
+def imports(rel: str, tree: ast.AST, deferred: bool, known: set[str] | None = None) -> set[str]:
+    """The package modules (names as in :func:`_module_name`) that module ``rel`` imports: at
+    module level, and with ``deferred`` also inside functions; never under TYPE_CHECKING.
+    ``known``: the package's module names (default: read from the tree)."""
+    me = _module_name(rel)
+    pkg = me if rel.endswith("__init__.py") else me.rpartition(".")[0]
+    known = _known() if known is None else known
+    found: set[str] = set()
+
+    def target(base: str, names: list[str]) -> None:
+        for n in names:
+            sub = f"{base}.{n}" if base else n
+            if sub in known:
+                found.add(sub)
+            elif base in known:
+                found.add(base)
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and _is_type_checking(child):
+                for other in child.orelse:
+                    visit(ast.Module(body=[other], type_ignores=[]), in_function)
+                continue
+            fn = isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda)
+            if isinstance(child, ast.Import) and (deferred or not in_function):
+                for a in child.names:
+                    name = a.name
+                    while name and name not in known:
+                        name = name.rpartition(".")[0]
+                    if name:
+                        found.add(name)
+            elif isinstance(child, ast.ImportFrom) and (deferred or not in_function):
+                if child.level:
+                    base = pkg
+                    for _ in range(child.level - 1):
+                        base = base.rpartition(".")[0]
+                    base = f"{base}.{child.module}" if child.module else base
+                else:
+                    base = child.module or ""
+                if base.split(".")[0] == "rs_localizer":
+                    target(base, [a.name for a in child.names])
+            visit(child, in_function or fn)
+
+    visit(tree, False)
+    found.discard(me)
+    return found
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            for w in it:
+                if w not in graph:
+                    continue
+                if w not in index:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                    break
+                if w in on:
+                    low[v] = min(low[v], index[w])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[v])
+                if low[v] == index[v]:
+                    comp = []
+                    while True:
+                        w = stack.pop()
+                        on.discard(w)
+                        comp.append(w)
+                        if w == v:
+                            break
+                    if len(comp) > 1:
+                        out.append(sorted(comp))
+    return out
+
+
+def _check_listed(listed: dict, trees: dict[str, ast.AST]) -> list[str]:
+    """The entries of ``listed`` whose name is not a top-level definition of their module."""
+    return [f"{m}:{n}" for (m, n) in listed if m not in trees or n not in top_level_names(trees[m])]
+
+
+def report(top: int = 10) -> dict:
+    """Every figure of the report as a dict (what ``--json`` prints)."""
+    trees = {_rel(p): ast.parse(p.read_text(encoding="utf-8")) for p in modules()}
+    per_package: dict[str, dict[str, int]] = {}
+    per_module: dict[str, int] = {}
+    for p in modules():
+        n, code = line_counts(p)
+        per_module[_rel(p)] = n
+        d = per_package.setdefault(package_of(_rel(p)), {"modules": 0, "lines": 0, "code": 0})
+        d["modules"] += 1
+        d["lines"] += n
+        d["code"] += code
+    total = sum(d["lines"] for d in per_package.values())
+    missing_rig = [m for m in RIG_ONLY if m not in per_module]
+    rig_lines = {m: per_module[m] for m in RIG_ONLY if m in per_module}
+    funcs = sorted(
+        (f for p in modules() for f in functions(p, trees[_rel(p)])),
+        key=lambda f: (-f.lines, f.module, f.line),
+    )
+    known = _known()
+    graphs = {
+        kind: {
+            _module_name(m): imports(m, t, deferred=(kind == "with deferred"), known=known)
+            for m, t in trees.items()
+        }
+        for kind in ("module level", "with deferred")
+    }
+    return {
+        "total_lines": total,
+        "packages": dict(sorted(per_package.items(), key=lambda kv: -kv[1]["lines"])),
+        "rig_only": {
+            "modules": rig_lines,
+            "lines": sum(rig_lines.values()),
+            "missing": missing_rig,
+        },
+        "estimators": [f"{m}:{n}" for (m, n) in ESTIMATORS],
+        "pose_carriers": [f"{m}:{n}" for (m, n) in POSE_CARRIERS],
+        "not_found": _check_listed(ESTIMATORS, trees) + _check_listed(POSE_CARRIERS, trees),
+        "longest_functions": [
+            {"function": f"{f.module}:{f.name}", "line": f.line, "lines": f.lines}
+            for f in funcs[:top]
+        ],
+        "import_circles": {kind: circles(g) for kind, g in graphs.items()},
+        "imports": {kind: sum(len(v) for v in g.values()) for kind, g in graphs.items()},
+    }
+
+
+def _print(r: dict) -> None:
+    total = r["total_lines"]
+    print(
+        f"rs_localizer: {total} lines in {sum(d['modules'] for d in r['packages'].values())} "
+        "modules"
+    )
+    print("\nlines per package (physical, code):")
+    for name, d in r["packages"].items():
+        print(f"  {name:<14} {d['lines']:>6} {d['code']:>6}  {d['modules']:>3} modules")
+    rig = r["rig_only"]
+    print(
+        f"\nrig-only modules: {rig['lines']} lines ({100 * rig['lines'] / total:.1f} % of the "
+        "package)"
+    )
+    for m, n in rig["modules"].items():
+        print(f"  {m:<26} {n:>5}  {RIG_ONLY[m]}")
+    for m in rig["missing"]:
+        print(f"  {m:<26}     -  listed but not in the package")
+    print(f"\nestimators: {len(ESTIMATORS)}")
+    for (m, n), why in ESTIMATORS.items():
+        print(f"  {m}:{n}  {why}")
+    print(f"\npose carriers: {len(POSE_CARRIERS)}")
+    for (m, n), why in POSE_CARRIERS.items():
+        print(f"  {m}:{n}  {why}")
+    for x in r["not_found"]:
+        print(f"  NOT FOUND: {x} (the list above is out of date)")
+    print(f"\nthe {len(r['longest_functions'])} longest functions (lines):")
+    for f in r["longest_functions"]:
+        print(f"  {f['lines']:>4}  {f['function']} (line {f['line']})")
+    print("\nimport circles among the package's modules:")
+    for kind, cs in r["import_circles"].items():
+        print(f"  {kind} ({r['imports'][kind]} imports): {len(cs)}")
+        for c in cs:
+            print("    " + " <-> ".join(c))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", action="store_true", help="print the figures as JSON")
+    ap.add_argument("--top", type=int, default=10, help="longest functions shown (default 10)")
+    a = ap.parse_args(argv)
+    r = report(a.top)
+    if a.json:
+        print(json.dumps(r, indent=1))
+    else:
+        _print(r)
+    return 1 if r["not_found"] or r["rig_only"]["missing"] else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
