@@ -8,7 +8,9 @@ the cameras' extrinsics in the rig, the rig's pose per frame), not motion captur
 
 The tag map is built from the reference's tag poses (corners of side 0.16 m in each tag's
 frame, :func:`~benchmarks.bench_single_tag.tag_corners`); a rig frame is both cameras'
-detections of one stamp (the two cameras share their stamps). Prints:
+detections of one stamp (the two cameras share their stamps). Prints the corners' errors at
+the reference's poses (:func:`reference_residuals`: in the image and in the undistorted plane),
+then:
 
 1. the rig: every rig frame with tags posed by the rig estimator
    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`, :data:`RIG_OPTIONS`, the
@@ -32,7 +34,7 @@ detections of one stamp (the two cameras share their stamps). Prints:
    against the reference's extrinsics: its error (deg, mm), its stated standard deviation
    (norm over the three axes), and whether the error is within twice it.
 
-    python -m benchmarks.bench_real_rig [--frames N] [--min-inliers 20 8]
+    python -m benchmarks.bench_real_rig [--frames N] [--threshold 2] [--min-inliers 20 8]
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -60,6 +63,7 @@ __all__ = [
     "RealRig",
     "calibrate",
     "load_test2",
+    "reference_residuals",
     "rig_run",
     "single_run",
     "summary",
@@ -176,10 +180,10 @@ def poselib_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
 
 
 def ours_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
-    """The rig estimator on one rig frame: ``(R, C)`` world -> rig, or None (refused)."""
+    """The rig estimator on one rig frame: ``(R, C)`` world -> rig, or its failure reason."""
     rv = [RigView(uv, X, rig.cameras[n], *rig.mounts[n], name=n) for n, (uv, X) in views.items()]
     e = estimate_rig_pose(rv, options)
-    return (e.model.R, e.model.C) if e.success else None
+    return (e.model.R, e.model.C) if e.success else e.failure
 
 
 def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: float = 2.0):
@@ -211,25 +215,29 @@ def _timed(fn):
     return out, time.thread_time() - t0
 
 
-def rig_run(rig: RealRig, frames: int | None = None) -> dict:
-    """Per rig frame with a reference pose (``frames``: the first that many): ``both`` (tags
-    in both cameras), the errors ``(rotation deg, position mm)`` of ``ours`` (None: refused)
-    and ``poselib``, and their CPU times (s), interleaved."""
+def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> list:
+    """Per rig frame with a reference pose (``frames``: the first that many stamps with
+    tags): ``both`` (tags in both cameras), the errors ``(rotation deg, position mm)`` of
+    ``ours`` (None: refused, ``failure`` its reason), ``refit`` (:func:`pixel_refit` of ours)
+    and ``poselib``, and their CPU times (s), interleaved; both methods on ``options``."""
     out = []
     warm = next(v for _, v in rig.frames if len(v) == 2)  # (compiles the kernels: untimed)
-    ours_rig(rig, warm)
-    poselib_rig(rig, warm)
+    ours_rig(rig, warm, options)
+    poselib_rig(rig, warm, options)
     for stamp, views in rig.frames[:frames]:
         if stamp not in rig.reference:
             continue
         ref = rig.reference[stamp]
-        mine, t_ours = _timed(lambda v=views: ours_rig(rig, v))
-        (R, C), t_pl = _timed(lambda v=views: poselib_rig(rig, v))
-        refit = pixel_refit(rig, views, *mine) if mine is not None else None
+        mine, t_ours = _timed(lambda v=views: ours_rig(rig, v, options))
+        (R, C), t_pl = _timed(lambda v=views: poselib_rig(rig, v, options))
+        failure = mine if isinstance(mine, str) else None
+        refit = pixel_refit(rig, views, *mine) if failure is None else None
         out.append(
             {
                 "both": len(views) == 2,
-                "ours": errors(*mine, ref) if mine is not None else None,
+                "cameras": len(views),
+                "failure": failure,
+                "ours": errors(*mine, ref) if failure is None else None,
                 "refit": errors(*refit, ref) if refit is not None else None,
                 "poselib": errors(R, C, ref),
                 "t_ours": t_ours,
@@ -250,7 +258,8 @@ def opencv_pnp(uv: np.ndarray, X: np.ndarray, cam: CameraModel):
 
 def single_run(rig: RealRig, frames: int | None = None) -> dict:
     """Each camera alone, every frame of it with a reference pose: camera name -> list of
-    ``{method: (rotation deg, position mm) or None}`` (``ours``, ``poselib``, ``opencv``)."""
+    ``{method: (rotation deg, position mm) or None}`` (``ours``, ``poselib``, ``opencv``) and
+    ``failure`` (ours: its reason, or None) and ``points``."""
     import poselib
 
     out: dict = {n: [] for n in rig.cameras}
@@ -270,6 +279,8 @@ def single_run(rig: RealRig, frames: int | None = None) -> dict:
             out[name].append(
                 {
                     "ours": errors(e.model.R, e.model.C, ref) if e.success else None,
+                    "failure": None if e.success else e.failure,
+                    "points": len(uv),
                     "poselib": errors(np.asarray(pose.R), np.asarray(pose.t), ref),
                     "opencv": errors(*cv, ref) if cv is not None else None,
                 }
@@ -303,6 +314,25 @@ def calibrate(rig: RealRig, min_inliers: int = 8) -> dict:
     }
 
 
+def reference_residuals(rig: RealRig) -> np.ndarray:
+    """Every corner of the stamps with a reference pose, projected with the reference's poses:
+    (N, 3) its distance from the principal point (px), its error in the image (distorted px)
+    and in the undistorted image plane times the focal length (the estimator's residual)."""
+    rows = []
+    for stamp, views in rig.frames:
+        if stamp not in rig.reference:
+            continue
+        R, C = rig.reference[stamp]
+        for name, (uv, X) in views.items():
+            cam = rig.cameras[name]
+            Rm, cm = rig.mounts[name]
+            P = (X @ R.T + C) @ Rm.T + cm
+            px = np.linalg.norm(cam.project(P) - uv, axis=1)
+            und = cam.mean_focal * np.linalg.norm(P[:, :2] / P[:, 2:] - cam.undistort(uv), axis=1)
+            rows.append(np.column_stack([np.linalg.norm(uv - cam.K[:2, 2], axis=1), px, und]))
+    return np.concatenate(rows)
+
+
 def _stats(e: np.ndarray) -> str:
     return f"{np.median(e):7.3f} {np.percentile(e, 90):7.3f}"
 
@@ -333,6 +363,9 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=None, help="the first N stamps with tags")
     ap.add_argument(
+        "--threshold", type=float, default=2.0, help="inlier threshold (px) of both methods"
+    )
+    ap.add_argument(
         "--min-inliers",
         type=int,
         nargs="+",
@@ -344,8 +377,19 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{FOLDER} absent: nothing to measure")
         return
     rig = load_test2(FOLDER)
+    res = reference_residuals(rig)
+    far = res[:, 0] > 400
+    print(
+        f"the reference's poses: corners' error median {np.median(res[:, 1]):.2f} px in the "
+        f"image, {np.median(res[:, 2]):.2f} in the undistorted plane times the focal length; "
+        f"the {far.sum()} corners beyond 400 px from the centre: {np.median(res[far, 1]):.2f}"
+        f" and {np.median(res[far, 2]):.2f} (p90 {np.percentile(res[far, 1], 90):.2f} and "
+        f"{np.percentile(res[far, 2], 90):.2f})"
+    )
+    options = replace(RIG_OPTIONS, ransac=replace(RIG_OPTIONS.ransac, threshold_px=a.threshold))
     with one_thread():
-        s = summary(rig_run(rig, a.frames))
+        runs = rig_run(rig, a.frames, options)
+        s = summary(runs)
         print(
             f"test_2 rig, {s['frames']} rig frames with tags and a reference, {s['both']} with "
             f"tags in both cameras: posed {s['posed']} of {s['both']} ({s['posed_any']} of "
@@ -356,15 +400,22 @@ def main(argv: list[str] | None = None) -> None:
         for key, name in (("ours", "rig estimator"), ("poselib", "PoseLib generalized")):
             e = s[key]
             print(f"  {name:20s} {_stats(e[:, 0])} {_stats(e[:, 1])}  {s['ms_' + key]:7.2f}")
+        e = s["refit"]
+        print(f"  {'ours, pixel refit':20s} {_stats(e[:, 0])} {_stats(e[:, 1])}")
         print(
             f"  ratio ours / PoseLib (medians): rotation {s['ratio_rot']:.2f}, position "
             f"{s['ratio_pos']:.2f}; time {s['ms_ours'] / s['ms_poselib']:.1f}x; refit on the "
             f"distorted pixels / PoseLib: rotation {s['ratio_refit'][0]:.2f}, position "
             f"{s['ratio_refit'][1]:.2f}"
         )
+        refused = Counter((r["cameras"], r["failure"]) for r in runs if r["failure"])
+        print(
+            "  refused (cameras with tags, reason): "
+            + ", ".join(f"{m} {f} {k}" for (m, f), k in sorted(refused.items()))
+        )
         single = single_run(rig, a.frames)
         for name, rows in single.items():
-            ok = [r for r in rows if all(v is not None for v in r.values())]
+            ok = [r for r in rows if all(r[k] is not None for k in ("ours", "poselib", "opencv"))]
             print(
                 f"{name} alone: {len(rows)} frames with tags, ours posed "
                 f"{sum(r['ours'] is not None for r in rows)}; over the {len(ok)} every method "
@@ -380,6 +431,11 @@ def main(argv: list[str] | None = None) -> None:
                     f"  {label:18s} {np.median(e[:, 0]):.3f} ({np.percentile(e[:, 0], 90):.3f})"
                     f"  {np.median(e[:, 1]):.1f} ({np.percentile(e[:, 1], 90):.1f})"
                 )
+            refused = Counter((r["points"], r["failure"]) for r in rows if r["failure"])
+            print(
+                "  refused (corners, reason): "
+                + ", ".join(f"{n} {f} {k}" for (n, f), k in sorted(refused.items()))
+            )
         for mi in a.min_inliers:
             c = calibrate(rig, mi)
             covered = c["error_deg"] <= 2 * c["std_deg"] and c["error_mm"] <= 2 * c["std_mm"]
