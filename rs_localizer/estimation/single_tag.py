@@ -118,10 +118,17 @@ def _fixed_velocities(
 
 def _ippe(fr: Frame) -> list[tuple[np.ndarray, np.ndarray]]:
     """The (at most two) IPPE poses ``(R, C)`` (world -> camera) of the frame's coplanar
-    points from their normalized image points."""
+    points from their normalized image points. The points are projected onto their
+    least-squares plane first: OpenCV's IPPE returns no pose for points a millimetre off one
+    plane (e.g. two tags on a real floor), which :func:`coplanar_points` accepts; the fit
+    (:func:`_fit`) then starts from these poses on the points as given."""
+    X = np.asarray(fr.X, dtype=np.float64)
+    centre = X.mean(axis=0)
+    normal = np.linalg.svd(X - centre)[2][2]
+    X = X - np.outer((X - centre) @ normal, normal)
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-            np.ascontiguousarray(fr.X, dtype=np.float64),
+            np.ascontiguousarray(X),
             np.ascontiguousarray(fr.x, dtype=np.float64),
             np.eye(3),
             None,
