@@ -29,13 +29,22 @@ Last (``--drive``), a robot driving past 3-5 markers of a simulated room (12-20 
 coplanar, 30 ms readout: :func:`rs_localizer.sim.marker_mapping.drive_detections`, the frames
 with 3 or more markers) on the true map: real motion that a few points determine loosely.
 
+Last (``--real``, when ``../shared/data/real_markers`` is there): TagSLAM's test_23, a
+RealSense D435 colour camera (640x480, rolling shutter, line delay unknown) watching a 3x3
+board of 0.049 m tags that barely moves, 372 frames of 4-9 tags: the camera's median
+position (mm) and rotation (deg) error against TagSLAM's solution for ``p3p`` and
+``r6p_1lin`` with line delay 0 and 30 us, and the motion models taken.
+
     python -m benchmarks.bench_global_shutter [--frames 60] [--points 100]
         [--line-delays 0 1e-9 1e-7 1e-6 2e-6 3e-5] [--turn 10] [--planar-frames 80] [--drive]
+        [--real]
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -47,7 +56,7 @@ from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.planar import make_planar_frame, planar_camera
 from rs_localizer.sim.synthetic import FRAME_SPAN, IMAGE_SIZE, make_frame, paper_camera
 
-__all__ = ["drive_frames", "main", "planar_frames", "run", "tags_frame"]
+__all__ = ["d435_frames", "drive_frames", "main", "planar_frames", "real_d435", "run", "tags_frame"]
 
 SOLVERS = ("p3p", "r6p_1lin")
 
@@ -112,6 +121,111 @@ def drive_frames(num_frames: int = 120) -> tuple[CameraModel, list]:
     return camera, frames
 
 
+#: TagSLAM's test_23 (README there: source, licence, format): ``shared/data/real_markers``
+#: beside the checkout (or beside the folder of worktrees the checkout is in)
+TEST_23 = (
+    next(
+        (
+            p
+            for p in (
+                Path(__file__).resolve().parents[k] / ".." / "shared" / "data" / "real_markers"
+                for k in (1, 2)
+            )
+            if p.is_dir()
+        ),
+        Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real_markers",
+    )
+    / "tagslam"
+    / "test_23"
+)
+
+
+def d435_frames(folder: Path = TEST_23) -> tuple[CameraModel, list]:
+    """test_23's camera (line delay 0) and frames: namespaces with ``points_px`` (the AprilTag
+    library's corners as this package's detector returns them), ``X`` (the board's corners,
+    tag ``3 row + column``, rows up, 1.5 sides apart, in the detector's order),
+    ``position`` (3,) and ``orientation`` (3, 3): TagSLAM's camera in the board frame."""
+    import json
+
+    from scipy.spatial.transform import Rotation
+
+    from rs_localizer.frontends.marker_detection import (
+        APRILTAG_PIXEL_OFFSET,
+        APRILTAG_TO_ARUCO_ORDER,
+    )
+
+    def pose(q, t):
+        M = np.eye(4)
+        M[:3, :3] = Rotation.from_quat(q).as_matrix()
+        M[:3, 3] = t
+        return M
+
+    size, h = 0.049, 0.049 / 2
+    tag = np.array([[h, -h, 0.0], [-h, -h, 0.0], [-h, h, 0.0], [h, h, 0.0]])  # BR, BL, TL, TR
+    board = {
+        r * 3 + c: tag + [(c - 1) * 1.5 * size, (r - 1) * 1.5 * size, 0.0]
+        for r in range(3)
+        for c in range(3)
+    }
+    tf = {
+        (t["parent"], t["child"]): t
+        for t in json.loads((folder / "json/reference_final_tf.json").read_text())
+    }
+    rig, cam = tf[("map", "rig")], tf[("rig", "cam0")]
+    map_cam = pose(rig["quat_xyzw"], rig["translation"]) @ pose(
+        cam["quat_xyzw"], cam["translation"]
+    )
+    odom = {
+        round(o["stamp"], 4): o
+        for o in map(json.loads, (folder / "json/reference_odom.jsonl").read_text().splitlines())
+    }
+    frames = []
+    for line in (folder / "json/detections.jsonl").read_text().splitlines():
+        d = json.loads(line)
+        o = odom[round(d["stamp"], 4)]
+        board_cam = np.linalg.inv(pose(o["quat_xyzw"], o["position"])) @ map_cam
+        ids = sorted(t["id"] for t in d["tags"])
+        px = {
+            t["id"]: np.array(t["corners"])[list(APRILTAG_TO_ARUCO_ORDER)] - APRILTAG_PIXEL_OFFSET
+            for t in d["tags"]
+        }
+        frames.append(
+            SimpleNamespace(
+                points_px=np.concatenate([px[i] for i in ids]),
+                X=np.concatenate([board[i] for i in ids]),
+                position=board_cam[:3, 3],
+                orientation=board_cam[:3, :3],
+            )
+        )
+    K = np.array([[612.569, 0, 319.370], [0, 612.861, 241.992], [0, 0, 1]])
+    return CameraModel(K=K, width=640, height=480), frames
+
+
+def real_d435(folder: Path = TEST_23) -> None:
+    """Print test_23's rows (module docstring), or why not."""
+    if not folder.is_dir():
+        print(f"(--real: {folder} is absent)")
+        return
+    camera, frames = d435_frames(folder)
+    print(f"D435 board (test_23, {len(frames)} frames) against TagSLAM's solution:")
+    for delay in (0.0, 30e-6):
+        cam = replace(camera, line_delay=delay)
+        for solver in SOLVERS:
+            pos, rot, models = [], [], []
+            for f in frames:
+                est = estimate_rs_pose(f.points_px, f.X, cam, solver)
+                if est.success:
+                    pos.append(1e3 * np.linalg.norm(est.pose.position - f.position))
+                    rot.append(rotation_angle_deg(est.pose.orientation, f.orientation))
+                    models.append(est.motion_model)
+            gs = models.count("global_shutter")
+            print(
+                f"  {delay * 1e6:4g} us/line {solver:9s} {np.median(pos):7.2f} mm "
+                f"{np.median(rot):7.3f} deg  refused {len(frames) - len(pos)}, "
+                f"global-shutter model {gs}, rolling-shutter {len(models) - gs}"
+            )
+
+
 def run(camera: CameraModel | float, frames: list, solvers=SOLVERS) -> dict:
     """Each solver's rotation errors (deg, None for a refused frame) and motion models on
     ``frames`` (``points_px``, ``X``, ``R``) seen by ``camera``, or by the protocol's camera
@@ -160,6 +274,7 @@ def main(argv=None) -> int:
     p.add_argument("--turn", type=float, default=10.0, help="rad/s of the turning camera")
     p.add_argument("--planar-frames", type=int, default=80, help="frames per planar row (0: none)")
     p.add_argument("--drive", action="store_true", help="also the robot's drive past markers")
+    p.add_argument("--real", action="store_true", help="also the D435 recording (test_23)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.points < 7 or args.planar_frames < 0:
         p.error("need --frames >= 1, --points >= 7 and --planar-frames >= 0")
@@ -204,6 +319,8 @@ def main(argv=None) -> int:
         if args.drive:
             camera, frames = drive_frames()
             _row(f"drive, {camera.line_delay * 1e6:g} us", run(camera, frames))
+    if args.real:
+        real_d435()
     print(
         "targets at rest up to 2 us/line (ratio <= 1.05, no P3P-solved frame lost): "
         f"{'met' if ok else 'MISSED'}"
