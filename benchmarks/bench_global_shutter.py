@@ -36,7 +36,7 @@ position (mm) and rotation (deg) error against TagSLAM's solution for ``p3p`` an
 ``r6p_1lin`` with line delay 0 and 30 us, and the motion models taken.
 
     python -m benchmarks.bench_global_shutter [--frames 60] [--points 100]
-        [--line-delays 0 1e-9 1e-7 1e-6 2e-6 3e-5] [--turn 10] [--planar-frames 80] [--drive]
+        [--line-delays 0 1e-9 1e-7 1e-6 2e-6 3e-5] [--turn 10] [--planar-frames 60] [--drive]
         [--real]
 """
 
@@ -272,7 +272,7 @@ def main(argv=None) -> int:
         "--line-delays", type=float, nargs="+", default=[0.0, 1e-9, 1e-7, 1e-6, 2e-6, 3e-5]
     )
     p.add_argument("--turn", type=float, default=10.0, help="rad/s of the turning camera")
-    p.add_argument("--planar-frames", type=int, default=80, help="frames per planar row (0: none)")
+    p.add_argument("--planar-frames", type=int, default=60, help="frames per planar row (0: none)")
     p.add_argument("--drive", action="store_true", help="also the robot's drive past markers")
     p.add_argument("--real", action="store_true", help="also the D435 recording (test_23)")
     args = p.parse_args(argv)
