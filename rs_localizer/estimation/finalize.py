@@ -323,16 +323,19 @@ def prior_at_rest(prior: MotionPrior | None) -> bool:
     return float(m @ prior.information() @ m) < MOTION_SIGNIFICANCE_CHI2
 
 
-def rolling_shutter_check(fr: Frame, model: Model) -> RefineResult | None:
-    """The rolling-shutter model refined by maximum likelihood from a global-shutter ``model``
-    on the frame's points (the final refinement's truncated loss): the frame's evidence of
-    motion around a global-shutter pose (:func:`motion_chi2` of its velocities). ``None``
-    when the refinement gives no finite model or covariance, or the camera has no readout
-    time (``fr.spr <= 0``)."""
+def rolling_shutter_check(
+    fr: Frame, model: Model, prior: MotionPrior | None = None
+) -> RefineResult | None:
+    """The rolling-shutter model refined from a global-shutter ``model`` on the frame's points
+    (the final refinement's truncated loss), by maximum likelihood or, with ``prior``, MAP (the
+    final refinement's ``fr.prior``: planar frames): the frame's evidence of motion around a
+    global-shutter pose (:func:`motion_chi2` of its velocities). ``None`` when the refinement
+    gives no finite model or covariance, or the camera has no readout time
+    (``fr.spr <= 0``)."""
     if not fr.spr > 0:
         return None
     R, C = (np.array(a, dtype=float) for a in model[:2])
-    ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), fr.threshold, True)
+    ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), fr.threshold, True, prior)
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
@@ -396,10 +399,14 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     The inliers are re-selected on the refined model; the covariance stays the rolling-shutter
     fit's (its pose block is the pose's uncertainty with the velocities unknown, its twist block
     what the frame says of them: zero within that). ``None``: the frame shows motion, or the
-    evidence is unknown (not finite), or the global-shutter refinement gives no finite model or
-    fewer than ``min_inliers`` inliers (the rolling-shutter model then stays).
+    evidence is unknown (not finite), or a non-planar frame was refined with a prior on every
+    frame (a tracker's prediction, ``prior.always``: its evidence is the prediction's as much as
+    the frame's), or the global-shutter refinement gives no finite model or fewer than
+    ``min_inliers`` inliers (the rolling-shutter model then stays).
     """
     n = int(np.count_nonzero(final.inliers))
+    if fr.prior is not None and not fr.planar:
+        return None
     if n >= STILL_MIN_POINTS and fr.prior is None and not fr.planar:
         if motion_significant(final.motion_chi2, n):
             return None

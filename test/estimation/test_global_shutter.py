@@ -167,3 +167,41 @@ def test_a_moving_board_keeps_the_rolling_shutter_model():
     err_rs = [rotation_angle_deg(e.model.R, f.R) for e, f in zip(rs, frames, strict=True)]
     err_gs = [rotation_angle_deg(e.model.R, f.R) for e, f in zip(gs, frames, strict=True)]
     assert np.median(err_rs) < 0.5 * np.median(err_gs)
+
+
+def _three_tags(k, line_delay):
+    """Three 10 cm tags in a row (12 corners) at rest where :func:`_planar_board` puts the
+    board, 0.5 px noise."""
+    f = _planar_board(k, line_delay, False)
+    h = 0.05
+    X = np.concatenate(
+        [
+            np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0]]) + [0.15 * i, 0, 0]
+            for i in (-1, 0, 1)
+        ]
+    )
+    px = f.camera.project_rs(X, f.R, f.C) + np.random.default_rng(k).normal(0, 0.5, (12, 2))
+    return px, X, f.camera, f.R
+
+
+@pytest.mark.parametrize("line_delay", (1e-9, 2e-6))
+def test_three_tags_at_rest_are_posed_as_p3p_poses_them(line_delay):
+    # (12 corners: too few for the F test to mean "small"; the chi-square median decides)
+    frames = [_three_tags(k, line_delay) for k in range(12)]
+    ests = {
+        solver: [
+            estimate_rs_pose(px, X, cam, solver, EstimateOptions(ransac=RansacOptions(seed=k)))
+            for k, (px, X, cam, _) in enumerate(frames)
+        ]
+        for solver in ("p3p", "r6p_1lin")
+    }
+    both = [k for k, e in enumerate(ests["p3p"]) if e.success]
+    assert len(both) >= 10
+    rs = [ests["r6p_1lin"][k] for k in both]
+    assert all(e.success and not e.single_tag for e in rs), [e.failure for e in rs]
+    assert sum(e.motion_model == "global_shutter" for e in rs) >= len(both) - 1
+    err = {
+        solver: [rotation_angle_deg(ests[solver][k].model.R, frames[k][3]) for k in both]
+        for solver in ests
+    }
+    assert np.median(err["r6p_1lin"]) <= 1.05 * np.median(err["p3p"])
