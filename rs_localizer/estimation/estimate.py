@@ -67,6 +67,7 @@ from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import (
     DEGENERATE_GEOMETRY,
+    TOO_FEW_INLIERS,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
@@ -348,7 +349,7 @@ def _estimate(
             image.append(image_alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
-        if failure.reason == IMPLAUSIBLE_MOTION and gyro is None and solver_info(solver).rolling:
+        if failure.reason in STILL_FALLBACK and gyro is None and solver_info(solver).rolling:
             still = _still_frame(
                 fr, points2d, points3d, camera, opts, scores, initial_model, point_sigma, ignored
             )
@@ -411,6 +412,14 @@ def _single_tag(
     return est
 
 
+#: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
+#: model (:func:`_still_frame`): every rolling-shutter model implausible (a readout of
+#: nanoseconds turns the noise into absurd velocities), or RANSAC's best model explaining too
+#: few points (12 corners of three tags at rest on which no rolling-shutter hypothesis
+#: found a consensus that P3P's does)
+STILL_FALLBACK = (IMPLAUSIBLE_MOTION, TOO_FEW_INLIERS)
+
+
 def _still_frame(
     fr,
     points2d: np.ndarray,
@@ -422,10 +431,12 @@ def _still_frame(
     point_sigma: np.ndarray | None,
     ignored: tuple[str, ...],
 ) -> RSPoseEstimate | None:
-    """A frame whose rolling-shutter models were all implausible, posed on the global-shutter model
-    when the frame shows no motion: the global-shutter estimate (P3P samples, pose-only refinement)
-    if it succeeds and the rolling-shutter model refined from it finds velocities its noise explains
-    (not :func:`~.finalize.motion_significant`). A readout too short to observe motion (nanoseconds
+    """A frame whose rolling-shutter estimate failed (:data:`STILL_FALLBACK`), posed on the
+    global-shutter model when the frame shows no motion: the global-shutter estimate (P3P samples,
+    pose-only refinement) if it succeeds and the rolling-shutter model refined from it (with the
+    motion prior where the final refinement uses it from the start: planar frames) finds
+    velocities its noise explains (not :func:`~.finalize.motion_significant`: the alternative is
+    a refusal, not a rolling-shutter estimate). A readout too short to observe motion (nanoseconds
     to microseconds per line) turns the noise's apparent motion into absurd velocities in every
     minimal sample; such frames are posed as P3P poses them, with the twist covariance of that
     refinement. ``None``: the frame stays refused (a frame whose points do show motion is not posed
@@ -444,7 +455,7 @@ def _still_frame(
     )
     if not est.success:
         return None
-    check = rolling_shutter_check(fr, est.model)
+    check = rolling_shutter_check(fr, est.model, fr.prior if fr.planar else None)
     if check is None:
         return None
     if motion_significant(motion_chi2(check.covariance, check.w, check.t), est.num_inliers):

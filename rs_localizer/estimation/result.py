@@ -199,9 +199,9 @@ class RSPoseEstimate(PoseWithCovariance):
             ``"numpy"`` (:mod:`~rs_localizer.estimation.implementation`).
         motion_model: ``"rolling_shutter"`` (the pose and velocities of eq. 4) or
             ``"global_shutter"`` (``w = t = 0``: the global-shutter ``p3p``; a camera with no
-            readout time, ``line_delay`` 0; or a frame of many points that show no significant
-            motion, :func:`~.finalize.still_final`, so the six velocity parameters would only
-            fit its noise into the pose). A global-shutter estimate of a
+            readout time, ``line_delay`` 0; or a frame whose points show no motion,
+            :func:`~.finalize.still_final`, so the six velocity parameters would only fit its
+            noise into the pose). A global-shutter estimate of a
             rolling-shutter solver reports zero velocities with the rolling-shutter fit's
             ``twist_covariance`` (what the frame says of the motion: none, within it), or
             ``None`` where the camera has no readout time (unobserved); or

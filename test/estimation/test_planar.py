@@ -334,7 +334,10 @@ def test_board_with_outliers_finds_every_inlier():
             f.points_px, f.X, f.camera, "r6p_1lin", EstimateOptions(ransac=RansacOptions(seed=seed))
         )
         assert e.success and np.array_equal(e.inliers, f.inlier), seed
-        assert e.planar and e.planarity < 1e-9 and e.condition_number > 1e4
+        assert e.planar and e.planarity < 1e-9
+        # (the 12 parameters of one plane are near-degenerate; a frame whose posterior shows no
+        # motion is posed on the global-shutter model, whose 6 are not)
+        assert e.condition_number > 1e4 or e.motion_model == "global_shutter"
         assert rotation_angle_deg(e.pose.orientation, f.orientation) < 4.0
         ml = estimate_rs_pose(
             f.points_px,
