@@ -16,6 +16,7 @@ per-point offset that :meth:`CameraModel.normalize` returns.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -27,8 +28,13 @@ __all__ = [
     "DISTORTION_MODELS",
     "MAX_LINE_DELAY",
     "MAX_READOUT_TIME",
+    "MAX_STAMP_NS",
     "READOUT_DIRECTIONS",
     "CameraModel",
+    "FrameTime",
+    "Stamp",
+    "checked_stamp",
+    "reference_stamp_ns",
 ]
 
 #: s/line: the largest ``line_delay`` a :class:`CameraModel` takes (the node's
@@ -41,6 +47,9 @@ MAX_LINE_DELAY = 0.01
 #: s: the largest ``readout_time`` (a whole frame's) :meth:`CameraModel.from_readout_time`
 #: takes (the node's ``rs.readout_time`` range)
 MAX_READOUT_TIME = 1.0
+
+#: the largest stamp (ns) a frame or a gyro sample may carry: an int64 nanosecond count
+MAX_STAMP_NS = 2**63 - 1
 
 #: readout direction name -> (image axis: 0 = u/columns, 1 = v/rows; sign; direction vector d)
 #: undistortion stops when the point re-distorts to within this many pixels of the measured
@@ -414,6 +423,76 @@ class CameraModel:
             & (p[:, 1] >= -margin)
             & (p[:, 1] <= self.height - 1 + margin)
         )
+
+
+# ---------------------------------------------------------------------- stamps
+class Stamp(int):
+    """A stamp (ns, int) that :func:`checked_stamp` accepted: a frame's header stamp (the
+    capture time of row ``stamp_row``) or a gyro sample's. The type says it was checked: the
+    stages after the entry that checked it take it as it is (:func:`checked_stamp` returns
+    it unchanged). Arithmetic on it gives plain ints. Made by :func:`checked_stamp` (and
+    :func:`rs_localizer.ros.conversions.checked_stamp_ns` for ROS messages), not directly."""
+
+    __slots__ = ()
+
+
+def checked_stamp(stamp_ns: Any, what: str = "frame") -> Stamp:
+    """``stamp_ns`` (ns) as a :class:`Stamp` (a float is truncated, as ``int`` does), checked;
+    a :class:`Stamp` is returned as it is (checked already).
+
+    Raises:
+        ValueError: a stamp that is not a finite number, or outside the int64 nanosecond
+            range ``[-2**63, 2**63 - 1]`` (:data:`MAX_STAMP_NS`, about the year 2262): no
+            ROS message, bag or clock carries it (e.g. a stamp in ns converted twice).
+    """
+    if type(stamp_ns) is Stamp:
+        return stamp_ns
+    if isinstance(stamp_ns, (int, np.integer)) and not isinstance(stamp_ns, (bool, np.bool_)):
+        value = int(stamp_ns)
+    else:
+        try:
+            f = float(stamp_ns)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} stamp must be a number of ns, got {stamp_ns!r}") from None
+        if not np.isfinite(f):
+            raise ValueError(f"{what} stamp must be finite, got {stamp_ns!r}")
+        value = int(f)
+    if not -MAX_STAMP_NS - 1 <= value <= MAX_STAMP_NS:
+        raise ValueError(
+            f"{what} stamp {stamp_ns!r} ns is beyond the int64 range [-2**63, 2**63 - 1] ns"
+        )
+    return Stamp(value)
+
+
+def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
+    """The reference row's capture time (ns): the time of a frame's estimate, from its stamp
+    ``stamp_ns`` (ns, the capture time of row ``stamp_row``, px along the readout):
+    ``stamp_ns + (capture time of camera.reference_line - that of stamp_row)``, rounded to
+    the ns. The one computation of a frame's reference time: the single-camera and the rig
+    localizers, the rig's grouping and the rig node's queue take it from here."""
+    return int(stamp_ns) + int(round(camera.time_offset(stamp_row, camera.reference_line) * 1e9))
+
+
+@dataclass(frozen=True)
+class FrameTime:
+    """A frame's times (ns), made once where the frame enters a localizer
+    (:meth:`FrameTime.of`) and handed on: ``stamp_ns``, its stamp, checked (:class:`Stamp`:
+    the capture time of row ``stamp_row``); ``reference_ns``, the capture time of its
+    camera's reference line (:func:`reference_stamp_ns`), the time of its pose."""
+
+    stamp_ns: Stamp
+    reference_ns: int
+
+    @classmethod
+    def of(cls, stamp_ns: Any, camera: CameraModel, stamp_row: float) -> FrameTime:
+        """The times of a frame stamped ``stamp_ns`` (ns, row ``stamp_row``, px) seen by
+        ``camera``.
+
+        Raises:
+            ValueError: a stamp :func:`checked_stamp` refuses.
+        """
+        stamp = checked_stamp(stamp_ns)
+        return cls(stamp, reference_stamp_ns(stamp, camera, stamp_row))
 
 
 def _field_limit(model: str, D: np.ndarray, distorted: bool) -> float:

@@ -168,3 +168,45 @@ def test_projection_refuses_points_where_the_distortion_turns_back():
     assert np.isnan(cam.project(np.array([[0.0, 0.0, -1.0]]))).all()  # (behind)
     plain = CameraModel(K=cam.K)
     assert plain.field_limit == np.inf
+
+
+def test_checked_stamp_types_the_stamp_and_takes_a_typed_one_as_it_is():
+    """A stamp in ns (int, numpy int, float truncated as ``int``) becomes a ``Stamp`` (an int);
+    a ``Stamp`` comes back unchanged; a stamp that is no finite number or beyond the int64
+    nanosecond range raises ValueError; arithmetic gives plain ints."""
+    from rs_localizer.camera import MAX_STAMP_NS, Stamp, checked_stamp
+
+    s = checked_stamp(np.int64(1_700_000_000_123_456_789))
+    assert type(s) is Stamp and s == 1_700_000_000_123_456_789
+    assert checked_stamp(s) is s
+    assert checked_stamp(12.9) == 12 and checked_stamp(MAX_STAMP_NS) == 2**63 - 1
+    assert type(s + 1) is int and str(s) == "1700000000123456789"
+    for bad in (2**63, -(2**63) - 1, 5e19, float("nan"), float("inf"), "x", None):
+        with pytest.raises(ValueError, match="stamp"):
+            checked_stamp(bad, "IMU")
+
+
+@pytest.mark.parametrize("readout", ["top_to_bottom", "bottom_to_top", "left_to_right"])
+def test_reference_stamp_is_the_reference_lines_capture_time(readout):
+    """The reference time of a frame stamped at line ``stamp_row``: the stamp plus the capture
+    time from that line to the reference line, counted from the first line read out (rows
+    for vertical readout, columns for horizontal); ``FrameTime.of`` checks the stamp and
+    carries both."""
+    from rs_localizer.camera import FrameTime, Stamp, reference_stamp_ns
+
+    d = 20e-6
+    cam = CameraModel(K=np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]]), width=640,
+                      height=480, line_delay=d, readout=readout, reference_row=100.0)  # fmt: skip
+    lines = 640 if readout == "left_to_right" else 480
+
+    def read_at(line):  # s after the first line read out
+        return (lines - 1 - line) * d if readout == "bottom_to_top" else line * d
+
+    stamp = 1_000_000_000_000
+    for stamp_row in (0.0, 37.5, 400.0):
+        want = stamp + round((read_at(100.0) - read_at(stamp_row)) * 1e9)
+        assert reference_stamp_ns(stamp, cam, stamp_row) == want
+        t = FrameTime.of(stamp, cam, stamp_row)
+        assert type(t.stamp_ns) is Stamp and t.stamp_ns == stamp and t.reference_ns == want
+    with pytest.raises(ValueError, match="int64"):
+        FrameTime.of(2**64, cam, 0.0)

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-from ..camera import DISTORTION_MODELS, CameraModel
+from ..camera import DISTORTION_MODELS, CameraModel, Stamp, checked_stamp
 from ..pose import PoseWithCovariance, RSPose
 
 if TYPE_CHECKING:  # (the message packages are imported where a message is built)
@@ -132,19 +132,25 @@ def stamp_to_ns(stamp: Time) -> int:
     return int(stamp.sec) * _NS + int(stamp.nanosec)
 
 
-def checked_stamp_ns(stamp: Time) -> int:
-    """Like :func:`stamp_to_ns`, for stamps from the outside world.
+def checked_stamp_ns(stamp: Time) -> Stamp:
+    """Like :func:`stamp_to_ns`, for stamps from the outside world: the one check of a
+    message's stamp, at the node's entry. Returns a checked
+    :class:`~rs_localizer.camera.Stamp`, which the localizers take as it is.
 
     Raises:
         StampError (a ValueError, ``reason = "bad_stamp"``): ``nanosec >= 1e9`` (it would be
-        read as extra seconds) or ``sec < 0`` (ROS time is not negative).
+        read as extra seconds), ``sec < 0`` (ROS time is not negative) or beyond the int64
+        nanosecond range (a ``sec`` no ``int32`` field holds).
     """
     sec, nsec = int(stamp.sec), int(stamp.nanosec)
     if not 0 <= nsec < _NS:
         raise StampError(f"invalid stamp: nanosec {nsec} is not in [0, 1e9)")
     if sec < 0:
         raise StampError(f"invalid stamp: negative sec {sec}")
-    return sec * _NS + nsec
+    try:
+        return checked_stamp(sec * _NS + nsec)
+    except ValueError as e:
+        raise StampError(f"invalid stamp: {e}") from None
 
 
 class ImuError(ValueError):

@@ -41,7 +41,6 @@ from ..tracking.sequence import (
     SequenceFrame,
     SequenceLocalizer,
     SequenceSettings,
-    reference_stamp_ns,
 )
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
@@ -521,7 +520,10 @@ class FramePipeline:
                 "(camera.fx <= 0)",
             )
         res.camera = camera
-        out_stamp = reference_stamp_ns(stamp, camera, cfg.stamp_row)
+        # (the frame's times, made once: its checked stamp and its reference time, taken as
+        # they are from here on)
+        ft = self.sequence.frame_time(stamp, camera)
+        out_stamp = ft.reference_ns
         if not 0 <= out_stamp <= cv.STAMP_MAX_NS:
             raise _Drop(
                 "bad_stamp",
@@ -532,7 +534,7 @@ class FramePipeline:
         if kind == "image":
             img, enc = self._decode(msg, camera, stamp, cfg, res)
             t_decoded = time.perf_counter()
-            out = self.sequence.process_image(stamp, img, camera, enc, tag=res.frame_id)
+            out = self.sequence.process_image(ft, img, camera, enc, tag=res.frame_id)
             self._frontend_ran(out, cfg, res)
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
@@ -540,7 +542,8 @@ class FramePipeline:
             uv, xyz, scores = self._extract(msg, kind, cfg)
             uv, xyz, scores = self.sequence.valid_rows(uv, xyz, scores)
             t_decoded = time.perf_counter()
-            out = self.sequence.process(SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id))
+            frame = SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id)
+            out = self.sequence.process(frame, ft)
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled
         self.stats.add("frames_compiled" if out.compiled else "frames_uncompiled")

@@ -73,10 +73,10 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
+from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
-from ..tracking.sequence import reference_stamp_ns
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
@@ -103,6 +103,21 @@ INPUT_SKIP_REASONS = {
 }
 """The node's reasons for a camera frame dropped before it reaches the rig (counted
 ``<c>.skipped.<reason>``, beside the rig's own :data:`~rs_localizer.tracking.rig.SKIP_REASONS`)."""
+
+
+@dataclass(frozen=True)
+class _Queued:
+    """A camera frame in the queue: the camera's ``name``, ``kind`` (``cloud``, ``image``),
+    the message, its arrival (``time.perf_counter``) and its header stamp, checked once as it
+    arrived (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`): a
+    :class:`~rs_localizer.camera.Stamp`, or the error of a stamp out of range (the frame is
+    counted ``bad_input`` when the worker takes it)."""
+
+    name: str
+    kind: str
+    msg: Any
+    arrived: float
+    stamp: Stamp | ValueError
 
 
 @dataclass
@@ -619,8 +634,12 @@ class RigCore:
             self._inputs[f"{name}.received"] += 1
         if self._first_frame is None:
             self._first_frame = time.monotonic()
+        try:  # (the frame's one stamp check: the queue's grouping and the worker take it)
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError as e:
+            stamp = e
         size = self.queue_size * len(self.config.cameras)
-        skipped = self._frames.put((name, kind, msg, time.perf_counter()), size)
+        skipped = self._frames.put(_Queued(name, kind, msg, time.perf_counter(), stamp), size)
         _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
         if skipped:
             self._log.warning(
@@ -636,40 +655,42 @@ class RigCore:
         ``rig.window`` of the first's, as the rig groups them. A rig frame's frames are then
         taken together, and a full queue drops whole rig frames, not the rest of the one
         being solved."""
-        if any(b[0] == item[0] for b in batch):
+        if any(b.name == item.name for b in batch):
             return False
-        try:
-            return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
-        except Exception:  # (a stamp the worker will refuse: not grouped)
-            return False
+        if isinstance(item.stamp, ValueError) or isinstance(batch[0].stamp, ValueError):
+            return False  # (a stamp the worker will refuse: not grouped)
+        return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
 
-    def _ref_ns(self, item) -> int:
-        name, _, msg, _ = item
-        stamp = cv.stamp_to_ns(msg.header.stamp)
-        camera = self.models[name]
+    def _ref_ns(self, item: _Queued) -> int:
+        """A queued frame's reference time (ns) by its camera's newest model (its stamp
+        without one), as the rig groups it (:func:`~rs_localizer.camera.reference_stamp_ns`)."""
+        camera = self.models[item.name]
         if camera is None:
-            return stamp
-        return reference_stamp_ns(stamp, camera, self.config.settings.stamp_row)
+            return item.stamp
+        return reference_stamp_ns(item.stamp, camera, self.config.settings.stamp_row)
 
     def _queue_skipped(self, item, reason: str) -> None:
         """A frame the queue dropped (with the queue's lock held): counted for its camera."""
         with self._acc:
-            self._inputs[f"{item[0]}.skipped.{reason}"] += 1
+            self._inputs[f"{item.name}.skipped.{reason}"] += 1
 
     def _process(self, item) -> _Taken:
         """The worker: one camera frame to the rig; counted (handed on, or why not) together
         with the rig's counts, so that a diagnostics snapshot sees it once."""
-        name, kind, msg, _ = item
+        name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
         tic = time.perf_counter()
         with self._rig_lock:
             outs, skip, failure, fused = [], None, None, []
             try:
-                outs, fused = self._stamp_jump(name, msg)
-                if kind == "cloud":
-                    more, skip = self._take_cloud(name, msg)
+                if isinstance(stamp, ValueError):
+                    skip = self._bad_stamp(name, kind, stamp)
                 else:
-                    more, skip = self._take_image(name, msg)
-                outs += more
+                    outs, fused = self._stamp_jump(name, stamp)
+                    if kind == "cloud":
+                        more, skip = self._take_cloud(name, msg, stamp)
+                    else:
+                        more, skip = self._take_image(name, msg, stamp)
+                    outs += more
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"
                 self._log.warning(
@@ -685,16 +706,22 @@ class RigCore:
                 self._timing["frame"].append(time.perf_counter() - tic)
         return _Taken(outs, None, fused)
 
-    def _stamp_jump(self, name: str, msg) -> tuple[list, list]:
+    def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
+        """A frame whose stamp is out of range: counted ``<c>.skipped.bad_input`` (returns the
+        reason) and logged; it never reaches the rig."""
+        self.bad_input[name] += 1
+        if kind == "cloud":
+            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {error}")
+        else:
+            self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
+        return "bad_input"
+
+    def _stamp_jump(self, name: str, stamp: Stamp) -> tuple[list, list]:
         """A frame stamped more than ``time_reset_threshold`` after every frame the rig has
         had (a gap in a bag, a clock jump) starts the rig again, as a camera's node resets
         its time-dependent state: the open rig frames are solved, the track ends and the
         cameras' timelines restart (no camera counts as stopped for the gap); counted
         ``<c>.stamp_jumped_ahead``. Returns the rig frames solved and the track's twists."""
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError:  # (counted bad_input when it is taken)
-            return [], []
         newest, self._newest_ns = self._newest_ns, max(self._newest_ns or stamp, stamp)
         if newest is None or stamp - newest <= self.config.settings.time_reset_ns:
             return [], []
@@ -720,7 +747,7 @@ class RigCore:
                 toc = time.perf_counter()
                 age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
                 with self._acc:
-                    self._timing["latency"].append(toc - item[3])
+                    self._timing["latency"].append(toc - item.arrived)
                     self._timing["stamp_age"].append(age)
 
     def _log_failure(self, out: RigOutput) -> None:
@@ -750,18 +777,13 @@ class RigCore:
     def _delivery_failed(self, e: BaseException) -> None:
         self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
 
-    def _take_cloud(self, name: str, msg) -> tuple[list, str | None]:
-        """A cloud of correspondences to the rig. One that cannot be read is counted
-        ``<c>.skipped.bad_input``: with a readable stamp it goes to the rig as a frame
-        skipped (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
+    def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
+        """A cloud of correspondences (its checked ``stamp``) to the rig. One that cannot be
+        read is counted ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
+        (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
         ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
-        as one whose clock is off); with none, by the node alone."""
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError as e:
-            self.bad_input[name] += 1
-            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
-            return [], "bad_input"
+        as one whose clock is off); one whose stamp is out of range is counted by the node
+        alone (:meth:`_bad_stamp`)."""
         try:
             c = read_correspondences(msg)
         except ValueError as e:
@@ -808,7 +830,7 @@ class RigCore:
     def _on_image(self, name: str, msg) -> None:
         self._enqueue(name, "image", msg)
 
-    def _take_image(self, name: str, msg) -> tuple[list, str | None]:
+    def _take_image(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
         """An image: decoded and checked against the camera's camera_info by the single-camera
         node's decoder (:func:`~rs_localizer.ros.image_codec.decode_image`: a message that does
         not decode or is smaller than the front ends take: ``bad_image``; another size than the
@@ -816,12 +838,6 @@ class RigCore:
         the camera's front end and the rig (:meth:`RigLocalizer.process_image`)."""
         from .image_codec import ImageRejected, decode_image
 
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except ValueError as e:
-            self.bad_input[name] += 1
-            self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {e}")
-            return [], "bad_input"
         camera = self._camera(name, stamp)
         self._warn_no_info(name, "images")
         try:

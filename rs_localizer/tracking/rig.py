@@ -5,7 +5,7 @@ Each camera of the rig sends its own frames (2D-3D correspondences, its own stam
 camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 
 1. **groups** the frames into *rig frames* by the capture time of each frame's reference line
-   (:func:`~rs_localizer.tracking.sequence.reference_stamp_ns`): a rig frame holds at most one
+   (:func:`~rs_localizer.camera.reference_stamp_ns`): a rig frame holds at most one
    frame per camera, all within ``window`` s of its earliest (:attr:`RigSettings.window`). A
    rig frame is solved once every camera is in it or has *moved past* it (its newest frame is
    later than the rig frame's earliest plus ``window``) or has *stopped* (no frame for
@@ -103,7 +103,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
-from ..camera import CameraModel
+from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, FrameFeedback, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
@@ -123,7 +123,7 @@ from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from .gyro_check import GyroMountCheck, MountCheckOptions, gyro_if_consistent, update_gyro_checks
-from .sequence import FusedPose, checked_stamp, image_sample, reference_stamp_ns, same_image
+from .sequence import FusedPose, image_sample, same_image
 from .tracker import predictable
 
 __all__ = [
@@ -579,7 +579,7 @@ class RigLocalizer:
 
         Raises:
             ValueError: a stamp that is not a nanosecond count
-                (:func:`~rs_localizer.tracking.sequence.checked_stamp`).
+                (:func:`~rs_localizer.camera.checked_stamp`).
         """
         stamp = checked_stamp(stamp_ns, "IMU")
         return "disabled" if self.imu is None else self.imu.add(stamp, rate)
@@ -712,6 +712,15 @@ class RigLocalizer:
         Raises:
             ValueError: a camera not in the rig.
         """
+        if frame.camera is None:
+            return self._add(frame, None)
+        return self._add(
+            frame, reference_stamp_ns(frame.stamp_ns, frame.camera, self.settings.stamp_row)
+        )
+
+    def _add(self, frame: RigCameraFrame, ref: int | None) -> list[RigOutput]:
+        """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
+        camera model)."""
         name = frame.camera_name
         cam = self._cams.get(name)
         if cam is None:
@@ -726,7 +735,6 @@ class RigLocalizer:
             self._skip(name, "no_camera_info")
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
-        ref = reference_stamp_ns(stamp, frame.camera, self.settings.stamp_row)
         out: list[RigOutput] = []
         if cam.last_ref is not None and ref <= cam.last_ref:
             if cam.last_ref - ref > self.settings.time_reset_ns:
@@ -901,6 +909,10 @@ class RigLocalizer:
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         ref = reference_stamp_ns(checked_stamp(stamp_ns), camera, self.settings.stamp_row)
+        return self._predict_camera(cam, ref, camera)
+
+    def _predict_camera(self, cam: _Camera, ref: int, camera: CameraModel) -> RSModel | None:
+        """:meth:`predict_camera` at the frame's reference time ``ref`` (ns)."""
         spr = camera.seconds_per_unit_r
         f, to = self._filter, self.settings.tracking
         if f is not None:
@@ -932,12 +944,18 @@ class RigLocalizer:
                 f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
             )
         stamp = checked_stamp(stamp_ns)
+        t = stamp if camera is None else reference_stamp_ns(stamp, camera, self.settings.stamp_row)
+        return self._drop(name, stamp, t, reason)
+
+    def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
+        """:meth:`drop` of a frame stamped ``stamp`` whose time is ``t`` (ns: its reference
+        time, or its stamp without a camera model)."""
+        cam = self._cams[name]
         self.counts[f"{name}.received"] += 1
         self._last_wall = time.monotonic()
         self._skip(name, reason)
         if self._first is None:
             self._first = stamp
-        t = stamp if camera is None else reference_stamp_ns(stamp, camera, self.settings.stamp_row)
         cam.dropped.append(t)
         if cam.last_ref is None or t > cam.last_ref:
             cam.newest = t if cam.newest is None else max(cam.newest, t)
@@ -985,7 +1003,10 @@ class RigLocalizer:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
         stamp = checked_stamp(stamp_ns)
         if camera is None:
-            return self._observed(self.add(RigCameraFrame(name, stamp, None, _NO_UV, _NO_XYZ, tag)))
+            frame = RigCameraFrame(name, stamp, None, _NO_UV, _NO_XYZ, tag)
+            return self._observed(self._add(frame, None))
+        # (the frame's reference time, once: the prediction, the rig frame it joins)
+        ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
         label = img.labels.get(name, "frontend")
         sample = image_sample(image)
         prev, img.samples[name] = img.samples.get(name), sample
@@ -1000,8 +1021,8 @@ class RigLocalizer:
                 fe.observe(stamp, None, None)
             except Exception as e:
                 self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
-            return self._observed(self.drop(name, stamp, camera, "frozen_image"))
-        prediction = self.predict_camera(name, stamp, camera)
+            return self._observed(self._drop(name, stamp, ref, "frozen_image"))
+        prediction = self._predict_camera(self._cams[name], ref, camera)
         try:
             found = Correspondences.of(
                 fe.process(image, camera, encoding=encoding, prediction=prediction)
@@ -1011,7 +1032,7 @@ class RigLocalizer:
                 f"rig.frontend.{name}",
                 f"rig camera {name!r}: {label} front end failed: {type(e).__name__}: {e}",
             )
-            return self._observed(self.drop(name, stamp, camera, "frontend_error"))
+            return self._observed(self._drop(name, stamp, ref, "frontend_error"))
         text = fe.pop_warning()
         if text:
             self.log.warning(f"{label}.warning", text)
@@ -1019,9 +1040,8 @@ class RigLocalizer:
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
         uv, xyz = uv[good], xyz[good]
-        ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        return self._observed(self.add(RigCameraFrame(name, stamp, camera, uv, xyz, tag)))
+        return self._observed(self._add(RigCameraFrame(name, stamp, camera, uv, xyz, tag), ref))
 
     def _observed(self, outs: list[RigOutput]) -> list[RigOutput]:
         """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)

@@ -63,7 +63,14 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import (
+    MAX_STAMP_NS,
+    CameraModel,
+    FrameTime,
+    Stamp,
+    checked_stamp,
+    reference_stamp_ns,
+)
 from ..correspondences import Correspondences, FrameFeedback, VideoFrontend, video_frontend
 from ..estimation.estimate import (
     EstimateOptions,
@@ -104,8 +111,6 @@ __all__ = [
 
 #: frames whose fused twist may wait at most (the oldest beyond are dropped)
 MAX_PENDING = 64
-#: the largest stamp (ns) a frame or a gyro sample may carry: an int64 nanosecond count
-MAX_STAMP_NS = 2**63 - 1
 #: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
 #: (:attr:`SequenceOutput.failure`): the front end raised, or found fewer correspondences
 #: than the solver needs, or the image is the previous one again (:func:`same_image`)
@@ -137,31 +142,6 @@ def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL
         return None
     d = float(np.mean(np.abs(prev[0] - cur[0])))
     return d if d <= level else None
-
-
-def checked_stamp(stamp_ns: Any, what: str = "frame") -> int:
-    """``stamp_ns`` (ns) as an int (a float is truncated, as ``int`` does), checked.
-
-    Raises:
-        ValueError: a stamp that is not a finite number, or outside the int64 nanosecond
-            range ``[-2**63, 2**63 - 1]`` (:data:`MAX_STAMP_NS`, about the year 2262): no
-            ROS message, bag or clock carries it (e.g. a stamp in ns converted twice).
-    """
-    if isinstance(stamp_ns, (int, np.integer)) and not isinstance(stamp_ns, (bool, np.bool_)):
-        value = int(stamp_ns)
-    else:
-        try:
-            f = float(stamp_ns)
-        except (TypeError, ValueError):
-            raise ValueError(f"{what} stamp must be a number of ns, got {stamp_ns!r}") from None
-        if not np.isfinite(f):
-            raise ValueError(f"{what} stamp must be finite, got {stamp_ns!r}")
-        value = int(f)
-    if not -MAX_STAMP_NS - 1 <= value <= MAX_STAMP_NS:
-        raise ValueError(
-            f"{what} stamp {stamp_ns!r} ns is beyond the int64 range [-2**63, 2**63 - 1] ns"
-        )
-    return value
 
 
 @dataclass(frozen=True)
@@ -400,12 +380,6 @@ def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
     if estimate is None:
         return None
     return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
-
-
-def reference_stamp_ns(stamp_ns: int, camera: CameraModel, stamp_row: float) -> int:
-    """The reference row's capture time (ns): the time of a frame's estimate, from the header
-    stamp ``stamp_ns`` (the capture time of row ``stamp_row``, px along the readout)."""
-    return int(stamp_ns) + int(round(camera.time_offset(stamp_row, camera.reference_line) * 1e9))
 
 
 def _gyro_calibration(imu: Any) -> tuple:
@@ -685,6 +659,26 @@ class SequenceLocalizer:
         )
 
     # ---------------------------------------------------------------- time
+    def frame_time(self, stamp_ns: int | FrameTime, camera: CameraModel) -> FrameTime:
+        """The times of a frame stamped ``stamp_ns`` (ns, the capture time of row
+        ``stamp_row``) seen by ``camera``: its stamp checked and its reference time
+        (:class:`~rs_localizer.camera.FrameTime`, with the settings' ``stamp_row``). Made once
+        per frame; :meth:`process_image`, :meth:`predict` and :meth:`process` take it as it is
+        (a :class:`~rs_localizer.camera.FrameTime` given here is returned unchanged: it must be
+        this camera's, with this ``stamp_row``).
+
+        Raises:
+            ValueError: a stamp that is not a finite number within the int64 nanosecond range
+                (:func:`checked_stamp`). TypeError: ``camera`` is not a
+                :class:`~rs_localizer.camera.CameraModel`.
+        """
+        if isinstance(stamp_ns, FrameTime):
+            _check_camera(camera)
+            return stamp_ns
+        stamp = checked_stamp(stamp_ns)
+        _check_camera(camera)
+        return FrameTime.of(stamp, camera, self.settings.stamp_row)
+
     def check_time(self, stamp_ns: int) -> str | None:
         """Note a frame's stamp (ns). A stamp older than the previous frame's, or newer by more
         than ``time_reset_ns``, is a time reset: returns why (else None), and the gyro's
@@ -697,7 +691,10 @@ class SequenceLocalizer:
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
         """
-        stamp = checked_stamp(stamp_ns)
+        return self._check_time(checked_stamp(stamp_ns))
+
+    def _check_time(self, stamp: Stamp) -> str | None:
+        """:meth:`check_time` of a checked stamp."""
         last, self._last_stamp = self._last_stamp, stamp
         if last is None:
             return None
@@ -771,7 +768,7 @@ class SequenceLocalizer:
 
     def process_image(
         self,
-        stamp_ns: int,
+        stamp_ns: int | FrameTime,
         image: np.ndarray,
         camera: CameraModel,
         encoding: str = "bgr8",
@@ -786,7 +783,8 @@ class SequenceLocalizer:
         :class:`~rs_localizer.correspondences.VideoFrontend`.
 
         Args:
-            stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``.
+            stamp_ns: the capture time (ns, camera clock) of row ``stamp_row``, or the frame's
+                :meth:`frame_time` (taken as it is).
             image: (H, W) or (H, W, C) uint8 in ``encoding`` (``bgr8``, ``rgb8``, ``mono8``,
                 ...).
             camera: the frame's :class:`~rs_localizer.camera.CameraModel` with its
@@ -803,14 +801,14 @@ class SequenceLocalizer:
                 nanosecond range (:func:`checked_stamp`). TypeError: ``camera`` is not a
                 :class:`~rs_localizer.camera.CameraModel`.
         """
-        stamp = checked_stamp(stamp_ns)
-        _check_camera(camera)
+        t = self.frame_time(stamp_ns, camera)
+        stamp = t.stamp_ns
         fe, name = self._frontend, self.frontend_name
         if fe is None:
             raise ValueError("process_image needs a front end (set_frontend)")
-        reset = self.check_time(stamp)
+        reset = self._check_time(stamp)
         s = self.settings
-        out = SequenceOutput(stamp_ns=reference_stamp_ns(stamp, camera, s.stamp_row))
+        out = SequenceOutput(stamp_ns=t.reference_ns)
         sample = image_sample(image)
         prev, self._last_image = self._last_image, sample
         diff = (
@@ -832,7 +830,7 @@ class SequenceLocalizer:
             # (the camera moved on unseen: the next new image starts a new track)
             self._track_over = True
             return out
-        prediction = self.predict(stamp, camera)
+        prediction = self._predict(t.reference_ns, camera)
         t0 = time.perf_counter()
         try:
             found = Correspondences.of(
@@ -854,7 +852,7 @@ class SequenceLocalizer:
             out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
-        res = self.process(SequenceFrame(stamp, camera, uv, xyz, scores, tag))
+        res = self._process(SequenceFrame(stamp, camera, uv, xyz, scores, tag), t)
         try:
             fe.observe(stamp, uv, frame_feedback(res.estimate))
         except Exception as e:
@@ -863,7 +861,7 @@ class SequenceLocalizer:
         res.points2d, res.points3d = uv, xyz
         return res
 
-    def predict(self, stamp_ns: int, camera: CameraModel) -> RSModel | None:
+    def predict(self, stamp_ns: int | FrameTime, camera: CameraModel) -> RSModel | None:
         """The prediction of a frame at ``stamp_ns`` (ns, header stamp: the capture time of
         row ``stamp_row``) seen by ``camera``: its model (:class:`~rs_localizer.pose.RSModel`
         ``(R, C, w, t)``, at the reference row's capture time) before it is estimated, what
@@ -878,14 +876,17 @@ class SequenceLocalizer:
         frame: :func:`~rs_localizer.tracking.tracker.predictable`; or the first image after a
         ``frozen_image``).
 
+        ``stamp_ns`` may be the frame's :meth:`frame_time` (taken as it is).
+
         Raises:
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
             TypeError: ``camera`` is not a :class:`~rs_localizer.camera.CameraModel`.
         """
-        stamp = checked_stamp(stamp_ns)
-        _check_camera(camera)
+        return self._predict(self.frame_time(stamp_ns, camera).reference_ns, camera)
+
+    def _predict(self, ref: int, camera: CameraModel) -> RSModel | None:
+        """:meth:`predict` at the frame's reference time ``ref`` (ns)."""
         s = self.settings
-        ref = reference_stamp_ns(stamp, camera, s.stamp_row)
         with self._lock:
             t = self._tracker
             if self._track_over:  # (after a frozen image: searched whole, a new track)
@@ -900,16 +901,32 @@ class SequenceLocalizer:
             return self._carried.predict(ref, camera)
 
     # ---------------------------------------------------------------- frames
-    def process(self, frame: SequenceFrame) -> SequenceOutput:
+    def process(self, frame: SequenceFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
         """Estimate one frame (its gyro measurement from the buffered samples, the tracker's
         prediction), update the gyro bias and check, and hand out the fused twists that became
-        final. Never raises for a frame the estimator rejects (``estimate.success`` false,
-        with ``estimate.failure``) or raises on (``error``)."""
-        self.check_time(frame.stamp_ns)
+        final. ``frame_time``: the frame's :meth:`frame_time` when the caller made it (None: made
+        here). Never raises for a frame the estimator rejects (``estimate.success`` false,
+        with ``estimate.failure``) or raises on (``error``).
+
+        Raises:
+            ValueError: a ``time`` of another stamp than the frame's.
+        """
+        ft = frame_time
+        if ft is None:
+            ft = FrameTime.of(frame.stamp_ns, frame.camera, self.settings.stamp_row)
+        elif ft.stamp_ns != frame.stamp_ns:
+            raise ValueError(
+                f"frame time of stamp {ft.stamp_ns} ns given for a frame of {frame.stamp_ns} ns"
+            )
+        return self._process(frame, ft)
+
+    def _process(self, frame: SequenceFrame, ft: FrameTime) -> SequenceOutput:
+        """:meth:`process` of a frame with its times ``ft``."""
+        self._check_time(frame.stamp_ns)
         s = self.settings
         camera = frame.camera
-        stamp = int(frame.stamp_ns)
-        ref = reference_stamp_ns(stamp, camera, s.stamp_row)
+        stamp = frame.stamp_ns
+        ref = ft.reference_ns
         out = SequenceOutput(stamp_ns=ref)
         # (while the kernels compile in the background: every frame alone, without the gyro,
         # on the NumPy implementation; runtime.background)

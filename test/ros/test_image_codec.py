@@ -267,6 +267,7 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 def _rig_node_decode(msg, cam):
     """The rig node's image step (``RigCore._take_image``) on ``msg`` with the camera's model
     ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same form."""
+    from rs_localizer.ros.conversions import checked_stamp_ns
     from rs_localizer.ros.rig_node import RigCore
 
     got, logged = [], []
@@ -289,7 +290,8 @@ def _rig_node_decode(msg, cam):
         camera_viz={},
         _images={},
     )
-    assert RigCore._take_image(core, "c", msg) == ([], None)
+    stamp = checked_stamp_ns(msg.header.stamp)
+    assert RigCore._take_image(core, "c", msg, stamp) == ([], None)
     (out,) = got
     if out[0] == "drop":
         (text,) = logged

@@ -422,3 +422,68 @@ def test_pipeline_uncompiled_then_compiled(msgs, sequence):
     assert res.solved and res.compiled and not res.twist_now
     counts = pipe.stats.snapshot().counts
     assert (counts["frames_uncompiled"], counts["frames_compiled"]) == (3, 1)
+
+
+def test_a_frames_stamp_is_checked_once_and_its_reference_time_made_once(
+    msgs, sequence, monkeypatch
+):
+    """Along the camera node's route (message -> FramePipeline -> SequenceLocalizer -> front
+    end -> estimator), for a correspondence frame and an image frame alike, the stamp is
+    validated once (at the message, where a bad one is ``bad_stamp``) and the reference time
+    computed once; the output stamp is the reference row's capture time of the simulation
+    (``t_ref_ns``, from the trajectory, not from the formula)."""
+    import rs_localizer.camera as camera_mod
+    import rs_localizer.ros.conversions as conversions_mod
+    import rs_localizer.tracking.rig as rig_mod
+    import rs_localizer.tracking.sequence as sequence_mod
+    from rs_localizer.correspondences import Correspondences
+    from rs_localizer.frontends.shared import LoadedMaps
+    from rs_localizer.ros.image_codec import image_fields
+    from rs_localizer.ros.pipeline import FramePipeline
+
+    frames, _, cam = sequence
+    checks, refs = [], []
+    original = camera_mod.checked_stamp
+
+    def counted(stamp_ns, what="frame"):
+        if type(stamp_ns) is not camera_mod.Stamp:  # (one already checked is taken as is)
+            checks.append(stamp_ns)
+        return original(stamp_ns, what)
+
+    for mod in (camera_mod, conversions_mod, sequence_mod, rig_mod):
+        monkeypatch.setattr(mod, "checked_stamp", counted)
+    time_offset = camera_mod.CameraModel.time_offset
+
+    def counted_offset(self, a, b):
+        refs.append((a, b))
+        return time_offset(self, a, b)
+
+    monkeypatch.setattr(camera_mod.CameraModel, "time_offset", counted_offset)
+
+    current = {}
+
+    class Frontend:  # (the frame's own correspondences, whatever the image)
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = current["frame"]
+            return Correspondences(f.uv, f.xyz)
+
+    cfg = C.build_config({**P.default_values(), "camera_info_wait": 0.0})
+    pipe = FramePipeline(cfg, maps=LoadedMaps(frontend=Frontend()))
+    pipe.add_camera_info(msgs.camera_info(cam, frames[0].stamp_ns, "cam"))
+    rng = np.random.default_rng(0)
+    for k, f in enumerate(frames[:4]):
+        checks.clear()
+        refs.clear()
+        if k % 2:
+            img = rng.integers(0, 255, (cam.height, cam.width), np.uint8)
+            msg = msgs.T["sensor_msgs/msg/Image"](
+                header=msgs.header(f.stamp_ns, "cam"), **image_fields(img, "mono8")
+            )
+            current["frame"] = f
+            res = pipe.process(msg, "image")
+        else:
+            res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
+        assert res.solved, (k, res.failure, res.detail)
+        assert res.out_stamp_ns == f.t_ref_ns and res.estimate is not None
+        assert checks == [f.stamp_ns], k
+        assert len(refs) == 1, (k, refs)

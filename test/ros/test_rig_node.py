@@ -600,6 +600,84 @@ def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
     assert "rig frames failed (" in message and "contradicts_track" in message, message
 
 
+def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, monkeypatch):
+    """The left camera's clouds 3..5 with stamps no ROS time holds (nanosec >= 1e9, one of them
+    summing to the frame's true ns count; a negative sec): counted ``left.skipped.bad_input``
+    (and ``left.bad_input``) by the node alone, never handed to the rig nor grouped with
+    another camera's frame; every other frame's stamp is validated once, as it arrives; every
+    camera balances. Frames handed to the node's callbacks directly (no DDS)."""
+    import time
+
+    import rs_localizer.camera as camera_mod
+    import rs_localizer.ros.conversions as conversions_mod
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
+    params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02})
+    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    checks = []
+    original = camera_mod.checked_stamp
+
+    def counted(stamp_ns, what="frame"):
+        if type(stamp_ns) is not camera_mod.Stamp:  # (one already checked is taken as is)
+            checks.append(stamp_ns)
+        return original(stamp_ns, what)
+
+    grouped_bad = []
+    same = node._same_rig_frame
+
+    def watched(batch, item):
+        together = same(batch, item)
+        if together and any(isinstance(x.stamp, ValueError) for x in (batch[0], item)):
+            grouped_bad.append(item)
+        return together
+
+    node._frames._group = watched
+    try:
+        for c in node.config.cameras:
+            cam = next(x for x in cams if x.name == c.name)
+            node._on_info(c, camera_info_msg(cam.camera, c.name, T0))
+        for mod in (camera_mod, conversions_mod):
+            monkeypatch.setattr(mod, "checked_stamp", counted)
+        bad, good = 0, []
+        for f in frames:
+            cloud = correspondence_cloud(
+                f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
+            )
+            if f.name == "left" and 3 <= f.index <= 5:
+                st = cloud.header.stamp
+                if f.index == 3:  # (the same ns count, read as sec and nanosec: invalid)
+                    st.sec, st.nanosec = st.sec - 1, st.nanosec + 1_000_000_000
+                elif f.index == 4:
+                    st.sec = -1
+                else:
+                    st.nanosec = 1_500_000_000
+                bad += 1
+            else:
+                good.append(f.stamp_ns)
+            node._on_cloud(f.name, cloud)
+        for _ in range(3000):
+            if node._frames.counts().pending == 0:
+                break
+            time.sleep(0.01)
+        node._end_video()
+        v = {kv.key: kv.value for kv in node.diagnostics_status().values}
+        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
+        assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
+        assert not grouped_bad
+        assert sorted(checks) == sorted(good)
+        for c in cams:
+            n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
+                                                       "skipped", "pending")}  # fmt: skip
+            assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+    finally:
+        node.destroy_node()
+
+
 def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
     """The left camera's clouds 3..6 without their ``x`` field (the stamp readable): counted
     ``left.skipped.bad_input``, passed on to the rig, so the rig frames without them count

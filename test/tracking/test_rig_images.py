@@ -170,3 +170,61 @@ def test_a_third_camera_names_the_wrong_mounting():
     assert rig.camera_state("front") == "running"
     texts = [t for k, t in log.warnings if k.startswith("rig.disagrees.")]
     assert len(texts) == 1 and "rig camera 'left' disagrees with the others" in texts[0]
+
+
+def test_an_images_stamp_is_checked_once_and_its_reference_time_made_once(monkeypatch):
+    """``process_image`` with a raw stamp: the stamp validated once and the frame's reference
+    time computed once (its prediction, its rig frame and the front end's feedback share
+    them); every rig frame at the earliest reference time of its frames, the simulation's
+    (``t_ref_ns``, from the trajectory)."""
+    import rs_localizer.camera as camera_mod
+    import rs_localizer.tracking.rig as rig_mod
+    import rs_localizer.tracking.sequence as sequence_mod
+    from rs_localizer.correspondences import Correspondences
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=150, seed=6)
+    checks, refs = [], []
+    original = camera_mod.checked_stamp
+
+    def counted(stamp_ns, what="frame"):
+        if type(stamp_ns) is not camera_mod.Stamp:  # (one already checked is taken as is)
+            checks.append(stamp_ns)
+        return original(stamp_ns, what)
+
+    for mod in (camera_mod, rig_mod, sequence_mod):
+        monkeypatch.setattr(mod, "checked_stamp", counted)
+    time_offset = camera_mod.CameraModel.time_offset
+
+    def counted_offset(self, a, b):
+        refs.append((a, b))
+        return time_offset(self, a, b)
+
+    monkeypatch.setattr(camera_mod.CameraModel, "time_offset", counted_offset)
+    current = {}
+
+    class Frontend:  # (the frame's own correspondences, whatever the image)
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = current["frame"]
+            return Correspondences(f.uv, f.xyz)
+
+    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    for c in cams:
+        rig.set_frontend(c.name, Frontend(), "stub")
+    by = {c.name: c.camera for c in cams}
+    rng = np.random.default_rng(1)
+    outs = []
+    for f in frames:
+        checks.clear()
+        refs.clear()
+        current["frame"] = f
+        img = rng.integers(0, 255, (48, 64), np.uint8)
+        outs += rig.process_image(f.name, f.stamp_ns, img, by[f.name], "mono8")
+        assert checks == [f.stamp_ns] and len(refs) == 1, (f.name, checks, refs)
+    outs += rig.close()
+    assert outs and all(o.success for o in outs)
+    t_ref = {(f.name, f.stamp_ns): f.t_ref_ns for f in frames}
+    for o in outs:
+        refs_in = [t_ref[(n, o.frames[n].stamp_ns)] for n in o.cameras]
+        assert o.stamp_ns == min(refs_in)
+    assert_balanced(rig)

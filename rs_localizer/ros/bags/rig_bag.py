@@ -554,7 +554,7 @@ def rig_frame_grouping(
         ValueError: no ``rig.cameras`` or an unknown readout direction (as
         :func:`read_rig_frames`).
     """
-    from ...tracking.sequence import reference_stamp_ns
+    from ...camera import reference_stamp_ns
 
     frames, values, _ = read_rig_frames(bag, params_files, params)
     names = [str(n).strip() for n in values["rig.cameras"]]
