@@ -10,13 +10,18 @@ implementation's, each written in NumPy:
 1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
    undistortion; the RS coordinate of the measured, distorted line), the same shuffle, and
    the checks of :func:`.frame.configure_frame` in the same order;
-2. RANSAC: minimal samples pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of
-   each sample, the root with the least error on the sample's other points; paper sec. 4),
-   the paper's linear R6P (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples
-   with ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
-   exact constant-velocity model at each point's measured capture time (eq. 4), all hypotheses
-   of a batch scored at once, adaptive termination (:func:`.ransac.required_iterations`);
-3. local optimization: the linear solver on all inliers, pre-rotated by the best model;
+2. RANSAC: the compiled implementation's loop (:class:`NumpyRansac`, a
+   :class:`~.ransac.Ransac`: the same samples from the same random stream, batches, adaptive
+   termination and failure reasons) with its compiled steps in NumPy: minimal samples
+   pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of each sample, the root
+   with the least error on the sample's other points; paper sec. 4), the paper's linear R6P
+   (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples with
+   ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
+   exact constant-velocity model at each point's measured capture time (eq. 4), all
+   hypotheses of a batch scored at once (:class:`NumpySamples`);
+3. local optimization: the compiled implementation's rounds
+   (:func:`~.local_optimization.local_optimization`) with the linear solver on the inliers
+   pre-rotated by the best model and a robust SciPy fit of the exact model;
 4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
    (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
    :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
@@ -44,28 +49,35 @@ from scipy.optimize import least_squares
 
 from ..camera import CameraModel
 from ..geometry import camera_position, cross, exact_camera_points, rotvec_to_matrix, skew
-from ..pose import model_twist, model_twist_jacobian
-from ..solvers.registry import sample_size, solver_info
+from ..pose import RSModel, model_twist, model_twist_jacobian
+from ..solvers.registry import solver_info
 from .degeneracy import condition_number, planarity
 from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
-from .frame import Frame, configure_frame, prepare_frame
+from .frame import Frame, Model, configure_frame, prepare_frame
+from .hypotheses import ScoredBatch, hypothesis_iterations
 from .implementation import NUMPY, NUMPY_SOLVERS
+from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions, points_needed
 from .plausibility import motion_norms2
 from .prior import prior_arrays
-from .ransac import required_iterations, seeded_rng
-from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
+from .ransac import Ransac, seeded_rng
+from .refine import (
+    RefineSettings,
+    exact_jacobian,
+    exact_residuals,
+    least_squares_exact_model,
+    refine_rs_pose_scipy,
+)
 from .result import (
     CHEIRALITY,
-    DEGENERATE_GEOMETRY,
     IMPLAUSIBLE_MOTION,
     INCONSISTENT_FIT,
-    NO_HYPOTHESIS,
     TOO_FEW_INLIERS,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
 )
+from .sampling import draw_samples_numpy
 
 __all__ = ["estimate_numpy"]
 
@@ -82,7 +94,11 @@ def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
-    X, x, tau = fr.X[:m], fr.x[:m], fr.tau[:m]
+    return _errors2_at(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
+
+
+def _errors2_at(R, C, w, t, X, x, tau) -> np.ndarray:
+    """:func:`_errors2` at the points ``X`` (n, 3), ``x`` (n, 2), ``tau`` (n,)."""
     p = exact_camera_points(R, C, w, t, X, tau)
     z = p[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -215,97 +231,114 @@ def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
     return R, C[good], w[good], t[good]
 
 
-class _Search:
-    """MSAC over minimal samples in batches (adaptive termination, local optimization of
-    every new best)."""
+class NumpySamples:
+    """The hypotheses of a batch of minimal samples and their MSAC scores in NumPy (the
+    :class:`~.hypotheses.HypothesisSource` of :class:`NumpyRansac`): the samples drawn as the
+    compiled sources draw them (:func:`~.sampling.draw_samples_numpy`), P3P pre-rotation and
+    linear R6P (:func:`_hypotheses`), the plausibility filter, then preemptive scoring: every
+    model on the first ``2 * pretest_points`` points (the rows are shuffled: a random subset),
+    the best :data:`_KEEP` of them on all."""
 
-    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, rng):
-        self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
-        self.s = sample_size(solver)
+    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float):
+        self.fr, self.th2 = fr, th2
         self.rolling = solver_info(solver).rolling
-        self.th2 = (opts.ransac.threshold_px / fr.f) ** 2
-        self.best = None
-        self.score = np.inf
-        self.inliers = np.zeros(len(fr.x), dtype=bool)
-        self.iterations = 0
-        self.implausible = False
+        self.pretest = 2 * opts.ransac.pretest_points
 
-    def _consider(self, R, C, w, t) -> bool:
-        """Score H models (or one: R (3, 3)); keep the best if it beats the current one. True
-        if it did."""
-        if R.ndim == 2:
-            R, C, w, t = R[None], C[None], w[None], t[None]
-        if not len(R):
-            return False
-        fine = _plausible(C, w, t, self.fr.motion_bounds)
-        self.implausible |= bool((~fine).any())
+    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor) -> ScoredBatch:
+        fr = self.fr
+        R, C, w, t = _hypotheses(fr, order.take(draw_samples_numpy(uniforms, pool)), self.rolling)
+        fine = _plausible(C, w, t, fr.motion_bounds)
+        n_bad = int(np.count_nonzero(~fine))
         if not fine.any():
-            return False
+            return ScoredBatch(-1, np.inf, R, C, w, t, n_bad)
         R, C, w, t = R[fine], C[fine], w[fine], t[fine]
-        m = self.opts.ransac.pretest_points * 2
-        if len(R) > _KEEP and len(self.fr.x) > 2 * m:
-            # preemptive scoring: every model on the first m points (the rows are shuffled: a
-            # random subset), the best _KEEP of them on all
-            part = np.minimum(_errors2(self.fr, R, C, w, t, m), self.th2).sum(axis=1)
+        if len(R) > _KEEP and len(fr.x) > 2 * self.pretest:
+            part = np.minimum(_errors2(fr, R, C, w, t, self.pretest), self.th2).sum(axis=1)
             keep = np.argpartition(part, _KEEP - 1)[:_KEEP]
             R, C, w, t = R[keep], C[keep], w[keep], t[keep]
-        e2 = _errors2(self.fr, R, C, w, t)
-        sc = np.minimum(e2, self.th2).sum(axis=1)
-        k = int(np.argmin(sc))
-        if not sc[k] < self.score:
-            return False
-        self.score, self.best, self.inliers = sc[k], (R[k], C[k], w[k], t[k]), e2[k] < self.th2
-        return True
+        sc = np.minimum(_errors2(fr, R, C, w, t), self.th2).sum(axis=1)
+        h = int(np.argmin(sc))
+        return ScoredBatch(h, float(sc[h]), R, C, w, t, n_bad)
 
-    def _local_optimization(self) -> None:
-        """Local optimization of a new best: the linear solver on (at most
-        ``local_optimization.max_points`` of) its inliers, pre-rotated by it, while that
-        scores better (at most ``local_optimization.steps`` times), then a few
-        Levenberg-Marquardt steps of the exact model on them."""
-        if not self.rolling or not self.opts.local_optimization.nonminimal:
-            return
-        fr, lo = self.fr, self.opts.local_optimization
-        for _ in range(max(lo.steps, 1)):
-            idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
-            if len(idx) < 2 * self.s:
-                return
-            R0 = self.best[0]
-            Xs = (fr.X[idx] @ R0.T)[None]
-            v, C, w, t, ok = _r6p_1lin(fr.x[idx][None], Xs, fr.tau[idx][None], 3)
-            if not ok[0] or not self._consider(rotvec_to_matrix(v[0]) @ R0, C[0], w[0], t[0]):
-                break
-        idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
-        R0, C0, w0, t0 = self.best
-        args = (R0, fr.X[idx], fr.x[idx], fr.tau[idx])
-        try:
-            res = least_squares(
-                lambda p: exact_residuals(p, *args),
-                np.concatenate([np.zeros(3), C0, w0, t0]),
-                jac=lambda p: exact_jacobian(p, *args),
-                method="lm",
-                max_nfev=max(lo.refine_iterations, 1) + 1,
-            )
-        except (ValueError, np.linalg.LinAlgError):
-            return
-        th = res.x
-        self._consider(rotvec_to_matrix(th[:3]) @ R0, th[3:6], th[6:9], th[9:12])
 
-    def run(self) -> None:
-        ro = self.opts.ransac
-        N = len(self.fr.x)
-        needed = float(ro.max_iterations)
-        while self.iterations < min(needed, ro.max_iterations):
-            K = int(max(1, min(ro.batch_size, ro.max_iterations - self.iterations)))
-            samples = np.argpartition(self.rng.random((K, N)), self.s - 1, axis=1)[:, : self.s]
-            self.iterations += K
-            if self._consider(*_hypotheses(self.fr, samples, self.rolling)):
-                self._local_optimization()
-            count = int(np.count_nonzero(self.inliers))
-            if count:
-                needed = max(
-                    ro.min_iterations,
-                    required_iterations(count / N, self.s, ro.confidence),
-                )
+class NumpyRansac(Ransac):
+    """:class:`~.ransac.Ransac` (the same loop, sampling, termination and failure reasons)
+    with its compiled steps in NumPy and SciPy: the hypotheses and their scores
+    (:class:`NumpySamples`), the score of one model, and local optimization's steps
+    (:func:`~.local_optimization.local_optimization`'s rounds with the linear R6P on the
+    inliers and a SciPy robust fit, :func:`_lo_refine`)."""
+
+    compiled = False
+
+    def hypothesis_source(self) -> NumpySamples:
+        return NumpySamples(self.fr, self.solver, self.opts, self.th2)
+
+    def evaluate(self, model: Model) -> tuple[float, np.ndarray]:
+        R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+        if not _plausible(C[None], w[None], t[None], self.fr.motion_bounds)[0]:
+            return np.inf, np.zeros(len(self.fr.x), dtype=bool)
+        e2 = _errors2(self.fr, R[None], C[None], w[None], t[None])[0]
+        return float(np.minimum(e2, self.th2).sum()), e2 < self.th2
+
+    def local_optimization(self, scored: Scored) -> Scored:
+        return local_optimization(
+            self.fr,
+            self.solver,
+            scored,
+            self.th2,
+            self.opts,
+            self.evaluate,
+            _nonminimal,
+            _lo_refine,
+        )
+
+
+def _nonminimal(fr: Frame, solver: str, inliers, R, opts: EstimateOptions, C=None) -> list:
+    """:func:`~.hypotheses.nonminimal_models` in NumPy: the linear R6P on the ``inliers`` of
+    ``fr``, pre-rotated by ``R`` (the motion prior's rows are not used)."""
+    if not solver_info(solver).rolling or np.count_nonzero(inliers) < 6:
+        return []
+    iterations = max(hypothesis_iterations(solver, opts.ransac), 2)
+    Xs = (fr.X[inliers] @ R.T)[None]
+    v, C1, w, t, ok = _r6p_1lin(fr.x[inliers][None], Xs, (fr.r[inliers] - fr.r0)[None], iterations)
+    if not ok[0]:
+        return []
+    return [RSModel(rotvec_to_matrix(v[0]) @ R, C1[0], w[0], t[0])]
+
+
+def _lo_refine(model, X, x, tau, th: float, settings: RefineSettings, prior=None) -> RSModel:
+    """:func:`~.refine.refine_rs_pose` as local optimization runs it, on SciPy's
+    ``least_squares`` (:func:`~.refine.least_squares_exact_model`): Huber loss (scale ``th``)
+    on the points within ``settings.cutoff`` of ``model`` (selected once), at most
+    ``settings.max_iterations + 1`` evaluations; MAP with ``prior`` (image noise ``th / 2``)
+    on a rolling-shutter fit."""
+    R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
+    rolling = settings.rolling_shutter
+    e = np.sqrt(_errors2_at(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])
+    near = e < settings.cutoff
+    if np.count_nonzero(near) < 7:
+        return RSModel(R0, C0, w0, t0)
+    n_free = 12 if rolling else 6
+    theta0 = np.concatenate([np.zeros(3), C0, w0 * rolling, t0 * rolling])
+    try:
+        fit = least_squares_exact_model(
+            R0,
+            theta0,
+            n_free,
+            X[near],
+            x[near],
+            tau[near],
+            prior if rolling else None,
+            settings.seconds_per_unit_r,
+            0.5 * th,
+            loss="huber",
+            f_scale=th,
+            max_nfev=max(settings.max_iterations, 1) + 1,
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return RSModel(R0, C0, w0, t0)
+    th_ = fit.theta
+    return RSModel(rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12])
 
 
 def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
@@ -541,34 +574,28 @@ def estimate_numpy(
         points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
     )
     fr.tau = fr.r - fr.r0
-    search = _Search(fr, solver, opts, rng)
+    search = NumpyRansac(fr, solver, opts, rng, np.arange(len(fr.x)), False)
     min_inliers = points_needed(solver, opts)
     try:
         pl = opts.plausibility
-        configure_frame(
-            fr,
-            camera,
-            solver,
-            opts.ransac.min_inliers,
-            opts.ransac.threshold_px,
-            (pl.max_angular_velocity, pl.max_linear_velocity),
-            opts.motion_prior,
-            compiled=False,
-        )
-        timings["prepare"] = time.perf_counter() - t_start
-        t0 = time.perf_counter()
+        try:
+            configure_frame(
+                fr,
+                camera,
+                solver,
+                opts.ransac.min_inliers,
+                opts.ransac.threshold_px,
+                (pl.max_angular_velocity, pl.max_linear_velocity),
+                opts.motion_prior,
+                compiled=False,
+            )
+        finally:
+            timings["prepare"] = time.perf_counter() - t_start
         search.run()
-        timings["ransac"] = time.perf_counter() - t0
-        if search.best is None:
-            raise EstimationFailed(IMPLAUSIBLE_MOTION if search.implausible else NO_HYPOTHESIS)
-        if np.count_nonzero(search.inliers) < min_inliers:
-            raise EstimationFailed(TOO_FEW_INLIERS)
-        if fr.degenerate(search.inliers, opts.ransac.threshold_px, compiled=False):
-            raise EstimationFailed(DEGENERATE_GEOMETRY)
+        timings.update(search.timings)
+        model = search.result(min_inliers, opts.ransac.threshold_px)
         t0 = time.perf_counter()
-        est = _finalize(
-            fr, solver, opts, search.best, search.iterations, timings, min_inliers, ignored
-        )
+        est = _finalize(fr, solver, opts, model, search.iterations, timings, min_inliers, ignored)
         timings["refine"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         return failed_estimate(

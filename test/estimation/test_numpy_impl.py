@@ -273,3 +273,16 @@ def test_numpy_helpers_agree_with_the_compiled_ones():
     np.testing.assert_allclose(condition_number(H, compiled=False), condition_number(H), rtol=1e-8)
     H[3, 3] = 0.0
     assert condition_number(H, compiled=False) == condition_number(H) == np.inf
+
+
+def test_numpy_samples_are_the_compiled_samples():
+    """The NumPy implementation draws RANSAC's samples as the compiled sources do: the same
+    (K, s) indices from the same uniforms (pools from a minimal sample's size up, uniforms
+    at both ends of [0, 1))."""
+    from rs_localizer.estimation.sampling import draw_samples, draw_samples_numpy
+
+    rng = np.random.default_rng(3)
+    for pool, s in ((3, 3), (6, 6), (7, 6), (30, 6), (300, 6), (300, 3)):
+        u = rng.random((400, s))
+        u[:5], u[5:10] = 0.0, np.nextafter(1.0, 0.0)
+        np.testing.assert_array_equal(draw_samples_numpy(u, pool), draw_samples(u, pool))
