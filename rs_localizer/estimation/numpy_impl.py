@@ -1,16 +1,17 @@
 """The estimator's NumPy implementation: NumPy, SciPy and OpenCV only, no compiled kernel.
 
-``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs here. The
-compiled kernels (numba) are an accelerator, not a precondition: until they are compiled (a
-cold cache: one to two minutes of CPU) or where numba is unavailable, frames are solved here,
-on the same model with the same outputs (:class:`~.result.RSPoseEstimate` with pose, twist,
-covariances, inliers and failure reasons), at a lower rate. The stages are the compiled
-implementation's, each written in NumPy:
+``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs the
+estimator's own stages (:func:`~.estimate.estimate_rs_pose`: the same options checks, frame
+preparation, RANSAC loop, failure reasons, final checks and outputs) with the steps that need
+compiled kernels taken from here. The compiled kernels (numba) are an accelerator, not a
+precondition: until they are compiled (a cold cache: one to two minutes of CPU) or where numba
+is unavailable, frames are solved this way, on the same model with the same outputs
+(:class:`~.result.RSPoseEstimate` with pose, twist, covariances, inliers and failure reasons),
+at a lower rate. Per stage:
 
-1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
-   undistortion; the RS coordinate of the measured, distorted line), the same shuffle, and
-   the checks of :func:`.frame.configure_frame` in the same order;
-2. RANSAC: the compiled implementation's loop (:class:`NumpyRansac`, a
+1. prepare: :func:`.frame.prepare_frame` and :func:`.frame.configure_frame` with
+   ``compiled=False`` (the same rows, shuffle and checks in NumPy; OpenCV undistortion);
+2. RANSAC: the compiled implementation's search (:class:`NumpyRansac`, a
    :class:`~.ransac.Ransac`: the same samples from the same random stream, batches, adaptive
    termination and failure reasons) with its compiled steps in NumPy: minimal samples
    pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of each sample, the root
@@ -23,12 +24,12 @@ implementation's, each written in NumPy:
    (:func:`~.local_optimization.local_optimization`) with the linear solver on the inliers
    pre-rotated by the best model and a robust SciPy fit of the exact model;
 4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
-   (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
-   :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
-   planar frames), its covariance from the analytic Jacobian (:func:`~.refine.exact_jacobian`),
-   the motion-plausibility and cheirality checks and the consistent-fit test
-   (:func:`~.finalize.fit_is_inconsistent`); the estimate is assembled by the compiled
-   implementation's :func:`~.finalize.solved_estimate` and :func:`~.result.failed_estimate`.
+   (:func:`final_model`: :func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points
+   within :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion
+   prior on planar frames; its covariance from the analytic Jacobian,
+   :func:`~.refine.exact_jacobian`), then the compiled implementation's
+   :func:`~.finalize.final_estimate` with ``compiled=False`` (motion plausibility,
+   cheirality, the consistent-fit test and the outputs, in NumPy).
 
 Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
 was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling), an
@@ -41,26 +42,23 @@ stand-in in its place so that the package imports, and this implementation runs.
 
 from __future__ import annotations
 
-import time
+from typing import Any
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..camera import CameraModel
-from ..geometry import camera_position, cross, exact_camera_points, rotvec_to_matrix, skew
-from ..pose import RSModel, model_twist, model_twist_jacobian
+from ..geometry import cross, rotvec_to_matrix
+from ..pose import RSModel, model_twist_jacobian
 from ..solvers.registry import solver_info
-from .degeneracy import condition_number, planarity
-from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
-from .frame import Frame, Model, configure_frame, prepare_frame
+from .finalize import FINAL_CUTOFF, FINAL_TOL, FinalModel
+from .frame import Frame, Model
 from .hypotheses import ScoredBatch, hypothesis_iterations
-from .implementation import NUMPY, NUMPY_SOLVERS
 from .local_optimization import Scored, local_optimization
-from .options import EstimateOptions, points_needed
+from .options import EstimateOptions
 from .plausibility import motion_norms2
 from .prior import prior_arrays
-from .ransac import Ransac, seeded_rng
+from .ransac import Ransac
 from .refine import (
     RefineSettings,
     exact_jacobian,
@@ -69,42 +67,31 @@ from .refine import (
     refine_rs_pose_scipy,
 )
 from .result import (
-    CHEIRALITY,
-    IMPLAUSIBLE_MOTION,
-    INCONSISTENT_FIT,
     TOO_FEW_INLIERS,
     EstimationFailed,
-    RSPoseEstimate,
-    failed_estimate,
 )
 from .sampling import draw_samples_numpy
+from .scoring import exact_errors2_numpy
 
-__all__ = ["estimate_numpy"]
+__all__ = ["NumpyRansac", "NumpySamples", "final_model"]
 
-#: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
-_SAMPLE_ITERATIONS = 5
 #: robust fits of the final refinement, each on the points within the cutoff of the last
 #: (RANSAC's model comes out of local optimization's exact-model steps: one is enough)
 _FINAL_PASSES = 1
 #: models of a batch scored on all points after the preemptive test on a subset
 _KEEP = 4
+#: linear R6P iterations per minimal sample unless ``ransac.solver_iterations`` says (the
+#: compiled kernels take one; these samples are not damped by the motion prior on planar
+#: frames, and with one the planar frames of test_numpy_impl lose inliers against the
+#: compiled path)
+_SAMPLE_ITERATIONS = 5
 
 
 def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
-    return _errors2_at(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
-
-
-def _errors2_at(R, C, w, t, X, x, tau) -> np.ndarray:
-    """:func:`_errors2` at the points ``X`` (n, 3), ``x`` (n, 2), ``tau`` (n,)."""
-    p = exact_camera_points(R, C, w, t, X, tau)
-    z = p[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        iz = 1.0 / z
-        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
-    return np.where(z > 0, e, np.inf)
+    return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
 
 
 def _plausible(C, w, t, bounds) -> np.ndarray:
@@ -216,9 +203,10 @@ def _solve_stack(A: np.ndarray, b: np.ndarray):
     return u, ok
 
 
-def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
+def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool, iterations: int):
     """Models (R (H, 3, 3), C, w, t (H, 3)) of the minimal samples: P3P (global shutter) or
-    R6P on the P3P-pre-rotated sample (rotation ``expm([v]x) R_p``)."""
+    R6P (``iterations`` linear steps) on the P3P-pre-rotated sample (rotation
+    ``expm([v]x) R_p``)."""
     Rp, Cp, ok = _p3p(fr, samples)
     if not rolling:
         z = np.zeros_like(Cp)
@@ -226,7 +214,7 @@ def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
     s = samples[ok]
     Rp = Rp[ok]
     Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
-    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], _SAMPLE_ITERATIONS)
+    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], iterations)
     R = np.einsum("kij,kjl->kil", rotvec_to_matrix(v[good]), Rp[good])
     return R, C[good], w[good], t[good]
 
@@ -242,11 +230,22 @@ class NumpySamples:
     def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float):
         self.fr, self.th2 = fr, th2
         self.rolling = solver_info(solver).rolling
+        it = opts.ransac.solver_iterations
+        self.iterations = _SAMPLE_ITERATIONS if it is None else int(it)
         self.pretest = 2 * opts.ransac.pretest_points
 
-    def best_of_batch(self, uniforms, pool, order, best_score, pretest_min, anchor) -> ScoredBatch:
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
         fr = self.fr
-        R, C, w, t = _hypotheses(fr, order.take(draw_samples_numpy(uniforms, pool)), self.rolling)
+        samples = order.take(draw_samples_numpy(uniforms, pool))
+        R, C, w, t = _hypotheses(fr, samples, self.rolling, self.iterations)
         fine = _plausible(C, w, t, fr.motion_bounds)
         n_bad = int(np.count_nonzero(~fine))
         if not fine.any():
@@ -269,6 +268,10 @@ class NumpyRansac(Ransac):
     inliers and a SciPy robust fit, :func:`_lo_refine`)."""
 
     compiled = False
+
+    def __init__(self, fr: Frame, *args: Any):
+        super().__init__(fr, *args)
+        fr.tau = fr.r - fr.r0  # (every point's capture time, as the NumPy steps take it)
 
     def hypothesis_source(self) -> NumpySamples:
         return NumpySamples(self.fr, self.solver, self.opts, self.th2)
@@ -314,7 +317,7 @@ def _lo_refine(model, X, x, tau, th: float, settings: RefineSettings, prior=None
     on a rolling-shutter fit."""
     R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
     rolling = settings.rolling_shutter
-    e = np.sqrt(_errors2_at(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])
+    e = np.sqrt(exact_errors2_numpy(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])
     near = e < settings.cutoff
     if np.count_nonzero(near) < 7:
         return RSModel(R0, C0, w0, t0)
@@ -439,174 +442,25 @@ def _refine(fr: Frame, model, th: float, rolling: bool):
     return R, C, w, t, (cov if np.isfinite(cov).all() else None), info
 
 
-def _depths(fr: Frame, R, C, w, t) -> np.ndarray:
-    """(N,) depths of every point at its capture time under the exact model."""
-    return exact_camera_points(R, C, w, t, fr.X, fr.tau)[:, 2]
+def final_model(
+    fr: Frame, solver: str, opts: EstimateOptions, model: Model, min_inliers: int
+) -> FinalModel:
+    """:func:`~.finalize.refine_final_model` in NumPy and SciPy: RANSAC's ``model`` refined
+    (:func:`_refine`; without ``opts.refine.enabled`` as it is, with no covariance), its
+    inliers and their RMS error (px) re-selected on it.
 
-
-def _output_covariance(cov12, R, C, w, s: float):
-    """:func:`~.result.output_covariance` in NumPy: (delta, C, w, t) -> (camera rotation in
-    the world, position, omega_cam, v_cam) and the ROS pose and twist blocks."""
-    Rt = R.T
-    J = np.zeros((12, 12))
-    J[0:3, 0:3] = -Rt  # phi = -R^T delta
-    J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
-    J[3:6, 3:6] = -Rt  # dc/dC
-    if s > 0:  # (omega, v) rows: the twist's Jacobian, (v, omega)
-        Jz = model_twist_jacobian.py_func(C, w, s)
-        J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
-    out = J @ cov12 @ J.T
-    out = 0.5 * (out + out.T)
-    pose = np.zeros((6, 6))
-    idx = np.r_[3:6, 0:3]  # ROS (x, y, z, rot x, rot y, rot z)
-    pose[:] = out[np.ix_(idx, idx)]
-    tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
-    twist = out[np.ix_(tw, tw)] if s > 0 else None
-    return out, pose, twist
-
-
-def _physical(R, C, w, t, s: float):
-    """:func:`~.result.physical_velocities` in NumPy."""
-    if s <= 0:
-        z = np.zeros(3)
-        return z, z.copy(), z.copy(), z.copy()
-    z = model_twist.py_func(C, w, t, s)
-    om, vc = z[3:6], z[0:3]
-    return om, vc, R.T @ om, R.T @ vc
-
-
-def _finalize(
-    fr: Frame,
-    solver: str,
-    opts: EstimateOptions,
-    model,
-    iterations,
-    timings,
-    min_inliers,
-    ignored: tuple[str, ...],
-):
-    """Refinement, last checks and outputs (:mod:`.finalize`); ``ignored``: the estimate's
-    ``ignored_inputs``."""
-    th = opts.ransac.threshold_px / fr.f
-    rolling = solver_info(solver).rolling
+    Raises:
+        EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers`` on the refined
+            model.
+    """
+    th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     cov = info = None
-    prior_used = fr.prior is not None
     if opts.refine.enabled:
-        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, rolling)
+        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, solver_info(solver).rolling)
     e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
     inl = e < th
     if np.count_nonzero(inl) < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
     rmse_px = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
-    if not (np.isfinite(R).all() and _plausible(C[None], w[None], t[None], fr.motion_bounds)[0]):
-        raise EstimationFailed(IMPLAUSIBLE_MOTION)
-    behind = ~(_depths(fr, R, C, w, t) > 0)
-    if (behind & inl).any():
-        raise EstimationFailed(CHEIRALITY)
-    n_behind = int(np.count_nonzero(behind))
-    flat = planarity(fr.X, inl, compiled=False)
-    position = camera_position(R, C)
-    n_free = 12 if rolling else 6
-    cond = (
-        condition_number(info[:n_free, :n_free], compiled=False)
-        if info is not None
-        else float("nan")
-    )
-    if (
-        opts.plausibility.consistent_fit
-        and not fr.planar
-        and fit_is_inconsistent(fr.X, inl, position, flat, cond, rolling, th, lambda: e)
-    ):
-        raise EstimationFailed(INCONSISTENT_FIT)
-    return solved_estimate(
-        fr,
-        solver,
-        (R, C, w, t),
-        position,
-        inl,
-        n_behind,
-        _physical(R, C, w, t, fr.spr),
-        None if cov is None else _output_covariance(cov, R, C, w, fr.spr),
-        flat,
-        cond,
-        ransac_iterations=iterations,
-        timings=timings,
-        rmse_px=rmse_px,
-        motion_prior_used=prior_used,
-        implementation=NUMPY,
-        ignored_inputs=ignored,
-    )
-
-
-def estimate_numpy(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    solver: str,
-    opts: EstimateOptions,
-    ignored: tuple[str, ...] = (),
-) -> RSPoseEstimate:
-    """:func:`~.estimate.estimate_rs_pose` with ``implementation="numpy"`` (module docstring):
-    the same model, outputs and failure reasons, for the solvers in
-    :data:`~.implementation.NUMPY_SOLVERS`.
-
-    Args:
-        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
-        camera: the camera (intrinsics, distortion, RS timing).
-        solver: ``r6p_1lin`` or ``p3p``.
-        opts: :class:`~.options.EstimateOptions`.
-        ignored: the names of the inputs given that this implementation does not use (the
-            estimate's ``ignored_inputs``).
-    Returns:
-        :class:`~.result.RSPoseEstimate` with ``implementation="numpy"``. Data problems give
-        ``success=False`` with a failure reason, never an exception.
-    Raises:
-        ValueError: a solver not in :data:`~.implementation.NUMPY_SOLVERS`, or arrays that are
-            not (N, 2) / (N, 3).
-    """
-    if solver not in NUMPY_SOLVERS:
-        raise ValueError(f"solver {solver!r} needs the compiled kernels; {NUMPY_SOLVERS} do not")
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-    rng = seeded_rng(opts.ransac.seed)
-    fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
-    )
-    fr.tau = fr.r - fr.r0
-    search = NumpyRansac(fr, solver, opts, rng, np.arange(len(fr.x)), False)
-    min_inliers = points_needed(solver, opts)
-    try:
-        pl = opts.plausibility
-        try:
-            configure_frame(
-                fr,
-                camera,
-                solver,
-                opts.ransac.min_inliers,
-                opts.ransac.threshold_px,
-                (pl.max_angular_velocity, pl.max_linear_velocity),
-                opts.motion_prior,
-                compiled=False,
-            )
-        finally:
-            timings["prepare"] = time.perf_counter() - t_start
-        search.run()
-        timings.update(search.timings)
-        model = search.result(min_inliers, opts.ransac.threshold_px)
-        t0 = time.perf_counter()
-        est = _finalize(fr, solver, opts, model, search.iterations, timings, min_inliers, ignored)
-        timings["refine"] = time.perf_counter() - t0
-    except EstimationFailed as failure:
-        return failed_estimate(
-            failure.reason,
-            solver,
-            fr.num_rows,
-            len(fr.x),
-            search.iterations,
-            timings,
-            NUMPY,
-            ignored,
-        )
-    timings["total"] = time.perf_counter() - t_start
-    return est
+    return FinalModel(RSModel(R, C, w, t), inl, rmse_px, cov, info, prior_used=fr.prior is not None)
