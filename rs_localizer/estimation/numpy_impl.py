@@ -46,12 +46,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..geometry import cross, rotvec_to_matrix
 from ..pose import RSModel, model_twist_jacobian
 from ..solvers.registry import solver_info
-from .finalize import FINAL_CUTOFF, FINAL_TOL, FinalModel
+from .finalize import FINAL_CUTOFF, FinalModel
 from .frame import Frame, Model
 from .hypotheses import ScoredBatch, hypothesis_iterations
 from .local_optimization import Scored, local_optimization
@@ -346,49 +345,21 @@ def _lo_refine(model, X, x, tau, th: float, settings: RefineSettings, prior=None
 
 def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
     """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
-    ``th``), SciPy ``least_squares``; MAP with the frame's prior
-    (:func:`~.refine.refine_rs_pose_scipy`, whose prior rows take the image noise
-    ``sigma``). Returns (R, C, w, t) or None (not finite)."""
-    R0, C0, w0, t0 = model
-    X, x, tau = fr.X[near], fr.x[near], fr.tau[near]
-    if fr.prior is not None and rolling:
-        ref = refine_rs_pose_scipy(
-            R0,
-            C0,
-            w0,
-            t0,
-            X,
-            x,
-            tau,
-            th,
-            prior=fr.prior,
-            seconds_per_unit_r=fr.spr,
-            noise=sigma,
-        )
-        R, C, w, t = ref.R, ref.C, ref.w, ref.t
-    else:
-        n_free = 12 if rolling else 6
-        theta0 = np.concatenate([np.zeros(3), C0, w0 if rolling else np.zeros(3), t0 * rolling])
-
-        def full(p):
-            th_ = theta0.copy()
-            th_[:n_free] = p
-            return th_
-
-        res = least_squares(
-            lambda p: exact_residuals(full(p), R0, X, x, tau),
-            theta0[:n_free],
-            jac=lambda p: exact_jacobian(full(p), R0, X, x, tau)[:, :n_free],
-            loss="huber",
-            f_scale=th,
-            method="trf",
-            x_scale="jac",
-            ftol=FINAL_TOL,
-            xtol=1e-10,
-            gtol=1e-10,
-        )
-        th_ = full(res.x)
-        R, C, w, t = rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12]
+    ``th``): :func:`~.refine.refine_rs_pose_scipy`, MAP with the frame's prior (its rows
+    weighed by the image noise ``sigma``) on a rolling-shutter fit. Returns (R, C, w, t) or
+    None (not finite)."""
+    ref = refine_rs_pose_scipy(
+        *model,
+        fr.X[near],
+        fr.x[near],
+        fr.tau[near],
+        th,
+        rolling_shutter=rolling,
+        prior=fr.prior,
+        seconds_per_unit_r=fr.spr,
+        noise=sigma,
+    )
+    R, C, w, t = ref.R, ref.C, ref.w, ref.t
     if not all(np.isfinite(a).all() for a in (R, C, w, t)):
         return None
     return R, C, w, t
