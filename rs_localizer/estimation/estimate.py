@@ -18,8 +18,9 @@ them alone.
 A stage that finds the frame gives no pose raises :class:`~.result.EstimationFailed`; the
 estimator turns it into a failed :class:`RSPoseEstimate` in one place.
 
-The same stages have a NumPy implementation (:mod:`.numpy_impl`), which the
-``implementation`` argument selects (:mod:`.implementation`); every estimate records which ran.
+The same stages run with their compiled steps in NumPy and SciPy (:mod:`.numpy_impl`) when
+the ``implementation`` argument selects it (:mod:`.implementation`); every estimate records
+which ran.
 """
 
 from __future__ import annotations
@@ -49,9 +50,9 @@ from .gyro import (
     gyro_image_chi2,
     gyro_prior,
 )
-from .implementation import NUMPY, NUMPY_UNUSED, resolve_implementation
+from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
 from .map_weights import check_point_sigma, weighted_final_model
-from .numpy_impl import estimate_numpy
+from .numpy_impl import NumpyRansac, final_model
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -211,7 +212,9 @@ def estimate_rs_pose(
         return replace(est, solver=solver)
     if resolve_implementation(implementation, solver) == NUMPY:
         ignored = _unused_by_numpy(opts, scores, initial_model, gyro, point_sigma)
-        return estimate_numpy(points2d, points3d, camera, solver, opts, ignored)
+        return _estimate(
+            points2d, points3d, camera, solver, opts, None, None, ignored=ignored, compiled=False
+        )
     if point_sigma is not None:
         point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
     args = (points2d, points3d, camera, solver)
@@ -282,6 +285,7 @@ def _estimate(
     *,
     point_sigma: np.ndarray | None = None,
     ignored: tuple[str, ...] = (),
+    compiled: bool = True,
 ) -> RSPoseEstimate:
     """:func:`estimate_rs_pose` with one set of options (the motion prior possibly including
     a gyro); with ``gyro`` RANSAC solves its samples with the gyro's angular velocity (and a
@@ -290,16 +294,27 @@ def _estimate(
     motion prior without the gyro) says near the final model (:func:`~.finalize.image_alone`,
     or None). ``point_sigma``: (num_rows,) the 3D points' standard deviations (m), or None
     (:func:`~.map_weights.weighted_final_model`). ``ignored``: the estimate's
-    ``ignored_inputs``."""
+    ``ignored_inputs``. ``compiled=False``: the NumPy implementation (:mod:`.numpy_impl`:
+    the same stages with their compiled steps in NumPy and SciPy; without ``scores``,
+    ``initial_model``, ``gyro``, ``image``, ``point_sigma``, single-tag frames and the
+    global-shutter model of still frames)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
-    fr = prepare_frame(points2d, points3d, camera, opts.plausibility.max_point_norm, rng)
+    fr = prepare_frame(
+        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=compiled
+    )
     if gyro is not None:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
-    search = Ransac(fr, solver, opts, rng, prosac_order(fr, scores), scores is not None)
+    search = (Ransac if compiled else NumpyRansac)(
+        fr, solver, opts, rng, prosac_order(fr, scores), scores is not None
+    )
     min_inliers = points_needed(solver, opts)
-    if (len(fr.x) < min_inliers or len(fr.x) == MIN_PLANAR_POINTS) and planar_points(fr):
+    if (
+        compiled
+        and (len(fr.x) < min_inliers or len(fr.x) == MIN_PLANAR_POINTS)
+        and planar_points(fr)
+    ):
         return _single_tag(fr, camera, solver, opts, initial_model, gyro, timings, ignored)
     try:
         try:
@@ -311,6 +326,7 @@ def _estimate(
                 opts.ransac.threshold_px,
                 (opts.plausibility.max_angular_velocity, opts.plausibility.max_linear_velocity),
                 opts.motion_prior,
+                compiled=compiled,
             )
         finally:
             timings["prepare"] = time.perf_counter() - t_start
@@ -318,10 +334,14 @@ def _estimate(
         timings.update(search.timings)
         model = search.result(min_inliers, opts.ransac.threshold_px)
         t0 = time.perf_counter()
-        final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
+        if compiled:
+            final = refine_final_model(fr, camera, solver, opts, model, search.inliers, min_inliers)
+        else:
+            final = final_model(fr, solver, opts, model, min_inliers)
         model_solver = solver
         if (
-            gyro is None
+            compiled
+            and gyro is None
             and solver_info(solver).rolling
             and (not final.prior_used or prior_at_rest(fr.final_prior))
         ):
@@ -343,13 +363,19 @@ def _estimate(
             gyro is not None,
             opts.ransac.threshold_px / fr.f,
             ignored,
+            compiled,
         )
         if image is not None:
             t0 = time.perf_counter()
             image.append(image_alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
-        if failure.reason in STILL_FALLBACK and gyro is None and solver_info(solver).rolling:
+        if (
+            compiled
+            and failure.reason in STILL_FALLBACK
+            and gyro is None
+            and solver_info(solver).rolling
+        ):
             still = _still_frame(
                 fr, points2d, points3d, camera, opts, scores, initial_model, point_sigma, ignored
             )
@@ -362,7 +388,8 @@ def _estimate(
             len(fr.x),
             search.iterations,
             timings,
-            ignored_inputs=ignored,
+            COMPILED if compiled else NUMPY,
+            ignored,
         )
     timings["total"] = time.perf_counter() - t_start
     if model_solver == solver:

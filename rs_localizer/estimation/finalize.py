@@ -19,10 +19,17 @@ from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
+from .implementation import NUMPY
 from .noise_model import correlated_noise_covariance, pixel_jacobians
 from .options import EstimateOptions
 from .outputs import final_inliers
-from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION, final_model_check, finite_model
+from .plausibility import (
+    CHEIRALITY,
+    IMPLAUSIBLE_MOTION,
+    final_model_check,
+    final_model_check_numpy,
+    finite_model,
+)
 from .prior import MotionPrior, prior_conflict
 from .refine import RefineResult, RefineSettings, exact_errors, posterior_step, refine_rs_pose
 from .result import (
@@ -33,7 +40,7 @@ from .result import (
     output_covariance,
     physical_velocities,
 )
-from .scoring import exact_errors2
+from .scoring import exact_errors2, exact_errors2_numpy
 from .sensitivity import acceleration_sensitivity
 
 __all__ = [
@@ -55,6 +62,7 @@ __all__ = [
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
+    "final_errors",
     "final_estimate",
     "final_refinement",
     "frame_refinement",
@@ -672,6 +680,7 @@ def final_estimate(
     gyro_used: bool = False,
     threshold: float = 0.0,
     ignored_inputs: tuple[str, ...] = (),
+    compiled: bool = True,
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
@@ -699,7 +708,9 @@ def final_estimate(
 
     ``initial``: (points the initial model explained or -1, whether it was used);
     ``gyro_used``: the model was solved with a gyro measurement (set on the estimate);
-    ``ignored_inputs``: the estimate's (inputs given that were not used).
+    ``ignored_inputs``: the estimate's (inputs given that were not used); ``compiled=False``:
+    the checks and outputs in NumPy (the estimator's NumPy implementation, which the estimate
+    records).
 
     Raises:
         EstimationFailed: ``implausible_motion``, ``cheirality``, ``inconsistent_fit``.
@@ -710,15 +721,16 @@ def final_estimate(
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
     )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    code, n_behind = final_model_check(R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max)
+    check = final_model_check if compiled else final_model_check_numpy
+    code, n_behind = check(R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max)
     if code:
         raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
     rolling = solver_info(solver).rolling
-    flat = planarity(fr.X, inl)
+    flat = planarity(fr.X, inl, compiled)
     position = camera_position(R, C)
     n_free = 12 if rolling else 6
     info = final.information
-    cond = condition_number(info[:n_free, :n_free]) if info is not None else float("nan")
+    cond = condition_number(info[:n_free, :n_free], compiled) if info is not None else float("nan")
     if (
         consistent_fit
         and not fr.planar
@@ -730,13 +742,13 @@ def final_estimate(
             cond,
             rolling,
             threshold,
-            lambda: exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0),
+            lambda: final_errors(final.model, fr, compiled),
         )
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
     cov = None
     if final.covariance is not None:
-        cov = output_covariance(final.covariance, R, C, w, fr.spr)
+        cov = output_covariance(final.covariance, R, C, w, fr.spr, compiled)
     return solved_estimate(
         fr,
         solver,
@@ -744,7 +756,7 @@ def final_estimate(
         position,
         inl,
         n_behind,
-        physical_velocities(R, C, w, t, fr.spr),
+        physical_velocities(R, C, w, t, fr.spr, compiled),
         cov,
         flat,
         cond,
@@ -757,4 +769,16 @@ def final_estimate(
         acceleration_sensitivity=final.sensitivity,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
+        **({} if compiled else {"implementation": NUMPY}),
     )
+
+
+def final_errors(model: Model, fr: Frame, compiled: bool = True) -> np.ndarray:
+    """(N,) image errors (normalized units) of the final ``model`` at every point of ``fr`` at
+    its measured capture time (:func:`~.refine.exact_errors`; ``compiled=False``: in NumPy,
+    :func:`~.scoring.exact_errors2_numpy`); ``inf`` behind the camera."""
+    R, C, w, t = model
+    tau = fr.r - fr.r0
+    if compiled:
+        return exact_errors(R, C, w, t, fr.X, fr.x, tau)
+    return np.sqrt(exact_errors2_numpy(R[None], C[None], w[None], t[None], fr.X, fr.x, tau)[0])

@@ -3,6 +3,10 @@ tracker's prediction) that may seed RANSAC."""
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from ..pose import RSModel
@@ -21,7 +25,14 @@ Scored = tuple[float, Model, np.ndarray]
 
 
 def local_optimization(
-    fr: Frame, solver: str, best: Scored, th2: float, opts: EstimateOptions
+    fr: Frame,
+    solver: str,
+    best: Scored,
+    th2: float,
+    opts: EstimateOptions,
+    evaluate: Callable[[Model], tuple[float, np.ndarray]] | None = None,
+    nonminimal: Callable[..., list[Model]] = nonminimal_models,
+    refine: Callable[..., Any] = refine_rs_pose,
 ) -> Scored:
     """LO step of LO-RANSAC on a new ``best`` (score, model, inlier mask); ``th2``: squared
     inlier threshold (normalized units).
@@ -36,9 +47,16 @@ def local_optimization(
     Rounds continue while the MSAC score improves and the inlier set grows (at most
     ``opts.local_optimization.steps``). P3P only gets the global-shutter refinement.
 
+    The steps themselves are arguments (the NumPy implementation, :mod:`.numpy_impl`, passes
+    its own): ``evaluate(model)`` (score, (N,) inlier mask) on every point (default
+    :meth:`~.frame.Frame.evaluate`), ``nonminimal`` as :func:`~.hypotheses.nonminimal_models`,
+    ``refine`` as :func:`~.refine.refine_rs_pose` (its result's ``R``, ``C``, ``w``, ``t``).
+
     Returns:
         the polished (score, model, inlier mask), scored on every point.
     """
+    if evaluate is None:
+        evaluate = functools.partial(fr.evaluate, th2=th2)
     lo = opts.local_optimization
     best_score, model, best_inl = best
     th = np.sqrt(th2)
@@ -52,15 +70,15 @@ def local_optimization(
             break
         start, start_score, start_inl = model, best_score, best_inl
         linear = (
-            nonminimal_models(sub, solver, best_inl[:M], model[0], opts, model[1])
+            nonminimal(sub, solver, best_inl[:M], model[0], opts, model[1])
             if lo.nonminimal and step == 0
             else []
         )
         for cand in linear:
-            sc, inl = fr.evaluate(cand, th2)
+            sc, inl = evaluate(cand)
             if sc < start_score:
                 start, start_score, start_inl = cand, sc, inl
-        ref = refine_rs_pose(
+        ref = refine(
             start,
             sub.X,
             sub.x,
@@ -76,7 +94,7 @@ def local_optimization(
             prior=fr.prior,
         )
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)
-        sc, inl = fr.evaluate(cand, th2)
+        sc, inl = evaluate(cand)
         if sc < start_score:
             start, start_score, start_inl = cand, sc, inl
         if start_score >= best_score:

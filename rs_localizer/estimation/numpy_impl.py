@@ -1,29 +1,35 @@
 """The estimator's NumPy implementation: NumPy, SciPy and OpenCV only, no compiled kernel.
 
-``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs here. The
-compiled kernels (numba) are an accelerator, not a precondition: until they are compiled (a
-cold cache: one to two minutes of CPU) or where numba is unavailable, frames are solved here,
-on the same model with the same outputs (:class:`~.result.RSPoseEstimate` with pose, twist,
-covariances, inliers and failure reasons), at a lower rate. The stages are the compiled
-implementation's, each written in NumPy:
+``estimate_rs_pose(..., implementation="numpy")`` (:mod:`.implementation`) runs the
+estimator's own stages (:func:`~.estimate.estimate_rs_pose`: the same options checks, frame
+preparation, RANSAC loop, failure reasons, final checks and outputs) with the steps that need
+compiled kernels taken from here. The compiled kernels (numba) are an accelerator, not a
+precondition: until they are compiled (a cold cache: one to two minutes of CPU) or where numba
+is unavailable, frames are solved this way, on the same model with the same outputs
+(:class:`~.result.RSPoseEstimate` with pose, twist, covariances, inliers and failure reasons),
+at a lower rate. Per stage:
 
-1. prepare: the rows checked and normalized as :func:`.frame.prepare_frame` does (OpenCV
-   undistortion; the RS coordinate of the measured, distorted line), the same shuffle, and
-   the checks of :func:`.frame.configure_frame` in the same order;
-2. RANSAC: minimal samples pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of
-   each sample, the root with the least error on the sample's other points; paper sec. 4),
-   the paper's linear R6P (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples
-   with ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
-   exact constant-velocity model at each point's measured capture time (eq. 4), all hypotheses
-   of a batch scored at once, adaptive termination (:func:`.ransac.required_iterations`);
-3. local optimization: the linear solver on all inliers, pre-rotated by the best model;
+1. prepare: :func:`.frame.prepare_frame` and :func:`.frame.configure_frame` with
+   ``compiled=False`` (the same rows, shuffle and checks in NumPy; OpenCV undistortion);
+2. RANSAC: the compiled implementation's search (:class:`NumpyRansac`, a
+   :class:`~.ransac.Ransac`: the same samples from the same random stream, batches, adaptive
+   termination and failure reasons) with its compiled steps in NumPy: minimal samples
+   pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of each sample, the root
+   with the least error on the sample's other points; paper sec. 4), the paper's linear R6P
+   (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples with
+   ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
+   exact constant-velocity model at each point's measured capture time (eq. 4), all
+   hypotheses of a batch scored at once (:class:`NumpySamples`);
+3. local optimization: the compiled implementation's rounds
+   (:func:`~.local_optimization.local_optimization`) with the linear solver on the inliers
+   pre-rotated by the best model and a robust SciPy fit of the exact model;
 4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
-   (:func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points within
-   :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion prior on
-   planar frames), its covariance from the analytic Jacobian (:func:`~.refine.exact_jacobian`),
-   the motion-plausibility and cheirality checks and the consistent-fit test
-   (:func:`~.finalize.fit_is_inconsistent`); the estimate is assembled by the compiled
-   implementation's :func:`~.finalize.solved_estimate` and :func:`~.result.failed_estimate`.
+   (:func:`final_model`: :func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points
+   within :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion
+   prior on planar frames; its covariance from the analytic Jacobian,
+   :func:`~.refine.exact_jacobian`), then the compiled implementation's
+   :func:`~.finalize.final_estimate` with ``compiled=False`` (motion plausibility,
+   cheirality, the consistent-fit test and the outputs, in NumPy).
 
 Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
 was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling), an
@@ -36,59 +42,55 @@ stand-in in its place so that the package imports, and this implementation runs.
 
 from __future__ import annotations
 
-import time
+from typing import Any
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
-from ..camera import CameraModel
-from ..geometry import camera_position, cross, exact_camera_points, rotvec_to_matrix, skew
-from ..pose import model_twist, model_twist_jacobian
-from ..solvers.registry import sample_size, solver_info
-from .degeneracy import condition_number, planarity
-from .finalize import FINAL_CUTOFF, FINAL_TOL, fit_is_inconsistent, solved_estimate
-from .frame import Frame, configure_frame, prepare_frame
-from .implementation import NUMPY, NUMPY_SOLVERS
-from .options import EstimateOptions, points_needed
+from ..geometry import cross, rotvec_to_matrix
+from ..pose import RSModel, model_twist_jacobian
+from ..solvers.registry import solver_info
+from .finalize import FINAL_CUTOFF, FinalModel
+from .frame import Frame, Model
+from .hypotheses import ScoredBatch, hypothesis_iterations
+from .local_optimization import Scored, local_optimization
+from .options import EstimateOptions
 from .plausibility import motion_norms2
 from .prior import prior_arrays
-from .ransac import required_iterations, seeded_rng
-from .refine import exact_jacobian, exact_residuals, refine_rs_pose_scipy
+from .ransac import Ransac
+from .refine import (
+    RefineSettings,
+    exact_jacobian,
+    exact_residuals,
+    least_squares_exact_model,
+    refine_rs_pose_scipy,
+)
 from .result import (
-    CHEIRALITY,
-    DEGENERATE_GEOMETRY,
-    IMPLAUSIBLE_MOTION,
-    INCONSISTENT_FIT,
-    NO_HYPOTHESIS,
     TOO_FEW_INLIERS,
     EstimationFailed,
-    RSPoseEstimate,
-    failed_estimate,
 )
+from .sampling import draw_samples_numpy
+from .scoring import exact_errors2_numpy
 
-__all__ = ["estimate_numpy"]
+__all__ = ["NumpyRansac", "NumpySamples", "final_model"]
 
-#: linear R6P iterations per minimal sample (the compiled default of ``r6p_1lin``)
-_SAMPLE_ITERATIONS = 5
 #: robust fits of the final refinement, each on the points within the cutoff of the last
 #: (RANSAC's model comes out of local optimization's exact-model steps: one is enough)
 _FINAL_PASSES = 1
 #: models of a batch scored on all points after the preemptive test on a subset
 _KEEP = 4
+#: linear R6P iterations per minimal sample unless ``ransac.solver_iterations`` says (the
+#: compiled kernels take one; these samples are not damped by the motion prior on planar
+#: frames, and with one the planar frames of test_numpy_impl lose inliers against the
+#: compiled path)
+_SAMPLE_ITERATIONS = 5
 
 
 def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
     t (H, 3)) at the first ``m`` points (default all) at their measured capture times, exact
     model (paper eq. 4); ``inf`` behind the camera."""
-    X, x, tau = fr.X[:m], fr.x[:m], fr.tau[:m]
-    p = exact_camera_points(R, C, w, t, X, tau)
-    z = p[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        iz = 1.0 / z
-        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
-    return np.where(z > 0, e, np.inf)
+    return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
 
 
 def _plausible(C, w, t, bounds) -> np.ndarray:
@@ -200,9 +202,10 @@ def _solve_stack(A: np.ndarray, b: np.ndarray):
     return u, ok
 
 
-def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
+def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool, iterations: int):
     """Models (R (H, 3, 3), C, w, t (H, 3)) of the minimal samples: P3P (global shutter) or
-    R6P on the P3P-pre-rotated sample (rotation ``expm([v]x) R_p``)."""
+    R6P (``iterations`` linear steps) on the P3P-pre-rotated sample (rotation
+    ``expm([v]x) R_p``)."""
     Rp, Cp, ok = _p3p(fr, samples)
     if not rolling:
         z = np.zeros_like(Cp)
@@ -210,149 +213,153 @@ def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool):
     s = samples[ok]
     Rp = Rp[ok]
     Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
-    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], _SAMPLE_ITERATIONS)
+    v, C, w, t, good = _r6p_1lin(fr.x[s], Xs, fr.tau[s], iterations)
     R = np.einsum("kij,kjl->kil", rotvec_to_matrix(v[good]), Rp[good])
     return R, C[good], w[good], t[good]
 
 
-class _Search:
-    """MSAC over minimal samples in batches (adaptive termination, local optimization of
-    every new best)."""
+class NumpySamples:
+    """The hypotheses of a batch of minimal samples and their MSAC scores in NumPy (the
+    :class:`~.hypotheses.HypothesisSource` of :class:`NumpyRansac`): the samples drawn as the
+    compiled sources draw them (:func:`~.sampling.draw_samples_numpy`), P3P pre-rotation and
+    linear R6P (:func:`_hypotheses`), the plausibility filter, then preemptive scoring: every
+    model on the first ``2 * pretest_points`` points (the rows are shuffled: a random subset),
+    the best :data:`_KEEP` of them on all."""
 
-    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, rng):
-        self.fr, self.solver, self.opts, self.rng = fr, solver, opts, rng
-        self.s = sample_size(solver)
+    def __init__(self, fr: Frame, solver: str, opts: EstimateOptions, th2: float):
+        self.fr, self.th2 = fr, th2
         self.rolling = solver_info(solver).rolling
-        self.th2 = (opts.ransac.threshold_px / fr.f) ** 2
-        self.best = None
-        self.score = np.inf
-        self.inliers = np.zeros(len(fr.x), dtype=bool)
-        self.iterations = 0
-        self.implausible = False
+        it = opts.ransac.solver_iterations
+        self.iterations = _SAMPLE_ITERATIONS if it is None else int(it)
+        self.pretest = 2 * opts.ransac.pretest_points
 
-    def _consider(self, R, C, w, t) -> bool:
-        """Score H models (or one: R (3, 3)); keep the best if it beats the current one. True
-        if it did."""
-        if R.ndim == 2:
-            R, C, w, t = R[None], C[None], w[None], t[None]
-        if not len(R):
-            return False
-        fine = _plausible(C, w, t, self.fr.motion_bounds)
-        self.implausible |= bool((~fine).any())
+    def best_of_batch(
+        self,
+        uniforms: np.ndarray,
+        pool: int,
+        order: np.ndarray,
+        best_score: float,
+        pretest_min: int,
+        anchor: tuple[np.ndarray, np.ndarray] | None,
+    ) -> ScoredBatch:
+        fr = self.fr
+        samples = order.take(draw_samples_numpy(uniforms, pool))
+        R, C, w, t = _hypotheses(fr, samples, self.rolling, self.iterations)
+        fine = _plausible(C, w, t, fr.motion_bounds)
+        n_bad = int(np.count_nonzero(~fine))
         if not fine.any():
-            return False
+            return ScoredBatch(-1, np.inf, R, C, w, t, n_bad)
         R, C, w, t = R[fine], C[fine], w[fine], t[fine]
-        m = self.opts.ransac.pretest_points * 2
-        if len(R) > _KEEP and len(self.fr.x) > 2 * m:
-            # preemptive scoring: every model on the first m points (the rows are shuffled: a
-            # random subset), the best _KEEP of them on all
-            part = np.minimum(_errors2(self.fr, R, C, w, t, m), self.th2).sum(axis=1)
+        if len(R) > _KEEP and len(fr.x) > 2 * self.pretest:
+            part = np.minimum(_errors2(fr, R, C, w, t, self.pretest), self.th2).sum(axis=1)
             keep = np.argpartition(part, _KEEP - 1)[:_KEEP]
             R, C, w, t = R[keep], C[keep], w[keep], t[keep]
-        e2 = _errors2(self.fr, R, C, w, t)
-        sc = np.minimum(e2, self.th2).sum(axis=1)
-        k = int(np.argmin(sc))
-        if not sc[k] < self.score:
-            return False
-        self.score, self.best, self.inliers = sc[k], (R[k], C[k], w[k], t[k]), e2[k] < self.th2
-        return True
+        sc = np.minimum(_errors2(fr, R, C, w, t), self.th2).sum(axis=1)
+        h = int(np.argmin(sc))
+        return ScoredBatch(h, float(sc[h]), R, C, w, t, n_bad)
 
-    def _local_optimization(self) -> None:
-        """Local optimization of a new best: the linear solver on (at most
-        ``local_optimization.max_points`` of) its inliers, pre-rotated by it, while that
-        scores better (at most ``local_optimization.steps`` times), then a few
-        Levenberg-Marquardt steps of the exact model on them."""
-        if not self.rolling or not self.opts.local_optimization.nonminimal:
-            return
-        fr, lo = self.fr, self.opts.local_optimization
-        for _ in range(max(lo.steps, 1)):
-            idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
-            if len(idx) < 2 * self.s:
-                return
-            R0 = self.best[0]
-            Xs = (fr.X[idx] @ R0.T)[None]
-            v, C, w, t, ok = _r6p_1lin(fr.x[idx][None], Xs, fr.tau[idx][None], 3)
-            if not ok[0] or not self._consider(rotvec_to_matrix(v[0]) @ R0, C[0], w[0], t[0]):
-                break
-        idx = np.flatnonzero(self.inliers)[: max(lo.max_points, 12)]
-        R0, C0, w0, t0 = self.best
-        args = (R0, fr.X[idx], fr.x[idx], fr.tau[idx])
-        try:
-            res = least_squares(
-                lambda p: exact_residuals(p, *args),
-                np.concatenate([np.zeros(3), C0, w0, t0]),
-                jac=lambda p: exact_jacobian(p, *args),
-                method="lm",
-                max_nfev=max(lo.refine_iterations, 1) + 1,
-            )
-        except (ValueError, np.linalg.LinAlgError):
-            return
-        th = res.x
-        self._consider(rotvec_to_matrix(th[:3]) @ R0, th[3:6], th[6:9], th[9:12])
 
-    def run(self) -> None:
-        ro = self.opts.ransac
-        N = len(self.fr.x)
-        needed = float(ro.max_iterations)
-        while self.iterations < min(needed, ro.max_iterations):
-            K = int(max(1, min(ro.batch_size, ro.max_iterations - self.iterations)))
-            samples = np.argpartition(self.rng.random((K, N)), self.s - 1, axis=1)[:, : self.s]
-            self.iterations += K
-            if self._consider(*_hypotheses(self.fr, samples, self.rolling)):
-                self._local_optimization()
-            count = int(np.count_nonzero(self.inliers))
-            if count:
-                needed = max(
-                    ro.min_iterations,
-                    required_iterations(count / N, self.s, ro.confidence),
-                )
+class NumpyRansac(Ransac):
+    """:class:`~.ransac.Ransac` (the same loop, sampling, termination and failure reasons)
+    with its compiled steps in NumPy and SciPy: the hypotheses and their scores
+    (:class:`NumpySamples`), the score of one model, and local optimization's steps
+    (:func:`~.local_optimization.local_optimization`'s rounds with the linear R6P on the
+    inliers and a SciPy robust fit, :func:`_lo_refine`)."""
+
+    compiled = False
+
+    def __init__(self, fr: Frame, *args: Any):
+        super().__init__(fr, *args)
+        fr.tau = fr.r - fr.r0  # (every point's capture time, as the NumPy steps take it)
+
+    def hypothesis_source(self) -> NumpySamples:
+        return NumpySamples(self.fr, self.solver, self.opts, self.th2)
+
+    def evaluate(self, model: Model) -> tuple[float, np.ndarray]:
+        R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+        if not _plausible(C[None], w[None], t[None], self.fr.motion_bounds)[0]:
+            return np.inf, np.zeros(len(self.fr.x), dtype=bool)
+        e2 = _errors2(self.fr, R[None], C[None], w[None], t[None])[0]
+        return float(np.minimum(e2, self.th2).sum()), e2 < self.th2
+
+    def local_optimization(self, scored: Scored) -> Scored:
+        return local_optimization(
+            self.fr,
+            self.solver,
+            scored,
+            self.th2,
+            self.opts,
+            self.evaluate,
+            _nonminimal,
+            _lo_refine,
+        )
+
+
+def _nonminimal(fr: Frame, solver: str, inliers, R, opts: EstimateOptions, C=None) -> list:
+    """:func:`~.hypotheses.nonminimal_models` in NumPy: the linear R6P on the ``inliers`` of
+    ``fr``, pre-rotated by ``R`` (the motion prior's rows are not used)."""
+    if not solver_info(solver).rolling or np.count_nonzero(inliers) < 6:
+        return []
+    iterations = max(hypothesis_iterations(solver, opts.ransac), 2)
+    Xs = (fr.X[inliers] @ R.T)[None]
+    v, C1, w, t, ok = _r6p_1lin(fr.x[inliers][None], Xs, (fr.r[inliers] - fr.r0)[None], iterations)
+    if not ok[0]:
+        return []
+    return [RSModel(rotvec_to_matrix(v[0]) @ R, C1[0], w[0], t[0])]
+
+
+def _lo_refine(model, X, x, tau, th: float, settings: RefineSettings, prior=None) -> RSModel:
+    """:func:`~.refine.refine_rs_pose` as local optimization runs it, on SciPy's
+    ``least_squares`` (:func:`~.refine.least_squares_exact_model`): Huber loss (scale ``th``)
+    on the points within ``settings.cutoff`` of ``model`` (selected once), at most
+    ``settings.max_iterations + 1`` evaluations; MAP with ``prior`` (image noise ``th / 2``)
+    on a rolling-shutter fit."""
+    R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
+    rolling = settings.rolling_shutter
+    e = np.sqrt(exact_errors2_numpy(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])
+    near = e < settings.cutoff
+    if np.count_nonzero(near) < 7:
+        return RSModel(R0, C0, w0, t0)
+    n_free = 12 if rolling else 6
+    theta0 = np.concatenate([np.zeros(3), C0, w0 * rolling, t0 * rolling])
+    try:
+        fit = least_squares_exact_model(
+            R0,
+            theta0,
+            n_free,
+            X[near],
+            x[near],
+            tau[near],
+            prior if rolling else None,
+            settings.seconds_per_unit_r,
+            0.5 * th,
+            loss="huber",
+            f_scale=th,
+            max_nfev=max(settings.max_iterations, 1) + 1,
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return RSModel(R0, C0, w0, t0)
+    th_ = fit.theta
+    return RSModel(rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12])
 
 
 def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
     """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
-    ``th``), SciPy ``least_squares``; MAP with the frame's prior
-    (:func:`~.refine.refine_rs_pose_scipy`, whose prior rows take the image noise
-    ``sigma``). Returns (R, C, w, t) or None (not finite)."""
-    R0, C0, w0, t0 = model
-    X, x, tau = fr.X[near], fr.x[near], fr.tau[near]
-    if fr.prior is not None and rolling:
-        ref = refine_rs_pose_scipy(
-            R0,
-            C0,
-            w0,
-            t0,
-            X,
-            x,
-            tau,
-            th,
-            prior=fr.prior,
-            seconds_per_unit_r=fr.spr,
-            noise=sigma,
-        )
-        R, C, w, t = ref.R, ref.C, ref.w, ref.t
-    else:
-        n_free = 12 if rolling else 6
-        theta0 = np.concatenate([np.zeros(3), C0, w0 if rolling else np.zeros(3), t0 * rolling])
-
-        def full(p):
-            th_ = theta0.copy()
-            th_[:n_free] = p
-            return th_
-
-        res = least_squares(
-            lambda p: exact_residuals(full(p), R0, X, x, tau),
-            theta0[:n_free],
-            jac=lambda p: exact_jacobian(full(p), R0, X, x, tau)[:, :n_free],
-            loss="huber",
-            f_scale=th,
-            method="trf",
-            x_scale="jac",
-            ftol=FINAL_TOL,
-            xtol=1e-10,
-            gtol=1e-10,
-        )
-        th_ = full(res.x)
-        R, C, w, t = rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12]
+    ``th``): :func:`~.refine.refine_rs_pose_scipy`, MAP with the frame's prior (its rows
+    weighed by the image noise ``sigma``) on a rolling-shutter fit. Returns (R, C, w, t) or
+    None (not finite)."""
+    ref = refine_rs_pose_scipy(
+        *model,
+        fr.X[near],
+        fr.x[near],
+        fr.tau[near],
+        th,
+        rolling_shutter=rolling,
+        prior=fr.prior,
+        seconds_per_unit_r=fr.spr,
+        noise=sigma,
+    )
+    R, C, w, t = ref.R, ref.C, ref.w, ref.t
     if not all(np.isfinite(a).all() for a in (R, C, w, t)):
         return None
     return R, C, w, t
@@ -406,180 +413,25 @@ def _refine(fr: Frame, model, th: float, rolling: bool):
     return R, C, w, t, (cov if np.isfinite(cov).all() else None), info
 
 
-def _depths(fr: Frame, R, C, w, t) -> np.ndarray:
-    """(N,) depths of every point at its capture time under the exact model."""
-    return exact_camera_points(R, C, w, t, fr.X, fr.tau)[:, 2]
+def final_model(
+    fr: Frame, solver: str, opts: EstimateOptions, model: Model, min_inliers: int
+) -> FinalModel:
+    """:func:`~.finalize.refine_final_model` in NumPy and SciPy: RANSAC's ``model`` refined
+    (:func:`_refine`; without ``opts.refine.enabled`` as it is, with no covariance), its
+    inliers and their RMS error (px) re-selected on it.
 
-
-def _output_covariance(cov12, R, C, w, s: float):
-    """:func:`~.result.output_covariance` in NumPy: (delta, C, w, t) -> (camera rotation in
-    the world, position, omega_cam, v_cam) and the ROS pose and twist blocks."""
-    Rt = R.T
-    J = np.zeros((12, 12))
-    J[0:3, 0:3] = -Rt  # phi = -R^T delta
-    J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
-    J[3:6, 3:6] = -Rt  # dc/dC
-    if s > 0:  # (omega, v) rows: the twist's Jacobian, (v, omega)
-        Jz = model_twist_jacobian.py_func(C, w, s)
-        J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
-    out = J @ cov12 @ J.T
-    out = 0.5 * (out + out.T)
-    pose = np.zeros((6, 6))
-    idx = np.r_[3:6, 0:3]  # ROS (x, y, z, rot x, rot y, rot z)
-    pose[:] = out[np.ix_(idx, idx)]
-    tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
-    twist = out[np.ix_(tw, tw)] if s > 0 else None
-    return out, pose, twist
-
-
-def _physical(R, C, w, t, s: float):
-    """:func:`~.result.physical_velocities` in NumPy."""
-    if s <= 0:
-        z = np.zeros(3)
-        return z, z.copy(), z.copy(), z.copy()
-    z = model_twist.py_func(C, w, t, s)
-    om, vc = z[3:6], z[0:3]
-    return om, vc, R.T @ om, R.T @ vc
-
-
-def _finalize(
-    fr: Frame,
-    solver: str,
-    opts: EstimateOptions,
-    model,
-    iterations,
-    timings,
-    min_inliers,
-    ignored: tuple[str, ...],
-):
-    """Refinement, last checks and outputs (:mod:`.finalize`); ``ignored``: the estimate's
-    ``ignored_inputs``."""
-    th = opts.ransac.threshold_px / fr.f
-    rolling = solver_info(solver).rolling
+    Raises:
+        EstimationFailed: ``too_few_inliers``: fewer than ``min_inliers`` on the refined
+            model.
+    """
+    th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     cov = info = None
-    prior_used = fr.prior is not None
     if opts.refine.enabled:
-        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, rolling)
+        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, solver_info(solver).rolling)
     e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
     inl = e < th
     if np.count_nonzero(inl) < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
     rmse_px = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
-    if not (np.isfinite(R).all() and _plausible(C[None], w[None], t[None], fr.motion_bounds)[0]):
-        raise EstimationFailed(IMPLAUSIBLE_MOTION)
-    behind = ~(_depths(fr, R, C, w, t) > 0)
-    if (behind & inl).any():
-        raise EstimationFailed(CHEIRALITY)
-    n_behind = int(np.count_nonzero(behind))
-    flat = planarity(fr.X, inl, compiled=False)
-    position = camera_position(R, C)
-    n_free = 12 if rolling else 6
-    cond = (
-        condition_number(info[:n_free, :n_free], compiled=False)
-        if info is not None
-        else float("nan")
-    )
-    if (
-        opts.plausibility.consistent_fit
-        and not fr.planar
-        and fit_is_inconsistent(fr.X, inl, position, flat, cond, rolling, th, lambda: e)
-    ):
-        raise EstimationFailed(INCONSISTENT_FIT)
-    return solved_estimate(
-        fr,
-        solver,
-        (R, C, w, t),
-        position,
-        inl,
-        n_behind,
-        _physical(R, C, w, t, fr.spr),
-        None if cov is None else _output_covariance(cov, R, C, w, fr.spr),
-        flat,
-        cond,
-        ransac_iterations=iterations,
-        timings=timings,
-        rmse_px=rmse_px,
-        motion_prior_used=prior_used,
-        implementation=NUMPY,
-        ignored_inputs=ignored,
-    )
-
-
-def estimate_numpy(
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    solver: str,
-    opts: EstimateOptions,
-    ignored: tuple[str, ...] = (),
-) -> RSPoseEstimate:
-    """:func:`~.estimate.estimate_rs_pose` with ``implementation="numpy"`` (module docstring):
-    the same model, outputs and failure reasons, for the solvers in
-    :data:`~.implementation.NUMPY_SOLVERS`.
-
-    Args:
-        points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
-        camera: the camera (intrinsics, distortion, RS timing).
-        solver: ``r6p_1lin`` or ``p3p``.
-        opts: :class:`~.options.EstimateOptions`.
-        ignored: the names of the inputs given that this implementation does not use (the
-            estimate's ``ignored_inputs``).
-    Returns:
-        :class:`~.result.RSPoseEstimate` with ``implementation="numpy"``. Data problems give
-        ``success=False`` with a failure reason, never an exception.
-    Raises:
-        ValueError: a solver not in :data:`~.implementation.NUMPY_SOLVERS`, or arrays that are
-            not (N, 2) / (N, 3).
-    """
-    if solver not in NUMPY_SOLVERS:
-        raise ValueError(f"solver {solver!r} needs the compiled kernels; {NUMPY_SOLVERS} do not")
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-    rng = seeded_rng(opts.ransac.seed)
-    fr = prepare_frame(
-        points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=False
-    )
-    fr.tau = fr.r - fr.r0
-    search = _Search(fr, solver, opts, rng)
-    min_inliers = points_needed(solver, opts)
-    try:
-        pl = opts.plausibility
-        configure_frame(
-            fr,
-            camera,
-            solver,
-            opts.ransac.min_inliers,
-            opts.ransac.threshold_px,
-            (pl.max_angular_velocity, pl.max_linear_velocity),
-            opts.motion_prior,
-            compiled=False,
-        )
-        timings["prepare"] = time.perf_counter() - t_start
-        t0 = time.perf_counter()
-        search.run()
-        timings["ransac"] = time.perf_counter() - t0
-        if search.best is None:
-            raise EstimationFailed(IMPLAUSIBLE_MOTION if search.implausible else NO_HYPOTHESIS)
-        if np.count_nonzero(search.inliers) < min_inliers:
-            raise EstimationFailed(TOO_FEW_INLIERS)
-        if fr.degenerate(search.inliers, opts.ransac.threshold_px, compiled=False):
-            raise EstimationFailed(DEGENERATE_GEOMETRY)
-        t0 = time.perf_counter()
-        est = _finalize(
-            fr, solver, opts, search.best, search.iterations, timings, min_inliers, ignored
-        )
-        timings["refine"] = time.perf_counter() - t0
-    except EstimationFailed as failure:
-        return failed_estimate(
-            failure.reason,
-            solver,
-            fr.num_rows,
-            len(fr.x),
-            search.iterations,
-            timings,
-            NUMPY,
-            ignored,
-        )
-    timings["total"] = time.perf_counter() - t_start
-    return est
+    return FinalModel(RSModel(R, C, w, t), inl, rmse_px, cov, info, prior_used=fr.prior is not None)

@@ -28,6 +28,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..geometry import exact_camera_points
+
 __all__ = [
     "CHEIRALITY",
     "IMPLAUSIBLE_MOTION",
@@ -37,6 +39,7 @@ __all__ = [
     "degenerate_points_numpy",
     "depths_at_capture",
     "final_model_check",
+    "final_model_check_numpy",
     "finite_model",
     "image_degenerate",
     "motion_bounds",
@@ -407,6 +410,27 @@ def final_model_check(R, C, w, t, X, tau, mask, w_max2, v_max2):
             if mask[i]:
                 code = 2
     return code, behind
+
+
+def final_model_check_numpy(
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    mask: np.ndarray,
+    w_max2: float,
+    v_max2: float,
+) -> tuple[int, int]:
+    """:func:`final_model_check` in NumPy (the estimator's NumPy implementation)."""
+    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+        return 1, 0
+    wn2, vn2 = motion_norms2.py_func(*C, *w, *t)
+    if not (wn2 <= w_max2 and vn2 <= v_max2):
+        return 1, 0
+    behind = ~(exact_camera_points(R, C, w, t, X, tau)[:, 2] > 0.0)
+    return (2 if (behind & mask).any() else 0), int(np.count_nonzero(behind))
 
 
 def check_final_model(

@@ -26,8 +26,8 @@ import numpy as np
 
 from ..solvers.registry import sample_size
 from .frame import Frame, Model
-from .hypotheses import KNOWN_W_SAMPLE, ScoredBatch, hypothesis_source
-from .local_optimization import local_optimization, seed_from_initial_model
+from .hypotheses import KNOWN_W_SAMPLE, HypothesisSource, ScoredBatch, hypothesis_source
+from .local_optimization import Scored, local_optimization, seed_from_initial_model
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .result import (
     DEGENERATE_GEOMETRY,
@@ -189,7 +189,15 @@ class Ransac(RansacLoop):
             one); guided: > 0 when RANSAC verifies a seed by sampling only among its first
             ``guided`` points of ``order`` (its inliers).
         timings: ``ransac`` and ``local_optimization`` seconds once :meth:`run` returns.
+
+    What needs compiled kernels is in three methods (:meth:`hypothesis_source`,
+    :meth:`evaluate`, :meth:`local_optimization`) and ``compiled`` (the degeneracy test of
+    :meth:`result`); the NumPy implementation's search (:mod:`.numpy_impl`) replaces those
+    and keeps the rest: sampling, termination, the seed, the failure reasons.
     """
+
+    #: the degeneracy test of :meth:`result` runs compiled (False: in NumPy)
+    compiled = True
 
     def __init__(
         self,
@@ -223,9 +231,7 @@ class Ransac(RansacLoop):
         self.th2 = self.fr.threshold * self.fr.threshold
         if initial is not None:
             self._seed(initial)
-        self._source = hypothesis_source(
-            self.fr, self.solver, self.opts, self.th2, self.anchor is not None
-        )
+        self._source = self.hypothesis_source()
         self.search(self, self.opts.ransac)
         self.timings = {
             "ransac": time.perf_counter() - t0 - self._t_local,
@@ -243,9 +249,23 @@ class Ransac(RansacLoop):
         self.found()
         if self.count < min_inliers:
             raise EstimationFailed(TOO_FEW_INLIERS)
-        if self.fr.degenerate(self.inliers, threshold_px):
+        if self.fr.degenerate(self.inliers, threshold_px, self.compiled):
             raise EstimationFailed(DEGENERATE_GEOMETRY)
         return self.best
+
+    def hypothesis_source(self) -> HypothesisSource:
+        """The source of the samples' hypotheses (:func:`~.hypotheses.hypothesis_source`)."""
+        return hypothesis_source(self.fr, self.solver, self.opts, self.th2, self.anchor is not None)
+
+    def evaluate(self, model: Model) -> tuple[float, np.ndarray]:
+        """(MSAC score, (N,) inlier mask) of ``model`` on every point
+        (:meth:`~.frame.Frame.evaluate`)."""
+        return self.fr.evaluate(model, self.th2)
+
+    def local_optimization(self, scored: Scored) -> Scored:
+        """A new best (score, model, inlier mask) polished
+        (:func:`~.local_optimization.local_optimization`)."""
+        return local_optimization(self.fr, self.solver, scored, self.th2, self.opts)
 
     def _pool(self, K: int) -> int:
         """Points the next K samples are drawn from: the seed's inliers when verifying it, a
@@ -312,11 +332,9 @@ class Ransac(RansacLoop):
         point, as local optimization would); the inlier ratio of termination is that of the
         verified seed's inliers when verifying it."""
         t_lo = time.perf_counter()
-        score, self.inliers = self.fr.evaluate(model, self.th2)
+        score, self.inliers = self.evaluate(model)
         if not self.guided:
-            score, model, self.inliers = local_optimization(
-                self.fr, self.solver, (score, model, self.inliers), self.th2, self.opts
-            )
+            score, model, self.inliers = self.local_optimization((score, model, self.inliers))
         self._t_local += time.perf_counter() - t_lo
         self.count = int(np.count_nonzero(self.inliers))
         ratio = (

@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..pose import PoseWithCovariance, RSModel
+from ..geometry import skew
+from ..pose import PoseWithCovariance, RSModel, model_twist, model_twist_jacobian
 from .outputs import output_covariance_kernel, physical_velocities_kernel
 from .plausibility import CHEIRALITY, IMPLAUSIBLE_MOTION
 
@@ -285,7 +286,12 @@ def failed_estimate(
 
 
 def physical_velocities(
-    R: np.ndarray, C: np.ndarray, w: np.ndarray, t: np.ndarray, seconds_per_unit_r: float
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    seconds_per_unit_r: float,
+    compiled: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Model velocities (per unit r) -> the camera's own velocities.
 
@@ -300,11 +306,16 @@ def physical_velocities(
 
     Returns:
         (omega_cam rad/s, v_cam m/s, omega_world, v_world), each (3,); zeros for a global
-        shutter (``seconds_per_unit_r == 0``).
+        shutter (``seconds_per_unit_r == 0``). ``compiled=False``: in NumPy (the estimator's
+        NumPy implementation).
     """
     if seconds_per_unit_r <= 0:
         z = np.zeros(3)
         return z, z.copy(), z.copy(), z.copy()
+    if not compiled:
+        z = model_twist.py_func(C, w, t, seconds_per_unit_r)
+        om, vc = z[3:6], z[0:3]
+        return om, vc, R.T @ om, R.T @ vc
     f64 = np.float64
     return physical_velocities_kernel(
         np.ascontiguousarray(R, dtype=f64),
@@ -316,7 +327,12 @@ def physical_velocities(
 
 
 def output_covariance(
-    cov12: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, seconds_per_unit_r: float
+    cov12: np.ndarray,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    seconds_per_unit_r: float,
+    compiled: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Propagate the (delta, C, w, t) covariance (12, 12) to (camera rotation in world,
     position, omega_cam, v_cam) and to the ROS pose/twist blocks.
@@ -328,8 +344,29 @@ def output_covariance(
 
     Returns:
         (the (12, 12) covariance, the (6, 6) ROS pose block, the (6, 6) ROS twist block or
-        ``None`` for a global shutter); computed in :func:`.outputs.output_covariance_kernel`.
+        ``None`` for a global shutter); computed in :func:`.outputs.output_covariance_kernel`
+        (``compiled=False``: in NumPy, the estimator's NumPy implementation).
     """
     s = float(seconds_per_unit_r)
+    if not compiled:
+        return _output_covariance_numpy(cov12, R, C, w, s)
     out, pose, twist = output_covariance_kernel(np.ascontiguousarray(cov12), R, C, w, s)
     return out, pose, (twist if s > 0 else None)
+
+
+def _output_covariance_numpy(cov12, R, C, w, s: float):
+    """:func:`output_covariance` in NumPy."""
+    Rt = R.T
+    J = np.zeros((12, 12))
+    J[0:3, 0:3] = -Rt  # phi = -R^T delta
+    J[3:6, 0:3] = -Rt @ skew(C)  # dc/ddelta
+    J[3:6, 3:6] = -Rt  # dc/dC
+    if s > 0:  # (omega, v) rows: the twist's Jacobian, (v, omega)
+        Jz = model_twist_jacobian.py_func(C, w, s)
+        J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
+    out = J @ cov12 @ J.T
+    out = 0.5 * (out + out.T)
+    idx = np.r_[3:6, 0:3]  # ROS (x, y, z, rot x, rot y, rot z)
+    pose = out[np.ix_(idx, idx)]
+    tw = np.r_[9:12, 6:9]  # ROS (vx, vy, vz, wx, wy, wz)
+    return out, pose, (out[np.ix_(tw, tw)] if s > 0 else None)

@@ -59,6 +59,23 @@ def draw_samples(u, pool):
     return out
 
 
+def draw_samples_numpy(u: np.ndarray, pool: int) -> np.ndarray:
+    """:func:`draw_samples` in NumPy, all K samples at once (the NumPy implementation): the
+    same (K, s) indices from the same ``u``. (The chosen indices are distinct and sorted, so
+    the kernel's walk over them, which stops at the first one above the pick, steps over
+    exactly those at or below it: one comparison per chosen index.)"""
+    K, s = u.shape
+    out = np.empty((K, s), dtype=np.int64)
+    for j in range(s):
+        c = np.minimum((u[:, j] * (pool - j)).astype(np.int64), pool - j - 1)
+        if j:
+            chosen = np.sort(out[:, :j], axis=1)
+            for m in range(j):
+                c += chosen[:, m] <= c
+        out[:, j] = c
+    return out
+
+
 @njit(cache=True)
 def gather_prerotated(samples, R_pre, x, X, r):
     """The solver input of K samples: ``x[samples]``, ``R_pre[k] X[samples[k]]``, ``r[samples]``.

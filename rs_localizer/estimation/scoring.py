@@ -12,6 +12,7 @@ import numpy as np
 from numba import njit
 
 from .._so3 import FMA, INLINE, rotate_small
+from ..geometry import exact_camera_points
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
@@ -70,14 +71,34 @@ def _image_error2(x0, x1, px, py, pz):
     return ex * ex + ey * ey
 
 
+def exact_errors2_numpy(
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+) -> np.ndarray:
+    """(H, n) squared reprojection errors (normalized units) of H models (R (H, 3, 3); C, w,
+    t (H, 3)) at the points ``X`` (n, 3), ``x`` (n, 2) captured at ``tau`` (n,) (``r - r0``),
+    exact model (paper eq. 4); ``inf`` behind the camera. :func:`exact_error2` in NumPy (the
+    estimator's NumPy implementation)."""
+    p = exact_camera_points(R, C, w, t, X, tau)
+    z = p[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        iz = 1.0 / z
+        e = (p[..., 0] * iz - x[:, 0]) ** 2 + (p[..., 1] * iz - x[:, 1]) ** 2
+    return np.where(z > 0, e, np.inf)
+
+
 @njit(cache=True, inline=INLINE, fastmath=FMA)
 def exact_error2(x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2):
     """Squared reprojection error of one point (``q = R X``) captured at ``tau = r - r0``,
     placed with the exact constant-velocity model ``expm(tau [w]x) q + C + tau t`` (paper
     eq. 4); ``inf`` behind the camera. The one compiled form of the exact-model error: the
     scoring kernels and :func:`rs_localizer.estimation.refine.exact_errors` inline it (with
-    their own fast-math flags); the NumPy implementation's is
-    :mod:`rs_localizer.estimation.numpy_impl`'s."""
+    their own fast-math flags); the NumPy implementation's is :func:`exact_errors2_numpy`."""
     Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
     return _image_error2(x0, x1, Aq0 + C0 + tau * t0, Aq1 + C1 + tau * t1, Aq2 + C2 + tau * t2)
 

@@ -273,3 +273,64 @@ def test_numpy_helpers_agree_with_the_compiled_ones():
     np.testing.assert_allclose(condition_number(H, compiled=False), condition_number(H), rtol=1e-8)
     H[3, 3] = 0.0
     assert condition_number(H, compiled=False) == condition_number(H) == np.inf
+
+
+def test_numpy_samples_are_the_compiled_samples():
+    """The NumPy implementation draws RANSAC's samples as the compiled sources do: the same
+    (K, s) indices from the same uniforms (pools from a minimal sample's size up, uniforms
+    at both ends of [0, 1))."""
+    from rs_localizer.estimation.sampling import draw_samples, draw_samples_numpy
+
+    rng = np.random.default_rng(3)
+    for pool, s in ((3, 3), (6, 6), (7, 6), (30, 6), (300, 6), (300, 3)):
+        u = rng.random((400, s))
+        u[:5], u[5:10] = 0.0, np.nextafter(1.0, 0.0)
+        np.testing.assert_array_equal(draw_samples_numpy(u, pool), draw_samples(u, pool))
+
+
+def test_numpy_final_checks_agree_with_the_compiled_ones():
+    """The final stage's NumPy forms (finalize.final_estimate with compiled=False) give what
+    the compiled kernels give on the same models: the plausibility and cheirality verdict and
+    the count behind the camera, the image errors, the physical velocities and the propagated
+    covariances (to rounding)."""
+    from rs_localizer.estimation.finalize import final_errors
+    from rs_localizer.estimation.frame import prepare_frame
+    from rs_localizer.estimation.plausibility import final_model_check, final_model_check_numpy
+    from rs_localizer.estimation.result import output_covariance, physical_velocities
+
+    cam = paper_camera()
+    rng = np.random.default_rng(11)
+    f = make_frame(41, 80, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+    fr = prepare_frame(f.points_px, f.X, cam, 1e3, np.random.default_rng(0))
+    fr.spr = cam.seconds_per_unit_r
+    est = estimate_compiled(f.points_px, f.X, cam, "r6p_1lin", OPTS)
+    R, C, w, t = (np.array(a, dtype=float) for a in est.model)
+    tau = fr.r - fr.r0
+    inl = rng.random(len(fr.x)) < 0.7
+    flipped = (np.diag([1.0, -1.0, -1.0]) @ R, -C, w, t)  # (the scene behind the camera)
+    for model, bounds in (((R, C, w, t), (np.inf, np.inf)), ((R, C, w, t), (1e-12, 1e-12))):
+        args = (*model, fr.X, tau, inl, *bounds)
+        assert final_model_check_numpy(*args) == tuple(final_model_check(*args))
+    args = (*(np.ascontiguousarray(a) for a in flipped), fr.X, tau, inl, np.inf, np.inf)
+    assert final_model_check_numpy(*args) == tuple(final_model_check(*args))
+    assert final_model_check_numpy(*args)[0] == 2
+    e_c, e_n = final_errors((R, C, w, t), fr), final_errors((R, C, w, t), fr, compiled=False)
+    np.testing.assert_allclose(e_n, e_c, rtol=1e-9, atol=1e-12)
+    for a, b in zip(
+        physical_velocities(R, C, w, t, fr.spr, compiled=False),
+        physical_velocities(R, C, w, t, fr.spr),
+        strict=True,
+    ):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+    A = rng.normal(size=(12, 12))
+    cov = 1e-6 * A @ A.T
+    for s in (fr.spr, 0.0):
+        u, c = (
+            output_covariance(cov, R, C, w, s, compiled=False),
+            output_covariance(cov, R, C, w, s),
+        )
+        for a, b in zip(u, c, strict=True):
+            if b is None:
+                assert a is None
+            else:
+                np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-18)
