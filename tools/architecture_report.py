@@ -44,7 +44,6 @@ RIG_ONLY = {
 #: what computes a pose from observations: (module, name) -> why it is one
 ESTIMATORS = {
     ("estimation/estimate.py", "estimate_rs_pose"): "one camera's frame: RANSAC + refinement",
-    ("estimation/numpy_impl.py", "estimate_numpy"): "the same stages in NumPy (cold start)",
     ("estimation/single_tag.py", "single_tag_estimate"): "too few points but one marker: IPPE",
     ("estimation/rig.py", "estimate_rig_pose"): "one rig frame of several cameras",
     ("tracking/tracker.py", "RSTracker"): "a camera's video: predicted RANSAC, relocalization",
