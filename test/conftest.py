@@ -44,6 +44,35 @@ def ros_domain():
             os.environ[k] = v
 
 
+@pytest.fixture(scope="session")
+def rig_kernels():
+    """The rig's kernels compiled (or loaded from numba's cache) once per session, as a rig
+    node's ``warmup`` does (:func:`~rs_localizer.runtime.warmup.warm_rig`, with and without a
+    gyro): a rig test over DDS times its waits for frames, not for numba's first compile of
+    the rig's refinement (~30 s on a cold cache, longer on a busy machine), which would also
+    go on in a node's worker thread after a test that gave up on it."""
+    import numpy as np
+
+    from rs_localizer.runtime.warmup import warm_rig
+    from rs_localizer.tracking.rig import RigMount, RigSettings
+    from rs_localizer.tracking.sequence import GyroSettings
+
+    turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    mounts = {
+        "a": RigMount.from_pose(np.eye(3), np.zeros(3)),
+        "b": RigMount.from_pose(turn, np.array([0.1, 0.0, 0.0])),
+    }
+    warm_rig(RigSettings(mounts))
+    warm_rig(RigSettings(mounts, imu=GyroSettings(R_cam_imu=np.eye(3))))
+
+
+@pytest.fixture(autouse=True)
+def _rig_tests_on_compiled_kernels(request):
+    """Every ROS test of a rig (``rig`` in its id) runs after :func:`rig_kernels`."""
+    if "rig" in request.node.nodeid and "ros_domain" in request.fixturenames:
+        request.getfixturevalue("rig_kernels")
+
+
 @pytest.fixture
 def ros_context(ros_domain):
     """A fresh, initialized rclpy Context for one test."""
