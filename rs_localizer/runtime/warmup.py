@@ -44,7 +44,12 @@ from ..estimation.estimate import (
 )
 from ..estimation.frame import prepare_frame
 from ..estimation.prior import prior_conflict
-from ..estimation.refine import RefineSettings, _lm_refine, posterior_step, refine_rs_pose
+from ..estimation.refine import (
+    LM_REFINE_KERNEL,
+    RefineSettings,
+    posterior_step,
+    refine_rs_pose,
+)
 from ..estimation.rig import camera_model_of_rig
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
@@ -366,7 +371,7 @@ def rig_cached() -> bool:
     from numba.core import types
 
     try:
-        index = _lm_refine._cache._cache_file._load_index()
+        index = LM_REFINE_KERNEL._cache._cache_file._load_index()
         return any(isinstance(key[0][-1], types.BaseTuple) for key in index)
     except Exception:
         return False
