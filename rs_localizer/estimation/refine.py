@@ -41,6 +41,7 @@ from .prior import MotionPrior, prior_arrays
 from .scoring import exact_error2
 
 __all__ = [
+    "LM_REFINE_KERNEL",
     "ExactModelFit",
     "Mountings",
     "RefineResult",
@@ -892,6 +893,11 @@ def _lm_refine(
                 for j in range(6):
                     out[OUT_ACC + 6 * i + j] = A[i, j]
     return sigma, success, nfev
+
+
+#: the numba dispatcher of :func:`refine_rs_pose`'s loop (:func:`_lm_refine`), for the
+#: runtime's look into numba's cache (:func:`rs_localizer.runtime.warmup.rig_cached`)
+LM_REFINE_KERNEL = _lm_refine
 
 
 @njit(cache=True)

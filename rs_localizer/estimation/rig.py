@@ -73,6 +73,17 @@ uses it as a single camera's does (``estimate_rs_pose(..., gyro=)``): its rows i
 sample's linear solve, maximum a posteriori local optimization and refinement, then the gyro
 judged by the image alone and rejected when they disagree (:func:`estimate_rig_pose`).
 
+The refinement and the covariance run in one of the single camera's two implementations
+(``implementation``, :mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, the
+numba kernel above; ``"numpy"``, SciPy's ``least_squares`` on the same exact model and
+mountings (:func:`~rs_localizer.estimation.refine.least_squares_exact_model`, Huber loss at
+the threshold on the points within the cutoff, selected again after a fit) and the
+covariance and acceleration block from the analytic Jacobian
+(:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma: nothing compiles
+the refinement kernel's rig specialization (tens of seconds on a cold cache; the sampling,
+solver and residual kernels the rig shares compile in seconds). A rig node takes it while
+its kernels compile in the background (:mod:`rs_localizer.runtime.background`).
+
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
 pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
@@ -100,6 +111,7 @@ from .gyro import (
     gyro_image_chi2,
     gyro_prior,
 )
+from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
 from .prior import MotionPrior
@@ -109,6 +121,7 @@ from .refine import (
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    least_squares_exact_model,
     refine_rs_pose,
     untruncated_variance,
 )
@@ -371,6 +384,8 @@ class RigPoseEstimate(PoseWithCovariance):
             ``num_inliers_per_camera`` zero); with ``cameras_disagree`` every camera of the
             groups that contradict each other (``num_valid_per_camera`` and
             ``num_inliers_per_camera`` are then the joint fit's, the rest as any failure's).
+        implementation: ``"compiled"`` or ``"numpy"``: the implementation of the refinement
+            and covariance that ran (:func:`estimate_rig_pose`'s ``implementation``).
     """
 
     success: bool
@@ -397,6 +412,7 @@ class RigPoseEstimate(PoseWithCovariance):
     gyro_rejection: str = ""
     gyro_chi2: float = float("nan")
     disagreeing: tuple[int, ...] = ()
+    implementation: str = COMPILED
 
     @property
     def model(self) -> RSModel:
@@ -467,9 +483,12 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
 
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
-    camera index, the camera's focal length (px per normalized unit), measured pixels."""
+    camera index, the camera's focal length (px per normalized unit), measured pixels;
+    ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
+    implementation, :func:`estimate_rig_pose`)."""
 
-    def __init__(self, views: Sequence[RigView]):
+    def __init__(self, views: Sequence[RigView], numpy: bool = False):
+        self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
         xs, Xs, taus, cams, rows, foc, uvs = [], [], [], [], [], [], []
         for c, v in enumerate(views):
             if not isinstance(v, RigView):
@@ -859,15 +878,18 @@ def _refine(
     kept at zero). ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
     ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
     starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`,
-    at least ``1e-6`` threshold^2)."""
+    at least ``1e-6`` threshold^2). With ``pool.numpy``: :func:`_refine_numpy`."""
     k = float(threshold_px)
     cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
     noise, motion = None, None
     if prior is not None and free == 12:
         e = _errors_px(pool, *_one(model))[0]
         inside = e[e < k]
-        sp2 = untruncated_variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
+        variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
+        sp2 = variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
         noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
+    if pool.numpy:
+        return _refine_numpy(pool, model, k, cut, free, int(max_iterations), noise, motion)
     settings = RefineSettings(
         rolling_shutter=free == 12, max_iterations=int(max_iterations), covariance=False,
         cutoff=cut, seconds_per_unit_r=1.0, noise=noise,
@@ -876,6 +898,74 @@ def _refine(
         model, pool.X, pool.x, pool.tau, k, settings, motion, _mountings(pool)
     )  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
+
+
+#: fits of the NumPy refinement, each on the points within the cutoff of the last model (the
+#: compiled one selects them again at each iteration)
+_NUMPY_PASSES = 2
+
+
+def _refine_numpy(pool: _Pool, model, k: float, cut: float, free: int, max_iterations: int,
+                  noise: float | None, motion: MotionPrior | None):  # fmt: skip
+    """:func:`_refine` in NumPy and SciPy: ``least_squares`` on the exact model with the
+    mountings (:func:`~.refine.least_squares_exact_model`, errors in px), Huber loss at ``k``
+    px on the points within ``cut`` px of the model, at most ``max_iterations + 1``
+    evaluations, up to :data:`_NUMPY_PASSES` times while the points within ``cut`` change;
+    ``motion`` (the gyro's prior, with ``free=12``) adds its rows weighed by the image noise
+    ``noise`` (px). Returns the model unchanged when fewer than 7 points are within ``cut``
+    or the fit fails."""
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    rolling = free == 12
+    if not rolling:
+        w, t = np.zeros(3), np.zeros(3)
+    m = _mountings(pool)
+    near = None
+    for _ in range(_NUMPY_PASSES if max_iterations > 0 else 0):
+        e = _errors_px(pool, *_one((R, C, w, t)))[0]
+        sel = e < cut
+        if np.count_nonzero(sel) < 7 or (near is not None and np.array_equal(sel, near)):
+            break
+        near = sel
+        sub = Mountings(m.cam[near], m.R_mount, m.c_mount, m.scale[near])
+        try:
+            fit = least_squares_exact_model(
+                R, np.concatenate([np.zeros(3), C, w, t]), free, pool.X[near], pool.x[near],
+                pool.tau[near], motion if rolling else None, 1.0,
+                0.0 if noise is None else float(noise), mountings=sub, loss="huber",
+                f_scale=k, max_nfev=max_iterations + 1,
+            )  # fmt: skip
+        except (ValueError, np.linalg.LinAlgError):
+            break
+        th = fit.theta
+        if not np.isfinite(th).all():
+            break
+        R, C, w, t = rotvec_to_matrix(th[:3]) @ R, th[3:6].copy(), th[6:9].copy(), th[9:12].copy()
+    return R, C, w, t
+
+
+def _information_numpy(pool: _Pool, model, k: float, cut: float, free: int):
+    """What :func:`_covariance` takes from the compiled refinement at ``model`` (no step), in
+    NumPy: ``(sigma^2, J^T W J (12, 12), J^T W D (12, 6))`` over the points within ``cut`` px
+    (``W`` the Huber weights at ``k`` px: 1 inside, ``k / e`` beyond; ``J`` the analytic
+    Jacobian of the errors in px over ``(delta, C, w, t)``, :func:`~.refine.exact_jacobian`
+    with the mountings, rows and columns beyond ``free`` zero; ``D`` ``tau / 2`` times its
+    ``w`` and ``t`` columns), ``sigma^2`` the per-axis variance (px^2) of the errors within
+    ``k`` corrected for the truncation (:func:`~.refine.untruncated_variance`, ``2 n - free``
+    degrees of freedom), as :func:`~.refine.refine_rs_pose` computes them."""
+    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
+    e = _errors_px(pool, *_one(model))[0]
+    idx = np.flatnonzero(e < cut)
+    m = _mountings(pool)
+    sub = Mountings(m.cam[idx], m.R_mount, m.c_mount, m.scale[idx])
+    theta = np.concatenate([np.zeros(3), C, w, t])
+    J = exact_jacobian(theta, R, pool.X[idx], pool.x[idx], pool.tau[idx], sub)
+    J[:, free:] = 0.0
+    ei = e[idx]
+    WJ = np.repeat(np.where(ei <= k, 1.0, k / np.maximum(ei, k)), 2)[:, None] * J
+    inside = ei[ei <= k]
+    s2 = float(np.sum(inside**2)) / max(2 * len(inside) - free, 1)
+    D = 0.5 * np.repeat(pool.tau[idx], 2)[:, None] * J[:, 6:12]
+    return untruncated_variance.py_func(s2, k), J.T @ WJ, WJ.T @ D
 
 
 def _covariance(
@@ -906,7 +996,8 @@ def _covariance(
     (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
     J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
     analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). Returns
-    ``(None, None)`` if singular or not finite."""
+    ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
+    (:func:`_information_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0]
     if np.count_nonzero(e < k) <= 6:
@@ -916,9 +1007,13 @@ def _covariance(
         rolling_shutter=rolling, max_iterations=0, covariance=True, cutoff=cut,
         seconds_per_unit_r=1.0, acceleration_block=rolling,
     )  # fmt: skip
-    res = refine_rs_pose(model, pool.X, pool.x, pool.tau, k, settings, None, _mountings(pool))
-    sigma2 = res.sigma**2
-    H = res.data_information[:free, :free].copy()
+    if pool.numpy:
+        sigma2, info, acc = _information_numpy(pool, model, k, cut, free)
+    else:
+        res = refine_rs_pose(model, pool.X, pool.x, pool.tau, k, settings, None, _mountings(pool))
+        sigma2, info = res.sigma**2, res.data_information
+        acc = res.acceleration_block if rolling else None
+    H = info[:free, :free].copy()
     if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
     try:
@@ -934,7 +1029,7 @@ def _covariance(
         return None, None
     G = None
     if rolling:
-        JD = res.acceleration_block.copy()
+        JD = acc.copy()
         if prior is not None:  # (the gyro measured the rate at its time: w_g + beta t_g)
             JD[6:9, 0:3] += sigma2 * prior.time * prior.info
         G = Hinv @ JD
@@ -1072,6 +1167,7 @@ def estimate_rig_pose(
     prediction: RSModel | tuple | None = None,
     consensus: bool = True,
     verify_cameras: bool = False,
+    implementation: str | None = None,
 ) -> RigPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
@@ -1138,13 +1234,19 @@ def estimate_rig_pose(
         verify_cameras: also pose every voting camera alone and compare (below): for a rig
             frame nothing else checks (a track's first), at the cost of one more solve per
             camera.
+        implementation: the implementation of the refinement and covariance (module
+            docstring), as ``estimate_rs_pose``'s (:mod:`~.implementation`):
+            ``"compiled"`` (the numba kernel) or ``"numpy"`` (SciPy's ``least_squares`` and
+            NumPy: nothing compiles the refinement kernel's rig specialization); None: the
+            compiled one unless this process cannot or must not compile
+            (:func:`~.implementation.compiled_by_default`). The estimate records it.
     Returns:
         :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
         inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
         frame gives no pose.
     Raises:
-        ValueError: unknown ``pre_rotation``, ``options`` that are not
+        ValueError: unknown ``pre_rotation`` or ``implementation``, ``options`` that are not
             :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
             refuse a setting out of its range, naming it), a gyro that is not a
             :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
@@ -1191,7 +1293,15 @@ def estimate_rig_pose(
         )
     if gyro is not None and not isinstance(gyro, GyroMeasurement):
         raise ValueError(f"estimate_rig_pose: gyro must be a GyroMeasurement, got {gyro!r}")
-    pool = _Pool(views)
+    if implementation is None:
+        implementation = COMPILED if compiled_by_default() else NUMPY
+    if implementation not in IMPLEMENTATIONS:
+        raise ValueError(
+            f"estimate_rig_pose: implementation must be one of {IMPLEMENTATIONS}, got "
+            f"{implementation!r}"
+        )
+    numpy = implementation == NUMPY
+    pool = _Pool(views, numpy)
     settings = (options, initial_model, pre_rotation == "gp3p")
     threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
@@ -1201,7 +1311,7 @@ def estimate_rig_pose(
         prediction = getattr(initial_model, "model", initial_model)
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs), settings, gyro, gyro_time), prediction,
+        lambda vs: _estimate_pool(_Pool(vs, numpy), settings, gyro, gyro_time), prediction,
         verify_cameras,
     )  # fmt: skip
 
@@ -1528,6 +1638,7 @@ def _rig_estimate(
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
     record.setdefault("rmse_px", np.nan)
+    record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
     return RigPoseEstimate(
         success=record.get("failure") is None,
         R=R,

@@ -76,6 +76,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
+from ..runtime.background import background_state, compiled_ready, ready_rig_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
@@ -168,7 +169,12 @@ def rig_diagnostics(
     off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
     ``ERROR`` (rig frames formed and none was posed; the message goes on with the cameras'
     warnings and the failures by reason). Values: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, and per
+    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, the
+    estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
+    else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
+    background compile's, :func:`rs_localizer.runtime.background.background_state`;
+    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path; the message then says
+    so), and per
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
@@ -198,6 +204,21 @@ def rig_diagnostics(
         "rig_frames_pending": r["pending"],
         "track_state": rig.track_state,
     }
+    compiled, bg = compiled_ready(), background_state()
+    values.update(
+        compiled=str(compiled).lower(),
+        compile_state=bg["state"],
+        compile_failures=bg["failures"],
+        compile_error=bg["reason"] or "",
+        rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0),
+    )
+    note = ""
+    if not compiled:  # (the single-camera node's note: a lower rate is not a fault)
+        note = (
+            "; kernels compiling in the background: rig frames on the uncompiled path"
+            if bg["state"] in ("compiling", "loading")
+            else "; rig frames on the uncompiled path"
+        )
     for k, v in sorted(rig.counts.items()):
         if k.startswith("rig.failed."):
             values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
@@ -294,7 +315,7 @@ def rig_diagnostics(
         failed = f"{r['failed']} rig frames failed ({why})"
     if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
         why = "; ".join([*warnings, failed] if failed else warnings)
-        return ERROR, "no rig frame posed" + (f": {why}" if why else ""), values
+        return ERROR, "no rig frame posed" + (f": {why}" if why else "") + note, values
     if busy:
         warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
     if lost:
@@ -302,8 +323,8 @@ def rig_diagnostics(
     if failed:
         warnings.append(failed)
     if warnings:
-        return WARN, "; ".join(warnings), values
-    return OK, f"{r['solved']} rig frames posed", values
+        return WARN, "; ".join(warnings) + note, values
+    return OK, f"{r['solved']} rig frames posed" + note, values
 
 
 class RigCore:
@@ -369,7 +390,10 @@ class RigCore:
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
         self._log = _Log(self.get_logger())
-        self.rig = RigLocalizer(self.config.settings, log=self._log)
+        # (rig frames on the NumPy implementation while the kernels compile in the background)
+        self.rig = RigLocalizer(
+            self.config.settings, log=self._log, implementation=ready_rig_implementation
+        )
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
         self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}  # (newest)
@@ -399,18 +423,29 @@ class RigCore:
         self._configured = True
 
     def _warm_up(self) -> None:
-        """``warmup``: the rig's kernels compiled (or loaded from the cache) before the first
-        frame, as the single-camera node does for its own
-        (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and every
-        camera's RS timing, ``rs-localizer compile --params-file``'s); logged with the
-        kernels compiled and the time. Without it the first rig frame pays for them while the
-        cameras' frames queue (a full queue drops them). Never raises (a failure is
-        logged)."""
+        """``warmup``, as the single-camera node's: with the rig's kernels in numba's cache
+        (:func:`~rs_localizer.runtime.warmup.rig_cached`) they are loaded before the first
+        frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
+        every camera's RS timing, ``rs-localizer compile --params-file``'s: a few seconds);
+        else nothing waits: they compile in another process
+        (:func:`~rs_localizer.runtime.background.start_background_compile` with ``rig``)
+        while the rig frames are solved on the NumPy implementation, each alone (no track,
+        no gyro), until they are loaded. Logged with the kernels compiled and the time.
+        Without ``warmup`` the first rig frame pays for them while the cameras' frames queue
+        (a full queue drops them). Never raises (a failure is logged)."""
+        from ..runtime.background import start_background_compile
         from ..runtime.jit_cache import compile_progress
-        from ..runtime.warmup import warm_rig
+        from ..runtime.warmup import rig_cached, warm_rig
 
         log = self.get_logger()
         timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
+        if not rig_cached():
+            try:
+                rig = (self.config.settings, timing)
+                if start_background_compile("rig", log=log.info, warn=log.warning, rig=rig):
+                    return
+            except Exception as e:
+                log.warning(f"background compile (rig) failed to start: {e}")
         tic = time.perf_counter()
         try:
             with compile_progress(log.info) as prog:
@@ -907,7 +942,7 @@ class RigCore:
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
-        final (or its own twist without tracking)."""
+        final (or its own twist without tracking, or solved on the uncompiled path)."""
         base, mf = self.config.base_frame, self.map_frame
         m = out.estimate
         if out.success:
@@ -919,7 +954,7 @@ class RigCore:
                 )
             if self._wanted("twist_single_frame"):
                 self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
-            if self.config.settings.tracking is None:
+            if self.config.settings.tracking is None or not out.compiled:  # (its own twist)
                 self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:

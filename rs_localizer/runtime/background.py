@@ -13,7 +13,10 @@ compiled in the background, or that failed.
 :func:`start_background_compile` makes the NumPy implementation the ready one, compiles the
 kernels in another Python process (:mod:`.background_process`, ``python -m
 rs_localizer.runtime.background_process``), and once they are cached, loads them in a thread
-of this process and makes them the ready one: the next frame uses them.
+of this process and makes them the ready one: the next frame uses them. A rig node does the
+same with its rig's kernels (``rig=``: :func:`.warmup.warm_rig`'s arguments); its rig frames
+take :func:`ready_rig_implementation`
+(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``).
 :func:`fall_back_uncompiled` keeps the frames on the NumPy implementation when the kernels
 cannot be used (a corrupt cache). :func:`background_state` reports it all (the node's
 diagnostics).
@@ -47,6 +50,7 @@ __all__ = [
     "compiled_ready",
     "fall_back_uncompiled",
     "ready_implementation",
+    "ready_rig_implementation",
     "start_background_compile",
     "uncompiled_rate",
 ]
@@ -78,6 +82,13 @@ def ready_implementation(solver: str) -> str:
     implementation (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else
     ``"numpy"``."""
     return COMPILED if solver not in NUMPY_SOLVERS or compiled_ready() else NUMPY
+
+
+def ready_rig_implementation() -> str:
+    """The implementation a rig's frames take now
+    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``):
+    ``"compiled"`` when :func:`compiled_ready`, else ``"numpy"``."""
+    return COMPILED if compiled_ready() else NUMPY
 
 
 def _hold(numpy: bool) -> None:
@@ -119,40 +130,52 @@ def start_background_compile(
     log: Callable[[str], object] = print,
     warn: Callable[[str], object] | None = None,
     nice: int = 10,
+    rig: tuple | None = None,
 ) -> bool:
     """Solve at once, compile meanwhile: make the NumPy implementation this process's ready
     one (:func:`ready_implementation`), compile the kernels ``solver`` (with ``options``,
     ``tracking``, ``gyro``) needs in another Python process (at ``nice``), and once it has
     cached them, load them here in a background thread (the frames go on with NumPy
     meanwhile) and make the compiled kernels the ready implementation again: the next frame
-    uses them. Logs what it does through ``log`` (once), a failure through ``warn`` (once:
-    numba is not available, the compiling process cannot start, crashes or is killed, the
-    kernels were not cached, or loading them fails); the frames then stay on the NumPy
-    implementation and :func:`background_state` counts it.
+    uses them. ``rig``: ``(RigSettings, timing)`` of a rig node (:func:`.warmup.warm_rig`'s
+    arguments): the rig's kernels instead (``solver``, ``options``, ``tracking`` and ``gyro``
+    unused; cached when :func:`.warmup.rig_cached`), its rig frames on
+    :func:`ready_rig_implementation`. Logs what it does through ``log`` (once), a failure
+    through ``warn`` (once: numba is not available, the compiling process cannot start,
+    crashes or is killed, the kernels were not cached, or loading them fails); the frames
+    then stay on the NumPy implementation and :func:`background_state` counts it.
 
     Returns:
         False (nothing started) when the solver has no NumPy implementation
-        (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else True.
+        (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`) and no ``rig``,
+        else True.
     """
-    if solver not in NUMPY_SOLVERS:
+    if rig is None and solver not in NUMPY_SOLVERS:
         return False
     with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
         if _BACKGROUND["state"] in ("compiling", "loading"):
             return True
     warn = warn or log
     _hold(True)
-    hz = uncompiled_rate()
+    hz = uncompiled_rate() if rig is None else None
     with _BACKGROUND_LOCK:
         _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
-    log(
-        f"compiling kernels in the background: frames are solved on the uncompiled path, "
-        f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
-        "compile` after installing avoids this)"
-    )
+    if rig is None:
+        log(
+            f"compiling kernels in the background: frames are solved on the uncompiled path, "
+            f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
+            "compile` after installing avoids this)"
+        )
+    else:
+        log(
+            "compiling the rig's kernels in the background: rig frames are solved on the "
+            "uncompiled path (NumPy refinement, each rig frame alone: no track, no gyro) until "
+            "they are ready (`rs-localizer compile --params-file` after installing avoids this)"
+        )
     if numba_error() is not None:
         _background_failed(f"numba is not available: {numba_error()}", warn)
         return True
-    args = (solver, options, tracking, gyro)
+    args = (solver, options, tracking, gyro, rig)
     threading.Thread(
         target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
     ).start()
@@ -196,7 +219,7 @@ def _stop(proc: subprocess.Popen) -> None:
 
 def _background_run(args: tuple, log, warn, nice: int) -> None:
     """The thread of :func:`start_background_compile`."""
-    solver, options, tracking, gyro = args
+    solver, options, tracking, gyro, rig = args
     tic = time.perf_counter()
 
     def fail(reason: str) -> None:
@@ -213,7 +236,7 @@ def _background_run(args: tuple, log, warn, nice: int) -> None:
             stderr=subprocess.STDOUT,
         )
         atexit.register(_stop, proc)  # (not left compiling after this process ends)
-        out, _ = proc.communicate(pickle.dumps((*args, nice)))
+        out, _ = proc.communicate(pickle.dumps((solver, options, tracking, gyro, nice, rig)))
     except (OSError, pickle.PicklingError) as e:
         fail(f"the compiling process could not start: {e}")
         return
@@ -228,14 +251,19 @@ def _background_run(args: tuple, log, warn, nice: int) -> None:
         )
         fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
         return
-    if not warmup.fused_cached(solver, anchored=False):
+    if not (warmup.rig_cached() if rig is not None else warmup.fused_cached(solver, False)):
         fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
         return
     with _BACKGROUND_LOCK:
         _BACKGROUND["state"] = "loading"
     try:
         with compile_progress() as prog:
-            warmup.warm_up(solver, options, tracking, jobs=1, gyro=gyro, implementation=COMPILED)
+            if rig is not None:
+                warmup.warm_rig(*rig)
+            else:
+                warmup.warm_up(
+                    solver, options, tracking, jobs=1, gyro=gyro, implementation=COMPILED
+                )
     except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
         fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
         return

@@ -44,7 +44,12 @@ from ..estimation.estimate import (
 )
 from ..estimation.frame import prepare_frame
 from ..estimation.prior import prior_conflict
-from ..estimation.refine import RefineSettings, posterior_step, refine_rs_pose
+from ..estimation.refine import (
+    LM_REFINE_KERNEL,
+    RefineSettings,
+    posterior_step,
+    refine_rs_pose,
+)
 from ..estimation.rig import camera_model_of_rig
 from ..estimation.scoring import exact_msac_scores
 from ..geometry import rotvec_to_matrix
@@ -63,6 +68,7 @@ __all__ = [
     "compile_kernels",
     "fused_cached",
     "package_command",
+    "rig_cached",
     "split_batch",
     "synthetic_problem",
     "track_videos",
@@ -353,6 +359,22 @@ def fused_cached(solver: str, anchored: bool = True) -> bool:
     except Exception:
         return False
     return True
+
+
+def rig_cached() -> bool:
+    """True when numba's cache holds the rig's refinement kernel for this source: the
+    Levenberg-Marquardt kernel's specialization with mountings
+    (:func:`~rs_localizer.estimation.refine.refine_rs_pose` with ``mountings``, the longest
+    of the rig's kernels to compile; :func:`warm_rig` then loads rather than compiles). Reads
+    numba's cache index (numba internals) as :func:`fused_cached`; any surprise there counts
+    as not cached."""
+    from numba.core import types
+
+    try:
+        index = LM_REFINE_KERNEL._cache._cache_file._load_index()
+        return any(isinstance(key[0][-1], types.BaseTuple) for key in index)
+    except Exception:
+        return False
 
 
 #: a progress line of :func:`~.jit_cache.compile_progress`: kernel, seconds

@@ -96,6 +96,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -107,6 +108,7 @@ from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, FrameFeedback, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
+from ..estimation.implementation import NUMPY
 from ..estimation.options import EstimateOptions, InitialModel
 from ..estimation.result import CAMERAS_DISAGREE, CONTRADICTS_TRACK, RIG_REFUSALS, UNCONFIRMED
 from ..estimation.rig import (
@@ -414,6 +416,9 @@ class RigOutput:
         tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
         frames: camera -> its :class:`RigCameraFrame` (the rows given to the estimator: the
             rig's inliers per camera index them; e.g. a camera's debug image).
+        compiled: the rig frame was solved on the compiled implementation (tracked, with
+            the gyro); False: on the NumPy implementation, alone (no track, no fused twist,
+            no gyro), while the kernels compile (:class:`RigLocalizer`'s ``implementation``).
     """
 
     stamp_ns: int
@@ -429,6 +434,7 @@ class RigOutput:
     tags: dict = field(default_factory=dict)
     error: str | None = None
     frames: dict = field(default_factory=dict)
+    compiled: bool = True
 
     @property
     def success(self) -> bool:
@@ -522,6 +528,15 @@ class RigLocalizer:
         settings: :class:`RigSettings`.
         log: an object with ``warning(key, text)`` and ``info(text)`` (None: silent): a camera
             stopped or back, a camera that disagrees with the rig.
+        implementation: ``implementation()`` names the rig estimator's implementation a rig
+            frame runs on, ``"compiled"`` or ``"numpy"``
+            (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``),
+            asked once per rig frame; None: the estimator's default. A node whose kernels
+            compile in the background passes
+            :func:`rs_localizer.runtime.background.ready_rig_implementation`: on ``"numpy"``
+            each rig frame is solved alone (no track, no twist filter, no gyro: a track
+            under way ends), as a camera's frames are, until the kernels are ready
+            (:attr:`RigOutput.compiled`, counted ``rig.uncompiled``).
 
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
@@ -531,11 +546,19 @@ class RigLocalizer:
     ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
-    ``rig.path.<path>``. Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
+    ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation).
+    Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
 
-    def __init__(self, settings: RigSettings, log: Any = None):
+    def __init__(
+        self,
+        settings: RigSettings,
+        log: Any = None,
+        implementation: Callable[[], str] | None = None,
+    ):
         self.settings = settings
+        self._implementation = implementation
+        self._impl: str | None = None  # (the rig frame being solved: its implementation)
         self.log = log if log is not None else _Silent()
         self.counts: Counter = Counter()
         self._cams = {
@@ -1123,7 +1146,13 @@ class RigLocalizer:
             view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off,
                            mount_covariance=m.covariance)  # fmt: skip
             views.append(view)
-        out.gyro = self._gyro = self._gyro_for(g, views)
+        self._impl = impl = None if self._implementation is None else self._implementation()
+        out.compiled = impl != NUMPY
+        if out.compiled:
+            out.gyro = self._gyro = self._gyro_for(g, views)
+        else:  # (while the kernels compile: the rig frame alone, without the gyro)
+            out.gyro = self._gyro = self._gyro_time = None
+            self.counts["rig.uncompiled"] += 1
         try:
             est, path = self._estimate(g.lo, views, out)
         except Exception as e:  # (the estimator raised: the rig frame failed)
@@ -1181,6 +1210,7 @@ class RigLocalizer:
             gyro_time=self._gyro_time,
             prediction=prediction,
             verify_cameras=initial is None and prediction is None,
+            implementation=self._impl,
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):
@@ -1188,6 +1218,10 @@ class RigLocalizer:
         :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
         f, to = self._filter, self.settings.tracking
         self._prediction = None
+        if f is not None and not out.compiled:  # (NumPy: alone, the track ends)
+            if f.initialized:
+                out.fused += self._end_track()
+            f = None
         if f is None:
             return self._run(views), None
         path = "cold"
@@ -1355,7 +1389,7 @@ class RigLocalizer:
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)
         self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
-        if self._filter is None:
+        if self._filter is None or not out.compiled:
             return
         step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
         self._pending[out.stamp_ns] = (est, dict(out.tags))
@@ -1390,7 +1424,7 @@ class RigLocalizer:
             cam.partner = witnesses[0] if cam.disagrees and single else None
             if cam.disagrees and (not was or cam.partner != was_partner):
                 self.counts[f"{n}.disagreements"] += 1
-                deg = _alone_deg(views[k], est)
+                deg = _alone_deg(views[k], est, self._impl)
                 if cam.partner is None:
                     alone = (
                         ""
@@ -1456,14 +1490,14 @@ def _offsets_text(offsets: dict) -> str:
     return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
 
 
-def _alone_deg(view: RigView, est: RigPoseEstimate) -> float | None:
-    """deg between the camera's rotation posed alone (the single-camera estimator) and where
-    the rig's pose and the camera's mounting put it; None when it is not posed alone (or the
-    rig frame was not posed)."""
+def _alone_deg(view: RigView, est: RigPoseEstimate, implementation=None) -> float | None:
+    """deg between the camera's rotation posed alone (the single-camera estimator, on
+    ``implementation``) and where the rig's pose and the camera's mounting put it; None when
+    it is not posed alone (or the rig frame was not posed)."""
     if not est.success:
         return None
     try:
-        alone = estimate_rs_pose(view.uv, view.X, view.camera)
+        alone = estimate_rs_pose(view.uv, view.X, view.camera, implementation=implementation)
     except Exception:
         return None
     if not alone.success:
