@@ -175,6 +175,7 @@ def frame_refinement(
             acceleration_block=acceleration,
         ),
         prior=prior,
+        mountings=fr.mountings(),
     )
 
 
@@ -379,7 +380,7 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl, n, rms = final_inliers(errors, th)
     if n < min_inliers:
         return None
@@ -432,7 +433,7 @@ def image_alone(
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
-    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0, fr.W)
     n = final_inliers(errors, th)[1]
     # (omega = -w / s in the camera frame: physical_velocities)
     return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
@@ -460,7 +461,7 @@ def refine_final_model(
     th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     if not opts.refine.enabled:
-        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
+        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
         rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
         return FinalModel(RSModel(R, C, w, t), inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling
@@ -479,7 +480,7 @@ def refine_final_model(
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
         final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
         final.information = ref.data_information
-    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl_ref, n_ref, rms = final_inliers(errors, th)
     if n_ref < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
@@ -690,7 +691,7 @@ def final_estimate(
             cond,
             rolling,
             threshold,
-            lambda: exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0),
+            lambda: exact_errors(R, C, w, t, fr.X, fr.x, fr.r - fr.r0, fr.W),
         )
     ):
         raise EstimationFailed(INCONSISTENT_FIT)

@@ -28,7 +28,8 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - models moving faster than ``max_angular_velocity`` / ``max_linear_velocity`` are dropped;
   the others are scored by MSAC on the reprojection error in pixels with each camera's exact
   model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
-  camera's focal length turning normalized errors into pixels);
+  camera's pixel Jacobian at the point turning normalized errors into pixels of the measured,
+  distorted image: :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, first order);
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
@@ -467,10 +468,12 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
 
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
-    camera index, the camera's focal length (px per normalized unit), measured pixels."""
+    camera index, the camera's focal length (px per normalized unit), measured pixels, and
+    ``A`` (N, 4): each point's row-major 2x2 pixel Jacobian of its camera (px per normalized
+    unit; the focal length times the identity for a camera without distortion, fx = fy)."""
 
     def __init__(self, views: Sequence[RigView]):
-        xs, Xs, taus, cams, rows, foc, uvs = [], [], [], [], [], [], []
+        xs, Xs, taus, cams, rows, foc, uvs, As = [], [], [], [], [], [], [], []
         for c, v in enumerate(views):
             if not isinstance(v, RigView):
                 raise ValueError(
@@ -542,6 +545,12 @@ class _Pool:
             cams.append(np.full(len(idx), c, dtype=np.int64))
             rows.append(idx)
             foc.append(np.full(len(idx), cam.mean_focal))
+            if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
+                As.append(cam.pixel_jacobian(x).reshape(-1, 4))
+            else:
+                a = np.zeros((len(idx), 4))
+                a[:, 0] = a[:, 3] = cam.mean_focal
+                As.append(a)
         self.x = np.vstack(xs) if xs else np.zeros((0, 2))
         self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
         self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
@@ -549,6 +558,7 @@ class _Pool:
         self.cam = np.concatenate(cams) if cams else np.zeros(0, dtype=np.int64)
         self.row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
         self.focal = np.concatenate(foc) if foc else np.zeros(0)
+        self.A = np.ascontiguousarray(np.vstack(As) if As else np.zeros((0, 4)))
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -582,9 +592,10 @@ class _Pool:
 
 
 @njit(cache=True)
-def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, focal, out):
+def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
-    normalized difference times the focal length; inf behind the camera)."""
+    normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major): to first
+    order the error in the measured image; inf behind the camera)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
@@ -617,8 +628,10 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, focal, out):
                 out[h, i, 0] = np.inf
                 out[h, i, 1] = np.inf
             else:
-                out[h, i, 0] = focal[i] * (q0 / q2 - x[i, 0])
-                out[h, i, 1] = focal[i] * (q1 / q2 - x[i, 1])
+                ex = q0 / q2 - x[i, 0]
+                ey = q1 / q2 - x[i, 1]
+                out[h, i, 0] = A[i, 0] * ex + A[i, 1] * ey
+                out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
 
 
 def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
@@ -627,7 +640,7 @@ def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     out = np.empty((len(f[0]), len(s), 2))
     _residuals_kernel(
         *f, pool.X[s], pool.tau[s], pool.cam[s], pool.R_mount, pool.c_mount, pool.x[s],
-        pool.focal[s], out,
+        pool.A[s], out,
     )  # fmt: skip
     return out
 
@@ -827,14 +840,15 @@ def _refit(
 
 def _mountings(pool: _Pool) -> Mountings:
     """The pool's observations as the refinement's :class:`~.refine.Mountings`: each camera's
-    mounting, errors in px (its focal length as the scale). Built once per pool."""
+    mounting, errors in px (its pixel Jacobian at each point as the scale). Built once per
+    pool."""
     m = pool.__dict__.get("_mountings")
     if m is None:
         m = Mountings(
             np.ascontiguousarray(pool.cam, dtype=np.int64),
             np.ascontiguousarray(pool.R_mount),
             np.ascontiguousarray(pool.c_mount),
-            np.ascontiguousarray(pool.focal, dtype=np.float64),
+            pool.A.reshape(-1, 2, 2),
         )
         pool._mountings = m
     return m

@@ -302,6 +302,7 @@ def split_batch(solver: str, first: bool) -> None:
         0,
         0.5,
         False,
+        fr.W,
     )
 
 
