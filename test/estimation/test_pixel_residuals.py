@@ -11,7 +11,6 @@ from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.frame import SCORE_AT_MEASURED_TIME, prepare_frame
 from rs_localizer.estimation.refine import Mountings, RefineSettings, refine_rs_pose
-from rs_localizer.estimation.rig import RigView, _errors_px, _Pool
 from rs_localizer.estimation.scoring import msac_evaluate
 from rs_localizer.geometry import rotvec_to_matrix
 
@@ -125,17 +124,3 @@ def test_camera_without_distortion_keeps_the_plain_errors():
     white = refine_rs_pose((R, C, z3, z3), fr.X, fr.x, tau, 0.01, RefineSettings(), mountings=m)
     np.testing.assert_allclose(white.C, plain.C, atol=1e-9)
     np.testing.assert_allclose(white.covariance, plain.covariance, atol=1e-12)
-
-
-def test_rig_errors_are_measured_image_pixels():
-    n = 200
-    rng = np.random.default_rng(8)
-    err = rng.uniform(0.0, 3.0, n)
-    phi = rng.uniform(-np.pi, np.pi, n)
-    noise = err[:, None] * np.stack([np.cos(phi), np.sin(phi)], 1)
-    R, C, uv, X = _fisheye_scene(n, noise, 9)
-    view = RigView(uv=uv, X=X, camera=FISHEYE)
-    pool = _Pool([view])
-    e = _errors_px(pool, R[None], C[None], np.zeros((1, 3)), np.zeros((1, 3)))[0]
-    # first order: within a few % at 3 px (the focal length alone: up to ~2x off here)
-    np.testing.assert_allclose(e, err[pool.row], rtol=0.05, atol=1e-3)
