@@ -551,6 +551,7 @@ def refine_final_model(
             pixel_jacobians(camera, fr.x[inl]),
             corr.sigma_px,
             corr.length_px,
+            fr.W[inl].reshape(-1, 2, 2) if len(fr.W) else None,
         )
     return final
 
