@@ -124,3 +124,19 @@ def test_camera_without_distortion_keeps_the_plain_errors():
     white = refine_rs_pose((R, C, z3, z3), fr.X, fr.x, tau, 0.01, RefineSettings(), mountings=m)
     np.testing.assert_allclose(white.C, plain.C, atol=1e-9)
     np.testing.assert_allclose(white.covariance, plain.covariance, atol=1e-12)
+
+
+def test_map_weighted_fit_keeps_the_measured_image_errors():
+    """With the 3D points' precision stated (all but exact: weights ~1), the map-weighted
+    final fit minimizes the same errors as the unweighted one: its RMS residual is the
+    measured image's pixel noise and its pose the unweighted estimate's."""
+    n, sigma = 300, 0.5
+    noise = np.random.default_rng(5).normal(0.0, sigma, (n, 2))
+    _, _, uv, X = _fisheye_scene(n, noise, 6)
+    plain = estimate_rs_pose(uv, X, FISHEYE, solver="p3p")
+    est = estimate_rs_pose(uv, X, FISHEYE, solver="p3p", point_sigma=np.full(n, 1e-9))
+    assert plain.success and est.success
+    expect = sigma * np.sqrt(2.0 * (2 * n - 6) / (2 * n))
+    assert est.rmse_px == pytest.approx(expect, rel=0.1)
+    assert est.rmse_px == pytest.approx(plain.rmse_px, rel=0.01)
+    assert np.linalg.norm(est.model.C - plain.model.C) < 1e-4
