@@ -283,6 +283,59 @@ class CameraModel:
             out, _ = cv2.projectPoints(P, z, z, self.K, self.D)
         return out.reshape(-1, 2)
 
+    def pixel_jacobian(self, xn: np.ndarray) -> np.ndarray:
+        """(N, 2, 2) ``A_i = d(distorted pixel) / d(undistorted normalized point)`` at each of
+        the (N, 2) undistorted normalized points ``xn`` (px per normalized unit; analytic, for
+        every model of :data:`DISTORTION_MODELS`): ``A_i (x' - x_i)`` is, to first order, the
+        image error in the measured (distorted) image of a projection ``x'`` near ``x_i``.
+        Without distortion every ``A_i`` is ``K[:2, :2]``; with distortion the skew
+        ``K[0, 1]`` is not used (OpenCV's projections ignore it). Equidistant points are taken in
+        front of the camera (``z = 1``, as :meth:`distort`)."""
+        xn = np.asarray(xn, dtype=np.float64).reshape(-1, 2)
+        n = len(xn)
+        if not self.has_distortion:
+            return np.broadcast_to(self.K[:2, :2], (n, 2, 2)).copy()
+        x, y = xn[:, 0], xn[:, 1]
+        r2 = x * x + y * y
+        J = np.empty((n, 2, 2))
+        if self.distortion_model == "equidistant":
+            k = np.zeros(4)
+            k[: min(4, len(self.D))] = self.D[:4]
+            r = np.sqrt(r2)
+            th = np.arctan(r)
+            t2 = th * th
+            poly = 1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))
+            dpoly = 1 + t2 * (3 * k[0] + t2 * (5 * k[1] + t2 * (7 * k[2] + t2 * 9 * k[3])))
+            small = r < 1e-8
+            rs = np.where(small, 1.0, r)
+            # xd = s(r) x with s = theta_d / r; d xd / d x = s I + (s'(r) / r) x x^T
+            s = np.where(small, 1.0, th * poly / rs)
+            ds = (dpoly / (1 + rs * rs) * rs - th * poly) / (rs * rs)  # s'(r)
+            g = np.where(small, 0.0, ds / rs)
+            J[:, 0, 0] = s + g * x * x
+            J[:, 0, 1] = g * x * y
+            J[:, 1, 0] = g * x * y
+            J[:, 1, 1] = s + g * y * y
+        else:
+            d = np.zeros(8)
+            d[: min(8, len(self.D))] = self.D[:8]
+            k1, k2, p1, p2, k3, k4, k5, k6 = d
+            num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+            dnum = k1 + r2 * (2 * k2 + r2 * 3 * k3)
+            dden = k4 + r2 * (2 * k5 + r2 * 3 * k6)
+            rad = num / den
+            drad = (dnum * den - num * dden) / (den * den)  # d rad / d r^2
+            cross = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y
+            J[:, 0, 0] = rad + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x
+            J[:, 0, 1] = cross
+            J[:, 1, 0] = cross
+            J[:, 1, 1] = rad + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x
+        # (OpenCV's projections with distortion ignore the skew K[0, 1], as :meth:`distort`)
+        J[:, 0] *= self.K[0, 0]
+        J[:, 1] *= self.K[1, 1]
+        return J
+
     @property
     def field_limit(self) -> float:
         """The edge of the lens model's field of view: for ``equidistant`` the largest angle

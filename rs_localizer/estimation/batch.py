@@ -87,6 +87,7 @@ def ransac_batch(
     w_max=np.inf,
     v_max=np.inf,
     w_known=None,
+    W=None,
 ):
     """Draw, solve and score one batch of K RANSAC samples.
 
@@ -114,6 +115,8 @@ def ransac_batch(
             (R5P_{v,C,t}^{w}, :data:`rs_localizer.solvers.kernels.R5P_W`; the known w goes to
             it as every sample's ``v_init``; one hypothesis per sample); a (0,) array or
             None: no gyro. (Callers pass an array either way: one compiled version for both.)
+        W: (N, 4) each point's whitening of its image error (:attr:`~.frame.Frame.W`; with
+            ``measured``), a (0, 4) array or None: none.
     Returns:
         (h, score, Rs (H, 3, 3), Cs (H, 3), ws (H, 3), ts (H, 3), n_implausible: valid
         hypotheses rejected for their motion alone) with H = max(J, 1) K
@@ -162,6 +165,7 @@ def ransac_batch(
         w_max,
         v_max,
         w_known,
+        W,
     )
 
 
@@ -188,6 +192,7 @@ def prerotated_batch(
     w_max=np.inf,
     v_max=np.inf,
     w_known=None,
+    W=None,
 ):
     """:func:`ransac_batch` with one given pre-rotation ``R_pre`` (3, 3) for every sample
     instead of each sample's P3P pose (a video tracker's predicted rotation,
@@ -225,6 +230,7 @@ def prerotated_batch(
         w_max,
         v_max,
         w_known,
+        W,
     )
 
 
@@ -251,6 +257,7 @@ def _solve_and_score(
     w_max,
     v_max,
     w_known,
+    W,
 ):
     """The part of :func:`ransac_batch` after the pre-rotations: solve every pre-rotated
     sample with each kernel, drop implausible hypotheses, score."""
@@ -338,7 +345,7 @@ def _solve_and_score(
                 ok[q] = False
                 n_implausible += 1
     scores, _ = msac_scores(
-        x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5, measured
+        x, X, r0e, d, Rs, Cs, ws, ts, th2, ok, bail, True, pretest_n, pretest_min, 0.5, measured, W
     )
     h = 0
     for q in range(scores.shape[0]):

@@ -185,6 +185,7 @@ def frame_refinement(
             acceleration_block=acceleration,
         ),
         prior=prior,
+        mountings=fr.mountings(),
     )
 
 
@@ -427,7 +428,7 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl, n, rms = final_inliers(errors, th)
     if n < min_inliers:
         return None
@@ -480,7 +481,7 @@ def image_alone(
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
-    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0, fr.W)
     n = final_inliers(errors, th)[1]
     # (omega = -w / s in the camera frame: physical_velocities)
     return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
@@ -508,7 +509,7 @@ def refine_final_model(
     th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     if not opts.refine.enabled:
-        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
+        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
         rmse = float(np.sqrt(np.mean(e2[inliers])) * fr.f)
         return FinalModel(RSModel(R, C, w, t), inliers, rmse, prior_used=fr.prior is not None)
     rolling = solver_info(solver).rolling
@@ -527,7 +528,7 @@ def refine_final_model(
         final.model = RSModel(ref.R, ref.C, ref.w, ref.t)
         final.covariance = ref.covariance if np.isfinite(ref.covariance).all() else None
         final.information = ref.data_information
-    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0)
+    errors = exact_errors(*final.model, fr.X, fr.x, fr.r - fr.r0, fr.W)
     inl_ref, n_ref, rms = final_inliers(errors, th)
     if n_ref < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
@@ -550,6 +551,7 @@ def refine_final_model(
             pixel_jacobians(camera, fr.x[inl]),
             corr.sigma_px,
             corr.length_px,
+            fr.W[inl].reshape(-1, 2, 2) if len(fr.W) else None,
         )
     return final
 
@@ -775,10 +777,12 @@ def final_estimate(
 
 def final_errors(model: Model, fr: Frame, compiled: bool = True) -> np.ndarray:
     """(N,) image errors (normalized units) of the final ``model`` at every point of ``fr`` at
-    its measured capture time (:func:`~.refine.exact_errors`; ``compiled=False``: in NumPy,
-    :func:`~.scoring.exact_errors2_numpy`); ``inf`` behind the camera."""
+    its measured capture time (:func:`~.refine.exact_errors`, in pixels of the measured image
+    over the focal length with the frame's whitening ``fr.W``; ``compiled=False``: in NumPy,
+    :func:`~.scoring.exact_errors2_numpy`, the plain normalized error); ``inf`` behind the
+    camera."""
     R, C, w, t = model
     tau = fr.r - fr.r0
     if compiled:
-        return exact_errors(R, C, w, t, fr.X, fr.x, tau)
+        return exact_errors(R, C, w, t, fr.X, fr.x, tau, fr.W)
     return np.sqrt(exact_errors2_numpy(R[None], C[None], w[None], t[None], fr.X, fr.x, tau)[0])

@@ -18,6 +18,7 @@ from .plausibility import (
     plausible_motion,
 )
 from .prior import MotionPrior
+from .refine import Mountings
 from .result import (
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
@@ -61,6 +62,13 @@ class Frame:
             none applies to this solver and camera).
         motion_bounds: the velocity bounds per unit r
             (:func:`~rs_localizer.estimation.plausibility.motion_bounds`; ``None``: none).
+        W: (N, 4) each point's whitening of its image error, row-major 2x2: ``A_i / f``,
+            ``A_i`` the camera's :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian` at
+            ``x_i``, so ``|W_i e_i| f`` is, to first order, the error ``e_i`` (normalized)
+            in px of the measured (distorted) image; RANSAC's scoring, local optimization,
+            the refinement and its covariance use it. (0, 4) for a camera without distortion
+            with ``fx == fy`` and no skew (``W_i`` the identity: the plain errors). The NumPy
+            implementation (:mod:`.numpy_impl`) does not use it.
         known_w: (3,) the angular velocity a gyro measured, in the model's units (rad per
             unit r, camera frame): RANSAC's samples are then solved with it known
             (:func:`~rs_localizer.solvers.r5p_w.r5p_w_batch`); ``None``: no gyro.
@@ -76,6 +84,7 @@ class Frame:
     final_prior: MotionPrior | None = None
     motion_bounds = None
     known_w: np.ndarray | None = None
+    W: np.ndarray = np.zeros((0, 4))
     threshold: float
 
     def __init__(
@@ -98,6 +107,20 @@ class Frame:
             self._bearings = b / np.linalg.norm(b, axis=1, keepdims=True)
         return self._bearings
 
+    def mountings(self, idx: np.ndarray | None = None) -> Mountings | None:
+        """The refinement's :class:`~.refine.Mountings` of the points ``idx`` (all: ``None``):
+        the camera at the identity mounting with each point's 2x2 whitening :attr:`W` as its
+        scale, so that :func:`~.refine.refine_rs_pose` minimizes the errors of the measured
+        image in its cost, rows and covariance; ``None`` (the plain errors) without
+        whitening."""
+        if not len(self.W):
+            return None
+        W = self.W if idx is None else self.W[idx]
+        n = len(W)
+        return Mountings(
+            np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
+        )
+
     def head(self, m: int) -> Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the
         same camera, timing and prior (LO-RANSAC's bounded inner sample)."""
@@ -110,6 +133,8 @@ class Frame:
             self.known_w,
         )
         sub.threshold = self.threshold
+        if len(self.W):
+            sub.W = self.W[:m]
         return sub
 
     def evaluate(
@@ -126,7 +151,7 @@ class Frame:
         if errors is not None:
             return float(np.minimum(errors, th2).sum()), errors < th2
         sc, inl, _ = msac_evaluate(
-            self.x, self.X, self.r0e, self.d, R, C, w, t, th2, SCORE_AT_MEASURED_TIME
+            self.x, self.X, self.r0e, self.d, R, C, w, t, th2, SCORE_AT_MEASURED_TIME, self.W
         )
         return sc, inl
 
@@ -154,7 +179,7 @@ def prepare_frame(
     origin, or a pixel the camera cannot undistort are left out; the rest are shuffled by
     ``rng`` (so that any prefix is a random subset, for the pre-test and local optimization)
     and normalized with :meth:`CameraModel.normalize` (OpenCV undistortion; the RS time from
-    the measured, distorted line).
+    the measured, distorted line), with each point's whitening :attr:`Frame.W`.
 
     Args:
         points2d: (N, 2) measured (distorted) pixels; points3d: (N, 3) world points (m).
@@ -189,6 +214,8 @@ def prepare_frame(
     )
     fr.rows, fr.num_rows = rows, len(u)
     fr.u_px = u.take(rows, axis=0)
+    if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
+        fr.W = np.ascontiguousarray(camera.pixel_jacobian(fr.x).reshape(-1, 4) / fr.f)
     return fr
 
 

@@ -391,6 +391,7 @@ class ColdSamples(_Scoring):
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
                 self.known_w,
+                fr.W,
             )
         )
 
@@ -431,6 +432,7 @@ class AnchoredSamples(ColdSamples):
                 SCORE_AT_MEASURED_TIME,
                 *self.bounds,
                 self.known_w,
+                fr.W,
             )
         )
 
@@ -474,6 +476,7 @@ class SampleBySample(_Scoring):
             pretest_min,
             0.5,
             SCORE_AT_MEASURED_TIME,
+            fr.W,
         )
         h = int(np.argmin(sc))
         return ScoredBatch(h, sc[h], Rs, Cs, ws, ts, n_bad)

@@ -92,6 +92,7 @@ def local_optimization(
                 seconds_per_unit_r=fr.spr,
             ),
             prior=fr.prior,
+            mountings=sub.mountings(),
         )
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)
         sc, inl = evaluate(cand)
@@ -123,7 +124,7 @@ def seed_from_initial_model(
         w, t = np.zeros(3), np.zeros(3)
     if not finite_model(R, C, w, t):
         return 0, None, False
-    e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME)
+    e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
     gate = float(initial.gate_px) / fr.f
     near = e2 < gate * gate
     explained = int(np.count_nonzero(near))
@@ -164,6 +165,7 @@ def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float
             seconds_per_unit_r=fr.spr,
         ),
         prior=fr.prior,
+        mountings=fr.mountings(idx),
     )
     if finite_model(ref.R, ref.C, ref.w, ref.t):
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)

@@ -58,8 +58,10 @@ def weighted_final_model(
 
     The points: those whose weighted error on the unweighted final model lies within
     :data:`~.finalize.FINAL_CUTOFF` thresholds; each also gets the Huber weight of that
-    error (scale the threshold; one reweighting, held fixed). The fit: SciPy
-    ``least_squares`` on the exact model, the residuals scaled by ``weight * huber``; with the
+    error (scale the threshold; one reweighting, held fixed). The errors are those of the
+    unweighted refinement (each point's whitened by :attr:`~.frame.Frame.W`: in pixels of the
+    measured image). The fit: SciPy ``least_squares`` on the exact model, the residuals
+    scaled by ``weight * huber``; with the
     frame's motion prior as the unweighted refinement uses it (:func:`~.finalize.final_refinement`):
     in the fit for planar frames (``fr.prior``, the weighted residuals' unit ``sigma_det`` as
     the noise that weighs it), else maximum likelihood and then, when it does not conflict
@@ -87,7 +89,7 @@ def weighted_final_model(
     tau = fr.r - fr.r0
     depth = fr.X @ R[2] + C[2]
     wgt = point_weights(point_sigma, depth, s_det)
-    e = wgt * exact_errors(R, C, w, t, fr.X, fr.x, tau)
+    e = wgt * exact_errors(R, C, w, t, fr.X, fr.x, tau, fr.W)
     use = np.isfinite(e) & (depth > 0) & (e < FINAL_CUTOFF * th)
     rolling = solver_info(solver).rolling and fr.spr > 0
     n_free = 12 if rolling else 6
@@ -106,6 +108,7 @@ def weighted_final_model(
         fr.spr,
         s_det,
         row_weights=np.repeat(wgt[use] * huber, 2),
+        mountings=fr.mountings(np.flatnonzero(use)),
     )
     res, th_ = fit.result, fit.theta
     model = RSModel(rotvec_to_matrix(th_[:3]) @ R, th_[3:6], th_[6:9], th_[9:12])
@@ -135,7 +138,7 @@ def weighted_final_model(
                 cov, prior_used = post.covariance, True
     else:
         cov = None
-    errors = exact_errors(*model, fr.X, fr.x, tau)
+    errors = exact_errors(*model, fr.X, fr.x, tau, fr.W)
     inl, n, rms = final_inliers(errors, th)
     if n < min_inliers:
         return final

@@ -60,17 +60,19 @@ def correlated_noise_covariance(
     pixel_jac: np.ndarray,
     correlated_px: float,
     length_px: float,
+    whitening: np.ndarray | None = None,
 ) -> np.ndarray:
     """Covariance of the refined (delta, C, w, t) under white plus correlated image noise.
 
-    The refinement minimises ``|r|^2 + sigma^2 (prior)`` over normalized residuals r;
-    linearised, its error is ``B J^T e + B sigma^2 P (mu - z)`` with
-    ``B = (J^T J + sigma^2 P)^-1 = cov12 / sigma^2``. The correlated error is in pixels
-    (module doc); in normalized units ``Cov(e_i, e_j) = s^2 k_ij D_i^-1 D_j^-T`` (``D_i`` the
-    projection's pixel Jacobian at point i, ``k_ij`` the kernel), so the covariance of the
-    estimate is the sandwich::
+    The refinement minimises ``sum |W_i r_i|^2 + sigma^2 (prior)`` over normalized residuals
+    r (``W_i`` the point's whitening, :attr:`~.frame.Frame.W`; the identity without);
+    linearised, its error is ``B sum J_i^T M_i e_i + B sigma^2 P (mu - z)`` with
+    ``M_i = W_i^T W_i`` and ``B = (sum J_i^T M_i J_i + sigma^2 P)^-1 = cov12 / sigma^2``. The
+    correlated error is in pixels (module doc); in normalized units
+    ``Cov(e_i, e_j) = s^2 k_ij D_i^-1 D_j^-T`` (``D_i`` the projection's pixel Jacobian at
+    point i, ``k_ij`` the kernel), so the covariance of the estimate is the sandwich::
 
-        cov12 + s^2 B (G_x^T K G_x + G_y^T K G_y) B,   G_i = D_i^-1 J_i (2, 12)
+        cov12 + s^2 B (G_x^T K G_x + G_y^T K G_y) B,   G_i = D_i^-T M_i J_i (2, 12)
 
     (``G_x``, ``G_y`` the x and y rows). ``correlated_px = 0`` returns a copy of cov12.
 
@@ -85,6 +87,9 @@ def correlated_noise_covariance(
         u_px: (N, 2) their measured pixels (the correlation is over image distance).
         pixel_jac: (N, 2, 2) ``d pixel / d x`` at x (:func:`pixel_jacobians`).
         correlated_px, length_px: ``s`` and ``l`` of the module doc (px).
+        whitening: (N, 2, 2) each point's whitening ``W_i`` in the refinement that gave
+            cov12 (the rows of :attr:`~.frame.Frame.W` of these points, as its
+            :meth:`~.frame.Frame.mountings`), or ``None``: none (``W_i`` the identity).
     Returns:
         (12, 12) covariance, same units and order as cov12.
     Raises:
@@ -95,14 +100,19 @@ def correlated_noise_covariance(
         return cov12.copy()
     u = np.asarray(u_px, dtype=float)
     Dj = np.asarray(pixel_jac, dtype=float)
-    if not (len(u) == len(X) == len(x) == len(tau) == len(Dj)):
+    Wn = None if whitening is None else np.asarray(whitening, dtype=float).reshape(-1, 2, 2)
+    nw = len(Dj) if Wn is None else len(Wn)
+    if not (len(u) == len(X) == len(x) == len(tau) == len(Dj) == nw):
         raise ValueError(
-            f"point arrays disagree: {len(u)}, {len(X)}, {len(x)}, {len(tau)}, {len(Dj)}"
+            f"point arrays disagree: {len(u)}, {len(X)}, {len(x)}, {len(tau)}, {len(Dj)}, {nw}"
         )
     if not (length_px > 0 and sigma > 0):
         raise ValueError(f"need length_px, sigma > 0, got {length_px}, {sigma}")
     J = exact_jacobian(np.r_[0.0, 0.0, 0.0, C, w, t], np.asarray(R, float), X, x, tau)
-    G = np.linalg.solve(Dj, J.reshape(-1, 2, 12))  # D_i^-1 J_i
+    J = J.reshape(-1, 2, 12)
+    if Wn is not None:
+        J = np.einsum("nba,nbc,nck->nak", Wn, Wn, J)  # M_i J_i
+    G = np.linalg.solve(np.swapaxes(Dj, 1, 2), J)  # D_i^-T M_i J_i
     K = _kernel(u, length_px)
     Gx, Gy = G[:, 0, :], G[:, 1, :]
     M = Gx.T @ K @ Gx + Gy.T @ K @ Gy

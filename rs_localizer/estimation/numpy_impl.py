@@ -308,12 +308,15 @@ def _nonminimal(fr: Frame, solver: str, inliers, R, opts: EstimateOptions, C=Non
     return [RSModel(rotvec_to_matrix(v[0]) @ R, C1[0], w[0], t[0])]
 
 
-def _lo_refine(model, X, x, tau, th: float, settings: RefineSettings, prior=None) -> RSModel:
+def _lo_refine(
+    model, X, x, tau, th: float, settings: RefineSettings, prior=None, mountings=None
+) -> RSModel:
     """:func:`~.refine.refine_rs_pose` as local optimization runs it, on SciPy's
     ``least_squares`` (:func:`~.refine.least_squares_exact_model`): Huber loss (scale ``th``)
     on the points within ``settings.cutoff`` of ``model`` (selected once), at most
     ``settings.max_iterations + 1`` evaluations; MAP with ``prior`` (image noise ``th / 2``)
-    on a rolling-shutter fit."""
+    on a rolling-shutter fit. ``mountings`` (the frame's pixel whitening) is not used: the
+    NumPy implementation measures errors in the undistorted plane, as its scoring does."""
     R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
     rolling = settings.rolling_shutter
     e = np.sqrt(exact_errors2_numpy(R0[None], C0[None], w0[None], t0[None], X, x, tau)[0])

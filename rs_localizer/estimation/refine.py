@@ -38,7 +38,7 @@ from .._so3 import FMA, INLINE, rotate_left_into, rotate_small
 from ..geometry import exact_camera_points, rotvec_to_matrix, skew
 from ..pose import RSModel, model_twist, model_twist_jacobian
 from .prior import MotionPrior, prior_arrays
-from .scoring import exact_error2
+from .scoring import exact_error2, exact_error2_whitened
 
 __all__ = [
     "LM_REFINE_KERNEL",
@@ -98,14 +98,17 @@ class Mountings(NamedTuple):
     NumPy functions: observation i is seen by camera ``cam[i]`` mounted at ``x_cam =
     R_mount[c] x_rig + c_mount[c]`` (the model's pose is then the rig's), and its image
     error is ``scale[i]`` times the normalized one (the camera's focal length: errors and
-    thresholds in px). One camera alone is the rig of one camera at the identity mounting
-    with scale 1 (``mountings=None``).
+    thresholds in px), or the 2x2 ``scale[i]`` applied to it (the camera's
+    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian` at the point: to first order the
+    error in px of the measured, distorted image). One camera alone is the rig of one camera
+    at the identity mounting with scale 1 (``mountings=None``), or with its points' 2x2
+    whitening (:attr:`~.frame.Frame.W`).
 
     Attributes:
         cam: (N,) int64 camera index of each observation, in ``[0, M)``.
         R_mount: (M, 3, 3) rig -> camera rotations. c_mount: (M, 3) rig -> camera offsets (m).
         scale: (N,) the factor of each observation's normalized error (px per normalized
-            unit), > 0.
+            unit), > 0; or (N, 2, 2) a matrix per observation.
     """
 
     cam: np.ndarray
@@ -116,20 +119,38 @@ class Mountings(NamedTuple):
 
 def _checked_mountings(mountings: Mountings, n: int) -> tuple:
     """The kernels' contiguous ``(cam, R_mount, c_mount, scale)`` of ``mountings`` for n
-    observations. Raises ValueError on shapes that do not match or an index out of range."""
+    observations, ``scale`` as (n, 4) row-major 2x2 matrices. Raises ValueError on shapes
+    that do not match or an index out of range."""
     cam = np.ascontiguousarray(mountings.cam, dtype=np.int64)
     Rm = np.ascontiguousarray(mountings.R_mount, dtype=np.float64)
     cm = np.ascontiguousarray(mountings.c_mount, dtype=np.float64)
-    scale = np.ascontiguousarray(mountings.scale, dtype=np.float64)
+    s = np.asarray(mountings.scale, dtype=np.float64)
     M = Rm.shape[0] if Rm.ndim == 3 else -1
-    if Rm.shape != (M, 3, 3) or cm.shape != (M, 3) or cam.shape != (n,) or scale.shape != (n,):
+    if (
+        Rm.shape != (M, 3, 3)
+        or cm.shape != (M, 3)
+        or cam.shape != (n,)
+        or s.shape not in ((n,), (n, 2, 2))
+    ):
         raise ValueError(
-            f"mountings: cam and scale must be ({n},), R_mount (M, 3, 3) and c_mount (M, 3), "
-            f"got {cam.shape}, {scale.shape}, {Rm.shape}, {cm.shape}"
+            f"mountings: cam must be ({n},), scale ({n},) or ({n}, 2, 2), R_mount (M, 3, 3) "
+            f"and c_mount (M, 3), got {cam.shape}, {s.shape}, {Rm.shape}, {cm.shape}"
         )
+    scale = np.zeros((n, 4))
+    if s.ndim == 1:
+        scale[:, 0] = s
+        scale[:, 3] = s
+    else:
+        scale[:] = s.reshape(n, 4)
     if n and (cam.min() < 0 or cam.max() >= M):
         raise ValueError(f"mountings: camera index out of [0, {M})")
     return cam, Rm, cm, scale
+
+
+def _scale_matrices(mountings: Mountings) -> np.ndarray:
+    """(N, 2, 2) each observation's :attr:`Mountings.scale` as a matrix."""
+    s = np.asarray(mountings.scale, dtype=np.float64)
+    return s[:, None, None] * np.eye(2) if s.ndim == 1 else s
 
 
 def _mounted(p: np.ndarray, mountings: Mountings | None) -> np.ndarray:
@@ -158,7 +179,7 @@ def exact_residuals(
     p = _mounted(p, mountings)
     r = p[:, :2] / p[:, 2:3] - x
     if mountings is not None:
-        r = r * np.asarray(mountings.scale)[:, None]
+        r = np.einsum("nij,nj->ni", _scale_matrices(mountings), r)
     return r.ravel()
 
 
@@ -173,8 +194,9 @@ def _projection_rows(p: np.ndarray, mountings: Mountings | None) -> np.ndarray:
     dpi[:, 1, 2] = -pc[:, 1] / z**2
     if mountings is None:
         return dpi
-    dpi *= np.asarray(mountings.scale)[:, None, None]
-    return dpi @ np.asarray(mountings.R_mount)[np.asarray(mountings.cam)]
+    return (
+        _scale_matrices(mountings) @ dpi @ np.asarray(mountings.R_mount)[np.asarray(mountings.cam)]
+    )
 
 
 def exact_mounting_jacobian(
@@ -401,8 +423,9 @@ def _fill_columns(pose, X, x, tau, k, cutoff, rho_cut, Jt):
 def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scale):
     """:func:`point_rows` for an observation of a camera mounted on a rig: the pose is the
     rig's, point i is seen by camera ``cam[i]`` at ``x_cam = Rm[c] x_rig + cm[c]`` and its
-    image error is ``scale[i]`` times the normalized one (e.g. the focal length: errors in
-    px). With ``Rm = I``, ``cm = 0``, ``scale = 1`` it is :func:`point_rows`' model.
+    image error is the row-major 2x2 ``scale[i]`` (4 scalars) times the normalized one (e.g.
+    the focal length times the identity: errors in px; or the camera's pixel Jacobian at the
+    point). With ``Rm = I``, ``cm = 0``, ``scale = I`` it is :func:`point_rows`' model.
 
     Returns ``(used, rho, e0, e1, P0, P1, W0, W1, D0, D1, tau_i, e2_inside)`` (vectors as 3
     scalars): as :func:`point_rows`, the rows ``(P_r, D_r, tau W_r, tau D_r)`` with ``D_r``
@@ -427,12 +450,14 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
     p0 = m00 * y0 + m01 * y1 + m02 * y2 + cm[c, 0]
     p1 = m10 * y0 + m11 * y1 + m12 * y2 + cm[c, 1]
     p2 = m20 * y0 + m21 * y1 + m22 * y2 + cm[c, 2]
-    f = scale[i]
+    a00, a01, a10, a11 = scale[i, 0], scale[i, 1], scale[i, 2], scale[i, 3]
     iz = 1.0 / (p2 if p2 > 1e-12 else 1.0)  # (unused point otherwise; no division by 0)
     u0 = p0 * iz
     u1 = p1 * iz
-    e0 = f * (u0 - x[i, 0])
-    e1 = f * (u1 - x[i, 1])
+    ex = u0 - x[i, 0]
+    ey = u1 - x[i, 1]
+    e0 = a00 * ex + a01 * ey
+    e1 = a10 * ex + a11 * ey
     en = np.sqrt(e0 * e0 + e1 * e1)
     used = p2 > 1e-12 and not en > cutoff
     e2_inside = -1.0
@@ -446,12 +471,19 @@ def point_rows_mounted(pose, X, x, tau, i, k, cutoff, rho_cut, cam, Rm, cm, scal
         sw = np.sqrt(k / en)
     if not used:
         rho = rho_cut
-    # the camera's rows (d, 0, d02), (0, d, d12) turned into the rig frame: D_r = D Rm
-    d = sw * f * iz
-    d02 = -u0 * d
-    d12 = -u1 * d
-    g00, g01, g02 = d * m00 + d02 * m20, d * m01 + d02 * m21, d * m02 + d02 * m22
-    g10, g11, g12 = d * m10 + d12 * m20, d * m11 + d12 * m21, d * m12 + d12 * m22
+    # the camera's rows a (iz, 0, -u0 iz; 0, iz, -u1 iz) turned into the rig frame: D_r = D Rm
+    c00 = sw * a00 * iz
+    c01 = sw * a01 * iz
+    c02 = -(u0 * c00 + u1 * c01)
+    c10 = sw * a10 * iz
+    c11 = sw * a11 * iz
+    c12 = -(u0 * c10 + u1 * c11)
+    g00 = c00 * m00 + c01 * m10 + c02 * m20
+    g01 = c00 * m01 + c01 * m11 + c02 * m21
+    g02 = c00 * m02 + c01 * m12 + c02 * m22
+    g10 = c10 * m00 + c11 * m10 + c12 * m20
+    g11 = c10 * m01 + c11 * m11 + c12 * m21
+    g12 = c10 * m02 + c11 * m12 + c12 * m22
     # m = Aq x D_r, then the rows as in point_rows
     P00, P01, P02, W00, W01, W02 = _rotation_rows(
         Aq1 * g02 - Aq2 * g01, Aq2 * g00 - Aq0 * g02, Aq0 * g01 - Aq1 * g00,
@@ -556,7 +588,7 @@ def _evaluate(R, C, w, t, X, x, tau, k, cutoff, Jt, mountings):
     (delta, dC, dw, dt) of all 12 parameters, ``R <- expm([delta]x) R``.
 
     ``mountings``: None (one camera, the identity mounting: :func:`point_rows`) or the
-    tuple ``(cam (N,) int64, R_mount (M, 3, 3), c_mount (M, 3), scale (N,))`` of
+    tuple ``(cam (N,) int64, R_mount (M, 3, 3), c_mount (M, 3), scale (N, 4))`` of
     :class:`Mountings` (a rig: :func:`point_rows_mounted`; k and cutoff in the units of
     ``scale`` times normalized ones). numba compiles each case on its own (the other branch
     is pruned), so the single camera runs its own code.
@@ -935,34 +967,33 @@ def _posterior_step(R, C, w, t, Hd, gd, sigma2, s, mu, Lam, out):
 
 
 @njit(cache=True)
-def exact_errors(R, C, w, t, X, x, tau):
+def exact_errors(R, C, w, t, X, x, tau, W=None):
     """(N,) image distances (normalized units) of the exact model at the measured capture
-    times; ``inf`` for points behind the camera. Same model as :func:`exact_residuals`."""
+    times; ``inf`` for points behind the camera. Same model as :func:`exact_residuals`.
+    ``W``: optional (N, 4) whitening of each point's error (:attr:`~.frame.Frame.W`; a
+    (0, 4) array or None: none)."""
+    # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
+    if W is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
+        Wa = np.zeros((0, 4))
+    else:
+        Wa = W
     n = X.shape[0]
     out = np.empty(n)
     for i in range(n):
         q0 = R[0, 0] * X[i, 0] + R[0, 1] * X[i, 1] + R[0, 2] * X[i, 2]
         q1 = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2]
         q2 = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2]
-        out[i] = np.sqrt(
-            exact_error2(
-                x[i, 0],
-                x[i, 1],
-                tau[i],
-                q0,
-                q1,
-                q2,
-                C[0],
-                C[1],
-                C[2],
-                w[0],
-                w[1],
-                w[2],
-                t[0],
-                t[1],
-                t[2],
-            )
-        )
+        if Wa.shape[0] > 0:
+            e2 = exact_error2_whitened(
+                x[i, 0], x[i, 1], tau[i], q0, q1, q2, C[0], C[1], C[2],
+                w[0], w[1], w[2], t[0], t[1], t[2], Wa[i, 0], Wa[i, 1], Wa[i, 2], Wa[i, 3],
+            )  # fmt: skip
+        else:
+            e2 = exact_error2(
+                x[i, 0], x[i, 1], tau[i], q0, q1, q2, C[0], C[1], C[2],
+                w[0], w[1], w[2], t[0], t[1], t[2],
+            )  # fmt: skip
+        out[i] = np.sqrt(e2)
     return out
 
 

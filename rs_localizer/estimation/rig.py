@@ -483,13 +483,16 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
 
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
-    camera index, the camera's focal length (px per normalized unit), measured pixels;
-    ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
-    implementation, :func:`estimate_rig_pose`)."""
+    camera index, the camera's focal length (px per normalized unit), measured pixels, and
+    ``A`` (N, 4): the row-major 2x2 scale of each point's normalized error to px (its
+    camera's mean focal length times the identity; the scoring kernel and the refinement
+    take any 2x2 matrix per point, e.g. the camera's
+    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`); ``numpy``: the refinement and
+    covariance run in NumPy/SciPy (the ``"numpy"`` implementation, :func:`estimate_rig_pose`)."""
 
     def __init__(self, views: Sequence[RigView], numpy: bool = False):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
-        xs, Xs, taus, cams, rows, foc, uvs = [], [], [], [], [], [], []
+        xs, Xs, taus, cams, rows, foc, uvs, As = [], [], [], [], [], [], [], []
         for c, v in enumerate(views):
             if not isinstance(v, RigView):
                 raise ValueError(
@@ -561,6 +564,9 @@ class _Pool:
             cams.append(np.full(len(idx), c, dtype=np.int64))
             rows.append(idx)
             foc.append(np.full(len(idx), cam.mean_focal))
+            a = np.zeros((len(idx), 4))
+            a[:, 0] = a[:, 3] = cam.mean_focal
+            As.append(a)
         self.x = np.vstack(xs) if xs else np.zeros((0, 2))
         self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
         self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
@@ -568,6 +574,7 @@ class _Pool:
         self.cam = np.concatenate(cams) if cams else np.zeros(0, dtype=np.int64)
         self.row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
         self.focal = np.concatenate(foc) if foc else np.zeros(0)
+        self.A = np.ascontiguousarray(np.vstack(As) if As else np.zeros((0, 4)))
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -601,9 +608,10 @@ class _Pool:
 
 
 @njit(cache=True)
-def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, focal, out):
+def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
-    normalized difference times the focal length; inf behind the camera)."""
+    normalized difference times the point's 2x2 scale ``A[i]`` (row-major, :class:`_Pool`);
+    inf behind the camera)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
@@ -636,8 +644,10 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, focal, out):
                 out[h, i, 0] = np.inf
                 out[h, i, 1] = np.inf
             else:
-                out[h, i, 0] = focal[i] * (q0 / q2 - x[i, 0])
-                out[h, i, 1] = focal[i] * (q1 / q2 - x[i, 1])
+                ex = q0 / q2 - x[i, 0]
+                ey = q1 / q2 - x[i, 1]
+                out[h, i, 0] = A[i, 0] * ex + A[i, 1] * ey
+                out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
 
 
 def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
@@ -646,7 +656,7 @@ def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     out = np.empty((len(f[0]), len(s), 2))
     _residuals_kernel(
         *f, pool.X[s], pool.tau[s], pool.cam[s], pool.R_mount, pool.c_mount, pool.x[s],
-        pool.focal[s], out,
+        pool.A[s], out,
     )  # fmt: skip
     return out
 
@@ -846,14 +856,14 @@ def _refit(
 
 def _mountings(pool: _Pool) -> Mountings:
     """The pool's observations as the refinement's :class:`~.refine.Mountings`: each camera's
-    mounting, errors in px (its focal length as the scale). Built once per pool."""
+    mounting, errors in px (each point's 2x2 ``A`` as the scale). Built once per pool."""
     m = pool.__dict__.get("_mountings")
     if m is None:
         m = Mountings(
             np.ascontiguousarray(pool.cam, dtype=np.int64),
             np.ascontiguousarray(pool.R_mount),
             np.ascontiguousarray(pool.c_mount),
-            np.ascontiguousarray(pool.focal, dtype=np.float64),
+            pool.A.reshape(-1, 2, 2),
         )
         pool._mountings = m
     return m

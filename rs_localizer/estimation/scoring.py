@@ -122,13 +122,66 @@ def measured_error2(x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0,
 
 
 @njit(cache=True, inline=INLINE, fastmath=FMA)
-def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured=False):
+def _image_error2_whitened(x0, x1, px, py, pz, a00, a01, a10, a11):
+    """:func:`_image_error2` with the error ``e`` whitened by the 2x2 ``a = (a00 a01; a10
+    a11)``: ``|a e|^2`` (``inf`` behind the camera)."""
+    if not pz > 0.0:
+        return np.inf
+    ex = px / pz - x0
+    ey = py / pz - x1
+    e0 = a00 * ex + a01 * ey
+    e1 = a10 * ex + a11 * ey
+    return e0 * e0 + e1 * e1
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def measured_error2_whitened(
+    x0, x1, d0, d1, r0e, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
+):
+    """:func:`measured_error2` with the image error whitened by the point's 2x2 ``a`` (a row
+    of :attr:`~.frame.Frame.W`): the error in the measured (distorted) image to first
+    order, in normalized units of the mean focal length."""
+    tau = d0 * x0 + d1 * x1 - r0e
+    return exact_error2_whitened(
+        x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
+    )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def exact_error2_whitened(
+    x0, x1, tau, q0, q1, q2, C0, C1, C2, w0, w1, w2, t0, t1, t2, a00, a01, a10, a11
+):
+    """:func:`exact_error2` with the image error whitened by the 2x2 ``a`` (row-major)."""
+    Aq0, Aq1, Aq2, _, _, _ = rotate_small(tau * w0, tau * w1, tau * w2, q0, q1, q2)
+    return _image_error2_whitened(
+        x0,
+        x1,
+        Aq0 + C0 + tau * t0,
+        Aq1 + C1 + tau * t1,
+        Aq2 + C2 + tau * t2,
+        a00,
+        a01,
+        a10,
+        a11,
+    )
+
+
+@njit(cache=True, inline=INLINE, fastmath=FMA)
+def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W):
     """Squared reprojection error of point i under hypothesis h (see :func:`project_error2`,
-    :func:`measured_error2` if ``measured``)."""
+    :func:`measured_error2` if ``measured``; :func:`measured_error2_whitened` if ``W`` (N, 4)
+    has rows and ``measured``)."""
     X0, X1, X2 = X[i, 0], X[i, 1], X[i, 2]
     q0 = Rs[h, 0, 0] * X0 + Rs[h, 0, 1] * X1 + Rs[h, 0, 2] * X2
     q1 = Rs[h, 1, 0] * X0 + Rs[h, 1, 1] * X1 + Rs[h, 1, 2] * X2
     q2 = Rs[h, 2, 0] * X0 + Rs[h, 2, 1] * X1 + Rs[h, 2, 2] * X2
+    if measured and W.shape[0] > 0:
+        return measured_error2_whitened(
+            x[i, 0], x[i, 1], d0, d1, r0e[i], q0, q1, q2,
+            Cs[h, 0], Cs[h, 1], Cs[h, 2], ws[h, 0], ws[h, 1], ws[h, 2],
+            ts[h, 0], ts[h, 1], ts[h, 2],
+            W[i, 0], W[i, 1], W[i, 2], W[i, 3],
+        )  # fmt: skip
     if measured:
         return measured_error2(
             x[i, 0],
@@ -173,14 +226,14 @@ def _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured=False):
 
 @njit(cache=True, fastmath=FMA, nogil=True)
 def _msac_points(
-    x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured
+    x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, start, stop, s, c, th2, bail, need, exact, measured, W
 ):
     """Add points ``start <= i < stop`` to hypothesis h's running MSAC score s and inlier
     count c, stopping early once s exceeds ``bail`` or fewer than ``need`` inliers remain
     reachable. Returns (s, c, True if every point was added). The one place
     :func:`msac_scores` evaluates errors: one inlined copy of the error model to compile."""
     for i in range(start, stop):
-        e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured)
+        e2 = _error2_h(x, X, r0e, d0, d1, Rs, Cs, ws, ts, h, i, exact, measured, W)
         if e2 < th2:
             s += e2
             c += 1
@@ -209,6 +262,7 @@ def msac_scores(
     pretest_min=0,
     pretest_fraction=0.5,
     measured=False,
+    W=None,
 ):
     """MSAC scores of H hypotheses on N points, evaluated preemptively.
 
@@ -226,6 +280,9 @@ def msac_scores(
         bail: the best score so far (hypotheses that cannot beat it are dropped).
         exact: see :func:`project_error2`.
         measured: score with :func:`measured_error2` instead (``exact`` is then ignored).
+        W: (N, 4) each point's row-major 2x2 whitening of its image error (``measured``
+            only, :func:`measured_error2_whitened`; :attr:`~.frame.Frame.W`); (0, 4) or
+            ``None``: none.
         pretest_n, pretest_min: pre-test size and the smallest inlier count among those points
             for a hypothesis to be completed (raised by every completed hypothesis).
     Returns:
@@ -233,6 +290,11 @@ def msac_scores(
         hypotheses completed before it, ``inf`` for invalid, pre-test-rejected or bailed ones;
         ``argmin(scores)`` is the batch's best hypothesis.
     """
+    # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
+    if W is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
+        Wa = np.zeros((0, 4))
+    else:
+        Wa = W
     H, N = Rs.shape[0], x.shape[0]
     scores = np.full(H, np.inf)
     counts = np.zeros(H, dtype=np.int64)
@@ -265,6 +327,7 @@ def msac_scores(
             pretest_min,
             exact,
             measured,
+            Wa,
         )
         if done:
             part[h] = s
@@ -296,6 +359,7 @@ def msac_scores(
             -N,
             exact,
             measured,
+            Wa,
         )
         if s <= bail:
             scores[h] = s
@@ -307,9 +371,15 @@ def msac_scores(
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
-def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False):
+def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False, W=None):
     """(N,) squared reprojection errors of one hypothesis (``inf`` where invalid); see
-    :func:`project_error2` (:func:`measured_error2` if ``measured``)."""
+    :func:`project_error2` (:func:`measured_error2` if ``measured``, whitened by ``W`` (N, 4)
+    if it has rows: :func:`measured_error2_whitened`)."""
+    # (an "is None" test on the argument itself: the branch that cannot be typed is pruned)
+    if W is None:  # noqa: SIM108 (numba prunes this branch on a None argument)
+        Wa = np.zeros((0, 4))
+    else:
+        Wa = W
     N = x.shape[0]
     out = np.empty(N)
     for i in range(N):
@@ -317,7 +387,13 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False):
         q0 = R[0, 0] * X0 + R[0, 1] * X1 + R[0, 2] * X2
         q1 = R[1, 0] * X0 + R[1, 1] * X1 + R[1, 2] * X2
         q2 = R[2, 0] * X0 + R[2, 1] * X1 + R[2, 2] * X2
-        if measured:
+        if measured and Wa.shape[0] > 0:
+            out[i] = measured_error2_whitened(
+                x[i, 0], x[i, 1], d[0], d[1], r0e[i], q0, q1, q2,
+                C[0], C[1], C[2], w[0], w[1], w[2], t[0], t[1], t[2],
+                Wa[i, 0], Wa[i, 1], Wa[i, 2], Wa[i, 3],
+            )  # fmt: skip
+        elif measured:
             out[i] = measured_error2(
                 x[i, 0],
                 x[i, 1],
@@ -362,13 +438,13 @@ def errors2(x, X, r0e, d, R, C, w, t, exact=True, measured=False):
 
 
 @njit(cache=True, nogil=True)
-def exact_errors2(x, X, r0e, d, R, C, w, t, measured):
+def exact_errors2(x, X, r0e, d, R, C, w, t, measured, W):
     """:func:`errors2` with ``exact=True`` (the estimator's errors), for callers in Python.
 
     ``exact`` goes in as a compile-time constant, as in :func:`msac_evaluate` and the fused
     RANSAC batch, so all of them share one compiled :func:`errors2` (numba compiles a
-    constant flag and a run-time flag separately)."""
-    return errors2(x, X, r0e, d, R, C, w, t, True, measured)
+    constant flag and a run-time flag separately). ``W``: as :func:`msac_scores`'."""
+    return errors2(x, X, r0e, d, R, C, w, t, True, measured, W)
 
 
 @njit(cache=True, nogil=True)
@@ -388,6 +464,7 @@ def exact_msac_scores(
     pretest_min,
     pretest_fraction,
     measured,
+    W,
 ):
     """:func:`msac_scores` with ``exact=True`` (the estimator's scoring), for callers in Python;
     one compiled :func:`msac_scores` with the fused RANSAC batch's (see :func:`exact_errors2`).
@@ -409,15 +486,17 @@ def exact_msac_scores(
         pretest_min,
         pretest_fraction,
         measured,
+        W,
     )
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
-def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False):
+def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False, W=None):
     """MSAC score, inlier mask and inlier count of one model on all N points.
 
     Args as :func:`errors2` (R (3, 3); C, w, t (3,)) plus th2, the squared threshold;
-    ``measured``: errors at the measured capture times (:func:`measured_error2`).
+    ``measured``: errors at the measured capture times (:func:`measured_error2`); ``W``:
+    as :func:`msac_scores`.
     Returns:
         (score, inliers (N,) bool, count); ``(inf, all False, 0)`` if a model parameter is not
         finite.
@@ -434,7 +513,7 @@ def msac_evaluate(x, X, r0e, d, R, C, w, t, th2, measured=False):
             and np.isfinite(R[a, 2])
         ):
             return np.inf, inl, 0
-    e2 = errors2(x, X, r0e, d, R, C, w, t, True, measured)
+    e2 = errors2(x, X, r0e, d, R, C, w, t, True, measured, W)
     s = 0.0
     c = 0
     for i in range(N):

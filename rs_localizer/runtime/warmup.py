@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 
 import numpy as np
 
@@ -184,6 +185,8 @@ def _run(solver, options, tracking, gyro: bool = True, impl: str | None = None) 
     cam, uv, X, scores = synthetic_problem()
     est = estimate_rs_pose(uv, X, cam, **kw)
     estimate_rs_pose(uv, X, cam, scores=scores, **kw)
+    # (a camera without distortion refines the plain errors: the refinement's other version)
+    estimate_rs_pose(uv, X, replace(cam, D=np.zeros(0)), **kw)
     if gyro:
         estimate_rs_pose(uv, X, cam, gyro=_GYRO, **kw)
     for scene in ("distant", "planar") if solver_info(solver).coplanar else ("distant",):
@@ -232,15 +235,19 @@ def warm_late(
     cam, uv, X, _ = synthetic_problem()
     fr = prepare_frame(uv, X, cam, opts.plausibility.max_point_norm, np.random.default_rng(0))
     spr, prior = cam.seconds_per_unit_r, opts.motion_prior
-    ref = refine_rs_pose(
-        (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)),
-        fr.X,
-        fr.x,
-        fr.r - fr.r0,
-        opts.ransac.threshold_px / fr.f,
-        RefineSettings(seconds_per_unit_r=spr, acceleration_block=True),
-        prior=prior,
-    )
+    # (both versions: the plain errors of a camera without distortion, then the pixel errors of
+    # the measured image of this distorted one)
+    for mountings in (None, fr.mountings()):
+        ref = refine_rs_pose(
+            (np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3)),
+            fr.X,
+            fr.x,
+            fr.r - fr.r0,
+            opts.ransac.threshold_px / fr.f,
+            RefineSettings(seconds_per_unit_r=spr, acceleration_block=True),
+            prior=prior,
+            mountings=mountings,
+        )
     # (the twist filter before the MAP step: the first process reaches the MAP step first, on
     # its cold frame, and the tracker's filter last)
     if tracking is not None:
@@ -308,6 +315,7 @@ def split_batch(solver: str, first: bool) -> None:
         0,
         0.5,
         False,
+        fr.W,
     )
 
 

@@ -15,7 +15,7 @@ from rs_localizer.estimation.noise_model import (
     pixel_jacobians,
 )
 from rs_localizer.estimation.prior import MotionPrior
-from rs_localizer.estimation.refine import RefineSettings, refine_rs_pose
+from rs_localizer.estimation.refine import Mountings, RefineSettings, refine_rs_pose
 from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.noise import correlated_field
 
@@ -44,14 +44,17 @@ def board_views(n_views, seed):
     return out
 
 
-def test_sandwich_matches_finite_differences_of_the_refinement():
+@pytest.mark.parametrize("whitened", [False, True])
+def test_sandwich_matches_finite_differences_of_the_refinement(whitened):
     """The increment ``s^2 B M B`` of :func:`correlated_noise_covariance` equals
     ``A Sigma A^T`` with A the finite-difference derivative of the (MAP, fixed noise weight)
     refinement w.r.t. the measured pixels (through OpenCV's undistortion) and Sigma the
     correlated error's dense pixel covariance; on a moving frame of 3D points through the
-    distorted camera. (On a planar board the Gauss-Newton linearization that every covariance
-    of the refinement uses is itself 5-25 % off the estimator's derivative: the flat valley;
-    the 3D scene isolates the sandwich.)"""
+    distorted camera. ``whitened``: the refinement on the errors of the measured image (each
+    point's whitening, held at the measured points, as the single camera's estimator does).
+    (On a planar board the Gauss-Newton linearization that every covariance of the
+    refinement uses is itself 5-25 % off the estimator's derivative: the flat valley; the 3D
+    scene isolates the sandwich.)"""
     rng = np.random.default_rng(2)
     R0, C0 = rotvec_to_matrix(np.array([0.2, -0.3, 0.1])), np.array([0.02, -0.01, 1.0])
     while True:
@@ -66,7 +69,13 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
     tau = r - CAM.r0
     prior = MotionPrior()
     kw = dict(seconds_per_unit_r=s, max_iterations=100, tol=1e-15)
-    ref0 = refine_rs_pose((R0, C0, w0, t0), X, x, tau, 1.0, RefineSettings(**kw), prior=prior)
+    W = mnt = None
+    if whitened:
+        W = CAM.pixel_jacobian(x) / CAM.K[0, 0]
+        mnt = Mountings(np.zeros(len(X), dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W)
+    ref0 = refine_rs_pose(
+        (R0, C0, w0, t0), X, x, tau, 1.0, RefineSettings(**kw), prior=prior, mountings=mnt
+    )
     sigma = ref0.sigma
     ref = refine_rs_pose(
         (ref0.R, ref0.C, ref0.w, ref0.t),
@@ -76,6 +85,7 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
         1.0,
         RefineSettings(noise=sigma, **kw),
         prior=prior,
+        mountings=mnt,
     )
     cov = correlated_noise_covariance(
         ref.covariance,
@@ -91,6 +101,7 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
         pixel_jacobians(CAM, x),
         CORR,
         LENGTH,
+        W,
     )
 
     def theta(p):
@@ -103,6 +114,7 @@ def test_sandwich_matches_finite_differences_of_the_refinement():
             1.0,
             RefineSettings(noise=sigma, covariance=False, **kw),
             prior=prior,
+            mountings=mnt,
         )
         return np.r_[matrix_to_rotvec(o.R @ ref.R.T), o.C, o.w, o.t]
 

@@ -9,6 +9,7 @@ from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import (
     Mountings,
     RefineSettings,
+    _checked_mountings,
     _normal_equations,
     exact_jacobian,
     exact_mounting_jacobian,
@@ -78,7 +79,7 @@ def test_rig_jacobians_match_finite_differences_and_the_kernel():
     Rth = rotvec_to_matrix(theta[:3]) @ R
     H, g, cost = _normal_equations(
         Rth, C, w, t, X, x, tau, 1e6, 12, np.inf,
-        (mnt.cam.astype(np.int64), mnt.R_mount, mnt.c_mount, mnt.scale),
+        _checked_mountings(mnt, len(X)),
     )  # fmt: skip
     J0 = exact_jacobian(np.r_[np.zeros(3), theta[3:]], Rth, X, x, tau, mnt)
     r0 = exact_residuals(np.r_[np.zeros(3), theta[3:]], Rth, X, x, tau, mnt)

@@ -96,11 +96,11 @@ def test_replay_estimates_the_gyro_bias(imu_bag):
 
 @pytest.fixture(scope="module")
 def plane_bag(tmp_path_factory):
-    """A planar scene (a wall 8 m ahead) under hand-held shake with a 200 Hz gyro."""
+    """A planar scene (a wall 8 m ahead) under hand-held shake with a 200 Hz gyro, 3 s."""
     from rs_localizer.cli import main
 
     out = tmp_path_factory.mktemp("plane") / "bag"
-    args = ["make-bag", str(out), "--frames", "60", "--imu-rate", "200", "--motion", "shake"]
+    args = ["make-bag", str(out), "--frames", "90", "--imu-rate", "200", "--motion", "shake"]
     assert main(args + ["--scene", "plane"]) == 0
     return out
 
@@ -122,10 +122,18 @@ class _Log:
 @pytest.mark.parametrize("estimate_bias", [True, False])
 def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     """On a planar scene the per-frame test rejects a mount 90 deg off (about the optical
-    axis) on some frames only; the rotation between frames shows it: within 30 frames (26
-    measured) the pipeline warns once, solves the rest without the gyro and counts them, with
-    or without the online bias, and the diagnostics say so; the right mount is not
-    flagged."""
+    axis) on some frames only; the rotation between frames shows it: within 70 frames the
+    pipeline warns once, solves the rest without the gyro and counts them, with or without
+    the online bias, and the diagnostics say so; the right mount is not flagged over the 90
+    frames.
+
+    Detected at frame 51 on this bag. When depends on chance: the check declares once a
+    rotation of the mount halves the median residual of the last 10 pairs, and on this wall
+    the image alone is 2-9 deg off on about half the frames of the first two seconds (the
+    flat scene's ambiguity), so even the true mount error explains fewer than half of the
+    window's pairs until a run of good frames. Over 16 videos (``python -m
+    benchmarks.bench_gyro --video --mount --seconds 4 --seed S --rows "mount 90 deg off"``,
+    S = 0..15) the check declared at frames 7-66 (median 33)."""
     from rs_localizer.geometry import rotvec_to_matrix
     from rs_localizer.ros.bags.replay import replay
     from rs_localizer.ros.conversions import quaternion_from_matrix
@@ -146,10 +154,10 @@ def test_wrong_mount_on_a_plane_is_detected(plane_bag, estimate_bias):
     right = replay(plane_bag, params=params, progress=None)
     n = len(wrong.rows)
     c = wrong.counts
-    assert wrong.solved == n == 60
+    assert wrong.solved == n == 90
     assert c.get("gyro_inconsistent_detections") == 1, c
     # every frame after the detection is solved without the gyro and counted
-    assert c["gyro_disabled_inconsistent"] >= n - 30, c
+    assert c["gyro_disabled_inconsistent"] >= n - 70, c
     used, rejected = c.get("frames_with_gyro", 0), c.get("gyro_rejected", 0)
     assert used + rejected + c["gyro_disabled_inconsistent"] == n, c
     warned = [t for level, t in log.lines if "contradicts the gyro" in t]
