@@ -205,19 +205,27 @@ def test_a_camera_info_change_mid_stream_applies_from_its_own_stamp(ros_context)
 
 def test_the_pending_twists_go_out_when_the_input_stops(ros_context):
     """15 rig frames, then nothing: the last ``tracking.lag`` rig frames' fused twists wait
-    for later rig frames; after ``tracking.max_gap`` (1.5 s here: time to see them wait)
+    for later rig frames; after ``tracking.max_gap`` (3 s here: time to see them wait)
     without camera frames they are published (``odom`` for every posed rig frame), as the
-    single-camera node does, without the video's end (deactivate) being signalled."""
+    single-camera node does, without the video's end (deactivate) being signalled. (The
+    twists still pending are read when the 14th pose arrives, before ``max_gap`` has passed;
+    on a loaded machine the last rig frame may be closed too by then: 15 poses.)"""
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.5, num_points=120, seed=26)
-    h = _harness(ros_context, cams, rig_parameters(cams, **{"tracking.max_gap": 1.5}))
+    h = _harness(ros_context, cams, rig_parameters(cams, **{"tracking.max_gap": 3.0}))
     try:
         h.send_info(cams)
         h.send_clouds(frames)
-        assert h.wait(lambda: len(h.poses) == 14)  # (the last rig frame stays open)
-        waiting = len(h.poses) - len(h.odom)
-        assert waiting >= 1, "no twist pending: the test shows nothing"
-        assert h.wait(lambda: len(h.odom) == len(h.poses), timeout=10.0)
+        at_14 = {}
+
+        def fourteen() -> bool:
+            if len(h.poses) >= 14 and not at_14:
+                at_14.update(poses=len(h.poses), odom=len(h.odom))
+            return bool(at_14)
+
+        assert h.wait(fourteen)
+        assert at_14["poses"] - at_14["odom"] >= 1, f"no twist pending: {at_14}"
+        assert h.wait(lambda: len(h.odom) == len(h.poses) >= 14, timeout=10.0)
         assert [_stamp(m) for m in h.odom] == [_stamp(m) for m in h.poses]
     finally:
         h.close()
