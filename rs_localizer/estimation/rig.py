@@ -28,7 +28,8 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
 - models moving faster than ``max_angular_velocity`` / ``max_linear_velocity`` are dropped;
   the others are scored by MSAC on the reprojection error in pixels with each camera's exact
   model (the rotation ``expm(tau [w]x)`` at the observation's own measured capture time, the
-  camera's focal length turning normalized errors into pixels);
+  camera's pixel Jacobian at the point turning normalized errors into pixels of the measured,
+  distorted image: :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, first order);
 - the search is the single camera's (:class:`~rs_localizer.estimation.ransac.RansacLoop`, the
   options its :class:`~rs_localizer.estimation.options.EstimateOptions`): batches that double,
   adaptive termination at ``ransac.confidence`` on the best model's inlier ratio, the seeded
@@ -484,11 +485,12 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
     camera index, the camera's focal length (px per normalized unit), measured pixels, and
-    ``A`` (N, 4): the row-major 2x2 scale of each point's normalized error to px (its
-    camera's mean focal length times the identity; the scoring kernel and the refinement
-    take any 2x2 matrix per point, e.g. the camera's
-    :meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`); ``numpy``: the refinement and
-    covariance run in NumPy/SciPy (the ``"numpy"`` implementation, :func:`estimate_rig_pose`)."""
+    ``A`` (N, 4): each point's row-major 2x2 pixel Jacobian of its camera
+    (:meth:`~rs_localizer.camera.CameraModel.pixel_jacobian`, px per normalized unit: the
+    normalized error times it is to first order the error in the measured, distorted image;
+    the focal length times the identity for a camera without distortion and with fx = fy);
+    ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
+    implementation, :func:`estimate_rig_pose`)."""
 
     def __init__(self, views: Sequence[RigView], numpy: bool = False):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
@@ -564,9 +566,12 @@ class _Pool:
             cams.append(np.full(len(idx), c, dtype=np.int64))
             rows.append(idx)
             foc.append(np.full(len(idx), cam.mean_focal))
-            a = np.zeros((len(idx), 4))
-            a[:, 0] = a[:, 3] = cam.mean_focal
-            As.append(a)
+            if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
+                As.append(cam.pixel_jacobian(x).reshape(-1, 4))
+            else:
+                a = np.zeros((len(idx), 4))
+                a[:, 0] = a[:, 3] = cam.mean_focal
+                As.append(a)
         self.x = np.vstack(xs) if xs else np.zeros((0, 2))
         self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
         self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
@@ -610,8 +615,8 @@ class _Pool:
 @njit(cache=True)
 def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
     """out[h, i]: the (2,) image error (px) of point i under model h (predicted minus measured,
-    normalized difference times the point's 2x2 scale ``A[i]`` (row-major, :class:`_Pool`);
-    inf behind the camera)."""
+    normalized difference times the point's 2x2 pixel Jacobian ``A[i]`` (row-major,
+    :class:`_Pool`): to first order the error in the measured image; inf behind the camera)."""
     H, N = R.shape[0], X.shape[0]
     for h in range(H):
         for i in range(N):
@@ -856,7 +861,8 @@ def _refit(
 
 def _mountings(pool: _Pool) -> Mountings:
     """The pool's observations as the refinement's :class:`~.refine.Mountings`: each camera's
-    mounting, errors in px (each point's 2x2 ``A`` as the scale). Built once per pool."""
+    mounting, errors in px (its pixel Jacobian at each point, ``A``, as the scale). Built once
+    per pool."""
     m = pool.__dict__.get("_mountings")
     if m is None:
         m = Mountings(

@@ -56,13 +56,14 @@ def video():
     return cams, frames, traj
 
 
-@pytest.mark.parametrize("offset", [-0.05, -0.02, 0.005, 0.05])
+@pytest.mark.parametrize("offset", [-0.05, -0.02, 0.05])
 def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, offset):
-    """The left camera's clock off by -50, -20, +5 or +50 ms (its frames join the others' at a
+    """The left camera's clock off by -50, -20 or +50 ms (its frames join the others' at a
     wrong stamp, or never): no published pose is more than 1 deg or 5 cm off (before, its
     lone rig frames were posed at its wrong stamps, up to 3.9 deg off, and a joint fit with
     one other camera absorbed the time error); the others' rig frames are posed, at least
-    one per frame period; the cameras named (apart or disagreeing) are left alone."""
+    one per frame period; the cameras named (apart or disagreeing) are left alone. (+5 ms:
+    the next test.)"""
     cams, frames, traj = video
     log = Log()
     rig, outs = run(frames, cams, shift={"left": offset}, log=log)
@@ -82,6 +83,43 @@ def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, off
         assert len(text) == 1 and "'left'" in text[0] and "clock" in text[0], text
         assert rig.counts["rig.failed.contradicts_track"] >= 15
         assert "contradicts_track" in RIG_REFUSALS
+
+
+#: videos of the +5 ms case (generate_rig_video's seeds)
+SMALL_OFFSET_SEEDS = range(10)
+
+
+def test_a_camera_clock_5ms_off_gives_no_wrong_pose_and_is_named_far_more_than_the_others():
+    """The left camera's clock +5 ms off (its points' capture times 5 ms wrong), in the videos
+    of seeds 0-9: in every video no published pose is more than 1 deg or 5 cm off, every rig
+    frame is posed, left is named as disagreeing, and only the refusals of a contradiction
+    occur; over the 10 videos the correct cameras are named in at most a quarter as many rig
+    frames as left.
+
+    Not "only left is ever named": at this small offset the consensus sometimes outvotes the
+    front or right camera in a rig frame instead. Over 200 videos (seeds 0-199) that happens
+    in 41 (20 %; 213 rig frames naming front or right against 3716 naming left, 0.057), and
+    in 46 (23 %; 199 against 3730, 0.053) with each camera's errors scaled by its focal
+    length instead of its pixel Jacobian: a property of the consensus at this offset, not of
+    one video, so one video's outcome is a coin flip (seed 11 named front in 2 rig frames).
+    Per 10 consecutive seeds the ratio was at most 0.16 (0.26 with the focal length); left
+    was named in every one of the 200 videos and no pose was off."""
+    cams = default_rig(3)
+    left = wrong = 0
+    for seed in SMALL_OFFSET_SEEDS:
+        frames, _, traj = generate_rig_video(cams, duration=0.8, num_points=150, seed=seed)
+        rig, outs = run(frames, cams, shift={"left": 0.005})
+        e = pose_errors(outs, traj)
+        assert len(e) >= 24, (seed, len(e))
+        assert e[:, 0].max() < 1.0 and e[:, 1].max() < 0.05, (seed, e.max(axis=0))
+        named = [n for o in outs for n in o.disagreeing]
+        assert "left" in named, seed
+        left += named.count("left")
+        wrong += len(named) - named.count("left")
+        refused = {k.split(".")[-1] for k in rig.counts if k.startswith("rig.failed.")}
+        assert refused <= {"contradicts_track", "unconfirmed", "cameras_disagree"}, refused
+        assert_balanced(rig)
+    assert wrong <= 0.25 * left, (wrong, left)
 
 
 def thin(frames, dominant, n_other=15, seed=0):
