@@ -671,7 +671,9 @@ def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
     """Defect 3: a camera_info published just before its frame is the one that frame uses (two
     cameras alternate: principal points 40 px apart, ~2.3 deg of rotation if mixed up), also
     for the very first frame, and with the frame published before its camera_info (the order
-    of image_transport's CameraPublisher)."""
+    of image_transport's CameraPublisher; ``camera_info_wait`` 1 s: on a loaded machine the
+    camera_info sent right after its frame reached the node more than the default 50 ms
+    later, and the frame took the previous camera's)."""
     from dataclasses import replace as dc_replace
 
     from rs_localizer.geometry import rotation_angle_deg
@@ -682,7 +684,12 @@ def test_camera_info_is_chosen_by_stamp(tmp_path, ros_context, frames):
     K2 = cam.K.copy()
     K2[0, 2] += 40.0
     cam2 = dc_replace(cam, K=K2)
-    node = start_node(tmp_path, {"diagnostics_period": 0.2}, namespace="/cinfo", name="cinfo")
+    node = start_node(
+        tmp_path,
+        {"diagnostics_period": 0.2, "camera_info_wait": 1.0},
+        namespace="/cinfo",
+        name="cinfo",
+    )
     probe = Probe(ros_context, namespace="/cinfo")
     try:
         probe.wait_matched()
