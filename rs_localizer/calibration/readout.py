@@ -67,7 +67,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import READOUT_DIRECTIONS, CameraModel
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
 from ..geometry import matrix_to_rotvec
 
@@ -358,6 +358,15 @@ def _offset_std(t, y, t_imu, om_imu, d, s, R, c, lags: int = 2, h: float = 0.02)
     return float(np.sqrt(V) / A) if A > 0 else float("inf")
 
 
+def _lines_to_reference(camera: CameraModel, stamp_row: float) -> float:
+    """Lines read from pixel line ``stamp_row`` to the camera's reference line, in readout
+    order: :meth:`~rs_localizer.camera.CameraModel.time_offset` per unit line delay (negative
+    where the readout reaches the reference line first, e.g. ``bottom_to_top`` with the stamp
+    at line 0). The line delay being fitted, the camera's own is not used."""
+    forward = READOUT_DIRECTIONS[camera.readout][1] >= 0
+    return (camera.reference_line - float(stamp_row)) * (1.0 if forward else -1.0)
+
+
 def _gyro_samples(
     stamps,
     ws,
@@ -383,7 +392,7 @@ def _gyro_samples(
     order = np.argsort(t_imu)
     t_imu, om_imu = t_imu[order], om_imu[order]
     y = -ws
-    offset_lines = camera.reference_line - stamp_row
+    offset_lines = _lines_to_reference(camera, stamp_row)
     margin = max_offset if estimate_offset else 0.0
     ld, d, at_end = 0.0, 0.0, False
     for _ in range(5):  # frame times depend on the line delay: iterate
@@ -626,7 +635,7 @@ def _fit_to_gyro(
     rot_std = worst = bias_std = None
     if s > 0:
         # the frames' reference-line times (camera clock) with the fitted line delay
-        t_ref = stamps + np.round((camera.reference_line - stamp_row) * s / camera.focal * 1e9)
+        t_ref = stamps + np.round(_lines_to_reference(camera, stamp_row) * s / camera.focal * 1e9)
         mount = _mount_from_frame_rotations(
             t_ref.astype(np.int64), Os, t_imu, om_imu, d or 0.0, max_dt, d is not None
         )
@@ -691,7 +700,9 @@ def fit_line_delay(
         camera: focal length along the readout axis and the number of lines (its line delay
             is ignored); with a gyro also the reference line.
         gyro: optional ``(t_ns (M,), omega (M, 3) rad/s)`` gyro samples in the IMU frame; the
-            frame times are then ``stamp + (reference line - stamp_row) * line_delay``.
+            frame times are then the stamp plus the time from line ``stamp_row`` to the
+            reference line at the fitted line delay (negative where the readout reaches the
+            reference line first: ``bottom_to_top``, ``right_to_left``).
         stamp_row: line whose capture time is the stamp (gyro only).
         max_dt: seconds; frames farther apart do not form a Simpson triplet.
         uniformity: relative difference allowed between a triplet's two intervals.

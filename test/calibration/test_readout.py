@@ -239,6 +239,29 @@ def test_time_offset_on_exact_rates_and_not_on_a_constant_rate():
     assert "barely changes" in c.time_offset_reason, c.time_offset_reason
 
 
+@pytest.mark.parametrize("readout", ["bottom_to_top", "right_to_left"])
+def test_time_offset_when_the_readout_runs_backwards(readout):
+    """A camera read bottom to top (or right to left), its stamp the capture time of pixel
+    line 0, which it reads last: the frames' reference-line times come before their stamps,
+    and a gyro 10 ms late is found 10 ms late (not off by twice the half readout, 21.6 ms
+    here), with the line delay."""
+    from dataclasses import replace
+
+    cam = replace(default_camera(line_delay=LINE_DELAY), readout=readout)
+    s = cam.seconds_per_unit_r
+    t = np.arange(60) / 30.0
+    stamps = (t * 1e9).astype(np.int64)
+    lead = float(cam.line_time(cam.reference_line) - cam.line_time(0.0))
+    assert lead < 0  # (the reference line is read before line 0)
+    t_ref = t + lead
+    traj = make_trajectory("shake")
+    w = -traj.velocity_body(t_ref)[0] * s
+    g = fit_line_delay(stamps, traj.orientation(t_ref), w, cam, gyro=_shifted_gyro(traj, 2, 0.01))
+    assert g.observable and g.line_delay == pytest.approx(LINE_DELAY, rel=5e-3)
+    assert abs(g.time_offset - 0.01) < 2e-4, g.time_offset
+    assert np.abs(g.camera_imu_rotation - R_IMU_CAMERA.T).max() < 0.02
+
+
 @pytest.mark.slow
 def test_time_offset_from_a_shaky_video():
     """2 s of simulated hand-held shake (60 frames, 500 correspondences with 0.5 px noise and
