@@ -171,7 +171,9 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     p = sol.x
     R = cv2.Rodrigues(p[:3])[0] @ R0
     q = np.concatenate([np.zeros(3), p[3:]])
-    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), jac(q)
+    J = exact_jacobian(theta(q), R, X, x, tau)  # (at the refined pose, not the start's R0)
+    J = np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
+    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), J
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:
