@@ -12,6 +12,14 @@ where it is clearly nearer one of them (:data:`PREDICTION_RATIO`); otherwise the
 refused as ``ambiguous_tag``. The pose must pass the estimator's last checks
 (:func:`~.finalize.final_estimate`: plausible motion, every corner in front of the camera at
 its capture time), and the corners must fit it within the inlier threshold (their RMS error).
+
+The corners' errors here are in the undistorted image plane (times the focal length: pixels at
+the image centre), not whitened into pixels of the measured image as the robust estimator's
+(:attr:`~.frame.Frame.W`): four corners leave 2 degrees of freedom to estimate their noise, so
+the ambiguity test leans on the :data:`MIN_CORNER_SIGMA_PX` floor, and in measured pixels
+(smaller than the undistorted ones towards a fisheye's edge) that floor left the image
+undecided on many real tags the undistorted-plane test poses right, with no clear gain in accuracy
+(TagSLAM's fisheye recordings).
 """
 
 from __future__ import annotations
@@ -171,7 +179,9 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     p = sol.x
     R = cv2.Rodrigues(p[:3])[0] @ R0
     q = np.concatenate([np.zeros(3), p[3:]])
-    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), jac(q)
+    J = exact_jacobian(theta(q), R, X, x, tau)  # (at the refined pose, not the start's R0)
+    J = np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
+    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), J
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:

@@ -194,3 +194,39 @@ def test_two_tags_a_millimetre_off_one_plane_are_posed():
     assert e.single_tag
     assert rotation_angle_deg(e.model.R, R) < 0.3
     assert np.linalg.norm(e.model.R.T @ e.model.C - R.T @ C) < 0.01
+
+
+def test_the_covariance_of_one_tag_is_its_fits_at_the_estimate():
+    """The pose covariance of one tag (global shutter, no prediction) against an independent
+    computation: ``sigma^2 (J^T J)^-1`` with ``J`` the central finite differences of the
+    corners' normalized reprojection errors at the estimated pose over the camera's rotation
+    (world axes) and position in the world (the estimate's ``covariance`` parameters),
+    ``sigma^2`` the residuals' variance over 8 - 6 degrees of freedom, at least
+    (0.5 px / f)^2."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(8)
+    cam = CameraModel(K=K, width=640, height=480)
+    X = tag_corners(0.2)
+    a = np.radians(35)
+    R = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    R = R @ np.diag([1.0, -1.0, -1.0])
+    C = np.array([0.03, -0.02, 0.8])
+    uv = cam.project(X @ R.T + C) + rng.normal(0, 1.0, (4, 2))
+    e = estimate_rs_pose(uv, X, cam)
+    assert e.success and e.single_tag
+    x = (uv - K[:2, 2]) / K[0, 0]
+
+    Rwc = e.model.R.T  # (camera -> world)
+    c = -Rwc @ e.model.C  # (the camera's position in the world)
+
+    def residuals(p):
+        Rp = (Rotation.from_rotvec(p[:3]).as_matrix() @ Rwc).T
+        P = (X - c - p[3:]) @ Rp.T
+        return (P[:, :2] / P[:, 2:] - x).ravel()
+
+    h = 1e-6
+    J = np.stack([(residuals(h * d) - residuals(-h * d)) / (2 * h) for d in np.eye(6)], axis=1)
+    res = residuals(np.zeros(6))
+    sigma2 = max(res @ res / 2, (0.5 / K[0, 0]) ** 2)
+    np.testing.assert_allclose(e.covariance[:6, :6], sigma2 * np.linalg.inv(J.T @ J), rtol=1e-5)
