@@ -173,8 +173,8 @@ def rig_diagnostics(
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
-    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path; the message then says
-    so), and per
+    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
+    on the compiled one; the message then says so), and per
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
@@ -429,10 +429,10 @@ class RigCore:
         every camera's RS timing, ``rs-localizer compile --params-file``'s: a few seconds);
         else nothing waits: they compile in another process
         (:func:`~rs_localizer.runtime.background.start_background_compile` with ``rig``)
-        while the rig frames are solved on the NumPy implementation, each alone (no track,
-        no gyro), until they are loaded. Logged with the kernels compiled and the time.
-        Without ``warmup`` the first rig frame pays for them while the cameras' frames queue
-        (a full queue drops them). Never raises (a failure is logged)."""
+        while the rig frames are solved on the NumPy implementation (tracked, with the gyro,
+        as on the compiled one) until they are loaded. Logged with the kernels compiled and
+        the time. Without ``warmup`` the first rig frame pays for them while the cameras'
+        frames queue (a full queue drops them). Never raises (a failure is logged)."""
         from ..runtime.background import start_background_compile
         from ..runtime.jit_cache import compile_progress
         from ..runtime.warmup import rig_cached, warm_rig
@@ -942,7 +942,7 @@ class RigCore:
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
-        final (or its own twist without tracking, or solved on the uncompiled path)."""
+        final (or its own twist without tracking)."""
         base, mf = self.config.base_frame, self.map_frame
         m = out.estimate
         if out.success:
@@ -954,7 +954,7 @@ class RigCore:
                 )
             if self._wanted("twist_single_frame"):
                 self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
-            if self.config.settings.tracking is None or not out.compiled:  # (its own twist)
+            if self.config.settings.tracking is None:  # (its own twist)
                 self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:

@@ -169,7 +169,7 @@ def start_background_compile(
     else:
         log(
             "compiling the rig's kernels in the background: rig frames are solved on the "
-            "uncompiled path (NumPy refinement, each rig frame alone: no track, no gyro) until "
+            "uncompiled path (NumPy refinement; tracked, with the gyro, as compiled) until "
             "they are ready (`rs-localizer compile --params-file` after installing avoids this)"
         )
     if numba_error() is not None:
