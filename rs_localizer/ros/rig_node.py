@@ -76,7 +76,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
-from ..runtime.background import background_state, compiled_ready, ready_rig_implementation
+from ..runtime.background import background_state, compiled_ready, ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
@@ -392,7 +392,7 @@ class RigCore:
         self._log = _Log(self.get_logger())
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = RigLocalizer(
-            self.config.settings, log=self._log, implementation=ready_rig_implementation
+            self.config.settings, log=self._log, implementation=ready_implementation
         )
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
@@ -428,21 +428,22 @@ class RigCore:
         frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
         every camera's RS timing, ``rs-localizer compile --params-file``'s: a few seconds);
         else nothing waits: they compile in another process
-        (:func:`~rs_localizer.runtime.background.start_background_compile` with ``rig``)
-        while the rig frames are solved on the NumPy implementation (tracked, with the gyro,
-        as on the compiled one) until they are loaded. Logged with the kernels compiled and
-        the time. Without ``warmup`` the first rig frame pays for them while the cameras'
-        frames queue (a full queue drops them). Never raises (a failure is logged)."""
-        from ..runtime.background import start_background_compile
+        (:func:`~rs_localizer.runtime.background.start_background_compile` with its
+        :class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved
+        on the NumPy implementation (tracked, with the gyro, as on the compiled one) until
+        they are loaded. Logged with the kernels compiled and the time. Without ``warmup``
+        the first rig frame pays for them while the cameras' frames queue (a full queue drops
+        them). Never raises (a failure is logged)."""
+        from ..runtime.background import RigKernels, start_background_compile
         from ..runtime.jit_cache import compile_progress
-        from ..runtime.warmup import rig_cached, warm_rig
+        from ..runtime.warmup import warm_rig
 
         log = self.get_logger()
         timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
-        if not rig_cached():
+        kernels = RigKernels(self.config.settings, timing)
+        if not kernels.cached():
             try:
-                rig = (self.config.settings, timing)
-                if start_background_compile("rig", log=log.info, warn=log.warning, rig=rig):
+                if start_background_compile(kernels, log=log.info, warn=log.warning):
                     return
             except Exception as e:
                 log.warning(f"background compile (rig) failed to start: {e}")
