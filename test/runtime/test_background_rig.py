@@ -91,3 +91,20 @@ def test_the_compiling_process_warms_up_what_it_is_handed(monkeypatch):
     (what, a, _), (what2, a2, k2) = ran
     assert what == "rig" and a[1] == timing and set(a[0].mounts) == {"front", "left"}
     assert what2 == "camera" and a2[0] == "r6p_1lin" and k2["gyro"] is True
+
+
+def test_a_rig_background_compile_through_the_real_compiling_process(rig_kernels):
+    """The real compiling process handed a rig's kernels (pickled RigKernels; the rig's
+    kernels already in the cache here, so it loads rather than compiles them): it warms them
+    up, they are cached, loaded here, and the rig frames switch to the compiled
+    implementation."""
+    logs = []
+    try:
+        assert B.start_background_compile(_rig(), log=logs.append, warn=logs.append)
+        assert B.ready_implementation() == "numpy"
+        st = _wait()
+        assert st["state"] == "compiled", (st, logs)
+        assert B.ready_implementation() == "compiled"
+        assert "frames use them from now on" in logs[-1]
+    finally:
+        B._hold(False)
