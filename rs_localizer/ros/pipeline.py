@@ -102,16 +102,19 @@ def log_warm_up(
     (:func:`~rs_localizer.runtime.background.start_background_compile`), and a warm-up that fails (a
     corrupt cache) leaves the frames on the uncompiled path. Never raises (a failure is
     logged)."""
-    from ..runtime.background import fall_back_uncompiled, start_background_compile
+    from ..runtime.background import (
+        CameraKernels,
+        fall_back_uncompiled,
+        start_background_compile,
+    )
     from ..runtime.jit_cache import cache_state, compile_progress
-    from ..runtime.warmup import DEFAULT_JOBS, fused_cached, warm_up
+    from ..runtime.warmup import DEFAULT_JOBS, warm_up
 
     st = cache_state()
-    if background and not fused_cached(solver, anchored=False):
+    kernels = CameraKernels(solver, options, tracking, gyro)
+    if background and not kernels.cached():
         try:
-            if start_background_compile(
-                solver, options, tracking, gyro, logger.info, logger.warning
-            ):
+            if start_background_compile(kernels, logger.info, logger.warning):
                 return
         except Exception as e:
             logger.warning(f"background compile ({solver}) failed to start: {e}")

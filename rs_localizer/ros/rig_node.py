@@ -76,7 +76,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
-from ..runtime.background import background_state, compiled_ready, ready_rig_implementation
+from ..runtime.background import background_state, compiled_ready, ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
@@ -173,8 +173,8 @@ def rig_diagnostics(
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
-    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path; the message then says
-    so), and per
+    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
+    on the compiled one; the message then says so), and per
     camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
     (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
     ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
@@ -392,7 +392,7 @@ class RigCore:
         self._log = _Log(self.get_logger())
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = RigLocalizer(
-            self.config.settings, log=self._log, implementation=ready_rig_implementation
+            self.config.settings, log=self._log, implementation=ready_implementation
         )
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
@@ -428,21 +428,22 @@ class RigCore:
         frame (:func:`~rs_localizer.runtime.warmup.warm_rig` with the rig's settings and
         every camera's RS timing, ``rs-localizer compile --params-file``'s: a few seconds);
         else nothing waits: they compile in another process
-        (:func:`~rs_localizer.runtime.background.start_background_compile` with ``rig``)
-        while the rig frames are solved on the NumPy implementation, each alone (no track,
-        no gyro), until they are loaded. Logged with the kernels compiled and the time.
-        Without ``warmup`` the first rig frame pays for them while the cameras' frames queue
-        (a full queue drops them). Never raises (a failure is logged)."""
-        from ..runtime.background import start_background_compile
+        (:func:`~rs_localizer.runtime.background.start_background_compile` with its
+        :class:`~rs_localizer.runtime.background.RigKernels`) while the rig frames are solved
+        on the NumPy implementation (tracked, with the gyro, as on the compiled one) until
+        they are loaded. Logged with the kernels compiled and the time. Without ``warmup``
+        the first rig frame pays for them while the cameras' frames queue (a full queue drops
+        them). Never raises (a failure is logged)."""
+        from ..runtime.background import RigKernels, start_background_compile
         from ..runtime.jit_cache import compile_progress
-        from ..runtime.warmup import rig_cached, warm_rig
+        from ..runtime.warmup import warm_rig
 
         log = self.get_logger()
         timing = {c.name: (c.line_delay, c.readout_time, c.direction) for c in self.config.cameras}
-        if not rig_cached():
+        kernels = RigKernels(self.config.settings, timing)
+        if not kernels.cached():
             try:
-                rig = (self.config.settings, timing)
-                if start_background_compile("rig", log=log.info, warn=log.warning, rig=rig):
+                if start_background_compile(kernels, log=log.info, warn=log.warning):
                     return
             except Exception as e:
                 log.warning(f"background compile (rig) failed to start: {e}")
@@ -942,7 +943,7 @@ class RigCore:
 
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
-        final (or its own twist without tracking, or solved on the uncompiled path)."""
+        final (or its own twist without tracking)."""
         base, mf = self.config.base_frame, self.map_frame
         m = out.estimate
         if out.success:
@@ -954,7 +955,7 @@ class RigCore:
                 )
             if self._wanted("twist_single_frame"):
                 self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
-            if self.config.settings.tracking is None or not out.compiled:  # (its own twist)
+            if self.config.settings.tracking is None:  # (its own twist)
                 self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
                 self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
             if "tf" in self._pubs:

@@ -13,10 +13,9 @@ compiled in the background, or that failed.
 :func:`start_background_compile` makes the NumPy implementation the ready one, compiles the
 kernels in another Python process (:mod:`.background_process`, ``python -m
 rs_localizer.runtime.background_process``), and once they are cached, loads them in a thread
-of this process and makes them the ready one: the next frame uses them. A rig node does the
-same with its rig's kernels (``rig=``: :func:`.warmup.warm_rig`'s arguments); its rig frames
-take :func:`ready_rig_implementation`
-(:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``).
+of this process and makes them the ready one: the next frame uses them; what it compiles is
+a camera's :class:`CameraKernels` or a rig's :class:`RigKernels` (a rig's frames take
+``ready_implementation()``, :func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s).
 :func:`fall_back_uncompiled` keeps the frames on the NumPy implementation when the kernels
 cannot be used (a corrupt cache). :func:`background_state` reports it all (the node's
 diagnostics).
@@ -31,26 +30,24 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..estimation.estimate import EstimateOptions, estimate_rs_pose
-from ..estimation.implementation import (
-    COMPILED,
-    NUMPY,
-    NUMPY_SOLVERS,
-    compiled_by_default,
-)
+from ..estimation.implementation import COMPILED, NUMPY, NUMPY_SOLVERS, compiled_by_default
+from ..tracking.rig import RigSettings
 from ..tracking.tracker import TrackerOptions
 from . import warmup
 from .jit_cache import cache_state, compile_progress, numba_error
 
 __all__ = [
+    "CameraKernels",
+    "RigKernels",
     "background_state",
     "compiled_ready",
     "fall_back_uncompiled",
     "ready_implementation",
-    "ready_rig_implementation",
     "start_background_compile",
     "uncompiled_rate",
 ]
@@ -76,19 +73,14 @@ def compiled_ready() -> bool:
     return not _HELD["numpy"] and compiled_by_default()
 
 
-def ready_implementation(solver: str) -> str:
-    """The implementation ``solver``'s frames take now (``estimate_rs_pose``'s
-    ``implementation``): ``"compiled"`` when :func:`compiled_ready` or the solver has no NumPy
-    implementation (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else
-    ``"numpy"``."""
-    return COMPILED if solver not in NUMPY_SOLVERS or compiled_ready() else NUMPY
-
-
-def ready_rig_implementation() -> str:
-    """The implementation a rig's frames take now
-    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``):
-    ``"compiled"`` when :func:`compiled_ready`, else ``"numpy"``."""
-    return COMPILED if compiled_ready() else NUMPY
+def ready_implementation(solver: str | None = None) -> str:
+    """The implementation the frames of a camera's ``solver`` (``estimate_rs_pose``'s
+    ``implementation``), or with None a rig's frames
+    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s), take now: ``"compiled"``
+    when :func:`compiled_ready` or the solver has no NumPy implementation
+    (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else ``"numpy"``."""
+    numpy = solver is None or solver in NUMPY_SOLVERS
+    return NUMPY if numpy and not compiled_ready() else COMPILED
 
 
 def _hold(numpy: bool) -> None:
@@ -122,62 +114,93 @@ def uncompiled_rate(n: int = 500, frames: int = 2) -> float:
     return 1.0 / dt
 
 
+@dataclass(frozen=True)
+class CameraKernels:
+    """What a camera's frames compile (:func:`.warmup.warm_up`'s arguments): ``solver``'s
+    kernels with ``options``, ``tracking`` (None: every frame alone), ``gyro`` (its path too)."""
+
+    solver: str
+    options: EstimateOptions | None = None
+    tracking: TrackerOptions | None = None
+    gyro: bool = False
+    what, command = "kernels", "compile"
+
+    @property
+    def numpy(self) -> bool:
+        return self.solver in NUMPY_SOLVERS
+
+    def cached(self) -> bool:
+        return warmup.fused_cached(self.solver, anchored=False)
+
+    def warm(self) -> None:
+        warmup.warm_up(self.solver, self.options, self.tracking, jobs=1, gyro=self.gyro,
+                       implementation=COMPILED)  # fmt: skip
+
+    def uncompiled_hz(self) -> float:
+        return uncompiled_rate()
+
+
+@dataclass(frozen=True)
+class RigKernels:
+    """What a rig's frames compile (:func:`.warmup.warm_rig`'s arguments): the rig's kernels
+    for its ``settings`` and its cameras' RS ``timing``; its frames wait on NumPy."""
+
+    settings: RigSettings
+    timing: dict | None = None
+    what, command, numpy = "the rig's kernels", "compile --params-file", True
+
+    def cached(self) -> bool:
+        return warmup.rig_cached()
+
+    def warm(self) -> None:
+        warmup.warm_rig(self.settings, self.timing)
+
+    def uncompiled_hz(self) -> None:
+        return None  # (the rig's NumPy rate is not measured)
+
+
 def start_background_compile(
-    solver: str,
-    options: EstimateOptions | None = None,
-    tracking: TrackerOptions | None = None,
-    gyro: bool = False,
+    kernels: CameraKernels | RigKernels,
     log: Callable[[str], object] = print,
     warn: Callable[[str], object] | None = None,
     nice: int = 10,
-    rig: tuple | None = None,
 ) -> bool:
     """Solve at once, compile meanwhile: make the NumPy implementation this process's ready
-    one (:func:`ready_implementation`), compile the kernels ``solver`` (with ``options``,
-    ``tracking``, ``gyro``) needs in another Python process (at ``nice``), and once it has
-    cached them, load them here in a background thread (the frames go on with NumPy
-    meanwhile) and make the compiled kernels the ready implementation again: the next frame
-    uses them. ``rig``: ``(RigSettings, timing)`` of a rig node (:func:`.warmup.warm_rig`'s
-    arguments): the rig's kernels instead (``solver``, ``options``, ``tracking`` and ``gyro``
-    unused; cached when :func:`.warmup.rig_cached`), its rig frames on
-    :func:`ready_rig_implementation`. Logs what it does through ``log`` (once), a failure
-    through ``warn`` (once: numba is not available, the compiling process cannot start,
-    crashes or is killed, the kernels were not cached, or loading them fails); the frames
-    then stay on the NumPy implementation and :func:`background_state` counts it.
+    one (:func:`ready_implementation`), compile ``kernels`` (:class:`CameraKernels`,
+    :class:`RigKernels`: ``warm()``) in another Python process (at ``nice``), and once they
+    are cached (``cached()``), load them here in a background thread (the frames go on with
+    NumPy meanwhile) and make them the ready implementation again: the next frame uses them.
+    Logs what it does through ``log`` (once), a failure through ``warn`` (once: numba is not
+    available, the compiling process cannot start, crashes or is killed, the kernels were not
+    cached, or loading them fails); the frames then stay on the NumPy implementation and
+    :func:`background_state` counts it.
 
     Returns:
-        False (nothing started) when the solver has no NumPy implementation
-        (:data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`) and no ``rig``,
-        else True.
+        False (nothing started) when the frames have no NumPy implementation to take
+        meanwhile (a camera's solver not in
+        :data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`), else True.
     """
-    if rig is None and solver not in NUMPY_SOLVERS:
+    if not kernels.numpy:
         return False
     with _BACKGROUND_LOCK:  # (several cameras in one process: one background compile)
         if _BACKGROUND["state"] in ("compiling", "loading"):
             return True
     warn = warn or log
     _hold(True)
-    hz = uncompiled_rate() if rig is None else None
+    hz = kernels.uncompiled_hz()
     with _BACKGROUND_LOCK:
         _BACKGROUND.update(state="compiling", reason=None, seconds=None, uncompiled_hz=hz)
-    if rig is None:
-        log(
-            f"compiling kernels in the background: frames are solved on the uncompiled path, "
-            f"~{hz:.0f} Hz with 500 correspondences, until they are ready (`rs-localizer "
-            "compile` after installing avoids this)"
-        )
-    else:
-        log(
-            "compiling the rig's kernels in the background: rig frames are solved on the "
-            "uncompiled path (NumPy refinement, each rig frame alone: no track, no gyro) until "
-            "they are ready (`rs-localizer compile --params-file` after installing avoids this)"
-        )
+    rate = "" if hz is None else f", ~{hz:.0f} Hz with 500 correspondences,"
+    log(
+        f"compiling {kernels.what} in the background: frames are solved on the uncompiled "
+        f"path{rate} until they are ready (`rs-localizer {kernels.command}` after installing "
+        "avoids this)"
+    )
     if numba_error() is not None:
         _background_failed(f"numba is not available: {numba_error()}", warn)
         return True
-    args = (solver, options, tracking, gyro, rig)
     threading.Thread(
-        target=_background_run, args=(args, log, warn, nice), daemon=True, name="compile"
+        target=_background_run, args=(kernels, log, warn, nice), daemon=True, name="compile"
     ).start()
     return True
 
@@ -203,8 +226,7 @@ def fall_back_uncompiled(solver: str, reason: str, warn: Callable[[str], object]
 
 
 def _background_command() -> tuple[list[str], dict[str, str] | None, str | None]:
-    """The background compiling process's command, environment and working directory
-    (:func:`.warmup.package_command`)."""
+    """The compiling process's command, environment, directory (:func:`.warmup.package_command`)."""
     return warmup.package_command("rs_localizer.runtime.background_process")
 
 
@@ -217,56 +239,33 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait(timeout=5.0)
 
 
-def _background_run(args: tuple, log, warn, nice: int) -> None:
+def _background_run(kernels, log, warn, nice: int) -> None:
     """The thread of :func:`start_background_compile`."""
-    solver, options, tracking, gyro, rig = args
     tic = time.perf_counter()
-
-    def fail(reason: str) -> None:
-        _background_failed(reason, warn)
-
+    fail = lambda reason: _background_failed(reason, warn)  # noqa: E731
     try:
         cmd, env, cwd = _background_command()
-        proc = subprocess.Popen(
-            cmd,
-            env=env,
-            cwd=cwd,
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-        )
+        proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)  # fmt: skip
         atexit.register(_stop, proc)  # (not left compiling after this process ends)
-        out, _ = proc.communicate(pickle.dumps((solver, options, tracking, gyro, nice, rig)))
+        out, _ = proc.communicate(pickle.dumps((kernels, nice)))
     except (OSError, pickle.PicklingError) as e:
-        fail(f"the compiling process could not start: {e}")
-        return
-    if proc.returncode != 0:
+        return fail(f"the compiling process could not start: {e}")
+    if (rc := proc.returncode) != 0:
         if _BACKGROUND.get("exiting"):  # (stopped at this process's exit: not a failure)
             return
         lines = out.decode(errors="replace").strip().splitlines()
-        how = (
-            f"was killed by signal {-proc.returncode}"
-            if proc.returncode < 0
-            else f"ended with exit code {proc.returncode}"
-        )
-        fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
-        return
-    if not (warmup.rig_cached() if rig is not None else warmup.fused_cached(solver, False)):
-        fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
-        return
+        how = f"was killed by signal {-rc}" if rc < 0 else f"ended with exit code {rc}"
+        return fail(f"the compiling process {how}" + (f" ({lines[-1]})" if lines else ""))
+    if not kernels.cached():
+        return fail(f"compiled but not cached: is the numba cache {cache_state()['dir']} writable?")
     with _BACKGROUND_LOCK:
         _BACKGROUND["state"] = "loading"
     try:
         with compile_progress() as prog:
-            if rig is not None:
-                warmup.warm_rig(*rig)
-            else:
-                warmup.warm_up(
-                    solver, options, tracking, jobs=1, gyro=gyro, implementation=COMPILED
-                )
+            kernels.warm()
     except Exception as e:  # (a corrupt cache entry numba cannot load, ...)
-        fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
-        return
+        return fail(f"loading the compiled kernels failed: {type(e).__name__}: {e}")
     _hold(False)
     dt = time.perf_counter() - tic
     with _BACKGROUND_LOCK:

@@ -1,13 +1,12 @@
 """The background compiling process of a node's start on a cold cache
 (:func:`.background.start_background_compile`): ``python -m
-rs_localizer.runtime.background_process``, the pickled ``(solver, options, tracking, gyro,
-nice, rig)`` on stdin.
+rs_localizer.runtime.background_process``, the pickled ``(kernels, nice)`` on stdin.
 
-It runs :func:`.warmup.warm_up`, or with ``rig`` (a rig node's ``(RigSettings, timing)``)
-:func:`.warmup.warm_rig` (one process: the node's process keeps the other cores) at
-niceness ``nice``, so that numba compiles and caches every kernel the node's frames need, one
-such process at a time per numba cache (:func:`compile_lock`); progress lines on stdout. Exit
-code 0 when done.
+It warms ``kernels`` up (a camera's :class:`.background.CameraKernels`:
+:func:`.warmup.warm_up`; a rig's :class:`.background.RigKernels`: :func:`.warmup.warm_rig`;
+one process: the node's process keeps the other cores) at niceness ``nice``, so that numba
+compiles and caches every kernel the node's frames need, one such process at a time per numba
+cache (:func:`compile_lock`); progress lines on stdout. Exit code 0 when done.
 """
 
 from __future__ import annotations
@@ -19,7 +18,6 @@ import sys
 from collections.abc import Iterator
 
 from .jit_cache import cache_state, compile_progress
-from .warmup import warm_rig, warm_up
 
 __all__ = ["compile_lock", "main"]
 
@@ -50,15 +48,11 @@ def compile_lock() -> Iterator[None]:
 
 def main() -> None:
     """Compile what the pickled arguments on stdin name (module docstring)."""
-    solver, options, tracking, gyro, nice, *rest = pickle.loads(sys.stdin.buffer.read())
-    rig = rest[0] if rest else None
+    kernels, nice = pickle.loads(sys.stdin.buffer.read())
     if nice and hasattr(os, "nice"):  # (the frames of the node's process come first)
         os.nice(nice)
     with compile_lock(), compile_progress(lambda m: print(m, flush=True)):
-        if rig is not None:
-            warm_rig(*rig)
-        else:
-            warm_up(solver, options, tracking, jobs=1, gyro=gyro)
+        kernels.warm()
 
 
 if __name__ == "__main__":

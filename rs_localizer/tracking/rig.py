@@ -416,9 +416,9 @@ class RigOutput:
         tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
         frames: camera -> its :class:`RigCameraFrame` (the rows given to the estimator: the
             rig's inliers per camera index them; e.g. a camera's debug image).
-        compiled: the rig frame was solved on the compiled implementation (tracked, with
-            the gyro); False: on the NumPy implementation, alone (no track, no fused twist,
-            no gyro), while the kernels compile (:class:`RigLocalizer`'s ``implementation``).
+        compiled: the rig frame was solved on the compiled implementation; False: on the
+            NumPy implementation, while the kernels compile (:class:`RigLocalizer`'s
+            ``implementation``), tracked, with the gyro and fused all the same.
     """
 
     stamp_ns: int
@@ -533,10 +533,11 @@ class RigLocalizer:
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``),
             asked once per rig frame; None: the estimator's default. A node whose kernels
             compile in the background passes
-            :func:`rs_localizer.runtime.background.ready_rig_implementation`: on ``"numpy"``
-            each rig frame is solved alone (no track, no twist filter, no gyro: a track
-            under way ends), as a camera's frames are, until the kernels are ready
-            (:attr:`RigOutput.compiled`, counted ``rig.uncompiled``).
+            :func:`rs_localizer.runtime.background.ready_implementation`: until the kernels
+            are ready the rig frames are solved on ``"numpy"`` (the refinement and covariance
+            in NumPy/SciPy) with the track, the gyro and the twist filter as on the compiled
+            kernels, a track under way going on across the switch (:attr:`RigOutput.compiled`,
+            counted ``rig.uncompiled``).
 
     Counters (:attr:`counts`, a Counter): ``<camera>.received``, ``.solved``, ``.failed``,
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
@@ -1148,11 +1149,9 @@ class RigLocalizer:
             views.append(view)
         self._impl = impl = None if self._implementation is None else self._implementation()
         out.compiled = impl != NUMPY
-        if out.compiled:
-            out.gyro = self._gyro = self._gyro_for(g, views)
-        else:  # (while the kernels compile: the rig frame alone, without the gyro)
-            out.gyro = self._gyro = self._gyro_time = None
+        if not out.compiled:  # (while the kernels compile: tracked all the same)
             self.counts["rig.uncompiled"] += 1
+        out.gyro = self._gyro = self._gyro_for(g, views)
         try:
             est, path = self._estimate(g.lo, views, out)
         except Exception as e:  # (the estimator raised: the rig frame failed)
@@ -1218,10 +1217,6 @@ class RigLocalizer:
         :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
         f, to = self._filter, self.settings.tracking
         self._prediction = None
-        if f is not None and not out.compiled:  # (NumPy: alone, the track ends)
-            if f.initialized:
-                out.fused += self._end_track()
-            f = None
         if f is None:
             return self._run(views), None
         path = "cold"
@@ -1389,7 +1384,7 @@ class RigLocalizer:
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)
         self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
-        if self._filter is None or not out.compiled:
+        if self._filter is None:
             return
         step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
         self._pending[out.stamp_ns] = (est, dict(out.tags))

@@ -72,7 +72,9 @@ def test_background_compile_failure_counted(monkeypatch):
     before = B.background_state()["failures"]
     logs, warns = [], []
     try:
-        assert B.start_background_compile("r6p_1lin", log=logs.append, warn=warns.append)
+        assert B.start_background_compile(
+            B.CameraKernels("r6p_1lin"), log=logs.append, warn=warns.append
+        )
         assert not compiled_ready()
         import time
 
@@ -99,7 +101,9 @@ def test_background_compile_switches_over():
 
     logs = []
     try:
-        assert B.start_background_compile("r6p_1lin", log=logs.append, warn=logs.append)
+        assert B.start_background_compile(
+            B.CameraKernels("r6p_1lin"), log=logs.append, warn=logs.append
+        )
         assert B.ready_implementation("r6p_1lin") == "numpy"
         deadline = time.monotonic() + 300
         while B.background_state()["state"] in ("compiling", "loading"):
@@ -217,7 +221,9 @@ def test_compiled_but_not_cached(monkeypatch):
     monkeypatch.setattr(W, "fused_cached", lambda *a, **k: False)
     warns = []
     try:
-        B.start_background_compile("r6p_1lin", log=lambda m: None, warn=warns.append)
+        B.start_background_compile(
+            B.CameraKernels("r6p_1lin"), log=lambda m: None, warn=warns.append
+        )
         deadline = time.monotonic() + 60
         while B.background_state()["state"] == "compiling" and time.monotonic() < deadline:
             time.sleep(0.05)
