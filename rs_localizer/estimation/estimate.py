@@ -53,6 +53,7 @@ from .gyro import (
 from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
 from .map_weights import check_point_sigma, weighted_final_model
 from .numpy_impl import NumpyRansac, final_model
+from .numpy_impl import image_alone as image_alone_numpy
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -168,8 +169,9 @@ def estimate_rs_pose(
         implementation: ``"compiled"`` (the numba kernels), ``"numpy"`` (NumPy, SciPy and
             OpenCV only, nothing compiles: the solvers of
             :data:`~rs_localizer.estimation.implementation.NUMPY_SOLVERS`, the same model and
-            outputs; it cannot use ``scores``, ``initial_model``, ``gyro``, ``point_sigma``,
-            the acceleration sensitivity and the correlated noise, and lists those it was given
+            outputs, ``initial_model``, ``gyro`` (its prior and its check; the minimal samples
+            stay the linear R6P's) and the acceleration sensitivity as above; it cannot use
+            ``scores``, ``point_sigma`` and the correlated noise, and lists those it was given
             in the estimate's ``ignored_inputs``), or ``None``:
             :func:`~rs_localizer.estimation.implementation.default_implementation` (compiled,
             unless numba is unusable here or ``RS_LOCALIZER_COMPILED=0``). A process whose
@@ -210,20 +212,26 @@ def estimate_rs_pose(
             implementation=implementation,
         )
         return replace(est, solver=solver)
-    if resolve_implementation(implementation, solver) == NUMPY:
-        ignored = _unused_by_numpy(opts, scores, initial_model, gyro, point_sigma)
-        return _estimate(
-            points2d, points3d, camera, solver, opts, None, None, ignored=ignored, compiled=False
-        )
+    compiled = resolve_implementation(implementation, solver) == COMPILED
+    unused: tuple[str, ...] = ()
+    if not compiled:
+        unused = _unused_by_numpy(opts, scores, point_sigma)
+        scores = point_sigma = None
     if point_sigma is not None:
         point_sigma = check_point_sigma(point_sigma, len(np.asarray(points3d)))
     args = (points2d, points3d, camera, solver)
     if gyro is None or camera.line_delay <= 0 or not solver_info(solver).rolling:
-        ignored = () if gyro is None else ("gyro",)
+        ignored = unused if gyro is None else ("gyro", *unused)
         return _estimate(
-            *args, opts, scores, initial_model, point_sigma=point_sigma, ignored=ignored
+            *args,
+            opts,
+            scores,
+            initial_model,
+            point_sigma=point_sigma,
+            ignored=ignored,
+            compiled=compiled,
         )
-    aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior))
+    aided = replace(opts, motion_prior=gyro_prior(gyro, opts.motion_prior, compiled))
     image: list[ImageAlone | None] = []
     est = _estimate(
         *args,
@@ -234,38 +242,43 @@ def estimate_rs_pose(
         image,
         opts.motion_prior,
         point_sigma=point_sigma,
+        ignored=unused,
+        compiled=compiled,
     )
     if est.single_tag:  # (four corners cannot judge the gyro: its rate is held, not checked)
         return est
     img = image[0] if image else None
     chi2, image_inliers = np.inf, 0
     if est.success and img is not None:
-        chi2 = gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar)
+        chi2 = gyro_image_chi2(gyro, img.angular_velocity, img.covariance, est.planar, compiled)
         image_inliers = img.num_inliers
     return gyro_checked(
         est,
         chi2,
         image_inliers,
         est.num_valid,
-        lambda: _estimate(*args, opts, scores, initial_model, point_sigma=point_sigma),
+        lambda: _estimate(
+            *args,
+            opts,
+            scores,
+            initial_model,
+            point_sigma=point_sigma,
+            ignored=unused,
+            compiled=compiled,
+        ),
     )
 
 
 def _unused_by_numpy(
     opts: EstimateOptions,
     scores: np.ndarray | None,
-    initial_model: InitialModel | None,
-    gyro: GyroMeasurement | None,
     point_sigma: np.ndarray | None,
 ) -> tuple[str, ...]:
     """The inputs given that the NumPy implementation does not use (its estimate's
     ``ignored_inputs``; :data:`~.implementation.NUMPY_UNUSED`)."""
     given = (
         scores is not None,
-        initial_model is not None,
-        gyro is not None,
         point_sigma is not None,
-        opts.refine.acceleration_sensitivity,
         opts.correlated_noise.sigma_px > 0,
     )
     return tuple(name for name, g in zip(NUMPY_UNUSED, given, strict=True) if g)
@@ -295,16 +308,16 @@ def _estimate(
     or None). ``point_sigma``: (num_rows,) the 3D points' standard deviations (m), or None
     (:func:`~.map_weights.weighted_final_model`). ``ignored``: the estimate's
     ``ignored_inputs``. ``compiled=False``: the NumPy implementation (:mod:`.numpy_impl`:
-    the same stages with their compiled steps in NumPy and SciPy; without ``scores``,
-    ``initial_model``, ``gyro``, ``image``, ``point_sigma``, single-tag frames and the
-    global-shutter model of still frames)."""
+    the same stages with their compiled steps in NumPy and SciPy; the gyro only through the
+    motion prior and ``image``, not in the minimal samples; without ``scores``,
+    ``point_sigma``, single-tag frames and the global-shutter model of still frames)."""
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     rng = seeded_rng(opts.ransac.seed)
     fr = prepare_frame(
         points2d, points3d, camera, opts.plausibility.max_point_norm, rng, compiled=compiled
     )
-    if gyro is not None:  # (the model's w per unit r: omega = -w / s)
+    if gyro is not None and compiled:  # (the model's w per unit r: omega = -w / s)
         fr.known_w = -camera.seconds_per_unit_r * gyro.angular_velocity
     search = (Ransac if compiled else NumpyRansac)(
         fr, solver, opts, rng, prosac_order(fr, scores), scores is not None
@@ -367,7 +380,8 @@ def _estimate(
         )
         if image is not None:
             t0 = time.perf_counter()
-            image.append(image_alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
+            alone = image_alone if compiled else image_alone_numpy
+            image.append(alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         if (

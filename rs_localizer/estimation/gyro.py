@@ -151,7 +151,9 @@ def gyro_checked(
     return done
 
 
-def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> MotionPrior:
+def gyro_prior(
+    gyro: GyroMeasurement, base: MotionPrior | None = None, compiled: bool = True
+) -> MotionPrior:
     """The estimator's motion prior with a gyro measurement added (information form).
 
     ``Lambda = Lambda_base + Lambda_gyro`` (the gyro's information on the angular velocity
@@ -162,11 +164,14 @@ def gyro_prior(gyro: GyroMeasurement, base: MotionPrior | None = None) -> Motion
         gyro: the frame's :class:`GyroMeasurement` (camera optical frame).
         base: the motion prior without the gyro (``None``: none, the linear velocity is then
             unconstrained).
+        compiled: False: the arithmetic in NumPy (the estimator's NumPy implementation:
+            nothing compiles).
     Returns:
         :class:`~rs_localizer.estimation.prior.MotionPrior` with ``information_matrix``.
     """
     on, mb, Lb = prior_arrays(base)
-    mean, L = _combined(gyro.covariance, gyro.angular_velocity, on, mb, Lb)
+    combined = _combined if compiled else _combined.py_func
+    mean, L = combined(gyro.covariance, gyro.angular_velocity, on, mb, Lb)
     return MotionPrior._from_information(mean, L, True)
 
 
@@ -235,6 +240,7 @@ def gyro_image_chi2(
     angular_velocity: ArrayLike,
     image_covariance: ArrayLike,
     planar: bool = False,
+    compiled: bool = True,
 ) -> float:
     """Chi-square (3 dof) of the gyro against the angular velocity the image alone gives.
 
@@ -253,13 +259,14 @@ def gyro_image_chi2(
         gyro: the measurement. angular_velocity: (3,) the image's (rad/s, camera frame).
         image_covariance: (3, 3) its covariance from the data alone (rad^2/s^2).
         planar: the frame's points are (nearly) coplanar.
+        compiled: False: the arithmetic in NumPy (nothing compiles).
     Returns:
         the chi-square value (``inf`` for non-finite input or a singular covariance).
     """
     w = np.asarray(angular_velocity, dtype=np.float64).reshape(3)
     P = np.asarray(image_covariance, dtype=np.float64).reshape(3, 3)
     return float(
-        _image_chi2(
+        (_image_chi2 if compiled else _image_chi2.py_func)(
             w - gyro.angular_velocity,
             gyro.covariance,
             P,

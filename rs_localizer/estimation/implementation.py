@@ -50,15 +50,14 @@ IMPLEMENTATIONS = (COMPILED, NUMPY)
 #: and the global-shutter P3P baseline); the others are compiled only
 NUMPY_SOLVERS = ("r6p_1lin", "p3p")
 #: what the NumPy implementation cannot use, as ``RSPoseEstimate.ignored_inputs`` names it:
-#: the arguments ``scores`` (PROSAC ordering: it samples uniformly), ``initial_model``,
-#: ``gyro``, ``point_sigma``, and the options ``refine.acceleration_sensitivity`` and
-#: ``correlated_noise`` (with ``sigma_px > 0``)
+#: the arguments ``scores`` (PROSAC ordering: it samples uniformly), ``point_sigma``, and the
+#: option ``correlated_noise`` (with ``sigma_px > 0``). It does use ``initial_model`` (the
+#: seed and the anchored samples), ``gyro`` (its motion prior and the image-alone check; the
+#: minimal samples stay the linear R6P's, without the gyro's angular velocity) and
+#: ``refine.acceleration_sensitivity``
 NUMPY_UNUSED = (
     "scores",
-    "initial_model",
-    "gyro",
     "point_sigma",
-    "refine.acceleration_sensitivity",
     "correlated_noise",
 )
 #: environment variable: ``0`` makes :func:`default_implementation` ``"numpy"`` for the

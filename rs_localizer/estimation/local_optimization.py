@@ -107,9 +107,23 @@ def local_optimization(
 
 
 def seed_from_initial_model(
-    fr: Frame, solver: str, initial: InitialModel, th2: float, opts: EstimateOptions
+    fr: Frame,
+    solver: str,
+    initial: InitialModel,
+    th2: float,
+    opts: EstimateOptions,
+    errors2: Callable[[Model], np.ndarray] | None = None,
+    evaluate: Callable[[Model], tuple[float, np.ndarray]] | None = None,
+    refine: Callable[..., Any] = refine_rs_pose,
 ) -> tuple[int, Scored | None, bool]:
     """Test an :class:`InitialModel` on all points of ``fr``.
+
+    The steps are arguments, as :func:`local_optimization`'s (the NumPy implementation,
+    :mod:`.numpy_impl`, passes its own): ``errors2(model)`` the (N,) squared errors at every
+    point's measured capture time (default the compiled :func:`~.scoring.exact_errors2`),
+    ``evaluate(model)`` (score, (N,) inlier mask) on every point (default
+    :meth:`~.frame.Frame.evaluate` on those errors), ``refine`` as
+    :func:`~.refine.refine_rs_pose`.
 
     Returns:
         (explained, seed, anchor): ``explained`` counts the points within the model's gate;
@@ -122,26 +136,48 @@ def seed_from_initial_model(
     R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in initial.model)
     if not solver_info(solver).rolling:
         w, t = np.zeros(3), np.zeros(3)
-    if not finite_model(R, C, w, t):
+    finite = finite_model if errors2 is None else _finite
+    if not finite(R, C, w, t):
         return 0, None, False
-    e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
+    model = RSModel(R, C, w, t)
+    if errors2 is None:
+        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
+    else:
+        e2 = errors2(model)
     gate = float(initial.gate_px) / fr.f
     near = e2 < gate * gate
     explained = int(np.count_nonzero(near))
     if explained < max(int(initial.min_explained), 1):
         return explained, None, False
     s = sample_size(solver)
-    model = RSModel(R, C, w, t)
-    score, inl = fr.evaluate(model, th2, errors=e2)
+    score, inl = fr.evaluate(model, th2, errors=e2) if evaluate is None else evaluate(model)
     seed = (score, model, inl)
     if int(np.count_nonzero(seed[2])) < max(int(initial.min_explained), s + 1):
-        seed = _pull_in(fr, solver, seed, near, gate, th2, opts)
+        if evaluate is None:
+            evaluate = functools.partial(fr.evaluate, th2=th2)
+        seed = _pull_in(fr, solver, seed, near, gate, th2, opts, evaluate, refine, finite)
     if int(np.count_nonzero(seed[2])) <= s:
         return explained, None, True
     return explained, seed, True
 
 
-def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float, opts):
+def _finite(*arrays) -> bool:
+    """:func:`~.plausibility.finite_model` in NumPy."""
+    return all(np.isfinite(a).all() for a in arrays)
+
+
+def _pull_in(
+    fr: Frame,
+    solver: str,
+    seed: Scored,
+    near,
+    gate: float,
+    th2: float,
+    opts,
+    evaluate: Callable[[Model], tuple[float, np.ndarray]],
+    refine: Callable[..., Any],
+    finite: Callable[..., bool],
+):
     """A prediction a few pixels off (a hand-held camera's at 30 fps: ~2-15 px) explains the
     frame within the gate, not within the threshold: pull it in with Levenberg-Marquardt on
     (at most a third of local optimization's ``max_points`` of) the explained points,
@@ -151,7 +187,7 @@ def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float
     s = sample_size(solver)
     lo = opts.local_optimization
     idx = np.flatnonzero(near)[: max(lo.max_points // 3, 2 * s)]
-    ref = refine_rs_pose(
+    ref = refine(
         model,
         fr.X[idx],
         fr.x[idx],
@@ -167,9 +203,9 @@ def _pull_in(fr: Frame, solver: str, seed: Scored, near, gate: float, th2: float
         prior=fr.prior,
         mountings=fr.mountings(idx),
     )
-    if finite_model(ref.R, ref.C, ref.w, ref.t):
+    if finite(ref.R, ref.C, ref.w, ref.t):
         cand = RSModel(ref.R, ref.C, ref.w, ref.t)
-        sc, inl = fr.evaluate(cand, th2)
+        sc, inl = evaluate(cand)
         if sc < score:
             return sc, cand, inl
     return seed

@@ -13,9 +13,14 @@ at a lower rate. Per stage:
    ``compiled=False`` (the same rows, shuffle and checks in NumPy; OpenCV undistortion);
 2. RANSAC: the compiled implementation's search (:class:`NumpyRansac`, a
    :class:`~.ransac.Ransac`: the same samples from the same random stream, batches, adaptive
-   termination and failure reasons) with its compiled steps in NumPy: minimal samples
-   pre-rotated by OpenCV's P3P (``cv2.solveP3P`` on three points of each sample, the root
-   with the least error on the sample's other points; paper sec. 4), the paper's linear R6P
+   termination and failure reasons) with its compiled steps in NumPy: an ``initial_model``
+   tested and pulled in first as the compiled search does it
+   (:func:`~.local_optimization.seed_from_initial_model` with this module's error, score and
+   robust fit: the same gate, ``min_explained``, ``initial_explained`` and
+   ``initial_used``), minimal samples pre-rotated by the initial model's rotation, then the
+   best model's, when it explains the frame, else by OpenCV's P3P (``cv2.solveP3P`` on three
+   points of each sample, the root with the least error on the sample's other points; paper
+   sec. 4), the paper's linear R6P
    (R6P_{v,C,w,t}^{[v]x}, sec. 3.3, eq. 5-7) batched over the samples with
    ``np.linalg.solve`` on stacked 12 x 12 systems, MSAC on the reprojection error of the
    exact constant-velocity model at each point's measured capture time (eq. 4), all
@@ -27,14 +32,21 @@ at a lower rate. Per stage:
    (:func:`final_model`: :func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points
    within :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion
    prior on planar frames; its covariance from the analytic Jacobian,
-   :func:`~.refine.exact_jacobian`), then the compiled implementation's
-   :func:`~.finalize.final_estimate` with ``compiled=False`` (motion plausibility,
-   cheirality, the consistent-fit test and the outputs, in NumPy).
+   :func:`~.refine.exact_jacobian`; the acceleration sensitivity from the same Jacobian,
+   as :func:`~.sensitivity.acceleration_sensitivity` forms it), then the compiled
+   implementation's :func:`~.finalize.final_estimate` with ``compiled=False`` (motion
+   plausibility, cheirality, the consistent-fit test and the outputs, in NumPy).
+
+A gyro measurement enters as on the compiled implementation through the motion prior
+(:func:`~.gyro.gyro_prior`: local optimization and the final refinement are maximum a
+posteriori with it) and is judged by the image alone (:func:`image_alone`, then
+:func:`~.gyro.gyro_checked`: ``gyro_used``, ``gyro_rejected``, ``gyro_rejection``); its
+minimal samples stay the linear R6P's (the compiled implementation solves them with the
+gyro's angular velocity, R5P_{v,C,t}^{w}).
 
 Not in this implementation (:data:`~.implementation.NUMPY_UNUSED`; an estimate lists those it
-was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling), an
-``initial_model`` (the frame is solved without it), a gyro measurement (solved without it),
-``point_sigma``, the acceleration sensitivity and the correlated image-noise covariance.
+was given in ``ignored_inputs``): PROSAC ordering (``scores``: uniform sampling),
+``point_sigma`` and the correlated image-noise covariance.
 Solvers: :data:`~.implementation.NUMPY_SOLVERS`. Nothing here calls a numba kernel, so nothing
 compiles; where numba is missing or broken, :mod:`rs_localizer.runtime.jit_cache` puts a
 stand-in in its place so that the package imports, and this implementation runs.
@@ -50,13 +62,13 @@ import numpy as np
 from ..geometry import cross, rotvec_to_matrix
 from ..pose import RSModel, model_twist_jacobian
 from ..solvers.registry import solver_info
-from .finalize import FINAL_CUTOFF, FinalModel
+from .finalize import FINAL_CUTOFF, FinalModel, ImageAlone
 from .frame import Frame, Model
 from .hypotheses import ScoredBatch, hypothesis_iterations
 from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions
 from .plausibility import motion_norms2
-from .prior import prior_arrays
+from .prior import MotionPrior, prior_arrays
 from .ransac import Ransac
 from .refine import (
     RefineSettings,
@@ -72,11 +84,15 @@ from .result import (
 from .sampling import draw_samples_numpy
 from .scoring import exact_errors2_numpy
 
-__all__ = ["NumpyRansac", "NumpySamples", "final_model"]
+__all__ = ["NumpyRansac", "NumpySamples", "final_model", "image_alone"]
 
-#: robust fits of the final refinement, each on the points within the cutoff of the last
-#: (RANSAC's model comes out of local optimization's exact-model steps: one is enough)
-_FINAL_PASSES = 1
+#: robust fits of the final refinement at most, each on the points within the cutoff of the
+#: last, until those points stay the same (RANSAC's model out of local optimization's
+#: exact-model steps needs one; a verification sample that beat an initial model, which is
+#: not polished, may need more)
+_FINAL_PASSES = 3
+#: :func:`_refine`'s default prior: the frame's own
+_FRAME_PRIOR = object()
 #: models of a batch scored on all points after the preemptive test on a subset
 _KEEP = 4
 #: linear R6P iterations per minimal sample unless ``ransac.solver_iterations`` says (the
@@ -202,14 +218,21 @@ def _solve_stack(A: np.ndarray, b: np.ndarray):
     return u, ok
 
 
-def _hypotheses(fr: Frame, samples: np.ndarray, rolling: bool, iterations: int):
+def _hypotheses(
+    fr: Frame, samples: np.ndarray, rolling: bool, iterations: int, anchor: np.ndarray | None
+):
     """Models (R (H, 3, 3), C, w, t (H, 3)) of the minimal samples: P3P (global shutter) or
-    R6P (``iterations`` linear steps) on the P3P-pre-rotated sample (rotation
+    R6P (``iterations`` linear steps) on the sample pre-rotated by its P3P pose, or by
+    ``anchor`` (3, 3) when given (an initial model, then the best model: rotation
     ``expm([v]x) R_p``)."""
-    Rp, Cp, ok = _p3p(fr, samples)
     if not rolling:
+        Rp, Cp, ok = _p3p(fr, samples)
         z = np.zeros_like(Cp)
         return Rp[ok], Cp[ok], z[ok], z[ok]
+    if anchor is None:
+        Rp, _, ok = _p3p(fr, samples)
+    else:
+        Rp, ok = np.broadcast_to(anchor, (len(samples), 3, 3)), np.ones(len(samples), dtype=bool)
     s = samples[ok]
     Rp = Rp[ok]
     Xs = np.einsum("kij,knj->kni", Rp, fr.X[s])
@@ -244,7 +267,9 @@ class NumpySamples:
     ) -> ScoredBatch:
         fr = self.fr
         samples = order.take(draw_samples_numpy(uniforms, pool))
-        R, C, w, t = _hypotheses(fr, samples, self.rolling, self.iterations)
+        R, C, w, t = _hypotheses(
+            fr, samples, self.rolling, self.iterations, None if anchor is None else anchor[0]
+        )
         fine = _plausible(C, w, t, fr.motion_bounds)
         n_bad = int(np.count_nonzero(~fine))
         if not fine.any():
@@ -281,6 +306,15 @@ class NumpyRansac(Ransac):
             return np.inf, np.zeros(len(self.fr.x), dtype=bool)
         e2 = _errors2(self.fr, R[None], C[None], w[None], t[None])[0]
         return float(np.minimum(e2, self.th2).sum()), e2 < self.th2
+
+    def seed_steps(self) -> dict[str, Any]:
+        fr = self.fr
+
+        def errors2(model) -> np.ndarray:
+            R, C, w, t = (np.asarray(a, dtype=float)[None] for a in model)
+            return _errors2(fr, R, C, w, t)[0]
+
+        return {"errors2": errors2, "evaluate": self.evaluate, "refine": _lo_refine}
 
     def local_optimization(self, scored: Scored) -> Scored:
         return local_optimization(
@@ -325,32 +359,65 @@ def _lo_refine(
         return RSModel(R0, C0, w0, t0)
     n_free = 12 if rolling else 6
     theta0 = np.concatenate([np.zeros(3), C0, w0 * rolling, t0 * rolling])
+    args = (R0, theta0, n_free, X[near], x[near], tau[near])
+    max_nfev = max(settings.max_iterations, 1) + 1
     try:
-        fit = least_squares_exact_model(
-            R0,
-            theta0,
-            n_free,
-            X[near],
-            x[near],
-            tau[near],
-            prior if rolling else None,
-            settings.seconds_per_unit_r,
-            0.5 * th,
-            loss="huber",
-            f_scale=th,
-            max_nfev=max(settings.max_iterations, 1) + 1,
-        )
+        if rolling and prior_arrays(prior)[0]:
+            th_ = _huber_map(*args, prior, settings.seconds_per_unit_r, 0.5 * th, th, 1,
+                             max_nfev=max_nfev)  # fmt: skip
+        else:
+            th_ = least_squares_exact_model(
+                *args, None, 0.0, 0.0, loss="huber", f_scale=th, max_nfev=max_nfev
+            ).theta
     except (ValueError, np.linalg.LinAlgError):
         return RSModel(R0, C0, w0, t0)
-    th_ = fit.theta
     return RSModel(rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12])
 
 
-def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float):
+#: reweighting passes of a maximum a posteriori fit (:func:`_huber_map`) in the final
+#: refinement
+_MAP_PASSES = 3
+
+
+def _huber_map(
+    R0, theta0, n_free: int, X, x, tau, prior, spr: float, noise: float, th: float,
+    passes: int, **options: Any,
+) -> np.ndarray:  # fmt: skip
+    """The exact model fitted with the Huber loss (scale ``th``) on the image's rows and the
+    motion ``prior``'s rows (scaled by the image ``noise``) as they are: ``passes`` rounds
+    of iteratively reweighted least squares (each point's two rows weighed by the square
+    root of its Huber weight ``min(1, th / e)`` at the round's start, then SciPy's
+    ``least_squares`` without a loss, :func:`~.refine.least_squares_exact_model`; SciPy's
+    own Huber loss would act on the prior's rows too and soften a gyro's prior wherever the
+    image disagrees with it by more than about two of its standard deviations). Returns
+    theta (12,) of (delta, C, w, t) about ``R0``."""
+    theta = theta0
+    for _ in range(passes):
+        e = np.linalg.norm(exact_residuals(theta, R0, X, x, tau).reshape(-1, 2), axis=1)
+        wt = np.sqrt(np.minimum(1.0, th / np.maximum(e, 1e-300)))
+        theta = least_squares_exact_model(
+            R0, theta, n_free, X, x, tau, prior, spr, noise,
+            row_weights=np.repeat(wt, 2), **options,
+        ).theta  # fmt: skip
+    return theta
+
+
+def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float, prior):
     """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
-    ``th``): :func:`~.refine.refine_rs_pose_scipy`, MAP with the frame's prior (its rows
-    weighed by the image noise ``sigma``) on a rolling-shutter fit. Returns (R, C, w, t) or
-    None (not finite)."""
+    ``th``): maximum likelihood by :func:`~.refine.refine_rs_pose_scipy`, or on a
+    rolling-shutter fit with ``prior`` MAP by :func:`_huber_map` (the prior's rows weighed
+    by the image noise ``sigma``). Returns (R, C, w, t) or None (not finite)."""
+    if rolling and prior_arrays(prior)[0]:
+        R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
+        theta = _huber_map(
+            R0, np.concatenate([np.zeros(3), C0, w0, t0]), 12, fr.X[near], fr.x[near],
+            fr.tau[near], prior, fr.spr, sigma, th, _MAP_PASSES,
+            xtol=1e-12, ftol=1e-12, gtol=1e-12,
+        )  # fmt: skip
+        R, C, w, t = rotvec_to_matrix(theta[:3]) @ R0, theta[3:6], theta[6:9], theta[9:12]
+        if not all(np.isfinite(a).all() for a in (R, C, w, t)):
+            return None
+        return R, C, w, t
     ref = refine_rs_pose_scipy(
         *model,
         fr.X[near],
@@ -358,7 +425,7 @@ def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: fl
         fr.tau[near],
         th,
         rolling_shutter=rolling,
-        prior=fr.prior,
+        prior=prior,
         seconds_per_unit_r=fr.spr,
         noise=sigma,
     )
@@ -368,25 +435,33 @@ def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: fl
     return R, C, w, t
 
 
-def _refine(fr: Frame, model, th: float, rolling: bool):
+def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens: bool = False):
     """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
-    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model
-    (:data:`_FINAL_PASSES` times, selected again after each fit); MAP with the frame's
-    prior. Returns (R, C, w, t, covariance (12, 12) of (delta, C, w, t) or None, data
-    information or None)."""
+    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model (selected again
+    after each fit, until they stay the same, at most :data:`_FINAL_PASSES` fits); MAP with
+    ``prior`` (by
+    default the frame's; None: maximum likelihood). Returns (R, C, w, t, covariance
+    (12, 12) of (delta, C, w, t) or None, data information or None, the acceleration
+    sensitivity (12, 6) with ``sens`` on a rolling-shutter fit, else None)."""
+    if prior is _FRAME_PRIOR:
+        prior = fr.prior
     R, C, w, t = model
     sigma = th / 2.0
+    used = None
     for _ in range(_FINAL_PASSES):
         e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
         near = e < FINAL_CUTOFF * th
+        if used is not None and np.array_equal(near, used):
+            break
+        used = near
         if np.count_nonzero(near) < 7:
-            return R, C, w, t, None, None
+            return R, C, w, t, None, None, None
         inl = e < th
         if np.count_nonzero(inl) > 12:
             sigma = float(np.sqrt(np.mean(e[inl] ** 2)))
-        fit = _fit(fr, (R, C, w, t), near, th, rolling, sigma)
+        fit = _fit(fr, (R, C, w, t), near, th, rolling, sigma, prior)
         if fit is None:
-            return R, C, w, t, None, None
+            return R, C, w, t, None, None, None
         R, C, w, t = fit
     # covariance: Huber weights on the points within the cutoff, sigma from the inliers
     e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
@@ -403,17 +478,70 @@ def _refine(fr: Frame, model, th: float, rolling: bool):
     info = np.zeros((12, 12))
     info[:n_free, :n_free] = H
     Hp = H.copy()
-    on, _, Lam = prior_arrays(fr.prior if rolling else None)
+    on, _, Lam = prior_arrays(prior if rolling else None)
     if on:
         Jz = model_twist_jacobian.py_func(C, w, fr.spr)
         Hp = Hp + sigma2 * (Jz.T @ Lam @ Jz)[:n_free, :n_free]
     try:
-        cov_free = sigma2 * np.linalg.inv(Hp)
+        Hinv = np.linalg.inv(Hp)
     except np.linalg.LinAlgError:
-        return R, C, w, t, None, info
+        return R, C, w, t, None, info, None
     cov = np.zeros((12, 12))
-    cov[:n_free, :n_free] = cov_free
-    return R, C, w, t, (cov if np.isfinite(cov).all() else None), info
+    cov[:n_free, :n_free] = sigma2 * Hinv
+    if not np.isfinite(cov).all():
+        return R, C, w, t, None, info, None
+    G = None
+    if sens and rolling and fr.spr > 0:
+        # (:func:`~.sensitivity.acceleration_sensitivity`: G = H^-1 J^T W D, D the w and t
+        # columns times tau / 2, at the (posterior) H of the covariance)
+        D = 0.5 * np.repeat(fr.tau[near], 2)[:, None] * J[:, 6:12]
+        G = _physical(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr)
+    return R, C, w, t, cov, info, G
+
+
+def _physical(G: np.ndarray, R, C, w, s: float) -> np.ndarray:
+    """:func:`~.sensitivity.acceleration_sensitivity`'s outputs in NumPy: the model's
+    sensitivity ``G`` (12, 6) per (beta, b) turned into the outputs' (rotation, position,
+    angular and linear velocity) per (angular, linear acceleration) in the camera frame
+    (``beta = -s^2 alpha``, ``b = beta x C - s^2 a``; :func:`~.sensitivity.output_jacobian`)."""
+    Rt, SC = R.T, _skew(C)
+    J = np.zeros((12, 12))
+    J[0:3, 0:3] = -Rt
+    J[3:6, 0:3] = -Rt @ SC
+    J[3:6, 3:6] = -Rt
+    Jz = model_twist_jacobian.py_func(C, w, s)
+    J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
+    M = np.zeros((6, 6))
+    M[np.arange(6), np.arange(6)] = -s * s
+    M[3:6, 0:3] = s * s * SC
+    return J @ (G @ M)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (3, 3) of ``v`` (3,)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def image_alone(
+    fr: Frame, final: FinalModel, th: float, prior: MotionPrior | None
+) -> ImageAlone | None:
+    """:func:`~.finalize.image_alone` in NumPy and SciPy: the final refinement of the
+    gyro-aided ``final`` model without the gyro (:func:`_refine` with the motion ``prior``
+    without it on planar frames or with ``prior.always``, maximum likelihood otherwise): the
+    angular velocity (rad/s, camera optical frame) the image alone gives near that model,
+    its (3, 3) covariance and the inliers it explains within ``th`` (normalized units).
+    ``None`` when the refinement gives no finite model or covariance."""
+    if not fr.spr > 0:
+        return None
+    on = prior is not None and prior.enabled and (fr.planar or prior.always)
+    R, C, w, t = (np.array(a, dtype=float) for a in final.model)
+    R, C, w, t, cov, _, _ = _refine(fr, (R, C, w, t), th, True, prior if on else None)
+    if cov is None or not all(np.isfinite(a).all() for a in (R, C, w, t)):
+        return None
+    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
+    n = int(np.count_nonzero(e < th))
+    # (omega = -w / s in the camera frame: physical_velocities)
+    return ImageAlone(-w / fr.spr, cov[6:9, 6:9] / fr.spr**2, n)
 
 
 def final_model(
@@ -429,12 +557,26 @@ def final_model(
     """
     th = fr.threshold
     R, C, w, t = (np.array(a, dtype=float) for a in model)
-    cov = info = None
+    cov = info = sens = None
     if opts.refine.enabled:
-        R, C, w, t, cov, info = _refine(fr, (R, C, w, t), th, solver_info(solver).rolling)
+        R, C, w, t, cov, info, sens = _refine(
+            fr,
+            (R, C, w, t),
+            th,
+            solver_info(solver).rolling,
+            sens=opts.refine.acceleration_sensitivity,
+        )
     e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
     inl = e < th
     if np.count_nonzero(inl) < min_inliers:
         raise EstimationFailed(TOO_FEW_INLIERS)
     rmse_px = float(np.sqrt(np.mean(e[inl] ** 2)) * fr.f)
-    return FinalModel(RSModel(R, C, w, t), inl, rmse_px, cov, info, prior_used=fr.prior is not None)
+    return FinalModel(
+        RSModel(R, C, w, t),
+        inl,
+        rmse_px,
+        cov,
+        info,
+        sensitivity=sens,
+        prior_used=fr.prior is not None,
+    )

@@ -190,10 +190,11 @@ class Ransac(RansacLoop):
             ``guided`` points of ``order`` (its inliers).
         timings: ``ransac`` and ``local_optimization`` seconds once :meth:`run` returns.
 
-    What needs compiled kernels is in three methods (:meth:`hypothesis_source`,
-    :meth:`evaluate`, :meth:`local_optimization`) and ``compiled`` (the degeneracy test of
-    :meth:`result`); the NumPy implementation's search (:mod:`.numpy_impl`) replaces those
-    and keeps the rest: sampling, termination, the seed, the failure reasons.
+    What needs compiled kernels is in four methods (:meth:`hypothesis_source`,
+    :meth:`evaluate`, :meth:`local_optimization`, :meth:`seed_steps`) and ``compiled`` (the
+    degeneracy test of :meth:`result`); the NumPy implementation's search
+    (:mod:`.numpy_impl`) replaces those and keeps the rest: sampling, termination, the seed,
+    the failure reasons.
     """
 
     #: the degeneracy test of :meth:`result` runs compiled (False: in NumPy)
@@ -257,6 +258,11 @@ class Ransac(RansacLoop):
         """The source of the samples' hypotheses (:func:`~.hypotheses.hypothesis_source`)."""
         return hypothesis_source(self.fr, self.solver, self.opts, self.th2, self.anchor is not None)
 
+    def seed_steps(self) -> dict[str, Any]:
+        """The steps :func:`~.local_optimization.seed_from_initial_model` tests an initial
+        model with (none: its compiled defaults)."""
+        return {}
+
     def evaluate(self, model: Model) -> tuple[float, np.ndarray]:
         """(MSAC score, (N,) inlier mask) of ``model`` on every point
         (:meth:`~.frame.Frame.evaluate`)."""
@@ -281,7 +287,7 @@ class Ransac(RansacLoop):
     def _seed(self, initial: InitialModel) -> None:
         t_lo = time.perf_counter()
         self.explained, seed, anchored = seed_from_initial_model(
-            self.fr, self.solver, initial, self.th2, self.opts
+            self.fr, self.solver, initial, self.th2, self.opts, **self.seed_steps()
         )
         if anchored:
             self.anchor = (

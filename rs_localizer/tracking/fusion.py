@@ -48,8 +48,12 @@ relocalized), and on a stamp going back or a gap longer than ``max_gap``.
 
 from __future__ import annotations
 
+import functools
+import types
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -57,6 +61,7 @@ from scipy.stats import chi2
 
 from .._linalg import cholesky_into
 from .._so3 import rotate_left_into, rotation_log_into, skew_matrix, so3_coefficients
+from ..estimation.implementation import compiled_by_default
 from ..estimation.prior import MotionPrior, prior_arrays
 from ..pose import PoseMeasurement, RSPose
 
@@ -758,6 +763,43 @@ def _fused_state(stamp, x, cov, fused=False, restarted=False, smoothed=0, nis=fl
     return state
 
 
+def _python_twin(kernel: Any, twins: dict) -> Callable:
+    """The plain-Python function of a numba ``kernel`` (its ``py_func``) with every kernel it
+    calls replaced by its own twin in turn (numba's dispatchers, or the stand-ins of
+    :mod:`rs_localizer.runtime.jit_cache`, both carry ``py_func``): the same code that
+    compiles nothing. ``twins``: the twins made so far, by kernel."""
+    key = id(kernel)
+    if key not in twins:
+        f = kernel.py_func
+        scope = dict(f.__globals__)
+        twins[key] = types.FunctionType(
+            f.__code__, scope, f.__name__, f.__defaults__, f.__closure__
+        )
+        for name in f.__code__.co_names:
+            called = scope.get(name)
+            if callable(called) and hasattr(called, "py_func"):
+                scope[name] = _python_twin(called, twins)
+    return twins[key]
+
+
+@functools.lru_cache(maxsize=1)
+def _python_kernels() -> SimpleNamespace:
+    """:data:`_KERNELS` as plain Python (:func:`_python_twin`), for a filter that must not
+    compile (``TwistFilter.compiled`` False): a few milliseconds per frame."""
+    twins: dict = {}
+    return SimpleNamespace(**{k: _python_twin(v, twins) for k, v in vars(_KERNELS).items()})
+
+
+#: the kernels :class:`TwistFilter` calls
+_KERNELS = SimpleNamespace(
+    predict_row=_predict_row,
+    prepare_measurement=_prepare_measurement,
+    skew_matrix=skew_matrix,
+    outputs=_outputs,
+    update_window=_update_window,
+)
+
+
 class TwistFilter:
     """Fixed-lag error-state Kalman smoother over per-frame RS estimates (see the module
     docstring).
@@ -776,9 +818,18 @@ class TwistFilter:
 
     Args:
         options: :class:`FusionOptions`.
+
+    Attributes:
+        compiled: the filter's steps run as numba kernels (default: unless this process
+            cannot compile them, :func:`~rs_localizer.estimation.implementation.
+            compiled_by_default`); False: the same code as plain Python, which compiles
+            nothing (a frame solved on the estimator's NumPy implementation while the
+            kernels compile in the background; the caller sets it per frame, the state is
+            the same either way).
     """
 
     def __init__(self, options: FusionOptions | None = None):
+        self.compiled = compiled_by_default()
         self.options = o = options or FusionOptions()
         self._acc = o.model == "acceleration"
         self.n = 18 if self._acc else 12
@@ -787,6 +838,11 @@ class TwistFilter:
         self._acc_var = np.repeat([o.angular_acceleration_std**2, o.linear_acceleration_std**2], 3)
         self._scale = float(o.measurement_scale)
         self.reset()
+
+    @property
+    def _k(self) -> SimpleNamespace:
+        """The kernels of this call: compiled, or as plain Python (:attr:`compiled`)."""
+        return _KERNELS if self.compiled else _python_kernels()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
@@ -834,7 +890,7 @@ class TwistFilter:
             raise RuntimeError("TwistFilter.predict before the first update")
         stamp_ns = int(stamp_ns)
         dt = max((stamp_ns - self.window[0].stamp) * 1e-9, 0.0)
-        x, cov = _predict_row(self.X, self.P, dt, self._acc, self._qa, self._ql)
+        x, cov = self._k.predict_row(self.X, self.P, dt, self._acc, self._qa, self._ql)
         return _fused_state(stamp_ns, x, cov)
 
     def flush(self) -> list:
@@ -911,7 +967,7 @@ class TwistFilter:
         args = self._measurement_inputs(est, prior)
         if args is None:
             return None
-        ok, deprior, Ori, p, w, v, R, G, has_G = _prepare_measurement(
+        ok, deprior, Ori, p, w, v, R, G, has_G = self._k.prepare_measurement(
             *args, self._scale, self._acc, self._acc_var
         )
         if not ok:
@@ -943,7 +999,7 @@ class TwistFilter:
             cross = np.zeros((m, 6))
         J = np.eye(12)
         if m == 12:  # world-frame v = O v_cam: dv = -[v]x phi + O dv_cam
-            J[9:12, 0:3] = -skew_matrix(v)
+            J[9:12, 0:3] = -self._k.skew_matrix(v)
             J[9:12, 9:12] = Ori
         J = J[:, :m]
         P[:12, :12] = J @ Rm @ J.T
@@ -959,7 +1015,7 @@ class TwistFilter:
         X[0, 0:9], X[0, 9:12], X[0, 12:15], X[0, 15:18] = Ori.ravel(), z.p, omega, v
         self.window = [e]
         self.P = 0.5 * (P + P.T)
-        self.C = _outputs(X, self.P, n)
+        self.C = self._k.outputs(X, self.P, n)
         self.X = X
         self.rejections = 0
 
@@ -1006,7 +1062,7 @@ class TwistFilter:
         # then fuse the measurement into every frame of the window (one kernel call)
         args = self._measurement_inputs(estimate, prior) or _NO_MEASUREMENT
         keep = min(len(self.window), o.lag)
-        status, nis, self.X, self.P, self.C = _update_window(
+        status, nis, self.X, self.P, self.C = self._k.update_window(
             self.X,
             self.P,
             dt,

@@ -108,7 +108,7 @@ from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import Correspondences, FrameFeedback, video_frontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
-from ..estimation.implementation import NUMPY
+from ..estimation.implementation import NUMPY, compiled_by_default
 from ..estimation.options import EstimateOptions, InitialModel
 from ..estimation.result import CAMERAS_DISAGREE, CONTRADICTS_TRACK, RIG_REFUSALS, UNCONFIRMED
 from ..estimation.rig import (
@@ -935,6 +935,13 @@ class RigLocalizer:
         ref = reference_stamp_ns(checked_stamp(stamp_ns), camera, self.settings.stamp_row)
         return self._predict_camera(cam, ref, camera)
 
+    def _filter_kernels(self, impl: str | None) -> None:
+        """The twist filter's steps for a rig frame on ``impl`` (None: the default): plain
+        Python on ``"numpy"``, so that nothing compiles while the kernels compile in the
+        background (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
+        if self._filter is not None:
+            self._filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
+
     def _predict_camera(self, cam: _Camera, ref: int, camera: CameraModel) -> RSModel | None:
         """:meth:`predict_camera` at the frame's reference time ``ref`` (ns)."""
         spr = camera.seconds_per_unit_r
@@ -942,6 +949,7 @@ class RigLocalizer:
         if f is not None:
             if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
                 return None
+            self._filter_kernels(None if self._implementation is None else self._implementation())
             pred = f.predict(ref).pose
             rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
                             pred.linear_velocity)  # fmt: skip
@@ -1148,6 +1156,7 @@ class RigLocalizer:
                            mount_covariance=m.covariance)  # fmt: skip
             views.append(view)
         self._impl = impl = None if self._implementation is None else self._implementation()
+        self._filter_kernels(impl)
         out.compiled = impl != NUMPY
         if not out.compiled:  # (while the kernels compile: tracked all the same)
             self.counts["rig.uncompiled"] += 1

@@ -339,9 +339,10 @@ class SequenceOutput:
         gyro: the gyro measurement the frame was solved with, or None.
         error: ``"<exception type>: <message>"`` when the estimator raised, else None.
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
-        compiled: the frame was solved with the compiled kernels; False: alone (no tracker,
-            no gyro) on the uncompiled path, while they compile in the background
-            (:mod:`rs_localizer.runtime.background`).
+        compiled: the frame was solved with the compiled kernels; False: on the NumPy
+            implementation, while they compile in the background
+            (:mod:`rs_localizer.runtime.background`): tracked, with the gyro and fused all
+            the same.
         failure, detail: an image frame (:meth:`SequenceLocalizer.process_image`) dropped
             before the estimator: ``frontend_error`` (the front end raised) or
             ``frontend_too_few_points`` (fewer correspondences than the solver needs), with
@@ -427,8 +428,9 @@ class SequenceLocalizer:
             (:mod:`rs_localizer.estimation.implementation`), asked once per frame. Default:
             the compiled kernels wherever numba works. A node whose kernels compile in the
             background passes :func:`rs_localizer.runtime.background.ready_implementation`:
-            its frames are solved alone on the NumPy implementation (no tracker, no gyro)
-            until the kernels are ready.
+            until the kernels are ready its frames are solved on the NumPy implementation,
+            with the tracker (predicted RANSAC, the twist filter), the gyro and its checks as
+            on the compiled kernels; a track under way goes on across the switch.
 
     Threads: :meth:`process` on one thread at a time; :meth:`add_imu`, :meth:`flush_idle`
     and the read-outs from others.
@@ -868,7 +870,7 @@ class SequenceLocalizer:
         :meth:`process_image` hands the front end to search with. While the tracker tracks
         with this camera and configuration, its prediction
         (:meth:`~rs_localizer.tracking.tracker.RSTracker.predict`: the model the estimator
-        then tests first); else (tracking off, the kernels still compiling, no tracker state)
+        then tests first); else (tracking off, no tracker state)
         the last solved frame carried to the stamp at its own twist
         (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`). None when nothing
         predicts the frame: no frame solved yet, or it starts a new track (a stamp going back
@@ -896,7 +898,7 @@ class SequenceLocalizer:
                 and t.filter.initialized
                 and self._tracker_key == (s.solver, s.options, s.tracking, id(camera))
             ):
-                state = t.predict(ref)
+                state = t.predict(ref, self._implementation(s.solver))
                 return None if state is None else model_from_state(state, camera)
             return self._carried.predict(ref, camera)
 
@@ -928,18 +930,18 @@ class SequenceLocalizer:
         stamp = frame.stamp_ns
         ref = ft.reference_ns
         out = SequenceOutput(stamp_ns=ref)
-        # (while the kernels compile in the background: every frame alone, without the gyro,
-        # on the NumPy implementation; runtime.background)
+        # (while the kernels compile in the background: the NumPy implementation, tracked and
+        # with the gyro all the same; runtime.background)
         impl = self._implementation(s.solver)
-        out.compiled = compiled = impl == COMPILED
+        out.compiled = impl == COMPILED
         t0 = time.perf_counter()
-        out.gyro = gyro = self._gyro_for(stamp, camera) if compiled else None
+        out.gyro = gyro = self._gyro_for(stamp, camera)
         out.gyro_seconds = time.perf_counter() - t0
         uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
         with self._lock:
             final = []
             try:
-                if s.tracking is not None and compiled:
+                if s.tracking is not None:
                     if self._track_over and self._tracker is not None:
                         # (after a frozen image: the track's pending twists are final, the
                         # frame starts a new track, as after a gap)
@@ -948,14 +950,15 @@ class SequenceLocalizer:
                     old = self._tracker
                     tracker, more = self._tracker_for(camera)
                     final = final + more
-                    r = tracker.process(ref, uv, xyz, camera, scores, gyro=gyro)
+                    r = tracker.process(
+                        ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
+                    )
                     est, out.path = r.estimate, r.state
                     new_track = tracker is not old or r.state in ("cold", "reset")
                     final = final + r.final
                     self._last_frame_wall = time.monotonic()
                 else:
-                    if compiled:
-                        self._end_track()
+                    self._end_track()
                     new_track = False
                     est = estimate_rs_pose(
                         uv,
@@ -984,8 +987,7 @@ class SequenceLocalizer:
                 )
             elif est.gyro_used and est.success:
                 self._count("frames_with_gyro", 1)
-            if compiled:
-                self._update_gyro_checks(est, ref, new_track)
+            self._update_gyro_checks(est, ref, new_track)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 out.fused = self._fused(final)
                 return out
@@ -993,7 +995,6 @@ class SequenceLocalizer:
             # final)
             out.twist_now = (
                 s.tracking is None
-                or not compiled
                 or not solver_info(s.solver).rolling
                 or camera.seconds_per_unit_r <= 0
             )

@@ -40,6 +40,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..estimation.estimate import EstimateOptions, InitialModel, RSPoseEstimate, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
+from ..estimation.implementation import NUMPY, default_implementation
 from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
 from ..geometry import rotvec_to_matrix
@@ -308,12 +309,14 @@ class RSTracker:
         self._predicted = None
         return out
 
-    def predict(self, stamp_ns: int) -> FusedState | None:
+    def predict(self, stamp_ns: int, implementation: str | None = None) -> FusedState | None:
         """The filter's prediction of the pose and twist at ``stamp_ns`` (ns, the time
         :meth:`process` will be given): the one :meth:`process` then tests, seeds RANSAC with
         and takes the motion prior from (computed once). None when :meth:`process` will not
         predict the frame: no track yet, or it starts a new one (:func:`predictable`). Its
-        model for a camera: :func:`model_from_state`."""
+        model for a camera: :func:`model_from_state`. ``implementation``: as
+        :meth:`process`'s (on ``"numpy"`` the filter compiles nothing either)."""
+        self._implementation(implementation)
         stamp_ns = int(stamp_ns)
         if not self.filter.initialized or not predictable(
             self._stamp, stamp_ns, self.tracker_options.max_gap
@@ -338,6 +341,7 @@ class RSTracker:
         scores: np.ndarray | None = None,
         *,
         gyro: GyroMeasurement | None = None,
+        implementation: str | None = None,
     ) -> TrackResult:
         """Estimate one frame and update the track.
 
@@ -349,11 +353,17 @@ class RSTracker:
             gyro: optional gyro measurement of the frame's readout, passed to
                 :func:`estimate_rs_pose` (it adds to the prediction's motion prior; the filter
                 removes only the prior, so the gyro's information stays in the frame's twist).
+            implementation: the estimator's implementation for this frame (``"compiled"``,
+                ``"numpy"`` or None, as :func:`estimate_rs_pose`'s; on ``"numpy"`` the twist
+                filter's steps run as plain Python too: nothing compiles): the prediction,
+                the gyro and the filter are the same on either, so a track goes on across a
+                switch.
         Returns:
             :class:`TrackResult`.
         Raises:
             ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
         """
+        self._implementation(implementation)
         stamp_ns = int(stamp_ns)
         self.frames += 1
         final, state = [], "cold"
@@ -362,14 +372,23 @@ class RSTracker:
             final += self.reset()
             state = "reset"
             self.resets += 1
-        predicted, explained = self.predict(stamp_ns), -1
+        predicted, explained = self.predict(stamp_ns, implementation), -1
         if predicted is not None:
             est, state, opts, explained = self._tracked(
-                predicted, points2d, points3d, camera, scores, gyro
+                predicted, points2d, points3d, camera, scores, gyro, implementation
             )
         else:
             opts = self.options
-            est = estimate_rs_pose(points2d, points3d, camera, self.solver, opts, scores, gyro=gyro)
+            est = estimate_rs_pose(
+                points2d,
+                points3d,
+                camera,
+                self.solver,
+                opts,
+                scores,
+                gyro=gyro,
+                implementation=implementation,
+            )
         if not est.success:
             self.failures += 1
             return TrackResult(est, state, None, final, predicted, explained)
@@ -389,6 +408,14 @@ class RSTracker:
         )
         return TrackResult(est, state, step, final + step.final, predicted, explained)
 
+    def _implementation(self, implementation: str | None) -> None:
+        """The twist filter's kernels for ``implementation`` (the estimator's, None: its
+        default for the solver): plain Python on ``"numpy"``
+        (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
+        if implementation is None:
+            implementation = default_implementation(self.solver)
+        self.filter.compiled = implementation != NUMPY
+
     def _tracked(
         self,
         predicted: FusedState,
@@ -397,6 +424,7 @@ class RSTracker:
         camera: CameraModel,
         scores,
         gyro: GyroMeasurement | None = None,
+        implementation: str | None = None,
     ) -> tuple[RSPoseEstimate, str, EstimateOptions, int]:
         """Estimate a frame from the filter's prediction (its model as the initial model, its
         twist as the motion prior where the options ask for it); when the prediction does not
@@ -428,6 +456,7 @@ class RSTracker:
             scores,
             initial_model=InitialModel(model, gate, need),
             gyro=gyro,
+            implementation=implementation,
         )
         explained = est.initial_explained
         if est.success and est.initial_used:
@@ -436,5 +465,14 @@ class RSTracker:
             # the prediction does not hold (its twist must not be the prior), or it misled
             # RANSAC on a bad frame: solve the frame cold
             opts = self.options
-            est = estimate_rs_pose(points2d, points3d, camera, self.solver, opts, scores, gyro=gyro)
+            est = estimate_rs_pose(
+                points2d,
+                points3d,
+                camera,
+                self.solver,
+                opts,
+                scores,
+                gyro=gyro,
+                implementation=implementation,
+            )
         return est, "relocalized", opts, explained

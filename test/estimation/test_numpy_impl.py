@@ -146,7 +146,6 @@ def test_ignored_inputs_recorded():
     gyro = GyroMeasurement(np.array([0.1, 0.0, 0.0]), 1e-4 * np.eye(3))
     extra = {
         "scores": np.linspace(1.0, 0.0, n),
-        "gyro": gyro,
         "point_sigma": np.full(n, 0.01),
     }
     plain = estimate_numpy(f.points_px, f.X, cam, "r6p_1lin", OPTS)
@@ -155,15 +154,115 @@ def test_ignored_inputs_recorded():
     )
     u = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin", opts, implementation="numpy", **extra)
     assert u.implementation == "numpy"
-    assert u.ignored_inputs == ("scores", "gyro", "point_sigma", "refine.acceleration_sensitivity")
+    assert u.ignored_inputs == ("scores", "point_sigma")
     assert set(u.ignored_inputs) <= set(NUMPY_UNUSED)
     np.testing.assert_array_equal(u.model.R, plain.model.R)
     np.testing.assert_array_equal(u.inliers, plain.inliers)
     c = estimate_compiled(f.points_px, f.X, cam, "r6p_1lin", OPTS)
     assert c.ignored_inputs == ()
-    p = estimate_rs_pose(f.points_px, f.X, cam, "p3p", OPTS, gyro=gyro)
-    assert p.implementation == "compiled" and p.ignored_inputs == ("gyro",)
-    assert not p.gyro_used
+    for implementation in ("compiled", "numpy"):
+        p = estimate_rs_pose(
+            f.points_px, f.X, cam, "p3p", OPTS, gyro=gyro, implementation=implementation
+        )
+        assert p.implementation == implementation and p.ignored_inputs == ("gyro",)
+        assert not p.gyro_used
+
+
+def test_acceleration_sensitivity_as_compiled():
+    """``refine.acceleration_sensitivity`` on the NumPy implementation (the video tracker's
+    twist filter needs it): the (12, 6) sensitivity within 2 % (Frobenius norm) of the
+    compiled one on the same frames, with and without a gyro."""
+    from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
+
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=3, num_points=300, seed=2), trajectory=make_trajectory("shake")
+    )
+    opts = EstimateOptions(refine=RefineOptions(acceleration_sensitivity=True))
+    for f in frames:
+        for gyro in (None, GyroMeasurement(f.angular_velocity, 1e-5 * np.eye(3))):
+            u, c = (
+                estimate_rs_pose(f.uv, f.xyz, cam, options=opts, gyro=gyro, implementation=i)
+                for i in ("numpy", "compiled")
+            )
+            assert u.ignored_inputs == ()
+            G, Gc = u.acceleration_sensitivity, c.acceleration_sensitivity
+            assert G.shape == (12, 6)
+            assert np.linalg.norm(G - Gc) < 0.02 * np.linalg.norm(Gc)
+
+
+def _truth_error(est, f):
+    """(rotation error deg, position error) of an estimate against the frame's truth."""
+    pos = -est.model.R.T @ est.model.C
+    return rotation_angle_deg(est.model.R, f.R), float(np.linalg.norm(pos - f.position))
+
+
+def _turned(f, deg):
+    """The frame's true model with its rotation turned by ``deg`` about the optical axis."""
+    from rs_localizer.geometry import rotvec_to_matrix
+    from rs_localizer.pose import RSModel
+
+    Rz = rotvec_to_matrix(np.array([0.0, 0.0, np.radians(deg)]))
+    return RSModel(Rz @ f.R, Rz @ f.C, f.w, f.t)
+
+
+def test_initial_model_on_numpy():
+    """``initial_model`` on the NumPy implementation, as on the compiled one: a prediction
+    near the truth (0.3 deg off) explains the frame's inliers, seeds RANSAC
+    (``initial_used``, ``initial_explained`` within 3 % of the compiled count) and the
+    estimate is as accurate as the cold one against the truth, with as many inliers; a wrong
+    one (40 deg off) explains few points, is not used and the frame is solved cold (RANSAC
+    from P3P samples) to the same accuracy."""
+    from rs_localizer.estimation.options import InitialModel
+
+    cam = paper_camera()
+    for f in _frames(3):
+        cold = estimate_numpy(f.points_px, f.X, cam, "r6p_1lin", OPTS)
+        near = InitialModel(_turned(f, 0.3), gate_px=20.0, min_explained=100)
+        wrong = InitialModel(_turned(f, 40.0), gate_px=20.0, min_explained=100)
+        for init, used in ((near, True), (wrong, False)):
+            u, c = (
+                estimate_rs_pose(
+                    f.points_px, f.X, cam, "r6p_1lin", OPTS, initial_model=init, implementation=i
+                )
+                for i in ("numpy", "compiled")
+            )
+            assert u.success and u.ignored_inputs == ()
+            assert u.initial_used == c.initial_used == used
+            if used:
+                assert abs(u.initial_explained - c.initial_explained) <= 0.03 * c.initial_explained
+                assert u.initial_explained >= 0.9 * np.count_nonzero(f.inlier)
+            else:
+                assert u.initial_explained < 100
+            du, dc = _truth_error(u, f), _truth_error(cold, f)
+            assert du[0] <= 1.5 * dc[0] + 0.02 and du[1] <= 1.5 * dc[1] + 0.002
+            assert u.num_inliers >= 0.97 * cold.num_inliers
+
+
+def test_gyro_on_numpy():
+    """A gyro on the NumPy implementation, as on the compiled one: a right measurement (the
+    simulated angular velocity) is used (``gyro_used``, not rejected) and the estimate's
+    angular velocity is at least as close to the truth as the frame's own; a wrong one
+    (3 rad/s off, tight covariance) is rejected by the image-alone check, and the estimate
+    is the one without the gyro."""
+    cam = paper_camera()
+    for f in _frames(3, rs_speed=0.3):
+        plain = estimate_numpy(f.points_px, f.X, cam, "r6p_1lin", OPTS)
+        right = GyroMeasurement(f.angular_velocity, 1e-4 * np.eye(3))
+        wrong = GyroMeasurement(f.angular_velocity + np.array([3.0, 0.0, 0.0]), 1e-4 * np.eye(3))
+        u = estimate_rs_pose(
+            f.points_px, f.X, cam, "r6p_1lin", OPTS, gyro=right, implementation="numpy"
+        )
+        c = estimate_rs_pose(f.points_px, f.X, cam, "r6p_1lin", OPTS, gyro=right)
+        assert u.success and u.gyro_used and not u.gyro_rejected and u.ignored_inputs == ()
+        assert c.gyro_used and not c.gyro_rejected
+        e_u = np.linalg.norm(u.pose.angular_velocity - f.angular_velocity)
+        e_plain = np.linalg.norm(plain.pose.angular_velocity - f.angular_velocity)
+        assert e_u <= e_plain + 1e-3
+        r = estimate_rs_pose(
+            f.points_px, f.X, cam, "r6p_1lin", OPTS, gyro=wrong, implementation="numpy"
+        )
+        assert r.success and r.gyro_rejected and not r.gyro_used and r.gyro_rejection
+        np.testing.assert_allclose(r.model.R, plain.model.R, atol=1e-12)
 
 
 _NO_COMPILE = """
@@ -172,6 +271,8 @@ t0 = time.perf_counter()
 import numpy as np
 from rs_localizer.runtime.jit_cache import compile_progress
 from rs_localizer.estimation import estimate_rs_pose
+from rs_localizer.estimation.gyro import GyroMeasurement
+from rs_localizer.estimation.options import InitialModel
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 cam = paper_camera()
 out = []
@@ -180,6 +281,13 @@ with compile_progress() as prog:
         f = make_frame(k, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
         e = estimate_rs_pose(f.points_px, f.X, cam, implementation="numpy")
         out.append(bool(e.success) and e.implementation == "numpy")
+    # a prediction (pulled in: 60 px off at the gate) and a gyro
+    f = make_frame(5, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+    init = InitialModel((f.R, f.C + [0.02, 0, 0], f.w, f.t), gate_px=200.0, min_explained=100)
+    gyro = GyroMeasurement(f.angular_velocity, 1e-4 * np.eye(3))
+    e = estimate_rs_pose(f.points_px, f.X, cam, initial_model=init, gyro=gyro,
+                         implementation="numpy")
+    out.append(bool(e.success) and e.initial_used and e.gyro_used)
 used = sorted(
     f"{m}.{k}"
     for m, mod in list(sys.modules.items())
@@ -195,8 +303,9 @@ print(json.dumps({"kernels": len(prog.kernels), "used": used, "solved": out,
 def test_compiles_nothing(tmp_path):
     """In a fresh process with an empty numba cache (besides what the package's own
     ``__pycache__`` seeds into it, jit_cache.seed_cache), the NumPy implementation solves frames
-    and numba compiles no kernel (numba's compile events, jit_cache.compile_progress) nor
-    loads one (no numba dispatcher of the package has a compiled version)."""
+    (one with an initial model and a gyro) and numba compiles no kernel (numba's compile
+    events, jit_cache.compile_progress) nor loads one (no numba dispatcher of the package has
+    a compiled version)."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
     r = subprocess.run(
         [sys.executable, "-c", _NO_COMPILE],
@@ -207,7 +316,7 @@ def test_compiles_nothing(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     res = json.loads(r.stdout.strip().splitlines()[-1])
-    assert res["solved"] == [True, True, True]
+    assert res["solved"] == [True, True, True, True]
     assert res["kernels"] == 0
     assert res["used"] == []  # (no kernel compiled or loaded from the cache)
 

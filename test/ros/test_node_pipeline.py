@@ -398,9 +398,10 @@ def test_pipeline_warns_once_of_a_feature_map_that_matches_nothing(msgs, sequenc
 
 def test_pipeline_uncompiled_then_compiled(msgs, sequence):
     """While the kernels compile (the runtime's ready implementation is NumPy), frames are
-    solved alone on the NumPy implementation with their own twist (no tracker, nothing
-    pending), counted per path; the first frame once the kernels are ready goes to the
-    tracker."""
+    solved on the NumPy implementation and tracked as on the compiled kernels (their twists
+    pending for the twist filter, the frames after the first tracked), counted per path;
+    once the kernels are ready the track goes on across the switch (the next frame tracked,
+    no reset)."""
     from rs_localizer.runtime import background
 
     frames, _, cam = sequence
@@ -411,15 +412,19 @@ def test_pipeline_uncompiled_then_compiled(msgs, sequence):
         for f in frames[:3]:
             res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
             assert res.solved, (res.failure, res.detail)
-            assert not res.compiled and res.twist_now and res.fused == []
+            assert not res.compiled and not res.twist_now
             assert res.estimate.implementation == "numpy"
             assert np.degrees(np.linalg.norm(res.estimate.pose.orientation - f.orientation)) < 0.5
-        assert pipe.tracking_values()["track_state"] != "tracking"
+        track = pipe.tracking_values()
+        assert track["track_state"] == "tracking" and track["frames_tracked"] == 2
     finally:
         background._hold(False)
     f = frames[3]
     res = pipe.process(msgs.cloud(f.uv, f.xyz, f.ids, f.stamp_ns, "cam"), "correspondences")
     assert res.solved and res.compiled and not res.twist_now
+    assert res.estimate.initial_used
+    track = pipe.tracking_values()
+    assert track["frames_tracked"] == 3 and track["resets"] == 0
     counts = pipe.stats.snapshot().counts
     assert (counts["frames_uncompiled"], counts["frames_compiled"]) == (3, 1)
 
