@@ -755,60 +755,6 @@ def pupil_detector(module: Any, **kwargs: Any) -> Any:
     return cls(**kwargs)
 
 
-def _pupil_arrays(
-    det: Any, gray: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """What :meth:`AprilTagDetector.raw` returns, read straight from the library's detections
-    through the ``pupil_apriltags`` binding's C structures: ``(corners (M, 4, 2) px in the
-    library's order and pixel convention, ids (M,), hamming (M,), decision margins (M,))``.
-    The same detection as ``det.detect(gray)``, without the binding's per-tag objects (their
-    homography, centre and family name: ~0.3 ms of a 640x480 frame with 33 tags). None when
-    the installed binding does not have the structures this reads (then ``det.detect``)."""
-    import ctypes
-
-    structs = _PUPIL_STRUCTS.get(type(det))
-    if structs is None:
-        try:
-            from pupil_apriltags import bindings
-
-            structs = (
-                ctypes.POINTER(bindings._ZArray),
-                ctypes.POINTER(bindings._ApriltagDetection),
-            )
-            det._convert_image  # noqa: B018 (present: the binding's image copy)
-        except (ImportError, AttributeError):
-            structs = ()
-        _PUPIL_STRUCTS[type(det)] = structs
-    if not structs:
-        return None
-    zarray_p, detection_p = structs
-    lib = det.libc
-    image = det._convert_image(gray)  # (the library's image: its own stride, a copy)
-    lib.apriltag_detector_detect.restype = zarray_p
-    found = lib.apriltag_detector_detect(det.tag_detector_ptr, image)
-    try:
-        za = found.contents
-        n = int(za.size)
-        if n and za.el_sz != ctypes.sizeof(detection_p):
-            raise RuntimeError(f"unexpected AprilTag detection list (element of {za.el_sz} bytes)")
-        corners = np.empty((n, 4, 2))
-        ids, ham = np.empty(n, np.int64), np.empty(n, np.int64)
-        margins = np.empty(n)
-        for i, ptr in enumerate((detection_p * n).from_address(za.data) if n else ()):
-            tag = ptr.contents
-            ids[i], ham[i], margins[i] = tag.id, tag.hamming, tag.decision_margin
-            corners[i] = tag.p
-    finally:
-        lib.image_u8_destroy.restype = None
-        lib.image_u8_destroy(image)
-        lib.apriltag_detections_destroy.restype = None
-        lib.apriltag_detections_destroy(found)
-    return corners, ids, ham, margins
-
-
-_PUPIL_STRUCTS: dict = {}  # detector class -> (zarray pointer, detection pointer) or ()
-
-
 class AprilTagDetector:
     """One AprilTag family with the AprilTag 3 library (module notes).
 
@@ -948,12 +894,7 @@ class AprilTagDetector:
         g = np.asarray(gray)
         dec = self.decimation(frame_shape or g.shape) if decimate is None else float(decimate)
         g = _check_gray(g, min_image_side(dec))
-        det = self._detector(dec)
-        if self.binding == "pupil_apriltags":
-            found = _pupil_arrays(det, g)
-            if found is not None:
-                return found
-        dets = _library_detect(det, g, self.binding)
+        dets = _library_detect(self._detector(dec), g, self.binding)
         if not len(dets):
             return np.zeros((0, 4, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         if self.binding == "pupil_apriltags":

@@ -75,28 +75,6 @@ def test_apriltag_corners_match_the_renderer(tag_board):
 
 
 @needs_apriltag
-def test_library_detections_read_as_the_binding_returns_them(tag_board):
-    """The detections read straight from the library's structures (the node's path with
-    ``pupil_apriltags``) are the binding's own ``detect`` objects, bit for bit: corners,
-    ids, hamming, decision margins, in the library's order; also with no tag in view."""
-    if md.apriltag_binding()[0] != "pupil_apriltags":
-        pytest.skip("pupil_apriltags not installed")
-    scene, _, _, _, gray = tag_board
-    det = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=1.5))
-    lib = det._detector(1.5)
-    crop = np.ascontiguousarray(gray[100:380, 150:517])  # (a width not a multiple of 4)
-    for image in (gray, crop, np.full((64, 80), 128, np.uint8)):
-        c, ids, ham, mar = det.raw(image, decimate=1.5)
-        dets = lib.detect(image)
-        assert len(ids) == len(dets) and (len(dets) > 0 or image.std() == 0)
-        np.testing.assert_array_equal(ids, [d.tag_id for d in dets])
-        np.testing.assert_array_equal(ham, [d.hamming for d in dets])
-        np.testing.assert_array_equal(mar, np.float64([d.decision_margin for d in dets]))
-        np.testing.assert_array_equal(c, np.reshape([d.corners for d in dets], (-1, 4, 2)))
-    assert len(det.raw(gray, decimate=1.5)[1]) == 12
-
-
-@needs_apriltag
 def test_both_back_ends_agree_on_an_apriltag_family(tag_board):
     scene, _, motion, r, gray = tag_board
     a = make_marker_detector(scene.dictionary, DetectorOptions(quad_decimate=1.0))
