@@ -122,6 +122,17 @@ def _check_camera(h: int, w: int, camera: Any) -> None:
         )
 
 
+def _bytes_view(data: Any) -> np.ndarray:
+    """A message's ``data`` as a flat uint8 array, without a copy where it can be a view:
+    rclpy's ``array.array('B')``, ``bytes``, ``memoryview`` and a rosbags uint8 array are
+    viewed, the decoded image then sharing the message's memory (a 640x480 RGB frame is
+    0.9 MB, copied per frame otherwise); a list of ints is converted."""
+    try:
+        return np.frombuffer(data, dtype=np.uint8)
+    except TypeError:  # (no buffer: a sequence of ints)
+        return np.frombuffer(bytes(data), dtype=np.uint8)
+
+
 def _decode_raw(msg: Any) -> tuple[np.ndarray, str]:
     """An 8-bit ``sensor_msgs/Image``: ``(array, encoding)`` (``8uc1`` is ``mono8``).
 
@@ -135,9 +146,7 @@ def _decode_raw(msg: Any) -> tuple[np.ndarray, str]:
         )
     ch = ENCODINGS[enc]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    buf = np.frombuffer(
-        bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8
-    )
+    buf = _bytes_view(msg.data)
     if step < w * ch or len(buf) < step * h:
         raise ValueError(
             f"image data too short: {len(buf)} bytes for {h} rows of step {step} "
@@ -191,9 +200,7 @@ def _decode_compressed(msg: Any) -> tuple[np.ndarray, str]:
             f"unsupported compressed image format {msg.format!r}; supported: "
             f"{', '.join(COMPRESSED_FORMATS)}"
         )
-    buf = np.frombuffer(
-        bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8
-    )
+    buf = _bytes_view(msg.data)
     if len(buf) == 0:
         raise ValueError("empty compressed image")
     actual = _payload_kind(buf)

@@ -396,10 +396,21 @@ class LocalizerCore:
             )
             return self.pipeline.log.warning(res.failure, text, n)
         # (messages nobody subscribes to are not even built: ~0.1 ms each)
-        self._publish(frame_messages(res, cfg.map_frame, self._wanted))
+        messages = frame_messages(res, cfg.map_frame, self._wanted)
+        self._publish(messages)
         r, mf = res, cfg.map_frame  # (visualization: in the camera frame)
+        # (the path takes the published pose when that is the camera's: no base_frame)
+        pose = messages[0][1] if r.output is r.estimate and messages[0][0] == "pose" else None
         self.viz.publish(
-            r.estimate, r.points2d, r.points3d, r.camera, r.stamp_ns, r.out_stamp_ns, r.frame_id, mf
+            r.estimate,
+            r.points2d,
+            r.points3d,
+            r.camera,
+            r.stamp_ns,
+            r.out_stamp_ns,
+            r.frame_id,
+            mf,
+            pose,
         )
         toc = time.perf_counter()
         self.latencies.append(toc - item[2])

@@ -224,9 +224,15 @@ class VisualizationBuilder:
         if n != self.poses.maxlen:
             self.poses = deque(self.poses, maxlen=n)
 
-    def add_pose(self, est: RSPoseEstimate, out_stamp_ns: int, map_frame: str) -> None:
-        """Append the frame's pose (reference-line stamp) to the path."""
-        self.poses.append(cv.pose_stamped(est.pose, out_stamp_ns, map_frame))
+    def add_pose(
+        self, est: RSPoseEstimate, out_stamp_ns: int, map_frame: str, message: Any = None
+    ) -> None:
+        """Append the frame's pose (reference-line stamp) to the path: ``message``, the
+        ``PoseStamped`` of that pose already built (the node's published ``pose``), or one
+        made here."""
+        if message is None:
+            message = cv.pose_stamped(est.pose, out_stamp_ns, map_frame)
+        self.poses.append(message)
 
     def debug_image(
         self,
@@ -430,12 +436,15 @@ class NodeVisualization:
         out_stamp_ns: int,
         camera_frame: str,
         map_frame: str,
+        pose_message: Any = None,
     ) -> None:
         """Record the pose of a solved frame in the path and hand the frame to the drawing
         thread (which replaces a frame still waiting there): ``uv`` (N, 2) and ``X`` (N, 3) are
         the estimator's input rows, ``stamp_ns`` the input stamp, ``out_stamp_ns`` the
-        reference line's (the pose's) stamp. Returns at once."""
-        self.builder.add_pose(est, out_stamp_ns, map_frame)
+        reference line's (the pose's) stamp; ``pose_message``: the ``PoseStamped`` of
+        ``est.pose`` at ``out_stamp_ns`` in ``map_frame`` when one is built already (not
+        built again for the path). Returns at once."""
+        self.builder.add_pose(est, out_stamp_ns, map_frame, pose_message)
         want = tuple(self.wants(t) for t in ("debug_image", "markers", "path"))
         image, self._image = self._image, None
         if not any(want):

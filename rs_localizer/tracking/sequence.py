@@ -138,10 +138,10 @@ def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL
     black or uniform image, which gives no correspondences anyway)."""
     if prev is None or prev[1] != cur[1] or len(prev[0]) != len(cur[0]) or len(cur[0]) == 0:
         return None
-    if float(np.std(cur[0])) < 2.0:
-        return None
     d = float(np.mean(np.abs(prev[0] - cur[0])))
-    return d if d <= level else None
+    if not d <= level:  # (a new picture, every frame of a moving camera: no spread needed)
+        return None
+    return None if float(np.std(cur[0])) < 2.0 else d
 
 
 @dataclass(frozen=True)

@@ -232,6 +232,32 @@ def test_rclpy_messages_decoded_and_checked():
     assert _reason(c, cam) == "image_size_mismatch"
 
 
+def test_raw_pixels_are_viewed_not_copied():
+    """An unpadded raw image decodes to a view of the message's buffer (rclpy's
+    ``array.array``, ``bytes``, a uint8 array): the same pixels, no per-frame copy of the
+    0.9 MB of a 640x480 RGB frame; padded rows are copied out; ``data`` as a list of ints
+    still decodes."""
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (20, 24, 3), dtype=np.uint8)
+    m = _rclpy_image(img)
+    out, _ = decode_image(m)
+    assert np.array_equal(out, img) and np.shares_memory(out, np.frombuffer(m.data, np.uint8))
+    data = np.ascontiguousarray(img).reshape(-1)
+    for d in (data, data.tobytes(), memoryview(data)):
+        msg = SimpleNamespace(height=20, width=24, encoding="rgb8", step=72, data=d)
+        out, _ = decode_image(msg)
+        assert np.array_equal(out, img)
+        assert isinstance(d, bytes) or np.shares_memory(out, data)
+    listed = SimpleNamespace(height=20, width=24, encoding="rgb8", step=72, data=data.tolist())
+    assert np.array_equal(decode_image(listed)[0], img)
+    padded = np.zeros((20, 80), np.uint8)
+    padded[:, :72] = data.reshape(20, 72)
+    msg = SimpleNamespace(height=20, width=24, encoding="rgb8", step=80, data=padded.reshape(-1))
+    out, _ = decode_image(msg)
+    assert np.array_equal(out, img) and out.flags.c_contiguous
+    assert not np.shares_memory(out, padded)
+
+
 def test_an_image_smaller_than_the_front_ends_take_is_a_bad_image():
     """An image below ``MIN_IMAGE_SIDE`` px a side (raw or compressed, the camera's size
     unknown or not) is ``bad_image`` naming the minimum, never given to a front end; one of
