@@ -20,7 +20,22 @@ reprojection error):
    whole walk with the T265's odometry), not motion capture. Prints the frames posed and the
    median rotation error against the reference, absolute and between consecutive frames.
 
+``--corner-noise`` prints instead the AprilTag library's corner noise on real tags of two
+recordings (``test_22``'s tag and ``test_23``'s board of nine 49 mm tags seen by a RealSense
+D435): each detection's four corners posed alone on the global-shutter model, the sum of
+squared errors in measured pixels with 2 degrees of freedom (8 coordinates, 6 pose
+parameters), and the corner noise ``sigma = sqrt(median(SSE / 2) / ln 2)`` (``SSE / 2`` of
+Gaussian corner noise is ``sigma^2`` times an exponential variable, whose median is ``ln 2``;
+the median keeps a few badly detected tags from inflating it). Tag side errors, print flatness
+and calibration errors count as noise here too.
+
     python -m benchmarks.bench_single_tag [--frames 100] [--turn 1.5] [--speed 0.5]
+    python -m benchmarks.bench_single_tag --corner-noise
+    python -m benchmarks.bench_single_tag --test2
+
+``--test2`` prints instead, per camera of TagSLAM's fisheye stereo ``test_2``, every tag
+detection posed alone (no prediction): right (within 5 degrees of TagSLAM's solution), wrong,
+or refused (by reason), and the median errors of the right ones.
 """
 
 from __future__ import annotations
@@ -39,6 +54,7 @@ from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 
 __all__ = [
     "DATA",
+    "corner_noise",
     "load_test22",
     "main",
     "opencv_ippe",
@@ -46,6 +62,7 @@ __all__ = [
     "relative_errors",
     "rendered",
     "tag_corners",
+    "test2_alone",
 ]
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -191,13 +208,101 @@ def relative_errors(Rs: list, Rref: list) -> np.ndarray:
     )
 
 
+def _square_fit_sse(uv: np.ndarray, X: np.ndarray, camera: CameraModel) -> float:
+    """Sum of squared errors (measured px^2) of the (4, 2) corners ``uv`` of one tag posed
+    alone from them (the better of IPPE's two refined poses, zero velocities); NaN when a
+    corner does not undistort."""
+    from rs_localizer.estimation.frame import prepare_frame
+    from rs_localizer.estimation.single_tag import _fit, _ippe
+
+    fr = prepare_frame(uv, X, camera, 1e6)
+    if len(fr.x) < 4:
+        return float("nan")
+    z = np.zeros(3)
+    sse = [_fit(fr, R0, C0, z, z)[3] for R0, C0 in _ippe(fr)]
+    return min((float(r @ r) for r in sse), default=float("nan")) * fr.f**2
+
+
+def corner_noise(folder: Path = DATA) -> dict[str, tuple[int, float]]:
+    """Per recording (``test_22``, ``test_23`` under ``folder``): (tags, corner noise sigma in
+    measured px, ``sqrt(median(SSE / 2) / ln 2)``) of every tag detection posed alone
+    (module docstring)."""
+    from benchmarks.bench_global_shutter import d435_frames
+
+    cam, X, frames = load_test22(folder / "test_22")
+    out = {"test_22": [_square_fit_sse(uv, X, cam) for _, uv, _, _ in frames]}
+    cam, frames = d435_frames(folder / "test_23")
+    out["test_23"] = [
+        _square_fit_sse(f.points_px[k : k + 4], f.X[k : k + 4], cam)
+        for f in frames
+        for k in range(0, len(f.X), 4)
+    ]
+    res = {}
+    for name, sse in out.items():
+        s = np.asarray(sse)[np.isfinite(sse)]
+        res[name] = (len(s), float(np.sqrt(np.median(s / 2) / np.log(2))))
+    return res
+
+
+def test2_alone(folder: Path = DATA / "test_2") -> dict[str, dict]:
+    """Per camera of ``test_2``: counts of its tag detections posed alone (``right`` within 5
+    degrees of the reference, ``wrong``, ``refused:<reason>``) and ``rot_deg`` / ``pos_mm``,
+    the median errors of the right ones."""
+    from benchmarks.bench_real_rig import errors, load_test2
+
+    rig = load_test2(folder)
+    out = {}
+    for name, cam in rig.cameras.items():
+        cnt, right = {}, []
+        for stamp, views in rig.frames:
+            if stamp not in rig.reference or name not in views:
+                continue
+            uv, X = views[name]
+            Rr, Cr = rig.reference[stamp]
+            Rm, cm = rig.mounts[name]
+            for k in range(0, len(uv), 4):
+                e = estimate_rs_pose(uv[k : k + 4], X[k : k + 4], cam)
+                if e.success:
+                    r, p = errors(e.model.R, e.model.C, (Rm @ Rr, Rm @ Cr + cm))
+                    c = "right" if r < 5.0 else "wrong"
+                    if c == "right":
+                        right.append((r, p))
+                else:
+                    c = "refused:" + e.failure
+                cnt[c] = cnt.get(c, 0) + 1
+        med = np.median(np.array(right), axis=0) if right else (np.nan, np.nan)
+        out[name] = {"counts": cnt, "rot_deg": float(med[0]), "pos_mm": float(med[1])}
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=100)
     ap.add_argument("--turn", type=float, default=1.5, help="rad/s")
     ap.add_argument("--speed", type=float, default=0.5, help="m/s")
+    ap.add_argument("--corner-noise", action="store_true", help="real tags' corner noise only")
+    ap.add_argument("--test2", action="store_true", help="test_2's tags posed alone only")
     a = ap.parse_args(argv)
     one_thread()
+    if a.test2:
+        if not (DATA / "test_2").is_dir():
+            print(f"{DATA} absent")
+            return
+        for name, r in test2_alone(DATA / "test_2").items():
+            c = r["counts"]
+            print(
+                f"test_2 {name}: {sum(c.values())} tags posed alone: "
+                + ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
+                + f"; right ones' median error {r['rot_deg']:.3f} deg, {r['pos_mm']:.1f} mm"
+            )
+        return
+    if a.corner_noise:
+        if not (DATA / "test_22").is_dir():
+            print(f"{DATA} absent")
+            return
+        for name, (n, sigma) in corner_noise(DATA).items():
+            print(f"{name}: {n} tags posed alone, corner noise {sigma:.3f} px (measured image)")
+        return
     for turn, speed in ((0.0, 0.0), (a.turn, a.speed)):
         err, fails = rendered(a.frames, turn, speed)
         print(f"rendered, {turn} rad/s, {speed} m/s, {a.frames} frames:")

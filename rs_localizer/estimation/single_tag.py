@@ -13,13 +13,13 @@ refused as ``ambiguous_tag``. The pose must pass the estimator's last checks
 (:func:`~.finalize.final_estimate`: plausible motion, every corner in front of the camera at
 its capture time), and the corners must fit it within the inlier threshold (their RMS error).
 
-The corners' errors here are in the undistorted image plane (times the focal length: pixels at
-the image centre), not whitened into pixels of the measured image as the robust estimator's
-(:attr:`~.frame.Frame.W`): four corners leave 2 degrees of freedom to estimate their noise, so
-the ambiguity test leans on the :data:`MIN_CORNER_SIGMA_PX` floor, and in measured pixels
-(smaller than the undistorted ones towards a fisheye's edge) that floor left the image
-undecided on many real tags the undistorted-plane test poses right, with no clear gain in accuracy
-(TagSLAM's fisheye recordings).
+The corners' errors (the fit, the ambiguity test, the inlier test, ``rmse_px``, the
+covariance) are in pixels of the measured image, as the robust estimator's: each corner's
+error in the undistorted plane whitened by the camera's pixel Jacobian there
+(:attr:`~.frame.Frame.W`; a camera without distortion and with ``fx = fy`` has none and is
+unchanged). Four corners leave 2 degrees of freedom to estimate their noise, so the ambiguity
+test and the covariance do not go below :data:`MIN_CORNER_SIGMA_PX`, the AprilTag library's
+corner noise measured on real tags.
 """
 
 from __future__ import annotations
@@ -73,9 +73,16 @@ PREDICTION_RATIO = 0.5
 #: two refined poses whose rotations differ by less than this (degrees) are one pose (both IPPE
 #: solutions of a plane seen off its axis often refine to the same minimum)
 SAME_POSE_DEG = 0.05
-#: the corner noise (px) below which the covariance does not go: 4 corners leave 2 degrees of
-#: freedom to estimate it from, and a fit that happens to be near exact is not a sure pose
-MIN_CORNER_SIGMA_PX = 0.5
+#: the corner noise (px of the measured image) below which the ambiguity test and the covariance
+#: do not go: 4 corners leave 2 degrees of freedom to estimate it from, and a fit that happens
+#: to be near exact is not a sure pose. The AprilTag library's corner noise on real tags,
+#: ``python -m benchmarks.bench_single_tag --corner-noise`` (each detection's 4 corners posed
+#: alone, ``sqrt(median(SSE / 2) / ln 2)``, the median-based estimate of Gaussian noise from
+#: 2-dof fits): 0.188 px on TagSLAM's test_22 (a T265 fisheye, 41 detections of a 30-37 px tag),
+#: 0.105 px on its test_23 (a D435, 1896 detections of 49 mm tags); the larger (the fisheye's,
+#: the harder case) rounded up: a floor below the real noise would let noise decide between
+#: mirror poses, one above it refuses tags the image tells apart
+MIN_CORNER_SIGMA_PX = 0.2
 #: ``RSPoseEstimate.motion_model`` of a pose on the rolling-shutter model with the velocities
 #: held at the prediction's or the gyro's (not estimated from the frame)
 PREDICTED_MOTION = "predicted_motion"
@@ -111,7 +118,7 @@ def _fixed_velocities(
     if initial_model is not None:
         m = initial_model.model
         e = exact_errors(
-            *(np.ascontiguousarray(a, dtype=float) for a in m), fr.X, fr.x, fr.r - fr.r0
+            *(np.ascontiguousarray(a, dtype=float) for a in m), fr.X, fr.x, fr.r - fr.r0, fr.W
         )
         explained = int(np.count_nonzero(e * fr.f <= initial_model.gate_px))
         if explained == len(fr.x):
@@ -160,16 +167,17 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     tau = fr.r - fr.r0
     X, x = fr.X, fr.x
     W = skew(w)
+    m = fr.mountings()  # (each corner's error whitened into measured pixels; None: plain)
 
     def theta(p):
         return np.concatenate([p, w, np.cross(w, p[3:]) + b])
 
     def jac(p):
-        J = exact_jacobian(theta(p), R0, X, x, tau)
+        J = exact_jacobian(theta(p), R0, X, x, tau, m)
         return np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
 
     sol = least_squares(
-        lambda p: exact_residuals(theta(p), R0, X, x, tau),
+        lambda p: exact_residuals(theta(p), R0, X, x, tau, m),
         np.concatenate([np.zeros(3), C0]),
         jac=jac,
         method="lm",
@@ -179,9 +187,9 @@ def _fit(fr: Frame, R0: np.ndarray, C0: np.ndarray, w: np.ndarray, b: np.ndarray
     p = sol.x
     R = cv2.Rodrigues(p[:3])[0] @ R0
     q = np.concatenate([np.zeros(3), p[3:]])
-    J = exact_jacobian(theta(q), R, X, x, tau)  # (at the refined pose, not the start's R0)
+    J = exact_jacobian(theta(q), R, X, x, tau, m)  # (at the refined pose, not the start's R0)
     J = np.concatenate([J[:, :3], J[:, 3:6] + J[:, 9:12] @ W], axis=1)
-    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau), J
+    return R, p[3:].copy(), theta(p)[9:12], exact_residuals(theta(q), R, X, x, tau, m), J
 
 
 def _velocity_covariance(prior: MotionPrior | None, C: np.ndarray, s: float) -> np.ndarray:

@@ -69,3 +69,16 @@ def test_opencv_ippe_reference_is_the_lower_error_solution():
     Rc, Cc = opencv_ippe(cam.project_rs(X, R, C), X, cam)
     assert rotation_angle_deg(Rc, R) < 1e-4
     np.testing.assert_allclose(Cc, C, atol=1e-7)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (DATA / "test_23").is_dir(), reason="real_markers data absent")
+def test_the_corner_noise_floor_is_the_real_tags_measured_noise():
+    from benchmarks.bench_single_tag import corner_noise
+    from rs_localizer.estimation.single_tag import MIN_CORNER_SIGMA_PX
+
+    noise = corner_noise(DATA)
+    assert noise["test_22"][0] == 41 and noise["test_23"][0] > 1800
+    # (the floor: the larger of the two recordings' noise, rounded up to 0.1 px)
+    sigma = max(s for _, s in noise.values())
+    assert 0.1 < sigma <= MIN_CORNER_SIGMA_PX < sigma + 0.1

@@ -16,6 +16,7 @@ from rs_localizer.estimation import (
     physical_velocities,
 )
 from rs_localizer.estimation.result import FAILURE_REASONS
+from rs_localizer.estimation.single_tag import AMBIGUITY_CHI2, MIN_CORNER_SIGMA_PX
 from rs_localizer.geometry import rotation_angle_deg
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
@@ -202,7 +203,7 @@ def test_the_covariance_of_one_tag_is_its_fits_at_the_estimate():
     corners' normalized reprojection errors at the estimated pose over the camera's rotation
     (world axes) and position in the world (the estimate's ``covariance`` parameters),
     ``sigma^2`` the residuals' variance over 8 - 6 degrees of freedom, at least
-    (0.5 px / f)^2."""
+    (MIN_CORNER_SIGMA_PX / f)^2."""
     from scipy.spatial.transform import Rotation
 
     rng = np.random.default_rng(8)
@@ -228,5 +229,78 @@ def test_the_covariance_of_one_tag_is_its_fits_at_the_estimate():
     h = 1e-6
     J = np.stack([(residuals(h * d) - residuals(-h * d)) / (2 * h) for d in np.eye(6)], axis=1)
     res = residuals(np.zeros(6))
-    sigma2 = max(res @ res / 2, (0.5 / K[0, 0]) ** 2)
+    sigma2 = max(res @ res / 2, (MIN_CORNER_SIGMA_PX / K[0, 0]) ** 2)
     np.testing.assert_allclose(e.covariance[:6, :6], sigma2 * np.linalg.inv(J.T @ J), rtol=1e-5)
+
+
+def test_a_fisheye_tag_is_judged_in_pixels_of_the_measured_image():
+    """A tag far off a fisheye's centre (equidistant lens, a RealSense T265's calibration):
+    acceptance, the ambiguity decision, ``rmse_px`` and the covariance against an independent
+    computation in pixels of the measured image: each IPPE pose refined by SciPy on the
+    corners' reprojection errors through the lens (``CameraModel.project``), the image
+    deciding when the other pose's squared errors exceed the better one's by
+    ``AMBIGUITY_CHI2`` variances (``max(SSE / 2, MIN_CORNER_SIGMA_PX^2)``), the covariance
+    ``sigma^2 (J^T J)^-1`` of those errors' finite differences at the estimate."""
+    from scipy.optimize import least_squares
+    from scipy.spatial.transform import Rotation
+
+    cam = CameraModel(
+        K=np.array([[283.943, 0, 421.079], [0, 284.986, 400.527], [0, 0, 1]]),
+        D=[0.00132, 0.03049, -0.02875, 0.0034],
+        width=848,
+        height=800,
+        distortion_model="equidistant",
+    )
+    X = tag_corners(0.3)
+    rng = np.random.default_rng(11)
+    outcomes = set()
+    for _ in range(12):
+        R = Rotation.from_rotvec(rng.normal(0, 0.25, 3)).as_matrix() @ np.diag([1.0, -1, -1])
+        d = rng.uniform(1.0, 2.0)
+        C = np.array([*rng.uniform(0.9, 1.2, 2) * d, d])  # (~50 degrees off the axis)
+        uv = cam.project(X @ R.T + C) + rng.normal(0, 0.3, (4, 2))
+
+        def residuals(p, R0, c0, uv=uv):  # (measured px; p: rotation (world axes), position)
+            Rp = (Rotation.from_rotvec(p[:3]).as_matrix() @ R0.T).T
+            return (cam.project((X - c0 - p[3:]) @ Rp.T) - uv).ravel()
+
+        fits = []
+        x = cam.undistort(uv)
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(X, x, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+        for rv, tv in zip(rvecs[:n], tvecs[:n], strict=True):
+            R0 = cv2.Rodrigues(rv)[0]
+            c0 = -R0.T @ tv.ravel()
+            p = least_squares(residuals, np.zeros(6), args=(R0, c0), xtol=1e-14).x
+            Rf = (Rotation.from_rotvec(p[:3]).as_matrix() @ R0.T).T
+            res = residuals(p, R0, c0)
+            fits.append((float(res @ res), Rf, Rf @ -(c0 + p[3:])))
+        fits.sort(key=lambda f: f[0])
+        sigma2 = max(fits[0][0] / 2, MIN_CORNER_SIGMA_PX**2)
+        if rotation_angle_deg(fits[0][1], fits[-1][1]) < 0.05:
+            fits = fits[:1]
+        gap = fits[1][0] - fits[0][0] if len(fits) > 1 else np.inf
+        e = estimate_rs_pose(uv, X, cam)
+        if abs(gap / (AMBIGUITY_CHI2 * sigma2) - 1) < 0.1:
+            continue  # (too near the boundary for an independent fit to call)
+        if gap < AMBIGUITY_CHI2 * sigma2:
+            assert not e.success and e.failure == "ambiguous_tag", (gap, sigma2, e.failure)
+            outcomes.add("ambiguous")
+            continue
+        outcomes.add("posed")
+        assert e.success and e.single_tag
+        assert rotation_angle_deg(e.model.R, fits[0][1]) < 0.05
+        np.testing.assert_allclose(e.rmse_px, np.sqrt(fits[0][0] / 4), rtol=0.02)
+        Rwc, c = e.model.R.T, -e.model.R.T @ e.model.C
+        h = 1e-6
+        J = np.stack(
+            [
+                (residuals(h * q, Rwc.T, c) - residuals(-h * q, Rwc.T, c)) / (2 * h)
+                for q in np.eye(6)
+            ],
+            axis=1,
+        )
+        res = residuals(np.zeros(6), Rwc.T, c)
+        s2 = max(res @ res / 2, MIN_CORNER_SIGMA_PX**2)
+        ref = s2 * np.linalg.inv(J.T @ J)  # (the whitening is the lens's first order: ~1 %)
+        np.testing.assert_allclose(e.covariance[:6, :6], ref, rtol=0.05, atol=0.01 * ref.max())
+    assert outcomes == {"ambiguous", "posed"}
