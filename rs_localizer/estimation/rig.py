@@ -694,11 +694,16 @@ def _residuals_numpy(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
             np.asarray(R, dtype=float), np.asarray(C, dtype=float), np.asarray(w, dtype=float),
             np.asarray(t, dtype=float), pool.X[s], pool.tau[s],
         )  # fmt: skip
-        q = np.einsum("nij,hnj->hni", pool.R_mount[c], p) + pool.c_mount[c]
-        z = q[..., 2:3]
-        e = q[..., :2] / z - pool.x[s]
-        out = np.einsum("nij,hnj->hni", pool.A[s].reshape(-1, 2, 2), e)
-    out[~(z[..., 0] > 1e-9)] = np.inf
+        q = np.empty_like(p)
+        for m in range(len(pool.sizes)):  # (each camera's points through its mounting)
+            on = c == m
+            if on.any():
+                q[:, on] = p[:, on] @ pool.R_mount[m].T + pool.c_mount[m]
+        z = q[..., 2]
+        ex, ey = q[..., 0] / z - pool.x[s, 0], q[..., 1] / z - pool.x[s, 1]
+        A = pool.A[s]
+        out = np.stack([A[:, 0] * ex + A[:, 1] * ey, A[:, 2] * ex + A[:, 3] * ey], axis=-1)
+    out[~(z > 1e-9)] = np.inf
     return out
 
 

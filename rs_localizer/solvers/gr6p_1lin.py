@@ -201,24 +201,33 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
 
 
 def _lstsq_stack(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m) by
-    NumPy's stacked Householder QR; ``ok`` False where the triangular factor's smallest pivot
-    is at most ``RANK_TOL`` times its largest (rank loss) or a value is not finite. Returns
-    (u (K, 12), ok (K,))."""
+    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m):
+    square systems (minimal samples) by NumPy's stacked LU solve (singular ones one by one,
+    ``ok`` False), others by its stacked Householder QR, ``ok`` False where the triangular
+    factor's smallest pivot is at most ``RANK_TOL`` times its largest (rank loss); ``ok``
+    False too where a value is not finite. Returns (u (K, 12), ok (K,))."""
     u = np.full(b.shape[:1] + (12,), np.nan)
     ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
     if not ok.any():
         return u, ok
-    Q, R = np.linalg.qr(A[ok])
-    d = np.abs(np.diagonal(R, axis1=1, axis2=2))
-    full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
-    rhs = np.einsum("kmi,km->ki", Q, b[ok])
-    sol = np.full(rhs.shape, np.nan)
-    if full.any():
-        sol[full] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
     idx = np.flatnonzero(ok)
-    u[idx] = sol
-    ok[idx] = full
+    if A.shape[1] == A.shape[2]:
+        try:
+            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
+        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
+            for k in idx:
+                try:
+                    u[k] = np.linalg.solve(A[k], b[k])
+                except np.linalg.LinAlgError:
+                    ok[k] = False
+    else:
+        Q, R = np.linalg.qr(A[idx])
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
+        rhs = np.einsum("kmi,km->ki", Q, b[idx])
+        if full.any():
+            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
+        ok[idx[~full]] = False
     ok &= np.isfinite(u).all(axis=1)
     return u, ok
 
@@ -462,9 +471,9 @@ def gr6p_1lin_batch_numpy(
 ) -> RSBatch:
     """:func:`gr6p_1lin_batch` in NumPy, nothing compiled (the rig estimator's NumPy
     implementation): the same arguments, iteration and outputs, each linear solve by NumPy's
-    stacked QR (the compiled one: Gaussian elimination for square systems, Householder QR
-    otherwise; the solutions agree to rounding). A problem with a single set of points (K = 1)
-    is :func:`gr6p_1lin`'s, with ``valid`` False where it raises.
+    stacked LU solve for square systems, its stacked QR otherwise (as the compiled one:
+    Gaussian elimination, Householder QR; the solutions agree to rounding). A problem with a
+    single set of points (K = 1) is :func:`gr6p_1lin`'s, with ``valid`` False where it raises.
 
     Raises:
         ValueError: as :func:`gr6p_1lin_batch`.
