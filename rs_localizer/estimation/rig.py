@@ -671,9 +671,9 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
 
 def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``
-    (``pool.numpy``: :func:`_residuals_numpy`)."""
+    (``pool.numpy``: :func:`_residuals_numpy`, on every point)."""
     if pool.numpy:
-        return _residuals_numpy(pool, R, C, w, t, s)
+        return _residuals_numpy(pool, R, C, w, t)[:, s]
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     out = np.empty((len(f[0]), len(s), 2))
     _residuals_kernel(
@@ -683,25 +683,24 @@ def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     return out
 
 
-def _residuals_numpy(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
-    """:func:`_residuals_kernel` in NumPy (nothing compiles): the rig's points at each
-    observation's capture time (:func:`~rs_localizer.geometry.exact_camera_points`) seen
-    through their camera's mounting, the normalized errors times the pixel Jacobians; inf
-    behind the camera. Returns (H, len(s), 2)."""
-    c = pool.cam[s]
+def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
+    """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
+    rig's points at each observation's capture time
+    (:func:`~rs_localizer.geometry.exact_camera_points`) seen through their camera's mounting
+    (the pool is stacked by camera: one matrix product per camera), the normalized errors
+    times the pixel Jacobians; inf behind the camera. Returns (H, N, 2)."""
+    ends = np.searchsorted(pool.cam, np.arange(len(pool.sizes) + 1))
+    A = pool.A
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         p = exact_camera_points(
             np.asarray(R, dtype=float), np.asarray(C, dtype=float), np.asarray(w, dtype=float),
-            np.asarray(t, dtype=float), pool.X[s], pool.tau[s],
+            np.asarray(t, dtype=float), pool.X, pool.tau,
         )  # fmt: skip
-        q = np.empty_like(p)
-        for m in range(len(pool.sizes)):  # (each camera's points through its mounting)
-            on = c == m
-            if on.any():
-                q[:, on] = p[:, on] @ pool.R_mount[m].T + pool.c_mount[m]
-        z = q[..., 2]
-        ex, ey = q[..., 0] / z - pool.x[s, 0], q[..., 1] / z - pool.x[s, 1]
-        A = pool.A[s]
+        for m in range(len(pool.sizes)):  # (in place: each camera's points through its mounting)
+            on = slice(ends[m], ends[m + 1])
+            p[:, on] = p[:, on] @ pool.R_mount[m].T + pool.c_mount[m]
+        z = p[..., 2]
+        ex, ey = p[..., 0] / z - pool.x[:, 0], p[..., 1] / z - pool.x[:, 1]
         out = np.stack([A[:, 0] * ex + A[:, 1] * ey, A[:, 2] * ex + A[:, 3] * ey], axis=-1)
     out[~(z > 1e-9)] = np.inf
     return out
@@ -728,7 +727,10 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
     with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time;
     inf for a point behind its camera. Returns (H, N)."""
-    d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
+    if pool.numpy:
+        d = _residuals_numpy(pool, R, C, w, t)
+    else:
+        d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
     return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
 
 
