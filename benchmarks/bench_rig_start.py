@@ -12,8 +12,8 @@ frame (``jit_cache.compile_progress``) and their seconds, the first frame's wall
 median processor time of the other 10.
 
 ``node``: ``rs_localizer_node`` with ``rig.cameras`` (3 simulated cameras, ``warmup`` on) in a
-subprocess with an empty ``NUMBA_CACHE_DIR``; this process sends every camera's camera_info,
-then each camera's correspondence clouds (100 points) in turn, and reports the seconds from
+subprocess with an empty ``NUMBA_CACHE_DIR``; this process sends each camera's correspondence
+clouds (100 points) in turn, each after the camera's camera_info, and reports the seconds from
 starting the node process to its ``ready:`` line and to the first pose on ``/rig/pose`` (the
 kernels compile meanwhile in the node's background process, at a lower priority).
 
@@ -42,6 +42,7 @@ ONE_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "NUMBA_NUM_TH
 _FRAME = """
 import json, sys, time
 import numpy as np
+import rs_localizer
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.runtime.jit_cache import compile_progress
 from rs_localizer.sim import rig as sim_rig
@@ -61,7 +62,7 @@ for f in frames[1:]:
     ts.append(time.process_time() - t)
 print(json.dumps({"kernels": len(prog.kernels), "compile_s": prog.seconds,
                   "first_frame_s": first, "ms_median": 1e3 * float(np.median(ts)),
-                  "solved": int(sum(ok))}))
+                  "solved": int(sum(ok)), "package": rs_localizer.__file__}))
 """
 
 
@@ -76,7 +77,10 @@ def frame_run(source: Path, points: int) -> dict:
             [sys.executable, "-c", _FRAME, str(points)], env=_env(source, cache), cwd=source,
             capture_output=True, text=True, timeout=900, check=True,
         )  # fmt: skip
-    return json.loads(r.stdout.strip().splitlines()[-1])
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    if not Path(out.pop("package")).is_relative_to(source):
+        raise RuntimeError(f"the frame ran another checkout's code than {source}")
+    return out
 
 
 def node_run(source: Path, timeout: float = 300.0) -> dict:
@@ -93,6 +97,7 @@ def node_run(source: Path, timeout: float = 300.0) -> dict:
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
 
     cams = default_rig(3)
+    by = {c.name: c.camera for c in cams}
     frames, _, _ = generate_rig_video(cams, duration=1.0, num_points=100, seed=11)
     params = {"warmup": True, "publish_tf": False, "rig.cameras": [c.name for c in cams]}
     for c in cams:
@@ -105,8 +110,13 @@ def node_run(source: Path, timeout: float = 300.0) -> dict:
     env = ros_env(domain, _env(source, str(tmp / "numba")))
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     yaml = write_params_yaml(tmp / "rig.yaml", params)
-    t0 = time.perf_counter()
-    proc = NodeProcess([yaml], namespace="/rig", env=env, log=tmp / "node.log")
+    here = os.getcwd()
+    os.chdir(source)  # (python -m puts the working directory first on the node's path)
+    try:
+        t0 = time.perf_counter()
+        proc = NodeProcess([yaml], namespace="/rig", env=env, log=tmp / "node.log")
+    finally:
+        os.chdir(here)
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("bench_rig_start", context=ctx)
@@ -130,12 +140,17 @@ def node_run(source: Path, timeout: float = 300.0) -> dict:
         if not proc.wait_ready(timeout):
             raise RuntimeError(f"the node did not start:\n{proc.log}")
         ready = time.perf_counter() - t0
-        if not wait(lambda: all(p.get_subscription_count() > 0 for p in pub.values()), 30.0):
+        probe = subprocess.run(
+            [sys.executable, "-c", "import rs_localizer; print(rs_localizer.__file__)"],
+            env=env, cwd=source, capture_output=True, text=True, check=True,
+        )  # fmt: skip
+        if not Path(probe.stdout.strip()).is_relative_to(source):
+            raise RuntimeError(f"the node would run another checkout's code than {source}")
+        subs = [*pub.values(), *info.values()]
+        if not wait(lambda: all(p.get_subscription_count() > 0 for p in subs), 30.0):
             raise RuntimeError("the node and the client did not match")
-        for c in cams:
-            info[c.name].publish(camera_info_msg(c.camera, c.name, frames[0].stamp_ns))
-        wait(lambda: False, 0.2)
-        for f in frames:
+        for f in frames:  # (camera_info with every cloud until the first pose)
+            info[f.name].publish(camera_info_msg(by[f.name], f.name, f.stamp_ns))
             cloud = correspondence_cloud(
                 f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns)
             )
@@ -186,6 +201,8 @@ def main(argv=None) -> int:
         for n in a.points:
             f = [x for x in rows if x["what"] == "frame" and x["source"] == str(s)
                  and x["points"] == n]  # fmt: skip
+            if not f:
+                continue
             print(f"  3 x {n} points: kernels compiled {sorted({x['kernels'] for x in f})}, "
                   f"first frame {min(x['first_frame_s'] for x in f):.3f}-"
                   f"{max(x['first_frame_s'] for x in f):.3f} s, then "
