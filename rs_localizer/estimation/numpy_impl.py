@@ -109,7 +109,9 @@ def _errors2(fr: Frame, R, C, w, t, m: int | None = None) -> np.ndarray:
     return exact_errors2_numpy(R, C, w, t, fr.X[:m], fr.x[:m], fr.tau[:m])
 
 
-def _plausible(C, w, t, bounds) -> np.ndarray:
+def plausible_models(
+    C: np.ndarray, w: np.ndarray, t: np.ndarray, bounds: tuple[float, float] | None
+) -> np.ndarray:
     """(H,) finite models moving within ``bounds`` (w_max, v_max per unit r): ``|w| <= w_max``
     and ``|w x C - t| <= v_max`` (:func:`~.plausibility.plausible_motion`; the squared norms
     by :func:`~.plausibility.motion_norms2`'s own code, on the (H,) columns)."""
@@ -121,16 +123,15 @@ def _plausible(C, w, t, bounds) -> np.ndarray:
         return ok & (wn2 <= bounds[0] ** 2) & (vn2 <= bounds[1] ** 2)
 
 
-def _p3p(fr: Frame, samples: np.ndarray):
-    """P3P pre-rotation of each sample (K, s): OpenCV's P3P on its first three points, the
-    root with the least squared error on its other points (all of them for P3P's own
-    samples) in front of the camera. Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
-    K = len(samples)
+def p3p_roots(X3: np.ndarray, x3: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every root of OpenCV's P3P (``cv2.solveP3P``) for K triples of world points X3
+    (K, 3, 3) seen at the normalized image points x3 (K, 3, 2): the camera's rotations
+    (M, 3, 3) and translations (M, 3) (``x_cam = R X + c``) and the index (M,) of the triple
+    each root solves (up to 4 per triple; a triple OpenCV rejects gives none)."""
     eye = np.eye(3)
     owner, rv, tv = [], [], []
-    X3, x3 = fr.X[samples[:, :3]], fr.x[samples[:, :3]]
     p3p = cv2.SOLVEPNP_P3P
-    for k in range(K):
+    for k in range(len(X3)):
         try:
             n, rvecs, tvecs = cv2.solveP3P(X3[k], x3[k], eye, None, flags=p3p)
         except cv2.error:
@@ -138,12 +139,21 @@ def _p3p(fr: Frame, samples: np.ndarray):
         owner += [k] * n
         rv += rvecs
         tv += tvecs
-    Rs, Cs, ok = np.tile(eye, (K, 1, 1)), np.zeros((K, 3)), np.zeros(K, dtype=bool)
     if not owner:
-        return Rs, Cs, ok
-    owner = np.array(owner)
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     R = rotvec_to_matrix(np.array(rv).reshape(-1, 3))
-    c = np.array(tv).reshape(-1, 3)
+    return R, np.array(tv).reshape(-1, 3), np.array(owner, dtype=np.int64)
+
+
+def _p3p(fr: Frame, samples: np.ndarray):
+    """P3P pre-rotation of each sample (K, s): OpenCV's P3P on its first three points, the
+    root with the least squared error on its other points (all of them for P3P's own
+    samples) in front of the camera. Returns (R (K, 3, 3), C (K, 3), ok (K,))."""
+    K = len(samples)
+    Rs, Cs, ok = np.tile(np.eye(3), (K, 1, 1)), np.zeros((K, 3)), np.zeros(K, dtype=bool)
+    R, c, owner = p3p_roots(fr.X[samples[:, :3]], fr.x[samples[:, :3]])
+    if len(owner) == 0:
+        return Rs, Cs, ok
     rest = samples[:, 3:] if samples.shape[1] > 3 else samples
     Xr, xr = fr.X[rest[owner]], fr.x[rest[owner]]  # (M, m, 3), (M, m, 2)
     p = np.einsum("mij,mnj->mni", R, Xr) + c[:, None, :]
@@ -270,7 +280,7 @@ class NumpySamples:
         R, C, w, t = _hypotheses(
             fr, samples, self.rolling, self.iterations, None if anchor is None else anchor[0]
         )
-        fine = _plausible(C, w, t, fr.motion_bounds)
+        fine = plausible_models(C, w, t, fr.motion_bounds)
         n_bad = int(np.count_nonzero(~fine))
         if not fine.any():
             return ScoredBatch(-1, np.inf, R, C, w, t, n_bad)
@@ -302,7 +312,7 @@ class NumpyRansac(Ransac):
 
     def evaluate(self, model: Model) -> tuple[float, np.ndarray]:
         R, C, w, t = (np.asarray(a, dtype=float) for a in model)
-        if not _plausible(C[None], w[None], t[None], self.fr.motion_bounds)[0]:
+        if not plausible_models(C[None], w[None], t[None], self.fr.motion_bounds)[0]:
             return np.inf, np.zeros(len(self.fr.x), dtype=bool)
         e2 = _errors2(self.fr, R[None], C[None], w[None], t[None])[0]
         return float(np.minimum(e2, self.th2).sum()), e2 < self.th2
@@ -495,11 +505,13 @@ def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens
         # (:func:`~.sensitivity.acceleration_sensitivity`: G = H^-1 J^T W D, D the w and t
         # columns times tau / 2, at the (posterior) H of the covariance)
         D = 0.5 * np.repeat(fr.tau[near], 2)[:, None] * J[:, 6:12]
-        G = _physical(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr)
+        G = physical_sensitivity(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr)
     return R, C, w, t, cov, info, G
 
 
-def _physical(G: np.ndarray, R, C, w, s: float) -> np.ndarray:
+def physical_sensitivity(
+    G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, s: float
+) -> np.ndarray:
     """:func:`~.sensitivity.acceleration_sensitivity`'s outputs in NumPy: the model's
     sensitivity ``G`` (12, 6) per (beta, b) turned into the outputs' (rotation, position,
     angular and linear velocity) per (angular, linear acceleration) in the camera frame

@@ -245,14 +245,16 @@ def _scatter(P):
     return S
 
 
-def collinear_3d(X: np.ndarray, tol: float = 1e-3) -> bool:
+def collinear_3d(X: np.ndarray, tol: float = 1e-3, compiled: bool = True) -> bool:
     """True if the 3D points (N, 3) lie (nearly) on a line or are identical (the rotation about
     that line is free): second singular value of the centred points below ``tol`` times the
-    first (the eigenvalues of their 3x3 scatter matrix are the squared singular values)."""
+    first (the eigenvalues of their 3x3 scatter matrix are the squared singular values).
+    ``compiled=False``: the scatter matrix in NumPy (nothing compiles)."""
     X = np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3)
     if len(X) < 3:
         return True
-    ev = np.linalg.eigvalsh(_scatter(X))  # ascending
+    S = _scatter(X) if compiled else np.cov(X.T, bias=True) * len(X)
+    ev = np.linalg.eigvalsh(S)  # ascending
     return bool(not ev[2] > 0 or ev[1] < tol * tol * ev[2])
 
 
@@ -269,7 +271,11 @@ def line_rms(points: np.ndarray) -> float:
 
 
 def image_degenerate(
-    points_px: np.ndarray, points_normalized: np.ndarray, focal: float, threshold_px: float
+    points_px: np.ndarray,
+    points_normalized: np.ndarray,
+    focal: float,
+    threshold_px: float,
+    compiled: bool = True,
 ) -> bool:
     """True if the image points lie within the inlier threshold of one image line (identical
     points included): the rays then span a plane through the camera centre and the pose is not
@@ -281,11 +287,12 @@ def image_degenerate(
     Args:
         points_px (N, 2) measured pixels; points_normalized (N, 2) undistorted normalized
         coordinates; focal (px); threshold_px: RMS distance from the line (px) below which
-        the set is degenerate.
+        the set is degenerate; compiled: False: the line fits in NumPy (nothing compiles).
     """
+    rms = line_rms if compiled else _line_rms_numpy
     return (
-        line_rms(points_px) < threshold_px
-        or line_rms(np.asarray(points_normalized, dtype=float) * focal) < threshold_px
+        rms(np.asarray(points_px, dtype=float).reshape(-1, 2)) < threshold_px
+        or rms(np.asarray(points_normalized, dtype=float).reshape(-1, 2) * focal) < threshold_px
     )
 
 

@@ -74,16 +74,19 @@ uses it as a single camera's does (``estimate_rs_pose(..., gyro=)``): its rows i
 sample's linear solve, maximum a posteriori local optimization and refinement, then the gyro
 judged by the image alone and rejected when they disagree (:func:`estimate_rig_pose`).
 
-The refinement and the covariance run in one of the single camera's two implementations
-(``implementation``, :mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, the
-numba kernel above; ``"numpy"``, SciPy's ``least_squares`` on the same exact model and
+The estimator runs in one of the single camera's two implementations (``implementation``,
+:mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, numba kernels (the
+refinement kernel above, Lambda Twist P3P, the rig solver, the scoring kernel); ``"numpy"``,
+nothing compiled: the refinement by SciPy's ``least_squares`` on the same exact model and
 mountings (:func:`~rs_localizer.estimation.refine.least_squares_exact_model`, Huber loss at
-the threshold on the points within the cutoff, selected again after a fit) and the
-covariance and acceleration block from the analytic Jacobian
-(:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma: nothing compiles
-the refinement kernel's rig specialization (tens of seconds on a cold cache; the sampling,
-solver and residual kernels the rig shares compile in seconds). A rig node takes it while
-its kernels compile in the background (:mod:`rs_localizer.runtime.background`).
+the threshold on the points within the cutoff, selected again after a fit), the covariance
+and acceleration block from the analytic Jacobian
+(:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma; OpenCV's P3P
+(:func:`~.numpy_impl.p3p_roots`, every root), the rig solver's NumPy form
+(:func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch_numpy`), the scoring, checks and
+outputs in NumPy (the single camera's NumPy implementation's). A rig node takes it while its
+kernels compile in the background (:mod:`rs_localizer.runtime.background`): on a cold cache
+its first rig frame compiles nothing.
 
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
@@ -100,10 +103,10 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
-from ..geometry import matrix_to_rotvec, rotvec_to_matrix, skew
+from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix, skew
 from ..pose import PoseWithCovariance, RSModel, RSPose
 from ..solvers._common import DegenerateInputError
-from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch
+from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
 from .gyro import (
@@ -113,8 +116,15 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
+from .numpy_impl import p3p_roots, physical_sensitivity, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
-from .plausibility import collinear_3d, final_model_check, image_degenerate, plausible_motion
+from .plausibility import (
+    collinear_3d,
+    final_model_check,
+    final_model_check_numpy,
+    image_degenerate,
+    plausible_motion,
+)
 from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
@@ -454,11 +464,15 @@ class _GyroPrior:
     motion: MotionPrior | None = None
 
     @classmethod
-    def of(cls, gyro: GyroMeasurement, time: float = 0.0) -> _GyroPrior:
+    def of(cls, gyro: GyroMeasurement, time: float = 0.0, compiled: bool = True) -> _GyroPrior:
+        """The prior of ``gyro`` (``compiled=False``: its motion prior in NumPy,
+        :func:`~.gyro.gyro_prior`)."""
         info = np.linalg.inv(gyro.covariance)
         info = 0.5 * (info + info.T)
         w = -np.asarray(gyro.angular_velocity, float)
-        return cls(w, info, np.linalg.cholesky(info).T, float(time), gyro_prior(gyro))
+        return cls(
+            w, info, np.linalg.cholesky(info).T, float(time), gyro_prior(gyro, compiled=compiled)
+        )
 
     def rows(self, scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``prior_rows`` ``(P (K, 6, 6), q (K, 6))`` of the rig solver for K samples whose
@@ -555,7 +569,7 @@ class _Pool:
             self.sizes.append(len(uv))
             good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
             idx = np.flatnonzero(good)
-            x, r, _ = v.camera.normalize(uv[idx])
+            x, r, _ = v.camera.normalize(uv[idx], compiled=not self.numpy)
             ok = np.isfinite(x).all(axis=1)
             idx, x, r = idx[ok], x[ok], r[ok]
             cam = v.camera
@@ -600,13 +614,13 @@ class _Pool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
         undistorted) within ``threshold_px`` of one image line, or fewer than 3 (each camera's
         rays in one plane through its centre)."""
-        if collinear_3d(self.X):
+        if collinear_3d(self.X, compiled=not self.numpy):
             return True
         for c in range(len(self.sizes)):
             s = self.cam == c
             # (one or two rays always lie in a plane through the camera's centre)
             if s.sum() >= 3 and not image_degenerate(
-                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px
+                self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, not self.numpy
             ):
                 return False
         return True
@@ -656,7 +670,10 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
 
 
 def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
-    """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``."""
+    """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``
+    (``pool.numpy``: :func:`_residuals_numpy`, on every point)."""
+    if pool.numpy:
+        return _residuals_numpy(pool, R, C, w, t)[:, s]
     f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
     out = np.empty((len(f[0]), len(s), 2))
     _residuals_kernel(
@@ -666,11 +683,54 @@ def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     return out
 
 
+def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
+    """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
+    rig's points at each observation's capture time
+    (:func:`~rs_localizer.geometry.exact_camera_points`) seen through their camera's mounting
+    (the pool is stacked by camera: one matrix product per camera), the normalized errors
+    times the pixel Jacobians; inf behind the camera. Returns (H, N, 2)."""
+    ends = np.searchsorted(pool.cam, np.arange(len(pool.sizes) + 1))
+    A = pool.A
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        p = exact_camera_points(
+            np.asarray(R, dtype=float), np.asarray(C, dtype=float), np.asarray(w, dtype=float),
+            np.asarray(t, dtype=float), pool.X, pool.tau,
+        )  # fmt: skip
+        for m in range(len(pool.sizes)):  # (in place: each camera's points through its mounting)
+            on = slice(ends[m], ends[m + 1])
+            p[:, on] = p[:, on] @ pool.R_mount[m].T + pool.c_mount[m]
+        z = p[..., 2]
+        ex, ey = p[..., 0] / z - pool.x[:, 0], p[..., 1] / z - pool.x[:, 1]
+        out = np.stack([A[:, 0] * ex + A[:, 1] * ey, A[:, 2] * ex + A[:, 3] * ey], axis=-1)
+    out[~(z > 1e-9)] = np.inf
+    return out
+
+
+def _plausible_motion(pool: _Pool, C, w, t, bounds) -> bool | np.ndarray:
+    """:func:`~.plausibility.plausible_motion` of one model (C, w, t (3,)) or H (H, 3);
+    ``pool.numpy``: in NumPy (nothing compiles)."""
+    if not pool.numpy:
+        return plausible_motion(None, C, w, t, bounds)
+    one = np.ndim(w) == 1
+    C, w, t = (np.asarray(a, dtype=float).reshape(-1, 3) for a in (C, w, t))
+    ok = plausible_models(C, w, t, bounds)
+    return bool(ok[0]) if one else ok
+
+
+def _rig_solver(pool: _Pool):
+    """The rig solver's batch of :func:`~rs_localizer.solvers.gr6p_1lin.gr6p_1lin_batch`
+    (``pool.numpy``: its NumPy form)."""
+    return gr6p_1lin_batch_numpy if pool.numpy else gr6p_1lin_batch
+
+
 def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     """Reprojection errors (px) of H models R (H, 3, 3), C, w, t (H, 3) on the pool's points,
     with the exact rotation ``expm(tau [w]x)`` at each observation's measured capture time;
     inf for a point behind its camera. Returns (H, N)."""
-    d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
+    if pool.numpy:
+        d = _residuals_numpy(pool, R, C, w, t)
+    else:
+        d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
     return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
 
 
@@ -742,11 +802,11 @@ def _hypotheses(
     rows = None
     if prior is not None:
         rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
-    b = gr6p_1lin_batch(
+    b = _rig_solver(pool)(
         pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations,
         prior_rows=rows,
     )  # fmt: skip
-    ok = b.valid & plausible_motion(None, b.C, b.w, b.t, bounds)
+    ok = b.valid & _plausible_motion(pool, b.C, b.w, b.t, bounds)
     if not ok.any():
         return None
     R = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok])
@@ -806,13 +866,17 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
-    (H,) of the samples that gave a solution; None when none did."""
+    (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
+    (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     cam0 = pool.cam[samples[:, 0]]
     xs = pool.x[samples[:, :3]]
-    bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-    R_cam, C_cam, own = lambda_twist_batch(
-        np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-    )
+    if pool.numpy:
+        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], xs)
+    else:
+        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
+        R_cam, C_cam, own = lambda_twist_batch(
+            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
+        )
     if len(own) == 0:
         return None
     Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
@@ -840,9 +904,18 @@ def _refit(
     for _ in range(rounds):
         if prior is not None:
             rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
-            b = gr6p_1lin_batch(
+            b = _rig_solver(pool)(
                 pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
                 pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
+            )  # fmt: skip
+            if not b.valid[0]:
+                return model
+            R, C, w, t = rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]
+            continue
+        if pool.numpy:  # (gr6p_1lin's problem as a batch of one)
+            b = gr6p_1lin_batch_numpy(
+                pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
+                pool.cam[idx][None], pool.R_mount, pool.c_mount, 10,
             )  # fmt: skip
             if not b.valid[0]:
                 return model
@@ -1077,11 +1150,16 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
     return out
 
 
-def _sensitivity_out(G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _sensitivity_out(
+    G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, numpy: bool = False
+) -> np.ndarray:
     """(12, 6) the estimate's outputs (as ``covariance``) per (angular acceleration [rad/s^2],
     linear acceleration [m/s^2], rig frame) from the model's sensitivity ``G`` per
     ``(beta, b)``: ``beta = -alpha``, ``b = beta x C - a`` (:mod:`~.sensitivity` with one
-    second per unit of tau), then :func:`~.sensitivity.output_jacobian`."""
+    second per unit of tau), then :func:`~.sensitivity.output_jacobian` (``numpy``: the same
+    in NumPy, :func:`~.numpy_impl.physical_sensitivity` with one second per unit of tau)."""
+    if numpy:
+        return physical_sensitivity(G, R, C, w, 1.0)
     M = np.zeros((6, 6))
     M[:3, :3] = -np.eye(3)
     M[3:, 3:] = -np.eye(3)
@@ -1105,7 +1183,7 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
         if not s.any():
             continue
         Rc, cc = pool.R_mount[c], pool.c_mount[c]
-        code, n = final_model_check(
+        code, n = (final_model_check_numpy if pool.numpy else final_model_check)(
             np.ascontiguousarray(Rc @ R),
             Rc @ C + cc,
             Rc @ w,
@@ -1341,15 +1419,15 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
         return _estimate(pool, *settings)
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
-    prior = _GyroPrior.of(gyro, gyro_time)
+    prior = _GyroPrior.of(gyro, gyro_time, not pool.numpy)
     est = _estimate(pool, *settings, prior=prior)
     chi2, image_inliers = np.inf, 0
     if est.success:
         image = _image_alone(pool, est, threshold_px)
         if image is not None:
             inl = _errors_px(pool, *_one(est.model))[0] < threshold_px
-            planar = bool(planarity(pool.X[inl]) < PLANAR_TOLERANCE)
-            chi2 = gyro_image_chi2(gyro, image[0], image[1], planar)
+            planar = bool(planarity(pool.X[inl], compiled=not pool.numpy) < PLANAR_TOLERANCE)
+            chi2 = gyro_image_chi2(gyro, image[0], image[1], planar, not pool.numpy)
             image_inliers = image[2]
         est = replace(est, gyro_chi2=float(chi2))
     out = gyro_checked(est, chi2, image_inliers, len(pool.cam), lambda: _estimate(pool, *settings))
@@ -1620,7 +1698,7 @@ class _RigSearch(RansacLoop):
         )  # fmt: skip
         if hyp is None:
             return None
-        ok = plausible_motion(None, hyp[1], hyp[2], hyp[3], self.bounds)
+        ok = _plausible_motion(pool, hyp[1], hyp[2], hyp[3], self.bounds)
         self.implausible += int(np.count_nonzero(~ok))
         return tuple(a[ok] for a in hyp) if ok.any() else None
 
@@ -1737,9 +1815,9 @@ def _estimate(
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         return failed(TOO_FEW_INLIERS, drawn)
-    if collinear_3d(pool.X[inl]):
+    if collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
-    if not (np.isfinite(R).all() and plausible_motion(None, C, w, t, search.bounds)):
+    if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
     behind, bad = _behind_and_cheirality(pool, (R, C, w, t), inl)
     if bad:
@@ -1752,7 +1830,7 @@ def _estimate(
     out = (
         (None, None, None)
         if cov is None
-        else output_covariance(cov, R, C, w, 0.0 if still else 1.0)
+        else output_covariance(cov, R, C, w, 0.0 if still else 1.0, not pool.numpy)
     )
     return _rig_estimate(
         pool,
@@ -1765,7 +1843,7 @@ def _estimate(
         num_behind=behind,
         model_covariance=cov,
         global_shutter=still,
-        acceleration_sensitivity=None if G is None else _sensitivity_out(G, R, C, w),
+        acceleration_sensitivity=None if G is None else _sensitivity_out(G, R, C, w, pool.numpy),
         initial_explained=explained,
         initial_used=used,
         gyro_used=prior is not None,

@@ -58,10 +58,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ..geometry import cross
 from ._common import DegenerateInputError, RSBatch, RSSolution
-from ._linear import PATIENCE, cross_into, lstsq
+from ._linear import PATIENCE, RANK_TOL, cross_into, lstsq
 
-__all__ = ["gr6p_1lin", "gr6p_1lin_batch", "rig_algebraic_error", "rig_times"]
+__all__ = [
+    "gr6p_1lin",
+    "gr6p_1lin_batch",
+    "gr6p_1lin_batch_numpy",
+    "rig_algebraic_error",
+    "rig_times",
+]
 
 NAME = "gr6p_1lin"
 MIN_POINTS = 6
@@ -191,6 +198,95 @@ def _solve(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q, use_prior, out
             if e <= tol or stale >= PATIENCE:
                 break
         err[k] = best
+
+
+def _lstsq_stack(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares ``min |A[k] u - b[k]|`` of K systems A (K, m, 12), m >= 12, b (K, m):
+    square systems (minimal samples) by NumPy's stacked LU solve (singular ones one by one,
+    ``ok`` False), others by its stacked Householder QR, ``ok`` False where the triangular
+    factor's smallest pivot is at most ``RANK_TOL`` times its largest (rank loss); ``ok``
+    False too where a value is not finite. Returns (u (K, 12), ok (K,))."""
+    u = np.full(b.shape[:1] + (12,), np.nan)
+    ok = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(b).all(axis=1)
+    if not ok.any():
+        return u, ok
+    idx = np.flatnonzero(ok)
+    if A.shape[1] == A.shape[2]:
+        try:
+            u[idx] = np.linalg.solve(A[idx], b[idx][..., None])[..., 0]
+        except np.linalg.LinAlgError:  # (a singular system: solve them one by one)
+            for k in idx:
+                try:
+                    u[k] = np.linalg.solve(A[k], b[k])
+                except np.linalg.LinAlgError:
+                    ok[k] = False
+    else:
+        Q, R = np.linalg.qr(A[idx])
+        d = np.abs(np.diagonal(R, axis1=1, axis2=2))
+        full = d.min(axis=1) > RANK_TOL * d.max(axis=1)
+        rhs = np.einsum("kmi,km->ki", Q, b[idx])
+        if full.any():
+            u[idx[full]] = np.linalg.solve(R[full], rhs[full][..., None])[..., 0]
+        ok[idx[~full]] = False
+    ok &= np.isfinite(u).all(axis=1)
+    return u, ok
+
+
+def _solve_numpy(x, X, tau, cam, Rm, cm, iterations, tol, v_init, P, q):
+    """:func:`_solve` in NumPy for all K problems at once (nothing compiles): the same rows,
+    iteration, stopping rule (converged, or ``PATIENCE`` steps without a new best by more
+    than ``tol``) and best iterate; ``P``, ``q`` (K, 6, 6), (K, 6) or None: the prior rows.
+    Returns (out (K, 12), ok (K,), its (K,), err (K,))."""
+    K, N = x.shape[0], x.shape[1]
+    Rc, cc = Rm[cam], cm[cam]  # (K, N, 3, 3), (K, N, 3)
+    xi, yi = x[..., 0:1], x[..., 1:2]
+    F = np.empty((K, N, 2, 3))  # the elimination rows in the rig frame, R_c^T E
+    F[..., 0, :] = -Rc[..., 1, :] + yi * Rc[..., 2, :]
+    F[..., 1, :] = Rc[..., 0, :] - xi * Rc[..., 2, :]
+    ec = np.stack(
+        [-cc[..., 1] + yi[..., 0] * cc[..., 2], cc[..., 0] - xi[..., 0] * cc[..., 2]], axis=-1
+    )
+    rows = np.empty((K, N, 2, 12))
+    rows[..., 0:3] = cross(X[:, :, None, :], F)
+    rows[..., 3:6] = F
+    te = tau[:, :, None, None]
+    rows[..., 9:12] = te * F
+    b = (-np.einsum("knqj,knj->knq", F, X) - ec).reshape(K, 2 * N)
+    if P is not None:
+        extra = np.zeros((K, 6, 12))
+        extra[:, :, 6:12] = P
+        b = np.concatenate([b, q], axis=1)
+    vhat = np.array(v_init, dtype=float)
+    out, ok = np.zeros((K, 12)), np.zeros(K, dtype=bool)
+    its, err = np.zeros(K, dtype=np.int64), np.full(K, np.inf)
+    stale, active = np.zeros(K, dtype=np.int64), np.ones(K, dtype=bool)
+    for it in range(iterations):
+        k = np.flatnonzero(active)
+        if len(k) == 0:
+            break
+        Z = X[k] + cross(vhat[k][:, None, :], X[k])
+        rows[k, :, :, 6:9] = te[k] * cross(Z[:, :, None, :], F[k])
+        A = rows[k].reshape(len(k), 2 * N, 12)
+        if P is not None:
+            A = np.concatenate([A, extra[k]], axis=1)
+        u, good = _lstsq_stack(A, b[k])
+        active[k[~good]] = False  # (rank loss: the compiled solver stops there)
+        k, u = k[good], u[good]
+        # the RMS algebraic error of the rig eq. 5 at the iterate (_rig_error)
+        v, C, w, t = u[:, None, 0:3], u[:, None, 3:6], u[:, None, 6:9], u[:, None, 9:12]
+        y = X[k] + cross(v, X[k])
+        p = y + tau[k][..., None] * (cross(w, y) + t) + C
+        qc = np.einsum("knij,knj->kni", Rc[k], p) + cc[k]
+        e1 = -qc[..., 1] + x[k, :, 1] * qc[..., 2]
+        e2 = qc[..., 0] - x[k, :, 0] * qc[..., 2]
+        e = np.sqrt(np.mean(e1 * e1 + e2 * e2, axis=1))
+        its[k] = it + 1
+        stale[k] = np.where(e < err[k] - tol, 0, stale[k] + 1)
+        better = e < err[k]
+        out[k[better]], err[k[better]], ok[k[better]] = u[better], e[better], True
+        vhat[k] = u[:, 0:3]
+        active[k[(e <= tol) | (stale[k] >= PATIENCE)]] = False
+    return out, ok, its, err
 
 
 def _mountings(R_mount, c_mount, cam, name):
@@ -356,6 +452,50 @@ def gr6p_1lin_batch(
     its = np.zeros(K, dtype=np.int64)
     err = np.zeros(K)
     _solve(x, X, tau, cam, Rm, cm, int(iterations), float(tol), v0, P, q, use, out, ok, its, err)
+    ok &= np.isfinite(out).all(axis=1)
+    out[~ok] = 0.0
+    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
+
+
+def gr6p_1lin_batch_numpy(
+    x: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    cam: np.ndarray,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    iterations: int = 5,
+    v_init: np.ndarray | None = None,
+    tol: float = 1e-12,
+    prior_rows: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RSBatch:
+    """:func:`gr6p_1lin_batch` in NumPy, nothing compiled (the rig estimator's NumPy
+    implementation): the same arguments, iteration and outputs, each linear solve by NumPy's
+    stacked LU solve for square systems, its stacked QR otherwise (as the compiled one:
+    Gaussian elimination, Householder QR; the solutions agree to rounding). A problem with a
+    single set of points (K = 1) is :func:`gr6p_1lin`'s, with ``valid`` False where it raises.
+
+    Raises:
+        ValueError: as :func:`gr6p_1lin_batch`.
+    """
+    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
+    K = x.shape[0]
+    if iterations < 1:
+        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
+    v0 = _v0(v_init, K)
+    P = q = None
+    if prior_rows is not None:
+        P = np.asarray(prior_rows[0], dtype=np.float64)
+        q = np.asarray(prior_rows[1], dtype=np.float64)
+        if P.shape != (K, 6, 6) or q.shape != (K, 6):
+            raise ValueError(
+                f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
+                f"got {P.shape} and {q.shape}"
+            )
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        out, ok, its, err = _solve_numpy(
+            x, X, tau, cam, Rm, cm, int(iterations), float(tol), v0, P, q
+        )
     ok &= np.isfinite(out).all(axis=1)
     out[~ok] = 0.0
     return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)

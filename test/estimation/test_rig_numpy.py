@@ -1,6 +1,6 @@
 """estimate_rig_pose on the NumPy implementation (SciPy's least_squares refinement, NumPy
-covariance) against the compiled one on the same rig frames and against the truth; it never
-runs the refinement kernel."""
+covariance, NumPy hypotheses and scoring) against the compiled one on the same rig frames and
+against the truth; it never runs the refinement kernel and compiles nothing."""
 
 import json
 import os
@@ -100,32 +100,71 @@ def test_an_unknown_implementation_raises():
 
 
 _FRESH = """
-import json
+import json, sys
 import numpy as np
+from rs_localizer.estimation.gyro import GyroMeasurement
+from rs_localizer.estimation.options import InitialModel
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.runtime.jit_cache import compile_progress
 from rs_localizer.sim import rig as sim_rig
 
 rng = np.random.default_rng(1)
 rig = sim_rig.make_rig(3, rng)
-frame = sim_rig.rig_frame(rig, sim_rig.rig_motion(rng, 1.5, 1.5), [80] * 3, rng)
+truth = sim_rig.rig_motion(rng, 1.5, 1.5)
+frame = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
+gyro = GyroMeasurement(-truth.w, 0.005**2 * np.eye(3))
+runs = {"plain": {}, "gyro": {"gyro": gyro},
+        "seeded": {"initial_model": InitialModel(tuple(truth)), "verify_cameras": True}}
+out = {}
 with compile_progress() as prog:
-    est = estimate_rig_pose(frame.views, implementation="numpy")
-print(json.dumps({"success": est.success, "kernels": [k for k, _ in prog.kernels]}))
+    for name, kw in runs.items():
+        e = estimate_rig_pose(frame.views, implementation="numpy", **kw)
+        out[name] = [bool(e.success), e.implementation, e.R.tolist(), e.pose.position.tolist(),
+                     e.w.tolist(), int(e.num_inliers), e.model_covariance is not None]
+used = sorted(
+    f"{m}.{k}"
+    for m, mod in list(sys.modules.items())
+    if m.startswith("rs_localizer")
+    for k, v in list(vars(mod).items())
+    if hasattr(v, "overloads") and hasattr(v, "py_func") and len(v.overloads)
+)
+print(json.dumps({"runs": out, "kernels": [k for k, _ in prog.kernels], "used": used}))
 """
 
 
-@pytest.mark.slow
-def test_numpy_rig_path_on_a_fresh_cache_does_not_compile_the_refinement(tmp_path):
+def test_numpy_rig_path_on_a_fresh_cache_compiles_nothing(tmp_path):
     """In a process with an empty numba cache the NumPy implementation poses a rig frame
-    and compiles the small kernels it shares (sampling, solver, residuals), never the
-    refinement kernel (compile_progress's record of every kernel compiled)."""
+    (3 cameras x 100 points, 20 % outliers; plain, with a gyro, seeded by an initial model
+    with every camera verified alone) and numba compiles no kernel (compile_progress's
+    record) nor loads one (no dispatcher of the package has a compiled version); each pose
+    is within 0.002 deg, 0.5 mm and 0.005 rad/s of the compiled implementation's on the same
+    frame (run here) and within 0.1 deg and 2 cm of the truth, with as many inliers within
+    2 %."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": str(ROOT)}
     out = subprocess.run(
         [sys.executable, "-c", _FRESH], env=env, cwd=ROOT, capture_output=True, text=True,
-        timeout=600, check=True,
+        timeout=300, check=True,
     )  # fmt: skip
     res = json.loads(out.stdout.strip().splitlines()[-1])
-    assert res["success"]
-    assert res["kernels"], "nothing compiled: the cache was not fresh"
-    assert not [k for k in res["kernels"] if "_lm_refine" in k], res["kernels"]
+    assert res["kernels"] == [] and res["used"] == [], res
+    rng = np.random.default_rng(1)
+    rig = sim_rig.make_rig(3, rng)
+    truth = sim_rig.rig_motion(rng, 1.5, 1.5)
+    frame = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
+    gyro = GyroMeasurement(-truth.w, 0.005**2 * np.eye(3))
+    runs = {
+        "plain": {},
+        "gyro": {"gyro": gyro},
+        "seeded": {"initial_model": InitialModel(tuple(truth)), "verify_cameras": True},
+    }
+    for name, kw in runs.items():
+        c = estimate_rig_pose(frame.views, implementation="compiled", **kw)
+        ok, impl, R, p, w, n_in, has_cov = res["runs"][name]
+        assert c.success and ok and impl == "numpy" and has_cov, name
+        R, p, w = np.array(R), np.array(p), np.array(w)
+        assert rotation_angle_deg(R, c.R) < 0.002, name
+        assert np.linalg.norm(p - c.pose.position) < 5e-4, name
+        assert np.linalg.norm(w - c.w) < 0.005, name
+        assert abs(n_in - c.num_inliers) <= 0.02 * c.num_inliers, name
+        assert rotation_angle_deg(R, truth.R) < 0.1, name
+        assert np.linalg.norm(p - (-truth.R.T @ truth.C)) < 0.02, name
