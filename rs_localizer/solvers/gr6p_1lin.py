@@ -431,30 +431,7 @@ def gr6p_1lin_batch(
         ValueError: wrong shapes, N < 6, camera index out of range, non-finite mountings,
             iterations < 1, or ``prior_rows`` not of shapes (K, 6, 6), (K, 6).
     """
-    x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
-    K = x.shape[0]
-    if iterations < 1:
-        raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
-    v0 = _v0(v_init, K)
-    if prior_rows is None:
-        P, q, use = _NO_P, _NO_Q, np.bool_(False)
-    else:
-        P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
-        q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
-        if P.shape != (K, 6, 6) or q.shape != (K, 6):
-            raise ValueError(
-                f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
-                f"got {P.shape} and {q.shape}"
-            )
-        use = np.bool_(True)
-    out = np.zeros((K, 12))
-    ok = np.zeros(K, dtype=np.bool_)
-    its = np.zeros(K, dtype=np.int64)
-    err = np.zeros(K)
-    _solve(x, X, tau, cam, Rm, cm, int(iterations), float(tol), v0, P, q, use, out, ok, its, err)
-    ok &= np.isfinite(out).all(axis=1)
-    out[~ok] = 0.0
-    return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
+    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, True)
 
 
 def gr6p_1lin_batch_numpy(
@@ -478,24 +455,39 @@ def gr6p_1lin_batch_numpy(
     Raises:
         ValueError: as :func:`gr6p_1lin_batch`.
     """
+    return _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, False)
+
+
+def _batch(x, X, tau, cam, R_mount, c_mount, iterations, v_init, tol, prior_rows, compiled):
+    """:func:`gr6p_1lin_batch` (``compiled``: the numba kernel :func:`_solve`) and
+    :func:`gr6p_1lin_batch_numpy` (:func:`_solve_numpy`): one set of checks and outputs."""
     x, X, tau, cam, Rm, cm = _check(x, X, tau, cam, R_mount, c_mount, batched=True)
     K = x.shape[0]
     if iterations < 1:
         raise ValueError(f"{NAME}: iterations must be >= 1, got {iterations}")
     v0 = _v0(v_init, K)
+    n_it, tol = int(iterations), float(tol)
     P = q = None
     if prior_rows is not None:
-        P = np.asarray(prior_rows[0], dtype=np.float64)
-        q = np.asarray(prior_rows[1], dtype=np.float64)
+        P = np.ascontiguousarray(prior_rows[0], dtype=np.float64)
+        q = np.ascontiguousarray(prior_rows[1], dtype=np.float64)
         if P.shape != (K, 6, 6) or q.shape != (K, 6):
             raise ValueError(
                 f"{NAME}: prior_rows must have shapes ({K}, 6, 6) and ({K}, 6), "
                 f"got {P.shape} and {q.shape}"
             )
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        out, ok, its, err = _solve_numpy(
-            x, X, tau, cam, Rm, cm, int(iterations), float(tol), v0, P, q
-        )
+    if compiled:
+        out = np.zeros((K, 12))
+        ok = np.zeros(K, dtype=np.bool_)
+        its = np.zeros(K, dtype=np.int64)
+        err = np.zeros(K)
+        use = np.bool_(P is not None)
+        if P is None:
+            P, q = _NO_P, _NO_Q
+        _solve(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q, use, out, ok, its, err)
+    else:
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            out, ok, its, err = _solve_numpy(x, X, tau, cam, Rm, cm, n_it, tol, v0, P, q)
     ok &= np.isfinite(out).all(axis=1)
     out[~ok] = 0.0
     return RSBatch(out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12], ok, its, err)
