@@ -379,16 +379,7 @@ class RSTracker:
             )
         else:
             opts = self.options
-            est = estimate_rs_pose(
-                points2d,
-                points3d,
-                camera,
-                self.solver,
-                opts,
-                scores,
-                gyro=gyro,
-                implementation=implementation,
-            )
+            est = self._cold(points2d, points3d, camera, scores, gyro, implementation)
         if not est.success:
             self.failures += 1
             return TrackResult(est, state, None, final, predicted, explained)
@@ -465,14 +456,19 @@ class RSTracker:
             # the prediction does not hold (its twist must not be the prior), or it misled
             # RANSAC on a bad frame: solve the frame cold
             opts = self.options
-            est = estimate_rs_pose(
-                points2d,
-                points3d,
-                camera,
-                self.solver,
-                opts,
-                scores,
-                gyro=gyro,
-                implementation=implementation,
-            )
+            est = self._cold(points2d, points3d, camera, scores, gyro, implementation)
         return est, "relocalized", opts, explained
+
+    def _cold(self, points2d, points3d, camera, scores, gyro, implementation) -> RSPoseEstimate:
+        """The frame solved without the prediction: the tracker's estimator options, no
+        initial model (a frame starting a track, or one the prediction did not hold for)."""
+        return estimate_rs_pose(
+            points2d,
+            points3d,
+            camera,
+            self.solver,
+            self.options,
+            scores,
+            gyro=gyro,
+            implementation=implementation,
+        )
