@@ -4,14 +4,9 @@ covariances of the same size, the same failure reasons on bad input; it compiles
 fresh process with an empty numba cache); ``estimate_rs_pose``'s ``implementation`` argument
 and what the estimate records (the runtime's choice of it: test/runtime/test_background.py)."""
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers.fresh_cache import run_on_empty_cache
 
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.estimate import EstimateOptions, PlausibilityOptions
@@ -20,8 +15,6 @@ from rs_localizer.estimation.implementation import NUMPY_UNUSED
 from rs_localizer.estimation.options import RefineOptions
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.synthetic import make_frame, paper_camera
-
-ROOT = Path(__file__).resolve().parents[2]
 
 #: the protocol's scene has no physical scale (see sim.synthetic.protocol_options)
 OPTS = EstimateOptions(
@@ -266,37 +259,25 @@ def test_gyro_on_numpy():
 
 
 _NO_COMPILE = """
-import json, sys, time
-t0 = time.perf_counter()
 import numpy as np
-from rs_localizer.runtime.jit_cache import compile_progress
 from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.gyro import GyroMeasurement
 from rs_localizer.estimation.options import InitialModel
 from rs_localizer.sim.synthetic import make_frame, paper_camera
 cam = paper_camera()
 out = []
-with compile_progress() as prog:
-    for k in range(3):
-        f = make_frame(k, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
-        e = estimate_rs_pose(f.points_px, f.X, cam, implementation="numpy")
-        out.append(bool(e.success) and e.implementation == "numpy")
-    # a prediction (pulled in: 60 px off at the gate) and a gyro
-    f = make_frame(5, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
-    init = InitialModel((f.R, f.C + [0.02, 0, 0], f.w, f.t), gate_px=200.0, min_explained=100)
-    gyro = GyroMeasurement(f.angular_velocity, 1e-4 * np.eye(3))
-    e = estimate_rs_pose(f.points_px, f.X, cam, initial_model=init, gyro=gyro,
-                         implementation="numpy")
-    out.append(bool(e.success) and e.initial_used and e.gyro_used)
-used = sorted(
-    f"{m}.{k}"
-    for m, mod in list(sys.modules.items())
-    if m.startswith("rs_localizer")
-    for k, v in list(vars(mod).items())
-    if hasattr(v, "overloads") and hasattr(v, "py_func") and len(v.overloads)
-)
-print(json.dumps({"kernels": len(prog.kernels), "used": used, "solved": out,
-                  "seconds": time.perf_counter() - t0}))
+for k in range(3):
+    f = make_frame(k, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+    e = estimate_rs_pose(f.points_px, f.X, cam, implementation="numpy")
+    out.append(bool(e.success) and e.implementation == "numpy")
+# a prediction (pulled in: 60 px off at the gate) and a gyro
+f = make_frame(5, 200, rs_speed=0.5, noise_px=1.0, outlier_ratio=0.2)
+init = InitialModel((f.R, f.C + [0.02, 0, 0], f.w, f.t), gate_px=200.0, min_explained=100)
+gyro = GyroMeasurement(f.angular_velocity, 1e-4 * np.eye(3))
+e = estimate_rs_pose(f.points_px, f.X, cam, initial_model=init, gyro=gyro,
+                     implementation="numpy")
+out.append(bool(e.success) and e.initial_used and e.gyro_used)
+result = {"solved": out}
 """
 
 
@@ -306,18 +287,9 @@ def test_compiles_nothing(tmp_path):
     (one with an initial model and a gyro) and numba compiles no kernel (numba's compile
     events, jit_cache.compile_progress) nor loads one (no numba dispatcher of the package has
     a compiled version)."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(ROOT)}
-    r = subprocess.run(
-        [sys.executable, "-c", _NO_COMPILE],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
-    assert r.returncode == 0, r.stderr
-    res = json.loads(r.stdout.strip().splitlines()[-1])
-    assert res["solved"] == [True, True, True, True]
-    assert res["kernels"] == 0
+    res = run_on_empty_cache(_NO_COMPILE, tmp_path, timeout=120)
+    assert res["result"]["solved"] == [True, True, True, True]
+    assert res["kernels"] == []
     assert res["used"] == []  # (no kernel compiled or loaded from the cache)
 
 

@@ -2,14 +2,9 @@
 covariance, NumPy hypotheses and scoring) against the compiled one on the same rig frames and
 against the truth; it never runs the refinement kernel and compiles nothing."""
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers.fresh_cache import run_on_empty_cache
 
 import rs_localizer.estimation.refine as refine
 from rs_localizer.estimation.gyro import GyroMeasurement
@@ -17,8 +12,6 @@ from rs_localizer.estimation.options import InitialModel
 from rs_localizer.estimation.rig import estimate_rig_pose
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim import rig as sim_rig
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _frames(seed, n, points=100, cameras=3):
@@ -100,12 +93,10 @@ def test_an_unknown_implementation_raises():
 
 
 _FRESH = """
-import json, sys
 import numpy as np
 from rs_localizer.estimation.gyro import GyroMeasurement
 from rs_localizer.estimation.options import InitialModel
 from rs_localizer.estimation.rig import estimate_rig_pose
-from rs_localizer.runtime.jit_cache import compile_progress
 from rs_localizer.sim import rig as sim_rig
 
 rng = np.random.default_rng(1)
@@ -115,20 +106,11 @@ frame = sim_rig.rig_frame(rig, truth, [100] * 3, rng)
 gyro = GyroMeasurement(-truth.w, 0.005**2 * np.eye(3))
 runs = {"plain": {}, "gyro": {"gyro": gyro},
         "seeded": {"initial_model": InitialModel(tuple(truth)), "verify_cameras": True}}
-out = {}
-with compile_progress() as prog:
-    for name, kw in runs.items():
-        e = estimate_rig_pose(frame.views, implementation="numpy", **kw)
-        out[name] = [bool(e.success), e.implementation, e.R.tolist(), e.pose.position.tolist(),
-                     e.w.tolist(), int(e.num_inliers), e.model_covariance is not None]
-used = sorted(
-    f"{m}.{k}"
-    for m, mod in list(sys.modules.items())
-    if m.startswith("rs_localizer")
-    for k, v in list(vars(mod).items())
-    if hasattr(v, "overloads") and hasattr(v, "py_func") and len(v.overloads)
-)
-print(json.dumps({"runs": out, "kernels": [k for k, _ in prog.kernels], "used": used}))
+result = {}
+for name, kw in runs.items():
+    e = estimate_rig_pose(frame.views, implementation="numpy", **kw)
+    result[name] = [bool(e.success), e.implementation, e.R.tolist(), e.pose.position.tolist(),
+                    e.w.tolist(), int(e.num_inliers), e.model_covariance is not None]
 """
 
 
@@ -140,12 +122,7 @@ def test_numpy_rig_path_on_a_fresh_cache_compiles_nothing(tmp_path):
     is within 0.002 deg, 0.5 mm and 0.005 rad/s of the compiled implementation's on the same
     frame (run here) and within 0.1 deg and 2 cm of the truth, with as many inliers within
     2 %."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"), "PYTHONPATH": str(ROOT)}
-    out = subprocess.run(
-        [sys.executable, "-c", _FRESH], env=env, cwd=ROOT, capture_output=True, text=True,
-        timeout=300, check=True,
-    )  # fmt: skip
-    res = json.loads(out.stdout.strip().splitlines()[-1])
+    res = run_on_empty_cache(_FRESH, tmp_path / "numba", timeout=300)
     assert res["kernels"] == [] and res["used"] == [], res
     rng = np.random.default_rng(1)
     rig = sim_rig.make_rig(3, rng)
@@ -159,7 +136,7 @@ def test_numpy_rig_path_on_a_fresh_cache_compiles_nothing(tmp_path):
     }
     for name, kw in runs.items():
         c = estimate_rig_pose(frame.views, implementation="compiled", **kw)
-        ok, impl, R, p, w, n_in, has_cov = res["runs"][name]
+        ok, impl, R, p, w, n_in, has_cov = res["result"][name]
         assert c.success and ok and impl == "numpy" and has_cov, name
         R, p, w = np.array(R), np.array(p), np.array(w)
         assert rotation_angle_deg(R, c.R) < 0.002, name

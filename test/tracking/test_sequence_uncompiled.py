@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers.fresh_cache import run_on_empty_cache
 
 from rs_localizer.estimation.estimate import EstimateOptions, RansacOptions
 from rs_localizer.geometry import rotation_angle_deg
@@ -159,23 +160,14 @@ def test_the_twist_filter_on_numpy_is_the_compiled_filter(video):
 
 
 _NO_COMPILE = """
-import json, sys
-sys.path.insert(0, sys.argv[1])
-from rs_localizer.runtime.jit_cache import compile_progress
+import sys
+sys.path[:0] = ARGS  # (this test's folder and the tests' helpers)
 import test_sequence_uncompiled as T
 
 video = T.video.__wrapped__()
-with compile_progress() as prog:
-    seq, outs, fused = T._run(video, "numpy")
-used = sorted(
-    f"{m}.{k}"
-    for m, mod in list(sys.modules.items())
-    if m.startswith("rs_localizer")
-    for k, v in list(vars(mod).items())
-    if hasattr(v, "overloads") and hasattr(v, "py_func") and len(v.overloads)
-)
-print(json.dumps({"kernels": len(prog.kernels), "used": used, "paths": [o.path for o in outs],
-                  "gyro": sum(o.estimate.gyro_used for o in outs), "fused": len(fused)}))
+seq, outs, fused = T._run(video, "numpy")
+result = {"paths": [o.path for o in outs], "gyro": sum(o.estimate.gyro_used for o in outs),
+          "fused": len(fused)}
 """
 
 
@@ -184,25 +176,13 @@ def test_a_tracked_video_on_numpy_compiles_nothing(tmp_path):
     is tracked and fused (the tracker's prediction, the gyro's prior and checks, the twist
     filter as plain Python) and numba compiles no kernel nor loads one: a node's frames
     while its kernels compile in the background never wait for a compile."""
-    import json
-    import os
-    import subprocess
-    import sys
     from pathlib import Path
 
     here = Path(__file__).resolve().parent
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "PYTHONPATH": str(here.parents[1])}
-    r = subprocess.run(
-        [sys.executable, "-c", _NO_COMPILE, str(here)],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=120,
-    )
-    assert r.returncode == 0, r.stderr
-    res = json.loads(r.stdout.strip().splitlines()[-1])
-    n = len(res["paths"])
-    assert res["paths"] == ["cold"] + ["tracked"] * (n - 1) and res["fused"] == n
-    assert res["gyro"] == n
-    assert res["kernels"] == 0
+    res = run_on_empty_cache(_NO_COMPILE, tmp_path, here, here.parent, timeout=120)
+    paths = res["result"]["paths"]
+    n = len(paths)
+    assert paths == ["cold"] + ["tracked"] * (n - 1) and res["result"]["fused"] == n
+    assert res["result"]["gyro"] == n
+    assert res["kernels"] == []
     assert res["used"] == []
