@@ -61,7 +61,7 @@ def _video(preset: str, frames: int, seed: int = 0) -> list:
 
 def profile_steps(video: list, repeats: int) -> dict:
     """CPU seconds per frame of each step (module notes): {step: (F * repeats,) s}."""
-    fe = ArucoFrontend.from_scene(room())
+    fe = ArucoFrontend.from_scene(room(), detector_options=DetectorOptions(nthreads=1))
     det = fe.detector
     lib = det._detector(det.decimation(video[0][0].shape)) if det.backend == "apriltag" else None
     grays = [to_gray(rgb) for rgb, _, _ in video]
@@ -141,7 +141,10 @@ def main(argv: list | None = None) -> int:
             f"  {step:10s} median {np.median(t) * 1e3:6.2f}  p90 {np.percentile(t, 90) * 1e3:6.2f}"
             f"  p99 {np.percentile(t, 99) * 1e3:6.2f}"
         )
-    opts = {n: DetectorOptions(detector="apriltag", **VARIANTS[n]) for n in a.variants.split(",")}
+    opts = {
+        n: DetectorOptions(nthreads=1, detector="apriltag", **VARIANTS[n])
+        for n in a.variants.split(",")
+    }
     print("AprilTag options (interleaved):")
     for n, (cpu, found, vis, err) in variants(video, opts, a.repeats).items():
         e = f"{np.median(err):.4f} / {np.percentile(err, 90):.4f}" if len(err) else "-"

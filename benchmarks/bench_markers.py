@@ -138,7 +138,7 @@ def detectors(scene, decimations, library_corners: bool = True) -> dict:
     if apriltag_binding() is not None and family is not None:
         for d in decimations:
             name = "apriltag auto" if d == 0 else f"apriltag d{d:g}"
-            o = DetectorOptions(detector="apriltag", quad_decimate=d)
+            o = DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d)
             out[name] = make_marker_detector(scene.dictionary, o)
             if library_corners and family in EDGE_REFINE_CELLS:
                 out[f"{name} edge"] = AprilTagDetector(family, o, edge_refinement=True)
@@ -389,23 +389,23 @@ def corner_study(preset: str, frames: int, seed: int = 0) -> dict:
     visible, errors (N,) px, signed errors (N, 2) px)}."""
     variants = {}
     for d in (1.0, 1.5):
-        variants[f"d{d:g}"] = (DetectorOptions(detector="apriltag", quad_decimate=d), 0)
+        variants[f"d{d:g}"] = (DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d), 0)
         variants[f"d{d:g} edge profiles"] = (
-            DetectorOptions(detector="apriltag", quad_decimate=d),
+            DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d),
             -1,
         )
         variants[f"d{d:g} refine_edges off"] = (
-            DetectorOptions(detector="apriltag", quad_decimate=d, refine_edges=False),
+            DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d, refine_edges=False),
             0,
         )
         for sigma in (0.4, 0.8):
             variants[f"d{d:g} quad_sigma {sigma:g}"] = (
-                DetectorOptions(detector="apriltag", quad_decimate=d, quad_sigma=sigma),
+                DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d, quad_sigma=sigma),
                 0,
             )
         for w in (2, 3, 4, 5):
             variants[f"d{d:g} cornerSubPix {w}"] = (
-                DetectorOptions(detector="apriltag", quad_decimate=d),
+                DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d),
                 w,
             )
     dets = {
@@ -481,7 +481,7 @@ def corner_causes(preset: str, frames: int, decimations, seed: int = 0) -> dict:
     r = Renderer(scene, camera, noise=NoiseModel())
     dets = {
         ("apriltag auto" if d == 0 else f"apriltag d{d:g}"): make_marker_detector(
-            scene.dictionary, DetectorOptions(detector="apriltag", quad_decimate=d)
+            scene.dictionary, DetectorOptions(nthreads=1, detector="apriltag", quad_decimate=d)
         )
         for d in decimations
     }

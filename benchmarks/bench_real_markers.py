@@ -164,8 +164,10 @@ def apriltag_photos(data: Path) -> dict:
     fit, "agree" (4 N,) px corner distance to the regression test's corners, "lib" (4 N,) px
     to the library's corners, "tags" int}}, "expected": tags in the regression test}``."""
     folder = data / "apriltag_photos"
-    full = AprilTagDetector("tag36h11", DetectorOptions(quad_decimate=1), edge_refinement=False)
-    default = AprilTagDetector("tag36h11", DetectorOptions(quad_decimate=1))
+    full = AprilTagDetector(
+        "tag36h11", DetectorOptions(nthreads=1, quad_decimate=1), edge_refinement=False
+    )
+    default = AprilTagDetector("tag36h11", DetectorOptions(nthreads=1, quad_decimate=1))
     res: dict = {}
     n_exp = 0
     for img in sorted(folder.glob("*.jpg")):
@@ -324,10 +326,10 @@ RENDER_SIZES = {"vga": "640x480", "hd": "1280x720"}
 
 #: the detectors of the small-tag table: name -> options
 SMALL_ROWS = {
-    "full resolution (quad_decimate 1)": DetectorOptions(quad_decimate=1),
-    "quad_decimate 1.5": DetectorOptions(quad_decimate=1.5),
-    "default (by image size)": DetectorOptions(),
-    "default + small_tags": DetectorOptions(small_tags=True),
+    "full resolution (quad_decimate 1)": DetectorOptions(nthreads=1, quad_decimate=1),
+    "quad_decimate 1.5": DetectorOptions(nthreads=1, quad_decimate=1.5),
+    "default (by image size)": DetectorOptions(nthreads=1),
+    "default + small_tags": DetectorOptions(nthreads=1, small_tags=True),
 }
 
 

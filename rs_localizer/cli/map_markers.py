@@ -668,7 +668,12 @@ def _add_detector_arguments(p: argparse.ArgumentParser) -> None:
         "integer; 1: full resolution, finds smaller tags, slower; 0: by image size, 1.5 up to "
         "640x480, 2 above)",
     )
-    g.add_argument("--nthreads", type=A.positive_int, default=d.nthreads, help="AprilTag: threads")
+    g.add_argument(
+        "--nthreads",
+        type=A.nonneg_int,
+        default=d.nthreads,
+        help="AprilTag: detector threads (0: the cores available, at most 2)",
+    )
     g.add_argument(
         "--quad-sigma",
         type=A.nonneg_float,

@@ -57,6 +57,7 @@ settings above; 49x the time with OpenCV's defaults). The detector says so (``fa
 from __future__ import annotations
 
 import dataclasses
+import os
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -67,6 +68,7 @@ __all__ = [
     "APRILTAG_FAMILIES",
     "APRILTAG_INSTALL",
     "APRILTAG_TO_ARUCO_ORDER",
+    "AUTO_THREADS_MAX",
     "DETECTOR_BACKENDS",
     "OPENCV_APRILTAG_FAMILIES",
     "AprilTagDetector",
@@ -75,6 +77,7 @@ __all__ = [
     "apriltag_binding",
     "apriltag_family",
     "auto_decimate",
+    "auto_threads",
     "drop_duplicates",
     "make_marker_detector",
     "min_image_side",
@@ -141,7 +144,8 @@ class DetectorOptions:
             the corners are then refined on the full image (``refine_edges``) and the tags
             decoded at full resolution. 0: by image size (:func:`auto_decimate`: 1.5 up to
             640x480, 2 above). AprilTag only.
-        nthreads: threads of the AprilTag detector.
+        nthreads: threads of the AprilTag detector; 0: :func:`auto_threads` (the cores this
+            process may run on, at most :data:`AUTO_THREADS_MAX`). AprilTag only.
         quad_sigma: standard deviation (px) of the Gaussian blur before quad detection (0:
             none; noisy images: ~0.8). AprilTag only.
         refine_edges: snap the quad edges to the strong gradients nearby. AprilTag only.
@@ -177,7 +181,7 @@ class DetectorOptions:
 
     detector: str = "auto"
     quad_decimate: float = 0.0
-    nthreads: int = 1
+    nthreads: int = 0
     quad_sigma: float = 0.0
     refine_edges: bool = True
     decode_sharpening: float = 0.25
@@ -201,8 +205,10 @@ class DetectorOptions:
                 "AprilTag library decimates by the integer part but scales the corners back by "
                 "the factor given)"
             )
-        if int(self.nthreads) < 1:
-            raise ValueError(f"nthreads must be >= 1, got {self.nthreads}")
+        if int(self.nthreads) < 0:
+            raise ValueError(
+                f"nthreads must be >= 0 (0: by the cores available), got {self.nthreads}"
+            )
         if not self.quad_sigma >= 0.0:
             raise ValueError(f"quad_sigma must be >= 0, got {self.quad_sigma}")
         if not 0 <= int(self.max_hamming) <= 2:
@@ -652,6 +658,24 @@ def _merge_boxes(boxes: np.ndarray) -> list:
     return out
 
 
+#: most worker threads of the AprilTag library with ``nthreads`` 0: the library splits a frame's
+#: thresholding, segmentation and quad fitting among them. On the 640x480 ``apriltag_room`` node
+#: benchmark (docs/node.md, "Latency") two threads cut the node's latency median from
+#: 13.6-16.2 to 9.6-13.8 ms at the same processor time per frame (15.3-20.0 against 15.5-17.8
+#: ms); more would take cores a robot's other nodes need for little more
+AUTO_THREADS_MAX = 2
+
+
+def auto_threads() -> int:
+    """The AprilTag library's threads for ``nthreads`` 0: the cores this process may run on
+    (its CPU affinity, e.g. a container's limit), at most :data:`AUTO_THREADS_MAX`, at least 1."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # no affinity on this platform
+        cores = os.cpu_count() or 1
+    return max(1, min(AUTO_THREADS_MAX, cores))
+
+
 #: largest image (pixels) that ``quad_decimate`` 0 decimates by 1.5 (above: by 2)
 AUTO_DECIMATE_MAX_PIXELS = 640 * 480
 
@@ -798,6 +822,8 @@ class AprilTagDetector:
             raise ImportError(f"no AprilTag library binding installed ({APRILTAG_INSTALL})")
         self.family = family
         self.options = options if options is not None else DetectorOptions()
+        #: the library's worker threads (``nthreads``, 0: :func:`auto_threads`)
+        self.nthreads = int(self.options.nthreads) or auto_threads()
         if edge_refinement is None:
             edge_refinement = bool(self.options.edge_refinement)
         #: cells across the black square when its corners are refined by
@@ -844,7 +870,7 @@ class AprilTagDetector:
             det = pupil_detector(
                 self._mod,
                 families=self.family,
-                nthreads=int(o.nthreads),
+                nthreads=self.nthreads,
                 quad_decimate=float(decimate),
                 quad_sigma=float(o.quad_sigma),
                 refine_edges=int(bool(o.refine_edges)),
@@ -853,7 +879,7 @@ class AprilTagDetector:
         else:
             det = self._mod.apriltag(
                 self.family,
-                threads=int(o.nthreads),
+                threads=self.nthreads,
                 maxhamming=int(o.max_hamming),
                 decimate=float(decimate),
                 blur=float(o.quad_sigma),
@@ -877,7 +903,7 @@ class AprilTagDetector:
         dec = "by image size" if o.quad_decimate <= 0 else f"{o.quad_decimate:g}"
         sharp = f"{o.decode_sharpening:g}" if self.binding == "pupil_apriltags" else "0.25"
         return (
-            f"quad_decimate {dec}, nthreads {int(o.nthreads)}, quad_sigma {o.quad_sigma:g}, "
+            f"quad_decimate {dec}, nthreads {self.nthreads}, quad_sigma {o.quad_sigma:g}, "
             f"refine_edges {bool(o.refine_edges)}, decode_sharpening {sharp}, max_hamming "
             f"{int(o.max_hamming)}, min_decision_margin {self.min_decision_margin:g}, "
             f"edge_refinement {self.edge_cells is not None}, small_tags {bool(o.small_tags)}"

@@ -504,7 +504,10 @@ PARAMETERS = {
         read_only=True,
     ),
     "aruco.nthreads": Parameter(
-        1, "AprilTag: detector threads", IntRange(from_value=1, to_value=64), read_only=True
+        0,
+        "AprilTag: detector threads (0: the cores the node may run on, at most 2)",
+        IntRange(from_value=0, to_value=64),
+        read_only=True,
     ),
     "aruco.quad_sigma": Parameter(
         0.0,

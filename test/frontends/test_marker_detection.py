@@ -120,7 +120,7 @@ def test_unknown_dictionary_and_options_are_refused():
         {"adaptive_thresh_constant": -1.0},
         {"adaptive_thresh_win_size_step": 0},
         {"error_correction_rate": 1.5},
-        {"nthreads": 0},
+        {"nthreads": -1},
         {"max_hamming": 3},
         {"quad_sigma": -1.0},
     ):
@@ -129,7 +129,7 @@ def test_unknown_dictionary_and_options_are_refused():
     o = DetectorOptions.from_mapping(
         {"aruco.quad_decimate": 1.5, "aruco.min_decision_margin": -1.0, "other": 3}, "aruco."
     )
-    assert o.quad_decimate == 1.5 and o.min_decision_margin is None and o.nthreads == 1
+    assert o.quad_decimate == 1.5 and o.min_decision_margin is None and o.nthreads == 0
 
 
 def test_missing_library_falls_back_and_says_so(monkeypatch, tag_board):
@@ -666,3 +666,17 @@ def test_small_tag_look_at_the_image_border():
     for shape in ((16, 16), (40, 60), (63, 200)):
         assert md.min_image_side(md.SMALL_TAGS_PASS_DECIMATE) > min(shape)
         assert all(len(v) == 0 for v in two.raw_frame(np.full(shape, 128, np.uint8)))
+
+
+def test_nthreads_zero_takes_the_cores_available_at_most_two(monkeypatch):
+    """``nthreads`` 0 (the default) gives the library the cores this process may run on (its
+    CPU affinity), never more than AUTO_THREADS_MAX; an explicit count is kept."""
+    monkeypatch.setattr(md.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3, 4, 5})
+    assert md.auto_threads() == md.AUTO_THREADS_MAX == 2
+    monkeypatch.setattr(md.os, "sched_getaffinity", lambda pid: {3})
+    assert md.auto_threads() == 1
+    if md.apriltag_binding() is None:
+        pytest.skip("no AprilTag library binding installed")
+    assert md.AprilTagDetector("tag36h11").nthreads == 1
+    assert "nthreads 1," in md.AprilTagDetector("tag36h11").settings()
+    assert md.AprilTagDetector("tag36h11", md.DetectorOptions(nthreads=3)).nthreads == 3
