@@ -54,8 +54,6 @@ are refused, but for ``viz.*``, read when drawing). The managed node's rig mode 
 from __future__ import annotations
 
 import contextlib
-import os
-import sys
 import threading
 import time
 from collections import Counter, deque
@@ -63,9 +61,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -81,6 +77,7 @@ from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
+from .core import NodeCore
 from .declare import declare_parameters
 from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
 from .frame_queue import FrameQueue
@@ -88,13 +85,10 @@ from .outputs import fused_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput
 from .pointcloud import read_correspondences
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
-from .status_msg import status_message
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, RigCameraView
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
-
-_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
 INPUT_SKIP_REASONS = {
     "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
@@ -327,7 +321,7 @@ def rig_diagnostics(
     return OK, f"{r['solved']} rig frames posed" + note, values
 
 
-class RigCore:
+class RigCore(NodeCore):
     """Everything of the rig mode but the order of its construction, shared by
     :class:`RigLocalizerNode` (all at once) and the managed
     :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
@@ -338,20 +332,18 @@ class RigCore:
     :meth:`_destroy_frame_inputs`), :meth:`_end_video`, :meth:`_release_configured`: those of
     the camera's :class:`~rs_localizer.ros.node.LocalizerCore`, so that one template of the
     lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives
-    both."""
+    both; the plumbing both share (publishers, timers, worker, diagnostics publishing) is
+    :class:`~rs_localizer.ros.core.NodeCore`'s."""
 
     rig = None  # (None: not configured)
     config = None
 
-    def _make_publisher(self, msg_type, topic, qos):
-        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
-
     def _declare_parameters(self) -> None:
-        declare_parameters(self, PARAMETERS)
+        super()._declare_parameters()
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
         _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
-        self._outputs, self._subs, self._frame_subs = [], [], []
-        self._pubs, self.pub_diag, self._timer, self._flush_timer = {}, None, None, None
+        self._init_plumbing()
+        self._outputs = []
         self.viz, self.camera_viz = None, {}  # (path; each camera's debug_image, markers)
         self._configured = False
 
@@ -416,7 +408,10 @@ class RigCore:
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
-        self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
+        self._frame_time = deque(maxlen=1000)  # (s, the worker's time per camera frame)
+        with self._timing_lock:
+            self.latencies.clear()
+            self.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         if values["warmup"]:
             self._warm_up()
@@ -466,21 +461,7 @@ class RigCore:
         )
 
     def _create_outputs(self) -> None:
-        self._pubs = {
-            topic: self._make_publisher(t, topic, RELIABLE)
-            for topic, t in (
-                ("pose", PoseStamped),
-                ("pose_with_covariance", PoseWithCovarianceStamped),
-                ("twist_single_frame", TwistStamped),
-                ("twist", TwistStamped),
-                ("odom", Odometry),
-            )
-        }
-        if self.get_parameter("publish_tf").value and cv.have_tf2_msgs():
-            from tf2_msgs.msg import TFMessage
-
-            self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
-        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        self._create_pose_outputs()
         if self.viz is None:  # (declares the viz.* parameters: once; the camera names are
             # read-only, so they stay the cameras' of every configure)
             self.viz = NodeVisualization(self, topics=("path",))  # (the rig's poses)
@@ -491,7 +472,7 @@ class RigCore:
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
-            self._subs.append(
+            self._info_subs.append(
                 self.create_subscription(
                     CameraInfo,
                     f"{c.name}/camera_info",
@@ -530,28 +511,7 @@ class RigCore:
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
-        self._timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
-        )
-        # (as the single-camera node: after tracking.max_gap without frames, the pending
-        # twists go out within 0.1 s)
-        self._flush_timer = self.create_timer(0.1, self._flush_idle_track)
-        # the worker holds the GIL while it solves; hand it to the subscription callbacks
-        # often, so that frames leave the middleware's queue quickly (as the camera's node)
-        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
-        self._frames.start()
-
-    def _close_viz(self) -> None:
-        """Stop the drawing threads of ``path`` and the cameras' ``debug_image`` and
-        ``markers`` (before the node is destroyed)."""
-        for viz in [getattr(self, "viz", None), *getattr(self, "camera_viz", {}).values()]:
-            if viz is not None:
-                viz.close()
-
-    def _stop_worker(self) -> None:
-        """Stop the worker thread after the frame it is on (frames still queued stay pending)."""
-        if getattr(self, "_frames", None) is not None:
-            self._frames.stop()
+        self._start_frames()
 
     def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
         """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
@@ -562,19 +522,6 @@ class RigCore:
                 self._lost[(name, kind)] = int(status.total_count)
 
         return SubscriptionEventCallbacks(message_lost=on_lost)
-
-    def _destroy_frame_inputs(self) -> None:
-        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped (counted
-        ``<c>.skipped.stopped``)."""
-        for sub in self._frame_subs:
-            self.destroy_subscription(sub)
-        self._frame_subs = []
-        for timer in (self._timer, self._flush_timer):
-            if timer is not None:
-                self.destroy_timer(timer)
-        self._timer = self._flush_timer = None
-        if getattr(self, "_frames", None) is not None:
-            self._frames.stop(drop_queued=True)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
@@ -592,11 +539,8 @@ class RigCore:
     def _release_configured(self) -> None:
         """Drop what configure made: publishers, subscriptions, front ends and their map, the
         rig and its counters."""
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
-        SHARED_MAPS.release(self)
-        self.rig, self.config, self._pubs, self.pub_diag = None, None, {}, None
+        self._release_inputs()
+        self.rig, self.config, self._pubs = None, None, {}
         self._configured = False
 
     def _log_ready(self) -> None:
@@ -675,9 +619,7 @@ class RigCore:
         except ValueError as e:
             stamp = e
         size = self.queue_size * len(self.config.cameras)
-        skipped = self._frames.put(_Queued(name, kind, msg, time.perf_counter(), stamp), size)
-        _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
-        if skipped:
+        if self._put_frame(_Queued(name, kind, msg, time.perf_counter(), stamp), size):
             self._log.warning(
                 "queue_full",
                 f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
@@ -739,7 +681,7 @@ class RigCore:
                     self._inputs[f"{name}.skipped.{skip}"] += 1
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
-                self._timing["frame"].append(time.perf_counter() - tic)
+                self._frame_time.append(time.perf_counter() - tic)
         return _Taken(outs, None, fused)
 
     def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
@@ -780,11 +722,7 @@ class RigCore:
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
-                toc = time.perf_counter()
-                age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
-                with self._acc:
-                    self._timing["latency"].append(toc - item.arrived)
-                    self._timing["stamp_age"].append(age)
+                self._record_timing(item.arrived, out.stamp_ns)
 
     def _log_failure(self, out: RigOutput) -> None:
         if out.error is not None:
@@ -810,8 +748,8 @@ class RigCore:
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
-    def _delivery_failed(self, e: BaseException) -> None:
-        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
+    def _throttled_log(self) -> _Log:
+        return self._log
 
     def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
         """A cloud of correspondences (its checked ``stamp``) to the rig. One that cannot be
@@ -893,16 +831,11 @@ class RigCore:
         return outs, None
 
     # ---------------------------------------------------------------- outputs
-    def _wanted(self, topic: str) -> bool:
-        pub = self._pubs.get(topic)
-        return pub is not None and pub.get_subscription_count() > 0
-
     def _publish_fused(self, f) -> None:
         """twist and odom of an earlier rig frame whose fused twist is final (the
         single-camera node's messages, :func:`.outputs.fused_messages`)."""
         fused = [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame)]
-        for topic, msg in fused_messages(fused, self.map_frame, self._wanted):
-            self._pubs[topic].publish(msg)
+        self._publish(fused_messages(fused, self.map_frame, self._wanted))
 
     def _flush_idle_track(self) -> None:
         """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
@@ -970,10 +903,12 @@ class RigCore:
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
             with self._acc:
                 inputs = Counter(self._inputs)
-                timing = {k: np.array(v) * 1e3 for k, v in self._timing.items()}
+                timing = {"frame": np.array(self._frame_time) * 1e3}
                 for (n, _), k in self._lost.items():
                     inputs[f"{n}.messages_lost"] += k
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
+        latencies, stamp_ages = self._timing_snapshot()
+        timing.update(latency=np.array(latencies) * 1e3, stamp_age=np.array(stamp_ages) * 1e3)
         values.update(_timing_values(timing))
         first = self._first_frame
         absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
@@ -988,21 +923,7 @@ class RigCore:
             values[f"{n}.bad_input"] = k
         for why, k in sorted(self.imu_rejected.items()):
             values[f"imu_rejected.{why}"] = k
-        return status_message(
-            f"rs_localizer: {self.get_fully_qualified_name()}",
-            self.config.base_frame,
-            level,
-            message,
-            values,
-        )
-
-    def publish_diagnostics(self) -> None:
-        if self.pub_diag is None or self.rig is None:
-            return
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [self.diagnostics_status()]
-        self.pub_diag.publish(msg)
+        return self._status(self.config.base_frame, level, message, values)
 
 
 def _timing_values(ms: dict) -> dict:
@@ -1050,12 +971,8 @@ class RigLocalizerNode(RigCore, Node):
         self.add_on_set_parameters_callback(self._refuse_changes)
         self._log_ready()
 
-    def destroy_node(self) -> None:
-        """Solve the rig frames still open and publish them and the pending twists, then
-        destroy the node."""
-        self._stop_worker()
+    def _before_destroy(self) -> None:
+        """Destroying the node: solve the rig frames still open and publish them and the
+        pending twists."""
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
-        self._close_viz()
-        SHARED_MAPS.release(self)
-        return super().destroy_node()
