@@ -72,14 +72,14 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
-from ..runtime.background import background_state, compiled_ready, ready_implementation
+from ..runtime.background import ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .core import NodeCore
 from .declare import declare_parameters
-from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
+from .diagnostics import RigInputs, rig_diagnostics
 from .frame_queue import FrameQueue
 from .outputs import fused_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
@@ -151,174 +151,6 @@ def _declare_dynamic(node: Node, name: str, par) -> Any:
     )
     node.declare_parameter(name, None, d)
     return node.get_parameter(name).value
-
-
-def rig_diagnostics(
-    rig: RigLocalizer, waiting_info: set, inputs: Counter | None = None
-) -> tuple[int, str, dict]:
-    """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
-    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
-    consensus outvoted a camera in its last rig frame; a camera's frames never join the
-    others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
-    off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
-    ``ERROR`` (rig frames formed and none was posed; the message goes on with the cameras'
-    warnings and the failures by reason). Values: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, the
-    estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
-    else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
-    background compile's, :func:`rs_localizer.runtime.background.background_state`;
-    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
-    on the compiled one; the message then says so), and per
-    camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
-    (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
-    ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
-    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts, ``.outvoted`` (posed
-    rig frames whose consensus outvoted it), ``.frames_apart`` (yes: its frames never join the
-    others', :meth:`RigLocalizer.camera_apart`) and then ``.clock_offset_ms.<other>`` (its
-    apparent clock offset from each other camera, ms); with a gyro the
-    ``rig.gyro_*`` counts, ``gyro_bias`` (rad/s, IMU frame) and ``gyro_inconsistent`` (``true``
-    while the rotation between rig frames contradicts the gyro and rig frames are solved
-    without it: WARN, as for one camera); ``rig_frames_failed.<reason>``
-    for each failure reason of the rig estimator (or ``error``: it raised).
-
-    ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
-    ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
-    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
-    (frames that started the rig again) and ``<c>.messages_lost`` (lost
-    by the middleware, never received: a value of its own);
-    then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
-    to the rig's and the frames still queued to ``<c>.pending``."""
-    r = rig.rig_counts()
-    values: dict[str, Any] = {
-        "rig_frames": r["rig_frames"],
-        "rig_frames_solved": r["solved"],
-        "rig_frames_failed": r["failed"],
-        "rig_frames_skipped": r["skipped"],
-        "rig_frames_pending": r["pending"],
-        "track_state": rig.track_state,
-    }
-    compiled, bg = compiled_ready(), background_state()
-    values.update(
-        compiled=str(compiled).lower(),
-        compile_state=bg["state"],
-        compile_failures=bg["failures"],
-        compile_error=bg["reason"] or "",
-        rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0),
-    )
-    note = ""
-    if not compiled:  # (the single-camera node's note: a lower rate is not a fault)
-        note = (
-            "; kernels compiling in the background: rig frames on the uncompiled path"
-            if bg["state"] in ("compiling", "loading")
-            else "; rig frames on the uncompiled path"
-        )
-    for k, v in sorted(rig.counts.items()):
-        if k.startswith("rig.failed."):
-            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
-    warnings = []
-    busy = lost = 0
-    for n in rig.cameras:
-        c = rig.camera_counts(n)
-        if inputs is not None:
-            own = {k[len(n) + 1 :]: v for k, v in inputs.items() if k.startswith(f"{n}.")}
-            early = sum(v for k, v in own.items() if k.startswith("skipped."))
-            queued = early - own.get("skipped.bad_input", 0)
-            c["received"] = own.get("received", 0)
-            c["skipped"] += early
-            c["failed"] += own.get("failed.internal_error", 0)
-            c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
-            busy += own.get("skipped.queue_full", 0)
-            lost += own.get("messages_lost", 0)
-            values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
-            values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
-            values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
-            for k, v in own.items():
-                if k.startswith(("skipped.", "failed.")):
-                    values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
-        for k, v in c.items():
-            values[f"{n}.{k}"] = v
-        state = rig.camera_state(n)
-        if n in waiting_info and state in ("running", "stopped"):
-            state = "waiting"  # (its frames wait for the camera_info)
-        values[f"{n}.state"] = state
-        values[f"{n}.camera_info"] = "waiting" if n in waiting_info else "received"
-        s = rig.last_share(n)
-        values[f"{n}.inliers"] = s.inliers if s else 0
-        values[f"{n}.inlier_share"] = f"{s.share:.3f}" if s else "nan"
-        values[f"{n}.inlier_ratio"] = f"{s.ratio:.3f}" if s else "nan"
-        values[f"{n}.missed"] = sum(
-            v for k, v in rig.counts.items() if k.startswith(f"{n}.missed.")
-        )
-        for k, v in sorted(rig.counts.items()):
-            if k.startswith((f"{n}.skipped.", f"{n}.missed.")) and k not in values:
-                values[k] = v
-        outvoted = rig.counts.get(f"{n}.outvoted", 0)
-        values[f"{n}.outvoted"] = outvoted
-        apart = rig.camera_apart(n)
-        values[f"{n}.frames_apart"] = "yes" if apart is not None else "no"
-        for m, off in (apart or {}).items():
-            values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
-        if apart is not None:
-            offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
-            warnings.append(
-                f"camera {n}: frames never join the others' ({offs or 'offset unknown'}): "
-                "clock likely off"
-            )
-        partner = rig.camera_partner(n) if state == "disagrees" else None
-        if partner is not None:
-            pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
-            if not any(w.startswith(pair) for w in warnings):
-                warnings.append(
-                    f"{pair}: the mounting of one of them is likely wrong (two cameras cannot "
-                    "tell which)"
-                )
-        elif state == "disagrees":
-            also = f" (outvoted by the others in {outvoted} rig frames)" if outvoted else ""
-            warnings.append(f"camera {n} disagrees with the rig{also}: likely a wrong mounting")
-        elif s is not None and s.outvoted:
-            warnings.append(
-                f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
-                "its mounting, clock or matches are likely wrong"
-            )
-        elif state == "stopped":
-            warnings.append(f"camera {n} stopped")
-        if n in waiting_info:
-            warnings.append(f"camera {n} waits for its camera_info")
-    for k, v in sorted(rig.counts.items()):
-        if k.startswith("rig.gyro_"):
-            values[k] = v
-    b = rig.gyro_bias_values()
-    if b is not None:
-        values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
-        values["gyro_inconsistent"] = str(rig.gyro_inconsistent).lower()
-        if rig.gyro_inconsistent:  # (the single-camera node's warning)
-            warnings.append(
-                "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
-                "frames solved without it"
-            )
-        elif rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
-            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    failed = ""
-    if r["failed"]:
-        why = ", ".join(
-            f"{k[len('rig_frames_failed.') :]} {v}"
-            for k, v in values.items()
-            if k.startswith("rig_frames_failed.")
-        )
-        failed = f"{r['failed']} rig frames failed ({why})"
-    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
-        why = "; ".join([*warnings, failed] if failed else warnings)
-        return ERROR, "no rig frame posed" + (f": {why}" if why else "") + note, values
-    if busy:
-        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    if failed:
-        warnings.append(failed)
-    if warnings:
-        return WARN, "; ".join(warnings) + note, values
-    return OK, f"{r['solved']} rig frames posed" + note, values
 
 
 class RigCore(NodeCore):
@@ -408,7 +240,8 @@ class RigCore(NodeCore):
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
-        self._frame_time = deque(maxlen=1000)  # (s, the worker's time per camera frame)
+        # (s, the worker's time per camera frame, per camera)
+        self._frame_time = {c.name: deque(maxlen=1000) for c in self.config.cameras}
         with self._timing_lock:
             self.latencies.clear()
             self.stamp_ages.clear()
@@ -681,7 +514,7 @@ class RigCore(NodeCore):
                     self._inputs[f"{name}.skipped.{skip}"] += 1
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
-                self._frame_time.append(time.perf_counter() - tic)
+                self._frame_time[name].append(time.perf_counter() - tic)
         return _Taken(outs, None, fused)
 
     def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
@@ -899,57 +732,22 @@ class RigCore(NodeCore):
             self._publish_fused(f)
 
     def diagnostics_status(self) -> DiagnosticStatus:
+        """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
         waiting = {n for n, m in self.models.items() if m is None}
+        first = self._first_frame
+        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
+        latencies, stamp_ages = self._timing_snapshot()
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
             with self._acc:
-                inputs = Counter(self._inputs)
-                timing = {"frame": np.array(self._frame_time) * 1e3}
+                counts = Counter(self._inputs)
+                frame_times = {n: list(d) for n, d in self._frame_time.items()}
                 for (n, _), k in self._lost.items():
-                    inputs[f"{n}.messages_lost"] += k
+                    counts[f"{n}.messages_lost"] += k
+            absent = [n for n in self.models if waited and counts[f"{n}.received"] == 0]
+            inputs = RigInputs(counts, latencies, stamp_ages, frame_times, dict(self.bad_input),
+                               dict(self.imu_rejected), absent)  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
-        latencies, stamp_ages = self._timing_snapshot()
-        timing.update(latency=np.array(latencies) * 1e3, stamp_age=np.array(stamp_ages) * 1e3)
-        values.update(_timing_values(timing))
-        first = self._first_frame
-        absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
-        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
-        if absent and waited and values["rig_frames_solved"] == 0:
-            rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
-            rest = "" if rest == "no rig frame posed" else rest
-            level = ERROR
-            message = f"no rig frame posed: no frame from camera {', '.join(absent)}"
-            message += f"; {rest}" if rest else ""
-        for n, k in self.bad_input.items():
-            values[f"{n}.bad_input"] = k
-        for why, k in sorted(self.imu_rejected.items()):
-            values[f"imu_rejected.{why}"] = k
         return self._status(self.config.base_frame, level, message, values)
-
-
-def _timing_values(ms: dict) -> dict:
-    """The rig node's timing values (ms) of the last 1000: ``latency_ms_*`` (a camera frame's
-    arrival to the pose of the rig frame it completed), ``stamp_age_ms_*`` (the rig frame's
-    time to that pose, node clock; ``stamps_off_clock`` counts those more than
-    :data:`.diagnostics.OFF_CLOCK_S` off, another clock's stamps) and
-    ``camera_frame_ms_median`` (the worker's time per camera frame: decoding, front end,
-    rig), as the single-camera node's keys."""
-
-    def f(x):
-        return f"{x:.3f}"
-
-    lat, age, frame = ms["latency"], ms["stamp_age"], ms["frame"]
-    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3  # (as the camera's node: another clock's
-    off_clock, age = int(np.sum(~on_clock)), age[on_clock]  # stamps are not a stamp age)
-    nan = "nan"
-    return {
-        "latency_ms_last": f(lat[-1]) if len(lat) else nan,
-        "latency_ms_median": f(np.median(lat)) if len(lat) else nan,
-        "latency_ms_p99": f(np.percentile(lat, 99)) if len(lat) else nan,
-        "stamp_age_ms_last": f(age[-1]) if len(age) else nan,
-        "stamp_age_ms_median": f(np.median(age)) if len(age) else nan,
-        "stamps_off_clock": off_clock,
-        "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
-    }
 
 
 class RigLocalizerNode(RigCore, Node):
