@@ -60,7 +60,6 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -81,9 +80,9 @@ from .core import NodeCore
 from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .frame_queue import FrameQueue
-from .outputs import fused_messages
+from .outputs import fused_messages, pose_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput
+from .pipeline import FusedOutput, ThrottledLog
 from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, RigCameraView
@@ -124,22 +123,6 @@ class _Taken:
     outs: list = field(default_factory=list)
     failure: str | None = None
     fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
-
-
-class _Log:
-    """The rig's warnings to the node's logger, each kind (key) at most once per 5 s."""
-
-    def __init__(self, logger, clock=time.monotonic):
-        self.logger, self._clock, self._last = logger, clock, {}
-
-    def warning(self, key: str, text: str, count: int = 0) -> None:
-        now = self._clock()
-        if now - self._last.get(key, -np.inf) >= 5.0:
-            self._last[key] = now
-            self.logger.warning(text)
-
-    def info(self, text: str) -> None:
-        self.logger.info(text)
 
 
 def _declare_dynamic(node: Node, name: str, par) -> Any:
@@ -213,7 +196,7 @@ class RigCore(NodeCore):
         self.map_frame = str(values["map_frame"])
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
-        self._log = _Log(self.get_logger())
+        self._log = ThrottledLog(self.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = RigLocalizer(
             self.config.settings, log=self._log, implementation=ready_implementation
@@ -581,7 +564,7 @@ class RigCore(NodeCore):
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
-    def _throttled_log(self) -> _Log:
+    def _throttled_log(self) -> ThrottledLog:
         return self._log
 
     def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
@@ -710,22 +693,12 @@ class RigCore(NodeCore):
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
         final (or its own twist without tracking)."""
-        base, mf = self.config.base_frame, self.map_frame
-        m = out.estimate
-        if out.success:
-            stamp = out.stamp_ns
-            self._pubs["pose"].publish(cv.pose_stamped(m.pose, stamp, mf))
-            if self._wanted("pose_with_covariance"):
-                self._pubs["pose_with_covariance"].publish(
-                    cv.pose_with_covariance_stamped(m, stamp, mf)
-                )
-            if self._wanted("twist_single_frame"):
-                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
-            if self.config.settings.tracking is None:  # (its own twist)
-                self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
-                self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
-            if "tf" in self._pubs:
-                self._pubs["tf"].publish(cv.tf_message(m.pose, stamp, mf, base))
+        if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
+            own_twist = self.config.settings.tracking is None
+            base, mf = self.config.base_frame, self.map_frame
+            self._publish(
+                pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self._wanted)
+            )
             if self.viz is not None:
                 self._publish_viz(out)
         for f in out.fused:
