@@ -1,10 +1,15 @@
 """The localizer's ``/diagnostics`` status (level, message, key-value pairs) from its counters,
-without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``."""
+without ROS: the node wraps it into a ``diagnostic_msgs/DiagnosticStatus``. One builder for one
+camera (:func:`diagnostic_status`) and a rig (:func:`rig_diagnostics`: the rig's keys and a
+section per camera, ``<c>.*``), sharing the estimator's path and the timing keys
+(:func:`timing_values`)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,7 +18,19 @@ from .config import LocalizerConfig
 from .frame_queue import FrameCounts
 from .pipeline import StatsSnapshot
 
-__all__ = ["ERROR", "IMU_IDLE_WARN_S", "OK", "WARN", "diagnostic_status"]
+if TYPE_CHECKING:
+    from ..tracking.rig import RigLocalizer
+
+__all__ = [
+    "ERROR",
+    "IMU_IDLE_WARN_S",
+    "OK",
+    "WARN",
+    "RigInputs",
+    "diagnostic_status",
+    "rig_diagnostics",
+    "timing_values",
+]
 
 #: levels of ``diagnostic_msgs/DiagnosticStatus``
 OK, WARN, ERROR = 0, 1, 2
@@ -28,6 +45,52 @@ def _ms(seconds: Sequence[float]) -> np.ndarray:
 #: s: a frame whose stamp is further than this from the node's clock carries stamps of
 #: another clock (a recorded bag played without ``use_sim_time``), not a stamp age
 OFF_CLOCK_S = 60.0
+
+
+def _median_ms(seconds: Sequence[float]) -> str:
+    return f"{np.median(_ms(seconds)):.3f}" if len(seconds) else "nan"
+
+
+def timing_values(latencies: Sequence[float], stamp_ages: Sequence[float]) -> dict[str, Any]:
+    """The timing keys of a status, of one camera or a rig (ms, strings; ``nan`` without a
+    pose yet): ``latency_ms_last``, ``_median``, ``_p99`` (``latencies``: s from a frame's
+    arrival to its pose published), ``stamp_age_ms_last``, ``_median`` (``stamp_ages``: s from
+    the pose's stamp to its publication, node clock) and ``stamps_off_clock`` (stamp ages more
+    than :data:`OFF_CLOCK_S` off: another clock's stamps, left out of the stamp age)."""
+    lat, age = _ms(latencies), _ms(stamp_ages)
+    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3
+    off_clock, age = int(np.sum(~on_clock)), age[on_clock]
+    return {
+        "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
+        "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
+        "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
+        "stamp_age_ms_last": f"{age[-1]:.3f}" if len(age) else "nan",
+        "stamp_age_ms_median": f"{np.median(age):.3f}" if len(age) else "nan",
+        "stamps_off_clock": off_clock,
+    }
+
+
+def _compile_values(unit: str) -> tuple[dict[str, Any], str]:
+    """``(values, note)``: the estimator's path (``compiled``: the compiled kernels in use;
+    ``compile_state``, ``compile_failures``, ``compile_error``:
+    :func:`rs_localizer.runtime.background.background_state`) and, off the compiled path, the
+    message's note on it (``unit``: what is solved, ``frames`` or ``rig frames``; a lower rate
+    while the kernels compile is not a fault)."""
+    compiled, bg = compiled_ready(), background_state()
+    values = {
+        "compiled": str(compiled).lower(),
+        "compile_state": bg["state"],
+        "compile_failures": bg["failures"],
+        "compile_error": bg["reason"] or "",
+    }
+    note = ""
+    if not compiled:
+        note = (
+            f"; kernels compiling in the background: {unit} on the uncompiled path"
+            if bg["state"] in ("compiling", "loading")
+            else f"; {unit} on the uncompiled path"
+        )
+    return values, note
 
 
 def diagnostic_status(
@@ -76,13 +139,8 @@ def diagnostic_status(
     level, message = _level_and_message(
         cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s
     )
-    compiled, bg = compiled_ready(), background_state()
-    if not compiled:  # (a lower rate while the kernels compile is not a fault)
-        message += (
-            "; kernels compiling in the background: frames on the uncompiled path"
-            if bg["state"] in ("compiling", "loading")
-            else "; frames on the uncompiled path"
-        )
+    compile_values, note = _compile_values("frames")
+    message += note
     values = _core_values(
         cfg,
         frames,
@@ -92,8 +150,7 @@ def diagnostic_status(
         messages_lost,
         latencies,
         stamp_ages,
-        compiled,
-        bg,
+        compile_values,
         frontend is not None,
     )
     if frontend is not None:
@@ -166,15 +223,11 @@ def _core_values(
     messages_lost: int,
     latencies: Sequence[float],
     stamp_ages: Sequence[float],
-    compiled: bool,
-    bg: dict[str, Any],
+    compile_values: dict[str, Any],
     has_frontend: bool,
 ) -> dict[str, Any]:
     """The values every status carries, through the stage times (see :func:`diagnostic_status`)."""
     c = stats.counts
-    lat, age = _ms(latencies), _ms(stamp_ages)
-    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3
-    off_clock, age = int(np.sum(~on_clock)), age[on_clock]
     inliers = stats.inliers
     values: dict[str, Any] = {
         "solver": cfg.solver,
@@ -184,10 +237,7 @@ def _core_values(
         "frames_failed": frames.failed,
         "frames_skipped": frames.skipped,
         "frames_pending": frames.pending,
-        "compiled": str(compiled).lower(),
-        "compile_state": bg["state"],
-        "compile_failures": bg["failures"],
-        "compile_error": bg["reason"] or "",
+        **compile_values,
         "frames_compiled": c.get("frames_compiled", 0),
         "frames_uncompiled": c.get("frames_uncompiled", 0),
         "queue_size": cfg.queue_size,
@@ -205,12 +255,7 @@ def _core_values(
         "planar": str(stats.planar).lower(),
         **tracking,
         "condition_number_last": f"{stats.condition_number:.3g}",
-        "latency_ms_last": f"{lat[-1]:.3f}" if len(lat) else "nan",
-        "latency_ms_median": f"{np.median(lat):.3f}" if len(lat) else "nan",
-        "latency_ms_p99": f"{np.percentile(lat, 99):.3f}" if len(lat) else "nan",
-        "stamp_age_ms_last": f"{age[-1]:.3f}" if len(age) else "nan",
-        "stamp_age_ms_median": f"{np.median(age):.3f}" if len(age) else "nan",
-        "stamps_off_clock": off_clock,
+        **timing_values(latencies, stamp_ages),
     }
     for k, d in stats.stage_times.items():
         if k == "frontend" and not has_frontend:
@@ -274,4 +319,233 @@ def _imu_values(
             "gyro_inconsistent_detections": c.get("gyro_inconsistent_detections", 0),
         }
     )
+    return values
+
+
+# ---------------------------------------------------------------------- a rig of cameras
+@dataclass
+class RigInputs:
+    """What the rig node (:class:`~rs_localizer.ros.rig_node.RigCore`) knows of the frames
+    before they reach the rig, for :func:`rig_diagnostics`.
+
+    ``counts``: per camera ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by
+    the worker), ``<c>.skipped.<reason>`` (the node's reasons,
+    :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
+    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
+    (frames that started the rig again) and ``<c>.messages_lost`` (lost by the middleware,
+    never received). ``latencies`` (s, a camera frame's arrival to the pose of the rig frame
+    it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
+    ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
+    rig), ``bad_input`` (camera -> clouds or camera_infos not read), ``imu_rejected`` (reason
+    -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
+    ``rig.stop_after`` since the first)."""
+
+    counts: Mapping[str, int] = field(default_factory=dict)
+    latencies: Sequence[float] = ()
+    stamp_ages: Sequence[float] = ()
+    frame_times: Mapping[str, Sequence[float]] = field(default_factory=dict)
+    bad_input: Mapping[str, int] = field(default_factory=dict)
+    imu_rejected: Mapping[str, int] = field(default_factory=dict)
+    absent: Sequence[str] = ()
+
+
+def rig_diagnostics(
+    rig: RigLocalizer, waiting_info: set, inputs: Counter | RigInputs | None = None
+) -> tuple[int, str, dict]:
+    """``(level, message, values)`` of a rig's status (``rig``: a
+    :class:`~rs_localizer.tracking.rig.RigLocalizer`), built from the pieces of
+    :func:`diagnostic_status`: level :data:`OK`,
+    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
+    consensus outvoted a camera in its last rig frame; a camera's frames never join the
+    others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
+    off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
+    ``ERROR`` (rig frames formed and none was posed, or a camera sent nothing for
+    ``rig.stop_after`` and none was posed; the message goes on with the cameras'
+    warnings and the failures by reason). Values: ``rig_frames``,
+    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, the
+    estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
+    else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
+    background compile's, :func:`rs_localizer.runtime.background.background_state`;
+    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
+    on the compiled one; the message then says so), and a section per camera ``<c>``
+    (:func:`_rig_camera_values`); with a gyro the
+    ``rig.gyro_*`` counts, ``gyro_bias`` (rad/s, IMU frame) and ``gyro_inconsistent`` (``true``
+    while the rotation between rig frames contradicts the gyro and rig frames are solved
+    without it: WARN, as for one camera); ``rig_frames_failed.<reason>``
+    for each failure reason of the rig estimator (or ``error``: it raised); the single-camera
+    node's timing keys (:func:`timing_values`) and ``camera_frame_ms_median``;
+    ``imu_rejected.<reason>`` counts.
+
+    ``inputs``: the node's own counts and times (:class:`RigInputs`; a Counter: its
+    ``counts`` alone); then ``<c>.received`` is the subscriptions' count, the node's skips and
+    failures are added to the rig's and the frames still queued to ``<c>.pending``."""
+    if isinstance(inputs, Counter):
+        inputs = RigInputs(counts=inputs)
+    r = rig.rig_counts()
+    values: dict[str, Any] = {
+        "rig_frames": r["rig_frames"],
+        "rig_frames_solved": r["solved"],
+        "rig_frames_failed": r["failed"],
+        "rig_frames_skipped": r["skipped"],
+        "rig_frames_pending": r["pending"],
+        "track_state": rig.track_state,
+    }
+    compile_values, note = _compile_values("rig frames")
+    values.update(compile_values, rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0))
+    for k, v in sorted(rig.counts.items()):
+        if k.startswith("rig.failed."):
+            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
+    warnings: list[str] = []
+    busy = lost = 0
+    for n in rig.cameras:
+        section, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
+        values.update(section)
+        busy, lost = busy + busy_n, lost + lost_n
+    values.update(_rig_gyro_values(rig, warnings))
+    if inputs is not None:
+        values.update(timing_values(inputs.latencies, inputs.stamp_ages))
+        frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]
+        values["camera_frame_ms_median"] = _median_ms(frames)
+        for n, k in inputs.bad_input.items():
+            values[f"{n}.bad_input"] = k
+        for why, k in sorted(inputs.imu_rejected.items()):
+            values[f"imu_rejected.{why}"] = k
+    failed = ""
+    if r["failed"]:
+        why = ", ".join(
+            f"{k[len('rig_frames_failed.') :]} {v}"
+            for k, v in values.items()
+            if k.startswith("rig_frames_failed.")
+        )
+        failed = f"{r['failed']} rig frames failed ({why})"
+    level, message = _rig_level_and_message(r, warnings, failed, busy, lost, note)
+    absent = list(inputs.absent) if inputs is not None else []
+    if absent and r["solved"] == 0:  # (a camera silent: named first)
+        rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
+        rest = "" if rest == "no rig frame posed" else rest
+        level = ERROR
+        message = f"no rig frame posed: no frame from camera {', '.join(absent)}"
+        message += f"; {rest}" if rest else ""
+    return level, message, values
+
+
+def _rig_level_and_message(
+    r: dict[str, int], warnings: list[str], failed: str, busy: int, lost: int, note: str
+) -> tuple[int, str]:
+    """The level and message of :func:`rig_diagnostics` (but for a silent camera)."""
+    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
+        why = "; ".join([*warnings, failed] if failed else warnings)
+        return ERROR, "no rig frame posed" + (f": {why}" if why else "") + note
+    if busy:
+        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
+    if lost:
+        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
+    if failed:
+        warnings.append(failed)
+    if warnings:
+        return WARN, "; ".join(warnings) + note
+    return OK, f"{r['solved']} rig frames posed" + note
+
+
+def _rig_camera_values(
+    rig: RigLocalizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
+) -> tuple[dict[str, Any], int, int]:
+    """Camera ``n``'s section of :func:`rig_diagnostics`, each key prefixed ``<c>.``:
+    ``received``, ``solved``, ``failed``, ``skipped``, ``pending`` (the camera's frame
+    accounting, as the single-camera node's ``frames_*``), ``state``
+    (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
+    ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
+    ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted`` (posed
+    rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never join the
+    others', ``RigLocalizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
+    apparent clock offset from each other camera, ms); with the node's ``inputs`` also
+    ``messages_lost``, ``capped_clouds``, ``stamp_jumped_ahead``, the node's
+    ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
+    worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
+    returns the section, the camera's frames dropped from a full queue and its messages lost."""
+    values: dict[str, Any] = {}
+    c = rig.camera_counts(n)
+    busy = lost = 0
+    if inputs is not None:
+        own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
+        early = sum(v for k, v in own.items() if k.startswith("skipped."))
+        queued = early - own.get("skipped.bad_input", 0)
+        c["received"] = own.get("received", 0)
+        c["skipped"] += early
+        c["failed"] += own.get("failed.internal_error", 0)
+        c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+        busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
+        values[f"{n}.messages_lost"] = lost
+        values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
+        values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
+        for k, v in own.items():
+            if k.startswith(("skipped.", "failed.")):
+                values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
+    for k, v in c.items():
+        values[f"{n}.{k}"] = v
+    state = rig.camera_state(n)
+    if n in waiting_info and state in ("running", "stopped"):
+        state = "waiting"  # (its frames wait for the camera_info)
+    values[f"{n}.state"] = state
+    values[f"{n}.camera_info"] = "waiting" if n in waiting_info else "received"
+    s = rig.last_share(n)
+    values[f"{n}.inliers"] = s.inliers if s else 0
+    values[f"{n}.inlier_share"] = f"{s.share:.3f}" if s else "nan"
+    values[f"{n}.inlier_ratio"] = f"{s.ratio:.3f}" if s else "nan"
+    values[f"{n}.missed"] = sum(v for k, v in rig.counts.items() if k.startswith(f"{n}.missed."))
+    for k, v in sorted(rig.counts.items()):
+        if k.startswith((f"{n}.skipped.", f"{n}.missed.")) and k not in values:
+            values[k] = v
+    outvoted = rig.counts.get(f"{n}.outvoted", 0)
+    values[f"{n}.outvoted"] = outvoted
+    apart = rig.camera_apart(n)
+    values[f"{n}.frames_apart"] = "yes" if apart is not None else "no"
+    for m, off in (apart or {}).items():
+        values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
+    if inputs is not None:
+        values[f"{n}.camera_frame_ms_median"] = _median_ms(inputs.frame_times.get(n, ()))
+    if apart is not None:
+        offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
+        warnings.append(
+            f"camera {n}: frames never join the others' ({offs or 'offset unknown'}): "
+            "clock likely off"
+        )
+    partner = rig.camera_partner(n) if state == "disagrees" else None
+    if partner is not None:
+        pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
+        if not any(w.startswith(pair) for w in warnings):
+            warnings.append(
+                f"{pair}: the mounting of one of them is likely wrong (two cameras cannot "
+                "tell which)"
+            )
+    elif state == "disagrees":
+        also = f" (outvoted by the others in {outvoted} rig frames)" if outvoted else ""
+        warnings.append(f"camera {n} disagrees with the rig{also}: likely a wrong mounting")
+    elif s is not None and s.outvoted:
+        warnings.append(
+            f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
+            "its mounting, clock or matches are likely wrong"
+        )
+    elif state == "stopped":
+        warnings.append(f"camera {n} stopped")
+    if n in waiting_info:
+        warnings.append(f"camera {n} waits for its camera_info")
+    return values, busy, lost
+
+
+def _rig_gyro_values(rig: RigLocalizer, warnings: list[str]) -> dict[str, Any]:
+    """The rig's gyro values of :func:`rig_diagnostics` (the ``rig.gyro_*`` counts; with a
+    gyro ``gyro_bias`` and ``gyro_inconsistent``); appends its warnings to ``warnings``."""
+    values = {k: v for k, v in sorted(rig.counts.items()) if k.startswith("rig.gyro_")}
+    b = rig.gyro_bias_values()
+    if b is not None:
+        values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
+        values["gyro_inconsistent"] = str(rig.gyro_inconsistent).lower()
+        if rig.gyro_inconsistent:  # (the single-camera node's warning)
+            warnings.append(
+                "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
+                "frames solved without it"
+            )
+        elif rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
+            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
     return values

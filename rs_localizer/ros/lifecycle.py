@@ -43,7 +43,6 @@ from typing import Any
 
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
-from ..frontends.shared import SHARED_MAPS
 from .node import LocalizerCore
 from .qos import output_events
 from .rig_node import RigCore
@@ -155,9 +154,3 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
 
     def _configured_as(self) -> str:
         return f"rig of {len(self.config.cameras)} cameras"
-
-    def destroy_node(self) -> None:
-        self._stop_worker()  # (the frame it is on is finished)
-        self._close_viz()
-        SHARED_MAPS.release(self)
-        return super().destroy_node()

@@ -40,15 +40,10 @@ Publications (reliable, depth 10):
 
 from __future__ import annotations
 
-import os
-import sys
 import time
-from collections import deque
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -56,26 +51,22 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
-from ..frontends.shared import SHARED_MAPS, LoadedMaps
-from . import conversions as cv
+from ..frontends.shared import LoadedMaps
 from .config import LocalizerConfig, build_config, default_timing_note, load_maps
-from .declare import declare_parameters
+from .core import NodeCore
 from .diagnostics import diagnostic_status
 from .frame_queue import FrameQueue
 from .outputs import frame_messages, fused_messages
 from .params import PARAMETERS, ConfigError
 from .pipeline import FramePipeline, FrameResult, log_warm_up
 from .pointcloud import correspondence_cloud
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
-from .status_msg import status_message
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE
 from .visualization import NodeVisualization
 
 __all__ = ["PARAMETERS", "RSLocalizerNode"]
 
-_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
-
-class LocalizerCore:
+class LocalizerCore(NodeCore):
     """Everything of the localizer node but the order of its construction, shared by
     :class:`RSLocalizerNode` (all at once) and the managed
     :class:`~rs_localizer.ros.lifecycle.RSLocalizerLifecycleNode` (by lifecycle transition).
@@ -84,10 +75,12 @@ class LocalizerCore:
     :meth:`_create_info_inputs`, :meth:`_create_frame_inputs`, :meth:`_log_ready` (and
     :meth:`_destroy_frame_inputs`, :meth:`_end_video`, :meth:`_release_configured`): the rig's
     :class:`~rs_localizer.ros.rig_node.RigCore` has the same, so that one template of the
-    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives both.
-    The frames go through a :class:`~rs_localizer.ros.pipeline.FramePipeline` on the worker
-    thread of a :class:`~rs_localizer.ros.frame_queue.FrameQueue`; this class subscribes,
-    publishes what the pipeline returns and reports diagnostics."""
+    lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives both;
+    the plumbing both share (publishers, timers, worker, diagnostics publishing) is
+    :class:`~rs_localizer.ros.core.NodeCore`'s. The frames go through a
+    :class:`~rs_localizer.ros.pipeline.FramePipeline` on the worker thread of a
+    :class:`~rs_localizer.ros.frame_queue.FrameQueue`; this class subscribes, publishes what
+    the pipeline returns and reports diagnostics."""
 
     pipeline = None  # (None: before _init_state)
 
@@ -96,25 +89,14 @@ class LocalizerCore:
         """The configuration built from the parameters (None: not configured)."""
         return None if self.pipeline is None else self.pipeline.config
 
-    def _make_publisher(self, msg_type, topic, qos):
-        """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
-        event handlers (:func:`.qos.output_events`)."""
-        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
-
-    def _declare_parameters(self):
-        declare_parameters(self, PARAMETERS)
-
     def _init_state(self):
+        self._init_plumbing()
         self.pipeline = FramePipeline(log=self.get_logger(), stopped=lambda: self._frames.stopping)
         self._frames = FrameQueue(self._process, self._deliver, self._delivery_failed)
-        self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
-        self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
         self.messages_lost = 0  # QoS message_lost events over the frame subscriptions
         self._lost = {}
-        self._pubs = {}  # the outputs' publishers (created by _create_outputs)
         self.pub_corr_out = None  # correspondences_out, created when first needed
         self.sub_info = self.sub_imu = self.sub_corr = self.sub_kp = self.sub_image = None
-        self._diag_timer = self._flush_timer = None
 
     def _configure(self):
         """Parameters -> configuration (camera model, landmarks, front end and its map), then
@@ -136,29 +118,9 @@ class LocalizerCore:
             )
 
     def _create_outputs(self):
-        self._pubs = {  # output topic (as rs_localizer.ros.outputs names it) -> publisher
-            topic: self._make_publisher(msg_type, topic, RELIABLE)
-            for topic, msg_type in (
-                ("pose", PoseStamped),
-                ("twist", TwistStamped),
-                ("pose_with_covariance", PoseWithCovarianceStamped),
-                ("odom", Odometry),
-                ("twist_single_frame", TwistStamped),
-            )
-        }
-        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
-        if getattr(self, "viz", None) is None:  # (declares the viz.* parameters: once)
+        self._create_pose_outputs()
+        if self.viz is None:  # (declares the viz.* parameters: once)
             self.viz = NodeVisualization(self)  # debug_image, markers, path (viz.* parameters)
-        if self.get_parameter("publish_tf").value:
-            if cv.have_tf2_msgs():
-                from tf2_msgs.msg import TFMessage
-
-                self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
-            else:
-                self.get_logger().warning(
-                    "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
-                    "wheels): not publishing /tf"
-                )
         if self.cfg.republish_correspondences and self._maps().frontend is not None:
             self._corr_out_publisher()
 
@@ -173,10 +135,12 @@ class LocalizerCore:
             qos_profile_sensor_data,
             qos_overriding_options=qos,
         )
+        self._info_subs.append(self.sub_info)
         if self.cfg.imu is not None:
             self.sub_imu = self.create_subscription(
                 Imu, "imu", lambda m: self.pipeline.add_imu(m), IMU_QOS, qos_overriding_options=qos
             )
+            self._info_subs.append(self.sub_imu)
 
     def _subscribe(self, msg_type, topic, kind: str, qos):
         """A frame subscription: its frames are queued for the worker as ``kind``; its QoS
@@ -230,50 +194,23 @@ class LocalizerCore:
             topic = self.resolve_topic_name("image") + "/compressed" if compressed else "image"
             msg_type = CompressedImage if compressed else Image
             self.sub_image = self._subscribe(msg_type, topic, "image", IMAGE_QOS)
-        self._diag_timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
-        )
-        # (every timer tick rebuilds the executor's wait set in Python, as many times a second as
-        # there are cameras in the process: 10 Hz, the pending twists go out within 0.1 s)
-        self._flush_timer = self.create_timer(0.1, self._flush_idle_track)
-        # the worker holds the GIL while it solves; hand it to the subscription callbacks
-        # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
-        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
-        self._frames.start()
+        self._frame_subs = [s for s in (self.sub_corr, self.sub_kp, self.sub_image) if s]
+        self._start_frames()
 
-    def _stop_worker(self, drop_queued: bool = False):
-        """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
-        the frames still waiting (counted as skipped)."""
-        self._frames.request_stop(drop_queued)
+    def _wake_worker(self):
         self.pipeline.history.wake()  # (a frame waiting for its camera_info)
-        self._frames.join()
 
-    def _destroy_frame_inputs(self):
-        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped."""
-        for sub in (self.sub_corr, self.sub_kp, self.sub_image):
-            if sub is not None:
-                self.destroy_subscription(sub)
+    def _frame_inputs_destroyed(self):
+        """After the frame inputs' end (the frames still queued dropped): the track is
+        dropped too (nothing is left for :meth:`_end_video` to publish)."""
         self.sub_corr = self.sub_kp = self.sub_image = None
-        for timer in (self._diag_timer, self._flush_timer):
-            if timer is not None:
-                self.destroy_timer(timer)
-        self._diag_timer = self._flush_timer = None
-        self._stop_worker(drop_queued=True)
         self.pipeline.drop_tracker()  # (a reactivated node starts a new track)
-
-    def _end_video(self):
-        """Nothing to publish at the end of the frame inputs: :meth:`_destroy_frame_inputs`
-        dropped the frames still queued and the track."""
 
     def _release_configured(self):
         """Drop what configure made but the publishers (the managed node destroys those): the
         camera_info and imu subscriptions, maps, the camera model, the configuration and the
         counters."""
-        self.pub_diag = None
-        for sub in (self.sub_info, self.sub_imu):
-            if sub is not None:
-                self.destroy_subscription(sub)
-        SHARED_MAPS.release(self)
+        self._release_inputs()
         self._init_state()  # (a new pipeline without configuration; publishers, sub_* and
         # the counters reset too)
 
@@ -362,9 +299,7 @@ class LocalizerCore:
         """Subscription callbacks: count the frame and queue it for the worker. A full queue
         drops its oldest frame (``frames_skipped``): the newest frames are the ones solved."""
         size = self.cfg.queue_size
-        skipped = self._frames.put((msg, kind, time.perf_counter()), size)
-        _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
-        if skipped:
+        if self._put_frame((msg, kind, time.perf_counter()), size):
             self.pipeline.log.warning(
                 "skipped",
                 f"busy: frame queue full (queue_size {size}), dropped the oldest waiting "
@@ -412,21 +347,11 @@ class LocalizerCore:
             mf,
             pose,
         )
-        toc = time.perf_counter()
-        self.latencies.append(toc - item[2])
-        self.stamp_ages.append((self.get_clock().now().nanoseconds - res.stamp_ns) * 1e-9)
-        self.pipeline.stats.stage_time("publish", toc - tic)
+        self.pipeline.stats.stage_time("publish", time.perf_counter() - tic)
+        self._record_timing(item[2], res.stamp_ns)
 
-    def _delivery_failed(self, e: BaseException):
-        self.pipeline.log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
-
-    def _wanted(self, topic: str) -> bool:
-        pub = self._pubs.get(topic)
-        return pub is not None and pub.get_subscription_count() > 0
-
-    def _publish(self, messages):
-        for topic, msg in messages:
-            self._pubs[topic].publish(msg)
+    def _throttled_log(self):
+        return self.pipeline.log
 
     def _flush_idle_track(self):
         """Timer: after ``tracking.max_gap`` without frames the track is over (the next frame
@@ -440,18 +365,9 @@ class LocalizerCore:
             self.pub_corr_out = self._make_publisher(PointCloud2, "correspondences_out", RELIABLE)
         return self.pub_corr_out
 
-    def destroy_node(self) -> None:
-        """Stop the worker thread (the frame it is on is finished), release the shared maps,
-        then destroy the node."""
-        if self.pipeline is not None:
-            self._stop_worker()
-        if getattr(self, "viz", None) is not None:
-            self.viz.close()
-        SHARED_MAPS.release(self)  # (maps no other camera of the process uses are freed)
-        return super().destroy_node()
-
     # ------------------------------------------------------------------ diagnostics
     def diagnostics_status(self) -> DiagnosticStatus:
+        latencies, stamp_ages = self._timing_snapshot()
         level, message, values = diagnostic_status(
             self.cfg,
             self._frames.counts(),
@@ -459,27 +375,15 @@ class LocalizerCore:
             self.pipeline.tracking_values(),
             self.pipeline.camera_source(),
             self.messages_lost,
-            list(self.latencies),
-            list(self.stamp_ages),
+            latencies,
+            stamp_ages,
             self.pipeline.imu.rate_hz() if self.pipeline.imu is not None else None,
             self.pipeline.gyro_bias_values(),
             self.pipeline.gyro_inconsistent,
             self.pipeline.imu.idle_seconds() if self.pipeline.imu is not None else None,
             frontend=self._maps().frontend,
         )
-        return status_message(
-            f"rs_localizer: {self.get_fully_qualified_name()}",
-            self.cfg.camera_frame or "camera",
-            level,
-            message,
-            values,
-        )
-
-    def publish_diagnostics(self) -> None:
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [self.diagnostics_status()]
-        self.pub_diag.publish(msg)
+        return self._status(self.cfg.camera_frame or "camera", level, message, values)
 
 
 class RSLocalizerNode(LocalizerCore, Node):

@@ -17,7 +17,7 @@ from typing import Any
 from . import conversions as cv
 from .pipeline import FrameResult, FusedOutput
 
-__all__ = ["OUTPUT_TOPICS", "frame_messages", "fused_messages"]
+__all__ = ["OUTPUT_TOPICS", "frame_messages", "fused_messages", "pose_messages"]
 
 #: every output topic of a solved frame, in publishing order
 OUTPUT_TOPICS = ("pose", "twist_single_frame", "twist", "odom", "pose_with_covariance", "tf")
@@ -52,17 +52,36 @@ def frame_messages(
     (``pose`` is always built); ``tf`` needs ``tf2_msgs``."""
     if not res.solved:
         return fused_messages(res.fused, map_frame, wanted)
-    out, frame, stamp = res.output, res.output_frame, res.out_stamp_ns
+    fused = () if res.twist_now else res.fused
+    return pose_messages(
+        res.output, res.out_stamp_ns, map_frame, res.output_frame, res.twist_now, fused, wanted
+    )
+
+
+def pose_messages(
+    out: Any,
+    stamp: int,
+    map_frame: str,
+    frame: str,
+    twist_now: bool,
+    fused: Iterable[FusedOutput] = (),
+    wanted: Callable[[str], bool] = _everything,
+) -> list[tuple[str, Any]]:
+    """``(topic, message)`` of a published pose, of a camera's frame or a rig frame, in order:
+    ``pose``, ``twist_single_frame``, then ``twist`` and ``odom`` (its own twist with
+    ``twist_now``, e.g. without tracking; else the ``fused`` twists now final),
+    ``pose_with_covariance`` and ``tf``. ``out``: a
+    :class:`~rs_localizer.pose.PoseWithCovariance` (its ``pose`` in ``map_frame``, its twist
+    in ``frame``), ``stamp``: ns."""
     msgs: list[tuple[str, Any]] = [("pose", cv.pose_stamped(out.pose, stamp, map_frame))]
     if wanted("twist_single_frame"):
         msgs.append(("twist_single_frame", cv.twist_stamped(out.pose, stamp, frame)))
-    if res.twist_now:
+    if twist_now:
         if wanted("twist"):
             msgs.append(("twist", cv.twist_stamped(out.pose, stamp, frame)))
         if wanted("odom"):
             msgs.append(("odom", cv.odometry(out, stamp, map_frame, frame)))
-    else:
-        msgs += fused_messages(res.fused, map_frame, wanted)
+    msgs += fused_messages(fused, map_frame, wanted)
     if wanted("pose_with_covariance"):
         msgs.append(
             ("pose_with_covariance", cv.pose_with_covariance_stamped(out, stamp, map_frame))

@@ -54,18 +54,13 @@ are refused, but for ``viz.*``, read when drawing). The managed node's rig mode 
 from __future__ import annotations
 
 import contextlib
-import os
-import sys
 import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -76,25 +71,23 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
-from ..runtime.background import background_state, compiled_ready, ready_implementation
+from ..runtime.background import ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
+from .core import NodeCore
 from .declare import declare_parameters
-from .diagnostics import ERROR, OFF_CLOCK_S, OK, WARN
+from .diagnostics import RigInputs, rig_diagnostics
 from .frame_queue import FrameQueue
-from .outputs import fused_messages
+from .outputs import fused_messages, pose_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput
+from .pipeline import FusedOutput, ThrottledLog
 from .pointcloud import read_correspondences
-from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS, RELIABLE, output_events
-from .status_msg import status_message
+from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, RigCameraView
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
-
-_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
 
 INPUT_SKIP_REASONS = {
     "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
@@ -132,22 +125,6 @@ class _Taken:
     fused: list = field(default_factory=list)  # (twists of a track a stamp jump ended)
 
 
-class _Log:
-    """The rig's warnings to the node's logger, each kind (key) at most once per 5 s."""
-
-    def __init__(self, logger, clock=time.monotonic):
-        self.logger, self._clock, self._last = logger, clock, {}
-
-    def warning(self, key: str, text: str, count: int = 0) -> None:
-        now = self._clock()
-        if now - self._last.get(key, -np.inf) >= 5.0:
-            self._last[key] = now
-            self.logger.warning(text)
-
-    def info(self, text: str) -> None:
-        self.logger.info(text)
-
-
 def _declare_dynamic(node: Node, name: str, par) -> Any:
     """Declare a parameter of any type (its value checked by :func:`.config.rig_config`, which
     names the parameter and the fix: ``rig.cameras: front`` instead of ``[front]``, a mounting
@@ -159,175 +136,7 @@ def _declare_dynamic(node: Node, name: str, par) -> Any:
     return node.get_parameter(name).value
 
 
-def rig_diagnostics(
-    rig: RigLocalizer, waiting_info: set, inputs: Counter | None = None
-) -> tuple[int, str, dict]:
-    """``(level, message, values)`` of the rig's status: level :data:`.diagnostics.OK`,
-    ``WARN`` (a camera disagrees with the rig, or two cameras with each other; the cameras'
-    consensus outvoted a camera in its last rig frame; a camera's frames never join the
-    others' (``camera left: frames never join the others' (+15.5 ms from front): clock likely
-    off``); a camera has stopped, waits for its camera_info, or rig frames failed) or
-    ``ERROR`` (rig frames formed and none was posed; the message goes on with the cameras'
-    warnings and the failures by reason). Values: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, the
-    estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
-    else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
-    background compile's, :func:`rs_localizer.runtime.background.background_state`;
-    ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
-    on the compiled one; the message then says so), and per
-    camera ``<c>.received``, ``.solved``, ``.failed``, ``.skipped``, ``.pending``, ``.state``
-    (waiting, running, stopped, disagrees), ``.camera_info`` (received or waiting),
-    ``.inliers``, ``.inlier_share``, ``.inlier_ratio`` (of the last rig frame it was in),
-    ``.missed`` and ``.skipped.<reason>`` / ``.missed.<reason>`` counts, ``.outvoted`` (posed
-    rig frames whose consensus outvoted it), ``.frames_apart`` (yes: its frames never join the
-    others', :meth:`RigLocalizer.camera_apart`) and then ``.clock_offset_ms.<other>`` (its
-    apparent clock offset from each other camera, ms); with a gyro the
-    ``rig.gyro_*`` counts, ``gyro_bias`` (rad/s, IMU frame) and ``gyro_inconsistent`` (``true``
-    while the rotation between rig frames contradicts the gyro and rig frames are solved
-    without it: WARN, as for one camera); ``rig_frames_failed.<reason>``
-    for each failure reason of the rig estimator (or ``error``: it raised).
-
-    ``inputs``: the node's own counts of the frames before the rig (:class:`RigCore`):
-    ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by the worker),
-    ``<c>.skipped.<reason>`` (:data:`INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
-    (frames that started the rig again) and ``<c>.messages_lost`` (lost
-    by the middleware, never received: a value of its own);
-    then ``<c>.received`` is the subscriptions' count, the node's skips and failures are added
-    to the rig's and the frames still queued to ``<c>.pending``."""
-    r = rig.rig_counts()
-    values: dict[str, Any] = {
-        "rig_frames": r["rig_frames"],
-        "rig_frames_solved": r["solved"],
-        "rig_frames_failed": r["failed"],
-        "rig_frames_skipped": r["skipped"],
-        "rig_frames_pending": r["pending"],
-        "track_state": rig.track_state,
-    }
-    compiled, bg = compiled_ready(), background_state()
-    values.update(
-        compiled=str(compiled).lower(),
-        compile_state=bg["state"],
-        compile_failures=bg["failures"],
-        compile_error=bg["reason"] or "",
-        rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0),
-    )
-    note = ""
-    if not compiled:  # (the single-camera node's note: a lower rate is not a fault)
-        note = (
-            "; kernels compiling in the background: rig frames on the uncompiled path"
-            if bg["state"] in ("compiling", "loading")
-            else "; rig frames on the uncompiled path"
-        )
-    for k, v in sorted(rig.counts.items()):
-        if k.startswith("rig.failed."):
-            values[f"rig_frames_failed.{k[len('rig.failed.') :]}"] = v
-    warnings = []
-    busy = lost = 0
-    for n in rig.cameras:
-        c = rig.camera_counts(n)
-        if inputs is not None:
-            own = {k[len(n) + 1 :]: v for k, v in inputs.items() if k.startswith(f"{n}.")}
-            early = sum(v for k, v in own.items() if k.startswith("skipped."))
-            queued = early - own.get("skipped.bad_input", 0)
-            c["received"] = own.get("received", 0)
-            c["skipped"] += early
-            c["failed"] += own.get("failed.internal_error", 0)
-            c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
-            busy += own.get("skipped.queue_full", 0)
-            lost += own.get("messages_lost", 0)
-            values[f"{n}.messages_lost"] = own.get("messages_lost", 0)
-            values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
-            values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
-            for k, v in own.items():
-                if k.startswith(("skipped.", "failed.")):
-                    values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
-        for k, v in c.items():
-            values[f"{n}.{k}"] = v
-        state = rig.camera_state(n)
-        if n in waiting_info and state in ("running", "stopped"):
-            state = "waiting"  # (its frames wait for the camera_info)
-        values[f"{n}.state"] = state
-        values[f"{n}.camera_info"] = "waiting" if n in waiting_info else "received"
-        s = rig.last_share(n)
-        values[f"{n}.inliers"] = s.inliers if s else 0
-        values[f"{n}.inlier_share"] = f"{s.share:.3f}" if s else "nan"
-        values[f"{n}.inlier_ratio"] = f"{s.ratio:.3f}" if s else "nan"
-        values[f"{n}.missed"] = sum(
-            v for k, v in rig.counts.items() if k.startswith(f"{n}.missed.")
-        )
-        for k, v in sorted(rig.counts.items()):
-            if k.startswith((f"{n}.skipped.", f"{n}.missed.")) and k not in values:
-                values[k] = v
-        outvoted = rig.counts.get(f"{n}.outvoted", 0)
-        values[f"{n}.outvoted"] = outvoted
-        apart = rig.camera_apart(n)
-        values[f"{n}.frames_apart"] = "yes" if apart is not None else "no"
-        for m, off in (apart or {}).items():
-            values[f"{n}.clock_offset_ms.{m}"] = f"{1e3 * off:+.1f}"
-        if apart is not None:
-            offs = ", ".join(f"{1e3 * off:+.1f} ms from {m}" for m, off in apart.items())
-            warnings.append(
-                f"camera {n}: frames never join the others' ({offs or 'offset unknown'}): "
-                "clock likely off"
-            )
-        partner = rig.camera_partner(n) if state == "disagrees" else None
-        if partner is not None:
-            pair = f"cameras {min(n, partner)} and {max(n, partner)} disagree"
-            if not any(w.startswith(pair) for w in warnings):
-                warnings.append(
-                    f"{pair}: the mounting of one of them is likely wrong (two cameras cannot "
-                    "tell which)"
-                )
-        elif state == "disagrees":
-            also = f" (outvoted by the others in {outvoted} rig frames)" if outvoted else ""
-            warnings.append(f"camera {n} disagrees with the rig{also}: likely a wrong mounting")
-        elif s is not None and s.outvoted:
-            warnings.append(
-                f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
-                "its mounting, clock or matches are likely wrong"
-            )
-        elif state == "stopped":
-            warnings.append(f"camera {n} stopped")
-        if n in waiting_info:
-            warnings.append(f"camera {n} waits for its camera_info")
-    for k, v in sorted(rig.counts.items()):
-        if k.startswith("rig.gyro_"):
-            values[k] = v
-    b = rig.gyro_bias_values()
-    if b is not None:
-        values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
-        values["gyro_inconsistent"] = str(rig.gyro_inconsistent).lower()
-        if rig.gyro_inconsistent:  # (the single-camera node's warning)
-            warnings.append(
-                "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
-                "frames solved without it"
-            )
-        elif rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
-            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
-    failed = ""
-    if r["failed"]:
-        why = ", ".join(
-            f"{k[len('rig_frames_failed.') :]} {v}"
-            for k, v in values.items()
-            if k.startswith("rig_frames_failed.")
-        )
-        failed = f"{r['failed']} rig frames failed ({why})"
-    if r["rig_frames"] > r["pending"] + r["skipped"] and r["solved"] == 0:
-        why = "; ".join([*warnings, failed] if failed else warnings)
-        return ERROR, "no rig frame posed" + (f": {why}" if why else "") + note, values
-    if busy:
-        warnings.append(f"busy: {busy} camera frames dropped from a full queue (queue_size)")
-    if lost:
-        warnings.append(f"{lost} camera messages lost by the middleware (QoS message_lost)")
-    if failed:
-        warnings.append(failed)
-    if warnings:
-        return WARN, "; ".join(warnings) + note, values
-    return OK, f"{r['solved']} rig frames posed" + note, values
-
-
-class RigCore:
+class RigCore(NodeCore):
     """Everything of the rig mode but the order of its construction, shared by
     :class:`RigLocalizerNode` (all at once) and the managed
     :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode` (by lifecycle transition).
@@ -338,20 +147,18 @@ class RigCore:
     :meth:`_destroy_frame_inputs`), :meth:`_end_video`, :meth:`_release_configured`: those of
     the camera's :class:`~rs_localizer.ros.node.LocalizerCore`, so that one template of the
     lifecycle transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`) drives
-    both."""
+    both; the plumbing both share (publishers, timers, worker, diagnostics publishing) is
+    :class:`~rs_localizer.ros.core.NodeCore`'s."""
 
     rig = None  # (None: not configured)
     config = None
 
-    def _make_publisher(self, msg_type, topic, qos):
-        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
-
     def _declare_parameters(self) -> None:
-        declare_parameters(self, PARAMETERS)
+        super()._declare_parameters()
         declare_parameters(self, {k: v for k, v in RIG_PARAMETERS.items() if k != "rig.cameras"})
         _declare_dynamic(self, "rig.cameras", RIG_PARAMETERS["rig.cameras"])
-        self._outputs, self._subs, self._frame_subs = [], [], []
-        self._pubs, self.pub_diag, self._timer, self._flush_timer = {}, None, None, None
+        self._init_plumbing()
+        self._outputs = []
         self.viz, self.camera_viz = None, {}  # (path; each camera's debug_image, markers)
         self._configured = False
 
@@ -389,7 +196,7 @@ class RigCore:
         self.map_frame = str(values["map_frame"])
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
-        self._log = _Log(self.get_logger())
+        self._log = ThrottledLog(self.get_logger(), period=5.0)  # (each kind once per 5 s)
         # (rig frames on the NumPy implementation while the kernels compile in the background)
         self.rig = RigLocalizer(
             self.config.settings, log=self._log, implementation=ready_implementation
@@ -416,7 +223,11 @@ class RigCore:
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
-        self._timing = {k: deque(maxlen=1000) for k in ("frame", "latency", "stamp_age")}
+        # (s, the worker's time per camera frame, per camera)
+        self._frame_time = {c.name: deque(maxlen=1000) for c in self.config.cameras}
+        with self._timing_lock:
+            self.latencies.clear()
+            self.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
         if values["warmup"]:
             self._warm_up()
@@ -466,21 +277,7 @@ class RigCore:
         )
 
     def _create_outputs(self) -> None:
-        self._pubs = {
-            topic: self._make_publisher(t, topic, RELIABLE)
-            for topic, t in (
-                ("pose", PoseStamped),
-                ("pose_with_covariance", PoseWithCovarianceStamped),
-                ("twist_single_frame", TwistStamped),
-                ("twist", TwistStamped),
-                ("odom", Odometry),
-            )
-        }
-        if self.get_parameter("publish_tf").value and cv.have_tf2_msgs():
-            from tf2_msgs.msg import TFMessage
-
-            self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
-        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        self._create_pose_outputs()
         if self.viz is None:  # (declares the viz.* parameters: once; the camera names are
             # read-only, so they stay the cameras' of every configure)
             self.viz = NodeVisualization(self, topics=("path",))  # (the rig's poses)
@@ -491,7 +288,7 @@ class RigCore:
 
     def _create_info_inputs(self) -> None:
         for c in self.config.cameras:
-            self._subs.append(
+            self._info_subs.append(
                 self.create_subscription(
                     CameraInfo,
                     f"{c.name}/camera_info",
@@ -530,28 +327,7 @@ class RigCore:
         self.imu_rejected: dict[str, int] = {}
         if self.config.settings.imu is not None:
             self._frame_subs.append(self.create_subscription(Imu, "imu", self._on_imu, IMU_QOS))
-        self._timer = self.create_timer(
-            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
-        )
-        # (as the single-camera node: after tracking.max_gap without frames, the pending
-        # twists go out within 0.1 s)
-        self._flush_timer = self.create_timer(0.1, self._flush_idle_track)
-        # the worker holds the GIL while it solves; hand it to the subscription callbacks
-        # often, so that frames leave the middleware's queue quickly (as the camera's node)
-        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
-        self._frames.start()
-
-    def _close_viz(self) -> None:
-        """Stop the drawing threads of ``path`` and the cameras' ``debug_image`` and
-        ``markers`` (before the node is destroyed)."""
-        for viz in [getattr(self, "viz", None), *getattr(self, "camera_viz", {}).values()]:
-            if viz is not None:
-                viz.close()
-
-    def _stop_worker(self) -> None:
-        """Stop the worker thread after the frame it is on (frames still queued stay pending)."""
-        if getattr(self, "_frames", None) is not None:
-            self._frames.stop()
+        self._start_frames()
 
     def _lost_events(self, name: str, kind: str) -> SubscriptionEventCallbacks:
         """The QoS ``message_lost`` events of camera ``name``'s ``kind`` input: messages the
@@ -562,19 +338,6 @@ class RigCore:
                 self._lost[(name, kind)] = int(status.total_count)
 
         return SubscriptionEventCallbacks(message_lost=on_lost)
-
-    def _destroy_frame_inputs(self) -> None:
-        """Undo :meth:`_create_frame_inputs`; frames still queued are dropped (counted
-        ``<c>.skipped.stopped``)."""
-        for sub in self._frame_subs:
-            self.destroy_subscription(sub)
-        self._frame_subs = []
-        for timer in (self._timer, self._flush_timer):
-            if timer is not None:
-                self.destroy_timer(timer)
-        self._timer = self._flush_timer = None
-        if getattr(self, "_frames", None) is not None:
-            self._frames.stop(drop_queued=True)
 
     def _end_video(self) -> None:
         """Solve the rig frames still open and publish them and the twists still pending; the
@@ -592,11 +355,8 @@ class RigCore:
     def _release_configured(self) -> None:
         """Drop what configure made: publishers, subscriptions, front ends and their map, the
         rig and its counters."""
-        for sub in self._subs:
-            self.destroy_subscription(sub)
-        self._subs = []
-        SHARED_MAPS.release(self)
-        self.rig, self.config, self._pubs, self.pub_diag = None, None, {}, None
+        self._release_inputs()
+        self.rig, self.config, self._pubs = None, None, {}
         self._configured = False
 
     def _log_ready(self) -> None:
@@ -675,9 +435,7 @@ class RigCore:
         except ValueError as e:
             stamp = e
         size = self.queue_size * len(self.config.cameras)
-        skipped = self._frames.put(_Queued(name, kind, msg, time.perf_counter(), stamp), size)
-        _yield_cpu()  # (the worker starts on it at once, not after the executor's next turn)
-        if skipped:
+        if self._put_frame(_Queued(name, kind, msg, time.perf_counter(), stamp), size):
             self._log.warning(
                 "queue_full",
                 f"busy: frame queue full ({size} frames, queue_size {self.queue_size} per "
@@ -739,7 +497,7 @@ class RigCore:
                     self._inputs[f"{name}.skipped.{skip}"] += 1
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
-                self._timing["frame"].append(time.perf_counter() - tic)
+                self._frame_time[name].append(time.perf_counter() - tic)
         return _Taken(outs, None, fused)
 
     def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
@@ -780,11 +538,7 @@ class RigCore:
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
-                toc = time.perf_counter()
-                age = (self.get_clock().now().nanoseconds - out.stamp_ns) * 1e-9
-                with self._acc:
-                    self._timing["latency"].append(toc - item.arrived)
-                    self._timing["stamp_age"].append(age)
+                self._record_timing(item.arrived, out.stamp_ns)
 
     def _log_failure(self, out: RigOutput) -> None:
         if out.error is not None:
@@ -810,8 +564,8 @@ class RigCore:
             f"rig frame failed ({reason}): {detail} [{n} rig frames failed so far with {reason}]",
         )
 
-    def _delivery_failed(self, e: BaseException) -> None:
-        self._log.warning("internal_error", f"publishing failed: {type(e).__name__}: {e}")
+    def _throttled_log(self) -> ThrottledLog:
+        return self._log
 
     def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
         """A cloud of correspondences (its checked ``stamp``) to the rig. One that cannot be
@@ -893,16 +647,11 @@ class RigCore:
         return outs, None
 
     # ---------------------------------------------------------------- outputs
-    def _wanted(self, topic: str) -> bool:
-        pub = self._pubs.get(topic)
-        return pub is not None and pub.get_subscription_count() > 0
-
     def _publish_fused(self, f) -> None:
         """twist and odom of an earlier rig frame whose fused twist is final (the
         single-camera node's messages, :func:`.outputs.fused_messages`)."""
         fused = [FusedOutput(f.pose.stamp_ns, f, self.config.base_frame)]
-        for topic, msg in fused_messages(fused, self.map_frame, self._wanted):
-            self._pubs[topic].publish(msg)
+        self._publish(fused_messages(fused, self.map_frame, self._wanted))
 
     def _flush_idle_track(self) -> None:
         """Timer, as the single-camera node's: after ``tracking.max_gap`` s without camera
@@ -944,91 +693,34 @@ class RigCore:
     def publish_output(self, out: RigOutput) -> None:
         """Publish a rig frame: its pose (and own twist) when solved, the fused twists it made
         final (or its own twist without tracking)."""
-        base, mf = self.config.base_frame, self.map_frame
-        m = out.estimate
-        if out.success:
-            stamp = out.stamp_ns
-            self._pubs["pose"].publish(cv.pose_stamped(m.pose, stamp, mf))
-            if self._wanted("pose_with_covariance"):
-                self._pubs["pose_with_covariance"].publish(
-                    cv.pose_with_covariance_stamped(m, stamp, mf)
-                )
-            if self._wanted("twist_single_frame"):
-                self._pubs["twist_single_frame"].publish(cv.twist_stamped(m.pose, stamp, base))
-            if self.config.settings.tracking is None:  # (its own twist)
-                self._pubs["twist"].publish(cv.twist_stamped(m.pose, stamp, base))
-                self._pubs["odom"].publish(cv.odometry(m, stamp, mf, base))
-            if "tf" in self._pubs:
-                self._pubs["tf"].publish(cv.tf_message(m.pose, stamp, mf, base))
+        if out.success:  # (the single-camera node's messages, :func:`.outputs.pose_messages`)
+            own_twist = self.config.settings.tracking is None
+            base, mf = self.config.base_frame, self.map_frame
+            self._publish(
+                pose_messages(out.estimate, out.stamp_ns, mf, base, own_twist, (), self._wanted)
+            )
             if self.viz is not None:
                 self._publish_viz(out)
         for f in out.fused:
             self._publish_fused(f)
 
     def diagnostics_status(self) -> DiagnosticStatus:
+        """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
         waiting = {n for n, m in self.models.items() if m is None}
+        first = self._first_frame
+        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
+        latencies, stamp_ages = self._timing_snapshot()
         with self._rig_lock:  # (waits for the frame the worker is on: one consistent count)
             with self._acc:
-                inputs = Counter(self._inputs)
-                timing = {k: np.array(v) * 1e3 for k, v in self._timing.items()}
+                counts = Counter(self._inputs)
+                frame_times = {n: list(d) for n, d in self._frame_time.items()}
                 for (n, _), k in self._lost.items():
-                    inputs[f"{n}.messages_lost"] += k
+                    counts[f"{n}.messages_lost"] += k
+            absent = [n for n in self.models if waited and counts[f"{n}.received"] == 0]
+            inputs = RigInputs(counts, latencies, stamp_ages, frame_times, dict(self.bad_input),
+                               dict(self.imu_rejected), absent)  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)
-        values.update(_timing_values(timing))
-        first = self._first_frame
-        absent = [c.name for c in self.config.cameras if inputs[f"{c.name}.received"] == 0]
-        waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
-        if absent and waited and values["rig_frames_solved"] == 0:
-            rest = "" if level == OK else message.removeprefix("no rig frame posed: ")
-            rest = "" if rest == "no rig frame posed" else rest
-            level = ERROR
-            message = f"no rig frame posed: no frame from camera {', '.join(absent)}"
-            message += f"; {rest}" if rest else ""
-        for n, k in self.bad_input.items():
-            values[f"{n}.bad_input"] = k
-        for why, k in sorted(self.imu_rejected.items()):
-            values[f"imu_rejected.{why}"] = k
-        return status_message(
-            f"rs_localizer: {self.get_fully_qualified_name()}",
-            self.config.base_frame,
-            level,
-            message,
-            values,
-        )
-
-    def publish_diagnostics(self) -> None:
-        if self.pub_diag is None or self.rig is None:
-            return
-        msg = DiagnosticArray()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.status = [self.diagnostics_status()]
-        self.pub_diag.publish(msg)
-
-
-def _timing_values(ms: dict) -> dict:
-    """The rig node's timing values (ms) of the last 1000: ``latency_ms_*`` (a camera frame's
-    arrival to the pose of the rig frame it completed), ``stamp_age_ms_*`` (the rig frame's
-    time to that pose, node clock; ``stamps_off_clock`` counts those more than
-    :data:`.diagnostics.OFF_CLOCK_S` off, another clock's stamps) and
-    ``camera_frame_ms_median`` (the worker's time per camera frame: decoding, front end,
-    rig), as the single-camera node's keys."""
-
-    def f(x):
-        return f"{x:.3f}"
-
-    lat, age, frame = ms["latency"], ms["stamp_age"], ms["frame"]
-    on_clock = np.abs(age) <= OFF_CLOCK_S * 1e3  # (as the camera's node: another clock's
-    off_clock, age = int(np.sum(~on_clock)), age[on_clock]  # stamps are not a stamp age)
-    nan = "nan"
-    return {
-        "latency_ms_last": f(lat[-1]) if len(lat) else nan,
-        "latency_ms_median": f(np.median(lat)) if len(lat) else nan,
-        "latency_ms_p99": f(np.percentile(lat, 99)) if len(lat) else nan,
-        "stamp_age_ms_last": f(age[-1]) if len(age) else nan,
-        "stamp_age_ms_median": f(np.median(age)) if len(age) else nan,
-        "stamps_off_clock": off_clock,
-        "camera_frame_ms_median": f(np.median(frame)) if len(frame) else nan,
-    }
+        return self._status(self.config.base_frame, level, message, values)
 
 
 class RigLocalizerNode(RigCore, Node):
@@ -1050,12 +742,8 @@ class RigLocalizerNode(RigCore, Node):
         self.add_on_set_parameters_callback(self._refuse_changes)
         self._log_ready()
 
-    def destroy_node(self) -> None:
-        """Solve the rig frames still open and publish them and the pending twists, then
-        destroy the node."""
-        self._stop_worker()
+    def _before_destroy(self) -> None:
+        """Destroying the node: solve the rig frames still open and publish them and the
+        pending twists."""
         with contextlib.suppress(Exception):  # (shutting down: the context may be gone)
             self._end_video()
-        self._close_viz()
-        SHARED_MAPS.release(self)
-        return super().destroy_node()

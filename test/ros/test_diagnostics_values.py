@@ -1,4 +1,6 @@
-"""The node's diagnostics values from its counters, without a node."""
+"""The node's diagnostics values from its counters, without a node: one camera's and a rig's."""
+
+from collections import Counter
 
 from rs_localizer.ros.config import build_config
 from rs_localizer.ros.diagnostics import diagnostic_status
@@ -25,3 +27,63 @@ def test_stamp_age_leaves_out_stamps_of_another_clock():
     mixed = _values([0.010, 95.6e6, -3600.0, 0.020])
     assert mixed["stamp_age_ms_last"] == "20.000" and mixed["stamp_age_ms_median"] == "15.000"
     assert mixed["stamps_off_clock"] == 2
+
+
+def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
+    """The rig's status comes from the same builder: given the same latencies and stamp ages
+    as a camera's, its timing keys are the camera's, character for character, and equal the
+    medians and percentiles computed here; each camera's section has its own worker time
+    (``<c>.camera_frame_ms_median``) beside the rig-wide one; per camera ``received = solved
+    + failed + skipped + pending`` with the node's own counts folded in; a camera that sent
+    nothing is named in an ERROR while no rig frame is posed."""
+    import numpy as np
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros.diagnostics import ERROR, RigInputs, rig_diagnostics
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    names = [c.name for c in cams]
+    for f in frames:
+        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    sent = {n: sum(f.name == n for f in frames) for n in names}
+    # (the node's counts: every frame received and handed on, 2 more of the first camera
+    # dropped from a full queue, 1 more still queued)
+    counts = Counter({f"{n}.received": k for n, k in sent.items()})
+    counts.update({f"{n}.taken": k for n, k in sent.items()})
+    counts[f"{names[0]}.received"] += 3
+    counts[f"{names[0]}.skipped.queue_full"] += 2
+    lat, age = [0.004, 0.006, 0.020, 0.005], [0.010, 0.030, 95.6e6]
+    times = {names[0]: [0.001, 0.003, 0.002], names[1]: [0.010]}
+    level, message, v = rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))
+    cfg = build_config(default_values())
+    snap = FramePipeline(cfg).stats.snapshot()
+    args = (cfg, FrameCounts(received=4, solved=4), snap, {}, "camera_info", 0, lat, age)
+    camera = diagnostic_status(*args, 0.0, None, False, 0.0)[2]
+    keys = ("latency_ms_last", "latency_ms_median", "latency_ms_p99", "stamp_age_ms_last",
+            "stamp_age_ms_median", "stamps_off_clock")  # fmt: skip
+    assert {k: v[k] for k in keys} == {k: camera[k] for k in keys}
+    assert v["latency_ms_median"] == f"{np.median(lat) * 1e3:.3f}" == "5.500"
+    assert v["latency_ms_p99"] == f"{np.percentile(lat, 99) * 1e3:.3f}"
+    assert v["stamp_age_ms_median"] == "20.000" and v["stamps_off_clock"] == 1
+    assert v[f"{names[0]}.camera_frame_ms_median"] == "2.000"
+    assert v[f"{names[1]}.camera_frame_ms_median"] == "10.000"
+    assert v["camera_frame_ms_median"] == "2.500"  # (of all four)
+    for n in names:
+        parts = [v[f"{n}.{k}"] for k in ("solved", "failed", "skipped", "pending")]
+        assert v[f"{n}.received"] == sum(parts), (n, v)
+    assert v[f"{names[0]}.received"] == sent[names[0]] + 3
+    assert v[f"{names[0]}.skipped.queue_full"] == 2 and v["rig_frames_solved"] > 0
+    assert "busy: 2 camera frames dropped" in message, message
+
+    silent = RigLocalizer(RigSettings(mounts_of(cams)))
+    only = Counter({f"{names[1]}.received": 1})
+    level, message, v = rig_diagnostics(silent, set(), RigInputs(only, absent=[names[0]]))
+    assert level == ERROR and message.startswith(
+        f"no rig frame posed: no frame from camera {names[0]}"
+    )
+    assert v[f"{names[0]}.received"] == 0 and v["latency_ms_median"] == "nan"

@@ -163,13 +163,13 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
 def test_one_diagnostics_converter_for_both_nodes():
     """status_message: the levels of .diagnostics and their names give the same message; the
     values keep their order as strings; an unknown level is refused. Both nodes build their
-    status with it."""
+    status with it (through their shared core, :mod:`rs_localizer.ros.core`)."""
     import inspect
 
     from diagnostic_msgs.msg import DiagnosticStatus
 
+    from rs_localizer.ros import core, rig_node
     from rs_localizer.ros import node as single
-    from rs_localizer.ros import rig_node
     from rs_localizer.ros.diagnostics import ERROR, OK, WARN
     from rs_localizer.ros.status_msg import status_message
 
@@ -181,8 +181,11 @@ def test_one_diagnostics_converter_for_both_nodes():
         assert [(kv.key, kv.value) for kv in a.values] == [("b", "2"), ("a", "1.5")]
     with pytest.raises(ValueError, match="unknown diagnostic level"):
         status_message("n", "hw", "FINE", "m", {})
+    # (the nodes' shared core converts both statuses; neither node builds a message itself)
+    assert "status_message(" in inspect.getsource(core)
     for mod in (single, rig_node):
-        assert "status_message(" in inspect.getsource(mod)
+        assert "self._status(" in inspect.getsource(mod)
+        assert "status_message(" not in inspect.getsource(mod)
         assert "DiagnosticStatus()" not in inspect.getsource(mod)
 
 

@@ -1,0 +1,233 @@
+"""The lifecycle plumbing of ``rs_localizer_node``, written once for one camera and for a rig.
+
+:class:`NodeCore` is the base of the camera's :class:`~rs_localizer.ros.node.LocalizerCore`
+and the rig's :class:`~rs_localizer.ros.rig_node.RigCore`: the output publishers (``pose``,
+``twist``, ``pose_with_covariance``, ``odom``, ``twist_single_frame``, ``/tf``,
+``/diagnostics``), the frame queue's worker and the timers (diagnostics, the idle track's
+flush) started and stopped with the frame inputs, the subscriptions destroyed, the
+visualizations closed, the latency and stamp-age record, the diagnostics published and the
+node destroyed. A core adds what differs: its frame inputs, what the worker does with a frame
+(a camera's :class:`~rs_localizer.ros.pipeline.FramePipeline`, or the rig's cameras and its
+:class:`~rs_localizer.tracking.rig.RigLocalizer`), what it publishes and its status.
+
+A core's phases, run by :class:`RSLocalizerNode` / :class:`RigLocalizerNode` at construction
+or by the managed node's transitions (:class:`~rs_localizer.ros.lifecycle.ManagedTransitions`):
+``_declare_parameters``, ``_configure``, ``_create_outputs``, ``_create_info_inputs``,
+``_create_frame_inputs``, ``_log_ready``, then ``_destroy_frame_inputs``, ``_end_video``,
+``_release_configured``.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from types import MappingProxyType
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
+from nav_msgs.msg import Odometry
+
+from ..frontends.shared import SHARED_MAPS
+from . import conversions as cv
+from .declare import declare_parameters
+from .params import PARAMETERS
+from .qos import RELIABLE, output_events
+from .status_msg import status_message
+
+__all__ = ["NodeCore"]
+
+_yield_cpu = getattr(os, "sched_yield", lambda: None)  # (POSIX)
+
+#: the output topics of a pose (relative names, as :mod:`.outputs` names them) and their types
+POSE_OUTPUTS = (
+    ("pose", PoseStamped),
+    ("twist", TwistStamped),
+    ("pose_with_covariance", PoseWithCovarianceStamped),
+    ("odom", Odometry),
+    ("twist_single_frame", TwistStamped),
+)
+
+#: s: the idle-track timer's period (every timer tick rebuilds the executor's wait set in
+#: Python; at 10 Hz the pending twists go out within 0.1 s of ``tracking.max_gap``)
+FLUSH_PERIOD_S = 0.1
+
+
+class NodeCore:
+    """The plumbing both cores share (module docstring). Mixed into an rclpy ``Node`` (or a
+    ``LifecycleNode``) after the core. A core sets ``self._frames`` (its
+    :class:`~rs_localizer.ros.frame_queue.FrameQueue`) before :meth:`_start_frames`, and has
+    ``diagnostics_status()``, ``_flush_idle_track()`` and ``_throttled_log()`` (its warnings,
+    each kind at most once per 5 s)."""
+
+    _frames = None  # (the frame queue: made by the core)
+    pub_diag = None
+    viz = None  # (the node's visualization: made with the outputs)
+    camera_viz: Mapping = MappingProxyType({})  # (the rig's cameras'; none for one camera)
+
+    def _make_publisher(self, msg_type, topic, qos):
+        """Publishers of the outputs (the managed node makes lifecycle publishers), without QoS
+        event handlers (:func:`.qos.output_events`)."""
+        return self.create_publisher(msg_type, topic, qos, event_callbacks=output_events())
+
+    def _declare_parameters(self) -> None:
+        declare_parameters(self, PARAMETERS)
+
+    def _init_plumbing(self) -> None:
+        """The state of the shared plumbing before the inputs exist."""
+        self._pubs: dict = {}  # output topic (as rs_localizer.ros.outputs names it) -> publisher
+        self.pub_diag = None
+        self._info_subs: list = []  # camera_info, imu: made by configure
+        self._frame_subs: list = []  # the frame inputs: made by activate
+        self._diag_timer = self._flush_timer = None
+        self._timing_lock = threading.Lock()
+        self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
+        self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
+
+    def _create_pose_outputs(self) -> None:
+        """The publishers of the pose outputs (:data:`POSE_OUTPUTS`), ``/tf`` with
+        ``publish_tf`` (warns when tf2_msgs is not importable) and ``/diagnostics``."""
+        self._pubs = {
+            topic: self._make_publisher(msg_type, topic, RELIABLE)
+            for topic, msg_type in POSE_OUTPUTS
+        }
+        self.pub_diag = self._make_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        if self.get_parameter("publish_tf").value:
+            if cv.have_tf2_msgs():
+                from tf2_msgs.msg import TFMessage
+
+                self._pubs["tf"] = self._make_publisher(TFMessage, "/tf", RELIABLE)
+            else:
+                self.get_logger().warning(
+                    "publish_tf is true but tf2_msgs is not importable (not in the PyPI "
+                    "wheels): not publishing /tf"
+                )
+
+    def _start_frames(self) -> None:
+        """After the frame subscriptions: the diagnostics timer (``diagnostics_period``), the
+        idle-track timer and the worker thread."""
+        self._diag_timer = self.create_timer(
+            float(self.get_parameter("diagnostics_period").value), self.publish_diagnostics
+        )
+        self._flush_timer = self.create_timer(FLUSH_PERIOD_S, self._flush_idle_track)
+        # the worker holds the GIL while it solves; hand it to the subscription callbacks
+        # often, so that frames leave the middleware's queue quickly (0.5 ms, CPython: 5 ms)
+        sys.setswitchinterval(min(sys.getswitchinterval(), 5e-4))
+        self._frames.start()
+
+    def _put_frame(self, item, max_waiting: int) -> int:
+        """Subscription callbacks: queue ``item`` for the worker (at most ``max_waiting``
+        waiting); returns how many frames a full queue dropped (its oldest)."""
+        skipped = self._frames.put(item, max_waiting)
+        _yield_cpu()  # the worker starts on it in ~0.05 ms, not after the executor (~0.9 ms)
+        return skipped
+
+    def _wake_worker(self) -> None:
+        """A stop was requested: wake a worker waiting inside a frame (none by default)."""
+
+    def _stop_worker(self, drop_queued: bool = False) -> None:
+        """Stop the worker thread (the frame it is on is finished); ``drop_queued``: forget
+        the frames still waiting (counted as skipped), else they stay pending."""
+        if self._frames is None:
+            return
+        self._frames.request_stop(drop_queued)
+        self._wake_worker()
+        self._frames.join()
+
+    def _destroy_frame_inputs(self) -> None:
+        """Undo :meth:`_start_frames` and the frame subscriptions; frames still queued are
+        dropped (counted as skipped), then :meth:`_frame_inputs_destroyed`."""
+        for sub in self._frame_subs:
+            self.destroy_subscription(sub)
+        self._frame_subs = []
+        for timer in (self._diag_timer, self._flush_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._diag_timer = self._flush_timer = None
+        self._stop_worker(drop_queued=True)
+        self._frame_inputs_destroyed()
+
+    def _frame_inputs_destroyed(self) -> None:
+        """After :meth:`_destroy_frame_inputs` (nothing by default)."""
+
+    def _end_video(self) -> None:
+        """The end of the frame inputs: publish what the track still holds (nothing by
+        default)."""
+
+    def _release_inputs(self) -> None:
+        """The part of ``_release_configured`` both cores share: the camera_info and imu
+        subscriptions, the shared maps and the diagnostics publisher (the managed node
+        destroys the publishers)."""
+        for sub in self._info_subs:
+            self.destroy_subscription(sub)
+        self._info_subs = []
+        SHARED_MAPS.release(self)
+        self.pub_diag = None
+
+    # ---------------------------------------------------------------- outputs
+    def _wanted(self, topic: str) -> bool:
+        """Whether an output has a subscriber (messages nobody receives are not built)."""
+        pub = self._pubs.get(topic)
+        return pub is not None and pub.get_subscription_count() > 0
+
+    def _publish(self, messages) -> None:
+        """Publish ``(topic, message)`` pairs (:mod:`.outputs`)."""
+        for topic, msg in messages:
+            self._pubs[topic].publish(msg)
+
+    def _delivery_failed(self, e: BaseException) -> None:
+        self._throttled_log().warning(
+            "internal_error", f"publishing failed: {type(e).__name__}: {e}"
+        )
+
+    def _record_timing(self, arrived: float, stamp_ns: int) -> None:
+        """A pose published: its latency from the frame's arrival (``time.perf_counter``) and
+        its stamp's age on the node's clock."""
+        toc = time.perf_counter()
+        age = (self.get_clock().now().nanoseconds - stamp_ns) * 1e-9
+        with self._timing_lock:
+            self.latencies.append(toc - arrived)
+            self.stamp_ages.append(age)
+
+    def _timing_snapshot(self) -> tuple[list, list]:
+        """(latencies, stamp ages) in s, the last 1000 poses."""
+        with self._timing_lock:
+            return list(self.latencies), list(self.stamp_ages)
+
+    # ---------------------------------------------------------------- diagnostics
+    def _status(self, hardware_id: str, level: int, message: str, values) -> DiagnosticStatus:
+        """The node's ``DiagnosticStatus`` (named after the node)."""
+        name = f"rs_localizer: {self.get_fully_qualified_name()}"
+        return status_message(name, hardware_id, level, message, values)
+
+    def publish_diagnostics(self) -> None:
+        """Publish :meth:`diagnostics_status` on ``/diagnostics`` (nothing unconfigured)."""
+        if self.pub_diag is None:
+            return
+        msg = DiagnosticArray()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.status = [self.diagnostics_status()]
+        self.pub_diag.publish(msg)
+
+    # ---------------------------------------------------------------- the end
+    def _close_viz(self) -> None:
+        """Stop the drawing threads of the visualizations (before the node is destroyed)."""
+        for viz in [self.viz, *self.camera_viz.values()]:
+            if viz is not None:
+                viz.close()
+
+    def _before_destroy(self) -> None:
+        """:meth:`destroy_node`, the worker stopped: a last publication (nothing by default)."""
+
+    def destroy_node(self) -> None:
+        """Stop the worker thread (the frame it is on is finished), :meth:`_before_destroy`,
+        close the visualizations, release the shared maps (maps no other camera of the process
+        uses are freed), then destroy the node."""
+        self._stop_worker()
+        self._before_destroy()
+        self._close_viz()
+        SHARED_MAPS.release(self)
+        return super().destroy_node()
