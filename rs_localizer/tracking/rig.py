@@ -123,8 +123,9 @@ from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
-from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .gyro_check import GyroMountCheck, MountCheckOptions, gyro_if_consistent, update_gyro_checks
+from .gyro_bias import GyroBiasEstimator
+from .gyro_check import GyroMountCheck
+from .gyro_input import GyroInput
 from .sequence import FusedPose, image_sample, same_image
 from .tracker import predictable
 
@@ -574,27 +575,14 @@ class RigLocalizer:
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         self._last_wall: float | None = None  # (monotonic s: the last camera frame taken)
         self._make_filter()
-        self.imu: ImuBuffer | None = None
-        self.gyro_bias: GyroBiasEstimator | None = None
-        self.gyro_check: GyroMountCheck | None = None
+        # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
+        # of its mounting on the rig as a camera's, counted rig.gyro_*
+        self.gyro_input = GyroInput(
+            self._count_gyro, self.log, what="rig frame", key="rig.gyro", mount="IMU -> base_frame"
+        )
+        self.gyro_input.configure(settings.imu, check=True, max_interval=settings.stop_after)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
-        imu = settings.imu
-        if imu is not None:
-            self.imu = ImuBuffer(imu.buffer, imu.max_rate, imu.max_gap)
-            if imu.estimate_bias:
-                self.gyro_bias = GyroBiasEstimator(
-                    imu.gyro_bias, imu.gyro_bias_sigma, imu.R_cam_imu, imu.gyro_noise,
-                    imu.time_offset,
-                    GyroBiasOptions(random_walk=imu.bias_random_walk,
-                                    max_interval=settings.stop_after),
-                )  # fmt: skip
-            # (the IMU's mounting on the rig checked as a camera's: rig frames are solved
-            # without the gyro while the rotation between them contradicts it)
-            self.gyro_check = GyroMountCheck(
-                imu.R_cam_imu, imu.gyro_noise, imu.time_offset,
-                MountCheckOptions(max_interval=settings.stop_after),
-            )  # fmt: skip
 
     def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
         """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
@@ -605,15 +593,31 @@ class RigLocalizer:
             ValueError: a stamp that is not a nanosecond count
                 (:func:`~rs_localizer.camera.checked_stamp`).
         """
-        stamp = checked_stamp(stamp_ns, "IMU")
-        return "disabled" if self.imu is None else self.imu.add(stamp, rate)
+        return self.gyro_input.add(stamp_ns, rate)
+
+    @property
+    def imu(self) -> ImuBuffer | None:
+        """The gyro samples (:attr:`~rs_localizer.tracking.gyro_input.GyroInput.buffer`),
+        None without a gyro."""
+        return self.gyro_input.buffer
+
+    @property
+    def gyro_bias(self) -> GyroBiasEstimator | None:
+        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
+        return self.gyro_input.bias
+
+    @property
+    def gyro_check(self) -> GyroMountCheck | None:
+        """The check of the IMU's mounting on the rig against the rotation between posed rig
+        frames (None without a gyro)."""
+        return self.gyro_input.check
 
     @property
     def gyro_inconsistent(self) -> bool:
         """True while the rotation between posed rig frames contradicts the gyro (its
         ``imu.rotation``, time offset or bias likely wrong) and rig frames are solved without
         it (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`, as for one camera)."""
-        return self.gyro_check is not None and self.gyro_check.inconsistent
+        return self.gyro_input.inconsistent
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
@@ -621,43 +625,22 @@ class RigLocalizer:
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(bias (3,) rad/s, std (3,) rad/s)`` of the gyro (IMU frame): the online estimate
         with ``estimate_bias``, else the settings'; None without a gyro."""
-        imu = self.settings.imu
-        if imu is None:
-            return None
-        if self.gyro_bias is not None:
-            return self.gyro_bias.bias.copy(), self.gyro_bias.std
-        return np.array(imu.gyro_bias, dtype=float), np.full(3, float(imu.gyro_bias_sigma))
+        return self.gyro_input.bias_values()
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
         """The gyro measurement over the rig frame's capture times (rig frame), waiting up to
         ``imu.wait`` for its samples; None without a gyro or its samples (counted)."""
-        imu, buf = self.settings.imu, self.imu
-        if imu is None or buf is None:
+        if self.gyro_input.settings is None:
             return None
         first, last = [], []
         for v in views:
             a, b = readout_window(v.camera, v.stamp_offset)  # (s after the rig frame's time)
             first.append(a)
             last.append(b)
-        win = (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
         self._gyro_time = 0.5 * (min(first) + max(last))
-        buf.wait_until(win[1] - int(round(imu.time_offset * 1e9)), imu.wait)
-        if self.gyro_bias is not None:
-            gyro, reason = self.gyro_bias.measurement(buf, win)
-        else:
-            gyro, reason = buf.measurement(
-                win, imu.R_cam_imu, imu.gyro_bias, imu.gyro_noise, imu.gyro_bias_sigma,
-                imu.time_offset,
-            )  # fmt: skip
-        if gyro is None:
-            self.counts["rig.gyro_missing"] += 1
-            self.counts[f"rig.gyro_missing.{reason}"] += 1
-            self.log.warning(
-                f"rig.gyro.{reason}",
-                f"rig frame solved without the gyro ({reason}): check the imu topic, its rate "
-                "and imu.time_offset",
-            )
-        return gyro_if_consistent(gyro, self.gyro_check, self._count_gyro)
+        return self.gyro_input.measurement(
+            (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
+        )
 
     def _gyro_done(self, out: RigOutput) -> None:
         """Count the gyro's outcome of a rig frame and feed the bias estimate."""
@@ -669,12 +652,9 @@ class RigLocalizer:
                 self.counts["rig.gyro_rejected"] += 1
                 self.counts[f"rig.gyro_rejected.{est.gyro_rejection}"] += 1
         ok = out.success and est.covariance is not None
-        update_gyro_checks(
-            self.gyro_check, self.gyro_bias, self.imu, self.settings.imu,
-            stamp_ns=out.stamp_ns, success=ok, orientation=est.R.T if ok else None,
-            rotation_covariance=est.covariance[:3, :3] if ok else None,
-            new_track=out.path in ("cold", "reset"), count=self._count_gyro, log=self.log,
-            what="rig frames", mount="IMU -> base_frame",
+        self.gyro_input.update(
+            out.stamp_ns, ok, est.R.T if ok else None,
+            est.covariance[:3, :3] if ok else None, out.path in ("cold", "reset"),
         )  # fmt: skip
 
     def _make_filter(self) -> None:
@@ -809,12 +789,7 @@ class RigLocalizer:
             cam.stopped = False
         self._first = self._last_closed = None
         self._carry += self._end_track()
-        if self.imu is not None:
-            self.imu.reset()
-        if self.gyro_bias is not None:
-            self.gyro_bias.restart()
-        if self.gyro_check is not None:
-            self.gyro_check.restart()
+        self.gyro_input.restart(None)
         return []
 
     def _ready(self) -> list[RigOutput]:
