@@ -121,6 +121,7 @@ from ..estimation.rig import (
 )
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
+from .clock import TimeReset, VideoClock
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator
@@ -298,8 +299,12 @@ class RigSettings:
             which the rig stops waiting for it (``stopped``; also for a camera that never
             sent, counted from the rig's first frame).
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
-        time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
-            again (a bag played again); less is ``out_of_order``.
+        time_reset_ns: a time reset (:mod:`~rs_localizer.tracking.clock`, the single
+            camera's policy): a camera's frame older than its previous frame by more than this
+            (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
+            rig frames dropped), and so does a frame newer than the rig's newest by more than
+            this (a gap in a bag, a clock jump: the open rig frames solved first); counted
+            ``rig.time_resets``.
         options: the rig estimator's options, the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
@@ -349,6 +354,16 @@ class RigSettings:
     def cameras(self) -> tuple:
         """The cameras' names, in order."""
         return tuple(self.mounts)
+
+    @property
+    def max_gap(self) -> float:
+        """s: the rig's one gap policy, ``tracking.max_gap`` (the
+        :class:`RigTrackingOptions` default, 0.5 s, without tracking), as a camera's
+        :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`: rig frames further
+        apart share nothing across the gap (the track resets, the gyro's mount check and bias
+        estimator form no pair)."""
+        t = self.tracking
+        return float(t.max_gap if t is not None else RigTrackingOptions.max_gap)
 
 
 @dataclass(frozen=True)
@@ -547,7 +562,8 @@ class RigLocalizer:
     ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`);
     ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
-    ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
+    ``rig.skipped.time_reset``, ``rig.time_resets`` (time resets,
+    :attr:`RigSettings.time_reset_ns`), ``rig.incomplete`` (solved without every camera),
     ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation).
     Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
@@ -580,7 +596,10 @@ class RigLocalizer:
         self.gyro_input = GyroInput(
             self._count_gyro, self.log, what="rig frame", key="rig.gyro", mount="IMU -> base_frame"
         )
-        self.gyro_input.configure(settings.imu, check=True, max_interval=settings.stop_after)
+        self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
+        # the time-reset policy (tracking/clock.py): a camera's step back by more than
+        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest
+        self._clock = VideoClock(settings.time_reset_ns, settings.time_reset_ns)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
 
@@ -740,12 +759,12 @@ class RigLocalizer:
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
         out: list[RigOutput] = []
-        if cam.last_ref is not None and ref <= cam.last_ref:
-            if cam.last_ref - ref > self.settings.time_reset_ns:
-                out += self._time_reset()
-            else:
-                self._skip(name, "out_of_order")
-                return out
+        reset = self._clock.step(ref, cam.last_ref)
+        if reset is not None:
+            out += self._time_reset(reset)
+        elif cam.last_ref is not None and ref <= cam.last_ref:
+            self._skip(name, "out_of_order")
+            return out
         if self._last_closed is not None and ref < self._last_closed:
             self._skip(name, "late")
             cam.last_ref = ref
@@ -773,10 +792,19 @@ class RigLocalizer:
         self.counts[f"{name}.skipped"] += 1
         self.counts[f"{name}.skipped.{reason}"] += 1
 
-    def _time_reset(self) -> list:
-        """Stamps went back: the open rig frames dropped (``time_reset``), the track and the
-        cameras' timelines started again; the old track's pending twists go out with the next
-        rig frame (:attr:`RigOutput.fused`)."""
+    def _time_reset(self, reset: TimeReset | None = None) -> list[RigOutput]:
+        """A time reset (:mod:`~rs_localizer.tracking.clock`; None: :meth:`reset`): the open
+        rig frames solved as they are on a jump ahead (``stamp_jump``, returned), else dropped
+        (``time_reset``); the track, the cameras' timelines and the gyro's timeline started
+        again (the gyro keeps its samples from the rig's newest frame on after a jump ahead);
+        the old track's pending twists go out with the next rig frame
+        (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on :meth:`reset`)."""
+        solved = []
+        if reset is not None:
+            self.counts["rig.time_resets"] += 1
+            self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
+            if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
+                solved = self.close()
         for g in self._open:
             for n in g.frames:
                 self._skip(n, "time_reset")
@@ -789,8 +817,8 @@ class RigLocalizer:
             cam.stopped = False
         self._first = self._last_closed = None
         self._carry += self._end_track()
-        self.gyro_input.restart(None)
-        return []
+        self.gyro_input.restart(None if reset is None else reset.keep_from)
+        return solved
 
     def _ready(self) -> list[RigOutput]:
         """Solve the open rig frames every camera has joined, moved past or stopped for."""
@@ -854,6 +882,7 @@ class RigLocalizer:
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
         as ``time_reset``), the track ends. Returns its twists still pending."""
         self._time_reset()
+        self._clock.reset()
         out, self._carry = self._carry, []
         return out
 

@@ -84,6 +84,7 @@ from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
+from .clock import VideoClock
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
 from .gyro_bias import GyroBiasEstimator
@@ -406,7 +407,8 @@ class SequenceLocalizer:
         self.counts: Counter = Counter()
         self._count = count if count is not None else self._count_here
         self.settings = SequenceSettings()
-        self._last_stamp: int | None = None
+        # the time-reset policy (tracking/clock.py): any step back, or a jump ahead
+        self._clock = VideoClock()
         # the tracker, what it was made for, the frames waiting for their fused twist
         # (reference stamp -> (estimate, tag)), the lock between process() and flush_idle(),
         # counters of the trackers dropped so far
@@ -440,6 +442,7 @@ class SequenceLocalizer:
         tracking options changed."""
         self.settings = settings
         self._carried.max_gap = settings.max_gap
+        self._clock.time_reset_ns = settings.time_reset_ns
         self.gyro_input.configure(
             settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
         )
@@ -567,21 +570,13 @@ class SequenceLocalizer:
         return self._check_time(checked_stamp(stamp_ns))
 
     def _check_time(self, stamp: Stamp) -> str | None:
-        """:meth:`check_time` of a checked stamp."""
-        last, self._last_stamp = self._last_stamp, stamp
-        if last is None:
+        """:meth:`check_time` of a checked stamp (:class:`~rs_localizer.tracking.clock.
+        VideoClock`)."""
+        reset = self._clock.step(stamp, self._clock.newest)
+        if reset is None:
             return None
-        if stamp < last:
-            why = (
-                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
-                " s older than the previous frame"
-            )
-        elif stamp - last > self.settings.time_reset_ns:
-            why = f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)"
-        else:
-            return None
-        self._restart_gyro(None if stamp < last else last)
-        return why
+        self._restart_gyro(reset.keep_from)
+        return reset.detail
 
     def _restart_gyro(self, keep_from: int | None) -> None:
         """A new timeline: the gyro samples before ``keep_from`` (ns; None: all) dropped, the
@@ -952,6 +947,6 @@ class SequenceLocalizer:
             self._end_track()
             self._restart_gyro(None)
             self._carried.reset()
-            self._last_stamp = None
+            self._clock.reset()
             self._last_image = None
             self._track_over = False
