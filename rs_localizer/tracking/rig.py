@@ -121,10 +121,12 @@ from ..estimation.rig import (
 )
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
+from .clock import TimeReset, VideoClock
 from .fusion import FusionOptions, TwistFilter
 from .gyro import ImuBuffer, readout_window
-from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .gyro_check import GyroMountCheck, MountCheckOptions, gyro_if_consistent, update_gyro_checks
+from .gyro_bias import GyroBiasEstimator
+from .gyro_check import GyroMountCheck
+from .gyro_input import GyroInput
 from .sequence import FusedPose, image_sample, same_image
 from .tracker import predictable
 
@@ -297,8 +299,12 @@ class RigSettings:
             which the rig stops waiting for it (``stopped``; also for a camera that never
             sent, counted from the rig's first frame).
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
-        time_reset_ns: a camera's stamp going back by more than this (ns) starts the rig
-            again (a bag played again); less is ``out_of_order``.
+        time_reset_ns: a time reset (:mod:`~rs_localizer.tracking.clock`, the single
+            camera's policy): a camera's frame older than its previous frame by more than this
+            (ns; less is ``out_of_order``) starts the rig again (a bag played again: the open
+            rig frames dropped), and so does a frame newer than the rig's newest by more than
+            this (a gap in a bag, a clock jump: the open rig frames solved first); counted
+            ``rig.time_resets``.
         options: the rig estimator's options, the single camera's
             :class:`~rs_localizer.estimation.options.EstimateOptions` (the RANSAC threshold,
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
@@ -348,6 +354,16 @@ class RigSettings:
     def cameras(self) -> tuple:
         """The cameras' names, in order."""
         return tuple(self.mounts)
+
+    @property
+    def max_gap(self) -> float:
+        """s: the rig's one gap policy, ``tracking.max_gap`` (the
+        :class:`RigTrackingOptions` default, 0.5 s, without tracking), as a camera's
+        :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`: rig frames further
+        apart share nothing across the gap (the track resets, the gyro's mount check and bias
+        estimator form no pair)."""
+        t = self.tracking
+        return float(t.max_gap if t is not None else RigTrackingOptions.max_gap)
 
 
 @dataclass(frozen=True)
@@ -546,7 +562,8 @@ class RigLocalizer:
     ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`);
     ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
-    ``rig.skipped.time_reset``, ``rig.incomplete`` (solved without every camera),
+    ``rig.skipped.time_reset``, ``rig.time_resets`` (time resets,
+    :attr:`RigSettings.time_reset_ns`), ``rig.incomplete`` (solved without every camera),
     ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation).
     Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
@@ -574,27 +591,17 @@ class RigLocalizer:
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         self._last_wall: float | None = None  # (monotonic s: the last camera frame taken)
         self._make_filter()
-        self.imu: ImuBuffer | None = None
-        self.gyro_bias: GyroBiasEstimator | None = None
-        self.gyro_check: GyroMountCheck | None = None
+        # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
+        # of its mounting on the rig as a camera's, counted rig.gyro_*
+        self.gyro_input = GyroInput(
+            self._count_gyro, self.log, what="rig frame", key="rig.gyro", mount="IMU -> base_frame"
+        )
+        self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
+        # the time-reset policy (tracking/clock.py): a camera's step back by more than
+        # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest
+        self._clock = VideoClock(settings.time_reset_ns, settings.time_reset_ns)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
-        imu = settings.imu
-        if imu is not None:
-            self.imu = ImuBuffer(imu.buffer, imu.max_rate, imu.max_gap)
-            if imu.estimate_bias:
-                self.gyro_bias = GyroBiasEstimator(
-                    imu.gyro_bias, imu.gyro_bias_sigma, imu.R_cam_imu, imu.gyro_noise,
-                    imu.time_offset,
-                    GyroBiasOptions(random_walk=imu.bias_random_walk,
-                                    max_interval=settings.stop_after),
-                )  # fmt: skip
-            # (the IMU's mounting on the rig checked as a camera's: rig frames are solved
-            # without the gyro while the rotation between them contradicts it)
-            self.gyro_check = GyroMountCheck(
-                imu.R_cam_imu, imu.gyro_noise, imu.time_offset,
-                MountCheckOptions(max_interval=settings.stop_after),
-            )  # fmt: skip
 
     def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
         """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
@@ -605,15 +612,31 @@ class RigLocalizer:
             ValueError: a stamp that is not a nanosecond count
                 (:func:`~rs_localizer.camera.checked_stamp`).
         """
-        stamp = checked_stamp(stamp_ns, "IMU")
-        return "disabled" if self.imu is None else self.imu.add(stamp, rate)
+        return self.gyro_input.add(stamp_ns, rate)
+
+    @property
+    def imu(self) -> ImuBuffer | None:
+        """The gyro samples (:attr:`~rs_localizer.tracking.gyro_input.GyroInput.buffer`),
+        None without a gyro."""
+        return self.gyro_input.buffer
+
+    @property
+    def gyro_bias(self) -> GyroBiasEstimator | None:
+        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
+        return self.gyro_input.bias
+
+    @property
+    def gyro_check(self) -> GyroMountCheck | None:
+        """The check of the IMU's mounting on the rig against the rotation between posed rig
+        frames (None without a gyro)."""
+        return self.gyro_input.check
 
     @property
     def gyro_inconsistent(self) -> bool:
         """True while the rotation between posed rig frames contradicts the gyro (its
         ``imu.rotation``, time offset or bias likely wrong) and rig frames are solved without
         it (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`, as for one camera)."""
-        return self.gyro_check is not None and self.gyro_check.inconsistent
+        return self.gyro_input.inconsistent
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
@@ -621,43 +644,22 @@ class RigLocalizer:
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(bias (3,) rad/s, std (3,) rad/s)`` of the gyro (IMU frame): the online estimate
         with ``estimate_bias``, else the settings'; None without a gyro."""
-        imu = self.settings.imu
-        if imu is None:
-            return None
-        if self.gyro_bias is not None:
-            return self.gyro_bias.bias.copy(), self.gyro_bias.std
-        return np.array(imu.gyro_bias, dtype=float), np.full(3, float(imu.gyro_bias_sigma))
+        return self.gyro_input.bias_values()
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
         """The gyro measurement over the rig frame's capture times (rig frame), waiting up to
         ``imu.wait`` for its samples; None without a gyro or its samples (counted)."""
-        imu, buf = self.settings.imu, self.imu
-        if imu is None or buf is None:
+        if self.gyro_input.settings is None:
             return None
         first, last = [], []
         for v in views:
             a, b = readout_window(v.camera, v.stamp_offset)  # (s after the rig frame's time)
             first.append(a)
             last.append(b)
-        win = (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
         self._gyro_time = 0.5 * (min(first) + max(last))
-        buf.wait_until(win[1] - int(round(imu.time_offset * 1e9)), imu.wait)
-        if self.gyro_bias is not None:
-            gyro, reason = self.gyro_bias.measurement(buf, win)
-        else:
-            gyro, reason = buf.measurement(
-                win, imu.R_cam_imu, imu.gyro_bias, imu.gyro_noise, imu.gyro_bias_sigma,
-                imu.time_offset,
-            )  # fmt: skip
-        if gyro is None:
-            self.counts["rig.gyro_missing"] += 1
-            self.counts[f"rig.gyro_missing.{reason}"] += 1
-            self.log.warning(
-                f"rig.gyro.{reason}",
-                f"rig frame solved without the gyro ({reason}): check the imu topic, its rate "
-                "and imu.time_offset",
-            )
-        return gyro_if_consistent(gyro, self.gyro_check, self._count_gyro)
+        return self.gyro_input.measurement(
+            (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
+        )
 
     def _gyro_done(self, out: RigOutput) -> None:
         """Count the gyro's outcome of a rig frame and feed the bias estimate."""
@@ -669,12 +671,9 @@ class RigLocalizer:
                 self.counts["rig.gyro_rejected"] += 1
                 self.counts[f"rig.gyro_rejected.{est.gyro_rejection}"] += 1
         ok = out.success and est.covariance is not None
-        update_gyro_checks(
-            self.gyro_check, self.gyro_bias, self.imu, self.settings.imu,
-            stamp_ns=out.stamp_ns, success=ok, orientation=est.R.T if ok else None,
-            rotation_covariance=est.covariance[:3, :3] if ok else None,
-            new_track=out.path in ("cold", "reset"), count=self._count_gyro, log=self.log,
-            what="rig frames", mount="IMU -> base_frame",
+        self.gyro_input.update(
+            out.stamp_ns, ok, est.R.T if ok else None,
+            est.covariance[:3, :3] if ok else None, out.path in ("cold", "reset"),
         )  # fmt: skip
 
     def _make_filter(self) -> None:
@@ -760,12 +759,12 @@ class RigLocalizer:
             cam.newest = stamp if cam.newest is None else max(cam.newest, stamp)
             return self._ready()
         out: list[RigOutput] = []
-        if cam.last_ref is not None and ref <= cam.last_ref:
-            if cam.last_ref - ref > self.settings.time_reset_ns:
-                out += self._time_reset()
-            else:
-                self._skip(name, "out_of_order")
-                return out
+        reset = self._clock.step(ref, cam.last_ref)
+        if reset is not None:
+            out += self._time_reset(reset)
+        elif cam.last_ref is not None and ref <= cam.last_ref:
+            self._skip(name, "out_of_order")
+            return out
         if self._last_closed is not None and ref < self._last_closed:
             self._skip(name, "late")
             cam.last_ref = ref
@@ -793,10 +792,19 @@ class RigLocalizer:
         self.counts[f"{name}.skipped"] += 1
         self.counts[f"{name}.skipped.{reason}"] += 1
 
-    def _time_reset(self) -> list:
-        """Stamps went back: the open rig frames dropped (``time_reset``), the track and the
-        cameras' timelines started again; the old track's pending twists go out with the next
-        rig frame (:attr:`RigOutput.fused`)."""
+    def _time_reset(self, reset: TimeReset | None = None) -> list[RigOutput]:
+        """A time reset (:mod:`~rs_localizer.tracking.clock`; None: :meth:`reset`): the open
+        rig frames solved as they are on a jump ahead (``stamp_jump``, returned), else dropped
+        (``time_reset``); the track, the cameras' timelines and the gyro's timeline started
+        again (the gyro keeps its samples from the rig's newest frame on after a jump ahead);
+        the old track's pending twists go out with the next rig frame
+        (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on :meth:`reset`)."""
+        solved = []
+        if reset is not None:
+            self.counts["rig.time_resets"] += 1
+            self.log.warning("rig.time_reset", f"rig time reset: {reset.detail}")
+            if reset.reason == "stamp_jump":  # (the old timeline's rig frames)
+                solved = self.close()
         for g in self._open:
             for n in g.frames:
                 self._skip(n, "time_reset")
@@ -809,13 +817,8 @@ class RigLocalizer:
             cam.stopped = False
         self._first = self._last_closed = None
         self._carry += self._end_track()
-        if self.imu is not None:
-            self.imu.reset()
-        if self.gyro_bias is not None:
-            self.gyro_bias.restart()
-        if self.gyro_check is not None:
-            self.gyro_check.restart()
-        return []
+        self.gyro_input.restart(None if reset is None else reset.keep_from)
+        return solved
 
     def _ready(self) -> list[RigOutput]:
         """Solve the open rig frames every camera has joined, moved past or stopped for."""
@@ -879,6 +882,7 @@ class RigLocalizer:
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
         as ``time_reset``), the track ends. Returns its twists still pending."""
         self._time_reset()
+        self._clock.reset()
         out, self._carry = self._carry, []
         return out
 

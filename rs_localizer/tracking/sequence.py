@@ -84,15 +84,12 @@ from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
+from .clock import VideoClock
 from .fusion import FusedState
 from .gyro import ImuBuffer, readout_window
-from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
-from .gyro_check import (
-    GyroMountCheck,
-    MountCheckOptions,
-    gyro_if_consistent,
-    update_gyro_checks,
-)
+from .gyro_bias import GyroBiasEstimator
+from .gyro_check import GyroMountCheck
+from .gyro_input import GyroInput, GyroSettings
 from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
@@ -142,36 +139,6 @@ def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL
     if not d <= level:  # (a new picture, every frame of a moving camera: no spread needed)
         return None
     return None if float(np.std(cur[0])) < 2.0 else d
-
-
-@dataclass(frozen=True)
-class GyroSettings:
-    """How the gyro is used (the node's ``imu.*`` parameters:
-    :func:`rs_localizer.tracking.settings.gyro_settings` builds it from their values).
-
-    Attributes:
-        R_cam_imu: (3, 3) rotation IMU -> camera optical frame.
-        time_offset: s added to the IMU stamps to get camera time.
-        gyro_noise: rad/s, standard deviation of one sample.
-        gyro_bias: (3,) rad/s, IMU frame; gyro_bias_sigma: its standard deviation per axis.
-        estimate_bias: estimate the bias online (from ``gyro_bias`` with ``gyro_bias_sigma``);
-            bias_random_walk: rad/s per sqrt(s), how fast it may drift.
-        wait: s a frame waits for the samples covering its readout (0: none, e.g. offline).
-        buffer: s of samples kept. max_rate: rad/s, the saturation (rejected beyond).
-        max_gap: s between samples beyond which a readout is ``sparse``.
-    """
-
-    R_cam_imu: np.ndarray = field(default_factory=lambda: np.eye(3))
-    time_offset: float = 0.0
-    gyro_noise: float = 0.005
-    gyro_bias: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    gyro_bias_sigma: float = 0.01
-    wait: float = 0.0
-    buffer: float = 2.0
-    max_rate: float = 35.0
-    max_gap: float = 0.02
-    estimate_bias: bool = False
-    bias_random_walk: float = 1e-4
 
 
 @dataclass(frozen=True)
@@ -383,19 +350,6 @@ def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
     return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
-def _gyro_calibration(imu: Any) -> tuple:
-    """The gyro calibration values (mounting, time offset, noise, bias and its sigma) as a
-    comparable tuple: a gyro-bias estimate or a gyro check is started again when they change
-    at run time."""
-    return (
-        tuple(np.round(imu.R_cam_imu, 12).ravel()),
-        imu.time_offset,
-        imu.gyro_noise,
-        tuple(imu.gyro_bias),
-        imu.gyro_bias_sigma,
-    )
-
-
 class _Silent:
     def info(self, text: str) -> None:
         pass
@@ -452,10 +406,9 @@ class SequenceLocalizer:
         self._implementation = implementation
         self.counts: Counter = Counter()
         self._count = count if count is not None else self._count_here
-        self._stopped = stopped
-        self._imu_span = imu_span
         self.settings = SequenceSettings()
-        self._last_stamp: int | None = None
+        # the time-reset policy (tracking/clock.py): any step back, or a jump ahead
+        self._clock = VideoClock()
         # the tracker, what it was made for, the frames waiting for their fused twist
         # (reference stamp -> (estimate, tag)), the lock between process() and flush_idle(),
         # counters of the trackers dropped so far
@@ -466,11 +419,8 @@ class SequenceLocalizer:
         self._lock = threading.RLock()
         self._last_frame_wall: float | None = None
         self._track_counts: Counter = Counter()
-        self.imu: ImuBuffer | None = None
-        self.gyro_bias: GyroBiasEstimator | None = None
-        self._bias_key = None
-        self.gyro_check: GyroMountCheck | None = None
-        self._check_key = None
+        # the gyro: its samples, bias, mount check and counters
+        self.gyro_input = GyroInput(self._count, self.log, stopped=stopped, span=imu_span)
         self._frontend: VideoFrontend | None = None
         self._last_image: tuple | None = None  # (image_sample of the previous image)
         self._track_over = False  # (a frozen image: the next frame starts a new track)
@@ -492,76 +442,38 @@ class SequenceLocalizer:
         tracking options changed."""
         self.settings = settings
         self._carried.max_gap = settings.max_gap
-        imu = settings.imu
-        if imu is None:
-            self.imu = None
-        elif self.imu is None or (self.imu.max_rate, self.imu.max_gap_ns) != (
-            imu.max_rate,
-            int(imu.max_gap * 1e9),
-        ):
-            old, self.imu = self.imu, self._new_buffer()
-            if old is not None:  # (keep the samples received so far)
-                for t, w in old.samples():
-                    self.imu.add(t, w)
-        self._configure_bias(imu)
-        self._configure_check(imu)
-
-    def _new_buffer(self) -> ImuBuffer:
-        imu = self.settings.imu
-        span = imu.buffer if self._imu_span is None else self._imu_span
-        return ImuBuffer(span, imu.max_rate, imu.max_gap)
-
-    def _configure_bias(self, imu: Any) -> None:
-        if imu is None or not imu.estimate_bias:
-            self.gyro_bias = self._bias_key = None
-            return
-        gap = self.settings.max_gap
-        key = (*_gyro_calibration(imu), imu.bias_random_walk, gap)
-        if self.gyro_bias is None or key != self._bias_key:
-            self.gyro_bias = GyroBiasEstimator(
-                imu.gyro_bias,
-                imu.gyro_bias_sigma,
-                imu.R_cam_imu,
-                imu.gyro_noise,
-                imu.time_offset,
-                GyroBiasOptions(random_walk=imu.bias_random_walk, max_interval=gap),
-            )
-            self._bias_key = key
-
-    def _configure_check(self, imu: Any) -> None:
-        if imu is None or not self.settings.check_gyro:
-            self.gyro_check = self._check_key = None
-            return
-        gap = self.settings.max_gap
-        key = (*_gyro_calibration(imu), imu.estimate_bias, gap)
-        if self.gyro_check is None or key != self._check_key:
-            self.gyro_check = GyroMountCheck(
-                imu.R_cam_imu,
-                imu.gyro_noise,
-                imu.time_offset,
-                MountCheckOptions(max_interval=gap),
-            )
-            self._check_key = key
+        self._clock.time_reset_ns = settings.time_reset_ns
+        self.gyro_input.configure(
+            settings.imu, check=settings.check_gyro, max_interval=settings.max_gap
+        )
 
     # ---------------------------------------------------------------- read-outs
+    @property
+    def imu(self) -> ImuBuffer | None:
+        """The gyro samples (:attr:`GyroInput.buffer`), None without a gyro."""
+        return self.gyro_input.buffer
+
+    @property
+    def gyro_bias(self) -> GyroBiasEstimator | None:
+        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
+        return self.gyro_input.bias
+
+    @property
+    def gyro_check(self) -> GyroMountCheck | None:
+        """The check of the gyro against the rotation between solved frames, else None."""
+        return self.gyro_input.check
+
     @property
     def gyro_inconsistent(self) -> bool:
         """True while the rotation between solved frames contradicts the gyro and frames are
         solved without it (:class:`GyroMountCheck`)."""
-        check = self.gyro_check
-        return check is not None and check.inconsistent
+        return self.gyro_input.inconsistent
 
     def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
         IMU frame): the online estimate with ``estimate_bias``, else the settings' ``gyro_bias``
-        and ``gyro_bias_sigma``; None without a gyro."""
-        imu = self.settings.imu
-        if imu is None:
-            return None
-        est = self.gyro_bias
-        if est is not None:
-            return est.bias.copy(), est.std
-        return np.array(imu.gyro_bias, dtype=float), np.full(3, imu.gyro_bias_sigma)
+        and ``gyro_bias_sigma``; None without a gyro (:meth:`GyroInput.bias_values`)."""
+        return self.gyro_input.bias_values()
 
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
@@ -600,44 +512,18 @@ class SequenceLocalizer:
             ValueError: a stamp that is not a finite number within the int64 nanosecond
                 range (:func:`checked_stamp`).
         """
-        stamp = checked_stamp(stamp_ns, "IMU")
-        buf = self.imu
-        if buf is None:
-            return "disabled"
-        return buf.add(stamp, rate)
+        return self.gyro_input.add(stamp_ns, rate)
 
     def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
-        """The gyro measurement of the frame's readout (waiting up to ``imu.wait`` for the
-        samples covering it), or None (``gyro_missing.<reason>`` counted; the frame is solved
-        without)."""
-        imu, buf = self.settings.imu, self.imu
-        if imu is None or buf is None or camera.line_delay <= 0:
+        """The gyro measurement of the frame's readout (:meth:`GyroInput.measurement`), or
+        None (no gyro, no readout timing, or the samples missing: counted; the frame is
+        solved without)."""
+        if self.gyro_input.settings is None or camera.line_delay <= 0:
             return None
         a, b = readout_window(camera, 0.0, self.settings.stamp_row)  # (s from the stamp)
-        first, last = stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9))
-        off = int(round(imu.time_offset * 1e9))
-        buf.wait_until(last - off, imu.wait, self._stopped)
-        if self.gyro_bias is not None:  # (the online estimate and its covariance)
-            gyro, reason = self.gyro_bias.measurement(buf, (first, last))
-        else:
-            gyro, reason = buf.measurement(
-                (first, last),
-                imu.R_cam_imu,
-                imu.gyro_bias,
-                imu.gyro_noise,
-                imu.gyro_bias_sigma,
-                imu.time_offset,
-            )
-        if gyro is None:
-            self._count("gyro_missing", 1)
-            self._count(f"gyro_missing.{reason}", 1)
-            self.log.warning(
-                f"gyro.{reason}",
-                f"frame solved without the gyro ({reason}): check the imu topic, its rate and "
-                "imu.time_offset",
-            )
-        # (the image refutes the gyro over the last pairs: solved without it)
-        return gyro_if_consistent(gyro, self.gyro_check, self._count)
+        return self.gyro_input.measurement(
+            (stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9)))
+        )
 
     def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
         """Feed a frame to the check of the gyro against the image and to the online bias
@@ -646,19 +532,7 @@ class SequenceLocalizer:
         restarts the pairing; counted ``gyro_pairs_failed``, ``gyro_inconsistent_detections``
         (warned about once), ``gyro_bias_rejected``."""
         cov = est.covariance[:3, :3] if est.covariance is not None else None
-        update_gyro_checks(
-            self.gyro_check,
-            self.gyro_bias,
-            self.imu,
-            self.settings.imu,
-            stamp_ns=stamp,
-            success=bool(est.success),
-            orientation=est.pose.orientation,
-            rotation_covariance=cov,
-            new_track=new_track,
-            count=self._count,
-            log=self.log,
-        )
+        self.gyro_input.update(stamp, bool(est.success), est.pose.orientation, cov, new_track)
 
     # ---------------------------------------------------------------- time
     def frame_time(self, stamp_ns: int | FrameTime, camera: CameraModel) -> FrameTime:
@@ -696,36 +570,19 @@ class SequenceLocalizer:
         return self._check_time(checked_stamp(stamp_ns))
 
     def _check_time(self, stamp: Stamp) -> str | None:
-        """:meth:`check_time` of a checked stamp."""
-        last, self._last_stamp = self._last_stamp, stamp
-        if last is None:
+        """:meth:`check_time` of a checked stamp (:class:`~rs_localizer.tracking.clock.
+        VideoClock`)."""
+        reset = self._clock.step(stamp, self._clock.newest)
+        if reset is None:
             return None
-        if stamp < last:
-            why = (
-                f"stamp {stamp * 1e-9:.6f} s is {(last - stamp) * 1e-9:.3f}"
-                " s older than the previous frame"
-            )
-        elif stamp - last > self.settings.time_reset_ns:
-            why = f"{(stamp - last) * 1e-9:.3f} s since the previous frame (> time_reset_threshold)"
-        else:
-            return None
-        self._restart_gyro(None if stamp < last else last)
-        return why
+        self._restart_gyro(reset.keep_from)
+        return reset.detail
 
     def _restart_gyro(self, keep_from: int | None) -> None:
         """A new timeline: the gyro samples before ``keep_from`` (ns; None: all) dropped, the
         pairing of the bias estimator and of the gyro check restarted."""
         with self._lock:
-            if self.imu is not None:
-                old, self.imu = self.imu, self._new_buffer()
-                if keep_from is not None:
-                    for t, w in old.samples():
-                        if t >= keep_from:
-                            self.imu.add(t, w)
-            if self.gyro_check is not None:
-                self.gyro_check.restart()
-            if self.gyro_bias is not None:
-                self.gyro_bias.restart()
+            self.gyro_input.restart(keep_from)
 
     # ---------------------------------------------------------------- images
     @property
@@ -1090,6 +947,6 @@ class SequenceLocalizer:
             self._end_track()
             self._restart_gyro(None)
             self._carried.reset()
-            self._last_stamp = None
+            self._clock.reset()
             self._last_image = None
             self._track_over = False

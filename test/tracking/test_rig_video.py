@@ -3,6 +3,8 @@ rs_localizer.sim.rig_video), against the rig's true trajectory."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from helpers.rig import T0, Log, assert_balanced, mounts_of
@@ -17,6 +19,7 @@ from rs_localizer.tracking.rig import (
     RigMount,
     RigSettings,
 )
+from rs_localizer.tracking.sequence import SequenceLocalizer
 
 
 def run(frames, cams, settings=None, log=None, camera_of=None):
@@ -201,10 +204,50 @@ def test_stamps_going_back_start_the_rig_again(video):
     rig, outs, _ = run(frames + frames, cams, settings)
     assert [o.path for o in outs].count("cold") == 2
     assert sum(o.success for o in outs) >= 34
+    assert rig.counts["rig.time_resets"] == 1
     assert_balanced(rig)
     rig2, _, _ = run([frames[0], frames[3], frames[0]], cams)
     assert rig2.counts["front.skipped.out_of_order"] == 1
     assert_balanced(rig2)
+
+
+def test_a_stamp_jump_ahead_starts_the_rig_again_as_for_one_camera(video):
+    """The video's second half stamped 3 s later (a gap in a bag, a clock that jumped ahead:
+    more than ``time_reset_ns`` after the rig's newest frame) is a time reset, as for one
+    camera (``SequenceLocalizer.check_time`` on the front camera's stamps finds the same one):
+    counted ``rig.time_resets`` once and warned about with the camera's reason; the rig frame
+    still open at the jump (the right camera's last frame before it lost) is solved, none
+    is skipped, no camera counts as stopped for the gap, the track starts again (``cold``)
+    and the rig frames after the jump are posed as well as before it against the truth (the
+    jump taken off)."""
+    cams, frames, traj = video
+    jump, mid = 3 * 10**9, T0 + 290_000_000
+    shifted = [f if f.stamp_ns < mid else replace(f, stamp_ns=f.stamp_ns + jump) for f in frames]
+    last_right = max(f.index for f in frames if f.name == "right" and f.stamp_ns < mid)
+    shifted = [f for f in shifted if not (f.name == "right" and f.index == last_right)]
+    log = Log()
+    rig, outs, _ = run(shifted, cams, log=log)
+    assert rig.counts["rig.time_resets"] == 1, dict(rig.counts)
+    seq = SequenceLocalizer()
+    why = [seq.check_time(f.stamp_ns) for f in shifted if f.name == "front"]
+    assert sum(w is not None for w in why) == 1
+    camera_reason = next(w for w in why if w is not None).split(" s ")[-1]
+    warned = [t for k, t in log.warnings if k == "rig.time_reset"]
+    assert len(warned) == 1 and warned[0].endswith(camera_reason), (warned, camera_reason)
+    assert not [k for k in rig.counts if "skipped" in k or k.endswith(".stopped")]
+    assert len(outs) == 18 and all(o.success for o in outs)
+    incomplete = [o for o in outs if o.missing]
+    assert len(incomplete) == 1 and set(incomplete[0].missing) == {"right"}
+    assert incomplete[0].stamp_ns < mid
+    assert [o.path for o in outs].count("cold") == 2 and "reset" not in [o.path for o in outs]
+    after = [o for o in outs if o.stamp_ns > mid + jump]
+    assert len(after) == 9 and after[0].path == "cold"
+    e = np.array([errors(replace(o, stamp_ns=o.stamp_ns - jump), traj) for o in after])
+    assert np.median(e[:, 0]) < 0.03 and np.median(e[:, 1]) < 0.003, np.median(e, axis=0)
+    assert_balanced(rig)
+    # a jump within time_reset_ns is no time reset: the track resets on the gap alone
+    rig2, outs2, _ = run(shifted, cams, RigSettings(mounts_of(cams), time_reset_ns=5 * 10**9))
+    assert rig2.counts["rig.time_resets"] == 0 and "reset" in [o.path for o in outs2]
 
 
 def test_bad_settings():

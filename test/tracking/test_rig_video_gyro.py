@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from helpers.rig import T0
 
+from rs_localizer.camera import reference_stamp_ns
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
 from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
@@ -209,3 +210,48 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     assert not rig2.gyro_inconsistent and rig2.counts["rig.gyro_inconsistent_detections"] == 0
     assert rig2.counts["rig.gyro_used"] == len(outs2)
     assert rig_diagnostics(rig2, set())[2]["gyro_inconsistent"] == "false"
+
+
+def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
+    """The rig's gyro follows the single camera's time-reset policy: a frame more than
+    ``time_reset_ns`` after the rig's newest keeps the samples from that newest frame's time
+    on (the older ones dropped), a frame going back by more drops them all; both counted
+    ``rig.time_resets``; the bias estimate is kept (the same IMU), its pairing restarted."""
+    cams, frames, _ = video
+    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    imu = GyroSettings(R_cam_imu=R_RIG_IMU, buffer=100.0, estimate_bias=True)
+    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None))
+    by = {c.name: c.camera for c in cams}
+    stamps = [T0 + k * 5_000_000 for k in range(100)]  # (0.5 s at 200 Hz)
+    for t in stamps:
+        assert rig.add_imu(t, np.zeros(3)) is None
+    first = [f for f in frames if f.stamp_ns < T0 + 200_000_000]
+    for f in first:
+        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    newest = max(reference_stamp_ns(f.stamp_ns, by[f.name], 0.0) for f in first)
+    bias = rig.gyro_bias
+    assert rig.counts["rig.time_resets"] == 0 and len(rig.imu) == 100
+    f = frames[len(first)]
+    rig.add(RigCameraFrame(f.name, f.stamp_ns + 3 * 10**9, by[f.name], f.uv, f.xyz))
+    assert rig.counts["rig.time_resets"] == 1
+    assert len(rig.imu) == sum(t >= newest for t in stamps) > 0
+    assert rig.gyro_bias is bias and rig.gyro_bias._prev is None
+    rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))  # (3 s back)
+    assert rig.counts["rig.time_resets"] == 2 and len(rig.imu) == 0
+    assert rig.rig_counts()["skipped"] > 0  # (the rig frame open at the step back: dropped)
+
+
+def test_the_rigs_gap_is_passed_to_the_gyro_check_and_bias_estimator():
+    """The rig's gyro forms no pair of rig frames across its one gap, ``tracking.max_gap``
+    (0.5 s without tracking), as a camera's across ``SequenceSettings.max_gap``, whatever
+    ``stop_after``."""
+    from rs_localizer.tracking.rig import RigTrackingOptions
+
+    cams = default_rig(2)
+    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    imu = GyroSettings(estimate_bias=True)
+    to = RigTrackingOptions(max_gap=0.3)
+    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=to, stop_after=0.8))
+    assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.3
+    rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None, stop_after=0.8))
+    assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.5
