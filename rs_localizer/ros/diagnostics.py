@@ -362,7 +362,8 @@ def rig_diagnostics(
     ``ERROR`` (rig frames formed and none was posed, or a camera sent nothing for
     ``rig.stop_after`` and none was posed; the message goes on with the cameras'
     warnings and the failures by reason). Values: ``rig_frames``,
-    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``, the
+    ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``,
+    ``time_resets`` (stamps going back or jumping ahead, as a camera's), the
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
@@ -389,6 +390,7 @@ def rig_diagnostics(
         "rig_frames_skipped": r["skipped"],
         "rig_frames_pending": r["pending"],
         "track_state": rig.track_state,
+        "time_resets": rig.counts.get("rig.time_resets", 0),
     }
     compile_values, note = _compile_values("rig frames")
     values.update(compile_values, rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0))

@@ -35,7 +35,8 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     medians and percentiles computed here; each camera's section has its own worker time
     (``<c>.camera_frame_ms_median``) beside the rig-wide one; per camera ``received = solved
     + failed + skipped + pending`` with the node's own counts folded in; a camera that sent
-    nothing is named in an ERROR while no rig frame is posed."""
+    nothing is named in an ERROR while no rig frame is posed; a time reset of the rig is
+    counted under the camera's key."""
     import numpy as np
     from helpers.rig import mounts_of
 
@@ -79,6 +80,10 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert v[f"{names[0]}.received"] == sent[names[0]] + 3
     assert v[f"{names[0]}.skipped.queue_full"] == 2 and v["rig_frames_solved"] > 0
     assert "busy: 2 camera frames dropped" in message, message
+    assert v["time_resets"] == 0
+    f = frames[0]  # (a camera frame 10 s after the video: a time reset, as for one camera)
+    rig.add(RigCameraFrame(f.name, frames[-1].stamp_ns + 10**10, by[f.name], f.uv, f.xyz))
+    assert rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))[2]["time_resets"] == 1
 
     silent = RigLocalizer(RigSettings(mounts_of(cams)))
     only = Counter({f"{names[1]}.received": 1})
