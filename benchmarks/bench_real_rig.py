@@ -48,8 +48,11 @@ undistorted plane), then:
    covariance: how many rig poses are within 3 sigma of the reference (rotation and position
    NEES, 3 degrees of freedom each, below the 99.73 % quantile).
 
+``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
+extrinsics of the same rig too (and prints how far the two references are apart).
+
     python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
-        [--min-inliers 20 8] [--stamp-tolerance 0.005]
+        [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER]
 """
 
 from __future__ import annotations
@@ -80,7 +83,9 @@ __all__ = [
     "TAG_SIDE",
     "RealRig",
     "calibrate",
+    "calibrate_estimates",
     "calibrated_rig_run",
+    "extrinsics",
     "load_tagslam",
     "load_test2",
     "read_records",
@@ -500,21 +505,37 @@ def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | Non
     )
 
 
-def calibrate(rig: RealRig, min_inliers: int = 8, estimates: dict | None = None) -> dict:
+def extrinsics(folder: Path) -> dict:
+    """Another recording's reference extrinsics of the same rig (its
+    ``reference_final_tf.json`` or ``reference.bag``): camera -> ``(R, c)`` as
+    :attr:`RealRig.mounts`."""
+    out = {}
+    for t in read_records(folder)[2]:
+        if t["parent"] == "rig":
+            R, p = _pose(t)
+            out[t["child"]] = (R.T, -R.T @ p)
+    return out
+
+
+def calibrate(
+    rig: RealRig, min_inliers: int = 8, estimates: dict | None = None, mounts: dict | None = None
+) -> dict:
     """Each camera's calibrated mounting (:func:`calibrate_estimates`, or ``estimates``)
-    against the reference's: camera -> ``{"error_deg", "error_mm", "std_deg", "std_mm",
-    "frames", "rejected"}`` (the reference camera left out; a camera the calibration did not
-    reach: None). ``calibrate(rig)["cam1"]`` is a stereo rig's second camera."""
+    against the reference's (or ``mounts``, e.g. :func:`extrinsics`): camera ->
+    ``{"error_deg", "error_mm", "std_deg", "std_mm", "frames", "rejected"}`` (the reference
+    camera left out; a camera the calibration did not reach: None).
+    ``calibrate(rig)["cam1"]`` is a stereo rig's second camera."""
     est = estimates if estimates is not None else calibrate_estimates(rig, min_inliers)
+    mounts = rig.mounts if mounts is None else mounts
     out = {}
     for i, name in enumerate(rig.cameras):
         if i == 0:
             continue
-        if name not in est:
+        if name not in est or name not in mounts:
             out[name] = None
             continue
         e = est[name]
-        R, c = rig.mounts[name]
+        R, c = mounts[name]
         out[name] = {
             "error_deg": rotation_angle_deg(e.mount.R, R),
             "error_mm": 1e3 * float(np.linalg.norm(e.mount.R.T @ e.mount.c - R.T @ c)),
@@ -637,6 +658,13 @@ def main(argv: list[str] | None = None) -> None:
         help="s; group the cameras' detections into rig frames within this (default: by "
         "stamp when the cameras share their stamps, else half a frame interval)",
     )
+    ap.add_argument(
+        "--extrinsics",
+        type=Path,
+        default=None,
+        help="another TagSLAM folder of the same rig: the calibrated mountings are compared "
+        "with its reference extrinsics too",
+    )
     a = ap.parse_args(argv)
     if not a.folder.is_dir():
         print(f"{a.folder} absent: nothing to measure")
@@ -737,6 +765,20 @@ def main(argv: list[str] | None = None) -> None:
                     f"{c['std_deg']:.3f} deg, {c['std_mm']:.1f} mm; {c['frames']} rig frames, "
                     f"{c['rejected']} camera frames rejected; error within 2 std: "
                     f"{'yes' if covered else 'no'}"
+                )
+        if first is not None and a.extrinsics is not None:
+            other = extrinsics(a.extrinsics)
+            for name, c in calibrate(rig, a.min_inliers[0], first, other).items():
+                if c is None:
+                    continue
+                R0, c0 = rig.mounts[name]
+                R1, c1 = other[name]
+                print(
+                    f"calibrate-rig (min_inliers {a.min_inliers[0]}), {name}'s mounting vs "
+                    f"{a.extrinsics.name}'s extrinsics: {c['error_deg']:.3f} deg, "
+                    f"{c['error_mm']:.1f} mm (the two references differ by "
+                    f"{rotation_angle_deg(R0, R1):.3f} deg, "
+                    f"{1e3 * np.linalg.norm(R0.T @ c0 - R1.T @ c1):.1f} mm)"
                 )
         if first is not None and n_cams > 2:
             for label, (inside, posed, total) in calibrated_rig_run(rig, first, a.frames).items():
