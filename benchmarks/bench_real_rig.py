@@ -394,7 +394,7 @@ def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: 
 
     from rs_localizer.geometry import rotvec_to_matrix
 
-    def residuals(p):
+    def residuals(p, views):
         Rp, Cp = rotvec_to_matrix(p[:3]) @ R, C + p[3:]
         out = []
         for n, (uv, X) in views.items():
@@ -403,7 +403,12 @@ def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: 
             out.append((rig.cameras[n].project(P) - uv).ravel())
         return np.concatenate(out)
 
-    p = least_squares(residuals, np.zeros(6), loss="huber", f_scale=scale).x
+    # (corners the start does not project, e.g. behind their camera, left out)
+    kept = {}
+    for n, (uv, X) in views.items():
+        ok = np.isfinite(residuals(np.zeros(6), {n: (uv, X)}).reshape(-1, 2)).all(axis=1)
+        kept[n] = (uv[ok], X[ok])
+    p = least_squares(lambda q: residuals(q, kept), np.zeros(6), loss="huber", f_scale=scale).x
     return rotvec_to_matrix(p[:3]) @ R, C + p[3:]
 
 
