@@ -44,7 +44,7 @@ undistorted plane), then:
    20 inliers, the command's default, and of at least 8) against the reference's extrinsics:
    its error (deg, mm), its stated standard deviation (norm over the three axes), and whether
    the error is within twice it; then the rig frames with tags in two or more cameras posed
-   with those mountings (the first ``--min-inliers``), taken as exact and with their
+   with those mountings (the first ``--min-inliers`` that calibrates), taken as exact and with their
    covariance: how many rig poses are within 3 sigma of the reference (rotation and position
    NEES, 3 degrees of freedom each, below the 99.73 % quantile).
 
@@ -748,14 +748,15 @@ def main(argv: list[str] | None = None) -> None:
                 "  refused (corners, reason): "
                 + ", ".join(f"{n} {f} {k}" for (n, f), k in sorted(refused.items()))
             )
-        first = None
+        first, first_mi = None, None
         for mi in a.min_inliers:
             try:
                 est = calibrate_estimates(rig, mi)
             except ValueError as exc:
                 print(f"calibrate-rig (min_inliers {mi}): {exc}")
                 continue
-            first = first or est
+            if first is None:
+                first, first_mi = est, mi
             for name, c in calibrate(rig, mi, est).items():
                 if c is None:
                     print(
@@ -773,13 +774,13 @@ def main(argv: list[str] | None = None) -> None:
                 )
         if first is not None and a.extrinsics is not None:
             other = extrinsics(a.extrinsics)
-            for name, c in calibrate(rig, a.min_inliers[0], first, other).items():
+            for name, c in calibrate(rig, first_mi, first, other).items():
                 if c is None:
                     continue
                 R0, c0 = rig.mounts[name]
                 R1, c1 = other[name]
                 print(
-                    f"calibrate-rig (min_inliers {a.min_inliers[0]}), {name}'s mounting vs "
+                    f"calibrate-rig (min_inliers {first_mi}), {name}'s mounting vs "
                     f"{a.extrinsics.name}'s extrinsics: {c['error_deg']:.3f} deg, "
                     f"{c['error_mm']:.1f} mm (the two references differ by "
                     f"{rotation_angle_deg(R0, R1):.3f} deg, "
@@ -789,7 +790,7 @@ def main(argv: list[str] | None = None) -> None:
             for label, (inside, posed, total) in calibrated_rig_run(rig, first, a.frames).items():
                 what = "taken as exact" if label == "exact" else "with their covariance"
                 print(
-                    f"the rig with the calibrated mountings (min_inliers {a.min_inliers[0]}) "
+                    f"the rig with the calibrated mountings (min_inliers {first_mi}) "
                     f"{what}: {inside} of {posed} rig poses within 3 sigma of the reference "
                     f"({100 * inside / max(posed, 1):.0f} %; {posed} of {total} rig frames with "
                     f"tags in {share} posed)"
