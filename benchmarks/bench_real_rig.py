@@ -1,26 +1,36 @@
-"""A real stereo rig: ``python -m benchmarks.bench_real_rig``.
+"""A real rig of fisheye cameras: ``python -m benchmarks.bench_real_rig [--folder PATH]``.
 
-TagSLAM's ``test_2`` (``../shared/data/real_markers/tagslam``, its README): two PointGrey
+Any test folder of TagSLAM's examples (berndpfrommer/tagslam_test, Apache-2.0; not shipped
+with rs_localizer): ``cameras.yaml`` (each camera's intrinsics, distortion, resolution and
+detection topic ``tagtopic``), ``tagslam.yaml`` (the tags' sizes: each body's
+``default_tag_size``, a tag's own ``size``, a board's ``tag_size``) and either ``json/`` (the
+bags converted as ``../shared/data/real_markers/README.md`` describes) or the ROS 1 bags
+``tag_detections.bag`` and ``reference.bag`` (or their ``.bz2``), read with ``rosbags``. The
+default is ``test_2`` (``../shared/data/real_markers/tagslam``, its README): two PointGrey
 Chameleon 1280x1024 global-shutter cameras with equidistant (fisheye) lenses on a rig, about 13
-AprilTags (0.16 m) on the floor and walls, the tags' corners as detected by the recording's
-authors. Reference: TagSLAM's factor-graph solution from the same detections (the tags' poses,
-the cameras' extrinsics in the rig, the rig's pose per frame), not motion capture.
+AprilTags (0.16 m) on the floor and walls. TagSLAM's ``test_5`` to ``test_8`` carry four such
+cameras in a ring (front, left, back, right), ``test_14`` four at 45 degrees. The corners are
+those the recording's authors detected. Reference: TagSLAM's factor-graph solution from the
+same detections (the tags' poses, the cameras' extrinsics in the rig, the rig's pose per
+frame), not motion capture.
 
-The tag map is built from the reference's tag poses (corners of side 0.16 m in each tag's
-frame, :func:`~benchmarks.bench_single_tag.tag_corners`); a rig frame is both cameras'
-detections of one stamp (the two cameras share their stamps). Prints the corners' errors at
-the reference's poses (:func:`reference_residuals`: in the image and in the undistorted plane),
-then:
+The tag map is built from the reference's tag poses (each tag's transform chain composed to
+``map``; corners of the tag's side in its frame, :func:`~benchmarks.bench_single_tag.tag_corners`);
+a rig frame is every camera's detections of one stamp when the cameras share their stamps
+(TagSLAM's recordings do: the benchmark prints how many stamps carry a message of every
+camera), else of the stamps within ``--stamp-tolerance`` of the rig frame's first. Prints the
+corners' errors at the reference's poses (:func:`reference_residuals`: in the image and in the
+undistorted plane), then:
 
 1. the rig: every rig frame with tags posed by the rig estimator
    (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`, :data:`RIG_OPTIONS`, the
-   reference's extrinsics as the mountings, both cameras global shutter) and by PoseLib's
+   reference's extrinsics as the mountings, every camera global shutter) and by PoseLib's
    generalized absolute pose (``estimate_generalized_absolute_pose``, the cameras'
    ``OPENCV_FISHEYE`` models, the same threshold and iteration bounds:
    :func:`~rs_localizer.experiments.references.poselib_matched_options`): the rig's rotation
    (deg) and position (mm) error against the reference, median and 90th percentile, over the
-   rig frames with tags in both cameras that both posed; the ratio ours / PoseLib; the rig
-   frames posed; CPU time per rig frame (one thread, the two methods interleaved frame by
+   rig frames with tags in two or more cameras that both posed; the ratio ours / PoseLib; the
+   rig frames posed; CPU time per rig frame (one thread, the two methods interleaved frame by
    frame);
 2. each camera alone on the same corners: the single camera's estimator
    (:func:`~rs_localizer.estimation.estimate_rs_pose`, default options), PoseLib's
@@ -28,19 +38,30 @@ then:
    corners (``SOLVEPNP_IPPE`` when one tag is seen, ``SOLVEPNP_ITERATIVE`` otherwise; no
    RANSAC): the camera's rotation and position errors against the reference (the rig's
    reference pose through the reference extrinsics) over the frames every method posed;
-3. the mounting of the second camera calibrated from the recording
+3. every camera's mounting calibrated from the recording
    (:func:`~rs_localizer.calibration.calibrate_mountings`, what ``rs-localizer calibrate-rig``
-   runs; camera frames of at least 20 inliers, the command's default, and of at least 8)
-   against the reference's extrinsics: its error (deg, mm), its stated standard deviation
-   (norm over the three axes), and whether the error is within twice it.
+   runs; the first camera the reference, at its reference extrinsics; camera frames of at least
+   20 inliers, the command's default, and of at least 8) against the reference's extrinsics:
+   its error (deg, mm), its stated standard deviation (norm over the three axes), and whether
+   the error is within twice it; then the rig frames with tags in two or more cameras posed
+   with those mountings (the first ``--min-inliers`` that calibrates), taken as exact and with their
+   covariance: how many rig poses are within 3 sigma of the reference (rotation and position
+   NEES, 3 degrees of freedom each, below the 99.73 % quantile).
 
-    python -m benchmarks.bench_real_rig [--frames N] [--threshold 2] [--min-inliers 20 8]
+``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
+extrinsics of the same rig too (and prints how far the two references are apart).
+
+    python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
+        [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER]
 """
 
 from __future__ import annotations
 
 import argparse
+import bz2
 import json
+import shutil
+import tempfile
 import time
 from collections import Counter, defaultdict
 from dataclasses import replace
@@ -55,94 +76,271 @@ from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.rig import RIG_OPTIONS, RigView, estimate_rig_pose
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
-from rs_localizer.geometry import rotation_angle_deg
+from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 
 __all__ = [
     "FOLDER",
     "TAG_SIDE",
     "RealRig",
     "calibrate",
+    "calibrate_estimates",
+    "calibrated_rig_run",
+    "extrinsics",
+    "load_tagslam",
     "load_test2",
+    "read_records",
     "reference_residuals",
     "rig_run",
     "single_run",
     "summary",
 ]
 
-#: the recording (absent: the benchmark says so and stops; the tests skip)
+#: the default recording (absent: the benchmark says so and stops; the tests skip)
 FOLDER = DATA / "test_2"
-#: the tags' side (m): ``tagslam.yaml``'s ``default_tag_size``
+#: test_2's tags' side (m): its ``tagslam.yaml``'s ``default_tag_size``
 TAG_SIDE = 0.160
-#: the detection topic of each camera (``cameras.yaml``'s ``tagtopic``)
-TOPICS = {"/stereo/left/tags": "cam0", "/stereo/right/tags": "cam1"}
+#: the odometry topic of the rig's reference poses in ``reference.bag``
+REFERENCE_TOPIC = "/tagslam/odom/body_rig"
 
 
 class RealRig:
-    """TagSLAM's ``test_2`` loaded (:func:`load_test2`).
+    """A TagSLAM test folder loaded (:func:`load_tagslam`).
 
     Attributes:
-        cameras: name -> :class:`~rs_localizer.camera.CameraModel` (equidistant, global
-            shutter).
+        cameras: name -> :class:`~rs_localizer.camera.CameraModel` (``cameras.yaml``'s order;
+            global shutter).
         mounts: name -> ``(R (3, 3), c (3,) m)``: the reference's extrinsics as the rig
             estimator's mounting ``x_cam = R x_rig + c``.
-        frames: ``(stamp s, {name: (uv (N, 2) px, X (N, 3) m)})`` per stamp with tags, in time
-            order; a camera without tags at that stamp is absent.
+        frames: ``(stamp s, {name: (uv (N, 2) px, X (N, 3) m)})`` per rig frame with tags, in
+            time order; a camera without tags in that rig frame is absent.
         reference: stamp -> ``(R (3, 3) world -> rig, C (3,))``: TagSLAM's rig pose
             (``x_rig = R X + C``).
+        name: the folder's name. stamps_shared: ``(stamps carrying a message of every camera,
+            stamps, messages alone at their stamp with another camera's within half a frame
+            interval)`` over every detection message. tolerance: s; 0 when a rig frame is one
+            stamp, else the tolerance the stamps were grouped with.
     """
 
-    def __init__(self, cameras, mounts, frames, reference):
+    def __init__(self, cameras, mounts, frames, reference, name="", stamps_shared=(0, 0, 0),
+                 tolerance=0.0):  # fmt: skip
         self.cameras, self.mounts, self.frames, self.reference = cameras, mounts, frames, reference
+        self.name, self.stamps_shared, self.tolerance = name, stamps_shared, tolerance
 
 
 def _pose(t: dict) -> tuple[np.ndarray, np.ndarray]:
     return _quat_matrix(t["quat_xyzw"]), np.asarray(t["translation"], dtype=float)
 
 
-def load_test2(folder: Path = FOLDER) -> RealRig:
-    """The cameras (``cameras.yaml``), the reference's extrinsics, tag map and rig poses, and
-    every stamp's detections of tags in the map, as a :class:`RealRig`."""
-    cameras = {
-        "cam0": CameraModel(
-            K=np.array([[470.338, 0, 620.702], [0, 470.294, 534.861], [0, 0, 1]]),
-            D=[-0.0177484, -0.00281825, 0.00696388, -0.0030704],
-            width=1280,
-            height=1024,
-            distortion_model="equidistant",
-        ),
-        "cam1": CameraModel(
-            K=np.array([[471.126, 0, 629.016], [0, 471.106, 516.566], [0, 0, 1]]),
-            D=[-0.0179247, 0.00439381, -0.000291545, -0.00076265],
-            width=1280,
-            height=1024,
-            distortion_model="equidistant",
-        ),
-    }
-    tf = json.loads((folder / "json" / "reference_final_tf.json").read_text())
+def _stamp(header) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def _bag(folder: Path, name: str, tmp: Path) -> Path:
+    """``folder/name``, or ``folder/name.bz2`` decompressed into ``tmp``."""
+    if (folder / name).is_file():
+        return folder / name
+    src = folder / f"{name}.bz2"
+    if not src.is_file():
+        raise FileNotFoundError(f"{folder}: neither json/ nor {name}[.bz2]")
+    out = tmp / name
+    with bz2.open(src, "rb") as f, out.open("wb") as g:
+        shutil.copyfileobj(f, g)
+    return out
+
+
+def read_records(folder: Path) -> tuple[list, list, list]:
+    """The recording's detection messages, reference odometry and last transforms, as the
+    ``json/`` layout's records (``../shared/data/real_markers/README.md``): from ``json/``
+    when present, else from the ROS 1 bags (``rosbags``; a ``.bz2`` decompressed into a
+    temporary file).
+
+    Returns:
+        ``(detections, odometry, transforms)``: lists of dicts with ``topic``, ``stamp`` (s),
+        ``tags`` (each ``id``, ``corners`` 4 x [x, y] px); ``stamp``, ``position``,
+        ``quat_xyzw`` (the rig in ``map``); ``parent``, ``child``, ``translation``,
+        ``quat_xyzw`` (the last transform of each pair).
+    Raises:
+        FileNotFoundError: neither ``json/`` nor the bags.
+    """
+    js = folder / "json"
+    if js.is_dir():
+        det = [json.loads(s) for s in (js / "detections.jsonl").read_text().splitlines()]
+        odo = [json.loads(s) for s in (js / "reference_odom.jsonl").read_text().splitlines()]
+        tf = json.loads((js / "reference_final_tf.json").read_text())
+        return det, odo, tf
+    from rosbags.highlevel import AnyReader
+
+    det, odo, last = [], [], {}
+    with tempfile.TemporaryDirectory(prefix="bench_real_rig_") as tmp:
+        with AnyReader([_bag(folder, "tag_detections.bag", Path(tmp))]) as r:
+            for c, _, raw in r.messages():
+                m = r.deserialize(raw, c.msgtype)
+                if not hasattr(m, "apriltags"):
+                    continue
+                tags = [{"id": int(a.id), "corners": [[float(p.x), float(p.y)] for p in a.corners]}
+                        for a in m.apriltags]  # fmt: skip
+                det.append({"topic": c.topic, "stamp": _stamp(m.header), "tags": tags})
+        with AnyReader([_bag(folder, "reference.bag", Path(tmp))]) as r:
+            for c, _, raw in r.messages():
+                m = r.deserialize(raw, c.msgtype)
+                if c.msgtype == "nav_msgs/msg/Odometry":
+                    p, q = m.pose.pose.position, m.pose.pose.orientation
+                    odo.append({"topic": c.topic, "stamp": _stamp(m.header),
+                                "position": [p.x, p.y, p.z],
+                                "quat_xyzw": [q.x, q.y, q.z, q.w]})  # fmt: skip
+                elif c.msgtype.lower().endswith("tfmessage"):
+                    for tr in m.transforms:
+                        t, q = tr.transform.translation, tr.transform.rotation
+                        last[(tr.header.frame_id, tr.child_frame_id)] = {
+                            "parent": tr.header.frame_id, "child": tr.child_frame_id,
+                            "translation": [t.x, t.y, t.z], "quat_xyzw": [q.x, q.y, q.z, q.w],
+                        }  # fmt: skip
+    return det, odo, list(last.values())
+
+
+def _cameras(folder: Path) -> tuple[dict, dict]:
+    """``cameras.yaml`` -> (name -> CameraModel, detection topic -> name)."""
+    import yaml
+
+    cams, topics = {}, {}
+    for name, c in yaml.safe_load((folder / "cameras.yaml").read_text()).items():
+        fx, fy, cx, cy = c["intrinsics"]
+        model = c.get("distortion_model", "none")
+        cams[name] = CameraModel(
+            K=np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]]),
+            D=list(c.get("distortion_coeffs", [])),
+            width=int(c["resolution"][0]),
+            height=int(c["resolution"][1]),
+            distortion_model={"radtan": "plumb_bob"}.get(model, model),
+        )
+        topics[c["tagtopic"]] = name
+    return cams, topics
+
+
+def _tag_sizes(folder: Path) -> tuple[dict, dict]:
+    """``tagslam.yaml`` -> (tag id -> its own size, body -> its tags' default size) (m)."""
+    import yaml
+
+    cfg = yaml.safe_load((folder / "tagslam.yaml").read_text())
+    own, default = {}, {}
+    for entry in cfg.get("bodies", []):
+        for body, b in entry.items():
+            size = b.get("default_tag_size", (b.get("board") or {}).get("tag_size"))
+            if size is not None:
+                default[body] = float(size)
+            for t in b.get("tags") or []:
+                if "size" in t:
+                    own[int(t["id"])] = float(t["size"])
+    return own, default
+
+
+def _in_map(tf: list) -> dict:
+    """frame -> (R, p) of ``x_map = R x_frame + p``, composing the transforms' chain to
+    ``map`` (a chain's root other than ``map`` is taken as the map)."""
+    parent = {t["child"]: (t["parent"], *_pose(t)) for t in tf}
+    out: dict = {}
+
+    def pose(frame, depth=0):
+        if frame in out:
+            return out[frame]
+        if frame not in parent or depth > 50:
+            return np.eye(3), np.zeros(3)
+        up, R, p = parent[frame]
+        Ru, pu = pose(up, depth + 1)
+        out[frame] = (Ru @ R, Ru @ p + pu) if up in parent else (R, p)
+        return out[frame]
+
+    for f in parent:
+        pose(f)
+    return {f: v for f, v in out.items()}
+
+
+def load_tagslam(folder: Path = FOLDER, tolerance: float | None = None) -> RealRig:
+    """A TagSLAM test folder as a :class:`RealRig`: the cameras (``cameras.yaml``), the
+    reference's extrinsics, tag map (``tagslam.yaml``'s sizes) and rig poses, and every rig
+    frame's detections of tags in the map.
+
+    ``tolerance``: s; None groups the detections by stamp when the cameras are stamped
+    together (no more than 5 % of the messages lack another camera's message at their stamp
+    but have one within half a frame interval, the median interval between a camera's
+    messages; a camera's dropped frame is no such miss), else within half a frame interval;
+    a number groups them within it (0: by stamp).
+
+    Raises:
+        FileNotFoundError: a file missing. KeyError: a tag of the map without a size.
+    """
+    cameras, topics = _cameras(folder)
+    det, odo, tf = read_records(folder)
+    own, default = _tag_sizes(folder)
+    in_map = _in_map(tf)
     tags, mounts = {}, {}
     for t in tf:
-        if t["parent"] == "perch" and t["child"].startswith("tag_"):
-            R, p = _pose(t)  # tag -> perch (the perch is the map: the identity)
-            tags[int(t["child"][4:])] = tag_corners(TAG_SIDE) @ R.T + p
-        elif t["parent"] == "rig" and t["child"] in cameras:
+        c = t["child"]
+        if c.startswith("tag_") and c[4:].isdigit():
+            i = int(c[4:])
+            side = own.get(i, default.get(t["parent"]))
+            if side is None:
+                raise KeyError(f"{folder}: tag {i} (on {t['parent']}) has no size")
+            R, p = in_map[c]  # tag -> map
+            tags[i] = tag_corners(side) @ R.T + p
+        elif t["parent"] == "rig" and c in cameras:
             R, p = _pose(t)  # camera -> rig
-            mounts[t["child"]] = (R.T, -R.T @ p)
+            mounts[c] = (R.T, -R.T @ p)
     reference = {}
-    for line in (folder / "json" / "reference_odom.jsonl").read_text().splitlines():
-        m = json.loads(line)
+    topics_odo = {m.get("topic") for m in odo}
+    for m in odo:
+        if len(topics_odo) > 1 and m.get("topic") != REFERENCE_TOPIC:
+            continue
         R = _quat_matrix(m["quat_xyzw"]).T  # (rig -> map, transposed)
         reference[round(m["stamp"], 6)] = (R, -R @ np.asarray(m["position"], dtype=float))
+    msgs = [m for m in det if m["topic"] in topics]
+    per_stamp: dict = defaultdict(set)
+    own_stamps: dict = defaultdict(list)
+    for m in msgs:
+        per_stamp[round(m["stamp"], 6)].add(m["topic"])
+        own_stamps[m["topic"]].append(round(m["stamp"], 6))
+    shared = (sum(len(v) == len(topics) for v in per_stamp.values()), len(per_stamp))
+    # a message without another camera's at its stamp but with one within half a frame
+    # interval: the cameras are not stamped together (a camera's dropped frame is no miss)
+    interval = float(np.median([np.median(np.diff(sorted(set(v)))) for v in own_stamps.values()
+                                if len(set(v)) > 1] or [0.0]))  # fmt: skip
+    near = 0
+    for tp, ss in own_stamps.items():
+        others = np.array(sorted({x for t2, v in own_stamps.items() if t2 != tp for x in v}))
+        for x in ss:
+            if len(per_stamp[x]) == 1 and len(others):
+                near += bool(np.min(np.abs(others - x)) < 0.5 * interval)
+    if tolerance is None:
+        tolerance = 0.5 * interval if near > 0.05 * len(msgs) else 0.0
+    groups: dict = {}  # message stamp -> rig frame stamp
+    start = None
+    for s in sorted(per_stamp):
+        if start is None or s - start > tolerance:
+            start = s
+        groups[s] = start
+    if tolerance > 0:  # (a rig frame's stamp: its member with a reference pose, if any)
+        members: dict = defaultdict(list)
+        for s, g in groups.items():
+            members[g].append(s)
+        for g, ss in members.items():
+            with_ref = [s for s in ss if s in reference]
+            for s in ss:
+                groups[s] = with_ref[0] if with_ref else g
     by_stamp: dict = defaultdict(dict)
-    for line in (folder / "json" / "detections.jsonl").read_text().splitlines():
-        m = json.loads(line)
+    for m in msgs:
         known = [t for t in m["tags"] if t["id"] in tags]
-        if m["topic"] not in TOPICS or not known:
+        if not known:
             continue
         uv = np.concatenate([np.asarray(t["corners"], dtype=float) for t in known])
         X = np.concatenate([tags[t["id"]] for t in known])
-        by_stamp[round(m["stamp"], 6)][TOPICS[m["topic"]]] = (uv, X)
+        by_stamp[groups[round(m["stamp"], 6)]][topics[m["topic"]]] = (uv, X)
     frames = sorted(by_stamp.items())
-    return RealRig(cameras, mounts, frames, reference)
+    return RealRig(cameras, mounts, frames, reference, folder.name, (*shared, near), tolerance)
+
+
+def load_test2(folder: Path = FOLDER) -> RealRig:
+    """TagSLAM's ``test_2`` (or ``folder``) as a :class:`RealRig` (:func:`load_tagslam`)."""
+    return load_tagslam(folder)
 
 
 def errors(R, C, ref) -> tuple[float, float]:
@@ -196,7 +394,7 @@ def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: 
 
     from rs_localizer.geometry import rotvec_to_matrix
 
-    def residuals(p):
+    def residuals(p, views):
         Rp, Cp = rotvec_to_matrix(p[:3]) @ R, C + p[3:]
         out = []
         for n, (uv, X) in views.items():
@@ -205,7 +403,12 @@ def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: 
             out.append((rig.cameras[n].project(P) - uv).ravel())
         return np.concatenate(out)
 
-    p = least_squares(residuals, np.zeros(6), loss="huber", f_scale=scale).x
+    # (corners the start does not project, e.g. behind their camera, left out)
+    kept = {}
+    for n, (uv, X) in views.items():
+        ok = np.isfinite(residuals(np.zeros(6), {n: (uv, X)}).reshape(-1, 2)).all(axis=1)
+        kept[n] = (uv[ok], X[ok])
+    p = least_squares(lambda q: residuals(q, kept), np.zeros(6), loss="huber", f_scale=scale).x
     return rotvec_to_matrix(p[:3]) @ R, C + p[3:]
 
 
@@ -216,12 +419,13 @@ def _timed(fn):
 
 
 def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> list:
-    """Per rig frame with a reference pose (``frames``: the first that many stamps with
-    tags): ``both`` (tags in both cameras), the errors ``(rotation deg, position mm)`` of
-    ``ours`` (None: refused, ``failure`` its reason), ``refit`` (:func:`pixel_refit` of ours)
-    and ``poselib``, and their CPU times (s), interleaved; both methods on ``options``."""
+    """Per rig frame with a reference pose (``frames``: the first that many rig frames with
+    tags): ``both`` (tags in two or more cameras), the errors ``(rotation deg, position mm)``
+    of ``ours`` (None: refused, ``failure`` its reason), ``refit`` (:func:`pixel_refit` of
+    ours) and ``poselib``, and their CPU times (s), interleaved; both methods on
+    ``options``."""
     out = []
-    warm = next(v for _, v in rig.frames if len(v) == 2)  # (compiles the kernels: untimed)
+    warm = next(v for _, v in rig.frames if len(v) >= 2)  # (compiles the kernels: untimed)
     ours_rig(rig, warm, options)
     poselib_rig(rig, warm, options)
     for stamp, views in rig.frames[:frames]:
@@ -234,7 +438,7 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
         refit = pixel_refit(rig, views, *mine) if failure is None else None
         out.append(
             {
-                "both": len(views) == 2,
+                "both": len(views) >= 2,
                 "cameras": len(views),
                 "failure": failure,
                 "ours": errors(*mine, ref) if failure is None else None,
@@ -288,30 +492,104 @@ def single_run(rig: RealRig, frames: int | None = None) -> dict:
     return out
 
 
-def calibrate(rig: RealRig, min_inliers: int = 8) -> dict:
-    """The second camera's mounting from the recording (every camera frame with tags, as
-    ``calibrate-rig`` reads them; ``cam0`` the rig frame) against the reference's:
-    ``{"error_deg", "error_mm", "std_deg", "std_mm", "frames", "rejected"}``."""
+def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | None = None):
+    """Every camera's mounting from the recording (every camera frame with tags, as
+    ``calibrate-rig`` reads them; ``reference``, default the first camera, at its reference
+    extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result."""
     from rs_localizer.calibration import calibrate_mountings
-    from rs_localizer.tracking.rig import RigCameraFrame
+    from rs_localizer.tracking.rig import RigCameraFrame, RigMount
 
+    ref = reference or next(iter(rig.cameras))
     cam_frames = [
         RigCameraFrame(n, int(round(stamp * 1e9)), rig.cameras[n], uv, X)
         for stamp, views in rig.frames
         for n, (uv, X) in views.items()
     ]
-    est = calibrate_mountings(cam_frames, "cam0", min_inliers=min_inliers)["cam1"]
-    R, c = rig.mounts["cam1"]
-    err_deg = rotation_angle_deg(est.mount.R, R)
-    err_mm = 1e3 * float(np.linalg.norm(est.mount.R.T @ est.mount.c - R.T @ c))
-    return {
-        "error_deg": err_deg,
-        "error_mm": err_mm,
-        "std_deg": est.std_deg,
-        "std_mm": est.std_mm,
-        "frames": est.frames,
-        "rejected": est.rejected,
-    }
+    return calibrate_mountings(
+        cam_frames, ref, reference_mount=RigMount(*rig.mounts[ref]), min_inliers=min_inliers
+    )
+
+
+def extrinsics(folder: Path) -> dict:
+    """Another recording's reference extrinsics of the same rig (its
+    ``reference_final_tf.json`` or ``reference.bag``): camera -> ``(R, c)`` as
+    :attr:`RealRig.mounts`."""
+    out = {}
+    for t in read_records(folder)[2]:
+        if t["parent"] == "rig":
+            R, p = _pose(t)
+            out[t["child"]] = (R.T, -R.T @ p)
+    return out
+
+
+def calibrate(
+    rig: RealRig, min_inliers: int = 8, estimates: dict | None = None, mounts: dict | None = None
+) -> dict:
+    """Each camera's calibrated mounting (:func:`calibrate_estimates`, or ``estimates``)
+    against the reference's (or ``mounts``, e.g. :func:`extrinsics`): camera ->
+    ``{"error_deg", "error_mm", "std_deg", "std_mm", "frames", "rejected"}`` (the reference
+    camera left out; a camera the calibration did not reach: None).
+    ``calibrate(rig)["cam1"]`` is a stereo rig's second camera."""
+    est = estimates if estimates is not None else calibrate_estimates(rig, min_inliers)
+    mounts = rig.mounts if mounts is None else mounts
+    out = {}
+    for i, name in enumerate(rig.cameras):
+        if i == 0:
+            continue
+        if name not in est or name not in mounts:
+            out[name] = None
+            continue
+        e = est[name]
+        R, c = mounts[name]
+        out[name] = {
+            "error_deg": rotation_angle_deg(e.mount.R, R),
+            "error_mm": 1e3 * float(np.linalg.norm(e.mount.R.T @ e.mount.c - R.T @ c)),
+            "std_deg": e.std_deg,
+            "std_mm": e.std_mm,
+            "frames": e.frames,
+            "rejected": e.rejected,
+        }
+    return out
+
+
+def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None) -> dict:
+    """The rig frames with tags in two or more cameras and a reference pose, posed by the rig
+    estimator with the calibrated mountings (``estimates``: camera -> ``MountingEstimate``)
+    taken as exact (``"exact"``) and with their covariance (``"covariance"``): per variant
+    ``(poses within 3 sigma of the reference, poses, rig frames)``; within 3 sigma: the
+    rotation's and the position's NEES (3 degrees of freedom each) below the 99.73 %
+    quantile."""
+    from scipy.stats import chi2
+
+    k = chi2.ppf(0.9973, 3)
+    out = {}
+    for label, exact in (("exact", True), ("covariance", False)):
+        inside = posed = total = 0
+        for stamp, views in rig.frames[:frames]:
+            if stamp not in rig.reference or len(views) < 2:
+                continue
+            if any(n not in estimates for n in views):
+                continue
+            total += 1
+            rv = []
+            for n, (uv, X) in views.items():
+                m = estimates[n].mount
+                cov = None if exact else m.covariance
+                rv.append(RigView(uv, X, rig.cameras[n], m.R, m.c, name=n, mount_covariance=cov))
+            e = estimate_rig_pose(rv, RIG_OPTIONS)
+            if not e.success or e.covariance is None:
+                continue
+            posed += 1
+            Rr, Cr = rig.reference[stamp]
+            e_r = matrix_to_rotvec(e.model.R.T @ Rr)  # (rig -> world, world axes)
+            e_p = Rr.T @ Cr - e.model.R.T @ e.model.C  # (the position's error, world)
+            C = e.covariance
+            inside += bool(
+                e_r @ np.linalg.solve(C[:3, :3], e_r) <= k
+                and e_p @ np.linalg.solve(C[3:6, 3:6], e_p) <= k
+            )
+        out[label] = (inside, posed, total)
+    return out
 
 
 def reference_residuals(rig: RealRig) -> np.ndarray:
@@ -361,7 +639,13 @@ def summary(res: list) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=None, help="the first N stamps with tags")
+    ap.add_argument(
+        "--folder",
+        type=Path,
+        default=FOLDER,
+        help="a TagSLAM test folder (cameras.yaml, tagslam.yaml, json/ or the ROS 1 bags)",
+    )
+    ap.add_argument("--frames", type=int, default=None, help="the first N rig frames with tags")
     ap.add_argument(
         "--threshold", type=float, default=2.0, help="inlier threshold (px) of both methods"
     )
@@ -372,11 +656,37 @@ def main(argv: list[str] | None = None) -> None:
         default=[20, 8],
         help="calibrate-rig: fewest inliers of a camera frame used (20: the command's default)",
     )
+    ap.add_argument(
+        "--stamp-tolerance",
+        type=float,
+        default=None,
+        help="s; group the cameras' detections into rig frames within this (default: by "
+        "stamp when the cameras share their stamps, else half a frame interval)",
+    )
+    ap.add_argument(
+        "--extrinsics",
+        type=Path,
+        default=None,
+        help="another TagSLAM folder of the same rig: the calibrated mountings are compared "
+        "with its reference extrinsics too",
+    )
     a = ap.parse_args(argv)
-    if not FOLDER.is_dir():
-        print(f"{FOLDER} absent: nothing to measure")
+    if not a.folder.is_dir():
+        print(f"{a.folder} absent: nothing to measure")
         return
-    rig = load_test2(FOLDER)
+    rig = load_tagslam(a.folder, a.stamp_tolerance)
+    n_cams = len(rig.cameras)
+    share = "two or more cameras" if n_cams > 2 else "both cameras"
+    how = (
+        "a rig frame is one stamp"
+        if rig.tolerance == 0
+        else f"a rig frame is the stamps within {1e3 * rig.tolerance:.1f} ms of its first"
+    )
+    print(
+        f"{rig.name}: {n_cams} cameras; {rig.stamps_shared[0]} of {rig.stamps_shared[1]} "
+        f"stamps carry a message of every camera, {rig.stamps_shared[2]} messages are alone at "
+        f"their stamp with another camera's within half a frame interval: {how}"
+    )
     res = reference_residuals(rig)
     far = res[:, 0] > 400
     print(
@@ -391,8 +701,8 @@ def main(argv: list[str] | None = None) -> None:
         runs = rig_run(rig, a.frames, options)
         s = summary(runs)
         print(
-            f"test_2 rig, {s['frames']} rig frames with tags and a reference, {s['both']} with "
-            f"tags in both cameras: posed {s['posed']} of {s['both']} ({s['posed_any']} of "
+            f"{rig.name} rig, {s['frames']} rig frames with tags and a reference, {s['both']} "
+            f"with tags in {share}: posed {s['posed']} of {s['both']} ({s['posed_any']} of "
             f"{s['frames']} in all)"
         )
         print("                      rotation deg     position mm    median ms/rig frame")
@@ -421,6 +731,8 @@ def main(argv: list[str] | None = None) -> None:
                 f"{sum(r['ours'] is not None for r in rows)}; over the {len(ok)} every method "
                 "posed, median (p90) rotation deg, position mm:"
             )
+            if not ok:
+                continue
             for key, label in (
                 ("ours", "estimate_rs_pose"),
                 ("poselib", "PoseLib absolute"),
@@ -436,16 +748,53 @@ def main(argv: list[str] | None = None) -> None:
                 "  refused (corners, reason): "
                 + ", ".join(f"{n} {f} {k}" for (n, f), k in sorted(refused.items()))
             )
+        first, first_mi = None, None
         for mi in a.min_inliers:
-            c = calibrate(rig, mi)
-            covered = c["error_deg"] <= 2 * c["std_deg"] and c["error_mm"] <= 2 * c["std_mm"]
-            print(
-                f"calibrate-rig (min_inliers {mi}), cam1's mounting vs the reference's "
-                f"extrinsics: {c['error_deg']:.3f} deg, {c['error_mm']:.1f} mm; std "
-                f"{c['std_deg']:.3f} deg, {c['std_mm']:.1f} mm; {c['frames']} rig frames, "
-                f"{c['rejected']} camera frames rejected; error within 2 std: "
-                f"{'yes' if covered else 'no'}"
-            )
+            try:
+                est = calibrate_estimates(rig, mi)
+            except ValueError as exc:
+                print(f"calibrate-rig (min_inliers {mi}): {exc}")
+                continue
+            if first is None:
+                first, first_mi = est, mi
+            for name, c in calibrate(rig, mi, est).items():
+                if c is None:
+                    print(
+                        f"calibrate-rig (min_inliers {mi}), {name}: not calibrated (shares no "
+                        "rig frame with the others)"
+                    )
+                    continue
+                covered = c["error_deg"] <= 2 * c["std_deg"] and c["error_mm"] <= 2 * c["std_mm"]
+                print(
+                    f"calibrate-rig (min_inliers {mi}), {name}'s mounting vs the reference's "
+                    f"extrinsics: {c['error_deg']:.3f} deg, {c['error_mm']:.1f} mm; std "
+                    f"{c['std_deg']:.3f} deg, {c['std_mm']:.1f} mm; {c['frames']} rig frames, "
+                    f"{c['rejected']} camera frames rejected; error within 2 std: "
+                    f"{'yes' if covered else 'no'}"
+                )
+        if first is not None and a.extrinsics is not None:
+            other = extrinsics(a.extrinsics)
+            for name, c in calibrate(rig, first_mi, first, other).items():
+                if c is None:
+                    continue
+                R0, c0 = rig.mounts[name]
+                R1, c1 = other[name]
+                print(
+                    f"calibrate-rig (min_inliers {first_mi}), {name}'s mounting vs "
+                    f"{a.extrinsics.name}'s extrinsics: {c['error_deg']:.3f} deg, "
+                    f"{c['error_mm']:.1f} mm (the two references differ by "
+                    f"{rotation_angle_deg(R0, R1):.3f} deg, "
+                    f"{1e3 * np.linalg.norm(R0.T @ c0 - R1.T @ c1):.1f} mm)"
+                )
+        if first is not None and n_cams > 2:
+            for label, (inside, posed, total) in calibrated_rig_run(rig, first, a.frames).items():
+                what = "taken as exact" if label == "exact" else "with their covariance"
+                print(
+                    f"the rig with the calibrated mountings (min_inliers {first_mi}) "
+                    f"{what}: {inside} of {posed} rig poses within 3 sigma of the reference "
+                    f"({100 * inside / max(posed, 1):.0f} %; {posed} of {total} rig frames with "
+                    f"tags in {share} posed)"
+                )
 
 
 if __name__ == "__main__":
