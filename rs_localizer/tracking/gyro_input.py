@@ -43,7 +43,7 @@ from .gyro_check import (
     update_gyro_checks,
 )
 
-__all__ = ["GyroInput", "GyroSettings", "gyro_calibration"]
+__all__ = ["GyroInput", "GyroReadouts", "GyroSettings", "gyro_calibration"]
 
 
 @dataclass(frozen=True)
@@ -313,3 +313,54 @@ class GyroInput:
             self.check.restart()
         if self.bias is not None:
             self.bias.restart()
+
+
+class GyroReadouts:
+    """The gyro read-outs a localizer offers, one camera's or a rig's
+    (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
+    :class:`~rs_localizer.tracking.rig.RigLocalizer`): views of its :class:`GyroInput`
+    (attribute ``gyro_input``)."""
+
+    gyro_input: GyroInput
+
+    def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
+        """Buffer a gyro sample (``stamp_ns`` IMU clock, ``rate`` (3,) rad/s, IMU frame).
+        Returns None, or why it was rejected: ``disabled`` (no gyro in the settings) or the
+        reasons of :meth:`~rs_localizer.tracking.gyro.ImuBuffer.add` (a stamp going back or
+        repeated, NaN or saturated rates).
+
+        Raises:
+            ValueError: a stamp that is not a finite number within the int64 nanosecond
+                range (:func:`~rs_localizer.camera.checked_stamp`).
+        """
+        return self.gyro_input.add(stamp_ns, rate)
+
+    @property
+    def imu(self) -> ImuBuffer | None:
+        """The gyro samples (:attr:`GyroInput.buffer`), None without a gyro."""
+        return self.gyro_input.buffer
+
+    @property
+    def gyro_bias(self) -> GyroBiasEstimator | None:
+        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
+        return self.gyro_input.bias
+
+    @property
+    def gyro_check(self) -> GyroMountCheck | None:
+        """The check of the gyro's mounting against the rotation between solved frames (a
+        camera's or the rig's), else None."""
+        return self.gyro_input.check
+
+    @property
+    def gyro_inconsistent(self) -> bool:
+        """True while the rotation between solved frames contradicts the gyro (its
+        ``imu.rotation``, time offset or bias likely wrong) and frames are solved without it
+        (:class:`GyroMountCheck`)."""
+        return self.gyro_input.inconsistent
+
+    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
+        IMU frame): the online estimate with ``estimate_bias``, else the settings'
+        ``gyro_bias`` and ``gyro_bias_sigma``; None without a gyro
+        (:meth:`GyroInput.bias_values`)."""
+        return self.gyro_input.bias_values()

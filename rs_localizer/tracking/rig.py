@@ -101,7 +101,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
@@ -123,10 +122,8 @@ from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
 from .fusion import FusionOptions, TwistFilter
-from .gyro import ImuBuffer, readout_window
-from .gyro_bias import GyroBiasEstimator
-from .gyro_check import GyroMountCheck
-from .gyro_input import GyroInput
+from .gyro import readout_window
+from .gyro_input import GyroInput, GyroReadouts
 from .sequence import FusedPose, image_sample, same_image
 from .tracker import predictable
 
@@ -537,7 +534,7 @@ class _Silent:
         pass
 
 
-class RigLocalizer:
+class RigLocalizer(GyroReadouts):
     """A rig's video (module docstring).
 
     Args:
@@ -603,48 +600,8 @@ class RigLocalizer:
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
 
-    def add_imu(self, stamp_ns: int, rate: ArrayLike) -> str | None:
-        """Take one gyro sample: ``stamp_ns`` (IMU clock, ns), ``rate`` (3,) rad/s (IMU
-        frame). Returns None, ``"disabled"`` (no :attr:`RigSettings.imu`), or why the sample
-        was rejected (:meth:`~rs_localizer.tracking.gyro.ImuBuffer.add`).
-
-        Raises:
-            ValueError: a stamp that is not a nanosecond count
-                (:func:`~rs_localizer.camera.checked_stamp`).
-        """
-        return self.gyro_input.add(stamp_ns, rate)
-
-    @property
-    def imu(self) -> ImuBuffer | None:
-        """The gyro samples (:attr:`~rs_localizer.tracking.gyro_input.GyroInput.buffer`),
-        None without a gyro."""
-        return self.gyro_input.buffer
-
-    @property
-    def gyro_bias(self) -> GyroBiasEstimator | None:
-        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
-        return self.gyro_input.bias
-
-    @property
-    def gyro_check(self) -> GyroMountCheck | None:
-        """The check of the IMU's mounting on the rig against the rotation between posed rig
-        frames (None without a gyro)."""
-        return self.gyro_input.check
-
-    @property
-    def gyro_inconsistent(self) -> bool:
-        """True while the rotation between posed rig frames contradicts the gyro (its
-        ``imu.rotation``, time offset or bias likely wrong) and rig frames are solved without
-        it (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`, as for one camera)."""
-        return self.gyro_input.inconsistent
-
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
-
-    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(bias (3,) rad/s, std (3,) rad/s)`` of the gyro (IMU frame): the online estimate
-        with ``estimate_bias``, else the settings'; None without a gyro."""
-        return self.gyro_input.bias_values()
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
         """The gyro measurement over the rig frame's capture times (rig frame), waiting up to

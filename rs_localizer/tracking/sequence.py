@@ -86,10 +86,8 @@ from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from ..solvers.registry import solver_info
 from .clock import VideoClock
 from .fusion import FusedState
-from .gyro import ImuBuffer, readout_window
-from .gyro_bias import GyroBiasEstimator
-from .gyro_check import GyroMountCheck
-from .gyro_input import GyroInput, GyroSettings
+from .gyro import readout_window
+from .gyro_input import GyroInput, GyroReadouts, GyroSettings
 from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
@@ -358,7 +356,7 @@ class _Silent:
         pass
 
 
-class SequenceLocalizer:
+class SequenceLocalizer(GyroReadouts):
     """A camera's video state (see the module docstring).
 
     Args:
@@ -448,33 +446,6 @@ class SequenceLocalizer:
         )
 
     # ---------------------------------------------------------------- read-outs
-    @property
-    def imu(self) -> ImuBuffer | None:
-        """The gyro samples (:attr:`GyroInput.buffer`), None without a gyro."""
-        return self.gyro_input.buffer
-
-    @property
-    def gyro_bias(self) -> GyroBiasEstimator | None:
-        """The online gyro-bias estimate (``imu.estimate_bias``), else None."""
-        return self.gyro_input.bias
-
-    @property
-    def gyro_check(self) -> GyroMountCheck | None:
-        """The check of the gyro against the rotation between solved frames, else None."""
-        return self.gyro_input.check
-
-    @property
-    def gyro_inconsistent(self) -> bool:
-        """True while the rotation between solved frames contradicts the gyro and frames are
-        solved without it (:class:`GyroMountCheck`)."""
-        return self.gyro_input.inconsistent
-
-    def gyro_bias_values(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The gyro bias the frames use and its standard deviation per axis ((3,), (3,) rad/s,
-        IMU frame): the online estimate with ``estimate_bias``, else the settings' ``gyro_bias``
-        and ``gyro_bias_sigma``; None without a gyro (:meth:`GyroInput.bias_values`)."""
-        return self.gyro_input.bias_values()
-
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
         ``relocalizations``, ``resets``, ``twists_own_frame`` (frames whose fused twist is
@@ -502,18 +473,6 @@ class SequenceLocalizer:
         return len(self._pending)
 
     # ---------------------------------------------------------------- gyro
-    def add_imu(self, stamp_ns: int, rate: Any) -> str | None:
-        """Buffer a gyro sample (``stamp_ns`` IMU clock, ``rate`` (3,) rad/s, IMU frame).
-        Returns None, or why it was rejected: ``disabled`` (no gyro in the settings) or the
-        reasons of :meth:`~rs_localizer.tracking.gyro.ImuBuffer.add` (a stamp going back or
-        repeated, NaN or saturated rates).
-
-        Raises:
-            ValueError: a stamp that is not a finite number within the int64 nanosecond
-                range (:func:`checked_stamp`).
-        """
-        return self.gyro_input.add(stamp_ns, rate)
-
     def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
         """The gyro measurement of the frame's readout (:meth:`GyroInput.measurement`), or
         None (no gyro, no readout timing, or the samples missing: counted; the frame is
