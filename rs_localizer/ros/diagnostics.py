@@ -479,7 +479,7 @@ def _rig_camera_values(
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
         values[f"{n}.messages_lost"] = lost
         values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
-        values[f"{n}.stamp_jumped_ahead"] = own.get("stamp_jumped_ahead", 0)
+        values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
         for k, v in own.items():
             if k.startswith(("skipped.", "failed.")):
                 values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)

@@ -222,7 +222,6 @@ class RigCore(NodeCore):
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
-        self._newest_ns: int | None = None  # (the newest stamp handed to the rig)
         # (s, the worker's time per camera frame, per camera)
         self._frame_time = {c.name: deque(maxlen=1000) for c in self.config.cameras}
         with self._timing_lock:
@@ -474,17 +473,15 @@ class RigCore(NodeCore):
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
         tic = time.perf_counter()
         with self._rig_lock:
-            outs, skip, failure, fused = [], None, None, []
+            outs, skip, failure = [], None, None
             try:
                 if isinstance(stamp, ValueError):
                     skip = self._bad_stamp(name, kind, stamp)
                 else:
-                    outs, fused = self._stamp_jump(name, stamp)
                     if kind == "cloud":
-                        more, skip = self._take_cloud(name, msg, stamp)
+                        outs, skip = self._take_cloud(name, msg, stamp)
                     else:
-                        more, skip = self._take_image(name, msg, stamp)
-                    outs += more
+                        outs, skip = self._take_image(name, msg, stamp)
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"
                 self._log.warning(
@@ -498,7 +495,7 @@ class RigCore(NodeCore):
                 if failure is not None:
                     self._inputs[f"{name}.failed.{failure}"] += 1
                 self._frame_time[name].append(time.perf_counter() - tic)
-        return _Taken(outs, None, fused)
+        return _Taken(outs, None, [])
 
     def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
         """A frame whose stamp is out of range: counted ``<c>.skipped.bad_input`` (returns the
@@ -509,25 +506,6 @@ class RigCore(NodeCore):
         else:
             self._log.warning(f"image.{name}", f"rig camera {name!r}: image not read: {error}")
         return "bad_input"
-
-    def _stamp_jump(self, name: str, stamp: Stamp) -> tuple[list, list]:
-        """A frame stamped more than ``time_reset_threshold`` after every frame the rig has
-        had (a gap in a bag, a clock jump) starts the rig again, as a camera's node resets
-        its time-dependent state: the open rig frames are solved, the track ends and the
-        cameras' timelines restart (no camera counts as stopped for the gap); counted
-        ``<c>.stamp_jumped_ahead``. Returns the rig frames solved and the track's twists."""
-        newest, self._newest_ns = self._newest_ns, max(self._newest_ns or stamp, stamp)
-        if newest is None or stamp - newest <= self.config.settings.time_reset_ns:
-            return [], []
-        with self._acc:
-            self._inputs[f"{name}.stamp_jumped_ahead"] += 1
-        self._log.warning(
-            "stamp_jumped_ahead",
-            f"rig camera {name!r}: stamp {(stamp - newest) * 1e-9:.3f} s after the rig's newest "
-            "frame (more than time_reset_threshold): the rig starts again",
-        )
-        outs = self.rig.close()
-        return outs, self.rig.flush() + self.rig.reset()
 
     def _deliver(self, item, taken: _Taken) -> None:
         """The worker, after the frame is counted: publish the rig frames it completed, log

@@ -718,6 +718,8 @@ class RigLocalizer(GyroReadouts):
         out: list[RigOutput] = []
         reset = self._clock.step(ref, cam.last_ref)
         if reset is not None:
+            if reset.reason == "stamp_jump":
+                self.counts[f"{name}.stamp_jumped_ahead"] += 1
             out += self._time_reset(reset)
         elif cam.last_ref is not None and ref <= cam.last_ref:
             self._skip(name, "out_of_order")
