@@ -119,12 +119,15 @@ class RealRig:
             stamps, messages alone at their stamp with another camera's within half a frame
             interval)`` over every detection message. tolerance: s; 0 when a rig frame is one
             stamp, else the tolerance the stamps were grouped with.
+        messages: ``(stamp s, camera name, rig frame stamp s)`` of every detection message of
+            the cameras (with tags or none), in stamp order: a camera's video.
     """
 
     def __init__(self, cameras, mounts, frames, reference, name="", stamps_shared=(0, 0, 0),
-                 tolerance=0.0):  # fmt: skip
+                 tolerance=0.0, messages=()):  # fmt: skip
         self.cameras, self.mounts, self.frames, self.reference = cameras, mounts, frames, reference
         self.name, self.stamps_shared, self.tolerance = name, stamps_shared, tolerance
+        self.messages = list(messages)
 
 
 def _pose(t: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -335,7 +338,10 @@ def load_tagslam(folder: Path = FOLDER, tolerance: float | None = None) -> RealR
         X = np.concatenate([tags[t["id"]] for t in known])
         by_stamp[groups[round(m["stamp"], 6)]][topics[m["topic"]]] = (uv, X)
     frames = sorted(by_stamp.items())
-    return RealRig(cameras, mounts, frames, reference, folder.name, (*shared, near), tolerance)
+    messages = sorted((round(m["stamp"], 6), topics[m["topic"]], groups[round(m["stamp"], 6)])
+                      for m in msgs)  # fmt: skip
+    return RealRig(cameras, mounts, frames, reference, folder.name, (*shared, near), tolerance,
+                   messages)  # fmt: skip
 
 
 def load_test2(folder: Path = FOLDER) -> RealRig:
@@ -438,6 +444,7 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
         refit = pixel_refit(rig, views, *mine) if failure is None else None
         out.append(
             {
+                "stamp": stamp,
                 "both": len(views) >= 2,
                 "cameras": len(views),
                 "failure": failure,
@@ -449,6 +456,77 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
             }
         )
     return out
+
+
+def video_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> dict:
+    """The rig's video path: every camera's detection message (its tags' corners matched to
+    the map, none when it saw no tag of the map) fed in stamp order into a
+    :class:`~rs_localizer.tracking.rig.RigLocalizer` (the reference's extrinsics as the
+    mountings, ``options``, the default :class:`~rs_localizer.tracking.rig.RigSettings`:
+    tracking with the prediction and the fused twist), then ``close()`` (``frames``: up to
+    the last of the first that many rig frames with tags).
+
+    Returns:
+        ``{"rows": stamp s -> {"cameras": cameras with tags, "failure": the refusal or None,
+        "path", "video": (rotation deg, position mm) or None}`` per rig frame with tags and a
+        reference pose, ``"grouping": (rig frames out, rig frames out that are exactly one
+        of the benchmark's by stamp and cameras with tags)``, ``"cpu_s"``: CPU time of every
+        ``add`` and ``close``, ``"rig_frames"``: rig frames out, ``"with_tags"``: rig frames
+        with tags fed, ``"counts"``: the localizer's counters}``.
+    """
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+
+    settings = RigSettings({n: RigMount(*rig.mounts[n]) for n in rig.cameras}, options=options)
+    views_of = dict(rig.frames)
+    last = rig.frames[:frames][-1][0] if rig.frames[:frames] else -np.inf
+    empty = (np.zeros((0, 2)), np.zeros((0, 3)))
+    video = []
+    for stamp, name, group in rig.messages:
+        if group > last:
+            break
+        uv, X = views_of.get(group, {}).get(name, empty)
+        video.append(
+            RigCameraFrame(name, int(round(stamp * 1e9)), rig.cameras[name], uv, X, tag=group)
+        )
+    warm = RigLocalizer(settings)  # (compiles the tracking's kernels: untimed)
+    for f in video[: 20 * len(rig.cameras)]:
+        warm.add(f)
+    warm.close()
+    loc = RigLocalizer(settings)
+    outs, cpu = [], 0.0
+    for f in video:
+        got, t = _timed(lambda f=f: loc.add(f))
+        outs += got
+        cpu += t
+    got, t = _timed(loc.close)
+    outs += got
+    cpu += t
+    rows, exact = {}, 0
+    for o in outs:
+        groups = {f.tag for f in o.frames.values()}
+        with_tags = {n for n, f in o.frames.items() if len(f.points2d)}
+        # (the benchmark's rig frame: its stamp, or the one its frames were grouped into)
+        stamp = next(iter(groups)) if len(groups) == 1 else round(o.stamp_ns * 1e-9, 6)
+        exact += len(groups) == 1 and with_tags == set(views_of.get(stamp, {}))
+        if stamp not in rig.reference or not with_tags:
+            continue
+        failure = None if o.success else (o.estimate.failure if o.estimate else "error")
+        rows[stamp] = {
+            "cameras": len(with_tags),
+            "failure": failure,
+            "path": o.path,
+            "video": errors(o.estimate.model.R, o.estimate.model.C, rig.reference[stamp])
+            if o.success
+            else None,
+        }
+    return {
+        "rows": rows,
+        "grouping": (len(outs), exact),
+        "cpu_s": cpu,
+        "rig_frames": len(outs),
+        "with_tags": len(rig.frames[:frames]),
+        "counts": loc.counts,
+    }
 
 
 def opencv_pnp(uv: np.ndarray, X: np.ndarray, cam: CameraModel):
@@ -637,6 +715,68 @@ def summary(res: list) -> dict:
     return s
 
 
+def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
+    """The video path's table (:func:`video_run`) next to the rig frames posed alone
+    (:func:`rig_run`'s ``runs``)."""
+    alone = {r["stamp"]: r for r in runs}
+    rows = {t: r for t, r in v["rows"].items() if r["cameras"] >= 2 and t in alone}
+    posed = [t for t, r in rows.items() if r["failure"] is None]
+    n_alone = sum(alone[t]["ours"] is not None for t in rows)
+    out, exact = v["grouping"]
+    print(
+        f"{rig.name} video (RigLocalizer, every camera's {len(rig.messages)} detection "
+        f"messages in stamp order): {out} rig frames out, {exact} of them exactly a rig frame "
+        f"of the benchmark (its stamp, its cameras with tags); rig frames with tags in {share} "
+        f"and a reference: posed {len(posed)} of {len(rows)} (posed alone: {n_alone})"
+    )
+    refused = Counter(r["failure"] for r in rows.values() if r["failure"])
+    lost = Counter(
+        r["failure"] for t, r in rows.items() if r["failure"] and alone[t]["ours"] is not None
+    )
+    gained = sum(r["failure"] is None and alone[t]["ours"] is None for t, r in rows.items())
+    paths = Counter(r["path"] for r in rows.values())
+    print(
+        "  refused: "
+        + (", ".join(f"{f} {k}" for f, k in sorted(refused.items())) or "none")
+        + "; of them posed alone: "
+        + (", ".join(f"{f} {k}" for f, k in sorted(lost.items())) or "none")
+        + f"; posed by the video only: {gained}; paths: "
+        + ", ".join(f"{p} {k}" for p, k in sorted(paths.items(), key=lambda x: str(x[0])))
+    )
+    both = [t for t in posed if alone[t]["ours"] is not None]
+    print(
+        f"  over the {len(both)} rig frames both the video and the rig frame alone posed:"
+        "\n                          rotation deg     position mm"
+        "\n                          median   p90    median   p90"
+    )
+    if not both:
+        return
+    e = {
+        "video": np.array([rows[t]["video"] for t in both]),
+        "alone": np.array([alone[t]["ours"] for t in both]),
+        "poselib": np.array([alone[t]["poselib"] for t in both]),
+    }
+    for key, label in (
+        ("video", "video (RigLocalizer)"),
+        ("alone", "rig frame alone"),
+        ("poselib", "PoseLib generalized"),
+    ):
+        print(f"  {label:22s} {_stats(e[key][:, 0])} {_stats(e[key][:, 1])}")
+    med = {k: np.median(x, axis=0) for k, x in e.items()}
+    ms_alone = 1e3 * np.mean([r["t_ours"] for r in runs])
+    ms_video = 1e3 * v["cpu_s"] / max(v["with_tags"], 1)
+    print(
+        f"  ratio video / PoseLib (medians): rotation {med['video'][0] / med['poselib'][0]:.2f},"
+        f" position {med['video'][1] / med['poselib'][1]:.2f}; video / alone: rotation "
+        f"{med['video'][0] / med['alone'][0]:.2f}, position "
+        f"{med['video'][1] / med['alone'][1]:.2f}"
+    )
+    print(
+        f"  CPU ms per rig frame with tags (mean): video {ms_video:.2f} (every add and close), "
+        f"alone {ms_alone:.2f}"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -669,6 +809,13 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="another TagSLAM folder of the same rig: the calibrated mountings are compared "
         "with its reference extrinsics too",
+    )
+    ap.add_argument(
+        "--video",
+        action="store_true",
+        help="also pose the recording as a video (RigLocalizer: tracking, the fused twist) "
+        "and compare with the rig frames posed alone; leaves out the single cameras and the "
+        "calibration",
     )
     a = ap.parse_args(argv)
     if not a.folder.is_dir():
@@ -723,6 +870,9 @@ def main(argv: list[str] | None = None) -> None:
             "  refused (cameras with tags, reason): "
             + ", ".join(f"{m} {f} {k}" for (m, f), k in sorted(refused.items()))
         )
+        if a.video:
+            _print_video(rig, runs, video_run(rig, a.frames, options), share)
+            return
         single = single_run(rig, a.frames)
         for name, rows in single.items():
             ok = [r for r in rows if all(r[k] is not None for k in ("ours", "poselib", "opencv"))]
