@@ -458,13 +458,21 @@ def rig_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> lis
     return out
 
 
-def video_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> dict:
+def video_run(
+    rig: RealRig,
+    frames: int | None = None,
+    options=RIG_OPTIONS,
+    stop_after: float | None = None,
+    max_gap: float | None = None,
+) -> dict:
     """The rig's video path: every camera's detection message (its tags' corners matched to
     the map, none when it saw no tag of the map) fed in stamp order into a
     :class:`~rs_localizer.tracking.rig.RigLocalizer` (the reference's extrinsics as the
-    mountings, ``options``, the default :class:`~rs_localizer.tracking.rig.RigSettings`:
-    tracking with the prediction and the fused twist), then ``close()`` (``frames``: up to
-    the last of the first that many rig frames with tags).
+    mountings, ``options``, :class:`~rs_localizer.tracking.rig.RigSettings`' defaults:
+    tracking with the prediction and the fused twist; ``stop_after`` and the tracking's
+    ``max_gap`` s when given), then ``close()`` (``frames``: up to the last of the first
+    that many rig frames with tags). A rig frame of the benchmark split over two rig frames
+    out is compared by its part with the most cameras with tags.
 
     Returns:
         ``{"rows": stamp s -> {"cameras": cameras with tags, "failure": the refusal or None,
@@ -472,11 +480,22 @@ def video_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> d
         reference pose, ``"grouping": (rig frames out, rig frames out that are exactly one
         of the benchmark's by stamp and cameras with tags)``, ``"cpu_s"``: CPU time of every
         ``add`` and ``close``, ``"rig_frames"``: rig frames out, ``"with_tags"``: rig frames
-        with tags fed, ``"counts"``: the localizer's counters}``.
+        with tags fed, ``"counts"``: the localizer's counters, ``"outputs"``: its
+        :class:`~rs_localizer.tracking.rig.RigOutput` s, ``"settings"``}``.
     """
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+    from rs_localizer.tracking.rig import (
+        RigCameraFrame,
+        RigLocalizer,
+        RigMount,
+        RigSettings,
+        RigTrackingOptions,
+    )
 
     settings = RigSettings({n: RigMount(*rig.mounts[n]) for n in rig.cameras}, options=options)
+    if stop_after is not None:
+        settings = replace(settings, stop_after=stop_after)
+    if max_gap is not None:
+        settings = replace(settings, tracking=RigTrackingOptions(max_gap=max_gap))
     views_of = dict(rig.frames)
     last = rig.frames[:frames][-1][0] if rig.frames[:frames] else -np.inf
     empty = (np.zeros((0, 2)), np.zeros((0, 3)))
@@ -510,6 +529,8 @@ def video_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> d
         exact += len(groups) == 1 and with_tags == set(views_of.get(stamp, {}))
         if stamp not in rig.reference or not with_tags:
             continue
+        if stamp in rows and rows[stamp]["cameras"] >= len(with_tags):
+            continue  # (a split rig frame: its part with the most cameras)
         failure = None if o.success else (o.estimate.failure if o.estimate else "error")
         rows[stamp] = {
             "cameras": len(with_tags),
@@ -526,6 +547,8 @@ def video_run(rig: RealRig, frames: int | None = None, options=RIG_OPTIONS) -> d
         "rig_frames": len(outs),
         "with_tags": len(rig.frames[:frames]),
         "counts": loc.counts,
+        "outputs": outs,
+        "settings": settings,
     }
 
 
@@ -723,9 +746,15 @@ def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
     posed = [t for t, r in rows.items() if r["failure"] is None]
     n_alone = sum(alone[t]["ours"] is not None for t in rows)
     out, exact = v["grouping"]
+    own: dict = defaultdict(list)
+    for stamp, name, _ in rig.messages:
+        own[name].append(stamp)
+    interval = np.median([np.median(np.diff(x)) for x in own.values() if len(x) > 1])
     print(
         f"{rig.name} video (RigLocalizer, every camera's {len(rig.messages)} detection "
-        f"messages in stamp order): {out} rig frames out, {exact} of them exactly a rig frame "
+        f"messages in stamp order, a camera's frame interval {1e3 * interval:.0f} ms median; "
+        f"stop_after {v['settings'].stop_after} s, max_gap {v['settings'].max_gap} s): "
+        f"{out} rig frames out, {exact} of them exactly a rig frame "
         f"of the benchmark (its stamp, its cameras with tags); rig frames with tags in {share} "
         f"and a reference: posed {len(posed)} of {len(rows)} (posed alone: {n_alone})"
     )
@@ -762,6 +791,18 @@ def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
         ("poselib", "PoseLib generalized"),
     ):
         print(f"  {label:22s} {_stats(e[key][:, 0])} {_stats(e[key][:, 1])}")
+    gained = [t for t, r in rows.items() if r["failure"] is None and alone[t]["ours"] is None]
+    lost = [t for t, r in rows.items() if r["failure"] and alone[t]["ours"] is not None]
+    for ts, key, label in ((gained, "video", "posed by the video only"),
+                           (lost, "ours", "refused by the video, posed alone")):  # fmt: skip
+        if not ts:
+            continue
+        mine = np.array([rows[t]["video"] if key == "video" else alone[t]["ours"] for t in ts])
+        pl = np.array([alone[t]["poselib"] for t in ts])
+        print(
+            f"  {label} ({len(ts)}): {_stats(mine[:, 0])} {_stats(mine[:, 1])}; PoseLib on "
+            f"them {_stats(pl[:, 0])} {_stats(pl[:, 1])}"
+        )
     med = {k: np.median(x, axis=0) for k, x in e.items()}
     ms_alone = 1e3 * np.mean([r["t_ours"] for r in runs])
     ms_video = 1e3 * v["cpu_s"] / max(v["with_tags"], 1)
@@ -817,6 +858,19 @@ def main(argv: list[str] | None = None) -> None:
         "and compare with the rig frames posed alone; leaves out the single cameras and the "
         "calibration",
     )
+    ap.add_argument(
+        "--stop-after",
+        type=float,
+        default=None,
+        help="--video: RigSettings.stop_after s (default its default; a camera's frame "
+        "interval at least this splits rig frames)",
+    )
+    ap.add_argument(
+        "--max-gap",
+        type=float,
+        default=None,
+        help="--video: the tracking's max_gap s (default its default)",
+    )
     a = ap.parse_args(argv)
     if not a.folder.is_dir():
         print(f"{a.folder} absent: nothing to measure")
@@ -871,7 +925,8 @@ def main(argv: list[str] | None = None) -> None:
             + ", ".join(f"{m} {f} {k}" for (m, f), k in sorted(refused.items()))
         )
         if a.video:
-            _print_video(rig, runs, video_run(rig, a.frames, options), share)
+            v = video_run(rig, a.frames, options, a.stop_after, a.max_gap)
+            _print_video(rig, runs, v, share)
             return
         single = single_run(rig, a.frames)
         for name, rows in single.items():
