@@ -51,8 +51,19 @@ undistorted plane), then:
 ``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
 extrinsics of the same rig too (and prints how far the two references are apart).
 
+``--video`` (instead of 2 and 3): the recording as a user's video (:func:`video_run`): every
+camera's detection messages in stamp order into a
+:class:`~rs_localizer.tracking.rig.RigLocalizer` (tracking with the prediction, the fused
+twist; ``--stop-after`` and ``--max-gap`` its settings): how many of its rig frames are
+exactly the benchmark's (by stamp and cameras with tags); the rig frames with tags in two or
+more cameras it posed and refused (by reason), against the rig frames posed alone (part 1);
+rotation and position errors against the reference over the rig frames both posed, of the
+video, the rig frame alone and PoseLib; the frames only one of the two posed, with PoseLib's
+errors on them; CPU time per rig frame with tags.
+
     python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
         [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER]
+        [--video [--stop-after S] [--max-gap S]]
 """
 
 from __future__ import annotations
@@ -93,6 +104,7 @@ __all__ = [
     "rig_run",
     "single_run",
     "summary",
+    "video_run",
 ]
 
 #: the default recording (absent: the benchmark says so and stops; the tests skip)
