@@ -1,7 +1,8 @@
 """A real stereo rig of fisheye cameras (benchmarks.bench_real_rig, TagSLAM's test_2, skipped
 when the data is absent): the rig's poses against TagSLAM's solution and PoseLib's generalized
-pose on the same corners, each camera alone, and the mounting calibrated from the recording
-against TagSLAM's extrinsics. Bounds are loose versions of what the benchmark prints."""
+pose on the same corners, each camera alone, the mounting calibrated from the recording
+against TagSLAM's extrinsics, and the recording as a video through the rig localizer. Bounds
+are loose versions of what the benchmark prints."""
 
 import numpy as np
 import pytest
