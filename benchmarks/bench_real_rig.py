@@ -912,6 +912,12 @@ def main(argv: list[str] | None = None) -> None:
     options = replace(RIG_OPTIONS, ransac=replace(RIG_OPTIONS.ransac, threshold_px=a.threshold))
     with one_thread():
         runs = rig_run(rig, a.frames, options)
+        if not any(r["both"] and r["ours"] is not None for r in runs):
+            print(
+                f"no rig frame with tags in {share} was posed among the {len(runs)} rig frames "
+                "read: nothing to compare (more with --frames)"
+            )
+            return
         s = summary(runs)
         print(
             f"{rig.name} rig, {s['frames']} rig frames with tags and a reference, {s['both']} "
