@@ -708,7 +708,8 @@ RIG_PARAMETERS = {
     "rig.stop_after": Parameter(
         0.5,
         "s of stamp time without a frame of a camera (while the others send) after which the "
-        "rig stops waiting for it and runs on the others",
+        "rig stops waiting for it and runs on the others; at least two of the camera's own "
+        "frame intervals",
         FloatRange(from_value=0.001, to_value=3600.0),
         read_only=True,
     ),

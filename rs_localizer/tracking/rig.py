@@ -185,6 +185,11 @@ CONTRADICTION_MIN_M = 0.02
 APART_HISTORY = 10
 APART_MIN = 6
 APART_SHARE = 0.8
+#: a camera whose frames come further apart than ``stop_after`` counts as stopped only after
+#: this many of its own frame intervals without a frame (the median of its recent ones): a
+#: rig of 2 Hz cameras with the default 0.5 s is otherwise cut in two at every stamp (the
+#: first camera's frame solved alone, the others stopped)
+STOP_INTERVALS = 2.0
 
 #: the paths a rig frame can take (as the camera tracker's)
 RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
@@ -294,7 +299,8 @@ class RigSettings:
             capture times). Stamps further apart are different rig frames (``apart``).
         stop_after: s of stamp time without a frame of a camera (while others send) after
             which the rig stops waiting for it (``stopped``; also for a camera that never
-            sent, counted from the rig's first frame).
+            sent, counted from the rig's first frame); at least :data:`STOP_INTERVALS` of the
+            camera's own frame intervals.
         stamp_row: the row (px along the readout) whose capture time is a frame's stamp.
         time_reset_ns: a time reset (:mod:`~rs_localizer.tracking.clock`, the single
             camera's policy): a camera's frame older than its previous frame by more than this
@@ -785,10 +791,9 @@ class RigLocalizer(GyroReadouts):
         now = max((c.newest for c in self._cams.values() if c.newest is not None), default=None)
         if now is None:
             return []
-        stop_ns = s.stop_after * 1e9
         for cam in self._cams.values():
             last = cam.newest if cam.newest is not None else self._first
-            if not cam.stopped and now - last > stop_ns:
+            if not cam.stopped and now - last > self._stop_ns(cam):
                 cam.stopped = True
                 self.counts[f"{cam.name}.stopped"] += 1
                 self.log.warning(
@@ -808,6 +813,18 @@ class RigLocalizer(GyroReadouts):
             self._open.pop(0)
             out.append(self._solve(g))
         return out
+
+    def _stop_ns(self, cam: _Camera) -> float:
+        """ns without a frame of ``cam`` after which it counts as stopped: ``stop_after``, or
+        :data:`STOP_INTERVALS` of its own frame intervals (the median over its recent frames;
+        before it has two, the rig's cameras' together) when that is longer, so that a
+        camera slower than ``1 / stop_after`` frames per second is not taken as stopped
+        between its frames."""
+        steps = _frame_steps(cam.recent)
+        if not len(steps):
+            steps = np.concatenate([_frame_steps(c.recent) for c in self._cams.values()])
+        stop_ns = self.settings.stop_after * 1e9
+        return max(stop_ns, STOP_INTERVALS * float(np.median(steps))) if len(steps) else stop_ns
 
     def close(self) -> list[RigOutput]:
         """Solve every rig frame still open (the end of a video), oldest first."""
@@ -1473,3 +1490,9 @@ def _alone_deg(view: RigView, est: RigPoseEstimate, implementation=None) -> floa
     # the camera's rotation (world -> camera) at its reference time, as the rig puts it
     R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
     return float(rotation_angle_deg(alone.model.R, R_c))
+
+
+def _frame_steps(recent) -> np.ndarray:
+    """The positive intervals (ns) between a camera's recent frames' reference times."""
+    steps = np.diff(np.sort(np.asarray(recent, dtype=np.int64)))
+    return steps[steps > 0]

@@ -131,6 +131,22 @@ def test_a_camera_whose_frames_stop_the_rig_runs_on_the_others():
     assert set(MISSED_REASONS) >= {k.split(".")[-1] for k in rig.counts if ".missed." in k}
 
 
+def test_cameras_slower_than_stop_after_are_not_taken_as_stopped_between_their_frames():
+    """Three 2 Hz cameras (a frame every 0.5 s, the default ``stop_after``): each rig frame
+    holds all three cameras' frames, none counted stopped or missed; with the frame interval
+    not taken into account the first camera's frame of each stamp was solved alone."""
+    cams = [replace(c, fps=2.0) for c in default_rig(3)]
+    frames, _, traj = generate_rig_video(cams, duration=4.0, num_points=120, seed=6)
+    assert np.median(np.diff(sorted(f.stamp_ns for f in frames if f.name == "front"))) >= 5e8
+    rig, outs, _ = run(frames, cams)
+    assert len(outs) == 8 and all(o.success for o in outs)
+    assert all(o.cameras == ("front", "left", "right") for o in outs)
+    assert not [k for k in rig.counts if k.endswith(".stopped") or ".missed." in k]
+    e = np.array([errors(o, traj) for o in outs])
+    assert e[:, 0].max() < 0.05 and e[:, 1].max() < 0.005
+    assert_balanced(rig)
+
+
 def test_frames_too_far_apart_are_separate_rig_frames_counted():
     """The left camera's frames 16 ms after the front's with a 10 ms window: never one rig
     frame; each posed alone from its camera, the other counted missing as ``apart``."""
