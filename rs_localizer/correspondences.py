@@ -269,7 +269,8 @@ class VideoFrontend(Protocol):
 
 class FrontendHooks:
     """The :class:`VideoFrontend` hooks of a front end that neither predicts nor warns:
-    ``observe`` does nothing, ``pop_warning`` returns None (a front end overrides either)."""
+    ``observe`` does nothing, ``pop_warning`` and ``marker_detector_note`` return None (a
+    front end overrides any of them)."""
 
     @accepts_pixels_keyword
     def observe(
@@ -279,6 +280,12 @@ class FrontendHooks:
 
     def pop_warning(self) -> str | None:
         """No warning."""
+        return None
+
+    def marker_detector_note(self) -> tuple[str, bool] | None:
+        """``(one line naming the marker detector that runs, whether it stands in for the one
+        asked for)`` for the log, or None: no marker detector to name (a front end with one
+        overrides it)."""
         return None
 
 
