@@ -269,7 +269,15 @@ class VideoFrontend(Protocol):
 
 class FrontendHooks:
     """The :class:`VideoFrontend` hooks of a front end that neither predicts nor warns:
-    ``observe`` does nothing, ``pop_warning`` returns None (a front end overrides either)."""
+    ``observe`` does nothing, ``pop_warning``, ``marker_detector_note`` and ``summary`` return
+    None (a front end overrides any of them).
+
+    Attributes:
+        few_match_frames: images with keypoints of which too few matched the map (a feature
+            front end counts them); None: not counted.
+    """
+
+    few_match_frames: int | None = None
 
     @accepts_pixels_keyword
     def observe(
@@ -279,6 +287,17 @@ class FrontendHooks:
 
     def pop_warning(self) -> str | None:
         """No warning."""
+        return None
+
+    def summary(self) -> dict[str, Any] | None:
+        """The front end's own diagnostics values since start, or None: none (the node then
+        reports ``frontend_frames_global``, the images it ran on)."""
+        return None
+
+    def marker_detector_note(self) -> tuple[str, bool] | None:
+        """``(one line naming the marker detector that runs, whether it stands in for the one
+        asked for)`` for the log, or None: no marker detector to name (a front end with one
+        overrides it)."""
         return None
 
 

@@ -359,6 +359,11 @@ class ArucoFrontend(FrontendHooks):
         self._missed = False
         self._dense = 0
 
+    def marker_detector_note(self) -> tuple[str, bool]:
+        """``(the marker detector's line for the log, whether it stands in for a missing
+        AprilTag library)``."""
+        return self.detector.describe(), bool(self.detector.fallback)
+
     def summary(self) -> dict:
         """Counters since start: frames searched whole (``frontend_frames_global``) and in
         windows (``aruco_frames_windowed``), the median detection time per frame (ms; ``nan``

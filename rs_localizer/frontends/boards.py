@@ -43,7 +43,13 @@ from ..camera import CameraModel
 from ..correspondences import Correspondences, FrontendHooks
 from ..maps.boards import CharucoBoardModel, CheckerboardModel, TagBoard, load_board
 from .image import to_gray
-from .marker_detection import DetectorOptions, apriltag_family, make_marker_detector
+from .marker_detection import (
+    AprilTagDetector,
+    DetectorOptions,
+    OpenCVDetector,
+    apriltag_family,
+    make_marker_detector,
+)
 
 __all__ = [
     "CharucoFrontend",
@@ -328,6 +334,15 @@ class TagFrontend(_BoardFrontend):
         else:
             self.detector = cvc.MarkerDetector(board.dictionary, params)
         self.last_unknown = 0
+
+    def marker_detector_note(self) -> tuple[str, bool] | None:
+        """``(the marker detector's line for the log, whether it stands in for a missing
+        AprilTag library)`` of an AprilTag family's board; None for one of OpenCV's own
+        dictionaries."""
+        det = self.detector
+        if isinstance(det, (AprilTagDetector, OpenCVDetector)):
+            return det.describe(), bool(det.fallback)
+        return None
 
     def detect(self, image: np.ndarray, encoding: str = "rgb8") -> tuple[np.ndarray, np.ndarray]:
         """All tags found: ``(corners (M, 4, 2) pixels, tag ids (M,))``."""

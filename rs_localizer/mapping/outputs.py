@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -12,6 +13,9 @@ from ..camera import CameraModel
 from ..maps.files import write_text_atomic
 from ..maps.markers import write_marker_map
 from .marker_model import FrameDetections, MarkerMapResult
+
+if TYPE_CHECKING:  # (imported where a front end is made: OpenCV loads late)
+    from ..frontends import ArucoFrontend
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -139,12 +143,12 @@ def detect_folder(
     return frames, counts
 
 
-def detect_image(front: object, gray: np.ndarray) -> tuple[dict, int]:
+def detect_image(front: ArucoFrontend, gray: np.ndarray) -> tuple[dict, int]:
     """Markers in one (H, W) uint8 image with an :class:`ArucoFrontend`: ``({id: (4, 2)
     pixel corners}, number of ids found more than once)``; an id found twice is dropped (by the
     front end's detector, which counts it, or here)."""
     corners, ids = front.detect(gray, "mono8")
-    dropped = int(getattr(getattr(front, "detector", None), "last_duplicates", 0))
+    dropped = int(front.detector.last_duplicates)
     ids = [int(m) for m in np.ravel(ids)] if ids is not None else []
     dets, dup = {}, 0
     for m in set(ids):

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
 from .config import LocalizerConfig
 from .frame_queue import FrameCounts
@@ -106,7 +107,7 @@ def diagnostic_status(
     gyro_bias: tuple[Sequence[float], Sequence[float]] | None = None,
     gyro_inconsistent: bool = False,
     imu_idle_s: float | None = None,
-    frontend: Any = None,
+    frontend: FrontendHooks | None = None,
 ) -> tuple[int, str, dict[str, Any]]:
     """``(level, message, values)`` of the localizer's status.
 
@@ -264,7 +265,9 @@ def _core_values(
     return values
 
 
-def _frontend_values(cfg: LocalizerConfig, frontend: Any, stats: StatsSnapshot) -> dict[str, Any]:
+def _frontend_values(
+    cfg: LocalizerConfig, frontend: FrontendHooks, stats: StatsSnapshot
+) -> dict[str, Any]:
     """The front end's values of :func:`diagnostic_status` (with a ``frontend``)."""
     c = stats.counts
     values: dict[str, Any] = {}
@@ -283,9 +286,9 @@ def _frontend_values(cfg: LocalizerConfig, frontend: Any, stats: StatsSnapshot) 
             "frontend_ms_p99": f"{np.percentile(fe, 99) * 1e3:.3f}" if fe else "nan",
         }
     )
-    summary = getattr(frontend, "summary", None)  # (a tracking front end)
-    values.update(summary() if summary is not None else {"frontend_frames_global": runs})
-    few = getattr(frontend, "few_match_frames", None)  # (a feature front end)
+    summary = frontend.summary()  # (a tracking front end's)
+    values.update(summary if summary is not None else {"frontend_frames_global": runs})
+    few = frontend.few_match_frames  # (a feature front end's)
     if few is not None:
         values["frontend_few_match_frames"] = few
     return values

@@ -83,6 +83,9 @@ class LocalizerCore(NodeCore):
     the pipeline returns and reports diagnostics."""
 
     pipeline = None  # (None: before _init_state)
+    # (warnings given once per node: set on the instance when given)
+    _warned_beside_frontend = False
+    _warned_rs = False
 
     @property
     def cfg(self) -> LocalizerConfig | None:
@@ -171,7 +174,7 @@ class LocalizerCore(NodeCore):
         images: counted (``frames_beside_frontend``) and, the first time, a warning naming
         both topics (the frame is solved as given: the front end and its map play no part)."""
         self.pipeline.stats.add("frames_beside_frontend")
-        if getattr(self, "_warned_beside_frontend", False):
+        if self._warned_beside_frontend:
             return
         self._warned_beside_frontend = True  # (once per node)
         topic = self.resolve_topic_name(kind)
@@ -253,17 +256,17 @@ class LocalizerCore(NodeCore):
             self.get_logger().info(
                 f"reloaded the {cfg.frontend_kind} front end from {cfg.frontend_map}"
             )
-        det = getattr(maps.frontend, "detector", None)
-        if hasattr(det, "describe") and maps.frontend is not old_fe:
+        detector = None if maps.frontend is None else maps.frontend.marker_detector_note()
+        if detector is not None and maps.frontend is not old_fe:
             # which marker detector runs (a missing AprilTag library: a warning with the
             # install line)
-            fallback = getattr(det, "fallback", None)
+            line, fallback = detector
             log = self.get_logger().warning if fallback else self.get_logger().info
-            log(f"marker detector: {det.describe()}")
+            log(f"marker detector: {line}")
         if cfg.republish_correspondences and maps.frontend is not None and self._pubs:
             self._corr_out_publisher()
         note = default_timing_note(cfg) if maps.frontend is not None else None  # (images)
-        if note is not None and not getattr(self, "_warned_rs", 0):
+        if note is not None and not self._warned_rs:
             self._warned_rs = True  # (once per node)
             self.get_logger().warning(note)
 
@@ -316,15 +319,15 @@ class LocalizerCore(NodeCore):
         failed frame: the fused twists it made final), log a failure."""
         tic = time.perf_counter()
         cfg = self.cfg
-        self.viz.hold_image(getattr(res, "image", None) if res.failure is None else None)
-        if getattr(res, "correspondences", None) is not None:
+        self.viz.hold_image(res.image if res.failure is None else None)
+        if res.correspondences is not None:
             c = res.correspondences
             cloud = correspondence_cloud(
                 c.points2d, c.points, c.ids, c.scores, res.frame_id, res.stamp_ns
             )
             self._corr_out_publisher().publish(cloud)
         if res.failure is not None:
-            self._publish(fused_messages(getattr(res, "fused", ()), cfg.map_frame, self._wanted))
+            self._publish(fused_messages(res.fused, cfg.map_frame, self._wanted))
             text, n = (
                 f"frame dropped ({res.failure}): {res.detail}",
                 self._frames.failures(res.failure),

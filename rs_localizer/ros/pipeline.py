@@ -29,6 +29,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences
+from ..estimation.result import RSPoseEstimate
 from ..frames import camera_to_base
 from ..frontends.shared import LoadedMaps
 from ..pose import PoseWithCovariance
@@ -298,7 +299,7 @@ class FrameResult:
     camera: CameraModel | None = None
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
-    estimate: Any = None
+    estimate: RSPoseEstimate | None = None
     output: PoseWithCovariance | None = None
     output_frame: str = ""
     twist_now: bool = False
@@ -579,7 +580,7 @@ class FramePipeline:
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
 
-    def _check_map_fit(self, n_points: int, est: Any) -> None:
+    def _check_map_fit(self, n_points: int, est: RSPoseEstimate) -> None:
         """The map-fit check (:data:`MAP_FIT_REASONS`): a frame of ``n_points`` (at least
         :data:`MAP_FIT_MIN_POINTS`) correspondences solved or refused for its geometry joins
         the window; most of the window refused: ``map_fit_doubtful`` and a throttled warning

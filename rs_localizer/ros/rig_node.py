@@ -379,7 +379,7 @@ class RigCore(NodeCore):
 
     def _refuse_changes(self, params) -> SetParametersResult:
         """The rig mode reads its parameters at start (configure): changes are refused."""
-        if not getattr(self, "_configured", True) or all(
+        if not self._configured or all(
             p.name.startswith(("qos_overrides.", "viz.")) for p in params
         ):  # (unconfigured; the QoS overrides a subscription declares, read-only; viz.*, read
             # when drawing, as by the single-camera node)

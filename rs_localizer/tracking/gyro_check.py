@@ -46,15 +46,18 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..estimation.gyro import GYRO_CHI2_THRESHOLD
+from ..estimation.gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from .gyro import ImuBuffer
-from .gyro_bias import checked_mount, pair_innovation
+from .gyro_bias import GyroBiasEstimator, checked_mount, pair_innovation
+
+if TYPE_CHECKING:  # (gyro_input imports this module)
+    from .gyro_input import GyroSettings, TrackLog
 
 __all__ = [
     "MOUNT_CHECK_OUTCOMES",
@@ -268,8 +271,8 @@ class GyroMountCheck:
 
 
 def gyro_if_consistent(
-    gyro: Any, check: GyroMountCheck | None, count: Callable[[str, int], None]
-) -> Any:
+    gyro: GyroMeasurement | None, check: GyroMountCheck | None, count: Callable[[str, int], None]
+) -> GyroMeasurement | None:
     """``gyro`` (a frame's gyro measurement, or None), or None while ``check`` declares the
     gyro inconsistent with the image (counted ``gyro_disabled_inconsistent``): the frame is
     then solved without it. The single camera's
@@ -283,9 +286,9 @@ def gyro_if_consistent(
 
 def update_gyro_checks(
     check: GyroMountCheck | None,
-    bias: Any,
+    bias: GyroBiasEstimator | None,
     buffer: ImuBuffer | None,
-    imu: Any,
+    imu: GyroSettings | None,
     *,
     stamp_ns: int,
     success: bool,
@@ -293,7 +296,7 @@ def update_gyro_checks(
     rotation_covariance: ArrayLike | None,
     new_track: bool,
     count: Callable[[str, int], None],
-    log: Any,
+    log: TrackLog,
     what: str = "frames",
     mount: str = "IMU -> camera optical frame",
 ) -> None:
@@ -310,14 +313,15 @@ def update_gyro_checks(
         check: the :class:`GyroMountCheck` (None: none). bias: the
             :class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator` (None: none).
         buffer: the gyro samples (None: no gyro, nothing done).
-        imu: the gyro settings (``gyro_bias`` (3,) rad/s and ``gyro_bias_sigma`` rad/s: the
-            bias the check assumes without an online estimate).
+        imu: the :class:`~rs_localizer.tracking.gyro_input.GyroSettings` (``gyro_bias`` (3,)
+            rad/s and ``gyro_bias_sigma`` rad/s: the bias the check assumes without an online
+            estimate; None only with no ``buffer``).
         stamp_ns: the frame's time (ns, the camera clock). success: it was posed.
         orientation: (3, 3) body -> world at that time (the camera's, or the rig's);
             rotation_covariance: (3, 3) rad^2, world axes (None: NaN, the pair is not tested).
         new_track: the frame starts a new track (nothing pairs across it).
-        count: ``count(key, n)`` of the counters above. log: ``warning(key, text)`` and
-            ``info(text)``.
+        count: ``count(key, n)`` of the counters above. log: the
+            :class:`~rs_localizer.tracking.gyro_input.TrackLog` of the warnings.
         what, mount: the warning's words for the frames (``frames``, ``rig frames``) and the
             mounting under test (``IMU -> camera optical frame``, ``IMU -> base_frame``).
     """

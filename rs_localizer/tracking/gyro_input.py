@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -43,7 +43,7 @@ from .gyro_check import (
     update_gyro_checks,
 )
 
-__all__ = ["GyroInput", "GyroReadouts", "GyroSettings", "gyro_calibration"]
+__all__ = ["GyroInput", "GyroReadouts", "GyroSettings", "SilentLog", "TrackLog", "gyro_calibration"]
 
 
 @dataclass(frozen=True)
@@ -76,10 +76,10 @@ class GyroSettings:
     bias_random_walk: float = 1e-4
 
 
-def gyro_calibration(imu: Any) -> tuple:
-    """The gyro calibration values of ``imu`` (a :class:`GyroSettings` or any object with its
-    attributes: mounting, time offset, noise, bias and its sigma) as a comparable tuple: the
-    gyro-bias estimate and the mount check are started again when they change at run time."""
+def gyro_calibration(imu: GyroSettings) -> tuple:
+    """The gyro calibration values of ``imu`` (mounting, time offset, noise, bias and its
+    sigma) as a comparable tuple: the gyro-bias estimate and the mount check are started again
+    when they change at run time."""
     return (
         tuple(np.round(imu.R_cam_imu, 12).ravel()),
         imu.time_offset,
@@ -89,7 +89,19 @@ def gyro_calibration(imu: Any) -> tuple:
     )
 
 
-class _Silent:
+class TrackLog(Protocol):
+    """What a video's trackers log through: ``info(text)`` and ``warning(key, text, count)``
+    (``key`` names the warning for throttling, ``count`` how often it happened; the node's
+    :class:`~rs_localizer.ros.pipeline.ThrottledLog`)."""
+
+    def info(self, text: str) -> None: ...
+
+    def warning(self, key: str, text: str, count: int = 0) -> None: ...
+
+
+class SilentLog:
+    """A :class:`TrackLog` that logs nothing (a tracker given no log)."""
+
     def info(self, text: str) -> None:
         pass
 
@@ -102,7 +114,7 @@ class GyroInput:
 
     Args:
         count: ``count(key, n)`` of the counters (module docstring).
-        log: ``warning(key, text)`` and ``info(text)`` (None: silent).
+        log: the :class:`TrackLog` of the warnings (None: silent).
         stopped: ``stopped()`` true ends a frame's wait for its samples (shutdown).
         span: s of samples kept (None: the settings' ``buffer``; ``inf`` when every sample is
             added before the frames, e.g. a bag replayed offline).
@@ -111,10 +123,9 @@ class GyroInput:
             (``IMU -> camera optical frame``, ``IMU -> base_frame``).
 
     Attributes:
-        settings: the gyro settings (a :class:`GyroSettings` or any object with its
-            attributes), None: no gyro. buffer: the samples (None without a gyro). bias: the
-            online bias estimate (None without ``estimate_bias``). check: the mount check
-            (None without a gyro or when not checked).
+        settings: the :class:`GyroSettings`, None: no gyro. buffer: the samples (None
+            without a gyro). bias: the online bias estimate (None without ``estimate_bias``).
+            check: the mount check (None without a gyro or when not checked).
 
     Threads: :meth:`add` from one thread while a frame's :meth:`measurement` runs on another;
     :meth:`restart` and :meth:`configure` under the owner's frame lock.
@@ -123,7 +134,7 @@ class GyroInput:
     def __init__(
         self,
         count: Callable[[str, int], None],
-        log: Any = None,
+        log: TrackLog | None = None,
         *,
         stopped: Callable[[], bool] = lambda: False,
         span: float | None = None,
@@ -132,18 +143,20 @@ class GyroInput:
         mount: str = "IMU -> camera optical frame",
     ):
         self._count = count
-        self.log = log if log is not None else _Silent()
+        self.log: TrackLog = log if log is not None else SilentLog()
         self._stopped = stopped
         self._span = span
         self.what, self.key, self.mount = what, key, mount
-        self.settings: Any = None
+        self.settings: GyroSettings | None = None
         self.buffer: ImuBuffer | None = None
         self.bias: GyroBiasEstimator | None = None
         self.check: GyroMountCheck | None = None
         self._bias_key = self._check_key = None
 
     # ---------------------------------------------------------------- configuration
-    def configure(self, imu: Any, *, check: bool = True, max_interval: float = 0.5) -> None:
+    def configure(
+        self, imu: GyroSettings | None, *, check: bool = True, max_interval: float = 0.5
+    ) -> None:
         """Use the gyro settings ``imu`` (None: no gyro) from the next frame on. The samples
         are kept (a new buffer when ``max_rate`` or ``max_gap`` changed, the samples copied);
         the bias estimate and the mount check (``check``) are kept while the gyro calibration
@@ -168,7 +181,7 @@ class GyroInput:
         span = imu.buffer if self._span is None else self._span
         return ImuBuffer(span, imu.max_rate, imu.max_gap)
 
-    def _configure_bias(self, imu: Any, gap: float) -> None:
+    def _configure_bias(self, imu: GyroSettings | None, gap: float) -> None:
         if imu is None or not imu.estimate_bias:
             self.bias = self._bias_key = None
             return
@@ -184,7 +197,7 @@ class GyroInput:
             )
             self._bias_key = key
 
-    def _configure_check(self, imu: Any, gap: float) -> None:
+    def _configure_check(self, imu: GyroSettings | None, gap: float) -> None:
         if imu is None:
             self.check = self._check_key = None
             return

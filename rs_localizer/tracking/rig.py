@@ -121,9 +121,9 @@ from ..estimation.rig import (
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
-from .fusion import FusionOptions, TwistFilter
+from .fusion import FusedState, FusionOptions, TwistFilter
 from .gyro import readout_window
-from .gyro_input import GyroInput, GyroReadouts
+from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
 from .sequence import FusedPose, image_sample, same_image
 from .tracker import predictable
 
@@ -318,9 +318,8 @@ class RigSettings:
             at least ``disagree_min_points`` points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
             ``disagree_history`` rig frames *disagrees* with the rig.
-        imu: a gyro on the rig: a :class:`~rs_localizer.tracking.sequence.GyroSettings` (or
-            any object with its attributes, e.g. the node's ``ImuConfig``) whose
-            ``R_cam_imu`` is the rotation IMU -> **rig** frame (``R_rig_imu``: the rig's
+        imu: a gyro on the rig: a :class:`~rs_localizer.tracking.gyro_input.GyroSettings`
+            whose ``R_cam_imu`` is the rotation IMU -> **rig** frame (``R_rig_imu``: the rig's
             angular velocity is ``R_rig_imu (omega_imu - bias)``), ``time_offset`` s added to
             the IMU stamps to get the cameras' clock; ``wait``, ``buffer``, ``max_rate``,
             ``max_gap``, ``gyro_noise``, ``gyro_bias``, ``gyro_bias_sigma``,
@@ -338,7 +337,7 @@ class RigSettings:
     disagree_min_points: int = 12
     disagree_frames: int = 3
     disagree_history: int = 5
-    imu: Any = None
+    imu: GyroSettings | None = None
 
     def __post_init__(self):
         if not self.mounts:
@@ -532,21 +531,13 @@ class _ImageInput:
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
 
 
-class _Silent:
-    def info(self, text: str) -> None:
-        pass
-
-    def warning(self, key: str, text: str, count: int = 0) -> None:
-        pass
-
-
 class RigLocalizer(GyroReadouts):
     """A rig's video (module docstring).
 
     Args:
         settings: :class:`RigSettings`.
-        log: an object with ``warning(key, text)`` and ``info(text)`` (None: silent): a camera
-            stopped or back, a camera that disagrees with the rig.
+        log: the :class:`~rs_localizer.tracking.gyro_input.TrackLog` (None: silent) of a
+            camera stopped or back, a camera that disagrees with the rig.
         implementation: ``implementation()`` names the rig estimator's implementation a rig
             frame runs on, ``"compiled"`` or ``"numpy"``
             (:func:`~rs_localizer.estimation.rig.estimate_rig_pose`'s ``implementation``),
@@ -574,13 +565,13 @@ class RigLocalizer(GyroReadouts):
     def __init__(
         self,
         settings: RigSettings,
-        log: Any = None,
+        log: TrackLog | None = None,
         implementation: Callable[[], str] | None = None,
     ):
         self.settings = settings
         self._implementation = implementation
         self._impl: str | None = None  # (the rig frame being solved: its implementation)
-        self.log = log if log is not None else _Silent()
+        self.log: TrackLog = log if log is not None else SilentLog()
         self.counts: Counter = Counter()
         self._cams = {
             n: _Camera(n, m, settings.disagree_history) for n, m in settings.mounts.items()
@@ -605,6 +596,7 @@ class RigLocalizer(GyroReadouts):
         self._clock = VideoClock(settings.time_reset_ns, settings.time_reset_ns)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
         self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
+        self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
@@ -1250,7 +1242,7 @@ class RigLocalizer(GyroReadouts):
         running = sum(not c.stopped and n not in mine for n, c in self._cams.items())
         if running == 0:
             return None  # (the rig runs on this camera alone)
-        pred = getattr(self, "_prediction", None)
+        pred = self._prediction
         if pred is None:
             return UNCONFIRMED if running >= 2 else None
         return CONTRADICTS_TRACK if self._contradicts(est, pred) else None

@@ -87,7 +87,7 @@ from ..solvers.registry import solver_info
 from .clock import VideoClock
 from .fusion import FusedState
 from .gyro import readout_window
-from .gyro_input import GyroInput, GyroReadouts, GyroSettings
+from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
 from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
@@ -348,22 +348,15 @@ def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
     return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
-class _Silent:
-    def info(self, text: str) -> None:
-        pass
-
-    def warning(self, key: str, text: str, count: int = 0) -> None:
-        pass
-
-
 class SequenceLocalizer(GyroReadouts):
     """A camera's video state (see the module docstring).
 
     Args:
         settings: the :class:`SequenceSettings` (None: the defaults; change them at run time
             with :meth:`configure`).
-        log: where warnings go: an object with ``warning(key, text)`` (``key``: the kind, for
-            throttling) and ``info(text)``; None: silent.
+        log: where warnings go, a :class:`~rs_localizer.tracking.gyro_input.TrackLog`
+            (``warning(key, text)``, ``key``: the kind, for throttling; ``info(text)``);
+            None: silent.
         count: ``count(key, n)`` for each counter (the node's diagnostics keys:
             ``frames_with_gyro``, ``gyro_rejected``, ``gyro_missing[.<reason>]``,
             ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
@@ -392,7 +385,7 @@ class SequenceLocalizer(GyroReadouts):
         self,
         settings: SequenceSettings | None = None,
         *,
-        log: Any = None,
+        log: TrackLog | None = None,
         count: Callable[[str, int], None] | None = None,
         stopped: Callable[[], bool] = lambda: False,
         imu_span: float | None = None,
@@ -400,7 +393,7 @@ class SequenceLocalizer(GyroReadouts):
         frontend_name: str = "frontend",
         implementation: Callable[[str], str] = default_implementation,
     ):
-        self.log = log if log is not None else _Silent()
+        self.log: TrackLog = log if log is not None else SilentLog()
         self._implementation = implementation
         self.counts: Counter = Counter()
         self._count = count if count is not None else self._count_here
@@ -841,8 +834,7 @@ class SequenceLocalizer(GyroReadouts):
         final = []
         t = self._tracker
         if t is not None:
-            for k in ("frames_tracked", "relocalizations", "resets"):
-                self._track_counts[k] += getattr(t, k)
+            self._track_counts.update(t.track_counts())  # (added)
             final = t.reset() if flush else []
         self._tracker = self._tracker_key = None
         if not flush:

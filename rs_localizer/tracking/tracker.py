@@ -298,6 +298,15 @@ class RSTracker:
         """``tracking`` (a prediction is available for the next frame) or ``lost``."""
         return "tracking" if self.filter.initialized else "lost"
 
+    def track_counts(self) -> dict[str, int]:
+        """The counters a video keeps over its tracks: ``frames_tracked``,
+        ``relocalizations``, ``resets``."""
+        return {
+            "frames_tracked": self.frames_tracked,
+            "relocalizations": self.relocalizations,
+            "resets": self.resets,
+        }
+
     def reset(self) -> list:
         """Forget the track (e.g. the solver or the camera changed). Returns the fused states
         not yet final, as they are (oldest first)."""
