@@ -558,7 +558,9 @@ class RigLocalizer(GyroReadouts):
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.time_resets`` (time resets,
     :attr:`RigSettings.time_reset_ns`), ``rig.incomplete`` (solved without every camera),
-    ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation).
+    ``rig.path.<path>``, ``rig.uncompiled`` (rig frames solved on the NumPy implementation),
+    ``rig.track_outvote_undone`` (tracked rig frames whose prediction outvoted a camera into a
+    pose it contradicts itself, posed from the rig frame solved without it).
     Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
 
@@ -1142,6 +1144,15 @@ class RigLocalizer(GyroReadouts):
             return out
         out.estimate, out.path = est, path
         refusal = self._refusal(out, est) if est.success else None
+        if refusal == CONTRADICTS_TRACK and est.disagreeing:
+            # the prediction outvoted a camera into a pose it contradicts itself: it does not
+            # decide between these cameras; the rig frame solved without it stands if it
+            # poses more than one camera (cameras a little apart, posed jointly)
+            alone = self._run(views)
+            if alone.success and self._refusal(out, alone) is None:
+                est, refusal = alone, None
+                out.estimate, out.path = est, path = alone, "relocalized"
+                self.counts["rig.track_outvote_undone"] += 1
         if refusal is not None:
             est = out.estimate = replace(est, success=False, failure=refusal)
             if refusal == CONTRADICTS_TRACK:

@@ -184,3 +184,38 @@ def test_a_partial_rig_frame_the_track_contradicts_is_refused(video):
     assert e[:, 0].max() < 1.0 and e[:, 1].max() < 0.05, e.max(axis=0)
     assert rig.counts["rig.failed.contradicts_track"] == 1
     assert_balanced(rig)
+
+
+def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not_decide(
+    video, monkeypatch
+):
+    """On one tracked rig frame the estimator, with the prediction, keeps the front camera
+    alone (the others disagreeing) and lands 3 deg from it: the prediction does not decide
+    between the cameras, so the rig frame solved without it (all three, right) is published
+    (``relocalized``, counted ``rig.track_outvote_undone``) instead of being refused as
+    ``contradicts_track``; every other rig frame as without the stand-in."""
+    import rs_localizer.tracking.rig as tracking_rig
+
+    cams, frames, traj = video
+    real = tracking_rig.estimate_rig_pose
+    turned = {}
+
+    def estimator(views, options, *, initial_model=None, prediction=None, **kw):
+        est = real(views, options, initial_model=initial_model, prediction=prediction, **kw)
+        tracked = initial_model is not None or prediction is not None
+        if tracked and est.success and len(views) == 3 and not turned:
+            turned["R"] = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0])) @ est.R
+            return replace(est, R=turned["R"], disagreeing=(1, 2))
+        return est
+
+    monkeypatch.setattr(tracking_rig, "estimate_rig_pose", estimator)
+    rig, outs = run(frames, cams)
+    assert turned and rig.counts["rig.track_outvote_undone"] == 1
+    assert not rig.counts["rig.failed.contradicts_track"]
+    assert all(o.success for o in outs)
+    undone = [o for o in outs if o.path == "relocalized"]
+    assert len(undone) == 1 and undone[0].estimate.disagreeing == ()
+    assert rotation_angle_deg(undone[0].estimate.R, turned["R"]) > 2.5
+    e = pose_errors(outs, traj)
+    assert e[:, 0].max() < 0.2 and e[:, 1].max() < 0.01, e.max(axis=0)
+    assert_balanced(rig)
