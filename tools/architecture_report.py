@@ -61,7 +61,7 @@ POSE_CARRIERS = {
     ("pose.py", "PoseWithCovariance"): "an RSPose with its 6x6 covariances: what is published",
     ("estimation/result.py", "RSPoseEstimate"): "a camera frame's estimate (a PoseWithCovariance)",
     ("estimation/rig.py", "RigPoseEstimate"): "a rig frame's estimate (a PoseWithCovariance)",
-    ("tracking/sequence.py", "FusedPose"): "a frame with its fused twist (a PoseWithCovariance)",
+    ("tracking/localizer.py", "FusedPose"): "a frame with its fused twist (a PoseWithCovariance)",
     ("tracking/fusion.py", "FusedState"): "the twist filter's state of a frame (an RSPose)",
     ("estimation/options.py", "InitialModel"): "a model to start RANSAC from (an RSModel)",
     ("estimation/finalize.py", "FinalModel"): "the refined model before the last checks",

@@ -94,7 +94,6 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
-import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -104,7 +103,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
-from ..correspondences import Correspondences, FrameFeedback, video_frontend
+from ..correspondences import FrameFeedback
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
@@ -123,8 +122,14 @@ from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState, FusionOptions, TwistFilter
 from .gyro import readout_window
-from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
-from .sequence import FusedPose, image_sample, same_image
+from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
+from .localizer import (
+    FROZEN_IMAGE_LEVEL,
+    CameraFrontend,
+    FusedPose,
+    VideoLocalizer,
+    finite_rows,
+)
 from .tracker import predictable
 
 __all__ = [
@@ -516,14 +521,12 @@ class _Group:
 
 class _ImageInput:
     """The image input's state (:meth:`RigLocalizer.process_image`): per camera its front end
-    and label, its last image's fingerprint, the frames waiting for their rig frame
-    (``(camera, reference time)`` -> ``(stamp, pixels, camera model)``), and the last rig pose
-    ``(stamp, model)``."""
+    (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
+    last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
+    time)`` -> ``(stamp, pixels, camera model)``), and the last rig pose ``(stamp, model)``."""
 
     def __init__(self):
-        self.frontends: dict = {}
-        self.labels: dict = {}
-        self.samples: dict = {}
+        self.frontends: dict[str, CameraFrontend] = {}
         self.waiting: dict = {}
         self.last: tuple | None = None
 
@@ -531,7 +534,7 @@ class _ImageInput:
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
 
 
-class RigLocalizer(GyroReadouts):
+class RigLocalizer(VideoLocalizer):
     """A rig's video (module docstring).
 
     Args:
@@ -582,10 +585,11 @@ class RigLocalizer(GyroReadouts):
         self._first: int | None = None
         self._last_closed: int | None = None
         self._filter: TwistFilter | None = None
-        self._pending: dict[int, tuple] = {}
+        # (the rig frames waiting for their fused twist, their last camera frame's wall time;
+        # tracking/localizer.py)
+        self._init_video()
         self._inlier_ratio: float | None = None
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
-        self._last_wall: float | None = None  # (monotonic s: the last camera frame taken)
         self._make_filter()
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_*
@@ -706,7 +710,7 @@ class RigLocalizer(GyroReadouts):
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         self.counts[f"{name}.received"] += 1
-        self._last_wall = time.monotonic()
+        self._twists.note_frame()
         stamp = frame.stamp_ns
         if self._first is None:
             self._first = stamp
@@ -775,7 +779,7 @@ class RigLocalizer(GyroReadouts):
             cam.recent.clear()
             cam.stopped = False
         self._first = self._last_closed = None
-        self._carry += self._end_track()
+        self._carry += self._end_track(keep=True)
         self.gyro_input.restart(None if reset is None else reset.keep_from)
         return solved
 
@@ -827,26 +831,14 @@ class RigLocalizer(GyroReadouts):
             out.append(self._solve(self._open.pop(0)))
         return out
 
-    def flush(self) -> list[FusedPose]:
-        """The rig frames whose fused twist is still pending, as they are now (the track goes
-        on)."""
-        if self._filter is None or not self._pending:
-            return []
-        return self._fused(self._filter.flush())
-
     def flush_idle(self, now: float | None = None) -> list[FusedPose]:
         """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
         without a camera frame (:meth:`add`, :meth:`drop`) the video has stopped: the rig
-        frames whose fused twist is still pending, final now (as a camera's
-        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.flush_idle`; the rig frames
+        frames whose fused twist is still pending, final now (a camera's
+        :meth:`~rs_localizer.tracking.localizer.VideoLocalizer.flush_idle`; the rig frames
         still open stay open, and a frame more than ``max_gap`` later starts a new track).
         Empty without tracking, with nothing pending, or before that time."""
-        to, last = self.settings.tracking, self._last_wall
-        if to is None or last is None or not self._pending:
-            return []
-        if (time.monotonic() if now is None else now) - last < to.max_gap:
-            return []
-        return self.flush()
+        return super().flush_idle(now)
 
     def reset(self) -> list[FusedPose]:
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
@@ -877,15 +869,15 @@ class RigLocalizer(GyroReadouts):
         if name not in self._cams:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         img = self._image_input()
-        if frontend is None:
-            img.frontends.pop(name, None)
-            return
-        img.frontends[name] = video_frontend(frontend)
-        img.labels[name] = label or type(frontend).__name__
+        fe = img.frontends.get(name)
+        if fe is None:  # (kept when its front end is replaced: its last image's fingerprint)
+            fe = img.frontends[name] = CameraFrontend(self.log)
+        fe.set(frontend, None if frontend is None else label or type(frontend).__name__)
 
     def frontend(self, name: str) -> Any:
         """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
-        return self._image_input().frontends.get(name)
+        fe = self._image_input().frontends.get(name)
+        return None if fe is None else fe.frontend
 
     def predict_camera(self, name: str, stamp_ns: int, camera: CameraModel) -> RSModel | None:
         """Where the rig expects camera ``name``'s frame stamped ``stamp_ns`` (ns, capture time
@@ -958,7 +950,7 @@ class RigLocalizer(GyroReadouts):
         time, or its stamp without a camera model)."""
         cam = self._cams[name]
         self.counts[f"{name}.received"] += 1
-        self._last_wall = time.monotonic()
+        self._twists.note_frame()
         self._skip(name, reason)
         if self._first is None:
             self._first = stamp
@@ -1005,7 +997,7 @@ class RigLocalizer(GyroReadouts):
         """
         img = self._image_input()
         fe = img.frontends.get(name)
-        if name not in self._cams or fe is None:
+        if name not in self._cams or fe is None or fe.frontend is None:
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
         stamp = checked_stamp(stamp_ns)
         if camera is None:
@@ -1013,39 +1005,27 @@ class RigLocalizer(GyroReadouts):
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
         ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
-        label = img.labels.get(name, "frontend")
-        sample = image_sample(image)
-        prev, img.samples[name] = img.samples.get(name), sample
-        diff = same_image(prev, sample)
+        diff = fe.frozen(image, FROZEN_IMAGE_LEVEL)
         if diff is not None:
             self.log.warning(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
                 f"{diff:.2f} gray levels): skipped",
             )
-            try:  # (the front end's tracks are stale: its next new image is searched whole)
-                fe.observe(stamp, None, None)
-            except Exception as e:
-                self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
+            fe.observe(stamp, None, None)  # (its tracks are stale: searched whole next)
             return self._observed(self._drop(name, stamp, ref, "frozen_image"))
         prediction = self._predict_camera(self._cams[name], ref, camera)
         try:
-            found = Correspondences.of(
-                fe.process(image, camera, encoding=encoding, prediction=prediction)
-            )
+            found = fe.search(image, camera, encoding, prediction)
         except Exception as e:
             self.log.warning(
                 f"rig.frontend.{name}",
-                f"rig camera {name!r}: {label} front end failed: {type(e).__name__}: {e}",
+                f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
             return self._observed(self._drop(name, stamp, ref, "frontend_error"))
-        text = fe.pop_warning()
-        if text:
-            self.log.warning(f"{label}.warning", text)
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
-        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
-        uv, xyz = uv[good], xyz[good]
+        uv, xyz, _, _ = finite_rows(uv, xyz)
         img.waiting[(name, ref)] = (stamp, uv, camera)
         return self._observed(self._add(RigCameraFrame(name, stamp, camera, uv, xyz, tag), ref))
 
@@ -1061,7 +1041,7 @@ class RigLocalizer(GyroReadouts):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)
                 fe = img.frontends.get(n)
-                if item is None or fe is None:
+                if item is None or fe is None or fe.frontend is None:
                     continue
                 stamp, uv, camera = item
                 feedback = None
@@ -1073,24 +1053,25 @@ class RigLocalizer(GyroReadouts):
                                              camera.seconds_per_unit_r)  # fmt: skip
                     inl = est.inliers[k] if k < len(est.inliers) else np.zeros(len(uv), bool)
                     feedback = FrameFeedback(bool(est.success), np.asarray(inl, bool), cm)
-                try:
-                    fe.observe(stamp, uv, feedback)
-                except Exception as e:
-                    label = img.labels.get(n, "frontend")
-                    self.log.warning("frontend_error", f"{label}.observe: {type(e).__name__}: {e}")
+                fe.observe(stamp, uv, feedback)
         if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
             for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
                 del img.waiting[key]
         return outs
 
-    def _end_track(self) -> list[FusedPose]:
-        out = []
+    def _twist_source(self) -> TwistFilter | None:
+        """The twist filter (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
+        return self._filter
+
+    def _forget_track(self, keep: bool) -> list:
+        """The track ends (the twist filter and the inlier ratio start again); returns the
+        filter's fused states not yet final when ``keep``."""
+        final = []
         if self._filter is not None:
-            out = self._fused(self._filter.flush())
+            final = self._filter.flush() if keep else []
             self._filter.reset()
-        self._pending.clear()
         self._inlier_ratio = None
-        return out
+        return final
 
     # ---------------------------------------------------------------- solving
     def _missing_reason(self, cam: _Camera, g: _Group) -> str:
@@ -1213,7 +1194,7 @@ class RigLocalizer(GyroReadouts):
             return self._run(views), None
         path = "cold"
         if f.initialized and not predictable(f.stamp_ns, stamp, to.max_gap):
-            out.fused += self._end_track()  # (the video tracker's time rule)
+            out.fused += self._end_track(keep=True)  # (the video tracker's time rule)
             path = "reset"
         if not f.initialized:
             return self._run(views), path
@@ -1379,7 +1360,7 @@ class RigLocalizer(GyroReadouts):
         if self._filter is None:
             return
         step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
-        self._pending[out.stamp_ns] = (est, dict(out.tags))
+        self._twists.hold(out.stamp_ns, est, dict(out.tags))
         out.fused += self._fused(step.final)
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:
@@ -1459,17 +1440,6 @@ class RigLocalizer(GyroReadouts):
             if c.disagrees and c.partner == name:
                 return c.name
         return None
-
-    def _fused(self, final: list) -> list[FusedPose]:
-        out = []
-        for f in final:
-            item = self._pending.pop(f.pose.stamp_ns, None)
-            if item is not None:
-                out.append(FusedPose.of(item[0], f, item[1]))
-        if len(self._pending) > 64:
-            for k in sorted(self._pending)[:-64]:
-                del self._pending[k]
-        return out
 
 
 def _offsets_text(offsets: dict) -> str:

@@ -54,7 +54,6 @@ Example (a video of correspondences and a gyro; ``camera`` a
 
 from __future__ import annotations
 
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -71,7 +70,7 @@ from ..camera import (
     checked_stamp,
     reference_stamp_ns,
 )
-from ..correspondences import Correspondences, FrameFeedback, VideoFrontend, video_frontend
+from ..correspondences import Correspondences, FrameFeedback, VideoFrontend
 from ..estimation.estimate import (
     EstimateOptions,
     RSPoseEstimate,
@@ -82,12 +81,19 @@ from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
-from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
+from ..pose import RSModel
 from ..solvers.registry import solver_info
 from .clock import VideoClock
-from .fusion import FusedState
 from .gyro import readout_window
-from .gyro_input import GyroInput, GyroReadouts, GyroSettings, SilentLog, TrackLog
+from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
+from .localizer import (
+    FROZEN_IMAGE_LEVEL,
+    MAX_PENDING,
+    CameraFrontend,
+    FusedPose,
+    VideoLocalizer,
+    finite_rows,
+)
 from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
 
 __all__ = [
@@ -104,39 +110,10 @@ __all__ = [
     "reference_stamp_ns",
 ]
 
-#: frames whose fused twist may wait at most (the oldest beyond are dropped)
-MAX_PENDING = 64
 #: why :meth:`SequenceLocalizer.process_image` drops an image before the estimator
 #: (:attr:`SequenceOutput.failure`): the front end raised, or found fewer correspondences
 #: than the solver needs, or the image is the previous one again (:func:`same_image`)
 FRONTEND_FAILURES = ("frontend_error", "frontend_too_few_points", "frozen_image")
-#: a frozen image: the mean absolute difference (gray levels) of the two images' pixel
-#: samples (:func:`image_sample`) at most this; a camera's own noise alone gives more
-FROZEN_IMAGE_LEVEL = 0.25
-
-
-def image_sample(image: np.ndarray) -> tuple[np.ndarray, tuple]:
-    """A cheap fingerprint of an image (H, W) or (H, W, C) uint8: ``(one pixel in 8 x 8, every
-    channel, as int16 (K,), the image's shape)`` (images of different shapes never compare
-    equal). About 1/64 of the image is read."""
-    a = np.asarray(image)
-    if a.ndim < 2:
-        return np.zeros(0, np.int16), a.shape
-    return a[::8, ::8].astype(np.int16).ravel(), a.shape
-
-
-def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL) -> float | None:
-    """The mean absolute difference (gray levels) of two :func:`image_sample` fingerprints
-    when it is at most ``level`` (the same picture: a driver re-sending its last frame, a
-    stalled camera, a frozen stream), else None: also for images of different shapes, and
-    for an image without content (its sample's standard deviation under 2 gray levels: a
-    black or uniform image, which gives no correspondences anyway)."""
-    if prev is None or prev[1] != cur[1] or len(prev[0]) != len(cur[0]) or len(cur[0]) == 0:
-        return None
-    d = float(np.mean(np.abs(prev[0] - cur[0])))
-    if not d <= level:  # (a new picture, every frame of a moving camera: no spread needed)
-        return None
-    return None if float(np.std(cur[0])) < 2.0 else d
 
 
 @dataclass(frozen=True)
@@ -234,58 +211,6 @@ def _check_camera(camera: Any) -> None:
         )
 
 
-@dataclass(frozen=True)
-class FusedPose(PoseWithCovariance):
-    """A frame's pose as estimated with its fused twist: what the node's twist and odom carry
-    (a :class:`~rs_localizer.pose.PoseWithCovariance`; keyword arguments).
-
-    Attributes:
-        pose: a :class:`~rs_localizer.pose.RSPose` at the frame's reference time
-            (``pose.stamp_ns``, ns): ``orientation`` (3, 3) camera -> world and ``position``
-            (3,) m as estimated, ``angular_velocity`` (3,) rad/s and ``linear_velocity`` (3,)
-            m/s fused (camera frame).
-        pose_covariance: (6, 6) of the estimated pose (ROS order, world frame).
-        twist_covariance: (6, 6) of the fused twist (ROS order, camera frame).
-        tag: the frame's :attr:`SequenceFrame.tag`.
-        state: the tracker's fused state itself (the smoothed pose too, and the 12x12
-            covariance of pose and twist).
-        own_twist: the filter did not fuse the frame's own measurement (its innovation gate
-            refused it, or it was unusable): its state there is a prediction that the frame's
-            data do not support, so the twist is the frame's own (as ``twist_single_frame``),
-            with the estimate's covariance. A global-shutter estimate (no twist of its own)
-            keeps the prediction.
-    """
-
-    tag: Any = None
-    state: FusedState | None = None
-    own_twist: bool = False
-
-    @classmethod
-    def of(cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None) -> FusedPose:
-        """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
-        :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-        :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
-        at the fused state's stamp; the estimate's own twist and covariance where the filter
-        did not fuse the frame (:attr:`own_twist`)."""
-        est, stamp = estimate.pose, fused.pose.stamp_ns
-        if not fused.fused and estimate.twist_covariance is not None:
-            return cls(
-                pose=est.with_twist(est.angular_velocity, est.linear_velocity, stamp),
-                pose_covariance=estimate.pose_covariance,
-                twist_covariance=estimate.twist_covariance,
-                tag=tag,
-                state=fused,
-                own_twist=True,
-            )
-        return cls(
-            pose=est.with_twist(fused.pose.angular_velocity, fused.pose.linear_velocity, stamp),
-            pose_covariance=estimate.pose_covariance,
-            twist_covariance=fused.twist_covariance,
-            tag=tag,
-            state=fused,
-        )
-
-
 @dataclass
 class SequenceOutput:
     """What became of a frame in :meth:`SequenceLocalizer.process`.
@@ -348,7 +273,7 @@ def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
     return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
-class SequenceLocalizer(GyroReadouts):
+class SequenceLocalizer(VideoLocalizer):
     """A camera's video state (see the module docstring).
 
     Args:
@@ -400,24 +325,21 @@ class SequenceLocalizer(GyroReadouts):
         self.settings = SequenceSettings()
         # the time-reset policy (tracking/clock.py): any step back, or a jump ahead
         self._clock = VideoClock()
-        # the tracker, what it was made for, the frames waiting for their fused twist
-        # (reference stamp -> (estimate, tag)), the lock between process() and flush_idle(),
-        # counters of the trackers dropped so far
+        # the frames waiting for their fused twist (reference stamp -> (estimate, tag)) and
+        # the lock between process() and flush_idle() (tracking/localizer.py); the tracker,
+        # what it was made for, counters of the trackers dropped so far
+        self._init_video()
         self._tracker: RSTracker | None = None
         self._tracker_key = None
         self._tracker_camera = None
-        self._pending: dict[int, tuple] = {}
-        self._lock = threading.RLock()
-        self._last_frame_wall: float | None = None
         self._track_counts: Counter = Counter()
         # the gyro: its samples, bias, mount check and counters
         self.gyro_input = GyroInput(self._count, self.log, stopped=stopped, span=imu_span)
-        self._frontend: VideoFrontend | None = None
-        self._last_image: tuple | None = None  # (image_sample of the previous image)
+        # the front end and the fingerprint of the previous image (tracking/localizer.py)
+        self._camera_frontend = CameraFrontend(self.log, frontend_name)
         self._track_over = False  # (a frozen image: the next frame starts a new track)
         # the last solved frame carried at its own twist: the prediction without a tracker
         self._carried = CarriedPrediction()
-        self.frontend_name = frontend_name
         self.configure(settings or SequenceSettings())
         self.set_frontend(frontend, frontend_name)
 
@@ -457,13 +379,8 @@ class SequenceLocalizer(GyroReadouts):
             "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
             "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
             "resets": tc["resets"] + (t.resets if t else 0),
-            "twists_own_frame": tc["twists_own_frame"],
+            "twists_own_frame": self._twists.own_twists,
         }
-
-    @property
-    def pending(self) -> int:
-        """Frames whose fused twist is not final yet."""
-        return len(self._pending)
 
     # ---------------------------------------------------------------- gyro
     def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
@@ -540,7 +457,16 @@ class SequenceLocalizer(GyroReadouts):
     @property
     def frontend(self) -> VideoFrontend | None:
         """The image front end of :meth:`process_image` (None: none)."""
-        return self._frontend
+        return self._camera_frontend.frontend
+
+    @property
+    def frontend_name(self) -> str:
+        """The front end's name in warnings and errors (e.g. ``aruco``)."""
+        return self._camera_frontend.label
+
+    @frontend_name.setter
+    def frontend_name(self, name: str) -> None:
+        self._camera_frontend.label = name
 
     def set_frontend(self, frontend: Any, name: str | None = None) -> None:
         """Use ``frontend`` for the images from the next one on (None: none): a
@@ -552,9 +478,7 @@ class SequenceLocalizer(GyroReadouts):
         Raises:
             TypeError: an object without ``process``.
         """
-        self._frontend = None if frontend is None else video_frontend(frontend)
-        if name is not None:
-            self.frontend_name = name
+        self._camera_frontend.set(frontend, name)
 
     def valid_rows(
         self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
@@ -563,12 +487,9 @@ class SequenceLocalizer(GyroReadouts):
         those holding a NaN or inf (counted as ``points_dropped``; before the cap, so that the
         cap keeps valid rows), then capped to ``max_points`` (counted as ``capped_clouds``,
         ``capped_points``; :func:`~rs_localizer.estimation.points.cap_points`)."""
-        good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
-        n_bad = len(uv) - int(np.count_nonzero(good))
+        uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
         if n_bad:
             self._count("points_dropped", n_bad)
-            uv, xyz = uv[good], xyz[good]
-            scores = None if scores is None else scores[good]
         cap = self.settings.max_points
         if cap is not None and len(uv) > cap:
             self._count("capped_clouds", 1)
@@ -614,19 +535,14 @@ class SequenceLocalizer(GyroReadouts):
         """
         t = self.frame_time(stamp_ns, camera)
         stamp = t.stamp_ns
-        fe, name = self._frontend, self.frontend_name
-        if fe is None:
+        fe = self._camera_frontend
+        name = fe.label
+        if fe.frontend is None:
             raise ValueError("process_image needs a front end (set_frontend)")
         reset = self._check_time(stamp)
         s = self.settings
         out = SequenceOutput(stamp_ns=t.reference_ns)
-        sample = image_sample(image)
-        prev, self._last_image = self._last_image, sample
-        diff = (
-            None
-            if reset or s.frozen_image_level < 0
-            else same_image(prev, sample, s.frozen_image_level)
-        )
+        diff = fe.frozen(image, s.frozen_image_level, check=not reset)
         if diff is not None:
             out.failure = FRONTEND_FAILURES[2]
             out.detail = (
@@ -634,27 +550,19 @@ class SequenceLocalizer(GyroReadouts):
                 "over one pixel in 64): a driver re-sending its last frame or a stalled "
                 "camera; the next new image is searched whole"
             )
-            try:  # (the tracks are stale: the next new image is a global one)
-                fe.observe(stamp, None, None)
-            except Exception as e:
-                self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
+            fe.observe(stamp, None, None)  # (the tracks are stale: searched whole next)
             # (the camera moved on unseen: the next new image starts a new track)
             self._track_over = True
             return out
         prediction = self._predict(t.reference_ns, camera)
         t0 = time.perf_counter()
         try:
-            found = Correspondences.of(
-                fe.process(image, camera, encoding=encoding, prediction=prediction)
-            )
+            found = fe.search(image, camera, encoding, prediction)
         except Exception as e:
             out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"
             return out
         out.frontend_seconds = time.perf_counter() - t0
         out.correspondences = found
-        text = fe.pop_warning()
-        if text:
-            self.log.warning(f"{name}.warning", text)
         uv, xyz, scores = found.points2d, found.points, found.valid_scores()
         need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
         if len(uv) < need and not coplanar_points(xyz):  # (one marker's: the estimator's)
@@ -664,10 +572,7 @@ class SequenceLocalizer(GyroReadouts):
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
         res = self._process(SequenceFrame(stamp, camera, uv, xyz, scores, tag), t)
-        try:
-            fe.observe(stamp, uv, frame_feedback(res.estimate))
-        except Exception as e:
-            self.log.warning("frontend_error", f"{name}.observe: {type(e).__name__}: {e}")
+        fe.observe(stamp, uv, frame_feedback(res.estimate))
         res.correspondences, res.frontend_seconds = found, out.frontend_seconds
         res.points2d, res.points3d = uv, xyz
         return res
@@ -748,24 +653,26 @@ class SequenceLocalizer(GyroReadouts):
         out.gyro_seconds = time.perf_counter() - t0
         uv, xyz, scores = frame.points2d, frame.points3d, frame.scores
         with self._lock:
-            final = []
+            # (ended: the frames of a track ended here, final; final: the tracker's states
+            # final now)
+            ended, final = [], []
             try:
                 if s.tracking is not None:
                     if self._track_over and self._tracker is not None:
                         # (after a frozen image: the track's pending twists are final, the
                         # frame starts a new track, as after a gap)
-                        final = self._end_track(flush=True)
+                        ended = self._end_track(keep=True)
                         self._track_counts["resets"] += 1
                     old = self._tracker
                     tracker, more = self._tracker_for(camera)
-                    final = final + more
+                    ended = ended + more
                     r = tracker.process(
                         ref, uv, xyz, camera, scores, gyro=gyro, implementation=impl
                     )
                     est, out.path = r.estimate, r.state
                     new_track = tracker is not old or r.state in ("cold", "reset")
-                    final = final + r.final
-                    self._last_frame_wall = time.monotonic()
+                    final = r.final
+                    self._twists.note_frame()
                 else:
                     self._end_track()
                     new_track = False
@@ -780,7 +687,7 @@ class SequenceLocalizer(GyroReadouts):
                         implementation=impl,
                     )
             except Exception as e:
-                out.fused = self._fused(final)
+                out.fused = ended + self._fused(final)
                 out.error = f"{type(e).__name__}: {e}"
                 out.estimate = None
                 return out
@@ -798,7 +705,7 @@ class SequenceLocalizer(GyroReadouts):
                 self._count("frames_with_gyro", 1)
             self._update_gyro_checks(est, ref, new_track)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
-                out.fused = self._fused(final)
+                out.fused = ended + self._fused(final)
                 return out
             # (global-shutter solver or timing: no twist to fuse; the frame's own twist is
             # final)
@@ -808,37 +715,41 @@ class SequenceLocalizer(GyroReadouts):
                 or camera.seconds_per_unit_r <= 0
             )
             if not out.twist_now:  # (its fused twist comes when final)
-                self._pending[ref] = (est, frame.tag)
-                out.fused = self._fused(final)
+                self._twists.hold(ref, est, frame.tag)
+            # (also with the frame's own twist final: an earlier track's, e.g. before the
+            # solver became a global-shutter one)
+            out.fused = ended + self._fused(final)
         return out
 
-    def _tracker_for(self, camera: CameraModel) -> tuple[RSTracker, list]:
+    def _tracker_for(self, camera: CameraModel) -> tuple[RSTracker, list[FusedPose]]:
         """The tracker for this camera and configuration: a new one when the solver, the
         estimator or tracking options or the camera model changed (the old track's pending
-        twists are returned, final). Returns (tracker, final fused states)."""
+        twists are returned, final). Returns (tracker, the old track's frames, final)."""
         s = self.settings
         key = (s.solver, s.options, s.tracking, id(camera))
         final = []
         if self._tracker is None or key != self._tracker_key:
             if self._tracker is not None:
-                final = self._end_track(flush=True)
+                final = self._end_track(keep=True)
                 self._track_counts["resets"] += 1
             self._tracker = RSTracker(s.solver, s.options, s.tracking)
             self._tracker_key = key
             self._tracker_camera = camera  # (keeps id(camera) unique while in use)
         return self._tracker, final
 
-    def _end_track(self, flush: bool = False) -> list:
-        """Forget the tracker (its counters are kept); returns its pending fused states when
-        ``flush``, else drops them with the frames waiting for them."""
+    def _twist_source(self) -> RSTracker | None:
+        """The tracker (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
+        return self._tracker
+
+    def _forget_track(self, keep: bool) -> list:
+        """Forget the tracker (its counters are kept); returns its fused states not yet final
+        when ``keep``."""
         final = []
         t = self._tracker
         if t is not None:
             self._track_counts.update(t.track_counts())  # (added)
-            final = t.reset() if flush else []
+            final = t.reset() if keep else []
         self._tracker = self._tracker_key = None
-        if not flush:
-            self._pending.clear()
         return final
 
     def end_track(self) -> None:
@@ -847,48 +758,6 @@ class SequenceLocalizer(GyroReadouts):
         with self._lock:
             self._end_track()
             self._carried.reset()
-
-    def _fused(self, final: list) -> list[FusedPose]:
-        """The frames whose fused state is final: their pose with the fused twist."""
-        out = []
-        for f in final:
-            item = self._pending.pop(f.pose.stamp_ns, None)
-            if item is None:
-                continue
-            est, tag = item
-            out.append(FusedPose.of(est, f, tag))
-            self._track_counts["twists_own_frame"] += out[-1].own_twist
-        if len(self._pending) > MAX_PENDING:  # (never left behind for long: drop the oldest)
-            for k in sorted(self._pending)[:-MAX_PENDING]:
-                del self._pending[k]
-        return out
-
-    def flush(self) -> list[FusedPose]:
-        """The end of the video: the twists still pending, as they are now (the track goes
-        on)."""
-        with self._lock:
-            if self._tracker is None or not self._pending:
-                return []
-            return self._fused(self._tracker.flush())
-
-    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
-        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
-        without frames the track is over (the next frame resets it): the twists still pending,
-        now final."""
-        tracking = self.settings.tracking
-        if self._tracker is None or tracking is None:
-            return []
-        with self._lock:
-            last = self._last_frame_wall
-            now = time.monotonic() if now is None else now
-            if (
-                self._tracker is None
-                or last is None
-                or not self._pending
-                or now - last < tracking.max_gap
-            ):
-                return []
-            return self._fused(self._tracker.flush())
 
     def reset(self) -> None:
         """Forget the video (the configuration stays): the track and the twists pending, the
@@ -899,5 +768,5 @@ class SequenceLocalizer(GyroReadouts):
             self._restart_gyro(None)
             self._carried.reset()
             self._clock.reset()
-            self._last_image = None
+            self._camera_frontend.last_sample = None
             self._track_over = False

@@ -78,6 +78,28 @@ def test_without_tracking_each_frame_is_final(video):
     assert seq.tracking_values()["track_state"] == "disabled"
 
 
+def test_a_switch_to_a_global_shutter_solver_releases_the_pending_twists(video):
+    # the frames of a rolling-shutter track waiting for their fused twist go out with the
+    # first frame of the new configuration, also when its own twist is final at once (a
+    # global-shutter solver: nothing fused from then on)
+    frames, cam = video
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS))
+    fused = []
+    for f in frames[:5]:
+        fused += seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index)).fused
+    assert seq.pending > 0
+    seq.configure(SequenceSettings(solver="p3p", options=OPTS))
+    f = frames[5]
+    out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
+    assert out.estimate.success and out.twist_now
+    fused += out.fused
+    assert [x.tag for x in fused] == [g.index for g in frames[:5]]
+    assert seq.pending == 0
+    for x in fused:  # (their fused twists, near the truth)
+        truth = frames[x.tag]
+        assert np.linalg.norm(x.pose.angular_velocity - truth.angular_velocity) < 0.3
+
+
 def test_a_time_reset_starts_the_gyro_timeline_again(video):
     frames, _ = video
     seq = SequenceLocalizer(

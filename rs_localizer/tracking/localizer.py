@@ -1,0 +1,365 @@
+"""One localizer of one or many cameras: what a camera's video and a rig's video share.
+
+:class:`VideoLocalizer` is the base of :class:`~rs_localizer.tracking.sequence.SequenceLocalizer`
+(one camera: its frames are the "body") and :class:`~rs_localizer.tracking.rig.RigLocalizer` (a
+rig: its rig frames are the body, orientation rig -> world, velocities in the rig frame). Both
+run this code for:
+
+- the frames waiting for their fused twist (:class:`PendingTwists`): a posed frame's pose is
+  out at once, its twist is final only when the fixed-lag smoother
+  (:class:`~rs_localizer.tracking.fusion.TwistFilter`, inside the camera's
+  :class:`~rs_localizer.tracking.tracker.RSTracker` or the rig's own) releases its state;
+  :meth:`VideoLocalizer.flush` (the end of a video), :meth:`VideoLocalizer.flush_idle` (no
+  frame for ``tracking.max_gap`` s, wall clock), :meth:`VideoLocalizer.end_track` (the twists
+  still pending dropped) hand them out as :class:`FusedPose`;
+- each camera's image front end (:class:`CameraFrontend`): the frozen-image check
+  (:func:`same_image`), the search with the prediction (``process``), its one-time warning, the
+  feedback of how the frame was solved (``observe``), and the rows the estimator can use
+  (:func:`finite_rows`);
+- the prediction a camera's front end searches with (:meth:`VideoLocalizer.predict_model`):
+  the track's prediction of the body at the frame's reference time, else (no tracking) the
+  last posed frame carried at its own twist, in the camera through its mounting (none for a
+  single camera).
+
+Only a rig groups its cameras' frames into rig frames, weighs their disagreement and maps
+the body's pose through each camera's mounting (:mod:`rs_localizer.tracking.rig`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..correspondences import Correspondences, VideoFrontend, video_frontend
+from ..pose import PoseMeasurement, PoseWithCovariance
+from .fusion import FusedState
+from .gyro_input import GyroReadouts, SilentLog, TrackLog
+
+__all__ = [
+    "FROZEN_IMAGE_LEVEL",
+    "MAX_PENDING",
+    "CameraFrontend",
+    "FusedPose",
+    "PendingTwists",
+    "VideoLocalizer",
+    "finite_rows",
+    "image_sample",
+    "same_image",
+]
+
+#: frames whose fused twist may wait at most (the oldest beyond are dropped)
+MAX_PENDING = 64
+#: a frozen image: the mean absolute difference (gray levels) of the two images' pixel
+#: samples (:func:`image_sample`) at most this; a camera's own noise alone gives more
+FROZEN_IMAGE_LEVEL = 0.25
+
+
+def image_sample(image: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """A cheap fingerprint of an image (H, W) or (H, W, C) uint8: ``(one pixel in 8 x 8, every
+    channel, as int16 (K,), the image's shape)`` (images of different shapes never compare
+    equal). About 1/64 of the image is read."""
+    a = np.asarray(image)
+    if a.ndim < 2:
+        return np.zeros(0, np.int16), a.shape
+    return a[::8, ::8].astype(np.int16).ravel(), a.shape
+
+
+def same_image(prev: tuple | None, cur: tuple, level: float = FROZEN_IMAGE_LEVEL) -> float | None:
+    """The mean absolute difference (gray levels) of two :func:`image_sample` fingerprints
+    when it is at most ``level`` (the same picture: a driver re-sending its last frame, a
+    stalled camera, a frozen stream), else None: also for images of different shapes, and
+    for an image without content (its sample's standard deviation under 2 gray levels: a
+    black or uniform image, which gives no correspondences anyway)."""
+    if prev is None or prev[1] != cur[1] or len(prev[0]) != len(cur[0]) or len(cur[0]) == 0:
+        return None
+    d = float(np.mean(np.abs(prev[0] - cur[0])))
+    if not d <= level:  # (a new picture, every frame of a moving camera: no spread needed)
+        return None
+    return None if float(np.std(cur[0])) < 2.0 else d
+
+
+def finite_rows(
+    uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, int]:
+    """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without those
+    holding a NaN or inf: ``(uv, xyz, scores, the number of rows dropped)`` (the arrays given
+    back as they are when none is)."""
+    good = np.isfinite(uv).all(axis=1) & np.isfinite(xyz).all(axis=1)
+    n_bad = len(uv) - int(np.count_nonzero(good))
+    if n_bad:
+        uv, xyz = uv[good], xyz[good]
+        scores = None if scores is None else scores[good]
+    return uv, xyz, scores, n_bad
+
+
+@dataclass(frozen=True)
+class FusedPose(PoseWithCovariance):
+    """A frame's pose as estimated with its fused twist: what the node's twist and odom carry
+    (a :class:`~rs_localizer.pose.PoseWithCovariance`; keyword arguments). A rig's fused rig
+    frame is one too, in the rig frame.
+
+    Attributes:
+        pose: a :class:`~rs_localizer.pose.RSPose` at the frame's reference time
+            (``pose.stamp_ns``, ns): ``orientation`` (3, 3) camera -> world and ``position``
+            (3,) m as estimated, ``angular_velocity`` (3,) rad/s and ``linear_velocity`` (3,)
+            m/s fused (camera frame).
+        pose_covariance: (6, 6) of the estimated pose (ROS order, world frame).
+        twist_covariance: (6, 6) of the fused twist (ROS order, camera frame).
+        tag: the frame's tag (:attr:`~rs_localizer.tracking.sequence.SequenceFrame.tag`; a
+            rig frame's: camera -> its frame's tag).
+        state: the tracker's fused state itself (the smoothed pose too, and the 12x12
+            covariance of pose and twist).
+        own_twist: the filter did not fuse the frame's own measurement (its innovation gate
+            refused it, or it was unusable): its state there is a prediction that the frame's
+            data do not support, so the twist is the frame's own (as ``twist_single_frame``),
+            with the estimate's covariance. A global-shutter estimate (no twist of its own)
+            keeps the prediction.
+    """
+
+    tag: Any = None
+    state: FusedState | None = None
+    own_twist: bool = False
+
+    @classmethod
+    def of(cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None) -> FusedPose:
+        """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
+        :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+        :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
+        at the fused state's stamp; the estimate's own twist and covariance where the filter
+        did not fuse the frame (:attr:`own_twist`)."""
+        est, stamp = estimate.pose, fused.pose.stamp_ns
+        if not fused.fused and estimate.twist_covariance is not None:
+            return cls(
+                pose=est.with_twist(est.angular_velocity, est.linear_velocity, stamp),
+                pose_covariance=estimate.pose_covariance,
+                twist_covariance=estimate.twist_covariance,
+                tag=tag,
+                state=fused,
+                own_twist=True,
+            )
+        return cls(
+            pose=est.with_twist(fused.pose.angular_velocity, fused.pose.linear_velocity, stamp),
+            pose_covariance=estimate.pose_covariance,
+            twist_covariance=fused.twist_covariance,
+            tag=tag,
+            state=fused,
+        )
+
+
+class PendingTwists:
+    """The posed frames whose fused twist is not final yet: frame time (ns, the time the
+    twist filter was given) -> (estimate, tag), released as :class:`FusedPose` when the filter
+    hands out their final state.
+
+    Args:
+        limit: frames held at most (the oldest beyond are dropped).
+
+    Attributes:
+        own_twists: released frames whose twist is their own (:attr:`FusedPose.own_twist`),
+            over the queue's life. last_wall: ``time.monotonic()`` s of the last frame noted
+            (:meth:`note_frame`), None before one.
+    """
+
+    def __init__(self, limit: int = MAX_PENDING):
+        self.limit = int(limit)
+        self._items: dict[int, tuple] = {}
+        self.own_twists = 0
+        self.last_wall: float | None = None
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def hold(self, stamp_ns: int, estimate: PoseMeasurement, tag: Any = None) -> None:
+        """Hold a posed frame (``stamp_ns``: its time in the twist filter) until its fused
+        state is final."""
+        self._items[stamp_ns] = (estimate, tag)
+
+    def release(self, final: list) -> list[FusedPose]:
+        """The frames of the final fused states ``final`` (oldest first), each its estimate's
+        pose with the fused twist (:meth:`FusedPose.of`); states of frames not held are
+        skipped. Then the oldest frames beyond ``limit`` are dropped (never left behind for
+        long)."""
+        out = []
+        for f in final:
+            item = self._items.pop(f.pose.stamp_ns, None)
+            if item is None:
+                continue
+            out.append(FusedPose.of(item[0], f, item[1]))
+            self.own_twists += out[-1].own_twist
+        if len(self._items) > self.limit:
+            for k in sorted(self._items)[: -self.limit]:
+                del self._items[k]
+        return out
+
+    def clear(self) -> None:
+        """Drop every frame held (their track is over)."""
+        self._items.clear()
+
+    def note_frame(self, now: float | None = None) -> None:
+        """A frame came (``now``: ``time.monotonic()`` s, None: now)."""
+        self.last_wall = time.monotonic() if now is None else now
+
+    def idle(self, max_gap: float, now: float | None = None) -> bool:
+        """Frames are held and none came for ``max_gap`` s (wall clock, ``time.monotonic``;
+        ``now`` to override): the video has stopped."""
+        last = self.last_wall
+        if last is None or not self._items:
+            return False
+        return (time.monotonic() if now is None else now) - last >= max_gap
+
+
+class CameraFrontend:
+    """One camera's image front end as a video drives it (:meth:`~rs_localizer.tracking.
+    sequence.SequenceLocalizer.process_image`, :meth:`~rs_localizer.tracking.rig.RigLocalizer.
+    process_image`): the calls of :class:`~rs_localizer.correspondences.VideoFrontend`, its
+    warnings logged, and the fingerprint of the camera's last image (kept when the front end
+    is replaced).
+
+    Args:
+        log: the :class:`~rs_localizer.tracking.gyro_input.TrackLog` of its warnings (None:
+            silent). label: its name in warnings and errors (e.g. ``aruco``).
+
+    Attributes:
+        frontend: the :class:`~rs_localizer.correspondences.VideoFrontend`, None: none.
+        last_sample: the :func:`image_sample` of the camera's last image, None before one.
+    """
+
+    def __init__(self, log: TrackLog | None = None, label: str = "frontend"):
+        self.log: TrackLog = log if log is not None else SilentLog()
+        self.label = label
+        self.frontend: VideoFrontend | None = None
+        self.last_sample: tuple | None = None
+
+    def set(self, frontend: Any, label: str | None = None) -> None:
+        """Use ``frontend`` (None: none): a :class:`~rs_localizer.correspondences.VideoFrontend`
+        as it is, a per-image :class:`~rs_localizer.correspondences.Frontend` wrapped
+        (:func:`~rs_localizer.correspondences.video_frontend`); ``label``: its name (None:
+        unchanged).
+
+        Raises:
+            TypeError: an object without ``process``.
+        """
+        self.frontend = None if frontend is None else video_frontend(frontend)
+        if label is not None:
+            self.label = label
+
+    def frozen(self, image: np.ndarray, level: float, check: bool = True) -> float | None:
+        """Note the camera's image (H, W) or (H, W, C) uint8; the mean absolute difference
+        (gray levels) from its last image when it is the same picture again
+        (:func:`same_image` within ``level``), else None (also when not ``check`` or
+        ``level`` < 0: never)."""
+        sample = image_sample(image)
+        prev, self.last_sample = self.last_sample, sample
+        if not check or level < 0:
+            return None
+        return same_image(prev, sample, level)
+
+    def search(
+        self, image: np.ndarray, camera: CameraModel, encoding: str, prediction: Any
+    ) -> Correspondences:
+        """The front end's correspondences of the image (``process(image, camera, encoding,
+        prediction)``; ``prediction``: the frame's predicted
+        :class:`~rs_localizer.pose.RSModel` in this camera, or None); its one-time warning
+        logged (``<label>.warning``).
+
+        Raises:
+            whatever the front end raises.
+        """
+        fe = self.frontend
+        found = Correspondences.of(
+            fe.process(image, camera, encoding=encoding, prediction=prediction)
+        )
+        text = fe.pop_warning()
+        if text:
+            self.log.warning(f"{self.label}.warning", text)
+        return found
+
+    def observe(self, stamp_ns: int, points2d: np.ndarray | None, feedback: Any) -> None:
+        """Tell the front end how its frame stamped ``stamp_ns`` was solved (``observe``;
+        ``points2d`` (M, 2) the rows given to the estimator and ``feedback`` a
+        :class:`~rs_localizer.correspondences.FrameFeedback`, or None and None: the frame
+        was not solved, its next image is searched whole). An error there is logged
+        (``frontend_error``); the video goes on."""
+        try:
+            self.frontend.observe(stamp_ns, points2d, feedback)
+        except Exception as e:
+            self.log.warning("frontend_error", f"{self.label}.observe: {type(e).__name__}: {e}")
+
+
+class VideoLocalizer(GyroReadouts):
+    """The video state a camera and a rig share (module docstring). A subclass sets up
+    :meth:`_init_video` and says where its track's fused states come from
+    (:meth:`_twist_source`) and how its track ends (:meth:`_forget_track`); its ``settings``
+    have ``tracking`` (None: no tracking) with ``max_gap`` (s).
+
+    Threads: :meth:`flush`, :meth:`flush_idle` and :meth:`end_track` take the localizer's lock
+    (the one its frames are processed under, where the subclass takes it).
+    """
+
+    settings: Any
+    _twists: PendingTwists
+    _lock: threading.RLock
+
+    def _init_video(self) -> None:
+        """The shared state: the pending twists and the lock."""
+        self._twists = PendingTwists()
+        self._lock = threading.RLock()
+
+    # ---------------------------------------------------------------- the subclass's track
+    def _twist_source(self) -> Any:
+        """The object whose ``flush()`` gives the fused states not yet final (oldest first;
+        the track goes on): the camera's tracker, the rig's twist filter; None without a
+        track."""
+        raise NotImplementedError
+
+    def _forget_track(self, keep: bool) -> list:
+        """End the track (the next frame starts a new one); returns its fused states not yet
+        final when ``keep``, else []."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- pending twists
+    @property
+    def pending(self) -> int:
+        """Frames whose fused twist is not final yet."""
+        return len(self._twists)
+
+    def _fused(self, final: list) -> list[FusedPose]:
+        """The frames whose fused state is final: their pose with the fused twist
+        (:meth:`PendingTwists.release`)."""
+        return self._twists.release(final)
+
+    def _end_track(self, keep: bool = False) -> list[FusedPose]:
+        """End the track: its frames still pending released with their fused twists as they
+        are now when ``keep``, else dropped."""
+        final = self._forget_track(keep)
+        out = self._fused(final) if keep else []
+        self._twists.clear()
+        return out
+
+    def flush(self) -> list[FusedPose]:
+        """The end of the video: the twists still pending, as they are now (the track goes
+        on)."""
+        with self._lock:
+            src = self._twist_source()
+            if src is None or not self._twists:
+                return []
+            return self._fused(src.flush())
+
+    def flush_idle(self, now: float | None = None) -> list[FusedPose]:
+        """After ``tracking.max_gap`` s (wall clock, ``time.monotonic``; ``now`` to override)
+        without frames the track is over (the next frame more than ``max_gap`` later resets
+        it): the twists still pending, final now. Empty without tracking, with nothing
+        pending, or before that time."""
+        tracking = self.settings.tracking
+        if tracking is None or self._twist_source() is None:
+            return []
+        with self._lock:
+            src = self._twist_source()
+            if src is None or not self._twists.idle(tracking.max_gap, now):
+                return []
+            return self._fused(src.flush())
