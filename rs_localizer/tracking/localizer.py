@@ -16,10 +16,11 @@ run this code for:
   (:func:`same_image`), the search with the prediction (``process``), its one-time warning, the
   feedback of how the frame was solved (``observe``), and the rows the estimator can use
   (:func:`finite_rows`);
-- the prediction a camera's front end searches with (:meth:`VideoLocalizer.predict_model`):
-  the track's prediction of the body at the frame's reference time, else (no tracking) the
-  last posed frame carried at its own twist, in the camera through its mounting (none for a
-  single camera).
+- the prediction a camera's front end searches with (:meth:`VideoLocalizer._predict`): the
+  track's prediction of the body at the frame's reference time while the track predicts,
+  else the last posed frame carried at its own twist
+  (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`), either seen by the camera (a
+  rig's through the camera's mounting).
 
 Only a rig groups its cameras' frames into rig frames, weighs their disagreement and maps
 the body's pose through each camera's mounting (:mod:`rs_localizer.tracking.rig`).
@@ -36,9 +37,10 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences, VideoFrontend, video_frontend
-from ..pose import PoseMeasurement, PoseWithCovariance
+from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from .fusion import FusedState
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
+from .tracker import CarriedPrediction
 
 __all__ = [
     "FROZEN_IMAGE_LEVEL",
@@ -304,11 +306,13 @@ class VideoLocalizer(GyroReadouts):
     settings: Any
     _twists: PendingTwists
     _lock: threading.RLock
+    _carried: CarriedPrediction
 
     def _init_video(self) -> None:
-        """The shared state: the pending twists and the lock."""
+        """The shared state: the pending twists, the lock, the last posed frame carried."""
         self._twists = PendingTwists()
         self._lock = threading.RLock()
+        self._carried = CarriedPrediction()
 
     # ---------------------------------------------------------------- the subclass's track
     def _twist_source(self) -> Any:
@@ -321,6 +325,42 @@ class VideoLocalizer(GyroReadouts):
         """End the track (the next frame starts a new one); returns its fused states not yet
         final when ``keep``, else []."""
         raise NotImplementedError
+
+    def _tracked_prediction(
+        self, ref: int, camera: CameraModel, view: Any
+    ) -> tuple[bool, FusedState | None]:
+        """``(decided, state)``: whether the track decides the prediction of a frame at
+        reference time ``ref`` (ns) seen by ``camera`` (``view``: which), and its predicted
+        state of the body there (None: the frame is not predicted, it starts a new track).
+        Not decided: the last posed frame carried predicts it."""
+        raise NotImplementedError
+
+    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: Any) -> RSModel:
+        """The model seen by ``camera`` (``view``: which of the body's cameras) of the
+        track's predicted body state."""
+        raise NotImplementedError
+
+    def _carried_in_camera(
+        self, model: RSModel, dt: float, camera: CameraModel, view: Any
+    ) -> RSModel:
+        """The model seen by ``camera`` (``view``: which) of the last posed frame's ``model``
+        carried ``dt`` s later at its own twist."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- prediction
+    def _predict(self, ref: int, camera: CameraModel, view: Any = None) -> RSModel | None:
+        """The prediction of a frame at reference time ``ref`` (ns) seen by ``camera``
+        (``view``: which of the body's cameras, None for a single camera): its model
+        (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at the camera's reference row,
+        ``w``, ``t`` per unit RS coordinate), what its front end searches with. The track's
+        prediction while the track decides (:meth:`_tracked_prediction`), else the last posed
+        frame carried at its own twist; None when nothing predicts the frame."""
+        with self._lock:
+            decided, state = self._tracked_prediction(ref, camera, view)
+            if decided:
+                return None if state is None else self._state_in_camera(state, camera, view)
+            c = self._carried.carried(ref)
+            return None if c is None else self._carried_in_camera(c[0], c[1], camera, view)
 
     # ---------------------------------------------------------------- pending twists
     @property
@@ -340,6 +380,13 @@ class VideoLocalizer(GyroReadouts):
         out = self._fused(final) if keep else []
         self._twists.clear()
         return out
+
+    def end_track(self) -> None:
+        """End the track (e.g. the node is deactivated): the twists still pending are dropped;
+        the next frame starts a new track and is not predicted. The gyro state is kept."""
+        with self._lock:
+            self._end_track()
+            self._carried.reset()
 
     def flush(self) -> list[FusedPose]:
         """The end of the video: the twists still pending, as they are now (the track goes

@@ -523,12 +523,11 @@ class _ImageInput:
     """The image input's state (:meth:`RigLocalizer.process_image`): per camera its front end
     (:class:`~rs_localizer.tracking.localizer.CameraFrontend`: the front end, its label, its
     last image's fingerprint), the frames waiting for their rig frame (``(camera, reference
-    time)`` -> ``(stamp, pixels, camera model)``), and the last rig pose ``(stamp, model)``."""
+    time)`` -> ``(stamp, pixels, camera model)``)."""
 
     def __init__(self):
         self.frontends: dict[str, CameraFrontend] = {}
         self.waiting: dict = {}
-        self.last: tuple | None = None
 
 
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
@@ -588,6 +587,7 @@ class RigLocalizer(VideoLocalizer):
         # (the rig frames waiting for their fused twist, their last camera frame's wall time;
         # tracking/localizer.py)
         self._init_video()
+        self._carried.max_gap = settings.max_gap  # (without tracking: the default, 0.5 s)
         self._inlier_ratio: float | None = None
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
         self._make_filter()
@@ -899,7 +899,7 @@ class RigLocalizer(VideoLocalizer):
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         ref = reference_stamp_ns(checked_stamp(stamp_ns), camera, self.settings.stamp_row)
-        return self._predict_camera(cam, ref, camera)
+        return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
         """The twist filter's steps for a rig frame on ``impl`` (None: the default): plain
@@ -908,22 +908,33 @@ class RigLocalizer(VideoLocalizer):
         if self._filter is not None:
             self._filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
 
-    def _predict_camera(self, cam: _Camera, ref: int, camera: CameraModel) -> RSModel | None:
-        """:meth:`predict_camera` at the frame's reference time ``ref`` (ns)."""
-        spr = camera.seconds_per_unit_r
+    def _tracked_prediction(
+        self, ref: int, camera: CameraModel, view: _Camera
+    ) -> tuple[bool, FusedState | None]:
+        """With tracking the twist filter decides (:meth:`predict_camera`)."""
         f, to = self._filter, self.settings.tracking
-        if f is not None:
-            if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
-                return None
-            self._filter_kernels(None if self._implementation is None else self._implementation())
-            pred = f.predict(ref).pose
-            rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
-                            pred.linear_velocity)  # fmt: skip
-            return camera_model_of_rig(rig, cam.mount.R, cam.mount.c, 0.0, spr)
-        last = self._image_input().last
-        if last is None or not predictable(last[0], ref, RigTrackingOptions.max_gap):
-            return None
-        return camera_model_of_rig(last[1], cam.mount.R, cam.mount.c, (ref - last[0]) * 1e-9, spr)
+        if f is None:
+            return False, None
+        if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
+            return True, None
+        self._filter_kernels(None if self._implementation is None else self._implementation())
+        return True, f.predict(ref)
+
+    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: _Camera) -> RSModel:
+        """The camera's model of the rig's predicted state, through its mounting."""
+        pred = state.pose
+        rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
+                        pred.linear_velocity)  # fmt: skip
+        m = view.mount
+        return camera_model_of_rig(rig, m.R, m.c, 0.0, camera.seconds_per_unit_r)
+
+    def _carried_in_camera(
+        self, model: RSModel, dt: float, camera: CameraModel, view: _Camera
+    ) -> RSModel:
+        """The camera's model of the last posed rig frame carried ``dt`` s, through its
+        mounting."""
+        m = view.mount
+        return camera_model_of_rig(model, m.R, m.c, dt, camera.seconds_per_unit_r)
 
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
         """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
@@ -1014,7 +1025,7 @@ class RigLocalizer(VideoLocalizer):
             )
             fe.observe(stamp, None, None)  # (its tracks are stale: searched whole next)
             return self._observed(self._drop(name, stamp, ref, "frozen_image"))
-        prediction = self._predict_camera(self._cams[name], ref, camera)
+        prediction = self._predict(ref, camera, self._cams[name])
         try:
             found = fe.search(image, camera, encoding, prediction)
         except Exception as e:
@@ -1035,8 +1046,7 @@ class RigLocalizer(VideoLocalizer):
         img = self._image_input()
         for out in outs:
             est = out.estimate
-            if out.success:
-                img.last = (out.stamp_ns, est.model)
+            self._carried.update(out.stamp_ns, est)  # (posed: the prediction without tracking)
             for k, n in enumerate(out.cameras):
                 ref = out.stamp_ns + int(round(out.stamp_offsets.get(n, 0.0) * 1e9))
                 item = img.waiting.pop((n, ref), None)

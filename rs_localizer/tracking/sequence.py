@@ -84,6 +84,7 @@ from ..estimation.single_tag import coplanar_points
 from ..pose import RSModel
 from ..solvers.registry import solver_info
 from .clock import VideoClock
+from .fusion import FusedState
 from .gyro import readout_window
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
@@ -94,7 +95,7 @@ from .localizer import (
     VideoLocalizer,
     finite_rows,
 )
-from .tracker import CarriedPrediction, RSTracker, TrackerOptions, model_from_state
+from .tracker import RSTracker, TrackerOptions, carried_model, model_from_state
 
 __all__ = [
     "FRONTEND_FAILURES",
@@ -338,8 +339,6 @@ class SequenceLocalizer(VideoLocalizer):
         # the front end and the fingerprint of the previous image (tracking/localizer.py)
         self._camera_frontend = CameraFrontend(self.log, frontend_name)
         self._track_over = False  # (a frozen image: the next frame starts a new track)
-        # the last solved frame carried at its own twist: the prediction without a tracker
-        self._carried = CarriedPrediction()
         self.configure(settings or SequenceSettings())
         self.set_frontend(frontend, frontend_name)
 
@@ -600,21 +599,30 @@ class SequenceLocalizer(VideoLocalizer):
         """
         return self._predict(self.frame_time(stamp_ns, camera).reference_ns, camera)
 
-    def _predict(self, ref: int, camera: CameraModel) -> RSModel | None:
-        """:meth:`predict` at the frame's reference time ``ref`` (ns)."""
-        s = self.settings
-        with self._lock:
-            t = self._tracker
-            if self._track_over:  # (after a frozen image: searched whole, a new track)
-                return None
-            if (
-                t is not None
-                and t.filter.initialized
-                and self._tracker_key == (s.solver, s.options, s.tracking, id(camera))
-            ):
-                state = t.predict(ref, self._implementation(s.solver))
-                return None if state is None else model_from_state(state, camera)
-            return self._carried.predict(ref, camera)
+    def _tracked_prediction(
+        self, ref: int, camera: CameraModel, view: Any
+    ) -> tuple[bool, FusedState | None]:
+        """The tracker decides while it tracks with this camera and configuration
+        (:meth:`~rs_localizer.tracking.tracker.RSTracker.predict`); after a frozen image
+        nothing predicts the next frame (searched whole, a new track)."""
+        if self._track_over:
+            return True, None
+        s, t = self.settings, self._tracker
+        if (
+            t is not None
+            and t.filter.initialized
+            and self._tracker_key == (s.solver, s.options, s.tracking, id(camera))
+        ):
+            return True, t.predict(ref, self._implementation(s.solver))
+        return False, None
+
+    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: Any) -> RSModel:
+        return model_from_state(state, camera)
+
+    def _carried_in_camera(
+        self, model: RSModel, dt: float, camera: CameraModel, view: Any
+    ) -> RSModel:
+        return carried_model(model, dt, camera.seconds_per_unit_r)
 
     # ---------------------------------------------------------------- frames
     def process(self, frame: SequenceFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
@@ -751,13 +759,6 @@ class SequenceLocalizer(VideoLocalizer):
             final = t.reset() if keep else []
         self._tracker = self._tracker_key = None
         return final
-
-    def end_track(self) -> None:
-        """End the track (e.g. the node is deactivated): the twists still pending are dropped;
-        the next frame starts a new track. The gyro state is kept."""
-        with self._lock:
-            self._end_track()
-            self._carried.reset()
 
     def reset(self) -> None:
         """Forget the video (the configuration stays): the track and the twists pending, the

@@ -217,14 +217,21 @@ class CarriedPrediction:
         if estimate is not None and estimate.success:
             self.stamp_ns, self.model = int(stamp_ns), estimate.model
 
+    def carried(self, stamp_ns: int) -> tuple[RSModel, float] | None:
+        """The last solved frame's model as it was estimated and the time (s) from it to
+        ``stamp_ns`` (ns), for a caller that carries it itself (a rig's, through a camera's
+        mounting); None without a solved frame or when :func:`predictable` says the frame
+        starts a new track."""
+        if self.model is None or not predictable(self.stamp_ns, int(stamp_ns), self.max_gap):
+            return None
+        return self.model, (int(stamp_ns) - self.stamp_ns) * 1e-9
+
     def predict(self, stamp_ns: int, camera: CameraModel) -> RSModel | None:
         """The model (:class:`~rs_localizer.pose.RSModel`) of a frame at ``stamp_ns`` (ns)
         seen by ``camera``; None without a solved frame or when :func:`predictable` says
         the frame starts a new track."""
-        if self.model is None or not predictable(self.stamp_ns, int(stamp_ns), self.max_gap):
-            return None
-        dt = (int(stamp_ns) - self.stamp_ns) * 1e-9
-        return carried_model(self.model, dt, camera.seconds_per_unit_r)
+        c = self.carried(stamp_ns)
+        return None if c is None else carried_model(c[0], c[1], camera.seconds_per_unit_r)
 
 
 def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:

@@ -411,3 +411,26 @@ def test_cameras_not_connected_to_the_reference_are_missing():
     part = [f for f in part if not (f.camera_name == "left" and f.stamp_ns < T0 + 2 * 10**8)]
     assert sorted(calibrate_mountings(part, "left")) == ["back", "left", "right"]
     assert sorted(calibrate_mountings(part, "front")) == ["front"]
+
+
+def test_the_rig_and_one_camera_share_the_pending_twists_and_end_track(video):
+    # the rig's pending twists are the single camera's (tracking/localizer.py): pending, flush
+    # and end_track; after end_track the rig has no prediction for a camera's next frame
+    cams, frames, _ = video
+    by = {c.name: c.camera for c in cams}
+    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    cut = len(frames) // 2
+    for f in frames[:cut]:
+        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    assert rig.pending > 0
+    nxt = frames[cut]
+    assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is not None
+    rig.end_track()
+    assert rig.pending == 0 and rig.flush() == [] and rig.track_state == "lost"
+    assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is None
+    fused = []
+    for f in frames[cut:]:  # (a new track: its rig frames fused again)
+        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz)):
+            fused += o.fused
+    fused += rig.flush()
+    assert len(fused) > 0 and rig.pending == 0
