@@ -47,6 +47,7 @@ __all__ = [
     "MAX_PENDING",
     "CameraFrontend",
     "FusedPose",
+    "ImageSearch",
     "PendingTwists",
     "VideoLocalizer",
     "finite_rows",
@@ -293,6 +294,26 @@ class CameraFrontend:
             self.log.warning("frontend_error", f"{self.label}.observe: {type(e).__name__}: {e}")
 
 
+@dataclass
+class ImageSearch:
+    """What a camera's front end made of an image (:meth:`VideoLocalizer._search_image`).
+
+    Attributes:
+        failure: None (searched), ``frozen_image`` (the camera's last image again: not
+            searched) or ``frontend_error`` (the front end raised).
+        difference: gray levels, the mean absolute difference from the last image
+            (``frozen_image``). error: the front end's exception (``frontend_error``).
+        found: the front end's :class:`~rs_localizer.correspondences.Correspondences`
+            (searched). seconds: s spent in the front end's search.
+    """
+
+    failure: str | None = None
+    difference: float = 0.0
+    error: Exception | None = None
+    found: Correspondences | None = None
+    seconds: float = 0.0
+
+
 class VideoLocalizer(GyroReadouts):
     """The video state a camera and a rig share (module docstring). A subclass sets up
     :meth:`_init_video` and says where its track's fused states come from
@@ -380,6 +401,37 @@ class VideoLocalizer(GyroReadouts):
         out = self._fused(final) if keep else []
         self._twists.clear()
         return out
+
+    # ---------------------------------------------------------------- images
+    def _search_image(
+        self,
+        fe: CameraFrontend,
+        stamp_ns: int,
+        ref: int,
+        image: np.ndarray,
+        camera: CameraModel,
+        encoding: str,
+        *,
+        level: float = FROZEN_IMAGE_LEVEL,
+        check: bool = True,
+        view: Any = None,
+    ) -> ImageSearch:
+        """A camera's image through its front end ``fe``, before the estimator: the
+        frozen-image check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``:
+        the front end told that its tracks are stale, ``observe(stamp_ns, None, None)``), the
+        frame's prediction (:meth:`_predict` at reference time ``ref`` ns, ``view``: which
+        camera), the front end's search with it."""
+        diff = fe.frozen(image, level, check)
+        if diff is not None:
+            fe.observe(stamp_ns, None, None)  # (its tracks are stale: searched whole next)
+            return ImageSearch("frozen_image", difference=diff)
+        prediction = self._predict(ref, camera, view)
+        t0 = time.perf_counter()
+        try:
+            found = fe.search(image, camera, encoding, prediction)
+        except Exception as e:
+            return ImageSearch("frontend_error", error=e)
+        return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
     def end_track(self) -> None:
         """End the track (e.g. the node is deactivated): the twists still pending are dropped;

@@ -124,7 +124,6 @@ from .fusion import FusedState, FusionOptions, TwistFilter
 from .gyro import readout_window
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
-    FROZEN_IMAGE_LEVEL,
     CameraFrontend,
     FusedPose,
     VideoLocalizer,
@@ -434,7 +433,7 @@ class RigOutput:
             gyro, or its samples missing: ``rig.gyro_missing``); the estimate says whether it
             was used or rejected.
         fused: earlier rig frames (and, on a reset, the track's last ones) whose fused twist
-            is final now, oldest first: :class:`~rs_localizer.tracking.sequence.FusedPose`
+            is final now, oldest first: :class:`~rs_localizer.tracking.localizer.FusedPose`
             in the rig frame.
         tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
         frames: camera -> its :class:`RigCameraFrame` (the rows given to the estimator: the
@@ -1016,24 +1015,22 @@ class RigLocalizer(VideoLocalizer):
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
         ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
-        diff = fe.frozen(image, FROZEN_IMAGE_LEVEL)
-        if diff is not None:
+        r = self._search_image(fe, stamp, ref, image, camera, encoding, view=self._cams[name])
+        if r.failure == "frozen_image":
             self.log.warning(
                 f"rig.frozen.{name}",
                 f"rig camera {name!r}: the image is the previous one again (mean difference "
-                f"{diff:.2f} gray levels): skipped",
+                f"{r.difference:.2f} gray levels): skipped",
             )
-            fe.observe(stamp, None, None)  # (its tracks are stale: searched whole next)
-            return self._observed(self._drop(name, stamp, ref, "frozen_image"))
-        prediction = self._predict(ref, camera, self._cams[name])
-        try:
-            found = fe.search(image, camera, encoding, prediction)
-        except Exception as e:
+            return self._observed(self._drop(name, stamp, ref, r.failure))
+        if r.failure is not None:
+            e = r.error
             self.log.warning(
                 f"rig.frontend.{name}",
                 f"rig camera {name!r}: {fe.label} front end failed: {type(e).__name__}: {e}",
             )
-            return self._observed(self._drop(name, stamp, ref, "frontend_error"))
+            return self._observed(self._drop(name, stamp, ref, r.failure))
+        found = r.found
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         uv, xyz, _, _ = finite_rows(uv, xyz)

@@ -541,27 +541,26 @@ class SequenceLocalizer(VideoLocalizer):
         reset = self._check_time(stamp)
         s = self.settings
         out = SequenceOutput(stamp_ns=t.reference_ns)
-        diff = fe.frozen(image, s.frozen_image_level, check=not reset)
-        if diff is not None:
-            out.failure = FRONTEND_FAILURES[2]
+        r = self._search_image(
+            fe, stamp, t.reference_ns, image, camera, encoding,
+            level=s.frozen_image_level, check=not reset,
+        )  # fmt: skip
+        if r.failure == FRONTEND_FAILURES[2]:
+            out.failure = r.failure
             out.detail = (
-                f"the image is the previous one again (mean difference {diff:.2f} gray levels "
-                "over one pixel in 64): a driver re-sending its last frame or a stalled "
+                f"the image is the previous one again (mean difference {r.difference:.2f} gray "
+                "levels over one pixel in 64): a driver re-sending its last frame or a stalled "
                 "camera; the next new image is searched whole"
             )
-            fe.observe(stamp, None, None)  # (the tracks are stale: searched whole next)
             # (the camera moved on unseen: the next new image starts a new track)
             self._track_over = True
             return out
-        prediction = self._predict(t.reference_ns, camera)
-        t0 = time.perf_counter()
-        try:
-            found = fe.search(image, camera, encoding, prediction)
-        except Exception as e:
-            out.failure, out.detail = FRONTEND_FAILURES[0], f"{name}: {type(e).__name__}: {e}"
+        if r.failure is not None:
+            e = r.error
+            out.failure, out.detail = r.failure, f"{name}: {type(e).__name__}: {e}"
             return out
-        out.frontend_seconds = time.perf_counter() - t0
-        out.correspondences = found
+        found = out.correspondences = r.found
+        out.frontend_seconds = r.seconds
         uv, xyz, scores = found.points2d, found.points, found.valid_scores()
         need = points_needed(s.solver, s.options if s.options is not None else EstimateOptions())
         if len(uv) < need and not coplanar_points(xyz):  # (one marker's: the estimator's)
