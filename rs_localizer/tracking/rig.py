@@ -107,7 +107,7 @@ from ..correspondences import FrameFeedback
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
-from ..estimation.options import EstimateOptions, InitialModel
+from ..estimation.options import EstimateOptions
 from ..estimation.result import CAMERAS_DISAGREE, CONTRADICTS_TRACK, RIG_REFUSALS, UNCONFIRMED
 from ..estimation.rig import (
     RIG_OPTIONS,
@@ -129,7 +129,7 @@ from .localizer import (
     VideoLocalizer,
     finite_rows,
 )
-from .tracker import predictable
+from .tracker import predictable, predicted_initial_model
 
 __all__ = [
     "MISSED_REASONS",
@@ -1209,15 +1209,11 @@ class RigLocalizer(VideoLocalizer):
         self._prediction = pred
         pp = pred.pose
         model = _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
-        sigma_rot = float(np.sqrt(np.trace(pred.covariance[:3, :3])))
-        focal = max(v.camera.mean_focal for v in views)
-        gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * focal), to.max_gate_px)
-        n = sum(len(v.uv) for v in views)
-        ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
-        need = max(
-            self.settings.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n)
-        )
-        est = self._run(views, to.tracked_max_iterations, InitialModel(model, gate, need))
+        initial = predicted_initial_model(
+            model, pred, max(v.camera.mean_focal for v in views), sum(len(v.uv) for v in views),
+            self._inlier_ratio, self.settings.options.ransac.min_inliers, to,
+        )  # fmt: skip
+        est = self._run(views, to.tracked_max_iterations, initial)
         if est.success and est.initial_used:
             return est, "tracked"
         if not est.success and est.failure != "too_few_points":

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -243,6 +244,31 @@ def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     return state.pose.model(camera.seconds_per_unit_r)
 
 
+def predicted_initial_model(
+    model: RSModel,
+    predicted: FusedState,
+    focal: float,
+    num_points: int,
+    inlier_ratio: float | None,
+    min_inliers: int,
+    options: Any,
+) -> InitialModel:
+    """The track's prediction as the estimator's initial model
+    (:class:`~rs_localizer.estimation.InitialModel`), the one rule of a camera's tracker and a
+    rig's: ``model`` (the predicted state's, ``predicted``) explains a point within ``gate_px``
+    px, or ``gate_sigmas`` standard deviations of the predicted rotation times ``focal`` (px)
+    when larger, up to ``max_gate_px``; it is used when it explains at least
+    ``min_explained_ratio`` of the ``num_points`` the previous frame's ``inlier_ratio``
+    (None: none yet) promises, and at least ``min_inliers``. ``options``: a
+    :class:`TrackerOptions` or a rig's
+    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (the fields of those names)."""
+    ratio = inlier_ratio if inlier_ratio is not None else 0.0
+    need = max(min_inliers, int(options.min_explained_ratio * ratio * num_points))
+    sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
+    gate = min(max(options.gate_px, options.gate_sigmas * sigma_rot * focal), options.max_gate_px)
+    return InitialModel(model, gate, need)
+
+
 def motion_prior_from_state(state: FusedState, inflation: float = 1.0) -> MotionPrior:
     """The predicted twist as the estimator's motion prior: a
     :class:`~rs_localizer.estimation.prior.MotionPrior` with the state's linear and angular
@@ -438,12 +464,10 @@ class RSTracker:
         hold, solve the frame cold. Returns (estimate, ``tracked`` or ``relocalized``, the
         options used, the points the prediction explained)."""
         to = self.tracker_options
-        model = model_from_state(predicted, camera)
-        n = len(points2d)
-        ratio = self._inlier_ratio if self._inlier_ratio is not None else 0.0
-        need = max(self.options.ransac.min_inliers, int(to.min_explained_ratio * ratio * n))
-        sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
-        gate = min(max(to.gate_px, to.gate_sigmas * sigma_rot * camera.mean_focal), to.max_gate_px)
+        initial = predicted_initial_model(
+            model_from_state(predicted, camera), predicted, camera.mean_focal, len(points2d),
+            self._inlier_ratio, self.options.ransac.min_inliers, to,
+        )  # fmt: skip
         opts = self.tracked_options
         if camera.seconds_per_unit_r > 0 and (
             to.prior_from_prediction == "always"
@@ -461,7 +485,7 @@ class RSTracker:
             self.solver,
             opts,
             scores,
-            initial_model=InitialModel(model, gate, need),
+            initial_model=initial,
             gyro=gyro,
             implementation=implementation,
         )
