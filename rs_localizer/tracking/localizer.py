@@ -433,12 +433,19 @@ class VideoLocalizer(GyroReadouts):
             return ImageSearch("frontend_error", error=e)
         return ImageSearch(found=found, seconds=time.perf_counter() - t0)
 
+    def _forget_last_pose(self) -> None:
+        """Forget the last posed frame carried (:class:`~rs_localizer.tracking.tracker.
+        CarriedPrediction`): the next frame is not predicted from it, however soon it comes
+        (:meth:`end_track` and a subclass's ``reset``: a new video)."""
+        with self._lock:
+            self._carried.reset()
+
     def end_track(self) -> None:
         """End the track (e.g. the node is deactivated): the twists still pending are dropped;
         the next frame starts a new track and is not predicted. The gyro state is kept."""
         with self._lock:
             self._end_track()
-            self._carried.reset()
+            self._forget_last_pose()
 
     def flush(self) -> list[FusedPose]:
         """The end of the video: the twists still pending, as they are now (the track goes

@@ -841,8 +841,11 @@ class RigLocalizer(VideoLocalizer):
 
     def reset(self) -> list[FusedPose]:
         """Forget the video (the configuration stays): the rig frames open are dropped (counted
-        as ``time_reset``), the track ends. Returns its twists still pending."""
+        as ``time_reset``), the track ends, the last rig frame posed is forgotten (the next
+        frame is not predicted from it, without tracking either). Returns the track's twists
+        still pending."""
         self._time_reset()
+        self._forget_last_pose()
         self._clock.reset()
         out, self._carry = self._carry, []
         return out

@@ -761,12 +761,13 @@ class SequenceLocalizer(VideoLocalizer):
 
     def reset(self) -> None:
         """Forget the video (the configuration stays): the track and the twists pending, the
-        gyro samples, the bias estimator's and the gyro check's pairing, the last stamp. The
-        bias estimate itself is kept (the same IMU)."""
+        gyro samples, the bias estimator's and the gyro check's pairing, the last posed frame
+        carried (the next frame is not predicted from it), the last stamp. The bias estimate
+        itself is kept (the same IMU)."""
         with self._lock:
             self._end_track()
             self._restart_gyro(None)
-            self._carried.reset()
+            self._forget_last_pose()
             self._clock.reset()
             self._camera_frontend.last_sample = None
             self._track_over = False

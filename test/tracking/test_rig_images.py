@@ -1,8 +1,8 @@
 """RigLocalizer.process_image: every camera's 640x480 images of the marker room (rendered at the
 rig's motion composed with each camera's mounting, rs_localizer.sim.render.rig) through its own
 ArUco front end, the rig posed against the true trajectory; the rig's prediction handed to each
-camera's front end; dropped images counted; and which camera is named when mountings disagree
-(two cameras: both; three: the wrong one)."""
+camera's front end (and none after a reset); dropped images counted; and which camera is named
+when mountings disagree (two cameras: both; three: the wrong one)."""
 
 from __future__ import annotations
 
@@ -228,3 +228,49 @@ def test_an_images_stamp_is_checked_once_and_its_reference_time_made_once(monkey
         refs_in = [t_ref[(n, o.frames[n].stamp_ns)] for n in o.cameras]
         assert o.stamp_ns == min(refs_in)
     assert_balanced(rig)
+
+
+def test_a_reset_forgets_the_last_rig_frame_posed():
+    """Without tracking a camera's front end is handed the last rig frame posed carried to its
+    frame; after ``reset()`` (a new video) the next frame, 11 ms on (well within ``max_gap``),
+    is handed no prediction (``prediction=None``), and ``predict_camera`` has none either,
+    as a camera's ``reset`` forgets its carried pose."""
+    from rs_localizer.correspondences import Correspondences
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=150, seed=6)
+    seen, current = [], {}
+
+    class Frontend:  # (a video front end: the frame's own correspondences; notes predictions)
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = current["frame"]
+            seen.append((f.name, prediction))
+            return Correspondences(f.uv, f.xyz)
+
+        def observe(self, stamp_ns, points2d, feedback):
+            pass
+
+        def pop_warning(self):
+            return None
+
+    rig = RigLocalizer(RigSettings(mounts_of(cams), tracking=None))
+    for c in cams:
+        rig.set_frontend(c.name, Frontend(), "stub")
+    by = {c.name: c.camera for c in cams}
+    rng = np.random.default_rng(1)
+
+    def send(f):
+        current["frame"] = f
+        img = rng.integers(0, 255, (48, 64), np.uint8)
+        return rig.process_image(f.name, f.stamp_ns, img, by[f.name], "mono8")
+
+    half = len(frames) // 2
+    outs = [o for f in frames[:half] for o in send(f)]
+    assert sum(o.success for o in outs) >= 1
+    assert seen[-1][1] is not None  # (before the reset: the last rig frame posed, carried)
+    rig.reset()
+    nxt = frames[half]
+    assert (nxt.stamp_ns - frames[half - 1].stamp_ns) * 1e-9 < rig.settings.max_gap
+    send(nxt)
+    assert seen[-1] == (nxt.name, None)
+    assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is None
