@@ -508,6 +508,84 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
     return 0.5 * threshold_px / pool.focal[idx[:, 0]] * np.maximum(depth, 1e-9)
 
 
+_EYE3 = np.eye(3)
+#: np.allclose(R^T R, I, atol=1e-6)'s tolerance per entry (its rtol 1e-5 on I's ones)
+_ROTATION_TOL = 1e-6 + 1e-5 * _EYE3
+
+
+def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
+    """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
+    prepared for :class:`_Pool`: ``(R_mount (3, 3), c_mount (3,), mount covariance or None,
+    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
+    n valid rows."""
+    if not isinstance(v, RigView):
+        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
+    if v.R_mount is None or v.c_mount is None:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
+            "rig -> camera rotation and offset)"
+        )
+    if not isinstance(v.camera, CameraModel):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
+    Rm = np.asarray(v.R_mount, dtype=float)
+    cm = np.asarray(v.c_mount, dtype=float)
+    if Rm.shape != (3, 3) or cm.size != 3:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
+            f"got {Rm.shape} and {cm.shape}"
+        )
+    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
+    (a, b, d), (e, f, g), (h, i, j) = Rm.tolist()
+    det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
+    if not (np.abs(Rm.T @ Rm - _EYE3) <= _ROTATION_TOL).all() or det < 0:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
+    if not np.isfinite(float(v.stamp_offset)):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
+    mc = v.mount_covariance
+    if mc is not None:
+        mc = np.asarray(mc, dtype=float)
+        if mc.shape != (6, 6) or not np.isfinite(mc).all():
+            raise ValueError(
+                f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) and finite"
+            )
+        mc = None if not mc.any() else 0.5 * (mc + mc.T)
+    uv = np.asarray(v.uv, dtype=float)
+    X = np.asarray(v.X, dtype=float)
+    if uv.size == 0:
+        uv = uv.reshape(0, 2)
+    if X.size == 0:
+        X = X.reshape(0, 3)
+    if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
+            f"{uv.shape} and {X.shape}"
+        )
+    if len(uv) != len(X):
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
+        )
+    cam = v.camera
+    good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
+    if good.all():
+        idx, uv_g, X_g = np.arange(len(uv)), uv, X
+    else:
+        idx = np.flatnonzero(good)
+        uv_g, X_g = uv[idx], X[idx]
+    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
+    ok = np.isfinite(x).all(axis=1)
+    if not ok.all():
+        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
+    tau = float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r
+    if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
+        A = cam.pixel_jacobian(x).reshape(-1, 4)
+    else:
+        A = np.zeros((len(idx), 4))
+        A[:, 0] = A[:, 3] = cam.mean_focal
+    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64),
+            float(cam.mean_focal), A)  # fmt: skip
+
+
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
     camera index, the camera's focal length (px per normalized unit), measured pixels, and
@@ -518,94 +596,40 @@ class _Pool:
     ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
     implementation, :func:`estimate_rig_pose`)."""
 
-    def __init__(self, views: Sequence[RigView], numpy: bool = False):
+    def __init__(self, views: Sequence[RigView], numpy: bool = False, cache: dict | None = None):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
-        xs, Xs, taus, cams, rows, foc, uvs, As = [], [], [], [], [], [], [], []
+        # ``cache``: id(view) -> (view, camera index, its checked and normalized part), shared
+        # by the pools of one rig frame (the consensus solves the rig again on some of its
+        # cameras: their views are the same objects, checked and undistorted once)
+        cache = {} if cache is None else cache
+        parts = []
         for c, v in enumerate(views):
-            if not isinstance(v, RigView):
-                raise ValueError(
-                    f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView"
-                )
-            if v.R_mount is None or v.c_mount is None:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
-                    "rig -> camera rotation and offset)"
-                )
-            if not isinstance(v.camera, CameraModel):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
-            Rm = np.asarray(v.R_mount, dtype=float)
-            cm = np.asarray(v.c_mount, dtype=float)
-            if Rm.shape != (3, 3) or cm.size != 3:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
-                    f"got {Rm.shape} and {cm.shape}"
-                )
-            if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-            if not np.allclose(Rm.T @ Rm, np.eye(3), atol=1e-6) or np.linalg.det(Rm) < 0:
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
-            if not np.isfinite(float(v.stamp_offset)):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
-        self.R_mount = np.array([np.asarray(v.R_mount, dtype=float) for v in views])
-        self.c_mount = np.array([np.asarray(v.c_mount, dtype=float).reshape(3) for v in views])
-        self.mount_cov = []
-        for c, v in enumerate(views):
-            mc = v.mount_covariance
-            if mc is not None:
-                mc = np.asarray(mc, dtype=float)
-                if mc.shape != (6, 6) or not np.isfinite(mc).all():
-                    raise ValueError(
-                        f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) "
-                        "and finite"
-                    )
-                mc = None if not mc.any() else 0.5 * (mc + mc.T)
-            self.mount_cov.append(mc)
-        self.sizes = []
+            hit = cache.get(id(v))
+            if hit is not None and hit[0] is v and hit[1] == c:
+                parts.append(hit[2])
+                continue
+            part = _view_part(c, v, self.numpy)
+            cache[id(v)] = (v, c, part)
+            parts.append(part)
+        self.R_mount = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
+        self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
+        self.mount_cov = [q[2] for q in parts]
+        self.sizes = [q[3] for q in parts]
         self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
-        for c, v in enumerate(views):
-            uv = np.asarray(v.uv, dtype=float)
-            X = np.asarray(v.X, dtype=float)
-            if uv.size == 0:
-                uv = uv.reshape(0, 2)
-            if X.size == 0:
-                X = X.reshape(0, 3)
-            if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
-                    f"{uv.shape} and {X.shape}"
-                )
-            if len(uv) != len(X):
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
-                )
-            self.sizes.append(len(uv))
-            good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
-            idx = np.flatnonzero(good)
-            x, r, _ = v.camera.normalize(uv[idx], compiled=not self.numpy)
-            ok = np.isfinite(x).all(axis=1)
-            idx, x, r = idx[ok], x[ok], r[ok]
-            cam = v.camera
-            xs.append(x)
-            Xs.append(X[idx])
-            uvs.append(uv[idx])
-            taus.append(float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r)
-            cams.append(np.full(len(idx), c, dtype=np.int64))
-            rows.append(idx)
-            foc.append(np.full(len(idx), cam.mean_focal))
-            if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
-                As.append(cam.pixel_jacobian(x).reshape(-1, 4))
-            else:
-                a = np.zeros((len(idx), 4))
-                a[:, 0] = a[:, 3] = cam.mean_focal
-                As.append(a)
-        self.x = np.vstack(xs) if xs else np.zeros((0, 2))
-        self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
-        self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
-        self.tau = np.concatenate(taus) if taus else np.zeros(0)
-        self.cam = np.concatenate(cams) if cams else np.zeros(0, dtype=np.int64)
-        self.row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
-        self.focal = np.concatenate(foc) if foc else np.zeros(0)
-        self.A = np.ascontiguousarray(np.vstack(As) if As else np.zeros((0, 4)))
+        n = [len(q[5]) for q in parts]
+        self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
+        if parts:
+            self.x = np.concatenate([q[4] for q in parts])
+            self.X = np.concatenate([q[5] for q in parts])
+            self.uv = np.concatenate([q[6] for q in parts])
+            self.tau = np.concatenate([q[7] for q in parts])
+            self.row = np.concatenate([q[8] for q in parts])
+            self.focal = np.repeat(np.array([q[9] for q in parts], dtype=float), n)
+            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
+        else:
+            self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
+            self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
+            self.focal, self.A = np.zeros(0), np.zeros((0, 4))
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -681,6 +705,20 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
                 out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
 
 
+@njit(cache=True)
+def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
+    """(H, N) the norms of :func:`_residuals_kernel`'s image errors (px; inf behind the
+    camera)."""
+    H, N = R.shape[0], X.shape[0]
+    d = np.empty((H, N, 2))
+    _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, d)
+    out = np.empty((H, N))
+    for h in range(H):
+        for i in range(N):
+            out[h, i] = np.sqrt(d[h, i, 0] ** 2 + d[h, i, 1] ** 2)
+    return out
+
+
 def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
     """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``
     (``pool.numpy``: :func:`_residuals_numpy`, on every point)."""
@@ -741,9 +779,11 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     inf for a point behind its camera. Returns (H, N)."""
     if pool.numpy:
         d = _residuals_numpy(pool, R, C, w, t)
-    else:
-        d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
-    return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
+    return _errors_kernel(
+        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A
+    )  # fmt: skip
 
 
 def _distinct3(rng, N: np.ndarray) -> np.ndarray:
@@ -768,17 +808,72 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     counts = np.bincount(cam, minlength=len(pool.sizes))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
     eligible = np.flatnonzero(counts >= 3)
-    p = counts[eligible] / counts[eligible].sum()
     n = len(cam)
-    cams = eligible[rng.choice(len(eligible), size=n_samples, p=p)]
-    first = starts[cams][:, None] + _distinct3(rng, counts[cams])
-    rest = _distinct3(rng, np.full(n_samples, n - 3))
-    # map 0..n-4 onto the pool without the first three
-    taken = np.sort(first, axis=1)
-    for j in range(3):
-        rest += rest >= taken[:, j : j + 1]
-    out = np.concatenate([first, rest], axis=1)
+    # (Generator.choice(len(eligible), n_samples, p=counts / total)'s draws, without its
+    # checks of p: the inverse of the counts' cumulative distribution at uniform draws)
+    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
+    cdf /= cdf[-1]
+    if pool.numpy:
+        cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
+        first = starts[cams][:, None] + _distinct3(rng, counts[cams])
+        rest = _distinct3(rng, np.full(n_samples, n - 3))
+        # map 0..n-4 onto the pool without the first three
+        taken = np.sort(first, axis=1)
+        for j in range(3):
+            rest += rest >= taken[:, j : j + 1]
+        out = np.concatenate([first, rest], axis=1)
+    else:  # (the same draws, in the same order, mapped in one compiled call)
+        u = rng.random(7 * n_samples).reshape(7, n_samples)
+        out = _sample_kernel(u, cdf, eligible.astype(np.int64), counts.astype(np.int64),
+                             starts.astype(np.int64), n)  # fmt: skip
     return out if subset is None else subset[out]
+
+
+@njit(cache=True)
+def _sample_kernel(u, cdf, eligible, counts, starts, n):
+    """:func:`_sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
+    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
+    (:func:`_distinct3`), three distinct points of the ``n - 3`` others."""
+    S = u.shape[1]
+    out = np.empty((S, 6), dtype=np.int64)
+    for k in range(S):
+        j = 0
+        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
+            j += 1
+        cam = eligible[min(j, len(cdf) - 1)]
+        for part in range(2):
+            N = counts[cam] if part == 0 else n - 3
+            a = np.int64(u[1 + 3 * part, k] * N)
+            b = np.int64(u[2 + 3 * part, k] * (N - 1))
+            if b >= a:
+                b += 1
+            c = np.int64(u[3 + 3 * part, k] * (N - 2))
+            lo, hi = min(a, b), max(a, b)
+            if c >= lo:
+                c += 1
+            if c >= hi:
+                c += 1
+            if part == 0:
+                out[k, 0], out[k, 1], out[k, 2] = starts[cam] + a, starts[cam] + b, starts[cam] + c
+            else:
+                out[k, 3], out[k, 4], out[k, 5] = a, b, c
+        t0, t1, t2 = out[k, 0], out[k, 1], out[k, 2]  # (sorted: map onto the pool without them)
+        if t0 > t1:
+            t0, t1 = t1, t0
+        if t1 > t2:
+            t1, t2 = t2, t1
+        if t0 > t1:
+            t0, t1 = t1, t0
+        for i in range(3, 6):
+            r = out[k, i]
+            if r >= t0:
+                r += 1
+            if r >= t1:
+                r += 1
+            if r >= t2:
+                r += 1
+            out[k, i] = r
+    return out
 
 
 def _hypotheses(
@@ -1409,7 +1504,8 @@ def estimate_rig_pose(
             f"{implementation!r}"
         )
     numpy = implementation == NUMPY
-    pool = _Pool(views, numpy)
+    cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
+    pool = _Pool(views, numpy, cache)
     settings = (options, initial_model, pre_rotation == "gp3p")
     threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
@@ -1419,7 +1515,7 @@ def estimate_rig_pose(
         prediction = getattr(initial_model, "model", initial_model)
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs, numpy), settings, gyro, gyro_time), prediction,
+        lambda vs: _estimate_pool(_Pool(vs, numpy, cache), settings, gyro, gyro_time), prediction,
         verify_cameras,
     )  # fmt: skip
 
