@@ -578,7 +578,7 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
     tau = float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r
     if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
-        A = cam.pixel_jacobian(x).reshape(-1, 4)
+        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = cam.mean_focal
@@ -980,15 +980,15 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     if pool.numpy:
         R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], xs)
     else:
-        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-        R_cam, C_cam, own = lambda_twist_batch(
-            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-        )
+        bearings = np.empty(xs.shape[:2] + (3,))
+        bearings[..., :2] = xs
+        bearings[..., 2] = 1.0
+        R_cam, C_cam, own = lambda_twist_batch(bearings, pool.X[samples[:, :3]])
     if len(own) == 0:
         return None
-    Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
-    R = np.einsum("hji,hjk->hik", Rc, R_cam)
-    C = np.einsum("hji,hj->hi", Rc, C_cam - cc)
+    RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
+    R = RcT @ R_cam
+    C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     return R, C, own
 
 
@@ -1171,6 +1171,7 @@ def _covariance(
     free: int = 12,
     prior: _GyroPrior | None = None,
     mounts: bool = False,
+    errors: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
     acceleration, from one Jacobian (the refinement's kernel at the model, no step:
@@ -1191,11 +1192,12 @@ def _covariance(
     ``mounts``: the covariance adds each camera's mounting uncertainty
     (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
     J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
-    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). Returns
+    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). ``errors``: the
+    model's (N,) errors (px) when already computed. Returns
     ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
     (:func:`_information_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
-    e = _errors_px(pool, *_one(model))[0]
+    e = _errors_px(pool, *_one(model))[0] if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
@@ -1956,7 +1958,7 @@ def _estimate(
     if bad:
         return failed(CHEIRALITY, drawn, behind)
     cov, G = (
-        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True)
+        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
         if refine
         else (None, None)
     )
