@@ -719,20 +719,6 @@ def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
     return out
 
 
-def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
-    """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``
-    (``pool.numpy``: :func:`_residuals_numpy`, on every point)."""
-    if pool.numpy:
-        return _residuals_numpy(pool, R, C, w, t)[:, s]
-    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
-    out = np.empty((len(f[0]), len(s), 2))
-    _residuals_kernel(
-        *f, pool.X[s], pool.tau[s], pool.cam[s], pool.R_mount, pool.c_mount, pool.x[s],
-        pool.A[s], out,
-    )  # fmt: skip
-    return out
-
-
 def _residuals_numpy(pool: _Pool, R, C, w, t) -> np.ndarray:
     """:func:`_residuals_kernel` in NumPy on every point of the pool (nothing compiles): the
     rig's points at each observation's capture time
