@@ -618,6 +618,9 @@ class _Pool:
         self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
         n = [len(q[5]) for q in parts]
         self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
+        ends = np.cumsum([0] + n).tolist()
+        #: each camera's points in the pool (stacked by camera)
+        self.slices = [slice(ends[c], ends[c + 1]) for c in range(len(parts))]
         if parts:
             self.x = np.concatenate([q[4] for q in parts])
             self.X = np.concatenate([q[5] for q in parts])
@@ -634,9 +637,8 @@ class _Pool:
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
         out = []
-        for c, n in enumerate(self.sizes):
+        for n, s in zip(self.sizes, self.slices, strict=True):
             m = np.zeros(n, dtype=bool)
-            s = self.cam == c
             m[self.row[s]] = mask[s]
             out.append(m)
         return tuple(out)
@@ -652,10 +654,9 @@ class _Pool:
         rays in one plane through its centre)."""
         if collinear_3d(self.X, compiled=not self.numpy):
             return True
-        for c in range(len(self.sizes)):
-            s = self.cam == c
+        for s in self.slices:
             # (one or two rays always lie in a plane through the camera's centre)
-            if s.sum() >= 3 and not image_degenerate(
+            if s.stop - s.start >= 3 and not image_degenerate(
                 self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, not self.numpy
             ):
                 return False
@@ -1273,9 +1274,8 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     behind, bad = 0, False
-    for c in range(len(pool.sizes)):
-        s = pool.cam == c
-        if not s.any():
+    for c, s in enumerate(pool.slices):
+        if s.stop == s.start:
             continue
         Rc, cc = pool.R_mount[c], pool.c_mount[c]
         code, n = (final_model_check_numpy if pool.numpy else final_model_check)(
@@ -1283,8 +1283,8 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
             Rc @ C + cc,
             Rc @ w,
             Rc @ t,
-            np.ascontiguousarray(pool.X[s]),
-            np.ascontiguousarray(pool.tau[s]),
+            pool.X[s],
+            pool.tau[s],
             np.ascontiguousarray(inl[s]),
             np.inf,
             np.inf,
@@ -1936,7 +1936,8 @@ def _estimate(
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         return failed(TOO_FEW_INLIERS, drawn)
-    if collinear_3d(pool.X[inl], compiled=not pool.numpy):
+    # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
+    if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
     if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
