@@ -98,6 +98,7 @@ parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -534,9 +535,10 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
             f"got {Rm.shape} and {cm.shape}"
         )
-    if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
+    values = Rm.ravel().tolist() + cm.ravel().tolist()
+    if not all(map(math.isfinite, values)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-    (a, b, d), (e, f, g), (h, i, j) = Rm.tolist()
+    a, b, d, e, f, g, h, i, j = values[:9]
     det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
     if not (np.abs(Rm.T @ Rm - _EYE3) <= _ROTATION_TOL).all() or det < 0:
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
@@ -566,11 +568,10 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
         )
     cam = v.camera
-    good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
-    if good.all():
+    if np.isfinite(uv).all() and np.isfinite(X).all():
         idx, uv_g, X_g = np.arange(len(uv)), uv, X
     else:
-        idx = np.flatnonzero(good)
+        idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
     x, r, _ = cam.normalize(uv_g, compiled=not numpy)
     ok = np.isfinite(x).all(axis=1)
@@ -633,6 +634,8 @@ class _Pool:
             self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
             self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
+        #: s: the observation times' spread (np.ptp of tau; 0 without points)
+        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -645,8 +648,9 @@ class _Pool:
 
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
-        sel = self.cam if mask is None else self.cam[mask]
-        return tuple(int(n) for n in np.bincount(sel, minlength=len(self.sizes)))
+        if mask is None:
+            return tuple(s.stop - s.start for s in self.slices)
+        return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
 
     def degenerate(self, threshold_px: float) -> bool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
@@ -1512,7 +1516,7 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
     (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
     refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
-    still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
     if gyro is None or still or not refine:
         return _estimate(pool, *settings)
     if gyro_time is None:
@@ -1892,7 +1896,7 @@ def _estimate(
     if pool.degenerate(threshold_px):
         return failed(DEGENERATE_GEOMETRY)
     # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
-    still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    still = pool.tau_spread <= STILL_SPREAD
     free, size = (6, 3) if still else (12, 6)
     explained, used, anchored, subset, seeded = -1, False, False, None, None
     if initial_model is not None:
