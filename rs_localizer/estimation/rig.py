@@ -1783,6 +1783,15 @@ def _image_alone(
     return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
 
 
+@dataclass(frozen=True)
+class _Batches:
+    """What :func:`~.ransac.batch_sizes` reads of a :class:`~.options.RansacOptions`."""
+
+    batch_size: int
+    max_iterations: int
+    min_iterations: int
+
+
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1805,6 +1814,14 @@ class _RigSearch(RansacLoop):
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e = np.zeros(0)
+        # the batches (:func:`~.ransac.batch_sizes`): the first no larger than
+        # ``min_iterations``, so that a frame whose best model asks for no more samples stops
+        # there, as PoseLib's loop (checked after every sample past min_iterations) does
+        self.batches = _Batches(
+            max(1, min(int(r.batch_size), int(r.min_iterations))),
+            int(r.max_iterations),
+            int(r.min_iterations),
+        )
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point."""
@@ -1915,7 +1932,7 @@ def _estimate(
             if subset is not None
             else required_iterations(float(np.mean(inl0)), size, r.confidence)
         )
-    search.search(search, r)
+    search.search(search, search.batches)
     try:
         model = search.found()
     except EstimationFailed as e:
