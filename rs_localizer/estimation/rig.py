@@ -98,6 +98,7 @@ parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -508,6 +509,84 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
     return 0.5 * threshold_px / pool.focal[idx[:, 0]] * np.maximum(depth, 1e-9)
 
 
+_EYE3 = np.eye(3)
+#: np.allclose(R^T R, I, atol=1e-6)'s tolerance per entry (its rtol 1e-5 on I's ones)
+_ROTATION_TOL = 1e-6 + 1e-5 * _EYE3
+
+
+def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
+    """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
+    prepared for :class:`_Pool`: ``(R_mount (3, 3), c_mount (3,), mount covariance or None,
+    input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
+    n valid rows."""
+    if not isinstance(v, RigView):
+        raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
+    if v.R_mount is None or v.c_mount is None:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
+            "rig -> camera rotation and offset)"
+        )
+    if not isinstance(v.camera, CameraModel):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
+    Rm = np.asarray(v.R_mount, dtype=float)
+    cm = np.asarray(v.c_mount, dtype=float)
+    if Rm.shape != (3, 3) or cm.size != 3:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
+            f"got {Rm.shape} and {cm.shape}"
+        )
+    values = Rm.ravel().tolist() + cm.ravel().tolist()
+    if not all(map(math.isfinite, values)):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
+    a, b, d, e, f, g, h, i, j = values[:9]
+    det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
+    if not (np.abs(Rm.T @ Rm - _EYE3) <= _ROTATION_TOL).all() or det < 0:
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
+    if not np.isfinite(float(v.stamp_offset)):
+        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
+    mc = v.mount_covariance
+    if mc is not None:
+        mc = np.asarray(mc, dtype=float)
+        if mc.shape != (6, 6) or not np.isfinite(mc).all():
+            raise ValueError(
+                f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) and finite"
+            )
+        mc = None if not mc.any() else 0.5 * (mc + mc.T)
+    uv = np.asarray(v.uv, dtype=float)
+    X = np.asarray(v.X, dtype=float)
+    if uv.size == 0:
+        uv = uv.reshape(0, 2)
+    if X.size == 0:
+        X = X.reshape(0, 3)
+    if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
+            f"{uv.shape} and {X.shape}"
+        )
+    if len(uv) != len(X):
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
+        )
+    cam = v.camera
+    if np.isfinite(uv).all() and np.isfinite(X).all():
+        idx, uv_g, X_g = np.arange(len(uv)), uv, X
+    else:
+        idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
+        uv_g, X_g = uv[idx], X[idx]
+    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
+    ok = np.isfinite(x).all(axis=1)
+    if not ok.all():
+        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
+    tau = float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r
+    if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
+        A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
+    else:
+        A = np.zeros((len(idx), 4))
+        A[:, 0] = A[:, 3] = cam.mean_focal
+    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64),
+            float(cam.mean_focal), A)  # fmt: skip
+
+
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
     camera index, the camera's focal length (px per normalized unit), measured pixels, and
@@ -518,109 +597,60 @@ class _Pool:
     ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
     implementation, :func:`estimate_rig_pose`)."""
 
-    def __init__(self, views: Sequence[RigView], numpy: bool = False):
+    def __init__(self, views: Sequence[RigView], numpy: bool = False, cache: dict | None = None):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
-        xs, Xs, taus, cams, rows, foc, uvs, As = [], [], [], [], [], [], [], []
+        # ``cache``: id(view) -> (view, camera index, its checked and normalized part), shared
+        # by the pools of one rig frame (the consensus solves the rig again on some of its
+        # cameras: their views are the same objects, checked and undistorted once)
+        cache = {} if cache is None else cache
+        parts = []
         for c, v in enumerate(views):
-            if not isinstance(v, RigView):
-                raise ValueError(
-                    f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView"
-                )
-            if v.R_mount is None or v.c_mount is None:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
-                    "rig -> camera rotation and offset)"
-                )
-            if not isinstance(v.camera, CameraModel):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
-            Rm = np.asarray(v.R_mount, dtype=float)
-            cm = np.asarray(v.c_mount, dtype=float)
-            if Rm.shape != (3, 3) or cm.size != 3:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
-                    f"got {Rm.shape} and {cm.shape}"
-                )
-            if not (np.isfinite(Rm).all() and np.isfinite(cm).all()):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-            if not np.allclose(Rm.T @ Rm, np.eye(3), atol=1e-6) or np.linalg.det(Rm) < 0:
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
-            if not np.isfinite(float(v.stamp_offset)):
-                raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
-        self.R_mount = np.array([np.asarray(v.R_mount, dtype=float) for v in views])
-        self.c_mount = np.array([np.asarray(v.c_mount, dtype=float).reshape(3) for v in views])
-        self.mount_cov = []
-        for c, v in enumerate(views):
-            mc = v.mount_covariance
-            if mc is not None:
-                mc = np.asarray(mc, dtype=float)
-                if mc.shape != (6, 6) or not np.isfinite(mc).all():
-                    raise ValueError(
-                        f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) "
-                        "and finite"
-                    )
-                mc = None if not mc.any() else 0.5 * (mc + mc.T)
-            self.mount_cov.append(mc)
-        self.sizes = []
+            hit = cache.get(id(v))
+            if hit is not None and hit[0] is v and hit[1] == c:
+                parts.append(hit[2])
+                continue
+            part = _view_part(c, v, self.numpy)
+            cache[id(v)] = (v, c, part)
+            parts.append(part)
+        self.R_mount = np.array([q[0] for q in parts]).reshape(-1, 3, 3)
+        self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
+        self.mount_cov = [q[2] for q in parts]
+        self.sizes = [q[3] for q in parts]
         self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
-        for c, v in enumerate(views):
-            uv = np.asarray(v.uv, dtype=float)
-            X = np.asarray(v.X, dtype=float)
-            if uv.size == 0:
-                uv = uv.reshape(0, 2)
-            if X.size == 0:
-                X = X.reshape(0, 3)
-            if uv.ndim != 2 or uv.shape[1] != 2 or X.ndim != 2 or X.shape[1] != 3:
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)}: uv must be (N, 2) and X (N, 3), got "
-                    f"{uv.shape} and {X.shape}"
-                )
-            if len(uv) != len(X):
-                raise ValueError(
-                    f"estimate_rig_pose: {_label(c, v)} has {len(uv)} pixels and {len(X)} points"
-                )
-            self.sizes.append(len(uv))
-            good = np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1)
-            idx = np.flatnonzero(good)
-            x, r, _ = v.camera.normalize(uv[idx], compiled=not self.numpy)
-            ok = np.isfinite(x).all(axis=1)
-            idx, x, r = idx[ok], x[ok], r[ok]
-            cam = v.camera
-            xs.append(x)
-            Xs.append(X[idx])
-            uvs.append(uv[idx])
-            taus.append(float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r)
-            cams.append(np.full(len(idx), c, dtype=np.int64))
-            rows.append(idx)
-            foc.append(np.full(len(idx), cam.mean_focal))
-            if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
-                As.append(cam.pixel_jacobian(x).reshape(-1, 4))
-            else:
-                a = np.zeros((len(idx), 4))
-                a[:, 0] = a[:, 3] = cam.mean_focal
-                As.append(a)
-        self.x = np.vstack(xs) if xs else np.zeros((0, 2))
-        self.X = np.vstack(Xs) if Xs else np.zeros((0, 3))
-        self.uv = np.vstack(uvs) if uvs else np.zeros((0, 2))
-        self.tau = np.concatenate(taus) if taus else np.zeros(0)
-        self.cam = np.concatenate(cams) if cams else np.zeros(0, dtype=np.int64)
-        self.row = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
-        self.focal = np.concatenate(foc) if foc else np.zeros(0)
-        self.A = np.ascontiguousarray(np.vstack(As) if As else np.zeros((0, 4)))
+        n = [len(q[5]) for q in parts]
+        self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
+        ends = np.cumsum([0] + n).tolist()
+        #: each camera's points in the pool (stacked by camera)
+        self.slices = [slice(ends[c], ends[c + 1]) for c in range(len(parts))]
+        if parts:
+            self.x = np.concatenate([q[4] for q in parts])
+            self.X = np.concatenate([q[5] for q in parts])
+            self.uv = np.concatenate([q[6] for q in parts])
+            self.tau = np.concatenate([q[7] for q in parts])
+            self.row = np.concatenate([q[8] for q in parts])
+            self.focal = np.repeat(np.array([q[9] for q in parts], dtype=float), n)
+            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
+        else:
+            self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
+            self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
+            self.focal, self.A = np.zeros(0), np.zeros((0, 4))
+        #: s: the observation times' spread (np.ptp of tau; 0 without points)
+        self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
         out = []
-        for c, n in enumerate(self.sizes):
+        for n, s in zip(self.sizes, self.slices, strict=True):
             m = np.zeros(n, dtype=bool)
-            s = self.cam == c
             m[self.row[s]] = mask[s]
             out.append(m)
         return tuple(out)
 
     def counts(self, mask: np.ndarray | None = None) -> tuple[int, ...]:
         """(M,) number of pool points (``mask``: of those selected) per camera."""
-        sel = self.cam if mask is None else self.cam[mask]
-        return tuple(int(n) for n in np.bincount(sel, minlength=len(self.sizes)))
+        if mask is None:
+            return tuple(s.stop - s.start for s in self.slices)
+        return tuple(int(np.count_nonzero(mask[s])) for s in self.slices)
 
     def degenerate(self, threshold_px: float) -> bool:
         """The world points identical or on one 3D line, or every camera's pixels (measured or
@@ -628,10 +658,9 @@ class _Pool:
         rays in one plane through its centre)."""
         if collinear_3d(self.X, compiled=not self.numpy):
             return True
-        for c in range(len(self.sizes)):
-            s = self.cam == c
+        for s in self.slices:
             # (one or two rays always lie in a plane through the camera's centre)
-            if s.sum() >= 3 and not image_degenerate(
+            if s.stop - s.start >= 3 and not image_degenerate(
                 self.uv[s], self.x[s], float(self.focal[s][0]), threshold_px, not self.numpy
             ):
                 return False
@@ -681,17 +710,17 @@ def _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, out):
                 out[h, i, 1] = A[i, 2] * ex + A[i, 3] * ey
 
 
-def _residuals(pool: _Pool, R, C, w, t, s: np.ndarray) -> np.ndarray:
-    """(H, len(s), 2) image errors (px) of H models on the pool's points ``s``
-    (``pool.numpy``: :func:`_residuals_numpy`, on every point)."""
-    if pool.numpy:
-        return _residuals_numpy(pool, R, C, w, t)[:, s]
-    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
-    out = np.empty((len(f[0]), len(s), 2))
-    _residuals_kernel(
-        *f, pool.X[s], pool.tau[s], pool.cam[s], pool.R_mount, pool.c_mount, pool.x[s],
-        pool.A[s], out,
-    )  # fmt: skip
+@njit(cache=True)
+def _errors_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A):
+    """(H, N) the norms of :func:`_residuals_kernel`'s image errors (px; inf behind the
+    camera)."""
+    H, N = R.shape[0], X.shape[0]
+    d = np.empty((H, N, 2))
+    _residuals_kernel(R, C, w, t, X, tau, cam, Rm, cm, x, A, d)
+    out = np.empty((H, N))
+    for h in range(H):
+        for i in range(N):
+            out[h, i] = np.sqrt(d[h, i, 0] ** 2 + d[h, i, 1] ** 2)
     return out
 
 
@@ -741,9 +770,11 @@ def _errors_px(pool: _Pool, R, C, w, t) -> np.ndarray:
     inf for a point behind its camera. Returns (H, N)."""
     if pool.numpy:
         d = _residuals_numpy(pool, R, C, w, t)
-    else:
-        d = _residuals(pool, R, C, w, t, np.arange(len(pool.cam)))
-    return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+        return np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2)
+    f = [np.ascontiguousarray(a, dtype=np.float64) for a in (R, C, w, t)]
+    return _errors_kernel(
+        *f, pool.X, pool.tau, pool.cam, pool.R_mount, pool.c_mount, pool.x, pool.A
+    )  # fmt: skip
 
 
 def _distinct3(rng, N: np.ndarray) -> np.ndarray:
@@ -768,17 +799,72 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     counts = np.bincount(cam, minlength=len(pool.sizes))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
     eligible = np.flatnonzero(counts >= 3)
-    p = counts[eligible] / counts[eligible].sum()
     n = len(cam)
-    cams = eligible[rng.choice(len(eligible), size=n_samples, p=p)]
-    first = starts[cams][:, None] + _distinct3(rng, counts[cams])
-    rest = _distinct3(rng, np.full(n_samples, n - 3))
-    # map 0..n-4 onto the pool without the first three
-    taken = np.sort(first, axis=1)
-    for j in range(3):
-        rest += rest >= taken[:, j : j + 1]
-    out = np.concatenate([first, rest], axis=1)
+    # (Generator.choice(len(eligible), n_samples, p=counts / total)'s draws, without its
+    # checks of p: the inverse of the counts' cumulative distribution at uniform draws)
+    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
+    cdf /= cdf[-1]
+    if pool.numpy:
+        cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
+        first = starts[cams][:, None] + _distinct3(rng, counts[cams])
+        rest = _distinct3(rng, np.full(n_samples, n - 3))
+        # map 0..n-4 onto the pool without the first three
+        taken = np.sort(first, axis=1)
+        for j in range(3):
+            rest += rest >= taken[:, j : j + 1]
+        out = np.concatenate([first, rest], axis=1)
+    else:  # (the same draws, in the same order, mapped in one compiled call)
+        u = rng.random(7 * n_samples).reshape(7, n_samples)
+        out = _sample_kernel(u, cdf, eligible.astype(np.int64), counts.astype(np.int64),
+                             starts.astype(np.int64), n)  # fmt: skip
     return out if subset is None else subset[out]
+
+
+@njit(cache=True)
+def _sample_kernel(u, cdf, eligible, counts, starts, n):
+    """:func:`_sample`'s (S, 6) samples from its uniform draws ``u`` (7, S) in the order the
+    NumPy form takes them: the camera (inverse of ``cdf``), three distinct points of it
+    (:func:`_distinct3`), three distinct points of the ``n - 3`` others."""
+    S = u.shape[1]
+    out = np.empty((S, 6), dtype=np.int64)
+    for k in range(S):
+        j = 0
+        while j < len(cdf) and cdf[j] <= u[0, k]:  # (searchsorted, side="right")
+            j += 1
+        cam = eligible[min(j, len(cdf) - 1)]
+        for part in range(2):
+            N = counts[cam] if part == 0 else n - 3
+            a = np.int64(u[1 + 3 * part, k] * N)
+            b = np.int64(u[2 + 3 * part, k] * (N - 1))
+            if b >= a:
+                b += 1
+            c = np.int64(u[3 + 3 * part, k] * (N - 2))
+            lo, hi = min(a, b), max(a, b)
+            if c >= lo:
+                c += 1
+            if c >= hi:
+                c += 1
+            if part == 0:
+                out[k, 0], out[k, 1], out[k, 2] = starts[cam] + a, starts[cam] + b, starts[cam] + c
+            else:
+                out[k, 3], out[k, 4], out[k, 5] = a, b, c
+        t0, t1, t2 = out[k, 0], out[k, 1], out[k, 2]  # (sorted: map onto the pool without them)
+        if t0 > t1:
+            t0, t1 = t1, t0
+        if t1 > t2:
+            t1, t2 = t2, t1
+        if t0 > t1:
+            t0, t1 = t1, t0
+        for i in range(3, 6):
+            r = out[k, i]
+            if r >= t0:
+                r += 1
+            if r >= t1:
+                r += 1
+            if r >= t2:
+                r += 1
+            out[k, i] = r
+    return out
 
 
 def _hypotheses(
@@ -885,15 +971,15 @@ def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     if pool.numpy:
         R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], xs)
     else:
-        bearings = np.concatenate([xs, np.ones(xs.shape[:2] + (1,))], axis=2)
-        R_cam, C_cam, own = lambda_twist_batch(
-            np.ascontiguousarray(bearings), np.ascontiguousarray(pool.X[samples[:, :3]])
-        )
+        bearings = np.empty(xs.shape[:2] + (3,))
+        bearings[..., :2] = xs
+        bearings[..., 2] = 1.0
+        R_cam, C_cam, own = lambda_twist_batch(bearings, pool.X[samples[:, :3]])
     if len(own) == 0:
         return None
-    Rc, cc = pool.R_mount[cam0[own]], pool.c_mount[cam0[own]]
-    R = np.einsum("hji,hjk->hik", Rc, R_cam)
-    C = np.einsum("hji,hj->hi", Rc, C_cam - cc)
+    RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
+    R = RcT @ R_cam
+    C = (RcT @ (C_cam - pool.c_mount[cam0[own]])[..., None])[..., 0]
     return R, C, own
 
 
@@ -1076,6 +1162,7 @@ def _covariance(
     free: int = 12,
     prior: _GyroPrior | None = None,
     mounts: bool = False,
+    errors: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The covariance of ``(delta, C, w, t)`` at the final model and its sensitivity to
     acceleration, from one Jacobian (the refinement's kernel at the model, no step:
@@ -1096,11 +1183,12 @@ def _covariance(
     ``mounts``: the covariance adds each camera's mounting uncertainty
     (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
     J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
-    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). Returns
+    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). ``errors``: the
+    model's (N,) errors (px) when already computed. Returns
     ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
     (:func:`_information_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
-    e = _errors_px(pool, *_one(model))[0]
+    e = _errors_px(pool, *_one(model))[0] if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
@@ -1190,9 +1278,8 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     behind, bad = 0, False
-    for c in range(len(pool.sizes)):
-        s = pool.cam == c
-        if not s.any():
+    for c, s in enumerate(pool.slices):
+        if s.stop == s.start:
             continue
         Rc, cc = pool.R_mount[c], pool.c_mount[c]
         code, n = (final_model_check_numpy if pool.numpy else final_model_check)(
@@ -1200,8 +1287,8 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
             Rc @ C + cc,
             Rc @ w,
             Rc @ t,
-            np.ascontiguousarray(pool.X[s]),
-            np.ascontiguousarray(pool.tau[s]),
+            pool.X[s],
+            pool.tau[s],
             np.ascontiguousarray(inl[s]),
             np.inf,
             np.inf,
@@ -1409,7 +1496,8 @@ def estimate_rig_pose(
             f"{implementation!r}"
         )
     numpy = implementation == NUMPY
-    pool = _Pool(views, numpy)
+    cache: dict = {}  # (each view checked and undistorted once: the consensus solves again)
+    pool = _Pool(views, numpy, cache)
     settings = (options, initial_model, pre_rotation == "gp3p")
     threshold_px = options.ransac.threshold_px
     est = _estimate_pool(pool, settings, gyro, gyro_time)
@@ -1419,7 +1507,7 @@ def estimate_rig_pose(
         prediction = getattr(initial_model, "model", initial_model)
     return _consensus(
         views, pool, est, threshold_px,
-        lambda vs: _estimate_pool(_Pool(vs, numpy), settings, gyro, gyro_time), prediction,
+        lambda vs: _estimate_pool(_Pool(vs, numpy, cache), settings, gyro, gyro_time), prediction,
         verify_cameras,
     )  # fmt: skip
 
@@ -1428,7 +1516,7 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
     (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
     refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
-    still = len(pool.cam) > 0 and bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
     if gyro is None or still or not refine:
         return _estimate(pool, *settings)
     if gyro_time is None:
@@ -1695,6 +1783,15 @@ def _image_alone(
     return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
 
 
+@dataclass(frozen=True)
+class _Batches:
+    """What :func:`~.ransac.batch_sizes` reads of a :class:`~.options.RansacOptions`."""
+
+    batch_size: int
+    max_iterations: int
+    min_iterations: int
+
+
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1717,6 +1814,14 @@ class _RigSearch(RansacLoop):
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e = np.zeros(0)
+        # the batches (:func:`~.ransac.batch_sizes`): the first no larger than
+        # ``min_iterations``, so that a frame whose best model asks for no more samples stops
+        # there, as PoseLib's loop (checked after every sample past min_iterations) does
+        self.batches = _Batches(
+            max(1, min(int(r.batch_size), int(r.min_iterations))),
+            int(r.max_iterations),
+            int(r.min_iterations),
+        )
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point."""
@@ -1808,7 +1913,7 @@ def _estimate(
     if pool.degenerate(threshold_px):
         return failed(DEGENERATE_GEOMETRY)
     # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
-    still = bool(np.ptp(pool.tau) <= STILL_SPREAD)
+    still = pool.tau_spread <= STILL_SPREAD
     free, size = (6, 3) if still else (12, 6)
     explained, used, anchored, subset, seeded = -1, False, False, None, None
     if initial_model is not None:
@@ -1827,7 +1932,7 @@ def _estimate(
             if subset is not None
             else required_iterations(float(np.mean(inl0)), size, r.confidence)
         )
-    search.search(search, r)
+    search.search(search, search.batches)
     try:
         model = search.found()
     except EstimationFailed as e:
@@ -1852,7 +1957,8 @@ def _estimate(
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         return failed(TOO_FEW_INLIERS, drawn)
-    if collinear_3d(pool.X[inl], compiled=not pool.numpy):
+    # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
+    if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
         return failed(DEGENERATE_GEOMETRY, drawn)
     if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
@@ -1860,7 +1966,7 @@ def _estimate(
     if bad:
         return failed(CHEIRALITY, drawn, behind)
     cov, G = (
-        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True)
+        _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
         if refine
         else (None, None)
     )
