@@ -206,12 +206,13 @@ STILL_SPREAD = 1e-9
 AGREE_SHARE = 0.3
 
 #: two groups of cameras that disagree at the inlier threshold but whose poses each explain
-#: the other group's points within this many inlier thresholds do not contradict each other
-#: (a tie of such groups is posed by the joint fit, not refused): on TagSLAM's real
-#: 4-camera ring (``python -m benchmarks.bench_real_rig --folder test_7``), two cameras
-#: seeing tags disagreed at 2 px in 30 of 265 rig frames without this gate, in 8 with it
-#: (their poses alone a few tenths of a degree apart); a mounting 2 degrees off misses by
-#: 15 px and more at focal lengths of 450 px and more
+#: the other group's points within this many inlier thresholds, or one pose explains both
+#: groups' points within them, do not contradict each other (a tie of such groups is posed
+#: by the joint fit, not refused): on TagSLAM's real 4-camera ring (``python -m
+#: benchmarks.bench_real_rig --folder test_7``), two cameras seeing tags disagreed at 2 px in
+#: 30 of 265 rig frames without this gate, in 5 with it (their poses alone a few tenths of a
+#: degree apart); a mounting 2 degrees off misses by 15 px and more at focal lengths of 450
+#: px and more
 CONTRADICTION_GATE = 3.0
 
 #: with a prediction, a voting camera is explained by it when its share of points within
