@@ -1005,36 +1005,24 @@ def _refine(
 
 def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     """The final refinement of ``model`` (``msac``: the MSAC cost of a model on every point,
-    the estimate's own measure): the model of the lowest MSAC cost of
-
-    - :func:`_refine` from ``model`` (Huber loss at the threshold on every point within
-      :data:`FINAL_CUTOFF` thresholds, the set re-selected at each iteration), and
-    - :func:`_refine` from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds
-      as its threshold (every camera's points within the largest inconsistency the cameras'
-      consensus accepts between them);
-
-    then polished on the points within the threshold alone (the MSAC cost itself), kept when
-    that does not raise the cost. RANSAC's models of a rig frame that was taken at one time
-    are one camera's P3P poses: the refinement from the best of them stays near that
-    camera's pose when another camera's points lie a few thresholds away, although a pose
-    between the cameras explains more points (on TagSLAM's ``test_14``, PoseLib's pose
-    refined the same way had the lower cost in 36 % of the rig frames); and the points
-    between one and :data:`FINAL_CUTOFF` thresholds, outliers by the estimate's own measure
-    (on a rig mostly another camera's, a few pixels off through the mountings), pull the
-    wide fit towards a pose that neither camera's inliers support. With a gyro (``prior``):
-    the first fit alone (maximum a posteriori, whose cost is not the MSAC cost); with the
-    points of one camera: the first fit alone (a single camera's final refinement)."""
+    the estimate's own measure): :func:`_refine` (Huber loss at the threshold on every point
+    within :data:`FINAL_CUTOFF` thresholds, the set re-selected at each iteration) from
+    ``model`` and from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds as
+    its threshold (every camera's points within the largest inconsistency the cameras'
+    consensus accepts between them); the one of the lower MSAC cost is the estimate. RANSAC's
+    models of a rig frame taken at one time are one camera's P3P poses: the refinement from
+    the best of them stays near that camera's pose when another camera's points lie a few
+    thresholds away, although a pose between the cameras explains more points at a lower cost
+    (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the lower cost in 36 %
+    of the rig frames). With a gyro (``prior``, maximum a posteriori, whose cost is not the
+    MSAC cost) or the points of one camera (a single camera's final refinement): the first
+    alone."""
     out = _refine(pool, None, model, threshold_px, free=free, prior=prior)
     if prior is not None or np.count_nonzero(np.bincount(pool.cam)) < 2:
         return out
-    cost = msac(out)
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
-    c = msac(wide)
-    if c < cost:
-        out, cost = wide, c
-    tight = _refine(pool, None, out, threshold_px, free=free, cutoff_px=threshold_px)
-    return tight if msac(tight) <= cost else out
+    return wide if msac(wide) < msac(out) else out
 
 
 #: fits of the NumPy refinement, each on the points within the cutoff of the last model (the
