@@ -43,7 +43,9 @@ the true accelerations' shift removed). ``measurement_scale`` can still inflate 
 Measurements whose normalized innovation squared exceeds the ``gate`` quantile of the
 chi-square distribution are not fused; the filter restarts from the measurement after
 ``max_rejections`` consecutive rejections (at once when the caller says the frame was
-relocalized), and on a stamp going back or a gap longer than ``max_gap``.
+relocalized), and on a stamp going back or a gap longer than ``max_gap``. A (re)start takes
+the frame's estimate as refined, the motion prior it used included (:meth:`TwistFilter._start`):
+the prior is taken out of the frames fused into a running filter only.
 """
 
 from __future__ import annotations
@@ -978,6 +980,14 @@ class TwistFilter:
         return z
 
     def _start(self, stamp_ns, z) -> None:
+        """(Re)start the window from the measurement ``z`` of one frame, taken with the
+        motion prior its refinement used (``_measurement(estimate)``, no prior given): the
+        filter then has no velocity information of its own, so the prior is counted once, and
+        it is what keeps a twist the frame's data hardly determine (a slow readout, a plane)
+        where the estimate put it. Without it the state would be the data-only twist, e.g.
+        15 +- 11 rad/s from a still camera whose estimate says 1.7 +- 1.4, and its prediction
+        one frame later would miss the next frame: relocalized, refused by the gate, started
+        again from such a twist, frame after frame."""
         o = self.options
         n = self.n
         m, Rm, G = z.m, z.R, z.G
@@ -1040,7 +1050,8 @@ class TwistFilter:
                 relocalization): a measurement the gate rejects restarts the filter at once.
             prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
                 refinement used, if any (``RSPoseEstimate.motion_prior_used``): its
-                information is removed before fusing (see :meth:`_measurement`).
+                information is removed before fusing (see :meth:`_measurement`), but not from
+                a frame the filter (re)starts from (:meth:`_start`).
         Returns:
             :class:`FusionStep`: the filtered state at the frame and the frames now final.
         """
@@ -1053,7 +1064,7 @@ class TwistFilter:
                 flushed = self.flush()
                 self.reset()
         if not self.window:
-            meas = self._measurement(estimate, prior)
+            meas = self._measurement(estimate)  # (a start keeps the prior: see _start)
             if meas is None:
                 return FusionStep(None, flushed)
             self._start(stamp_ns, meas)
@@ -1089,7 +1100,7 @@ class TwistFilter:
             if relocalized or self.rejections > o.max_rejections:
                 new.emitted = True  # the frame restarts the filter instead
                 flushed = self.flush()
-                self._start(stamp_ns, self._measurement(estimate, prior))
+                self._start(stamp_ns, self._measurement(estimate))
                 self.window[0].nis = nis
                 return FusionStep(self._snapshot(), flushed + self._finalize())
             return FusionStep(self._snapshot(), self._finalize())
