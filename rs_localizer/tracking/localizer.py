@@ -37,6 +37,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..correspondences import Correspondences, VideoFrontend, video_frontend
+from ..estimation.options import EstimateOptions
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from .fusion import FusedState
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
@@ -117,26 +118,35 @@ class FusedPose(PoseWithCovariance):
             rig frame's: camera -> its frame's tag).
         state: the tracker's fused state itself (the smoothed pose too, and the 12x12
             covariance of pose and twist).
-        own_twist: the filter did not fuse the frame's own measurement (its innovation gate
-            refused it, or it was unusable): its state there is a prediction that the frame's
-            data do not support, so the twist is the frame's own (as ``twist_single_frame``),
-            with the estimate's covariance. A global-shutter estimate (no twist of its own)
-            keeps the prediction.
+        own_twist: the twist is the frame's own (as ``twist_single_frame``), with the
+            estimate's covariance: the filter did not fuse the frame's own measurement (its
+            innovation gate refused it, or it was unusable), so its state there is a prediction
+            that the frame's data do not support; or the fused twist is implausible
+            (:attr:`implausible`). A global-shutter estimate (no twist of its own) keeps the
+            prediction.
+        implausible: the fused twist turns or moves faster than the estimator's plausibility
+            bounds (``PlausibilityOptions.max_angular_velocity``, ``max_linear_velocity``),
+            which every published estimate passed: the frame's own twist replaces it
+            (:meth:`PendingTwists.release`).
     """
 
     tag: Any = None
     state: FusedState | None = None
     own_twist: bool = False
+    implausible: bool = False
 
     @classmethod
-    def of(cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None) -> FusedPose:
+    def of(
+        cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None, own: bool = False
+    ) -> FusedPose:
         """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
         :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
         :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
         at the fused state's stamp; the estimate's own twist and covariance where the filter
-        did not fuse the frame (:attr:`own_twist`)."""
+        did not fuse the frame (:attr:`own_twist`), or with ``own`` (the fused twist is
+        implausible, :attr:`implausible`) if the estimate has a twist of its own."""
         est, stamp = estimate.pose, fused.pose.stamp_ns
-        if not fused.fused and estimate.twist_covariance is not None:
+        if (own or not fused.fused) and estimate.twist_covariance is not None:
             return cls(
                 pose=est.with_twist(est.angular_velocity, est.linear_velocity, stamp),
                 pose_covariance=estimate.pose_covariance,
@@ -144,6 +154,7 @@ class FusedPose(PoseWithCovariance):
                 tag=tag,
                 state=fused,
                 own_twist=True,
+                implausible=own,
             )
         return cls(
             pose=est.with_twist(fused.pose.angular_velocity, fused.pose.linear_velocity, stamp),
@@ -152,6 +163,14 @@ class FusedPose(PoseWithCovariance):
             tag=tag,
             state=fused,
         )
+
+
+def _beyond(pose: Any, bounds: tuple[float, float]) -> bool:
+    """The twist of ``pose`` (an :class:`~rs_localizer.pose.RSPose`) turns faster than
+    ``bounds[0]`` rad/s or moves faster than ``bounds[1]`` m/s, or is not finite."""
+    w = float(np.linalg.norm(pose.angular_velocity))
+    v = float(np.linalg.norm(pose.linear_velocity))
+    return not (w <= bounds[0] and v <= bounds[1])
 
 
 class PendingTwists:
@@ -164,14 +183,17 @@ class PendingTwists:
 
     Attributes:
         own_twists: released frames whose twist is their own (:attr:`FusedPose.own_twist`),
-            over the queue's life. last_wall: ``time.monotonic()`` s of the last frame noted
-            (:meth:`note_frame`), None before one.
+            over the queue's life. implausible_twists: frames whose fused twist was beyond the
+            plausibility bounds (:meth:`release`), over the queue's life. last_wall:
+            ``time.monotonic()`` s of the last frame noted (:meth:`note_frame`), None before
+            one.
     """
 
     def __init__(self, limit: int = MAX_PENDING):
         self.limit = int(limit)
         self._items: dict[int, tuple] = {}
         self.own_twists = 0
+        self.implausible_twists = 0
         self.last_wall: float | None = None
 
     def __len__(self) -> int:
@@ -182,18 +204,32 @@ class PendingTwists:
         state is final."""
         self._items[stamp_ns] = (estimate, tag)
 
-    def release(self, final: list) -> list[FusedPose]:
+    def release(self, final: list, bounds: tuple[float, float] | None = None) -> list[FusedPose]:
         """The frames of the final fused states ``final`` (oldest first), each its estimate's
         pose with the fused twist (:meth:`FusedPose.of`); states of frames not held are
         skipped. Then the oldest frames beyond ``limit`` are dropped (never left behind for
-        long)."""
+        long).
+
+        ``bounds``: ``(max_angular_velocity, max_linear_velocity)`` (rad/s, m/s; the
+        estimator's plausibility bounds): a fused twist that turns or moves faster (norms) is
+        never handed out. The frame carries its own twist instead (:attr:`FusedPose.implausible`)
+        when it has one within the bounds; else (a global-shutter estimate) the frame is not
+        released at all (no twist or odom for it). Both are counted in
+        :attr:`implausible_twists`."""
         out = []
         for f in final:
             item = self._items.pop(f.pose.stamp_ns, None)
             if item is None:
                 continue
-            out.append(FusedPose.of(item[0], f, item[1]))
-            self.own_twists += out[-1].own_twist
+            fp = FusedPose.of(item[0], f, item[1])
+            if bounds is not None and not fp.own_twist and _beyond(fp.pose, bounds):
+                self.implausible_twists += 1
+                est = item[0]
+                if est.twist_covariance is None or _beyond(est.pose, bounds):
+                    continue
+                fp = FusedPose.of(est, f, item[1], own=True)
+            out.append(fp)
+            self.own_twists += fp.own_twist
         if len(self._items) > self.limit:
             for k in sorted(self._items)[: -self.limit]:
                 del self._items[k]
@@ -391,8 +427,16 @@ class VideoLocalizer(GyroReadouts):
 
     def _fused(self, final: list) -> list[FusedPose]:
         """The frames whose fused state is final: their pose with the fused twist
-        (:meth:`PendingTwists.release`)."""
-        return self._twists.release(final)
+        (:meth:`PendingTwists.release`), within the estimator's plausibility bounds
+        (``settings.options.plausibility``; the default options' when None)."""
+        return self._twists.release(final, self._twist_bounds())
+
+    def _twist_bounds(self) -> tuple[float, float]:
+        """``(max_angular_velocity, max_linear_velocity)`` (rad/s, m/s) a published twist
+        must stay within: the estimator's plausibility bounds, which every estimate passed."""
+        opts = getattr(self.settings, "options", None)
+        pl = (opts if opts is not None else EstimateOptions()).plausibility
+        return float(pl.max_angular_velocity), float(pl.max_linear_velocity)
 
     def _end_track(self, keep: bool = False) -> list[FusedPose]:
         """End the track: its frames still pending released with their fused twists as they

@@ -363,7 +363,9 @@ class SequenceLocalizer(VideoLocalizer):
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
         ``relocalizations``, ``resets``, ``twists_own_frame`` (frames whose fused twist is
-        their own, :attr:`FusedPose.own_twist`; over the localizer's life)."""
+        their own, :attr:`FusedPose.own_twist`), ``twists_implausible`` (frames whose fused
+        twist was beyond the plausibility bounds, :attr:`FusedPose.implausible`; over the
+        localizer's life)."""
         t = self._tracker
         tc = self._track_counts
         state = (
@@ -379,6 +381,7 @@ class SequenceLocalizer(VideoLocalizer):
             "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
             "resets": tc["resets"] + (t.resets if t else 0),
             "twists_own_frame": self._twists.own_twists,
+            "twists_implausible": self._twists.implausible_twists,
         }
 
     # ---------------------------------------------------------------- gyro

@@ -287,7 +287,7 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
             np.testing.assert_array_equal(x.pose.angular_velocity, e.pose.angular_velocity)
             np.testing.assert_array_equal(x.pose.linear_velocity, e.pose.linear_velocity)
             np.testing.assert_array_equal(x.twist_covariance, e.twist_covariance)
-        else:
+        elif not x.own_twist:
             np.testing.assert_array_equal(x.pose.angular_velocity, x.state.pose.angular_velocity)
     # the refused frames are where the prediction went wrong: publishing it would be far off
     assert max(err(x.state.pose.angular_velocity, x.pose.stamp_ns) for x in refused) > 0.5
@@ -387,3 +387,109 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
     seq.set_frontend(Broken(), "board")
     out = seq.process_image(few.stamp_ns + 1, image, cam)
     assert out.failure == "frontend_error" and out.detail == "board: RuntimeError: no image"
+
+
+NS = 1_000_000_000
+
+
+def _state(w, v, fused=True):
+    """A fused state at stamp 1 s with angular velocity w (rad/s), linear v (m/s)."""
+    from rs_localizer.tracking.fusion import FusedState
+
+    pose = RSPose(np.eye(3), np.zeros(3), np.asarray(w, float), np.asarray(v, float), NS)
+    return FusedState(pose, np.zeros(3), np.zeros(3), np.eye(12), fused=fused)
+
+
+def test_an_implausible_fused_twist_is_never_handed_out():
+    """PendingTwists.release within the plausibility bounds (20 rad/s, 50 m/s): a fused twist
+    beyond either is replaced by the frame's own (when plausible, with its covariance) or, for
+    a frame without a twist of its own (global shutter) or with an implausible one, not
+    released at all; every such frame is counted."""
+    from rs_localizer.estimation.result import RSPoseEstimate
+    from rs_localizer.tracking.localizer import PendingTwists
+
+    def est(w, v, own=True):
+        return RSPoseEstimate(
+            success=True,
+            pose=RSPose(np.eye(3), np.zeros(3), np.asarray(w, float), np.asarray(v, float)),
+            covariance=np.eye(12),
+            twist_covariance=np.eye(6) * 0.01 if own else None,
+        )
+
+    bounds = (20.0, 50.0)
+    cases = [  # (estimate, fused state, released twist (w, v) or None, implausible)
+        (est([1, 0, 0], [0, 0, 1]), _state([0, 3, 0], [0, 2, 0]), ([0, 3, 0], [0, 2, 0]), False),
+        (est([1, 0, 0], [0, 0, 1]), _state([29, 8, 0], [0, 0, 11]), ([1, 0, 0], [0, 0, 1]), True),
+        (est([1, 0, 0], [0, 0, 1]), _state([0, 1, 0], [60, 0, 0]), ([1, 0, 0], [0, 0, 1]), True),
+        (
+            est([1, 0, 0], [0, 0, 1]),
+            _state([np.nan, 0, 0], [0, 0, 0]),
+            ([1, 0, 0], [0, 0, 1]),
+            True,
+        ),
+        (est([0, 0, 0], [0, 0, 0], own=False), _state([25, 0, 0], [0, 0, 0]), None, True),
+        (est([21, 0, 0], [0, 0, 0]), _state([25, 0, 0], [0, 0, 0]), None, True),
+    ]
+    for e, f, want, implausible in cases:
+        q = PendingTwists()
+        q.hold(NS, e, "cam")
+        out = q.release([f], bounds)
+        assert q.implausible_twists == int(implausible) and len(q) == 0
+        if want is None:
+            assert out == []
+            continue
+        (fp,) = out
+        np.testing.assert_array_equal(fp.pose.angular_velocity, want[0])
+        np.testing.assert_array_equal(fp.pose.linear_velocity, want[1])
+        assert fp.implausible == implausible and fp.own_twist == implausible
+        assert q.own_twists == int(implausible) and fp.tag == "cam" and fp.state is f
+        if implausible:
+            np.testing.assert_array_equal(fp.twist_covariance, e.twist_covariance)
+    # without bounds (as before) the fused twist is handed out as it is
+    q = PendingTwists()
+    q.hold(NS, cases[1][0])
+    (fp,) = q.release([cases[1][1]])
+    np.testing.assert_array_equal(fp.pose.angular_velocity, [29, 8, 0])
+
+
+def test_sequence_publishes_no_fused_twist_beyond_the_plausibility_bounds(video, monkeypatch):
+    """Whatever the twist filter hands out, SequenceLocalizer's fused twists stay within the
+    estimator's plausibility bounds (its options'): a final state made implausible (one frame
+    given 35 rad/s) comes out with the frame's own twist, counted ``twists_implausible``; the
+    other frames carry the filter's twist."""
+    from dataclasses import replace
+
+    from rs_localizer.estimation.options import PlausibilityOptions
+    from rs_localizer.tracking import fusion
+
+    frames, cam = video
+    bad = frames[5].t_ref_ns
+    update = fusion.TwistFilter.update
+
+    def corrupting(self, *a, **k):
+        step = update(self, *a, **k)
+        for f in step.final:
+            if f.pose.stamp_ns == bad:
+                f.pose.angular_velocity[0] += 35.0  # (a view of the filter's row)
+        return step
+
+    monkeypatch.setattr(fusion.TwistFilter, "update", corrupting)
+    opts = replace(OPTS, plausibility=PlausibilityOptions(max_angular_velocity=30.0))
+    seq = SequenceLocalizer(SequenceSettings(options=opts, stamp_row=0.0))
+    fused, own = [], {}
+    for f in frames:
+        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        own[out.stamp_ns] = out.estimate
+        fused += out.fused
+    fused += seq.flush()
+    assert [x.pose.stamp_ns for x in fused] == [f.t_ref_ns for f in frames]
+    assert seq.tracking_values()["twists_implausible"] == 1
+    for x in fused:
+        assert np.linalg.norm(x.pose.angular_velocity) <= 30.0
+        assert x.implausible == (x.pose.stamp_ns == bad)
+        if x.implausible:
+            e = own[bad].pose
+            np.testing.assert_array_equal(x.pose.angular_velocity, e.angular_velocity)
+            np.testing.assert_array_equal(x.pose.linear_velocity, e.linear_velocity)
+        elif not x.own_twist:
+            np.testing.assert_array_equal(x.pose.angular_velocity, x.state.pose.angular_velocity)
