@@ -434,7 +434,7 @@ class VideoLocalizer(GyroReadouts):
     def _twist_bounds(self) -> tuple[float, float]:
         """``(max_angular_velocity, max_linear_velocity)`` (rad/s, m/s) a published twist
         must stay within: the estimator's plausibility bounds, which every estimate passed."""
-        opts = getattr(self.settings, "options", None)
+        opts = self.settings.options  # (SequenceSettings and RigSettings both carry one)
         pl = (opts if opts is not None else EstimateOptions()).plausibility
         return float(pl.max_angular_velocity), float(pl.max_linear_velocity)
 
