@@ -718,7 +718,8 @@ class FramePipeline:
 
     def tracking_values(self) -> dict[str, Any]:
         """Diagnostics of video tracking: track_state (tracking, lost or disabled),
-        frames_tracked, relocalizations, resets, twists_own_frame (over the pipeline's life)."""
+        frames_tracked, relocalizations, resets, twists_own_frame, twists_implausible (over the
+        pipeline's life)."""
         if self._config is None:
             return {**self.sequence.tracking_values(), "track_state": "disabled"}
         return self.sequence.tracking_values()
