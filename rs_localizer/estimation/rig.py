@@ -1824,15 +1824,6 @@ def _image_alone(
     return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
 
 
-@dataclass(frozen=True)
-class _Batches:
-    """What :func:`~.ransac.batch_sizes` reads of a :class:`~.options.RansacOptions`."""
-
-    batch_size: int
-    max_iterations: int
-    min_iterations: int
-
-
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1858,11 +1849,7 @@ class _RigSearch(RansacLoop):
         # the batches (:func:`~.ransac.batch_sizes`): the first no larger than
         # ``min_iterations``, so that a frame whose best model asks for no more samples stops
         # there, as PoseLib's loop (checked after every sample past min_iterations) does
-        self.batches = _Batches(
-            max(1, min(int(r.batch_size), int(r.min_iterations))),
-            int(r.max_iterations),
-            int(r.min_iterations),
-        )
+        self.batches = replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point."""
