@@ -366,7 +366,8 @@ def rig_diagnostics(
     ``rig.stop_after`` and none was posed; the message goes on with the cameras'
     warnings and the failures by reason). Values: ``rig_frames``,
     ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``,
-    ``time_resets`` (stamps going back or jumping ahead, as a camera's), the
+    ``time_resets`` (stamps going back or jumping ahead, as a camera's),
+    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's), the
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
@@ -394,6 +395,7 @@ def rig_diagnostics(
         "rig_frames_pending": r["pending"],
         "track_state": rig.track_state,
         "time_resets": rig.counts.get("rig.time_resets", 0),
+        **rig.twist_values(),
     }
     compile_values, note = _compile_values("rig frames")
     values.update(compile_values, rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0))

@@ -425,6 +425,17 @@ class VideoLocalizer(GyroReadouts):
         """Frames whose fused twist is not final yet."""
         return len(self._twists)
 
+    def twist_values(self) -> dict[str, int]:
+        """The fused twists handed out over the localizer's life: ``twists_own_frame`` (frames
+        whose twist is their own, :attr:`FusedPose.own_twist`: the filter refused the frame's
+        measurement or its fused twist was implausible) and ``twists_implausible`` (frames
+        whose fused twist was beyond the plausibility bounds, :attr:`FusedPose.implausible`;
+        never handed out)."""
+        return {
+            "twists_own_frame": self._twists.own_twists,
+            "twists_implausible": self._twists.implausible_twists,
+        }
+
     def _fused(self, final: list) -> list[FusedPose]:
         """The frames whose fused state is final: their pose with the fused twist
         (:meth:`PendingTwists.release`), within the estimator's plausibility bounds

@@ -362,10 +362,8 @@ class SequenceLocalizer(VideoLocalizer):
     # ---------------------------------------------------------------- read-outs
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
-        ``relocalizations``, ``resets``, ``twists_own_frame`` (frames whose fused twist is
-        their own, :attr:`FusedPose.own_twist`), ``twists_implausible`` (frames whose fused
-        twist was beyond the plausibility bounds, :attr:`FusedPose.implausible`; over the
-        localizer's life)."""
+        ``relocalizations``, ``resets``, ``twists_own_frame`` and ``twists_implausible``
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`)."""
         t = self._tracker
         tc = self._track_counts
         state = (
@@ -380,8 +378,7 @@ class SequenceLocalizer(VideoLocalizer):
             "frames_tracked": tc["frames_tracked"] + (t.frames_tracked if t else 0),
             "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
             "resets": tc["resets"] + (t.resets if t else 0),
-            "twists_own_frame": self._twists.own_twists,
-            "twists_implausible": self._twists.implausible_twists,
+            **self.twist_values(),
         }
 
     # ---------------------------------------------------------------- gyro

@@ -92,3 +92,50 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
         f"no rig frame posed: no frame from camera {names[0]}"
     )
     assert v[f"{names[0]}.received"] == 0 and v["latency_ms_median"] == "nan"
+
+
+def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
+    """A rig's fused twists go through the camera's plausibility check, and its status counts
+    them under the camera's keys: a rig frame whose fused state the filter hands out at
+    35 rad/s (above a 30 rad/s bound) is published with its own twist, counted in
+    ``twists_implausible`` and ``twists_own_frame``; the counts equal the flags of the
+    published rig frames."""
+    import numpy as np
+    from helpers.rig import mounts_of
+
+    from rs_localizer.estimation.options import EstimateOptions, PlausibilityOptions
+    from rs_localizer.ros.diagnostics import rig_diagnostics
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking import fusion
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    update, corrupted = fusion.TwistFilter.update, []
+
+    def corrupting(self, *a, **k):
+        step = update(self, *a, **k)
+        for f in step.final:
+            if not corrupted:
+                corrupted.append(f.pose.stamp_ns)
+                f.pose.angular_velocity[0] += 35.0  # (a view of the filter's row)
+        return step
+
+    monkeypatch.setattr(fusion.TwistFilter, "update", corrupting)
+    bounds = PlausibilityOptions(max_angular_velocity=30.0)
+    rig = RigLocalizer(RigSettings(mounts_of(cams), options=EstimateOptions(plausibility=bounds)))
+    fused = []
+    for f in frames:
+        for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz)):
+            fused += out.fused
+    for out in rig.close():
+        fused += out.fused
+    fused += rig.flush()
+    v = rig_diagnostics(rig, set())[2]
+    assert len(corrupted) == 1 and len(fused) > 3
+    assert v["twists_implausible"] == 1 == sum(x.implausible for x in fused)
+    assert v["twists_own_frame"] == sum(x.own_twist for x in fused) >= 1
+    (bad,) = [x for x in fused if x.implausible]
+    assert bad.pose.stamp_ns == corrupted[0] and bad.own_twist
+    assert all(np.linalg.norm(x.pose.angular_velocity) <= 30.0 for x in fused)
