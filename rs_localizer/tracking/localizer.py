@@ -36,7 +36,13 @@ from typing import Any
 import numpy as np
 
 from ..camera import CameraModel
-from ..correspondences import Correspondences, VideoFrontend, video_frontend
+from ..correspondences import (
+    Correspondences,
+    FrameFeedback,
+    Frontend,
+    VideoFrontend,
+    video_frontend,
+)
 from ..estimation.options import EstimateOptions
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
 from .fusion import FusedState
@@ -274,7 +280,7 @@ class CameraFrontend:
         self.frontend: VideoFrontend | None = None
         self.last_sample: tuple | None = None
 
-    def set(self, frontend: Any, label: str | None = None) -> None:
+    def set(self, frontend: Frontend | VideoFrontend | None, label: str | None = None) -> None:
         """Use ``frontend`` (None: none): a :class:`~rs_localizer.correspondences.VideoFrontend`
         as it is, a per-image :class:`~rs_localizer.correspondences.Frontend` wrapped
         (:func:`~rs_localizer.correspondences.video_frontend`); ``label``: its name (None:
@@ -299,7 +305,7 @@ class CameraFrontend:
         return same_image(prev, sample, level)
 
     def search(
-        self, image: np.ndarray, camera: CameraModel, encoding: str, prediction: Any
+        self, image: np.ndarray, camera: CameraModel, encoding: str, prediction: RSModel | None
     ) -> Correspondences:
         """The front end's correspondences of the image (``process(image, camera, encoding,
         prediction)``; ``prediction``: the frame's predicted
@@ -318,7 +324,9 @@ class CameraFrontend:
             self.log.warning(f"{self.label}.warning", text)
         return found
 
-    def observe(self, stamp_ns: int, points2d: np.ndarray | None, feedback: Any) -> None:
+    def observe(
+        self, stamp_ns: int, points2d: np.ndarray | None, feedback: FrameFeedback | None
+    ) -> None:
         """Tell the front end how its frame stamped ``stamp_ns`` was solved (``observe``;
         ``points2d`` (M, 2) the rows given to the estimator and ``feedback`` a
         :class:`~rs_localizer.correspondences.FrameFeedback`, or None and None: the frame

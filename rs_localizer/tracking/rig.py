@@ -103,7 +103,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
-from ..correspondences import FrameFeedback
+from ..correspondences import FrameFeedback, Frontend, VideoFrontend
 from ..estimation.estimate import estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
@@ -857,7 +857,9 @@ class RigLocalizer(VideoLocalizer):
             img = self._img = _ImageInput()
         return img
 
-    def set_frontend(self, name: str, frontend: Any, label: str | None = None) -> None:
+    def set_frontend(
+        self, name: str, frontend: Frontend | VideoFrontend | None, label: str | None = None
+    ) -> None:
         """Use ``frontend`` for camera ``name``'s images (:meth:`process_image`; None: none): a
         :class:`~rs_localizer.correspondences.VideoFrontend` as it is, a per-image
         :class:`~rs_localizer.correspondences.Frontend` wrapped
@@ -876,7 +878,7 @@ class RigLocalizer(VideoLocalizer):
             fe = img.frontends[name] = CameraFrontend(self.log)
         fe.set(frontend, None if frontend is None else label or type(frontend).__name__)
 
-    def frontend(self, name: str) -> Any:
+    def frontend(self, name: str) -> VideoFrontend | None:
         """Camera ``name``'s front end (:meth:`set_frontend`), or None."""
         fe = self._image_input().frontends.get(name)
         return None if fe is None else fe.frontend
