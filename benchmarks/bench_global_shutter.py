@@ -34,7 +34,8 @@ RealSense D435 colour camera (640x480, rolling shutter, line delay unknown) watc
 board of 0.049 m tags that barely moves, 372 frames of 4-9 tags, each tag where TagSLAM's
 solution puts it on the board (the printed 1.5-side pitch is up to 0.8 mm off): the camera's median
 position (mm) and rotation (deg) error against TagSLAM's solution for ``p3p`` and
-``r6p_1lin`` with line delay 0 and 30 us, and the motion models taken.
+``r6p_1lin`` with line delay 0 and 30 us, and the motion models taken; then the video's
+check of the rolling-shutter timing (``readout_suspect``, docs/video.md) at 30, 10 and 0 us.
 
     python -m benchmarks.bench_global_shutter [--frames 60] [--points 100]
         [--line-delays 0 1e-9 1e-7 1e-6 2e-6 3e-5] [--turn 10] [--planar-frames 60] [--drive]
@@ -56,6 +57,7 @@ from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.planar import make_planar_frame, planar_camera
 from rs_localizer.sim.synthetic import FRAME_SPAN, IMAGE_SIZE, make_frame, paper_camera
+from rs_localizer.tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
 
 __all__ = ["d435_frames", "drive_frames", "main", "planar_frames", "real_d435", "run", "tags_frame"]
 
@@ -145,7 +147,8 @@ def d435_frames(folder: Path = TEST_23) -> tuple[CameraModel, list]:
     """test_23's camera (line delay 0) and frames: namespaces with ``points_px`` (the AprilTag
     library's corners as this package's detector returns them), ``X`` (the board's corners,
     tag ``3 row + column``, rows up, 1.5 sides apart, in the detector's order),
-    ``position`` (3,) and ``orientation`` (3, 3): TagSLAM's camera in the board frame."""
+    ``position`` (3,) and ``orientation`` (3, 3): TagSLAM's camera in the board frame,
+    ``stamp`` (s): the detection's."""
     import json
 
     from scipy.spatial.transform import Rotation
@@ -198,6 +201,7 @@ def d435_frames(folder: Path = TEST_23) -> tuple[CameraModel, list]:
                 X=np.concatenate([board[i] for i in ids]),
                 position=board_cam[:3, 3],
                 orientation=board_cam[:3, :3],
+                stamp=float(d["stamp"]),
             )
         )
     K = np.array([[612.569, 0, 319.370], [0, 612.861, 241.992], [0, 0, 1]])
@@ -227,6 +231,22 @@ def real_d435(folder: Path = TEST_23) -> None:
                 f"{np.median(rot):7.3f} deg  refused {len(frames) - len(pos)}, "
                 f"global-shutter model {gs}, rolling-shutter {len(models) - gs}"
             )
+    print("the video's check of the rolling-shutter timing (SequenceLocalizer, r6p_1lin):")
+    for delay in (30e-6, 10e-6, 0.0):
+        cam = replace(camera, line_delay=delay)
+        seq, first = SequenceLocalizer(SequenceSettings()), None
+        for k, f in enumerate(frames):
+            seq.process(SequenceFrame(int(round(f.stamp * 1e9)), cam, f.points_px, f.X))
+            if first is None and seq.tracking_values()["readout_suspect"] == "true":
+                first = k + 1
+        seq.flush()
+        v = seq.tracking_values()
+        print(
+            f"  {delay * 1e6:4g} us/line: suspect {v['readout_suspect']} at the end "
+            f"(contradicted {v['readout_contradicted']} of the last 30), first after "
+            f"{first} frames; relocalized {v['relocalizations']}, twists refused "
+            f"{v['twists_own_frame']} of {len(frames)}"
+        )
 
 
 def run(camera: CameraModel | float, frames: list, solvers=SOLVERS) -> dict:

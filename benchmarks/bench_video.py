@@ -13,6 +13,11 @@ Prints the targets of the video work and whether they are met:
 * **readout calibration**: line delay error and its reported std over seeds of a 60-frame
   ``pan`` video (>= 0.5 rad/s), from the rotation between frames and from a gyro; a ``car``
   video (no rotation) must say not observable;
+* **rolling-shutter timing check**: the localizer's ``readout_suspect``
+  (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`: of the last 30
+  frames, those relocalized or whose twist the fused twist refused) on ``data/sample`` and the
+  synthetic videos with their true timing (never suspect) and with the line delay doubled,
+  halved or the readout direction reversed (always suspect);
 * **relocalization and resets**: a teleport, a stamp jump back, dropped frames, a bad frame.
 
 Everything runs on synthetic data with exact ground truth (:mod:`rs_localizer.sim`) and the
@@ -130,6 +135,32 @@ def _sequence(opts: EstimateOptions, cam) -> SequenceLocalizer:
     """The node's video state (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`,
     tracking on, no gyro), fed the frames' reference-line times as their stamps."""
     return SequenceLocalizer(SequenceSettings(options=opts, stamp_row=cam.reference_line))
+
+
+# ---------------------------------------------------------------------------- timing check
+#: the wrong timings the check is run with: name -> camera of the video -> the camera given
+WRONG_TIMINGS = {
+    "line delay x2": lambda cam: replace(cam, line_delay=2.0 * cam.line_delay),
+    "line delay x0.5": lambda cam: replace(cam, line_delay=0.5 * cam.line_delay),
+    "readout reversed": lambda cam: replace(
+        cam, readout="bottom_to_top" if cam.readout == "top_to_bottom" else "top_to_bottom"
+    ),
+}
+
+
+def readout_check(frames, cam) -> dict:
+    """The video through the node's video state with its true timing and each of
+    :data:`WRONG_TIMINGS`: name -> (``readout_contradicted``, ``readout_suspect`` as bool)
+    at the end of the video."""
+    out = {}
+    for name, given in (("true timing", cam), *((k, f(cam)) for k, f in WRONG_TIMINGS.items())):
+        seq = _sequence(EstimateOptions(ransac=RansacOptions(seed=0)), cam)
+        for stamp, uv, xyz in frames:
+            seq.process(SequenceFrame(stamp, given, uv, xyz))
+        seq.flush()
+        v = seq.tracking_values()
+        out[name] = (v["readout_contradicted"], v["readout_suspect"] == "true")
+    return out
 
 
 # ---------------------------------------------------------------------------- speed
@@ -417,6 +448,31 @@ def _run(quick: bool) -> int:
     )
     nr = readout_no_rotation()
     check("no rotation (car) -> observable: false", not nr["observable"], nr["reason"])
+
+    print(
+        "\n== rolling-shutter timing check (of the last 30 frames: relocalized or twist "
+        "refused; suspect at 10)"
+    )
+    timing = {"data/sample": readout_check(*sample_video()[:2])}
+    for name, seed in (("shake", 1), ("car", 1), ("pan", 1), ("walk", 3)):
+        timing[name] = readout_check(*synthetic_video(name, 60, seed)[:2])
+    names = list(next(iter(timing.values())))
+    print("| video | " + " | ".join(names) + " |")
+    print("|---" * (len(names) + 1) + "|")
+    for video, r in timing.items():
+        cells = [f"{k} {'suspect' if sus else 'ok'}" for k, sus in r.values()]
+        print(f"| {video} | " + " | ".join(cells) + " |")
+    check(
+        "true timing never suspect",
+        not any(r["true timing"][1] for r in timing.values()),
+        ", ".join(f"{v} {r['true timing'][0]}" for v, r in timing.items()),
+    )
+    check(
+        "every wrong timing suspect",
+        all(r[k][1] for r in timing.values() for k in WRONG_TIMINGS),
+        f"{sum(r[k][1] for r in timing.values() for k in WRONG_TIMINGS)} of "
+        f"{len(timing) * len(WRONG_TIMINGS)}",
+    )
 
     print("\n== relocalization and resets (walk video, teleport before frame 12)")
     ev = events()

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
+from ..tracking.localizer import READOUT_ADVICE, READOUT_CHECK_FRAMES
 from .config import LocalizerConfig
 from .frame_queue import FrameCounts
 from .pipeline import StatsSnapshot
@@ -138,7 +139,7 @@ def diagnostic_status(
     c = stats.counts
     failed = dict(sorted(frames.failures.items()))
     level, message = _level_and_message(
-        cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s
+        cfg, frames, c, failed, messages_lost, gyro_inconsistent, imu_idle_s, tracking
     )
     compile_values, note = _compile_values("frames")
     message += note
@@ -172,6 +173,7 @@ def _level_and_message(
     messages_lost: int,
     gyro_inconsistent: bool,
     imu_idle_s: float | None,
+    tracking: dict[str, Any] | None = None,
 ) -> tuple[int, str]:
     """The status level and message of :func:`diagnostic_status` (before the compile note)."""
     if frames.received and not frames.solved:
@@ -187,6 +189,9 @@ def _level_and_message(
             f"{frames.solved}/{frames.received} frames solved; the gyro contradicts the image "
             "(check imu.rotation, imu.time_offset): frames solved without it"
         )
+    elif (tracking or {}).get("readout_suspect") == "true":
+        level = WARN
+        message = f"{frames.solved}/{frames.received} frames solved; " + _readout_text(tracking)
     elif (
         cfg.imu is not None
         and frames.received
@@ -213,6 +218,22 @@ def _level_and_message(
             "or another room?"
         )
     return level, message
+
+
+def _readout_text(tracking: dict[str, Any], rig: bool = False) -> str:
+    """The warning of a suspect rolling-shutter timing (``readout_suspect``) of a camera's
+    video or (``rig``) a rig's."""
+    what = "rig frames" if rig else "frames"
+    advice = (
+        "check each camera's line_delay and direction (rig.<camera>.*) and calibration"
+        if rig
+        else READOUT_ADVICE
+    )
+    return (
+        f"the {what}' rolling-shutter motion does not predict the video "
+        f"({tracking['readout_contradicted']} of the last {READOUT_CHECK_FRAMES} {what} "
+        f"relocalized or their twist refused): {advice}"
+    )
 
 
 def _core_values(
@@ -367,7 +388,9 @@ def rig_diagnostics(
     warnings and the failures by reason). Values: ``rig_frames``,
     ``rig_frames_solved``, ``_failed``, ``_skipped``, ``_pending``, ``track_state``,
     ``time_resets`` (stamps going back or jumping ahead, as a camera's),
-    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's), the
+    ``twists_own_frame`` and ``twists_implausible`` (the fused twists, as a camera's),
+    ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter timing,
+    as a camera's: WARN while suspect), the
     estimator's path as the single-camera node's (``compiled``: the compiled kernels in use,
     else the uncompiled path; ``compile_state``, ``compile_failures``, ``compile_error``: the
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
@@ -396,6 +419,7 @@ def rig_diagnostics(
         "track_state": rig.track_state,
         "time_resets": rig.counts.get("rig.time_resets", 0),
         **rig.twist_values(),
+        **rig.readout_values(),
     }
     compile_values, note = _compile_values("rig frames")
     values.update(compile_values, rig_frames_uncompiled=rig.counts.get("rig.uncompiled", 0))
@@ -409,6 +433,8 @@ def rig_diagnostics(
         values.update(section)
         busy, lost = busy + busy_n, lost + lost_n
     values.update(_rig_gyro_values(rig, warnings))
+    if values["readout_suspect"] == "true":
+        warnings.append(_readout_text(values, rig=True))
     if inputs is not None:
         values.update(timing_values(inputs.latencies, inputs.stamp_ages))
         frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]

@@ -22,6 +22,17 @@ run this code for:
   (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`), either seen by the camera (a
   rig's through the camera's mounting).
 
+A video also checks the cameras' rolling-shutter timing (:class:`PendingTwists`,
+:meth:`VideoLocalizer.readout_values`): a frame's twist fitted over its readout must predict
+the next frames. When :data:`READOUT_CHECK_SHARE` or more of the last
+:data:`READOUT_CHECK_FRAMES` rolling-shutter frames were relocalized (the track's prediction,
+carried at the last twist, did not explain them) or had their twist refused by the fused
+twist's gate, the frames' motion is not the camera's: a wrong ``line_delay`` or readout
+direction, or intrinsics the rolling-shutter model bends into motion. Rendered videos with
+their true timing (``benchmarks/bench_video.py``'s data/sample, shake, pan, walk) have none
+of either; the same videos with the line delay doubled or halved, or the readout direction
+reversed, 48-97 %.
+
 Only a rig groups its cameras' frames into rig frames, weighs their disagreement and maps
 the body's pose through each camera's mounting (:mod:`rs_localizer.tracking.rig`).
 """
@@ -30,6 +41,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -179,6 +191,21 @@ def _beyond(pose: Any, bounds: tuple[float, float]) -> bool:
     return not (w <= bounds[0] and v <= bounds[1])
 
 
+#: the rolling-shutter timing check looks at this many of the last frames released with a
+#: twist of their own (:meth:`PendingTwists.readout_share`)
+READOUT_CHECK_FRAMES = 30
+
+#: the timing is suspect when at least this share of those frames was relocalized or had its
+#: twist refused by the fused twist
+READOUT_CHECK_SHARE = 1.0 / 3.0
+
+#: what to check when the timing is suspect
+READOUT_ADVICE = (
+    "check rs.line_delay (measure it: rs-localizer calibrate-readout), rs.direction and the "
+    "camera calibration"
+)
+
+
 class PendingTwists:
     """The posed frames whose fused twist is not final yet: frame time (ns, the time the
     twist filter was given) -> (estimate, tag), released as :class:`FusedPose` when the filter
@@ -192,7 +219,9 @@ class PendingTwists:
             over the queue's life. implausible_twists: frames whose fused twist was beyond the
             plausibility bounds (:meth:`release`), over the queue's life. last_wall:
             ``time.monotonic()`` s of the last frame noted (:meth:`note_frame`), None before
-            one.
+            one. recent: per released frame with a twist of its own (a rolling-shutter
+            estimate), the last :data:`READOUT_CHECK_FRAMES`: True when the frame was
+            relocalized or its twist is its own (the fused twist refused it).
     """
 
     def __init__(self, limit: int = MAX_PENDING):
@@ -201,14 +230,22 @@ class PendingTwists:
         self.own_twists = 0
         self.implausible_twists = 0
         self.last_wall: float | None = None
+        self.recent: deque[bool] = deque(maxlen=READOUT_CHECK_FRAMES)
 
     def __len__(self) -> int:
         return len(self._items)
 
-    def hold(self, stamp_ns: int, estimate: PoseMeasurement, tag: Any = None) -> None:
+    def hold(
+        self,
+        stamp_ns: int,
+        estimate: PoseMeasurement,
+        tag: Any = None,
+        relocalized: bool = False,
+    ) -> None:
         """Hold a posed frame (``stamp_ns``: its time in the twist filter) until its fused
-        state is final."""
-        self._items[stamp_ns] = (estimate, tag)
+        state is final; ``relocalized``: the track's prediction did not explain it (the
+        tracker's path ``relocalized``)."""
+        self._items[stamp_ns] = (estimate, tag, bool(relocalized))
 
     def release(self, final: list, bounds: tuple[float, float] | None = None) -> list[FusedPose]:
         """The frames of the final fused states ``final`` (oldest first), each its estimate's
@@ -236,10 +273,20 @@ class PendingTwists:
                 fp = FusedPose.of(est, f, item[1], own=True)
             out.append(fp)
             self.own_twists += fp.own_twist
+            if item[0].twist_covariance is not None:
+                self.recent.append(item[2] or fp.own_twist)
         if len(self._items) > self.limit:
             for k in sorted(self._items)[: -self.limit]:
                 del self._items[k]
         return out
+
+    def readout_share(self) -> float | None:
+        """The share of the last :data:`READOUT_CHECK_FRAMES` frames with a twist of their own
+        that were relocalized or had their twist refused (:attr:`recent`), None before that
+        many."""
+        if len(self.recent) < READOUT_CHECK_FRAMES:
+            return None
+        return sum(self.recent) / len(self.recent)
 
     def clear(self) -> None:
         """Drop every frame held (their track is over)."""
@@ -369,6 +416,7 @@ class VideoLocalizer(GyroReadouts):
     """
 
     settings: Any
+    log: TrackLog
     _twists: PendingTwists
     _lock: threading.RLock
     _carried: CarriedPrediction
@@ -378,6 +426,7 @@ class VideoLocalizer(GyroReadouts):
         self._twists = PendingTwists()
         self._lock = threading.RLock()
         self._carried = CarriedPrediction()
+        self._readout_warned = False  # (the timing check's warning is out)
 
     # ---------------------------------------------------------------- the subclass's track
     def _twist_source(self) -> Any:
@@ -444,11 +493,50 @@ class VideoLocalizer(GyroReadouts):
             "twists_implausible": self._twists.implausible_twists,
         }
 
+    def readout_values(self) -> dict[str, Any]:
+        """The check of the rolling-shutter timing (module docstring): ``readout_contradicted``
+        (of the last :data:`READOUT_CHECK_FRAMES` frames with a twist of their own, those
+        relocalized or whose twist the fused twist refused; ``-1`` before that many) and
+        ``readout_suspect`` (``"true"`` when they are at least :data:`READOUT_CHECK_SHARE` of
+        them, else ``"false"``)."""
+        share = self._twists.readout_share()
+        return {
+            "readout_contradicted": -1 if share is None else int(sum(self._twists.recent)),
+            "readout_suspect": str(share is not None and share >= READOUT_CHECK_SHARE).lower(),
+        }
+
     def _fused(self, final: list) -> list[FusedPose]:
         """The frames whose fused state is final: their pose with the fused twist
         (:meth:`PendingTwists.release`), within the estimator's plausibility bounds
-        (``settings.options.plausibility``; the default options' when None)."""
-        return self._twists.release(final, self._twist_bounds())
+        (``settings.options.plausibility``; the default options' when None). When the
+        rolling-shutter timing becomes suspect (:meth:`readout_values`) it is logged once
+        (``readout.suspect``)."""
+        out = self._twists.release(final, self._twist_bounds())
+        share = self._twists.readout_share() if out else None
+        if share is None:
+            return out
+        suspect = share >= READOUT_CHECK_SHARE
+        if suspect and not self._readout_warned:
+            self.log.warning(
+                "readout.suspect",
+                f"{sum(self._twists.recent)} of the last {len(self._twists.recent)} frames "
+                "were relocalized or had their twist refused by the fused twist: the frames' "
+                f"rolling-shutter motion does not predict the video: {READOUT_ADVICE}",
+            )
+        self._readout_warned = suspect
+        return out
+        suspect, self._readout_suspect = (
+            share >= READOUT_CHECK_SHARE,
+            share >= READOUT_CHECK_SHARE,
+        )
+        if suspect and not self.__dict__.get("_readout_warned"):
+            self.log.warning(
+                "readout.suspect",
+                f"{sum(self._twists.recent)} of the last {len(self._twists.recent)} frames "
+                "were relocalized or had their twist refused by the fused twist: the frames' "
+                f"rolling-shutter motion does not predict the video: {READOUT_ADVICE}",
+            )
+        return out
 
     def _twist_bounds(self) -> tuple[float, float]:
         """``(max_angular_velocity, max_linear_velocity)`` (rad/s, m/s) a published twist

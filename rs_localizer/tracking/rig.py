@@ -1368,7 +1368,7 @@ class RigLocalizer(VideoLocalizer):
         if self._filter is None:
             return
         step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
-        self._twists.hold(out.stamp_ns, est, dict(out.tags))
+        self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
         out.fused += self._fused(step.final)
 
     def _update_disagreement(self, out, names, n_pts, n_in, views, est) -> None:

@@ -363,7 +363,9 @@ class SequenceLocalizer(VideoLocalizer):
     def tracking_values(self) -> dict[str, Any]:
         """Video tracking: ``track_state`` (tracking, lost or disabled), ``frames_tracked``,
         ``relocalizations``, ``resets``, ``twists_own_frame`` and ``twists_implausible``
-        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`)."""
+        (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.twist_values`),
+        ``readout_contradicted`` and ``readout_suspect`` (the check of the rolling-shutter
+        timing, :meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
         t = self._tracker
         tc = self._track_counts
         state = (
@@ -379,6 +381,7 @@ class SequenceLocalizer(VideoLocalizer):
             "relocalizations": tc["relocalizations"] + (t.relocalizations if t else 0),
             "resets": tc["resets"] + (t.resets if t else 0),
             **self.twist_values(),
+            **self.readout_values(),
         }
 
     # ---------------------------------------------------------------- gyro
@@ -722,7 +725,7 @@ class SequenceLocalizer(VideoLocalizer):
                 or camera.seconds_per_unit_r <= 0
             )
             if not out.twist_now:  # (its fused twist comes when final)
-                self._twists.hold(ref, est, frame.tag)
+                self._twists.hold(ref, est, frame.tag, out.path == "relocalized")
             # (also with the frame's own twist final: an earlier track's, e.g. before the
             # solver became a global-shutter one)
             out.fused = ended + self._fused(final)

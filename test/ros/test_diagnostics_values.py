@@ -139,3 +139,46 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     (bad,) = [x for x in fused if x.implausible]
     assert bad.pose.stamp_ns == corrupted[0] and bad.own_twist
     assert all(np.linalg.norm(x.pose.angular_velocity) <= 30.0 for x in fused)
+
+
+def test_a_suspect_readout_timing_warns():
+    """The camera's status goes to WARN with the advice while the video flags the
+    rolling-shutter timing (``readout_suspect``, a tracking value), OK otherwise; a rig whose
+    cameras are given twice their line delay is flagged on its own video, its status WARN
+    naming the cameras' timing, and the same rig with the true line delays is not."""
+    from dataclasses import replace
+
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+
+    cfg = build_config(default_values())
+    snap = FramePipeline(cfg).stats.snapshot()
+    frames_in = FrameCounts(received=40, solved=40)
+    for suspect, level in (("false", OK), ("true", WARN)):
+        tracking = {"readout_contradicted": 12 if suspect == "true" else 0}
+        tracking["readout_suspect"] = suspect
+        args = (cfg, frames_in, snap, tracking, "camera_info", 0, [0.01], [0.01])
+        got, message, v = diagnostic_status(*args, 0.0, None, False, 0.0)
+        assert got == level and v["readout_suspect"] == suspect
+        assert ("12 of the last 30 frames" in message and "rs.line_delay" in message) == (
+            suspect == "true"
+        ), message
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=1.4, num_points=60, seed=5)
+    for scale in (1.0, 2.0):
+        by = {c.name: replace(c.camera, line_delay=scale * c.camera.line_delay) for c in cams}
+        rig = RigLocalizer(RigSettings(mounts_of(cams)))
+        for f in frames:
+            rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        rig.close()
+        rig.flush()
+        level, message, v = rig_diagnostics(rig, set())
+        assert v["readout_contradicted"] >= 0, v  # (30 rig frames and more)
+        flagged = "rig frames' rolling-shutter motion does not predict the video" in message
+        assert flagged == (scale == 2.0) == (v["readout_suspect"] == "true"), (scale, message)
+        if scale == 2.0:
+            assert level == WARN and v["readout_contradicted"] >= 10

@@ -493,3 +493,44 @@ def test_sequence_publishes_no_fused_twist_beyond_the_plausibility_bounds(video,
             np.testing.assert_array_equal(x.pose.linear_velocity, e.linear_velocity)
         elif not x.own_twist:
             np.testing.assert_array_equal(x.pose.angular_velocity, x.state.pose.angular_velocity)
+
+
+@pytest.mark.parametrize("timing", ["true", "line delay x2", "readout reversed"])
+def test_the_video_flags_a_wrong_rolling_shutter_timing(timing):
+    """A 36-frame walk given to the localizer with its true timing: none of the last 30
+    frames was relocalized or had its twist refused, ``readout_suspect`` false, nothing
+    logged. The same frames with the line delay doubled or the readout direction reversed
+    (the twist fitted over a readout of the wrong timing is not the camera's: the next
+    frames contradict it): suspect, the count of frames as the tracker's own counters say
+    (each contradicted frame was relocalized or its twist its own), warned once."""
+    from dataclasses import replace
+
+    from helpers.rig import Log
+
+    from rs_localizer.tracking.localizer import READOUT_CHECK_FRAMES
+
+    frames, _, cam, _ = generate_sequence(
+        SequenceConfig(num_frames=36, seed=3), trajectory=make_trajectory("walk")
+    )
+    given = {
+        "true": cam,
+        "line delay x2": replace(cam, line_delay=2 * cam.line_delay),
+        "readout reversed": replace(cam, readout="bottom_to_top"),
+    }[timing]
+    log = Log()
+    seq = SequenceLocalizer(SequenceSettings(options=OPTS, stamp_row=0.0), log=log)
+    fused, paths = [], {}
+    for f in frames:
+        out = seq.process(SequenceFrame(f.stamp_ns, given, f.uv, f.xyz))
+        paths[out.stamp_ns] = out.path
+        fused += out.fused
+    fused += seq.flush()
+    v = seq.tracking_values()
+    last = fused[-READOUT_CHECK_FRAMES:]
+    expected = sum(paths[x.pose.stamp_ns] == "relocalized" or x.own_twist for x in last)
+    assert v["readout_contradicted"] == expected
+    warned = [k for k, _ in log.warnings if k == "readout.suspect"]
+    if timing == "true":
+        assert expected == 0 and v["readout_suspect"] == "false" and not warned
+    else:
+        assert expected >= 10 and v["readout_suspect"] == "true" and len(warned) == 1
