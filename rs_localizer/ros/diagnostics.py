@@ -191,7 +191,7 @@ def _level_and_message(
         )
     elif (tracking or {}).get("readout_suspect") == "true":
         level = WARN
-        message = f"{frames.solved}/{frames.received} frames solved; " + _readout_text(tracking)
+        message = f"{frames.solved}/{frames.received} frames solved; " + readout_warning(tracking)
     elif (
         cfg.imu is not None
         and frames.received
@@ -220,9 +220,10 @@ def _level_and_message(
     return level, message
 
 
-def _readout_text(tracking: dict[str, Any], rig: bool = False) -> str:
-    """The warning of a suspect rolling-shutter timing (``readout_suspect``) of a camera's
-    video or (``rig``) a rig's."""
+def readout_warning(tracking: dict[str, Any], rig: bool = False) -> str:
+    """The warning of a suspect rolling-shutter timing of a camera's video or (``rig``) a
+    rig's: ``tracking`` the localizer's values with ``readout_contradicted``
+    (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
     what = "rig frames" if rig else "frames"
     advice = (
         "check each camera's line_delay and direction (rig.<camera>.*) and calibration"
@@ -434,7 +435,7 @@ def rig_diagnostics(
         busy, lost = busy + busy_n, lost + lost_n
     values.update(_rig_gyro_values(rig, warnings))
     if values["readout_suspect"] == "true":
-        warnings.append(_readout_text(values, rig=True))
+        warnings.append(readout_warning(values, rig=True))
     if inputs is not None:
         values.update(timing_values(inputs.latencies, inputs.stamp_ages))
         frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]

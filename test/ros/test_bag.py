@@ -236,3 +236,17 @@ def test_header_stamp_shift_roundtrip():
         stamp_to_ns(deserialize_message(shifted, PointCloud2).header.stamp)
         == 1_700_000_001_000_000_001
     )
+
+
+def test_replay_warns_when_the_video_contradicts_the_rolling_shutter_timing(capsys):
+    """``data/sample`` (30 frames) replayed with its own line delay: no warning; with twice
+    that line delay the frames' twists do not predict the video, and replay says what to
+    check."""
+    from helpers.paths import SAMPLE_BAG as SAMPLE
+
+    assert cli(["replay", str(SAMPLE), "--quiet"]) == 0
+    assert "does not predict the video" not in capsys.readouterr().err
+    assert cli(["replay", str(SAMPLE), "--quiet", "--line-delay", "6e-5"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the frames' rolling-shutter motion does not predict the video" in err
+    assert "check rs.line_delay" in err

@@ -126,3 +126,25 @@ def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     assert a["solved"] == b["solved"] == 12
     assert a["rot_deg"] < 1.5 * b["rot_deg"] and a["pos_m"] < 1.5 * b["pos_m"]
     assert a["fused_angvel"] < 1.5 * b["fused_angvel"]
+
+
+def test_replay_of_a_rig_warns_when_its_video_contradicts_the_cameras_timing(tmp_path, capsys):
+    """A 60-frame rig bag of three cameras replayed with their line delays: no timing warning;
+    with every camera's line delay doubled (parameters), most rig frames are refused (the
+    cameras disagree), and the twists of those posed do not predict the video: ``replay``
+    says so, naming the cameras' timing parameters."""
+    from rs_localizer.cli import main
+    from rs_localizer.ros.param_files import read_params_file
+
+    bag = tmp_path / "rig"
+    assert main(["make-bag", str(bag), "--rig", "3", "--frames", "60", "--points", "60",
+                 "--quiet"]) == 0  # fmt: skip
+    p = read_params_file(bag / "rig_params.yaml")
+    assert main(["replay", str(bag), "--quiet"]) == 0
+    assert "does not predict the video" not in capsys.readouterr().err
+    doubled = [f"-p=rig.{n}.line_delay:={2 * p[f'rig.{n}.line_delay']!r}" for n in p["rig.cameras"]]
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--quiet", *doubled]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the rig frames' rolling-shutter motion does not predict the video" in err
+    assert "rig.<camera>" in err

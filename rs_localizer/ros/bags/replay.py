@@ -32,6 +32,7 @@ from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
 from .. import conversions as cv
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
+from ..diagnostics import readout_warning
 from ..outputs import frame_messages, fused_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput
@@ -279,6 +280,9 @@ def replay(
         progress,
     )
     _summarize(result, rows, pipeline, out_csv)
+    tracking = pipeline.tracking_values()
+    if tracking.get("readout_suspect") == "true":
+        result.notes.append(readout_warning(tracking))
     return result
 
 

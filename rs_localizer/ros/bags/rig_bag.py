@@ -271,7 +271,9 @@ class RigReplay:
     frame in which it disagreed with the others (the cameras' consensus outvoted it, or the
     rig names it as disagreeing), how far off it is: deg between its rotation posed alone
     and where the rig's pose and its mounting put it (NaN where it could not be posed
-    alone; :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`)."""
+    alone; :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
+    check of the cameras' rolling-shutter timing on the video at its end
+    (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
 
     outputs: list = field(default_factory=list)
     fused: list = field(default_factory=list)
@@ -280,6 +282,7 @@ class RigReplay:
     fused_errors: list = field(default_factory=list)
     cameras: tuple = ()
     off_deg: dict = field(default_factory=dict)
+    readout: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> int:
@@ -359,6 +362,7 @@ def replay_rig(
     if progress is not None:
         print(file=progress)
     res.counts = {"rig": rig.rig_counts(), **{n: rig.camera_counts(n) for n in rig.cameras}}
+    res.readout = rig.readout_values()
     gt = load_ground_truth(bag)
     for o in res.outputs:
         if o.success:
