@@ -383,7 +383,8 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
         print(
             f"  camera {n} disagrees with the others in {d['rig_frames']} rig frames (median "
             f"{d['median_deg']:.2f} deg off: its rotation posed alone against the rig's pose "
-            "through its mounting; a wrong mounting shows its own error)",
+            "through its mounting; a wrong mounting shows its own error, a wrong clock or line "
+            "delay a varying one)",
             file=text,
         )
     if s["solved"]:

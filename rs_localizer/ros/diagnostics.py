@@ -558,7 +558,7 @@ def _rig_camera_values(
     elif s is not None and s.outvoted:
         warnings.append(
             f"camera {n} outvoted by the others in its last rig frame ({outvoted} so far): "
-            "its mounting, clock or matches are likely wrong"
+            "its mounting, clock, line delay or matches are likely wrong"
         )
     elif state == "stopped":
         warnings.append(f"camera {n} stopped")

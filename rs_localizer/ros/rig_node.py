@@ -532,7 +532,7 @@ class RigCore(NodeCore):
                 self._log.warning(
                     f"rig.outvoted.{names}",
                     f"rig camera {names}: outvoted by the others (its points contradict their "
-                    "pose; its mounting, clock or matches are likely wrong) "
+                    "pose; its mounting, clock, line delay or matches are likely wrong) "
                     f"[{self.rig.counts[f'{out.outvoted[0]}.outvoted']} rig frames so far]",
                 )
             return
