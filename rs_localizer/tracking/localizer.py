@@ -28,10 +28,10 @@ the next frames. When :data:`READOUT_CHECK_SHARE` or more of the last
 :data:`READOUT_CHECK_FRAMES` rolling-shutter frames were relocalized (the track's prediction,
 carried at the last twist, did not explain them) or had their twist refused by the fused
 twist's gate, the frames' motion is not the camera's: a wrong ``line_delay`` or readout
-direction, or intrinsics the rolling-shutter model bends into motion. Rendered videos with
-their true timing (``benchmarks/bench_video.py``'s data/sample, shake, pan, walk) have none
-of either; the same videos with the line delay doubled or halved, or the readout direction
-reversed, 48-97 %.
+direction, or intrinsics the rolling-shutter model bends into motion. The videos of
+``python -m benchmarks.bench_video`` (data/sample, shake, car, pan, walk) with their true
+timing have none of the last 30 contradicted; the same videos with the line delay doubled or
+halved, or the readout direction reversed, 20-29.
 
 Only a rig groups its cameras' frames into rig frames, weighs their disagreement and maps
 the body's pose through each camera's mounting (:mod:`rs_localizer.tracking.rig`).
