@@ -92,7 +92,7 @@ def placebo_table(photos: Path = PHOTOS) -> None:
         }
         ss = {"gs": None}
         g = refine_rs_pose(
-            (gs.R, gs.C, z3, z3),
+            (gs.model.R, gs.model.C, z3, z3),
             X,
             x,
             times["row"],
@@ -103,7 +103,7 @@ def placebo_table(photos: Path = PHOTOS) -> None:
         fits = {}
         for k, tau in times.items():
             res = refine_rs_pose(
-                (gs.R, gs.C, z3, z3), X, x, tau, th, RefineSettings(max_iterations=50)
+                (gs.model.R, gs.model.C, z3, z3), X, x, tau, th, RefineSettings(max_iterations=50)
             )
             fits[k] = res
             ss[k] = np.sum(exact_errors(res.R, res.C, res.w, res.t, X, x, tau) ** 2) * f * f
@@ -125,15 +125,15 @@ def nees_table(photos: Path = PHOTOS, noise: float = 0.2, seeds: int = 8) -> Non
     m6, m3, err = [], [], []
     for _n, uv, X in _corners(photos):
         gs = estimate_rs_pose(uv, X, cam, "p3p")
-        clean = cam.project_rs(X, gs.R, gs.C)
+        clean = cam.project_rs(X, gs.model.R, gs.model.C)
         for seed in range(seeds):
             u = clean + np.random.default_rng(seed).normal(0, noise, clean.shape)
             rs = estimate_rs_pose(u, X, cam, "r6p_1lin")
-            tw = np.r_[rs.linear_velocity, rs.angular_velocity]
+            tw = np.r_[rs.pose.linear_velocity, rs.pose.angular_velocity]
             m6.append(tw @ np.linalg.solve(rs.twist_covariance, tw))
-            phi = Rotation.from_matrix(rs.R.T @ gs.R).as_rotvec()
+            phi = Rotation.from_matrix(rs.model.R.T @ gs.model.R).as_rotvec()
             m3.append(phi @ np.linalg.solve(rs.pose_covariance[3:, 3:], phi))
-            err.append(rotation_angle_deg(rs.R, gs.R))
+            err.append(rotation_angle_deg(rs.model.R, gs.model.R))
     m6, m3, err = map(np.asarray, (m6, m3, err))
     print(f"synthetic still boards, {len(m6)} frames, noise {noise} px per axis:")
     print(
@@ -154,11 +154,11 @@ def _photo_views(photos: Path):
 
 def _distances(rs, gs):
     """(rotation difference deg, twist Mahalanobis, pose Mahalanobis of gs under rs)."""
-    tw = np.r_[rs.linear_velocity, rs.angular_velocity]
-    phi = Rotation.from_matrix(gs.R.T @ rs.R).as_rotvec()  # world-axes rotation error
-    dp = np.r_[gs.position - rs.position, phi]
+    tw = np.r_[rs.pose.linear_velocity, rs.pose.angular_velocity]
+    phi = Rotation.from_matrix(gs.model.R.T @ rs.model.R).as_rotvec()  # world-axes rotation error
+    dp = np.r_[gs.pose.position - rs.pose.position, phi]
     return (
-        rotation_angle_deg(rs.R, gs.R),
+        rotation_angle_deg(rs.model.R, gs.model.R),
         float(tw @ np.linalg.solve(rs.twist_covariance, tw)),
         float(dp @ np.linalg.solve(rs.pose_covariance, dp)),
     )
@@ -167,7 +167,7 @@ def _distances(rs, gs):
 def correlated_table(photos: Path = PHOTOS, loo: bool = True):
     """Table 3 of the module doc; returns the fit on all photos."""
     cam, views = _photo_views(photos)
-    fit = fit_correlated_noise(cam, [(uv, X, g.R, g.C) for _, uv, X, g in views])
+    fit = fit_correlated_noise(cam, [(uv, X, g.model.R, g.model.C) for _, uv, X, g in views])
     print(
         f"correlated image error fitted on {fit.views} photos ({fit.points} corners): white "
         f"{fit.white_px:.3f} px, correlated {fit.correlated_px:.3f} px, length "
@@ -182,7 +182,7 @@ def correlated_table(photos: Path = PHOTOS, loo: bool = True):
         fits = {"before": None, "after": fit}
         if loo:
             fits["loo"] = fit_correlated_noise(
-                cam, [(u, Y, g.R, g.C) for j, (_, u, Y, g) in enumerate(views) if j != k]
+                cam, [(u, Y, g.model.R, g.model.C) for j, (_, u, Y, g) in enumerate(views) if j != k]
             )
         d = {}
         for key, f in fits.items():
@@ -199,7 +199,7 @@ def correlated_table(photos: Path = PHOTOS, loo: bool = True):
             d[key] = _distances(rs, gs)
             if key == "after":
                 sd = np.degrees(np.sqrt(np.linalg.eigvalsh(rs.pose_covariance[3:, 3:]).max()))
-                om = np.linalg.norm(rs.angular_velocity)
+                om = np.linalg.norm(rs.pose.angular_velocity)
         lo = d.get("loo", (np.nan,) * 3)
         rows.append((d["before"][1], d["after"][1], lo[1], d["before"][2], d["after"][2], lo[2]))
         print(
@@ -238,15 +238,15 @@ def synthetic_correlated(photos: Path, fit, seeds: int = 8):
     for name, (s_px, opts) in cases.items():
         m6 = []
         for k, (_, _uv, X, gs) in enumerate(views):
-            clean = cam.project_rs(X, gs.R, gs.C)
+            clean = cam.project_rs(X, gs.model.R, gs.model.C)
             for seed in range(seeds):
                 rng = np.random.default_rng((k, seed))
                 u = clean + correlated_field(clean, fit.white_px, s_px, fit.length_px, rng)
                 rs = estimate_rs_pose(u, X, cam, "r6p_1lin", opts)
-                tw = np.r_[rs.linear_velocity, rs.angular_velocity]
+                tw = np.r_[rs.pose.linear_velocity, rs.pose.angular_velocity]
                 m6.append(tw @ np.linalg.solve(rs.twist_covariance, tw))
                 if s_px == 0 and seed == 0 and opts is on:
-                    white_views.append((u, X, gs.R, gs.C))
+                    white_views.append((u, X, gs.model.R, gs.model.C))
         m6 = np.asarray(m6)
         out[name] = (float(m6.mean()), float(np.mean(m6 <= q6)))
         print(
