@@ -182,7 +182,8 @@ def correlated_table(photos: Path = PHOTOS, loo: bool = True):
         fits = {"before": None, "after": fit}
         if loo:
             fits["loo"] = fit_correlated_noise(
-                cam, [(u, Y, g.model.R, g.model.C) for j, (_, u, Y, g) in enumerate(views) if j != k]
+                cam,
+                [(u, Y, g.model.R, g.model.C) for j, (_, u, Y, g) in enumerate(views) if j != k],
             )
         d = {}
         for key, f in fits.items():
