@@ -7,8 +7,9 @@ run this code for:
 
 - the frames waiting for their fused twist (:class:`PendingTwists`): a posed frame's pose is
   out at once, its twist is final only when the fixed-lag smoother
-  (:class:`~rs_localizer.tracking.fusion.TwistFilter`, inside the camera's
-  :class:`~rs_localizer.tracking.tracker.RSTracker` or the rig's own) releases its state;
+  (:class:`~rs_localizer.tracking.fusion.TwistFilter`, inside the tracker path,
+  :class:`~rs_localizer.tracking.tracker.TrackerPath`: the camera's
+  :class:`~rs_localizer.tracking.tracker.RSTracker` or the rig's) releases its state;
   :meth:`VideoLocalizer.flush` (the end of a video), :meth:`VideoLocalizer.flush_idle` (no
   frame for ``tracking.max_gap`` s, wall clock), :meth:`VideoLocalizer.end_track` (the twists
   still pending dropped) hand them out as :class:`FusedPose`;
@@ -431,7 +432,7 @@ class VideoLocalizer(GyroReadouts):
     # ---------------------------------------------------------------- the subclass's track
     def _twist_source(self) -> Any:
         """The object whose ``flush()`` gives the fused states not yet final (oldest first;
-        the track goes on): the camera's tracker, the rig's twist filter; None without a
+        the track goes on): the camera's tracker, the rig's tracker path; None without a
         track."""
         raise NotImplementedError
 

@@ -15,8 +15,9 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
 2. **estimates** the rig's pose at the rig frame's time (its earliest reference time) with
    :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (each camera with its mounting and
    its own stamp offset);
-3. **tracks** as the camera tracker (:mod:`rs_localizer.tracking.tracker`) does: the twist
-   filter's prediction at the rig frame's time is the rig estimator's initial model
+3. **tracks** on the camera tracker's path (:class:`~rs_localizer.tracking.tracker.
+   TrackerPath`, the rig's views its estimator): the twist filter's prediction at the rig
+   frame's time is the rig estimator's initial model
    (:class:`~rs_localizer.estimation.InitialModel`, the points within ``gate_px``, or
    ``gate_sigmas`` of the predicted rotation, up to ``max_gate_px``, explained by it): when
    it explains enough points it seeds RANSAC, pre-rotates its samples and is verified with
@@ -104,7 +105,7 @@ from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
 from ..correspondences import FrameFeedback, Frontend, VideoFrontend
-from ..estimation.estimate import estimate_rs_pose
+from ..estimation.estimate import InitialModel, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
 from ..estimation.options import EstimateOptions
@@ -120,7 +121,7 @@ from ..estimation.rig import (
 from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
-from .fusion import FusedState, FusionOptions, TwistFilter
+from .fusion import FusedState, FusionOptions
 from .gyro import readout_window
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
@@ -129,7 +130,7 @@ from .localizer import (
     VideoLocalizer,
     finite_rows,
 )
-from .tracker import predictable, predicted_initial_model
+from .tracker import STATES, Solve, TrackerPath
 
 __all__ = [
     "MISSED_REASONS",
@@ -195,8 +196,8 @@ APART_SHARE = 0.8
 #: first camera's frame solved alone, the others stopped)
 STOP_INTERVALS = 2.0
 
-#: the paths a rig frame can take (as the camera tracker's)
-RIG_PATHS = ("cold", "tracked", "relocalized", "reset")
+#: the paths a rig frame can take (the camera tracker's)
+RIG_PATHS = STATES
 
 
 @dataclass(frozen=True, eq=False)
@@ -582,14 +583,15 @@ class RigLocalizer(VideoLocalizer):
         self._open: list[_Group] = []
         self._first: int | None = None
         self._last_closed: int | None = None
-        self._filter: TwistFilter | None = None
         # (the rig frames waiting for their fused twist, their last camera frame's wall time;
         # tracking/localizer.py)
         self._init_video()
         self._carried.max_gap = settings.max_gap  # (without tracking: the default, 0.5 s)
-        self._inlier_ratio: float | None = None
         self._carry: list[FusedPose] = []  # (twists of a track ended by a time reset)
-        self._make_filter()
+        # the tracker path (tracking/tracker.py: the time rule, the prediction, the twist
+        # filter), the rig's views its estimator; None without tracking
+        to = settings.tracking
+        self._track: TrackerPath | None = None if to is None else TrackerPath(to)
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_*
         self.gyro_input = GyroInput(
@@ -636,10 +638,6 @@ class RigLocalizer(VideoLocalizer):
             est.covariance[:3, :3] if ok else None, out.path in ("cold", "reset"),
         )  # fmt: skip
 
-    def _make_filter(self) -> None:
-        to = self.settings.tracking
-        self._filter = None if to is None else TwistFilter(replace(to.fusion, max_gap=to.max_gap))
-
     # ---------------------------------------------------------------- read-outs
     @property
     def cameras(self) -> tuple:
@@ -684,8 +682,8 @@ class RigLocalizer(VideoLocalizer):
     @property
     def track_state(self) -> str:
         """``tracking``, ``lost`` or ``disabled``."""
-        f = self._filter
-        return "disabled" if f is None else "tracking" if f.initialized else "lost"
+        t = self._track
+        return "disabled" if t is None else t.track_state
 
     # ---------------------------------------------------------------- frames
     def add(self, frame: RigCameraFrame) -> list[RigOutput]:
@@ -909,20 +907,20 @@ class RigLocalizer(VideoLocalizer):
         """The twist filter's steps for a rig frame on ``impl`` (None: the default): plain
         Python on ``"numpy"``, so that nothing compiles while the kernels compile in the
         background (:attr:`~rs_localizer.tracking.fusion.TwistFilter.compiled`)."""
-        if self._filter is not None:
-            self._filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
+        if self._track is not None:
+            self._track.filter.compiled = compiled_by_default() if impl is None else impl != NUMPY
 
     def _tracked_prediction(
         self, ref: int, camera: CameraModel, view: _Camera
     ) -> tuple[bool, FusedState | None]:
         """With tracking the twist filter decides (:meth:`predict_camera`)."""
-        f, to = self._filter, self.settings.tracking
-        if f is None:
+        t = self._track
+        if t is None:
             return False, None
-        if not (f.initialized and predictable(f.stamp_ns, ref, to.max_gap)):
+        if not t.predicts(ref):
             return True, None
         self._filter_kernels(None if self._implementation is None else self._implementation())
-        return True, f.predict(ref)
+        return True, t.predict(ref)
 
     def _state_in_camera(self, state: FusedState, camera: CameraModel, view: _Camera) -> RSModel:
         """The camera's model of the rig's predicted state, through its mounting."""
@@ -1071,19 +1069,16 @@ class RigLocalizer(VideoLocalizer):
                 del img.waiting[key]
         return outs
 
-    def _twist_source(self) -> TwistFilter | None:
-        """The twist filter (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
-        return self._filter
+    def _twist_source(self) -> TrackerPath | None:
+        """The tracker path (its fused states not yet final, :meth:`VideoLocalizer.flush`)."""
+        return self._track
 
     def _forget_track(self, keep: bool) -> list:
         """The track ends (the twist filter and the inlier ratio start again); returns the
         filter's fused states not yet final when ``keep``."""
-        final = []
-        if self._filter is not None:
-            final = self._filter.flush() if keep else []
-            self._filter.reset()
-        self._inlier_ratio = None
-        return final
+        t = self._track
+        final = [] if t is None else t.reset()
+        return final if keep else []
 
     # ---------------------------------------------------------------- solving
     def _missing_reason(self, cam: _Camera, g: _Group) -> str:
@@ -1155,6 +1150,8 @@ class RigLocalizer(VideoLocalizer):
                     "rig's track (its clock or stamp is likely off, or its matches are wrong)",
                 )
         if not est.success:
+            if self._track is not None:
+                self._track.update(out.stamp_ns, est, path)  # (counted: a failure)
             self._count_rig(names, est.failure or "error")
             if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
                 n_pts = np.asarray(est.num_valid_per_camera)
@@ -1198,34 +1195,15 @@ class RigLocalizer(VideoLocalizer):
         )
 
     def _estimate(self, stamp: int, views, out: RigOutput):
-        """The rig frame's estimate on the tracker's path (as the camera tracker's
-        :meth:`~rs_localizer.tracking.tracker.RSTracker.process`). Returns (estimate, path)."""
-        f, to = self._filter, self.settings.tracking
+        """The rig frame's estimate on the tracker path
+        (:meth:`~rs_localizer.tracking.tracker.TrackerPath.solve`, the rig's views its
+        estimator). Returns (estimate, path)."""
         self._prediction = None
-        if f is None:
+        if self._track is None:
             return self._run(views), None
-        path = "cold"
-        if f.initialized and not predictable(f.stamp_ns, stamp, to.max_gap):
-            out.fused += self._end_track(keep=True)  # (the video tracker's time rule)
-            path = "reset"
-        if not f.initialized:
-            return self._run(views), path
-        pred = f.predict(stamp)
-        self._prediction = pred
-        pp = pred.pose
-        model = _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
-        initial = predicted_initial_model(
-            model, pred, max(v.camera.mean_focal for v in views), sum(len(v.uv) for v in views),
-            self._inlier_ratio, self.settings.options.ransac.min_inliers, to,
-        )  # fmt: skip
-        est = self._run(views, to.tracked_max_iterations, initial)
-        if est.success and est.initial_used:
-            return est, "tracked"
-        if not est.success and est.failure != "too_few_points":
-            # the prediction does not hold, or it misled RANSAC on a bad frame: solve it cold
-            # (the prediction still decides between cameras that contradict each other)
-            est = self._run(views, prediction=model)
-        return est, "relocalized"
+        f = self._track.solve(stamp, _RigViews(self, views, out))
+        self._prediction = f.predicted
+        return f.estimate, f.path
 
     def _refusal(self, out: RigOutput, est: RigPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone (the others' points
@@ -1364,10 +1342,9 @@ class RigLocalizer(VideoLocalizer):
             out.shares[n] = share
             self._cams[n].last_share = share
         self._update_disagreement(out, names, n_pts, n_in, views, est)
-        self._inlier_ratio = total_in / max(int(n_pts.sum()), 1)
-        if self._filter is None:
+        if self._track is None:
             return
-        step = self._filter.update(out.stamp_ns, est, relocalized=path == "relocalized")
+        step = self._track.update(out.stamp_ns, est, path, total_in / max(int(n_pts.sum()), 1))
         self._twists.hold(out.stamp_ns, est, dict(out.tags), path == "relocalized")
         out.fused += self._fused(step.final)
 
@@ -1448,6 +1425,36 @@ class RigLocalizer(VideoLocalizer):
             if c.disagrees and c.partner == name:
                 return c.name
         return None
+
+
+class _RigViews:
+    """A rig frame's views as the tracker path's estimator (:class:`~rs_localizer.tracking.
+    tracker.PathEstimator`): :meth:`RigLocalizer._run` cold, tracked, or relocalized with the
+    prediction deciding between cameras that contradict each other."""
+
+    def __init__(self, rig: RigLocalizer, views: list, out: RigOutput):
+        self.rig, self.views, self.out = rig, views, out
+        self.focal = max(v.camera.mean_focal for v in views)
+        self.num_points = sum(len(v.uv) for v in views)
+        self.min_inliers = rig.settings.options.ransac.min_inliers
+
+    def ended(self, final: list) -> None:
+        self.out.fused += self.rig._fused(final)  # (the old track's twists, final)
+        self.rig._twists.clear()
+
+    def model(self, predicted: FusedState) -> RSModel:
+        pp = predicted.pose
+        return _model_of(pp.orientation, pp.position, pp.angular_velocity, pp.linear_velocity)
+
+    def cold(self) -> Solve:
+        return Solve(self.rig._run(self.views))
+
+    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
+        n = self.rig.settings.tracking.tracked_max_iterations
+        return Solve(self.rig._run(self.views, n, initial))
+
+    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
+        return Solve(self.rig._run(self.views, prediction=model))
 
 
 def _offsets_text(offsets: dict) -> str:

@@ -23,6 +23,10 @@ Each :class:`TrackResult` says which path the frame took: ``cold`` (no state: th
 frame), ``tracked``, ``relocalized`` or ``reset``. A failed frame changes nothing but the
 counters: no state is made up for it, so a bad frame never becomes a pose or a twist.
 
+Steps 1-4 are :class:`TrackerPath`, the one tracker path of a camera and of a rig
+(:class:`~rs_localizer.tracking.rig.RigLocalizer`; a camera alone is a rig of one): only its
+estimator (:class:`PathEstimator`) differs, one camera's view here, a rig's views there.
+
 :meth:`RSTracker.predict` gives the prediction of step 1 before the frame is estimated (the
 same one: :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` hands its model to the
 image front end, which searches where it puts the map); without a tracker (tracking off, or
@@ -34,7 +38,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -46,14 +50,18 @@ from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel
-from .fusion import FusedState, FusionOptions, TwistFilter
+from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
 
 __all__ = [
     "STATES",
     "CarriedPrediction",
+    "PathEstimator",
+    "PathFrame",
     "RSTracker",
+    "Solve",
     "TrackResult",
     "TrackerOptions",
+    "TrackerPath",
     "carried_model",
     "model_from_state",
     "motion_prior_from_state",
@@ -285,8 +293,230 @@ def _with_sensitivity(options: EstimateOptions) -> EstimateOptions:
     return replace(options, refine=replace(options.refine, acceleration_sensitivity=True))
 
 
-class RSTracker:
-    """Track a rolling-shutter camera through a video (see the module docstring).
+@dataclass(frozen=True)
+class Solve:
+    """One solve of a frame by a :class:`PathEstimator`.
+
+    Attributes:
+        estimate: the estimator's result: a camera's
+            :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+            :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (``success``, ``failure``,
+            ``initial_used``, ``initial_explained``).
+        prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
+            refinement used, None: none (the twist filter takes its information out again).
+        prior_from_prediction: the estimator was given the prediction's twist as its motion
+            prior: when the prediction does not hold the frame is solved again without it.
+    """
+
+    estimate: Any
+    prior: MotionPrior | None = None
+    prior_from_prediction: bool = False
+
+
+class PathEstimator(Protocol):
+    """One frame's estimator on the tracker path (:meth:`TrackerPath.solve`): a camera's view
+    (:class:`RSTracker`) or a rig's views (:class:`~rs_localizer.tracking.rig.RigLocalizer`),
+    the one part that differs between them.
+
+    Attributes:
+        focal: px, the focal length of the prediction's gate (:func:`predicted_initial_model`).
+        num_points: the frame's points (all views). min_inliers: the estimator's.
+    """
+
+    focal: float
+    num_points: int
+    min_inliers: int
+
+    def ended(self, final: list) -> None:
+        """The track ended by the time rule (:func:`predictable`) before the frame: its fused
+        states not yet final (oldest first), handed on before the frame is solved."""
+
+    def model(self, predicted: FusedState) -> RSModel:
+        """The estimator's model ``(R, C, w, t)`` of the predicted state."""
+
+    def cold(self) -> Solve:
+        """The frame solved without a prediction (a track's first frame)."""
+
+    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
+        """The frame solved from the prediction: ``initial`` the estimator's initial model."""
+
+    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
+        """The frame solved again when the prediction did not hold (``model``: the
+        prediction's, at most a tie-breaker)."""
+
+
+@dataclass(frozen=True)
+class PathFrame:
+    """A frame through :meth:`TrackerPath.solve`: ``estimate`` (the last solve's), ``path``
+    (:data:`STATES`), ``predicted`` (the prediction used, None on cold and reset frames),
+    ``explained`` (points the prediction explained, -1 without one) and ``prior`` (the motion
+    prior the estimate's refinement used, for :meth:`TrackerPath.update`)."""
+
+    estimate: Any
+    path: str
+    predicted: FusedState | None = None
+    explained: int = -1
+    prior: MotionPrior | None = None
+
+
+class TrackerPath:
+    """The tracker path of a video of one camera or a rig (a camera alone is a rig of one):
+    the time rule, the prediction, the path decision, the twist filter and the counters; only
+    the estimator (:class:`PathEstimator`) differs. Per frame: :meth:`solve`, then
+    :meth:`update` with the estimate the caller keeps.
+
+    1. **time rule**: a frame not :func:`predictable` from the last solved frame (a longer gap
+       than ``max_gap``, a stamp going back) ends the track (``reset``; the track's fused
+       states not yet final go to :meth:`PathEstimator.ended`);
+    2. no filter state: solved ``cold``;
+    3. else the filter predicts the frame; :func:`predicted_initial_model` is the estimator's
+       initial model; ``tracked`` when the estimate succeeded from it, else ``relocalized``:
+       solved again (:meth:`PathEstimator.relocalize`) when the estimator leaned on the
+       prediction's twist or failed for another reason than too few points;
+    4. :meth:`update`: a solved frame is fused (``relocalized=``: its measurement may restart
+       the filter) and its inlier ratio kept for the next frame's gate.
+
+    Args:
+        options: :class:`TrackerOptions` or a rig's
+            :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (``max_gap``, ``fusion``
+            and the gate's fields).
+
+    Attributes:
+        filter: the :class:`~rs_localizer.tracking.fusion.TwistFilter` (its ``max_gap`` the
+            options'). inlier_ratio: the last solved frame's (None: none in this track).
+        last_ns: ns, the last solved frame's time (None: none in this track).
+
+    Counters: ``frames`` (solved or not), ``frames_tracked``, ``relocalizations``, ``resets``,
+    ``failures`` (frames whose estimate failed).
+    """
+
+    def __init__(self, options: Any):
+        self.path_options = options
+        self.filter = TwistFilter(replace(options.fusion, max_gap=options.max_gap))
+        self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
+        self.failures = 0
+        self.inlier_ratio: float | None = None
+        self.last_ns: int | None = None
+        self._predicted: FusedState | None = None  # (predict's last answer, until an update)
+
+    @property
+    def track_state(self) -> str:
+        """``tracking`` (a prediction is available for the next frame) or ``lost``."""
+        return "tracking" if self.filter.initialized else "lost"
+
+    def track_counts(self) -> dict[str, int]:
+        """The counters a video keeps over its tracks: ``frames_tracked``,
+        ``relocalizations``, ``resets``."""
+        return {
+            "frames_tracked": self.frames_tracked,
+            "relocalizations": self.relocalizations,
+            "resets": self.resets,
+        }
+
+    def reset(self) -> list:
+        """Forget the track. Returns the fused states not yet final, as they are (oldest
+        first)."""
+        out = self.filter.flush()
+        self.filter.reset()
+        self.inlier_ratio = None
+        self.last_ns = None
+        self._predicted = None
+        return out
+
+    def flush(self) -> list:
+        """The fused states not yet final (oldest first, e.g. at the end of a video); they
+        are not returned again and the track goes on."""
+        return self.filter.flush()
+
+    def predicts(self, stamp_ns: int) -> bool:
+        """Whether a frame at ``stamp_ns`` (ns) is predicted: the filter has a state and the
+        frame is :func:`predictable` from the last solved frame."""
+        return self.filter.initialized and predictable(
+            self.last_ns, int(stamp_ns), self.path_options.max_gap
+        )
+
+    def predict(self, stamp_ns: int) -> FusedState | None:
+        """The filter's prediction of the state at ``stamp_ns`` (ns; computed once until the
+        next update), None when the frame is not predicted (:meth:`predicts`)."""
+        return self._predict_at(stamp_ns)
+
+    def _predict_at(self, stamp_ns: int) -> FusedState | None:
+        """:meth:`predict` with the filter's kernels as they are set (a subclass's ``predict``
+        may set them first)."""
+        stamp_ns = int(stamp_ns)
+        if not self.predicts(stamp_ns):
+            return None
+        p = self._predicted
+        if p is None or p.pose.stamp_ns != stamp_ns:
+            p = self._predicted = self.filter.predict(stamp_ns)
+        return p
+
+    def solve(self, stamp_ns: int, estimator: PathEstimator) -> PathFrame:
+        """A frame at ``stamp_ns`` (ns) on the path (class docstring, steps 1-3).
+
+        Raises:
+            whatever the estimator raises (the frame counted, a reset done).
+        """
+        stamp_ns = int(stamp_ns)
+        self.frames += 1
+        path = "cold"
+        if self.last_ns is not None and not predictable(
+            self.last_ns, stamp_ns, self.path_options.max_gap
+        ):
+            estimator.ended(self.reset())
+            path = "reset"
+            self.resets += 1
+        predicted = self._predict_at(stamp_ns)
+        if predicted is None:
+            s = estimator.cold()
+            return PathFrame(s.estimate, path, None, -1, s.prior)
+        model = estimator.model(predicted)
+        initial = predicted_initial_model(
+            model, predicted, estimator.focal, estimator.num_points, self.inlier_ratio,
+            estimator.min_inliers, self.path_options,
+        )  # fmt: skip
+        s = estimator.tracked(initial, predicted)
+        est, explained = s.estimate, s.estimate.initial_explained
+        if est.success and est.initial_used:
+            return PathFrame(est, "tracked", predicted, explained, s.prior)
+        if s.prior_from_prediction or (not est.success and est.failure != TOO_FEW_POINTS):
+            # the prediction does not hold (its twist must not be the prior), or it misled
+            # RANSAC on a bad frame: solve the frame again
+            s = estimator.relocalize(model, predicted)
+        return PathFrame(s.estimate, "relocalized", predicted, explained, s.prior)
+
+    def update(
+        self,
+        stamp_ns: int,
+        estimate: Any,
+        path: str,
+        inlier_ratio: float = 0.0,
+        prior: MotionPrior | None = None,
+    ) -> FusionStep | None:
+        """The frame's estimate (the one the caller keeps) on its ``path``: a failed one is
+        counted and changes nothing else (None); a solved one is counted by its path, fused
+        into the filter (``relocalized``: its measurement may restart the filter; ``prior``:
+        the motion prior its refinement used) and its ``inlier_ratio`` (inliers / points)
+        kept. Returns the filter's :class:`~rs_localizer.tracking.fusion.FusionStep`."""
+        if not estimate.success:
+            self.failures += 1
+            return None
+        if path == "tracked":
+            self.frames_tracked += 1
+        elif path == "relocalized":
+            self.relocalizations += 1
+        stamp_ns = int(stamp_ns)
+        self.last_ns = stamp_ns
+        self.inlier_ratio = inlier_ratio
+        self._predicted = None
+        return self.filter.update(
+            stamp_ns, estimate, relocalized=path == "relocalized", prior=prior
+        )
+
+
+class RSTracker(TrackerPath):
+    """Track a rolling-shutter camera through a video (see the module docstring): the
+    :class:`TrackerPath` with one camera's estimator (:func:`estimate_rs_pose`).
 
     Args:
         solver: estimator solver name (as :func:`estimate_rs_pose`).
@@ -306,8 +536,7 @@ class RSTracker:
     ):
         self.solver = solver
         self.options = _with_sensitivity(options or EstimateOptions())
-        self.tracker_options = tracker_options or TrackerOptions()
-        to = self.tracker_options
+        self.tracker_options = to = tracker_options or TrackerOptions()
         cold = self.options.ransac
         self.tracked_options = _with_sensitivity(
             to.tracked_options
@@ -318,38 +547,14 @@ class RSTracker:
                 ),
             )
         )
-        self.filter = TwistFilter(replace(to.fusion, max_gap=to.max_gap))
-        self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
-        self.failures = 0
-        self._inlier_ratio = None
-        self._stamp = None
-        self._planar = False
-        self._predicted: FusedState | None = None  # (predict's last answer, until an update)
-
-    @property
-    def track_state(self) -> str:
-        """``tracking`` (a prediction is available for the next frame) or ``lost``."""
-        return "tracking" if self.filter.initialized else "lost"
-
-    def track_counts(self) -> dict[str, int]:
-        """The counters a video keeps over its tracks: ``frames_tracked``,
-        ``relocalizations``, ``resets``."""
-        return {
-            "frames_tracked": self.frames_tracked,
-            "relocalizations": self.relocalizations,
-            "resets": self.resets,
-        }
+        super().__init__(to)
+        self._planar = False  # (the last solved frame's inliers were coplanar)
 
     def reset(self) -> list:
         """Forget the track (e.g. the solver or the camera changed). Returns the fused states
         not yet final, as they are (oldest first)."""
-        out = self.filter.flush()
-        self.filter.reset()
-        self._inlier_ratio = None
-        self._stamp = None
         self._planar = False
-        self._predicted = None
-        return out
+        return super().reset()
 
     def predict(self, stamp_ns: int, implementation: str | None = None) -> FusedState | None:
         """The filter's prediction of the pose and twist at ``stamp_ns`` (ns, the time
@@ -359,20 +564,7 @@ class RSTracker:
         model for a camera: :func:`model_from_state`. ``implementation``: as
         :meth:`process`'s (on ``"numpy"`` the filter compiles nothing either)."""
         self._implementation(implementation)
-        stamp_ns = int(stamp_ns)
-        if not self.filter.initialized or not predictable(
-            self._stamp, stamp_ns, self.tracker_options.max_gap
-        ):
-            return None
-        p = self._predicted
-        if p is None or p.pose.stamp_ns != stamp_ns:
-            p = self._predicted = self.filter.predict(stamp_ns)
-        return p
-
-    def flush(self) -> list:
-        """The fused states not yet final (oldest first, e.g. at the end of a video); they
-        are not returned again and the track goes on."""
-        return self.filter.flush()
+        return super().predict(stamp_ns)
 
     def process(
         self,
@@ -406,40 +598,16 @@ class RSTracker:
             ValueError: as :func:`estimate_rs_pose` (array shapes, unknown solver).
         """
         self._implementation(implementation)
-        stamp_ns = int(stamp_ns)
-        self.frames += 1
-        final, state = [], "cold"
-        to = self.tracker_options
-        if self._stamp is not None and not predictable(self._stamp, stamp_ns, to.max_gap):
-            final += self.reset()
-            state = "reset"
-            self.resets += 1
-        predicted, explained = self.predict(stamp_ns, implementation), -1
-        if predicted is not None:
-            est, state, opts, explained = self._tracked(
-                predicted, points2d, points3d, camera, scores, gyro, implementation
-            )
-        else:
-            opts = self.options
-            est = self._cold(points2d, points3d, camera, scores, gyro, implementation)
+        view = _CameraView(self, points2d, points3d, camera, scores, gyro, implementation)
+        f = self.solve(stamp_ns, view)
+        est = f.estimate
         if not est.success:
-            self.failures += 1
-            return TrackResult(est, state, None, final, predicted, explained)
-        if state == "tracked":
-            self.frames_tracked += 1
-        elif state == "relocalized":
-            self.relocalizations += 1
-        self._stamp = stamp_ns
-        self._inlier_ratio = est.num_inliers / max(len(points2d), 1)
+            self.update(stamp_ns, est, f.path)
+            return TrackResult(est, f.path, None, view.final, f.predicted, f.explained)
         self._planar = bool(est.planar)
-        self._predicted = None
-        step = self.filter.update(
-            stamp_ns,
-            est,
-            relocalized=state == "relocalized",
-            prior=opts.motion_prior if est.motion_prior_used else None,
-        )
-        return TrackResult(est, state, step, final + step.final, predicted, explained)
+        ratio = est.num_inliers / max(len(points2d), 1)
+        step = self.update(stamp_ns, est, f.path, ratio, f.prior)
+        return TrackResult(est, f.path, step, view.final + step.final, f.predicted, f.explained)
 
     def _implementation(self, implementation: str | None) -> None:
         """The twist filter's kernels for ``implementation`` (the estimator's, None: its
@@ -449,66 +617,51 @@ class RSTracker:
             implementation = default_implementation(self.solver)
         self.filter.compiled = implementation != NUMPY
 
-    def _tracked(
-        self,
-        predicted: FusedState,
-        points2d,
-        points3d,
-        camera: CameraModel,
-        scores,
-        gyro: GyroMeasurement | None = None,
-        implementation: str | None = None,
-    ) -> tuple[RSPoseEstimate, str, EstimateOptions, int]:
-        """Estimate a frame from the filter's prediction (its model as the initial model, its
-        twist as the motion prior where the options ask for it); when the prediction does not
-        hold, solve the frame cold. Returns (estimate, ``tracked`` or ``relocalized``, the
-        options used, the points the prediction explained)."""
-        to = self.tracker_options
-        initial = predicted_initial_model(
-            model_from_state(predicted, camera), predicted, camera.mean_focal, len(points2d),
-            self._inlier_ratio, self.options.ransac.min_inliers, to,
-        )  # fmt: skip
-        opts = self.tracked_options
-        if camera.seconds_per_unit_r > 0 and (
+
+class _CameraView:
+    """One camera's frame as the tracker path's estimator (:class:`PathEstimator`): the
+    tracker's options cold, its tracked options from the prediction (the prediction's twist
+    as the motion prior where :attr:`TrackerOptions.prior_from_prediction` asks for it), a
+    prediction that did not hold solved cold."""
+
+    def __init__(self, tracker: RSTracker, points2d, points3d, camera, scores, gyro, impl):
+        self.tracker, self.camera = tracker, camera
+        self.args = (points2d, points3d, camera, tracker.solver)
+        self.kwargs = {"scores": scores, "gyro": gyro, "implementation": impl}
+        self.focal = camera.mean_focal
+        self.num_points = len(points2d)
+        self.min_inliers = tracker.options.ransac.min_inliers
+        self.final: list = []
+
+    def ended(self, final: list) -> None:
+        self.final = final
+
+    def model(self, predicted: FusedState) -> RSModel:
+        return model_from_state(predicted, self.camera)
+
+    def _solve(self, options: EstimateOptions, **kwargs) -> RSPoseEstimate:
+        return estimate_rs_pose(*self.args, options, **self.kwargs, **kwargs)
+
+    def cold(self) -> Solve:
+        opts = self.tracker.options
+        est = self._solve(opts)
+        return Solve(est, opts.motion_prior if est.motion_prior_used else None)
+
+    def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
+        t = self.tracker
+        to, opts = t.tracker_options, t.tracked_options
+        if self.camera.seconds_per_unit_r > 0 and (
             to.prior_from_prediction == "always"
-            or (to.prior_from_prediction == "planar" and self._planar)
+            or (to.prior_from_prediction == "planar" and t._planar)
         ):
             # (a covariance that is not positive definite keeps the options' prior)
             with contextlib.suppress(ValueError):
                 opts = replace(
                     opts, motion_prior=motion_prior_from_state(predicted, to.prior_inflation)
                 )
-        est = estimate_rs_pose(
-            points2d,
-            points3d,
-            camera,
-            self.solver,
-            opts,
-            scores,
-            initial_model=initial,
-            gyro=gyro,
-            implementation=implementation,
-        )
-        explained = est.initial_explained
-        if est.success and est.initial_used:
-            return est, "tracked", opts, explained
-        if opts is not self.tracked_options or (not est.success and est.failure != TOO_FEW_POINTS):
-            # the prediction does not hold (its twist must not be the prior), or it misled
-            # RANSAC on a bad frame: solve the frame cold
-            opts = self.options
-            est = self._cold(points2d, points3d, camera, scores, gyro, implementation)
-        return est, "relocalized", opts, explained
+        est = self._solve(opts, initial_model=initial)
+        prior = opts.motion_prior if est.motion_prior_used else None
+        return Solve(est, prior, opts is not t.tracked_options)
 
-    def _cold(self, points2d, points3d, camera, scores, gyro, implementation) -> RSPoseEstimate:
-        """The frame solved without the prediction: the tracker's estimator options, no
-        initial model (a frame starting a track, or one the prediction did not hold for)."""
-        return estimate_rs_pose(
-            points2d,
-            points3d,
-            camera,
-            self.solver,
-            self.options,
-            scores,
-            gyro=gyro,
-            implementation=implementation,
-        )
+    def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
+        return self.cold()

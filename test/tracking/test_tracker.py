@@ -3,6 +3,8 @@ hook, against the synthetic sequences' ground truth and the cold estimator."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -12,13 +14,16 @@ from rs_localizer.estimation.estimate import (
     RansacOptions,
     estimate_rs_pose,
 )
+from rs_localizer.estimation.result import TOO_FEW_POINTS
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSModel
 from rs_localizer.sim.trajectory import SequenceConfig, Teleport, generate_sequence, make_trajectory
 from rs_localizer.tracking.fusion import FusionOptions
 from rs_localizer.tracking.tracker import (
     RSTracker,
+    Solve,
     TrackerOptions,
+    TrackerPath,
     model_from_state,
     motion_prior_from_state,
 )
@@ -182,3 +187,91 @@ def test_tracker_options_are_validated():
         TrackerOptions(min_explained_ratio=1.5)
     with pytest.raises(ValueError):
         TrackerOptions(max_gap=-1.0)
+
+
+class _Scripted:
+    """A tracker path's estimator (PathEstimator) that answers from a script: the solves it
+    was asked for are recorded; the tracked solve returns ``tracked``."""
+
+    def __init__(self, est, cam, tracked=None, prior_from_prediction=False):
+        self.est, self.cam, self.tracked_est = est, cam, tracked
+        self.prior_from_prediction = prior_from_prediction
+        self.focal, self.num_points, self.min_inliers = cam.mean_focal, len(est.inliers), 12
+        self.calls, self.final, self.initial = [], None, None
+
+    def ended(self, final):
+        self.calls.append("ended")
+        self.final = final
+
+    def model(self, predicted):
+        return model_from_state(predicted, self.cam)
+
+    def cold(self):
+        self.calls.append("cold")
+        return Solve(self.est)
+
+    def tracked(self, initial, predicted):
+        self.calls.append("tracked")
+        self.initial = initial
+        return Solve(self.tracked_est, None, self.prior_from_prediction)
+
+    def relocalize(self, model, predicted):
+        self.calls.append("relocalize")
+        return Solve(self.est)
+
+
+def test_tracker_path_decides_as_its_rule_says(hard_sequence):
+    """The one path of a camera and a rig (TrackerPath), its estimator scripted: which solves
+    it asks for, the path, the gate from the last inlier ratio, the time rule, the counters."""
+    frames, _, cam, _ = hard_sequence
+    est = estimate_rs_pose(frames[0].uv, frames[0].xyz, cam, options=EstimateOptions(
+        ransac=RansacOptions(seed=0)))  # fmt: skip
+    assert est.success
+    n = len(est.inliers)
+    path = TrackerPath(TrackerOptions())
+    t = frames[0].t_ref_ns
+    dt = 33_000_000
+
+    def frame(k, tracked=None, prior_from_prediction=False, ratio=0.8):
+        e = _Scripted(est, cam, tracked, prior_from_prediction)
+        f = path.solve(t + k * dt, e)
+        path.update(t + k * dt, f.estimate, f.path, ratio, f.prior)
+        return f, e
+
+    f, e = frame(0)
+    assert (f.path, e.calls, f.predicted) == ("cold", ["cold"], None)
+    # the prediction held: tracked; its gate asks half the points the last ratio promises
+    used = replace(est, initial_used=True, initial_explained=n - 5)
+    f, e = frame(1, used, ratio=0.6)
+    assert (f.path, e.calls, f.explained) == ("tracked", ["tracked"], n - 5)
+    assert f.predicted.pose.stamp_ns == t + dt and f.estimate is used
+    assert e.initial.min_explained == max(12, int(0.5 * 0.8 * n))
+    f, e = frame(2, used)
+    assert e.initial.min_explained == max(12, int(0.5 * 0.6 * n))
+    # solved, but not from the prediction: relocalized, not solved again ...
+    unused = replace(est, initial_used=False, initial_explained=3)
+    f, e = frame(3, unused)
+    assert (f.path, e.calls, f.estimate, f.explained) == ("relocalized", ["tracked"], unused, 3)
+    # ... unless the estimator leaned on the prediction's twist
+    f, e = frame(4, unused, prior_from_prediction=True)
+    assert (f.path, e.calls, f.estimate) == ("relocalized", ["tracked", "relocalize"], est)
+    # a failure other than too few points is solved again; too few points is not
+    failed = replace(est, success=False, failure="too_few_inliers")
+    f, e = frame(5, failed)
+    assert (f.path, e.calls) == ("relocalized", ["tracked", "relocalize"])
+    few = replace(est, success=False, failure=TOO_FEW_POINTS)
+    f, e = frame(6, few)
+    assert (f.path, e.calls, f.estimate) == ("relocalized", ["tracked"], few)
+    assert path.failures == 1 and path.last_ns == t + 5 * dt
+    # a stamp going back ends the track: its pending states handed on first, then cold
+    pending = path.filter.window[0].stamp
+    f, e = frame(2, used)
+    assert (f.path, e.calls) == ("reset", ["ended", "cold"])
+    assert pending in [s.pose.stamp_ns for s in e.final]
+    # a gap longer than max_gap too; frames within it are predicted
+    f, e = frame(3, used)
+    assert f.path == "tracked"
+    f, e = frame(3 + int(0.6e9 / dt) + 1, used)
+    assert (f.path, e.calls) == ("reset", ["ended", "cold"])
+    assert (path.frames, path.frames_tracked, path.relocalizations, path.resets) == (10, 3, 3, 2)
+    assert path.track_state == "tracking"
