@@ -133,10 +133,12 @@ from .plausibility import (
 from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
+    KernelMountings,
     Mountings,
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    kernel_mountings,
     least_squares_exact_model,
     refine_rs_pose,
     untruncated_variance,
@@ -1084,6 +1086,16 @@ def _mountings(pool: _Pool) -> Mountings:
     return m
 
 
+def _kernel_mountings(pool: _Pool) -> KernelMountings:
+    """:func:`_mountings` checked and in the refinement kernel's form
+    (:func:`~.refine.kernel_mountings`), once per pool: every refinement and the covariance
+    of a rig frame take it."""
+    m = pool.__dict__.get("_kernel_mountings")
+    if m is None:
+        m = pool._kernel_mountings = kernel_mountings(_mountings(pool), len(pool.X))
+    return m
+
+
 @functools.lru_cache(maxsize=64)
 def _refine_settings(rolling: bool, max_iterations: int, covariance: bool, cutoff: float,
                      noise: float | None) -> RefineSettings:  # fmt: skip
@@ -1130,7 +1142,7 @@ def _refine(
         return _refine_numpy(pool, model, k, cut, free, int(max_iterations), noise, motion)
     settings = _refine_settings(free == 12, int(max_iterations), False, cut, noise)
     res = refine_rs_pose(
-        model, pool.X, pool.x, pool.tau, k, settings, motion, _mountings(pool)
+        model, pool.X, pool.x, pool.tau, k, settings, motion, _kernel_mountings(pool)
     )  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
@@ -1267,7 +1279,7 @@ def _covariance(
     else:
         settings = _refine_settings(rolling, 0, True, cut, None)
         res = refine_rs_pose(
-            model, pool.X, pool.x, pool.tau, k, settings, None, _mountings(pool)
+            model, pool.X, pool.x, pool.tau, k, settings, None, _kernel_mountings(pool)
         )  # fmt: skip
         sigma2, info = res.sigma**2, res.data_information
         acc = res.acceleration_block if rolling else None
