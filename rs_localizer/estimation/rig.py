@@ -543,7 +543,7 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     values = Rm.ravel().tolist() + cm.ravel().tolist()
     if not all(map(math.isfinite, values)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-    if not _is_rotation(values[:9]):
+    if not _is_rotation(tuple(values[:9])):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
     if not math.isfinite(float(v.stamp_offset)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
@@ -581,8 +581,14 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     if not np.isfinite(x).all():
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
-    r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
-    tau = float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r
+    stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
+    if spr == 0.0 and (stamp != 0.0 or math.copysign(1.0, stamp) > 0):
+        # a global shutter: every point at the stamp (stamp + (r - r0) * 0 to the bit: the
+        # zero's sign is lost unless the stamp is -0.0)
+        tau = np.full(len(uv_g), stamp + 0.0)
+    else:
+        r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
+        tau = stamp + (r - cam.r0) * spr
     K = cam.K
     if cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
@@ -593,11 +599,12 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
             float(cam.mean_focal), A)  # fmt: skip
 
 
-def _is_rotation(m: list) -> bool:
+@functools.lru_cache(maxsize=64)
+def _is_rotation(m: tuple) -> bool:
     """The (3, 3) matrix of the 9 floats ``m`` (row-major) is a rotation: ``R^T R`` within
     :data:`_ROTATION_TOL` of the identity entry by entry (``np.allclose(R^T R, I,
-    atol=1e-6)``) and a determinant not below 0 (on Python floats: a mounting is checked on
-    every rig frame)."""
+    atol=1e-6)``) and a determinant not below 0 (on Python floats, once per mounting's
+    values: a rig's mountings are checked on every rig frame)."""
     a, b, d, e, f, g, h, i, j = m
     det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
     cols = ((a, e, h), (b, f, i), (d, g, j))
@@ -1359,15 +1366,18 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     behind, bad = 0, False
+    # (every camera's products at once: the same values as camera by camera, to the bit)
+    Rm = pool.R_mount
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
+    check = final_model_check_numpy if pool.numpy else final_model_check
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
             continue
-        Rc, cc = pool.R_mount[c], pool.c_mount[c]
-        code, n = (final_model_check_numpy if pool.numpy else final_model_check)(
-            np.ascontiguousarray(Rc @ R),
-            Rc @ C + cc,
-            Rc @ w,
-            Rc @ t,
+        code, n = check(
+            RcR[c],
+            RcC[c],
+            Rcw[c],
+            Rct[c],
             pool.X[s],
             pool.tau[s],
             np.ascontiguousarray(inl[s]),
