@@ -853,7 +853,20 @@ def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
     hit = pool.__dict__.get("_sampling")
     if hit is not None and hit[0] is subset:
         return hit[1]
-    cam = pool.cam if subset is None else pool.cam[subset]
+    if subset is None:  # (the pool's cameras' slices: the same numbers in Python floats)
+        n = [s.stop - s.start for s in pool.slices]
+        eligible = [c for c, k in enumerate(n) if k >= 3]
+        total, acc, cdf = sum(n[c] for c in eligible), 0.0, []
+        for c in eligible:  # (np.cumsum's sequential sums of the same quotients)
+            acc += n[c] / total
+            cdf.append(acc)
+        cdf = np.array(cdf)
+        cdf /= cdf[-1]
+        out = (np.array(n, dtype=np.int64), np.array([s.start for s in pool.slices], np.int64),
+               np.array(eligible, dtype=np.int64), cdf, len(pool.cam))  # fmt: skip
+        pool._sampling = (subset, out)
+        return out
+    cam = pool.cam[subset]
     counts = np.bincount(cam, minlength=len(pool.sizes))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
     eligible = np.flatnonzero(counts >= 3)
