@@ -109,7 +109,7 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix, skew
-from ..pose import PoseWithCovariance, RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel, RSPose, model_twist
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -1645,9 +1645,8 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
 def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
     """The voting cameras that agree with a solved estimate: inlier ratio at least
     :data:`AGREE_SHARE` times the best voting camera's."""
-    n = np.asarray(est.num_valid_per_camera, dtype=float)
-    k = np.asarray(est.num_inliers_per_camera, dtype=float)
-    ratio = {c: k[c] / n[c] for c in voters}
+    n, k = est.num_valid_per_camera, est.num_inliers_per_camera
+    ratio = {c: int(k[c]) / int(n[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
@@ -1985,6 +1984,14 @@ class _RigSearch(RansacLoop):
         return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
 
 
+def _rig_pose(R, C, w, t, numpy: bool) -> RSPose:
+    """``RSPose.from_model((R, C, w, t), 1.0)`` of float64 arrays, its twist by the compiled
+    :func:`~rs_localizer.pose.model_twist` (``numpy``: its ``py_func``, as ``from_model``;
+    the same twist to the bit)."""
+    z = (model_twist.py_func if numpy else model_twist)(C, w, t, 1.0)
+    return RSPose(R.T, -R.T @ C, z[3:6], z[0:3])
+
+
 def _rig_estimate(
     pool: _Pool,
     model=None,
@@ -2014,7 +2021,7 @@ def _rig_estimate(
         num_inliers_per_camera=pool.counts(inl),
         num_valid_per_camera=pool.counts(),
         covariance=outputs[0],
-        pose=RSPose.from_model(RSModel(R, C, w, t), 1.0),
+        pose=_rig_pose(R, C, w, t, pool.numpy),
         pose_covariance=outputs[1],
         twist_covariance=outputs[2],
         **record,
