@@ -43,6 +43,7 @@ from .scoring import exact_error2, exact_error2_whitened
 __all__ = [
     "LM_REFINE_KERNEL",
     "ExactModelFit",
+    "KernelMountings",
     "Mountings",
     "RefineResult",
     "RefineSettings",
@@ -50,6 +51,7 @@ __all__ = [
     "exact_jacobian",
     "exact_mounting_jacobian",
     "exact_residuals",
+    "kernel_mountings",
     "least_squares_exact_model",
     "prior_residuals",
     "refine_rs_pose",
@@ -145,6 +147,28 @@ def _checked_mountings(mountings: Mountings, n: int) -> tuple:
     if n and (cam.min() < 0 or cam.max() >= M):
         raise ValueError(f"mountings: camera index out of [0, {M})")
     return cam, Rm, cm, scale
+
+
+class KernelMountings(NamedTuple):
+    """A :class:`Mountings` of ``n`` observations checked once and in the refinement
+    kernel's form (:func:`kernel_mountings`): :func:`refine_rs_pose` takes it as its
+    ``mountings`` without checking and converting them again, for a caller that refines the
+    same observations several times (a rig frame's local optimization, final refinement and
+    covariance). It may share the :class:`Mountings`' arrays: build it again after changing
+    them."""
+
+    n: int
+    views: tuple
+
+
+def kernel_mountings(mountings: Mountings, n: int) -> KernelMountings:
+    """``mountings`` of ``n`` observations checked and converted once (:class:`KernelMountings`).
+
+    Raises:
+        ValueError: shapes that do not match the n observations, or a camera index out of
+            range (as :func:`refine_rs_pose`).
+    """
+    return KernelMountings(int(n), _checked_mountings(mountings, int(n)))
 
 
 def _scale_matrices(mountings: Mountings) -> np.ndarray:
@@ -1104,7 +1128,8 @@ def refine_rs_pose(
             ``covariance``; rolling shutter), D the columns of an in-readout acceleration:
             what :func:`~rs_localizer.estimation.sensitivity.acceleration_sensitivity` needs,
             from the refinement's last Jacobian instead of another pass over the points.
-        mountings (argument): ``None`` (one camera) or a :class:`Mountings`: the model is
+        mountings (argument): ``None`` (one camera) or a :class:`Mountings` (or the same
+            checked once, :class:`KernelMountings`): the model is
             then a rig's, each observation seen by its camera through that camera's mounting
             (``tau`` each observation's own capture time, e.g. in s with
             ``seconds_per_unit_r = 1``), its error scaled by its ``scale``; ``loss_scale``,
@@ -1144,7 +1169,14 @@ def refine_rs_pose(
     out = np.empty(OUT_SIZE_ACC if want_acc else OUT_SIZE)
     on, mu, Lam = prior_arrays(prior if rolling_shutter and seconds_per_unit_r > 0 else None)
     noise2 = -1.0 if noise is None else float(noise) ** 2
-    views = None if mountings is None else _checked_mountings(mountings, len(X))
+    if mountings is None:
+        views = None
+    elif isinstance(mountings, KernelMountings):
+        if mountings.n != len(X):
+            raise ValueError(f"mountings: checked for {mountings.n} observations, got {len(X)}")
+        views = mountings.views
+    else:
+        views = _checked_mountings(mountings, len(X))
     sigma, success, nfev = _lm_refine(
         np.ascontiguousarray(R0, dtype=f64),
         np.ascontiguousarray(C0, dtype=f64),

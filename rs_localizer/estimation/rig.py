@@ -99,6 +99,7 @@ parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -108,7 +109,7 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix, skew
-from ..pose import PoseWithCovariance, RSModel, RSPose
+from ..pose import PoseWithCovariance, RSModel, RSPose, model_twist
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -132,10 +133,12 @@ from .plausibility import (
 from .prior import MotionPrior
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
+    KernelMountings,
     Mountings,
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    kernel_mountings,
     least_squares_exact_model,
     refine_rs_pose,
     untruncated_variance,
@@ -513,7 +516,7 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
 
 _EYE3 = np.eye(3)
 #: np.allclose(R^T R, I, atol=1e-6)'s tolerance per entry (its rtol 1e-5 on I's ones)
-_ROTATION_TOL = 1e-6 + 1e-5 * _EYE3
+_ROTATION_TOL = (1e-6 + 1e-5 * _EYE3).tolist()
 
 
 def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
@@ -540,11 +543,9 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     values = Rm.ravel().tolist() + cm.ravel().tolist()
     if not all(map(math.isfinite, values)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-    a, b, d, e, f, g, h, i, j = values[:9]
-    det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
-    if not (np.abs(Rm.T @ Rm - _EYE3) <= _ROTATION_TOL).all() or det < 0:
+    if not _is_rotation(tuple(values[:9])):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
-    if not np.isfinite(float(v.stamp_offset)):
+    if not math.isfinite(float(v.stamp_offset)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
     mc = v.mount_covariance
     if mc is not None:
@@ -571,22 +572,49 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         )
     cam = v.camera
     if np.isfinite(uv).all() and np.isfinite(X).all():
-        idx, uv_g, X_g = np.arange(len(uv)), uv, X
+        idx, uv_g, X_g = np.arange(len(uv), dtype=np.int64), uv, X
     else:
         idx = np.flatnonzero(np.isfinite(uv).all(axis=1) & np.isfinite(X).all(axis=1))
         uv_g, X_g = uv[idx], X[idx]
-    x, r, _ = cam.normalize(uv_g, compiled=not numpy)
-    ok = np.isfinite(x).all(axis=1)
-    if not ok.all():
-        idx, x, r, uv_g, X_g = idx[ok], x[ok], r[ok], uv_g[ok], X_g[ok]
-    tau = float(v.stamp_offset) + (r - cam.r0) * cam.seconds_per_unit_r
-    if cam.has_distortion or cam.K[0, 0] != cam.K[1, 1] or cam.K[0, 1] != 0:
+    # (CameraModel.normalize's x and r, without its per-point reference lines: not used here)
+    x = cam.undistort(uv_g, compiled=not numpy)
+    if not np.isfinite(x).all():
+        ok = np.isfinite(x).all(axis=1)
+        idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
+    stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
+    if spr == 0.0 and (stamp != 0.0 or math.copysign(1.0, stamp) > 0):
+        # a global shutter: every point at the stamp (stamp + (r - r0) * 0 to the bit: the
+        # zero's sign is lost unless the stamp is -0.0)
+        tau = np.full(len(uv_g), stamp + 0.0)
+    else:
+        r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
+        tau = stamp + (r - cam.r0) * spr
+    K = cam.K
+    if cam.has_distortion or K[0, 0] != K[1, 1] or K[0, 1] != 0:
         A = cam.pixel_jacobian(x, compiled=not numpy).reshape(-1, 4)
     else:
         A = np.zeros((len(idx), 4))
         A[:, 0] = A[:, 3] = cam.mean_focal
-    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64),
+    return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             float(cam.mean_focal), A)  # fmt: skip
+
+
+@functools.lru_cache(maxsize=64)
+def _is_rotation(m: tuple) -> bool:
+    """The (3, 3) matrix of the 9 floats ``m`` (row-major) is a rotation: ``R^T R`` within
+    :data:`_ROTATION_TOL` of the identity entry by entry (``np.allclose(R^T R, I,
+    atol=1e-6)``) and a determinant not below 0 (on Python floats, once per mounting's
+    values: a rig's mountings are checked on every rig frame)."""
+    a, b, d, e, f, g, h, i, j = m
+    det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
+    cols = ((a, e, h), (b, f, i), (d, g, j))
+    for p in range(3):
+        for q in range(3):
+            u, w = cols[p], cols[q]
+            dot = u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
+            if not abs(dot - (p == q)) <= _ROTATION_TOL[p][q]:
+                return False
+    return det >= 0
 
 
 class _Pool:
@@ -618,20 +646,22 @@ class _Pool:
         self.c_mount = np.array([q[1] for q in parts]).reshape(-1, 3)
         self.mount_cov = [q[2] for q in parts]
         self.sizes = [q[3] for q in parts]
-        self.spr = np.array([v.camera.seconds_per_unit_r for v in views])
         n = [len(q[5]) for q in parts]
         self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
-        ends = np.cumsum([0] + n).tolist()
         #: each camera's points in the pool (stacked by camera)
-        self.slices = [slice(ends[c], ends[c + 1]) for c in range(len(parts))]
+        self.slices, end = [], 0
+        for k in n:
+            self.slices.append(slice(end, end + k))
+            end += k
         if parts:
-            self.x = np.concatenate([q[4] for q in parts])
-            self.X = np.concatenate([q[5] for q in parts])
-            self.uv = np.concatenate([q[6] for q in parts])
-            self.tau = np.concatenate([q[7] for q in parts])
-            self.row = np.concatenate([q[8] for q in parts])
-            self.focal = np.repeat(np.array([q[9] for q in parts], dtype=float), n)
-            self.A = np.ascontiguousarray(np.concatenate([q[10] for q in parts]))
+            cols = list(zip(*parts, strict=True))
+            self.x = np.concatenate(cols[4])
+            self.X = np.concatenate(cols[5])
+            self.uv = np.concatenate(cols[6])
+            self.tau = np.concatenate(cols[7])
+            self.row = np.concatenate(cols[8])
+            self.focal = np.repeat(np.array(cols[9], dtype=float), n)
+            self.A = np.ascontiguousarray(np.concatenate(cols[10]))
         else:
             self.x, self.X, self.uv = np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 2))
             self.tau, self.row = np.zeros(0), np.zeros(0, dtype=np.int64)
@@ -643,6 +673,9 @@ class _Pool:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
         out = []
         for n, s in zip(self.sizes, self.slices, strict=True):
+            if s.stop - s.start == n:  # (every row valid: the rows are 0..n-1 in order)
+                out.append(np.array(mask[s], dtype=bool))
+                continue
             m = np.zeros(n, dtype=bool)
             m[self.row[s]] = mask[s]
             out.append(m)
@@ -797,15 +830,7 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
     proportion to its points), then 3 distinct others from all cameras; ``subset`` (sorted
     pool indices, at least 3 of one camera and 6 in all): drawn among those only. Returns
     (S, 6)."""
-    cam = pool.cam if subset is None else pool.cam[subset]
-    counts = np.bincount(cam, minlength=len(pool.sizes))
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
-    eligible = np.flatnonzero(counts >= 3)
-    n = len(cam)
-    # (Generator.choice(len(eligible), n_samples, p=counts / total)'s draws, without its
-    # checks of p: the inverse of the counts' cumulative distribution at uniform draws)
-    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
-    cdf /= cdf[-1]
+    counts, starts, eligible, cdf, n = _sampling_of(pool, subset)
     if pool.numpy:
         cams = eligible[cdf.searchsorted(rng.random(n_samples), side="right")]
         first = starts[cams][:, None] + _distinct3(rng, counts[cams])
@@ -817,9 +842,42 @@ def _sample(rng, pool: _Pool, n_samples: int, subset: np.ndarray | None = None):
         out = np.concatenate([first, rest], axis=1)
     else:  # (the same draws, in the same order, mapped in one compiled call)
         u = rng.random(7 * n_samples).reshape(7, n_samples)
-        out = _sample_kernel(u, cdf, eligible.astype(np.int64), counts.astype(np.int64),
-                             starts.astype(np.int64), n)  # fmt: skip
+        out = _sample_kernel(u, cdf, eligible, counts, starts, n)
     return out if subset is None else subset[out]
+
+
+def _sampling_of(pool: _Pool, subset: np.ndarray | None) -> tuple:
+    """:func:`_sample`'s distribution over the pool's points (``subset``: among those):
+    ``(counts (M,), starts (M,), eligible cameras (at least 3 points), cdf over them, n)``
+    (int64 arrays), computed once per pool and subset (a search draws several batches)."""
+    hit = pool.__dict__.get("_sampling")
+    if hit is not None and hit[0] is subset:
+        return hit[1]
+    if subset is None:  # (the pool's cameras' slices: the same numbers in Python floats)
+        n = [s.stop - s.start for s in pool.slices]
+        eligible = [c for c, k in enumerate(n) if k >= 3]
+        total, acc, cdf = sum(n[c] for c in eligible), 0.0, []
+        for c in eligible:  # (np.cumsum's sequential sums of the same quotients)
+            acc += n[c] / total
+            cdf.append(acc)
+        cdf = np.array(cdf)
+        cdf /= cdf[-1]
+        out = (np.array(n, dtype=np.int64), np.array([s.start for s in pool.slices], np.int64),
+               np.array(eligible, dtype=np.int64), cdf, len(pool.cam))  # fmt: skip
+        pool._sampling = (subset, out)
+        return out
+    cam = pool.cam[subset]
+    counts = np.bincount(cam, minlength=len(pool.sizes))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])  # (the pool is stacked by camera)
+    eligible = np.flatnonzero(counts >= 3)
+    # (Generator.choice(len(eligible), n_samples, p=counts / total)'s draws, without its
+    # checks of p: the inverse of the counts' cumulative distribution at uniform draws)
+    cdf = np.cumsum(counts[eligible] / counts[eligible].sum())
+    cdf /= cdf[-1]
+    out = (counts.astype(np.int64), starts.astype(np.int64), eligible.astype(np.int64), cdf,
+           len(cam))  # fmt: skip
+    pool._sampling = (subset, out)
+    return out
 
 
 @njit(cache=True)
@@ -1048,6 +1106,29 @@ def _mountings(pool: _Pool) -> Mountings:
     return m
 
 
+def _kernel_mountings(pool: _Pool) -> KernelMountings:
+    """:func:`_mountings` checked and in the refinement kernel's form
+    (:func:`~.refine.kernel_mountings`), once per pool: every refinement and the covariance
+    of a rig frame take it."""
+    m = pool.__dict__.get("_kernel_mountings")
+    if m is None:
+        m = pool._kernel_mountings = kernel_mountings(_mountings(pool), len(pool.X))
+    return m
+
+
+@functools.lru_cache(maxsize=64)
+def _refine_settings(rolling: bool, max_iterations: int, covariance: bool, cutoff: float,
+                     noise: float | None) -> RefineSettings:  # fmt: skip
+    """The :class:`~.refine.RefineSettings` of the rig's refinements (one second per unit
+    of tau; with ``covariance``, the acceleration block when ``rolling``), built once per
+    setting."""
+    return RefineSettings(
+        rolling_shutter=rolling, max_iterations=max_iterations, covariance=covariance,
+        cutoff=cutoff, seconds_per_unit_r=1.0, noise=noise,
+        acceleration_block=covariance and rolling,
+    )  # fmt: skip
+
+
 def _refine(
     pool: _Pool,
     inl: np.ndarray,
@@ -1079,12 +1160,9 @@ def _refine(
         noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
     if pool.numpy:
         return _refine_numpy(pool, model, k, cut, free, int(max_iterations), noise, motion)
-    settings = RefineSettings(
-        rolling_shutter=free == 12, max_iterations=int(max_iterations), covariance=False,
-        cutoff=cut, seconds_per_unit_r=1.0, noise=noise,
-    )  # fmt: skip
+    settings = _refine_settings(free == 12, int(max_iterations), False, cut, noise)
     res = refine_rs_pose(
-        model, pool.X, pool.x, pool.tau, k, settings, motion, _mountings(pool)
+        model, pool.X, pool.x, pool.tau, k, settings, motion, _kernel_mountings(pool)
     )  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
@@ -1216,14 +1294,13 @@ def _covariance(
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    settings = RefineSettings(
-        rolling_shutter=rolling, max_iterations=0, covariance=True, cutoff=cut,
-        seconds_per_unit_r=1.0, acceleration_block=rolling,
-    )  # fmt: skip
     if pool.numpy:
         sigma2, info, acc = _information_numpy(pool, model, k, cut, free)
     else:
-        res = refine_rs_pose(model, pool.X, pool.x, pool.tau, k, settings, None, _mountings(pool))
+        settings = _refine_settings(rolling, 0, True, cut, None)
+        res = refine_rs_pose(
+            model, pool.X, pool.x, pool.tau, k, settings, None, _kernel_mountings(pool)
+        )  # fmt: skip
         sigma2, info = res.sigma**2, res.data_information
         acc = res.acceleration_block if rolling else None
     H = info[:free, :free].copy()
@@ -1302,15 +1379,18 @@ def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bo
     :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     behind, bad = 0, False
+    # (every camera's products at once: the same values as camera by camera, to the bit)
+    Rm = pool.R_mount
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
+    check = final_model_check_numpy if pool.numpy else final_model_check
     for c, s in enumerate(pool.slices):
         if s.stop == s.start:
             continue
-        Rc, cc = pool.R_mount[c], pool.c_mount[c]
-        code, n = (final_model_check_numpy if pool.numpy else final_model_check)(
-            np.ascontiguousarray(Rc @ R),
-            Rc @ C + cc,
-            Rc @ w,
-            Rc @ t,
+        code, n = check(
+            RcR[c],
+            RcC[c],
+            Rcw[c],
+            Rct[c],
             pool.X[s],
             pool.tau[s],
             np.ascontiguousarray(inl[s]),
@@ -1565,9 +1645,8 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
 def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
     """The voting cameras that agree with a solved estimate: inlier ratio at least
     :data:`AGREE_SHARE` times the best voting camera's."""
-    n = np.asarray(est.num_valid_per_camera, dtype=float)
-    k = np.asarray(est.num_inliers_per_camera, dtype=float)
-    ratio = {c: k[c] / n[c] for c in voters}
+    n, k = est.num_valid_per_camera, est.num_inliers_per_camera
+    ratio = {c: int(k[c]) / int(n[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
 
@@ -1824,6 +1903,15 @@ def _image_alone(
     return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
 
 
+@functools.lru_cache(maxsize=16)
+def _search_batches(r: RansacOptions) -> RansacOptions:
+    """The rig search's batches (:func:`~.ransac.batch_sizes`): ``r`` with the first batch
+    no larger than ``min_iterations``, so that a frame whose best model asks for no more
+    samples stops there, as PoseLib's loop (checked after every sample past min_iterations)
+    does (built once per options: a frozen dataclass, its checks cost as much as a batch)."""
+    return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
+
+
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1846,14 +1934,23 @@ class _RigSearch(RansacLoop):
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e = np.zeros(0)
-        # the batches (:func:`~.ransac.batch_sizes`): the first no larger than
-        # ``min_iterations``, so that a frame whose best model asks for no more samples stops
-        # there, as PoseLib's loop (checked after every sample past min_iterations) does
-        self.batches = replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
+        self._costed = ((None, None), (None, None))
+        self.batches = _search_batches(r)
 
     def cost(self, model) -> float:
-        """MSAC cost (px^2) of one model on every point."""
-        return float(np.minimum(_errors_px(self.pool, *_one(model))[0] ** 2, self.th2).sum())
+        """MSAC cost (px^2) of one model on every point (its errors kept for
+        :meth:`errors`)."""
+        e = _errors_px(self.pool, *_one(model))[0]
+        self._costed = (self._costed[-1], (model, e))
+        return float(np.minimum(e**2, self.th2).sum())
+
+    def errors(self, model) -> np.ndarray:
+        """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
+        last two models :meth:`cost` measured when it is one of them (the same object)."""
+        for m, e in self._costed:
+            if m is model:
+                return e
+        return _errors_px(self.pool, *_one(model))[0]
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
@@ -1881,8 +1978,18 @@ class _RigSearch(RansacLoop):
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
-        ratio = np.mean(inl if self.subset is None else inl[self.subset])
+        if self.subset is not None:
+            inl = inl[self.subset]
+        ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
         return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
+
+
+def _rig_pose(R, C, w, t, numpy: bool) -> RSPose:
+    """``RSPose.from_model((R, C, w, t), 1.0)`` of float64 arrays, its twist by the compiled
+    :func:`~rs_localizer.pose.model_twist` (``numpy``: its ``py_func``, as ``from_model``;
+    the same twist to the bit)."""
+    z = (model_twist.py_func if numpy else model_twist)(C, w, t, 1.0)
+    return RSPose(R.T, -R.T @ C, z[3:6], z[0:3])
 
 
 def _rig_estimate(
@@ -1914,7 +2021,7 @@ def _rig_estimate(
         num_inliers_per_camera=pool.counts(inl),
         num_valid_per_camera=pool.counts(),
         covariance=outputs[0],
-        pose=RSPose.from_model(RSModel(R, C, w, t), 1.0),
+        pose=_rig_pose(R, C, w, t, pool.numpy),
         pose_covariance=outputs[1],
         twist_covariance=outputs[2],
         **record,
@@ -1936,7 +2043,7 @@ def _estimate(
     def failed(reason, iterations=0, behind=0):
         return _rig_estimate(pool, failure=reason, iterations=iterations, num_behind=behind)
 
-    if len(pool.cam) < 6 or np.bincount(pool.cam, minlength=len(pool.sizes)).max() < 3:
+    if len(pool.cam) < 6 or max(pool.counts()) < 3:
         return failed(TOO_FEW_POINTS)
     if pool.degenerate(threshold_px):
         return failed(DEGENERATE_GEOMETRY)
@@ -1973,15 +2080,16 @@ def _estimate(
         steps = (_refine,) if refine else ()
     for _ in range(LO_ROUNDS):
         for step in steps:
-            inl = _errors_px(pool, *_one(model))[0] < threshold_px
+            # (the refinement selects its points itself: the inliers are the refit's alone)
+            inl = _errors_px(pool, *_one(model))[0] < threshold_px if step is _refit else None
             cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
             cost = search.cost(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
         model = _final(pool, model, search.cost, threshold_px, free, prior)
+    e = search.errors(model)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
-    e = _errors_px(pool, *_one((R, C, w, t)))[0]
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
         return failed(TOO_FEW_INLIERS, drawn)

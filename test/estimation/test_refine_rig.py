@@ -7,6 +7,7 @@ import pytest
 
 from rs_localizer.estimation.prior import MotionPrior
 from rs_localizer.estimation.refine import (
+    KernelMountings,
     Mountings,
     RefineSettings,
     _checked_mountings,
@@ -14,6 +15,7 @@ from rs_localizer.estimation.refine import (
     exact_jacobian,
     exact_mounting_jacobian,
     exact_residuals,
+    kernel_mountings,
     least_squares_exact_model,
     refine_rs_pose,
 )
@@ -143,3 +145,25 @@ def test_mountings_that_do_not_match_are_refused():
         refine_rs_pose(model, X, x, tau, 2.0, mountings=mnt._replace(cam=mnt.cam + 1))
     with pytest.raises(ValueError, match="must be"):
         refine_rs_pose(model, X, x, tau, 2.0, mountings=mnt._replace(scale=mnt.scale[:-1]))
+
+
+def test_mountings_checked_once_refine_as_the_mountings():
+    """:func:`kernel_mountings` (checked once, for many refinements of one rig frame) gives
+    the refinement and covariance of the :class:`Mountings` themselves, to the bit; checked
+    for other observations, or not matching, it is refused."""
+    rng = np.random.default_rng(8)
+    (R, C, w, t), X, x, tau, mnt = rig_problem(rng, m=3, n=30)
+    start = (rotvec_to_matrix(rng.normal(size=3) * 0.01) @ R, C + 0.02, w * 0.9, t * 1.1)
+    settings = RefineSettings(seconds_per_unit_r=1.0, acceleration_block=True)
+    once = kernel_mountings(mnt, len(X))
+    assert isinstance(once, KernelMountings)
+    a = refine_rs_pose(start, X, x, tau, 2.0 / 500, settings, mountings=mnt)
+    b = refine_rs_pose(start, X, x, tau, 2.0 / 500, settings, mountings=once)
+    assert a.nfev == b.nfev and a.sigma == b.sigma
+    for p, q in ((a.R, b.R), (a.C, b.C), (a.w, b.w), (a.t, b.t), (a.covariance, b.covariance),
+                 (a.acceleration_block, b.acceleration_block)):  # fmt: skip
+        assert np.array_equal(p, q)
+    with pytest.raises(ValueError, match="checked for 90 observations, got 89"):
+        refine_rs_pose(start, X[1:], x[1:], tau[1:], 2.0 / 500, settings, mountings=once)
+    with pytest.raises(ValueError, match="camera index"):
+        kernel_mountings(mnt._replace(cam=mnt.cam + 1), len(X))
