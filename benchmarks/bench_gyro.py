@@ -129,7 +129,7 @@ def floor_errors(f: PlanarFrame, opts: EstimateOptions, gyro: GyroMeasurement | 
         opts.motion_prior,
     )
     th = opts.ransac.threshold_px / fr.f
-    ref, _ = final_refinement(fr, (f.R, f.C, f.w, f.t), th, True, fr.final_prior)
+    ref, _, _ = final_refinement(fr, (f.R, f.C, f.w, f.t), th, True, fr.final_prior)
     omega, v, _, _ = physical_velocities(ref.R, ref.C, ref.w, ref.t, fr.spr)
     return (
         rotation_angle_deg(ref.R.T, f.orientation),

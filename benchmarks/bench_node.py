@@ -282,7 +282,6 @@ def _cameras(args) -> int:
         args.seconds,
         args.solver,
         None if args.node_cpu < 0 else args.node_cpu,
-        uncompiled_node=not args.no_uncompiled_node,
     )
     skipped = sum(max(r["frames_skipped"], 0) for r in res["cameras"].values())
     print(
@@ -291,13 +290,6 @@ def _cameras(args) -> int:
         f"{skipped} skipped by the node; latency median {res['latency_ms_median']:.2f} ms, "
         f"p99 {res['latency_ms_p99']:.2f} ms, max {res['latency_ms_max']:.2f} ms; node CPU "
         f"{res['node_cpu_ms_per_frame']:.2f} ms per frame"
-    )
-    unc = res.get("uncompiled_node", {}).get("lockstep")
-    print(
-        f"uncompiled path (while the kernels compile after a start on a cold cache): alone "
-        f"{res['uncompiled_hz']:.1f} Hz"
-        + (f", node lock-step {unc['hz']:.1f} Hz" if unc else "")
-        + " (target >= 10 Hz lock-step)"
     )
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")

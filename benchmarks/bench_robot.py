@@ -272,7 +272,8 @@ def fresh_copy_env(dest: Path, python: str = sys.executable) -> Path:
     (env / "share" / "rs_localizer").symlink_to(src)
     runs = {
         "python": '"$@"',
-        "rs_localizer_node": '-c "from rs_localizer.ros.node import main; main()" "$@"',
+        "rs_localizer_node": '-c "import sys; from rs_localizer.ros.runner import main; '
+        'sys.exit(main())" "$@"',
         "rs-localizer": '-m rs_localizer "$@"',
     }
     for name, tail in runs.items():

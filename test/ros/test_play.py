@@ -310,3 +310,44 @@ def test_play_counts_rig_frames_as_the_rig_node(tmp_path, ros_domain, capsys):
     n_rig = replay_rig(bag).counts["rig"]["rig_frames"]
     assert n_rig == 5
     assert "15 camera frames" in out and f"({n_rig} rig frames: the camera frames grouped" in out
+
+
+def test_plays_preloaded_messages_without_a_bag(imu_bag, ros_context):
+    """``messages`` without a bag directory (``path`` None, as the benchmarks pass them): every
+    message is published, the frames reach a subscriber."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from rs_localizer.ros.bags.bag_io import iter_messages
+    from rs_localizer.ros.bags.play import play
+
+    topics = ["/camera/camera_info", "/camera/correspondences"]
+    msgs = list(iter_messages(imu_bag, topics))
+    node = rclpy.create_node("play_test_listener", context=ros_context)
+    qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
+    got = []
+    node.create_subscription(PointCloud2, topics[1], got.append, qos)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    stop = threading.Event()
+    th = threading.Thread(
+        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
+    )
+    th.start()
+    try:
+        res = play(
+            None, messages=msgs, rate=100.0, context=ros_context, wait_subscribers=20.0, log=print
+        )
+        deadline = time.monotonic() + 5.0
+        while len(got) < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        stop.set()
+        th.join()
+        ex.remove_node(node)
+        node.destroy_node()
+        ex.shutdown()
+    assert res.published == len(msgs) > 5 and res.rig_frames == 0
+    assert len(got) == 5

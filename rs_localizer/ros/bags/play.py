@@ -206,7 +206,7 @@ def _bag_stream(
 
 
 def play(
-    path: str | os.PathLike,
+    path: str | os.PathLike | None,
     *,
     rate: float = 1.0,
     lockstep: bool = False,
@@ -235,7 +235,7 @@ def play(
 
     Args:
         path: bag directory. Its messages are read while they are sent (the first one goes out
-            as soon as the node is found, whatever the bag's size).
+            as soon as the node is found, whatever the bag's size). None with ``messages``.
         rate: time scale of the original timing (ignored in lock-step).
         lockstep: after each frame (a ``*/correspondences``, ``*/keypoints`` or image message) wait
             until every ``output_topics`` topic delivered a message stamped within 1 s of the
@@ -305,7 +305,7 @@ def play(
 
     if source not in SOURCES:
         raise ValueError(f"unknown source {source!r}; one of {', '.join(SOURCES)}")
-    rig = is_rig_bag(path)
+    rig = path is not None and is_rig_bag(path)
     grouping = None
     if rig:  # (its grouping is read beside the first messages sent: it reads the whole bag)
         from concurrent.futures import ThreadPoolExecutor
