@@ -4,11 +4,37 @@ so the non-ROS tests run without ROS."""
 
 from __future__ import annotations
 
+import contextlib
+import threading
 import time
 
 import pytest
 
 from .paths import CONFIG
+
+
+@contextlib.contextmanager
+def spinning(node, context):
+    """Spin ``node`` on its own executor in a background thread for the ``with`` block; then
+    stop the thread, remove the node from the executor, destroy it and shut the executor
+    down."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = SingleThreadedExecutor(context=context)
+    ex.add_node(node)
+    stop = threading.Event()
+    th = threading.Thread(
+        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
+    )
+    th.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        th.join()
+        ex.remove_node(node)
+        node.destroy_node()
+        ex.shutdown()
 
 
 def start_node(

@@ -10,6 +10,8 @@ import pytest
 pytest.importorskip("rclpy")
 pytest.importorskip("rosbags")
 
+from helpers.ros import spinning
+
 from rs_localizer.cli import main as cli
 from rs_localizer.ros.bags import bag_io
 from rs_localizer.ros.bags import play as rs_play
@@ -172,10 +174,8 @@ def test_replay_with_the_node_parameters(small_bags, tmp_path, capsys):
 
 def test_play_reaches_a_subscriber(small_bags, ros_context):
     """play publishes every message with original timing (rate 4) into the live graph."""
-    import threading
 
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CameraInfo, PointCloud2
 
@@ -188,14 +188,7 @@ def test_play_reaches_a_subscriber(small_bags, ros_context):
     node.create_subscription(
         CameraInfo, "/camera/camera_info", lambda m: got["info"].append(m), qos
     )
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    stop = threading.Event()
-    th = threading.Thread(
-        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
-    )
-    th.start()
-    try:
+    with spinning(node, ros_context):
         res = rs_play.play(
             small_bags["mcap"],
             rate=4.0,
@@ -207,12 +200,6 @@ def test_play_reaches_a_subscriber(small_bags, ros_context):
         end = __import__("time").monotonic() + 5
         while len(got["corr"]) < 4 and __import__("time").monotonic() < end:
             __import__("time").sleep(0.02)
-    finally:
-        stop.set()
-        th.join()
-        ex.remove_node(node)
-        node.destroy_node()
-        ex.shutdown()
     assert res.published == 8 and len(res.frames) == 4
     assert 3 * 33e-3 / 4 * 0.8 < res.wall_time < 2.0  # 4 frames at 30 Hz, 4x faster
     assert len(got["corr"]) == 4 and len(got["info"]) >= 1

@@ -7,6 +7,7 @@ import threading
 import time
 
 import pytest
+from helpers.ros import spinning
 
 from rs_localizer.cli import main as cli
 from rs_localizer.ros.bags.bag_io import CAMERA_INFO, COMPRESSED_IMAGE, IMAGE, PC2
@@ -51,7 +52,6 @@ def imu_bag(tmp_path_factory):
 def test_lockstep_plays_one_frame_topic_and_each_imu_sample_once(imu_bag, ros_context):
     import rclpy
     from geometry_msgs.msg import PoseStamped
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Imu, PointCloud2
 
@@ -77,27 +77,14 @@ def test_lockstep_plays_one_frame_topic_and_each_imu_sample_once(imu_bag, ros_co
         lambda m: got["imu"].append((m.header.stamp.sec, m.header.stamp.nanosec)),
         qos,
     )
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    stop = threading.Event()
-    th = threading.Thread(
-        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
-    )
-    th.start()
     notes = []
-    try:
+    with spinning(node, ros_context):
         from rs_localizer.ros.bags.play import play
 
         res = play(
             imu_bag, lockstep=True, context=ros_context, wait_subscribers=20.0, log=notes.append
         )
         time.sleep(0.3)
-    finally:
-        stop.set()
-        th.join()
-        ex.remove_node(node)
-        node.destroy_node()
-        ex.shutdown()
     assert res.answered == len(res.frames) == 5 and res.timeouts == 0
     assert res.skipped_topics == ["/camera/keypoints"]
     assert got["keypoints"] == [] and len(got["correspondences"]) == 5
@@ -316,7 +303,6 @@ def test_plays_preloaded_messages_without_a_bag(imu_bag, ros_context):
     """``messages`` without a bag directory (``path`` None, as the benchmarks pass them): every
     message is published, the frames reach a subscriber."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
 
@@ -329,25 +315,12 @@ def test_plays_preloaded_messages_without_a_bag(imu_bag, ros_context):
     qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
     got = []
     node.create_subscription(PointCloud2, topics[1], got.append, qos)
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    stop = threading.Event()
-    th = threading.Thread(
-        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
-    )
-    th.start()
-    try:
+    with spinning(node, ros_context):
         res = play(
             None, messages=msgs, rate=100.0, context=ros_context, wait_subscribers=20.0, log=print
         )
         deadline = time.monotonic() + 5.0
         while len(got) < 5 and time.monotonic() < deadline:
             time.sleep(0.05)
-    finally:
-        stop.set()
-        th.join()
-        ex.remove_node(node)
-        node.destroy_node()
-        ex.shutdown()
     assert res.published == len(msgs) > 5 and res.rig_frames == 0
     assert len(got) == 5
