@@ -376,9 +376,12 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
         gyro = _rig_gyro_counts(res.outputs)
         print("  gyro: " + ", ".join(f"{k} {v}" for k, v in gyro.items()), file=text)
     if res.readout.get("readout_suspect") == "true":
-        from ..ros.diagnostics import readout_warning
+        from ..tracking.localizer import readout_warning
 
-        print(f"warning: {readout_warning(res.readout, rig=True)}", file=sys.stderr)
+        print(
+            f"warning: {readout_warning(res.readout['readout_contradicted'], rig=True)}",
+            file=sys.stderr,
+        )
     for n, d in s["disagreeing"].items():
         print(
             f"  camera {n} disagrees with the others in {d['rig_frames']} rig frames (median "

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..correspondences import FrontendHooks
 from ..runtime.background import background_state, compiled_ready
-from ..tracking.localizer import READOUT_ADVICE, READOUT_CHECK_FRAMES
+from ..tracking.localizer import readout_warning
 from .config import LocalizerConfig
 from .frame_queue import FrameCounts
 from .pipeline import StatsSnapshot
@@ -191,7 +191,9 @@ def _level_and_message(
         )
     elif (tracking or {}).get("readout_suspect") == "true":
         level = WARN
-        message = f"{frames.solved}/{frames.received} frames solved; " + readout_warning(tracking)
+        message = f"{frames.solved}/{frames.received} frames solved; " + readout_warning(
+            tracking["readout_contradicted"]
+        )
     elif (
         cfg.imu is not None
         and frames.received
@@ -218,23 +220,6 @@ def _level_and_message(
             "or another room?"
         )
     return level, message
-
-
-def readout_warning(tracking: dict[str, Any], rig: bool = False) -> str:
-    """The warning of a suspect rolling-shutter timing of a camera's video or (``rig``) a
-    rig's: ``tracking`` the localizer's values with ``readout_contradicted``
-    (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
-    what = "rig frames" if rig else "frames"
-    advice = (
-        "check each camera's line_delay and direction (rig.<camera>.*) and calibration"
-        if rig
-        else READOUT_ADVICE
-    )
-    return (
-        f"the {what}' rolling-shutter motion does not predict the video "
-        f"({tracking['readout_contradicted']} of the last {READOUT_CHECK_FRAMES} {what} "
-        f"relocalized or their twist refused): {advice}"
-    )
 
 
 def _core_values(
@@ -435,7 +420,7 @@ def rig_diagnostics(
         busy, lost = busy + busy_n, lost + lost_n
     values.update(_rig_gyro_values(rig, warnings))
     if values["readout_suspect"] == "true":
-        warnings.append(readout_warning(values, rig=True))
+        warnings.append(readout_warning(values["readout_contradicted"], rig=True))
     if inputs is not None:
         values.update(timing_values(inputs.latencies, inputs.stamp_ages))
         frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]

@@ -200,11 +200,23 @@ READOUT_CHECK_FRAMES = 30
 #: twist refused by the fused twist
 READOUT_CHECK_SHARE = 1.0 / 3.0
 
-#: what to check when the timing is suspect
-READOUT_ADVICE = (
-    "check rs.line_delay (measure it: rs-localizer calibrate-readout), rs.direction and the "
-    "camera calibration"
-)
+
+def readout_warning(contradicted: int, rig: bool = False) -> str:
+    """The warning of a suspect rolling-shutter timing (:meth:`VideoLocalizer.readout_values`)
+    of a camera's video or (``rig``) a rig's: ``contradicted`` of the last
+    :data:`READOUT_CHECK_FRAMES` frames relocalized or their twist refused, and what to check
+    (the node's parameters of a camera's or the rig cameras' timing)."""
+    what = "rig frames" if rig else "frames"
+    advice = (
+        "check each camera's line_delay and direction (rig.<camera>.*) and calibration"
+        if rig
+        else "check rs.line_delay (measure it: rs-localizer calibrate-readout), rs.direction "
+        "and the camera calibration"
+    )
+    return (
+        f"the {what}' rolling-shutter motion does not predict the video ({contradicted} of "
+        f"the last {READOUT_CHECK_FRAMES} {what} relocalized or their twist refused): {advice}"
+    )
 
 
 class PendingTwists:
@@ -418,6 +430,7 @@ class VideoLocalizer(GyroReadouts):
 
     settings: Any
     log: TrackLog
+    _rig = False  # (a rig's video: its warnings name rig frames and the cameras' parameters)
     _twists: PendingTwists
     _lock: threading.RLock
     _carried: CarriedPrediction
@@ -519,24 +532,9 @@ class VideoLocalizer(GyroReadouts):
         suspect = share >= READOUT_CHECK_SHARE
         if suspect and not self._readout_warned:
             self.log.warning(
-                "readout.suspect",
-                f"{sum(self._twists.recent)} of the last {len(self._twists.recent)} frames "
-                "were relocalized or had their twist refused by the fused twist: the frames' "
-                f"rolling-shutter motion does not predict the video: {READOUT_ADVICE}",
+                "readout.suspect", readout_warning(sum(self._twists.recent), self._rig)
             )
         self._readout_warned = suspect
-        return out
-        suspect, self._readout_suspect = (
-            share >= READOUT_CHECK_SHARE,
-            share >= READOUT_CHECK_SHARE,
-        )
-        if suspect and not self.__dict__.get("_readout_warned"):
-            self.log.warning(
-                "readout.suspect",
-                f"{sum(self._twists.recent)} of the last {len(self._twists.recent)} frames "
-                "were relocalized or had their twist refused by the fused twist: the frames' "
-                f"rolling-shutter motion does not predict the video: {READOUT_ADVICE}",
-            )
         return out
 
     def _twist_bounds(self) -> tuple[float, float]:

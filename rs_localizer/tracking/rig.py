@@ -566,6 +566,8 @@ class RigLocalizer(VideoLocalizer):
     Pending counts: :meth:`camera_counts`, :meth:`rig_counts`.
     """
 
+    _rig = True
+
     def __init__(
         self,
         settings: RigSettings,

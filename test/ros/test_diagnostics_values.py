@@ -145,10 +145,11 @@ def test_a_suspect_readout_timing_warns():
     """The camera's status goes to WARN with the advice while the video flags the
     rolling-shutter timing (``readout_suspect``, a tracking value), OK otherwise; a rig whose
     cameras are given twice their line delay is flagged on its own video, its status WARN
-    naming the cameras' timing, and the same rig with the true line delays is not."""
+    and its log naming the cameras' timing parameters, and the same rig with the true line
+    delays is not."""
     from dataclasses import replace
 
-    from helpers.rig import mounts_of
+    from helpers.rig import Log, mounts_of
 
     from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
@@ -171,12 +172,15 @@ def test_a_suspect_readout_timing_warns():
     frames, _, _ = generate_rig_video(cams, duration=1.4, num_points=60, seed=5)
     for scale in (1.0, 2.0):
         by = {c.name: replace(c.camera, line_delay=scale * c.camera.line_delay) for c in cams}
-        rig = RigLocalizer(RigSettings(mounts_of(cams)))
+        log = Log()
+        rig = RigLocalizer(RigSettings(mounts_of(cams)), log=log)
         for f in frames:
             rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
         rig.close()
         rig.flush()
         level, message, v = rig_diagnostics(rig, set())
+        logged = [t for k, t in log.warnings if k == "readout.suspect"]
+        assert len(logged) == (scale == 2.0) and all("rig.<camera>" in t for t in logged)
         assert v["readout_contradicted"] >= 0, v  # (30 rig frames and more)
         flagged = "rig frames' rolling-shutter motion does not predict the video" in message
         assert flagged == (scale == 2.0) == (v["readout_suspect"] == "true"), (scale, message)

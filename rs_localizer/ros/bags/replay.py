@@ -30,9 +30,9 @@ import numpy as np
 
 from ...accuracy import GroundTruth, frame_errors, frame_fit_summary, summarize_errors
 from ...frontends.shared import SHARED_MAPS, LoadedMaps
+from ...tracking.localizer import readout_warning
 from .. import conversions as cv
 from ..config import LocalizerConfig, build_config, default_timing_note, load_maps
-from ..diagnostics import readout_warning
 from ..outputs import frame_messages, fused_messages
 from ..param_files import parameter_values, read_params_file
 from ..pipeline import FramePipeline, FrameResult, FusedOutput
@@ -282,7 +282,7 @@ def replay(
     _summarize(result, rows, pipeline, out_csv)
     tracking = pipeline.tracking_values()
     if tracking.get("readout_suspect") == "true":
-        result.notes.append(readout_warning(tracking))
+        result.notes.append(readout_warning(tracking["readout_contradicted"]))
     return result
 
 
