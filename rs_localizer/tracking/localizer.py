@@ -548,7 +548,12 @@ class VideoLocalizer(GyroReadouts):
         """End the track: its frames still pending released with their fused twists as they
         are now when ``keep``, else dropped."""
         final = self._forget_track(keep)
-        out = self._fused(final) if keep else []
+        return self._track_ended(final if keep else [])
+
+    def _track_ended(self, final: list) -> list[FusedPose]:
+        """A track ended (its twist source reset): its pending frames released with the fused
+        states ``final`` (oldest first; :meth:`_fused`), the others dropped."""
+        out = self._fused(final)
         self._twists.clear()
         return out
 

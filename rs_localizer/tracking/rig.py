@@ -1441,8 +1441,7 @@ class _RigViews:
         self.min_inliers = rig.settings.options.ransac.min_inliers
 
     def ended(self, final: list) -> None:
-        self.out.fused += self.rig._fused(final)  # (the old track's twists, final)
-        self.rig._twists.clear()
+        self.out.fused += self.rig._track_ended(final)  # (the old track's twists, final)
 
     def model(self, predicted: FusedState) -> RSModel:
         pp = predicted.pose
