@@ -582,9 +582,7 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         ok = np.isfinite(x).all(axis=1)
         idx, x, uv_g, X_g = idx[ok], x[ok], uv_g[ok], X_g[ok]
     stamp, spr = float(v.stamp_offset), cam.seconds_per_unit_r
-    if spr == 0.0 and (stamp != 0.0 or math.copysign(1.0, stamp) > 0):
-        # a global shutter: every point at the stamp (stamp + (r - r0) * 0 to the bit: the
-        # zero's sign is lost unless the stamp is -0.0)
+    if spr == 0.0:  # (a global shutter: every point at the stamp)
         tau = np.full(len(uv_g), stamp + 0.0)
     else:
         r = cam.rs_coordinate(uv_g) if len(uv_g) else np.zeros(0)
