@@ -182,10 +182,16 @@ class RSPose:
 
     @classmethod
     def from_model(
-        cls, model: RSModel | tuple, seconds_per_unit_r: float, stamp_ns: int | None = None
+        cls,
+        model: RSModel | tuple,
+        seconds_per_unit_r: float,
+        stamp_ns: int | None = None,
+        compiled: bool = False,
     ) -> RSPose:
         """The pose of a solver's model ``(R, C, w, t)`` with ``seconds_per_unit_r`` s per
-        unit RS coordinate (0: a global shutter, zero twist).
+        unit RS coordinate (0: a global shutter, zero twist); ``compiled``: the twist by the
+        compiled :func:`model_twist` (the same values; faster once compiled, so for callers
+        on the compiled path).
 
         Raises:
             ValueError: ``seconds_per_unit_r`` negative or not finite.
@@ -197,7 +203,7 @@ class RSPose:
         if s == 0:
             om, v = np.zeros(3), np.zeros(3)
         else:
-            z = model_twist.py_func(C, w, t, s)
+            z = (model_twist if compiled else model_twist.py_func)(C, w, t, s)
             om, v = z[3:6], z[0:3]
         return cls(R.T, -R.T @ C, om, v, stamp_ns)
 

@@ -109,7 +109,7 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix, skew
-from ..pose import PoseWithCovariance, RSModel, RSPose, model_twist
+from ..pose import PoseWithCovariance, RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
@@ -1982,14 +1982,6 @@ class _RigSearch(RansacLoop):
         return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
 
 
-def _rig_pose(R, C, w, t, numpy: bool) -> RSPose:
-    """``RSPose.from_model((R, C, w, t), 1.0)`` of float64 arrays, its twist by the compiled
-    :func:`~rs_localizer.pose.model_twist` (``numpy``: its ``py_func``, as ``from_model``;
-    the same twist to the bit)."""
-    z = (model_twist.py_func if numpy else model_twist)(C, w, t, 1.0)
-    return RSPose(R.T, -R.T @ C, z[3:6], z[0:3])
-
-
 def _rig_estimate(
     pool: _Pool,
     model=None,
@@ -2019,7 +2011,7 @@ def _rig_estimate(
         num_inliers_per_camera=pool.counts(inl),
         num_valid_per_camera=pool.counts(),
         covariance=outputs[0],
-        pose=_rig_pose(R, C, w, t, pool.numpy),
+        pose=RSPose.from_model((R, C, w, t), 1.0, compiled=not pool.numpy),
         pose_covariance=outputs[1],
         twist_covariance=outputs[2],
         **record,
