@@ -670,9 +670,10 @@ def _add_detector_arguments(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--nthreads",
-        type=A.nonneg_int,
+        type=A.positive_int,
         default=d.nthreads,
-        help="AprilTag: detector threads (0: the cores available, at most 2)",
+        help="AprilTag: detector threads (the library before 3.4.3 may crash at its first "
+        "detection with more than one)",
     )
     g.add_argument(
         "--quad-sigma",

@@ -57,7 +57,6 @@ settings above; 49x the time with OpenCV's defaults). The detector says so (``fa
 from __future__ import annotations
 
 import dataclasses
-import os
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -68,7 +67,6 @@ __all__ = [
     "APRILTAG_FAMILIES",
     "APRILTAG_INSTALL",
     "APRILTAG_TO_ARUCO_ORDER",
-    "AUTO_THREADS_MAX",
     "DETECTOR_BACKENDS",
     "OPENCV_APRILTAG_FAMILIES",
     "AprilTagDetector",
@@ -77,7 +75,6 @@ __all__ = [
     "apriltag_binding",
     "apriltag_family",
     "auto_decimate",
-    "auto_threads",
     "drop_duplicates",
     "make_marker_detector",
     "min_image_side",
@@ -130,6 +127,17 @@ DETECTOR_BACKENDS = ("auto", "apriltag", "opencv")
 DEFAULT_MIN_MARGIN = {"pupil_apriltags": 25.0, "apriltag": 60.0}
 
 
+#: :class:`DetectorOptions` ``nthreads`` by default: one worker thread of the AprilTag library.
+#: The library before 3.4.3 creates a detector's worker threads at its first detection and
+#: queues that detection's work while they start; a thread that starts while the queue grows
+#: reads it as it is reallocated (fixed upstream by waiting for the threads to start). Measured
+#: on Debian 12's library 3.3 with ``test/frontends/test_tiny_images.py``'s detector script
+#: (three detectors' first detections on small images) run 40 times with 2 threads: 5 runs
+#: ended with SIGSEGV; with one thread 0 of 60. Two threads cut the 640x480 node's latency
+#: median from 13.6-16.2 to 9.6-13.8 ms (docs/node.md, "Latency")
+DEFAULT_THREADS = 1
+
+
 @dataclass(frozen=True)
 class DetectorOptions:
     """Options of the marker detector, with the AprilTag library's names.
@@ -144,8 +152,12 @@ class DetectorOptions:
             the corners are then refined on the full image (``refine_edges``) and the tags
             decoded at full resolution. 0: by image size (:func:`auto_decimate`: 1.5 up to
             640x480, 2 above). AprilTag only.
-        nthreads: threads of the AprilTag detector; 0: :func:`auto_threads` (the cores this
-            process may run on, at most :data:`AUTO_THREADS_MAX`). AprilTag only.
+        nthreads: worker threads of the AprilTag library (>= 1; default 1, as
+            ``apriltag_ros``). More threads cut a 640x480 detection's latency about 1.35x, but
+            the library before 3.4.3 (``pupil_apriltags`` 1.0.4 ships 3.1, Debian 12 3.3)
+            starts a detector's threads at its first detection while handing them work, which
+            now and then ends the process (SIGSEGV; :data:`DEFAULT_THREADS`). AprilTag
+            only.
         quad_sigma: standard deviation (px) of the Gaussian blur before quad detection (0:
             none; noisy images: ~0.8). AprilTag only.
         refine_edges: snap the quad edges to the strong gradients nearby. AprilTag only.
@@ -181,7 +193,7 @@ class DetectorOptions:
 
     detector: str = "auto"
     quad_decimate: float = 0.0
-    nthreads: int = 0
+    nthreads: int = DEFAULT_THREADS
     quad_sigma: float = 0.0
     refine_edges: bool = True
     decode_sharpening: float = 0.25
@@ -205,9 +217,9 @@ class DetectorOptions:
                 "AprilTag library decimates by the integer part but scales the corners back by "
                 "the factor given)"
             )
-        if int(self.nthreads) < 0:
+        if int(self.nthreads) < 1:
             raise ValueError(
-                f"nthreads must be >= 0 (0: by the cores available), got {self.nthreads}"
+                f"nthreads must be >= 1 (AprilTag library threads), got {self.nthreads}"
             )
         if not self.quad_sigma >= 0.0:
             raise ValueError(f"quad_sigma must be >= 0, got {self.quad_sigma}")
@@ -658,24 +670,6 @@ def _merge_boxes(boxes: np.ndarray) -> list:
     return out
 
 
-#: most worker threads of the AprilTag library with ``nthreads`` 0: the library splits a frame's
-#: thresholding, segmentation and quad fitting among them. On the 640x480 ``apriltag_room`` node
-#: benchmark (docs/node.md, "Latency") two threads cut the node's latency median from
-#: 13.6-16.2 to 9.6-13.8 ms at the same processor time per frame (15.3-20.0 against 15.5-17.8
-#: ms); more would take cores a robot's other nodes need for little more
-AUTO_THREADS_MAX = 2
-
-
-def auto_threads() -> int:
-    """The AprilTag library's threads for ``nthreads`` 0: the cores this process may run on
-    (its CPU affinity, e.g. a container's limit), at most :data:`AUTO_THREADS_MAX`, at least 1."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # no affinity on this platform
-        cores = os.cpu_count() or 1
-    return max(1, min(AUTO_THREADS_MAX, cores))
-
-
 #: largest image (pixels) that ``quad_decimate`` 0 decimates by 1.5 (above: by 2)
 AUTO_DECIMATE_MAX_PIXELS = 640 * 480
 
@@ -822,8 +816,8 @@ class AprilTagDetector:
             raise ImportError(f"no AprilTag library binding installed ({APRILTAG_INSTALL})")
         self.family = family
         self.options = options if options is not None else DetectorOptions()
-        #: the library's worker threads (``nthreads``, 0: :func:`auto_threads`)
-        self.nthreads = int(self.options.nthreads) or auto_threads()
+        #: the library's worker threads (``nthreads``)
+        self.nthreads = int(self.options.nthreads)
         if edge_refinement is None:
             edge_refinement = bool(self.options.edge_refinement)
         #: cells across the black square when its corners are refined by

@@ -504,9 +504,11 @@ PARAMETERS = {
         read_only=True,
     ),
     "aruco.nthreads": Parameter(
-        0,
-        "AprilTag: detector threads (0: the cores the node may run on, at most 2)",
-        IntRange(from_value=0, to_value=64),
+        1,
+        "AprilTag: detector threads (more cut the latency; the library before 3.4.3, "
+        "pupil_apriltags' and Debian 12's among them, may crash at its first detection with "
+        "more than one)",
+        IntRange(from_value=1, to_value=64),
         read_only=True,
     ),
     "aruco.quad_sigma": Parameter(

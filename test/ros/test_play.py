@@ -196,7 +196,6 @@ def test_lockstep_gives_up_naming_the_pose_topics_that_exist(imu_bag, ros_contex
     assert "/camera/pose" not in have  # (the player's own subscription is no publisher)
     assert any(n.startswith("error:") and "/elsewhere/pose" in n for n in notes)
 
-    t0 = time.monotonic()
     res = play(
         imu_bag,
         lockstep=True,
@@ -210,8 +209,8 @@ def test_lockstep_gives_up_naming_the_pose_topics_that_exist(imu_bag, ros_contex
         log=print,
     )
     assert len(res.frames) == 2 and res.answered == 0 and res.timeouts == 2
+    # (two frames sent of the bag's more: it stopped, whatever the machine's load)
     assert "/nobody/camera/pose" in res.gave_up and "to the first 2 frames" in res.gave_up
-    assert time.monotonic() - t0 < 5.0
 
 
 class _CompilingResponder(_Responder):
