@@ -153,11 +153,11 @@ class DetectorOptions:
             decoded at full resolution. 0: by image size (:func:`auto_decimate`: 1.5 up to
             640x480, 2 above). AprilTag only.
         nthreads: worker threads of the AprilTag library (>= 1; default 1, as
-            ``apriltag_ros``). More threads cut a 640x480 detection's latency about 1.35x, but
-            the library before 3.4.3 (``pupil_apriltags`` 1.0.4 ships 3.1, Debian 12 3.3)
-            starts a detector's threads at its first detection while handing them work, which
-            now and then ends the process (SIGSEGV; :data:`DEFAULT_THREADS`). AprilTag
-            only.
+            ``apriltag_ros``). Two threads took the 640x480 node's latency median from 14.7
+            to 10.7 ms, but the library before 3.4.3 (``pupil_apriltags`` 1.0.4 ships 3.1,
+            Debian 12 3.3) starts a detector's threads at its first detection while handing
+            them work, which now and then ends the process (SIGSEGV; :data:`DEFAULT_THREADS`).
+            AprilTag only.
         quad_sigma: standard deviation (px) of the Gaussian blur before quad detection (0:
             none; noisy images: ~0.8). AprilTag only.
         refine_edges: snap the quad edges to the strong gradients nearby. AprilTag only.
