@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -49,7 +49,7 @@ from ..estimation.implementation import NUMPY, default_implementation
 from ..estimation.prior import MotionPrior
 from ..estimation.result import TOO_FEW_POINTS
 from ..geometry import rotvec_to_matrix
-from ..pose import RSModel
+from ..pose import PoseMeasurement, RSModel
 from .fusion import FusedState, FusionOptions, FusionStep, TwistFilter
 
 __all__ = [
@@ -252,6 +252,37 @@ def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     return state.pose.model(camera.seconds_per_unit_r)
 
 
+class PathOptions(Protocol):
+    """The options of a tracker path (:class:`TrackerPath`, :func:`predicted_initial_model`):
+    a camera's :class:`TrackerOptions` or a rig's
+    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (their fields of these names)."""
+
+    max_gap: float
+    fusion: FusionOptions
+    gate_px: float
+    gate_sigmas: float
+    max_gate_px: float
+    min_explained_ratio: float
+
+
+class PathEstimate(PoseMeasurement, Protocol):
+    """A frame's estimate on the tracker path: a camera's
+    :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`; besides the twist filter's
+    measurement (:class:`~rs_localizer.pose.PoseMeasurement`): ``failure`` (why it failed;
+    None when it succeeded), ``initial_used`` (it was found from the initial model) and
+    ``initial_explained`` (the points the initial model explained, -1 without one)."""
+
+    @property
+    def failure(self) -> str | None: ...
+
+    @property
+    def initial_used(self) -> bool: ...
+
+    @property
+    def initial_explained(self) -> int: ...
+
+
 def predicted_initial_model(
     model: RSModel,
     predicted: FusedState,
@@ -259,7 +290,7 @@ def predicted_initial_model(
     num_points: int,
     inlier_ratio: float | None,
     min_inliers: int,
-    options: Any,
+    options: PathOptions,
 ) -> InitialModel:
     """The track's prediction as the estimator's initial model
     (:class:`~rs_localizer.estimation.InitialModel`), the one rule of a camera's tracker and a
@@ -269,7 +300,7 @@ def predicted_initial_model(
     ``min_explained_ratio`` of the ``num_points`` the previous frame's ``inlier_ratio``
     (None: none yet) promises, and at least ``min_inliers``. ``options``: a
     :class:`TrackerOptions` or a rig's
-    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (the fields of those names)."""
+    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (:class:`PathOptions`)."""
     ratio = inlier_ratio if inlier_ratio is not None else 0.0
     need = max(min_inliers, int(options.min_explained_ratio * ratio * num_points))
     sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
@@ -300,15 +331,14 @@ class Solve:
     Attributes:
         estimate: the estimator's result: a camera's
             :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-            :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (``success``, ``failure``,
-            ``initial_used``, ``initial_explained``).
+            :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (:class:`PathEstimate`).
         prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
             refinement used, None: none (the twist filter takes its information out again).
         prior_from_prediction: the estimator was given the prediction's twist as its motion
             prior: when the prediction does not hold the frame is solved again without it.
     """
 
-    estimate: Any
+    estimate: PathEstimate
     prior: MotionPrior | None = None
     prior_from_prediction: bool = False
 
@@ -352,7 +382,7 @@ class PathFrame:
     ``explained`` (points the prediction explained, -1 without one) and ``prior`` (the motion
     prior the estimate's refinement used, for :meth:`TrackerPath.update`)."""
 
-    estimate: Any
+    estimate: PathEstimate
     path: str
     predicted: FusedState | None = None
     explained: int = -1
@@ -390,7 +420,7 @@ class TrackerPath:
     ``failures`` (frames whose estimate failed).
     """
 
-    def __init__(self, options: Any):
+    def __init__(self, options: PathOptions):
         self.path_options = options
         self.filter = TwistFilter(replace(options.fusion, max_gap=options.max_gap))
         self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
@@ -488,7 +518,7 @@ class TrackerPath:
     def update(
         self,
         stamp_ns: int,
-        estimate: Any,
+        estimate: PathEstimate,
         path: str,
         inlier_ratio: float = 0.0,
         prior: MotionPrior | None = None,
