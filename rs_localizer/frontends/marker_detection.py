@@ -130,11 +130,12 @@ DEFAULT_MIN_MARGIN = {"pupil_apriltags": 25.0, "apriltag": 60.0}
 #: :class:`DetectorOptions` ``nthreads`` by default: one worker thread of the AprilTag library.
 #: The library before 3.4.3 creates a detector's worker threads at its first detection and
 #: queues that detection's work while they start; a thread that starts while the queue grows
-#: reads it as it is reallocated (fixed upstream by waiting for the threads to start). Measured
-#: on Debian 12's library 3.3 with ``test/frontends/test_tiny_images.py``'s detector script
-#: (three detectors' first detections on small images) run 40 times with 2 threads: 5 runs
-#: ended with SIGSEGV; with one thread 0 of 60. Two threads cut the 640x480 node's latency
-#: median from 13.6-16.2 to 9.6-13.8 ms (docs/node.md, "Latency")
+#: reads it as it is reallocated (fixed upstream by waiting for the threads to start). The
+#: detector script of ``test/frontends/test_tiny_images.py`` (each AprilTag detector's first
+#: detection a small image) in a loop of child processes on a quiet machine, two threads: 5 of
+#: 40 runs ended by SIGSEGV with Debian 12's library 3.3, 2 of 40 with ``pupil_apriltags``
+#: (3.1); one thread: 0 of 60 with each. Two threads cut the 640x480 node's latency median
+#: from 13.6-16.2 to 9.6-13.8 ms (docs/node.md, "Marker detection")
 DEFAULT_THREADS = 1
 
 
