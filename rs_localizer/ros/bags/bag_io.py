@@ -18,7 +18,7 @@ import os
 import shutil
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -439,3 +439,13 @@ class RosbagsMessages:
 
     def cdr(self, msg: Any, msgtype: str) -> bytes:
         return self.ts.serialize_cdr(msg, msgtype)
+
+
+def progress_bar(
+    stream: TextIO | None, total: int | None, desc: str = "replaying", unit: str = "frame"
+) -> Any:
+    """A ``tqdm`` bar of replayed frames written to ``stream``, disabled when ``stream`` is
+    None; ``total``: the frames to come (None: counted as they come)."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, file=stream, disable=stream is None)

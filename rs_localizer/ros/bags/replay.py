@@ -20,7 +20,6 @@ import math
 import os
 import shutil
 import sys
-import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +45,7 @@ from .bag_io import (
     bag_topics,
     iter_messages,
     load_ground_truth,
+    progress_bar,
     read_bag_info,
     storage_plugin,
     typestore,
@@ -97,18 +97,6 @@ class ReplayResult:
     def solved(self) -> int:
         """Frames with a pose."""
         return sum(1 for r in self.rows if r["success"])
-
-
-def _progress(i, n, t0, stream):
-    if stream is None:
-        return
-    width = 30
-    done = int(width * i / max(n, 1))
-    rate = i / max(time.perf_counter() - t0, 1e-9)
-    stream.write(f"\r[{'#' * done}{'.' * (width - done)}] {i}/{n} frames {rate:6.1f} Hz")
-    if i == n:
-        stream.write("\n")
-    stream.flush()
 
 
 def replay_parameters(
@@ -396,8 +384,8 @@ def _run_frames(
     if cfg.imu is not None:
         for _, msgtype, _, raw in iter_messages(path, {imu_topic}):
             pipeline.add_imu(ts.deserialize_cdr(raw, msgtype))
+    bar = progress_bar(progress, n_frames)
     try:
-        t0 = time.perf_counter()
         i = 0
         t_log = 0
         wanted = OUT_TYPES.__contains__
@@ -421,11 +409,12 @@ def _run_frames(
                 if res.image is not None:
                     viz.add_decoded(*res.image)
                 viz.frame(res, t_log)
-            _progress(i, n_frames, t0, progress)
+            bar.update()
         last = pipeline.flush()  # (the end of the video: the twists still pending)
         rows.fused(last)
         _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
     finally:
+        bar.close()
         if viz is not None:
             viz.flush()
         if writer is not None:

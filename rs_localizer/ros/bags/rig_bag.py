@@ -45,6 +45,7 @@ from .bag_io import (
     RosbagsMessages,
     iter_messages,
     load_ground_truth,
+    progress_bar,
     read_bag_info,
     storage_plugin,
     typestore,
@@ -344,6 +345,7 @@ def replay_rig(
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
+    bar = progress_bar(progress, None, unit=" rig frames")
     for frame in iter_rig_frames(bag, timing):
         while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
@@ -353,14 +355,13 @@ def replay_rig(
         _note_disagreeing(rig, outs, recent, res.off_deg)
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
-        if progress is not None and outs:
-            print(f"\rrig frames: {len(res.outputs)}", end="", file=progress)
+        bar.update(len(outs))
     tail = rig.close()
     _note_disagreeing(rig, tail, recent, res.off_deg)
     res.outputs += tail
     res.fused += [f for o in tail for f in o.fused] + rig.flush()
-    if progress is not None:
-        print(file=progress)
+    bar.update(len(tail))
+    bar.close()
     res.counts = {"rig": rig.rig_counts(), **{n: rig.camera_counts(n) for n in rig.cameras}}
     res.readout = rig.readout_values()
     gt = load_ground_truth(bag)
