@@ -6,10 +6,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import args as A
+
+if TYPE_CHECKING:
+    from ..tracking.rig import RigMount
 
 __all__ = ["register", "run"]
 
@@ -151,6 +155,47 @@ def params_yaml(
     return head + yaml.safe_dump(tree, sort_keys=False, default_flow_style=None)
 
 
+#: a calibrated mounting further than this many of its std (rotation or position) from the
+#: parameters' mounting of the camera is reported as a warning
+PARAMETERS_OFF_STD = 3.0
+
+
+def parameter_mountings(
+    cams: dict, names: list, ref: str, in_optical_frame: bool
+) -> dict[str, RigMount]:
+    """The mountings the parameters give the cameras (``rig.<camera>.mounting``, 7 numbers),
+    as :class:`~rs_localizer.tracking.rig.RigMount` in the rig frame of the calibration: the
+    parameters' ``base_frame``, or with ``in_optical_frame`` the reference camera ``ref``'s
+    optical frame (through the reference's mounting in the parameters, if it has one). Cameras
+    without a mounting in the parameters are left out."""
+    from ..ros import conversions as cv
+    from ..tracking.rig import RigMount
+
+    def mount(n):
+        m = cams[n].get("mounting")
+        if m is None or len(m) != 7:
+            return None
+        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+
+    out = {n: m for n in names if (m := mount(n)) is not None}
+    base = out.get(ref)
+    if in_optical_frame and base is not None:  # (x_ref = R_r x_base + c_r)
+        out = {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
+               for n, m in out.items()}  # fmt: skip
+    return out
+
+
+def mounting_difference(a: RigMount, b: RigMount) -> tuple[float, float]:
+    """``(deg, mm)`` between two mountings of a camera: the angle of the rotation between
+    them and the distance between the camera's positions in the rig frame."""
+    from ..geometry import rotation_angle_deg
+
+    return (
+        float(rotation_angle_deg(a.R, b.R)),
+        float(np.linalg.norm(a.position - b.position) * 1e3),
+    )
+
+
 def _optical_frame_id(bag, camera: str) -> str:
     """The optical frame of ``camera`` in a rig bag: the ``frame_id`` of its first camera_info
     (``<namespace>/<camera>/camera_info``), else ``<camera>_optical_frame``."""
@@ -213,6 +258,7 @@ def run(args: argparse.Namespace) -> int:
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
         f"in the rig frame {frame} ({where})"
     ]
+    given = parameter_mountings(cams, names, ref, ref_mount is None)
     report = {}
     for n in names:
         e = est[n]
@@ -236,6 +282,20 @@ def run(args: argparse.Namespace) -> int:
             )
             if e.frames < MIN_RIG_FRAMES:
                 notes.append(short_video_warning(n, e.frames))
+            if n in given:
+                deg, mm = mounting_difference(e.mount, given[n])
+                report[n]["parameters_off_deg"], report[n]["parameters_off_mm"] = deg, mm
+                k_deg, k_mm = deg / max(e.std_deg, 1e-12), mm / max(e.std_mm, 1e-12)
+                notes.append(
+                    f"{n}: the parameters' mounting is {deg:.3f} deg, {mm:.1f} mm from this one "
+                    f"({k_deg:.1f} and {k_mm:.1f} std)"
+                )
+                if max(k_deg, k_mm) > PARAMETERS_OFF_STD:
+                    notes.append(
+                        f"WARNING: {n}: the mounting in the parameters is off by {deg:.2f} deg, "
+                        f"{mm:.1f} mm (more than {PARAMETERS_OFF_STD:g} std): use the one "
+                        "written here"
+                    )
     text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame)
     if out_path is not None:
         out_path.write_text(text)

@@ -115,6 +115,54 @@ def test_the_reference_cameras_optical_frame_and_bad_input(rig_bag, tmp_path, ca
     assert "nope" in capsys.readouterr().err
 
 
+def test_the_parameters_mountings_are_checked_against_the_calibrated_ones(
+    rig_bag, tmp_path, capsys
+):
+    """Each camera's mounting in the parameters (the bag's true ones) is compared with the
+    calibrated one: within 3 std, no warning; a parameter file that turns the left camera by
+    5 deg and moves it 10 mm: 5 deg / 10 mm off reported and warned (printed and in the file), in
+    base_frame and in the reference camera's optical frame alike."""
+    from rs_localizer.cli import main
+    from rs_localizer.geometry import rotvec_to_matrix
+    from rs_localizer.ros import conversions as cv
+
+    truth = {c["name"]: c["mounting"] for c in
+             json.loads((rig_bag / "sequence.json").read_text())["rig"]["cameras"]}  # fmt: skip
+    capsys.readouterr()
+    assert main(["calibrate-rig", str(rig_bag), "--json", "-o", str(tmp_path / "a.yaml")]) == 0
+    cap = capsys.readouterr()
+    report = json.loads(cap.out)["cameras"]
+    assert "parameters_off_deg" not in report["front"]  # (the reference)
+    for name in ("left", "right"):
+        got = report[name]
+        assert got["parameters_off_deg"] < 3 * got["std_deg"], got
+        assert got["parameters_off_mm"] < 3 * got["std_mm"], got
+        assert f"{name}: the parameters' mounting is" in cap.err
+    assert "WARNING" not in cap.err
+
+    m = truth["left"]
+    R = rotvec_to_matrix(np.radians([0.0, 0.0, 5.0])) @ cv.matrix_from_quaternion(m[3:])
+    wrong = [m[0], m[1] + 0.010, m[2], *cv.quaternion_from_matrix(R)]
+    params = tmp_path / "wrong.yaml"
+    params.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    rig:\n      left:\n"
+        f"        mounting: {[float(x) for x in wrong]}\n"
+    )
+    for extra in ([], ["--optical-frame"]):
+        out = tmp_path / "b.yaml"
+        args = ["calibrate-rig", str(rig_bag), "--json", "--params-file", str(params), "-o",
+                str(out), *extra]  # fmt: skip
+        assert main(args) == 0
+        cap = capsys.readouterr()
+        got = json.loads(cap.out)["cameras"]
+        assert got["left"]["parameters_off_deg"] == pytest.approx(5.0, abs=0.05), extra
+        assert got["left"]["parameters_off_mm"] == pytest.approx(10.0, abs=2.0), extra
+        assert got["right"]["parameters_off_deg"] < 3 * got["right"]["std_deg"], extra
+        warning = "WARNING: left: the mounting in the parameters is off by "
+        assert warning in cap.err and f"# {warning}" in out.read_text(), extra
+        assert "WARNING: right" not in cap.err
+
+
 def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
     """A rig bag of a ring of four cameras (front, left, back, right) where only neighbours
     see the map at the same time (front and back never): every mounting within 0.3 deg and
