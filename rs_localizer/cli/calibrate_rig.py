@@ -166,8 +166,9 @@ def parameter_mountings(
     """The mountings the parameters give the cameras (``rig.<camera>.mounting``, 7 numbers),
     as :class:`~rs_localizer.tracking.rig.RigMount` in the rig frame of the calibration: the
     parameters' ``base_frame``, or with ``in_optical_frame`` the reference camera ``ref``'s
-    optical frame (through the reference's mounting in the parameters, if it has one). Cameras
-    without a mounting in the parameters are left out."""
+    optical frame (through the reference's mounting in the parameters). Cameras without a
+    mounting in the parameters are left out; all are when the calibration's frame is the
+    reference camera's optical frame and the parameters do not place that camera."""
     from ..ros import conversions as cv
     from ..tracking.rig import RigMount
 
@@ -178,11 +179,13 @@ def parameter_mountings(
         return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
 
     out = {n: m for n in names if (m := mount(n)) is not None}
+    if not in_optical_frame:
+        return out
     base = out.get(ref)
-    if in_optical_frame and base is not None:  # (x_ref = R_r x_base + c_r)
-        out = {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
-               for n, m in out.items()}  # fmt: skip
-    return out
+    if base is None:  # (the parameters' frame and the reference camera's: unrelated)
+        return {}
+    return {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)  # (x_ref = R_r x_base + c_r)
+            for n, m in out.items()}  # fmt: skip
 
 
 def mounting_difference(a: RigMount, b: RigMount) -> tuple[float, float]:

@@ -161,6 +161,13 @@ def test_the_parameters_mountings_are_checked_against_the_calibrated_ones(
         warning = "WARNING: left: the mounting in the parameters is off by "
         assert warning in cap.err and f"# {warning}" in out.read_text(), extra
         assert "WARNING: right" not in cap.err
+    # the reference camera not placed by the parameters: its optical frame and theirs are
+    # unrelated, nothing is compared
+    from rs_localizer.cli.calibrate_rig import parameter_mountings
+
+    cams = {"front": {}, "left": {"mounting": truth["left"]}}
+    assert parameter_mountings(cams, ["front", "left"], "front", True) == {}
+    assert set(parameter_mountings(cams, ["front", "left"], "front", False)) == {"left"}
 
 
 def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
