@@ -14,14 +14,14 @@ from .paths import CONFIG
 
 
 @contextlib.contextmanager
-def spinning(node, context):
-    """Spin ``node`` on its own executor in a background thread for the ``with`` block; then
-    stop the thread, remove the node from the executor, destroy it and shut the executor
-    down."""
+def spinning(context, *nodes):
+    """Spin ``nodes`` on one executor in a background thread for the ``with`` block; then stop
+    the thread, remove the nodes from the executor, destroy them and shut the executor down."""
     from rclpy.executors import SingleThreadedExecutor
 
     ex = SingleThreadedExecutor(context=context)
-    ex.add_node(node)
+    for node in nodes:
+        ex.add_node(node)
     stop = threading.Event()
     th = threading.Thread(
         target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
@@ -32,8 +32,9 @@ def spinning(node, context):
     finally:
         stop.set()
         th.join()
-        ex.remove_node(node)
-        node.destroy_node()
+        for node in nodes:
+            ex.remove_node(node)
+            node.destroy_node()
         ex.shutdown()
 
 

@@ -188,7 +188,7 @@ def test_play_reaches_a_subscriber(small_bags, ros_context):
     node.create_subscription(
         CameraInfo, "/camera/camera_info", lambda m: got["info"].append(m), qos
     )
-    with spinning(node, ros_context):
+    with spinning(ros_context, node):
         res = rs_play.play(
             small_bags["mcap"],
             rate=4.0,

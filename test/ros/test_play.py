@@ -78,7 +78,7 @@ def test_lockstep_plays_one_frame_topic_and_each_imu_sample_once(imu_bag, ros_co
         qos,
     )
     notes = []
-    with spinning(node, ros_context):
+    with spinning(ros_context, node):
         from rs_localizer.ros.bags.play import play
 
         res = play(
@@ -314,7 +314,7 @@ def test_plays_preloaded_messages_without_a_bag(imu_bag, ros_context):
     qos = QoSProfile(depth=500, reliability=ReliabilityPolicy.RELIABLE)
     got = []
     node.create_subscription(PointCloud2, topics[1], got.append, qos)
-    with spinning(node, ros_context):
+    with spinning(ros_context, node):
         res = play(
             None, messages=msgs, rate=100.0, context=ros_context, wait_subscribers=20.0, log=print
         )

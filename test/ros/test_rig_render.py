@@ -7,11 +7,11 @@ the rig node over DDS."""
 from __future__ import annotations
 
 import json
-import threading
 import time
 
 import numpy as np
 import pytest
+from helpers.ros import spinning
 
 pytest.importorskip("rosbags")
 
@@ -146,7 +146,6 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
     node that does not take them), the poses near the truth."""
     import rclpy
     from geometry_msgs.msg import PoseStamped
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -170,27 +169,11 @@ def test_play_lockstep_rig_bag_over_dds(rendered_rig_bag, ros_context):
     poses = []
     qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
     probe.create_subscription(PoseStamped, "/rig/pose", poses.append, qos)
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    ex.add_node(probe)
-    stop = threading.Event()
-    th = threading.Thread(
-        target=lambda: [ex.spin_once(timeout_sec=0.02) for _ in iter(stop.is_set, True)]
-    )
-    th.start()
-    try:
+    with spinning(ros_context, node, probe):
         res = play(bag, lockstep=True, context=ros_context, wait_subscribers=20.0,
                    timeout=5.0, log=print)  # fmt: skip
         time.sleep(0.3)
         node_rig_frames = node.rig.counts["rig_frames"]  # (the node's own count)
-    finally:
-        stop.set()
-        th.join()
-        ex.remove_node(node)
-        ex.remove_node(probe)
-        node.destroy_node()
-        probe.destroy_node()
-        ex.shutdown()
     assert res.rig_frames == FRAMES and res.answered == FRAMES and res.timeouts == 0
     assert not res.gave_up
     assert res.rig_frames_in_bag == FRAMES == node_rig_frames
