@@ -160,32 +160,29 @@ def params_yaml(
 PARAMETERS_OFF_STD = 3.0
 
 
-def parameter_mountings(
-    cams: dict, names: list, ref: str, in_optical_frame: bool
-) -> dict[str, RigMount]:
-    """The mountings the parameters give the cameras (``rig.<camera>.mounting``, 7 numbers),
-    as :class:`~rs_localizer.tracking.rig.RigMount` in the rig frame of the calibration: the
-    parameters' ``base_frame``, or with ``in_optical_frame`` the reference camera ``ref``'s
-    optical frame (through the reference's mounting in the parameters). Cameras without a
-    mounting in the parameters are left out; all are when the calibration's frame is the
-    reference camera's optical frame and the parameters do not place that camera."""
-    from ..ros import conversions as cv
+def parameter_mountings(cams: dict, names: list) -> dict[str, RigMount]:
+    """The mountings the parameters give the cameras (``rig.<camera>.mounting``, the node's
+    reading of it: :func:`~rs_localizer.ros.config.rig_mounting`), in the parameters'
+    ``base_frame``; cameras without one are left out.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: a mounting the node would refuse, naming it.
+    """
+    from ..ros.config import rig_mounting
+
+    return {n: rig_mounting(n, cams[n]["mounting"]) for n in names if cams[n].get("mounting")}
+
+
+def relative_to(mountings: dict[str, RigMount], ref: str) -> dict[str, RigMount]:
+    """``mountings`` re-expressed in camera ``ref``'s optical frame (``x_ref = R_ref x_base +
+    c_ref``); empty without ``ref``'s own mounting (the frames are then unrelated)."""
     from ..tracking.rig import RigMount
 
-    def mount(n):
-        m = cams[n].get("mounting")
-        if m is None or len(m) != 7:
-            return None
-        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
-
-    out = {n: m for n in names if (m := mount(n)) is not None}
-    if not in_optical_frame:
-        return out
-    base = out.get(ref)
-    if base is None:  # (the parameters' frame and the reference camera's: unrelated)
+    base = mountings.get(ref)
+    if base is None:
         return {}
-    return {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)  # (x_ref = R_r x_base + c_r)
-            for n, m in out.items()}  # fmt: skip
+    return {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
+            for n, m in mountings.items()}  # fmt: skip
 
 
 def mounting_difference(a: RigMount, b: RigMount) -> tuple[float, float]:
@@ -217,9 +214,7 @@ def _optical_frame_id(bag, camera: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from ..calibration import calibrate_mountings
     from ..estimation import EstimateOptions, RansacOptions
-    from ..ros import conversions as cv
     from ..ros.bags.rig_bag import read_rig_frames
-    from ..tracking.rig import RigMount
 
     bag = A.bag_dir(args.bag, require_messages=True)
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
@@ -230,10 +225,8 @@ def run(args: argparse.Namespace) -> int:
     ref = args.reference or names[0]
     if ref not in names:
         raise A.CliError(f"--reference {ref!r} is not a camera of the rig {names}")
-    ref_mount = None
-    m = cams[ref].get("mounting")
-    if not args.optical_frame and m is not None and len(m) == 7:
-        ref_mount = RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+    given = parameter_mountings(cams, names)
+    ref_mount = None if args.optical_frame else given.get(ref)
     opts = EstimateOptions(ransac=RansacOptions(threshold_px=args.threshold))
     est = calibrate_mountings(
         frames,
@@ -261,7 +254,8 @@ def run(args: argparse.Namespace) -> int:
         f"rs-localizer calibrate-rig {bag.name}: mountings relative to camera {ref!r} "
         f"in the rig frame {frame} ({where})"
     ]
-    given = parameter_mountings(cams, names, ref, ref_mount is None)
+    if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
+        given = relative_to(given, ref)
     report = {}
     for n in names:
         e = est[n]

@@ -431,9 +431,16 @@ def rig_camera_names(value: Any) -> list[str]:
     return names
 
 
-def _rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
-    """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers; integers taken as floats) with its
-    ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none)."""
+def rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
+    """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers x, y, z, qx, qy, qz, qw: its optical
+    frame's pose in ``base_frame``; integers taken as floats) with its
+    ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none) as a
+    :class:`~rs_localizer.tracking.rig.RigMount`.
+
+    Raises:
+        ConfigError: no mounting, not 7 finite numbers, not a rotation, or a covariance that
+            is not 36 finite numbers, naming the parameter.
+    """
     if m is None or (isinstance(m, (list, tuple)) and len(m) == 0):
         raise ConfigError(
             f"rig camera {n!r} has no mounting: set rig.{n}.mounting: [x, y, z, qx, qy, qz, "
@@ -483,7 +490,7 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
     out = []
     for n in names:
         c = cameras.get(n, {})
-        mount = _rig_mounting(n, c.get("mounting"), c.get("mounting_covariance"))
+        mount = rig_mounting(n, c.get("mounting"), c.get("mounting_covariance"))
         ld = float(c.get("line_delay", -1.0))
         rt = float(c.get("readout_time", -1.0))
         for key, v, top in (

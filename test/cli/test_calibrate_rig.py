@@ -163,11 +163,18 @@ def test_the_parameters_mountings_are_checked_against_the_calibrated_ones(
         assert "WARNING: right" not in cap.err
     # the reference camera not placed by the parameters: its optical frame and theirs are
     # unrelated, nothing is compared
-    from rs_localizer.cli.calibrate_rig import parameter_mountings
+    from rs_localizer.cli.calibrate_rig import parameter_mountings, relative_to
 
     cams = {"front": {}, "left": {"mounting": truth["left"]}}
-    assert parameter_mountings(cams, ["front", "left"], "front", True) == {}
-    assert set(parameter_mountings(cams, ["front", "left"], "front", False)) == {"left"}
+    assert set(parameter_mountings(cams, ["front", "left"])) == {"left"}
+    assert relative_to(parameter_mountings(cams, ["front", "left"]), "front") == {}
+    # a mounting the node would refuse is refused here too, by the node's own reading
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/rs_localizer:\n  ros__parameters:\n    rig:\n      left:\n"
+                   "        mounting: [0.0, 0.1, 0.2]\n")  # fmt: skip
+    capsys.readouterr()
+    assert main(["calibrate-rig", str(rig_bag), "--params-file", str(bad)]) == 2
+    assert "rig.left.mounting must be 7 finite numbers" in capsys.readouterr().err
 
 
 def test_a_ring_of_cameras_and_a_camera_not_connected(tmp_path, capsys):
