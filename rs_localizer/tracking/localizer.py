@@ -547,8 +547,7 @@ class VideoLocalizer(GyroReadouts):
     def _end_track(self, keep: bool = False) -> list[FusedPose]:
         """End the track: its frames still pending released with their fused twists as they
         are now when ``keep``, else dropped."""
-        final = self._forget_track(keep)
-        return self._track_ended(final if keep else [])
+        return self._track_ended(self._forget_track(keep))  # ([] unless keep)
 
     def _track_ended(self, final: list) -> list[FusedPose]:
         """A track ended (its twist source reset): its pending frames released with the fused
