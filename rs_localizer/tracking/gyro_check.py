@@ -44,28 +44,17 @@ Conventions as :mod:`rs_localizer.estimation.gyro`.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..estimation.gyro import GYRO_CHI2_THRESHOLD, GyroMeasurement
+from ..estimation.gyro import GYRO_CHI2_THRESHOLD
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 from .gyro import ImuBuffer
-from .gyro_bias import GyroBiasEstimator, checked_mount, pair_innovation
+from .gyro_bias import checked_mount, pair_innovation
 
-if TYPE_CHECKING:  # (gyro_input imports this module)
-    from .gyro_input import GyroSettings, TrackLog
-
-__all__ = [
-    "MOUNT_CHECK_OUTCOMES",
-    "GyroMountCheck",
-    "MountCheckOptions",
-    "gyro_if_consistent",
-    "update_gyro_checks",
-]
+__all__ = ["MOUNT_CHECK_OUTCOMES", "GyroMountCheck", "MountCheckOptions"]
 
 #: what :meth:`GyroMountCheck.update` did with a frame: ``passed`` and ``failed`` (the pair's
 #: test), ``uninformative`` (passed while the gyro barely turned: not counted), ``first`` (the
@@ -268,97 +257,3 @@ class GyroMountCheck:
     def _count(self, outcome: str) -> str:
         self.counts[outcome] += 1
         return outcome
-
-
-def gyro_if_consistent(
-    gyro: GyroMeasurement | None, check: GyroMountCheck | None, count: Callable[[str, int], None]
-) -> GyroMeasurement | None:
-    """``gyro`` (a frame's gyro measurement, or None), or None while ``check`` declares the
-    gyro inconsistent with the image (counted ``gyro_disabled_inconsistent``): the frame is
-    then solved without it. The single camera's
-    (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) and the rig's
-    (:class:`~rs_localizer.tracking.rig.RigLocalizer`) rule."""
-    if gyro is not None and check is not None and check.inconsistent:
-        count("gyro_disabled_inconsistent", 1)
-        return None
-    return gyro
-
-
-def update_gyro_checks(
-    check: GyroMountCheck | None,
-    bias: GyroBiasEstimator | None,
-    buffer: ImuBuffer | None,
-    imu: GyroSettings | None,
-    *,
-    stamp_ns: int,
-    success: bool,
-    orientation: ArrayLike | None,
-    rotation_covariance: ArrayLike | None,
-    new_track: bool,
-    count: Callable[[str, int], None],
-    log: TrackLog,
-    what: str = "frames",
-    mount: str = "IMU -> camera optical frame",
-) -> None:
-    """Feed a frame (a camera's, or a rig's) to the check of the gyro against the image and to
-    the online bias estimator, as the single camera and the rig both do: a solved frame pairs
-    with the previous one; a failed frame or a new track restarts the pairing. A pair the
-    check fails is counted ``gyro_pairs_failed``; when the check declares the gyro
-    inconsistent it is counted ``gyro_inconsistent_detections`` and warned about once (and
-    when it agrees again), and the bias estimator gets no pairs until it is consistent again
-    (a wrong mount would pull the bias). A pair the bias estimator's chi-square test rejects
-    is counted ``gyro_bias_rejected``.
-
-    Args:
-        check: the :class:`GyroMountCheck` (None: none). bias: the
-            :class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator` (None: none).
-        buffer: the gyro samples (None: no gyro, nothing done).
-        imu: the :class:`~rs_localizer.tracking.gyro_input.GyroSettings` (``gyro_bias`` (3,)
-            rad/s and ``gyro_bias_sigma`` rad/s: the bias the check assumes without an online
-            estimate; None only with no ``buffer``).
-        stamp_ns: the frame's time (ns, the camera clock). success: it was posed.
-        orientation: (3, 3) body -> world at that time (the camera's, or the rig's);
-            rotation_covariance: (3, 3) rad^2, world axes (None: NaN, the pair is not tested).
-        new_track: the frame starts a new track (nothing pairs across it).
-        count: ``count(key, n)`` of the counters above. log: the
-            :class:`~rs_localizer.tracking.gyro_input.TrackLog` of the warnings.
-        what, mount: the warning's words for the frames (``frames``, ``rig frames``) and the
-            mounting under test (``IMU -> camera optical frame``, ``IMU -> base_frame``).
-    """
-    if buffer is None or (check is None and bias is None):
-        return
-    if new_track or not success:
-        if check is not None:
-            check.restart()
-        if bias is not None:
-            bias.restart()
-    if not success:
-        return
-    cov = np.full((3, 3), np.nan) if rotation_covariance is None else rotation_covariance
-    if check is not None:
-        if bias is not None:
-            b, Pb = bias.bias, bias.covariance
-        else:
-            b, Pb = np.asarray(imu.gyro_bias, float), imu.gyro_bias_sigma**2 * np.eye(3)
-        was = check.inconsistent
-        if check.update(stamp_ns, orientation, cov, buffer, b, Pb) == "failed":
-            count("gyro_pairs_failed", 1)
-        if check.inconsistent and not was:
-            count("gyro_inconsistent_detections", 1)
-            n_failed, n_pairs = check.window_failures
-            log.warning(
-                "gyro.inconsistent",
-                f"the rotation between {what} contradicts the gyro ({n_failed} of the last "
-                f"{n_pairs} pairs, last residual {check.last_residual_deg:.2f} deg): {what} "
-                f"are solved without the gyro until it agrees again; check imu.rotation "
-                f"({mount}), imu.time_offset and imu.gyro_bias",
-            )
-        elif was and not check.inconsistent:
-            log.info(f"the gyro agrees with the image again: {what} use it")
-    if bias is None:
-        return
-    if check is not None and check.inconsistent:
-        bias.restart()
-        return
-    if bias.update(stamp_ns, orientation, cov, buffer) == "rejected":
-        count("gyro_bias_rejected", 1)

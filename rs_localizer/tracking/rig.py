@@ -42,7 +42,7 @@ between consecutive solved rig frames
 (:class:`~rs_localizer.tracking.gyro_bias.GyroBiasEstimator`, the rig frame as its
 "camera"), and the IMU's mounting is checked as a camera's
 (:class:`~rs_localizer.tracking.gyro_check.GyroMountCheck`,
-:func:`~rs_localizer.tracking.gyro_check.update_gyro_checks`): while the rotation between
+:func:`~rs_localizer.tracking.gyro_input.update_gyro_checks`): while the rotation between
 posed rig frames contradicts the gyro, rig frames are solved without it. Counted:
 ``rig.gyro_used``, ``rig.gyro_rejected[.<reason>]``, ``rig.gyro_missing[.<reason>]``
 (:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`), ``rig.gyro_pairs_failed``,

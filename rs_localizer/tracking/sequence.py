@@ -398,7 +398,7 @@ class SequenceLocalizer(VideoLocalizer):
 
     def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
         """Feed a frame to the check of the gyro against the image and to the online bias
-        estimator (:func:`~rs_localizer.tracking.gyro_check.update_gyro_checks`, the rig's
+        estimator (:func:`~rs_localizer.tracking.gyro_input.update_gyro_checks`, the rig's
         rule too): a solved frame pairs with the previous one; a failed frame or a new track
         restarts the pairing; counted ``gyro_pairs_failed``, ``gyro_inconsistent_detections``
         (warned about once), ``gyro_bias_rejected``."""
