@@ -47,13 +47,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from benchmarks.tagslam_data import DATA, errors, load_test2, quat_matrix, tag_corners
 from rs_localizer.camera import CameraModel
 from rs_localizer.estimation import InitialModel, estimate_rs_pose
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 
 __all__ = [
-    "DATA",
     "corner_noise",
     "load_test22",
     "main",
@@ -61,32 +61,10 @@ __all__ = [
     "real",
     "relative_errors",
     "rendered",
-    "tag_corners",
     "test2_alone",
 ]
 
-_ROOT = Path(__file__).resolve().parents[1]
-#: the TagSLAM recordings (outside the repository, next to the checkout or one level up;
-#: absent: the real part is skipped)
-DATA = next(
-    (
-        p
-        for p in (
-            _ROOT / up / "shared" / "data" / "real_markers" / "tagslam" for up in ("..", "../..")
-        )
-        if p.is_dir()
-    ),
-    _ROOT / ".." / "shared" / "data" / "real_markers" / "tagslam",
-)
-
 K_RENDER = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
-
-
-def tag_corners(side: float) -> np.ndarray:
-    """(4, 3) corners (m) of a square marker of ``side`` in its own frame, z = 0, in the
-    AprilTag detections' order (TagSLAM's convention)."""
-    s = side / 2
-    return np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
 
 
 def opencv_ippe(
@@ -142,17 +120,6 @@ def rendered(frames: int, turn: float, speed: float, noise_px: float = 0.5, seed
     return errors, failures
 
 
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = q
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def load_test22(folder: Path):
     """TagSLAM's ``test_22``: (camera, the tag's (4, 3) world corners, frames): each frame
     ``(stamp, (4, 2) corners px, reference camera -> world rotation (3, 3), camera position
@@ -167,11 +134,11 @@ def load_test22(folder: Path):
     )
     tf = json.loads((folder / "json" / "reference_final_tf.json").read_text())
     tag = next(t for t in tf if t["parent"] == "yard" and t["child"] == "tag_3")
-    X = tag_corners(0.42) @ _quat_matrix(tag["quat_xyzw"]).T + np.array(tag["translation"])
+    X = tag_corners(0.42) @ quat_matrix(tag["quat_xyzw"]).T + np.array(tag["translation"])
     ref = {}
     for line in (folder / "json" / "reference_odom.jsonl").read_text().splitlines():
         m = json.loads(line)
-        ref[round(m["stamp"], 6)] = (_quat_matrix(m["quat_xyzw"]), np.array(m["position"]))
+        ref[round(m["stamp"], 6)] = (quat_matrix(m["quat_xyzw"]), np.array(m["position"]))
     frames = []
     for line in (folder / "json" / "detections.jsonl").read_text().splitlines():
         m = json.loads(line)
@@ -248,8 +215,6 @@ def test2_alone(folder: Path = DATA / "test_2") -> dict[str, dict]:
     """Per camera of ``test_2``: counts of its tag detections posed alone (``right`` within 5
     degrees of the reference, ``wrong``, ``refused:<reason>``) and ``rot_deg`` / ``pos_mm``,
     the median errors of the right ones."""
-    from benchmarks.bench_real_rig import errors, load_test2
-
     rig = load_test2(folder)
     out = {}
     for name, cam in rig.cameras.items():

@@ -7,15 +7,8 @@ are loose versions of what the benchmark prints."""
 import numpy as np
 import pytest
 
-from benchmarks.bench_real_rig import (
-    FOLDER,
-    calibrate,
-    load_test2,
-    rig_run,
-    single_run,
-    summary,
-    video_run,
-)
+from benchmarks.bench_real_rig import calibrate, rig_run, single_run, summary, video_run
+from benchmarks.tagslam_data import FOLDER, load_test2
 
 pytestmark = pytest.mark.skipif(not FOLDER.is_dir(), reason=f"{FOLDER} absent")
 

@@ -6,14 +6,8 @@ TagSLAM's solution and OpenCV's IPPE."""
 import numpy as np
 import pytest
 
-from benchmarks.bench_single_tag import (
-    DATA,
-    opencv_ippe,
-    real,
-    relative_errors,
-    rendered,
-    tag_corners,
-)
+from benchmarks.bench_single_tag import opencv_ippe, real, relative_errors, rendered
+from benchmarks.tagslam_data import DATA, tag_corners
 from rs_localizer.camera import CameraModel
 from rs_localizer.geometry import rotation_angle_deg
 
