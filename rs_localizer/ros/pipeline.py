@@ -23,7 +23,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -696,7 +696,7 @@ class FramePipeline:
         out = []
         for f in fused:
             src: PoseWithCovariance = f
-            frame = f.tag
+            frame = cast(str, f.tag)  # (each frame's tag is its frame_id)
             if cfg.extrinsic is not None:
                 src, frame = camera_to_base(src, cfg.extrinsic), cfg.base_frame
             out.append(FusedOutput(f.pose.stamp_ns, src, frame))

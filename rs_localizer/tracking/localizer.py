@@ -44,7 +44,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -57,10 +57,10 @@ from ..correspondences import (
     video_frontend,
 )
 from ..estimation.options import EstimateOptions
-from ..pose import PoseMeasurement, PoseWithCovariance, RSModel
+from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
 from .fusion import FusedState
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
-from .tracker import CarriedPrediction
+from .tracker import CarriedPrediction, PathOptions, TrackerPath
 
 __all__ = [
     "FROZEN_IMAGE_LEVEL",
@@ -70,6 +70,7 @@ __all__ = [
     "ImageSearch",
     "PendingTwists",
     "VideoLocalizer",
+    "VideoSettings",
     "finite_rows",
     "image_sample",
     "same_image",
@@ -149,14 +150,14 @@ class FusedPose(PoseWithCovariance):
             (:meth:`PendingTwists.release`).
     """
 
-    tag: Any = None
+    tag: object = None
     state: FusedState | None = None
     own_twist: bool = False
     implausible: bool = False
 
     @classmethod
     def of(
-        cls, estimate: PoseMeasurement, fused: FusedState, tag: Any = None, own: bool = False
+        cls, estimate: PoseMeasurement, fused: FusedState, tag: object = None, own: bool = False
     ) -> FusedPose:
         """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
         :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
@@ -184,7 +185,7 @@ class FusedPose(PoseWithCovariance):
         )
 
 
-def _beyond(pose: Any, bounds: tuple[float, float]) -> bool:
+def _beyond(pose: RSPose, bounds: tuple[float, float]) -> bool:
     """The twist of ``pose`` (an :class:`~rs_localizer.pose.RSPose`) turns faster than
     ``bounds[0]`` rad/s or moves faster than ``bounds[1]`` m/s, or is not finite."""
     w = float(np.linalg.norm(pose.angular_velocity))
@@ -252,7 +253,7 @@ class PendingTwists:
         self,
         stamp_ns: int,
         estimate: PoseMeasurement,
-        tag: Any = None,
+        tag: object = None,
         relocalized: bool = False,
     ) -> None:
         """Hold a posed frame (``stamp_ns``: its time in the twist filter) until its fused
@@ -418,17 +419,40 @@ class ImageSearch:
     seconds: float = 0.0
 
 
-class VideoLocalizer(GyroReadouts):
+class VideoSettings(Protocol):
+    """What :class:`VideoLocalizer` reads of its subclass's settings (a camera's
+    :class:`~rs_localizer.tracking.sequence.SequenceSettings`, a rig's
+    :class:`~rs_localizer.tracking.rig.RigSettings`): the estimator's ``options`` (None: the
+    defaults) and the ``tracking`` options (None: no tracking; a
+    :class:`~rs_localizer.tracking.tracker.PathOptions`, its ``max_gap`` s)."""
+
+    @property
+    def options(self) -> EstimateOptions | None: ...
+
+    @property
+    def tracking(self) -> PathOptions | None: ...
+
+
+#: a video's settings (:class:`VideoSettings`)
+Settings = TypeVar("Settings", bound=VideoSettings)
+#: which of the body's cameras sees a frame, as the subclass's hooks take it: None for a
+#: camera's own video, the rig's camera for a rig
+View = TypeVar("View")
+
+
+class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
     """The video state a camera and a rig share (module docstring). A subclass sets up
     :meth:`_init_video` and says where its track's fused states come from
     (:meth:`_twist_source`) and how its track ends (:meth:`_forget_track`); its ``settings``
-    have ``tracking`` (None: no tracking) with ``max_gap`` (s).
+    (``Settings``, a :class:`VideoSettings`) have ``tracking`` (None: no tracking) with
+    ``max_gap`` (s). ``View``: what names one of the body's cameras to the subclass's
+    prediction hooks (None for a single camera).
 
     Threads: :meth:`flush`, :meth:`flush_idle` and :meth:`end_track` take the localizer's lock
     (the one its frames are processed under, where the subclass takes it).
     """
 
-    settings: Any
+    settings: Settings
     log: TrackLog
     _rig = False  # (a rig's video: its warnings name rig frames and the cameras' parameters)
     _twists: PendingTwists
@@ -443,10 +467,11 @@ class VideoLocalizer(GyroReadouts):
         self._readout_warned = False  # (the timing check's warning is out)
 
     # ---------------------------------------------------------------- the subclass's track
-    def _twist_source(self) -> Any:
-        """The object whose ``flush()`` gives the fused states not yet final (oldest first;
-        the track goes on): the camera's tracker, the rig's tracker path; None without a
-        track."""
+    def _twist_source(self) -> TrackerPath | None:
+        """The tracker path whose ``flush()`` gives the fused states not yet final (oldest
+        first; the track goes on): the camera's tracker
+        (:class:`~rs_localizer.tracking.tracker.RSTracker`), the rig's
+        :class:`~rs_localizer.tracking.tracker.TrackerPath`; None without a track."""
         raise NotImplementedError
 
     def _forget_track(self, keep: bool) -> list:
@@ -455,7 +480,7 @@ class VideoLocalizer(GyroReadouts):
         raise NotImplementedError
 
     def _tracked_prediction(
-        self, ref: int, camera: CameraModel, view: Any
+        self, ref: int, camera: CameraModel, view: View
     ) -> tuple[bool, FusedState | None]:
         """``(decided, state)``: whether the track decides the prediction of a frame at
         reference time ``ref`` (ns) seen by ``camera`` (``view``: which), and its predicted
@@ -463,20 +488,20 @@ class VideoLocalizer(GyroReadouts):
         Not decided: the last posed frame carried predicts it."""
         raise NotImplementedError
 
-    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: Any) -> RSModel:
+    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: View) -> RSModel:
         """The model seen by ``camera`` (``view``: which of the body's cameras) of the
         track's predicted body state."""
         raise NotImplementedError
 
     def _carried_in_camera(
-        self, model: RSModel, dt: float, camera: CameraModel, view: Any
+        self, model: RSModel, dt: float, camera: CameraModel, view: View
     ) -> RSModel:
         """The model seen by ``camera`` (``view``: which) of the last posed frame's ``model``
         carried ``dt`` s later at its own twist."""
         raise NotImplementedError
 
     # ---------------------------------------------------------------- prediction
-    def _predict(self, ref: int, camera: CameraModel, view: Any = None) -> RSModel | None:
+    def _predict(self, ref: int, camera: CameraModel, view: View) -> RSModel | None:
         """The prediction of a frame at reference time ``ref`` (ns) seen by ``camera``
         (``view``: which of the body's cameras, None for a single camera): its model
         (:class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at the camera's reference row,
@@ -568,7 +593,7 @@ class VideoLocalizer(GyroReadouts):
         *,
         level: float = FROZEN_IMAGE_LEVEL,
         check: bool = True,
-        view: Any = None,
+        view: View,
     ) -> ImageSearch:
         """A camera's image through its front end ``fe``, before the estimator: the
         frozen-image check (:meth:`CameraFrontend.frozen` within ``level``, when ``check``:

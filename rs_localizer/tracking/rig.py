@@ -98,7 +98,6 @@ from __future__ import annotations
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -391,7 +390,7 @@ class RigCameraFrame:
     camera: CameraModel | None
     points2d: np.ndarray
     points3d: np.ndarray
-    tag: Any = None
+    tag: object = None
 
     def __post_init__(self):
         object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
@@ -533,7 +532,7 @@ class _ImageInput:
 _NO_UV, _NO_XYZ = np.zeros((0, 2)), np.zeros((0, 3))
 
 
-class RigLocalizer(VideoLocalizer):
+class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
     """A rig's video (module docstring).
 
     Args:
@@ -981,7 +980,7 @@ class RigLocalizer(VideoLocalizer):
         image: np.ndarray,
         camera: CameraModel | None,
         encoding: str = "bgr8",
-        tag: Any = None,
+        tag: object = None,
     ) -> list[RigOutput]:
         """Take one camera's image: its front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's

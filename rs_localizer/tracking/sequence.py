@@ -70,7 +70,7 @@ from ..camera import (
     checked_stamp,
     reference_stamp_ns,
 )
-from ..correspondences import Correspondences, FrameFeedback, VideoFrontend
+from ..correspondences import Correspondences, FrameFeedback, Frontend, VideoFrontend
 from ..estimation.estimate import (
     EstimateOptions,
     RSPoseEstimate,
@@ -197,14 +197,14 @@ class SequenceFrame:
     points2d: np.ndarray
     points3d: np.ndarray
     scores: np.ndarray | None = None
-    tag: Any = None
+    tag: object = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
         _check_camera(self.camera)
 
 
-def _check_camera(camera: Any) -> None:
+def _check_camera(camera: object) -> None:
     if not isinstance(camera, CameraModel):
         raise TypeError(
             f"a frame needs a CameraModel (with its rolling-shutter timing), got "
@@ -274,7 +274,7 @@ def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
     return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
-class SequenceLocalizer(VideoLocalizer):
+class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
     """A camera's video state (see the module docstring).
 
     Args:
@@ -315,7 +315,7 @@ class SequenceLocalizer(VideoLocalizer):
         count: Callable[[str, int], None] | None = None,
         stopped: Callable[[], bool] = lambda: False,
         imu_span: float | None = None,
-        frontend: Any = None,
+        frontend: Frontend | VideoFrontend | None = None,
         frontend_name: str = "frontend",
         implementation: Callable[[str], str] = default_implementation,
     ):
@@ -470,7 +470,9 @@ class SequenceLocalizer(VideoLocalizer):
     def frontend_name(self, name: str) -> None:
         self._camera_frontend.label = name
 
-    def set_frontend(self, frontend: Any, name: str | None = None) -> None:
+    def set_frontend(
+        self, frontend: Frontend | VideoFrontend | None, name: str | None = None
+    ) -> None:
         """Use ``frontend`` for the images from the next one on (None: none): a
         :class:`~rs_localizer.correspondences.VideoFrontend` as it is, a per-image
         :class:`~rs_localizer.correspondences.Frontend` wrapped
@@ -506,7 +508,7 @@ class SequenceLocalizer(VideoLocalizer):
         image: np.ndarray,
         camera: CameraModel,
         encoding: str = "bgr8",
-        tag: Any = None,
+        tag: object = None,
     ) -> SequenceOutput:
         """Localize one image of the video: the front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)``, with the frame's
@@ -546,7 +548,7 @@ class SequenceLocalizer(VideoLocalizer):
         out = SequenceOutput(stamp_ns=t.reference_ns)
         r = self._search_image(
             fe, stamp, t.reference_ns, image, camera, encoding,
-            level=s.frozen_image_level, check=not reset,
+            level=s.frozen_image_level, check=not reset, view=None,
         )  # fmt: skip
         if r.failure == FRONTEND_FAILURES[2]:
             out.failure = r.failure
@@ -599,10 +601,10 @@ class SequenceLocalizer(VideoLocalizer):
             ValueError: a stamp beyond the int64 nanosecond range (:func:`checked_stamp`).
             TypeError: ``camera`` is not a :class:`~rs_localizer.camera.CameraModel`.
         """
-        return self._predict(self.frame_time(stamp_ns, camera).reference_ns, camera)
+        return self._predict(self.frame_time(stamp_ns, camera).reference_ns, camera, None)
 
     def _tracked_prediction(
-        self, ref: int, camera: CameraModel, view: Any
+        self, ref: int, camera: CameraModel, view: None
     ) -> tuple[bool, FusedState | None]:
         """The tracker decides while it tracks with this camera and configuration
         (:meth:`~rs_localizer.tracking.tracker.RSTracker.predict`); after a frozen image
@@ -618,11 +620,11 @@ class SequenceLocalizer(VideoLocalizer):
             return True, t.predict(ref, self._implementation(s.solver))
         return False, None
 
-    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: Any) -> RSModel:
+    def _state_in_camera(self, state: FusedState, camera: CameraModel, view: None) -> RSModel:
         return model_from_state(state, camera)
 
     def _carried_in_camera(
-        self, model: RSModel, dt: float, camera: CameraModel, view: Any
+        self, model: RSModel, dt: float, camera: CameraModel, view: None
     ) -> RSModel:
         return carried_model(model, dt, camera.seconds_per_unit_r)
 

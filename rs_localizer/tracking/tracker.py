@@ -255,14 +255,26 @@ def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
 class PathOptions(Protocol):
     """The options of a tracker path (:class:`TrackerPath`, :func:`predicted_initial_model`):
     a camera's :class:`TrackerOptions` or a rig's
-    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (their fields of these names)."""
+    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (their fields of these names, read
+    only: both are frozen)."""
 
-    max_gap: float
-    fusion: FusionOptions
-    gate_px: float
-    gate_sigmas: float
-    max_gate_px: float
-    min_explained_ratio: float
+    @property
+    def max_gap(self) -> float: ...
+
+    @property
+    def fusion(self) -> FusionOptions: ...
+
+    @property
+    def gate_px(self) -> float: ...
+
+    @property
+    def gate_sigmas(self) -> float: ...
+
+    @property
+    def max_gate_px(self) -> float: ...
+
+    @property
+    def min_explained_ratio(self) -> float: ...
 
 
 class PathEstimate(PoseMeasurement, Protocol):
