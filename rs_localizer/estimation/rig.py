@@ -40,7 +40,9 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   that raises the MSAC cost of all points is not taken;
 - the final refinement (:func:`_refine`): Levenberg-Marquardt on the exact model over every
   point within ``FINAL_CUTOFF`` inlier thresholds (Huber loss at the threshold, the set
-  re-selected at each iteration): a single camera's compiled refinement
+  re-selected at each iteration; on a frame of several cameras also from the model first fitted
+  with a wider threshold, the one of the lower MSAC cost kept, or the fit of the inliers alone
+  where its cost is significantly lower, :func:`_final`): a single camera's compiled refinement
   (:func:`~rs_localizer.estimation.refine.refine_rs_pose`, analytic Jacobian) with each point
   seen through its camera's mounting at its own time, errors in its camera's pixels; its
   covariance ``sigma^2 (J^T W J)^-1`` over
@@ -160,6 +162,7 @@ __all__ = [
     "AGREE_SHARE",
     "CONTRADICTION_GATE",
     "FINAL_CUTOFF",
+    "INLIER_FIT_SIGNIFICANCE",
     "LO_ROUNDS",
     "PREDICTION_GATE",
     "PREDICTION_MARGIN",
@@ -218,6 +221,15 @@ AGREE_SHARE = 0.3
 #: degree apart); a mounting 2 degrees off misses by 15 px and more at focal lengths of 450
 #: px and more
 CONTRADICTION_GATE = 3.0
+
+#: the final refinement of a frame of several cameras keeps the fit of its inliers alone (the
+#: points within the threshold) instead of the fit over every point near the model only when
+#: it lowers the MSAC cost by more than this many image variances (px^2): the 99 % quantile of
+#: chi-square with the model's degrees of freedom (6: the pose, 12: with the velocities), by
+#: which two fits of the same consistent points differ at most. Where no pose explains every
+#: camera (mountings a few tenths of a degree off), the fit near every point settles between
+#: the cameras at a cost tens of variances above the one that explains its inliers
+INLIER_FIT_SIGNIFICANCE = {6: 16.81, 12: 26.22}
 
 #: with a prediction, a voting camera is explained by it when its share of points within
 #: this many inlier thresholds of the prediction is at least :data:`AGREE_SHARE` times the
@@ -1169,14 +1181,22 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     """The final refinement of ``model`` (``msac``: the MSAC cost of a model on every point,
     the estimate's own measure): :func:`_refine` (Huber loss at the threshold on every point
     within :data:`FINAL_CUTOFF` thresholds, the set re-selected at each iteration) from
-    ``model`` and from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds as
-    its threshold (every camera's points within the largest inconsistency the cameras'
-    consensus accepts between them); the one of the lower MSAC cost is the estimate. RANSAC's
-    models of a rig frame taken at one time are one camera's P3P poses: the refinement from
-    the best of them stays near that camera's pose when another camera's points lie a few
-    thresholds away, although a pose between the cameras explains more points at a lower cost
-    (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the lower cost in 36 %
-    of the rig frames). With a gyro (``prior``, maximum a posteriori, whose cost is not the
+    ``model`` and from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds as its
+    threshold (every camera's points within the largest inconsistency the cameras' consensus
+    accepts between them), the one of the lower MSAC cost; unless the fit of the inliers alone
+    (the points within the threshold, from ``model`` or from that one, the better) lowers the
+    MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances.
+
+    RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
+    refinement from the best of them stays near that camera's pose when another camera's
+    points lie a few thresholds away, although a pose between the cameras explains more points
+    at a lower cost (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the
+    lower cost in 36 % of the rig frames). Where the cameras' mountings are off so that no pose
+    explains them all, both refinements can settle between the cameras at a higher cost than
+    the pose that explains its inliers (TagSLAM's ``test_6``: 10-30 % more MSAC cost on rig
+    frames 1-1.8 deg from its reference): the inliers' own fit keeps that pose. On consistent
+    points the two differ by a few variances, and the fit over every point near the model,
+    the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
     alone."""
     out = _refine(pool, None, model, threshold_px, free=free, prior=prior)
@@ -1184,7 +1204,19 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
         return out
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
-    return wide if msac(wide) < msac(out) else out
+
+    best = wide if msac(wide) < msac(out) else out
+
+    def inliers_fit(m):
+        return _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
+
+    tight = min((inliers_fit(model), inliers_fit(best)), key=msac)
+    e = _errors_px(pool, *_one(best))[0]
+    inside = e[e < threshold_px]
+    s2 = float(np.sum(inside**2)) / max(2 * len(inside) - free, 1)
+    variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
+    margin = INLIER_FIT_SIGNIFICANCE[free] * variance(s2, float(threshold_px))
+    return tight if msac(tight) < msac(best) - margin else best
 
 
 #: fits of the NumPy refinement, each on the points within the cutoff of the last model (the
