@@ -592,6 +592,22 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
         assert a.success and a.disagreeing == () and np.array_equal(a.R, b.R)
 
 
+def _global_shutter_frame(seed, counts, noise_px, outliers):
+    """A rig frame of two global-shutter cameras with equal stamps
+    (:func:`rs_localizer.sim.rig.make_rig` with ``line_delay`` 0): its views (a list, to
+    turn a mounting) and the truth."""
+    rng = np.random.default_rng(seed)
+    rig = sim_rig.make_rig(2, rng)
+    cams = [
+        replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
+    ]
+    truth = sim_rig.rig_motion(rng)
+    rig_gs = sim_rig.Rig(tuple(cams))
+    return list(
+        sim_rig.rig_frame(rig_gs, truth, list(counts), rng, noise_px, outliers).views
+    ), truth
+
+
 def test_two_cameras_a_few_pixels_apart_are_posed_not_refused():
     """Two global-shutter cameras of 24 points (0.2 px noise), the second mounted 0.5 deg off
     (4-5 px at these focal lengths: more than the 2 px threshold, so the joint fit explains
@@ -605,16 +621,7 @@ def test_two_cameras_a_few_pixels_apart_are_posed_not_refused():
     bad = rotvec_to_matrix(np.radians([0.0, 0.5, 0.0]))
     errs = []
     for k in range(20):
-        rng = np.random.default_rng(300 + k)
-        rig = sim_rig.make_rig(2, rng)
-        cams = [
-            replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0)
-            for c in rig.cameras
-        ]
-        truth = sim_rig.rig_motion(rng)
-        views = list(
-            sim_rig.rig_frame(sim_rig.Rig(tuple(cams)), truth, [24, 24], rng, 0.2, 0.0).views
-        )
+        views, truth = _global_shutter_frame(300 + k, (24, 24), 0.2, 0.0)
         views[-1] = replace(views[-1], R_mount=bad @ views[-1].R_mount)
         est = estimate_rig_pose(views)
         assert est.success, (k, est.failure)
@@ -626,13 +633,7 @@ def _two_cameras_mounted_apart(deg, seed):
     """A global-shutter rig frame of two cameras of 24 points (0.3 px noise) whose given
     mountings are turned ``deg / 2`` degrees about their y axes in opposite senses: the truth
     lies between the two cameras' own poses. Returns (views, truth)."""
-    rng = np.random.default_rng(seed)
-    rig = sim_rig.make_rig(2, rng)
-    cams = [
-        replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
-    ]
-    truth = sim_rig.rig_motion(rng)
-    views = list(sim_rig.rig_frame(sim_rig.Rig(tuple(cams)), truth, [24, 24], rng, 0.3, 0.0).views)
+    views, truth = _global_shutter_frame(seed, (24, 24), 0.3, 0.0)
     for i, sign in ((0, 1.0), (1, -1.0)):
         turn = rotvec_to_matrix(np.radians([0.0, sign * deg / 2, 0.0]))
         views[i] = replace(views[i], R_mount=turn @ views[i].R_mount)
@@ -759,15 +760,7 @@ def test_the_final_model_is_not_beaten_by_a_fit_of_its_own_inliers(counts):
     bound = 2 * INLIER_FIT_SIGNIFICANCE[6] * 0.5**2  # (px^2)
     turn = rotvec_to_matrix(np.radians([0.0, 0.6, 0.0]))
     for k in range(12):
-        rng = np.random.default_rng(1000 + k)
-        rig = sim_rig.make_rig(2, rng)
-        cams = [
-            replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0)
-            for c in rig.cameras
-        ]
-        truth = sim_rig.rig_motion(rng)
-        rig_gs = sim_rig.Rig(tuple(cams))
-        views = list(sim_rig.rig_frame(rig_gs, truth, list(counts), rng, 0.5, 0.1).views)
+        views, _ = _global_shutter_frame(1000 + k, counts, 0.5, 0.1)
         views[-1] = replace(views[-1], R_mount=turn @ views[-1].R_mount)
         est = estimate_rig_pose(views)
         assert est.success, (k, est.failure)
