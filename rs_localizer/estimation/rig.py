@@ -1193,7 +1193,7 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     at a lower cost (on TagSLAM's ``test_14``, PoseLib's pose refined the same way had the
     lower cost in 36 % of the rig frames). Where the cameras' mountings are off so that no pose
     explains them all, both refinements can settle between the cameras at a higher cost than
-    the pose that explains its inliers (TagSLAM's ``test_6``: 10-30 % more MSAC cost on rig
+    the pose that explains its inliers (TagSLAM's ``test_6``: 10-32 % more MSAC cost on rig
     frames 1-1.8 deg from its reference): the inliers' own fit keeps that pose. On consistent
     points the two differ by a few variances, and the fit over every point near the model,
     the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
