@@ -33,6 +33,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .finalize import (
+    STILL_FALLBACK,
     ImageAlone,
     final_estimate,
     image_alone,
@@ -64,12 +65,11 @@ from .options import (
     RefineOptions,
     points_needed,
 )
-from .plausibility import IMPLAUSIBLE_MOTION, motion_bounds
+from .plausibility import motion_bounds
 from .prior import MotionPrior
 from .ransac import Ransac, prosac_order, seeded_rng
 from .result import (
     DEGENERATE_GEOMETRY,
-    TOO_FEW_INLIERS,
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
@@ -453,14 +453,6 @@ def _single_tag(
     return est
 
 
-#: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
-#: model (:func:`_still_frame`): every rolling-shutter model implausible (a readout of
-#: nanoseconds turns the noise into absurd velocities), or RANSAC's best model explaining too
-#: few points (12 corners of three tags at rest on which no rolling-shutter hypothesis
-#: found a consensus that P3P's does)
-STILL_FALLBACK = (IMPLAUSIBLE_MOTION, TOO_FEW_INLIERS)
-
-
 def _still_frame(
     fr,
     points2d: np.ndarray,
@@ -472,16 +464,16 @@ def _still_frame(
     point_sigma: np.ndarray | None,
     ignored: tuple[str, ...],
 ) -> RSPoseEstimate | None:
-    """A frame whose rolling-shutter estimate failed (:data:`STILL_FALLBACK`), posed on the
-    global-shutter model when the frame shows no motion: the global-shutter estimate (P3P samples,
-    pose-only refinement) if it succeeds and the rolling-shutter model refined from it (with the
-    motion prior where the final refinement uses it from the start: planar frames) finds
-    velocities its noise explains (not :func:`~.finalize.motion_significant`: the alternative is
-    a refusal, not a rolling-shutter estimate). A readout too short to observe motion (nanoseconds
-    to microseconds per line) turns the noise's apparent motion into absurd velocities in every
-    minimal sample; such frames are posed as P3P poses them, with the twist covariance of that
-    refinement. ``None``: the frame stays refused (a frame whose points do show motion is not posed
-    without it).
+    """A frame whose rolling-shutter estimate failed (:data:`~.finalize.STILL_FALLBACK`), posed on
+    the global-shutter model when the frame shows no motion: the global-shutter estimate (P3P
+    samples, pose-only refinement) if it succeeds and the rolling-shutter model refined from it
+    (with the motion prior where the final refinement uses it from the start: planar frames)
+    finds velocities its noise explains (not :func:`~.finalize.motion_significant`: the
+    alternative is a refusal, not a rolling-shutter estimate). A readout too short to observe
+    motion (nanoseconds to microseconds per line) turns the noise's apparent motion into absurd
+    velocities in every minimal sample; such frames are posed as P3P poses them, with the twist
+    covariance of that refinement. ``None``: the frame stays refused (a frame whose points do
+    show motion is not posed without it).
     """
     est = _estimate(
         points2d,

@@ -59,6 +59,7 @@ __all__ = [
     "PRIOR_NEGLIGIBLE",
     "ROLLING_SHUTTER",
     "STILL_CHI2",
+    "STILL_FALLBACK",
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
@@ -75,6 +76,13 @@ __all__ = [
     "rolling_shutter_check",
     "still_final",
 ]
+
+#: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
+#: model (a single camera's in :mod:`.estimate`, a rig's in :mod:`.rig`): every
+#: rolling-shutter model implausible (a readout of nanoseconds turns the noise into absurd
+#: velocities), or RANSAC's best model explaining too few points (12 corners of three tags at
+#: rest on which no rolling-shutter hypothesis found a consensus that P3P's does)
+STILL_FALLBACK = (IMPLAUSIBLE_MOTION, TOO_FEW_INLIERS)
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss with
 #: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
@@ -278,16 +286,20 @@ ROLLING_SHUTTER = "rolling_shutter"
 GLOBAL_SHUTTER = "global_shutter"
 
 
-def motion_chi2(covariance: np.ndarray | None, w: np.ndarray, t: np.ndarray) -> float:
-    """Squared Mahalanobis distance of a frame's velocities ``(w, t)`` (per unit r) from zero
-    under their covariance (the (6, 6) block of the (12, 12) ``covariance`` over
-    ``(delta, C, w, t)``): the frame's own evidence of motion, from its points' capture-time
-    spread, their number and its noise. ``inf`` when the covariance is missing, not finite or
-    singular (no evidence either way is claimed)."""
+def motion_chi2(
+    covariance: np.ndarray | None, w: np.ndarray, t: np.ndarray, compiled: bool = True
+) -> float:
+    """Squared Mahalanobis distance of a frame's velocities ``(w, t)`` (per unit r, or per
+    second with a covariance in the same units) from zero under their covariance (the (6, 6)
+    block of the (12, 12) ``covariance`` over ``(delta, C, w, t)``): the frame's own evidence
+    of motion, from its points' capture-time spread, their number and its noise. ``inf`` when
+    the covariance is missing, not finite or singular (no evidence either way is claimed).
+    ``compiled=False``: the same elimination in Python (no compiled kernel)."""
     if covariance is None:
         return float("inf")
+    kernel = _velocity_chi2 if compiled else _velocity_chi2.py_func
     return float(
-        _velocity_chi2(
+        kernel(
             np.ascontiguousarray(covariance, dtype=np.float64),
             np.ascontiguousarray(w, dtype=np.float64),
             np.ascontiguousarray(t, dtype=np.float64),

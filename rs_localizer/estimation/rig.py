@@ -116,6 +116,7 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
+from .finalize import STILL_FALLBACK, motion_chi2, motion_significant
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -394,10 +395,13 @@ class RigPoseEstimate(PoseWithCovariance):
             or ``None``.
         model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R = expm([delta]x)
             R_0``; rad, m, rad/s, m/s), or ``None``.
-        global_shutter: every observation was taken at one time (global-shutter cameras with
-            equal stamps): the velocities are not observable, ``w = t = 0`` (zero rows and
-            columns in the covariances, ``twist_covariance`` None) and the pose is the
-            generalized absolute pose of the rig at that time.
+        global_shutter: the pose is the generalized absolute pose of the rig, ``w = t = 0``
+            (zero rows and columns in ``covariance`` and ``model_covariance``): every
+            observation was taken at one time (global-shutter cameras with equal stamps; the
+            velocities are not observable, ``twist_covariance`` None), or the cameras read out
+            too fast for the rig frame to show motion (``twist_covariance`` that of the
+            rolling-shutter model refined from the pose: what the frame says of the
+            velocities).
         acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as
             ``covariance``) per unit of angular and linear acceleration of the rig during the
             frame (rad/s^2, m/s^2, rig frame; columns in that order): a rig that accelerates
@@ -1585,7 +1589,9 @@ def estimate_rig_pose(
     within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
     rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
     refinement and covariance of the pose alone) with ``w = t = 0`` and ``global_shutter``
-    set.
+    set. So is a rig frame whose rolling-shutter estimate fails (``implausible_motion``,
+    ``too_few_inliers``) and whose points show no motion (:func:`_still_if_no_motion`:
+    cameras that read out in nanoseconds to microseconds).
 
     The cameras' consensus: a pose is returned only when the cameras with points agree on it.
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
@@ -1654,7 +1660,7 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
     refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
     still = len(pool.cam) > 0 and pool.tau_spread <= STILL_SPREAD
     if gyro is None or still or not refine:
-        return _estimate(pool, *settings)
+        return _still_if_no_motion(pool, settings, _estimate(pool, *settings))
     if gyro_time is None:
         gyro_time = 0.5 * (float(pool.tau.min()) + float(pool.tau.max()))
     prior = _GyroPrior.of(gyro, gyro_time, not pool.numpy)
@@ -1668,8 +1674,44 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
             chi2 = gyro_image_chi2(gyro, image[0], image[1], planar, not pool.numpy)
             image_inliers = image[2]
         est = replace(est, gyro_chi2=float(chi2))
-    out = gyro_checked(est, chi2, image_inliers, len(pool.cam), lambda: _estimate(pool, *settings))
+    out = gyro_checked(
+        est, chi2, image_inliers, len(pool.cam),
+        lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)),
+    )  # fmt: skip
     return replace(out, gyro_chi2=est.gyro_chi2) if out.gyro_rejected else out
+
+
+def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> RigPoseEstimate:
+    """A rig frame whose rolling-shutter estimate failed (:data:`~.finalize.STILL_FALLBACK`:
+    ``implausible_motion``, ``too_few_inliers``), posed on the global-shutter model when it
+    shows no motion, as a single camera's (:func:`~.estimate.estimate_rs_pose`): the
+    rig's generalized absolute pose (P3P samples, the refinement of the pose alone,
+    ``global_shutter``) if it succeeds and the rolling-shutter model refined from it finds
+    velocities its noise explains (not :func:`~.finalize.motion_significant` over the pose's
+    inliers), with that refinement's twist covariance. Cameras whose readout is too short for
+    one rig frame to observe motion (nanoseconds to a few microseconds per line) turn the
+    noise's apparent motion into absurd velocities in every minimal sample; they are posed as a
+    global-shutter rig is. Otherwise ``est`` as it is (a rig frame that does show motion is not
+    posed without it)."""
+    options = settings[0]
+    if est.success or est.failure not in STILL_FALLBACK or not options.refine.enabled:
+        return est
+    if pool.tau_spread <= STILL_SPREAD:
+        return est
+    gs = _estimate(pool, *settings, still=True)
+    if not gs.success:
+        return est
+    threshold_px = float(options.ransac.threshold_px)
+    zero = np.zeros(3)
+    model = _refine(pool, None, (gs.R, gs.C, zero, zero), threshold_px)
+    cov, _ = _covariance(pool, model, threshold_px)
+    if cov is None or not all(np.isfinite(a).all() for a in model):
+        return est
+    chi2 = motion_chi2(cov, model[2], model[3], compiled=not pool.numpy)
+    if motion_significant(chi2, gs.num_inliers):
+        return est
+    twist = output_covariance(cov, gs.R, gs.C, zero, 1.0, not pool.numpy)[2]
+    return replace(gs, twist_covariance=twist)
 
 
 def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
@@ -2056,9 +2098,12 @@ def _estimate(
     initial_model,
     generalized: bool,
     prior: _GyroPrior | None = None,
+    still: bool | None = None,
 ) -> RigPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
-    a rig frame that is not still) or without one (arguments as there)."""
+    a rig frame that is not still) or without one (arguments as there); ``still``: on the
+    global-shutter model (True) or not (False) whatever the observations' time spread (None:
+    global shutter when they are within :data:`STILL_SPREAD`)."""
     r = options.ransac
     threshold_px, refine = float(r.threshold_px), options.refine.enabled
 
@@ -2070,7 +2115,8 @@ def _estimate(
     if pool.degenerate(threshold_px):
         return failed(DEGENERATE_GEOMETRY)
     # every observation at one time: the pose alone (generalized P3P samples, w = t = 0)
-    still = pool.tau_spread <= STILL_SPREAD
+    if still is None:
+        still = pool.tau_spread <= STILL_SPREAD
     free, size = (6, 3) if still else (12, 6)
     explained, used, anchored, subset, seeded = -1, False, False, None, None
     if initial_model is not None:
