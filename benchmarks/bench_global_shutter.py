@@ -29,6 +29,13 @@ Last (``--drive``), a robot driving past 3-5 markers of a simulated room (12-20 
 coplanar, 30 ms readout: :func:`rs_localizer.sim.marker_mapping.drive_detections`, the frames
 with 3 or more markers) on the true map: real motion that a few points determine loosely.
 
+``--rig``: a rig of three cameras (:func:`rs_localizer.sim.rig.make_rig`: front, left, right,
+5-20 cm levers) with equal stamps, turning at 0.3 rad/s and moving at 0.3 m/s, 40 points per
+camera (10 % outliers, 0.5 px noise), at each line delay: the rig estimator's median rotation
+error against the same rig frames with line delay 0 (the rig's generalized absolute pose), the
+rig frames each refuses and how many took the global-shutter model. Target: ratio <= 1.05 and
+no rig frame refused that line delay 0 poses, up to 2 us/line.
+
 Last (``--real``, when ``../shared/data/real_markers`` is there): TagSLAM's test_23, a
 RealSense D435 colour camera (640x480, rolling shutter, line delay unknown) watching a 3x3
 board of 0.049 m tags that barely moves, 372 frames of 4-9 tags, each tag where TagSLAM's
@@ -39,7 +46,7 @@ check of the rolling-shutter timing (``readout_suspect``, docs/video.md) at 30, 
 
     python -m benchmarks.bench_global_shutter [--frames 60] [--points 100]
         [--line-delays 0 1e-9 1e-7 1e-6 2e-6 3e-5] [--turn 10] [--planar-frames 60] [--drive]
-        [--real]
+        [--rig] [--real]
 """
 
 from __future__ import annotations
@@ -283,6 +290,60 @@ def _row(name: str, result: dict) -> tuple[float, int]:
     return ratio, lost
 
 
+def rig_frames(line_delay: float, n: int) -> list:
+    """``n`` rig frames (views, truth) of three cameras with equal stamps at ``line_delay``
+    (s per line), turning at 0.3 rad/s: the same points and motion at every line delay (one
+    seed per frame)."""
+    from rs_localizer.sim import rig as sim_rig
+
+    out = []
+    for k in range(n):
+        rng = np.random.default_rng(2000 + k)
+        rig = sim_rig.make_rig(3, rng)
+        cams = tuple(
+            replace(c, camera=replace(c.camera, line_delay=line_delay), stamp_offset=0.0)
+            for c in rig.cameras
+        )
+        truth = sim_rig.rig_motion(rng, 0.3, 0.3)
+        frame = sim_rig.rig_frame(sim_rig.Rig(cams), truth, [40] * 3, rng, 0.5, 0.1)
+        out.append((frame.views, truth))
+    return out
+
+
+def rig_rows(line_delays: list, n: int) -> bool:
+    """Prints the ``--rig`` table; True when its target is met."""
+    from rs_localizer.estimation.rig import estimate_rig_pose
+
+    def errors(line_delay):
+        errs, gs = [], 0
+        for views, truth in rig_frames(line_delay, n):
+            est = estimate_rig_pose(views)
+            errs.append(rotation_angle_deg(est.R, truth.R) if est.success else None)
+            gs += bool(est.success and est.global_shutter)
+        return errs, gs
+
+    base, _ = errors(0.0)
+    med0 = float(np.median([e for e in base if e is not None]))
+    print(f"\nrig of 3 cameras, {n} rig frames: {'line delay':>12s} {'rig (deg)':>10s} "
+          f"{'ratio':>6s} {'refused':>8s} {'lost':>5s} {'GS':>4s}")  # fmt: skip
+    ok = True
+    for d in line_delays:
+        errs, gs = errors(d)
+        med = float(np.median([e for e in errs if e is not None] or [np.nan]))
+        lost = sum(1 for a, b in zip(base, errs, strict=True) if a is not None and b is None)
+        print(
+            f"{'':30s} {d * 1e6:9g} us {med:10.4f} {med / med0:6.3f} {errs.count(None):8d} "
+            f"{lost:5d} {gs:4d}"
+        )
+        if d <= 2e-6:
+            ok &= med <= 1.05 * med0 and lost == 0
+    print(
+        "rig target up to 2 us/line (ratio <= 1.05 to line delay 0, no rig frame lost): "
+        f"{'met' if ok else 'MISSED'}"
+    )
+    return ok
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m benchmarks.bench_global_shutter",
@@ -297,6 +358,7 @@ def main(argv=None) -> int:
     p.add_argument("--turn", type=float, default=10.0, help="rad/s of the turning camera")
     p.add_argument("--planar-frames", type=int, default=60, help="frames per planar row (0: none)")
     p.add_argument("--drive", action="store_true", help="also the robot's drive past markers")
+    p.add_argument("--rig", action="store_true", help="also a rig of three such cameras")
     p.add_argument("--real", action="store_true", help="also the D435 recording (test_23)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.points < 7 or args.planar_frames < 0:
@@ -342,6 +404,8 @@ def main(argv=None) -> int:
         if args.drive:
             camera, frames = drive_frames()
             _row(f"drive, {camera.line_delay * 1e6:g} us", run(camera, frames))
+        if args.rig:
+            rig_rows(args.line_delays, min(args.frames, 30))
     if args.real:
         real_d435()
     print(
