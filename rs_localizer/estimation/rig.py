@@ -116,7 +116,7 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .finalize import STILL_FALLBACK, motion_chi2, motion_significant
+from .finalize import STILL_FALLBACK, ImageAlone, motion_chi2, motion_significant
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -1671,8 +1671,10 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
         if image is not None:
             inl = _errors_px(pool, *_one(est.model))[0] < threshold_px
             planar = bool(planarity(pool.X[inl], compiled=not pool.numpy) < PLANAR_TOLERANCE)
-            chi2 = gyro_image_chi2(gyro, image[0], image[1], planar, not pool.numpy)
-            image_inliers = image[2]
+            chi2 = gyro_image_chi2(
+                gyro, image.angular_velocity, image.covariance, planar, not pool.numpy
+            )
+            image_inliers = image.num_inliers
         est = replace(est, gyro_chi2=float(chi2))
     out = gyro_checked(
         est, chi2, image_inliers, len(pool.cam),
@@ -1959,20 +1961,18 @@ def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
     return None
 
 
-def _image_alone(
-    pool: _Pool, est: RigPoseEstimate, threshold_px: float
-) -> tuple[np.ndarray, np.ndarray, int] | None:
-    """What the image alone says near a gyro-aided rig estimate: the final refinement of its
-    model without the gyro (maximum likelihood), its angular velocity (3,) rad/s (rig frame),
-    that velocity's covariance (3, 3) from the data alone, and the inliers it explains; None
-    when it gives no finite model or covariance (as a single camera's,
-    :func:`~rs_localizer.estimation.finalize.image_alone`)."""
+def _image_alone(pool: _Pool, est: RigPoseEstimate, threshold_px: float) -> ImageAlone | None:
+    """What the image alone says near a gyro-aided rig estimate, as a single camera's
+    :func:`~rs_localizer.estimation.finalize.image_alone`: the final refinement of its model
+    without the gyro (maximum likelihood), its angular velocity (rad/s, rig frame) with that
+    velocity's covariance from the data alone, and the inliers it explains; None when it gives
+    no finite model or covariance."""
     model = _refine(pool, None, est.model, threshold_px)
     cov, _ = _covariance(pool, model, threshold_px)
     if cov is None or not all(np.isfinite(a).all() for a in model):
         return None
     n = int(np.count_nonzero(_errors_px(pool, *_one(model))[0] < threshold_px))
-    return -np.asarray(model[2], dtype=float), cov[6:9, 6:9], n
+    return ImageAlone(-np.asarray(model[2], dtype=float), cov[6:9, 6:9], n)
 
 
 @functools.lru_cache(maxsize=16)
