@@ -1143,6 +1143,14 @@ def _refine_settings(rolling: bool, max_iterations: int, covariance: bool, cutof
     )  # fmt: skip
 
 
+def _image_variance(pool: _Pool, inside: np.ndarray, threshold_px: float, free: int) -> float:
+    """The per-axis image variance (px^2) of a model's errors ``inside`` (px, those within the
+    threshold), ``2 n - free`` degrees of freedom, corrected for the threshold's truncation
+    (:func:`~.refine.untruncated_variance`; ``pool.numpy``: in Python)."""
+    variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
+    return variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), threshold_px)
+
+
 def _refine(
     pool: _Pool,
     inl: np.ndarray,
@@ -1168,9 +1176,7 @@ def _refine(
     noise, motion = None, None
     if prior is not None and free == 12:
         e = _errors_px(pool, *_one(model))[0]
-        inside = e[e < k]
-        variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
-        sp2 = variance(float(np.sum(inside**2)) / max(2 * len(inside) - 12, 1), k)
+        sp2 = _image_variance(pool, e[e < k], k, 12)
         noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
     if pool.numpy:
         return _refine_numpy(pool, model, k, cut, free, int(max_iterations), noise, motion)
@@ -1209,18 +1215,18 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
 
-    best = wide if msac(wide) < msac(out) else out
+    c_out, c_wide = msac(out), msac(wide)
+    best, c_best = (wide, c_wide) if c_wide < c_out else (out, c_out)
 
     def inliers_fit(m):
-        return _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
+        fit = _refine(pool, None, m, threshold_px, free=free, cutoff_px=threshold_px)
+        return fit, msac(fit)
 
-    tight = min((inliers_fit(model), inliers_fit(best)), key=msac)
+    tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
     e = _errors_px(pool, *_one(best))[0]
-    inside = e[e < threshold_px]
-    s2 = float(np.sum(inside**2)) / max(2 * len(inside) - free, 1)
-    variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
-    margin = INLIER_FIT_SIGNIFICANCE[free] * variance(s2, float(threshold_px))
-    return tight if msac(tight) < msac(best) - margin else best
+    k = float(threshold_px)
+    margin = INLIER_FIT_SIGNIFICANCE[free] * _image_variance(pool, e[e < k], k, free)
+    return tight if c_tight < c_best - margin else best
 
 
 #: fits of the NumPy refinement, each on the points within the cutoff of the last model (the
@@ -1285,10 +1291,8 @@ def _information_numpy(pool: _Pool, model, k: float, cut: float, free: int):
     J[:, free:] = 0.0
     ei = e[idx]
     WJ = np.repeat(np.where(ei <= k, 1.0, k / np.maximum(ei, k)), 2)[:, None] * J
-    inside = ei[ei <= k]
-    s2 = float(np.sum(inside**2)) / max(2 * len(inside) - free, 1)
     D = 0.5 * np.repeat(pool.tau[idx], 2)[:, None] * J[:, 6:12]
-    return untruncated_variance.py_func(s2, k), J.T @ WJ, WJ.T @ D
+    return _image_variance(pool, ei[ei <= k], k, free), J.T @ WJ, WJ.T @ D
 
 
 def _covariance(
@@ -1703,12 +1707,11 @@ def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> R
     gs = _estimate(pool, *settings, still=True)
     if not gs.success:
         return est
-    threshold_px = float(options.ransac.threshold_px)
     zero = np.zeros(3)
-    model = _refine(pool, None, (gs.R, gs.C, zero, zero), threshold_px)
-    cov, _ = _covariance(pool, model, threshold_px)
-    if cov is None or not all(np.isfinite(a).all() for a in model):
+    fit = _rolling_shutter_fit(pool, (gs.R, gs.C, zero, zero), options.ransac.threshold_px)
+    if fit is None:
         return est
+    model, cov = fit
     chi2 = motion_chi2(cov, model[2], model[3], compiled=not pool.numpy)
     if motion_significant(chi2, gs.num_inliers):
         return est
@@ -1967,12 +1970,27 @@ def _image_alone(pool: _Pool, est: RigPoseEstimate, threshold_px: float) -> Imag
     without the gyro (maximum likelihood), its angular velocity (rad/s, rig frame) with that
     velocity's covariance from the data alone, and the inliers it explains; None when it gives
     no finite model or covariance."""
-    model = _refine(pool, None, est.model, threshold_px)
-    cov, _ = _covariance(pool, model, threshold_px)
-    if cov is None or not all(np.isfinite(a).all() for a in model):
+    fit = _rolling_shutter_fit(pool, est.model, threshold_px)
+    if fit is None:
         return None
+    model, cov = fit
     n = int(np.count_nonzero(_errors_px(pool, *_one(model))[0] < threshold_px))
     return ImageAlone(-np.asarray(model[2], dtype=float), cov[6:9, 6:9], n)
+
+
+def _rolling_shutter_fit(
+    pool: _Pool, model, threshold_px: float
+) -> tuple[tuple, np.ndarray] | None:
+    """The final refinement of ``model`` on the rolling-shutter model by maximum likelihood
+    (:func:`_refine`, no gyro) and its (12, 12) covariance (:func:`_covariance`): what the
+    points alone say of the velocities near ``model`` (the image-alone check of a gyro, the
+    evidence of motion of a rig frame posed on the global-shutter model). None when it gives
+    no finite model or covariance."""
+    fit = _refine(pool, None, model, threshold_px)
+    cov, _ = _covariance(pool, fit, threshold_px)
+    if cov is None or not all(np.isfinite(a).all() for a in fit):
+        return None
+    return fit, cov
 
 
 @functools.lru_cache(maxsize=16)

@@ -592,16 +592,18 @@ def test_two_cameras_that_contradict_each_other_are_refused_unless_the_predictio
         assert a.success and a.disagreeing == () and np.array_equal(a.R, b.R)
 
 
-def _global_shutter_frame(seed, counts, noise_px, outliers):
-    """A rig frame of two global-shutter cameras with equal stamps
-    (:func:`rs_localizer.sim.rig.make_rig` with ``line_delay`` 0): its views (a list, to
-    turn a mounting) and the truth."""
+def _global_shutter_frame(seed, counts, noise_px, outliers, line_delay=0.0, motion=()):
+    """A rig frame of ``len(counts)`` cameras with equal stamps
+    (:func:`rs_localizer.sim.rig.make_rig`) reading out at ``line_delay`` (s per line; 0:
+    global shutter), moving as :func:`~rs_localizer.sim.rig.rig_motion` with ``motion``: its
+    views (a list, to turn a mounting) and the truth."""
     rng = np.random.default_rng(seed)
-    rig = sim_rig.make_rig(2, rng)
+    rig = sim_rig.make_rig(len(counts), rng)
     cams = [
-        replace(c, camera=replace(c.camera, line_delay=0.0), stamp_offset=0.0) for c in rig.cameras
+        replace(c, camera=replace(c.camera, line_delay=line_delay), stamp_offset=0.0)
+        for c in rig.cameras
     ]
-    truth = sim_rig.rig_motion(rng)
+    truth = sim_rig.rig_motion(rng, *motion)
     rig_gs = sim_rig.Rig(tuple(cams))
     return list(
         sim_rig.rig_frame(rig_gs, truth, list(counts), rng, noise_px, outliers).views
@@ -783,15 +785,8 @@ def test_a_rig_of_near_global_shutter_cameras_is_posed_as_a_global_shutter_rig(l
     errs = {0.0: [], line_delay: []}
     for k in range(12):
         for ld in errs:
-            rng = np.random.default_rng(2000 + k)
-            rig = sim_rig.make_rig(3, rng)
-            cams = [
-                replace(c, camera=replace(c.camera, line_delay=ld), stamp_offset=0.0)
-                for c in rig.cameras
-            ]
-            truth = sim_rig.rig_motion(rng, 0.3, 0.3)
-            frame = sim_rig.rig_frame(sim_rig.Rig(tuple(cams)), truth, [40] * 3, rng, 0.5, 0.1)
-            est = estimate_rig_pose(frame.views)
+            views, truth = _global_shutter_frame(2000 + k, (40,) * 3, 0.5, 0.1, ld, (0.3, 0.3))
+            est = estimate_rig_pose(views)
             assert est.success, (ld, k, est.failure)
             errs[ld].append(rotation_angle_deg(est.R, truth.R))
             if ld > 0 and est.global_shutter:
