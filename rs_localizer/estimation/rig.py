@@ -96,7 +96,11 @@ its first rig frame compiles nothing.
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
 pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
-parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set.
+parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set. While RANSAC's best
+model explains no point of a camera that has some (one camera's P3P pose from three corners
+of a small tag is a degree or so off, pixels off in a camera looking elsewhere), each P3P
+model of a sample whose six points span several cameras is also corrected on those six points
+by the rig solver with the velocities held at zero, as a generalized P3P would pose it.
 """
 
 from __future__ import annotations
@@ -196,6 +200,10 @@ RIG_OPTIONS = EstimateOptions(ransac=RansacOptions(min_inliers=VOTE_MIN_POINTS))
 #: the rig solver's iterations per sample after the pre-rotation when
 #: ``EstimateOptions.ransac.solver_iterations`` is None (the single camera's choice per solver)
 RIG_SOLVER_ITERATIONS = 3
+
+#: the rig solver's iterations (velocities held at zero) that correct a global-shutter
+#: sample's P3P pose on its points in other cameras (:func:`_hypotheses_still`)
+STILL_SOLVER_ITERATIONS = 1
 
 #: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
@@ -985,16 +993,42 @@ def _hypotheses(
     return R, b.C[ok], b.w[ok], b.t[ok]
 
 
-def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
     (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``
-    (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). Returns arrays of H
-    models, or None."""
+    (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). ``missed``: (M,)
+    bool, cameras whose points the best model so far does not explain, or None: each P3P
+    model of a sample with points in one of them (and in the P3P's camera) is also corrected
+    on the sample's 6 points by the rig solver with the velocities held at zero
+    (:data:`STILL_SOLVER_ITERATIONS`; prior rows ``(w, t) = 0``). Returns arrays of H models,
+    or None."""
     p3p = (p3p or _p3p_on_rig)(pool, samples)
     if p3p is None:
         return None
     R, C, own = p3p
     z = np.zeros((len(own), 3))
+    if missed is None:
+        return R, C, z, z.copy()
+    spread = np.flatnonzero(missed[pool.cam[samples[own]]].any(axis=1))
+    if len(spread) == 0:
+        return R, C, z, z.copy()
+    # (one camera's P3P pose misses another camera's points by the lever arm times its
+    # rotation error: a small tag's three corners leave a pose a degree off, pixels off in
+    # a camera looking elsewhere; the rig solver with the velocities held at zero corrects
+    # it on the sample's six points, from every camera it spans, as a generalized P3P would)
+    k = len(spread)
+    S = samples[own[spread]]
+    Xp = np.einsum("hij,hnj->hni", R[spread], pool.X[S])
+    held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
+    b = _rig_solver(pool)(
+        pool.x[S], Xp, np.zeros(S.shape), pool.cam[S], pool.R_mount, pool.c_mount,
+        STILL_SOLVER_ITERATIONS, prior_rows=held,
+    )  # fmt: skip
+    if not b.valid.any():
+        return R, C, z, z.copy()
+    Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), R[spread][b.valid])
+    R, C = np.concatenate([R, Rg]), np.concatenate([C, b.C[b.valid]])
+    z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
 
 
@@ -2026,6 +2060,10 @@ class _RigSearch(RansacLoop):
         self._e = np.zeros(0)
         self._costed = ((None, None), (None, None))
         self.batches = _search_batches(r)
+        #: (M,) bool, the cameras of 3 or more points of which the best model explains none
+        #: (None: none such): the global-shutter samples with points in them are then also
+        #: corrected on them (:func:`_hypotheses_still`)
+        self.missed = None
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -2047,7 +2085,7 @@ class _RigSearch(RansacLoop):
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
-            return _hypotheses_still(pool, samples, p3p)
+            return _hypotheses_still(pool, samples, p3p, self.missed)
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(
             pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
@@ -2068,6 +2106,11 @@ class _RigSearch(RansacLoop):
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
+        if self.still:
+            n = np.bincount(self.pool.cam, minlength=len(self.pool.sizes))
+            hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
+            missed = (n >= 3) & (hit == 0)
+            self.missed = missed if missed.any() else None
         if self.subset is not None:
             inl = inl[self.subset]
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)

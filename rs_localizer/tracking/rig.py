@@ -1450,7 +1450,8 @@ class _RigViews:
         return Solve(self.rig._run(self.views))
 
     def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
-        n = self.rig.settings.tracking.tracked_max_iterations
+        tracking = self.rig.settings.tracking  # (set: the tracker path runs only with it)
+        n = None if tracking is None else tracking.tracked_max_iterations
         return Solve(self.rig._run(self.views, n, initial))
 
     def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:
