@@ -341,12 +341,14 @@ class RigInputs:
     ``counts``: per camera ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by
     the worker), ``<c>.skipped.<reason>`` (the node's reasons,
     :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
-    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.stamp_jumped_ahead``
+    ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.points_dropped`` (non-finite
+    rows of its clouds), ``<c>.camera_info_rejected[.<reason>]`` (camera_infos rejected, the
+    single-camera node's reasons), ``<c>.stamp_jumped_ahead``
     (frames that started the rig again) and ``<c>.messages_lost`` (lost by the middleware,
     never received). ``latencies`` (s, a camera frame's arrival to the pose of the rig frame
     it completed), ``stamp_ages`` (s, the rig frame's time to that pose, node clock),
     ``frame_times`` (camera -> s, the worker's time per camera frame: decoding, front end,
-    rig), ``bad_input`` (camera -> clouds or camera_infos not read), ``imu_rejected`` (reason
+    rig), ``bad_input`` (camera -> frames not read: a stamp or a cloud), ``imu_rejected`` (reason
     -> IMU messages rejected), ``absent`` (cameras without a frame though the rig has waited
     ``rig.stop_after`` since the first)."""
 
@@ -478,7 +480,8 @@ def _rig_camera_values(
     rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never join the
     others', ``RigLocalizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
     apparent clock offset from each other camera, ms); with the node's ``inputs`` also
-    ``messages_lost``, ``capped_clouds``, ``stamp_jumped_ahead``, the node's
+    ``messages_lost``, ``capped_clouds``, ``points_dropped``, ``camera_info_rejected`` and
+    ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, the node's
     ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
     worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
     returns the section, the camera's frames dropped from a full queue and its messages lost."""
@@ -496,9 +499,11 @@ def _rig_camera_values(
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
         values[f"{n}.messages_lost"] = lost
         values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
+        values[f"{n}.points_dropped"] = own.get("points_dropped", 0)
+        values[f"{n}.camera_info_rejected"] = own.get("camera_info_rejected", 0)
         values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
         for k, v in own.items():
-            if k.startswith(("skipped.", "failed.")):
+            if k.startswith(("skipped.", "failed.", "camera_info_rejected.")):
                 values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
     for k, v in c.items():
         values[f"{n}.{k}"] = v

@@ -201,7 +201,7 @@ class LocalizerCore(NodeCore):
         self._start_frames()
 
     def _wake_worker(self):
-        self.pipeline.history.wake()  # (a frame waiting for its camera_info)
+        self.pipeline.camera_input.wake()  # (a frame waiting for its camera_info)
 
     def _frame_inputs_destroyed(self):
         """After the frame inputs' end (the frames still queued dropped): the track is

@@ -4,9 +4,10 @@ frame, and what ``rs-localizer replay`` does with each frame of a bag.
 :class:`FramePipeline` takes a frame message (``sensor_msgs/PointCloud2`` correspondences or
 keypoints, ``sensor_msgs/Image`` or ``CompressedImage``; rclpy or rosbags messages, which have
 the same fields) and returns a :class:`FrameResult`: the checks (stamp, empty cloud), time
-resets, the camera model of the frame's stamp (:class:`.camera_info_history.CameraInfoHistory`,
-fed by :meth:`FramePipeline.add_camera_info`), the 2D-3D rows (cloud, landmark lookup or image
-front end), the cap (:func:`rs_localizer.estimation.points.cap_points`), then the camera's
+resets, then the camera's input (:class:`.camera_input.CameraInput`, the rig node's cameras'
+too): the camera model of the frame's stamp (fed by :meth:`FramePipeline.add_camera_info`),
+the image decoded, the 2D-3D rows (cloud, landmark lookup or image front end) without the
+non-finite ones and capped to ``max_points``; then the camera's
 video state, :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` (the library's video
 entry point: the gyro samples fed by :meth:`FramePipeline.add_imu`, the gyro measurement of the
 frame's readout when ``imu.enabled``, the online gyro bias, the check of the gyro against the
@@ -44,9 +45,9 @@ from ..tracking.sequence import (
     SequenceSettings,
 )
 from . import conversions as cv
-from .camera_info_history import CameraInfoHistory, calibration_key
+from .camera_input import CameraInput
 from .config import LocalizerConfig
-from .pointcloud import CloudError, read_correspondences, read_keypoints
+from .pointcloud import CloudError, read_keypoints
 
 __all__ = [
     "FRAME_KINDS",
@@ -342,10 +343,10 @@ class FramePipeline:
     ):
         self.log = log if isinstance(log, ThrottledLog) else ThrottledLog(log)
         self.stats = PipelineStats()
-        self.history = CameraInfoHistory()
+        #: the camera's camera_infos, the model of a frame's stamp, its rows, its image
+        self.camera_input = CameraInput(self.log, self.stats.add, stopped=stopped)
         # (the map-fit check: (refused, reason, correspondences) of the last frames with many)
         self._fit: deque[tuple[bool, str, int]] = deque(maxlen=MAP_FIT_WINDOW)
-        self._stopped = stopped
         self._config: LocalizerConfig | None = None
         # the camera's video state: tracker, fused twists pending, gyro, bias, gyro check
         # (frames on the NumPy implementation while the kernels compile in the background)
@@ -385,8 +386,9 @@ class FramePipeline:
             )
         )
         self.sequence.set_frontend(self.maps.frontend, config.frontend_kind)
-        for err in self.history.rebuild(config.camera_from_info):
-            self.log.error(f"camera_info unusable with the new parameters: {err}")
+        self.camera_input.configure(
+            config.camera_from_info, config.max_points, config.fallback, config.camera_info_wait
+        )
 
     @property
     def imu(self) -> ImuBuffer | None:
@@ -420,7 +422,7 @@ class FramePipeline:
     def camera_source(self) -> str:
         """Where the intrinsics come from: ``camera_info``, ``parameters`` (fallback) or
         ``missing``."""
-        if len(self.history):
+        if len(self.camera_input.history):
             return "camera_info"
         cfg = self._config
         return "parameters" if cfg is not None and cfg.fallback is not None else "missing"
@@ -429,35 +431,9 @@ class FramePipeline:
     def add_camera_info(self, msg: Any) -> CameraModel | None:
         """Validate a ``sensor_msgs/CameraInfo`` and add it to the history the frames pick
         their camera from by stamp. Returns its camera model, or None when it is rejected
-        (counted as ``camera_info_rejected.<reason>`` and logged; the previous cameras stay)."""
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-        except cv.StampError as e:
-            return self._reject_camera_info("bad_stamp", str(e))
-        key = calibration_key(msg)
-        cam = self.history.camera_with_key(key)
-        if cam is None:
-            try:
-                cam = self._config.camera_from_info(msg)
-            except cv.CameraInfoError as e:
-                return self._reject_camera_info(e.reason, str(e))
-            except ValueError as e:  # (RS timing of the parameters: checked in the config)
-                return self._reject_camera_info("bad_intrinsics", str(e))
-        if self.history.add(stamp, key, msg, cam):
-            self.log.info(
-                f"camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
-                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}"
-            )
-        return cam
-
-    def _reject_camera_info(self, reason: str, detail: str) -> None:
-        self.stats.add("camera_info_rejected")
-        self.stats.add(f"camera_info_rejected.{reason}")
-        self.log.warning(
-            f"camera_info.{reason}",
-            f"camera_info rejected ({reason}), the previous camera stays: {detail}",
-        )
-        return None
+        (counted as ``camera_info_rejected.<reason>`` and logged; the previous cameras stay):
+        :meth:`.camera_input.CameraInput.add_camera_info`."""
+        return self.camera_input.add_camera_info(msg)
 
     # ---------------------------------------------------------------- gyro
     def add_imu(self, msg: Any) -> str | None:
@@ -515,7 +491,7 @@ class FramePipeline:
         if kind != "image" and int(msg.width) * int(msg.height) == 0:
             raise _Drop("empty_cloud", "cloud has no points")
         self._check_time(stamp)
-        camera = self.history.camera_for(stamp, cfg.fallback, cfg.camera_info_wait, self._stopped)
+        camera = self.camera_input.camera_for(stamp)
         if camera is None:
             raise _Drop(
                 "no_camera_info",
@@ -543,8 +519,7 @@ class FramePipeline:
             uv, xyz = out.points2d, out.points3d
             t_decoded += out.frontend_seconds
         else:
-            uv, xyz, scores = self._extract(msg, kind, cfg)
-            uv, xyz, scores = self.sequence.valid_rows(uv, xyz, scores)
+            uv, xyz, scores = self._extract(msg, kind)
             t_decoded = time.perf_counter()
             frame = SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id)
             out = self.sequence.process(frame, ft)
@@ -624,18 +599,18 @@ class FramePipeline:
             return
         self.stats.add("time_resets")
         self.log.warning("time_reset", f"time reset: {why}")
-        self.history.forget_after(stamp)
+        self.camera_input.history.forget_after(stamp)
 
-    def _extract(self, msg, kind: str, cfg: LocalizerConfig):
-        """The rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)`` of a cloud.
+    def _extract(self, msg, kind: str):
+        """The rows ``(points2d (N, 2), points3d (N, 3), scores (N,) or None)`` of a cloud as
+        the estimator takes them (:meth:`.camera_input.CameraInput.rows`).
 
         Raises:
             _Drop, CloudError: a frame that gives no usable rows (with the reason).
         """
         if kind == "correspondences":
-            c = read_correspondences(msg)
-            return c.uv, c.xyz, c.scores
-        return self._from_keypoints(msg)
+            return self.camera_input.read_cloud(msg)
+        return self.camera_input.rows(*self._from_keypoints(msg))
 
     def _from_keypoints(self, msg):
         if self.maps.landmarks is None:
@@ -655,15 +630,15 @@ class FramePipeline:
     def _decode(self, msg, camera: CameraModel, stamp: int, cfg, res: FrameResult):
         """The image of ``sensor_msgs/Image``, or ``CompressedImage``, decoded and checked
         against the camera model's size and the front ends' smallest image by
-        :func:`~rs_localizer.ros.image_codec.decode_image` (the rig node's decoder too):
+        :meth:`.camera_input.CameraInput.decode` (the rig node's cameras' too):
         ``(array, encoding)``; a refused one is dropped under its reason (``bad_image``,
         ``image_size_mismatch``), never given to the detector libraries."""
-        from .image_codec import ImageRejected, decode_image
+        from .image_codec import ImageRejected
 
         if self.sequence.frontend is None:  # (the node subscribes images only with a front end)
             raise _Drop("no_frontend", "image received but frontend is none")
         try:
-            img, enc = decode_image(msg, camera)
+            img, enc = self.camera_input.decode(msg, camera)
         except ImageRejected as e:
             raise _Drop(e.reason, str(e)) from None
         res.image = (img, enc, stamp)

@@ -7,9 +7,15 @@ one pose per rig frame from all cameras, tracked, the rig's twist fused) and pub
 ``base_frame``, as one body.
 
 Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.cameras``:
-    <c>/correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame]
-    <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics; until one arrives
-                         the camera's frames wait (state ``waiting``, counted
+    <c>/correspondences  sensor_msgs/PointCloud2  u, v [px, distorted], x, y, z [m, map frame];
+                         rows with a NaN or inf dropped (``<c>.points_dropped``), then at most
+                         ``max_points`` rows (``<c>.capped_clouds``), as by the single-camera
+                         node
+    <c>/camera_info      sensor_msgs/CameraInfo   the camera's intrinsics, checked as by the
+                         single-camera node (a rejected one is counted
+                         ``<c>.camera_info_rejected.<reason>`` and logged, the camera's
+                         previous model stays; the first one accepted is logged); until one
+                         arrives the camera's frames wait (state ``waiting``, counted
                          ``<c>.skipped.no_camera_info``, a warning names the topic) and the
                          rig runs on the others
     <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
@@ -45,15 +51,18 @@ The subscription callbacks count each camera frame and queue it (:mod:`.frame_qu
 frame's frames taken together) and publishes what they complete, so the executor stays free
 for the cameras' next frames however slow a rig frame is. Per camera ``received = solved +
 failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in the queue or
-in an open rig frame). Each camera's frame uses the camera_info of its stamp
-(:mod:`.camera_info_history`). The parameters are read once, at start (changes at run time
-are refused, but for ``viz.*``, read when drawing). The managed node's rig mode is
-:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+in an open rig frame). Each camera's inputs are taken by a
+:class:`~rs_localizer.ros.camera_input.CameraInput`, as the single-camera node's: its
+camera_infos kept by stamp (a frame uses the camera_info of its stamp,
+:mod:`.camera_info_history`), its clouds' rows, its images decoded. The parameters are read
+once, at start (changes at run time are refused, but for ``viz.*``, read when drawing). The
+managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import threading
 import time
 from collections import Counter, deque
@@ -69,12 +78,11 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import Stamp, reference_stamp_ns
-from ..estimation.points import cap_points
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
-from .camera_info_history import CameraInfoHistory, calibration_key
+from .camera_input import CameraInput
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .core import NodeCore
 from .declare import declare_parameters
@@ -83,7 +91,6 @@ from .frame_queue import FrameQueue
 from .outputs import fused_messages, pose_messages
 from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, ThrottledLog
-from .pointcloud import read_correspondences
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, RigCameraView
 
@@ -203,11 +210,8 @@ class RigCore(NodeCore):
         )
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
-        self.models: dict[str, Any] = {c.name: None for c in self.config.cameras}  # (newest)
-        self._infos = {c.name: CameraInfoHistory() for c in self.config.cameras}
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
         self.queue_size = int(values["queue_size"])
-        self.max_points = int(values["max_points"])
         self._frames = FrameQueue(
             self._process,
             self._deliver,
@@ -220,6 +224,21 @@ class RigCore(NodeCore):
         self._rig_lock = threading.Lock()  # (the rig: the worker's, or a diagnostics read)
         self._acc = threading.Lock()  # (the node's own counts, self._inputs)
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
+        #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
+        self.inputs: dict[str, CameraInput] = {}
+        for c in self.config.cameras:
+            inp = CameraInput(
+                self._log, functools.partial(self._count_input, c.name), f"rig camera {c.name!r}: "
+            )
+            make_camera = functools.partial(
+                cv.camera_model_from_camera_info,
+                line_delay=c.line_delay,
+                readout_time=c.readout_time,
+                readout=c.direction,
+                reference_row=self.config.reference_row,
+            )
+            inp.configure(make_camera, int(values["max_points"]))
+            self.inputs[c.name] = inp
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         # (s, the worker's time per camera frame, per camera)
@@ -291,7 +310,7 @@ class RigCore(NodeCore):
                 self.create_subscription(
                     CameraInfo,
                     f"{c.name}/camera_info",
-                    lambda msg, c=c: self._on_info(c, msg),
+                    lambda msg, n=c.name: self.inputs[n].add_camera_info(msg),
                     qos_profile_sensor_data,
                 )
             )
@@ -391,32 +410,10 @@ class RigCore(NodeCore):
         )
 
     # ---------------------------------------------------------------- inputs
-    def _on_info(self, cam, msg) -> None:
-        """A camera_info: kept by its stamp in the camera's
-        :class:`~rs_localizer.ros.camera_info_history.CameraInfoHistory` (a frame uses the
-        newest stamped at or before it, as the single-camera node's; one camera model per
-        calibration)."""
-        hist = self._infos[cam.name]
-        try:
-            stamp = cv.checked_stamp_ns(msg.header.stamp)
-            key = calibration_key(msg)
-            model = hist.camera_with_key(key)
-            if model is None:
-                model = cv.camera_model_from_camera_info(
-                    msg, cam.line_delay, cam.readout_time, cam.direction, self.config.reference_row
-                )
-        except ValueError as e:
-            self.bad_input[cam.name] += 1
-            self._log.warning(
-                f"info.{cam.name}", f"rig camera {cam.name!r}: camera_info rejected: {e}"
-            )
-            return
-        hist.add(stamp, key, msg, model)
-        self.models[cam.name] = model
-
-    def _camera(self, name: str, stamp_ns: int):
-        """Camera ``name``'s model for a frame stamped ``stamp_ns`` (None: no camera_info yet)."""
-        return self._infos[name].camera_for(stamp_ns)
+    def _count_input(self, name: str, key: str, n: int = 1) -> None:
+        """Add ``n`` to camera ``name``'s count ``<name>.<key>`` (the node's own counts)."""
+        with self._acc:
+            self._inputs[f"{name}.{key}"] += n
 
     def _on_cloud(self, name: str, msg) -> None:
         self._enqueue(name, "cloud", msg)
@@ -457,15 +454,14 @@ class RigCore(NodeCore):
     def _ref_ns(self, item: _Queued) -> int:
         """A queued frame's reference time (ns) by its camera's newest model (its stamp
         without one), as the rig groups it (:func:`~rs_localizer.camera.reference_stamp_ns`)."""
-        camera = self.models[item.name]
+        camera = self.inputs[item.name].newest
         if camera is None:
             return item.stamp
         return reference_stamp_ns(item.stamp, camera, self.config.settings.stamp_row)
 
     def _queue_skipped(self, item, reason: str) -> None:
         """A frame the queue dropped (with the queue's lock held): counted for its camera."""
-        with self._acc:
-            self._inputs[f"{item.name}.skipped.{reason}"] += 1
+        self._count_input(item.name, f"skipped.{reason}")
 
     def _process(self, item) -> _Taken:
         """The worker: one camera frame to the rig; counted (handed on, or why not) together
@@ -476,7 +472,7 @@ class RigCore(NodeCore):
             outs, skip, failure = [], None, None
             try:
                 if isinstance(stamp, ValueError):
-                    skip = self._bad_stamp(name, kind, stamp)
+                    skip = self._not_read(name, kind, stamp)
                 else:
                     if kind == "cloud":
                         outs, skip = self._take_cloud(name, msg, stamp)
@@ -497,9 +493,9 @@ class RigCore(NodeCore):
                 self._frame_time[name].append(time.perf_counter() - tic)
         return _Taken(outs, None, [])
 
-    def _bad_stamp(self, name: str, kind: str, error: ValueError) -> str:
-        """A frame whose stamp is out of range: counted ``<c>.skipped.bad_input`` (returns the
-        reason) and logged; it never reaches the rig."""
+    def _not_read(self, name: str, kind: str, error: ValueError) -> str:
+        """A frame whose stamp is out of range or whose cloud cannot be read: counted
+        ``<c>.bad_input`` and logged; returns the reason it is skipped for, ``bad_input``."""
         self.bad_input[name] += 1
         if kind == "cloud":
             self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {error}")
@@ -546,35 +542,28 @@ class RigCore(NodeCore):
         return self._log
 
     def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
-        """A cloud of correspondences (its checked ``stamp``) to the rig. One that cannot be
-        read is counted ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
+        """A cloud of correspondences (its checked ``stamp``) to the rig, its rows as the
+        single-camera node takes them (:meth:`.camera_input.CameraInput.read_cloud`: the
+        non-finite ones dropped, counted ``<c>.points_dropped``; capped to ``max_points``,
+        counted ``<c>.capped_clouds``). One that cannot be read is counted
+        ``<c>.skipped.bad_input`` and goes to the rig as a frame skipped
         (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
         ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
         as one whose clock is off); one whose stamp is out of range is counted by the node
-        alone (:meth:`_bad_stamp`)."""
+        alone (:meth:`_not_read`)."""
+        inp = self.inputs[name]
         try:
-            c = read_correspondences(msg)
+            uv, xyz, _ = inp.read_cloud(msg)
         except ValueError as e:
-            self.bad_input[name] += 1
-            self._log.warning(f"cloud.{name}", f"rig camera {name!r}: frame not read: {e}")
-            return self.rig.drop(name, stamp, self._camera(name, stamp), "bad_input"), None
+            self._not_read(name, "cloud", e)
+            return self.rig.drop(name, stamp, inp.camera_for(stamp), "bad_input"), None
         self._warn_no_info(name, "correspondences")
-        uv, xyz = c.points2d, c.points
-        if len(uv) > self.max_points:  # (as the single-camera node: highest scores first)
-            with self._acc:
-                self._inputs[f"{name}.capped_clouds"] += 1
-            self._log.warning(
-                "capped",
-                f"rig camera {name!r}: cloud of {len(uv)} points capped to max_points "
-                f"{self.max_points}",
-            )
-            uv, xyz, _ = cap_points(uv, xyz, c.scores, self.max_points)
-        frame = RigCameraFrame(name, stamp, self._camera(name, stamp), uv, xyz,
+        frame = RigCameraFrame(name, stamp, inp.camera_for(stamp), uv, xyz,
                                msg.header.frame_id or name)  # fmt: skip
         return self.rig.add(frame), None
 
     def _warn_no_info(self, name: str, kind: str) -> None:
-        if self.models[name] is None:
+        if self.inputs[name].newest is None:
             self._log.warning(
                 f"no_info.{name}",
                 f"rig camera {name!r}: {kind} but no camera_info yet on "
@@ -599,17 +588,18 @@ class RigCore(NodeCore):
         self._enqueue(name, "image", msg)
 
     def _take_image(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
-        """An image: decoded and checked against the camera's camera_info by the single-camera
-        node's decoder (:func:`~rs_localizer.ros.image_codec.decode_image`: a message that does
+        """An image: decoded and checked against the camera model of its stamp as by the
+        single-camera node (:meth:`.camera_input.CameraInput.decode`: a message that does
         not decode or is smaller than the front ends take: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
         the camera's front end and the rig (:meth:`RigLocalizer.process_image`)."""
-        from .image_codec import ImageRejected, decode_image
+        from .image_codec import ImageRejected
 
-        camera = self._camera(name, stamp)
+        inp = self.inputs[name]
+        camera = inp.camera_for(stamp)
         self._warn_no_info(name, "images")
         try:
-            img, enc = decode_image(msg, camera)
+            img, enc = inp.decode(msg, camera)
         except ImageRejected as e:
             self._log.warning(
                 f"image.{name}", f"rig camera {name!r}: image dropped ({e.reason}): {e}"
@@ -684,7 +674,7 @@ class RigCore(NodeCore):
 
     def diagnostics_status(self) -> DiagnosticStatus:
         """The rig's status (:func:`.diagnostics.rig_diagnostics`)."""
-        waiting = {n for n, m in self.models.items() if m is None}
+        waiting = {n for n, i in self.inputs.items() if i.newest is None}
         first = self._first_frame
         waited = first is not None and time.monotonic() - first > self.config.settings.stop_after
         latencies, stamp_ages = self._timing_snapshot()
@@ -694,7 +684,7 @@ class RigCore(NodeCore):
                 frame_times = {n: list(d) for n, d in self._frame_time.items()}
                 for (n, _), k in self._lost.items():
                     counts[f"{n}.messages_lost"] += k
-            absent = [n for n in self.models if waited and counts[f"{n}.received"] == 0]
+            absent = [n for n in self.inputs if waited and counts[f"{n}.received"] == 0]
             inputs = RigInputs(counts, latencies, stamp_ages, frame_times, dict(self.bad_input),
                                dict(self.imu_rejected), absent)  # fmt: skip
             level, message, values = rig_diagnostics(self.rig, waiting, inputs)

@@ -43,6 +43,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
@@ -57,6 +58,7 @@ from ..correspondences import (
     video_frontend,
 )
 from ..estimation.options import EstimateOptions
+from ..estimation.points import cap_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
 from .fusion import FusedState
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
@@ -74,6 +76,7 @@ __all__ = [
     "finite_rows",
     "image_sample",
     "same_image",
+    "usable_rows",
 ]
 
 #: frames whose fused twist may wait at most (the oldest beyond are dropped)
@@ -119,6 +122,33 @@ def finite_rows(
         uv, xyz = uv[good], xyz[good]
         scores = None if scores is None else scores[good]
     return uv, xyz, scores, n_bad
+
+
+def usable_rows(
+    uv: np.ndarray,
+    xyz: np.ndarray,
+    scores: np.ndarray | None,
+    max_points: int | None,
+    count: Callable[[str, int], Any],
+    warn: Callable[[str, str], Any],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None as the
+    estimator takes them: without those holding a NaN or inf (:func:`finite_rows`; counted
+    ``count("points_dropped", n)``; before the cap, so that the cap keeps valid rows), then
+    at most ``max_points`` of them (None: no cap) spread over the image
+    (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
+    ``capped_points``, and ``warn("capped", text)``). A camera's video
+    (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.valid_rows`) and the node's
+    per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
+    uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
+    if n_bad:
+        count("points_dropped", n_bad)
+    if max_points is not None and len(uv) > max_points:
+        count("capped_clouds", 1)
+        count("capped_points", len(uv) - max_points)
+        warn("capped", f"cloud of {len(uv)} points capped to max_points {max_points}")
+        uv, xyz, scores = cap_points(uv, xyz, scores, max_points)
+    return uv, xyz, scores
 
 
 @dataclass(frozen=True)

@@ -79,7 +79,6 @@ from ..estimation.estimate import (
 )
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import COMPILED, default_implementation
-from ..estimation.points import cap_points
 from ..estimation.single_tag import coplanar_points
 from ..pose import RSModel
 from ..solvers.registry import solver_info
@@ -93,7 +92,7 @@ from .localizer import (
     CameraFrontend,
     FusedPose,
     VideoLocalizer,
-    finite_rows,
+    usable_rows,
 )
 from .tracker import RSTracker, TrackerOptions, carried_model, model_from_state
 
@@ -490,17 +489,8 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without
         those holding a NaN or inf (counted as ``points_dropped``; before the cap, so that the
         cap keeps valid rows), then capped to ``max_points`` (counted as ``capped_clouds``,
-        ``capped_points``; :func:`~rs_localizer.estimation.points.cap_points`)."""
-        uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
-        if n_bad:
-            self._count("points_dropped", n_bad)
-        cap = self.settings.max_points
-        if cap is not None and len(uv) > cap:
-            self._count("capped_clouds", 1)
-            self._count("capped_points", len(uv) - cap)
-            self.log.warning("capped", f"cloud of {len(uv)} points capped to max_points {cap}")
-            uv, xyz, scores = cap_points(uv, xyz, scores, cap)
-        return uv, xyz, scores
+        ``capped_points``; :func:`~rs_localizer.tracking.localizer.usable_rows`)."""
+        return usable_rows(uv, xyz, scores, self.settings.max_points, self._count, self.log.warning)
 
     def process_image(
         self,

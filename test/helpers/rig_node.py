@@ -96,7 +96,7 @@ class RigHarness:
 
         for c in cams:
             self.pub[c.name]["info"].publish(camera_info_msg(c.camera, c.name, T0))
-        assert self.wait(lambda: all(self.node.models[c.name] is not None for c in cams))
+        assert self.wait(lambda: all(self.node.inputs[c.name].newest is not None for c in cams))
 
     def send(self, name, kind, msg, taken=True):
         """Publish one frame; with ``taken``, wait until the node counted it."""

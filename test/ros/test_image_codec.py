@@ -293,6 +293,7 @@ def _camera_node_decode(msgs, maps, cfg, msg, cam):
 def _rig_node_decode(msg, cam):
     """The rig node's image step (``RigCore._take_image``) on ``msg`` with the camera's model
     ``cam``: what it hands to the rig (``process_image`` or ``drop``), in the same form."""
+    from rs_localizer.ros.camera_input import CameraInput
     from rs_localizer.ros.conversions import checked_stamp_ns
     from rs_localizer.ros.rig_node import RigCore
 
@@ -307,11 +308,13 @@ def _rig_node_decode(msg, cam):
             got.append(("drop", reason))
             return []
 
+    log = SimpleNamespace(warning=lambda key, text: logged.append(text))
+    camera_input = CameraInput(log, lambda key, n: None)
+    camera_input.history.add(0, (), None, cam)  # (the camera model of every stamp)
     core = SimpleNamespace(
         rig=Rig(),
-        bad_input={"c": 0},
-        _log=SimpleNamespace(warning=lambda key, text: logged.append(text)),
-        _camera=lambda name, stamp: cam,
+        _log=log,
+        inputs={"c": camera_input},
         _warn_no_info=lambda name, what: None,
         camera_viz={},
         _images={},

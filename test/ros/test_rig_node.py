@@ -444,8 +444,8 @@ def test_each_frame_uses_the_camera_info_of_its_stamp(ros_context):
             wrong.k[0] *= 1.3
             wrong.k[4] *= 1.3
             h.pub[c.name]["info"].publish(wrong)
-        assert h.wait(lambda: all(len(h.node._infos[c.name]) == 2 for c in cams))
-        assert h.node.models["front"].K[0, 0] == pytest.approx(cams[0].camera.K[0, 0] * 1.3)
+        assert h.wait(lambda: all(len(h.node.inputs[c.name].history) == 2 for c in cams))
+        assert h.node.inputs["front"].newest.K[0, 0] == pytest.approx(cams[0].camera.K[0, 0] * 1.3)
         h.send_clouds(frames)
         _, v = h.last_diag()
         n = int(v["rig_frames"]) - int(v["rig_frames_pending"])
@@ -600,25 +600,56 @@ def test_a_camera_whose_clock_is_off_is_named_with_its_apparent_offset():
     assert "rig frames failed (" in message and "contradicts_track" in message, message
 
 
+def _direct_node(ctx, cams, frames, logged=None, **params):
+    """The rig node without DDS (frames handed to its callbacks: all queued at once, window
+    20 ms: a camera's next frame, 33 ms on, within 2 x window) with each camera's true
+    camera_info; ``logged``: a list that takes the texts it logs."""
+    from rs_localizer.ros.conversions import camera_info_msg
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02}, **params)
+    node = RigLocalizerNode("rs_localizer", context=ctx, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    if logged is not None:
+        log = logged.append
+        node._log.logger = type("L", (), {"warning": log, "info": log, "error": log})()
+    for c in cams:
+        node.inputs[c.name].add_camera_info(camera_info_msg(c.camera, c.name, T0))
+    return node
+
+
+def _drained_values(node, cams) -> dict:
+    """Once the worker has taken every queued frame and the open rig frames are solved: the
+    diagnostics values, every camera's frames balanced."""
+    import time
+
+    for _ in range(3000):
+        if node._frames.counts().pending == 0:
+            break
+        time.sleep(0.01)
+    node._end_video()
+    v = {kv.key: kv.value for kv in node.diagnostics_status().values}
+    for c in cams:
+        n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
+                                                   "skipped", "pending")}  # fmt: skip
+        assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+    return v
+
+
 def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, monkeypatch):
     """The left camera's clouds 3..5 with stamps no ROS time holds (nanosec >= 1e9, one of them
     summing to the frame's true ns count; a negative sec): counted ``left.skipped.bad_input``
     (and ``left.bad_input``) by the node alone, never handed to the rig nor grouped with
     another camera's frame; every other frame's stamp is validated once, as it arrives; every
     camera balances. Frames handed to the node's callbacks directly (no DDS)."""
-    import time
-
     import rs_localizer.camera as camera_mod
     import rs_localizer.ros.conversions as conversions_mod
-    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.conversions import ns_to_stamp
     from rs_localizer.ros.pointcloud import correspondence_cloud
-    from rs_localizer.ros.rig_node import RigLocalizerNode
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
-    params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02})
-    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
-                            parameter_overrides=params)  # fmt: skip
+    node = _direct_node(ros_context, cams, frames)
     checks = []
     original = camera_mod.checked_stamp
 
@@ -638,9 +669,6 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
 
     node._frames._group = watched
     try:
-        for c in node.config.cameras:
-            cam = next(x for x in cams if x.name == c.name)
-            node._on_info(c, camera_info_msg(cam.camera, c.name, T0))
         for mod in (camera_mod, conversions_mod):
             monkeypatch.setattr(mod, "checked_stamp", counted)
         bad, good = 0, []
@@ -660,20 +688,11 @@ def test_a_bad_stamp_is_bad_input_checked_once_and_never_grouped(ros_context, mo
             else:
                 good.append(f.stamp_ns)
             node._on_cloud(f.name, cloud)
-        for _ in range(3000):
-            if node._frames.counts().pending == 0:
-                break
-            time.sleep(0.01)
-        node._end_video()
-        v = {kv.key: kv.value for kv in node.diagnostics_status().values}
+        v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "3", v
         assert int(v["left.received"]) == sum(f.name == "left" for f in frames), v
         assert not grouped_bad
         assert sorted(checks) == sorted(good)
-        for c in cams:
-            n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
-                                                       "skipped", "pending")}  # fmt: skip
-            assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
     finally:
         node.destroy_node()
 
@@ -685,22 +704,13 @@ def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
     when the node kept them from the rig: a camera missing as ``apart`` is taken for one whose
     clock is off); every camera balances, every rig frame is posed. Frames handed to the
     node's callbacks directly (no DDS)."""
-    import time
-
-    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.conversions import ns_to_stamp
     from rs_localizer.ros.pointcloud import correspondence_cloud
-    from rs_localizer.ros.rig_node import RigLocalizerNode
 
     cams = default_rig(3)
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
-    # (all handed on at once; window 20 ms: the camera's next frame, 33 ms on, within 2 x window)
-    params = rig_parameters(cams, queue_size=len(frames), **{"rig.window": 0.02})
-    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
-                            parameter_overrides=params)  # fmt: skip
+    node = _direct_node(ros_context, cams, frames)
     try:
-        for c in node.config.cameras:
-            cam = next(x for x in cams if x.name == c.name)
-            node._on_info(c, camera_info_msg(cam.camera, c.name, T0))
         bad = 0
         for f in frames:
             cloud = correspondence_cloud(
@@ -710,19 +720,63 @@ def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
                 cloud.fields = [x for x in cloud.fields if x.name != "x"]
                 bad += 1
             node._on_cloud(f.name, cloud)
-        for _ in range(3000):
-            if node._frames.counts().pending == 0:
-                break
-            time.sleep(0.01)
-        node._end_video()
-        v = {kv.key: kv.value for kv in node.diagnostics_status().values}
+        v = _drained_values(node, cams)
         assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(bad) == "4", v
         assert v["left.missed.skipped"] == str(bad) and "left.missed.apart" not in v, v
         assert v["left.frames_apart"] == "no", v
+        assert int(v["rig_frames_solved"]) == len(frames) // 3, v
+    finally:
+        node.destroy_node()
+
+
+def test_each_camera_s_input_is_the_single_camera_node_s(ros_context):
+    """Each camera's camera_infos and clouds are taken as by the single-camera node: a left
+    camera_info with fx 0 and one whose ROI leaves the image are rejected, counted
+    ``left.camera_info_rejected`` and ``.camera_info_rejected.<reason>`` (``bad_intrinsics``,
+    ``bad_roi``; not ``left.bad_input``) and logged with their reason, the previous camera
+    model staying; each camera's first camera_info is logged; the 30 NaN rows added to each
+    left cloud (102-120 finite rows) are dropped before the cap (``left.points_dropped``), so
+    no cloud is capped to ``max_points`` 130; every rig frame is posed. Frames handed to the
+    node's callbacks directly (no DDS)."""
+    from rs_localizer.ros.conversions import camera_info_msg, ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=22)
+    left_rows = [len(f.uv) for f in frames if f.name == "left"]
+    assert max(left_rows) <= 130 < min(left_rows) + 30  # (capped with the NaN rows counted)
+    logged = []
+    node = _direct_node(ros_context, cams, frames, logged, max_points=130)
+    try:
+        left = node.inputs["left"]
+        good = left.newest
+        no_focal = camera_info_msg(cams[1].camera, "left", T0 + 10**9)
+        no_focal.k[0] = 0.0
+        off_image = camera_info_msg(cams[1].camera, "left", T0 + 2 * 10**9)
+        off_image.roi.x_offset, off_image.roi.width = off_image.width - 10, 100
+        assert cams[1].name == "left" and good is not None
+        assert left.add_camera_info(no_focal) is None and left.add_camera_info(off_image) is None
+        assert left.newest is good and len(left.history) == 1
+        for why in ("bad_intrinsics", "bad_roi"):
+            says = f"rig camera 'left': camera_info rejected ({why}), the previous camera stays: "
+            assert any(t.startswith(says) for t in logged), logged
         for c in cams:
-            n = {k: int(v[f"{c.name}.{k}"]) for k in ("received", "solved", "failed",
-                                                       "skipped", "pending")}  # fmt: skip
-            assert n["received"] == n["solved"] + n["failed"] + n["skipped"] + n["pending"], n
+            assert any(t.startswith(f"rig camera {c.name!r}: camera_info: ") for t in logged)
+        nan_uv = np.full((30, 2), np.nan)
+        for f in frames:
+            uv, xyz = f.uv, f.xyz
+            if f.name == "left":
+                uv, xyz = np.vstack([uv, nan_uv]), np.vstack([xyz, xyz[:30]])
+            cloud = correspondence_cloud(uv, xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
+            node._on_cloud(f.name, cloud)
+        v = _drained_values(node, cams)
+        assert v["left.camera_info_rejected"] == "2", v
+        assert v["left.camera_info_rejected.bad_intrinsics"] == "1", v
+        assert v["left.camera_info_rejected.bad_roi"] == "1", v
+        assert v["left.bad_input"] == v["front.camera_info_rejected"] == "0", v
+        dropped = str(30 * len(left_rows))
+        assert v["left.points_dropped"] == dropped and v["front.points_dropped"] == "0", v
+        assert v["left.capped_clouds"] == "0", v
         assert int(v["rig_frames_solved"]) == len(frames) // 3, v
     finally:
         node.destroy_node()

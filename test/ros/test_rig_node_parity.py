@@ -191,7 +191,7 @@ def test_a_camera_info_change_mid_stream_applies_from_its_own_stamp(ros_context)
             moved.k[2] += 20.0
             moved.p[2] += 20.0
             h.pub[c.name]["info"].publish(moved)
-        assert h.wait(lambda: all(len(h.node._infos[c.name]) == 2 for c in cams))
+        assert h.wait(lambda: all(len(h.node.inputs[c.name].history) == 2 for c in cams))
         h.send_clouds(frames)
         _, v = h.last_diag()
         n = _settled(v)

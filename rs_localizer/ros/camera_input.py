@@ -1,0 +1,176 @@
+"""One camera's inputs before the estimator, the same for the single-camera node and for each
+camera of the rig node: its camera_infos checked and kept by stamp, the camera model of a
+frame's stamp, the rows of a correspondences cloud as the estimator takes them (non-finite rows
+dropped, at most ``max_points``), an image decoded against the camera model.
+
+:class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
+(``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
+:class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode). Its counts go to its owner's
+``count(key, n)``: the single-camera node counts them as they are (``camera_info_rejected``,
+``camera_info_rejected.<reason>``, ``points_dropped``, ``capped_clouds``, ``capped_points``),
+the rig node per camera (``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to
+its owner's throttled log, each text after the camera's ``label`` (the rig's ``rig camera
+'front':``). No module-level ROS import: messages are duck-typed (rclpy or rosbags).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..tracking.localizer import usable_rows
+from . import conversions as cv
+from .camera_info_history import CameraInfoHistory, calibration_key
+from .pointcloud import read_correspondences
+
+__all__ = ["CameraInput"]
+
+
+class CameraInput:
+    """One camera's inputs (see the module docstring). :meth:`configure` before the first
+    camera_info.
+
+    Args:
+        log: the owner's log: ``info(text)``, ``error(text)`` and ``warning(key, text)``,
+            throttled per ``key`` (:class:`~rs_localizer.ros.pipeline.ThrottledLog`).
+        count: ``count(key, n)`` adds ``n`` to the owner's counter ``key``.
+        label: put before every text logged and every warning key (a rig's cameras share one
+            log: each camera's warnings are throttled apart).
+        stopped: ``stopped()`` true ends a frame's wait for its camera_info (shutdown).
+
+    Threads: camera_infos on one thread, frames on another (the history is thread-safe).
+    """
+
+    def __init__(
+        self,
+        log: Any,
+        count: Callable[[str, int], Any],
+        label: str = "",
+        stopped: Callable[[], bool] = lambda: False,
+    ):
+        self.log = log
+        self.count = count
+        self.label = label
+        self.history = CameraInfoHistory()
+        #: the camera model of the camera_info accepted last (None: none yet)
+        self.newest: CameraModel | None = None
+        self.max_points: int | None = None
+        self.fallback: CameraModel | None = None
+        self.wait = 0.0
+        self._stopped = stopped
+        self._make_camera: Callable[[Any], CameraModel] | None = None
+
+    def configure(
+        self,
+        make_camera: Callable[[Any], CameraModel],
+        max_points: int | None = None,
+        fallback: CameraModel | None = None,
+        wait: float = 0.0,
+    ) -> None:
+        """Use ``make_camera(msg)`` (a camera_info's model with the camera's rolling-shutter
+        timing; raises :class:`~rs_localizer.ros.conversions.CameraInfoError` or ValueError for
+        one it cannot use) from now on; the models of the camera_infos received so far are
+        rebuilt with it (one it rejects is dropped and logged as an error). ``max_points``: the
+        cap on a cloud's rows (None: none); ``fallback``: the model of a frame before any
+        camera_info (the parameters' intrinsics; None: none); ``wait``: s a frame waits for its
+        camera_info (:meth:`camera_for`). :attr:`newest` is the rebuilt model of the newest
+        camera_info kept."""
+        self._make_camera = make_camera
+        self.max_points, self.fallback, self.wait = max_points, fallback, float(wait)
+        for err in self.history.rebuild(make_camera):
+            self.log.error(f"{self.label}camera_info unusable with the new parameters: {err}")
+        kept = self.history.entries()
+        self.newest = max(kept, key=lambda e: e.seq).camera if kept else None
+
+    # ---------------------------------------------------------------- camera_info
+    def add_camera_info(self, msg: Any) -> CameraModel | None:
+        """Check a ``sensor_msgs/CameraInfo`` and add it to the history the frames pick their
+        camera model from by stamp (the first one logged). Returns its camera model, or None
+        when it is rejected: counted ``camera_info_rejected`` and
+        ``camera_info_rejected.<reason>`` (``bad_stamp``, or a
+        :data:`~rs_localizer.ros.conversions.CAMERA_INFO_REASONS` reason) and logged; the
+        previous camera models stay."""
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except cv.StampError as e:
+            return self._reject_camera_info("bad_stamp", str(e))
+        key = calibration_key(msg)
+        cam = self.history.camera_with_key(key)
+        if cam is None:
+            try:
+                cam = self._make_camera(msg)
+            except cv.CameraInfoError as e:
+                return self._reject_camera_info(e.reason, str(e))
+            except ValueError as e:  # (RS timing of the parameters: checked in the config)
+                return self._reject_camera_info("bad_intrinsics", str(e))
+        if self.history.add(stamp, key, msg, cam):
+            self.log.info(
+                f"{self.label}camera_info: {cam.width}x{cam.height}, fx {cam.K[0, 0]:.1f}, "
+                f"{cam.distortion_model if cam.has_distortion else 'no distortion'}"
+            )
+        self.newest = cam
+        return cam
+
+    def _reject_camera_info(self, reason: str, detail: str) -> None:
+        self.count("camera_info_rejected", 1)
+        self.count(f"camera_info_rejected.{reason}", 1)
+        self.log.warning(
+            f"{self.label}camera_info.{reason}",
+            f"{self.label}camera_info rejected ({reason}), the previous camera stays: {detail}",
+        )
+        return None
+
+    def camera_for(self, stamp_ns: int) -> CameraModel | None:
+        """The camera model of a frame stamped ``stamp_ns`` (ns): that of the newest
+        camera_info stamped at or before it, else the fallback; waits up to ``wait`` s for it
+        (:meth:`~rs_localizer.ros.camera_info_history.CameraInfoHistory.camera_for`). None: no
+        camera_info and no fallback."""
+        return self.history.camera_for(stamp_ns, self.fallback, self.wait, self._stopped)
+
+    def wake(self) -> None:
+        """Wake a frame waiting for its camera_info in :meth:`camera_for` (to see
+        ``stopped()``)."""
+        self.history.wake()
+
+    # ---------------------------------------------------------------- frames
+    def read_cloud(self, msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The rows of a correspondences cloud (``sensor_msgs/PointCloud2``: u, v, x, y, z
+        [, score]; :func:`~rs_localizer.ros.pointcloud.read_correspondences`) as the estimator
+        takes them (:meth:`rows`): ``(points2d (N, 2) px, points3d (N, 3) m, scores (N,) or
+        None)``.
+
+        Raises:
+            CloudError (a ValueError) with its ``reason``: a cloud that cannot be read.
+        """
+        c = read_correspondences(msg)
+        return self.rows(c.uv, c.xyz, c.scores)
+
+    def rows(
+        self, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """A frame's rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None without
+        the non-finite ones (counted ``points_dropped``), then capped to ``max_points``
+        (counted ``capped_clouds``, ``capped_points``; a warning):
+        :func:`~rs_localizer.tracking.localizer.usable_rows`."""
+        return usable_rows(uv, xyz, scores, self.max_points, self.count, self._warn)
+
+    def _warn(self, key: str, text: str) -> None:
+        self.log.warning(f"{self.label}{key}", f"{self.label}{text}")
+
+    def decode(self, msg: Any, camera: CameraModel | None) -> tuple[np.ndarray, str]:
+        """A ``sensor_msgs/Image`` or ``CompressedImage`` decoded and checked against the
+        frame's ``camera`` model (its size; None: not checked) and the front ends' smallest
+        image: ``(array (H, W) or (H, W, C) uint8, encoding)``
+        (:func:`~rs_localizer.ros.image_codec.decode_image`).
+
+        Raises:
+            ImageRejected (a ValueError) with its ``reason``: ``bad_image`` (does not decode,
+            an unsupported encoding, below ``MIN_IMAGE_SIDE`` px a side) or
+            ``image_size_mismatch`` (another size than the camera's).
+        """
+        from .image_codec import decode_image
+
+        return decode_image(msg, camera)
