@@ -33,15 +33,13 @@ import numpy as np
 from ..camera import CameraModel
 from ..solvers.registry import SOLVER_NAMES, sample_size, solver_info
 from .finalize import (
-    STILL_FALLBACK,
     ImageAlone,
     final_estimate,
     image_alone,
-    motion_chi2,
-    motion_significant,
     prior_at_rest,
     refine_final_model,
     rolling_shutter_check,
+    still_fallback,
     still_final,
 )
 from .frame import configure_frame, prepare_frame
@@ -384,14 +382,25 @@ def _estimate(
             image.append(alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
-        if (
-            compiled
-            and failure.reason in STILL_FALLBACK
-            and gyro is None
-            and solver_info(solver).rolling
-        ):
-            still = _still_frame(
-                fr, points2d, points3d, camera, opts, scores, initial_model, point_sigma, ignored
+        if compiled and gyro is None and solver_info(solver).rolling:
+            # (a frame that shows no motion, on the global-shutter model; its twist
+            # covariance from the rolling-shutter fit, with the motion prior where the final
+            # refinement uses it from the start: planar frames)
+            still = still_fallback(
+                failure.reason,
+                lambda: _estimate(
+                    points2d,
+                    points3d,
+                    camera,
+                    GS_SOLVER,
+                    opts,
+                    scores,
+                    initial_model,
+                    point_sigma=point_sigma,
+                    ignored=ignored,
+                ),
+                lambda gs: _rolling_shutter_motion(fr, gs.model),
+                fr.spr,
             )
             if still is not None:
                 return replace(still, solver=solver)
@@ -453,46 +462,10 @@ def _single_tag(
     return est
 
 
-def _still_frame(
-    fr,
-    points2d: np.ndarray,
-    points3d: np.ndarray,
-    camera: CameraModel,
-    opts: EstimateOptions,
-    scores: np.ndarray | None,
-    initial_model: InitialModel | None,
-    point_sigma: np.ndarray | None,
-    ignored: tuple[str, ...],
-) -> RSPoseEstimate | None:
-    """A frame whose rolling-shutter estimate failed (:data:`~.finalize.STILL_FALLBACK`), posed on
-    the global-shutter model when the frame shows no motion: the global-shutter estimate (P3P
-    samples, pose-only refinement) if it succeeds and the rolling-shutter model refined from it
-    (with the motion prior where the final refinement uses it from the start: planar frames)
-    finds velocities its noise explains (not :func:`~.finalize.motion_significant`: the
-    alternative is a refusal, not a rolling-shutter estimate). A readout too short to observe
-    motion (nanoseconds to microseconds per line) turns the noise's apparent motion into absurd
-    velocities in every minimal sample; such frames are posed as P3P poses them, with the twist
-    covariance of that refinement. ``None``: the frame stays refused (a frame whose points do
-    show motion is not posed without it).
-    """
-    est = _estimate(
-        points2d,
-        points3d,
-        camera,
-        GS_SOLVER,
-        opts,
-        scores,
-        initial_model,
-        point_sigma=point_sigma,
-        ignored=ignored,
-    )
-    if not est.success:
-        return None
-    check = rolling_shutter_check(fr, est.model, fr.prior if fr.planar else None)
-    if check is None:
-        return None
-    if motion_significant(motion_chi2(check.covariance, check.w, check.t), est.num_inliers):
-        return None
-    R, C = est.model.R, est.model.C
-    twist = output_covariance(check.covariance, R, C, np.zeros(3), fr.spr)[2]
-    return replace(est, twist_covariance=twist)
+def _rolling_shutter_motion(fr, model) -> tuple | None:
+    """(covariance (12, 12), w, t) of the rolling-shutter model refined from the
+    global-shutter ``model`` (:func:`~.finalize.rolling_shutter_check`, with the motion prior
+    on planar frames), or None: the frame's evidence of motion for
+    :func:`~.finalize.still_fallback`."""
+    check = rolling_shutter_check(fr, model, fr.prior if fr.planar else None)
+    return None if check is None else (check.covariance, check.w, check.t)

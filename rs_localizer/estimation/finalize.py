@@ -5,9 +5,9 @@ last checks and the outputs (:func:`final_estimate`)."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numba import njit
@@ -26,8 +26,7 @@ from .outputs import final_inliers
 from .plausibility import (
     CHEIRALITY,
     IMPLAUSIBLE_MOTION,
-    final_model_check,
-    final_model_check_numpy,
+    final_check,
     finite_model,
 )
 from .prior import MotionPrior, prior_conflict
@@ -74,15 +73,19 @@ __all__ = [
     "prior_at_rest",
     "refine_final_model",
     "rolling_shutter_check",
+    "still_fallback",
     "still_final",
 ]
 
 #: the failures after which a rolling-shutter solver's frame is tried on the global-shutter
-#: model (a single camera's in :mod:`.estimate`, a rig's in :mod:`.rig`): every
+#: model (:func:`still_fallback`: a single camera's and a rig's): every
 #: rolling-shutter model implausible (a readout of nanoseconds turns the noise into absurd
 #: velocities), or RANSAC's best model explaining too few points (12 corners of three tags at
 #: rest on which no rolling-shutter hypothesis found a consensus that P3P's does)
 STILL_FALLBACK = (IMPLAUSIBLE_MOTION, TOO_FEW_INLIERS)
+
+#: a single camera's or a rig's estimate (:func:`still_fallback`)
+Estimate = TypeVar("Estimate")
 
 #: The final refinement fits every point within this many inlier thresholds (Huber loss with
 #: scale = the threshold, truncated here and re-selected at each iteration), not only RANSAC's
@@ -384,6 +387,59 @@ def motion_significant(chi2: float, num_points: int) -> bool:
         return True
     dof = max(2 * int(num_points) - 12, 1)
     return float(chi2) / 6.0 >= _f_quantile(dof)
+
+
+def still_fallback(
+    failure: str | None,
+    solve: Callable[[], Estimate],
+    motion: Callable[[Estimate], tuple[np.ndarray, np.ndarray, np.ndarray] | None],
+    seconds_per_unit: float,
+    compiled: bool = True,
+) -> Estimate | None:
+    """A rolling-shutter estimate that failed with ``failure``, posed on the global-shutter
+    model when its points show no motion: a single camera's frame
+    (:func:`~.estimate.estimate_rs_pose`) and a rig's (:func:`~.rig.estimate_rig_pose`), each
+    with its own steps.
+
+    A readout too short to observe motion (nanoseconds to microseconds per line) turns the
+    noise's apparent motion into absurd velocities in every minimal sample; such frames are
+    posed as P3P poses them. The alternative is a refusal, not a rolling-shutter estimate, so
+    the test is that the motion is not significant (:func:`motion_significant`), not that it
+    is small.
+
+    Args:
+        failure: the rolling-shutter estimate's failure reason; only those of
+            :data:`STILL_FALLBACK` are tried.
+        solve: ``solve()`` the estimate on the global-shutter model (P3P samples, the
+            refinement of the pose alone): an estimate with ``success``, ``model`` (its
+            ``R`` (3, 3), ``C`` (3,) first) and ``num_inliers``.
+        motion: ``motion(estimate)`` the rolling-shutter model refined from that estimate's
+            pose: ``(covariance (12, 12) over (delta, C, w, t), w (3,), t (3,))``, velocities
+            per unit of the caller's time, or None (no finite fit or covariance).
+        seconds_per_unit: seconds per unit of that time (a camera's seconds per unit r, a
+            rig's 1).
+        compiled: False: the chi-square and the covariance in Python.
+    Returns:
+        the global-shutter estimate with the twist covariance of the rolling-shutter fit
+        (:func:`~.result.output_covariance`: what the points say of the velocities), or None:
+        the failure is not one of :data:`STILL_FALLBACK`, the global-shutter estimate fails,
+        the fit fails, or the velocities are significant (a frame that does show motion is not
+        posed without it).
+    """
+    if failure not in STILL_FALLBACK:
+        return None
+    est = solve()
+    if not est.success:
+        return None
+    fit = motion(est)
+    if fit is None:
+        return None
+    cov, w, t = fit
+    if motion_significant(motion_chi2(cov, w, t, compiled), est.num_inliers):
+        return None
+    R, C = est.model[:2]
+    twist = output_covariance(cov, R, C, np.zeros(3), seconds_per_unit, compiled)[2]
+    return replace(est, twist_covariance=twist)
 
 
 #: a frame whose velocities are loosely determined (planar, refined with the motion prior from
@@ -698,7 +754,7 @@ def final_estimate(
 ) -> RSPoseEstimate:
     """The successful :class:`RSPoseEstimate` of ``final``, after the last word on it:
     plausible motion and every inlier in front of the camera at its capture time
-    (:func:`~.plausibility.final_model_check` on the depths at capture, one compiled call),
+    (:func:`~.plausibility.final_check` on the depths at capture, one compiled call),
     and, with ``consistent_fit``, a consistent fit (else ``inconsistent_fit``):
 
     - inliers that are one plane of a non-planar frame must not have more than
@@ -735,8 +791,9 @@ def final_estimate(
         (np.inf, np.inf) if bounds is None else (float(bounds[0]) ** 2, float(bounds[1]) ** 2)
     )
     # (R, C, w, t are float64 and contiguous here: the refinement's result or np.array copies)
-    check = final_model_check if compiled else final_model_check_numpy
-    code, n_behind = check(R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max)
+    code, n_behind = final_check(
+        R, C, w, t, fr.X, fr.r - fr.r0, inl, w2max, v2max, compiled=compiled
+    )
     if code:
         raise EstimationFailed(IMPLAUSIBLE_MOTION if code == 1 else CHEIRALITY)
     rolling = solver_info(solver).rolling

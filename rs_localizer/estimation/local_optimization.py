@@ -18,7 +18,7 @@ from .plausibility import finite_model
 from .refine import RefineSettings, refine_rs_pose
 from .scoring import exact_errors2
 
-__all__ = ["Scored", "local_optimization", "seed_from_initial_model"]
+__all__ = ["Scored", "initial_model_seed", "local_optimization", "seed_from_initial_model"]
 
 #: (MSAC score, model (R, C, w, t), (N,) inlier mask)
 Scored = tuple[float, Model, np.ndarray]
@@ -106,6 +106,11 @@ def local_optimization(
     return best_score, model, best_inl
 
 
+def _finite(*arrays) -> bool:
+    """:func:`~.plausibility.finite_model` in NumPy."""
+    return all(np.isfinite(a).all() for a in arrays)
+
+
 def seed_from_initial_model(
     fr: Frame,
     solver: str,
@@ -116,7 +121,8 @@ def seed_from_initial_model(
     evaluate: Callable[[Model], tuple[float, np.ndarray]] | None = None,
     refine: Callable[..., Any] = refine_rs_pose,
 ) -> tuple[int, Scored | None, bool]:
-    """Test an :class:`InitialModel` on all points of ``fr``.
+    """Test an :class:`InitialModel` on all points of ``fr`` (:func:`initial_model_seed`
+    with the frame's steps, ``th2`` the squared inlier threshold, normalized units).
 
     The steps are arguments, as :func:`local_optimization`'s (the NumPy implementation,
     :mod:`.numpy_impl`, passes its own): ``errors2(model)`` the (N,) squared errors at every
@@ -126,44 +132,86 @@ def seed_from_initial_model(
     :func:`~.refine.refine_rs_pose`.
 
     Returns:
-        (explained, seed, anchor): ``explained`` counts the points within the model's gate;
-        ``anchor`` is True when at least ``min_explained`` are (the model then pre-rotates
-        RANSAC's samples); ``seed`` is (score, model, inlier mask) when it then has more than
-        a minimal sample's inliers within the threshold (after a robust Levenberg-Marquardt
-        pull onto the explained points if it had fewer than ``min_explained`` there), else
-        None.
+        (explained, seed, anchor) as :func:`initial_model_seed`; the pull onto the explained
+        points is :func:`_pull_in`.
     """
-    R, C, w, t = (np.ascontiguousarray(a, dtype=np.float64).copy() for a in initial.model)
-    if not solver_info(solver).rolling:
-        w, t = np.zeros(3), np.zeros(3)
     finite = finite_model if errors2 is None else _finite
+    if errors2 is None:
+
+        def errors2(m: Model) -> np.ndarray:
+            return exact_errors2(fr.x, fr.X, fr.r0e, fr.d, *m, SCORE_AT_MEASURED_TIME, fr.W)
+
+    given = evaluate
+    evaluate = evaluate or functools.partial(fr.evaluate, th2=th2)
+
+    def score(m: Model, e2: np.ndarray) -> tuple[float, np.ndarray]:
+        return fr.evaluate(m, th2, errors=e2) if given is None else given(m)
+
+    gate = float(initial.gate_px) / fr.f
+
+    def pull(seed: Scored, near: np.ndarray) -> Scored:
+        return _pull_in(fr, solver, seed, near, gate, th2, opts, evaluate, refine, finite)
+
+    model = tuple(np.ascontiguousarray(a, dtype=np.float64).copy() for a in initial.model)
+    rolling, size = solver_info(solver).rolling, sample_size(solver)
+    return initial_model_seed(
+        model, initial.min_explained, rolling, size, gate * gate, errors2, score, pull, finite
+    )
+
+
+def initial_model_seed(
+    model: tuple,
+    min_explained: int,
+    rolling: bool,
+    size: int,
+    bound: float,
+    errors: Callable[[Model], np.ndarray],
+    evaluate: Callable[[Model, np.ndarray], tuple[float, np.ndarray]],
+    pull: Callable[[Scored, np.ndarray], Scored],
+    finite: Callable[..., bool] = _finite,
+) -> tuple[int, Scored | None, bool]:
+    """Test an initial model (a tracker's prediction, :class:`InitialModel`) on every point:
+    the decision a single camera (:func:`seed_from_initial_model`) and a rig
+    (:func:`~.rig.estimate_rig_pose`) share, each with its own errors and steps.
+
+    Args:
+        model: the initial model's ``(R (3, 3), C, w, t (3,))``, the caller's own copy (the
+            seed keeps its arrays); ``min_explained``: its
+            :attr:`~.options.InitialModel.min_explained`; ``rolling``: False sets
+            ``w = t = 0`` (a global-shutter model); ``size``: the minimal sample's number of
+            points.
+        bound: the gate in the units of ``errors`` (a camera's squared normalized errors: the
+            squared gate over the focal length; a rig's errors in px: the gate).
+        errors: ``errors(model)`` (N,) each point's error at its measured capture time, in
+            the caller's units; ``evaluate(model, e)`` (MSAC score, (N,) inlier mask) of the
+            model with those errors ``e``; ``pull(seed, near)`` the better of the scored
+            ``seed`` and the model pulled onto the explained points ``near`` ((N,) bool);
+            ``finite(R, C, w, t)``: whether the parameters are finite (default in NumPy).
+    Returns:
+        (explained, seed, anchor): ``explained`` counts the points within the gate;
+        ``anchor`` is True when at least ``min_explained`` (and one) are (the model then
+        pre-rotates RANSAC's samples); ``seed`` is (score, model, inlier mask) when it has
+        more than ``size`` inliers, after ``pull`` where it had fewer than
+        ``max(min_explained, size + 1)``, else None.
+    """
+    R, C, w, t = model
+    if not rolling:
+        w, t = np.zeros(3), np.zeros(3)
     if not finite(R, C, w, t):
         return 0, None, False
     model = RSModel(R, C, w, t)
-    if errors2 is None:
-        e2 = exact_errors2(fr.x, fr.X, fr.r0e, fr.d, R, C, w, t, SCORE_AT_MEASURED_TIME, fr.W)
-    else:
-        e2 = errors2(model)
-    gate = float(initial.gate_px) / fr.f
-    near = e2 < gate * gate
+    e = errors(model)
+    near = e < bound
     explained = int(np.count_nonzero(near))
-    if explained < max(int(initial.min_explained), 1):
+    if explained < max(int(min_explained), 1):
         return explained, None, False
-    s = sample_size(solver)
-    score, inl = fr.evaluate(model, th2, errors=e2) if evaluate is None else evaluate(model)
+    score, inl = evaluate(model, e)
     seed = (score, model, inl)
-    if int(np.count_nonzero(seed[2])) < max(int(initial.min_explained), s + 1):
-        if evaluate is None:
-            evaluate = functools.partial(fr.evaluate, th2=th2)
-        seed = _pull_in(fr, solver, seed, near, gate, th2, opts, evaluate, refine, finite)
-    if int(np.count_nonzero(seed[2])) <= s:
+    if int(np.count_nonzero(seed[2])) < max(int(min_explained), size + 1):
+        seed = pull(seed, near)
+    if int(np.count_nonzero(seed[2])) <= size:
         return explained, None, True
     return explained, seed, True
-
-
-def _finite(*arrays) -> bool:
-    """:func:`~.plausibility.finite_model` in NumPy."""
-    return all(np.isfinite(a).all() for a in arrays)
 
 
 def _pull_in(

@@ -83,6 +83,7 @@ from .result import (
 )
 from .sampling import draw_samples_numpy
 from .scoring import exact_errors2_numpy
+from .sensitivity import physical_sensitivity
 
 __all__ = ["NumpyRansac", "NumpySamples", "final_model", "image_alone"]
 
@@ -505,33 +506,8 @@ def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens
         # (:func:`~.sensitivity.acceleration_sensitivity`: G = H^-1 J^T W D, D the w and t
         # columns times tau / 2, at the (posterior) H of the covariance)
         D = 0.5 * np.repeat(fr.tau[near], 2)[:, None] * J[:, 6:12]
-        G = physical_sensitivity(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr)
+        G = physical_sensitivity(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr, False)
     return R, C, w, t, cov, info, G
-
-
-def physical_sensitivity(
-    G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, s: float
-) -> np.ndarray:
-    """:func:`~.sensitivity.acceleration_sensitivity`'s outputs in NumPy: the model's
-    sensitivity ``G`` (12, 6) per (beta, b) turned into the outputs' (rotation, position,
-    angular and linear velocity) per (angular, linear acceleration) in the camera frame
-    (``beta = -s^2 alpha``, ``b = beta x C - s^2 a``; :func:`~.sensitivity.output_jacobian`)."""
-    Rt, SC = R.T, _skew(C)
-    J = np.zeros((12, 12))
-    J[0:3, 0:3] = -Rt
-    J[3:6, 0:3] = -Rt @ SC
-    J[3:6, 3:6] = -Rt
-    Jz = model_twist_jacobian.py_func(C, w, s)
-    J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
-    M = np.zeros((6, 6))
-    M[np.arange(6), np.arange(6)] = -s * s
-    M[3:6, 0:3] = s * s * SC
-    return J @ (G @ M)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` (3, 3) of ``v`` (3,)."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def image_alone(

@@ -24,11 +24,15 @@ checks here keep such models out:
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from ..geometry import exact_camera_points
+
+if TYPE_CHECKING:
+    from .refine import Mountings
 
 __all__ = [
     "CHEIRALITY",
@@ -38,6 +42,7 @@ __all__ = [
     "degenerate_points",
     "degenerate_points_numpy",
     "depths_at_capture",
+    "final_check",
     "final_model_check",
     "final_model_check_numpy",
     "finite_model",
@@ -438,6 +443,58 @@ def final_model_check_numpy(
         return 1, 0
     behind = ~(exact_camera_points(R, C, w, t, X, tau)[:, 2] > 0.0)
     return (2 if (behind & mask).any() else 0), int(np.count_nonzero(behind))
+
+
+def final_check(
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    tau: np.ndarray,
+    mask: np.ndarray,
+    w_max2: float = np.inf,
+    v_max2: float = np.inf,
+    *,
+    compiled: bool = True,
+    mountings: Mountings | None = None,
+) -> tuple[int, int]:
+    """:func:`final_model_check` of a camera's model, or of a rig's on each of its cameras:
+    each point's depth at its own capture time under the exact constant-velocity model (paper
+    eq. 4, Kukelova, Albl, Sugimoto, Pajdla, ACCV 2018) and the model's velocities.
+
+    Args:
+        R (3, 3), C, w, t (3,): the model (world -> camera, or world -> rig with
+            ``mountings``), velocities per unit of ``tau``; X (N, 3) world points (m); tau
+            (N,) their capture times minus the reference time; mask (N,) bool: the inliers
+            (one not in front of its camera is a cheirality failure); w_max2, v_max2: the
+            squared bounds on ``|w|`` and ``|w x C - t|`` per unit of ``tau``
+            (:func:`motion_bounds`; infinite: not checked).
+        compiled: False: :func:`final_model_check_numpy`.
+        mountings: a rig's :class:`~.refine.Mountings` (``cam`` (N,) each point's camera,
+            ``R_mount`` (M, 3, 3), ``c_mount`` (M, 3): ``x_cam = R_mount x_rig + c_mount``):
+            each camera's points are checked with its own model ``(R_c R, R_c C + c_c,
+            R_c w, R_c t)`` (``expm(tau [R_c w]x) R_c = R_c expm(tau [w]x)``; the bounds
+            then apply to each camera's model). ``None``: one camera at the identity.
+    Returns:
+        (0 plausible, 1 implausible motion, 2 cheirality: with ``mountings`` the largest of
+        the cameras' codes; the number of all points not in front of their camera at their
+        capture times).
+    """
+    check = final_model_check if compiled else final_model_check_numpy
+    if mountings is None:
+        return check(R, C, w, t, X, tau, mask, w_max2, v_max2)
+    # (every camera's products at once: the same values as camera by camera, to the bit)
+    Rm = mountings.R_mount
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + mountings.c_mount, Rm @ w, Rm @ t
+    code, behind = 0, 0
+    for c in range(len(Rm)):
+        on = mountings.cam == c
+        if not on.any():
+            continue
+        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[on], tau[on], mask[on], w_max2, v_max2)
+        code, behind = max(code, int(k)), behind + int(n)
+    return code, behind
 
 
 def check_final_model(

@@ -118,6 +118,10 @@ class Mountings(NamedTuple):
     c_mount: np.ndarray
     scale: np.ndarray
 
+    def take(self, idx: np.ndarray) -> Mountings:
+        """The observations ``idx`` (an index array or (N,) bool mask) on the same cameras."""
+        return Mountings(self.cam[idx], self.R_mount, self.c_mount, self.scale[idx])
+
 
 def _checked_mountings(mountings: Mountings, n: int) -> tuple:
     """The kernels' contiguous ``(cam, R_mount, c_mount, scale)`` of ``mountings`` for n

@@ -55,7 +55,7 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   :mod:`~rs_localizer.estimation.sensitivity`);
 - the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
   on one 3D line, plausible motion, and every inlier in front of its camera at its capture
-  time (:func:`~rs_localizer.estimation.plausibility.final_model_check` on each camera's own
+  time (:func:`~rs_localizer.estimation.plausibility.final_check` on each camera's own
   model).
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
@@ -114,13 +114,13 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
-from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix, skew
+from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import PoseWithCovariance, RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .finalize import STILL_FALLBACK, ImageAlone, motion_chi2, motion_significant
+from .finalize import ImageAlone, still_fallback
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -128,12 +128,12 @@ from .gyro import (
     gyro_prior,
 )
 from .implementation import COMPILED, IMPLEMENTATIONS, NUMPY, compiled_by_default
-from .numpy_impl import p3p_roots, physical_sensitivity, plausible_models
+from .local_optimization import initial_model_seed
+from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
-    final_model_check,
-    final_model_check_numpy,
+    final_check,
     image_degenerate,
     plausible_motion,
 )
@@ -161,7 +161,7 @@ from .result import (
     EstimationFailed,
     output_covariance,
 )
-from .sensitivity import output_jacobian
+from .sensitivity import physical_sensitivity
 
 __all__ = [
     "AGREE_SHARE",
@@ -1289,7 +1289,7 @@ def _refine_numpy(pool: _Pool, model, k: float, cut: float, free: int, max_itera
         if np.count_nonzero(sel) < 7 or (near is not None and np.array_equal(sel, near)):
             break
         near = sel
-        sub = Mountings(m.cam[near], m.R_mount, m.c_mount, m.scale[near])
+        sub = m.take(near)
         try:
             fit = least_squares_exact_model(
                 R, np.concatenate([np.zeros(3), C, w, t]), free, pool.X[near], pool.x[near],
@@ -1318,8 +1318,7 @@ def _information_numpy(pool: _Pool, model, k: float, cut: float, free: int):
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
     e = _errors_px(pool, *_one(model))[0]
     idx = np.flatnonzero(e < cut)
-    m = _mountings(pool)
-    sub = Mountings(m.cam[idx], m.R_mount, m.c_mount, m.scale[idx])
+    sub = _mountings(pool).take(idx)
     theta = np.concatenate([np.zeros(3), C, w, t])
     J = exact_jacobian(theta, R, pool.X[idx], pool.x[idx], pool.tau[idx], sub)
     J[:, free:] = 0.0
@@ -1404,8 +1403,7 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
     with the analytic Jacobians over the model and over each camera's mounting on the points
     within ``cut`` px (errors ``e`` px, Huber weights at ``k``)."""
     idx = np.flatnonzero(e < cut)
-    m = _mountings(pool)
-    sub = Mountings(m.cam[idx], m.R_mount, m.c_mount, m.scale[idx])
+    sub = _mountings(pool).take(idx)
     R0, C0, w0, t0 = model
     theta = np.concatenate([np.zeros(3), C0, w0, t0])
     X, x, tau = pool.X[idx], pool.x[idx], pool.tau[idx]
@@ -1423,106 +1421,30 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
     return out
 
 
-def _sensitivity_out(
-    G: np.ndarray, R: np.ndarray, C: np.ndarray, w: np.ndarray, numpy: bool = False
-) -> np.ndarray:
-    """(12, 6) the estimate's outputs (as ``covariance``) per (angular acceleration [rad/s^2],
-    linear acceleration [m/s^2], rig frame) from the model's sensitivity ``G`` per
-    ``(beta, b)``: ``beta = -alpha``, ``b = beta x C - a`` (:mod:`~.sensitivity` with one
-    second per unit of tau), then :func:`~.sensitivity.output_jacobian` (``numpy``: the same
-    in NumPy, :func:`~.numpy_impl.physical_sensitivity` with one second per unit of tau)."""
-    if numpy:
-        return physical_sensitivity(G, R, C, w, 1.0)
-    M = np.zeros((6, 6))
-    M[:3, :3] = -np.eye(3)
-    M[3:, 3:] = -np.eye(3)
-    M[3:, :3] = skew(np.asarray(C, dtype=float))
-    return output_jacobian(R, C, w, 1.0) @ (G @ M)
-
-
 def _one(model):
     return tuple(np.asarray(a)[None] for a in model)
 
 
-def _behind_and_cheirality(pool: _Pool, model, inl: np.ndarray) -> tuple[int, bool]:
-    """(valid rows not in front of their camera at their capture time, whether one of them is
-    an inlier): the depths of each camera's own model in seconds, ``(R_c R, R_c C + c_c, R_c w,
-    R_c t)`` (``expm(tau [R_c w]x) R_c = R_c expm(tau [w]x)``), by
-    :func:`~.plausibility.final_model_check`, written apart from the scoring kernel."""
-    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
-    behind, bad = 0, False
-    # (every camera's products at once: the same values as camera by camera, to the bit)
-    Rm = pool.R_mount
-    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
-    check = final_model_check_numpy if pool.numpy else final_model_check
-    for c, s in enumerate(pool.slices):
-        if s.stop == s.start:
-            continue
-        code, n = check(
-            RcR[c],
-            RcC[c],
-            Rcw[c],
-            Rct[c],
-            pool.X[s],
-            pool.tau[s],
-            np.ascontiguousarray(inl[s]),
-            np.inf,
-            np.inf,
-        )
-        behind += int(n)
-        bad |= code == 2
-    return behind, bad
+def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior):
+    """The rig's steps of :func:`~.local_optimization.initial_model_seed`: the errors in px
+    (:func:`_errors_px`), the MSAC score and inliers at ``threshold_px``, and the pull onto the
+    explained points: :func:`_refine` on every point (at most 10 iterations, Huber at the
+    threshold, truncated at ``gate`` px), kept where it lowers the MSAC score."""
+    k = float(threshold_px)
+    th2 = k**2
 
+    def errors(model) -> np.ndarray:
+        return _errors_px(pool, *_one(model))[0]
 
-def _seed(
-    pool: _Pool,
-    initial,
-    threshold_px: float,
-    still: bool,
-    size: int,
-    free: int,
-    prior: _GyroPrior | None = None,
-):
-    """Test an initial model on every point (as a single camera's,
-    :func:`~.local_optimization.seed_from_initial_model`).
+    def evaluate(model, e: np.ndarray) -> tuple[float, np.ndarray]:
+        return np.minimum(e * e, th2).sum(), e < k
 
-    Returns:
-        (explained, seed, anchored, subset): ``explained`` counts the points within its
-        ``gate_px``; ``anchored`` is True when at least ``min_explained`` (and one) are: its
-        rotation, then the best model's, pre-rotates RANSAC's samples instead of P3P; ``seed``
-        is the model, pulled onto the explained points when it has fewer than
-        ``max(min_explained, size + 1)`` inliers within the threshold (Levenberg-Marquardt on
-        the exact model, Huber at the threshold, truncated at the gate; the better of the two
-        by MSAC), when it then has more than ``size`` inliers, else None; ``subset``: its
-        inliers (pool indices) when they number at least ``max(min_explained, size + 1)``
-        with 3 in one camera (RANSAC then only verifies it, sampling among them), else None.
-    """
-    im = initial if isinstance(initial, InitialModel) else InitialModel(initial)
-    model = tuple(np.array(a, dtype=float) for a in im.model)
-    if still:
-        model = (model[0], model[1], np.zeros(3), np.zeros(3))
-    if not all(np.isfinite(a).all() for a in model):
-        return 0, None, False, None
-    gate = float(im.gate_px)
-    e = _errors_px(pool, *_one(model))[0]
-    explained = int(np.count_nonzero(e < gate))
-    need = max(int(im.min_explained), size + 1)
-    if explained < max(int(im.min_explained), 1):
-        return explained, None, False, None
-    th2 = float(threshold_px) ** 2
-    if np.count_nonzero(e < threshold_px) < need:
-        pulled = _refine(pool, None, model, threshold_px, 10, free, cutoff_px=gate, prior=prior)
-        ep = _errors_px(pool, *_one(pulled))[0]
-        if np.minimum(ep * ep, th2).sum() < np.minimum(e * e, th2).sum():
-            model, e = pulled, ep
-    inl = e < threshold_px
-    n_in = int(np.count_nonzero(inl))
-    if n_in <= size:
-        return explained, None, True, None
-    subset = None
-    if n_in >= need and np.bincount(pool.cam[inl]).max() >= 3 and n_in >= 6:
-        subset = np.flatnonzero(inl)
-    return explained, model, True, subset
+    def pull(seed, near: np.ndarray):
+        pulled = _refine(pool, None, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
+        scored = evaluate(pulled, errors(pulled))
+        return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
+
+    return errors, evaluate, pull
 
 
 def estimate_rig_pose(
@@ -1722,35 +1644,26 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
 
 
 def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> RigPoseEstimate:
-    """A rig frame whose rolling-shutter estimate failed (:data:`~.finalize.STILL_FALLBACK`:
-    ``implausible_motion``, ``too_few_inliers``), posed on the global-shutter model when it
-    shows no motion, as a single camera's (:func:`~.estimate.estimate_rs_pose`): the
+    """A rig frame whose rolling-shutter estimate failed, posed on the global-shutter model
+    when it shows no motion, as a single camera's (:func:`~.finalize.still_fallback`): the
     rig's generalized absolute pose (P3P samples, the refinement of the pose alone,
-    ``global_shutter``) if it succeeds and the rolling-shutter model refined from it finds
-    velocities its noise explains (not :func:`~.finalize.motion_significant` over the pose's
-    inliers), with that refinement's twist covariance. Cameras whose readout is too short for
-    one rig frame to observe motion (nanoseconds to a few microseconds per line) turn the
-    noise's apparent motion into absurd velocities in every minimal sample; they are posed as a
-    global-shutter rig is. Otherwise ``est`` as it is (a rig frame that does show motion is not
-    posed without it)."""
+    ``global_shutter``) if the rolling-shutter model refined from it
+    (:func:`_rolling_shutter_fit`) finds velocities its noise explains, with that
+    refinement's twist covariance. Otherwise ``est`` as it is, and always without the
+    refinement (``options.refine``) or on a rig frame already taken at one time."""
     options = settings[0]
-    if est.success or est.failure not in STILL_FALLBACK or not options.refine.enabled:
-        return est
-    if pool.tau_spread <= STILL_SPREAD:
-        return est
-    gs = _estimate(pool, *settings, still=True)
-    if not gs.success:
+    if est.success or not options.refine.enabled or pool.tau_spread <= STILL_SPREAD:
         return est
     zero = np.zeros(3)
-    fit = _rolling_shutter_fit(pool, (gs.R, gs.C, zero, zero), options.ransac.threshold_px)
-    if fit is None:
-        return est
-    model, cov = fit
-    chi2 = motion_chi2(cov, model[2], model[3], compiled=not pool.numpy)
-    if motion_significant(chi2, gs.num_inliers):
-        return est
-    twist = output_covariance(cov, gs.R, gs.C, zero, 1.0, not pool.numpy)[2]
-    return replace(gs, twist_covariance=twist)
+
+    def motion(gs: RigPoseEstimate) -> tuple | None:
+        fit = _rolling_shutter_fit(pool, (gs.R, gs.C, zero, zero), options.ransac.threshold_px)
+        return None if fit is None else (fit[1], fit[0][2], fit[0][3])
+
+    still = still_fallback(
+        est.failure, lambda: _estimate(pool, *settings, still=True), motion, 1.0, not pool.numpy
+    )
+    return est if still is None else still
 
 
 def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
@@ -2179,22 +2092,33 @@ def _estimate(
     if still is None:
         still = pool.tau_spread <= STILL_SPREAD
     free, size = (6, 3) if still else (12, 6)
-    explained, used, anchored, subset, seeded = -1, False, False, None, None
+    explained, anchored, subset, seeded = -1, False, None, None
     if initial_model is not None:
-        explained, seeded, anchored, subset = _seed(
-            pool, initial_model, threshold_px, still, size, free, prior
-        )
+        # (tested on every point, pulled onto the explained ones, as a single camera's)
+        im = initial_model
+        if not isinstance(im, InitialModel):
+            im = InitialModel(im)
+        # (copies in the prediction's own memory order, which the kernels and BLAS see)
+        gate, model = float(im.gate_px), tuple(np.array(a, dtype=float) for a in im.model)
+        explained, seeded, anchored = initial_model_seed(
+            model, im.min_explained, not still, size, gate,
+            *_seed_steps(pool, threshold_px, gate, free, prior),
+        )  # fmt: skip
+        n_in = 0 if seeded is None else int(np.count_nonzero(seeded[2]))
+        # (its inliers explain the frame, 3 of them in one camera: RANSAC only verifies it,
+        # sampling among them)
+        need = max(int(im.min_explained), size + 1, 6)
+        if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
+            subset = np.flatnonzero(seeded[2])
     search = _RigSearch(pool, options, still, generalized, prior, anchored, subset)
     if seeded is not None:
-        used = True
-        search.best, search.score = seeded, search.cost(seeded)
-        inl0 = _errors_px(pool, *_one(seeded))[0] < threshold_px
+        search.best, search.score = seeded[1], search.cost(seeded[1])
         # (verifying a seed that explains the frame: RANSAC samples among its inliers, whose
         # all-inlier probability is 1, as the single camera's verification)
         search.needed = (
             0.0
             if subset is not None
-            else required_iterations(float(np.mean(inl0)), size, r.confidence)
+            else required_iterations(float(np.mean(seeded[2])), size, r.confidence)
         )
     search.search(search, search.batches)
     try:
@@ -2227,8 +2151,11 @@ def _estimate(
         return failed(DEGENERATE_GEOMETRY, drawn)
     if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
-    behind, bad = _behind_and_cheirality(pool, (R, C, w, t), inl)
-    if bad:
+    # (every inlier in front of its camera at its capture time, each camera's own model)
+    code, behind = final_check(
+        R, C, w, t, pool.X, pool.tau, inl, compiled=not pool.numpy, mountings=_mountings(pool)
+    )
+    if code == 2:
         return failed(CHEIRALITY, drawn, behind)
     cov, G = (
         _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
@@ -2251,8 +2178,10 @@ def _estimate(
         num_behind=behind,
         model_covariance=cov,
         global_shutter=still,
-        acceleration_sensitivity=None if G is None else _sensitivity_out(G, R, C, w, pool.numpy),
+        acceleration_sensitivity=(
+            None if G is None else physical_sensitivity(G, R, C, w, 1.0, not pool.numpy)
+        ),
         initial_explained=explained,
-        initial_used=used,
+        initial_used=seeded is not None,
         gyro_used=prior is not None,
     )

@@ -28,7 +28,7 @@ from .._so3 import skew_matrix
 from ..pose import model_twist_jacobian
 from .refine import point_rows
 
-__all__ = ["acceleration_sensitivity", "output_jacobian"]
+__all__ = ["acceleration_sensitivity", "output_jacobian", "physical_sensitivity"]
 
 
 @njit(cache=True)
@@ -143,6 +143,49 @@ def output_jacobian(
     )
 
 
+def physical_sensitivity(
+    G: np.ndarray,
+    R: np.ndarray,
+    C: np.ndarray,
+    w: np.ndarray,
+    seconds_per_unit_r: float,
+    compiled: bool = True,
+) -> np.ndarray:
+    """(12, 6) the estimate's outputs (rows as ``RSPoseEstimate.covariance``: rotation,
+    position, angular and linear velocity; :func:`output_jacobian`) per (angular acceleration
+    [rad/s^2], linear acceleration [m/s^2]) in the camera's (or rig's) frame, from the model's
+    sensitivity ``G`` (12, 6) per ``(beta, b)`` at ``R`` (3, 3), ``C``, ``w`` (3,): ``beta =
+    -s^2 alpha``, ``b = beta x C - s^2 a`` with ``s = seconds_per_unit_r`` (a rig's model: 1,
+    its time in seconds). The conversion of :func:`acceleration_sensitivity`, of the NumPy
+    implementation's and of a rig's. ``compiled=False``: in NumPy."""
+    s = float(seconds_per_unit_r)
+    if compiled:
+        f64 = np.float64
+        return _physical(
+            np.ascontiguousarray(G, dtype=f64),
+            np.ascontiguousarray(R, dtype=f64),
+            np.ascontiguousarray(C, dtype=f64),
+            np.ascontiguousarray(w, dtype=f64),
+            s,
+        )
+    Rt, SC = R.T, _skew(C)
+    J = np.zeros((12, 12))
+    J[0:3, 0:3] = -Rt
+    J[3:6, 0:3] = -Rt @ SC
+    J[3:6, 3:6] = -Rt
+    Jz = model_twist_jacobian.py_func(C, w, s)
+    J[6:9], J[9:12] = Jz[3:6], Jz[0:3]
+    M = np.zeros((6, 6))
+    M[np.arange(6), np.arange(6)] = -s * s
+    M[3:6, 0:3] = s * s * SC
+    return J @ (G @ M)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (3, 3) of ``v`` (3,)."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def acceleration_sensitivity(
     R: np.ndarray,
     C: np.ndarray,
@@ -198,7 +241,7 @@ def acceleration_sensitivity(
     if Hinv is not None and acceleration_block is not None:
         B = np.asarray(acceleration_block, dtype=f64)
         if B.shape == (12, 6) and np.isfinite(B).all():
-            out = _physical(np.ascontiguousarray(Hinv @ B), R, C, w, s)
+            out = physical_sensitivity(Hinv @ B, R, C, w, s)
             return out if np.isfinite(out).all() else None
     n = len(X)
     m = n if (Hinv is None or max_points is None) else min(n, max(int(max_points), 1))
@@ -221,5 +264,5 @@ def acceleration_sensitivity(
             G = np.linalg.solve(H, B)
         except np.linalg.LinAlgError:
             return None
-    out = _physical(np.ascontiguousarray(G), R, C, w, s)
+    out = physical_sensitivity(G, R, C, w, s)
     return out if np.isfinite(out).all() else None
