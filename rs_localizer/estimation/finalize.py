@@ -438,8 +438,35 @@ def still_fallback(
     if motion_significant(motion_chi2(cov, w, t, compiled), est.num_inliers):
         return None
     R, C = est.model[:2]
-    twist = output_covariance(cov, R, C, np.zeros(3), seconds_per_unit, compiled)[2]
-    return replace(est, twist_covariance=twist)
+    return replace(est, **unobserved_twist(est.covariance, cov, R, C, seconds_per_unit, compiled))
+
+
+def unobserved_twist(
+    pose_covariance: np.ndarray | None,
+    fit_covariance: np.ndarray,
+    R: np.ndarray,
+    C: np.ndarray,
+    seconds_per_unit: float,
+    compiled: bool = True,
+) -> dict:
+    """The covariances of a global-shutter estimate (``w = t = 0``) of a frame whose
+    rolling-shutter fit found no motion: the twist covariance of that fit
+    (:func:`~.result.output_covariance` of ``fit_covariance`` (12, 12) over ``(delta, C, w,
+    t)`` at the pose ``R``, ``C``; ``seconds_per_unit`` s per unit of its time), in the
+    estimate's ``twist_covariance`` and in the velocity block of its (12, 12) ``covariance``
+    (``pose_covariance``, the global-shutter refinement's, whose velocity rows and columns are
+    zero: the velocities were held, not measured), so that both say what the frame says of
+    the velocities. Returns the fields to replace: ``twist_covariance``, and ``covariance``
+    unless ``pose_covariance`` is None."""
+    out, _, twist = output_covariance(
+        fit_covariance, R, C, np.zeros(3), seconds_per_unit, compiled
+    )  # fmt: skip
+    fields: dict = {"twist_covariance": twist}
+    if pose_covariance is not None:
+        cov = np.array(pose_covariance, dtype=float)
+        cov[6:, 6:] = out[6:, 6:]
+        fields["covariance"] = cov
+    return fields
 
 
 #: a frame whose velocities are loosely determined (planar, refined with the motion prior from

@@ -204,8 +204,9 @@ class RSPoseEstimate(PoseWithCovariance):
             :func:`~.finalize.still_final`, so the six velocity parameters would only fit its
             noise into the pose). A global-shutter estimate of a
             rolling-shutter solver reports zero velocities with the rolling-shutter fit's
-            ``twist_covariance`` (what the frame says of the motion: none, within it), or
-            ``None`` where the camera has no readout time (unobserved); or
+            ``twist_covariance`` and velocity block of ``covariance`` (what the frame says of
+            the motion: none, within it), or ``None`` and zero rows and columns where the
+            camera has no readout time (unobserved); or
             ``"predicted_motion"``: a frame of a few coplanar points (one marker's corners,
             :mod:`.single_tag`) posed on the rolling-shutter model with the velocities held at
             the tracker's prediction or the gyro's (not estimated from the frame: no

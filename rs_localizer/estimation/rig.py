@@ -404,10 +404,11 @@ class RigPoseEstimate(PoseWithCovariance):
         model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R = expm([delta]x)
             R_0``; rad, m, rad/s, m/s), or ``None``.
         global_shutter: the pose is the generalized absolute pose of the rig, ``w = t = 0``
-            (zero rows and columns in ``covariance`` and ``model_covariance``): every
-            observation was taken at one time (global-shutter cameras with equal stamps; the
-            velocities are not observable, ``twist_covariance`` None), or the cameras read out
-            too fast for the rig frame to show motion (``twist_covariance`` that of the
+            (zero rows and columns in ``model_covariance``): every observation was taken at
+            one time (global-shutter cameras with equal stamps; the velocities are not
+            observable: zero rows and columns in ``covariance`` too, ``twist_covariance``
+            None), or the cameras read out too fast for the rig frame to show motion
+            (``twist_covariance`` and the velocity block of ``covariance`` those of the
             rolling-shutter model refined from the pose: what the frame says of the
             velocities).
         acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as

@@ -50,9 +50,15 @@ def test_a_camera_at_rest_is_posed_as_p3p_poses_it(still_frames, line_delay):
         np.testing.assert_array_equal(e.pose.angular_velocity, 0.0)
         if line_delay == 0.0:
             assert e.twist_covariance is None  # (nothing observed: unknown)
+            np.testing.assert_array_equal(e.covariance[6:, :], 0.0)
         else:  # (what the frame says of its motion: none, within this)
             assert e.twist_covariance is not None
             assert np.all(np.diag(e.twist_covariance) > 0)
+            # (the (12, 12) covariance says the same of the velocities: ROS twist order is
+            # linear, angular; the (12, 12)'s is angular, linear)
+            v, w = e.twist_covariance[:3, :3], e.twist_covariance[3:, 3:]
+            np.testing.assert_allclose(e.covariance[6:9, 6:9], w, rtol=1e-9)
+            np.testing.assert_allclose(e.covariance[9:12, 9:12], v, rtol=1e-9)
 
 
 def test_a_turning_fast_readout_camera_keeps_the_rolling_shutter_model():

@@ -793,6 +793,10 @@ def test_a_rig_of_near_global_shutter_cameras_is_posed_as_a_global_shutter_rig(l
                 assert not est.w.any() and not est.t.any()
                 assert est.twist_covariance is not None
                 assert np.sqrt(np.diag(est.twist_covariance)[3:]).min() > 1.0  # (rad/s)
+                # (the (12, 12) covariance says the same of the velocities)
+                tw = est.twist_covariance
+                np.testing.assert_allclose(est.covariance[6:9, 6:9], tw[3:, 3:], rtol=1e-9)
+                np.testing.assert_allclose(est.covariance[9:12, 9:12], tw[:3, :3], rtol=1e-9)
     assert np.median(errs[line_delay]) <= 1.05 * np.median(errs[0.0])
 
 
