@@ -389,7 +389,8 @@ class RigCameraConfig:
 @dataclass(frozen=True)
 class RigConfig:
     """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
-    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`), ``base_frame`` (the rig's
+    ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`; its ``max_points`` also
+    caps each camera's clouds in the node), ``base_frame`` (the rig's
     frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``."""
 
     cameras: tuple
@@ -482,7 +483,8 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
     Raises:
         ConfigError: no cameras, a camera name that is not valid in a topic name or listed
             twice, a camera without a usable mounting (naming it), an unknown readout
-            direction, estimator or tracking options their classes reject.
+            direction, estimator or tracking options their classes reject, ``max_points``
+            below what a pose needs.
     """
     names = rig_camera_names(values["rig.cameras"])
     opts, tracking, imu = _estimation(values)
@@ -520,6 +522,7 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
             stamp_row=float(values["rs.stamp_row"]),
             time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
             imu=imu,
+            max_points=int(values["max_points"]),
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None

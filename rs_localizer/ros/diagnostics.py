@@ -476,11 +476,13 @@ def _rig_camera_values(
     accounting, as the single-camera node's ``frames_*``), ``state``
     (waiting, running, stopped, disagrees), ``camera_info`` (received or waiting),
     ``inliers``, ``inlier_share``, ``inlier_ratio`` (of the last rig frame it was in),
-    ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``outvoted`` (posed
-    rig frames whose consensus outvoted it), ``frames_apart`` (yes: its frames never join the
-    others', ``RigLocalizer.camera_apart``) and then ``clock_offset_ms.<other>`` (its
-    apparent clock offset from each other camera, ms); with the node's ``inputs`` also
-    ``messages_lost``, ``capped_clouds``, ``points_dropped``, ``camera_info_rejected`` and
+    ``missed`` and ``skipped.<reason>`` / ``missed.<reason>`` counts, ``capped_clouds``
+    (frames capped to ``max_points``: the node's clouds and the rig's images,
+    ``RigLocalizer.process_image``), ``points_dropped`` (their rows with a NaN or inf),
+    ``outvoted`` (posed rig frames whose consensus outvoted it), ``frames_apart`` (yes: its
+    frames never join the others', ``RigLocalizer.camera_apart``) and then
+    ``clock_offset_ms.<other>`` (its apparent clock offset from each other camera, ms); with
+    the node's ``inputs`` also ``messages_lost``, ``camera_info_rejected`` and
     ``camera_info_rejected.<reason>``, ``stamp_jumped_ahead``, the node's
     ``skipped.<reason>`` and ``failed.<reason>`` and ``camera_frame_ms_median`` (the
     worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
@@ -488,6 +490,7 @@ def _rig_camera_values(
     values: dict[str, Any] = {}
     c = rig.camera_counts(n)
     busy = lost = 0
+    own: dict[str, int] = {}
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
         early = sum(v for k, v in own.items() if k.startswith("skipped."))
@@ -498,8 +501,6 @@ def _rig_camera_values(
         c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
         values[f"{n}.messages_lost"] = lost
-        values[f"{n}.capped_clouds"] = own.get("capped_clouds", 0)
-        values[f"{n}.points_dropped"] = own.get("points_dropped", 0)
         values[f"{n}.camera_info_rejected"] = own.get("camera_info_rejected", 0)
         values[f"{n}.stamp_jumped_ahead"] = rig.counts.get(f"{n}.stamp_jumped_ahead", 0)
         for k, v in own.items():
@@ -507,6 +508,8 @@ def _rig_camera_values(
                 values[f"{n}.{k}"] = v + rig.counts.get(f"{n}.{k}", 0)
     for k, v in c.items():
         values[f"{n}.{k}"] = v
+    for k in ("capped_clouds", "points_dropped"):  # (the node's clouds, the rig's images)
+        values[f"{n}.{k}"] = own.get(k, 0) + rig.counts.get(f"{n}.{k}", 0)
     state = rig.camera_state(n)
     if n in waiting_info and state in ("running", "stopped"):
         state = "waiting"  # (its frames wait for the camera_info)

@@ -21,9 +21,10 @@ Subscriptions (relative names; remap as usual), per camera ``<c>`` of ``rig.came
     <c>/image_raw        sensor_msgs/Image (mono8/rgb8/bgr8/rgba8/bgra8), when ``frontend`` is
                          set: each camera's own front end (``frontend``, ``frontend_map``,
                          ``aruco.*`` / ``features.*``) searching with the rig's prediction
-                         mapped into the camera; decoded and checked as the single-camera
-                         node does (``bad_image``, ``image_size_mismatch``, counted
-                         ``<c>.skipped.<reason>``); ``image_transport: compressed``:
+                         mapped into the camera, its rows dropped and capped as a cloud's
+                         (``<c>.points_dropped``, ``<c>.capped_clouds``); decoded and checked
+                         as the single-camera node does (``bad_image``, ``image_size_mismatch``,
+                         counted ``<c>.skipped.<reason>``); ``image_transport: compressed``:
                          ``<c>/image_raw/compressed`` (sensor_msgs/CompressedImage)
     The frame inputs are best effort (history 100 clouds / 10 images), overridable as the
     single-camera node's (``qos_overrides./rig/front/image_raw.subscription.reliability``).
@@ -237,7 +238,7 @@ class RigCore(NodeCore):
                 readout=c.direction,
                 reference_row=self.config.reference_row,
             )
-            inp.configure(make_camera, int(values["max_points"]))
+            inp.configure(make_camera, self.config.settings.max_points)
             self.inputs[c.name] = inp
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
@@ -592,7 +593,9 @@ class RigCore(NodeCore):
         single-camera node (:meth:`.camera_input.CameraInput.decode`: a message that does
         not decode or is smaller than the front ends take: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
-        the camera's front end and the rig (:meth:`RigLocalizer.process_image`)."""
+        the camera's front end and the rig (:meth:`RigLocalizer.process_image`: the front
+        end's rows as a cloud's, the non-finite ones dropped and the rest capped to
+        ``max_points``, counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``)."""
         from .image_codec import ImageRejected
 
         inp = self.inputs[name]

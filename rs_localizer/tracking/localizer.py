@@ -138,8 +138,9 @@ def usable_rows(
     at most ``max_points`` of them (None: no cap) spread over the image
     (:func:`~rs_localizer.estimation.points.cap_points`; counted ``capped_clouds`` and
     ``capped_points``, and ``warn("capped", text)``). A camera's video
-    (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.valid_rows`) and the node's
-    per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
+    (:meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.valid_rows`), each camera of a
+    rig's images (:meth:`~rs_localizer.tracking.rig.RigLocalizer.process_image`) and the
+    node's per-camera input (:class:`~rs_localizer.ros.camera_input.CameraInput`) use it."""
     uv, xyz, scores, n_bad = finite_rows(uv, xyz, scores)
     if n_bad:
         count("points_dropped", n_bad)

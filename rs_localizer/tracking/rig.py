@@ -75,7 +75,9 @@ track agrees.
 
 Images: :meth:`RigLocalizer.process_image` runs each camera's own front end
 (:meth:`RigLocalizer.set_frontend`) with the rig's prediction mapped into that camera
-(:meth:`RigLocalizer.predict_camera`), then takes the frame as :meth:`RigLocalizer.add` does.
+(:meth:`RigLocalizer.predict_camera`), keeps the rows the estimator can use as a single camera
+does (non-finite rows dropped, then at most :attr:`RigSettings.max_points`; counted per
+camera), then takes the frame as :meth:`RigLocalizer.add` does.
 
 Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
 
@@ -127,7 +129,7 @@ from .localizer import (
     CameraFrontend,
     FusedPose,
     VideoLocalizer,
-    finite_rows,
+    usable_rows,
 )
 from .tracker import STATES, Solve, TrackerPath
 
@@ -328,6 +330,13 @@ class RigSettings:
             the IMU stamps to get the cameras' clock; ``wait``, ``buffer``, ``max_rate``,
             ``max_gap``, ``gyro_noise``, ``gyro_bias``, ``gyro_bias_sigma``,
             ``estimate_bias``, ``bias_random_walk`` as for one camera. None: no gyro.
+        max_points: the most rows a camera's frame of :meth:`RigLocalizer.process_image`
+            gives the rig estimator, as a camera's
+            :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_points`: the front
+            end's rows with a NaN or inf dropped first, then the rest capped (highest scores
+            first, else spread over the image;
+            :func:`~rs_localizer.tracking.localizer.usable_rows`); None: no cap. Frames given
+            to :meth:`RigLocalizer.add` are taken as they are.
     """
 
     mounts: dict
@@ -342,6 +351,7 @@ class RigSettings:
     disagree_frames: int = 3
     disagree_history: int = 5
     imu: GyroSettings | None = None
+    max_points: int | None = None
 
     def __post_init__(self):
         if not self.mounts:
@@ -554,7 +564,10 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
     ``.skipped``, ``.skipped.<reason>`` (:data:`SKIP_REASONS`), ``.missed.<reason>``
     (:data:`MISSED_REASONS`), ``.stopped`` (times it stopped), ``.disagreements`` (times it
     was found to disagree), ``.apart`` (times its frames were found apart from the others'),
-    ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`);
+    ``.outvoted`` (posed rig frames whose consensus outvoted it, :attr:`RigOutput.outvoted`),
+    ``.points_dropped`` (rows of its images' correspondences with a NaN or inf),
+    ``.capped_clouds`` and ``.capped_points`` (its images' frames capped to
+    :attr:`RigSettings.max_points`, the rows left out; :meth:`process_image`);
     ``rig_frames``, ``rig.solved``, ``rig.failed``, ``rig.failed.<reason>`` (the estimator's,
     :data:`RIG_REFUSALS`, or ``error``), ``rig.skipped``,
     ``rig.skipped.time_reset``, ``rig.time_resets`` (time resets,
@@ -984,8 +997,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
     ) -> list[RigOutput]:
         """Take one camera's image: its front end's correspondences
         (``frontend.process(image, camera, encoding, prediction)`` with the rig's
-        prediction for this camera, :meth:`predict_camera`, when the front end takes one), then
-        :meth:`add`; each camera's front end is told how its frame was solved
+        prediction for this camera, :meth:`predict_camera`, when the front end takes one), the
+        rows the estimator can use as a single camera's
+        (:func:`~rs_localizer.tracking.localizer.usable_rows`: those with a NaN or inf dropped,
+        counted ``<name>.points_dropped``; then at most :attr:`RigSettings.max_points`, highest
+        scores first, counted ``<name>.capped_clouds`` and ``<name>.capped_points``, with a
+        warning), then :meth:`add`; each camera's front end is told how its frame was solved
         (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
         the rig's estimate, a :class:`~rs_localizer.correspondences.FrameFeedback`: the rig
         frame's success, the camera's inliers and its model from the rig's pose and its
@@ -1037,9 +1054,26 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         found = r.found
         uv = np.asarray(found.points2d, float).reshape(-1, 2)
         xyz = np.asarray(found.points, float).reshape(-1, 3)
-        uv, xyz, _, _ = finite_rows(uv, xyz)
+        uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)
         return self._observed(self._add(RigCameraFrame(name, stamp, camera, uv, xyz, tag), ref))
+
+    def _usable_rows(
+        self, name: str, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Camera ``name``'s rows ``uv`` (N, 2) px, ``xyz`` (N, 3) m, ``scores`` (N,) or None
+        as the rig estimator takes them, as a single camera's
+        (:func:`~rs_localizer.tracking.localizer.usable_rows`): without those holding a NaN or
+        inf (counted ``<name>.points_dropped``), then at most :attr:`RigSettings.max_points`
+        (counted ``<name>.capped_clouds``, ``<name>.capped_points``; a warning)."""
+
+        def count(key: str, n: int) -> None:
+            self.counts[f"{name}.{key}"] += n
+
+        def warn(key: str, text: str) -> None:
+            self.log.warning(f"rig.{key}.{name}", f"rig camera {name!r}: {text}")
+
+        return usable_rows(uv, xyz, scores, self.settings.max_points, count, warn)
 
     def _observed(self, outs: list[RigOutput]) -> list[RigOutput]:
         """Tell each camera's front end how its frame in ``outs`` was solved (:meth:`process_image`)

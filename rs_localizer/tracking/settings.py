@@ -81,6 +81,7 @@ def rig_settings(
     stamp_row: float,
     time_reset_ns: int,
     imu: GyroSettings | None = None,
+    max_points: int | None = None,
 ) -> RigSettings:
     """A rig's settings with the single camera's estimator and tracker options: ``options``
     as they are (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
@@ -93,6 +94,8 @@ def rig_settings(
         window, stop_after (s), stamp_row (px), time_reset_ns: see :class:`RigSettings`.
         imu: a gyro on the rig (``R_cam_imu``: IMU -> rig), None: none; the rig solves a frame
             when its last camera arrives, so it never waits for samples (``wait`` set to 0).
+        max_points: the most rows a camera's image gives the rig estimator, as for one camera
+            (:attr:`RigSettings.max_points`); None: no cap.
 
     Raises:
         ValueError: from :class:`RigSettings` (e.g. no cameras) or
@@ -117,4 +120,5 @@ def rig_settings(
         options=options,
         tracking=to,
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
+        max_points=max_points,
     )

@@ -96,6 +96,16 @@ def test_errors_name_the_camera():
         rig_config(*_values({"rig.cameras": []}))
 
 
+def test_max_points_is_the_rigs_one_cap():
+    """The one ``max_points`` parameter sets the rig's cap on its cameras' image rows
+    (``RigSettings.max_points``), 5000 by default; below what a pose needs it is refused."""
+    one = {"rig.cameras": ["a"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0]}
+    assert rig_config(*_values(one)).settings.max_points == default_values()["max_points"]
+    assert rig_config(*_values({**one, "max_points": 77})).settings.max_points == 77
+    with pytest.raises(ConfigError, match="max_points 3 is below"):
+        rig_config(*_values({**one, "max_points": 3}))
+
+
 def test_a_mounting_covariance_in_ros_order_is_the_mountings():
     """rig.<camera>.mounting_covariance (x, y, z, rot x, rot y, rot z) becomes the mounting's
     covariance over (rotation, position); all zero (the default): none."""
@@ -174,5 +184,29 @@ def test_the_node_takes_a_mounting_covariance(ros_context):
         front, left = (c.mount for c in node.config.cameras)
         assert front.covariance is None
         assert np.allclose(np.diag(left.covariance), [1e-8] * 3 + [1e-6] * 3)
+    finally:
+        node.destroy_node()
+
+
+def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
+    """The node's ``max_points`` caps each camera's clouds (its ``CameraInput``) and the rows
+    its front end finds in an image (the rig's ``RigSettings.max_points``) alike."""
+    pytest.importorskip("rclpy")
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    params = {
+        "warmup": False,
+        "max_points": 37,
+        "rig.cameras": ["front", "left"],
+        "rig.front.mounting": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "rig.left.mounting": [0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 1.0],
+    }
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, parameter_overrides=overrides)
+    try:
+        assert node.rig.settings.max_points == 37
+        assert [node.inputs[n].max_points for n in ("front", "left")] == [37, 37]
     finally:
         node.destroy_node()

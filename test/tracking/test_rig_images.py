@@ -274,3 +274,76 @@ def test_a_reset_forgets_the_last_rig_frame_posed():
     send(nxt)
     assert seen[-1] == (nxt.name, None)
     assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is None
+
+
+def test_a_cameras_rows_are_capped_to_max_points_and_counted_as_one_cameras():
+    """``RigSettings.max_points`` 40, the front camera's front end returning its 102-120 rows
+    with 5 NaN rows added and a score per row: the NaN rows dropped first (counted
+    ``front.points_dropped``), then the 40 highest-scored rows kept, as a single camera keeps
+    them (:func:`usable_rows`): counted ``front.capped_clouds`` (every frame) and
+    ``front.capped_points``, a warning naming the camera; the left camera's 30 rows are left
+    as they are; the rig posed from at most 40 front rows a rig frame; the diagnostics show
+    the counts under the camera's keys."""
+    from dataclasses import replace
+
+    from rs_localizer.correspondences import Correspondences
+    from rs_localizer.ros.diagnostics import rig_diagnostics
+    from rs_localizer.tracking.localizer import usable_rows
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=6)
+    frames = [f if f.name == "front" else replace(f, uv=f.uv[:30], xyz=f.xyz[:30]) for f in frames]
+    front = [f for f in frames if f.name == "front"]
+    assert min(len(f.uv) for f in front) > 40
+    rng = np.random.default_rng(2)
+    current, observed = {}, {}
+
+    class Frontend:  # (the frame's own rows; the front camera's with NaN rows and scores)
+        def process(self, image, camera, encoding="bgr8", prediction=None):
+            f = current["frame"]
+            if f.name != "front":
+                return Correspondences(f.uv, f.xyz)
+            uv = np.vstack([f.uv, np.full((5, 2), np.nan)])
+            xyz = np.vstack([f.xyz, f.xyz[:5]])
+            scores = rng.permutation(len(uv)).astype(float)
+            current["given"] = (uv, xyz, scores)
+            return Correspondences(uv, xyz, scores=scores)
+
+        def observe(self, stamp_ns, points2d, feedback):
+            observed[stamp_ns] = points2d
+
+        def pop_warning(self):
+            return None
+
+    log = Log()
+    rig = RigLocalizer(RigSettings(mounts_of(cams), max_points=40), log=log)
+    for c in cams:
+        rig.set_frontend(c.name, Frontend(), "stub")
+    by = {c.name: c.camera for c in cams}
+    expected, outs = {}, []
+    for f in frames:
+        current["frame"] = f
+        img = rng.integers(0, 255, (48, 64), np.uint8)
+        outs += rig.process_image(f.name, f.stamp_ns, img, by[f.name], "mono8")
+        if f.name == "front":  # (what a single camera keeps of the same rows)
+            uv, _, _ = usable_rows(*current["given"], 40, lambda *a: None, lambda *a: None)
+            expected[f.stamp_ns] = uv
+    outs += rig.close()
+    c = rig.counts
+    assert c["front.points_dropped"] == 5 * len(front)
+    assert c["front.capped_clouds"] == len(front) == c["front.received"]
+    assert c["front.capped_points"] == sum(len(f.uv) - 40 for f in front)
+    assert c["left.capped_clouds"] == c["left.points_dropped"] == 0
+    assert outs and all(o.success for o in outs)
+    assert all(o.shares["front"].points <= 40 for o in outs if "front" in o.shares)
+    assert set(observed) >= set(expected)
+    for stamp, uv in expected.items():
+        assert np.array_equal(observed[stamp], uv) and len(uv) == 40
+    capped = [t for k, t in log.warnings if k == "rig.capped.front"]
+    assert capped and capped[0].startswith("rig camera 'front': cloud of ")
+    assert capped[0].endswith("points capped to max_points 40")
+    assert not any(k == "rig.capped.left" for k, _ in log.warnings)
+    v = rig_diagnostics(rig, set())[2]
+    assert v["front.capped_clouds"] == len(front) and v["left.capped_clouds"] == 0
+    assert v["front.points_dropped"] == 5 * len(front)
+    assert_balanced(rig)

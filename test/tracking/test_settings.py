@@ -75,6 +75,11 @@ def test_rig_settings_take_the_camera_estimator_and_tracker_options():
     alone = rig_settings(
         mounts, opts, None, window=0.02, stop_after=0.4, stamp_row=0.0, time_reset_ns=10**9
     )
-    assert alone.tracking is None
+    assert alone.tracking is None and alone.max_points is None
+    capped = rig_settings(
+        mounts, opts, None, window=0.02, stop_after=0.4, stamp_row=0.0, time_reset_ns=10**9,
+        max_points=300,
+    )  # fmt: skip
+    assert capped.max_points == 300
     with pytest.raises(ValueError):  # no cameras
         rig_settings({}, opts, tr, window=0.02, stop_after=0.4, stamp_row=0.0, time_reset_ns=1)
