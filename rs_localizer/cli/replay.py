@@ -347,7 +347,8 @@ def _rig_gyro_counts(outputs) -> dict:
 
 def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     """A rig bag (``make-bag --rig``): every camera through the rig mode
-    (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`); prints the rig's counts and its errors
+    (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`); prints the rig's counts (each
+    camera's frames and its rows' ``points_dropped``, ``capped_clouds``) and its errors
     against the ground truth. Returns 0, or 1 when no rig frame was posed."""
     if args.csv or args.debug_outputs:
         raise A.CliError("a rig bag is replayed without --csv or --debug-outputs")

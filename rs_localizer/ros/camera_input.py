@@ -5,17 +5,20 @@ dropped, at most ``max_points``), an image decoded against the camera model.
 
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
-:class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode). Its counts go to its owner's
-``count(key, n)``: the single-camera node counts them as they are (``camera_info_rejected``,
-``camera_info_rejected.<reason>``, ``points_dropped``, ``capped_clouds``, ``capped_points``),
-the rig node per camera (``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to
-its owner's throttled log, each text after the camera's ``label`` (the rig's ``rig camera
-'front':``). No module-level ROS import: messages are duck-typed (rclpy or rosbags).
+:class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode) and in the replay of a rig bag
+(:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`), both made by :func:`rig_camera_inputs`.
+Its counts go to its owner's ``count(key, n)``: the single-camera node counts them as they
+are (``camera_info_rejected``, ``camera_info_rejected.<reason>``, ``points_dropped``,
+``capped_clouds``, ``capped_points``), the rig node per camera
+(``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to its owner's throttled
+log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
+module-level ROS import: messages are duck-typed (rclpy or rosbags).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -26,7 +29,7 @@ from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .pointcloud import read_correspondences
 
-__all__ = ["CameraInput"]
+__all__ = ["CameraInput", "rig_camera_inputs"]
 
 
 class CameraInput:
@@ -174,3 +177,43 @@ class CameraInput:
         from .image_codec import decode_image
 
         return decode_image(msg, camera)
+
+
+def rig_camera_inputs(
+    config: Any,
+    log: Any,
+    count: Callable[[str, str, int], Any],
+    stopped: Callable[[], bool] = lambda: False,
+) -> dict[str, CameraInput]:
+    """Each camera of a rig its :class:`CameraInput`, configured as the rig node takes the
+    camera's inputs: its camera_infos made models with the camera's rolling-shutter timing
+    (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else the ``rs.*`` values)
+    and the rig's reference row, its clouds' rows capped to the rig's ``max_points``. The rig
+    node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the replay of a rig bag
+    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both read their cameras through them,
+    so that both take the same rows of a cloud and count them alike.
+
+    Args:
+        config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.
+        log: the log the cameras share (:class:`CameraInput`'s ``log``); each camera's texts
+            come after ``rig camera '<camera>': ``.
+        count: ``count(camera, key, n)`` adds ``n`` to camera ``camera``'s count ``key``
+            (``points_dropped``, ``capped_clouds``, ...).
+        stopped: ``stopped()`` true ends a frame's wait for its camera_info.
+
+    Returns:
+        camera name -> its :class:`CameraInput`, in the order of ``rig.cameras``.
+    """
+    inputs = {}
+    for c in config.cameras:
+        inp = CameraInput(log, partial(count, c.name), f"rig camera {c.name!r}: ", stopped)
+        make_camera = partial(
+            cv.camera_model_from_camera_info,
+            line_delay=c.line_delay,
+            readout_time=c.readout_time,
+            readout=c.direction,
+            reference_row=config.reference_row,
+        )
+        inp.configure(make_camera, config.settings.max_points)
+        inputs[c.name] = inp
+    return inputs

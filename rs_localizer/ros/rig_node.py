@@ -63,7 +63,6 @@ managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifec
 from __future__ import annotations
 
 import contextlib
-import functools
 import threading
 import time
 from collections import Counter, deque
@@ -83,7 +82,7 @@ from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
-from .camera_input import CameraInput
+from .camera_input import CameraInput, rig_camera_inputs
 from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
 from .core import NodeCore
 from .declare import declare_parameters
@@ -226,20 +225,9 @@ class RigCore(NodeCore):
         self._acc = threading.Lock()  # (the node's own counts, self._inputs)
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
-        self.inputs: dict[str, CameraInput] = {}
-        for c in self.config.cameras:
-            inp = CameraInput(
-                self._log, functools.partial(self._count_input, c.name), f"rig camera {c.name!r}: "
-            )
-            make_camera = functools.partial(
-                cv.camera_model_from_camera_info,
-                line_delay=c.line_delay,
-                readout_time=c.readout_time,
-                readout=c.direction,
-                reference_row=self.config.reference_row,
-            )
-            inp.configure(make_camera, self.config.settings.max_points)
-            self.inputs[c.name] = inp
+        self.inputs: dict[str, CameraInput] = rig_camera_inputs(
+            self.config, self._log, self._count_input
+        )
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
         # (s, the worker's time per camera frame, per camera)

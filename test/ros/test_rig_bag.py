@@ -38,7 +38,8 @@ def test_make_bag_rig_and_replay(tmp_path, capsys):
     assert s["rig_frames"] == s["solved"] == 12
     assert s["rot_deg"] < 0.05 and s["pos_m"] < 0.005
     assert s["fused_angvel"] < s["angvel"]
-    assert s["counts"]["left"] == dict(received=12, solved=12, failed=0, skipped=0, pending=0)
+    assert s["counts"]["left"] == dict(received=12, solved=12, failed=0, skipped=0, pending=0,
+                                       points_dropped=0, capped_clouds=0)  # fmt: skip
     # a parameter override: the left camera's mounting 3 deg off -> its points are outliers
     m = list(p["rig.left.mounting"])
     from rs_localizer.geometry import rotvec_to_matrix
@@ -82,6 +83,57 @@ def test_replay_names_a_camera_that_disagrees_with_the_angle_it_is_off(tmp_path,
     assert f"(median {d['median_deg']:.2f} deg off" in out.err
     assert main(["replay", str(bag), "--quiet", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["disagreeing"] == {}
+
+
+def test_replay_reads_each_cameras_clouds_as_the_rig_node_and_counts_its_rows(tmp_path, capsys):
+    """A rig bag of two cameras, the left one's clouds each with 3 rows holding a NaN: the
+    replay drops those rows before the rig, counted ``points_dropped`` (3 per left cloud);
+    with ``max_points`` below the clouds' size every cloud reaches the rig capped to it,
+    counted ``capped_clouds`` per camera (and printed beside the camera's frames), every rig
+    frame still posed; without ``max_points`` no cloud is capped and the rig gets every
+    finite row of each cloud."""
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.rig_bag import replay_rig, write_rig_bag
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=120, seed=3)
+    rows = {}  # (camera, stamp ns) -> the finite rows of its cloud
+    for f in frames:
+        if f.name == "left":
+            f.uv = f.uv.copy()
+            f.uv[[0, 5, 9], 1] = np.nan
+        rows[(f.name, f.stamp_ns)] = len(f.uv) - 3 * (f.name == "left")
+    bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
+    n = {c: sum(f.name == c for f in frames) for c in ("front", "left")}
+    cap = min(rows.values()) - 10
+    assert cap >= 20  # (enough for a pose; well below every cloud)
+
+    full = replay_rig(bag)
+    for c in ("front", "left"):
+        assert full.counts[c]["received"] == n[c]
+        assert full.counts[c]["capped_clouds"] == 0
+    assert full.counts["front"]["points_dropped"] == 0
+    assert full.counts["left"]["points_dropped"] == 3 * n["left"]
+    for o in full.outputs:
+        for c, f in o.frames.items():
+            assert len(f.points2d) == rows[(c, f.stamp_ns)]
+            assert np.isfinite(f.points2d).all()
+
+    capped = replay_rig(bag, params={"max_points": cap})
+    for c in ("front", "left"):
+        assert capped.counts[c]["capped_clouds"] == n[c]
+    assert capped.counts["left"]["points_dropped"] == 3 * n["left"]
+    assert capped.solved == len(capped.outputs) == full.solved == len(full.outputs)
+    assert all(len(f.points2d) == cap for o in capped.outputs for f in o.frames.values())
+
+    params = tmp_path / "cap.yaml"
+    params.write_text(f"/**/rs_localizer:\n  ros__parameters:\n    max_points: {cap}\n")
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--quiet", "--params-file", str(params)]) == 0
+    out = capsys.readouterr().out
+    assert f"left: received {n['left']}, " in out
+    assert f"points_dropped {3 * n['left']}, capped_clouds {n['left']}" in out
 
 
 def test_replay_refuses_a_camera_without_mounting(tmp_path):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +53,7 @@ from .bag_io import (
 
 if TYPE_CHECKING:
     from ...tracking.rig import RigCameraFrame
+    from ..camera_input import CameraInput
 
 __all__ = [
     "RigReplay",
@@ -266,8 +267,12 @@ def rig_parameter_values(
 class RigReplay:
     """What :func:`replay_rig` did: ``outputs`` (every rig frame's
     :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused`` (the fused poses), the rig's
-    ``counts`` (per camera and per rig frame), ``errors`` (per posed rig frame with ground
-    truth: ``rot_deg``, ``pos_m``, ``angvel``, ``linvel`` of its own twist) and
+    ``counts`` (``rig``: its rig frames' ``rig_frames``, ``solved``, ``failed``, ``skipped``,
+    ``pending``; per camera: its frames' ``received``, ``solved``, ``failed``, ``skipped``,
+    ``pending`` and its rows' ``points_dropped`` (rows with a NaN or inf) and
+    ``capped_clouds`` (clouds capped to ``max_points``), as the rig node's diagnostics name
+    them ``<camera>.points_dropped``, ``<camera>.capped_clouds``), ``errors`` (per posed rig
+    frame with ground truth: ``rot_deg``, ``pos_m``, ``angvel``, ``linvel`` of its own twist) and
     ``fused_errors`` (of the fused twist); ``off_deg``: camera -> one entry per posed rig
     frame in which it disagreed with the others (the cameras' consensus outvoted it, or the
     rig names it as disagreeing), how far off it is: deg between its rotation posed alone
@@ -326,7 +331,11 @@ def replay_rig(
 ) -> RigReplay:
     """Every camera's frames of a rig bag, in log-time order, through the rig mode
     (:class:`~rs_localizer.tracking.rig.RigLocalizer` with the configuration of
-    :func:`rig_parameter_values`), against the bag's ground truth.
+    :func:`rig_parameter_values`), against the bag's ground truth. Each camera's clouds are
+    read through its :class:`~rs_localizer.ros.camera_input.CameraInput`, as the rig node
+    reads them (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): rows with a NaN
+    or inf dropped, then at most ``max_points`` rows (highest scores first), counted per
+    camera (:attr:`RigReplay.counts`: ``points_dropped``, ``capped_clouds``).
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
@@ -335,6 +344,7 @@ def replay_rig(
     from dataclasses import replace
 
     from ...tracking.rig import RigLocalizer
+    from ..camera_input import rig_camera_inputs
 
     values, cams = rig_parameter_values(bag, params_files, params)
     cfg = rig_config(values, cams)
@@ -342,11 +352,17 @@ def replay_rig(
               for c in cfg.cameras}  # fmt: skip
     rig = RigLocalizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
+    own: Counter = Counter()  # (the cameras' inputs' counts, "<camera>.<key>")
+
+    def count(name: str, key: str, n: int = 1) -> None:
+        own[f"{name}.{key}"] += n
+
+    inputs = rig_camera_inputs(cfg, _QuietLog(), count)
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
     bar = progress_bar(progress, None, unit=" rig frames")
-    for frame in iter_rig_frames(bag, timing):
+    for frame in iter_rig_frames(bag, timing, inputs):
         while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
         frame = replace(frame, tag=frame.stamp_ns)
@@ -362,7 +378,11 @@ def replay_rig(
     res.fused += [f for o in tail for f in o.fused] + rig.flush()
     bar.update(len(tail))
     bar.close()
-    res.counts = {"rig": rig.rig_counts(), **{n: rig.camera_counts(n) for n in rig.cameras}}
+    res.counts = {"rig": rig.rig_counts()}
+    for n in rig.cameras:
+        res.counts[n] = rig.camera_counts(n)
+        for k in ROW_COUNTS:
+            res.counts[n][k] = own[f"{n}.{k}"] + rig.counts[f"{n}.{k}"]
     res.readout = rig.readout_values()
     gt = load_ground_truth(bag)
     for o in res.outputs:
@@ -379,6 +399,24 @@ def replay_rig(
         if e is not None:
             res.fused_errors.append(e)
     return res
+
+
+#: the counts of a camera's rows a replay reports beside its frames' (the rig node's
+#: diagnostics' ``<camera>.points_dropped`` and ``<camera>.capped_clouds``)
+ROW_COUNTS = ("points_dropped", "capped_clouds")
+
+
+class _QuietLog:
+    """The cameras' inputs' log in a replay: nothing logged (what they drop is counted)."""
+
+    def info(self, text: str) -> None:
+        pass
+
+    def error(self, text: str) -> None:
+        pass
+
+    def warning(self, key: str, text: str) -> None:
+        pass
 
 
 def _note_disagreeing(rig, outs: list, recent: dict, off_deg: dict) -> None:
@@ -489,14 +527,24 @@ class RigTopics:
 
 
 def iter_rig_frames(
-    bag: str | os.PathLike, timing: Mapping[str, tuple]
+    bag: str | os.PathLike,
+    timing: Mapping[str, tuple],
+    inputs: Mapping[str, CameraInput] | None = None,
 ) -> Iterator[RigCameraFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``timing`` (name ->
     ``(line_delay s/line, readout_time s, direction, reference_row px or None)``, the RS timing
     its camera_info's model gets), in log-time order, from ``<namespace>/<camera>/
     correspondences``, each with the model of that camera's latest camera_info (None before
     one); a camera_info whose model fails is skipped (the camera keeps its last model), a
-    cloud without the x, y, z / u, v fields or with an invalid stamp is skipped.
+    cloud with an invalid stamp or without the x, y, z / u, v fields is skipped.
+
+    ``inputs`` (camera name -> its :class:`~rs_localizer.ros.camera_input.CameraInput`,
+    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): each cloud's rows are read
+    through its camera's input, as the rig node reads them
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`: rows with a NaN or inf
+    dropped, counted ``points_dropped``; then at most its ``max_points``, highest scores
+    first, counted ``capped_clouds``, ``capped_points``); None: every row as the cloud holds
+    it.
 
     Yields:
         :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
@@ -517,11 +565,15 @@ def iter_rig_frames(
                 continue
             continue
         try:
-            corr = read_correspondences(msg)
             stamp = cv.checked_stamp_ns(msg.header.stamp)
+            if inputs is None:
+                corr = read_correspondences(msg)
+                uv, xyz = corr.points2d, corr.points
+            else:
+                uv, xyz, _ = inputs[n].read_cloud(msg)
         except ValueError:
             continue
-        yield RigCameraFrame(n, stamp, models[n], corr.points2d, corr.points)
+        yield RigCameraFrame(n, stamp, models[n], uv, xyz)
 
 
 def rig_frame_ends(
