@@ -539,12 +539,15 @@ def iter_rig_frames(
     cloud with an invalid stamp or without the x, y, z / u, v fields is skipped.
 
     ``inputs`` (camera name -> its :class:`~rs_localizer.ros.camera_input.CameraInput`,
-    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): each cloud's rows are read
-    through its camera's input, as the rig node reads them
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`: rows with a NaN or inf
-    dropped, counted ``points_dropped``; then at most its ``max_points``, highest scores
-    first, counted ``capped_clouds``, ``capped_points``); None: every row as the cloud holds
-    it.
+    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): each camera's frames are read
+    through its input, as the rig node reads them: the camera_infos kept by their stamps and
+    each cloud given the model of its own stamp
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_for`: the newest camera_info
+    stamped at or before it), its rows with a NaN or inf dropped, counted
+    ``points_dropped``, then at most its ``max_points``, highest scores first, counted
+    ``capped_clouds``, ``capped_points``
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`); None: every row as the
+    cloud holds it.
 
     Yields:
         :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
@@ -559,6 +562,9 @@ def iter_rig_frames(
         kind, n = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
         if kind == "info":
+            if inputs is not None:  # (kept by its stamp, checked as the node checks it)
+                inputs[n].add_camera_info(msg)
+                continue
             try:
                 models[n] = cv.camera_model_from_camera_info(msg, *timing[n])
             except ValueError:
@@ -568,12 +574,13 @@ def iter_rig_frames(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
             if inputs is None:
                 corr = read_correspondences(msg)
-                uv, xyz = corr.points2d, corr.points
+                uv, xyz, model = corr.points2d, corr.points, models[n]
             else:
                 uv, xyz, _ = inputs[n].read_cloud(msg)
+                model = inputs[n].camera_for(stamp)
         except ValueError:
             continue
-        yield RigCameraFrame(n, stamp, models[n], uv, xyz)
+        yield RigCameraFrame(n, stamp, model, uv, xyz)
 
 
 def rig_frame_ends(
