@@ -99,7 +99,7 @@ pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 
 parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set. While RANSAC's best
 model explains no point of a camera that has some (one camera's P3P pose from three corners
 of a small tag is a degree or so off, pixels off in a camera looking elsewhere), each P3P
-model of a sample whose six points span several cameras is also corrected on those six points
+model of a sample with points in such a camera is also corrected on the sample's six points
 by the rig solver with the velocities held at zero, as a generalized P3P would pose it.
 """
 
