@@ -41,6 +41,7 @@ from .finalize import (
     rolling_shutter_check,
     still_fallback,
     still_final,
+    unobserved_twist,
 )
 from .frame import configure_frame, prepare_frame
 from .gyro import (
@@ -71,7 +72,6 @@ from .result import (
     EstimationFailed,
     RSPoseEstimate,
     failed_estimate,
-    output_covariance,
     physical_velocities,
 )
 from .single_tag import MIN_PLANAR_POINTS, planar_points, single_tag_estimate
@@ -418,11 +418,12 @@ def _estimate(
     if model_solver == solver:
         return est
     # (a rolling-shutter solver's frame on the global-shutter model: the twist covariance is
-    # the rolling-shutter fit's, what the frame says of its motion)
-    twist = None
-    if final.covariance is not None:
-        twist = output_covariance(final.covariance, *final.model[:2], np.zeros(3), fr.spr)[2]
-    return replace(est, solver=solver, twist_covariance=twist)
+    # the rolling-shutter fit's, what the frame says of its motion; its (12, 12) covariance,
+    # the fit's, already carries it)
+    if final.covariance is None:
+        return replace(est, solver=solver, twist_covariance=None)
+    fields = unobserved_twist(None, final.covariance, *final.model[:2], fr.spr)
+    return replace(est, solver=solver, **fields)
 
 
 def _single_tag(
