@@ -42,6 +42,7 @@ from .scoring import exact_error2, exact_error2_whitened
 
 __all__ = [
     "LM_REFINE_KERNEL",
+    "NUMPY_PASSES",
     "ExactModelFit",
     "KernelMountings",
     "Mountings",
@@ -51,10 +52,12 @@ __all__ = [
     "exact_jacobian",
     "exact_mounting_jacobian",
     "exact_residuals",
+    "huber_weights",
     "kernel_mountings",
     "least_squares_exact_model",
     "prior_residuals",
     "refine_rs_pose",
+    "refine_rs_pose_numpy",
     "refine_rs_pose_scipy",
     "untruncated_variance",
 ]
@@ -1435,3 +1438,117 @@ def refine_rs_pose_scipy(
         bool(fit.result.success),
         int(fit.result.nfev),
     )
+
+
+#: fits of :func:`refine_rs_pose_numpy`, each on the points within the cutoff of the last
+#: model (the compiled refinement selects them again at each iteration)
+NUMPY_PASSES = 2
+
+
+def _errors_numpy(theta, R0, X, x, tau, mountings) -> np.ndarray:
+    """(N,) image errors of the exact model ``theta`` about ``R0`` (normalized units, or the
+    ``mountings``' scaled units), ``inf`` behind the camera (:func:`exact_residuals`)."""
+    p, _ = _camera_points(theta, R0, X, tau)
+    z = _mounted(p, mountings)[:, 2]
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        e = np.linalg.norm(exact_residuals(theta, R0, X, x, tau, mountings).reshape(-1, 2), axis=1)
+    e[~(z > 1e-9)] = np.inf
+    return e
+
+
+def huber_weights(e: np.ndarray, k: float) -> np.ndarray:
+    """(N,) Huber weights of errors ``e`` at scale ``k``: 1 inside, ``k / e`` beyond."""
+    return np.where(e <= k, 1.0, k / np.maximum(e, k))
+
+
+def refine_rs_pose_numpy(
+    model: RSModel | tuple,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    loss_scale: float,
+    settings: RefineSettings = DEFAULT_REFINE,
+    prior: MotionPrior | None = None,
+    mountings: Mountings | None = None,
+) -> RefineResult:
+    """:func:`refine_rs_pose` in NumPy and SciPy (nothing compiles): the same arguments, the
+    same exact model (with ``mountings``, a rig's) and the same outputs, for the estimator's
+    ``"numpy"`` implementation.
+
+    The fit is SciPy's ``least_squares`` (:func:`least_squares_exact_model`, analytic
+    Jacobian) with the Huber loss at ``loss_scale`` on the points within ``settings.cutoff``
+    of the model, at most ``max_iterations + 1`` evaluations, up to :data:`NUMPY_PASSES`
+    times while the points within the cutoff change (the compiled loop selects them at every
+    iteration); the prior's rows are weighed by ``settings.noise`` (0 when None). The model
+    stays as given when fewer than 7 points are within the cutoff or a fit fails
+    (``max_iterations=0``: no fit, the covariance at the model). With ``covariance``: at the
+    result, over the points within the cutoff, ``H = J^T W J`` (``W`` the Huber weights,
+    ``J`` :func:`exact_jacobian`, columns beyond the free parameters zero), ``sigma^2`` the
+    per-axis variance of the errors within ``loss_scale`` (``2 n - free`` degrees of freedom,
+    corrected for the truncation, :func:`untruncated_variance`), the covariance
+    ``sigma^2 (H + sigma^2 Jz^T P Jz)^-1`` with a prior (``sigma^2 H^-1`` without, ``None``
+    if singular) and ``J^T W D`` with ``acceleration_block`` (``D`` ``tau / 2`` times the
+    ``w`` and ``t`` columns of ``J``)."""
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
+    rolling, k = settings.rolling_shutter, float(loss_scale)
+    free = 12 if rolling else 6
+    if not rolling:
+        w, t = np.zeros(3), np.zeros(3)
+    spr = float(settings.seconds_per_unit_r)
+    motion = prior if rolling and spr > 0 else None
+    noise = 0.0 if settings.noise is None else float(settings.noise)
+    cut, max_iterations = float(settings.cutoff), int(settings.max_iterations)
+    near, nfev, success = None, 0, True
+    for _ in range(NUMPY_PASSES if max_iterations > 0 else 0):
+        theta = np.concatenate([np.zeros(3), C, w, t])
+        sel = _errors_numpy(theta, R, X, x, tau, mountings) < cut
+        if np.count_nonzero(sel) < 7 or (near is not None and np.array_equal(sel, near)):
+            break
+        near = sel
+        try:
+            fit = least_squares_exact_model(
+                R, theta, free, X[near], x[near], tau[near], motion, spr, noise,
+                mountings=None if mountings is None else mountings.take(near), loss="huber",
+                f_scale=k, max_nfev=max_iterations + 1,
+            )  # fmt: skip
+        except (ValueError, np.linalg.LinAlgError):
+            success = False
+            break
+        th = fit.theta
+        nfev += int(fit.result.nfev)
+        if not np.isfinite(th).all():
+            success = False
+            break
+        R, C, w, t = rotvec_to_matrix(th[:3]) @ R, th[3:6].copy(), th[6:9].copy(), th[9:12].copy()
+    res = RefineResult(R, C, w, t, None, float("nan"), success, nfev)
+    if not settings.covariance:
+        return res
+    theta = np.concatenate([np.zeros(3), C, w, t])
+    e = _errors_numpy(theta, R, X, x, tau, mountings)
+    idx = np.flatnonzero(e < cut)
+    sub = None if mountings is None else mountings.take(idx)
+    J = exact_jacobian(theta, R, X[idx], x[idx], tau[idx], sub)
+    J[:, free:] = 0.0
+    ei = e[idx]
+    WJ = np.repeat(huber_weights(ei, k), 2)[:, None] * J
+    inside = ei[ei <= k]
+    sigma2 = untruncated_variance.py_func(
+        float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k
+    )
+    res.sigma = float(np.sqrt(sigma2))
+    res.data_information = J.T @ WJ
+    res.data_gradient = WJ.T @ exact_residuals(theta, R, X[idx], x[idx], tau[idx], sub)
+    if settings.acceleration_block and rolling:
+        res.acceleration_block = WJ.T @ (0.5 * np.repeat(tau[idx], 2)[:, None] * J[:, 6:12])
+    H = res.data_information[:free, :free].copy()
+    on, _, Lam = prior_arrays(motion)
+    if on:
+        Jz = model_twist_jacobian.py_func(C, w, spr)
+        H += sigma2 * (Jz.T @ Lam @ Jz)[:free, :free]
+    try:
+        cov = np.zeros((12, 12))
+        cov[:free, :free] = sigma2 * np.linalg.inv(H)
+        res.covariance = cov if np.isfinite(cov).all() else None
+    except np.linalg.LinAlgError:
+        pass
+    return res

@@ -83,7 +83,7 @@ The estimator runs in one of the single camera's two implementations (``implemen
 :mod:`~rs_localizer.estimation.implementation`): ``"compiled"``, numba kernels (the
 refinement kernel above, Lambda Twist P3P, the rig solver, the scoring kernel); ``"numpy"``,
 nothing compiled: the refinement by SciPy's ``least_squares`` on the same exact model and
-mountings (:func:`~rs_localizer.estimation.refine.least_squares_exact_model`, Huber loss at
+mountings (:func:`~rs_localizer.estimation.refine.refine_rs_pose_numpy`, Huber loss at
 the threshold on the points within the cutoff, selected again after a fit), the covariance
 and acceleration block from the analytic Jacobian
 (:func:`~rs_localizer.estimation.refine.exact_jacobian`), the same sigma; OpenCV's P3P
@@ -145,9 +145,10 @@ from .refine import (
     RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
+    huber_weights,
     kernel_mountings,
-    least_squares_exact_model,
     refine_rs_pose,
+    refine_rs_pose_numpy,
     untruncated_variance,
 )
 from .result import (
@@ -1186,6 +1187,19 @@ def _image_variance(pool: _Pool, inside: np.ndarray, threshold_px: float, free: 
     return variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), threshold_px)
 
 
+def _refinement(pool: _Pool, model, k: float, settings: RefineSettings, motion):
+    """:func:`~.refine.refine_rs_pose` of ``model`` on the pool's points, each seen through its
+    camera's mounting at its own capture time, errors in px (Huber loss at ``k`` px,
+    ``settings``, ``motion`` the gyro's prior or None); with ``pool.numpy`` its NumPy and
+    SciPy form, :func:`~.refine.refine_rs_pose_numpy`."""
+    if pool.numpy:
+        return refine_rs_pose_numpy(model, pool.X, pool.x, pool.tau, k, settings, motion,
+                                    _mountings(pool))  # fmt: skip
+    return refine_rs_pose(
+        model, pool.X, pool.x, pool.tau, k, settings, motion, _kernel_mountings(pool)
+    )  # fmt: skip
+
+
 def _refine(
     pool: _Pool,
     inl: np.ndarray,
@@ -1205,7 +1219,7 @@ def _refine(
     kept at zero). ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
     ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
     starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`,
-    at least ``1e-6`` threshold^2). With ``pool.numpy``: :func:`_refine_numpy`."""
+    at least ``1e-6`` threshold^2). With ``pool.numpy``: :func:`~.refine.refine_rs_pose_numpy`."""
     k = float(threshold_px)
     cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
     noise, motion = None, None
@@ -1213,12 +1227,8 @@ def _refine(
         e = _errors_px(pool, *_one(model))[0]
         sp2 = _image_variance(pool, e[e < k], k, 12)
         noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
-    if pool.numpy:
-        return _refine_numpy(pool, model, k, cut, free, int(max_iterations), noise, motion)
-    settings = _refine_settings(free == 12, int(max_iterations), False, cut, noise)
-    res = refine_rs_pose(
-        model, pool.X, pool.x, pool.tau, k, settings, motion, _kernel_mountings(pool)
-    )  # fmt: skip
+    res = _refinement(pool, model, k, _refine_settings(free == 12, int(max_iterations), False,
+                                                      cut, noise), motion)  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
 
@@ -1264,71 +1274,6 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     return tight if c_tight < c_best - margin else best
 
 
-#: fits of the NumPy refinement, each on the points within the cutoff of the last model (the
-#: compiled one selects them again at each iteration)
-_NUMPY_PASSES = 2
-
-
-def _refine_numpy(pool: _Pool, model, k: float, cut: float, free: int, max_iterations: int,
-                  noise: float | None, motion: MotionPrior | None):  # fmt: skip
-    """:func:`_refine` in NumPy and SciPy: ``least_squares`` on the exact model with the
-    mountings (:func:`~.refine.least_squares_exact_model`, errors in px), Huber loss at ``k``
-    px on the points within ``cut`` px of the model, at most ``max_iterations + 1``
-    evaluations, up to :data:`_NUMPY_PASSES` times while the points within ``cut`` change;
-    ``motion`` (the gyro's prior, with ``free=12``) adds its rows weighed by the image noise
-    ``noise`` (px). Returns the model unchanged when fewer than 7 points are within ``cut``
-    or the fit fails."""
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
-    rolling = free == 12
-    if not rolling:
-        w, t = np.zeros(3), np.zeros(3)
-    m = _mountings(pool)
-    near = None
-    for _ in range(_NUMPY_PASSES if max_iterations > 0 else 0):
-        e = _errors_px(pool, *_one((R, C, w, t)))[0]
-        sel = e < cut
-        if np.count_nonzero(sel) < 7 or (near is not None and np.array_equal(sel, near)):
-            break
-        near = sel
-        sub = m.take(near)
-        try:
-            fit = least_squares_exact_model(
-                R, np.concatenate([np.zeros(3), C, w, t]), free, pool.X[near], pool.x[near],
-                pool.tau[near], motion if rolling else None, 1.0,
-                0.0 if noise is None else float(noise), mountings=sub, loss="huber",
-                f_scale=k, max_nfev=max_iterations + 1,
-            )  # fmt: skip
-        except (ValueError, np.linalg.LinAlgError):
-            break
-        th = fit.theta
-        if not np.isfinite(th).all():
-            break
-        R, C, w, t = rotvec_to_matrix(th[:3]) @ R, th[3:6].copy(), th[6:9].copy(), th[9:12].copy()
-    return R, C, w, t
-
-
-def _information_numpy(pool: _Pool, model, k: float, cut: float, free: int):
-    """What :func:`_covariance` takes from the compiled refinement at ``model`` (no step), in
-    NumPy: ``(sigma^2, J^T W J (12, 12), J^T W D (12, 6))`` over the points within ``cut`` px
-    (``W`` the Huber weights at ``k`` px: 1 inside, ``k / e`` beyond; ``J`` the analytic
-    Jacobian of the errors in px over ``(delta, C, w, t)``, :func:`~.refine.exact_jacobian`
-    with the mountings, rows and columns beyond ``free`` zero; ``D`` ``tau / 2`` times its
-    ``w`` and ``t`` columns), ``sigma^2`` the per-axis variance (px^2) of the errors within
-    ``k`` corrected for the truncation (:func:`~.refine.untruncated_variance`, ``2 n - free``
-    degrees of freedom), as :func:`~.refine.refine_rs_pose` computes them."""
-    R, C, w, t = (np.asarray(a, dtype=float) for a in model)
-    e = _errors_px(pool, *_one(model))[0]
-    idx = np.flatnonzero(e < cut)
-    sub = _mountings(pool).take(idx)
-    theta = np.concatenate([np.zeros(3), C, w, t])
-    J = exact_jacobian(theta, R, pool.X[idx], pool.x[idx], pool.tau[idx], sub)
-    J[:, free:] = 0.0
-    ei = e[idx]
-    WJ = np.repeat(np.where(ei <= k, 1.0, k / np.maximum(ei, k)), 2)[:, None] * J
-    D = 0.5 * np.repeat(pool.tau[idx], 2)[:, None] * J[:, 6:12]
-    return _image_variance(pool, ei[ei <= k], k, free), J.T @ WJ, WJ.T @ D
-
-
 def _covariance(
     pool: _Pool,
     model,
@@ -1360,21 +1305,15 @@ def _covariance(
     analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). ``errors``: the
     model's (N,) errors (px) when already computed. Returns
     ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
-    (:func:`_information_numpy`)."""
+    (:func:`~.refine.refine_rs_pose_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
     e = _errors_px(pool, *_one(model))[0] if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    if pool.numpy:
-        sigma2, info, acc = _information_numpy(pool, model, k, cut, free)
-    else:
-        settings = _refine_settings(rolling, 0, True, cut, None)
-        res = refine_rs_pose(
-            model, pool.X, pool.x, pool.tau, k, settings, None, _kernel_mountings(pool)
-        )  # fmt: skip
-        sigma2, info = res.sigma**2, res.data_information
-        acc = res.acceleration_block if rolling else None
+    res = _refinement(pool, model, k, _refine_settings(rolling, 0, True, cut, None), None)
+    sigma2, info = res.sigma**2, res.data_information
+    acc = res.acceleration_block if rolling else None
     H = info[:free, :free].copy()
     if prior is not None and rolling:
         H[6:9, 6:9] += sigma2 * prior.info
@@ -1408,7 +1347,7 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
     R0, C0, w0, t0 = model
     theta = np.concatenate([np.zeros(3), C0, w0, t0])
     X, x, tau = pool.X[idx], pool.x[idx], pool.tau[idx]
-    W = np.repeat(np.where(e[idx] <= k, 1.0, k / np.maximum(e[idx], k)), 2)
+    W = np.repeat(huber_weights(e[idx], k), 2)
     WJ = exact_jacobian(theta, R0, X, x, tau, sub)[:, :free] * W[:, None]
     Jm = exact_mounting_jacobian(theta, R0, X, x, tau, sub)
     rows = np.repeat(pool.cam[idx], 2)
