@@ -379,7 +379,7 @@ def _estimate(
         if image is not None:
             t0 = time.perf_counter()
             alone = image_alone if compiled else image_alone_numpy
-            image.append(alone(fr, final, opts.ransac.threshold_px / fr.f, image_prior))
+            image.append(alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         if compiled and gyro is None and solver_info(solver).rolling:
@@ -399,7 +399,9 @@ def _estimate(
                     point_sigma=point_sigma,
                     ignored=ignored,
                 ),
-                lambda gs: _rolling_shutter_motion(fr, gs.model),
+                lambda gs: rolling_shutter_check(
+                    fr, gs.model, fr.threshold, fr.prior if fr.planar else None
+                ),
                 fr.spr,
             )
             if still is not None:
@@ -461,12 +463,3 @@ def _single_tag(
         )
     timings["single_tag"] = time.perf_counter() - t_start
     return est
-
-
-def _rolling_shutter_motion(fr, model) -> tuple | None:
-    """(covariance (12, 12), w, t) of the rolling-shutter model refined from the
-    global-shutter ``model`` (:func:`~.finalize.rolling_shutter_check`, with the motion prior
-    on planar frames), or None: the frame's evidence of motion for
-    :func:`~.finalize.still_fallback`."""
-    check = rolling_shutter_check(fr, model, fr.prior if fr.planar else None)
-    return None if check is None else (check.covariance, check.w, check.t)

@@ -18,7 +18,7 @@ from ..geometry import camera_position
 from ..pose import RSModel, RSPose
 from ..solvers.registry import solver_info
 from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
-from .frame import SCORE_AT_MEASURED_TIME, Frame, Model
+from .frame import SCORE_AT_MEASURED_TIME, Frame, Model, RefinementView
 from .implementation import NUMPY
 from .noise_model import correlated_noise_covariance, pixel_jacobians
 from .options import EstimateOptions
@@ -30,7 +30,14 @@ from .plausibility import (
     finite_model,
 )
 from .prior import MotionPrior, prior_conflict
-from .refine import RefineResult, RefineSettings, exact_errors, posterior_step, refine_rs_pose
+from .refine import (
+    RefineResult,
+    RefineSettings,
+    exact_errors,
+    posterior_step,
+    refine_rs_pose,
+    refine_rs_pose_numpy,
+)
 from .result import (
     INCONSISTENT_FIT,
     TOO_FEW_INLIERS,
@@ -168,7 +175,7 @@ class FinalModel:
 
 
 def frame_refinement(
-    fr: Frame,
+    fr: RefinementView,
     model: Model,
     th: float,
     rolling: bool,
@@ -180,9 +187,12 @@ def frame_refinement(
     ``FINAL_CUTOFF * th`` ignored, re-selected at every iteration; tolerance ``FINAL_TOL``):
     rolling-shutter or global-shutter (``rolling``), maximum likelihood or MAP with ``prior``,
     ``acceleration``: with the ``J^T W D`` block. The one call the final refinement, the
-    image-alone check and the global-shutter switch share."""
+    image-alone check and the global-shutter switch share, of a camera and of a rig (``fr``,
+    :class:`~.frame.RefinementView`; ``fr.compiled`` False: in NumPy and SciPy,
+    :func:`~.refine.refine_rs_pose_numpy`)."""
     th = float(th)
-    return refine_rs_pose(
+    refine = refine_rs_pose if fr.compiled else refine_rs_pose_numpy
+    return refine(
         model,
         fr.X,
         fr.x,
@@ -348,22 +358,24 @@ def prior_at_rest(prior: MotionPrior | None) -> bool:
 
 
 def rolling_shutter_check(
-    fr: Frame, model: Model, prior: MotionPrior | None = None
-) -> RefineResult | None:
+    fr: RefinementView, model: Model, th: float, prior: MotionPrior | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The rolling-shutter model refined from a global-shutter ``model`` on the frame's points
-    (the final refinement's truncated loss), by maximum likelihood or, with ``prior``, MAP (the
-    final refinement's ``fr.prior``: planar frames): the frame's evidence of motion around a
-    global-shutter pose (:func:`motion_chi2` of its velocities). ``None`` when the refinement
-    gives no finite model or covariance, or the camera has no readout time
-    (``fr.spr <= 0``)."""
+    (the final refinement's truncated loss at ``th``, the threshold in ``fr.errors``'s units),
+    by maximum likelihood or, with ``prior``, MAP (the final refinement's ``fr.prior``: planar
+    frames): the frame's evidence of motion around a global-shutter pose (:func:`motion_chi2`
+    of its velocities; a camera's or a rig's, ``fr``), as :func:`still_fallback`'s ``motion``
+    takes it: ``(covariance (12, 12) over (delta, C, w, t), w (3,), t (3,))``, per unit of the
+    frame's time. ``None`` when the refinement gives no finite model or covariance, or the
+    frame has no readout time (``fr.spr <= 0``)."""
     if not fr.spr > 0:
         return None
     R, C = (np.array(a, dtype=float) for a in model[:2])
-    ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), fr.threshold, True, prior)
+    ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), th, True, prior)
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
-    return ref
+    return cov, ref.w, ref.t
 
 
 @lru_cache(maxsize=512)
@@ -523,8 +535,7 @@ def still_final(fr: Frame, final: FinalModel, min_inliers: int) -> FinalModel | 
     if not finite_model(ref.R, ref.C, zero, zero):
         return None
     R, C = np.array(ref.R, dtype=float), np.array(ref.C, dtype=float)
-    errors = exact_errors(R, C, zero, zero, fr.X, fr.x, fr.r - fr.r0, fr.W)
-    inl, n, rms = final_inliers(errors, th)
+    inl, n, rms = final_inliers(fr.errors((R, C, zero, zero)), th)
     if n < min_inliers:
         return None
     return FinalModel(
@@ -552,19 +563,21 @@ class ImageAlone:
 
 
 def image_alone(
-    fr: Frame, final: FinalModel, th: float, prior: MotionPrior | None
+    fr: RefinementView, model: Model, th: float, prior: MotionPrior | None
 ) -> ImageAlone | None:
-    """The final refinement of ``final`` on the frame's points without the gyro: the angular
+    """The final refinement of ``model`` on the frame's points without the gyro: the angular
     velocity the image alone gives near that model, with its covariance, and the inliers it
     explains. One refinement (a few cost evaluations), no RANSAC: the gyro-aided estimate's
-    test of the gyro (``estimate_rs_pose(..., gyro=)``). As in the unaided estimator, a
-    planar frame (or a ``prior`` with ``always``) is refined with the motion ``prior`` without
-    the gyro (one planar frame barely separates the angular velocity from the rotation),
-    others by maximum likelihood.
+    test of the gyro (``estimate_rs_pose(..., gyro=)``, ``estimate_rig_pose(..., gyro=)``). As
+    in the unaided estimator, a planar frame (or a ``prior`` with ``always``) is refined with
+    the motion ``prior`` without the gyro (one planar frame barely separates the angular
+    velocity from the rotation), others by maximum likelihood.
 
     Args:
-        fr: the frame (rolling shutter: ``fr.spr > 0``). final: the aided model.
-        th: inlier threshold (normalized units). prior: the motion prior without the gyro.
+        fr: the frame (rolling shutter: ``fr.spr > 0``): a camera's or a rig's
+            (:class:`~.frame.RefinementView`). model: the aided model.
+        th: inlier threshold (in ``fr.errors``'s units: a camera's normalized units, a rig's
+            px). prior: the motion prior without the gyro.
     Returns:
         :class:`ImageAlone`, or ``None`` when the refinement gives no finite model or
         covariance.
@@ -572,13 +585,12 @@ def image_alone(
     if not fr.spr > 0:
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
-    ref = frame_refinement(fr, final.model, th, True, prior if on else None)
+    ref = frame_refinement(fr, model, th, True, prior if on else None)
     cov = ref.covariance
     if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
         return None
-    errors = exact_errors(ref.R, ref.C, ref.w, ref.t, fr.X, fr.x, fr.r - fr.r0, fr.W)
-    n = final_inliers(errors, th)[1]
-    # (omega = -w / s in the camera frame: physical_velocities)
+    n = final_inliers(fr.errors((ref.R, ref.C, ref.w, ref.t)), th)[1]
+    # (omega = -w / s in the camera (rig) frame: physical_velocities)
     return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
 
 

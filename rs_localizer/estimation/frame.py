@@ -5,6 +5,8 @@ normalized (:func:`prepare_frame`), then checked and configured for its solver
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
 from ..camera import CameraModel
@@ -18,7 +20,7 @@ from .plausibility import (
     plausible_motion,
 )
 from .prior import MotionPrior
-from .refine import Mountings
+from .refine import KernelMountings, Mountings, exact_errors
 from .result import (
     DEGENERATE_GEOMETRY,
     PLANAR_SCENE,
@@ -28,7 +30,13 @@ from .result import (
 from .sampling import valid_rows
 from .scoring import msac_evaluate
 
-__all__ = ["SCORE_AT_MEASURED_TIME", "Frame", "configure_frame", "prepare_frame"]
+__all__ = [
+    "SCORE_AT_MEASURED_TIME",
+    "Frame",
+    "RefinementView",
+    "configure_frame",
+    "prepare_frame",
+]
 
 #: RANSAC and local optimization score points at their measured capture times
 #: (:func:`.scoring.measured_error2`, the refinement's residual) instead of at the capture
@@ -37,6 +45,40 @@ SCORE_AT_MEASURED_TIME = True
 
 #: the solvers' model ``(R, C, w, t)`` (a tuple: the kernels take its arrays)
 Model = RSModel
+
+
+class RefinementView(Protocol):
+    """What the final stage's refinements (:func:`~.finalize.frame_refinement`,
+    :func:`~.finalize.image_alone`, :func:`~.finalize.rolling_shutter_check`,
+    :func:`~.finalize.still_final`) read of the points they fit: one camera's :class:`Frame`
+    or a rig frame's cameras stacked (:mod:`~.rig`).
+
+    Attributes:
+        X: (N, 3) world points (m). x: (N, 2) normalized undistorted image points (a rig's:
+            each in its own camera). r: (N,) each point's time coordinate, r0 the reference
+            one: ``tau = r - r0`` is the model's time (rows of one camera, or seconds of a
+            rig). spr: seconds per unit of that time (0: global shutter). planar: the world
+            points are coplanar (the motion prior's planar case). compiled: the refinement
+            runs compiled (:func:`~.refine.refine_rs_pose`), else in NumPy and SciPy
+            (:func:`~.refine.refine_rs_pose_numpy`).
+    """
+
+    X: np.ndarray
+    x: np.ndarray
+    r: np.ndarray
+    r0: float
+    spr: float
+    planar: bool
+    compiled: bool
+
+    def mountings(self) -> Mountings | KernelMountings | None:
+        """The refinement's mountings of every point (None: one camera's plain errors)."""
+        ...
+
+    def errors(self, model: Model) -> np.ndarray:
+        """(N,) image errors of ``model`` at every point at its measured capture time, in the
+        units of the refinement's threshold; ``inf`` behind the camera."""
+        ...
 
 
 class Frame:
@@ -86,6 +128,8 @@ class Frame:
     known_w: np.ndarray | None = None
     W: np.ndarray = np.zeros((0, 4))
     threshold: float
+    #: the final stage's refinements run compiled (:class:`RefinementView`)
+    compiled = True
 
     def __init__(
         self,
@@ -120,6 +164,13 @@ class Frame:
         return Mountings(
             np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
         )
+
+    def errors(self, model: Model) -> np.ndarray:
+        """(N,) image errors of ``model`` at every point at its measured capture time
+        (:func:`~.refine.exact_errors`: normalized units, in pixels of the measured image over
+        the focal length with the whitening :attr:`W`); ``inf`` behind the camera."""
+        R, C, w, t = model
+        return exact_errors(R, C, w, t, self.X, self.x, self.r - self.r0, self.W)
 
     def head(self, m: int) -> Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the

@@ -510,11 +510,9 @@ def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens
     return R, C, w, t, cov, info, G
 
 
-def image_alone(
-    fr: Frame, final: FinalModel, th: float, prior: MotionPrior | None
-) -> ImageAlone | None:
+def image_alone(fr: Frame, model, th: float, prior: MotionPrior | None) -> ImageAlone | None:
     """:func:`~.finalize.image_alone` in NumPy and SciPy: the final refinement of the
-    gyro-aided ``final`` model without the gyro (:func:`_refine` with the motion ``prior``
+    gyro-aided ``model`` without the gyro (:func:`_refine` with the motion ``prior``
     without it on planar frames or with ``prior.always``, maximum likelihood otherwise): the
     angular velocity (rad/s, camera optical frame) the image alone gives near that model,
     its (3, 3) covariance and the inliers it explains within ``th`` (normalized units).
@@ -522,7 +520,7 @@ def image_alone(
     if not fr.spr > 0:
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
-    R, C, w, t = (np.array(a, dtype=float) for a in final.model)
+    R, C, w, t = (np.array(a, dtype=float) for a in model)
     R, C, w, t, cov, _, _ = _refine(fr, (R, C, w, t), th, True, prior if on else None)
     if cov is None or not all(np.isfinite(a).all() for a in (R, C, w, t)):
         return None

@@ -1479,7 +1479,8 @@ def refine_rs_pose_numpy(
     Jacobian) with the Huber loss at ``loss_scale`` on the points within ``settings.cutoff``
     of the model, at most ``max_iterations + 1`` evaluations, up to :data:`NUMPY_PASSES`
     times while the points within the cutoff change (the compiled loop selects them at every
-    iteration); the prior's rows are weighed by ``settings.noise`` (0 when None). The model
+    iteration); the prior's rows are weighed by ``settings.noise`` (None: estimated from the
+    starting model's errors within ``loss_scale``, as the compiled refinement does). The model
     stays as given when fewer than 7 points are within the cutoff or a fit fails
     (``max_iterations=0``: no fit, the covariance at the model). With ``covariance``: at the
     result, over the points within the cutoff, ``H = J^T W J`` (``W`` the Huber weights,
@@ -1496,8 +1497,17 @@ def refine_rs_pose_numpy(
         w, t = np.zeros(3), np.zeros(3)
     spr = float(settings.seconds_per_unit_r)
     motion = prior if rolling and spr > 0 else None
-    noise = 0.0 if settings.noise is None else float(settings.noise)
     cut, max_iterations = float(settings.cutoff), int(settings.max_iterations)
+    noise = settings.noise
+    if noise is None and prior_arrays(motion)[0]:  # (from the start's errors, as compiled)
+        e0 = _errors_numpy(np.concatenate([np.zeros(3), C, w, t]), R, X, x, tau, mountings)
+        inside = e0[e0 <= k]
+        noise = np.sqrt(
+            untruncated_variance.py_func(
+                float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k
+            )
+        )
+    noise = 0.0 if noise is None else float(noise)
     near, nfev, success = None, 0, True
     for _ in range(NUMPY_PASSES if max_iterations > 0 else 0):
         theta = np.concatenate([np.zeros(3), C, w, t])

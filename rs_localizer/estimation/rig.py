@@ -120,7 +120,7 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .finalize import ImageAlone, still_fallback
+from .finalize import image_alone, rolling_shutter_check, still_fallback
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -649,7 +649,17 @@ class _Pool:
     normalized error times it is to first order the error in the measured, distorted image;
     the focal length times the identity for a camera without distortion and with fx = fy);
     ``numpy``: the refinement and covariance run in NumPy/SciPy (the ``"numpy"``
-    implementation, :func:`estimate_rig_pose`)."""
+    implementation, :func:`estimate_rig_pose`).
+
+    It is the final stage's :class:`~.frame.RefinementView` of the rig frame (the refinements
+    of :mod:`~.finalize` a single camera's frame takes): time ``r = tau`` (s, ``r0 = 0``, one
+    second per unit), the errors in px through each camera's mounting."""
+
+    #: the time of :class:`~.frame.RefinementView`: tau itself, in seconds
+    r0 = 0.0
+    spr = 1.0
+    #: the rig passes no planar motion prior to the final stage (:class:`~.frame.RefinementView`)
+    planar = False
 
     def __init__(self, views: Sequence[RigView], numpy: bool = False, cache: dict | None = None):
         self.numpy = bool(numpy)  # (the refinement and covariance in NumPy/SciPy)
@@ -692,6 +702,23 @@ class _Pool:
             self.focal, self.A = np.zeros(0), np.zeros((0, 4))
         #: s: the observation times' spread (np.ptp of tau; 0 without points)
         self.tau_spread = float(self.tau.max() - self.tau.min()) if len(self.tau) else 0.0
+
+    @property
+    def r(self) -> np.ndarray:
+        return self.tau
+
+    @property
+    def compiled(self) -> bool:
+        return not self.numpy
+
+    def mountings(self) -> Mountings | KernelMountings:
+        """The refinement's mountings of every point (:func:`_mountings`, checked for the
+        compiled kernel: :func:`_kernel_mountings`)."""
+        return _mountings(self) if self.numpy else _kernel_mountings(self)
+
+    def errors(self, model) -> np.ndarray:
+        """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
+        return _errors_px(self, *_one(model))[0]
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -1567,9 +1594,9 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
     est = _estimate(pool, *settings, prior=prior)
     chi2, image_inliers = np.inf, 0
     if est.success:
-        image = _image_alone(pool, est, threshold_px)
+        image = image_alone(pool, est.model, threshold_px, None)
         if image is not None:
-            inl = _errors_px(pool, *_one(est.model))[0] < threshold_px
+            inl = pool.errors(est.model) < threshold_px
             planar = bool(planarity(pool.X[inl], compiled=not pool.numpy) < PLANAR_TOLERANCE)
             chi2 = gyro_image_chi2(
                 gyro, image.angular_velocity, image.covariance, planar, not pool.numpy
@@ -1588,20 +1615,18 @@ def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> R
     when it shows no motion, as a single camera's (:func:`~.finalize.still_fallback`): the
     rig's generalized absolute pose (P3P samples, the refinement of the pose alone,
     ``global_shutter``) if the rolling-shutter model refined from it
-    (:func:`_rolling_shutter_fit`) finds velocities its noise explains, with that
+    (:func:`~.finalize.rolling_shutter_check`) finds velocities its noise explains, with that
     refinement's twist covariance. Otherwise ``est`` as it is, and always without the
     refinement (``options.refine``) or on a rig frame already taken at one time."""
     options = settings[0]
     if est.success or not options.refine.enabled or pool.tau_spread <= STILL_SPREAD:
         return est
-    zero = np.zeros(3)
-
-    def motion(gs: RigPoseEstimate) -> tuple | None:
-        fit = _rolling_shutter_fit(pool, (gs.R, gs.C, zero, zero), options.ransac.threshold_px)
-        return None if fit is None else (fit[1], fit[0][2], fit[0][3])
-
     still = still_fallback(
-        est.failure, lambda: _estimate(pool, *settings, still=True), motion, 1.0, not pool.numpy
+        est.failure,
+        lambda: _estimate(pool, *settings, still=True),
+        lambda gs: rolling_shutter_check(pool, gs.model, options.ransac.threshold_px),
+        1.0,
+        not pool.numpy,
     )
     return est if still is None else still
 
@@ -1849,35 +1874,6 @@ def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
     if d[1] * PREDICTION_MARGIN <= d[0]:
         return 1
     return None
-
-
-def _image_alone(pool: _Pool, est: RigPoseEstimate, threshold_px: float) -> ImageAlone | None:
-    """What the image alone says near a gyro-aided rig estimate, as a single camera's
-    :func:`~rs_localizer.estimation.finalize.image_alone`: the final refinement of its model
-    without the gyro (maximum likelihood), its angular velocity (rad/s, rig frame) with that
-    velocity's covariance from the data alone, and the inliers it explains; None when it gives
-    no finite model or covariance."""
-    fit = _rolling_shutter_fit(pool, est.model, threshold_px)
-    if fit is None:
-        return None
-    model, cov = fit
-    n = int(np.count_nonzero(_errors_px(pool, *_one(model))[0] < threshold_px))
-    return ImageAlone(-np.asarray(model[2], dtype=float), cov[6:9, 6:9], n)
-
-
-def _rolling_shutter_fit(
-    pool: _Pool, model, threshold_px: float
-) -> tuple[tuple, np.ndarray] | None:
-    """The final refinement of ``model`` on the rolling-shutter model by maximum likelihood
-    (:func:`_refine`, no gyro) and its (12, 12) covariance (:func:`_covariance`): what the
-    points alone say of the velocities near ``model`` (the image-alone check of a gyro, the
-    evidence of motion of a rig frame posed on the global-shutter model). None when it gives
-    no finite model or covariance."""
-    fit = _refine(pool, None, model, threshold_px)
-    cov, _ = _covariance(pool, fit, threshold_px)
-    if cov is None or not all(np.isfinite(a).all() for a in fit):
-        return None
-    return fit, cov
 
 
 @functools.lru_cache(maxsize=16)

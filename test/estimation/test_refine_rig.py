@@ -19,7 +19,7 @@ from rs_localizer.estimation.refine import (
     least_squares_exact_model,
     refine_rs_pose,
 )
-from rs_localizer.geometry import rotvec_to_matrix
+from rs_localizer.geometry import matrix_to_rotvec, rotvec_to_matrix
 from rs_localizer.sim.synthetic import make_frame
 
 
@@ -167,3 +167,44 @@ def test_mountings_checked_once_refine_as_the_mountings():
         refine_rs_pose(start, X[1:], x[1:], tau[1:], 2.0 / 500, settings, mountings=once)
     with pytest.raises(ValueError, match="camera index"):
         kernel_mountings(mnt._replace(cam=mnt.cam + 1), len(X))
+
+
+@pytest.mark.parametrize("with_prior", [False, True])
+def test_the_numpy_refinement_reaches_the_compiled_one_and_gives_its_covariance(with_prior):
+    """``refine_rs_pose_numpy`` (SciPy's least_squares, nothing compiled) on a rig with 10 %
+    outliers: the compiled refinement's optimum, and at one model (no step) its sigma,
+    information, acceleration block and (posterior) covariance."""
+    from dataclasses import replace
+
+    from rs_localizer.estimation.refine import refine_rs_pose_numpy
+
+    rng = np.random.default_rng(7)
+    (R, C, w, t), X, x, tau, mnt = rig_problem(rng, m=3, n=40)
+    bad = rng.choice(len(X), 12, replace=False)
+    x[bad] += rng.normal(size=(12, 2)) * 0.05  # (~25 px off: beyond the cutoff)
+    start = (rotvec_to_matrix(rng.normal(size=3) * 0.003) @ R, C + 0.005, w * 0.95, t)
+    prior = MotionPrior(1.0, 1.0) if with_prior else None
+    settings = RefineSettings(
+        max_iterations=50, tol=1e-15, cutoff=3.0, seconds_per_unit_r=1.0, acceleration_block=True
+    )
+    a = refine_rs_pose(start, X, x, tau, 1.0, settings, prior, mnt)
+    b = refine_rs_pose_numpy(start, X, x, tau, 1.0, settings, prior, mnt)
+    assert a.success and b.success
+    # the same optimum within a tenth of its standard deviation (SciPy's Huber loss acts on
+    # each residual component, the compiled one on each point's distance)
+    d = np.r_[matrix_to_rotvec(b.R @ a.R.T), b.C - a.C, b.w - a.w, b.t - a.t]
+    assert np.all(np.abs(d) < 0.1 * np.sqrt(np.diag(a.covariance)))
+    # (both moved from the start to the truth, 1.5 rad/s, within the noise)
+    assert np.linalg.norm(b.w - w) < 0.05 < np.linalg.norm(np.asarray(start[2]) - w)
+    at = (a.R, a.C, a.w, a.t)
+    still = replace(settings, max_iterations=0)
+    a0 = refine_rs_pose(at, X, x, tau, 1.0, still, prior, mnt)
+    b0 = refine_rs_pose_numpy(at, X, x, tau, 1.0, still, prior, mnt)
+    np.testing.assert_allclose(b0.R, a.R, rtol=0, atol=0)  # (no step)
+    assert b0.sigma == pytest.approx(a0.sigma, rel=1e-9)
+    for p, q in (
+        (a0.data_information, b0.data_information),
+        (a0.acceleration_block, b0.acceleration_block),
+        (a0.covariance, b0.covariance),
+    ):
+        np.testing.assert_allclose(q, p, rtol=1e-7, atol=1e-9 * np.abs(p).max())
