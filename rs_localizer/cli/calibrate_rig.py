@@ -34,8 +34,12 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "are adjusted jointly by least squares (outliers left out), each mounting with its "
         "covariance (the adjustment's and a bias every frame's pose shares). Writes the "
         "node's rig parameters (rig.<camera>.mounting and mounting_covariance, "
-        "docs/rig_node.md) with each camera's RS timing. The cameras and their timing come "
-        "from the bag's rig_params.yaml, then --params-file.",
+        "docs/rig_node.md) with each camera's RS timing. The cameras, their timing and "
+        "max_points come from the bag's rig_params.yaml, then --params-file. Each camera's "
+        "clouds are read as the rig node reads them: with the camera_info of the cloud's "
+        "stamp, rows with a NaN or inf dropped (counted points_dropped), then at most "
+        "max_points rows (counted capped_clouds, capped_points); the counts are printed for "
+        "each camera that had any.",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
@@ -108,6 +112,17 @@ def short_video_warning(name: str, frames: int) -> str:
         f"frames fix poorly (the error may be up to {factor:.1f}x the std, 95 % bound); record "
         f"{MIN_RIG_FRAMES} or more rig frames"
     )
+
+
+def rows_note(name: str, counts: dict, max_points: int) -> str:
+    """The line on camera ``name``'s rows left out of its frames: ``counts``
+    (``points_dropped``, ``capped_clouds``, ``capped_points`` of
+    :attr:`~rs_localizer.ros.bags.rig_bag.RigFrames.counts`) as ``replay`` names them."""
+    return (
+        f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
+        + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
+        "rows capped to it)"
+    )  # fmt: skip
 
 
 def _mounting7(mount) -> list[float]:
@@ -220,7 +235,8 @@ def run(args: argparse.Namespace) -> int:
     out_path = A.output_file(args.output, what="parameter file") if args.output else None
     for f in args.params_file:
         A.input_file(f, "parameter file")
-    frames, values, cams = read_rig_frames(bag, args.params_file)
+    read = read_rig_frames(bag, args.params_file)
+    frames, values, cams = read.frames, read.values, read.cameras
     names = [str(n).strip() for n in values["rig.cameras"]]
     ref = args.reference or names[0]
     if ref not in names:
@@ -256,6 +272,9 @@ def run(args: argparse.Namespace) -> int:
     ]
     if ref_mount is None:  # (the rig frame is the reference camera's optical frame)
         given = relative_to(given, ref)
+    for n in names:
+        if any(read.counts[n].values()):
+            notes.append(rows_note(n, read.counts[n], int(values["max_points"])))
     report = {}
     for n in names:
         e = est[n]
@@ -268,6 +287,7 @@ def run(args: argparse.Namespace) -> int:
             "mounting_covariance": _covariance36(e.mount),
             "scatter_deg": e.scatter_deg,
             "scatter_mm": e.scatter_mm,
+            **read.counts[n],
         }
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")

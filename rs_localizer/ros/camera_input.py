@@ -5,8 +5,9 @@ dropped, at most ``max_points``), an image decoded against the camera model.
 
 :class:`CameraInput` is the camera's in :class:`~rs_localizer.ros.pipeline.FramePipeline`
 (``rs_localizer_node`` and ``rs-localizer replay``) and each camera's in
-:class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode) and in the replay of a rig bag
-(:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`), both made by :func:`rig_camera_inputs`.
+:class:`~rs_localizer.ros.rig_node.RigCore` (the rig mode) and in the reader of a rig bag's
+frames (:func:`~rs_localizer.ros.bags.rig_bag.iter_rig_frames`: ``replay``, ``calibrate-rig``
+and the rig-frame grouping of ``play --lockstep``), both made by :func:`rig_camera_inputs`.
 Its counts go to its owner's ``count(key, n)``: the single-camera node counts them as they
 are (``camera_info_rejected``, ``camera_info_rejected.<reason>``, ``points_dropped``,
 ``capped_clouds``, ``capped_points``), the rig node per camera
@@ -189,9 +190,10 @@ def rig_camera_inputs(
     camera's inputs: its camera_infos made models with the camera's rolling-shutter timing
     (``rig.<camera>.line_delay``, ``readout_time``, ``direction``, else the ``rs.*`` values)
     and the rig's reference row, its clouds' rows capped to the rig's ``max_points``. The rig
-    node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the replay of a rig bag
-    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both read their cameras through them,
-    so that both take the same rows of a cloud and count them alike.
+    node (:class:`~rs_localizer.ros.rig_node.RigCore`) and the reader of a rig bag's frames
+    (:func:`~rs_localizer.ros.bags.rig_bag.iter_rig_frames`: ``replay``, ``calibrate-rig``,
+    the rig-frame grouping of ``play --lockstep``) both read their cameras through them, so
+    that both take the same rows of a cloud and count them alike.
 
     Args:
         config: the rig's :class:`~rs_localizer.ros.config.RigConfig`.

@@ -239,3 +239,66 @@ def test_a_short_video_is_warned_about(tmp_path, capsys):
         assert f"WARNING: {name}: only 3 rig frames" in err, err
     assert "up to 4.4x the std" in err and f"record {MIN_RIG_FRAMES} or more" in err
     assert "# WARNING: left: only 3 rig frames" in out.read_text()
+
+
+def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
+    """The left camera's clouds each hold a row with a NaN and more rows than ``max_points``
+    (the front camera's fewer): calibrate-rig's frames of the left camera hold at most
+    ``max_points`` rows, all finite and all rows of the cloud; the front camera's every row.
+    The rows dropped and capped are counted per camera, printed for the left camera alone
+    and given for each in the JSON; the mountings are still calibrated."""
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.rig_bag import read_rig_frames, write_rig_bag
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=200, seed=5)
+    cap = 60
+    rows = {}  # (camera, stamp ns) -> the cloud's finite rows as (u, v, x, y, z)
+    for f in frames:
+        if f.name == "left":
+            f.uv = f.uv.copy()
+            f.uv[3, 0] = np.nan
+        else:  # (front: fewer rows than the cap)
+            f.uv, f.xyz = f.uv[: cap - 10], f.xyz[: cap - 10]
+        ok = np.isfinite(f.uv).all(axis=1)
+        rows[(f.name, f.stamp_ns)] = np.hstack([f.uv[ok], f.xyz[ok]])
+    n_left = sum(f.name == "left" for f in frames)
+    assert min(len(r) for (c, _), r in rows.items() if c == "left") > cap
+    bag = write_rig_bag(tmp_path / "rig", frames, cams, traj)
+    params = tmp_path / "cap.yaml"
+    params.write_text(f"/**/rs_localizer:\n  ros__parameters:\n    max_points: {cap}\n")
+
+    read = read_rig_frames(bag, [params])
+    assert len(read.frames) == len(frames)
+    for f in read.frames:
+        want = rows[(f.camera_name, f.stamp_ns)]
+        got = np.hstack([f.points2d, f.points3d])
+        assert np.isfinite(got).all()
+        if f.camera_name == "left":
+            assert len(got) == cap
+            assert all(np.isclose(want, g, atol=1e-4).all(axis=1).any() for g in got)
+        else:
+            assert np.allclose(got, want, atol=1e-4)
+    capped_points = sum(len(r) - cap for (c, _), r in rows.items() if c == "left")
+    assert read.counts == {
+        "front": {"points_dropped": 0, "capped_clouds": 0, "capped_points": 0},
+        "left": {"points_dropped": n_left, "capped_clouds": n_left, "capped_points": capped_points},
+    }
+
+    capsys.readouterr()
+    args = ["calibrate-rig", str(bag), "--params-file", str(params), "--json", "-o",
+            str(tmp_path / "out.yaml")]  # fmt: skip
+    assert main(args) == 0
+    cap_out = capsys.readouterr()
+    report = json.loads(cap_out.out)["cameras"]
+    line = (
+        f"left: points_dropped {n_left}, capped_clouds {n_left}, capped_points "
+        f"{capped_points} (rows with a NaN or inf dropped; clouds of more than max_points "
+        f"{cap} rows capped to it)"
+    )
+    assert line in cap_out.err and "front: points_dropped" not in cap_out.err
+    assert f"# {line}" in (tmp_path / "out.yaml").read_text()
+    for c in ("front", "left"):
+        assert {k: report[c][k] for k in read.counts[c]} == read.counts[c]
+    assert report["left"]["frames"] >= 5 and np.isfinite(report["left"]["std_deg"])

@@ -200,3 +200,78 @@ def test_replay_of_a_rig_warns_when_its_video_contradicts_the_cameras_timing(tmp
     err = capsys.readouterr().err
     assert "warning: the rig frames' rolling-shutter motion does not predict the video" in err
     assert "rig.<camera>" in err
+
+
+def _rewrite_bag(src, dst, edit):
+    """Copy the rig bag ``src`` to ``dst`` (its sequence.json and rig_params.yaml too), each
+    message through ``edit(topic, msg, log_time_ns)`` -> ``[(log_time_ns, msg), ...]``."""
+    import shutil
+
+    from rosbags.rosbag2 import Writer
+
+    from rs_localizer.ros.bags.bag_io import iter_messages, storage_plugin, typestore
+
+    ts = typestore()
+    with Writer(dst, version=9, storage_plugin=storage_plugin("mcap")) as w:
+        conns = {}
+        for topic, mt, t, raw in iter_messages(src):
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, mt, typestore=ts)
+            for t2, msg in edit(topic, ts.deserialize_cdr(raw, mt), t):
+                w.write(conns[topic], t2, ts.serialize_cdr(msg, mt))
+    for name in ("sequence.json", "rig_params.yaml"):
+        shutil.copy(src / name, dst / name)
+    return dst
+
+
+def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
+    """The frames calibrate-rig and play --lockstep read take the camera model of the newest
+    camera_info stamped at or before each cloud, as the rig node does, not the one received
+    last: the left camera's camera_info changes (fx 2 % up) at its 5th frame's stamp but is
+    received before its 2nd frame. The front camera's first camera_info is missing: its
+    first frame, received before any, has no camera model (the node counts it
+    ``skipped.no_camera_info``) and joins no rig frame."""
+    from dataclasses import replace
+
+    from rs_localizer.ros.bags.rig_bag import (
+        read_rig_frames,
+        replay_rig,
+        rig_frame_grouping,
+        write_rig_bag,
+    )
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.3, num_points=80, seed=4)
+    clean = write_rig_bag(tmp_path / "clean", frames, cams, traj)
+    stamps = {c.name: [f.stamp_ns for f in frames if f.name == c.name] for c in cams}
+    change = stamps["left"][4]
+    fx = cams[1].camera.K[0, 0]
+
+    def edit(topic, msg, t):
+        s = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if topic == "/rig/left/camera_info":
+            if s < change:
+                return [(t, msg)]
+            k, q = msg.k.copy(), msg.p.copy()
+            k[0], q[0] = 1.02 * k[0], 1.02 * q[0]
+            msg = replace(msg, k=k, p=q)
+            # (received at once after the first one: before the clouds stamped before it)
+            return [(stamps["left"][0] + 1_500_000, msg)] if s == change else [(t, msg)]
+        if topic == "/rig/front/camera_info" and s == stamps["front"][0]:
+            return []
+        return [(t, msg)]
+
+    bag = _rewrite_bag(clean, tmp_path / "changed", edit)
+    read = read_rig_frames(bag)
+    left = [f for f in read.frames if f.camera_name == "left"]
+    assert [f.stamp_ns for f in left] == stamps["left"]
+    for f in left:
+        want = fx * 1.02 if f.stamp_ns >= change else fx
+        assert f.camera.K[0, 0] == pytest.approx(want, rel=1e-9), f.stamp_ns
+    front = [f for f in read.frames if f.camera_name == "front"]
+    assert front[0].camera is None and all(f.camera is not None for f in front[1:])
+    # the grouping play --lockstep waits on is the replay's (the node's reading)
+    res = replay_rig(bag)
+    assert res.counts["front"]["skipped"] == 1  # (no camera model)
+    assert rig_frame_grouping(bag)[1] == res.counts["rig"]["rig_frames"]

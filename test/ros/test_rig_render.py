@@ -81,10 +81,17 @@ def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
     """``read_rig_frames`` (calibrate-rig) and ``replay_rig`` read the frames through
     ``iter_rig_frames``: every correspondences message once, with its camera's model."""
     from rs_localizer.ros.bags.bag_io import iter_messages, typestore
-    from rs_localizer.ros.bags.rig_bag import iter_rig_frames, read_rig_frames, replay_rig
+    from rs_localizer.ros.bags.rig_bag import (
+        _QuietLog,
+        iter_rig_frames,
+        read_rig_frames,
+        replay_rig,
+        rig_bag_config,
+    )
+    from rs_localizer.ros.camera_input import rig_camera_inputs
 
     bag = rendered_rig_bag
-    frames, _, _ = read_rig_frames(bag)
+    frames = read_rig_frames(bag).frames
     meta = json.loads((bag / "sequence.json").read_text())
     by = {c["name"]: c for c in meta["rig"]["cameras"]}
     ts = typestore()
@@ -99,8 +106,8 @@ def test_one_reader_for_replay_and_calibrate_rig(rendered_rig_bag):
         c = by[f.camera_name]
         assert f.camera.line_delay == pytest.approx(c["line_delay"])
         assert f.camera.readout == c["direction"]
-    timing = {n: (by[n]["line_delay"], -1.0, by[n]["direction"], None) for n in by}
-    again = list(iter_rig_frames(bag, timing))
+    cfg = rig_bag_config(bag)[2]
+    again = list(iter_rig_frames(bag, rig_camera_inputs(cfg, _QuietLog(), lambda *a: None)))
     assert len(again) == len(frames) == 3 * FRAMES
     res = replay_rig(bag)
     for n in by:
@@ -129,7 +136,7 @@ def test_rig_frame_ends_follow_the_rig_mode(tmp_path):
     values, cam_values = rig_parameter_values(bag)
     rig = RigLocalizer(rig_config(values, cam_values).settings)
     truth = {}
-    for f in read_rig_frames(bag)[0]:
+    for f in read_rig_frames(bag).frames:
         k = len(rig.add(f))
         if k:
             truth[(f.camera_name, f.stamp_ns)] = k

@@ -29,10 +29,9 @@ import numpy as np
 
 from ...accuracy import frame_errors
 from .. import conversions as cv
-from ..config import rig_config
+from ..config import RigConfig, rig_config
 from ..param_files import read_params_file
 from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, default_values
-from ..pointcloud import read_correspondences
 from .bag_io import (
     CAMERA_INFO,
     GT_POSE,
@@ -56,12 +55,14 @@ if TYPE_CHECKING:
     from ..camera_input import CameraInput
 
 __all__ = [
+    "RigFrames",
     "RigReplay",
     "RigTopics",
     "is_rig_bag",
     "iter_rig_frames",
     "read_rig_frames",
     "replay_rig",
+    "rig_bag_config",
     "rig_namespace",
     "rig_parameter_values",
     "write_rig_bag",
@@ -263,6 +264,38 @@ def rig_parameter_values(
     return values, cams
 
 
+#: the mounting every camera is read with where the mountings play no part (the frames of a
+#: rig bag read for ``calibrate-rig`` and ``play --lockstep``): the identity
+_ANY_MOUNTING = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+
+
+def rig_bag_config(
+    bag: str | os.PathLike | None,
+    params_files: Iterable[str | os.PathLike] = (),
+    params: Mapping[str, Any] | None = None,
+    *,
+    mountings: bool = True,
+) -> tuple[dict, dict, RigConfig]:
+    """``(values, camera values, config)``: the parameter values of
+    :func:`rig_parameter_values` and the rig's configuration of them
+    (:func:`~rs_localizer.ros.config.rig_config`), as the rig node takes them.
+
+    ``mountings`` False: the cameras' mountings are not read (the config's are the identity;
+    the camera values keep the parameters' own), for readers of the cameras' frames alone
+    (:func:`read_rig_frames`): a rig without mountings yet is read as well.
+
+    Raises:
+        ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
+            no ``rig.cameras``).
+    """
+    values, cams = rig_parameter_values(bag, params_files, params)
+    given = cams
+    if not mountings:
+        given = {str(n).strip(): {**c, "mounting": _ANY_MOUNTING, "mounting_covariance": None}
+                 for n, c in cams.items()}  # fmt: skip
+    return values, cams, rig_config(values, given)
+
+
 @dataclass
 class RigReplay:
     """What :func:`replay_rig` did: ``outputs`` (every rig frame's
@@ -346,10 +379,7 @@ def replay_rig(
     from ...tracking.rig import RigLocalizer
     from ..camera_input import rig_camera_inputs
 
-    values, cams = rig_parameter_values(bag, params_files, params)
-    cfg = rig_config(values, cams)
-    timing = {c.name: (c.line_delay, c.readout_time, c.direction, cfg.reference_row)
-              for c in cfg.cameras}  # fmt: skip
+    _, _, cfg = rig_bag_config(bag, params_files, params)
     rig = RigLocalizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
     own: Counter = Counter()  # (the cameras' inputs' counts, "<camera>.<key>")
@@ -362,7 +392,7 @@ def replay_rig(
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
     bar = progress_bar(progress, None, unit=" rig frames")
-    for frame in iter_rig_frames(bag, timing, inputs):
+    for frame in iter_rig_frames(bag, inputs):
         while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
         frame = replace(frame, tag=frame.stamp_ns)
@@ -460,46 +490,61 @@ def is_rig_bag(bag: str | os.PathLike) -> bool:
     return "rig" in read_bag_info(bag)
 
 
+@dataclass
+class RigFrames:
+    """What :func:`read_rig_frames` read: ``frames`` (every camera's
+    :class:`~rs_localizer.tracking.rig.RigCameraFrame`, in log-time order), ``values`` (the
+    parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
+    ``counts``: camera -> the counts of its rows, ``points_dropped`` (rows with a NaN or inf),
+    ``capped_clouds`` (clouds capped to ``max_points``) and ``capped_points`` (the rows the
+    cap left out)."""
+
+    frames: list
+    values: dict
+    cameras: dict
+    counts: dict
+
+
+#: the counts of a camera's rows :func:`read_rig_frames` reports
+READ_COUNTS = ("points_dropped", "capped_clouds", "capped_points")
+
+
 def read_rig_frames(
     bag: str | os.PathLike,
     params_files: Iterable[str | os.PathLike] = (),
     params: Mapping[str, Any] | None = None,
-) -> tuple[list, dict, dict]:
+) -> RigFrames:
     """Every camera's frames of a rig bag, without mountings (what ``calibrate-rig`` reads).
 
     The cameras are ``rig.cameras`` of :func:`rig_parameter_values` (the bag's
-    ``rig_params.yaml``, the parameter files, ``params``); each camera's RS timing is its
-    ``rig.<camera>.*`` value, else the ``rs.*`` one; its frames are read from
-    ``<namespace>/<camera>/correspondences`` with the model of the camera_info received
-    before them (frames before any camera_info have ``camera`` None).
+    ``rig_params.yaml``, the parameter files, ``params``), configured as the rig node
+    configures them (:func:`rig_bag_config`, the mountings not read); each camera's frames
+    are read through its :class:`~rs_localizer.ros.camera_input.CameraInput`
+    (:func:`iter_rig_frames`), as the rig node and ``replay`` read them: each cloud with the
+    model of the camera_info of its stamp (None before the camera's first camera_info), its
+    rows with a NaN or inf dropped, then at most ``max_points`` rows, counted per camera
+    (:attr:`RigFrames.counts`).
 
-    Returns:
-        (frames: :class:`~rs_localizer.tracking.rig.RigCameraFrame` in log-time order, the
-        parameter values, the cameras' values).
     Raises:
-        ValueError: no ``rig.cameras``, or an unknown readout direction.
+        ValueError: no ``rig.cameras``;
+            :class:`~rs_localizer.ros.params.ConfigError` (a ValueError): parameters the rig
+            node refuses (e.g. an unknown readout direction).
     """
-    from ...camera import READOUT_DIRECTIONS
+    from ..camera_input import rig_camera_inputs
 
-    values, cams = rig_parameter_values(bag, params_files, params)
-    names = [str(n).strip() for n in values["rig.cameras"]]
-    if not names:
+    values = rig_parameter_values(bag, params_files, params)[0]
+    if not [str(n).strip() for n in values["rig.cameras"]]:
         raise ValueError(f"{bag}: no rig.cameras (not a rig bag, and no --params-file with them)")
-    ref = float(values["rs.reference_row"])
-    timing = {}
-    for n in names:
-        c = cams[n]
-        ld, rt = float(c.get("line_delay", -1.0)), float(c.get("readout_time", -1.0))
-        d = str(c.get("direction", "") or values["rs.direction"]).strip()
-        if d not in READOUT_DIRECTIONS:
-            raise ValueError(f"rig.{n}.direction: unknown readout direction {d!r}")
-        timing[n] = (
-            float(values["rs.line_delay"]) if ld < 0 else ld,
-            float(values["rs.readout_time"]) if rt < 0 else rt,
-            d,
-            None if ref < 0 else ref,
-        )
-    return list(iter_rig_frames(bag, timing)), values, cams
+    values, cams, cfg = rig_bag_config(bag, params_files, params, mountings=False)
+    counts = {c.name: Counter() for c in cfg.cameras}
+
+    def count(name: str, key: str, n: int = 1) -> None:
+        counts[name][key] += n
+
+    inputs = rig_camera_inputs(cfg, _QuietLog(), count)
+    frames = list(iter_rig_frames(bag, inputs))
+    rows = {n: {k: int(c[k]) for k in READ_COUNTS} for n, c in counts.items()}
+    return RigFrames(frames, values, cams, rows)
 
 
 def rig_namespace(bag: str | os.PathLike) -> str:
@@ -527,27 +572,21 @@ class RigTopics:
 
 
 def iter_rig_frames(
-    bag: str | os.PathLike,
-    timing: Mapping[str, tuple],
-    inputs: Mapping[str, CameraInput] | None = None,
+    bag: str | os.PathLike, inputs: Mapping[str, CameraInput]
 ) -> Iterator[RigCameraFrame]:
-    """The one reader of a rig bag's camera frames: every camera of ``timing`` (name ->
-    ``(line_delay s/line, readout_time s, direction, reference_row px or None)``, the RS timing
-    its camera_info's model gets), in log-time order, from ``<namespace>/<camera>/
-    correspondences``, each with the model of that camera's latest camera_info (None before
-    one); a camera_info whose model fails is skipped (the camera keeps its last model), a
-    cloud with an invalid stamp or without the x, y, z / u, v fields is skipped.
-
-    ``inputs`` (camera name -> its :class:`~rs_localizer.ros.camera_input.CameraInput`,
-    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): each camera's frames are read
-    through its input, as the rig node reads them: the camera_infos kept by their stamps and
-    each cloud given the model of its own stamp
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_for`: the newest camera_info
-    stamped at or before it), its rows with a NaN or inf dropped, counted
-    ``points_dropped``, then at most its ``max_points``, highest scores first, counted
-    ``capped_clouds``, ``capped_points``
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`); None: every row as the
-    cloud holds it.
+    """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
+    its :class:`~rs_localizer.ros.camera_input.CameraInput`,
+    :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), in log-time order, from
+    ``<namespace>/<camera>/correspondences``, read through the camera's input as the rig node
+    reads them: its camera_infos checked and kept by their stamps (one rejected is counted
+    ``camera_info_rejected.<reason>``, the previous ones stay) and each cloud given the model
+    of its own stamp (:meth:`~rs_localizer.ros.camera_input.CameraInput.camera_for`: the
+    newest camera_info stamped at or before it, the oldest for a cloud older than all; None
+    before the camera's first camera_info is received), its rows with a NaN or inf
+    dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
+    first, counted ``capped_clouds``, ``capped_points``
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`). A cloud with an invalid
+    stamp or without the x, y, z / u, v fields is skipped.
 
     Yields:
         :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
@@ -555,32 +594,20 @@ def iter_rig_frames(
     """
     from ...tracking.rig import RigCameraFrame
 
-    topics = RigTopics(rig_namespace(bag), tuple(timing)).of()
-    models: dict = {n: None for n in timing}
+    topics = RigTopics(rig_namespace(bag), tuple(inputs)).of()
     ts = typestore()
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
         kind, n = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
         if kind == "info":
-            if inputs is not None:  # (kept by its stamp, checked as the node checks it)
-                inputs[n].add_camera_info(msg)
-                continue
-            try:
-                models[n] = cv.camera_model_from_camera_info(msg, *timing[n])
-            except ValueError:
-                continue
+            inputs[n].add_camera_info(msg)
             continue
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
-            if inputs is None:
-                corr = read_correspondences(msg)
-                uv, xyz, model = corr.points2d, corr.points, models[n]
-            else:
-                uv, xyz, _ = inputs[n].read_cloud(msg)
-                model = inputs[n].camera_for(stamp)
+            uv, xyz, _ = inputs[n].read_cloud(msg)
         except ValueError:
             continue
-        yield RigCameraFrame(n, stamp, model, uv, xyz)
+        yield RigCameraFrame(n, stamp, inputs[n].camera_for(stamp), uv, xyz)
 
 
 def rig_frame_ends(
@@ -601,26 +628,27 @@ def rig_frame_grouping(
     """Which camera frames of a rig bag complete a rig frame when played in log-time order
     into the rig mode (what ``play --lockstep`` waits after).
 
-    The frames (:func:`iter_rig_frames`, the cameras and timing of
-    :func:`rig_parameter_values`) are grouped as
+    The frames, read as the rig node reads them (:func:`read_rig_frames`: each cloud with the
+    camera model of its stamp), are grouped as
     :meth:`~rs_localizer.tracking.rig.RigLocalizer.add` groups them: by reference-line time,
     one frame per camera within ``rig.window`` of the rig frame's earliest; a rig frame is
     complete once every camera has joined it, sent a frame past it, or stopped (no frame for
-    ``rig.stop_after`` s). Frames before their camera's camera_info, out of order or late
-    join no rig frame. Rig frames still open at the end (completed only when the node closes)
-    are in no entry.
+    ``rig.stop_after`` s). Frames without a camera model (received before their camera's
+    first camera_info), out of order or late join no rig frame. Rig frames still open at the
+    end (completed only when the node closes) are in no entry.
 
     Returns:
         ``({(camera name, header stamp ns): number of rig frames its arrival completes}``
         (frames completing none are left out), the number of rig frames formed in all (those
         still open at the end included: the rig node's ``rig_frames`` once it closes them)).
     Raises:
-        ValueError: no ``rig.cameras`` or an unknown readout direction (as
+        ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
         :func:`read_rig_frames`).
     """
     from ...camera import reference_stamp_ns
 
-    frames, values, _ = read_rig_frames(bag, params_files, params)
+    read = read_rig_frames(bag, params_files, params)
+    frames, values = read.frames, read.values
     names = [str(n).strip() for n in values["rig.cameras"]]
     window = int(round(float(values["rig.window"]) * 1e9))
     stop = float(values["rig.stop_after"]) * 1e9
