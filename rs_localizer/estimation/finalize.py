@@ -357,6 +357,15 @@ def prior_at_rest(prior: MotionPrior | None) -> bool:
     return float(m @ prior.information() @ m) < MOTION_SIGNIFICANCE_CHI2
 
 
+def _finite_fit(fr: RefinementView, ref: RefineResult) -> bool:
+    """The refinement ``ref`` of ``fr`` gave a finite model and a finite covariance (checked
+    in Python where ``fr`` is not compiled: nothing compiles)."""
+    m = (ref.R, ref.C, ref.w, ref.t)
+    finite = bool(finite_model(*m)) if fr.compiled else all(np.isfinite(a).all() for a in m)
+    cov = ref.covariance
+    return finite and cov is not None and bool(np.isfinite(cov).all())
+
+
 def rolling_shutter_check(
     fr: RefinementView, model: Model, th: float, prior: MotionPrior | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -372,10 +381,9 @@ def rolling_shutter_check(
         return None
     R, C = (np.array(a, dtype=float) for a in model[:2])
     ref = frame_refinement(fr, (R, C, np.zeros(3), np.zeros(3)), th, True, prior)
-    cov = ref.covariance
-    if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
+    if not _finite_fit(fr, ref):
         return None
-    return cov, ref.w, ref.t
+    return ref.covariance, ref.w, ref.t
 
 
 @lru_cache(maxsize=512)
@@ -586,10 +594,10 @@ def image_alone(
         return None
     on = prior is not None and prior.enabled and (fr.planar or prior.always)
     ref = frame_refinement(fr, model, th, True, prior if on else None)
-    cov = ref.covariance
-    if not finite_model(ref.R, ref.C, ref.w, ref.t) or cov is None or not np.isfinite(cov).all():
+    if not _finite_fit(fr, ref):
         return None
-    n = final_inliers(fr.errors((ref.R, ref.C, ref.w, ref.t)), th)[1]
+    cov = ref.covariance
+    n = int(np.count_nonzero(fr.errors((ref.R, ref.C, ref.w, ref.t)) < th))
     # (omega = -w / s in the camera (rig) frame: physical_velocities)
     return ImageAlone(-ref.w / fr.spr, cov[6:9, 6:9] / fr.spr**2, int(n))
 

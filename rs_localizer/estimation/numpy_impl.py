@@ -28,12 +28,13 @@ at a lower rate. Per stage:
 3. local optimization: the compiled implementation's rounds
    (:func:`~.local_optimization.local_optimization`) with the linear solver on the inliers
    pre-rotated by the best model and a robust SciPy fit of the exact model;
-4. finalize: the robust refinement on the exact model with SciPy's ``least_squares``
-   (:func:`final_model`: :func:`~.refine.refine_rs_pose_scipy`, Huber loss on the points
-   within :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a posteriori with the motion
-   prior on planar frames; its covariance from the analytic Jacobian,
-   :func:`~.refine.exact_jacobian`; the acceleration sensitivity from the same Jacobian,
-   as :func:`~.sensitivity.acceleration_sensitivity` forms it), then the compiled
+4. finalize: the robust refinement on the exact model in NumPy and SciPy, the compiled
+   refinement's own backend (:func:`final_model`: :func:`~.refine.refine_rs_pose_numpy`,
+   Huber loss on the points within :data:`~.finalize.FINAL_CUTOFF` thresholds, maximum a
+   posteriori with the motion prior on planar frames; its sigma, information and covariance
+   from the analytic Jacobian as the compiled refinement forms them; the acceleration
+   sensitivity from the same Jacobian, as :func:`~.sensitivity.acceleration_sensitivity`
+   forms it), then the compiled
    implementation's :func:`~.finalize.final_estimate` with ``compiled=False`` (motion
    plausibility, cheirality, the consistent-fit test and the outputs, in NumPy).
 
@@ -60,7 +61,7 @@ import cv2
 import numpy as np
 
 from ..geometry import cross, rotvec_to_matrix
-from ..pose import RSModel, model_twist_jacobian
+from ..pose import RSModel
 from ..solvers.registry import solver_info
 from .finalize import FINAL_CUTOFF, FinalModel, ImageAlone
 from .frame import Frame, Model
@@ -72,10 +73,9 @@ from .prior import MotionPrior, prior_arrays
 from .ransac import Ransac
 from .refine import (
     RefineSettings,
-    exact_jacobian,
-    exact_residuals,
+    huber_fit_numpy,
     least_squares_exact_model,
-    refine_rs_pose_scipy,
+    refine_rs_pose_numpy,
 )
 from .result import (
     TOO_FEW_INLIERS,
@@ -87,11 +87,6 @@ from .sensitivity import physical_sensitivity
 
 __all__ = ["NumpyRansac", "NumpySamples", "final_model", "image_alone"]
 
-#: robust fits of the final refinement at most, each on the points within the cutoff of the
-#: last, until those points stay the same (RANSAC's model out of local optimization's
-#: exact-model steps needs one; a verification sample that beat an initial model, which is
-#: not polished, may need more)
-_FINAL_PASSES = 3
 #: :func:`_refine`'s default prior: the frame's own
 _FRAME_PRIOR = object()
 #: models of a batch scored on all points after the preemptive test on a subset
@@ -374,8 +369,8 @@ def _lo_refine(
     max_nfev = max(settings.max_iterations, 1) + 1
     try:
         if rolling and prior_arrays(prior)[0]:
-            th_ = _huber_map(*args, prior, settings.seconds_per_unit_r, 0.5 * th, th, 1,
-                             max_nfev=max_nfev)  # fmt: skip
+            th_ = huber_fit_numpy(*args, prior, settings.seconds_per_unit_r, 0.5 * th, th,
+                                  max_nfev=max_nfev, rounds=1)  # fmt: skip
         else:
             th_ = least_squares_exact_model(
                 *args, None, 0.0, 0.0, loss="huber", f_scale=th, max_nfev=max_nfev
@@ -385,128 +380,29 @@ def _lo_refine(
     return RSModel(rotvec_to_matrix(th_[:3]) @ R0, th_[3:6], th_[6:9], th_[9:12])
 
 
-#: reweighting passes of a maximum a posteriori fit (:func:`_huber_map`) in the final
-#: refinement
-_MAP_PASSES = 3
-
-
-def _huber_map(
-    R0, theta0, n_free: int, X, x, tau, prior, spr: float, noise: float, th: float,
-    passes: int, **options: Any,
-) -> np.ndarray:  # fmt: skip
-    """The exact model fitted with the Huber loss (scale ``th``) on the image's rows and the
-    motion ``prior``'s rows (scaled by the image ``noise``) as they are: ``passes`` rounds
-    of iteratively reweighted least squares (each point's two rows weighed by the square
-    root of its Huber weight ``min(1, th / e)`` at the round's start, then SciPy's
-    ``least_squares`` without a loss, :func:`~.refine.least_squares_exact_model`; SciPy's
-    own Huber loss would act on the prior's rows too and soften a gyro's prior wherever the
-    image disagrees with it by more than about two of its standard deviations). Returns
-    theta (12,) of (delta, C, w, t) about ``R0``."""
-    theta = theta0
-    for _ in range(passes):
-        e = np.linalg.norm(exact_residuals(theta, R0, X, x, tau).reshape(-1, 2), axis=1)
-        wt = np.sqrt(np.minimum(1.0, th / np.maximum(e, 1e-300)))
-        theta = least_squares_exact_model(
-            R0, theta, n_free, X, x, tau, prior, spr, noise,
-            row_weights=np.repeat(wt, 2), **options,
-        ).theta  # fmt: skip
-    return theta
-
-
-def _fit(fr: Frame, model, near: np.ndarray, th: float, rolling: bool, sigma: float, prior):
-    """One robust fit of the exact model on the points ``near`` selects (Huber loss, scale
-    ``th``): maximum likelihood by :func:`~.refine.refine_rs_pose_scipy`, or on a
-    rolling-shutter fit with ``prior`` MAP by :func:`_huber_map` (the prior's rows weighed
-    by the image noise ``sigma``). Returns (R, C, w, t) or None (not finite)."""
-    if rolling and prior_arrays(prior)[0]:
-        R0, C0, w0, t0 = (np.asarray(a, dtype=float) for a in model)
-        theta = _huber_map(
-            R0, np.concatenate([np.zeros(3), C0, w0, t0]), 12, fr.X[near], fr.x[near],
-            fr.tau[near], prior, fr.spr, sigma, th, _MAP_PASSES,
-            xtol=1e-12, ftol=1e-12, gtol=1e-12,
-        )  # fmt: skip
-        R, C, w, t = rotvec_to_matrix(theta[:3]) @ R0, theta[3:6], theta[6:9], theta[9:12]
-        if not all(np.isfinite(a).all() for a in (R, C, w, t)):
-            return None
-        return R, C, w, t
-    ref = refine_rs_pose_scipy(
-        *model,
-        fr.X[near],
-        fr.x[near],
-        fr.tau[near],
-        th,
-        rolling_shutter=rolling,
-        prior=prior,
-        seconds_per_unit_r=fr.spr,
-        noise=sigma,
-    )
-    R, C, w, t = ref.R, ref.C, ref.w, ref.t
-    if not all(np.isfinite(a).all() for a in (R, C, w, t)):
-        return None
-    return R, C, w, t
-
-
 def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens: bool = False):
-    """The final refinement (:func:`~.finalize.final_refinement` on SciPy): Huber loss
-    (scale ``th``) on the points within ``FINAL_CUTOFF * th`` of the model (selected again
-    after each fit, until they stay the same, at most :data:`_FINAL_PASSES` fits); MAP with
-    ``prior`` (by
-    default the frame's; None: maximum likelihood). Returns (R, C, w, t, covariance
-    (12, 12) of (delta, C, w, t) or None, data information or None, the acceleration
-    sensitivity (12, 6) with ``sens`` on a rolling-shutter fit, else None)."""
+    """The final refinement (:func:`~.finalize.final_refinement` in NumPy and SciPy,
+    :func:`~.refine.refine_rs_pose_numpy`): Huber loss (scale ``th``) on the points within
+    ``FINAL_CUTOFF * th`` of the model, selected again after each fit; MAP with ``prior`` (by
+    default the frame's; None: maximum likelihood). Returns (R, C, w, t, covariance (12, 12)
+    of (delta, C, w, t) or None, data information or None, the acceleration sensitivity
+    (12, 6) with ``sens`` on a rolling-shutter fit, else None)."""
     if prior is _FRAME_PRIOR:
         prior = fr.prior
-    R, C, w, t = model
-    sigma = th / 2.0
-    used = None
-    for _ in range(_FINAL_PASSES):
-        e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
-        near = e < FINAL_CUTOFF * th
-        if used is not None and np.array_equal(near, used):
-            break
-        used = near
-        if np.count_nonzero(near) < 7:
-            return R, C, w, t, None, None, None
-        inl = e < th
-        if np.count_nonzero(inl) > 12:
-            sigma = float(np.sqrt(np.mean(e[inl] ** 2)))
-        fit = _fit(fr, (R, C, w, t), near, th, rolling, sigma, prior)
-        if fit is None:
-            return R, C, w, t, None, None, None
-        R, C, w, t = fit
-    # covariance: Huber weights on the points within the cutoff, sigma from the inliers
-    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
-    near = e < FINAL_CUTOFF * th
-    theta = np.concatenate([np.zeros(3), C, w, t])
-    J = exact_jacobian(theta, R, fr.X[near], fr.x[near], fr.tau[near])
-    res = exact_residuals(theta, R, fr.X[near], fr.x[near], fr.tau[near])
-    wt = np.repeat(np.minimum(1.0, th / np.maximum(e[near], 1e-300)), 2)
-    n_free = 12 if rolling else 6
-    J = J[:, :n_free]
-    H = J.T @ (wt[:, None] * J)
-    dof = max(len(res) - n_free, 1)
-    sigma2 = float(np.sum(wt * res**2) / dof)
-    info = np.zeros((12, 12))
-    info[:n_free, :n_free] = H
-    Hp = H.copy()
-    on, _, Lam = prior_arrays(prior if rolling else None)
-    if on:
-        Jz = model_twist_jacobian.py_func(C, w, fr.spr)
-        Hp = Hp + sigma2 * (Jz.T @ Lam @ Jz)[:n_free, :n_free]
-    try:
-        Hinv = np.linalg.inv(Hp)
-    except np.linalg.LinAlgError:
-        return R, C, w, t, None, info, None
-    cov = np.zeros((12, 12))
-    cov[:n_free, :n_free] = sigma2 * Hinv
-    if not np.isfinite(cov).all():
-        return R, C, w, t, None, info, None
+    acc = bool(sens and rolling and fr.spr > 0)
+    settings = RefineSettings(
+        rolling_shutter=rolling, cutoff=FINAL_CUTOFF * th, seconds_per_unit_r=fr.spr,
+        acceleration_block=acc,
+    )  # fmt: skip
+    ref = refine_rs_pose_numpy(model, fr.X, fr.x, fr.tau, th, settings, prior)
+    R, C, w, t = ref.R, ref.C, ref.w, ref.t
+    cov, info = ref.covariance, ref.data_information
     G = None
-    if sens and rolling and fr.spr > 0:
-        # (:func:`~.sensitivity.acceleration_sensitivity`: G = H^-1 J^T W D, D the w and t
-        # columns times tau / 2, at the (posterior) H of the covariance)
-        D = 0.5 * np.repeat(fr.tau[near], 2)[:, None] * J[:, 6:12]
-        G = physical_sensitivity(Hinv @ (J.T @ (wt[:, None] * D)), R, C, w, fr.spr, False)
+    if acc and cov is not None and ref.acceleration_block is not None:
+        # (:func:`~.sensitivity.acceleration_sensitivity`: G = H^-1 J^T W D at the
+        # (posterior) H of the covariance)
+        Hinv = cov / ref.sigma**2
+        G = physical_sensitivity(Hinv @ ref.acceleration_block, R, C, w, fr.spr, False)
     return R, C, w, t, cov, info, G
 
 

@@ -42,6 +42,7 @@ from .scoring import exact_error2, exact_error2_whitened
 
 __all__ = [
     "LM_REFINE_KERNEL",
+    "NUMPY_MAP_ROUNDS",
     "NUMPY_PASSES",
     "ExactModelFit",
     "KernelMountings",
@@ -52,6 +53,7 @@ __all__ = [
     "exact_jacobian",
     "exact_mounting_jacobian",
     "exact_residuals",
+    "huber_fit_numpy",
     "huber_weights",
     "kernel_mountings",
     "least_squares_exact_model",
@@ -1443,6 +1445,8 @@ def refine_rs_pose_scipy(
 #: fits of :func:`refine_rs_pose_numpy`, each on the points within the cutoff of the last
 #: model (the compiled refinement selects them again at each iteration)
 NUMPY_PASSES = 2
+#: reweighting rounds of a maximum a posteriori fit of :func:`refine_rs_pose_numpy`
+NUMPY_MAP_ROUNDS = 3
 
 
 def _errors_numpy(theta, R0, X, x, tau, mountings) -> np.ndarray:
@@ -1461,6 +1465,33 @@ def huber_weights(e: np.ndarray, k: float) -> np.ndarray:
     return np.where(e <= k, 1.0, k / np.maximum(e, k))
 
 
+def huber_fit_numpy(
+    R0, theta0, free, X, x, tau, prior, spr, noise, k, mountings=None, max_nfev=None,
+    rounds=NUMPY_MAP_ROUNDS,
+) -> np.ndarray:  # fmt: skip
+    """One robust fit of the exact model in SciPy (:func:`least_squares_exact_model`, the
+    arguments of the same names): the Huber loss at ``k`` on the image rows; with a
+    ``prior`` instead ``rounds`` rounds of iteratively reweighted least squares (each point's
+    rows weighed by the square root of its Huber weight at the round's start, no loss), so
+    that the prior's rows stay quadratic as in the compiled refinement (SciPy's loss would act
+    on them too and soften a gyro's prior where the image disagrees with it). Returns theta
+    (12,) about ``R0``."""
+    if not prior_arrays(prior)[0]:
+        return least_squares_exact_model(
+            R0, theta0, free, X, x, tau, None, spr, noise, mountings=mountings, loss="huber",
+            f_scale=k, max_nfev=max_nfev,
+        ).theta  # fmt: skip
+    theta = theta0
+    for _ in range(rounds):
+        e = _errors_numpy(theta, R0, X, x, tau, mountings)
+        wt = np.sqrt(huber_weights(e, k))
+        theta = least_squares_exact_model(
+            R0, theta, free, X, x, tau, prior, spr, noise, row_weights=np.repeat(wt, 2),
+            mountings=mountings, max_nfev=max_nfev,
+        ).theta  # fmt: skip
+    return theta
+
+
 def refine_rs_pose_numpy(
     model: RSModel | tuple,
     X: np.ndarray,
@@ -1477,10 +1508,11 @@ def refine_rs_pose_numpy(
 
     The fit is SciPy's ``least_squares`` (:func:`least_squares_exact_model`, analytic
     Jacobian) with the Huber loss at ``loss_scale`` on the points within ``settings.cutoff``
-    of the model, at most ``max_iterations + 1`` evaluations, up to :data:`NUMPY_PASSES`
-    times while the points within the cutoff change (the compiled loop selects them at every
-    iteration); the prior's rows are weighed by ``settings.noise`` (None: estimated from the
-    starting model's errors within ``loss_scale``, as the compiled refinement does). The model
+    of the model (with a prior: reweighted least squares, :func:`huber_fit_numpy`), at most
+    ``max_iterations + 1`` evaluations, up to :data:`NUMPY_PASSES` times while the points
+    within the cutoff change (the compiled loop selects them at every iteration); the prior's
+    rows are weighed by ``settings.noise`` (None: estimated from the starting model's errors
+    within ``loss_scale``, as the compiled refinement does). ``nfev`` is not counted. The model
     stays as given when fewer than 7 points are within the cutoff or a fit fails
     (``max_iterations=0``: no fit, the covariance at the model). With ``covariance``: at the
     result, over the points within the cutoff, ``H = J^T W J`` (``W`` the Huber weights,
@@ -1508,7 +1540,7 @@ def refine_rs_pose_numpy(
             )
         )
     noise = 0.0 if noise is None else float(noise)
-    near, nfev, success = None, 0, True
+    near, success = None, True
     for _ in range(NUMPY_PASSES if max_iterations > 0 else 0):
         theta = np.concatenate([np.zeros(3), C, w, t])
         sel = _errors_numpy(theta, R, X, x, tau, mountings) < cut
@@ -1516,26 +1548,23 @@ def refine_rs_pose_numpy(
             break
         near = sel
         try:
-            fit = least_squares_exact_model(
-                R, theta, free, X[near], x[near], tau[near], motion, spr, noise,
-                mountings=None if mountings is None else mountings.take(near), loss="huber",
-                f_scale=k, max_nfev=max_iterations + 1,
+            th = huber_fit_numpy(
+                R, theta, free, X[near], x[near], tau[near], motion, spr, noise, k,
+                None if mountings is None else mountings.take(near), max_iterations + 1,
             )  # fmt: skip
         except (ValueError, np.linalg.LinAlgError):
             success = False
             break
-        th = fit.theta
-        nfev += int(fit.result.nfev)
         if not np.isfinite(th).all():
             success = False
             break
         R, C, w, t = rotvec_to_matrix(th[:3]) @ R, th[3:6].copy(), th[6:9].copy(), th[9:12].copy()
-    res = RefineResult(R, C, w, t, None, float("nan"), success, nfev)
-    if not settings.covariance:
-        return res
+    res = RefineResult(R, C, w, t, None, float("nan"), success, 0)
     theta = np.concatenate([np.zeros(3), C, w, t])
     e = _errors_numpy(theta, R, X, x, tau, mountings)
     idx = np.flatnonzero(e < cut)
+    if not settings.covariance or 2 * len(idx) < free:  # (too few rows: no covariance)
+        return res
     sub = None if mountings is None else mountings.take(idx)
     J = exact_jacobian(theta, R, X[idx], x[idx], tau[idx], sub)
     J[:, free:] = 0.0

@@ -1007,19 +1007,25 @@ def _hypotheses(
             return None
         R0, C0, own = pre
         S = samples[own]
-    Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
     rows = None
     if prior is not None:
         rows = prior.rows(_equation_noise(pool, R0, C0, S, threshold_px))
-    b = _rig_solver(pool)(
-        pool.x[S], Xp, pool.tau[S], pool.cam[S], pool.R_mount, pool.c_mount, iterations,
-        prior_rows=rows,
-    )  # fmt: skip
+    b = _prerotated_solve(pool, S, R0, pool.tau[S], iterations, rows)
     ok = b.valid & _plausible_motion(pool, b.C, b.w, b.t, bounds)
     if not ok.any():
         return None
-    R = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok])
-    return R, b.C[ok], b.w[ok], b.t[ok]
+    return np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[ok]), R0[ok]), b.C[ok], b.w[ok], b.t[ok]
+
+
+def _prerotated_solve(pool: _Pool, S: np.ndarray, R0: np.ndarray, tau: np.ndarray,
+                      iterations: int, rows):  # fmt: skip
+    """The rig solver on the samples ``S`` (H, 6) with their world points pre-rotated by
+    ``R0`` (H, 3, 3) at capture times ``tau`` (H, 6) s, ``rows`` its prior rows or None; each
+    solution's rotation is ``expm([v]x) R0``."""
+    Xp = np.einsum("hij,hnj->hni", R0, pool.X[S])
+    return _rig_solver(pool)(
+        pool.x[S], Xp, tau, pool.cam[S], pool.R_mount, pool.c_mount, iterations, prior_rows=rows
+    )  # fmt: skip
 
 
 def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None):
@@ -1047,12 +1053,8 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None):
     # it on the sample's six points, from every camera it spans, as a generalized P3P would)
     k = len(spread)
     S = samples[own[spread]]
-    Xp = np.einsum("hij,hnj->hni", R[spread], pool.X[S])
     held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
-    b = _rig_solver(pool)(
-        pool.x[S], Xp, np.zeros(S.shape), pool.cam[S], pool.R_mount, pool.c_mount,
-        STILL_SOLVER_ITERATIONS, prior_rows=held,
-    )  # fmt: skip
+    b = _prerotated_solve(pool, S, R[spread], np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
     if not b.valid.any():
         return R, C, z, z.copy()
     Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), R[spread][b.valid])
@@ -1137,20 +1139,13 @@ def _refit(
     if len(idx) < 6:
         return model
     for _ in range(rounds):
-        if prior is not None:
-            rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
+        if prior is not None or pool.numpy:  # (a batch of one: with the gyro's rows; NumPy)
+            rows = None
+            if prior is not None:
+                rows = prior.rows(_equation_noise(pool, R[None], C[None], idx[None], threshold_px))
             b = _rig_solver(pool)(
                 pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
                 pool.cam[idx][None], pool.R_mount, pool.c_mount, 10, prior_rows=rows,
-            )  # fmt: skip
-            if not b.valid[0]:
-                return model
-            R, C, w, t = rotvec_to_matrix(b.v[0]) @ R, b.C[0], b.w[0], b.t[0]
-            continue
-        if pool.numpy:  # (gr6p_1lin's problem as a batch of one)
-            b = gr6p_1lin_batch_numpy(
-                pool.x[idx][None], (pool.X[idx] @ R.T)[None], pool.tau[idx][None],
-                pool.cam[idx][None], pool.R_mount, pool.c_mount, 10,
             )  # fmt: skip
             if not b.valid[0]:
                 return model
