@@ -120,7 +120,7 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .finalize import image_alone, rolling_shutter_check, still_fallback
+from .finalize import FINAL_CUTOFF, image_alone, rolling_shutter_check, still_fallback
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -267,10 +267,6 @@ VERIFY_ALL_EXPLAINED = 0.95
 #: the points' median depth)
 PREDICTION_MARGIN = 2.0
 
-#: The final refinement fits every point within this many inlier thresholds (Huber loss at the
-#: threshold, re-selected at each iteration), as a single camera's final refinement
-#: (:data:`rs_localizer.estimation.finalize.FINAL_CUTOFF`)
-FINAL_CUTOFF = 2.0
 
 
 def _eye3() -> np.ndarray:
