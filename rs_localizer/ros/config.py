@@ -34,9 +34,10 @@ from ..tracking.sequence import GyroSettings
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
 from ..tracking.tracker import TrackerOptions
 from . import conversions as cv
-from .params import IMAGE_TRANSPORTS, PARAMETERS, ConfigError, option_fields
+from .params import IMAGE_TRANSPORTS, OPTION_GROUPS, PARAMETERS, ConfigError, option_fields
 
 __all__ = [
+    "RIG_RUN_TIME_PARAMETERS",
     "LocalizerConfig",
     "RigCameraConfig",
     "RigConfig",
@@ -45,6 +46,7 @@ __all__ = [
     "estimate_options",
     "imu_config",
     "load_maps",
+    "rig_change_refused",
     "rig_config",
     "tracker_options",
 ]
@@ -528,3 +530,53 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
         raise ConfigError(f"rig: {e}") from None
     base = str(values["base_frame"]).strip() or "base_link"
     return RigConfig(tuple(out), settings, base, reference_row)
+
+
+#: the parameters a running rig takes (``ros2 param set``; the node's
+#: :meth:`~rs_localizer.ros.rig_node.RigCore._apply_change`): those that only reach its
+#: :class:`~rs_localizer.tracking.rig.RigSettings` (the estimator's options: ``ransac.*``,
+#: ``refine``, ``motion_prior.*``, ``correlated_noise.*``, the velocity bounds; ``tracking.*``;
+#: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap) and
+#: ``queue_size``; the read-only ones among them are refused by ROS
+RIG_RUN_TIME_PARAMETERS = frozenset(
+    name
+    for name, par in PARAMETERS.items()
+    if (par.field or "").split(":")[0] in OPTION_GROUPS
+    or name.startswith(("tracking.", "imu."))
+    or name in ("max_points", "queue_size", "time_reset_threshold")
+)
+
+#: why a running rig refuses a change of the other parameters, by name prefix
+_RIG_RESTART = (
+    (
+        ("rs.",),
+        "each rig camera's rolling-shutter timing is set at start: its camera models and the "
+        "times its frames are grouped by are made with it (rs.* are the defaults of the "
+        "read-only rig.<camera>.line_delay, readout_time and direction)",
+    ),
+    (("base_frame",), "the cameras' mountings (rig.<camera>.mounting) are poses in base_frame"),
+    (
+        ("frontend", "image_transport", "aruco.", "features."),
+        "each camera's front end and image subscription are made at start",
+    ),
+)
+
+
+def rig_change_refused(names) -> str | None:
+    """Why a running rig refuses to change the parameters ``names`` (of
+    :data:`~.params.PARAMETERS`) without a restart, one clause per parameter; None when it
+    takes them all (:data:`RIG_RUN_TIME_PARAMETERS`). The others are its cameras' timing
+    (``rs.*``), its frame (``base_frame``), its front ends, and the single camera's parameters
+    the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``,
+    ``camera_info_wait``: the cameras wait for their camera_info; ``camera_frame``,
+    ``camera_to_base.*``: the mountings; ``landmarks_file``, ``republish_correspondences``)."""
+    why = []
+    for name in names:
+        if name in RIG_RUN_TIME_PARAMETERS:
+            continue
+        reason = next((r for prefixes, r in _RIG_RESTART if name.startswith(prefixes)), None)
+        if reason is None:
+            why.append(f"{name} is not used in the rig mode (a single camera's parameter)")
+        else:
+            why.append(f"restart the node to change {name}: {reason}")
+    return "; ".join(why) or None

@@ -30,11 +30,12 @@ from types import MappingProxyType
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped, TwistStamped
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
 
 from ..frontends.shared import SHARED_MAPS
 from . import conversions as cv
 from .declare import declare_parameters
-from .params import PARAMETERS
+from .params import PARAMETERS, ConfigError
 from .qos import RELIABLE, output_events
 from .status_msg import status_message
 
@@ -86,6 +87,54 @@ class NodeCore:
         self._timing_lock = threading.Lock()
         self.latencies = deque(maxlen=1000)  # s, arrival (subscription callback) -> published
         self.stamp_ages = deque(maxlen=1000)  # s, input header.stamp -> published (ROS clock)
+
+    # ---------------------------------------------------------------- parameters
+    def _param_values(self, overrides: Mapping) -> dict:
+        """Every parameter of :data:`~.params.PARAMETERS` by name: its value in ``overrides``
+        (a change being checked), else the node's."""
+        return {
+            name: overrides[name] if name in overrides else self.get_parameter(name).value
+            for name in PARAMETERS
+        }
+
+    def _has_configuration(self) -> bool:
+        """Whether the node is configured (a managed node before ``configure`` is not)."""
+        raise NotImplementedError
+
+    def _changed_configuration(self, overrides: dict):
+        """The configuration the node would run with after the change ``overrides`` (name ->
+        new value of :data:`~.params.PARAMETERS`), every other parameter as it is.
+
+        Raises:
+            ConfigError: a value that cannot be used, or a change the node cannot make while
+                it runs (the message names the parameter and why).
+        """
+        raise NotImplementedError
+
+    def _apply_change(self, built, overrides: dict) -> None:
+        """Run with ``built``, the :meth:`_changed_configuration` of ``overrides``, from the
+        next frame on."""
+        raise NotImplementedError
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """A parameter change at run time (``ros2 param set``), for one camera and for a rig
+        alike: the configuration is built anew from the changed values
+        (:meth:`_changed_configuration`); one that cannot be built is rejected with the error
+        as the reason (logged) and the node goes on with its configuration; else the node runs
+        with it from the next frame on (:meth:`_apply_change`). Parameters not in
+        :data:`~.params.PARAMETERS` (``viz.*``, read when drawing; ``use_sim_time``) are
+        taken as they are; before ``configure`` (a managed node) every change is taken and
+        checked at ``configure``."""
+        overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
+        if not overrides or not self._has_configuration():
+            return SetParametersResult(successful=True)
+        try:
+            built = self._changed_configuration(overrides)
+        except ConfigError as e:
+            self.get_logger().warning(f"rejected parameter change: {e}")
+            return SetParametersResult(successful=False, reason=str(e))
+        self._apply_change(built, overrides)
+        return SetParametersResult(successful=True)
 
     def _create_pose_outputs(self) -> None:
         """The publishers of the pose outputs (:data:`POSE_OUTPUTS`), ``/tf`` with

@@ -29,8 +29,8 @@ builds each camera's front end and creates the publishers (inactive) and the cam
 (``<camera>/correspondences``, ``<camera>/image_raw``) and publishes diagnostics; deactivate
 unsubscribes them, solves and publishes the rig frames still open and ends the track (the next
 activation starts a new one; the counters go on); cleanup releases everything (the counters
-too). Parameters may be changed while unconfigured; once configured, changes are refused
-until cleanup.
+too). Parameters may be changed while unconfigured; once configured, a change is taken or
+refused as by the rig node (:class:`~.rig_node.RigCore`).
 
 Both managed nodes run the transitions of one template, :class:`ManagedTransitions`, over the
 phases that the camera's and the rig's cores (:class:`~.node.LocalizerCore`,
@@ -149,7 +149,7 @@ class RigLocalizerLifecycleNode(ManagedTransitions, RigCore, LifecycleNode):
     def __init__(self, node_name: str = "rs_localizer", **kwargs: Any):
         LifecycleNode.__init__(self, node_name, **kwargs)
         self._declare_parameters()
-        self.add_on_set_parameters_callback(self._refuse_changes)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info("unconfigured (lifecycle node, rig mode: configure, then activate)")
 
     def _configured_as(self) -> str:

@@ -44,7 +44,6 @@ import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -237,12 +236,6 @@ class LocalizerCore(NodeCore):
         self.get_logger().info(text)
 
     # ------------------------------------------------------------------ parameters
-    def _param_values(self, overrides: dict) -> dict:
-        return {
-            name: overrides[name] if name in overrides else self.get_parameter(name).value
-            for name in PARAMETERS
-        }
-
     def _maps(self) -> LoadedMaps:
         """The landmarks and the front end loaded for the configuration in use."""
         return self.pipeline.maps
@@ -270,16 +263,19 @@ class LocalizerCore(NodeCore):
             self._warned_rs = True  # (once per node)
             self.get_logger().warning(note)
 
-    def _on_set_parameters(self, params) -> SetParametersResult:
-        overrides = {p.name: p.value for p in params if p.name in PARAMETERS}
-        if not overrides or self.cfg is None:  # (not configured yet: checked at configure)
-            return SetParametersResult(successful=True)
-        try:
-            cfg = build_config(self._param_values(overrides))
-            maps = load_maps(cfg, owner=self, current=self._maps())
-        except ConfigError as e:
-            self.get_logger().warning(f"rejected parameter change: {e}")
-            return SetParametersResult(successful=False, reason=str(e))
+    def _has_configuration(self) -> bool:
+        return self.cfg is not None
+
+    def _changed_configuration(self, overrides: dict) -> tuple[LocalizerConfig, LoadedMaps]:
+        """The configuration of the parameters with ``overrides`` and the maps it names
+        (a changed ``landmarks_file`` or ``frontend_map`` loaded; ConfigError: not loadable)."""
+        cfg = build_config(self._param_values(overrides))
+        return cfg, load_maps(cfg, owner=self, current=self._maps())
+
+    def _apply_change(self, built: tuple[LocalizerConfig, LoadedMaps], overrides: dict) -> None:
+        """The pipeline reconfigured (:meth:`_apply_config`); a solver change logged (and its
+        kernels warmed up with ``warmup``), reloaded landmarks logged."""
+        cfg, maps = built
         if "solver" in overrides and overrides["solver"] != self.cfg.solver:
             self.get_logger().info(f"solver: {self.cfg.solver} -> {overrides['solver']}")
             if self.get_parameter("warmup").value:
@@ -295,7 +291,6 @@ class LocalizerCore(NodeCore):
             self.get_logger().info(
                 f"reloaded {len(maps.landmarks[0])} landmarks from {cfg.landmarks_file}"
             )
-        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ frames
     def _enqueue(self, msg, kind: str):

@@ -55,9 +55,13 @@ failed + skipped + pending`` in every diagnostics snapshot (pending: waiting in 
 in an open rig frame). Each camera's inputs are taken by a
 :class:`~rs_localizer.ros.camera_input.CameraInput`, as the single-camera node's: its
 camera_infos kept by stamp (a frame uses the camera_info of its stamp,
-:mod:`.camera_info_history`), its clouds' rows, its images decoded. The parameters are read
-once, at start (changes at run time are refused, but for ``viz.*``, read when drawing). The
-managed node's rig mode is :class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
+:mod:`.camera_info_history`), its clouds' rows, its images decoded. A parameter change at
+run time takes the single-camera node's path (:meth:`.core.NodeCore._on_set_parameters`): the
+parameters of the rig's estimator, tracking and gyro, ``time_reset_threshold``,
+``max_points`` and ``queue_size`` apply from the next rig frame on
+(:data:`.config.RIG_RUN_TIME_PARAMETERS`), ``viz.*`` are read when drawing, and the others
+are refused with why (:func:`.config.rig_change_refused`). The managed node's rig mode is
+:class:`~rs_localizer.ros.lifecycle.RigLocalizerLifecycleNode`.
 """
 
 from __future__ import annotations
@@ -70,7 +74,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticStatus
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -83,18 +87,37 @@ from ..runtime.background import ready_implementation
 from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
 from . import conversions as cv
 from .camera_input import CameraInput, rig_camera_inputs
-from .config import RigConfig, build_config, load_maps, rig_camera_names, rig_config
+from .config import (
+    LocalizerConfig,
+    RigConfig,
+    build_config,
+    load_maps,
+    rig_camera_names,
+    rig_change_refused,
+    rig_config,
+)
 from .core import NodeCore
 from .declare import declare_parameters
 from .diagnostics import RigInputs, rig_diagnostics
 from .frame_queue import FrameQueue
 from .outputs import fused_messages, pose_messages
-from .params import PARAMETERS, RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
+from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, RigCameraView
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two parameter values are the same (an array as a list or an ``array.array``)."""
+    if isinstance(a, (str, bytes)) or isinstance(b, (str, bytes)):
+        return a == b
+    try:
+        return list(a) == list(b)
+    except TypeError:
+        return a == b
+
 
 INPUT_SKIP_REASONS = {
     "queue_full": "the node was busy: the frame queue was full (``queue_size`` frames per "
@@ -177,22 +200,13 @@ class RigCore(NodeCore):
             names = rig_camera_names(self.get_parameter("rig.cameras").value)
         except ConfigError as e:
             raise RuntimeError(f"invalid parameters: {e}") from None
-        values = {n: self.get_parameter(n).value for n in PARAMETERS}
-        values.update(
-            {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
-        )
-        values["rig.cameras"] = names
-        cams = {}
         own = {k: v for k, v in RIG_CAMERA_PARAMETERS.items() if k != "mounting"}
         for n in names:
             if not self.has_parameter(f"rig.{n}.line_delay"):
                 declare_parameters(self, {f"rig.{n}.{k}": v for k, v in own.items()})
                 _declare_dynamic(self, f"rig.{n}.mounting", RIG_CAMERA_PARAMETERS["mounting"])
-            cams[n] = {k: self.get_parameter(f"rig.{n}.{k}").value for k in own}
-            cams[n]["mounting"] = self.get_parameter(f"rig.{n}.mounting").value
         try:
-            self.config: RigConfig = rig_config(values, cams)
-            single = build_config(values)  # (the front end: frontend, frontend_map, aruco.*)
+            self.config, single = self._changed_configuration({}, check=False)
             frontends = {}
             if single.frontend_kind != "none":
                 for c in self.config.cameras:  # (one map, a front end object per camera)
@@ -200,7 +214,7 @@ class RigCore(NodeCore):
         except ConfigError as e:
             SHARED_MAPS.release(self)
             raise RuntimeError(f"invalid parameters: {e}") from None
-        self.map_frame = str(values["map_frame"])
+        self.map_frame = str(single.map_frame)
         self.frontend_kind = single.frontend_kind
         self.image_transport = single.image_transport
         self._log = ThrottledLog(self.get_logger(), period=5.0)  # (each kind once per 5 s)
@@ -211,7 +225,7 @@ class RigCore(NodeCore):
         for n, fe in frontends.items():
             self.rig.set_frontend(n, fe, single.frontend_kind)
         self.bad_input: dict[str, int] = {c.name: 0 for c in self.config.cameras}
-        self.queue_size = int(values["queue_size"])
+        self.queue_size = int(single.queue_size)
         self._frames = FrameQueue(
             self._process,
             self._deliver,
@@ -236,7 +250,7 @@ class RigCore(NodeCore):
             self.latencies.clear()
             self.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
-        if values["warmup"]:
+        if self.get_parameter("warmup").value:
             self._warm_up()
         self._configured = True
 
@@ -385,18 +399,53 @@ class RigCore(NodeCore):
             f"{self.config.base_frame} in {self.map_frame}{images}"
         )
 
-    def _refuse_changes(self, params) -> SetParametersResult:
-        """The rig mode reads its parameters at start (configure): changes are refused."""
-        if not self._configured or all(
-            p.name.startswith(("qos_overrides.", "viz.")) for p in params
-        ):  # (unconfigured; the QoS overrides a subscription declares, read-only; viz.*, read
-            # when drawing, as by the single-camera node)
-            return SetParametersResult(successful=True)
-        names = ", ".join(p.name for p in params)
-        return SetParametersResult(
-            successful=False,
-            reason=f"the rig mode reads its parameters at start; restart to change {names}",
+    # ---------------------------------------------------------------- parameters
+    def _has_configuration(self) -> bool:
+        return self._configured
+
+    def _changed_configuration(
+        self, overrides: dict, check: bool = True
+    ) -> tuple[RigConfig, LocalizerConfig]:
+        """The rig's configuration of the parameters with ``overrides`` (name -> value of
+        :data:`~.params.PARAMETERS`; ``{}``: at configure) and the single camera's of the same
+        values (its front end, and every value checked as for one camera), as
+        :func:`.config.rig_config` and :func:`.config.build_config` make them. ``check``: a
+        change while the rig runs, refused for the parameters it cannot take without a restart
+        (:func:`.config.rig_change_refused`) unless their value stays the same.
+
+        Raises:
+            ConfigError: a value that cannot be used, or a change refused (naming them).
+        """
+        if check:
+            changed = [n for n, v in overrides.items() if not _same(v, self.get_parameter(n).value)]
+            refused = rig_change_refused(changed)
+            if refused is not None:
+                raise ConfigError(refused)
+        names = rig_camera_names(self.get_parameter("rig.cameras").value)
+        values = self._param_values(overrides)
+        values.update(
+            {n: self.get_parameter(n).value for n in RIG_PARAMETERS if n != "rig.cameras"}
         )
+        values["rig.cameras"] = names
+        cams = {
+            n: {k: self.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
+            for n in names
+        }
+        return rig_config(values, cams), build_config(values)
+
+    def _apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
+        """The rig takes the new settings from its next rig frame on
+        (:meth:`~rs_localizer.tracking.rig.RigLocalizer.configure`: the estimator's options,
+        tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
+        a tracking change starting a new track), each camera's clouds the new ``max_points``,
+        the queue the new ``queue_size``."""
+        config, single = built
+        with self._rig_lock:  # (between two camera frames of the worker)
+            self.rig.configure(config.settings)
+            self.config = config
+            for inp in self.inputs.values():
+                inp.max_points = config.settings.max_points
+        self.queue_size = single.queue_size
 
     # ---------------------------------------------------------------- inputs
     def _count_input(self, name: str, key: str, n: int = 1) -> None:
@@ -698,7 +747,7 @@ class RigLocalizerNode(RigCore, Node):
         self._create_outputs()
         self._create_info_inputs()
         self._create_frame_inputs()
-        self.add_on_set_parameters_callback(self._refuse_changes)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._log_ready()
 
     def _before_destroy(self) -> None:

@@ -498,6 +498,16 @@ def _model_of(Ori, p, omega, v):
 
 
 # ---------------------------------------------------------------------- bookkeeping
+def _same_mount(a: RigMount, b: RigMount) -> bool:
+    """Whether two mountings are the same (rotation, position and covariance)."""
+    if a is b:
+        return True
+    cov = (a.covariance is None) == (b.covariance is None) and (
+        a.covariance is None or np.array_equal(a.covariance, b.covariance)
+    )
+    return bool(cov and np.array_equal(a.R, b.R) and np.array_equal(a.c, b.c))
+
+
 class _Camera:
     def __init__(self, name: str, mount: RigMount, history: int):
         self.name, self.mount = name, mount
@@ -621,6 +631,40 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
         self.counts[f"rig.{key}"] += n
+
+    def configure(self, settings: RigSettings) -> None:
+        """Use ``settings`` from the next rig frame on, as a camera's
+        :meth:`~rs_localizer.tracking.sequence.SequenceLocalizer.configure`: the estimator's
+        ``options``, ``tracking``, ``imu``, ``time_reset_ns`` and ``max_points``. The counts,
+        the rig frames open and the gyro samples are kept; the gyro's bias estimate and mount
+        check are kept while the gyro calibration they depend on stays the same, else started
+        again; other ``tracking`` options end the track (its twists still pending go out with
+        the next rig frame, :attr:`RigOutput.fused`) and the next rig frame starts a new one.
+
+        Raises:
+            ValueError: settings of another rig: other cameras or mountings, ``window``,
+                ``stop_after``, ``stamp_row`` or disagreement rule (the rig frames open and
+                each camera's history were made with them: a new :class:`RigLocalizer`).
+        """
+        old = self.settings
+        shape = ("window", "stop_after", "stamp_row", "disagree_ratio", "disagree_min_points",
+                 "disagree_frames", "disagree_history")  # fmt: skip
+        changed = [k for k in shape if getattr(settings, k) != getattr(old, k)]
+        if settings.cameras != old.cameras or not all(
+            _same_mount(settings.mounts[n], old.mounts[n]) for n in old.cameras
+        ):
+            changed.insert(0, "mounts")
+        if changed:
+            raise ValueError(f"a configured rig keeps its {', '.join(changed)}")
+        with self._lock:
+            if settings.tracking != old.tracking:  # (the old track's twists: the old bounds)
+                self._carry += self._end_track(keep=True)
+                to = settings.tracking
+                self._track = None if to is None else TrackerPath(to)
+            self.settings = settings
+            self._carried.max_gap = settings.max_gap
+            self._clock.time_reset_ns = self._clock.back_tolerance_ns = settings.time_reset_ns
+            self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
         """The gyro measurement over the rig frame's capture times (rig frame), waiting up to

@@ -90,11 +90,11 @@ def test_a_camera_without_camera_info_waits_and_the_rig_runs_on_the_others(ros_c
         assert v["left.state"] == "waiting" and "left.missed.dropped" not in v, v
         assert v["left.missed.no_camera_info"] == v["rig_frames_solved"], v
         assert any("'left'" in t and "/rig/left/camera_info" in t for t in logged), logged
-        # the parameters are read at start: a change is refused
+        # an estimator parameter changes while the rig runs (``ros2 param set``)
         from rclpy.parameter import Parameter
 
         (r,) = h.node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
-        assert not r.successful and "at start" in r.reason
+        assert r.successful and h.node.rig.settings.options.ransac.threshold_px == 3.0
     finally:
         h.close()
 
@@ -778,5 +778,107 @@ def test_each_camera_s_input_is_the_single_camera_node_s(ros_context):
         assert v["left.points_dropped"] == dropped and v["front.points_dropped"] == "0", v
         assert v["left.capped_clouds"] == "0", v
         assert int(v["rig_frames_solved"]) == len(frames) // 3, v
+    finally:
+        node.destroy_node()
+
+
+def _set(node, name, value):
+    """``ros2 param set`` of one parameter on ``node``: its SetParametersResult."""
+    from rclpy.parameter import Parameter
+
+    (r,) = node.set_parameters([Parameter(name, value=value)])
+    return r
+
+
+def test_estimator_parameters_change_while_the_rig_runs(ros_context):
+    """A running rig takes a change of the estimator's parameters as the single-camera node
+    does: ``max_angular_velocity`` below the rig's turn refuses the next rig frames
+    ``implausible_motion``; a ``ransac.min_inliers`` above ``max_points`` is rejected with its
+    reason, the rig going on with its configuration; the bound set back, the rig frames are
+    posed again. The counts go on across the changes. Frames handed to the node's callbacks
+    directly (no DDS), each third of the video after one change."""
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=120, seed=23)
+    third = max(f.index for f in frames) // 3 + 1
+    node = _direct_node(ros_context, cams, frames)
+
+    def play(k):
+        for f in frames:
+            if f.index // third == k:
+                stamp = ns_to_stamp(f.stamp_ns)
+                node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+                                                            stamp=stamp))  # fmt: skip
+        return _drained_values(node, cams)
+
+    try:
+        n = sum(f.index // third == 0 for f in frames) // 3
+        v = play(0)
+        assert v["rig_frames_solved"] == str(n) and v["rig_frames_failed"] == "0", v
+        assert _set(node, "max_angular_velocity", 0.01).successful
+        assert node.rig.settings.options.plausibility.max_angular_velocity == 0.01
+        v = play(1)
+        assert v["rig_frames_solved"] == str(n), v
+        assert v["rig_frames_failed"] == v["rig_frames_failed.implausible_motion"] == str(n), v
+        r = _set(node, "ransac.min_inliers", 6000)
+        assert not r.successful
+        assert "max_points 5000 is below the 6000 points a pose needs" in r.reason, r.reason
+        assert node.get_parameter("ransac.min_inliers").value == 12
+        assert node.rig.settings.options.ransac.min_inliers == 12
+        assert _set(node, "max_angular_velocity", 20.0).successful
+        v = play(2)
+        assert int(v["rig_frames_solved"]) == n + sum(f.index // third == 2 for f in frames) // 3
+        assert v["rig_frames_failed"] == str(n), v
+    finally:
+        node.destroy_node()
+
+
+def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros_context):
+    """``tracking.enabled``, ``max_points`` and ``queue_size`` reach the rig, its cameras'
+    clouds and its queue; a change the rig cannot make while it runs is refused with why,
+    the node keeping its configuration: ``rig.cameras`` (read-only), ``base_frame`` (the
+    mountings' frame), ``rs.line_delay`` (the cameras' timing), ``solver`` (not the rig's),
+    also with a change it takes in the same request; the same value set again is taken. The
+    rig frames after the changes are posed untracked from clouds capped to 40 rows."""
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(3)
+    frames, _, _ = generate_rig_video(cams, duration=0.1, num_points=120, seed=24)
+    node = _direct_node(ros_context, cams, frames)
+    try:
+        settings = node.rig.settings
+        for name, value, says in (
+            ("rig.cameras", ["front"], "read-only"),
+            ("base_frame", "rig", "restart the node to change base_frame: the cameras' mountings"),
+            ("rs.line_delay", 2e-5, "restart the node to change rs.line_delay: each rig camera's"),
+            ("solver", "p3p", "solver is not used in the rig mode"),
+        ):
+            r = _set(node, name, value)
+            assert not r.successful and says in r.reason, (name, r.reason)
+        r = node.set_parameters_atomically(
+            [Parameter("ransac.threshold_px", value=3.0), Parameter("rs.direction", value="")]
+        )
+        assert not r.successful and "rs.direction" in r.reason, r.reason
+        assert node.rig.settings is settings and node.get_parameter("base_frame").value == ""
+        assert _set(node, "base_frame", "").successful  # (unchanged)
+        assert node.rig.track_state == "lost"
+        assert _set(node, "tracking.enabled", False).successful
+        assert node.rig.track_state == "disabled" and node.config.settings.tracking is None
+        assert _set(node, "max_points", 40).successful and _set(node, "queue_size", 7).successful
+        assert node.rig.settings.max_points == 40 and node.queue_size == 7
+        assert [node.inputs[c.name].max_points for c in cams] == [40, 40, 40]
+        assert node.rig.settings.options == settings.options
+        for f in frames:
+            node._on_cloud(f.name, correspondence_cloud(f.uv, f.xyz, frame_id=f.name,
+                                                        stamp=ns_to_stamp(f.stamp_ns)))  # fmt: skip
+        v = _drained_values(node, cams)
+        assert int(v["rig_frames_solved"]) == len(frames) // 3 and v["track_state"] == "disabled"
+        for c in cams:
+            assert v[f"{c.name}.capped_clouds"] == v[f"{c.name}.received"] != "0", v
     finally:
         node.destroy_node()

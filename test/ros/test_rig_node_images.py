@@ -94,7 +94,8 @@ def test_three_cameras_images_over_dds_one_pose_every_image_counted(ros_context,
 
 def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
     """configure (a camera without mounting: the transition fails naming it; with it: the
-    publishers and camera_info subscriptions, no frame input), activate (frames posed),
+    publishers and camera_info subscriptions, no frame input; an estimator parameter taken,
+    ``rs.line_delay`` refused), activate (frames posed),
     deactivate (frames not taken, the open rig frames published), cleanup (unconfigured),
     configure + activate again (posed again, a new track)."""
     from rclpy.lifecycle import TransitionCallbackReturn
@@ -133,7 +134,9 @@ def test_the_managed_rig_node_through_a_transition_cycle(ros_context):
         assert h.wait(lambda: h.pub["front"]["info"].get_subscription_count() > 0)
         assert h.pub["front"]["cloud"].get_subscription_count() == 0  # (inactive)
         (r,) = node.set_parameters([Parameter("ransac.threshold_px", value=3.0)])
-        assert not r.successful and "at start" in r.reason
+        assert r.successful and node.rig.settings.options.ransac.threshold_px == 3.0
+        (r,) = node.set_parameters([Parameter("rs.line_delay", value=2e-5)])
+        assert not r.successful and "restart the node to change rs.line_delay" in r.reason
         h.send_info(cams)
         assert node.trigger_activate() == SUCCESS
         assert h.matched(("cloud",))

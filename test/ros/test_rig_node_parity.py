@@ -289,13 +289,14 @@ def test_each_camera_s_debug_image_and_markers_and_the_rig_s_path(ros_context):
             assert np.linalg.norm(apex - true) < 0.005 and fr.header.frame_id == "map"
         last = got["path"][-1]
         assert [_stamp(p) for p in last.poses] == [_stamp(m) for m in h.poses]
-        # viz.* change at run time (read when drawing), the others are refused
+        # viz.* change at run time (read when drawing); an invalid value is rejected
         from rclpy.parameter import Parameter
 
         ok, refused = h.node.set_parameters(
             [Parameter("viz.frustum_depth", value=0.2), Parameter("max_points", value=10)]
         )
         assert ok.successful and not refused.successful
+        assert "max_points 10 is below the 12 points a pose needs" in refused.reason
     finally:
         h.close()
 

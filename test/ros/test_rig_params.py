@@ -210,3 +210,31 @@ def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
         assert [node.inputs[n].max_points for n in ("front", "left")] == [37, 37]
     finally:
         node.destroy_node()
+
+
+def test_a_running_rig_takes_the_estimators_parameters_and_says_why_not_the_others():
+    """The parameters a running rig takes are those of its estimator, tracking and gyro,
+    ``time_reset_threshold``, ``max_points`` and ``queue_size``; every other one that ROS lets
+    change is refused with a clause naming it and why (restart, or not used by the rig)."""
+    from rs_localizer.ros.config import RIG_RUN_TIME_PARAMETERS, rig_change_refused
+    from rs_localizer.ros.params import PARAMETERS
+
+    estimator = {"ransac.threshold_px", "ransac.min_inliers", "refine", "max_angular_velocity",
+                 "max_linear_velocity", "motion_prior.angular_velocity_sigma",
+                 "correlated_noise.sigma_px"}  # fmt: skip
+    others = {"tracking.enabled", "tracking.lag", "imu.rotation", "imu.time_offset",
+              "max_points", "queue_size", "time_reset_threshold"}  # fmt: skip
+    assert estimator | others <= RIG_RUN_TIME_PARAMETERS
+    assert rig_change_refused(sorted(RIG_RUN_TIME_PARAMETERS)) is None
+    for name, par in PARAMETERS.items():
+        if par.read_only or name in RIG_RUN_TIME_PARAMETERS:
+            continue
+        why = rig_change_refused(["max_points", name])
+        assert why is not None and why.count(name) >= 1 and ";" not in why, (name, why)
+        assert why.startswith(f"restart the node to change {name}: ") or why == (
+            f"{name} is not used in the rig mode (a single camera's parameter)"
+        ), why
+    assert "rs.stamp_row: each rig camera's rolling-shutter timing" in rig_change_refused(
+        ["rs.stamp_row"]
+    )
+    assert rig_change_refused(["solver", "base_frame"]).count(";") == 1

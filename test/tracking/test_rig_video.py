@@ -283,6 +283,44 @@ def test_bad_settings():
     assert np.allclose(mount.R, cams[1].R_mount) and np.allclose(mount.c, cams[1].c_mount)
 
 
+def test_configure_takes_new_options_from_the_next_rig_frame(video):
+    """``configure`` as a camera's: the estimator's options of the next rig frames (a velocity
+    bound below the rig's turn refuses them ``implausible_motion``), tracking off ending the
+    track (its twists still pending go out with the next rig frame), the counts and the rig
+    frames open kept; settings of another rig (window, mountings) are refused."""
+    from rs_localizer.estimation.options import EstimateOptions
+
+    cams, frames, _ = video
+    by = {c.name: c.camera for c in cams}
+    settings = RigSettings(mounts_of(cams))
+    rig = RigLocalizer(settings)
+    outs = []
+    half = len(frames) // 2
+    for f in frames[:half]:
+        outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    assert outs and all(o.success for o in outs) and rig.pending > 0
+    pending, received, open_ = rig.pending, rig.counts["front.received"], rig.rig_counts()
+    slow = EstimateOptions()
+    slow = replace(slow, plausibility=replace(slow.plausibility, max_angular_velocity=0.01))
+    rig.configure(replace(settings, options=slow, tracking=None))
+    assert rig.track_state == "disabled" and rig.pending == 0
+    assert rig.counts["front.received"] == received and rig.rig_counts() == open_
+    later = []
+    for f in frames[half:]:
+        later += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+    later += rig.close()
+    assert len(later[0].fused) == pending
+    assert later and not any(o.success for o in later)
+    assert {o.estimate.failure for o in later} == {"implausible_motion"}
+    assert len(outs) + len(later) == 18
+    assert_balanced(rig)
+    with pytest.raises(ValueError, match="keeps its window"):
+        rig.configure(replace(settings, window=0.03))
+    moved = dict(mounts_of(cams), front=RigMount.from_pose(np.eye(3), np.zeros(3)))
+    with pytest.raises(ValueError, match="keeps its mounts"):
+        rig.configure(replace(settings, mounts=moved))
+
+
 def test_the_filter_measures_with_the_estimators_covariance(video):
     """Each rig frame's measurement carries the rig estimator's covariance and acceleration
     sensitivity, and that covariance covers the pose's error against the truth (median NEES
