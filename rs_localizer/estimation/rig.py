@@ -268,7 +268,6 @@ VERIFY_ALL_EXPLAINED = 0.95
 PREDICTION_MARGIN = 2.0
 
 
-
 def _eye3() -> np.ndarray:
     return np.eye(3)
 
