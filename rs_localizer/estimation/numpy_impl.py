@@ -406,7 +406,7 @@ def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens
     return R, C, w, t, cov, info, G
 
 
-def image_alone(fr: Frame, model, th: float, prior: MotionPrior | None) -> ImageAlone | None:
+def image_alone(fr: Frame, model: Model, th: float, prior: MotionPrior | None) -> ImageAlone | None:
     """:func:`~.finalize.image_alone` in NumPy and SciPy: the final refinement of the
     gyro-aided ``model`` without the gyro (:func:`_refine` with the motion ``prior``
     without it on planar frames or with ``prior.always``, maximum likelihood otherwise): the

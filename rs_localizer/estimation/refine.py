@@ -1466,9 +1466,20 @@ def huber_weights(e: np.ndarray, k: float) -> np.ndarray:
 
 
 def huber_fit_numpy(
-    R0, theta0, free, X, x, tau, prior, spr, noise, k, mountings=None, max_nfev=None,
-    rounds=NUMPY_MAP_ROUNDS,
-) -> np.ndarray:  # fmt: skip
+    R0: np.ndarray,
+    theta0: np.ndarray,
+    free: int,
+    X: np.ndarray,
+    x: np.ndarray,
+    tau: np.ndarray,
+    prior: MotionPrior | None,
+    spr: float,
+    noise: float,
+    k: float,
+    mountings: Mountings | None = None,
+    max_nfev: int | None = None,
+    rounds: int = NUMPY_MAP_ROUNDS,
+) -> np.ndarray:
     """One robust fit of the exact model in SciPy (:func:`least_squares_exact_model`, the
     arguments of the same names): the Huber loss at ``k`` on the image rows; with a
     ``prior`` instead ``rounds`` rounds of iteratively reweighted least squares (each point's

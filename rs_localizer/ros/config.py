@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -562,7 +562,7 @@ _RIG_RESTART = (
 )
 
 
-def rig_change_refused(names) -> str | None:
+def rig_change_refused(names: Iterable[str]) -> str | None:
     """Why a running rig refuses to change the parameters ``names`` (of
     :data:`~.params.PARAMETERS`) without a restart, one clause per parameter; None when it
     takes them all (:data:`RIG_RUN_TIME_PARAMETERS`). The others are its cameras' timing
