@@ -1563,7 +1563,8 @@ def estimate_rig_pose(
     if not consensus or not est.success:
         return est
     if prediction is None and initial_model is not None:
-        prediction = getattr(initial_model, "model", initial_model)
+        given = initial_model
+        prediction = given.model if isinstance(given, InitialModel) else given
     return _consensus(
         views, pool, est, threshold_px,
         lambda vs: _estimate_pool(_Pool(vs, numpy, cache), settings, gyro, gyro_time), prediction,
