@@ -53,7 +53,6 @@ from .gyro import (
 from .implementation import COMPILED, NUMPY, NUMPY_UNUSED, resolve_implementation
 from .map_weights import check_point_sigma, weighted_final_model
 from .numpy_impl import NumpyRansac, final_model
-from .numpy_impl import image_alone as image_alone_numpy
 from .options import (
     CorrelatedNoise,
     EstimateOptions,
@@ -378,8 +377,7 @@ def _estimate(
         )
         if image is not None:
             t0 = time.perf_counter()
-            alone = image_alone if compiled else image_alone_numpy
-            image.append(alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
+            image.append(image_alone(fr, final.model, opts.ransac.threshold_px / fr.f, image_prior))
             timings["gyro_check"] = time.perf_counter() - t0
     except EstimationFailed as failure:
         if compiled and gyro is None and solver_info(solver).rolling:

@@ -28,7 +28,7 @@ from .result import (
     EstimationFailed,
 )
 from .sampling import valid_rows
-from .scoring import msac_evaluate
+from .scoring import exact_errors2_numpy, msac_evaluate
 
 __all__ = [
     "SCORE_AT_MEASURED_TIME",
@@ -128,7 +128,9 @@ class Frame:
     known_w: np.ndarray | None = None
     W: np.ndarray = np.zeros((0, 4))
     threshold: float
-    #: the final stage's refinements run compiled (:class:`RefinementView`)
+    #: the frame was prepared for the compiled implementation (:func:`prepare_frame`); False:
+    #: the NumPy one's, whose final-stage refinements and errors run in NumPy and SciPy
+    #: (:class:`RefinementView`)
     compiled = True
 
     def __init__(
@@ -156,8 +158,9 @@ class Frame:
         the camera at the identity mounting with each point's 2x2 whitening :attr:`W` as its
         scale, so that :func:`~.refine.refine_rs_pose` minimizes the errors of the measured
         image in its cost, rows and covariance; ``None`` (the plain errors) without
-        whitening."""
-        if not len(self.W):
+        whitening, and on a frame of the NumPy implementation (which measures the plain
+        normalized errors, as its scoring does)."""
+        if not len(self.W) or not self.compiled:
             return None
         W = self.W if idx is None else self.W[idx]
         n = len(W)
@@ -168,9 +171,15 @@ class Frame:
     def errors(self, model: Model) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time
         (:func:`~.refine.exact_errors`: normalized units, in pixels of the measured image over
-        the focal length with the whitening :attr:`W`); ``inf`` behind the camera."""
+        the focal length with the whitening :attr:`W`; on a frame of the NumPy implementation
+        the plain normalized errors in NumPy, :func:`~.scoring.exact_errors2_numpy`); ``inf``
+        behind the camera."""
         R, C, w, t = model
-        return exact_errors(R, C, w, t, self.X, self.x, self.r - self.r0, self.W)
+        tau = self.r - self.r0
+        if self.compiled:
+            return exact_errors(R, C, w, t, self.X, self.x, tau, self.W)
+        m = (np.asarray(a, dtype=float)[None] for a in (R, C, w, t))
+        return np.sqrt(exact_errors2_numpy(*m, self.X, self.x, tau)[0])
 
     def head(self, m: int) -> Frame:
         """The frame's first ``m`` points (a random subset: the rows are shuffled) with the
@@ -183,7 +192,7 @@ class Frame:
             self.regularize,
             self.known_w,
         )
-        sub.threshold = self.threshold
+        sub.threshold, sub.compiled = self.threshold, self.compiled
         if len(self.W):
             sub.W = self.W[:m]
         return sub
@@ -263,7 +272,7 @@ def prepare_frame(
         camera.readout_vector,
         camera.mean_focal,
     )
-    fr.rows, fr.num_rows = rows, len(u)
+    fr.rows, fr.num_rows, fr.compiled = rows, len(u), bool(compiled)
     fr.u_px = u.take(rows, axis=0)
     if camera.has_distortion or camera.K[0, 0] != camera.K[1, 1] or camera.K[0, 1] != 0:
         fr.W = np.ascontiguousarray(camera.pixel_jacobian(fr.x).reshape(-1, 4) / fr.f)

@@ -40,8 +40,9 @@ at a lower rate. Per stage:
 
 A gyro measurement enters as on the compiled implementation through the motion prior
 (:func:`~.gyro.gyro_prior`: local optimization and the final refinement are maximum a
-posteriori with it) and is judged by the image alone (:func:`image_alone`, then
-:func:`~.gyro.gyro_checked`: ``gyro_used``, ``gyro_rejected``, ``gyro_rejection``); its
+posteriori with it) and is judged by the image alone (:func:`~.finalize.image_alone` on the
+refinement's NumPy backend, then :func:`~.gyro.gyro_checked`: ``gyro_used``,
+``gyro_rejected``, ``gyro_rejection``); its
 minimal samples stay the linear R6P's (the compiled implementation solves them with the
 gyro's angular velocity, R5P_{v,C,t}^{w}).
 
@@ -63,13 +64,13 @@ import numpy as np
 from ..geometry import cross, rotvec_to_matrix
 from ..pose import RSModel
 from ..solvers.registry import solver_info
-from .finalize import FINAL_CUTOFF, FinalModel, ImageAlone
+from .finalize import FINAL_CUTOFF, FinalModel
 from .frame import Frame, Model
 from .hypotheses import ScoredBatch, hypothesis_iterations
 from .local_optimization import Scored, local_optimization
 from .options import EstimateOptions
 from .plausibility import motion_norms2
-from .prior import MotionPrior, prior_arrays
+from .prior import prior_arrays
 from .ransac import Ransac
 from .refine import (
     RefineSettings,
@@ -85,7 +86,7 @@ from .sampling import draw_samples_numpy
 from .scoring import exact_errors2_numpy
 from .sensitivity import physical_sensitivity
 
-__all__ = ["NumpyRansac", "NumpySamples", "final_model", "image_alone"]
+__all__ = ["NumpyRansac", "NumpySamples", "final_model"]
 
 #: :func:`_refine`'s default prior: the frame's own
 _FRAME_PRIOR = object()
@@ -404,26 +405,6 @@ def _refine(fr: Frame, model, th: float, rolling: bool, prior=_FRAME_PRIOR, sens
         Hinv = cov / ref.sigma**2
         G = physical_sensitivity(Hinv @ ref.acceleration_block, R, C, w, fr.spr, False)
     return R, C, w, t, cov, info, G
-
-
-def image_alone(fr: Frame, model: Model, th: float, prior: MotionPrior | None) -> ImageAlone | None:
-    """:func:`~.finalize.image_alone` in NumPy and SciPy: the final refinement of the
-    gyro-aided ``model`` without the gyro (:func:`_refine` with the motion ``prior``
-    without it on planar frames or with ``prior.always``, maximum likelihood otherwise): the
-    angular velocity (rad/s, camera optical frame) the image alone gives near that model,
-    its (3, 3) covariance and the inliers it explains within ``th`` (normalized units).
-    ``None`` when the refinement gives no finite model or covariance."""
-    if not fr.spr > 0:
-        return None
-    on = prior is not None and prior.enabled and (fr.planar or prior.always)
-    R, C, w, t = (np.array(a, dtype=float) for a in model)
-    R, C, w, t, cov, _, _ = _refine(fr, (R, C, w, t), th, True, prior if on else None)
-    if cov is None or not all(np.isfinite(a).all() for a in (R, C, w, t)):
-        return None
-    e = np.sqrt(_errors2(fr, R[None], C[None], w[None], t[None])[0])
-    n = int(np.count_nonzero(e < th))
-    # (omega = -w / s in the camera frame: physical_velocities)
-    return ImageAlone(-w / fr.spr, cov[6:9, 6:9] / fr.spr**2, n)
 
 
 def final_model(
