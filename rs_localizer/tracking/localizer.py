@@ -21,7 +21,10 @@ run this code for:
   track's prediction of the body at the frame's reference time while the track predicts,
   else the last posed frame carried at its own twist
   (:class:`~rs_localizer.tracking.tracker.CarriedPrediction`), either seen by the camera (a
-  rig's through the camera's mounting).
+  rig's through the camera's mounting);
+- a time reset of the clock (:class:`~rs_localizer.tracking.clock.VideoClock`) and ``reset``
+  (:meth:`VideoLocalizer._time_reset`: the subclass's part, then the gyro's timeline), and a
+  frame's gyro measurement over its cameras' readouts (:meth:`VideoLocalizer._gyro_readouts`).
 
 A video also checks the cameras' rolling-shutter timing (:class:`PendingTwists`,
 :meth:`VideoLocalizer.readout_values`): a frame's twist fitted over its readout must predict
@@ -57,10 +60,13 @@ from ..correspondences import (
     VideoFrontend,
     video_frontend,
 )
+from ..estimation.gyro import GyroMeasurement
 from ..estimation.options import EstimateOptions
 from ..estimation.points import cap_points
 from ..pose import PoseMeasurement, PoseWithCovariance, RSModel, RSPose
+from .clock import TimeReset, VideoClock
 from .fusion import FusedState
+from .gyro import readout_window
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
 from .tracker import CarriedPrediction, PathOptions, TrackerPath
 
@@ -489,6 +495,7 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
     _twists: PendingTwists
     _lock: threading.RLock
     _carried: CarriedPrediction
+    _clock: VideoClock
 
     def _init_video(self) -> None:
         """The shared state: the pending twists, the lock, the last posed frame carried."""
@@ -496,6 +503,7 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
         self._lock = threading.RLock()
         self._carried = CarriedPrediction()
         self._readout_warned = False  # (the timing check's warning is out)
+        self._gyro_time: float | None = None  # (s after its time: the last gyro window's middle)
 
     # ---------------------------------------------------------------- the subclass's track
     def _twist_source(self) -> TrackerPath | None:
@@ -508,6 +516,13 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
     def _forget_track(self, keep: bool) -> list:
         """End the track (the next frame starts a new one); returns its fused states not yet
         final when ``keep``, else []."""
+        raise NotImplementedError
+
+    def _timeline_ended(self, reset: TimeReset | None) -> list:
+        """What the subclass ends when the video's clock starts again (:meth:`_time_reset`;
+        ``reset`` None: the video is forgotten, :meth:`_forget_video`), before the gyro's
+        timeline starts again; returns what that hands out (a rig: its open rig frames solved
+        as they are on a jump ahead)."""
         raise NotImplementedError
 
     def _tracked_prediction(
@@ -545,6 +560,44 @@ class VideoLocalizer(GyroReadouts, Generic[Settings, View]):
                 return None if state is None else self._state_in_camera(state, camera, view)
             c = self._carried.carried(ref)
             return None if c is None else self._carried_in_camera(c[0], c[1], camera, view)
+
+    # ---------------------------------------------------------------- time, gyro
+    def _time_reset(self, reset: TimeReset | None) -> list:
+        """The video's clock started again (``reset`` of :attr:`_clock`; None: the video is
+        forgotten): the subclass's part (:meth:`_timeline_ended`, its outputs returned), then
+        the gyro's timeline (its samples from ``reset.keep_from`` on kept; None: none)."""
+        out = self._timeline_ended(reset)
+        with self._lock:
+            self.gyro_input.restart(None if reset is None else reset.keep_from)
+        return out
+
+    def _forget_video(self) -> list:
+        """Forget the video (a subclass's ``reset``): :meth:`_time_reset` of None, the last
+        posed frame carried, the clock's frame times; returns :meth:`_timeline_ended`'s."""
+        with self._lock:
+            out = self._time_reset(None)
+            self._forget_last_pose()
+            self._clock.reset()
+        return out
+
+    def _gyro_readouts(
+        self, t0: int, readouts: list[tuple[CameraModel, float, float | None]]
+    ) -> GyroMeasurement | None:
+        """A frame's gyro measurement (:meth:`GyroInput.measurement`) from the first line of
+        its cameras' earliest readout to the last line of the latest, ``readouts`` per camera
+        ``(camera, s after t0 ns, the line read then)`` (:func:`readout_window`; None: the
+        reference line); the window's middle kept (``_gyro_time``, s after ``t0``)."""
+        if self.gyro_input.settings is None:
+            return None
+        first, last = [], []
+        for camera, t, line in readouts:
+            a, b = readout_window(camera, t, line)
+            first.append(a)
+            last.append(b)
+        self._gyro_time = 0.5 * (min(first) + max(last))
+        return self.gyro_input.measurement(
+            (t0 + int(round(min(first) * 1e9)), t0 + int(round(max(last) * 1e9)))
+        )
 
     # ---------------------------------------------------------------- pending twists
     @property

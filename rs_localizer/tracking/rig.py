@@ -123,7 +123,6 @@ from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState, FusionOptions
-from .gyro import readout_window
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
     CameraFrontend,
@@ -626,7 +625,6 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest
         self._clock = VideoClock(settings.time_reset_ns, settings.time_reset_ns)
         self._gyro: GyroMeasurement | None = None  # (the rig frame being solved)
-        self._gyro_time: float | None = None  # (s after its time: its gyro window's middle)
         self._prediction: FusedState | None = None  # (the track's, for the rig frame solved)
 
     def _count_gyro(self, key: str, n: int = 1) -> None:
@@ -667,19 +665,11 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
 
     def _gyro_for(self, g: _Group, views) -> GyroMeasurement | None:
-        """The gyro measurement over the rig frame's capture times (rig frame), waiting up to
-        ``imu.wait`` for its samples; None without a gyro or its samples (counted)."""
-        if self.gyro_input.settings is None:
-            return None
-        first, last = [], []
-        for v in views:
-            a, b = readout_window(v.camera, v.stamp_offset)  # (s after the rig frame's time)
-            first.append(a)
-            last.append(b)
-        self._gyro_time = 0.5 * (min(first) + max(last))
-        return self.gyro_input.measurement(
-            (g.lo + int(round(min(first) * 1e9)), g.lo + int(round(max(last) * 1e9)))
-        )
+        """The gyro measurement over the rig frame's capture times (rig frame;
+        :meth:`~rs_localizer.tracking.localizer.VideoLocalizer._gyro_readouts` of its cameras,
+        each at its reference time after the rig frame's), waiting up to ``imu.wait`` for its
+        samples; None without a gyro or its samples (counted)."""
+        return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
 
     def _gyro_done(self, out: RigOutput) -> None:
         """Count the gyro's outcome of a rig frame and feed the bias estimate."""
@@ -810,13 +800,13 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self.counts[f"{name}.skipped"] += 1
         self.counts[f"{name}.skipped.{reason}"] += 1
 
-    def _time_reset(self, reset: TimeReset | None = None) -> list[RigOutput]:
-        """A time reset (:mod:`~rs_localizer.tracking.clock`; None: :meth:`reset`): the open
-        rig frames solved as they are on a jump ahead (``stamp_jump``, returned), else dropped
-        (``time_reset``); the track, the cameras' timelines and the gyro's timeline started
-        again (the gyro keeps its samples from the rig's newest frame on after a jump ahead);
-        the old track's pending twists go out with the next rig frame
-        (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on :meth:`reset`)."""
+    def _timeline_ended(self, reset: TimeReset | None) -> list[RigOutput]:
+        """A time reset's rig part (:mod:`~rs_localizer.tracking.clock`; None: :meth:`reset`;
+        the gyro's timeline starts again after it): the open rig frames solved as they are on
+        a jump ahead (``stamp_jump``, returned), else dropped (``time_reset``); the track and
+        the cameras' timelines started again; the old track's pending twists go out with the
+        next rig frame (:attr:`RigOutput.fused`). Counted ``rig.time_resets`` (not on
+        :meth:`reset`)."""
         solved = []
         if reset is not None:
             self.counts["rig.time_resets"] += 1
@@ -835,7 +825,6 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             cam.stopped = False
         self._first = self._last_closed = None
         self._carry += self._end_track(keep=True)
-        self.gyro_input.restart(None if reset is None else reset.keep_from)
         return solved
 
     def _ready(self) -> list[RigOutput]:
@@ -900,9 +889,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         as ``time_reset``), the track ends, the last rig frame posed is forgotten (the next
         frame is not predicted from it, without tracking either). Returns the track's twists
         still pending."""
-        self._time_reset()
-        self._forget_last_pose()
-        self._clock.reset()
+        self._forget_video()
         out, self._carry = self._carry, []
         return out
 

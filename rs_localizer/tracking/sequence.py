@@ -82,9 +82,8 @@ from ..estimation.implementation import COMPILED, default_implementation
 from ..estimation.single_tag import coplanar_points
 from ..pose import RSModel
 from ..solvers.registry import solver_info
-from .clock import VideoClock
+from .clock import TimeReset, VideoClock
 from .fusion import FusedState
-from .gyro import readout_window
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
     FROZEN_IMAGE_LEVEL,
@@ -385,15 +384,12 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
 
     # ---------------------------------------------------------------- gyro
     def _gyro_for(self, stamp: int, camera: CameraModel) -> GyroMeasurement | None:
-        """The gyro measurement of the frame's readout (:meth:`GyroInput.measurement`), or
-        None (no gyro, no readout timing, or the samples missing: counted; the frame is
-        solved without)."""
-        if self.gyro_input.settings is None or camera.line_delay <= 0:
+        """The gyro measurement of the frame's readout (:meth:`VideoLocalizer._gyro_readouts`
+        of its one camera, the stamp the capture time of row ``stamp_row``), or None (no gyro,
+        no readout timing, or the samples missing: counted; the frame is solved without)."""
+        if camera.line_delay <= 0:
             return None
-        a, b = readout_window(camera, 0.0, self.settings.stamp_row)  # (s from the stamp)
-        return self.gyro_input.measurement(
-            (stamp + int(round(a * 1e9)), stamp + int(round(b * 1e9)))
-        )
+        return self._gyro_readouts(stamp, [(camera, 0.0, self.settings.stamp_row)])
 
     def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
         """Feed a frame to the check of the gyro against the image and to the online bias
@@ -441,18 +437,21 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
 
     def _check_time(self, stamp: Stamp) -> str | None:
         """:meth:`check_time` of a checked stamp (:class:`~rs_localizer.tracking.clock.
-        VideoClock`)."""
+        VideoClock`; a reset: :meth:`VideoLocalizer._time_reset`)."""
         reset = self._clock.step(stamp, self._clock.newest)
         if reset is None:
             return None
-        self._restart_gyro(reset.keep_from)
+        self._time_reset(reset)
         return reset.detail
 
-    def _restart_gyro(self, keep_from: int | None) -> None:
-        """A new timeline: the gyro samples before ``keep_from`` (ns; None: all) dropped, the
-        pairing of the bias estimator and of the gyro check restarted."""
-        with self._lock:
-            self.gyro_input.restart(keep_from)
+    def _timeline_ended(self, reset: TimeReset | None) -> list:
+        """A time reset ends nothing here (the tracker resets itself on the same stamps);
+        :meth:`reset` (None) ends the track, its twists dropped, and forgets the last image."""
+        if reset is None:
+            self._end_track()
+            self._camera_frontend.last_sample = None
+            self._track_over = False
+        return []
 
     # ---------------------------------------------------------------- images
     @property
@@ -759,10 +758,4 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         gyro samples, the bias estimator's and the gyro check's pairing, the last posed frame
         carried (the next frame is not predicted from it), the last stamp. The bias estimate
         itself is kept (the same IMU)."""
-        with self._lock:
-            self._end_track()
-            self._restart_gyro(None)
-            self._forget_last_pose()
-            self._clock.reset()
-            self._camera_frontend.last_sample = None
-            self._track_over = False
+        self._forget_video()
