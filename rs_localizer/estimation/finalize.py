@@ -35,8 +35,7 @@ from .refine import (
     RefineSettings,
     exact_errors,
     posterior_step,
-    refine_rs_pose,
-    refine_rs_pose_numpy,
+    refine_backend,
 )
 from .result import (
     INCONSISTENT_FIT,
@@ -46,7 +45,7 @@ from .result import (
     output_covariance,
     physical_velocities,
 )
-from .scoring import exact_errors2, exact_errors2_numpy
+from .scoring import exact_errors2
 from .sensitivity import acceleration_sensitivity
 
 __all__ = [
@@ -191,8 +190,7 @@ def frame_refinement(
     :class:`~.frame.RefinementView`; ``fr.compiled`` False: in NumPy and SciPy,
     :func:`~.refine.refine_rs_pose_numpy`)."""
     th = float(th)
-    refine = refine_rs_pose if fr.compiled else refine_rs_pose_numpy
-    return refine(
+    return refine_backend(fr.compiled)(
         model,
         fr.X,
         fr.x,
@@ -896,9 +894,5 @@ def final_errors(model: Model, fr: Frame, compiled: bool = True) -> np.ndarray:
     its measured capture time (:func:`~.refine.exact_errors`, in pixels of the measured image
     over the focal length with the frame's whitening ``fr.W``; ``compiled=False``: in NumPy,
     :func:`~.scoring.exact_errors2_numpy`, the plain normalized error); ``inf`` behind the
-    camera."""
-    R, C, w, t = model
-    tau = fr.r - fr.r0
-    if compiled:
-        return exact_errors(R, C, w, t, fr.X, fr.x, tau, fr.W)
-    return np.sqrt(exact_errors2_numpy(R[None], C[None], w[None], t[None], fr.X, fr.x, tau)[0])
+    camera (:meth:`~.frame.Frame.errors`)."""
+    return fr.errors(model, compiled)

@@ -168,15 +168,15 @@ class Frame:
             np.zeros(n, dtype=np.int64), np.eye(3)[None], np.zeros((1, 3)), W.reshape(n, 2, 2)
         )
 
-    def errors(self, model: Model) -> np.ndarray:
+    def errors(self, model: Model, compiled: bool | None = None) -> np.ndarray:
         """(N,) image errors of ``model`` at every point at its measured capture time
         (:func:`~.refine.exact_errors`: normalized units, in pixels of the measured image over
-        the focal length with the whitening :attr:`W`; on a frame of the NumPy implementation
-        the plain normalized errors in NumPy, :func:`~.scoring.exact_errors2_numpy`); ``inf``
-        behind the camera."""
+        the focal length with the whitening :attr:`W`; on a frame of the NumPy implementation,
+        or with ``compiled`` False, the plain normalized errors in NumPy,
+        :func:`~.scoring.exact_errors2_numpy`); ``inf`` behind the camera."""
         R, C, w, t = model
         tau = self.r - self.r0
-        if self.compiled:
+        if self.compiled if compiled is None else compiled:
             return exact_errors(R, C, w, t, self.X, self.x, tau, self.W)
         m = (np.asarray(a, dtype=float)[None] for a in (R, C, w, t))
         return np.sqrt(exact_errors2_numpy(*m, self.X, self.x, tau)[0])

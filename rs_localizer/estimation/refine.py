@@ -55,9 +55,11 @@ __all__ = [
     "exact_residuals",
     "huber_fit_numpy",
     "huber_weights",
+    "image_variance",
     "kernel_mountings",
     "least_squares_exact_model",
     "prior_residuals",
+    "refine_backend",
     "refine_rs_pose",
     "refine_rs_pose_numpy",
     "refine_rs_pose_scipy",
@@ -208,12 +210,17 @@ def exact_residuals(
     """(2N,) residuals ``pi(p_i) - x_i`` (normalized units) of the exact model; theta (12,).
     With ``mountings`` (:class:`Mountings`) ``p_i`` is in its camera's frame and the
     residuals are scaled by ``scale``."""
+    return _residuals_and_depths(theta, R0, X, x, tau, mountings)[0].ravel()
+
+
+def _residuals_and_depths(theta, R0, X, x, tau, mountings) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) :func:`exact_residuals` and (N,) the points' depths in their cameras."""
     p, _ = _camera_points(theta, R0, X, tau)
     p = _mounted(p, mountings)
     r = p[:, :2] / p[:, 2:3] - x
     if mountings is not None:
         r = np.einsum("nij,nj->ni", _scale_matrices(mountings), r)
-    return r.ravel()
+    return r, p[:, 2]
 
 
 def _projection_rows(p: np.ndarray, mountings: Mountings | None) -> np.ndarray:
@@ -1452,12 +1459,25 @@ NUMPY_MAP_ROUNDS = 3
 def _errors_numpy(theta, R0, X, x, tau, mountings) -> np.ndarray:
     """(N,) image errors of the exact model ``theta`` about ``R0`` (normalized units, or the
     ``mountings``' scaled units), ``inf`` behind the camera (:func:`exact_residuals`)."""
-    p, _ = _camera_points(theta, R0, X, tau)
-    z = _mounted(p, mountings)[:, 2]
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        e = np.linalg.norm(exact_residuals(theta, R0, X, x, tau, mountings).reshape(-1, 2), axis=1)
+        r, z = _residuals_and_depths(theta, R0, X, x, tau, mountings)
+        e = np.linalg.norm(r, axis=1)
     e[~(z > 1e-9)] = np.inf
     return e
+
+
+def image_variance(inside: np.ndarray, k: float, free: int, compiled: bool = True) -> float:
+    """The per-axis image variance of a model's errors ``inside`` (those within the threshold
+    ``k``, same units), ``2 n - free`` degrees of freedom, corrected for the threshold's
+    truncation (:func:`untruncated_variance`; ``compiled=False``: in Python)."""
+    variance = untruncated_variance if compiled else untruncated_variance.py_func
+    return variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k)
+
+
+def refine_backend(compiled: bool) -> Callable[..., RefineResult]:
+    """:func:`refine_rs_pose`, or with ``compiled`` False its NumPy and SciPy form
+    :func:`refine_rs_pose_numpy` (the same arguments and result)."""
+    return refine_rs_pose if compiled else refine_rs_pose_numpy
 
 
 def huber_weights(e: np.ndarray, k: float) -> np.ndarray:
@@ -1544,12 +1564,7 @@ def refine_rs_pose_numpy(
     noise = settings.noise
     if noise is None and prior_arrays(motion)[0]:  # (from the start's errors, as compiled)
         e0 = _errors_numpy(np.concatenate([np.zeros(3), C, w, t]), R, X, x, tau, mountings)
-        inside = e0[e0 <= k]
-        noise = np.sqrt(
-            untruncated_variance.py_func(
-                float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k
-            )
-        )
+        noise = np.sqrt(image_variance(e0[e0 <= k], k, free, compiled=False))
     noise = 0.0 if noise is None else float(noise)
     near, success = None, True
     for _ in range(NUMPY_PASSES if max_iterations > 0 else 0):
@@ -1581,10 +1596,7 @@ def refine_rs_pose_numpy(
     J[:, free:] = 0.0
     ei = e[idx]
     WJ = np.repeat(huber_weights(ei, k), 2)[:, None] * J
-    inside = ei[ei <= k]
-    sigma2 = untruncated_variance.py_func(
-        float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), k
-    )
+    sigma2 = image_variance(ei[ei <= k], k, free, compiled=False)
     res.sigma = float(np.sqrt(sigma2))
     res.data_information = J.T @ WJ
     res.data_gradient = WJ.T @ exact_residuals(theta, R, X[idx], x[idx], tau[idx], sub)

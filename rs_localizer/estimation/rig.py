@@ -146,10 +146,9 @@ from .refine import (
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
+    image_variance,
     kernel_mountings,
-    refine_rs_pose,
-    refine_rs_pose_numpy,
-    untruncated_variance,
+    refine_backend,
 )
 from .result import (
     CAMERAS_DISAGREE,
@@ -1196,25 +1195,13 @@ def _refine_settings(rolling: bool, max_iterations: int, covariance: bool, cutof
     )  # fmt: skip
 
 
-def _image_variance(pool: _Pool, inside: np.ndarray, threshold_px: float, free: int) -> float:
-    """The per-axis image variance (px^2) of a model's errors ``inside`` (px, those within the
-    threshold), ``2 n - free`` degrees of freedom, corrected for the threshold's truncation
-    (:func:`~.refine.untruncated_variance`; ``pool.numpy``: in Python)."""
-    variance = untruncated_variance.py_func if pool.numpy else untruncated_variance
-    return variance(float(np.sum(inside**2)) / max(2 * len(inside) - free, 1), threshold_px)
-
-
 def _refinement(pool: _Pool, model, k: float, settings: RefineSettings, motion):
     """:func:`~.refine.refine_rs_pose` of ``model`` on the pool's points, each seen through its
     camera's mounting at its own capture time, errors in px (Huber loss at ``k`` px,
     ``settings``, ``motion`` the gyro's prior or None); with ``pool.numpy`` its NumPy and
     SciPy form, :func:`~.refine.refine_rs_pose_numpy`."""
-    if pool.numpy:
-        return refine_rs_pose_numpy(model, pool.X, pool.x, pool.tau, k, settings, motion,
-                                    _mountings(pool))  # fmt: skip
-    return refine_rs_pose(
-        model, pool.X, pool.x, pool.tau, k, settings, motion, _kernel_mountings(pool)
-    )  # fmt: skip
+    refine = refine_backend(pool.compiled)
+    return refine(model, pool.X, pool.x, pool.tau, k, settings, motion, pool.mountings())
 
 
 def _refine(
@@ -1241,8 +1228,8 @@ def _refine(
     cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
     noise, motion = None, None
     if prior is not None and free == 12:
-        e = _errors_px(pool, *_one(model))[0]
-        sp2 = _image_variance(pool, e[e < k], k, 12)
+        e = pool.errors(model)
+        sp2 = image_variance(e[e < k], k, 12, pool.compiled)
         noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
     res = _refinement(pool, model, k, _refine_settings(free == 12, int(max_iterations), False,
                                                       cut, noise), motion)  # fmt: skip
@@ -1285,9 +1272,9 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
         return fit, msac(fit)
 
     tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
-    e = _errors_px(pool, *_one(best))[0]
+    e = pool.errors(best)
     k = float(threshold_px)
-    margin = INLIER_FIT_SIGNIFICANCE[free] * _image_variance(pool, e[e < k], k, free)
+    margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
 
 
@@ -1324,7 +1311,7 @@ def _covariance(
     ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
     (:func:`~.refine.refine_rs_pose_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
-    e = _errors_px(pool, *_one(model))[0] if errors is None else errors
+    e = pool.errors(model) if errors is None else errors
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
@@ -1390,18 +1377,15 @@ def _seed_steps(pool: _Pool, threshold_px: float, gate: float, free: int, prior)
     k = float(threshold_px)
     th2 = k**2
 
-    def errors(model) -> np.ndarray:
-        return _errors_px(pool, *_one(model))[0]
-
     def evaluate(model, e: np.ndarray) -> tuple[float, np.ndarray]:
         return np.minimum(e * e, th2).sum(), e < k
 
     def pull(seed, near: np.ndarray):
         pulled = _refine(pool, None, seed[1], k, 10, free, cutoff_px=gate, prior=prior)
-        scored = evaluate(pulled, errors(pulled))
+        scored = evaluate(pulled, pool.errors(pulled))
         return (scored[0], pulled, scored[1]) if scored[0] < seed[0] else seed
 
-    return errors, evaluate, pull
+    return pool.errors, evaluate, pull
 
 
 def estimate_rig_pose(
@@ -1704,7 +1688,7 @@ def _gated(pool: _Pool, est, voters, gate_px: float, model=None) -> set[int]:
     """The voting cameras whose share of points within ``gate_px`` of ``est``'s pose (or of
     ``model`` ``(R, C, w, t)``) is at least :data:`AGREE_SHARE` times the best voting
     camera's."""
-    ok = _errors_px(pool, *_one(est.model if model is None else model))[0] < gate_px
+    ok = pool.errors(est.model if model is None else model) < gate_px
     n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
     valid = np.asarray(est.num_valid_per_camera, dtype=float)
     ratio = {c: n_ok[c] / valid[c] for c in voters}
@@ -1743,7 +1727,7 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     does not explain agree with the others: the prediction was off for them)."""
     valid = np.asarray(est.num_valid_per_camera)
     model = tuple(np.asarray(a, dtype=float) for a in prediction)
-    ok = _errors_px(pool, *_one(model))[0] < PREDICTION_GATE * threshold_px
+    ok = pool.errors(model) < PREDICTION_GATE * threshold_px
     n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
     ratio = {c: n_ok[c] / valid[c] for c in voters}
     best = max(ratio.values())
@@ -1779,7 +1763,7 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     for c in voters:
         e = solve(_only(views, set(voters) - {c}))
         if e.success:
-            ok = _errors_px(pool, *_one(e.model))[0] < threshold_px
+            ok = pool.errors(e.model) < threshold_px
             inl[c] = np.bincount(pool.cam[ok], minlength=M)
     cams = list(inl)
 
@@ -1908,7 +1892,7 @@ class _RigSearch(RansacLoop):
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
-        e = _errors_px(self.pool, *_one(model))[0]
+        e = self.pool.errors(model)
         self._costed = (self._costed[-1], (model, e))
         return float(np.minimum(e**2, self.th2).sum())
 
@@ -1918,7 +1902,7 @@ class _RigSearch(RansacLoop):
         for m, e in self._costed:
             if m is model:
                 return e
-        return _errors_px(self.pool, *_one(model))[0]
+        return self.pool.errors(model)
 
     def generate_models(self, loop: RansacLoop, K: int) -> tuple | None:
         pool = self.pool
@@ -2061,7 +2045,7 @@ def _estimate(
     for _ in range(LO_ROUNDS):
         for step in steps:
             # (the refinement selects its points itself: the inliers are the refit's alone)
-            inl = _errors_px(pool, *_one(model))[0] < threshold_px if step is _refit else None
+            inl = pool.errors(model) < threshold_px if step is _refit else None
             cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
             cost = search.cost(cand)
             if cost <= best_cost:
