@@ -174,7 +174,8 @@ def test_every_diagnostics_key_is_documented(ros_context, tmp_path):
     """Correspondence mode, image mode (ArUco and features front ends) and with the gyro:
     every key the node publishes is in the page's ``| diagnostics key |`` table, and every key
     there is published in one of them (``failed.<reason>``, ``camera_info_rejected.<reason>``,
-    ``gyro_missing.<reason>`` and ``imu_rejected.<reason>`` stand for their families)."""
+    ``gyro_missing.<reason>``, ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` stand
+    for their families)."""
     import numpy as np
 
     from rs_localizer.maps.features import FeatureMap
@@ -198,6 +199,7 @@ def test_every_diagnostics_key_is_documented(ros_context, tmp_path):
         "failed.",
         "camera_info_rejected.",
         "gyro_missing.",
+        "gyro_rejected.",
         "imu_rejected.",
     }, families
     undocumented = {k for k in keys if k not in documented and not k.startswith(tuple(families))}

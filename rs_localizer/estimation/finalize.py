@@ -31,6 +31,7 @@ from .plausibility import (
 )
 from .prior import MotionPrior, prior_conflict
 from .refine import (
+    DEFAULT_REFINE,
     RefineResult,
     RefineSettings,
     exact_errors,
@@ -180,15 +181,22 @@ def frame_refinement(
     rolling: bool,
     prior: MotionPrior | None = None,
     acceleration: bool = False,
+    *,
+    cutoff: float | None = None,
+    max_iterations: int = DEFAULT_REFINE.max_iterations,
+    covariance: bool = True,
 ) -> RefineResult:
     """:func:`~.refine.refine_rs_pose` of ``model`` on every point of the frame with the final
-    refinement's truncated Huber loss (scale ``th``, normalized units; points beyond
-    ``FINAL_CUTOFF * th`` ignored, re-selected at every iteration; tolerance ``FINAL_TOL``):
-    rolling-shutter or global-shutter (``rolling``), maximum likelihood or MAP with ``prior``,
-    ``acceleration``: with the ``J^T W D`` block. The one call the final refinement, the
-    image-alone check and the global-shutter switch share, of a camera and of a rig (``fr``,
-    :class:`~.frame.RefinementView`; ``fr.compiled`` False: in NumPy and SciPy,
-    :func:`~.refine.refine_rs_pose_numpy`)."""
+    refinement's truncated Huber loss (scale ``th``, the frame's units: normalized for a
+    camera, px for a rig; points beyond ``cutoff``, by default ``FINAL_CUTOFF * th``,
+    ignored, re-selected at every iteration; tolerance ``FINAL_TOL``; at most
+    ``max_iterations``, 0: the Jacobian and covariance at ``model``): rolling-shutter or
+    global-shutter (``rolling``), maximum likelihood or MAP with ``prior`` (the image noise
+    that weighs it estimated from ``model``'s errors inside ``th``), ``covariance``: with the
+    covariance (else skipped), ``acceleration``: with the ``J^T W D`` block. The one call
+    every refinement of a camera's and of a rig's final stage makes, and the rig's local
+    optimization (``fr``, :class:`~.frame.RefinementView`; ``fr.compiled`` False: in NumPy
+    and SciPy, :func:`~.refine.refine_rs_pose_numpy`)."""
     th = float(th)
     return refine_backend(fr.compiled)(
         model,
@@ -196,15 +204,38 @@ def frame_refinement(
         fr.x,
         fr.r - fr.r0,
         th,
-        RefineSettings(
-            rolling_shutter=rolling,
-            seconds_per_unit_r=fr.spr,
-            cutoff=FINAL_CUTOFF * th,
-            tol=FINAL_TOL,
-            acceleration_block=acceleration,
+        _settings(
+            rolling,
+            float(fr.spr),
+            FINAL_CUTOFF * th if cutoff is None else float(cutoff),
+            acceleration,
+            int(max_iterations),
+            covariance,
         ),
         prior=prior,
         mountings=fr.mountings(),
+    )
+
+
+@lru_cache(maxsize=64)
+def _settings(
+    rolling: bool,
+    spr: float,
+    cutoff: float,
+    acceleration: bool,
+    max_iterations: int,
+    covariance: bool,
+) -> RefineSettings:
+    """The :class:`~.refine.RefineSettings` of :func:`frame_refinement` (built once per
+    setting: a rig refines a few times per frame)."""
+    return RefineSettings(
+        rolling_shutter=rolling,
+        seconds_per_unit_r=spr,
+        cutoff=cutoff,
+        tol=FINAL_TOL,
+        acceleration_block=acceleration and covariance,
+        max_iterations=max_iterations,
+        covariance=covariance,
     )
 
 

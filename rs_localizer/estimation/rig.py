@@ -120,7 +120,13 @@ from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
-from .finalize import FINAL_CUTOFF, image_alone, rolling_shutter_check, still_fallback
+from .finalize import (
+    FINAL_CUTOFF,
+    frame_refinement,
+    image_alone,
+    rolling_shutter_check,
+    still_fallback,
+)
 from .gyro import (
     GyroMeasurement,
     gyro_checked,
@@ -142,13 +148,11 @@ from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
     KernelMountings,
     Mountings,
-    RefineSettings,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
     image_variance,
     kernel_mountings,
-    refine_backend,
 )
 from .result import (
     CAMERAS_DISAGREE,
@@ -1182,28 +1186,6 @@ def _kernel_mountings(pool: _Pool) -> KernelMountings:
     return m
 
 
-@functools.lru_cache(maxsize=64)
-def _refine_settings(rolling: bool, max_iterations: int, covariance: bool, cutoff: float,
-                     noise: float | None) -> RefineSettings:  # fmt: skip
-    """The :class:`~.refine.RefineSettings` of the rig's refinements (one second per unit
-    of tau; with ``covariance``, the acceleration block when ``rolling``), built once per
-    setting."""
-    return RefineSettings(
-        rolling_shutter=rolling, max_iterations=max_iterations, covariance=covariance,
-        cutoff=cutoff, seconds_per_unit_r=1.0, noise=noise,
-        acceleration_block=covariance and rolling,
-    )  # fmt: skip
-
-
-def _refinement(pool: _Pool, model, k: float, settings: RefineSettings, motion):
-    """:func:`~.refine.refine_rs_pose` of ``model`` on the pool's points, each seen through its
-    camera's mounting at its own capture time, errors in px (Huber loss at ``k`` px,
-    ``settings``, ``motion`` the gyro's prior or None); with ``pool.numpy`` its NumPy and
-    SciPy form, :func:`~.refine.refine_rs_pose_numpy`."""
-    refine = refine_backend(pool.compiled)
-    return refine(model, pool.X, pool.x, pool.tau, k, settings, motion, pool.mountings())
-
-
 def _refine(
     pool: _Pool,
     inl: np.ndarray,
@@ -1217,22 +1199,19 @@ def _refine(
     """Levenberg-Marquardt on the exact model over every point within ``FINAL_CUTOFF`` inlier
     thresholds (``cutoff_px``: within that many px instead; Huber loss at ``threshold_px``,
     truncated beyond: the set re-selected at each iteration; ``inl`` unused, the signature of
-    :func:`_refit`): a single camera's refinement (:func:`~.refine.refine_rs_pose`) with
-    each point seen through its camera's mounting at its own capture time, errors in px.
-    12 parameters: a rotation update left of R, C, w, t (``free=6``: the pose alone, w and t
-    kept at zero). ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains
-    ``sigma^2 (w - w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the
-    starting model's errors inside the threshold (:func:`~.refine.untruncated_variance`,
-    at least ``1e-6`` threshold^2). With ``pool.numpy``: :func:`~.refine.refine_rs_pose_numpy`."""
+    :func:`_refit`): a single camera's final refinement
+    (:func:`~.finalize.frame_refinement`, without the covariance) with each point seen
+    through its camera's mounting at its own capture time, errors in px. 12 parameters: a
+    rotation update left of R, C, w, t (``free=6``: the pose alone, w and t kept at zero).
+    ``prior`` (a gyro, with ``free=12``): maximum a posteriori, the cost gains ``sigma^2 (w -
+    w_g)^T info (w - w_g)`` with ``sigma^2`` the image variance (px^2) of the starting
+    model's errors inside the threshold. With ``pool.numpy``:
+    :func:`~.refine.refine_rs_pose_numpy`."""
     k = float(threshold_px)
-    cut = FINAL_CUTOFF * k if cutoff_px is None else max(float(cutoff_px), k)
-    noise, motion = None, None
-    if prior is not None and free == 12:
-        e = pool.errors(model)
-        sp2 = image_variance(e[e < k], k, 12, pool.compiled)
-        noise, motion = float(np.sqrt(max(sp2, 1e-6 * k * k))), prior.motion
-    res = _refinement(pool, model, k, _refine_settings(free == 12, int(max_iterations), False,
-                                                      cut, noise), motion)  # fmt: skip
+    cut = None if cutoff_px is None else max(float(cutoff_px), k)
+    motion = prior.motion if prior is not None and free == 12 else None
+    res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
+                           max_iterations=max_iterations, covariance=False)  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
 
@@ -1315,7 +1294,7 @@ def _covariance(
     if np.count_nonzero(e < k) <= 6:
         return None, None
     rolling = free == 12
-    res = _refinement(pool, model, k, _refine_settings(rolling, 0, True, cut, None), None)
+    res = frame_refinement(pool, model, k, rolling, None, rolling, max_iterations=0)
     sigma2, info = res.sigma**2, res.data_information
     acc = res.acceleration_block if rolling else None
     H = info[:free, :free].copy()

@@ -132,9 +132,9 @@ def diagnostic_status(
     ``imu.gyro_bias_sigma``; pairs of frames the bias estimator rejected; the check of the
     gyro against the rotation between frames: ``gyro_inconsistent``, the frames solved
     without the gyro because of it, its failed pairs and detections), then
-    ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>`` and
-    ``imu_rejected.<reason>`` counts. ``frontend``: the image front end in use
-    (:attr:`.pipeline.FramePipeline.maps`), None without one.
+    ``failed.<reason>``, ``camera_info_rejected.<reason>``, ``gyro_missing.<reason>``,
+    ``gyro_rejected.<reason>`` and ``imu_rejected.<reason>`` counts. ``frontend``: the image
+    front end in use (:attr:`.pipeline.FramePipeline.maps`), None without one.
     """
     c = stats.counts
     failed = dict(sorted(frames.failures.items()))
@@ -160,7 +160,7 @@ def diagnostic_status(
     if cfg.imu is not None:
         values.update(_imu_values(cfg, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s))
     values.update({f"failed.{k}": v for k, v in failed.items()})
-    prefixes = ("camera_info_rejected.", "gyro_missing.", "imu_rejected.")
+    prefixes = ("camera_info_rejected.", "gyro_missing.", "gyro_rejected.", "imu_rejected.")
     values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
     return level, message, values
 

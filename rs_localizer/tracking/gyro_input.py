@@ -15,10 +15,15 @@ or a rig, whose frame is the rig frame):
 - a new timeline (:meth:`GyroInput.restart`) when the frames' clock is reset
   (:mod:`rs_localizer.tracking.clock`).
 
+- what a frame's estimate says of the gyro (:meth:`GyroInput.solved`), one rule for a camera
+  and a rig.
+
 Counted through the owner's ``count(key, n)``: ``gyro_missing`` and
 ``gyro_missing.<reason>`` (:data:`~rs_localizer.tracking.gyro.GYRO_MISSING_REASONS`),
 ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``, ``gyro_inconsistent_detections``,
-``gyro_bias_rejected`` (a rig prefixes them with ``rig.``).
+``gyro_bias_rejected``, ``gyro_rejected`` and ``gyro_rejected.<reason>``
+(:data:`~rs_localizer.estimation.result.GYRO_REJECTIONS`), ``frames_with_gyro`` (a rig:
+``gyro_used``; a rig prefixes them all with ``rig.``).
 :class:`~rs_localizer.tracking.sequence.SequenceLocalizer` and
 :class:`~rs_localizer.tracking.rig.RigLocalizer` both use it.
 """
@@ -27,7 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -101,6 +106,21 @@ class TrackLog(Protocol):
     def info(self, text: str) -> None: ...
 
     def warning(self, key: str, text: str, count: int = 0) -> None: ...
+
+
+class SolvedFrame(Protocol):
+    """What :meth:`GyroInput.solved` reads of a frame's estimate (a camera's
+    :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
+    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`)."""
+
+    success: bool
+    gyro_used: bool
+    gyro_rejected: bool
+    gyro_rejection: str
+    covariance: np.ndarray | None
+
+    @property
+    def pose(self) -> Any: ...
 
 
 class SilentLog:
@@ -218,7 +238,8 @@ class GyroInput:
             added before the frames, e.g. a bag replayed offline).
         what: the frames' name in warnings (``frame``, ``rig frame``); key: the prefix of the
             warnings' keys (``gyro``, ``rig.gyro``); mount: the mounting under test in them
-            (``IMU -> camera optical frame``, ``IMU -> base_frame``).
+            (``IMU -> camera optical frame``, ``IMU -> base_frame``); used_key: the count of
+            the frames posed with the gyro (``frames_with_gyro``, a rig's ``gyro_used``).
 
     Attributes:
         settings: the :class:`GyroSettings`, None: no gyro. buffer: the samples (None
@@ -239,12 +260,13 @@ class GyroInput:
         what: str = "frame",
         key: str = "gyro",
         mount: str = "IMU -> camera optical frame",
+        used_key: str = "frames_with_gyro",
     ):
         self._count = count
         self.log: TrackLog = log if log is not None else SilentLog()
         self._stopped = stopped
         self._span = span
-        self.what, self.key, self.mount = what, key, mount
+        self.what, self.key, self.mount, self.used_key = what, key, mount, used_key
         self.settings: GyroSettings | None = None
         self.buffer: ImuBuffer | None = None
         self.bias: GyroBiasEstimator | None = None
@@ -380,6 +402,35 @@ class GyroInput:
             )
         # (the image refutes the gyro over the last pairs: solved without it)
         return gyro_if_consistent(gyro, self.check, self._count)
+
+    def solved(self, stamp_ns: int, estimate: SolvedFrame | None, new_track: bool) -> None:
+        """A frame (a camera's or a rig's) after its estimate: the one rule of both.
+
+        Counted: ``<used>`` (``frames_with_gyro``; a rig's ``gyro_used``) when it was posed
+        with the gyro's measurement, ``gyro_rejected`` and ``gyro_rejected.<reason>`` (the
+        estimate's ``gyro_rejection``) when the image contradicted the gyro (warned about,
+        throttled: the frame was solved without it); then the mount check and the bias
+        estimate fed with it (:meth:`update`): a posed frame (its orientation, body ->
+        world, and the (3, 3) rotation block of its (12, 12) ``covariance``, None when it
+        has none: the pair is not tested) pairs with the previous one; a failed frame, a
+        frame whose estimator raised (``estimate`` None) or a new track (``new_track``)
+        restarts the pairing."""
+        posed = estimate is not None and bool(estimate.success)
+        if estimate is not None and estimate.gyro_rejected:
+            self._count("gyro_rejected", 1)
+            self._count(f"gyro_rejected.{estimate.gyro_rejection}", 1)
+            self.log.warning(
+                f"{self.key}.rejected",
+                f"the image disagrees with the gyro: {self.what} solved without it (check "
+                "imu.rotation, imu.time_offset and imu.gyro_bias)",
+            )
+        elif posed and estimate.gyro_used:
+            self._count(self.used_key, 1)
+        cov = None
+        if posed and estimate.covariance is not None:
+            cov = estimate.covariance[:3, :3]
+        orientation = estimate.pose.orientation if posed else None
+        self.update(stamp_ns, posed, orientation, cov, new_track)
 
     def update(
         self,

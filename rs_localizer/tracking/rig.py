@@ -618,8 +618,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         # the gyro on the rig (its R_cam_imu: IMU -> rig frame): samples, bias, the check
         # of its mounting on the rig as a camera's, counted rig.gyro_*
         self.gyro_input = GyroInput(
-            self._count_gyro, self.log, what="rig frame", key="rig.gyro", mount="IMU -> base_frame"
-        )
+            self._count_gyro, self.log, what="rig frame", key="rig.gyro",
+            mount="IMU -> base_frame", used_key="gyro_used",
+        )  # fmt: skip
         self.gyro_input.configure(settings.imu, check=True, max_interval=settings.max_gap)
         # the time-reset policy (tracking/clock.py): a camera's step back by more than
         # time_reset_ns (less: its frame out of order), a jump ahead of the rig's newest
@@ -672,19 +673,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         return self._gyro_readouts(g.lo, [(v.camera, v.stamp_offset, None) for v in views])
 
     def _gyro_done(self, out: RigOutput) -> None:
-        """Count the gyro's outcome of a rig frame and feed the bias estimate."""
-        est = out.estimate
-        if out.gyro is not None and est is not None:
-            if est.gyro_used:
-                self.counts["rig.gyro_used"] += 1
-            if est.gyro_rejected:
-                self.counts["rig.gyro_rejected"] += 1
-                self.counts[f"rig.gyro_rejected.{est.gyro_rejection}"] += 1
-        ok = out.success and est.covariance is not None
-        self.gyro_input.update(
-            out.stamp_ns, ok, est.R.T if ok else None,
-            est.covariance[:3, :3] if ok else None, out.path in ("cold", "reset"),
-        )  # fmt: skip
+        """The gyro's outcome of a rig frame (:meth:`~.gyro_input.GyroInput.solved`, a
+        camera's rule)."""
+        self.gyro_input.solved(out.stamp_ns, out.estimate, out.path in ("cold", "reset"))
 
     # ---------------------------------------------------------------- read-outs
     @property

@@ -391,15 +391,6 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
             return None
         return self._gyro_readouts(stamp, [(camera, 0.0, self.settings.stamp_row)])
 
-    def _update_gyro_checks(self, est: RSPoseEstimate, stamp: int, new_track: bool) -> None:
-        """Feed a frame to the check of the gyro against the image and to the online bias
-        estimator (:func:`~rs_localizer.tracking.gyro_input.update_gyro_checks`, the rig's
-        rule too): a solved frame pairs with the previous one; a failed frame or a new track
-        restarts the pairing; counted ``gyro_pairs_failed``, ``gyro_inconsistent_detections``
-        (warned about once), ``gyro_bias_rejected``."""
-        cov = est.covariance[:3, :3] if est.covariance is not None else None
-        self.gyro_input.update(stamp, bool(est.success), est.pose.orientation, cov, new_track)
-
     # ---------------------------------------------------------------- time
     def frame_time(self, stamp_ns: int | FrameTime, camera: CameraModel) -> FrameTime:
         """The times of a frame stamped ``stamp_ns`` (ns, the capture time of row
@@ -691,20 +682,12 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
                 out.fused = ended + self._fused(final)
                 out.error = f"{type(e).__name__}: {e}"
                 out.estimate = None
+                self.gyro_input.solved(ref, None, False)  # (not posed: the pairing restarts)
                 return out
             self._track_over = False
             out.estimate, out.new_track = est, new_track
             self._carried.update(ref, est)
-            if est.gyro_rejected:
-                self._count("gyro_rejected", 1)
-                self.log.warning(
-                    "gyro.rejected",
-                    "the image disagrees with the gyro: frame solved without it (check "
-                    "imu.rotation, imu.time_offset and imu.gyro_bias)",
-                )
-            elif est.gyro_used and est.success:
-                self._count("frames_with_gyro", 1)
-            self._update_gyro_checks(est, ref, new_track)
+            self.gyro_input.solved(ref, est, new_track)
             if not est.success:  # (twists of earlier frames a reset made final still go out)
                 out.fused = ended + self._fused(final)
                 return out

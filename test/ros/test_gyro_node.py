@@ -62,6 +62,9 @@ def test_replay_with_the_gyro(imu_bag):
     # frames leaves the gyro out)
     c = wrong.counts
     assert c.get("gyro_rejected", 0) + c.get("gyro_disabled_inconsistent", 0) == n, c
+    # (each rejection counted with its reason too, as a rig's)
+    by_reason = sum(v for k, v in c.items() if k.startswith("gyro_rejected."))
+    assert c.get("gyro_rejected", 0) >= 1 and by_reason == c["gyro_rejected"], c
     assert c.get("gyro_inconsistent_detections") == 1 and c["gyro_disabled_inconsistent"] >= 15
     assert "frames_with_gyro" not in wrong.counts
     np.testing.assert_array_equal(_angular_errors(wrong), _angular_errors(base))
