@@ -32,13 +32,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from ..camera import checked_stamp
 from ..estimation.gyro import GyroMeasurement
+from ..pose import PoseMeasurement
 from .gyro import ImuBuffer
 from .gyro_bias import GyroBiasEstimator, GyroBiasOptions
 from .gyro_check import GyroMountCheck, MountCheckOptions
@@ -108,19 +109,22 @@ class TrackLog(Protocol):
     def warning(self, key: str, text: str, count: int = 0) -> None: ...
 
 
-class SolvedFrame(Protocol):
+class SolvedFrame(PoseMeasurement, Protocol):
     """What :meth:`GyroInput.solved` reads of a frame's estimate (a camera's
     :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`)."""
-
-    success: bool
-    gyro_used: bool
-    gyro_rejected: bool
-    gyro_rejection: str
-    covariance: np.ndarray | None
+    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`): the twist filter's measurement
+    (:class:`~rs_localizer.pose.PoseMeasurement`: ``success``, ``pose``, ``covariance``)
+    and whether the gyro was used (``gyro_used``) or rejected (``gyro_rejected``, why:
+    ``gyro_rejection``)."""
 
     @property
-    def pose(self) -> Any: ...
+    def gyro_used(self) -> bool: ...
+
+    @property
+    def gyro_rejected(self) -> bool: ...
+
+    @property
+    def gyro_rejection(self) -> str: ...
 
 
 class SilentLog:
