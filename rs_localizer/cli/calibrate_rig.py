@@ -38,8 +38,10 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "max_points come from the bag's rig_params.yaml, then --params-file. Each camera's "
         "clouds are read as the rig node reads them: with the camera_info of the cloud's "
         "stamp, rows with a NaN or inf dropped (counted points_dropped), then at most "
-        "max_points rows (counted capped_clouds, capped_points); the counts are printed for "
-        "each camera that had any.",
+        "max_points rows (counted capped_clouds, capped_points); a cloud that cannot be read "
+        "(an invalid stamp, no u, v, x, y, z fields) is left out, counted bad_input, as the "
+        "node counts it skipped.bad_input; the counts are printed for each camera that had "
+        "any.",
         formatter_class=A.HelpFormatter,
     )
     c.add_argument("bag", help="rig bag directory (make-bag --rig) or its .mcap file")
@@ -115,13 +117,13 @@ def short_video_warning(name: str, frames: int) -> str:
 
 
 def rows_note(name: str, counts: dict, max_points: int) -> str:
-    """The line on camera ``name``'s rows left out of its frames: ``counts``
-    (``points_dropped``, ``capped_clouds``, ``capped_points`` of
+    """The line on camera ``name``'s rows and clouds left out of its frames: ``counts``
+    (``points_dropped``, ``capped_clouds``, ``capped_points``, ``bad_input`` of
     :attr:`~rs_localizer.ros.bags.rig_bag.RigFrames.counts`) as ``replay`` names them."""
     return (
         f"{name}: " + ", ".join(f"{k} {v}" for k, v in counts.items())
         + f" (rows with a NaN or inf dropped; clouds of more than max_points {max_points} "
-        "rows capped to it)"
+        "rows capped to it; clouds not read: an invalid stamp, no u, v, x, y, z fields)"
     )  # fmt: skip
 
 

@@ -14,23 +14,32 @@ are (``camera_info_rejected``, ``camera_info_rejected.<reason>``, ``points_dropp
 (``<camera>.camera_info_rejected.<reason>``, ...). Its warnings go to its owner's throttled
 log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``). No
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
+
+A rig camera's cloud becomes the rig's frame in one place, :func:`rig_cloud_frame`, for the rig
+node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.rig.RigCameraFrame`,
+or an :class:`UnreadFrame` (``bad_input``) that :func:`hand_to_rig` passes to the rig as a
+frame skipped (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import CameraModel, Stamp
 from ..tracking.localizer import usable_rows
 from . import conversions as cv
 from .camera_info_history import CameraInfoHistory, calibration_key
 from .pointcloud import read_correspondences
 
-__all__ = ["CameraInput", "rig_camera_inputs"]
+if TYPE_CHECKING:
+    from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
+
+__all__ = ["CameraInput", "UnreadFrame", "hand_to_rig", "rig_camera_inputs", "rig_cloud_frame"]
 
 
 class CameraInput:
@@ -219,3 +228,60 @@ def rig_camera_inputs(
         inp.configure(make_camera, config.settings.max_points)
         inputs[c.name] = inp
     return inputs
+
+
+@dataclass(frozen=True)
+class UnreadFrame:
+    """A rig camera's frame whose message cannot be read, skipped as ``reason``
+    (``bad_input``; the rig node's ``<camera>.skipped.bad_input`` and ``<camera>.bad_input``).
+
+    Attributes:
+        camera_name: the camera. stamp_ns: the message's checked header stamp; None: the stamp
+            itself cannot be read (no rig frame can take the frame: the rig never sees it).
+        camera: the camera model of that stamp (None: none yet, or no stamp).
+        error: why it was not read. reason: the rig's skip reason
+            (:data:`~rs_localizer.tracking.rig.SKIP_REASONS`).
+    """
+
+    camera_name: str
+    stamp_ns: Stamp | None
+    camera: CameraModel | None
+    error: ValueError
+    reason: str = "bad_input"
+
+
+def rig_cloud_frame(
+    name: str, inp: CameraInput, msg: Any, stamp: Stamp | ValueError
+) -> RigCameraFrame | UnreadFrame:
+    """Camera ``name``'s correspondences cloud ``msg`` as the rig takes it, the rig node's and
+    the rig bag reader's one path: ``stamp`` is its header stamp checked
+    (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`) or the error of that check.
+    Returns a :class:`~rs_localizer.tracking.rig.RigCameraFrame` (the cloud's rows through
+    :meth:`CameraInput.read_cloud`, the camera model of its stamp,
+    :meth:`CameraInput.camera_for`; tagged with its ``frame_id``, else ``name``), or an
+    :class:`UnreadFrame`: the stamp cannot be read (``stamp_ns`` None), or the cloud cannot
+    (no u, v, x, y, z fields, ...)."""
+    from ..tracking.rig import RigCameraFrame
+
+    if isinstance(stamp, ValueError):
+        return UnreadFrame(name, None, None, stamp)
+    try:
+        uv, xyz, _ = inp.read_cloud(msg)
+    except ValueError as e:
+        return UnreadFrame(name, stamp, inp.camera_for(stamp), e)
+    return RigCameraFrame(name, stamp, inp.camera_for(stamp), uv, xyz,
+                          msg.header.frame_id or name)  # fmt: skip
+
+
+def hand_to_rig(rig: RigLocalizer, item: RigCameraFrame | UnreadFrame) -> list[RigOutput]:
+    """A camera's frame of :func:`rig_cloud_frame` to the rig; returns the rig frames it
+    completed, solved. A frame read: :meth:`~rs_localizer.tracking.rig.RigLocalizer.add`; an
+    :class:`UnreadFrame` with a stamp: counted received and skipped for its reason, the rig
+    no longer waiting for the camera at that time
+    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`: a rig frame without it counts the
+    camera ``missed.skipped``); one without a stamp: nothing (``[]``; its owner counts it)."""
+    if not isinstance(item, UnreadFrame):
+        return rig.add(item)
+    if item.stamp_ns is None:
+        return []
+    return rig.drop(item.camera_name, item.stamp_ns, item.camera, item.reason)

@@ -30,6 +30,7 @@ __all__ = [
     "WARN",
     "RigInputs",
     "diagnostic_status",
+    "rig_camera_frames",
     "rig_diagnostics",
     "timing_values",
 ]
@@ -468,6 +469,30 @@ def _rig_level_and_message(
     return OK, f"{r['solved']} rig frames posed" + note
 
 
+def rig_camera_frames(
+    rig: RigLocalizer, n: str, own: Mapping[str, int] | None = None
+) -> dict[str, int]:
+    """Camera ``n``'s frame accounting as the rig node reports it: ``received``, ``solved``,
+    ``failed``, ``skipped``, ``pending`` (received = the other four summed). The rig's
+    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_counts`), with the node's own
+    counts of the camera ``own`` (keys without the ``<c>.`` prefix, :class:`RigInputs`'
+    ``counts``; None: the rig's alone): ``received`` is then the node's (every message), the
+    node's ``skipped.<reason>`` and ``failed.internal_error`` are added to the rig's, and the
+    frames the node has not handed on yet (``received`` less ``taken`` and the frames dropped
+    from its queue) to ``pending``. The rig node's diagnostics and ``replay`` of a rig bag
+    (:func:`~rs_localizer.ros.bags.rig_bag.replay_rig`) both count a camera's frames so."""
+    c = rig.camera_counts(n)
+    if own is None:
+        return c
+    early = sum(v for k, v in own.items() if k.startswith("skipped."))
+    queued = early - own.get("skipped.bad_input", 0)
+    c["received"] = own.get("received", 0)
+    c["skipped"] += early
+    c["failed"] += own.get("failed.internal_error", 0)
+    c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+    return c
+
+
 def _rig_camera_values(
     rig: RigLocalizer, n: str, waiting_info: set, inputs: RigInputs | None, warnings: list[str]
 ) -> tuple[dict[str, Any], int, int]:
@@ -488,17 +513,12 @@ def _rig_camera_values(
     worker's time per frame of this camera). Appends the camera's warnings to ``warnings``;
     returns the section, the camera's frames dropped from a full queue and its messages lost."""
     values: dict[str, Any] = {}
-    c = rig.camera_counts(n)
     busy = lost = 0
     own: dict[str, int] = {}
     if inputs is not None:
         own = {k[len(n) + 1 :]: v for k, v in inputs.counts.items() if k.startswith(f"{n}.")}
-        early = sum(v for k, v in own.items() if k.startswith("skipped."))
-        queued = early - own.get("skipped.bad_input", 0)
-        c["received"] = own.get("received", 0)
-        c["skipped"] += early
-        c["failed"] += own.get("failed.internal_error", 0)
-        c["pending"] += own.get("received", 0) - queued - own.get("taken", 0)
+    c = rig_camera_frames(rig, n, own if inputs is not None else None)
+    if inputs is not None:
         busy, lost = own.get("skipped.queue_full", 0), own.get("messages_lost", 0)
         values[f"{n}.messages_lost"] = lost
         values[f"{n}.camera_info_rejected"] = own.get("camera_info_rejected", 0)

@@ -84,9 +84,15 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 from ..camera import Stamp, reference_stamp_ns
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
-from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
+from ..tracking.rig import RigLocalizer, RigOutput
 from . import conversions as cv
-from .camera_input import CameraInput, rig_camera_inputs
+from .camera_input import (
+    CameraInput,
+    UnreadFrame,
+    hand_to_rig,
+    rig_camera_inputs,
+    rig_cloud_frame,
+)
 from .config import (
     LocalizerConfig,
     RigConfig,
@@ -588,17 +594,14 @@ class RigCore(NodeCore):
         (:meth:`RigLocalizer.drop`), so the rig frame without it counts the camera
         ``missed.skipped``, not ``missed.apart`` (a camera whose frames are apart is named
         as one whose clock is off); one whose stamp is out of range is counted by the node
-        alone (:meth:`_not_read`)."""
-        inp = self.inputs[name]
-        try:
-            uv, xyz, _ = inp.read_cloud(msg)
-        except ValueError as e:
-            self._not_read(name, "cloud", e)
-            return self.rig.drop(name, stamp, inp.camera_for(stamp), "bad_input"), None
-        self._warn_no_info(name, "correspondences")
-        frame = RigCameraFrame(name, stamp, inp.camera_for(stamp), uv, xyz,
-                               msg.header.frame_id or name)  # fmt: skip
-        return self.rig.add(frame), None
+        alone (:meth:`_not_read`). The cloud becomes the rig's frame as a rig bag's does in
+        ``replay`` (:func:`.camera_input.rig_cloud_frame`, :func:`.camera_input.hand_to_rig`)."""
+        item = rig_cloud_frame(name, self.inputs[name], msg, stamp)
+        if isinstance(item, UnreadFrame):
+            self._not_read(name, "cloud", item.error)
+        else:
+            self._warn_no_info(name, "correspondences")
+        return hand_to_rig(self.rig, item), None
 
     def _warn_no_info(self, name: str, kind: str) -> None:
         if self.inputs[name].newest is None:

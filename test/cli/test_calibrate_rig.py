@@ -282,9 +282,10 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
             assert np.allclose(got, want, atol=1e-4)
     capped_points = sum(len(r) - cap for (c, _), r in rows.items() if c == "left")
     assert read.counts == {
-        "front": {"points_dropped": 0, "capped_clouds": 0, "capped_points": 0},
-        "left": {"points_dropped": n_left, "capped_clouds": n_left, "capped_points": capped_points},
-    }
+        "front": {"points_dropped": 0, "capped_clouds": 0, "capped_points": 0, "bad_input": 0},
+        "left": {"points_dropped": n_left, "capped_clouds": n_left, "capped_points": capped_points,
+                 "bad_input": 0},
+    }  # fmt: skip
 
     capsys.readouterr()
     args = ["calibrate-rig", str(bag), "--params-file", str(params), "--json", "-o",
@@ -294,8 +295,9 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
     report = json.loads(cap_out.out)["cameras"]
     line = (
         f"left: points_dropped {n_left}, capped_clouds {n_left}, capped_points "
-        f"{capped_points} (rows with a NaN or inf dropped; clouds of more than max_points "
-        f"{cap} rows capped to it)"
+        f"{capped_points}, bad_input 0 (rows with a NaN or inf dropped; clouds of more than "
+        f"max_points {cap} rows capped to it; clouds not read: an invalid stamp, no u, v, x, y, "
+        "z fields)"
     )
     assert line in cap_out.err and "front: points_dropped" not in cap_out.err
     assert f"# {line}" in (tmp_path / "out.yaml").read_text()

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers.rig_bags import rewrite_bag
 
 pytest.importorskip("rosbags")
 
@@ -202,28 +203,6 @@ def test_replay_of_a_rig_warns_when_its_video_contradicts_the_cameras_timing(tmp
     assert "rig.<camera>" in err
 
 
-def _rewrite_bag(src, dst, edit):
-    """Copy the rig bag ``src`` to ``dst`` (its sequence.json and rig_params.yaml too), each
-    message through ``edit(topic, msg, log_time_ns)`` -> ``[(log_time_ns, msg), ...]``."""
-    import shutil
-
-    from rosbags.rosbag2 import Writer
-
-    from rs_localizer.ros.bags.bag_io import iter_messages, storage_plugin, typestore
-
-    ts = typestore()
-    with Writer(dst, version=9, storage_plugin=storage_plugin("mcap")) as w:
-        conns = {}
-        for topic, mt, t, raw in iter_messages(src):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, mt, typestore=ts)
-            for t2, msg in edit(topic, ts.deserialize_cdr(raw, mt), t):
-                w.write(conns[topic], t2, ts.serialize_cdr(msg, mt))
-    for name in ("sequence.json", "rig_params.yaml"):
-        shutil.copy(src / name, dst / name)
-    return dst
-
-
 def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
     """The frames calibrate-rig and play --lockstep read take the camera model of the newest
     camera_info stamped at or before each cloud, as the rig node does, not the one received
@@ -262,7 +241,7 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
             return []
         return [(t, msg)]
 
-    bag = _rewrite_bag(clean, tmp_path / "changed", edit)
+    bag = rewrite_bag(clean, tmp_path / "changed", edit)
     read = read_rig_frames(bag)
     left = [f for f in read.frames if f.camera_name == "left"]
     assert [f.stamp_ns for f in left] == stamps["left"]
@@ -275,3 +254,74 @@ def test_each_cloud_of_a_rig_bag_gets_the_camera_info_of_its_stamp(tmp_path):
     res = replay_rig(bag)
     assert res.counts["front"]["skipped"] == 1  # (no camera model)
     assert rig_frame_grouping(bag)[1] == res.counts["rig"]["rig_frames"]
+
+
+def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_path, capsys):
+    """The left camera's clouds 3..8 without their ``x`` field and its cloud 10 with a stamp no
+    ROS time holds: the one reader yields each as an unread frame (``bad_input``), so that
+    replay counts them as the rig node does (received, ``skipped.bad_input``; the ones with a
+    stamp handed to the rig, which does not wait for the camera at their times), calibrate-rig's
+    reader leaves them out of
+    its frames and counts them ``bad_input`` (printed, in the JSON), and the grouping
+    ``play --lockstep`` waits on is the rig mode's with them: the rig frames each of those
+    clouds completes."""
+    from helpers.rig_bags import BAD_STAMP, NO_X, bag_with_unread_clouds
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.rig_bag import (
+        read_rig_frames,
+        replay_rig,
+        rig_frame_grouping,
+        rig_parameter_values,
+    )
+    from rs_localizer.ros.camera_input import UnreadFrame, hand_to_rig
+    from rs_localizer.ros.config import rig_config
+    from rs_localizer.tracking.rig import RigLocalizer
+
+    b = bag_with_unread_clouds(tmp_path)
+    n = {c: len(s) for c, s in b.stamps.items()}
+    bad = len(NO_X) + 1
+
+    read = read_rig_frames(b.bag)
+    unread = [f for f in read.items if isinstance(f, UnreadFrame)]
+    assert [(f.camera_name, f.stamp_ns) for f in unread if f.stamp_ns is not None] == sorted(
+        b.no_x, key=lambda x: x[1]
+    )
+    assert [f.camera_name for f in unread if f.stamp_ns is None] == ["left"]
+    assert all(f.reason == "bad_input" for f in unread)
+    assert len(read.frames) == len(b.frames) - bad
+    assert not any(isinstance(f, UnreadFrame) for f in read.frames)
+    assert read.counts["left"]["bad_input"] == bad and read.counts["front"]["bad_input"] == 0
+
+    res = replay_rig(b.bag)
+    left = res.counts["left"]
+    assert left["received"] == n["left"] and left["skipped.bad_input"] == bad, left
+    assert left["received"] == left["solved"] + left["failed"] + left["skipped"] + left["pending"]
+    assert left["skipped"] == bad and "skipped.bad_input" not in res.counts["front"]
+    assert res.counts["front"]["received"] == res.counts["front"]["solved"] == n["front"]
+    assert res.solved == len(res.outputs) == res.counts["rig"]["rig_frames"] == n["front"]
+    missing = [o for o in res.outputs if "left" not in o.cameras]
+    assert len(missing) == bad  # (the stamp the rig cannot read: its rig frame without left)
+
+    # the grouping: the rig mode's, each unread cloud with a stamp handed to it as the node does
+    ends, formed = rig_frame_grouping(b.bag)
+    values, cam_values = rig_parameter_values(b.bag)
+    rig = RigLocalizer(rig_config(values, cam_values).settings)
+    truth = {}
+    for f in read.items:
+        k = len(hand_to_rig(rig, f))
+        if k:
+            truth[(f.camera_name, f.stamp_ns)] = k
+    assert ends == truth and formed == rig.counts["rig_frames"] == n["front"]
+    assert len(b.no_x & set(ends)) == len(NO_X) - 1  # (each but the first completes one)
+    assert ("left", b.stamps["left"][BAD_STAMP]) not in ends
+
+    capsys.readouterr()
+    assert main(["calibrate-rig", str(b.bag), "--json", "-o", str(tmp_path / "m.yaml")]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["cameras"]["left"]["bad_input"] == bad
+    assert f"left: points_dropped 0, capped_clouds 0, capped_points 0, bad_input {bad}" in out.err
+    assert "front: points_dropped" not in out.err
+    capsys.readouterr()
+    assert main(["replay", str(b.bag), "--quiet"]) == 0
+    assert f", skipped.bad_input {bad}" in capsys.readouterr().out

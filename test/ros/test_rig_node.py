@@ -729,6 +729,49 @@ def test_an_unreadable_cloud_is_skipped_not_a_frame_apart(ros_context):
         node.destroy_node()
 
 
+def test_replay_counts_a_rig_bag_s_unread_clouds_as_the_node(ros_context, tmp_path):
+    """A rig bag whose left clouds 3..8 have no ``x`` field and whose left cloud 10 has a
+    stamp no ROS time holds: the node, given the bag's messages in log order (its parameters
+    the bag's ``rig_params.yaml``; frames handed to its callbacks, no DDS), and ``replay`` of
+    the bag count every camera's frames alike: received, solved, failed, skipped, pending,
+    ``skipped.<reason>`` (``left.skipped.bad_input`` 7), ``points_dropped``,
+    ``capped_clouds``, and the rig's rig frames."""
+    from helpers.rig_bags import NO_X, bag_with_unread_clouds
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.bags.bag_io import iter_messages, typestore
+    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.param_files import read_params_file
+    from rs_localizer.ros.rig_node import RigLocalizerNode
+
+    b = bag_with_unread_clouds(tmp_path)
+    res = replay_rig(b.bag)
+    values = {**read_params_file(b.bag / "rig_params.yaml"), "warmup": False,
+              "publish_tf": False, "queue_size": len(b.frames)}  # fmt: skip
+    params = [Parameter(k, value=v) for k, v in values.items()]
+    node = RigLocalizerNode("rs_localizer", context=ros_context, namespace="/rig",
+                            parameter_overrides=params)  # fmt: skip
+    try:
+        ts = typestore()
+        for topic, mt, _, raw in iter_messages(b.bag):  # (/rig/<camera>/<leaf>, in log order)
+            name, leaf = (topic.split("/") + ["", ""])[2:4]
+            if leaf == "camera_info":
+                node.inputs[name].add_camera_info(ts.deserialize_cdr(raw, mt))
+            elif leaf == "correspondences":
+                node._on_cloud(name, ts.deserialize_cdr(raw, mt))
+        v = _drained_values(node, b.cams)
+        assert v["left.skipped.bad_input"] == v["left.bad_input"] == str(len(NO_X) + 1), v
+        for c in b.cams:
+            for k, want in res.counts[c.name].items():
+                assert int(v[f"{c.name}.{k}"]) == want, (c.name, k, v)
+        keys = {"rig_frames": "rig_frames", "solved": "rig_frames_solved",
+                "failed": "rig_frames_failed", "skipped": "rig_frames_skipped",
+                "pending": "rig_frames_pending"}  # fmt: skip
+        assert {k: int(v[key]) for k, key in keys.items()} == res.counts["rig"], v
+    finally:
+        node.destroy_node()
+
+
 def test_each_camera_s_input_is_the_single_camera_node_s(ros_context):
     """Each camera's camera_infos and clouds are taken as by the single-camera node: a left
     camera_info with fx 0 and one whose ROI leaves the image are rejected, counted

@@ -52,7 +52,7 @@ from .bag_io import (
 
 if TYPE_CHECKING:
     from ...tracking.rig import RigCameraFrame
-    from ..camera_input import CameraInput
+    from ..camera_input import CameraInput, UnreadFrame
 
 __all__ = [
     "RigFrames",
@@ -302,9 +302,11 @@ class RigReplay:
     :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused`` (the fused poses), the rig's
     ``counts`` (``rig``: its rig frames' ``rig_frames``, ``solved``, ``failed``, ``skipped``,
     ``pending``; per camera: its frames' ``received``, ``solved``, ``failed``, ``skipped``,
-    ``pending`` and its rows' ``points_dropped`` (rows with a NaN or inf) and
-    ``capped_clouds`` (clouds capped to ``max_points``), as the rig node's diagnostics name
-    them ``<camera>.points_dropped``, ``<camera>.capped_clouds``), ``errors`` (per posed rig
+    ``pending`` (received = the other four summed), its rows' ``points_dropped`` (rows with a
+    NaN or inf) and ``capped_clouds`` (clouds capped to ``max_points``), then
+    ``skipped.<reason>`` for each reason its frames were skipped for (e.g. ``bad_input``:
+    clouds not read; ``no_camera_info``), as the rig node's diagnostics count them
+    ``<camera>.received``, ..., ``<camera>.skipped.<reason>``), ``errors`` (per posed rig
     frame with ground truth: ``rot_deg``, ``pos_m``, ``angvel``, ``linvel`` of its own twist) and
     ``fused_errors`` (of the fused twist); ``off_deg``: camera -> one entry per posed rig
     frame in which it disagreed with the others (the cameras' consensus outvoted it, or the
@@ -368,7 +370,11 @@ def replay_rig(
     read through its :class:`~rs_localizer.ros.camera_input.CameraInput`, as the rig node
     reads them (:func:`~rs_localizer.ros.camera_input.rig_camera_inputs`): rows with a NaN
     or inf dropped, then at most ``max_points`` rows (highest scores first), counted per
-    camera (:attr:`RigReplay.counts`: ``points_dropped``, ``capped_clouds``).
+    camera (:attr:`RigReplay.counts`: ``points_dropped``, ``capped_clouds``). A cloud that
+    cannot be read (:func:`iter_rig_frames`) is counted received and ``skipped.bad_input``
+    as the node counts it, and one with a readable stamp goes to the rig as a frame skipped
+    (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): each camera's counts are the rig
+    node's on the same messages (taken as they come, none dropped from a full queue).
 
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
@@ -377,12 +383,12 @@ def replay_rig(
     from dataclasses import replace
 
     from ...tracking.rig import RigLocalizer
-    from ..camera_input import rig_camera_inputs
+    from ..camera_input import UnreadFrame, hand_to_rig, rig_camera_inputs
 
     _, _, cfg = rig_bag_config(bag, params_files, params)
     rig = RigLocalizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
-    own: Counter = Counter()  # (the cameras' inputs' counts, "<camera>.<key>")
+    own: Counter = Counter()  # (the node's counts: the cameras' inputs', "<camera>.<key>")
 
     def count(name: str, key: str, n: int = 1) -> None:
         own[f"{name}.{key}"] += n
@@ -392,12 +398,20 @@ def replay_rig(
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
     recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
     bar = progress_bar(progress, None, unit=" rig frames")
-    for frame in iter_rig_frames(bag, inputs):
-        while gyro and gyro[-1][0] <= frame.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
+    for item in iter_rig_frames(bag, inputs):
+        n = item.camera_name
+        own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
+        own[f"{n}.taken"] += 1
+        if isinstance(item, UnreadFrame):
+            if item.stamp_ns is None:  # (no stamp: skipped by the node alone)
+                own[f"{n}.skipped.{item.reason}"] += 1
+                continue
+        else:
+            item = replace(item, tag=item.stamp_ns)
+            recent[n].append(item)
+        while gyro and gyro[-1][0] <= item.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
-        frame = replace(frame, tag=frame.stamp_ns)
-        recent[frame.camera_name].append(frame)
-        outs = rig.add(frame)
+        outs = hand_to_rig(rig, item)
         _note_disagreeing(rig, outs, recent, res.off_deg)
         res.outputs += outs
         res.fused += [f for o in outs for f in o.fused]
@@ -410,9 +424,7 @@ def replay_rig(
     bar.close()
     res.counts = {"rig": rig.rig_counts()}
     for n in rig.cameras:
-        res.counts[n] = rig.camera_counts(n)
-        for k in ROW_COUNTS:
-            res.counts[n][k] = own[f"{n}.{k}"] + rig.counts[f"{n}.{k}"]
+        res.counts[n] = _camera_counts(rig, n, own)
     res.readout = rig.readout_values()
     gt = load_ground_truth(bag)
     for o in res.outputs:
@@ -434,6 +446,25 @@ def replay_rig(
 #: the counts of a camera's rows a replay reports beside its frames' (the rig node's
 #: diagnostics' ``<camera>.points_dropped`` and ``<camera>.capped_clouds``)
 ROW_COUNTS = ("points_dropped", "capped_clouds")
+
+
+def _camera_counts(rig, n: str, own: Counter) -> dict:
+    """Camera ``n``'s counts in a replay, as the rig node's diagnostics give them: its frames'
+    (:func:`~rs_localizer.ros.diagnostics.rig_camera_frames` of the rig's counts and the
+    node's ``own``), its rows' (:data:`ROW_COUNTS`), then ``skipped.<reason>`` for each
+    reason it was skipped for (the node's and the rig's, e.g. ``bad_input``:
+    clouds not read)."""
+    from ..diagnostics import rig_camera_frames
+
+    mine = {k[len(n) + 1 :]: v for k, v in own.items() if k.startswith(f"{n}.")}
+    out = rig_camera_frames(rig, n, mine)
+    for k in ROW_COUNTS:
+        out[k] = own[f"{n}.{k}"] + rig.counts[f"{n}.{k}"]
+    skips = {k for c in (own, rig.counts) for k in c if k.startswith(f"{n}.skipped.")}
+    for k in sorted(skips):
+        if own[k] + rig.counts[k]:
+            out[k[len(n) + 1 :]] = own[k] + rig.counts[k]
+    return out
 
 
 class _QuietLog:
@@ -492,21 +523,33 @@ def is_rig_bag(bag: str | os.PathLike) -> bool:
 
 @dataclass
 class RigFrames:
-    """What :func:`read_rig_frames` read: ``frames`` (every camera's
-    :class:`~rs_localizer.tracking.rig.RigCameraFrame`, in log-time order), ``values`` (the
+    """What :func:`read_rig_frames` read: ``items`` (every camera's clouds in log-time order,
+    as :func:`iter_rig_frames` yields them: a
+    :class:`~rs_localizer.tracking.rig.RigCameraFrame`, or an
+    :class:`~rs_localizer.ros.camera_input.UnreadFrame` for a cloud not read), ``values`` (the
     parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
-    ``counts``: camera -> the counts of its rows, ``points_dropped`` (rows with a NaN or inf),
-    ``capped_clouds`` (clouds capped to ``max_points``) and ``capped_points`` (the rows the
-    cap left out)."""
+    ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
+    (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
+    ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
+    (an invalid stamp, no u, v, x, y, z fields: the rig node's
+    ``<camera>.skipped.bad_input``)."""
 
-    frames: list
+    items: list
     values: dict
     cameras: dict
     counts: dict
 
+    @property
+    def frames(self) -> list:
+        """The frames read (every :class:`~rs_localizer.tracking.rig.RigCameraFrame` of
+        :attr:`items`), in log-time order."""
+        from ..camera_input import UnreadFrame
 
-#: the counts of a camera's rows :func:`read_rig_frames` reports
-READ_COUNTS = ("points_dropped", "capped_clouds", "capped_points")
+        return [f for f in self.items if not isinstance(f, UnreadFrame)]
+
+
+#: the counts of a camera's rows and clouds :func:`read_rig_frames` reports
+READ_COUNTS = ("points_dropped", "capped_clouds", "capped_points", "bad_input")
 
 
 def read_rig_frames(
@@ -523,14 +566,16 @@ def read_rig_frames(
     (:func:`iter_rig_frames`), as the rig node and ``replay`` read them: each cloud with the
     model of the camera_info of its stamp (None before the camera's first camera_info), its
     rows with a NaN or inf dropped, then at most ``max_points`` rows, counted per camera
-    (:attr:`RigFrames.counts`).
+    (:attr:`RigFrames.counts`); a cloud that cannot be read (an invalid stamp, no u, v, x, y,
+    z fields) is in no frame, counted ``bad_input`` for its camera (as the rig node's
+    ``<camera>.skipped.bad_input``).
 
     Raises:
         ValueError: no ``rig.cameras``;
             :class:`~rs_localizer.ros.params.ConfigError` (a ValueError): parameters the rig
             node refuses (e.g. an unknown readout direction).
     """
-    from ..camera_input import rig_camera_inputs
+    from ..camera_input import UnreadFrame, rig_camera_inputs
 
     values = rig_parameter_values(bag, params_files, params)[0]
     if not [str(n).strip() for n in values["rig.cameras"]]:
@@ -542,9 +587,12 @@ def read_rig_frames(
         counts[name][key] += n
 
     inputs = rig_camera_inputs(cfg, _QuietLog(), count)
-    frames = list(iter_rig_frames(bag, inputs))
+    items = list(iter_rig_frames(bag, inputs))
+    for f in items:
+        if isinstance(f, UnreadFrame):
+            count(f.camera_name, "bad_input")
     rows = {n: {k: int(c[k]) for k in READ_COUNTS} for n, c in counts.items()}
-    return RigFrames(frames, values, cams, rows)
+    return RigFrames(items, values, cams, rows)
 
 
 def rig_namespace(bag: str | os.PathLike) -> str:
@@ -573,7 +621,7 @@ class RigTopics:
 
 def iter_rig_frames(
     bag: str | os.PathLike, inputs: Mapping[str, CameraInput]
-) -> Iterator[RigCameraFrame]:
+) -> Iterator[RigCameraFrame | UnreadFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
     its :class:`~rs_localizer.ros.camera_input.CameraInput`,
     :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), in log-time order, from
@@ -585,14 +633,19 @@ def iter_rig_frames(
     before the camera's first camera_info is received), its rows with a NaN or inf
     dropped, counted ``points_dropped``, then at most its ``max_points``, highest scores
     first, counted ``capped_clouds``, ``capped_points``
-    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`). A cloud with an invalid
-    stamp or without the x, y, z / u, v fields is skipped.
+    (:meth:`~rs_localizer.ros.camera_input.CameraInput.read_cloud`). Each cloud becomes the
+    rig's frame as in the rig node (:func:`~rs_localizer.ros.camera_input.rig_cloud_frame`):
+    one that cannot be read (an invalid stamp, no x, y, z / u, v fields) is yielded as an
+    :class:`~rs_localizer.ros.camera_input.UnreadFrame` (``bad_input``), which the node
+    counts received and skipped, and, when its stamp is readable, hands to the rig as a frame
+    skipped (:func:`~rs_localizer.ros.camera_input.hand_to_rig`).
 
     Yields:
         :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
-        pixels (N, 2) px, points (N, 3) m).
+        pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
+        :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
-    from ...tracking.rig import RigCameraFrame
+    from ..camera_input import rig_cloud_frame
 
     topics = RigTopics(rig_namespace(bag), tuple(inputs)).of()
     ts = typestore()
@@ -604,10 +657,9 @@ def iter_rig_frames(
             continue
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
-            uv, xyz, _ = inputs[n].read_cloud(msg)
-        except ValueError:
-            continue
-        yield RigCameraFrame(n, stamp, inputs[n].camera_for(stamp), uv, xyz)
+        except ValueError as e:
+            stamp = e
+        yield rig_cloud_frame(n, inputs[n], msg, stamp)
 
 
 def rig_frame_ends(
@@ -634,8 +686,11 @@ def rig_frame_grouping(
     one frame per camera within ``rig.window`` of the rig frame's earliest; a rig frame is
     complete once every camera has joined it, sent a frame past it, or stopped (no frame for
     ``rig.stop_after`` s). Frames without a camera model (received before their camera's
-    first camera_info), out of order or late join no rig frame. Rig frames still open at the
-    end (completed only when the node closes) are in no entry.
+    first camera_info), out of order or late join no rig frame. A cloud that cannot be read
+    but has a readable stamp joins none either but counts as the camera's frame at that time,
+    as :meth:`~rs_localizer.tracking.rig.RigLocalizer.drop` takes it from the node (the rig
+    frames it moved past may complete with it); one without a readable stamp does nothing.
+    Rig frames still open at the end (completed only when the node closes) are in no entry.
 
     Returns:
         ``({(camera name, header stamp ns): number of rig frames its arrival completes}``
@@ -646,9 +701,10 @@ def rig_frame_grouping(
         :func:`read_rig_frames`).
     """
     from ...camera import reference_stamp_ns
+    from ..camera_input import UnreadFrame
 
     read = read_rig_frames(bag, params_files, params)
-    frames, values = read.frames, read.values
+    items, values = read.items, read.values
     names = [str(n).strip() for n in values["rig.cameras"]]
     window = int(round(float(values["rig.window"]) * 1e9))
     stop = float(values["rig.stop_after"]) * 1e9
@@ -661,10 +717,18 @@ def rig_frame_grouping(
     closed = None
     out: dict[tuple[str, int], int] = {}
     formed = 0
-    for f in frames:
+    for f in items:
         n = f.camera_name
+        if isinstance(f, UnreadFrame) and f.stamp_ns is None:
+            continue  # (never reaches the rig)
         first = f.stamp_ns if first is None else first
-        if f.camera is None:
+        if isinstance(f, UnreadFrame):  # (RigLocalizer.drop: its time, the rig not waiting)
+            ref = f.stamp_ns
+            if f.camera is not None:
+                ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+            if last_ref[n] is None or ref > last_ref[n]:
+                newest[n] = ref if newest[n] is None else max(newest[n], ref)
+        elif f.camera is None:
             newest[n] = f.stamp_ns if newest[n] is None else max(newest[n], f.stamp_ns)
         else:
             ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
