@@ -63,8 +63,8 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   numbers of points; a tie the prediction does not break is refused (``cameras_disagree``,
   :func:`estimate_rig_pose`) unless each side's pose explains the other side's points within
   :data:`CONTRADICTION_GATE` inlier thresholds, or one pose fitted to both sides with that
-  gate as its threshold explains both sides' points within it (a small inconsistency: the
-  joint fit poses the rig).
+  gate as its threshold, every camera weighed alike whatever its number of points, explains
+  both sides' points within it (a small inconsistency: the joint fit poses the rig).
 
 With an initial model (``initial_model``, a tracker's prediction of the rig) the estimator
 starts as a single camera's does with its own (:class:`~rs_localizer.estimation.InitialModel`):
@@ -105,6 +105,7 @@ by the rig solver with the velocities held at zero, as a generalized P3P would p
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from collections.abc import Sequence
@@ -230,8 +231,10 @@ AGREE_SHARE = 0.3
 #: groups' points within them, do not contradict each other (a tie of such groups is posed
 #: by the joint fit, not refused): on TagSLAM's real 4-camera ring (``python -m
 #: benchmarks.bench_real_rig --folder test_7``), two cameras seeing tags disagreed at 2 px in
-#: 30 of 265 rig frames without this gate, in 5 with it (their poses alone a few tenths of a
-#: degree apart); a mounting 2 degrees off misses by 15 px and more at focal lengths of 450
+#: 30 of 265 rig frames without this gate (their poses alone a few tenths of a degree apart),
+#: in 4 with it: there the two cameras' poses alone are 2.6 to 5.9 degrees apart and the
+#: recording's reference pose misses both cameras' corners by 9 to 29 px (median), a real
+#: contradiction; a mounting 2 degrees off misses by 15 px and more at focal lengths of 450
 #: px and more
 CONTRADICTION_GATE = 3.0
 
@@ -1484,8 +1487,9 @@ def estimate_rig_pose(
     ``disagreeing`` (none of their points an inlier). Equal groups and no prediction that
     tells them apart: ``cameras_disagree``, unless each group's pose explains the other
     group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or one pose fitted
-    to both groups' points with that gate as its threshold (Huber loss) explains both
-    groups' within it (a mounting a few tenths of a degree off, not a wrong one): the joint
+    to both groups' points with that gate as its threshold (Huber loss; each voting camera's
+    points weighed so that every camera counts alike, as in the vote) explains both groups'
+    within it (a mounting a few tenths of a degree off, not a wrong one): the joint
     estimate is returned. When all
     cameras agree (the common case) this costs nothing. With a prediction, the cameras whose
     points it explains (:data:`PREDICTION_GATE`) are checked first: when some voting cameras'
@@ -1679,9 +1683,10 @@ def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: floa
     """Two groups of cameras ``a`` and ``b`` whose poses (``first``, ``second``) each
     explain the other group's points within :data:`CONTRADICTION_GATE` inlier thresholds, or
     that one pose explains within them (:func:`_refine` from either pose with the gate as
-    its threshold, a camera of either group explained as :func:`_gated` at the gate): a
-    small inconsistency (a mounting or lens model a few tenths of a degree or pixels off),
-    not a contradiction (a mounting degrees off, a wrong stamp)."""
+    its threshold, every voting camera weighed alike, :func:`_evened`; a camera of either
+    group explained as :func:`_gated` at the gate): a small inconsistency (a mounting or
+    lens model a few tenths of a degree or pixels off), not a contradiction (a mounting
+    degrees off, a wrong stamp)."""
     gate = CONTRADICTION_GATE * threshold_px
     if b <= _gated(pool, first, voters, gate) and a <= _gated(pool, second, voters, gate):
         return True
@@ -1689,13 +1694,42 @@ def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: floa
     # pose: a group posed alone extrapolates its own uncertainty to the other group's
     # cameras (a camera seeing a few tags), so the other group's points can miss its pose by
     # more than the gate although one pose explains both groups within it; a mounting or
-    # stamp that is wrong leaves no such pose
+    # stamp that is wrong leaves no such pose. Every voting camera weighs alike in the fit:
+    # weighed by its points, a camera of 140 corners holds the fit to its own pose and one
+    # of 12 stays beyond the gate where a pose between them explains both within it
     free = 6 if first.global_shutter else 12
+    even = _evened(pool, voters)
     for start in (first, second):
-        fit = _refine(pool, None, start.model, gate, free=free)
+        fit = _refine(even, None, start.model, gate, free=free)
         if a | b <= _gated(pool, first, voters, gate, fit):
             return True
     return False
+
+
+def _evened(pool: _Pool, voters) -> _Pool:
+    """``pool`` with each voting camera's points repeated so that every voting camera counts
+    about as many points as the one with most (``round(most / own)`` copies; the other
+    cameras' points once): a least-squares fit on it weighs the voting cameras alike, as
+    the cameras' consensus counts cameras, not points. Only for fitting: its rows no longer
+    map to the views'."""
+    n = pool.counts()
+    most = max(n[c] for c in voters)
+    copies = [max(1, round(most / n[c])) if c in voters and n[c] else 1 for c in range(len(n))]
+    if all(k == 1 for k in copies):
+        return pool
+    idx = np.concatenate(
+        [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
+    )
+    out = copy.copy(pool)
+    for cached in ("_mountings", "_kernel_mountings", "_sampling"):
+        out.__dict__.pop(cached, None)
+    for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
+        setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
+    out.slices, end = [], 0
+    for s, k in zip(pool.slices, copies, strict=True):
+        out.slices.append(slice(end, end + k * (s.stop - s.start)))
+        end = out.slices[-1].stop
+    return out
 
 
 def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
