@@ -139,6 +139,7 @@ __all__ = [
     "SKIP_REASONS",
     "CameraShare",
     "RigCameraFrame",
+    "RigGrouping",
     "RigLocalizer",
     "RigMount",
     "RigOutput",
@@ -1482,6 +1483,20 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             if c.disagrees and c.partner == name:
                 return c.name
         return None
+
+
+class RigGrouping(RigLocalizer):
+    """The rig's grouping of its cameras' frames into rig frames, without solving them: a
+    :class:`RigLocalizer` whose rig frames, once complete, come out unsolved (a
+    :class:`RigOutput` with its cameras and no estimate). Every rule of the grouping is the
+    rig's own (:meth:`RigLocalizer.add`, :meth:`RigLocalizer.drop`: the window, a camera
+    stopped after ``stop_after`` or its own frame intervals, late and out-of-order frames,
+    time resets); what ``play --lockstep`` waits for
+    (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`)."""
+
+    def _solve(self, g: _Group) -> RigOutput:
+        self._last_closed = g.lo
+        return RigOutput(stamp_ns=g.lo, cameras=tuple(n for n in self._cams if n in g.frames))
 
 
 class _RigViews:

@@ -325,3 +325,51 @@ def test_an_unread_cloud_is_counted_and_grouped_as_the_rig_node_takes_it(tmp_pat
     capsys.readouterr()
     assert main(["replay", str(b.bag), "--quiet"]) == 0
     assert f", skipped.bad_input {bad}" in capsys.readouterr().out
+
+
+def test_lockstep_grouping_is_the_rig_s_with_a_slow_camera(tmp_path):
+    """A camera at 1 fps beside one at 30 fps (``rig.stop_after`` 0.5 s, shorter than its frame
+    interval): the rig does not take it as stopped between its frames, and the
+    frames ``play --lockstep`` waits after are those whose arrival completes a rig frame in
+    the rig mode solving them (a :class:`RigLocalizer` fed as the node feeds it)."""
+    from helpers.rig_bags import rewrite_bag
+
+    from rs_localizer.ros.bags.rig_bag import (
+        read_rig_frames,
+        rig_frame_grouping,
+        rig_parameter_values,
+        write_rig_bag,
+    )
+    from rs_localizer.ros.camera_input import hand_to_rig
+    from rs_localizer.ros.config import rig_config
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.rig import RigLocalizer
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=3.2, num_points=40, seed=3)
+    clean = write_rig_bag(tmp_path / "clean", frames, cams, traj)
+    left = [f.stamp_ns for f in frames if f.name == "left"]
+    keep = set(left[::30])  # (1 fps)
+
+    def edit(topic, msg, t):
+        if topic != "/rig/left/correspondences":
+            return [(t, msg)]
+        s = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        return [(t, msg)] if s in keep else []
+
+    bag = rewrite_bag(clean, tmp_path / "slow", edit)
+    ends, formed = rig_frame_grouping(bag)
+    values, cam_values = rig_parameter_values(bag)
+    assert float(values["rig.stop_after"]) < 1.0
+    rig = RigLocalizer(rig_config(values, cam_values).settings)
+    truth, with_left = {}, 0
+    for f in read_rig_frames(bag).items:
+        outs = hand_to_rig(rig, f)
+        with_left += sum("left" in o.cameras for o in outs)
+        if outs:
+            truth[(f.camera_name, f.stamp_ns)] = len(outs)
+    assert ends == truth and formed == rig.counts["rig_frames"]
+    # (stopped once at most: before its second frame the rig does not know its rate)
+    assert rig.counts["left.stopped"] <= 1 and with_left == len(keep)
+    # (each slow frame's arrival completes the rig frames the fast camera moved past)
+    assert sum(1 for (n, s) in ends if n == "left") >= len(keep) - 2

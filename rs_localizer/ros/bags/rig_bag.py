@@ -51,7 +51,7 @@ from .bag_io import (
 )
 
 if TYPE_CHECKING:
-    from ...tracking.rig import RigCameraFrame
+    from ...tracking.rig import RigCameraFrame, RigSettings
     from ..camera_input import CameraInput, UnreadFrame
 
 __all__ = [
@@ -532,12 +532,15 @@ class RigFrames:
     (rows with a NaN or inf), ``capped_clouds`` (clouds capped to ``max_points``) and
     ``capped_points`` (the rows the cap left out), and of its clouds not read, ``bad_input``
     (an invalid stamp, no u, v, x, y, z fields: the rig node's
-    ``<camera>.skipped.bad_input``)."""
+    ``<camera>.skipped.bad_input``); ``settings``: the rig's
+    :class:`~rs_localizer.tracking.rig.RigSettings` of those parameters (every mounting the
+    identity: not read)."""
 
     items: list
     values: dict
     cameras: dict
     counts: dict
+    settings: RigSettings | None = None
 
     @property
     def frames(self) -> list:
@@ -592,7 +595,7 @@ def read_rig_frames(
         if isinstance(f, UnreadFrame):
             count(f.camera_name, "bad_input")
     rows = {n: {k: int(c[k]) for k in READ_COUNTS} for n, c in counts.items()}
-    return RigFrames(items, values, cams, rows)
+    return RigFrames(items, values, cams, rows, cfg.settings)
 
 
 def rig_namespace(bag: str | os.PathLike) -> str:
@@ -681,15 +684,18 @@ def rig_frame_grouping(
     into the rig mode (what ``play --lockstep`` waits after).
 
     The frames, read as the rig node reads them (:func:`read_rig_frames`: each cloud with the
-    camera model of its stamp), are grouped as
-    :meth:`~rs_localizer.tracking.rig.RigLocalizer.add` groups them: by reference-line time,
-    one frame per camera within ``rig.window`` of the rig frame's earliest; a rig frame is
-    complete once every camera has joined it, sent a frame past it, or stopped (no frame for
-    ``rig.stop_after`` s). Frames without a camera model (received before their camera's
-    first camera_info), out of order or late join no rig frame. A cloud that cannot be read
-    but has a readable stamp joins none either but counts as the camera's frame at that time,
-    as :meth:`~rs_localizer.tracking.rig.RigLocalizer.drop` takes it from the node (the rig
-    frames it moved past may complete with it); one without a readable stamp does nothing.
+    camera model of its stamp), go to the rig's own grouping
+    (:class:`~rs_localizer.tracking.rig.RigGrouping`, the rig mode's
+    :class:`~rs_localizer.tracking.rig.RigLocalizer` without solving), as the node hands them
+    on (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): by reference-line time, one frame
+    per camera within ``rig.window`` of the rig frame's earliest; a rig frame is complete once
+    every camera has joined it, sent a frame past it, or stopped (no frame for ``rig.stop_after``
+    s or a few of its own frame intervals); a forward time jump completes the open ones.
+    Frames without a camera model (received before their camera's first camera_info), out of
+    order or late join no rig frame. A cloud that cannot be read but has a readable stamp
+    joins none either but counts as the camera's frame at that time
+    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`); one without a readable stamp does
+    nothing.
     Rig frames still open at the end (completed only when the node closes) are in no entry.
 
     Returns:
@@ -700,72 +706,17 @@ def rig_frame_grouping(
         ValueError: no ``rig.cameras`` or parameters the rig node refuses (as
         :func:`read_rig_frames`).
     """
-    from ...camera import reference_stamp_ns
-    from ..camera_input import UnreadFrame
+    from ...tracking.rig import RigGrouping
+    from ..camera_input import hand_to_rig
 
     read = read_rig_frames(bag, params_files, params)
-    items, values = read.items, read.values
-    names = [str(n).strip() for n in values["rig.cameras"]]
-    window = int(round(float(values["rig.window"]) * 1e9))
-    stop = float(values["rig.stop_after"]) * 1e9
-    stamp_row = float(values["rs.stamp_row"])
-    newest: dict = {n: None for n in names}
-    last_ref: dict = {n: None for n in names}
-    stopped = {n: False for n in names}
-    first = None
-    groups: list = []  # [lo, hi, names]
-    closed = None
+    rig = RigGrouping(read.settings)
     out: dict[tuple[str, int], int] = {}
-    formed = 0
-    for f in items:
-        n = f.camera_name
-        if isinstance(f, UnreadFrame) and f.stamp_ns is None:
-            continue  # (never reaches the rig)
-        first = f.stamp_ns if first is None else first
-        if isinstance(f, UnreadFrame):  # (RigLocalizer.drop: its time, the rig not waiting)
-            ref = f.stamp_ns
-            if f.camera is not None:
-                ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-            if last_ref[n] is None or ref > last_ref[n]:
-                newest[n] = ref if newest[n] is None else max(newest[n], ref)
-        elif f.camera is None:
-            newest[n] = f.stamp_ns if newest[n] is None else max(newest[n], f.stamp_ns)
-        else:
-            ref = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-            if last_ref[n] is not None and ref <= last_ref[n]:
-                continue  # (out of order)
-            if closed is not None and ref < closed:
-                last_ref[n] = ref  # (late)
-                continue
-            last_ref[n] = ref
-            newest[n] = ref if newest[n] is None else max(newest[n], ref)
-            stopped[n] = False
-            for g in groups:
-                if n not in g[2] and max(g[1], ref) - min(g[0], ref) <= window:
-                    g[0], g[1] = min(g[0], ref), max(g[1], ref)
-                    g[2].add(n)
-                    break
-            else:
-                groups.append([ref, ref, {n}])
-                groups.sort(key=lambda g: g[0])
-                formed += 1
-        now = max((t for t in newest.values() if t is not None), default=None)
-        for m in names:
-            last = newest[m] if newest[m] is not None else first
-            if now - last > stop:
-                stopped[m] = True
-        done = 0
-        while groups and all(
-            m in groups[0][2]
-            or stopped[m]
-            or (newest[m] is not None and newest[m] > groups[0][0] + window)
-            for m in names
-        ):
-            closed = groups.pop(0)[0]
-            done += 1
+    for f in read.items:
+        done = len(hand_to_rig(rig, f))
         if done:
-            out[(n, f.stamp_ns)] = out.get((n, f.stamp_ns), 0) + done
-    return out, formed
+            out[(f.camera_name, f.stamp_ns)] = out.get((f.camera_name, f.stamp_ns), 0) + done
+    return out, int(rig.counts["rig_frames"])
 
 
 #: the outputs :func:`write_rig_outputs` writes, as the rig node publishes them
