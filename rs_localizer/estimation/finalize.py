@@ -185,12 +185,14 @@ def frame_refinement(
     cutoff: float | None = None,
     max_iterations: int = DEFAULT_REFINE.max_iterations,
     covariance: bool = True,
+    tol: float = FINAL_TOL,
 ) -> RefineResult:
     """:func:`~.refine.refine_rs_pose` of ``model`` on every point of the frame with the final
     refinement's truncated Huber loss (scale ``th``, the frame's units: normalized for a
     camera, px for a rig; points beyond ``cutoff``, by default ``FINAL_CUTOFF * th``,
-    ignored, re-selected at every iteration; tolerance ``FINAL_TOL``; at most
-    ``max_iterations``, 0: the Jacobian and covariance at ``model``): rolling-shutter or
+    ignored, re-selected at every iteration; stopping at a relative cost decrease below
+    ``tol``, by default ``FINAL_TOL``; at most ``max_iterations``, 0: the Jacobian and
+    covariance at ``model``): rolling-shutter or
     global-shutter (``rolling``), maximum likelihood or MAP with ``prior`` (the image noise
     that weighs it estimated from ``model``'s errors inside ``th``), ``covariance``: with the
     covariance (else skipped), ``acceleration``: with the ``J^T W D`` block. The one call
@@ -211,6 +213,7 @@ def frame_refinement(
             acceleration,
             int(max_iterations),
             covariance,
+            float(tol),
         ),
         prior=prior,
         mountings=fr.mountings(),
@@ -225,6 +228,7 @@ def _settings(
     acceleration: bool,
     max_iterations: int,
     covariance: bool,
+    tol: float,
 ) -> RefineSettings:
     """The :class:`~.refine.RefineSettings` of :func:`frame_refinement` (built once per
     setting: a rig refines a few times per frame)."""
@@ -232,7 +236,7 @@ def _settings(
         rolling_shutter=rolling,
         seconds_per_unit_r=spr,
         cutoff=cutoff,
-        tol=FINAL_TOL,
+        tol=tol,
         acceleration_block=acceleration and covariance,
         max_iterations=max_iterations,
         covariance=covariance,
