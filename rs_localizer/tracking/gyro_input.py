@@ -397,15 +397,20 @@ class GyroInput:
                 imu.time_offset,
             )
         if gyro is None:
-            self._count("gyro_missing", 1)
-            self._count(f"gyro_missing.{reason}", 1)
-            self.log.warning(
-                f"{self.key}.{reason}",
+            self._without(
+                "gyro_missing", reason, f"{self.key}.{reason}",
                 f"{self.what} solved without the gyro ({reason}): check the imu topic, its "
                 "rate and imu.time_offset",
-            )
+            )  # fmt: skip
         # (the image refutes the gyro over the last pairs: solved without it)
         return gyro_if_consistent(gyro, self.check, self._count)
+
+    def _without(self, kind: str, reason: str, key: str, text: str) -> None:
+        """A frame solved without the gyro: counted ``kind`` and ``kind.<reason>``, warned
+        about (``key``, throttled)."""
+        self._count(kind, 1)
+        self._count(f"{kind}.{reason}", 1)
+        self.log.warning(key, text)
 
     def solved(self, stamp_ns: int, estimate: SolvedFrame | None, new_track: bool) -> None:
         """A frame (a camera's or a rig's) after its estimate: the one rule of both.
@@ -421,13 +426,11 @@ class GyroInput:
         restarts the pairing."""
         posed = estimate is not None and bool(estimate.success)
         if estimate is not None and estimate.gyro_rejected:
-            self._count("gyro_rejected", 1)
-            self._count(f"gyro_rejected.{estimate.gyro_rejection}", 1)
-            self.log.warning(
-                f"{self.key}.rejected",
+            self._without(
+                "gyro_rejected", estimate.gyro_rejection, f"{self.key}.rejected",
                 f"the image disagrees with the gyro: {self.what} solved without it (check "
                 "imu.rotation, imu.time_offset and imu.gyro_bias)",
-            )
+            )  # fmt: skip
         elif posed and estimate.gyro_used:
             self._count(self.used_key, 1)
         cov = None
