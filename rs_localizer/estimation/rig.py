@@ -1769,10 +1769,12 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
 
 def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     """``verify_cameras`` (:func:`estimate_rig_pose`): the estimate of the largest group of
-    voting cameras that agree posed alone, ``cameras_disagree`` on a tie the prediction does
-    not break, or None when every camera posed alone agrees with the others."""
+    voting cameras that agree posed alone; on a tie the prediction does not break, the joint
+    estimate when the two groups are near (:func:`_near`, as in :func:`_consensus`), else
+    ``cameras_disagree``; or None when every camera posed alone agrees with the others."""
     M = len(pool.sizes)
     valid = np.asarray(est.num_valid_per_camera)
+    voting = voters
     voters = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(voters) < 2:
         return None
@@ -1807,15 +1809,18 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
         return None
     groups.sort(key=len, reverse=True)
     fits = [solve(_only(views, set(voters) - g)) for g in groups[:2]]
-    valid = np.asarray(est.num_valid_per_camera)
+    fits = [_restored(f, valid) if f.success else f for f in fits]
     if len(groups[0]) > len(groups[1]):
         choice = 0
     else:
         ok = all(f.success for f in fits)
         choice = _by_prediction(pool, fits[0], fits[1], prediction) if ok else None
+        a, b = groups[0], groups[1]
+        if choice is None and ok and _near(pool, *fits, a, b, voting, threshold_px):
+            return est  # (a small inconsistency, e.g. a mounting a few tenths of a degree off)
     if choice is None or not fits[choice].success:
         return _disagree(est, pool, groups[0] | groups[1])
-    return _outvoted(_restored(fits[choice], valid), pool, set(voters) - groups[choice])
+    return _outvoted(fits[choice], pool, set(voters) - groups[choice])
 
 
 def _disagree(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
