@@ -1502,11 +1502,14 @@ def estimate_rig_pose(
     points it explains (:data:`PREDICTION_GATE`) are checked first: when some voting cameras'
     points are not, no more cameras than those it explains, and they disagree with the pose
     of the others alone, the rig is posed by the others (a track never outvotes more cameras
-    than it keeps). A wrong stamp on one of two cameras can leave both with a fair share of
-    inliers under a joint pose that is wrong (the velocities absorb part of the time error);
-    ``verify_cameras`` catches it: every voting camera is posed alone, two cameras agree when
-    either's own pose explains at least :data:`VERIFY_SHARE` of the other's own inliers, and
-    the largest group of cameras that agree poses the rig (a tie as above).
+    than it keeps), unless the rig frame is taken at one time (``global_shutter``) and the
+    two groups are near (:func:`_near`, as for a tie: a prediction a degree off can explain
+    one camera's points and not another's a few tenths of a degree apart from it). A wrong
+    stamp on one of two cameras can leave both with a fair share of inliers under a joint
+    pose that is wrong (the velocities absorb part of the time error); ``verify_cameras``
+    catches it: every voting camera is posed alone, two cameras agree when either's own pose
+    explains at least :data:`VERIFY_SHARE` of the other's own inliers, and the largest group
+    of cameras that agree poses the rig (a tie as above).
     """
     if len(views) == 0:
         raise ValueError("estimate_rig_pose: needs at least one camera")
@@ -1742,9 +1745,12 @@ def _evened(pool: _Pool, voters) -> _Pool:
 def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     """The cameras the prediction explains (:data:`PREDICTION_GATE`) against those it does
     not: the estimate of the explained cameras alone with the others ``disagreeing`` when
-    those disagree with it too and are no more than the explained ones, else None (the
-    prediction explains every camera, or fewer cameras than it does not, or the cameras it
-    does not explain agree with the others: the prediction was off for them)."""
+    those disagree with it too, are no more than the explained ones and, on the
+    global-shutter model, are not near them (:func:`_near`), else None (the prediction
+    explains every camera, or fewer cameras than it does not, or the cameras it does not
+    explain agree with the others or are only a little apart from them: the prediction was
+    off for them, and a small inconsistency between cameras is the consensus's to settle,
+    not the prediction's)."""
     valid = np.asarray(est.num_valid_per_camera)
     model = tuple(np.asarray(a, dtype=float) for a in prediction)
     ok = pool.errors(model) < PREDICTION_GATE * threshold_px
@@ -1755,16 +1761,27 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     suspect = set(voters) - explained
     if not explained or not suspect or len(explained) < len(suspect):
         return None  # (a track never outvotes more cameras than it keeps)
-    if _agreeing(est, voters) == explained:
-        return _outvoted(est, pool, suspect)
-    sub = solve(_only(views, suspect))
-    if not sub.success:
-        return None
-    sub = _restored(sub, valid)
-    agree = _agreeing(sub, voters)
-    if explained <= agree and not suspect & agree:
-        return _outvoted(sub, pool, suspect)
-    return None
+    kept = est
+    if _agreeing(est, voters) != explained:
+        sub = solve(_only(views, suspect))
+        if not sub.success:
+            return None
+        kept = _restored(sub, valid)
+        agree = _agreeing(kept, voters)
+        if not (explained <= agree and not suspect & agree):
+            return None
+    # (a prediction a degree off explains one fisheye camera's points within its gate and
+    # not another's whose own pose is a few tenths of a degree from the first's: not a
+    # contradiction it may decide. Only on the global-shutter model: a rolling-shutter
+    # pose's twist absorbs a wrong stamp, so that the groups can be near although one's
+    # stamp is tens of milliseconds off, which the prediction's twist does tell)
+    if kept.global_shutter:
+        own = solve(_only(views, explained))
+        if own.success and own.global_shutter:
+            own = _restored(own, valid)
+            if _near(pool, kept, own, explained, suspect, voters, threshold_px):
+                return None
+    return _outvoted(kept, pool, suspect)
 
 
 def _verified(views, pool, est, threshold_px, voters, solve, prediction):

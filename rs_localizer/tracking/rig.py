@@ -64,7 +64,8 @@ The rig publishes only what its cameras agree on. The estimator's consensus
 contradict the others' (the track's prediction decides, else the number of cameras, never
 the number of points; a tie is refused, ``cameras_disagree``); without a track every camera
 is also posed alone (``verify_cameras``). A rig frame posed from one camera's points alone
-while other cameras run is refused when the track contradicts it (``contradicts_track``), or
+while other cameras run is refused when the track contradicts it (``contradicts_track``; a
+tag of a second camera that the pose explains, :data:`CONFIRM_MIN_INLIERS`, makes it two), or
 when there is no track and two or more other cameras run (``unconfirmed``): :data:`RIG_REFUSALS`.
 A camera whose frames never join the others' (its clock or stamp offset likely wrong) is
 named with its apparent clock offsets (:meth:`RigLocalizer.camera_apart`,
@@ -186,6 +187,16 @@ MISSED_REASONS = {
 CONTRADICTION_GATE = 0.9999
 CONTRADICTION_MIN_DEG = 0.3
 CONTRADICTION_MIN_M = 0.02
+#: a camera too small to vote in the cameras' consensus (fewer than the estimator's
+#: ``VOTE_MIN_POINTS`` points, e.g. one tag's 4 corners) confirms a tracked rig frame posed by
+#: one voting camera when at least this many of its points are inliers of the rig's pose
+#: (one more than the 3 that pose a camera, so that they check the pose rather than merely
+#: fit it): the rig frame is posed by two cameras and the track's prediction does not
+#: refuse it (on TagSLAM's fisheye rigs, ``python -m benchmarks.bench_real_rig --video``, the
+#: 33 such rig frames a prediction refused were posed within 0.44 deg and 12 mm of the
+#: reference). Not at a track's start (``unconfirmed``): there nothing else checks the pose,
+#: and a joint fit of 8 and 4 corners can explain them all 2 degrees off
+CONFIRM_MIN_INLIERS = 4
 #: a camera is *apart* (its clock likely off) when it missed, or was alone in, at least
 #: APART_SHARE of its last APART_HISTORY rig frames as ``apart`` (at least APART_MIN of them)
 APART_HISTORY = 10
@@ -1267,8 +1278,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """Why a rig frame posed from one voting camera alone (the others' points
         disagreeing, absent or too few) while another camera of the rig runs is refused
         (:data:`RIG_REFUSALS`), or None: its pose contradicts the track's prediction
-        (``contradicts_track``), or there is no prediction and two or more other cameras run
-        (``unconfirmed``)."""
+        (``contradicts_track``) and no camera too small to vote confirms it (at least
+        :data:`CONFIRM_MIN_INLIERS` of its points inliers of the pose), or there is no
+        prediction and two or more other cameras run (``unconfirmed``)."""
         valid = np.asarray(est.num_valid_per_camera)
         voting = [k for k in range(len(valid)) if valid[k] >= VOTE_MIN_POINTS]
         posing = [k for k in voting if k not in est.disagreeing]
@@ -1281,6 +1293,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         pred = self._prediction
         if pred is None:
             return UNCONFIRMED if running >= 2 else None
+        inliers = np.asarray(est.num_inliers_per_camera)
+        if posing and any(
+            valid[k] < VOTE_MIN_POINTS and inliers[k] >= CONFIRM_MIN_INLIERS
+            for k in range(len(valid))
+        ):
+            return None  # (posed by two cameras: the prediction does not outvote them)
         return CONTRADICTS_TRACK if self._contradicts(est, pred) else None
 
     @staticmethod

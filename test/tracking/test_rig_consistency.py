@@ -219,3 +219,56 @@ def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not
     e = pose_errors(outs, traj)
     assert e[:, 0].max() < 0.2 and e[:, 1].max() < 0.01, e.max(axis=0)
     assert_balanced(rig)
+
+
+@pytest.mark.parametrize("second_right", [True, False])
+def test_a_tag_of_a_second_camera_the_pose_explains_confirms_it_against_an_off_prediction(
+    video, monkeypatch, second_right
+):
+    """Rig frame 12 with the front camera's points, one tag's worth (4 correct corners) of
+    the left camera's and none of the right's, while the track's prediction there is 3 deg
+    off and overconfident (a track that missed a turn): the left camera's corners are inliers
+    of the pose, so two cameras pose the rig frame and it is published, near the truth (it
+    was refused as ``contradicts_track``, front taken to pose it alone: the left camera, too
+    few points to vote, did not count). Left's 4 corners wrong (their world points moved
+    0.5 m): not inliers, front poses alone and the prediction refuses it."""
+    import rs_localizer.tracking.rig as tracking_rig
+
+    cams, frames, traj = video
+    target = 12
+    by = {c.name: c.camera for c in cams}
+    real = tracking_rig.RigLocalizer._estimate
+    turn = rotvec_to_matrix(np.radians([0.0, 0.0, 3.0]))
+
+    def estimate(self, stamp, views, out):
+        got = real(self, stamp, views, out)
+        pred = self._prediction
+        if pred is not None and {f.tag for f in out.frames.values()} == {target}:
+            pose = replace(pred.pose, orientation=turn @ pred.pose.orientation)
+            self._prediction = replace(pred, pose=pose, covariance=1e-8 * np.eye(12))
+        return got
+
+    monkeypatch.setattr(tracking_rig.RigLocalizer, "_estimate", estimate)
+    rig = RigLocalizer(RigSettings(mounts_of(cams)))
+    outs = []
+    for f in sorted(frames, key=lambda f: f.stamp_ns):
+        uv, xyz = f.uv, f.xyz
+        if f.index == target and f.name != "front":
+            keep = np.flatnonzero(f.inlier)[:4] if f.name == "left" else []
+            uv, xyz = uv[keep], xyz[keep]
+            if f.name == "left" and not second_right:
+                xyz = xyz + np.array([0.5, 0.0, 0.0])
+        outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], uv, xyz, tag=f.index))
+    outs += rig.close()
+    (out,) = [o for o in outs if {f.tag for f in o.frames.values()} == {target}]
+    left = out.cameras.index("left")
+    if second_right:
+        assert out.success, out.estimate.failure
+        assert out.estimate.num_inliers_per_camera[left] == 4
+        e = pose_errors([out], traj)
+        assert e[0, 0] < 0.2 and e[0, 1] < 0.01, e
+        assert not rig.counts["rig.failed.contradicts_track"]
+    else:
+        assert not out.success and out.estimate.failure == "contradicts_track"
+        assert rig.counts["rig.failed.contradicts_track"] == 1
+    assert_balanced(rig)
