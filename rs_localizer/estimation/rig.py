@@ -100,7 +100,10 @@ parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set. While
 model explains no point of a camera that has some (one camera's P3P pose from three corners
 of a small tag is a degree or so off, pixels off in a camera looking elsewhere), each P3P
 model of a sample with points in such a camera is also corrected on the sample's six points
-by the rig solver with the velocities held at zero, as a generalized P3P would pose it.
+by the rig solver with the velocities held at zero, as a generalized P3P would pose it. A
+search whose final model has fewer than ``ransac.min_inliers`` inliers runs again with every
+sample's P3P models corrected so, each in :data:`SPREAD_CORRECTION_ROUNDS` rounds (a rig frame
+of one small tag per camera, whose P3P poses are tens of degrees off).
 """
 
 from __future__ import annotations
@@ -180,6 +183,7 @@ __all__ = [
     "RIG_FAILURE_REASONS",
     "RIG_OPTIONS",
     "RIG_SOLVER_ITERATIONS",
+    "SPREAD_CORRECTION_ROUNDS",
     "STILL_SPREAD",
     "VERIFY_ALL_EXPLAINED",
     "VERIFY_MIN_POINTS",
@@ -214,6 +218,13 @@ RIG_SOLVER_ITERATIONS = 3
 #: the rig solver's iterations (velocities held at zero) that correct a global-shutter
 #: sample's P3P pose on its points in other cameras (:func:`_hypotheses_still`)
 STILL_SOLVER_ITERATIONS = 1
+
+#: the rounds of that correction in a global-shutter search run again because its model had
+#: too few inliers (:func:`_estimate`): each round pre-rotated by the previous round's
+#: rotation (the rig solver's rotation is linear about its pre-rotation: one round from a P3P
+#: pose 10-30 degrees off, as three noisy corners of a small tag give, stays degrees off;
+#: a second one converges on the sample's six points)
+SPREAD_CORRECTION_ROUNDS = 2
 
 #: local optimization: rounds of (the rig solver's refit, the exact-model refinement). A
 #: second round changed no estimate by more than 1e-9 deg in 40 frames of 3 x 300 points and
@@ -1034,15 +1045,15 @@ def _prerotated_solve(pool: _Pool, S: np.ndarray, R0: np.ndarray, tau: np.ndarra
     )  # fmt: skip
 
 
-def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None):
+def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None, rounds=1):
     """Global-shutter models (R, C, 0, 0) of the samples: P3P on the sample's first 3 points
     (one camera), mapped to the rig: ``R = R_c^T R_cam``, ``C = R_c^T (C_cam - c_c)``
     (``p3p``: :func:`_p3p_on_rig` by default, or :func:`_gp3p_on_rig`). ``missed``: (M,)
     bool, cameras whose points the best model so far does not explain, or None: each P3P
     model of a sample with points in one of them (and in the P3P's camera) is also corrected
     on the sample's 6 points by the rig solver with the velocities held at zero
-    (:data:`STILL_SOLVER_ITERATIONS`; prior rows ``(w, t) = 0``). Returns arrays of H models,
-    or None."""
+    (:data:`STILL_SOLVER_ITERATIONS`; prior rows ``(w, t) = 0``), ``rounds`` times, each
+    pre-rotated by the previous round's rotation. Returns arrays of H models, or None."""
     p3p = (p3p or _p3p_on_rig)(pool, samples)
     if p3p is None:
         return None
@@ -1057,14 +1068,16 @@ def _hypotheses_still(pool: _Pool, samples: np.ndarray, p3p=None, missed=None):
     # rotation error: a small tag's three corners leave a pose a degree off, pixels off in
     # a camera looking elsewhere; the rig solver with the velocities held at zero corrects
     # it on the sample's six points, from every camera it spans, as a generalized P3P would)
-    k = len(spread)
-    S = samples[own[spread]]
-    held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
-    b = _prerotated_solve(pool, S, R[spread], np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
-    if not b.valid.any():
-        return R, C, z, z.copy()
-    Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), R[spread][b.valid])
-    R, C = np.concatenate([R, Rg]), np.concatenate([C, b.C[b.valid]])
+    S, Rg = samples[own[spread]], R[spread]
+    for _ in range(rounds):
+        k = len(S)
+        held = (np.broadcast_to(np.eye(6), (k, 6, 6)).copy(), np.zeros((k, 6)))
+        b = _prerotated_solve(pool, S, Rg, np.zeros(S.shape), STILL_SOLVER_ITERATIONS, held)
+        if not b.valid.any():
+            return R, C, z, z.copy()
+        S, Cg = S[b.valid], b.C[b.valid]
+        Rg = np.einsum("hij,hjk->hik", rotvec_to_matrix(b.v[b.valid]), Rg[b.valid])
+    R, C = np.concatenate([R, Rg]), np.concatenate([C, Cg])
     z = np.zeros((len(R), 3))
     return R, C, z, z.copy()
 
@@ -1912,7 +1925,7 @@ class _RigSearch(RansacLoop):
     rig's local optimization runs once, after the search) and gives termination its inlier
     ratio (among the seed's inliers ``subset`` when RANSAC verifies a seed)."""
 
-    def __init__(self, pool, options, still, generalized, prior, anchored, subset):
+    def __init__(self, pool, options, still, generalized, prior, anchored, subset, spread=False):
         r = options.ransac
         super().__init__(3 if still else 6, r)
         self.pool, self.still, self.generalized, self.prior = pool, still, generalized, prior
@@ -1928,8 +1941,11 @@ class _RigSearch(RansacLoop):
         self.batches = _search_batches(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
-        #: corrected on them (:func:`_hypotheses_still`)
-        self.missed = None
+        #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
+        #: more points, whatever the best model (every sample corrected)
+        self.spread = spread
+        counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+        self.missed = counts >= 3 if spread and still else None
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
@@ -1951,7 +1967,8 @@ class _RigSearch(RansacLoop):
         samples = (_sample_spread if self.generalized else _sample)(self.rng, pool, K, self.subset)
         p3p = _gp3p_on_rig if self.generalized else None
         if self.still:
-            return _hypotheses_still(pool, samples, p3p, self.missed)
+            rounds = SPREAD_CORRECTION_ROUNDS if self.spread else 1
+            return _hypotheses_still(pool, samples, p3p, self.missed, rounds)
         anchor = self.best[:2] if self.anchored and self.best is not None else None
         hyp = _hypotheses(
             pool, samples, self.solver_iterations, None, anchor, self.prior, self.threshold_px,
@@ -1972,7 +1989,7 @@ class _RigSearch(RansacLoop):
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
-        if self.still:
+        if self.still and not self.spread:
             n = np.bincount(self.pool.cam, minlength=len(self.pool.sizes))
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
             missed = (n >= 3) & (hit == 0)
@@ -2026,11 +2043,21 @@ def _estimate(
     generalized: bool,
     prior: _GyroPrior | None = None,
     still: bool | None = None,
+    spread: bool = False,
 ) -> RigPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
     a rig frame that is not still) or without one (arguments as there); ``still``: on the
     global-shutter model (True) or not (False) whatever the observations' time spread (None:
-    global shutter when they are within :data:`STILL_SPREAD`)."""
+    global shutter when they are within :data:`STILL_SPREAD`).
+
+    A global-shutter search whose final model has fewer than ``ransac.min_inliers`` inliers
+    searches again (``spread``) with every sample's P3P models corrected on the sample's six
+    points by the rig solver (:func:`_hypotheses_still`, :data:`SPREAD_CORRECTION_ROUNDS`
+    rounds), not only those with points in a camera the best model explains none of, and
+    with one round: three noisy corners of one small tag give P3P poses 10-30 degrees off,
+    one round of the correction leaves them degrees off, and a pose that explains one
+    camera's corners alone (or a few of every camera's) then has the lowest cost although a
+    pose between the cameras' own explains every corner."""
     r = options.ransac
     threshold_px, refine = float(r.threshold_px), options.refine.enabled
 
@@ -2063,7 +2090,7 @@ def _estimate(
         need = max(int(im.min_explained), size + 1, 6)
         if n_in >= need and np.bincount(pool.cam[seeded[2]]).max() >= 3:
             subset = np.flatnonzero(seeded[2])
-    search = _RigSearch(pool, options, still, generalized, prior, anchored, subset)
+    search = _RigSearch(pool, options, still, generalized, prior, anchored, subset, spread)
     if seeded is not None:
         search.best, search.score = seeded[1], search.cost(seeded[1])
         # (verifying a seed that explains the frame: RANSAC samples among its inliers, whose
@@ -2098,6 +2125,8 @@ def _estimate(
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = e < threshold_px
     if int(inl.sum()) < r.min_inliers:
+        if still and not spread:  # (every sample corrected across the cameras: docstring)
+            return _estimate(pool, options, initial_model, generalized, prior, True, True)
         return failed(TOO_FEW_INLIERS, drawn)
     # (every point an inlier: the pool's points, not collinear, pool.degenerate above)
     if not inl.all() and collinear_3d(pool.X[inl], compiled=not pool.numpy):
