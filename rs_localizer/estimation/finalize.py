@@ -69,7 +69,6 @@ __all__ = [
     "STILL_MIN_POINTS",
     "FinalModel",
     "ImageAlone",
-    "final_errors",
     "final_estimate",
     "final_refinement",
     "frame_refinement",
@@ -893,7 +892,7 @@ def final_estimate(
             cond,
             rolling,
             threshold,
-            lambda: final_errors(final.model, fr, compiled),
+            lambda: fr.errors(final.model, compiled),
         )
     ):
         raise EstimationFailed(INCONSISTENT_FIT)
@@ -922,12 +921,3 @@ def final_estimate(
         ignored_inputs=ignored_inputs,
         **({} if compiled else {"implementation": NUMPY}),
     )
-
-
-def final_errors(model: Model, fr: Frame, compiled: bool = True) -> np.ndarray:
-    """(N,) image errors (normalized units) of the final ``model`` at every point of ``fr`` at
-    its measured capture time (:func:`~.refine.exact_errors`, in pixels of the measured image
-    over the focal length with the frame's whitening ``fr.W``; ``compiled=False``: in NumPy,
-    :func:`~.scoring.exact_errors2_numpy`, the plain normalized error); ``inf`` behind the
-    camera (:meth:`~.frame.Frame.errors`)."""
-    return fr.errors(model, compiled)

@@ -374,7 +374,6 @@ def test_numpy_final_checks_agree_with_the_compiled_ones():
     the compiled kernels give on the same models: the plausibility and cheirality verdict and
     the count behind the camera, the image errors, the physical velocities and the propagated
     covariances (to rounding)."""
-    from rs_localizer.estimation.finalize import final_errors
     from rs_localizer.estimation.frame import prepare_frame
     from rs_localizer.estimation.plausibility import final_model_check, final_model_check_numpy
     from rs_localizer.estimation.result import output_covariance, physical_velocities
@@ -395,7 +394,7 @@ def test_numpy_final_checks_agree_with_the_compiled_ones():
     args = (*(np.ascontiguousarray(a) for a in flipped), fr.X, tau, inl, np.inf, np.inf)
     assert final_model_check_numpy(*args) == tuple(final_model_check(*args))
     assert final_model_check_numpy(*args)[0] == 2
-    e_c, e_n = final_errors((R, C, w, t), fr), final_errors((R, C, w, t), fr, compiled=False)
+    e_c, e_n = fr.errors((R, C, w, t)), fr.errors((R, C, w, t), compiled=False)
     np.testing.assert_allclose(e_n, e_c, rtol=1e-9, atol=1e-12)
     for a, b in zip(
         physical_velocities(R, C, w, t, fr.spr, compiled=False),
