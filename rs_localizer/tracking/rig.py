@@ -1162,10 +1162,15 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             return "apart"
         return "dropped"
 
-    def _solve(self, g: _Group) -> RigOutput:
+    def _closed(self, g: _Group) -> RigOutput:
+        """The rig frame ``g`` closed (no later frame joins one before it): its output with its
+        cameras, not solved yet."""
         self._last_closed = g.lo
-        names = [n for n in self._cams if n in g.frames]
-        out = RigOutput(stamp_ns=g.lo, cameras=tuple(names))
+        return RigOutput(stamp_ns=g.lo, cameras=tuple(n for n in self._cams if n in g.frames))
+
+    def _solve(self, g: _Group) -> RigOutput:
+        out = self._closed(g)
+        names = list(out.cameras)
         out.fused, self._carry = self._carry, []
         for n, c in self._cams.items():
             if n not in g.frames:
@@ -1513,8 +1518,7 @@ class RigGrouping(RigLocalizer):
     (:func:`~rs_localizer.ros.bags.rig_bag.rig_frame_grouping`)."""
 
     def _solve(self, g: _Group) -> RigOutput:
-        self._last_closed = g.lo
-        return RigOutput(stamp_ns=g.lo, cameras=tuple(n for n in self._cams if n in g.frames))
+        return self._closed(g)
 
 
 class _RigViews:
