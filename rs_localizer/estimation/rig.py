@@ -110,6 +110,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -658,6 +659,12 @@ def _is_rotation(m: tuple) -> bool:
     return det >= 0
 
 
+def _stacked(counts: Sequence[int]) -> list[slice]:
+    """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
+    ends = np.cumsum([0, *counts])
+    return [slice(int(a), int(b)) for a, b in itertools.pairwise(ends)]
+
+
 class _Pool:
     """Every camera's valid correspondences stacked: normalized points, world points, tau,
     camera index, the camera's focal length (px per normalized unit), measured pixels, and
@@ -700,10 +707,7 @@ class _Pool:
         n = [len(q[5]) for q in parts]
         self.cam = np.repeat(np.arange(len(parts), dtype=np.int64), n)
         #: each camera's points in the pool (stacked by camera)
-        self.slices, end = [], 0
-        for k in n:
-            self.slices.append(slice(end, end + k))
-            end += k
+        self.slices = _stacked(n)
         if parts:
             cols = list(zip(*parts, strict=True))
             self.x = np.concatenate(cols[4])
@@ -1748,10 +1752,8 @@ def _evened(pool: _Pool, voters) -> _Pool:
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
-    out.slices, end = [], 0
-    for s, k in zip(pool.slices, copies, strict=True):
-        out.slices.append(slice(end, end + k * (s.stop - s.start)))
-        end = out.slices[-1].stop
+    sizes = [k * (s.stop - s.start) for s, k in zip(pool.slices, copies, strict=True)]
+    out.slices = _stacked(sizes)
     return out
 
 
