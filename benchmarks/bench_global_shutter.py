@@ -318,8 +318,8 @@ def rig_rows(line_delays: list, n: int) -> bool:
         errs, gs = [], 0
         for views, truth in rig_frames(line_delay, n):
             est = estimate_rig_pose(views)
-            errs.append(rotation_angle_deg(est.R, truth.R) if est.success else None)
-            gs += bool(est.success and est.global_shutter)
+            errs.append(rotation_angle_deg(est.model.R, truth.R) if est.success else None)
+            gs += bool(est.success and est.motion_model == "global_shutter")
         return errs, gs
 
     base, _ = errors(0.0)

@@ -339,7 +339,7 @@ def pre_rotation_run(m: int, frames: int, points, seed: int = 0, outliers=OUTLIE
             )
             d["err"].append(errors(est.model, truth) if est.success else (np.nan,) * 3)
             d["time"].append(dt)
-            d["iterations"].append(est.iterations)
+            d["iterations"].append(est.ransac_iterations)
     for d in out.values():
         for k in d:
             d[k] = np.array(d[k], dtype=float)

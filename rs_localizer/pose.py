@@ -27,7 +27,7 @@ use them.
 (ROS order); the message conversions take it. The library's results are one (subclasses that
 add their own fields): an estimate
 (:class:`~rs_localizer.estimation.result.RSPoseEstimate`, which also holds its ``model``), a
-rig's estimate (:class:`~rs_localizer.estimation.rig.RigPoseEstimate`), a fused frame
+rig's estimate (:class:`~rs_localizer.estimation.result.RSPoseEstimate`), a fused frame
 (:class:`~rs_localizer.tracking.sequence.FusedPose`) and a base state
 (:func:`~rs_localizer.frames.camera_to_base`) hold ``pose``, ``pose_covariance`` and
 ``twist_covariance`` as their own fields: read ``x.pose.orientation``, ``x.pose.position``,
@@ -275,7 +275,7 @@ class PoseMeasurement(Protocol):
     (:meth:`~rs_localizer.tracking.fusion.TwistFilter.update`) and a fused frame
     (:meth:`~rs_localizer.tracking.sequence.FusedPose.of`): a camera's estimate
     (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) and a rig's
-    (:class:`~rs_localizer.estimation.rig.RigPoseEstimate`) are one. The time of the frame is
+    (:class:`~rs_localizer.estimation.result.RSPoseEstimate`) are one. The time of the frame is
     passed beside it (the estimates' ``pose`` has no stamp).
 
     Attributes:

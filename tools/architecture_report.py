@@ -59,8 +59,9 @@ POSE_CARRIERS = {
     ("pose.py", "RSModel"): "the solvers' (R, C, w, t), the kernels' model",
     ("pose.py", "RSPose"): "the domain pose: orientation, position, twist, stamp",
     ("pose.py", "PoseWithCovariance"): "an RSPose with its 6x6 covariances: what is published",
-    ("estimation/result.py", "RSPoseEstimate"): "a camera frame's estimate (a PoseWithCovariance)",
-    ("estimation/rig.py", "RigPoseEstimate"): "a rig frame's estimate (a PoseWithCovariance)",
+    ("estimation/result.py", "RSPoseEstimate"): (
+        "a camera's or a rig's frame's estimate (a PoseWithCovariance)"
+    ),
     ("tracking/localizer.py", "FusedPose"): "a frame with its fused twist (a PoseWithCovariance)",
     ("tracking/fusion.py", "FusedState"): "the twist filter's state of a frame (an RSPose)",
     ("estimation/options.py", "InitialModel"): "a model to start RANSAC from (an RSModel)",

@@ -919,5 +919,6 @@ def final_estimate(
         acceleration_sensitivity=final.sensitivity,
         gyro_used=gyro_used,
         ignored_inputs=ignored_inputs,
+        model_covariance=final.covariance,
         **({} if compiled else {"implementation": NUMPY}),
     )

@@ -119,7 +119,8 @@ def gyro_checked(
     still kept unless the unaided one succeeds with more than ``1 / (1 - margin)`` times its
     inliers. A rejected gyro gives the unaided estimate with ``gyro_rejected`` and
     ``gyro_rejection`` (``contradicted``, ``fewer_inliers`` or ``aided_failed``), unless both
-    failed (then the unaided one as it is).
+    failed (then the unaided one as it is). The estimate returned records ``chi2``
+    (``gyro_chi2``) where ``aided`` succeeded.
 
     Args:
         aided: the gyro-aided estimate (``success``, ``num_inliers``).
@@ -136,18 +137,19 @@ def gyro_checked(
         elif aided.num_inliers >= GYRO_RECHECK_FRACTION * num_valid and image_inliers <= (
             aided.num_inliers * (1.0 + GYRO_INLIER_MARGIN)
         ):
-            return aided
+            return replace(aided, gyro_chi2=float(chi2))
         else:
             done = unaided()
             if not (
                 done.success and aided.num_inliers < (1.0 - GYRO_INLIER_MARGIN) * done.num_inliers
             ):
-                return aided
+                return replace(aided, gyro_chi2=float(chi2))
             why = "fewer_inliers"
     if done is None:
         done = unaided()
     if aided.success or done.success:
-        return replace(done, gyro_rejected=True, gyro_rejection=why)
+        chi2 = float(chi2) if aided.success else float("nan")
+        return replace(done, gyro_rejected=True, gyro_rejection=why, gyro_chi2=chi2)
     return done
 
 

@@ -127,14 +127,20 @@ class EstimationFailed(Exception):
 
 @dataclass(frozen=True)
 class RSPoseEstimate(PoseWithCovariance):
-    """Result of :func:`~rs_localizer.estimation.estimate_rs_pose`: a
-    :class:`~rs_localizer.pose.PoseWithCovariance` (``pose``, ``pose_covariance``,
-    ``twist_covariance``: keyword arguments) with the solver's ``model`` and the estimator's
-    record. Frames: world/map, camera optical frame (REP 103).
+    """Result of :func:`~rs_localizer.estimation.estimate_rs_pose` (one camera's frame) and of
+    :func:`~rs_localizer.estimation.rig.estimate_rig_pose` (a rig frame: views of several
+    cameras, each at its mounting): a :class:`~rs_localizer.pose.PoseWithCovariance`
+    (``pose``, ``pose_covariance``, ``twist_covariance``: keyword arguments) with the solver's
+    ``model`` and the estimator's record. Frames: world/map, and the body the estimate poses:
+    the camera optical frame (REP 103) of one camera's estimate, the rig's frame (the frame of
+    the mountings) of a rig's. A rig estimate's rows are its views' rows in order; its
+    per-view fields say which view each count belongs to (one camera's estimate leaves them
+    empty).
 
     Attributes:
         success: a pose was found with at least ``min_inliers`` inliers.
-        failure: reason code when not successful, else ``None``: ``too_few_points`` (fewer
+        failure: reason code when not successful, else ``None`` (a rig's:
+            :data:`RIG_FAILURE_REASONS`): ``too_few_points`` (fewer
             valid rows than ``min_inliers``), ``no_hypothesis`` (no sample gave a model),
             ``too_few_inliers``, ``degenerate_geometry`` (the points, or the inliers, are
             identical or on one 3D line, or their pixels lie within the inlier threshold of
@@ -148,18 +154,22 @@ class RSPoseEstimate(PoseWithCovariance):
             ``ambiguous_tag`` (a frame of a few coplanar points, too few for the solver, e.g.
             one marker's four corners, whose two plane poses fit them alike and no prediction
             tells apart: :mod:`.single_tag`).
-        solver: solver name used.
+        solver: solver name used (a rig's: ``gr6p_1lin``, whatever its ``motion_model``).
         model: the solvers' :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``: ``R`` (3, 3),
             ``C`` (3,) world -> camera at the reference row (``X_cam = R X + C``), ``w``, ``t``
-            (3,) model velocities per unit RS coordinate (rad, m per normalized unit); the
-            identity and zeros on failure.
+            (3,) model velocities per unit RS coordinate (rad, m per normalized unit); a rig's:
+            world -> rig at the rig's reference time (``x_rig = R X + C``), ``w``, ``t`` per
+            second (rad/s, m/s; each view's own model:
+            :meth:`~rs_localizer.estimation.rig.RigView.camera_model`); the identity and zeros
+            on failure.
         pose: the same as a :class:`~rs_localizer.pose.RSPose` (no stamp): ``orientation``
             (3, 3) camera -> world (``R^T``), ``position`` (3,) camera centre in the world (m),
             ``angular_velocity``, ``linear_velocity`` (3,) the camera's own velocity in its
             optical frame (rad/s, m/s), with ``angular_velocity_world`` and
             ``linear_velocity_world`` (3,) in the world frame; the identity and zeros on
             failure.
-        inliers: (N,) bool over the input rows (invalid rows are False).
+        inliers: (N,) bool over the input rows (invalid rows are False; a rig's: its views'
+            rows in order, ``inliers_per_view`` split by view).
         num_valid: rows that passed validation (finite, undistortable, within
             ``max_point_norm``); num_behind: valid rows behind the camera at their capture
             time under the final model (0 without one); num_dropped: rows not used, those
@@ -218,6 +228,27 @@ class RSPoseEstimate(PoseWithCovariance):
             (:data:`~rs_localizer.estimation.implementation.NUMPY_UNUSED` on the NumPy
             implementation; ``"gyro"`` for a gyro given to a global-shutter solver or camera);
             ``()``: every input given was used.
+        model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R =
+            expm([delta]x) R_0``; rad, m, and the velocities in the units of ``model``), what
+            ``covariance`` is converted from, or ``None`` (no refinement, or a singular
+            information matrix). A global-shutter estimate's velocity rows and columns are its
+            rolling-shutter fit's, or zero where the frame was taken at one time.
+        gyro_chi2: chi-square (3 dof) of the gyro measurement against the angular velocity the
+            image alone gives near the aided estimate
+            (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; ``inf`` when the image
+            alone gives no angular velocity; NaN when no gyro was checked or the aided
+            estimate failed).
+        inliers_per_view: a rig's ``inliers`` split by view: one (N_c,) bool per view over its
+            input rows; ``()`` for one camera's estimate.
+        num_inliers_per_view: (M,) a rig's inliers of each view (zeros on failure, but with
+            ``cameras_disagree``: the joint fit's); ``()`` for one camera's estimate.
+        num_valid_per_view: (M,) a rig's valid rows of each view; ``()`` for one camera's
+            estimate.
+        disagreeing: a rig's voting views (at least
+            :data:`~rs_localizer.estimation.rig.VOTE_MIN_POINTS` points) the cameras' consensus
+            left out: on success those outvoted by the cameras that posed the rig (their points
+            are no inliers, their ``num_inliers_per_view`` zero); with ``cameras_disagree``
+            every view of the groups that contradict each other.
     """
 
     success: bool
@@ -246,6 +277,12 @@ class RSPoseEstimate(PoseWithCovariance):
     ignored_inputs: tuple[str, ...] = ()
     motion_model: str = "rolling_shutter"
     single_tag: bool = False
+    model_covariance: np.ndarray | None = None
+    gyro_chi2: float = float("nan")
+    inliers_per_view: tuple[np.ndarray, ...] = ()
+    num_inliers_per_view: tuple[int, ...] = ()
+    num_valid_per_view: tuple[int, ...] = ()
+    disagreeing: tuple[int, ...] = ()
 
     @property
     def num_inliers(self) -> int:

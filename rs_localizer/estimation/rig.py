@@ -96,7 +96,7 @@ its first rig frame compiles nothing.
 A rig frame whose observations were all taken at one time (global-shutter cameras with equal
 stamps) does not determine ``w`` and ``t``: the estimate is then the rig's generalized absolute
 pose (the P3P samples mapped to the rig, the refinement and covariance of the 6 pose
-parameters) with ``w = t = 0`` and ``RigPoseEstimate.global_shutter`` set. While RANSAC's best
+parameters) with ``w = t = 0`` and ``motion_model`` ``"global_shutter"``. While RANSAC's best
 model explains no point of a camera that has some (one camera's P3P pose from three corners
 of a small tag is a degree or so off, pixels off in a camera looking elsewhere), each P3P
 model of a sample with points in such a camera is also corrected on the sample's six points
@@ -120,13 +120,15 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
-from ..pose import PoseWithCovariance, RSModel, RSPose
+from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
 from .degeneracy import PLANAR_TOLERANCE, planarity
 from .finalize import (
     FINAL_CUTOFF,
+    GLOBAL_SHUTTER,
+    ROLLING_SHUTTER,
     frame_refinement,
     image_alone,
     rolling_shutter_check,
@@ -168,6 +170,7 @@ from .result import (
     TOO_FEW_INLIERS,
     TOO_FEW_POINTS,
     EstimationFailed,
+    RSPoseEstimate,
     output_covariance,
 )
 from .sensitivity import physical_sensitivity
@@ -183,6 +186,7 @@ __all__ = [
     "PRE_ROTATIONS",
     "RIG_FAILURE_REASONS",
     "RIG_OPTIONS",
+    "RIG_SOLVER",
     "RIG_SOLVER_ITERATIONS",
     "SPREAD_CORRECTION_ROUNDS",
     "STILL_SPREAD",
@@ -190,12 +194,15 @@ __all__ = [
     "VERIFY_MIN_POINTS",
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
-    "RigPoseEstimate",
     "RigView",
     "camera_model_of_rig",
     "estimate_rig_pose",
     "rig_model_of_camera",
 ]
+
+#: ``RSPoseEstimate.solver`` of a rig's estimate: the rig solver that poses it (on the
+#: global-shutter model too, where it corrects the P3P samples with the velocities held at 0)
+RIG_SOLVER = "gr6p_1lin"
 
 #: a camera votes in the cameras' consensus (:func:`estimate_rig_pose`) with at least this
 #: many valid points; cameras with fewer are fitted with every group, never outvoted
@@ -329,6 +336,15 @@ class RigView:
     name: str = ""
     mount_covariance: np.ndarray | None = None
 
+    def camera_model(self, model: RSModel | tuple) -> RSModel:
+        """This view's camera's own model at its reference line (per unit r, as its own
+        estimate's ``model``) from the rig's ``model`` (``w``, ``t`` per second, an
+        estimate's ``model``): :func:`camera_model_of_rig` at this view's mounting and stamp
+        offset."""
+        return camera_model_of_rig(
+            model, self.R_mount, self.c_mount, self.stamp_offset, self.camera.seconds_per_unit_r
+        )
+
 
 def camera_model_of_rig(
     model: RSModel | tuple,
@@ -384,125 +400,6 @@ def rig_model_of_camera(
     s = float(stamp_offset)
     R1, C1 = Rc.T @ Rk, Rc.T @ (Ck - cc)
     return RSModel(rotvec_to_matrix(-s * w) @ R1, C1 - s * t, w, t)
-
-
-@dataclass(frozen=True, eq=False)
-class RigPoseEstimate(PoseWithCovariance):
-    """Result of :func:`estimate_rig_pose`: a :class:`~rs_localizer.pose.PoseWithCovariance`
-    (``pose``, ``pose_covariance``, ``twist_covariance``: keyword arguments) of the rig, with
-    the estimator's record. Frames: world/map, the rig's frame (the frame of the mountings).
-
-    Attributes:
-        success: a pose passed every check (:data:`RIG_FAILURE_REASONS`).
-        failure: one of :data:`~.result.RIG_FAILURE_REASONS` (their meanings are in
-            :mod:`~.result`), ``None`` on success.
-        R: (3, 3) world -> rig rotation at the reference time. C: (3,) world -> rig
-            translation (m): ``x_rig = R X + C``.
-        w: (3,) rad/s, the model's rotation rate (rig frame: ``expm(tau [w]x)`` left of
-            ``R``); the rig's angular velocity is ``-w`` (``pose.angular_velocity``).
-        t: (3,) m/s, the model's translation rate (rig frame); the rig's linear velocity is
-            ``w x C - t`` (``pose.linear_velocity``).
-        pose: the rig's :class:`~rs_localizer.pose.RSPose` at the reference time (no stamp):
-            orientation (3, 3) rig -> world (``R^T``), position (3,) m the rig origin in the
-            world (``-R^T C``), angular and linear velocity (3,) rad/s and m/s in the rig
-            frame (``RSPose.from_model(model, 1.0)``); the identity and zeros on failure.
-        inliers: one (N_c,) bool array per camera (invalid rows False).
-        num_inliers: inliers over all cameras. iterations: RANSAC samples drawn.
-        rmse_px: RMS reprojection error of the inliers (pixels; NaN on failure).
-        num_inliers_per_camera: (M,) inliers of each camera (zeros on failure).
-        num_valid_per_camera: (M,) rows of each camera that passed validation (finite,
-            undistortable).
-        num_behind: valid rows behind their camera at their capture time under the final
-            model (0 without one).
-        covariance: (12, 12) over (rotation of the rig in the world [rad, world axes],
-            position [m, world], angular velocity [rad/s, rig frame], linear velocity [m/s,
-            rig frame]), or ``None`` (failure, or a singular information matrix).
-        pose_covariance: (6, 6) ROS order (x, y, z, rot x, rot y, rot z), world frame, or
-            ``None``. twist_covariance: (6, 6) ROS order (vx, vy, vz, wx, wy, wz), rig frame,
-            or ``None``.
-        model_covariance: (12, 12) over the model's ``(delta, C, w, t)`` (``R = expm([delta]x)
-            R_0``; rad, m, rad/s, m/s), or ``None``.
-        global_shutter: the pose is the generalized absolute pose of the rig, ``w = t = 0``
-            (zero rows and columns in ``model_covariance``): every observation was taken at
-            one time (global-shutter cameras with equal stamps; the velocities are not
-            observable: zero rows and columns in ``covariance`` too, ``twist_covariance``
-            None), or the cameras read out too fast for the rig frame to show motion
-            (``twist_covariance`` and the velocity block of ``covariance`` those of the
-            rolling-shutter model refined from the pose: what the frame says of the
-            velocities).
-        acceleration_sensitivity: (12, 6) first-order change of the outputs (rows as
-            ``covariance``) per unit of angular and linear acceleration of the rig during the
-            frame (rad/s^2, m/s^2, rig frame; columns in that order): a rig that accelerates
-            is estimated ``G (alpha, a)`` away from its state at the reference time (as a
-            camera's estimate, :mod:`~rs_localizer.estimation.sensitivity`; the twist filter
-            uses it), or
-            ``None`` (no covariance, or ``global_shutter``).
-        initial_explained: points within the initial model's ``gate_px`` (-1 without one;
-            failed estimates do not report it). initial_used: the initial model seeded
-            RANSAC (and pre-rotated its samples): False when it explained too few points and
-            the estimator ran as without it.
-        gyro_used: the estimate used the gyro measurement passed to the estimator (its
-            velocities, pose and covariances include it).
-        gyro_rejected: a gyro measurement was passed but the image disagreed with it (or the
-            aided estimate failed where an unaided one succeeded); the estimate is the
-            unaided one.
-        gyro_rejection: why, with ``gyro_rejected`` (one of
-            :data:`~rs_localizer.estimation.result.GYRO_REJECTIONS`), else ``""``.
-        gyro_chi2: chi-square (3 dof) of the gyro against the angular velocity the image alone
-            gives near the aided estimate
-            (:func:`~rs_localizer.estimation.gyro.gyro_image_chi2`; NaN when not computed).
-        disagreeing: indices of the voting cameras (at least :data:`VOTE_MIN_POINTS` points)
-            the cameras' consensus left out: on success those outvoted by the cameras that
-            posed the rig (their points are no inliers, their inliers and
-            ``num_inliers_per_camera`` zero); with ``cameras_disagree`` every camera of the
-            groups that contradict each other (``num_valid_per_camera`` and
-            ``num_inliers_per_camera`` are then the joint fit's, the rest as any failure's).
-        implementation: ``"compiled"`` or ``"numpy"``: the implementation of the refinement
-            and covariance that ran (:func:`estimate_rig_pose`'s ``implementation``).
-    """
-
-    success: bool
-    failure: str | None
-    R: np.ndarray
-    C: np.ndarray
-    w: np.ndarray
-    t: np.ndarray
-    inliers: tuple
-    num_inliers: int
-    iterations: int
-    rmse_px: float
-    num_inliers_per_camera: tuple[int, ...] = ()
-    num_valid_per_camera: tuple[int, ...] = ()
-    num_behind: int = 0
-    covariance: np.ndarray | None = None
-    model_covariance: np.ndarray | None = None
-    global_shutter: bool = False
-    acceleration_sensitivity: np.ndarray | None = None
-    initial_explained: int = -1
-    initial_used: bool = False
-    gyro_used: bool = False
-    gyro_rejected: bool = False
-    gyro_rejection: str = ""
-    gyro_chi2: float = float("nan")
-    disagreeing: tuple[int, ...] = ()
-    implementation: str = COMPILED
-
-    @property
-    def model(self) -> RSModel:
-        """The rig's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)``, velocities per
-        second (one second per unit of ``tau``)."""
-        return RSModel(self.R, self.C, self.w, self.t)
-
-    def camera_model(self, view: RigView) -> RSModel:
-        """The model of the camera of ``view`` at its reference line
-        (:func:`camera_model_of_rig`: per unit r, as its own estimate's ``model``)."""
-        return camera_model_of_rig(
-            self.model,
-            view.R_mount,
-            view.c_mount,
-            view.stamp_offset,
-            view.camera.seconds_per_unit_r,
-        )
 
 
 def _label(c: int, v: RigView) -> str:
@@ -1406,7 +1303,7 @@ def estimate_rig_pose(
     consensus: bool = True,
     verify_cameras: bool = False,
     implementation: str | None = None,
-) -> RigPoseEstimate:
+) -> RSPoseEstimate:
     """The pose and velocities of a rig of RS cameras from one rig frame (module docstring).
 
     Args:
@@ -1479,7 +1376,7 @@ def estimate_rig_pose(
             compiled one unless this process cannot or must not compile
             (:func:`~.implementation.compiled_by_default`). The estimate records it.
     Returns:
-        :class:`RigPoseEstimate`: the rig's world -> rig pose at the reference time, its
+        :class:`RSPoseEstimate`: the rig's world -> rig pose at the reference time, its
         velocities (``.pose``: an :class:`~rs_localizer.pose.RSPose`), their covariances, the
         inliers per camera; ``success=False`` with one of :data:`RIG_FAILURE_REASONS` when the
         frame gives no pose.
@@ -1495,9 +1392,10 @@ def estimate_rig_pose(
     Every observation at one time (global-shutter cameras with equal stamps: capture times
     within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the
     rig's generalized absolute pose (P3P samples in one camera mapped to the rig, the
-    refinement and covariance of the pose alone) with ``w = t = 0`` and ``global_shutter``
-    set. So is a rig frame whose rolling-shutter estimate fails (``implausible_motion``,
-    ``too_few_inliers``) and whose points show no motion (:func:`_still_if_no_motion`:
+    refinement and covariance of the pose alone) with ``w = t = 0`` and ``motion_model``
+    ``"global_shutter"``. So is a rig frame whose rolling-shutter estimate fails
+    (``implausible_motion``, ``too_few_inliers``) and whose points show no motion
+    (:func:`_still_if_no_motion`:
     cameras that read out in nanoseconds to microseconds).
 
     The cameras' consensus: a pose is returned only when the cameras with points agree on it.
@@ -1519,7 +1417,7 @@ def estimate_rig_pose(
     points it explains (:data:`PREDICTION_GATE`) are checked first: when some voting cameras'
     points are not, no more cameras than those it explains, and they disagree with the pose
     of the others alone, the rig is posed by the others (a track never outvotes more cameras
-    than it keeps), unless the rig frame is taken at one time (``global_shutter``) and the
+    than it keeps), unless the rig frame is posed on the global-shutter model and the
     two groups are near (:func:`_near`, as for a tie: a prediction a degree off can explain
     one camera's points and not another's a few tenths of a degree apart from it). A wrong
     stamp on one of two cameras can leave both with a fair share of inliers under a joint
@@ -1566,7 +1464,7 @@ def estimate_rig_pose(
     )  # fmt: skip
 
 
-def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEstimate:
+def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool`` before the cameras' consensus
     (``settings``: its arguments in :func:`_estimate`'s order), the gyro checked."""
     refine, threshold_px = settings[0].refine.enabled, settings[0].ransac.threshold_px
@@ -1587,19 +1485,17 @@ def _estimate_pool(pool: _Pool, settings: tuple, gyro, gyro_time) -> RigPoseEsti
                 gyro, image.angular_velocity, image.covariance, planar, not pool.numpy
             )
             image_inliers = image.num_inliers
-        est = replace(est, gyro_chi2=float(chi2))
-    out = gyro_checked(
+    return gyro_checked(
         est, chi2, image_inliers, len(pool.cam),
         lambda: _still_if_no_motion(pool, settings, _estimate(pool, *settings)),
     )  # fmt: skip
-    return replace(out, gyro_chi2=est.gyro_chi2) if out.gyro_rejected else out
 
 
-def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> RigPoseEstimate:
+def _still_if_no_motion(pool: _Pool, settings: tuple, est: RSPoseEstimate) -> RSPoseEstimate:
     """A rig frame whose rolling-shutter estimate failed, posed on the global-shutter model
     when it shows no motion, as a single camera's (:func:`~.finalize.still_fallback`): the
-    rig's generalized absolute pose (P3P samples, the refinement of the pose alone,
-    ``global_shutter``) if the rolling-shutter model refined from it
+    rig's generalized absolute pose (P3P samples, the refinement of the pose alone, on the
+    global-shutter ``motion_model``) if the rolling-shutter model refined from it
     (:func:`~.finalize.rolling_shutter_check`) finds velocities its noise explains, with that
     refinement's twist covariance. Otherwise ``est`` as it is, and always without the
     refinement (``options.refine``) or on a rig frame already taken at one time."""
@@ -1616,10 +1512,10 @@ def _still_if_no_motion(pool: _Pool, settings: tuple, est: RigPoseEstimate) -> R
     return est if still is None else still
 
 
-def _agreeing(est: RigPoseEstimate, voters: list[int]) -> set[int]:
+def _agreeing(est: RSPoseEstimate, voters: list[int]) -> set[int]:
     """The voting cameras that agree with a solved estimate: inlier ratio at least
     :data:`AGREE_SHARE` times the best voting camera's."""
-    n, k = est.num_valid_per_camera, est.num_inliers_per_camera
+    n, k = est.num_valid_per_view, est.num_inliers_per_view
     ratio = {c: int(k[c]) / int(n[c]) for c in voters}  # (float64 quotients, to the bit)
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
@@ -1636,12 +1532,12 @@ def _only(views: Sequence[RigView], drop: set[int]) -> list[RigView]:
 def _consensus(
     views: Sequence[RigView],
     pool: _Pool,
-    est: RigPoseEstimate,
+    est: RSPoseEstimate,
     threshold_px: float,
     solve,
     prediction,
     verify: bool = False,
-) -> RigPoseEstimate:
+) -> RSPoseEstimate:
     """The cameras' consensus on a solved joint estimate (:func:`estimate_rig_pose`).
 
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes. When all agree with
@@ -1655,7 +1551,7 @@ def _consensus(
     unless the two groups are near (:func:`_near`): then the joint estimate is returned.
     The joint estimate's point count never decides: a camera with most of the points is
     outvoted by two that agree with each other."""
-    valid = np.asarray(est.num_valid_per_camera)
+    valid = np.asarray(est.num_valid_per_view)
     voters = [c for c in range(len(valid)) if valid[c] >= VOTE_MIN_POINTS]
     if len(voters) < 2:
         return est
@@ -1672,7 +1568,7 @@ def _consensus(
     if not rest:
         return est
     sub = solve(_only(views, a))
-    b = _agreeing(_restored(sub, valid), voters) if sub.success else set()
+    b = _agreeing(_restored(sub, pool), voters) if sub.success else set()
     if not b or b & a:
         # the others explain no consistent pose of their own, or one the agreeing cameras
         # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
@@ -1681,7 +1577,7 @@ def _consensus(
         sub = solve(_only(views, set(voters) - b))
         if not sub.success:
             return _outvoted(est, pool, rest)
-    sub = _restored(sub, valid)
+    sub = _restored(sub, pool)
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
@@ -1700,7 +1596,7 @@ def _gated(pool: _Pool, est, voters, gate_px: float, model=None) -> set[int]:
     camera's."""
     ok = pool.errors(est.model if model is None else model) < gate_px
     n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
-    valid = np.asarray(est.num_valid_per_camera, dtype=float)
+    valid = np.asarray(est.num_valid_per_view, dtype=float)
     ratio = {c: n_ok[c] / valid[c] for c in voters}
     best = max(ratio.values())
     return {c for c in voters if ratio[c] >= AGREE_SHARE * best and ratio[c] > 0}
@@ -1724,7 +1620,7 @@ def _near(pool: _Pool, first, second, a: set, b: set, voters, threshold_px: floa
     # stamp that is wrong leaves no such pose. Every voting camera weighs alike in the fit:
     # weighed by its points, a camera of 140 corners holds the fit to its own pose and one
     # of 12 stays beyond the gate where a pose between them explains both within it
-    free = 6 if first.global_shutter else 12
+    free = 6 if first.motion_model == GLOBAL_SHUTTER else 12
     even = _evened(pool, voters)
     for start in (first, second):
         fit = _refine(even, None, start.model, gate, free=free)
@@ -1766,7 +1662,7 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     explain agree with the others or are only a little apart from them: the prediction was
     off for them, and a small inconsistency between cameras is the consensus's to settle,
     not the prediction's)."""
-    valid = np.asarray(est.num_valid_per_camera)
+    valid = np.asarray(est.num_valid_per_view)
     model = tuple(np.asarray(a, dtype=float) for a in prediction)
     ok = pool.errors(model) < PREDICTION_GATE * threshold_px
     n_ok = np.bincount(pool.cam[ok], minlength=len(pool.sizes))
@@ -1781,7 +1677,7 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
         sub = solve(_only(views, suspect))
         if not sub.success:
             return None
-        kept = _restored(sub, valid)
+        kept = _restored(sub, pool)
         agree = _agreeing(kept, voters)
         if not (explained <= agree and not suspect & agree):
             return None
@@ -1790,10 +1686,10 @@ def _by_track(views, pool, est, threshold_px, voters, solve, prediction):
     # contradiction it may decide. Only on the global-shutter model: a rolling-shutter
     # pose's twist absorbs a wrong stamp, so that the groups can be near although one's
     # stamp is tens of milliseconds off, which the prediction's twist does tell)
-    if kept.global_shutter:
+    if kept.motion_model == GLOBAL_SHUTTER:
         own = solve(_only(views, explained))
-        if own.success and own.global_shutter:
-            own = _restored(own, valid)
+        if own.success and own.motion_model == GLOBAL_SHUTTER:
+            own = _restored(own, pool)
             if _near(pool, kept, own, explained, suspect, voters, threshold_px):
                 return None
     return _outvoted(kept, pool, suspect)
@@ -1805,12 +1701,12 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     estimate when the two groups are near (:func:`_near`, as in :func:`_consensus`), else
     ``cameras_disagree``; or None when every camera posed alone agrees with the others."""
     M = len(pool.sizes)
-    valid = np.asarray(est.num_valid_per_camera)
+    valid = np.asarray(est.num_valid_per_view)
     voting = voters
     voters = [c for c in voters if valid[c] >= VERIFY_MIN_POINTS]
     if len(voters) < 2:
         return None
-    inliers = np.asarray(est.num_inliers_per_camera, dtype=float)
+    inliers = np.asarray(est.num_inliers_per_view, dtype=float)
     if all(inliers[c] >= VERIFY_ALL_EXPLAINED * valid[c] for c in voters):
         return None  # (one pose explains every camera's points: nothing contradicts)
     inl = {}
@@ -1841,7 +1737,7 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
         return None
     groups.sort(key=len, reverse=True)
     fits = [solve(_only(views, set(voters) - g)) for g in groups[:2]]
-    fits = [_restored(f, valid) if f.success else f for f in fits]
+    fits = [_restored(f, pool) if f.success else f for f in fits]
     if len(groups[0]) > len(groups[1]):
         choice = 0
     else:
@@ -1855,37 +1751,50 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
     return _outvoted(fits[choice], pool, set(voters) - groups[choice])
 
 
-def _disagree(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
+def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with the joint estimate's per
     camera counts."""
     z = np.zeros(3)
+    none = np.zeros(len(pool.cam), dtype=bool)
     return replace(
-        est, success=False, failure=CAMERAS_DISAGREE, R=np.eye(3), C=z, w=z, t=z.copy(),
-        inliers=pool.per_camera(np.zeros(len(pool.cam), dtype=bool)), num_inliers=0,
-        rmse_px=np.nan, num_behind=0, covariance=None, model_covariance=None,
-        acceleration_sensitivity=None, disagreeing=tuple(sorted(cams)),
-        pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0), pose_covariance=None,
-        twist_covariance=None,
+        est, success=False, failure=CAMERAS_DISAGREE, model=RSModel.identity(),
+        inliers=np.zeros(len(est.inliers), dtype=bool), inliers_per_view=pool.per_camera(none),
+        rmse_px=np.nan, num_behind=0, num_dropped=est.num_dropped - est.num_behind,
+        covariance=None, model_covariance=None, acceleration_sensitivity=None,
+        disagreeing=tuple(sorted(cams)), pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0),
+        pose_covariance=None, twist_covariance=None,
     )  # fmt: skip
 
 
-def _restored(est: RigPoseEstimate, valid: np.ndarray) -> RigPoseEstimate:
-    """An estimate on views some of whose points were removed (:func:`_only`), with the
-    cameras' valid point counts ``valid`` (M,) of the full views."""
-    return replace(est, num_valid_per_camera=tuple(int(n) for n in valid))
+def _restored(est: RSPoseEstimate, pool: _Pool) -> RSPoseEstimate:
+    """An estimate on views some of whose points were removed (:func:`_only`) as one of the
+    full views ``pool``: their valid point counts, and no inlier among the removed points."""
+    per = tuple(
+        m if len(m) == n else np.zeros(n, dtype=bool)
+        for m, n in zip(est.inliers_per_view, pool.sizes, strict=True)
+    )
+    return replace(
+        est, inliers=_joined(per), inliers_per_view=per, num_valid_per_view=pool.counts(),
+        num_valid=len(pool.cam), num_dropped=sum(pool.sizes) - len(pool.cam) + est.num_behind,
+    )  # fmt: skip
 
 
-def _outvoted(est: RigPoseEstimate, pool: _Pool, cams: set[int]) -> RigPoseEstimate:
+def _outvoted(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimate:
     """``est`` with the voting cameras ``cams`` left out: none of their points an inlier."""
     inliers = tuple(
         np.zeros(pool.sizes[c], dtype=bool) if c in cams else np.asarray(m, dtype=bool)
-        for c, m in enumerate(est.inliers)
+        for c, m in enumerate(est.inliers_per_view)
     )
-    per = tuple(0 if c in cams else int(n) for c, n in enumerate(est.num_inliers_per_camera))
+    per = tuple(0 if c in cams else int(n) for c, n in enumerate(est.num_inliers_per_view))
     return replace(
-        est, inliers=inliers, num_inliers_per_camera=per, num_inliers=int(sum(per)),
+        est, inliers=_joined(inliers), inliers_per_view=inliers, num_inliers_per_view=per,
         disagreeing=tuple(sorted(cams)),
     )  # fmt: skip
+
+
+def _joined(per_view: tuple) -> np.ndarray:
+    """The views' (N_c,) bool masks as one over the rig frame's rows in order."""
+    return np.concatenate(per_view) if per_view else np.zeros(0, dtype=bool)
 
 
 def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
@@ -1896,11 +1805,12 @@ def _by_prediction(pool: _Pool, first, second, prediction) -> int | None:
         return None
     Rp = np.asarray(prediction[0], dtype=float)
     pp = -Rp.T @ np.asarray(prediction[1], dtype=float)
-    depth = float(np.median(np.linalg.norm(pool.X @ first.R.T + first.C, axis=1)))
+    depth = float(np.median(np.linalg.norm(pool.X @ first.model.R.T + first.model.C, axis=1)))
     d = []
     for e in (first, second):
-        ang = np.linalg.norm(matrix_to_rotvec(e.R @ Rp.T))
-        d.append(float(ang + np.linalg.norm(-e.R.T @ e.C - pp) / max(depth, 0.1)))
+        R, C = e.model.R, e.model.C
+        ang = np.linalg.norm(matrix_to_rotvec(R @ Rp.T))
+        d.append(float(ang + np.linalg.norm(-R.T @ C - pp) / max(depth, 0.1)))
     if d[0] * PREDICTION_MARGIN <= d[1]:
         return 0
     if d[1] * PREDICTION_MARGIN <= d[0]:
@@ -2008,28 +1918,29 @@ def _rig_estimate(
     inliers: np.ndarray | None = None,
     outputs=(None, None, None),
     **record,
-) -> RigPoseEstimate:
-    """The :class:`RigPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R, C, w,
-    t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the ROS pose
-    and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the identity
-    and zeros, no inliers); ``record``: the other fields by name."""
+) -> RSPoseEstimate:
+    """The :class:`~.result.RSPoseEstimate` of the stacked views ``pool``: of ``model`` ``(R,
+    C, w, t)`` with the (N_pool,) ``inliers`` and ``outputs`` (the covariance (12, 12), the
+    ROS pose and twist blocks), or with ``failure=`` one of :data:`RIG_FAILURE_REASONS` (the
+    identity and zeros, no inliers); ``record``: the other fields by name."""
     if model is None:
         z = np.zeros(3)
         model = (np.eye(3), z, z, z.copy())
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = np.zeros(len(pool.cam), dtype=bool) if inliers is None else inliers
+    per = pool.per_camera(inl)
     record.setdefault("rmse_px", np.nan)
     record.setdefault("implementation", NUMPY if pool.numpy else COMPILED)
-    return RigPoseEstimate(
+    return RSPoseEstimate(
         success=record.get("failure") is None,
-        R=R,
-        C=C,
-        w=w,
-        t=t,
-        inliers=pool.per_camera(inl),
-        num_inliers=int(np.count_nonzero(inl)),
-        num_inliers_per_camera=pool.counts(inl),
-        num_valid_per_camera=pool.counts(),
+        solver=RIG_SOLVER,
+        model=RSModel(R, C, w, t),
+        inliers=_joined(per),
+        inliers_per_view=per,
+        num_inliers_per_view=pool.counts(inl),
+        num_valid_per_view=pool.counts(),
+        num_valid=len(pool.cam),
+        num_dropped=sum(pool.sizes) - len(pool.cam) + record.get("num_behind", 0),
         covariance=outputs[0],
         pose=RSPose.from_model((R, C, w, t), 1.0, compiled=not pool.numpy),
         pose_covariance=outputs[1],
@@ -2046,7 +1957,7 @@ def _estimate(
     prior: _GyroPrior | None = None,
     still: bool | None = None,
     spread: bool = False,
-) -> RigPoseEstimate:
+) -> RSPoseEstimate:
     """:func:`estimate_rig_pose` on the stacked views ``pool``, with the gyro ``prior`` (on
     a rig frame that is not still) or without one (arguments as there); ``still``: on the
     global-shutter model (True) or not (False) whatever the observations' time spread (None:
@@ -2064,7 +1975,7 @@ def _estimate(
     threshold_px, refine = float(r.threshold_px), options.refine.enabled
 
     def failed(reason, iterations=0, behind=0):
-        return _rig_estimate(pool, failure=reason, iterations=iterations, num_behind=behind)
+        return _rig_estimate(pool, failure=reason, ransac_iterations=iterations, num_behind=behind)
 
     if len(pool.cam) < 6 or max(pool.counts()) < 3:
         return failed(TOO_FEW_POINTS)
@@ -2157,11 +2068,11 @@ def _estimate(
         inl,
         out,
         failure=None,
-        iterations=drawn,
+        ransac_iterations=drawn,
         rmse_px=float(np.sqrt(np.mean(e[inl] ** 2))),
         num_behind=behind,
         model_covariance=cov,
-        global_shutter=still,
+        motion_model=GLOBAL_SHUTTER if still else ROLLING_SHUTTER,
         acceleration_sensitivity=(
             None if G is None else physical_sensitivity(G, R, C, w, 1.0, not pool.numpy)
         ),

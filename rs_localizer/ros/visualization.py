@@ -284,7 +284,7 @@ class RigCameraView:
     rig's pose and their ``rmse_px``.
 
     Args:
-        est: the rig frame's :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (posed).
+        est: the rig frame's :class:`~rs_localizer.estimation.result.RSPoseEstimate` (posed).
         index: the camera's index in the rig frame's cameras.
         R_mount (3, 3), c_mount (3,) m: its mounting (``x_cam = R x_rig + c``).
         stamp_offset: s, its frame's reference time after the rig frame's.
@@ -310,11 +310,11 @@ class RigCameraView:
         from ..pose import RSModel, RSPose
 
         spr = camera.seconds_per_unit_r
-        rig = RSModel(est.R, est.C, est.w, est.t)
-        self.model = RSModel(*camera_model_of_rig(rig, R_mount, c_mount, stamp_offset, spr))
+        self.model = RSModel(*camera_model_of_rig(est.model, R_mount, c_mount, stamp_offset, spr))
         self.pose = RSPose.from_model(self.model, spr)
         n = len(points2d)
-        inl = est.inliers[index] if index < len(est.inliers) else np.zeros(n, bool)
+        per = est.inliers_per_view
+        inl = per[index] if index < len(per) else np.zeros(n, bool)
         self.inliers = np.asarray(inl, bool) if len(inl) == n else np.zeros(n, bool)
         self._rows = (camera, points2d, points3d)
 

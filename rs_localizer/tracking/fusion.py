@@ -1042,7 +1042,7 @@ class TwistFilter:
             stamp_ns: the frame's time (ns): the time of ``estimate.pose``.
             estimate: a :class:`~rs_localizer.pose.PoseMeasurement`: a camera's
                 :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-                :class:`~rs_localizer.estimation.rig.RigPoseEstimate`. A failed estimate or
+                :class:`~rs_localizer.estimation.result.RSPoseEstimate`. A failed estimate or
                 one without a finite (12, 12) ``covariance`` is not fused: the frame gets the
                 prediction; one without ``twist_covariance`` (a global shutter) is fused as a
                 pose only.

@@ -112,7 +112,7 @@ class TrackLog(Protocol):
 class SolvedFrame(PoseMeasurement, Protocol):
     """What :meth:`GyroInput.solved` reads of a frame's estimate (a camera's
     :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`): the twist filter's measurement
+    :class:`~rs_localizer.estimation.result.RSPoseEstimate`): the twist filter's measurement
     (:class:`~rs_localizer.pose.PoseMeasurement`: ``success``, ``pose``, ``covariance``)
     and whether the gyro was used (``gyro_used``) or rejected (``gyro_rejected``, why:
     ``gyro_rejection``)."""

@@ -198,7 +198,7 @@ class FusedPose(PoseWithCovariance):
     ) -> FusedPose:
         """The estimate's pose (a :class:`~rs_localizer.pose.PoseMeasurement`: an
         :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-        :class:`~rs_localizer.estimation.rig.RigPoseEstimate`) with the fused state's twist,
+        :class:`~rs_localizer.estimation.result.RSPoseEstimate`) with the fused state's twist,
         at the fused state's stamp; the estimate's own twist and covariance where the filter
         did not fuse the frame (:attr:`own_twist`), or with ``own`` (the fused twist is
         implausible, :attr:`implausible`) if the estimate has a twist of its own."""

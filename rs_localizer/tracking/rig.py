@@ -29,8 +29,8 @@ camera model; the cameras need not be synchronized). :class:`RigLocalizer`:
    filter's "camera": orientation rig -> world, position the rig origin, velocities in the
    rig frame. The filter's measurement is the rig estimator's: its covariance and its
    sensitivity to acceleration during the rig frame
-   (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.covariance`,
-   :attr:`~rs_localizer.estimation.rig.RigPoseEstimate.acceleration_sensitivity`), as a
+   (:attr:`~rs_localizer.estimation.result.RSPoseEstimate.covariance`,
+   :attr:`~rs_localizer.estimation.result.RSPoseEstimate.acceleration_sensitivity`), as a
    camera's estimate is for the camera tracker.
 
 With a gyro on the rig (:attr:`RigSettings.imu`; samples fed by :meth:`RigLocalizer.add_imu`)
@@ -111,16 +111,21 @@ from ..estimation.estimate import InitialModel, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
 from ..estimation.options import EstimateOptions
-from ..estimation.result import CAMERAS_DISAGREE, CONTRADICTS_TRACK, RIG_REFUSALS, UNCONFIRMED
+from ..estimation.result import (
+    CAMERAS_DISAGREE,
+    CONTRADICTS_TRACK,
+    RIG_REFUSALS,
+    UNCONFIRMED,
+    RSPoseEstimate,
+)
 from ..estimation.rig import (
     RIG_OPTIONS,
     VOTE_MIN_POINTS,
-    RigPoseEstimate,
     RigView,
     camera_model_of_rig,
     estimate_rig_pose,
 )
-from ..geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
+from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
 from .fusion import FusedState, FusionOptions
@@ -468,7 +473,7 @@ class RigOutput:
     cameras: tuple = ()
     missing: dict = field(default_factory=dict)
     stamp_offsets: dict = field(default_factory=dict)
-    estimate: RigPoseEstimate | None = None
+    estimate: RSPoseEstimate | None = None
     path: str | None = None
     shares: dict = field(default_factory=dict)
     disagreeing: tuple = ()
@@ -487,7 +492,7 @@ class RigOutput:
     @property
     def outvoted(self) -> tuple:
         """The cameras of :attr:`cameras` the estimator's consensus left out
-        (:attr:`~rs_localizer.estimation.rig.RigPoseEstimate.disagreeing`): on a posed rig
+        (:attr:`~rs_localizer.estimation.result.RSPoseEstimate.disagreeing`): on a posed rig
         frame those outvoted by the cameras that posed it, on ``cameras_disagree`` every
         camera of the groups that contradict each other; () otherwise."""
         est = self.estimate
@@ -1125,12 +1130,12 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 stamp, uv, camera = item
                 feedback = None
                 if est is not None:
-                    model = RSModel(est.R, est.C, est.w, est.t)
                     cam = self._cams[n]
-                    cm = camera_model_of_rig(model, cam.mount.R, cam.mount.c,
+                    cm = camera_model_of_rig(est.model, cam.mount.R, cam.mount.c,
                                              out.stamp_offsets.get(n, 0.0),
                                              camera.seconds_per_unit_r)  # fmt: skip
-                    inl = est.inliers[k] if k < len(est.inliers) else np.zeros(len(uv), bool)
+                    per = est.inliers_per_view
+                    inl = per[k] if k < len(per) else np.zeros(len(uv), bool)
                     feedback = FrameFeedback(bool(est.success), np.asarray(inl, bool), cm)
                 fe.observe(stamp, uv, feedback)
         if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
@@ -1228,8 +1233,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 self._track.update(out.stamp_ns, est, path)  # (counted: a failure)
             self._count_rig(names, est.failure or "error")
             if est.failure == CAMERAS_DISAGREE:  # (who disagrees: the joint fit's counts)
-                n_pts = np.asarray(est.num_valid_per_camera)
-                n_in = np.asarray(est.num_inliers_per_camera)
+                n_pts = np.asarray(est.num_valid_per_view)
+                n_in = np.asarray(est.num_inliers_per_view)
                 self._update_disagreement(out, names, n_pts, n_in, views, est)
             self._gyro_done(out)
             return out
@@ -1248,7 +1253,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         for n in names:
             self.counts[f"{n}.failed"] += 1
 
-    def _run(self, views, max_iterations=None, initial=None, prediction=None) -> RigPoseEstimate:
+    def _run(self, views, max_iterations=None, initial=None, prediction=None) -> RSPoseEstimate:
         """The rig estimator on the rig frame's views; with neither an initial model nor a
         prediction (no track to check it against) every camera is also posed alone
         (``verify_cameras``)."""
@@ -1279,14 +1284,14 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._prediction = f.predicted
         return f.estimate, f.path
 
-    def _refusal(self, out: RigOutput, est: RigPoseEstimate) -> str | None:
+    def _refusal(self, out: RigOutput, est: RSPoseEstimate) -> str | None:
         """Why a rig frame posed from one voting camera alone (the others' points
         disagreeing, absent or too few) while another camera of the rig runs is refused
         (:data:`RIG_REFUSALS`), or None: its pose contradicts the track's prediction
         (``contradicts_track``) and no camera too small to vote confirms it (at least
         :data:`CONFIRM_MIN_INLIERS` of its points inliers of the pose), or there is no
         prediction and two or more other cameras run (``unconfirmed``)."""
-        valid = np.asarray(est.num_valid_per_camera)
+        valid = np.asarray(est.num_valid_per_view)
         voting = [k for k in range(len(valid)) if valid[k] >= VOTE_MIN_POINTS]
         posing = [k for k in voting if k not in est.disagreeing]
         if len(posing) > 1:
@@ -1298,7 +1303,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         pred = self._prediction
         if pred is None:
             return UNCONFIRMED if running >= 2 else None
-        inliers = np.asarray(est.num_inliers_per_camera)
+        inliers = np.asarray(est.num_inliers_per_view)
         if posing and any(
             valid[k] < VOTE_MIN_POINTS and inliers[k] >= CONFIRM_MIN_INLIERS
             for k in range(len(valid))
@@ -1307,7 +1312,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         return CONTRADICTS_TRACK if self._contradicts(est, pred) else None
 
     @staticmethod
-    def _contradicts(est: RigPoseEstimate, pred) -> bool:
+    def _contradicts(est: RSPoseEstimate, pred) -> bool:
         """The estimate's pose is further from the prediction than their covariances allow
         (:data:`CONTRADICTION_GATE`) and at least :data:`CONTRADICTION_MIN_DEG` or
         :data:`CONTRADICTION_MIN_M` away."""
@@ -1413,8 +1418,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         total_in = int(est.num_inliers)
         for k in est.disagreeing:  # (outvoted by the cameras that posed the rig)
             self.counts[f"{names[k]}.outvoted"] += 1
-        n_pts = np.asarray(est.num_valid_per_camera)
-        n_in = np.asarray(est.num_inliers_per_camera)
+        n_pts = np.asarray(est.num_valid_per_view)
+        n_in = np.asarray(est.num_inliers_per_view)
         for k, n in enumerate(names):
             pts, i = int(n_pts[k]), int(n_in[k])
             share = CameraShare(pts, i, i / total_in if total_in else 0.0,
@@ -1556,7 +1561,7 @@ def _offsets_text(offsets: dict) -> str:
     return ", ".join(f"{1e3 * v:+.1f} ms from {m!r}'s" for m, v in offsets.items()) or "unknown"
 
 
-def _alone_deg(view: RigView, est: RigPoseEstimate, implementation=None) -> float | None:
+def _alone_deg(view: RigView, est: RSPoseEstimate, implementation=None) -> float | None:
     """deg between the camera's rotation posed alone (the single-camera estimator, on
     ``implementation``) and where the rig's pose and the camera's mounting put it; None when
     it is not posed alone (or the rig frame was not posed)."""
@@ -1568,9 +1573,8 @@ def _alone_deg(view: RigView, est: RigPoseEstimate, implementation=None) -> floa
         return None
     if not alone.success:
         return None
-    w = np.asarray(est.w, float)
     # the camera's rotation (world -> camera) at its reference time, as the rig puts it
-    R_c = view.R_mount @ rotvec_to_matrix(view.stamp_offset * w) @ est.R
+    R_c = view.camera_model(est.model).R
     return float(rotation_angle_deg(alone.model.R, R_c))
 
 

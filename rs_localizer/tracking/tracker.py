@@ -280,7 +280,7 @@ class PathOptions(Protocol):
 class PathEstimate(PoseMeasurement, Protocol):
     """A frame's estimate on the tracker path: a camera's
     :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-    :class:`~rs_localizer.estimation.rig.RigPoseEstimate`; besides the twist filter's
+    :class:`~rs_localizer.estimation.result.RSPoseEstimate`; besides the twist filter's
     measurement (:class:`~rs_localizer.pose.PoseMeasurement`): ``failure`` (why it failed;
     None when it succeeded), ``initial_used`` (it was found from the initial model) and
     ``initial_explained`` (the points the initial model explained, -1 without one)."""
@@ -343,7 +343,7 @@ class Solve:
     Attributes:
         estimate: the estimator's result: a camera's
             :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
-            :class:`~rs_localizer.estimation.rig.RigPoseEstimate` (:class:`PathEstimate`).
+            :class:`~rs_localizer.estimation.result.RSPoseEstimate` (:class:`PathEstimate`).
         prior: the :class:`~rs_localizer.estimation.prior.MotionPrior` the estimate's
             refinement used, None: none (the twist filter takes its information out again).
         prior_from_prediction: the estimator was given the prediction's twist as its motion

@@ -143,7 +143,7 @@ def test_gyro_aided_estimate_has_the_gyros_angular_velocity(scene):
         a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS, gyro=g)
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
         assert a.success and b.success and a.gyro_used and not a.gyro_rejected
-        assert not b.gyro_used
+        assert not b.gyro_used and 0.0 <= a.gyro_chi2 <= GYRO_CHI2_THRESHOLD
         rows.append(
             (
                 np.linalg.norm(a.pose.angular_velocity - f.angular_velocity),
@@ -231,6 +231,8 @@ def test_a_gyro_the_image_contradicts_is_dropped():
         a = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS, gyro=bad)
         b = estimate_rs_pose(f.points_px, f.X, f.camera, "r6p_1lin", OPTS)
         assert a.success and a.gyro_rejected and not a.gyro_used
+        # (the gyro's chi-square against the image, recorded as a rig's estimate records it)
+        assert a.gyro_chi2 > GYRO_CHI2_THRESHOLD and np.isnan(b.gyro_chi2)
         np.testing.assert_array_equal(a.model.R, b.model.R)
         np.testing.assert_array_equal(a.pose.angular_velocity, b.pose.angular_velocity)
         chi2 = gyro_consistency(bad, b.pose.angular_velocity, b.twist_covariance[3:, 3:])

@@ -187,10 +187,10 @@ def test_rig_implementations_agree_on_a_fisheye_rig():
     assert c.success and p.success, (c.failure, p.failure)
     truth = -R.T @ C
     for est in (c, p):
-        assert np.degrees(np.linalg.norm(_rotvec(est.R @ R.T))) < 0.05
+        assert np.degrees(np.linalg.norm(_rotvec(est.model.R @ R.T))) < 0.05
         assert np.linalg.norm(est.pose.position - truth) < 5e-3
         assert est.rmse_px == pytest.approx(sigma * np.sqrt(2.0), rel=0.2)
-    assert np.degrees(np.linalg.norm(_rotvec(c.R @ p.R.T))) < 0.002
+    assert np.degrees(np.linalg.norm(_rotvec(c.model.R @ p.model.R.T))) < 0.002
     assert np.linalg.norm(c.pose.position - p.pose.position) < 2e-4
     sc = np.sqrt(np.diag(c.model_covariance)[:3])
     sp = np.sqrt(np.diag(p.model_covariance)[:3])

@@ -204,8 +204,8 @@ def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not
         est = real(views, options, initial_model=initial_model, prediction=prediction, **kw)
         tracked = initial_model is not None or prediction is not None
         if tracked and est.success and len(views) == 3 and not turned:
-            turned["R"] = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0])) @ est.R
-            return replace(est, R=turned["R"], disagreeing=(1, 2))
+            turned["R"] = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0])) @ est.model.R
+            return replace(est, model=est.model._replace(R=turned["R"]), disagreeing=(1, 2))
         return est
 
     monkeypatch.setattr(tracking_rig, "estimate_rig_pose", estimator)
@@ -215,7 +215,7 @@ def test_a_prediction_that_outvotes_a_camera_into_a_pose_it_contradicts_does_not
     assert all(o.success for o in outs)
     undone = [o for o in outs if o.path == "relocalized"]
     assert len(undone) == 1 and undone[0].estimate.disagreeing == ()
-    assert rotation_angle_deg(undone[0].estimate.R, turned["R"]) > 2.5
+    assert rotation_angle_deg(undone[0].estimate.model.R, turned["R"]) > 2.5
     e = pose_errors(outs, traj)
     assert e[:, 0].max() < 0.2 and e[:, 1].max() < 0.01, e.max(axis=0)
     assert_balanced(rig)
@@ -264,7 +264,7 @@ def test_a_tag_of_a_second_camera_the_pose_explains_confirms_it_against_an_off_p
     left = out.cameras.index("left")
     if second_right:
         assert out.success, out.estimate.failure
-        assert out.estimate.num_inliers_per_camera[left] == 4
+        assert out.estimate.num_inliers_per_view[left] == 4
         e = pose_errors([out], traj)
         assert e[0, 0] < 0.2 and e[0, 1] < 0.01, e
         assert not rig.counts["rig.failed.contradicts_track"]
