@@ -44,7 +44,6 @@ from rs_localizer.sim.feature_map import build_feature_map
 from rs_localizer.sim.render.motion import make_motion
 from rs_localizer.sim.render.renderer import NoiseModel, Renderer, camera_preset
 from rs_localizer.sim.render.scene import load_scene
-from rs_localizer.tracking.sequence import frame_feedback
 from rs_localizer.tracking.tracker import CarriedPrediction
 
 __all__ = ["main", "median_ratio_interval", "padded_map", "run_video"]
@@ -130,7 +129,7 @@ def run_video(
         t1 = time.perf_counter()
         est = estimate_rs_pose(uv, X, camera, "r6p_1lin") if len(uv) >= 6 else None
         t2 = time.perf_counter()
-        fe.observe(stamp, None, frame_feedback(est))
+        fe.observe(stamp, None, est)
         carry.update(stamp, est)
         rep = fe.report
         out["kind"].append(rep.kind)

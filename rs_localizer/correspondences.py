@@ -146,13 +146,15 @@ class Correspondences:
         return s if s is not None and len(s) == len(self.points2d) else None
 
 
-@dataclass(frozen=True, eq=False)
-class FrameFeedback:
+@runtime_checkable
+class FrameFeedback(Protocol):
     """How a frame was solved: what a video gives its front end's ``observe`` after the
-    estimator ran (:class:`VideoFrontend`), a camera's video
-    (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`) from the frame's estimate, a
-    rig's (:class:`~rs_localizer.tracking.rig.RigLocalizer`) from the rig frame's estimate
-    for each of its cameras.
+    estimator ran (:class:`VideoFrontend`): the frame's estimate itself
+    (:class:`~rs_localizer.estimation.result.RSPoseEstimate`), from a camera's video
+    (:class:`~rs_localizer.tracking.sequence.SequenceLocalizer`), or from a rig's
+    (:class:`~rs_localizer.tracking.rig.RigLocalizer`) each camera's part of the rig frame's
+    estimate (:func:`~rs_localizer.estimation.rig.camera_estimate`). A front end reads these
+    attributes only.
 
     Attributes:
         success: the frame was posed (a rig's camera: the rig frame it is part of).
@@ -160,8 +162,8 @@ class FrameFeedback:
             estimator was given).
         model: the camera's :class:`~rs_localizer.pose.RSModel` ``(R, C, w, t)`` at its
             reference row (``R`` (3, 3), ``C`` (3,) world -> camera; ``w``, ``t`` (3,) per unit
-            RS coordinate), as ``RSPoseEstimate.model``: the estimate's, or for a rig's camera
-            the rig's pose through the camera's mounting; the identity and zeros on failure.
+            RS coordinate): the estimate's, or for a rig's camera the rig's pose through the
+            camera's mounting; the identity and zeros on failure.
     """
 
     success: bool

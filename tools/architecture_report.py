@@ -67,7 +67,6 @@ POSE_CARRIERS = {
     ("estimation/options.py", "InitialModel"): "a model to start RANSAC from (an RSModel)",
     ("estimation/finalize.py", "FinalModel"): "the refined model before the last checks",
     ("solvers/_common.py", "RSSolution"): "one solver solution (v, C, w, t)",
-    ("correspondences.py", "FrameFeedback"): "how a frame was solved, for its front end",
     ("calibration/mountings.py", "MountingEstimate"): "a camera's mounting on the rig",
     ("tracking/rig.py", "RigMount"): "a camera's mounting, as the rig uses it",
 }

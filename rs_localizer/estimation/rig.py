@@ -195,6 +195,7 @@ __all__ = [
     "VERIFY_SHARE",
     "VOTE_MIN_POINTS",
     "RigView",
+    "camera_estimate",
     "camera_model_of_rig",
     "estimate_rig_pose",
     "rig_model_of_camera",
@@ -377,6 +378,64 @@ def camera_model_of_rig(
     s, spr = float(stamp_offset), float(seconds_per_unit_r)
     return RSModel(
         Rc @ rotvec_to_matrix(s * w) @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t)
+    )
+
+
+def camera_estimate(
+    est: RSPoseEstimate,
+    index: int,
+    camera: CameraModel,
+    R_mount: np.ndarray,
+    c_mount: np.ndarray,
+    stamp_offset: float,
+    points2d: np.ndarray,
+    points3d: np.ndarray | None = None,
+) -> RSPoseEstimate:
+    """Camera ``index``'s part of the rig estimate ``est`` as that camera's own estimate: what
+    its front end is told (:class:`~rs_localizer.correspondences.FrameFeedback`) and its
+    debug image draws.
+
+    Args:
+        est: a rig frame's estimate (:func:`estimate_rig_pose`).
+        index: the camera's view in the rig frame. camera: its model.
+        R_mount (3, 3), c_mount (3,) m, stamp_offset (s): its mounting and its reference
+            line's time after the rig's (:class:`RigView`).
+        points2d: (N, 2) px, the rows the camera gave the rig; points3d: (N, 3) m, their
+            world points, for ``rmse_px`` (None: NaN).
+    Returns:
+        an :class:`~.result.RSPoseEstimate` with the rig's ``success``, ``failure``,
+        ``solver``, ``motion_model``; ``model`` the camera's at its reference line
+        (:func:`camera_model_of_rig`, per unit r; the identity and zeros on failure),
+        ``pose`` its optical frame's; ``inliers`` (N,) the view's
+        (``est.inliers_per_view[index]``; none where the rig frame has no such view);
+        ``rmse_px`` the RMS error of those inliers under that model (px, the camera's
+        projection at each row's capture time, NaN without ``points3d`` or inliers). The
+        covariances stay the rig's own: None here.
+    """
+    n = len(points2d)
+    per = est.inliers_per_view
+    inl = np.asarray(per[index], bool) if index < len(per) else np.zeros(n, bool)
+    inl = inl if len(inl) == n else np.zeros(n, bool)
+    spr = camera.seconds_per_unit_r
+    model = RSModel.identity()
+    if est.success:
+        model = RSModel(*camera_model_of_rig(est.model, R_mount, c_mount, stamp_offset, spr))
+    rmse = float("nan")
+    if points3d is not None and inl.any():
+        uv = np.asarray(points2d, float)[inl]
+        e = camera.project_rs(np.asarray(points3d, float)[inl], *model) - uv
+        rmse = float(np.sqrt(np.nanmean(np.sum(e * e, axis=1))))
+    return RSPoseEstimate(
+        success=est.success,
+        failure=est.failure,
+        solver=est.solver,
+        model=model,
+        pose=RSPose.from_model(model, spr),
+        inliers=inl,
+        num_valid=n,
+        rmse_px=rmse,
+        motion_model=est.motion_model,
+        implementation=est.implementation,
     )
 
 

@@ -82,6 +82,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import Stamp, reference_stamp_ns
+from ..estimation.rig import camera_estimate
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.rig import RigLocalizer, RigOutput
@@ -110,7 +111,7 @@ from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization, RigCameraView
+from .visualization import NodeVisualization
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
@@ -681,7 +682,7 @@ class RigCore(NodeCore):
         """The rig's pose to ``path``; each camera of a posed rig frame to its
         ``<c>/debug_image`` and ``<c>/markers`` (:class:`.visualization.NodeVisualization`:
         built only while subscribed, on its drawing thread), the camera as the rig's pose
-        and its mounting put it (:class:`.visualization.RigCameraView`)."""
+        and its mounting put it (:func:`~rs_localizer.estimation.rig.camera_estimate`)."""
         m, mf = out.estimate, self.map_frame
         self.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
         mounts = {c.name: c.mount for c in self.config.cameras}
@@ -692,8 +693,8 @@ class RigCore(NodeCore):
             if not (viz.wants("debug_image") or viz.wants("markers")):
                 continue
             off = out.stamp_offsets.get(n, 0.0)
-            view = RigCameraView(out.estimate, k, mounts[n].R, mounts[n].c, off, frame.camera,
-                                 frame.points2d, frame.points3d)  # fmt: skip
+            view = camera_estimate(out.estimate, k, frame.camera, mounts[n].R, mounts[n].c, off,
+                                   frame.points2d, frame.points3d)  # fmt: skip
             for img in self._images.get(n, ()):
                 if img[2] == frame.stamp_ns:
                     viz.set_image(*img)

@@ -45,7 +45,6 @@ __all__ = [
     "VIZ_PARAMETERS",
     "VIZ_TOPICS",
     "NodeVisualization",
-    "RigCameraView",
     "VisualizationBuilder",
     "debug_image_msg",
     "marker_array",
@@ -273,62 +272,6 @@ class VisualizationBuilder:
     def path(self, out_stamp_ns: int, map_frame: str, poses: Iterable[Any] | None = None) -> Path:
         """``path`` of the kept poses (or of ``poses``, a snapshot of them)."""
         return path_msg(self.poses if poses is None else poses, out_stamp_ns, map_frame)
-
-
-class RigCameraView:
-    """One camera's part of a posed rig frame, read as the drawing reads a camera's estimate
-    (:func:`~rs_localizer.viz.draw_debug_image`, :func:`marker_array`): the camera's own model
-    ``(R, C, w, t)`` at its reference line (per unit RS coordinate) from the rig's pose through
-    its mounting (:func:`~rs_localizer.estimation.rig.camera_model_of_rig`), its pose (camera
-    optical frame, :class:`~rs_localizer.pose.RSPose`), its ``inliers`` (N,) bool under the
-    rig's pose and their ``rmse_px``.
-
-    Args:
-        est: the rig frame's :class:`~rs_localizer.estimation.result.RSPoseEstimate` (posed).
-        index: the camera's index in the rig frame's cameras.
-        R_mount (3, 3), c_mount (3,) m: its mounting (``x_cam = R x_rig + c``).
-        stamp_offset: s, its frame's reference time after the rig frame's.
-        camera: its camera model. points2d (N, 2) px, points3d (N, 3) m: its rows given to
-            the rig.
-    """
-
-    solver = "rig"
-    success = True
-
-    def __init__(
-        self,
-        est: Any,
-        index: int,
-        R_mount: np.ndarray,
-        c_mount: np.ndarray,
-        stamp_offset: float,
-        camera: CameraModel,
-        points2d: np.ndarray,
-        points3d: np.ndarray,
-    ) -> None:
-        from ..estimation.rig import camera_model_of_rig
-        from ..pose import RSModel, RSPose
-
-        spr = camera.seconds_per_unit_r
-        self.model = RSModel(*camera_model_of_rig(est.model, R_mount, c_mount, stamp_offset, spr))
-        self.pose = RSPose.from_model(self.model, spr)
-        n = len(points2d)
-        per = est.inliers_per_view
-        inl = per[index] if index < len(per) else np.zeros(n, bool)
-        self.inliers = np.asarray(inl, bool) if len(inl) == n else np.zeros(n, bool)
-        self._rows = (camera, points2d, points3d)
-
-    @property
-    def rmse_px(self) -> float:
-        """RMS reprojection error (px) of the camera's inliers under the rig's pose (NaN
-        without inliers)."""
-        from ..viz.debug_image import frame_residuals
-
-        camera, uv, X = self._rows
-        if not self.inliers.any():
-            return float("nan")
-        e = frame_residuals(camera, uv[self.inliers], X[self.inliers], self) - uv[self.inliers]
-        return float(np.sqrt(np.nanmean(np.sum(e * e, axis=1))))
 
 
 class NodeVisualization:

@@ -13,7 +13,6 @@ from ..camera import CameraModel
 from ..estimation.estimate import estimate_rs_pose
 from ..frontends import ArucoFrontend
 from ..geometry import rotation_angle_deg
-from ..tracking.sequence import frame_feedback
 from ..tracking.tracker import CarriedPrediction
 from .render.motion import make_motion
 from .render.renderer import NoiseModel, RenderedFrame, Renderer, camera_preset
@@ -68,7 +67,7 @@ def run_interleaved(
             est = (
                 estimate_rs_pose(c.points2d, c.points, camera, "r6p_1lin") if len(c) >= 6 else None
             )
-            fe.observe(stamp, None, frame_feedback(est))
+            fe.observe(stamp, None, est)
             carry[mode].update(stamp, est)
             ok = est is not None and est.success
             out[mode]["n"].append(len(c))

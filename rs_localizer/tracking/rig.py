@@ -106,7 +106,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from ..camera import CameraModel, Stamp, checked_stamp, reference_stamp_ns
-from ..correspondences import FrameFeedback, Frontend, VideoFrontend
+from ..correspondences import Frontend, VideoFrontend
 from ..estimation.estimate import InitialModel, estimate_rs_pose
 from ..estimation.gyro import GyroMeasurement
 from ..estimation.implementation import NUMPY, compiled_by_default
@@ -122,6 +122,7 @@ from ..estimation.rig import (
     RIG_OPTIONS,
     VOTE_MIN_POINTS,
     RigView,
+    camera_estimate,
     camera_model_of_rig,
     estimate_rig_pose,
 )
@@ -1043,7 +1044,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         scores first, counted ``<name>.capped_clouds`` and ``<name>.capped_points``, with a
         warning), then :meth:`add`; each camera's front end is told how its frame was solved
         (``frontend.observe(stamp_ns, points2d, feedback)``, ``feedback`` the camera's part of
-        the rig's estimate, a :class:`~rs_localizer.correspondences.FrameFeedback`: the rig
+        the rig's estimate, :func:`~rs_localizer.estimation.rig.camera_estimate`: the rig
         frame's success, the camera's inliers and its model from the rig's pose and its
         mounting) when its rig frame is solved: with unsynchronized
         cameras often after the camera's next image (a front end that searches around its last
@@ -1130,13 +1131,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 stamp, uv, camera = item
                 feedback = None
                 if est is not None:
-                    cam = self._cams[n]
-                    cm = camera_model_of_rig(est.model, cam.mount.R, cam.mount.c,
-                                             out.stamp_offsets.get(n, 0.0),
-                                             camera.seconds_per_unit_r)  # fmt: skip
-                    per = est.inliers_per_view
-                    inl = per[k] if k < len(per) else np.zeros(len(uv), bool)
-                    feedback = FrameFeedback(bool(est.success), np.asarray(inl, bool), cm)
+                    mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
+                    feedback = camera_estimate(est, k, camera, mount.R, mount.c, off, uv)
                 fe.observe(stamp, uv, feedback)
         if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
             for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:

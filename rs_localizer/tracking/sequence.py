@@ -70,7 +70,7 @@ from ..camera import (
     checked_stamp,
     reference_stamp_ns,
 )
-from ..correspondences import Correspondences, FrameFeedback, Frontend, VideoFrontend
+from ..correspondences import Correspondences, Frontend, VideoFrontend
 from ..estimation.estimate import (
     EstimateOptions,
     RSPoseEstimate,
@@ -105,7 +105,6 @@ __all__ = [
     "SequenceLocalizer",
     "SequenceOutput",
     "SequenceSettings",
-    "frame_feedback",
     "reference_stamp_ns",
 ]
 
@@ -259,17 +258,6 @@ class SequenceOutput:
     points2d: np.ndarray | None = None
     points3d: np.ndarray | None = None
     frontend_seconds: float = 0.0
-
-
-def frame_feedback(estimate: RSPoseEstimate | None) -> FrameFeedback | None:
-    """What a camera's front end is told of a frame its estimate solved (or failed):
-    :class:`~rs_localizer.correspondences.FrameFeedback` of the estimate's ``success``,
-    ``inliers`` (M,) over the rows it was given and ``model``; None for None (the estimator
-    raised). :meth:`SequenceLocalizer.process_image` calls the front end's ``observe`` with it;
-    so does a caller driving a front end by hand."""
-    if estimate is None:
-        return None
-    return FrameFeedback(estimate.success, estimate.inliers, estimate.model)
 
 
 class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
@@ -494,7 +482,8 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         (``frontend.process(image, camera, encoding, prediction)``, with the frame's
         :meth:`predict`; its one-time warning logged), the rows the estimator can use
         (:meth:`valid_rows`), :meth:`process`, then the front end told how the frame was
-        solved (``frontend.observe`` with its :func:`frame_feedback`; an error there is logged,
+        solved (``frontend.observe`` with its estimate, a
+        :class:`~rs_localizer.correspondences.FrameFeedback`; an error there is logged,
         the frame goes on). The calls are those of
         :class:`~rs_localizer.correspondences.VideoFrontend`.
 
@@ -555,7 +544,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
         res = self._process(SequenceFrame(stamp, camera, uv, xyz, scores, tag), t)
-        fe.observe(stamp, uv, frame_feedback(res.estimate))
+        fe.observe(stamp, uv, res.estimate)
         res.correspondences, res.frontend_seconds = found, out.frontend_seconds
         res.points2d, res.points3d = uv, xyz
         return res

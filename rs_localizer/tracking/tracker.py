@@ -203,7 +203,7 @@ class CarriedPrediction:
         for stamp, image in video:
             c = frontend.process(image, camera, "rgb8", carry.predict(stamp, camera))
             est = estimate_rs_pose(c.points2d, c.points, camera)
-            frontend.observe(stamp, None, frame_feedback(est))  # (tracking.sequence)
+            frontend.observe(stamp, None, est)  # (the estimate: its FrameFeedback)
             carry.update(stamp, est)
 
     Args:

@@ -12,7 +12,12 @@ from rs_localizer.estimation import (
     RansacOptions,
     estimate_rs_pose,
 )
-from rs_localizer.estimation.rig import RIG_FAILURE_REASONS, RigView, estimate_rig_pose
+from rs_localizer.estimation.rig import (
+    RIG_FAILURE_REASONS,
+    RigView,
+    camera_estimate,
+    estimate_rig_pose,
+)
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
 from rs_localizer.sim import rig as sim_rig
@@ -362,6 +367,47 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
             np.linalg.norm(mine.w - one.model.w)
             < 0.3 * np.linalg.norm(one.model.w - truth.w) + 1e-6
         )
+        # the camera's part of the rig's estimate, what its front end and debug image get: as
+        # the camera's own estimate (its inliers; its error of them in px, the same within
+        # the two models' difference)
+        part = camera_estimate(est, 0, v.camera, v.R_mount, v.c_mount, 0.0, v.uv, v.X)
+        assert part.success
+        for a, b in zip(part.model, mine, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(part.inliers, one.inliers)
+        np.testing.assert_allclose(part.pose.position, one.pose.position, atol=1e-3)
+        assert part.rmse_px == pytest.approx(one.rmse_px, rel=0.05)
+
+
+def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
+    """camera_estimate against an independent computation: the camera's model through its
+    mounting and stamp offset (the rig's capture-time model composed by hand), its view's
+    inliers, their RMS error under the camera's projection of that model; a failed rig
+    frame gives a failed part with no inliers."""
+    rng = np.random.default_rng(41)
+    rig = sim_rig.make_rig(3, rng)
+    f = sim_rig.rig_frame(rig, rig_truth(rng), [60] * 3, rng, 0.5, 0.1)
+    est = estimate_rig_pose(f.views)
+    assert est.success
+    R, C, w, t = est.model
+    for k, v in enumerate(f.views):
+        part = camera_estimate(est, k, v.camera, v.R_mount, v.c_mount, v.stamp_offset, v.uv, v.X)
+        s, spr = v.stamp_offset, v.camera.seconds_per_unit_r
+        Rs = rotvec_to_matrix(s * w) @ R  # (the rig at the camera's reference time)
+        np.testing.assert_allclose(part.model.R, v.R_mount @ Rs, atol=1e-12)
+        np.testing.assert_allclose(part.model.C, v.R_mount @ (C + s * t) + v.c_mount, atol=1e-12)
+        np.testing.assert_allclose(part.model.w, spr * v.R_mount @ w, atol=1e-15)
+        np.testing.assert_array_equal(part.inliers, est.inliers_per_view[k])
+        inl = part.inliers
+        e = v.camera.project_rs(v.X[inl], *part.model) - v.uv[inl]
+        assert part.rmse_px == pytest.approx(np.sqrt(np.mean(np.sum(e * e, axis=1))))
+        assert 0.3 < part.rmse_px < 1.5  # (0.5 px noise per axis)
+        np.testing.assert_allclose(part.pose.orientation, part.model.R.T)
+    v = f.views[0]
+    failed = estimate_rig_pose([replace(v, uv=v.uv[:2], X=v.X[:2])])
+    assert failed.failure == "too_few_points"
+    part = camera_estimate(failed, 0, v.camera, v.R_mount, v.c_mount, 0.0, v.uv[:2], v.X[:2])
+    assert not part.success and not part.inliers.any() and np.isnan(part.rmse_px)
 
 
 def _poselib_pose(views):

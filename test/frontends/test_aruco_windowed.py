@@ -11,7 +11,6 @@ from rs_localizer.frontends.image import to_gray
 from rs_localizer.frontends.marker_detection import apriltag_binding
 from rs_localizer.sim.aruco_video import FPS, render_video, run_interleaved
 from rs_localizer.sim.render import NoiseModel, Renderer, make_motion
-from rs_localizer.tracking.sequence import frame_feedback
 from rs_localizer.tracking.tracker import CarriedPrediction
 
 
@@ -37,7 +36,7 @@ def test_windowed_corners_equal_full_frame(video):
     carry = CarriedPrediction()
     _, est, stamp = _solve(win, frames[0], camera, carry)
     assert win.last_kind == "full" and est.success  # no prediction on the first frame
-    win.observe(stamp, None, frame_feedback(est))
+    win.observe(stamp, None, est)
     f = frames[1]
     c_w, _, _ = _solve(win, f, camera, carry)
     assert win.last_kind == "windowed" and len(win.last_windows) > 1
@@ -66,7 +65,7 @@ def test_fallback_after_loss_and_periodic(video):
         _, est, stamp = _solve(fe, f, camera, carry)
         kinds.append(fe.last_kind)
         # (frame 3: a failed estimate)
-        fe.observe(stamp, None, None if k == 3 else frame_feedback(est))
+        fe.observe(stamp, None, None if k == 3 else est)
     # first frame full; after the failure at frame 3 the next one is full; at least every
     # 3rd frame full; windowed in between
     assert kinds[0] == "full" and kinds[4] == "full"
@@ -108,7 +107,7 @@ def test_markers_not_seen_last_frame_are_searched_where_predicted(video):
     est = estimate_rs_pose(c0.points2d, c0.points, camera, "r6p_1lin")
     assert est.success
     carry.update(stamp, est)
-    win.observe(stamp, None, frame_feedback(est))
+    win.observe(stamp, None, est)
     c_w, _, _ = _solve(win, frames[1], camera, carry)
     c_f = full.process(frames[1].image, camera)
     assert win.last_kind == "windowed"
@@ -132,7 +131,7 @@ def test_a_marker_missing_where_predicted_keeps_the_windows(video):
         )
         carry = CarriedPrediction()
         _, est, stamp = _solve(fe, frames[0], camera, carry)
-        fe.observe(stamp, None, frame_feedback(est))
+        fe.observe(stamp, None, est)
         f = frames[1]
         stamp = int(round(f.t_first * 1e9))
         pred = carry.predict(stamp, camera)
@@ -152,7 +151,7 @@ def test_a_marker_missing_where_predicted_keeps_the_windows(video):
         c = fe.process(img, camera, prediction=pred)
         assert fe.last_kind == "windowed"
         est = estimate_rs_pose(c.points2d, c.points, camera, "r6p_1lin")
-        fe.observe(stamp, None, frame_feedback(est))
+        fe.observe(stamp, None, est)
         carry.update(stamp, est)
         _solve(fe, frames[2], camera, carry)
         kinds[case] = fe.last_kind
@@ -183,7 +182,7 @@ def test_full_frame_when_windows_cover_most_of_it_or_the_image_is_small(video):
         kinds = []
         for f in frames[:3]:
             c, est, stamp = _solve(fe, f, camera, carry)
-            fe.observe(stamp, None, frame_feedback(est))
+            fe.observe(stamp, None, est)
             kinds.append(fe.last_kind)
         n[name] = len(c)
         if name == "windows":
@@ -215,7 +214,7 @@ def test_windowed_search_uses_the_apriltag_library():
     assert win.detector.backend == "apriltag"
     carry = CarriedPrediction()
     _, est, stamp = _solve(win, frames[0], camera, carry)
-    win.observe(stamp, None, frame_feedback(est))
+    win.observe(stamp, None, est)
     called = []
     orig = cv_compat.MarkerDetector.detect
     cv_compat.MarkerDetector.detect = lambda *a: called.append(1) or orig(*a)

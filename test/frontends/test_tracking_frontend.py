@@ -13,7 +13,6 @@ from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.maps.features import FeatureMap
-from rs_localizer.tracking.sequence import frame_feedback
 from rs_localizer.tracking.tracker import CarriedPrediction
 
 pytestmark = pytest.mark.slow  # (renders a map and a video)
@@ -38,7 +37,7 @@ def _run(fe, frames, camera, blank=(), shift_ns=None, times=None):
         if times is not None:  # (the front end's time per frame, s)
             times.append(time.perf_counter() - t0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
-        fe.observe(stamp, None, frame_feedback(est))
+        fe.observe(stamp, None, est)
         carry.update(stamp, est)
         fe.wait_refresh(60.0)
         ok = est is not None and est.success
@@ -229,7 +228,7 @@ def test_tracks_stay_on_their_detections_between_refreshes(long_video):
             reanchored.append(bool(np.any(fe._out_anc == fe._index)))
             joins.append(rep.guided > 0)
         est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
-        fe.observe(stamp, None, frame_feedback(est))
+        fe.observe(stamp, None, est)
         carry.update(stamp, est)
         fe.wait_refresh(60.0)
     reanchored, joins = np.array(reanchored), np.array(joins)

@@ -11,7 +11,7 @@ from helpers.videos import shake_video
 from rs_localizer.estimation.estimate import estimate_rs_pose
 from rs_localizer.frontends.tracking import TrackingFeatureFrontend
 from rs_localizer.geometry import rotation_angle_deg
-from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings, frame_feedback
+from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 from rs_localizer.tracking.tracker import CarriedPrediction
 
 pytestmark = pytest.mark.slow  # (renders a map and a 40-frame video)
@@ -91,7 +91,7 @@ def test_collapsed_tracks_are_matched_whole(video):
             pred = carry.predict(stamp, camera)
             uv, X, _ = fe.process(image, camera, "rgb8", prediction=pred)
             est = estimate_rs_pose(uv, X, camera) if len(uv) >= 6 else None
-            fe.observe(stamp, None, frame_feedback(est))
+            fe.observe(stamp, None, est)
             carry.update(stamp, est)
             fe.wait_refresh(60.0)
         got[ratio] = (fe.report.kind, fe.report.reason, len(uv), est)
