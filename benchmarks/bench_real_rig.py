@@ -57,6 +57,8 @@ camera's detection messages in stamp order into a
 twist; ``--stop-after`` and ``--max-gap`` its settings): how many of its rig frames are
 exactly the benchmark's (by stamp and cameras with tags); the rig frames with tags in two or
 more cameras it posed and refused (by reason), against the rig frames posed alone (part 1);
+how many rig frames' measurements lie beyond the :data:`GATE` chi-square quantile of the
+track's prediction (their normalized innovation squared, the fused states' ``nis``);
 rotation and position errors against the reference over the rig frames both posed, of the
 video, the rig frame alone and PoseLib; the frames only one of the two posed, with PoseLib's
 errors on them; CPU time per rig frame with tags.
@@ -76,6 +78,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.stats import chi2
 
 from benchmarks.tagslam_data import FOLDER, RealRig, errors, extrinsics, load_tagslam
 from rs_localizer.camera import CameraModel
@@ -84,6 +87,10 @@ from rs_localizer.estimation.rig import RIG_OPTIONS, RigView, estimate_rig_pose
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
+
+#: the chi-square quantile of the track's prediction the ``--video`` output counts beyond (the
+#: twist filter's default gate)
+GATE = 0.9999
 
 __all__ = [
     "calibrate",
@@ -222,7 +229,9 @@ def video_run(
         reference pose, ``"grouping": (rig frames out, rig frames out that are exactly one
         of the benchmark's by stamp and cameras with tags)``, ``"cpu_s"``: CPU time of every
         ``add`` and ``close``, ``"rig_frames"``: rig frames out, ``"with_tags"``: rig frames
-        with tags fed, ``"counts"``: the localizer's counters, ``"outputs"``: its
+        with tags fed, ``"innovations"``: ``(NIS, dimension)`` of each posed rig frame's
+        measurement against the track's prediction (its fused state's ``nis``; a rig frame that
+        started the track has none), ``"counts"``: the localizer's counters, ``"outputs"``: its
         :class:`~rs_localizer.tracking.rig.RigOutput` s, ``"settings"``}``.
     """
     from rs_localizer.tracking.rig import (
@@ -282,8 +291,16 @@ def video_run(
             if o.success
             else None,
         }
+    ests = {o.stamp_ns: o.estimate for o in outs if o.success}
+    nis = [
+        (f.state.nis, 12 if ests[f.pose.stamp_ns].twist_covariance is not None else 6)
+        for o in outs
+        for f in o.fused
+        if f.state is not None and np.isfinite(f.state.nis) and f.pose.stamp_ns in ests
+    ]
     return {
         "rows": rows,
+        "innovations": nis,
         "grouping": (len(outs), exact),
         "cpu_s": cpu,
         "rig_frames": len(outs),
@@ -501,6 +518,12 @@ def _print_video(rig: RealRig, runs: list, v: dict, share: str) -> None:
         + (", ".join(f"{f} {k}" for f, k in sorted(lost.items())) or "none")
         + f"; posed by the video only: {gained}; paths: "
         + ", ".join(f"{p} {k}" for p, k in sorted(paths.items(), key=lambda x: str(x[0])))
+    )
+    inn = v["innovations"]
+    beyond = sum(n > chi2.ppf(GATE, m) for n, m in inn)
+    print(
+        f"  the track's prediction: {beyond} of the {len(inn)} rig frames' measurements fused or "
+        f"gated against it are beyond its {100 * GATE:g} % gate (normalized innovation squared)"
     )
     both = [t for t in posed if alone[t]["ours"] is not None]
     print(

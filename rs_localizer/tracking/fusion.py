@@ -40,12 +40,20 @@ velocity model it adds ``G diag(acceleration_std^2) G^T`` to the covariance. Wit
 per-frame covariance is 2.5x (walk) to 13x (hand-held shake) too small in variance (NEES of the
 12 pose and twist errors 31 and 155 instead of 12 on the synthetic sequences; 12 and 13 with
 the true accelerations' shift removed). ``measurement_scale`` can still inflate it.
-Measurements whose normalized innovation squared exceeds the ``gate`` quantile of the
-chi-square distribution are not fused; the filter restarts from the measurement after
-``max_rejections`` consecutive rejections (at once when the caller says the frame was
-relocalized), and on a stamp going back or a gap longer than ``max_gap``. A (re)start takes
-the frame's estimate as refined, the motion prior it used included (:meth:`TwistFilter._start`):
-the prior is taken out of the frames fused into a running filter only.
+
+A pose-only measurement (a global shutter: the frame says nothing of the velocities, the filter
+has them from the differences of consecutive poses) is scaled by a factor the filter learns
+from its own innovations (``adaptive_scale``). The stated covariance of a pose fitted to marker
+corners holds the corners' noise only, not the error of the map, the mountings and the
+lenses' calibration, which moves the pose by a step whenever other tags or cameras come into
+view; the filter would take such steps for motion, difference them into velocity and
+acceleration, and extrapolate them into a prediction off by far more than its covariance
+says. The factor (never below 1: a measurement is never taken as more precise than stated, at
+most :data:`ADAPT_MAX_SCALE`) rises by ``exp(ADAPT_RATE)`` (about) after each pose measurement
+whose normalized innovation squared is beyond the :data:`ADAPT_QUANTILE` quantile of the
+chi-square distribution and falls slowly after the others, so that that share of them falls
+within it; a frame that restarts the filter does not count, and the factor is kept when the
+filter restarts. Measurements with a twist (rolling shutter) are not scaled.
 """
 
 from __future__ import annotations
@@ -67,10 +75,27 @@ from ..estimation.implementation import compiled_by_default
 from ..estimation.prior import MotionPrior, prior_arrays
 from ..pose import PoseMeasurement, RSPose
 
-__all__ = ["MODELS", "FusedState", "FusionOptions", "FusionStep", "TwistFilter"]
+__all__ = [
+    "ADAPT_MAX_SCALE",
+    "ADAPT_QUANTILE",
+    "ADAPT_RATE",
+    "MODELS",
+    "FusedState",
+    "FusionOptions",
+    "FusionStep",
+    "TwistFilter",
+]
 
 #: process models: constant acceleration (18 error states per frame) or constant velocity (12)
 MODELS = ("acceleration", "velocity")
+#: the pose measurements' learned scale (``FusionOptions.adaptive_scale``) keeps this share of
+#: their normalized innovations squared within the chi-square quantile of 6 degrees of freedom
+ADAPT_QUANTILE = 0.99
+#: the learned scale's step (natural log) per pose measurement beyond that quantile (it falls
+#: by ``ADAPT_RATE (1 - ADAPT_QUANTILE)`` per one within)
+ADAPT_RATE = 0.2
+#: the largest learned scale of the pose measurements' covariance (in variance)
+ADAPT_MAX_SCALE = 1e4
 
 
 @dataclass(frozen=True)
@@ -96,6 +121,9 @@ class FusionOptions:
         initial_velocity: prior standard deviation of each velocity (rad/s, m/s) when the
             filter starts from an estimate without twist covariance (global shutter).
         max_gap: seconds; a longer gap between two frames restarts the filter.
+        adaptive_scale: pose-only measurements (no twist covariance: a global shutter) are
+            scaled, on top of ``measurement_scale``, by a factor learned from their
+            innovations (module docstring; :attr:`TwistFilter.pose_scale`).
     """
 
     model: str = "acceleration"
@@ -109,6 +137,7 @@ class FusionOptions:
     linear_acceleration_std: float = 10.0
     initial_velocity: float = 10.0
     max_gap: float = 0.5
+    adaptive_scale: bool = True
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -822,6 +851,8 @@ class TwistFilter:
         options: :class:`FusionOptions`.
 
     Attributes:
+        pose_scale: the learned factor on the covariance of pose-only measurements (>= 1;
+            1 without ``adaptive_scale``; see the module docstring), kept by :meth:`reset`.
         compiled: the filter's steps run as numba kernels (default: unless this process
             cannot compile them, :func:`~rs_localizer.estimation.implementation.
             compiled_by_default`); False: the same code as plain Python, which compiles
@@ -839,6 +870,8 @@ class TwistFilter:
         self._qa, self._ql = float(o.angular_noise) ** 2, float(o.linear_noise) ** 2
         self._acc_var = np.repeat([o.angular_acceleration_std**2, o.linear_acceleration_std**2], 3)
         self._scale = float(o.measurement_scale)
+        self.pose_scale = 1.0
+        self._adapt_limit = float(chi2.ppf(ADAPT_QUANTILE, 6))
         self.reset()
 
     @property
@@ -848,7 +881,8 @@ class TwistFilter:
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
-        """Forget everything (frames not yet returned are dropped; see :meth:`flush`)."""
+        """Forget the state (frames not yet returned are dropped; see :meth:`flush`); the
+        learned :attr:`pose_scale` is kept."""
         self.window: list[_Entry] = []  # newest first
         self.X = np.zeros((0, _ROW))
         self.P = np.zeros((0, 0))
@@ -970,7 +1004,7 @@ class TwistFilter:
         if args is None:
             return None
         ok, deprior, Ori, p, w, v, R, G, has_G = self._k.prepare_measurement(
-            *args, self._scale, self._acc, self._acc_var
+            *args, self._scale_of(args[0]), self._acc, self._acc_var
         )
         if not ok:
             return None
@@ -978,6 +1012,19 @@ class TwistFilter:
         z.G = G if has_G else None
         z.deprior = deprior
         return z
+
+    def _scale_of(self, m: int) -> float:
+        """The factor on the covariance of a measurement of ``m`` (12 or 6) values:
+        ``measurement_scale``, times :attr:`pose_scale` for a pose only."""
+        return self._scale * self.pose_scale if m == 6 else self._scale
+
+    def _learn(self, nis: float, m: int) -> None:
+        """Move :attr:`pose_scale` after a pose-only measurement whose normalized innovation
+        squared was ``nis`` (module docstring)."""
+        if m != 6 or not self.options.adaptive_scale or np.isnan(nis):
+            return
+        step = ADAPT_RATE * (float(nis > self._adapt_limit) - (1.0 - ADAPT_QUANTILE))
+        self.pose_scale = min(max(self.pose_scale * float(np.exp(step)), 1.0), ADAPT_MAX_SCALE)
 
     def _start(self, stamp_ns, z) -> None:
         """(Re)start the window from the measurement ``z`` of one frame, taken with the
@@ -1083,7 +1130,7 @@ class TwistFilter:
             self._ql,
             self._limit.get(args[0], np.inf),
             *args,
-            self._scale,
+            self._scale_of(args[0]),
             self._acc_var,
         )
         for e in self.window[keep:]:  # fell out of the window (returned already unless lag 0)
@@ -1103,7 +1150,9 @@ class TwistFilter:
                 self._start(stamp_ns, self._measurement(estimate))
                 self.window[0].nis = nis
                 return FusionStep(self._snapshot(), flushed + self._finalize())
+            self._learn(nis, args[0])
             return FusionStep(self._snapshot(), self._finalize())
+        self._learn(nis, args[0])
         self.rejections = 0
         new.fused = True
         return FusionStep(self._snapshot(), self._finalize())
