@@ -200,8 +200,9 @@ CONTRADICTION_MIN_M = 0.02
 #: fit it): the rig frame is posed by two cameras and the track's prediction does not
 #: refuse it (on TagSLAM's fisheye rigs, ``python -m benchmarks.bench_real_rig --video``, the
 #: 10 such rig frames of ``test_5`` whose prediction, 1.4-10.5 deg off, contradicts them are
-#: within 0.44 deg and 9.2 mm of the reference). Not at a track's start (``unconfirmed``): there nothing else checks the pose,
-#: and a joint fit of 8 and 4 corners can explain them all 2 degrees off
+#: within 0.44 deg and 9.2 mm of the reference). Not at a track's start (``unconfirmed``):
+#: there nothing else checks the pose, and a joint fit of 8 and 4 corners can explain them all
+#: 2 degrees off
 CONFIRM_MIN_INLIERS = 4
 #: a camera is *apart* (its clock likely off) when it missed, or was alone in, at least
 #: APART_SHARE of its last APART_HISTORY rig frames as ``apart`` (at least APART_MIN of them)
