@@ -87,10 +87,11 @@ from rs_localizer.estimation.rig import RIG_OPTIONS, RigView, estimate_rig_pose
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
+from rs_localizer.tracking.fusion import FusionOptions
 
 #: the chi-square quantile of the track's prediction the ``--video`` output counts beyond (the
 #: twist filter's default gate)
-GATE = 0.9999
+GATE = FusionOptions().gate
 
 __all__ = [
     "calibrate",

@@ -1454,8 +1454,7 @@ def estimate_rig_pose(
     refinement and covariance of the pose alone) with ``w = t = 0`` and ``motion_model``
     ``"global_shutter"``. So is a rig frame whose rolling-shutter estimate fails
     (``implausible_motion``, ``too_few_inliers``) and whose points show no motion
-    (:func:`_still_if_no_motion`:
-    cameras that read out in nanoseconds to microseconds).
+    (:func:`_still_if_no_motion`: cameras that read out in nanoseconds to microseconds).
 
     The cameras' consensus: a pose is returned only when the cameras with points agree on it.
     Every camera with at least :data:`VOTE_MIN_POINTS` valid points votes; one whose inlier
@@ -1813,14 +1812,13 @@ def _verified(views, pool, est, threshold_px, voters, solve, prediction):
 def _disagree(est: RSPoseEstimate, pool: _Pool, cams: set[int]) -> RSPoseEstimate:
     """The failure ``cameras_disagree`` of cameras ``cams``, with the joint estimate's per
     camera counts."""
-    z = np.zeros(3)
-    none = np.zeros(len(pool.cam), dtype=bool)
+    none, identity = np.zeros(len(pool.cam), dtype=bool), RSModel.identity()
     return replace(
-        est, success=False, failure=CAMERAS_DISAGREE, model=RSModel.identity(),
+        est, success=False, failure=CAMERAS_DISAGREE, model=identity,
         inliers=np.zeros(len(est.inliers), dtype=bool), inliers_per_view=pool.per_camera(none),
         rmse_px=np.nan, num_behind=0, num_dropped=est.num_dropped - est.num_behind,
         covariance=None, model_covariance=None, acceleration_sensitivity=None,
-        disagreeing=tuple(sorted(cams)), pose=RSPose.from_model(RSModel(np.eye(3), z, z, z), 1.0),
+        disagreeing=tuple(sorted(cams)), pose=RSPose.from_model(identity, 1.0),
         pose_covariance=None, twist_covariance=None,
     )  # fmt: skip
 

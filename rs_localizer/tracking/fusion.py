@@ -1150,9 +1150,8 @@ class TwistFilter:
                 self._start(stamp_ns, self._measurement(estimate))
                 self.window[0].nis = nis
                 return FusionStep(self._snapshot(), flushed + self._finalize())
-            self._learn(nis, args[0])
-            return FusionStep(self._snapshot(), self._finalize())
-        self._learn(nis, args[0])
-        self.rejections = 0
-        new.fused = True
+        else:
+            self.rejections = 0
+            new.fused = True
+        self._learn(nis, args[0])  # (fused or gated out; not a frame that restarts the filter)
         return FusionStep(self._snapshot(), self._finalize())
