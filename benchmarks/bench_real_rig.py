@@ -142,10 +142,10 @@ def ours_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
 
 def pixel_refit(rig: RealRig, views: dict, R: np.ndarray, C: np.ndarray, scale: float = 2.0):
     """``(R, C)`` refined on the distorted pixels (SciPy ``least_squares``, Huber loss at
-    ``scale`` px, every corner): the cost PoseLib minimizes. Printed next to the rig estimator
-    to show how much of the gap to PoseLib is the estimator's cost (errors in the undistorted
-    image plane times the focal length, which stretch a fisheye lens's radial errors towards
-    the image's edge) rather than its search."""
+    ``scale`` px, every corner, none left out as an outlier): the cost PoseLib minimizes.
+    Printed next to the rig estimator, whose residuals are pixels of the measured image too:
+    where the two differ, the difference is the corners the estimator left out (beyond
+    ``FINAL_CUTOFF`` thresholds, or the inliers' own fit kept), not the cost."""
     from scipy.optimize import least_squares
 
     from rs_localizer.geometry import rotvec_to_matrix
