@@ -233,9 +233,9 @@ _RIG = """
 import json
 import numpy as np
 from rs_localizer.camera import CameraModel
+from rs_localizer.frames import Mounting
 from rs_localizer.frontends import make_frontend
 from rs_localizer.sim.render.rig import vga_rig
-from rs_localizer.frames import Mounting
 from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 SHAPES = {shapes!r}
 cams = vga_rig(2)
