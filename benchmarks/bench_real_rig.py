@@ -86,6 +86,7 @@ from rs_localizer.estimation import estimate_rs_pose
 from rs_localizer.estimation.rig import RIG_OPTIONS, RigView, estimate_rig_pose
 from rs_localizer.experiments.references import poselib_matched_options
 from rs_localizer.experiments.timing import one_thread
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.tracking.fusion import FusionOptions
 
@@ -135,7 +136,10 @@ def poselib_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
 
 def ours_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
     """The rig estimator on one rig frame: ``(R, C)`` world -> rig, or its failure reason."""
-    rv = [RigView(uv, X, rig.cameras[n], *rig.mounts[n], name=n) for n, (uv, X) in views.items()]
+    rv = [
+        RigView(uv, X, rig.cameras[n], Mounting(*rig.mounts[n]), name=n)
+        for n, (uv, X) in views.items()
+    ]
     e = estimate_rig_pose(rv, options)
     return (e.model.R, e.model.C) if e.success else e.failure
 
@@ -238,12 +242,11 @@ def video_run(
     from rs_localizer.tracking.rig import (
         RigCameraFrame,
         RigLocalizer,
-        RigMount,
         RigSettings,
         RigTrackingOptions,
     )
 
-    settings = RigSettings({n: RigMount(*rig.mounts[n]) for n in rig.cameras}, options=options)
+    settings = RigSettings({n: Mounting(*rig.mounts[n]) for n in rig.cameras}, options=options)
     if stop_after is not None:
         settings = replace(settings, stop_after=stop_after)
     if max_gap is not None:
@@ -358,7 +361,7 @@ def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | Non
     ``calibrate-rig`` reads them; ``reference``, default the first camera, at its reference
     extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result."""
     from rs_localizer.calibration import calibrate_mountings
-    from rs_localizer.tracking.rig import RigCameraFrame, RigMount
+    from rs_localizer.tracking.rig import RigCameraFrame
 
     ref = reference or next(iter(rig.cameras))
     cam_frames = [
@@ -367,7 +370,7 @@ def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | Non
         for n, (uv, X) in views.items()
     ]
     return calibrate_mountings(
-        cam_frames, ref, reference_mount=RigMount(*rig.mounts[ref]), min_inliers=min_inliers
+        cam_frames, ref, reference_mount=Mounting(*rig.mounts[ref]), min_inliers=min_inliers
     )
 
 
@@ -423,8 +426,8 @@ def calibrated_rig_run(rig: RealRig, estimates: dict, frames: int | None = None)
             rv = []
             for n, (uv, X) in views.items():
                 m = estimates[n].mount
-                cov = None if exact else m.covariance
-                rv.append(RigView(uv, X, rig.cameras[n], m.R, m.c, name=n, mount_covariance=cov))
+                m = Mounting(m.R, m.c) if exact else m
+                rv.append(RigView(uv, X, rig.cameras[n], m, name=n))
             e = estimate_rig_pose(rv, RIG_OPTIONS)
             if not e.success or e.covariance is None:
                 continue

@@ -108,7 +108,7 @@ def _poselib(views):
         pts2.append(np.asarray(v.uv, dtype=float))
         pts3.append(np.asarray(v.X, dtype=float))
         e = poselib.CameraPose()
-        e.R, e.t = v.R_mount, v.c_mount
+        e.R, e.t = v.mounting.R, v.mounting.c
         ext.append(e)
         cams.append(
             {
@@ -161,7 +161,7 @@ def run(m: int, frames: int, points: int, seed: int = 0) -> dict:
             total += dt1
             if e1.success:
                 mdl = rig_model_of_camera(
-                    e1.model, k.R_mount, k.c_mount, k.stamp_offset, k.camera.seconds_per_unit_r
+                    e1.model, k.mounting, k.stamp_offset, k.camera.seconds_per_unit_r
                 )
                 alone.append(mdl)
                 add(f"camera {k.name}", errors(mdl, truth), dt1)
@@ -203,7 +203,7 @@ def few_points(frames: int, seed: int = 0, counts=(20, 3)) -> dict:
         if est.success:
             posed += 1
             mdl = camera_model_of_rig(
-                est.model, k.R_mount, k.c_mount, k.stamp_offset, k.camera.seconds_per_unit_r
+                est.model, k.mounting, k.stamp_offset, k.camera.seconds_per_unit_r
             )
             rig_err.append(cam_err(mdl, true0))
         else:

@@ -18,9 +18,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from rs_localizer.calibration import calibrate_mountings
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -33,7 +34,7 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
     cams = default_rig(a.cameras)
     by = {c.name: c.camera for c in cams}
-    truth = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    truth = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     cal, _, _ = generate_rig_video(cams, duration=a.calibrate, num_points=150, seed=21)
     fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in cal]
     est = calibrate_mountings(fr, cams[0].name, reference_mount=truth[cams[0].name])
@@ -45,7 +46,7 @@ def main(argv=None) -> None:
     loc, _, traj = generate_rig_video(cams, duration=a.localize, num_points=150, seed=22)
     k = chi2.ppf(0.9973, 3)
     for label, exact in (("mountings taken as exact", True), ("with their covariance", False)):
-        mounts = {n: RigMount(e.mount.R, e.mount.c) if exact else e.mount for n, e in est.items()}
+        mounts = {n: Mounting(e.mount.R, e.mount.c) if exact else e.mount for n, e in est.items()}
         rig = RigLocalizer(RigSettings(mounts))
         outs = []
         for f in loc:

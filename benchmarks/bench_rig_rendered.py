@@ -90,7 +90,7 @@ def _undistorted_views(views):
         xn = v.camera.undistort(v.uv)
         K = v.camera.K
         uv = xn @ K[:2, :2].T + K[:2, 2]
-        out.append(RigView(uv, v.X, v.camera, v.R_mount, v.c_mount, v.stamp_offset, v.name))
+        out.append(RigView(uv, v.X, v.camera, v.mounting, v.stamp_offset, v.name))
     return out
 
 
@@ -133,9 +133,7 @@ def run(rendered: dict, fps: float = 30.0) -> dict:
         for c in cams:
             f = fr[(c.name, k)]
             t_ref = c.offset + k / fps + float(c.camera.line_time(c.camera.reference_line))
-            views.append(
-                RigView(f.uv, f.xyz, c.camera, c.R_mount, c.c_mount, t_ref - t_rig, c.name)
-            )
+            views.append(RigView(f.uv, f.xyz, c.camera, c.mounting, t_ref - t_rig, c.name))
         points.append([len(v.uv) for v in views])
         est, dt = _timed(lambda views=views: estimate_rig_pose(views, _rig_options()))
         add("rig", _errors(est.pose, truth) if est.success else nan3, dt)
@@ -148,7 +146,7 @@ def run(rendered: dict, fps: float = 30.0) -> dict:
             total += dt1
             if e1.success:
                 mdl = rig_model_of_camera(
-                    e1.model, c.R_mount, c.c_mount, v.stamp_offset, c.camera.seconds_per_unit_r
+                    e1.model, c.mounting, v.stamp_offset, c.camera.seconds_per_unit_r
                 )
                 alone.append(mdl)
                 add(f"camera {c.name}", _errors(RSPose.from_model(mdl, 1.0), truth), dt1)

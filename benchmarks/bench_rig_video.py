@@ -22,10 +22,11 @@ import time
 
 import numpy as np
 
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking import SequenceFrame, SequenceLocalizer
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -72,7 +73,7 @@ def main(argv=None) -> None:
     cams = default_rig(a.cameras)
     frames, _, traj = generate_rig_video(cams, a.seconds, a.points, seed=a.seed)
     by = {c.name: c for c in cams}
-    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     # warm-up (compiled kernels; the NumPy implementation's first calls into SciPy)
     for impl in a.implementations:
         warm = RigLocalizer(RigSettings(mounts), implementation=lambda impl=impl: impl)

@@ -8,9 +8,10 @@ about the *map* axes, ``R_mc = expm([phi]x) R_mc_hat``; twist: vx, vy, vz, wx, w
 camera frame). A robot wants the same quantities for its body frame ``base_link`` (REP 103
 body: x forward, y left, z up).
 
-The camera is rigidly mounted: :class:`Extrinsic` is the pose of the camera optical frame in the
-base frame, ``T_base_cam = (R_bc, t_bc)`` with ``p_base = R_bc p_cam + t_bc`` -- the transform
-``base_link -> camera_optical_frame`` of a static TF publisher (parent base, child camera). Then
+The camera is rigidly mounted: :class:`Mounting` is the pose of the camera optical frame in the
+base frame, ``T_base_cam = (R_bc, t_bc)`` (its ``rotation`` and ``translation``) with
+``p_base = R_bc p_cam + t_bc`` -- the transform ``base_link -> camera_optical_frame`` of a
+static TF publisher (parent base, child camera). Then
 
 * pose: ``T_map_base = T_map_cam T_base_cam^-1``: ``R_mb = R_mc R_bc^T``,
   ``p_b = p_c - R_mb t_bc``;
@@ -25,7 +26,7 @@ Pure NumPy (model layer, no ROS); the node applies :func:`camera_to_base` in its
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -35,7 +36,7 @@ from .pose import PoseWithCovariance, RSPose
 
 __all__ = [
     "OPTICAL_TO_BODY_QUATERNION",
-    "Extrinsic",
+    "Mounting",
     "base_pose",
     "base_pose_covariance",
     "base_twist",
@@ -48,22 +49,89 @@ __all__ = [
 OPTICAL_TO_BODY_QUATERNION = (-0.5, 0.5, -0.5, 0.5)
 
 
-@dataclass(frozen=True)
-class Extrinsic:
-    """Pose of the camera optical frame in the base frame (``base_link -> camera`` transform).
+@dataclass(frozen=True, eq=False)
+class Mounting:
+    """The pose of a camera's optical frame in a body frame (``base_link``, a rig's frame).
+
+    Held in both of its forms, each exactly as it was given (the other derived from it):
+
+    * the estimator's: ``x_cam = R x_body + c`` -- :attr:`R` (3, 3) body -> camera rotation,
+      :attr:`c` (3,) m. ``Mounting(R, c)`` stores them as given.
+    * tf's: ``p_body = rotation p_cam + translation`` -- :attr:`rotation` (3, 3) camera ->
+      body (``R_bc = R^T``), :attr:`translation` (3,) m, the camera's optical centre in the
+      body frame (``t_bc = -R^T c``), the transform ``body -> camera_optical_frame`` of a
+      static TF publisher (parent body, child camera). :meth:`from_pose` and
+      :meth:`from_translation_quaternion` store the translation as given (``R`` is the
+      transpose of the rotation given, ``c = -R translation``).
 
     Attributes:
-        rotation: (3, 3) ``R_bc``, camera-frame vectors -> base-frame vectors.
-        translation: (3,) ``t_bc``, the camera centre in the base frame (m).
+        R: (3, 3) body -> camera optical frame rotation. c: (3,) m.
+        covariance: (6, 6) the mounting's uncertainty over (rotation of the camera on the
+            body [rad, body axes: ``R_body_cam = expm([theta]x) R_body_cam_0``], the camera's
+            position in the body frame [m]), e.g. from
+            :func:`~rs_localizer.calibration.calibrate_mountings`; the rig estimator adds it
+            to the rig pose's covariance. None: the mounting is taken as exact.
+        rotation: (3, 3) ``R_bc = R^T``, camera-frame vectors -> body-frame vectors.
+        translation: (3,) m ``t_bc``, the camera's optical centre in the body frame (also
+            :attr:`position`).
+
+    Raises:
+        ValueError: ``R`` or ``c`` not finite (``a mounting must be finite``), ``R`` not a
+            rotation (``R R^T`` off the identity by more than 1e-6, or a reflection), a
+            covariance that is not (6, 6), finite and positive semi-definite (it is stored
+            symmetrized).
     """
 
-    rotation: np.ndarray
-    translation: np.ndarray
+    R: np.ndarray
+    c: np.ndarray
+    covariance: np.ndarray | None = None
+    rotation: np.ndarray = field(init=False, repr=False)
+    translation: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self):
+        R = np.asarray(self.R, dtype=float).reshape(3, 3)
+        c = np.asarray(self.c, dtype=float).reshape(3)
+        if not (np.isfinite(R).all() and np.isfinite(c).all()):
+            raise ValueError("a mounting must be finite")
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            raise ValueError("a mounting's R must be a rotation")
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "c", c)
+        object.__setattr__(self, "rotation", np.ascontiguousarray(R.T))
+        object.__setattr__(self, "translation", -R.T @ c)
+        if self.covariance is not None:
+            C = np.asarray(self.covariance, dtype=float)
+            if C.shape != (6, 6) or not np.isfinite(C).all():
+                raise ValueError("a mounting's covariance must be (6, 6) and finite")
+            C = 0.5 * (C + C.T)
+            if np.linalg.eigvalsh(C).min() < -1e-12 * max(1.0, float(np.abs(C).max())):
+                raise ValueError("a mounting's covariance must be positive semi-definite")
+            object.__setattr__(self, "covariance", C)
 
     @classmethod
-    def from_translation_quaternion(cls, translation, quaternion) -> Extrinsic:
+    def from_pose(
+        cls, R_body_cam: np.ndarray, p_body_cam: np.ndarray, covariance: np.ndarray | None = None
+    ) -> Mounting:
+        """The mounting of a camera whose optical frame is at ``p_body_cam`` (3,) m in the body
+        frame, turned by ``R_body_cam`` (3, 3) camera -> body (a static transform body ->
+        camera as tf gives it); ``covariance`` as the attribute.
+
+        Raises:
+            ValueError: not finite, not a rotation, or a covariance that is not (6, 6)
+                positive semi-definite.
+        """
+        R = np.asarray(R_body_cam, dtype=float).T
+        p = np.asarray(p_body_cam, dtype=float)
+        mounting = cls(R, -R @ p, covariance)
+        object.__setattr__(mounting, "rotation", mounting.R.T.copy())
+        object.__setattr__(mounting, "translation", p.reshape(3).copy())
+        return mounting
+
+    @classmethod
+    def from_translation_quaternion(cls, translation, quaternion) -> Mounting:
         """From a translation ``(x, y, z)`` in m and a quaternion ``(x, y, z, w)`` (ROS order,
-        normalized here), as in ``static_transform_publisher x y z qx qy qz qw base camera``.
+        normalized here), as in ``static_transform_publisher x y z qx qy qz qw base camera``:
+        :meth:`from_pose` of their rotation and the translation.
 
         Raises:
             ValueError: translation not 3 finite numbers; quaternion not 4 finite numbers or
@@ -82,19 +150,23 @@ class Extrinsic:
             raise ValueError(
                 f"rotation quaternion {q.tolist()} has norm {n:.3g}, expected 1 (order x, y, z, w)"
             )
-        R = Rotation.from_quat(q / n).as_matrix()
-        return cls(rotation=R, translation=t)
+        return cls.from_pose(Rotation.from_quat(q / n).as_matrix(), t)
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) m, the camera's optical centre in the body frame (:attr:`translation`)."""
+        return self.translation
 
     @property
     def matrix(self) -> np.ndarray:
-        """(4, 4) homogeneous ``T_base_cam``."""
+        """(4, 4) homogeneous ``T_body_cam`` (camera -> body)."""
         T = np.eye(4)
         T[:3, :3] = self.rotation
         T[:3, 3] = self.translation
         return T
 
 
-def base_pose(orientation, position, extrinsic: Extrinsic):
+def base_pose(orientation, position, mounting: Mounting):
     """Camera pose in the map -> base pose in the map.
 
     Args:
@@ -102,11 +174,11 @@ def base_pose(orientation, position, extrinsic: Extrinsic):
     Returns:
         ``(R_mb (3, 3), p_b (3,))``: ``R_mb = R_mc R_bc^T``, ``p_b = p_c - R_mb t_bc``.
     """
-    R_mb = np.asarray(orientation, dtype=float) @ extrinsic.rotation.T
-    return R_mb, np.asarray(position, dtype=float) - R_mb @ extrinsic.translation
+    R_mb = np.asarray(orientation, dtype=float) @ mounting.rotation.T
+    return R_mb, np.asarray(position, dtype=float) - R_mb @ mounting.translation
 
 
-def base_twist(angular_velocity, linear_velocity, extrinsic: Extrinsic):
+def base_twist(angular_velocity, linear_velocity, mounting: Mounting):
     """Camera velocity in the camera frame -> the base's rigid-body velocity in the base frame.
 
     Args:
@@ -116,9 +188,9 @@ def base_twist(angular_velocity, linear_velocity, extrinsic: Extrinsic):
         ``(omega_b, v_b)``: ``omega_b = R_bc omega_c``, ``v_b = R_bc v_c + t_bc x omega_b``
         (velocity of the base origin in base axes).
     """
-    om_b = extrinsic.rotation @ np.asarray(angular_velocity, dtype=float)
-    v_b = extrinsic.rotation @ np.asarray(linear_velocity, dtype=float)
-    return om_b, v_b + np.cross(extrinsic.translation, om_b)
+    om_b = mounting.rotation @ np.asarray(angular_velocity, dtype=float)
+    v_b = mounting.rotation @ np.asarray(linear_velocity, dtype=float)
+    return om_b, v_b + np.cross(mounting.translation, om_b)
 
 
 def _covariance6(cov, what: str):
@@ -131,7 +203,7 @@ def _covariance6(cov, what: str):
     return cov
 
 
-def base_pose_covariance(cov, orientation, extrinsic: Extrinsic):
+def base_pose_covariance(cov, orientation, mounting: Mounting):
     """(6, 6) camera pose covariance (ROS order, map frame, map-axis rotation perturbation) ->
     base pose covariance in the same convention (first order). ``None`` stays ``None``.
 
@@ -143,13 +215,13 @@ def base_pose_covariance(cov, orientation, extrinsic: Extrinsic):
     cov = _covariance6(cov, "pose")
     if cov is None:
         return None
-    a = np.asarray(orientation, dtype=float) @ extrinsic.rotation.T @ extrinsic.translation
+    a = np.asarray(orientation, dtype=float) @ mounting.rotation.T @ mounting.translation
     J = np.eye(6)
     J[0:3, 3:6] = skew(a)
     return J @ cov @ J.T
 
 
-def base_twist_covariance(cov, extrinsic: Extrinsic):
+def base_twist_covariance(cov, mounting: Mounting):
     """(6, 6) camera twist covariance (vx, vy, vz, wx, wy, wz; camera frame) -> base twist
     covariance (base frame); exact, the map is linear. ``None`` stays ``None``.
 
@@ -159,7 +231,7 @@ def base_twist_covariance(cov, extrinsic: Extrinsic):
     cov = _covariance6(cov, "twist")
     if cov is None:
         return None
-    R, t = extrinsic.rotation, extrinsic.translation
+    R, t = mounting.rotation, mounting.translation
     J = np.zeros((6, 6))
     J[0:3, 0:3] = R
     J[0:3, 3:6] = skew(t) @ R
@@ -167,7 +239,7 @@ def base_twist_covariance(cov, extrinsic: Extrinsic):
     return J @ cov @ J.T
 
 
-def camera_to_base(camera: PoseWithCovariance, extrinsic: Extrinsic) -> PoseWithCovariance:
+def camera_to_base(camera: PoseWithCovariance, mounting: Mounting) -> PoseWithCovariance:
     """All of it at once: the camera's ``pose`` and (6, 6) ``pose_covariance`` and
     ``twist_covariance`` (or None; e.g. an :class:`~rs_localizer.RSPoseEstimate` or a
     :class:`~rs_localizer.tracking.FusedPose`) -> the base's: ``pose`` orientation (3, 3)
@@ -181,10 +253,10 @@ def camera_to_base(camera: PoseWithCovariance, extrinsic: Extrinsic) -> PoseWith
         ValueError: a covariance that is not 6x6.
     """
     cam = camera.pose
-    R_mb, p_b = base_pose(cam.orientation, cam.position, extrinsic)
-    om_b, v_b = base_twist(cam.angular_velocity, cam.linear_velocity, extrinsic)
+    R_mb, p_b = base_pose(cam.orientation, cam.position, mounting)
+    om_b, v_b = base_twist(cam.angular_velocity, cam.linear_velocity, mounting)
     return PoseWithCovariance(
         pose=RSPose(R_mb, p_b, om_b, v_b, cam.stamp_ns),
-        pose_covariance=base_pose_covariance(camera.pose_covariance, cam.orientation, extrinsic),
-        twist_covariance=base_twist_covariance(camera.twist_covariance, extrinsic),
+        pose_covariance=base_pose_covariance(camera.pose_covariance, cam.orientation, mounting),
+        twist_covariance=base_twist_covariance(camera.twist_covariance, mounting),
     )

@@ -53,14 +53,15 @@ def rig_kernels():
     go on in a node's worker thread after a test that gave up on it."""
     import numpy as np
 
+    from rs_localizer.frames import Mounting
     from rs_localizer.runtime.warmup import warm_rig
-    from rs_localizer.tracking.rig import RigMount, RigSettings
+    from rs_localizer.tracking.rig import RigSettings
     from rs_localizer.tracking.sequence import GyroSettings
 
     turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     mounts = {
-        "a": RigMount.from_pose(np.eye(3), np.zeros(3)),
-        "b": RigMount.from_pose(turn, np.array([0.1, 0.0, 0.0])),
+        "a": Mounting.from_pose(np.eye(3), np.zeros(3)),
+        "b": Mounting.from_pose(turn, np.array([0.1, 0.0, 0.0])),
     }
     warm_rig(RigSettings(mounts))
     warm_rig(RigSettings(mounts, imu=GyroSettings(R_cam_imu=np.eye(3))))

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from rs_localizer.frames import (
     OPTICAL_TO_BODY_QUATERNION,
-    Extrinsic,
+    Mounting,
     base_pose_covariance,
     base_twist_covariance,
     camera_to_base,
@@ -36,13 +36,13 @@ def _Cam(R, p, om, v, pc=None, tc=None):
     return PoseWithCovariance(pose=RSPose(R, p, om, v), pose_covariance=pc, twist_covariance=tc)
 
 
-def _random_extrinsic(rng):
+def _random_mounting(rng):
     q = rng.normal(size=4)
-    return Extrinsic.from_translation_quaternion(rng.uniform(-0.5, 0.5, 3), q / np.linalg.norm(q))
+    return Mounting.from_translation_quaternion(rng.uniform(-0.5, 0.5, 3), q / np.linalg.norm(q))
 
 
 def test_optical_to_body_quaternion_is_the_rep103_axis_change():
-    ext = Extrinsic.from_translation_quaternion([0, 0, 0], OPTICAL_TO_BODY_QUATERNION)
+    ext = Mounting.from_translation_quaternion([0, 0, 0], OPTICAL_TO_BODY_QUATERNION)
     # camera z (forward) = base x, camera x (right) = base -y, camera y (down) = base -z
     np.testing.assert_allclose(ext.rotation @ [0, 0, 1], [1, 0, 0], atol=1e-15)
     np.testing.assert_allclose(ext.rotation @ [1, 0, 0], [0, -1, 0], atol=1e-15)
@@ -53,7 +53,7 @@ def test_optical_to_body_quaternion_is_the_rep103_axis_change():
 def test_pose_and_twist_match_4x4_transforms_and_finite_differences(seed):
     rng = np.random.default_rng(seed)
     traj = Trajectory()
-    ext = _random_extrinsic(rng)
+    ext = _random_mounting(rng)
     T_bc = ext.matrix
     T_cb = np.linalg.inv(T_bc)
 
@@ -81,7 +81,7 @@ def test_pose_and_twist_match_4x4_transforms_and_finite_differences(seed):
 def test_twist_is_the_velocity_of_the_base_origin():
     """A camera 1 m in front of the base, the robot turning on the spot at 1 rad/s about z: the
     camera moves at 1 m/s sideways, the base origin does not move."""
-    ext = Extrinsic.from_translation_quaternion([1.0, 0, 0], OPTICAL_TO_BODY_QUATERNION)
+    ext = Mounting.from_translation_quaternion([1.0, 0, 0], OPTICAL_TO_BODY_QUATERNION)
     om_c = ext.rotation.T @ [0, 0, 1.0]  # yaw rate 1 rad/s in camera axes
     v_c = ext.rotation.T @ [0, 1.0, 0]  # camera centre moving to the left (base +y)
     out = camera_to_base(_Cam(ext.rotation, [1.0, 0, 0], om_c, v_c), ext)
@@ -99,7 +99,7 @@ def _random_cov(rng, scale):
 def test_pose_covariance_matches_the_numerical_jacobian_of_the_4x4_composition():
     rng = np.random.default_rng(7)
     for _ in range(5):
-        ext = _random_extrinsic(rng)
+        ext = _random_mounting(rng)
         R_mc = Rotation.random(random_state=rng).as_matrix()
         p_c = rng.normal(size=3)
         T_cb = np.linalg.inv(ext.matrix)
@@ -139,7 +139,7 @@ def test_twist_covariance_matches_the_numerical_jacobian_of_finite_differences()
     """Camera moving with a constant body twist xi: ``T_mc(s) = T_mc(0) expm(s xi^)``; the
     base's twist comes from finite differences of ``T_mc(s) T_cb``."""
     rng = np.random.default_rng(11)
-    ext = _random_extrinsic(rng)
+    ext = _random_mounting(rng)
     T0 = _T(Rotation.random(random_state=rng).as_matrix(), rng.normal(size=3))
     T_cb = np.linalg.inv(ext.matrix)
 
@@ -166,8 +166,8 @@ def test_twist_covariance_matches_the_numerical_jacobian_of_finite_differences()
     np.testing.assert_allclose(out.twist_covariance, J @ cov @ J.T, atol=1e-7)
 
 
-def test_identity_extrinsic_changes_nothing():
-    ext = Extrinsic.from_translation_quaternion([0, 0, 0], [0, 0, 0, 1])
+def test_identity_mounting_changes_nothing():
+    ext = Mounting.from_translation_quaternion([0, 0, 0], [0, 0, 0, 1])
     rng = np.random.default_rng(3)
     R = Rotation.random(random_state=rng).as_matrix()
     pc, tc = _random_cov(rng, 0.1), _random_cov(rng, 0.1)
@@ -190,14 +190,58 @@ def test_identity_extrinsic_changes_nothing():
         ([0, 0, 0], [0, 0, 0, 5.0]),
     ],
 )
-def test_bad_extrinsic_raises(t, q):
+def test_bad_mounting_raises(t, q):
     with pytest.raises(ValueError):
-        Extrinsic.from_translation_quaternion(t, q)
+        Mounting.from_translation_quaternion(t, q)
 
 
 def test_quaternion_is_normalized():
-    a = Extrinsic.from_translation_quaternion([0, 0, 0], [0, 0, 0.1, 1.0])
+    a = Mounting.from_translation_quaternion([0, 0, 0], [0, 0, 0.1, 1.0])
     np.testing.assert_allclose(a.rotation @ a.rotation.T, np.eye(3), atol=1e-14)
     np.testing.assert_allclose(
         a.rotation, Rotation.from_rotvec([0, 0, 2 * np.arctan(0.1)]).as_matrix(), atol=1e-14
     )
+
+
+def test_mounting_forms_agree_and_keep_what_was_given():
+    rng = np.random.default_rng(7)
+    R_bc = Rotation.random(random_state=3).as_matrix()
+    p = rng.uniform(-0.5, 0.5, 3)
+    tf = Mounting.from_pose(R_bc, p)
+    # tf's form as given, the estimator's form R = R_bc^T, c = -R p
+    assert np.array_equal(tf.rotation, R_bc) and np.array_equal(tf.translation, p)
+    assert np.array_equal(tf.R, R_bc.T) and np.array_equal(tf.c, -R_bc.T @ p)
+    assert np.array_equal(tf.position, p)
+    np.testing.assert_array_equal(tf.matrix, _T(R_bc, p))
+    # the estimator's form as given, tf's derived: x_cam = R x_body + c
+    est = Mounting(tf.R, tf.c)
+    assert np.array_equal(est.R, tf.R) and np.array_equal(est.c, tf.c)
+    np.testing.assert_allclose(est.translation, p, atol=1e-15)
+    np.testing.assert_allclose(est.matrix, tf.matrix, atol=1e-15)
+    x_body = rng.normal(size=3)
+    np.testing.assert_allclose(est.R @ x_body + est.c, np.linalg.solve(tf.matrix, [*x_body, 1])[:3])
+
+
+@pytest.mark.parametrize(
+    "R, c, cov, match",
+    [
+        (np.diag([1.0, 1.0, -1.0]), np.zeros(3), None, "must be a rotation"),
+        (2 * np.eye(3), np.zeros(3), None, "must be a rotation"),
+        (np.eye(3), [0, 0, np.nan], None, "must be finite"),
+        (np.eye(3), np.zeros(3), np.eye(5), r"\(6, 6\) and finite"),
+        (np.eye(3), np.zeros(3), np.full((6, 6), np.inf), r"\(6, 6\) and finite"),
+        (np.eye(3), np.zeros(3), -np.eye(6), "positive semi-definite"),
+    ],
+)
+def test_bad_mounting_is_refused(R, c, cov, match):
+    with pytest.raises(ValueError, match=match):
+        Mounting(R, c, cov)
+
+
+def test_mounting_covariance_is_stored_symmetric():
+    C = np.eye(6) * 1e-4
+    C[0, 1] = 2e-5
+    m = Mounting.from_pose(np.eye(3), np.zeros(3), covariance=C)
+    np.testing.assert_array_equal(m.covariance, m.covariance.T)
+    assert m.covariance[0, 1] == m.covariance[1, 0] == 1e-5
+    assert Mounting(np.eye(3), np.zeros(3)).covariance is None

@@ -25,8 +25,8 @@ LAYER = {
     "cv_compat": 0,  # (OpenCV's API across versions: the board models', detectors', renderer's)
     "solvers": 1,
     "estimation": 2,
+    "calibration": 2.4,  # (mountings, line delay: posed by the estimator)
     "tracking": 2.5,
-    "calibration": 2.6,  # (mountings, line delay: posed by the estimator, RigMount of tracking)
     "runtime": 2.7,  # (warms the tracker up too)
     "frontends": 3,
     "viz": 3,

@@ -67,8 +67,8 @@ POSE_CARRIERS = {
     ("estimation/options.py", "InitialModel"): "a model to start RANSAC from (an RSModel)",
     ("estimation/finalize.py", "FinalModel"): "the refined model before the last checks",
     ("solvers/_common.py", "RSSolution"): "one solver solution (v, C, w, t)",
+    ("frames.py", "Mounting"): "a camera's pose on a body (a rig, base_link): its mounting",
     ("calibration/mountings.py", "MountingEstimate"): "a camera's mounting on the rig",
-    ("tracking/rig.py", "RigMount"): "a camera's mounting, as the rig uses it",
 }
 
 

@@ -5,7 +5,7 @@ mountings start from the cameras' relative poses chained over a spanning tree of
 that share rig frames, then every rig frame's pose and every mounting are adjusted in one
 least-squares problem (:func:`calibrate_mountings`), each mounting with its covariance
 (:class:`MountingEstimate`), which the rig estimator adds to the rig pose's
-(:attr:`~rs_localizer.tracking.rig.RigMount.covariance`). docs/rig_node.md, "Mountings from
+(:attr:`~rs_localizer.frames.Mounting.covariance`). docs/rig_node.md, "Mountings from
 data".
 """
 
@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
+from ..camera import reference_stamp_ns
 from ..estimation.estimate import estimate_rs_pose
+from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
-from ..tracking.rig import RigMount
-from ..tracking.sequence import reference_stamp_ns
 
 __all__ = ["MOUNTING_BIAS_SHARE", "MountingEstimate", "calibrate_mountings"]
 
@@ -30,8 +30,9 @@ class MountingEstimate:
     """A camera's mounting estimated from a rig video (:func:`calibrate_mountings`).
 
     Attributes:
-        name: the camera. mount: its :class:`RigMount` (``x_cam = R x_rig + c``) with its
-            ``covariance`` (None for the reference camera, whose mounting is given).
+        name: the camera. mount: its :class:`~rs_localizer.frames.Mounting` (``x_cam = R
+            x_rig + c``) with its ``covariance`` (None for the reference camera, whose
+            mounting is given).
         frames: rig frames the camera's pose entered the adjustment with (rig frames with at
             least two cameras); rejected: its camera frames left out as outliers.
         std_deg, std_mm: standard deviation of the mounting's rotation (deg, the norm over
@@ -55,7 +56,7 @@ class MountingEstimate:
     """
 
     name: str
-    mount: RigMount
+    mount: Mounting
     frames: int
     rejected: int
     std_deg: float
@@ -148,7 +149,7 @@ def _pair_mean(rel: list) -> tuple:
     return M, ps[keep].mean(axis=0) if keep.any() else np.median(ps, axis=0)
 
 
-def _initial_mounts(rig_frames: list, reference: str, base: RigMount) -> dict:
+def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
     """Each camera's mounting (camera -> rig rotation, position) chained from the reference's
     over a spanning tree of the cameras that share rig frames (breadth first, the pairs that
     share the most rig frames first); cameras not connected to the reference are missing."""
@@ -366,7 +367,7 @@ def calibrate_mountings(
     frames: list,
     reference: str,
     *,
-    reference_mount: RigMount | None = None,
+    reference_mount: Mounting | None = None,
     window: float = 0.015,
     stamp_row: float = 0.0,
     min_inliers: int = 20,
@@ -438,7 +439,7 @@ def calibrate_mountings(
         raise ValueError(
             f"calibrate_mountings: no frame of the reference camera {reference!r} posed"
         )
-    base = reference_mount if reference_mount is not None else RigMount(np.eye(3), np.zeros(3))
+    base = reference_mount if reference_mount is not None else Mounting(np.eye(3), np.zeros(3))
     rig_frames = _rig_frames(poses, window, max_step)
     mounts = _initial_mounts(rig_frames, reference, base)
     if len(mounts) < 2:  # (no camera shares a rig frame with the reference)
@@ -472,7 +473,7 @@ def calibrate_mountings(
         scat_r = float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))) if len(e) else 0.0
         scat_p = float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))) if len(e) else 0.0
         out[name] = MountingEstimate(
-            name, RigMount.from_pose(R, p, covariance=C), n_used, n_bad,
+            name, Mounting.from_pose(R, p, covariance=C), n_used, n_bad,
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
             float(np.rad2deg(scat_r)), 1e3 * scat_p,

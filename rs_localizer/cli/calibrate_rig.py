@@ -13,7 +13,7 @@ import numpy as np
 from . import args as A
 
 if TYPE_CHECKING:
-    from ..tracking.rig import RigMount
+    from ..frames import Mounting
 
 __all__ = ["register", "run"]
 
@@ -140,7 +140,7 @@ def _covariance36(mount) -> list[float] | None:
     without one."""
     if mount.covariance is None:
         return None
-    P = [3, 4, 5, 0, 1, 2]  # (RigMount.covariance: rotation first)
+    P = [3, 4, 5, 0, 1, 2]  # (Mounting.covariance: rotation first)
     return [float(f"{x:.6g}") + 0.0 for x in mount.covariance[np.ix_(P, P)].ravel()]
 
 
@@ -177,7 +177,7 @@ def params_yaml(
 PARAMETERS_OFF_STD = 3.0
 
 
-def parameter_mountings(cams: dict, names: list) -> dict[str, RigMount]:
+def parameter_mountings(cams: dict, names: list) -> dict[str, Mounting]:
     """The mountings the parameters give the cameras (``rig.<camera>.mounting``, the node's
     reading of it: :func:`~rs_localizer.ros.config.rig_mounting`), in the parameters'
     ``base_frame``; cameras without one are left out.
@@ -190,19 +190,19 @@ def parameter_mountings(cams: dict, names: list) -> dict[str, RigMount]:
     return {n: rig_mounting(n, cams[n]["mounting"]) for n in names if cams[n].get("mounting")}
 
 
-def relative_to(mountings: dict[str, RigMount], ref: str) -> dict[str, RigMount]:
+def relative_to(mountings: dict[str, Mounting], ref: str) -> dict[str, Mounting]:
     """``mountings`` re-expressed in camera ``ref``'s optical frame (``x_ref = R_ref x_base +
     c_ref``); empty without ``ref``'s own mounting (the frames are then unrelated)."""
-    from ..tracking.rig import RigMount
+    from ..frames import Mounting
 
     base = mountings.get(ref)
     if base is None:
         return {}
-    return {n: RigMount(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
+    return {n: Mounting(m.R @ base.R.T, m.c - m.R @ base.R.T @ base.c)
             for n, m in mountings.items()}  # fmt: skip
 
 
-def mounting_difference(a: RigMount, b: RigMount) -> tuple[float, float]:
+def mounting_difference(a: Mounting, b: Mounting) -> tuple[float, float]:
     """``(deg, mm)`` between two mountings of a camera: the angle of the rotation between
     them and the distance between the camera's positions in the rig frame."""
     from ..geometry import rotation_angle_deg

@@ -250,7 +250,7 @@ def exact_mounting_jacobian(
     """(2N, 6) analytic Jacobian of :func:`exact_residuals` (with ``mountings``) w.r.t. the
     mounting of each observation's own camera: its rotation on the rig (rad, rig axes:
     ``R_mount^T`` turned by ``expm([phi]x)``) and its optical centre in the rig frame (m),
-    the parametrization of :attr:`~rs_localizer.estimation.rig.RigView.mount_covariance`.
+    the parametrization of :attr:`~rs_localizer.frames.Mounting.covariance`.
     With ``x_cam = R_mount (y - o)``, o the centre: the rows are ``D x (y - o)`` and ``-D``,
     ``D`` the residual's row over the rig-frame point y."""
     y, _ = _camera_points(theta, R0, X, tau)

@@ -119,6 +119,7 @@ import numpy as np
 from numba import njit
 
 from ..camera import CameraModel
+from ..frames import Mounting
 from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
@@ -299,12 +300,9 @@ VERIFY_ALL_EXPLAINED = 0.95
 PREDICTION_MARGIN = 2.0
 
 
-def _eye3() -> np.ndarray:
-    return np.eye(3)
-
-
-def _zeros3() -> np.ndarray:
-    return np.zeros(3)
+def _identity_mounting() -> Mounting:
+    """The identity mounting: a :class:`RigView`'s default (the camera's frame is the rig's)."""
+    return Mounting(np.eye(3), np.zeros(3))
 
 
 @dataclass(frozen=True, eq=False)
@@ -314,28 +312,25 @@ class RigView:
     Attributes:
         uv: (N, 2) measured (distorted) pixels. X: (N, 3) world points (m).
         camera: the camera's intrinsics and RS timing.
-        R_mount: (3, 3) rig -> camera rotation. c_mount: (3,) rig -> camera offset (m):
-            ``x_cam = R_mount x_rig + c_mount`` (default: the identity mounting). ``None``
-            stands for a camera whose mounting is unknown: :func:`estimate_rig_pose` refuses
-            it, naming the camera.
+        mounting: the camera's :class:`~rs_localizer.frames.Mounting` on the rig (``x_cam =
+            mounting.R x_rig + mounting.c``; default: the identity mounting). Its
+            ``covariance`` (rotation of the camera on the rig [rad, rig axes], its optical
+            centre in the rig frame [m]), when given, enters the rig pose's covariance to
+            first order: the refined model's sensitivity to the mounting times this
+            covariance; None takes the mounting as exact. ``mounting=None`` stands for a
+            camera whose mounting is unknown: :func:`estimate_rig_pose` refuses it, naming the
+            camera.
         stamp_offset: capture time of the camera's reference line (``camera.reference_line``)
             minus the rig's reference time (s).
         name: the camera's name in error messages (default: its index in the rig frame).
-        mount_covariance: (6, 6) the mounting's uncertainty over (rotation of the camera on
-            the rig [rad, rig axes: ``R_mount^T`` turned by ``expm([theta]x)``], its optical
-            centre in the rig frame [m]), or None (the mounting taken as exact). The rig
-            pose's covariance includes it to first order: the refined model's sensitivity to
-            the mounting times this covariance.
     """
 
     uv: np.ndarray
     X: np.ndarray
     camera: CameraModel
-    R_mount: np.ndarray | None = field(default_factory=_eye3)
-    c_mount: np.ndarray | None = field(default_factory=_zeros3)
+    mounting: Mounting | None = field(default_factory=_identity_mounting)
     stamp_offset: float = 0.0
     name: str = ""
-    mount_covariance: np.ndarray | None = None
 
     def camera_model(self, model: RSModel | tuple) -> RSModel:
         """This view's camera's own model at its reference line (per unit r, as its own
@@ -343,14 +338,13 @@ class RigView:
         estimate's ``model``): :func:`camera_model_of_rig` at this view's mounting and stamp
         offset."""
         return camera_model_of_rig(
-            model, self.R_mount, self.c_mount, self.stamp_offset, self.camera.seconds_per_unit_r
+            model, self.mounting, self.stamp_offset, self.camera.seconds_per_unit_r
         )
 
 
 def camera_model_of_rig(
     model: RSModel | tuple,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
+    mounting: Mounting,
     stamp_offset: float,
     seconds_per_unit_r: float,
 ) -> RSModel:
@@ -365,7 +359,8 @@ def camera_model_of_rig(
 
     Args:
         model: the rig's ``(R (3, 3), C (3,) m, w (3,) rad/s, t (3,) m/s)``.
-        R_mount (3, 3), c_mount (3,) m: the camera's mounting (``x_cam = R_c x_rig + c_c``).
+        mounting: the camera's :class:`~rs_localizer.frames.Mounting` (``x_cam = R_c x_rig +
+            c_c``: its ``R``, ``c``).
         stamp_offset: the camera's reference line's capture time minus the rig's reference
             time (s). seconds_per_unit_r: the camera's ``seconds_per_unit_r`` (s).
     Returns:
@@ -373,8 +368,7 @@ def camera_model_of_rig(
         :func:`~rs_localizer.estimation.estimate_rs_pose` estimates for that camera alone.
     """
     R, C, w, t = (np.asarray(a, dtype=float) for a in model)
-    Rc = np.asarray(R_mount, dtype=float)
-    cc = np.asarray(c_mount, dtype=float).reshape(3)
+    Rc, cc = mounting.R, mounting.c
     s, spr = float(stamp_offset), float(seconds_per_unit_r)
     return RSModel(
         Rc @ rotvec_to_matrix(s * w) @ R, Rc @ (C + s * t) + cc, spr * (Rc @ w), spr * (Rc @ t)
@@ -385,8 +379,7 @@ def camera_estimate(
     est: RSPoseEstimate,
     index: int,
     camera: CameraModel,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
+    mounting: Mounting,
     stamp_offset: float,
     points2d: np.ndarray,
     points3d: np.ndarray | None = None,
@@ -398,8 +391,8 @@ def camera_estimate(
     Args:
         est: a rig frame's estimate (:func:`estimate_rig_pose`).
         index: the camera's view in the rig frame. camera: its model.
-        R_mount (3, 3), c_mount (3,) m, stamp_offset (s): its mounting and its reference
-            line's time after the rig's (:class:`RigView`).
+        mounting (:class:`~rs_localizer.frames.Mounting`), stamp_offset (s): its mounting
+            and its reference line's time after the rig's (:class:`RigView`).
         points2d: (N, 2) px, the rows the camera gave the rig; points3d: (N, 3) m, their
             world points, for ``rmse_px`` (None: NaN).
     Returns:
@@ -419,7 +412,7 @@ def camera_estimate(
     spr = camera.seconds_per_unit_r
     model = RSModel.identity()
     if est.success:
-        model = RSModel(*camera_model_of_rig(est.model, R_mount, c_mount, stamp_offset, spr))
+        model = RSModel(*camera_model_of_rig(est.model, mounting, stamp_offset, spr))
     rmse = float("nan")
     if points3d is not None and inl.any():
         uv = np.asarray(points2d, float)[inl]
@@ -441,8 +434,7 @@ def camera_estimate(
 
 def rig_model_of_camera(
     model: RSModel | tuple,
-    R_mount: np.ndarray,
-    c_mount: np.ndarray,
+    mounting: Mounting,
     stamp_offset: float,
     seconds_per_unit_r: float,
 ) -> RSModel:
@@ -451,8 +443,7 @@ def rig_model_of_camera(
     reference line); a global-shutter camera (``seconds_per_unit_r <= 0``) gives zero ``w``
     and ``t``. Arguments as :func:`camera_model_of_rig`."""
     Rk, Ck, wk, tk = (np.asarray(a, dtype=float) for a in model)
-    Rc = np.asarray(R_mount, dtype=float)
-    cc = np.asarray(c_mount, dtype=float).reshape(3)
+    Rc, cc = mounting.R, mounting.c
     spr = float(seconds_per_unit_r)
     w = Rc.T @ wk / spr if spr > 0 else np.zeros(3)
     t = Rc.T @ tk / spr if spr > 0 else np.zeros(3)
@@ -514,47 +505,29 @@ def _equation_noise(pool: _Pool, R, C, idx: np.ndarray, threshold_px: float) -> 
     return 0.5 * threshold_px / pool.focal[idx[:, 0]] * np.maximum(depth, 1e-9)
 
 
-_EYE3 = np.eye(3)
-#: np.allclose(R^T R, I, atol=1e-6)'s tolerance per entry (its rtol 1e-5 on I's ones)
-_ROTATION_TOL = (1e-6 + 1e-5 * _EYE3).tolist()
-
-
 def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
     """Camera ``c``'s view checked (the errors :func:`estimate_rig_pose` raises) and
-    prepared for :class:`_Pool`: ``(R_mount (3, 3), c_mount (3,), mount covariance or None,
+    prepared for :class:`_Pool`: ``(R (3, 3), c (3,), mounting covariance or None,
     input rows, x (n, 2), X (n, 3), uv (n, 2), tau (n,), rows (n,), focal, A (n, 4))`` of its
     n valid rows."""
     if not isinstance(v, RigView):
         raise ValueError(f"estimate_rig_pose: view {c} is a {type(v).__name__}, not a RigView")
-    if v.R_mount is None or v.c_mount is None:
+    m = v.mounting
+    if m is None:
         raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)} has no mounting (R_mount and c_mount: "
-            "rig -> camera rotation and offset)"
+            f"estimate_rig_pose: {_label(c, v)} has no mounting (RigView.mounting is None: the "
+            "camera's pose on the rig is unknown)"
+        )
+    if not isinstance(m, Mounting):
+        raise ValueError(
+            f"estimate_rig_pose: {_label(c, v)}: mounting is a {type(m).__name__}, not a Mounting"
         )
     if not isinstance(v.camera, CameraModel):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)} has no CameraModel")
-    Rm = np.asarray(v.R_mount, dtype=float)
-    cm = np.asarray(v.c_mount, dtype=float)
-    if Rm.shape != (3, 3) or cm.size != 3:
-        raise ValueError(
-            f"estimate_rig_pose: {_label(c, v)}: R_mount must be (3, 3) and c_mount (3,), "
-            f"got {Rm.shape} and {cm.shape}"
-        )
-    values = Rm.ravel().tolist() + cm.ravel().tolist()
-    if not all(map(math.isfinite, values)):
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: mounting contains NaN or inf")
-    if not _is_rotation(tuple(values[:9])):
-        raise ValueError(f"estimate_rig_pose: {_label(c, v)}: R_mount is not a rotation")
     if not math.isfinite(float(v.stamp_offset)):
         raise ValueError(f"estimate_rig_pose: {_label(c, v)}: stamp_offset not finite")
-    mc = v.mount_covariance
-    if mc is not None:
-        mc = np.asarray(mc, dtype=float)
-        if mc.shape != (6, 6) or not np.isfinite(mc).all():
-            raise ValueError(
-                f"estimate_rig_pose: {_label(c, v)}: mount_covariance must be (6, 6) and finite"
-            )
-        mc = None if not mc.any() else 0.5 * (mc + mc.T)
+    Rm, cm, mc = m.R, m.c, m.covariance  # (checked by Mounting; the covariance symmetric)
+    mc = None if mc is None or not mc.any() else mc
     uv = np.asarray(v.uv, dtype=float)
     X = np.asarray(v.X, dtype=float)
     if uv.size == 0:
@@ -595,24 +568,6 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
         A[:, 0] = A[:, 3] = cam.mean_focal
     return (Rm, cm.reshape(3), mc, len(uv), x, X_g, uv_g, tau, idx.astype(np.int64, copy=False),
             float(cam.mean_focal), A)  # fmt: skip
-
-
-@functools.lru_cache(maxsize=64)
-def _is_rotation(m: tuple) -> bool:
-    """The (3, 3) matrix of the 9 floats ``m`` (row-major) is a rotation: ``R^T R`` within
-    :data:`_ROTATION_TOL` of the identity entry by entry (``np.allclose(R^T R, I,
-    atol=1e-6)``) and a determinant not below 0 (on Python floats, once per mounting's
-    values: a rig's mountings are checked on every rig frame)."""
-    a, b, d, e, f, g, h, i, j = m
-    det = a * (f * j - g * i) - b * (e * j - g * h) + d * (e * i - f * h)
-    cols = ((a, e, h), (b, f, i), (d, g, j))
-    for p in range(3):
-        for q in range(3):
-            u, w = cols[p], cols[q]
-            dot = u[0] * w[0] + u[1] * w[1] + u[2] * w[2]
-            if not abs(dot - (p == q)) <= _ROTATION_TOL[p][q]:
-                return False
-    return det >= 0
 
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
@@ -1266,10 +1221,10 @@ def _covariance(
     matrix and the gyro's own: a rig that accelerates turns at the measured rate at the gyro's
     ``time`` ``t_g``, so its rows add ``sigma^2 P t_g`` per unit of ``beta`` to ``J^T W D``.
     ``mounts``: the covariance adds each camera's mounting uncertainty
-    (:attr:`RigView.mount_covariance`) to first order, ``A Sigma_m A^T`` with ``A = (J^T W
-    J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the image errors'
-    analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`). ``errors``: the
-    model's (N,) errors (px) when already computed. Returns
+    (:attr:`RigView.mounting`'s ``covariance``) to first order, ``A Sigma_m A^T`` with
+    ``A = (J^T W J)^-1 J^T W J_m`` the model's sensitivity to the mounting (``J_m``: the
+    image errors' analytic Jacobian over it, :func:`~.refine.exact_mounting_jacobian`).
+    ``errors``: the model's (N,) errors (px) when already computed. Returns
     ``(None, None)`` if singular or not finite. With ``pool.numpy`` the Jacobian is NumPy's
     (:func:`~.refine.refine_rs_pose_numpy`)."""
     k, cut = float(threshold_px), FINAL_CUTOFF * float(threshold_px)
@@ -1444,9 +1399,10 @@ def estimate_rig_pose(
             :class:`~rs_localizer.estimation.options.EstimateOptions` (whose own constructors
             refuse a setting out of its range, naming it), a gyro that is not a
             :class:`~rs_localizer.estimation.gyro.GyroMeasurement`, no views, a view that is
-            not a :class:`RigView`, a camera without a
-            mounting (``R_mount`` or ``c_mount`` None; the message names it), a mounting that
-            is not a rotation and offset, mismatched pixel and point counts or shapes.
+            not a :class:`RigView`, a camera without a mounting (``mounting`` None; the
+            message names it) or with a mounting that is not a
+            :class:`~rs_localizer.frames.Mounting`, mismatched pixel and point counts or
+            shapes.
 
     Every observation at one time (global-shutter cameras with equal stamps: capture times
     within :data:`STILL_SPREAD`) leaves ``w`` and ``t`` undetermined: the estimate is then the

@@ -25,11 +25,10 @@ import numpy as np
 
 from ..camera import MAX_LINE_DELAY, MAX_READOUT_TIME, READOUT_DIRECTIONS, CameraModel
 from ..estimation.options import EstimateOptions, points_needed
-from ..frames import Extrinsic
+from ..frames import Mounting
 from ..frontends.registry import FRONTEND_KINDS, frontend_kind, frontend_options
 from ..frontends.shared import SHARED_MAPS, LoadedMaps
 from ..solvers.registry import SOLVER_NAMES as SOLVERS
-from ..tracking.rig import RigMount
 from ..tracking.sequence import GyroSettings
 from ..tracking.settings import gyro_settings, rig_settings, with_fields
 from ..tracking.tracker import TrackerOptions
@@ -105,7 +104,8 @@ class LocalizerConfig:
         line_delay (s/line), readout_time (s, > 0 wins), direction, reference_row (px, None =
             image centre), stamp_row (px): the rolling-shutter timing of every camera model.
         map_frame, camera_frame ("" = the input's frame id), base_frame ("" = none) and
-            extrinsic (the base_frame -> camera mounting, None without base_frame).
+            mounting (the camera's :class:`~rs_localizer.frames.Mounting` in base_frame, None
+            without base_frame).
         max_points: the cap on a frame's rows. time_reset_ns: a forward stamp jump larger
             than this (ns) resets the time-dependent state. queue_size: frames waiting.
         camera_info_wait: s a frame may wait for its camera_info.
@@ -131,7 +131,7 @@ class LocalizerConfig:
     map_frame: str
     camera_frame: str
     base_frame: str
-    extrinsic: Extrinsic | None
+    mounting: Mounting | None
     max_points: int
     time_reset_ns: int
     queue_size: int
@@ -246,18 +246,18 @@ def _fallback_camera(p: Mapping[str, Any], timing: tuple) -> CameraModel | None:
     return fallback
 
 
-def _mounting(p: Mapping[str, Any]) -> tuple[str, Extrinsic | None]:
+def _mounting(p: Mapping[str, Any]) -> tuple[str, Mounting | None]:
     """Stage of :func:`build_config`: ``(base_frame, the base_frame -> camera mounting or
     None)``."""
-    base_frame, extrinsic = str(p["base_frame"]).strip(), None
+    base_frame, mounting = str(p["base_frame"]).strip(), None
     if base_frame:
         try:
-            extrinsic = Extrinsic.from_translation_quaternion(
+            mounting = Mounting.from_translation_quaternion(
                 p["camera_to_base.translation"], p["camera_to_base.rotation"]
             )
         except ValueError as e:
             raise ConfigError(f"invalid camera_to_base: {e}") from None
-    return base_frame, extrinsic
+    return base_frame, mounting
 
 
 def _image_input(p: Mapping[str, Any]) -> tuple[str, str, str]:
@@ -294,7 +294,7 @@ def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
     opts, tracking, imu = _estimation(p)
     timing = _timing(p)
     fallback = _fallback_camera(p, timing)
-    base_frame, extrinsic = _mounting(p)
+    base_frame, mounting = _mounting(p)
     kind, fmap, transport = _image_input(p)
     line_delay, readout_time, direction, reference_row = timing
     return LocalizerConfig(
@@ -309,7 +309,7 @@ def build_config(values: Mapping[str, Any]) -> LocalizerConfig:
         map_frame=p["map_frame"],
         camera_frame=p["camera_frame"],
         base_frame=base_frame,
-        extrinsic=extrinsic,
+        mounting=mounting,
         max_points=int(p["max_points"]),
         time_reset_ns=int(float(p["time_reset_threshold"]) * 1e9),
         queue_size=int(p["queue_size"]),
@@ -378,7 +378,7 @@ def default_timing_note(cfg: LocalizerConfig) -> str | None:
 @dataclass(frozen=True)
 class RigCameraConfig:
     """One camera of the rig: its ``name``, ``mount`` (a
-    :class:`~rs_localizer.tracking.rig.RigMount`, rig = ``base_frame``) and RS timing
+    :class:`~rs_localizer.frames.Mounting`, rig = ``base_frame``) and RS timing
     (``line_delay`` s/line, ``readout_time`` s, ``direction``) for its camera_info's model."""
 
     name: str
@@ -434,11 +434,11 @@ def rig_camera_names(value: Any) -> list[str]:
     return names
 
 
-def rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
+def rig_mounting(n: str, m: Any, cov_values: Any = None) -> Mounting:
     """Camera ``n``'s ``rig.<n>.mounting`` (7 numbers x, y, z, qx, qy, qz, qw: its optical
     frame's pose in ``base_frame``; integers taken as floats) with its
     ``rig.<n>.mounting_covariance`` (36 numbers, ROS order; None or all zero: none) as a
-    :class:`~rs_localizer.tracking.rig.RigMount`.
+    :class:`~rs_localizer.frames.Mounting`.
 
     Raises:
         ConfigError: no mounting, not 7 finite numbers, not a rotation, or a covariance that
@@ -469,10 +469,10 @@ def rig_mounting(n: str, m: Any, cov_values: Any = None) -> RigMount:
                 f"rig.{n}.mounting_covariance must be 36 finite numbers (6 x 6 over x, y, z, "
                 f"rot x, rot y, rot z) or all zero, got {C.size} numbers"
             )
-        P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as RigMount.covariance)
+        P = [3, 4, 5, 0, 1, 2]  # (ROS order -> rotation first, as Mounting.covariance)
         cov = C.reshape(6, 6)[np.ix_(P, P)]
     try:
-        return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov)
+        return Mounting.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3], covariance=cov)
     except ValueError as e:
         raise ConfigError(f"rig.{n}.mounting: {e}") from None
 

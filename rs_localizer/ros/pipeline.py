@@ -549,8 +549,8 @@ class FramePipeline:
         if est.single_tag:
             self.stats.add("frames_single_tag")
         res.output, res.output_frame = est, res.frame_id
-        if cfg.extrinsic is not None:
-            res.output, res.output_frame = camera_to_base(est, cfg.extrinsic), cfg.base_frame
+        if cfg.mounting is not None:
+            res.output, res.output_frame = camera_to_base(est, cfg.mounting), cfg.base_frame
         res.twist_now = out.twist_now
         self.stats.stage_time("decode", res.times["decode"])
         self.stats.stage_time("estimate", res.times["estimate"])
@@ -672,8 +672,8 @@ class FramePipeline:
         for f in fused:
             src: PoseWithCovariance = f
             frame = cast(str, f.tag)  # (each frame's tag is its frame_id)
-            if cfg.extrinsic is not None:
-                src, frame = camera_to_base(src, cfg.extrinsic), cfg.base_frame
+            if cfg.mounting is not None:
+                src, frame = camera_to_base(src, cfg.mounting), cfg.base_frame
             out.append(FusedOutput(f.pose.stamp_ns, src, frame))
         return out
 

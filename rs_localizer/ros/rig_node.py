@@ -693,7 +693,7 @@ class RigCore(NodeCore):
             if not (viz.wants("debug_image") or viz.wants("markers")):
                 continue
             off = out.stamp_offsets.get(n, 0.0)
-            view = camera_estimate(out.estimate, k, frame.camera, mounts[n].R, mounts[n].c, off,
+            view = camera_estimate(out.estimate, k, frame.camera, mounts[n], off,
                                    frame.points2d, frame.points3d)  # fmt: skip
             for img in self._images.get(n, ()):
                 if img[2] == frame.stamp_ns:

@@ -532,7 +532,7 @@ def warm_rig(
             stamp = f * 33_333_333 + 2_000_000 * k
             T = reference_stamp_ns(stamp, cam, settings.stamp_row) / 1e9
             rig = (rotvec_to_matrix(T * w), T * t, w, t)  # (the rig's model at time T)
-            model = camera_model_of_rig(rig, m.R, m.c, 0.0, cam.seconds_per_unit_r)
+            model = camera_model_of_rig(rig, m, 0.0, cam.seconds_per_unit_r)
             uv = cam.project_rs(points[name], *model) + rng.normal(0, 0.3, (60, 2))
             ok = np.isfinite(uv).all(1)
             outs = loc.add(RigCameraFrame(name, stamp, cam, uv[ok], points[name][ok]))

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..estimation.rig import RigView, camera_model_of_rig
+from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
 from ..pose import RSModel
 
@@ -55,20 +56,20 @@ class RigCamera:
     Attributes:
         name: its place on the rig (``front``, ``back``, ``left``, ``right``).
         camera: intrinsics and RS timing (no lens distortion).
-        R_mount: (3, 3) rig -> camera rotation; c_mount: (3,) m (``x_cam = R x_rig + c``).
+        mounting: its :class:`~rs_localizer.frames.Mounting` on the rig (``x_cam = R x_rig +
+            c``).
         stamp_offset: its reference line's capture time minus the rig's reference time (s).
     """
 
     name: str
     camera: CameraModel
-    R_mount: np.ndarray
-    c_mount: np.ndarray
+    mounting: Mounting
     stamp_offset: float
 
     @property
     def centre(self) -> np.ndarray:
         """(3,) the camera centre in the rig frame (m)."""
-        return -self.R_mount.T @ self.c_mount
+        return self.mounting.position
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,7 +104,7 @@ class RigFrame:
         """Camera c's true single-camera model at its reference line (per unit r)."""
         k = self.rig.cameras[c]
         return camera_model_of_rig(
-            self.truth, k.R_mount, k.c_mount, k.stamp_offset, k.camera.seconds_per_unit_r
+            self.truth, k.mounting, k.stamp_offset, k.camera.seconds_per_unit_r
         )
 
 
@@ -147,7 +148,7 @@ def make_rig(
         d = rng.normal(size=3)
         centre = d / np.linalg.norm(d) * rng.uniform(*lever)
         stamp = rng.uniform(-0.5, 0.5) * stamp_spread
-        cams.append(RigCamera(name, cam, Rc, -Rc @ centre, float(stamp)))
+        cams.append(RigCamera(name, cam, Mounting(Rc, -Rc @ centre), float(stamp)))
     return Rig(tuple(cams))
 
 
@@ -197,7 +198,7 @@ def rig_frame(
     for k, n in zip(rig.cameras, counts, strict=True):
         cam = k.camera
         Rp, Cp, wp, tp = camera_model_of_rig(
-            truth, k.R_mount, k.c_mount, k.stamp_offset, cam.seconds_per_unit_r
+            truth, k.mounting, k.stamp_offset, cam.seconds_per_unit_r
         )
         half = 0.5 * np.array([cam.width, cam.height]) / np.diag(cam.K)[:2] * 0.95
         uv, X = np.zeros((0, 2)), np.zeros((0, 3))
@@ -212,6 +213,6 @@ def rig_frame(
         uv = uv + rng.normal(size=uv.shape) * noise_px
         bad = rng.random(n) < outliers
         uv[bad] = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (int(bad.sum()), 2))
-        views.append(RigView(uv, X, cam, k.R_mount, k.c_mount, k.stamp_offset, name=k.name))
+        views.append(RigView(uv, X, cam, k.mounting, k.stamp_offset, name=k.name))
         bad_rows.append(bad)
     return RigFrame(views, truth, tuple(bad_rows), rig)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import CameraModel
+from ..frames import Mounting
 from ..geometry import rotvec_to_matrix
 from .trajectory import R_FORWARD, Scene, Trajectory, default_camera, make_scene, project_rs
 
@@ -105,14 +106,10 @@ class RigCameraSim:
     stop: float | None = None
 
     @property
-    def R_mount(self) -> np.ndarray:
-        """(3, 3) rig -> camera rotation: ``x_cam = R_mount x_rig + c_mount``."""
-        return np.asarray(self.R_rig_cam, dtype=float).T
-
-    @property
-    def c_mount(self) -> np.ndarray:
-        """(3,) m: ``-R_mount p_rig_cam``."""
-        return -self.R_mount @ np.asarray(self.p_rig_cam, dtype=float)
+    def mounting(self) -> Mounting:
+        """The camera's :class:`~rs_localizer.frames.Mounting` on the rig (of ``R_rig_cam``
+        and ``p_rig_cam``)."""
+        return Mounting.from_pose(self.R_rig_cam, self.p_rig_cam)
 
 
 @dataclass

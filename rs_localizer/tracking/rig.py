@@ -82,8 +82,8 @@ camera), then takes the frame as :meth:`RigLocalizer.add` does.
 
 Example (``frames``: each camera's frames in any interleaving, e.g. by arrival)::
 
-    rig = RigLocalizer(RigSettings({"front": RigMount.from_pose(R_base_front, p_front),
-                                    "left": RigMount.from_pose(R_base_left, p_left)}))
+    rig = RigLocalizer(RigSettings({"front": Mounting.from_pose(R_base_front, p_front),
+                                    "left": Mounting.from_pose(R_base_left, p_left)}))
     for f in frames:
         for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
             if out.success:
@@ -126,6 +126,7 @@ from ..estimation.rig import (
     camera_model_of_rig,
     estimate_rig_pose,
 )
+from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
@@ -148,7 +149,6 @@ __all__ = [
     "RigCameraFrame",
     "RigGrouping",
     "RigLocalizer",
-    "RigMount",
     "RigOutput",
     "RigSettings",
     "RigTrackingOptions",
@@ -219,62 +219,6 @@ STOP_INTERVALS = 2.0
 RIG_PATHS = STATES
 
 
-@dataclass(frozen=True, eq=False)
-class RigMount:
-    """A camera's mounting on the rig: ``x_cam = R x_rig + c``.
-
-    Attributes:
-        R: (3, 3) rig -> camera optical frame rotation. c: (3,) m.
-        covariance: (6, 6) the mounting's uncertainty over (rotation of the camera on the rig
-            [rad, rig axes: ``R_rig_cam = expm([theta]x) R_rig_cam_0``], the camera's position
-            in the rig frame [m]), e.g. from
-            :func:`~rs_localizer.calibration.calibrate_mountings`; the rig estimator adds it
-            to the rig pose's covariance. None: the mounting is taken as exact.
-    """
-
-    R: np.ndarray
-    c: np.ndarray
-    covariance: np.ndarray | None = None
-
-    def __post_init__(self):
-        R = np.asarray(self.R, dtype=float).reshape(3, 3)
-        c = np.asarray(self.c, dtype=float).reshape(3)
-        if not (np.isfinite(R).all() and np.isfinite(c).all()):
-            raise ValueError("a mounting must be finite")
-        if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-            raise ValueError("a mounting's R must be a rotation")
-        object.__setattr__(self, "R", R)
-        object.__setattr__(self, "c", c)
-        if self.covariance is not None:
-            C = np.asarray(self.covariance, dtype=float)
-            if C.shape != (6, 6) or not np.isfinite(C).all():
-                raise ValueError("a mounting's covariance must be (6, 6) and finite")
-            C = 0.5 * (C + C.T)
-            if np.linalg.eigvalsh(C).min() < -1e-12 * max(1.0, float(np.abs(C).max())):
-                raise ValueError("a mounting's covariance must be positive semi-definite")
-            object.__setattr__(self, "covariance", C)
-
-    @classmethod
-    def from_pose(
-        cls, R_rig_cam: np.ndarray, p_rig_cam: np.ndarray, covariance: np.ndarray | None = None
-    ) -> RigMount:
-        """The mounting of a camera whose optical frame is at ``p_rig_cam`` (3,) m in the rig
-        frame, turned by ``R_rig_cam`` (3, 3) camera -> rig (a static transform rig ->
-        camera as tf gives it); ``covariance`` as the attribute.
-
-        Raises:
-            ValueError: not finite, not a rotation, or a covariance that is not (6, 6)
-                positive semi-definite.
-        """
-        R = np.asarray(R_rig_cam, dtype=float).T
-        return cls(R, -R @ np.asarray(p_rig_cam, dtype=float), covariance)
-
-    @property
-    def position(self) -> np.ndarray:
-        """(3,) m, the camera's optical centre in the rig frame."""
-        return -self.R.T @ self.c
-
-
 @dataclass(frozen=True)
 class RigTrackingOptions:
     """How the rig is tracked (module docstring, step 3); the fields of the camera tracker's
@@ -318,7 +262,8 @@ class RigSettings:
     """The configuration of a :class:`RigLocalizer`.
 
     Attributes:
-        mounts: camera name -> :class:`RigMount`; the order is the cameras' order in outputs.
+        mounts: camera name -> :class:`~rs_localizer.frames.Mounting` (the camera in the rig
+            frame); the order is the cameras' order in outputs.
         window: s; the frames of one rig frame lie within this of its earliest (reference-line
             capture times). Stamps further apart are different rig frames (``apart``).
         stop_after: s of stamp time without a frame of a camera (while others send) after
@@ -375,8 +320,8 @@ class RigSettings:
         if not self.mounts:
             raise ValueError("a rig needs at least one camera")
         for name, m in self.mounts.items():
-            if not isinstance(m, RigMount):
-                raise ValueError(f"camera {name!r} has no mounting (a RigMount)")
+            if not isinstance(m, Mounting):
+                raise ValueError(f"camera {name!r} has no mounting (a Mounting)")
         if not (np.isfinite(self.window) and self.window >= 0):
             raise ValueError(f"window must be >= 0 s, got {self.window}")
         if not (np.isfinite(self.stop_after) and self.stop_after > 0):
@@ -516,7 +461,7 @@ def _model_of(Ori, p, omega, v):
 
 
 # ---------------------------------------------------------------------- bookkeeping
-def _same_mount(a: RigMount, b: RigMount) -> bool:
+def _same_mount(a: Mounting, b: Mounting) -> bool:
     """Whether two mountings are the same (rotation, position and covariance)."""
     if a is b:
         return True
@@ -527,7 +472,7 @@ def _same_mount(a: RigMount, b: RigMount) -> bool:
 
 
 class _Camera:
-    def __init__(self, name: str, mount: RigMount, history: int):
+    def __init__(self, name: str, mount: Mounting, history: int):
         self.name, self.mount = name, mount
         self.newest: int | None = None  # ns, newest stamp (reference time when known)
         self.last_ref: int | None = None  # ns, the last accepted frame's reference time
@@ -982,16 +927,14 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         pred = state.pose
         rig = _model_of(pred.orientation, pred.position, pred.angular_velocity,
                         pred.linear_velocity)  # fmt: skip
-        m = view.mount
-        return camera_model_of_rig(rig, m.R, m.c, 0.0, camera.seconds_per_unit_r)
+        return camera_model_of_rig(rig, view.mount, 0.0, camera.seconds_per_unit_r)
 
     def _carried_in_camera(
         self, model: RSModel, dt: float, camera: CameraModel, view: _Camera
     ) -> RSModel:
         """The camera's model of the last posed rig frame carried ``dt`` s, through its
         mounting."""
-        m = view.mount
-        return camera_model_of_rig(model, m.R, m.c, dt, camera.seconds_per_unit_r)
+        return camera_model_of_rig(model, view.mount, dt, camera.seconds_per_unit_r)
 
     def drop(self, name: str, stamp_ns: int, camera: CameraModel | None, reason: str) -> list:
         """Count camera ``name``'s frame as received and skipped for ``reason`` (a key of
@@ -1133,7 +1076,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 feedback = None
                 if est is not None:
                     mount, off = self._cams[n].mount, out.stamp_offsets.get(n, 0.0)
-                    feedback = camera_estimate(est, k, camera, mount.R, mount.c, off, uv)
+                    feedback = camera_estimate(est, k, camera, mount, off, uv)
                 fe.observe(stamp, uv, feedback)
         if len(img.waiting) > 256:  # (frames skipped after they were taken: late, out of order)
             for key in sorted(img.waiting, key=lambda kv: kv[1])[:-256]:
@@ -1190,8 +1133,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             out.stamp_offsets[n] = off
             out.tags[n] = frame.tag
             out.frames[n] = frame
-            view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c, off,
-                           mount_covariance=m.covariance)  # fmt: skip
+            view = RigView(frame.points2d, frame.points3d, frame.camera, m, off)
             views.append(view)
         self._impl = impl = None if self._implementation is None else self._implementation()
         self._filter_kernels(impl)
@@ -1403,8 +1345,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         m = self._cams[n].mount
         if not out.success or n not in out.stamp_offsets or frame.camera is None:
             return None
-        view = RigView(frame.points2d, frame.points3d, frame.camera, m.R, m.c,
-                       out.stamp_offsets[n])  # fmt: skip
+        view = RigView(frame.points2d, frame.points3d, frame.camera, m, out.stamp_offsets[n])
         return _alone_deg(view, out.estimate)
 
     def _finish(self, out: RigOutput, est, path, names, views) -> None:

@@ -25,8 +25,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from ..estimation.options import EstimateOptions
-from ..frames import Extrinsic
-from .rig import RigMount, RigSettings, RigTrackingOptions
+from ..frames import Mounting
+from .rig import RigSettings, RigTrackingOptions
 from .sequence import GyroSettings
 from .tracker import TrackerOptions
 
@@ -67,12 +67,12 @@ def gyro_settings(
         ValueError: ``rotation`` not a quaternion (4 finite numbers of norm near 1). TypeError:
             a name in ``fields`` that is not a field.
     """
-    R = Extrinsic.from_translation_quaternion([0.0, 0.0, 0.0], rotation).rotation
+    R = Mounting.from_translation_quaternion([0.0, 0.0, 0.0], rotation).rotation
     return GyroSettings(R_cam_imu=R, gyro_bias=gyro_bias, **fields)
 
 
 def rig_settings(
-    mounts: Mapping[str, RigMount],
+    mounts: Mapping[str, Mounting],
     options: EstimateOptions,
     tracking: TrackerOptions | None,
     *,

@@ -14,7 +14,7 @@ def test_the_rig_frames_differ_only_in_their_line_delay():
     for (va, ta), (vb, tb) in zip(a, b, strict=True):
         assert np.array_equal(ta.R, tb.R)
         for x, y in zip(va, vb, strict=True):
-            assert np.array_equal(x.X, y.X) and np.array_equal(x.R_mount, y.R_mount)
+            assert np.array_equal(x.X, y.X) and np.array_equal(x.mounting.R, y.mounting.R)
             assert x.camera.line_delay == 0.0 and y.camera.line_delay == 1e-7
 
 

@@ -12,10 +12,10 @@ pytest.importorskip("rosbags")
 
 
 def _mount(m):
+    from rs_localizer.frames import Mounting
     from rs_localizer.ros import conversions as cv
-    from rs_localizer.tracking.rig import RigMount
 
-    return RigMount.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
+    return Mounting.from_pose(cv.matrix_from_quaternion(m[3:]), m[:3])
 
 
 @pytest.fixture(scope="module")

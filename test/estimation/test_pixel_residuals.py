@@ -13,6 +13,7 @@ from rs_localizer.estimation.frame import SCORE_AT_MEASURED_TIME, prepare_frame
 from rs_localizer.estimation.refine import Mountings, RefineSettings, refine_rs_pose
 from rs_localizer.estimation.rig import RigView, _errors_px, _Pool
 from rs_localizer.estimation.scoring import msac_evaluate
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 
 K = np.array([[400.0, 0.0, 640.0], [0.0, 402.0, 512.0], [0.0, 0.0, 1.0]])
@@ -180,7 +181,7 @@ def test_rig_implementations_agree_on_a_fisheye_rig():
     X1 = ((Rm.T @ (Pc1 - cm[:, None])).T - C) @ R  # world points: Rm (R X1 + C) + cm = Pc1
     views = [
         RigView(uv=uv0, X=X0, camera=FISHEYE),
-        RigView(uv=uv1, X=X1, camera=FISHEYE, R_mount=Rm, c_mount=cm),
+        RigView(uv=uv1, X=X1, camera=FISHEYE, mounting=Mounting(Rm, cm)),
     ]
     c = estimate_rig_pose(views, implementation="compiled")
     p = estimate_rig_pose(views, implementation="numpy")

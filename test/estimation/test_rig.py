@@ -18,6 +18,7 @@ from rs_localizer.estimation.rig import (
     camera_estimate,
     estimate_rig_pose,
 )
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import RSPose
 from rs_localizer.sim import rig as sim_rig
@@ -36,8 +37,8 @@ def make_rig(rng, m):
     k = rig.cameras
     return (
         [c.camera for c in k],
-        [c.R_mount for c in k],
-        [c.c_mount for c in k],
+        [c.mounting.R for c in k],
+        [c.mounting.c for c in k],
         [c.stamp_offset for c in k],
     )
 
@@ -54,8 +55,8 @@ def rig_frame(rng, cams, R_m, c_m, stamps, counts, truth, noise_px=0.5, outliers
     exact RS projection, noise, outliers)."""
     rig = sim_rig.Rig(
         tuple(
-            sim_rig.RigCamera(f"cam{i}", *k)
-            for i, k in enumerate(zip(cams, R_m, c_m, stamps, strict=True))
+            sim_rig.RigCamera(f"cam{i}", cam, Mounting(R, c), s)
+            for i, (cam, R, c, s) in enumerate(zip(cams, R_m, c_m, stamps, strict=True))
         )
     )
     return sim_rig.rig_frame(rig, truth, counts, rng, noise_px, outliers).views
@@ -174,7 +175,7 @@ def _poselib_generalized(views):
         pts2.append(x * f)
         pts3.append(v.X)
         e = poselib.CameraPose()
-        e.R, e.t = v.R_mount, v.c_mount
+        e.R, e.t = v.mounting.R, v.mounting.c
         ext.append(e)
         cams.append({"model": "PINHOLE", "width": 640, "height": 480, "params": [f, f, 0, 0]})
     pose, _ = poselib.estimate_generalized_absolute_pose(
@@ -261,11 +262,11 @@ def test_camera_model_of_the_rig_is_the_camera_truth_and_inverts():
     truth = rig_truth(rng)
     for c in range(3):
         spr = cams[c].seconds_per_unit_r
-        mine = camera_model_of_rig(truth, R_m[c], c_m[c], stamps[c], spr)
+        mine = camera_model_of_rig(truth, Mounting(R_m[c], c_m[c]), stamps[c], spr)
         ref = camera_pose(R_m[c], c_m[c], stamps[c], cams[c], *truth)
         for a, b in zip(mine, ref, strict=True):
             np.testing.assert_allclose(a, b, atol=1e-12)
-        back = rig_model_of_camera(mine, R_m[c], c_m[c], stamps[c], spr)
+        back = rig_model_of_camera(mine, Mounting(R_m[c], c_m[c]), stamps[c], spr)
         for a, b in zip(back, truth, strict=True):
             np.testing.assert_allclose(a, b, atol=1e-12)
 
@@ -275,12 +276,14 @@ def test_a_camera_without_mounting_is_named():
     cams, R_m, c_m, stamps = make_rig(rng, 2)
     views = rig_frame(rng, cams, R_m, c_m, stamps, [20, 20], rig_truth(rng))
     v = views[1]
-    bad = RigView(v.uv, v.X, v.camera, None, v.c_mount, v.stamp_offset, name="rear")
+    bad = RigView(v.uv, v.X, v.camera, None, v.stamp_offset, name="rear")
     with pytest.raises(ValueError, match=r"camera 1 \('rear'\) has no mounting"):
         estimate_rig_pose([views[0], bad])
-    mirrored = RigView(v.uv, v.X, v.camera, -np.eye(3), v.c_mount, name="left")
-    with pytest.raises(ValueError, match=r"'left'.*not a rotation"):
-        estimate_rig_pose([views[0], mirrored])
+    with pytest.raises(ValueError, match="must be a rotation"):
+        Mounting(-np.eye(3), v.mounting.c)
+    loose = RigView(v.uv, v.X, v.camera, (np.eye(3), np.zeros(3)), name="left")
+    with pytest.raises(ValueError, match=r"'left'.*not a Mounting"):
+        estimate_rig_pose([views[0], loose])
     with pytest.raises(ValueError, match="camera 0"):
         estimate_rig_pose([RigView(np.zeros((3, 3)), np.zeros((3, 3)), cams[0])])
 
@@ -299,12 +302,12 @@ def test_degenerate_views_and_implausible_motion_fail_with_their_reason():
     a, b = views[0].X[0], views[0].X[-1]
     for v in views:
         X = a + np.linspace(0, 1, len(v.X))[:, None] * (b - a)
-        line.append(RigView(v.uv, X, v.camera, v.R_mount, v.c_mount, v.stamp_offset))
+        line.append(RigView(v.uv, X, v.camera, v.mounting, v.stamp_offset))
     est = estimate_rig_pose(line)
     assert not est.success and est.failure == "degenerate_geometry"
     # every camera's pixels on one image row (each camera's rays in one plane)
     flat = [
-        RigView(np.c_[v.uv[:, 0], np.full(len(v.uv), 240.0)], v.X, v.camera, v.R_mount, v.c_mount)
+        RigView(np.c_[v.uv[:, 0], np.full(len(v.uv), 240.0)], v.X, v.camera, v.mounting)
         for v in views
     ]
     est = estimate_rig_pose(flat)
@@ -333,9 +336,7 @@ def test_points_behind_a_camera_are_counted_not_inliers():
     v = views[0]
     X = np.vstack([v.X, 2 * centre - v.X[:5]])
     uv = np.vstack([v.uv, v.uv[:5]])
-    est = estimate_rig_pose(
-        [RigView(uv, X, v.camera, v.R_mount, v.c_mount, v.stamp_offset), views[1]]
-    )
+    est = estimate_rig_pose([RigView(uv, X, v.camera, v.mounting, v.stamp_offset), views[1]])
     assert est.success and est.num_behind >= 5
     assert not est.inliers_per_view[0][40:].any()
 
@@ -347,7 +348,7 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
     rng = np.random.default_rng(16)
     for _ in range(4):
         cam = sim_rig.make_rig(1, rng).cameras[0].camera
-        rig = sim_rig.Rig((sim_rig.RigCamera("front", cam, np.eye(3), np.zeros(3), 0.0),))
+        rig = sim_rig.Rig((sim_rig.RigCamera("front", cam, Mounting(np.eye(3), np.zeros(3)), 0.0),))
         f = sim_rig.rig_frame(rig, rig_truth(rng), [200], rng)
         v = f.views[0]
         est = estimate_rig_pose(f.views)
@@ -370,7 +371,7 @@ def test_one_camera_at_the_identity_mounting_is_the_single_camera_estimate():
         # the camera's part of the rig's estimate, what its front end and debug image get: as
         # the camera's own estimate (its inliers; its error of them in px, the same within
         # the two models' difference)
-        part = camera_estimate(est, 0, v.camera, v.R_mount, v.c_mount, 0.0, v.uv, v.X)
+        part = camera_estimate(est, 0, v.camera, v.mounting, 0.0, v.uv, v.X)
         assert part.success
         for a, b in zip(part.model, mine, strict=True):
             np.testing.assert_array_equal(a, b)
@@ -391,12 +392,14 @@ def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
     assert est.success
     R, C, w, t = est.model
     for k, v in enumerate(f.views):
-        part = camera_estimate(est, k, v.camera, v.R_mount, v.c_mount, v.stamp_offset, v.uv, v.X)
+        part = camera_estimate(est, k, v.camera, v.mounting, v.stamp_offset, v.uv, v.X)
         s, spr = v.stamp_offset, v.camera.seconds_per_unit_r
         Rs = rotvec_to_matrix(s * w) @ R  # (the rig at the camera's reference time)
-        np.testing.assert_allclose(part.model.R, v.R_mount @ Rs, atol=1e-12)
-        np.testing.assert_allclose(part.model.C, v.R_mount @ (C + s * t) + v.c_mount, atol=1e-12)
-        np.testing.assert_allclose(part.model.w, spr * v.R_mount @ w, atol=1e-15)
+        np.testing.assert_allclose(part.model.R, v.mounting.R @ Rs, atol=1e-12)
+        np.testing.assert_allclose(
+            part.model.C, v.mounting.R @ (C + s * t) + v.mounting.c, atol=1e-12
+        )
+        np.testing.assert_allclose(part.model.w, spr * v.mounting.R @ w, atol=1e-15)
         np.testing.assert_array_equal(part.inliers, est.inliers_per_view[k])
         inl = part.inliers
         e = v.camera.project_rs(v.X[inl], *part.model) - v.uv[inl]
@@ -406,7 +409,7 @@ def test_a_camera_s_part_of_a_rig_estimate_is_its_view_s():
     v = f.views[0]
     failed = estimate_rig_pose([replace(v, uv=v.uv[:2], X=v.X[:2])])
     assert failed.failure == "too_few_points"
-    part = camera_estimate(failed, 0, v.camera, v.R_mount, v.c_mount, 0.0, v.uv[:2], v.X[:2])
+    part = camera_estimate(failed, 0, v.camera, v.mounting, 0.0, v.uv[:2], v.X[:2])
     assert not part.success and not part.inliers.any() and np.isnan(part.rmse_px)
 
 
@@ -420,7 +423,7 @@ def _poselib_pose(views):
         pts2.append(v.uv)
         pts3.append(v.X)
         e = poselib.CameraPose()
-        e.R, e.t = v.R_mount, v.c_mount
+        e.R, e.t = v.mounting.R, v.mounting.c
         ext.append(e)
         p = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
         cams.append({"model": "PINHOLE", "width": 640, "height": 480, "params": p})
@@ -496,7 +499,7 @@ def _accelerated_views(frame, alpha, a):
                 rotvec_to_matrix(tau * om + 0.5 * tau**2 * alpha),
                 (view.X - p_t) @ Ori,
             )
-            q = x_rig @ view.R_mount.T + view.c_mount
+            q = x_rig @ view.mounting.R.T + view.mounting.c
             uv = (q[:, :2] / q[:, 2:3]) @ cam.K[:2, :2].T + cam.K[:2, 2]
         out.append(replace(view, uv=uv))
     return out
@@ -604,7 +607,9 @@ def _frames_with_a_wrong_mounting(counts, deg, n=4, seed=100):
         rig = sim_rig.make_rig(len(counts), rng)
         truth = sim_rig.rig_motion(rng)
         views = list(sim_rig.rig_frame(rig, truth, counts, rng).views)
-        views[-1] = replace(views[-1], R_mount=bad @ views[-1].R_mount)
+        views[-1] = replace(
+            views[-1], mounting=Mounting(bad @ views[-1].mounting.R, views[-1].mounting.c)
+        )
         yield views, truth
 
 
@@ -680,7 +685,9 @@ def test_two_cameras_a_few_pixels_apart_are_posed_not_refused():
     errs = []
     for k in range(20):
         views, truth = _global_shutter_frame(300 + k, (24, 24), 0.2, 0.0)
-        views[-1] = replace(views[-1], R_mount=bad @ views[-1].R_mount)
+        views[-1] = replace(
+            views[-1], mounting=Mounting(bad @ views[-1].mounting.R, views[-1].mounting.c)
+        )
         est = estimate_rig_pose(views)
         assert est.success, (k, est.failure)
         errs.append(rotation_angle_deg(est.model.R, truth.R))
@@ -694,7 +701,9 @@ def _two_cameras_mounted_apart(deg, seed, counts=(24, 24)):
     views, truth = _global_shutter_frame(seed, counts, 0.3, 0.0)
     for i, sign in ((0, 1.0), (1, -1.0)):
         turn = rotvec_to_matrix(np.radians([0.0, sign * deg / 2, 0.0]))
-        views[i] = replace(views[i], R_mount=turn @ views[i].R_mount)
+        views[i] = replace(
+            views[i], mounting=Mounting(turn @ views[i].mounting.R, views[i].mounting.c)
+        )
     return views, truth
 
 
@@ -770,7 +779,9 @@ def test_a_prediction_a_degree_off_does_not_outvote_a_camera_a_few_pixels_apart(
     turn = rotvec_to_matrix(np.radians(0.7) * np.asarray(axis))
     for k in range(6):
         views, truth = _global_shutter_frame(300 + k, (24, 24), 0.2, 0.0)
-        views[-1] = replace(views[-1], R_mount=bad @ views[-1].R_mount)
+        views[-1] = replace(
+            views[-1], mounting=Mounting(bad @ views[-1].mounting.R, views[-1].mounting.c)
+        )
         prediction = (turn @ truth.R, truth.C, truth.w, truth.t)
         est = estimate_rig_pose(views, prediction=prediction)
         assert est.success and est.disagreeing == (), (k, est.failure, est.disagreeing)
@@ -794,20 +805,20 @@ def test_the_mountings_covariance_is_the_poses_first_order_shift():
     p = -R_m[1].T @ c_m[1]
     Rm = R_m[1] @ rotvec_to_matrix(-d[:3])
     moved = list(views)
-    moved[1] = replace(views[1], R_mount=Rm, c_mount=-Rm @ (p + d[3:]))
+    moved[1] = replace(views[1], mounting=Mounting(Rm, -Rm @ (p + d[3:])))
     shifted = estimate_rig_pose(moved, _opts(threshold_px=2.0, seed=0))
     v = np.concatenate([
         matrix_to_rotvec(shifted.pose.orientation @ base.pose.orientation.T),
         shifted.pose.position - base.pose.position,
     ])  # fmt: skip
     with_cov = list(views)
-    with_cov[1] = replace(views[1], mount_covariance=np.outer(d, d))
+    with_cov[1] = replace(views[1], mounting=Mounting(R_m[1], c_m[1], np.outer(d, d)))
     grown = estimate_rig_pose(with_cov, _opts(threshold_px=2.0, seed=0))
     added = grown.covariance[:6, :6] - base.covariance[:6, :6]
     assert np.abs(v).max() > 1e-4
     assert np.allclose(added, np.outer(v, v), atol=0.05 * np.abs(v).max() ** 2), (added, v)
     zero = list(views)
-    zero[1] = replace(views[1], mount_covariance=np.zeros((6, 6)))
+    zero[1] = replace(views[1], mounting=Mounting(R_m[1], c_m[1], np.zeros((6, 6))))
     assert np.array_equal(estimate_rig_pose(zero, _opts(threshold_px=2.0, seed=0)).covariance,
                           base.covariance)  # fmt: skip
 
@@ -841,7 +852,7 @@ def _msac_px(views, R, C, threshold_px=2.0) -> tuple[float, list]:
     own projection through its mounting) and each view's inlier mask."""
     cost, masks = 0.0, []
     for v in views:
-        P = (v.X @ R.T + C) @ v.R_mount.T + v.c_mount
+        P = (v.X @ R.T + C) @ v.mounting.R.T + v.mounting.c
         e = np.nan_to_num(np.linalg.norm(v.camera.project(P) - v.uv, axis=1), nan=1e9)
         cost += float(np.minimum(e * e, threshold_px**2).sum())
         masks.append(e < threshold_px)
@@ -858,7 +869,7 @@ def _inlier_refit(views, R, C, masks, threshold_px=2.0):
         Rp, Cp = rotvec_to_matrix(p[:3]) @ R, C + p[3:]
         out = []
         for v, m in zip(views, masks, strict=True):
-            P = (v.X[m] @ Rp.T + Cp) @ v.R_mount.T + v.c_mount
+            P = (v.X[m] @ Rp.T + Cp) @ v.mounting.R.T + v.mounting.c
             out.append((v.camera.project(P) - v.uv[m]).ravel())
         return np.concatenate(out)
 
@@ -881,7 +892,9 @@ def test_the_final_model_is_not_beaten_by_a_fit_of_its_own_inliers(counts):
     turn = rotvec_to_matrix(np.radians([0.0, 0.6, 0.0]))
     for k in range(12):
         views, _ = _global_shutter_frame(1000 + k, counts, 0.5, 0.1)
-        views[-1] = replace(views[-1], R_mount=turn @ views[-1].R_mount)
+        views[-1] = replace(
+            views[-1], mounting=Mounting(turn @ views[-1].mounting.R, views[-1].mounting.c)
+        )
         est = estimate_rig_pose(views)
         assert est.success, (k, est.failure)
         cost, masks = _msac_px(views, est.model.R, est.model.C)
@@ -933,9 +946,9 @@ def _one_tag_per_camera(seed, side=0.15, depth=(2.0, 3.5), noise_px=0.3):
         centre = np.array([*rng.uniform(-0.4, 0.4, 2), 1.0]) * rng.uniform(*depth)
         facing = rotvec_to_matrix(np.append(rng.uniform(-0.5, 0.5, 2), rng.uniform(-3, 3)))
         P = square @ facing.T + centre  # (the tag's corners in the camera)
-        X = ((P - cam.c_mount) @ cam.R_mount - C) @ R  # (camera -> rig -> world)
+        X = ((P - cam.mounting.c) @ cam.mounting.R - C) @ R  # (camera -> rig -> world)
         uv = cam.camera.project(P) + rng.normal(scale=noise_px, size=(4, 2))
-        views.append(RigView(uv, X, cam.camera, cam.R_mount, cam.c_mount))
+        views.append(RigView(uv, X, cam.camera, cam.mounting))
     return views, (R, C)
 
 
@@ -947,7 +960,7 @@ def _least_squares_pose(views, R, C):
     def residuals(p):
         Rp, Cp = rotvec_to_matrix(p[:3]) @ R, C + p[3:]
         return np.concatenate([
-            (v.camera.project((v.X @ Rp.T + Cp) @ v.R_mount.T + v.c_mount) - v.uv).ravel()
+            (v.camera.project((v.X @ Rp.T + Cp) @ v.mounting.R.T + v.mounting.c) - v.uv).ravel()
             for v in views
         ])  # fmt: skip
 

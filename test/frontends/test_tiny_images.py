@@ -233,12 +233,13 @@ _RIG = """
 import json
 import numpy as np
 from rs_localizer.camera import CameraModel
+from rs_localizer.frames import Mounting
 from rs_localizer.frontends import make_frontend
 from rs_localizer.sim.render.rig import vga_rig
-from rs_localizer.tracking.rig import RigLocalizer, RigMount, RigSettings
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 SHAPES = {shapes!r}
 cams = vga_rig(2)
-mounts = {{c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}}
+mounts = {{c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}}
 rig = RigLocalizer(RigSettings(mounts))
 for c in cams:
     rig.set_frontend(c.name, make_frontend("aruco", "apriltag_board"), "aruco")

@@ -23,10 +23,10 @@ class Log:
 
 
 def mounts_of(cams):
-    """Each simulated rig camera's true mounting (name -> ``RigMount``)."""
-    from rs_localizer.tracking.rig import RigMount
+    """Each simulated rig camera's true mounting (name -> ``Mounting``)."""
+    from rs_localizer.frames import Mounting
 
-    return {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    return {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
 
 
 def assert_balanced(rig):

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from rs_localizer.camera import DISTORTION_MODELS
+from rs_localizer.frames import Mounting
 from rs_localizer.frontends import registry
 from rs_localizer.frontends.shared import MapCache
 from rs_localizer.ros import config as C
 from rs_localizer.ros import params as P
 from rs_localizer.solvers.registry import SOLVERS
-from rs_localizer.tracking.rig import RigLocalizer, RigMount, RigSettings
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
 PKG = Path(__file__).resolve().parents[2] / "rs_localizer"
 #: the modules a single camera never runs (tools/architecture_report.py's RIG_ONLY)
@@ -77,7 +78,7 @@ def test_a_front_end_added_to_the_registry_is_accepted_by_both_nodes(monkeypatch
     assert np.array_equal(fe[0].frontend.points, pts) and cache.loads == 1  # (one map)
     assert fe[0].frontend is not fe[1].frontend  # (an object per camera)
     rig = RigLocalizer(
-        RigSettings({n: RigMount.from_pose(np.eye(3), np.zeros(3) + i) for i, n in enumerate("ab")})
+        RigSettings({n: Mounting.from_pose(np.eye(3), np.zeros(3) + i) for i, n in enumerate("ab")})
     )
     for n, f in zip("ab", fe, strict=True):
         rig.set_frontend(n, f.frontend, cfg.frontend_kind)

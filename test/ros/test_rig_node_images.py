@@ -198,18 +198,19 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
     both cameras' state is ``disagrees``, the ERROR message going on with the cameras'
     warning and the failures by reason; with a third camera the status warns and names left
     alone, outvoted by the others (``left.outvoted``)."""
+    from rs_localizer.frames import Mounting
     from rs_localizer.ros.diagnostics import ERROR
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
 
     for k in (2, 3):
         cams = default_rig(k)
         frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=120, seed=7)
-        mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+        mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
         bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
-        mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+        mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
         rig = RigLocalizer(RigSettings(mounts))
         by = {c.name: c.camera for c in cams}
         for f in frames:

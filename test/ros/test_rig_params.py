@@ -73,8 +73,8 @@ def test_the_pages_example_gives_the_simulated_rigs_mountings(tmp_path):
     for c, sim in zip(cfg.cameras, default_rig(3), strict=True):
         assert c.name == sim.name and c.direction == sim.camera.readout
         assert c.line_delay == pytest.approx(sim.camera.line_delay)
-        assert np.allclose(c.mount.R, sim.R_mount, atol=1e-6)
-        assert np.allclose(c.mount.c, sim.c_mount, atol=1e-6)
+        assert np.allclose(c.mount.R, sim.mounting.R, atol=1e-6)
+        assert np.allclose(c.mount.c, sim.mounting.c, atol=1e-6)
 
 
 def test_errors_name_the_camera():

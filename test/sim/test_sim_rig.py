@@ -19,7 +19,7 @@ def test_layout_timing_and_exact_projection(m):
     assert max(stamps) - min(stamps) <= 0.01
     assert len({k.camera.readout for k in rig.cameras}) == m
     for k, (_, yaw) in zip(rig.cameras, LAYOUTS[m], strict=True):
-        axis = k.R_mount.T @ [0, 0, 1.0]  # the optical axis in the rig frame
+        axis = k.mounting.R.T @ [0, 0, 1.0]  # the optical axis in the rig frame
         assert np.degrees(np.arccos(axis @ [np.sin(yaw), 0, np.cos(yaw)])) < 25
         assert 0.05 <= np.linalg.norm(k.centre) <= 0.2
     truth = rig_motion(rng, 2.0, 1.0)
@@ -38,5 +38,5 @@ def test_layout_timing_and_exact_projection(m):
             a = np.linalg.norm(th)
             K = np.array([[0, -th[2], th[1]], [th[2], 0, -th[0]], [-th[1], th[0], 0]]) / a
             E = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
-            p = k.R_mount @ (E @ R @ X + C + tau[i] * t) + k.c_mount
+            p = k.mounting.R @ (E @ R @ X + C + tau[i] * t) + k.mounting.c
             assert np.allclose(p[:2] / p[2], x[i], atol=1e-7)

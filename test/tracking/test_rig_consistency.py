@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from helpers.rig import T0, Log, assert_balanced, mounts_of
 
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.rig import (
     RIG_REFUSALS,
     RigCameraFrame,
     RigLocalizer,
-    RigMount,
     RigSettings,
 )
 
@@ -144,7 +144,7 @@ def test_a_wrong_mounting_on_the_camera_with_most_points_is_outvoted():
     frames = thin(frames, "left")
     mounts = mounts_of(cams)
     bad = rotvec_to_matrix(np.radians([0.0, 5.0, 0.0]))
-    mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+    mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
     log = Log()
     rig, outs = run(frames, cams, mounts, log=log)
     e = pose_errors(outs, traj)

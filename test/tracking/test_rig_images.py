@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from helpers.rig import T0, Log, assert_balanced, mounts_of
 
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
@@ -17,7 +18,6 @@ from rs_localizer.tracking.rig import (
     SKIP_REASONS,
     RigCameraFrame,
     RigLocalizer,
-    RigMount,
     RigSettings,
 )
 
@@ -142,7 +142,7 @@ def test_two_cameras_that_disagree_are_both_named(wrong):
         )
     mounts = mounts_of(cams)
     bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
-    mounts[wrong] = RigMount(bad @ mounts[wrong].R, mounts[wrong].c)
+    mounts[wrong] = Mounting(bad @ mounts[wrong].R, mounts[wrong].c)
     log = Log()
     rig, outs = _run(keep, cams, mounts, log)
     assert outs[-1].disagreeing == ("front", "left")
@@ -163,7 +163,7 @@ def test_a_third_camera_names_the_wrong_mounting():
     frames, _, _ = generate_rig_video(cams, duration=0.4, num_points=150, seed=6)
     mounts = mounts_of(cams)
     bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
-    mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+    mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
     log = Log()
     rig, outs = _run(frames, cams, mounts, log)
     assert outs[-1].disagreeing == ("left",) and rig.camera_partner("left") is None

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from helpers.rig import T0, Log, assert_balanced, mounts_of
 
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
 from rs_localizer.tracking.rig import (
@@ -16,7 +17,6 @@ from rs_localizer.tracking.rig import (
     SKIP_REASONS,
     RigCameraFrame,
     RigLocalizer,
-    RigMount,
     RigSettings,
 )
 from rs_localizer.tracking.sequence import SequenceLocalizer
@@ -194,7 +194,7 @@ def test_a_mounting_off_by_degrees_is_named():
     frames, _, traj = generate_rig_video(cams, duration=0.4, num_points=150, seed=6)
     mounts = mounts_of(cams)
     bad = rotvec_to_matrix(np.radians([0.0, 3.0, 0.0]))
-    mounts["left"] = RigMount(bad @ mounts["left"].R, mounts["left"].c)
+    mounts["left"] = Mounting(bad @ mounts["left"].R, mounts["left"].c)
     log = Log()
     rig, outs, _ = run(frames, cams, RigSettings(mounts), log)
     assert outs[-1].disagreeing == ("left",)
@@ -274,13 +274,14 @@ def test_bad_settings():
     with pytest.raises(ValueError, match="at least one camera"):
         RigSettings({})
     with pytest.raises(ValueError, match="rotation"):
-        RigMount(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
+        Mounting(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
     rig = RigLocalizer(RigSettings(m))
     with pytest.raises(ValueError, match="'back' is not in the rig"):
         rig.add(RigCameraFrame("back", T0, cams[0].camera, np.zeros((0, 2)), np.zeros((0, 3))))
-    mount = RigMount.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
+    mount = Mounting.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
     assert np.allclose(mount.position, cams[1].p_rig_cam)
-    assert np.allclose(mount.R, cams[1].R_mount) and np.allclose(mount.c, cams[1].c_mount)
+    R = np.asarray(cams[1].R_rig_cam).T  # (x_cam = R x_rig + c)
+    assert np.allclose(mount.R, R) and np.allclose(mount.c, -R @ cams[1].p_rig_cam)
 
 
 def test_configure_takes_new_options_from_the_next_rig_frame(video):
@@ -316,7 +317,7 @@ def test_configure_takes_new_options_from_the_next_rig_frame(video):
     assert_balanced(rig)
     with pytest.raises(ValueError, match="keeps its window"):
         rig.configure(replace(settings, window=0.03))
-    moved = dict(mounts_of(cams), front=RigMount.from_pose(np.eye(3), np.zeros(3)))
+    moved = dict(mounts_of(cams), front=Mounting.from_pose(np.eye(3), np.zeros(3)))
     with pytest.raises(ValueError, match="keeps its mounts"):
         rig.configure(replace(settings, mounts=moved))
 

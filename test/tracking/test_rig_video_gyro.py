@@ -12,9 +12,10 @@ import pytest
 from helpers.rig import T0
 
 from rs_localizer.camera import reference_stamp_ns
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigMount, RigSettings
+from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
 
 NOISE = 0.003  # rad/s per sample
@@ -33,7 +34,7 @@ def _run(video, imu=None, gyro=None, log=None):
     they would arrive (a frame once its readout is over: 30 ms after its stamp). Returns
     (rig, outputs)."""
     cams, frames, _ = video
-    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     rig = RigLocalizer(RigSettings(mounts, imu=imu), log=log)
     by = {c.name: c.camera for c in cams}
     events = [(f.stamp_ns + 30_000_000, 1, f) for f in frames]
@@ -218,7 +219,7 @@ def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
     on (the older ones dropped), a frame going back by more drops them all; both counted
     ``rig.time_resets``; the bias estimate is kept (the same IMU), its pairing restarted."""
     cams, frames, _ = video
-    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(R_cam_imu=R_RIG_IMU, buffer=100.0, estimate_bias=True)
     rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None))
     by = {c.name: c.camera for c in cams}
@@ -248,7 +249,7 @@ def test_the_rigs_gap_is_passed_to_the_gyro_check_and_bias_estimator():
     from rs_localizer.tracking.rig import RigTrackingOptions
 
     cams = default_rig(2)
-    mounts = {c.name: RigMount.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
+    mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(estimate_bias=True)
     to = RigTrackingOptions(max_gap=0.3)
     rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=to, stop_after=0.8))

@@ -16,7 +16,7 @@ from rs_localizer.correspondences import (
 )
 from rs_localizer.estimation.estimate import EstimateOptions, InitialModel, RansacOptions
 from rs_localizer.estimation.result import physical_velocities
-from rs_localizer.frames import Extrinsic, camera_to_base
+from rs_localizer.frames import Mounting, camera_to_base
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import PoseWithCovariance, RSModel, RSPose
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
@@ -193,7 +193,7 @@ def test_estimates_and_states_store_their_pose_and_model(video):
         fused += out.fused
     fused += seq.flush()
     assert len(fused) == 4
-    ext = Extrinsic(np.eye(3), np.array([0.1, 0.0, 0.2]))
+    ext = Mounting.from_pose(np.eye(3), np.array([0.1, 0.0, 0.2]))
     for x in fused:
         e, st = estimates[x.pose.stamp_ns], x.state
         # the frame's own pose as estimated, with the fused twist, at the frame's time

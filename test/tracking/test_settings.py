@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rs_localizer.estimation.options import EstimateOptions, RefineOptions
+from rs_localizer.frames import Mounting
 from rs_localizer.tracking.fusion import FusionOptions
-from rs_localizer.tracking.rig import RigMount
 from rs_localizer.tracking.sequence import GyroSettings
 from rs_localizer.tracking.settings import gyro_settings, rig_settings, with_fields
 from rs_localizer.tracking.tracker import TrackerOptions
@@ -53,7 +53,7 @@ def test_gyro_settings_rotation_from_the_quaternion():
 def test_rig_settings_take_the_camera_estimator_and_tracker_options():
     opts = with_fields(EstimateOptions(), {"ransac": {"threshold_px": 1.25, "seed": 7}})
     tr = with_fields(TrackerOptions(), {"gate_px": 12.0, "max_gap": 0.3, "fusion": {"lag": 2}})
-    mounts = {"front": RigMount.from_pose(np.eye(3), [0.1, 0.0, 0.0])}
+    mounts = {"front": Mounting.from_pose(np.eye(3), [0.1, 0.0, 0.0])}
     s = rig_settings(
         mounts, opts, tr, window=0.02, stop_after=0.4, stamp_row=5.0, time_reset_ns=2 * 10**9
     )
