@@ -136,10 +136,7 @@ def poselib_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
 
 def ours_rig(rig: RealRig, views: dict, options=RIG_OPTIONS):
     """The rig estimator on one rig frame: ``(R, C)`` world -> rig, or its failure reason."""
-    rv = [
-        RigView(uv, X, rig.cameras[n], Mounting(*rig.mounts[n]), name=n)
-        for n, (uv, X) in views.items()
-    ]
+    rv = [RigView(uv, X, rig.cameras[n], rig.mountings[n], name=n) for n, (uv, X) in views.items()]
     e = estimate_rig_pose(rv, options)
     return (e.model.R, e.model.C) if e.success else e.failure
 
@@ -246,7 +243,7 @@ def video_run(
         RigTrackingOptions,
     )
 
-    settings = RigSettings({n: Mounting(*rig.mounts[n]) for n in rig.cameras}, options=options)
+    settings = RigSettings({n: rig.mountings[n] for n in rig.cameras}, options=options)
     if stop_after is not None:
         settings = replace(settings, stop_after=stop_after)
     if max_gap is not None:
@@ -370,7 +367,7 @@ def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | Non
         for n, (uv, X) in views.items()
     ]
     return calibrate_mountings(
-        cam_frames, ref, reference_mount=Mounting(*rig.mounts[ref]), min_inliers=min_inliers
+        cam_frames, ref, reference_mount=rig.mountings[ref], min_inliers=min_inliers
     )
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from rs_localizer.camera import CameraModel
+from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
 
 __all__ = [
@@ -87,7 +88,9 @@ class RealRig:
         cameras: name -> :class:`~rs_localizer.camera.CameraModel` (``cameras.yaml``'s order;
             global shutter).
         mounts: name -> ``(R (3, 3), c (3,) m)``: the reference's extrinsics as the rig
-            estimator's mounting ``x_cam = R x_rig + c``.
+            estimator's mounting ``x_cam = R x_rig + c``; mountings: the same as
+            :class:`~rs_localizer.frames.Mounting` s (built once: a benchmark's timed rig
+            frames take them as they are).
         frames: ``(stamp s, {name: (uv (N, 2) px, X (N, 3) m)})`` per rig frame with tags, in
             time order; a camera without tags in that rig frame is absent.
         reference: stamp -> ``(R (3, 3) world -> rig, C (3,))``: TagSLAM's rig pose
@@ -103,6 +106,7 @@ class RealRig:
     def __init__(self, cameras, mounts, frames, reference, name="", stamps_shared=(0, 0, 0),
                  tolerance=0.0, messages=()):  # fmt: skip
         self.cameras, self.mounts, self.frames, self.reference = cameras, mounts, frames, reference
+        self.mountings = {n: Mounting(*m) for n, m in mounts.items()}
         self.name, self.stamps_shared, self.tolerance = name, stamps_shared, tolerance
         self.messages = list(messages)
 
