@@ -236,18 +236,14 @@ def video_run(
         started the track has none), ``"counts"``: the localizer's counters, ``"outputs"``: its
         :class:`~rs_localizer.tracking.rig.RigOutput` s, ``"settings"``}``.
     """
-    from rs_localizer.tracking.rig import (
-        RigCameraFrame,
-        RigLocalizer,
-        RigSettings,
-        RigTrackingOptions,
-    )
+    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.tracker import TrackerOptions
 
     settings = RigSettings({n: rig.mountings[n] for n in rig.cameras}, options=options)
     if stop_after is not None:
         settings = replace(settings, stop_after=stop_after)
     if max_gap is not None:
-        settings = replace(settings, tracking=RigTrackingOptions(max_gap=max_gap))
+        settings = replace(settings, tracking=TrackerOptions(max_gap=max_gap))
     views_of = dict(rig.frames)
     last = rig.frames[:frames][-1][0] if rig.frames[:frames] else -np.inf
     empty = (np.zeros((0, 2)), np.zeros((0, 3)))

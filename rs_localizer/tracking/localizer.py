@@ -68,7 +68,7 @@ from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro import readout_window
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
-from .tracker import CarriedPrediction, PathOptions, TrackerPath
+from .tracker import CarriedPrediction, TrackerOptions, TrackerPath
 
 __all__ = [
     "FROZEN_IMAGE_LEVEL",
@@ -461,13 +461,13 @@ class VideoSettings(Protocol):
     :class:`~rs_localizer.tracking.sequence.SequenceSettings`, a rig's
     :class:`~rs_localizer.tracking.rig.RigSettings`): the estimator's ``options`` (None: the
     defaults) and the ``tracking`` options (None: no tracking; a
-    :class:`~rs_localizer.tracking.tracker.PathOptions`, its ``max_gap`` s)."""
+    :class:`~rs_localizer.tracking.tracker.TrackerOptions`, its ``max_gap`` s)."""
 
     @property
     def options(self) -> EstimateOptions | None: ...
 
     @property
-    def tracking(self) -> PathOptions | None: ...
+    def tracking(self) -> TrackerOptions | None: ...
 
 
 #: a video's settings (:class:`VideoSettings`)

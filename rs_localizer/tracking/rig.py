@@ -130,7 +130,7 @@ from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotation_angle_deg
 from ..pose import RSModel, RSPose, model_from_twist
 from .clock import TimeReset, VideoClock
-from .fusion import FusedState, FusionOptions
+from .fusion import FusedState
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
     CameraFrontend,
@@ -138,12 +138,13 @@ from .localizer import (
     VideoLocalizer,
     usable_rows,
 )
-from .tracker import STATES, Solve, TrackerPath
+from .tracker import STATES, Solve, TrackerOptions, TrackerPath
 
 __all__ = [
     "MISSED_REASONS",
     "RIG_PATHS",
     "RIG_REFUSALS",
+    "RIG_TRACKED_MAX_ITERATIONS",
     "SKIP_REASONS",
     "CameraShare",
     "RigCameraFrame",
@@ -151,7 +152,6 @@ __all__ = [
     "RigLocalizer",
     "RigOutput",
     "RigSettings",
-    "RigTrackingOptions",
 ]
 
 #: why a camera's frame was dropped before any rig frame (counted ``<camera>.skipped.<reason>``)
@@ -219,42 +219,9 @@ STOP_INTERVALS = 2.0
 RIG_PATHS = STATES
 
 
-@dataclass(frozen=True)
-class RigTrackingOptions:
-    """How the rig is tracked (module docstring, step 3); the fields of the camera tracker's
-    :class:`~rs_localizer.tracking.tracker.TrackerOptions` of the same names.
-
-    Attributes:
-        gate_px, gate_sigmas, max_gate_px: a point is explained by the prediction within
-            ``gate_px`` px, or ``gate_sigmas`` standard deviations of the predicted rotation
-            (times the focal length) when larger, up to ``max_gate_px``.
-        min_explained_ratio: the prediction is used when it explains at least this fraction of
-            the points the previous rig frame's inlier ratio promises.
-        max_gap: s between rig frames beyond which the track starts again.
-        tracked_max_iterations: RANSAC samples at most on a tracked rig frame.
-        fusion: the twist filter's :class:`~rs_localizer.tracking.fusion.FusionOptions` (its
-            ``max_gap`` is set to this one's).
-    """
-
-    gate_px: float = 20.0
-    gate_sigmas: float = 3.0
-    max_gate_px: float = 200.0
-    min_explained_ratio: float = 0.5
-    max_gap: float = 0.5
-    tracked_max_iterations: int = 200
-    fusion: FusionOptions = field(default_factory=FusionOptions)
-
-    def __post_init__(self):
-        if not (np.isfinite(self.gate_px) and self.gate_px > 0):
-            raise ValueError(f"gate_px must be > 0, got {self.gate_px}")
-        if not (self.gate_sigmas >= 0 and self.max_gate_px >= self.gate_px):
-            raise ValueError("need gate_sigmas >= 0 and max_gate_px >= gate_px")
-        if not 0.0 <= self.min_explained_ratio <= 1.0:
-            raise ValueError("min_explained_ratio must be in [0, 1]")
-        if not (np.isfinite(self.max_gap) and self.max_gap > 0):
-            raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
-        if self.tracked_max_iterations < 1:
-            raise ValueError("tracked_max_iterations must be >= 1")
+#: RANSAC's most samples on a tracked rig frame (the prediction verified) when the tracking
+#: options leave it open (``TrackerOptions.tracked_max_iterations`` None)
+RIG_TRACKED_MAX_ITERATIONS = 200
 
 
 @dataclass(frozen=True)
@@ -282,7 +249,11 @@ class RigSettings:
             iterations, confidence, inliers and seed, the refinement and the velocity bounds;
             :func:`~rs_localizer.estimation.rig.estimate_rig_pose`; default
             :data:`~rs_localizer.estimation.rig.RIG_OPTIONS`).
-        tracking: :class:`RigTrackingOptions`; None: every rig frame alone, its own twist.
+        tracking: the camera tracker's
+            :class:`~rs_localizer.tracking.tracker.TrackerOptions` (the gates, the explained
+            ratio, ``max_gap``, ``tracked_max_iterations``: default
+            :data:`RIG_TRACKED_MAX_ITERATIONS`, the twist filter's ``fusion``); None: every
+            rig frame alone, its own twist.
         disagree_ratio, disagree_min_points, disagree_frames, disagree_history: a camera with
             at least ``disagree_min_points`` points whose inlier ratio is below
             ``disagree_ratio`` times the other cameras' in ``disagree_frames`` of its last
@@ -308,7 +279,7 @@ class RigSettings:
     stamp_row: float = 0.0
     time_reset_ns: int = 10**9
     options: EstimateOptions = RIG_OPTIONS
-    tracking: RigTrackingOptions | None = field(default_factory=RigTrackingOptions)
+    tracking: TrackerOptions | None = field(default_factory=TrackerOptions)
     disagree_ratio: float = 0.5
     disagree_min_points: int = 12
     disagree_frames: int = 3
@@ -337,12 +308,13 @@ class RigSettings:
     @property
     def max_gap(self) -> float:
         """s: the rig's one gap policy, ``tracking.max_gap`` (the
-        :class:`RigTrackingOptions` default, 0.5 s, without tracking), as a camera's
+        :class:`~rs_localizer.tracking.tracker.TrackerOptions` default, 0.5 s, without
+        tracking), as a camera's
         :attr:`~rs_localizer.tracking.sequence.SequenceSettings.max_gap`: rig frames further
         apart share nothing across the gap (the track resets, the gyro's mount check and bias
         estimator form no pair)."""
         t = self.tracking
-        return float(t.max_gap if t is not None else RigTrackingOptions.max_gap)
+        return float(t.max_gap if t is not None else TrackerOptions.max_gap)
 
 
 @dataclass(frozen=True)
@@ -1488,6 +1460,7 @@ class _RigViews:
     def tracked(self, initial: InitialModel, predicted: FusedState) -> Solve:
         tracking = self.rig.settings.tracking  # (set: the tracker path runs only with it)
         n = None if tracking is None else tracking.tracked_max_iterations
+        n = RIG_TRACKED_MAX_ITERATIONS if n is None else n
         return Solve(self.rig._run(self.views, n, initial))
 
     def relocalize(self, model: RSModel, predicted: FusedState) -> Solve:

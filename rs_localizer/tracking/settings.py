@@ -26,7 +26,7 @@ import numpy as np
 
 from ..estimation.options import EstimateOptions
 from ..frames import Mounting
-from .rig import RigSettings, RigTrackingOptions
+from .rig import RigSettings
 from .sequence import GyroSettings
 from .tracker import TrackerOptions
 
@@ -83,11 +83,11 @@ def rig_settings(
     imu: GyroSettings | None = None,
     max_points: int | None = None,
 ) -> RigSettings:
-    """A rig's settings with the single camera's estimator and tracker options: ``options``
-    as they are (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
-    and seed, the refinement and the velocity bounds from them), the tracker
-    fields of the same names of ``tracking`` (gates, explained ratio, ``max_gap``, the twist
-    filter; None: every rig frame alone).
+    """A rig's settings with the single camera's estimator and tracker options as they are:
+    ``options`` (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
+    and seed, the refinement and the velocity bounds from them) and ``tracking`` (the gates,
+    explained ratio, ``max_gap``, the twist filter; :attr:`RigSettings.tracking`; None: every
+    rig frame alone).
 
     Args:
         mounts: camera name -> its mounting on the rig, in the cameras' order.
@@ -98,19 +98,8 @@ def rig_settings(
             (:attr:`RigSettings.max_points`); None: no cap.
 
     Raises:
-        ValueError: from :class:`RigSettings` (e.g. no cameras) or
-            :class:`RigTrackingOptions`.
+        ValueError: from :class:`RigSettings` (e.g. no cameras).
     """
-    to = None
-    if tracking is not None:
-        to = RigTrackingOptions(
-            gate_px=tracking.gate_px,
-            gate_sigmas=tracking.gate_sigmas,
-            max_gate_px=tracking.max_gate_px,
-            min_explained_ratio=tracking.min_explained_ratio,
-            max_gap=tracking.max_gap,
-            fusion=tracking.fusion,
-        )
     return RigSettings(
         dict(mounts),
         window=window,
@@ -118,7 +107,7 @@ def rig_settings(
         stamp_row=stamp_row,
         time_reset_ns=time_reset_ns,
         options=options,
-        tracking=to,
+        tracking=tracking,
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
         max_points=max_points,
     )

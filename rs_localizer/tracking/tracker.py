@@ -94,6 +94,9 @@ class TrackerOptions:
             estimator options with ``min_iterations = tracked_min_iterations``).
         tracked_min_iterations: RANSAC's minimum number of samples on tracked frames (the
             prediction is a hypothesis already; adaptive termination still runs).
+        tracked_max_iterations: RANSAC's maximum number of samples on tracked frames; None:
+            a camera's estimator options' own (``ransac.max_iterations``), a rig's
+            :data:`~rs_localizer.tracking.rig.RIG_TRACKED_MAX_ITERATIONS`.
         prior_from_prediction: when the estimator's motion prior is the predicted twist with
             its covariance (:func:`motion_prior_from_state`) instead of the estimator options'
             own prior: ``"planar"`` (default: on tracked frames when the previous frame's
@@ -105,6 +108,12 @@ class TrackerOptions:
         prior_inflation: the predicted twist covariance is multiplied by this for the prior.
         fusion: :class:`~rs_localizer.tracking.fusion.FusionOptions` of the filter (its
             ``max_gap`` is set to the tracker's).
+
+    The options of a camera's tracker and of a rig's
+    (:attr:`~rs_localizer.tracking.rig.RigSettings.tracking`); a rig's estimator takes no
+    motion prior and verifies its prediction with its own minimum of samples, so it reads all
+    of them but ``tracked_options``, ``tracked_min_iterations``, ``prior_from_prediction`` and
+    ``prior_inflation``.
     """
 
     gate_px: float = 20.0
@@ -114,6 +123,7 @@ class TrackerOptions:
     max_gap: float = 0.5
     tracked_options: EstimateOptions | None = None
     tracked_min_iterations: int = 16
+    tracked_max_iterations: int | None = None
     prior_from_prediction: str = "planar"
     prior_inflation: float = 1.0
     fusion: FusionOptions = field(default_factory=FusionOptions)
@@ -131,6 +141,8 @@ class TrackerOptions:
             raise ValueError(f"max_gap must be > 0, got {self.max_gap}")
         if self.tracked_min_iterations < 0:
             raise ValueError("tracked_min_iterations must be >= 0")
+        if self.tracked_max_iterations is not None and self.tracked_max_iterations < 1:
+            raise ValueError("tracked_max_iterations must be >= 1 (or None)")
         if self.prior_from_prediction not in ("planar", "always", "never"):
             raise ValueError(
                 f"prior_from_prediction must be planar, always or never, got "
@@ -252,31 +264,6 @@ def model_from_state(state: FusedState, camera: CameraModel) -> RSModel:
     return state.pose.model(camera.seconds_per_unit_r)
 
 
-class PathOptions(Protocol):
-    """The options of a tracker path (:class:`TrackerPath`, :func:`predicted_initial_model`):
-    a camera's :class:`TrackerOptions` or a rig's
-    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (their fields of these names, read
-    only: both are frozen)."""
-
-    @property
-    def max_gap(self) -> float: ...
-
-    @property
-    def fusion(self) -> FusionOptions: ...
-
-    @property
-    def gate_px(self) -> float: ...
-
-    @property
-    def gate_sigmas(self) -> float: ...
-
-    @property
-    def max_gate_px(self) -> float: ...
-
-    @property
-    def min_explained_ratio(self) -> float: ...
-
-
 class PathEstimate(PoseMeasurement, Protocol):
     """A frame's estimate on the tracker path: a camera's
     :class:`~rs_localizer.estimation.result.RSPoseEstimate` or a rig's
@@ -302,7 +289,7 @@ def predicted_initial_model(
     num_points: int,
     inlier_ratio: float | None,
     min_inliers: int,
-    options: PathOptions,
+    options: TrackerOptions,
 ) -> InitialModel:
     """The track's prediction as the estimator's initial model
     (:class:`~rs_localizer.estimation.InitialModel`), the one rule of a camera's tracker and a
@@ -310,9 +297,8 @@ def predicted_initial_model(
     px, or ``gate_sigmas`` standard deviations of the predicted rotation times ``focal`` (px)
     when larger, up to ``max_gate_px``; it is used when it explains at least
     ``min_explained_ratio`` of the ``num_points`` the previous frame's ``inlier_ratio``
-    (None: none yet) promises, and at least ``min_inliers``. ``options``: a
-    :class:`TrackerOptions` or a rig's
-    :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (:class:`PathOptions`)."""
+    (None: none yet) promises, and at least ``min_inliers`` (the fields of ``options``, a
+    camera's or a rig's :class:`TrackerOptions`)."""
     ratio = inlier_ratio if inlier_ratio is not None else 0.0
     need = max(min_inliers, int(options.min_explained_ratio * ratio * num_points))
     sigma_rot = float(np.sqrt(np.trace(predicted.covariance[:3, :3])))  # (>= largest)
@@ -419,8 +405,7 @@ class TrackerPath:
        the filter) and its inlier ratio kept for the next frame's gate.
 
     Args:
-        options: :class:`TrackerOptions` or a rig's
-            :class:`~rs_localizer.tracking.rig.RigTrackingOptions` (``max_gap``, ``fusion``
+        options: a camera's or a rig's :class:`TrackerOptions` (``max_gap``, ``fusion``
             and the gate's fields).
 
     Attributes:
@@ -432,7 +417,7 @@ class TrackerPath:
     ``failures`` (frames whose estimate failed).
     """
 
-    def __init__(self, options: PathOptions):
+    def __init__(self, options: TrackerOptions):
         self.path_options = options
         self.filter = TwistFilter(replace(options.fusion, max_gap=options.max_gap))
         self.frames = self.frames_tracked = self.relocalizations = self.resets = 0
@@ -585,7 +570,9 @@ class RSTracker(TrackerPath):
             or replace(
                 self.options,
                 ransac=replace(
-                    cold, min_iterations=min(cold.min_iterations, to.tracked_min_iterations)
+                    cold,
+                    min_iterations=min(cold.min_iterations, to.tracked_min_iterations),
+                    max_iterations=to.tracked_max_iterations or cold.max_iterations,
                 ),
             )
         )

@@ -473,3 +473,39 @@ def test_the_rig_and_one_camera_share_the_pending_twists_and_end_track(video):
             fused += o.fused
     fused += rig.flush()
     assert len(fused) > 0 and rig.pending == 0
+
+
+def test_a_rig_and_a_camera_take_one_tracking_options_type(video, monkeypatch):
+    """A rig's tracking options are a camera's ``TrackerOptions``: its tracked rig frames are
+    verified with at most ``tracked_max_iterations`` RANSAC samples (default
+    ``RIG_TRACKED_MAX_ITERATIONS``), cold ones with the estimator options' own maximum; a
+    camera's tracked frames take the same field (default: the options' own maximum)."""
+    import rs_localizer.tracking.rig as rig_module
+    from rs_localizer.estimation.options import EstimateOptions
+    from rs_localizer.tracking.tracker import RSTracker, TrackerOptions
+
+    cams, frames, _ = video
+    seen = []
+    real = rig_module.estimate_rig_pose
+
+    def spy(views, options, **kw):
+        seen.append((kw.get("initial_model") is not None, options.ransac.max_iterations))
+        return real(views, options, **kw)
+
+    monkeypatch.setattr(rig_module, "estimate_rig_pose", spy)
+    cold = rig_module.RIG_OPTIONS.ransac.max_iterations
+    for tracking, tracked in ((TrackerOptions(), rig_module.RIG_TRACKED_MAX_ITERATIONS),
+                              (TrackerOptions(tracked_max_iterations=7), 7)):  # fmt: skip
+        seen.clear()
+        _, outs, _ = run(frames, cams, RigSettings(mounts_of(cams), tracking=tracking))
+        assert any(o.path == "tracked" for o in outs)
+        assert {n for t, n in seen if t} == {tracked}
+        assert {n for t, n in seen if not t} == {cold}
+    options = EstimateOptions()
+    assert RSTracker(options=options).tracked_options.ransac.max_iterations == (
+        options.ransac.max_iterations
+    )
+    tracker = RSTracker(options=options, tracker_options=TrackerOptions(tracked_max_iterations=9))
+    assert tracker.tracked_options.ransac.max_iterations == 9
+    with pytest.raises(ValueError, match="tracked_max_iterations"):
+        TrackerOptions(tracked_max_iterations=0)

@@ -246,12 +246,12 @@ def test_the_rigs_gap_is_passed_to_the_gyro_check_and_bias_estimator():
     """The rig's gyro forms no pair of rig frames across its one gap, ``tracking.max_gap``
     (0.5 s without tracking), as a camera's across ``SequenceSettings.max_gap``, whatever
     ``stop_after``."""
-    from rs_localizer.tracking.rig import RigTrackingOptions
+    from rs_localizer.tracking.tracker import TrackerOptions
 
     cams = default_rig(2)
     mounts = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     imu = GyroSettings(estimate_bias=True)
-    to = RigTrackingOptions(max_gap=0.3)
+    to = TrackerOptions(max_gap=0.3)
     rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=to, stop_after=0.8))
     assert rig.gyro_check.options.max_interval == rig.gyro_bias.options.max_interval == 0.3
     rig = RigLocalizer(RigSettings(mounts, imu=imu, tracking=None, stop_after=0.8))
