@@ -11,6 +11,7 @@ data".
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -373,6 +374,7 @@ def calibrate_mountings(
     min_inliers: int = 20,
     options: Any = None,
     max_step: float = 0.1,
+    time_offsets: Mapping[str, float] | None = None,
 ) -> dict:
     """Every camera's mounting on the rig from a video of a known map, adjusted jointly.
 
@@ -413,6 +415,8 @@ def calibrate_mountings(
             frame's twist 0.012 deg and 0.63 mm, by the true twist 0.003 deg and 0.44 mm.)
         options: the single-camera estimator's
             :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
+        time_offsets: camera -> s added to its stamps (a rig's
+            :attr:`~rs_localizer.tracking.rig.RigSettings.time_offsets`); None: none.
     Returns:
         camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
         a camera not connected to the reference through shared rig frames is missing).
@@ -430,6 +434,7 @@ def calibrate_mountings(
         if not np.isfinite(est.covariance[:6, :6]).all():
             continue
         t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
+        t += int(round((time_offsets or {}).get(f.camera_name, 0.0) * 1e9))
         q = est.pose
         poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
                                      q.linear_velocity, est.covariance))  # fmt: skip

@@ -148,8 +148,8 @@ def params_yaml(
     values: dict, cams: dict, names: list, mountings: dict, notes: list, base_frame: str
 ) -> str:
     """The node's parameter file of the calibrated rig: ``base_frame`` (the rig frame the
-    mountings are in), ``rs.stamp_row``, ``rig.cameras`` and per camera its ``mounting`` and
-    the RS timing it was read with; ``notes``: comment lines on top."""
+    mountings are in), ``rs.stamp_row``, ``rig.cameras`` and per camera its ``mounting``, the
+    RS timing and the time offset it was read with; ``notes``: comment lines on top."""
     import yaml
 
     body_cams = {}
@@ -161,6 +161,8 @@ def params_yaml(
             v = cams[n].get(k)
             if v not in (None, "", -1.0):
                 entry[k] = v
+        if cams[n].get("time_offset"):
+            entry["time_offset"] = float(cams[n]["time_offset"])
         body_cams[n] = entry
     body = {
         "base_frame": base_frame,
@@ -254,6 +256,7 @@ def run(args: argparse.Namespace) -> int:
         stamp_row=float(values["rs.stamp_row"]),
         min_inliers=args.min_inliers,
         options=opts,
+        time_offsets=read.settings.time_offsets if read.settings is not None else None,
     )
     missing = [n for n in names if n not in est]
     if missing:

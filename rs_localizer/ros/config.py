@@ -514,6 +514,15 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
                 n, mount, line_delay if ld < 0 else ld, readout_time if rt < 0 else rt, d
             )
         )
+    offsets = {}
+    for n in names:
+        dt = cameras.get(n, {}).get("time_offset", 0.0)
+        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt):
+            raise ConfigError(f"rig.{n}.time_offset must be a number of seconds, got {dt!r}")
+        if abs(dt) > 1.0:
+            raise ConfigError(f"rig.{n}.time_offset must be within 1 s, got {dt!r}")
+        if dt:
+            offsets[n] = float(dt)
     try:
         settings = rig_settings(
             {c.name: c.mount for c in out},
@@ -525,6 +534,7 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
             time_reset_ns=int(float(values["time_reset_threshold"]) * 1e9),
             imu=imu,
             max_points=int(values["max_points"]),
+            time_offsets=offsets,
         )
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None

@@ -747,4 +747,12 @@ RIG_CAMERA_PARAMETERS = {
     "direction": Parameter(
         "", "the camera's readout direction; empty: rs.direction", read_only=True
     ),
+    "time_offset": Parameter(
+        0.0,
+        "s added to the camera's stamps to put its frames on the rig's clock: a driver that "
+        "stamps late or early by a constant amount (e.g. the apparent offset the node warns "
+        "of for a camera whose frames never join the others')",
+        FloatRange(from_value=-1.0, to_value=1.0),
+        read_only=True,
+    ),
 }

@@ -81,7 +81,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
-from ..camera import Stamp, reference_stamp_ns
+from ..camera import Stamp
 from ..estimation.rig import camera_estimate
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
@@ -497,12 +497,12 @@ class RigCore(NodeCore):
         return abs(self._ref_ns(item) - self._ref_ns(batch[0])) <= self._group_ns
 
     def _ref_ns(self, item: _Queued) -> int:
-        """A queued frame's reference time (ns) by its camera's newest model (its stamp
-        without one), as the rig groups it (:func:`~rs_localizer.camera.reference_stamp_ns`)."""
-        camera = self.inputs[item.name].newest
-        if camera is None:
-            return item.stamp
-        return reference_stamp_ns(item.stamp, camera, self.config.settings.stamp_row)
+        """A queued frame's time on the rig's clock (ns) by its camera's newest model (its
+        stamp without one), as the rig groups it
+        (:meth:`~rs_localizer.tracking.rig.RigSettings.reference_ns`)."""
+        return self.config.settings.reference_ns(
+            item.name, item.stamp, self.inputs[item.name].newest
+        )
 
     def _queue_skipped(self, item, reason: str) -> None:
         """A frame the queue dropped (with the queue's lock held): counted for its camera."""

@@ -98,6 +98,7 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -271,6 +272,14 @@ class RigSettings:
             first, else spread over the image;
             :func:`~rs_localizer.tracking.localizer.usable_rows`); None: no cap. Frames given
             to :meth:`RigLocalizer.add` are taken as they are.
+        time_offsets: camera -> s added to its stamps to put its frames on the rig's clock
+            (default 0 for each camera): a camera whose driver stamps its frames late or
+            early (at the end of its transfer, on another clock) by a known, constant amount,
+            e.g. the apparent offset :meth:`RigLocalizer.camera_apart` reports for a camera
+            whose frames never join the others'. A camera's frame is then grouped, timed in
+            its rig frame and gyro-aligned at :meth:`reference_ns`; its :class:`RigCameraFrame`
+            keeps the stamp it was given. At most 1 s each (a clock further off is another
+            clock: a time reset).
     """
 
     mounts: dict
@@ -286,6 +295,7 @@ class RigSettings:
     disagree_history: int = 5
     imu: GyroSettings | None = None
     max_points: int | None = None
+    time_offsets: dict = field(default_factory=dict)
 
     def __post_init__(self):
         if not self.mounts:
@@ -293,6 +303,14 @@ class RigSettings:
         for name, m in self.mounts.items():
             if not isinstance(m, Mounting):
                 raise ValueError(f"camera {name!r} has no mounting (a Mounting)")
+        offsets = {}
+        for name, dt in dict(self.time_offsets).items():
+            if name not in self.mounts:
+                raise ValueError(f"time_offsets: camera {name!r} is not in the rig")
+            if not (isinstance(dt, (int, float)) and math.isfinite(dt) and abs(dt) <= 1.0):
+                raise ValueError(f"time_offsets: {name!r} must be finite, at most 1 s, got {dt!r}")
+            offsets[name] = float(dt)
+        object.__setattr__(self, "time_offsets", offsets)
         if not (np.isfinite(self.window) and self.window >= 0):
             raise ValueError(f"window must be >= 0 s, got {self.window}")
         if not (np.isfinite(self.stop_after) and self.stop_after > 0):
@@ -304,6 +322,15 @@ class RigSettings:
     def cameras(self) -> tuple:
         """The cameras' names, in order."""
         return tuple(self.mounts)
+
+    def reference_ns(self, name: str, stamp_ns: int, camera: CameraModel | None) -> int:
+        """ns, camera ``name``'s frame stamped ``stamp_ns`` on the rig's clock: the capture
+        time of its reference line (:func:`~rs_localizer.camera.reference_stamp_ns` from the
+        row ``stamp_row``; without a ``camera`` model, the stamp) plus its
+        :attr:`time_offsets` entry."""
+        t = stamp_ns if camera is None else reference_stamp_ns(stamp_ns, camera, self.stamp_row)
+        dt = self.time_offsets.get(name, 0.0)
+        return t if dt == 0.0 else t + int(round(dt * 1e9))
 
     @property
     def max_gap(self) -> float:
@@ -578,12 +605,13 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
 
         Raises:
             ValueError: settings of another rig: other cameras or mountings, ``window``,
-                ``stop_after``, ``stamp_row`` or disagreement rule (the rig frames open and
-                each camera's history were made with them: a new :class:`RigLocalizer`).
+                ``stop_after``, ``stamp_row``, ``time_offsets`` or disagreement rule (the rig
+                frames open and each camera's history were made with them: a new
+                :class:`RigLocalizer`).
         """
         old = self.settings
-        shape = ("window", "stop_after", "stamp_row", "disagree_ratio", "disagree_min_points",
-                 "disagree_frames", "disagree_history")  # fmt: skip
+        shape = ("window", "stop_after", "stamp_row", "time_offsets", "disagree_ratio",
+                 "disagree_min_points", "disagree_frames", "disagree_history")  # fmt: skip
         changed = [k for k in shape if getattr(settings, k) != getattr(old, k)]
         if settings.cameras != old.cameras or not all(
             _same_mount(settings.mounts[n], old.mounts[n]) for n in old.cameras
@@ -670,9 +698,8 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """
         if frame.camera is None:
             return self._add(frame, None)
-        return self._add(
-            frame, reference_stamp_ns(frame.stamp_ns, frame.camera, self.settings.stamp_row)
-        )
+        s = self.settings
+        return self._add(frame, s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera))
 
     def _add(self, frame: RigCameraFrame, ref: int | None) -> list[RigOutput]:
         """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
@@ -683,7 +710,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
         self.counts[f"{name}.received"] += 1
         self._twists.note_frame()
-        stamp = frame.stamp_ns
+        stamp = self.settings.reference_ns(name, frame.stamp_ns, None)  # (+ its time offset)
         if self._first is None:
             self._first = stamp
         if frame.camera is None:
@@ -872,7 +899,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         cam = self._cams.get(name)
         if cam is None:
             raise ValueError(f"camera {name!r} is not in the rig {list(self._cams)}")
-        ref = reference_stamp_ns(checked_stamp(stamp_ns), camera, self.settings.stamp_row)
+        ref = self.settings.reference_ns(name, checked_stamp(stamp_ns), camera)
         return self._predict(ref, camera, cam)
 
     def _filter_kernels(self, impl: str | None) -> None:
@@ -925,8 +952,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                 f"unknown skip reason {reason!r}; expected one of {list(SKIP_REASONS)}"
             )
         stamp = checked_stamp(stamp_ns)
-        t = stamp if camera is None else reference_stamp_ns(stamp, camera, self.settings.stamp_row)
-        return self._drop(name, stamp, t, reason)
+        return self._drop(name, stamp, self.settings.reference_ns(name, stamp, camera), reason)
 
     def _drop(self, name: str, stamp: Stamp, t: int, reason: str) -> list:
         """:meth:`drop` of a frame stamped ``stamp`` whose time is ``t`` (ns: its reference
@@ -936,7 +962,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         self._twists.note_frame()
         self._skip(name, reason)
         if self._first is None:
-            self._first = stamp
+            self._first = self.settings.reference_ns(name, stamp, None)
         cam.dropped.append(t)
         if cam.last_ref is None or t > cam.last_ref:
             cam.newest = t if cam.newest is None else max(cam.newest, t)
@@ -991,7 +1017,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             frame = RigCameraFrame(name, stamp, None, _NO_UV, _NO_XYZ, tag)
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
-        ref = reference_stamp_ns(stamp, camera, self.settings.stamp_row)
+        ref = self.settings.reference_ns(name, stamp, camera)
         r = self._search_image(fe, stamp, ref, image, camera, encoding, view=self._cams[name])
         if r.failure == "frozen_image":
             self.log.warning(
@@ -1265,8 +1291,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
                     f"rig.apart.{n}",
                     f"rig camera {n!r}: its frames never join the others' (window "
                     f"{1e3 * self.settings.window:.0f} ms): stamps {text} (median of nearest "
-                    "stamps): its clock or stamp offset is likely wrong; its frames are posed "
-                    "alone only where the rig's track agrees",
+                    "stamps): its clock or stamp offset is likely wrong (a constant offset: "
+                    f"set its time offset, rig.{n}.time_offset in the node); its frames are "
+                    "posed alone only where the rig's track agrees",
                 )
             elif cam.apart and not apart:
                 self.log.info(f"rig camera {n!r} joins the others' rig frames again")

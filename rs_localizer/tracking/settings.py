@@ -82,6 +82,7 @@ def rig_settings(
     time_reset_ns: int,
     imu: GyroSettings | None = None,
     max_points: int | None = None,
+    time_offsets: Mapping[str, float] | None = None,
 ) -> RigSettings:
     """A rig's settings with the single camera's estimator and tracker options as they are:
     ``options`` (the rig estimator takes the RANSAC threshold, iterations, confidence, inliers
@@ -96,6 +97,8 @@ def rig_settings(
             when its last camera arrives, so it never waits for samples (``wait`` set to 0).
         max_points: the most rows a camera's image gives the rig estimator, as for one camera
             (:attr:`RigSettings.max_points`); None: no cap.
+        time_offsets: camera -> s added to its stamps (:attr:`RigSettings.time_offsets`);
+            None: none.
 
     Raises:
         ValueError: from :class:`RigSettings` (e.g. no cameras).
@@ -110,4 +113,5 @@ def rig_settings(
         tracking=tracking,
         imu=None if imu is None else dataclasses.replace(imu, wait=0.0),
         max_points=max_points,
+        time_offsets=dict(time_offsets or {}),
     )

@@ -304,3 +304,21 @@ def test_clouds_are_read_as_the_rig_node_reads_them(tmp_path, capsys):
     for c in ("front", "left"):
         assert {k: report[c][k] for k in read.counts[c]} == read.counts[c]
     assert report["left"]["frames"] >= 5 and np.isfinite(report["left"]["std_deg"])
+
+
+def test_a_cameras_time_offset_is_used_and_kept(rig_bag, tmp_path, capsys):
+    """A camera's ``rig.<camera>.time_offset`` given in a parameter file puts its frames on the
+    rig's clock for the calibration and is written into the calibrated parameter file."""
+    from rs_localizer.cli import main
+    from rs_localizer.ros.param_files import read_params_file
+
+    extra = tmp_path / "offset.yaml"
+    extra.write_text(
+        "/**/rs_localizer:\n  ros__parameters:\n    rig:\n      left:\n        time_offset: 0.004\n"
+    )
+    out = tmp_path / "rig.yaml"
+    capsys.readouterr()
+    assert main(["calibrate-rig", str(rig_bag), "--params-file", str(extra), "-o", str(out)]) == 0
+    params = read_params_file(out)
+    assert params["rig.left.time_offset"] == 0.004
+    assert "rig.right.time_offset" not in params

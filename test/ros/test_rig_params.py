@@ -96,6 +96,21 @@ def test_errors_name_the_camera():
         rig_config(*_values({"rig.cameras": []}))
 
 
+def test_a_cameras_time_offset_reaches_the_rig():
+    """rig.<camera>.time_offset (s, default 0) becomes the rig's ``time_offsets`` entry; a
+    value beyond 1 s or not a number is refused naming the parameter."""
+    one = {"rig.cameras": ["a", "b"], "rig.a.mounting": [0, 0, 0, 0, 0, 0, 1.0],
+           "rig.b.mounting": [0.1, 0, 0, 0, 0, 0, 1.0]}  # fmt: skip
+    assert rig_config(*_values(one)).settings.time_offsets == {}
+    cfg = rig_config(*_values({**one, "rig.b.time_offset": -0.0125}))
+    assert cfg.settings.time_offsets == {"b": -0.0125}
+    assert cfg.settings.reference_ns("b", 10**9, None) == 10**9 - 12_500_000
+    with pytest.raises(ConfigError, match=r"rig\.b\.time_offset must be within 1 s"):
+        rig_config(*_values({**one, "rig.b.time_offset": 1.5}))
+    with pytest.raises(ConfigError, match=r"rig\.a\.time_offset must be a number"):
+        rig_config(*_values({**one, "rig.a.time_offset": "late"}))
+
+
 def test_max_points_is_the_rigs_one_cap():
     """The one ``max_points`` parameter sets the rig's cap on its cameras' image rows
     (``RigSettings.max_points``), 5000 by default; below what a pose needs it is refused."""

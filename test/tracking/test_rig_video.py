@@ -509,3 +509,46 @@ def test_a_rig_and_a_camera_take_one_tracking_options_type(video, monkeypatch):
     assert tracker.tracked_options.ransac.max_iterations == 9
     with pytest.raises(ValueError, match="tracked_max_iterations"):
         TrackerOptions(tracked_max_iterations=0)
+
+
+def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video):
+    """A camera whose driver stamps its frames 25 ms late: its frames join the wrong rig
+    frames, where it disagrees with the others; with ``time_offsets`` of -25 ms the rig is
+    the one of the correct stamps, estimate for estimate, and so are the mountings
+    calibrated from the video."""
+    from dataclasses import replace as dc_replace
+
+    from rs_localizer.calibration import calibrate_mountings
+
+    cams, frames, _ = video
+    late = [dc_replace(f, stamp_ns=f.stamp_ns + 25_000_000) if f.name == "left" else f
+            for f in frames]  # fmt: skip
+    rig, _, _ = run(late, cams)
+    assert rig.counts["left.disagreements"] == 1 and rig.camera_state("left") == "disagrees"
+    truth_rig, want, _ = run(frames, cams)
+    settings = RigSettings(mounts_of(cams), time_offsets={"left": -0.025})
+    fixed, got, _ = run(late, cams, settings)
+    assert fixed.counts == truth_rig.counts
+    assert [o.cameras for o in got] == [o.cameras for o in want]
+    assert [o.stamp_ns for o in got] == [o.stamp_ns for o in want]
+    for a, b in zip(got, want, strict=True):
+        assert a.success == b.success
+        if a.success:
+            np.testing.assert_array_equal(a.estimate.model.R, b.estimate.model.R)
+            np.testing.assert_array_equal(a.estimate.model.C, b.estimate.model.C)
+    by = {c.name: c.camera for c in cams}
+
+    def frames_of(video):
+        return [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in video]
+
+    truth = calibrate_mountings(frames_of(frames), "front", min_inliers=20)
+    shifted = calibrate_mountings(
+        frames_of(late), "front", min_inliers=20, time_offsets={"left": -0.025}
+    )
+    np.testing.assert_array_equal(shifted["left"].mount.R, truth["left"].mount.R)
+    with pytest.raises(ValueError, match="time_offsets"):
+        RigSettings(mounts_of(cams), time_offsets={"back": 0.01})
+    with pytest.raises(ValueError, match="at most 1 s"):
+        RigSettings(mounts_of(cams), time_offsets={"left": 2.0})
+    with pytest.raises(ValueError, match="keeps its time_offsets"):
+        RigLocalizer(RigSettings(mounts_of(cams))).configure(settings)
