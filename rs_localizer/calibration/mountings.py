@@ -23,7 +23,13 @@ from ..estimation.estimate import estimate_rs_pose
 from ..frames import Mounting
 from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
-__all__ = ["MOUNTING_BIAS_SHARE", "MountingEstimate", "calibrate_mountings"]
+__all__ = [
+    "MOUNTING_BIAS_SHARE",
+    "TIME_OFFSET_ROUNDS",
+    "TIME_OFFSET_TOL",
+    "MountingEstimate",
+    "calibrate_mountings",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +60,12 @@ class MountingEstimate:
               in position on synthetic and rendered rig videos of 5-10 s; it does not shrink
               with the video's length.
         scatter_deg, scatter_mm: one camera frame's pose error about the adjusted rig (RMS).
+        time_offset: s added to the camera's stamps to put its frames on the rig's clock (the
+            reference camera's: as given): the one it was calibrated with, or with
+            ``estimate_time_offsets`` the estimate.
+        time_offset_std: s, that estimate's standard deviation (the adjustment's, inflated as
+            the mounting's for the frames' shared errors); NaN: not estimated (given, or the
+            reference camera's).
     """
 
     name: str
@@ -64,7 +76,15 @@ class MountingEstimate:
     std_mm: float
     scatter_deg: float
     scatter_mm: float
+    time_offset: float = 0.0
+    time_offset_std: float = float("nan")
 
+
+#: ``estimate_time_offsets``: the adjustment is run again at the time offsets found until
+#: they change by less than this (s) ...
+TIME_OFFSET_TOL = 1e-4
+#: ... at most this many times
+TIME_OFFSET_ROUNDS = 4
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
 #: share of one rig frame's scatter of the rotation and of the position: the bias of the
@@ -101,20 +121,26 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
     """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
     carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s): the
     constant twist between its own two frames around ``t_r`` (interpolated poses), or its
-    frame's own twist when it has no frame on the other side within ``max_step`` s."""
+    frame's own twist when it has no frame on the other side within ``max_step`` s. Also that
+    twist in world axes, ``(angular rad/s, linear m/s)``: the pose's rate of change with the
+    camera's time (its frame's own twist at ``t_r`` itself)."""
     k = int(np.argmin(np.abs(times - t_r)))
     dt = (t_r - times[k]) * 1e-9
     if abs(dt) > window:
         return None
     _, Oc, p, om, v, cov = items[k]
     j = k + 1 if dt > 0 else k - 1
-    if dt == 0:
-        return Oc, p, cov
-    if 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
+    if dt != 0 and 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
+        step = (times[j] - times[k]) * 1e-9
+        rate = Oc @ matrix_to_rotvec(Oc.T @ items[j][1]) / step  # (world axes)
+        vel = (items[j][2] - p) / step
         s_ = (t_r - times[k]) / (times[j] - times[k])
         O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
-        return O_t, p + s_ * (items[j][2] - p), cov
-    return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov
+        return O_t, p + s_ * (items[j][2] - p), cov, (rate, vel)
+    twist = (Oc @ om, Oc @ v)
+    if dt == 0:
+        return Oc, p, cov, twist
+    return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov, twist
 
 
 def _rig_frames(poses: dict, window: float, max_step: float) -> list:
@@ -159,8 +185,8 @@ def _initial_mounts(rig_frames: list, reference: str, base: Mounting) -> dict:
         for a in seen:
             for b in seen:
                 if a != b:
-                    Oa, pa, _ = seen[a]
-                    Ob, pb, _ = seen[b]
+                    Oa, pa = seen[a][:2]
+                    Ob, pb = seen[b][:2]
                     rel.setdefault((a, b), []).append((Oa.T @ Ob, Oa.T @ (pb - pa)))
     mounts = {reference: (base.R.T, base.position)}
     frontier = [reference]
@@ -197,16 +223,26 @@ def _camera_axes(R_wc: np.ndarray) -> np.ndarray:
 _OUTLIER_QUANTILE = 0.999
 
 
-def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None = None):
+def _adjust(
+    rig_frames: list,
+    mounts: dict,
+    reference: str,
+    outlier: dict | None = None,
+    offsets: bool = False,
+):
     """One least-squares adjustment (SciPy ``least_squares``, sparse Jacobian) of every rig
     frame's pose and every non-reference camera's mounting (``mounts``: name -> (camera ->
     rig rotation, position), the start) to the cameras' poses posed alone, each camera's
     errors whitened by its frames' typical covariance in its own axes; camera frames in
     ``outlier`` ((rig
     frame, camera) -> True) left out, and cameras no longer connected to the reference.
+    ``offsets``: each non-reference camera's time offset (s, against the reference's) is
+    adjusted too, to first order (its frames' poses move along their twist).
     Returns ``(mounts, the whitened Jacobian (sparse), whitened errors (m, 6), the
-    observations (rig frame used, rig frame, camera, O, p, whitening), rig frames used,
-    adjusted cameras)``."""
+    observations (rig frame used, rig frame, camera, O, p, whitening, twist), rig frames
+    used, adjusted cameras, their time offsets (s; empty without ``offsets``))``; the
+    Jacobian's columns: the rig frames' poses (6 each), the mountings (6 each), the time
+    offsets."""
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
 
@@ -218,7 +254,7 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None
     # each frame's weight then scaled by its own covariance's size (below)
     covs: dict = {}
     for _, seen in rig_frames:
-        for n, (R_wc, _, c6) in seen.items():
+        for n, (R_wc, _, c6, _) in seen.items():
             T = _camera_axes(R_wc)
             covs.setdefault(n, []).append(T @ np.asarray(c6, dtype=float)[:6, :6] @ T.T)
     whiten = {}
@@ -254,74 +290,92 @@ def _adjust(rig_frames: list, mounts: dict, reference: str, outlier: dict | None
         seen = rig_frames[g][1]
         a = reference if reference in known else known[0]
         Ra, pa = mounts[a]
-        Oa, ppa, _ = seen[a]
+        Oa, ppa = seen[a][:2]
         gi = len(R0g)
         R0g.append(Oa @ Ra.T)
         P0g.append(ppa - R0g[-1] @ pa)
         for n in known:
-            Oc, p, c6 = seen[n]
+            Oc, p, c6, twist = seen[n]
             # the typical covariance's shape, scaled to the size of the frame's own (its
             # mean variance in the typical's whitened units): a frame of few inliers
             # counts less, its own shape (noisy with few points) is not used
             Wn = whiten[n] @ _camera_axes(Oc)
             size = np.trace(Wn @ np.asarray(c6, dtype=float)[:6, :6] @ Wn.T) / 6.0
-            obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12))))
+            obs.append((gi, g, n, Oc, p, Wn / np.sqrt(max(size, 1e-12)), twist))
     G, F = len(R0g), len(free)
+    D = F if offsets else 0  # (a time offset per free camera, s, after the mountings)
     R0m = [mounts[n][0] for n in free]
     p0m = [mounts[n][1] for n in free]
     Rref, pref = mounts[reference]
 
     def unpack(x):
         xg = x[: 6 * G].reshape(G, 6)
-        xm = x[6 * G :].reshape(F, 6)
-        return xg, xm
+        xm = x[6 * G : 6 * (G + F)].reshape(F, 6)
+        return xg, xm, x[6 * (G + F) :]
 
     gi_ = np.array([o[0] for o in obs], dtype=int)
     ci_ = np.array([-1 if o[2] == reference else fidx[o[2]] for o in obs], dtype=int)
     Ot = np.array([o[3].T for o in obs]).reshape(-1, 3, 3)
     po = np.array([o[4] for o in obs]).reshape(-1, 3)
     Whs = np.array([o[5] for o in obs]).reshape(-1, 6, 6)
+    # each camera frame's pose changes with its camera's time at its twist (world axes): a
+    # time offset dt seen at the rig frame's time is the pose dt earlier on the camera's
+    # own time (constant twist), O -> expm(-dt [w]x) O, p -> p - dt v
+    ang = np.array([o[6][0] for o in obs]).reshape(-1, 3)
+    lin = np.array([o[6][1] for o in obs]).reshape(-1, 3)
     R0g_, P0g_ = np.array(R0g).reshape(-1, 3, 3), np.array(P0g).reshape(-1, 3)
     R0m_, p0m_ = np.array(R0m).reshape(-1, 3, 3), np.array(p0m).reshape(-1, 3)
 
     def fun(x):
-        xg, xm = unpack(x)
+        xg, xm, xd = unpack(x)
         Rg = rotvec_to_matrix(xg[:, :3]) @ R0g_
         Pg = P0g_ + xg[:, 3:]
         Rm = np.concatenate([rotvec_to_matrix(xm[:, :3]) @ R0m_, Rref[None]]) if F else Rref[None]
         pm = np.concatenate([p0m_ + xm[:, 3:], pref[None]])
         Rgi, Rci = Rg[gi_], Rm[ci_]
+        O_t, p_t = Ot, po
+        if D:
+            dt = np.concatenate([xd, [0.0]])[ci_]  # (the reference's: 0)
+            O_t = Ot @ rotvec_to_matrix(dt[:, None] * ang)  # ((expm(-dt [w]x) O)^T)
+            p_t = po - dt[:, None] * lin
         e = np.concatenate(
-            [matrix_to_rotvec(Rgi @ Rci @ Ot),
-             Pg[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - po], axis=1,
+            [matrix_to_rotvec(Rgi @ Rci @ O_t),
+             Pg[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - p_t], axis=1,
         )  # fmt: skip
         return np.einsum("nij,nj->ni", Whs, e).ravel()
 
-    sp = lil_matrix((6 * len(obs), 6 * (G + F)), dtype=int)
+    sp = lil_matrix((6 * len(obs), 6 * (G + F) + D), dtype=int)
     for i, (gi, _, n, *_) in enumerate(obs):
         sp[6 * i : 6 * i + 6, 6 * gi : 6 * gi + 6] = 1
         if n != reference:
             k = 6 * G + 6 * fidx[n]
             sp[6 * i : 6 * i + 6, k : k + 6] = 1
-    x0 = np.zeros(6 * (G + F))
+            if D:
+                sp[6 * i : 6 * i + 6, 6 * (G + F) + fidx[n]] = 1
+    x0 = np.zeros(6 * (G + F) + D)
     res = least_squares(fun, x0, jac_sparsity=sp, method="trf", xtol=1e-10, ftol=1e-10,
                         max_nfev=100)  # fmt: skip
-    _, xm = unpack(res.x)
+    _, xm, xd = unpack(res.x)
     out = {reference: (Rref, pref)}
     for n in free:
         i = fidx[n]
         out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
-    return out, res.jac, res.fun.reshape(-1, 6), obs, G, free
+    shifts = {n: float(xd[fidx[n]]) for n in free} if D else {}
+    return out, res.jac, res.fun.reshape(-1, 6), obs, G, free, shifts
 
 
-def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list, reference: str):
+def _mounting_covariance(
+    J, r: np.ndarray, obs: list, G: int, free: list, reference: str
+) -> tuple[dict, dict]:
     """Each free camera's mounting covariance (6, 6) over (rotation [rad, rig axes], position
     [m, rig frame]) from the adjustment (:func:`_adjust`): ``s^2 H^-1`` (``H = J^T J`` of the
     whitened errors, ``s^2`` their variance factor), scaled by how much more the means of 8
     runs of consecutive rig frames scatter than independent frames would (neighbouring frames
     share errors, e.g. of the motion), plus the bias every frame of a camera shares
     (:data:`MOUNTING_BIAS_SHARE` of the camera's per-axis scatter in its own axes, which
-    averaging does not remove), propagated through the adjustment (first order)."""
+    averaging does not remove), propagated through the adjustment (first order). Also each
+    free camera's time offset's standard deviation (s) when the adjustment had them (the
+    Jacobian's last columns), ``s^2 H^-1`` with the same inflation."""
     m, n = r.shape[0], J.shape[1]
     H = (J.T @ J).toarray() if hasattr(J, "toarray") else J.T @ J
     dof = max(6 * m - n, 1)
@@ -333,14 +387,21 @@ def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list, refere
         if len(rc) >= 16:
             iid = np.sum(np.var(rc, axis=0, ddof=1)) / len(rc)
             inflate = max(inflate, _std_of_mean(rc) ** 2 / max(iid, 1e-300))
-    cols = np.arange(6 * G, n)
-    E = np.zeros((n, len(cols)))
-    E[cols, np.arange(len(cols))] = 1.0
+    cols = np.arange(6 * G, 6 * G + 6 * len(free))
+    dcols = np.arange(6 * G + 6 * len(free), n)  # (the time offsets, if adjusted)
+    E = np.zeros((n, n - 6 * G))
+    E[np.arange(6 * G, n), np.arange(n - 6 * G)] = 1.0
     try:
-        Hinv_m = np.linalg.solve(H, E)[cols]
+        Hinv = np.linalg.solve(H, E)
     except np.linalg.LinAlgError:  # (not expected: every camera is connected)
         nan = np.full((6, 6), np.nan)
-        return {name: nan for name in free}
+        return {name: nan for name in free}, {name: np.nan for name in free}
+    Hinv_m = Hinv[cols][:, : len(cols)]
+    dt_std = {
+        name: float(np.sqrt(s2 * inflate * Hinv[dcols[i], len(cols) + i]))
+        for i, name in enumerate(free)
+        if len(dcols)
+    }
     cov = s2 * inflate * Hinv_m
     Jt = J.T.tocsr() if hasattr(J, "tocsr") else J.T
     bias = np.concatenate([np.full(3, MOUNTING_BIAS_SHARE["rotation"]),
@@ -350,7 +411,7 @@ def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list, refere
         Z = np.zeros((6 * m, 6))
         e_cam = []
         for i in rows:
-            _, _, _, Oc, _, Wh = obs[i]
+            Oc, Wh = obs[i][3], obs[i][5]
             T = np.zeros((6, 6))
             T[:3, :3] = Oc
             T[3:, 3:] = Oc
@@ -361,7 +422,7 @@ def _mounting_covariance(J, r: np.ndarray, obs: list, G: int, free: list, refere
         K = np.linalg.solve(H, Jt @ Z)[cols]
         cov = cov + K @ B @ K.T
     cov = 0.5 * (cov + cov.T)
-    return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}
+    return {name: cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i, name in enumerate(free)}, dt_std
 
 
 def calibrate_mountings(
@@ -375,6 +436,7 @@ def calibrate_mountings(
     options: Any = None,
     max_step: float = 0.1,
     time_offsets: Mapping[str, float] | None = None,
+    estimate_time_offsets: bool = False,
 ) -> dict:
     """Every camera's mounting on the rig from a video of a known map, adjusted jointly.
 
@@ -417,12 +479,20 @@ def calibrate_mountings(
             :class:`~rs_localizer.estimation.EstimateOptions` (None: its defaults).
         time_offsets: camera -> s added to its stamps (a rig's
             :attr:`~rs_localizer.tracking.rig.RigSettings.time_offsets`); None: none.
+        estimate_time_offsets: also estimate every camera's time offset against the
+            reference camera's (its given one kept): each one's parameter in the adjustment
+            (a camera frame's pose moved along its own twist by it), the cameras' frames
+            regrouped at the offsets found and the adjustment run again until they change by
+            less than :data:`TIME_OFFSET_TOL` (at most :data:`TIME_OFFSET_ROUNDS` times).
+            Only a rig that turns shows an offset: its std says how well (a camera turning at
+            1 rad/s is 0.57 deg off per 10 ms).
     Returns:
         camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
         a camera not connected to the reference through shared rig frames is missing).
     Raises:
         ValueError: no frame of ``reference`` posed.
     """
+    given = {n: float(v) for n, v in (time_offsets or {}).items()}
     poses: dict[str, list] = {}
     for f in frames:
         if f.camera is None:
@@ -434,7 +504,7 @@ def calibrate_mountings(
         if not np.isfinite(est.covariance[:6, :6]).all():
             continue
         t = reference_stamp_ns(f.stamp_ns, f.camera, stamp_row)
-        t += int(round((time_offsets or {}).get(f.camera_name, 0.0) * 1e9))
+        t += int(round(given.get(f.camera_name, 0.0) * 1e9))
         q = est.pose
         poses[f.camera_name].append((t, q.orientation, q.position, q.angular_velocity,
                                      q.linear_velocity, est.covariance))  # fmt: skip
@@ -450,23 +520,39 @@ def calibrate_mountings(
     if len(mounts) < 2:  # (no camera shares a rig frame with the reference)
         n_ref = len(poses[reference])
         return {reference: MountingEstimate(reference, base, n_ref, 0, 0.0, 0.0, 0.0, 0.0)}
-    mounts, J, r, obs, G, free = _adjust(rig_frames, mounts, reference)
-    # camera frames that contradict the others, left out (at the errors' median scale)
-    d2 = np.sum(r * r, axis=1)
-    scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
-    bad = {(g, n): True for (_, g, n, *_), e in zip(obs, d2, strict=True)
-           if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
-    if bad:
-        mounts, J, r, obs, G, free = _adjust(rig_frames, mounts, reference, bad)
-    cov = _mounting_covariance(J, r, obs, G, free, reference)
+    shifted = {n: 0.0 for n in poses}  # (s: the time offsets found so far, beyond the given)
+    rounds = TIME_OFFSET_ROUNDS if estimate_time_offsets else 1
+    for k in range(rounds):
+        mounts, J, r, obs, G, free, dts = _adjust(
+            rig_frames, mounts, reference, offsets=estimate_time_offsets
+        )
+        # camera frames that contradict the others, left out (at the errors' median scale)
+        d2 = np.sum(r * r, axis=1)
+        scale = max(float(np.median(d2)) / chi2.ppf(0.5, 6), 1.0)
+        bad = {(g, n): True for (_, g, n, *_), e in zip(obs, d2, strict=True)
+               if e > scale * chi2.ppf(_OUTLIER_QUANTILE, 6)}  # fmt: skip
+        if bad:
+            mounts, J, r, obs, G, free, dts = _adjust(
+                rig_frames, mounts, reference, bad, offsets=estimate_time_offsets
+            )
+        if not dts or max(abs(v) for v in dts.values()) < TIME_OFFSET_TOL or k == rounds - 1:
+            break  # (the offsets of the last adjustment: dts, beyond those shifted)
+        for n, dt in dts.items():  # (the cameras' frames regrouped at the offsets found)
+            shifted[n] += dt
+            poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
+        rig_frames = _rig_frames(poses, window, max_step)
+    cov, dt_std = _mounting_covariance(J, r, obs, G, free, reference)
     out = {}
     for name in poses:
         if name not in mounts:
             continue
         n_used = sum(1 for o in obs if o[2] == name)
         n_bad = sum(1 for (_, n) in bad if n == name)
+        offset = given.get(name, 0.0) + shifted.get(name, 0.0) + dts.get(name, 0.0)
         if name == reference:
-            out[name] = MountingEstimate(name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0)
+            out[name] = MountingEstimate(
+                name, base, n_used, n_bad, 0.0, 0.0, 0.0, 0.0, given.get(name, 0.0)
+            )
             continue
         if not np.isfinite(cov[name]).all():
             continue
@@ -481,6 +567,6 @@ def calibrate_mountings(
             name, Mounting.from_pose(R, p, covariance=C), n_used, n_bad,
             float(np.rad2deg(np.sqrt(np.trace(C[:3, :3])))),
             float(1e3 * np.sqrt(np.trace(C[3:, 3:]))),
-            float(np.rad2deg(scat_r)), 1e3 * scat_p,
+            float(np.rad2deg(scat_r)), 1e3 * scat_p, offset, dt_std.get(name, float("nan")),
         )  # fmt: skip
     return out

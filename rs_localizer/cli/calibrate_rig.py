@@ -86,6 +86,14 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         help="camera frames posed with fewer inliers are not used",
     )
     c.add_argument(
+        "--time-offsets",
+        action="store_true",
+        help="also estimate each camera's time offset against the reference camera's (s added "
+        "to its stamps: a driver that stamps late or early) from the rig's rotation in the "
+        "video, with its std; written as rig.<camera>.time_offset. A rig that barely turns "
+        "shows none (its std says so)",
+    )
+    c.add_argument(
         "--json",
         action="store_true",
         help="print the mountings and their uncertainty as JSON on stdout (the parameter "
@@ -145,11 +153,19 @@ def _covariance36(mount) -> list[float] | None:
 
 
 def params_yaml(
-    values: dict, cams: dict, names: list, mountings: dict, notes: list, base_frame: str
+    values: dict,
+    cams: dict,
+    names: list,
+    mountings: dict,
+    notes: list,
+    base_frame: str,
+    time_offsets: dict | None = None,
 ) -> str:
     """The node's parameter file of the calibrated rig: ``base_frame`` (the rig frame the
     mountings are in), ``rs.stamp_row``, ``rig.cameras`` and per camera its ``mounting``, the
-    RS timing and the time offset it was read with; ``notes``: comment lines on top."""
+    RS timing it was read with and its ``time_offset`` (``time_offsets``: camera -> s, those
+    calibrated with or estimated; None: those it was read with); ``notes``: comment lines on
+    top."""
     import yaml
 
     body_cams = {}
@@ -161,8 +177,9 @@ def params_yaml(
             v = cams[n].get(k)
             if v not in (None, "", -1.0):
                 entry[k] = v
-        if cams[n].get("time_offset"):
-            entry["time_offset"] = float(cams[n]["time_offset"])
+        dt = (time_offsets or {}).get(n, cams[n].get("time_offset")) or 0.0
+        if dt:
+            entry["time_offset"] = round(float(dt), 7) + 0.0
         body_cams[n] = entry
     body = {
         "base_frame": base_frame,
@@ -257,6 +274,7 @@ def run(args: argparse.Namespace) -> int:
         min_inliers=args.min_inliers,
         options=opts,
         time_offsets=read.settings.time_offsets if read.settings is not None else None,
+        estimate_time_offsets=args.time_offsets,
     )
     missing = [n for n in names if n not in est]
     if missing:
@@ -292,8 +310,11 @@ def run(args: argparse.Namespace) -> int:
             "mounting_covariance": _covariance36(e.mount),
             "scatter_deg": e.scatter_deg,
             "scatter_mm": e.scatter_mm,
+            "time_offset": e.time_offset,
             **read.counts[n],
         }
+        if np.isfinite(e.time_offset_std):
+            report[n]["time_offset_std"] = e.time_offset_std
         if n == ref:
             notes.append(f"{n}: the reference (in {e.frames} rig frames)")
         else:
@@ -302,6 +323,11 @@ def run(args: argparse.Namespace) -> int:
                 f"{e.std_mm:.2f} mm (one frame about the rig: {e.scatter_deg:.3f} deg "
                 f"{e.scatter_mm:.1f} mm)"
             )
+            if np.isfinite(e.time_offset_std):
+                notes.append(
+                    f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
+                    f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
+                )
             if e.frames < MIN_RIG_FRAMES:
                 notes.append(short_video_warning(n, e.frames))
             if n in given:
@@ -318,7 +344,8 @@ def run(args: argparse.Namespace) -> int:
                         f"{mm:.1f} mm (more than {PARAMETERS_OFF_STD:g} std): use the one "
                         "written here"
                     )
-    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame)
+    offsets = {n: est[n].time_offset for n in names}
+    text = params_yaml(values, cams, names, {n: est[n].mount for n in names}, notes, frame, offsets)
     if out_path is not None:
         out_path.write_text(text)
     for line in notes:

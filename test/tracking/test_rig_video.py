@@ -546,6 +546,20 @@ def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video)
         frames_of(late), "front", min_inliers=20, time_offsets={"left": -0.025}
     )
     np.testing.assert_array_equal(shifted["left"].mount.R, truth["left"].mount.R)
+    # the offset estimated from the video's rotation: -25 ms, each mounting within 3 of its
+    # stated std of the truth
+    mounts = mounts_of(cams)
+    found = calibrate_mountings(
+        frames_of(late), "front", reference_mount=mounts["front"], estimate_time_offsets=True
+    )
+    assert found["left"].time_offset == pytest.approx(-0.025, abs=5e-4)
+    assert abs(found["left"].time_offset + 0.025) < 4 * found["left"].time_offset_std + 1e-5
+    assert abs(found["right"].time_offset) < 5e-4 and np.isnan(found["front"].time_offset_std)
+    for n in ("left", "right"):
+        e = found[n]
+        deg = rotation_angle_deg(e.mount.R, mounts[n].R)
+        mm = 1e3 * np.linalg.norm(e.mount.position - mounts[n].position)
+        assert deg < 3 * e.std_deg and mm < 3 * e.std_mm, (n, deg, mm, e.std_deg, e.std_mm)
     with pytest.raises(ValueError, match="time_offsets"):
         RigSettings(mounts_of(cams), time_offsets={"back": 0.01})
     with pytest.raises(ValueError, match="at most 1 s"):
