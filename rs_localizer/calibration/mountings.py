@@ -25,6 +25,7 @@ from ..geometry import matrix_to_rotvec, rotvec_to_matrix
 
 __all__ = [
     "MOUNTING_BIAS_SHARE",
+    "TIME_OFFSET_PRIOR",
     "TIME_OFFSET_ROUNDS",
     "TIME_OFFSET_TOL",
     "MountingEstimate",
@@ -85,6 +86,10 @@ class MountingEstimate:
 TIME_OFFSET_TOL = 1e-4
 #: ... at most this many times
 TIME_OFFSET_ROUNDS = 4
+#: s: the standard deviation of a weak prior at 0 on each time offset, so that a video whose
+#: rig hardly moves (no information on the offsets) still gives the mountings; the offset's
+#: std then says it was not seen
+TIME_OFFSET_PRIOR = 1.0
 
 #: the systematic part of a mounting's standard deviation (:class:`MountingEstimate`), as a
 #: share of one rig frame's scatter of the rotation and of the position: the bias of the
@@ -121,25 +126,36 @@ def _carried(items: list, times: np.ndarray, t_r: int, window: float, max_step: 
     """A camera's pose (camera -> world rotation, position, its frame's (12, 12) covariance)
     carried to ``t_r`` (ns) from its frame nearest in time (None beyond ``window`` s): the
     constant twist between its own two frames around ``t_r`` (interpolated poses), or its
-    frame's own twist when it has no frame on the other side within ``max_step`` s. Also that
-    twist in world axes, ``(angular rad/s, linear m/s)``: the pose's rate of change with the
-    camera's time (its frame's own twist at ``t_r`` itself)."""
+    frame's own twist when it has no frame on the other side within ``max_step`` s. Also the
+    camera's motion there in world axes, ``(angular rad/s, linear m/s)``: the pose's rate of
+    change with the camera's time, between its frames before and after the nearest one (its
+    own pose's error left out: a twist differenced from it would correlate with that error),
+    else between its nearest frame and the next or previous one within ``max_step`` (a
+    global-shutter frame has no twist of its own), else its frame's own twist."""
     k = int(np.argmin(np.abs(times - t_r)))
     dt = (t_r - times[k]) * 1e-9
     if abs(dt) > window:
         return None
     _, Oc, p, om, v, cov = items[k]
+
+    def near(j: int) -> bool:
+        return 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step
+
     j = k + 1 if dt > 0 else k - 1
-    if dt != 0 and 0 <= j < len(items) and 0 < abs(times[j] - times[k]) * 1e-9 <= max_step:
-        step = (times[j] - times[k]) * 1e-9
-        rate = Oc @ matrix_to_rotvec(Oc.T @ items[j][1]) / step  # (world axes)
-        vel = (items[j][2] - p) / step
-        s_ = (t_r - times[k]) / (times[j] - times[k])
-        O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
-        return O_t, p + s_ * (items[j][2] - p), cov, (rate, vel)
     twist = (Oc @ om, Oc @ v)
+    pairs = [(k - 1, k + 1)] if near(k - 1) and near(k + 1) else []
+    pairs += [(k, i) for i in (j, k + 1, k - 1) if near(i)]
+    if pairs:
+        a, b = pairs[0]
+        Oa, pa = items[a][1], items[a][2]
+        step = (times[b] - times[a]) * 1e-9
+        twist = (Oa @ matrix_to_rotvec(Oa.T @ items[b][1]) / step, (items[b][2] - pa) / step)
     if dt == 0:
         return Oc, p, cov, twist
+    if near(j):
+        s_ = (t_r - times[k]) / (times[j] - times[k])
+        O_t = Oc @ rotvec_to_matrix(s_ * matrix_to_rotvec(Oc.T @ items[j][1]))
+        return O_t, p + s_ * (items[j][2] - p), cov, twist
     return Oc @ rotvec_to_matrix(om * dt), p + Oc @ v * dt, cov, twist
 
 
@@ -342,9 +358,12 @@ def _adjust(
             [matrix_to_rotvec(Rgi @ Rci @ O_t),
              Pg[gi_] + np.einsum("nij,nj->ni", Rgi, pm[ci_]) - p_t], axis=1,
         )  # fmt: skip
-        return np.einsum("nij,nj->ni", Whs, e).ravel()
+        out = np.einsum("nij,nj->ni", Whs, e).ravel()
+        return np.concatenate([out, xd / TIME_OFFSET_PRIOR]) if D else out
 
-    sp = lil_matrix((6 * len(obs), 6 * (G + F) + D), dtype=int)
+    sp = lil_matrix((6 * len(obs) + D, 6 * (G + F) + D), dtype=int)
+    for i in range(D):  # (the offsets' weak prior, one row each)
+        sp[6 * len(obs) + i, 6 * (G + F) + i] = 1
     for i, (gi, _, n, *_) in enumerate(obs):
         sp[6 * i : 6 * i + 6, 6 * gi : 6 * gi + 6] = 1
         if n != reference:
@@ -361,7 +380,7 @@ def _adjust(
         i = fidx[n]
         out[n] = (rotvec_to_matrix(xm[i, :3]) @ R0m[i], p0m[i] + xm[i, 3:])
     shifts = {n: float(xd[fidx[n]]) for n in free} if D else {}
-    return out, res.jac, res.fun.reshape(-1, 6), obs, G, free, shifts
+    return out, res.jac, res.fun[: 6 * len(obs)].reshape(-1, 6), obs, G, free, shifts
 
 
 def _mounting_covariance(
@@ -408,7 +427,7 @@ def _mounting_covariance(
                            np.full(3, MOUNTING_BIAS_SHARE["position"])])  # fmt: skip
     for c in cams:
         rows = [i for i, o in enumerate(obs) if o[2] == c]
-        Z = np.zeros((6 * m, 6))
+        Z = np.zeros((J.shape[0], 6))  # (the offsets' prior rows, if any, last)
         e_cam = []
         for i in rows:
             Oc, Wh = obs[i][3], obs[i][5]
@@ -482,10 +501,11 @@ def calibrate_mountings(
         estimate_time_offsets: also estimate every camera's time offset against the
             reference camera's (its given one kept): each one's parameter in the adjustment
             (a camera frame's pose moved along its own twist by it), the cameras' frames
-            regrouped at the offsets found and the adjustment run again until they change by
-            less than :data:`TIME_OFFSET_TOL` (at most :data:`TIME_OFFSET_ROUNDS` times).
-            Only a rig that turns shows an offset: its std says how well (a camera turning at
-            1 rad/s is 0.57 deg off per 10 ms).
+            regrouped at the offsets found (those beyond 3 of their std) and the adjustment
+            run again until they change by less than :data:`TIME_OFFSET_TOL` (at most
+            :data:`TIME_OFFSET_ROUNDS` times).
+            Only a rig that moves shows an offset: its std says how well (a camera turning at
+            1 rad/s is 0.57 deg off per 10 ms, one moving at 1 m/s 10 mm).
     Returns:
         camera name -> :class:`MountingEstimate` (cameras in the order they first appear;
         a camera not connected to the reference through shared rig frames is missing).
@@ -535,9 +555,16 @@ def calibrate_mountings(
             mounts, J, r, obs, G, free, dts = _adjust(
                 rig_frames, mounts, reference, bad, offsets=estimate_time_offsets
             )
-        if not dts or max(abs(v) for v in dts.values()) < TIME_OFFSET_TOL or k == rounds - 1:
+        if not dts or k == rounds - 1:
             break  # (the offsets of the last adjustment: dts, beyond those shifted)
-        for n, dt in dts.items():  # (the cameras' frames regrouped at the offsets found)
+        # the cameras' frames regrouped at the offsets found, those the video shows (beyond
+        # 3 std; a rig that hardly moves shows none: its offsets stay)
+        _, std = _mounting_covariance(J, r, obs, G, free, reference)
+        step = {n: dt for n, dt in dts.items()
+                if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
+        if not step:
+            break
+        for n, dt in step.items():
             shifted[n] += dt
             poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
         rig_frames = _rig_frames(poses, window, max_step)

@@ -90,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="also estimate each camera's time offset against the reference camera's (s added "
         "to its stamps: a driver that stamps late or early) from the rig's rotation in the "
-        "video, with its std; written as rig.<camera>.time_offset. A rig that barely turns "
+        "video, with its std; written as rig.<camera>.time_offset. A rig that barely moves "
         "shows none (its std says so)",
     )
     c.add_argument(
@@ -102,6 +102,9 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     c.set_defaults(func=run)
     return c
 
+
+#: s: a time offset estimated with a std above this is not shown by the video (a warning)
+UNSEEN_OFFSET_STD = 0.005
 
 #: fewer rig frames than this make the stated std a warning: it is the scatter of that few
 #: frames, itself that uncertain (docs/rig_node.md#mountings-from-data-calibrate-rig)
@@ -328,6 +331,12 @@ def run(args: argparse.Namespace) -> int:
                     f"{n}: time offset {1e3 * e.time_offset:+.2f} ms, std "
                     f"{1e3 * e.time_offset_std:.2f} ms (added to its stamps)"
                 )
+                if e.time_offset_std > UNSEEN_OFFSET_STD:
+                    notes.append(
+                        f"WARNING: {n}: the video does not show its time offset (std "
+                        f"{1e3 * e.time_offset_std:.0f} ms): the rig hardly moves in the rig "
+                        "frames it shares; record one that moves"
+                    )
             if e.frames < MIN_RIG_FRAMES:
                 notes.append(short_video_warning(n, e.frames))
             if n in given:

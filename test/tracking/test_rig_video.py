@@ -552,9 +552,10 @@ def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video)
     found = calibrate_mountings(
         frames_of(late), "front", reference_mount=mounts["front"], estimate_time_offsets=True
     )
-    assert found["left"].time_offset == pytest.approx(-0.025, abs=5e-4)
-    assert abs(found["left"].time_offset + 0.025) < 4 * found["left"].time_offset_std + 1e-5
-    assert abs(found["right"].time_offset) < 5e-4 and np.isnan(found["front"].time_offset_std)
+    for n, want in (("left", -0.025), ("right", 0.0)):
+        dt, std = found[n].time_offset, found[n].time_offset_std
+        assert abs(dt - want) < min(4 * std + 1e-5, 1e-3), (n, dt, std)
+    assert np.isnan(found["front"].time_offset_std)
     for n in ("left", "right"):
         e = found[n]
         deg = rotation_angle_deg(e.mount.R, mounts[n].R)
