@@ -50,6 +50,10 @@ undistorted plane), then:
 
 ``--extrinsics FOLDER`` compares the calibrated mountings with another recording's reference
 extrinsics of the same rig too (and prints how far the two references are apart).
+``--time-offsets`` calibrates each camera's time offset with its mounting (``calibrate-rig
+--time-offsets``) and prints it with its standard deviation (the rig posed with the calibrated
+mountings is then left out: the reference's poses are at the stamps, the offsets would move
+the rig frames' times).
 
 ``--video`` (instead of 2 and 3): the recording as a user's video (:func:`video_run`): every
 camera's detection messages in stamp order into a
@@ -64,7 +68,7 @@ video, the rig frame alone and PoseLib; the frames only one of the two posed, wi
 errors on them; CPU time per rig frame with tags.
 
     python -m benchmarks.bench_real_rig [--folder PATH] [--frames N] [--threshold 2]
-        [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER]
+        [--min-inliers 20 8] [--stamp-tolerance 0.005] [--extrinsics FOLDER] [--time-offsets]
         [--video [--stop-after S] [--max-gap S]]
 """
 
@@ -349,10 +353,14 @@ def single_run(rig: RealRig, frames: int | None = None) -> dict:
     return out
 
 
-def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | None = None):
+def calibrate_estimates(
+    rig: RealRig, min_inliers: int = 8, reference: str | None = None, time_offsets: bool = False
+):
     """Every camera's mounting from the recording (every camera frame with tags, as
     ``calibrate-rig`` reads them; ``reference``, default the first camera, at its reference
-    extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result."""
+    extrinsics): :func:`~rs_localizer.calibration.calibrate_mountings`'s result
+    (``time_offsets``: with each camera's time offset estimated, ``calibrate-rig
+    --time-offsets``)."""
     from rs_localizer.calibration import calibrate_mountings
     from rs_localizer.tracking.rig import RigCameraFrame
 
@@ -363,7 +371,11 @@ def calibrate_estimates(rig: RealRig, min_inliers: int = 8, reference: str | Non
         for n, (uv, X) in views.items()
     ]
     return calibrate_mountings(
-        cam_frames, ref, reference_mount=rig.mountings[ref], min_inliers=min_inliers
+        cam_frames,
+        ref,
+        reference_mount=rig.mountings[ref],
+        min_inliers=min_inliers,
+        estimate_time_offsets=time_offsets,
     )
 
 
@@ -372,7 +384,8 @@ def calibrate(
 ) -> dict:
     """Each camera's calibrated mounting (:func:`calibrate_estimates`, or ``estimates``)
     against the reference's (or ``mounts``, e.g. :func:`~benchmarks.tagslam_data.extrinsics`):
-    camera -> ``{"error_deg", "error_mm", "std_deg", "std_mm", "frames", "rejected"}`` (the
+    camera -> ``{"error_deg", "error_mm", "std_deg", "std_mm", "frames", "rejected",
+    "time_offset", "time_offset_std"}`` (the
     reference camera left out; a camera the calibration did not reach: None).
     ``calibrate(rig)["cam1"]`` is a stereo rig's second camera."""
     est = estimates if estimates is not None else calibrate_estimates(rig, min_inliers)
@@ -393,6 +406,8 @@ def calibrate(
             "std_mm": e.std_mm,
             "frames": e.frames,
             "rejected": e.rejected,
+            "time_offset": e.time_offset,
+            "time_offset_std": e.time_offset_std,
         }
     return out
 
@@ -602,6 +617,12 @@ def main(argv: list[str] | None = None) -> None:
         "with its reference extrinsics too",
     )
     ap.add_argument(
+        "--time-offsets",
+        action="store_true",
+        help="calibrate-rig --time-offsets: each camera's time offset estimated with its "
+        "mounting (printed with its std)",
+    )
+    ap.add_argument(
         "--video",
         action="store_true",
         help="also pose the recording as a video (RigLocalizer: tracking, the fused twist) "
@@ -712,7 +733,7 @@ def main(argv: list[str] | None = None) -> None:
         first, first_mi = None, None
         for mi in a.min_inliers:
             try:
-                est = calibrate_estimates(rig, mi)
+                est = calibrate_estimates(rig, mi, time_offsets=a.time_offsets)
             except ValueError as exc:
                 print(f"calibrate-rig (min_inliers {mi}): {exc}")
                 continue
@@ -726,12 +747,18 @@ def main(argv: list[str] | None = None) -> None:
                     )
                     continue
                 covered = c["error_deg"] <= 2 * c["std_deg"] and c["error_mm"] <= 2 * c["std_mm"]
+                offset = (
+                    f"; time offset {1e3 * c['time_offset']:+.1f} ms, std "
+                    f"{1e3 * c['time_offset_std']:.1f} ms"
+                    if np.isfinite(c["time_offset_std"])
+                    else ""
+                )
                 print(
                     f"calibrate-rig (min_inliers {mi}), {name}'s mounting vs the reference's "
                     f"extrinsics: {c['error_deg']:.3f} deg, {c['error_mm']:.1f} mm; std "
                     f"{c['std_deg']:.3f} deg, {c['std_mm']:.1f} mm; {c['frames']} rig frames, "
                     f"{c['rejected']} camera frames rejected; error within 2 std: "
-                    f"{'yes' if covered else 'no'}"
+                    f"{'yes' if covered else 'no'}{offset}"
                 )
         if first is not None and a.extrinsics is not None:
             other = extrinsics(a.extrinsics)
@@ -747,7 +774,7 @@ def main(argv: list[str] | None = None) -> None:
                     f"{rotation_angle_deg(R0, R1):.3f} deg, "
                     f"{1e3 * np.linalg.norm(R0.T @ c0 - R1.T @ c1):.1f} mm)"
                 )
-        if first is not None and n_cams > 2:
+        if first is not None and n_cams > 2 and not a.time_offsets:
             for label, (inside, posed, total) in calibrated_rig_run(rig, first, a.frames).items():
                 what = "taken as exact" if label == "exact" else "with their covariance"
                 print(
