@@ -543,6 +543,7 @@ def calibrate_mountings(
     shifted = {n: 0.0 for n in poses}  # (s: the time offsets found so far, beyond the given)
     rounds = TIME_OFFSET_ROUNDS if estimate_time_offsets else 1
     for k in range(rounds):
+        covariances = None  # (of this round's adjustment, once computed)
         mounts, J, r, obs, G, free, dts = _adjust(
             rig_frames, mounts, reference, offsets=estimate_time_offsets
         )
@@ -559,7 +560,8 @@ def calibrate_mountings(
             break  # (the offsets of the last adjustment: dts, beyond those shifted)
         # the cameras' frames regrouped at the offsets found, those the video shows (beyond
         # 3 std; a rig that hardly moves shows none: its offsets stay)
-        _, std = _mounting_covariance(J, r, obs, G, free, reference)
+        covariances = _mounting_covariance(J, r, obs, G, free, reference)
+        std = covariances[1]
         step = {n: dt for n, dt in dts.items()
                 if abs(dt) >= TIME_OFFSET_TOL and abs(dt) > 3.0 * std.get(n, np.inf)}  # fmt: skip
         if not step:
@@ -568,7 +570,8 @@ def calibrate_mountings(
             shifted[n] += dt
             poses[n] = [(t + int(round(dt * 1e9)), *rest) for t, *rest in poses[n]]
         rig_frames = _rig_frames(poses, window, max_step)
-    cov, dt_std = _mounting_covariance(J, r, obs, G, free, reference)
+    # (the last round's, when it regrouped nothing, is the final adjustment's)
+    cov, dt_std = covariances or _mounting_covariance(J, r, obs, G, free, reference)
     out = {}
     for name in poses:
         if name not in mounts:
