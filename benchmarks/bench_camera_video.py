@@ -36,12 +36,8 @@ from rs_localizer.sim.trajectory import (
     imu_samples,
     make_trajectory,
 )
-from rs_localizer.tracking.sequence import (
-    GyroSettings,
-    SequenceFrame,
-    SequenceLocalizer,
-    SequenceSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import GyroSettings, SequenceLocalizer, SequenceSettings
 
 __all__ = ["main", "run_video"]
 
@@ -79,7 +75,7 @@ def run_video(frames, cam, gyro, implementation: str) -> dict:
     own, fused, paths, with_gyro = [], [], Counter(), 0
     t0, c0 = time.perf_counter(), time.process_time()
     for f in frames:
-        o = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        o = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         fused += o.fused
         if o.estimate is not None and o.estimate.success:
             own.append(_errors(by, o.stamp_ns, o.estimate.pose))

@@ -64,7 +64,8 @@ from rs_localizer.experiments.timing import one_thread
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.planar import make_planar_frame, planar_camera
 from rs_localizer.sim.synthetic import FRAME_SPAN, IMAGE_SIZE, make_frame, paper_camera
-from rs_localizer.tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 
 __all__ = ["d435_frames", "drive_frames", "main", "planar_frames", "real_d435", "run", "tags_frame"]
 
@@ -243,7 +244,7 @@ def real_d435(folder: Path = TEST_23) -> None:
         cam = replace(camera, line_delay=delay)
         seq, first = SequenceLocalizer(SequenceSettings()), None
         for k, f in enumerate(frames):
-            seq.process(SequenceFrame(int(round(f.stamp * 1e9)), cam, f.points_px, f.X))
+            seq.process(CameraFrame(int(round(f.stamp * 1e9)), cam, f.points_px, f.X))
             if first is None and seq.tracking_values()["readout_suspect"] == "true":
                 first = k + 1
         seq.flush()

@@ -93,12 +93,8 @@ from rs_localizer.sim.trajectory import (
     make_trajectory,
 )
 from rs_localizer.tracking.gyro import ImuBuffer
-from rs_localizer.tracking.sequence import (
-    GyroSettings,
-    SequenceFrame,
-    SequenceLocalizer,
-    SequenceSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import GyroSettings, SequenceLocalizer, SequenceSettings
 
 
 def _errors(e, f: PlanarFrame) -> tuple:
@@ -316,7 +312,7 @@ def track_video(
     prior = np.full(3, VIDEO_PRIOR[0])
     for k, f in enumerate(frames):
         tested = _bias_pairs(seq)
-        out = seq.process(SequenceFrame(f.t_ref_ns, cam, f.uv, f.xyz, f.scores))
+        out = seq.process(CameraFrame(f.t_ref_ns, cam, f.uv, f.xyz, f.scores))
         finals += out.fused
         e = out.estimate
         if e.success:

@@ -240,7 +240,8 @@ def video_run(
         started the track has none), ``"counts"``: the localizer's counters, ``"outputs"``: its
         :class:`~rs_localizer.tracking.rig.RigOutput` s, ``"settings"``}``.
     """
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
     from rs_localizer.tracking.tracker import TrackerOptions
 
     settings = RigSettings({n: rig.mountings[n] for n in rig.cameras}, options=options)
@@ -257,7 +258,9 @@ def video_run(
             break
         uv, X = views_of.get(group, {}).get(name, empty)
         video.append(
-            RigCameraFrame(name, int(round(stamp * 1e9)), rig.cameras[name], uv, X, tag=group)
+            CameraFrame(
+                int(round(stamp * 1e9)), rig.cameras[name], uv, X, tag=group, camera_name=name
+            )
         )
     warm = RigLocalizer(settings)  # (compiles the tracking's kernels: untimed)
     for f in video[: 20 * len(rig.cameras)]:
@@ -362,11 +365,11 @@ def calibrate_estimates(
     (``time_offsets``: with each camera's time offset estimated, ``calibrate-rig
     --time-offsets``)."""
     from rs_localizer.calibration import calibrate_mountings
-    from rs_localizer.tracking.rig import RigCameraFrame
+    from rs_localizer.tracking.localizer import CameraFrame
 
     ref = reference or next(iter(rig.cameras))
     cam_frames = [
-        RigCameraFrame(n, int(round(stamp * 1e9)), rig.cameras[n], uv, X)
+        CameraFrame(int(round(stamp * 1e9)), rig.cameras[n], uv, X, camera_name=n)
         for stamp, views in rig.frames
         for n, (uv, X) in views.items()
     ]

@@ -21,7 +21,8 @@ from rs_localizer.calibration import calibrate_mountings
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import matrix_to_rotvec, rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -36,7 +37,7 @@ def main(argv=None) -> None:
     by = {c.name: c.camera for c in cams}
     truth = {c.name: Mounting.from_pose(c.R_rig_cam, c.p_rig_cam) for c in cams}
     cal, _, _ = generate_rig_video(cams, duration=a.calibrate, num_points=150, seed=21)
-    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in cal]
+    fr = [CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name) for f in cal]
     est = calibrate_mountings(fr, cams[0].name, reference_mount=truth[cams[0].name])
     for n, e in est.items():
         deg = rotation_angle_deg(e.mount.R, truth[n].R)
@@ -50,7 +51,7 @@ def main(argv=None) -> None:
         rig = RigLocalizer(RigSettings(mounts))
         outs = []
         for f in loc:
-            outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+            outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
         outs += rig.close()
         inside, er, ep = [], [], []
         for o in outs:

@@ -25,8 +25,8 @@ import numpy as np
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking import SequenceFrame, SequenceLocalizer
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from rs_localizer.tracking import CameraFrame, SequenceLocalizer
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
 T0 = 1_700_000_000_000_000_000
 
@@ -45,7 +45,9 @@ def _rig_run(frames, by, mounts, traj, implementation):
     rig = RigLocalizer(RigSettings(mounts), implementation=lambda: implementation)
     own, fused, t0, c0 = [], [], time.perf_counter(), time.process_time()
     for f in frames:
-        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name].camera, f.uv, f.xyz)):
+        for o in rig.add(
+            CameraFrame(f.stamp_ns, by[f.name].camera, f.uv, f.xyz, camera_name=f.name)
+        ):
             if o.success:
                 q = o.estimate.pose
                 own.append(_errors(traj, o.stamp_ns, q.orientation, q.position,
@@ -78,7 +80,7 @@ def main(argv=None) -> None:
     for impl in a.implementations:
         warm = RigLocalizer(RigSettings(mounts), implementation=lambda impl=impl: impl)
         for f in frames[: 3 * a.cameras]:
-            warm.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name].camera, f.uv, f.xyz))
+            warm.add(CameraFrame(f.stamp_ns, by[f.name].camera, f.uv, f.xyz, camera_name=f.name))
     runs = {impl: [] for impl in a.implementations}
     for _ in range(max(a.repeats, 1)):  # (interleaved: each implementation in turn)
         for impl in a.implementations:
@@ -103,7 +105,7 @@ def main(argv=None) -> None:
         for f in frames:
             if f.name != c.name:
                 continue
-            out = seq.process(SequenceFrame(f.stamp_ns, c.camera, f.uv, f.xyz))
+            out = seq.process(CameraFrame(f.stamp_ns, c.camera, f.uv, f.xyz))
             est = out.estimate
             for g in out.fused:  # (the camera's fused twist, turned into the rig frame)
                 q = g.pose

@@ -45,7 +45,8 @@ from rs_localizer.sim.trajectory import (
     imu_samples,
     make_trajectory,
 )
-from rs_localizer.tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "data" / "sample"
@@ -99,7 +100,7 @@ def fused_twist(frames, cam, truth) -> dict:
         e = estimate_rs_pose(uv, xyz, cam, options=opts)
         if e.success:
             single[stamp] = e
-        final += [x.state for x in seq.process(SequenceFrame(stamp, cam, uv, xyz)).fused]
+        final += [x.state for x in seq.process(CameraFrame(stamp, cam, uv, xyz)).fused]
     final += [x.state for x in seq.flush()]
 
     def err(x, stamp, i, attr):
@@ -156,7 +157,7 @@ def readout_check(frames, cam) -> dict:
     for name, given in (("true timing", cam), *((k, f(cam)) for k, f in WRONG_TIMINGS.items())):
         seq = _sequence(EstimateOptions(ransac=RansacOptions(seed=0)), cam)
         for stamp, uv, xyz in frames:
-            seq.process(SequenceFrame(stamp, given, uv, xyz))
+            seq.process(CameraFrame(stamp, given, uv, xyz))
         seq.flush()
         v = seq.tracking_values()
         out[name] = (v["readout_contradicted"], v["readout_suspect"] == "true")
@@ -190,7 +191,7 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
     warm = _sequence(opts, cam)
     for stamp, uv, xyz in frames[:4]:  # warm-up (numba compilation of both paths)
         estimate_rs_pose(uv, xyz, cam, options=opts)
-        warm.process(SequenceFrame(stamp, cam, uv, xyz))
+        warm.process(CameraFrame(stamp, cam, uv, xyz))
     t_cold, t_track, rc, rt, pc, pt, iters_c, iters_t = [], [], [], [], [], [], [], []
     cpu_cold, cpu_track, s_cold, s_track = [], [], [], []
     for _ in range(passes):
@@ -199,7 +200,7 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
             t0, c0 = time.perf_counter(), time.thread_time()
             cold = estimate_rs_pose(uv, xyz, cam, options=opts)
             t1, c1 = time.perf_counter(), time.thread_time()
-            r = tr.process(SequenceFrame(stamp, cam, uv, xyz))
+            r = tr.process(CameraFrame(stamp, cam, uv, xyz))
             t2, c2 = time.perf_counter(), time.thread_time()
             if r.path != "tracked" or not cold.success:
                 continue
@@ -221,7 +222,7 @@ def tracking_speed(frames, cam, truth, passes: int = 3) -> dict:
         tr = _sequence(opts, cam)
         for stamp, uv, xyz in frames:
             t0 = time.perf_counter()
-            r = tr.process(SequenceFrame(stamp, cam, uv, xyz))
+            r = tr.process(CameraFrame(stamp, cam, uv, xyz))
             if r.path == "tracked":
                 s_track.append(time.perf_counter() - t0)
     med = lambda a: float(np.median(a))  # noqa: E731
@@ -302,7 +303,7 @@ def events() -> dict:
     def feed(k, bad=False):
         f = by[k]
         uv = np.full_like(f.uv, np.nan) if bad else f.uv
-        r = tr.process(SequenceFrame(f.stamp_ns, cam, uv, f.xyz))
+        r = tr.process(CameraFrame(f.stamp_ns, cam, uv, f.xyz))
         finals.extend(x.pose.stamp_ns for x in r.fused)
         return r
 

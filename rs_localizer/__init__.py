@@ -38,11 +38,12 @@ from .estimation import (
     estimate_rs_pose,
 )
 from .pose import PoseWithCovariance, RSModel, RSPose
-from .tracking import GyroSettings, SequenceFrame, SequenceLocalizer, SequenceSettings
+from .tracking import CameraFrame, GyroSettings, SequenceLocalizer, SequenceSettings
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "CameraFrame",
     "CameraModel",
     "CorrelatedNoise",
     "Correspondences",
@@ -59,7 +60,6 @@ __all__ = [
     "RSPoseEstimate",
     "RansacOptions",
     "RefineOptions",
-    "SequenceFrame",
     "SequenceLocalizer",
     "SequenceSettings",
     "__version__",

@@ -483,7 +483,7 @@ def calibrate_mountings(
     run again.
 
     Args:
-        frames: :class:`~rs_localizer.tracking.rig.RigCameraFrame` of every camera (any
+        frames: :class:`~rs_localizer.tracking.rig.CameraFrame` of every camera (any
             order; frames without a camera model are skipped).
         reference: the camera whose optical frame is the rig frame, unless ``reference_mount``
             (its known mounting on the rig) places it: the rig frame is then that mounting's.

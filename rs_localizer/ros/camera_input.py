@@ -16,7 +16,7 @@ log, each text after the camera's ``label`` (the rig's ``rig camera 'front':``).
 module-level ROS import: messages are duck-typed (rclpy or rosbags).
 
 A rig camera's cloud becomes the rig's frame in one place, :func:`rig_cloud_frame`, for the rig
-node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.rig.RigCameraFrame`,
+node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.rig.CameraFrame`,
 or an :class:`UnreadFrame` (``bad_input``) that :func:`hand_to_rig` passes to the rig as a
 frame skipped (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`).
 """
@@ -37,7 +37,8 @@ from .camera_info_history import CameraInfoHistory, calibration_key
 from .pointcloud import read_correspondences
 
 if TYPE_CHECKING:
-    from ..tracking.rig import RigCameraFrame, RigLocalizer, RigOutput
+    from ..tracking.localizer import CameraFrame
+    from ..tracking.rig import RigLocalizer, RigOutput
 
 __all__ = ["CameraInput", "UnreadFrame", "hand_to_rig", "rig_camera_inputs", "rig_cloud_frame"]
 
@@ -252,16 +253,16 @@ class UnreadFrame:
 
 def rig_cloud_frame(
     name: str, inp: CameraInput, msg: Any, stamp: Stamp | ValueError
-) -> RigCameraFrame | UnreadFrame:
+) -> CameraFrame | UnreadFrame:
     """Camera ``name``'s correspondences cloud ``msg`` as the rig takes it, the rig node's and
     the rig bag reader's one path: ``stamp`` is its header stamp checked
     (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`) or the error of that check.
-    Returns a :class:`~rs_localizer.tracking.rig.RigCameraFrame` (the cloud's rows through
+    Returns a :class:`~rs_localizer.tracking.rig.CameraFrame` (the cloud's rows through
     :meth:`CameraInput.read_cloud`, the camera model of its stamp,
     :meth:`CameraInput.camera_for`; tagged with its ``frame_id``, else ``name``), or an
     :class:`UnreadFrame`: the stamp cannot be read (``stamp_ns`` None), or the cloud cannot
     (no u, v, x, y, z fields, ...)."""
-    from ..tracking.rig import RigCameraFrame
+    from ..tracking.localizer import CameraFrame
 
     if isinstance(stamp, ValueError):
         return UnreadFrame(name, None, None, stamp)
@@ -269,11 +270,11 @@ def rig_cloud_frame(
         uv, xyz, _ = inp.read_cloud(msg)
     except ValueError as e:
         return UnreadFrame(name, stamp, inp.camera_for(stamp), e)
-    return RigCameraFrame(name, stamp, inp.camera_for(stamp), uv, xyz,
-                          msg.header.frame_id or name)  # fmt: skip
+    tag = msg.header.frame_id or name
+    return CameraFrame(stamp, inp.camera_for(stamp), uv, xyz, tag=tag, camera_name=name)
 
 
-def hand_to_rig(rig: RigLocalizer, item: RigCameraFrame | UnreadFrame) -> list[RigOutput]:
+def hand_to_rig(rig: RigLocalizer, item: CameraFrame | UnreadFrame) -> list[RigOutput]:
     """A camera's frame of :func:`rig_cloud_frame` to the rig; returns the rig frames it
     completed, solved. A frame read: :meth:`~rs_localizer.tracking.rig.RigLocalizer.add`; an
     :class:`UnreadFrame` with a stamp: counted received and skipped for its reason, the rig

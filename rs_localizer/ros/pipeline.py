@@ -38,12 +38,8 @@ from ..runtime.background import ready_implementation
 from ..tracking.gyro import ImuBuffer
 from ..tracking.gyro_bias import GyroBiasEstimator
 from ..tracking.gyro_check import GyroMountCheck
-from ..tracking.sequence import (
-    FusedPose,
-    SequenceFrame,
-    SequenceLocalizer,
-    SequenceSettings,
-)
+from ..tracking.localizer import CameraFrame
+from ..tracking.sequence import FusedPose, SequenceLocalizer, SequenceSettings
 from . import conversions as cv
 from .camera_input import CameraInput
 from .config import LocalizerConfig
@@ -521,7 +517,7 @@ class FramePipeline:
         else:
             uv, xyz, scores = self._extract(msg, kind)
             t_decoded = time.perf_counter()
-            frame = SequenceFrame(stamp, camera, uv, xyz, scores, res.frame_id)
+            frame = CameraFrame(stamp, camera, uv, xyz, scores, res.frame_id)
             out = self.sequence.process(frame, ft)
         res.points2d, res.points3d = uv, xyz
         res.compiled = out.compiled

@@ -58,7 +58,8 @@ from ..pose import RSPose, model_from_twist
 from ..solvers.kernels import KernelSetType, compile_kernel_set
 from ..solvers.lambda_twist import lambda_twist_batch
 from ..solvers.registry import SOLVER_NAMES, solver_info
-from ..tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from ..tracking.localizer import CameraFrame
+from ..tracking.rig import RigLocalizer, RigSettings
 from ..tracking.sequence import reference_stamp_ns
 from ..tracking.tracker import RSTracker, TrackerOptions
 from .jit_cache import PACKAGE_DIR, cache_state, compile_progress
@@ -535,7 +536,7 @@ def warm_rig(
             model = camera_model_of_rig(rig, m, 0.0, cam.seconds_per_unit_r)
             uv = cam.project_rs(points[name], *model) + rng.normal(0, 0.3, (60, 2))
             ok = np.isfinite(uv).all(1)
-            outs = loc.add(RigCameraFrame(name, stamp, cam, uv[ok], points[name][ok]))
+            outs = loc.add(CameraFrame(stamp, cam, uv[ok], points[name][ok], camera_name=name))
             posed += sum(o.success for o in outs)
     posed += sum(o.success for o in loc.close())
     loc.flush()

@@ -52,7 +52,7 @@ from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..camera import CameraModel, checked_stamp
 from ..correspondences import (
     Correspondences,
     FrameFeedback,
@@ -73,6 +73,7 @@ from .tracker import CarriedPrediction, TrackerOptions, TrackerPath
 __all__ = [
     "FROZEN_IMAGE_LEVEL",
     "MAX_PENDING",
+    "CameraFrame",
     "CameraFrontend",
     "FusedPose",
     "ImageSearch",
@@ -90,6 +91,55 @@ MAX_PENDING = 64
 #: a frozen image: the mean absolute difference (gray levels) of the two images' pixel
 #: samples (:func:`image_sample`) at most this; a camera's own noise alone gives more
 FROZEN_IMAGE_LEVEL = 0.25
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One camera's frame of correspondences: what a video localizer takes, of one camera
+    (:meth:`SequenceLocalizer.process <rs_localizer.tracking.sequence.SequenceLocalizer.process>`)
+    or of one of a rig's cameras
+    (:meth:`RigLocalizer.add <rs_localizer.tracking.rig.RigLocalizer.add>`).
+
+    Attributes:
+        stamp_ns: the capture time (ns, camera clock) of row ``stamp_row`` (the header stamp).
+        camera: the camera model, with its rolling-shutter timing; None: not known yet (its
+            camera_info has not arrived). A rig skips such a frame as ``no_camera_info``; one
+            camera's localizer refuses it (TypeError).
+        points2d: (N, 2) px, distorted image points; points3d: (N, 3) m, world points.
+        scores: (N,) match quality (higher is better) or None.
+        tag: anything the caller wants back with the frame (e.g. its frame id): with its
+            fused twist (one camera), in its rig frame's ``tags`` (a rig).
+        camera_name: the camera's name in the rig
+            (:attr:`~rs_localizer.tracking.rig.RigSettings.mounts`); "" for one camera.
+
+    Raises:
+        ValueError: a stamp that is not a finite number within the int64 nanosecond range
+            (:func:`~rs_localizer.camera.checked_stamp`). TypeError: a ``camera`` that is
+            neither a :class:`~rs_localizer.camera.CameraModel` nor None.
+    """
+
+    stamp_ns: int
+    camera: CameraModel | None
+    points2d: np.ndarray
+    points3d: np.ndarray
+    scores: np.ndarray | None = None
+    tag: object = None
+    camera_name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
+        if self.camera is not None:
+            check_camera(self.camera)
+
+
+def check_camera(camera: object) -> None:
+    """Raises TypeError naming the type of a ``camera`` that is not a
+    :class:`~rs_localizer.camera.CameraModel` (None included: a frame to solve needs one)."""
+    if not isinstance(camera, CameraModel):
+        raise TypeError(
+            f"a frame needs a CameraModel (with its rolling-shutter timing), got "
+            f"{type(camera).__name__}"
+        )
 
 
 def image_sample(image: np.ndarray) -> tuple[np.ndarray, tuple]:
@@ -171,7 +221,7 @@ class FusedPose(PoseWithCovariance):
             m/s fused (camera frame).
         pose_covariance: (6, 6) of the estimated pose (ROS order, world frame).
         twist_covariance: (6, 6) of the fused twist (ROS order, camera frame).
-        tag: the frame's tag (:attr:`~rs_localizer.tracking.sequence.SequenceFrame.tag`; a
+        tag: the frame's tag (:attr:`CameraFrame.tag`; a
             rig frame's: camera -> its frame's tag).
         state: the tracker's fused state itself (the smoothed pose too, and the 12x12
             covariance of pose and twist).

@@ -85,7 +85,8 @@ Example (``frames``: each camera's frames in any interleaving, e.g. by arrival):
     rig = RigLocalizer(RigSettings({"front": Mounting.from_pose(R_base_front, p_front),
                                     "left": Mounting.from_pose(R_base_left, p_left)}))
     for f in frames:
-        for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, camera[f.name], f.uv, f.xyz)):
+        frame = CameraFrame(f.stamp_ns, camera[f.name], f.uv, f.xyz, camera_name=f.name)
+        for out in rig.add(frame):
             if out.success:
                 ...  # out.estimate.pose: the rig's pose and its own twist at out.stamp_ns
             for fused in out.fused:
@@ -134,6 +135,7 @@ from .clock import TimeReset, VideoClock
 from .fusion import FusedState
 from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
+    CameraFrame,
     CameraFrontend,
     FusedPose,
     VideoLocalizer,
@@ -148,7 +150,6 @@ __all__ = [
     "RIG_TRACKED_MAX_ITERATIONS",
     "SKIP_REASONS",
     "CameraShare",
-    "RigCameraFrame",
     "RigGrouping",
     "RigLocalizer",
     "RigOutput",
@@ -277,8 +278,9 @@ class RigSettings:
             early (at the end of its transfer, on another clock) by a known, constant amount,
             e.g. the apparent offset :meth:`RigLocalizer.camera_apart` reports for a camera
             whose frames never join the others'. A camera's frame is then grouped, timed in
-            its rig frame and gyro-aligned at :meth:`reference_ns`; its :class:`RigCameraFrame`
-            keeps the stamp it was given. At most 1 s each (a clock further off is another
+            its rig frame and gyro-aligned at :meth:`reference_ns`; its
+            :class:`~rs_localizer.tracking.localizer.CameraFrame` keeps the stamp it was
+            given. At most 1 s each (a clock further off is another
             clock: a time reset).
     """
 
@@ -345,32 +347,6 @@ class RigSettings:
 
 
 @dataclass(frozen=True)
-class RigCameraFrame:
-    """One camera's frame.
-
-    Attributes:
-        camera_name: a camera of :attr:`RigSettings.mounts`.
-        stamp_ns: the capture time (ns) of row ``stamp_row`` (the header stamp).
-        camera: the camera model with its RS timing; None: not known yet (its camera_info
-            has not arrived; the frame is skipped as ``no_camera_info``).
-        points2d: (N, 2) px, distorted; points3d: (N, 3) m, world.
-        tag: anything the caller wants back with the rig frame.
-    """
-
-    camera_name: str
-    stamp_ns: int
-    camera: CameraModel | None
-    points2d: np.ndarray
-    points3d: np.ndarray
-    tag: object = None
-
-    def __post_init__(self):
-        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
-        if self.camera is not None and not isinstance(self.camera, CameraModel):
-            raise TypeError(f"a frame needs a CameraModel or None, got {type(self.camera)}")
-
-
-@dataclass(frozen=True)
 class CameraShare:
     """One camera in a solved rig frame: its ``points``, ``inliers`` (reprojection error of the
     rig's pose within ``threshold_px``), ``share`` of the rig's inliers (0-1) and inlier
@@ -408,8 +384,9 @@ class RigOutput:
             is final now, oldest first: :class:`~rs_localizer.tracking.localizer.FusedPose`
             in the rig frame.
         tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
-        frames: camera -> its :class:`RigCameraFrame` (the rows given to the estimator: the
-            rig's inliers per camera index them; e.g. a camera's debug image).
+        frames: camera -> its :class:`~rs_localizer.tracking.localizer.CameraFrame` (the rows
+            given to the estimator: the rig's inliers per camera index them; e.g. a camera's
+            debug image).
         compiled: the rig frame was solved on the compiled implementation; False: on the
             NumPy implementation, while the kernels compile (:class:`RigLocalizer`'s
             ``implementation``), tracked, with the gyro and fused all the same.
@@ -488,14 +465,14 @@ class _Camera:
 
 
 class _Group:
-    def __init__(self, name: str, frame: RigCameraFrame, ref: int):
+    def __init__(self, name: str, frame: CameraFrame, ref: int):
         self.frames = {name: (frame, ref)}
         self.lo = self.hi = ref
 
     def fits(self, name: str, ref: int, window_ns: int) -> bool:
         return name not in self.frames and max(self.hi, ref) - min(self.lo, ref) <= window_ns
 
-    def add(self, name: str, frame: RigCameraFrame, ref: int) -> None:
+    def add(self, name: str, frame: CameraFrame, ref: int) -> None:
         self.frames[name] = (frame, ref)
         self.lo, self.hi = min(self.lo, ref), max(self.hi, ref)
 
@@ -689,7 +666,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         return "disabled" if t is None else t.track_state
 
     # ---------------------------------------------------------------- frames
-    def add(self, frame: RigCameraFrame) -> list[RigOutput]:
+    def add(self, frame: CameraFrame) -> list[RigOutput]:
         """Take one camera's frame; returns the rig frames it completed, solved (oldest first;
         often none, or one).
 
@@ -701,7 +678,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         s = self.settings
         return self._add(frame, s.reference_ns(frame.camera_name, frame.stamp_ns, frame.camera))
 
-    def _add(self, frame: RigCameraFrame, ref: int | None) -> list[RigOutput]:
+    def _add(self, frame: CameraFrame, ref: int | None) -> list[RigOutput]:
         """:meth:`add` of a frame with its reference time ``ref`` (ns; None without a
         camera model)."""
         name = frame.camera_name
@@ -1001,7 +978,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             image: (H, W) or (H, W, C) uint8 in ``encoding``.
             camera: the camera's model with its RS timing; None: not known yet (the frame is
                 skipped as ``no_camera_info``, the front end does not run).
-            tag: as :attr:`RigCameraFrame.tag`.
+            tag: as :attr:`~rs_localizer.tracking.localizer.CameraFrame.tag`.
         Returns:
             the rig frames completed, solved (as :meth:`add`).
         Raises:
@@ -1014,7 +991,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             raise ValueError(f"rig camera {name!r} has no front end (set_frontend)")
         stamp = checked_stamp(stamp_ns)
         if camera is None:
-            frame = RigCameraFrame(name, stamp, None, _NO_UV, _NO_XYZ, tag)
+            frame = CameraFrame(stamp, None, _NO_UV, _NO_XYZ, tag=tag, camera_name=name)
             return self._observed(self._add(frame, None))
         # (the frame's reference time, once: the prediction, the rig frame it joins)
         ref = self.settings.reference_ns(name, stamp, camera)
@@ -1038,7 +1015,9 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         xyz = np.asarray(found.points, float).reshape(-1, 3)
         uv, xyz, _ = self._usable_rows(name, uv, xyz, found.valid_scores())
         img.waiting[(name, ref)] = (stamp, uv, camera)
-        return self._observed(self._add(RigCameraFrame(name, stamp, camera, uv, xyz, tag), ref))
+        return self._observed(
+            self._add(CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name), ref)
+        )
 
     def _usable_rows(
         self, name: str, uv: np.ndarray, xyz: np.ndarray, scores: np.ndarray | None
@@ -1330,7 +1309,7 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
         """
         return self.clock_offsets(name) if self._cams[name].apart else None
 
-    def camera_off_deg(self, out: RigOutput, frame: RigCameraFrame) -> float | None:
+    def camera_off_deg(self, out: RigOutput, frame: CameraFrame) -> float | None:
         """deg between camera ``frame.camera_name``'s rotation posed alone from its frame in
         rig frame ``out`` (the single-camera estimator) and where ``out``'s pose and the
         camera's mounting put it: how far off a camera that disagrees with the others is

@@ -43,7 +43,7 @@ Example (a video of correspondences and a gyro; ``camera`` a
     for t_ns, w in gyro_samples:
         seq.add_imu(t_ns, w)
     for stamp_ns, uv, xyz in frames:
-        out = seq.process(SequenceFrame(stamp_ns, camera, uv, xyz))
+        out = seq.process(CameraFrame(stamp_ns, camera, uv, xyz))
         if out.estimate is not None and out.estimate.success:
             ...  # out.estimate: pose and the frame's own twist
         for f in out.fused:
@@ -88,9 +88,11 @@ from .gyro_input import GyroInput, GyroSettings, SilentLog, TrackLog
 from .localizer import (
     FROZEN_IMAGE_LEVEL,
     MAX_PENDING,
+    CameraFrame,
     CameraFrontend,
     FusedPose,
     VideoLocalizer,
+    check_camera,
     usable_rows,
 )
 from .tracker import RSTracker, TrackerOptions, carried_model, model_from_state
@@ -101,7 +103,6 @@ __all__ = [
     "MAX_STAMP_NS",
     "FusedPose",
     "GyroSettings",
-    "SequenceFrame",
     "SequenceLocalizer",
     "SequenceOutput",
     "SequenceSettings",
@@ -170,43 +171,6 @@ class SequenceSettings:
         (:meth:`SequenceLocalizer.flush_idle`)."""
         t = self.tracking
         return float(t.max_gap if t is not None else TrackerOptions.max_gap)
-
-
-@dataclass(frozen=True)
-class SequenceFrame:
-    """One frame of the video.
-
-    Attributes:
-        stamp_ns: the capture time (ns, camera clock) of row ``stamp_row`` (the header stamp).
-        camera: the camera model, with its rolling-shutter timing.
-        points2d: (N, 2) px, distorted image points; points3d: (N, 3) m, world points.
-        scores: (N,) match quality (higher is better) or None.
-        tag: anything the caller wants back with the frame's fused twist (e.g. its frame id).
-
-    Raises:
-        ValueError: a stamp that is not a finite number within the int64 nanosecond range
-            (:func:`checked_stamp`). TypeError: a ``camera`` that is not a
-            :class:`~rs_localizer.camera.CameraModel`.
-    """
-
-    stamp_ns: int
-    camera: CameraModel
-    points2d: np.ndarray
-    points3d: np.ndarray
-    scores: np.ndarray | None = None
-    tag: object = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "stamp_ns", checked_stamp(self.stamp_ns))
-        _check_camera(self.camera)
-
-
-def _check_camera(camera: object) -> None:
-    if not isinstance(camera, CameraModel):
-        raise TypeError(
-            f"a frame needs a CameraModel (with its rolling-shutter timing), got "
-            f"{type(camera).__name__}"
-        )
 
 
 @dataclass
@@ -394,10 +358,10 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
                 :class:`~rs_localizer.camera.CameraModel`.
         """
         if isinstance(stamp_ns, FrameTime):
-            _check_camera(camera)
+            check_camera(camera)
             return stamp_ns
         stamp = checked_stamp(stamp_ns)
-        _check_camera(camera)
+        check_camera(camera)
         return FrameTime.of(stamp, camera, self.settings.stamp_row)
 
     def check_time(self, stamp_ns: int) -> str | None:
@@ -494,7 +458,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
                 ...).
             camera: the frame's :class:`~rs_localizer.camera.CameraModel` with its
                 rolling-shutter timing.
-            tag: as :attr:`SequenceFrame.tag`.
+            tag: as :attr:`~rs_localizer.tracking.localizer.CameraFrame.tag`.
 
         Returns:
             :class:`SequenceOutput`; a frame dropped before the estimator has ``failure``
@@ -543,7 +507,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
             out.detail = f"{name} front end found {what}: {len(uv)} correspondences, {need} needed"
             return out
         uv, xyz, scores = self.valid_rows(uv, xyz, scores)
-        res = self._process(SequenceFrame(stamp, camera, uv, xyz, scores, tag), t)
+        res = self._process(CameraFrame(stamp, camera, uv, xyz, scores, tag), t)
         fe.observe(stamp, uv, res.estimate)
         res.correspondences, res.frontend_seconds = found, out.frontend_seconds
         res.points2d, res.points3d = uv, xyz
@@ -598,7 +562,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         return carried_model(model, dt, camera.seconds_per_unit_r)
 
     # ---------------------------------------------------------------- frames
-    def process(self, frame: SequenceFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
+    def process(self, frame: CameraFrame, frame_time: FrameTime | None = None) -> SequenceOutput:
         """Estimate one frame (its gyro measurement from the buffered samples, the tracker's
         prediction), update the gyro bias and check, and hand out the fused twists that became
         final. ``frame_time``: the frame's :meth:`frame_time` when the caller made it (None: made
@@ -606,8 +570,10 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
         with ``estimate.failure``) or raises on (``error``).
 
         Raises:
-            ValueError: a ``time`` of another stamp than the frame's.
+            ValueError: a ``time`` of another stamp than the frame's. TypeError: a frame
+                without a camera model (``camera`` None).
         """
+        check_camera(frame.camera)
         ft = frame_time
         if ft is None:
             ft = FrameTime.of(frame.stamp_ns, frame.camera, self.settings.stamp_row)
@@ -617,7 +583,7 @@ class SequenceLocalizer(VideoLocalizer[SequenceSettings, None]):
             )
         return self._process(frame, ft)
 
-    def _process(self, frame: SequenceFrame, ft: FrameTime) -> SequenceOutput:
+    def _process(self, frame: CameraFrame, ft: FrameTime) -> SequenceOutput:
         """:meth:`process` of a frame with its times ``ft``."""
         self._check_time(frame.stamp_ns)
         s = self.settings

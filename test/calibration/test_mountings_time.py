@@ -10,7 +10,7 @@ from rs_localizer.calibration import calibrate_mountings
 from rs_localizer.geometry import rotation_angle_deg
 from rs_localizer.sim.rig_video import RigTrajectory, default_rig, generate_rig_video
 from rs_localizer.sim.trajectory import Trajectory
-from rs_localizer.tracking.rig import RigCameraFrame
+from rs_localizer.tracking.localizer import CameraFrame
 
 
 def test_a_rig_that_stands_still_shows_no_time_offset():
@@ -20,7 +20,7 @@ def test_a_rig_that_stands_still_shows_no_time_offset():
     frames, _, _ = generate_rig_video(cams, duration=0.6, num_points=150, seed=4,
                                       trajectory=still)  # fmt: skip
     by = {c.name: c.camera for c in cams}
-    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in frames]
+    fr = [CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name) for f in frames]
     mounts = mounts_of(cams)
     est = calibrate_mountings(fr, "front", reference_mount=mounts["front"],
                               estimate_time_offsets=True)  # fmt: skip

@@ -42,7 +42,8 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
 
     from rs_localizer.ros.diagnostics import ERROR, RigInputs, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
     cams = default_rig(2)
     frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
@@ -50,7 +51,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     rig = RigLocalizer(RigSettings(mounts_of(cams)))
     names = [c.name for c in cams]
     for f in frames:
-        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     sent = {n: sum(f.name == n for f in frames) for n in names}
     # (the node's counts: every frame received and handed on, 2 more of the first camera
     # dropped from a full queue, 1 more still queued)
@@ -82,7 +83,7 @@ def test_the_rig_status_has_the_cameras_timing_keys_and_a_section_per_camera():
     assert "busy: 2 camera frames dropped" in message, message
     assert v["time_resets"] == 0
     f = frames[0]  # (a camera frame 10 s after the video: a time reset, as for one camera)
-    rig.add(RigCameraFrame(f.name, frames[-1].stamp_ns + 10**10, by[f.name], f.uv, f.xyz))
+    rig.add(CameraFrame(frames[-1].stamp_ns + 10**10, by[f.name], f.uv, f.xyz, camera_name=f.name))
     assert rig_diagnostics(rig, set(), RigInputs(counts, lat, age, times))[2]["time_resets"] == 1
 
     silent = RigLocalizer(RigSettings(mounts_of(cams)))
@@ -107,7 +108,8 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     from rs_localizer.ros.diagnostics import rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
     from rs_localizer.tracking import fusion
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
     cams = default_rig(2)
     frames, _, _ = generate_rig_video(cams, duration=0.3, num_points=80, seed=5)
@@ -127,7 +129,7 @@ def test_the_rig_status_counts_the_fused_twists_as_a_camera_does(monkeypatch):
     rig = RigLocalizer(RigSettings(mounts_of(cams), options=EstimateOptions(plausibility=bounds)))
     fused = []
     for f in frames:
-        for out in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz)):
+        for out in rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name)):
             fused += out.fused
     for out in rig.close():
         fused += out.fused
@@ -153,7 +155,8 @@ def test_a_suspect_readout_timing_warns():
 
     from rs_localizer.ros.diagnostics import OK, WARN, rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
     cfg = build_config(default_values())
     snap = FramePipeline(cfg).stats.snapshot()
@@ -175,7 +178,7 @@ def test_a_suspect_readout_timing_warns():
         log = Log()
         rig = RigLocalizer(RigSettings(mounts_of(cams)), log=log)
         for f in frames:
-            rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+            rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
         rig.close()
         rig.flush()
         level, message, v = rig_diagnostics(rig, set())

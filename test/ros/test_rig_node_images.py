@@ -203,7 +203,8 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
     from rs_localizer.ros.diagnostics import WARN as W
     from rs_localizer.ros.rig_node import rig_diagnostics
     from rs_localizer.sim.rig_video import default_rig, generate_rig_video
-    from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 
     for k in (2, 3):
         cams = default_rig(k)
@@ -214,7 +215,7 @@ def test_the_status_names_both_of_two_cameras_that_disagree():
         rig = RigLocalizer(RigSettings(mounts))
         by = {c.name: c.camera for c in cams}
         for f in frames:
-            rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+            rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
         level, message, values = rig_diagnostics(rig, set())
         if k == 2:
             assert level == ERROR and rig.counts["rig.failed.cameras_disagree"] > 0, message

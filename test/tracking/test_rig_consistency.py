@@ -14,12 +14,8 @@ from helpers.rig import T0, Log, assert_balanced, mounts_of
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import (
-    RIG_REFUSALS,
-    RigCameraFrame,
-    RigLocalizer,
-    RigSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import RIG_REFUSALS, RigLocalizer, RigSettings
 
 
 def run(frames, cams, mounts=None, shift=None, log=None):
@@ -34,7 +30,7 @@ def run(frames, cams, mounts=None, shift=None, log=None):
     )
     outs = []
     for s, f in stamped:
-        outs += rig.add(RigCameraFrame(f.name, s, by[f.name], f.uv, f.xyz))
+        outs += rig.add(CameraFrame(s, by[f.name], f.uv, f.xyz, camera_name=f.name))
     return rig, outs + rig.close()
 
 
@@ -258,7 +254,9 @@ def test_a_tag_of_a_second_camera_the_pose_explains_confirms_it_against_an_off_p
             uv, xyz = uv[keep], xyz[keep]
             if f.name == "left" and not second_right:
                 xyz = xyz + np.array([0.5, 0.0, 0.0])
-        outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], uv, xyz, tag=f.index))
+        outs += rig.add(
+            CameraFrame(f.stamp_ns, by[f.name], uv, xyz, tag=f.index, camera_name=f.name)
+        )
     outs += rig.close()
     (out,) = [o for o in outs if {f.tag for f in o.frames.values()} == {target}]
     left = out.cameras.index("left")

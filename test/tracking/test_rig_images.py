@@ -14,12 +14,8 @@ from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.render.rig import render_rig_frames, vga_rig
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import (
-    SKIP_REASONS,
-    RigCameraFrame,
-    RigLocalizer,
-    RigSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import SKIP_REASONS, RigLocalizer, RigSettings
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +117,7 @@ def _run(frames, cams, mounts, log):
     rig = RigLocalizer(RigSettings(mounts), log=log)
     outs = []
     for f in frames:
-        outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     return rig, outs + rig.close()
 
 

@@ -10,7 +10,8 @@ from helpers.rig import T0, assert_balanced, mounts_of
 
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
 
 NOISE = 0.003  # rad/s per gyro sample
@@ -29,7 +30,7 @@ def test_rig_frames_tracked_on_numpy_and_the_track_goes_on_once_compiled():
     rig = RigLocalizer(RigSettings(mounts_of(cams)), implementation=lambda: state["impl"])
     outs, fused = [], []
     for f in frames:
-        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz)):
+        for o in rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name)):
             outs.append(o)
             fused += o.fused
             if len(outs) == 6:
@@ -66,7 +67,7 @@ def _video_run(cams, frames, gyro, impl):
             assert rig.add_imu(t, item) is None
         else:
             outs += rig.add(
-                RigCameraFrame(item.name, item.stamp_ns, by[item.name], item.uv, item.xyz)
+                CameraFrame(item.stamp_ns, by[item.name], item.uv, item.xyz, camera_name=item.name)
             )
     outs += rig.close()
     fused = [f for o in outs for f in o.fused] + rig.flush()

@@ -12,13 +12,8 @@ from helpers.rig import T0, Log, assert_balanced, mounts_of
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_truth
-from rs_localizer.tracking.rig import (
-    MISSED_REASONS,
-    SKIP_REASONS,
-    RigCameraFrame,
-    RigLocalizer,
-    RigSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import MISSED_REASONS, SKIP_REASONS, RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import SequenceLocalizer
 
 
@@ -29,7 +24,7 @@ def run(frames, cams, settings=None, log=None, camera_of=None):
     outs, fused = [], []
     for f in frames:
         cam = by[f.name] if camera_of is None else camera_of(f)
-        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, cam, f.uv, f.xyz)):
+        for o in rig.add(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, camera_name=f.name)):
             outs.append(o)
             fused += o.fused
     for o in rig.close():
@@ -277,7 +272,9 @@ def test_bad_settings():
         Mounting(np.diag([1.0, 1.0, -1.0]), np.zeros(3))
     rig = RigLocalizer(RigSettings(m))
     with pytest.raises(ValueError, match="'back' is not in the rig"):
-        rig.add(RigCameraFrame("back", T0, cams[0].camera, np.zeros((0, 2)), np.zeros((0, 3))))
+        rig.add(
+            CameraFrame(T0, cams[0].camera, np.zeros((0, 2)), np.zeros((0, 3)), camera_name="back")
+        )
     mount = Mounting.from_pose(cams[1].R_rig_cam, cams[1].p_rig_cam)
     assert np.allclose(mount.position, cams[1].p_rig_cam)
     R = np.asarray(cams[1].R_rig_cam).T  # (x_cam = R x_rig + c)
@@ -298,7 +295,7 @@ def test_configure_takes_new_options_from_the_next_rig_frame(video):
     outs = []
     half = len(frames) // 2
     for f in frames[:half]:
-        outs += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        outs += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     assert outs and all(o.success for o in outs) and rig.pending > 0
     pending, received, open_ = rig.pending, rig.counts["front.received"], rig.rig_counts()
     slow = EstimateOptions()
@@ -308,7 +305,7 @@ def test_configure_takes_new_options_from_the_next_rig_frame(video):
     assert rig.counts["front.received"] == received and rig.rig_counts() == open_
     later = []
     for f in frames[half:]:
-        later += rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        later += rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     later += rig.close()
     assert len(later[0].fused) == pending
     assert later and not any(o.success for o in later)
@@ -349,7 +346,7 @@ def test_calibrate_mountings_from_the_video(video):
     cams, frames, _ = video
     by = {c.name: c.camera for c in cams}
     truth = mounts_of(cams)
-    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in frames]
+    fr = [CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name) for f in frames]
     out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
     assert sorted(out) == ["front", "left", "right"]
     assert out["front"].mount is truth["front"] and out["front"].std_deg == 0.0
@@ -375,7 +372,7 @@ def test_a_mountings_stated_std_covers_its_error_over_a_longer_video():
     frames, _, _ = generate_rig_video(cams, duration=5.0, num_points=300, seed=2)
     by = {c.name: c.camera for c in cams}
     truth = mounts_of(cams)
-    fr = [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in frames]
+    fr = [CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name) for f in frames]
     out = calibrate_mountings(fr, "front", reference_mount=truth["front"])
     err = {}
     for n in ("left", "right"):
@@ -411,7 +408,7 @@ def ring_frames(duration, seed, phases=(0, 1, 2, 3)):
     for f in frames:
         q = min(int(4 * (f.stamp_ns - T0) * 1e-9 / duration), 3)
         if q in phases and f.name in (RING[q], RING[(q + 1) % 4]):
-            out.append(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+            out.append(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     return cams, out
 
 
@@ -460,7 +457,7 @@ def test_the_rig_and_one_camera_share_the_pending_twists_and_end_track(video):
     rig = RigLocalizer(RigSettings(mounts_of(cams)))
     cut = len(frames) // 2
     for f in frames[:cut]:
-        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     assert rig.pending > 0
     nxt = frames[cut]
     assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is not None
@@ -469,7 +466,7 @@ def test_the_rig_and_one_camera_share_the_pending_twists_and_end_track(video):
     assert rig.predict_camera(nxt.name, nxt.stamp_ns, by[nxt.name]) is None
     fused = []
     for f in frames[cut:]:  # (a new track: its rig frames fused again)
-        for o in rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz)):
+        for o in rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name)):
             fused += o.fused
     fused += rig.flush()
     assert len(fused) > 0 and rig.pending == 0
@@ -539,7 +536,7 @@ def test_a_camera_stamped_late_is_put_on_the_rig_clock_by_its_time_offset(video)
     by = {c.name: c.camera for c in cams}
 
     def frames_of(video):
-        return [RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz) for f in video]
+        return [CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name) for f in video]
 
     truth = calibrate_mountings(frames_of(frames), "front", min_inliers=20)
     shifted = calibrate_mountings(

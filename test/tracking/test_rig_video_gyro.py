@@ -15,7 +15,8 @@ from rs_localizer.camera import reference_stamp_ns
 from rs_localizer.frames import Mounting
 from rs_localizer.geometry import rotvec_to_matrix
 from rs_localizer.sim.rig_video import default_rig, generate_rig_video, rig_gyro, rig_truth
-from rs_localizer.tracking.rig import RigCameraFrame, RigLocalizer, RigSettings
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.rig import RigLocalizer, RigSettings
 from rs_localizer.tracking.sequence import GyroSettings
 
 NOISE = 0.003  # rad/s per sample
@@ -45,7 +46,9 @@ def _run(video, imu=None, gyro=None, log=None):
         if kind == 0:
             assert rig.add_imu(t, item) is None
             continue
-        outs += rig.add(RigCameraFrame(item.name, item.stamp_ns, by[item.name], item.uv, item.xyz))
+        outs += rig.add(
+            CameraFrame(item.stamp_ns, by[item.name], item.uv, item.xyz, camera_name=item.name)
+        )
     outs += rig.close()
     return rig, outs
 
@@ -173,7 +176,8 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     from helpers.rig import Log
 
     from rs_localizer.ros.diagnostics import WARN
-    from rs_localizer.tracking.sequence import SequenceFrame, SequenceLocalizer, SequenceSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.sequence import SequenceLocalizer, SequenceSettings
 
     rig_diagnostics = pytest.importorskip("rs_localizer.ros.rig_node").rig_diagnostics
     cams, frames, traj = video
@@ -203,7 +207,7 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
         seq.add_imu(int(t), w)
     for f in frames:
         if f.name == front.name:
-            seq.process(SequenceFrame(f.stamp_ns, front.camera, f.uv, f.xyz))
+            seq.process(CameraFrame(f.stamp_ns, front.camera, f.uv, f.xyz))
     assert seq.gyro_inconsistent and seq.counts["gyro_inconsistent_detections"] == 1
     # the right mount: never inconsistent
     right = GyroSettings(R_cam_imu=R_RIG_IMU, gyro_noise=NOISE, gyro_bias_sigma=0.001)
@@ -228,16 +232,16 @@ def test_a_time_reset_starts_the_rigs_gyro_timeline_again_as_a_cameras(video):
         assert rig.add_imu(t, np.zeros(3)) is None
     first = [f for f in frames if f.stamp_ns < T0 + 200_000_000]
     for f in first:
-        rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))
+        rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
     newest = max(reference_stamp_ns(f.stamp_ns, by[f.name], 0.0) for f in first)
     bias = rig.gyro_bias
     assert rig.counts["rig.time_resets"] == 0 and len(rig.imu) == 100
     f = frames[len(first)]
-    rig.add(RigCameraFrame(f.name, f.stamp_ns + 3 * 10**9, by[f.name], f.uv, f.xyz))
+    rig.add(CameraFrame(f.stamp_ns + 3 * 10**9, by[f.name], f.uv, f.xyz, camera_name=f.name))
     assert rig.counts["rig.time_resets"] == 1
     assert len(rig.imu) == sum(t >= newest for t in stamps) > 0
     assert rig.gyro_bias is bias and rig.gyro_bias._prev is None
-    rig.add(RigCameraFrame(f.name, f.stamp_ns, by[f.name], f.uv, f.xyz))  # (3 s back)
+    rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))  # (3 s back)
     assert rig.counts["rig.time_resets"] == 2 and len(rig.imu) == 0
     assert rig.rig_counts()["skipped"] > 0  # (the rig frame open at the step back: dropped)
 

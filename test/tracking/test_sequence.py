@@ -20,12 +20,8 @@ from rs_localizer.frames import Mounting, camera_to_base
 from rs_localizer.geometry import rotation_angle_deg, rotvec_to_matrix
 from rs_localizer.pose import PoseWithCovariance, RSModel, RSPose
 from rs_localizer.sim.trajectory import SequenceConfig, generate_sequence, make_trajectory
-from rs_localizer.tracking.sequence import (
-    GyroSettings,
-    SequenceFrame,
-    SequenceLocalizer,
-    SequenceSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import GyroSettings, SequenceLocalizer, SequenceSettings
 from rs_localizer.tracking.tracker import RSTracker, model_from_state
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0))
@@ -45,7 +41,7 @@ def test_sequence_tracks_a_video_as_the_tracker_does(video):
     tracker = RSTracker(options=OPTS)
     fused, direct = [], []
     for f in frames:
-        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
+        out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
         assert out.stamp_ns == f.t_ref_ns  # (the reference line's time, from the header stamp)
         r = tracker.process(f.t_ref_ns, f.uv, f.xyz, cam)
         direct += r.final
@@ -73,7 +69,7 @@ def test_sequence_tracks_a_video_as_the_tracker_does(video):
 def test_without_tracking_each_frame_is_final(video):
     frames, cam = video
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=None))
-    out = seq.process(SequenceFrame(frames[0].stamp_ns, cam, frames[0].uv, frames[0].xyz))
+    out = seq.process(CameraFrame(frames[0].stamp_ns, cam, frames[0].uv, frames[0].xyz))
     assert out.estimate.success and out.twist_now and out.fused == [] and out.path is None
     assert seq.tracking_values()["track_state"] == "disabled"
 
@@ -86,11 +82,11 @@ def test_a_switch_to_a_global_shutter_solver_releases_the_pending_twists(video):
     seq = SequenceLocalizer(SequenceSettings(options=OPTS))
     fused = []
     for f in frames[:5]:
-        fused += seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index)).fused
+        fused += seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index)).fused
     assert seq.pending > 0
     seq.configure(SequenceSettings(solver="p3p", options=OPTS))
     f = frames[5]
-    out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
+    out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz, tag=f.index))
     assert out.estimate.success and out.twist_now
     fused += out.fused
     assert [x.tag for x in fused] == [g.index for g in frames[:5]]
@@ -129,7 +125,7 @@ def test_reset_forgets_the_video(video):
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, imu=GyroSettings()))
     seq.add_imu(frames[0].stamp_ns, (0.0, 0.0, 0.0))
     for f in frames[:3]:
-        seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
     assert seq.pending > 0
     seq.reset()
     assert seq.pending == 0 and len(seq.imu) == 0 and seq.flush() == []
@@ -165,7 +161,7 @@ def test_estimate_pose_and_model_views(video):
     frames, cam = video
     f = frames[0]
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, tracking=None))
-    e = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
+    e = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
     p = RSPose.from_model(e.model, cam.seconds_per_unit_r)
     np.testing.assert_allclose(p.orientation, e.pose.orientation, atol=1e-12)
     np.testing.assert_allclose(p.position, e.pose.position, atol=1e-9)
@@ -182,7 +178,7 @@ def test_estimates_and_states_store_their_pose_and_model(video):
     seq = SequenceLocalizer(SequenceSettings(options=OPTS))
     estimates, fused = {}, []
     for f in frames[:4]:
-        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         estimates[out.stamp_ns] = e = out.estimate
         assert isinstance(e.pose, RSPose) and isinstance(e.model, RSModel)
         assert isinstance(e, PoseWithCovariance) and e.pose.stamp_ns is None
@@ -266,7 +262,7 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, stamp_row=0.0))
     fused, own = [], {}
     for f in frames:
-        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         assert out.estimate.success
         own[out.stamp_ns] = out.estimate
         fused += out.fused
@@ -298,16 +294,20 @@ def test_a_frame_the_twist_filter_refuses_carries_its_own_twist():
 def test_stamps_beyond_int64_and_a_missing_camera_are_refused(video):
     """A frame stamp up to 2**63 - 1 ns is taken; one beyond (5e19 ns, 2**63) or an IMU stamp
     of 2**70 raises ValueError naming the int64 range, and a frame without a camera model a
-    TypeError, before anything is solved or buffered."""
+    TypeError, before anything is solved or buffered. A frame may be made without a camera
+    model (a rig's camera whose camera_info has not arrived); one camera's localizer refuses
+    it."""
     frames, cam = video
     f = frames[0]
-    assert SequenceFrame(2**63 - 1, cam, f.uv, f.xyz).stamp_ns == 2**63 - 1
+    assert CameraFrame(2**63 - 1, cam, f.uv, f.xyz).stamp_ns == 2**63 - 1
     for bad in (5e19, 2**63, float("inf"), float("nan")):
         with pytest.raises(ValueError, match="stamp"):
-            SequenceFrame(bad, cam, f.uv, f.xyz)
+            CameraFrame(bad, cam, f.uv, f.xyz)
     with pytest.raises(TypeError, match="CameraModel"):
-        SequenceFrame(f.stamp_ns, None, f.uv, f.xyz)
+        CameraFrame(f.stamp_ns, object(), f.uv, f.xyz)
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, imu=GyroSettings()))
+    with pytest.raises(TypeError, match="CameraModel"):
+        seq.process(CameraFrame(f.stamp_ns, None, f.uv, f.xyz))
     with pytest.raises(ValueError, match="int64"):
         seq.add_imu(2**70, (0.0, 0.0, 0.0))
     with pytest.raises(ValueError, match="int64"):
@@ -315,7 +315,7 @@ def test_stamps_beyond_int64_and_a_missing_camera_are_refused(video):
     with pytest.raises(TypeError, match="CameraModel"):
         seq.process_image(f.stamp_ns, np.zeros((4, 4), np.uint8), None)
     assert len(seq.imu) == 0 and seq.counts == {}
-    out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+    out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
     assert out.estimate.success  # (the refused inputs left no trace)
 
 
@@ -364,7 +364,7 @@ def test_process_image_gives_the_poses_of_its_front_ends_correspondences(video):
         for f in frames[:4]:
             fe.frame = f
             out = seq.process_image(f.stamp_ns, image, cam, "mono8")
-            want = ref.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
+            want = ref.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz)).estimate
             assert out.failure is None and len(out.correspondences) == len(f.uv)
             np.testing.assert_array_equal(out.estimate.pose.orientation, want.pose.orientation)
             np.testing.assert_array_equal(out.estimate.pose.position, want.pose.position)
@@ -478,7 +478,7 @@ def test_sequence_publishes_no_fused_twist_beyond_the_plausibility_bounds(video,
     seq = SequenceLocalizer(SequenceSettings(options=opts, stamp_row=0.0))
     fused, own = [], {}
     for f in frames:
-        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         own[out.stamp_ns] = out.estimate
         fused += out.fused
     fused += seq.flush()
@@ -521,7 +521,7 @@ def test_the_video_flags_a_wrong_rolling_shutter_timing(timing):
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, stamp_row=0.0), log=log)
     fused, paths = [], {}
     for f in frames:
-        out = seq.process(SequenceFrame(f.stamp_ns, given, f.uv, f.xyz))
+        out = seq.process(CameraFrame(f.stamp_ns, given, f.uv, f.xyz))
         paths[out.stamp_ns] = out.path
         fused += out.fused
     fused += seq.flush()
@@ -554,7 +554,7 @@ def test_a_fast_readout_camera_s_fused_twist_comes_from_the_video():
     seq = SequenceLocalizer(SequenceSettings(options=OPTS, stamp_row=0.0))
     fused = []
     for f in frames:
-        out = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        out = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         assert out.estimate.success and out.estimate.motion_model == "global_shutter"
         fused += out.fused
     fused += seq.flush()

@@ -18,12 +18,8 @@ from rs_localizer.sim.trajectory import (
     imu_samples,
     make_trajectory,
 )
-from rs_localizer.tracking.sequence import (
-    GyroSettings,
-    SequenceFrame,
-    SequenceLocalizer,
-    SequenceSettings,
-)
+from rs_localizer.tracking.localizer import CameraFrame
+from rs_localizer.tracking.sequence import GyroSettings, SequenceLocalizer, SequenceSettings
 
 OPTS = EstimateOptions(ransac=RansacOptions(seed=0))
 NOISE = 0.003  # rad/s per gyro sample
@@ -67,7 +63,7 @@ def _run(video, implementation, gyro=True, switch=None):
     for k, f in enumerate(frames):
         if k == switch:
             state["impl"] = "compiled"
-        o = seq.process(SequenceFrame(f.stamp_ns, cam, f.uv, f.xyz))
+        o = seq.process(CameraFrame(f.stamp_ns, cam, f.uv, f.xyz))
         outs.append(o)
         fused += o.fused
     fused += seq.flush()

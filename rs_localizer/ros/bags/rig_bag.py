@@ -51,7 +51,8 @@ from .bag_io import (
 )
 
 if TYPE_CHECKING:
-    from ...tracking.rig import RigCameraFrame, RigSettings
+    from ...tracking.localizer import CameraFrame
+    from ...tracking.rig import RigSettings
     from ..camera_input import CameraInput, UnreadFrame
 
 __all__ = [
@@ -525,7 +526,7 @@ def is_rig_bag(bag: str | os.PathLike) -> bool:
 class RigFrames:
     """What :func:`read_rig_frames` read: ``items`` (every camera's clouds in log-time order,
     as :func:`iter_rig_frames` yields them: a
-    :class:`~rs_localizer.tracking.rig.RigCameraFrame`, or an
+    :class:`~rs_localizer.tracking.rig.CameraFrame`, or an
     :class:`~rs_localizer.ros.camera_input.UnreadFrame` for a cloud not read), ``values`` (the
     parameter values), ``cameras`` (the cameras' values, :func:`rig_parameter_values`) and
     ``counts``: camera -> :data:`READ_COUNTS`, the counts of its rows, ``points_dropped``
@@ -544,7 +545,7 @@ class RigFrames:
 
     @property
     def frames(self) -> list:
-        """The frames read (every :class:`~rs_localizer.tracking.rig.RigCameraFrame` of
+        """The frames read (every :class:`~rs_localizer.tracking.rig.CameraFrame` of
         :attr:`items`), in log-time order."""
         from ..camera_input import UnreadFrame
 
@@ -624,7 +625,7 @@ class RigTopics:
 
 def iter_rig_frames(
     bag: str | os.PathLike, inputs: Mapping[str, CameraInput]
-) -> Iterator[RigCameraFrame | UnreadFrame]:
+) -> Iterator[CameraFrame | UnreadFrame]:
     """The one reader of a rig bag's camera frames: every camera of ``inputs`` (camera name ->
     its :class:`~rs_localizer.ros.camera_input.CameraInput`,
     :func:`~rs_localizer.ros.camera_input.rig_camera_inputs`), in log-time order, from
@@ -644,7 +645,7 @@ def iter_rig_frames(
     skipped (:func:`~rs_localizer.ros.camera_input.hand_to_rig`).
 
     Yields:
-        :class:`~rs_localizer.tracking.rig.RigCameraFrame` (name, header stamp ns, model,
+        :class:`~rs_localizer.tracking.rig.CameraFrame` (name, header stamp ns, model,
         pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
         :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
