@@ -1431,9 +1431,13 @@ def check_rig_replay_evaluate(day: Day, c: Check) -> None:
     except ValueError:
         c.fail(f"replay printed no JSON: {_tail(r.output)}")
         return
-    rot, pos = s["rot_deg"], 1e3 * s["pos_m"]
-    vals = [f"replay {s['solved']}/{s['rig_frames']} posed, {rot:.4f} deg {pos:.3f} mm"]
-    c.expect(s["solved"] >= 0.95 * s["rig_frames"], f"replay posed {s['solved']}")
+    try:
+        rot, pos = s["rot_deg"]["median"], 1e3 * s["pos_m"]["median"]
+    except (KeyError, TypeError):
+        c.fail(f"replay printed no errors against the truth: {_tail(r.output)}")
+        return
+    vals = [f"replay {s['solved']}/{s['frames_total']} posed, {rot:.4f} deg {pos:.3f} mm"]
+    c.expect(s["solved"] >= 0.95 * s["frames_total"], f"replay posed {s['solved']}")
     for cam in RIG_CAMERAS:
         k = s["counts"].get(cam, {})
         c.expect(k.get("received") == sum(k.get(x, 0) for x in ("solved", "failed", "skipped",

@@ -247,7 +247,6 @@ def run(args: argparse.Namespace) -> int:
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
         A.output_file(args.csv, True, "CSV file")
-    from ..accuracy import format_summary
     from ..ros.bags.replay import replay
 
     res = replay(
@@ -270,43 +269,13 @@ def run(args: argparse.Namespace) -> int:
     text = sys.stderr if args.json else sys.stdout  # --json: stdout holds only the JSON
     for note in res.notes:
         print(f"warning: {note}", file=sys.stderr)
-    print(
-        f"{solver}: solved {res.solved}/{n} frames"
-        + (f"; failures {res.failures}" if res.failures else "")
-        + ("" if res.config.tracking is None else " (tracking: twist = the fused twist)"),
-        file=text,
-    )
+    tracked = res.config.tracking is not None
+    print(_solved_line(solver, res.solved, n, "frames", res.failures, tracked), file=text)
     if res.config.imu is not None:
-        c = res.counts
-        missing = {k[13:]: v for k, v in c.items() if k.startswith("gyro_missing.")}
-        print(
-            f"gyro: {c.get('frames_with_gyro', 0)} frames used it, "
-            f"{c.get('gyro_rejected', 0)} contradicted by the image (solved without), "
-            f"{c.get('gyro_disabled_inconsistent', 0)} solved without it while the rotation "
-            "between frames contradicted it, "
-            f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
-            file=text,
-        )
-        if res.gyro_bias is not None:
-            how = "estimated" if res.config.imu.estimate_bias else "imu.gyro_bias"
-            print(
-                f"gyro bias ({how}, rad/s, IMU frame): "
-                + " ".join(f"{b:.5f}" for b in res.gyro_bias)
-                + " +- "
-                + " ".join(f"{b:.5f}" for b in res.gyro_bias_std)
-                + f" ({c.get('gyro_bias_rejected', 0)} pairs of frames rejected)",
-                file=text,
-            )
-    if res.summary.get("frames"):
-        print(format_summary(solver, res.summary, n), file=text)
-        fit = res.summary.get("frame_fit")
-        if fit and fit["other_frame"]:
-            print(
-                f"  the ground truth is in another frame than the map's (a rigid fit of the "
-                f"frames moves them {fit['rot_deg']:.3g} deg, {100 * fit['pos_m']:.3g} cm); "
-                "after that fit: " + format_summary(solver, fit["aligned"]),
-                file=text,
-            )
+        how = "estimated" if res.config.imu.estimate_bias else "imu.gyro_bias"
+        bias = None if res.gyro_bias is None else (res.gyro_bias, res.gyro_bias_std)
+        _print_gyro(res.counts, bias, how, "frames", text)
+    _print_accuracy(solver, res.summary, n, text)
     if res.out_bag:
         print(
             f"estimates: {res.out_bag}"
@@ -316,43 +285,94 @@ def run(args: argparse.Namespace) -> int:
     if res.out_csv:
         print(f"csv: {res.out_csv}", file=text)
     if args.json:
-        print(
-            json.dumps(
-                {
-                    "solver": solver,
-                    "frames_total": n,
-                    "solved": res.solved,
-                    "failures": res.failures,
-                    **res.summary,
-                    "out_bag": str(res.out_bag) if res.out_bag else None,
-                    "csv": str(res.out_csv) if res.out_csv else None,
-                },
-                indent=2,
-            )
-        )
+        report = _report(solver, n, res.solved, res.failures, res.summary, res.out_bag,
+                         res.out_csv)  # fmt: skip
+        print(json.dumps(report, indent=2))
     return 0 if res.solved else 1
 
 
-def _rig_gyro_counts(outputs) -> dict:
-    """The rig frames solved with the gyro (``used``), with it rejected (``rejected``) and
-    without its samples (``missing``) of a replay with a gyro on the rig."""
-    ests = [o.estimate for o in outputs if o.estimate is not None]
-    given = sum(o.gyro is not None for o in outputs)
+def _solved_line(solver: str, solved: int, n: int, unit: str, failures: dict, tracked: bool) -> str:
+    """The first line of a replay's report: frames (or rig frames) solved, failures by
+    reason, and whether the twist is the fused one."""
+    return (
+        f"{solver}: solved {solved}/{n} {unit}"
+        + (f"; failures {failures}" if failures else "")
+        + (" (tracking: twist = the fused twist)" if tracked else "")
+    )
+
+
+def _print_gyro(c: dict, bias, how: str, unit: str, text) -> None:
+    """The gyro's lines of a replay's report (a camera's counts, or a rig's by the same
+    names): frames posed with it, contradicted by the image, solved without it while it
+    contradicted the rotation between frames, without samples (by reason); the bias
+    ``(bias (3,), std (3,))`` rad/s, IMU frame, when known (``how`` it was got)."""
+    missing = {k[13:]: v for k, v in c.items() if k.startswith("gyro_missing.")}
+    print(
+        f"gyro: {c.get('frames_with_gyro', 0)} {unit} used it, "
+        f"{c.get('gyro_rejected', 0)} contradicted by the image (solved without), "
+        f"{c.get('gyro_disabled_inconsistent', 0)} solved without it while the rotation "
+        f"between {unit} contradicted it, "
+        f"{c.get('gyro_missing', 0)} without samples" + (f" {missing}" if missing else ""),
+        file=text,
+    )
+    if bias is not None:
+        print(
+            f"gyro bias ({how}, rad/s, IMU frame): "
+            + " ".join(f"{b:.5f}" for b in bias[0])
+            + " +- "
+            + " ".join(f"{b:.5f}" for b in bias[1])
+            + f" ({c.get('gyro_bias_rejected', 0)} pairs of {unit} rejected)",
+            file=text,
+        )
+
+
+def _print_accuracy(solver: str, summary: dict, n: int, text) -> None:
+    """The errors against ground truth of a replay's report (none without it), and after a
+    rigid fit of the frames when the ground truth is in another frame."""
+    from ..accuracy import format_summary
+
+    if not summary.get("frames"):
+        return
+    print(format_summary(solver, summary, n), file=text)
+    fit = summary.get("frame_fit")
+    if fit and fit["other_frame"]:
+        print(
+            f"  the ground truth is in another frame than the map's (a rigid fit of the "
+            f"frames moves them {fit['rot_deg']:.3g} deg, {100 * fit['pos_m']:.3g} cm); "
+            "after that fit: " + format_summary(solver, fit["aligned"]),
+            file=text,
+        )
+
+
+def _report(solver, n, solved, failures, summary, out_bag, out_csv, **more) -> dict:
+    """The ``--json`` report of a camera's or a rig's replay (a rig's adds ``more``)."""
     return {
-        "used": sum(bool(e.gyro_used) for e in ests),
-        "rejected": sum(bool(e.gyro_rejected) for e in ests),
-        "missing": len(outputs) - given,
+        "solver": solver,
+        "frames_total": n,
+        "solved": solved,
+        "failures": failures,
+        **summary,
+        **more,
+        "out_bag": str(out_bag) if out_bag else None,
+        "csv": str(out_csv) if out_csv else None,
     }
 
 
 def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
-    """A rig bag (``make-bag --rig``): every camera through the rig mode
-    (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`); prints the rig's counts (each
-    camera's frames and its rows' ``points_dropped``, ``capped_clouds``) and its errors
-    against the ground truth. Returns 0, or 1 when no rig frame was posed."""
-    if args.csv or args.debug_outputs:
-        raise A.CliError("a rig bag is replayed without --csv or --debug-outputs")
+    """A rig bag (``make-bag --rig``, ``render-bag --rig``): every camera through the rig
+    mode (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`), reported as a camera's replay is,
+    a rig frame for a frame (rig frames solved, failures, the gyro, the errors of the
+    published pose and twist, ``--out``, ``--csv``, ``--json``), with each camera's counts
+    (its frames and its rows' ``points_dropped``, ``capped_clouds``), each rig frame's own
+    twist and the cameras that disagree with the others. Returns 0, or 1 when no rig frame
+    was posed."""
+    if args.debug_outputs:
+        raise A.CliError("a rig bag is replayed without --debug-outputs")
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
+    if args.csv:
+        A.output_file(args.csv, True, "CSV file")
+    from ..accuracy import format_summary
+    from ..ros.bags.replay import write_csv
     from ..ros.bags.rig_bag import replay_rig, rig_parameter_values, write_rig_outputs
     from ..ros.params import ConfigError
 
@@ -365,17 +385,19 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
         )
     except ConfigError as e:
         raise A.CliError(f"invalid parameters: {e}") from None
-    s = res.summary()
-    text = sys.stderr if args.json else sys.stdout
-    print(f"rig of {len(res.cameras)} cameras: posed {s['solved']}/{s['rig_frames']} rig frames",
-          file=text)  # fmt: skip
-    for n in res.cameras:
-        c = res.counts[n]
-        print(f"  {n}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
     values = rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]
+    n, solver = len(res.rows), res.solver or "rig"
+    text = sys.stderr if args.json else sys.stdout
+    line = _solved_line(solver, res.solved, n, "rig frames", res.failures, not res.twist_now)
+    print(line.replace(" rig frames", f" rig frames of {len(res.cameras)} cameras", 1),
+          file=text)  # fmt: skip
+    for name in res.cameras:
+        c = res.counts[name]
+        print(f"  {name}: " + ", ".join(f"{k} {v}" for k, v in c.items()), file=text)
     if values["imu.enabled"]:
-        gyro = _rig_gyro_counts(res.outputs)
-        print("  gyro: " + ", ".join(f"{k} {v}" for k, v in gyro.items()), file=text)
+        how = "estimated" if values["imu.estimate_bias"] else "imu.gyro_bias"
+        bias = None if res.gyro_bias is None else (res.gyro_bias, res.gyro_bias_std)
+        _print_gyro(res.gyro_counts, bias, how, "rig frames", text)
     if res.readout.get("readout_suspect") == "true":
         from ..tracking.localizer import readout_warning
 
@@ -383,26 +405,31 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
             f"warning: {readout_warning(res.readout['readout_contradicted'], rig=True)}",
             file=sys.stderr,
         )
-    for n, d in s["disagreeing"].items():
+    for name, d in res.disagreeing.items():
         print(
-            f"  camera {n} disagrees with the others in {d['rig_frames']} rig frames (median "
+            f"  camera {name} disagrees with the others in {d['rig_frames']} rig frames (median "
             f"{d['median_deg']:.2f} deg off: its rotation posed alone against the rig's pose "
             "through its mounting; a wrong mounting shows its own error, a wrong clock or line "
             "delay a varying one)",
             file=text,
         )
-    if s["solved"]:
-        print(
-            f"median errors: rotation {s['rot_deg']:.4f} deg, position {1e3 * s['pos_m']:.2f} "
-            f"mm, angular velocity {s['angvel']:.4f} rad/s (fused {s['fused_angvel']:.4f}), "
-            f"linear velocity {s['linvel']:.3f} m/s (fused {s['fused_linvel']:.3f})",
-            file=text,
-        )
+    _print_accuracy(solver, res.summary, n, text)
+    if res.own_twist.get("frames") and not res.twist_now:
+        own = format_summary(solver, res.own_twist, n).split("; ", 1)[-1]
+        print(f"  each rig frame's own twist: {own}", file=text)
     if out_bag is not None:
         base = str(values["base_frame"]).strip() or "base_link"
         write_rig_outputs(res, out_bag, str(values["map_frame"]), base, args.storage, True)
-        print(f"estimates: {out_bag} (the rig's pose, pose_with_covariance and own twist)",
-              file=text)  # fmt: skip
+        print(f"estimates: {out_bag}", file=text)
+    if args.csv:
+        write_csv(args.csv, res.rows)
+        print(f"csv: {args.csv}", file=text)
     if args.json:
-        print(json.dumps({**s, "counts": res.counts}, indent=2))
-    return 0 if s["solved"] else 1
+        more = {"own_twist": res.own_twist, "disagreeing": res.disagreeing,
+                "counts": res.counts}  # fmt: skip
+        if values["imu.enabled"]:
+            more["gyro"] = res.gyro_counts
+        report = _report(solver, n, res.solved, res.failures, res.summary, out_bag, args.csv,
+                         **more)  # fmt: skip
+        print(json.dumps(report, indent=2))
+    return 0 if res.solved else 1

@@ -50,7 +50,7 @@ from rs_localizer.ros.bags.rig_bag import replay_rig
 res = replay_rig(bag)
 after = signatures()
 print(json.dumps({"without": without, "with_rig": with_rig, "after": after,
-                  "solved": res.summary()["solved"]}))
+                  "solved": res.solved}))
 """
 
 

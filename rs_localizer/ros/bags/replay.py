@@ -23,7 +23,7 @@ import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -51,7 +51,22 @@ from .bag_io import (
     typestore,
 )
 
-__all__ = ["BAG_TIMING", "CSV_COLUMNS", "ReplayResult", "replay", "replay_parameters", "to_cdr"]
+if TYPE_CHECKING:
+    from ...pose import PoseWithCovariance
+    from ...tracking.rig import RigOutput
+
+__all__ = [
+    "BAG_TIMING",
+    "CSV_COLUMNS",
+    "ReplayResult",
+    "ReplayRows",
+    "open_out_bag",
+    "replay",
+    "replay_parameters",
+    "to_cdr",
+    "write_csv",
+    "write_messages",
+]
 
 #: RS timing parameters a replay takes from the bag's ``sequence.json`` (``rs`` section, written
 #: by make-bag and render-bag) when neither a parameter file nor an override sets them
@@ -248,10 +263,10 @@ def replay(
         result.notes.append(note)
     writer, conns = None, {}
     if out_bag is not None:
-        writer, conns = _open_out_bag(Path(out_bag), storage, overwrite, ts)
+        writer, conns = open_out_bag(Path(out_bag), storage, overwrite, ts)
         result.out_bag = Path(out_bag)
     viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
-    rows = _Rows(gt)
+    rows = ReplayRows(gt)
     pipeline = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
     _run_frames(
         path,
@@ -341,9 +356,9 @@ def _replay_topics(
     return frame_topic, info_topic, viz_topic, imu_topic
 
 
-def _open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
-    """Stage 3 of :func:`replay`: the output bag's open writer and its connections by output
-    name (:data:`OUT_TYPES`).
+def open_out_bag(out_bag: Path, storage: str, overwrite: bool, ts: Any) -> tuple[Any, dict]:
+    """The output bag of a replay (of a camera or a rig): its open writer and its connections
+    by output name (:data:`OUT_TYPES`, as ``/rs_localizer/<name>``).
 
     Raises:
         FileExistsError: ``out_bag`` exists and not ``overwrite``.
@@ -369,7 +384,7 @@ def _run_frames(
     cfg: LocalizerConfig,
     source: str,
     topics: tuple[str, str | None, str | None, str | None],
-    rows: _Rows,
+    rows: ReplayRows,
     writer: Any,
     conns: dict,
     viz: _DebugWriter | None,
@@ -404,7 +419,7 @@ def _run_frames(
             rows.add(i - 1, res, cfg.solver)
             msgs = frame_messages(res, cfg.map_frame, wanted)
             rows.fused(res.fused)
-            _write(writer, conns, ts, t_log, msgs)
+            write_messages(writer, conns, ts, t_log, msgs)
             if viz is not None and res.solved:
                 if res.image is not None:
                     viz.add_decoded(*res.image)
@@ -412,7 +427,7 @@ def _run_frames(
             bar.update()
         last = pipeline.flush()  # (the end of the video: the twists still pending)
         rows.fused(last)
-        _write(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
+        write_messages(writer, conns, ts, t_log, fused_messages(last, cfg.map_frame))
     finally:
         bar.close()
         if viz is not None:
@@ -421,30 +436,29 @@ def _run_frames(
             writer.close()
 
 
-def _summarize(result: ReplayResult, rows: _Rows, pipeline: FramePipeline, out_csv: Any) -> None:
+def _summarize(
+    result: ReplayResult, rows: ReplayRows, pipeline: FramePipeline, out_csv: Any
+) -> None:
     """Stage 5 of :func:`replay`: the rows, counts, gyro bias, failures and error summary
     into ``result``; the CSV written to ``out_csv`` (None: none)."""
-    result.rows = rows.finish()
+    result.rows, result.failures, result.summary = rows.summary()
     result.counts = pipeline.stats.snapshot().counts
     if result.counts.get("map_fit_doubtful"):  # (the map-fit check, as the node warns)
         result.notes.append(pipeline.map_fit_text())
     bias = pipeline.gyro_bias_values()
     if bias is not None:
         result.gyro_bias, result.gyro_bias_std = bias
-    for r in result.rows:
-        if not r["success"]:
-            result.failures[r["failure"]] = result.failures.get(r["failure"], 0) + 1
-    errors = [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in result.rows]
-    result.summary = summarize_errors(errors)
-    fit = frame_fit_summary(*rows.pose_pairs())
-    if fit is not None and result.summary.get("frames"):
-        result.summary["frame_fit"] = fit  # (the errors after a rigid fit of the frames)
     if out_csv is not None:
         result.out_csv = Path(out_csv)
-        _write_csv(result.out_csv, result.rows)
+        write_csv(result.out_csv, result.rows)
 
 
-def _write(writer, conns, ts, t_log: int, messages) -> None:
+def write_messages(
+    writer: Any, conns: dict, ts: Any, t_log: int, messages: Iterable[tuple[str, Any]]
+) -> None:
+    """Write ``(topic, message)`` pairs (:mod:`rs_localizer.ros.outputs`) into an output bag of
+    :func:`open_out_bag` at log time ``t_log`` (ns); topics it does not hold (``tf``) are left
+    out by the caller's ``wanted``; ``writer`` None: nothing."""
     if writer is None:
         return
     for topic, m in messages:
@@ -455,9 +469,11 @@ def _xyz(prefix: str, v) -> dict:
     return {f"{prefix}{a}": float(v[k]) for k, a in enumerate("xyz")}
 
 
-class _Rows:
-    """The CSV rows: one per frame, the pose when solved, the published twist (the frame's
-    own, or the fused one when it comes) and the errors against ground truth."""
+class ReplayRows:
+    """The rows of a replay's CSV and summary, one per frame (a camera's frame, or a rig
+    frame of :func:`~rs_localizer.ros.bags.rig_bag.replay_rig`): the pose when solved, the
+    published twist (the frame's own, or the fused one when it comes) and the errors against
+    ground truth (``gt``). Columns: :data:`CSV_COLUMNS`."""
 
     def __init__(self, gt: GroundTruth):
         self.gt = gt
@@ -465,6 +481,7 @@ class _Rows:
         self.waiting: dict[int, tuple] = {}  # out stamp -> (row, orientation, position)
 
     def add(self, index: int, res: FrameResult, solver: str) -> None:
+        """A camera's frame (the node's pipeline's result ``res``, solved by ``solver``)."""
         row = {
             "frame": index,
             "stamp_ns": res.stamp_ns,
@@ -481,19 +498,43 @@ class _Rows:
             row["num_inliers"] = est.num_inliers
             row["rmse_px"] = est.rmse_px
         self.rows.append(row)
-        if not res.solved:
-            return
-        out = res.output.pose
-        q = cv.quaternion_from_matrix(out.orientation)
+        if res.solved:
+            self._posed(row, res.output, res.out_stamp_ns, res.twist_now)
+
+    def add_rig(self, index: int, out: RigOutput, twist_now: bool) -> None:
+        """A rig frame (``out``, solved or failed; ``twist_now``: its own twist is the one
+        published, without tracking): its stamp is the rig frame's time, ``num_points`` the
+        rows of all its cameras, ``failure`` the estimator's or the rig's reason (``error``:
+        the estimator raised)."""
+        est = out.estimate
+        row = {
+            "frame": index,
+            "stamp_ns": out.stamp_ns,
+            "out_stamp_ns": out.stamp_ns,
+            "success": out.success,
+            "failure": "" if out.success else (est.failure if est is not None else "error"),
+            "solver": est.solver if est is not None else "",
+        }
+        if est is not None:
+            row["num_points"] = sum(len(f.points2d) for f in out.frames.values())
+            row["num_inliers"] = est.num_inliers
+            row["rmse_px"] = est.rmse_px
+        self.rows.append(row)
+        if out.success:
+            self._posed(row, est, out.stamp_ns, twist_now)
+
+    def _posed(self, row: dict, out: PoseWithCovariance, stamp: int, twist_now: bool) -> None:
+        q = cv.quaternion_from_matrix(out.pose.orientation)
         row.update({f"q{a}": q[k] for k, a in enumerate("xyzw")})
-        row.update(_xyz("p", out.position))
-        row.update(_xyz("single_w", out.angular_velocity))
-        row.update(_xyz("single_v", out.linear_velocity))
-        self.waiting[res.out_stamp_ns] = (row, out.orientation, out.position)
-        if res.twist_now:
-            self._twist(res.out_stamp_ns, out.angular_velocity, out.linear_velocity)
+        row.update(_xyz("p", out.pose.position))
+        row.update(_xyz("single_w", out.pose.angular_velocity))
+        row.update(_xyz("single_v", out.pose.linear_velocity))
+        self.waiting[stamp] = (row, out.pose.orientation, out.pose.position)
+        if twist_now:
+            self._twist(stamp, out.pose.angular_velocity, out.pose.linear_velocity)
 
     def fused(self, fused: Iterable[FusedOutput]) -> None:
+        """The fused twists now final (of frames added before)."""
         for f in fused:
             self._twist(f.stamp_ns, f.source.pose.angular_velocity, f.source.pose.linear_velocity)
 
@@ -529,6 +570,25 @@ class _Rows:
             self._errors(row, R, p, None, None, stamp)
         self.waiting.clear()
         return self.rows
+
+    def summary(self) -> tuple[list[dict], dict[str, int], dict]:
+        """``(rows, failures, summary)`` at the end of the video (:meth:`finish`):
+        ``failures`` reason -> frames, ``summary`` the errors of the published pose and twist
+        against ground truth (:func:`~rs_localizer.accuracy.summarize_errors`) and, with
+        errors, ``frame_fit`` (the errors after a rigid fit of the frames,
+        :func:`~rs_localizer.accuracy.frame_fit_summary`)."""
+        rows = self.finish()
+        failures: dict[str, int] = {}
+        for r in rows:
+            if not r["success"]:
+                failures[r["failure"]] = failures.get(r["failure"], 0) + 1
+        summary = summarize_errors(
+            [{k[4:]: v for k, v in r.items() if k.startswith("err_")} for r in rows]
+        )
+        fit = frame_fit_summary(*self.pose_pairs())
+        if fit is not None and summary.get("frames"):
+            summary["frame_fit"] = fit
+        return rows, failures, summary
 
 
 class _DebugWriter:
@@ -642,7 +702,8 @@ CSV_COLUMNS = [
 ]
 
 
-def _write_csv(path, rows):
+def write_csv(path: str | os.PathLike, rows: list[dict]) -> None:
+    """Write a replay's ``rows`` (:class:`ReplayRows`) as CSV, :data:`CSV_COLUMNS`."""
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
         w.writeheader()

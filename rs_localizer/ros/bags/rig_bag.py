@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from ...accuracy import frame_errors
+from ...accuracy import frame_errors, summarize_errors
 from .. import conversions as cv
 from ..config import RigConfig, rig_config
 from ..param_files import read_params_file
@@ -38,6 +38,7 @@ from .bag_io import (
     GT_TWIST,
     IMAGE,
     IMU,
+    OUT_TYPES,
     PC2,
     POSE,
     TWIST,
@@ -299,63 +300,72 @@ def rig_bag_config(
 
 @dataclass
 class RigReplay:
-    """What :func:`replay_rig` did: ``outputs`` (every rig frame's
-    :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused`` (the fused poses), the rig's
-    ``counts`` (``rig``: its rig frames' ``rig_frames``, ``solved``, ``failed``, ``skipped``,
-    ``pending``; per camera: its frames' ``received``, ``solved``, ``failed``, ``skipped``,
-    ``pending`` (received = the other four summed), its rows' ``points_dropped`` (rows with a
-    NaN or inf) and ``capped_clouds`` (clouds capped to ``max_points``), then
-    ``skipped.<reason>`` for each reason its frames were skipped for (e.g. ``bad_input``:
-    clouds not read; ``no_camera_info``), as the rig node's diagnostics count them
-    ``<camera>.received``, ..., ``<camera>.skipped.<reason>``), ``errors`` (per posed rig
-    frame with ground truth: ``rot_deg``, ``pos_m``, ``angvel``, ``linvel`` of its own twist) and
-    ``fused_errors`` (of the fused twist); ``off_deg``: camera -> one entry per posed rig
-    frame in which it disagreed with the others (the cameras' consensus outvoted it, or the
-    rig names it as disagreeing), how far off it is: deg between its rotation posed alone
-    and where the rig's pose and its mounting put it (NaN where it could not be posed
-    alone; :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
-    check of the cameras' rolling-shutter timing on the video at its end
-    (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`)."""
+    """What :func:`replay_rig` did, reported as a camera's replay
+    (:class:`~rs_localizer.ros.bags.replay.ReplayResult`) is, a rig frame for a frame:
 
+    - ``rows``: one per rig frame solved or failed (:class:`~rs_localizer.ros.bags.replay.
+      ReplayRows`, the CSV's columns: the rig's pose in the map, its own twist and the twist
+      published on ``twist``, the fused one with tracking, in the rig frame, errors against
+      ground truth); ``failures``: reason -> rig frames; ``summary``: the errors of the
+      published pose and twist (:func:`~rs_localizer.accuracy.summarize_errors`, with
+      ``frame_fit``), as a camera's; ``own_twist``: the same of each rig frame's own twist
+      (``frames``, ``angvel``, ``linvel``); ``solver``: the rig estimator's;
+    - ``outputs`` (every rig frame's :class:`~rs_localizer.tracking.rig.RigOutput`), ``fused``
+      (the fused poses: the outputs', then ``flushed``, those still pending at the end);
+      ``twist_now``: without tracking, a rig frame's own twist is the one published;
+    - ``counts``: ``rig``, its rig frames' ``rig_frames``, ``solved``, ``failed``,
+      ``skipped``, ``pending``; per camera its frames' ``received``, ``solved``, ``failed``,
+      ``skipped``, ``pending`` (received = the other four summed), its rows'
+      ``points_dropped`` (rows with a NaN or inf) and ``capped_clouds`` (clouds capped to
+      ``max_points``), then ``skipped.<reason>`` for each reason its frames were skipped for
+      (e.g. ``bad_input``: clouds not read; ``no_camera_info``), as the rig node's
+      diagnostics count them ``<camera>.received``, ..., ``<camera>.skipped.<reason>``;
+    - ``gyro_counts`` (with a gyro on the rig): the rig's gyro counts by a camera's names
+      (``frames_with_gyro``, ``gyro_rejected``, ``gyro_disabled_inconsistent``,
+      ``gyro_missing``, ``gyro_missing.<reason>``, ``gyro_bias_rejected``, ...), and
+      ``gyro_bias``, ``gyro_bias_std`` ((3,) rad/s, IMU frame; None without a gyro);
+    - ``off_deg``: camera -> one entry per posed rig frame in which it disagreed with the
+      others (the cameras' consensus outvoted it, or the rig names it as disagreeing), how
+      far off it is: deg between its rotation posed alone and where the rig's pose and its
+      mounting put it (NaN where it could not be posed alone;
+      :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
+      check of the cameras' rolling-shutter timing on the video at its end
+      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`).
+    """
+
+    rows: list = field(default_factory=list)
+    failures: dict = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+    own_twist: dict = field(default_factory=dict)
+    solver: str = ""
     outputs: list = field(default_factory=list)
     fused: list = field(default_factory=list)
     counts: dict = field(default_factory=dict)
-    errors: list = field(default_factory=list)
-    fused_errors: list = field(default_factory=list)
+    gyro_counts: dict = field(default_factory=dict)
+    gyro_bias: np.ndarray | None = None
+    gyro_bias_std: np.ndarray | None = None
+    flushed: list = field(default_factory=list)
+    twist_now: bool = False
     cameras: tuple = ()
     off_deg: dict = field(default_factory=dict)
     readout: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> int:
+        """Rig frames posed."""
         return sum(o.success for o in self.outputs)
 
-    def summary(self) -> dict:
-        """Medians of the errors (NaN without ground truth), the counts and ``disagreeing``:
-        camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera that disagreed with
-        the others in N posed rig frames, X the median of :attr:`off_deg` (NaN: never posed
-        alone)."""
-
-        def med(rows, k):
-            vals = [r[k] for r in rows if k in r]
-            return float(np.median(vals)) if vals else float("nan")
-
+    @property
+    def disagreeing(self) -> dict:
+        """camera -> ``{"rig_frames": N, "median_deg": X}`` for each camera that disagreed
+        with the others in N posed rig frames, X the median of :attr:`off_deg` (NaN: never
+        posed alone)."""
         return {
-            "rig_frames": len(self.outputs),
-            "solved": self.solved,
-            "rot_deg": med(self.errors, "rot_deg"),
-            "pos_m": med(self.errors, "pos_m"),
-            "angvel": med(self.errors, "angvel"),
-            "linvel": med(self.errors, "linvel"),
-            "fused_angvel": med(self.fused_errors, "angvel"),
-            "fused_linvel": med(self.fused_errors, "linvel"),
-            "disagreeing": {
-                n: {
-                    "rig_frames": len(d),
-                    "median_deg": float(np.nanmedian(d)) if np.isfinite(d).any() else float("nan"),
-                }
-                for n, d in self.off_deg.items()
-            },
+            n: {
+                "rig_frames": len(d),
+                "median_deg": float(np.nanmedian(d)) if np.isfinite(d).any() else float("nan"),
+            }
+            for n, d in self.off_deg.items()
         }
 
 
@@ -420,28 +430,58 @@ def replay_rig(
     tail = rig.close()
     _note_disagreeing(rig, tail, recent, res.off_deg)
     res.outputs += tail
-    res.fused += [f for o in tail for f in o.fused] + rig.flush()
+    res.flushed = rig.flush()
+    res.fused += [f for o in tail for f in o.fused] + res.flushed
     bar.update(len(tail))
     bar.close()
     res.counts = {"rig": rig.rig_counts()}
     for n in rig.cameras:
         res.counts[n] = _camera_counts(rig, n, own)
     res.readout = rig.readout_values()
-    gt = load_ground_truth(bag)
-    for o in res.outputs:
+    if cfg.settings.imu is not None:
+        res.gyro_counts = _gyro_counts(rig.counts)
+        bias = rig.gyro_bias_values()
+        if bias is not None:
+            res.gyro_bias, res.gyro_bias_std = bias
+    res.twist_now = cfg.settings.tracking is None
+    _rows_of(res, load_ground_truth(bag), res.twist_now)
+    return res
+
+
+def _gyro_counts(counts: Mapping[str, int]) -> dict[str, int]:
+    """The rig's gyro counts (``rig.gyro_*``) by a camera's names: ``rig.`` dropped,
+    ``gyro_used`` as ``frames_with_gyro``."""
+    out = {}
+    for k, v in sorted(counts.items()):
+        if k.startswith("rig.gyro"):
+            k = k[len("rig.") :]
+            out["frames_with_gyro" if k == "gyro_used" else k] = v
+    return out
+
+
+def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
+    """The rows, failures and summaries of ``res`` from its outputs and fused poses
+    (``twist_now``: no tracking, a rig frame's own twist is the one published)."""
+    from ..pipeline import FusedOutput
+    from .replay import ReplayRows
+
+    rows = ReplayRows(gt)
+    own = []
+    fused_at: dict[int, list] = {}
+    for f in res.fused:  # (each rig frame's fused twist, added after the rig frame)
+        fused_at.setdefault(f.pose.stamp_ns, []).append(FusedOutput(f.pose.stamp_ns, f, ""))
+    for i, o in enumerate(res.outputs):
+        rows.add_rig(i, o, twist_now)
         if o.success:
             q = o.estimate.pose
-            e = frame_errors(q.orientation, q.position, q.angular_velocity,
-                             q.linear_velocity, gt, o.stamp_ns)  # fmt: skip
-            if e is not None:
-                res.errors.append(e)
-    for f in res.fused:
-        q = f.pose
-        e = frame_errors(q.orientation, q.position, q.angular_velocity, q.linear_velocity, gt,
-                         q.stamp_ns)  # fmt: skip
-        if e is not None:
-            res.fused_errors.append(e)
-    return res
+            own.append(frame_errors(q.orientation, q.position, q.angular_velocity,
+                                    q.linear_velocity, gt, o.stamp_ns))  # fmt: skip
+            rows.fused(fused_at.pop(o.stamp_ns, ()))
+        if o.estimate is not None and not res.solver:
+            res.solver = o.estimate.solver
+    res.rows, res.failures, res.summary = rows.summary()
+    s = summarize_errors(own)
+    res.own_twist = {k: v for k, v in s.items() if k in ("frames", "angvel", "linvel")}
 
 
 #: the counts of a camera's rows a replay reports beside its frames' (the rig node's
@@ -720,14 +760,6 @@ def rig_frame_grouping(
     return out, int(rig.counts["rig_frames"])
 
 
-#: the outputs :func:`write_rig_outputs` writes, as the rig node publishes them
-RIG_OUT_TYPES = {
-    "pose": "geometry_msgs/msg/PoseStamped",
-    "pose_with_covariance": "geometry_msgs/msg/PoseWithCovarianceStamped",
-    "twist_single_frame": "geometry_msgs/msg/TwistStamped",
-}
-
-
 def write_rig_outputs(
     res: RigReplay,
     out: str | os.PathLike,
@@ -736,42 +768,42 @@ def write_rig_outputs(
     storage: str = "mcap",
     overwrite: bool = False,
 ) -> Path:
-    """Write every posed rig frame of ``res`` into the bag ``out`` as the rig node publishes
-    it: ``/rs_localizer/pose``, ``pose_with_covariance`` (the rig frame's pose in
-    ``map_frame``) and ``twist_single_frame`` (its own twist in ``base_frame``), stamped and
-    logged at the rig frame's time. Returns the bag's path.
+    """Write the rig frames of ``res`` into the bag ``out`` as the rig node publishes them
+    (:func:`~rs_localizer.ros.outputs.pose_messages`,
+    :func:`~rs_localizer.ros.outputs.fused_messages`, as a camera's replay writes its frames,
+    :func:`~rs_localizer.ros.bags.replay.open_out_bag`): for each posed rig frame
+    ``/rs_localizer/pose`` and ``pose_with_covariance`` (the rig's pose in ``map_frame``),
+    ``twist_single_frame`` (its own twist in ``base_frame``), with each rig frame the fused
+    ``twist`` and ``odom`` it made final (without tracking its own), all stamped with the rig
+    frame's time they are of and logged at the time of the rig frame that made them final
+    (the last rig frame's for those still pending at the end). Returns the bag's path.
 
     Raises:
         FileExistsError: ``out`` exists and not ``overwrite``.
     """
-    from rosbags.rosbag2 import Writer
+    from ..outputs import fused_messages, pose_messages
+    from ..pipeline import FusedOutput
+    from .replay import open_out_bag, write_messages
 
-    from .replay import to_cdr
+    def fused(poses) -> list:
+        return fused_messages(
+            [FusedOutput(f.pose.stamp_ns, f, base_frame) for f in poses], map_frame, wanted
+        )
 
+    wanted = OUT_TYPES.__contains__
     out = Path(out)
-    if out.exists():
-        if not overwrite:
-            raise FileExistsError(f"{out} exists (use --overwrite)")
-        shutil.rmtree(out)
     ts = typestore()
-    writer = Writer(out, version=9, storage_plugin=storage_plugin(storage))
-    writer.open()
+    writer, conns = open_out_bag(out, storage, overwrite, ts)
+    t = 0
     try:
-        conns = {
-            n: writer.add_connection(f"/rs_localizer/{n}", mt, typestore=ts)
-            for n, mt in RIG_OUT_TYPES.items()
-        }
         for o in res.outputs:
-            if not o.success:
-                continue
-            m, t = o.estimate, o.stamp_ns
-            msgs = {
-                "pose": cv.pose_stamped(m.pose, t, map_frame),
-                "pose_with_covariance": cv.pose_with_covariance_stamped(m, t, map_frame),
-                "twist_single_frame": cv.twist_stamped(m.pose, t, base_frame),
-            }
-            for n, msg in msgs.items():
-                writer.write(conns[n], t, to_cdr(msg, RIG_OUT_TYPES[n], ts))
+            t = o.stamp_ns
+            msgs = []
+            if o.success:
+                msgs = pose_messages(o.estimate, t, map_frame, base_frame, res.twist_now, (),
+                                     wanted)  # fmt: skip
+            write_messages(writer, conns, ts, t, msgs + fused(o.fused))
+        write_messages(writer, conns, ts, t, fused(res.flushed))
     finally:
         writer.close()
     return out
