@@ -21,6 +21,7 @@ from .frame_queue import FrameCounts
 from .pipeline import StatsSnapshot
 
 if TYPE_CHECKING:
+    from ..tracking.gyro_input import GyroSettings
     from ..tracking.rig import RigLocalizer
 
 __all__ = [
@@ -159,7 +160,9 @@ def diagnostic_status(
     if frontend is not None:
         values.update(_frontend_values(cfg, frontend, stats))
     if cfg.imu is not None:
-        values.update(_imu_values(cfg, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s))
+        values.update(
+            _imu_values(cfg.imu, c, imu_rate_hz, gyro_bias, gyro_inconsistent, imu_idle_s)
+        )
     values.update({f"failed.{k}": v for k, v in failed.items()})
     prefixes = ("camera_info_rejected.", "gyro_missing.", "gyro_rejected.", "imu_rejected.")
     values.update({k: v for k, v in sorted(c.items()) if k.startswith(prefixes)})
@@ -202,11 +205,8 @@ def _level_and_message(
         and imu_idle_s > IMU_IDLE_WARN_S
     ):
         level = WARN
-        rejected = c.get("imu_rejected", 0)
-        message = (
-            f"{frames.solved}/{frames.received} frames solved; no usable IMU sample for "
-            f"{imu_idle_s:.1f} s ({rejected} IMU messages rejected): frames solved without the "
-            "gyro; check the imu topic and its stamps"
+        message = f"{frames.solved}/{frames.received} frames solved; " + _imu_idle_text(
+            imu_idle_s, c.get("imu_rejected", 0), "frames"
         )
     else:
         level = OK
@@ -302,17 +302,27 @@ def _frontend_values(
     return values
 
 
+def _imu_idle_text(idle_s: float, rejected: int, unit: str) -> str:
+    """The warning of a gyro without a usable sample for ``idle_s`` s while ``unit`` (frames,
+    rig frames) arrive."""
+    return (
+        f"no usable IMU sample for {idle_s:.1f} s ({rejected} IMU messages rejected): {unit} "
+        "solved without the gyro; check the imu topic and its stamps"
+    )
+
+
 def _imu_values(
-    cfg: LocalizerConfig,
-    c: dict[str, int],
+    imu: GyroSettings,
+    c: Mapping[str, int],
     imu_rate_hz: float | None,
     gyro_bias: tuple[Sequence[float], Sequence[float]] | None,
     gyro_inconsistent: bool,
     imu_idle_s: float | None,
 ) -> dict[str, Any]:
-    """The gyro's values of :func:`diagnostic_status` (``cfg.imu`` set)."""
+    """The gyro's values of a camera's or a rig's status (``imu``: its gyro settings; ``c``:
+    its counts by a camera's names, :func:`diagnostic_status`)."""
     values: dict[str, Any] = {}
-    bias, std = gyro_bias or (cfg.imu.gyro_bias, np.full(3, cfg.imu.gyro_bias_sigma))
+    bias, std = gyro_bias or (imu.gyro_bias, np.full(3, imu.gyro_bias_sigma))
     values.update(
         {
             "imu_rate_hz": f"{imu_rate_hz or 0.0:.1f}",
@@ -385,10 +395,15 @@ def rig_diagnostics(
     background compile's, :func:`rs_localizer.runtime.background.background_state`;
     ``rig_frames_uncompiled``: rig frames solved on the uncompiled path, tracked and fused as
     on the compiled one; the message then says so), and a section per camera ``<c>``
-    (:func:`_rig_camera_values`); with a gyro the
-    ``rig.gyro_*`` counts, ``gyro_bias`` (rad/s, IMU frame) and ``gyro_inconsistent`` (``true``
-    while the rotation between rig frames contradicts the gyro and rig frames are solved
-    without it: WARN, as for one camera); ``rig_frames_failed.<reason>``
+    (:func:`_rig_camera_values`); with a gyro the single-camera node's gyro values, the rig
+    frames for its frames (:func:`_rig_gyro_values`: ``imu_rate_hz``, ``frames_with_gyro``,
+    ``gyro_rejected[.<reason>]``, ``gyro_missing[.<reason>]``, ``imu_rejected``,
+    ``imu_idle_s``, ``gyro_bias`` and ``gyro_bias_std`` (rad/s, IMU frame),
+    ``gyro_bias_rejected``, ``gyro_inconsistent`` (``true`` while the rotation between rig
+    frames contradicts the gyro and rig frames are solved without it: WARN, as for one
+    camera), ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
+    ``gyro_inconsistent_detections``; WARN also without a usable IMU sample for
+    :data:`IMU_IDLE_WARN_S` while rig frames arrive); ``rig_frames_failed.<reason>``
     for each failure reason of the rig estimator (or ``error``: it raised); the single-camera
     node's timing keys (:func:`timing_values`) and ``camera_frame_ms_median``;
     ``imu_rejected.<reason>`` counts.
@@ -421,7 +436,7 @@ def rig_diagnostics(
         section, busy_n, lost_n = _rig_camera_values(rig, n, waiting_info, inputs, warnings)
         values.update(section)
         busy, lost = busy + busy_n, lost + lost_n
-    values.update(_rig_gyro_values(rig, warnings))
+    values.update(_rig_gyro_values(rig, inputs, warnings))
     if values["readout_suspect"] == "true":
         warnings.append(readout_warning(values["readout_contradicted"], rig=True))
     if inputs is not None:
@@ -580,19 +595,33 @@ def _rig_camera_values(
     return values, busy, lost
 
 
-def _rig_gyro_values(rig: RigLocalizer, warnings: list[str]) -> dict[str, Any]:
-    """The rig's gyro values of :func:`rig_diagnostics` (the ``rig.gyro_*`` counts; with a
-    gyro ``gyro_bias`` and ``gyro_inconsistent``); appends its warnings to ``warnings``."""
-    values = {k: v for k, v in sorted(rig.counts.items()) if k.startswith("rig.gyro_")}
-    b = rig.gyro_bias_values()
-    if b is not None:
-        values["gyro_bias"] = "[" + ", ".join(f"{x:.5f}" for x in b[0]) + "]"
-        values["gyro_inconsistent"] = str(rig.gyro_inconsistent).lower()
-        if rig.gyro_inconsistent:  # (the single-camera node's warning)
-            warnings.append(
-                "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
-                "frames solved without it"
-            )
-        elif rig.counts["rig.gyro_rejected"] > rig.counts["rig.gyro_used"]:
-            warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
+def _rig_gyro_values(
+    rig: RigLocalizer, inputs: RigInputs | None, warnings: list[str]
+) -> dict[str, Any]:
+    """The rig's gyro values of :func:`rig_diagnostics` (with a gyro on the rig): a camera's
+    (:func:`_imu_values`, the rig's counts by a camera's names,
+    :meth:`~rs_localizer.tracking.rig.RigLocalizer.gyro_counts`, the rig frames for its
+    frames) with ``gyro_missing.<reason>`` and ``gyro_rejected.<reason>``; appends its
+    warnings to ``warnings``: the gyro contradicts the image (a wrong mounting), the image
+    rejects it more often than it uses it, or no usable IMU sample for
+    :data:`IMU_IDLE_WARN_S` while rig frames arrive."""
+    imu = rig.settings.imu
+    if imu is None:
+        return {}
+    c = rig.gyro_counts()
+    c["imu_rejected"] = sum(inputs.imu_rejected.values()) if inputs is not None else 0
+    buf = rig.imu
+    idle = buf.idle_seconds() if buf is not None else None
+    rate = buf.rate_hz() if buf is not None else None
+    values = _imu_values(imu, c, rate, rig.gyro_bias_values(), rig.gyro_inconsistent, idle)
+    values.update({k: v for k, v in c.items() if k.startswith(("gyro_missing.", "gyro_rejected."))})
+    if rig.gyro_inconsistent:  # (the single-camera node's warning)
+        warnings.append(
+            "the gyro contradicts the image (check imu.rotation, imu.time_offset): rig "
+            "frames solved without it"
+        )
+    elif c.get("gyro_rejected", 0) > c.get("frames_with_gyro", 0):
+        warnings.append("the image contradicts the gyro: check imu.rotation, its bias")
+    if rig.counts["rig_frames"] and idle is not None and idle > IMU_IDLE_WARN_S:
+        warnings.append(_imu_idle_text(idle, c["imu_rejected"], "rig frames"))
     return values

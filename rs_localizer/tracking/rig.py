@@ -645,6 +645,20 @@ class RigLocalizer(VideoLocalizer[RigSettings, _Camera]):
             "pending": len(self._open),
         }
 
+    def gyro_counts(self) -> dict[str, int]:
+        """The rig's gyro counts (``rig.gyro_*``, :mod:`~rs_localizer.tracking.gyro_input`) by
+        the names a camera's localizer counts them under, the rig frames for a camera's frames:
+        ``frames_with_gyro`` (rig frames posed with the gyro), ``gyro_rejected[.<reason>]``,
+        ``gyro_missing[.<reason>]``, ``gyro_disabled_inconsistent``, ``gyro_pairs_failed``,
+        ``gyro_inconsistent_detections``, ``gyro_bias_rejected``; those never counted are left
+        out."""
+        out = {}
+        for k, v in sorted(self.counts.items()):
+            if k.startswith("rig.gyro_"):
+                k = k[len("rig.") :]
+                out["frames_with_gyro" if k == "gyro_used" else k] = v
+        return out
+
     def camera_state(self, name: str) -> str:
         """``waiting`` (no frame yet), ``running``, ``stopped`` or ``disagrees`` (also the
         partner of a camera that disagrees with it alone, :meth:`camera_partner`)."""

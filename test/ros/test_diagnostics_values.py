@@ -189,3 +189,46 @@ def test_a_suspect_readout_timing_warns():
         assert flagged == (scale == 2.0) == (v["readout_suspect"] == "true"), (scale, message)
         if scale == 2.0:
             assert level == WARN and v["readout_contradicted"] >= 10
+
+
+def test_a_rig_with_a_gyro_reports_it_as_a_camera_does(monkeypatch):
+    """A rig with a gyro whose samples never come: its status carries the single-camera
+    node's gyro keys (the same set as a camera's with a gyro, the rig frames for its frames),
+    every rig frame counted without samples, and the camera's WARN once no usable IMU sample
+    has come for ``IMU_IDLE_WARN_S`` while rig frames arrive (its text, rig frames for
+    frames). Without a gyro, no gyro key."""
+    import numpy as np
+    from helpers.rig import mounts_of
+
+    from rs_localizer.ros import diagnostics as D
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+    from rs_localizer.tracking.gyro_input import GyroSettings
+    from rs_localizer.tracking.localizer import CameraFrame
+    from rs_localizer.tracking.rig import RigLocalizer, RigSettings
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=80, seed=5)
+    by = {c.name: c.camera for c in cams}
+    rigs = {}
+    for gyro in (None, GyroSettings(R_cam_imu=np.eye(3), wait=0.0)):
+        rig = rigs[gyro is not None] = RigLocalizer(RigSettings(mounts_of(cams), imu=gyro))
+        for f in frames:
+            rig.add(CameraFrame(f.stamp_ns, by[f.name], f.uv, f.xyz, camera_name=f.name))
+    cfg = build_config({**default_values(), "imu.enabled": True})
+    snap = FramePipeline(cfg).stats.snapshot()
+    camera = D.diagnostic_status(cfg, FrameCounts(received=3, solved=3), snap, {}, "", 0, [],
+                                 [], 0.0, None, False, 0.0)[2]  # fmt: skip
+    camera_gyro = {k for k in camera if "gyro" in k or k.startswith("imu_")}
+    level, message, v = D.rig_diagnostics(rigs[True], set(), Counter())
+    rig_gyro = {k for k in v if "gyro" in k or k.startswith("imu_")}
+    posed = v["rig_frames_solved"]
+    assert posed > 0 and level == D.OK, message
+    assert rig_gyro - {"gyro_missing.no_samples"} == camera_gyro, rig_gyro ^ camera_gyro
+    assert v["frames_with_gyro"] == 0 and v["gyro_missing"] == v["gyro_missing.no_samples"]
+    assert v["gyro_missing"] == posed and v["imu_rate_hz"] == "0.0"
+    monkeypatch.setattr(D, "IMU_IDLE_WARN_S", 0.0)
+    level, message, v = D.rig_diagnostics(rigs[True], set(), Counter())
+    assert level == D.WARN and "no usable IMU sample for" in message, message
+    assert "rig frames solved without the gyro; check the imu topic" in message, message
+    level, message, v = D.rig_diagnostics(rigs[False], set(), Counter())
+    assert level == D.OK and not {k for k in v if "gyro" in k or k.startswith("imu_")}, v

@@ -217,9 +217,10 @@ def test_the_node_process_starts_the_rig_mode_and_refuses_a_camera_without_mount
 
 def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
     """imu.enabled with imu.rotation the IMU's rotation on the rig: the node subscribes imu,
-    every rig frame is solved with the gyro (``rig.gyro_used`` in the diagnostics, none
-    missing or rejected), and the poses stay within 0.05 deg and 5 mm of the truth; a sample
-    with no angular velocity (covariance[0] = -1) is counted as rejected."""
+    every rig frame is solved with the gyro (the single-camera node's gyro keys in the
+    diagnostics, the rig frames for its frames: ``frames_with_gyro``, none missing or
+    rejected; the IMU's rate), and the poses stay within 0.05 deg and 5 mm of the truth; a
+    sample with no angular velocity (covariance[0] = -1) is counted as rejected."""
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu
 
@@ -263,9 +264,11 @@ def test_a_gyro_on_the_rig_is_subscribed_used_and_counted(ros_context):
             assert rotation_angle_deg(Re, R) < 0.05 and np.linalg.norm(pe - p) < 0.005
         st, v = h.last_diag()
         assert st.level == OK, st.message
-        assert v["rig.gyro_used"] == str(n), v
-        assert "rig.gyro_missing" not in v and "rig.gyro_rejected" not in v
-        assert v["imu_rejected.no_angular_velocity"] == "1"
+        assert v["frames_with_gyro"] == str(n), v
+        assert v["gyro_missing"] == v["gyro_rejected"] == "0", v
+        assert not any(k.startswith("rig.gyro") for k in v), v
+        assert v["imu_rejected"] == v["imu_rejected.no_angular_velocity"] == "1"
+        assert 250.0 < float(v["imu_rate_hz"]) < 350.0 and len(v["gyro_bias_std"].split()) == 3
     finally:
         h.close()
 

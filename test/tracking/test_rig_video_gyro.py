@@ -197,7 +197,7 @@ def test_a_gyro_mounted_90_degrees_off_is_found_and_left_out_as_for_one_camera(v
     assert len(warned) == 1 and "rig frames" in warned[0] and "imu.rotation" in warned[0]
     level, message, v = rig_diagnostics(rig, set())
     assert level == WARN and "the gyro contradicts the image" in message, message
-    assert v["gyro_inconsistent"] == "true" and v["rig.gyro_disabled_inconsistent"] > 5, v
+    assert v["gyro_inconsistent"] == "true" and v["gyro_disabled_inconsistent"] > 5, v
     # the front camera alone, its gyro as wrong (IMU -> camera: the mounting's rotation)
     front = cams[0]
     R_front = front.R_rig_cam.T  # (rig -> camera optical frame)

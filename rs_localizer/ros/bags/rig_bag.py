@@ -439,24 +439,13 @@ def replay_rig(
         res.counts[n] = _camera_counts(rig, n, own)
     res.readout = rig.readout_values()
     if cfg.settings.imu is not None:
-        res.gyro_counts = _gyro_counts(rig.counts)
+        res.gyro_counts = rig.gyro_counts()
         bias = rig.gyro_bias_values()
         if bias is not None:
             res.gyro_bias, res.gyro_bias_std = bias
     res.twist_now = cfg.settings.tracking is None
     _rows_of(res, load_ground_truth(bag), res.twist_now)
     return res
-
-
-def _gyro_counts(counts: Mapping[str, int]) -> dict[str, int]:
-    """The rig's gyro counts (``rig.gyro_*``) by a camera's names: ``rig.`` dropped,
-    ``gyro_used`` as ``frames_with_gyro``."""
-    out = {}
-    for k, v in sorted(counts.items()):
-        if k.startswith("rig.gyro"):
-            k = k[len("rig.") :]
-            out["frames_with_gyro" if k == "gyro_used" else k] = v
-    return out
 
 
 def _rows_of(res: RigReplay, gt, twist_now: bool) -> None:
