@@ -40,7 +40,14 @@ if TYPE_CHECKING:
     from ..tracking.localizer import CameraFrame
     from ..tracking.rig import RigLocalizer, RigOutput
 
-__all__ = ["CameraInput", "UnreadFrame", "hand_to_rig", "rig_camera_inputs", "rig_cloud_frame"]
+__all__ = [
+    "CameraInput",
+    "UnreadFrame",
+    "frame_camera",
+    "hand_to_rig",
+    "rig_camera_inputs",
+    "rig_cloud_frame",
+]
 
 
 class CameraInput:
@@ -195,6 +202,7 @@ def rig_camera_inputs(
     log: Any,
     count: Callable[[str, str, int], Any],
     stopped: Callable[[], bool] = lambda: False,
+    wait: float = 0.0,
 ) -> dict[str, CameraInput]:
     """Each camera of a rig its :class:`CameraInput`, configured as the rig node takes the
     camera's inputs: its camera_infos made models with the camera's rolling-shutter timing
@@ -212,6 +220,9 @@ def rig_camera_inputs(
         count: ``count(camera, key, n)`` adds ``n`` to camera ``camera``'s count ``key``
             (``points_dropped``, ``capped_clouds``, ...).
         stopped: ``stopped()`` true ends a frame's wait for its camera_info.
+        wait: s a camera's frame waits for its camera_info (the node's ``camera_info_wait``,
+            as a camera's: :meth:`CameraInput.camera_for`; a bag's reader: 0, its messages in
+            log-time order).
 
     Returns:
         camera name -> its :class:`CameraInput`, in the order of ``rig.cameras``.
@@ -226,7 +237,7 @@ def rig_camera_inputs(
             readout=c.direction,
             reference_row=config.reference_row,
         )
-        inp.configure(make_camera, config.settings.max_points)
+        inp.configure(make_camera, config.settings.max_points, wait=wait)
         inputs[c.name] = inp
     return inputs
 
@@ -251,15 +262,23 @@ class UnreadFrame:
     reason: str = "bad_input"
 
 
+def frame_camera(inp: CameraInput, stamp: Stamp | ValueError) -> CameraModel | None:
+    """The camera model of a frame whose checked header stamp is ``stamp`` (or the error of
+    that check: None), :meth:`CameraInput.camera_for`: it may wait up to the input's ``wait``
+    for its camera_info (the rig node looks it up before it takes the rig's lock, so that
+    camera_info and the diagnostics are served meanwhile)."""
+    return None if isinstance(stamp, ValueError) else inp.camera_for(stamp)
+
+
 def rig_cloud_frame(
-    name: str, inp: CameraInput, msg: Any, stamp: Stamp | ValueError
+    name: str, inp: CameraInput, msg: Any, stamp: Stamp | ValueError, camera: CameraModel | None
 ) -> CameraFrame | UnreadFrame:
     """Camera ``name``'s correspondences cloud ``msg`` as the rig takes it, the rig node's and
     the rig bag reader's one path: ``stamp`` is its header stamp checked
-    (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`) or the error of that check.
-    Returns a :class:`~rs_localizer.tracking.rig.CameraFrame` (the cloud's rows through
-    :meth:`CameraInput.read_cloud`, the camera model of its stamp,
-    :meth:`CameraInput.camera_for`; tagged with its ``frame_id``, else ``name``), or an
+    (:func:`~rs_localizer.ros.conversions.checked_stamp_ns`) or the error of that check,
+    ``camera`` the camera model of that stamp (:func:`frame_camera`). Returns a
+    :class:`~rs_localizer.tracking.localizer.CameraFrame` (the cloud's rows through
+    :meth:`CameraInput.read_cloud`; tagged with its ``frame_id``, else ``name``), or an
     :class:`UnreadFrame`: the stamp cannot be read (``stamp_ns`` None), or the cloud cannot
     (no u, v, x, y, z fields, ...)."""
     from ..tracking.localizer import CameraFrame
@@ -269,9 +288,9 @@ def rig_cloud_frame(
     try:
         uv, xyz, _ = inp.read_cloud(msg)
     except ValueError as e:
-        return UnreadFrame(name, stamp, inp.camera_for(stamp), e)
+        return UnreadFrame(name, stamp, camera, e)
     tag = msg.header.frame_id or name
-    return CameraFrame(stamp, inp.camera_for(stamp), uv, xyz, tag=tag, camera_name=name)
+    return CameraFrame(stamp, camera, uv, xyz, tag=tag, camera_name=name)
 
 
 def hand_to_rig(rig: RigLocalizer, item: CameraFrame | UnreadFrame) -> list[RigOutput]:

@@ -546,14 +546,15 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
 #: :meth:`~rs_localizer.ros.rig_node.RigCore._apply_change`): those that only reach its
 #: :class:`~rs_localizer.tracking.rig.RigSettings` (the estimator's options: ``ransac.*``,
 #: ``refine``, ``motion_prior.*``, ``correlated_noise.*``, the velocity bounds; ``tracking.*``;
-#: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap) and
-#: ``queue_size``; the read-only ones among them are refused by ROS
+#: ``imu.*``; ``time_reset_threshold``; ``max_points``, also each camera's cloud cap),
+#: ``queue_size`` and ``camera_info_wait`` (each camera's); the read-only ones among them are
+#: refused by ROS
 RIG_RUN_TIME_PARAMETERS = frozenset(
     name
     for name, par in PARAMETERS.items()
     if (par.field or "").split(":")[0] in OPTION_GROUPS
     or name.startswith(("tracking.", "imu."))
-    or name in ("max_points", "queue_size", "time_reset_threshold")
+    or name in ("max_points", "queue_size", "time_reset_threshold", "camera_info_wait")
 )
 
 #: why a running rig refuses a change of the other parameters, by name prefix
@@ -577,8 +578,8 @@ def rig_change_refused(names: Iterable[str]) -> str | None:
     :data:`~.params.PARAMETERS`) without a restart, one clause per parameter; None when it
     takes them all (:data:`RIG_RUN_TIME_PARAMETERS`). The others are its cameras' timing
     (``rs.*``), its frame (``base_frame``), its front ends, and the single camera's parameters
-    the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``,
-    ``camera_info_wait``: the cameras wait for their camera_info; ``camera_frame``,
+    the rig mode does not use (``solver``: the rig estimator has its own; ``camera.*``: a rig
+    camera's intrinsics are its camera_info's; ``camera_frame``,
     ``camera_to_base.*``: the mountings; ``landmarks_file``, ``republish_correspondences``)."""
     why = []
     for name in names:

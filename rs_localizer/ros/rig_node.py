@@ -81,7 +81,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
-from ..camera import Stamp
+from ..camera import CameraModel, Stamp
 from ..estimation.rig import camera_estimate
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
@@ -90,6 +90,7 @@ from . import conversions as cv
 from .camera_input import (
     CameraInput,
     UnreadFrame,
+    frame_camera,
     hand_to_rig,
     rig_camera_inputs,
     rig_cloud_frame,
@@ -247,7 +248,11 @@ class RigCore(NodeCore):
         self._inputs: Counter = Counter()  # (rig_diagnostics' inputs)
         #: each camera's input: its camera_infos by stamp, its clouds' rows, its images
         self.inputs: dict[str, CameraInput] = rig_camera_inputs(
-            self.config, self._log, self._count_input
+            self.config,
+            self._log,
+            self._count_input,
+            stopped=lambda: self._frames.stopping,
+            wait=single.camera_info_wait,
         )
         self._lost: dict = {}  # (camera, kind) -> messages lost (QoS message_lost events)
         self._first_frame: float | None = None  # (monotonic s: the first frame received)
@@ -445,13 +450,14 @@ class RigCore(NodeCore):
         (:meth:`~rs_localizer.tracking.rig.RigLocalizer.configure`: the estimator's options,
         tracking, gyro, time resets, ``max_points``; the counts and the rig frames open kept,
         a tracking change starting a new track), each camera's clouds the new ``max_points``,
-        the queue the new ``queue_size``."""
+        the queue the new ``queue_size``, each camera's frames the new ``camera_info_wait``."""
         config, single = built
         with self._rig_lock:  # (between two camera frames of the worker)
             self.rig.configure(config.settings)
             self.config = config
             for inp in self.inputs.values():
                 inp.max_points = config.settings.max_points
+                inp.wait = float(single.camera_info_wait)
         self.queue_size = single.queue_size
 
     # ---------------------------------------------------------------- inputs
@@ -504,6 +510,11 @@ class RigCore(NodeCore):
             item.name, item.stamp, self.inputs[item.name].newest
         )
 
+    def _wake_worker(self) -> None:
+        """A stop was requested: wake a frame waiting for its camera's camera_info."""
+        for inp in self.inputs.values():
+            inp.wake()
+
     def _queue_skipped(self, item, reason: str) -> None:
         """A frame the queue dropped (with the queue's lock held): counted for its camera."""
         self._count_input(item.name, f"skipped.{reason}")
@@ -513,6 +524,9 @@ class RigCore(NodeCore):
         with the rig's counts, so that a diagnostics snapshot sees it once."""
         name, kind, msg, stamp = item.name, item.kind, item.msg, item.stamp
         tic = time.perf_counter()
+        # (the camera model of its stamp, waiting up to camera_info_wait for its camera_info:
+        # outside the rig's lock, which the diagnostics take on the executor that delivers it)
+        camera = frame_camera(self.inputs[name], stamp)
         with self._rig_lock:
             outs, skip, failure = [], None, None
             try:
@@ -520,9 +534,9 @@ class RigCore(NodeCore):
                     skip = self._not_read(name, kind, stamp)
                 else:
                     if kind == "cloud":
-                        outs, skip = self._take_cloud(name, msg, stamp)
+                        outs, skip = self._take_cloud(name, msg, stamp, camera)
                     else:
-                        outs, skip = self._take_image(name, msg, stamp)
+                        outs, skip = self._take_image(name, msg, stamp, camera)
             except Exception as e:  # (a defect: the frame is counted, the node goes on)
                 failure = "internal_error"
                 self._log.warning(
@@ -586,8 +600,11 @@ class RigCore(NodeCore):
     def _throttled_log(self) -> ThrottledLog:
         return self._log
 
-    def _take_cloud(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
-        """A cloud of correspondences (its checked ``stamp``) to the rig, its rows as the
+    def _take_cloud(
+        self, name: str, msg, stamp: Stamp, camera: CameraModel | None
+    ) -> tuple[list, str | None]:
+        """A cloud of correspondences (its checked ``stamp``, ``camera`` the model of it) to
+        the rig, its rows as the
         single-camera node takes them (:meth:`.camera_input.CameraInput.read_cloud`: the
         non-finite ones dropped, counted ``<c>.points_dropped``; capped to ``max_points``,
         counted ``<c>.capped_clouds``). One that cannot be read is counted
@@ -597,7 +614,7 @@ class RigCore(NodeCore):
         as one whose clock is off); one whose stamp is out of range is counted by the node
         alone (:meth:`_not_read`). The cloud becomes the rig's frame as a rig bag's does in
         ``replay`` (:func:`.camera_input.rig_cloud_frame`, :func:`.camera_input.hand_to_rig`)."""
-        item = rig_cloud_frame(name, self.inputs[name], msg, stamp)
+        item = rig_cloud_frame(name, self.inputs[name], msg, stamp, camera)
         if isinstance(item, UnreadFrame):
             self._not_read(name, "cloud", item.error)
         else:
@@ -629,8 +646,11 @@ class RigCore(NodeCore):
     def _on_image(self, name: str, msg) -> None:
         self._enqueue(name, "image", msg)
 
-    def _take_image(self, name: str, msg, stamp: Stamp) -> tuple[list, str | None]:
-        """An image: decoded and checked against the camera model of its stamp as by the
+    def _take_image(
+        self, name: str, msg, stamp: Stamp, camera: CameraModel | None
+    ) -> tuple[list, str | None]:
+        """An image: decoded and checked against the camera model of its stamp (``camera``)
+        as by the
         single-camera node (:meth:`.camera_input.CameraInput.decode`: a message that does
         not decode or is smaller than the front ends take: ``bad_image``; another size than the
         camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
@@ -640,7 +660,6 @@ class RigCore(NodeCore):
         from .image_codec import ImageRejected
 
         inp = self.inputs[name]
-        camera = inp.camera_for(stamp)
         self._warn_no_info(name, "images")
         try:
             img, enc = inp.decode(msg, camera)

@@ -929,3 +929,44 @@ def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros
             assert v[f"{c.name}.capped_clouds"] == v[f"{c.name}.received"] != "0", v
     finally:
         node.destroy_node()
+
+
+@pytest.mark.parametrize("wait", [2.0, 0.0])
+def test_a_frame_before_its_camera_info_waits_camera_info_wait(ros_context, wait):
+    """A rig camera's first cloud arrives 0.2 s before the cameras' camera_info: with
+    ``camera_info_wait`` 2 s it waits for it, as one camera's frame does, and every rig
+    frame is posed from both cameras; with 0 s it is skipped (``no_camera_info``) and its rig
+    frame posed from the other camera. Either way every frame is accounted for."""
+    from rclpy.parameter import Parameter
+
+    from rs_localizer.ros.conversions import ns_to_stamp
+    from rs_localizer.ros.pointcloud import correspondence_cloud
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.2, num_points=100, seed=3)
+    h = rig_harness(ros_context, cams, rig_parameters(cams, camera_info_wait=wait))
+    try:
+        f = frames[0]
+        cloud = correspondence_cloud(f.uv, f.xyz, frame_id=f.name, stamp=ns_to_stamp(f.stamp_ns))
+        h.send(f.name, "cloud", cloud, taken=False)
+        h.wait(lambda: False, timeout=0.2)
+        h.send_info(cams)
+        h.send_clouds(frames[1:])
+        n = {c.name: sum(g.name == c.name for g in frames) for c in cams}
+        assert h.wait(lambda: h.node.rig.rig_counts()["pending"] == 0 and len(h.poses) >= 3)
+        v = h.last_diag()[1]
+        first = f"{f.name}.skipped.no_camera_info"
+        for c in cams:
+            k = {p: int(v[f"{c.name}.{p}"]) for p in ("received", "solved", "failed",
+                                                       "skipped", "pending")}  # fmt: skip
+            assert k["received"] == n[c.name] == sum(k.values()) - k["received"], (c.name, k)
+        if wait:
+            assert v.get(first, "0") == "0" and int(v[f"{f.name}.solved"]) == n[f.name], v
+        else:
+            assert v[first] == "1" and int(v[f"{f.name}.solved"]) == n[f.name] - 1, v
+        # (a running rig takes a new camera_info_wait, every camera's frames from then on)
+        (r,) = h.node.set_parameters([Parameter("camera_info_wait", value=0.5)])
+        assert r.successful, r.reason
+        assert {i.wait for i in h.node.inputs.values()} == {0.5}
+    finally:
+        h.close()

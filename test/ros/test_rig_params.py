@@ -229,7 +229,8 @@ def test_the_node_caps_clouds_and_images_to_the_one_max_points(ros_context):
 
 def test_a_running_rig_takes_the_estimators_parameters_and_says_why_not_the_others():
     """The parameters a running rig takes are those of its estimator, tracking and gyro,
-    ``time_reset_threshold``, ``max_points`` and ``queue_size``; every other one that ROS lets
+    ``time_reset_threshold``, ``max_points``, ``queue_size`` and ``camera_info_wait``; every
+    other one that ROS lets
     change is refused with a clause naming it and why (restart, or not used by the rig)."""
     from rs_localizer.ros.config import RIG_RUN_TIME_PARAMETERS, rig_change_refused
     from rs_localizer.ros.params import PARAMETERS
@@ -238,7 +239,7 @@ def test_a_running_rig_takes_the_estimators_parameters_and_says_why_not_the_othe
                  "max_linear_velocity", "motion_prior.angular_velocity_sigma",
                  "correlated_noise.sigma_px"}  # fmt: skip
     others = {"tracking.enabled", "tracking.lag", "imu.rotation", "imu.time_offset",
-              "max_points", "queue_size", "time_reset_threshold"}  # fmt: skip
+              "max_points", "queue_size", "time_reset_threshold", "camera_info_wait"}  # fmt: skip
     assert estimator | others <= RIG_RUN_TIME_PARAMETERS
     assert rig_change_refused(sorted(RIG_RUN_TIME_PARAMETERS)) is None
     for name, par in PARAMETERS.items():

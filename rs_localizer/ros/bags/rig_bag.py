@@ -678,7 +678,7 @@ def iter_rig_frames(
         pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
         :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
-    from ..camera_input import rig_cloud_frame
+    from ..camera_input import frame_camera, rig_cloud_frame
 
     topics = RigTopics(rig_namespace(bag), tuple(inputs)).of()
     ts = typestore()
@@ -692,7 +692,7 @@ def iter_rig_frames(
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError as e:
             stamp = e
-        yield rig_cloud_frame(n, inputs[n], msg, stamp)
+        yield rig_cloud_frame(n, inputs[n], msg, stamp, frame_camera(inputs[n], stamp))
 
 
 def rig_frame_ends(
