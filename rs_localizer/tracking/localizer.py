@@ -47,8 +47,8 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Generic, Protocol, TypeVar
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -70,6 +70,9 @@ from .gyro import readout_window
 from .gyro_input import GyroReadouts, SilentLog, TrackLog
 from .tracker import CarriedPrediction, TrackerOptions, TrackerPath
 
+if TYPE_CHECKING:
+    from ..estimation.result import RSPoseEstimate
+
 __all__ = [
     "FROZEN_IMAGE_LEVEL",
     "MAX_PENDING",
@@ -77,6 +80,7 @@ __all__ = [
     "CameraFrontend",
     "FusedPose",
     "ImageSearch",
+    "LocalizerOutput",
     "PendingTwists",
     "VideoLocalizer",
     "VideoSettings",
@@ -270,6 +274,44 @@ class FusedPose(PoseWithCovariance):
             tag=tag,
             state=fused,
         )
+
+
+@dataclass
+class LocalizerOutput:
+    """What became of a frame in a video localizer: one camera's frame
+    (:class:`~rs_localizer.tracking.sequence.SequenceOutput`) or a rig frame
+    (:class:`~rs_localizer.tracking.rig.RigOutput`), each adding its own fields to these.
+
+    Attributes:
+        stamp_ns: the frame's reference time (ns): the time of the estimated pose (a rig
+            frame's: its earliest reference-line capture time).
+        estimate: the estimator's :class:`~rs_localizer.estimation.result.RSPoseEstimate`
+            (check ``success``); None when the estimator raised (``error``) or did not run.
+        path: the tracker's path for the frame (``cold``, ``tracked``, ``relocalized``,
+            ``reset``: :data:`~rs_localizer.tracking.tracker.STATES`); None without tracking.
+        fused: earlier frames (and, on a reset, the track's last ones) whose fused twist is
+            final now, oldest first (:class:`FusedPose`; also after a failed frame).
+        gyro: the gyro measurement the frame was solved with, or None (no gyro, or its
+            samples missing); the estimate says whether it was used or rejected.
+        error: ``"<exception type>: <message>"`` when the estimator raised, else None.
+        compiled: the frame was solved on the compiled implementation; False: on the NumPy
+            implementation while the kernels compile in the background
+            (:mod:`rs_localizer.runtime.background`): tracked, with the gyro and fused all the
+            same.
+    """
+
+    stamp_ns: int = 0
+    estimate: RSPoseEstimate | None = None
+    path: str | None = None
+    fused: list[FusedPose] = field(default_factory=list)
+    gyro: GyroMeasurement | None = None
+    error: str | None = None
+    compiled: bool = True
+
+    @property
+    def success(self) -> bool:
+        """The frame was posed (``estimate.success``)."""
+        return self.estimate is not None and self.estimate.success
 
 
 def _beyond(pose: RSPose, bounds: tuple[float, float]) -> bool:

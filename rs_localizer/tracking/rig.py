@@ -138,6 +138,7 @@ from .localizer import (
     CameraFrame,
     CameraFrontend,
     FusedPose,
+    LocalizerOutput,
     VideoLocalizer,
     usable_rows,
 )
@@ -361,56 +362,36 @@ class CameraShare:
 
 
 @dataclass
-class RigOutput:
-    """A rig frame out of :class:`RigLocalizer`.
+class RigOutput(LocalizerOutput):
+    """A rig frame out of :class:`RigLocalizer`: a
+    :class:`~rs_localizer.tracking.localizer.LocalizerOutput` (``stamp_ns``, the rig frame's
+    time: its earliest reference-line capture time, the time of the pose; ``estimate``, the
+    rig estimator's result: when ``success``, the rig's pose and own twist at ``stamp_ns``
+    (``estimate.pose``, rig frame) with their covariances, what the twist filter fuses;
+    ``path``, :data:`RIG_PATHS`; ``fused``, :class:`~rs_localizer.tracking.localizer.FusedPose`
+    in the rig frame; ``gyro``, the rig frame's measurement in the rig frame (None also when
+    its samples are missing: ``rig.gyro_missing``); ``error``, ``compiled``, ``success``) with
+    the rig's own fields.
 
     Attributes:
-        stamp_ns: the rig frame's time (ns): its earliest reference-line capture time; the
-            time of the pose.
         cameras: the cameras in it (rig order); missing: camera -> a key of
             :data:`MISSED_REASONS` for the others.
         stamp_offsets: camera -> s, its frame's reference time after ``stamp_ns``.
-        estimate: the rig estimator's result (None when it raised: ``error``): when
-            ``success``, the rig's pose and own twist at ``stamp_ns`` (``estimate.pose``, rig
-            frame) with their covariances, what the twist filter fuses.
-        path: ``cold``, ``tracked``, ``relocalized``, ``reset`` (:data:`RIG_PATHS`); None
-            without tracking.
         shares: camera -> :class:`CameraShare` (solved rig frames).
         disagreeing: cameras that disagree with the rig now (module docstring).
-        gyro: the gyro measurement the rig frame was solved with (rig frame), or None (no
-            gyro, or its samples missing: ``rig.gyro_missing``); the estimate says whether it
-            was used or rejected.
-        fused: earlier rig frames (and, on a reset, the track's last ones) whose fused twist
-            is final now, oldest first: :class:`~rs_localizer.tracking.localizer.FusedPose`
-            in the rig frame.
-        tags: camera -> its frame's tag. error: ``"<type>: <message>"`` if the estimator raised.
+        tags: camera -> its frame's tag.
         frames: camera -> its :class:`~rs_localizer.tracking.localizer.CameraFrame` (the rows
             given to the estimator: the rig's inliers per camera index them; e.g. a camera's
             debug image).
-        compiled: the rig frame was solved on the compiled implementation; False: on the
-            NumPy implementation, while the kernels compile (:class:`RigLocalizer`'s
-            ``implementation``), tracked, with the gyro and fused all the same.
     """
 
-    stamp_ns: int
     cameras: tuple = ()
     missing: dict = field(default_factory=dict)
     stamp_offsets: dict = field(default_factory=dict)
-    estimate: RSPoseEstimate | None = None
-    path: str | None = None
     shares: dict = field(default_factory=dict)
     disagreeing: tuple = ()
-    fused: list = field(default_factory=list)
-    gyro: GyroMeasurement | None = None
     tags: dict = field(default_factory=dict)
-    error: str | None = None
     frames: dict = field(default_factory=dict)
-    compiled: bool = True
-
-    @property
-    def success(self) -> bool:
-        """The rig frame was posed (``estimate.success``)."""
-        return self.estimate is not None and self.estimate.success
 
     @property
     def outvoted(self) -> tuple:

@@ -73,7 +73,6 @@ from ..camera import (
 from ..correspondences import Correspondences, Frontend, VideoFrontend
 from ..estimation.estimate import (
     EstimateOptions,
-    RSPoseEstimate,
     estimate_rs_pose,
     points_needed,
 )
@@ -91,6 +90,7 @@ from .localizer import (
     CameraFrame,
     CameraFrontend,
     FusedPose,
+    LocalizerOutput,
     VideoLocalizer,
     check_camera,
     usable_rows,
@@ -174,27 +174,17 @@ class SequenceSettings:
 
 
 @dataclass
-class SequenceOutput:
-    """What became of a frame in :meth:`SequenceLocalizer.process`.
+class SequenceOutput(LocalizerOutput):
+    """What became of a frame in :meth:`SequenceLocalizer.process`: a
+    :class:`~rs_localizer.tracking.localizer.LocalizerOutput` (``stamp_ns``, the frame's
+    reference time; ``estimate``, ``path``, ``fused``, ``gyro``, ``error``, ``compiled``,
+    ``success``) with a camera's own fields.
 
     Attributes:
-        estimate: the frame's :class:`~rs_localizer.estimation.estimate.RSPoseEstimate`
-            (check ``success``); None when the estimator raised (``error``).
-        stamp_ns: the frame's reference time (ns): the time of the estimated pose.
         twist_now: the frame's own twist is its final twist (no tracking, a global-shutter
             solver or no readout timing); else its fused twist comes in a later ``fused``.
-        fused: earlier frames (and, on a reset, this track's last ones) whose fused twist is
-            final now, oldest first (also after a failed frame).
         new_track: the frame started a track (first frame, reset, new tracker).
-        path: the tracker's path for the frame (``cold``, ``tracked``, ``relocalized``,
-            ``reset``: :data:`~rs_localizer.tracking.tracker.STATES`); None without tracking.
-        gyro: the gyro measurement the frame was solved with, or None.
-        error: ``"<exception type>: <message>"`` when the estimator raised, else None.
         gyro_seconds: s spent getting the gyro measurement (waiting for samples included).
-        compiled: the frame was solved with the compiled kernels; False: on the NumPy
-            implementation, while they compile in the background
-            (:mod:`rs_localizer.runtime.background`): tracked, with the gyro and fused all
-            the same.
         failure, detail: an image frame (:meth:`SequenceLocalizer.process_image`) dropped
             before the estimator: ``frontend_error`` (the front end raised) or
             ``frontend_too_few_points`` (fewer correspondences than the solver needs), with
@@ -206,16 +196,9 @@ class SequenceOutput:
         frontend_seconds: s spent in the front end.
     """
 
-    estimate: RSPoseEstimate | None = None
-    stamp_ns: int = 0
     twist_now: bool = True
-    fused: list[FusedPose] = field(default_factory=list)
     new_track: bool = False
-    path: str | None = None
-    gyro: GyroMeasurement | None = None
-    error: str | None = None
     gyro_seconds: float = 0.0
-    compiled: bool = True
     failure: str | None = None
     detail: str = ""
     correspondences: Correspondences | None = None
