@@ -76,6 +76,8 @@ class CameraInfoHistory:
         self._seq = 0
         self._info_stamps: deque[int] = deque(maxlen=_STAMPS_KEPT)
         self._frame_stamps: deque[int] = deque(maxlen=_STAMPS_KEPT)
+        #: a frame waited for the first camera_info in vain: the next ones do not wait
+        self._waited_in_vain = False
 
     def __len__(self) -> int:
         with self._cond:
@@ -108,6 +110,7 @@ class CameraInfoHistory:
                 if len(hist) > self.size:
                     del hist[0]
             self._info_stamps.append(stamp_ns)
+            self._waited_in_vain = False
             self._cond.notify_all()
             return first
 
@@ -125,10 +128,15 @@ class CameraInfoHistory:
         Waits up to ``wait`` s (while not ``stopped()``; :meth:`wake` interrupts the wait) when
         no camera_info has arrived yet and there is no fallback, or when camera_info comes with
         every frame (each of the last two frames got one with its stamp) and this frame's has
-        not arrived yet. Records the frame's stamp for that test.
+        not arrived yet. A camera that sends no camera_info holds one frame only: once a
+        frame has waited the whole ``wait`` for the first one, the next frames do not wait
+        until one arrives (a rig's other cameras' frames, and a camera's frame queue, are not
+        held up by it). Records the frame's stamp for that test.
         """
-        deadline = time.monotonic() + wait
         with self._cond:
+            if not self._entries and self._waited_in_vain:
+                wait = 0.0
+            deadline = time.monotonic() + wait
             infos = set(self._info_stamps)
             synced = len(self._frame_stamps) >= 2 and all(
                 self._frame_stamps[-k] in infos for k in (1, 2)
@@ -149,6 +157,7 @@ class CameraInfoHistory:
                 self._cond.wait(deadline - time.monotonic())
             hist = self._entries
             if not hist:
+                self._waited_in_vain = self._waited_in_vain or (wait > 0.0 and not stopped())
                 return fallback
             i = bisect.bisect_right([e.stamp_ns for e in hist], stamp_ns)
             return hist[max(i - 1, 0)].camera

@@ -198,6 +198,26 @@ def test_camera_info_history_waits_for_the_frames_own_camera_info(msgs, sequence
     assert h.camera_for(5, wait=5.0, stopped=lambda: True) == 3  # stopping: no wait
 
 
+def test_a_camera_without_camera_info_holds_one_frame_only(msgs, sequence):
+    """No camera_info yet: the first frame waits the whole ``wait`` in vain, the next ones
+    return at once (a rig's worker, or a camera's queue, is not held by a camera that sends
+    none) until a camera_info arrives, which the frames after it then take."""
+    _, _, cam = sequence
+    h = CameraInfoHistory()
+    t0 = time.monotonic()
+    assert h.camera_for(1, wait=0.3) is None
+    assert time.monotonic() - t0 >= 0.25
+    t0 = time.monotonic()
+    for s in range(2, 12):
+        assert h.camera_for(s, wait=0.3) is None
+    assert time.monotonic() - t0 < 0.25  # (ten frames, not one of them held)
+    info = msgs.camera_info(cam, 20, "cam")
+    threading.Timer(0.05, lambda: h.add(20, (1,), info, "A")).start()
+    assert h.camera_for(21, wait=0.3) is None  # (still none: not held)
+    time.sleep(0.1)
+    assert h.camera_for(22, wait=0.3) == "A"
+
+
 # ---------------------------------------------------------------------------- frame queue
 class _Outcome:
     def __init__(self, failure=None):
