@@ -320,7 +320,8 @@ def _rig_node_decode(msg, cam):
         _images={},
     )
     stamp = checked_stamp_ns(msg.header.stamp)
-    assert RigCore._take_image(core, "c", msg, stamp) == ([], None)
+    camera = camera_input.camera_for(stamp)
+    assert RigCore._take_image(core, "c", msg, stamp, camera) == ([], None)
     (out,) = got
     if out[0] == "drop":
         (text,) = logged
