@@ -37,7 +37,7 @@ def test_a_rig_of_an_hd_and_a_vga_camera(tmp_path, capsys):
     capsys.readouterr()
     assert main(["replay", str(bag), "--quiet", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
-    assert s["solved"] == s["rig_frames"] == 3
+    assert s["solved"] == s["frames_total"] == 3
 
 
 @pytest.mark.parametrize(
