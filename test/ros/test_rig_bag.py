@@ -457,7 +457,9 @@ def test_replay_of_a_rendered_rig_bag_writes_each_cameras_debug_outputs(tmp_path
     that stamp (it correlates with it, not with the other camera's); its ``markers``, whose
     frustum starts at the camera's centre (the ground-truth rig pose at the camera's
     reference line through its mounting) and whose inliers are points of its frame's cloud;
-    and the rig's ``path``, after each posed rig frame the poses on ``pose`` so far."""
+    and the rig's ``path``, after each posed rig frame the poses on ``pose`` so far. With one
+    camera frame's image taken out of the bag, that frame's debug image is drawn on a canvas
+    (it no longer correlates with the image) and every other frame's on its image still."""
     from rs_localizer.cli import main
     from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth, typestore
     from rs_localizer.ros.conversions import stamp_to_ns
@@ -538,3 +540,21 @@ def test_replay_of_a_rendered_rig_bag_writes_each_cameras_debug_outputs(tmp_path
             cloud = clouds[(n, stamp)]
             assert len(pts) >= 0.9 * len(cloud)
             assert np.abs(pts[:, None, :] - cloud[None]).max(axis=2).min(axis=1).max() < 1e-6
+
+    # the front camera's second image taken out: that frame's debug image on a canvas only
+    gone = sorted(s for c, s in images if c == "front")[1]
+
+    def edit(topic, msg, t):
+        drop = topic == "/rig/front/image_raw" and stamp_to_ns(msg.header.stamp) == gone
+        return [] if drop else [(t, msg)]
+
+    cut, out2 = rewrite_bag(bag, tmp_path / "cut", edit), tmp_path / "out2"
+    assert main(["replay", str(cut), "--quiet", "--out", str(out2), "--debug-outputs"]) == 0
+    for n in cams:
+        for _, mt, _, raw in iter_messages(out2, {f"/rs_localizer/{n}/debug_image"}):
+            m = ts.deserialize_cdr(raw, mt)
+            stamp = stamp_to_ns(m.header.stamp)
+            img = np.frombuffer(bytes(m.data), np.uint8).reshape(m.height, m.width, 3)
+            seen = img[60:].astype(float).mean(axis=2).ravel()
+            r = np.corrcoef(seen, gray[(n, stamp)][60:].ravel())[0, 1]
+            assert (r < 0.5) if (n, stamp) == ("front", gone) else (r > 0.8), (n, stamp, r)
