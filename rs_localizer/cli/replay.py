@@ -86,7 +86,8 @@ def register(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "--debug-outputs",
         action="store_true",
         help="also write /rs_localizer/debug_image, markers and path into --out "
-        "(the node's visualization topics, for Foxglove or RViz)",
+        "(the node's visualization topics, for Foxglove or RViz); of a rig bag "
+        "/rs_localizer/<camera>/debug_image and markers for each camera, and path",
     )
     r.add_argument(
         "--path-length",
@@ -240,10 +241,10 @@ def run(args: argparse.Namespace) -> int:
     params.update({p: getattr(args, d) for d, p in _REPLAY_OVERRIDES if hasattr(args, d)})
     from ..ros.bags.rig_bag import is_rig_bag
 
-    if is_rig_bag(bag):
-        return _run_rig(args, bag, params)
     if args.debug_outputs and not args.out:
         raise A.CliError("--debug-outputs writes into the --out bag: give --out DIR")
+    if is_rig_bag(bag):
+        return _run_rig(args, bag, params)
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
         A.output_file(args.csv, True, "CSV file")
@@ -362,12 +363,11 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     """A rig bag (``make-bag --rig``, ``render-bag --rig``): every camera through the rig
     mode (:func:`rs_localizer.ros.bags.rig_bag.replay_rig`), reported as a camera's replay is,
     a rig frame for a frame (rig frames solved, failures, the gyro, the errors of the
-    published pose and twist, ``--out``, ``--csv``, ``--json``), with each camera's counts
+    published pose and twist, ``--out`` with ``--debug-outputs`` the rig node's
+    visualization topics, ``--csv``, ``--json``), with each camera's counts
     (its frames and its rows' ``points_dropped``, ``capped_clouds``), each rig frame's own
     twist and the cameras that disagree with the others. Returns 0, or 1 when no rig frame
     was posed."""
-    if args.debug_outputs:
-        raise A.CliError("a rig bag is replayed without --debug-outputs")
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
         A.output_file(args.csv, True, "CSV file")
@@ -419,8 +419,12 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
         print(f"  each rig frame's own twist: {own}", file=text)
     if out_bag is not None:
         base = str(values["base_frame"]).strip() or "base_link"
-        write_rig_outputs(res, out_bag, str(values["map_frame"]), base, args.storage, True)
-        print(f"estimates: {out_bag}", file=text)
+        write_rig_outputs(res, out_bag, str(values["map_frame"]), base, args.storage, True,
+                          debug_bag=bag if args.debug_outputs else None,
+                          path_length=args.path_length)  # fmt: skip
+        viz = ", ".join(f"{n}/debug_image, {n}/markers" for n in res.cameras) + ", path"
+        print(f"estimates: {out_bag}" + (f" (with {viz})" if args.debug_outputs else ""),
+              file=text)  # fmt: skip
     if args.csv:
         write_csv(args.csv, res.rows)
         print(f"csv: {args.csv}", file=text)

@@ -82,7 +82,6 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, Imu, PointCloud2
 
 from ..camera import CameraModel, Stamp
-from ..estimation.rig import camera_estimate
 from ..frontends.shared import SHARED_MAPS
 from ..runtime.background import ready_implementation
 from ..tracking.rig import RigLocalizer, RigOutput
@@ -112,7 +111,7 @@ from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
 from .pipeline import FusedOutput, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
-from .visualization import NodeVisualization
+from .visualization import NodeVisualization, rig_camera_views
 
 __all__ = ["RigCore", "RigLocalizerNode", "rig_diagnostics"]
 
@@ -705,19 +704,16 @@ class RigCore(NodeCore):
         m, mf = out.estimate, self.map_frame
         self.viz.publish(m, None, None, None, out.stamp_ns, out.stamp_ns, "", mf)
         mounts = {c.name: c.mount for c in self.config.cameras}
-        for k, n in enumerate(out.cameras):
-            viz, frame = self.camera_viz.get(n), out.frames.get(n)
-            if viz is None or frame is None:
-                continue
-            if not (viz.wants("debug_image") or viz.wants("markers")):
-                continue
-            off = out.stamp_offsets.get(n, 0.0)
-            view = camera_estimate(out.estimate, k, frame.camera, mounts[n], off,
-                                   frame.points2d, frame.points3d)  # fmt: skip
+
+        def wanted(n: str) -> bool:
+            viz = self.camera_viz.get(n)
+            return viz is not None and (viz.wants("debug_image") or viz.wants("markers"))
+
+        for n, frame, view, ref in rig_camera_views(out, mounts, wanted):
+            viz = self.camera_viz[n]
             for img in self._images.get(n, ()):
                 if img[2] == frame.stamp_ns:
                     viz.set_image(*img)
-            ref = out.stamp_ns + int(round(off * 1e9))
             viz.publish(view, frame.points2d, frame.points3d, frame.camera, frame.stamp_ns, ref,
                         frame.tag or n, mf)  # fmt: skip
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -49,6 +49,7 @@ __all__ = [
     "debug_image_msg",
     "marker_array",
     "path_msg",
+    "rig_camera_views",
 ]
 
 #: name -> (default, description, range); declared by :class:`NodeVisualization`
@@ -195,6 +196,28 @@ def path_msg(poses: Iterable[Any], stamp_ns: int, map_frame: str) -> Path:
     m.header.frame_id = map_frame
     m.poses = list(poses)
     return m
+
+
+def rig_camera_views(
+    out: Any, mounts: dict, wanted: Any = None
+) -> Iterator[tuple[str, Any, RSPoseEstimate, int]]:
+    """Each camera of the posed rig frame ``out``
+    (:class:`~rs_localizer.tracking.rig.RigOutput`) as its ``<camera>/debug_image`` and
+    ``<camera>/markers`` draw it: ``(name, its frame, its estimate, its reference line's
+    stamp ns)``, the estimate the camera as the rig's pose and its mounting put it
+    (:func:`~rs_localizer.estimation.rig.camera_estimate`), the stamp the rig frame's time
+    plus the camera's offset. ``mounts``: camera name -> its mounting; ``wanted``: camera
+    name -> whether to draw it (None: every camera with a frame in ``out``)."""
+    from ..estimation.rig import camera_estimate
+
+    for k, n in enumerate(out.cameras):
+        frame = out.frames.get(n)
+        if frame is None or (wanted is not None and not wanted(n)):
+            continue
+        off = out.stamp_offsets.get(n, 0.0)
+        view = camera_estimate(out.estimate, k, frame.camera, mounts[n], off,
+                               frame.points2d, frame.points3d)  # fmt: skip
+        yield n, frame, view, out.stamp_ns + int(round(off * 1e9))
 
 
 class VisualizationBuilder:

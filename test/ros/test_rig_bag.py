@@ -447,3 +447,114 @@ def test_a_rig_bag_is_replayed_and_reported_as_a_camera_bag_is(tmp_path, capsys)
         stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
         assert np.allclose([m.twist.angular.x, m.twist.angular.y, m.twist.angular.z],
                            own[stamp], atol=1e-9)  # fmt: skip
+
+
+def test_replay_of_a_rendered_rig_bag_writes_each_cameras_debug_outputs(tmp_path, capsys):
+    """``replay --out --debug-outputs`` of a rendered rig bag (2 cameras, 3 frames each)
+    writes the rig node's visualization topics: for each camera one
+    ``/rs_localizer/<camera>/debug_image`` per posed rig frame, of the camera's size (its
+    camera_info), stamped like its frame, in its frame id, drawn on the camera's own image of
+    that stamp (it correlates with it, not with the other camera's); its ``markers``, whose
+    frustum starts at the camera's centre (the ground-truth rig pose at the camera's
+    reference line through its mounting) and whose inliers are points of its frame's cloud;
+    and the rig's ``path``, after each posed rig frame the poses on ``pose`` so far. With one
+    camera frame's image taken out of the bag, that frame's debug image is drawn on a canvas
+    (it no longer correlates with the image) and every other frame's on its image still."""
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.bag_io import iter_messages, load_ground_truth, typestore
+    from rs_localizer.ros.conversions import stamp_to_ns
+    from rs_localizer.ros.image_codec import decode_image
+    from rs_localizer.ros.param_files import read_params_file
+
+    bag, out = tmp_path / "rig", tmp_path / "out"
+    assert main(["render-bag", str(bag), "--rig", "2", "--frames", "3", "--supersample", "1",
+                 "--no-noise", "--quiet"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--quiet", "--json", "--out", str(out),
+                 "--debug-outputs"]) == 0  # fmt: skip
+    s = json.loads(capsys.readouterr().out)
+    assert s["solved"] == s["frames_total"] == 3 and s["out_bag"] == str(out)
+    ts = typestore()
+    cams = ("front", "back")
+    size, frame_id, images, clouds = {}, {}, {}, {}
+    for topic, mt, _, raw in iter_messages(bag):
+        n, leaf = (topic.split("/") + ["", ""])[2:4]
+        if n not in cams:
+            continue
+        m = ts.deserialize_cdr(raw, mt)
+        stamp = stamp_to_ns(m.header.stamp)
+        if leaf == "camera_info":
+            size[n] = (m.width, m.height)
+        elif leaf == "image_raw":
+            images[(n, stamp)] = decode_image(m)[0]
+            frame_id[n] = m.header.frame_id
+        elif leaf == "correspondences":
+            xyz = np.frombuffer(bytes(m.data), np.float32).reshape(m.width, -1)
+            offs = {f.name: f.offset // 4 for f in m.fields}
+            clouds[(n, stamp)] = xyz[:, [offs["x"], offs["y"], offs["z"]]].astype(float)
+    got: dict = {}
+    for topic, mt, t, raw in iter_messages(out):
+        got.setdefault(topic, []).append((t, ts.deserialize_cdr(raw, mt)))
+    poses = got["/rs_localizer/pose"]
+    assert len(poses) == 3
+    # the rig's path: the poses published so far
+    paths = got["/rs_localizer/path"]
+    assert [t for t, _ in paths] == [t for t, _ in poses]
+    for k, (_, p) in enumerate(paths):
+        assert p.header.frame_id == "map" and len(p.poses) == k + 1
+        for q, (_, pose) in zip(p.poses, poses[: k + 1], strict=True):
+            assert q.pose.position == pose.pose.position and q.header.stamp == pose.header.stamp
+    gt = load_ground_truth(bag)
+    params = read_params_file(bag / "rig_params.yaml")
+    gray = {k: v.astype(float).mean(axis=2) for k, v in images.items()}
+    for n in cams:
+        drawn = got[f"/rs_localizer/{n}/debug_image"]
+        # one per posed rig frame, stamped like the camera's frames (every one posed here)
+        assert [t for t, _ in drawn] == [t for t, _ in poses]
+        stamps = [stamp_to_ns(m.header.stamp) for _, m in drawn]
+        assert stamps == sorted(s for c, s in images if c == n)
+        other = [s for c, s in images if c != n]
+        for (_, m), stamp, o in zip(drawn, stamps, other, strict=True):
+            assert (m.width, m.height) == size[n] and m.encoding == "bgr8"
+            assert m.header.frame_id == frame_id[n]
+            img = np.frombuffer(bytes(m.data), np.uint8).reshape(m.height, m.width, 3)
+            below = slice(60, None)  # (under the text banner)
+            seen = img[below].astype(float).mean(axis=2).ravel()
+            mine = np.corrcoef(seen, gray[(n, stamp)][below].ravel())[0, 1]
+            twin = cams[cams.index(n) - 1]
+            theirs = np.corrcoef(seen, gray[(twin, o)][below].ravel())[0, 1]
+            assert mine > 0.8 and theirs < 0.5, (mine, theirs)
+        markers = got[f"/rs_localizer/{n}/markers"]
+        assert [t for t, _ in markers] == [t for t, _ in poses]
+        mount = np.asarray(params[f"rig.{n}.mounting"][:3])
+        for (_, m), stamp in zip(markers, stamps, strict=True):
+            by = {x.ns: x for x in m.markers}
+            ref = stamp_to_ns(by["frustum"].header.stamp)
+            g = gt.nearest(ref, tol_ns=100_000)
+            centre = gt.position[g] + gt.orientation[g] @ mount
+            apex = by["frustum"].points[0]
+            assert (
+                np.linalg.norm([apex.x - centre[0], apex.y - centre[1], apex.z - centre[2]]) < 0.005
+            )
+            pts = np.array([[p.x, p.y, p.z] for p in by["inliers"].points])
+            cloud = clouds[(n, stamp)]
+            assert len(pts) >= 0.9 * len(cloud)
+            assert np.abs(pts[:, None, :] - cloud[None]).max(axis=2).min(axis=1).max() < 1e-6
+
+    # the front camera's second image taken out: that frame's debug image on a canvas only
+    gone = sorted(s for c, s in images if c == "front")[1]
+
+    def edit(topic, msg, t):
+        drop = topic == "/rig/front/image_raw" and stamp_to_ns(msg.header.stamp) == gone
+        return [] if drop else [(t, msg)]
+
+    cut, out2 = rewrite_bag(bag, tmp_path / "cut", edit), tmp_path / "out2"
+    assert main(["replay", str(cut), "--quiet", "--out", str(out2), "--debug-outputs"]) == 0
+    for n in cams:
+        for _, mt, _, raw in iter_messages(out2, {f"/rs_localizer/{n}/debug_image"}):
+            m = ts.deserialize_cdr(raw, mt)
+            stamp = stamp_to_ns(m.header.stamp)
+            img = np.frombuffer(bytes(m.data), np.uint8).reshape(m.height, m.width, 3)
+            seen = img[60:].astype(float).mean(axis=2).ravel()
+            r = np.corrcoef(seen, gray[(n, stamp)][60:].ravel())[0, 1]
+            assert (r < 0.5) if (n, stamp) == ("front", gone) else (r > 0.8), (n, stamp, r)

@@ -52,12 +52,15 @@ from .bag_io import (
 )
 
 if TYPE_CHECKING:
+    from ...camera import CameraModel
+    from ...estimation.result import RSPoseEstimate
     from ...pose import PoseWithCovariance
     from ...tracking.rig import RigOutput
 
 __all__ = [
     "BAG_TIMING",
     "CSV_COLUMNS",
+    "DebugWriter",
     "ReplayResult",
     "ReplayRows",
     "open_out_bag",
@@ -265,7 +268,7 @@ def replay(
     if out_bag is not None:
         writer, conns = open_out_bag(Path(out_bag), storage, overwrite, ts)
         result.out_bag = Path(out_bag)
-    viz = _DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
+    viz = DebugWriter(writer, conns, ts, path_length, cfg.map_frame) if debug_outputs else None
     rows = ReplayRows(gt)
     pipeline = FramePipeline(cfg, log=log, imu_span=math.inf, maps=maps)
     _run_frames(
@@ -387,7 +390,7 @@ def _run_frames(
     rows: ReplayRows,
     writer: Any,
     conns: dict,
-    viz: _DebugWriter | None,
+    viz: DebugWriter | None,
     n_frames: int,
     progress: TextIO | None,
 ) -> None:
@@ -591,23 +594,39 @@ class ReplayRows:
         return rows, failures, summary
 
 
-class _DebugWriter:
-    """Writes the visualization topics of solved frames into the replay's output bag. A frame's
-    debug image waits until the next frame (or the end), so that the bag's image with the same
-    stamp has been read whatever the order of equal log times."""
+class DebugWriter:
+    """Writes the visualization topics of solved frames into the replay's output bag,
+    ``/rs_localizer/<prefix><topic>`` for each of ``topics`` (of
+    :data:`~rs_localizer.ros.visualization.VIZ_TOPICS`; None: all), drawn by the node's
+    :class:`~rs_localizer.ros.visualization.VisualizationBuilder`. A camera's replay gives it
+    each solved frame (:meth:`frame`): that frame's debug image waits until the next frame (or
+    the end), so that the bag's image with the same stamp has been read whatever the order of
+    equal log times. A rig's replay writes each topic itself (:meth:`debug_image`,
+    :meth:`markers`, :meth:`path`)."""
 
-    def __init__(self, writer, conns, ts, path_length, map_frame):
+    def __init__(
+        self,
+        writer: Any,
+        conns: dict,
+        ts: Any,
+        path_length: int,
+        map_frame: str,
+        prefix: str = "",
+        topics: Iterable[str] | None = None,
+    ):
         from ..visualization import VIZ_TOPICS, VisualizationBuilder
 
         self.writer, self.conns, self.ts, self.map_frame = writer, conns, ts, map_frame
-        self.types = VIZ_TOPICS
-        for name, mt in VIZ_TOPICS.items():
-            conns[name] = writer.add_connection(f"/rs_localizer/{name}", mt, typestore=ts)
+        self.types, self.prefix = VIZ_TOPICS, prefix
+        for name in VIZ_TOPICS if topics is None else topics:
+            conns[prefix + name] = writer.add_connection(
+                f"/rs_localizer/{prefix}{name}", VIZ_TOPICS[name], typestore=ts
+            )
         self.builder = VisualizationBuilder(path_length)
         self.images = {}  # header stamp (ns) -> (image, encoding), the last few
         self.pending = None
 
-    def add_image(self, msg):
+    def add_image(self, msg: Any) -> None:
         from ..image_codec import ImageRejected, decode_image
 
         try:
@@ -615,47 +634,70 @@ class _DebugWriter:
         except ImageRejected:
             return
 
-    def add_decoded(self, image, encoding, stamp_ns: int):
+    def add_decoded(self, image: np.ndarray, encoding: str, stamp_ns: int) -> None:
         self.images[int(stamp_ns)] = (image, encoding)
         while len(self.images) > 8:
             self.images.pop(next(iter(self.images)))
 
-    def _write(self, name, t_log, msg):
-        self.writer.write(self.conns[name], t_log, to_cdr(msg, self.types[name], self.ts))
-
-    def frame(self, res: FrameResult, t_log: int):
-        self.flush()
-        b, est, mf = self.builder, res.estimate, self.map_frame
-        b.add_pose(est, res.out_stamp_ns, mf)
-        self._write(
-            "markers", t_log, b.markers(est, res.points3d, res.camera, res.out_stamp_ns, mf)
+    def _write(self, name: str, t_log: int, msg: Any) -> None:
+        self.writer.write(
+            self.conns[self.prefix + name], t_log, to_cdr(msg, self.types[name], self.ts)
         )
-        self._write("path", t_log, b.path(res.out_stamp_ns, mf))
-        self.pending = (res, t_log)
 
-    def flush(self):
-        if self.pending is None:
-            return
-        res, t_log = self.pending
-        self.pending = None
-        camera = res.camera
-        img, enc = self.images.get(res.stamp_ns, (None, None))
+    def markers(
+        self,
+        est: RSPoseEstimate,
+        X: np.ndarray,
+        camera: CameraModel,
+        out_stamp_ns: int,
+        t_log: int,
+    ) -> None:
+        """``markers`` of a frame posed at ``out_stamp_ns``, logged at ``t_log``."""
+        self._write(
+            "markers", t_log, self.builder.markers(est, X, camera, out_stamp_ns, self.map_frame)
+        )
+
+    def path(self, est: RSPoseEstimate, out_stamp_ns: int, t_log: int) -> None:
+        """The pose of ``est`` at ``out_stamp_ns`` added to the path, and ``path`` written."""
+        self.builder.add_pose(est, out_stamp_ns, self.map_frame)
+        self._write("path", t_log, self.builder.path(out_stamp_ns, self.map_frame))
+
+    def debug_image(
+        self,
+        est: RSPoseEstimate,
+        uv: np.ndarray,
+        X: np.ndarray,
+        camera: CameraModel,
+        stamp_ns: int,
+        frame_id: str,
+        t_log: int,
+        image: tuple | None = None,
+    ) -> None:
+        """``debug_image`` of a frame stamped ``stamp_ns``, drawn on ``image`` ((image,
+        encoding) of the same stamp; None, or not of the camera's size: a blank canvas)."""
+        img, enc = (None, None) if image is None else image
         if img is not None and img.shape[:2] != (camera.height, camera.width):
             img, enc = None, None
         self._write(
             "debug_image",
             t_log,
-            self.builder.debug_image(
-                res.estimate,
-                res.points2d,
-                res.points3d,
-                camera,
-                res.stamp_ns,
-                res.frame_id,
-                img,
-                enc,
-            ),
+            self.builder.debug_image(est, uv, X, camera, stamp_ns, frame_id, img, enc),
         )
+
+    def frame(self, res: FrameResult, t_log: int) -> None:
+        self.flush()
+        self.markers(res.estimate, res.points3d, res.camera, res.out_stamp_ns, t_log)
+        self.path(res.estimate, res.out_stamp_ns, t_log)
+        self.pending = (res, t_log)
+
+    def flush(self) -> None:
+        """Write the debug image of the frame still waiting (if any)."""
+        if self.pending is None:
+            return
+        res, t_log = self.pending
+        self.pending = None
+        self.debug_image(res.estimate, res.points2d, res.points3d, res.camera, res.stamp_ns,
+                         res.frame_id, t_log, self.images.get(res.stamp_ns))  # fmt: skip
 
 
 def _count(path, topic) -> int:

@@ -43,6 +43,7 @@ from .bag_io import (
     POSE,
     TWIST,
     RosbagsMessages,
+    bag_topics,
     iter_messages,
     load_ground_truth,
     progress_bar,
@@ -330,7 +331,10 @@ class RigReplay:
       mounting put it (NaN where it could not be posed alone;
       :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
       check of the cameras' rolling-shutter timing on the video at its end
-      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`).
+      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`);
+    - ``mounts``: camera -> its :class:`~rs_localizer.frames.Mounting` (in the rig's
+      ``base_frame``), as configured. Each camera frame of ``outputs`` is tagged with
+      ``(its header stamp ns, its frame id)``.
     """
 
     rows: list = field(default_factory=list)
@@ -349,6 +353,7 @@ class RigReplay:
     cameras: tuple = ()
     off_deg: dict = field(default_factory=dict)
     readout: dict = field(default_factory=dict)
+    mounts: dict = field(default_factory=dict)
 
     @property
     def solved(self) -> int:
@@ -398,7 +403,8 @@ def replay_rig(
 
     _, _, cfg = rig_bag_config(bag, params_files, params)
     rig = RigLocalizer(cfg.settings)
-    res = RigReplay(cameras=tuple(c.name for c in cfg.cameras))
+    res = RigReplay(cameras=tuple(c.name for c in cfg.cameras),
+                    mounts={c.name: c.mount for c in cfg.cameras})  # fmt: skip
     own: Counter = Counter()  # (the node's counts: the cameras' inputs', "<camera>.<key>")
 
     def count(name: str, key: str, n: int = 1) -> None:
@@ -407,7 +413,8 @@ def replay_rig(
     inputs = rig_camera_inputs(cfg, _QuietLog(), count)
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
-    recent = {n: deque(maxlen=32) for n in res.cameras}  # (frames by their stamp, the tag)
+    # (frames by their tag: stamp and frame id)
+    recent = {n: deque(maxlen=32) for n in res.cameras}
     bar = progress_bar(progress, None, unit=" rig frames")
     for item in iter_rig_frames(bag, inputs):
         n = item.camera_name
@@ -418,7 +425,7 @@ def replay_rig(
                 own[f"{n}.skipped.{item.reason}"] += 1
                 continue
         else:
-            item = replace(item, tag=item.stamp_ns)
+            item = replace(item, tag=(item.stamp_ns, item.tag))
             recent[n].append(item)
         while gyro and gyro[-1][0] <= item.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
             rig.add_imu(*gyro.pop())
@@ -756,6 +763,9 @@ def write_rig_outputs(
     base_frame: str = "base_link",
     storage: str = "mcap",
     overwrite: bool = False,
+    *,
+    debug_bag: str | os.PathLike | None = None,
+    path_length: int = 1000,
 ) -> Path:
     """Write the rig frames of ``res`` into the bag ``out`` as the rig node publishes them
     (:func:`~rs_localizer.ros.outputs.pose_messages`,
@@ -766,6 +776,16 @@ def write_rig_outputs(
     ``twist`` and ``odom`` it made final (without tracking its own), all stamped with the rig
     frame's time they are of and logged at the time of the rig frame that made them final
     (the last rig frame's for those still pending at the end). Returns the bag's path.
+
+    ``debug_bag``: the rig bag ``res`` was replayed from; then the rig node's visualization
+    topics are written too, logged with the rig frame's other outputs: for each posed rig
+    frame ``/rs_localizer/path`` (the rig's last ``path_length`` poses) and, for each of its
+    cameras, ``/rs_localizer/<camera>/debug_image`` (stamped like the camera's frame, in its
+    frame id, drawn on the bag's ``<namespace>/<camera>/image_raw`` of that stamp, else on a
+    blank canvas) and ``/rs_localizer/<camera>/markers``, the camera as the rig's pose and its
+    mounting put it (:func:`~rs_localizer.ros.visualization.rig_camera_views`), as the rig
+    node draws them. The bag's images are read as the rig frames are drawn, and only those of
+    their cameras' frames are kept until drawn (:class:`_RigImages`).
 
     Raises:
         FileExistsError: ``out`` exists and not ``overwrite``.
@@ -784,7 +804,10 @@ def write_rig_outputs(
     ts = typestore()
     writer, conns = open_out_bag(out, storage, overwrite, ts)
     t = 0
+    viz = None
     try:
+        if debug_bag is not None:
+            viz = _RigDebugWriter(writer, conns, ts, res, debug_bag, path_length, map_frame)
         for o in res.outputs:
             t = o.stamp_ns
             msgs = []
@@ -792,7 +815,110 @@ def write_rig_outputs(
                 msgs = pose_messages(o.estimate, t, map_frame, base_frame, res.twist_now, (),
                                      wanted)  # fmt: skip
             write_messages(writer, conns, ts, t, msgs + fused(o.fused))
+            if viz is not None and o.success:
+                viz.frame(o, t)
         write_messages(writer, conns, ts, t, fused(res.flushed))
     finally:
+        if viz is not None:
+            viz.images.close()
         writer.close()
     return out
+
+
+class _RigImages:
+    """The images of a rig bag (``<namespace>/<camera>/image_raw``) that the posed rig frames
+    of ``outputs`` draw on, read from the bag as they are asked for, in rig-frame order
+    (:meth:`take`). Only an image whose ``(camera, header stamp)`` is a camera frame of a
+    posed rig frame not yet drawn is decoded and kept, at most :attr:`MAX_HELD` per camera
+    (the oldest dropped), and each is given out once."""
+
+    MAX_HELD = 16
+
+    def __init__(self, bag: str | os.PathLike, outputs: Iterable[Any], names: Iterable[str]):
+        present = bag_topics(bag)
+        self.topics = {t: n for t, (_, n) in RigTopics(rig_namespace(bag), tuple(names))
+                       .of(("image",)).items() if t in present}  # fmt: skip
+        with_images = set(self.topics.values())
+        self.wanted = {(n, f.stamp_ns) for o in outputs if o.success
+                       for n, f in o.frames.items() if n in with_images}  # fmt: skip
+        self.held: dict[str, dict[int, tuple]] = {n: {} for n in with_images}
+        self.newest: dict[str, int] = {}  # camera -> the newest stamp of its images read
+        self.ts = typestore()
+        self._messages = iter_messages(bag, set(self.topics)) if self.topics else iter(())
+
+    def take(self, name: str, stamp_ns: int) -> tuple | None:
+        """``(image, encoding)`` of camera ``name``'s image stamped ``stamp_ns`` (None: the bag
+        has none). The bag is read on until it is found, an image of that camera stamped
+        later is read, or the bag ends."""
+        key = (name, stamp_ns)
+        if key not in self.wanted:
+            return None
+        held = self.held[name]
+        while stamp_ns not in held and self.newest.get(name, stamp_ns - 1) < stamp_ns:
+            if not self._read():
+                break
+        self.wanted.discard(key)
+        return held.pop(stamp_ns, None)
+
+    def close(self) -> None:
+        """Close the bag (the images not read are not read)."""
+        close = getattr(self._messages, "close", None)
+        if close is not None:
+            close()
+
+    def _read(self) -> bool:
+        from ..image_codec import ImageRejected, decode_image
+
+        item = next(self._messages, None)
+        if item is None:
+            return False
+        topic, msgtype, _, raw = item
+        n = self.topics[topic]
+        msg = self.ts.deserialize_cdr(raw, msgtype)
+        try:
+            stamp = cv.checked_stamp_ns(msg.header.stamp)
+        except ValueError:
+            return True
+        self.newest[n] = max(self.newest.get(n, stamp), stamp)
+        if (n, stamp) not in self.wanted:
+            return True
+        try:
+            image = decode_image(msg)
+        except ImageRejected:
+            return True
+        held = self.held[n]
+        held[stamp] = image
+        while len(held) > self.MAX_HELD:
+            held.pop(min(held))
+        return True
+
+
+class _RigDebugWriter:
+    """The rig node's visualization topics of posed rig frames written into a replay's output
+    bag (:func:`write_rig_outputs`): the rig's ``path`` and each camera's ``debug_image`` and
+    ``markers``, by the camera replay's
+    :class:`~rs_localizer.ros.bags.replay.DebugWriter`, on the images of :class:`_RigImages`."""
+
+    def __init__(self, writer, conns, ts, res: RigReplay, bag, path_length: int, map_frame: str):
+        from .replay import DebugWriter
+
+        self.rig = DebugWriter(writer, conns, ts, path_length, map_frame, topics=("path",))
+        self.cameras = {n: DebugWriter(writer, conns, ts, path_length, map_frame, f"{n}/",
+                                        ("debug_image", "markers"))
+                        for n in res.cameras}  # fmt: skip
+        self.mounts = res.mounts
+        self.images = _RigImages(bag, res.outputs, res.cameras)
+
+    def frame(self, o, t_log: int) -> None:
+        """Posed rig frame ``o``, logged at ``t_log``."""
+        from ..visualization import rig_camera_views
+
+        self.rig.path(o.estimate, o.stamp_ns, t_log)
+        for n, frame, view, ref in rig_camera_views(o, self.mounts):
+            w = self.cameras[n]
+            tag = frame.tag
+            frame_id = (tag[1] if isinstance(tag, tuple) else tag) or n
+            image = self.images.take(n, frame.stamp_ns)
+            w.debug_image(view, frame.points2d, frame.points3d, frame.camera, frame.stamp_ns,
+                          frame_id, t_log, image)  # fmt: skip
+            w.markers(view, frame.points3d, frame.camera, ref, t_log)
