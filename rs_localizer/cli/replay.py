@@ -388,6 +388,8 @@ def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:
     values = rig_parameter_values(bag, getattr(args, "params_file", []), params)[0]
     n, solver = len(res.rows), res.solver or "rig"
     text = sys.stderr if args.json else sys.stdout
+    for note in res.notes:
+        print(f"warning: {note}", file=sys.stderr)
     line = _solved_line(solver, res.solved, n, "rig frames", res.failures, not res.twist_now)
     print(line.replace(" rig frames", f" rig frames of {len(res.cameras)} cameras", 1),
           file=text)  # fmt: skip

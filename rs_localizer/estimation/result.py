@@ -102,6 +102,7 @@ RIG_FAILURE_REASONS = (
     IMPLAUSIBLE_MOTION,
     TOO_FEW_INLIERS,
     CHEIRALITY,
+    INCONSISTENT_FIT,
     CAMERAS_DISAGREE,
 )
 #: why the rig's tracker refused a rig frame the estimator posed (counted

@@ -120,16 +120,19 @@ from numba import njit
 
 from ..camera import CameraModel
 from ..frames import Mounting
-from ..geometry import exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
+from ..geometry import camera_position, exact_camera_points, matrix_to_rotvec, rotvec_to_matrix
 from ..pose import RSModel, RSPose
 from ..solvers._common import DegenerateInputError
 from ..solvers.gr6p_1lin import gr6p_1lin, gr6p_1lin_batch, gr6p_1lin_batch_numpy
 from ..solvers.lambda_twist import lambda_twist_batch
-from .degeneracy import PLANAR_TOLERANCE, planarity
+from .degeneracy import PLANAR_TOLERANCE, condition_number, far_side_fraction, planarity
 from .finalize import (
+    FAR_SIDE_LIMIT,
     FINAL_CUTOFF,
     GLOBAL_SHUTTER,
+    MIRRORED_FIT_FRACTION,
     ROLLING_SHUTTER,
+    fit_is_inconsistent,
     frame_refinement,
     image_alone,
     rolling_shutter_check,
@@ -167,6 +170,7 @@ from .result import (
     CHEIRALITY,
     DEGENERATE_GEOMETRY,
     IMPLAUSIBLE_MOTION,
+    INCONSISTENT_FIT,
     RIG_FAILURE_REASONS,
     TOO_FEW_INLIERS,
     TOO_FEW_POINTS,
@@ -1962,6 +1966,62 @@ def _rig_estimate(
     )
 
 
+def _inconsistent_fit(
+    pool: _Pool, model, e: np.ndarray, inl: np.ndarray, threshold_px: float, free: int
+) -> bool:
+    """Whether the rig frame's final fit is one no rigid rig explains, by a single camera's
+    tests (:func:`~.finalize.fit_is_inconsistent`, ``consistent_fit``), which a mirrored map
+    (or mirrored images) fails: a wall of it fitted from behind by one camera, with the other
+    cameras' points unexplained. The cameras that support the fit are those whose inlier ratio
+    is at least :data:`AGREE_SHARE` times the best camera's, as in the cameras' consensus (an
+    outvoted camera's points, or a few of them explained by chance, do not count against it):
+
+    - a supporting camera whose inliers are one plane of its non-planar points must not see
+      more than :data:`~.finalize.FAR_SIDE_LIMIT` of its other points beyond that plane (the
+      plane seen from behind);
+    - a fit of fewer than :data:`~.finalize.MIRRORED_FIT_FRACTION` of the supporting cameras'
+      valid points of a non-planar rig frame must pass the single camera's fraction,
+      conditioning and near-miss tests over those points (the condition number of the fit's
+      information matrix, computed only then; errors in px and ``threshold_px``).
+
+    ``e``: (N,) the model's errors (px) over the pool; ``inl``: its inliers; ``free``: 12
+    (rolling shutter) or 6."""
+    R, C = np.asarray(model[0], dtype=float), np.asarray(model[1], dtype=float)
+    compiled = not pool.numpy
+    ratio = [np.count_nonzero(inl[s]) / max(s.stop - s.start, 1) for s in pool.slices]
+    best = max(ratio, default=0.0)
+    support = np.zeros(len(inl), dtype=bool)
+    for c, s in enumerate(pool.slices):
+        ic = inl[s]
+        if ratio[c] == 0.0 or ratio[c] < AGREE_SHARE * best:
+            continue
+        support[s] = True
+        X = pool.X[s]
+        flat_frame = planarity(X, compiled=compiled) < PLANAR_TOLERANCE
+        if ic.all() or np.count_nonzero(ic) < 3 or flat_frame:
+            continue
+        if planarity(X, ic, compiled) < PLANAR_TOLERANCE:
+            Rm, cm = pool.R_mount[c], pool.c_mount[c]
+            centre = camera_position(Rm @ R, Rm @ C + cm)
+            if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
+                return True
+    n, n_inl = int(np.count_nonzero(support)), int(np.count_nonzero(inl))
+    if n_inl >= MIRRORED_FIT_FRACTION * n:
+        return False
+    if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
+        return False
+    rolling = free == 12
+    info = frame_refinement(
+        pool, model, threshold_px, rolling, None, False, max_iterations=0, covariance=False
+    ).data_information
+    cond = condition_number(info[:free, :free], compiled) if info is not None else float("nan")
+    flat = 1.0  # (the far-side test is each camera's, above)
+    return fit_is_inconsistent(
+        pool.X[support], inl[support], np.zeros(3), flat, cond, rolling, float(threshold_px),
+        lambda: e[support],
+    )  # fmt: skip
+
+
 def _estimate(
     pool: _Pool,
     options: EstimateOptions,
@@ -2065,6 +2125,10 @@ def _estimate(
     )
     if code == 2:
         return failed(CHEIRALITY, drawn, behind)
+    if options.plausibility.consistent_fit and _inconsistent_fit(
+        pool, (R, C, w, t), e, inl, threshold_px, free
+    ):
+        return failed(INCONSISTENT_FIT, drawn)
     cov, G = (
         _covariance(pool, (R, C, w, t), threshold_px, free, prior, mounts=True, errors=e)
         if refine

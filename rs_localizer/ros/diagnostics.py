@@ -349,9 +349,11 @@ class RigInputs:
     """What the rig node (:class:`~rs_localizer.ros.rig_node.RigCore`) knows of the frames
     before they reach the rig, for :func:`rig_diagnostics`.
 
-    ``counts``: per camera ``<c>.received`` (by the subscriptions), ``<c>.taken`` (handed on by
-    the worker), ``<c>.skipped.<reason>`` (the node's reasons,
-    :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`), ``<c>.failed.internal_error``,
+    ``counts``: the node's map-fit check over the rig frames
+    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``); per camera ``<c>.received``
+    (by the subscriptions), ``<c>.taken`` (handed on by the worker), ``<c>.skipped.<reason>``
+    (the node's reasons, :data:`~rs_localizer.ros.rig_node.INPUT_SKIP_REASONS`),
+    ``<c>.failed.internal_error``,
     ``<c>.capped_clouds`` (clouds capped to ``max_points``), ``<c>.points_dropped`` (non-finite
     rows of its clouds), ``<c>.camera_info_rejected[.<reason>]`` (camera_infos rejected, the
     single-camera node's reasons), ``<c>.stamp_jumped_ahead``
@@ -406,6 +408,9 @@ def rig_diagnostics(
     :data:`IMU_IDLE_WARN_S` while rig frames arrive); ``rig_frames_failed.<reason>``
     for each failure reason of the rig estimator (or ``error``: it raised); the single-camera
     node's timing keys (:func:`timing_values`) and ``camera_frame_ms_median``;
+    ``rig_frames_failed_with_matches`` and ``map_fit_doubtful`` (the single-camera node's
+    map-fit check over the rig frames, :class:`~rs_localizer.ros.pipeline.MapFitCheck`; the
+    message says so while doubtful and the level is not OK);
     ``imu_rejected.<reason>`` counts.
 
     ``inputs``: the node's own counts and times (:class:`RigInputs`; a Counter: its
@@ -443,6 +448,10 @@ def rig_diagnostics(
         values.update(timing_values(inputs.latencies, inputs.stamp_ages))
         frames = [t for n in rig.cameras for t in inputs.frame_times.get(n, ())]
         values["camera_frame_ms_median"] = _median_ms(frames)
+        values["rig_frames_failed_with_matches"] = inputs.counts.get(
+            "rig_frames_failed_with_matches", 0
+        )
+        values["map_fit_doubtful"] = str(bool(inputs.counts.get("map_fit_doubtful", 0))).lower()
         for n, k in inputs.bad_input.items():
             values[f"{n}.bad_input"] = k
         for why, k in sorted(inputs.imu_rejected.items()):
@@ -456,6 +465,11 @@ def rig_diagnostics(
         )
         failed = f"{r['failed']} rig frames failed ({why})"
     level, message = _rig_level_and_message(r, warnings, failed, busy, lost, note)
+    if values.get("map_fit_doubtful") == "true" and level != OK:  # (as a camera's)
+        message += (
+            "; most rig frames with many matches refused: does the map fit this place? "
+            "mirrored or another room?"
+        )
     absent = list(inputs.absent) if inputs is not None else []
     if absent and r["solved"] == 0:  # (a camera silent: named first)
         rest = "" if level == OK else message.removeprefix("no rig frame posed: ")

@@ -50,6 +50,7 @@ __all__ = [
     "FramePipeline",
     "FrameResult",
     "FusedOutput",
+    "MapFitCheck",
     "PipelineStats",
     "StatsSnapshot",
     "ThrottledLog",
@@ -78,6 +79,48 @@ MAP_FIT_REASONS = (
     "no_hypothesis",
     "degenerate_geometry",
 )
+
+
+class MapFitCheck:
+    """Whether the map fits the place (:data:`MAP_FIT_REASONS`), over a camera's frames or a
+    rig's rig frames: each one of at least :data:`MAP_FIT_MIN_POINTS` correspondences solved
+    or refused for its geometry joins a window of the last :data:`MAP_FIT_WINDOW`; when 80 %
+    or more of the window (at least half of it full) were refused, the map is doubted
+    (:attr:`doubtful`). ``unit``: what the warning names (``frames``, ``rig frames``)."""
+
+    def __init__(self, unit: str = "frames"):
+        self.unit = unit
+        self.doubtful = False
+        self._fit: deque[tuple[bool, str, int]] = deque(maxlen=MAP_FIT_WINDOW)
+
+    def update(self, n_points: int, est: RSPoseEstimate) -> tuple[bool | None, bool]:
+        """Take a frame of ``n_points`` correspondences and its estimate. Returns
+        ``(refused, warn)``: ``refused`` None when the frame does not join the window (too
+        few points, or refused for another reason), else whether it was refused for its
+        geometry; ``warn``: it was, and the map is doubted now."""
+        if n_points < MAP_FIT_MIN_POINTS:
+            return None, False
+        refused = not est.success and est.failure in MAP_FIT_REASONS
+        if not est.success and not refused:
+            return None, False
+        self._fit.append((refused, est.failure or "", n_points))
+        w = self._fit
+        n_refused = sum(r for r, _, _ in w)
+        self.doubtful = len(w) >= MAP_FIT_WINDOW // 2 and n_refused >= 0.8 * len(w)
+        return refused, self.doubtful and refused
+
+    def text(self) -> str:
+        """The map-fit warning for the current window."""
+        w = self._fit
+        reasons = Counter(why for r, why, _ in w if r)
+        median = int(np.median([n for _, _, n in w])) if w else 0
+        return (
+            f"{sum(reasons.values())} of the last {len(w)} {self.unit} with "
+            f"{MAP_FIT_MIN_POINTS} or more correspondences (median {median}) were refused "
+            f"({', '.join(f'{k} {v}' for k, v in reasons.most_common())}): does the map fit "
+            "this place? mirrored (left-handed, z -> -z) or another room? Matches that no pose "
+            "explains point at the map, not at the camera"
+        )
 
 
 def log_warm_up(
@@ -342,7 +385,7 @@ class FramePipeline:
         #: the camera's camera_infos, the model of a frame's stamp, its rows, its image
         self.camera_input = CameraInput(self.log, self.stats.add, stopped=stopped)
         # (the map-fit check: (refused, reason, correspondences) of the last frames with many)
-        self._fit: deque[tuple[bool, str, int]] = deque(maxlen=MAP_FIT_WINDOW)
+        self._map_fit = MapFitCheck()
         self._config: LocalizerConfig | None = None
         # the camera's video state: tracker, fused twists pending, gyro, bias, gyro check
         # (frames on the NumPy implementation while the kernels compile in the background)
@@ -552,37 +595,20 @@ class FramePipeline:
         self.stats.stage_time("estimate", res.times["estimate"])
 
     def _check_map_fit(self, n_points: int, est: RSPoseEstimate) -> None:
-        """The map-fit check (:data:`MAP_FIT_REASONS`): a frame of ``n_points`` (at least
-        :data:`MAP_FIT_MIN_POINTS`) correspondences solved or refused for its geometry joins
-        the window; most of the window refused: ``map_fit_doubtful`` and a throttled warning
+        """The map-fit check of a frame of ``n_points`` correspondences (:class:`MapFitCheck`):
+        counted ``frames_failed_with_matches``, ``map_fit_doubtful``, and a throttled warning
         that names the map as the likely cause."""
-        if n_points < MAP_FIT_MIN_POINTS:
-            return
-        refused = not est.success and est.failure in MAP_FIT_REASONS
-        if not est.success and not refused:
-            return
+        refused, warn = self._map_fit.update(n_points, est)
         if refused:
             self.stats.add("frames_failed_with_matches")
-        self._fit.append((refused, est.failure or "", n_points))
-        w = self._fit
-        n_refused = sum(r for r, _, _ in w)
-        doubt = len(w) >= MAP_FIT_WINDOW // 2 and n_refused >= 0.8 * len(w)
-        self.stats.set("map_fit_doubtful", int(doubt))
-        if doubt and refused:
+        if refused is not None:
+            self.stats.set("map_fit_doubtful", int(self._map_fit.doubtful))
+        if warn:
             self.log.warning("map_fit", self.map_fit_text())
 
     def map_fit_text(self) -> str:
-        """The map-fit warning for the current window (see :data:`MAP_FIT_REASONS`)."""
-        w = self._fit
-        reasons = Counter(why for r, why, _ in w if r)
-        median = int(np.median([n for _, _, n in w])) if w else 0
-        return (
-            f"{sum(reasons.values())} of the last {len(w)} frames with {MAP_FIT_MIN_POINTS} or "
-            f"more correspondences (median {median}) were refused "
-            f"({', '.join(f'{k} {v}' for k, v in reasons.most_common())}): does the map fit "
-            "this place? mirrored (left-handed, z -> -z) or another room? Matches that no pose "
-            "explains point at the map, not at the camera"
-        )
+        """The map-fit warning for the current window (:meth:`MapFitCheck.text`)."""
+        return self._map_fit.text()
 
     def _check_time(self, stamp: int) -> None:
         """A stamp older than the previous frame's, or newer by more than

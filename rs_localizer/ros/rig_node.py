@@ -109,7 +109,7 @@ from .diagnostics import RigInputs, rig_diagnostics
 from .frame_queue import FrameQueue
 from .outputs import fused_messages, pose_messages
 from .params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError
-from .pipeline import FusedOutput, ThrottledLog
+from .pipeline import FusedOutput, MapFitCheck, ThrottledLog
 from .qos import CLOUD_QOS, IMAGE_QOS, IMU_QOS
 from .visualization import NodeVisualization, rig_camera_views
 
@@ -261,6 +261,7 @@ class RigCore(NodeCore):
             self.latencies.clear()
             self.stamp_ages.clear()
         self._images: dict = {}  # (camera -> its last decoded images, for debug_image)
+        self._map_fit = MapFitCheck("rig frames")  # (the worker's)
         if self.get_parameter("warmup").value:
             self._warm_up()
         self._configured = True
@@ -567,10 +568,28 @@ class RigCore(NodeCore):
         for f in taken.fused:
             self._publish_fused(f)
         for out in taken.outs:
+            self._check_map_fit(out)
             self._log_failure(out)
             self.publish_output(out)
             if out.success:
                 self._record_timing(item.arrived, out.stamp_ns)
+
+    def _check_map_fit(self, out: RigOutput) -> None:
+        """The single-camera node's map-fit check over the rig frames
+        (:class:`.pipeline.MapFitCheck`, every camera's rows of the rig frame together):
+        counted ``rig_frames_failed_with_matches``, ``map_fit_doubtful``; a throttled
+        warning."""
+        if out.estimate is None:
+            return
+        n = sum(len(f.points2d) for f in out.frames.values())
+        refused, warn = self._map_fit.update(n, out.estimate)
+        with self._acc:
+            if refused:
+                self._inputs["rig_frames_failed_with_matches"] += 1
+            if refused is not None:
+                self._inputs["map_fit_doubtful"] = int(self._map_fit.doubtful)
+        if warn:
+            self._log.warning("map_fit", self._map_fit.text())
 
     def _log_failure(self, out: RigOutput) -> None:
         if out.error is not None:

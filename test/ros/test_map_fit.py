@@ -31,3 +31,61 @@ def test_a_mirrored_marker_map_is_named(sample_images_bag, tmp_path):
     res = replay(sample_images_bag, params=right, progress=None)
     assert res.solved == len(res.rows) and not res.counts.get("map_fit_doubtful")
     assert not any("does the map fit" in n for n in res.notes)
+
+
+def _mirrored_rig_bag(tmp_path, mirror: bool):
+    from dataclasses import replace as dc_replace
+
+    import numpy as np
+
+    from rs_localizer.ros.bags.rig_bag import write_rig_bag
+    from rs_localizer.sim.rig_video import default_rig, generate_rig_video
+
+    cams = default_rig(2)
+    frames, _, traj = generate_rig_video(cams, duration=0.5, num_points=80, seed=2)
+    if mirror:
+        frames = [dc_replace(f, xyz=f.xyz * np.array([1.0, 1.0, -1.0])) for f in frames]
+    name = "mirrored" if mirror else "right"
+    return write_rig_bag(tmp_path / name, frames, cams, traj), cams, frames
+
+
+def test_a_rig_with_a_mirrored_map_is_told_as_a_camera_is(tmp_path, capsys):
+    """A rig whose correspondences' map is mirrored (z -> -z): no rig frame posed, and
+    ``replay`` warns that the map likely does not fit, as for one camera (the rig frames'
+    rows together); the true map raises no doubt. The rig node's diagnostics count the same
+    (``rig_frames_failed_with_matches``, ``map_fit_doubtful``) and the status message says
+    it (the rig's map-fit check run on the rig frames, as the node's worker runs it)."""
+    from collections import Counter
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.rig_bag import replay_rig
+    from rs_localizer.ros.diagnostics import OK, RigInputs, rig_diagnostics
+    from rs_localizer.ros.pipeline import MapFitCheck
+
+    bag, _, _ = _mirrored_rig_bag(tmp_path, True)
+    res = replay_rig(bag)
+    assert res.solved == 0 and len(res.outputs) >= 10
+    assert len(res.notes) == 1 and "does the map fit this place?" in res.notes[0], res.notes
+    assert "rig frames with 20 or more correspondences" in res.notes[0], res.notes
+    assert main(["replay", str(bag), "--quiet"]) == 1
+    assert "warning: " + res.notes[0] in capsys.readouterr().err
+    # the node's diagnostics: its worker's check over the rig frames the rig hands out
+    from rs_localizer.ros.bags.rig_bag import read_rig_frames, rig_bag_config
+    from rs_localizer.ros.camera_input import hand_to_rig
+    from rs_localizer.tracking.rig import RigLocalizer
+
+    rig = RigLocalizer(rig_bag_config(bag)[2].settings)
+    outs = [o for item in read_rig_frames(bag).items for o in hand_to_rig(rig, item)]
+    outs += rig.close()
+    fit, counts = MapFitCheck("rig frames"), Counter()
+    for o in outs:
+        refused, _ = fit.update(sum(len(f.points2d) for f in o.frames.values()), o.estimate)
+        counts["rig_frames_failed_with_matches"] += bool(refused)
+    counts["map_fit_doubtful"] = int(fit.doubtful)
+    level, message, v = rig_diagnostics(rig, set(), RigInputs(counts=counts))
+    assert v["rig_frames_failed_with_matches"] == len(outs) == len(res.outputs)
+    assert v["map_fit_doubtful"] == "true" and level != OK
+    assert "does the map fit this place? mirrored or another room?" in message, message
+    right, _, _ = _mirrored_rig_bag(tmp_path, False)
+    res = replay_rig(right)
+    assert res.solved == len(res.outputs) and res.notes == []

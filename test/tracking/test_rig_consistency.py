@@ -70,7 +70,9 @@ def test_a_camera_clock_off_gives_no_wrong_pose_and_names_that_camera(video, off
     named |= {n for o in outs for n in o.disagreeing}
     assert named <= {"left"}, named
     refused = {k.split(".")[-1] for k in rig.counts if k.startswith("rig.failed.")}
-    assert refused <= {"contradicts_track", "unconfirmed", "cameras_disagree"}, refused
+    # (a fit of the cameras that contradict each other may be refused as no rigid rig's)
+    allowed = {"contradicts_track", "unconfirmed", "cameras_disagree", "inconsistent_fit"}
+    assert refused <= allowed, refused
     assert_balanced(rig)
     if offset == -0.02:  # (its frames never join: named with its apparent clock offsets)
         offs = rig.camera_apart("left")
@@ -113,7 +115,9 @@ def test_a_camera_clock_5ms_off_gives_no_wrong_pose_and_is_named_far_more_than_t
         left += named.count("left")
         wrong += len(named) - named.count("left")
         refused = {k.split(".")[-1] for k in rig.counts if k.startswith("rig.failed.")}
-        assert refused <= {"contradicts_track", "unconfirmed", "cameras_disagree"}, refused
+        # (a fit of the cameras that contradict each other may be refused as no rigid rig's)
+        allowed = {"contradicts_track", "unconfirmed", "cameras_disagree", "inconsistent_fit"}
+        assert refused <= allowed, refused
         assert_balanced(rig)
     assert wrong <= 0.25 * left, (wrong, left)
 

@@ -331,7 +331,9 @@ class RigReplay:
       mounting put it (NaN where it could not be posed alone;
       :meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`); ``readout``: the
       check of the cameras' rolling-shutter timing on the video at its end
-      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`);
+      (:meth:`~rs_localizer.tracking.localizer.VideoLocalizer.readout_values`); ``notes``:
+      warnings for the user, as a camera's replay has them (the node's map-fit check over
+      the rig frames, :class:`~rs_localizer.ros.pipeline.MapFitCheck`);
     - ``mounts``: camera -> its :class:`~rs_localizer.frames.Mounting` (in the rig's
       ``base_frame``), as configured. Each camera frame of ``outputs`` is tagged with
       ``(its header stamp ns, its frame id)``.
@@ -353,6 +355,7 @@ class RigReplay:
     cameras: tuple = ()
     off_deg: dict = field(default_factory=dict)
     readout: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
     mounts: dict = field(default_factory=dict)
 
     @property
@@ -400,6 +403,7 @@ def replay_rig(
 
     from ...tracking.rig import RigLocalizer
     from ..camera_input import UnreadFrame, hand_to_rig, rig_camera_inputs
+    from ..pipeline import MapFitCheck
 
     _, _, cfg = rig_bag_config(bag, params_files, params)
     rig = RigLocalizer(cfg.settings)
@@ -452,6 +456,12 @@ def replay_rig(
             res.gyro_bias, res.gyro_bias_std = bias
     res.twist_now = cfg.settings.tracking is None
     _rows_of(res, load_ground_truth(bag), res.twist_now)
+    fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end of the video)
+    for o in res.outputs:
+        if o.estimate is not None:
+            fit.update(sum(len(f.points2d) for f in o.frames.values()), o.estimate)
+    if fit.doubtful:
+        res.notes.append(fit.text())
     return res
 
 
