@@ -147,15 +147,24 @@ from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
-    final_check,
+    final_model_check,
+    final_model_check_numpy,
     image_degenerate,
     plausible_motion,
 )
-from .prior import MotionPrior
+from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
+    _ZERO3,
+    OUT_C,
+    OUT_COV,
+    OUT_R,
+    OUT_SIZE,
+    OUT_T,
+    OUT_W,
     KernelMountings,
     Mountings,
+    _lm_refine,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
@@ -572,8 +581,8 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
-    ends = np.cumsum([0, *counts])
-    return [slice(int(a), int(b)) for a, b in itertools.pairwise(ends)]
+    ends = itertools.accumulate((int(n) for n in counts), initial=0)
+    return [slice(a, b) for a, b in itertools.pairwise(ends)]
 
 
 class _Pool:
@@ -650,7 +659,15 @@ class _Pool:
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
-        return _errors_px(self, *_one(model))[0]
+        if self.numpy:
+            return _errors_px(self, *_one(model))[0]
+        R, C, w, t = model
+        f = np.float64
+        return _errors_kernel(
+            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
+            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
+            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
+        )[0]  # fmt: skip
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -1147,21 +1164,52 @@ def _refine(
     k = float(threshold_px)
     cut = None if cutoff_px is None else max(float(cutoff_px), k)
     motion = prior.motion if prior is not None and free == 12 else None
+    if not pool.numpy:
+        cutoff = FINAL_CUTOFF * k if cut is None else float(cut)
+        return _refined(pool, model, k, free == 12, motion, cutoff, int(max_iterations))
     res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
                            max_iterations=max_iterations, covariance=False,
                            tol=RIG_REFINE_TOL)  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
 
-def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
-    """The final refinement of ``model`` (``msac``: the MSAC cost of a model on every point,
-    the estimate's own measure): :func:`_refine` (Huber loss at the threshold on every point
-    within :data:`FINAL_CUTOFF` thresholds, the set re-selected at each iteration) from
-    ``model`` and from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds as its
-    threshold (every camera's points within the largest inconsistency the cameras' consensus
-    accepts between them), the one of the lower MSAC cost; unless the fit of the inliers alone
-    (the points within the threshold, from ``model`` or from that one, the better) lowers the
-    MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances.
+#: the refinement kernel's arrays of no motion prior (:func:`~.prior.prior_arrays`; the
+#: kernel only reads them)
+_NO_PRIOR = prior_arrays(None)
+
+
+def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
+    """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
+    the pool (errors in px through the mountings, time tau, one second per unit, without the
+    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly (a rig frame
+    refines a few times: the checks and the result's object are the call's cost on a few
+    dozen points). Returns copies of the refined ``(R, C, w, t)``."""
+    R0, C0, w0, t0 = model
+    on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
+    out = np.empty(OUT_SIZE)
+    f = np.float64
+    _lm_refine(
+        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
+        np.ascontiguousarray(w0, dtype=f) if rolling else _ZERO3,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _ZERO3,
+        np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
+        np.ascontiguousarray(pool.tau, dtype=f), k, 12 if rolling else 6, cutoff, iterations,
+        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, pool.mountings().views,
+    )  # fmt: skip
+    return (out[OUT_R:OUT_C].reshape(3, 3).copy(), out[OUT_C:OUT_W].copy(),
+            out[OUT_W:OUT_T].copy(), out[OUT_T:OUT_COV].copy())  # fmt: skip
+
+
+def _final(pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior):
+    """The final refinement of ``model`` (``search.cost``: the MSAC cost of a model on every
+    point, the estimate's own measure; ``search.errors``: its errors): :func:`_refine` (Huber
+    loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the set
+    re-selected at each iteration) from ``model`` and from ``model`` first fitted with
+    :data:`CONTRADICTION_GATE` thresholds as its threshold (every camera's points within the
+    largest inconsistency the cameras' consensus accepts between them), the one of the lower
+    MSAC cost; unless the fit of the inliers alone (the points within the threshold, from
+    ``model`` or from that one, the better) lowers the MSAC cost by more than
+    :data:`INLIER_FIT_SIGNIFICANCE` image variances.
 
     RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
     refinement from the best of them stays near that camera's pose when another camera's
@@ -1176,8 +1224,9 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
     alone."""
     out = _refine(pool, None, model, threshold_px, free=free, prior=prior)
-    if prior is not None or np.count_nonzero(np.bincount(pool.cam)) < 2:
+    if prior is not None or np.count_nonzero(search._counts) < 2:
         return out
+    msac = search.cost
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
 
@@ -1189,7 +1238,7 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
         return fit, msac(fit)
 
     tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
-    e = pool.errors(best)
+    e = search.errors(best)
     k = float(threshold_px)
     margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
@@ -1280,6 +1329,24 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
         A = Hinv @ (WJ[on].T @ Jm[on])
         out += A @ mc @ A.T
     return out
+
+
+def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
+    """:func:`~.plausibility.final_check` of the rig's model on the pool's points through
+    their cameras' mountings (``inl``: the inliers), each camera's points the pool's slice of
+    them (stacked by camera: the same points as its selection by camera index)."""
+    check = final_model_check_numpy if pool.numpy else final_model_check
+    Rm = pool.R_mount
+    # (every camera's products at once: the same values as camera by camera, to the bit)
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
+    code, behind = 0, 0
+    X, tau = pool.X, pool.tau
+    for c, s in enumerate(pool.slices):
+        if s.stop == s.start:
+            continue
+        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
+        code, behind = max(code, int(k)), behind + int(n)
+    return code, behind
 
 
 def _one(model):
@@ -1840,6 +1907,11 @@ def _search_batches(r: RansacOptions) -> RansacOptions:
     return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
 
 
+#: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
+#: candidates and the one it returns
+_ERRORS_KEPT = 6
+
+
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1862,26 +1934,27 @@ class _RigSearch(RansacLoop):
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
         self._e = np.zeros(0)
-        self._costed = ((None, None), (None, None))
+        self._costed: list = []
         self.batches = _search_batches(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
         #: more points, whatever the best model (every sample corrected)
         self.spread = spread
-        counts = np.bincount(pool.cam, minlength=len(pool.sizes))
-        self.missed = counts >= 3 if spread and still else None
+        self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+        self.missed = self._counts >= 3 if spread and still else None
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
         e = self.pool.errors(model)
-        self._costed = (self._costed[-1], (model, e))
+        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
         return float(np.minimum(e**2, self.th2).sum())
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
-        last two models :meth:`cost` measured when it is one of them (the same object)."""
+        last :data:`_ERRORS_KEPT` models :meth:`cost` measured when it is one of them (the
+        same object: the final refinement compares several)."""
         for m, e in self._costed:
             if m is model:
                 return e
@@ -1915,9 +1988,8 @@ class _RigSearch(RansacLoop):
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
         if self.still and not self.spread:
-            n = np.bincount(self.pool.cam, minlength=len(self.pool.sizes))
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
-            missed = (n >= 3) & (hit == 0)
+            missed = (self._counts >= 3) & (hit == 0)
             self.missed = missed if missed.any() else None
         if self.subset is not None:
             inl = inl[self.subset]
@@ -2046,7 +2118,7 @@ def _estimate(
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
-        model = _final(pool, model, search.cost, threshold_px, free, prior)
+        model = _final(pool, model, search, threshold_px, free, prior)
     e = search.errors(model)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = e < threshold_px
@@ -2060,9 +2132,7 @@ def _estimate(
     if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
     # (every inlier in front of its camera at its capture time, each camera's own model)
-    code, behind = final_check(
-        R, C, w, t, pool.X, pool.tau, inl, compiled=not pool.numpy, mountings=_mountings(pool)
-    )
+    code, behind = _final_check(pool, R, C, w, t, inl)
     if code == 2:
         return failed(CHEIRALITY, drawn, behind)
     cov, G = (
