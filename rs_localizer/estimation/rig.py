@@ -1200,7 +1200,9 @@ def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float,
             out[OUT_W:OUT_T].copy(), out[OUT_T:OUT_COV].copy())  # fmt: skip
 
 
-def _final(pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior):
+def _final(
+    pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior, first=None
+):
     """The final refinement of ``model`` (``search.cost``: the MSAC cost of a model on every
     point, the estimate's own measure; ``search.errors``: its errors): :func:`_refine` (Huber
     loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the set
@@ -1222,8 +1224,13 @@ def _final(pool: _Pool, model, search: _RigSearch, threshold_px: float, free: in
     points the two differ by a few variances, and the fit over every point near the model,
     the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone."""
-    out = _refine(pool, None, model, threshold_px, free=free, prior=prior)
+    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold)
+    when already computed, or None."""
+    out = (
+        first
+        if first is not None
+        else _refine(pool, None, model, threshold_px, free=free, prior=prior)
+    )
     if prior is not None or np.count_nonzero(search._counts) < 2:
         return out
     msac = search.cost
@@ -1947,7 +1954,7 @@ class _RigSearch(RansacLoop):
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
-        e = self.pool.errors(model)
+        e = self.errors(model)
         self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
         return float(np.minimum(e**2, self.th2).sum())
 
@@ -2109,16 +2116,20 @@ def _estimate(
     steps = (_refit, _refine) if refine else (_refit,)
     if still:  # (the rig solver needs a spread of capture times)
         steps = (_refine,) if refine else ()
+    refined = None  # (the last refinement: (its start, its result))
     for _ in range(LO_ROUNDS):
         for step in steps:
             # (the refinement selects its points itself: the inliers are the refit's alone)
             inl = pool.errors(model) < threshold_px if step is _refit else None
             cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
+            refined = (model, cand) if step is _refine else None
             cost = search.cost(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
-        model = _final(pool, model, search, threshold_px, free, prior)
+        # (a refinement local optimization did not take is the final one's first, as it is)
+        first = refined[1] if refined is not None and refined[0] is model else None
+        model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = e < threshold_px
