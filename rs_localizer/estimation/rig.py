@@ -1051,20 +1051,29 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
     return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
+def _bearings(pool: _Pool) -> np.ndarray:
+    """(N, 3) the pool's normalized points as bearings ``(x, y, 1)``, built once per pool."""
+    b = pool.__dict__.get("_bearing_rows")
+    if b is None:
+        b = np.empty((len(pool.x), 3))
+        b[:, :2] = pool.x
+        b[:, 2] = 1.0
+        pool._bearing_rows = b
+    return b
+
+
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     cam0 = pool.cam[samples[:, 0]]
-    xs = pool.x[samples[:, :3]]
     if pool.numpy:
-        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], xs)
+        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     else:
-        bearings = np.empty(xs.shape[:2] + (3,))
-        bearings[..., :2] = xs
-        bearings[..., 2] = 1.0
-        R_cam, C_cam, own = lambda_twist_batch(bearings, pool.X[samples[:, :3]])
+        R_cam, C_cam, own = lambda_twist_batch(
+            _bearings(pool)[samples[:, :3]], pool.X[samples[:, :3]]
+        )
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
@@ -1732,7 +1741,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
         [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
     )
     out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_sampling"):
+    for cached in ("_mountings", "_kernel_mountings", "_sampling", "_bearing_rows"):
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
@@ -1940,7 +1949,7 @@ class _RigSearch(RansacLoop):
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
-        self._e = np.zeros(0)
+        self._e, self._cost = np.zeros(0), 0.0
         self._costed: list = []
         self.batches = _search_batches(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
@@ -1989,8 +1998,8 @@ class _RigSearch(RansacLoop):
         e = _errors_px(self.pool, *hyp)
         cost = np.minimum(e * e, self.th2).sum(axis=1)
         h = int(np.argmin(cost))
-        self._e = e[h]
-        return float(cost[h]), tuple(a[h] for a in hyp)
+        self._e, self._cost = e[h], float(cost[h])
+        return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
@@ -2001,7 +2010,8 @@ class _RigSearch(RansacLoop):
         if self.subset is not None:
             inl = inl[self.subset]
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
-        return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
+        # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
+        return self._cost, model, float(ratio)
 
 
 def _rig_estimate(
