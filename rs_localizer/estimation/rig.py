@@ -1665,7 +1665,8 @@ def _consensus(
     if not rest:
         return est
     sub = solve(_only(views, a))
-    b = _agreeing(_restored(sub, pool), voters) if sub.success else set()
+    sub = _restored(sub, pool) if sub.success else sub
+    b = _agreeing(sub, voters) if sub.success else set()
     if not b or b & a:
         # the others explain no consistent pose of their own, or one the agreeing cameras
         # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
@@ -1674,7 +1675,7 @@ def _consensus(
         sub = solve(_only(views, set(voters) - b))
         if not sub.success:
             return _outvoted(est, pool, rest)
-    sub = _restored(sub, pool)
+        sub = _restored(sub, pool)
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
