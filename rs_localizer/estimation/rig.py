@@ -1190,9 +1190,9 @@ _NO_PRIOR = prior_arrays(None)
 def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
     """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
     the pool (errors in px through the mountings, time tau, one second per unit, without the
-    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly (a rig frame
-    refines a few times: the checks and the result's object are the call's cost on a few
-    dozen points). Returns copies of the refined ``(R, C, w, t)``."""
+    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly: a rig frame
+    refines several times, and on a few dozen points the wrappers' checks and result object
+    cost about as much as the kernel. Returns copies of the refined ``(R, C, w, t)``."""
     R0, C0, w0, t0 = model
     on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
     out = np.empty(OUT_SIZE)
