@@ -150,15 +150,24 @@ from .numpy_impl import p3p_roots, plausible_models
 from .options import EstimateOptions, InitialModel, RansacOptions
 from .plausibility import (
     collinear_3d,
-    final_check,
+    final_model_check,
+    final_model_check_numpy,
     image_degenerate,
     plausible_motion,
 )
-from .prior import MotionPrior
+from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
+    _ZERO3,
+    OUT_C,
+    OUT_COV,
+    OUT_R,
+    OUT_SIZE,
+    OUT_T,
+    OUT_W,
     KernelMountings,
     Mountings,
+    _lm_refine,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
@@ -576,8 +585,8 @@ def _view_part(c: int, v: RigView, numpy: bool) -> tuple:
 
 def _stacked(counts: Sequence[int]) -> list[slice]:
     """The slices of consecutive blocks of ``counts`` rows each (a pool's cameras)."""
-    ends = np.cumsum([0, *counts])
-    return [slice(int(a), int(b)) for a, b in itertools.pairwise(ends)]
+    ends = itertools.accumulate((int(n) for n in counts), initial=0)
+    return [slice(a, b) for a, b in itertools.pairwise(ends)]
 
 
 class _Pool:
@@ -654,7 +663,15 @@ class _Pool:
 
     def errors(self, model) -> np.ndarray:
         """(N,) errors (px) of one model ``(R, C, w, t)`` (:func:`_errors_px`)."""
-        return _errors_px(self, *_one(model))[0]
+        if self.numpy:
+            return _errors_px(self, *_one(model))[0]
+        R, C, w, t = model
+        f = np.float64
+        return _errors_kernel(
+            np.ascontiguousarray(R, dtype=f)[None], np.ascontiguousarray(C, dtype=f)[None],
+            np.ascontiguousarray(w, dtype=f)[None], np.ascontiguousarray(t, dtype=f)[None],
+            self.X, self.tau, self.cam, self.R_mount, self.c_mount, self.x, self.A,
+        )[0]  # fmt: skip
 
     def per_camera(self, mask: np.ndarray) -> tuple:
         """(N_pool,) bool -> one (N_c,) bool per camera over the input rows."""
@@ -1038,20 +1055,29 @@ def _gp3p_on_rig(pool: _Pool, samples: np.ndarray):
     return R[ok], C[ok], np.array(own, dtype=np.int64)[ok]
 
 
+def _bearings(pool: _Pool) -> np.ndarray:
+    """(N, 3) the pool's normalized points as bearings ``(x, y, 1)``, built once per pool."""
+    b = pool.__dict__.get("_bearing_rows")
+    if b is None:
+        b = np.empty((len(pool.x), 3))
+        b[:, :2] = pool.x
+        b[:, 2] = 1.0
+        pool._bearing_rows = b
+    return b
+
+
 def _p3p_on_rig(pool: _Pool, samples: np.ndarray):
     """P3P (Lambda Twist) on each sample's first 3 points, all of one camera, mapped to the
     rig: ``R = R_c^T R_cam`` (H, 3, 3), ``C = R_c^T (C_cam - c_c)`` (H, 3) and the indices
     (H,) of the samples that gave a solution; None when none did. ``pool.numpy``: OpenCV's P3P
     (:func:`~.numpy_impl.p3p_roots`, every root) instead."""
     cam0 = pool.cam[samples[:, 0]]
-    xs = pool.x[samples[:, :3]]
     if pool.numpy:
-        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], xs)
+        R_cam, C_cam, own = p3p_roots(pool.X[samples[:, :3]], pool.x[samples[:, :3]])
     else:
-        bearings = np.empty(xs.shape[:2] + (3,))
-        bearings[..., :2] = xs
-        bearings[..., 2] = 1.0
-        R_cam, C_cam, own = lambda_twist_batch(bearings, pool.X[samples[:, :3]])
+        R_cam, C_cam, own = lambda_twist_batch(
+            _bearings(pool)[samples[:, :3]], pool.X[samples[:, :3]]
+        )
     if len(own) == 0:
         return None
     RcT = pool.R_mount[cam0[own]].transpose(0, 2, 1)
@@ -1151,21 +1177,54 @@ def _refine(
     k = float(threshold_px)
     cut = None if cutoff_px is None else max(float(cutoff_px), k)
     motion = prior.motion if prior is not None and free == 12 else None
+    if not pool.numpy:
+        cutoff = FINAL_CUTOFF * k if cut is None else float(cut)
+        return _refined(pool, model, k, free == 12, motion, cutoff, int(max_iterations))
     res = frame_refinement(pool, model, k, free == 12, motion, cutoff=cut,
                            max_iterations=max_iterations, covariance=False,
                            tol=RIG_REFINE_TOL)  # fmt: skip
     return res.R.copy(), res.C.copy(), res.w.copy(), res.t.copy()
 
 
-def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
-    """The final refinement of ``model`` (``msac``: the MSAC cost of a model on every point,
-    the estimate's own measure): :func:`_refine` (Huber loss at the threshold on every point
-    within :data:`FINAL_CUTOFF` thresholds, the set re-selected at each iteration) from
-    ``model`` and from ``model`` first fitted with :data:`CONTRADICTION_GATE` thresholds as its
-    threshold (every camera's points within the largest inconsistency the cameras' consensus
-    accepts between them), the one of the lower MSAC cost; unless the fit of the inliers alone
-    (the points within the threshold, from ``model`` or from that one, the better) lowers the
-    MSAC cost by more than :data:`INLIER_FIT_SIGNIFICANCE` image variances.
+#: the refinement kernel's arrays of no motion prior (:func:`~.prior.prior_arrays`; the
+#: kernel only reads them)
+_NO_PRIOR = prior_arrays(None)
+
+
+def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
+    """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
+    the pool (errors in px through the mountings, time tau, one second per unit, without the
+    covariance, stopping at :data:`RIG_REFINE_TOL`), its kernel called directly: a rig frame
+    refines several times, and on a few dozen points the wrappers' checks and result object
+    cost about as much as the kernel. Returns copies of the refined ``(R, C, w, t)``."""
+    R0, C0, w0, t0 = model
+    on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
+    out = np.empty(OUT_SIZE)
+    f = np.float64
+    _lm_refine(
+        np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
+        np.ascontiguousarray(w0, dtype=f) if rolling else _ZERO3,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _ZERO3,
+        np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
+        np.ascontiguousarray(pool.tau, dtype=f), k, 12 if rolling else 6, cutoff, iterations,
+        RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, pool.mountings().views,
+    )  # fmt: skip
+    return (out[OUT_R:OUT_C].reshape(3, 3).copy(), out[OUT_C:OUT_W].copy(),
+            out[OUT_W:OUT_T].copy(), out[OUT_T:OUT_COV].copy())  # fmt: skip
+
+
+def _final(
+    pool: _Pool, model, search: _RigSearch, threshold_px: float, free: int, prior, first=None
+):
+    """The final refinement of ``model`` (``search.cost``: the MSAC cost of a model on every
+    point, the estimate's own measure; ``search.errors``: its errors): :func:`_refine` (Huber
+    loss at the threshold on every point within :data:`FINAL_CUTOFF` thresholds, the set
+    re-selected at each iteration) from ``model`` and from ``model`` first fitted with
+    :data:`CONTRADICTION_GATE` thresholds as its threshold (every camera's points within the
+    largest inconsistency the cameras' consensus accepts between them), the one of the lower
+    MSAC cost; unless the fit of the inliers alone (the points within the threshold, from
+    ``model`` or from that one, the better) lowers the MSAC cost by more than
+    :data:`INLIER_FIT_SIGNIFICANCE` image variances.
 
     RANSAC's models of a rig frame taken at one time are one camera's P3P poses: the
     refinement from the best of them stays near that camera's pose when another camera's
@@ -1178,10 +1237,16 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
     points the two differ by a few variances, and the fit over every point near the model,
     the less noisy, stays. With a gyro (``prior``, maximum a posteriori, whose cost is not the
     MSAC cost) or the points of one camera (a single camera's final refinement): the first
-    alone."""
-    out = _refine(pool, None, model, threshold_px, free=free, prior=prior)
-    if prior is not None or np.count_nonzero(np.bincount(pool.cam)) < 2:
+    alone. ``first``: that first refinement (:func:`_refine` of ``model`` at the threshold)
+    when already computed, or None."""
+    out = (
+        first
+        if first is not None
+        else _refine(pool, None, model, threshold_px, free=free, prior=prior)
+    )
+    if prior is not None or np.count_nonzero(search._counts) < 2:
         return out
+    msac = search.cost
     gate = CONTRADICTION_GATE * threshold_px
     wide = _refine(pool, None, _refine(pool, None, model, gate, free=free), threshold_px, free=free)
 
@@ -1193,7 +1258,7 @@ def _final(pool: _Pool, model, msac, threshold_px: float, free: int, prior):
         return fit, msac(fit)
 
     tight, c_tight = min((inliers_fit(model), inliers_fit(best)), key=lambda fc: fc[1])
-    e = pool.errors(best)
+    e = search.errors(best)
     k = float(threshold_px)
     margin = INLIER_FIT_SIGNIFICANCE[free] * image_variance(e[e < k], k, free, pool.compiled)
     return tight if c_tight < c_best - margin else best
@@ -1284,6 +1349,24 @@ def _mounting_covariance(pool: _Pool, model, e, k, cut, free, Hinv) -> np.ndarra
         A = Hinv @ (WJ[on].T @ Jm[on])
         out += A @ mc @ A.T
     return out
+
+
+def _final_check(pool: _Pool, R, C, w, t, inl: np.ndarray) -> tuple[int, int]:
+    """:func:`~.plausibility.final_check` of the rig's model on the pool's points through
+    their cameras' mountings (``inl``: the inliers), each camera's points the pool's slice of
+    them (stacked by camera: the same points as its selection by camera index)."""
+    check = final_model_check_numpy if pool.numpy else final_model_check
+    Rm = pool.R_mount
+    # (every camera's products at once: the same values as camera by camera, to the bit)
+    RcR, RcC, Rcw, Rct = Rm @ R, Rm @ C + pool.c_mount, Rm @ w, Rm @ t
+    code, behind = 0, 0
+    X, tau = pool.X, pool.tau
+    for c, s in enumerate(pool.slices):
+        if s.stop == s.start:
+            continue
+        k, n = check(RcR[c], RcC[c], Rcw[c], Rct[c], X[s], tau[s], inl[s], np.inf, np.inf)
+        code, behind = max(code, int(k)), behind + int(n)
+    return code, behind
 
 
 def _one(model):
@@ -1586,7 +1669,8 @@ def _consensus(
     if not rest:
         return est
     sub = solve(_only(views, a))
-    b = _agreeing(_restored(sub, pool), voters) if sub.success else set()
+    sub = _restored(sub, pool) if sub.success else sub
+    b = _agreeing(sub, voters) if sub.success else set()
     if not b or b & a:
         # the others explain no consistent pose of their own, or one the agreeing cameras
         # share (cameras with many outliers, not a contradiction): outvoted by the joint fit
@@ -1595,7 +1679,7 @@ def _consensus(
         sub = solve(_only(views, set(voters) - b))
         if not sub.success:
             return _outvoted(est, pool, rest)
-    sub = _restored(sub, pool)
+        sub = _restored(sub, pool)
     choice = 0 if len(a) > len(b) else 1 if len(b) > len(a) else None
     if choice is None:
         choice = _by_prediction(pool, est, sub, prediction)
@@ -1662,7 +1746,7 @@ def _evened(pool: _Pool, voters) -> _Pool:
         [np.tile(np.arange(s.start, s.stop), k) for s, k in zip(pool.slices, copies, strict=True)]
     )
     out = copy.copy(pool)
-    for cached in ("_mountings", "_kernel_mountings", "_sampling"):
+    for cached in ("_mountings", "_kernel_mountings", "_sampling", "_bearing_rows"):
         out.__dict__.pop(cached, None)
     for name in ("x", "X", "uv", "tau", "row", "focal", "A", "cam"):
         setattr(out, name, np.ascontiguousarray(getattr(pool, name)[idx]))
@@ -1844,6 +1928,11 @@ def _search_batches(r: RansacOptions) -> RansacOptions:
     return replace(r, batch_size=max(1, min(int(r.batch_size), int(r.min_iterations))))
 
 
+#: the models whose errors a search keeps (:meth:`_RigSearch.errors`): the final refinement's
+#: candidates and the one it returns
+_ERRORS_KEPT = 6
+
+
 class _RigSearch(RansacLoop):
     """The rig's RANSAC: a :class:`~.ransac.RansacLoop` (the single camera's termination and
     batches) over the rig's minimal samples, its own :class:`~.ransac.RansacEstimator`:
@@ -1865,27 +1954,28 @@ class _RigSearch(RansacLoop):
         self.solver_iterations = r.solver_iterations or RIG_SOLVER_ITERATIONS
         p = options.plausibility
         self.bounds = (float(p.max_angular_velocity), float(p.max_linear_velocity))
-        self._e = np.zeros(0)
-        self._costed = ((None, None), (None, None))
+        self._e, self._cost = np.zeros(0), 0.0
+        self._costed: list = []
         self.batches = _search_batches(r)
         #: (M,) bool, the cameras of 3 or more points of which the best model explains none
         #: (None: none such): the global-shutter samples with points in them are then also
         #: corrected on them (:func:`_hypotheses_still`); ``spread``: every camera of 3 or
         #: more points, whatever the best model (every sample corrected)
         self.spread = spread
-        counts = np.bincount(pool.cam, minlength=len(pool.sizes))
-        self.missed = counts >= 3 if spread and still else None
+        self._counts = np.bincount(pool.cam, minlength=len(pool.sizes))
+        self.missed = self._counts >= 3 if spread and still else None
 
     def cost(self, model) -> float:
         """MSAC cost (px^2) of one model on every point (its errors kept for
         :meth:`errors`)."""
-        e = self.pool.errors(model)
-        self._costed = (self._costed[-1], (model, e))
+        e = self.errors(model)
+        self._costed = [*self._costed[1 - _ERRORS_KEPT :], (model, e)]
         return float(np.minimum(e**2, self.th2).sum())
 
     def errors(self, model) -> np.ndarray:
         """(N,) the reprojection errors (px) of ``model`` on every point: those of one of the
-        last two models :meth:`cost` measured when it is one of them (the same object)."""
+        last :data:`_ERRORS_KEPT` models :meth:`cost` measured when it is one of them (the
+        same object: the final refinement compares several)."""
         for m, e in self._costed:
             if m is model:
                 return e
@@ -1913,20 +2003,20 @@ class _RigSearch(RansacLoop):
         e = _errors_px(self.pool, *hyp)
         cost = np.minimum(e * e, self.th2).sum(axis=1)
         h = int(np.argmin(cost))
-        self._e = e[h]
-        return float(cost[h]), tuple(a[h] for a in hyp)
+        self._e, self._cost = e[h], float(cost[h])
+        return self._cost, tuple(a[h] for a in hyp)
 
     def refine_model(self, loop: RansacLoop, model: tuple) -> tuple[float, tuple, float]:
         inl = self._e < self.threshold_px
         if self.still and not self.spread:
-            n = np.bincount(self.pool.cam, minlength=len(self.pool.sizes))
             hit = np.bincount(self.pool.cam[inl], minlength=len(self.pool.sizes))
-            missed = (n >= 3) & (hit == 0)
+            missed = (self._counts >= 3) & (hit == 0)
             self.missed = missed if missed.any() else None
         if self.subset is not None:
             inl = inl[self.subset]
         ratio = np.count_nonzero(inl) / len(inl)  # (np.mean's, to the bit)
-        return float(np.sum(np.minimum(self._e**2, self.th2))), model, float(ratio)
+        # (the MSAC cost score_models summed over the same row: np.sum's, to the bit)
+        return self._cost, model, float(ratio)
 
 
 def _rig_estimate(
@@ -2097,16 +2187,20 @@ def _estimate(
     steps = (_refit, _refine) if refine else (_refit,)
     if still:  # (the rig solver needs a spread of capture times)
         steps = (_refine,) if refine else ()
+    refined = None  # (the last refinement: (its start, its result))
     for _ in range(LO_ROUNDS):
         for step in steps:
             # (the refinement selects its points itself: the inliers are the refit's alone)
             inl = pool.errors(model) < threshold_px if step is _refit else None
             cand = step(pool, inl, model, threshold_px, free=free, prior=prior)
+            refined = (model, cand) if step is _refine else None
             cost = search.cost(cand)
             if cost <= best_cost:
                 model, best_cost = cand, cost
     if refine:  # the final refinement, the model of the lowest MSAC cost (_final)
-        model = _final(pool, model, search.cost, threshold_px, free, prior)
+        # (a refinement local optimization did not take is the final one's first, as it is)
+        first = refined[1] if refined is not None and refined[0] is model else None
+        model = _final(pool, model, search, threshold_px, free, prior, first)
     e = search.errors(model)
     R, C, w, t = (np.array(a, dtype=float) for a in model)
     inl = e < threshold_px
@@ -2120,9 +2214,7 @@ def _estimate(
     if not (np.isfinite(R).all() and _plausible_motion(pool, C, w, t, search.bounds)):
         return failed(IMPLAUSIBLE_MOTION, drawn)
     # (every inlier in front of its camera at its capture time, each camera's own model)
-    code, behind = final_check(
-        R, C, w, t, pool.X, pool.tau, inl, compiled=not pool.numpy, mountings=_mountings(pool)
-    )
+    code, behind = _final_check(pool, R, C, w, t, inl)
     if code == 2:
         return failed(CHEIRALITY, drawn, behind)
     if options.plausibility.consistent_fit and _inconsistent_fit(
