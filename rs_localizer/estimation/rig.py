@@ -54,9 +54,11 @@ Camera c's own model at its reference line is :func:`camera_model_of_rig`.
   rig's acceleration during the frame (``acceleration_sensitivity``, as a single camera's,
   :mod:`~rs_localizer.estimation.sensitivity`);
 - the last checks before a pose is returned (:data:`RIG_FAILURE_REASONS`): enough inliers, not
-  on one 3D line, plausible motion, and every inlier in front of its camera at its capture
+  on one 3D line, plausible motion, every inlier in front of its camera at its capture
   time (:func:`~rs_localizer.estimation.plausibility.final_check` on each camera's own
-  model).
+  model), and, with ``plausibility.consistent_fit``, a fit a rigid rig can give
+  (``inconsistent_fit``, :func:`_inconsistent_fit`: a single camera's tests, which a mirrored
+  map fails).
 - the cameras' consensus: every camera with enough points must agree with the pose; cameras
   that contradict each other (one side's pose explains none of the other side's points) are
   decided by the number of cameras on each side, a tie by the prediction, never by their
