@@ -160,7 +160,7 @@ from .plausibility import (
 from .prior import MotionPrior, prior_arrays
 from .ransac import RansacLoop, required_iterations, seeded_rng
 from .refine import (
-    _ZERO3,
+    LM_REFINE_KERNEL,
     OUT_C,
     OUT_COV,
     OUT_R,
@@ -169,7 +169,6 @@ from .refine import (
     OUT_W,
     KernelMountings,
     Mountings,
-    _lm_refine,
     exact_jacobian,
     exact_mounting_jacobian,
     huber_weights,
@@ -1193,6 +1192,10 @@ def _refine(
 _NO_PRIOR = prior_arrays(None)
 
 
+#: the velocities a global-shutter refinement starts from (and keeps)
+_NO_VELOCITY = np.zeros(3)
+
+
 def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float, iterations: int):
     """:func:`_refine`'s compiled refinement: :func:`~.refine.refine_rs_pose` of ``model`` on
     the pool (errors in px through the mountings, time tau, one second per unit, without the
@@ -1203,10 +1206,10 @@ def _refined(pool: _Pool, model, k: float, rolling: bool, motion, cutoff: float,
     on, mu, Lam = prior_arrays(motion) if rolling and motion is not None else _NO_PRIOR
     out = np.empty(OUT_SIZE)
     f = np.float64
-    _lm_refine(
+    LM_REFINE_KERNEL(
         np.ascontiguousarray(R0, dtype=f), np.ascontiguousarray(C0, dtype=f),
-        np.ascontiguousarray(w0, dtype=f) if rolling else _ZERO3,
-        np.ascontiguousarray(t0, dtype=f) if rolling else _ZERO3,
+        np.ascontiguousarray(w0, dtype=f) if rolling else _NO_VELOCITY,
+        np.ascontiguousarray(t0, dtype=f) if rolling else _NO_VELOCITY,
         np.ascontiguousarray(pool.X, dtype=f), np.ascontiguousarray(pool.x, dtype=f),
         np.ascontiguousarray(pool.tau, dtype=f), k, 12 if rolling else 6, cutoff, iterations,
         RIG_REFINE_TOL, False, out, on, mu, Lam, 1.0, -1.0, False, pool.mountings().views,
