@@ -2092,15 +2092,15 @@ def _inconsistent_fit(
             continue
         support[s] = True
         X = pool.X[s]
-        flat_frame = planarity(X, compiled=compiled) < PLANAR_TOLERANCE
-        if ic.all() or np.count_nonzero(ic) < 3 or flat_frame:
+        # (the planarity of the camera's points only when its inliers are one plane)
+        if ic.all() or np.count_nonzero(ic) < 3 or planarity(X, ic, compiled) >= PLANAR_TOLERANCE:
             continue
-        if planarity(X, ic, compiled) < PLANAR_TOLERANCE:
+        if planarity(X, compiled=compiled) >= PLANAR_TOLERANCE:
             Rm, cm = pool.R_mount[c], pool.c_mount[c]
             centre = camera_position(Rm @ R, Rm @ C + cm)
             if far_side_fraction(X, ic, centre) > FAR_SIDE_LIMIT:
                 return True
-    n, n_inl = int(np.count_nonzero(support)), int(np.count_nonzero(inl))
+    n, n_inl = int(np.count_nonzero(support)), int(np.count_nonzero(inl[support]))
     if n_inl >= MIRRORED_FIT_FRACTION * n:
         return False
     if planarity(pool.X[support], compiled=compiled) < PLANAR_TOLERANCE:
