@@ -581,8 +581,7 @@ class RigCore(NodeCore):
         warning."""
         if out.estimate is None:
             return
-        n = sum(len(f.points2d) for f in out.frames.values())
-        refused, warn = self._map_fit.update(n, out.estimate)
+        refused, warn = self._map_fit.update(out.num_points, out.estimate)
         with self._acc:
             if refused:
                 self._inputs["rig_frames_failed_with_matches"] += 1

@@ -394,6 +394,11 @@ class RigOutput(LocalizerOutput):
     frames: dict = field(default_factory=dict)
 
     @property
+    def num_points(self) -> int:
+        """The rows given to the estimator, every camera's (:attr:`frames`) together."""
+        return sum(len(f.points2d) for f in self.frames.values())
+
+    @property
     def outvoted(self) -> tuple:
         """The cameras of :attr:`cameras` the estimator's consensus left out
         (:attr:`~rs_localizer.estimation.result.RSPoseEstimate.disagreeing`): on a posed rig

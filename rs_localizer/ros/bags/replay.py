@@ -519,7 +519,7 @@ class ReplayRows:
             "solver": est.solver if est is not None else "",
         }
         if est is not None:
-            row["num_points"] = sum(len(f.points2d) for f in out.frames.values())
+            row["num_points"] = out.num_points
             row["num_inliers"] = est.num_inliers
             row["rmse_px"] = est.rmse_px
         self.rows.append(row)

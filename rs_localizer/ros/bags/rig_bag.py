@@ -459,7 +459,7 @@ def replay_rig(
     fit = MapFitCheck("rig frames")  # (the node's map-fit check, at the end of the video)
     for o in res.outputs:
         if o.estimate is not None:
-            fit.update(sum(len(f.points2d) for f in o.frames.values()), o.estimate)
+            fit.update(o.num_points, o.estimate)
     if fit.doubtful:
         res.notes.append(fit.text())
     return res
