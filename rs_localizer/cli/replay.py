@@ -244,6 +244,7 @@ def run(args: argparse.Namespace) -> int:
     if args.debug_outputs and not args.out:
         raise A.CliError("--debug-outputs writes into the --out bag: give --out DIR")
     if is_rig_bag(bag):
+        _no_camera_options(args)
         return _run_rig(args, bag, params)
     out_bag = A.output_dir(args.out, args.overwrite, "output bag") if args.out else None
     if args.csv:
@@ -357,6 +358,28 @@ def _report(solver, n, solved, failures, summary, out_bag, out_csv, **more) -> d
         "out_bag": str(out_bag) if out_bag else None,
         "csv": str(out_csv) if out_csv else None,
     }
+
+
+#: the options of a single camera's replay that a rig bag has no use for, and why
+_RIG_REFUSED_OPTIONS = (
+    ("solver", "--solver", "the rig estimator solves every camera's points at once, gr6p_1lin"),
+    ("source", "--source", "a rig bag is replayed from each camera's correspondences"),
+    ("landmarks", "--landmarks", "a rig bag is replayed from each camera's correspondences"),
+    ("image_topic", "--image-topic", "each camera's images are <namespace>/<camera>/image_raw"),
+    ("imu_topic", "--imu-topic", "the rig's gyro is <namespace>/imu"),
+)
+
+
+def _no_camera_options(args: argparse.Namespace) -> None:
+    """Refuse a single camera's options given for a rig bag (:data:`_RIG_REFUSED_OPTIONS`),
+    which the rig's replay would otherwise ignore.
+
+    Raises:
+        CliError: one of them given, naming it and what a rig bag takes instead.
+    """
+    for dest, flag, why in _RIG_REFUSED_OPTIONS:
+        if getattr(args, dest, None) is not None:
+            raise A.CliError(f"{flag} does not apply to a rig bag: {why}")
 
 
 def _run_rig(args: argparse.Namespace, bag, params: dict) -> int:

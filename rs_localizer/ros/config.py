@@ -37,6 +37,7 @@ from .params import IMAGE_TRANSPORTS, OPTION_GROUPS, PARAMETERS, ConfigError, op
 
 __all__ = [
     "RIG_RUN_TIME_PARAMETERS",
+    "RIG_UNUSED_PARAMETERS",
     "LocalizerConfig",
     "RigCameraConfig",
     "RigConfig",
@@ -47,6 +48,9 @@ __all__ = [
     "load_maps",
     "rig_change_refused",
     "rig_config",
+    "rig_unused",
+    "rig_unused_text",
+    "rig_used_values",
     "tracker_options",
 ]
 
@@ -393,12 +397,20 @@ class RigConfig:
     """The rig mode's configuration: ``cameras`` (:class:`RigCameraConfig`, in order),
     ``settings`` (:class:`~rs_localizer.tracking.rig.RigSettings`; its ``max_points`` also
     caps each camera's clouds in the node), ``base_frame`` (the rig's
-    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``."""
+    frame: ``base_frame``, or ``base_link`` when empty), ``reference_row``, ``unused`` (the
+    single camera's parameters given a value other than their default, which the rig mode
+    does not use: :func:`rig_unused`)."""
 
     cameras: tuple
     settings: Any
     base_frame: str
     reference_row: float | None
+    unused: tuple = ()
+
+    @property
+    def unused_text(self) -> str | None:
+        """The warning that names :attr:`unused` (:func:`rig_unused_text`), or None."""
+        return rig_unused_text(self.unused)
 
 
 _TOPIC_TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -539,7 +551,79 @@ def rig_config(values: Mapping[str, Any], cameras: Mapping[str, Mapping[str, Any
     except ValueError as e:
         raise ConfigError(f"rig: {e}") from None
     base = str(values["base_frame"]).strip() or "base_link"
-    return RigConfig(tuple(out), settings, base, reference_row)
+    return RigConfig(tuple(out), settings, base, reference_row, rig_unused(values))
+
+
+#: the single camera's parameters that the rig mode does not use, with what the rig takes
+#: in their place: its own estimator (``gr6p_1lin`` on every camera's points at once), each
+#: camera's camera_info (intrinsics), frame id and ``rig.<camera>.mounting``, clouds of
+#: correspondences or its front end's matches (no keypoints and landmarks), and no
+#: republished correspondences
+RIG_UNUSED_PARAMETERS = (
+    ("solver",),
+    ("camera.",),
+    ("camera_frame", "camera_to_base."),
+    ("landmarks_file",),
+    ("republish_correspondences",),
+)
+_RIG_INSTEAD = (
+    "the rig estimator solves every camera's points at once, gr6p_1lin",
+    "each rig camera's intrinsics are those of its camera_info",
+    "each rig camera's pose on the rig is rig.<camera>.mounting, in base_frame",
+    "a rig camera's frames are correspondences clouds or its front end's matches",
+    "the rig node does not republish correspondences",
+)
+
+
+def _rig_unused_group(name: str) -> int | None:
+    """The entry of :data:`RIG_UNUSED_PARAMETERS` that holds parameter ``name``, or None."""
+    return next(
+        (k for k, names in enumerate(RIG_UNUSED_PARAMETERS) if name.startswith(names)), None
+    )
+
+
+def rig_unused(values: Mapping[str, Any]) -> tuple[str, ...]:
+    """The parameters of :data:`RIG_UNUSED_PARAMETERS` whose value in ``values`` (name ->
+    value, e.g. a parameter file shared with single-camera nodes) is not their default: set
+    for a single camera, without effect on a rig. In :data:`~.params.PARAMETERS` order."""
+    return tuple(
+        name
+        for name, par in PARAMETERS.items()
+        if _rig_unused_group(name) is not None
+        and name in values
+        and not _same_value(values[name], par.default)
+    )
+
+
+def rig_used_values(values: Mapping[str, Any]) -> dict:
+    """``values`` (name -> value) with the single camera's parameters that a rig does not use
+    (:func:`rig_unused`) at their defaults: what the rig mode checks as a single camera's
+    configuration (its front end, queue and frames; :func:`build_config`), so that a value
+    only a single camera uses (e.g. an incomplete ``camera.*`` fallback model) neither stops
+    nor changes a rig."""
+    return {**values, **{name: PARAMETERS[name].default for name in rig_unused(values)}}
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    """Parameter values ``a`` and ``b`` equal (lists element-wise, ints as floats)."""
+    if isinstance(a, (list, tuple)) or isinstance(b, (list, tuple)):
+        a, b = list(a or []), list(b or [])
+        return len(a) == len(b) and all(_same_value(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def rig_unused_text(names: Iterable[str]) -> str | None:
+    """A warning naming the single camera's parameters ``names`` that a rig does not use and
+    what it takes instead; None for none."""
+    groups: dict[int, list[str]] = {}
+    for name in names:
+        k = _rig_unused_group(name)
+        if k is not None:
+            groups.setdefault(k, []).append(name)
+    if not groups:
+        return None
+    parts = [f"{', '.join(groups[k])} ({_RIG_INSTEAD[k]})" for k in sorted(groups)]
+    return "a single camera's parameters set but not used in the rig mode: " + "; ".join(parts)
 
 
 #: the parameters a running rig takes (``ros2 param set``; the node's
@@ -586,8 +670,11 @@ def rig_change_refused(names: Iterable[str]) -> str | None:
         if name in RIG_RUN_TIME_PARAMETERS:
             continue
         reason = next((r for prefixes, r in _RIG_RESTART if name.startswith(prefixes)), None)
-        if reason is None:
-            why.append(f"{name} is not used in the rig mode (a single camera's parameter)")
-        else:
+        unused = _rig_unused_group(name)
+        if reason is not None:
             why.append(f"restart the node to change {name}: {reason}")
+        elif unused is not None:
+            why.append(f"{name} is not used in the rig mode: {_RIG_INSTEAD[unused]}")
+        else:
+            why.append(f"{name} is not used in the rig mode")
     return "; ".join(why) or None

@@ -102,6 +102,7 @@ from .config import (
     rig_camera_names,
     rig_change_refused,
     rig_config,
+    rig_used_values,
 )
 from .core import NodeCore
 from .declare import declare_parameters
@@ -410,6 +411,8 @@ class RigCore(NodeCore):
             f"ready: rig of {len(self.config.cameras)} cameras ({'; '.join(timing)}) posed as "
             f"{self.config.base_frame} in {self.map_frame}{images}"
         )
+        if self.config.unused_text:
+            self.get_logger().warning(self.config.unused_text)
 
     # ---------------------------------------------------------------- parameters
     def _has_configuration(self) -> bool:
@@ -420,7 +423,8 @@ class RigCore(NodeCore):
     ) -> tuple[RigConfig, LocalizerConfig]:
         """The rig's configuration of the parameters with ``overrides`` (name -> value of
         :data:`~.params.PARAMETERS`; ``{}``: at configure) and the single camera's of the same
-        values (its front end, and every value checked as for one camera), as
+        values (its front end, and every value it uses checked as for one camera:
+        :func:`.config.rig_used_values`), as
         :func:`.config.rig_config` and :func:`.config.build_config` make them. ``check``: a
         change while the rig runs, refused for the parameters it cannot take without a restart
         (:func:`.config.rig_change_refused`) unless their value stays the same.
@@ -443,7 +447,7 @@ class RigCore(NodeCore):
             n: {k: self.get_parameter(f"rig.{n}.{k}").value for k in RIG_CAMERA_PARAMETERS}
             for n in names
         }
-        return rig_config(values, cams), build_config(values)
+        return rig_config(values, cams), build_config(rig_used_values(values))
 
     def _apply_change(self, built: tuple[RigConfig, LocalizerConfig], overrides: dict) -> None:
         """The rig takes the new settings from its next rig frame on

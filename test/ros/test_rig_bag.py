@@ -153,6 +153,75 @@ def test_replay_refuses_a_camera_without_mounting(tmp_path):
         _run_rig(args, bag, {"rig.cameras": ["front", "left", "back"]})
 
 
+def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_parameters(
+    tmp_path, capsys
+):
+    """A single camera's replay options have no use on a rig bag: each is refused naming what
+    the rig takes instead (rather than ignored); a single camera's parameters set in a
+    parameter file or with -p (e.g. one shared with camera nodes) are named in a warning,
+    the front end too (a rig bag is replayed from its clouds), and the rig frames are posed
+    as without them."""
+    from rs_localizer.cli import main
+
+    bag = tmp_path / "rig"
+    assert main(["make-bag", str(bag), "--rig", "2", "--frames", "4", "--points", "80",
+                 "--quiet"]) == 0  # fmt: skip
+    for option, says in (
+        (["--solver", "p3p"], "--solver does not apply to a rig bag: the rig estimator"),
+        (["--image-topic", "/cam/image_raw"], "<namespace>/<camera>/image_raw"),
+        (["--imu-topic", "/imu"], "the rig's gyro is <namespace>/imu"),
+        (["--source", "image"], "--source does not apply to a rig bag"),
+    ):
+        capsys.readouterr()
+        assert main(["replay", str(bag), "--quiet", *option]) == 2
+        assert says in capsys.readouterr().err, option
+    capsys.readouterr()
+    assert main(["replay", str(bag), "--quiet", "--json"]) == 0
+    plain = json.loads(capsys.readouterr().out)
+    args = ["-p", "solver:=p3p", "-p", "camera.fx:=500.0", "-p", "camera_frame:=cam",
+            "-p", "landmarks_file:=/tmp/none.csv", "-p", "frontend:=aruco"]  # fmt: skip
+    assert main(["replay", str(bag), "--quiet", "--json", *args]) == 0
+    out = capsys.readouterr()
+    warnings = [x for x in out.err.splitlines() if x.startswith("warning: ")]
+    assert warnings == [
+        "warning: a single camera's parameters set but not used in the rig mode: solver (the "
+        "rig estimator solves every camera's points at once, gr6p_1lin); camera.fx (each rig "
+        "camera's intrinsics are those of its camera_info); camera_frame (each rig camera's "
+        "pose on the rig is rig.<camera>.mounting, in base_frame); landmarks_file (a rig "
+        "camera's frames are correspondences clouds or its front end's matches)",
+        "warning: frontend aruco not run: a rig bag is replayed from each camera's "
+        "correspondences clouds (the rig node runs the front end on each camera's image_raw)",
+    ], warnings
+    assert json.loads(out.out)["rot_deg"] == plain["rot_deg"]
+
+
+def test_a_rig_names_the_single_cameras_parameters_it_does_not_use():
+    """Only a single camera's parameters set to another value than their default are named
+    (a list compared element-wise, an int as the float default); every parameter the rig
+    refuses to change as unused has its reason."""
+    from rs_localizer.ros.config import (
+        RIG_UNUSED_PARAMETERS,
+        rig_change_refused,
+        rig_unused,
+        rig_unused_text,
+    )
+    from rs_localizer.ros.params import PARAMETERS
+
+    defaults = {n: p.default for n, p in PARAMETERS.items()}
+    assert rig_unused(defaults) == () and rig_unused_text(()) is None
+    assert rig_unused({**defaults, "camera.d": [0, 0, 0, 0, 0], "camera.fx": 0}) == ()
+    changed = {**defaults, "camera_to_base.rotation": [0.0, 0.0, 0.0, 1.0], "solver": "p3p",
+               "republish_correspondences": True, "max_points": 10}  # fmt: skip
+    assert rig_unused(changed) == ("solver", "camera_to_base.rotation",
+                                   "republish_correspondences")  # fmt: skip
+    text = rig_unused_text(rig_unused(changed))
+    assert text.count("(") == 3 and "max_points" not in text
+    for name in PARAMETERS:
+        if any(name.startswith(names) for names in RIG_UNUSED_PARAMETERS):
+            why = rig_change_refused([name])
+            assert why.startswith(f"{name} is not used in the rig mode: ") and why.count(":") == 1
+
+
 def test_make_bag_rig_with_a_gyro_and_replay_it(tmp_path, capsys):
     """``make-bag --rig 2 --imu-rate 400`` writes the rig's gyro on ``/rig/imu`` with
     ``imu.enabled`` and ``imu.rotation`` in the node's parameters; ``replay`` solves every rig

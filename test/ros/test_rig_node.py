@@ -882,6 +882,27 @@ def test_estimator_parameters_change_while_the_rig_runs(ros_context):
         node.destroy_node()
 
 
+def test_a_rig_node_names_the_single_cameras_parameters_it_was_given(ros_context):
+    """A single camera's parameters set for a rig node (a parameter file shared with camera
+    nodes) are named at start in one warning, with what the rig takes instead; they are not
+    checked as a single camera's either (``camera.fx`` alone, an incomplete fallback model
+    that stops a camera node, does not stop the rig)."""
+    from types import SimpleNamespace
+
+    cams = default_rig(2)
+    frames, _, _ = generate_rig_video(cams, duration=0.05, num_points=60, seed=25)
+    node = _direct_node(ros_context, cams, frames, solver="p3p", **{"camera.fx": 600.0})
+    try:
+        assert node.config.unused == ("solver", "camera.fx")
+        logged = []
+        log = SimpleNamespace(info=lambda text: None, warning=logged.append)
+        node.get_logger = lambda: log
+        node._log_ready()
+        assert logged == [node.config.unused_text] and "solver (the rig estimator" in logged[0]
+    finally:
+        node.destroy_node()
+
+
 def test_a_running_rig_takes_tracking_and_input_changes_and_refuses_the_rest(ros_context):
     """``tracking.enabled``, ``max_points`` and ``queue_size`` reach the rig, its cameras'
     clouds and its queue; a change the rig cannot make while it runs is refused with why,

@@ -405,7 +405,7 @@ def replay_rig(
     from ..camera_input import UnreadFrame, hand_to_rig, rig_camera_inputs
     from ..pipeline import MapFitCheck
 
-    _, _, cfg = rig_bag_config(bag, params_files, params)
+    values, _, cfg = rig_bag_config(bag, params_files, params)
     rig = RigLocalizer(cfg.settings)
     res = RigReplay(cameras=tuple(c.name for c in cfg.cameras),
                     mounts={c.name: c.mount for c in cfg.cameras})  # fmt: skip
@@ -462,6 +462,14 @@ def replay_rig(
             fit.update(o.num_points, o.estimate)
     if fit.doubtful:
         res.notes.append(fit.text())
+    if cfg.unused_text:  # (a parameter file shared with single-camera nodes, as the node says)
+        res.notes.append(cfg.unused_text)
+    kind = str(values.get("frontend", "none")).strip() or "none"
+    if kind != "none":
+        res.notes.append(
+            f"frontend {kind} not run: a rig bag is replayed from each camera's correspondences "
+            "clouds (the rig node runs the front end on each camera's image_raw)"
+        )
     return res
 
 
