@@ -360,11 +360,15 @@ def _report(solver, n, solved, failures, summary, out_bag, out_csv, **more) -> d
     }
 
 
+_RIG_SOURCE = (
+    "a rig bag is replayed from each camera's images through its front end when -p frontend "
+    "is set (-p frontend_map: the bag's markers.yaml), else from its correspondences"
+)
 #: the options of a single camera's replay that a rig bag has no use for, and why
 _RIG_REFUSED_OPTIONS = (
     ("solver", "--solver", "the rig estimator solves every camera's points at once, gr6p_1lin"),
-    ("source", "--source", "a rig bag is replayed from each camera's correspondences"),
-    ("landmarks", "--landmarks", "a rig bag is replayed from each camera's correspondences"),
+    ("source", "--source", _RIG_SOURCE),
+    ("landmarks", "--landmarks", _RIG_SOURCE),
     ("image_topic", "--image-topic", "each camera's images are <namespace>/<camera>/image_raw"),
     ("imu_topic", "--imu-topic", "the rig's gyro is <namespace>/imu"),
 )

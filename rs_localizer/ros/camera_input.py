@@ -18,7 +18,8 @@ module-level ROS import: messages are duck-typed (rclpy or rosbags).
 A rig camera's cloud becomes the rig's frame in one place, :func:`rig_cloud_frame`, for the rig
 node and the reader of a rig bag alike: a :class:`~rs_localizer.tracking.rig.CameraFrame`,
 or an :class:`UnreadFrame` (``bad_input``) that :func:`hand_to_rig` passes to the rig as a
-frame skipped (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`).
+frame skipped (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`); a rig camera's image
+reaches the rig in one place too, :func:`hand_image_to_rig`.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ __all__ = [
     "CameraInput",
     "UnreadFrame",
     "frame_camera",
+    "hand_image_to_rig",
     "hand_to_rig",
     "rig_camera_inputs",
     "rig_cloud_frame",
@@ -305,3 +307,39 @@ def hand_to_rig(rig: RigLocalizer, item: CameraFrame | UnreadFrame) -> list[RigO
     if item.stamp_ns is None:
         return []
     return rig.drop(item.camera_name, item.stamp_ns, item.camera, item.reason)
+
+
+def hand_image_to_rig(
+    rig: RigLocalizer,
+    name: str,
+    inp: CameraInput,
+    msg: Any,
+    stamp: Stamp,
+    camera: CameraModel | None,
+    log: Any,
+    tag: object = None,
+) -> tuple[list[RigOutput], tuple | None]:
+    """Camera ``name``'s image message ``msg`` (``sensor_msgs/Image`` or
+    ``CompressedImage``) to the rig, the rig node's and the rig bag replay's one path:
+    decoded and checked against ``camera``, the model of its checked header stamp ``stamp``
+    (:meth:`CameraInput.decode`); a message rejected there (``bad_image``,
+    ``image_size_mismatch``) is logged (``log.warning(key, text)``) and dropped for its reason
+    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.drop`: the rig does not wait for the camera
+    at that time), any other goes through the camera's front end to the rig
+    (:meth:`~rs_localizer.tracking.rig.RigLocalizer.process_image`), tagged ``tag`` (None:
+    its ``frame_id``, else ``name``).
+
+    Returns:
+        (the rig frames it completed, solved; ``(image (H, W) or (H, W, C) uint8,
+        encoding)`` decoded, or None when rejected).
+    """
+    from .image_codec import ImageRejected
+
+    try:
+        image, encoding = inp.decode(msg, camera)
+    except ImageRejected as e:
+        log.warning(f"image.{name}", f"rig camera {name!r}: image dropped ({e.reason}): {e}")
+        return rig.drop(name, stamp, camera, e.reason), None
+    if tag is None:
+        tag = msg.header.frame_id or name
+    return rig.process_image(name, stamp, image, camera, encoding, tag), (image, encoding)

@@ -90,6 +90,7 @@ from .camera_input import (
     CameraInput,
     UnreadFrame,
     frame_camera,
+    hand_image_to_rig,
     hand_to_rig,
     rig_camera_inputs,
     rig_cloud_frame,
@@ -670,32 +671,23 @@ class RigCore(NodeCore):
     def _take_image(
         self, name: str, msg, stamp: Stamp, camera: CameraModel | None
     ) -> tuple[list, str | None]:
-        """An image: decoded and checked against the camera model of its stamp (``camera``)
-        as by the
-        single-camera node (:meth:`.camera_input.CameraInput.decode`: a message that does
-        not decode or is smaller than the front ends take: ``bad_image``; another size than the
-        camera_info's: ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then
-        the camera's front end and the rig (:meth:`RigLocalizer.process_image`: the front
-        end's rows as a cloud's, the non-finite ones dropped and the rest capped to
-        ``max_points``, counted by the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``)."""
-        from .image_codec import ImageRejected
-
-        inp = self.inputs[name]
+        """An image (:func:`.camera_input.hand_image_to_rig`): decoded and checked against the
+        camera model of its stamp (``camera``) as by the single-camera node
+        (:meth:`.camera_input.CameraInput.decode`: a message that does not decode or is
+        smaller than the front ends take: ``bad_image``; another size than the camera_info's:
+        ``image_size_mismatch``; both counted ``<c>.skipped.<reason>``), then the camera's
+        front end and the rig (:meth:`RigLocalizer.process_image`: the front end's rows as a
+        cloud's, the non-finite ones dropped and the rest capped to ``max_points``, counted by
+        the rig as ``<c>.points_dropped``, ``<c>.capped_clouds``); its decoded image kept for
+        ``debug_image`` while someone watches."""
         self._warn_no_info(name, "images")
-        try:
-            img, enc = inp.decode(msg, camera)
-        except ImageRejected as e:
-            self._log.warning(
-                f"image.{name}", f"rig camera {name!r}: image dropped ({e.reason}): {e}"
-            )
-            outs = self.rig.drop(name, stamp, camera, e.reason)
-        else:
-            viz = self.camera_viz.get(name)
-            if viz is not None and viz.wants("debug_image"):  # (only while someone watches)
-                kept = self._images.setdefault(name, deque(maxlen=4))
-                kept.append((img, enc, stamp))
-            tag = msg.header.frame_id or name
-            outs = self.rig.process_image(name, stamp, img, camera, enc, tag)
+        outs, decoded = hand_image_to_rig(
+            self.rig, name, self.inputs[name], msg, stamp, camera, self._log
+        )
+        viz = self.camera_viz.get(name)
+        if decoded is not None and viz is not None and viz.wants("debug_image"):
+            # (only while someone watches; drawn when the rig frame is published)
+            self._images.setdefault(name, deque(maxlen=4)).append((*decoded, stamp))
         return outs, None
 
     # ---------------------------------------------------------------- outputs

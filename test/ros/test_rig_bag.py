@@ -179,7 +179,7 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
     assert main(["replay", str(bag), "--quiet", "--json"]) == 0
     plain = json.loads(capsys.readouterr().out)
     args = ["-p", "solver:=p3p", "-p", "camera.fx:=500.0", "-p", "camera_frame:=cam",
-            "-p", "landmarks_file:=/tmp/none.csv", "-p", "frontend:=aruco"]  # fmt: skip
+            "-p", "landmarks_file:=/tmp/none.csv"]  # fmt: skip
     assert main(["replay", str(bag), "--quiet", "--json", *args]) == 0
     out = capsys.readouterr()
     warnings = [x for x in out.err.splitlines() if x.startswith("warning: ")]
@@ -189,10 +189,54 @@ def test_replay_of_a_rig_bag_refuses_a_single_cameras_options_and_names_its_para
         "camera's intrinsics are those of its camera_info); camera_frame (each rig camera's "
         "pose on the rig is rig.<camera>.mounting, in base_frame); landmarks_file (a rig "
         "camera's frames are correspondences clouds or its front end's matches)",
-        "warning: frontend aruco not run: a rig bag is replayed from each camera's "
-        "correspondences clouds (the rig node runs the front end on each camera's image_raw)",
     ], warnings
     assert json.loads(out.out)["rot_deg"] == plain["rot_deg"]
+    # a front end needs the cameras' images, which a make-bag rig bag does not have
+    assert main(["replay", str(bag), "--quiet", "-p", "frontend:=aruco"]) == 2
+    assert "the rig bag has no camera images (/rig/front/image_raw" in capsys.readouterr().err
+
+
+def test_replay_of_a_rendered_rig_bag_runs_each_cameras_front_end_on_its_images(tmp_path, capsys):
+    """With a front end, a rig bag's images are replayed as the rig node takes them: each
+    through its camera's front end (the bag's correspondences were made by the same front end
+    on the same images, so the poses are those of the clouds' replay), an image another size
+    than its camera_info's skipped for that reason and counted for its camera, the rig frame
+    posed without it."""
+    from dataclasses import replace
+
+    from rs_localizer.cli import main
+    from rs_localizer.ros.bags.rig_bag import replay_rig
+
+    bag = tmp_path / "rig"
+    assert main(["render-bag", str(bag), "--rig", "2", "--frames", "4", "--supersample", "1",
+                 "--quiet"]) == 0  # fmt: skip
+    params = {"frontend": "aruco", "frontend_map": str(bag / "markers.yaml")}
+    clouds, images = replay_rig(bag), replay_rig(bag, params=params)
+    assert images.solved == clouds.solved == 4 and images.counts == clouds.counts
+    assert [o.cameras for o in images.outputs] == [o.cameras for o in clouds.outputs]
+    for a, b in zip(images.outputs, clouds.outputs, strict=True):
+        assert {n: len(f.points2d) for n, f in a.frames.items()} == {
+            n: len(f.points2d) for n, f in b.frames.items()
+        }
+        assert np.abs(a.estimate.model.C - b.estimate.model.C).max() < 1e-5  # (float32 clouds)
+        assert a.tags == b.tags  # (each camera frame's stamp and frame id)
+    # the back camera's second image cut to 320 px wide: skipped, the rig frame posed alone
+    seen = []
+
+    def cut(topic, msg, t):
+        if topic == "/rig/back/image_raw":
+            seen.append(t)
+            if len(seen) == 2:
+                row = msg.step // msg.width * 320
+                data = np.asarray(msg.data).reshape(msg.height, msg.step)[:, :row].ravel()
+                msg = replace(msg, width=320, step=row, data=data)
+        return [(t, msg)]
+
+    cut_bag = rewrite_bag(bag, tmp_path / "cut", cut)
+    res = replay_rig(cut_bag, params=params)
+    assert res.counts["back"]["skipped.image_size_mismatch"] == 1
+    assert res.counts["back"]["received"] == 4 and res.solved == 4
+    assert sum("back" not in o.cameras for o in res.outputs) == 1
 
 
 def test_a_rig_names_the_single_cameras_parameters_it_does_not_use():

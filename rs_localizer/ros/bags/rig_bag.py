@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +31,7 @@ from ...accuracy import frame_errors, summarize_errors
 from .. import conversions as cv
 from ..config import RigConfig, rig_config
 from ..param_files import read_params_file
-from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, default_values
+from ..params import RIG_CAMERA_PARAMETERS, RIG_PARAMETERS, ConfigError, default_values
 from .bag_io import (
     CAMERA_INFO,
     GT_POSE,
@@ -53,6 +53,7 @@ from .bag_io import (
 )
 
 if TYPE_CHECKING:
+    from ...camera import CameraModel, Stamp
     from ...tracking.localizer import CameraFrame
     from ...tracking.rig import RigSettings
     from ..camera_input import CameraInput, UnreadFrame
@@ -395,14 +396,25 @@ def replay_rig(
     (:func:`~rs_localizer.ros.camera_input.hand_to_rig`): each camera's counts are the rig
     node's on the same messages (taken as they come, none dropped from a full queue).
 
+    With a front end (``frontend`` other than ``none``, its map ``frontend_map``; a
+    ``render-bag --rig`` bag holds its ``markers.yaml``) each camera's images
+    (``<namespace>/<camera>/image_raw``) are replayed instead, through the camera's own front
+    end as the rig node runs it
+    (:func:`~rs_localizer.ros.camera_input.hand_image_to_rig`: decoded and checked against
+    the camera model of its stamp, a rejected one skipped for its reason, the front end's
+    rows as a cloud's).
+
     Raises:
         ~rs_localizer.ros.params.ConfigError: the parameters (e.g. a camera without mounting,
-            no ``rig.cameras``).
+            no ``rig.cameras``, a front end whose map does not load), or a front end for a bag
+            without camera images.
     """
     from dataclasses import replace
 
+    from ...frontends.shared import SHARED_MAPS
     from ...tracking.rig import RigLocalizer
-    from ..camera_input import UnreadFrame, hand_to_rig, rig_camera_inputs
+    from ..camera_input import UnreadFrame, hand_image_to_rig, hand_to_rig, rig_camera_inputs
+    from ..config import build_config, load_maps, rig_used_values
     from ..pipeline import MapFitCheck
 
     values, _, cfg = rig_bag_config(bag, params_files, params)
@@ -414,32 +426,51 @@ def replay_rig(
     def count(name: str, key: str, n: int = 1) -> None:
         own[f"{name}.{key}"] += n
 
-    inputs = rig_camera_inputs(cfg, _QuietLog(), count)
+    log = _QuietLog()
+    inputs = rig_camera_inputs(cfg, log, count)
     ns = str(read_bag_info(bag).get("rig", {}).get("namespace", "/rig")).rstrip("/")
     gyro = _read_rig_gyro(bag, ns) if cfg.settings.imu is not None else []
-    # (frames by their tag: stamp and frame id)
-    recent = {n: deque(maxlen=32) for n in res.cameras}
+    kind = str(values.get("frontend", "none")).strip() or "none"
+    images = kind != "none"
+    if images:  # (each camera's front end on its images, as the rig node runs them)
+        wanted = RigTopics(rig_namespace(bag), res.cameras).of(("image",))
+        if not set(wanted) & set(bag_topics(bag)):
+            raise ConfigError(
+                f"frontend {kind}: the rig bag has no camera images ({', '.join(wanted)}); "
+                "replay it without a front end (frontend: none) to use its correspondences"
+            )
+        single = build_config(rig_used_values(values))
+        for c in cfg.cameras:  # (one map, a front end object per camera)
+            rig.set_frontend(c.name, load_maps(single, owner=res).frontend, kind)
     bar = progress_bar(progress, None, unit=" rig frames")
-    for item in iter_rig_frames(bag, inputs):
-        n = item.camera_name
-        own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
-        own[f"{n}.taken"] += 1
-        if isinstance(item, UnreadFrame):
-            if item.stamp_ns is None:  # (no stamp: skipped by the node alone)
-                own[f"{n}.skipped.{item.reason}"] += 1
+    try:
+        source = rig_messages(bag, inputs, "image") if images else iter_rig_frames(bag, inputs)
+        for item in source:
+            n = item[0] if images else item.camera_name
+            own[f"{n}.received"] += 1  # (as the node: every message, taken at once)
+            own[f"{n}.taken"] += 1
+            stamp = item[2] if images else item.stamp_ns
+            if stamp is None or isinstance(stamp, ValueError):  # (skipped by the node alone)
+                own[f"{n}.skipped.bad_input"] += 1
                 continue
-        else:
-            item = replace(item, tag=(item.stamp_ns, item.tag))
-            recent[n].append(item)
-        while gyro and gyro[-1][0] <= item.stamp_ns + GYRO_AHEAD_NS:  # (its readout's first)
-            rig.add_imu(*gyro.pop())
-        outs = hand_to_rig(rig, item)
-        _note_disagreeing(rig, outs, recent, res.off_deg)
-        res.outputs += outs
-        res.fused += [f for o in outs for f in o.fused]
-        bar.update(len(outs))
+            while gyro and gyro[-1][0] <= stamp + GYRO_AHEAD_NS:  # (its readout's first)
+                rig.add_imu(*gyro.pop())
+            if images:  # (tagged as a cloud's frame: its stamp and frame id)
+                _, msg, _, camera = item
+                tag = (stamp, msg.header.frame_id or n)
+                outs = hand_image_to_rig(rig, n, inputs[n], msg, stamp, camera, log, tag)[0]
+            else:
+                if not isinstance(item, UnreadFrame):
+                    item = replace(item, tag=(stamp, item.tag))
+                outs = hand_to_rig(rig, item)
+            _note_disagreeing(rig, outs, res.off_deg)
+            res.outputs += outs
+            res.fused += [f for o in outs for f in o.fused]
+            bar.update(len(outs))
+    finally:
+        SHARED_MAPS.release(res)
     tail = rig.close()
-    _note_disagreeing(rig, tail, recent, res.off_deg)
+    _note_disagreeing(rig, tail, res.off_deg)
     res.outputs += tail
     res.flushed = rig.flush()
     res.fused += [f for o in tail for f in o.fused] + res.flushed
@@ -464,12 +495,6 @@ def replay_rig(
         res.notes.append(fit.text())
     if cfg.unused_text:  # (a parameter file shared with single-camera nodes, as the node says)
         res.notes.append(cfg.unused_text)
-    kind = str(values.get("frontend", "none")).strip() or "none"
-    if kind != "none":
-        res.notes.append(
-            f"frontend {kind} not run: a rig bag is replayed from each camera's correspondences "
-            "clouds (the rig node runs the front end on each camera's image_raw)"
-        )
     return res
 
 
@@ -535,19 +560,18 @@ class _QuietLog:
         pass
 
 
-def _note_disagreeing(rig, outs: list, recent: dict, off_deg: dict) -> None:
+def _note_disagreeing(rig, outs: list, off_deg: dict) -> None:
     """For each posed rig frame of ``outs``, each of its cameras that disagrees with the others
     (:attr:`~rs_localizer.tracking.rig.RigOutput.outvoted` or ``disagreeing``): how far off it
-    is (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg`, NaN when it cannot be
-    posed alone) appended to ``off_deg[camera]``; ``recent``: camera -> its recent frames,
-    tagged with their stamps."""
+    is (:meth:`~rs_localizer.tracking.rig.RigLocalizer.camera_off_deg` on the camera's frame
+    of the rig frame, NaN when it cannot be posed alone) appended to ``off_deg[camera]``."""
     for o in outs:
         if not o.success:
             continue
         for n in o.cameras:
             if n not in o.outvoted and n not in o.disagreeing:
                 continue
-            frame = next((f for f in recent[n] if f.tag == o.tags.get(n)), None)
+            frame = o.frames.get(n)
             deg = None if frame is None else rig.camera_off_deg(o, frame)
             off_deg.setdefault(n, []).append(float("nan") if deg is None else deg)
 
@@ -703,21 +727,41 @@ def iter_rig_frames(
         pixels (N, 2) px, points (N, 3) m, tagged with its ``frame_id``) or
         :class:`~rs_localizer.ros.camera_input.UnreadFrame`.
     """
-    from ..camera_input import frame_camera, rig_cloud_frame
+    from ..camera_input import rig_cloud_frame
 
-    topics = RigTopics(rig_namespace(bag), tuple(inputs)).of()
+    for n, msg, stamp, camera in rig_messages(bag, inputs, "cloud"):
+        yield rig_cloud_frame(n, inputs[n], msg, stamp, camera)
+
+
+def rig_messages(
+    bag: str | os.PathLike, inputs: Mapping[str, CameraInput], kind: str
+) -> Iterator[tuple[str, Any, Stamp | ValueError, CameraModel | None]]:
+    """Every camera's frame messages of ``kind`` (``cloud``: ``<namespace>/<camera>/
+    correspondences``, ``image``: ``.../image_raw``) of a rig bag in log-time order, each
+    camera's camera_infos given to its input (``inputs``: camera name -> its
+    :class:`~rs_localizer.ros.camera_input.CameraInput`) as they come, as
+    :func:`iter_rig_frames` reads them.
+
+    Yields:
+        ``(camera name, message, its header stamp checked (ns) or the error of that check,
+        the camera model of that stamp or None)``
+        (:func:`~rs_localizer.ros.camera_input.frame_camera`).
+    """
+    from ..camera_input import frame_camera
+
+    topics = RigTopics(rig_namespace(bag), tuple(inputs)).of(("info", kind))
     ts = typestore()
     for topic, msgtype, _, raw in iter_messages(bag, set(topics)):
-        kind, n = topics[topic]
+        k, n = topics[topic]
         msg = ts.deserialize_cdr(raw, msgtype)
-        if kind == "info":
+        if k == "info":
             inputs[n].add_camera_info(msg)
             continue
         try:
             stamp = cv.checked_stamp_ns(msg.header.stamp)
         except ValueError as e:
             stamp = e
-        yield rig_cloud_frame(n, inputs[n], msg, stamp, frame_camera(inputs[n], stamp))
+        yield n, msg, stamp, frame_camera(inputs[n], stamp)
 
 
 def rig_frame_ends(
